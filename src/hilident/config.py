@@ -1,0 +1,290 @@
+"""Typed run configuration, loaded from TOML with every key validated.
+
+Each TOML table maps onto one frozen dataclass below; unknown keys, wrong types
+and out-of-range values raise :class:`~hilident.errors.ConfigError` naming the
+dotted key and the file. The README documents every key; the dataclass field
+comments here are the reference.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from hilident.errors import ConfigError
+
+
+def _spec(default=dataclasses.MISSING, *, gt=None, ge=None, le=None, choices=None, doc=""):
+    """A dataclass field with validation metadata."""
+    meta = {"gt": gt, "ge": ge, "le": le, "choices": choices, "doc": doc}
+    if isinstance(default, (list, dict)):
+        return field(default_factory=lambda d=default: type(d)(d), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+# --- device and run -------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class DeviceConfig:
+    driver: str = _spec("myrio-board", doc="driver name (folder in drivers/) or path to a driver folder")
+    port: str = _spec("emulator", doc='"emulator", a device path, COMx, or a pyserial URL (socket://, rfc2217://)')
+    baudrate: int = _spec(0, ge=0, doc="line rate in baud; 0 uses the driver's default")
+    timeout_s: float = _spec(2.0, gt=0, doc="how long to wait for an answer from the device")
+    driver_paths: list[str] = _spec([], doc="extra folders searched for driver descriptions")
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    sample_rate_hz: float = _spec(1000.0, gt=0, doc="recorded sample rate; must divide the loop rate")
+    seed: int = _spec(1, ge=0, doc="seed of every random excitation")
+    channels: list[str] = _spec([], doc="channels to stream; empty: the driver's default set")
+
+
+@dataclass(frozen=True)
+class LimitsConfig:
+    torque_nm: float = _spec(gt=0, doc="largest torque command allowed; crossing it stops the axis")
+    velocity_mps: float = _spec(gt=0, doc="largest speed allowed")
+    position_min_m: float = _spec(doc="lower end of the allowed position window")
+    position_max_m: float = _spec(doc="upper end of the allowed position window")
+
+
+@dataclass(frozen=True)
+class FrictionTestConfig:
+    enabled: bool = _spec(True)
+    speeds_mps: list[float] = _spec([0.005, 0.01, 0.02, 0.05, 0.1, 0.2], doc="constant test speeds, each run both ways")
+    hold_s: float = _spec(1.0, gt=0, doc="time at each constant speed")
+    settle_s: float = _spec(0.4, ge=0, doc="part of the hold not used for averaging")
+    accel_mps2: float = _spec(2.0, gt=0, doc="acceleration between speeds")
+    model: str = _spec("stribeck", choices=("stribeck", "coulomb_viscous"))
+    velocity_deadband_mps: float = _spec(0.0, ge=0, doc="no friction compensation below this speed")
+
+
+@dataclass(frozen=True)
+class ExcitationConfig:
+    kind: str = _spec("multisine", choices=("sine", "square", "chirp", "noise", "prbs", "multisine", "step"))
+    mode: str = _spec("torque_injection", choices=("torque_injection", "torque"), doc="where the excitation enters")
+    amplitude_nm: float = _spec(1.0, gt=0, doc="peak torque of the excitation (noise: rms)")
+    f_min_hz: float = _spec(1.0, gt=0)
+    f_max_hz: float = _spec(100.0, gt=0)
+    frequency_hz: float = _spec(10.0, gt=0, doc="sine and square")
+    duration_s: float = _spec(20.0, gt=0, doc="length of one identification run")
+    period_s: float = _spec(2.0, gt=0, doc="multisine period (whole periods are played)")
+    chirp_method: str = _spec("logarithmic", choices=("linear", "logarithmic"))
+    register_length: int = _spec(10, ge=2, le=32, doc="PRBS shift-register length")
+    clock_divider: int = _spec(1, ge=1, doc="PRBS samples per bit")
+    fade_s: float = _spec(0.1, ge=0, doc="raised-cosine fade in and out")
+
+
+@dataclass(frozen=True)
+class IdentificationConfig:
+    output: str = _spec("velocity_mps", doc="output channel of the measured frequency response")
+    coherence_threshold: float = _spec(0.8, ge=0, le=1)
+    segment_s: float = _spec(2.0, gt=0, doc="Welch segment length (frequency resolution 1/segment_s)")
+    lowpass_hz: float = _spec(0.0, ge=0, doc="zero-phase low-pass before the FRF; 0 disables")
+    f_min_hz: float = _spec(0.0, ge=0, doc="band searched for resonances; 0: the excitation band")
+    f_max_hz: float = _spec(0.0, ge=0)
+    max_resonances: int = _spec(2, ge=0)
+    min_prominence_db: float = _spec(6.0, ge=0)
+
+
+@dataclass(frozen=True)
+class NotchConfig:
+    enabled: bool = _spec(True)
+    depth_db: float = _spec(30.0, gt=0)
+    width_factor: float = _spec(1.0, gt=0, doc="notch width relative to the resonance's half-power bandwidth")
+    verify: bool = _spec(True, doc="run the excitation again with the notches enabled")
+    min_reduction_db: float = _spec(20.0, ge=0, doc="warn when the verification shows less reduction")
+
+
+# --- emulator -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PlantConfig:
+    model: str = _spec("two_mass", choices=("two_mass", "mass_spring_damper"))
+    m1: float = _spec(40.0, gt=0, doc="two_mass: cart mass, kg")
+    m2: float = _spec(10.0, gt=0, doc="two_mass: load mass, kg")
+    k: float = _spec(1.5e5, gt=0, doc="spring stiffness, N/m")
+    d: float = _spec(40.0, ge=0, doc="two_mass: coupling damping, N*s/m")
+    c: float = _spec(1.0, gt=0, doc="torque-to-force constant, N/(N*m)")
+    m: float = _spec(5.0, gt=0, doc="mass_spring_damper: mass, kg")
+    b: float = _spec(1.0, ge=0, doc="mass_spring_damper: damping, N*s/m")
+
+
+@dataclass(frozen=True)
+class FrictionConfig:
+    model: str = _spec("stribeck", choices=("stribeck", "none"))
+    Fc: float = _spec(1.0, ge=0, doc="Coulomb friction, N*m")
+    Fs: float = _spec(1.5, ge=0, doc="static friction, N*m")
+    Fv: float = _spec(5.0, ge=0, doc="viscous coefficient, N*m/(m/s)^delta_v")
+    vs: float = _spec(0.01, gt=0, doc="Stribeck velocity, m/s")
+    delta_v: float = _spec(1.0, gt=0)
+    delta_s: float = _spec(2.0, gt=0)
+
+
+@dataclass(frozen=True)
+class DriveConfig:
+    kp_pos_per_s: float = _spec(20.0, ge=0, doc="position loop gain, 1/s")
+    kv_nm_per_mps: float = _spec(200.0, ge=0, doc="velocity loop proportional gain")
+    ti_s: float = _spec(0.05, gt=0, doc="velocity loop integral time")
+    velocity_filter_hz: float = _spec(500.0, gt=0, doc="low-pass of the drive's velocity estimate")
+    torque_max_nm: float = _spec(50.0, gt=0, doc="drive torque saturation")
+
+
+@dataclass(frozen=True)
+class SensorsConfig:
+    encoder_resolution_m: float = _spec(1e-6, ge=0)
+    torque_noise_nm: float = _spec(0.02, ge=0, doc="rms noise of the measured torque")
+    laser_range_m: list[float] = _spec([-0.005, 0.005], doc="load deflection window the load sensor sees")
+    laser_noise_m: float = _spec(0.0, ge=0)
+    laser_resolution_m: float = _spec(1.2e-4, ge=0)
+
+
+@dataclass(frozen=True)
+class FaultsConfig:
+    corrupt_frame_rate: float = _spec(0.0, ge=0, le=1, doc="probability that a board->host frame gets a byte flipped")
+    drop_frame_rate: float = _spec(0.0, ge=0, le=1, doc="probability that bytes of a frame are lost on the line")
+    close_after_s: float = _spec(0.0, ge=0, doc="close the line this long after a run starts; 0: never")
+
+
+@dataclass(frozen=True)
+class EmulatorConfig:
+    link: str = _spec("pty", choices=("pty", "pipe"), doc="pseudo-terminal (real serial path) or in-memory pipe")
+    time_scale: float = _spec(1.0, gt=0, le=100, doc="simulated seconds per wall-clock second")
+    seed: int = _spec(1, ge=0, doc="seed of the sensor noise")
+    plant: PlantConfig = _spec(PlantConfig())
+    friction: FrictionConfig = _spec(FrictionConfig())
+    drive: DriveConfig = _spec(DriveConfig())
+    sensors: SensorsConfig = _spec(SensorsConfig())
+    faults: FaultsConfig = _spec(FaultsConfig())
+
+
+@dataclass(frozen=True)
+class Config:
+    device: DeviceConfig = _spec(DeviceConfig())
+    run: RunConfig = _spec(RunConfig())
+    limits: LimitsConfig = _spec(None)
+    friction_test: FrictionTestConfig = _spec(FrictionTestConfig())
+    excitation: ExcitationConfig = _spec(ExcitationConfig())
+    identification: IdentificationConfig = _spec(IdentificationConfig())
+    notch: NotchConfig = _spec(NotchConfig())
+    emulator: EmulatorConfig = _spec(EmulatorConfig())
+    source: str = field(default="", metadata={"internal": True})
+    text: str = field(default="", repr=False, metadata={"internal": True})
+
+    @property
+    def uses_emulator(self) -> bool:
+        return self.device.port == "emulator"
+
+
+# --- loading --------------------------------------------------------------------------------
+
+
+def load_config(path: str | Path) -> Config:
+    """Read and validate a TOML configuration file.
+
+    Raises
+    ------
+    ConfigError
+        The file is missing, is not TOML, or a key is unknown, of the wrong type
+        or out of range; the message names the key and the file.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError("(file)", f"cannot read configuration: {exc.strerror}", str(path)) from None
+    return parse_config(text, source=str(path))
+
+
+def parse_config(text: str, source: str = "<string>") -> Config:
+    """Validate configuration ``text`` (TOML); ``source`` names it in errors."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError("(syntax)", f"not valid TOML: {exc}", source) from None
+    if "limits" not in data:
+        raise ConfigError("limits", "is required: torque_nm, velocity_mps, position_min_m, position_max_m", source)
+    cfg = _build(Config, data, "", source)
+    cfg = dataclasses.replace(cfg, source=source, text=text)
+    _cross_check(cfg)
+    return cfg
+
+
+def _build(cls, table, prefix: str, source: str):
+    if not isinstance(table, dict):
+        raise ConfigError(prefix.rstrip("."), f"must be a table, got {table!r}", source)
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if not f.metadata.get("internal")}
+    unknown = sorted(set(table) - set(fields))
+    if unknown:
+        raise ConfigError(
+            prefix + unknown[0], f"unknown key (known here: {', '.join(sorted(fields))})", source
+        )
+    values = {}
+    for name, f in fields.items():
+        key = prefix + name
+        if name not in table:
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                raise ConfigError(key, "is required", source)
+            continue
+        values[name] = _convert(hints[name], table[name], f.metadata, key, source)
+    return cls(**values)
+
+
+def _convert(hint, value, meta, key: str, source: str):
+    if dataclasses.is_dataclass(hint):
+        return _build(hint, value, key + ".", source)
+    origin = typing.get_origin(hint)
+    if origin is list:
+        (item,) = typing.get_args(hint)
+        if not isinstance(value, list):
+            raise ConfigError(key, f"must be a list, got {value!r}", source)
+        return [_scalar(item, v, meta, f"{key}[{i}]", source) for i, v in enumerate(value)]
+    return _scalar(hint, value, meta, key, source)
+
+
+def _scalar(hint, value, meta, key, source):
+    if hint is float and isinstance(value, int) and not isinstance(value, bool):
+        value = float(value)
+    if hint is not bool and isinstance(value, bool) or not isinstance(value, hint):
+        raise ConfigError(key, f"must be {hint.__name__}, got {value!r}", source)
+    if meta.get("choices") and value not in meta["choices"]:
+        raise ConfigError(key, f"must be one of {', '.join(map(repr, meta['choices']))}, got {value!r}", source)
+    for bound, ok, text in (("gt", lambda v, b: v > b, ">"), ("ge", lambda v, b: v >= b, ">="), ("le", lambda v, b: v <= b, "<=")):
+        b = meta.get(bound)
+        if b is not None and not ok(value, b):
+            raise ConfigError(key, f"must be {text} {b}, got {value!r}", source)
+    return value
+
+
+def _cross_check(cfg: Config) -> None:
+    src = cfg.source
+    lim = cfg.limits
+    if lim.position_min_m >= lim.position_max_m:
+        raise ConfigError("limits.position_min_m", "must be below limits.position_max_m", src)
+    exc = cfg.excitation
+    if exc.f_min_hz >= exc.f_max_hz:
+        raise ConfigError("excitation.f_min_hz", "must be below excitation.f_max_hz", src)
+    if exc.f_max_hz >= cfg.run.sample_rate_hz / 2:
+        raise ConfigError(
+            "excitation.f_max_hz", f"must be below the Nyquist frequency {cfg.run.sample_rate_hz / 2:g} Hz", src
+        )
+    if exc.amplitude_nm > lim.torque_nm:
+        raise ConfigError(
+            "excitation.amplitude_nm", f"{exc.amplitude_nm:g} N*m exceeds limits.torque_nm = {lim.torque_nm:g}", src
+        )
+    if any(v <= 0 for v in cfg.friction_test.speeds_mps):
+        raise ConfigError("friction_test.speeds_mps", "speeds must be positive (each is run both ways)", src)
+    if cfg.friction_test.enabled and max(cfg.friction_test.speeds_mps, default=0) >= lim.velocity_mps:
+        raise ConfigError("friction_test.speeds_mps", f"a speed reaches limits.velocity_mps = {lim.velocity_mps:g}", src)
+    if cfg.friction_test.settle_s >= cfg.friction_test.hold_s:
+        raise ConfigError("friction_test.settle_s", "must be shorter than friction_test.hold_s", src)
+    rng = cfg.emulator.sensors.laser_range_m
+    if len(rng) != 2 or rng[0] >= rng[1]:
+        raise ConfigError("emulator.sensors.laser_range_m", "must be [min, max] with min < max", src)

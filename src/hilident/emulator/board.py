@@ -1,0 +1,338 @@
+"""Firmware of the emulated serial board: protocol state machine around one drive loop.
+
+:class:`BoardFirmware` is what runs on the board, minus the clock and the UART:
+it takes request payloads, answers them, and, asked to advance by some number
+of samples, steps the drive loop, fills sample blocks and watches the safety
+limits. :mod:`hilident.emulator.serial_server` gives it a clock and a line.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hilident.errors import ProtocolError
+from hilident.filters.biquad import Biquad
+from hilident.protocol import serial_board as sb
+
+_MODE_NAMES = {
+    sb.Mode.TORQUE: "torque",
+    sb.Mode.TORQUE_INJECTION: "torque_injection",
+    sb.Mode.VELOCITY: "velocity",
+    sb.Mode.POSITION: "position",
+}
+_FAULTS = {
+    "torque_limit": sb.FaultCode.TORQUE_LIMIT,
+    "velocity_limit": sb.FaultCode.VELOCITY_LIMIT,
+    "position_limit": sb.FaultCode.POSITION_LIMIT,
+}
+
+
+@dataclass
+class BoardCounters:
+    """What the board counts (reported in STATUS)."""
+
+    underruns: int = 0
+    dropped_blocks: int = 0
+    limit_trips: int = 0
+    rx_corrupt: int = 0
+
+
+class BoardFirmware:
+    """Protocol logic of the board.
+
+    Parameters
+    ----------
+    drive : hilident.emulator.drive.DriveLoop
+        The drive loop and plant the board controls.
+    identity : hilident.protocol.serial_board.Identity
+        What the board answers to IDENTIFY; its channel names must be columns of
+        ``drive.CHANNELS``.
+    """
+
+    def __init__(self, drive, identity: sb.Identity):
+        self.drive = drive
+        self.identity = identity
+        columns = list(drive.CHANNELS)
+        try:
+            self._column = [columns.index(c.name) for c in identity.channels]
+        except ValueError as exc:
+            raise ValueError(f"board channel not produced by the drive loop: {exc}") from None
+        self.state = sb.State.IDLE
+        self.fault = sb.FaultCode.NONE
+        self.counters = BoardCounters()
+        self.config: sb.Configure | None = None
+        self._seq = 0
+        capacity = identity.excitation_buffer_samples
+        self._fifo = np.zeros(capacity)
+        self._fifo_written = 0  # absolute index of the next excitation sample expected
+        self._fifo_read = 0  # absolute index of the next excitation sample to play
+        self._run_samples = 0
+        self._produced = 0
+        self._block_index = 0
+        self._pending: list[np.ndarray] = []
+        self._pending_rows = 0
+        self._pending_flags = 0
+        self._in_underrun = False
+        self.outbox: list[bytes] = []  # encoded payloads waiting for the line
+        self.sample_blocks_out = 0
+
+    # --- messages ---------------------------------------------------------------
+
+    def next_seq(self) -> int:
+        self._seq = (self._seq + 1) & 0xFFFF
+        return self._seq
+
+    def send(self, msg) -> None:
+        """Queue a message for the host."""
+        channels = self.config.channels if self.config else ()
+        self.outbox.append(sb.encode(msg, self.next_seq(), sample_channels=channels))
+
+    def receive(self, payload: bytes) -> None:
+        """Handle one request payload from the host (answers go to :attr:`outbox`)."""
+        excitation = (self.config.excitation_format, self.config.excitation_scale) if self.config else (sb.Format.F32, 1.0)
+        try:
+            header, msg = sb.decode(payload, excitation=excitation)
+        except ProtocolError as exc:
+            self.counters.rx_corrupt += 1
+            kind = payload[1] if len(payload) > 1 else 0
+            seq = int.from_bytes(payload[2:4], "little") if len(payload) >= 4 else 0
+            code = sb.ErrorCode.UNKNOWN_TYPE if "unknown message type" in str(exc) else sb.ErrorCode.BAD_LENGTH
+            if "protocol version" in str(exc):
+                code = sb.ErrorCode.BAD_VERSION
+            self.send(sb.Nak(seq, kind, code, str(exc)))
+            return
+        handler = getattr(self, "_on_" + type(msg).__name__.lower(), None)
+        if handler is None:
+            self.send(sb.Nak(header.seq, header.type, sb.ErrorCode.UNKNOWN_TYPE, "not a request"))
+            return
+        error = handler(msg)
+        if error is None:
+            if not isinstance(msg, (sb.Identify, sb.StatusRequest, sb.ReadFilter, sb.Excitation)):
+                self.send(sb.Ack(header.seq, header.type))
+        else:
+            self.send(sb.Nak(header.seq, header.type, error[0], error[1]))
+
+    def _on_identify(self, msg):
+        self.send(self.identity)
+
+    def _on_statusrequest(self, msg):
+        self.send(self.status())
+
+    def status(self) -> sb.Status:
+        c = self.counters
+        return sb.Status(
+            self.state, self.fault, self._fifo_written - self._fifo_read, len(self._fifo),
+            c.underruns, c.dropped_blocks, self._produced, c.limit_trips, c.rx_corrupt,
+        )
+
+    def _on_configure(self, msg: sb.Configure):
+        if self.state == sb.State.RUNNING:
+            return sb.ErrorCode.BAD_STATE, "cannot configure while running"
+        rate = self.identity.loop_rate_hz / max(msg.sample_divider, 1)
+        if msg.sample_divider < 1 or rate > self.identity.max_sample_rate_hz:
+            return sb.ErrorCode.BAD_ARGUMENT, f"sample divider {msg.sample_divider} gives {rate:g} Hz"
+        if not 1 <= msg.block_samples <= 4096:
+            return sb.ErrorCode.BAD_ARGUMENT, f"block of {msg.block_samples} samples"
+        if not msg.channels or any(c.channel >= len(self.identity.channels) for c in msg.channels):
+            return sb.ErrorCode.BAD_ARGUMENT, "channel index out of range"
+        if any(c.format != sb.Format.F32 and not c.scale > 0 for c in msg.channels):
+            return sb.ErrorCode.BAD_ARGUMENT, "integer channel needs a positive scale"
+        self.config = msg
+        if self.state != sb.State.FAULT:
+            self.state = sb.State.CONFIGURED
+        return None
+
+    def _on_limits(self, msg: sb.Limits):
+        if not (msg.torque_nm > 0 and msg.velocity_mps > 0 and msg.position_min_m < msg.position_max_m):
+            return sb.ErrorCode.BAD_ARGUMENT, "limits must be positive and the window non-empty"
+        self.drive.set_limits(msg.torque_nm, msg.velocity_mps, msg.position_min_m, msg.position_max_m)
+        return None
+
+    def _on_start(self, msg: sb.Start):
+        if self.state == sb.State.FAULT:
+            return sb.ErrorCode.FAULT_ACTIVE, f"fault {self.fault.name} active; send CLEAR_FAULT"
+        if self.state != sb.State.CONFIGURED or self.config is None:
+            return sb.ErrorCode.BAD_STATE, f"cannot start in state {self.state.name}"
+        self.drive.set_mode(_MODE_NAMES[self.config.mode])
+        self.drive.enable()
+        self._run_samples = msg.n_samples
+        self._produced = 0
+        self._fifo_read = self._fifo_written = 0
+        self._pending, self._pending_rows, self._pending_flags = [], 0, 0
+        self._in_underrun = False
+        self.state = sb.State.RUNNING
+        return None
+
+    def _on_stop(self, msg):
+        if self.state == sb.State.RUNNING:
+            self._finish(sb.EventCode.STOPPED, "stopped by host")
+        self.drive.disable()
+        return None
+
+    def _on_clearfault(self, msg):
+        if self.state == sb.State.RUNNING:
+            return sb.ErrorCode.BAD_STATE, "running"
+        self.drive.clear_fault()
+        self.fault = sb.FaultCode.NONE
+        self.state = sb.State.CONFIGURED if self.config else sb.State.IDLE
+        return None
+
+    def _on_ping(self, msg):
+        return None
+
+    def _on_excitation(self, msg: sb.Excitation):
+        if self.state != sb.State.RUNNING:
+            return sb.ErrorCode.BAD_STATE, f"excitation while {self.state.name}"
+        if msg.first_index != self._fifo_written:
+            return sb.ErrorCode.BAD_ARGUMENT, f"excitation starts at {msg.first_index}, expected {self._fifo_written}"
+        n = len(msg.values)
+        capacity = len(self._fifo)
+        if self._fifo_written + n - self._fifo_read > capacity:
+            return sb.ErrorCode.BUFFER_OVERFLOW, f"{n} samples do not fit the {capacity}-sample buffer"
+        idx = (self._fifo_written + np.arange(n)) % capacity
+        self._fifo[idx] = msg.values
+        self._fifo_written += n
+        return None
+
+    def _on_writefilter(self, msg: sb.WriteFilter):
+        c = msg.coefficients
+        if not 0 <= c.slot < len(self.drive.filters):
+            return sb.ErrorCode.BAD_ARGUMENT, f"filter slot {c.slot} (board has {len(self.drive.filters)})"
+        # The board stores REAL32 coefficients: what the host reads back is what runs.
+        stored = Biquad(tuple(sb.float32(x) for x in c.b), (1.0, sb.float32(c.a[1]), sb.float32(c.a[2])))
+        if c.enabled and not stored.is_stable():
+            return sb.ErrorCode.BAD_ARGUMENT, f"slot {c.slot}: unstable coefficients refused"
+        self.drive.filters.write(c.slot, stored, c.enabled)
+        return None
+
+    def _on_readfilter(self, msg: sb.ReadFilter):
+        if not 0 <= msg.slot < len(self.drive.filters):
+            return sb.ErrorCode.BAD_ARGUMENT, f"filter slot {msg.slot} (board has {len(self.drive.filters)})"
+        coefficients, enabled = self.drive.filters.read(msg.slot)
+        self.send(sb.FilterCoefficients(msg.slot, enabled, coefficients.b, coefficients.a))
+        return None
+
+    # --- running --------------------------------------------------------------------
+
+    @property
+    def running(self) -> bool:
+        return self.state == sb.State.RUNNING
+
+    @property
+    def sample_rate_hz(self) -> float:
+        return self.identity.loop_rate_hz / self.config.sample_divider
+
+    def advance(self, n_samples: int) -> None:
+        """Play ``n_samples`` excitation samples through the drive and record them."""
+        if not self.running or n_samples <= 0:
+            return
+        if self._run_samples:
+            n_samples = min(n_samples, self._run_samples - self._produced)
+        divider = self.config.sample_divider
+        available = self._fifo_written - self._fifo_read
+        k = min(n_samples, available)
+        values = np.zeros(n_samples)
+        if k:
+            values[:k] = self._fifo[(self._fifo_read + np.arange(k)) % len(self._fifo)]
+            self._fifo_read += k
+        if k < n_samples:
+            # Nothing to play: hold zero excitation (safe) and tell the host.
+            self.counters.underruns += n_samples - k
+            self._pending_flags |= sb.FLAG_UNDERRUN
+            if not self._in_underrun:
+                self.send(sb.Event(sb.EventCode.UNDERRUN, self._produced + k, 0.0, "excitation buffer empty"))
+            self._in_underrun = True
+        elif k:
+            self._in_underrun = False
+        rows = self.drive.run(np.repeat(values, divider))[divider - 1 :: divider]
+        first = self._produced
+        self._produced += n_samples
+        self._append(rows[:, self._selected_columns()])
+        if self.drive.fault:
+            self._trip(first)
+        elif self._run_samples and self._produced >= self._run_samples:
+            self._finish(sb.EventCode.FINISHED, "run complete")
+
+    def idle(self, n_ticks: int) -> None:
+        """Let the physics go on with the drive disabled (the axis coasts to rest)."""
+        if not self.running and n_ticks > 0:
+            self.drive.run(np.zeros(n_ticks))
+
+    def _selected_columns(self) -> list[int]:
+        return [self._column[c.channel] for c in self.config.channels]
+
+    def _append(self, rows: np.ndarray) -> None:
+        self._pending.append(rows)
+        self._pending_rows += len(rows)
+        block = self.config.block_samples
+        while self._pending_rows >= block:
+            data = np.concatenate(self._pending)
+            self._emit(data[:block])
+            rest = data[block:]
+            self._pending = [rest] if len(rest) else []
+            self._pending_rows = len(rest)
+
+    def _emit(self, data: np.ndarray, extra_flags: int = 0) -> None:
+        first = self._produced - self._pending_rows
+        flags = self._pending_flags | extra_flags
+        if self.fault != sb.FaultCode.NONE:
+            flags |= sb.FLAG_FAULT
+        _, clipped = sb.pack_rows(data, self.config.channels)
+        if clipped:
+            flags |= sb.FLAG_CLIPPED
+        self.send(
+            sb.Samples(
+                self._block_index, first, flags, self._fifo_read,
+                self._fifo_written - self._fifo_read, self.counters.underruns, data,
+            )
+        )
+        self._block_index += 1
+        self.sample_blocks_out += 1
+        self._pending_flags = 0
+
+    def _flush_last(self) -> None:
+        data = np.concatenate(self._pending) if self._pending else np.zeros((0, len(self.config.channels)))
+        self._pending, self._pending_rows = [], 0
+        # first sample of the final block is computed before the rows are cleared
+        first = self._produced - len(data)
+        flags = self._pending_flags | sb.FLAG_LAST | (sb.FLAG_FAULT if self.fault != sb.FaultCode.NONE else 0)
+        self.send(
+            sb.Samples(
+                self._block_index, first, flags, self._fifo_read,
+                self._fifo_written - self._fifo_read, self.counters.underruns, data,
+            )
+        )
+        self._block_index += 1
+        self._pending_flags = 0
+
+    def _trip(self, first_sample: int) -> None:
+        self.fault = _FAULTS.get(self.drive.fault, sb.FaultCode.TORQUE_LIMIT)
+        self.counters.limit_trips += 1
+        tick = getattr(self.drive, "fault_tick", None)
+        index = first_sample if tick is None else int(tick) // self.config.sample_divider
+        value = float(getattr(self.drive, "fault_value", 0.0) or 0.0)
+        self.send(sb.Event(sb.EventCode.LIMIT_TRIP, index, value, f"{self.drive.fault}: axis stopped, torque zero"))
+        self._flush_last()
+        self.state = sb.State.FAULT
+        self.drive.disable()
+
+    def _finish(self, code: sb.EventCode, message: str) -> None:
+        self._flush_last()
+        self.send(sb.Event(code, self._produced, 0.0, message))
+        self.drive.disable()
+        self.state = sb.State.CONFIGURED
+
+    def watchdog_expired(self) -> None:
+        """The host went silent while running: stop the axis."""
+        if self.running:
+            self.fault = sb.FaultCode.WATCHDOG
+            self.send(sb.Event(sb.EventCode.WATCHDOG, self._produced, 0.0, "host silent: axis stopped"))
+            self._flush_last()
+            self.drive.disable()
+            self.state = sb.State.FAULT
+
+    def drop_block(self) -> None:
+        """Record that the line could not take a sample block (the TX buffer was full)."""
+        self.counters.dropped_blocks += 1

@@ -1,0 +1,57 @@
+"""Typed errors a user can cause.
+
+The command line turns every :class:`HilidentError` into one line on stderr and a
+non-zero exit code; anything else is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+
+class HilidentError(Exception):
+    """Base class of every error a user, a data file or a device can cause."""
+
+    exit_code = 1
+
+
+class ConfigError(HilidentError):
+    """A configuration value is missing, of the wrong type or out of range.
+
+    Parameters
+    ----------
+    key : str
+        Dotted key of the offending value, e.g. ``"emulator.plant.m1"``.
+    message : str
+        What is wrong and what would be accepted.
+    file : str, optional
+        The configuration file the key was read from.
+    """
+
+    exit_code = 2
+
+    def __init__(self, key: str, message: str, file: str | None = None):
+        self.key = key
+        self.file = file
+        where = f"{file}: " if file else ""
+        super().__init__(f"{where}[{key}] {message}")
+
+
+class DataError(HilidentError):
+    """Input arrays or recordings cannot be used (NaN, wrong length, unexciting, ...)."""
+
+    exit_code = 3
+
+
+class DeviceError(HilidentError):
+    """The device or its link failed; the message names the port, object or register."""
+
+    exit_code = 4
+
+
+class ProtocolError(DeviceError):
+    """A frame or message on the wire violates the protocol."""
+
+
+class LimitTrip(DeviceError):
+    """A configured safety limit (torque, velocity, position) was crossed and the axis stopped."""
+
+    exit_code = 5
