@@ -18,9 +18,9 @@ from pathlib import Path
 from hilident.errors import ConfigError
 
 
-def _spec(default=dataclasses.MISSING, *, gt=None, ge=None, le=None, choices=None, doc=""):
+def _spec(default=dataclasses.MISSING, *, gt=None, ge=None, le=None, lt=None, choices=None, doc=""):
     """A dataclass field with validation metadata."""
-    meta = {"gt": gt, "ge": ge, "le": le, "choices": choices, "doc": doc}
+    meta = {"gt": gt, "ge": ge, "le": le, "lt": lt, "choices": choices, "doc": doc}
     if isinstance(default, (list, dict)):
         return field(default_factory=lambda d=default: type(d)(d), metadata=meta)
     return field(default=default, metadata=meta)
@@ -97,6 +97,7 @@ class NotchConfig:
     enabled: bool = _spec(True)
     depth_db: float = _spec(30.0, gt=0)
     width_factor: float = _spec(1.0, gt=0, doc="notch width relative to the resonance's half-power bandwidth")
+    min_width_ratio: float = _spec(0.15, ge=0, lt=1, doc="smallest notch width as a fraction of its centre frequency")
     verify: bool = _spec(True, doc="run the excitation again with the notches enabled")
     min_reduction_db: float = _spec(20.0, ge=0, doc="warn when the verification shows less reduction")
 
@@ -256,7 +257,7 @@ def _scalar(hint, value, meta, key, source):
         raise ConfigError(key, f"must be {hint.__name__}, got {value!r}", source)
     if meta.get("choices") and value not in meta["choices"]:
         raise ConfigError(key, f"must be one of {', '.join(map(repr, meta['choices']))}, got {value!r}", source)
-    for bound, ok, text in (("gt", lambda v, b: v > b, ">"), ("ge", lambda v, b: v >= b, ">="), ("le", lambda v, b: v <= b, "<=")):
+    for bound, ok, text in (("gt", lambda v, b: v > b, ">"), ("ge", lambda v, b: v >= b, ">="), ("le", lambda v, b: v <= b, "<="), ("lt", lambda v, b: v < b, "<")):
         b = meta.get(bound)
         if b is not None and not ok(value, b):
             raise ConfigError(key, f"must be {text} {b}, got {value!r}", source)

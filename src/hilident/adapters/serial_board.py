@@ -31,6 +31,7 @@ _MODES = {
 }
 _FORMATS = {"f32": sb.Format.F32, "i16": sb.Format.I16, "i32": sb.Format.I32}
 _EXCITATION_CHUNK = 256  # samples per EXCITATION frame
+_KEEPALIVE_S = 0.2  # longest host silence while streaming (the board's watchdog is longer)
 
 
 class SerialBoardAdapter:
@@ -283,14 +284,27 @@ class SerialBoardAdapter:
         expected_block = None
         expected_sample = 0
         done = False
-        last_data = time.monotonic()
-        self._request(sb.Start(n))
+        def send_excitation() -> int:
+            count = 0
+            while sent + count < n and sent + count - consumed + _EXCITATION_CHUNK <= window:
+                chunk = excitation[sent + count : sent + count + _EXCITATION_CHUNK]
+                self._send(sb.Excitation(sent + count, chunk))
+                count += len(chunk)
+            return count
+
         try:
+            sent += send_excitation()  # pre-fill the board's buffer so the run starts without underruns
+            self._request(sb.Start(n))
+            last_data = time.monotonic()
+            last_tx = time.monotonic()
             while not done:
-                while sent < n and sent - consumed + _EXCITATION_CHUNK <= window:
-                    chunk = excitation[sent : sent + _EXCITATION_CHUNK]
-                    self._send(sb.Excitation(sent, chunk))
-                    sent += len(chunk)
+                count = send_excitation()
+                sent += count
+                if count:
+                    last_tx = time.monotonic()
+                elif time.monotonic() - last_tx > _KEEPALIVE_S:
+                    self._send(sb.Ping())  # the board's watchdog stops the axis if the host goes silent
+                    last_tx = time.monotonic()
                 messages = self._read_messages(0.01)
                 now = time.monotonic()
                 if messages:

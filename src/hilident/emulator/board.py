@@ -140,6 +140,7 @@ class BoardFirmware:
         if any(c.format != sb.Format.F32 and not c.scale > 0 for c in msg.channels):
             return sb.ErrorCode.BAD_ARGUMENT, "integer channel needs a positive scale"
         self.config = msg
+        self._fifo_read = self._fifo_written = 0  # a new configuration starts an empty excitation buffer
         if self.state != sb.State.FAULT:
             self.state = sb.State.CONFIGURED
         return None
@@ -159,7 +160,6 @@ class BoardFirmware:
         self.drive.enable()
         self._run_samples = msg.n_samples
         self._produced = 0
-        self._fifo_read = self._fifo_written = 0
         self._pending, self._pending_rows, self._pending_flags = [], 0, 0
         self._in_underrun = False
         self.state = sb.State.RUNNING
@@ -183,7 +183,7 @@ class BoardFirmware:
         return None
 
     def _on_excitation(self, msg: sb.Excitation):
-        if self.state != sb.State.RUNNING:
+        if self.state not in (sb.State.RUNNING, sb.State.CONFIGURED):
             return sb.ErrorCode.BAD_STATE, f"excitation while {self.state.name}"
         if msg.first_index != self._fifo_written:
             return sb.ErrorCode.BAD_ARGUMENT, f"excitation starts at {msg.first_index}, expected {self._fifo_written}"

@@ -1,0 +1,127 @@
+"""Command line: ``hilident run``, ``hilident emulate serial``, ``hilident drivers``.
+
+Thin on purpose: it parses arguments and calls the session, the emulator
+factory or the driver loader. Every :class:`~hilident.errors.HilidentError`
+becomes one line on stderr and a non-zero exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+
+from hilident import __version__
+from hilident.errors import HilidentError
+
+
+def _run(args) -> int:
+    from hilident.config import load_config
+    from hilident.session import Progress, Session
+
+    cfg = load_config(args.config)
+    out = Path(args.out) if args.out else Path("runs") / Path(args.config).stem
+    session = Session(cfg, out, Progress(enabled=not args.quiet))
+    summary = session.run()
+    res = ", ".join(f"{r['frequency_hz']:.2f} Hz (zeta {r['damping_ratio']:.3f})" for r in summary["resonances"])
+    print(f"resonances: {res or 'none found'}")
+    if summary["friction"]:
+        p = summary["friction"]["params"]
+        print(f"friction: Fc {p['Fc']:.3g} N*m, Fs {p['Fs']:.3g} N*m, Fv {p['Fv']:.3g}")
+    red = summary["verification"]["peak_reduction_db"]
+    if red is not None:
+        print(f"verification: resonance peak reduced by {red:.1f} dB")
+    s = summary["stream"]
+    print(f"stream: {s['samples']} samples, {s['lost_blocks']} lost blocks, {s['corrupt_frames']} corrupt frames, "
+          f"{s['underruns']} underruns")
+    for w in summary["warnings"]:
+        print(f"warning: {w}")
+    print(f"wrote {out / 'summary.json'}")
+    return 0
+
+
+def _emulate_serial(args) -> int:
+    from hilident.config import load_config, parse_config
+    from hilident.drivers import find_driver
+    from hilident.emulator.factory import start_serial_board
+
+    minimal = "[limits]\ntorque_nm = 1.0\nvelocity_mps = 1.0\nposition_min_m = -1.0\nposition_max_m = 1.0\n"
+    cfg = load_config(args.config) if args.config else parse_config(minimal, "<defaults>")
+    emu_cfg = cfg.emulator
+    if args.time_scale:
+        from dataclasses import replace
+
+        emu_cfg = replace(emu_cfg, time_scale=args.time_scale)
+    driver = find_driver(args.driver or cfg.device.driver, cfg.device.driver_paths)
+    baud = args.baudrate or cfg.device.baudrate or driver.default_baudrate
+    device = start_serial_board(emu_cfg, driver, baud, link="pty")
+    print(device.port, flush=True)
+    print(f"emulated {driver.name} at {baud} baud; Ctrl-C to stop", file=sys.stderr, flush=True)
+    stop = []
+    signal.signal(signal.SIGTERM, lambda *a: stop.append(1))
+    try:
+        while not stop and device.server.error is None:
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        device.close()
+    if device.server.error is not None:
+        raise device.server.error
+    return 0
+
+
+def _drivers(args) -> int:
+    from hilident.drivers import available_drivers, find_driver, search_path
+
+    for name in available_drivers():
+        d = find_driver(name)
+        print(f"{name}\t{d.transport}\t{d.folder}")
+    if args.verbose:
+        print("searched: " + ", ".join(str(p) for p in search_path()))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="hilident", description="Hardware-in-the-loop excitation, identification and notch tuning.")
+    p.add_argument("--version", action="version", version=f"hilident {__version__}")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser("run", help="run a whole bench session from a config file")
+    run.add_argument("config", help="TOML configuration")
+    run.add_argument("--out", help="output folder (default: runs/<config name>)")
+    run.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    run.set_defaults(func=_run)
+
+    emu = sub.add_parser("emulate", help="run an emulated device standalone")
+    emu_sub = emu.add_subparsers(dest="transport", required=True)
+    ser = emu_sub.add_parser("serial", help="emulated serial board on a pseudo-terminal; prints its device path")
+    ser.add_argument("--config", help="take [emulator] (plant, friction, drive) from this config")
+    ser.add_argument("--driver", help="driver name or folder (default: the config's, or myrio-board)")
+    ser.add_argument("--baudrate", type=int, default=0)
+    ser.add_argument("--time-scale", type=float, default=0.0, help="simulated seconds per second (default 1)")
+    ser.set_defaults(func=_emulate_serial)
+
+    drv = sub.add_parser("drivers", help="list the driver descriptions found")
+    drv.add_argument("-v", "--verbose", action="store_true")
+    drv.set_defaults(func=_drivers)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except HilidentError as exc:
+        print(f"hilident: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("hilident: interrupted; axis stopped", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

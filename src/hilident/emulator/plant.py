@@ -1,0 +1,531 @@
+"""Plant physics of an emulated servo axis.
+
+Two linear plants and one friction law, integrated on a simulated clock:
+
+* :class:`TwoMass` -- the thesis's gantry (eqs. 2.1-2.2): a driven mass ``m1`` (the
+  cart, position ``p1``) coupled by a spring ``k`` and a damper ``d`` to a load mass
+  ``m2`` (position ``p2``). The motor torque ``tau`` acts on ``m1`` as the force
+  ``c * (tau - tau_friction)`` (thesis eq. 3.3)::
+
+      m1 p1'' = c (tau - tau_fr) - k (p1 - p2) - d (p1' - p2')
+      m2 p2'' =                    k (p1 - p2) - d (p2' - p1')
+
+* :class:`MassSpringDamper` -- the lecture's ``m y'' + b y' + k y = F`` with
+  ``F = c * (tau - tau_fr)``.
+
+* :class:`StribeckFriction` -- thesis eq. 2.13 as a torque at the motor, a function of
+  the driven mass's velocity, with stiction (breakaway at ``Fs``) handled by
+  :class:`Plant`.
+
+:class:`Plant` holds the state ``(p1, v1, p2, v2)`` and advances it exactly (matrix
+exponential, zero-order hold on the input) over each substep. :func:`modes` and
+:func:`frf` give the frictionless truth that tests and examples compare against.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+from scipy.linalg import expm
+
+from hilident.errors import ConfigError
+
+__all__ = [
+    "TwoMass",
+    "MassSpringDamper",
+    "StribeckFriction",
+    "Plant",
+    "modes",
+    "frf",
+    "state_matrices",
+]
+
+
+def _check_fields(obj, positive: tuple[str, ...], nonnegative: tuple[str, ...]) -> None:
+    """Coerce every field of a frozen dataclass to float and check its range."""
+    for f in fields(obj):
+        value = getattr(obj, f.name)
+        if isinstance(value, bool):
+            raise ConfigError(f.name, f"must be a number, got {value!r}")
+        try:
+            x = float(value)
+        except (TypeError, ValueError):
+            raise ConfigError(f.name, f"must be a number, got {value!r}") from None
+        if not math.isfinite(x):
+            raise ConfigError(f.name, f"must be finite, got {value!r}")
+        if f.name in positive and not x > 0.0:
+            raise ConfigError(f.name, f"must be > 0, got {value!r}")
+        if f.name in nonnegative and not x >= 0.0:
+            raise ConfigError(f.name, f"must be >= 0, got {value!r}")
+        object.__setattr__(obj, f.name, x)
+
+
+@dataclass(frozen=True)
+class TwoMass:
+    """Two masses coupled by a spring and a damper (thesis eqs. 2.1-2.2).
+
+    Parameters
+    ----------
+    m1 : float
+        Driven mass (cart, motor side), kg.
+    m2 : float
+        Load mass (tool), kg.
+    k : float
+        Coupling stiffness, N/m.
+    d : float
+        Coupling damping, N·s/m.
+    c : float
+        Torque-to-force constant of thesis eq. 3.3, N/(N·m): the force on ``m1``
+        is ``c * (tau - tau_friction)``.
+
+    Examples
+    --------
+    >>> TwoMass(m1=8.0, m2=2.0, k=8e4, d=20.0, c=10.0)  # doctest: +ELLIPSIS
+    TwoMass(m1=8.0, m2=2.0, k=80000.0, d=20.0, c=10.0)
+    """
+
+    m1: float
+    m2: float
+    k: float
+    d: float
+    c: float = 1.0
+
+    def __post_init__(self):
+        _check_fields(self, positive=("m1", "m2", "k", "c"), nonnegative=("d",))
+
+
+@dataclass(frozen=True)
+class MassSpringDamper:
+    """The lecture's single mass ``m y'' + b y' + k y = F`` with ``F = c (tau - tau_fr)``.
+
+    Parameters
+    ----------
+    m : float
+        Mass, kg.
+    b : float
+        Viscous damping to ground, N·s/m.
+    k : float
+        Stiffness to ground, N/m (0 gives a free mass with damping).
+    c : float
+        Torque-to-force constant, N/(N·m).
+    """
+
+    m: float
+    b: float
+    k: float
+    c: float = 1.0
+
+    def __post_init__(self):
+        _check_fields(self, positive=("m", "c"), nonnegative=("b", "k"))
+
+
+@dataclass(frozen=True)
+class StribeckFriction:
+    """Stribeck friction, thesis eq. 2.13, as a torque at the motor.
+
+    ``tau_fr(v) = (Fc + (Fs - Fc) exp(-|v/vs|**delta_s) + Fv |v|**delta_v) sgn(v)``
+
+    where ``v`` is the velocity of the driven mass (m/s). At ``v = 0`` the curve is 0;
+    a stopped mass is held by stiction up to the breakaway torque ``Fs``, which
+    :class:`Plant` applies.
+
+    Parameters
+    ----------
+    Fc : float
+        Coulomb friction torque, N·m.
+    Fs : float
+        Static (breakaway) friction torque, N·m.
+    Fv : float
+        Viscous coefficient, N·m / (m/s)**delta_v.
+    vs : float
+        Stribeck velocity, m/s.
+    delta_v : float
+        Viscous exponent (1 gives linear viscous friction).
+    delta_s : float
+        Stribeck shape exponent.
+
+    Examples
+    --------
+    >>> f = StribeckFriction(Fc=0.5, Fs=0.8, Fv=2.0, vs=0.01)
+    >>> round(float(f(0.1)), 6), round(float(f(-0.1)), 6)
+    (0.7, -0.7)
+    """
+
+    Fc: float
+    Fs: float
+    Fv: float
+    vs: float
+    delta_v: float = 1.0
+    delta_s: float = 2.0
+
+    def __post_init__(self):
+        _check_fields(
+            self,
+            positive=("vs", "delta_v", "delta_s"),
+            nonnegative=("Fc", "Fs", "Fv"),
+        )
+
+    def __call__(self, velocity_mps):
+        """Kinetic friction torque (N·m) at ``velocity_mps``; array in, array out."""
+        v = np.asarray(velocity_mps, dtype=float)
+        a = np.abs(v)
+        mag = (
+            self.Fc
+            + (self.Fs - self.Fc) * np.exp(-((a / self.vs) ** self.delta_s))
+            + self.Fv * a**self.delta_v
+        )
+        return np.sign(v) * mag
+
+    torque = __call__
+
+
+Model = TwoMass | MassSpringDamper
+
+
+def state_matrices(model: Model) -> tuple[np.ndarray, np.ndarray]:
+    """State matrix ``A`` and force input vector ``B`` of the frictionless plant.
+
+    The input is the force on the driven mass, ``F = c * tau``.
+
+    Returns
+    -------
+    A : ndarray, shape (4, 4) for :class:`TwoMass`, (2, 2) for :class:`MassSpringDamper`
+        States ``(p1, v1, p2, v2)`` resp. ``(y, y')`` (thesis eq. 2.6).
+    B : ndarray, shape (4,) or (2,)
+    """
+    if isinstance(model, TwoMass):
+        m1, m2, k, d = model.m1, model.m2, model.k, model.d
+        A = np.array(
+            [
+                [0.0, 1.0, 0.0, 0.0],
+                [-k / m1, -d / m1, k / m1, d / m1],
+                [0.0, 0.0, 0.0, 1.0],
+                [k / m2, d / m2, -k / m2, -d / m2],
+            ]
+        )
+        B = np.array([0.0, 1.0 / m1, 0.0, 0.0])
+        return A, B
+    if isinstance(model, MassSpringDamper):
+        A = np.array([[0.0, 1.0], [-model.k / model.m, -model.b / model.m]])
+        B = np.array([0.0, 1.0 / model.m])
+        return A, B
+    raise TypeError(f"unknown plant model {type(model).__name__}")
+
+
+def _flexible_matrix(model: Model) -> np.ndarray | None:
+    """State matrix of the plant with the rigid-body motion removed (None if none left).
+
+    For the two-mass plant this is the relative motion ``e = p1 - p2`` with the reduced
+    mass ``mu = m1 m2 / (m1 + m2)``: its eigenvalues are exactly the non-zero
+    eigenvalues of the full 4x4 state matrix, which has a double zero eigenvalue for
+    the free rigid-body motion. Computing them this way avoids the poor conditioning
+    of that defective zero eigenvalue.
+    """
+    if isinstance(model, TwoMass):
+        mu = model.m1 * model.m2 / (model.m1 + model.m2)
+        return np.array([[0.0, 1.0], [-model.k / mu, -model.d / mu]])
+    if isinstance(model, MassSpringDamper):
+        if model.k == 0.0:
+            return None
+        return state_matrices(model)[0]
+    raise TypeError(f"unknown plant model {type(model).__name__}")
+
+
+def modes(model: Model) -> list[tuple[float, float]]:
+    """Vibration modes of the frictionless plant.
+
+    Parameters
+    ----------
+    model : TwoMass or MassSpringDamper
+
+    Returns
+    -------
+    list of (frequency_hz, damping_ratio)
+        ``frequency_hz`` is the undamped natural frequency ``|lambda| / (2 pi)`` of an
+        eigenvalue pair ``lambda`` of the state matrix, ``damping_ratio`` is
+        ``-Re(lambda) / |lambda|`` (for an overdamped pair of real eigenvalues
+        ``l1, l2``: ``sqrt(l1 l2)`` and ``-(l1 + l2) / (2 sqrt(l1 l2))``). Rigid-body
+        (zero) eigenvalues are excluded; a free mass with damping has no mode.
+        A free vibration oscillates at ``frequency_hz * sqrt(1 - damping_ratio**2)``.
+
+    Examples
+    --------
+    >>> import math
+    >>> f, z = modes(TwoMass(m1=1.0, m2=1.0, k=2.0, d=0.0))[0]
+    >>> round(f * 2 * math.pi, 9), z
+    (2.0, 0.0)
+    """
+    A = _flexible_matrix(model)
+    if A is None:
+        return []
+    lam = np.linalg.eigvals(A)
+    omega = math.sqrt(max(float(np.real(lam[0] * lam[1])), 0.0))
+    if omega == 0.0:
+        return []
+    zeta = -float(np.real(lam[0] + lam[1])) / (2.0 * omega) + 0.0  # no -0.0
+    return [(omega / (2.0 * math.pi), zeta)]
+
+
+_OUTPUTS = ("velocity", "position", "load_position")
+
+
+def frf(model: Model, frequency_hz, output: str = "velocity") -> np.ndarray:
+    """Analytic frequency response of the frictionless plant from motor torque.
+
+    Parameters
+    ----------
+    model : TwoMass or MassSpringDamper
+    frequency_hz : array_like
+        Frequencies, Hz. The two-mass plant (and a mass-spring-damper with ``k = 0``)
+        has a rigid-body pole at 0 Hz, where the response is infinite.
+    output : {"velocity", "position", "load_position"}
+        ``"velocity"`` is ``v1`` in (m/s)/(N·m), ``"position"`` is ``p1`` in m/(N·m),
+        ``"load_position"`` is ``p2`` in m/(N·m) (equal to ``p1`` for a
+        mass-spring-damper).
+
+    Returns
+    -------
+    ndarray of complex
+    """
+    if output not in _OUTPUTS:
+        raise ValueError(f"output must be one of {_OUTPUTS}, got {output!r}")
+    s = 2j * np.pi * np.asarray(frequency_hz, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if isinstance(model, TwoMass):
+            m1, m2, k, d = model.m1, model.m2, model.k, model.d
+            den = s * s * (m1 * m2 * s * s + (m1 + m2) * (d * s + k))
+            if output == "load_position":
+                h = (d * s + k) / den
+            else:
+                h = (m2 * s * s + d * s + k) / den
+        elif isinstance(model, MassSpringDamper):
+            h = 1.0 / (model.m * s * s + model.b * s + model.k)
+        else:
+            raise TypeError(f"unknown plant model {type(model).__name__}")
+        if output == "velocity":
+            h = s * h
+    return model.c * h
+
+
+# Substep coefficient caches are keyed by dt; more distinct dts than this is a caller
+# sweeping dt, and the cache starts over rather than growing without bound.
+_CACHE_LIMIT = 64
+
+
+class Plant:
+    """A plant with optional Stribeck friction and stiction, stepped on a simulated clock.
+
+    Parameters
+    ----------
+    model : TwoMass or MassSpringDamper
+    friction : StribeckFriction, optional
+        Friction torque acting against the driven mass's motion; frictionless if None.
+    max_substep_s : float
+        Longest integration substep, s. :meth:`step` splits ``dt_s`` into equal
+        substeps no longer than this.
+
+    Attributes
+    ----------
+    p1, v1 : float
+        Position (m) and velocity (m/s) of the driven mass.
+    p2, v2 : float
+        Position and velocity of the load mass. For a :class:`MassSpringDamper` the
+        single mass is the load too: ``p2``/``v2`` mirror ``p1``/``v1`` exactly.
+
+    Notes
+    -----
+    The linear part is integrated exactly per substep, ``x+ = Phi x + Gamma u`` with
+    ``Phi = expm(A h)``, ``Gamma = int_0^h expm(A s) B ds`` and the force
+    ``u = c (tau - tau_fr)`` held over the substep (torque and friction are both
+    held). Friction is Karnopp-style:
+
+    * a stopped driven mass (``v1 == 0.0``) stays exactly stopped while the net
+      non-friction force on it, ``c tau - k (p1 - p2) + d v2`` (``c tau - k p1`` for
+      a mass-spring-damper), has magnitude ``<= c Fs``; the load mass meanwhile keeps
+      moving, integrated exactly with ``p1`` fixed;
+    * above ``c Fs`` it breaks away against a friction of ``Fs``;
+    * a moving mass whose velocity would reach or cross zero within a substep stops
+      at ``v1 = 0.0`` if the net non-friction force at the end of the substep is
+      within breakaway, so it never chatters around zero. The stop position is the
+      end of that substep (error of order ``h**2`` times the deceleration).
+
+    Examples
+    --------
+    >>> p = Plant(TwoMass(m1=8.0, m2=2.0, k=8e4, d=20.0, c=10.0))
+    >>> p.step(1.0, 1e-3)     # 1 N·m for 1 ms: 20 substeps of 50 us
+    >>> p.v1 > 0.0
+    True
+    """
+
+    def __init__(self, model: Model, friction: StribeckFriction | None = None,
+                 max_substep_s: float = 1.0 / 20000.0):
+        if not isinstance(model, (TwoMass, MassSpringDamper)):
+            raise TypeError(f"model must be TwoMass or MassSpringDamper, got {type(model).__name__}")
+        if friction is not None and not isinstance(friction, StribeckFriction):
+            raise TypeError(f"friction must be StribeckFriction or None, got {type(friction).__name__}")
+        try:
+            h = float(max_substep_s)
+        except (TypeError, ValueError):
+            raise ConfigError("max_substep_s", f"must be a number, got {max_substep_s!r}") from None
+        if not (math.isfinite(h) and h > 0.0):
+            raise ConfigError("max_substep_s", f"must be > 0 and finite, got {max_substep_s!r}")
+        self.model = model
+        self.friction = friction
+        self.max_substep_s = h
+        self._c = model.c
+        self._mirror = isinstance(model, MassSpringDamper)
+        if self._mirror:
+            # Embed y'' into the 4-state form with a frozen second half; p2/v2 are
+            # copied from p1/v1 after every step.
+            a, b = state_matrices(model)
+            A = np.zeros((4, 4))
+            A[:2, :2] = a
+            B = np.zeros(4)
+            B[:2] = b
+            mass = model.m
+        else:
+            A, B = state_matrices(model)
+            mass = model.m1
+        self._A = A
+        self._B = B
+        # Net non-friction force on the stopped driven mass (v1 = 0), besides c*tau:
+        # f0*p1 + f2*p2 + f3*v2.
+        self._fstick = (mass * A[1, 0], mass * A[1, 2], mass * A[1, 3])
+        if friction is None:
+            self._fr = None
+        else:
+            self._fr = (friction.Fc, friction.Fs, friction.Fv, friction.vs,
+                        friction.delta_v, friction.delta_s)
+        self._cache: dict[float, tuple] = {}
+        self.reset()
+
+    # -- state ------------------------------------------------------------------
+
+    def reset(self, p1: float = 0.0, v1: float = 0.0, p2: float | None = None,
+              v2: float | None = None) -> None:
+        """Set the state; ``p2``/``v2`` default to ``p1``/``v1`` (undeflected coupling).
+
+        For a mass-spring-damper ``p2``/``v2`` are ignored and mirror ``p1``/``v1``.
+        """
+        vals = [p1, v1, p1 if p2 is None else p2, v1 if v2 is None else v2]
+        for name, v in zip(("p1", "v1", "p2", "v2"), vals):
+            if not math.isfinite(float(v)):
+                raise ValueError(f"{name} must be finite, got {v!r}")
+        self.p1, self.v1, self.p2, self.v2 = (float(v) for v in vals)
+        if self._mirror:
+            self.p2, self.v2 = self.p1, self.v1
+
+    @property
+    def state(self) -> tuple[float, float, float, float]:
+        """The exact state ``(p1, v1, p2, v2)``."""
+        return (self.p1, self.v1, self.p2, self.v2)
+
+    @property
+    def stuck(self) -> bool:
+        """True while friction holds the driven mass (``v1 == 0.0`` with friction)."""
+        return self._fr is not None and self.v1 == 0.0
+
+    # -- integration -------------------------------------------------------------
+
+    def substeps(self, dt_s: float) -> int:
+        """Number of equal substeps :meth:`step` uses for ``dt_s``."""
+        return max(1, math.ceil(dt_s / self.max_substep_s * (1.0 - 1e-12)))
+
+    def _prepare(self, dt_s: float) -> tuple:
+        if not (math.isfinite(dt_s) and dt_s > 0.0):
+            raise ValueError(f"dt_s must be > 0 and finite, got {dt_s!r}")
+        n = self.substeps(dt_s)
+        h = dt_s / n
+        M = np.zeros((5, 5))
+        M[:4, :4] = self._A
+        M[:4, 4] = self._B
+        E = expm(M * h)
+        phi = E[:4, :4]
+        gam = E[:4, 4]
+        # Load mass alone with p1 fixed and v1 = 0: [p2, v2]' = A22 [p2, v2] + A[2:, 0] p1.
+        M3 = np.zeros((3, 3))
+        M3[:2, :2] = self._A[2:, 2:]
+        M3[:2, 2] = self._A[2:, 0]
+        E3 = expm(M3 * h)
+        entry = (n, *phi.ravel().tolist(), *gam.tolist(), *E3[:2, :2].ravel().tolist(),
+                 *E3[:2, 2].tolist())
+        if len(self._cache) >= _CACHE_LIMIT:
+            self._cache.clear()
+        self._cache[dt_s] = entry
+        return entry
+
+    def step(self, torque_nm: float, dt_s: float) -> None:
+        """Advance the state by ``dt_s`` seconds with ``torque_nm`` held constant.
+
+        Parameters
+        ----------
+        torque_nm : float
+            Motor torque, N·m.
+        dt_s : float
+            Time to advance, s; split into ``substeps(dt_s)`` equal substeps.
+        """
+        entry = self._cache.get(dt_s)
+        if entry is None:
+            entry = self._prepare(dt_s)
+        (n,
+         a00, a01, a02, a03, a10, a11, a12, a13,
+         a20, a21, a22, a23, a30, a31, a32, a33,
+         g0, g1, g2, g3, s00, s01, s10, s11, sg0, sg1) = entry
+        tau = float(torque_nm)
+        if not math.isfinite(tau):
+            raise ValueError(f"torque_nm must be finite, got {torque_nm!r}")
+        ctau = self._c * tau
+        p1, v1, p2, v2 = self.p1, self.v1, self.p2, self.v2
+        fr = self._fr
+        if fr is None:
+            for _ in range(n):
+                p1, v1, p2, v2 = (
+                    a00 * p1 + a01 * v1 + a02 * p2 + a03 * v2 + g0 * ctau,
+                    a10 * p1 + a11 * v1 + a12 * p2 + a13 * v2 + g1 * ctau,
+                    a20 * p1 + a21 * v1 + a22 * p2 + a23 * v2 + g2 * ctau,
+                    a30 * p1 + a31 * v1 + a32 * p2 + a33 * v2 + g3 * ctau,
+                )
+        else:
+            exp = math.exp
+            c = self._c
+            Fc, Fs, Fv, vs, dv, ds = fr
+            cdF = c * (Fs - Fc)
+            cFc = c * Fc
+            cFv = c * Fv
+            inv_vs = 1.0 / vs
+            brk = c * Fs
+            f0, f2, f3 = self._fstick
+            for _ in range(n):
+                if v1 == 0.0:
+                    fnet = ctau + f0 * p1 + f2 * p2 + f3 * v2
+                    if -brk <= fnet <= brk:
+                        # Stuck: friction balances fnet exactly; only the load moves.
+                        p2, v2 = (s00 * p2 + s01 * v2 + sg0 * p1,
+                                  s10 * p2 + s11 * v2 + sg1 * p1)
+                        continue
+                    u = ctau - brk if fnet > 0.0 else ctau + brk
+                    q1 = a00 * p1 + a02 * p2 + a03 * v2 + g0 * u
+                    w1 = a10 * p1 + a12 * p2 + a13 * v2 + g1 * u
+                    q2 = a20 * p1 + a22 * p2 + a23 * v2 + g2 * u
+                    w2 = a30 * p1 + a32 * p2 + a33 * v2 + g3 * u
+                    p1, v1, p2, v2 = q1, w1, q2, w2
+                    continue
+                a = -v1 if v1 < 0.0 else v1
+                ffr = cFc + cdF * exp(-((a * inv_vs) ** ds)) + cFv * a**dv
+                u = ctau - ffr if v1 > 0.0 else ctau + ffr
+                q1 = a00 * p1 + a01 * v1 + a02 * p2 + a03 * v2 + g0 * u
+                w1 = a10 * p1 + a11 * v1 + a12 * p2 + a13 * v2 + g1 * u
+                q2 = a20 * p1 + a21 * v1 + a22 * p2 + a23 * v2 + g2 * u
+                w2 = a30 * p1 + a31 * v1 + a32 * p2 + a33 * v2 + g3 * u
+                if w1 == 0.0 or (w1 > 0.0) != (v1 > 0.0):
+                    # Velocity reached zero inside the substep: stop unless the
+                    # driving force is beyond breakaway.
+                    fnet = ctau + f0 * q1 + f2 * q2 + f3 * w2
+                    if -brk <= fnet <= brk:
+                        w1 = 0.0
+                p1, v1, p2, v2 = q1, w1, q2, w2
+        if self._mirror:
+            p2, v2 = p1, v1
+        self.p1, self.v1, self.p2, self.v2 = p1, v1, p2, v2

@@ -1,0 +1,213 @@
+"""Checking and conditioning of recorded signals before identification.
+
+Everything here works on plain arrays along the last axis and returns new
+float64 arrays. Filters are zero-phase (forward-backward) Butterworth sections,
+so they shift neither peaks nor phase of what is identified afterwards.
+
+Example
+-------
+>>> import numpy as np
+>>> from hilident.ident.preprocess import check_signals, detrend, lowpass
+>>> t = np.arange(2000) / 1000.0
+>>> sig = check_signals({"torque": np.sin(2 * np.pi * 5 * t) + 0.1 * t})
+>>> smooth = lowpass(detrend(sig["torque"]), cutoff_hz=50.0, sample_rate_hz=1000.0)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy import signal
+
+from hilident.errors import ConfigError, DataError
+
+__all__ = [
+    "check_signals",
+    "detrend",
+    "lowpass",
+    "highpass",
+    "bandpass",
+    "central_difference",
+]
+
+
+def check_signals(
+    names_and_arrays: Mapping[str, ArrayLike], min_samples: int = 16
+) -> dict[str, np.ndarray]:
+    """Validate recorded signals and return them as 1-D float64 arrays.
+
+    Parameters
+    ----------
+    names_and_arrays : mapping of str to array_like
+        Signal name (used in error messages) to samples, e.g.
+        ``{"torque": tau, "velocity": v}``.
+    min_samples : int
+        Fewest samples accepted per signal.
+
+    Returns
+    -------
+    dict of str to ndarray
+        Same keys, 1-D float64 copies.
+
+    Raises
+    ------
+    DataError
+        When a signal is not 1-D, has fewer than `min_samples` samples, contains
+        NaN or inf, is constant (zero variance: nothing to identify from), or
+        when the signals do not all have the same length. The message names the
+        signal.
+    """
+    if not names_and_arrays:
+        raise DataError("no signals given")
+    out: dict[str, np.ndarray] = {}
+    first_name = None
+    for name, values in names_and_arrays.items():
+        try:
+            x = np.array(values, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise DataError(f"signal {name!r} is not numeric: {exc}") from None
+        if x.ndim != 1:
+            raise DataError(f"signal {name!r} must be 1-D, got shape {x.shape}")
+        if x.size < min_samples:
+            raise DataError(
+                f"signal {name!r} has {x.size} samples, at least {min_samples} needed"
+            )
+        bad = ~np.isfinite(x)
+        if bad.any():
+            idx = int(np.flatnonzero(bad)[0])
+            raise DataError(
+                f"signal {name!r} has {int(bad.sum())} non-finite samples "
+                f"(first at index {idx}: {x[idx]})"
+            )
+        if first_name is None:
+            first_name = name
+        elif x.size != out[first_name].size:
+            raise DataError(
+                f"signal {name!r} has {x.size} samples but {first_name!r} has "
+                f"{out[first_name].size}"
+            )
+        if np.ptp(x) == 0.0:
+            raise DataError(f"signal {name!r} is constant ({x[0]}); it carries no information")
+        out[name] = x
+    return out
+
+
+def detrend(x: ArrayLike, kind: str = "linear") -> np.ndarray:
+    """Remove the mean (``"constant"``) or a least-squares line (``"linear"``).
+
+    Parameters
+    ----------
+    x : array_like
+        Samples along the last axis.
+    kind : {"linear", "constant"}
+        What to remove.
+    """
+    if kind not in ("linear", "constant"):
+        raise ConfigError("kind", f"must be 'linear' or 'constant', got {kind!r}")
+    return signal.detrend(np.asarray(x, dtype=np.float64), axis=-1, type=kind)
+
+
+def _check_rate(sample_rate_hz: float) -> float:
+    fs = float(sample_rate_hz)
+    if not np.isfinite(fs) or fs <= 0.0:
+        raise ConfigError("sample_rate_hz", f"must be a positive number, got {sample_rate_hz!r}")
+    return fs
+
+
+def _check_cutoff(key: str, cutoff_hz: float, fs: float) -> float:
+    fc = float(cutoff_hz)
+    nyquist = fs / 2.0
+    if not np.isfinite(fc) or fc <= 0.0 or fc >= nyquist:
+        raise ConfigError(
+            key, f"must lie in (0, {nyquist:g}) Hz (below Nyquist), got {cutoff_hz!r}"
+        )
+    return fc
+
+
+def _check_order(order: int) -> int:
+    if int(order) != order or order < 1:
+        raise ConfigError("order", f"must be a positive integer, got {order!r}")
+    return int(order)
+
+
+def _zero_phase(sos: np.ndarray, x: ArrayLike) -> np.ndarray:
+    x = np.asarray(x, dtype=np.float64)
+    try:
+        return signal.sosfiltfilt(sos, x, axis=-1)
+    except ValueError as exc:  # too short for the edge padding
+        raise DataError(f"signal of {x.shape[-1]} samples is too short to filter: {exc}") from None
+
+
+def lowpass(
+    x: ArrayLike, cutoff_hz: float, sample_rate_hz: float, order: int = 4
+) -> np.ndarray:
+    """Zero-phase Butterworth low-pass.
+
+    The filter runs forward and backward (``sosfiltfilt``), so the phase is zero
+    and the magnitude is the square of an `order` Butterworth: -6 dB at
+    `cutoff_hz`.
+
+    Parameters
+    ----------
+    x : array_like
+        Samples along the last axis.
+    cutoff_hz : float
+        Corner frequency, Hz; must be below Nyquist.
+    sample_rate_hz : float
+        Sample rate, Hz.
+    order : int
+        Butterworth order of one pass.
+    """
+    fs = _check_rate(sample_rate_hz)
+    fc = _check_cutoff("cutoff_hz", cutoff_hz, fs)
+    sos = signal.butter(_check_order(order), fc, btype="lowpass", fs=fs, output="sos")
+    return _zero_phase(sos, x)
+
+
+def highpass(
+    x: ArrayLike, cutoff_hz: float, sample_rate_hz: float, order: int = 4
+) -> np.ndarray:
+    """Zero-phase Butterworth high-pass; see :func:`lowpass` for the arguments."""
+    fs = _check_rate(sample_rate_hz)
+    fc = _check_cutoff("cutoff_hz", cutoff_hz, fs)
+    sos = signal.butter(_check_order(order), fc, btype="highpass", fs=fs, output="sos")
+    return _zero_phase(sos, x)
+
+
+def bandpass(
+    x: ArrayLike,
+    low_hz: float,
+    high_hz: float,
+    sample_rate_hz: float,
+    order: int = 4,
+) -> np.ndarray:
+    """Zero-phase Butterworth band-pass between `low_hz` and `high_hz` (Hz)."""
+    fs = _check_rate(sample_rate_hz)
+    lo = _check_cutoff("low_hz", low_hz, fs)
+    hi = _check_cutoff("high_hz", high_hz, fs)
+    if lo >= hi:
+        raise ConfigError("low_hz", f"must be below high_hz={high_hz!r}, got {low_hz!r}")
+    sos = signal.butter(_check_order(order), (lo, hi), btype="bandpass", fs=fs, output="sos")
+    return _zero_phase(sos, x)
+
+
+def central_difference(x: ArrayLike, sample_rate_hz: float) -> np.ndarray:
+    """Time derivative by central differences (one-sided at the two ends).
+
+    Second-order accurate inside, ``(x[n+1] - x[n-1]) * fs / 2``; e.g. motor
+    velocity in m/s from position in m.
+
+    Parameters
+    ----------
+    x : array_like
+        Samples along the last axis, at least 2.
+    sample_rate_hz : float
+        Sample rate, Hz.
+    """
+    fs = _check_rate(sample_rate_hz)
+    x = np.asarray(x, dtype=np.float64)
+    if x.shape[-1] < 2:
+        raise DataError(f"need at least 2 samples to differentiate, got {x.shape[-1]}")
+    return np.gradient(x, 1.0 / fs, axis=-1)

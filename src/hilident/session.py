@@ -1,0 +1,426 @@
+"""One bench run: connect, guard limits, excite, record, identify, upload, verify, report.
+
+The order of a session is fixed and every step leaves something on disk:
+
+1. connect to the device (or start the embedded emulator) and load the limits;
+2. friction test: constant-velocity legs both ways -> ``friction.h5``;
+3. identification run with the configured excitation -> ``identification.h5``;
+4. friction removal, FRF with coherence, resonances, notch design;
+5. upload the notches, read them back, compare, enable;
+6. verification run with the same excitation -> ``verification.h5``;
+7. ``summary.json`` and plots.
+
+The axis is stopped (zero torque) on every exit path, and every recording is
+closed with its status, so an aborted run leaves readable files.
+"""
+
+from __future__ import annotations
+
+import platform
+import sys
+import time
+from dataclasses import dataclass, field
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from hilident import __version__, pipeline, report
+from hilident.adapters.base import StreamStats, adapter_class, contiguous_runs
+from hilident.config import Config
+from hilident.drivers import DriverDescription, find_driver
+from hilident.errors import ConfigError, DeviceError, HilidentError
+from hilident.recording import RunWriter, read_run
+from hilident.signals import generators as sig
+
+
+def package_versions() -> dict[str, str]:
+    """Versions of hilident and the libraries that shape its numbers."""
+    out = {"hilident": __version__, "python": platform.python_version()}
+    for name in ("numpy", "scipy", "h5py", "pyserial", "cobs", "matplotlib"):
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            pass
+    return out
+
+
+class Progress:
+    """Progress of long steps on stderr: one updating line on a terminal, a few lines otherwise."""
+
+    def __init__(self, stream=None, enabled: bool = True):
+        self.stream = stream or sys.stderr
+        self.enabled = enabled
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self._last = -1
+
+    def step(self, message: str) -> None:
+        if self.enabled:
+            print(message, file=self.stream, flush=True)
+
+    def fraction(self, label: str) -> Callable[[float], None]:
+        self._last = -1
+
+        def update(x: float) -> None:
+            pct = int(100 * x)
+            every = 1 if self.tty else 25
+            if not self.enabled or pct // every == self._last // every:
+                return
+            self._last = pct
+            if self.tty:
+                end = "\n" if pct >= 100 else ""
+                print(f"\r  {label}: {pct:3d} %", end=end, file=self.stream, flush=True)
+            else:
+                print(f"  {label}: {pct:3d} %", file=self.stream, flush=True)
+
+        return update
+
+
+@dataclass
+class Excitation:
+    """An excitation as played: samples, and the period when it is periodic."""
+
+    samples: np.ndarray
+    period_samples: int | None
+    band_hz: tuple[float, float]
+    excited_bins: np.ndarray | None = None
+
+
+def build_excitation(cfg: Config) -> Excitation:
+    """The identification excitation described by ``[excitation]`` (torque, N·m)."""
+    e = cfg.excitation
+    fs = cfg.run.sample_rate_hz
+    period = None
+    band = (e.f_min_hz, e.f_max_hz)
+    if e.kind == "multisine":
+        n_periods = max(1, int(round(e.duration_s / e.period_s)))
+        ms = sig.multisine(e.amplitude_nm, e.f_min_hz, e.f_max_hz, e.period_s, n_periods, fs)
+        # one extra period first: it lets the transient die out and is skipped by the analysis
+        x = np.concatenate([ms.samples[: ms.period_samples], ms.samples])
+        return Excitation(x, ms.period_samples, band, ms.excited_bins)
+    if e.kind == "sine":
+        x, band = sig.sine(e.amplitude_nm, e.frequency_hz, e.duration_s, fs), (e.frequency_hz, e.frequency_hz)
+    elif e.kind == "square":
+        x, band = sig.square(e.amplitude_nm, e.frequency_hz, e.duration_s, fs), (e.frequency_hz, e.f_max_hz)
+    elif e.kind == "chirp":
+        x = sig.chirp(e.amplitude_nm, e.f_min_hz, e.f_max_hz, e.duration_s, fs, method=e.chirp_method)
+    elif e.kind == "noise":
+        x = sig.band_limited_noise(
+            e.amplitude_nm / 3.0, e.f_min_hz, e.f_max_hz, e.duration_s, fs, seed=cfg.run.seed, peak=e.amplitude_nm
+        )
+    elif e.kind == "prbs":
+        length = (2**e.register_length - 1) * e.clock_divider
+        periods = max(1, int(round(e.duration_s * fs / length)))
+        x = sig.prbs(e.amplitude_nm, e.register_length, e.clock_divider, fs, periods=periods + 1)
+        period = length if periods >= 3 else None
+        band = (fs / length, min(e.f_max_hz, fs / (2 * e.clock_divider)))
+    else:  # step
+        x = sig.step(e.amplitude_nm, e.duration_s, fs, step_time_s=0.1 * e.duration_s)
+    if e.fade_s and period is None:
+        x = sig.fade(x, e.fade_s, fs)
+    return Excitation(np.asarray(x, dtype=float), period, band)
+
+
+@dataclass
+class Experiment:
+    """Samples of one recorded experiment (read back from its file)."""
+
+    name: str
+    path: Path
+    samples: dict[str, np.ndarray]
+    stats: StreamStats
+    events: list[dict] = field(default_factory=list)
+
+
+class Session:
+    """A whole bench run as described by one configuration.
+
+    Parameters
+    ----------
+    cfg : Config
+    out_dir : path
+        Where recordings, plots and ``summary.json`` go.
+    progress : Progress, optional
+    """
+
+    def __init__(self, cfg: Config, out_dir: str | Path, progress: Progress | None = None):
+        self.cfg = cfg
+        self.out = Path(out_dir)
+        self.progress = progress or Progress(enabled=False)
+        self.driver: DriverDescription | None = None
+        self.adapter = None
+        self.emulator = None
+        self.totals = StreamStats()
+        self.warnings: list[str] = []
+        self.summary: dict = {}
+
+    # --- connection -----------------------------------------------------------------------
+
+    def connect(self) -> None:
+        """Open the device, or start the embedded emulator and open it like a device."""
+        cfg = self.cfg
+        self.driver = find_driver(cfg.device.driver, cfg.device.driver_paths)
+        baud = cfg.device.baudrate or self.driver.default_baudrate
+        cls = adapter_class(self.driver.transport)
+        if cfg.uses_emulator:
+            from hilident.emulator.factory import start_serial_board
+
+            self.emulator = start_serial_board(cfg.emulator, self.driver, baud)
+            if self.emulator.link is not None:  # in-memory pipe
+                self.adapter = cls(self.emulator.link, self.driver, self.emulator.port, cfg.device.timeout_s)
+                self.adapter.identify()
+            else:
+                self.adapter = cls.open(self.emulator.port, self.driver, baud, cfg.device.timeout_s)
+            self.progress.step(f"emulated {self.driver.name} on {self.emulator.port} ({baud} baud)")
+        else:
+            self.adapter = cls.open(cfg.device.port, self.driver, baud, cfg.device.timeout_s)
+            self.progress.step(f"connected to {self.adapter.identity.name} on {cfg.device.port}")
+        lim = cfg.limits
+        self.adapter.set_limits(lim.torque_nm, lim.velocity_mps, lim.position_min_m, lim.position_max_m)
+
+    def close(self) -> None:
+        """Stop the axis and release the device (and the emulator)."""
+        try:
+            if self.adapter is not None:
+                self.adapter.close()
+        finally:
+            if self.emulator is not None:
+                self.emulator.close()
+
+    # --- experiments ----------------------------------------------------------------------
+
+    def record(self, name: str, mode: str, excitation: np.ndarray, tables: dict | None = None) -> Experiment:
+        """Stream ``excitation`` in ``mode`` and record every sample to ``<out>/<name>.h5``."""
+        cfg = self.cfg
+        ad = self.adapter
+        channels = ad.configure(cfg.run.sample_rate_hz, mode, cfg.run.channels or None)
+        fs = ad.sample_rate_hz
+        path = self.out / f"{name}.h5"
+        attrs = {
+            "experiment": name, "mode": mode, "seed": cfg.run.seed, "config_toml": cfg.text,
+            "config_source": cfg.source, "driver_toml": self.driver.text, "versions": package_versions(),
+            "device": {"name": ad.identity.name, "firmware": ad.identity.firmware, "port": ad.port},
+        }
+        writer = RunWriter(path, ["sample_index", "time_s", *channels], ["1", "s", *ad.channel_units], fs, attrs,
+                           overwrite=True)
+        for table, columns in (tables or {}).items():
+            writer.write_table(table, **columns)
+
+        def sink(index: np.ndarray, rows: np.ndarray) -> None:
+            writer.append(np.column_stack([index, index / fs, rows]))
+
+        self.progress.step(f"{name}: {len(excitation) / fs:.1f} s of {mode} excitation")
+        result = None
+        status, reason = "aborted", ""
+        try:
+            result = ad.stream(excitation, sink, self.progress.fraction(name))
+            status = "complete"
+        except (HilidentError, KeyboardInterrupt) as exc:
+            reason = str(exc) or type(exc).__name__
+            raise
+        finally:
+            result = result or ad.last_result
+            if result is not None:
+                for ev in result.events:
+                    extra = {k: v for k, v in ev.items() if k not in ("kind", "message", "sample_index")}
+                    writer.event(ev["kind"], ev["message"], int(ev["sample_index"]), **extra)
+                self.totals = self.totals.add(result.stats)
+                writer.set_attrs(stream=result.stats.__dict__)
+            writer.close(status, reason)
+        run = read_run(path)
+        stats = result.stats
+        if stats.lost_blocks or stats.corrupt_frames or stats.underruns:
+            self.warnings.append(
+                f"{name}: {stats.lost_blocks} sample blocks ({stats.lost_samples} samples) lost, "
+                f"{stats.corrupt_frames} corrupt frames, {stats.underruns} underrun samples"
+            )
+        return Experiment(name, path, run.samples, stats, result.events)
+
+    # --- the whole run ----------------------------------------------------------------------
+
+    def run(self) -> dict:
+        """Run every step; returns the summary (also written to ``summary.json``)."""
+        self.out.mkdir(parents=True, exist_ok=True)
+        started = time.monotonic()
+        try:
+            self.connect()
+            friction = self._friction_step()
+            excitation = build_excitation(self.cfg)
+            ident = self.record("identification", self.cfg.excitation.mode, excitation.samples)
+            plant = self._identify(ident, excitation, friction)
+            designs, upload = self._notch_step(plant)
+            verification = self._verify(excitation, plant, designs)
+        finally:
+            self.close()
+        self.summary = self._summary(friction, plant, designs, upload, verification, time.monotonic() - started)
+        report.write_summary(self.out / "summary.json", self.summary)
+        self._plots(friction, plant, designs, verification)
+        return self.summary
+
+    def _friction_step(self):
+        ft = self.cfg.friction_test
+        if not ft.enabled:
+            return None
+        fs = self.cfg.run.sample_rate_hz
+        profile = sig.velocity_ramps(ft.speeds_mps, ft.hold_s, ft.accel_mps2, fs, ft.settle_s)
+        lim = self.cfg.limits
+        if profile.max_excursion_m >= (lim.position_max_m - lim.position_min_m) / 2:
+            raise ConfigError(
+                "friction_test.speeds_mps",
+                f"the friction test travels up to {profile.max_excursion_m:.3f} m, more than half the "
+                f"position window [{lim.position_min_m:g}, {lim.position_max_m:g}] m (shorter hold_s or lower speeds)",
+                self.cfg.source,
+            )
+        windows = np.array(profile.windows, dtype=float).reshape(-1, 3)
+        exp = self.record("friction", "velocity", profile.setpoint_mps,
+                          tables={"windows": {"start": windows[:, 0], "stop": windows[:, 1], "velocity_mps": windows[:, 2]}})
+        rows = self._rows_by_index(exp)
+        kept = [(rows[a], rows[b - 1] + 1, v) for a, b, v in profile.windows if a in rows and b - 1 in rows
+                and rows[b - 1] - rows[a] == b - 1 - a]
+        self.progress.step("friction: fitting the friction curve")
+        return pipeline.identify_friction(exp.samples["velocity_mps"], exp.samples["torque_nm"], kept, ft.model)
+
+    @staticmethod
+    def _rows_by_index(exp: Experiment) -> dict[int, int]:
+        idx = exp.samples["sample_index"].astype(np.int64)
+        return {int(i): r for r, i in enumerate(idx)}
+
+    def _longest_contiguous(self, exp: Experiment) -> dict[str, np.ndarray]:
+        runs = contiguous_runs(exp.samples["sample_index"].astype(np.int64))
+        a, b = max(runs, key=lambda r: r[1] - r[0])
+        if len(runs) > 1:
+            self.warnings.append(
+                f"{exp.name}: recording has {len(runs) - 1} gap(s); the longest contiguous stretch "
+                f"({b - a} samples) was analysed"
+            )
+        return {k: v[a:b] for k, v in exp.samples.items()}
+
+    def _identify(self, exp: Experiment, excitation: Excitation, friction):
+        cfg = self.cfg
+        s = self._longest_contiguous(exp)
+        period = excitation.period_samples
+        if period:
+            # drop the lead-in period, and start on a period boundary
+            start = (-int(s["sample_index"][0])) % period + period
+            s = {k: v[start:] for k, v in s.items()}
+        ic = cfg.identification
+        band = (ic.f_min_hz or excitation.band_hz[0], ic.f_max_hz or excitation.band_hz[1])
+        self.progress.step("identification: frequency response and resonances")
+        result = pipeline.identify_plant(
+            s["excitation"], s["torque_nm"], s[ic.output], s["velocity_mps"], cfg.run.sample_rate_hz, ic, band,
+            friction=friction.fit.params if friction else None,
+            velocity_deadband_mps=cfg.friction_test.velocity_deadband_mps,
+            period_samples=period, excited_bins=excitation.excited_bins,
+        )
+        self.warnings += result.warnings
+        return result
+
+    def _notch_step(self, plant):
+        nc = self.cfg.notch
+        upload = {"written": False, "verified_readback": False, "slots": []}
+        if not nc.enabled or not plant.resonances:
+            return [], upload
+        ad = self.adapter
+        slots = list(range(ad.identity.filter_slots))
+        designs = pipeline.design_notches(plant.resonances, nc, ad.identity.loop_rate_hz, slots)
+        self.progress.step(f"notch: uploading {len(designs)} filter(s)")
+        matches = []
+        for d in designs:
+            # write disabled, read back, compare; enable only what came back as written
+            ad.write_filter(d.slot, d.biquad, enabled=False)
+            stored, _ = ad.read_filter(d.slot)
+            expected = ad.stored_form(d.biquad)
+            same = stored == expected
+            if same:
+                ad.write_filter(d.slot, d.biquad, enabled=True)
+                stored, enabled = ad.read_filter(d.slot)
+                same = enabled and stored == expected
+            else:
+                self.warnings.append(f"filter slot {d.slot}: read-back {stored} differs from written {expected}")
+            matches.append(same)
+            upload["slots"].append({"slot": d.slot, "readback_b": list(stored.b), "readback_a": list(stored.a),
+                                    "matches": same})
+        upload["written"] = True
+        upload["verified_readback"] = all(matches)
+        return designs, upload
+
+    def _verify(self, excitation: Excitation, plant, designs):
+        if not designs or not self.cfg.notch.verify:
+            return None
+        exp = self.record("verification", self.cfg.excitation.mode, excitation.samples)
+        after = self._identify(exp, excitation, None)
+        reductions = pipeline.peak_reductions(plant.loop, after.loop, [d.resonance for d in designs])
+        worst = min(r["reduction_db"] for r in reductions)
+        if worst < self.cfg.notch.min_reduction_db:
+            self.warnings.append(
+                f"verification: resonance reduced by only {worst:.1f} dB "
+                f"(notch.min_reduction_db = {self.cfg.notch.min_reduction_db:g})"
+            )
+        return {"loop_after": after.loop, "resonances": reductions, "peak_reduction_db": worst}
+
+    # --- outputs ----------------------------------------------------------------------------
+
+    def _summary(self, friction, plant, designs, upload, verification, elapsed_s) -> dict:
+        cfg = self.cfg
+        t = self.totals
+        out = {
+            "hilident_version": __version__,
+            "config": cfg.source,
+            "device": {"driver": self.driver.name, "port": self.adapter.port, "emulated": cfg.uses_emulator},
+            "sample_rate_hz": cfg.run.sample_rate_hz,
+            "resonances": [
+                {"frequency_hz": r.frequency_hz, "damping_ratio": r.damping_ratio,
+                 "peak_magnitude_db": r.peak_magnitude_db, "coherence": r.coherence, "method": r.method}
+                for r in plant.resonances
+            ],
+            "friction": None,
+            "notch_filters": [
+                {"center_hz": d.spec.center_hz, "width_hz": d.spec.width_hz, "depth_db": d.spec.depth_db,
+                 "sample_rate_hz": d.sample_rate_hz, "slot": d.slot, "b": list(d.biquad.b), "a": list(d.biquad.a)}
+                for d in designs
+            ],
+            "upload": upload,
+            "verification": {"peak_reduction_db": None, "resonances": []},
+            "stream": {
+                "samples": t.samples, "lost_frames": t.lost_frames, "lost_blocks": t.lost_blocks,
+                "lost_samples": t.lost_samples, "corrupt_frames": t.corrupt_frames, "out_of_order": t.out_of_order,
+                "underruns": t.underruns, "board_dropped_blocks": t.board_dropped_blocks,
+            },
+            "recordings": sorted(p.name for p in self.out.glob("*.h5")),
+            "elapsed_s": elapsed_s,
+            "warnings": self.warnings,
+        }
+        if friction is not None:
+            p = friction.fit.params
+            out["friction"] = {
+                "model": friction.model,
+                "params": {"Fc": p.Fc, "Fs": p.Fs, "Fv": p.Fv, "vs": p.vs, "delta_v": p.delta_v, "delta_s": p.delta_s},
+                "stderr": friction.fit.stderr, "rms_residual_nm": friction.fit.rms_residual,
+                "points": len(friction.points.v_mean),
+            }
+        if verification is not None:
+            out["verification"] = {"peak_reduction_db": verification["peak_reduction_db"],
+                                   "resonances": verification["resonances"]}
+        return out
+
+    def _plots(self, friction, plant, designs, verification) -> None:
+        if friction is not None:
+            pts = friction.points
+            vmax = float(np.max(np.abs(pts.v_mean)))
+            v = np.linspace(-vmax, vmax, 801)
+            from hilident.ident.friction import stribeck
+
+            report.plot_friction(self.out / "friction.png", pts.v_mean, pts.tau_mean, v, stribeck(v, friction.fit.params),
+                                 label=friction.model)
+        responses = [("plant (net torque to output)", plant.plant), ("excitation to output, before notch", plant.loop)]
+        if verification is not None:
+            responses.append(("excitation to output, after notch", verification["loop_after"]))
+        notch = None
+        if designs:
+            from hilident.filters.notch import chain_response
+
+            f = plant.plant.frequency_hz
+            notch = (f, chain_response([d.biquad for d in designs], f, designs[0].sample_rate_hz))
+        report.plot_bode(self.out / "bode.png", responses, resonances=plant.resonances, notch_response=notch,
+                         coherence_threshold=self.cfg.identification.coherence_threshold)
