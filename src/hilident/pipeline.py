@@ -121,12 +121,12 @@ def identify_plant(
         # the same zero-phase filter on every signal leaves their ratio intact
         r, u, y = (lowpass(x, cfg.lowpass_hz, sample_rate_hz) for x in (r, u, y))
     r, u, y = (detrend(x, "linear") for x in (r, u, y))
-    if period_samples and len(r) >= 3 * period_samples:
+    if period_samples and len(r) >= 2 * period_samples:
         plant = periodic_frf(u, y, period_samples, sample_rate_hz, skip_periods=0, bins=excited_bins)
         loop = periodic_frf(r, y, period_samples, sample_rate_hz, skip_periods=0, bins=excited_bins)
     else:
         if period_samples:
-            warnings.append("fewer than three excitation periods recorded: Welch averaging used instead")
+            warnings.append("fewer than two whole excitation periods recorded: Welch averaging used instead")
         seg = int(round(cfg.segment_s * sample_rate_hz))
         if seg > len(r) // 2:
             seg = len(r) // 2
@@ -194,11 +194,15 @@ def peak_reductions(before: FrequencyResponse, after: FrequencyResponse, resonan
         ``frequency_hz``, ``before_db``, ``after_db``, ``reduction_db``,
         ``band_peak_reduction_db`` per resonance.
     """
-    if len(before.frequency_hz) != len(after.frequency_hz) or not np.allclose(before.frequency_hz, after.frequency_hz):
-        raise DataError("the verification response is on other frequencies than the identification response")
     f = before.frequency_hz
     mag_before = np.abs(before.response)
-    mag_after = np.maximum(np.abs(after.response), 1e-300)
+    mag_after = np.abs(after.response)
+    if len(after.frequency_hz) != len(f) or not np.allclose(after.frequency_hz, f):
+        # e.g. a shorter verification record: compare on the identification's lines
+        if f[0] < after.frequency_hz[0] or f[-1] > after.frequency_hz[-1]:
+            raise DataError("the verification response does not cover the identification's frequencies")
+        mag_after = np.exp(np.interp(np.log(f), np.log(after.frequency_hz), np.log(np.maximum(mag_after, 1e-300))))
+    mag_after = np.maximum(mag_after, 1e-300)
     out = []
     for res in resonances:
         i = int(np.argmin(np.abs(f - res.frequency_hz)))
@@ -213,3 +217,24 @@ def peak_reductions(before: FrequencyResponse, after: FrequencyResponse, resonan
             "band_peak_reduction_db": float(20 * np.log10(mag_before[band].max() / mag_after[band].max())),
         })
     return out
+
+
+def achieved_notch(design: NotchDesign, stored: Biquad) -> dict:
+    """What the coefficients a device stores actually do, next to what was designed.
+
+    A device rounds coefficients (REAL32, fixed point, scaled integers). For a
+    notch far below the filter rate that rounding can move the notch; this
+    reports where the stored section's minimum lies and its attenuation at the
+    designed centre, both computed from the stored coefficients.
+    """
+    f0, fs = design.spec.center_hz, design.sample_rate_hz
+    grid = np.linspace(0.5 * f0, 1.5 * f0, 4001)
+    mag = np.abs(stored.response(grid, fs))
+    at_center = float(np.abs(stored.response(np.array([f0]), fs))[0])
+    return {
+        "center_hz": float(grid[int(np.argmin(mag))]),
+        "depth_db": float(-20 * np.log10(max(mag.min(), 1e-300))),
+        "attenuation_at_design_center_db": float(-20 * np.log10(max(at_center, 1e-300))),
+        "dc_gain": float(stored.dc_gain()),
+        "stable": bool(stored.is_stable()),
+    }

@@ -30,9 +30,11 @@ from hilident import __version__, pipeline, report
 from hilident.adapters.base import StreamStats, adapter_class, contiguous_runs
 from hilident.config import Config
 from hilident.drivers import DriverDescription, find_driver
-from hilident.errors import ConfigError, DeviceError, HilidentError
+from hilident.errors import ConfigError, DataError, HilidentError
 from hilident.recording import RunWriter, read_run
 from hilident.signals import generators as sig
+
+_WRITE_ROWS = 4096  # rows gathered before each append to the recording (bounded memory)
 
 
 def package_versions() -> dict[str, str]:
@@ -207,8 +209,21 @@ class Session:
         for table, columns in (tables or {}).items():
             writer.write_table(table, **columns)
 
+        pending: list[np.ndarray] = []
+        pending_rows = [0]
+
+        def flush() -> None:
+            if pending:
+                writer.append(np.concatenate(pending))
+                pending.clear()
+                pending_rows[0] = 0
+
         def sink(index: np.ndarray, rows: np.ndarray) -> None:
-            writer.append(np.column_stack([index, index / fs, rows]))
+            # gather blocks into file-sized chunks: one HDF5 flush per block would stall the line
+            pending.append(np.column_stack([index, index / fs, rows]))
+            pending_rows[0] += len(rows)
+            if pending_rows[0] >= _WRITE_ROWS:
+                flush()
 
         self.progress.step(f"{name}: {len(excitation) / fs:.1f} s of {mode} excitation")
         result = None
@@ -220,6 +235,7 @@ class Session:
             reason = str(exc) or type(exc).__name__
             raise
         finally:
+            flush()
             result = result or ad.last_result
             if result is not None:
                 for ev in result.events:
@@ -296,14 +312,36 @@ class Session:
             )
         return {k: v[a:b] for k, v in exp.samples.items()}
 
+    def _complete_periods(self, exp: Experiment, period: int) -> dict[str, np.ndarray]:
+        """Whole excitation periods without a missing sample, lead-in period dropped.
+
+        Periods of a periodic excitation can be joined end to end, so a lost block
+        costs only the period it fell in, and nothing is ever filled in.
+        """
+        index = exp.samples["sample_index"].astype(np.int64)
+        number = index // period
+        keep = np.zeros(len(index), dtype=bool)
+        for p in np.unique(number[number >= 1]):  # period 0 is the lead-in
+            rows = np.flatnonzero(number == p)
+            if len(rows) == period and rows[-1] - rows[0] == period - 1:
+                keep[rows] = True
+        n_complete = int(keep.sum()) // period
+        total = int(index[-1]) // period if len(index) else 0
+        if n_complete < total:
+            self.warnings.append(
+                f"{exp.name}: {total - n_complete} of {total} excitation periods had lost samples and were left out"
+            )
+        if n_complete < 2:
+            raise DataError(
+                f"{exp.name}: only {n_complete} complete excitation period(s) recorded; at least 2 are needed "
+                "(check the line: lost or corrupt frames)"
+            )
+        return {k: v[keep] for k, v in exp.samples.items()}
+
     def _identify(self, exp: Experiment, excitation: Excitation, friction):
         cfg = self.cfg
-        s = self._longest_contiguous(exp)
         period = excitation.period_samples
-        if period:
-            # drop the lead-in period, and start on a period boundary
-            start = (-int(s["sample_index"][0])) % period + period
-            s = {k: v[start:] for k, v in s.items()}
+        s = self._complete_periods(exp, period) if period else self._longest_contiguous(exp)
         ic = cfg.identification
         band = (ic.f_min_hz or excitation.band_hz[0], ic.f_max_hz or excitation.band_hz[1])
         self.progress.step("identification: frequency response and resonances")
@@ -339,8 +377,17 @@ class Session:
             else:
                 self.warnings.append(f"filter slot {d.slot}: read-back {stored} differs from written {expected}")
             matches.append(same)
+            achieved = pipeline.achieved_notch(d, stored)
+            lost = d.spec.depth_db - achieved["attenuation_at_design_center_db"]
+            if lost > 3.0:
+                self.warnings.append(
+                    f"filter slot {d.slot}: the device's coefficient rounding moves the {d.spec.center_hz:.4g} Hz notch "
+                    f"to {achieved['center_hz']:.4g} Hz; it attenuates only "
+                    f"{achieved['attenuation_at_design_center_db']:.1f} dB at the resonance "
+                    f"(designed {d.spec.depth_db:g} dB; notches far below the {d.sample_rate_hz:g} Hz filter rate suffer)"
+                )
             upload["slots"].append({"slot": d.slot, "readback_b": list(stored.b), "readback_a": list(stored.a),
-                                    "matches": same})
+                                    "matches": same, "achieved": achieved})
         upload["written"] = True
         upload["verified_readback"] = all(matches)
         return designs, upload

@@ -202,7 +202,8 @@ class SerialBoardAdapter:
         selection = tuple(
             sb.ChannelSelection(offered.index(c.name), _FORMATS[c.format], c.scale) for c in specs
         )
-        block = max(1, int(round(self.driver.block_samples * sample_rate_hz / 1000.0)))
+        # block_samples is given per 1 kHz; slower rates keep at least 32 samples per frame
+        block = max(32, int(round(self.driver.block_samples * sample_rate_hz / 1000.0)))
         self._request(sb.Configure(int(round(divider)), _MODES[mode], min(block, 4096), selection))
         self.channels = selection
         self.channel_names = [c.name for c in specs]

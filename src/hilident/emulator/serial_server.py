@@ -146,7 +146,7 @@ class BoardServer:
     """
 
     def __init__(self, firmware, link, baudrate: int, time_scale: float = 1.0,
-                 tx_buffer_bytes: int = 16384, watchdog_s: float = 1.0,
+                 tx_buffer_bytes: int = 65536, watchdog_s: float = 1.0,
                  faults: LineFaults | None = None, close_after_s: float = 0.0):
         self.firmware = firmware
         self.link = link

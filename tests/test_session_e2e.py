@@ -1,0 +1,142 @@
+"""End to end: whole sessions against the emulated board, checked against the emulator's truth."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hilident.cli import main
+from hilident.config import load_config, parse_config
+from hilident.emulator.factory import true_modes
+from hilident.errors import DeviceError
+from hilident.recording import read_run
+from hilident.session import Session
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+EMULATOR_CONFIGS = sorted(
+    p for p in CONFIGS.glob("*.toml") if tomllib.loads(p.read_text()).get("device", {}).get("port", "emulator") == "emulator"
+)
+
+
+def check_against_truth(cfg, summary, min_reduction_db=20.0):
+    """The acceptance figures of a session, compared with the configured plant."""
+    (true_f, true_zeta), = true_modes(cfg.emulator)
+    found = summary["resonances"]
+    assert found, summary["warnings"]
+    best = min(found, key=lambda r: abs(r["frequency_hz"] - true_f))
+    assert abs(best["frequency_hz"] - true_f) / true_f < 0.01
+    assert abs(best["damping_ratio"] - true_zeta) / true_zeta < 0.3
+    if cfg.friction_test.enabled:
+        got, want = summary["friction"]["params"], cfg.emulator.friction
+        assert abs(got["Fc"] - want.Fc) / want.Fc < 0.10
+        assert abs(got["Fv"] - want.Fv) / want.Fv < 0.10
+    assert summary["upload"]["written"] and summary["upload"]["verified_readback"]
+    if min_reduction_db is not None:
+        assert summary["verification"]["peak_reduction_db"] >= min_reduction_db
+
+
+@pytest.mark.parametrize("path", EMULATOR_CONFIGS, ids=lambda p: p.stem)
+def test_every_shipped_emulator_config_runs(path, tmp_path):
+    cfg = load_config(path)
+    summary = Session(cfg, tmp_path).run()
+    # Only the gantry promises 20 dB: the lecture's 0.225 Hz mode is too slow for REAL32
+    # coefficients at a 4 kHz filter rate, and the session says so in a warning.
+    check_against_truth(cfg, summary, 20.0 if "gantry" in path.stem else None)
+    assert summary["stream"]["lost_blocks"] == 0 and summary["stream"]["corrupt_frames"] == 0
+    for name in summary["recordings"]:
+        run = read_run(tmp_path / name)
+        assert run.complete and run.n_samples > 0
+        assert np.all(np.diff(run.samples["sample_index"]) == 1)
+    assert json.loads((tmp_path / "summary.json").read_text())["resonances"] == json.loads(json.dumps(summary["resonances"]))
+    assert (tmp_path / "bode.png").stat().st_size > 10_000
+
+
+def gantry_variant(**changes) -> object:
+    """The shipped gantry config with other plant parameters, over the in-memory line."""
+    cfg = load_config(CONFIGS / "emulated-gantry.toml")
+    emu = cfg.emulator
+    plant = replace(emu.plant, **{k: v for k, v in changes.items() if k in ("m1", "m2", "k", "d")})
+    friction = replace(emu.friction, **{k: v for k, v in changes.items() if k in ("Fc", "Fs", "Fv", "vs")})
+    return replace(cfg, emulator=replace(emu, plant=plant, friction=friction, link="pipe", time_scale=6.0))
+
+
+def test_other_gantry_plant_meets_the_same_figures(tmp_path):
+    # a stiffer, lighter load: coupled mode at 33.5 Hz, other friction
+    cfg = gantry_variant(m1=35.0, m2=6.0, k=2.3e5, d=30.0, Fc=0.25, Fs=0.4, Fv=3.0, vs=0.008)
+    (true_f, _), = true_modes(cfg.emulator)
+    assert 30 < true_f < 40
+    check_against_truth(cfg, Session(cfg, tmp_path).run())
+
+
+def test_corrupted_and_dropped_bytes_are_counted_not_filled(tmp_path):
+    cfg = gantry_variant()
+    faults = replace(cfg.emulator.faults, corrupt_frame_rate=0.02, drop_frame_rate=0.02)
+    cfg = replace(cfg, emulator=replace(cfg.emulator, faults=faults),
+                  friction_test=replace(cfg.friction_test, enabled=False),
+                  excitation=replace(cfg.excitation, kind="noise"))
+    summary = Session(cfg, tmp_path).run()
+    s = summary["stream"]
+    assert s["corrupt_frames"] > 0
+    assert s["lost_blocks"] > 0 and s["lost_samples"] > 0
+    assert any("lost" in w for w in summary["warnings"])
+    run = read_run(tmp_path / "identification.h5")
+    index = run.samples["sample_index"]
+    gaps = np.flatnonzero(np.diff(index) != 1)
+    assert len(gaps) > 0  # holes stay holes
+    assert run.n_samples < int(index[-1]) + 1
+    assert any(e["kind"] == "lost_blocks" for e in run.events)
+
+
+def test_closed_port_mid_run_stops_cleanly(tmp_path):
+    cfg = gantry_variant()
+    cfg = replace(cfg, emulator=replace(cfg.emulator, link="pty", faults=replace(cfg.emulator.faults, close_after_s=0.8)),
+                  friction_test=replace(cfg.friction_test, enabled=False))
+    session = Session(cfg, tmp_path)
+    with pytest.raises(DeviceError) as err:
+        session.run()
+    assert session.emulator.port in str(err.value)
+    assert not session.emulator.drive.enabled  # torque zero
+    run = read_run(tmp_path / "identification.h5")
+    assert run.status == "aborted" and run.n_samples > 0
+    assert session.emulator.port in run.reason
+
+
+def test_limit_trip_is_a_clean_stop(tmp_path):
+    cfg = gantry_variant()
+    cfg = replace(cfg, limits=replace(cfg.limits, velocity_mps=0.1),
+                  friction_test=replace(cfg.friction_test, speeds_mps=[0.02, 0.2]))
+    code_cfg = tmp_path / "trip.toml"
+    text = (CONFIGS / "emulated-gantry.toml").read_text().replace("velocity_mps = 0.4", "velocity_mps = 0.12")
+    text = text.replace("speeds_mps = [0.003, 0.006, 0.01, 0.02, 0.04, 0.08, 0.15, 0.25]", "speeds_mps = [0.02, 0.11]")
+    text = text.replace('link = "pty"', 'link = "pipe"').replace("time_scale = 4.0", "time_scale = 8.0")
+    code_cfg.write_text(text)
+    rc = main(["run", str(code_cfg), "--out", str(tmp_path / "out"), "-q"])
+    assert rc != 0
+    run = read_run(tmp_path / "out" / "friction.h5")
+    assert run.status == "aborted"
+    assert any(e["kind"] == "limit_trip" for e in run.events)
+    assert not (tmp_path / "out" / "summary.json").exists()
+
+
+def test_malformed_config_names_the_key_and_file(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text((CONFIGS / "emulated-gantry.toml").read_text().replace("m1 = 40.0", "m1 = -40.0"))
+    assert main(["run", str(bad), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "emulator.plant.m1" in err[0] and "bad.toml" in err[0]
+    bad.write_text((CONFIGS / "emulated-gantry.toml").read_text().replace("[limits]", "[limits]\ntorque_nmm = 3"))
+    assert main(["run", str(bad)]) == 2
+    assert "limits.torque_nmm" in capsys.readouterr().err
+
+
+def test_unknown_port_is_one_line(tmp_path, capsys):
+    cfg = tmp_path / "real.toml"
+    cfg.write_text((CONFIGS / "emulated-gantry.toml").read_text().replace('port = "emulator"', 'port = "/dev/does-not-exist"'))
+    assert main(["run", str(cfg), "--out", str(tmp_path / "o")]) == 4
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "/dev/does-not-exist" in err[0]
