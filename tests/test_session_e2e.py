@@ -107,19 +107,17 @@ def test_closed_port_mid_run_stops_cleanly(tmp_path):
 
 
 def test_limit_trip_is_a_clean_stop(tmp_path):
-    cfg = gantry_variant()
-    cfg = replace(cfg, limits=replace(cfg.limits, velocity_mps=0.1),
-                  friction_test=replace(cfg.friction_test, speeds_mps=[0.02, 0.2]))
+    # accelerating at 5 m/s^2 needs about 25 N*m, beyond limits.torque_nm: the board trips mid-run
     code_cfg = tmp_path / "trip.toml"
-    text = (CONFIGS / "emulated-gantry.toml").read_text().replace("velocity_mps = 0.4", "velocity_mps = 0.12")
-    text = text.replace("speeds_mps = [0.003, 0.006, 0.01, 0.02, 0.04, 0.08, 0.15, 0.25]", "speeds_mps = [0.02, 0.11]")
+    text = (CONFIGS / "emulated-gantry.toml").read_text().replace("accel_mps2 = 0.5", "accel_mps2 = 5.0")
     text = text.replace('link = "pty"', 'link = "pipe"').replace("time_scale = 4.0", "time_scale = 8.0")
     code_cfg.write_text(text)
     rc = main(["run", str(code_cfg), "--out", str(tmp_path / "out"), "-q"])
     assert rc != 0
     run = read_run(tmp_path / "out" / "friction.h5")
     assert run.status == "aborted"
-    assert any(e["kind"] == "limit_trip" for e in run.events)
+    trips = [e for e in run.events if e["kind"] == "limit_trip"]
+    assert trips and "torque_limit" in trips[0]["message"]
     assert not (tmp_path / "out" / "summary.json").exists()
 
 

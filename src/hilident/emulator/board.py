@@ -293,19 +293,10 @@ class BoardFirmware:
         self._pending_flags = 0
 
     def _flush_last(self) -> None:
+        """Send what is pending (possibly nothing) as the run's last block."""
         data = np.concatenate(self._pending) if self._pending else np.zeros((0, len(self.config.channels)))
+        self._emit(data, sb.FLAG_LAST)
         self._pending, self._pending_rows = [], 0
-        # first sample of the final block is computed before the rows are cleared
-        first = self._produced - len(data)
-        flags = self._pending_flags | sb.FLAG_LAST | (sb.FLAG_FAULT if self.fault != sb.FaultCode.NONE else 0)
-        self.send(
-            sb.Samples(
-                self._block_index, first, flags, self._fifo_read,
-                self._fifo_written - self._fifo_read, self.counters.underruns, data,
-            )
-        )
-        self._block_index += 1
-        self._pending_flags = 0
 
     def _trip(self, first_sample: int) -> None:
         self.fault = _FAULTS.get(self.drive.fault, sb.FaultCode.TORQUE_LIMIT)
