@@ -279,6 +279,7 @@ class BoardServer:
         try:
             while not self._stop.is_set():
                 with self._tx_cond:
+                    idle = not self._tx  # did the line run dry?
                     while not self._tx and not self._stop.is_set():
                         self._tx_cond.wait(0.05)
                     if self._stop.is_set():
@@ -287,8 +288,10 @@ class BoardServer:
                     self._tx_bytes -= len(frame)
                 if rate:
                     now = time.monotonic()
-                    if sent_since_origin / rate < now - credit_origin - 0.01:
-                        # the line was idle: no saving up of unused bandwidth
+                    if idle and sent_since_origin / rate < now - credit_origin:
+                        # the line ran dry: unused bandwidth is not saved up. A sender that woke
+                        # late with frames waiting catches up instead (a UART fed from its
+                        # transmit buffer never pauses).
                         credit_origin, sent_since_origin = now, 0
                     ahead = (sent_since_origin + len(frame)) / rate - (now - credit_origin)
                     if ahead > 0:
