@@ -57,7 +57,7 @@ def _emulate_serial(args) -> int:
         emu_cfg = replace(emu_cfg, time_scale=args.time_scale)
     driver = find_driver(args.driver or cfg.device.driver, cfg.device.driver_paths)
     baud = args.baudrate or cfg.device.baudrate or driver.default_baudrate
-    device = start_serial_board(emu_cfg, driver, baud, link="pty")
+    device = start_serial_board(emu_cfg, driver, baud, link="tcp" if args.tcp else "pty")
     print(device.port, flush=True)
     print(f"emulated {driver.name} at {baud} baud; Ctrl-C to stop", file=sys.stderr, flush=True)
     stop = []
@@ -98,11 +98,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     emu = sub.add_parser("emulate", help="run an emulated device standalone")
     emu_sub = emu.add_subparsers(dest="transport", required=True)
-    ser = emu_sub.add_parser("serial", help="emulated serial board on a pseudo-terminal; prints its device path")
+    ser = emu_sub.add_parser("serial", help="emulated serial board on a pseudo-terminal; prints its device path or URL")
     ser.add_argument("--config", help="take [emulator] (plant, friction, drive) from this config")
     ser.add_argument("--driver", help="driver name or folder (default: the config's, or myrio-board)")
     ser.add_argument("--baudrate", type=int, default=0)
     ser.add_argument("--time-scale", type=float, default=0.0, help="simulated seconds per second (default 1)")
+    ser.add_argument("--tcp", action="store_true", help="serve a raw TCP line on 127.0.0.1 (socket://) instead of a pty")
     ser.set_defaults(func=_emulate_serial)
 
     drv = sub.add_parser("drivers", help="list the driver descriptions found")

@@ -155,7 +155,8 @@ class FaultsConfig:
 
 @dataclass(frozen=True)
 class EmulatorConfig:
-    link: str = _spec("pty", choices=("pty", "pipe"), doc="pseudo-terminal (real serial path) or in-memory pipe")
+    link: str = _spec("pty", choices=("pty", "tcp", "pipe"),
+                      doc="pseudo-terminal (real serial path), raw TCP on 127.0.0.1 (socket://), or in-memory pipe")
     time_scale: float = _spec(1.0, gt=0, le=100, doc="simulated seconds per wall-clock second")
     seed: int = _spec(1, ge=0, doc="seed of the sensor noise")
     plant: PlantConfig = _spec(PlantConfig())

@@ -16,7 +16,7 @@ from hilident.emulator.board import BoardFirmware
 from hilident.emulator.drive import DriveLoop, DriveTuning
 from hilident.emulator.plant import MassSpringDamper, Plant, StribeckFriction, TwoMass, modes
 from hilident.emulator.sensors import SensorModel
-from hilident.emulator.serial_server import BoardServer, LineFaults, PipeLink, PtyLink
+from hilident.emulator.serial_server import BoardServer, LineFaults, PipeLink, PtyLink, TcpLink
 from hilident.links import pipe_pair
 from hilident.protocol import serial_board as sb
 
@@ -103,14 +103,17 @@ def start_serial_board(cfg: EmulatorConfig, driver: DriverDescription, baudrate:
         The board to emulate.
     baudrate : int
         Line rate the board paces its output to (0: unpaced).
-    link : {"pty", "pipe"}, optional
-        Overrides ``cfg.link``.
+    link : {"pty", "tcp", "pipe"}, optional
+        Overrides ``cfg.link``: a pseudo-terminal, a raw TCP line on 127.0.0.1
+        (``socket://`` for pyserial), or an in-memory pipe.
     """
     kind = link or cfg.link
     firmware = BoardFirmware(build_drive(cfg, driver), identity_from_driver(driver))
     faults = LineFaults(cfg.faults.corrupt_frame_rate, cfg.faults.drop_frame_rate, seed=cfg.seed + 1)
     if kind == "pty":
         device_link, host_link = PtyLink(), None
+    elif kind == "tcp":
+        device_link, host_link = TcpLink(), None
     else:
         host_link, device_end = pipe_pair()
         device_link = PipeLink(device_end)

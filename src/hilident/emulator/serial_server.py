@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 import select
+import socket
 import threading
 import time
 import tty
@@ -67,6 +68,67 @@ class PtyLink:
                     os.close(fd)
                 except OSError:
                     pass
+
+
+class TcpLink:
+    """Device side of a raw TCP line on 127.0.0.1, reached as ``socket://127.0.0.1:PORT``.
+
+    This is what a serial-to-Ethernet converter looks like to pyserial. One host
+    at a time; a new connection replaces the old one.
+    """
+
+    def __init__(self, port: int = 0):
+        self._listener = socket.create_server(("127.0.0.1", port))
+        self._listener.setblocking(False)
+        self.port = self._listener.getsockname()[1]
+        self.path = f"socket://127.0.0.1:{self.port}"
+        self._conn: socket.socket | None = None
+        self._closed = False
+
+    def _accept(self, timeout: float) -> bool:
+        ready, _, _ = select.select([self._listener], [], [], timeout)
+        if ready:
+            conn, _ = self._listener.accept()
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            if self._conn is not None:
+                self._conn.close()
+            self._conn = conn
+        return self._conn is not None
+
+    def read_some(self, timeout: float) -> bytes:
+        if self._closed:
+            raise LinkClosed(f"{self.path}: closed")
+        if self._conn is None:
+            self._accept(timeout)
+            return b""
+        ready, _, _ = select.select([self._conn, self._listener], [], [], timeout)
+        if self._listener in ready:
+            self._accept(0)
+            return b""
+        if not ready:
+            return b""
+        data = self._conn.recv(65536)
+        if not data:  # the host hung up: wait for the next one
+            self._conn.close()
+            self._conn = None
+        return data
+
+    def write(self, data: bytes) -> None:
+        if self._closed:
+            raise LinkClosed(f"{self.path}: closed")
+        if self._conn is None:
+            return  # nobody listening: bytes on an unconnected line are lost
+        try:
+            self._conn.sendall(data)
+        except OSError:
+            self._conn = None
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            for s in (self._conn, self._listener):
+                if s is not None:
+                    s.close()
 
 
 class PipeLink:
