@@ -23,6 +23,8 @@ from hilident.links import LinkClosed
 from hilident.protocol import serial_board as sb
 from hilident.protocol.framing import FrameDecoder, encode_frame
 
+_END_EVENTS = (sb.EventCode.FINISHED, sb.EventCode.STOPPED, sb.EventCode.LIMIT_TRIP, sb.EventCode.WATCHDOG)
+
 _MODES = {
     "torque": sb.Mode.TORQUE,
     "torque_injection": sb.Mode.TORQUE_INJECTION,
@@ -32,6 +34,8 @@ _MODES = {
 _FORMATS = {"f32": sb.Format.F32, "i16": sb.Format.I16, "i32": sb.Format.I32}
 _EXCITATION_CHUNK = 256  # samples per EXCITATION frame
 _KEEPALIVE_S = 0.2  # longest host silence while streaming (the board's watchdog is longer)
+_READ_TIMEOUT_S = 0.02
+_END_GRACE_S = 0.3  # after the board announced the end of a run, wait this long for its last block
 
 
 class SerialBoardAdapter:
@@ -67,6 +71,9 @@ class SerialBoardAdapter:
         self.lost_frames = 0
         self.events: list[dict] = []
         self.last_result: RunResult | None = None
+        self._backlog: list = []  # messages that arrived while waiting for an answer
+        if hasattr(link, "timeout"):
+            link.timeout = _READ_TIMEOUT_S  # short reads: the adapter polls and keeps the line busy
 
     # --- opening --------------------------------------------------------------------
 
@@ -74,7 +81,7 @@ class SerialBoardAdapter:
     def open(cls, port: str, driver: DriverDescription, baudrate: int = 0, timeout_s: float = 2.0):
         """Open ``port`` (device path, ``COMx`` or pyserial URL) and identify the board."""
         try:
-            link = serial.serial_for_url(port, baudrate=baudrate or driver.default_baudrate, timeout=0.02)
+            link = serial.serial_for_url(port, baudrate=baudrate or driver.default_baudrate, timeout=_READ_TIMEOUT_S)
         except (serial.SerialException, ValueError, OSError) as exc:
             raise DeviceError(f"{port}: cannot open: {exc}") from None
         adapter = cls(link, driver, port, timeout_s)
@@ -113,7 +120,10 @@ class SerialBoardAdapter:
         return self._seq
 
     def _read_messages(self, timeout: float) -> list:
-        """Messages that arrive within ``timeout`` seconds (possibly none)."""
+        """Messages kept from earlier reads, else those arriving within ``timeout`` seconds."""
+        if self._backlog:
+            messages, self._backlog = self._backlog, []
+            return messages
         deadline = time.monotonic() + timeout
         while True:
             try:
@@ -143,18 +153,30 @@ class SerialBoardAdapter:
         """Send ``msg`` and wait for its ACK (or ``answer_type``); NAK raises DeviceError."""
         seq = self._send(msg)
         deadline = time.monotonic() + self.timeout_s
-        while time.monotonic() < deadline:
-            for reply in self._read_messages(0.05):
-                if isinstance(reply, sb.Nak) and reply.acked_seq == seq:
-                    raise DeviceError(
-                        f"{self.port}: board refused {type(msg).__name__}: {reply.error.name} ({reply.detail})"
-                    )
-                if answer_type is None and isinstance(reply, sb.Ack) and reply.acked_seq == seq:
-                    return reply
-                if answer_type is not None and isinstance(reply, answer_type):
-                    return reply
-                if isinstance(reply, sb.Event):
-                    self._note_event(reply)
+        keep = []  # data and events that arrive while waiting are kept for the stream
+        answer = refusal = None
+        try:
+            while answer is None and refusal is None and time.monotonic() < deadline:
+                for reply in self._read_messages(0.05):
+                    if answer is None and refusal is None:
+                        if isinstance(reply, sb.Nak) and reply.acked_seq == seq:
+                            refusal = reply
+                            continue
+                        if (answer_type is None and isinstance(reply, sb.Ack) and reply.acked_seq == seq) or (
+                            answer_type is not None and isinstance(reply, answer_type)
+                        ):
+                            answer = reply
+                            continue
+                    if isinstance(reply, (sb.Samples, sb.Event)):
+                        keep.append(reply)
+        finally:
+            self._backlog = keep + self._backlog
+        if refusal is not None:
+            raise DeviceError(
+                f"{self.port}: board refused {type(msg).__name__}: {refusal.error.name} ({refusal.detail})"
+            )
+        if answer is not None:
+            return answer
         raise DeviceError(
             f"{self.port}: no answer to {type(msg).__name__} within {self.timeout_s:g} s "
             "(is the board powered, and the baud rate right?)"
@@ -270,7 +292,7 @@ class SerialBoardAdapter:
         LimitTrip
             The board tripped a safety limit (the samples up to then were delivered).
         DeviceError
-            The line was lost or the board went silent.
+            The line was lost, the board went silent, or its watchdog stopped the axis.
         """
         excitation = np.asarray(excitation, dtype=float)
         n = len(excitation)
@@ -285,6 +307,8 @@ class SerialBoardAdapter:
         expected_block = None
         expected_sample = 0
         done = False
+        end_seen = None  # when the board announced the end of the run
+        fault_code = None
         def send_excitation() -> int:
             count = 0
             while sent + count < n and sent + count - consumed + _EXCITATION_CHUNK <= window:
@@ -308,10 +332,12 @@ class SerialBoardAdapter:
                     last_tx = time.monotonic()
                 messages = self._read_messages(0.01)
                 now = time.monotonic()
-                if messages:
+                if any(isinstance(m, (sb.Samples, sb.Event)) for m in messages):
                     last_data = now
                 elif now - last_data > self.timeout_s:
                     raise DeviceError(f"{self.port}: no data from the board for {self.timeout_s:g} s")
+                if end_seen is not None and now - end_seen > _END_GRACE_S:
+                    break  # the run's last block was lost on the line
                 for msg in messages:
                     if isinstance(msg, sb.Samples):
                         if expected_block is not None and msg.block_index < expected_block:
@@ -343,12 +369,16 @@ class SerialBoardAdapter:
                         entry = self._note_event(msg)
                         if msg.code in (sb.EventCode.LIMIT_TRIP, sb.EventCode.WATCHDOG, sb.EventCode.FAULT):
                             result.fault = entry["message"]
-                        if msg.code in (sb.EventCode.FINISHED, sb.EventCode.STOPPED):
-                            done = done or expected_sample >= n
+                            fault_code = msg.code
+                        if msg.code in _END_EVENTS and end_seen is None:
+                            end_seen = now
                     elif isinstance(msg, sb.Nak):
                         raise DeviceError(f"{self.port}: board refused a frame during the run: {msg.error.name} ({msg.detail})")
-                if result.fault and done:
-                    break
+            end = max(expected_sample, 0)
+            if result.fault is None and end < n:
+                stats.lost_samples += n - end
+                self.events.append({"kind": "lost_blocks", "sample_index": end, "value": 0.0,
+                                    "message": f"end of run lost on the line: samples {end}..{n - 1}"})
             # Late events (FINISHED after the last block) and the board's own counters.
             for msg in self._read_messages(0.02):
                 if isinstance(msg, sb.Event):
@@ -365,5 +395,6 @@ class SerialBoardAdapter:
             result.events = list(self.events)
             self.last_result = result
         if result.fault:
-            raise LimitTrip(f"{self.port}: {result.fault}") from None
+            error = LimitTrip if fault_code == sb.EventCode.LIMIT_TRIP else DeviceError
+            raise error(f"{self.port}: {result.fault}") from None
         return result

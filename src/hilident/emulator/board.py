@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hilident.errors import ProtocolError
+from hilident.errors import HilidentError, ProtocolError
 from hilident.filters.biquad import Biquad
 from hilident.protocol import serial_board as sb
 
@@ -76,6 +76,9 @@ class BoardFirmware:
         self._pending_flags = 0
         self._in_underrun = False
         self.outbox: list[bytes] = []  # encoded payloads waiting for the line
+        self.limits_loaded = False  # a board never moves the axis before it was told its limits
+        self.line_corrupt = 0  # frames the line layer rejected (set by the server)
+        self._run_start_tick = 0
         self.sample_blocks_out = 0
 
     # --- messages ---------------------------------------------------------------
@@ -98,16 +101,25 @@ class BoardFirmware:
             self.counters.rx_corrupt += 1
             kind = payload[1] if len(payload) > 1 else 0
             seq = int.from_bytes(payload[2:4], "little") if len(payload) >= 4 else 0
-            code = sb.ErrorCode.UNKNOWN_TYPE if "unknown message type" in str(exc) else sb.ErrorCode.BAD_LENGTH
-            if "protocol version" in str(exc):
+            text = str(exc)
+            if "protocol version" in text:
                 code = sb.ErrorCode.BAD_VERSION
+            elif "unknown message type" in text:
+                code = sb.ErrorCode.UNKNOWN_TYPE
+            elif "unknown" in text:  # a mode, format or code the board does not know
+                code = sb.ErrorCode.BAD_ARGUMENT
+            else:
+                code = sb.ErrorCode.BAD_LENGTH
             self.send(sb.Nak(seq, kind, code, str(exc)))
             return
         handler = getattr(self, "_on_" + type(msg).__name__.lower(), None)
         if handler is None:
             self.send(sb.Nak(header.seq, header.type, sb.ErrorCode.UNKNOWN_TYPE, "not a request"))
             return
-        error = handler(msg)
+        try:
+            error = handler(msg)
+        except (ValueError, HilidentError) as exc:  # e.g. a value the drive refuses
+            error = sb.ErrorCode.BAD_ARGUMENT, str(exc)
         if error is None:
             if not isinstance(msg, (sb.Identify, sb.StatusRequest, sb.ReadFilter, sb.Excitation)):
                 self.send(sb.Ack(header.seq, header.type))
@@ -124,7 +136,7 @@ class BoardFirmware:
         c = self.counters
         return sb.Status(
             self.state, self.fault, self._fifo_written - self._fifo_read, len(self._fifo),
-            c.underruns, c.dropped_blocks, self._produced, c.limit_trips, c.rx_corrupt,
+            c.underruns, c.dropped_blocks, self._produced, c.limit_trips, c.rx_corrupt + self.line_corrupt,
         )
 
     def _on_configure(self, msg: sb.Configure):
@@ -146,9 +158,13 @@ class BoardFirmware:
         return None
 
     def _on_limits(self, msg: sb.Limits):
+        values = (msg.torque_nm, msg.velocity_mps, msg.position_min_m, msg.position_max_m)
+        if not all(np.isfinite(values)):
+            return sb.ErrorCode.BAD_ARGUMENT, "limits must be finite numbers"
         if not (msg.torque_nm > 0 and msg.velocity_mps > 0 and msg.position_min_m < msg.position_max_m):
             return sb.ErrorCode.BAD_ARGUMENT, "limits must be positive and the window non-empty"
-        self.drive.set_limits(msg.torque_nm, msg.velocity_mps, msg.position_min_m, msg.position_max_m)
+        self.drive.set_limits(*values)
+        self.limits_loaded = True
         return None
 
     def _on_start(self, msg: sb.Start):
@@ -156,10 +172,15 @@ class BoardFirmware:
             return sb.ErrorCode.FAULT_ACTIVE, f"fault {self.fault.name} active; send CLEAR_FAULT"
         if self.state != sb.State.CONFIGURED or self.config is None:
             return sb.ErrorCode.BAD_STATE, f"cannot start in state {self.state.name}"
+        if not self.limits_loaded:
+            return sb.ErrorCode.BAD_STATE, "no safety limits loaded (send SET_LIMITS first)"
         self.drive.set_mode(_MODE_NAMES[self.config.mode])
         self.drive.enable()
         self._run_samples = msg.n_samples
         self._produced = 0
+        self._run_start_tick = self.drive.tick
+        self.counters.underruns = 0  # per-run counters; limit trips and corrupt frames count since power-up
+        self.counters.dropped_blocks = 0
         self._pending, self._pending_rows, self._pending_flags = [], 0, 0
         self._in_underrun = False
         self.state = sb.State.RUNNING
@@ -187,6 +208,8 @@ class BoardFirmware:
             return sb.ErrorCode.BAD_STATE, f"excitation while {self.state.name}"
         if msg.first_index != self._fifo_written:
             return sb.ErrorCode.BAD_ARGUMENT, f"excitation starts at {msg.first_index}, expected {self._fifo_written}"
+        if not np.all(np.isfinite(msg.values)):
+            return sb.ErrorCode.BAD_ARGUMENT, f"excitation from {msg.first_index} holds NaN or inf"
         n = len(msg.values)
         capacity = len(self._fifo)
         if self._fifo_written + n - self._fifo_read > capacity:
@@ -200,6 +223,8 @@ class BoardFirmware:
         c = msg.coefficients
         if not 0 <= c.slot < len(self.drive.filters):
             return sb.ErrorCode.BAD_ARGUMENT, f"filter slot {c.slot} (board has {len(self.drive.filters)})"
+        if not all(np.isfinite(c.b + c.a)):
+            return sb.ErrorCode.BAD_ARGUMENT, f"slot {c.slot}: coefficients must be finite"
         # The board stores REAL32 coefficients: what the host reads back is what runs.
         stored = Biquad(tuple(sb.float32(x) for x in c.b), (1.0, sb.float32(c.a[1]), sb.float32(c.a[2])))
         if c.enabled and not stored.is_stable():
@@ -302,17 +327,22 @@ class BoardFirmware:
         self.fault = _FAULTS.get(self.drive.fault, sb.FaultCode.TORQUE_LIMIT)
         self.counters.limit_trips += 1
         tick = getattr(self.drive, "fault_tick", None)
-        index = first_sample if tick is None else int(tick) // self.config.sample_divider
+        index = first_sample if tick is None else (int(tick) - self._run_start_tick) // self.config.sample_divider
         value = float(getattr(self.drive, "fault_value", 0.0) or 0.0)
         self.send(sb.Event(sb.EventCode.LIMIT_TRIP, index, value, f"{self.drive.fault}: axis stopped, torque zero"))
         self._flush_last()
         self.state = sb.State.FAULT
+        self._end_run()
+
+    def _end_run(self) -> None:
+        """Torque off; excitation left in the buffer is discarded, never replayed."""
         self.drive.disable()
+        self._fifo_read = self._fifo_written = 0
 
     def _finish(self, code: sb.EventCode, message: str) -> None:
         self._flush_last()
         self.send(sb.Event(code, self._produced, 0.0, message))
-        self.drive.disable()
+        self._end_run()
         self.state = sb.State.CONFIGURED
 
     def watchdog_expired(self) -> None:
@@ -321,7 +351,7 @@ class BoardFirmware:
             self.fault = sb.FaultCode.WATCHDOG
             self.send(sb.Event(sb.EventCode.WATCHDOG, self._produced, 0.0, "host silent: axis stopped"))
             self._flush_last()
-            self.drive.disable()
+            self._end_run()
             self.state = sb.State.FAULT
 
     def drop_block(self) -> None:

@@ -277,7 +277,7 @@ class BoardServer:
                         if fw.running and not was_running:
                             run_started = run_origin = now
                             samples_at_origin = 0
-                    fw.counters.rx_corrupt = self.decoder.stats.corrupt
+                    fw.line_corrupt = self.decoder.stats.corrupt
                 if fw.running:
                     due = int((now - run_origin) * fw.sample_rate_hz * self.time_scale) - (
                         fw._produced - samples_at_origin
