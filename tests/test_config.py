@@ -38,6 +38,7 @@ def test_defaults_fill_what_is_not_given():
         (LIMITS + "[emulator]\nplant = 3\n", "emulator.plant"),
         (LIMITS.replace("position_min_m = -1", "position_min_m = 2"), "limits.position_min_m"),
         ("[limits\n", "(syntax)"),
+        (LIMITS + "[run]\nchannels = ['excitation', 'torque_nm']\n", "run.channels"),
     ],
 )
 def test_bad_values_name_key_and_file(text, key):

@@ -287,6 +287,11 @@ def _cross_check(cfg: Config) -> None:
         raise ConfigError("friction_test.speeds_mps", f"a speed reaches limits.velocity_mps = {lim.velocity_mps:g}", src)
     if cfg.friction_test.settle_s >= cfg.friction_test.hold_s:
         raise ConfigError("friction_test.settle_s", "must be shorter than friction_test.hold_s", src)
+    if cfg.run.channels:
+        needed = {"excitation", "torque_nm", "velocity_mps", cfg.identification.output}
+        missing = sorted(needed - set(cfg.run.channels))
+        if missing:
+            raise ConfigError("run.channels", f"the session needs {', '.join(missing)} too", src)
     rng = cfg.emulator.sensors.laser_range_m
     if len(rng) != 2 or rng[0] >= rng[1]:
         raise ConfigError("emulator.sensors.laser_range_m", "must be [min, max] with min < max", src)

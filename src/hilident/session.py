@@ -304,6 +304,8 @@ class Session:
 
     def _longest_contiguous(self, exp: Experiment) -> dict[str, np.ndarray]:
         runs = contiguous_runs(exp.samples["sample_index"].astype(np.int64))
+        if not runs:
+            raise DataError(f"{exp.name}: no samples were recorded")
         a, b = max(runs, key=lambda r: r[1] - r[0])
         if len(runs) > 1:
             self.warnings.append(
