@@ -326,8 +326,14 @@ def plot_bode(
     ax_coh.set_ylabel("coherence [-]")
     ax_coh.set_ylim(0.0, 1.05)
     ax_coh.set_xlabel("frequency [Hz]")
+    from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
+
     for ax in (ax_mag, ax_phase, ax_coh):
         ax.grid(True, which="both", alpha=0.3)
+        # plain numbers at 1-2-5 steps read better than 10^x labels crowding each other
+        ax.xaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+        ax.xaxis.set_major_formatter(ScalarFormatter())
+        ax.xaxis.set_minor_formatter(NullFormatter())
     ax_mag.legend(loc="best", fontsize=8)
     if coherence_threshold is not None or any(c[3] is not None for c in curves):
         ax_coh.legend(loc="lower left", fontsize=8)
