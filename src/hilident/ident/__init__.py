@@ -1,8 +1,56 @@
-"""Identification numerics: friction, signal conditioning, frequency responses, resonances.
+"""Identification numerics: the methods of the lecture and the thesis, on numpy arrays.
 
-Pure functions on numpy arrays; no files, devices or clocks.
+Pure functions; no files, devices or clocks.
+
+- ``preprocess``: validation, detrending, zero-phase Butterworth filters, differences
+- ``derivatives``: state-variable-filter derivatives (same filter on input and output)
+- ``friction``: Coulomb, viscous, Stribeck friction; fits from constant-velocity tests
+- ``greybox``: linear-in-parameters least squares with parameter statistics,
+  rigid-axis inverse dynamics, torque-to-force constant
+- ``blackbox``: continuous-time ODE order search
+- ``arx``: ARX fitting, prediction, simulation, order search
+- ``discretize``: ZOH, Euler, Tustin and back; controllability and observability
+- ``frequency``: ETFE, H1 with coherence, closed-loop and periodic frequency responses
+- ``resonance``: resonances of a frequency response by local rational fits
+- ``decay``: poles from a free-vibration record
+- ``validation``: fit %, residual analysis, overfitting warning
 """
 
+from hilident.ident.arx import (
+    ArxModel,
+    OrderCandidate,
+    OrderSearch,
+    arx_order_search,
+    arx_to_ba,
+    fit_arx,
+    predict,
+    simulate,
+)
+from hilident.ident.blackbox import OdeCandidate, ode_order_search, select_order
+from hilident.ident.decay import DampedMode, DecayFit, decay_poles
+from hilident.ident.derivatives import (
+    finite_difference_derivatives,
+    settling_samples,
+    state_variable_filter,
+    svf_sections,
+)
+from hilident.ident.discretize import (
+    DiscreteStateSpace,
+    StateSpace,
+    c2d_tf,
+    controllability_matrix,
+    d2c_tf,
+    d2c_tustin,
+    d2c_zoh,
+    forward_euler,
+    is_controllable,
+    is_observable,
+    observability_matrix,
+    sampling_advice,
+    second_order_poles,
+    tustin,
+    zoh,
+)
 from hilident.ident.frequency import (
     FrequencyResponse,
     etfe,
@@ -20,6 +68,15 @@ from hilident.ident.friction import (
     steady_state_points,
     stribeck,
 )
+from hilident.ident.greybox import (
+    LinearFit,
+    check_excitation,
+    fit_dc_motor_speed,
+    fit_linear,
+    fit_mass_spring_damper,
+    fit_rigid_axis,
+    fit_torque_constant,
+)
 from hilident.ident.preprocess import (
     bandpass,
     central_difference,
@@ -29,28 +86,8 @@ from hilident.ident.preprocess import (
     lowpass,
 )
 from hilident.ident.resonance import Resonance, find_resonances, fit_local_mode
+from hilident.ident.validation import ResidualAnalysis, fit_percent, overfitting_warning, residual_analysis
 
-__all__ = [
-    "FrequencyResponse",
-    "etfe",
-    "frf_from_reference",
-    "h1_estimate",
-    "periodic_frf",
-    "FrictionFit",
-    "SteadyStatePoints",
-    "StribeckParams",
-    "compensate",
-    "fit_coulomb_viscous",
-    "fit_stribeck",
-    "steady_state_points",
-    "stribeck",
-    "bandpass",
-    "central_difference",
-    "check_signals",
-    "detrend",
-    "highpass",
-    "lowpass",
-    "Resonance",
-    "find_resonances",
-    "fit_local_mode",
-]
+import types as _types
+
+__all__ = sorted(n for n, v in globals().items() if not n.startswith("_") and not isinstance(v, _types.ModuleType))

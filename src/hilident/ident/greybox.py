@@ -48,6 +48,7 @@ from hilident.ident.derivatives import (
     state_variable_filter,
 )
 from hilident.ident.preprocess import check_signals
+from hilident.ident.validation import fit_percent
 
 __all__ = [
     "LinearFit",
@@ -351,8 +352,7 @@ def fit_linear(
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
 
     y_rms = float(np.sqrt(np.mean(y**2)))
-    spread = float(np.linalg.norm(y - y.mean()))
-    fit_percent = 100.0 * (1.0 - np.sqrt(sse) / spread) if spread > 0 else float("nan")
+    fit = fit_percent(y, y - e) if np.ptp(y) > 0 else float("nan")
     params = {n: float(t) for n, t in zip(names, theta)}
     stderr = {n: float(v) for n, v in zip(names, se)}
     rel = {
@@ -378,7 +378,7 @@ def fit_linear(
         covariance=cov,
         residual_rms=float(np.sqrt(sse / N)),
         cost_V=0.5 * sse,
-        fit_percent=float(fit_percent),
+        fit_percent=float(fit),
         condition_number=float((s[0] / s[-1]) ** 2),
         n_samples=int(N),
         n_effective=n_eff,
