@@ -26,7 +26,6 @@ def test_defaults_fill_what_is_not_given():
 @pytest.mark.parametrize(
     "text, key",
     [
-        ("", "limits"),
         (LIMITS + "[emulator.plant]\nm1 = 0\n", "emulator.plant.m1"),
         (LIMITS + "[emulator.plant]\nmodel = 'three_mass'\n", "emulator.plant.model"),
         (LIMITS + "[excitation]\nkind = 'sine'\nduration_s = 'long'\n", "excitation.duration_s"),
@@ -51,3 +50,13 @@ def test_missing_file_is_a_config_error(tmp_path):
     with pytest.raises(ConfigError) as err:
         load_config(tmp_path / "nope.toml")
     assert "nope.toml" in str(err.value)
+
+
+def test_a_bench_run_needs_limits():
+    from hilident.session import Session
+
+    cfg = parse_config("[emulator.plant]\nm1 = 30.0\n", "bench.toml")
+    assert cfg.limits is None  # fine for `hilident identify`, which moves nothing
+    with pytest.raises(ConfigError) as err:
+        Session(cfg, "unused")
+    assert err.value.key == "limits" and "bench.toml" in str(err.value)

@@ -1,4 +1,4 @@
-"""Command line: ``hilident run``, ``hilident emulate serial``, ``hilident drivers``.
+"""Command line: ``hilident run``, ``hilident identify``, ``hilident emulate serial``, ``hilident drivers``.
 
 Thin on purpose: it parses arguments and calls the session, the emulator
 factory or the driver loader. Every :class:`~hilident.errors.HilidentError`
@@ -37,6 +37,28 @@ def _run(args) -> int:
     s = summary["stream"]
     print(f"stream: {s['samples']} samples, {s['lost_blocks']} lost blocks, {s['corrupt_frames']} corrupt frames, "
           f"{s['underruns']} underruns")
+    for w in summary["warnings"]:
+        print(f"warning: {w}")
+    print(f"wrote {out / 'summary.json'}")
+    return 0
+
+
+def _identify(args) -> int:
+    from hilident.config import load_config
+    from hilident.offline import identify_recording
+    from hilident.session import Progress
+
+    cfg = load_config(args.config)
+    out = Path(args.out) if args.out else Path("runs") / Path(args.data).stem
+    summary = identify_recording(cfg, args.data, out, Progress(enabled=not args.quiet))
+    res = ", ".join(f"{r['frequency_hz']:.4g} Hz (zeta {r['damping_ratio']:.3f})" for r in summary["resonances"])
+    print(f"resonances: {res or 'none found'}")
+    if summary["model"]:
+        m = summary["model"]
+        params = ", ".join(
+            f"{k} {v:.5g} ± {m['stderr'][k]:.2g} ({m['relative_stderr_percent'][k]:.2g} %)" for k, v in m["params"].items()
+        )
+        print(f"{summary['model']['kind']}: {params}; fit {m['fit_percent']:.1f} %")
     for w in summary["warnings"]:
         print(f"warning: {w}")
     print(f"wrote {out / 'summary.json'}")
@@ -95,6 +117,13 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--out", help="output folder (default: runs/<config name>)")
     run.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     run.set_defaults(func=_run)
+
+    ide = sub.add_parser("identify", help="identify the plant in a recording (hilident HDF5, CSV or .mat)")
+    ide.add_argument("data", help="recording file")
+    ide.add_argument("--config", required=True, help="TOML configuration with [data] (column mapping) and [model]")
+    ide.add_argument("--out", help="output folder (default: runs/<data name>)")
+    ide.add_argument("-q", "--quiet", action="store_true")
+    ide.set_defaults(func=_identify)
 
     emu = sub.add_parser("emulate", help="run an emulated device standalone")
     emu_sub = emu.add_subparsers(dest="transport", required=True)

@@ -102,6 +102,34 @@ class NotchConfig:
     min_reduction_db: float = _spec(20.0, ge=0, doc="warn when the verification shows less reduction")
 
 
+@dataclass(frozen=True)
+class DataConfig:
+    format: str = _spec("auto", choices=("auto", "hilident", "csv", "mat"), doc="file format; auto: by extension")
+    sample_rate_hz: float = _spec(0.0, ge=0, doc="0: from the time column (or the hilident file)")
+    time: str = _spec("", doc="column of time stamps in s; must be uniform")
+    excitation: str = _spec("", doc="column of the external excitation (closed-loop data); empty: none")
+    torque: str = _spec("torque_nm", doc="column of the input torque or force")
+    velocity: str = _spec("", doc="column of the velocity; empty: derived from position")
+    position: str = _spec("", doc="column of the position")
+    output: str = _spec("", doc="column of the response output; empty: the velocity")
+    torque_scale: float = _spec(1.0, gt=0, doc="multiplies the torque column to give N*m")
+    velocity_scale: float = _spec(1.0, gt=0, doc="multiplies the velocity column to give m/s")
+    position_scale: float = _spec(1.0, gt=0, doc="multiplies the position column to give m")
+    output_scale: float = _spec(1.0, gt=0)
+    excitation_scale: float = _spec(1.0, gt=0)
+    closed_loop: bool = _spec(False, doc="the data were recorded with a controller closed around the axis")
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    kind: str = _spec("none", choices=("none", "mass_spring_damper", "rigid_axis"), doc="grey-box model fitted to the data")
+    c: float = _spec(1.0, gt=0, doc="torque-to-force constant: force = c * torque")
+    cutoff_hz: float = _spec(0.0, ge=0, doc="state-variable filter cut-off; 0: a tenth of the sample rate")
+    input_hold: str = _spec("zoh", choices=("zoh", "sample"),
+                            doc="zoh: the torque was held over each sample period (a drive's command); sample: point samples")
+    filter_rate_hz: float = _spec(4000.0, gt=0, doc="rate the notch biquads are designed for (no device to ask)")
+
+
 # --- emulator -----------------------------------------------------------------------------
 
 
@@ -170,7 +198,9 @@ class EmulatorConfig:
 class Config:
     device: DeviceConfig = _spec(DeviceConfig())
     run: RunConfig = _spec(RunConfig())
-    limits: LimitsConfig = _spec(None)
+    limits: LimitsConfig | None = _spec(None)
+    data: DataConfig = _spec(DataConfig())
+    model: ModelConfig = _spec(ModelConfig())
     friction_test: FrictionTestConfig = _spec(FrictionTestConfig())
     excitation: ExcitationConfig = _spec(ExcitationConfig())
     identification: IdentificationConfig = _spec(IdentificationConfig())
@@ -210,8 +240,6 @@ def parse_config(text: str, source: str = "<string>") -> Config:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError("(syntax)", f"not valid TOML: {exc}", source) from None
-    if "limits" not in data:
-        raise ConfigError("limits", "is required: torque_nm, velocity_mps, position_min_m, position_max_m", source)
     cfg = _build(Config, data, "", source)
     cfg = dataclasses.replace(cfg, source=source, text=text)
     _cross_check(cfg)
@@ -240,6 +268,8 @@ def _build(cls, table, prefix: str, source: str):
 
 
 def _convert(hint, value, meta, key: str, source: str):
+    if isinstance(hint, types.UnionType):  # "X | None": the table, when given
+        hint = next(h for h in typing.get_args(hint) if h is not type(None))
     if dataclasses.is_dataclass(hint):
         return _build(hint, value, key + ".", source)
     origin = typing.get_origin(hint)
@@ -268,15 +298,29 @@ def _scalar(hint, value, meta, key, source):
 def _cross_check(cfg: Config) -> None:
     src = cfg.source
     lim = cfg.limits
-    if lim.position_min_m >= lim.position_max_m:
-        raise ConfigError("limits.position_min_m", "must be below limits.position_max_m", src)
     exc = cfg.excitation
+    if lim is not None:
+        _check_limits(cfg)
+    rng = cfg.emulator.sensors.laser_range_m
+    if len(rng) != 2 or rng[0] >= rng[1]:
+        raise ConfigError("emulator.sensors.laser_range_m", "must be [min, max] with min < max", src)
     if exc.f_min_hz >= exc.f_max_hz:
         raise ConfigError("excitation.f_min_hz", "must be below excitation.f_max_hz", src)
     if exc.f_max_hz >= cfg.run.sample_rate_hz / 2:
         raise ConfigError(
             "excitation.f_max_hz", f"must be below the Nyquist frequency {cfg.run.sample_rate_hz / 2:g} Hz", src
         )
+    if cfg.run.channels:
+        needed = {"excitation", "torque_nm", "velocity_mps", cfg.identification.output}
+        missing = sorted(needed - set(cfg.run.channels))
+        if missing:
+            raise ConfigError("run.channels", f"the session needs {', '.join(missing)} too", src)
+
+
+def _check_limits(cfg: Config) -> None:
+    src, lim, exc = cfg.source, cfg.limits, cfg.excitation
+    if lim.position_min_m >= lim.position_max_m:
+        raise ConfigError("limits.position_min_m", "must be below limits.position_max_m", src)
     if exc.amplitude_nm > lim.torque_nm:
         raise ConfigError(
             "excitation.amplitude_nm", f"{exc.amplitude_nm:g} N*m exceeds limits.torque_nm = {lim.torque_nm:g}", src
@@ -287,11 +331,3 @@ def _cross_check(cfg: Config) -> None:
         raise ConfigError("friction_test.speeds_mps", f"a speed reaches limits.velocity_mps = {lim.velocity_mps:g}", src)
     if cfg.friction_test.settle_s >= cfg.friction_test.hold_s:
         raise ConfigError("friction_test.settle_s", "must be shorter than friction_test.hold_s", src)
-    if cfg.run.channels:
-        needed = {"excitation", "torque_nm", "velocity_mps", cfg.identification.output}
-        missing = sorted(needed - set(cfg.run.channels))
-        if missing:
-            raise ConfigError("run.channels", f"the session needs {', '.join(missing)} too", src)
-    rng = cfg.emulator.sensors.laser_range_m
-    if len(rng) != 2 or rng[0] >= rng[1]:
-        raise ConfigError("emulator.sensors.laser_range_m", "must be [min, max] with min < max", src)

@@ -147,6 +147,11 @@ class Session:
     """
 
     def __init__(self, cfg: Config, out_dir: str | Path, progress: Progress | None = None):
+        if cfg.limits is None:
+            raise ConfigError(
+                "limits", "is required for a bench run: torque_nm, velocity_mps, position_min_m, position_max_m",
+                cfg.source,
+            )
         self.cfg = cfg
         self.out = Path(out_dir)
         self.progress = progress or Progress(enabled=False)

@@ -271,7 +271,8 @@ class BoardFirmware:
             self._in_underrun = True
         elif k:
             self._in_underrun = False
-        rows = self.drive.run(np.repeat(values, divider))[divider - 1 :: divider]
+        # sample, then update: a row holds the state at the start of its period, when its excitation begins
+        rows = self.drive.run(np.repeat(values, divider))[::divider]
         first = self._produced
         self._produced += n_samples
         self._append(rows[:, self._selected_columns()])

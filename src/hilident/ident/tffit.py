@@ -1,0 +1,859 @@
+"""Continuous-time transfer functions fitted to a measured frequency response.
+
+The lecture ("Frequency Response Model", Q3) fits ``G^(s) = N(s) / D(s)`` to
+a measured Bode plot by minimising::
+
+    C = 1/(n+1) sum_i |G(j w_i) - G^(j w_i)|^2
+
+:func:`fit_transfer_function` does this in three stages:
+
+1. **Levy**: multiplying out the denominator, ``G D - N = 0`` is linear in the
+   coefficients and is solved by least squares. It over-weights the bins
+   where ``|D|`` is large (high frequencies, poles far away).
+2. **Sanathanan-Koerner**: the Levy problem re-solved with each bin divided by
+   ``|D(j w)|`` of the previous iterate, so that at convergence the error
+   minimised is the error in ``G`` itself. Unstable poles of an iterate are
+   reflected into the left half plane (``p -> -conj(p)``, same ``|D(j w)|``)
+   before it is used again.
+3. **Levenberg-Marquardt** (``scipy.optimize.least_squares``) on the true
+   complex error. The denominator is a product of quadratics
+   ``x^2 + a1 x + a0`` (and one ``x + c`` for odd order) with ``a1, a0, c``
+   stored as logarithms, so every iterate is stable; the numerator is
+   optimal for each denominator (linear least squares, "variable
+   projection").
+
+``s`` is normalised by a reference frequency (default the geometric mean of
+the band), ``x = s / (2 pi reference_hz)``, and the response by its rms, so
+that polynomial coefficients stay near 1 and high orders stay well
+conditioned.
+
+Weights
+-------
+``weights=None`` minimises the lecture's ``C`` as written (absolute error:
+bins where ``|G|`` is large dominate). ``weights="coherence"`` weights every
+bin by the inverse standard deviation of an averaged estimate implied by its
+coherence ``coh`` (thesis eq. 2.46) over ``n = frf.n_averages`` averages::
+
+    w = sqrt(n coh / (1 - coh)) / |G|
+
+since ``E|G^ - G|^2 ~ |G|^2 (1 - coh) / (n coh)`` for H1. This is maximum
+likelihood for Gaussian errors, fits low- and high-gain regions alike
+(relative error), and makes ``weighted_cost`` about 1 when the model explains
+the data to within its noise. An array gives the weights directly (inverse
+standard deviation per bin).
+
+Rigid-body modes and delay
+--------------------------
+``integrators=k`` fixes ``k`` poles at ``s = 0`` (a velocity response of a
+free axis has one): ``s^k G`` is fitted with weights ``w / |s|^k``, which is
+the same error in ``G``. ``delay_s`` is a known pure delay
+``exp(-s delay_s)``, removed from the data before fitting and put back by
+:meth:`TfFit.response`; it is not part of ``num`` / ``den``.
+
+Example
+-------
+>>> import numpy as np
+>>> from scipy import signal
+>>> from hilident.ident.frequency import FrequencyResponse
+>>> from hilident.ident.tffit import fit_transfer_function, modal_form
+>>> w0, zeta = 2 * np.pi * 50.0, 0.02
+>>> f = np.geomspace(5.0, 500.0, 200)
+>>> h = signal.freqs([w0**2], [1.0, 2 * zeta * w0, w0**2], 2 * np.pi * f)[1]
+>>> fit = fit_transfer_function(FrequencyResponse(f, h, np.ones(f.size), 10, "h1"), 0, 2)
+>>> ((f_hz, z),) = modal_form(fit).resonances
+>>> print(f"{f_hz:.3f} Hz, zeta {z:.4f}, gain {modal_form(fit).gain:.4f}")
+50.000 Hz, zeta 0.0200, gain 1.0000
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy import optimize
+
+from hilident.errors import ConfigError, DataError
+from hilident.ident.frequency import FrequencyResponse
+
+__all__ = [
+    "TfFit",
+    "ModalModel",
+    "TfOrderCandidate",
+    "fit_transfer_function",
+    "modal_form",
+    "select_order",
+]
+
+_TWO_PI = 2.0 * np.pi
+# Poles with |Im p| below this fraction of |p| count as real.
+_REAL_TOL = 1e-9
+_CRITERIA = ("threshold", "aic", "bic")
+
+
+# --- results ------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class TfFit:
+    """A continuous-time transfer function fitted to a frequency response.
+
+    ``G^(s) = gain * prod(s - zeros) / prod(s - poles) * exp(-s delay_s)``.
+
+    Attributes
+    ----------
+    num, den : ndarray
+        Polynomials in ``s`` (rad/s), highest power first (scipy order), for
+        ``scipy.signal.freqs`` / ``lti``. ``den`` includes the integrators;
+        neither includes the delay. At high order the coefficients span many
+        decades: prefer :meth:`response`, ``poles``/``zeros`` or
+        :func:`modal_form`.
+    poles, zeros : ndarray of complex
+        rad/s; ``poles`` includes ``integrators`` poles at exactly 0.
+    gain : float
+        ``k`` of the zero-pole-gain form (scipy convention).
+    n_num, n_den, integrators : int
+        Fitted numerator and denominator degrees (``den`` has degree
+        ``n_den + integrators``) and fixed poles at 0.
+    delay_s : float
+        Pure delay, s.
+    cost : float
+        The lecture's ``C = 1/(n+1) sum |G - G^|^2`` over the fitted bins
+        (units of ``G`` squared), whatever the weighting.
+    weighted_cost : float
+        ``mean |w (G - G^)|^2``, the quantity minimised (equal to `cost` for
+        ``weights=None``; about 1 for a good fit with coherence weights).
+    fit_db_rms : float
+        rms over the fitted bins of ``20 log10 |G^ / G|``, dB.
+    phase_rms_deg : float
+        rms of the phase error ``angle(G^ / G)``, degrees.
+    reflected_poles : int
+        Unstable poles reflected into the left half plane on the way (over
+        all iterations); 0 when no iterate was unstable.
+    stable : bool
+        All poles except the integrators have negative real part.
+    sk_iterations : int
+        Sanathanan-Koerner iterations run after the Levy start.
+    reference_hz : float
+        Frequency that normalised ``s``, Hz.
+    band_hz : (float, float)
+        Lowest and highest fitted frequency, Hz.
+    n_bins : int
+        Bins fitted (non-zero weight, finite response, ``f > 0``, in the band).
+    weighting : str
+        ``"none"``, ``"coherence"`` or ``"array"``.
+    """
+
+    num: np.ndarray
+    den: np.ndarray
+    poles: np.ndarray
+    zeros: np.ndarray
+    gain: float
+    n_num: int
+    n_den: int
+    integrators: int
+    delay_s: float
+    cost: float
+    weighted_cost: float
+    fit_db_rms: float
+    phase_rms_deg: float
+    reflected_poles: int
+    stable: bool
+    sk_iterations: int
+    reference_hz: float
+    band_hz: tuple[float, float]
+    n_bins: int
+    weighting: str
+
+    @property
+    def n_params(self) -> int:
+        """Free real parameters: ``n_num + 1`` numerator, ``n_den`` denominator."""
+        return self.n_num + 1 + self.n_den
+
+    def response(self, frequency_hz: ArrayLike) -> np.ndarray:
+        """Complex response ``G^(j 2 pi f)`` at `frequency_hz` (Hz).
+
+        Evaluated from poles and zeros in normalised frequency, so it stays
+        accurate where the ``num``/``den`` coefficients would not.
+        """
+        return _zpk_response(frequency_hz, self.gain, self.zeros, self.poles, self.reference_hz, self.delay_s)
+
+
+@dataclass(frozen=True, eq=False)
+class ModalModel:
+    """A transfer function as a product of the lecture's building blocks.
+
+    ::
+
+        G(s) = gain / s^integrators * exp(-s delay_s)
+               * prod_anti (s^2/w^2 + 2 zeta s/w + 1)  * prod_zero (1 + s/w_z)
+               / prod_res  (s^2/w^2 + 2 zeta s/w + 1)  / prod_pole (1 + s/w_p)
+
+    with ``w = 2 pi frequency_hz``. Each factor is 1 at ``s = 0``, so `gain` is
+    the DC gain (for ``integrators=0``). A negative ``zeta`` or corner
+    frequency is a factor with its roots in the right half plane.
+
+    Attributes
+    ----------
+    gain : float
+        DC gain of everything but the integrators (units of ``G`` times s^integrators).
+    resonances : tuple of (float, float)
+        ``(frequency_hz, damping_ratio)`` of the quadratic denominator factors,
+        sorted by frequency.
+    antiresonances : tuple of (float, float)
+        The same for the numerator.
+    real_poles_hz, real_zeros_hz : tuple of float
+        Corner frequencies ``w / 2 pi`` of first-order factors ``1 + s/w``, Hz.
+    integrators : int
+        Poles at ``s = 0``.
+    delay_s : float
+        Pure delay, s.
+
+    Example
+    -------
+    The lecture's piezo actuator up to 8000 rad/s (frequencies given in rad/s):
+
+    >>> import numpy as np
+    >>> hz = lambda w: w / (2 * np.pi)
+    >>> piezo = ModalModel(0.673,
+    ...     resonances=[(hz(2450), 0.1), (hz(4860), 0.05), (hz(4860), 0.7), (hz(4860), 0.8)],
+    ...     antiresonances=[(hz(2875), 0.01)])
+    >>> print(f"{20 * np.log10(abs(piezo.response(0.0))):.2f} dB")
+    -3.44 dB
+    """
+
+    gain: float
+    resonances: Sequence[tuple[float, float]] = ()
+    antiresonances: Sequence[tuple[float, float]] = ()
+    real_poles_hz: Sequence[float] = ()
+    real_zeros_hz: Sequence[float] = ()
+    integrators: int = 0
+    delay_s: float = 0.0
+
+    def __post_init__(self):
+        gain = float(self.gain)
+        if not np.isfinite(gain):
+            raise ConfigError("gain", f"must be a finite number, got {self.gain!r}")
+        object.__setattr__(self, "gain", gain)
+        for key in ("resonances", "antiresonances"):
+            pairs = []
+            for item in getattr(self, key):
+                try:
+                    f_hz, zeta = (float(v) for v in item)
+                except (TypeError, ValueError):
+                    raise ConfigError(
+                        key, f"entries must be (frequency_hz, damping_ratio), got {item!r}"
+                    ) from None
+                if not (np.isfinite(f_hz) and f_hz > 0.0 and np.isfinite(zeta)):
+                    raise ConfigError(
+                        key, f"needs frequency_hz > 0 and a finite damping ratio, got {item!r}"
+                    )
+                pairs.append((f_hz, zeta))
+            object.__setattr__(self, key, tuple(sorted(pairs)))
+        for key in ("real_poles_hz", "real_zeros_hz"):
+            corners = tuple(sorted(float(v) for v in getattr(self, key)))
+            if not all(np.isfinite(c) and c != 0.0 for c in corners):
+                raise ConfigError(key, f"corner frequencies must be finite and non-zero, got {corners!r}")
+            object.__setattr__(self, key, corners)
+        if int(self.integrators) != self.integrators or self.integrators < 0:
+            raise ConfigError("integrators", f"must be an integer >= 0, got {self.integrators!r}")
+        object.__setattr__(self, "integrators", int(self.integrators))
+        object.__setattr__(self, "delay_s", float(self.delay_s))
+
+    def response(self, frequency_hz: ArrayLike) -> np.ndarray:
+        """Complex response at `frequency_hz` (Hz)."""
+        f = np.asarray(frequency_hz, dtype=np.float64)
+        h = np.full(f.shape, self.gain, dtype=np.complex128)
+        for f0, z in self.antiresonances:
+            r = f / f0
+            h *= 1.0 - r**2 + 2j * z * r
+        for f0, z in self.resonances:
+            r = f / f0
+            h /= 1.0 - r**2 + 2j * z * r
+        for fc in self.real_zeros_hz:
+            h *= 1.0 + 1j * f / fc
+        for fc in self.real_poles_hz:
+            h /= 1.0 + 1j * f / fc
+        with np.errstate(divide="ignore", invalid="ignore"):
+            h /= (1j * _TWO_PI * f) ** self.integrators
+        return h * np.exp(-1j * _TWO_PI * f * self.delay_s)
+
+    def poles(self) -> np.ndarray:
+        """Poles, rad/s (integrators as zeros of ``s``)."""
+        return _roots_of(self.resonances, self.real_poles_hz, self.integrators)
+
+    def zeros(self) -> np.ndarray:
+        """Zeros, rad/s."""
+        return _roots_of(self.antiresonances, self.real_zeros_hz, 0)
+
+    def to_tf(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(num, den)`` in ``s``, highest power first; the delay is left out."""
+        num = np.array([self.gain])
+        den = np.array([1.0])
+        for f0, z in self.antiresonances:
+            w = _TWO_PI * f0
+            num = np.polymul(num, [1.0 / w**2, 2.0 * z / w, 1.0])
+        for f0, z in self.resonances:
+            w = _TWO_PI * f0
+            den = np.polymul(den, [1.0 / w**2, 2.0 * z / w, 1.0])
+        for fc in self.real_zeros_hz:
+            num = np.polymul(num, [1.0 / (_TWO_PI * fc), 1.0])
+        for fc in self.real_poles_hz:
+            den = np.polymul(den, [1.0 / (_TWO_PI * fc), 1.0])
+        den = np.polymul(den, np.r_[1.0, np.zeros(self.integrators)])
+        return num, den
+
+
+def _roots_of(quadratics, corners_hz, n_zero) -> np.ndarray:
+    roots = []
+    for f0, z in quadratics:
+        w = _TWO_PI * f0
+        roots.extend(np.roots([1.0, 2.0 * z * w, w * w]).astype(np.complex128))
+    roots.extend(-_TWO_PI * np.asarray(corners_hz, dtype=np.float64) + 0j)
+    roots.extend([0j] * n_zero)
+    return np.array(roots, dtype=np.complex128)
+
+
+@dataclass(frozen=True, eq=False)
+class TfOrderCandidate:
+    """One row of :func:`select_order`.
+
+    Attributes
+    ----------
+    n_num, n_den : int
+        Orders tried.
+    fit : TfFit or None
+        The fit (None when it could not be made, see `error`).
+    aic, bic : float
+        ``N ln(V / N) + 2 p`` and ``N ln(V / N) + p ln N`` with ``N = 2 * bins``
+        real residuals, ``V`` their weighted sum of squares, ``p`` parameters.
+    selected : bool
+        The chosen order.
+    error : str
+        Why the fit failed ("" when it did not).
+    """
+
+    n_num: int
+    n_den: int
+    fit: TfFit | None
+    aic: float
+    bic: float
+    selected: bool = False
+    error: str = ""
+
+    @property
+    def n_params(self) -> int:
+        return self.n_num + 1 + self.n_den
+
+
+# --- helpers ------------------------------------------------------------------
+
+
+def _zpk_response(frequency_hz, gain, zeros, poles, reference_hz, delay_s) -> np.ndarray:
+    """``gain prod(s - z) / prod(s - p) exp(-s delay)`` at ``s = j 2 pi f``, in normalised ``s``."""
+    f = np.asarray(frequency_hz, dtype=np.float64)
+    w_ref = _TWO_PI * reference_hz
+    x = 1j * f / reference_hz
+    k = gain * w_ref ** (len(zeros) - len(poles))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h = k * _zpk_eval(x, np.asarray(zeros) / w_ref, np.asarray(poles) / w_ref)
+    return h * np.exp(-1j * _TWO_PI * f * delay_s)
+
+
+def _zpk_eval(x: np.ndarray, zeros: np.ndarray, poles: np.ndarray) -> np.ndarray:
+    """``prod(x - z) / prod(x - p)``, factors interleaved to stay in range."""
+    h = np.ones(np.shape(x), dtype=np.complex128)
+    nz, npl = len(zeros), len(poles)
+    for i in range(max(nz, npl)):
+        if i < nz:
+            h = h * (x - zeros[i])
+        if i < npl:
+            h = h / (x - poles[i])
+    return h
+
+
+def _check_order(key: str, value, low: int) -> int:
+    if isinstance(value, bool) or int(value) != value or value < low:
+        raise ConfigError(key, f"must be an integer >= {low}, got {value!r}")
+    return int(value)
+
+
+def _reflect(roots: np.ndarray) -> tuple[np.ndarray, int]:
+    """Mirror right-half-plane roots into the left half plane; returns the count."""
+    bad = roots.real > 0.0
+    out = np.where(bad, -roots.real + 1j * roots.imag, roots)
+    return out, int(np.count_nonzero(bad))
+
+
+def _lstsq_complex(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Real solution of ``A theta ~ b`` (complex rows), columns scaled to unit norm."""
+    Ar = np.vstack([A.real, A.imag])
+    br = np.concatenate([b.real, b.imag])
+    col = np.linalg.norm(Ar, axis=0)
+    col[col == 0.0] = 1.0
+    sol = np.linalg.lstsq(Ar / col, br, rcond=None)[0]
+    return sol / col
+
+
+def _numerator_for(x, H, w, Dx, n_num):
+    """Best numerator (normalised x, highest first) for a fixed denominator value."""
+    A = (w / Dx)[:, None] * x[:, None] ** np.arange(n_num + 1)
+    return _lstsq_complex(A, w * H)[::-1]
+
+
+def _weights(frf: FrequencyResponse, H: np.ndarray, weights) -> tuple[np.ndarray, str]:
+    n = H.size
+    if weights is None:
+        return np.ones(n), "none"
+    if isinstance(weights, str):
+        if weights != "coherence":
+            raise ConfigError("weights", f"must be None, 'coherence' or an array, got {weights!r}")
+        coh = frf.coherence
+        if not np.all(np.isfinite(coh)):
+            raise DataError(
+                f"weights='coherence' needs a coherence at every bin, but the '{frf.method}' "
+                "estimate has NaN coherence; pass weights=None or an array"
+            )
+        c = np.clip(coh, 1e-6, 1.0 - 1e-9)
+        mag = np.maximum(np.abs(H), np.finfo(float).tiny)
+        return np.sqrt(max(frf.n_averages, 1) * c / (1.0 - c)) / mag, "coherence"
+    w = np.asarray(weights, dtype=np.float64)
+    if w.shape != (n,) or not np.all(np.isfinite(w)) or np.any(w < 0.0) or not np.any(w > 0.0):
+        raise ConfigError(
+            "weights", f"an array must hold {n} finite non-negative values, not all 0, got shape {w.shape}"
+        )
+    return w, "array"
+
+
+# --- the fit ------------------------------------------------------------------
+
+
+def _den_from_params(theta: np.ndarray, n_den: int) -> np.ndarray:
+    """Monic stable denominator (highest first) from log-parameters."""
+    den = np.array([1.0])
+    e = np.exp(theta)
+    for i in range(n_den // 2):
+        den = np.polymul(den, [1.0, e[2 * i], e[2 * i + 1]])
+    if n_den % 2:
+        den = np.polymul(den, [1.0, e[-1]])
+    return den
+
+
+def _params_from_roots(poles: np.ndarray, n_den: int) -> np.ndarray:
+    """Log-parameters of quadratic (and one linear) stable factors holding `poles`."""
+    poles = np.asarray(poles, dtype=np.complex128)
+    tiny = 1e-12
+    cplx = poles[poles.imag > _REAL_TOL * np.abs(poles)]
+    real = np.sort(poles[np.abs(poles.imag) <= _REAL_TOL * np.abs(poles)].real)
+    quads = [(-2.0 * p.real, abs(p) ** 2) for p in cplx]
+    # Pair the real poles neighbour by neighbour; an odd one out is the linear factor.
+    lin = None
+    if real.size % 2:
+        lin, real = real[-1], real[:-1]
+    quads += [(-(a + b), a * b) for a, b in zip(real[0::2], real[1::2])]
+    theta = []
+    for a1, a0 in quads:
+        theta += [np.log(max(a1, tiny * np.sqrt(max(a0, tiny)) + tiny)), np.log(max(a0, tiny))]
+    if lin is not None:
+        theta.append(np.log(max(-lin, tiny)))
+    theta = np.array(theta)
+    if theta.size != n_den:  # the pairing lost a root (numerically near-real pairs)
+        raise DataError(f"could not factor {n_den} poles into stable sections")
+    return theta
+
+
+def _fit_normalised(x, H, w, n_num, n_den, iterations, tol, refine, max_nfev):
+    """Levy, SK and LM on normalised data. Returns (num_x, den_x, sk_its, reflected)."""
+    reflected = 0
+
+    def cost_of(den):
+        Dx = np.polyval(den, x)
+        num = _numerator_for(x, H, w, Dx, n_num)
+        r = w * (H - np.polyval(num, x) / Dx)
+        return float(np.mean(np.abs(r) ** 2)), num
+
+    if n_den == 0:
+        den = np.array([1.0])
+        return _numerator_for(x, H, w, np.ones(x.size), n_num), den, 0, 0
+
+    # Levy + Sanathanan-Koerner: H (x^n + a_{n-1} x^{n-1} + ... + a0) - N(x) = 0.
+    A = np.hstack([H[:, None] * x[:, None] ** np.arange(n_den), -(x[:, None] ** np.arange(n_num + 1))])
+    b = -H * x**n_den
+    sk = np.ones(x.size)
+    best = None
+    first = last = None
+    den_prev = None
+    its = 0
+    for its in range(iterations + 1):
+        ww = w * sk
+        theta = _lstsq_complex(ww[:, None] * A, ww * b)
+        den = np.r_[1.0, theta[:n_den][::-1]]
+        if not np.all(np.isfinite(den)):
+            break
+        roots, n_bad = _reflect(np.roots(den))
+        if n_bad:
+            reflected += n_bad
+            den = np.real(np.poly(roots))
+        c, num = cost_of(den)
+        last = (c, num, den)
+        first = first or last
+        if best is None or c < best[0]:
+            best = last
+        Dx = np.polyval(den, x)
+        if np.any(Dx == 0.0):
+            break
+        sk = 1.0 / np.abs(Dx)
+        if den_prev is not None and np.max(np.abs(den - den_prev) / (1.0 + np.abs(den))) < tol:
+            break
+        den_prev = den
+    if best is None:
+        raise DataError("the Levy start failed (non-finite denominator); check the data for NaN/Inf")
+    if not refine:
+        return best[1], best[2], its, reflected
+
+    # Levenberg-Marquardt over stable factors, numerator by variable projection.
+    def residual(theta):
+        Dx = np.polyval(_den_from_params(theta, n_den), x)
+        n = _numerator_for(x, H, w, Dx, n_num)
+        r = w * (H - np.polyval(n, x) / Dx)
+        return np.concatenate([r.real, r.imag])
+
+    # Started from the best, the last and the Levy iterate: when the order is
+    # higher than the data support, they can lie in different basins.
+    starts = [best]
+    for cand in (last, first):
+        if not any(np.array_equal(cand[2], s_[2]) for s_ in starts):
+            starts.append(cand)
+    for _, _, den0 in starts:
+        try:
+            theta0 = _params_from_roots(np.roots(den0), n_den)
+        except DataError:
+            continue
+        res = optimize.least_squares(residual, theta0, method="lm", max_nfev=max_nfev, x_scale="jac")
+        c_lm, num_lm = cost_of(_den_from_params(res.x, n_den))
+        if np.isfinite(c_lm) and c_lm <= best[0]:
+            best = (c_lm, num_lm, _den_from_params(res.x, n_den))
+    return best[1], best[2], its, reflected
+
+
+def fit_transfer_function(
+    frf: FrequencyResponse,
+    n_num: int,
+    n_den: int,
+    weights: str | ArrayLike | None = None,
+    delay_s: float = 0.0,
+    integrators: int = 0,
+    iterations: int = 30,
+    refine: bool = True,
+    reference_hz: float | None = None,
+    band_hz: tuple[float, float] | None = None,
+    tol: float = 1e-8,
+    max_nfev: int | None = None,
+) -> TfFit:
+    """Fit ``G^(s) = N(s) / (s^integrators D(s)) exp(-s delay_s)`` to a measured FRF.
+
+    Levy start, Sanathanan-Koerner iterations, then Levenberg-Marquardt on
+    the complex error (see the module docstring). Every pole of the result
+    (except the fixed integrators) lies in the open left half plane.
+
+    Parameters
+    ----------
+    frf : FrequencyResponse
+        Measured response; bins at ``f <= 0`` or with non-finite response are
+        skipped.
+    n_num, n_den : int
+        Degrees of ``N`` and ``D`` (``n_den`` counts only the free poles).
+    weights : None, "coherence" or array_like
+        None: the lecture's unweighted cost. ``"coherence"``: inverse
+        standard deviation ``sqrt(n coh / (1 - coh)) / |G|``. Array: one
+        non-negative weight per bin of `frf`.
+    delay_s : float
+        Known pure delay, s (>= 0).
+    integrators : int
+        Poles fixed at ``s = 0``.
+    iterations : int
+        Most Sanathanan-Koerner iterations after the Levy start.
+    refine : bool
+        Run the Levenberg-Marquardt stage.
+    reference_hz : float, optional
+        Frequency normalising ``s``; default the geometric mean of the band.
+    band_hz : (float, float), optional
+        Fit only ``f_lo <= f <= f_hi`` (Hz).
+    tol : float
+        Relative change of the denominator coefficients that ends the
+        Sanathanan-Koerner iterations.
+    max_nfev : int, optional
+        Most residual evaluations of the Levenberg-Marquardt stage.
+
+    Returns
+    -------
+    TfFit
+
+    Raises
+    ------
+    ConfigError
+        Orders, weights, delay or band out of range.
+    DataError
+        Too few usable bins for the number of parameters, or NaN coherence
+        with ``weights="coherence"``.
+    """
+    n_num = _check_order("n_num", n_num, 0)
+    n_den = _check_order("n_den", n_den, 0)
+    integrators = _check_order("integrators", integrators, 0)
+    iterations = _check_order("iterations", iterations, 0)
+    delay_s = float(delay_s)
+    if not (np.isfinite(delay_s) and delay_s >= 0.0):
+        raise ConfigError("delay_s", f"must be a finite number >= 0 s, got {delay_s!r}")
+
+    w_all, weighting = _weights(frf, frf.response, weights)
+    f, H = frf.frequency_hz, frf.response
+    keep = (f > 0.0) & np.isfinite(H) & (w_all > 0.0)
+    if band_hz is not None:
+        f_lo, f_hi = band_hz
+        if not 0.0 <= f_lo < f_hi:
+            raise ConfigError("band_hz", f"must be (f_lo, f_hi) with 0 <= f_lo < f_hi, got {band_hz!r}")
+        keep &= (f >= f_lo) & (f <= f_hi)
+    f, H, w = f[keep], H[keep], w_all[keep]
+    n_params = n_num + 1 + n_den
+    if 2 * f.size < n_params + 1:
+        raise DataError(
+            f"{f.size} usable bins give {2 * f.size} real equations, too few for "
+            f"n_num={n_num}, n_den={n_den} ({n_params} parameters)"
+        )
+    if reference_hz is None:
+        ref = float(np.sqrt(f.min() * f.max()))
+    else:
+        ref = float(reference_hz)
+        if not (np.isfinite(ref) and ref > 0.0):
+            raise ConfigError("reference_hz", f"must be a positive frequency in Hz, got {reference_hz!r}")
+
+    # Fit s^k G e^{s tau} with weights w / |x|^k: the same error in G.
+    x = 1j * f / ref
+    Hk = H * x**integrators * np.exp(1j * _TWO_PI * f * delay_s)
+    wk = w / np.abs(x) ** integrators
+    scale = float(np.sqrt(np.mean(np.abs(wk * Hk) ** 2)))
+    if not scale > 0.0:
+        raise DataError("the response is zero at every weighted bin")
+    wk = wk / scale
+    num_x, den_x, sk_its, reflected = _fit_normalised(
+        x, Hk, wk, n_num, n_den, iterations, tol, refine, max_nfev
+    )
+
+    # Normalised zpk -> s domain.
+    w_ref = _TWO_PI * ref
+    lead = np.flatnonzero(num_x != 0.0)
+    num_x = num_x[lead[0]:] if lead.size else np.array([0.0])
+    zeros_x = np.roots(num_x) if num_x.size > 1 else np.array([], dtype=np.complex128)
+    poles_x = np.roots(den_x) if den_x.size > 1 else np.array([], dtype=np.complex128)
+    poles_x, n_bad = _reflect(poles_x)
+    reflected += n_bad
+    k_x = float(num_x[0])
+    zeros = zeros_x.astype(np.complex128) * w_ref
+    poles = np.r_[poles_x.astype(np.complex128) * w_ref, np.zeros(integrators, dtype=np.complex128)]
+    gain = k_x * w_ref ** (poles_x.size + integrators - zeros_x.size)
+    num = gain * np.real(np.poly(zeros)) if zeros.size else np.array([gain])
+    den = np.real(np.poly(poles)) if poles.size else np.array([1.0])
+
+    Hhat = _zpk_response(f, gain, zeros, poles, ref, delay_s)
+    err = H - Hhat
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = Hhat / H
+    return TfFit(
+        num=num,
+        den=den,
+        poles=poles,
+        zeros=zeros,
+        gain=gain,
+        n_num=n_num,
+        n_den=n_den,
+        integrators=integrators,
+        delay_s=delay_s,
+        cost=float(np.mean(np.abs(err) ** 2)),
+        weighted_cost=float(np.mean(np.abs(w * err) ** 2)),
+        fit_db_rms=float(np.sqrt(np.mean((20.0 * np.log10(np.abs(ratio))) ** 2))),
+        phase_rms_deg=float(np.degrees(np.sqrt(np.mean(np.angle(ratio) ** 2)))),
+        reflected_poles=reflected,
+        stable=bool(np.all(poles_x.real < 0.0)),
+        sk_iterations=sk_its,
+        reference_hz=ref,
+        band_hz=(float(f.min()), float(f.max())),
+        n_bins=int(f.size),
+        weighting=weighting,
+    )
+
+
+# --- modal form ---------------------------------------------------------------
+
+
+def _factor(roots: np.ndarray) -> tuple[list[tuple[float, float]], list[float]]:
+    """Quadratic factors ``(frequency_hz, zeta)`` and real corners (Hz) of `roots` (rad/s)."""
+    quads, corners = [], []
+    for r in roots:
+        if abs(r.imag) > _REAL_TOL * abs(r):
+            if r.imag > 0.0:
+                w = abs(r)
+                quads.append((w / _TWO_PI, -r.real / w))
+        else:
+            corners.append(-r.real / _TWO_PI)
+    return quads, corners
+
+
+def modal_form(fit: TfFit) -> ModalModel:
+    """Factor a fitted transfer function like the lecture's piezo model.
+
+    Complex pole pairs become resonances ``(frequency_hz, zeta)`` with
+    ``frequency_hz = |p| / 2 pi`` and ``zeta = -Re p / |p|``; complex zero
+    pairs become anti-resonances; real poles and zeros become first-order
+    factors with corner ``-p / 2 pi``. The gain is the DC gain of what remains
+    after the integrators, ``gain * prod(-z) / prod(-p)`` over the non-zero roots.
+
+    Parameters
+    ----------
+    fit : TfFit
+
+    Returns
+    -------
+    ModalModel
+        Same response as ``fit.response`` (up to rounding).
+
+    Raises
+    ------
+    DataError
+        A fitted zero lies exactly at ``s = 0`` (a differentiator), which the
+        modal form has no factor for.
+    """
+    zeros = np.asarray(fit.zeros)
+    poles = np.asarray(fit.poles)[: len(fit.poles) - fit.integrators]
+    if np.any(zeros == 0.0):
+        raise DataError("the fit has a zero at s = 0; the modal form has no differentiator factor")
+    dc = fit.gain * np.prod(-zeros) / np.prod(-poles)
+    res, real_p = _factor(poles)
+    anti, real_z = _factor(zeros)
+    return ModalModel(
+        gain=float(np.real(dc)),
+        resonances=res,
+        antiresonances=anti,
+        real_poles_hz=real_p,
+        real_zeros_hz=real_z,
+        integrators=fit.integrators,
+        delay_s=fit.delay_s,
+    )
+
+
+# --- order selection ----------------------------------------------------------
+
+
+def select_order(
+    frf: FrequencyResponse,
+    orders: Sequence[tuple[int, int]] | None = None,
+    max_order: int | None = None,
+    criterion: str = "threshold",
+    threshold: float = 0.1,
+    relative_degree: int | None = None,
+    **fit_options,
+) -> tuple[TfFit, list[TfOrderCandidate]]:
+    """Fit several orders and return the smallest adequate one.
+
+    Candidates are `orders` (``[(n_num, n_den), ...]``) or, with
+    `max_order`, every ``n_den = 1 .. max_order`` with
+    ``n_num = n_den - relative_degree`` (all ``0 <= n_num <= n_den`` when
+    `relative_degree` is None). The lecture guesses the relative degree from
+    the roll-off (-20 dB/decade or -90 degrees per order) above the last
+    resonance.
+
+    Criteria, on the weighted cost ``V`` each fit minimised:
+
+    * ``"threshold"`` (default): the candidate with the fewest parameters
+      that no larger candidate improves on by more than `threshold`
+      (relative), i.e. ``V_i <= (1 + threshold) V_j`` for every ``j`` with
+      more parameters. Once the model explains the data to within its noise,
+      more parameters only lower ``V`` by about ``p / (2 bins)``.
+    * ``"aic"`` / ``"bic"``: lowest ``N ln(V_sum / N) + 2 p`` (or ``p ln N``)
+      with ``N = 2 * bins`` real residuals.
+
+    Only stable fits are eligible (they always are, the fit reflects unstable
+    poles); ties go to fewer parameters.
+
+    Parameters
+    ----------
+    frf : FrequencyResponse
+    orders : sequence of (int, int), optional
+    max_order : int, optional
+        Exactly one of `orders` and `max_order` must be given.
+    criterion : {"threshold", "aic", "bic"}
+    threshold : float
+        Relative cost improvement that justifies more parameters (> 0).
+    relative_degree : int, optional
+        See above; only with `max_order`.
+    **fit_options
+        Passed to :func:`fit_transfer_function` (weights, integrators, ...).
+
+    Returns
+    -------
+    (TfFit, list of TfOrderCandidate)
+        The chosen fit and one row per candidate (``selected`` marks it),
+        sorted by parameter count.
+    """
+    if criterion not in _CRITERIA:
+        raise ConfigError("criterion", f"must be one of {_CRITERIA}, got {criterion!r}")
+    if not (np.isfinite(threshold) and threshold > 0.0):
+        raise ConfigError("threshold", f"must be a positive number, got {threshold!r}")
+    if (orders is None) == (max_order is None):
+        raise ConfigError("orders", "give exactly one of orders=[(n_num, n_den), ...] and max_order")
+    if orders is None:
+        max_order = _check_order("max_order", max_order, 1)
+        if relative_degree is None:
+            orders = [(m, n) for n in range(1, max_order + 1) for m in range(n + 1)]
+        else:
+            rd = _check_order("relative_degree", relative_degree, 0)
+            orders = [(n - rd, n) for n in range(max(1, rd), max_order + 1)]
+        if not orders:
+            raise ConfigError("max_order", f"{max_order} leaves no order with relative_degree={relative_degree}")
+    else:
+        checked = []
+        for item in orders:
+            try:
+                m, n = item
+            except (TypeError, ValueError):
+                raise ConfigError("orders", f"entries must be (n_num, n_den), got {item!r}") from None
+            checked.append((_check_order("orders.n_num", m, 0), _check_order("orders.n_den", n, 0)))
+        if not checked:
+            raise ConfigError("orders", "must not be empty")
+        orders = list(dict.fromkeys(checked))
+    orders = sorted(orders, key=lambda mn: (mn[0] + 1 + mn[1], mn[1], mn[0]))
+
+    rows = []
+    for m, n in orders:
+        try:
+            fit = fit_transfer_function(frf, m, n, **fit_options)
+        except DataError as exc:
+            rows.append(TfOrderCandidate(m, n, None, np.inf, np.inf, error=str(exc)))
+            continue
+        N = 2 * fit.n_bins
+        v = max(fit.weighted_cost * N / 2.0, np.finfo(float).tiny)  # sum of squares
+        p = fit.n_params
+        rows.append(
+            TfOrderCandidate(m, n, fit, N * np.log(v / N) + 2 * p, N * np.log(v / N) + p * np.log(N))
+        )
+    ok = [r for r in rows if r.fit is not None and r.fit.stable]
+    if not ok:
+        raise DataError("no candidate order gave a stable fit: " + "; ".join(r.error for r in rows if r.error))
+
+    if criterion == "threshold":
+        # Tiny absolute slack so that noise-free data (costs near rounding) does not
+        # force the largest model.
+        slack = 1e-12 * max(r.fit.weighted_cost for r in ok)
+        chosen = ok[-1]
+        for i, r in enumerate(ok):
+            larger = [q for q in ok[i + 1:] if q.n_params > r.n_params]
+            if all(r.fit.weighted_cost <= (1.0 + threshold) * q.fit.weighted_cost + slack for q in larger):
+                chosen = r
+                break
+    else:
+        chosen = min(ok, key=lambda r: (getattr(r, criterion), r.n_params))
+    table = [
+        TfOrderCandidate(r.n_num, r.n_den, r.fit, r.aic, r.bic, r is chosen, r.error) for r in rows
+    ]
+    return chosen.fit, table
+
