@@ -138,8 +138,6 @@ def test_decimate_suppresses_aliases_by_60db_and_keeps_the_band(factor):
     assert rate == fs_new
     assert y.size == math.ceil(n / factor)
     edge = 200  # drop the edges: the padding is only an approximation there
-    inner = slice(edge, y.size - edge)
-    yi = y[inner]
     start = edge
     kept = lock_in(y[: y.size - edge], f_in, fs_new, start=start)
     assert abs(20 * np.log10(abs(kept))) < 0.1
@@ -151,7 +149,6 @@ def test_decimate_suppresses_aliases_by_60db_and_keeps_the_band(factor):
     # without the filter the alias is there at full amplitude: the test can fail
     naive = x[::factor]
     assert abs(lock_in(naive[: naive.size - edge], f_alias_target, fs_new, start=start)) > 0.9
-    assert yi.size > 0
 
 
 def test_decimation_filter_meets_its_specification():

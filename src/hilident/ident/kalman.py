@@ -264,10 +264,12 @@ def check_observable(A: ArrayLike, C: ArrayLike) -> None:
     rank = int(np.sum(s > rtol * s[0])) if s.size and s[0] > 0 else 0
     direction = vt[-1] / norms
     direction /= direction[np.argmax(np.abs(direction))]
+    direction[np.abs(direction) < 1e-9] = 0.0  # rounding residue, not a component
     shown = ", ".join(f"{v:.3g}" for v in direction)
     raise DataError(
         f"C: the state is not observable from these outputs (observability matrix rank "
-        f"{rank} < {a.shape[0]}); the state direction [{shown}] leaves no trace in y = C x. "
+        f"{rank} < {a.shape[0]}); the state direction [{shown}] (in the state order of A) "
+        "leaves no trace in y = C x. "
         "Measure a quantity that sees it (e.g. a position, not only a velocity)."
     )
 
@@ -576,7 +578,7 @@ def _records(u, y, m: int, p: int) -> tuple[np.ndarray, np.ndarray]:
     if yy.ndim == 1:
         yy = yy[:, None]
     if uu.ndim != 2 or uu.shape[1] != m:
-        raise DataError(f"u must have shape (N,{'' if m == 1 else ' ' + str(m)}) with {m} input(s), got {np.shape(u)}")
+        raise DataError(f"u must have shape (N, {m}) (or (N,) for one input), got {np.shape(u)}")
     if yy.ndim != 2 or yy.shape[1] != p:
         raise DataError(f"y must have shape (N, {p}) with {p} output(s), got {np.shape(y)}")
     if uu.shape[0] != yy.shape[0]:
