@@ -11,6 +11,10 @@ Pure functions; no files, devices or clocks.
 - ``arx``: ARX fitting, prediction, simulation, order search
 - ``discretize``: ZOH, Euler, Tustin and back; controllability and observability
 - ``frequency``: ETFE, H1 with coherence, closed-loop and periodic frequency responses
+- ``tffit``: transfer functions fitted to a frequency response (Levy, Sanathanan-Koerner,
+  Levenberg-Marquardt on the complex error), modal form, order selection
+- ``filtering``: first-order RC low-pass, moving average, anti-aliased decimation
+- ``kalman``: steady-state and time-varying Kalman filters, pole-placement observers
 - ``resonance``: resonances of a frequency response by local rational fits
 - ``decay``: poles from a free-vibration record
 - ``validation``: fit %, residual analysis, overfitting warning
@@ -86,6 +90,18 @@ from hilident.ident.preprocess import (
     lowpass,
 )
 from hilident.ident.resonance import Resonance, find_resonances, fit_local_mode
+from hilident.ident.filtering import decimate, decimation_filter, moving_average, rc_alpha, rc_lowpass
+from hilident.ident.kalman import (
+    KalmanFilter,
+    check_observable,
+    observer_gain_by_pole_placement,
+    run_observer,
+    steady_state_kalman,
+    two_mass_discrete,
+    two_mass_model,
+)
+from hilident.ident.tffit import ModalModel, TfFit, TfOrderCandidate, fit_transfer_function, modal_form
+from hilident.ident.tffit import select_order as select_tf_order
 from hilident.ident.validation import ResidualAnalysis, fit_percent, overfitting_warning, residual_analysis
 
 import types as _types

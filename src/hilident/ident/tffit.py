@@ -23,7 +23,7 @@ a measured Bode plot by minimising::
    projection").
 
 ``s`` is normalised by a reference frequency (default the geometric mean of
-the band), ``x = s / (2 pi reference_hz)``, and the response by its rms, so
+the band), ``x = s / (2 pi reference_hz)``, and the weighted response by its rms, so
 that polynomial coefficients stay near 1 and high orders stay well
 conditioned.
 
@@ -90,6 +90,9 @@ _TWO_PI = 2.0 * np.pi
 # Poles with |Im p| below this fraction of |p| count as real.
 _REAL_TOL = 1e-9
 _CRITERIA = ("threshold", "aic", "bic")
+# Bound on the log-coefficients of the stable factors (normalised s): keeps
+# a pole that drifts off towards 0 or infinity from overflowing.
+_LOG_LIMIT = 40.0
 
 
 # --- results ------------------------------------------------------------------
@@ -177,7 +180,9 @@ class TfFit:
         Evaluated from poles and zeros in normalised frequency, so it stays
         accurate where the ``num``/``den`` coefficients would not.
         """
-        return _zpk_response(frequency_hz, self.gain, self.zeros, self.poles, self.reference_hz, self.delay_s)
+        return _zpk_response(
+            frequency_hz, self.gain, self.zeros, self.poles, self.reference_hz, self.delay_s
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -254,7 +259,9 @@ class ModalModel:
         for key in ("real_poles_hz", "real_zeros_hz"):
             corners = tuple(sorted(float(v) for v in getattr(self, key)))
             if not all(np.isfinite(c) and c != 0.0 for c in corners):
-                raise ConfigError(key, f"corner frequencies must be finite and non-zero, got {corners!r}")
+                raise ConfigError(
+                    key, f"corner frequencies must be finite and non-zero, got {corners!r}"
+                )
             object.__setattr__(self, key, corners)
         if int(self.integrators) != self.integrators or self.integrators < 0:
             raise ConfigError("integrators", f"must be an integer >= 0, got {self.integrators!r}")
@@ -421,7 +428,8 @@ def _weights(frf: FrequencyResponse, H: np.ndarray, weights) -> tuple[np.ndarray
     w = np.asarray(weights, dtype=np.float64)
     if w.shape != (n,) or not np.all(np.isfinite(w)) or np.any(w < 0.0) or not np.any(w > 0.0):
         raise ConfigError(
-            "weights", f"an array must hold {n} finite non-negative values, not all 0, got shape {w.shape}"
+            "weights",
+            f"an array must hold {n} finite non-negative values, not all 0, got shape {w.shape}",
         )
     return w, "array"
 
@@ -429,60 +437,79 @@ def _weights(frf: FrequencyResponse, H: np.ndarray, weights) -> tuple[np.ndarray
 # --- the fit ------------------------------------------------------------------
 
 
-def _den_from_params(theta: np.ndarray, n_den: int) -> np.ndarray:
-    """Monic stable denominator (highest first) from log-parameters."""
-    den = np.array([1.0])
-    e = np.exp(theta)
-    for i in range(n_den // 2):
-        den = np.polymul(den, [1.0, e[2 * i], e[2 * i + 1]])
-    if n_den % 2:
-        den = np.polymul(den, [1.0, e[-1]])
-    return den
+def _factors(theta: np.ndarray, n_den: int) -> tuple[list[tuple[float, float]], float | None]:
+    """Stable factors ``x^2 + a1 x + a0`` (and ``x + c``) from log-parameters."""
+    e = np.exp(np.clip(theta, -_LOG_LIMIT, _LOG_LIMIT))
+    quads = [(e[2 * i], e[2 * i + 1]) for i in range(n_den // 2)]
+    return quads, (e[-1] if n_den % 2 else None)
 
 
-def _params_from_roots(poles: np.ndarray, n_den: int) -> np.ndarray:
+def _poles_from_params(theta: np.ndarray, n_den: int) -> np.ndarray:
+    """Roots of the stable factors, each quadratic solved on its own (no expansion)."""
+    quads, c = _factors(theta, n_den)
+    poles = []
+    for a1, a0 in quads:
+        disc = a1 * a1 - 4.0 * a0
+        if disc < 0.0:
+            im = 0.5 * np.sqrt(-disc)
+            poles += [complex(-0.5 * a1, im), complex(-0.5 * a1, -im)]
+        else:
+            q = -0.5 * (a1 + np.sqrt(disc))  # avoids cancellation for the small root
+            poles += [complex(q), complex(a0 / q)]
+    if c is not None:
+        poles.append(complex(-c))
+    return np.array(poles, dtype=np.complex128)
+
+
+def _params_from_poles(poles: np.ndarray, n_den: int) -> np.ndarray:
     """Log-parameters of quadratic (and one linear) stable factors holding `poles`."""
     poles = np.asarray(poles, dtype=np.complex128)
-    tiny = 1e-12
-    cplx = poles[poles.imag > _REAL_TOL * np.abs(poles)]
-    real = np.sort(poles[np.abs(poles.imag) <= _REAL_TOL * np.abs(poles)].real)
-    quads = [(-2.0 * p.real, abs(p) ** 2) for p in cplx]
+    tiny = np.exp(-_LOG_LIMIT)
+    is_real = np.abs(poles.imag) <= _REAL_TOL * np.abs(poles)
+    quads = [(-2.0 * p.real, abs(p) ** 2) for p in poles[~is_real & (poles.imag > 0.0)]]
     # Pair the real poles neighbour by neighbour; an odd one out is the linear factor.
+    real = np.sort(poles[is_real].real)
     lin = None
     if real.size % 2:
         lin, real = real[-1], real[:-1]
     quads += [(-(a + b), a * b) for a, b in zip(real[0::2], real[1::2])]
     theta = []
     for a1, a0 in quads:
-        theta += [np.log(max(a1, tiny * np.sqrt(max(a0, tiny)) + tiny)), np.log(max(a0, tiny))]
+        theta += [np.log(max(a1, tiny)), np.log(max(a0, tiny))]
     if lin is not None:
         theta.append(np.log(max(-lin, tiny)))
-    theta = np.array(theta)
-    if theta.size != n_den:  # the pairing lost a root (numerically near-real pairs)
-        raise DataError(f"could not factor {n_den} poles into stable sections")
-    return theta
+    if len(theta) != n_den:  # complex roots without their conjugate
+        raise DataError(f"could not factor {n_den} poles into real stable sections")
+    return np.array(theta)
 
 
 def _fit_normalised(x, H, w, n_num, n_den, iterations, tol, refine, max_nfev):
-    """Levy, SK and LM on normalised data. Returns (num_x, den_x, sk_its, reflected)."""
-    reflected = 0
+    """Levy, SK and LM on normalised data.
 
-    def cost_of(den):
-        Dx = np.polyval(den, x)
+    Returns ``(num_x, poles_x, sk_iterations, reflections)`` with the numerator
+    highest power first and the poles of the monic denominator.
+    """
+    reflected = 0
+    Xn = x[:, None] ** np.arange(n_num + 1)
+
+    def d_of(poles):
+        return np.prod(x[:, None] - poles[None, :], axis=1)
+
+    def cost_of(poles):
+        Dx = d_of(poles)
         num = _numerator_for(x, H, w, Dx, n_num)
         r = w * (H - np.polyval(num, x) / Dx)
         return float(np.mean(np.abs(r) ** 2)), num
 
     if n_den == 0:
-        den = np.array([1.0])
-        return _numerator_for(x, H, w, np.ones(x.size), n_num), den, 0, 0
+        none = np.array([], dtype=np.complex128)
+        return cost_of(none)[1], none, 0, 0
 
     # Levy + Sanathanan-Koerner: H (x^n + a_{n-1} x^{n-1} + ... + a0) - N(x) = 0.
-    A = np.hstack([H[:, None] * x[:, None] ** np.arange(n_den), -(x[:, None] ** np.arange(n_num + 1))])
+    A = np.hstack([H[:, None] * x[:, None] ** np.arange(n_den), -Xn])
     b = -H * x**n_den
     sk = np.ones(x.size)
-    best = None
-    first = last = None
+    best = first = last = None
     den_prev = None
     its = 0
     for its in range(iterations + 1):
@@ -491,33 +518,57 @@ def _fit_normalised(x, H, w, n_num, n_den, iterations, tol, refine, max_nfev):
         den = np.r_[1.0, theta[:n_den][::-1]]
         if not np.all(np.isfinite(den)):
             break
-        roots, n_bad = _reflect(np.roots(den))
-        if n_bad:
-            reflected += n_bad
-            den = np.real(np.poly(roots))
-        c, num = cost_of(den)
-        last = (c, num, den)
+        poles, n_bad = _reflect(np.roots(den))
+        reflected += n_bad
+        c, num = cost_of(poles)
+        last = (c, num, poles)
         first = first or last
         if best is None or c < best[0]:
             best = last
-        Dx = np.polyval(den, x)
+        Dx = d_of(poles)
         if np.any(Dx == 0.0):
             break
         sk = 1.0 / np.abs(Dx)
+        den = np.real(np.poly(poles))
         if den_prev is not None and np.max(np.abs(den - den_prev) / (1.0 + np.abs(den))) < tol:
             break
         den_prev = den
     if best is None:
-        raise DataError("the Levy start failed (non-finite denominator); check the data for NaN/Inf")
+        raise DataError(
+            "the Levy start failed (non-finite denominator); check the data for NaN/Inf"
+        )
     if not refine:
         return best[1], best[2], its, reflected
 
-    # Levenberg-Marquardt over stable factors, numerator by variable projection.
-    def residual(theta):
-        Dx = np.polyval(_den_from_params(theta, n_den), x)
-        n = _numerator_for(x, H, w, Dx, n_num)
-        r = w * (H - np.polyval(n, x) / Dx)
-        return np.concatenate([r.real, r.imag])
+    # Levenberg-Marquardt over stable factors; the numerator is the linear
+    # least-squares optimum for each denominator (variable projection) and the
+    # Jacobian is Kaufman's: J_j = P_perp (dD/dtheta_j / D) (w N / D), with
+    # P_perp the projection off the numerator's column space.
+    yr = np.concatenate([(w * H).real, (w * H).imag])
+    memo = {}
+
+    def evaluate(theta):
+        key = theta.tobytes()
+        if key not in memo:
+            memo.clear()
+            quads, c = _factors(theta, n_den)
+            factors = [x**2 + a1 * x + a0 for a1, a0 in quads]
+            dlog = []  # dD/dtheta_j / D
+            for (a1, a0), q in zip(quads, factors):
+                dlog += [a1 * x / q, a0 / q]
+            if c is not None:
+                factors.append(x + c)
+                dlog.append(c / factors[-1])
+            Dx = np.prod(factors, axis=0)
+            Ar = (w / Dx)[:, None] * Xn
+            Ar = np.vstack([Ar.real, Ar.imag])
+            Q, _ = np.linalg.qr(Ar / np.maximum(np.linalg.norm(Ar, axis=0), np.finfo(float).tiny))
+            r = yr - Q @ (Q.T @ yr)
+            model = yr - r  # w N / D, real-stacked
+            G = np.array(dlog).T * (model[: x.size] + 1j * model[x.size:])[:, None]
+            Gr = np.vstack([G.real, G.imag])
+            memo[key] = (r, Gr - Q @ (Q.T @ Gr))
+        return memo[key]
 
     # Started from the best, the last and the Levy iterate: when the order is
     # higher than the data support, they can lie in different basins.
@@ -525,15 +576,23 @@ def _fit_normalised(x, H, w, n_num, n_den, iterations, tol, refine, max_nfev):
     for cand in (last, first):
         if not any(np.array_equal(cand[2], s_[2]) for s_ in starts):
             starts.append(cand)
-    for _, _, den0 in starts:
+    for _, _, poles0 in starts:
         try:
-            theta0 = _params_from_roots(np.roots(den0), n_den)
+            theta0 = _params_from_poles(poles0, n_den)
         except DataError:
             continue
-        res = optimize.least_squares(residual, theta0, method="lm", max_nfev=max_nfev, x_scale="jac")
-        c_lm, num_lm = cost_of(_den_from_params(res.x, n_den))
-        if np.isfinite(c_lm) and c_lm <= best[0]:
-            best = (c_lm, num_lm, _den_from_params(res.x, n_den))
+        res = optimize.least_squares(
+            lambda t: evaluate(t)[0],
+            theta0,
+            jac=lambda t: evaluate(t)[1],
+            method="lm",
+            max_nfev=max_nfev,
+            x_scale="jac",
+        )
+        poles = _poles_from_params(res.x, n_den)
+        c, num = cost_of(poles)
+        if np.isfinite(c) and c <= best[0]:
+            best = (c, num, poles)
     return best[1], best[2], its, reflected
 
 
@@ -584,7 +643,8 @@ def fit_transfer_function(
         Relative change of the denominator coefficients that ends the
         Sanathanan-Koerner iterations.
     max_nfev : int, optional
-        Most residual evaluations of the Levenberg-Marquardt stage.
+        Most residual evaluations per Levenberg-Marquardt start; default
+        ``50 (n_den + 1)``.
 
     Returns
     -------
@@ -612,7 +672,9 @@ def fit_transfer_function(
     if band_hz is not None:
         f_lo, f_hi = band_hz
         if not 0.0 <= f_lo < f_hi:
-            raise ConfigError("band_hz", f"must be (f_lo, f_hi) with 0 <= f_lo < f_hi, got {band_hz!r}")
+            raise ConfigError(
+                "band_hz", f"must be (f_lo, f_hi) with 0 <= f_lo < f_hi, got {band_hz!r}"
+            )
         keep &= (f >= f_lo) & (f <= f_hi)
     f, H, w = f[keep], H[keep], w_all[keep]
     n_params = n_num + 1 + n_den
@@ -626,7 +688,9 @@ def fit_transfer_function(
     else:
         ref = float(reference_hz)
         if not (np.isfinite(ref) and ref > 0.0):
-            raise ConfigError("reference_hz", f"must be a positive frequency in Hz, got {reference_hz!r}")
+            raise ConfigError(
+                "reference_hz", f"must be a positive frequency in Hz, got {reference_hz!r}"
+            )
 
     # Fit s^k G e^{s tau} with weights w / |x|^k: the same error in G.
     x = 1j * f / ref
@@ -636,7 +700,9 @@ def fit_transfer_function(
     if not scale > 0.0:
         raise DataError("the response is zero at every weighted bin")
     wk = wk / scale
-    num_x, den_x, sk_its, reflected = _fit_normalised(
+    if max_nfev is None:
+        max_nfev = 50 * (n_den + 1)
+    num_x, poles_x, sk_its, reflected = _fit_normalised(
         x, Hk, wk, n_num, n_den, iterations, tol, refine, max_nfev
     )
 
@@ -645,7 +711,6 @@ def fit_transfer_function(
     lead = np.flatnonzero(num_x != 0.0)
     num_x = num_x[lead[0]:] if lead.size else np.array([0.0])
     zeros_x = np.roots(num_x) if num_x.size > 1 else np.array([], dtype=np.complex128)
-    poles_x = np.roots(den_x) if den_x.size > 1 else np.array([], dtype=np.complex128)
     poles_x, n_bad = _reflect(poles_x)
     reflected += n_bad
     k_x = float(num_x[0])
@@ -800,7 +865,9 @@ def select_order(
     if not (np.isfinite(threshold) and threshold > 0.0):
         raise ConfigError("threshold", f"must be a positive number, got {threshold!r}")
     if (orders is None) == (max_order is None):
-        raise ConfigError("orders", "give exactly one of orders=[(n_num, n_den), ...] and max_order")
+        raise ConfigError(
+            "orders", "give exactly one of orders=[(n_num, n_den), ...] and max_order"
+        )
     if orders is None:
         max_order = _check_order("max_order", max_order, 1)
         if relative_degree is None:
@@ -809,14 +876,18 @@ def select_order(
             rd = _check_order("relative_degree", relative_degree, 0)
             orders = [(n - rd, n) for n in range(max(1, rd), max_order + 1)]
         if not orders:
-            raise ConfigError("max_order", f"{max_order} leaves no order with relative_degree={relative_degree}")
+            raise ConfigError(
+                "max_order", f"{max_order} leaves no order with relative_degree={relative_degree}"
+            )
     else:
         checked = []
         for item in orders:
             try:
                 m, n = item
             except (TypeError, ValueError):
-                raise ConfigError("orders", f"entries must be (n_num, n_den), got {item!r}") from None
+                raise ConfigError(
+                    "orders", f"entries must be (n_num, n_den), got {item!r}"
+                ) from None
             checked.append((_check_order("orders.n_num", m, 0), _check_order("orders.n_den", n, 0)))
         if not checked:
             raise ConfigError("orders", "must not be empty")
@@ -834,11 +905,14 @@ def select_order(
         v = max(fit.weighted_cost * N / 2.0, np.finfo(float).tiny)  # sum of squares
         p = fit.n_params
         rows.append(
-            TfOrderCandidate(m, n, fit, N * np.log(v / N) + 2 * p, N * np.log(v / N) + p * np.log(N))
+            TfOrderCandidate(
+                m, n, fit, N * np.log(v / N) + 2 * p, N * np.log(v / N) + p * np.log(N)
+            )
         )
     ok = [r for r in rows if r.fit is not None and r.fit.stable]
     if not ok:
-        raise DataError("no candidate order gave a stable fit: " + "; ".join(r.error for r in rows if r.error))
+        why = "; ".join(r.error for r in rows if r.error)
+        raise DataError(f"no candidate order gave a stable fit: {why}")
 
     if criterion == "threshold":
         # Tiny absolute slack so that noise-free data (costs near rounding) does not
@@ -847,7 +921,8 @@ def select_order(
         chosen = ok[-1]
         for i, r in enumerate(ok):
             larger = [q for q in ok[i + 1:] if q.n_params > r.n_params]
-            if all(r.fit.weighted_cost <= (1.0 + threshold) * q.fit.weighted_cost + slack for q in larger):
+            limit = [(1.0 + threshold) * q.fit.weighted_cost + slack for q in larger]
+            if all(r.fit.weighted_cost <= lim for lim in limit):
                 chosen = r
                 break
     else:
