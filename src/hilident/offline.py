@@ -13,7 +13,6 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import numpy as np
 
 from hilident import __version__, pipeline, report
 from hilident.config import Config
@@ -80,18 +79,10 @@ def identify_recording(cfg: Config, data_path: str | Path, out_dir: str | Path, 
         "hilident_version": __version__,
         "config": cfg.source,
         "data": {"file": ds.source, "samples": len(ds), "sample_rate_hz": ds.sample_rate_hz},
-        "resonances": [
-            {"frequency_hz": r.frequency_hz, "damping_ratio": r.damping_ratio, "peak_magnitude_db": r.peak_magnitude_db,
-             "coherence": r.coherence, "method": r.method}
-            for r in plant.resonances
-        ],
+        "resonances": pipeline.resonance_records(plant.resonances),
         "friction": None,
         "model": None if model is None else {"kind": cfg.model.kind, **model.to_dict()},
-        "notch_filters": [
-            {"center_hz": d.spec.center_hz, "width_hz": d.spec.width_hz, "depth_db": d.spec.depth_db,
-             "sample_rate_hz": d.sample_rate_hz, "slot": d.slot, "b": list(d.biquad.b), "a": list(d.biquad.a)}
-            for d in designs
-        ],
+        "notch_filters": pipeline.notch_records(designs),
         "upload": {"written": False, "verified_readback": False, "slots": []},
         "verification": {"peak_reduction_db": None, "resonances": []},
         "stream": {"samples": len(ds), "lost_frames": 0, "lost_blocks": 0, "lost_samples": 0, "corrupt_frames": 0,
@@ -100,12 +91,7 @@ def identify_recording(cfg: Config, data_path: str | Path, out_dir: str | Path, 
         "warnings": warnings,
     }
     report.write_summary(out / "summary.json", summary)
-    notch = None
-    if designs:
-        from hilident.filters.notch import chain_response
-
-        f = plant.plant.frequency_hz
-        notch = (f, chain_response([d.biquad for d in designs], f, designs[0].sample_rate_hz))
+    notch = pipeline.notch_chain_response(designs, plant.plant.frequency_hz)
     report.plot_bode(out / "bode.png", [("plant (input to output)", plant.plant)], resonances=plant.resonances,
                      notch_response=notch, coherence_threshold=cfg.identification.coherence_threshold)
     return summary

@@ -238,3 +238,31 @@ def achieved_notch(design: NotchDesign, stored: Biquad) -> dict:
         "dc_gain": float(stored.dc_gain()),
         "stable": bool(stored.is_stable()),
     }
+
+
+def resonance_records(resonances) -> list[dict]:
+    """Resonances as plain records for ``summary.json``."""
+    return [
+        {"frequency_hz": r.frequency_hz, "damping_ratio": r.damping_ratio, "peak_magnitude_db": r.peak_magnitude_db,
+         "coherence": r.coherence, "method": r.method}
+        for r in resonances
+    ]
+
+
+def notch_records(designs: list[NotchDesign]) -> list[dict]:
+    """Designed notches as plain records for ``summary.json`` (biquad ``b``, ``a`` in scipy convention)."""
+    return [
+        {"center_hz": d.spec.center_hz, "width_hz": d.spec.width_hz, "depth_db": d.spec.depth_db,
+         "sample_rate_hz": d.sample_rate_hz, "slot": d.slot, "b": list(d.biquad.b), "a": list(d.biquad.a)}
+        for d in designs
+    ]
+
+
+def notch_chain_response(designs: list[NotchDesign], frequency_hz) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(frequency_hz, response)`` of the designed notches in series, for plots; None without notches."""
+    if not designs:
+        return None
+    from hilident.filters.notch import chain_response
+
+    f = np.asarray(frequency_hz, dtype=float)
+    return f, chain_response([d.biquad for d in designs], f, designs[0].sample_rate_hz)

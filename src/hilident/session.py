@@ -423,17 +423,9 @@ class Session:
             "config": cfg.source,
             "device": {"driver": self.driver.name, "port": self.adapter.port, "emulated": cfg.uses_emulator},
             "sample_rate_hz": cfg.run.sample_rate_hz,
-            "resonances": [
-                {"frequency_hz": r.frequency_hz, "damping_ratio": r.damping_ratio,
-                 "peak_magnitude_db": r.peak_magnitude_db, "coherence": r.coherence, "method": r.method}
-                for r in plant.resonances
-            ],
+            "resonances": pipeline.resonance_records(plant.resonances),
             "friction": None,
-            "notch_filters": [
-                {"center_hz": d.spec.center_hz, "width_hz": d.spec.width_hz, "depth_db": d.spec.depth_db,
-                 "sample_rate_hz": d.sample_rate_hz, "slot": d.slot, "b": list(d.biquad.b), "a": list(d.biquad.a)}
-                for d in designs
-            ],
+            "notch_filters": pipeline.notch_records(designs),
             "upload": upload,
             "verification": {"peak_reduction_db": None, "resonances": []},
             "stream": {
@@ -470,11 +462,6 @@ class Session:
         responses = [("plant (net torque to output)", plant.plant), ("excitation to output, before notch", plant.loop)]
         if verification is not None:
             responses.append(("excitation to output, after notch", verification["loop_after"]))
-        notch = None
-        if designs:
-            from hilident.filters.notch import chain_response
-
-            f = plant.plant.frequency_hz
-            notch = (f, chain_response([d.biquad for d in designs], f, designs[0].sample_rate_hz))
+        notch = pipeline.notch_chain_response(designs, plant.plant.frequency_hz)
         report.plot_bode(self.out / "bode.png", responses, resonances=plant.resonances, notch_response=notch,
                          coherence_threshold=self.cfg.identification.coherence_threshold)
