@@ -116,21 +116,12 @@ def identify_plant(
     u = s["torque"]
     if friction is not None:
         u = fr.compensate(u, s["velocity"], friction, velocity_deadband_mps)
-    r, y = s["excitation"], s["output"]
-    if cfg.lowpass_hz:
-        # the same zero-phase filter on every signal leaves their ratio intact
-        r, u, y = (lowpass(x, cfg.lowpass_hz, sample_rate_hz) for x in (r, u, y))
-    r, u, y = (detrend(x, "linear") for x in (r, u, y))
-    if period_samples and len(r) >= 2 * period_samples:
+    r, u, y = (_condition(x, cfg, sample_rate_hz) for x in (s["excitation"], u, s["output"]))
+    seg = _segment(len(r), cfg, sample_rate_hz, period_samples, warnings)
+    if seg is None:
         plant = periodic_frf(u, y, period_samples, sample_rate_hz, skip_periods=0, bins=excited_bins)
         loop = periodic_frf(r, y, period_samples, sample_rate_hz, skip_periods=0, bins=excited_bins)
     else:
-        if period_samples:
-            warnings.append("fewer than two whole excitation periods recorded: Welch averaging used instead")
-        seg = int(round(cfg.segment_s * sample_rate_hz))
-        if seg > len(r) // 2:
-            seg = len(r) // 2
-            warnings.append(f"identification.segment_s longer than half the record: {seg / sample_rate_hz:g} s used")
         plant = frf_from_reference(r, u, y, sample_rate_hz, seg)
         loop = h1_estimate(r, y, sample_rate_hz, seg)
     resonances = find_resonances(
@@ -143,6 +134,46 @@ def identify_plant(
             f"{cfg.min_prominence_db:g} dB between {band_hz[0]:g} and {band_hz[1]:g} Hz"
         )
     return PlantResult(plant=plant, loop=loop, resonances=resonances, warnings=warnings)
+
+
+def _condition(x: np.ndarray, cfg: IdentificationConfig, sample_rate_hz: float) -> np.ndarray:
+    """Optional zero-phase low-pass, then a linear trend removed.
+
+    The same filter on every signal of a ratio leaves the ratio intact.
+    """
+    if cfg.lowpass_hz:
+        x = lowpass(x, cfg.lowpass_hz, sample_rate_hz)
+    return detrend(x, "linear")
+
+
+def _segment(n: int, cfg: IdentificationConfig, sample_rate_hz: float, period_samples, warnings: list[str]):
+    """Welch segment length for a record of ``n`` samples, or None when whole periods are averaged."""
+    if period_samples and n >= 2 * period_samples:
+        return None
+    if period_samples:
+        warnings.append("fewer than two whole excitation periods recorded: Welch averaging used instead")
+    seg = int(round(cfg.segment_s * sample_rate_hz))
+    if seg > n // 2:
+        seg = n // 2
+        warnings.append(f"identification.segment_s longer than half the record: {seg / sample_rate_hz:g} s used")
+    return seg
+
+
+def loop_response(
+    excitation, output, sample_rate_hz: float, cfg: IdentificationConfig,
+    period_samples: int | None = None, excited_bins=None,
+) -> tuple[FrequencyResponse, list[str]]:
+    """Excitation-to-output response through the drive, as :func:`identify_plant` computes its ``loop``.
+
+    This is all a verification run needs: no friction model, no resonance search.
+    """
+    s = check_signals({"excitation": excitation, "output": output})
+    warnings: list[str] = []
+    r, y = (_condition(x, cfg, sample_rate_hz) for x in (s["excitation"], s["output"]))
+    seg = _segment(len(r), cfg, sample_rate_hz, period_samples, warnings)
+    if seg is None:
+        return periodic_frf(r, y, period_samples, sample_rate_hz, skip_periods=0, bins=excited_bins), warnings
+    return h1_estimate(r, y, sample_rate_hz, seg), warnings
 
 
 @dataclass

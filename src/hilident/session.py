@@ -345,10 +345,15 @@ class Session:
             )
         return {k: v[keep] for k, v in exp.samples.items()}
 
+    def _analysis_samples(self, exp: Experiment, excitation: Excitation) -> dict[str, np.ndarray]:
+        """Whole gap-free periods of a periodic excitation, else the longest gap-free stretch."""
+        period = excitation.period_samples
+        return self._complete_periods(exp, period) if period else self._longest_contiguous(exp)
+
     def _identify(self, exp: Experiment, excitation: Excitation, friction):
         cfg = self.cfg
         period = excitation.period_samples
-        s = self._complete_periods(exp, period) if period else self._longest_contiguous(exp)
+        s = self._analysis_samples(exp, excitation)
         ic = cfg.identification
         band = (ic.f_min_hz or excitation.band_hz[0], ic.f_max_hz or excitation.band_hz[1])
         self.progress.step("identification: frequency response and resonances")
@@ -403,15 +408,21 @@ class Session:
         if not designs or not self.cfg.notch.verify:
             return None
         exp = self.record("verification", self.cfg.excitation.mode, excitation.samples)
-        after = self._identify(exp, excitation, None)
-        reductions = pipeline.peak_reductions(plant.loop, after.loop, [d.resonance for d in designs])
+        s = self._analysis_samples(exp, excitation)
+        self.progress.step("verification: frequency response")
+        loop_after, warnings = pipeline.loop_response(
+            s["excitation"], s[self.cfg.identification.output], self.cfg.run.sample_rate_hz,
+            self.cfg.identification, excitation.period_samples, excitation.excited_bins,
+        )
+        self.warnings += warnings
+        reductions = pipeline.peak_reductions(plant.loop, loop_after, [d.resonance for d in designs])
         worst = min(r["reduction_db"] for r in reductions)
         if worst < self.cfg.notch.min_reduction_db:
             self.warnings.append(
                 f"verification: resonance reduced by only {worst:.1f} dB "
                 f"(notch.min_reduction_db = {self.cfg.notch.min_reduction_db:g})"
             )
-        return {"loop_after": after.loop, "resonances": reductions, "peak_reduction_db": worst}
+        return {"loop_after": loop_after, "resonances": reductions, "peak_reduction_db": worst}
 
     # --- outputs ----------------------------------------------------------------------------
 
