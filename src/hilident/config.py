@@ -32,10 +32,22 @@ def _spec(default=dataclasses.MISSING, *, gt=None, ge=None, le=None, lt=None, ch
 @dataclass(frozen=True)
 class DeviceConfig:
     driver: str = _spec("myrio-board", doc="driver name (folder in drivers/) or path to a driver folder")
-    port: str = _spec("emulator", doc='"emulator", a device path, COMx, or a pyserial URL (socket://, rfc2217://)')
-    baudrate: int = _spec(0, ge=0, doc="line rate in baud; 0 uses the driver's default")
+    port: str = _spec("emulator", doc='"emulator"; serial board: a device path, COMx or pyserial URL (socket://, '
+                      'rfc2217://); CANopen: the python-can channel (can0, PCAN_USBBUS1, ...); '
+                      'Modbus: "tcp://HOST:PORT" for Modbus TCP, else the RTU serial port or pyserial URL')
+    baudrate: int = _spec(0, ge=0, doc="serial or RTU line rate in baud, or CAN bit rate; 0 uses the driver's default")
     timeout_s: float = _spec(2.0, gt=0, doc="how long to wait for an answer from the device")
     driver_paths: list[str] = _spec([], doc="extra folders searched for driver descriptions")
+    can_interface: str = _spec("socketcan", doc="CANopen: python-can interface (socketcan, pcan, kvaser, socketcand, virtual, ...)")
+    node_id: int = _spec(1, ge=1, le=127, doc="CANopen: node id of the drive")
+    device_id: int = _spec(1, ge=0, le=247, doc="Modbus: device (unit/slave) id")
+    parity: str = _spec("E", choices=("N", "E", "O"), doc="Modbus RTU: parity")
+    stopbits: int = _spec(1, ge=1, le=2, doc="Modbus RTU: stop bits")
+    acquisition: str = _spec("auto", choices=("auto", "streamed", "buffered"),
+                             doc="streamed: the host sends set-points each cycle; buffered: the drive plays a "
+                                 "stored table and captures into its buffer; auto: the driver's choice")
+    allow_fault_reset: bool = _spec(False, doc="CANopen: reset a drive found in Fault before enabling it")
+    trace: str = _spec("", choices=("", "asc", "blf"), doc='CANopen: write a CAN trace of each run next to its recording: "", "asc" or "blf"')
 
 
 @dataclass(frozen=True)

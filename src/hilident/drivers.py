@@ -19,6 +19,7 @@ from hilident.errors import ConfigError
 
 DESCRIPTION_FILE = "driver.toml"
 _FORMATS = ("f32", "i16", "i32")
+TRANSPORTS = ("serial", "canopen", "modbus")
 
 
 @dataclass(frozen=True)
@@ -43,7 +44,18 @@ class DriverDescription:
     folder : Path
         Folder the description was read from (protocol specs, EDS files live there).
     transport : str
-        ``"serial"`` (more transports in later versions).
+        ``"serial"``, ``"canopen"`` or ``"modbus"``: which adapter talks to it.
+    loop_rate_hz : float
+        Rate of the device's control loop, Hz; notch biquads are discretised at it.
+    filter_slots : int
+        Biquad slots in series on the torque command.
+    protocol_version, default_baudrate, firmware, excitation_buffer_samples, block_samples
+        The serial board's protocol figures (required for ``transport = "serial"``,
+        zero or empty for other transports). ``default_baudrate`` is the line rate
+        (serial, Modbus RTU) or CAN bit rate used when the config gives none.
+    sections : dict
+        The whole parsed description. Each adapter reads its own tables from it
+        (``[canopen]``, ``[modbus]``, ...).
     text : str
         The description file verbatim, stored in every recording.
     """
@@ -61,6 +73,7 @@ class DriverDescription:
     block_samples: int
     channels: tuple[ChannelSpec, ...]
     description: str = ""
+    sections: dict = field(default_factory=dict, repr=False, compare=False)
     text: str = field(default="", repr=False)
 
     def channel_index(self, name: str) -> int:
@@ -145,6 +158,15 @@ def load_driver(folder: str | os.PathLike) -> DriverDescription:
             raise ConfigError(f"{section}.{key}", f"must be {kind.__name__}, got {value!r}", str(path))
         return value
 
+    transport = get("driver", "transport", str)
+    if transport not in TRANSPORTS:
+        raise ConfigError("driver.transport", f"must be one of {TRANSPORTS}, got {transport!r}", str(path))
+    serial_only = transport == "serial"
+
+    def serial_figure(section: str, key: str, kind):
+        # the serial protocol's own figures: required there, meaningless elsewhere
+        return get(section, key, kind, None if serial_only else kind())
+
     channels = []
     for i, c in enumerate(data.get("channels", [])):
         fmt = c.get("format", "f32")
@@ -161,16 +183,17 @@ def load_driver(folder: str | os.PathLike) -> DriverDescription:
     return DriverDescription(
         name=get("driver", "name", str),
         folder=folder,
-        transport=get("driver", "transport", str),
-        protocol_version=get("driver", "protocol_version", int),
-        default_baudrate=get("driver", "default_baudrate", int),
+        transport=transport,
+        protocol_version=serial_figure("driver", "protocol_version", int),
+        default_baudrate=serial_figure("driver", "default_baudrate", int),
         description=get("driver", "description", str, ""),
-        firmware=get("board", "firmware", str),
+        firmware=get("board", "firmware", str, ""),
         loop_rate_hz=get("board", "loop_rate_hz", float),
         max_sample_rate_hz=get("board", "max_sample_rate_hz", float),
         filter_slots=get("board", "filter_slots", int),
-        excitation_buffer_samples=get("board", "excitation_buffer_samples", int),
-        block_samples=get("board", "block_samples", int),
+        excitation_buffer_samples=serial_figure("board", "excitation_buffer_samples", int),
+        block_samples=serial_figure("board", "block_samples", int),
         channels=tuple(channels),
+        sections=data,
         text=text,
     )

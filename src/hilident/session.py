@@ -40,7 +40,7 @@ _WRITE_ROWS = 4096  # rows gathered before each append to the recording (bounded
 def package_versions() -> dict[str, str]:
     """Versions of hilident and the libraries that shape its numbers."""
     out = {"hilident": __version__, "python": platform.python_version()}
-    for name in ("numpy", "scipy", "h5py", "pyserial", "cobs", "matplotlib"):
+    for name in ("numpy", "scipy", "h5py", "pyserial", "cobs", "matplotlib", "python-can", "canopen", "pymodbus"):
         try:
             out[name] = version(name)
         except PackageNotFoundError:
@@ -168,21 +168,16 @@ class Session:
         """Open the device, or start the embedded emulator and open it like a device."""
         cfg = self.cfg
         self.driver = find_driver(cfg.device.driver, cfg.device.driver_paths)
-        baud = cfg.device.baudrate or self.driver.default_baudrate
         cls = adapter_class(self.driver.transport)
+        device, link = cfg.device, None
         if cfg.uses_emulator:
-            from hilident.emulator.factory import start_serial_board
+            from hilident.emulator.factory import start_emulator
 
-            self.emulator = start_serial_board(cfg.emulator, self.driver, baud)
-            if self.emulator.link is not None:  # in-memory pipe
-                self.adapter = cls(self.emulator.link, self.driver, self.emulator.port, cfg.device.timeout_s)
-                self.adapter.identify()
-            else:
-                self.adapter = cls.open(self.emulator.port, self.driver, baud, cfg.device.timeout_s)
-            self.progress.step(f"emulated {self.driver.name} on {self.emulator.port} ({baud} baud)")
-        else:
-            self.adapter = cls.open(cfg.device.port, self.driver, baud, cfg.device.timeout_s)
-            self.progress.step(f"connected to {self.adapter.identity.name} on {cfg.device.port}")
+            self.emulator = start_emulator(cfg.emulator, self.driver, cfg.device)
+            device, link = self.emulator.device, self.emulator.link
+        self.adapter = cls.open_device(device, self.driver, link=link)
+        where = "emulated" if cfg.uses_emulator else "connected to"
+        self.progress.step(f"{where} {self.adapter.identity.name} on {self.adapter.port}")
         lim = cfg.limits
         self.adapter.set_limits(lim.torque_nm, lim.velocity_mps, lim.position_min_m, lim.position_max_m)
 
@@ -230,6 +225,8 @@ class Session:
             if pending_rows[0] >= _WRITE_ROWS:
                 flush()
 
+        if cfg.device.trace and hasattr(ad, "set_trace"):
+            ad.set_trace(self.out / f"{name}.{cfg.device.trace}")  # CAN trace beside the recording
         self.progress.step(f"{name}: {len(excitation) / fs:.1f} s of {mode} excitation")
         result = None
         status, reason = "aborted", ""
@@ -377,17 +374,23 @@ class Session:
         self.progress.step(f"notch: uploading {len(designs)} filter(s)")
         matches = []
         for d in designs:
-            # write disabled, read back, compare; enable only what came back as written
-            ad.write_filter(d.slot, d.biquad, enabled=False)
+            # keep the slot's contents, write disabled, read back, compare; enable only
+            # what came back as written, and put the old contents back when it did not
+            previous = ad.save_filter(d.slot)
+            ad.write_filter(d.slot, d.biquad, d.spec, enabled=False)
             stored, _ = ad.read_filter(d.slot)
-            expected = ad.stored_form(d.biquad)
+            expected = ad.stored_form(d.biquad, d.spec)
             same = stored == expected
             if same:
-                ad.write_filter(d.slot, d.biquad, enabled=True)
+                ad.write_filter(d.slot, d.biquad, d.spec, enabled=True)
                 stored, enabled = ad.read_filter(d.slot)
                 same = enabled and stored == expected
-            else:
-                self.warnings.append(f"filter slot {d.slot}: read-back {stored} differs from written {expected}")
+            if not same:
+                ad.restore_filter(d.slot, previous)
+                self.warnings.append(
+                    f"filter slot {d.slot}: read-back {stored} differs from written {expected}; "
+                    "the slot's previous contents were restored"
+                )
             matches.append(same)
             achieved = pipeline.achieved_notch(d, stored)
             lost = d.spec.depth_db - achieved["attenuation_at_design_center_db"]

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
+from typing import Any, Callable, Protocol
 
 import numpy as np
 
@@ -65,6 +66,63 @@ class RunResult:
     events: list[dict] = field(default_factory=list)
     fault: str | None = None
     completed: bool = False
+
+
+class DeviceAdapter(Protocol):
+    """The contract between the session and a transport's adapter.
+
+    Attributes
+    ----------
+    port : str
+        Where the device is (device path, URL, CAN channel); used in messages.
+    identity
+        What the device reported: ``name``, ``firmware``, ``loop_rate_hz`` (the
+        rate its filters run at, Hz) and ``filter_slots``.
+    sample_rate_hz : float
+        Recorded sample rate chosen by :meth:`configure`, Hz.
+    channel_units : list of str
+        Units of the channels :meth:`configure` returned, in order.
+    last_result : RunResult or None
+        Outcome of the last :meth:`stream`, also when it raised.
+    """
+
+    port: str
+    identity: Any
+    sample_rate_hz: float
+    channel_units: list[str]
+    last_result: RunResult | None
+
+    @classmethod
+    def open_device(cls, device, driver, link=None) -> "DeviceAdapter":
+        """Connect as the ``[device]`` config says and check the device matches ``driver``."""
+
+    def set_limits(self, torque_nm: float, velocity_mps: float, position_min_m: float, position_max_m: float) -> None:
+        """Load the limits the device itself enforces (crossing one stops the axis)."""
+
+    def configure(self, sample_rate_hz: float, mode: str, channels: list[str] | None = None) -> list[str]:
+        """Choose the recorded rate, the excitation mode and channels; returns the channel names."""
+
+    def stream(self, excitation: np.ndarray, sink: Callable[[np.ndarray, np.ndarray], None],
+               progress: Callable[[float], None] | None = None) -> RunResult:
+        """Play ``excitation`` and pass ``(sample_index, rows)`` blocks to ``sink``; lost ones are counted."""
+
+    def write_filter(self, slot: int, biquad, spec=None, *, enabled: bool) -> None:
+        """Store a notch in a filter slot, in the device's own encoding (coefficients or parameters)."""
+
+    def read_filter(self, slot: int) -> tuple[Any, bool]:
+        """The biquad the slot now applies, and whether it is enabled."""
+
+    def stored_form(self, biquad, spec=None):
+        """The biquad the device will apply after its own rounding of ``biquad``/``spec``."""
+
+    def save_filter(self, slot: int) -> Any:
+        """The slot's contents, opaque, for :meth:`restore_filter`."""
+
+    def restore_filter(self, slot: int, saved: Any) -> None:
+        """Put back what :meth:`save_filter` returned."""
+
+    def close(self) -> None:
+        """Zero torque, drive disabled, connection released. Never raises."""
 
 
 def adapter_class(transport: str):

@@ -16,9 +16,11 @@ import numpy as np
 import serial
 
 from hilident.adapters.base import RunResult, StreamStats
+from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription
 from hilident.errors import DeviceError, LimitTrip, ProtocolError
 from hilident.filters.biquad import Biquad
+from hilident.filters.notch import NotchSpec
 from hilident.links import LinkClosed
 from hilident.protocol import serial_board as sb
 from hilident.protocol.framing import FrameDecoder, encode_frame
@@ -76,6 +78,19 @@ class SerialBoardAdapter:
             link.timeout = _READ_TIMEOUT_S  # short reads: the adapter polls and keeps the line busy
 
     # --- opening --------------------------------------------------------------------
+
+    @classmethod
+    def open_device(cls, device: DeviceConfig, driver: DriverDescription, link=None) -> "SerialBoardAdapter":
+        """Connect as ``[device]`` says, or over an already open ``link``; identifies the board."""
+        if link is None:
+            return cls.open(device.port, driver, device.baudrate, device.timeout_s)
+        adapter = cls(link, driver, device.port, device.timeout_s)
+        try:
+            adapter.identify()
+        except BaseException:
+            adapter.close()
+            raise
+        return adapter
 
     @classmethod
     def open(cls, port: str, driver: DriverDescription, baudrate: int = 0, timeout_s: float = 2.0):
@@ -252,9 +267,18 @@ class SerialBoardAdapter:
         except Exception:
             pass
 
-    def write_filter(self, slot: int, biquad: Biquad, enabled: bool) -> None:
-        """Store a biquad in a filter slot."""
+    def write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None = None, *, enabled: bool) -> None:
+        """Store a biquad in a filter slot (the board takes coefficients; ``spec`` is not used)."""
         self._request(sb.WriteFilter(sb.FilterCoefficients(slot, enabled, biquad.b, biquad.a)))
+
+    def save_filter(self, slot: int) -> tuple[Biquad, bool]:
+        """The slot's present contents, for :meth:`restore_filter`."""
+        return self.read_filter(slot)
+
+    def restore_filter(self, slot: int, saved: tuple[Biquad, bool]) -> None:
+        """Put back what :meth:`save_filter` returned."""
+        biquad, enabled = saved
+        self.write_filter(slot, biquad, enabled=enabled)
 
     def read_filter(self, slot: int) -> tuple[Biquad, bool]:
         """Read a filter slot back (coefficients as the board stores them, REAL32)."""
@@ -269,7 +293,7 @@ class SerialBoardAdapter:
         raise DeviceError(f"{self.port}: no answer reading filter slot {slot}")
 
     @staticmethod
-    def stored_form(biquad: Biquad) -> Biquad:
+    def stored_form(biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
         """The coefficients as this board stores them (REAL32), for read-back comparison."""
         return Biquad(tuple(sb.float32(x) for x in biquad.b), (1.0, sb.float32(biquad.a[1]), sb.float32(biquad.a[2])))
 

@@ -1,16 +1,20 @@
 """Build an emulated device from a configuration: plant, drive loop, firmware, line.
 
 This is the one place the session reaches into the emulator: it asks for a
-device and gets back something to connect to (a serial device path, or the
-host end of an in-memory pipe). Adapters never import the emulator.
+device (:func:`start_emulator`) and gets back the device settings a host uses
+to reach it (a pseudo-terminal path, a loopback address, a virtual CAN
+channel) and, for the serial board, optionally the host end of an in-memory
+pipe. Adapters never import the emulator. Every transport's emulator wraps the
+same :class:`~hilident.emulator.drive.DriveLoop` built by :func:`build_drive`.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Callable
 
-from hilident.config import EmulatorConfig
+from hilident.config import DeviceConfig, EmulatorConfig
 from hilident.drivers import DriverDescription
 from hilident.emulator.board import BoardFirmware
 from hilident.emulator.drive import DriveLoop, DriveTuning
@@ -77,18 +81,54 @@ def identity_from_driver(driver: DriverDescription) -> sb.Identity:
 
 @dataclass
 class EmulatedDevice:
-    """A running emulated board and what a host connects to."""
+    """A running emulated device and what a host connects to.
 
-    server: BoardServer
-    port: str  # device path of the pseudo-terminal, or a pipe name
-    link: object | None = None  # host end of the pipe (None for a pseudo-terminal)
+    Attributes
+    ----------
+    server : object
+        The running emulator (``close()``; ``error`` holds an exception that
+        stopped it, else None).
+    device : DeviceConfig
+        The ``[device]`` settings that reach it (port, interface, ids).
+    drive : DriveLoop
+        Its physics: plant, sensors and drive loop (tests compare with its truth).
+    link : object or None
+        Host end of an in-memory pipe (serial board only), else None.
+    """
+
+    server: object
+    device: DeviceConfig
+    drive: DriveLoop
+    link: object | None = None
 
     @property
-    def drive(self) -> DriveLoop:
-        return self.server.firmware.drive
+    def port(self) -> str:
+        return self.device.port
 
     def close(self) -> None:
         self.server.close()
+
+
+def start_emulator(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig) -> EmulatedDevice:
+    """Start the emulated twin of ``driver`` for a session configured with ``device``.
+
+    Dispatches on ``driver.transport``; each transport's emulator module offers
+    ``start(cfg, driver, device) -> EmulatedDevice``.
+    """
+    starters: dict[str, Callable[..., EmulatedDevice]] = {"serial": _start_serial_for_session}
+    if driver.transport == "canopen":
+        from hilident.emulator.canopen_drive import start as start_canopen
+
+        starters["canopen"] = start_canopen
+    elif driver.transport == "modbus":
+        from hilident.emulator.modbus_drive import start as start_modbus
+
+        starters["modbus"] = start_modbus
+    return starters[driver.transport](cfg, driver, device)
+
+
+def _start_serial_for_session(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig) -> EmulatedDevice:
+    return start_serial_board(cfg, driver, device.baudrate or driver.default_baudrate)
 
 
 def start_serial_board(cfg: EmulatorConfig, driver: DriverDescription, baudrate: int,
@@ -121,4 +161,5 @@ def start_serial_board(cfg: EmulatorConfig, driver: DriverDescription, baudrate:
         firmware, device_link, baudrate=baudrate, time_scale=cfg.time_scale,
         faults=faults, close_after_s=cfg.faults.close_after_s,
     ).start()
-    return EmulatedDevice(server=server, port=device_link.path, link=host_link)
+    device = replace(DeviceConfig(), driver=str(driver.folder), port=device_link.path, baudrate=baudrate)
+    return EmulatedDevice(server=server, device=device, drive=firmware.drive, link=host_link)
