@@ -30,6 +30,7 @@ class ConfigError(HilidentError):
 
     def __init__(self, key: str, message: str, file: str | None = None):
         self.key = key
+        self.message = message
         self.file = file
         where = f"{file}: " if file else ""
         super().__init__(f"{where}[{key}] {message}")
