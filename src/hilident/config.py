@@ -191,6 +191,18 @@ class FaultsConfig:
     corrupt_frame_rate: float = _spec(0.0, ge=0, le=1, doc="probability that a board->host frame gets a byte flipped")
     drop_frame_rate: float = _spec(0.0, ge=0, le=1, doc="probability that bytes of a frame are lost on the line")
     close_after_s: float = _spec(0.0, ge=0, doc="close the line this long after a run starts; 0: never")
+    drive_fault_after_s: float = _spec(0.0, ge=0, doc="CANopen/Modbus: the drive faults this long (simulated time) "
+                                       "after a run starts (CANopen: EMCY and Fault state); 0: never")
+    heartbeat_stops_after_s: float = _spec(0.0, ge=0, doc="CANopen: the heartbeat stops this long after a run starts")
+    abort_object: str = _spec("", doc='CANopen: every SDO access to this object aborts, "0x3100" or "0x3100:2"')
+    drop_pdo_rate: float = _spec(0.0, ge=0, le=1, doc="CANopen: probability that a TPDO is not sent")
+    exception_register: int = _spec(-1, ge=-1, le=65535, doc="Modbus: requests touching this register get an "
+                                    "exception; -1: none")
+    exception_code: int = _spec(4, ge=1, le=11, doc="Modbus: the exception code answered (4: server device failure)")
+    response_delay_s: float = _spec(0.0, ge=0, doc="Modbus: every response is delayed this long")
+    missing_response_rate: float = _spec(0.0, ge=0, le=1, doc="Modbus: probability that a request gets no response")
+    capture_stops_after_s: float = _spec(0.0, ge=0, doc="CANopen/Modbus buffered runs: the capture stops this long "
+                                         "(simulated time) after the start; 0: never")
 
 
 @dataclass(frozen=True)
