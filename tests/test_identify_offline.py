@@ -68,11 +68,11 @@ def write_csv(path, columns):
     np.savetxt(path, np.column_stack([columns[n] for n in names]), delimiter=",", header=",".join(names), comments="")
 
 
-def identify_config(tmp_path, extra=""):
+def identify_config(tmp_path, extra="", identification=""):
     path = tmp_path / "identify.toml"
     path.write_text(
         '[data]\ntime = "t"\ntorque = "tau"\nvelocity = "v"\nposition = "x"\n' + extra
-        + "\n[identification]\nmax_resonances = 1\n"
+        + "\n[identification]\nmax_resonances = 1\n" + identification
     )
     return path
 
@@ -98,6 +98,41 @@ def test_identify_finds_the_resonance_in_every_format(tmp_path, gantry_data, fmt
     (notch,) = summary["notch_filters"]
     assert notch["sample_rate_hz"] == 4000.0 and abs(notch["center_hz"] - res["frequency_hz"]) < 1e-9
     assert (tmp_path / "o" / "bode.png").is_file()
+    # the fitted transfer function: one integrator (velocity of a free axis), the coupled mode, and the
+    # anti-resonance of the load on its spring, sqrt(k / m2) / 2 pi
+    model = summary["plant_model"]
+    assert model["integrators"] == 1 and model["stable"]
+    assert any(abs(r["frequency_hz"] - true_f) / true_f < 0.005 for r in model["resonances"])
+    true_anti = np.sqrt(1.5e5 / 10.0) / (2 * np.pi)
+    assert abs(model["antiresonances"][0]["frequency_hz"] - true_anti) / true_anti < 0.01
+    quality = summary["measurement"]
+    (at_peak,) = quality["uncertainty"]["at_resonances"]
+    assert 0 < at_peak["magnitude_rel_std"] < 0.2  # leakage at the peak lowers the coherence of 2 s segments
+    assert quality["input_spectrum"]["coverage"] > 0.9
+    assert quality["input_spectrum"]["band_hz"][0] >= 1.5 and quality["input_spectrum"]["band_hz"][1] <= 90
+
+
+def test_resolution_check_explains_an_over_estimated_damping(tmp_path, gantry_data):
+    cfg, cols = gantry_data
+    (true_f, true_zeta), = true_modes(cfg.emulator)
+    write_csv(tmp_path / "rec.csv", cols)
+
+    def identify(segment_s):
+        config = identify_config(tmp_path, identification=f"segment_s = {segment_s}\n")
+        out = tmp_path / f"seg{segment_s}"
+        assert main(["identify", str(tmp_path / "rec.csv"), "--config", str(config), "--out", str(out), "-q"]) == 0
+        return json.loads((out / "summary.json").read_text())
+
+    coarse = identify(2.0)  # 0.5 Hz bins: two across the 1 Hz half-power band
+    assert coarse["measurement"]["resolution"]["resolution_hz"] == pytest.approx(0.5)
+    assert any("damping is over-estimated" in w for w in coarse["warnings"])
+    needed = coarse["measurement"]["resolution"]["required_record_s"]
+    assert 2.0 < needed < 4.0
+    fine = identify(8.0)  # 0.125 Hz bins: eight across
+    assert not any("resolution" in w for w in fine["warnings"])
+    (res,) = fine["resonances"]
+    assert abs(res["damping_ratio"] - true_zeta) / true_zeta < 0.15
+    assert abs(res["frequency_hz"] - true_f) / true_f < 0.005
 
 
 def test_grey_box_parameters_with_standard_deviations(tmp_path):
@@ -111,6 +146,34 @@ def test_grey_box_parameters_with_standard_deviations(tmp_path):
         assert abs(model["params"][name] - truth) / truth < 0.02, (name, model["params"])
         assert model["stderr"][name] > 0
     assert model["fit_percent"] > 90
+    # without a second record, the last 30 % validated the fit
+    assert model["validation"]["holdout"]["fit_percent"] > 90
+    assert model["estimation"]["samples"] > 2 * model["validation"]["holdout"]["samples"]
+
+
+def test_grey_box_validated_on_a_separate_record(tmp_path, capsys):
+    _, cols = simulate(STIFF_MSD, f_min=1.0, f_max=40.0, amplitude=50.0, periods=3)
+    write_csv(tmp_path / "estimation.csv", cols)
+    _, same = simulate(STIFF_MSD, f_min=2.0, f_max=30.0, amplitude=30.0, periods=2)
+    write_csv(tmp_path / "same-axis.csv", same)
+    _, other = simulate(STIFF_MSD.replace("k = 2.0e4", "k = 3.0e4"), f_min=2.0, f_max=30.0, amplitude=30.0, periods=2)
+    write_csv(tmp_path / "stiffer-axis.csv", other)
+    config = identify_config(tmp_path, '\n[model]\nkind = "mass_spring_damper"\ncutoff_hz = 40.0\n')
+
+    def identify(validation):
+        out = tmp_path / ("out-" + validation)
+        assert main(["identify", str(tmp_path / "estimation.csv"), "--config", str(config), "--out", str(out),
+                     "--validation", str(tmp_path / validation), "-q"]) == 0
+        return json.loads((out / "summary.json").read_text())
+
+    good = identify("same-axis.csv")
+    check = good["model"]["validation"]["same-axis.csv"]
+    assert check["fit_percent"] > 90
+    assert not any("overfitting" in w for w in good["warnings"])
+    assert "on the estimation data, " in capsys.readouterr().out
+    bad = identify("stiffer-axis.csv")
+    assert bad["model"]["validation"]["stiffer-axis.csv"]["fit_percent"] < check["fit_percent"] - 10
+    assert any("stiffer-axis.csv" in w and "validation data" in w for w in bad["warnings"])
 
 
 def one_line_error(capsys, argv, code):

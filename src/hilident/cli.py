@@ -31,6 +31,7 @@ def _run(args) -> int:
     if summary["friction"]:
         p = summary["friction"]["params"]
         print(f"friction: Fc {p['Fc']:.3g} N*m, Fs {p['Fs']:.3g} N*m, Fv {p['Fv']:.3g}")
+    _print_model(summary.get("model"))
     red = summary["verification"]["peak_reduction_db"]
     if red is not None:
         print(f"verification: resonance peak reduced by {red:.1f} dB")
@@ -43,6 +44,18 @@ def _run(args) -> int:
     return 0
 
 
+def _print_model(m: dict | None) -> None:
+    """One line: grey-box parameters with standard deviations, and the fit % on each record."""
+    if not m:
+        return
+    params = ", ".join(
+        f"{k} {v:.5g} ± {m['stderr'][k]:.2g} ({m['relative_stderr_percent'][k]:.2g} %)" for k, v in m["params"].items()
+    )
+    checks = ", ".join(f"{v['fit_percent']:.1f} % on {name}" for name, v in m["validation"].items())
+    print(f"{m['kind']}: {params}; fit {m['estimation']['fit_percent']:.1f} % on the estimation data"
+          + (f", {checks}" if checks else ""))
+
+
 def _identify(args) -> int:
     from hilident.config import load_config
     from hilident.offline import identify_recording
@@ -50,15 +63,10 @@ def _identify(args) -> int:
 
     cfg = load_config(args.config)
     out = Path(args.out) if args.out else Path("runs") / Path(args.data).stem
-    summary = identify_recording(cfg, args.data, out, Progress(enabled=not args.quiet))
+    summary = identify_recording(cfg, args.data, out, Progress(enabled=not args.quiet), args.validation)
     res = ", ".join(f"{r['frequency_hz']:.4g} Hz (zeta {r['damping_ratio']:.3f})" for r in summary["resonances"])
     print(f"resonances: {res or 'none found'}")
-    if summary["model"]:
-        m = summary["model"]
-        params = ", ".join(
-            f"{k} {v:.5g} ± {m['stderr'][k]:.2g} ({m['relative_stderr_percent'][k]:.2g} %)" for k, v in m["params"].items()
-        )
-        print(f"{summary['model']['kind']}: {params}; fit {m['fit_percent']:.1f} %")
+    _print_model(summary.get("model"))
     for w in summary["warnings"]:
         print(f"warning: {w}")
     print(f"wrote {out / 'summary.json'}")
@@ -122,6 +130,8 @@ def build_parser() -> argparse.ArgumentParser:
     ide.add_argument("data", help="recording file")
     ide.add_argument("--config", required=True, help="TOML configuration with [data] (column mapping) and [model]")
     ide.add_argument("--out", help="output folder (default: runs/<data name>)")
+    ide.add_argument("--validation", help="a second recording of the same axis to validate the [model] fit on "
+                                          "(default: the last [model].holdout of the data)")
     ide.add_argument("-q", "--quiet", action="store_true")
     ide.set_defaults(func=_identify)
 

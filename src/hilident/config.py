@@ -102,6 +102,8 @@ class IdentificationConfig:
     f_max_hz: float = _spec(0.0, ge=0)
     max_resonances: int = _spec(2, ge=0)
     min_prominence_db: float = _spec(6.0, ge=0)
+    model_max_order: int = _spec(4, ge=0, le=12, doc="highest denominator order of the transfer function fitted "
+                                 "to the plant response (modal form in summary.json); 0: no fit")
 
 
 @dataclass(frozen=True)
@@ -140,6 +142,8 @@ class ModelConfig:
     input_hold: str = _spec("zoh", choices=("zoh", "sample"),
                             doc="zoh: the torque was held over each sample period (a drive's command); sample: point samples")
     filter_rate_hz: float = _spec(4000.0, gt=0, doc="rate the notch biquads are designed for (no device to ask)")
+    holdout: float = _spec(0.3, ge=0, lt=1, doc="fraction at the end of the data kept out of the fit to validate it "
+                                                "when there is no separate validation record")
 
 
 # --- emulator -----------------------------------------------------------------------------

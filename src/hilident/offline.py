@@ -17,40 +17,52 @@ from pathlib import Path
 from hilident import __version__, pipeline, report
 from hilident.config import Config
 from hilident.datafile import Dataset, load_dataset
-from hilident.ident import greybox
+from hilident.errors import ConfigError
+from hilident.ident.frfquality import excited_band
 
 
 def _band(cfg: Config, ds: Dataset) -> tuple[float, float]:
+    """``[identification]`` band, or where the input carries power (within 20 dB of its peak)."""
     ic = cfg.identification
-    lo = ic.f_min_hz or 2.0 / (len(ds) / ds.sample_rate_hz)
-    hi = ic.f_max_hz or 0.4 * ds.sample_rate_hz
-    return lo, hi
+    u = ds.signals.get("excitation", ds.signals["torque"])
+    segment = min(int(round(ic.segment_s * ds.sample_rate_hz)), len(u) // 2)
+    lo, hi = excited_band(u, ds.sample_rate_hz, segment)
+    return ic.f_min_hz or max(lo, 2.0 / (len(ds) / ds.sample_rate_hz)), ic.f_max_hz or min(hi, 0.4 * ds.sample_rate_hz)
 
 
-def fit_model(cfg: Config, ds: Dataset):
-    """The grey-box model of ``[model]`` fitted to the data (None for ``kind = "none"``)."""
-    m = cfg.model
-    if m.kind == "none":
+def fit_model(cfg: Config, ds: Dataset, validation: Dataset | None = None):
+    """The grey-box model of ``[model]`` fitted to the data and validated (None for ``kind = "none"``).
+
+    ``validation`` is a separate record of the same axis; without it the last
+    ``[model].holdout`` of the data validates the fit.
+    """
+    if cfg.model.kind == "none":
         return None
-    if "position" not in ds.signals:
-        from hilident.errors import ConfigError
-
-        raise ConfigError("data.position", f"a {m.kind} fit needs the position column", cfg.source)
-    force = m.c * ds.signals["torque"]
-    cutoff = m.cutoff_hz or ds.sample_rate_hz / 10.0
-    if m.kind == "mass_spring_damper":
-        return greybox.fit_mass_spring_damper(force, ds.signals["position"], ds.sample_rate_hz, cutoff,
-                                              input_hold=m.input_hold)
-    return greybox.fit_rigid_axis(ds.signals["position"], force, ds.sample_rate_hz, cutoff, input_hold=m.input_hold)
+    for d, key in ((ds, "data.position"), (validation, "data.position")):
+        if d is not None and "position" not in d.signals:
+            raise ConfigError(key, f"a {cfg.model.kind} fit needs the position column ({d.source})", cfg.source)
+    records = None
+    if validation is not None:
+        records = {Path(validation.source).name: (validation.signals["torque"], validation.signals["position"])}
+    return pipeline.fit_greybox(cfg.model, ds.signals["torque"], ds.signals["position"], ds.sample_rate_hz, records)
 
 
-def identify_recording(cfg: Config, data_path: str | Path, out_dir: str | Path, progress=None) -> dict:
-    """Identify the plant in ``data_path``; writes ``summary.json`` and plots into ``out_dir``."""
+def identify_recording(cfg: Config, data_path: str | Path, out_dir: str | Path, progress=None,
+                       validation_path: str | Path | None = None) -> dict:
+    """Identify the plant in ``data_path``; writes ``summary.json`` and plots into ``out_dir``.
+
+    ``validation_path`` is a second recording of the same axis (same ``[data]``
+    mapping) on which the grey-box model is validated.
+    """
     started = time.monotonic()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     say = progress.step if progress else (lambda message: None)
     ds = load_dataset(data_path, cfg.data, cfg.source)
+    validation = load_dataset(validation_path, cfg.data, cfg.source) if validation_path else None
+    if validation is not None and abs(validation.sample_rate_hz - ds.sample_rate_hz) > 1e-6 * ds.sample_rate_hz:
+        raise ConfigError("data.sample_rate_hz", f"the validation record runs at {validation.sample_rate_hz:g} Hz, "
+                          f"the data at {ds.sample_rate_hz:g} Hz", cfg.source)
     warnings = list(ds.notes)
     s = ds.signals
     if cfg.data.closed_loop and "excitation" not in s:
@@ -67,7 +79,7 @@ def identify_recording(cfg: Config, data_path: str | Path, out_dir: str | Path, 
     warnings += plant.warnings
     slots = list(range(max(cfg.identification.max_resonances, 1)))
     designs = pipeline.design_notches(plant.resonances, cfg.notch, cfg.model.filter_rate_hz, slots) if cfg.notch.enabled else []
-    model = fit_model(cfg, ds)
+    model = fit_model(cfg, ds, validation)
     if model is not None:
         warnings += list(model.warnings)
         if cfg.data.closed_loop:
@@ -81,7 +93,9 @@ def identify_recording(cfg: Config, data_path: str | Path, out_dir: str | Path, 
         "data": {"file": ds.source, "samples": len(ds), "sample_rate_hz": ds.sample_rate_hz},
         "resonances": pipeline.resonance_records(plant.resonances),
         "friction": None,
-        "model": None if model is None else {"kind": cfg.model.kind, **model.to_dict()},
+        "model": None if model is None else model.to_dict(),
+        "plant_model": plant.model.to_dict() if plant.model else None,
+        "measurement": plant.quality,
         "notch_filters": pipeline.notch_records(designs),
         "upload": {"written": False, "verified_readback": False, "slots": []},
         "verification": {"peak_reduction_db": None, "resonances": []},
@@ -93,5 +107,6 @@ def identify_recording(cfg: Config, data_path: str | Path, out_dir: str | Path, 
     report.write_summary(out / "summary.json", summary)
     notch = pipeline.notch_chain_response(designs, plant.plant.frequency_hz)
     report.plot_bode(out / "bode.png", [("plant (input to output)", plant.plant)], resonances=plant.resonances,
-                     notch_response=notch, coherence_threshold=cfg.identification.coherence_threshold)
+                     notch_response=notch, coherence_threshold=cfg.identification.coherence_threshold,
+                     **pipeline.bode_extras(plant))
     return summary

@@ -11,14 +11,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hilident.config import IdentificationConfig, NotchConfig
-from hilident.errors import DataError
+from hilident.config import IdentificationConfig, ModelConfig, NotchConfig
+from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec, design_notch, notch_from_resonance
 from hilident.ident import friction as fr
+from hilident.ident import greybox
+from hilident.ident.validation import overfitting_warning
+from hilident.ident.discretize import sampling_advice
 from hilident.ident.frequency import FrequencyResponse, frf_from_reference, h1_estimate, periodic_frf
+from hilident.ident.frfquality import check_resolution, frf_uncertainty, input_spectrum
 from hilident.ident.preprocess import check_signals, detrend, lowpass
 from hilident.ident.resonance import Resonance, find_resonances
+from hilident.ident.tffit import ModalModel, TfFit, modal_form
+from hilident.ident.tffit import select_order as select_tf_order
 
 
 @dataclass
@@ -72,6 +78,153 @@ class PlantResult:
     loop: FrequencyResponse
     resonances: list[Resonance]
     warnings: list[str] = field(default_factory=list)
+    model: "PlantModel | None" = None
+    quality: dict = field(default_factory=dict)
+
+
+@dataclass
+class PlantModel:
+    """A transfer function fitted to the plant's measured response.
+
+    Attributes
+    ----------
+    fit : TfFit
+    modal : ModalModel
+        The same transfer function as resonances and anti-resonances.
+    candidates : list of dict
+        Orders tried: ``n_num``, ``n_den``, ``weighted_cost``, ``selected``.
+    """
+
+    fit: TfFit
+    modal: ModalModel
+    candidates: list
+
+    def to_dict(self) -> dict:
+        f, m = self.fit, self.modal
+        return {
+            "n_num": f.n_num, "n_den": f.n_den, "integrators": f.integrators, "band_hz": list(f.band_hz),
+            "fit_db_rms": f.fit_db_rms, "phase_rms_deg": f.phase_rms_deg, "weighted_cost": f.weighted_cost,
+            "stable": f.stable, "gain": m.gain,
+            "resonances": [{"frequency_hz": hz, "damping_ratio": z} for hz, z in m.resonances],
+            "antiresonances": [{"frequency_hz": hz, "damping_ratio": z} for hz, z in m.antiresonances],
+            "real_poles_hz": list(m.real_poles_hz), "real_zeros_hz": list(m.real_zeros_hz),
+            "poles_rad_s": [[p.real, p.imag] for p in f.poles], "zeros_rad_s": [[z.real, z.imag] for z in f.zeros],
+            "num": list(f.num), "den": list(f.den), "candidates": self.candidates,
+        }
+
+
+def _slope_db_per_decade(frf: FrequencyResponse, lo: float, hi: float) -> float:
+    keep = (frf.frequency_hz >= lo) & (frf.frequency_hz <= hi) & np.isfinite(frf.response) & (frf.response != 0)
+    if keep.sum() < 3:
+        return float("nan")
+    x = np.log10(frf.frequency_hz[keep])
+    return float(np.polyfit(x, 20 * np.log10(np.abs(frf.response[keep])), 1)[0])
+
+
+def fit_plant_model(frf: FrequencyResponse, band_hz: tuple[float, float], max_order: int,
+                    coherence_threshold: float = 0.0) -> PlantModel:
+    """Transfer function and modal form of a measured plant response.
+
+    The integrators (rigid-body modes: a velocity response of a free axis has
+    one) are read from the slope over the lowest fifth of the band on a log
+    axis, the relative degree from the slope over the highest fifth; then
+    :func:`~hilident.ident.tffit.select_order` picks the smallest adequate
+    order up to ``max_order``, weighting each bin by its coherence.
+
+    Raises
+    ------
+    DataError
+        No stable fit, or too few coherent bins.
+    """
+    f_lo, f_hi = band_hz
+    frf = frf.band(f_lo, f_hi)
+    keep = frf.coherence >= coherence_threshold if np.all(np.isfinite(frf.coherence)) else np.ones(len(frf), bool)
+    if keep.sum() < 8:
+        raise DataError(f"only {int(keep.sum())} bins with coherence >= {coherence_threshold:g} to fit a model to")
+    frf = FrequencyResponse(frf.frequency_hz[keep], frf.response[keep], frf.coherence[keep], frf.n_averages,
+                            frf.method)
+    decade = np.log10(f_hi / f_lo)
+    low = _slope_db_per_decade(frf, f_lo, f_lo * 10 ** (decade / 5))
+    high = _slope_db_per_decade(frf, f_hi / 10 ** (decade / 5), f_hi)
+    integrators = int(np.clip(np.round(-low / 20.0), 0, 2)) if np.isfinite(low) else 0
+    relative = int(np.clip(np.round(-high / 20.0), 0, 4)) if np.isfinite(high) else integrators
+    relative_free = max(relative - integrators, 0)
+    weights = "coherence" if np.all(np.isfinite(frf.coherence)) and frf.n_averages > 1 else None
+    if weights == "coherence":
+        # a bin with coherence 1 (noise-free) would get infinite weight
+        frf = FrequencyResponse(frf.frequency_hz, frf.response, np.minimum(frf.coherence, 0.9999), frf.n_averages,
+                                frf.method)
+    fit, table = select_tf_order(frf, max_order=max(max_order, relative_free, 1), relative_degree=relative_free,
+                                 integrators=integrators, weights=weights)
+    candidates = [{"n_num": r.n_num, "n_den": r.n_den, "selected": r.selected,
+                   "weighted_cost": None if r.fit is None else r.fit.weighted_cost} for r in table]
+    return PlantModel(fit=fit, modal=modal_form(fit), candidates=candidates)
+
+
+def bode_extras(plant: PlantResult) -> dict:
+    """The fitted model's curve and the plant response's 95 % band, as :func:`report.plot_bode` takes them."""
+    extras: dict = {}
+    if plant.model is not None:
+        f = plant.plant.frequency_hz
+        fine = np.geomspace(max(f[f > 0].min(), 1e-3), f.max(), 2000) if np.any(f > 0) else f
+        fit = plant.model.fit
+        extras["model"] = (f"fitted model ({fit.n_num}/{fit.n_den + fit.integrators})", fine, fit.response(fine))
+    if plant.plant.n_averages >= 2 and np.all(np.isfinite(plant.plant.coherence)):
+        unc = frf_uncertainty(plant.plant)
+        extras["bounds_db"] = (unc.lower_db, unc.upper_db)
+    return extras
+
+
+def measurement_quality(plant: FrequencyResponse, resonances: list[Resonance], excitation, sample_rate_hz: float,
+                        band_hz: tuple[float, float], period_samples: int | None,
+                        antiresonances_hz=()) -> tuple[dict, list[str]]:
+    """Uncertainty at the resonances, resolution, input spectrum and sampling advice of one run."""
+    warnings: list[str] = []
+    out: dict = {"frequency_resolution_hz": float(np.median(np.diff(plant.frequency_hz))) if len(plant) > 1 else None,
+                 "n_averages": plant.n_averages}
+    if plant.n_averages >= 2:
+        unc = frf_uncertainty(plant)
+        rows = []
+        for r in resonances:
+            i = int(np.argmin(np.abs(plant.frequency_hz - r.frequency_hz)))
+            rows.append({"frequency_hz": r.frequency_hz, "magnitude_rel_std": float(unc.magnitude_rel_std[i]),
+                         "magnitude_bounds_db": [float(unc.lower_db[i]), float(unc.upper_db[i])],
+                         "phase_bound_deg": float(unc.phase_bound_deg[i]), "confidence": unc.confidence})
+        in_band = (plant.frequency_hz >= band_hz[0]) & (plant.frequency_hz <= band_hz[1])
+        out["uncertainty"] = {
+            "at_resonances": rows,
+            "median_magnitude_rel_std": float(np.nanmedian(unc.magnitude_rel_std[in_band])) if in_band.any() else None,
+        }
+    if len(plant) > 1:
+        check = check_resolution(plant, [(r.frequency_hz, r.damping_ratio) for r in resonances], antiresonances_hz)
+        out["resolution"] = {"resolution_hz": check.resolution_hz, "resonances": check.bins_per_bandwidth,
+                             "lowest_antiresonance": check.antiresonance,
+                             "required_record_s": check.required_record_s}
+        warnings += check.warnings
+    try:
+        spec = input_spectrum(excitation, sample_rate_hz, band_hz, segment_length=period_samples,
+                              periodic=bool(period_samples))
+        out["input_spectrum"] = spec.to_dict()
+        if spec.coverage < 0.5:
+            warnings.append(
+                f"the excitation covers only {100 * spec.coverage:.0f} % of {band_hz[0]:g}-{band_hz[1]:g} Hz "
+                f"within 20 dB of its strongest line: the response is poorly excited elsewhere"
+            )
+    except (DataError, ConfigError) as exc:
+        warnings.append(f"input spectrum: {exc}")
+    advice = []
+    for r in resonances:
+        a = sampling_advice(2 * np.pi * r.frequency_hz)
+        advice.append({"frequency_hz": r.frequency_hz, "sample_rate_min_hz": a["sample_rate_min_hz"],
+                       "sample_rate_max_hz": a["sample_rate_max_hz"],
+                       "nyquist_sample_rate_min_hz": a["nyquist_sample_rate_min_hz"],
+                       "within_rule": bool(a["sample_rate_min_hz"] <= sample_rate_hz <= a["sample_rate_max_hz"])})
+    out["sampling"] = {"sample_rate_hz": sample_rate_hz, "rule": "omega0 * h = 0.2 .. 0.6 (for discrete-time models)",
+                       "resonances": advice}
+    if band_hz[1] > 0.4 * sample_rate_hz:
+        warnings.append(f"the band reaches {band_hz[1]:g} Hz, above 40 % of the {sample_rate_hz:g} Hz sample rate: "
+                        "anti-aliasing and hold effects distort the top of the band")
+    return out, warnings
 
 
 def identify_plant(
@@ -133,7 +286,17 @@ def identify_plant(
             f"no resonance with coherence >= {cfg.coherence_threshold:g} and prominence >= "
             f"{cfg.min_prominence_db:g} dB between {band_hz[0]:g} and {band_hz[1]:g} Hz"
         )
-    return PlantResult(plant=plant, loop=loop, resonances=resonances, warnings=warnings)
+    model = None
+    if cfg.model_max_order:
+        try:
+            model = fit_plant_model(plant, band_hz, cfg.model_max_order, cfg.coherence_threshold)
+        except (DataError, ConfigError) as exc:
+            warnings.append(f"transfer-function fit: {exc}")
+    antires = [hz for hz, _ in model.modal.antiresonances] if model else []
+    quality, more = measurement_quality(plant, resonances, r, sample_rate_hz, band_hz,
+                                        period_samples if seg is None else None, antires)
+    return PlantResult(plant=plant, loop=loop, resonances=resonances, warnings=warnings + more, model=model,
+                       quality=quality)
 
 
 def _condition(x: np.ndarray, cfg: IdentificationConfig, sample_rate_hz: float) -> np.ndarray:
@@ -297,3 +460,79 @@ def notch_chain_response(designs: list[NotchDesign], frequency_hz) -> tuple[np.n
 
     f = np.asarray(frequency_hz, dtype=float)
     return f, chain_response([d.biquad for d in designs], f, designs[0].sample_rate_hz)
+
+
+# --- grey-box model of the axis ----------------------------------------------------------
+
+
+def _greybox_regression(cfg: ModelConfig, torque, position, sample_rate_hz: float):
+    force = cfg.c * np.asarray(torque, dtype=float)
+    cutoff = cfg.cutoff_hz or sample_rate_hz / 10.0
+    if cfg.kind == "mass_spring_damper":
+        return greybox.mass_spring_damper_regression(force, position, sample_rate_hz, cutoff, input_hold=cfg.input_hold)
+    return greybox.rigid_axis_regression(position, force, sample_rate_hz, cutoff, input_hold=cfg.input_hold)
+
+
+@dataclass
+class GreyBoxResult:
+    """A grey-box model fitted on one stretch of data and checked on others.
+
+    Attributes
+    ----------
+    fit : LinearFit
+        Parameters with standard deviations, from the estimation data.
+    estimation : dict
+        :func:`~hilident.ident.greybox.validate_fit` on the estimation data.
+    validation : dict of str to dict
+        The same on each validation record, by name.
+    warnings : list of str
+    """
+
+    kind: str
+    fit: greybox.LinearFit
+    estimation: dict
+    validation: dict
+    warnings: list
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, **self.fit.to_dict(), "estimation": self.estimation, "validation": self.validation}
+
+
+def fit_greybox(cfg: ModelConfig, torque, position, sample_rate_hz: float,
+                validation_records: dict | None = None) -> GreyBoxResult:
+    """Fit ``[model]`` to torque and position and validate it.
+
+    With no separate validation record, the last ``cfg.holdout`` of the data is
+    kept out of the fit and used as one (``"holdout"``).
+
+    Parameters
+    ----------
+    cfg : ModelConfig
+    torque, position : array_like
+        Motor torque (N·m; times ``cfg.c`` gives the force) and position (m).
+    sample_rate_hz : float
+    validation_records : dict of str to (torque, position), optional
+        Other records of the same axis.
+    """
+    torque = np.asarray(torque, dtype=float)
+    position = np.asarray(position, dtype=float)
+    records = dict(validation_records or {})
+    if not records and cfg.holdout > 0:
+        cut = int(round(len(torque) * (1.0 - cfg.holdout)))
+        records["holdout"] = (torque[cut:], position[cut:])
+        torque, position = torque[:cut], position[:cut]
+    est = _greybox_regression(cfg, torque, position, sample_rate_hz)
+    fit = greybox.fit_linear(est.regressors, est.target, tuple(est.regressors), n_effective=est.n_effective)
+    warnings = list(fit.warnings)
+    estimation = greybox.validate_fit(fit, est)
+    checked = {}
+    for name, (tq, pos) in records.items():
+        try:
+            checked[name] = greybox.validate_fit(fit, _greybox_regression(cfg, tq, pos, sample_rate_hz))
+        except DataError as exc:
+            warnings.append(f"{cfg.kind} validation on {name}: {exc}")
+            continue
+        w = overfitting_warning(estimation["fit_percent"], checked[name]["fit_percent"])
+        if w:
+            warnings.append(f"{cfg.kind} on {name}: {w}")
+    return GreyBoxResult(cfg.kind, fit, estimation, checked, warnings)

@@ -231,6 +231,8 @@ def plot_bode(
     resonances: Iterable[Any] = (),
     notch_response: tuple[Any, Any] | None = None,
     coherence_threshold: float | None = None,
+    model: tuple[str, Any, Any] | None = None,
+    bounds_db: tuple[Any, Any] | None = None,
 ) -> Path:
     """Bode plot (magnitude, phase, coherence) of one or more measured responses.
 
@@ -250,6 +252,11 @@ def plot_bode(
         Magnitude of the designed notch chain, drawn dashed on the magnitude axis.
     coherence_threshold : float, optional
         Drawn as a horizontal line on the coherence axis (e.g. 0.8).
+    model : (label, frequency_hz, response), optional
+        A fitted model's complex response, drawn thin and black on magnitude and phase.
+    bounds_db : (lower_db, upper_db), optional
+        Confidence band of the first response relative to itself (dB, one value
+        per bin of that response), shaded around its magnitude.
 
     Returns
     -------
@@ -293,11 +300,21 @@ def plot_bode(
     ax_mag, ax_phase, ax_coh = fig.subplots(3, 1, sharex=True)
 
     magnitudes_db = []
-    with np.errstate(divide="ignore"):
-        for label, f, h, coh in curves:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for i, (label, f, h, coh) in enumerate(curves):
             mag_db = 20 * np.log10(np.abs(h))
             magnitudes_db.append(mag_db)
             line = ax_mag.semilogx(f, mag_db, label=label)[0]
+            if i == 0 and bounds_db is not None:
+                f_all = _vector(responses[0][1].frequency_hz, "responses[0].frequency_hz")
+                lo = _vector(bounds_db[0], "bounds_db lower")
+                hi = _vector(bounds_db[1], "bounds_db upper")
+                _same_length(f_all, "responses[0].frequency_hz", lo, "bounds_db lower")
+                _same_length(f_all, "responses[0].frequency_hz", hi, "bounds_db upper")
+                k = f_all > 0
+                lo_db = np.maximum(mag_db + lo[k], mag_db - 40.0)  # a bin with no coherence: cap the band
+                ax_mag.fill_between(f, lo_db, mag_db + hi[k], color=line.get_color(), alpha=0.25, lw=0,
+                                    label="95 % confidence")
             ax_phase.semilogx(f, _unwrapped_phase_deg(h), color=line.get_color(), label=label)
             if coh is not None:
                 ax_coh.semilogx(f, coh, color=line.get_color(), label=label)
@@ -305,6 +322,14 @@ def plot_bode(
             mag_db = 20 * np.log10(np.abs(notch[1]))
             magnitudes_db.append(mag_db)
             ax_mag.semilogx(notch[0], mag_db, "k--", lw=1.2, label="notch chain")
+        if model is not None:
+            m_label, mf, mh = model
+            mf = _vector(mf, "model frequency_hz")
+            mh = _vector(mh, "model response", dtype=complex)
+            _same_length(mf, "model frequency_hz", mh, "model response")
+            k = mf > 0
+            ax_mag.semilogx(mf[k], 20 * np.log10(np.abs(mh[k])), color="k", lw=0.8, label=m_label)
+            ax_phase.semilogx(mf[k], _unwrapped_phase_deg(mh[k]), color="k", lw=0.8, label=m_label)
     ax_mag.set_ylim(*_magnitude_limits_db(np.concatenate(magnitudes_db)))
 
     if coherence_threshold is not None:

@@ -161,6 +161,7 @@ class Session:
         self.totals = StreamStats()
         self.warnings: list[str] = []
         self.summary: dict = {}
+        self._analysed: dict[str, dict[str, np.ndarray]] = {}  # gap-free samples of each analysed run
 
     # --- connection -----------------------------------------------------------------------
 
@@ -271,7 +272,9 @@ class Session:
             verification = self._verify(excitation, plant, designs)
         finally:
             self.close()
+        model = self._greybox()
         self.summary = self._summary(friction, plant, designs, upload, verification, time.monotonic() - started)
+        self.summary["model"] = model.to_dict() if model else None
         report.write_summary(self.out / "summary.json", self.summary)
         self._plots(friction, plant, designs, verification)
         return self.summary
@@ -347,10 +350,31 @@ class Session:
         period = excitation.period_samples
         return self._complete_periods(exp, period) if period else self._longest_contiguous(exp)
 
+    def _greybox(self):
+        """``[model]`` fitted to the identification run, validated on the verification run (or a hold-out)."""
+        if self.cfg.model.kind == "none" or "identification" not in self._analysed:
+            return None
+        s = self._analysed["identification"]
+        others = {name: (v["torque_nm"], v["position_m"]) for name, v in self._analysed.items()
+                  if name != "identification" and "position_m" in v}
+        if "position_m" not in s:
+            self.warnings.append(f"[model] {self.cfg.model.kind}: position_m was not recorded")
+            return None
+        self.progress.step(f"model: {self.cfg.model.kind} grey-box fit")
+        try:
+            result = pipeline.fit_greybox(self.cfg.model, s["torque_nm"], s["position_m"], self.cfg.run.sample_rate_hz,
+                                          others or None)
+        except DataError as exc:
+            self.warnings.append(f"[model] {self.cfg.model.kind}: {exc}")
+            return None
+        self.warnings += result.warnings
+        return result
+
     def _identify(self, exp: Experiment, excitation: Excitation, friction):
         cfg = self.cfg
         period = excitation.period_samples
         s = self._analysis_samples(exp, excitation)
+        self._analysed["identification"] = s
         ic = cfg.identification
         band = (ic.f_min_hz or excitation.band_hz[0], ic.f_max_hz or excitation.band_hz[1])
         self.progress.step("identification: frequency response and resonances")
@@ -412,6 +436,7 @@ class Session:
             return None
         exp = self.record("verification", self.cfg.excitation.mode, excitation.samples)
         s = self._analysis_samples(exp, excitation)
+        self._analysed["verification"] = s
         self.progress.step("verification: frequency response")
         loop_after, warnings = pipeline.loop_response(
             s["excitation"], s[self.cfg.identification.output], self.cfg.run.sample_rate_hz,
@@ -438,6 +463,8 @@ class Session:
             "device": {"driver": self.driver.name, "port": self.adapter.port, "emulated": cfg.uses_emulator},
             "sample_rate_hz": cfg.run.sample_rate_hz,
             "resonances": pipeline.resonance_records(plant.resonances),
+            "plant_model": plant.model.to_dict() if plant.model else None,
+            "measurement": plant.quality,
             "friction": None,
             "notch_filters": pipeline.notch_records(designs),
             "upload": upload,
@@ -478,4 +505,5 @@ class Session:
             responses.append(("excitation to output, after notch", verification["loop_after"]))
         notch = pipeline.notch_chain_response(designs, plant.plant.frequency_hz)
         report.plot_bode(self.out / "bode.png", responses, resonances=plant.resonances, notch_response=notch,
-                         coherence_threshold=self.cfg.identification.coherence_threshold)
+                         coherence_threshold=self.cfg.identification.coherence_threshold,
+                         **pipeline.bode_extras(plant))

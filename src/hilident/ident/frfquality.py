@@ -302,3 +302,26 @@ def input_spectrum(
         level_min_db=float(np.min(level)), level_max_db=top, spread_db=float(top - np.min(level)),
         coverage=float(np.mean(level >= top - floor_db)), frequency_hz=fb, psd=pb,
     )
+
+
+def excited_band(u: ArrayLike, sample_rate_hz: float, segment_length: int, floor_db: float = 20.0) -> tuple[float, float]:
+    """Lowest and highest frequency where the input's spectrum is within ``floor_db`` of its peak, Hz.
+
+    For records from elsewhere, whose excitation band nobody wrote down. The
+    DC bin is ignored.
+
+    Raises
+    ------
+    DataError
+        The record is shorter than one segment, or the input has no power.
+    """
+    x = np.asarray(u, dtype=float)
+    if x.ndim != 1 or x.size < max(int(segment_length), 16) or not np.all(np.isfinite(x)):
+        raise DataError(f"the input needs at least {segment_length} finite samples to find its excited band")
+    f, p = signal.welch(x - x.mean(), fs=sample_rate_hz, nperseg=int(segment_length))
+    f, p = f[1:], p[1:]
+    if not np.any(p > 0):
+        raise DataError("the input has no power at any frequency")
+    level = 10 * np.log10(np.maximum(p, np.max(p) * 1e-30))
+    on = np.flatnonzero(level >= level.max() - floor_db)
+    return float(f[on[0]]), float(f[on[-1]])

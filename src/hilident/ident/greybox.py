@@ -417,7 +417,26 @@ def _lowpass_like(x: np.ndarray, fs, cutoff_hz, order, kind) -> np.ndarray:
     return state_variable_filter(x, fs, cutoff_hz, 0, order=order, kind=kind)[0]
 
 
-def _second_order_fit(
+@dataclass(frozen=True)
+class Regression:
+    """Regressors and target of a linear-in-parameters model, rows already chosen.
+
+    Attributes
+    ----------
+    regressors : dict of str to ndarray
+        One column per parameter name.
+    target : ndarray
+        What ``sum(param * regressor)`` should equal.
+    n_effective : float or None
+        Independent rows (a low-pass makes neighbouring rows alike).
+    """
+
+    regressors: dict
+    target: np.ndarray
+    n_effective: float | None = None
+
+
+def _second_order_regression(
     u_name: str,
     y_name: str,
     u: ArrayLike,
@@ -430,7 +449,7 @@ def _second_order_fit(
     decimate: int,
     input_hold: str,
     names: tuple[str, str, str],
-) -> LinearFit:
+) -> Regression:
     sig = check_signals({u_name: u, y_name: y})
     u, y = _hold_to_sample(sig[u_name], input_hold), sig[y_name]
     fs = float(sample_rate_hz)
@@ -457,7 +476,48 @@ def _second_order_fit(
         _bandwidth_samples(rows.size, decimate, cutoff_hz, fs) if method == "svf" else None
     )
     reg = {names[0]: Y[2, rows], names[1]: Y[1, rows], names[2]: Y[0, rows]}
-    return fit_linear(reg, Uf[rows], names, n_effective=n_eff)
+    return Regression(reg, Uf[rows], n_eff)
+
+
+def _second_order_fit(*args) -> LinearFit:
+    reg = _second_order_regression(*args)
+    return fit_linear(reg.regressors, reg.target, tuple(reg.regressors), n_effective=reg.n_effective)
+
+
+def mass_spring_damper_regression(
+    force: ArrayLike, position: ArrayLike, sample_rate_hz: float, cutoff_hz: float | None = None,
+    method: str = "svf", order: int = 3, kind: str = "butterworth", decimate: int = 1, input_hold: str = "sample",
+) -> Regression:
+    """The regressors :func:`fit_mass_spring_damper` fits, e.g. to validate a fit on another record."""
+    return _second_order_regression("force", "position", force, position, sample_rate_hz, cutoff_hz, method,
+                                    order, kind, decimate, input_hold, ("m", "b", "k"))
+
+
+def validate_fit(fit: LinearFit, regression: Regression, max_lag: int = 25) -> dict:
+    """Fit % and residual tests of ``fit`` on another record's regression.
+
+    Returns
+    -------
+    dict
+        ``fit_percent`` (NRMSE, as MATLAB ``compare``), ``residual_rms``,
+        ``residuals_white`` and ``ljung_box_p`` (autocorrelation of the
+        residuals within the 99 % band), ``independent_of_input`` (their
+        cross-correlation with the first regressor within the band), ``samples``.
+    """
+    from hilident.ident.validation import fit_percent, residual_analysis
+
+    predicted = fit.predict(regression.regressors)
+    target = np.asarray(regression.target, dtype=float)
+    residuals = target - predicted
+    out = {"fit_percent": float(fit_percent(target, predicted)), "residual_rms": float(np.sqrt(np.mean(residuals**2))),
+           "samples": int(target.size)}
+    lag = int(min(max_lag, max(1, target.size // 4 - 1)))
+    try:
+        ra = residual_analysis(residuals, regression.regressors[fit.names[0]], max_lag=lag)
+        out.update(residuals_white=ra.white, ljung_box_p=ra.ljung_box_p, independent_of_input=ra.independent)
+    except (DataError, ConfigError):
+        out.update(residuals_white=None, ljung_box_p=None, independent_of_input=None)
+    return out
 
 
 # --- physical models ---------------------------------------------------------
@@ -611,6 +671,24 @@ def fit_rigid_axis(
         A parameter is not identifiable, e.g. ``Fc`` and ``offset`` when the
         axis only moved one way, or ``Fc-`` when it never moved backwards.
     """
+    reg = rigid_axis_regression(position, force, sample_rate_hz, cutoff_hz, asymmetric, decimate, min_speed, order,
+                                kind, input_hold)
+    return fit_linear(reg.regressors, reg.target, tuple(reg.regressors), n_effective=reg.n_effective)
+
+
+def rigid_axis_regression(
+    position: ArrayLike,
+    force: ArrayLike,
+    sample_rate_hz: float,
+    cutoff_hz: float,
+    asymmetric: bool = False,
+    decimate: int = 1,
+    min_speed: float | None = None,
+    order: int = 3,
+    kind: str = "butterworth",
+    input_hold: str = "sample",
+) -> Regression:
+    """The regressors and target :func:`fit_rigid_axis` fits (same parameters), e.g. to validate on another record."""
     sig = check_signals({"position": position, "force": force})
     q, f = sig["position"], _hold_to_sample(sig["force"], input_hold)
     fs = float(sample_rate_hz)
@@ -645,9 +723,7 @@ def fit_rigid_axis(
             f"min_speed={min_speed:g}; record longer or move faster"
         )
     n_eff = _bandwidth_samples(rows.size, decimate, cutoff_hz, fs)
-    return fit_linear(
-        {k: c[rows] for k, c in reg.items()}, F[rows], tuple(reg), n_effective=n_eff
-    )
+    return Regression({k: c[rows] for k, c in reg.items()}, F[rows], n_eff)
 
 
 def fit_torque_constant(
