@@ -29,7 +29,7 @@ def check_against_truth(cfg, summary, min_reduction_db=20.0):
     found = summary["resonances"]
     assert found, summary["warnings"]
     best = min(found, key=lambda r: abs(r["frequency_hz"] - true_f))
-    assert abs(best["frequency_hz"] - true_f) / true_f < 0.01
+    assert abs(best["frequency_hz"] - true_f) / true_f < 0.005
     assert abs(best["damping_ratio"] - true_zeta) / true_zeta < 0.15
     if cfg.friction_test.enabled:
         got, want = summary["friction"]["params"], cfg.emulator.friction
