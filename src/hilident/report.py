@@ -214,6 +214,24 @@ def _unwrapped_phase_deg(h: np.ndarray) -> np.ndarray:
     return phase - 360.0 * np.ceil((phase[0] - 45.0) / 360.0)
 
 
+def _phase_near(f: np.ndarray, phase_deg: np.ndarray, reference: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
+    """``phase_deg`` moved bin by bin by whole turns to within 180 deg of a reference curve.
+
+    A notch's near-zero makes ``unwrap`` pick a branch at random; measured
+    before/after curves of one plant are compared on the same branch.
+    """
+    if reference is None:
+        return phase_deg
+    f_ref, p_ref = reference
+    inside = (f >= f_ref[0]) & (f <= f_ref[-1])
+    if not np.any(inside):
+        return phase_deg
+    ref = np.interp(f, f_ref, p_ref)
+    out = phase_deg.copy()
+    out[inside] -= 360.0 * np.round((phase_deg[inside] - ref[inside]) / 360.0)
+    return out
+
+
 def _magnitude_limits_db(mag_db: np.ndarray) -> tuple[float, float]:
     """Y limits that show the curves but not a notch's one-bin dive to -300 dB."""
     finite = mag_db[np.isfinite(mag_db)]
@@ -300,6 +318,7 @@ def plot_bode(
     ax_mag, ax_phase, ax_coh = fig.subplots(3, 1, sharex=True)
 
     magnitudes_db = []
+    reference_phase = None
     with np.errstate(divide="ignore", invalid="ignore"):
         for i, (label, f, h, coh) in enumerate(curves):
             mag_db = 20 * np.log10(np.abs(h))
@@ -315,7 +334,10 @@ def plot_bode(
                 lo_db = np.maximum(mag_db + lo[k], mag_db - 40.0)  # a bin with no coherence: cap the band
                 ax_mag.fill_between(f, lo_db, mag_db + hi[k], color=line.get_color(), alpha=0.25, lw=0,
                                     label="95 % confidence")
-            ax_phase.semilogx(f, _unwrapped_phase_deg(h), color=line.get_color(), label=label)
+            phase = _phase_near(f, _unwrapped_phase_deg(h), reference_phase)
+            if reference_phase is None:
+                reference_phase = (f, phase)
+            ax_phase.semilogx(f, phase, color=line.get_color(), label=label)
             if coh is not None:
                 ax_coh.semilogx(f, coh, color=line.get_color(), label=label)
         if notch is not None and notch[0].size:
