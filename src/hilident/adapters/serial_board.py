@@ -84,13 +84,7 @@ class SerialBoardAdapter:
         """Connect as ``[device]`` says, or over an already open ``link``; identifies the board."""
         if link is None:
             return cls.open(device.port, driver, device.baudrate, device.timeout_s)
-        adapter = cls(link, driver, device.port, device.timeout_s)
-        try:
-            adapter.identify()
-        except BaseException:
-            adapter.close()
-            raise
-        return adapter
+        return cls._identified(cls(link, driver, device.port, device.timeout_s))
 
     @classmethod
     def open(cls, port: str, driver: DriverDescription, baudrate: int = 0, timeout_s: float = 2.0):
@@ -99,7 +93,11 @@ class SerialBoardAdapter:
             link = serial.serial_for_url(port, baudrate=baudrate or driver.default_baudrate, timeout=_READ_TIMEOUT_S)
         except (serial.SerialException, ValueError, OSError) as exc:
             raise DeviceError(f"{port}: cannot open: {exc}") from None
-        adapter = cls(link, driver, port, timeout_s)
+        return cls._identified(cls(link, driver, port, timeout_s))
+
+    @staticmethod
+    def _identified(adapter: "SerialBoardAdapter") -> "SerialBoardAdapter":
+        """``adapter`` after a successful IDENTIFY; closed again when that fails."""
         try:
             adapter.identify()
         except BaseException:
