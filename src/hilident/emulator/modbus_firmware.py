@@ -1,0 +1,400 @@
+"""Register logic of the emulated Modbus drive: what it does on each read and write.
+
+:class:`ModbusDriveFirmware` is the drive minus the clock and the wire. It
+holds the register image described by the driver's map
+(:class:`~hilident.protocol.modbus_registers.RegisterMap`), the excitation
+table and the capture buffer behind their paged windows, and the drive loop.
+:mod:`hilident.emulator.modbus_drive` serves it with pymodbus and advances it
+in (scaled) real time.
+
+Reads and writes return a Modbus exception code (int) when the drive refuses,
+as a real one would:
+
+* 2 -- a write into the capture window (read-only);
+* 3 -- a value out of range (mode, divider, mask, length, page, limits, filter
+  parameters) or a command not allowed in the present state (run without
+  limits, with a fault latched, with an empty or non-finite table);
+* 6 -- configuration, limits or table written while a run is in progress.
+
+Writing ``table_length`` arms a new run: ``done``, ``capture_stopped`` and
+``sample_count`` clear. A buffered run: a 0 -> 1 edge of the ``run`` bit enables the drive in the
+selected mode and plays the table, one sample per ``sample_divider`` loop
+ticks; record ``k`` of the capture holds the drive's state at the start of
+sample period ``k``, while ``table[k]`` is held over that period. The run ends
+at the end of the table (drive disabled), on a 1 -> 0 edge or a write of 0
+(stop: disabled, zero torque), or on a fault: a tripped limit, or the
+configured ``drive_fault_after_s``. The capture then holds the samples up to
+and including the one in which the fault happened.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from hilident.errors import DataError
+from hilident.filters.biquad import Biquad
+from hilident.protocol.modbus_registers import STAMP_MODULUS, RegisterMap, table_crc
+
+ILLEGAL_ADDRESS = 2
+ILLEGAL_VALUE = 3
+DEVICE_BUSY = 6
+
+_CONFIG = ("mode", "sample_divider", "capture_mask", "table_length")  # fixed while a run is in progress
+_LIMITS = ("torque_limit_nm", "velocity_limit_mps", "position_min_m", "position_max_m")
+
+
+class ModbusDriveFirmware:
+    """The emulated drive's registers around one :class:`~hilident.emulator.drive.DriveLoop`.
+
+    Parameters
+    ----------
+    drive : DriveLoop
+    regmap : RegisterMap
+    driver : DriverDescription
+        Identity figures (name, firmware, loop rate, filter slots).
+    drive_fault_after_s, capture_stops_after_s : float
+        Fault switches (simulated seconds after a run starts; 0: never).
+
+    Not thread-safe: the server serialises calls.
+    """
+
+    def __init__(self, drive, regmap: RegisterMap, driver, drive_fault_after_s: float = 0.0,
+                 capture_stops_after_s: float = 0.0):
+        self.drive = drive
+        self.map = regmap
+        self.loop_rate_hz = float(driver.loop_rate_hz)
+        self.max_sample_rate_hz = float(driver.max_sample_rate_hz)
+        self.drive_fault_after_s = drive_fault_after_s
+        self.capture_stops_after_s = capture_stops_after_s
+        columns = list(drive.CHANNELS)
+        try:
+            self._columns = [columns.index(c.name) for c in regmap.capture_channels]
+        except ValueError as exc:
+            raise ValueError(f"capture channel not produced by the drive loop: {exc}") from None
+        self.image = np.zeros(65536, dtype=np.uint16)
+        rps = regmap.table_registers_per_sample
+        self.table = np.zeros(regmap.table.capacity_samples * rps, dtype=np.uint16)
+        self.capture = np.zeros((regmap.capture.capacity_samples, len(regmap.capture_channels)))
+        self.stamps = self._invalid_stamps(0, regmap.capture.capacity_samples)
+        self.running = False
+        self.done = False
+        self.fault_code = 0
+        self.fault_sample = 0
+        self.fault_value = 0.0
+        self.captured = 0
+        self.produced = 0
+        self.capture_stopped = False
+        self.limits_loaded = False
+        self.runs = 0  # runs started since power-up (the server's clock watches it)
+        self._crc: int | None = None
+        self._values = np.zeros(0)
+        self._run_divider = 1
+        self._run_mask = 0
+        self._run_start_tick = 0
+        self._set("device_type", regmap.device_type)
+        self._set("map_version", regmap.map_version)
+        self._set("loop_rate_hz", driver.loop_rate_hz)
+        self._set("max_sample_rate_hz", driver.max_sample_rate_hz)
+        self._set("filter_slots", driver.filter_slots)
+        self._set("table_capacity", regmap.table.capacity_samples)
+        self._set("capture_capacity", regmap.capture.capacity_samples)
+        self._set("device_name", driver.name)
+        self._set("firmware", driver.firmware)
+        self._set("mode", regmap.modes["torque"])
+        self._set("sample_divider", 1)
+        self._set("capture_mask", regmap.mask_of(regmap.capture_channel_names()))
+
+    # --- register image helpers -------------------------------------------------------
+
+    def _set(self, name: str, value) -> None:
+        r = self.map.register(name)
+        self.image[r.address : r.end] = self.map.encode(name, value)
+
+    def _get(self, name: str):
+        r = self.map.register(name)
+        return self.map.decode(name, self.image[r.address : r.end])
+
+    @staticmethod
+    def _invalid_stamps(first: int, n: int) -> np.ndarray:
+        # a stamp that cannot match its own sample index: stale records never pass for new ones
+        return ((np.arange(first, first + n) ^ 0x8000) % STAMP_MODULUS).astype(np.uint16)
+
+    @property
+    def table_length(self) -> int:
+        return int(self._get("table_length"))
+
+    @property
+    def sample_rate_hz(self) -> float:
+        return self.loop_rate_hz / self._run_divider
+
+    def status_word(self) -> int:
+        s = self.map.status
+        word = 0
+        for on, name in ((self.drive.enabled, "enabled"), (self.running, "running"), (self.done, "done"),
+                         (self.fault_code != 0, "fault"), (self.capture_stopped, "capture_stopped"),
+                         (self.limits_loaded, "limits_loaded")):
+            if on:
+                word |= s[name]
+        return word
+
+    def _refresh(self, first: int, end: int) -> None:
+        """Bring the computed registers in ``first .. end - 1`` up to date."""
+        def touched(name):
+            r = self.map.register(name)
+            return r.address < end and r.end > first
+
+        self._set("status_word", self.status_word())
+        self._set("fault_code", self.fault_code)
+        self._set("sample_count", self.captured)
+        self._set("fault_sample", self.fault_sample)
+        self._set("fault_value", self.fault_value)
+        if touched("table_crc"):
+            if self._crc is None:
+                n = min(self.table_length, self.map.table.capacity_samples) * self.map.table_registers_per_sample
+                self._crc = table_crc(self.table[:n])
+            self._set("table_crc", self._crc)
+
+    # --- reads ----------------------------------------------------------------------------
+
+    def read(self, address: int, count: int) -> list[int] | int:
+        """Registers ``address .. address + count - 1``, or an exception code."""
+        end = address + count
+        self._refresh(address, end)
+        out = self.image[address:end].copy()
+        w = self.map.table
+        lo, hi = max(address, w.base), min(end, w.end)
+        if lo < hi:
+            start = int(self._get("table_page")) * w.page_samples * self.map.table_registers_per_sample
+            a, b = start + lo - w.base, start + hi - w.base
+            part = np.zeros(hi - lo, dtype=np.uint16)
+            avail = max(0, min(b, len(self.table)) - a)
+            part[:avail] = self.table[a : a + avail]
+            out[lo - address : hi - address] = part
+        w = self.map.capture
+        lo, hi = max(address, w.base), min(end, w.end)
+        if lo < hi:
+            out[lo - address : hi - address] = self._capture_registers(lo - w.base, hi - w.base)
+        return out.tolist()
+
+    def _capture_registers(self, first: int, end: int) -> np.ndarray:
+        """Window registers ``first .. end - 1`` (offsets) of the selected capture page."""
+        mask = self._run_mask or int(self._get("capture_mask"))
+        width = self.map.record_registers(mask)
+        w = self.map.capture
+        page0 = int(self._get("capture_page")) * w.page_samples
+        r0, r1 = first // width, -(-end // width)  # records touched, relative to the page
+        r1 = min(r1, w.page_samples)
+        out = np.zeros(end - first, dtype=np.uint16)
+        k0, k1 = page0 + r0, min(page0 + r1, w.capacity_samples)
+        if k1 <= k0:
+            return out
+        selected = [i for i, c in enumerate(self.map.capture_channels) if mask >> c.bit & 1]
+        regs = self.map.encode_records(self.stamps[k0:k1], self.capture[k0:k1][:, selected], mask)
+        skip = first - r0 * width
+        n = min(len(regs) - skip, end - first)
+        out[:n] = regs[skip : skip + n]
+        return out
+
+    # --- writes ---------------------------------------------------------------------------
+
+    def write(self, address: int, values) -> int | None:
+        """Write registers from ``address``; returns an exception code when the drive refuses."""
+        values = np.asarray(values, dtype=np.int64)
+        end = address + len(values)
+        if np.any((values < 0) | (values > 0xFFFF)):
+            return ILLEGAL_VALUE
+        values = values.astype(np.uint16)
+        w = self.map.capture
+        if address < w.end and end > w.base:
+            return ILLEGAL_ADDRESS
+        w = self.map.table
+        lo, hi = max(address, w.base), min(end, w.end)
+        if lo < hi:
+            if self.running:
+                return DEVICE_BUSY
+            start = int(self._get("table_page")) * w.page_samples * self.map.table_registers_per_sample
+            a = start + lo - w.base
+            if a + (hi - lo) > len(self.table):
+                return ILLEGAL_ADDRESS  # beyond the table's capacity
+            self.table[a : a + hi - lo] = values[lo - address : hi - address]
+            self._crc = None
+        old = self.image[address:end].copy()
+        self.image[address:end] = values
+        if address < w.end and end > w.base:
+            self.image[max(address, w.base) : min(end, w.end)] = 0  # the window is not image memory
+        touched = [r.name for r in self.map.registers.values() if r.address < end and r.end > address]
+        slots = sorted({s for a in range(address, end) if (s := self.map.filters.slot_at(a)) is not None})
+        error = self._check(touched, slots, old_control=int(old[self.map.register("control_word").address - address])
+                            if "control_word" in touched else None)
+        if error:
+            self.image[address:end] = old
+            return error
+        self._apply(touched, slots, int(old[self.map.register("control_word").address - address])
+                    if "control_word" in touched else 0)
+        return None
+
+    def _check(self, touched: list[str], slots: list[int], old_control: int | None) -> int | None:
+        m = self.map
+        if self.running and any(n in touched for n in (*_CONFIG, *_LIMITS)):
+            return DEVICE_BUSY
+        if "mode" in touched and int(self._get("mode")) not in m.modes.values():
+            return ILLEGAL_VALUE
+        if "sample_divider" in touched:
+            d = int(self._get("sample_divider"))
+            if d < 1 or self.loop_rate_hz / d > self.max_sample_rate_hz * (1 + 1e-9):
+                return ILLEGAL_VALUE
+        if "capture_mask" in touched:
+            mask = int(self._get("capture_mask"))
+            if mask == 0 or mask >> len(m.capture_channels):
+                return ILLEGAL_VALUE
+        if "table_length" in touched:
+            n = self.table_length
+            if n > m.table.capacity_samples or n > m.capture.capacity_samples:
+                return ILLEGAL_VALUE
+        for name, window in (("table_page", m.table), ("capture_page", m.capture)):
+            if name in touched and int(self._get(name)) >= window.pages:
+                return ILLEGAL_VALUE
+        if any(n in touched for n in _LIMITS) and self._limits() is None:
+            return ILLEGAL_VALUE
+        for slot in slots:
+            if self._slot_filter(slot) is None:
+                return ILLEGAL_VALUE
+        if old_control is not None:
+            new = int(self._get("control_word"))
+            run = m.control["run"]
+            if new & run and not old_control & run and not self.running:
+                return self._start_refusal()
+        return None
+
+    def _apply(self, touched: list[str], slots: list[int], old_control: int) -> None:
+        if "table_length" in touched:  # a new table re-arms the capture: the last run's records are gone
+            self._crc = None
+            self.done = self.capture_stopped = False
+            self.captured = self.produced = 0
+        if any(n in touched for n in _LIMITS):
+            self.drive.set_limits(*self._limits())
+            self.limits_loaded = True
+        for slot in slots:
+            biquad, enabled = self._slot_filter(slot)
+            self.drive.filters.write(slot, biquad, enabled)
+        if "control_word" in touched:
+            self._control(old_control, int(self._get("control_word")))
+
+    def _limits(self) -> tuple[float, float, float, float] | None:
+        t, v, lo, hi = (float(self._get(n)) for n in _LIMITS)
+        if not all(math.isfinite(x) for x in (t, v, lo, hi)) or not (t > 0 and v > 0 and lo < hi):
+            return None
+        return t, v, lo, hi
+
+    def _slot_filter(self, slot: int) -> tuple[Biquad, bool] | None:
+        """What slot ``slot``'s registers ask for, or None when the values are not a valid notch."""
+        a = self.map.filters.address(slot)
+        values, enabled = self.map.decode_filter(self.image[a : a + self.map.filters.span])
+        if not any(values.values()):  # an empty slot passes the torque through; it cannot be enabled
+            return None if enabled else (Biquad.identity(), False)
+        try:
+            return self.map.filter_encoding.applied(values, self.loop_rate_hz), enabled
+        except DataError:
+            return None
+
+    # --- commands -------------------------------------------------------------------------
+
+    def _start_refusal(self) -> int | None:
+        n = self.table_length
+        if self.fault_code or self.drive.fault is not None:
+            return ILLEGAL_VALUE  # clear the fault first (fault_reset)
+        if not self.limits_loaded or n < 1:
+            return ILLEGAL_VALUE
+        values = self.map.decode_table(self.table[: n * self.map.table_registers_per_sample])
+        if not np.all(np.isfinite(values)):
+            return ILLEGAL_VALUE
+        self._values = values
+        return None
+
+    def _control(self, old: int, new: int) -> None:
+        c = self.map.control
+        run, reset = c["run"], c["fault_reset"]
+        if new & reset and not old & reset and not self.running:
+            self.drive.clear_fault()
+            self.fault_code = self.fault_sample = 0
+            self.fault_value = 0.0
+        if new & run and not old & run and not self.running:
+            self._start()
+        elif not new & run:
+            if self.running:
+                self._end()
+            self.drive.disable()  # writing 0 always leaves the axis at zero torque
+
+    def _start(self) -> None:
+        n = self.table_length
+        mode = {v: k for k, v in self.map.modes.items()}[int(self._get("mode"))]
+        self._run_divider = int(self._get("sample_divider"))
+        self._run_mask = int(self._get("capture_mask"))
+        self.stamps[:n] = self._invalid_stamps(0, n)
+        self.drive.set_mode(mode)
+        self.drive.enable()
+        self._run_start_tick = self.drive.tick
+        self.produced = self.captured = 0
+        self.capture_stopped = False
+        self.running = True
+        self.done = False
+        self.runs += 1
+
+    def _end(self) -> None:
+        self.running = False
+        self.done = True
+        self.drive.disable()
+        if self.produced < self.table_length and self.captured < self.produced:
+            self.capture_stopped = True
+
+    # --- the run --------------------------------------------------------------------------
+
+    def advance(self, n_samples: int) -> None:
+        """Play up to ``n_samples`` samples of the table through the drive and capture them."""
+        if not self.running or n_samples <= 0:
+            return
+        rate = self.sample_rate_hz
+        n = min(int(n_samples), self.table_length - self.produced)
+        if self.drive_fault_after_s:
+            k_fault = max(0, math.ceil(self.drive_fault_after_s * rate))
+            if self.produced >= k_fault:
+                self._fault(self.map.fault_codes["drive_fault"], self.produced, 0.0)
+                return
+            n = min(n, k_fault - self.produced)
+        k0 = self.produced
+        divider = self._run_divider
+        rows = self.drive.run(np.repeat(self._values[k0 : k0 + n], divider))[::divider]
+        keep = n
+        tripped = self.drive.fault is not None
+        if tripped:
+            keep = min(n, (int(self.drive.fault_tick) - self._run_start_tick) // divider - k0 + 1)
+        stop = k0 + keep
+        if self.capture_stops_after_s:
+            stop = min(stop, max(k0, round(self.capture_stops_after_s * rate)))
+        if stop > k0:
+            self.capture[k0:stop] = rows[: stop - k0][:, self._columns]
+            self.stamps[k0:stop] = np.arange(k0, stop) % STAMP_MODULUS
+            self.captured = stop
+        self.produced = k0 + keep
+        if self.captured < self.produced:
+            self.capture_stopped = True
+        if tripped:
+            code = self.map.fault_codes.get(self.drive.fault, self.map.fault_codes["drive_fault"])
+            self._fault(code, k0 + keep - 1, float(self.drive.fault_value or 0.0))
+        elif self.produced >= self.table_length:
+            self._end()
+
+    def _fault(self, code: int, sample: int, value: float) -> None:
+        self.fault_code = code
+        self.fault_sample = sample
+        self.fault_value = value
+        self.running = False
+        self.done = True
+        self.drive.disable()
+
+    def idle(self, n_ticks: int) -> None:
+        """Let the physics go on with the drive disabled (the axis coasts to rest)."""
+        if not self.running and n_ticks > 0:
+            self.drive.run(np.zeros(n_ticks))
