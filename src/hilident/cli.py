@@ -1,4 +1,4 @@
-"""Command line: ``hilident run``, ``hilident identify``, ``hilident emulate serial``, ``hilident drivers``.
+"""Command line: ``hilident run``, ``hilident identify``, ``hilident emulate serial|modbus|canopen``, ``hilident drivers``.
 
 Thin on purpose: it parses arguments and calls the session, the emulator
 factory or the driver loader. Every :class:`~hilident.errors.HilidentError`
@@ -104,6 +104,75 @@ def _emulate_serial(args) -> int:
     return 0
 
 
+def _emulate_modbus(args) -> int:
+    from dataclasses import replace
+
+    from hilident.config import load_config, parse_config
+    from hilident.drivers import find_driver
+    from hilident.emulator.modbus_drive import start
+
+    minimal = "[limits]\ntorque_nm = 1.0\nvelocity_mps = 1.0\nposition_min_m = -1.0\nposition_max_m = 1.0\n"
+    cfg = load_config(args.config) if args.config else parse_config(minimal, "<defaults>")
+    emu_cfg = replace(cfg.emulator, time_scale=args.time_scale) if args.time_scale else cfg.emulator
+    driver = find_driver(args.driver or (cfg.device.driver if args.config else "modbus-servo"), cfg.device.driver_paths)
+    if driver.transport != "modbus":
+        from hilident.errors import ConfigError
+
+        raise ConfigError("device.driver", f"{driver.name!r} is a {driver.transport} driver, not a Modbus one "
+                          "(--driver modbus-servo)")
+    device = start(emu_cfg, driver, cfg.device, link="pty" if args.rtu else "tcp")
+    print(device.port, flush=True)
+    line = f"Modbus RTU at {device.device.baudrate} baud, parity N" if args.rtu else "Modbus TCP"
+    print(f"emulated {driver.name} ({line}, device id {device.device.device_id}); Ctrl-C to stop",
+          file=sys.stderr, flush=True)
+    stop = []
+    signal.signal(signal.SIGTERM, lambda *a: stop.append(1))
+    try:
+        while not stop and device.server.error is None:
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        device.close()
+    if device.server.error is not None:
+        raise device.server.error
+    return 0
+
+
+def _emulate_canopen(args) -> int:
+    from dataclasses import replace
+
+    from hilident.config import load_config, parse_config
+    from hilident.drivers import find_driver
+    from hilident.emulator.canopen_drive import start_socketcand
+
+    minimal = "[limits]\ntorque_nm = 1.0\nvelocity_mps = 1.0\nposition_min_m = -1.0\nposition_max_m = 1.0\n"
+    cfg = load_config(args.config) if args.config else parse_config(minimal, "<defaults>")
+    emu_cfg = replace(cfg.emulator, time_scale=args.time_scale) if args.time_scale else cfg.emulator
+    driver = find_driver(args.driver or (cfg.device.driver if args.config else "canopen-servo"), cfg.device.driver_paths)
+    if driver.transport != "canopen":
+        from hilident.errors import ConfigError
+
+        raise ConfigError("device.driver", f"{driver.name!r} is a {driver.transport} driver, not a CANopen one "
+                          "(--driver canopen-servo)")
+    device = start_socketcand(emu_cfg, driver, cfg.device, port=args.port)
+    print(device.port, flush=True)
+    print(f'emulated {driver.name}, node {device.device.node_id}, on socketcand: [device] can_interface = '
+          f'"socketcand", port = "{device.port}"; Ctrl-C to stop', file=sys.stderr, flush=True)
+    stop = []
+    signal.signal(signal.SIGTERM, lambda *a: stop.append(1))
+    try:
+        while not stop and device.server.error is None:
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        device.close()
+    if device.server.error is not None:
+        raise device.server.error
+    return 0
+
+
 def _drivers(args) -> int:
     from hilident.drivers import available_drivers, find_driver, search_path
 
@@ -144,6 +213,19 @@ def build_parser() -> argparse.ArgumentParser:
     ser.add_argument("--time-scale", type=float, default=0.0, help="simulated seconds per second (default 1)")
     ser.add_argument("--tcp", action="store_true", help="serve a raw TCP line on 127.0.0.1 (socket://) instead of a pty")
     ser.set_defaults(func=_emulate_serial)
+    mb = emu_sub.add_parser("modbus", help="emulated Modbus drive (TCP on 127.0.0.1, or RTU on a pty); prints its port")
+    mb.add_argument("--config", help="take [emulator] and [device] (device_id, baudrate) from this config")
+    mb.add_argument("--driver", help="driver name or folder (default: the config's, or modbus-servo)")
+    mb.add_argument("--time-scale", type=float, default=0.0, help="simulated seconds per second (default 1)")
+    mb.add_argument("--rtu", action="store_true", help="Modbus RTU on a pseudo-terminal instead of Modbus TCP")
+    mb.set_defaults(func=_emulate_modbus)
+    co = emu_sub.add_parser("canopen", help="emulated CiA 402 drive on a socketcand server on 127.0.0.1; "
+                            "prints HOST:PORT/CHANNEL")
+    co.add_argument("--config", help="take [emulator] and [device] (node_id) from this config")
+    co.add_argument("--driver", help="driver name or folder (default: the config's, or canopen-servo)")
+    co.add_argument("--time-scale", type=float, default=0.0, help="simulated seconds per second (default 1)")
+    co.add_argument("--port", type=int, default=0, help="TCP port (default: any free one)")
+    co.set_defaults(func=_emulate_canopen)
 
     drv = sub.add_parser("drivers", help="list the driver descriptions found")
     drv.add_argument("-v", "--verbose", action="store_true")

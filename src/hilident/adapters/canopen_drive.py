@@ -1,0 +1,655 @@
+"""Host side of a CiA 402 servo drive on CANopen (python-can + canopen).
+
+The adapter opens the bus ``[device]`` names (:mod:`hilident.adapters.canopen_link`),
+loads the drive's EDS from its driver folder, checks the identity object against
+the driver description, asks for a heartbeat and listens to it and to the
+drive's emergencies, drives the CiA 402 state machine
+(:mod:`hilident.protocol.cia402`) to Operation Enabled for each run and back
+to a safe state (Disable Voltage: zero torque) on every exit path.
+
+Each run is played one of two ways (``device.acquisition``; ``"auto"`` takes the
+driver's ``default_acquisition``):
+
+``"streamed"`` (:mod:`hilident.adapters.canopen_streamed`)
+    the host sends an RPDO set-point and a SYNC every sample period and
+    receives TPDOs carrying a sample counter: lost and late frames are counted;
+``"buffered"`` (:mod:`hilident.adapters.canopen_buffered`)
+    the excitation table goes to the drive by SDO (block transfer), the drive
+    plays it at its own rate and captures; the host reads the capture back in
+    chunks while it runs.
+
+SDO aborts become :class:`~hilident.errors.DeviceError` naming the object
+(``0x6072:0 (Max torque)``) and the abort's meaning. canopen's ``BaseNode402``
+is not used: the state machine and the PDO set-up live here and in
+:mod:`hilident.protocol`.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import time
+from struct import error as struct_error
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import can
+import canopen
+import numpy as np
+from canopen.sdo import SdoAbortedError, SdoCommunicationError
+
+from hilident.adapters.base import RunResult
+from hilident.adapters.canopen_link import open_network
+from hilident.config import DeviceConfig
+from hilident.drivers import DriverDescription
+from hilident.errors import ConfigError, DataError, DeviceError, LimitTrip
+from hilident.filters.biquad import Biquad
+from hilident.filters.notch import NotchSpec
+from hilident.protocol import cia402
+from hilident.protocol.canopen_objects import (
+    CanopenDescription, ObjectAddress, encode_si, mapping_entry, numpy_type, pack_frames, type_bits,
+)
+from hilident.protocol.filter_encoding import FilterEncoding
+
+__all__ = ["CanopenDriveAdapter", "DriveIdentity", "ChannelCodec", "LIMIT_TRIP_CODES"]
+
+#: Emergency codes that mean a safety limit tripped (they raise LimitTrip).
+LIMIT_TRIP_CODES = {0x8311: "torque_limit", 0x8400: "velocity_limit", 0x8612: "position_limit"}
+_NMT_OPERATIONAL = 5
+_STATE_POLL_S = 0.002
+
+
+@dataclass(frozen=True)
+class DriveIdentity:
+    """What the drive reported (0x1008, 0x100A, 0x1018) and what its driver description adds."""
+
+    name: str
+    firmware: str
+    loop_rate_hz: float
+    filter_slots: int
+    vendor_id: int
+    product_code: int
+
+
+@dataclass(frozen=True)
+class ChannelCodec:
+    """A recorded channel: the object carrying it, its CANopen data type and SI value per unit."""
+
+    name: str
+    unit: str
+    role: str
+    address: ObjectAddress
+    datatype: int
+    scale: float
+
+    @property
+    def bits(self) -> int:
+        return type_bits(self.datatype)
+
+
+@dataclass
+class Emergency:
+    """One EMCY message as received."""
+
+    code: int
+    register: int
+    data: bytes
+    received_s: float
+
+
+class CanopenDriveAdapter:
+    """A CiA 402 drive on a CAN bus.
+
+    Open it with :meth:`open_device`. Attributes follow
+    :class:`~hilident.adapters.base.DeviceAdapter`; beyond them:
+
+    Attributes
+    ----------
+    acquisition : {"streamed", "buffered"}
+        How :meth:`stream` plays a run.
+    sync_rate_hz : float or None
+        SYNC frames per second in streamed runs; None: the sample rate (real
+        time). Only an emulated drive, whose clock follows SYNC, may run faster.
+    """
+
+    transport = "canopen"
+
+    def __init__(self, network, node: canopen.RemoteNode, driver: DriverDescription, desc: CanopenDescription,
+                 device: DeviceConfig, label: str):
+        self.network = network
+        self.node = node
+        self.driver = driver
+        self.desc = desc
+        self.device = device
+        self.port = label
+        self.timeout_s = device.timeout_s
+        self.encoding = FilterEncoding.from_table(driver.sections["filters"], str(driver.folder)) \
+            if desc.filters is not None else None
+        self.acquisition = desc.default_acquisition if device.acquisition == "auto" else device.acquisition
+        self.identity: DriveIdentity | None = None
+        self.sample_rate_hz = 0.0
+        self.divider = 0
+        self.mode = ""
+        self.channels: list[ChannelCodec] = []
+        self.channel_names: list[str] = []
+        self.channel_units: list[str] = []
+        self.sync_rate_hz: float | None = None
+        self.sync_overflow = 0
+        self.rated_torque_mnm = 0.0
+        self.tpdo_layout: list[tuple[int, list[int]]] = []  # (COB-ID, channel indices after the counter)
+        self.last_result: RunResult | None = None
+        self.emergencies: collections.deque[Emergency] = collections.deque()
+        self.heartbeat_s: float | None = None
+        self.heartbeat_state: int | None = None
+        self._trace_path: Path | None = None
+        self._limits: tuple | None = None
+        self._nmt_settled_s = 0.0  # heartbeats before this may still carry the NMT state before our last command
+        node.sdo.RESPONSE_TIMEOUT = max(0.05, min(self.timeout_s, 1.0))
+        node.nmt.add_heartbeat_callback(self._on_heartbeat)
+        node.emcy.add_callback(self._on_emcy)
+
+    # --- opening and closing --------------------------------------------------------------
+
+    @classmethod
+    def open_device(cls, device: DeviceConfig, driver: DriverDescription, link=None) -> "CanopenDriveAdapter":
+        """Open the bus, load the EDS, check the identity and start heartbeat monitoring.
+
+        Raises
+        ------
+        DeviceError
+            The bus cannot be opened, the node does not answer, or it is not the
+            drive the description expects (the message names the object).
+        """
+        source = str(driver.folder / "driver.toml")
+        desc = CanopenDescription.from_sections(driver.sections, source)
+        if device.acquisition == "buffered" or (device.acquisition == "auto" and desc.default_acquisition == "buffered"):
+            desc.require_buffered(source)
+        label = f"{device.can_interface}:{device.port} node {device.node_id}"
+        eds = driver.folder / desc.eds
+        if not eds.is_file():
+            raise ConfigError("canopen.eds", f"EDS file {eds} not found", source)
+        network = open_network(device, driver.default_baudrate, label)
+        try:
+            od = canopen.import_od(str(eds), device.node_id)
+            node = canopen.RemoteNode(device.node_id, od)
+            network.add_node(node)
+            adapter = cls(network, node, driver, desc, device, label)
+            adapter._identify()
+        except BaseException:
+            try:
+                network.disconnect()
+            except Exception:
+                pass
+            raise
+        return adapter
+
+    def close(self) -> None:
+        """Zero torque, drive in a safe state, heartbeat off, bus released. Never raises."""
+        try:
+            self.safe_stop()
+            try:
+                self.nmt("PRE-OPERATIONAL")  # no PDOs from here on
+            except Exception:
+                pass
+        finally:
+            try:
+                self.network.stop_trace()
+            except Exception:
+                pass
+            try:
+                self.network.disconnect()
+            except Exception:
+                pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # --- object access ----------------------------------------------------------------------
+
+    def describe(self, addr: ObjectAddress) -> str:
+        """``0x6072:0 (Max torque)``: an object as messages name it."""
+        var = self.node.object_dictionary.get_variable(addr.index, addr.subindex)
+        name = var.name if var is not None else "not in the EDS"
+        if var is not None and var.parent is not None and not isinstance(var.parent, canopen.ObjectDictionary):
+            name = f"{var.parent.name}: {var.name}"
+        return f"{addr} ({name})"
+
+    def _sdo_error(self, exc: Exception, addr: ObjectAddress, action: str) -> DeviceError:
+        if isinstance(exc, SdoAbortedError):
+            meaning = SdoAbortedError.CODES.get(exc.code, "unknown abort code")
+            return DeviceError(f"{self.port}: SDO abort {action} {self.describe(addr)}: 0x{exc.code:08X} {meaning}")
+        if isinstance(exc, SdoCommunicationError):
+            return DeviceError(f"{self.port}: no valid SDO answer {action} {self.describe(addr)}: {exc} "
+                               "(is the drive powered, on this bus, with this node id?)")
+        return DeviceError(f"{self.port}: bus failure {action} {self.describe(addr)}: {exc}")
+
+    def read_object(self, addr: ObjectAddress):
+        """Upload one object and decode it by its EDS data type."""
+        var = self.node.object_dictionary.get_variable(addr.index, addr.subindex)
+        if var is None:
+            raise DeviceError(f"{self.port}: object {addr} is not in the EDS {self.desc.eds}")
+        try:
+            return var.decode_raw(self.node.sdo.upload(addr.index, addr.subindex))
+        except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
+            raise self._sdo_error(exc, addr, "reading") from None
+
+    def write_object(self, addr: ObjectAddress, value) -> None:
+        """Download one object, encoded by its EDS data type."""
+        var = self.node.object_dictionary.get_variable(addr.index, addr.subindex)
+        if var is None:
+            raise DeviceError(f"{self.port}: object {addr} is not in the EDS {self.desc.eds}")
+        try:
+            data = var.encode_raw(value)
+        except (ValueError, TypeError, struct_error) as exc:
+            raise DataError(f"{self.port}: value {value!r} does not fit {self.describe(addr)}: {exc}") from None
+        try:
+            self.node.sdo.download(addr.index, addr.subindex, data)
+        except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
+            raise self._sdo_error(exc, addr, "writing") from None
+
+    def read(self, role: str):
+        return self.read_object(self.desc.address(role))
+
+    def write(self, role: str, value) -> None:
+        self.write_object(self.desc.address(role), value)
+
+    def read_domain(self, addr: ObjectAddress) -> bytes:
+        """Upload a DOMAIN object (block transfer when the description says so)."""
+        try:
+            if self.desc.block_transfer:
+                with self.node.sdo.open(addr.index, addr.subindex, "rb", block_transfer=True, buffering=0) as f:
+                    return bytes(f.readall())
+            return bytes(self.node.sdo.upload(addr.index, addr.subindex))
+        except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
+            raise self._sdo_error(exc, addr, "reading") from None
+
+    def write_domain(self, addr: ObjectAddress, data: bytes) -> None:
+        """Download a DOMAIN object (block transfer when the description says so)."""
+        try:
+            if self.desc.block_transfer:
+                with self.node.sdo.open(addr.index, addr.subindex, "wb", size=len(data), block_transfer=True,
+                                        buffering=0) as f:
+                    view = memoryview(data)
+                    pos = 0
+                    while pos < len(data):
+                        pos += f.write(view[pos:pos + 7])
+            else:
+                self.node.sdo.download(addr.index, addr.subindex, data, force_segment=True)
+        except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
+            raise self._sdo_error(exc, addr, "writing") from None
+
+    # --- identity, heartbeat, emergencies ------------------------------------------------------
+
+    def _identify(self) -> None:
+        d = self.desc
+        vendor, product = int(self.read("vendor_id")), int(self.read("product_code"))
+        if (vendor, product) != (d.vendor_id, d.product_code):
+            raise DeviceError(
+                f"{self.port}: the node reports vendor 0x{vendor:08X}, product 0x{product:08X} "
+                f"({self.describe(d.address('vendor_id'))}, {self.describe(d.address('product_code'))}); "
+                f"driver {self.driver.name!r} expects 0x{d.vendor_id:08X}, 0x{d.product_code:08X}")
+        if d.has("loop_rate"):
+            rate = float(self.read("loop_rate"))
+            if abs(rate - self.driver.loop_rate_hz) > 1e-6 * self.driver.loop_rate_hz:
+                raise DeviceError(f"{self.port}: the drive's loop runs at {rate:g} Hz "
+                                  f"({self.describe(d.address('loop_rate'))}); driver {self.driver.name!r} says "
+                                  f"{self.driver.loop_rate_hz:g} Hz")
+        self.identity = DriveIdentity(str(self.read("device_name")), str(self.read("software_version")),
+                                      float(self.driver.loop_rate_hz), int(self.driver.filter_slots), vendor, product)
+        self.rated_torque_mnm = float(self.read("rated_torque"))
+        if not self.rated_torque_mnm > 0:
+            raise DeviceError(f"{self.port}: {self.describe(d.address('rated_torque'))} is "
+                              f"{self.rated_torque_mnm:g}: torque objects cannot be scaled")
+        if d.has("sync_overflow"):
+            self.sync_overflow = int(self.read("sync_overflow"))
+        self.write("heartbeat_time", d.heartbeat_ms)
+        deadline = time.monotonic() + max(self.timeout_s, 3 * d.heartbeat_ms / 1000.0)
+        while self.heartbeat_s is None and time.monotonic() < deadline:
+            time.sleep(0.005)
+        if self.heartbeat_s is None:
+            raise DeviceError(f"{self.port}: no heartbeat within {self.timeout_s:g} s after setting "
+                              f"{self.describe(d.address('heartbeat_time'))} to {d.heartbeat_ms} ms")
+        state = self.drive_state()
+        if state is cia402.State.OPERATION_ENABLED or state.torque_on:
+            self.safe_stop()  # left running by someone else: switch it off before anything moves
+
+    def _on_heartbeat(self, state: int) -> None:
+        self.heartbeat_s = time.monotonic()
+        self.heartbeat_state = state
+
+    def _on_emcy(self, error) -> None:
+        self.emergencies.append(Emergency(error.code, error.register, bytes(error.data), time.monotonic()))
+
+    def check_link(self) -> None:
+        """Raise DeviceError when the heartbeat stopped or the drive left NMT Operational."""
+        gap = time.monotonic() - (self.heartbeat_s or 0.0)
+        limit = self.desc.heartbeat_timeout_ms / 1000.0
+        if gap > limit:
+            raise DeviceError(f"{self.port}: heartbeat lost: nothing for {gap:.2f} s "
+                              f"(limit {limit:g} s, producer {self.desc.heartbeat_ms} ms)")
+        if (self.heartbeat_state is not None and self.heartbeat_state != _NMT_OPERATIONAL
+                and time.monotonic() > self._nmt_settled_s):
+            state = canopen.nmt.NMT_STATES.get(self.heartbeat_state, str(self.heartbeat_state))
+            raise DeviceError(f"{self.port}: the drive left NMT Operational (heartbeat says {state})")
+
+    def emergency_event(self, e: Emergency, fallback_index: int) -> dict:
+        """The run-log entry of an emergency (a limit trip names its limit)."""
+        index = fallback_index
+        if self.desc.emcy_sample_index and len(e.data) >= 4:
+            value = int.from_bytes(e.data[:4], "little")
+            if value != 0xFFFFFFFF:
+                index = value
+        meaning = cia402.emcy_meaning(e.code)
+        if e.code in LIMIT_TRIP_CODES:
+            kind, message = "limit_trip", f"{LIMIT_TRIP_CODES[e.code]}: axis stopped, torque zero (EMCY 0x{e.code:04X} {meaning})"
+        elif e.code & 0xFF00 == 0:
+            kind, message = "emergency_reset", "EMCY 0x0000: error reset"
+        else:
+            kind, message = "emergency", f"EMCY 0x{e.code:04X} {meaning}, error register 0x{e.register:02X}"
+        return {"kind": kind, "message": message, "sample_index": int(index), "code": int(e.code),
+                "register": int(e.register), "data": e.data.hex()}
+
+    def fault_error(self, event: dict) -> DeviceError:
+        """The exception a run ends with after ``event`` (LimitTrip for a limit)."""
+        cls = LimitTrip if event["kind"] == "limit_trip" else DeviceError
+        return cls(f"{self.port}: {event['message']} at sample {event['sample_index']}")
+
+    # --- CiA 402 state machine ----------------------------------------------------------------
+
+    def drive_state(self) -> cia402.State:
+        sw = int(self.read("statusword"))
+        try:
+            return cia402.decode_statusword(sw)
+        except ValueError as exc:
+            raise DeviceError(f"{self.port}: {self.describe(self.desc.address('statusword'))}: {exc}") from None
+
+    def _command(self, state: cia402.State, cw: int, previous: int) -> cia402.State:
+        """Write ``cw`` and wait until the statusword shows the state it leads to."""
+        expected, _ = cia402.transition(state, cw, previous)
+        self.write("controlword", cw)
+        deadline = time.monotonic() + self.timeout_s
+        while True:
+            now_state = self.drive_state()
+            if now_state is expected or now_state is cia402.State.FAULT or time.monotonic() > deadline:
+                return now_state
+            time.sleep(_STATE_POLL_S)
+
+    def enable(self) -> None:
+        """Drive the state machine to Operation Enabled (fault reset only if allowed).
+
+        Raises
+        ------
+        DeviceError
+            The drive is in Fault and ``device.allow_fault_reset`` is false, or it
+            does not follow the commands.
+        """
+        state = self.drive_state()
+        if state is cia402.State.OPERATION_ENABLED:
+            return
+        try:
+            path = cia402.path_to_operation_enabled(state, self.device.allow_fault_reset)
+        except ValueError:
+            raise DeviceError(f"{self.port}: the drive is in {state.value} ({self.last_error_text()}); set "
+                              "device.allow_fault_reset = true to let hilident reset it") from None
+        previous = 0
+        for cw in path:
+            state = self._command(state, cw, previous)
+            previous = cw
+        if state is not cia402.State.OPERATION_ENABLED:
+            raise DeviceError(f"{self.port}: the drive did not reach Operation Enabled: it is in {state.value} "
+                              f"({self.last_error_text()})")
+
+    def last_error_text(self) -> str:
+        if not self.desc.has("error_code"):
+            return "no error code object"
+        try:
+            code = int(self.read("error_code"))
+        except DeviceError:
+            return "error code unreadable"
+        return f"error code 0x{code:04X}: {cia402.emcy_meaning(code)}" if code else "no error code"
+
+    def safe_stop(self) -> None:
+        """Power stage off (Disable Voltage), whatever the state. Never raises."""
+        for _ in range(2):
+            try:
+                state = self.drive_state()
+                path = cia402.path_to_safe_state(state)
+                if not path:
+                    return
+                for cw in path:
+                    self.write("controlword", cw)
+            except Exception:
+                time.sleep(0.01)
+
+    # --- configuration ---------------------------------------------------------------------------
+
+    def set_limits(self, torque_nm: float, velocity_mps: float, position_min_m: float, position_max_m: float) -> None:
+        """Load the trip limits into the drive (max torque, max speed, software position limits)."""
+        d = self.desc
+        values = {
+            "max_torque": math.floor(torque_nm / self.scale("max_torque")),
+            "max_velocity": math.floor(velocity_mps / self.scale("max_velocity")),
+            "position_limit_min": math.ceil(position_min_m / self.scale("position_limit_min")),
+            "position_limit_max": math.floor(position_max_m / self.scale("position_limit_max")),
+        }
+        for role, raw in values.items():
+            var = self.node.object_dictionary.get_variable(d.address(role).index, d.address(role).subindex)
+            info = np.iinfo(numpy_type(var.data_type))
+            if not info.min <= raw <= info.max:
+                raise ConfigError(f"limits ({role})", f"{raw} units do not fit {self.describe(d.address(role))}")
+        for role, raw in values.items():
+            self.write(role, raw)
+        self._limits = (torque_nm, velocity_mps, position_min_m, position_max_m)
+
+    def scale(self, role: str) -> float:
+        return self.desc.scale(role, self.rated_torque_mnm)
+
+    def configure(self, sample_rate_hz: float, mode: str, channels: list[str] | None = None) -> list[str]:
+        """Mode of operation, sample rate and the PDO (or capture) mapping of the channels."""
+        ident = self.identity
+        divider = ident.loop_rate_hz / sample_rate_hz
+        if abs(divider - round(divider)) > 1e-9 or round(divider) < 1:
+            raise DeviceError(f"{self.port}: sample rate {sample_rate_hz:g} Hz does not divide the drive's loop rate "
+                              f"{ident.loop_rate_hz:g} Hz")
+        divider = int(round(divider))
+        rate = ident.loop_rate_hz / divider
+        if rate > self.driver.max_sample_rate_hz * (1 + 1e-9):
+            raise DeviceError(f"{self.port}: sample rate {rate:g} Hz exceeds the drive's {self.driver.max_sample_rate_hz:g} Hz")
+        if mode not in self.desc.modes:
+            raise DeviceError(f"{self.port}: driver {self.driver.name!r} has no mode for {mode!r} "
+                              f"(it has {', '.join(self.desc.modes)})")
+        names = channels or [c.name for c in self.driver.streamed_channels]
+        units = {c.name: c.unit for c in self.driver.channels}
+        codecs = []
+        for name in names:
+            if name not in self.desc.channels or name not in units:
+                raise DeviceError(f"{self.port}: driver {self.driver.name!r} has no channel {name!r} "
+                                  f"(it has {', '.join(self.desc.channels)})")
+            role = self.desc.channels[name]
+            addr = self.desc.address(role)
+            var = self.node.object_dictionary.get_variable(addr.index, addr.subindex)
+            if var is None:
+                raise DeviceError(f"{self.port}: channel {name!r}: object {addr} is not in the EDS")
+            codecs.append(ChannelCodec(name, units[name], role, addr, var.data_type, self.scale(role)))
+        self.safe_stop()
+        self.write("modes_of_operation", self.desc.modes[mode].code)
+        self.write("cycle_period", int(round(1e6 * divider / ident.loop_rate_hz)))
+        if self.desc.has("table_divider"):
+            self.write("table_divider", divider)
+        if self.acquisition == "streamed":
+            self._map_pdos(codecs, mode)
+        else:
+            self._map_capture(codecs)
+        self.divider, self.sample_rate_hz, self.mode = divider, rate, mode
+        self.channels = codecs
+        self.channel_names = [c.name for c in codecs]
+        self.channel_units = [c.unit for c in codecs]
+        return self.channel_names
+
+    def _write_mapping(self, comm_index: int | None, map_index: int, entries: list[int], cob_id: int | None) -> None:
+        """CiA 301 order: invalidate, clear the count, write entries, set the count, validate."""
+        if comm_index is not None:
+            self.write_object(ObjectAddress(comm_index, 1), (cob_id or 0) | 0x80000000)
+        self.write_object(ObjectAddress(map_index, 0), 0)
+        for i, entry in enumerate(entries, start=1):
+            self.write_object(ObjectAddress(map_index, i), entry)
+        self.write_object(ObjectAddress(map_index, 0), len(entries))
+        if comm_index is not None and entries:
+            self.write_object(ObjectAddress(comm_index, 2), 1)  # synchronous, every SYNC
+            self.write_object(ObjectAddress(comm_index, 1), cob_id)
+
+    def _map_pdos(self, codecs: list[ChannelCodec], mode: str) -> None:
+        node_id = self.node.id
+        counter = self.desc.address("sample_counter")
+        counter_bits = type_bits(self.node.object_dictionary.get_variable(counter.index, counter.subindex).data_type)
+        try:
+            frames = pack_frames([(c.name, c.bits) for c in codecs], header_bits=counter_bits)
+        except DataError as exc:
+            raise DeviceError(f"{self.port}: {exc}") from None
+        self.nmt("PRE-OPERATIONAL")
+        layout = []
+        for n in range(4):
+            cob = 0x180 + 0x100 * n + node_id
+            members = frames[n] if n < len(frames) else []
+            idx = [self.channel_index(codecs, m) for m in members]
+            entries = [mapping_entry(counter, counter_bits)] + [mapping_entry(codecs[i].address, codecs[i].bits)
+                                                               for i in idx] if members else []
+            self._write_mapping(0x1800 + n, 0x1A00 + n, entries, cob)
+            if members:
+                layout.append((cob, idx))
+        spec = self.desc.modes[mode]
+        sp = self.desc.address(spec.setpoint)
+        rx_counter = self.desc.address("setpoint_counter")
+        sp_var = self.node.object_dictionary.get_variable(sp.index, sp.subindex)
+        rx_var = self.node.object_dictionary.get_variable(rx_counter.index, rx_counter.subindex)
+        entries = [mapping_entry(rx_counter, type_bits(rx_var.data_type)), mapping_entry(sp, type_bits(sp_var.data_type))]
+        self._write_mapping(0x1400, 0x1600, entries, 0x200 + node_id)
+        for n in range(1, 4):
+            self._write_mapping(0x1400 + n, 0x1600 + n, [], 0x200 + 0x100 * n + node_id)
+        self.tpdo_layout = layout
+        self.rpdo = (0x200 + node_id, rx_var.data_type, sp_var.data_type, spec.setpoint)
+        self.nmt("OPERATIONAL")
+
+    def nmt(self, state: str) -> None:
+        """Send an NMT command to the drive ("OPERATIONAL", "PRE-OPERATIONAL", ...)."""
+        try:
+            self.node.nmt.state = state
+        except Exception as exc:
+            raise DeviceError(f"{self.port}: NMT command {state} failed: {exc}") from None
+        self._nmt_settled_s = time.monotonic() + 2 * self.desc.heartbeat_ms / 1000.0 + 0.05
+
+    @staticmethod
+    def channel_index(codecs, name: str) -> int:
+        return [c.name for c in codecs].index(name)
+
+    def _map_capture(self, codecs: list[ChannelCodec]) -> None:
+        index = self.desc.address("capture_mapping").index
+        self._write_mapping(None, index, [mapping_entry(c.address, c.bits) for c in codecs], None)
+        self.nmt("OPERATIONAL")  # for the heartbeat's NMT check; no PDOs are mapped
+        for n in range(4):  # no stale TPDOs beside the capture
+            self.write_object(ObjectAddress(0x1800 + n, 1), 0x180 + 0x100 * n + self.node.id | 0x80000000)
+
+    # --- runs --------------------------------------------------------------------------------------
+
+    def set_trace(self, path) -> None:
+        """Write a CAN trace (``.asc`` or ``.blf``) of the next run to ``path``."""
+        self._trace_path = Path(path)
+
+    def stream(self, excitation: np.ndarray, sink: Callable[[np.ndarray, np.ndarray], None],
+               progress: Callable[[float], None] | None = None) -> RunResult:
+        """Play ``excitation`` (one value per sample, in the mode's SI unit) and deliver the samples.
+
+        Raises
+        ------
+        LimitTrip
+            The drive tripped a limit (the samples up to then were delivered).
+        DeviceError
+            Emergency, heartbeat lost, SDO abort, short capture, ...
+        """
+        from hilident.adapters.canopen_buffered import run_buffered
+        from hilident.adapters.canopen_streamed import run_streamed
+
+        x = np.asarray(excitation, dtype=float)
+        if x.ndim != 1 or not np.all(np.isfinite(x)):
+            raise DataError("excitation must be a finite one-dimensional array")
+        if not self.channels:
+            raise DeviceError(f"{self.port}: configure() before stream()")
+        self.emergencies.clear()
+        self.last_result = None
+        trace_path, self._trace_path = self._trace_path, None
+        if trace_path is not None:
+            try:
+                self.network.start_trace(trace_path)
+            except (OSError, ValueError) as exc:
+                raise DeviceError(f"{self.port}: cannot write the CAN trace {trace_path}: {exc}") from None
+        run = run_streamed if self.acquisition == "streamed" else run_buffered
+        try:
+            return run(self, x, sink, progress)
+        finally:
+            self.safe_stop()
+            self.network.stop_trace()
+
+    def decode_rows(self, raw_columns: list[np.ndarray]) -> np.ndarray:
+        """Raw channel columns -> SI rows."""
+        return np.column_stack([c.astype(float) * codec.scale for c, codec in zip(raw_columns, self.channels)])
+
+    def encode_setpoints(self, x: np.ndarray, datatype: int, role: str, origin_raw: int = 0) -> np.ndarray:
+        """Excitation in SI units -> raw set-point values of the object of ``role``."""
+        raw = encode_si(x, datatype, self.scale(role))
+        if origin_raw:
+            raw = (raw.astype(np.int64) + origin_raw).astype(raw.dtype)
+        return raw
+
+    # --- filter slots -----------------------------------------------------------------------------
+
+    def _filter_slot(self, slot: int):
+        fo = self.desc.filters
+        if fo is None or self.encoding is None:
+            raise DeviceError(f"{self.port}: driver {self.driver.name!r} describes no filter objects")
+        if not 0 <= slot < len(fo.indices) or slot >= self.identity.filter_slots:
+            raise DeviceError(f"{self.port}: filter slot {slot} (the drive has {self.identity.filter_slots})")
+        return fo
+
+    def write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None = None, *, enabled: bool) -> None:
+        """Store a notch in a slot, in the drive's encoding; it takes effect with the enable write."""
+        fo = self._filter_slot(slot)
+        values = self.encoding.encode(biquad, spec)
+        self._write_slot(fo, slot, values, enabled)
+
+    def _write_slot(self, fo, slot: int, values: dict, enabled: bool) -> None:
+        for name, value in values.items():
+            self.write_object(fo.address(slot, name), value)
+        self.write_object(fo.address(slot, "enabled"), int(bool(enabled)))
+
+    def _read_slot(self, fo, slot: int) -> tuple[dict, bool]:
+        values = {name: self.read_object(fo.address(slot, name)) for name in self.encoding.fields}
+        return values, bool(self.read_object(fo.address(slot, "enabled")))
+
+    def read_filter(self, slot: int) -> tuple[Biquad, bool]:
+        """The biquad the slot applies, rebuilt from the values read from the drive."""
+        fo = self._filter_slot(slot)
+        values, enabled = self._read_slot(fo, slot)
+        try:
+            return self.encoding.applied(values, self.identity.loop_rate_hz), enabled
+        except DataError as exc:
+            raise DeviceError(f"{self.port}: filter slot {slot} (object 0x{fo.indices[slot]:04X}): {exc}") from None
+
+    def stored_form(self, biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
+        """What the drive will run after its own rounding of ``biquad``/``spec``."""
+        return self.encoding.stored_form(biquad, spec, self.identity.loop_rate_hz)
+
+    def save_filter(self, slot: int) -> tuple[dict, bool]:
+        """The slot's raw field values and enable flag."""
+        return self._read_slot(self._filter_slot(slot), slot)
+
+    def restore_filter(self, slot: int, saved: tuple[dict, bool]) -> None:
+        values, enabled = saved
+        fo = self._filter_slot(slot)
+        self._write_slot(fo, slot, values, False)
+        if enabled:
+            self.write_object(fo.address(slot, "enabled"), 1)
+

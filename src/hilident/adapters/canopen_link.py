@@ -1,0 +1,129 @@
+"""Opening the CAN bus a CANopen drive hangs on, and tracing it.
+
+``[device]`` names the bus the python-can way: ``can_interface`` (socketcan,
+pcan, kvaser, ixxat, vector, slcan, socketcand, virtual, ...) and ``port``, the
+interface's channel (``can0``, ``PCAN_USBBUS1``, ``0``, a virtual channel name).
+For ``socketcand`` the port is ``"HOST:PORT/CHANNEL"``, e.g.
+``"127.0.0.1:29536/can0"``: the daemon's address and the bus it serves.
+
+:class:`TracingNetwork` is a :class:`canopen.Network` that can also hand every
+frame it sends and receives to a python-can logger (``.asc``, ``.blf``).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import can
+import canopen
+
+from hilident.config import DeviceConfig
+from hilident.errors import ConfigError, DeviceError
+
+__all__ = ["bus_arguments", "parse_socketcand_port", "open_network", "TracingNetwork", "FrameTrace"]
+
+
+def parse_socketcand_port(port: str) -> tuple[str, int, str]:
+    """``"HOST:PORT/CHANNEL"`` -> (host, port, channel).
+
+    Raises
+    ------
+    ConfigError
+        ``port`` is not of that form (the message names ``device.port``).
+    """
+    address, slash, channel = port.partition("/")
+    host, colon, number = address.rpartition(":")
+    if not (slash and colon and host and channel and number.isdigit() and 0 < int(number) < 65536):
+        raise ConfigError("device.port", f'socketcand needs "HOST:PORT/CHANNEL" (e.g. "127.0.0.1:29536/can0"), '
+                                         f"got {port!r}")
+    return host, int(number), channel
+
+
+def bus_arguments(device: DeviceConfig, default_bitrate: int) -> dict:
+    """Keyword arguments of :class:`can.Bus` for ``[device]``."""
+    kwargs = {"interface": device.can_interface, "bitrate": device.baudrate or default_bitrate}
+    if device.can_interface == "socketcand":
+        host, port, channel = parse_socketcand_port(device.port)
+        kwargs.update(channel=channel, host=host, port=port, tcp_tune=True)
+        # its client warns each time TCP splits a frame line, which is routine: keep real errors only
+        logging.getLogger("can.interfaces.socketcand.socketcand").setLevel(logging.ERROR)
+    else:
+        kwargs["channel"] = device.port
+    if device.can_interface == "virtual":
+        kwargs["receive_own_messages"] = False
+    return kwargs
+
+
+class FrameTrace(can.Listener):
+    """A python-can writer fed from two threads (sent and received frames)."""
+
+    def __init__(self, path):
+        self.writer = can.Logger(str(path))
+        self.lock = threading.Lock()
+        self.frames = 0
+
+    def on_message_received(self, msg: can.Message) -> None:
+        with self.lock:
+            self.writer.on_message_received(msg)
+            self.frames += 1
+
+    def stop(self) -> None:
+        with self.lock:
+            self.writer.stop()
+
+
+class TracingNetwork(canopen.Network):
+    """A canopen Network whose frames can also go to a :class:`FrameTrace`."""
+
+    NOTIFIER_CYCLE = 0.1  # a short receive timeout: disconnect() returns promptly
+
+    def __init__(self, bus=None):
+        super().__init__(bus)
+        self.trace: FrameTrace | None = None
+
+    def send_message(self, can_id: int, data, remote: bool = False) -> None:
+        super().send_message(can_id, data, remote)
+        trace = self.trace
+        if trace is not None:
+            trace.on_message_received(can.Message(timestamp=time.time(), arbitration_id=can_id, data=bytes(data),
+                                                  is_extended_id=can_id > 0x7FF, is_remote_frame=remote,
+                                                  is_rx=False))
+
+    def start_trace(self, path) -> FrameTrace:
+        trace = FrameTrace(path)
+        self.notifier.add_listener(trace)
+        self.trace = trace
+        return trace
+
+    def stop_trace(self) -> None:
+        trace, self.trace = self.trace, None
+        if trace is None:
+            return
+        try:
+            self.notifier.remove_listener(trace)
+        except (ValueError, AttributeError):
+            pass
+        trace.stop()
+
+
+def open_network(device: DeviceConfig, default_bitrate: int, label: str) -> TracingNetwork:
+    """Connect to the bus ``[device]`` names.
+
+    Raises
+    ------
+    DeviceError
+        The interface is unknown or the channel cannot be opened; the message
+        names ``label`` (interface and port).
+    ConfigError
+        A malformed socketcand port.
+    """
+    kwargs = bus_arguments(device, default_bitrate)
+    network = TracingNetwork()
+    try:
+        network.connect(**kwargs)
+    except (can.CanError, OSError, ValueError, TypeError, ImportError, NotImplementedError, TimeoutError) as exc:
+        raise DeviceError(f"{label}: cannot open CAN interface {device.can_interface!r} on {device.port!r}: {exc}") \
+            from None
+    return network

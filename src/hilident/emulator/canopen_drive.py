@@ -1,0 +1,874 @@
+"""The emulated CiA 402 servo drive: a CANopen node around the shared drive loop.
+
+:class:`CanopenDriveFirmware` is the drive's application on a
+:class:`canopen.LocalNode` built from the EDS in the driver folder. Everything it
+does goes through its object dictionary and the bus:
+
+* the CiA 402 state machine runs in the controlword's write callback
+  (:func:`hilident.protocol.cia402.transition`); Operation Enabled closes the
+  :class:`~hilident.emulator.drive.DriveLoop`, every other state opens it;
+* PDO communication and mapping objects are honoured as the host writes them;
+  on each SYNC (while Operation Enabled) the drive runs ``loop_rate /
+  sample_rate`` ticks of the drive loop with the latest RPDO set-point and
+  sends its TPDOs with the state at the start of that sample period. In these
+  synchronous runs the drive's clock *is* SYNC: one SYNC, one sample period;
+* drive-buffered runs: the host downloads an excitation table, starts it, and
+  the drive plays it at its own rate (``time_scale`` simulated seconds per wall
+  second), recording the mapped objects into its capture buffer, which the host
+  uploads in chunks;
+* writing a filter slot's enable sub-index rebuilds the slot's biquad from its
+  stored fields with :meth:`FilterEncoding.applied` and loads it into
+  ``drive.filters``: the same chain the plant sees;
+* heartbeat producer (0x1017), EMCY on every fault (limit trips too; the first
+  four manufacturer bytes carry the sample index of the fault).
+
+Fault switches (``[emulator.faults]``): ``drive_fault_after_s`` (EMCY 0x4310 and
+Fault), ``heartbeat_stops_after_s``, ``abort_object`` (SDO abort on every
+access), ``drop_pdo_rate`` (TPDOs not sent), ``capture_stops_after_s``.
+
+:func:`start` runs it in-process on python-can's ``virtual`` bus;
+:func:`start_socketcand` also serves that bus over the socketcand protocol on
+127.0.0.1, for a host in another process (``hilident emulate canopen``).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import struct
+import threading
+import time
+from dataclasses import dataclass, field, replace
+
+import canopen
+import numpy as np
+from canopen.sdo import SdoAbortedError
+
+from hilident.config import DeviceConfig, EmulatorConfig, FaultsConfig
+from hilident.drivers import DriverDescription
+from hilident.emulator.canopen_sdo import BlockSdoServer, parse_fault_object
+from hilident.emulator.drive import DriveLoop
+from hilident.errors import ConfigError, DataError
+from hilident.protocol import cia402
+from hilident.protocol.canopen_objects import (
+    NUMERIC_TYPES, REAL32, CanopenDescription, ObjectAddress, TableState, TABLE_START, TABLE_STOP, encode_si,
+    numpy_type, parse_mapping_entry, record_dtype, type_bits,
+)
+from hilident.protocol.filter_encoding import FilterEncoding
+
+__all__ = ["CanopenDriveFirmware", "CanopenDriveServer", "start", "start_socketcand", "CAPTURE_CHUNK_RECORDS"]
+
+#: Most capture records one upload of the capture-data object returns.
+CAPTURE_CHUNK_RECORDS = 4096
+#: A drive that saw SYNC and then none for this long (wall time) while enabled faults (0x8250).
+SYNC_WATCHDOG_S = 1.0
+COAST_S = 2.0  # simulated time the axis is left to coast after the power stage is switched off
+
+ABORT_VALUE = 0x06090030
+ABORT_TOO_HIGH = 0x06090031
+ABORT_TOO_LOW = 0x06090032
+ABORT_STATE = 0x08000022
+ABORT_NO_DATA = 0x08000024
+ABORT_NOT_MAPPABLE = 0x06040041
+ABORT_PDO_LENGTH = 0x06040042
+ABORT_LENGTH = 0x06070010
+ABORT_LENGTH_HIGH = 0x06070012
+
+EMCY_OF_TRIP = {"torque_limit": 0x8311, "velocity_limit": 0x8400, "position_limit": 0x8612}
+EMCY_DRIVE_FAULT = 0x4310  # excess temperature, drive (the injected fault)
+EMCY_SYNC_TIMEOUT = 0x8250
+
+_COLUMN_OF_ROLE = {
+    "position_actual": "position_m", "velocity_actual": "velocity_mps", "torque_actual": "torque_nm",
+    "torque_demand": "torque_cmd_nm", "applied_excitation": "excitation", "load_position": "load_position_m",
+}
+_TARGET_ROLES = ("target_torque", "torque_offset", "target_velocity", "target_position")
+_LIMIT_ROLES = ("max_torque", "max_velocity", "position_limit_min", "position_limit_max")
+_PDO_KINDS = {0x1400: ("rpdo", "comm"), 0x1600: ("rpdo", "map"), 0x1800: ("tpdo", "comm"), 0x1A00: ("tpdo", "map")}
+
+_channel_numbers = itertools.count(1)
+
+
+@dataclass
+class PdoConfig:
+    """One PDO as the host configured it."""
+
+    cob_id: int
+    valid: bool
+    trans_type: int
+    entries: list = field(default_factory=list)  # (ObjectAddress, datatype)
+    packer: struct.Struct | None = None
+
+
+def _error_register(code: int) -> int:
+    bits = 0x01
+    bits |= {0x2: 0x02, 0x3: 0x04, 0x4: 0x08}.get(code >> 12, 0)
+    if code & 0xFF00 in (0x8100, 0x8200):
+        bits |= 0x10
+    return bits
+
+
+class CanopenDriveFirmware:
+    """The drive application: object dictionary callbacks, CiA 402 states, PDOs, table, capture, filters.
+
+    Parameters
+    ----------
+    drive : DriveLoop
+        The physics (plant, sensors, drive loop).
+    driver : DriverDescription
+        A ``transport = "canopen"`` description; its EDS is the object dictionary.
+    node_id : int
+    faults : FaultsConfig
+    time_scale : float
+        Simulated seconds per wall second for table playback and coasting.
+    seed : int
+        Seed of the PDO-drop fault.
+    """
+
+    def __init__(self, drive: DriveLoop, driver: DriverDescription, node_id: int, faults: FaultsConfig | None = None,
+                 time_scale: float = 1.0, seed: int = 0):
+        self.drive = drive
+        self.driver = driver
+        source = str(driver.folder / "driver.toml")
+        self.desc = CanopenDescription.from_sections(driver.sections, source)
+        self.encoding = (FilterEncoding.from_table(driver.sections["filters"], source)
+                         if self.desc.filters is not None else None)
+        self.faults = faults or FaultsConfig()
+        self.time_scale = float(time_scale)
+        self.loop_rate = float(driver.loop_rate_hz)
+        od = canopen.import_od(str(driver.folder / self.desc.eds), node_id)
+        node = canopen.LocalNode(node_id, od)
+        node.sdo = BlockSdoServer(0x600 + node_id, 0x580 + node_id, node, parse_fault_object(self.faults.abort_object))
+        node.sdo.size_limit = self._size_limit
+        node.add_read_callback(self._on_read)
+        node.add_write_callback(self._on_write)
+        self.node = node
+        self.od = od
+        self.lock = threading.RLock()
+        self.role_of = {addr: role for role, addr in self.desc.objects.items()}
+        self.rated_torque_mnm = float(self._default(self.desc.address("rated_torque")))
+        self.scales = {role: self.desc.scale(role, self.rated_torque_mnm) for role in self.desc.objects}
+        self.columns = {name: i for i, name in enumerate(DriveLoop.CHANNELS)}
+        self.network = None
+        self.error: BaseException | None = None
+        self.rng = np.random.default_rng(seed + 2)
+
+        self.state = cia402.State.SWITCH_ON_DISABLED
+        self.cw = 0
+        self.mode_code = int(self._default(self.desc.address("modes_of_operation")))
+        self.targets = {role: 0 for role in _TARGET_ROLES if self.desc.has(role)}
+        self.rx_counter = 0
+        self.limits_raw: dict[str, int] = {}
+        self.limits_loaded = False
+        self.sync_divider = 0
+        self.sync_overflow = int(self._default(self.desc.address("sync_overflow"))) if self.desc.has("sync_overflow") else 0
+        self.last_sync_counter: int | None = None
+        self.last_sync_wall: float | None = None
+        self.sync_driven = False
+        self.sample_index = 0
+        self.underruns = 0
+        self.sync_errors = 0
+        self.tpdos_dropped = 0
+        self.run_start_tick = drive.tick
+        self.injected: set[str] = set()
+        self.heartbeat_stopped = False
+        self.error_code = 0
+        self.error_history: list[int] = []
+        self.coast_ticks = 0
+        self.coast_clock = time.monotonic()
+
+        buffered = all(self.desc.has(r) for r in ("table", "table_divider", "table_capacity"))
+        self.table = np.zeros(0, dtype=np.float32)
+        self.table_divider = int(self._default(self.desc.address("table_divider"))) if buffered else 1
+        self.table_capacity = int(self._default(self.desc.address("table_capacity"))) if buffered else 0
+        self.table_state = TableState.IDLE
+        self.play_pos = 0
+        self.play_origin = 0.0
+        self.play_origin_pos = 0
+        self.capture_layout: list[tuple[str | ObjectAddress, int]] = []
+        self.capture = bytearray()
+        self.capture_count = 0
+        self.capture_offset = 0
+        self.capture_stopped = False
+        self.capture_record_size = 0
+
+        self.pdos = {("tpdo", n): self._load_pdo("tpdo", n) for n in range(4) if 0x1800 + n in od}
+        self.pdos.update({("rpdo", n): self._load_pdo("rpdo", n) for n in range(4) if 0x1400 + n in od})
+        self.last_row = drive.run(np.zeros(1))[0]
+        drive.disable()
+
+    # --- object dictionary helpers --------------------------------------------------------
+
+    def _default(self, addr: ObjectAddress):
+        return self._stored(addr.index, addr.subindex)
+
+    def _variable(self, addr: ObjectAddress):
+        obj = self.od.get_variable(addr.index, addr.subindex)
+        if obj is None:
+            raise SdoAbortedError(0x06020000)
+        return obj
+
+    def _stored(self, index: int, sub: int):
+        """Value of an object as stored (written or EDS default), without live callbacks."""
+        obj = self._variable(ObjectAddress(index, sub))
+        try:
+            raw = self.node.data_store[index][sub]
+        except KeyError:
+            value = obj.value if obj.value is not None else obj.default
+            return 0 if value is None else value
+        return obj.decode_raw(raw)
+
+    def _load_pdo(self, kind: str, n: int) -> PdoConfig:
+        comm = (0x1400 if kind == "rpdo" else 0x1800) + n
+        cob = int(self._stored(comm, 1))
+        cfg = PdoConfig(cob & 0x7FF, not cob & 0x80000000, int(self._stored(comm, 2)))
+        self._set_mapping(kind, n, cfg, int(self._stored(comm + 0x200, 0)))
+        return cfg
+
+    def _set_mapping(self, kind: str, n: int, cfg: PdoConfig, count: int) -> None:
+        mapping = (0x1600 if kind == "rpdo" else 0x1A00) + n
+        if count > 8:
+            raise SdoAbortedError(ABORT_PDO_LENGTH)
+        entries, bits = [], 0
+        for sub in range(1, count + 1):
+            addr, width = parse_mapping_entry(int(self._stored(mapping, sub)))
+            obj = self.od.get_variable(addr.index, addr.subindex)
+            if obj is None or not obj.pdo_mappable or obj.data_type not in NUMERIC_TYPES:
+                raise SdoAbortedError(ABORT_NOT_MAPPABLE)
+            if width != type_bits(obj.data_type) or (kind == "rpdo" and not obj.writable) or (
+                    kind == "tpdo" and not obj.readable):
+                raise SdoAbortedError(ABORT_NOT_MAPPABLE)
+            entries.append((addr, obj.data_type))
+            bits += width
+        if bits > 64:
+            raise SdoAbortedError(ABORT_PDO_LENGTH)
+        cfg.entries = entries
+        cfg.packer = struct.Struct("<" + "".join(numpy_type(t).char for _, t in entries)) if entries else None
+
+    # --- network ---------------------------------------------------------------------------
+
+    def attach(self, network: canopen.Network) -> None:
+        """Join ``network``, send the boot-up message and enter Pre-operational."""
+        self.network = network
+        network[self.node.id] = self.node
+        network.subscribe(0x80, self._guard(self._on_sync))
+        network.subscribe(0, self._guard(self._on_nmt))
+        for (kind, n), cfg in self.pdos.items():
+            if kind == "rpdo" and cfg.valid:
+                network.subscribe(cfg.cob_id, self._guard(self._rpdo_handler(n)))
+        self.node.nmt.state = "INITIALISING"  # boot-up message
+        self.node.nmt.state = "PRE-OPERATIONAL"  # starts the heartbeat if 0x1017 is set
+
+    def _guard(self, callback):
+        def guarded(can_id, data, timestamp):
+            try:
+                callback(can_id, data, timestamp)
+            except Exception as exc:  # a bug in the drive: keep it for the owner, open the loops
+                self.error = self.error or exc
+                self.drive.disable()
+        guarded.__name__ = callback.__name__
+        return guarded
+
+    def _send(self, cob_id: int, payload: bytes) -> None:
+        if self.network is not None:
+            self.network.send_message(cob_id, payload)
+
+    # --- CiA 402 -------------------------------------------------------------------------------
+
+    @property
+    def mode_spec(self):
+        return self.desc.mode_by_code(self.mode_code)
+
+    def statusword(self) -> int:
+        internal_limit = self.drive.fault is not None
+        return cia402.statusword(self.state, target_reached=self.table_state == TableState.DONE,
+                                 internal_limit=internal_limit)
+
+    def apply_controlword(self, cw: int) -> None:
+        new, number = cia402.transition(self.state, cw, self.cw)
+        if new is self.state:
+            self.cw = cw
+            return
+        if new is cia402.State.OPERATION_ENABLED:
+            spec = self.mode_spec
+            if not self.limits_loaded or spec is None:
+                raise SdoAbortedError(ABORT_STATE)  # no limits loaded, or no supported mode selected
+            self.drive.set_mode(spec.name)
+            self.drive.enable()
+            self._start_run()
+        elif self.state is cia402.State.OPERATION_ENABLED:
+            self._power_off()
+        if number == 15:  # fault reset
+            self.drive.clear_fault()
+            self.error_code = 0
+            self._send(0x80 + self.node.id, struct.pack("<HB5s", 0, 0, b""))  # EMCY error reset
+        self.cw = cw
+        self.state = new
+
+    def _start_run(self) -> None:
+        self.sample_index = 0
+        self.underruns = 0
+        self.sync_errors = 0
+        self.last_sync_counter = None
+        self.sync_driven = False
+        self.run_start_tick = self.drive.tick
+        self.injected = set()
+        self.coast_ticks = 0
+
+    def _power_off(self) -> None:
+        self.drive.disable()
+        if self.table_state == TableState.PLAYING:
+            self.table_state = TableState.STOPPED
+        self.coast_ticks = int(COAST_S * self.loop_rate)
+        self.coast_clock = time.monotonic()
+
+    def fault(self, code: int, sample_index: int) -> None:
+        """Enter Fault: power stage off, EMCY with ``code`` and the run's sample index."""
+        if self.state is cia402.State.FAULT:
+            return
+        self._power_off()
+        self.state = cia402.State.FAULT
+        self.error_code = code
+        self.error_history = [code, *self.error_history][:8]
+        data = struct.pack("<I", max(0, int(sample_index)) & 0xFFFFFFFF) + b"\0"
+        self._send(0x80 + self.node.id, struct.pack("<HB5s", code, _error_register(code), data))
+
+    def _check_faults(self) -> None:
+        """After the physics advanced: limit trips and the injected faults."""
+        drive = self.drive
+        divider = self._divider()
+        if drive.fault is not None and self.state is cia402.State.OPERATION_ENABLED:
+            index = (int(drive.fault_tick) - self.run_start_tick) // divider
+            self.fault(EMCY_OF_TRIP.get(drive.fault, 0x8311), index)
+        elapsed = (drive.tick - self.run_start_tick) / self.loop_rate
+        f = self.faults
+        if (f.drive_fault_after_s and elapsed >= f.drive_fault_after_s and "drive" not in self.injected
+                and self.state is cia402.State.OPERATION_ENABLED):
+            self.injected.add("drive")
+            self.fault(EMCY_DRIVE_FAULT, (drive.tick - self.run_start_tick) // divider)
+        if f.heartbeat_stops_after_s and elapsed >= f.heartbeat_stops_after_s and not self.heartbeat_stopped:
+            self.heartbeat_stopped = True
+            self.node.nmt.stop_heartbeat()
+
+    def _pending_fault_times(self) -> list[float]:
+        """Run times (s) of the injected faults still to come in this run."""
+        f, times = self.faults, []
+        if f.drive_fault_after_s and "drive" not in self.injected:
+            times.append(f.drive_fault_after_s)
+        if f.heartbeat_stops_after_s and not self.heartbeat_stopped:
+            times.append(f.heartbeat_stops_after_s)
+        return times
+
+    def _divider(self) -> int:
+        if self.table_state == TableState.PLAYING or not self.sync_divider:
+            return self.table_divider
+        return self.sync_divider
+
+    # --- live values -----------------------------------------------------------------------------
+
+    def _live(self, role: str | None, addr: ObjectAddress, row, k: int):
+        """Raw value of a readable object for the sample in ``row`` (SDO reads and TPDOs)."""
+        if role in _COLUMN_OF_ROLE:
+            obj = self._variable(addr)
+            x = float(row[self.columns[_COLUMN_OF_ROLE[role]]])
+            if obj.data_type == REAL32:
+                return x
+            return int(encode_si(np.array([x]), obj.data_type, self.scales[role])[0])
+        if role == "sample_counter":
+            return k & 0xFFFF
+        if role == "statusword":
+            return self.statusword()
+        if role in ("modes_display", "modes_of_operation"):
+            return self.mode_code
+        if role in self.targets:
+            return self.targets[role]
+        if role == "setpoint_counter":
+            return self.rx_counter
+        if role == "controlword":
+            return self.cw
+        if role == "error_code":
+            return self.error_code
+        if role == "error_register":
+            return _error_register(self.error_code) if self.error_code else 0
+        return self._stored(addr.index, addr.subindex)
+
+    def _capture_columns(self, rows: np.ndarray, first: int) -> np.ndarray:
+        """Capture records of ``rows`` (samples ``first`` ...) as a packed structured array."""
+        out = np.empty(len(rows), dtype=record_dtype([t for _, t in self.capture_layout]))
+        for i, (role, dtype) in enumerate(self.capture_layout):
+            if role in _COLUMN_OF_ROLE:
+                out[f"f{i}"] = encode_si(rows[:, self.columns[_COLUMN_OF_ROLE[role]]], dtype, self.scales[role])
+            elif role == "sample_counter":
+                out[f"f{i}"] = (first + np.arange(len(rows))) & 0xFFFF
+            else:  # statusword, mode display: constant over a chunk
+                out[f"f{i}"] = self._live(role, self.desc.address(role), rows[0], first)
+        return out
+
+    def _tpdo_frames(self, row, k: int) -> list[tuple[int, bytes]]:
+        frames = []
+        for (kind, n), cfg in self.pdos.items():
+            if kind != "tpdo" or not cfg.valid or cfg.packer is None:
+                continue
+            if cfg.trans_type > 1 and (k % cfg.trans_type):
+                continue
+            values = [self._live(self.role_of.get(addr), addr, row, k) for addr, _ in cfg.entries]
+            frames.append((cfg.cob_id, cfg.packer.pack(*values)))
+        return frames
+
+    # --- SYNC and PDOs -----------------------------------------------------------------------
+
+    def _on_sync(self, can_id, data, timestamp) -> None:
+        frames = []
+        with self.lock:
+            if self.node.nmt.state != "OPERATIONAL":
+                return
+            if len(data) >= 1 and self.sync_overflow > 1:
+                counter = data[0]
+                if self.last_sync_counter is not None and counter != self.last_sync_counter % self.sync_overflow + 1:
+                    self.sync_errors += 1
+                self.last_sync_counter = counter
+            if self.state is not cia402.State.OPERATION_ENABLED or self.table_state == TableState.PLAYING:
+                return
+            self.sync_driven = True
+            self.last_sync_wall = time.monotonic()
+            k = self.sample_index
+            if self.rx_counter != k & 0xFFFF:
+                self.underruns += 1  # no fresh set-point for this sample: the last one is held
+            rows = self.drive.run(np.full(self._divider(), self._setpoint_si()))
+            self.sample_index = k + 1
+            self.last_row = rows[-1]
+            frames = self._tpdo_frames(rows[0], k)
+            rate = self.faults.drop_pdo_rate
+            for cob_id, payload in frames:
+                if rate and self.rng.random() < rate:
+                    self.tpdos_dropped += 1
+                    continue
+                self._send(cob_id, payload)
+            self._check_faults()
+
+    def _setpoint_si(self) -> float:
+        spec = self.mode_spec
+        x = self.targets.get(spec.setpoint, 0) * self.scales.get(spec.setpoint, 1.0)
+        if spec.name == "position":
+            x -= self.drive.hold_position_m  # CSP targets are absolute; the drive loop takes them relative
+        return x
+
+    def _rpdo_handler(self, n: int):
+        def on_rpdo(can_id, data, timestamp):
+            with self.lock:
+                cfg = self.pdos[("rpdo", n)]
+                if self.node.nmt.state != "OPERATIONAL" or not cfg.valid or cfg.packer is None:
+                    return
+                if len(data) < cfg.packer.size:
+                    return  # CiA 301: a too-short PDO is not processed
+                for (addr, _), value in zip(cfg.entries, cfg.packer.unpack_from(bytes(data))):
+                    role = self.role_of.get(addr)
+                    if role in self.targets:
+                        self.targets[role] = value
+                    elif role == "setpoint_counter":
+                        self.rx_counter = value
+                    elif role == "controlword":
+                        try:
+                            self.apply_controlword(value)
+                        except SdoAbortedError:
+                            pass
+        on_rpdo.__name__ = f"on_rpdo{n + 1}"
+        return on_rpdo
+
+    def _on_nmt(self, can_id, data, timestamp) -> None:
+        with self.lock:
+            if self.node.nmt.state != "OPERATIONAL" and self.state is cia402.State.OPERATION_ENABLED:
+                self._power_off()  # communication lost its operational state: switch off
+                self.state = cia402.State.SWITCH_ON_DISABLED
+
+    # --- SDO callbacks ----------------------------------------------------------------------------
+
+    def _on_read(self, index: int, subindex: int, od):
+        addr = ObjectAddress(index, subindex)
+        role = self.role_of.get(addr)
+        with self.lock:
+            if role == "capture_data":
+                return self._capture_chunk()
+            if role in _COLUMN_OF_ROLE or role in ("sample_counter", "statusword", "modes_display", "error_code",
+                                                   "error_register", "modes_of_operation", "controlword",
+                                                   "setpoint_counter") or role in self.targets:
+                row = self.last_row
+                if role == "position_actual":  # the encoder now, as the loop would sample it (the hold at enable)
+                    row = row.copy()
+                    row[self.columns["position_m"]] = self.drive.sensors.encoder(self.drive.plant.p1)
+                return self._live(role, addr, row, self.sample_index)
+            values = {
+                "setpoint_underruns": self.underruns, "sync_errors": self.sync_errors,
+                "table_length": len(self.table), "table_state": self.table_state,
+                "capture_count": self.capture_count, "capture_offset": self.capture_offset,
+                "table_divider": self.table_divider,
+            }
+            if role in values:
+                return values[role]
+            if self.desc.has("error_history") and index == self.desc.address("error_history").index:
+                if subindex == 0:
+                    return len(self.error_history)
+                return self.error_history[subindex - 1] if subindex <= len(self.error_history) else 0
+        return None
+
+    def _capture_chunk(self) -> bytes:
+        start = self.capture_offset
+        stop = min(self.capture_count, start + CAPTURE_CHUNK_RECORDS)
+        if stop <= start:
+            raise SdoAbortedError(ABORT_NO_DATA)
+        size = self.capture_record_size
+        return bytes(self.capture[start * size:stop * size])
+
+    def _on_write(self, index: int, subindex: int, od, data: bytes) -> None:
+        value = od.decode_raw(data) if od.data_type in NUMERIC_TYPES else bytes(data)
+        addr = ObjectAddress(index, subindex)
+        role = self.role_of.get(addr)
+        with self.lock:
+            base = index & 0xFFFC
+            if base in _PDO_KINDS and index - base < 4:
+                self._write_pdo(base, index - base, subindex, int(value))
+                return
+            if self.desc.filters is not None and index in self.desc.filters.indices:
+                if subindex == self.desc.filters.enable_subindex:
+                    self._apply_filter(self.desc.filters.indices.index(index), bool(value))
+                return
+            if self.desc.has("capture_mapping") and index == self.desc.address("capture_mapping").index:
+                self._write_capture_mapping(subindex, int(value))
+                return
+            if self.desc.has("error_history") and index == self.desc.address("error_history").index:
+                if value != 0:
+                    raise SdoAbortedError(ABORT_VALUE)
+                self.error_history = []
+                return
+            handler = {
+                "controlword": lambda: self.apply_controlword(int(value)),
+                "modes_of_operation": lambda: self._write_mode(int(value)),
+                "cycle_period": lambda: self._write_cycle_period(int(value)),
+                "setpoint_counter": lambda: setattr(self, "rx_counter", int(value)),
+                "table": lambda: self._write_table(value),
+                "table_divider": lambda: self._write_table_divider(int(value)),
+                "table_command": lambda: self._write_table_command(int(value)),
+                "capture_offset": lambda: self._write_capture_offset(int(value)),
+                "sync_overflow": lambda: setattr(self, "sync_overflow", int(value)),
+            }.get(role)
+            if handler is not None:
+                handler()
+            elif role in self.targets:
+                self.targets[role] = int(value)
+            elif role in _LIMIT_ROLES:
+                self._write_limit(role, int(value))
+
+    def _write_pdo(self, base: int, n: int, sub: int, value: int) -> None:
+        kind, part = _PDO_KINDS[base]
+        cfg = self.pdos[(kind, n)]
+        if part == "comm":
+            if sub == 1:
+                valid = not value & 0x80000000
+                if valid and cfg.valid and (value & 0x7FF) != cfg.cob_id:
+                    raise SdoAbortedError(ABORT_VALUE)  # CiA 301: invalidate a PDO before moving it
+                if kind == "rpdo" and self.network is not None:
+                    if cfg.valid:
+                        self.network.unsubscribe(cfg.cob_id)
+                    if valid:
+                        self.network.subscribe(value & 0x7FF, self._guard(self._rpdo_handler(n)))
+                cfg.cob_id, cfg.valid = value & 0x7FF, valid
+            elif sub == 2:
+                if kind == "tpdo" and not 1 <= value <= 240:
+                    raise SdoAbortedError(ABORT_VALUE)  # this drive sends TPDOs on SYNC only
+                cfg.trans_type = value
+            return
+        if cfg.valid:
+            raise SdoAbortedError(ABORT_STATE)  # mapping changes need the PDO invalid
+        if sub == 0:
+            self._set_mapping(kind, n, cfg, value)  # entries 1..value were stored before
+
+    def _write_mode(self, code: int) -> None:
+        spec = self.desc.mode_by_code(code)
+        if spec is None:
+            raise SdoAbortedError(ABORT_VALUE)
+        self.mode_code = code
+        if self.state is cia402.State.OPERATION_ENABLED:
+            self.drive.set_mode(spec.name)
+
+    def _write_cycle_period(self, period_us: int) -> None:
+        if period_us == 0:
+            self.sync_divider = 0
+            return
+        ticks = period_us * self.loop_rate / 1e6
+        if abs(ticks - round(ticks)) > 1e-6 or not 1 <= round(ticks) <= 65535:
+            raise SdoAbortedError(ABORT_VALUE)  # the SYNC period must be whole loop ticks
+        self.sync_divider = int(round(ticks))
+
+    def _write_limit(self, role: str, raw: int) -> None:
+        if role in ("max_torque", "max_velocity") and raw <= 0:
+            raise SdoAbortedError(ABORT_TOO_LOW)
+        self.limits_raw[role] = raw
+        if not all(r in self.limits_raw for r in _LIMIT_ROLES):
+            return
+        si = {r: self.limits_raw[r] * self.scales[r] for r in _LIMIT_ROLES}
+        if si["position_limit_min"] >= si["position_limit_max"]:
+            self.limits_loaded = False  # one end written, the other still to come
+            return
+        try:
+            self.drive.set_limits(si["max_torque"], si["max_velocity"], si["position_limit_min"],
+                                  si["position_limit_max"])
+        except (ConfigError, ValueError):
+            raise SdoAbortedError(ABORT_VALUE) from None
+        self.limits_loaded = True
+
+    def _apply_filter(self, slot: int, enabled: bool) -> None:
+        fo = self.desc.filters
+        values = {name: self._stored(fo.indices[slot], sub) for name, sub in fo.fields.items()}
+        try:
+            biquad = self.encoding.applied(values, self.loop_rate)
+        except (DataError, ConfigError):
+            raise SdoAbortedError(ABORT_VALUE) from None
+        if enabled and not biquad.is_stable():
+            raise SdoAbortedError(ABORT_VALUE)  # an unstable section is never switched in
+        self.drive.filters.write(slot, biquad, enabled)
+
+    # --- drive-buffered runs -----------------------------------------------------------------
+
+    def _size_limit(self, index: int, subindex: int) -> int | None:
+        if self.desc.has("table") and ObjectAddress(index, subindex) == self.desc.address("table"):
+            return 4 * self.table_capacity
+        return None
+
+    def _write_table(self, data: bytes) -> None:
+        if self.table_state == TableState.PLAYING:
+            raise SdoAbortedError(ABORT_STATE)
+        if len(data) % 4:
+            raise SdoAbortedError(ABORT_LENGTH)
+        if len(data) // 4 > self.table_capacity:
+            raise SdoAbortedError(ABORT_LENGTH_HIGH)
+        values = np.frombuffer(data, dtype="<f4")
+        if not np.all(np.isfinite(values)):
+            raise SdoAbortedError(ABORT_VALUE)
+        self.table = values.copy()
+        self.table_state = TableState.IDLE
+
+    def _write_table_divider(self, divider: int) -> None:
+        if self.table_state == TableState.PLAYING:
+            raise SdoAbortedError(ABORT_STATE)
+        if not 1 <= divider or self.loop_rate / divider > self.driver.max_sample_rate_hz:
+            raise SdoAbortedError(ABORT_VALUE)
+        self.table_divider = divider
+
+    def _write_capture_mapping(self, sub: int, value: int) -> None:
+        if self.table_state == TableState.PLAYING:
+            raise SdoAbortedError(ABORT_STATE)
+        if sub != 0:
+            return
+        index = self.desc.address("capture_mapping").index
+        layout, size = [], 0
+        for s in range(1, value + 1):
+            addr, width = parse_mapping_entry(int(self._stored(index, s)))
+            obj = self.od.get_variable(addr.index, addr.subindex)
+            role = self.role_of.get(addr)
+            if obj is None or obj.data_type not in NUMERIC_TYPES or width != type_bits(obj.data_type) or not (
+                    role in _COLUMN_OF_ROLE or role in ("sample_counter", "statusword", "modes_display")):
+                raise SdoAbortedError(ABORT_NOT_MAPPABLE)  # only sampled signals can be captured
+            layout.append((role, obj.data_type))
+            size += width // 8
+        self.capture_layout = layout
+        self.capture_record_size = size
+
+    def _write_capture_offset(self, offset: int) -> None:
+        if offset > self.capture_count:
+            raise SdoAbortedError(ABORT_TOO_HIGH)
+        self.capture_offset = offset
+
+    def _write_table_command(self, command: int) -> None:
+        if command == TABLE_STOP:
+            if self.table_state == TableState.PLAYING:
+                self.table_state = TableState.STOPPED
+            return
+        if command != TABLE_START:
+            raise SdoAbortedError(ABORT_VALUE)
+        if (self.state is not cia402.State.OPERATION_ENABLED or self.table_state == TableState.PLAYING
+                or not len(self.table) or not self.capture_layout):
+            raise SdoAbortedError(ABORT_STATE)
+        self._start_run()
+        self.table_state = TableState.PLAYING
+        self.play_pos = 0
+        self.play_origin = time.monotonic()
+        self.play_origin_pos = 0
+        self.capture = bytearray()
+        self.capture_count = 0
+        self.capture_offset = 0
+        self.capture_stopped = False
+
+    def advance_table(self, now: float) -> None:
+        """Play the excitation table up to wall time ``now`` (at ``time_scale``) and capture."""
+        rate = self.loop_rate / self.table_divider
+        due = int((now - self.play_origin) * rate * self.time_scale) - (self.play_pos - self.play_origin_pos)
+        cap = max(1, int(0.05 * rate * self.time_scale))
+        if due > cap:  # fell behind (a slow machine): resume from now, never burst
+            self.play_origin, self.play_origin_pos, due = now, self.play_pos, cap
+        n = min(due, len(self.table) - self.play_pos)
+        first = self.play_pos
+        for t in self._pending_fault_times():  # stop exactly where an injected fault is due
+            k = math.ceil(t * rate - 1e-9)
+            if first < k < first + n:
+                n = k - first
+        if n <= 0:
+            return
+        divider = self.table_divider
+        rows = self.drive.run(np.repeat(self.table[first:first + n].astype(float), divider))[::divider]
+        self.play_pos = self.sample_index = first + n
+        self.last_row = rows[-1]
+        keep = n
+        stop_after = self.faults.capture_stops_after_s
+        if stop_after:
+            keep = min(keep, max(0, math.ceil(stop_after * rate) - first))
+        if self.drive.fault is not None and self.drive.fault_tick is not None:
+            keep = min(keep, (int(self.drive.fault_tick) - self.run_start_tick) // divider - first + 1)
+        if keep > 0 and not self.capture_stopped:
+            self.capture += self._capture_columns(rows[:keep], first).tobytes()
+            self.capture_count += keep
+        if keep < n:
+            self.capture_stopped = True
+        self._check_faults()
+        if self.table_state == TableState.PLAYING and self.play_pos >= len(self.table):
+            self.table_state = TableState.DONE
+            self._power_off()  # end of table: disable operation (transition 5), torque off
+            self.state = cia402.State.SWITCHED_ON
+
+    def tick(self, now: float) -> None:
+        """Clock work: table playback, coasting with the power stage off, the SYNC watchdog."""
+        with self.lock:
+            if self.state is cia402.State.OPERATION_ENABLED:
+                if self.table_state == TableState.PLAYING:
+                    self.advance_table(now)
+                elif (self.sync_driven and self.last_sync_wall is not None
+                      and now - self.last_sync_wall > SYNC_WATCHDOG_S):
+                    self.fault(EMCY_SYNC_TIMEOUT, self.sample_index)
+            elif self.coast_ticks > 0:
+                n = min(self.coast_ticks, int((now - self.coast_clock) * self.loop_rate * self.time_scale))
+                if n > 0:
+                    self.last_row = self.drive.run(np.zeros(n))[-1]
+                    self.coast_ticks -= n
+                    self.coast_clock = now
+
+
+class CanopenDriveServer:
+    """Runs a :class:`CanopenDriveFirmware` on a python-can bus: its network and its clock thread.
+
+    Parameters
+    ----------
+    firmware : CanopenDriveFirmware
+    interface, channel : str
+        python-can bus the node joins (``"virtual"`` and a channel name unique to it).
+    """
+
+    def __init__(self, firmware: CanopenDriveFirmware, interface: str = "virtual", channel: str = ""):
+        self.firmware = firmware
+        self.interface = interface
+        self.channel = channel or f"hilident-canopen-{os.getpid()}-{next(_channel_numbers)}"
+        self.network: canopen.Network | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
+        self.extra: list = []  # other services sharing this drive's lifetime (a socketcand server)
+
+    @property
+    def error(self) -> BaseException | None:
+        return self._error or self.firmware.error
+
+    @property
+    def path(self) -> str:
+        return self.channel
+
+    def start(self) -> "CanopenDriveServer":
+        network = canopen.Network()
+        network.NOTIFIER_CYCLE = 0.1  # a short receive timeout: close() returns promptly
+        network.connect(interface=self.interface, channel=self.channel, receive_own_messages=False)
+        self.network = network
+        self.firmware.attach(network)
+        self._thread = threading.Thread(target=self._clock, name="canopen-drive-clock", daemon=True)
+        self._thread.start()
+        return self
+
+    def _clock(self) -> None:
+        try:
+            while not self._stop.wait(0.004):
+                self.firmware.tick(time.monotonic())
+        except BaseException as exc:
+            self._error = exc
+            self.firmware.drive.disable()
+
+    def close(self) -> None:
+        """Power stage off, threads stopped, bus released."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+        fw = self.firmware
+        with fw.lock:
+            fw.drive.disable()
+        for service in self.extra:
+            try:
+                service.close()
+            except Exception:
+                pass
+        try:
+            fw.node.nmt.stop_heartbeat()
+        except Exception:
+            pass
+        if self.network is not None:
+            try:
+                self.network.disconnect()
+            except Exception:
+                pass
+            self.network = None
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def _firmware(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig) -> CanopenDriveFirmware:
+    from hilident.emulator.factory import build_drive
+
+    if driver.transport != "canopen":
+        raise ConfigError("device.driver", f"driver {driver.name!r} is not a CANopen drive (transport "
+                                           f"{driver.transport!r})")
+    return CanopenDriveFirmware(build_drive(cfg, driver), driver, device.node_id, cfg.faults, cfg.time_scale, cfg.seed)
+
+
+def start(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig):
+    """Start the emulated drive in-process on a virtual CAN bus of its own.
+
+    Returns an :class:`~hilident.emulator.factory.EmulatedDevice` whose ``device``
+    reaches it: ``can_interface = "virtual"``, ``port`` = the channel name.
+    """
+    from hilident.emulator.factory import EmulatedDevice
+
+    firmware = _firmware(cfg, driver, device)
+    server = CanopenDriveServer(firmware).start()
+    reach = replace(device, can_interface="virtual", port=server.channel)
+    return EmulatedDevice(server=server, device=reach, drive=firmware.drive)
+
+
+def start_socketcand(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig, port: int = 0,
+                     bus_name: str = "can0"):
+    """Start the emulated drive and serve its bus over socketcand on 127.0.0.1.
+
+    The host reaches it with ``can_interface = "socketcand"`` and ``port =
+    "127.0.0.1:PORT/can0"`` (``EmulatedDevice.device`` holds exactly that).
+    """
+    from hilident.emulator.factory import EmulatedDevice
+    from hilident.emulator.socketcand_server import SocketcandServer
+
+    firmware = _firmware(cfg, driver, device)
+    server = CanopenDriveServer(firmware).start()
+    try:
+        bridge = SocketcandServer(server.channel, bus_name=bus_name, port=port).start()
+    except BaseException:
+        server.close()
+        raise
+    server.extra.append(bridge)
+    reach = replace(device, can_interface="socketcand", port=bridge.address)
+    return EmulatedDevice(server=server, device=reach, drive=firmware.drive)

@@ -1,0 +1,249 @@
+"""SDO server of the emulated CANopen drive: expedited, segmented and block transfer.
+
+canopen's :class:`~canopen.sdo.SdoServer` answers expedited and segmented
+transfers only: it turns a block upload into a segmented one (which canopen's
+own block-upload client rejects) and aborts every block download. A drive that
+holds an excitation table and a capture buffer of hundreds of kilobytes needs
+block transfer (CiA 301, 7.2.4.3.9-16), so this server adds both directions,
+with the CRC (CRC-16/XMODEM) when the client asks for it and retransmission
+from the last acknowledged segment.
+
+It also injects the ``abort_object`` fault: every access to one object (or one
+sub-index) aborts with 0x06060000, "access failed due to a hardware error".
+"""
+
+from __future__ import annotations
+
+import binascii
+import logging
+import struct
+
+from canopen.sdo import SdoAbortedError, SdoServer
+from canopen.sdo.constants import (
+    ABORT_CRC_ERROR, ABORT_GENERAL_ERROR, ABORT_INVALID_BLOCK_SIZE, ABORT_INVALID_COMMAND_SPECIFIER,
+    ABORT_NOT_IN_OD, REQUEST_ABORTED, REQUEST_BLOCK_DOWNLOAD, REQUEST_BLOCK_UPLOAD, REQUEST_DOWNLOAD,
+    REQUEST_UPLOAD, RESPONSE_BLOCK_DOWNLOAD, RESPONSE_BLOCK_UPLOAD, SDO_STRUCT,
+)
+
+logger = logging.getLogger(__name__)
+
+ABORT_HARDWARE = 0x06060000
+#: Segments per block this server asks for / sends at most (CiA 301 allows 1..127).
+BLOCK_SIZE = 127
+
+_CRC = 0x04
+_SIZE = 0x02
+_NO_MORE = 0x80
+
+
+def crc16(data: bytes) -> int:
+    """CRC-16/XMODEM of ``data``, as SDO block transfer uses it."""
+    return binascii.crc_hqx(bytes(data), 0)
+
+
+def parse_fault_object(text: str) -> tuple[int, int | None] | None:
+    """``"0x3100"`` -> (0x3100, None) (every sub-index), ``"0x3100:2"`` -> (0x3100, 2), ``""`` -> None."""
+    text = (text or "").strip()
+    if not text:
+        return None
+    head, _, tail = text.partition(":")
+    return int(head, 16), (int(tail, 0) if tail else None)
+
+
+class BlockSdoServer(SdoServer):
+    """SdoServer with block upload and block download.
+
+    Parameters
+    ----------
+    rx_cobid, tx_cobid : int
+        COB-IDs of requests (0x600 + node) and responses (0x580 + node).
+    node : canopen.LocalNode
+    abort_object : (index, subindex or None) or None
+        Every transfer touching it is aborted (fault injection).
+    """
+
+    def __init__(self, rx_cobid, tx_cobid, node, abort_object=None):
+        super().__init__(rx_cobid, tx_cobid, node)
+        self.abort_object = abort_object
+        self._index = 0
+        self._subindex = 0
+        self._block = None  # state of a block transfer in progress
+        self.aborted_by_fault = 0
+        #: ``size_limit(index, subindex) -> int or None``: largest download the object takes, in bytes
+        self.size_limit = None
+
+    # --- dispatch -------------------------------------------------------------------------
+
+    def on_request(self, can_id, data, timestamp):
+        data = bytes(data)
+        if len(data) < 8:
+            data = data.ljust(8, b"\0")
+        block = self._block
+        if block is not None and block["kind"] == "download_data" and data[0] != REQUEST_ABORTED:
+            # sub-block segments carry a sequence number (1..127, bit 7: last), not a command; only an
+            # abort (0x80 exactly: sequence number 0 does not exist) interrupts them
+            self._download_segment(data)
+            return
+        if block is not None and data[0] & 0xE0 == REQUEST_ABORTED:
+            self._block = None
+        ccs = data[0] & 0xE0
+        if ccs in (REQUEST_UPLOAD, REQUEST_DOWNLOAD, REQUEST_BLOCK_UPLOAD, REQUEST_BLOCK_DOWNLOAD):
+            initiate = ccs != REQUEST_BLOCK_UPLOAD or data[0] & 0x03 == 0
+            initiate = initiate and (ccs != REQUEST_BLOCK_DOWNLOAD or data[0] & 0x01 == 0)
+            if initiate:
+                _, index, sub = SDO_STRUCT.unpack_from(data)
+                if self._faulty(index, sub):
+                    self._index, self._subindex = index, sub
+                    self.aborted_by_fault += 1
+                    self._block = None
+                    self.abort(ABORT_HARDWARE)
+                    return
+            sized = (ccs == REQUEST_DOWNLOAD and data[0] & 0x03 == 0x01) or (
+                ccs == REQUEST_BLOCK_DOWNLOAD and data[0] & _SIZE)  # segmented / block download with a size
+            if initiate and sized:
+                size = struct.unpack_from("<L", data, 4)[0]  # announced size of a segmented or block download
+                limit = self.size_limit(index, sub) if self.size_limit else None
+                if limit is not None and size > limit:
+                    self._index, self._subindex = index, sub
+                    self._block = None
+                    self.abort(0x06070012)  # refused before a byte is sent, as the data would not fit
+                    return
+        try:
+            if ccs == REQUEST_BLOCK_UPLOAD:
+                self._block_upload(data)
+                return
+            if ccs == REQUEST_BLOCK_DOWNLOAD:
+                self._block_download(data)
+                return
+        except SdoAbortedError as exc:
+            self._block = None
+            self.abort(exc.code)
+            return
+        except KeyError:
+            self._block = None
+            self.abort(ABORT_NOT_IN_OD)
+            return
+        except Exception as exc:  # keep serving; the transfer is aborted
+            logger.exception(exc)
+            self._block = None
+            self.abort(ABORT_GENERAL_ERROR)
+            return
+        super().on_request(can_id, data, timestamp)
+
+    def _faulty(self, index: int, sub: int) -> bool:
+        f = self.abort_object
+        return f is not None and f[0] == index and (f[1] is None or f[1] == sub)
+
+    # --- block upload (server -> client) ------------------------------------------------------
+
+    def _block_upload(self, data: bytes) -> None:
+        cs = data[0] & 0x03
+        block = self._block
+        if cs == 0:  # initiate
+            _, index, sub = SDO_STRUCT.unpack_from(data)
+            self._index, self._subindex = index, sub
+            blksize = data[4]
+            if not 0 < blksize <= BLOCK_SIZE:
+                raise SdoAbortedError(ABORT_INVALID_BLOCK_SIZE)
+            payload = bytes(self._node.get_data(index, sub, check_readable=True))
+            self._block = {"kind": "upload", "data": payload, "crc": bool(data[0] & _CRC), "blksize": blksize,
+                           "pos": 0, "block_start": 0, "sent": 0}
+            response = bytearray(8)
+            SDO_STRUCT.pack_into(response, 0, RESPONSE_BLOCK_UPLOAD | _CRC | _SIZE, index, sub)
+            struct.pack_into("<L", response, 4, len(payload))
+            self.send_response(response)
+        elif cs == 1 and block is not None and block["kind"] == "upload_end":  # client confirms the end
+            self._block = None
+        elif block is None or block["kind"] != "upload":
+            raise SdoAbortedError(ABORT_INVALID_COMMAND_SPECIFIER)
+        elif cs == 3:  # start
+            self._send_upload_block()
+        elif cs == 2:  # block acknowledged
+            ackseq, blksize = data[1], data[2]
+            if not 0 < blksize <= BLOCK_SIZE:
+                raise SdoAbortedError(ABORT_INVALID_BLOCK_SIZE)
+            block["pos"] = min(block["block_start"] + 7 * ackseq, len(block["data"]))
+            block["blksize"] = blksize
+            if ackseq < block["sent"]:
+                self._send_upload_block()  # retransmit from the first unacknowledged segment
+            elif block["pos"] >= len(block["data"]) and block.get("last_sent"):
+                n_unused = 7 - (len(block["data"]) - 7 * ((len(block["data"]) - 1) // 7)) if block["data"] else 7
+                response = bytearray(8)
+                response[0] = RESPONSE_BLOCK_UPLOAD | (n_unused << 2) | 0x01
+                struct.pack_into("<H", response, 1, crc16(block["data"]) if block["crc"] else 0)
+                block["kind"] = "upload_end"
+                self.send_response(response)
+            else:
+                self._send_upload_block()
+        else:
+            raise SdoAbortedError(ABORT_INVALID_COMMAND_SPECIFIER)
+
+    def _send_upload_block(self) -> None:
+        block = self._block
+        payload = block["data"]
+        pos = block["block_start"] = block["pos"]
+        seq = 0
+        last = False
+        while seq < block["blksize"] and not last:
+            chunk = payload[pos:pos + 7]
+            seq += 1
+            pos += 7
+            last = pos >= len(payload)
+            frame = bytearray(8)
+            frame[0] = seq | (_NO_MORE if last else 0)
+            frame[1:1 + len(chunk)] = chunk
+            self.send_response(frame)
+        block["sent"] = seq
+        block["last_sent"] = last
+
+    # --- block download (client -> server) ----------------------------------------------------
+
+    def _block_download(self, data: bytes) -> None:
+        cs = data[0] & 0x01
+        block = self._block
+        if cs == 0:  # initiate
+            _, index, sub = SDO_STRUCT.unpack_from(data)
+            self._index, self._subindex = index, sub
+            obj = self._node._find_object(index, sub)
+            if not obj.writable:
+                raise SdoAbortedError(0x06010002)
+            size = struct.unpack_from("<L", data, 4)[0] if data[0] & _SIZE else None
+            self._block = {"kind": "download_data", "buffer": bytearray(), "crc": bool(data[0] & _CRC),
+                           "size": size, "seq": 0, "block_len": 0, "done": False}
+            response = bytearray(8)
+            SDO_STRUCT.pack_into(response, 0, RESPONSE_BLOCK_DOWNLOAD | _CRC, index, sub)
+            response[4] = BLOCK_SIZE
+            self.send_response(response)
+        elif block is not None and block["kind"] == "download_end":  # end: bytes unused, CRC
+            n_unused = (data[0] >> 2) & 0x07
+            buffer = block["buffer"]
+            if n_unused:
+                del buffer[len(buffer) - n_unused:]
+            if block["crc"] and struct.unpack_from("<H", data, 1)[0] != crc16(buffer):
+                raise SdoAbortedError(ABORT_CRC_ERROR)
+            self._block = None
+            self._node.set_data(self._index, self._subindex, bytes(buffer), check_writable=True)
+            response = bytearray(8)
+            response[0] = RESPONSE_BLOCK_DOWNLOAD | 0x01
+            self.send_response(response)
+        else:
+            raise SdoAbortedError(ABORT_INVALID_COMMAND_SPECIFIER)
+
+    def _download_segment(self, data: bytes) -> None:
+        block = self._block
+        seqno = data[0] & 0x7F
+        last = bool(data[0] & _NO_MORE)
+        if seqno == block["seq"] + 1:
+            block["seq"] = seqno
+            block["buffer"] += data[1:8]
+            block["done"] = last
+        # else: a lost or repeated segment; the acknowledgement below asks for it again
+        if last or seqno >= BLOCK_SIZE:
+            response = bytearray(8)
+            response[0] = RESPONSE_BLOCK_DOWNLOAD | 0x02
+            response[1] = block["seq"]
+            response[2] = BLOCK_SIZE
+            if block["done"]:
+                block["kind"] = "download_end"
+            block["seq"] = 0
+            self.send_response(response)

@@ -1,0 +1,433 @@
+"""A CANopen drive's objects as its driver description names them, and how their values are coded.
+
+The ``[canopen]`` tables of a driver description (``drivers/<name>/driver.toml``)
+say which object of the drive plays which role (controlword, actual position,
+excitation table, ...), how integer objects scale to SI units, which mode of
+operation serves each hilident mode and which object carries each recorded
+channel. The host adapter and the emulated drive both read them through
+:meth:`CanopenDescription.from_sections`, so they agree by the description, not
+by sharing state.
+
+Also here: the PDO/capture mapping entry format of CiA 301
+(``index << 16 | subindex << 8 | bits``), the packing of several mapped objects
+into one record, and SI <-> raw conversion with rounding and clipping.
+
+All pure: dicts and arrays in, dataclasses and arrays out.
+
+Example
+-------
+>>> entry = mapping_entry(ObjectAddress(0x6064, 0), 32)
+>>> hex(entry), parse_mapping_entry(entry)
+('0x60640020', (ObjectAddress(index=24676, subindex=0), 32))
+>>> encode_si(np.array([0.1234567]), INTEGER32, 1e-7)
+array([1234567], dtype=int32)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hilident.errors import ConfigError, DataError
+
+__all__ = [
+    "ObjectAddress", "ModeSpec", "FilterObjects", "CanopenDescription", "BOOLEAN", "INTEGER8", "INTEGER16",
+    "INTEGER32", "UNSIGNED8", "UNSIGNED16", "UNSIGNED32", "REAL32", "DOMAIN", "NUMERIC_TYPES", "type_bits",
+    "numpy_type", "record_dtype", "encode_si", "decode_raw", "mapping_entry", "parse_mapping_entry",
+    "pack_frames", "TableState", "TABLE_START", "TABLE_STOP", "ROLE_SCALING", "parse_address",
+]
+
+# CiA 301 data type codes
+BOOLEAN, INTEGER8, INTEGER16, INTEGER32 = 0x01, 0x02, 0x03, 0x04
+UNSIGNED8, UNSIGNED16, UNSIGNED32, REAL32 = 0x05, 0x06, 0x07, 0x08
+DOMAIN, REAL64, INTEGER64, UNSIGNED64 = 0x0F, 0x11, 0x15, 0x1B
+
+_NUMPY = {
+    BOOLEAN: "u1", INTEGER8: "i1", INTEGER16: "<i2", INTEGER32: "<i4", UNSIGNED8: "u1", UNSIGNED16: "<u2",
+    UNSIGNED32: "<u4", REAL32: "<f4", REAL64: "<f8", INTEGER64: "<i8", UNSIGNED64: "<u8",
+}
+NUMERIC_TYPES = frozenset(_NUMPY)
+
+#: Table/capture states reported in the table-state object.
+class TableState:
+    IDLE = 0
+    PLAYING = 1
+    DONE = 2
+    STOPPED = 3  # ended early: fault, limit trip, disabled by the host
+
+    NAMES = {0: "idle", 1: "playing", 2: "done", 3: "stopped"}
+
+
+TABLE_STOP = 0
+TABLE_START = 1
+
+#: How an object of each role scales to SI: "position" (position_unit_m per
+#: increment), "velocity" (velocity_unit_mps per unit), "torque" (per mille of the
+#: rated torque, 0x6076 in mN·m), "si" (REAL32 already in SI units).
+ROLE_SCALING = {
+    "position_actual": "position", "target_position": "position", "position_limit_min": "position",
+    "position_limit_max": "position", "velocity_actual": "velocity", "target_velocity": "velocity",
+    "max_velocity": "velocity", "target_torque": "torque", "torque_offset": "torque", "torque_demand": "torque",
+    "torque_actual": "torque", "max_torque": "torque", "applied_excitation": "si", "load_position": "si",
+}
+
+#: Roles every CANopen driver description must name.
+REQUIRED_ROLES = (
+    "controlword", "statusword", "modes_of_operation", "modes_display", "device_name", "software_version",
+    "vendor_id", "product_code", "heartbeat_time", "cycle_period", "rated_torque", "max_torque", "max_velocity",
+    "position_limit_min", "position_limit_max", "sample_counter", "setpoint_counter",
+    "setpoint_underruns", "sync_errors",
+)
+BUFFERED_ROLES = ("table", "table_length", "table_divider", "table_command", "table_state", "capture_count",
+                  "table_capacity", "capture_offset", "capture_mapping", "capture_data")
+ACQUISITIONS = ("streamed", "buffered")
+
+
+@dataclass(frozen=True, order=True)
+class ObjectAddress:
+    """Index and sub-index of one object dictionary entry."""
+
+    index: int
+    subindex: int = 0
+
+    def __str__(self) -> str:
+        return f"0x{self.index:04X}:{self.subindex}"
+
+
+def parse_address(text, key: str = "", source: str = "") -> ObjectAddress:
+    """``"0x6064"`` or ``"0x607D:2"`` (hex index, decimal or hex sub-index) -> ObjectAddress.
+
+    Raises
+    ------
+    ConfigError
+        The text is not an address; the message names ``key``.
+    """
+    if isinstance(text, ObjectAddress):
+        return text
+    try:
+        head, _, tail = str(text).strip().partition(":")
+        index = int(head, 16)
+        sub = int(tail, 0) if tail else 0
+    except ValueError:
+        raise ConfigError(key or "address", f'must be an object address like "0x6064" or "0x607D:2", got {text!r}',
+                          source) from None
+    if not (0 <= index <= 0xFFFF and 0 <= sub <= 0xFF):
+        raise ConfigError(key or "address", f"index or sub-index out of range in {text!r}", source)
+    return ObjectAddress(index, sub)
+
+
+@dataclass(frozen=True)
+class ModeSpec:
+    """How one hilident mode runs on the drive.
+
+    Attributes
+    ----------
+    name : str
+        hilident mode (``"torque"``, ``"torque_injection"``, ``"velocity"``, ``"position"``).
+    code : int
+        Mode of operation written to 0x6060 (CST 10, CSV 9, CSP 8; negative: manufacturer mode).
+    setpoint : str
+        Role of the object the excitation is written to each cycle.
+    """
+
+    name: str
+    code: int
+    setpoint: str
+
+
+@dataclass(frozen=True)
+class FilterObjects:
+    """Where the drive keeps its filter slots: one record per slot."""
+
+    indices: tuple[int, ...]
+    enable_subindex: int
+    fields: dict[str, int]
+
+    def address(self, slot: int, name: str) -> ObjectAddress:
+        sub = self.enable_subindex if name == "enabled" else self.fields[name]
+        return ObjectAddress(self.indices[slot], sub)
+
+
+@dataclass(frozen=True)
+class CanopenDescription:
+    """The ``[canopen]`` part of a driver description, validated.
+
+    Attributes
+    ----------
+    eds : str
+        EDS file name, relative to the driver folder.
+    vendor_id, product_code : int
+        Identity (0x1018:1, 0x1018:2) the device must report.
+    default_acquisition : {"streamed", "buffered"}
+        Used when ``device.acquisition = "auto"``.
+    heartbeat_ms : int
+        Producer heartbeat time the host asks of the drive (0x1017).
+    heartbeat_timeout_ms : int
+        A heartbeat gap longer than this stops the run.
+    block_transfer : bool
+        SDO block transfer for the excitation table and the capture (else segmented).
+    emcy_sample_index : bool
+        Emergency messages carry the run's sample index in their first four
+        manufacturer bytes (UNSIGNED32, 0xFFFFFFFF: none).
+    position_unit_m, velocity_unit_mps : float
+        SI value of one position increment and one velocity unit.
+    objects : dict
+        Role -> ObjectAddress.
+    modes : dict
+        hilident mode -> ModeSpec.
+    channels : dict
+        Channel name -> role of the object that carries it.
+    filters : FilterObjects or None
+    """
+
+    eds: str
+    vendor_id: int
+    product_code: int
+    default_acquisition: str
+    heartbeat_ms: int
+    heartbeat_timeout_ms: int
+    block_transfer: bool
+    emcy_sample_index: bool
+    position_unit_m: float
+    velocity_unit_mps: float
+    objects: dict[str, ObjectAddress] = field(default_factory=dict)
+    modes: dict[str, ModeSpec] = field(default_factory=dict)
+    channels: dict[str, str] = field(default_factory=dict)
+    filters: FilterObjects | None = None
+
+    @classmethod
+    def from_sections(cls, sections: dict, source: str = "") -> "CanopenDescription":
+        """Validate the ``[canopen]`` and ``[filters]`` tables of a parsed driver description.
+
+        Raises
+        ------
+        ConfigError
+            A table or key is missing or malformed; the message names the dotted key and ``source``.
+        """
+        co = sections.get("canopen")
+        if not isinstance(co, dict):
+            raise ConfigError("canopen", "a CANopen driver needs a [canopen] table", source)
+
+        def get(key, kind, default=None):
+            value = co.get(key, default)
+            if value is None:
+                raise ConfigError(f"canopen.{key}", "is required", source)
+            if kind is float and isinstance(value, int) and not isinstance(value, bool):
+                value = float(value)
+            if not isinstance(value, kind) or (kind is not bool and isinstance(value, bool)):
+                raise ConfigError(f"canopen.{key}", f"must be {kind.__name__}, got {value!r}", source)
+            return value
+
+        acquisition = get("default_acquisition", str, "buffered")
+        if acquisition not in ACQUISITIONS:
+            raise ConfigError("canopen.default_acquisition", f"must be one of {ACQUISITIONS}, got {acquisition!r}",
+                              source)
+        objects = {}
+        table = co.get("objects", {})
+        if not isinstance(table, dict):
+            raise ConfigError("canopen.objects", "must be a table of role = \"0xIIII[:sub]\"", source)
+        for role, text in table.items():
+            objects[role] = parse_address(text, f"canopen.objects.{role}", source)
+        missing = [r for r in REQUIRED_ROLES if r not in objects]
+        if missing:
+            raise ConfigError("canopen.objects", f"lacks {', '.join(missing)}", source)
+
+        modes = {}
+        for name, spec in co.get("modes", {}).items():
+            if not isinstance(spec, dict) or not isinstance(spec.get("code"), int) or "setpoint" not in spec:
+                raise ConfigError(f"canopen.modes.{name}", "must be { code = <int>, setpoint = \"<role>\" }", source)
+            if spec["setpoint"] not in objects:
+                raise ConfigError(f"canopen.modes.{name}.setpoint",
+                                  f"role {spec['setpoint']!r} is not in [canopen.objects]", source)
+            if not -128 <= spec["code"] <= 127:
+                raise ConfigError(f"canopen.modes.{name}.code", f"must fit INTEGER8, got {spec['code']}", source)
+            modes[name] = ModeSpec(name, spec["code"], spec["setpoint"])
+        if not modes:
+            raise ConfigError("canopen.modes", "needs at least one mode", source)
+
+        channels = {}
+        for name, role in co.get("channels", {}).items():
+            if role not in objects:
+                raise ConfigError(f"canopen.channels.{name}", f"role {role!r} is not in [canopen.objects]", source)
+            channels[name] = role
+        if not channels:
+            raise ConfigError("canopen.channels", "needs at least one channel", source)
+
+        scaling = co.get("scaling", {})
+        units = {}
+        for key in ("position_unit_m", "velocity_unit_mps"):
+            value = scaling.get(key)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"canopen.scaling.{key}", f"must be a positive number, got {value!r}", source)
+            units[key] = float(value)
+
+        hb = get("heartbeat_ms", int, 100)
+        hb_timeout = get("heartbeat_timeout_ms", int, 4 * hb)
+        if not 1 <= hb <= 65535:
+            raise ConfigError("canopen.heartbeat_ms", f"must be 1..65535, got {hb}", source)
+        if hb_timeout <= hb:
+            raise ConfigError("canopen.heartbeat_timeout_ms", f"must exceed heartbeat_ms = {hb}, got {hb_timeout}",
+                              source)
+        desc = cls(
+            eds=get("eds", str), vendor_id=get("vendor_id", int), product_code=get("product_code", int),
+            default_acquisition=acquisition, heartbeat_ms=hb, heartbeat_timeout_ms=hb_timeout,
+            block_transfer=get("block_transfer", bool, True), emcy_sample_index=get("emcy_sample_index", bool, False),
+            position_unit_m=units["position_unit_m"], velocity_unit_mps=units["velocity_unit_mps"],
+            objects=objects, modes=modes, channels=channels,
+            filters=_filter_objects(sections.get("filters"), source),
+        )
+        if desc.default_acquisition == "buffered":
+            desc.require_buffered(source)
+        return desc
+
+    def address(self, role: str) -> ObjectAddress:
+        """The object of ``role``; ConfigError when the description does not name it."""
+        try:
+            return self.objects[role]
+        except KeyError:
+            raise ConfigError(f"canopen.objects.{role}", "is not named by this driver description") from None
+
+    def has(self, role: str) -> bool:
+        return role in self.objects
+
+    def require_buffered(self, source: str = "") -> None:
+        """Raise ConfigError unless every object of the drive-buffered protocol is named."""
+        missing = [r for r in BUFFERED_ROLES if r not in self.objects]
+        if missing:
+            raise ConfigError("canopen.objects", f"drive-buffered acquisition needs {', '.join(missing)}", source)
+
+    def scale(self, role: str, rated_torque_mnm: float) -> float:
+        """SI value of one raw unit of the object of ``role`` (1.0 for unscaled objects)."""
+        kind = ROLE_SCALING.get(role)
+        if kind == "position":
+            return self.position_unit_m
+        if kind == "velocity":
+            return self.velocity_unit_mps
+        if kind == "torque":
+            if not rated_torque_mnm > 0:
+                raise DataError(f"rated torque {rated_torque_mnm!r} mN*m: torque objects cannot be scaled")
+            return rated_torque_mnm * 1e-3 / 1000.0  # per mille of the rated torque
+        return 1.0
+
+    def mode_by_code(self, code: int) -> ModeSpec | None:
+        """The mode spec whose mode-of-operation code is ``code``."""
+        for m in self.modes.values():
+            if m.code == code:
+                return m
+        return None
+
+
+def _filter_objects(table, source) -> FilterObjects | None:
+    if not isinstance(table, dict) or "objects" not in table:
+        return None
+    try:
+        indices = tuple(parse_address(x, "filters.objects", source).index for x in table["objects"])
+    except TypeError:
+        raise ConfigError("filters.objects", "must be a list of object indices", source) from None
+    fields = table.get("fields")
+    if not isinstance(fields, dict) or not all(isinstance(v, int) and 0 < v < 256 for v in fields.values()):
+        raise ConfigError("filters.fields", "must map each field to its sub-index, e.g. { b0 = 2, ... }", source)
+    enable = table.get("enable_subindex", 1)
+    if not isinstance(enable, int) or not 0 < enable < 256 or enable in fields.values():
+        raise ConfigError("filters.enable_subindex", f"must be a free sub-index 1..255, got {enable!r}", source)
+    return FilterObjects(indices, enable, dict(fields))
+
+
+# --- values -----------------------------------------------------------------------------------
+
+
+def type_bits(datatype: int) -> int:
+    """Width in bits of a numeric CiA 301 data type."""
+    try:
+        return np.dtype(_NUMPY[datatype]).itemsize * 8
+    except KeyError:
+        raise DataError(f"data type 0x{datatype:02X} is not a numeric CANopen type") from None
+
+
+def numpy_type(datatype: int) -> np.dtype:
+    """Little-endian numpy type of a numeric CiA 301 data type."""
+    try:
+        return np.dtype(_NUMPY[datatype])
+    except KeyError:
+        raise DataError(f"data type 0x{datatype:02X} is not a numeric CANopen type") from None
+
+
+def record_dtype(datatypes) -> np.dtype:
+    """Packed structure of several objects one after another (a PDO or a capture record)."""
+    return np.dtype([(f"f{i}", numpy_type(t)) for i, t in enumerate(datatypes)])
+
+
+def encode_si(values, datatype: int, scale: float) -> np.ndarray:
+    """SI values as raw object values: ``round(value / scale)`` clipped to the type, or REAL32.
+
+    NaN goes to 0 for integer types (REAL32 keeps it).
+    """
+    t = numpy_type(datatype)
+    x = np.asarray(values, dtype=float) / scale
+    if t.kind == "f":
+        return x.astype(t)
+    info = np.iinfo(t)
+    x = np.where(np.isfinite(x), x, 0.0)
+    return np.clip(np.rint(x), info.min, info.max).astype(t)
+
+
+def decode_raw(raw, scale: float) -> np.ndarray:
+    """Raw object values to SI (float64)."""
+    return np.asarray(raw, dtype=float) * scale
+
+
+def mapping_entry(address: ObjectAddress, bits: int) -> int:
+    """A CiA 301 PDO (and capture) mapping entry: ``index << 16 | subindex << 8 | bits``."""
+    if not 0 < bits <= 64:
+        raise DataError(f"mapping of {address}: {bits} bits")
+    return (address.index << 16) | (address.subindex << 8) | bits
+
+
+def parse_mapping_entry(value: int) -> tuple[ObjectAddress, int]:
+    """Inverse of :func:`mapping_entry`."""
+    return ObjectAddress((value >> 16) & 0xFFFF, (value >> 8) & 0xFF), value & 0xFF
+
+
+def pack_frames(items: list[tuple[str, int]], header_bits: int = 16, frame_bits: int = 64,
+                max_frames: int = 4) -> list[list[str]]:
+    """Put mapped objects into PDO frames, each headed by a ``header_bits`` counter.
+
+    First fit in the given order: an object goes into the first frame with room.
+
+    Parameters
+    ----------
+    items : list of (name, bits)
+    header_bits, frame_bits, max_frames : int
+
+    Returns
+    -------
+    list of lists of names, one list per frame
+
+    Raises
+    ------
+    DataError
+        They do not fit ``max_frames`` frames.
+
+    Examples
+    --------
+    >>> pack_frames([("a", 32), ("b", 16), ("c", 32), ("d", 16), ("e", 32)])
+    [['a', 'b'], ['c', 'd'], ['e']]
+    """
+    frames: list[list[str]] = []
+    used: list[int] = []
+    for name, bits in items:
+        if header_bits + bits > frame_bits:
+            raise DataError(f"{name} ({bits} bits) does not fit a PDO beside the {header_bits}-bit counter")
+        for i, u in enumerate(used):
+            if u + bits <= frame_bits:
+                frames[i].append(name)
+                used[i] += bits
+                break
+        else:
+            frames.append([name])
+            used.append(header_bits + bits)
+    if len(frames) > max_frames:
+        raise DataError(f"{len(items)} channels need {len(frames)} PDOs; the drive has {max_frames}")
+    return frames

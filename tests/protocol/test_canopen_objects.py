@@ -1,0 +1,104 @@
+"""CANopen object roles, mapping entries, value coding and the driver descriptions that use them."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from hilident.drivers import find_driver
+from hilident.errors import ConfigError, DataError
+from hilident.protocol import canopen_objects as co
+
+
+def test_addresses_parse_and_print():
+    assert co.parse_address("0x6064") == co.ObjectAddress(0x6064, 0)
+    assert co.parse_address("0x607D:2") == co.ObjectAddress(0x607D, 2)
+    assert co.parse_address("607d:0x2") == co.ObjectAddress(0x607D, 2)
+    assert str(co.ObjectAddress(0x2201, 7)) == "0x2201:7"
+    with pytest.raises(ConfigError, match="canopen.objects.x"):
+        co.parse_address("sixty", "canopen.objects.x")
+    with pytest.raises(ConfigError):
+        co.parse_address("0x12345")
+
+
+@given(st.integers(0, 0xFFFF), st.integers(0, 0xFF), st.sampled_from([8, 16, 32, 64]))
+def test_mapping_entries_round_trip(index, sub, bits):
+    addr = co.ObjectAddress(index, sub)
+    entry = co.mapping_entry(addr, bits)
+    assert 0 <= entry < 2**32 and co.parse_mapping_entry(entry) == (addr, bits)
+
+
+def test_mapping_entry_is_the_cia301_layout():
+    assert co.mapping_entry(co.ObjectAddress(0x6041, 0), 16) == 0x60410010  # statusword, 16 bits
+    assert co.mapping_entry(co.ObjectAddress(0x607D, 2), 32) == 0x607D0220
+
+
+@given(st.lists(st.floats(-3.0, 3.0), min_size=1, max_size=50))
+def test_integer_coding_is_within_half_a_unit(values):
+    x = np.array(values)
+    raw = co.encode_si(x, co.INTEGER32, 1e-6)
+    assert raw.dtype == np.dtype("<i4")
+    assert np.all(np.abs(co.decode_raw(raw, 1e-6) - x) <= 0.5e-6 + 1e-15)
+
+
+def test_coding_clips_to_the_type_and_keeps_nan_out_of_integers():
+    raw = co.encode_si(np.array([100.0, -100.0, np.nan]), co.INTEGER16, 1e-3)
+    assert raw.tolist() == [32767, -32768, 0]
+    real = co.encode_si(np.array([0.1, np.nan]), co.REAL32, 1.0)
+    assert real.dtype == np.dtype("<f4") and real[0] == np.float32(0.1) and np.isnan(real[1])
+
+
+def test_records_pack_like_the_wire():
+    dt = co.record_dtype([co.UNSIGNED16, co.INTEGER32, co.REAL32])
+    assert dt.itemsize == 10
+    rec = np.zeros(1, dt)
+    rec["f0"], rec["f1"], rec["f2"] = 0x1234, -2, 1.5
+    assert rec.tobytes() == bytes.fromhex("3412") + (-2).to_bytes(4, "little", signed=True) + bytes.fromhex("0000c03f")
+
+
+def test_pdo_packing_first_fit_behind_the_counter():
+    frames = co.pack_frames([("exc", 32), ("cmd", 16), ("tq", 16), ("pos", 32), ("vel", 32)])
+    assert frames == [["exc", "cmd"], ["tq", "pos"], ["vel"]]
+    assert all(16 + sum({"exc": 32, "cmd": 16, "tq": 16, "pos": 32, "vel": 32}[n] for n in f) <= 64 for f in frames)
+    with pytest.raises(DataError, match="PDOs"):
+        co.pack_frames([(str(i), 32) for i in range(5)], max_frames=4)
+    with pytest.raises(DataError, match="does not fit"):
+        co.pack_frames([("big", 64)])
+
+
+@pytest.mark.parametrize("name", ["canopen-servo", "canopen-servo-fixed"])
+def test_shipped_descriptions_are_complete(name):
+    driver = find_driver(name)
+    desc = co.CanopenDescription.from_sections(driver.sections, "x")
+    assert driver.transport == "canopen" and (driver.folder / desc.eds).is_file()
+    assert {m.code for m in desc.modes.values()} == {10, -3, 9, 8}
+    assert desc.modes["torque"].setpoint == "target_torque" and desc.modes["velocity"].setpoint == "target_velocity"
+    assert set(c.name for c in driver.channels) == set(desc.channels)
+    assert desc.scale("torque_actual", 1000.0) == pytest.approx(1e-3)  # per mille of 1 N*m
+    assert desc.scale("position_actual", 1000.0) == 1e-7
+    assert desc.filters.address(2, "a1") == co.ObjectAddress(0x2302, 5)
+    desc.require_buffered()
+
+
+def test_description_errors_name_the_key():
+    sections = copy.deepcopy(find_driver("canopen-servo").sections)
+    del sections["canopen"]["objects"]["statusword"]
+    with pytest.raises(ConfigError, match="statusword") as err:
+        co.CanopenDescription.from_sections(sections, "drv.toml")
+    assert "drv.toml" in str(err.value)
+    sections = copy.deepcopy(find_driver("canopen-servo").sections)
+    sections["canopen"]["modes"]["torque"]["setpoint"] = "no_such_role"
+    with pytest.raises(ConfigError, match="canopen.modes.torque.setpoint"):
+        co.CanopenDescription.from_sections(sections)
+    sections = copy.deepcopy(find_driver("canopen-servo").sections)
+    sections["canopen"]["scaling"]["position_unit_m"] = 0
+    with pytest.raises(ConfigError, match="position_unit_m"):
+        co.CanopenDescription.from_sections(sections)
+    sections = copy.deepcopy(find_driver("canopen-servo").sections)
+    del sections["canopen"]["objects"]["capture_data"]
+    with pytest.raises(ConfigError, match="capture_data"):  # buffered is this drive's default
+        co.CanopenDescription.from_sections(sections)
