@@ -73,6 +73,22 @@ def _identify(args) -> int:
     return 0
 
 
+def _serve_until_stopped(device) -> int:
+    """Keep an emulated device running until Ctrl-C or SIGTERM; re-raise what stopped it otherwise."""
+    stop = []
+    signal.signal(signal.SIGTERM, lambda *a: stop.append(1))
+    try:
+        while not stop and device.server.error is None:
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        device.close()
+    if device.server.error is not None:
+        raise device.server.error
+    return 0
+
+
 def _emulate_serial(args) -> int:
     from hilident.config import load_config, parse_config
     from hilident.drivers import find_driver
@@ -90,18 +106,7 @@ def _emulate_serial(args) -> int:
     device = start_serial_board(emu_cfg, driver, baud, link="tcp" if args.tcp else "pty")
     print(device.port, flush=True)
     print(f"emulated {driver.name} at {baud} baud; Ctrl-C to stop", file=sys.stderr, flush=True)
-    stop = []
-    signal.signal(signal.SIGTERM, lambda *a: stop.append(1))
-    try:
-        while not stop and device.server.error is None:
-            time.sleep(0.2)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        device.close()
-    if device.server.error is not None:
-        raise device.server.error
-    return 0
+    return _serve_until_stopped(device)
 
 
 def _emulate_modbus(args) -> int:
@@ -125,18 +130,7 @@ def _emulate_modbus(args) -> int:
     line = f"Modbus RTU at {device.device.baudrate} baud, parity N" if args.rtu else "Modbus TCP"
     print(f"emulated {driver.name} ({line}, device id {device.device.device_id}); Ctrl-C to stop",
           file=sys.stderr, flush=True)
-    stop = []
-    signal.signal(signal.SIGTERM, lambda *a: stop.append(1))
-    try:
-        while not stop and device.server.error is None:
-            time.sleep(0.2)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        device.close()
-    if device.server.error is not None:
-        raise device.server.error
-    return 0
+    return _serve_until_stopped(device)
 
 
 def _emulate_canopen(args) -> int:
@@ -159,18 +153,7 @@ def _emulate_canopen(args) -> int:
     print(device.port, flush=True)
     print(f'emulated {driver.name}, node {device.device.node_id}, on socketcand: [device] can_interface = '
           f'"socketcand", port = "{device.port}"; Ctrl-C to stop', file=sys.stderr, flush=True)
-    stop = []
-    signal.signal(signal.SIGTERM, lambda *a: stop.append(1))
-    try:
-        while not stop and device.server.error is None:
-            time.sleep(0.2)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        device.close()
-    if device.server.error is not None:
-        raise device.server.error
-    return 0
+    return _serve_until_stopped(device)
 
 
 def _drivers(args) -> int:
