@@ -104,8 +104,22 @@ class Setup:
             self.proc.wait(timeout=10)
 
 
+def wait_until_answering(ad, limit_s: float = 120.0) -> None:
+    """After an overload the drive may still be working off queued frames: wait for an SDO answer."""
+    deadline = time.monotonic() + limit_s
+    while True:
+        try:
+            ad.read("statusword")
+            return
+        except HilidentError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.5)
+
+
 def streaming_trial(setup: Setup, rate: float, duration: float, sample_rate: float) -> Trial:
     ad = setup.adapter
+    wait_until_answering(ad)
     ad.acquisition = "streamed"
     ad.configure(sample_rate, "torque")
     ad.sync_rate_hz = rate
@@ -125,7 +139,7 @@ def streaming_trial(setup: Setup, rate: float, duration: float, sample_rate: flo
     wall = time.perf_counter() - t0
     s = result.stats
     late_syncs = sum(int(e.get("value", 0)) for e in result.events if e["kind"] == "sync_late")
-    achieved = n / wall
+    achieved = count[0] / wall  # samples that arrived per second (all of them in a clean trial)
     clean = (not note and s.lost_frames == 0 and s.lost_samples == 0 and s.out_of_order == 0 and s.underruns == 0
              and count[0] == n and not any(e["kind"] == "sync_errors" for e in result.events)
              and achieved >= 0.98 * rate)
@@ -140,7 +154,7 @@ def find_sync_rate(setup: Setup, duration: float, sample_rate: float, resolution
         t = streaming_trial(setup, rate, duration, sample_rate)
         trials.append(t)
         verdict = "clean" if t.clean else "LOSS"
-        print(f"  {setup.kind:10s} {rate:8.0f}/s asked {t.achieved:8.0f}/s held  lost frames {t.lost_frames:5d}  "
+        print(f"  {setup.kind:10s} {rate:8.0f}/s asked {t.achieved:8.0f}/s received  lost frames {t.lost_frames:5d}  "
               f"lost samples {t.lost_samples:5d}  late {t.late:4d}  underruns {t.underruns:4d}  "
               f"late SYNCs {t.late_syncs:5d}  {verdict} {t.note[:60]}", flush=True)
         return t.clean
@@ -164,6 +178,7 @@ def find_sync_rate(setup: Setup, duration: float, sample_rate: float, resolution
 
 def sdo_throughput(setup: Setup, block_bytes: int, segmented_bytes: int) -> dict:
     ad = setup.adapter
+    wait_until_answering(ad)
     table = ad.desc.address("table")
     original = ad.desc
     out = {}

@@ -16,7 +16,7 @@ import pytest
 from hilident.cli import main
 from hilident.config import load_config
 from hilident.emulator.factory import true_modes
-from hilident.errors import DataError, DeviceError
+from hilident.errors import DeviceError
 from hilident.protocol import cia402
 from hilident.recording import read_run
 from hilident.session import Session
@@ -106,13 +106,11 @@ def test_lost_pdos_are_counted_and_left_out(tmp_path):
     cfg = short_config("streamed", drop_pdo_rate=0.002)
     cfg = replace(cfg, excitation=replace(cfg.excitation, kind="noise", duration_s=3.0, amplitude_nm=4.0),
                   identification=replace(cfg.identification, segment_s=0.5), notch=replace(cfg.notch, enabled=False))
-    try:
-        summary = Session(cfg, tmp_path).run()
-        stream = summary["stream"]
-        assert stream["lost_samples"] > 0 and stream["lost_frames"] >= stream["lost_samples"]
-        assert any("lost" in w for w in summary["warnings"])
-    except DataError:  # the identification may find too little; the recording is what matters here
-        pass
+    summary = Session(cfg, tmp_path).run()
+    stream = summary["stream"]
+    assert stream["lost_samples"] > 0 and stream["lost_frames"] >= stream["lost_samples"]
+    assert stream["samples"] + stream["lost_samples"] == 3000
+    assert any("lost" in w for w in summary["warnings"]) and any("gap" in w for w in summary["warnings"])
     run = read_run(tmp_path / "identification.h5")
     index = run.samples["sample_index"]
     assert run.n_samples < 3000 and np.all(np.diff(index) >= 1) and np.any(np.diff(index) > 1)  # holes stay holes

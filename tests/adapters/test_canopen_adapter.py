@@ -220,6 +220,15 @@ def test_lost_tpdos_are_counted_never_filled(rig):
     assert any(e["kind"] == "lost_blocks" for e in result.events)
 
 
+def test_silent_tpdos_end_a_streamed_run(rig):
+    r = rig("streamed", drop_pdo_rate=1.0)  # the drive runs but no TPDO ever reaches the host
+    with pytest.raises(DeviceError, match="lag .* behind the SYNCs"):
+        r.run(np.zeros(5000))
+    res = r.adapter.last_result
+    assert res.stats.samples == 0 and res.stats.lost_samples > 0 and 1000 <= r.emulated.drive.tick // 4 < 5000
+    assert not r.emulated.drive.enabled
+
+
 def test_short_capture_is_reported(rig):
     r = rig("buffered", capture_stops_after_s=0.25)
     got = []

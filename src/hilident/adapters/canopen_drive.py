@@ -138,6 +138,8 @@ class CanopenDriveAdapter:
         self.sync_overflow = 0
         self.rated_torque_mnm = 0.0
         self.tpdo_layout: list[tuple[int, list[int]]] = []  # (COB-ID, channel indices after the counter)
+        self.rpdo: tuple | None = None  # (COB-ID, counter type, set-point type, set-point role)
+        self._configured_for = ""  # the acquisition configure() mapped the objects for
         self.last_result: RunResult | None = None
         self.emergencies: collections.deque[Emergency] = collections.deque()
         self.heartbeat_s: float | None = None
@@ -485,6 +487,7 @@ class CanopenDriveAdapter:
         else:
             self._map_capture(codecs)
         self.divider, self.sample_rate_hz, self.mode = divider, rate, mode
+        self._configured_for = self.acquisition
         self.channels = codecs
         self.channel_names = [c.name for c in codecs]
         self.channel_units = [c.unit for c in codecs]
@@ -576,8 +579,8 @@ class CanopenDriveAdapter:
         x = np.asarray(excitation, dtype=float)
         if x.ndim != 1 or not np.all(np.isfinite(x)):
             raise DataError("excitation must be a finite one-dimensional array")
-        if not self.channels:
-            raise DeviceError(f"{self.port}: configure() before stream()")
+        if not self.channels or self._configured_for != self.acquisition:
+            raise DeviceError(f"{self.port}: configure() for {self.acquisition} acquisition before stream()")
         self.emergencies.clear()
         self.last_result = None
         trace_path, self._trace_path = self._trace_path, None

@@ -18,7 +18,9 @@ assembles a sample from its TPDOs:
 
 An emergency stops the SYNCs at once (the drive already switched its power
 stage off); the samples up to the fault are delivered, then the run ends with
-LimitTrip (a limit) or DeviceError. A lost heartbeat ends it with DeviceError.
+LimitTrip (a limit) or DeviceError. A lost heartbeat ends it with DeviceError,
+and so do TPDOs lagging more than a second behind the SYNCs (the drive does not
+keep up; flooding it further would only queue frames).
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ import time
 import numpy as np
 
 from hilident.adapters.base import RunResult, StreamStats
+from hilident.errors import DeviceError
 from hilident.protocol.canopen_objects import numpy_type, type_bits
 
 __all__ = ["run_streamed"]
@@ -68,6 +71,7 @@ def run_streamed(ad, x: np.ndarray, sink, progress=None) -> RunResult:
     rpdo_pack = struct.Struct("<" + numpy_type(rx_type).char + numpy_type(sp_type).char)
     period = 1.0 / (ad.sync_rate_hz or ad.sample_rate_hz)
     window = max(16, int(round(0.1 / period)))
+    lag_limit = max(10 * window, int(round(1.0 / period)))  # the drive is not keeping up: stop flooding it
     overflow = ad.sync_overflow
     send = ad.network.send_message
 
@@ -164,6 +168,10 @@ def run_streamed(ad, x: np.ndarray, sink, progress=None) -> RunResult:
                     break
             else:
                 ad.check_link()
+                if sent - 1 - top > lag_limit:
+                    raise DeviceError(f"{ad.port}: the drive's TPDOs lag {sent - 1 - top} samples behind the SYNCs "
+                                      f"(more than {lag_limit * period:.2g} s): it does not keep up with "
+                                      f"{1 / period:g} SYNC/s")
                 if sent == n:
                     ended = ended or now
                     if now - ended > _GRACE_S or mask[state["final"]:].min(initial=full) == full:

@@ -78,6 +78,7 @@ ABORT_LENGTH_HIGH = 0x06070012
 EMCY_OF_TRIP = {"torque_limit": 0x8311, "velocity_limit": 0x8400, "position_limit": 0x8612}
 EMCY_DRIVE_FAULT = 0x4310  # excess temperature, drive (the injected fault)
 EMCY_SYNC_TIMEOUT = 0x8250
+EMCY_INTERNAL = 0x6100  # internal software error
 
 _COLUMN_OF_ROLE = {
     "position_actual": "position_m", "velocity_actual": "velocity_mps", "torque_actual": "torque_nm",
@@ -150,6 +151,7 @@ class CanopenDriveFirmware:
         self.rated_torque_mnm = float(self._default(self.desc.address("rated_torque")))
         self.scales = {role: self.desc.scale(role, self.rated_torque_mnm) for role in self.desc.objects}
         self.columns = {name: i for i, name in enumerate(DriveLoop.CHANNELS)}
+        self._codecs: dict = {}
         self.network = None
         self.error: BaseException | None = None
         self.rng = np.random.default_rng(seed + 2)
@@ -264,9 +266,13 @@ class CanopenDriveFirmware:
         def guarded(can_id, data, timestamp):
             try:
                 callback(can_id, data, timestamp)
-            except Exception as exc:  # a bug in the drive: keep it for the owner, open the loops
+            except Exception as exc:  # a bug in the drive: keep it for the owner, fault, power off
                 self.error = self.error or exc
-                self.drive.disable()
+                try:
+                    with self.lock:
+                        self.fault(EMCY_INTERNAL, self.sample_index)
+                except Exception:
+                    self.drive.disable()
         guarded.__name__ = callback.__name__
         return guarded
 
@@ -370,11 +376,14 @@ class CanopenDriveFirmware:
     def _live(self, role: str | None, addr: ObjectAddress, row, k: int):
         """Raw value of a readable object for the sample in ``row`` (SDO reads and TPDOs)."""
         if role in _COLUMN_OF_ROLE:
-            obj = self._variable(addr)
-            x = float(row[self.columns[_COLUMN_OF_ROLE[role]]])
-            if obj.data_type == REAL32:
-                return x
-            return int(encode_si(np.array([x]), obj.data_type, self.scales[role])[0])
+            column, scale, lo, hi = self._scalar_codec(role, addr)
+            x = float(row[column])
+            if scale is None:
+                return x  # REAL32
+            v = x / scale
+            if not math.isfinite(v):
+                return 0
+            return min(max(round(v), lo), hi)  # as encode_si: half to even, clipped to the type
         if role == "sample_counter":
             return k & 0xFFFF
         if role == "statusword":
@@ -392,6 +401,20 @@ class CanopenDriveFirmware:
         if role == "error_register":
             return _error_register(self.error_code) if self.error_code else 0
         return self._stored(addr.index, addr.subindex)
+
+    def _scalar_codec(self, role: str, addr: ObjectAddress):
+        """(row column, SI per unit or None for REAL32, type minimum, type maximum) of a sampled object."""
+        codec = self._codecs.get(addr)
+        if codec is None:
+            obj = self._variable(addr)
+            column = self.columns[_COLUMN_OF_ROLE[role]]
+            if obj.data_type == REAL32:
+                codec = (column, None, 0, 0)
+            else:
+                info = np.iinfo(numpy_type(obj.data_type))
+                codec = (column, self.scales[role], int(info.min), int(info.max))
+            self._codecs[addr] = codec
+        return codec
 
     def _capture_columns(self, rows: np.ndarray, first: int) -> np.ndarray:
         """Capture records of ``rows`` (samples ``first`` ...) as a packed structured array."""

@@ -274,6 +274,7 @@ EMCY_CODES = {
     0x4310: "excess temperature, drive",
     0x5441: "safe torque off active",
     0x6010: "software reset (watchdog)",
+    0x6100: "internal software error",
     0x6320: "parameter error",
     0x7121: "motor blocked",
     0x7305: "incremental sensor 1 fault",
