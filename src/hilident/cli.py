@@ -90,18 +90,9 @@ def _serve_until_stopped(device) -> int:
 
 
 def _emulate_serial(args) -> int:
-    from hilident.config import load_config, parse_config
-    from hilident.drivers import find_driver
     from hilident.emulator.factory import start_serial_board
 
-    minimal = "[limits]\ntorque_nm = 1.0\nvelocity_mps = 1.0\nposition_min_m = -1.0\nposition_max_m = 1.0\n"
-    cfg = load_config(args.config) if args.config else parse_config(minimal, "<defaults>")
-    emu_cfg = cfg.emulator
-    if args.time_scale:
-        from dataclasses import replace
-
-        emu_cfg = replace(emu_cfg, time_scale=args.time_scale)
-    driver = find_driver(args.driver or cfg.device.driver, cfg.device.driver_paths)
+    cfg, emu_cfg, driver = _emulator_setup(args, "serial", "myrio-board")
     baud = args.baudrate or cfg.device.baudrate or driver.default_baudrate
     device = start_serial_board(emu_cfg, driver, baud, link="tcp" if args.tcp else "pty")
     print(device.port, flush=True)
@@ -109,22 +100,28 @@ def _emulate_serial(args) -> int:
     return _serve_until_stopped(device)
 
 
-def _emulate_modbus(args) -> int:
+def _emulator_setup(args, transport: str, default_driver: str):
+    """Configuration, ``[emulator]`` table (with ``--time-scale``) and driver of a standalone emulator."""
     from dataclasses import replace
 
     from hilident.config import load_config, parse_config
     from hilident.drivers import find_driver
-    from hilident.emulator.modbus_drive import start
+    from hilident.errors import ConfigError
 
     minimal = "[limits]\ntorque_nm = 1.0\nvelocity_mps = 1.0\nposition_min_m = -1.0\nposition_max_m = 1.0\n"
     cfg = load_config(args.config) if args.config else parse_config(minimal, "<defaults>")
     emu_cfg = replace(cfg.emulator, time_scale=args.time_scale) if args.time_scale else cfg.emulator
-    driver = find_driver(args.driver or (cfg.device.driver if args.config else "modbus-servo"), cfg.device.driver_paths)
-    if driver.transport != "modbus":
-        from hilident.errors import ConfigError
+    driver = find_driver(args.driver or (cfg.device.driver if args.config else default_driver), cfg.device.driver_paths)
+    if driver.transport != transport:
+        raise ConfigError("device.driver", f"{driver.name!r} is a {driver.transport} driver, not a {transport} one "
+                          f"(--driver {default_driver})")
+    return cfg, emu_cfg, driver
 
-        raise ConfigError("device.driver", f"{driver.name!r} is a {driver.transport} driver, not a Modbus one "
-                          "(--driver modbus-servo)")
+
+def _emulate_modbus(args) -> int:
+    from hilident.emulator.modbus_drive import start
+
+    cfg, emu_cfg, driver = _emulator_setup(args, "modbus", "modbus-servo")
     device = start(emu_cfg, driver, cfg.device, link="pty" if args.rtu else "tcp")
     print(device.port, flush=True)
     line = f"Modbus RTU at {device.device.baudrate} baud, parity N" if args.rtu else "Modbus TCP"
@@ -134,21 +131,9 @@ def _emulate_modbus(args) -> int:
 
 
 def _emulate_canopen(args) -> int:
-    from dataclasses import replace
-
-    from hilident.config import load_config, parse_config
-    from hilident.drivers import find_driver
     from hilident.emulator.canopen_drive import start_socketcand
 
-    minimal = "[limits]\ntorque_nm = 1.0\nvelocity_mps = 1.0\nposition_min_m = -1.0\nposition_max_m = 1.0\n"
-    cfg = load_config(args.config) if args.config else parse_config(minimal, "<defaults>")
-    emu_cfg = replace(cfg.emulator, time_scale=args.time_scale) if args.time_scale else cfg.emulator
-    driver = find_driver(args.driver or (cfg.device.driver if args.config else "canopen-servo"), cfg.device.driver_paths)
-    if driver.transport != "canopen":
-        from hilident.errors import ConfigError
-
-        raise ConfigError("device.driver", f"{driver.name!r} is a {driver.transport} driver, not a CANopen one "
-                          "(--driver canopen-servo)")
+    cfg, emu_cfg, driver = _emulator_setup(args, "canopen", "canopen-servo")
     device = start_socketcand(emu_cfg, driver, cfg.device, port=args.port)
     print(device.port, flush=True)
     print(f'emulated {driver.name}, node {device.device.node_id}, on socketcand: [device] can_interface = '
