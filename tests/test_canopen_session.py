@@ -117,21 +117,6 @@ def test_lost_pdos_are_counted_and_left_out(tmp_path):
     assert any(e["kind"] == "lost_blocks" for e in run.events)
 
 
-def _start_emulator(*extra):
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "hilident.cli", "emulate", "canopen", "--config", str(CONFIG), *extra],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )
-    port = proc.stdout.readline().strip()
-    assert port, proc.stderr.read()
-    return proc, port
-
-
-def _stop(proc):
-    proc.send_signal(signal.SIGTERM)
-    proc.wait(timeout=10)
-
-
 def _bench_config(tmp_path, port, **replacements) -> Path:
     text = CONFIG.read_text().replace('port = "emulator"', f'port = "{port}"')
     text = text.replace('can_interface = "socketcan"', 'can_interface = "socketcand"')
@@ -142,50 +127,44 @@ def _bench_config(tmp_path, port, **replacements) -> Path:
     return path
 
 
-def test_standalone_drive_over_socketcand_runs_a_session_like_hardware(tmp_path):
-    proc, port = _start_emulator("--time-scale", "10")
-    try:
-        assert port.startswith("127.0.0.1:") and port.endswith("/can0")
-        cfg = _bench_config(tmp_path, port, **{"[friction_test]": "[friction_test]\nenabled = false",
-                                               "duration_s = 16.0": "duration_s = 8.0"})
-        out = subprocess.run([sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o"),
-                              "-q"], capture_output=True, text=True, timeout=120)
-        assert out.returncode == 0, out.stderr
-        assert "resonances: 21." in out.stdout and "0 lost blocks" in out.stdout
-        assert (tmp_path / "o" / "summary.json").is_file()
-    finally:
-        _stop(proc)
+def test_standalone_drive_over_socketcand_runs_a_session_like_hardware(tmp_path, standalone_emulator):
+    port = standalone_emulator("canopen", CONFIG, "--time-scale", "10")
+    assert port.startswith("127.0.0.1:") and port.endswith("/can0")
+    cfg = _bench_config(tmp_path, port, **{"[friction_test]": "[friction_test]\nenabled = false",
+                                           "duration_s = 16.0": "duration_s = 8.0"})
+    out = subprocess.run([sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o"),
+                          "-q"], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "resonances: 21." in out.stdout and "0 lost blocks" in out.stdout
+    assert (tmp_path / "o" / "summary.json").is_file()
 
 
-def test_ctrl_c_mid_run_leaves_the_standalone_drive_switched_off(tmp_path):
-    proc, port = _start_emulator("--time-scale", "1")
+def test_ctrl_c_mid_run_leaves_the_standalone_drive_switched_off(tmp_path, standalone_emulator):
+    port = standalone_emulator("canopen", CONFIG, "--time-scale", "1")
+    cfg = _bench_config(tmp_path, port)
+    run = subprocess.Popen([sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o")],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        cfg = _bench_config(tmp_path, port)
-        run = subprocess.Popen([sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o")],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        try:
-            for line in run.stderr:  # progress lines: wait until the friction run is under way
-                if "friction:  25 %" in line:
-                    break
-            run.send_signal(signal.SIGINT)
-            run.wait(timeout=30)
-        finally:
-            if run.poll() is None:
-                run.kill()
-        assert run.returncode == 130
-        rec = read_run(tmp_path / "o" / "friction.h5")
-        assert rec.status == "aborted" and rec.n_samples > 0
-        # a third party on the bus reads the drive's state: power stage off
-        host, _, rest = port.partition(":")
-        tcp, _, channel = rest.partition("/")
-        network = canopen.Network()
-        network.NOTIFIER_CYCLE = 0.05
-        network.connect(interface="socketcand", host=host, port=int(tcp), channel=channel)
-        try:
-            node = network.add_node(1, str(Path(CONFIGS.parent / "drivers" / "canopen-servo" / "canopen-servo.eds")))
-            state = cia402.decode_statusword(node.sdo[0x6041].raw)
-            assert not state.torque_on
-        finally:
-            network.disconnect()
+        for line in run.stderr:  # progress lines: wait until the friction run is under way
+            if "friction:  25 %" in line:
+                break
+        run.send_signal(signal.SIGINT)
+        run.wait(timeout=30)
     finally:
-        _stop(proc)
+        if run.poll() is None:
+            run.kill()
+    assert run.returncode == 130
+    rec = read_run(tmp_path / "o" / "friction.h5")
+    assert rec.status == "aborted" and rec.n_samples > 0
+    # a third party on the bus reads the drive's state: power stage off
+    host, _, rest = port.partition(":")
+    tcp, _, channel = rest.partition("/")
+    network = canopen.Network()
+    network.NOTIFIER_CYCLE = 0.05
+    network.connect(interface="socketcand", host=host, port=int(tcp), channel=channel)
+    try:
+        node = network.add_node(1, str(Path(CONFIGS.parent / "drivers" / "canopen-servo" / "canopen-servo.eds")))
+        state = cia402.decode_statusword(node.sdo[0x6041].raw)
+        assert not state.torque_on
+    finally:
+        network.disconnect()

@@ -13,40 +13,21 @@ import pytest
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 
-def start_emulator(*extra):
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "hilident.cli", "emulate", "serial", "--config", str(CONFIGS / "emulated-gantry.toml"),
-         "--time-scale", "8", *extra],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )
-    port = proc.stdout.readline().strip()
-    assert port, proc.stderr.read()
-    return proc, port
-
-
-def stop(proc):
-    proc.send_signal(signal.SIGTERM)
-    proc.wait(timeout=10)
-
-
 @pytest.mark.parametrize("extra", [(), ("--tcp",)], ids=["pty", "socket-url"])
-def test_standalone_emulator_runs_a_session_like_hardware(tmp_path, extra):
-    proc, port = start_emulator(*extra)
-    try:
-        assert port.startswith("/dev/") or port.startswith("socket://127.0.0.1:")
-        text = (CONFIGS / "emulated-gantry.toml").read_text().replace('port = "emulator"', f'port = "{port}"')
-        text = text.replace("[friction_test]", "[friction_test]\nenabled = false")
-        cfg = tmp_path / "bench.toml"
-        cfg.write_text(text)
-        out = subprocess.run(
-            [sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o"), "-q"],
-            capture_output=True, text=True, timeout=240,
-        )
-        assert out.returncode == 0, out.stderr
-        assert "resonances: 21." in out.stdout
-        assert (tmp_path / "o" / "summary.json").is_file()
-    finally:
-        stop(proc)
+def test_standalone_emulator_runs_a_session_like_hardware(tmp_path, extra, standalone_emulator):
+    port = standalone_emulator("serial", CONFIGS / "emulated-gantry.toml", "--time-scale", "8", *extra)
+    assert port.startswith("/dev/") or port.startswith("socket://127.0.0.1:")
+    text = (CONFIGS / "emulated-gantry.toml").read_text().replace('port = "emulator"', f'port = "{port}"')
+    text = text.replace("[friction_test]", "[friction_test]\nenabled = false")
+    cfg = tmp_path / "bench.toml"
+    cfg.write_text(text)
+    out = subprocess.run(
+        [sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o"), "-q"],
+        capture_output=True, text=True, timeout=240,
+    )
+    assert out.returncode == 0, out.stderr
+    assert "resonances: 21." in out.stdout
+    assert (tmp_path / "o" / "summary.json").is_file()
 
 
 def test_ctrl_c_mid_run_stops_and_keeps_the_recording(tmp_path):

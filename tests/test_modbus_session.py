@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import signal
 import subprocess
 import sys
 from dataclasses import replace
@@ -139,48 +138,27 @@ def test_a_limit_trip_is_a_clean_stop(tmp_path):
 # --- standalone --------------------------------------------------------------------------
 
 
-def start_emulator(*extra):
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "hilident.cli", "emulate", "modbus", "--config", str(CONFIG), "--time-scale", "8", *extra],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+def test_standalone_modbus_tcp_emulator_runs_a_session_like_hardware(tmp_path, standalone_emulator):
+    port = standalone_emulator("modbus", CONFIG, "--time-scale", "8")
+    assert port.startswith("tcp://127.0.0.1:")
+    text = CONFIG.read_text().replace('port = "emulator"', f'port = "{port}"')
+    text = text.replace("[friction_test]", "[friction_test]\nenabled = false")
+    cfg = tmp_path / "bench.toml"
+    cfg.write_text(text)
+    out = subprocess.run(
+        [sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o"), "-q"],
+        capture_output=True, text=True, timeout=120,
     )
-    port = proc.stdout.readline().strip()
-    assert port, proc.stderr.read()
-    return proc, port
+    assert out.returncode == 0, out.stderr
+    assert "resonances: 21." in out.stdout and "0 lost blocks" in out.stdout
 
 
-def stop(proc):
-    proc.send_signal(signal.SIGTERM)
-    assert proc.wait(timeout=10) == 0
-
-
-def test_standalone_modbus_tcp_emulator_runs_a_session_like_hardware(tmp_path):
-    proc, port = start_emulator()
+def test_standalone_modbus_rtu_emulator_on_a_pty(standalone_emulator):
+    port = standalone_emulator("modbus", CONFIG, "--time-scale", "8", "--rtu")
+    assert port.startswith("/dev/")
+    driver = find_driver("modbus-servo")
+    adapter = ModbusDriveAdapter.open_device(DeviceConfig(port=port, parity="N", timeout_s=1.0), driver)
     try:
-        assert port.startswith("tcp://127.0.0.1:")
-        text = CONFIG.read_text().replace('port = "emulator"', f'port = "{port}"')
-        text = text.replace("[friction_test]", "[friction_test]\nenabled = false")
-        cfg = tmp_path / "bench.toml"
-        cfg.write_text(text)
-        out = subprocess.run(
-            [sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o"), "-q"],
-            capture_output=True, text=True, timeout=120,
-        )
-        assert out.returncode == 0, out.stderr
-        assert "resonances: 21." in out.stdout and "0 lost blocks" in out.stdout
+        assert adapter.identity.name == "modbus-servo" and adapter.rtu
     finally:
-        stop(proc)
-
-
-def test_standalone_modbus_rtu_emulator_on_a_pty():
-    proc, port = start_emulator("--rtu")
-    try:
-        assert port.startswith("/dev/")
-        driver = find_driver("modbus-servo")
-        adapter = ModbusDriveAdapter.open_device(DeviceConfig(port=port, parity="N", timeout_s=1.0), driver)
-        try:
-            assert adapter.identity.name == "modbus-servo" and adapter.rtu
-        finally:
-            adapter.close()
-    finally:
-        stop(proc)
+        adapter.close()
