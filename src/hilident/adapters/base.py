@@ -125,6 +125,26 @@ class DeviceAdapter(Protocol):
         """Zero torque, drive disabled, connection released. Never raises."""
 
 
+class AdapterBase:
+    """What every adapter class shares: ``with`` support and identify-or-close on opening."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    @staticmethod
+    def _identified(adapter):
+        """``adapter`` after a successful ``identify()``; closed again when that fails."""
+        try:
+            adapter.identify()
+        except BaseException:
+            adapter.close()
+            raise
+        return adapter
+
+
 def adapter_class(transport: str):
     """The adapter class registered for ``transport`` under ``hilident.adapters``."""
     for ep in entry_points(group="hilident.adapters"):

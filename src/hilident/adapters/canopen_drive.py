@@ -27,6 +27,7 @@ is not used: the state machine and the PDO set-up live here and in
 from __future__ import annotations
 
 import collections
+import contextlib
 import math
 import time
 from struct import error as struct_error
@@ -39,7 +40,7 @@ import canopen
 import numpy as np
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
-from hilident.adapters.base import RunResult
+from hilident.adapters.base import AdapterBase, RunResult
 from hilident.adapters.canopen_link import open_network
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription
@@ -98,7 +99,7 @@ class Emergency:
     received_s: float
 
 
-class CanopenDriveAdapter:
+class CanopenDriveAdapter(AdapterBase):
     """A CiA 402 drive on a CAN bus.
 
     Open it with :meth:`open_device`. Attributes follow
@@ -190,25 +191,13 @@ class CanopenDriveAdapter:
         """Zero torque, drive in a safe state, heartbeat off, bus released. Never raises."""
         try:
             self.safe_stop()
-            try:
+            with contextlib.suppress(Exception):
                 self.nmt("PRE-OPERATIONAL")  # no PDOs from here on
-            except Exception:
-                pass
         finally:
-            try:
+            with contextlib.suppress(Exception):
                 self.network.stop_trace()
-            except Exception:
-                pass
-            try:
+            with contextlib.suppress(Exception):
                 self.network.disconnect()
-            except Exception:
-                pass
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
 
     # --- object access ----------------------------------------------------------------------
 

@@ -31,7 +31,7 @@ import serial
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException
 
-from hilident.adapters.base import RunResult, StreamStats
+from hilident.adapters.base import AdapterBase, RunResult, StreamStats
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription
 from hilident.errors import ConfigError, DataError, DeviceError, LimitTrip
@@ -84,7 +84,7 @@ class DriveStatus:
     fault_value: float
 
 
-class ModbusDriveAdapter:
+class ModbusDriveAdapter(AdapterBase):
     """A servo drive with a Modbus register map, experiments played from its own table.
 
     Parameters
@@ -152,13 +152,7 @@ class ModbusDriveAdapter:
             if not client.connect():
                 raise DeviceError(f"{port}: cannot open at {baudrate} baud, parity {device.parity}, "
                                   f"{device.stopbits} stop bit(s): {_serial_error(port, baudrate, device)}")
-        adapter = cls(client, driver, regmap, port, device.device_id, device.timeout_s)
-        try:
-            adapter.identify()
-        except BaseException:
-            adapter.close()
-            raise
-        return adapter
+        return cls._identified(cls(client, driver, regmap, port, device.device_id, device.timeout_s))
 
     def close(self) -> None:
         """Stop the axis (zero torque, drive disabled) and release the connection. Never raises."""
@@ -169,12 +163,6 @@ class ModbusDriveAdapter:
                 self.client.close()
             except Exception:
                 pass
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
 
     # --- requests -------------------------------------------------------------------------
 

@@ -15,7 +15,7 @@ from typing import Callable
 import numpy as np
 import serial
 
-from hilident.adapters.base import RunResult, StreamStats
+from hilident.adapters.base import AdapterBase, RunResult, StreamStats
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription
 from hilident.errors import DeviceError, LimitTrip, ProtocolError
@@ -40,7 +40,7 @@ _READ_TIMEOUT_S = 0.02
 _END_GRACE_S = 0.3  # after the board announced the end of a run, wait this long for its last block
 
 
-class SerialBoardAdapter:
+class SerialBoardAdapter(AdapterBase):
     """A board speaking the hilident serial protocol.
 
     Parameters
@@ -95,16 +95,6 @@ class SerialBoardAdapter:
             raise DeviceError(f"{port}: cannot open: {exc}") from None
         return cls._identified(cls(link, driver, port, timeout_s))
 
-    @staticmethod
-    def _identified(adapter: "SerialBoardAdapter") -> "SerialBoardAdapter":
-        """``adapter`` after a successful IDENTIFY; closed again when that fails."""
-        try:
-            adapter.identify()
-        except BaseException:
-            adapter.close()
-            raise
-        return adapter
-
     def close(self) -> None:
         """Stop the axis and close the line."""
         try:
@@ -114,12 +104,6 @@ class SerialBoardAdapter:
                 self.link.close()
             except Exception:
                 pass
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
 
     # --- low-level exchange ---------------------------------------------------------------
 
