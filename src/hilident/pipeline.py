@@ -522,7 +522,7 @@ def fit_greybox(cfg: ModelConfig, torque, position, sample_rate_hz: float,
         records["holdout"] = (torque[cut:], position[cut:])
         torque, position = torque[:cut], position[:cut]
     est = _greybox_regression(cfg, torque, position, sample_rate_hz)
-    fit = greybox.fit_linear(est.regressors, est.target, tuple(est.regressors), n_effective=est.n_effective)
+    fit = greybox.fit_regression(est)
     warnings = list(fit.warnings)
     estimation = greybox.validate_fit(fit, est)
     checked = {}

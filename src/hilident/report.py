@@ -214,6 +214,15 @@ def _unwrapped_phase_deg(h: np.ndarray) -> np.ndarray:
     return phase - 360.0 * np.ceil((phase[0] - 45.0) / 360.0)
 
 
+def _positive_curve(frequency_hz, response, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """A checked ``(frequency_hz, complex response)`` pair without its non-positive frequencies (log axis)."""
+    f = _vector(frequency_hz, f"{name} frequency_hz")
+    h = _vector(response, f"{name} response", dtype=complex)
+    _same_length(f, f"{name} frequency_hz", h, f"{name} response")
+    keep = f > 0
+    return f[keep], h[keep]
+
+
 def _phase_near(f: np.ndarray, phase_deg: np.ndarray, reference: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
     """``phase_deg`` moved bin by bin by whole turns to within 180 deg of a reference curve.
 
@@ -306,13 +315,7 @@ def plot_bode(
             raise DataError(f"responses[{label!r}].frequency_hz: no positive frequency to plot")
         curves.append((str(label), f[keep], h[keep], None if coh is None else coh[keep]))
 
-    notch = None
-    if notch_response is not None:
-        nf = _vector(notch_response[0], "notch_response frequency_hz")
-        nh = _vector(notch_response[1], "notch_response response", dtype=complex)
-        _same_length(nf, "notch_response frequency_hz", nh, "notch_response response")
-        keep = nf > 0
-        notch = (nf[keep], nh[keep])
+    notch = None if notch_response is None else _positive_curve(*notch_response, "notch_response")
 
     fig = Figure(figsize=(8.0, 9.0), dpi=110, layout="constrained")
     ax_mag, ax_phase, ax_coh = fig.subplots(3, 1, sharex=True)
@@ -345,13 +348,10 @@ def plot_bode(
             magnitudes_db.append(mag_db)
             ax_mag.semilogx(notch[0], mag_db, "k--", lw=1.2, label="notch chain")
         if model is not None:
-            m_label, mf, mh = model
-            mf = _vector(mf, "model frequency_hz")
-            mh = _vector(mh, "model response", dtype=complex)
-            _same_length(mf, "model frequency_hz", mh, "model response")
-            k = mf > 0
-            ax_mag.semilogx(mf[k], 20 * np.log10(np.abs(mh[k])), color="k", lw=0.8, label=m_label)
-            ax_phase.semilogx(mf[k], _unwrapped_phase_deg(mh[k]), color="k", lw=0.8, label=m_label)
+            m_label = model[0]
+            mf, mh = _positive_curve(model[1], model[2], "model")
+            ax_mag.semilogx(mf, 20 * np.log10(np.abs(mh)), color="k", lw=0.8, label=m_label)
+            ax_phase.semilogx(mf, _unwrapped_phase_deg(mh), color="k", lw=0.8, label=m_label)
     ax_mag.set_ylim(*_magnitude_limits_db(np.concatenate(magnitudes_db)))
 
     if coherence_threshold is not None:

@@ -479,9 +479,14 @@ def _second_order_regression(
     return Regression(reg, Uf[rows], n_eff)
 
 
+def fit_regression(regression: Regression) -> LinearFit:
+    """:func:`fit_linear` on a prepared :class:`Regression` (every column a parameter)."""
+    return fit_linear(regression.regressors, regression.target, tuple(regression.regressors),
+                      n_effective=regression.n_effective)
+
+
 def _second_order_fit(*args) -> LinearFit:
-    reg = _second_order_regression(*args)
-    return fit_linear(reg.regressors, reg.target, tuple(reg.regressors), n_effective=reg.n_effective)
+    return fit_regression(_second_order_regression(*args))
 
 
 def mass_spring_damper_regression(
@@ -568,10 +573,9 @@ def fit_mass_spring_damper(
         Parameters ``m`` (kg), ``b`` (N·s/m), ``k`` (N/m); target is the
         (filtered) force.
     """
-    return _second_order_fit(
-        "force", "position", force, position, sample_rate_hz, cutoff_hz, method,
-        order, kind, decimate, input_hold, ("m", "b", "k"),
-    )
+    return fit_regression(mass_spring_damper_regression(
+        force, position, sample_rate_hz, cutoff_hz, method, order, kind, decimate, input_hold,
+    ))
 
 
 def fit_dc_motor_speed(
@@ -671,9 +675,8 @@ def fit_rigid_axis(
         A parameter is not identifiable, e.g. ``Fc`` and ``offset`` when the
         axis only moved one way, or ``Fc-`` when it never moved backwards.
     """
-    reg = rigid_axis_regression(position, force, sample_rate_hz, cutoff_hz, asymmetric, decimate, min_speed, order,
-                                kind, input_hold)
-    return fit_linear(reg.regressors, reg.target, tuple(reg.regressors), n_effective=reg.n_effective)
+    return fit_regression(rigid_axis_regression(position, force, sample_rate_hz, cutoff_hz, asymmetric, decimate,
+                                                min_speed, order, kind, input_hold))
 
 
 def rigid_axis_regression(
