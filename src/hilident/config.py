@@ -46,7 +46,13 @@ class DeviceConfig:
     acquisition: str = _spec("auto", choices=("auto", "streamed", "buffered"),
                              doc="streamed: the host sends set-points each cycle; buffered: the drive plays a "
                                  "stored table and captures into its buffer; auto: the driver's choice")
-    allow_fault_reset: bool = _spec(False, doc="CANopen: reset a drive found in Fault before enabling it")
+    allow_fault_reset: bool = _spec(False, doc="clear a fault the device has latched (a limit trip, a watchdog, a drive "
+                                    "fault) when connecting; without it such a device is refused "
+                                    "(hilident run --clear-fault sets it for one run)")
+    host_timeout_s: float = _spec(0.5, gt=0, le=60, doc="how long the device may go without hearing from the host "
+                                  "before it stops the axis on its own: CANopen heartbeat consumer (0x1016), Modbus "
+                                  "the driver's communication-timeout parameter; the serial board's watchdog is "
+                                  "fixed by the board (PROTOCOL.md section 8)")
     trace: str = _spec("", choices=("", "asc", "blf"), doc='CANopen: write a CAN trace of each run next to its recording: "", "asc" or "blf"')
 
 

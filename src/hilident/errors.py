@@ -56,3 +56,28 @@ class LimitTrip(DeviceError):
     """A configured safety limit (torque, velocity, position) was crossed and the axis stopped."""
 
     exit_code = 5
+
+
+class Interrupted(KeyboardInterrupt):
+    """The session was ended by a signal (Ctrl-C, SIGTERM, SIGHUP).
+
+    A :class:`KeyboardInterrupt`, so no ``except Exception`` swallows it and every
+    path that stops the axis on Ctrl-C does the same for the other signals.
+
+    Parameters
+    ----------
+    signum : int
+        The signal that ended the session; the exit code is ``128 + signum``
+        (SIGINT 130, SIGHUP 129, SIGTERM 143), as a shell reports it.
+    """
+
+    def __init__(self, signum: int):
+        import signal as _signal
+
+        self.signum = int(signum)
+        self.exit_code = 128 + self.signum
+        try:
+            name = _signal.Signals(self.signum).name
+        except ValueError:
+            name = f"signal {self.signum}"
+        super().__init__(f"interrupted by {name}")

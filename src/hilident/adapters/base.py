@@ -33,9 +33,12 @@ class StreamStats:
     corrupt_frames : int
         Frames rejected by COBS decoding or CRC.
     out_of_order : int
-        Sample blocks that arrived after a later one (discarded).
+        Sample blocks that arrived after a later one (discarded; counted here
+        and not as lost).
     underruns : int
-        Samples the board played as zero because its excitation buffer was empty.
+        Samples the device played without a fresh set-point because its
+        excitation buffer was empty (it holds the last set-point, PROTOCOL.md
+        section 6).
     board_dropped_blocks : int
         Sample blocks the board could not send (its transmit buffer was full).
     clipped_blocks : int
@@ -55,6 +58,45 @@ class StreamStats:
     def add(self, other: "StreamStats") -> "StreamStats":
         """Field-wise sum (for the totals of a session)."""
         return StreamStats(**{k: getattr(self, k) + getattr(other, k) for k in self.__dataclass_fields__})
+
+
+@dataclass
+class ConnectReport:
+    """What an adapter found when it connected, and what it did about it.
+
+    Attributes
+    ----------
+    discarded_frames : int
+        Frames (or answers) that arrived before the host had configured
+        anything, left over from an earlier session; dropped, never used.
+    faults : list of str
+        Faults the device had latched, as it described them.
+    faults_cleared : bool
+        Whether those faults were cleared (only with ``allow_fault_reset``).
+    device_net : str
+        The device-side stop the host armed for when it dies (e.g.
+        ``"heartbeat consumer 0x1016: 500 ms, 0x6007 = 2 (disable voltage)"``,
+        ``"board watchdog 1 s"``), or ``""``.
+    """
+
+    discarded_frames: int = 0
+    faults: list[str] = field(default_factory=list)
+    faults_cleared: bool = False
+    device_net: str = ""
+
+    def to_dict(self) -> dict:
+        return {"discarded_frames": self.discarded_frames, "faults": list(self.faults),
+                "faults_cleared": self.faults_cleared, "device_net": self.device_net}
+
+
+def refuse_latched_faults(port: str, faults: list[str]):
+    """The :class:`DeviceError` for a device found with latched ``faults`` and no permission to clear them."""
+    from hilident.errors import DeviceError
+
+    return DeviceError(
+        f"{port}: the device has a latched fault: {'; '.join(faults)}. Check the axis, then clear it with "
+        "[device] allow_fault_reset = true or hilident run --clear-fault"
+    )
 
 
 @dataclass
@@ -84,17 +126,41 @@ class DeviceAdapter(Protocol):
         Units of the channels :meth:`configure` returned, in order.
     last_result : RunResult or None
         Outcome of the last :meth:`stream`, also when it raised.
+    events : list of dict
+        Events of the current (or last) :meth:`stream`, each ``{kind, message,
+        sample_index, ...}``. Emptied when a stream starts and appended **as
+        soon as an event is known**, so the session writes them to the
+        recording while the run goes on; ``RunResult.events`` is a copy at the
+        end.
+    connect_report : ConnectReport
+        What :meth:`open_device` found and did to bring the device to a known
+        state.
     """
 
     port: str
     identity: Any
+    events: list[dict]
+    connect_report: "ConnectReport"
     sample_rate_hz: float
     channel_units: list[str]
     last_result: RunResult | None
 
     @classmethod
     def open_device(cls, device, driver, link=None) -> "DeviceAdapter":
-        """Connect as the ``[device]`` config says and check the device matches ``driver``."""
+        """Connect as the ``[device]`` config says, check the device matches ``driver``
+        and bring it to a known state.
+
+        Whatever the previous session left behind (it may have been killed):
+        frames that arrive before the host has configured anything are
+        discarded and counted, the axis is commanded stopped, latched faults
+        are read and reported in :attr:`connect_report`; they are cleared only
+        when ``device.allow_fault_reset`` is true, else :class:`DeviceError`
+        names the port and the fault and says how to clear it
+        (``[device] allow_fault_reset = true`` or ``hilident run --clear-fault``).
+        The device-side net is armed (``device.host_timeout_s``: a CANopen
+        heartbeat consumer, a Modbus communication timeout) where the driver
+        declares it.
+        """
 
     def set_limits(self, torque_nm: float, velocity_mps: float, position_min_m: float, position_max_m: float) -> None:
         """Load the limits the device itself enforces (crossing one stops the axis)."""
@@ -104,7 +170,13 @@ class DeviceAdapter(Protocol):
 
     def stream(self, excitation: np.ndarray, sink: Callable[[np.ndarray, np.ndarray], None],
                progress: Callable[[float], None] | None = None) -> RunResult:
-        """Play ``excitation`` and pass ``(sample_index, rows)`` blocks to ``sink``; lost ones are counted."""
+        """Play ``excitation`` and pass ``(sample_index, rows)`` blocks to ``sink``; lost ones are counted.
+
+        The first cause wins: once the device reported a limit trip,
+        :class:`LimitTrip` is raised whatever fails after it. Anything raised
+        by ``sink`` (a full disk) or by a signal propagates after the device
+        was commanded safe.
+        """
 
     def write_filter(self, slot: int, biquad, spec=None, *, enabled: bool) -> None:
         """Store a notch in a filter slot, in the device's own encoding (coefficients or parameters)."""
@@ -120,6 +192,18 @@ class DeviceAdapter(Protocol):
 
     def restore_filter(self, slot: int, saved: Any) -> None:
         """Put back what :meth:`save_filter` returned."""
+
+    def disable_filter(self, slot: int) -> None:
+        """Bypass a filter slot (its contents stay stored; :meth:`restore_filter` brings it back)."""
+
+    def safe_stop(self) -> None:
+        """Command the axis safe now: serial STOP (zero torque); CiA 402 out of
+        Operation Enabled to Switch On Disabled; Modbus stop and disable.
+
+        Never raises, returns quickly (it runs first on every ending, a signal
+        included) and keeps the connection open so filter slots can still be
+        restored afterwards.
+        """
 
     def close(self) -> None:
         """Zero torque, drive disabled, connection released. Never raises."""
