@@ -314,3 +314,100 @@ def test_unknown_channel_lists_available(tmp_path):
                   units={"a": "m", "b": "m"}, sample_rate_hz=10.0)
     with pytest.raises(DataError, match=r"'torque'.*available channels: a, b"):
         run.channel("torque")
+
+
+# ---------------------------------------------------------------------- full disk, crashed writers
+
+
+def _fill_until_refused(path, rows_per_block=2000):
+    rec = RunWriter(path, CHANNELS, UNITS, RATE_HZ, overwrite=True)
+    rng = np.random.default_rng(3)
+    with pytest.raises(DataError, match="disk full|cannot write"):
+        for _ in range(100_000):
+            rec.append(rng.normal(size=(rows_per_block, len(CHANNELS))) + 5.0)  # never 0.0
+    rec.close("aborted", "the disk filled")
+    return read_run(path)
+
+
+def test_disk_full_is_refused_before_writing_and_leaves_no_zero_rows(tmp_path, monkeypatch):
+    """A nearly full disk (reported by statvfs) stops the writer before HDF5 half-writes anything."""
+    real = os.statvfs
+    budget = {"left": 40}
+
+    class Tight:
+        def __init__(self, st, free_blocks):
+            self.f_frsize, self.f_bavail = st.f_frsize, free_blocks
+
+    def statvfs(path):
+        budget["left"] -= 1
+        st = real(path)
+        return Tight(st, st.f_bavail if budget["left"] > 0 else 0)
+
+    monkeypatch.setattr(os, "statvfs", statvfs)
+    run = _fill_until_refused(tmp_path / "run.h5")
+    assert run.status == "aborted"
+    assert 0 < run.n_samples < 40 * 2000
+    assert not np.any(run.samples["torque"] == 0.0)
+    assert oct(os.stat(tmp_path / "run.h5").st_mode & 0o777) == oct(0o666 & ~_umask())
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+@pytest.fixture
+def small_filesystem(tmp_path):
+    """A 4 MiB tmpfs, where the kernel allows mounting one (root in a container); skipped elsewhere."""
+    mount = tmp_path / "small"
+    mount.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=4m", "tmpfs", str(mount)],
+                      capture_output=True).returncode != 0:
+        pytest.skip("cannot mount a small tmpfs here")
+    yield mount
+    subprocess.run(["umount", str(mount)], capture_output=True)
+
+
+@pytest.mark.parametrize("margin", [True, False], ids=["refused-early", "write-failed"])
+def test_a_really_full_disk_keeps_the_good_rows_and_never_crashes(small_filesystem, margin):
+    """Also when HDF5's own write fails (no margin check): good rows kept, no zeros, and no crash at exit."""
+    script = textwrap.dedent(f"""
+        import numpy as np
+        from hilident.errors import DataError
+        from hilident.recording import RunWriter, read_run
+        if not {margin}:
+            RunWriter._check_space = lambda self, nbytes: None
+        rec = RunWriter({str(small_filesystem / "run.h5")!r}, ["a", "b", "c"], ["1", "1", "1"], 1000.0)
+        try:
+            while True:
+                rec.append(np.random.default_rng(1).normal(size=(777, 3)) + 5.0)
+        except DataError as exc:
+            print("refused:", exc)
+        rec.close("aborted", "disk full")
+        run = read_run(rec.path)
+        print(run.status, run.n_samples, int(np.sum(run.samples["a"] == 0.0)))
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    status, rows, zeros = done.stdout.strip().splitlines()[-1].split()
+    assert status == "aborted" and int(rows) > 0 and int(zeros) == 0
+
+
+def test_a_crashed_writer_leaves_the_flushed_rows_and_says_running(tmp_path):
+    """SIGKILL mid-run: the reader sees status 'running' and exactly the rows of the last flush."""
+    path = tmp_path / "run.h5"
+    script = textwrap.dedent(f"""
+        import os, signal, numpy as np
+        from hilident.recording import RunWriter
+        rec = RunWriter({str(path)!r}, ["a"], ["1"], 1000.0)
+        for i in range(5):
+            rec.append(np.full((1000, 1), 1.0 + i))
+        os.kill(os.getpid(), signal.SIGKILL)
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert done.returncode == -9
+    run = read_run(path)
+    assert run.status == "running"
+    assert run.attrs["flushed_samples"] == 5000 == run.n_samples
+    np.testing.assert_array_equal(np.unique(run.samples["a"]), [1.0, 2.0, 3.0, 4.0, 5.0])

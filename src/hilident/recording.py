@@ -43,7 +43,7 @@ import numpy as np
 from hilident.errors import DataError
 from hilident.report import to_jsonable
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "RunData", "RunWriter", "read_run"]
+__all__ = ["FORMAT", "FORMAT_VERSION", "DiskFull", "RunData", "RunWriter", "read_run"]
 
 FORMAT = "hilident-run"
 FORMAT_VERSION = 1
@@ -51,7 +51,7 @@ FORMAT_VERSION = 1
 #: Root attributes owned by the writer; callers cannot set these through ``attrs``.
 RESERVED_ATTRS = frozenset(
     {"format", "format_version", "created_utc", "closed_utc", "sample_rate_hz",
-     "channel_names", "channel_units", "status", "reason", "n_samples"}
+     "channel_names", "channel_units", "status", "reason", "n_samples", "flushed_samples"}
 )
 _JSON_SUFFIX = "_json"
 _STATUSES = ("running", "complete", "aborted")
@@ -71,6 +71,20 @@ def _to_json_text(value: Any, what: str) -> str:
         return json.dumps(to_jsonable(value), allow_nan=False, ensure_ascii=False)
     except TypeError as exc:
         raise DataError(f"{what}: cannot be stored as JSON: {exc}") from None
+
+
+class DiskFull(DataError):
+    """The recording could not be written (the disk is full, or another write error); the file keeps its good rows."""
+
+
+def _chmod_like_umask(path: Path) -> None:
+    """Give ``path`` the permissions a plain ``open()`` would (0644 under the usual umask 022)."""
+    try:
+        mask = os.umask(0)
+        os.umask(mask)
+        os.chmod(path, 0o666 & ~mask)
+    except OSError:
+        pass
 
 
 class RunWriter:
@@ -158,6 +172,8 @@ class RunWriter:
             self._check_attr_keys(attrs)
 
         self._channels = channels
+        self._failure: str | None = None
+        self._margin_bytes = 2 * int(chunk_rows) * len(channels) * 8 + (1 << 20)
         self._rate = rate
         self._n_channels = len(channels)
         chunk_bytes = int(chunk_rows) * self._n_channels * 8
@@ -179,6 +195,7 @@ class RunWriter:
             f.attrs.create("channel_units", np.array(units, dtype=object), dtype=_STR)
             f.attrs["status"] = "running"
             f.attrs["reason"] = ""
+            f.attrs["flushed_samples"] = np.int64(0)
             self._samples = f.create_dataset(
                 "samples",
                 shape=(0, self._n_channels),
@@ -219,7 +236,57 @@ class RunWriter:
     def _open_file(self) -> h5py.File:
         if self._file is None:
             raise DataError(f"{self._path}: run file is closed")
+        if self._failure is not None:
+            raise DataError(f"{self._path}: run file can no longer be written ({self._failure})")
         return self._file
+
+    def _check_space(self, nbytes: int) -> None:
+        """Refuse a write the disk cannot take, before HDF5 half-writes it.
+
+        HDF5 allocates whole chunks and metadata on flush; a flush that hits a
+        full disk leaves the file's in-memory state unusable (and h5py may then
+        crash the interpreter on exit), so the writer keeps a margin free.
+        """
+        try:
+            st = os.statvfs(self._path.parent)
+        except (OSError, AttributeError):  # no statvfs (Windows): rely on the write error
+            return
+        free = st.f_bavail * st.f_frsize
+        if free < nbytes + self._margin_bytes:
+            self._failure = (f"disk full: {free / 1e6:.1f} MB free on {self._path.parent}, "
+                             f"{(nbytes + self._margin_bytes) / 1e6:.1f} MB needed")
+            raise DiskFull(f"{self._path}: {self._failure}; the file holds the first "
+                           f"{self._n_samples} samples")
+
+    def _write_failed(self, exc: BaseException) -> None:
+        """A write to the file failed (full disk, I/O error): keep what is good, raise :class:`DataError`."""
+        self._failure = str(exc).split("\n")[0]
+        self._discard_unwritten()
+        raise DiskFull(f"{self._path}: cannot write the recording ({self._failure}); the file holds the first "
+                       f"{self._n_samples} samples") from None
+
+    def _discard_unwritten(self) -> None:
+        """Shrink /samples back to the rows known good, so no unwritten row is ever read as zeros.
+
+        Only chunks wholly below the last good flush are known to be on disk
+        (appends touch the chunk holding the last row, and a failed flush may
+        have lost it), so the file is cut to them; if even that cannot be
+        flushed, to nothing. The first that flushes leaves a file that closes
+        cleanly.
+        """
+        f = self._file
+        chunk = self._samples.chunks[0]
+        boundary = self._n_samples // chunk * chunk
+        # HDF5 may rewrite the chunk at the new edge from its damaged cache: keep that one out of the good rows too
+        for rows, good in ((boundary, max(0, boundary - chunk)), (0, 0)):
+            try:
+                self._samples.resize(rows, axis=0)
+                f.attrs["flushed_samples"] = np.int64(good)
+                f.flush()
+                self._n_samples = good
+                return
+            except (OSError, RuntimeError):
+                continue
 
     # ------------------------------------------------------------------ writing
 
@@ -251,11 +318,16 @@ class RunWriter:
         n = arr.shape[0]
         if n == 0:
             return
+        self._check_space(arr.shape[0] * self._n_channels * 8)
         start = self._n_samples
-        self._samples.resize(start + n, axis=0)
-        self._samples[start:start + n] = arr.astype("<f8", copy=False)
+        try:
+            self._samples.resize(start + n, axis=0)
+            self._samples[start:start + n] = arr.astype("<f8", copy=False)
+            f.attrs["flushed_samples"] = np.int64(start + n)
+            f.flush()
+        except (OSError, RuntimeError) as exc:
+            self._write_failed(exc)
         self._n_samples = start + n
-        f.flush()
 
     def event(self, kind: str, message: str, sample_index: int = -1, **fields: Any) -> None:
         """Append an event to ``/events`` and flush.
@@ -288,10 +360,14 @@ class RunWriter:
         index = self._n_samples if sample_index == -1 else int(sample_index)
         data = _to_json_text(fields, f"{self._path}: event {kind!r} fields")
         row = np.array([(index, index / self._rate, kind, str(message), data)], dtype=_EVENT_DTYPE)
+        self._check_space(4096)
         n = self._events.shape[0]
-        self._events.resize(n + 1, axis=0)
-        self._events[n:n + 1] = row
-        f.flush()
+        try:
+            self._events.resize(n + 1, axis=0)
+            self._events[n:n + 1] = row
+            f.flush()
+        except (OSError, RuntimeError) as exc:
+            self._write_failed(exc)
 
     def write_table(self, name: str, **columns: Any) -> None:
         """Write a small table as ``/tables/<name>``, one 1-D dataset per column.
@@ -407,14 +483,25 @@ class RunWriter:
         f = self._file
         if f is None:
             return
-        self._file = None
+        if self._failure is not None:
+            status, reason = "aborted", reason or self._failure
         try:
             f.attrs["status"] = status
             f.attrs["reason"] = str(reason)
             f.attrs["n_samples"] = np.int64(self._n_samples)
             f.attrs["closed_utc"] = _utc_now()
+            f.flush()
+        except (OSError, RuntimeError) as exc:
+            if self._failure is None:
+                self._failure = str(exc).split("\n")[0]
+            self._discard_unwritten()
         finally:
-            f.close()
+            self._file = None
+            try:
+                f.close()
+            except (OSError, RuntimeError):
+                pass
+            _chmod_like_umask(self._path)
 
     def __enter__(self) -> RunWriter:
         return self
@@ -539,6 +626,24 @@ def _read_column(ds: h5py.Dataset) -> np.ndarray:
     return ds[()]
 
 
+#: Largest /samples a reader loads (values); beyond it the file is refused rather than exhausting memory.
+MAX_READ_VALUES = 1 << 28
+
+
+def _check_declared_size(dataset: h5py.Dataset, rows: int, path: Path) -> None:
+    """Refuse a /samples whose declared size the file cannot hold or memory cannot take."""
+    values = rows * max(1, dataset.shape[1])
+    if values > MAX_READ_VALUES:
+        raise DataError(f"{path}: /samples declares {rows} rows x {dataset.shape[1]} channels, more than this "
+                        f"reader loads ({MAX_READ_VALUES} values); split the recording")
+    if dataset.compression is None:
+        stored = dataset.id.get_storage_size()
+        slack = dataset.chunks[0] * dataset.shape[1] * 8 if dataset.chunks else 0
+        if values * 8 > stored + slack:
+            raise DataError(f"{path}: damaged run file: /samples declares {rows} rows but the file stores "
+                            f"only {stored} bytes of them")
+
+
 def _read_open_file(f: h5py.File, path: Path) -> RunData:
     if _plain(f.attrs.get("format")) != FORMAT:
         raise DataError(f"{path}: not a hilident run file (root attribute format != {FORMAT!r})")
@@ -550,7 +655,12 @@ def _read_open_file(f: h5py.File, path: Path) -> RunData:
     units = list(attrs.get("channel_units", []))
     if "samples" not in f or len(names) != len(units) or f["samples"].shape[1:] != (len(names),):
         raise DataError(f"{path}: damaged run file: /samples does not match channel_names/channel_units")
-    data = f["samples"][()]
+    dataset = f["samples"]
+    rows = dataset.shape[0]
+    if "flushed_samples" in attrs:  # rows past the last good flush were never written
+        rows = min(rows, max(0, int(attrs["flushed_samples"])))
+    _check_declared_size(dataset, rows, path)
+    data = dataset[:rows]
     samples = {name: np.ascontiguousarray(data[:, i]) for i, name in enumerate(names)}
     del data
 
