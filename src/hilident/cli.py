@@ -19,13 +19,21 @@ from hilident.errors import HilidentError
 
 
 def _run(args) -> int:
+    from dataclasses import replace
+
     from hilident.config import load_config
     from hilident.session import Progress, Session
 
     cfg = load_config(args.config)
+    if args.clear_fault:
+        cfg = replace(cfg, device=replace(cfg.device, allow_fault_reset=True))
     out = Path(args.out) if args.out else Path("runs") / Path(args.config).stem
-    session = Session(cfg, out, Progress(enabled=not args.quiet))
+    session = Session(cfg, out, Progress(enabled=not args.quiet), confirm=_go_ahead(args.yes), dry_run=args.dry_run)
     summary = session.run()
+    if args.dry_run:
+        print(session.plan.describe())
+        print("dry run: device reached and checked; nothing moved")
+        return 0
     res = ", ".join(f"{r['frequency_hz']:.2f} Hz (zeta {r['damping_ratio']:.3f})" for r in summary["resonances"])
     print(f"resonances: {res or 'none found'}")
     if summary["friction"]:
@@ -42,6 +50,24 @@ def _run(args) -> int:
         print(f"warning: {w}")
     print(f"wrote {out / 'summary.json'}")
     return 0
+
+
+def _go_ahead(yes: bool):
+    """How a run on a real port gets its go-ahead: ``--yes``, or the user at a terminal."""
+
+    def confirm(plan) -> bool:
+        print(plan.describe(), file=sys.stderr, flush=True)
+        if yes:
+            return True
+        if not (sys.stdin.isatty() and sys.stderr.isatty()):
+            from hilident.errors import ArmingRefused
+
+            raise ArmingRefused("this run moves a real axis: confirm at a terminal, or pass --yes "
+                                "(hilident run --dry-run shows the plan without moving)")
+        answer = input("Move the axis as planned? Type 'yes' to go ahead: ")
+        return answer.strip().lower() == "yes"
+
+    return confirm
 
 
 def _print_model(m: dict | None) -> None:
@@ -102,11 +128,20 @@ def _emulate_serial(args) -> int:
 
 def _emulator_setup(args, transport: str, default_driver: str):
     """Configuration, ``[emulator]`` table (with ``--time-scale``) and driver of a standalone emulator."""
+    import math
     from dataclasses import replace
 
     from hilident.config import load_config, parse_config
     from hilident.drivers import find_driver
-    from hilident.errors import ConfigError
+    from hilident.errors import ConfigError, UsageError
+
+    if args.time_scale and not (math.isfinite(args.time_scale) and 0 < args.time_scale <= 1000):
+        raise UsageError(f"--time-scale {args.time_scale:g}: must be a number of simulated seconds per second "
+                         "in (0, 1000]")
+    if getattr(args, "port", 0) and not 0 < args.port < 65536:
+        raise UsageError(f"--port {args.port}: must be a TCP port, 1..65535 (0: any free one)")
+    if getattr(args, "baudrate", 0) and not 0 < args.baudrate <= 100_000_000:
+        raise UsageError(f"--baudrate {args.baudrate}: must be a positive line rate in baud")
 
     minimal = "[limits]\ntorque_nm = 1.0\nvelocity_mps = 1.0\nposition_min_m = -1.0\nposition_max_m = 1.0\n"
     cfg = load_config(args.config) if args.config else parse_config(minimal, "<defaults>")
@@ -161,6 +196,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("config", help="TOML configuration")
     run.add_argument("--out", help="output folder (default: runs/<config name>)")
     run.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    run.add_argument("--yes", action="store_true", help="go ahead without asking (on a real port the plan is "
+                     "still printed; without --yes a terminal is needed to confirm)")
+    run.add_argument("--dry-run", action="store_true", help="connect, identify the device, check every "
+                     "capability and rate, print the plan, and move nothing")
+    run.add_argument("--clear-fault", action="store_true", help="clear a fault the device has latched "
+                     "(a limit trip, a watchdog) when connecting, as [device] allow_fault_reset = true")
     run.set_defaults(func=_run)
 
     ide = sub.add_parser("identify", help="identify the plant in a recording (hilident HDF5, CSV or .mat)")
@@ -202,19 +243,38 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; returns the exit code (see the README: 0 success, 2 configuration or usage, 3 data,
+    4 device, 5 safety-limit trip, 128 + signal when a signal ended it: 129 SIGHUP, 130 SIGINT, 143 SIGTERM)."""
+    from hilident import endings
+    from hilident.errors import Interrupted
+
     args = build_parser().parse_args(argv)
     try:
+        if args.command == "run":
+            with endings.signals_end_the_session():
+                return args.func(args)
         return args.func(args)
     except HilidentError as exc:
-        print(f"hilident: error: {exc}", file=sys.stderr)
+        _say(f"hilident: error: {exc}")
+        return exc.exit_code
+    except Interrupted as exc:
+        _say(f"hilident: {exc}; axis stopped, recordings closed as aborted")
         return exc.exit_code
     except KeyboardInterrupt:
-        print("hilident: interrupted; axis stopped", file=sys.stderr)
+        _say("hilident: interrupted; axis stopped")
         return 130
     except BrokenPipeError:
         # the reader of our output went away (e.g. `| head`): the work is done, stay quiet
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+
+
+def _say(line: str) -> None:
+    """One line on stderr, if anyone still reads it (a closed terminal must not turn an ending into a traceback)."""
+    try:
+        print(line, file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
 
 
 if __name__ == "__main__":

@@ -36,6 +36,18 @@ class ConfigError(HilidentError):
         super().__init__(f"{where}[{key}] {message}")
 
 
+class UsageError(HilidentError):
+    """A command-line argument cannot be used (an unwritable ``--out``, a bad ``--time-scale``)."""
+
+    exit_code = 2
+
+
+class ArmingRefused(HilidentError):
+    """A run on a real port was not confirmed (no ``--yes``, no terminal, or the user said no); nothing moved."""
+
+    exit_code = 2
+
+
 class DataError(HilidentError):
     """Input arrays or recordings cannot be used (NaN, wrong length, unexciting, ...)."""
 

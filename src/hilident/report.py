@@ -158,21 +158,38 @@ def write_summary(path: str | os.PathLike, summary: Mapping[str, Any]) -> Path:
 
 
 def _atomic_write(path: Path, write) -> None:
-    """Call ``write(binary_file)`` on a temporary file next to ``path``, then rename it."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    """Call ``write(binary_file)`` on a temporary file next to ``path``, then rename it.
+
+    The file gets the permissions a plain ``open()`` would give (0644 under
+    the usual umask). A full disk or an unwritable folder is a
+    :class:`DataError` naming the file; the previous file, if any, is kept.
+    """
+    tmp = None
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
         with os.fdopen(fd, "wb") as fh:
             write(fh)
             fh.flush()
             os.fsync(fh.fileno())
+        mask = os.umask(0)
+        os.umask(mask)
+        os.chmod(tmp, 0o666 & ~mask)  # mkstemp creates 0600
         os.replace(tmp, path)
+    except OSError as exc:
+        _discard(tmp)
+        raise DataError(f"{path}: cannot write: {exc.strerror or exc}") from None
     except BaseException:
+        _discard(tmp)
+        raise
+
+
+def _discard(tmp: str | None) -> None:
+    if tmp is not None:
         try:
             os.unlink(tmp)
-        except FileNotFoundError:
+        except OSError:
             pass
-        raise
 
 
 # --------------------------------------------------------------------------- validation

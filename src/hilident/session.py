@@ -10,12 +10,20 @@ The order of a session is fixed and every step leaves something on disk:
 6. verification run with the same excitation -> ``verification.h5``;
 7. ``summary.json`` and plots.
 
-The axis is stopped (zero torque) on every exit path, and every recording is
-closed with its status, so an aborted run leaves readable files.
+Before step 1 the whole plan is built and checked (sizes, rates, travel,
+channels) so nothing that can be known in advance fails after the axis moved;
+on a real port the plan is shown and the user's go-ahead is asked for before
+anything moves. Identification measures the bare plant: filter slots holding
+filters are bypassed first and put back if the session ends before its upload.
+
+On every ending (normal, error, signal, full disk) the device is commanded
+safe first, then the filter slots are restored when needed, then every
+recording is closed with its status and cause, then the device is released.
 """
 
 from __future__ import annotations
 
+import os
 import platform
 import sys
 import time
@@ -26,15 +34,18 @@ from typing import Callable
 
 import numpy as np
 
-from hilident import __version__, pipeline, report
+from hilident import __version__, endings, pipeline, report
 from hilident.adapters.base import StreamStats, adapter_class, contiguous_runs
 from hilident.config import Config
+from hilident.devicelock import DeviceLock, device_key
 from hilident.drivers import DriverDescription, find_driver
-from hilident.errors import ConfigError, DataError, HilidentError
+from hilident.errors import ArmingRefused, ConfigError, DataError, HilidentError, UsageError
+from hilident.plan import RunPlan, make_plan
 from hilident.recording import RunWriter, read_run
 from hilident.signals import generators as sig
 
-_WRITE_ROWS = 4096  # rows gathered before each append to the recording (bounded memory)
+#: Longest stretch of data (and wall-clock time) held in memory before it is written to the recording, s.
+FLUSH_INTERVAL_S = 0.5
 
 
 def package_versions() -> dict[str, str]:
@@ -59,7 +70,14 @@ class Progress:
 
     def step(self, message: str) -> None:
         if self.enabled:
-            print(message, file=self.stream, flush=True)
+            self._print(message)
+
+    def _print(self, text: str, end: str = "\n") -> None:
+        """Print, or fall silent when nobody reads any more (a closed pipe or terminal must not stop a run)."""
+        try:
+            print(text, end=end, file=self.stream, flush=True)
+        except (OSError, ValueError):
+            self.enabled = False
 
     def fraction(self, label: str) -> Callable[[float], None]:
         self._last = -1
@@ -72,9 +90,9 @@ class Progress:
             self._last = pct
             if self.tty:
                 end = "\n" if pct >= 100 else ""
-                print(f"\r  {label}: {pct:3d} %", end=end, file=self.stream, flush=True)
+                self._print(f"\r  {label}: {pct:3d} %", end=end)
             else:
-                print(f"  {label}: {pct:3d} %", file=self.stream, flush=True)
+                self._print(f"  {label}: {pct:3d} %")
 
         return update
 
@@ -146,7 +164,8 @@ class Session:
     progress : Progress, optional
     """
 
-    def __init__(self, cfg: Config, out_dir: str | Path, progress: Progress | None = None):
+    def __init__(self, cfg: Config, out_dir: str | Path, progress: Progress | None = None,
+                 confirm: Callable[[RunPlan], bool] | None = None, dry_run: bool = False):
         if cfg.limits is None:
             raise ConfigError(
                 "limits", "is required for a bench run: torque_nm, velocity_mps, position_min_m, position_max_m",
@@ -162,13 +181,25 @@ class Session:
         self.warnings: list[str] = []
         self.summary: dict = {}
         self._analysed: dict[str, dict[str, np.ndarray]] = {}  # gap-free samples of each analysed run
+        self.confirm = confirm
+        self.dry_run = dry_run
+        self.plan: RunPlan | None = None
+        self.lock: DeviceLock | None = None
+        self.filters_found: list[dict] = []  # what the filter slots held when the session began
+        self._bypassed: dict[int, object] = {}  # slot -> saved contents, until the new notches are uploaded
+        self._uploaded = False
 
     # --- connection -----------------------------------------------------------------------
 
     def connect(self) -> None:
-        """Open the device, or start the embedded emulator and open it like a device."""
+        """Open the device (one session per device), or start the embedded emulator and open it like a device.
+
+        The adapter brings the device to a known state as it opens (stale
+        frames discarded, axis stopped, latched faults reported and cleared
+        only when allowed); the limits the device enforces are loaded.
+        """
         cfg = self.cfg
-        self.driver = find_driver(cfg.device.driver, cfg.device.driver_paths)
+        self.driver = self.driver or find_driver(cfg.device.driver, cfg.device.driver_paths)
         cls = adapter_class(self.driver.transport)
         device, link = cfg.device, None
         if cfg.uses_emulator:
@@ -176,20 +207,84 @@ class Session:
 
             self.emulator = start_emulator(cfg.emulator, self.driver, cfg.device)
             device, link = self.emulator.device, self.emulator.link
+        else:
+            d = cfg.device
+            self.lock = DeviceLock(device_key(self.driver.transport, d.port, node_id=d.node_id,
+                                              device_id=d.device_id, can_interface=d.can_interface)).acquire()
+            if self.lock.recovered_from:
+                self.progress.step(f"device lock of pid {self.lock.recovered_from} recovered (that session died)")
         self.adapter = cls.open_device(device, self.driver, link=link)
         where = "emulated" if cfg.uses_emulator else "connected to"
         self.progress.step(f"{where} {self.adapter.identity.name} on {self.adapter.port}")
+        report_ = getattr(self.adapter, "connect_report", None)
+        if report_ is not None:
+            if report_.discarded_frames:
+                self.warnings.append(f"connect: {report_.discarded_frames} frame(s) left over from an earlier "
+                                     "session were discarded")
+            if report_.faults:
+                self.warnings.append(f"connect: the device had latched fault(s): {'; '.join(report_.faults)}"
+                                     + ("; cleared (allow_fault_reset)" if report_.faults_cleared else ""))
         lim = cfg.limits
         self.adapter.set_limits(lim.torque_nm, lim.velocity_mps, lim.position_min_m, lim.position_max_m)
 
+    def safe_stop(self) -> None:
+        """Command the axis safe now (first thing on every ending). Never raises."""
+        if self.adapter is not None:
+            try:
+                self.adapter.safe_stop()
+            except Exception:
+                pass
+
     def close(self) -> None:
-        """Stop the axis and release the device (and the emulator)."""
+        """Stop the axis and release the device (and the emulator, and the device lock)."""
         try:
             if self.adapter is not None:
                 self.adapter.close()
         finally:
-            if self.emulator is not None:
-                self.emulator.close()
+            try:
+                if self.emulator is not None:
+                    self.emulator.close()
+            finally:
+                if self.lock is not None:
+                    self.lock.release()
+
+    # --- filter slots: identify the bare plant ---------------------------------------------
+
+    def _read_filter_slots(self) -> None:
+        """What every filter slot holds before the session changes anything (for the plan and summary.json)."""
+        ad = self.adapter
+        self.filters_found = []
+        for slot in range(ad.identity.filter_slots):
+            biquad, enabled = ad.read_filter(slot)
+            self.filters_found.append({"slot": slot, "enabled": bool(enabled), "b": [float(x) for x in biquad.b],
+                                       "a": [float(x) for x in biquad.a]})
+
+    def _bypass_filters(self) -> None:
+        """Bypass every slot that filters now, so identification measures the bare plant."""
+        ad = self.adapter
+        for found in self.filters_found:
+            if found["enabled"]:
+                slot = found["slot"]
+                saved = ad.save_filter(slot)
+                ad.disable_filter(slot)
+                self._bypassed[slot] = saved
+                found["bypassed"] = True
+        if self._bypassed:
+            self.progress.step(f"filter slot(s) {sorted(self._bypassed)} bypassed while the plant is measured")
+
+    def _restore_filters(self) -> None:
+        """Put back what the slots held, when the session ends before its upload. Never raises."""
+        if self._uploaded or not self._bypassed or self.adapter is None:
+            return
+        for slot, saved in sorted(self._bypassed.items()):
+            try:
+                self.adapter.restore_filter(slot, saved)
+                for found in self.filters_found:
+                    if found["slot"] == slot:
+                        found["restored"] = True
+            except Exception as exc:
+                self.warnings.append(f"filter slot {slot}: could not restore its previous contents: {exc}")
+        self._bypassed.clear()
 
     # --- experiments ----------------------------------------------------------------------
 
@@ -210,20 +305,31 @@ class Session:
         for table, columns in (tables or {}).items():
             writer.write_table(table, **columns)
 
+        # Blocks are gathered for at most FLUSH_INTERVAL_S of data or of wall-clock time (one HDF5 flush per
+        # block would stall the line), then written with the events known so far: a crash loses no more.
         pending: list[np.ndarray] = []
-        pending_rows = [0]
+        held = {"rows": 0, "since": time.monotonic(), "events": 0}
+        flush_rows = max(1, int(FLUSH_INTERVAL_S * fs))
+
+        def write_events(events: list[dict]) -> None:
+            for ev in events[held["events"]:]:
+                extra = {k: v for k, v in ev.items() if k not in ("kind", "message", "sample_index")}
+                writer.event(ev["kind"], ev.get("message", ""), int(ev.get("sample_index", -1)), **extra)
+            held["events"] = max(held["events"], len(events))
 
         def flush() -> None:
             if pending:
-                writer.append(np.concatenate(pending))
+                block = np.concatenate(pending)
                 pending.clear()
-                pending_rows[0] = 0
+                held["rows"] = 0
+                writer.append(block)
+            write_events(getattr(ad, "events", []))
+            held["since"] = time.monotonic()
 
         def sink(index: np.ndarray, rows: np.ndarray) -> None:
-            # gather blocks into file-sized chunks: one HDF5 flush per block would stall the line
             pending.append(np.column_stack([index, index / fs, rows]))
-            pending_rows[0] += len(rows)
-            if pending_rows[0] >= _WRITE_ROWS:
+            held["rows"] += len(rows)
+            if held["rows"] >= flush_rows or time.monotonic() - held["since"] >= FLUSH_INTERVAL_S:
                 flush()
 
         if cfg.device.trace and hasattr(ad, "set_trace"):
@@ -231,22 +337,19 @@ class Session:
         self.progress.step(f"{name}: {len(excitation) / fs:.1f} s of {mode} excitation")
         result = None
         status, reason = "aborted", ""
+        ad.last_result = None
         try:
             result = ad.stream(excitation, sink, self.progress.fraction(name))
             status = "complete"
-        except (HilidentError, KeyboardInterrupt) as exc:
+        except BaseException as exc:
+            with endings.shielded():
+                self.safe_stop()  # the device first, whatever ended the run
             reason = str(exc) or type(exc).__name__
             raise
         finally:
-            flush()
-            result = result or ad.last_result
-            if result is not None:
-                for ev in result.events:
-                    extra = {k: v for k, v in ev.items() if k not in ("kind", "message", "sample_index")}
-                    writer.event(ev["kind"], ev["message"], int(ev["sample_index"]), **extra)
-                self.totals = self.totals.add(result.stats)
-                writer.set_attrs(stream=result.stats.__dict__)
-            writer.close(status, reason)
+            with endings.shielded():
+                self._close_recording(writer, status, reason, flush, write_events, ad)
+        endings.raise_pending()
         run = read_run(path)
         stats = result.stats
         if stats.lost_blocks or stats.corrupt_frames or stats.underruns:
@@ -256,22 +359,64 @@ class Session:
             )
         return Experiment(name, path, run.samples, stats, result.events)
 
+    def _close_recording(self, writer: RunWriter, status: str, reason: str, flush, write_events, ad) -> None:
+        """Write what is still held, the events and the stream counters, and close the file with its status.
+
+        Runs on every ending; a write that fails here (the disk that ended the
+        run is still full) leaves the file closed as ``aborted`` and never hides
+        the error that ended the run.
+        """
+        result = ad.last_result
+        failure = None
+        try:
+            flush()
+            if result is not None:
+                write_events(result.events)
+                writer.set_attrs(stream=result.stats.__dict__)
+        except HilidentError as exc:
+            failure = exc
+            reason = reason or str(exc)
+        finally:
+            if result is not None:
+                self.totals = self.totals.add(result.stats)
+            writer.close("aborted" if failure else status, reason)
+        if failure is not None and status == "complete":
+            raise failure  # the run itself went well: the write is what failed
+
     # --- the whole run ----------------------------------------------------------------------
 
     def run(self) -> dict:
-        """Run every step; returns the summary (also written to ``summary.json``)."""
-        self.out.mkdir(parents=True, exist_ok=True)
+        """Run every step; returns the summary (also written to ``summary.json``).
+
+        With ``dry_run`` it connects, checks and plans, and returns
+        ``{"dry_run": True, "plan": ...}`` without moving anything.
+        """
+        excitation, profile = self.prepare()
         started = time.monotonic()
+        friction = plant = verification = None
+        designs, upload = [], {"written": False, "verified_readback": False, "slots": []}
         try:
             self.connect()
-            friction = self._friction_step()
-            excitation = build_excitation(self.cfg)
+            self._read_filter_slots()
+            self.plan = make_plan(self.cfg, excitation, profile, self.adapter, self.filters_found)
+            self._arm()
+            if self.dry_run:
+                return {"dry_run": True, "plan": self.plan.to_dict()}
+            self._bypass_filters()
+            friction = self._friction_step(profile)
             ident = self.record("identification", self.cfg.excitation.mode, excitation.samples)
             plant = self._identify(ident, excitation, friction)
             designs, upload = self._notch_step(plant)
             verification = self._verify(excitation, plant, designs)
+        except BaseException:
+            with endings.shielded():
+                self.safe_stop()
+                self._restore_filters()
+            raise
         finally:
-            self.close()
+            with endings.shielded():
+                self.close()
+        endings.raise_pending()
         model = self._greybox()
         self.summary = self._summary(friction, plant, designs, upload, verification, time.monotonic() - started)
         self.summary["model"] = model.to_dict() if model else None
@@ -279,20 +424,55 @@ class Session:
         self._plots(friction, plant, designs, verification)
         return self.summary
 
-    def _friction_step(self):
-        ft = self.cfg.friction_test
-        if not ft.enabled:
+    def prepare(self):
+        """Everything that can be checked without the device, before it is opened.
+
+        The output folder must be writable; the driver is found; the
+        excitation and the friction test's profile are built (their sizes were
+        bounded when the config was loaded); the friction test's travel must
+        fit the position window. Returns ``(excitation, friction_profile)``.
+        """
+        self._prepare_out()
+        cfg = self.cfg
+        self.driver = find_driver(cfg.device.driver, cfg.device.driver_paths)
+        check = getattr(__import__("hilident.drivers", fromlist=["x"]), "check_run_against_driver", None)
+        if check is not None:
+            check(cfg, self.driver)
+        excitation = build_excitation(cfg)
+        profile = None
+        ft = cfg.friction_test
+        if ft.enabled:
+            profile = sig.velocity_ramps(ft.speeds_mps, ft.hold_s, ft.accel_mps2, cfg.run.sample_rate_hz, ft.settle_s)
+            lim = cfg.limits
+            if profile.max_excursion_m >= (lim.position_max_m - lim.position_min_m) / 2:
+                raise ConfigError(
+                    "friction_test.speeds_mps",
+                    f"the friction test travels up to {profile.max_excursion_m:.3f} m, more than half the "
+                    f"position window [{lim.position_min_m:g}, {lim.position_max_m:g}] m (shorter hold_s or lower "
+                    "speeds)", cfg.source,
+                )
+        return excitation, profile
+
+    def _prepare_out(self) -> None:
+        """The output folder exists and takes files, or a one-line error before anything moves."""
+        try:
+            self.out.mkdir(parents=True, exist_ok=True)
+            probe = self.out / f".hilident-write-test-{os.getpid()}"
+            probe.write_bytes(b"")
+            probe.unlink()
+        except OSError as exc:
+            raise UsageError(f"--out {self.out}: cannot write there: {exc.strerror or exc}") from None
+
+    def _arm(self) -> None:
+        """On a real port, move only with the user's go-ahead: ``confirm(plan)`` shows the plan and asks."""
+        if self.dry_run or self.cfg.uses_emulator:
+            return
+        if self.confirm is None or not self.confirm(self.plan):
+            raise ArmingRefused("the run was not confirmed; nothing moved")
+
+    def _friction_step(self, profile):
+        if profile is None:
             return None
-        fs = self.cfg.run.sample_rate_hz
-        profile = sig.velocity_ramps(ft.speeds_mps, ft.hold_s, ft.accel_mps2, fs, ft.settle_s)
-        lim = self.cfg.limits
-        if profile.max_excursion_m >= (lim.position_max_m - lim.position_min_m) / 2:
-            raise ConfigError(
-                "friction_test.speeds_mps",
-                f"the friction test travels up to {profile.max_excursion_m:.3f} m, more than half the "
-                f"position window [{lim.position_min_m:g}, {lim.position_max_m:g}] m (shorter hold_s or lower speeds)",
-                self.cfg.source,
-            )
         windows = np.array(profile.windows, dtype=float).reshape(-1, 3)
         exp = self.record("friction", "velocity", profile.setpoint_mps,
                           tables={"windows": {"start": windows[:, 0], "stop": windows[:, 1], "velocity_mps": windows[:, 2]}})
@@ -300,7 +480,8 @@ class Session:
         kept = [(rows[a], rows[b - 1] + 1, v) for a, b, v in profile.windows if a in rows and b - 1 in rows
                 and rows[b - 1] - rows[a] == b - 1 - a]
         self.progress.step("friction: fitting the friction curve")
-        return pipeline.identify_friction(exp.samples["velocity_mps"], exp.samples["torque_nm"], kept, ft.model)
+        return pipeline.identify_friction(exp.samples["velocity_mps"], exp.samples["torque_nm"], kept,
+                                          self.cfg.friction_test.model)
 
     @staticmethod
     def _rows_by_index(exp: Experiment) -> dict[int, int]:
@@ -429,6 +610,7 @@ class Session:
                                     "matches": same, "achieved": achieved})
         upload["written"] = True
         upload["verified_readback"] = all(matches)
+        self._uploaded = True  # from here the device holds the new notches; other bypassed slots stay bypassed
         return designs, upload
 
     def _verify(self, excitation: Excitation, plant, designs):
@@ -474,6 +656,8 @@ class Session:
                 "lost_samples": t.lost_samples, "corrupt_frames": t.corrupt_frames, "out_of_order": t.out_of_order,
                 "underruns": t.underruns, "board_dropped_blocks": t.board_dropped_blocks,
             },
+            "connect": self.adapter.connect_report.to_dict() if hasattr(self.adapter, "connect_report") else None,
+            "filters_found": self.filters_found,
             "recordings": sorted(p.name for p in self.out.glob("*.h5")),
             "elapsed_s": elapsed_s,
             "warnings": self.warnings,
