@@ -22,7 +22,7 @@ def test_standalone_emulator_runs_a_session_like_hardware(tmp_path, extra, stand
     cfg = tmp_path / "bench.toml"
     cfg.write_text(text)
     out = subprocess.run(
-        [sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o"), "-q"],
+        [sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o"), "-q", "--yes"],
         capture_output=True, text=True, timeout=240,
     )
     assert out.returncode == 0, out.stderr

@@ -73,6 +73,27 @@ def _to_json_text(value: Any, what: str) -> str:
         raise DataError(f"{what}: cannot be stored as JSON: {exc}") from None
 
 
+def _file_size_limit() -> int | None:
+    """The process's file size limit (``ulimit -f``), bytes, or None when there is none."""
+    try:
+        import resource
+
+        soft = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+        return None if soft == resource.RLIM_INFINITY else int(soft)
+    except (ImportError, OSError, ValueError):
+        return None
+
+
+def _file_size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except OSError:
+        return 0
+
+
+_FILE_SIZE_LIMIT = _file_size_limit()
+
+
 class DiskFull(DataError):
     """The recording could not be written (the disk is full, or another write error); the file keeps its good rows."""
 
@@ -247,16 +268,18 @@ class RunWriter:
         full disk leaves the file's in-memory state unusable (and h5py may then
         crash the interpreter on exit), so the writer keeps a margin free.
         """
+        need = nbytes + self._margin_bytes
         try:
             st = os.statvfs(self._path.parent)
         except (OSError, AttributeError):  # no statvfs (Windows): rely on the write error
             return
         free = st.f_bavail * st.f_frsize
-        if free < nbytes + self._margin_bytes:
-            self._failure = (f"disk full: {free / 1e6:.1f} MB free on {self._path.parent}, "
-                             f"{(nbytes + self._margin_bytes) / 1e6:.1f} MB needed")
-            raise DiskFull(f"{self._path}: {self._failure}; the file holds the first "
-                           f"{self._n_samples} samples")
+        if free < need:
+            self._failure = f"disk full: {free / 1e6:.1f} MB free on {self._path.parent}, {need / 1e6:.1f} MB needed"
+        elif _FILE_SIZE_LIMIT is not None and _file_size(self._path) + need > _FILE_SIZE_LIMIT:
+            self._failure = f"file size limit reached (ulimit -f: {_FILE_SIZE_LIMIT / 1e6:.1f} MB)"
+        if self._failure is not None:
+            raise DiskFull(f"{self._path}: {self._failure}; the file holds the first {self._n_samples} samples")
 
     def _write_failed(self, exc: BaseException) -> None:
         """A write to the file failed (full disk, I/O error): keep what is good, raise :class:`DataError`."""

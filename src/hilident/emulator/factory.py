@@ -163,3 +163,55 @@ def start_serial_board(cfg: EmulatorConfig, driver: DriverDescription, baudrate:
     ).start()
     device = replace(DeviceConfig(), driver=str(driver.folder), port=device_link.path, baudrate=baudrate)
     return EmulatedDevice(server=server, device=device, drive=firmware.drive, link=host_link)
+
+
+#: Links a standalone twin can be served on, per transport (what a host in another process opens).
+STANDALONE_LINKS = {"serial": ("pty", "tcp"), "modbus": ("tcp", "rtu"), "canopen": ("socketcand",)}
+
+
+def start_standalone(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig,
+                     link: str, port: int = 0) -> EmulatedDevice:
+    """Serve the twin of ``driver`` on a real transport for a host in another process.
+
+    Parameters
+    ----------
+    cfg : EmulatorConfig
+    driver : DriverDescription
+    device : DeviceConfig
+        The ``[device]`` settings of the config (ids, baud rate, parity).
+    link : str
+        One of :data:`STANDALONE_LINKS` for the driver's transport: serial
+        ``"pty"`` or ``"tcp"`` (a raw line, ``socket://``), Modbus ``"tcp"`` or
+        ``"rtu"`` (on a pseudo-terminal), CANopen ``"socketcand"``.
+    port : int
+        TCP port of a socketcand server (0: any free one).
+
+    Returns
+    -------
+    EmulatedDevice
+        ``device`` holds what a host config needs in ``[device]``
+        (:func:`host_device_table`).
+    """
+    links = STANDALONE_LINKS.get(driver.transport, ())
+    if link not in links:
+        from hilident.errors import ConfigError
+
+        raise ConfigError("emulator.link", f"a standalone {driver.transport} twin is served on {list(links)}, "
+                          f"not {link!r}")
+    if driver.transport == "serial":
+        return start_serial_board(cfg, driver, device.baudrate or driver.default_baudrate, link=link)
+    if driver.transport == "modbus":
+        from hilident.emulator.modbus_drive import start as start_modbus
+
+        return start_modbus(cfg, driver, device, link="pty" if link == "rtu" else "tcp")
+    from hilident.emulator.canopen_drive import start_socketcand
+
+    return start_socketcand(cfg, driver, device, port=port)
+
+
+def host_device_table(device: DeviceConfig) -> dict:
+    """The ``[device]`` table (as a dict, ready for a TOML writer) a host in another process uses to reach a
+    standalone twin."""
+    keys = ("driver", "port", "baudrate", "timeout_s", "can_interface", "node_id", "device_id", "parity",
+            "stopbits", "acquisition", "allow_fault_reset", "host_timeout_s")
+    return {key: getattr(device, key) for key in keys}

@@ -1,0 +1,144 @@
+"""Every ending of a session, over every transport: the ending matrix.
+
+One test class, parametrised over the transports (python-can's back-to-back
+style): the twin is served in this process on a real transport (a
+pseudo-terminal, a raw TCP line, Modbus TCP, Modbus RTU on a pseudo-terminal,
+CANopen behind socketcand), and ``hilident run`` runs in another process as it
+would on the bench. Each ending (SIGTERM, SIGHUP, SIGINT twice, SIGKILL of
+the host, the device vanishing, a full disk, a limit trip) is checked the same
+way: the twin's own state shows the axis stopped, the exit code is the
+documented one, every recording is readable with the right status, and a
+second session on the twin then succeeds and finds the right resonance.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+from twins import TRANSPORTS, Twin, host, wait_until
+
+from hilident.recording import read_run
+
+#: Exit codes the README documents.
+EXIT = {"sigterm": 143, "sighup": 129, "sigint_twice": 130, "sigkill": -signal.SIGKILL,
+        "device_vanishes": 4, "disk_full": 3, "limit_trip": 5}
+
+#: How long the twin may keep the axis enabled after the host is gone, s: the device-side net
+#: (serial: the board's 1 s watchdog; CANopen and Modbus: host_timeout_s) plus the twin's clock.
+NET_TIMEOUT_S = {"serial": 1.0, "modbus": 0.5, "canopen": 0.5}
+TOLERANCE_S = 0.6
+
+
+@pytest.fixture(params=TRANSPORTS, ids=[f"{t}-{link}" for t, link, _ in TRANSPORTS])
+def twin(request, tmp_path):
+    transport, link, config = request.param
+    t = Twin(transport, link, config, tmp_path)
+    yield t
+    t.close()
+
+
+class TestEndingMatrix:
+    """One class over every transport: each ending leaves a stopped axis, true files and a device ready to go."""
+
+    def _start_and_wait_for_motion(self, twin, tmp_path, name="first", fsize_limit=None, **sections):
+        out = tmp_path / name
+        proc = host(twin.host_config(name, **sections), out, fsize_limit=fsize_limit)
+        wait_until(lambda: twin.enabled, 60, proc)
+        return proc, out
+
+    def _finish(self, proc, timeout=60):
+        try:
+            out, err = proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate()
+        return proc.returncode, err
+
+    def _second_session_finds_the_resonance(self, twin, tmp_path, clear_fault: bool):
+        out = tmp_path / "second"
+        config = twin.host_config("second")
+        proc = host(config, out, *(["--clear-fault"] if clear_fault else []))
+        rc, err = self._finish(proc, timeout=120)
+        assert rc == 0, err
+        summary = json.loads((out / "summary.json").read_text())
+        found = summary["resonances"][0]["frequency_hz"]
+        assert abs(found - twin.truth_hz) / twin.truth_hz < 0.005, (found, twin.truth_hz)
+        assert not twin.enabled
+
+    def _recording(self, out: Path):
+        run = read_run(out / "identification.h5")
+        return run
+
+    @pytest.mark.parametrize("ending", ["sigterm", "sighup", "sigint_twice"])
+    def test_signal(self, twin, tmp_path, ending):
+        proc, out = self._start_and_wait_for_motion(twin, tmp_path)
+        time.sleep(0.8)  # samples flowing for longer than a flush interval
+        sent = time.monotonic()
+        if ending == "sigint_twice":
+            proc.send_signal(signal.SIGINT)
+            time.sleep(0.001)
+            proc.send_signal(signal.SIGINT)
+        else:
+            proc.send_signal(signal.SIGTERM if ending == "sigterm" else signal.SIGHUP)
+        stopped = wait_until(lambda: not twin.enabled, 5)
+        rc, err = self._finish(proc)
+        assert rc == EXIT[ending], err
+        assert stopped - sent < 1.0
+        run = self._recording(out)
+        assert run.status == "aborted" and "interrupted" in run.reason
+        assert run.n_samples > 0
+        assert "Traceback" not in err
+        self._second_session_finds_the_resonance(twin, tmp_path, clear_fault=False)
+
+    def test_sigkill_the_device_stops_itself(self, twin, tmp_path):
+        proc, out = self._start_and_wait_for_motion(twin, tmp_path)
+        time.sleep(0.8)
+        proc.kill()
+        killed = time.monotonic()
+        stopped = wait_until(lambda: not twin.enabled, 10)
+        rc, _ = self._finish(proc)
+        assert rc == EXIT["sigkill"]
+        assert stopped - killed < NET_TIMEOUT_S[twin.transport] + TOLERANCE_S
+        run = self._recording(out)
+        assert run.status == "running" and run.n_samples > 0  # a crashed file: readable, and says so
+        self._second_session_finds_the_resonance(twin, tmp_path, clear_fault=True)
+
+    def test_device_vanishes(self, twin, tmp_path):
+        proc, out = self._start_and_wait_for_motion(twin, tmp_path)
+        time.sleep(0.5)
+        twin.close()
+        rc, err = self._finish(proc)
+        assert rc == EXIT["device_vanishes"], err
+        assert not twin.enabled
+        assert "Traceback" not in err
+        assert self._recording(out).status == "aborted"
+        fresh = Twin(twin.transport, twin.link, dict((t, c) for t, _, c in TRANSPORTS)[twin.transport], tmp_path)
+        try:
+            self._second_session_finds_the_resonance(fresh, tmp_path, clear_fault=False)
+        finally:
+            fresh.close()
+
+    def test_disk_full(self, twin, tmp_path):
+        proc, out = self._start_and_wait_for_motion(twin, tmp_path, fsize_limit=2_600_000)
+        rc, err = self._finish(proc)
+        assert rc == EXIT["disk_full"], err
+        assert "Traceback" not in err
+        assert not twin.enabled
+        run = self._recording(out)
+        assert run.status == "aborted"
+        assert run.n_samples > 0 and not (run.samples["time_s"][1:] == 0).any()  # nothing written as zeros
+        self._second_session_finds_the_resonance(twin, tmp_path, clear_fault=False)
+
+    def test_limit_trip(self, twin, tmp_path):
+        proc, out = self._start_and_wait_for_motion(twin, tmp_path, limits={"velocity_mps": 0.004})
+        rc, err = self._finish(proc)
+        assert rc == EXIT["limit_trip"], err
+        assert not twin.enabled
+        run = self._recording(out)
+        assert run.status == "aborted"
+        self._second_session_finds_the_resonance(twin, tmp_path, clear_fault=True)

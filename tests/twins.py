@@ -1,0 +1,99 @@
+"""Standalone twins served in the test process, and `hilident run` hosts in other processes, as on a bench."""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import signal
+import subprocess
+import sys
+import time
+import tomllib
+from dataclasses import replace
+from pathlib import Path
+
+import tomli_w
+
+from hilident.config import parse_config
+from hilident.drivers import find_driver
+from hilident.emulator.factory import host_device_table, start_standalone, true_modes
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
+#: (transport, link, shipped config the twin and the host take their settings from)
+TRANSPORTS = [
+    ("serial", "pty", "emulated-gantry.toml"),
+    ("serial", "tcp", "emulated-gantry.toml"),
+    ("modbus", "tcp", "emulated-modbus-gantry.toml"),
+    ("modbus", "rtu", "emulated-modbus-gantry.toml"),
+    ("canopen", "socketcand", "emulated-canopen-gantry.toml"),
+]
+
+def quick(raw: dict, transport: str) -> dict:
+    """The shipped config made quick: no friction test, two 4 s multisine periods, fast simulated time."""
+    raw = json.loads(json.dumps(raw))
+    raw["friction_test"] = {"enabled": False}
+    raw["excitation"].update(period_s=4.0, duration_s=8.0)
+    raw["emulator"]["time_scale"] = 6.0
+    raw["notch"]["verify"] = False
+    if transport == "modbus":
+        raw["device"]["baudrate"] = 921600  # an RTU line reads the capture back: keep it quick
+    return raw
+
+
+class Twin:
+    """A standalone twin in this process, and host configs that reach it."""
+
+    def __init__(self, transport: str, link: str, config: str, tmp_path: Path):
+        self.transport, self.link, self.tmp = transport, link, tmp_path
+        self.raw = quick(tomllib.loads((CONFIGS / config).read_text()), transport)
+        cfg = parse_config(tomli_w.dumps(self.raw), str(CONFIGS / config))
+        self.cfg = cfg
+        self.driver = find_driver(cfg.device.driver, cfg.device.driver_paths)
+        self.emu = start_standalone(cfg.emulator, self.driver, cfg.device, link)
+        self.truth_hz = true_modes(cfg.emulator)[0][0]
+
+    @property
+    def enabled(self) -> bool:
+        return bool(self.emu.drive.enabled)
+
+    def host_config(self, name: str, **sections) -> Path:
+        raw = json.loads(json.dumps(self.raw))
+        raw["device"] = host_device_table(replace(self.emu.device, driver=self.cfg.device.driver))
+        for section, values in sections.items():
+            raw.setdefault(section, {}).update(values)
+        path = self.tmp / f"{name}.toml"
+        path.write_text(tomli_w.dumps(raw))
+        return path
+
+    def close(self) -> None:
+        self.emu.close()
+
+
+def host(config: Path, out: Path, *extra: str, fsize_limit: int | None = None) -> subprocess.Popen:
+    env = dict(os.environ, HILIDENT_LOCK_DIR=str(out.parent / "locks"))
+
+    def limit_file_size():
+        if fsize_limit is not None:
+            signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails (EFBIG) as on a full disk
+            resource.setrlimit(resource.RLIMIT_FSIZE, (fsize_limit, fsize_limit))
+
+    return subprocess.Popen([sys.executable, "-m", "hilident.cli", "run", str(config), "--out", str(out), "--yes",
+                             "-q", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            preexec_fn=limit_file_size)
+
+
+def wait_until(condition, timeout_s: float, proc: subprocess.Popen | None = None) -> float:
+    """Poll ``condition`` every millisecond; returns when it became true (monotonic s)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if condition():
+            return time.monotonic()
+        if proc is not None and proc.poll() is not None:
+            out, err = proc.communicate()
+            raise AssertionError(f"host ended early (rc {proc.returncode}): {err[-2000:]}")
+        time.sleep(0.001)
+    raise AssertionError("timed out")
+
+
