@@ -51,3 +51,44 @@ def test_ctrl_c_mid_run_stops_and_keeps_the_recording(tmp_path):
 
     run = read_run(tmp_path / "o" / "friction.h5")
     assert run.status == "aborted" and run.n_samples > 0
+
+
+@pytest.mark.parametrize("flags", [("--time-scale", "nan"), ("--time-scale", "-1"), ("--time-scale", "inf"),
+                                   ("--baudrate", "-5")], ids=["nan", "negative", "inf", "baud"])
+def test_emulate_flags_are_checked(flags):
+    done = subprocess.run([sys.executable, "-m", "hilident.cli", "emulate", "serial", *flags],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2
+    assert done.stderr.startswith(f"hilident: error: {flags[0]}") and "Traceback" not in done.stderr
+
+
+def test_emulate_canopen_port_out_of_range():
+    done = subprocess.run([sys.executable, "-m", "hilident.cli", "emulate", "canopen", "--port", "70000"],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and "--port 70000" in done.stderr and "Traceback" not in done.stderr
+
+
+def test_a_closed_output_pipe_does_not_end_the_run(tmp_path):
+    """Whoever read the progress went away (`| head`, a closed pipe): the run goes on and completes."""
+    import tomllib
+
+    import tomli_w
+
+    raw = tomllib.loads((CONFIGS / "emulated-gantry.toml").read_text())
+    raw["friction_test"] = {"enabled": False}
+    raw["excitation"].update(period_s=2.0, duration_s=4.0)
+    raw["emulator"]["time_scale"] = 8.0
+    cfg = tmp_path / "quick.toml"
+    cfg.write_text(tomli_w.dumps(raw))
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # nobody will ever read the output
+    try:
+        proc = subprocess.run([sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o")],
+                              stdout=write_end, stderr=write_end, timeout=240)
+    finally:
+        os.close(write_end)
+    assert proc.returncode == 0
+    assert (tmp_path / "o" / "summary.json").is_file()
+    from hilident.recording import read_run
+
+    assert read_run(tmp_path / "o" / "identification.h5").status == "complete"
