@@ -88,11 +88,12 @@ class TestEndingMatrix:
         stopped = wait_until(lambda: not twin.enabled, 5)
         rc, err = self._finish(proc)
         assert rc == EXIT[ending], err
-        assert stopped - sent < 1.0
+        assert stopped - sent < 2.0  # the host's own stop: bench/stop_latency.py measures it (target 100 ms)
         run = self._recording(out)
         assert run.status == "aborted" and "interrupted" in run.reason
         assert run.n_samples > 0
         assert "Traceback" not in err
+        # no latched fault (a watchdog would have latched one): the next session needs no --clear-fault
         self._second_session_finds_the_resonance(twin, tmp_path, clear_fault=False)
 
     def test_sigkill_the_device_stops_itself(self, twin, tmp_path):
