@@ -340,3 +340,13 @@ def test_unknown_event_state_and_error_codes_raise():
 def test_encode_rejects_non_messages():
     with pytest.raises(TypeError):
         sb.encode(object(), 1)
+
+
+def test_samples_before_any_channel_selection_raise_a_protocol_error():
+    # What a host sees when it connects to a board still streaming a killed session's run.
+    channels = (sb.ChannelSelection(0), sb.ChannelSelection(1, sb.Format.I16, 0.5))
+    payload = sb.encode(sb.Samples(9, 40, 0, 0, 0, 0, np.ones((4, 2))), 3, sample_channels=channels)
+    with pytest.raises(ProtocolError, match="SAMPLES block 9 arrived before any channel selection"):
+        sb.decode(payload)
+    with pytest.raises(ProtocolError, match="without a channel selection"):
+        sb.unpack_rows(b"\x00" * 8, ())
