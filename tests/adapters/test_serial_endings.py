@@ -417,3 +417,16 @@ def test_a_board_process_that_dies_mid_run_is_a_device_error_naming_the_port(tcp
     finally:
         proc.kill()
         proc.wait(timeout=5)
+
+
+def test_filter_slots_outlive_a_session_so_the_next_host_must_not_assume_them_bypassed():
+    with pty_board() as device:
+        b, a = iirnotch(30.0, 4.0, fs=DRIVER.loop_rate_hz)
+        notch = Biquad(tuple(b), tuple(a))
+        with SerialBoardAdapter.open_device(device_config(device.port), DRIVER) as first:
+            first.write_filter(2, notch, enabled=True)
+        with SerialBoardAdapter.open_device(device_config(device.port), DRIVER) as second:
+            assert second.read_filter(2) == (second.stored_form(notch), True)
+            second.disable_filter(2)  # what a host does before it identifies the bare plant
+        with SerialBoardAdapter.open_device(device_config(device.port), DRIVER) as third:
+            assert third.read_filter(2) == (third.stored_form(notch), False)
