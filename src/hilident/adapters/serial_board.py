@@ -479,6 +479,7 @@ class SerialBoardAdapter(AdapterBase):
         run = _Run(self, excitation, sink, progress)
         self.events = []
         self._missing_seqs.clear()
+        self._backlog = []  # blocks and events kept from before this run belong to an earlier one
         result = run.result
         corrupt_before = self.decoder.stats.corrupt
         lost_before = self.lost_frames

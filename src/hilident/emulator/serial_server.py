@@ -13,6 +13,7 @@ opens like a USB serial board.
 
 from __future__ import annotations
 
+import math
 import os
 import select
 import socket
@@ -23,6 +24,7 @@ from collections import deque
 
 import numpy as np
 
+from hilident.errors import ConfigError
 from hilident.links import LinkClosed, PipeEnd
 from hilident.protocol.framing import FrameDecoder, encode_frame
 
@@ -210,6 +212,10 @@ class BoardServer:
     def __init__(self, firmware, link, baudrate: int, time_scale: float = 1.0,
                  tx_buffer_bytes: int = 65536, watchdog_s: float = 1.0,
                  faults: LineFaults | None = None, close_after_s: float = 0.0):
+        if not (math.isfinite(time_scale) and time_scale > 0):
+            raise ConfigError("emulator.time_scale", f"must be a finite number > 0, got {time_scale!r}")
+        if not (isinstance(baudrate, int) and baudrate >= 0):
+            raise ConfigError("device.baudrate", f"must be a whole number >= 0, got {baudrate!r}")
         self.firmware = firmware
         self.link = link
         self.baudrate = baudrate
