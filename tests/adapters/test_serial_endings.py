@@ -430,3 +430,26 @@ def test_filter_slots_outlive_a_session_so_the_next_host_must_not_assume_them_by
             second.disable_filter(2)  # what a host does before it identifies the bare plant
         with SerialBoardAdapter.open_device(device_config(device.port), DRIVER) as third:
             assert third.read_filter(2) == (third.stored_form(notch), False)
+
+
+class DropTripEvent(InjectNak):
+    """A line that loses the board's LIMIT_TRIP event (the last block with FLAG_FAULT still arrives)."""
+
+    def _route(self, frame: bytes) -> bytes:
+        payload = cobs.decode(frame[:-1])[:-4]
+        if payload[1] == sb.MsgType.EVENT and payload[4] == sb.EventCode.LIMIT_TRIP:
+            self.injected = True
+            return b""
+        return frame
+
+
+def test_a_limit_trip_whose_event_was_lost_is_still_a_limit_trip():
+    cfg = make_config(limits=(2.0, 1.0, -1.0, 1.0))
+    with pipe_board(cfg) as (device, adapter):
+        adapter.link = DropTripEvent(adapter.link)
+        adapter.configure(RATE_HZ, "torque", CHANNELS)
+        x = np.concatenate([np.full(1500, 1.0), np.full(1500, 3.0)])
+        with pytest.raises(LimitTrip, match="FAULT TORQUE_LIMIT"):
+            adapter.stream(x, Recorder())
+        assert adapter.link.injected and not adapter.last_result.completed
+        assert "limit_trip" not in [e["kind"] for e in adapter.last_result.events]

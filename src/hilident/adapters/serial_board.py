@@ -50,6 +50,8 @@ _MAX_TRACKED_GAPS = 4096  # lost blocks / frame numbers remembered, so a late ar
 #: The device-side stop of this transport (PROTOCOL.md section 8); the board fixes it, the host cannot arm it.
 WATCHDOG_NET = "board watchdog: a running board stops the axis (zero torque) after 1 s without a byte from the host"
 
+_LIMIT_FAULTS = (sb.FaultCode.TORQUE_LIMIT, sb.FaultCode.VELOCITY_LIMIT, sb.FaultCode.POSITION_LIMIT)
+
 _FAULT_MEANING = {
     sb.FaultCode.TORQUE_LIMIT: "a torque limit tripped",
     sb.FaultCode.VELOCITY_LIMIT: "a velocity limit tripped",
@@ -499,22 +501,29 @@ class SerialBoardAdapter(AdapterBase):
         return result
 
     def _finish_run(self, run: "_Run") -> None:
-        """Count what never arrived, take late events and the board's own counters."""
+        """Take late events and the board's own counters, and count what never arrived.
+
+        A board found in FAULT after a run whose fault event was lost on the
+        line still ends the run with that fault (a limit trip stays a trip).
+        """
         result, stats, n = run.result, run.result.stats, run.n
-        end = max(run.expected_sample, 0)
-        if result.fault is None and end < n:
-            stats.lost_samples += n - end
-            self.events.append({"kind": "lost_blocks", "sample_index": end, "value": 0.0,
-                                "message": f"end of run lost on the line: samples {end}..{n - 1}"})
         try:
             for msg in self._read_messages(0.02):  # late events (FINISHED after the last block)
                 if isinstance(msg, sb.Event):
-                    self._note_event(msg)
+                    run.take(msg, time.monotonic())
             status = self.status()
         except DeviceError:
             if result.fault is None:
                 raise
             return  # the fault the board reported is the cause; the line failing after it is not
+        if result.fault is None and status.state == sb.State.FAULT:
+            result.fault = f"board in FAULT {status.fault.name} after the run (its event was lost on the line)"
+            run.fault_code = sb.EventCode.LIMIT_TRIP if status.fault in _LIMIT_FAULTS else sb.EventCode.FAULT
+        end = max(run.expected_sample, 0)
+        if result.fault is None and end < n:
+            stats.lost_samples += n - end
+            self.events.append({"kind": "lost_blocks", "sample_index": end, "value": 0.0,
+                                "message": f"end of run lost on the line: samples {end}..{n - 1}"})
         stats.underruns = status.underruns
         stats.board_dropped_blocks = status.dropped_blocks
         result.completed = result.fault is None
