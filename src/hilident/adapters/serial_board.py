@@ -115,6 +115,8 @@ class SerialBoardAdapter(AdapterBase):
         self._backlog: list = []  # messages that arrived while waiting for an answer
         if hasattr(link, "timeout"):
             link.timeout = _READ_TIMEOUT_S  # short reads: the adapter polls and keeps the line busy
+        if hasattr(link, "write_timeout"):
+            link.write_timeout = timeout_s  # a line that takes no bytes is an error, never a hang (STOP included)
 
     # --- opening --------------------------------------------------------------------
 
