@@ -453,3 +453,41 @@ def test_a_limit_trip_whose_event_was_lost_is_still_a_limit_trip():
             adapter.stream(x, Recorder())
         assert adapter.link.injected and not adapter.last_result.completed
         assert "limit_trip" not in [e["kind"] for e in adapter.last_result.events]
+
+
+@pytest.mark.parametrize("tcp", [False, True], ids=["pty", "tcp"])
+def test_a_sigkilled_session_is_stopped_by_the_board_watchdog_and_the_next_host_clears_it(tmp_path, tcp):
+    config = (REPO / "configs" / "emulated-gantry.toml").read_text()
+    emulator = subprocess.Popen(
+        [sys.executable, "-m", "hilident.cli", "emulate", "serial", "--config", str(REPO / "configs" / "emulated-gantry.toml"),
+         "--time-scale", "2", *(["--tcp"] if tcp else [])],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    host = None
+    try:
+        port = emulator.stdout.readline().strip()
+        assert port, emulator.stderr.read()
+        bench = tmp_path / "bench.toml"
+        bench.write_text(config.replace('port = "emulator"', f'port = "{port}"')
+                         .replace("[friction_test]", "[friction_test]\nenabled = false"))
+        out = tmp_path / "out"
+        host = subprocess.Popen([sys.executable, "-m", "hilident.cli", "run", str(bench), "--out", str(out), "-q"],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        assert wait_until(lambda: (out / "identification.h5").exists(), 30.0)
+        time.sleep(0.5)  # streaming now
+        host.kill()
+        host.wait(timeout=5)
+        time.sleep(1.5)  # longer than the board's 1 s watchdog
+        with pytest.raises(DeviceError, match="WATCHDOG"):
+            SerialBoardAdapter.open_device(device_config(port), DRIVER)
+        with SerialBoardAdapter.open_device(device_config(port, allow_fault_reset=True), DRIVER) as adapter:
+            assert adapter.found_state == "FAULT" and adapter.connect_report.faults_cleared
+            adapter.set_limits(19.0, 0.4, -0.6, 0.6)
+            adapter.configure(RATE_HZ, "torque", CHANNELS)
+            n = 1000
+            result = adapter.stream(excitation(n, 0.5), Recorder())
+            assert result.completed and result.stats.samples == n
+    finally:
+        for proc in (host, emulator):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+                proc.wait(timeout=5)

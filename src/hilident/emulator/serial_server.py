@@ -100,29 +100,41 @@ class TcpLink:
     def read_some(self, timeout: float) -> bytes:
         if self._closed:
             raise LinkClosed(f"{self.path}: closed")
-        if self._conn is None:
+        conn = self._conn  # the transmit thread may drop it meanwhile
+        if conn is None:
             self._accept(timeout)
             return b""
-        ready, _, _ = select.select([self._conn, self._listener], [], [], timeout)
+        try:
+            ready, _, _ = select.select([conn, self._listener], [], [], timeout)
+        except (OSError, ValueError):  # closed by the transmit thread
+            return b""
         if self._listener in ready:
             self._accept(0)
             return b""
         if not ready:
             return b""
-        data = self._conn.recv(65536)
+        try:
+            data = conn.recv(65536)
+        except OSError:  # reset by a host that died: the line is free for the next one
+            data = b""
         if not data:  # the host hung up: wait for the next one
-            self._conn.close()
-            self._conn = None
+            self._drop(conn)
         return data
 
     def write(self, data: bytes) -> None:
         if self._closed:
             raise LinkClosed(f"{self.path}: closed")
-        if self._conn is None:
+        conn = self._conn
+        if conn is None:
             return  # nobody listening: bytes on an unconnected line are lost
         try:
-            self._conn.sendall(data)
-        except OSError:
+            conn.sendall(data)
+        except OSError:  # the host went away; what it did not take is lost, as on a real line
+            self._drop(conn)
+
+    def _drop(self, conn: socket.socket) -> None:
+        conn.close()
+        if self._conn is conn:
             self._conn = None
 
     def close(self) -> None:
