@@ -125,8 +125,9 @@ class IndependentBoard:
 
     OLD_CHANNELS = tuple(sb.ChannelSelection(i) for i in range(6))
 
-    def __init__(self, link, stale_blocks: int = 7):
+    def __init__(self, link, stale_blocks: int = 7, stale_spacing_s: float = 0.0):
         self.link = link
+        self.stale_spacing_s = stale_spacing_s
         self.received: list[str] = []
         self.state, self.fault = sb.State.FAULT, sb.FaultCode.WATCHDOG
         self.stale_blocks = stale_blocks
@@ -149,6 +150,7 @@ class IndependentBoard:
                     if isinstance(msg, sb.Identify):
                         for k in range(self.stale_blocks):  # the old run's blocks, still on their way
                             self.send(sb.Samples(k, 40 * k, 0, 0, 0, 0, np.zeros((40, 6))))
+                            time.sleep(self.stale_spacing_s)
                         self.send(ident)
                     elif isinstance(msg, sb.StatusRequest):
                         self.send(sb.Status(self.state, self.fault, 0, 4096, 0, 0, 0, 0, 0))
@@ -181,6 +183,19 @@ def test_connecting_uses_only_protocol_messages_and_stops_before_clearing():
     finally:
         adapter.close()
     assert wait_until(lambda: board.received[-1] == "STOP", 1.0)  # and on closing
+
+
+def test_an_answer_queued_behind_a_long_drain_is_waited_for():
+    # a slow line still carrying the old run's blocks for longer than the answer timeout
+    host_end, board_end = pipe_pair("pipe://independent", timeout=0.02)
+    board = IndependentBoard(board_end, stale_blocks=20, stale_spacing_s=0.03).start()
+    adapter = SerialBoardAdapter.open_device(
+        device_config("pipe://independent", allow_fault_reset=True, timeout_s=0.25), DRIVER, link=host_end)
+    try:
+        assert adapter.connect_report.discarded_frames == 20
+        assert adapter.identity.firmware == "independent 0.1"
+    finally:
+        adapter.close()
 
 
 def test_without_permission_the_independent_board_is_refused_and_the_line_closed():

@@ -45,6 +45,7 @@ _EXCITATION_CHUNK = 256  # samples per EXCITATION frame
 _KEEPALIVE_S = 0.2  # longest host silence while streaming (the board's watchdog is longer)
 _READ_TIMEOUT_S = 0.02
 _END_GRACE_S = 0.3  # after the board announced the end of a run, wait this long for its last block
+_DRAIN_TIMEOUTS = 5  # while connecting, an answer behind a stream of stale frames may take this many timeouts
 _MAX_TRACKED_GAPS = 4096  # lost blocks / frame numbers remembered, so a late arrival can be recognised
 
 #: The device-side stop of this transport (PROTOCOL.md section 8); the board fixes it, the host cannot arm it.
@@ -201,10 +202,14 @@ class SerialBoardAdapter(AdapterBase):
         """
         self._send(sb.StatusRequest())
         seq = self._send(sb.Stop())
-        deadline = time.monotonic() + self.timeout_s
+        started = time.monotonic()
+        deadline = started + self.timeout_s
         found = None
         while time.monotonic() < deadline:
-            for reply in self._read_messages(0.05):
+            bytes_before = self.decoder.stats.bytes_in
+            replies = self._read_messages(0.05)
+            deadline = self._drain_deadline(started, deadline, self.decoder.stats.bytes_in > bytes_before)
+            for reply in replies:
                 if isinstance(reply, sb.Ack) and (reply.acked_seq, reply.acked_type) == (seq, sb.MsgType.STOP):
                     if found is None:
                         raise DeviceError(f"{self.port}: the board acknowledged STOP but sent no STATUS")
@@ -255,6 +260,17 @@ class SerialBoardAdapter(AdapterBase):
             if messages or time.monotonic() >= deadline:
                 return messages
 
+    def _drain_deadline(self, started: float, deadline: float, traffic: bool) -> float:
+        """While connecting, a board still sending an earlier run's frames gets more time to answer.
+
+        Its answer queues behind those frames, which may take longer than
+        ``timeout_s`` to drain on a slow line; at most ``_DRAIN_TIMEOUTS`` times
+        ``timeout_s`` in all.
+        """
+        if not (self._connecting and traffic):
+            return deadline
+        return min(max(deadline, time.monotonic() + self.timeout_s), started + _DRAIN_TIMEOUTS * self.timeout_s)
+
     def _decode(self, payload: bytes):
         """The message in ``payload``, or None when it is counted and dropped.
 
@@ -298,12 +314,16 @@ class SerialBoardAdapter(AdapterBase):
         """Send ``msg`` and wait for its ACK (or ``answer_type``); NAK raises DeviceError."""
         seq = self._send(msg)
         kind = sb.encode(msg, 0)[1]
-        deadline = time.monotonic() + self.timeout_s
+        started = time.monotonic()
+        deadline = started + self.timeout_s
         keep = []  # data and events that arrive while waiting are kept for the stream
         answer = refusal = None
         try:
             while answer is None and refusal is None and time.monotonic() < deadline:
-                for reply in self._read_messages(0.05):
+                bytes_before = self.decoder.stats.bytes_in
+                replies = self._read_messages(0.05)
+                deadline = self._drain_deadline(started, deadline, self.decoder.stats.bytes_in > bytes_before)
+                for reply in replies:
                     if answer is None and refusal is None:
                         if isinstance(reply, sb.Nak) and (reply.acked_seq, reply.acked_type) == (seq, kind):
                             refusal = reply
