@@ -506,3 +506,30 @@ def test_a_sigkilled_session_is_stopped_by_the_board_watchdog_and_the_next_host_
             if proc is not None and proc.poll() is None:
                 proc.kill()
                 proc.wait(timeout=5)
+
+
+def test_after_an_interrupted_run_the_axis_is_stopped_and_the_slots_can_be_restored():
+    with pipe_board(make_config()) as (device, adapter):
+        fw = device.server.firmware
+        b, a = iirnotch(25.0, 3.0, fs=DRIVER.loop_rate_hz)
+        notch = Biquad(tuple(b), tuple(a))
+        adapter.write_filter(0, notch, enabled=True)
+        saved = adapter.save_filter(0)
+        adapter.disable_filter(0)  # bypassed for the identification run
+        adapter.configure(RATE_HZ, "torque_injection", CHANNELS)
+        received = []
+
+        def sink(index, rows):
+            received.append(len(rows))
+            if sum(received) >= 300:
+                raise KeyboardInterrupt  # Ctrl-C while the samples are handled
+
+        with pytest.raises(KeyboardInterrupt):
+            adapter.stream(np.zeros(20_000), sink)
+        adapter.safe_stop()  # what the session does first on every ending
+        assert wait_until(lambda: not fw.running, 0.5) and not device.drive.enabled
+        # the ended run's last block, its STOPPED event and the ACKs are still on the line
+        adapter.restore_filter(0, saved)
+        assert adapter.read_filter(0) == (adapter.stored_form(notch), True)
+        with pytest.raises(DeviceError, match=f"{device.port}: filter slot 9: BAD_ARGUMENT"):
+            adapter.read_filter(9)

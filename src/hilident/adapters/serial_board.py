@@ -455,13 +455,14 @@ class SerialBoardAdapter(AdapterBase):
 
     def read_filter(self, slot: int) -> tuple[Biquad, bool]:
         """Read a filter slot back (coefficients as the board stores them, REAL32)."""
-        self._send(sb.ReadFilter(slot))
+        seq = self._send(sb.ReadFilter(slot))
         deadline = time.monotonic() + self.timeout_s
         while time.monotonic() < deadline:
             for reply in self._read_messages(0.05):
                 if isinstance(reply, sb.FilterCoefficients) and reply.slot == slot:
                     return Biquad(reply.b, reply.a), reply.enabled
-                if isinstance(reply, sb.Nak):
+                # a NAK of a frame sent before (an ended run's in-flight EXCITATION) is not this answer
+                if isinstance(reply, sb.Nak) and (reply.acked_seq, reply.acked_type) == (seq, sb.MsgType.READ_FILTER):
                     raise DeviceError(f"{self.port}: filter slot {slot}: {reply.error.name} ({reply.detail})")
         raise DeviceError(f"{self.port}: no answer reading filter slot {slot}")
 
