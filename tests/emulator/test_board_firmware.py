@@ -6,6 +6,8 @@ import dataclasses
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.signal import iirnotch, lfilter
 
 from hilident.config import parse_config
@@ -582,3 +584,17 @@ def test_underrun_drops_an_injected_torque_to_zero(mode):
     np.testing.assert_array_equal(rows[25:, EXC], 0.0)
     (ev,) = events_of(out)
     assert (ev.sample_index, ev.value) == (25, 0.0)
+
+
+@settings(max_examples=300, deadline=None)
+@given(kind=st.sampled_from([int(t) for t in sb.MsgType]), body=st.binary(max_size=64))
+def test_the_board_survives_any_request_payload(kind, body):
+    # a host written from the document, a damaged line or a confused earlier session
+    bench = Bench()
+    bench.configure()
+    fw = bench.fw
+    fw.receive(bytes([sb.PROTOCOL_VERSION, kind, 9, 0]) + body)
+    assert fw.outbox or kind == sb.MsgType.EXCITATION  # every request but EXCITATION is answered
+    fw.advance(5)
+    fw.outbox.clear()
+    assert fw.status().state in tuple(sb.State)
