@@ -365,7 +365,7 @@ def test_a_refusal_while_the_board_runs_the_hosts_run_is_a_device_error():
         adapter.link.channels = adapter.channels
         with pytest.raises(DeviceError, match=f"{device.port}: board refused a frame during the run: BUFFER_OVERFLOW"):
             adapter.stream(excitation(20_000), Recorder())
-        assert not isinstance(adapter.last_result, type(None)) and not adapter.last_result.completed
+        assert adapter.last_result is not None and not adapter.last_result.completed
         assert wait_until(lambda: not device.drive.enabled)  # and the axis was stopped
 
 
