@@ -6,6 +6,8 @@ import dataclasses
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.signal import iirnotch, lfilter
 
 from hilident.config import parse_config
@@ -525,3 +527,74 @@ def test_excitation_left_over_from_a_stopped_run_is_never_replayed():
     rows = rows_of(bench.advance(20))
     assert np.all(rows[:, EXC] == 0.0)  # nothing queued: zeros, counted as underrun
     assert bench.status().underruns == 20
+
+
+# --- the sample instant and underruns (PROTOCOL.md section 6) ------------------------------------
+
+
+def test_a_sample_is_taken_at_the_first_loop_tick_of_its_period():
+    bench = Bench(FRICTIONLESS)
+    channels = tuple(sb.ChannelSelection(NAMES.index(n)) for n in ("time_s", "excitation", "torque_nm"))
+    divider = 4
+    bench.configure(divider=divider, block=8, channels=channels)
+    bench.fw.idle(7)  # the run starts at an arbitrary loop tick, not a multiple of the divider
+    tick0 = bench.drive.tick
+    assert tick0 == 7
+    x = np.r_[np.zeros(10), np.full(10, 2.0)]
+    bench.excite(0, x)
+    bench.ok(sb.Start(len(x)))
+    rows = rows_of(bench.advance(len(x)))
+    period = 1.0 / bench.fw.identity.loop_rate_hz
+    # sample i is read at loop tick tick0 + divider * i: the first tick of its period (a board that
+    # sampled at the last tick would report (divider - 1) ticks later, a phase lag of 0.75 ms at 1 kHz)
+    np.testing.assert_array_equal(rows[:, 0], f32((tick0 + divider * np.arange(len(x))) * period))
+    # and excitation value i acts from that very tick: the step shows in the same row, not one later
+    np.testing.assert_array_equal(rows[:, 1], x)
+    np.testing.assert_array_equal(rows[:, 2], x)
+
+
+@pytest.mark.parametrize("mode, last", [(sb.Mode.VELOCITY, 2e-3), (sb.Mode.POSITION, 2e-5)])
+def test_underrun_holds_the_last_set_point_in_velocity_and_position_mode(mode, last):
+    bench = Bench(FRICTIONLESS)
+    bench.configure(divider=4, block=10, mode=mode)
+    x = np.linspace(0.0, last, 25)  # a ramp of set-points (m/s or m), then nothing more
+    bench.excite(0, x)
+    bench.ok(sb.Start(0))
+    out = bench.advance(20) + bench.advance(20)
+    rows = rows_of(out)
+    np.testing.assert_array_equal(rows[:25, EXC], f32(x))
+    np.testing.assert_array_equal(rows[25:, EXC], f32(x[-1]))  # held, never a jump to 0
+    (ev,) = events_of(out)
+    assert (ev.code, ev.sample_index) == (sb.EventCode.UNDERRUN, 25)
+    assert ev.value == pytest.approx(x[-1])
+    assert bench.status().underruns == 15
+    # the loop sees no step: the torque command moves on smoothly across the underrun
+    steps = np.abs(np.diff(rows[20:30, CMD]))
+    assert steps[4] <= 2 * max(steps[:4].max(), steps[5:].max())
+
+
+@pytest.mark.parametrize("mode", [sb.Mode.TORQUE, sb.Mode.TORQUE_INJECTION])
+def test_underrun_drops_an_injected_torque_to_zero(mode):
+    bench = Bench(FRICTIONLESS)
+    bench.configure(divider=4, block=10, mode=mode)
+    bench.excite(0, np.full(25, 0.3))
+    bench.ok(sb.Start(0))
+    out = bench.advance(40)
+    rows = rows_of(out)
+    np.testing.assert_array_equal(rows[25:, EXC], 0.0)
+    (ev,) = events_of(out)
+    assert (ev.sample_index, ev.value) == (25, 0.0)
+
+
+@settings(max_examples=300, deadline=None)
+@given(kind=st.sampled_from([int(t) for t in sb.MsgType]), body=st.binary(max_size=64))
+def test_the_board_survives_any_request_payload(kind, body):
+    # a host written from the document, a damaged line or a confused earlier session
+    bench = Bench()
+    bench.configure()
+    fw = bench.fw
+    fw.receive(bytes([sb.PROTOCOL_VERSION, kind, 9, 0]) + body)
+    assert fw.outbox or kind == sb.MsgType.EXCITATION  # every request but EXCITATION is answered
+    fw.advance(5)
+    fw.outbox.clear()
+    assert fw.status().state in tuple(sb.State)

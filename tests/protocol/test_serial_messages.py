@@ -340,3 +340,30 @@ def test_unknown_event_state_and_error_codes_raise():
 def test_encode_rejects_non_messages():
     with pytest.raises(TypeError):
         sb.encode(object(), 1)
+
+
+def test_samples_before_any_channel_selection_raise_a_protocol_error():
+    # What a host sees when it connects to a board still streaming a killed session's run.
+    channels = (sb.ChannelSelection(0), sb.ChannelSelection(1, sb.Format.I16, 0.5))
+    payload = sb.encode(sb.Samples(9, 40, 0, 0, 0, 0, np.ones((4, 2))), 3, sample_channels=channels)
+    with pytest.raises(ProtocolError, match="SAMPLES block 9 arrived before any channel selection"):
+        sb.decode(payload)
+    with pytest.raises(ProtocolError, match="without a channel selection"):
+        sb.unpack_rows(b"\x00" * 8, ())
+
+
+_SELECTIONS = st.lists(
+    st.builds(sb.ChannelSelection, st.integers(0, 6), st.sampled_from(list(sb.Format)), st.floats(1e-6, 1.0)),
+    max_size=4,
+).map(tuple)
+
+
+@settings(max_examples=400, deadline=None)
+@given(kind=st.sampled_from([int(t) for t in sb.MsgType]), body=st.binary(max_size=80), channels=_SELECTIONS)
+def test_any_payload_of_a_known_type_decodes_or_raises_a_protocol_error(kind, body, channels):
+    # what a host may receive from a board it does not know, a damaged line or an earlier session
+    payload = bytes([sb.PROTOCOL_VERSION, kind, 1, 0]) + body
+    try:
+        sb.decode(payload, sample_channels=channels)
+    except ProtocolError:
+        pass

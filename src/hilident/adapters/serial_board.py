@@ -5,17 +5,24 @@ pyserial URL (``socket://host:port``, ``rfc2217://host:port``), streams the
 excitation with flow control, receives sample blocks, counts every lost,
 corrupt or out-of-order frame, and stops the axis (zero torque) on every exit
 path: normal end, error, limit trip, Ctrl-C.
+
+Connecting brings the board to a known state whatever the previous session
+left behind (it may have been killed mid-run): frames of the old run are
+decoded and discarded, STOP is sent, a latched fault is reported and cleared
+only when allowed. Only the messages of PROTOCOL.md are used, so any board
+built to it is handled the same way.
 """
 
 from __future__ import annotations
 
+import secrets
 import time
 from typing import Callable
 
 import numpy as np
 import serial
 
-from hilident.adapters.base import AdapterBase, RunResult, StreamStats
+from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, StreamStats, refuse_latched_faults
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription
 from hilident.errors import DeviceError, LimitTrip, ProtocolError
@@ -38,6 +45,21 @@ _EXCITATION_CHUNK = 256  # samples per EXCITATION frame
 _KEEPALIVE_S = 0.2  # longest host silence while streaming (the board's watchdog is longer)
 _READ_TIMEOUT_S = 0.02
 _END_GRACE_S = 0.3  # after the board announced the end of a run, wait this long for its last block
+_DRAIN_TIMEOUTS = 5  # while connecting, an answer behind a stream of stale frames may take this many timeouts
+_MAX_TRACKED_GAPS = 4096  # lost blocks / frame numbers remembered, so a late arrival can be recognised
+
+#: The device-side stop of this transport (PROTOCOL.md section 8); the board fixes it, the host cannot arm it.
+WATCHDOG_NET = "board watchdog: a running board stops the axis (zero torque) after 1 s without a byte from the host"
+
+_LIMIT_FAULTS = (sb.FaultCode.TORQUE_LIMIT, sb.FaultCode.VELOCITY_LIMIT, sb.FaultCode.POSITION_LIMIT)
+
+_FAULT_MEANING = {
+    sb.FaultCode.TORQUE_LIMIT: "a torque limit tripped",
+    sb.FaultCode.VELOCITY_LIMIT: "a velocity limit tripped",
+    sb.FaultCode.POSITION_LIMIT: "a position limit tripped",
+    sb.FaultCode.WATCHDOG: "the board's watchdog stopped a run whose host went silent",
+    sb.FaultCode.NONE: "no fault code given",
+}
 
 
 class SerialBoardAdapter(AdapterBase):
@@ -53,52 +75,155 @@ class SerialBoardAdapter(AdapterBase):
         Port name used in error messages.
     timeout_s : float
         Longest wait for an answer or for sample data.
+    allow_fault_reset : bool
+        Clear a fault the board latched before this session (CLEAR_FAULT) when
+        connecting; without it such a board is refused.
+
+    Attributes
+    ----------
+    connect_report : ConnectReport
+        What :meth:`connect` found and did.
+    found_state : str
+        The board's state when this host connected (``"RUNNING"`` after a
+        killed session), or ``""`` before :meth:`connect`.
     """
 
     transport = "serial"
 
-    def __init__(self, link, driver: DriverDescription, port: str, timeout_s: float = 2.0):
+    def __init__(self, link, driver: DriverDescription, port: str, timeout_s: float = 2.0,
+                 allow_fault_reset: bool = False):
         self.link = link
         self.driver = driver
         self.port = port
         self.timeout_s = timeout_s
+        self.allow_fault_reset = allow_fault_reset
+        self.connect_report = ConnectReport(device_net=WATCHDOG_NET)
+        self.found_state = ""
+        self._connecting = False
         self.decoder = FrameDecoder()
         self.identity: sb.Identity | None = None
         self.channels: tuple[sb.ChannelSelection, ...] = ()
         self.channel_names: list[str] = []
         self.channel_units: list[str] = []
         self.sample_rate_hz = 0.0
-        self._seq = 0
+        # A fresh random start: an answer a killed host's request left on the line never matches ours.
+        self._seq = secrets.randbelow(0x10000)
         self._rx_seq: int | None = None
+        self._missing_seqs: set[int] = set()
         self.lost_frames = 0
         self.events: list[dict] = []
         self.last_result: RunResult | None = None
         self._backlog: list = []  # messages that arrived while waiting for an answer
         if hasattr(link, "timeout"):
             link.timeout = _READ_TIMEOUT_S  # short reads: the adapter polls and keeps the line busy
+        if hasattr(link, "write_timeout"):
+            link.write_timeout = timeout_s  # a line that takes no bytes is an error, never a hang (STOP included)
 
     # --- opening --------------------------------------------------------------------
 
     @classmethod
     def open_device(cls, device: DeviceConfig, driver: DriverDescription, link=None) -> "SerialBoardAdapter":
-        """Connect as ``[device]`` says, or over an already open ``link``; identifies the board."""
+        """Connect as ``[device]`` says, or over an already open ``link``, and bring the board to a known state.
+
+        See :meth:`connect`; ``device.allow_fault_reset`` decides whether a latched fault is cleared.
+        """
         if link is None:
-            return cls.open(device.port, driver, device.baudrate, device.timeout_s)
-        return cls._identified(cls(link, driver, device.port, device.timeout_s))
+            return cls.open(device.port, driver, device.baudrate, device.timeout_s,
+                            allow_fault_reset=device.allow_fault_reset)
+        return cls._connected(cls(link, driver, device.port, device.timeout_s,
+                                  allow_fault_reset=device.allow_fault_reset))
 
     @classmethod
-    def open(cls, port: str, driver: DriverDescription, baudrate: int = 0, timeout_s: float = 2.0):
-        """Open ``port`` (device path, ``COMx`` or pyserial URL) and identify the board."""
+    def open(cls, port: str, driver: DriverDescription, baudrate: int = 0, timeout_s: float = 2.0,
+             allow_fault_reset: bool = False):
+        """Open ``port`` (device path, ``COMx`` or pyserial URL) and connect (:meth:`connect`)."""
         try:
             link = serial.serial_for_url(port, baudrate=baudrate or driver.default_baudrate, timeout=_READ_TIMEOUT_S)
         except (serial.SerialException, ValueError, OSError) as exc:
             raise DeviceError(f"{port}: cannot open: {exc}") from None
-        return cls._identified(cls(link, driver, port, timeout_s))
+        return cls._connected(cls(link, driver, port, timeout_s, allow_fault_reset=allow_fault_reset))
+
+    @staticmethod
+    def _connected(adapter: "SerialBoardAdapter") -> "SerialBoardAdapter":
+        """``adapter`` after a successful :meth:`connect`; the line is closed again when that fails."""
+        try:
+            adapter.connect()
+        except BaseException:
+            adapter.close()
+            raise
+        return adapter
+
+    def connect(self) -> ConnectReport:
+        """Identify the board and bring it to a known state, whatever the last session left.
+
+        Frames that are not the answer waited for (sample blocks and events of
+        a run a killed host left going, stale answers) are decoded or not,
+        and counted in ``connect_report.discarded_frames``; never used. Then
+        STATUS_REQUEST and STOP (zero torque) go out together: the board's
+        state before the STOP is :attr:`found_state`. A board in FAULT is
+        reported in ``connect_report.faults`` and cleared with CLEAR_FAULT only
+        when ``allow_fault_reset`` is true.
+
+        Raises
+        ------
+        DeviceError
+            The board does not answer or does not match the driver, or it has
+            a latched fault and ``allow_fault_reset`` is false (the message names
+            the port, the fault and how to clear it).
+        """
+        report = self.connect_report
+        corrupt_before = self.decoder.stats.corrupt
+        self._connecting = True
+        try:
+            self.identify()
+            found = self._stop_reporting_state()
+            self.found_state = found.state.name
+            status = self.status()
+            if status.state == sb.State.FAULT:
+                report.faults.append(
+                    f"board in FAULT {status.fault.name} ({_FAULT_MEANING.get(status.fault, 'unknown fault')})"
+                )
+                if not self.allow_fault_reset:
+                    raise refuse_latched_faults(self.port, report.faults)
+                self.clear_fault()
+                if self.status().state == sb.State.FAULT:
+                    raise DeviceError(f"{self.port}: the board stays in FAULT {status.fault.name} after CLEAR_FAULT")
+                report.faults_cleared = True
+        finally:
+            self._connecting = False
+            report.discarded_frames += self.decoder.stats.corrupt - corrupt_before
+        return report
+
+    def _stop_reporting_state(self) -> sb.Status:
+        """Send STATUS_REQUEST and STOP back to back; the board's status from just before the STOP.
+
+        The board answers in order, so the last STATUS before the STOP's ACK
+        is the answer to this request, whatever stale STATUS frames came first.
+        """
+        self._send(sb.StatusRequest())
+        seq = self._send(sb.Stop())
+        started = time.monotonic()
+        deadline = started + self.timeout_s
+        found = None
+        while time.monotonic() < deadline:
+            bytes_before = self.decoder.stats.bytes_in
+            replies = self._read_messages(0.05)
+            deadline = self._drain_deadline(started, deadline, self.decoder.stats.bytes_in > bytes_before)
+            for reply in replies:
+                if isinstance(reply, sb.Ack) and (reply.acked_seq, reply.acked_type) == (seq, sb.MsgType.STOP):
+                    if found is None:
+                        raise DeviceError(f"{self.port}: the board acknowledged STOP but sent no STATUS")
+                    self.connect_report.discarded_frames -= 1  # ``found`` was counted with the stale frames
+                    return found
+                if isinstance(reply, sb.Status):
+                    found = reply
+                self.connect_report.discarded_frames += 1
+        raise DeviceError(f"{self.port}: no answer to Stop within {self.timeout_s:g} s")
 
     def close(self) -> None:
-        """Stop the axis and close the line."""
+        """Stop the axis and close the line. Never raises."""
         try:
-            self.stop()
+            self.safe_stop()
         finally:
             try:
                 self.link.close()
@@ -129,42 +254,89 @@ class SerialBoardAdapter(AdapterBase):
                 raise DeviceError(f"{self.port}: line lost: {e}") from None
             messages = []
             for payload in self.decoder.feed(data):
-                try:
-                    header, msg = sb.decode(payload, sample_channels=self.channels)
-                except ProtocolError as e:
-                    self.events.append({"kind": "protocol_error", "message": str(e), "sample_index": -1})
-                    continue
-                self._track_seq(header.seq)
-                messages.append(msg)
+                msg = self._decode(payload)
+                if msg is not None:
+                    messages.append(msg)
             if messages or time.monotonic() >= deadline:
                 return messages
 
+    def _drain_deadline(self, started: float, deadline: float, traffic: bool) -> float:
+        """While connecting, a board still sending an earlier run's frames gets more time to answer.
+
+        Its answer queues behind those frames, which may take longer than
+        ``timeout_s`` to drain on a slow line; at most ``_DRAIN_TIMEOUTS`` times
+        ``timeout_s`` in all.
+        """
+        if not (self._connecting and traffic):
+            return deadline
+        return min(max(deadline, time.monotonic() + self.timeout_s), started + _DRAIN_TIMEOUTS * self.timeout_s)
+
+    def _decode(self, payload: bytes):
+        """The message in ``payload``, or None when it is counted and dropped.
+
+        Sample blocks that arrive before this host chose its channels belong
+        to an earlier session (a run a killed host left going): they cannot
+        even be decoded, so they are counted as discarded, never a crash.
+        """
+        if not self.channels and len(payload) > 1 and payload[1] == sb.MsgType.SAMPLES:
+            self.connect_report.discarded_frames += 1
+            return None
+        try:
+            header, msg = sb.decode(payload, sample_channels=self.channels)
+        except ProtocolError as e:
+            if self._connecting:
+                self.connect_report.discarded_frames += 1
+            else:
+                self.events.append({"kind": "protocol_error", "message": str(e), "sample_index": -1})
+            return None
+        self._track_seq(header.seq)
+        return msg
+
     def _track_seq(self, seq: int) -> None:
-        if self._rx_seq is not None:
-            gap = (seq - self._rx_seq - 1) & 0xFFFF
-            if gap < 0x8000:
-                self.lost_frames += gap
-        self._rx_seq = seq
+        """Count frames missing from the board's numbering; a late one is taken back, not counted twice."""
+        if self._rx_seq is None:
+            self._rx_seq = seq
+            return
+        ahead = (seq - self._rx_seq) & 0xFFFF
+        if 0 < ahead < 0x8000:
+            gap = ahead - 1
+            self.lost_frames += gap
+            if len(self._missing_seqs) + gap > _MAX_TRACKED_GAPS:
+                self._missing_seqs.clear()
+            if gap <= _MAX_TRACKED_GAPS:
+                self._missing_seqs.update((self._rx_seq + k) & 0xFFFF for k in range(1, gap + 1))
+            self._rx_seq = seq
+        elif seq in self._missing_seqs:  # arrived after a later frame: reordered, not lost
+            self._missing_seqs.discard(seq)
+            self.lost_frames -= 1
 
     def _request(self, msg, answer_type=None):
         """Send ``msg`` and wait for its ACK (or ``answer_type``); NAK raises DeviceError."""
         seq = self._send(msg)
-        deadline = time.monotonic() + self.timeout_s
+        kind = sb.encode(msg, 0)[1]
+        started = time.monotonic()
+        deadline = started + self.timeout_s
         keep = []  # data and events that arrive while waiting are kept for the stream
         answer = refusal = None
         try:
             while answer is None and refusal is None and time.monotonic() < deadline:
-                for reply in self._read_messages(0.05):
+                bytes_before = self.decoder.stats.bytes_in
+                replies = self._read_messages(0.05)
+                deadline = self._drain_deadline(started, deadline, self.decoder.stats.bytes_in > bytes_before)
+                for reply in replies:
                     if answer is None and refusal is None:
-                        if isinstance(reply, sb.Nak) and reply.acked_seq == seq:
+                        if isinstance(reply, sb.Nak) and (reply.acked_seq, reply.acked_type) == (seq, kind):
                             refusal = reply
                             continue
-                        if (answer_type is None and isinstance(reply, sb.Ack) and reply.acked_seq == seq) or (
+                        if (answer_type is None and isinstance(reply, sb.Ack)
+                                and (reply.acked_seq, reply.acked_type) == (seq, kind)) or (
                             answer_type is not None and isinstance(reply, answer_type)
                         ):
                             answer = reply
                             continue
-                    if isinstance(reply, (sb.Samples, sb.Event)):
+                    if self._connecting:
+                        self.connect_report.discarded_frames += 1  # left over from an earlier session
+                    elif isinstance(reply, (sb.Samples, sb.Event)):
                         keep.append(reply)
         finally:
             self._backlog = keep + self._backlog
@@ -187,11 +359,11 @@ class SerialBoardAdapter(AdapterBase):
     # --- device operations ------------------------------------------------------------------
 
     def identify(self) -> sb.Identity:
-        """Ask the board who it is and check it matches the driver description."""
-        try:
-            self.link.reset_input_buffer()
-        except Exception:
-            pass
+        """Ask the board who it is and check it matches the driver description.
+
+        Stale input is read and dropped frame by frame (see :meth:`connect`),
+        not flushed unseen, so what a previous session left is counted.
+        """
         ident = self._request(sb.Identify(), sb.Identity)
         if ident.protocol_version != self.driver.protocol_version:
             raise DeviceError(
@@ -239,15 +411,34 @@ class SerialBoardAdapter(AdapterBase):
         return self._request(sb.StatusRequest(), sb.Status)
 
     def clear_fault(self) -> None:
+        """Send CLEAR_FAULT (the board leaves FAULT; it does not re-enable the drive)."""
         self._request(sb.ClearFault())
 
-    def stop(self) -> None:
-        """Send STOP (zero torque). Never raises: it runs on every exit path."""
+    def safe_stop(self) -> None:
+        """Send STOP (zero torque) now, without waiting for its ACK. Never raises.
+
+        A 0x00 goes first: if an exception (a signal) cut the previous frame
+        short, its remains end there as one corrupt frame at the board instead
+        of swallowing the STOP (PROTOCOL.md section 2).
+        """
         try:
-            if getattr(self.link, "is_open", True):
-                self._send(sb.Stop())
+            if not getattr(self.link, "is_open", True):
+                return
+            self._seq = (self._seq + 1) & 0xFFFF
+            self.link.write(b"\x00" + encode_frame(sb.encode(sb.Stop(), self._seq)))
+            flush = getattr(self.link, "flush", None)
+            if flush is not None:
+                flush()
         except Exception:
             pass
+
+    stop = safe_stop
+
+    def disable_filter(self, slot: int) -> None:
+        """Bypass ``slot``: its coefficients stay stored, only ``enabled`` is cleared."""
+        biquad, enabled = self.read_filter(slot)
+        if enabled:
+            self.write_filter(slot, biquad, enabled=False)
 
     def write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None = None, *, enabled: bool) -> None:
         """Store a biquad in a filter slot (the board takes coefficients; ``spec`` is not used)."""
@@ -264,13 +455,14 @@ class SerialBoardAdapter(AdapterBase):
 
     def read_filter(self, slot: int) -> tuple[Biquad, bool]:
         """Read a filter slot back (coefficients as the board stores them, REAL32)."""
-        self._send(sb.ReadFilter(slot))
+        seq = self._send(sb.ReadFilter(slot))
         deadline = time.monotonic() + self.timeout_s
         while time.monotonic() < deadline:
             for reply in self._read_messages(0.05):
                 if isinstance(reply, sb.FilterCoefficients) and reply.slot == slot:
                     return Biquad(reply.b, reply.a), reply.enabled
-                if isinstance(reply, sb.Nak):
+                # a NAK of a frame sent before (an ended run's in-flight EXCITATION) is not this answer
+                if isinstance(reply, sb.Nak) and (reply.acked_seq, reply.acked_type) == (seq, sb.MsgType.READ_FILTER):
                     raise DeviceError(f"{self.port}: filter slot {slot}: {reply.error.name} ({reply.detail})")
         raise DeviceError(f"{self.port}: no answer reading filter slot {slot}")
 
@@ -290,117 +482,218 @@ class SerialBoardAdapter(AdapterBase):
         """Play ``excitation`` (one value per sample) and hand every received block to ``sink``.
 
         ``sink(sample_index, rows)`` gets the absolute sample indices and an
-        ``(n, n_channels)`` array. Missing blocks are counted, never filled.
-        The axis is stopped on every exit path.
+        ``(n, n_channels)`` array. Missing blocks are counted, never filled; a
+        block that arrives after a later one is discarded and counted as out of
+        order, not as lost. Events are appended to :attr:`events` as they are
+        decoded. The axis is stopped on every exit path; anything ``sink`` or a
+        signal raises propagates after STOP was sent.
+
+        The first cause wins: after the board reported a limit trip, a frame it
+        refuses is no error of its own and :class:`LimitTrip` is raised; after a
+        run the board finished, a refused in-flight frame is no error at all.
 
         Raises
         ------
         LimitTrip
             The board tripped a safety limit (the samples up to then were delivered).
         DeviceError
-            The line was lost, the board went silent, or its watchdog stopped the axis.
+            The line was lost, the board went silent, refused a frame while it
+            was running the host's run, or its watchdog stopped the axis.
         """
         excitation = np.asarray(excitation, dtype=float)
-        n = len(excitation)
-        capacity = self.identity.excitation_buffer_samples
-        window = max(_EXCITATION_CHUNK, capacity - _EXCITATION_CHUNK)
+        run = _Run(self, excitation, sink, progress)
         self.events = []
-        stats = StreamStats()
-        result = RunResult(requested_samples=n, stats=stats)
+        self._missing_seqs.clear()
+        self._backlog = []  # blocks and events kept from before this run belong to an earlier one
+        result = run.result
         corrupt_before = self.decoder.stats.corrupt
         lost_before = self.lost_frames
-        sent = consumed = 0
-        expected_block = None
-        expected_sample = 0
-        done = False
-        end_seen = None  # when the board announced the end of the run
-        fault_code = None
-        def send_excitation() -> int:
-            count = 0
-            while sent + count < n and sent + count - consumed + _EXCITATION_CHUNK <= window:
-                chunk = excitation[sent + count : sent + count + _EXCITATION_CHUNK]
-                self._send(sb.Excitation(sent + count, chunk))
-                count += len(chunk)
-            return count
-
         try:
-            sent += send_excitation()  # pre-fill the board's buffer so the run starts without underruns
-            self._request(sb.Start(n))
-            last_data = time.monotonic()
-            last_tx = time.monotonic()
-            while not done:
-                count = send_excitation()
-                sent += count
-                if count:
-                    last_tx = time.monotonic()
-                elif time.monotonic() - last_tx > _KEEPALIVE_S:
-                    self._send(sb.Ping())  # the board's watchdog stops the axis if the host goes silent
-                    last_tx = time.monotonic()
-                messages = self._read_messages(0.01)
-                now = time.monotonic()
-                if any(isinstance(m, (sb.Samples, sb.Event)) for m in messages):
-                    last_data = now
-                elif now - last_data > self.timeout_s:
-                    raise DeviceError(f"{self.port}: no data from the board for {self.timeout_s:g} s")
-                if end_seen is not None and now - end_seen > _END_GRACE_S:
-                    break  # the run's last block was lost on the line
-                for msg in messages:
-                    if isinstance(msg, sb.Samples):
-                        if expected_block is not None and msg.block_index < expected_block:
-                            stats.out_of_order += 1
-                            continue
-                        if expected_block is not None and msg.block_index > expected_block:
-                            gap = msg.block_index - expected_block
-                            stats.lost_blocks += gap
-                            stats.lost_samples += msg.first_sample - expected_sample
-                            self.events.append({
-                                "kind": "lost_blocks", "sample_index": expected_sample,
-                                "message": f"{gap} sample block(s) lost: samples {expected_sample}..{msg.first_sample - 1}",
-                                "value": float(gap),
-                            })
-                        expected_block = msg.block_index + 1
-                        expected_sample = msg.first_sample + len(msg.data)
-                        consumed = max(consumed, msg.excitation_consumed)
-                        stats.underruns = msg.underruns
-                        if msg.flags & sb.FLAG_CLIPPED:
-                            stats.clipped_blocks += 1
-                        if len(msg.data):
-                            sink(msg.first_sample + np.arange(len(msg.data)), msg.data)
-                            stats.samples += len(msg.data)
-                        if progress:
-                            progress(min(1.0, expected_sample / max(n, 1)))
-                        if msg.flags & sb.FLAG_LAST:
-                            done = True
-                    elif isinstance(msg, sb.Event):
-                        entry = self._note_event(msg)
-                        if msg.code in (sb.EventCode.LIMIT_TRIP, sb.EventCode.WATCHDOG, sb.EventCode.FAULT):
-                            result.fault = entry["message"]
-                            fault_code = msg.code
-                        if msg.code in _END_EVENTS and end_seen is None:
-                            end_seen = now
-                    elif isinstance(msg, sb.Nak):
-                        raise DeviceError(f"{self.port}: board refused a frame during the run: {msg.error.name} ({msg.detail})")
-            end = max(expected_sample, 0)
-            if result.fault is None and end < n:
-                stats.lost_samples += n - end
-                self.events.append({"kind": "lost_blocks", "sample_index": end, "value": 0.0,
-                                    "message": f"end of run lost on the line: samples {end}..{n - 1}"})
-            # Late events (FINISHED after the last block) and the board's own counters.
-            for msg in self._read_messages(0.02):
-                if isinstance(msg, sb.Event):
-                    self._note_event(msg)
-            status = self.status()
-            stats.underruns = status.underruns
-            stats.board_dropped_blocks = status.dropped_blocks
-            result.completed = result.fault is None
+            run.play()
+            self._finish_run(run)
         finally:
             if not result.completed:
-                self.stop()
-            stats.corrupt_frames = self.decoder.stats.corrupt - corrupt_before
-            stats.lost_frames = self.lost_frames - lost_before
+                self.safe_stop()
+            result.stats.corrupt_frames = self.decoder.stats.corrupt - corrupt_before
+            result.stats.lost_frames = self.lost_frames - lost_before
             result.events = list(self.events)
             self.last_result = result
         if result.fault:
-            error = LimitTrip if fault_code == sb.EventCode.LIMIT_TRIP else DeviceError
+            error = LimitTrip if run.fault_code == sb.EventCode.LIMIT_TRIP else DeviceError
             raise error(f"{self.port}: {result.fault}") from None
         return result
+
+    def _finish_run(self, run: "_Run") -> None:
+        """Take late events and the board's own counters, and count what never arrived.
+
+        A board found in FAULT after a run whose fault event was lost on the
+        line still ends the run with that fault (a limit trip stays a trip).
+        """
+        result, stats, n = run.result, run.result.stats, run.n
+        try:
+            for msg in self._read_messages(0.02):  # late events (FINISHED after the last block)
+                if isinstance(msg, sb.Event):
+                    run.take(msg, time.monotonic())
+            status = self.status()
+        except DeviceError:
+            if result.fault is None:
+                raise
+            return  # the fault the board reported is the cause; the line failing after it is not
+        if result.fault is None and status.state == sb.State.FAULT:
+            result.fault = f"board in FAULT {status.fault.name} after the run (its event was lost on the line)"
+            run.fault_code = sb.EventCode.LIMIT_TRIP if status.fault in _LIMIT_FAULTS else sb.EventCode.FAULT
+        end = max(run.expected_sample, 0)
+        if result.fault is None and end < n:
+            stats.lost_samples += n - end
+            self.events.append({"kind": "lost_blocks", "sample_index": end, "value": 0.0,
+                                "message": f"end of run lost on the line: samples {end}..{n - 1}"})
+        stats.underruns = status.underruns
+        stats.board_dropped_blocks = status.dropped_blocks
+        result.completed = result.fault is None
+
+
+class _Run:
+    """Bookkeeping of one :meth:`SerialBoardAdapter.stream`: what was sent, received, lost and refused."""
+
+    def __init__(self, adapter: SerialBoardAdapter, excitation: np.ndarray, sink, progress):
+        self.ad = adapter
+        self.excitation = excitation
+        self.n = len(excitation)
+        self.sink = sink
+        self.progress = progress
+        capacity = adapter.identity.excitation_buffer_samples
+        self.window = max(_EXCITATION_CHUNK, capacity - _EXCITATION_CHUNK)
+        self.result = RunResult(requested_samples=self.n, stats=StreamStats())
+        self.sent = self.consumed = 0
+        self.expected_block: int | None = None
+        self.expected_sample = 0
+        self.lost: dict[int, None] = {}  # block indices counted as lost (a late one is taken back)
+        self.done = False
+        self.end_seen: float | None = None  # when the board announced the end of the run
+        self.refusal: sb.Nak | None = None  # a NAK waiting for the board's reason
+        self.refused_at = 0.0
+        self.fault_code: sb.EventCode | None = None
+
+    def send_excitation(self) -> int:
+        """Top the board's buffer up within the window; the number of values sent."""
+        if self.refusal is not None:
+            return 0  # the board left the run or lost the stream's index: sending more cannot help
+        count = 0
+        while self.sent + count < self.n and self.sent + count - self.consumed + _EXCITATION_CHUNK <= self.window:
+            chunk = self.excitation[self.sent + count : self.sent + count + _EXCITATION_CHUNK]
+            self.ad._send(sb.Excitation(self.sent + count, chunk))
+            count += len(chunk)
+        self.sent += count
+        return count
+
+    def play(self) -> None:
+        """Pre-fill, START, then top up, keep the line alive and take blocks until the run ends."""
+        ad = self.ad
+        self.send_excitation()  # pre-fill the board's buffer so the run starts without underruns
+        ad._request(sb.Start(self.n))
+        last_data = last_tx = time.monotonic()
+        while not self.done:
+            if self.send_excitation():
+                last_tx = time.monotonic()
+            elif time.monotonic() - last_tx > _KEEPALIVE_S:
+                ad._send(sb.Ping())  # the board's watchdog stops the axis if the host goes silent
+                last_tx = time.monotonic()
+            messages = ad._read_messages(0.01)
+            now = time.monotonic()
+            if any(isinstance(m, (sb.Samples, sb.Event)) for m in messages):
+                last_data = now
+            elif now - last_data > ad.timeout_s:
+                raise DeviceError(f"{ad.port}: no data from the board for {ad.timeout_s:g} s")
+            if self.end_seen is not None and now - self.end_seen > _END_GRACE_S:
+                break  # the run's last block was lost on the line
+            for msg in messages:
+                self.take(msg, now)
+            if self.refusal is not None and self.end_seen is None and not self.done \
+                    and now - self.refused_at > _END_GRACE_S:
+                nak = self.refusal
+                raise DeviceError(f"{ad.port}: board refused a frame during the run: {nak.error.name} ({nak.detail})")
+
+    def take(self, msg, now: float) -> None:
+        if isinstance(msg, sb.Samples):
+            self.take_block(msg)
+        elif isinstance(msg, sb.Event):
+            entry = self.ad._note_event(msg)
+            if msg.code in (sb.EventCode.LIMIT_TRIP, sb.EventCode.WATCHDOG, sb.EventCode.FAULT):
+                if self.result.fault is None:  # the first cause wins
+                    self.result.fault = entry["message"]
+                    self.fault_code = msg.code
+            if msg.code in _END_EVENTS and self.end_seen is None:
+                self.end_seen = now
+        elif isinstance(msg, sb.Nak):
+            self.take_refusal(msg, now)
+
+    def take_refusal(self, nak: sb.Nak, now: float) -> None:
+        """A NAK is an error only while the board is still running this run.
+
+        A board that tripped, finished or was stopped refuses frames that were
+        already on their way (BAD_STATE, or a stream index it has reset): that
+        is the consequence of the end it announced, which wins. Its
+        announcement may still be on the line, so a refusal waits for it.
+        """
+        try:
+            what = sb.MsgType(nak.acked_type).name
+        except ValueError:
+            what = f"type 0x{nak.acked_type:02x}"
+        self.ad.events.append({
+            "kind": "refused", "sample_index": self.expected_sample, "value": float(nak.error),
+            "message": f"board refused a frame ({what}): {nak.error.name} ({nak.detail})",
+        })
+        if self.done or self.end_seen is not None or self.refusal is not None:
+            return
+        self.refusal, self.refused_at = nak, now
+
+    def take_block(self, msg: sb.Samples) -> None:
+        stats, ad = self.result.stats, self.ad
+        if self.expected_block is not None and msg.block_index < self.expected_block:
+            self.take_late_block(msg)
+            return
+        if self.expected_block is not None and msg.block_index > self.expected_block:
+            gap = msg.block_index - self.expected_block
+            stats.lost_blocks += gap
+            stats.lost_samples += msg.first_sample - self.expected_sample
+            if gap <= _MAX_TRACKED_GAPS:
+                self.lost.update(dict.fromkeys(range(self.expected_block, msg.block_index)))
+            ad.events.append({
+                "kind": "lost_blocks", "sample_index": self.expected_sample,
+                "message": f"{gap} sample block(s) lost: samples {self.expected_sample}..{msg.first_sample - 1}",
+                "value": float(gap),
+            })
+        self.expected_block = msg.block_index + 1
+        self.expected_sample = msg.first_sample + len(msg.data)
+        self.consumed = max(self.consumed, msg.excitation_consumed)
+        stats.underruns = msg.underruns
+        if msg.flags & sb.FLAG_CLIPPED:
+            stats.clipped_blocks += 1
+        if len(msg.data):
+            self.sink(msg.first_sample + np.arange(len(msg.data)), msg.data)
+            stats.samples += len(msg.data)
+        if self.progress:
+            self.progress(min(1.0, self.expected_sample / max(self.n, 1)))
+        if msg.flags & sb.FLAG_LAST:
+            self.done = True
+
+    def take_late_block(self, msg: sb.Samples) -> None:
+        """A block older than one already taken: out of order, discarded, never spliced in.
+
+        When it had been counted as lost, it is taken back out of the lost
+        counts: the line reordered it, it did not lose it. Its samples stay
+        missing from the recording, and the event log says so.
+        """
+        stats = self.result.stats
+        stats.out_of_order += 1
+        rows = len(msg.data)
+        span = f"samples {msg.first_sample}..{msg.first_sample + rows - 1}" if rows else "no samples"
+        if msg.block_index in self.lost:
+            del self.lost[msg.block_index]
+            stats.lost_blocks -= 1
+            stats.lost_samples -= rows
+        self.ad.events.append({
+            "kind": "out_of_order", "sample_index": msg.first_sample, "value": float(rows),
+            "message": f"sample block {msg.block_index} arrived after a later one and was discarded: "
+                       f"{span} are missing from the recording",
+        })

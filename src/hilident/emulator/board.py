@@ -75,6 +75,7 @@ class BoardFirmware:
         self._pending_rows = 0
         self._pending_flags = 0
         self._in_underrun = False
+        self._last_value = 0.0  # the excitation value played last in this run
         self.outbox: list[bytes] = []  # encoded payloads waiting for the line
         self.limits_loaded = False  # a board never moves the axis before it was told its limits
         self.line_corrupt = 0  # frames the line layer rejected (set by the server)
@@ -183,6 +184,7 @@ class BoardFirmware:
         self.counters.dropped_blocks = 0
         self._pending, self._pending_rows, self._pending_flags = [], 0, 0
         self._in_underrun = False
+        self._last_value = 0.0
         self.state = sb.State.RUNNING
         return None
 
@@ -262,12 +264,16 @@ class BoardFirmware:
         if k:
             values[:k] = self._fifo[(self._fifo_read + np.arange(k)) % len(self._fifo)]
             self._fifo_read += k
+            self._last_value = float(values[k - 1])
         if k < n_samples:
-            # Nothing to play: hold zero excitation (safe) and tell the host.
+            # Nothing to play: hold (PROTOCOL.md section 6) and tell the host.
+            held = self.underrun_value()
+            values[k:] = held
             self.counters.underruns += n_samples - k
             self._pending_flags |= sb.FLAG_UNDERRUN
             if not self._in_underrun:
-                self.send(sb.Event(sb.EventCode.UNDERRUN, self._produced + k, 0.0, "excitation buffer empty"))
+                self.send(sb.Event(sb.EventCode.UNDERRUN, self._produced + k, held,
+                                   f"excitation buffer empty: holding {held:g}"))
             self._in_underrun = True
         elif k:
             self._in_underrun = False
@@ -280,6 +286,18 @@ class BoardFirmware:
             self._trip(first)
         elif self._run_samples and self._produced >= self._run_samples:
             self._finish(sb.EventCode.FINISHED, "run complete")
+
+    def underrun_value(self) -> float:
+        """What the board plays when its excitation buffer is empty.
+
+        A set-point (velocity, position) holds its last value: dropping it to
+        zero would be a step the loops answer with a torque jump. An injected or
+        open-loop torque drops to zero, the no-torque hold (holding a torque
+        would keep accelerating the axis).
+        """
+        if self.config.mode in (sb.Mode.VELOCITY, sb.Mode.POSITION):
+            return self._last_value
+        return 0.0
 
     def idle(self, n_ticks: int) -> None:
         """Let the physics go on with the drive disabled (the axis coasts to rest)."""

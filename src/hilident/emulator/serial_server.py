@@ -13,6 +13,7 @@ opens like a USB serial board.
 
 from __future__ import annotations
 
+import math
 import os
 import select
 import socket
@@ -23,6 +24,7 @@ from collections import deque
 
 import numpy as np
 
+from hilident.errors import ConfigError
 from hilident.links import LinkClosed, PipeEnd
 from hilident.protocol.framing import FrameDecoder, encode_frame
 
@@ -98,29 +100,41 @@ class TcpLink:
     def read_some(self, timeout: float) -> bytes:
         if self._closed:
             raise LinkClosed(f"{self.path}: closed")
-        if self._conn is None:
+        conn = self._conn  # the transmit thread may drop it meanwhile
+        if conn is None:
             self._accept(timeout)
             return b""
-        ready, _, _ = select.select([self._conn, self._listener], [], [], timeout)
+        try:
+            ready, _, _ = select.select([conn, self._listener], [], [], timeout)
+        except (OSError, ValueError):  # closed by the transmit thread
+            return b""
         if self._listener in ready:
             self._accept(0)
             return b""
         if not ready:
             return b""
-        data = self._conn.recv(65536)
+        try:
+            data = conn.recv(65536)
+        except OSError:  # reset by a host that died: the line is free for the next one
+            data = b""
         if not data:  # the host hung up: wait for the next one
-            self._conn.close()
-            self._conn = None
+            self._drop(conn)
         return data
 
     def write(self, data: bytes) -> None:
         if self._closed:
             raise LinkClosed(f"{self.path}: closed")
-        if self._conn is None:
+        conn = self._conn
+        if conn is None:
             return  # nobody listening: bytes on an unconnected line are lost
         try:
-            self._conn.sendall(data)
-        except OSError:
+            conn.sendall(data)
+        except OSError:  # the host went away; what it did not take is lost, as on a real line
+            self._drop(conn)
+
+    def _drop(self, conn: socket.socket) -> None:
+        conn.close()
+        if self._conn is conn:
             self._conn = None
 
     def close(self) -> None:
@@ -210,6 +224,10 @@ class BoardServer:
     def __init__(self, firmware, link, baudrate: int, time_scale: float = 1.0,
                  tx_buffer_bytes: int = 65536, watchdog_s: float = 1.0,
                  faults: LineFaults | None = None, close_after_s: float = 0.0):
+        if not (math.isfinite(time_scale) and time_scale > 0):
+            raise ConfigError("emulator.time_scale", f"must be a finite number > 0, got {time_scale!r}")
+        if not (isinstance(baudrate, int) and baudrate >= 0):
+            raise ConfigError("device.baudrate", f"must be a whole number >= 0, got {baudrate!r}")
         self.firmware = firmware
         self.link = link
         self.baudrate = baudrate

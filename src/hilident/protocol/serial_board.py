@@ -371,6 +371,8 @@ def pack_rows(rows: np.ndarray, channels: tuple[ChannelSelection, ...]) -> tuple
 
 def unpack_rows(raw: bytes, channels: tuple[ChannelSelection, ...]) -> np.ndarray:
     """Decode packed records into an ``(n, n_channels)`` float64 array in SI units."""
+    if not channels:
+        raise ProtocolError("sample data cannot be decoded without a channel selection")
     dtype = sample_dtype(channels)
     if len(raw) % dtype.itemsize:
         raise ProtocolError(
@@ -540,6 +542,8 @@ def _decode_body(mtype: MsgType, r: _Reader, sample_channels, excitation):
         return Nak(seq, kind, _enum(ErrorCode, err, "error code"), r.string())
     if mtype == MsgType.SAMPLES:
         block, first, n, flags, consumed, level, underruns = r.take("IIHHIII")
+        if not sample_channels:
+            raise ProtocolError(f"SAMPLES block {block} arrived before any channel selection (no CONFIGURE yet)")
         data = unpack_rows(r.rest(), sample_channels)
         if len(data) != n:
             raise ProtocolError(f"SAMPLES block {block} announces {n} rows but carries {len(data)}")
