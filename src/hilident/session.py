@@ -352,9 +352,10 @@ class Session:
         endings.raise_pending()
         run = read_run(path)
         stats = result.stats
-        if stats.lost_blocks or stats.corrupt_frames or stats.underruns:
+        if stats.lost_blocks or stats.corrupt_frames or stats.underruns or stats.out_of_order:
             self.warnings.append(
                 f"{name}: {stats.lost_blocks} sample blocks ({stats.lost_samples} samples) lost, "
+                f"{stats.out_of_order} blocks out of order (discarded), "
                 f"{stats.corrupt_frames} corrupt frames, {stats.underruns} underrun samples"
             )
         return Experiment(name, path, run.samples, stats, result.events)

@@ -73,6 +73,9 @@ class ConnectReport:
         Faults the device had latched, as it described them.
     faults_cleared : bool
         Whether those faults were cleared (only with ``allow_fault_reset``).
+    found_state : str
+        The device's state before the host stopped it (e.g. ``"RUNNING"`` when
+        a killed session's run was still playing, ``"FAULT"``), or ``""``.
     device_net : str
         The device-side stop the host armed for when it dies (e.g.
         ``"heartbeat consumer 0x1016: 500 ms, 0x6007 = 2 (disable voltage)"``,
@@ -82,11 +85,12 @@ class ConnectReport:
     discarded_frames: int = 0
     faults: list[str] = field(default_factory=list)
     faults_cleared: bool = False
+    found_state: str = ""
     device_net: str = ""
 
     def to_dict(self) -> dict:
-        return {"discarded_frames": self.discarded_frames, "faults": list(self.faults),
-                "faults_cleared": self.faults_cleared, "device_net": self.device_net}
+        return {"discarded_frames": self.discarded_frames, "found_state": self.found_state,
+                "faults": list(self.faults), "faults_cleared": self.faults_cleared, "device_net": self.device_net}
 
 
 def refuse_latched_faults(port: str, faults: list[str]):

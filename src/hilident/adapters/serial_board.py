@@ -177,7 +177,7 @@ class SerialBoardAdapter(AdapterBase):
         try:
             self.identify()
             found = self._stop_reporting_state()
-            self.found_state = found.state.name
+            self.found_state = report.found_state = found.state.name
             status = self.status()
             if status.state == sb.State.FAULT:
                 report.faults.append(
