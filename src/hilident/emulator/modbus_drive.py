@@ -26,6 +26,11 @@ Fault switches (``[emulator.faults]``): ``exception_register`` /
 that exception), ``response_delay_s`` (every answer comes this late),
 ``missing_response_rate`` (answers lost; the request itself was carried out),
 ``capture_stops_after_s`` and ``drive_fault_after_s`` (see the firmware).
+
+The drive's communication timeout (register ``comm_timeout_ms``) is watched on
+the wall clock by the clock thread, whatever ``time_scale`` is: a host that
+falls silent while the drive is enabled finds it stopped, disabled and
+latched in fault ``comm_timeout``.
 """
 
 from __future__ import annotations
@@ -260,6 +265,8 @@ class ModbusDriveServer:
     async def _action(self, function_code, start_address, address, count, registers, set_values):
         """Every request that passed pymodbus's address checks lands here."""
         self.requests += 1
+        with self.lock:
+            self.firmware.heard_from_host(time.monotonic())
         f = self.faults
         if f.exception_register >= 0 and address <= f.exception_register < address + count:
             return ExcCodes(f.exception_code)
@@ -301,6 +308,8 @@ class ModbusDriveServer:
             while not self._stop.is_set():
                 now = time.monotonic()
                 with self.lock:
+                    if fw.watch_host(now):  # the host went silent: the drive stopped on its own
+                        coast_left, coast_clock = int(_COAST_S * loop_rate), now
                     if fw.runs != runs_seen:  # a run was triggered since the last look
                         runs_seen = fw.runs
                         origin, at_origin = now, 0
