@@ -65,6 +65,9 @@ def test_an_exception_stops_the_run_cleanly_and_names_the_register(tmp_path, dri
         session.run()
     assert named in str(err.value) and "Modbus exception 4 (server device failure" in str(err.value)
     assert drive_at_shutdown == {"enabled": False, "running": False}
+    if register == 100:  # the stop at connect is refused: nothing is recorded, nothing moved
+        assert not (tmp_path / "identification.h5").exists()
+        return
     run = read_run(tmp_path / "identification.h5")
     assert run.status == "aborted" and named in run.reason
     if register > 4096:  # it struck while reading the capture: what came before is kept
