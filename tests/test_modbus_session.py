@@ -28,7 +28,8 @@ def short_config(duration_s: float = 8.0, friction: bool = False, timeout_s: flo
     """The shipped Modbus gantry, shorter and faster, with fault switches."""
     cfg = load_config(CONFIG)
     emu = replace(cfg.emulator, time_scale=10.0, faults=replace(cfg.emulator.faults, **faults))
-    return replace(cfg, emulator=emu, device=replace(cfg.device, timeout_s=timeout_s),
+    # a loaded test machine can stall a host for half a second: the drive's communication timeout is 2 s here
+    return replace(cfg, emulator=emu, device=replace(cfg.device, timeout_s=timeout_s, host_timeout_s=2.0),
                    friction_test=replace(cfg.friction_test, enabled=friction),
                    excitation=replace(cfg.excitation, duration_s=duration_s))
 
@@ -144,7 +145,7 @@ def test_a_limit_trip_is_a_clean_stop(tmp_path):
 def test_standalone_modbus_tcp_emulator_runs_a_session_like_hardware(tmp_path, standalone_emulator):
     port = standalone_emulator("modbus", CONFIG, "--time-scale", "8")
     assert port.startswith("tcp://127.0.0.1:")
-    text = CONFIG.read_text().replace('port = "emulator"', f'port = "{port}"')
+    text = CONFIG.read_text().replace('port = "emulator"', f'port = "{port}"\nhost_timeout_s = 2.0')
     text = text.replace("[friction_test]", "[friction_test]\nenabled = false")
     cfg = tmp_path / "bench.toml"
     cfg.write_text(text)

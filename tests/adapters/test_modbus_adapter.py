@@ -316,7 +316,7 @@ def wait_until(condition, within_s: float) -> float:
     return time.monotonic() - t
 
 
-def start_run_and_vanish(ad, n: int = 20000) -> None:
+def start_run_and_vanish(ad, n: int = 3000) -> None:
     """Enable the drive through the adapter, then die hard: drop the connection without a word."""
     ad.configure(1000.0, "torque")
     ad.load_table(np.zeros(n))
