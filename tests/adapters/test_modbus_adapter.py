@@ -515,3 +515,23 @@ def test_a_server_that_accepts_and_closes_is_a_device_error_naming_the_port(rese
     with hostile_server(reset) as port:
         with pytest.raises(DeviceError, match=f"{port}: reading registers 0\\.\\.6 \\(device_type.*connection to the drive was lost"):
             ModbusDriveAdapter.open_device(DeviceConfig(port=port, timeout_s=0.3), DRIVER)
+
+
+@pytest.mark.parametrize("link", LINKS)
+def test_a_signal_in_the_middle_of_a_request_stops_the_drive_and_the_line_stays_usable(link):
+    import signal
+
+    with drive(link, time_scale=1.0) as (emu, ad, _):
+        ad.configure(1000.0, "torque")
+        timer = threading.Timer(0.4, signal.pthread_kill, (threading.main_thread().ident, signal.SIGINT))
+        timer.start()
+        try:
+            with pytest.raises(KeyboardInterrupt):
+                ad.stream(np.full(3000, 0.3), Recorder())  # mostly waiting for answers when the signal comes
+        finally:
+            timer.cancel()
+        assert not emu.drive.enabled and not emu.server.firmware.running
+        # the answer the interrupted request never read is not taken for another one
+        rec = Recorder()
+        result = ad.stream(np.full(300, 0.1), rec)
+        assert result.completed and np.array_equal(rec.arrays()[0], np.arange(300))

@@ -166,7 +166,26 @@ class ModbusDriveAdapter(AdapterBase):
 
     @classmethod
     def open_device(cls, device: DeviceConfig, driver: DriverDescription, link=None) -> "ModbusDriveAdapter":
-        """Connect as ``[device]`` says (``tcp://HOST:PORT`` or a serial port) and identify the drive."""
+        """Connect as ``[device]`` says (``tcp://HOST:PORT`` or a serial port), identify the drive and
+        bring it to a known state.
+
+        On an RTU line, answers still on their way to an earlier host are
+        dropped and counted (``connect_report.discarded_frames``); the drive
+        is stopped and disabled; a latched fault is reported in
+        ``connect_report.faults`` and cleared only with
+        ``device.allow_fault_reset``; the communication timeout is set from
+        ``device.host_timeout_s`` when the map names ``comm_timeout_ms``
+        (``connect_report.device_net``).
+
+        Raises
+        ------
+        ConfigError
+            A ``[device]`` value or the driver's map does not fit.
+        DeviceError
+            Nothing answers at ``port``, the drive is not the one the driver
+            describes, it has a latched fault and no permission to clear it,
+            or it refuses a request at connect (the message names the register).
+        """
         if device.acquisition == "streamed":
             raise ConfigError("device.acquisition", "a Modbus drive runs drive-buffered experiments only "
                               '(use "buffered" or "auto")')
