@@ -365,6 +365,17 @@ def test_communication_timeout_stops_an_enabled_drive_that_hears_nothing():
     assert d.set(control_word=MAP.control["fault_reset"]) is None and "fault" not in d.flags()
 
 
+def test_time_the_drive_could_not_listen_is_not_the_hosts_silence():
+    d = Drive()
+    d.limits()
+    d.load_table(np.full(4000, 0.5))
+    assert d.set(comm_timeout_ms=300, control_word=MAP.control["run"]) is None
+    d.fw.heard_from_host(10.0)
+    d.fw.excuse_silence(0.2)  # the twin's own process was not scheduled for 0.2 s
+    assert not d.fw.watch_host(10.45) and d.fw.drive.enabled
+    assert d.fw.watch_host(10.51) and not d.fw.drive.enabled
+
+
 def test_communication_timeout_zero_is_off():
     d = Drive()
     d.limits()
@@ -403,7 +414,7 @@ def test_the_served_drive_stops_itself_when_the_host_goes_silent(link):
         while fw.drive.enabled and time.monotonic() - silent < 2.0:
             time.sleep(0.002)
         stopped = time.monotonic() - silent
-        assert 0.15 <= stopped <= 0.2 + 0.15
+        assert 0.15 <= stopped <= 0.2 + 0.2
         assert fw.fault_code == MAP.fault_codes["comm_timeout"] and not fw.running
     finally:
         client.close()

@@ -410,6 +410,11 @@ class ModbusDriveFirmware:
         """A request addressed to this drive arrived at wall-clock time ``now`` (s, monotonic)."""
         self.last_heard = now
 
+    def excuse_silence(self, seconds: float) -> None:
+        """``seconds`` during which the server could not hear requests do not count as the host's silence."""
+        if self.last_heard is not None:
+            self.last_heard += seconds
+
     @property
     def comm_timeout_s(self) -> float:
         """The communication timeout the host set, s (0: off, or the map has no such register)."""
