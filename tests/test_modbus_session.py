@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_modbus_host_death import arming_flags
 
 from hilident.adapters.modbus_drive import ModbusDriveAdapter
 from hilident.cli import main
@@ -150,7 +151,7 @@ def test_standalone_modbus_tcp_emulator_runs_a_session_like_hardware(tmp_path, s
     cfg = tmp_path / "bench.toml"
     cfg.write_text(text)
     out = subprocess.run(
-        [sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o"), "-q"],
+        [sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o"), "-q", *arming_flags()],
         capture_output=True, text=True, timeout=120,
     )
     assert out.returncode == 0, out.stderr
