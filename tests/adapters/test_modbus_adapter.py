@@ -535,3 +535,16 @@ def test_a_signal_in_the_middle_of_a_request_stops_the_drive_and_the_line_stays_
         rec = Recorder()
         result = ad.stream(np.full(300, 0.1), rec)
         assert result.completed and np.array_equal(rec.arrays()[0], np.arange(300))
+
+
+def test_a_run_left_playing_by_a_dead_host_is_stopped_at_connect():
+    with drive(time_scale=1.0, host_timeout_s=10.0) as (emu, ad, _):
+        start_run_and_vanish(ad)
+        assert emu.drive.enabled and emu.server.firmware.running
+        nxt = ModbusDriveAdapter.open_device(host(emu), DRIVER)
+        try:
+            assert not emu.drive.enabled and not emu.server.firmware.running  # before anything else happens
+            assert nxt.connect_report.faults == []  # a stop is no fault
+            assert nxt.connect_report.device_net.endswith(": 2000 ms") and emu.server.firmware.comm_timeout_s == 2.0
+        finally:
+            nxt.close()
