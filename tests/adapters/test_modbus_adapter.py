@@ -5,9 +5,14 @@ from __future__ import annotations
 import contextlib
 import shutil
 import socket
+import struct
+import threading
+import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
+import serial
 from pymodbus.exceptions import ModbusIOException
 
 from hilident.adapters.modbus_drive import ModbusDriveAdapter
@@ -18,7 +23,7 @@ from hilident.emulator.modbus_drive import start
 from hilident.errors import ConfigError, DeviceError, LimitTrip
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec, design_notch
-from hilident.protocol.modbus_registers import RegisterMap
+from hilident.protocol.modbus_registers import RegisterMap, rtu_crc
 
 DRIVER = find_driver("modbus-servo")
 MAP = RegisterMap.from_driver(DRIVER)
@@ -51,13 +56,19 @@ torque_noise_nm = 0.01
 """).emulator
 
 
+def host(emu, **settings) -> DeviceConfig:
+    """The ``[device]`` a host uses for ``emu``; a loaded test machine can stall a host for half a second,
+    so the communication timeout is 2 s unless a test is about it."""
+    return replace(emu.device, **{"host_timeout_s": 2.0, **settings})
+
+
 @contextlib.contextmanager
-def drive(link: str = "tcp", time_scale: float = 10.0, driver=DRIVER, emulated=DRIVER):
+def drive(link: str = "tcp", time_scale: float = 10.0, driver=DRIVER, emulated=DRIVER, **settings):
     cfg = emulator_config(time_scale)
     emu = start(cfg, emulated, DeviceConfig(baudrate=921600, timeout_s=0.5), link=link)
     adapter = None
     try:
-        adapter = ModbusDriveAdapter.open_device(emu.device, driver)
+        adapter = ModbusDriveAdapter.open_device(host(emu, **settings), driver)
         adapter.set_limits(5.0, 1.0, -1.0, 1.0)
         yield emu, adapter, cfg
     finally:
@@ -290,3 +301,250 @@ def test_a_drive_with_the_low_word_first(tmp_path):
         assert np.max(np.abs(rows[:, 1] - want[:, twin.CHANNELS.index("position_m")])) <= 0.5e-7 + 1e-15
         length = MAP.register("table_length").address
         assert ad.read(length, 2) == [n % 65536, n // 65536]  # low word at the lower address, on the wire
+
+
+# --- connect, stop, and what is left behind ---------------------------------------------------
+
+
+def wait_until(condition, within_s: float) -> float:
+    """Seconds until ``condition()`` held (``within_s`` + 1 when it never did)."""
+    t = time.monotonic()
+    while not condition():
+        if time.monotonic() - t > within_s:
+            return within_s + 1.0
+        time.sleep(0.002)
+    return time.monotonic() - t
+
+
+def start_run_and_vanish(ad, n: int = 3000) -> None:
+    """Enable the drive through the adapter, then die hard: drop the connection without a word."""
+    ad.configure(1000.0, "torque")
+    ad.load_table(np.zeros(n))
+    ad._trigger()
+    ad.client.socket.close()  # no stop, no goodbye: as SIGKILL or a pulled cable leaves it
+
+
+@pytest.mark.parametrize("link", LINKS)
+def test_a_host_that_dies_leaves_the_drive_stopped_by_its_communication_timeout(link):
+    with drive(link, time_scale=1.0, host_timeout_s=0.3) as (emu, ad, _):
+        assert ad.connect_report.device_net == "communication timeout register 128 (comm_timeout_ms): 300 ms"
+        assert emu.server.firmware.comm_timeout_s == 0.3
+        start_run_and_vanish(ad)
+        assert emu.drive.enabled
+        stopped = wait_until(lambda: not emu.drive.enabled, 2.0)
+        assert stopped <= 0.3 + 0.15
+        assert emu.server.firmware.fault_code == MAP.fault_codes["comm_timeout"]
+
+
+def test_a_latched_fault_is_reported_and_cleared_only_when_allowed():
+    with drive(time_scale=1.0, host_timeout_s=0.2) as (emu, ad, _):
+        start_run_and_vanish(ad)
+        wait_until(lambda: not emu.drive.enabled, 2.0)
+        with pytest.raises(DeviceError) as err:
+            ModbusDriveAdapter.open_device(host(emu), DRIVER)
+        text = str(err.value)
+        assert emu.port in text and "comm_timeout" in text and "register 102 (fault_code) = 5" in text
+        assert "allow_fault_reset = true" in text and "--clear-fault" in text
+        assert emu.server.firmware.fault_code == 5  # refused: nothing was cleared
+        again = ModbusDriveAdapter.open_device(host(emu, allow_fault_reset=True), DRIVER)
+        try:
+            report = again.connect_report
+            assert report.faults_cleared and len(report.faults) == 1 and "comm_timeout" in report.faults[0]
+            assert emu.server.firmware.fault_code == 0
+            again.set_limits(5.0, 1.0, -1.0, 1.0)
+            again.configure(1000.0, "torque")
+            assert again.stream(np.full(200, 0.2), Recorder()).completed
+        finally:
+            again.close()
+
+
+def test_a_limit_trip_left_latched_refuses_the_next_session_until_reset():
+    with drive() as (emu, ad, _):
+        ad.configure(1000.0, "torque")
+        with pytest.raises(LimitTrip):
+            ad.stream(np.linspace(0.0, 8.0, 1500), Recorder())
+        with pytest.raises(DeviceError, match=r"torque_limit \(register 102 \(fault_code\) = 1, at sample \d+, value 5\.0"):
+            ModbusDriveAdapter.open_device(host(emu), DRIVER)
+        clean = ModbusDriveAdapter.open_device(host(emu, allow_fault_reset=True), DRIVER)
+        clean.close()
+        assert clean.connect_report.faults_cleared and emu.drive.fault is None
+        fresh = ModbusDriveAdapter.open_device(host(emu), DRIVER)
+        fresh.close()
+        assert fresh.connect_report.faults == [] and not fresh.connect_report.faults_cleared
+
+
+def test_answers_left_on_an_rtu_line_by_a_dead_host_are_dropped_and_counted():
+    cfg = emulator_config()
+    cfg = replace(cfg, faults=replace(cfg.faults, response_delay_s=0.1))
+    emu = start(cfg, DRIVER, DeviceConfig(baudrate=921600, timeout_s=0.5), link="pty")
+    try:
+        # the earlier host sent a read of the status registers and died before the (slow) answer came
+        dead = serial.Serial(emu.port, baudrate=921600, timeout=0)
+        body = bytes([1, 3]) + MAP.register("status_word").address.to_bytes(2, "big") + (8).to_bytes(2, "big")
+        crc = rtu_crc(body)
+        dead.write(body + bytes([crc & 0xFF, crc >> 8]))
+        dead.flush()
+        dead.close()
+        ad = ModbusDriveAdapter.open_device(host(emu), DRIVER)
+        try:
+            assert ad.connect_report.discarded_frames == 1
+            assert ad.identity.name == DRIVER.name and ad.bad_responses == 0
+        finally:
+            ad.close()
+    finally:
+        emu.close()
+
+
+def test_safe_stop_is_quick_keeps_the_connection_and_the_sink_error_propagates():
+    with drive(time_scale=1.0) as (emu, ad, _):
+        ad.configure(1000.0, "torque")
+        seen = {}
+
+        def sink(index, rows):
+            assert emu.drive.enabled
+            t = time.monotonic()
+            ad.safe_stop()
+            seen["stop_s"] = time.monotonic() - t
+            seen["enabled"] = emu.drive.enabled
+            raise OSError(28, "No space left on device")
+
+        with pytest.raises(OSError, match="No space left"):
+            ad.stream(np.full(5000, 0.3), sink)
+        assert seen["enabled"] is False and seen["stop_s"] < 0.1
+        assert not emu.drive.enabled and not ad.last_result.completed
+        assert ad.read_filter(0) == (Biquad.identity(), False)  # still connected
+
+
+def test_safe_stop_never_raises_when_the_drive_is_gone():
+    with drive() as (emu, ad, _):
+        emu.close()
+        t = time.monotonic()
+        ad.safe_stop()
+        assert time.monotonic() - t < 0.5
+
+
+def test_disable_filter_keeps_the_slot_contents():
+    with drive() as (emu, ad, _):
+        spec = NotchSpec(center_hz=80.0, width_hz=20.0, depth_db=30.0)
+        ad.write_filter(1, design_notch(spec, 4000.0), spec, enabled=True)
+        saved = ad.save_filter(1)
+        stored, enabled = ad.read_filter(1)
+        assert enabled and emu.drive.filters.read(1) == (stored, True)
+        ad.disable_filter(1)
+        assert ad.read_filter(1) == (stored, False) and emu.drive.filters.read(1) == (stored, False)
+        ad.restore_filter(1, saved)
+        assert ad.read_filter(1) == (stored, True)
+
+
+def test_events_are_live_and_start_empty_with_each_stream():
+    with drive() as (_, ad, _):
+        ad.configure(1000.0, "torque")
+        with pytest.raises(LimitTrip):
+            ad.stream(np.linspace(0.0, 8.0, 1500), Recorder())
+        assert ad.events[-1]["kind"] == "limit_trip"
+        seen = []
+        ad.clear_fault()
+        ad.stream(np.zeros(300), lambda index, rows: seen.append(list(ad.events)))
+        assert seen[0] == []  # the last stream's events are gone
+        assert ad.last_result.events == ad.events and ad.last_result.events is not ad.events
+
+
+def test_the_first_cause_wins_a_limit_trip_then_a_failed_read():
+    with drive() as (emu, ad, _):
+        ad.configure(1000.0, "torque")
+        read = ad.read
+
+        def broken_after_the_trip(*args, **kwargs):
+            if any(e["kind"] == "limit_trip" for e in ad.events):
+                raise DeviceError(f"{ad.port}: reading capture: no answer")
+            return read(*args, **kwargs)
+
+        ad.read = broken_after_the_trip
+        with pytest.raises(LimitTrip, match="torque_limit.*then: .*no answer"):
+            ad.stream(np.linspace(0.0, 8.0, 1500), Recorder())
+        assert not emu.drive.enabled
+
+
+def test_a_drive_vanishing_mid_run_is_a_device_error_naming_the_port():
+    with drive(time_scale=1.0) as (emu, ad, _):
+        ad.configure(1000.0, "torque")
+        rec = Recorder()
+
+        def sink(index, rows):
+            rec(index, rows)
+            if len(rec.index) == 1:
+                emu.close()  # power-cycled under the host's feet
+
+        with pytest.raises(DeviceError, match=f"{emu.port}: .*connection to the drive was lost") as err:
+            ad.stream(np.full(5000, 0.3), sink)
+        assert type(err.value) is DeviceError and not ad.last_result.completed
+
+
+@contextlib.contextmanager
+def hostile_server(reset: bool):
+    """A TCP server on 127.0.0.1 that accepts and closes each connection (``reset``: with a TCP RST)."""
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen()
+    srv.settimeout(0.1)
+    stop = threading.Event()
+
+    def serve():
+        while not stop.is_set():
+            try:
+                conn, _ = srv.accept()
+            except OSError:
+                continue
+            if reset:
+                conn.recv(260)  # take the request, then reset
+                conn.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+            conn.close()
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    try:
+        yield f"tcp://127.0.0.1:{srv.getsockname()[1]}"
+    finally:
+        stop.set()
+        thread.join()
+        srv.close()
+
+
+@pytest.mark.parametrize("reset", [False, True])
+def test_a_server_that_accepts_and_closes_is_a_device_error_naming_the_port(reset):
+    with hostile_server(reset) as port:
+        with pytest.raises(DeviceError, match=f"{port}: reading registers 0\\.\\.6 \\(device_type.*connection to the drive was lost"):
+            ModbusDriveAdapter.open_device(DeviceConfig(port=port, timeout_s=0.3), DRIVER)
+
+
+@pytest.mark.parametrize("link", LINKS)
+def test_a_signal_in_the_middle_of_a_request_stops_the_drive_and_the_line_stays_usable(link):
+    import signal
+
+    with drive(link, time_scale=1.0) as (emu, ad, _):
+        ad.configure(1000.0, "torque")
+        timer = threading.Timer(0.4, signal.pthread_kill, (threading.main_thread().ident, signal.SIGINT))
+        timer.start()
+        try:
+            with pytest.raises(KeyboardInterrupt):
+                ad.stream(np.full(3000, 0.3), Recorder())  # mostly waiting for answers when the signal comes
+        finally:
+            timer.cancel()
+        assert not emu.drive.enabled and not emu.server.firmware.running
+        # the answer the interrupted request never read is not taken for another one
+        rec = Recorder()
+        result = ad.stream(np.full(300, 0.1), rec)
+        assert result.completed and np.array_equal(rec.arrays()[0], np.arange(300))
+
+
+def test_a_run_left_playing_by_a_dead_host_is_stopped_at_connect():
+    with drive(time_scale=1.0, host_timeout_s=10.0) as (emu, ad, _):
+        start_run_and_vanish(ad)
+        assert emu.drive.enabled and emu.server.firmware.running
+        nxt = ModbusDriveAdapter.open_device(host(emu), DRIVER)
+        try:
+            assert not emu.drive.enabled and not emu.server.firmware.running  # before anything else happens
+            assert nxt.connect_report.faults == []  # a stop is no fault
+            assert nxt.connect_report.device_net.endswith(": 2000 ms") and emu.server.firmware.comm_timeout_s == 2.0
+        finally:
+            nxt.close()

@@ -339,3 +339,83 @@ def test_exception_code_must_be_a_modbus_code():
 
     with pytest.raises(ConfigError, match="exception_code"):
         start(emulator_config("exception_register = 100\nexception_code = 9"), DRIVER, DeviceConfig(), link="tcp")
+
+
+# --- communication timeout ------------------------------------------------------------------
+
+
+def test_communication_timeout_stops_an_enabled_drive_that_hears_nothing():
+    d = Drive()
+    run = MAP.control["run"]
+    d.limits()
+    d.load_table(np.full(4000, 0.5))
+    assert d.set(comm_timeout_ms=300) is None and d.fw.comm_timeout_s == 0.3
+    d.fw.heard_from_host(100.0)
+    assert not d.fw.watch_host(101.0)  # disabled: nothing to watch
+    assert d.set(control_word=run) is None
+    d.fw.heard_from_host(200.0)
+    d.fw.advance(50)
+    assert not d.fw.watch_host(200.29) and d.fw.drive.enabled
+    assert d.fw.watch_host(200.31)
+    assert not d.fw.drive.enabled and not d.fw.running
+    assert "fault" in d.flags() and d.get("fault_code") == MAP.fault_codes["comm_timeout"] == 5
+    assert d.get("fault_sample") == 50 and abs(d.get("fault_value") - 0.31) < 1e-6
+    assert d.set(control_word=0) is None
+    assert d.set(control_word=run) == 3  # latched until a fault reset
+    assert d.set(control_word=MAP.control["fault_reset"]) is None and "fault" not in d.flags()
+
+
+def test_time_the_drive_could_not_listen_is_not_the_hosts_silence():
+    d = Drive()
+    d.limits()
+    d.load_table(np.full(4000, 0.5))
+    assert d.set(comm_timeout_ms=300, control_word=MAP.control["run"]) is None
+    d.fw.heard_from_host(10.0)
+    d.fw.excuse_silence(0.2)  # the twin's own process was not scheduled for 0.2 s
+    assert not d.fw.watch_host(10.45) and d.fw.drive.enabled
+    assert d.fw.watch_host(10.51) and not d.fw.drive.enabled
+
+
+def test_communication_timeout_zero_is_off():
+    d = Drive()
+    d.limits()
+    d.load_table(np.full(4000, 0.5))
+    assert d.set(comm_timeout_ms=0) is None
+    d.fw.heard_from_host(0.0)
+    assert d.set(control_word=MAP.control["run"]) is None
+    assert not d.fw.watch_host(1e6) and d.fw.drive.enabled
+
+
+@pytest.mark.parametrize("link", ["tcp", "pty"])
+def test_the_served_drive_stops_itself_when_the_host_goes_silent(link):
+    emu = start(emulator_config(time_scale=1.0), DRIVER, DeviceConfig(baudrate=921600), link=link)
+    client = (tcp_client(emu.port, timeout=0.5) if link == "tcp"
+              else ModbusSerialClient(emu.port, baudrate=921600, parity="N", timeout=0.5, retries=0))
+    assert client.connect()
+    fw = emu.server.firmware
+
+    def write(name, value):
+        assert not client.write_registers(REG[name].address, MAP.encode(name, value), device_id=1).isError()
+
+    try:
+        limits = [r for name, v in (("torque_limit_nm", 5.0), ("velocity_limit_mps", 1.0), ("position_min_m", -1.0),
+                                    ("position_max_m", 1.0)) for r in MAP.encode(name, v)]
+        assert not client.write_registers(REG["torque_limit_nm"].address, limits, device_id=1).isError()
+        write("comm_timeout_ms", 200)
+        write("table_length", 20000)  # a 5 s table of zeros: only the timeout can end this run early
+        write("control_word", MAP.control["run"])
+        assert fw.drive.enabled
+        t = time.monotonic()
+        for _ in range(30):  # talks for 0.3 s, more often than the timeout
+            client.read_holding_registers(REG["status_word"].address, count=1, device_id=1)
+            time.sleep(0.01)
+        assert fw.drive.enabled and time.monotonic() - t > 0.2
+        silent = time.monotonic()
+        while fw.drive.enabled and time.monotonic() - silent < 2.0:
+            time.sleep(0.002)
+        stopped = time.monotonic() - silent
+        assert 0.15 <= stopped <= 0.2 + 0.2
+        assert fw.fault_code == MAP.fault_codes["comm_timeout"] and not fw.running
+    finally:
+        client.close()
+        emu.close()

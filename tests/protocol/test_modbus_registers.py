@@ -15,8 +15,8 @@ from hilident.drivers import find_driver
 from hilident.errors import ConfigError, DataError
 from hilident.filters.notch import NotchSpec, design_notch
 from hilident.protocol.modbus_registers import (
-    RegisterMap, decode_string, decode_values, encode_string, encode_values, exception_meaning, plan_chunks,
-    table_crc,
+    RegisterMap, count_rtu_frames, decode_string, decode_values, encode_string, encode_values, exception_meaning,
+    plan_chunks, rtu_crc, table_crc,
 )
 
 DRIVER = find_driver("modbus-servo")
@@ -210,6 +210,11 @@ def sections() -> dict:
     (lambda s: s["modbus"]["filters"].update(enable=1), "modbus.filters"),
     (lambda s: s["filters"].update(encoding="real32"), "filters.encoding"),
     (lambda s: s["modbus"]["capture"]["channels"][0].update(type="f64"), "modbus.capture.channels[0].type"),
+    (lambda s: s["modbus"]["fault_codes"].pop("comm_timeout"), "modbus.fault_codes.comm_timeout"),
+    (lambda s: s["modbus"]["fault_codes"].update(comm_timeout=4), "modbus.fault_codes"),
+    (lambda s: s["modbus"]["fault_codes"].update(comm_timeout=0), "modbus.fault_codes.comm_timeout"),
+    (lambda s: s["modbus"]["registers"]["comm_timeout_ms"].update(access="r"), "modbus.registers.comm_timeout_ms.access"),
+    (lambda s: s["modbus"]["registers"]["comm_timeout_ms"].update(type="f32"), "modbus.registers.comm_timeout_ms.type"),
 ])
 def test_invalid_maps_name_the_key(change, key):
     s = sections()
@@ -226,3 +231,58 @@ def test_little_endian_map_encodes_little():
     m = RegisterMap.parse(s, 4)
     assert m.encode("table_length", 65536) == [0, 1]
     assert MAP.encode("table_length", 65536) == [1, 0]
+
+
+def test_the_communication_timeout_is_optional():
+    assert MAP.register("comm_timeout_ms").address == 128 and MAP.fault_codes["comm_timeout"] == 5
+    assert MAP.fault_name(5) == "comm_timeout"
+    s = sections()
+    del s["modbus"]["registers"]["comm_timeout_ms"]
+    del s["modbus"]["fault_codes"]["comm_timeout"]
+    m = RegisterMap.parse(s, 4)
+    assert "comm_timeout_ms" not in m.registers and "comm_timeout" not in m.fault_codes
+    s["modbus"]["fault_codes"]["comm_timeout"] = 9  # a drive may report the fault without a settable timeout
+    assert RegisterMap.parse(s, 4).fault_codes["comm_timeout"] == 9
+
+
+def crc16_modbus_by_table(data: bytes) -> int:
+    """CRC-16/MODBUS by the byte-wise table method of the Modbus over serial line spec (independent reference)."""
+    table = []
+    for i in range(256):
+        c = i
+        for _ in range(8):
+            c = (c >> 1) ^ 0xA001 if c & 1 else c >> 1
+        table.append(c)
+    crc = 0xFFFF
+    for b in data:
+        crc = (crc >> 8) ^ table[(crc ^ b) & 0xFF]
+    return crc
+
+
+def rtu_frame(body: bytes) -> bytes:
+    crc = crc16_modbus_by_table(body)
+    return body + bytes([crc & 0xFF, crc >> 8])
+
+
+def test_rtu_crc_matches_the_reference_and_a_known_frame():
+    # read holding registers 0..1 of device 1: the frame every Modbus tutorial shows, 01 03 00 00 00 02 C4 0B
+    assert rtu_frame(bytes.fromhex("010300000002")).hex() == "010300000002c40b"
+    for body in (b"", b"\x01", bytes(range(40))):
+        assert rtu_crc(body) == crc16_modbus_by_table(body)
+
+
+@given(st.lists(st.binary(min_size=2, max_size=40), max_size=6))
+@settings(max_examples=60, deadline=None)
+def test_frames_on_a_line_are_counted(bodies):
+    frames = [rtu_frame(b"\x01\x03" + b) for b in bodies]
+    assert count_rtu_frames(b"".join(frames)) >= len(frames) - sum(  # a body may itself end in a valid CRC
+        any(rtu_crc(f[:k]) == f[k] | f[k + 1] << 8 for k in range(2, len(f) - 2)) for f in frames)
+    assert count_rtu_frames(b"".join(frames)) <= sum(len(f) // 4 for f in frames)
+    assert count_rtu_frames(b"") == 0
+
+
+def test_damaged_bytes_count_as_one_frame():
+    answer = rtu_frame(bytes.fromhex("010304") + bytes(4))
+    assert count_rtu_frames(answer + answer) == 2
+    assert count_rtu_frames(answer + b"\x07\x08\x09") == 3 - 1  # the answer, then one damaged remainder
+    assert count_rtu_frames(answer[:-1]) == 1

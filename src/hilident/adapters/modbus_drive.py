@@ -15,13 +15,29 @@ its answer is lost, the adapter asks the drive whether it is running. Modbus
 exception responses become :class:`~hilident.errors.DeviceError` naming the
 register (address and name from the driver's map) and the exception's meaning.
 
-The register map is the driver's (see ``drivers/modbus-servo/README.md``);
-:mod:`hilident.protocol.modbus_registers` encodes and decodes it.
+At connect the adapter brings the drive to a known state, whatever the
+previous session left behind: on an RTU line it drops (and counts) answers
+still on their way to a host that is gone, writes the stop command, reads the
+latched fault and clears it only when ``[device] allow_fault_reset`` says so
+(else the drive is refused before anything moves), and writes the drive's
+communication timeout (``comm_timeout_ms``, from ``[device] host_timeout_s``)
+when the map names it: a host that dies while the drive is enabled leaves it
+stopped by the drive itself. While the drive is enabled the adapter talks to
+it far more often than that, and waits at most 40 % of the timeout for an
+answer, so a lost answer is asked again before the drive gives up on the host.
+
+A lost connection (the drive power-cycled, the gateway closed the socket, the
+USB adapter unplugged) is a :class:`~hilident.errors.DeviceError` naming the
+port, never repeated. The register map is the driver's (see
+``drivers/modbus-servo/README.md``); :mod:`hilident.protocol.modbus_registers`
+encodes and decodes it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import math
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -31,14 +47,14 @@ import serial
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException
 
-from hilident.adapters.base import AdapterBase, RunResult, StreamStats
+from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, StreamStats, refuse_latched_faults
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription
 from hilident.errors import ConfigError, DataError, DeviceError, LimitTrip
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
 from hilident.protocol.modbus_registers import (
-    STAMP_MODULUS, Chunk, RegisterMap, Window, exception_meaning, plan_chunks, table_crc,
+    STAMP_MODULUS, Chunk, RegisterMap, Window, count_rtu_frames, exception_meaning, plan_chunks, table_crc,
 )
 
 logging.getLogger("pymodbus").addHandler(logging.NullHandler())  # no library chatter on stderr
@@ -51,6 +67,25 @@ _LIMIT_FAULTS = ("torque_limit", "velocity_limit", "position_limit")
 _IDENTITY = ("device_type", "map_version", "loop_rate_hz", "max_sample_rate_hz", "filter_slots", "table_capacity",
              "capture_capacity", "device_name", "firmware")
 _STATUS = ("status_word", "fault_code", "sample_count", "fault_sample", "fault_value")
+_STOP_WAIT_S = 0.05  # longest wait for the answer to a safe stop (it is sent twice at most)
+_ENABLED_WAIT = 0.4  # while enabled, wait at most this fraction of the communication timeout for an answer
+_DRAIN_QUIET_S = 0.25  # RTU at connect: the line must stay quiet this long (at most timeout_s)
+_DRAIN_MAX_S = 2.0  # ... but a line that never goes quiet is left after this long
+
+
+class _SerialClient(ModbusSerialClient):
+    """pymodbus's RTU client, counting the stale frames it drops from the line before each request."""
+
+    stale_frames = 0
+
+    def send(self, request: bytes, addr=None) -> int:
+        if request and self.socket is not None:
+            try:
+                if waiting := self.socket.in_waiting:
+                    self.stale_frames += count_rtu_frames(self.socket.read(waiting))
+            except (OSError, ValueError):
+                pass  # pymodbus's own send reports a broken line
+        return super().send(request, addr)
 
 
 class NoResponse(DeviceError):
@@ -120,6 +155,9 @@ class ModbusDriveAdapter(AdapterBase):
         self.events: list[dict] = []
         self.missing_responses = 0  # requests never answered, since opening
         self.bad_responses = 0  # answers that were not the one asked for
+        self.dropped_frames = 0  # late answers dropped from an RTU line after a lost or foreign answer
+        self.connect_report = ConnectReport()
+        self.comm_timeout_s = 0.0  # the drive's communication timeout as armed at connect (0: none), s
         self._mask = 0
         self._order: list[int] = []
         self._pages: dict[str, int | None] = {"table": None, "capture": None}
@@ -128,7 +166,26 @@ class ModbusDriveAdapter(AdapterBase):
 
     @classmethod
     def open_device(cls, device: DeviceConfig, driver: DriverDescription, link=None) -> "ModbusDriveAdapter":
-        """Connect as ``[device]`` says (``tcp://HOST:PORT`` or a serial port) and identify the drive."""
+        """Connect as ``[device]`` says (``tcp://HOST:PORT`` or a serial port), identify the drive and
+        bring it to a known state.
+
+        On an RTU line, answers still on their way to an earlier host are
+        dropped and counted (``connect_report.discarded_frames``); the drive
+        is stopped and disabled; a latched fault is reported in
+        ``connect_report.faults`` and cleared only with
+        ``device.allow_fault_reset``; the communication timeout is set from
+        ``device.host_timeout_s`` when the map names ``comm_timeout_ms``
+        (``connect_report.device_net``).
+
+        Raises
+        ------
+        ConfigError
+            A ``[device]`` value or the driver's map does not fit.
+        DeviceError
+            Nothing answers at ``port``, the drive is not the one the driver
+            describes, it has a latched fault and no permission to clear it,
+            or it refuses a request at connect (the message names the register).
+        """
         if device.acquisition == "streamed":
             raise ConfigError("device.acquisition", "a Modbus drive runs drive-buffered experiments only "
                               '(use "buffered" or "auto")')
@@ -147,12 +204,86 @@ class ModbusDriveAdapter(AdapterBase):
                 raise DeviceError(f"{port}: cannot connect to {host}:{number} (is the drive on and the port right?)")
         else:
             baudrate = device.baudrate or driver.default_baudrate
-            client = ModbusSerialClient(port, baudrate=baudrate, parity=device.parity, stopbits=device.stopbits,
-                                        timeout=device.timeout_s, retries=0)
+            client = _SerialClient(port, baudrate=baudrate, parity=device.parity, stopbits=device.stopbits,
+                                   timeout=device.timeout_s, retries=0)
             if not client.connect():
                 raise DeviceError(f"{port}: cannot open at {baudrate} baud, parity {device.parity}, "
                                   f"{device.stopbits} stop bit(s): {_serial_error(port, baudrate, device)}")
-        return cls._identified(cls(client, driver, regmap, port, device.device_id, device.timeout_s))
+        adapter = cls(client, driver, regmap, port, device.device_id, device.timeout_s)
+        adapter._drain_line()
+        adapter = cls._identified(adapter)
+        try:
+            adapter._bring_to_known_state(device.allow_fault_reset, device.host_timeout_s)
+        except BaseException:
+            adapter.close()
+            raise
+        return adapter
+
+    def _drain_line(self) -> None:
+        """RTU: drop the answers still on their way to an earlier host, until the line is quiet (counted)."""
+        sock = self.client.socket if self.rtu else None
+        if sock is None:
+            return
+        quiet = min(self.timeout_s, _DRAIN_QUIET_S)
+        data = b""
+        start = last = time.monotonic()
+        try:
+            while time.monotonic() - last < quiet and time.monotonic() - start < _DRAIN_MAX_S:
+                if waiting := sock.in_waiting:
+                    data += sock.read(waiting)
+                    last = time.monotonic()
+                else:
+                    time.sleep(0.005)
+        except (OSError, ValueError):
+            pass  # the first request reports a broken line, naming the register
+        self.connect_report.discarded_frames += count_rtu_frames(data)
+
+    def _bring_to_known_state(self, allow_fault_reset: bool, host_timeout_s: float) -> None:
+        """Stop the drive, report (and, when allowed, clear) a latched fault, arm the communication timeout.
+
+        Raises
+        ------
+        DeviceError
+            The drive has a latched fault and ``allow_fault_reset`` is false
+            (the message says how to clear it), the fault does not clear, or
+            the timeout does not read back as written.
+        """
+        self.write_names(control_word=0)  # stopped, disabled, zero torque, ready for a fresh 0 -> 1 edge
+        st = self.status()
+        report = self.connect_report
+        if "fault" in st.flags:
+            report.faults = [self._describe_fault(st)]
+            if not allow_fault_reset:
+                raise refuse_latched_faults(self.port, report.faults)
+            self.clear_fault()
+            after = self.status()
+            if "fault" in after.flags:
+                raise DeviceError(f"{self.port}: {self.map.describe(self.map.register('fault_code').address)} still "
+                                  f"holds {self.map.fault_name(after.fault_code)} after a fault reset; the cause "
+                                  "is still there (check the drive's display)")
+            report.faults_cleared = True
+        self._arm_comm_timeout(host_timeout_s)
+        client_stale = getattr(self.client, "stale_frames", 0)
+        report.discarded_frames += client_stale + self.dropped_frames + self.bad_responses
+
+    def _arm_comm_timeout(self, host_timeout_s: float) -> None:
+        """Write ``comm_timeout_ms`` from ``host_timeout_s`` and read it back (when the map names it)."""
+        if "comm_timeout_ms" not in self.map.registers:
+            self.connect_report.device_net = ""
+            return
+        r = self.map.register("comm_timeout_ms")
+        ms = max(1, math.ceil(host_timeout_s * 1000.0 - 1e-9))
+        try:
+            self.write_names(comm_timeout_ms=ms)
+        except DataError as exc:
+            raise ConfigError("device.host_timeout_s", f"{host_timeout_s:g} s does not fit "
+                              f"{self.map.describe(r.address)}: {exc}") from None
+        back = float(self.read_names("comm_timeout_ms")["comm_timeout_ms"])
+        if not back or abs(back - ms) > max(r.scale, 1.0):
+            raise DeviceError(f"{self.port}: {self.map.describe(r.address)} reads {back:g} ms after "
+                              f"{ms} ms was written: the drive's communication timeout is not armed")
+        self.comm_timeout_s = back / 1000.0
+        self.connect_report.device_net = f"communication timeout {self.map.describe(r.address)}: {back:g} ms"
 
     def close(self) -> None:
         """Stop the axis (zero torque, drive disabled) and release the connection. Never raises."""
@@ -164,25 +295,40 @@ class ModbusDriveAdapter(AdapterBase):
             except Exception:
                 pass
 
+    def safe_stop(self) -> None:
+        """Write 0 to the control word now (run stopped, drive disabled, zero torque). Never raises.
+
+        Quick: the answer is waited for at most 50 ms, and the write sent at
+        most twice. The connection stays open.
+        """
+        self._stop(tries=2, wait_s=_STOP_WAIT_S)
+
     # --- requests -------------------------------------------------------------------------
 
     def _request(self, what: str, address: int, count: int, call: Callable, check: Callable,
-                 retry: bool, page: int | None = None):
-        """Run one request; retried after a lost answer only when ``retry`` (safe to repeat)."""
+                 retry: bool, page: int | None = None, tries: int | None = None):
+        """Run one request; retried after a lost answer only when ``retry`` (safe to repeat).
+
+        ``tries`` overrides the number of attempts. A lost connection is a
+        :class:`DeviceError` at once: whatever the drive did since, it was not
+        this session's request.
+        """
         where = self.map.describe(address, count, page)
-        attempts = 1 + (_RETRIES if retry else 0)
+        attempts = tries or 1 + (_RETRIES if retry else 0)
         for attempt in range(attempts):
             try:
                 response = call()
-            except ConnectionException as exc:
+            except (ConnectionException, OSError) as exc:
                 self.missing_responses += 1
-                self._resync()
-                error = f"connection lost ({exc})"
-                continue
+                with contextlib.suppress(Exception):
+                    self.client.close()  # a fresh connection next time, never half of this one
+                raise DeviceError(f"{self.port}: {what} {where}: the connection to the drive was lost "
+                                  f"({_reason(exc)}); was it switched off, or its cable or gateway "
+                                  "disconnected?") from None
             except ModbusException:
                 self.missing_responses += 1
                 self._resync()
-                error = f"no answer within {self.timeout_s:g} s"
+                error = f"no answer within {self.client.comm_params.timeout_connect:g} s"
                 continue
             except ValueError as exc:  # pymodbus refused to build the request
                 raise DeviceError(f"{self.port}: {what} {where}: {exc}") from None
@@ -204,13 +350,30 @@ class ModbusDriveAdapter(AdapterBase):
         raise NoResponse(f"{self.port}: {what} {where}: {error}{tries}; device id {self.device_id}")
 
     def _resync(self) -> None:
-        """After a lost or foreign answer on an RTU line, let a late answer arrive and drop it."""
+        """After a lost or foreign answer on an RTU line, let a late answer arrive and drop it (counted)."""
         if self.rtu and self.client.socket is not None:
             try:
                 time.sleep(min(0.05, self.timeout_s))
-                self.client.socket.reset_input_buffer()
+                if waiting := self.client.socket.in_waiting:
+                    self.dropped_frames += count_rtu_frames(self.client.socket.read(waiting))
             except Exception:
                 pass
+
+    @contextlib.contextmanager
+    def _answers_within(self, seconds: float):
+        """Wait at most ``seconds`` (never more than ``timeout_s``) for each answer inside the block."""
+        params = self.client.comm_params
+        before = params.timeout_connect
+        params.timeout_connect = min(before, seconds)
+        try:
+            yield
+        finally:
+            params.timeout_connect = before
+
+    @property
+    def _enabled_wait_s(self) -> float:
+        """Longest wait for one answer while the drive is enabled: lost answers are asked again in time."""
+        return _ENABLED_WAIT * self.comm_timeout_s if self.comm_timeout_s else self.timeout_s
 
     def read(self, address: int, count: int, what: str = "reading", retry: bool = True,
              page: int | None = None) -> list[int]:
@@ -323,13 +486,17 @@ class ModbusDriveAdapter(AdapterBase):
 
     def stop(self) -> None:
         """Write 0 to the control word: run stopped, drive disabled, zero torque. Never raises."""
+        self._stop(tries=2, wait_s=self.timeout_s)
+
+    def _stop(self, tries: int, wait_s: float) -> None:
+        r = self.map.register("control_word")
         try:
-            r = self.map.register("control_word")
-            self._request("stopping the drive", r.address, 1,
-                          lambda: self.client.write_registers(r.address, [0], device_id=self.device_id),
-                          lambda resp: True, retry=True)
+            with self._answers_within(wait_s):
+                self._request("stopping the drive", r.address, 1,
+                              lambda: self.client.write_registers(r.address, [0], device_id=self.device_id),
+                              lambda resp: resp.address == r.address, retry=True, tries=tries)
         except Exception:
-            pass
+            pass  # the drive's communication timeout stops it when the host cannot
 
     def clear_fault(self) -> None:
         """Clear a latched fault (0 -> 1 edge of the fault_reset bit)."""
@@ -372,6 +539,10 @@ class ModbusDriveAdapter(AdapterBase):
 
     def restore_filter(self, slot: int, saved: tuple[int, ...]) -> None:
         self.write(self._slot(slot), list(saved), f"restoring filter slot {slot}")
+
+    def disable_filter(self, slot: int) -> None:
+        """Bypass a slot: its enable register to 0, centre, width and depth kept (:meth:`restore_filter` undoes it)."""
+        self.write(self._slot(slot) + self.map.filters.offsets["enable"], [0], f"disabling filter slot {slot}")
 
     # --- buffered runs ------------------------------------------------------------------------
 
@@ -502,13 +673,23 @@ class ModbusDriveAdapter(AdapterBase):
         counted in the result's stats, never filled. The drive is left
         disabled, at zero torque, on every exit path.
 
+        ``self.events`` is emptied first and grows as events become known (a
+        fault as soon as a status read shows it). While the drive is enabled
+        each answer is waited for at most 40 % of the communication timeout.
+
         Raises
         ------
         LimitTrip
-            The drive tripped a limit (the samples captured up to then were delivered).
+            The drive tripped a limit (the samples captured up to then were
+            delivered). The first cause wins: a device error after the trip
+            (a read that fails, a lost connection) still raises this.
         DeviceError
             The drive refused a request (the message names the register), stopped
-            answering, faulted, or did not finish in time.
+            answering, lost the connection, faulted (its communication timeout
+            included), or did not finish in time.
+        Exception
+            Whatever ``sink`` or ``progress`` raised (a full disk, an interrupt),
+            after the drive was stopped.
         """
         x = np.asarray(excitation, dtype=float)
         n = len(x)
@@ -519,17 +700,22 @@ class ModbusDriveAdapter(AdapterBase):
         bad_before = self.bad_responses
         try:
             self.load_table(x)
-            self._trigger()
-            result = self._capture(n, stats, result, sink, progress)
+            with self._answers_within(self._enabled_wait_s):
+                self._trigger()
+                self._capture(n, stats, result, sink, progress)
             result.completed = result.fault is None
+        except DeviceError as exc:
+            if _is_limit(result.fault) and not isinstance(exc, LimitTrip):
+                raise LimitTrip(f"{self.port}: {result.fault} (then: {exc})") from None
+            raise
         finally:
-            self.stop()
+            self.safe_stop()
             stats.lost_frames = self.missing_responses - missing_before
             stats.corrupt_frames += self.bad_responses - bad_before
             result.events = list(self.events)
             self.last_result = result
         if result.fault:
-            error = LimitTrip if result.fault.split(":")[0] in _LIMIT_FAULTS else DeviceError
+            error = LimitTrip if _is_limit(result.fault) else DeviceError
             raise error(f"{self.port}: {result.fault}")
         return result
 
@@ -540,6 +726,8 @@ class ModbusDriveAdapter(AdapterBase):
         read_to = 0
         while True:
             st = self.status()
+            if "fault" in st.flags and result.fault is None:
+                self._note_fault(st, result)  # known now: the first cause, whatever fails after it
             available = min(st.sample_count, n)
             before = read_to
             read_to = self.read_capture(read_to, available - read_to, sink, stats, _CHUNKS_PER_POLL)
@@ -557,16 +745,9 @@ class ModbusDriveAdapter(AdapterBase):
                                       f"({self.map.describe(self.map.register('status_word').address)} still shows "
                                       "running); stopped")
                 time.sleep(_POLL_S)
-        if "fault" in st.flags:
-            name = self.map.fault_name(st.fault_code)
-            where = self.map.describe(self.map.register("fault_code").address)
-            message = (f"{name}: axis stopped, torque zero ({where} = {st.fault_code}, at sample "
-                       f"{st.fault_sample}, value {st.fault_value:g})")
-            kind = "limit_trip" if name in _LIMIT_FAULTS else "fault"
-            self.events.append({"kind": kind, "message": message, "sample_index": st.fault_sample,
-                                "value": st.fault_value})
-            result.fault = message
-        elif available < n:
+        if result.fault:
+            return result
+        if available < n:
             stats.lost_samples += n - available
             self.events.append({
                 "kind": "capture_stopped", "sample_index": available, "value": float(n - available),
@@ -576,6 +757,42 @@ class ModbusDriveAdapter(AdapterBase):
         else:
             self.events.append({"kind": "finished", "message": "run complete", "sample_index": n, "value": 0.0})
         return result
+
+    def _describe_fault(self, st: DriveStatus) -> str:
+        """A latched fault in words: name, register, sample and value."""
+        name = self.map.fault_name(st.fault_code)
+        where = self.map.describe(self.map.register("fault_code").address)
+        if name == "comm_timeout":
+            return (f"comm_timeout: the drive heard nothing from the host for {st.fault_value:.3g} s and stopped "
+                    f"on its own ({where} = {st.fault_code}, at sample {st.fault_sample})")
+        return f"{name} ({where} = {st.fault_code}, at sample {st.fault_sample}, value {st.fault_value:g})"
+
+    def _note_fault(self, st: DriveStatus, result: RunResult) -> None:
+        """Record a fault the status shows as an event, at once, and as the run's outcome."""
+        name = self.map.fault_name(st.fault_code)
+        message = self._describe_fault(st)
+        if name != "comm_timeout":
+            message = message.replace(" (", ": axis stopped, torque zero (", 1)
+        kind = "limit_trip" if name in _LIMIT_FAULTS else "fault"
+        self.events.append({"kind": kind, "message": message, "sample_index": st.fault_sample,
+                            "value": st.fault_value})
+        result.fault = message
+
+
+def _is_limit(fault: str | None) -> bool:
+    return bool(fault) and fault.split(":")[0] in _LIMIT_FAULTS
+
+
+def _reason(exc: BaseException) -> str:
+    """Why a connection failed, in a few words (pymodbus's messages repeat the client's repr)."""
+    text = str(exc)
+    if isinstance(exc, ConnectionResetError):
+        return "connection reset by the drive"
+    if isinstance(exc, BrokenPipeError) or "unexpectedly closed" in text:
+        return "the drive closed the connection"
+    if "cannot connect" in text.lower():
+        return "it does not accept a connection"
+    return text or type(exc).__name__
 
 
 def _serial_error(port: str, baudrate: int, device: DeviceConfig) -> str:

@@ -26,6 +26,13 @@ Fault switches (``[emulator.faults]``): ``exception_register`` /
 that exception), ``response_delay_s`` (every answer comes this late),
 ``missing_response_rate`` (answers lost; the request itself was carried out),
 ``capture_stops_after_s`` and ``drive_fault_after_s`` (see the firmware).
+
+The drive's communication timeout (register ``comm_timeout_ms``) is watched on
+the wall clock by the clock thread, whatever ``time_scale`` is: a host that
+falls silent while the drive is enabled finds it stopped, disabled and
+latched in fault ``comm_timeout``. A real drive listens in real time; this
+twin is a process that a loaded machine can leave unscheduled, so the time
+its server loop could not run is not counted as the host's silence.
 """
 
 from __future__ import annotations
@@ -55,6 +62,8 @@ from hilident.protocol.modbus_registers import RegisterMap
 logging.getLogger("pymodbus").addHandler(logging.NullHandler())  # no library chatter on stderr
 
 _COAST_S = 2.0  # simulated seconds the axis coasts, drive disabled, after a run
+_BEAT_S = 0.005  # the server loop notes every so often that it is free to hear requests
+_STALL_S = 0.02  # a longer gap between two notes: this process was not scheduled (a loaded machine)
 
 
 class PtyBridge:
@@ -195,6 +204,8 @@ class ModbusDriveServer:
         self._stop = threading.Event()
         self._server = None
         self._bridge: PtyBridge | None = None
+        self._beat_at = time.monotonic()
+        self._beat_task: asyncio.Task | None = None
 
     # --- lifecycle -------------------------------------------------------------------------
 
@@ -227,6 +238,19 @@ class ModbusDriveServer:
             self._server = ModbusTcpServer(device, address=("127.0.0.1", 0), trace_packet=self._trace_packet)
             await self._server.serve_forever(background=True)
             self.port = f"tcp://127.0.0.1:{self._server.transport.sockets[0].getsockname()[1]}"
+        self._beat_at = time.monotonic()
+        self._beat_task = asyncio.ensure_future(self._beat())
+
+    async def _beat(self) -> None:
+        """Note how long the server loop could not run; that time is not the host's silence."""
+        while True:
+            await asyncio.sleep(_BEAT_S)
+            now = time.monotonic()
+            stalled = now - self._beat_at - _BEAT_S
+            self._beat_at = now
+            if stalled > _STALL_S:
+                with self.lock:
+                    self.firmware.excuse_silence(stalled)
 
     def close(self) -> None:
         """Stop the axis, the clock and the server; release the port."""
@@ -236,6 +260,8 @@ class ModbusDriveServer:
         with self.lock:
             self.firmware.drive.disable()
         if self._loop is not None and self._loop.is_running():
+            if self._beat_task is not None:
+                self._loop.call_soon_threadsafe(self._beat_task.cancel)
             if self._server is not None:
                 try:
                     asyncio.run_coroutine_threadsafe(self._server.shutdown(), self._loop).result(timeout=2.0)
@@ -260,6 +286,8 @@ class ModbusDriveServer:
     async def _action(self, function_code, start_address, address, count, registers, set_values):
         """Every request that passed pymodbus's address checks lands here."""
         self.requests += 1
+        with self.lock:
+            self.firmware.heard_from_host(time.monotonic())
         f = self.faults
         if f.exception_register >= 0 and address <= f.exception_register < address + count:
             return ExcCodes(f.exception_code)
@@ -301,6 +329,9 @@ class ModbusDriveServer:
             while not self._stop.is_set():
                 now = time.monotonic()
                 with self.lock:
+                    listening = now - self._beat_at < _STALL_S + _BEAT_S  # else the silence may be ours
+                    if listening and fw.watch_host(now):  # the host went silent: the drive stopped on its own
+                        coast_left, coast_clock = int(_COAST_S * loop_rate), now
                     if fw.runs != runs_seen:  # a run was triggered since the last look
                         runs_seen = fw.runs
                         origin, at_origin = now, 0

@@ -25,6 +25,15 @@ at the end of the table (drive disabled), on a 1 -> 0 edge or a write of 0
 (stop: disabled, zero torque), or on a fault: a tripped limit, or the
 configured ``drive_fault_after_s``. The capture then holds the samples up to
 and including the one in which the fault happened.
+
+Communication timeout (when the map names ``comm_timeout_ms``): while the
+drive is enabled and no request addressed to it has arrived for longer than
+``comm_timeout_ms`` (0: off), it stops the run, disables itself and latches
+fault ``comm_timeout`` (``fault_value``: the silence, s), as a servo drive's
+communication-loss detection does. The server reports every request with
+:meth:`ModbusDriveFirmware.heard_from_host` and asks
+:meth:`ModbusDriveFirmware.watch_host` on its clock; the timeout runs on the
+wall clock, because it watches the real link, not the simulated physics.
 """
 
 from __future__ import annotations
@@ -88,6 +97,7 @@ class ModbusDriveFirmware:
         self.capture_stopped = False
         self.limits_loaded = False
         self.runs = 0  # runs started since power-up (the server's clock watches it)
+        self.last_heard: float | None = None  # wall-clock time of the last request addressed to the drive, s
         self._crc: int | None = None
         self._values = np.zeros(0)
         self._run_divider = 1
@@ -393,6 +403,35 @@ class ModbusDriveFirmware:
         self.running = False
         self.done = True
         self.drive.disable()
+
+    # --- communication timeout ------------------------------------------------------------
+
+    def heard_from_host(self, now: float) -> None:
+        """A request addressed to this drive arrived at wall-clock time ``now`` (s, monotonic)."""
+        self.last_heard = now
+
+    def excuse_silence(self, seconds: float) -> None:
+        """``seconds`` during which the server could not hear requests do not count as the host's silence."""
+        if self.last_heard is not None:
+            self.last_heard += seconds
+
+    @property
+    def comm_timeout_s(self) -> float:
+        """The communication timeout the host set, s (0: off, or the map has no such register)."""
+        if "comm_timeout_ms" not in self.map.registers:
+            return 0.0
+        return float(self._get("comm_timeout_ms")) / 1000.0
+
+    def watch_host(self, now: float) -> bool:
+        """Stop, disable and latch ``comm_timeout`` when enabled and silent too long; True when it tripped."""
+        timeout = self.comm_timeout_s
+        if not timeout or not self.drive.enabled or self.last_heard is None:
+            return False
+        silence = now - self.last_heard
+        if silence <= timeout:
+            return False
+        self._fault(self.map.fault_codes["comm_timeout"], self.produced, silence)
+        return True
 
     def idle(self, n_ticks: int) -> None:
         """Let the physics go on with the drive disabled (the axis coasts to rest)."""

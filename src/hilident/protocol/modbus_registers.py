@@ -58,8 +58,8 @@ from hilident.protocol.filter_encoding import FilterEncoding
 
 __all__ = [
     "EXCEPTION_MEANINGS", "TYPES", "CaptureChannel", "Chunk", "FilterSlots", "Register", "RegisterMap", "Window",
-    "decode_string", "decode_values", "encode_string", "encode_values", "exception_meaning", "plan_chunks",
-    "table_crc",
+    "count_rtu_frames", "decode_string", "decode_values", "encode_string", "encode_values", "exception_meaning",
+    "plan_chunks", "rtu_crc", "table_crc",
 ]
 
 #: Registers per value and numpy type code of the numeric types.
@@ -98,8 +98,30 @@ WRITABLE = ("control_word", "mode", "sample_divider", "capture_mask", "table_len
 CONTROL_BITS = ("run", "fault_reset")
 STATUS_BITS = ("enabled", "running", "done", "fault", "capture_stopped", "limits_loaded")
 FAULT_NAMES = ("torque_limit", "velocity_limit", "position_limit", "drive_fault")
+#: Registers a map may name, with the types allowed; the host uses each only when it is there.
+#: ``comm_timeout_ms``: the drive's communication timeout (ms, 0 = off), the device-side stop for a host
+#: that dies; a map that names it must also name ``[modbus.fault_codes] comm_timeout``.
+OPTIONAL_REGISTERS: dict[str, tuple[str, ...]] = {"comm_timeout_ms": ("u16", "u32")}
+OPTIONAL_FAULT_NAMES = {"comm_timeout": "comm_timeout_ms"}  # fault name -> the register it belongs to
 FILTER_FIELDS = ("center", "width", "depth", "enable")
 STAMP_MODULUS = 1 << 16
+
+
+def _optional_fault_codes(table: dict, registers: dict, required: dict, fail) -> dict[str, int]:
+    """The codes of the optional faults in ``[modbus.fault_codes]``, each required when its register is named."""
+    out = {}
+    for name, register in OPTIONAL_FAULT_NAMES.items():
+        value = table.get(name)
+        if value is None:
+            if register in registers:
+                fail(f"modbus.fault_codes.{name}", f"is required: the map names register {register}")
+            continue
+        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 0xFFFF:
+            fail(f"modbus.fault_codes.{name}", f"must be an integer in 1..65535, got {value!r}")
+        if value in required.values():
+            fail("modbus.fault_codes", "values must be distinct")
+        out[name] = value
+    return out
 
 
 def exception_meaning(code: int) -> str:
@@ -213,6 +235,43 @@ def table_crc(registers) -> int:
     """
     data = np.asarray(registers, dtype=np.int64).astype(">u2").tobytes()
     return binascii.crc_hqx(data, 0xFFFF)
+
+
+def rtu_crc(data: bytes) -> int:
+    """CRC-16/MODBUS of ``data`` (polynomial 0xA001 reflected, initial 0xFFFF), as an RTU frame ends with it.
+
+    >>> hex(rtu_crc(bytes.fromhex("0103006500")))
+    '0xd432'
+    """
+    crc = 0xFFFF
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+    return crc
+
+
+def count_rtu_frames(data: bytes) -> int:
+    """How many Modbus RTU frames ``data`` holds (bytes read off a line and not asked for).
+
+    Frames are found by their CRC (low byte first), shortest first; bytes
+    that end no frame count as one damaged frame.
+
+    >>> frame = bytes.fromhex("010302002a")
+    >>> crc = rtu_crc(frame)
+    >>> count_rtu_frames((frame + bytes([crc & 0xFF, crc >> 8])) * 2 + b"\\x00")
+    3
+    """
+    frames, start = 0, 0
+    while start < len(data):
+        for end in range(start + 4, len(data) + 1):
+            body, crc = data[start : end - 2], data[end - 2 : end]
+            if rtu_crc(body) == crc[0] | crc[1] << 8:
+                frames, start = frames + 1, end
+                break
+        else:
+            return frames + 1
+    return frames
 
 
 def _numeric(type_: str) -> tuple[int, str]:
@@ -494,6 +553,11 @@ class RegisterMap:
         for name in WRITABLE:
             if not registers[name].writable:
                 fail(f"modbus.registers.{name}.access", 'must be "rw": the host writes it')
+        for name, types in OPTIONAL_REGISTERS.items():
+            if name in registers and registers[name].type not in types:
+                fail(f"modbus.registers.{name}.type", f"must be one of {types}, got {registers[name].type!r}")
+            if name in registers and not registers[name].writable:
+                fail(f"modbus.registers.{name}.access", 'must be "rw": the host writes it')
 
         def codes(key, names, bits):
             table = subtable(mb, key, "modbus")
@@ -510,6 +574,7 @@ class RegisterMap:
         control = codes("control", CONTROL_BITS, True)
         status = codes("status", STATUS_BITS, True)
         fault_codes = codes("fault_codes", FAULT_NAMES, False)
+        fault_codes.update(_optional_fault_codes(mb["fault_codes"], registers, fault_codes, fail))
         modes = codes("modes", MODES, False)
 
         tb = subtable(mb, "table", "modbus")
