@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import os
 import signal
 import subprocess
@@ -22,14 +21,6 @@ from hilident.errors import DeviceError
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "emulated-modbus-gantry.toml"
 HOST_TIMEOUT_S = 0.5
 TOLERANCE_S = 0.15  # the twin's clock looks every 2 ms; a loaded machine delays it a little more
-
-
-@functools.cache
-def arming_flags() -> list[str]:
-    """``--yes`` where ``hilident run`` asks for a go-ahead on a real port (a twin on TCP is one)."""
-    text = subprocess.run([sys.executable, "-m", "hilident.cli", "run", "--help"], capture_output=True,
-                          text=True, timeout=60).stdout
-    return ["--yes"] if "--yes" in text else []
 
 
 def bench_config(tmp_path: Path, port: str) -> Path:
@@ -54,7 +45,7 @@ def test_sigkill_of_the_host_mid_run_leaves_the_drive_stopped_within_its_timeout
             config.write_text(text)
         host = subprocess.Popen(
             [sys.executable, "-m", "hilident.cli", "run", str(config), "--out", str(tmp_path / "o"), "-q",
-             *arming_flags()],
+             "--yes"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )
         deadline = time.monotonic() + 60
