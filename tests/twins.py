@@ -35,7 +35,7 @@ def quick(raw: dict, transport: str) -> dict:
     raw = json.loads(json.dumps(raw))
     raw["friction_test"] = {"enabled": False}
     raw["excitation"].update(period_s=4.0, duration_s=8.0)
-    raw["emulator"]["time_scale"] = 6.0
+    raw["emulator"]["time_scale"] = 8.0
     raw["notch"]["verify"] = False
     if transport == "modbus":
         raw["device"]["baudrate"] = 921600  # an RTU line reads the capture back: keep it quick
@@ -80,7 +80,7 @@ def host(config: Path, out: Path, *extra: str, fsize_limit: int | None = None) -
             resource.setrlimit(resource.RLIMIT_FSIZE, (fsize_limit, fsize_limit))
 
     return subprocess.Popen([sys.executable, "-m", "hilident.cli", "run", str(config), "--out", str(out), "--yes",
-                             "-q", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                             "-q", "--no-plots", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
                             preexec_fn=limit_file_size)
 
 

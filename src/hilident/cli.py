@@ -28,7 +28,8 @@ def _run(args) -> int:
     if args.clear_fault:
         cfg = replace(cfg, device=replace(cfg.device, allow_fault_reset=True))
     out = Path(args.out) if args.out else Path("runs") / Path(args.config).stem
-    session = Session(cfg, out, Progress(enabled=not args.quiet), confirm=_go_ahead(args.yes), dry_run=args.dry_run)
+    session = Session(cfg, out, Progress(enabled=not args.quiet), confirm=_go_ahead(args.yes), dry_run=args.dry_run,
+                      plots=not args.no_plots)
     summary = session.run()
     if args.dry_run:
         print(session.plan.describe())
@@ -200,6 +201,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "still printed; without --yes a terminal is needed to confirm)")
     run.add_argument("--dry-run", action="store_true", help="connect, identify the device, check every "
                      "capability and rate, print the plan, and move nothing")
+    run.add_argument("--no-plots", action="store_true", help="write summary.json and the recordings, no PNGs "
+                     "(scripted and nightly runs)")
     run.add_argument("--clear-fault", action="store_true", help="clear a fault the device has latched "
                      "(a limit trip, a watchdog) when connecting, as [device] allow_fault_reset = true")
     run.set_defaults(func=_run)

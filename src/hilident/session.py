@@ -165,7 +165,7 @@ class Session:
     """
 
     def __init__(self, cfg: Config, out_dir: str | Path, progress: Progress | None = None,
-                 confirm: Callable[[RunPlan], bool] | None = None, dry_run: bool = False):
+                 confirm: Callable[[RunPlan], bool] | None = None, dry_run: bool = False, plots: bool = True):
         if cfg.limits is None:
             raise ConfigError(
                 "limits", "is required for a bench run: torque_nm, velocity_mps, position_min_m, position_max_m",
@@ -183,6 +183,7 @@ class Session:
         self._analysed: dict[str, dict[str, np.ndarray]] = {}  # gap-free samples of each analysed run
         self.confirm = confirm
         self.dry_run = dry_run
+        self.plots = plots
         self.plan: RunPlan | None = None
         self.lock: DeviceLock | None = None
         self.filters_found: list[dict] = []  # what the filter slots held when the session began
@@ -422,7 +423,8 @@ class Session:
         self.summary = self._summary(friction, plant, designs, upload, verification, time.monotonic() - started)
         self.summary["model"] = model.to_dict() if model else None
         report.write_summary(self.out / "summary.json", self.summary)
-        self._plots(friction, plant, designs, verification)
+        if self.plots:
+            self._plots(friction, plant, designs, verification)
         return self.summary
 
     def prepare(self):
