@@ -25,7 +25,8 @@ def serial_twin(tmp_path):
 
 def _run(config: Path, out: Path, *extra: str, stdin=subprocess.DEVNULL, timeout=120):
     env = dict(os.environ, HILIDENT_LOCK_DIR=str(out.parent / "locks"))
-    return subprocess.run([sys.executable, "-m", "hilident.cli", "run", str(config), "--out", str(out), *extra],
+    return subprocess.run([sys.executable, "-m", "hilident.cli", "run", str(config), "--out", str(out), "--no-plots",
+                           *extra],
                           capture_output=True, text=True, stdin=stdin, env=env, timeout=timeout)
 
 
