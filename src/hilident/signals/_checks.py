@@ -107,7 +107,7 @@ def n_samples(key: str, duration_s: float, sample_rate_hz: float) -> int:
 
 def too_many(n: float) -> str:
     """The end of a message refusing ``n`` samples."""
-    return f"would take {n:.4g} samples, more than the {MAX_SAMPLES} (2**25) one signal may hold"
+    return f"would take {n:.4g} samples, more than the {MAX_SAMPLES} (2**25) one experiment may hold"
 
 
 def at_most(key: str, n: float) -> int:
