@@ -10,12 +10,15 @@ installed with the package (``hilident/_drivers``).
 from __future__ import annotations
 
 import os
-import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
+from typing import ClassVar
 
+from hilident.config import build_table, parse_toml, read_toml_text
+from hilident.config import _spec as spec
 from hilident.errors import ConfigError
+from hilident.signals._checks import show
 
 DESCRIPTION_FILE = "driver.toml"
 _FORMATS = ("f32", "i16", "i32")
@@ -90,6 +93,64 @@ class DriverDescription:
         return tuple(c for c in self.channels if c.stream)
 
 
+@dataclass(frozen=True, kw_only=True)
+class _DriverTable:
+    """``[driver]``: what the device is and which adapter talks to it."""
+
+    open_table: ClassVar[bool] = True  # other readers may add identity keys
+    name: str = spec(doc="driver name (the folder name by convention)")
+    transport: str = spec(choices=TRANSPORTS)
+    description: str = spec("")
+    protocol: str = spec("", doc="serial: the protocol the board speaks")
+    protocol_version: int = spec(0, ge=0, le=65535, doc="serial: protocol version the board must report")
+    default_baudrate: int = spec(0, ge=0, le=100_000_000, doc="line or CAN bit rate when the config gives none")
+
+
+@dataclass(frozen=True, kw_only=True)
+class _BoardTable:
+    """``[board]``: the device's loop, rates, filter slots and buffers."""
+
+    open_table: ClassVar[bool] = True  # capabilities (a watchdog, ...) are declared here by the transports
+    firmware: str = spec("")
+    loop_rate_hz: float = spec(gt=0, le=1e6, doc="control loop and filter rate, Hz")
+    max_sample_rate_hz: float = spec(gt=0, le=1e6, doc="highest sample rate the device records, Hz")
+    filter_slots: int = spec(ge=0, le=64, doc="biquad slots in series on the torque command")
+    excitation_buffer_samples: int = spec(0, ge=0, le=2**24, doc="serial: board-side excitation FIFO, samples")
+    block_samples: int = spec(0, ge=0, le=65535, doc="serial: samples per SAMPLES frame")
+
+
+@dataclass(frozen=True, kw_only=True)
+class _ChannelTable:
+    """One ``[[channels]]`` entry."""
+
+    name: str = spec()
+    unit: str = spec("")
+    format: str = spec("f32", choices=_FORMATS)
+    scale: float = spec(1.0, gt=0, doc="SI units per LSB (i16/i32)")
+    stream: bool = spec(True)
+
+
+@dataclass(frozen=True, kw_only=True)
+class _DriverFile:
+    """A whole ``driver.toml``; the transport tables are validated by their own parsers."""
+
+    open_table: ClassVar[bool] = True  # [canopen], [modbus], [filters]: protocol/*.py
+    driver: _DriverTable = spec()
+    board: _BoardTable = spec()
+    channels: list[_ChannelTable] = spec([], max_items=64)
+
+
+#: Keys a serial driver must give (they are the serial protocol's own figures).
+_SERIAL_REQUIRED = (("driver", "protocol_version"), ("driver", "default_baudrate"),
+                    ("board", "excitation_buffer_samples"), ("board", "block_samples"))
+
+
+def _looks_like_path(value: str) -> bool:
+    """A ``device.driver`` value names a folder when it looks like a path: ``./x``, ``../x``, ``/x``, ``~/x``, ``a/b``."""
+    separators = {"/", os.sep} | ({os.altsep} if os.altsep else set())
+    return value in (".", "..") or value.startswith("~") or any(c in value for c in separators)
+
+
 def search_path(extra: list[str | os.PathLike] | tuple = ()) -> list[Path]:
     """Folders searched for driver descriptions, in order."""
     folders = [Path(p).expanduser() for p in extra]
@@ -116,84 +177,85 @@ def available_drivers(extra=()) -> list[str]:
 def find_driver(name_or_path: str, extra=()) -> DriverDescription:
     """Load a driver by folder path or by name on the search path.
 
+    A value that looks like a path (``./x``, ``../x``, ``/x``, ``~/x``, or with a
+    path separator) is the driver's folder (or its ``driver.toml``); any other
+    value is a driver name, looked up only in :func:`search_path` (``driver_paths``,
+    ``$HILIDENT_DRIVER_PATH``, a checkout's ``drivers/``, the installed package),
+    never in the current directory.
+
     Raises
     ------
     ConfigError
         The driver is not found (the message lists the folders searched) or its
         description is invalid (the message names the key and file).
     """
-    candidate = Path(name_or_path).expanduser()
-    if candidate.is_dir() and (candidate / DESCRIPTION_FILE).is_file():
-        return load_driver(candidate)
-    if candidate.is_file() and candidate.name == DESCRIPTION_FILE:
-        return load_driver(candidate.parent)
+    if not isinstance(name_or_path, str) or not name_or_path.strip():
+        raise ConfigError("device.driver", f"must name a driver or a driver folder, got {show(name_or_path)}")
+    if _looks_like_path(name_or_path):
+        candidate = Path(name_or_path).expanduser()
+        if candidate.is_dir() and (candidate / DESCRIPTION_FILE).is_file():
+            return load_driver(candidate)
+        if candidate.name == DESCRIPTION_FILE and candidate.is_file():
+            return load_driver(candidate.parent)
+        raise ConfigError("device.driver", f"{show(name_or_path)} is taken as a path (it looks like one) but holds no "
+                                           f"{DESCRIPTION_FILE}")
     for folder in search_path(extra):
         if (folder / name_or_path / DESCRIPTION_FILE).is_file():
             return load_driver(folder / name_or_path)
     searched = ", ".join(str(f) for f in search_path(extra)) or "(nothing)"
     raise ConfigError(
         "device.driver",
-        f"no driver {name_or_path!r} found; searched {searched}; known drivers: "
-        f"{', '.join(available_drivers(extra)) or 'none'}",
+        f"no driver {show(name_or_path)} found; searched {searched}; known drivers: "
+        f"{', '.join(available_drivers(extra)) or 'none'} (a folder of your own: give its path, e.g. ./{name_or_path})",
     )
 
 
 def load_driver(folder: str | os.PathLike) -> DriverDescription:
-    """Parse ``folder/driver.toml``."""
+    """Parse and validate ``folder/driver.toml`` (its ``[driver]``, ``[board]`` and ``[[channels]]`` tables).
+
+    Raises
+    ------
+    ConfigError
+        The file cannot be read, is not UTF-8 TOML, or a key is missing, unknown
+        (in ``[[channels]]``), of the wrong type or out of range; the message names
+        the file and the ``[table.key]``.
+    """
     folder = Path(folder)
     path = folder / DESCRIPTION_FILE
-    text = path.read_text(encoding="utf-8")
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError("driver.toml", f"not valid TOML: {exc}", str(path)) from None
-
-    def get(section: str, key: str, kind, default=None):
-        value = data.get(section, {}).get(key, default)
-        if value is None:
-            raise ConfigError(f"{section}.{key}", "is required", str(path))
-        if kind is float and isinstance(value, int) and not isinstance(value, bool):
-            value = float(value)
-        if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
-            raise ConfigError(f"{section}.{key}", f"must be {kind.__name__}, got {value!r}", str(path))
-        return value
-
-    transport = get("driver", "transport", str)
-    if transport not in TRANSPORTS:
-        raise ConfigError("driver.transport", f"must be one of {TRANSPORTS}, got {transport!r}", str(path))
-    serial_only = transport == "serial"
-
-    def serial_figure(section: str, key: str, kind):
-        # the serial protocol's own figures: required there, meaningless elsewhere
-        return get(section, key, kind, None if serial_only else kind())
-
-    channels = []
-    for i, c in enumerate(data.get("channels", [])):
-        fmt = c.get("format", "f32")
-        if fmt not in _FORMATS:
-            raise ConfigError(f"channels[{i}].format", f"must be one of {_FORMATS}, got {fmt!r}", str(path))
-        channels.append(
-            ChannelSpec(
-                name=str(c["name"]), unit=str(c.get("unit", "")), format=fmt,
-                scale=float(c.get("scale", 1.0)), stream=bool(c.get("stream", True)),
-            )
-        )
+    source = str(path)
+    text = read_toml_text(path, "driver description")
+    data = parse_toml(text, source)
+    parsed = build_table(_DriverFile, data, "", source)
+    d, board = parsed.driver, parsed.board
+    if d.transport == "serial":
+        for table, key in _SERIAL_REQUIRED:
+            if key not in data[table]:
+                raise ConfigError(f"{table}.{key}", "is required for a serial driver", source)
+    if board.max_sample_rate_hz > board.loop_rate_hz:
+        raise ConfigError("board.max_sample_rate_hz", f"{board.max_sample_rate_hz:g} Hz exceeds board.loop_rate_hz "
+                                                      f"= {board.loop_rate_hz:g} Hz", source)
+    channels = tuple(ChannelSpec(c.name, c.unit, c.format, c.scale, c.stream) for c in parsed.channels)
     if not channels:
-        raise ConfigError("channels", "a driver needs at least one [[channels]] entry", str(path))
+        raise ConfigError("channels", "a driver needs at least one [[channels]] entry", source)
+    names = [c.name for c in channels]
+    duplicate = next((n for n in names if names.count(n) > 1), None)
+    if duplicate is not None or "" in names:
+        raise ConfigError("channels", f"channel names must be distinct and non-empty, got {show(names)}", source)
+    serial = d.transport == "serial"
     return DriverDescription(
-        name=get("driver", "name", str),
+        name=d.name,
         folder=folder,
-        transport=transport,
-        protocol_version=serial_figure("driver", "protocol_version", int),
-        default_baudrate=serial_figure("driver", "default_baudrate", int),
-        description=get("driver", "description", str, ""),
-        firmware=get("board", "firmware", str, ""),
-        loop_rate_hz=get("board", "loop_rate_hz", float),
-        max_sample_rate_hz=get("board", "max_sample_rate_hz", float),
-        filter_slots=get("board", "filter_slots", int),
-        excitation_buffer_samples=serial_figure("board", "excitation_buffer_samples", int),
-        block_samples=serial_figure("board", "block_samples", int),
-        channels=tuple(channels),
+        transport=d.transport,
+        protocol_version=d.protocol_version if serial else 0,
+        default_baudrate=d.default_baudrate,
+        description=d.description,
+        firmware=board.firmware,
+        loop_rate_hz=board.loop_rate_hz,
+        max_sample_rate_hz=board.max_sample_rate_hz,
+        filter_slots=board.filter_slots,
+        excitation_buffer_samples=board.excitation_buffer_samples if serial else 0,
+        block_samples=board.block_samples if serial else 0,
+        channels=channels,
         sections=data,
         text=text,
     )
