@@ -9,6 +9,7 @@ installed with the package (``hilident/_drivers``).
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, field
 from importlib import resources
@@ -259,3 +260,96 @@ def load_driver(folder: str | os.PathLike) -> DriverDescription:
         sections=data,
         text=text,
     )
+
+
+# --- checks of a run against its driver, before connecting ----------------------------------
+
+#: Largest loop-rate divider a device takes (a 16-bit field on every transport).
+MAX_DIVIDER = 65535
+#: hilident modes every serial board offers (PROTOCOL.md: the CONFIGURE mode byte).
+SERIAL_MODES = ("torque", "torque_injection", "velocity", "position")
+
+
+def declared_modes(driver: DriverDescription) -> tuple[str, ...]:
+    """hilident modes the device runs: ``[canopen.modes]``, ``[modbus.modes]``, or every serial mode."""
+    if driver.transport == "serial":
+        return SERIAL_MODES
+    table = driver.sections.get(driver.transport, {})
+    modes = table.get("modes", {}) if isinstance(table, dict) else {}
+    return tuple(modes) if isinstance(modes, dict) else ()
+
+
+def valid_sample_rates(driver: DriverDescription, count: int | None = None) -> list[float]:
+    """Sample rates the device records: its loop rate divided by a whole number, at most its maximum, Hz.
+
+    Parameters
+    ----------
+    driver : DriverDescription
+    count : int, optional
+        Return only the ``count`` highest rates.
+    """
+    rates = []
+    first = max(1, math.ceil(driver.loop_rate_hz / driver.max_sample_rate_hz - 1e-9))
+    for divider in range(first, MAX_DIVIDER + 1):
+        if count is not None and len(rates) >= count:
+            break
+        rates.append(driver.loop_rate_hz / divider)
+    return rates
+
+
+def check_run_against_driver(cfg, driver: DriverDescription) -> None:
+    """Refuse, before connecting, what a run of ``cfg`` would only fail at on the device.
+
+    Checks the sample rate against the loop rate (the message lists valid rates),
+    the channels the session records and analyses, the modes of the excitation
+    and of the friction test, and the filter slots the notches need.
+
+    Parameters
+    ----------
+    cfg : hilident.config.Config
+    driver : DriverDescription
+
+    Raises
+    ------
+    ConfigError
+        Naming the configuration key, the configuration file and the driver.
+    """
+    src, what = cfg.source, f"driver {driver.name!r} ({driver.folder / DESCRIPTION_FILE})"
+    _check_sample_rate(cfg, driver, what)
+    names = [c.name for c in driver.channels]
+    for i, name in enumerate(cfg.run.channels):
+        if name not in names:
+            raise ConfigError(f"run.channels[{i}]", f"{what} has no channel {show(name)} (it has: {', '.join(names)})",
+                              src)
+    recorded = cfg.run.channels or [c.name for c in driver.streamed_channels]
+    needed = (("identification.output", cfg.identification.output), ("run.channels", "excitation"),
+              ("run.channels", "torque_nm"), ("run.channels", "velocity_mps"))
+    for key, name in needed:
+        if name not in names:
+            raise ConfigError(key, f"{what} has no channel {show(name)} (it has: {', '.join(names)})", src)
+        if name not in recorded:
+            raise ConfigError(key, f"channel {name!r} is not recorded by default by {what}; list it in run.channels",
+                              src)
+    modes = declared_modes(driver)
+    if cfg.excitation.mode not in modes:
+        raise ConfigError("excitation.mode", f"{what} runs no {cfg.excitation.mode!r} mode (it has: "
+                                             f"{', '.join(modes) or 'none'})", src)
+    if cfg.friction_test.enabled and "velocity" not in modes:
+        raise ConfigError("friction_test.enabled", f"the friction test runs in velocity mode, which {what} does "
+                                                   f"not have (it has: {', '.join(modes) or 'none'})", src)
+    if cfg.notch.enabled and cfg.identification.max_resonances > 0 and driver.filter_slots < 1:
+        raise ConfigError("notch.enabled", f"{what} has no filter slots to hold a notch", src)
+
+
+def _check_sample_rate(cfg, driver: DriverDescription, what: str) -> None:
+    fs = cfg.run.sample_rate_hz
+    divider = driver.loop_rate_hz / fs
+    rate = driver.loop_rate_hz / round(divider) if round(divider) >= 1 else math.inf
+    if abs(divider - round(divider)) <= 1e-9 * divider and 1 <= round(divider) <= MAX_DIVIDER \
+            and rate <= driver.max_sample_rate_hz * (1 + 1e-9):
+        return
+    valid = ", ".join(f"{r:g}" for r in valid_sample_rates(driver, 8))
+    raise ConfigError("run.sample_rate_hz", f"{fs:g} Hz is not a rate {what} records; valid: {valid}, ... Hz "
+                                            f"(the loop rate {driver.loop_rate_hz:g} Hz divided by a whole number "
+                                            f"up to {MAX_DIVIDER}, at most {driver.max_sample_rate_hz:g} Hz)",
+                      cfg.source)
