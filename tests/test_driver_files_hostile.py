@@ -8,7 +8,6 @@ valid description; never in another exception.
 from __future__ import annotations
 
 import copy
-import json
 import math
 import tempfile
 import tomllib
@@ -28,6 +27,13 @@ SHIPPED = ("myrio-board", "canopen-servo", "canopen-servo-fixed", "modbus-servo"
 ORIGINALS = {name: tomllib.loads(find_driver(name).text) for name in SHIPPED}
 
 
+def toml_string(text: str) -> str:
+    """``text`` as a TOML basic string (control characters escaped, as TOML requires)."""
+    def char(c):
+        return "\\" + c if c in '"\\' else f"\\u{ord(c):04x}" if ord(c) < 32 or ord(c) == 127 else c
+    return '"' + "".join(map(char, text)) + '"'
+
+
 def toml_value(v) -> str:
     """``v`` as an inline TOML value."""
     if isinstance(v, bool):
@@ -37,15 +43,15 @@ def toml_value(v) -> str:
     if isinstance(v, float):
         return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf") if math.isinf(v) else repr(v)
     if isinstance(v, str):
-        return json.dumps(v)
+        return toml_string(v)
     if isinstance(v, list):
         return "[" + ", ".join(toml_value(x) for x in v) + "]"
-    return "{" + ", ".join(f"{json.dumps(k)} = {toml_value(x)}" for k, x in v.items()) + "}"
+    return "{" + ", ".join(f"{toml_string(k)} = {toml_value(x)}" for k, x in v.items()) + "}"
 
 
 def toml_text(data: dict) -> str:
     """A TOML document holding ``data`` (every top-level key as one inline value)."""
-    return "\n".join(f"{json.dumps(k)} = {toml_value(v)}" for k, v in data.items()) + "\n"
+    return "\n".join(f"{toml_string(k)} = {toml_value(v)}" for k, v in data.items()) + "\n"
 
 
 hostile_values = st.one_of(
