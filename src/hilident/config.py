@@ -4,6 +4,17 @@ Each TOML table maps onto one frozen dataclass below; unknown keys, wrong types
 and out-of-range values raise :class:`~hilident.errors.ConfigError` naming the
 dotted key and the file. The README documents every key; the dataclass field
 comments here are the reference.
+
+Whatever a file holds, loading it gives a Config or a ConfigError, before
+anything is allocated or moved: files are at most :data:`MAX_FILE_BYTES` of
+UTF-8; numbers are finite and within :data:`FLOAT_MAX`; integers fit
+:data:`INT_RANGE` unless their key says otherwise; lists hold at most
+:data:`MAX_LIST_ITEMS` (or their key's ``max_items``); strings at most
+:data:`MAX_STRING_CHARS` printable characters. Across keys, every experiment
+(excitation, friction ramps) is sized without building it and refused above
+``MAX_SAMPLES`` (2**25 samples), a multisine period must fit the run, fades must
+fit the excitation, the friction test must stay inside half the position window,
+and a pyserial port URL that writes a file (``spy://...?file=``) is refused.
 """
 
 from __future__ import annotations
@@ -434,6 +445,10 @@ def _cross_check(cfg: Config) -> None:
     lim = cfg.limits
     exc = cfg.excitation
     _check_port(cfg.device.port, src)
+    if cfg.emulator.faults.abort_object.strip():
+        from hilident.protocol.canopen_objects import parse_address
+
+        parse_address(cfg.emulator.faults.abort_object, "emulator.faults.abort_object", src)
     if lim is not None:
         _check_limits(cfg)
     rng = cfg.emulator.sensors.laser_range_m
@@ -441,6 +456,9 @@ def _cross_check(cfg: Config) -> None:
         raise ConfigError("emulator.sensors.laser_range_m", "must be [min, max] with min < max", src)
     if exc.f_min_hz >= exc.f_max_hz:
         raise ConfigError("excitation.f_min_hz", "must be below excitation.f_max_hz", src)
+    ic = cfg.identification
+    if ic.f_min_hz and ic.f_max_hz and ic.f_min_hz >= ic.f_max_hz:
+        raise ConfigError("identification.f_min_hz", "must be below identification.f_max_hz", src)
     if exc.f_max_hz >= cfg.run.sample_rate_hz / 2:
         raise ConfigError(
             "excitation.f_max_hz", f"must be below the Nyquist frequency {cfg.run.sample_rate_hz / 2:g} Hz", src

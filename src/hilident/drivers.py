@@ -1,10 +1,19 @@
 """Driver descriptions: what a device offers, read from ``drivers/<name>/driver.toml``.
 
-A device is described by data, not code. Descriptions are searched, in order, in
-the folders given by the caller (config ``device.driver_paths``), in the folders
-listed in the ``HILIDENT_DRIVER_PATH`` environment variable (``os.pathsep``
-separated), in the ``drivers/`` folder of a source checkout, and in the copy
-installed with the package (``hilident/_drivers``).
+A device is described by data, not code. A driver NAME (``"myrio-board"``) is
+searched, in order, in the folders given by the caller (config
+``device.driver_paths``), in the folders listed in the ``HILIDENT_DRIVER_PATH``
+environment variable (``os.pathsep`` separated), in the ``drivers/`` folder of a
+source checkout, and in the copy installed with the package
+(``hilident/_drivers``) -- never in the current directory. A value that looks
+like a path (``./x``, ``../x``, ``/x``, ``~/x``, or holding a path separator) is
+the driver's folder itself.
+
+``[driver]``, ``[board]`` and ``[[channels]]`` are validated by the same typed
+schema as the run configuration (:func:`hilident.config.build_table`); the
+transport tables (``[canopen]``, ``[modbus]``, ``[filters]``) by their parsers in
+:mod:`hilident.protocol`. Every error is a :class:`~hilident.errors.ConfigError`
+naming the ``driver.toml`` and the ``[table.key]``.
 """
 
 from __future__ import annotations
