@@ -184,3 +184,16 @@ def test_broken_serial_description_names_the_key(edit, key):
     edit(data)
     err = _load(toml_text(data).encode())
     assert isinstance(err, ConfigError) and err.key == key, err
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.one_of(st.text(max_size=20), st.text(min_size=250, max_size=600), st.sampled_from(
+    ["a\x00b", "~nosuchuser/x", "./" + "x" * 300, "..", ".", "~", "myrio-board", "/", "drivers/"])),
+    st.lists(st.sampled_from(["~nosuchuser", "y" * 300, "", "/nonexistent"]), max_size=2))
+def test_any_driver_value_finds_a_driver_or_is_a_config_error(value, paths):
+    try:
+        driver = find_driver(value, paths)
+    except ConfigError as exc:
+        assert exc.key == "device.driver", exc
+    else:
+        assert driver.name in SHIPPED

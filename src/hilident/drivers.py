@@ -161,11 +161,34 @@ def _looks_like_path(value: str) -> bool:
     return value in (".", "..") or value.startswith("~") or any(c in value for c in separators)
 
 
+def _expand(path) -> Path:
+    """``path`` with ``~`` expanded when there is a home to expand it to."""
+    try:
+        return Path(path).expanduser()
+    except RuntimeError:  # "~user" of no user, or no home directory at all
+        return Path(path)
+
+
+def _is_dir(path: Path) -> bool:
+    """``path.is_dir()`` that is False for names the file system refuses (too long, NUL bytes)."""
+    try:
+        return path.is_dir()
+    except (OSError, ValueError):
+        return False
+
+
+def _is_file(path: Path) -> bool:
+    try:
+        return path.is_file()
+    except (OSError, ValueError):
+        return False
+
+
 def search_path(extra: list[str | os.PathLike] | tuple = ()) -> list[Path]:
     """Folders searched for driver descriptions, in order."""
-    folders = [Path(p).expanduser() for p in extra]
+    folders = [_expand(p) for p in extra]
     env = os.environ.get("HILIDENT_DRIVER_PATH", "")
-    folders += [Path(p).expanduser() for p in env.split(os.pathsep) if p]
+    folders += [_expand(p) for p in env.split(os.pathsep) if p]
     checkout = Path(__file__).resolve().parents[2] / "drivers"
     if checkout.is_dir():
         folders.append(checkout)
@@ -179,7 +202,7 @@ def available_drivers(extra=()) -> list[str]:
     """Names of every driver found on the search path."""
     names = []
     for folder in search_path(extra):
-        if folder.is_dir():
+        if _is_dir(folder):
             names += [p.parent.name for p in sorted(folder.glob(f"*/{DESCRIPTION_FILE}"))]
     return sorted(set(names))
 
@@ -202,15 +225,15 @@ def find_driver(name_or_path: str, extra=()) -> DriverDescription:
     if not isinstance(name_or_path, str) or not name_or_path.strip():
         raise ConfigError("device.driver", f"must name a driver or a driver folder, got {show(name_or_path)}")
     if _looks_like_path(name_or_path):
-        candidate = Path(name_or_path).expanduser()
-        if candidate.is_dir() and (candidate / DESCRIPTION_FILE).is_file():
+        candidate = _expand(name_or_path)
+        if _is_file(candidate / DESCRIPTION_FILE):
             return load_driver(candidate)
-        if candidate.name == DESCRIPTION_FILE and candidate.is_file():
+        if candidate.name == DESCRIPTION_FILE and _is_file(candidate):
             return load_driver(candidate.parent)
         raise ConfigError("device.driver", f"{show(name_or_path)} is taken as a path (it looks like one) but holds no "
                                            f"{DESCRIPTION_FILE}")
     for folder in search_path(extra):
-        if (folder / name_or_path / DESCRIPTION_FILE).is_file():
+        if _is_file(folder / name_or_path / DESCRIPTION_FILE):
             return load_driver(folder / name_or_path)
     searched = ", ".join(str(f) for f in search_path(extra)) or "(nothing)"
     raise ConfigError(
