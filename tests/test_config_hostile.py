@@ -224,6 +224,7 @@ def _error(text: str) -> ConfigError:
     ({("device",): {"port": "SPY://COM3?raw&file"}}, "device.port", "file="),
     ({("device",): {"port": "a\u0000b"}}, "device.port", "control characters"),
     ({("device",): {"driver": "x" * 5000}}, "device.driver", "4096"),
+    ({("emulator", "faults"): {"abort_object": "zz"}}, "emulator.faults.abort_object", "object address"),
     ({("friction_test",): {"speeds_mps": [0.2], "hold_s": 5.0}}, "friction_test.speeds_mps", "position window"),
 ])
 def test_hostile_values_name_their_key(extra, key, says):
@@ -254,3 +255,17 @@ def test_an_oversized_config_is_refused_before_it_is_parsed(tmp_path):
 
 def test_deep_nesting_is_a_syntax_error():
     assert _error("a = " + "[" * 20_000 + "]" * 20_000).key == "(syntax)"
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.floats(0.0, 0.02), st.integers(1, 60))
+def test_fades_that_load_fit_the_excitation(fade_s, n):
+    """The load-time check and signals.fade agree at the edge (round(fade_s * fs) samples per fade)."""
+    from hilident.session import build_excitation
+
+    cfg = _outcome(toml_text({("limits",): LIMITS, ("excitation",): {"kind": "step", "duration_s": n / 1000.0,
+                                                                        "fade_s": fade_s}}))
+    if isinstance(cfg, ConfigError):
+        assert cfg.key == "excitation.fade_s" and 2 * round(fade_s * 1000.0) > n
+    else:
+        assert build_excitation(cfg).samples.size == n

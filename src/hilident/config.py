@@ -560,7 +560,7 @@ def excitation_samples(cfg: Config) -> int:
         if e.kind in ("sine", "square") and e.frequency_hz >= fs / 2:
             raise ConfigError("excitation.frequency_hz", f"must be below the Nyquist frequency {fs / 2:g} Hz, "
                                                          f"got {e.frequency_hz:g}", src)
-    if fade_applies and 2 * e.fade_s * fs > total + 1:
+    if fade_applies and 2 * round(e.fade_s * fs) > total:  # as signals.fade counts its ramps
         raise ConfigError("excitation.fade_s", f"two fades of {e.fade_s:g} s do not fit into the "
                                                f"{total / fs:g} s excitation", src)
     return total
