@@ -124,7 +124,7 @@ def _outcome(text: str):
         return exc
 
 
-@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(configs())
 def test_any_config_is_valid_or_a_config_error_and_loads_in_bounded_memory(tables):
     text = toml_text(tables)
