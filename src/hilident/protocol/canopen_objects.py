@@ -273,6 +273,9 @@ class CanopenDescription:
         if hb_timeout <= hb:
             raise ConfigError("canopen.heartbeat_timeout_ms", f"must exceed heartbeat_ms = {hb}, got {hb_timeout}",
                               source)
+        for key in ("vendor_id", "product_code"):
+            if not 0 <= get(key, int) <= 0xFFFFFFFF:
+                raise ConfigError(f"canopen.{key}", f"must fit UNSIGNED32, got {get(key, int)}", source)
         desc = cls(
             eds=get("eds", str), vendor_id=get("vendor_id", int), product_code=get("product_code", int),
             default_acquisition=acquisition, heartbeat_ms=hb, heartbeat_timeout_ms=hb_timeout,
