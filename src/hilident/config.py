@@ -298,8 +298,8 @@ def read_toml_text(path: str | Path, what: str) -> str:
     try:
         with path.open("rb") as f:
             raw = f.read(MAX_FILE_BYTES + 1)
-    except OSError as exc:
-        raise ConfigError("(file)", f"cannot read {what}: {exc.strerror or exc}", str(path)) from None
+    except (OSError, ValueError) as exc:  # ValueError: a NUL byte in the path
+        raise ConfigError("(file)", f"cannot read {what}: {getattr(exc, 'strerror', None) or exc}", str(path)) from None
     if len(raw) > MAX_FILE_BYTES:
         raise ConfigError("(file)", f"a {what} must be under {MAX_FILE_BYTES // 1024} KiB; this file is larger",
                           str(path))
