@@ -197,3 +197,11 @@ def test_any_driver_value_finds_a_driver_or_is_a_config_error(value, paths):
         assert exc.key == "device.driver", exc
     else:
         assert driver.name in SHIPPED
+
+
+@pytest.mark.parametrize("table, key", [("driver", "protocol_versoin"), ("board", "loop_rate")])
+def test_a_misspelt_key_is_named_with_the_known_ones(table, key):
+    data = copy.deepcopy(ORIGINALS["myrio-board"])
+    data[table][key] = 1
+    err = _load(toml_text(data).encode())
+    assert isinstance(err, ConfigError) and err.key == f"{table}.{key}" and "known here" in err.message

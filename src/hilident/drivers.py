@@ -107,7 +107,6 @@ class DriverDescription:
 class _DriverTable:
     """``[driver]``: what the device is and which adapter talks to it."""
 
-    open_table: ClassVar[bool] = True  # other readers may add identity keys
     name: str = spec(doc="driver name (the folder name by convention)")
     transport: str = spec(choices=TRANSPORTS)
     description: str = spec("")
@@ -120,7 +119,6 @@ class _DriverTable:
 class _BoardTable:
     """``[board]``: the device's loop, rates, filter slots and buffers."""
 
-    open_table: ClassVar[bool] = True  # capabilities (a watchdog, ...) are declared here by the transports
     firmware: str = spec("")
     loop_rate_hz: float = spec(gt=0, le=1e6, doc="control loop and filter rate, Hz")
     max_sample_rate_hz: float = spec(gt=0, le=1e6, doc="highest sample rate the device records, Hz")
