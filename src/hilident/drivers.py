@@ -163,7 +163,7 @@ def _expand(path) -> Path:
     """``path`` with ``~`` expanded when there is a home to expand it to."""
     try:
         return Path(path).expanduser()
-    except RuntimeError:  # "~user" of no user, or no home directory at all
+    except (RuntimeError, ValueError):  # "~user" of no user (or with a NUL byte), or no home directory at all
         return Path(path)
 
 
