@@ -174,6 +174,8 @@ def test_a_non_utf8_description_names_file_and_offset(tmp_path):
     (lambda d: d["board"].update(filter_slots=10**12), "board.filter_slots"),
     (lambda d: d["channels"][1].update(name=3), "channels[1].name"),
     (lambda d: d["channels"][1].update(colour="red"), "channels[1].colour"),
+    (lambda d: d["channels"][4].update(scale=0.0), "channels[4].scale"),
+    (lambda d: d["channels"][4].update(scale=float("inf")), "channels[4].scale"),
     (lambda d: d.update(channels=[{"name": "x"}] * 65), "channels"),
     (lambda d: d.update(board="fast"), "board"),
     (lambda d: d["driver"].pop("block_samples", None) or d["board"].pop("block_samples"), "board.block_samples"),

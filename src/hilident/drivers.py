@@ -134,7 +134,7 @@ class _ChannelTable:
     name: str = spec()
     unit: str = spec("")
     format: str = spec("f32", choices=_FORMATS)
-    scale: float = spec(1.0, gt=0, doc="SI units per LSB (i16/i32)")
+    scale: float = spec(1.0, doc="SI units per LSB (i16/i32); non-zero, negative for a reversed sign")
     stream: bool = spec(True)
 
 
@@ -268,6 +268,9 @@ def load_driver(folder: str | os.PathLike) -> DriverDescription:
     channels = tuple(ChannelSpec(c.name, c.unit, c.format, c.scale, c.stream) for c in parsed.channels)
     if not channels:
         raise ConfigError("channels", "a driver needs at least one [[channels]] entry", source)
+    zero = next((i for i, c in enumerate(channels) if c.scale == 0), None)
+    if zero is not None:
+        raise ConfigError(f"channels[{zero}].scale", "must not be zero", source)
     names = [c.name for c in channels]
     duplicate = next((n for n in names if names.count(n) > 1), None)
     if duplicate is not None or "" in names:
