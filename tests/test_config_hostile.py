@@ -269,3 +269,21 @@ def test_fades_that_load_fit_the_excitation(fade_s, n):
         assert cfg.key == "excitation.fade_s" and 2 * round(fade_s * 1000.0) > n
     else:
         assert build_excitation(cfg).samples.size == n
+
+
+@pytest.mark.parametrize("table, values", [
+    (("friction_test",), {"accel_mps2": 1e-9}),
+    (("excitation",), {"duration_s": 1e9}),
+    (("excitation",), {"kind": "prbs", "register_length": 32}),
+    (("excitation",), {"kind": "prbs", "register_length": 20, "clock_divider": 2**30}),
+    (("excitation",), {"kind": "multisine", "duration_s": 33554.0, "period_s": 4.0}),  # the lead-in tips it over
+])
+def test_oversized_experiments_are_refused_without_allocating_them(table, values):
+    text = toml_text({("limits",): LIMITS, table: values})
+    tracemalloc.start()
+    try:
+        err = _error(text)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert "(2**25)" in err.message and peak < 2 * 2**20
