@@ -2,11 +2,20 @@
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
+from pathlib import Path
 
 import pytest
 
-from hilident.drivers import available_drivers, find_driver, search_path
+from hilident.drivers import (
+    available_drivers,
+    check_run_against_driver,
+    declared_modes,
+    find_driver,
+    search_path,
+    valid_sample_rates,
+)
 from hilident.errors import ConfigError
 
 
@@ -50,3 +59,95 @@ def test_invalid_description_names_key_and_file(tmp_path):
     with pytest.raises(ConfigError) as err:
         find_driver(str(folder))
     assert "format" in str(err.value) and "driver.toml" in str(err.value)
+
+
+def test_a_name_never_loads_a_folder_of_the_current_directory(tmp_path, monkeypatch):
+    _user_copy(tmp_path, name="myrio-board", edit=lambda t: t.replace("filter_slots = 4", "filter_slots = 1"))
+    monkeypatch.chdir(tmp_path / "mydrivers")  # ./myrio-board/driver.toml exists here
+    assert find_driver("myrio-board").filter_slots == 4  # the installed one
+    assert find_driver("./myrio-board").filter_slots == 1  # a path, because it looks like one
+    assert find_driver("myrio-board", ["."]).filter_slots == 1  # the user asked for "." in driver_paths
+
+
+@pytest.mark.parametrize("value", ["./nothing", "../nothing", "/nothing/here", "~/nothing-here", "a/b"])
+def test_a_path_that_holds_no_description_is_named(value, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ConfigError, match="taken as a path") as err:
+        find_driver(value)
+    assert err.value.key == "device.driver"
+
+
+@pytest.mark.parametrize("value", ["", "  "])
+def test_an_empty_driver_name_is_refused(value):
+    with pytest.raises(ConfigError, match="device.driver"):
+        find_driver(value)
+
+
+def test_a_description_file_read_as_a_path(tmp_path):
+    folder = _user_copy(tmp_path)
+    assert find_driver(str(folder / "driver.toml")).name == "my-board"
+
+
+def _gantry(**tables):
+    import dataclasses
+
+    from hilident.config import load_config
+
+    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "emulated-gantry.toml")
+    for table, values in tables.items():
+        cfg = dataclasses.replace(cfg, **{table: dataclasses.replace(getattr(cfg, table), **values)})
+    return cfg
+
+
+@pytest.mark.parametrize("driver", ["myrio-board", "canopen-servo", "canopen-servo-fixed", "modbus-servo"])
+def test_the_shipped_configs_pass_the_checks_against_every_shipped_driver(driver):
+    check_run_against_driver(_gantry(), find_driver(driver))
+
+
+@pytest.mark.parametrize("rate", [1500.0, 8000.0, 4000.0 / 70000])
+def test_a_rate_that_does_not_divide_the_loop_rate_lists_the_valid_ones(rate):
+    with pytest.raises(ConfigError) as err:
+        check_run_against_driver(_gantry(run={"sample_rate_hz": rate}), find_driver("myrio-board"))
+    assert err.value.key == "run.sample_rate_hz" and "emulated-gantry.toml" in str(err.value)
+    assert "valid: 4000, 2000, 1333.33, 1000, 800, 666.667" in str(err.value)
+
+
+def test_rates_above_the_maximum_are_not_offered(tmp_path):
+    folder = _user_copy(tmp_path, edit=lambda t: t.replace("max_sample_rate_hz = 4000.0", "max_sample_rate_hz = 1000"))
+    driver = find_driver(str(folder))
+    assert valid_sample_rates(driver, 3) == [1000.0, 800.0, 4000.0 / 6]
+    check_run_against_driver(_gantry(run={"sample_rate_hz": 1000.0}), driver)
+    with pytest.raises(ConfigError, match="valid: 1000, 800"):
+        check_run_against_driver(_gantry(run={"sample_rate_hz": 2000.0}), driver)
+
+
+@pytest.mark.parametrize("driver, tables, key", [
+    ("myrio-board", {"identification": {"output": "load_velocity"}}, "identification.output"),
+    ("modbus-servo", {"identification": {"output": "load_position_m"}}, "identification.output"),
+    ("myrio-board", {"run": {"channels": ["excitation", "torque_nm", "velocity_mps", "speed"]}}, "run.channels[3]"),
+    ("canopen-servo", {"run": {"channels": ["excitation", "torque_nm", "velocity_mps", "time_s"]}}, "run.channels[3]"),
+])
+def test_channels_the_driver_does_not_record_are_refused(driver, tables, key):
+    with pytest.raises(ConfigError) as err:
+        check_run_against_driver(_gantry(**tables), find_driver(driver))
+    assert err.value.key == key and driver in str(err.value)
+
+
+def test_modes_and_slots_must_be_declared(tmp_path):
+    import copy
+
+    base = find_driver("canopen-servo")
+    sections = copy.deepcopy(base.sections)
+    del sections["canopen"]["modes"]["velocity"]
+    del sections["canopen"]["modes"]["torque"]
+    driver = dataclasses.replace(base, sections=sections)
+    assert declared_modes(driver) == ("torque_injection", "position")
+    with pytest.raises(ConfigError) as err:
+        check_run_against_driver(_gantry(), driver)  # excitation.mode = "torque"
+    assert err.value.key == "excitation.mode" and "torque_injection, position" in str(err.value)
+    with pytest.raises(ConfigError) as err:
+        check_run_against_driver(_gantry(excitation={"mode": "torque_injection"}), driver)
+    assert err.value.key == "friction_test.enabled"
+    check_run_against_driver(_gantry(excitation={"mode": "torque_injection"}, friction_test={"enabled": False}), driver)
+    with pytest.raises(ConfigError, match="no filter slots") as err:
+        check_run_against_driver(_gantry(), dataclasses.replace(find_driver("myrio-board"), filter_slots=0))

@@ -4,23 +4,49 @@ Each TOML table maps onto one frozen dataclass below; unknown keys, wrong types
 and out-of-range values raise :class:`~hilident.errors.ConfigError` naming the
 dotted key and the file. The README documents every key; the dataclass field
 comments here are the reference.
+
+Whatever a file holds, loading it gives a Config or a ConfigError, before
+anything is allocated or moved: files are at most :data:`MAX_FILE_BYTES` of
+UTF-8; numbers are finite and within :data:`FLOAT_MAX`; integers fit
+:data:`INT_RANGE` unless their key says otherwise; lists hold at most
+:data:`MAX_LIST_ITEMS` (or their key's ``max_items``); strings at most
+:data:`MAX_STRING_CHARS` printable characters. Across keys, every experiment
+(excitation, friction ramps) is sized without building it and refused above
+``MAX_SAMPLES`` (2**25 samples), a multisine period must fit the run, fades must
+fit the excitation, the friction test must stay inside half the position window,
+and a pyserial port URL that writes a file (``spy://...?file=``) is refused.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
 import types
 import typing
+import urllib.parse
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from hilident.errors import ConfigError
+from hilident.signals._checks import MAX_SAMPLES, show
+from hilident.signals.generators import ramp_extent
+
+#: Largest configuration or driver description file read, bytes.
+MAX_FILE_BYTES = 1 << 20
+#: Most items a list in a configuration may hold (unless its key says fewer).
+MAX_LIST_ITEMS = 1024
+#: Longest string value, characters.
+MAX_STRING_CHARS = 4096
+#: Integers without their own bounds must fit a signed 32-bit C integer.
+INT_RANGE = (-(2**31), 2**31 - 1)
+#: Every number must be finite and within +-FLOAT_MAX (a REAL32 object holds 3.4e38).
+FLOAT_MAX = 1e30
 
 
-def _spec(default=dataclasses.MISSING, *, gt=None, ge=None, le=None, lt=None, choices=None, doc=""):
-    """A dataclass field with validation metadata."""
-    meta = {"gt": gt, "ge": ge, "le": le, "lt": lt, "choices": choices, "doc": doc}
+def _spec(default=dataclasses.MISSING, *, gt=None, ge=None, le=None, lt=None, choices=None, max_items=None, doc=""):
+    """A dataclass field with validation metadata (bounds, choices, list length)."""
+    meta = {"gt": gt, "ge": ge, "le": le, "lt": lt, "choices": choices, "max_items": max_items, "doc": doc}
     if isinstance(default, (list, dict)):
         return field(default_factory=lambda d=default: type(d)(d), metadata=meta)
     return field(default=default, metadata=meta)
@@ -37,7 +63,7 @@ class DeviceConfig:
                       'Modbus: "tcp://HOST:PORT" for Modbus TCP, else the RTU serial port or pyserial URL')
     baudrate: int = _spec(0, ge=0, doc="serial or RTU line rate in baud, or CAN bit rate; 0 uses the driver's default")
     timeout_s: float = _spec(2.0, gt=0, doc="how long to wait for an answer from the device")
-    driver_paths: list[str] = _spec([], doc="extra folders searched for driver descriptions")
+    driver_paths: list[str] = _spec([], max_items=32, doc="extra folders searched for driver descriptions")
     can_interface: str = _spec("socketcan", doc="CANopen: python-can interface (socketcan, pcan, kvaser, socketcand, virtual, ...)")
     node_id: int = _spec(1, ge=1, le=127, doc="CANopen: node id of the drive")
     device_id: int = _spec(1, ge=0, le=247, doc="Modbus: device (unit/slave) id")
@@ -58,23 +84,24 @@ class DeviceConfig:
 
 @dataclass(frozen=True)
 class RunConfig:
-    sample_rate_hz: float = _spec(1000.0, gt=0, doc="recorded sample rate; must divide the loop rate")
-    seed: int = _spec(1, ge=0, doc="seed of every random excitation")
-    channels: list[str] = _spec([], doc="channels to stream; empty: the driver's default set")
+    sample_rate_hz: float = _spec(1000.0, gt=0, le=1e6, doc="recorded sample rate; must divide the loop rate")
+    seed: int = _spec(1, ge=0, le=2**32 - 1, doc="seed of every random excitation")
+    channels: list[str] = _spec([], max_items=64, doc="channels to stream; empty: the driver's default set")
 
 
 @dataclass(frozen=True)
 class LimitsConfig:
-    torque_nm: float = _spec(gt=0, doc="largest torque command allowed; crossing it stops the axis")
-    velocity_mps: float = _spec(gt=0, doc="largest speed allowed")
-    position_min_m: float = _spec(doc="lower end of the allowed position window")
-    position_max_m: float = _spec(doc="upper end of the allowed position window")
+    torque_nm: float = _spec(gt=0, le=1e5, doc="largest torque command allowed; crossing it stops the axis")
+    velocity_mps: float = _spec(gt=0, le=100, doc="largest speed allowed")
+    position_min_m: float = _spec(ge=-1e3, le=1e3, doc="lower end of the allowed position window")
+    position_max_m: float = _spec(ge=-1e3, le=1e3, doc="upper end of the allowed position window")
 
 
 @dataclass(frozen=True)
 class FrictionTestConfig:
     enabled: bool = _spec(True)
-    speeds_mps: list[float] = _spec([0.005, 0.01, 0.02, 0.05, 0.1, 0.2], doc="constant test speeds, each run both ways")
+    speeds_mps: list[float] = _spec([0.005, 0.01, 0.02, 0.05, 0.1, 0.2], max_items=64,
+                                    doc="constant test speeds, each run both ways")
     hold_s: float = _spec(1.0, gt=0, doc="time at each constant speed")
     settle_s: float = _spec(0.4, ge=0, doc="part of the hold not used for averaging")
     accel_mps2: float = _spec(2.0, gt=0, doc="acceleration between speeds")
@@ -106,7 +133,7 @@ class IdentificationConfig:
     lowpass_hz: float = _spec(0.0, ge=0, doc="zero-phase low-pass before the FRF; 0 disables")
     f_min_hz: float = _spec(0.0, ge=0, doc="band searched for resonances; 0: the excitation band")
     f_max_hz: float = _spec(0.0, ge=0)
-    max_resonances: int = _spec(2, ge=0)
+    max_resonances: int = _spec(2, ge=0, le=16)
     min_prominence_db: float = _spec(6.0, ge=0)
     model_max_order: int = _spec(4, ge=0, le=12, doc="highest denominator order of the transfer function fitted "
                                  "to the plant response (modal form in summary.json); 0: no fit")
@@ -191,7 +218,7 @@ class DriveConfig:
 class SensorsConfig:
     encoder_resolution_m: float = _spec(1e-6, ge=0)
     torque_noise_nm: float = _spec(0.02, ge=0, doc="rms noise of the measured torque")
-    laser_range_m: list[float] = _spec([-0.005, 0.005], doc="load deflection window the load sensor sees")
+    laser_range_m: list[float] = _spec([-0.005, 0.005], max_items=2, doc="load deflection window the load sensor sees")
     laser_noise_m: float = _spec(0.0, ge=0)
     laser_resolution_m: float = _spec(1.2e-4, ge=0)
 
@@ -220,7 +247,7 @@ class EmulatorConfig:
     link: str = _spec("pty", choices=("pty", "tcp", "pipe"),
                       doc="pseudo-terminal (real serial path), raw TCP on 127.0.0.1 (socket://), or in-memory pipe")
     time_scale: float = _spec(1.0, gt=0, le=100, doc="simulated seconds per wall-clock second")
-    seed: int = _spec(1, ge=0, doc="seed of the sensor noise")
+    seed: int = _spec(1, ge=0, le=2**32 - 1, doc="seed of the sensor noise")
     plant: PlantConfig = _spec(PlantConfig())
     friction: FrictionConfig = _spec(FrictionConfig())
     drive: DriveConfig = _spec(DriveConfig())
@@ -251,44 +278,97 @@ class Config:
 # --- loading --------------------------------------------------------------------------------
 
 
+def read_toml_text(path: str | Path, what: str) -> str:
+    """The text of a TOML file, read with bounded memory.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    what : str
+        What the file is, for messages ("configuration", "driver description").
+
+    Raises
+    ------
+    ConfigError
+        The file cannot be read, is larger than :data:`MAX_FILE_BYTES`, or is not
+        UTF-8 (the message gives the offset of the first bad byte).
+    """
+    path = Path(path)
+    try:
+        with path.open("rb") as f:
+            raw = f.read(MAX_FILE_BYTES + 1)
+    except (OSError, ValueError) as exc:  # ValueError: a NUL byte in the path
+        raise ConfigError("(file)", f"cannot read {what}: {getattr(exc, 'strerror', None) or exc}", str(path)) from None
+    if len(raw) > MAX_FILE_BYTES:
+        raise ConfigError("(file)", f"a {what} must be under {MAX_FILE_BYTES // 1024} KiB; this file is larger",
+                          str(path))
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError("(file)", f"is not UTF-8 text (TOML must be): byte 0x{raw[exc.start]:02x} at offset "
+                                    f"{exc.start}", str(path)) from None
+
+
+def parse_toml(text: str, source: str) -> dict:
+    """Parse TOML ``text``; any syntax error is a ConfigError naming ``source``."""
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError("(syntax)", f"not valid TOML: {exc}", source) from None
+    except RecursionError:
+        raise ConfigError("(syntax)", "arrays or tables are nested too deeply", source) from None
+
+
 def load_config(path: str | Path) -> Config:
     """Read and validate a TOML configuration file.
 
     Raises
     ------
     ConfigError
-        The file is missing, is not TOML, or a key is unknown, of the wrong type
-        or out of range; the message names the key and the file.
+        The file is missing, too large, not UTF-8, not TOML, or a key is unknown,
+        of the wrong type or out of range; the message names the key and the file.
     """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError("(file)", f"cannot read configuration: {exc.strerror}", str(path)) from None
-    return parse_config(text, source=str(path))
+    return parse_config(read_toml_text(path, "configuration"), source=str(path))
 
 
 def parse_config(text: str, source: str = "<string>") -> Config:
     """Validate configuration ``text`` (TOML); ``source`` names it in errors."""
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError("(syntax)", f"not valid TOML: {exc}", source) from None
-    cfg = _build(Config, data, "", source)
+    cfg = build_table(Config, parse_toml(text, source), "", source)
     cfg = dataclasses.replace(cfg, source=source, text=text)
     _cross_check(cfg)
     return cfg
 
 
+def build_table(cls, table, prefix: str, source: str):
+    """Validate TOML ``table`` into the dataclass ``cls`` (fields declared with ``_spec``).
+
+    Unknown keys are refused unless ``cls`` sets ``open_table = True`` (a class
+    attribute): such a table also holds keys other readers validate.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``source`` and the dotted key below ``prefix``.
+    """
+    return _build(cls, table, prefix, source)
+
+
+def _name(key: str) -> str:
+    """A key as printed in a message (a hostile key may be huge or hold control characters)."""
+    text = key if key.isprintable() else repr(key)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
 def _build(cls, table, prefix: str, source: str):
     if not isinstance(table, dict):
-        raise ConfigError(prefix.rstrip("."), f"must be a table, got {table!r}", source)
+        raise ConfigError(prefix.rstrip(".") or "(file)", f"must be a table, got {show(table)}", source)
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if not f.metadata.get("internal")}
     unknown = sorted(set(table) - set(fields))
-    if unknown:
+    if unknown and not getattr(cls, "open_table", False):
         raise ConfigError(
-            prefix + unknown[0], f"unknown key (known here: {', '.join(sorted(fields))})", source
+            prefix + _name(unknown[0]), f"unknown key (known here: {', '.join(sorted(fields))})", source
         )
     values = {}
     for name, f in fields.items():
@@ -310,29 +390,65 @@ def _convert(hint, value, meta, key: str, source: str):
     if origin is list:
         (item,) = typing.get_args(hint)
         if not isinstance(value, list):
-            raise ConfigError(key, f"must be a list, got {value!r}", source)
+            raise ConfigError(key, f"must be a list, got {show(value)}", source)
+        limit = meta.get("max_items") or MAX_LIST_ITEMS
+        if len(value) > limit:
+            raise ConfigError(key, f"may hold at most {limit} items, got {len(value)}", source)
+        if dataclasses.is_dataclass(item):
+            return [_build(item, v, f"{key}[{i}].", source) for i, v in enumerate(value)]
         return [_scalar(item, v, meta, f"{key}[{i}]", source) for i, v in enumerate(value)]
     return _scalar(hint, value, meta, key, source)
 
 
+_BOUNDS = (("gt", lambda v, b: v > b, ">"), ("ge", lambda v, b: v >= b, ">="),
+           ("le", lambda v, b: v <= b, "<="), ("lt", lambda v, b: v < b, "<"))
+
+
 def _scalar(hint, value, meta, key, source):
     if hint is float and isinstance(value, int) and not isinstance(value, bool):
+        if not abs(value) <= 1e300:
+            raise ConfigError(key, f"must be a finite number, got {show(value)}", source)
         value = float(value)
     if hint is not bool and isinstance(value, bool) or not isinstance(value, hint):
-        raise ConfigError(key, f"must be {hint.__name__}, got {value!r}", source)
+        raise ConfigError(key, f"must be {hint.__name__}, got {show(value)}", source)
+    if hint is float and not math.isfinite(value):
+        raise ConfigError(key, f"must be a finite number, got {show(value)}", source)
+    if hint is float and abs(value) > FLOAT_MAX:
+        raise ConfigError(key, f"must lie within +-{FLOAT_MAX:g}, got {show(value)}", source)
+    if hint is str:
+        _check_string(value, key, source)
     if meta.get("choices") and value not in meta["choices"]:
-        raise ConfigError(key, f"must be one of {', '.join(map(repr, meta['choices']))}, got {value!r}", source)
-    for bound, ok, text in (("gt", lambda v, b: v > b, ">"), ("ge", lambda v, b: v >= b, ">="), ("le", lambda v, b: v <= b, "<="), ("lt", lambda v, b: v < b, "<")):
-        b = meta.get(bound)
+        raise ConfigError(key, f"must be one of {', '.join(map(repr, meta['choices']))}, got {show(value)}", source)
+    bounds = dict(meta)
+    if hint is int:  # what a device register, a C int or a numpy seed can hold
+        bounds["ge"] = INT_RANGE[0] if bounds.get("ge") is None and bounds.get("gt") is None else bounds.get("ge")
+        bounds["le"] = INT_RANGE[1] if bounds.get("le") is None and bounds.get("lt") is None else bounds.get("le")
+    for bound, ok, text in _BOUNDS:
+        b = bounds.get(bound)
         if b is not None and not ok(value, b):
-            raise ConfigError(key, f"must be {text} {b}, got {value!r}", source)
+            raise ConfigError(key, f"must be {text} {show(b)}, got {show(value)}", source)
     return value
+
+
+def _check_string(value: str, key: str, source: str) -> None:
+    if len(value) > MAX_STRING_CHARS:
+        raise ConfigError(key, f"may be at most {MAX_STRING_CHARS} characters long, got {len(value)}", source)
+    if not value.isprintable() and any(ord(c) < 32 or ord(c) == 127 for c in value):
+        raise ConfigError(key, f"must not contain control characters, got {show(value)}", source)
+
+
+# --- checks across keys, before anything moves ------------------------------------------------
 
 
 def _cross_check(cfg: Config) -> None:
     src = cfg.source
     lim = cfg.limits
     exc = cfg.excitation
+    _check_port(cfg.device.port, src)
+    if cfg.emulator.faults.abort_object.strip():
+        from hilident.protocol.canopen_objects import parse_address
+
+        parse_address(cfg.emulator.faults.abort_object, "emulator.faults.abort_object", src)
     if lim is not None:
         _check_limits(cfg)
     rng = cfg.emulator.sensors.laser_range_m
@@ -340,6 +456,9 @@ def _cross_check(cfg: Config) -> None:
         raise ConfigError("emulator.sensors.laser_range_m", "must be [min, max] with min < max", src)
     if exc.f_min_hz >= exc.f_max_hz:
         raise ConfigError("excitation.f_min_hz", "must be below excitation.f_max_hz", src)
+    ic = cfg.identification
+    if ic.f_min_hz and ic.f_max_hz and ic.f_min_hz >= ic.f_max_hz:
+        raise ConfigError("identification.f_min_hz", "must be below identification.f_max_hz", src)
     if exc.f_max_hz >= cfg.run.sample_rate_hz / 2:
         raise ConfigError(
             "excitation.f_max_hz", f"must be below the Nyquist frequency {cfg.run.sample_rate_hz / 2:g} Hz", src
@@ -349,6 +468,9 @@ def _cross_check(cfg: Config) -> None:
         missing = sorted(needed - set(cfg.run.channels))
         if missing:
             raise ConfigError("run.channels", f"the session needs {', '.join(missing)} too", src)
+    excitation_samples(cfg)
+    if cfg.friction_test.enabled:
+        _friction_extent(cfg)
 
 
 def _check_limits(cfg: Config) -> None:
@@ -365,3 +487,111 @@ def _check_limits(cfg: Config) -> None:
         raise ConfigError("friction_test.speeds_mps", f"a speed reaches limits.velocity_mps = {lim.velocity_mps:g}", src)
     if cfg.friction_test.settle_s >= cfg.friction_test.hold_s:
         raise ConfigError("friction_test.settle_s", "must be shorter than friction_test.hold_s", src)
+    if cfg.friction_test.enabled:
+        _, travel = _friction_extent(cfg)
+        half = (lim.position_max_m - lim.position_min_m) / 2
+        if travel >= half:
+            raise ConfigError(
+                "friction_test.speeds_mps",
+                f"the friction test travels up to {travel:.3f} m, more than half the position window "
+                f"[{lim.position_min_m:g}, {lim.position_max_m:g}] m (shorter hold_s or lower speeds)", src)
+
+
+_PYSERIAL_FILE_OPTIONS = {"spy": ("file",)}
+
+
+def _check_port(port: str, source: str) -> None:
+    """Refuse pyserial URLs that write files (``spy://...?file=PATH`` truncates PATH on open)."""
+    scheme, sep, rest = port.partition("://")
+    if not sep:
+        return
+    options = _PYSERIAL_FILE_OPTIONS.get(scheme.strip().lower())
+    if not options:
+        return
+    query = urllib.parse.urlsplit("x://" + rest).query
+    given = {name.strip().lower() for name in urllib.parse.parse_qs(query, keep_blank_values=True)}
+    if given.intersection(options):
+        raise ConfigError(
+            "device.port", f"{show(port)}: a {scheme}:// port with a file= option would create or overwrite that "
+            f"file outside --out; leave file= out ({scheme}:// then logs the traffic to stderr)", source)
+
+
+def excitation_samples(cfg: Config) -> int:
+    """Samples the identification excitation of ``cfg`` will hold, checked without building it.
+
+    Mirrors ``session.build_excitation``: a multisine plays one lead-in period and
+    the whole periods that fit ``duration_s``; a PRBS one extra period.
+
+    Raises
+    ------
+    ConfigError
+        The excitation would exceed :data:`~hilident.signals._checks.MAX_SAMPLES`,
+        a multisine period is longer than the run or holds no line of the band, a
+        sine or square frequency is not below Nyquist, or the fades do not fit.
+    """
+    e, fs, src = cfg.excitation, cfg.run.sample_rate_hz, cfg.source
+
+    def refuse(key, exact, what):
+        raise ConfigError(key, f"{what} would take {exact:.4g} samples at {fs:g} Hz, more than the {MAX_SAMPLES} "
+                               f"(2**25) one experiment may hold", src)
+
+    exact = e.duration_s * fs
+    if not exact <= MAX_SAMPLES:
+        refuse("excitation.duration_s", exact, f"{e.duration_s:g} s")
+    if exact < 1:
+        raise ConfigError("excitation.duration_s", f"{e.duration_s:g} s is shorter than one sample at {fs:g} Hz", src)
+    fade_applies = True
+    if e.kind == "multisine":
+        total = _multisine_samples(cfg)
+        fade_applies = False
+    elif e.kind == "prbs":
+        length = (2**e.register_length - 1) * e.clock_divider
+        periods = max(1, int(round(exact / length)))
+        total = (periods + 1) * length
+        if total > MAX_SAMPLES:
+            key = "excitation.clock_divider" if e.clock_divider > 1 else "excitation.register_length"
+            refuse(key, total, f"{periods + 1} PRBS periods of (2**{e.register_length} - 1) * {e.clock_divider} samples")
+        fade_applies = periods < 3
+    else:
+        total = int(round(exact))
+        if e.kind == "noise" and math.floor(e.f_max_hz * total / fs) < math.ceil(e.f_min_hz * total / fs):
+            raise ConfigError("excitation.duration_s", f"{e.duration_s:g} s is too short: no frequency line "
+                                                       f"(spacing {fs / total:g} Hz) lies in the band", src)
+        if e.kind in ("sine", "square") and e.frequency_hz >= fs / 2:
+            raise ConfigError("excitation.frequency_hz", f"must be below the Nyquist frequency {fs / 2:g} Hz, "
+                                                         f"got {e.frequency_hz:g}", src)
+    if fade_applies and 2 * round(e.fade_s * fs) > total:  # as signals.fade counts its ramps
+        raise ConfigError("excitation.fade_s", f"two fades of {e.fade_s:g} s do not fit into the "
+                                               f"{total / fs:g} s excitation", src)
+    return total
+
+
+def _multisine_samples(cfg: Config) -> int:
+    e, fs, src = cfg.excitation, cfg.run.sample_rate_hz, cfg.source
+    if e.period_s > e.duration_s:
+        raise ConfigError("excitation.period_s", f"{e.period_s:g} s is longer than excitation.duration_s = "
+                                                 f"{e.duration_s:g} s; whole periods are played", src)
+    period = int(round(e.period_s * fs))
+    if period < 2:
+        raise ConfigError("excitation.period_s", f"{e.period_s:g} s is shorter than two samples at {fs:g} Hz", src)
+    df = fs / period
+    k_min = max(1, math.ceil(e.f_min_hz / df - 1e-9))
+    k_max = min((period - 1) // 2, math.floor(e.f_max_hz / df + 1e-9))
+    if k_max < k_min:
+        raise ConfigError("excitation.period_s", f"no frequency line (spacing {df:g} Hz) lies in "
+                                                 f"[{e.f_min_hz:g}, {e.f_max_hz:g}] Hz; lengthen the period", src)
+    total = (max(1, int(round(e.duration_s / e.period_s))) + 1) * period  # one lead-in period
+    if total > MAX_SAMPLES:
+        raise ConfigError("excitation.duration_s", f"the multisine would take {total} samples, more than the "
+                                                   f"{MAX_SAMPLES} (2**25) one experiment may hold", src)
+    return total
+
+
+def _friction_extent(cfg: Config) -> tuple[int, float]:
+    """Samples and travel (m) of the friction test's velocity ramps, checked without building them."""
+    ft = cfg.friction_test
+    try:
+        return ramp_extent(ft.speeds_mps, ft.hold_s, ft.accel_mps2, cfg.run.sample_rate_hz, ft.settle_s)
+    except ConfigError as exc:
+        key = "run.sample_rate_hz" if exc.key == "sample_rate_hz" else f"friction_test.{exc.key}"
+        raise ConfigError(key, exc.message, cfg.source) from None

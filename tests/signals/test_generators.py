@@ -246,3 +246,31 @@ def test_invalid_arguments_name_the_key(call, key):
 def test_nyquist_message_names_the_limit():
     with pytest.raises(ConfigError, match="Nyquist frequency 500 Hz, got 600"):
         band_limited_noise(1.0, 10.0, 600.0, 1.0, 1000.0, seed=0)
+
+
+@pytest.mark.parametrize("build, key", [
+    (lambda: prbs(1.0, 32, 1, 1000.0), "register_length"),
+    (lambda: prbs(1.0, 10, 2**40, 1000.0), "clock_divider"),
+    (lambda: prbs(1.0, 20, 1, 1000.0, periods=10**6), "periods"),
+    (lambda: sine(1.0, 10.0, 1e9, 1000.0), "duration_s"),
+    (lambda: band_limited_noise(1.0, 1.0, 10.0, 1e300, 1000.0, seed=1), "duration_s"),
+])
+def test_signals_beyond_the_size_bound_are_refused_before_allocating(build, key):
+    import tracemalloc
+
+    tracemalloc.start()
+    try:
+        with pytest.raises(ConfigError) as err:
+            build()
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert err.value.key == key and "(2**25)" in str(err.value) and peak < 4 * 2**20
+
+
+def test_numpy_values_are_printed_plainly():
+    with pytest.raises(ConfigError) as err:
+        sine(np.float64(np.nan), 10.0, 1.0, 1000.0)
+    assert str(err.value) == "[amplitude] must be finite, got nan"
+    with pytest.raises(ConfigError, match=r"got 2\.5$"):
+        prbs(1.0, np.float64(2.5), 1, 1000.0)

@@ -103,3 +103,48 @@ def test_invalid_arguments_name_the_key(kwargs, key):
     with pytest.raises(ConfigError) as info:
         velocity_ramps(**args)
     assert info.value.key == key
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.floats(0.001, 0.5) | st.floats(-0.5, -0.001), min_size=1, max_size=5),
+    st.floats(0.01, 1.0),
+    st.floats(0.05, 20.0),
+    st.booleans(),
+)
+def test_extent_is_the_length_and_travel_of_the_profile_without_building_it(speeds, hold, accel, alternate):
+    from hilident.signals import ramp_extent
+
+    p = velocity_ramps(speeds, hold, accel, FS, settle_s=0.0, alternate=alternate)
+    n, travel = ramp_extent(speeds, hold, accel, FS, settle_s=0.0, alternate=alternate)
+    assert n == p.setpoint_mps.size
+    assert travel == pytest.approx(p.max_excursion_m, rel=1e-9, abs=1e-12)
+
+
+@pytest.mark.parametrize("kwargs, key", [
+    (dict(accel_mps2=1e-9), "accel_mps2"),
+    (dict(hold_s=1e5), "hold_s"),
+    (dict(speeds_mps=[0.01] * 2000, hold_s=10.0), "hold_s"),
+])
+def test_a_profile_beyond_the_size_bound_is_refused_before_it_is_built(kwargs, key):
+    import tracemalloc
+
+    from hilident.signals import ramp_extent
+
+    args = dict(speeds_mps=[0.01, 0.1], hold_s=1.0, accel_mps2=1.0, sample_rate_hz=FS, settle_s=0.1) | kwargs
+    tracemalloc.start()
+    try:
+        for build in (velocity_ramps, ramp_extent):
+            with pytest.raises(ConfigError, match="2\\*\\*25") as err:
+                build(**args)
+            assert err.value.key == key
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 4 * 2**20
+
+
+def test_a_nan_speed_is_named_plainly():
+    with pytest.raises(ConfigError) as err:
+        velocity_ramps(np.array([0.01, np.nan]), 1.0, 1.0, FS, 0.1)
+    assert err.value.key == "speeds_mps" and str(err.value).endswith("got nan")

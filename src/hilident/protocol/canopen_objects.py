@@ -106,6 +106,9 @@ def parse_address(text, key: str = "", source: str = "") -> ObjectAddress:
     """
     if isinstance(text, ObjectAddress):
         return text
+    if not isinstance(text, str):
+        raise ConfigError(key or "address", f'must be an object address like "0x6064" or "0x607D:2", got {text!r}',
+                          source)
     try:
         head, _, tail = str(text).strip().partition(":")
         index = int(head, 16)
@@ -235,8 +238,8 @@ class CanopenDescription:
             raise ConfigError("canopen.objects", f"lacks {', '.join(missing)}", source)
 
         modes = {}
-        for name, spec in co.get("modes", {}).items():
-            if not isinstance(spec, dict) or not isinstance(spec.get("code"), int) or "setpoint" not in spec:
+        for name, spec in _table(co, "modes", source).items():
+            if not isinstance(spec, dict) or not _is_int(spec.get("code")) or not isinstance(spec.get("setpoint"), str):
                 raise ConfigError(f"canopen.modes.{name}", "must be { code = <int>, setpoint = \"<role>\" }", source)
             if spec["setpoint"] not in objects:
                 raise ConfigError(f"canopen.modes.{name}.setpoint",
@@ -248,14 +251,14 @@ class CanopenDescription:
             raise ConfigError("canopen.modes", "needs at least one mode", source)
 
         channels = {}
-        for name, role in co.get("channels", {}).items():
-            if role not in objects:
+        for name, role in _table(co, "channels", source).items():
+            if not isinstance(role, str) or role not in objects:
                 raise ConfigError(f"canopen.channels.{name}", f"role {role!r} is not in [canopen.objects]", source)
             channels[name] = role
         if not channels:
             raise ConfigError("canopen.channels", "needs at least one channel", source)
 
-        scaling = co.get("scaling", {})
+        scaling = _table(co, "scaling", source)
         units = {}
         for key in ("position_unit_m", "velocity_unit_mps"):
             value = scaling.get(key)
@@ -270,6 +273,9 @@ class CanopenDescription:
         if hb_timeout <= hb:
             raise ConfigError("canopen.heartbeat_timeout_ms", f"must exceed heartbeat_ms = {hb}, got {hb_timeout}",
                               source)
+        for key in ("vendor_id", "product_code"):
+            if not 0 <= get(key, int) <= 0xFFFFFFFF:
+                raise ConfigError(f"canopen.{key}", f"must fit UNSIGNED32, got {get(key, int)}", source)
         desc = cls(
             eds=get("eds", str), vendor_id=get("vendor_id", int), product_code=get("product_code", int),
             default_acquisition=acquisition, heartbeat_ms=hb, heartbeat_timeout_ms=hb_timeout,
@@ -319,18 +325,29 @@ class CanopenDescription:
         return None
 
 
+def _table(parent: dict, key: str, source: str) -> dict:
+    """``parent[key]`` (a table, empty when absent); ConfigError naming ``canopen.<key>`` otherwise."""
+    value = parent.get(key, {})
+    if not isinstance(value, dict):
+        raise ConfigError(f"canopen.{key}", f"must be a table, got {value!r}"[:200], source)
+    return value
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
 def _filter_objects(table, source) -> FilterObjects | None:
     if not isinstance(table, dict) or "objects" not in table:
         return None
-    try:
-        indices = tuple(parse_address(x, "filters.objects", source).index for x in table["objects"])
-    except TypeError:
-        raise ConfigError("filters.objects", "must be a list of object indices", source) from None
+    if not isinstance(table["objects"], list):
+        raise ConfigError("filters.objects", "must be a list of object indices", source)
+    indices = tuple(parse_address(x, "filters.objects", source).index for x in table["objects"])
     fields = table.get("fields")
-    if not isinstance(fields, dict) or not all(isinstance(v, int) and 0 < v < 256 for v in fields.values()):
+    if not isinstance(fields, dict) or not all(_is_int(v) and 0 < v < 256 for v in fields.values()):
         raise ConfigError("filters.fields", "must map each field to its sub-index, e.g. { b0 = 2, ... }", source)
     enable = table.get("enable_subindex", 1)
-    if not isinstance(enable, int) or not 0 < enable < 256 or enable in fields.values():
+    if not _is_int(enable) or not 0 < enable < 256 or enable in fields.values():
         raise ConfigError("filters.enable_subindex", f"must be a free sub-index 1..255, got {enable!r}", source)
     return FilterObjects(indices, enable, dict(fields))
 

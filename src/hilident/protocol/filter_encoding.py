@@ -87,12 +87,21 @@ class FilterEncoding:
             raise ConfigError("filters.encoding", f"must be one of {ENCODINGS}, got {self.kind!r}")
         for key in ("center_scale", "width_scale", "depth_scale"):
             v = getattr(self, key)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ConfigError(f"filters.{key}", f"must be a positive number, got {v!r}")
+        for key, low, high in (("fractional_bits", 0, 62), ("total_bits", 2, 64), ("max_value", 1, 2**32 - 1)):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, int) or not low <= v <= high:
+                raise ConfigError(f"filters.{key}", f"must be an integer in {low}..{high}, got {v!r}")
+        if self.fractional_bits >= self.total_bits:
+            raise ConfigError("filters.fractional_bits", f"must be below total_bits = {self.total_bits}, "
+                                                         f"got {self.fractional_bits}")
 
     @classmethod
     def from_table(cls, table: dict, source: str = "") -> "FilterEncoding":
         """Build from a driver description's ``[filters]`` table (unknown keys are ignored)."""
+        if not isinstance(table, dict):
+            raise ConfigError("filters", f"must be a table, got {type(table).__name__}", source)
         if "encoding" not in table:
             raise ConfigError("filters.encoding", "is required", source)
         keys = ("fractional_bits", "total_bits", "center_scale", "width_scale", "depth_scale", "max_value")

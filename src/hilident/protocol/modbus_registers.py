@@ -579,7 +579,7 @@ class RegisterMap:
 
         tb = subtable(mb, "table", "modbus")
         table_type = tb.get("type", "f32")
-        if table_type not in TYPES:
+        if table_type not in tuple(TYPES):
             fail("modbus.table.type", f"must be one of {tuple(TYPES)}, got {table_type!r}")
         table_scale = number(tb, "scale", "modbus.table", 1.0)
         table_page = integer(tb, "page_samples", "modbus.table", 1, 65535)
@@ -598,7 +598,7 @@ class RegisterMap:
             key = f"modbus.capture.channels[{i}]"
             if not isinstance(ch, dict) or not isinstance(ch.get("name"), str):
                 fail(f"{key}.name", "is required")
-            if ch.get("type") not in TYPES:
+            if ch.get("type") not in tuple(TYPES):
                 fail(f"{key}.type", f"must be one of {tuple(TYPES)}, got {ch.get('type')!r}")
             channels.append(CaptureChannel(ch["name"], ch["type"], number(ch, "scale", key, 1.0), i))
         if len({c.name for c in channels}) != len(channels):

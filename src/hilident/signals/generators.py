@@ -3,7 +3,9 @@
 Every generator returns float64 samples at ``sample_rate_hz``; sample ``i`` is at
 ``t = i / sample_rate_hz``.  A duration becomes ``round(duration_s * sample_rate_hz)``
 samples.  Bad arguments raise :class:`hilident.errors.ConfigError` keyed by the
-argument name.
+argument name, and so does a signal longer than
+:data:`hilident.signals._checks.MAX_SAMPLES` (2**25 samples), refused before
+anything is allocated.
 
 Example
 -------
@@ -34,6 +36,7 @@ __all__ = [
     "fade",
     "multisine",
     "prbs",
+    "ramp_extent",
     "sine",
     "square",
     "step",
@@ -89,7 +92,7 @@ def square(amplitude, frequency_hz, duration_s, sample_rate_hz, duty=0.5) -> np.
     chk.below_nyquist("frequency_hz", f, sample_rate_hz)
     d = chk.finite("duty", duty)
     if not 0.0 < d < 1.0:
-        raise ConfigError("duty", f"must lie strictly between 0 and 1, got {duty!r}")
+        raise ConfigError("duty", f"must lie strictly between 0 and 1, got {chk.show(duty)}")
     return a * scipy.signal.square(2.0 * np.pi * f * t, duty=d)
 
 
@@ -104,7 +107,7 @@ def chirp(amplitude, f0_hz, f1_hz, duration_s, sample_rate_hz, method="linear") 
     t = _time(duration_s, sample_rate_hz)
     a = chk.positive("amplitude", amplitude)
     if method not in ("linear", "logarithmic"):
-        raise ConfigError("method", f"must be 'linear' or 'logarithmic', got {method!r}")
+        raise ConfigError("method", f"must be 'linear' or 'logarithmic', got {chk.show(method)}")
     check = chk.positive if method == "logarithmic" else chk.non_negative
     f0 = chk.below_nyquist("f0_hz", check("f0_hz", f0_hz), sample_rate_hz)
     f1 = chk.below_nyquist("f1_hz", check("f1_hz", f1_hz), sample_rate_hz)
@@ -232,6 +235,9 @@ def prbs(amplitude, register_length, clock_divider, sample_rate_hz, periods=1) -
     nbits = chk.integer("register_length", register_length, 2, 32)
     hold = chk.integer("clock_divider", clock_divider, 1)
     n_periods = chk.integer("periods", periods, 1)
+    period_samples = (2**nbits - 1) * hold
+    chk.at_most("clock_divider" if hold > 1 else "register_length", period_samples)
+    chk.at_most("periods", period_samples * n_periods)
     bits, _ = scipy.signal.max_len_seq(nbits)
     one_period = np.repeat(np.where(bits == 1, a, -a).astype(np.float64), hold)
     return np.tile(one_period, n_periods)
@@ -336,8 +342,9 @@ def multisine(
         raise ConfigError("f_min_hz", f"must be below f_max_hz {f_max:g} Hz, got {f_min:g}")
     period = chk.n_samples("period_s", chk.positive("period_s", period_s), fs)
     count = chk.integer("n_periods", n_periods, 1)
+    chk.at_most("n_periods", period * count)
     if spacing not in ("linear", "log"):
-        raise ConfigError("spacing", f"must be 'linear' or 'log', got {spacing!r}")
+        raise ConfigError("spacing", f"must be 'linear' or 'log', got {chk.show(spacing)}")
 
     df = fs / period
     k_min = max(1, int(math.ceil(f_min / df - 1e-9)))
@@ -363,7 +370,7 @@ def multisine(
             phi = np.random.default_rng(seed).uniform(0.0, 2.0 * np.pi, bins.size)
         else:
             raise ConfigError(
-                "phases", f"must be 'schroeder', 'random' or an array, got {phases!r}"
+                "phases", f"must be 'schroeder', 'random' or an array, got {chk.show(phases)}"
             )
     else:
         phi = np.asarray(phases, dtype=float).ravel()
@@ -452,28 +459,13 @@ def velocity_ramps(
     >>> [w[2] for w in p.windows]
     [0.01, -0.01, 0.05, -0.05]
     """
-    fs = chk.positive("sample_rate_hz", sample_rate_hz)
-    hold = chk.positive("hold_s", hold_s)
-    accel = chk.positive("accel_mps2", accel_mps2)
-    settle = chk.non_negative("settle_s", settle_s)
-    if settle >= hold:
-        raise ConfigError("settle_s", f"must be shorter than hold_s {hold:g} s, got {settle:g}")
-    speeds = tuple(chk.finite("speeds_mps", v) for v in np.atleast_1d(speeds_mps))
-    if not speeds:
-        raise ConfigError("speeds_mps", "needs at least one speed")
-    if any(v == 0.0 for v in speeds):
-        raise ConfigError("speeds_mps", f"speeds must be non-zero, got {list(speeds)}")
-    n_hold = chk.n_samples("hold_s", hold, fs)
-    n_settle = int(round(settle * fs))
-    if n_settle >= n_hold:
-        raise ConfigError("settle_s", f"leaves no sample of the {hold:g} s hold at {fs:g} Hz")
-
-    legs = [u for v in speeds for u in ((v, -v) if alternate else (v,))]
+    fs, legs, ramps, n_hold, n_settle = _ramp_legs(speeds_mps, hold_s, accel_mps2, sample_rate_hz, settle_s,
+                                                   alternate)
+    speeds = tuple(legs[::2] if alternate else legs)
     pieces: list[np.ndarray] = []
     windows: list[tuple[int, int, float]] = []
     position = 0
-    for v in legs:
-        n_ramp = max(1, int(math.ceil(abs(v) / accel * fs - 1e-9)))
+    for v, n_ramp in zip(legs, ramps):
         up = v * np.arange(n_ramp) / n_ramp  # 0 .. v (exclusive)
         hold_start = position + n_ramp
         windows.append((hold_start + n_settle, hold_start + n_hold, float(v)))
@@ -487,6 +479,63 @@ def velocity_ramps(
         speeds_mps=speeds,
         excursion_m=(float(travel.min()), float(travel.max())),
     )
+
+
+def _ramp_legs(speeds_mps, hold_s, accel_mps2, sample_rate_hz, settle_s, alternate):
+    """Checked arguments of :func:`velocity_ramps`: rate, legs, ramp and hold samples; nothing allocated."""
+    fs = chk.positive("sample_rate_hz", sample_rate_hz)
+    hold = chk.positive("hold_s", hold_s)
+    accel = chk.positive("accel_mps2", accel_mps2)
+    settle = chk.non_negative("settle_s", settle_s)
+    if settle >= hold:
+        raise ConfigError("settle_s", f"must be shorter than hold_s {hold:g} s, got {settle:g}")
+    speeds = tuple(chk.finite("speeds_mps", v) for v in np.atleast_1d(speeds_mps))
+    if not speeds:
+        raise ConfigError("speeds_mps", "needs at least one speed")
+    if any(v == 0.0 for v in speeds):
+        raise ConfigError("speeds_mps", f"speeds must be non-zero, got {chk.show(list(speeds))}")
+    n_hold = chk.n_samples("hold_s", hold, fs)
+    n_settle = int(round(settle * fs))
+    if n_settle >= n_hold:
+        raise ConfigError("settle_s", f"leaves no sample of the {hold:g} s hold at {fs:g} Hz")
+    legs = [u for v in speeds for u in ((v, -v) if alternate else (v,))]
+    ramps = [_ramp_samples(v, accel, fs) for v in legs]
+    ramp_total, hold_total = 2 * sum(ramps), n_hold * len(legs)
+    chk.at_most("accel_mps2" if ramp_total > hold_total else "hold_s", ramp_total + hold_total)
+    return fs, legs, ramps, n_hold, n_settle
+
+
+def ramp_extent(speeds_mps, hold_s, accel_mps2, sample_rate_hz, settle_s, alternate=True) -> tuple[int, float]:
+    """Length and travel of :func:`velocity_ramps` with these arguments, computed without building it.
+
+    Returns
+    -------
+    n_samples : int
+        Samples of the set-point.
+    max_excursion_m : float
+        Largest distance from the start position in m (as ``RampProfile.max_excursion_m``).
+
+    Raises
+    ------
+    ConfigError
+        The arguments :func:`velocity_ramps` refuses, including a profile longer than
+        :data:`~hilident.signals._checks.MAX_SAMPLES`.
+    """
+    fs, legs, ramps, n_hold, _ = _ramp_legs(speeds_mps, hold_s, accel_mps2, sample_rate_hz, settle_s, alternate)
+    # a leg's samples sum to v * (n_ramp - 1 + n_hold); it starts and ends at 0, so that sum / fs is its travel
+    position, extreme = 0.0, 0.0
+    for v, n_ramp in zip(legs, ramps):
+        position += v * (n_ramp - 1 + n_hold) / fs
+        extreme = max(extreme, abs(position))
+    return sum(2 * r + n_hold for r in ramps), extreme
+
+
+def _ramp_samples(v: float, accel: float, fs: float) -> int:
+    """Samples of one ramp from 0 to ``v`` at ``accel`` (at least one), bounded before any allocation."""
+    exact = abs(v) / accel * fs
+    if not exact <= chk.MAX_SAMPLES:
+        raise ConfigError("accel_mps2", f"a ramp to {v:g} m/s at {accel:g} m/s^2 {chk.too_many(exact)}")
+    return max(1, int(math.ceil(exact - 1e-9)))
 
 
 # --------------------------------------------------------------------------- helpers
