@@ -38,7 +38,7 @@ from hilident import __version__, endings, pipeline, report
 from hilident.adapters.base import StreamStats, adapter_class, contiguous_runs
 from hilident.config import Config
 from hilident.devicelock import DeviceLock, device_key
-from hilident.drivers import DriverDescription, find_driver
+from hilident.drivers import DriverDescription, check_run_against_driver, find_driver
 from hilident.errors import ArmingRefused, ConfigError, DataError, HilidentError, UsageError
 from hilident.plan import RunPlan, make_plan
 from hilident.recording import RunWriter, read_run
@@ -438,9 +438,7 @@ class Session:
         self._prepare_out()
         cfg = self.cfg
         self.driver = find_driver(cfg.device.driver, cfg.device.driver_paths)
-        check = getattr(__import__("hilident.drivers", fromlist=["x"]), "check_run_against_driver", None)
-        if check is not None:
-            check(cfg, self.driver)
+        check_run_against_driver(cfg, self.driver)
         excitation = build_excitation(cfg)
         profile = None
         ft = cfg.friction_test
