@@ -3,24 +3,58 @@
 The ``[data]`` table of a configuration says which column (or variable) holds
 the torque, velocity, position, output and excitation, how to scale each to SI
 units, and the sample rate or the time column. Everything is checked here, so
-the numerics downstream only see finite, equally long, uniformly sampled
-arrays; anything else is a :class:`~hilident.errors.DataError` naming the file
-and the column.
+the numerics downstream only see finite, equally long, gap-free, uniformly
+sampled arrays; anything else is a :class:`~hilident.errors.DataError` naming
+the file and the column.
+
+Reading is bounded: only the mapped columns are read, CSV in chunks into
+arrays sized from the file before anything is allocated, and the sizes an
+HDF5 or ``.mat`` file declares are checked against the file and against
+:data:`MAX_DATA_BYTES` before a byte of data is read. A hostile or damaged
+file is one :class:`DataError`, never a traceback.
+
+Gaps are found, never spliced over: a hilident recording numbers its rows
+(``sample_index``), a time column shows a gap as a step of a whole number of
+sample periods. :func:`hilident.pipeline.select_gap_free` then keeps whole
+gap-free excitation periods (when the recording says its excitation was
+periodic) or the longest gap-free stretch.
 """
 
 from __future__ import annotations
 
 import csv
+import io
+import itertools
+import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from hilident.config import DataConfig
-from hilident.errors import ConfigError, DataError
+from hilident.errors import ConfigError, DataError, HilidentError
 
 #: Fewest samples an identification is attempted on.
 MIN_SAMPLES = 64
+
+#: Most bytes of float64 samples read from one file (further capped at half the physical memory).
+MAX_DATA_BYTES = 2 * 1024**3
+
+#: Lines parsed per CSV chunk.
+CSV_CHUNK_LINES = 1 << 16
+
+#: Largest ratio of declared to stored bytes accepted from a compressed HDF5 dataset.
+MAX_COMPRESSION_RATIO = 1000
+
+#: Column names quoted in an error message before the list is cut short.
+_LISTED_NAMES = 20
+
+_NUMERIC_MAT_CLASSES = frozenset(
+    ("double", "single", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64", "logical")
+)
+
+_SIGNAL_KEYS = ("torque", "velocity", "position", "output", "excitation")
 
 
 @dataclass
@@ -31,25 +65,120 @@ class Dataset:
     ----------
     signals : dict of str to ndarray
         Any of ``torque`` (N·m), ``velocity`` (m/s), ``position`` (m),
-        ``output``, ``excitation``, all the same length.
+        ``output``, ``excitation``, all the same length: the rows analysed.
     sample_rate_hz : float
     source : str
         The file they were read from.
     notes : list of str
-        What was derived or assumed (e.g. velocity from position).
+        What was derived, assumed or left out (e.g. velocity from position,
+        periods with lost samples, a recording that did not complete).
+    info : dict
+        What the file held and what was used: ``rows``, ``used_rows``,
+        ``segments``, ``gaps``, ``n_gaps``, ``missing_samples``,
+        ``period_samples``, ``status`` (hilident files; None otherwise),
+        ``reason``, ``flushed_samples``.
+    period_samples : int or None
+        Period of the excitation when the analysed rows are whole periods.
     """
 
     signals: dict[str, np.ndarray]
     sample_rate_hz: float
     source: str
     notes: list[str] = field(default_factory=list)
+    info: dict = field(default_factory=dict)
+    period_samples: int | None = None
 
     def __len__(self) -> int:
         return len(next(iter(self.signals.values())))
 
 
-def read_columns(path: str | Path, fmt: str = "auto") -> tuple[dict[str, np.ndarray], float | None]:
-    """Every numeric column of a file, and its sample rate when the file records one."""
+@dataclass
+class RawColumns:
+    """Columns read from a file before they are mapped.
+
+    Attributes
+    ----------
+    columns : dict of str to ndarray
+        The requested columns the file has (float64, 1-D).
+    available : list of str
+        Every column (or variable) name in the file.
+    sample_rate_hz : float or None
+        Rate the file records (hilident files).
+    status, reason : str or None
+        How a hilident recording was closed.
+    period_samples : int or None
+        Excitation period of a hilident recording, when its configuration says.
+    notes : list of str
+    """
+
+    columns: dict[str, np.ndarray]
+    available: list[str]
+    sample_rate_hz: float | None = None
+    status: str | None = None
+    reason: str = ""
+    period_samples: int | None = None
+    flushed_samples: int | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+# ---------------------------------------------------------------------- helpers
+
+
+def memory_limit_bytes() -> int:
+    """Bytes of samples one file may bring into memory: :data:`MAX_DATA_BYTES`, at most half the RAM."""
+    try:
+        physical = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        physical = 0
+    return int(min(MAX_DATA_BYTES, physical // 2)) if physical > 0 else int(MAX_DATA_BYTES)
+
+
+def _gib(n: float) -> str:
+    return f"{n / 1024**3:.3g} GiB"
+
+
+def _check_fits(path: Path, rows: int, columns: int, what: str) -> None:
+    """Refuse before allocating ``rows`` x ``columns`` float64 samples beyond the memory bound."""
+    need = int(rows) * int(columns) * 8
+    limit = memory_limit_bytes()
+    if need > limit:
+        raise DataError(f"{path}: {what} declares {rows} rows of {columns} column(s) ({_gib(need)} as float64), "
+                        f"more than the {_gib(limit)} hilident reads into memory")
+
+
+def _names(names) -> str:
+    names = sorted(str(n) for n in names)
+    if not names:
+        return "none"
+    more = len(names) - _LISTED_NAMES
+    return ", ".join(names[:_LISTED_NAMES]) + (f" and {more} more" if more > 0 else "")
+
+
+def _short(text: str, limit: int = 40) -> str:
+    return repr(text if len(text) <= limit else text[:limit] + "...")
+
+
+# ---------------------------------------------------------------------- reading
+
+
+def read_columns(path: str | Path, fmt: str = "auto", names=None) -> RawColumns:
+    """The columns ``names`` of a file (all numeric ones when None), and what the file says about itself.
+
+    Parameters
+    ----------
+    path : str or path-like
+    fmt : {"auto", "hilident", "csv", "mat"}
+        ``auto`` goes by the extension.
+    names : iterable of str, optional
+        Columns (or variables) to read; names the file lacks are left out.
+
+    Raises
+    ------
+    DataError
+        Missing, unreadable, damaged or oversized file.
+    ConfigError
+        The format cannot be told from the name.
+    """
     path = Path(path)
     if not path.is_file():
         raise DataError(f"{path}: no such file")
@@ -57,96 +186,466 @@ def read_columns(path: str | Path, fmt: str = "auto") -> tuple[dict[str, np.ndar
                                       ".mat": "mat"}.get(path.suffix.lower())
     if kind is None:
         raise ConfigError("data.format", f"cannot tell the format of {path.name}; set hilident, csv or mat", str(path))
-    if kind == "hilident":
-        from hilident.recording import read_run
-
-        run = read_run(path)
-        return dict(run.samples), float(run.sample_rate_hz)
-    if kind == "csv":
-        return _read_csv(path), None
-    return _read_mat(path), None
-
-
-def _read_csv(path: Path) -> dict[str, np.ndarray]:
-    with path.open(newline="", encoding="utf-8") as fh:
-        sample = fh.read(4096)
-        fh.seek(0)
-        try:
-            dialect = csv.Sniffer().sniff(sample, delimiters=",;\t ")
-        except csv.Error:
-            dialect = csv.excel
-        rows = list(csv.reader(fh, dialect))
-    if not rows:
-        raise DataError(f"{path}: empty file")
-    header = [h.strip() for h in rows[0]]
-    body = [r for r in rows[1:] if any(c.strip() for c in r)]
-    columns: dict[str, np.ndarray] = {}
-    for j, name in enumerate(header):
-        values = np.empty(len(body))
-        for i, r in enumerate(body):
-            try:
-                values[i] = float(r[j]) if j < len(r) and r[j].strip() else np.nan
-            except ValueError:
-                raise DataError(f"{path}: row {i + 2}, column {name!r}: {r[j]!r} is not a number") from None
-        columns[name] = values
-    return columns
-
-
-def _read_mat(path: Path) -> dict[str, np.ndarray]:
+    wanted = None if names is None else list(dict.fromkeys(names))
     try:
-        from scipy.io import loadmat
+        if kind == "hilident":
+            return _read_hilident(path, wanted)
+        if kind == "csv":
+            return _read_csv(path, wanted)
+        return _read_mat(path, wanted)
+    except MemoryError:
+        raise DataError(f"{path}: not enough memory to read the data") from None
+    except PermissionError as exc:
+        raise DataError(f"{path}: cannot read: {exc.strerror}") from None
 
-        raw = loadmat(path, squeeze_me=True)
-        items = {k: v for k, v in raw.items() if not k.startswith("__")}
+
+# --- CSV
+
+
+def _detect_encoding(head: bytes) -> tuple[str, int]:
+    """Text encoding of a file that starts with ``head``, and the length of its byte-order mark."""
+    for bom, name in ((b"\xff\xfe\x00\x00", "utf-32"), (b"\x00\x00\xfe\xff", "utf-32"),
+                      (b"\xef\xbb\xbf", "utf-8"), (b"\xff\xfe", "utf-16"), (b"\xfe\xff", "utf-16")):
+        if head.startswith(bom):
+            return name, (len(bom) if name == "utf-8" else 0)  # the utf-16/32 codecs consume their own mark
+    return "", 0
+
+
+def _line_bound(path: Path) -> int:
+    """An upper bound of the lines of a text file (one pass over its bytes, no decoding)."""
+    lf = cr = 0
+    with path.open("rb") as fb:
+        while block := fb.read(1 << 24):
+            lf += block.count(b"\n")
+            cr += block.count(b"\r")
+    return max(lf, cr) + 1
+
+
+def _open_text(path: Path) -> tuple[io.TextIOWrapper, str]:
+    """The file as text lines (after any UTF-8 byte-order mark) and the encoding they are read in.
+
+    Without a UTF-16/32 byte-order mark the file is read as Latin-1, which
+    maps every byte to a character and so never fails: numbers are ASCII,
+    and a stray byte in a cell is then reported as "not a number" at its
+    line. The header is re-decoded as UTF-8 by the caller.
+    """
+    raw = path.open("rb")
+    encoding, skip = _detect_encoding(raw.read(4))
+    raw.seek(skip)
+    if encoding in ("utf-16", "utf-32"):
+        return io.TextIOWrapper(raw, encoding=encoding, errors="strict", newline=None), encoding
+    if b"\x00" in raw.read(1 << 16):
+        raw.close()
+        raise DataError(f"{path}: holds NUL bytes: not a text CSV (UTF-16 without byte-order mark, or binary); "
+                        "save it as UTF-8 CSV")
+    raw.seek(skip)
+    return io.TextIOWrapper(raw, encoding="latin-1", newline=None), "latin-1"
+
+
+def _split_header(line: str, delimiter: str | None, dialect) -> list[str]:
+    if delimiter is None:
+        cells = line.split()
+    else:
+        cells = next(csv.reader([line], dialect), [])
+    return [c.strip().lstrip("\ufeff").strip() for c in cells]
+
+
+def _read_header(path: Path) -> tuple[list[str], int, str, object, str | None, list[str]]:
+    """Column names, lines up to and including the header, encoding, dialect, delimiter and notes."""
+    notes: list[str] = []
+    text, encoding = _open_text(path)
+    with text:
+        line_no, header = 0, ""
+        for line in text:
+            line_no += 1
+            if line.strip():
+                header = line
+                break
+        if not header.strip():
+            raise DataError(f"{path}: empty file")
+        if encoding == "latin-1":  # most likely UTF-8 after all
+            try:
+                header = header.encode("latin-1").decode("utf-8")
+            except UnicodeDecodeError:
+                notes.append(f"{path.name}: the header is not UTF-8; read as Latin-1")
+        sample = header + "".join(itertools.islice(text, 20))
+    dialect, delimiter = _sniff(sample)
+    return _split_header(header, delimiter, dialect), line_no, encoding, dialect, delimiter, notes
+
+
+def _read_csv(path: Path, names) -> RawColumns:
+    encoding = "text"
+    try:
+        columns, header_lines, encoding, dialect, delimiter, notes = _read_header(path)
+        wanted = columns if names is None else [n for n in names if n in columns]
+        for n in wanted:
+            if columns.count(n) > 1:
+                raise DataError(f"{path}: column {n!r} appears {columns.count(n)} times in the header")
+        usecols = [columns.index(n) for n in wanted]
+        bound = _line_bound(path)
+        _check_fits(path, bound, len(usecols), "the CSV file")
+        text, encoding = _open_text(path)
+        with text:
+            for _ in range(header_lines):
+                text.readline()
+            data = _parse_body(path, text, header_lines, bound, usecols, wanted, delimiter, dialect)
+    except UnicodeError as exc:
+        raise DataError(f"{path}: not valid {encoding.upper()} text ({exc}); save it as UTF-8 CSV") from None
+    except csv.Error as exc:
+        raise DataError(f"{path}: not a readable CSV file: {exc}") from None
+    return RawColumns({n: np.ascontiguousarray(data[:, j]) for j, n in enumerate(wanted)}, columns, notes=notes)
+
+
+def _sniff(sample: str):
+    """CSV dialect of ``sample`` and the delimiter for the fast parser (None: any whitespace)."""
+    try:
+        dialect = csv.Sniffer().sniff(sample, delimiters=",;\t ")
+    except csv.Error:
+        dialect = csv.excel
+    delimiter = dialect.delimiter
+    return dialect, (None if delimiter == " " else delimiter)
+
+
+def _parse_body(path: Path, text, header_lines: int, bound: int, usecols: list[int], names: list[str],
+                delimiter, dialect) -> np.ndarray:
+    """Data rows of the mapped columns into one preallocated float64 array.
+
+    A chunk goes through :func:`numpy.loadtxt` (fast); a chunk it refuses
+    (empty or missing cells, junk) is parsed cell by cell, which turns
+    empty and missing cells into NaN and names the first cell that is not
+    a number.
+    """
+    out = np.empty((max(bound, 1), len(usecols)))
+    filled = 0
+    line_no = header_lines
+    while True:
+        lines = list(itertools.islice(text, CSV_CHUNK_LINES))
+        if not lines:
+            break
+        block = _fast_chunk(lines, usecols, delimiter) if usecols else None
+        if block is None:
+            block = _slow_chunk(path, lines, line_no, usecols, names, delimiter, dialect)
+        if filled + len(block) > len(out):  # mixed line endings can beat the bound
+            _check_fits(path, 2 * len(out), len(usecols), "the CSV file")
+            out = np.resize(out, (2 * len(out), len(usecols)))
+        out[filled:filled + len(block)] = block
+        filled += len(block)
+        line_no += len(lines)
+    if filled < 0.9 * len(out):
+        return out[:filled].copy()
+    return out[:filled]
+
+
+def _fast_chunk(lines: list[str], usecols: list[int], delimiter) -> np.ndarray | None:
+    try:
+        block = np.loadtxt(lines, delimiter=delimiter, usecols=usecols, ndmin=2, dtype=np.float64, comments=None,
+                           quotechar='"')
+    except ValueError:
+        return None
+    return block.reshape(-1, len(usecols))
+
+
+def _slow_chunk(path: Path, lines: list[str], first_line: int, usecols: list[int], names: list[str], delimiter,
+                dialect) -> np.ndarray:
+    rows = []
+    reader = (line.split() for line in lines) if delimiter is None else csv.reader(lines, dialect)
+    for k, cells in enumerate(reader):
+        if not any(c.strip() for c in cells):
+            continue
+        row = []
+        for j, name in zip(usecols, names):
+            cell = cells[j].strip() if j < len(cells) else ""
+            row.append(_number(cell, path, first_line + k + 1, name))
+        rows.append(row)
+    return np.array(rows, dtype=np.float64).reshape(-1, len(usecols))
+
+
+def _number(cell: str, path: Path, line: int, column: str) -> float:
+    if not cell:
+        return math.nan
+    try:
+        if "_" in cell:
+            raise ValueError
+        return float(cell)
+    except ValueError:
+        raise DataError(f"{path}: line {line}, column {column!r}: {_short(cell)} is not a number") from None
+
+
+# --- MATLAB
+
+
+def _read_mat(path: Path, names) -> RawColumns:
+    from scipy.io import loadmat, whosmat
+
+    try:
+        listing = whosmat(path)
     except NotImplementedError:  # MATLAB v7.3 files are HDF5
-        import h5py
-
-        with h5py.File(path, "r") as f:
-            items = {k: np.asarray(f[k]).squeeze() for k in f if isinstance(f[k], h5py.Dataset)}
-    except ValueError as exc:
-        raise DataError(f"{path}: not a MATLAB file ({exc})") from None
+        return _read_mat73(path, names)
+    except Exception as exc:  # a damaged file can fail anywhere in the parser
+        raise DataError(f"{path}: not a readable MATLAB file ({type(exc).__name__}: {exc})") from None
+    shapes = {name: (tuple(int(d) for d in shape), cls) for name, shape, cls in listing}
+    wanted = [n for n in (names if names is not None else shapes) if n in shapes]
+    total = 0
+    for name in wanted:
+        shape, cls = shapes[name]
+        if cls not in _NUMERIC_MAT_CLASSES:
+            if names is None:
+                continue
+            raise DataError(f"{path}: variable {name!r} is a MATLAB {cls}, not a numeric vector")
+        _vector_length(path, name, shape)
+        total += math.prod(shape)
+    wanted = [n for n in wanted if shapes[n][1] in _NUMERIC_MAT_CLASSES]
+    _check_fits(path, total, 1, "the MATLAB file")
+    if not wanted:
+        return RawColumns({}, list(shapes))
+    try:
+        raw = loadmat(path, squeeze_me=True, variable_names=wanted)
+    except Exception as exc:  # truncated or corrupted data behind valid headers
+        raise DataError(f"{path}: not a readable MATLAB file ({type(exc).__name__}: {exc})") from None
     columns = {}
-    for name, value in items.items():
-        arr = np.asarray(value)
-        if arr.dtype.kind in "fiu" and arr.ndim == 1:
-            columns[name] = arr.astype(float)
-    return columns
+    for name in wanted:
+        if name not in raw:
+            raise DataError(f"{path}: variable {name!r} could not be read")
+        columns[name] = _as_vector(path, name, raw[name])
+    return RawColumns(columns, list(shapes))
+
+
+def _vector_length(path: Path, name: str, shape: tuple[int, ...]) -> int:
+    long = [d for d in shape if d != 1]
+    if len(long) > 1:
+        raise DataError(f"{path}: variable {name!r} has shape {shape}; a vector is needed")
+    return long[0] if long else (0 if 0 in shape else 1)
+
+
+def _as_vector(path: Path, name: str, value) -> np.ndarray:
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "fiub" or arr.squeeze().ndim > 1:
+        raise DataError(f"{path}: variable {name!r} is not a real numeric vector (dtype {arr.dtype}, "
+                        f"shape {arr.shape})")
+    return arr.astype(np.float64).ravel()
+
+
+def _open_h5(path: Path):
+    import h5py
+
+    try:
+        # locking=False: a writer in another process may hold the file while streaming.
+        return h5py.File(path, "r", locking=False)
+    except OSError:
+        try:
+            return h5py.File(path, "r")
+        except OSError as exc:
+            raise DataError(f"{path}: not a readable HDF5 file ({exc})") from None
+
+
+def _check_stored(path: Path, ds, rows: int, what: str) -> None:
+    """Refuse a dataset whose declared rows its file cannot hold (they would read back as zeros)."""
+    cols = math.prod(ds.shape[1:]) if ds.ndim > 1 else 1
+    need = int(rows) * int(cols) * ds.dtype.itemsize
+    if need == 0:
+        return
+    stored = ds.id.get_storage_size()
+    size = path.stat().st_size
+    if ds.compression is None and (need > stored or need > size):
+        raise DataError(f"{path}: {what} declares {rows} rows ({need} bytes) but the file holds only "
+                        f"{min(stored, size)} bytes of them: damaged or truncated")
+    if ds.compression is not None and need > MAX_COMPRESSION_RATIO * max(stored, 1):
+        raise DataError(f"{path}: {what} declares {rows} rows ({need} bytes) from {stored} stored bytes: "
+                        "damaged or hostile file")
+
+
+def _read_mat73(path: Path, names) -> RawColumns:
+    import h5py
+
+    with _open_h5(path) as f:
+        try:
+            available = [k for k in f if isinstance(f.get(k, getclass=True), type) and
+                         issubclass(f.get(k, getclass=True), h5py.Dataset)]
+            wanted = [n for n in (names if names is not None else available) if n in available]
+            columns = {}
+            for name in wanted:
+                ds = f[name]
+                if ds.dtype.kind not in "fiub":
+                    if names is None:
+                        continue
+                    raise DataError(f"{path}: variable {name!r} is not numeric (dtype {ds.dtype})")
+                n = _vector_length(path, name, tuple(int(d) for d in ds.shape))
+                _check_fits(path, n, 1, f"variable {name!r}")
+                _check_stored(path, ds, math.prod(ds.shape), f"variable {name!r}")
+                columns[name] = _as_vector(path, name, ds[()])
+        except DataError:
+            raise
+        except Exception as exc:  # HDF5 reports damaged structures as many types
+            raise DataError(f"{path}: damaged MATLAB v7.3 file ({type(exc).__name__}: {exc})") from None
+    return RawColumns(columns, available)
+
+
+# --- hilident HDF5
+
+
+def _attr_text(value) -> str:
+    if isinstance(value, bytes):
+        return value.decode("utf-8", errors="replace")
+    if isinstance(value, np.generic):
+        return str(value.item())
+    return str(value)
+
+
+def _read_hilident(path: Path, names) -> RawColumns:
+    import h5py
+
+    from hilident.recording import FORMAT, FORMAT_VERSION
+
+    if not h5py.is_hdf5(path):
+        raise DataError(f"{path}: not an HDF5 file, so not a hilident run file")
+    with _open_h5(path) as f:
+        try:
+            return _read_hilident_open(path, f, names, FORMAT, FORMAT_VERSION)
+        except (DataError, ConfigError):
+            raise
+        except Exception as exc:  # HDF5 reports damaged structures as many types
+            raise DataError(f"{path}: damaged hilident run file ({type(exc).__name__}: {exc})") from None
+
+
+def _read_hilident_open(path: Path, f, names, fmt: str, version: int) -> RawColumns:
+    import h5py
+
+    attrs = f.attrs
+    if _attr_text(attrs.get("format", "")) != fmt:
+        raise DataError(f"{path}: not a hilident run file (root attribute format != {fmt!r})")
+    if _attr_text(attrs.get("format_version", "")) != str(version):
+        raise DataError(f"{path}: unsupported hilident run format_version "
+                        f"{_attr_text(attrs.get('format_version', ''))!r} (this reader: {version})")
+    channels = [_attr_text(c) for c in np.atleast_1d(attrs.get("channel_names", []))]
+    ds = f.get("samples")
+    if not isinstance(ds, h5py.Dataset) or ds.ndim != 2 or ds.shape[1] != len(channels) or ds.dtype.kind != "f":
+        raise DataError(f"{path}: damaged run file: /samples does not match channel_names")
+    rows = int(ds.shape[0])
+    notes: list[str] = []
+    flushed = None
+    if "flushed_samples" in attrs:
+        flushed = int(attrs["flushed_samples"])
+        if flushed < 0:
+            raise DataError(f"{path}: damaged run file: flushed_samples = {flushed}")
+        if flushed < rows:
+            notes.append(f"{path.name}: {rows - flushed} rows after the last flushed sample ({flushed}) "
+                         "were not counted as recorded")
+        rows = min(rows, flushed)
+    wanted = [n for n in (names if names is not None else channels) if n in channels]
+    if "sample_index" in channels and "sample_index" not in wanted:
+        wanted.append("sample_index")
+    _check_fits(path, rows, len(wanted), "/samples")
+    _check_stored(path, ds, rows, "/samples")
+    rate = float(attrs.get("sample_rate_hz", math.nan))
+    if not math.isfinite(rate) or rate <= 0:
+        raise DataError(f"{path}: sample_rate_hz attribute is {rate!r}; it must be a positive finite number")
+    columns = _read_rows(ds, rows, [channels.index(n) for n in wanted])
+    status = _attr_text(attrs.get("status", "running"))
+    reason = _attr_text(attrs.get("reason", ""))
+    period, why = _recorded_period(attrs, rate)
+    if why:
+        notes.append(f"{path.name}: {why}")
+    return RawColumns(dict(zip(wanted, columns)), channels, rate, status, reason, period, flushed, notes)
+
+
+def _read_rows(ds, rows: int, cols: list[int], block: int = 1 << 16) -> list[np.ndarray]:
+    """Columns ``cols`` of the first ``rows`` rows, read a block of rows at a time."""
+    out = [np.empty(rows) for _ in cols]
+    for a in range(0, rows, block):
+        b = min(a + block, rows)
+        part = ds[a:b, :]
+        for arr, j in zip(out, cols):
+            arr[a:b] = part[:, j]
+    return out
+
+
+def _recorded_period(attrs, rate: float) -> tuple[int | None, str]:
+    """Excitation period of a hilident recording, from the configuration it stores."""
+    experiment = _attr_text(attrs.get("experiment", ""))
+    if experiment not in ("identification", "verification"):
+        return None, ""
+    from hilident.config import parse_config
+    from hilident.pipeline import excitation_period_samples
+
+    try:
+        cfg = parse_config(_attr_text(attrs.get("config_toml", "")), "config_toml attribute")
+        return excitation_period_samples(cfg.excitation, rate), ""
+    except HilidentError as exc:
+        return None, f"the stored configuration cannot be read ({exc}); the excitation period is unknown"
+
+
+# ---------------------------------------------------------------------- mapping
 
 
 def load_dataset(path: str | Path, cfg: DataConfig, config_source: str = "") -> Dataset:
-    """Read ``path`` and map its columns as ``cfg`` says.
+    """Read ``path``, map its columns as ``cfg`` says, and keep the gap-free rows.
 
     Raises
     ------
     DataError
         Unknown column, NaN or infinite values, mismatched lengths, too few
-        samples, non-uniform time stamps, or a sample rate that disagrees with them.
+        samples, irregular time stamps, a sample rate that disagrees with
+        them, too few whole gap-free periods, or a damaged or oversized file.
     ConfigError
         No sample rate anywhere, or no torque column configured.
     """
     path = Path(path)
-    columns, file_rate = read_columns(path, cfg.format)
-    available = ", ".join(sorted(columns)) or "none"
-
-    def column(name: str, key: str) -> np.ndarray:
-        if name not in columns:
-            raise DataError(f"{path}: no column {name!r} (data.{key}); the file has: {available}")
-        return np.asarray(columns[name], dtype=float)
-
-    wanted = {
-        key: (getattr(cfg, key), getattr(cfg, f"{key}_scale"))
-        for key in ("torque", "velocity", "position", "output", "excitation")
-        if getattr(cfg, key)
-    }
+    wanted = {key: (getattr(cfg, key), getattr(cfg, f"{key}_scale")) for key in _SIGNAL_KEYS if getattr(cfg, key)}
     if "torque" not in wanted:
         raise ConfigError("data.torque", "names no column", config_source)
-    signals = {key: column(name, key) * scale for key, (name, scale) in wanted.items()}
+    _check_config_rate(cfg, config_source)
+    names = [name for name, _ in wanted.values()] + ([cfg.time] if cfg.time else [])
+    raw = read_columns(path, cfg.format, names)
+    signals = _mapped(path, raw, wanted)
+    n = len(next(iter(signals.values())))
+    if n < MIN_SAMPLES:
+        raise DataError(f"{path}: {n} samples; at least {MIN_SAMPLES} are needed")
+    index, time_rate = _row_index(path, cfg, raw, n)
+    rate = _sample_rate(path, cfg, time_rate, raw.sample_rate_hz, config_source)
+    notes = list(raw.notes) + _status_notes(path, raw)
+    from hilident.pipeline import select_gap_free
+
+    period = raw.period_samples if "sample_index" in raw.columns else None
+    selection = select_gap_free(index, period, path.name)
+    notes += selection.warnings
+    used = {key: v[selection.keep] for key, v in signals.items()}
+    if selection.used_rows < MIN_SAMPLES:
+        raise DataError(f"{path}: {selection.used_rows} gap-free samples; at least {MIN_SAMPLES} are needed")
+    for key, values in used.items():
+        if np.ptp(values) == 0.0:
+            raise DataError(
+                f"{path}: column {wanted[key][0]!r} (data.{key}) is constant ({values[0]:g}): it excites nothing"
+            )
+    segments = [(int(a), int(b)) for a, b in _runs_of(index[selection.keep])]
+    if "velocity" not in used:
+        if "position" not in used:
+            raise ConfigError("data.velocity", "neither a velocity nor a position column is configured", config_source)
+        used["velocity"] = _derivative(used["position"], segments, rate)
+        notes.append("velocity derived from position by central differences (within each gap-free segment)")
+    if "output" not in used:
+        used["output"] = used["velocity"]
+    info = dict(selection.to_dict(), status=raw.status, reason=raw.reason, flushed_samples=raw.flushed_samples)
+    return Dataset(used, rate, str(path), notes, info, selection.period_samples)
+
+
+def _check_config_rate(cfg: DataConfig, source: str) -> None:
+    rate = cfg.sample_rate_hz
+    if not isinstance(rate, (int, float)) or not math.isfinite(rate) or rate < 0:
+        raise ConfigError("data.sample_rate_hz", f"must be a finite number >= 0, got {rate!r}", source)
+
+
+def _mapped(path: Path, raw: RawColumns, wanted: dict) -> dict[str, np.ndarray]:
+    """Scaled signals of the mapped columns, all finite and equally long."""
+    signals = {}
+    for key, (name, scale) in wanted.items():
+        if name not in raw.columns:
+            if name in raw.available:
+                raise DataError(f"{path}: column {name!r} (data.{key}) is not numeric")
+            raise DataError(f"{path}: no column {name!r} (data.{key}); the file has: {_names(raw.available)}")
+        signals[key] = np.asarray(raw.columns[name], dtype=float) * scale
     lengths = {key: len(v) for key, v in signals.items()}
     if len(set(lengths.values())) > 1:
         raise DataError(f"{path}: columns of different lengths: {lengths}")
-    n = next(iter(lengths.values()))
-    if n < MIN_SAMPLES:
-        raise DataError(f"{path}: {n} samples; at least {MIN_SAMPLES} are needed")
     for key, values in signals.items():
         bad = np.flatnonzero(~np.isfinite(values))
         if len(bad):
@@ -154,45 +653,90 @@ def load_dataset(path: str | Path, cfg: DataConfig, config_source: str = "") -> 
                 f"{path}: column {wanted[key][0]!r} (data.{key}) has {len(bad)} NaN or infinite values, "
                 f"the first at row {bad[0]}"
             )
-        if np.ptp(values) == 0.0:
-            raise DataError(
-                f"{path}: column {wanted[key][0]!r} (data.{key}) is constant ({values[0]:g}): it excites nothing"
-            )
-    rate = _sample_rate(path, cfg, columns, file_rate, n, config_source)
-    notes = []
-    if "velocity" not in signals:
-        if "position" not in signals:
-            raise ConfigError("data.velocity", "neither a velocity nor a position column is configured", config_source)
-        from hilident.ident.preprocess import central_difference
-
-        signals["velocity"] = central_difference(signals["position"], rate)
-        notes.append("velocity derived from position by central differences")
-    if "output" not in signals:
-        signals["output"] = signals["velocity"]
-    return Dataset(signals, rate, str(path), notes)
+    return signals
 
 
-def _sample_rate(path, cfg: DataConfig, columns, file_rate, n, source) -> float:
-    from_time = None
+def _status_notes(path: Path, raw: RawColumns) -> list[str]:
+    if raw.status in (None, "complete"):
+        return []
+    if raw.status == "running":
+        why = "the recording process ended without closing it, or is still writing"
+    elif raw.status == "aborted":
+        why = f"aborted: {raw.reason or 'no reason recorded'}"
+    else:
+        why = f"status {raw.status!r}"
+    return [f"{path.name}: the recording did not complete ({why}); it may end early"]
+
+
+def _row_index(path: Path, cfg: DataConfig, raw: RawColumns, n: int) -> tuple[np.ndarray, float | None]:
+    """Index of each row on the sample clock, and the rate the time column gives (if any)."""
+    index = None
+    if "sample_index" in raw.columns:
+        si = raw.columns["sample_index"][:n]
+        if len(si) != n or not np.all(np.isfinite(si)) or np.any(si != np.round(si)) or np.any(np.abs(si) > 2**53):
+            raise DataError(f"{path}: sample_index column is not whole numbers")
+        index = si.astype(np.int64)
+    time_rate = None
     if cfg.time:
-        if cfg.time not in columns:
-            raise DataError(f"{path}: no time column {cfg.time!r} (data.time); the file has: {', '.join(sorted(columns))}")
-        t = np.asarray(columns[cfg.time], dtype=float)
-        if len(t) != n or not np.all(np.isfinite(t)):
-            raise DataError(f"{path}: time column {cfg.time!r} is not finite or not as long as the data")
-        dt = np.diff(t)
-        step = float(np.median(dt))
-        off = np.flatnonzero(np.abs(dt - step) > 1e-3 * abs(step)) if step > 0 else np.array([0])
-        if step <= 0 or len(off):
-            i = int(off[0]) if len(off) else 0
-            raise DataError(
-                f"{path}: time stamps are not uniform (step {dt[i]:.6g} s at row {i + 1}, median {step:.6g} s); "
-                "resample the data first"
-            )
-        from_time = 1.0 / step
+        t_index, time_rate = _time_index(path, cfg.time, raw, n)
+        if index is None:
+            index = t_index
+    return (np.arange(n, dtype=np.int64) if index is None else index), time_rate
+
+
+def _time_index(path: Path, name: str, raw: RawColumns, n: int) -> tuple[np.ndarray, float]:
+    """Sample numbers from a time column whose steps are whole multiples of one sample period.
+
+    A step of two periods or more is a gap; a step that is no whole
+    multiple (within 0.1 % of a period) is an irregular time stamp.
+    """
+    if name not in raw.columns:
+        raise DataError(f"{path}: no time column {name!r} (data.time); the file has: {_names(raw.available)}")
+    t = np.asarray(raw.columns[name], dtype=float)
+    if len(t) != n or not np.all(np.isfinite(t)):
+        raise DataError(f"{path}: time column {name!r} is not finite or not as long as the data")
+    dt = np.diff(t)
+    back = np.flatnonzero(dt <= 0)
+    if len(back):
+        i = int(back[0])
+        raise DataError(f"{path}: time column {name!r} does not increase at row {i + 1} "
+                        f"(step {dt[i]:.6g} s); sort the data first")
+    step = float(np.median(dt))
+    steps = dt / step
+    whole = np.round(steps)
+    off = np.flatnonzero(np.abs(steps - whole) > 1e-3)
+    if len(off):
+        i = int(off[0])
+        raise DataError(
+            f"{path}: time stamps are not uniform (step {dt[i]:.6g} s at row {i + 1}, median {step:.6g} s, "
+            "not a whole number of sample periods); resample the data first"
+        )
+    index = np.concatenate(([0], np.cumsum(whole.astype(np.int64))))
+    return index, float(index[-1] / (t[-1] - t[0]))
+
+
+def _sample_rate(path, cfg: DataConfig, from_time, file_rate, source) -> float:
     rates = [r for r in (cfg.sample_rate_hz or None, from_time, file_rate) if r]
     if not rates:
         raise ConfigError("data.sample_rate_hz", "is needed: the data have no time column and no recorded rate", source)
+    if any(not math.isfinite(r) or r <= 0 for r in rates):
+        raise DataError(f"{path}: sample rate {rates} is not a positive finite number")
     if any(abs(r - rates[0]) > 1e-3 * rates[0] for r in rates):
         raise DataError(f"{path}: sample rates disagree: config {cfg.sample_rate_hz:g} Hz, data {rates}")
     return float(rates[0])
+
+
+def _runs_of(index: np.ndarray) -> list[tuple[int, int]]:
+    from hilident.pipeline import contiguous_runs
+
+    return contiguous_runs(index)
+
+
+def _derivative(x: np.ndarray, segments: list[tuple[int, int]], rate: float) -> np.ndarray:
+    """Central differences within each gap-free segment (never across a join)."""
+    from hilident.ident.preprocess import central_difference
+
+    out = np.empty_like(x)
+    for a, b in segments:
+        out[a:b] = central_difference(x[a:b], rate) if b - a >= 2 else 0.0
+    return out

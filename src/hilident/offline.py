@@ -70,11 +70,14 @@ def identify_recording(cfg: Config, data_path: str | Path, out_dir: str | Path, 
             "closed-loop data without an excitation column: the torque-to-output estimate is biased where "
             "the controller feeds noise back (give [data].excitation to use the excitation as reference)"
         )
-    say(f"{ds.source}: {len(ds)} samples at {ds.sample_rate_hz:g} Hz")
+    used = ds.info.get("used_rows", len(ds))
+    rows = ds.info.get("rows", len(ds))
+    say(f"{ds.source}: {used} of {rows} samples at {ds.sample_rate_hz:g} Hz"
+        + (f" in {ds.info['segments']} gap-free segment(s)" if ds.info.get("segments", 1) > 1 else ""))
     band = _band(cfg, ds)
     plant = pipeline.identify_plant(
         s.get("excitation", s["torque"]), s["torque"], s["output"], s["velocity"], ds.sample_rate_hz,
-        cfg.identification, band,
+        cfg.identification, band, period_samples=ds.period_samples,
     )
     warnings += plant.warnings
     slots = list(range(max(cfg.identification.max_resonances, 1)))
@@ -90,7 +93,7 @@ def identify_recording(cfg: Config, data_path: str | Path, out_dir: str | Path, 
     summary = {
         "hilident_version": __version__,
         "config": cfg.source,
-        "data": {"file": ds.source, "samples": len(ds), "sample_rate_hz": ds.sample_rate_hz},
+        "data": {"file": ds.source, "samples": len(ds), "sample_rate_hz": ds.sample_rate_hz, **ds.info},
         "resonances": pipeline.resonance_records(plant.resonances),
         "friction": None,
         "model": None if model is None else model.to_dict(),
@@ -99,7 +102,7 @@ def identify_recording(cfg: Config, data_path: str | Path, out_dir: str | Path, 
         "notch_filters": pipeline.notch_records(designs),
         "upload": {"written": False, "verified_readback": False, "slots": []},
         "verification": {"peak_reduction_db": None, "resonances": []},
-        "stream": {"samples": len(ds), "lost_frames": 0, "lost_blocks": 0, "lost_samples": 0, "corrupt_frames": 0,
+        "stream": {"samples": len(ds), "lost_frames": 0, "lost_blocks": 0, "lost_samples": ds.info.get("missing_samples", 0), "corrupt_frames": 0,
                    "out_of_order": 0, "underruns": 0, "board_dropped_blocks": 0},
         "elapsed_s": time.monotonic() - started,
         "warnings": warnings,
