@@ -222,3 +222,10 @@ def test_period_of_the_configured_excitation():
     assert pipeline.excitation_period_samples(short.excitation, RATE) is None  # 2 sequences: not averaged
     chirp = parse_config('[excitation]\nkind = "chirp"\n')
     assert pipeline.excitation_period_samples(chirp.excitation, RATE) is None
+
+
+def test_select_gap_free_segments_break_where_the_clock_jumps():
+    index = np.r_[0:30, 40:60]  # periods 1, 2 from the first run and 4, 5 from the second sit on adjacent rows
+    sel = pipeline.select_gap_free(index, 10)
+    assert sel.segments == [(10, 30), (30, 50)]
+    assert sel.warnings == ["recording: 1 of 5 excitation periods had lost samples and were left out"]

@@ -51,7 +51,7 @@ MAX_COMPRESSION_RATIO = 1000
 _LISTED_NAMES = 20
 
 _NUMERIC_MAT_CLASSES = frozenset(
-    ("double", "single", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64", "logical")
+    ("double", "single", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64")
 )
 
 _SIGNAL_KEYS = ("torque", "velocity", "position", "output", "excitation")
@@ -120,6 +120,11 @@ class RawColumns:
     flushed_samples: int | None = None
     notes: list[str] = field(default_factory=list)
 
+    @property
+    def indexed(self) -> bool:
+        """True when the rows carry their own ``sample_index``."""
+        return "sample_index" in self.columns
+
 
 # ---------------------------------------------------------------------- helpers
 
@@ -169,8 +174,11 @@ def read_columns(path: str | Path, fmt: str = "auto", names=None) -> RawColumns:
     path : str or path-like
     fmt : {"auto", "hilident", "csv", "mat"}
         ``auto`` goes by the extension.
-    names : iterable of str, optional
-        Columns (or variables) to read; names the file lacks are left out.
+    names : iterable of str or dict of str to str, optional
+        Columns (or variables) to read. A dict maps each name to the
+        configuration key that asked for it: then a name the file lacks is a
+        :class:`DataError` naming that key, raised before any data is read;
+        otherwise names the file lacks are left out.
 
     Raises
     ------
@@ -186,13 +194,20 @@ def read_columns(path: str | Path, fmt: str = "auto", names=None) -> RawColumns:
                                       ".mat": "mat"}.get(path.suffix.lower())
     if kind is None:
         raise ConfigError("data.format", f"cannot tell the format of {path.name}; set hilident, csv or mat", str(path))
+    labels = names if isinstance(names, dict) else {}
     wanted = None if names is None else list(dict.fromkeys(names))
+
+    def check(available) -> None:
+        for name, label in labels.items():
+            if name not in available:
+                raise DataError(f"{path}: no column {name!r} ({label}); the file has: {_names(available)}")
+
     try:
         if kind == "hilident":
-            return _read_hilident(path, wanted)
+            return _read_hilident(path, wanted, check)
         if kind == "csv":
-            return _read_csv(path, wanted)
-        return _read_mat(path, wanted)
+            return _read_csv(path, wanted, check)
+        return _read_mat(path, wanted, check)
     except MemoryError:
         raise DataError(f"{path}: not enough memory to read the data") from None
     except PermissionError as exc:
@@ -273,10 +288,11 @@ def _read_header(path: Path) -> tuple[list[str], int, str, object, str | None, l
     return _split_header(header, delimiter, dialect), line_no, encoding, dialect, delimiter, notes
 
 
-def _read_csv(path: Path, names) -> RawColumns:
+def _read_csv(path: Path, names, check=lambda available: None) -> RawColumns:
     encoding = "text"
     try:
         columns, header_lines, encoding, dialect, delimiter, notes = _read_header(path)
+        check(columns)
         wanted = columns if names is None else [n for n in names if n in columns]
         for n in wanted:
             if columns.count(n) > 1:
@@ -293,7 +309,7 @@ def _read_csv(path: Path, names) -> RawColumns:
         raise DataError(f"{path}: not valid {encoding.upper()} text ({exc}); save it as UTF-8 CSV") from None
     except csv.Error as exc:
         raise DataError(f"{path}: not a readable CSV file: {exc}") from None
-    return RawColumns({n: np.ascontiguousarray(data[:, j]) for j, n in enumerate(wanted)}, columns, notes=notes)
+    return RawColumns(dict(zip(wanted, data)), columns, notes=notes)
 
 
 def _sniff(sample: str):
@@ -307,15 +323,15 @@ def _sniff(sample: str):
 
 
 def _parse_body(path: Path, text, header_lines: int, bound: int, usecols: list[int], names: list[str],
-                delimiter, dialect) -> np.ndarray:
-    """Data rows of the mapped columns into one preallocated float64 array.
+                delimiter, dialect) -> list[np.ndarray]:
+    """Data rows of the mapped columns, one preallocated float64 array per column.
 
     A chunk goes through :func:`numpy.loadtxt` (fast); a chunk it refuses
     (empty or missing cells, junk) is parsed cell by cell, which turns
     empty and missing cells into NaN and names the first cell that is not
     a number.
     """
-    out = np.empty((max(bound, 1), len(usecols)))
+    out = np.empty((len(usecols), max(bound, 1)))  # one row per column: each column contiguous, no copy at the end
     filled = 0
     line_no = header_lines
     while True:
@@ -325,15 +341,17 @@ def _parse_body(path: Path, text, header_lines: int, bound: int, usecols: list[i
         block = _fast_chunk(lines, usecols, delimiter) if usecols else None
         if block is None:
             block = _slow_chunk(path, lines, line_no, usecols, names, delimiter, dialect)
-        if filled + len(block) > len(out):  # mixed line endings can beat the bound
-            _check_fits(path, 2 * len(out), len(usecols), "the CSV file")
-            out = np.resize(out, (2 * len(out), len(usecols)))
-        out[filled:filled + len(block)] = block
+        if filled + len(block) > out.shape[1]:  # mixed line endings can beat the bound
+            _check_fits(path, 2 * out.shape[1], len(usecols), "the CSV file")
+            grown = np.empty((len(usecols), 2 * out.shape[1]))
+            grown[:, :filled] = out[:, :filled]
+            out = grown
+        out[:, filled:filled + len(block)] = block.T
         filled += len(block)
         line_no += len(lines)
-    if filled < 0.9 * len(out):
-        return out[:filled].copy()
-    return out[:filled]
+    if filled < 0.9 * out.shape[1]:
+        return [out[j, :filled].copy() for j in range(len(usecols))]
+    return [out[j, :filled] for j in range(len(usecols))]
 
 
 def _fast_chunk(lines: list[str], usecols: list[int], delimiter) -> np.ndarray | None:
@@ -374,40 +392,172 @@ def _number(cell: str, path: Path, line: int, column: str) -> float:
 # --- MATLAB
 
 
-def _read_mat(path: Path, names) -> RawColumns:
-    from scipy.io import loadmat, whosmat
+@dataclass
+class _MatVariable:
+    """One top-level variable of a MATLAB v5 file, as its headers declare it."""
+
+    name: str
+    shape: tuple[int, ...]
+    cls: str
+    complex: bool
+    data_bytes: int
+    start: int
+    stop: int
+
+
+_MAT_CLASSES = {1: "cell", 2: "struct", 3: "object", 4: "char", 5: "sparse", 6: "double", 7: "single", 8: "int8",
+                9: "uint8", 10: "int16", 11: "uint16", 12: "int32", 13: "uint32", 14: "int64", 15: "uint64",
+                16: "function", 17: "opaque"}
+_MI_MATRIX, _MI_COMPRESSED = 14, 15
+_MAT_HEADER_BYTES = 8192  # enough for flags, up to 32 dimensions, a long name and the data tag
+
+
+def _read_mat(path: Path, names, check=lambda available: None) -> RawColumns:
+    from scipy.io import loadmat
+    from scipy.io.matlab import matfile_version
+
+    try:
+        major, _ = matfile_version(path)
+    except Exception as exc:  # a damaged header can fail in several ways
+        raise DataError(f"{path}: not a readable MATLAB file ({type(exc).__name__}: {exc})") from None
+    if major == 2:
+        return _read_mat73(path, names, check)
+    if major == 0:
+        listing, header = _mat4_listing(path), None
+    else:
+        listing, header = _mat5_listing(path)
+    variables = {}
+    for var in listing:
+        variables.setdefault(var.name, var)
+    check(variables)
+    wanted = [n for n in (names if names is not None else variables) if n in variables]
+    total = 0
+    for name in list(wanted):
+        var = variables[name]
+        if var.cls not in _NUMERIC_MAT_CLASSES or var.complex:
+            wanted.remove(name)
+            if names is None:
+                continue
+            kind = "complex" if var.complex else f"a MATLAB {var.cls}"
+            raise DataError(f"{path}: variable {name!r} is {kind}, not a real numeric vector")
+        n = _vector_length(path, name, var.shape)
+        if var.data_bytes > 8 * n + 8:
+            raise DataError(f"{path}: variable {name!r} declares {var.data_bytes} bytes of data for shape "
+                            f"{var.shape}: damaged or hostile file")
+        total += n
+        _check_fits(path, total, 1, f"variable {name!r} (with the variables before it)")
+    columns = {}
+    for name in wanted:
+        columns[name] = _as_vector(path, name, _load_mat_variable(path, variables[name], header, loadmat))
+    return RawColumns(columns, list(variables))
+
+
+def _load_mat_variable(path: Path, var: _MatVariable, header: bytes | None, loadmat) -> np.ndarray:
+    """One variable, read alone (a v5 file: its bytes behind the file header, so nothing else is parsed)."""
+    try:
+        if header is None:
+            raw = loadmat(path, squeeze_me=True, variable_names=[var.name])
+        else:
+            with path.open("rb") as fh:
+                fh.seek(var.start)
+                blob = io.BytesIO(header + fh.read(var.stop - var.start))
+            raw = loadmat(blob, squeeze_me=True)
+    except Exception as exc:  # truncated or corrupted data behind valid headers
+        raise DataError(f"{path}: variable {var.name!r} cannot be read ({type(exc).__name__}: {exc})") from None
+    if var.name not in raw:
+        raise DataError(f"{path}: variable {var.name!r} cannot be read")
+    return raw[var.name]
+
+
+def _mat4_listing(path: Path) -> list[_MatVariable]:
+    from scipy.io import whosmat
 
     try:
         listing = whosmat(path)
-    except NotImplementedError:  # MATLAB v7.3 files are HDF5
-        return _read_mat73(path, names)
     except Exception as exc:  # a damaged file can fail anywhere in the parser
         raise DataError(f"{path}: not a readable MATLAB file ({type(exc).__name__}: {exc})") from None
-    shapes = {name: (tuple(int(d) for d in shape), cls) for name, shape, cls in listing}
-    wanted = [n for n in (names if names is not None else shapes) if n in shapes]
-    total = 0
-    for name in wanted:
-        shape, cls = shapes[name]
-        if cls not in _NUMERIC_MAT_CLASSES:
-            if names is None:
+    return [_MatVariable(name, tuple(int(d) for d in shape), cls, False, 0, 0, 0) for name, shape, cls in listing]
+
+
+def _mat5_listing(path: Path) -> tuple[list[_MatVariable], bytes]:
+    """Every top-level variable of a MATLAB v5 file from its headers, and the 128-byte file header.
+
+    Reads at most a few KiB per variable: a compressed variable is inflated
+    only as far as its headers, so a file whose data would inflate to
+    gigabytes costs nothing here.
+    """
+    import struct
+    import zlib
+
+    size = path.stat().st_size
+    out = []
+    with path.open("rb") as fh:
+        header = fh.read(128)
+        order = {b"IM": "<", b"MI": ">"}.get(header[126:128])
+        if len(header) < 128 or order is None:
+            raise DataError(f"{path}: not a readable MATLAB file (damaged file header)")
+        pos = 128
+        while pos + 8 <= size:
+            fh.seek(pos)
+            mdtype, nbytes = struct.unpack(order + "II", fh.read(8))
+            if mdtype >> 16:  # a small data element: not a variable
+                pos += 8
                 continue
-            raise DataError(f"{path}: variable {name!r} is a MATLAB {cls}, not a numeric vector")
-        _vector_length(path, name, shape)
-        total += math.prod(shape)
-    wanted = [n for n in wanted if shapes[n][1] in _NUMERIC_MAT_CLASSES]
-    _check_fits(path, total, 1, "the MATLAB file")
-    if not wanted:
-        return RawColumns({}, list(shapes))
+            stop = pos + 8 + nbytes
+            if stop > size:
+                raise DataError(f"{path}: truncated MATLAB file: the variable at byte {pos} declares {nbytes} bytes, "
+                                f"the file ends {size - pos - 8} bytes later")
+            if mdtype == _MI_COMPRESSED:
+                try:
+                    head = zlib.decompressobj().decompress(fh.read(min(nbytes, 1 << 16)), _MAT_HEADER_BYTES)
+                except zlib.error as exc:
+                    raise DataError(f"{path}: damaged compressed variable at byte {pos} ({exc})") from None
+            elif mdtype == _MI_MATRIX:
+                head = struct.pack(order + "II", mdtype, nbytes) + fh.read(min(nbytes, _MAT_HEADER_BYTES))
+            else:
+                pos = stop
+                continue
+            out.append(_mat5_matrix_header(path, head, order, pos, stop))
+            pos = stop
+    return out, header
+
+
+def _mat5_matrix_header(path: Path, head: bytes, order: str, start: int, stop: int) -> _MatVariable:
+    """Name, shape, class and data size from the first bytes of a miMATRIX element."""
+    import struct
+
+    def element(p: int) -> tuple[int, bytes, int]:
+        if p + 8 > len(head):
+            raise DataError(f"{path}: damaged variable header at byte {start}")
+        mdtype, nbytes = struct.unpack(order + "II", head[p:p + 8])
+        if mdtype >> 16:  # small element: up to 4 bytes of data inside the tag
+            return mdtype & 0xFFFF, head[p + 4:p + 4 + (mdtype >> 16)], p + 8
+        body = head[p + 8:p + 8 + nbytes]
+        return mdtype, body, p + 8 + nbytes + (-nbytes % 8)
+
     try:
-        raw = loadmat(path, squeeze_me=True, variable_names=wanted)
-    except Exception as exc:  # truncated or corrupted data behind valid headers
-        raise DataError(f"{path}: not a readable MATLAB file ({type(exc).__name__}: {exc})") from None
-    columns = {}
-    for name in wanted:
-        if name not in raw:
-            raise DataError(f"{path}: variable {name!r} could not be read")
-        columns[name] = _as_vector(path, name, raw[name])
-    return RawColumns(columns, list(shapes))
+        mdtype, _ = struct.unpack(order + "II", head[:8])
+        if mdtype != _MI_MATRIX:
+            raise DataError(f"{path}: damaged variable at byte {start} (element type {mdtype}, expected a matrix)")
+        _, flags, p = element(8)
+        _, dims, p = element(p)
+        _, name, p = element(p)
+        if len(flags) < 8 or len(dims) < 8 or len(dims) % 4:
+            raise DataError(f"{path}: damaged variable header at byte {start}")
+        flag = struct.unpack(order + "I", flags[:4])[0]
+        shape = tuple(struct.unpack(order + f"{len(dims) // 4}i", dims))
+        cls = _MAT_CLASSES.get(flag & 0xFF, "unknown")
+        data_bytes = 0
+        if cls in _NUMERIC_MAT_CLASSES and math.prod(max(d, 0) for d in shape):
+            if p + 8 > len(head):
+                raise DataError(f"{path}: damaged variable header at byte {start}")
+            mdtype, nbytes = struct.unpack(order + "II", head[p:p + 8])
+            data_bytes = mdtype >> 16 if mdtype >> 16 else nbytes
+    except struct.error:
+        raise DataError(f"{path}: damaged variable header at byte {start}") from None
+    if any(d < 0 for d in shape):
+        raise DataError(f"{path}: variable {name.decode('latin-1')!r} declares a negative dimension {shape}")
+    return _MatVariable(name.decode("latin-1"), shape, cls, bool(flag & 0x800), data_bytes, start, stop)
 
 
 def _vector_length(path: Path, name: str, shape: tuple[int, ...]) -> int:
@@ -422,7 +572,7 @@ def _as_vector(path: Path, name: str, value) -> np.ndarray:
     if arr.dtype.kind not in "fiub" or arr.squeeze().ndim > 1:
         raise DataError(f"{path}: variable {name!r} is not a real numeric vector (dtype {arr.dtype}, "
                         f"shape {arr.shape})")
-    return arr.astype(np.float64).ravel()
+    return arr.astype(np.float64, copy=False).ravel()
 
 
 def _open_h5(path: Path):
@@ -439,7 +589,7 @@ def _open_h5(path: Path):
 
 
 def _check_stored(path: Path, ds, rows: int, what: str) -> None:
-    """Refuse a dataset whose declared rows its file cannot hold (they would read back as zeros)."""
+    """Refuse a dataset whose first ``rows`` rows its file cannot hold (they would read back as zeros)."""
     cols = math.prod(ds.shape[1:]) if ds.ndim > 1 else 1
     need = int(rows) * int(cols) * ds.dtype.itemsize
     if need == 0:
@@ -454,24 +604,26 @@ def _check_stored(path: Path, ds, rows: int, what: str) -> None:
                         "damaged or hostile file")
 
 
-def _read_mat73(path: Path, names) -> RawColumns:
+def _read_mat73(path: Path, names, check=lambda available: None) -> RawColumns:
     import h5py
 
     with _open_h5(path) as f:
         try:
             available = [k for k in f if isinstance(f.get(k, getclass=True), type) and
                          issubclass(f.get(k, getclass=True), h5py.Dataset)]
+            check(available)
             wanted = [n for n in (names if names is not None else available) if n in available]
             columns = {}
+            total = 0
             for name in wanted:
                 ds = f[name]
                 if ds.dtype.kind not in "fiub":
                     if names is None:
                         continue
                     raise DataError(f"{path}: variable {name!r} is not numeric (dtype {ds.dtype})")
-                n = _vector_length(path, name, tuple(int(d) for d in ds.shape))
-                _check_fits(path, n, 1, f"variable {name!r}")
-                _check_stored(path, ds, math.prod(ds.shape), f"variable {name!r}")
+                total += _vector_length(path, name, tuple(int(d) for d in ds.shape))
+                _check_fits(path, total, 1, f"variable {name!r} (with the variables before it)")
+                _check_stored(path, ds, ds.shape[0] if ds.ndim else 1, f"variable {name!r}")
                 columns[name] = _as_vector(path, name, ds[()])
         except DataError:
             raise
@@ -491,7 +643,7 @@ def _attr_text(value) -> str:
     return str(value)
 
 
-def _read_hilident(path: Path, names) -> RawColumns:
+def _read_hilident(path: Path, names, check=lambda available: None) -> RawColumns:
     import h5py
 
     from hilident.recording import FORMAT, FORMAT_VERSION
@@ -500,14 +652,14 @@ def _read_hilident(path: Path, names) -> RawColumns:
         raise DataError(f"{path}: not an HDF5 file, so not a hilident run file")
     with _open_h5(path) as f:
         try:
-            return _read_hilident_open(path, f, names, FORMAT, FORMAT_VERSION)
+            return _read_hilident_open(path, f, names, FORMAT, FORMAT_VERSION, check)
         except (DataError, ConfigError):
             raise
         except Exception as exc:  # HDF5 reports damaged structures as many types
             raise DataError(f"{path}: damaged hilident run file ({type(exc).__name__}: {exc})") from None
 
 
-def _read_hilident_open(path: Path, f, names, fmt: str, version: int) -> RawColumns:
+def _read_hilident_open(path: Path, f, names, fmt: str, version: int, check) -> RawColumns:
     import h5py
 
     attrs = f.attrs
@@ -520,6 +672,7 @@ def _read_hilident_open(path: Path, f, names, fmt: str, version: int) -> RawColu
     ds = f.get("samples")
     if not isinstance(ds, h5py.Dataset) or ds.ndim != 2 or ds.shape[1] != len(channels) or ds.dtype.kind != "f":
         raise DataError(f"{path}: damaged run file: /samples does not match channel_names")
+    check(channels)
     rows = int(ds.shape[0])
     notes: list[str] = []
     flushed = None
@@ -594,8 +747,10 @@ def load_dataset(path: str | Path, cfg: DataConfig, config_source: str = "") -> 
     if "torque" not in wanted:
         raise ConfigError("data.torque", "names no column", config_source)
     _check_config_rate(cfg, config_source)
-    names = [name for name, _ in wanted.values()] + ([cfg.time] if cfg.time else [])
-    raw = read_columns(path, cfg.format, names)
+    labels = {name: f"data.{key}" for key, (name, _) in wanted.items()}
+    if cfg.time:
+        labels.setdefault(cfg.time, "data.time")
+    raw = read_columns(path, cfg.format, labels)
     signals = _mapped(path, raw, wanted)
     n = len(next(iter(signals.values())))
     if n < MIN_SAMPLES:
@@ -603,20 +758,17 @@ def load_dataset(path: str | Path, cfg: DataConfig, config_source: str = "") -> 
     index, time_rate = _row_index(path, cfg, raw, n)
     rate = _sample_rate(path, cfg, time_rate, raw.sample_rate_hz, config_source)
     notes = list(raw.notes) + _status_notes(path, raw)
-    from hilident.pipeline import select_gap_free
-
-    period = raw.period_samples if "sample_index" in raw.columns else None
-    selection = select_gap_free(index, period, path.name)
-    notes += selection.warnings
-    used = {key: v[selection.keep] for key, v in signals.items()}
-    if selection.used_rows < MIN_SAMPLES:
-        raise DataError(f"{path}: {selection.used_rows} gap-free samples; at least {MIN_SAMPLES} are needed")
+    period = raw.period_samples if raw.indexed else None
+    raw.columns.clear()  # the mapped signals hold what is still needed
+    used, segments, info = _gap_free(path, signals, index, period)
+    notes += info.pop("warnings")
+    if info["used_rows"] < MIN_SAMPLES:
+        raise DataError(f"{path}: {info['used_rows']} gap-free samples; at least {MIN_SAMPLES} are needed")
     for key, values in used.items():
         if np.ptp(values) == 0.0:
             raise DataError(
                 f"{path}: column {wanted[key][0]!r} (data.{key}) is constant ({values[0]:g}): it excites nothing"
             )
-    segments = [(int(a), int(b)) for a, b in _runs_of(index[selection.keep])]
     if "velocity" not in used:
         if "position" not in used:
             raise ConfigError("data.velocity", "neither a velocity nor a position column is configured", config_source)
@@ -624,8 +776,30 @@ def load_dataset(path: str | Path, cfg: DataConfig, config_source: str = "") -> 
         notes.append("velocity derived from position by central differences (within each gap-free segment)")
     if "output" not in used:
         used["output"] = used["velocity"]
-    info = dict(selection.to_dict(), status=raw.status, reason=raw.reason, flushed_samples=raw.flushed_samples)
-    return Dataset(used, rate, str(path), notes, info, selection.period_samples)
+    info.update(status=raw.status, reason=raw.reason, flushed_samples=raw.flushed_samples)
+    return Dataset(used, rate, str(path), notes, info, info["period_samples"])
+
+
+def _gap_free(path: Path, signals: dict[str, np.ndarray], index: np.ndarray | None, period: int | None):
+    """The rows to analyse, their gap-free segments (in the returned arrays) and what was used.
+
+    Without an index (no ``sample_index``, no time column) every row is
+    taken as one gap-free record, without copying.
+    """
+    n = len(next(iter(signals.values())))
+    if index is None:
+        info = {"rows": n, "used_rows": n, "segments": 1, "gaps": [], "n_gaps": 0, "missing_samples": 0,
+                "period_samples": None, "warnings": []}
+        return signals, [(0, n)], info
+    from hilident.pipeline import select_gap_free
+
+    selection = select_gap_free(index, period, path.name)
+    info = dict(selection.to_dict(), warnings=selection.warnings)
+    if selection.used_rows == n:
+        return signals, selection.segments, info
+    used = {key: v[selection.keep] for key, v in signals.items()}
+    edges = np.cumsum([0] + [b - a for a, b in selection.segments])
+    return used, [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])], info
 
 
 def _check_config_rate(cfg: DataConfig, source: str) -> None:
@@ -637,16 +811,25 @@ def _check_config_rate(cfg: DataConfig, source: str) -> None:
 def _mapped(path: Path, raw: RawColumns, wanted: dict) -> dict[str, np.ndarray]:
     """Scaled signals of the mapped columns, all finite and equally long."""
     signals = {}
+    uses = {}
+    for name, _ in wanted.values():
+        uses[name] = uses.get(name, 0) + 1
     for key, (name, scale) in wanted.items():
         if name not in raw.columns:
             if name in raw.available:
                 raise DataError(f"{path}: column {name!r} (data.{key}) is not numeric")
             raise DataError(f"{path}: no column {name!r} (data.{key}); the file has: {_names(raw.available)}")
-        signals[key] = np.asarray(raw.columns[name], dtype=float) * scale
+        values = np.asarray(raw.columns[name], dtype=float)
+        if scale != 1.0:
+            # the column is ours: scale it in place unless another signal maps it too
+            values = values * scale if uses[name] > 1 else np.multiply(values, scale, out=values)
+        signals[key] = values
     lengths = {key: len(v) for key, v in signals.items()}
     if len(set(lengths.values())) > 1:
         raise DataError(f"{path}: columns of different lengths: {lengths}")
     for key, values in signals.items():
+        if np.isfinite(values).all():
+            continue
         bad = np.flatnonzero(~np.isfinite(values))
         if len(bad):
             raise DataError(
@@ -668,8 +851,8 @@ def _status_notes(path: Path, raw: RawColumns) -> list[str]:
     return [f"{path.name}: the recording did not complete ({why}); it may end early"]
 
 
-def _row_index(path: Path, cfg: DataConfig, raw: RawColumns, n: int) -> tuple[np.ndarray, float | None]:
-    """Index of each row on the sample clock, and the rate the time column gives (if any)."""
+def _row_index(path: Path, cfg: DataConfig, raw: RawColumns, n: int) -> tuple[np.ndarray | None, float | None]:
+    """Index of each row on the sample clock (None: no way to tell), and the rate the time column gives."""
     index = None
     if "sample_index" in raw.columns:
         si = raw.columns["sample_index"][:n]
@@ -681,7 +864,7 @@ def _row_index(path: Path, cfg: DataConfig, raw: RawColumns, n: int) -> tuple[np
         t_index, time_rate = _time_index(path, cfg.time, raw, n)
         if index is None:
             index = t_index
-    return (np.arange(n, dtype=np.int64) if index is None else index), time_rate
+    return index, time_rate
 
 
 def _time_index(path: Path, name: str, raw: RawColumns, n: int) -> tuple[np.ndarray, float]:
@@ -724,12 +907,6 @@ def _sample_rate(path, cfg: DataConfig, from_time, file_rate, source) -> float:
     if any(abs(r - rates[0]) > 1e-3 * rates[0] for r in rates):
         raise DataError(f"{path}: sample rates disagree: config {cfg.sample_rate_hz:g} Hz, data {rates}")
     return float(rates[0])
-
-
-def _runs_of(index: np.ndarray) -> list[tuple[int, int]]:
-    from hilident.pipeline import contiguous_runs
-
-    return contiguous_runs(index)
 
 
 def _derivative(x: np.ndarray, segments: list[tuple[int, int]], rate: float) -> np.ndarray:

@@ -563,7 +563,9 @@ class GapFreeSelection:
     keep : ndarray of bool
         One flag per row: True for the rows analysed.
     segments : list of (int, int)
-        ``(start, stop)`` row ranges of the kept rows, each gap-free.
+        ``(start, stop)`` row ranges of the kept rows, each gap-free (a
+        segment ends where a kept row does not follow its predecessor on
+        the sample clock).
     gaps : list of dict
         Up to :data:`MAX_LISTED_GAPS` breaks of the recording: ``row`` (first
         row after the break), ``sample_index`` (its index) and
@@ -632,15 +634,17 @@ def select_gap_free(sample_index, period_samples: int | None = None, name: str =
         keep, warnings = _whole_periods(index, runs, int(period_samples), name)
     else:
         keep, warnings = _longest_run(len(index), runs, name)
-    segments = [(a, b) for a, b in _true_runs(keep)]
+    segments = _kept_segments(keep, step)
     return GapFreeSelection(keep, segments, gaps, len(breaks), missing, int(period_samples) if period_samples else None,
                             warnings)
 
 
-def _true_runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """``(start, stop)`` ranges where ``mask`` is True."""
-    edges = np.flatnonzero(np.diff(np.concatenate(([0], mask.astype(np.int8), [0]))))
-    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
+def _kept_segments(keep: np.ndarray, step: np.ndarray) -> list[tuple[int, int]]:
+    """``(start, stop)`` ranges of kept rows that follow each other on the sample clock."""
+    joined = np.concatenate(([False], (step == 1) & keep[:-1] & keep[1:]))  # row r continues row r - 1
+    starts = np.flatnonzero(keep & ~joined)
+    stops = np.flatnonzero(keep & ~np.concatenate((joined[1:], [False]))) + 1
+    return [(int(a), int(b)) for a, b in zip(starts, stops)]
 
 
 def _longest_run(n: int, runs, name: str) -> tuple[np.ndarray, list[str]]:
