@@ -27,6 +27,7 @@ import io
 import itertools
 import math
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -152,11 +153,21 @@ def _check_fits(path: Path, rows: int, columns: int, what: str) -> None:
 
 
 def _names(names) -> str:
+    """Names read from a file, for a one-line message: few, short, and control characters escaped."""
     names = sorted(str(n) for n in names)
     if not names:
         return "none"
     more = len(names) - _LISTED_NAMES
-    return ", ".join(names[:_LISTED_NAMES]) + (f" and {more} more" if more > 0 else "")
+    shown = [n if n.isprintable() and len(n) <= 40 else _short(n) for n in names[:_LISTED_NAMES]]
+    return ", ".join(shown) + (f" and {more} more" if more > 0 else "")
+
+
+def _why(exc: BaseException, limit: int = 200) -> str:
+    """A library's exception as part of one line: type, message, no line breaks, bounded length."""
+    text = " ".join(str(exc).split())
+    if len(text) > limit:
+        text = text[:limit] + "..."
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
 def _short(text: str, limit: int = 40) -> str:
@@ -257,16 +268,18 @@ def _open_text(path: Path) -> tuple[io.TextIOWrapper, str]:
     return io.TextIOWrapper(raw, encoding="latin-1", newline=None), "latin-1"
 
 
-def _split_header(line: str, delimiter: str | None, dialect) -> list[str]:
-    if delimiter is None:
-        cells = line.split()
-    else:
-        cells = next(csv.reader([line], dialect), [])
+def _cells(line: str, delimiter: str | None) -> list[str]:
+    """Cells of one line: split at ``delimiter`` with CSV quoting, or at any whitespace (None)."""
+    return line.split() if delimiter is None else next(csv.reader([line], delimiter=delimiter), [])
+
+
+def _split_header(line: str, delimiter: str | None) -> list[str]:
+    cells = _cells(line, delimiter)
     return [c.strip().lstrip("\ufeff").strip() for c in cells]
 
 
 def _read_header(path: Path) -> tuple[list[str], int, str, object, str | None, list[str]]:
-    """Column names, lines up to and including the header, encoding, dialect, delimiter and notes."""
+    """Column names, lines up to and including the header, encoding, delimiter and notes."""
     notes: list[str] = []
     text, encoding = _open_text(path)
     with text:
@@ -283,15 +296,15 @@ def _read_header(path: Path) -> tuple[list[str], int, str, object, str | None, l
                 header = header.encode("latin-1").decode("utf-8")
             except UnicodeDecodeError:
                 notes.append(f"{path.name}: the header is not UTF-8; read as Latin-1")
-        sample = header + "".join(itertools.islice(text, 20))
-    dialect, delimiter = _sniff(sample)
-    return _split_header(header, delimiter, dialect), line_no, encoding, dialect, delimiter, notes
+        sample = [header] + [line for line in itertools.islice(text, 20) if line.strip()]
+    delimiter = _sniff(sample)
+    return _split_header(header, delimiter), line_no, encoding, delimiter, notes
 
 
 def _read_csv(path: Path, names, check=lambda available: None) -> RawColumns:
     encoding = "text"
     try:
-        columns, header_lines, encoding, dialect, delimiter, notes = _read_header(path)
+        columns, header_lines, encoding, delimiter, notes = _read_header(path)
         check(columns)
         wanted = columns if names is None else [n for n in names if n in columns]
         for n in wanted:
@@ -304,26 +317,36 @@ def _read_csv(path: Path, names, check=lambda available: None) -> RawColumns:
         with text:
             for _ in range(header_lines):
                 text.readline()
-            data = _parse_body(path, text, header_lines, bound, usecols, wanted, delimiter, dialect)
+            data = _parse_body(path, text, header_lines, bound, usecols, wanted, delimiter)
     except UnicodeError as exc:
-        raise DataError(f"{path}: not valid {encoding.upper()} text ({exc}); save it as UTF-8 CSV") from None
+        raise DataError(f"{path}: not valid {encoding.upper()} text ({_why(exc)}); save it as UTF-8 CSV") from None
     except csv.Error as exc:
-        raise DataError(f"{path}: not a readable CSV file: {exc}") from None
+        raise DataError(f"{path}: not a readable CSV file: {_why(exc)}") from None
     return RawColumns(dict(zip(wanted, data)), columns, notes=notes)
 
 
-def _sniff(sample: str):
-    """CSV dialect of ``sample`` and the delimiter for the fast parser (None: any whitespace)."""
-    try:
-        dialect = csv.Sniffer().sniff(sample, delimiters=",;\t ")
-    except csv.Error:
-        dialect = csv.excel
-    delimiter = dialect.delimiter
-    return dialect, (None if delimiter == " " else delimiter)
+def _sniff(lines: list[str]) -> str | None:
+    """The delimiter of a CSV file from its header and first lines (None: any whitespace).
+
+    The first of ``,``, ``;`` and tab that splits the header into several
+    columns and every line into as many; failing that, the first that splits
+    the header; failing that, whitespace when it splits the header, else
+    ``,`` (one column). Plain counting: no regular expression a hostile
+    line could make slow.
+    """
+    candidates = (",", ";", "\t")
+    counts = {d: [len(_cells(line, d)) for line in lines] for d in candidates}
+    for d in candidates:
+        if counts[d][0] > 1 and all(c == counts[d][0] for c in counts[d]):
+            return d
+    for d in candidates:
+        if counts[d][0] > 1:
+            return d
+    return None if len(lines[0].split()) > 1 else ","
 
 
 def _parse_body(path: Path, text, header_lines: int, bound: int, usecols: list[int], names: list[str],
-                delimiter, dialect) -> list[np.ndarray]:
+                delimiter) -> list[np.ndarray]:
     """Data rows of the mapped columns, one preallocated float64 array per column.
 
     A chunk goes through :func:`numpy.loadtxt` (fast); a chunk it refuses
@@ -340,7 +363,7 @@ def _parse_body(path: Path, text, header_lines: int, bound: int, usecols: list[i
             break
         block = _fast_chunk(lines, usecols, delimiter) if usecols else None
         if block is None:
-            block = _slow_chunk(path, lines, line_no, usecols, names, delimiter, dialect)
+            block = _slow_chunk(path, lines, line_no, usecols, names, delimiter)
         if filled + len(block) > out.shape[1]:  # mixed line endings can beat the bound
             _check_fits(path, 2 * out.shape[1], len(usecols), "the CSV file")
             grown = np.empty((len(usecols), 2 * out.shape[1]))
@@ -356,17 +379,19 @@ def _parse_body(path: Path, text, header_lines: int, bound: int, usecols: list[i
 
 def _fast_chunk(lines: list[str], usecols: list[int], delimiter) -> np.ndarray | None:
     try:
-        block = np.loadtxt(lines, delimiter=delimiter, usecols=usecols, ndmin=2, dtype=np.float64, comments=None,
-                           quotechar='"')
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # a chunk of blank lines holds no data: not news
+            block = np.loadtxt(lines, delimiter=delimiter, usecols=usecols, ndmin=2, dtype=np.float64, comments=None,
+                               quotechar='"')
     except ValueError:
         return None
     return block.reshape(-1, len(usecols))
 
 
-def _slow_chunk(path: Path, lines: list[str], first_line: int, usecols: list[int], names: list[str], delimiter,
-                dialect) -> np.ndarray:
+def _slow_chunk(path: Path, lines: list[str], first_line: int, usecols: list[int], names: list[str],
+                delimiter) -> np.ndarray:
     rows = []
-    reader = (line.split() for line in lines) if delimiter is None else csv.reader(lines, dialect)
+    reader = (line.split() for line in lines) if delimiter is None else csv.reader(lines, delimiter=delimiter)
     for k, cells in enumerate(reader):
         if not any(c.strip() for c in cells):
             continue
@@ -419,11 +444,11 @@ def _read_mat(path: Path, names, check=lambda available: None) -> RawColumns:
     try:
         major, _ = matfile_version(path)
     except Exception as exc:  # a damaged header can fail in several ways
-        raise DataError(f"{path}: not a readable MATLAB file ({type(exc).__name__}: {exc})") from None
+        raise DataError(f"{path}: not a readable MATLAB file ({_why(exc)})") from None
     if major == 2:
         return _read_mat73(path, names, check)
     if major == 0:
-        listing, header = _mat4_listing(path), None
+        listing, header = _mat4_listing(path), b""
     else:
         listing, header = _mat5_listing(path)
     variables = {}
@@ -452,31 +477,53 @@ def _read_mat(path: Path, names, check=lambda available: None) -> RawColumns:
     return RawColumns(columns, list(variables))
 
 
-def _load_mat_variable(path: Path, var: _MatVariable, header: bytes | None, loadmat) -> np.ndarray:
-    """One variable, read alone (a v5 file: its bytes behind the file header, so nothing else is parsed)."""
+def _load_mat_variable(path: Path, var: _MatVariable, header: bytes, loadmat) -> np.ndarray:
+    """One variable, read alone: its bytes behind the file header (none in v4), so nothing else is parsed."""
     try:
-        if header is None:
-            raw = loadmat(path, squeeze_me=True, variable_names=[var.name])
-        else:
-            with path.open("rb") as fh:
-                fh.seek(var.start)
-                blob = io.BytesIO(header + fh.read(var.stop - var.start))
-            raw = loadmat(blob, squeeze_me=True)
+        with path.open("rb") as fh:
+            fh.seek(var.start)
+            blob = io.BytesIO(header + fh.read(var.stop - var.start))
+        raw = loadmat(blob, squeeze_me=True)
     except Exception as exc:  # truncated or corrupted data behind valid headers
-        raise DataError(f"{path}: variable {var.name!r} cannot be read ({type(exc).__name__}: {exc})") from None
+        raise DataError(f"{path}: variable {var.name!r} cannot be read ({_why(exc)})") from None
     if var.name not in raw:
         raise DataError(f"{path}: variable {var.name!r} cannot be read")
     return raw[var.name]
 
 
 def _mat4_listing(path: Path) -> list[_MatVariable]:
-    from scipy.io import whosmat
+    """Every variable of a MATLAB v4 file from its 20-byte headers, each size checked against the file."""
+    import struct
 
-    try:
-        listing = whosmat(path)
-    except Exception as exc:  # a damaged file can fail anywhere in the parser
-        raise DataError(f"{path}: not a readable MATLAB file ({type(exc).__name__}: {exc})") from None
-    return [_MatVariable(name, tuple(int(d) for d in shape), cls, False, 0, 0, 0) for name, shape, cls in listing]
+    size = path.stat().st_size
+    out = []
+    with path.open("rb") as fh:
+        pos = 0
+        while pos < size:
+            fh.seek(pos)
+            head = fh.read(20)
+            if len(head) < 20:
+                raise DataError(f"{path}: truncated MATLAB v4 file: a variable header at byte {pos} is cut short")
+            for order in "<>":
+                mopt, rows, cols, imag, namelen = struct.unpack(order + "5i", head)
+                if 0 <= mopt < 2000:  # M (thousands digit) 0: little-endian, 1: big-endian IEEE
+                    break
+            else:
+                raise DataError(f"{path}: not a readable MATLAB file (damaged v4 header at byte {pos})")
+            precision, kind = (mopt // 10) % 10, mopt % 10
+            item = {0: 8, 1: 4, 2: 4, 3: 2, 4: 2, 5: 1}.get(precision)
+            if item is None or (mopt // 100) % 10 or kind > 2 or rows < 0 or cols < 0 or not 0 < namelen <= 4096:
+                raise DataError(f"{path}: not a readable MATLAB file (damaged v4 header at byte {pos})")
+            data = rows * cols * item
+            stop = pos + 20 + namelen + data * (2 if imag else 1)
+            if stop > size:
+                raise DataError(f"{path}: truncated MATLAB v4 file: the variable at byte {pos} declares "
+                                f"{stop - pos} bytes, the file ends {size - pos} bytes later")
+            name = fh.read(namelen).split(b"\0")[0].decode("latin-1")
+            cls = ("double" if item == 8 else "single") if kind == 0 else ("char" if kind == 1 else "sparse")
+            out.append(_MatVariable(name, (rows, cols), cls, bool(imag), data, pos, stop))
+            pos = stop
+    return out
 
 
 def _mat5_listing(path: Path) -> tuple[list[_MatVariable], bytes]:
@@ -511,7 +558,7 @@ def _mat5_listing(path: Path) -> tuple[list[_MatVariable], bytes]:
                 try:
                     head = zlib.decompressobj().decompress(fh.read(min(nbytes, 1 << 16)), _MAT_HEADER_BYTES)
                 except zlib.error as exc:
-                    raise DataError(f"{path}: damaged compressed variable at byte {pos} ({exc})") from None
+                    raise DataError(f"{path}: damaged compressed variable at byte {pos} ({_why(exc)})") from None
             elif mdtype == _MI_MATRIX:
                 head = struct.pack(order + "II", mdtype, nbytes) + fh.read(min(nbytes, _MAT_HEADER_BYTES))
             else:
@@ -585,7 +632,7 @@ def _open_h5(path: Path):
         try:
             return h5py.File(path, "r")
         except OSError as exc:
-            raise DataError(f"{path}: not a readable HDF5 file ({exc})") from None
+            raise DataError(f"{path}: not a readable HDF5 file ({_why(exc)})") from None
 
 
 def _check_stored(path: Path, ds, rows: int, what: str) -> None:
@@ -628,7 +675,7 @@ def _read_mat73(path: Path, names, check=lambda available: None) -> RawColumns:
         except DataError:
             raise
         except Exception as exc:  # HDF5 reports damaged structures as many types
-            raise DataError(f"{path}: damaged MATLAB v7.3 file ({type(exc).__name__}: {exc})") from None
+            raise DataError(f"{path}: damaged MATLAB v7.3 file ({_why(exc)})") from None
     return RawColumns(columns, available)
 
 
@@ -656,7 +703,7 @@ def _read_hilident(path: Path, names, check=lambda available: None) -> RawColumn
         except (DataError, ConfigError):
             raise
         except Exception as exc:  # HDF5 reports damaged structures as many types
-            raise DataError(f"{path}: damaged hilident run file ({type(exc).__name__}: {exc})") from None
+            raise DataError(f"{path}: damaged hilident run file ({_why(exc)})") from None
 
 
 def _read_hilident_open(path: Path, f, names, fmt: str, version: int, check) -> RawColumns:
@@ -724,7 +771,7 @@ def _recorded_period(attrs, rate: float) -> tuple[int | None, str]:
         cfg = parse_config(_attr_text(attrs.get("config_toml", "")), "config_toml attribute")
         return excitation_period_samples(cfg.excitation, rate), ""
     except HilidentError as exc:
-        return None, f"the stored configuration cannot be read ({exc}); the excitation period is unknown"
+        return None, f"the stored configuration cannot be read ({_why(exc)}); the excitation period is unknown"
 
 
 # ---------------------------------------------------------------------- mapping
