@@ -1,10 +1,12 @@
 """Peak memory of ``hilident identify`` on a large CSV recording, against the size of its data.
 
 Writes a CSV of ``--rows`` rows (time, torque, velocity, position; a 1 kHz
-record of a resonant axis under a multisine) into a temporary folder, runs
-``hilident identify`` on it in a child process and prints the child's peak
-resident memory (``getrusage(RUSAGE_CHILDREN).ru_maxrss``), the bytes per row
-and the time taken. The target is below 1.5 GB for 2·10⁷ rows.
+record of a resonant axis under a multisine) into a temporary folder, then
+measures two child processes: one that only reads the recording
+(:func:`hilident.datafile.load_dataset`) and ``hilident identify`` on it.
+For each it prints the peak resident memory (``ru_maxrss`` of that child),
+the bytes per row and the time taken. The target is below 1.5 GB for 2·10⁷
+rows.
 
 Run by hand (it is not part of the test suite)::
 
@@ -15,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
 import subprocess
 import sys
 import tempfile
@@ -62,6 +63,17 @@ def write_csv(path: Path, rows: int) -> None:
             np.savetxt(fh, np.column_stack([i / RATE, tau, v, x]), delimiter=",", fmt="%.6f,%.6g,%.6g,%.6g")
 
 
+def measure(argv: list[str]) -> tuple[int, int, float, str]:
+    """Exit code, peak resident bytes, seconds and output of one child process."""
+    env = dict(os.environ, MPLBACKEND="Agg")
+    t0 = time.monotonic()
+    with subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) as child:
+        output = child.stdout.read()
+        _, status, usage = os.wait4(child.pid, 0)
+        child.returncode = os.waitstatus_to_exitcode(status)
+    return child.returncode, usage.ru_maxrss * 1024, time.monotonic() - t0, output  # Linux reports KiB
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--rows", type=int, default=20_000_000)
@@ -74,17 +86,20 @@ def main() -> None:
     print(f"wrote {args.rows} rows, {data.stat().st_size / 1e6:.0f} MB in {time.monotonic() - t0:.0f} s")
     config = folder / "identify.toml"
     config.write_text('[data]\ntime = "t"\ntorque = "tau"\nvelocity = "v"\nposition = "x"\n'
-                      "[identification]\nmax_resonances = 1\nsegment_s = 8.0\n")
-    env = dict(os.environ, MPLBACKEND="Agg")
-    t0 = time.monotonic()
-    done = subprocess.run([sys.executable, "-m", "hilident.cli", "identify", str(data), "--config", str(config),
-                           "--out", str(folder / "out"), "-q"], env=env, capture_output=True, text=True)
-    elapsed = time.monotonic() - t0
-    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024  # Linux reports KiB
-    print(done.stdout.strip() or done.stderr.strip())
+                      "[identification]\nmax_resonances = 1\nsegment_s = 4.0\n")
+    load = ("import sys; from hilident.config import load_config; from hilident.datafile import load_dataset; "
+            "c = load_config(sys.argv[1]); d = load_dataset(sys.argv[2], c.data); print(len(d), 'rows used')")
+    children = {
+        "read only": [sys.executable, "-c", load, str(config), str(data)],
+        "hilident identify": [sys.executable, "-m", "hilident.cli", "identify", str(data), "--config", str(config),
+                              "--out", str(folder / "out"), "-q"],
+    }
     samples = 4 * args.rows * 8
-    print(f"exit {done.returncode}; {elapsed:.0f} s; peak RSS {peak / 1e9:.2f} GB for {samples / 1e9:.2f} GB of "
-          f"float64 samples ({peak / args.rows:.0f} bytes a row)")
+    print(f"{samples / 1e9:.2f} GB of float64 samples")
+    for name, argv in children.items():
+        code, peak, elapsed, output = measure(argv)
+        print(f"{name}: exit {code}; {elapsed:.0f} s; peak RSS {peak / 1e9:.2f} GB ({peak / args.rows:.0f} bytes a row)")
+        print("  " + "\n  ".join(output.strip().splitlines()[-3:]))
     if not args.keep:
         for f in sorted(folder.rglob("*"), reverse=True):
             f.unlink() if f.is_file() else f.rmdir()

@@ -48,6 +48,9 @@ CSV_CHUNK_LINES = 1 << 16
 #: Largest ratio of declared to stored bytes accepted from a compressed HDF5 dataset.
 MAX_COMPRESSION_RATIO = 1000
 
+#: Longest header line accepted, characters.
+_MAX_HEADER_CHARS = 1 << 20
+
 #: Column names quoted in an error message before the list is cut short.
 _LISTED_NAMES = 20
 
@@ -278,14 +281,17 @@ def _split_header(line: str, delimiter: str | None) -> list[str]:
     return [c.strip().lstrip("\ufeff").strip() for c in cells]
 
 
-def _read_header(path: Path) -> tuple[list[str], int, str, object, str | None, list[str]]:
+def _read_header(path: Path) -> tuple[list[str], int, str, str | None, list[str]]:
     """Column names, lines up to and including the header, encoding, delimiter and notes."""
     notes: list[str] = []
     text, encoding = _open_text(path)
     with text:
         line_no, header = 0, ""
-        for line in text:
+        while line := text.readline(_MAX_HEADER_CHARS + 1):
             line_no += 1
+            if len(line) > _MAX_HEADER_CHARS:
+                raise DataError(f"{path}: line {line_no} is longer than {_MAX_HEADER_CHARS} characters: "
+                                "not a CSV header")
             if line.strip():
                 header = line
                 break
