@@ -229,3 +229,18 @@ def test_select_gap_free_segments_break_where_the_clock_jumps():
     sel = pipeline.select_gap_free(index, 10)
     assert sel.segments == [(10, 30), (30, 50)]
     assert sel.warnings == ["recording: 1 of 5 excitation periods had lost samples and were left out"]
+
+
+@pytest.mark.parametrize("excitation", [
+    'kind = "multisine"\nperiod_s = 0.5\nduration_s = 2.0\nf_min_hz = 4.0\nf_max_hz = 80.0',
+    'kind = "multisine"\nperiod_s = 0.2503\nduration_s = 1.0\nf_min_hz = 8.0\nf_max_hz = 80.0',
+    'kind = "prbs"\nregister_length = 6\nclock_divider = 3\nduration_s = 0.6',
+    'kind = "prbs"\nregister_length = 8\nclock_divider = 1\nduration_s = 0.6',
+    'kind = "chirp"\nduration_s = 1.0',
+    'kind = "noise"\nduration_s = 1.0',
+])
+def test_the_period_identify_assumes_is_the_one_a_bench_run_plays(excitation):
+    from hilident.session import build_excitation
+
+    cfg = parse_config(f"[run]\nsample_rate_hz = {RATE}\n[excitation]\n{excitation}\n")
+    assert pipeline.excitation_period_samples(cfg.excitation, RATE) == build_excitation(cfg).period_samples
