@@ -98,7 +98,8 @@ def main() -> None:
     print(f"{samples / 1e9:.2f} GB of float64 samples")
     for name, argv in children.items():
         code, peak, elapsed, output = measure(argv)
-        print(f"{name}: exit {code}; {elapsed:.0f} s; peak RSS {peak / 1e9:.2f} GB ({peak / args.rows:.0f} bytes a row)")
+        print(f"{name}: exit {code}; {elapsed:.0f} s; peak RSS {peak / 1e9:.2f} GB "
+              f"({peak / args.rows:.0f} bytes a row)")
         print("  " + "\n  ".join(output.strip().splitlines()[-3:]))
     if not args.keep:
         for f in sorted(folder.rglob("*"), reverse=True):

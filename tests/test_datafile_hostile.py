@@ -312,7 +312,8 @@ def good_files(tmp_path_factory):
 
 
 @FAST
-@given(name=st.sampled_from(["v4.mat", "v5.mat", "v5z.mat", "v73.mat", "run.h5"]), cut=st.one_of(st.just(1.0), st.floats(0, 1)),
+@given(name=st.sampled_from(["v4.mat", "v5.mat", "v5z.mat", "v73.mat", "run.h5"]),
+       cut=st.one_of(st.just(1.0), st.floats(0, 1)),
        flips=st.lists(st.tuples(st.floats(0, 1), st.integers(1, 255)), max_size=4))
 def test_truncated_or_corrupted_mat_and_h5_are_read_or_refused(tmp_path, good_files, name, cut, flips):
     raw = bytearray(good_files[name])

@@ -1,7 +1,10 @@
 """``hilident identify``: the identification pipeline on a recording made earlier or elsewhere.
 
 No device is touched. The recording is read and checked
-(:mod:`hilident.datafile`), then the same steps as a bench run follow:
+(:mod:`hilident.datafile`: gaps are found, never spliced over; only whole
+gap-free excitation periods or the longest gap-free stretch are analysed,
+and ``summary.json["data"]`` says which), then the same steps as a bench run
+follow:
 frequency response with coherence, resonances, notch design for a filter rate
 given in the configuration, and, when ``[model].kind`` asks for it, a grey-box
 fit with parameter standard deviations and fit %. ``summary.json`` has the same
@@ -102,8 +105,9 @@ def identify_recording(cfg: Config, data_path: str | Path, out_dir: str | Path, 
         "notch_filters": pipeline.notch_records(designs),
         "upload": {"written": False, "verified_readback": False, "slots": []},
         "verification": {"peak_reduction_db": None, "resonances": []},
-        "stream": {"samples": len(ds), "lost_frames": 0, "lost_blocks": 0, "lost_samples": ds.info.get("missing_samples", 0), "corrupt_frames": 0,
-                   "out_of_order": 0, "underruns": 0, "board_dropped_blocks": 0},
+        "stream": {"samples": len(ds), "lost_frames": 0, "lost_blocks": 0,
+                   "lost_samples": ds.info.get("missing_samples", 0), "corrupt_frames": 0, "out_of_order": 0,
+                   "underruns": 0, "board_dropped_blocks": 0},
         "elapsed_s": time.monotonic() - started,
         "warnings": warnings,
     }

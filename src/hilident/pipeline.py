@@ -674,7 +674,8 @@ def _whole_periods(index: np.ndarray, runs, period: int, name: str) -> tuple[np.
     total = max(int(index.max()) // period, 0)
     warnings = []
     if n_complete < total:
-        warnings.append(f"{name}: {total - n_complete} of {total} excitation periods had lost samples and were left out")
+        warnings.append(
+            f"{name}: {total - n_complete} of {total} excitation periods had lost samples and were left out")
     if n_complete < 2:
         raise DataError(f"{name}: only {n_complete} complete excitation period(s) recorded; at least 2 are needed "
                         "(check the line: lost or corrupt frames)")
