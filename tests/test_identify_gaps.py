@@ -244,3 +244,28 @@ def test_the_period_identify_assumes_is_the_one_a_bench_run_plays(excitation):
 
     cfg = parse_config(f"[run]\nsample_rate_hz = {RATE}\n[excitation]\n{excitation}\n")
     assert pipeline.excitation_period_samples(cfg.excitation, RATE) == build_excitation(cfg).period_samples
+
+
+def test_time_stamps_are_checked_chunk_by_chunk_with_the_right_rows(tmp_path, monkeypatch):
+    from hilident import datafile
+
+    monkeypatch.setattr(datafile, "_TIME_CHUNK", 7)  # many chunks, gaps and faults on their borders
+    n = 200
+    sample = np.delete(np.arange(n + 5), [7, 8, 13, 150])  # gaps before rows 7 and 11, and one at row 146
+    t = sample / RATE
+    raw = datafile.RawColumns({"t": t}, ["t"])
+    index, rate = datafile._time_index(tmp_path / "x.csv", "t", raw, len(t))
+    assert np.array_equal(index, sample) and rate == pytest.approx(RATE)
+    index, _ = datafile._time_index(tmp_path / "x.csv", "t", datafile.RawColumns({"t": T_UNIFORM}, ["t"]), 50)
+    assert index is None  # no gap: no index built
+    bad = t.copy()
+    bad[141:] += 0.0003
+    with pytest.raises(DataError, match="at row 141"):
+        datafile._time_index(tmp_path / "x.csv", "t", datafile.RawColumns({"t": bad}, ["t"]), len(t))
+    bad = t.copy()
+    bad[70] = bad[69]
+    with pytest.raises(DataError, match="does not increase at row 70"):
+        datafile._time_index(tmp_path / "x.csv", "t", datafile.RawColumns({"t": bad}, ["t"]), len(t))
+
+
+T_UNIFORM = np.arange(50) / RATE

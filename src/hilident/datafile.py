@@ -48,6 +48,9 @@ CSV_CHUNK_LINES = 1 << 16
 #: Largest ratio of declared to stored bytes accepted from a compressed HDF5 dataset.
 MAX_COMPRESSION_RATIO = 1000
 
+#: Time stamps checked per chunk.
+_TIME_CHUNK = 1 << 20
+
 #: Longest header line accepted, characters.
 _MAX_HEADER_CHARS = 1 << 20
 
@@ -920,35 +923,49 @@ def _row_index(path: Path, cfg: DataConfig, raw: RawColumns, n: int) -> tuple[np
     return index, time_rate
 
 
-def _time_index(path: Path, name: str, raw: RawColumns, n: int) -> tuple[np.ndarray, float]:
+def _time_index(path: Path, name: str, raw: RawColumns, n: int) -> tuple[np.ndarray | None, float]:
     """Sample numbers from a time column whose steps are whole multiples of one sample period.
 
     A step of two periods or more is a gap; a step that is no whole
-    multiple (within 0.1 % of a period) is an irregular time stamp.
+    multiple (within 0.1 % of a period) is an irregular time stamp. The
+    column is checked a chunk at a time (bounded temporaries); without a
+    gap no index is built at all (None: every row follows the one before).
+    The period is the median step of the first chunk.
     """
     if name not in raw.columns:
         raise DataError(f"{path}: no time column {name!r} (data.time); the file has: {_names(raw.available)}")
     t = np.asarray(raw.columns[name], dtype=float)
-    if len(t) != n or not np.all(np.isfinite(t)):
+    if len(t) != n or not np.isfinite(t).all():
         raise DataError(f"{path}: time column {name!r} is not finite or not as long as the data")
-    dt = np.diff(t)
-    back = np.flatnonzero(dt <= 0)
-    if len(back):
-        i = int(back[0])
-        raise DataError(f"{path}: time column {name!r} does not increase at row {i + 1} "
-                        f"(step {dt[i]:.6g} s); sort the data first")
-    step = float(np.median(dt))
-    steps = dt / step
-    whole = np.round(steps)
-    off = np.flatnonzero(np.abs(steps - whole) > 1e-3)
-    if len(off):
-        i = int(off[0])
-        raise DataError(
-            f"{path}: time stamps are not uniform (step {dt[i]:.6g} s at row {i + 1}, median {step:.6g} s, "
-            "not a whole number of sample periods); resample the data first"
-        )
-    index = np.concatenate(([0], np.cumsum(whole.astype(np.int64))))
-    return index, float(index[-1] / (t[-1] - t[0]))
+    step = float(np.median(np.diff(t[:_TIME_CHUNK + 1])))
+    rows, lengths = [], []
+    for a in range(0, n - 1, _TIME_CHUNK):
+        dt = np.diff(t[a:a + _TIME_CHUNK + 1])
+        back = np.flatnonzero(dt <= 0)
+        if len(back):
+            i = a + int(back[0])
+            raise DataError(f"{path}: time column {name!r} does not increase at row {i + 1} "
+                            f"(step {dt[i - a]:.6g} s); sort the data first")
+        steps = dt / step
+        whole = np.rint(steps)
+        off = np.flatnonzero(np.abs(steps - whole) > 1e-3)
+        if len(off):
+            i = a + int(off[0])
+            raise DataError(
+                f"{path}: time stamps are not uniform (step {dt[i - a]:.6g} s at row {i + 1}, median {step:.6g} s, "
+                "not a whole number of sample periods); resample the data first"
+            )
+        jumps = np.flatnonzero(whole != 1)
+        rows.append(a + 1 + jumps)
+        lengths.append(whole[jumps].astype(np.int64) - 1)
+    rows_after = np.concatenate(rows) if rows else np.zeros(0, np.int64)
+    missing = np.concatenate(lengths) if lengths else np.zeros(0, np.int64)
+    rate = float((n - 1 + int(missing.sum())) / (t[-1] - t[0]))
+    if not len(rows_after):
+        return None, rate
+    skip = np.zeros(n, dtype=np.int64)
+    skip[rows_after] = missing
+    return np.arange(n, dtype=np.int64) + np.cumsum(skip), rate
 
 
 def _sample_rate(path, cfg: DataConfig, from_time, file_rate, source) -> float:
