@@ -270,6 +270,7 @@ def identify_plant(
     if friction is not None:
         u = fr.compensate(u, s["velocity"], friction, velocity_deadband_mps)
     r, u, y = (_condition(x, cfg, sample_rate_hz) for x in (s["excitation"], u, s["output"]))
+    del s  # the checked copies are done with: a long record should not be held twice during the FRF
     seg = _segment(len(r), cfg, sample_rate_hz, period_samples, warnings)
     if seg is None:
         plant = periodic_frf(u, y, period_samples, sample_rate_hz, skip_periods=0, bins=excited_bins)
