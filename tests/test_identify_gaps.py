@@ -269,3 +269,17 @@ def test_time_stamps_are_checked_chunk_by_chunk_with_the_right_rows(tmp_path, mo
 
 
 T_UNIFORM = np.arange(50) / RATE
+
+
+def test_a_grey_box_fit_never_runs_across_a_lost_block(tmp_path, bench_run):
+    table, _ = bench_run
+    write_run(tmp_path / "identification.h5", np.delete(table, np.r_[2 * PERIOD + 10:2 * PERIOD + 20], axis=0))
+    summary = identify(tmp_path, tmp_path / "identification.h5",
+                       'torque = "torque_nm"\nvelocity = "velocity_mps"\nposition = "position_m"\n'
+                       '[model]\nkind = "rigid_axis"\nc = 10.0\ncutoff_hz = 8.0\n')
+    assert summary["data"]["segments"] == 2 and summary["data"]["used_rows"] == 3 * PERIOD
+    model = summary["model"]
+    # periods 3 and 4 are the longest stretch (the fit trims its filters' start-up from both parts)
+    fitted = model["estimation"]["samples"] + model["validation"]["holdout"]["samples"]
+    assert 0.7 * 2 * PERIOD < fitted <= 2 * PERIOD
+    assert any("longest gap-free stretch (8000 samples)" in w for w in summary["warnings"])

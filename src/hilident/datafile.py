@@ -86,6 +86,10 @@ class Dataset:
         ``reason``, ``flushed_samples``.
     period_samples : int or None
         Period of the excitation when the analysed rows are whole periods.
+    segments : list of (int, int)
+        ``(start, stop)`` ranges of the signals recorded without a break
+        (whole periods of one stretch join seamlessly; across two stretches
+        the signals jump).
     """
 
     signals: dict[str, np.ndarray]
@@ -94,6 +98,15 @@ class Dataset:
     notes: list[str] = field(default_factory=list)
     info: dict = field(default_factory=dict)
     period_samples: int | None = None
+    segments: list[tuple[int, int]] = field(default_factory=list)
+
+    def longest_segment(self) -> "Dataset":
+        """The longest stretch recorded without a break (this dataset when it has one segment)."""
+        if len(self.segments) <= 1:
+            return self
+        a, b = max(self.segments, key=lambda r: r[1] - r[0])
+        return Dataset({k: v[a:b] for k, v in self.signals.items()}, self.sample_rate_hz, self.source,
+                       list(self.notes), dict(self.info), None, [(0, b - a)])
 
     def __len__(self) -> int:
         return len(next(iter(self.signals.values())))
@@ -833,7 +846,7 @@ def load_dataset(path: str | Path, cfg: DataConfig, config_source: str = "") -> 
     if "output" not in used:
         used["output"] = used["velocity"]
     info.update(status=raw.status, reason=raw.reason, flushed_samples=raw.flushed_samples)
-    return Dataset(used, rate, str(path), notes, info, info["period_samples"])
+    return Dataset(used, rate, str(path), notes, info, info["period_samples"], segments)
 
 
 def _gap_free(path: Path, signals: dict[str, np.ndarray], index: np.ndarray | None, period: int | None):

@@ -44,8 +44,11 @@ def fit_model(cfg: Config, ds: Dataset, validation: Dataset | None = None):
     for d, key in ((ds, "data.position"), (validation, "data.position")):
         if d is not None and "position" not in d.signals:
             raise ConfigError(key, f"a {cfg.model.kind} fit needs the position column ({d.source})", cfg.source)
+    # a time-domain fit runs its filters along the record: it must not cross a lost block
+    ds = ds.longest_segment()
     records = None
     if validation is not None:
+        validation = validation.longest_segment()
         records = {Path(validation.source).name: (validation.signals["torque"], validation.signals["position"])}
     return pipeline.fit_greybox(cfg.model, ds.signals["torque"], ds.signals["position"], ds.sample_rate_hz, records)
 
@@ -66,7 +69,7 @@ def identify_recording(cfg: Config, data_path: str | Path, out_dir: str | Path, 
     if validation is not None and abs(validation.sample_rate_hz - ds.sample_rate_hz) > 1e-6 * ds.sample_rate_hz:
         raise ConfigError("data.sample_rate_hz", f"the validation record runs at {validation.sample_rate_hz:g} Hz, "
                           f"the data at {ds.sample_rate_hz:g} Hz", cfg.source)
-    warnings = list(ds.notes)
+    warnings = list(ds.notes) + ([f"validation: {n}" for n in validation.notes] if validation is not None else [])
     s = ds.signals
     if cfg.data.closed_loop and "excitation" not in s:
         warnings.append(
@@ -87,6 +90,10 @@ def identify_recording(cfg: Config, data_path: str | Path, out_dir: str | Path, 
     designs = pipeline.design_notches(plant.resonances, cfg.notch, cfg.model.filter_rate_hz, slots) if cfg.notch.enabled else []
     model = fit_model(cfg, ds, validation)
     if model is not None:
+        if len(ds.segments) > 1:
+            longest = max(b - a for a, b in ds.segments)
+            warnings.append(f"{cfg.model.kind} fitted to the longest gap-free stretch ({longest} samples): "
+                            "a time-domain fit must not run across a lost block")
         warnings += list(model.warnings)
         if cfg.data.closed_loop:
             warnings.append(
