@@ -340,3 +340,18 @@ def test_h5_with_absurd_declared_shapes_is_refused_without_reading(tmp_path, row
                          dtype="<f8")
     result = outcome(path, DataConfig(torque="torque_nm", sample_rate_hz=RATE, velocity="torque_nm"), 5_000_000)
     assert isinstance(result, DataError)
+
+
+def test_csv_larger_than_the_bound_is_refused_before_parsing(tmp_path, monkeypatch):
+    rows = 400_000  # 9.6 MB as three float64 columns
+    t = np.arange(rows) / RATE
+    np.savetxt(tmp_path / "d.csv", np.column_stack([t, np.sin(t), np.cos(t)]), delimiter=",", header="t,tau,v",
+               comments="", fmt="%.4f")
+    monkeypatch.setattr(datafile, "MAX_DATA_BYTES", 1_000_000)
+    tracemalloc.start()
+    try:
+        with pytest.raises(DataError, match=r"has up to 400002 rows of 3 column\(s\)"):
+            load_dataset(tmp_path / "d.csv", MAPPING)
+        assert tracemalloc.get_traced_memory()[1] < 3_000_000  # read buffers only: no column allocated
+    finally:
+        tracemalloc.stop()

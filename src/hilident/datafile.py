@@ -162,12 +162,12 @@ def _gib(n: float) -> str:
     return f"{n / 1024**3:.3g} GiB"
 
 
-def _check_fits(path: Path, rows: int, columns: int, what: str) -> None:
+def _check_fits(path: Path, rows: int, columns: int, what: str, verb: str = "declares") -> None:
     """Refuse before allocating ``rows`` x ``columns`` float64 samples beyond the memory bound."""
     need = int(rows) * int(columns) * 8
     limit = memory_limit_bytes()
     if need > limit:
-        raise DataError(f"{path}: {what} declares {rows} rows of {columns} column(s) ({_gib(need)} as float64), "
+        raise DataError(f"{path}: {what} {verb} {rows} rows of {columns} column(s) ({_gib(need)} as float64), "
                         f"more than the {_gib(limit)} hilident reads into memory")
 
 
@@ -260,7 +260,7 @@ def _line_bound(path: Path) -> int:
     """An upper bound of the lines of a text file (one pass over its bytes, no decoding)."""
     lf = cr = 0
     with path.open("rb") as fb:
-        while block := fb.read(1 << 24):
+        while block := fb.read(1 << 20):
             lf += block.count(b"\n")
             cr += block.count(b"\r")
     return max(lf, cr) + 1
@@ -334,7 +334,7 @@ def _read_csv(path: Path, names, check=lambda available: None) -> RawColumns:
                 raise DataError(f"{path}: column {n!r} appears {columns.count(n)} times in the header")
         usecols = [columns.index(n) for n in wanted]
         bound = _line_bound(path)
-        _check_fits(path, bound, len(usecols), "the CSV file")
+        _check_fits(path, bound, len(usecols), "the CSV file", "has up to")
         text, encoding = _open_text(path)
         with text:
             for _ in range(header_lines):
@@ -387,7 +387,7 @@ def _parse_body(path: Path, text, header_lines: int, bound: int, usecols: list[i
         if block is None:
             block = _slow_chunk(path, lines, line_no, usecols, names, delimiter)
         if filled + len(block) > out.shape[1]:  # mixed line endings can beat the bound
-            _check_fits(path, 2 * out.shape[1], len(usecols), "the CSV file")
+            _check_fits(path, 2 * out.shape[1], len(usecols), "the CSV file", "has more than")
             grown = np.empty((len(usecols), 2 * out.shape[1]))
             grown[:, :filled] = out[:, :filled]
             out = grown
