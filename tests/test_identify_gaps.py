@@ -283,3 +283,23 @@ def test_a_grey_box_fit_never_runs_across_a_lost_block(tmp_path, bench_run):
     fitted = model["estimation"]["samples"] + model["validation"]["holdout"]["samples"]
     assert 0.7 * 2 * PERIOD < fitted <= 2 * PERIOD
     assert any("longest gap-free stretch (8000 samples)" in w for w in summary["warnings"])
+
+
+def test_the_period_comes_from_an_attribute_or_the_stored_configuration(tmp_path, bench_run):
+    from hilident.config import DataConfig
+    from hilident.datafile import load_dataset
+
+    table, _ = bench_run
+    cut = np.delete(table, np.r_[2 * PERIOD + 10:2 * PERIOD + 20], axis=0)
+    mapping = DataConfig(torque="torque_nm", velocity="velocity_mps")
+    path = tmp_path / "identification.h5"
+    write_run(path, cut)
+    assert load_dataset(path, mapping).period_samples == PERIOD
+    with h5py.File(path, "a") as f:
+        f.attrs["config_toml"] = ""
+    ds = load_dataset(path, mapping)  # no way to tell the period: the longest stretch, and a note why
+    assert ds.period_samples is None and len(ds) == len(table) - 2 * PERIOD - 20
+    assert any("excitation period is unknown" in n for n in ds.notes)
+    with h5py.File(path, "a") as f:
+        f.attrs["period_samples"] = np.int64(PERIOD)
+    assert load_dataset(path, mapping).period_samples == PERIOD

@@ -782,16 +782,26 @@ def _read_rows(ds, rows: int, cols: list[int], block: int = 1 << 16) -> list[np.
 
 
 def _recorded_period(attrs, rate: float) -> tuple[int | None, str]:
-    """Excitation period of a hilident recording, from the configuration it stores."""
+    """Excitation period of a hilident recording, and a note when it cannot be told.
+
+    A ``period_samples`` root attribute wins; else the period follows from
+    the configuration the run stored (``config_toml``) for the
+    identification and verification runs, which play the excitation.
+    """
+    if "period_samples" in attrs:
+        period = int(attrs["period_samples"])
+        return (period, "") if period > 0 else (None, "")
     experiment = _attr_text(attrs.get("experiment", ""))
     if experiment not in ("identification", "verification"):
         return None, ""
+    text = _attr_text(attrs.get("config_toml", ""))
+    if not text.strip():
+        return None, "no stored configuration: the excitation period is unknown"
     from hilident.config import parse_config
     from hilident.pipeline import excitation_period_samples
 
     try:
-        cfg = parse_config(_attr_text(attrs.get("config_toml", "")), "config_toml attribute")
-        return excitation_period_samples(cfg.excitation, rate), ""
+        return excitation_period_samples(parse_config(text, "config_toml attribute").excitation, rate), ""
     except HilidentError as exc:
         return None, f"the stored configuration cannot be read ({_why(exc)}); the excitation period is unknown"
 
