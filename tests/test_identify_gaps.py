@@ -7,6 +7,8 @@ import json
 import h5py
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from hilident import pipeline
 from hilident.cli import main
@@ -303,3 +305,31 @@ def test_the_period_comes_from_an_attribute_or_the_stored_configuration(tmp_path
     with h5py.File(path, "a") as f:
         f.attrs["period_samples"] = np.int64(PERIOD)
     assert load_dataset(path, mapping).period_samples == PERIOD
+
+
+@settings(max_examples=200, deadline=None)
+@given(period=st.integers(2, 12), n=st.integers(0, 150),
+       edits=st.lists(st.tuples(st.sampled_from(["drop", "repeat", "swap"]), st.integers(0, 149), st.integers(1, 9)),
+                      max_size=5))
+def test_select_gap_free_keeps_only_whole_gap_free_periods_once(period, n, edits):
+    index = list(range(n))
+    for kind, at, length in edits:
+        at = min(at, len(index))
+        if kind == "drop":
+            del index[at:at + length]
+        elif kind == "repeat":
+            index[at:at] = index[at:at + length]
+        elif index[at:at + 2]:
+            index[at:at + 2] = index[at:at + 2][::-1]
+    index = np.array(index, dtype=np.int64)
+    try:
+        sel = pipeline.select_gap_free(index, period)
+    except DataError:
+        return
+    kept = index[sel.keep]
+    assert len(kept) == len(set(kept.tolist())) and len(kept) % period == 0 and len(kept) >= 2 * period
+    assert kept.min() >= period  # never the lead-in
+    for a, b in sel.segments:
+        assert np.all(np.diff(index[a:b]) == 1) and index[a] % period == 0 and (b - a) % period == 0
+    longest = pipeline.select_gap_free(index) if len(index) else None
+    assert longest is None or np.all(np.diff(index[longest.keep]) == 1)
