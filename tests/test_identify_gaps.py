@@ -333,3 +333,47 @@ def test_select_gap_free_keeps_only_whole_gap_free_periods_once(period, n, edits
         assert np.all(np.diff(index[a:b]) == 1) and index[a] % period == 0 and (b - a) % period == 0
     longest = pipeline.select_gap_free(index) if len(index) else None
     assert longest is None or np.all(np.diff(index[longest.keep]) == 1)
+
+
+def test_a_stored_configuration_that_does_not_match_the_played_excitation_is_not_trusted(tmp_path, bench_run):
+    from hilident.config import DataConfig
+    from hilident.datafile import load_dataset
+
+    table, _ = bench_run
+    path = tmp_path / "identification.h5"
+    with RunWriter(path, CHANNELS, UNITS, RATE, {"experiment": "identification",
+                                                 "config_toml": RUN_CONFIG.replace("period_s = 4.0", "period_s = 3.0")}) as w:
+        w.append(np.delete(table, np.r_[2 * PERIOD + 10:2 * PERIOD + 20], axis=0))
+    ds = load_dataset(path, DataConfig(torque="torque_nm", velocity="velocity_mps"))
+    assert ds.period_samples is None and len(ds) == 3 * PERIOD - 20  # the longest stretch, not 3 s "periods"
+    assert any("does not repeat every 3000 samples" in n for n in ds.notes)
+
+
+def test_too_few_whole_periods_fall_back_to_the_longest_stretch(tmp_path, bench_run):
+    from hilident.config import DataConfig
+    from hilident.datafile import load_dataset
+
+    table, _ = bench_run
+    # a lost block in each of periods 1, 2 and 3: only period 4 is whole
+    lost = np.concatenate([np.arange(p * PERIOD + 500, p * PERIOD + 510) for p in (1, 2, 3)])
+    write_run(tmp_path / "identification.h5", np.delete(table, lost, axis=0))
+    ds = load_dataset(tmp_path / "identification.h5", DataConfig(torque="torque_nm", velocity="velocity_mps"))
+    assert ds.period_samples is None and len(ds) == 2 * PERIOD - 510  # from period 3's gap to the end
+    assert any("fewer than two whole gap-free excitation periods of 4000 samples" in n for n in ds.notes)
+
+
+def test_identify_on_a_bench_recording_finds_what_the_run_found(tmp_path):
+    from pathlib import Path
+
+    from hilident.session import Session
+
+    text = (Path(__file__).resolve().parents[1] / "configs" / "emulated-gantry.toml").read_text()
+    text = text.replace('link = "pty"', 'link = "pipe"').replace("time_scale = 4.0", "time_scale = 8.0")
+    text = text.replace("[friction_test]", "[friction_test]\nenabled = false").replace("duration_s = 16.0",
+                                                                                       "duration_s = 8.0")
+    run = Session(parse_config(text, "gantry"), tmp_path / "run").run()
+    summary = identify(tmp_path, tmp_path / "run" / "identification.h5")
+    assert summary["data"]["period_samples"] == PERIOD and summary["data"]["used_rows"] == 2 * PERIOD
+    assert summary["data"]["status"] == "complete" and summary["data"]["n_gaps"] == 0
+    # the same rows through the same pipeline: the same resonance, to the last digit
+    assert summary["resonances"][0]["frequency_hz"] == run["resonances"][0]["frequency_hz"]

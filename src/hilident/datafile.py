@@ -754,8 +754,9 @@ def _read_hilident_open(path: Path, f, names, fmt: str, version: int, check) -> 
                          "were not counted as recorded")
         rows = min(rows, flushed)
     wanted = [n for n in (names if names is not None else channels) if n in channels]
-    if "sample_index" in channels and "sample_index" not in wanted:
-        wanted.append("sample_index")
+    for extra in ("sample_index", "excitation"):  # row numbers; the played excitation proves the period
+        if extra in channels and extra not in wanted:
+            wanted.append(extra)
     _check_fits(path, rows, len(wanted), "/samples")
     _check_stored(path, ds, rows, "/samples")
     rate = float(attrs.get("sample_rate_hz", math.nan))
@@ -838,6 +839,9 @@ def load_dataset(path: str | Path, cfg: DataConfig, config_source: str = "") -> 
     rate = _sample_rate(path, cfg, time_rate, raw.sample_rate_hz, config_source)
     notes = list(raw.notes) + _status_notes(path, raw)
     period = raw.period_samples if raw.indexed else None
+    if period:
+        period, why = _confirmed_period(index, raw.columns.get("excitation"), period)
+        notes += [f"{path.name}: {why}"] if why else []
     raw.columns.clear()  # the mapped signals hold what is still needed
     used, segments, info = _gap_free(path, signals, index, period)
     notes += info.pop("warnings")
@@ -872,13 +876,55 @@ def _gap_free(path: Path, signals: dict[str, np.ndarray], index: np.ndarray | No
         return signals, [(0, n)], info
     from hilident.pipeline import select_gap_free
 
-    selection = select_gap_free(index, period, path.name)
-    info = dict(selection.to_dict(), warnings=selection.warnings)
+    try:
+        selection = select_gap_free(index, period, path.name)
+        notes = []
+    except DataError:
+        if not period:
+            raise
+        # too few whole periods: a stretch without a break can still be analysed (Welch averaging)
+        selection = select_gap_free(index, None, path.name)
+        notes = [f"{path.name}: fewer than two whole gap-free excitation periods of {period} samples; "
+                 "the longest gap-free stretch is analysed instead"]
+    info = dict(selection.to_dict(), warnings=notes + selection.warnings)
     if selection.used_rows == n:
         return signals, selection.segments, info
     used = {key: v[selection.keep] for key, v in signals.items()}
     edges = np.cumsum([0] + [b - a for a, b in selection.segments])
     return used, [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])], info
+
+
+def _confirmed_period(index: np.ndarray, excitation: np.ndarray | None, period: int) -> tuple[int | None, str]:
+    """``period`` if the recorded excitation repeats with it (or was not recorded), else None and why.
+
+    A stored configuration can describe another run than the one recorded
+    (edited, or replaced in a script); joining "periods" that are not would
+    splice. Of the first three pairs of consecutive whole periods recorded
+    without a break (the lead-in counts: it is the first period played
+    again), one must repeat to 10⁻⁶ of the peak; an underrun may have
+    changed another. With no such pair the period is kept unconfirmed.
+    """
+    if excitation is None:
+        return period, ""
+    from hilident.pipeline import contiguous_runs
+
+    pairs = 0
+    for a, b in contiguous_runs(index):
+        first = -(-int(index[a]) // period)
+        start = a + first * period - int(index[a])
+        while start + 2 * period <= b and pairs < 3:
+            one, two = excitation[start:start + period], excitation[start + period:start + 2 * period]
+            scale = float(np.max(np.abs(one))) or 1.0
+            if np.max(np.abs(one - two)) <= 1e-6 * scale:
+                return period, ""
+            pairs += 1
+            start += period
+        if pairs == 3:
+            break
+    if not pairs:
+        return period, ""
+    return None, (f"the recorded excitation does not repeat every {period} samples as the stored configuration "
+                  "says: whole periods are not used")
 
 
 def _check_config_rate(cfg: DataConfig, source: str) -> None:
