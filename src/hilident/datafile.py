@@ -492,7 +492,8 @@ def _read_mat(path: Path, names, check=lambda available: None) -> RawColumns:
             raise DataError(f"{path}: variable {name!r} declares {var.data_bytes} bytes of data for shape "
                             f"{var.shape}: damaged or hostile file")
         total += n
-        _check_fits(path, total, 1, f"variable {name!r} (with the variables before it)")
+        _check_fits(path, n, 1, f"variable {name!r}")
+        _check_fits(path, total, 1, "the mapped variables together")
     columns = {}
     for name in wanted:
         columns[name] = _as_vector(path, name, _load_mat_variable(path, variables[name], header, loadmat))
@@ -690,8 +691,10 @@ def _read_mat73(path: Path, names, check=lambda available: None) -> RawColumns:
                     if names is None:
                         continue
                     raise DataError(f"{path}: variable {name!r} is not numeric (dtype {ds.dtype})")
-                total += _vector_length(path, name, tuple(int(d) for d in ds.shape))
-                _check_fits(path, total, 1, f"variable {name!r} (with the variables before it)")
+                n = _vector_length(path, name, tuple(int(d) for d in ds.shape))
+                total += n
+                _check_fits(path, n, 1, f"variable {name!r}")
+                _check_fits(path, total, 1, "the mapped variables together")
                 _check_stored(path, ds, ds.shape[0] if ds.ndim else 1, f"variable {name!r}")
                 columns[name] = _as_vector(path, name, ds[()])
         except DataError:
