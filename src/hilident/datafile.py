@@ -146,7 +146,7 @@ class RawColumns:
         return "sample_index" in self.columns
 
 
-# ---------------------------------------------------------------------- helpers
+# ---------------------------------------------------------------------- bounds and messages
 
 
 def memory_limit_bytes() -> int:
