@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_modbus_host_death import arming_flags
 
 from hilident.adapters.modbus_drive import ModbusDriveAdapter
 from hilident.cli import main
@@ -151,7 +150,7 @@ def test_standalone_modbus_tcp_emulator_runs_a_session_like_hardware(tmp_path, s
     cfg = tmp_path / "bench.toml"
     cfg.write_text(text)
     out = subprocess.run(
-        [sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o"), "-q", *arming_flags()],
+        [sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o"), "-q", "--yes"],
         capture_output=True, text=True, timeout=120,
     )
     assert out.returncode == 0, out.stderr

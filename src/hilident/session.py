@@ -35,7 +35,7 @@ from typing import Callable
 import numpy as np
 
 from hilident import __version__, endings, pipeline, report
-from hilident.adapters.base import StreamStats, adapter_class, contiguous_runs
+from hilident.adapters.base import StreamStats, adapter_class
 from hilident.config import Config
 from hilident.devicelock import DeviceLock, device_key
 from hilident.drivers import DriverDescription, check_run_against_driver, find_driver
@@ -289,8 +289,13 @@ class Session:
 
     # --- experiments ----------------------------------------------------------------------
 
-    def record(self, name: str, mode: str, excitation: np.ndarray, tables: dict | None = None) -> Experiment:
-        """Stream ``excitation`` in ``mode`` and record every sample to ``<out>/<name>.h5``."""
+    def record(self, name: str, mode: str, excitation: np.ndarray, tables: dict | None = None,
+               period_samples: int | None = None) -> Experiment:
+        """Stream ``excitation`` in ``mode`` and record every sample to ``<out>/<name>.h5``.
+
+        ``period_samples`` (a periodic excitation's period) is stored with the
+        recording, so ``hilident identify`` analyses it in whole periods too.
+        """
         cfg = self.cfg
         ad = self.adapter
         channels = ad.configure(cfg.run.sample_rate_hz, mode, cfg.run.channels or None)
@@ -301,6 +306,8 @@ class Session:
             "config_source": cfg.source, "driver_toml": self.driver.text, "versions": package_versions(),
             "device": {"name": ad.identity.name, "firmware": ad.identity.firmware, "port": ad.port},
         }
+        if period_samples:
+            attrs["period_samples"] = int(period_samples)
         writer = RunWriter(path, ["sample_index", "time_s", *channels], ["1", "s", *ad.channel_units], fs, attrs,
                            overwrite=True)
         for table, columns in (tables or {}).items():
@@ -406,7 +413,8 @@ class Session:
                 return {"dry_run": True, "plan": self.plan.to_dict()}
             self._bypass_filters()
             friction = self._friction_step(profile)
-            ident = self.record("identification", self.cfg.excitation.mode, excitation.samples)
+            ident = self.record("identification", self.cfg.excitation.mode, excitation.samples,
+                                period_samples=excitation.period_samples)
             plant = self._identify(ident, excitation, friction)
             designs, upload = self._notch_step(plant)
             verification = self._verify(excitation, plant, designs)
@@ -489,48 +497,11 @@ class Session:
         idx = exp.samples["sample_index"].astype(np.int64)
         return {int(i): r for r, i in enumerate(idx)}
 
-    def _longest_contiguous(self, exp: Experiment) -> dict[str, np.ndarray]:
-        runs = contiguous_runs(exp.samples["sample_index"].astype(np.int64))
-        if not runs:
-            raise DataError(f"{exp.name}: no samples were recorded")
-        a, b = max(runs, key=lambda r: r[1] - r[0])
-        if len(runs) > 1:
-            self.warnings.append(
-                f"{exp.name}: recording has {len(runs) - 1} gap(s); the longest contiguous stretch "
-                f"({b - a} samples) was analysed"
-            )
-        return {k: v[a:b] for k, v in exp.samples.items()}
-
-    def _complete_periods(self, exp: Experiment, period: int) -> dict[str, np.ndarray]:
-        """Whole excitation periods without a missing sample, lead-in period dropped.
-
-        Periods of a periodic excitation can be joined end to end, so a lost block
-        costs only the period it fell in, and nothing is ever filled in.
-        """
-        index = exp.samples["sample_index"].astype(np.int64)
-        number = index // period
-        keep = np.zeros(len(index), dtype=bool)
-        for p in np.unique(number[number >= 1]):  # period 0 is the lead-in
-            rows = np.flatnonzero(number == p)
-            if len(rows) == period and rows[-1] - rows[0] == period - 1:
-                keep[rows] = True
-        n_complete = int(keep.sum()) // period
-        total = int(index[-1]) // period if len(index) else 0
-        if n_complete < total:
-            self.warnings.append(
-                f"{exp.name}: {total - n_complete} of {total} excitation periods had lost samples and were left out"
-            )
-        if n_complete < 2:
-            raise DataError(
-                f"{exp.name}: only {n_complete} complete excitation period(s) recorded; at least 2 are needed "
-                "(check the line: lost or corrupt frames)"
-            )
-        return {k: v[keep] for k, v in exp.samples.items()}
-
     def _analysis_samples(self, exp: Experiment, excitation: Excitation) -> dict[str, np.ndarray]:
-        """Whole gap-free periods of a periodic excitation, else the longest gap-free stretch."""
-        period = excitation.period_samples
-        return self._complete_periods(exp, period) if period else self._longest_contiguous(exp)
+        """Whole gap-free periods of a periodic excitation, else the longest gap-free stretch (never spliced)."""
+        selection = pipeline.select_gap_free(exp.samples["sample_index"], excitation.period_samples, exp.name)
+        self.warnings += selection.warnings
+        return {k: v[selection.keep] for k, v in exp.samples.items()}
 
     def _greybox(self):
         """``[model]`` fitted to the identification run, validated on the verification run (or a hold-out)."""
@@ -617,7 +588,8 @@ class Session:
     def _verify(self, excitation: Excitation, plant, designs):
         if not designs or not self.cfg.notch.verify:
             return None
-        exp = self.record("verification", self.cfg.excitation.mode, excitation.samples)
+        exp = self.record("verification", self.cfg.excitation.mode, excitation.samples,
+                          period_samples=excitation.period_samples)
         s = self._analysis_samples(exp, excitation)
         self._analysed["verification"] = s
         self.progress.step("verification: frequency response")

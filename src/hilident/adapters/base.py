@@ -244,12 +244,3 @@ def adapter_class(transport: str):
         return SerialBoardAdapter
     known = sorted(ep.name for ep in entry_points(group="hilident.adapters"))
     raise ConfigError("driver.transport", f"no adapter for transport {transport!r} (installed: {known})")
-
-
-def contiguous_runs(sample_index: np.ndarray) -> list[tuple[int, int]]:
-    """``(start, stop)`` row ranges over which ``sample_index`` increases by exactly 1."""
-    if len(sample_index) == 0:
-        return []
-    breaks = np.flatnonzero(np.diff(sample_index) != 1) + 1
-    edges = np.concatenate(([0], breaks, [len(sample_index)]))
-    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
