@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 import pytest
-from twins import TRANSPORTS, Twin, host, wait_until
+from twins import HOST_TIMEOUT_S, TRANSPORTS, Twin, host, wait_until
 
 from hilident.recording import read_run
 
@@ -30,7 +30,7 @@ EXIT = {"sigterm": 143, "sighup": 129, "sigint_twice": 130, "sigkill": -signal.S
 
 #: How long the twin may keep the axis enabled after the host is gone, s: the device-side net
 #: (serial: the board's 1 s watchdog; CANopen and Modbus: host_timeout_s) plus the twin's clock.
-NET_TIMEOUT_S = {"serial": 1.0, "modbus": 0.5, "canopen": 0.5}
+NET_TIMEOUT_S = {"serial": 1.0, "modbus": HOST_TIMEOUT_S, "canopen": HOST_TIMEOUT_S}
 TOLERANCE_S = 0.6
 
 

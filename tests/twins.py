@@ -30,6 +30,11 @@ TRANSPORTS = [
     ("canopen", "socketcand", "emulated-canopen-gantry.toml"),
 ]
 
+#: The device-side net's timeout in these tests, s: long enough that a loaded test machine's stalls are not a
+#: dead host, short enough to watch a real one fire.
+HOST_TIMEOUT_S = 1.0
+
+
 def quick(raw: dict, transport: str) -> dict:
     """The shipped config made quick: no friction test, two 4 s multisine periods, fast simulated time."""
     raw = json.loads(json.dumps(raw))
@@ -37,6 +42,7 @@ def quick(raw: dict, transport: str) -> dict:
     raw["excitation"].update(period_s=4.0, duration_s=8.0)
     raw["emulator"]["time_scale"] = 8.0
     raw["notch"]["verify"] = False
+    raw["device"]["host_timeout_s"] = HOST_TIMEOUT_S
     if transport == "modbus":
         raw["device"]["baudrate"] = 921600  # an RTU line reads the capture back: keep it quick
     return raw
