@@ -7,11 +7,11 @@ allocation. And a config that loads builds its signals without surprises.
 from __future__ import annotations
 
 import dataclasses
-import math
 import tracemalloc
 import typing
 
 import pytest
+from hostile_toml import toml_string, toml_value
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
@@ -42,27 +42,6 @@ def _tables(cls=Config, prefix=()):
 
 
 TABLES = dict(_tables())
-
-
-def toml_string(text: str) -> str:
-    """``text`` as a TOML basic string (control characters escaped, as TOML requires)."""
-    def char(c):
-        return "\\" + c if c in '"\\' else f"\\u{ord(c):04x}" if ord(c) < 32 or ord(c) == 127 else c
-    return '"' + "".join(map(char, text)) + '"'
-
-
-def toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf") if math.isinf(v) else repr(v)
-    if isinstance(v, str):
-        return toml_string(v)
-    if isinstance(v, list):
-        return "[" + ", ".join(toml_value(x) for x in v) + "]"
-    return "{" + ", ".join(f"{toml_string(k)} = {toml_value(x)}" for k, x in v.items()) + "}"
 
 
 def toml_text(tables: dict) -> str:
