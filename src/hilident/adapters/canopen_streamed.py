@@ -46,7 +46,7 @@ def run_streamed(ad, x: np.ndarray, sink, progress=None) -> RunResult:
     stats = StreamStats()
     result = RunResult(requested_samples=n, stats=stats)
     ad.last_result = result
-    events = result.events
+    events = ad.events  # live: the session writes them to the recording while the run goes on
     od = ad.node.object_dictionary
     counter_addr = ad.desc.address("sample_counter")
     counter_type = od.get_variable(counter_addr.index, counter_addr.subindex).data_type
@@ -158,7 +158,7 @@ def run_streamed(ad, x: np.ndarray, sink, progress=None) -> RunResult:
                 events.append(event)
                 if event["kind"] != "emergency_reset":
                     fault = event
-                    result.fault = event["message"]
+                    ad.note_fault(event)
                     ended = now
             if fault is not None:
                 last = min(sent, fault["sample_index"] + 1)
