@@ -298,10 +298,12 @@ class CanopenDriveAdapter(AdapterBase):
         host = self.desc.host_node_id
         time_ms = max(1, min(0xFFFF, round(self.device.host_timeout_s * 1000)))
         period_s = time_ms / 3000.0
-        self._start_host_heartbeat(host, period_s)
         entry = self._consumer_entry_for(host)
         self.write_object(entry, consumer_entry(host, time_ms))
         self._consumer = entry
+        # after the entry: the task's first frame goes out at once and starts the drive's monitoring
+        # (CiA 301: a consumer watches from the first heartbeat it receives)
+        self._start_host_heartbeat(host, period_s)
         net = (f"heartbeat consumer {entry}: host node {host}, {time_ms} ms "
                f"(host heartbeat every {period_s * 1e3:.0f} ms)")
         if ABORT_CONNECTION_INDEX in od:
@@ -730,15 +732,28 @@ class CanopenDriveAdapter(AdapterBase):
             except (OSError, ValueError) as exc:
                 raise DeviceError(f"{self.port}: cannot write the CAN trace {trace_path}: {exc}") from None
         run = run_streamed if self.acquisition == "streamed" else run_buffered
+        from_sink: list[BaseException] = []
+
+        def deliver(index, rows):
+            try:
+                sink(index, rows)
+            except BaseException as exc:
+                from_sink.append(exc)
+                raise
+
         try:
-            return run(self, x, sink, progress)
-        except DeviceError as exc:
-            first = self.first_cause(exc)
-            if first is not exc:
-                raise first from None
+            return run(self, x, deliver, progress)
+        except BaseException as exc:
+            if any(exc is e for e in from_sink):
+                raise  # a full disk, a signal in the session's writer: its own error, after the drive is off
+            if isinstance(exc, DeviceError):
+                first = self.first_cause(exc)
+                if first is not exc:
+                    raise first from None
+                raise
+            if isinstance(exc, (can.CanError, OSError)):  # the bus itself failed (e.g. a send)
+                raise self.first_cause(DeviceError(f"{self.port}: bus failure during the run: {exc}")) from None
             raise
-        except (can.CanError, OSError) as exc:  # the bus itself failed (e.g. a send)
-            raise self.first_cause(DeviceError(f"{self.port}: bus failure during the run: {exc}")) from None
         finally:
             self.safe_stop()
             with contextlib.suppress(Exception):
@@ -821,6 +836,11 @@ class CanopenDriveAdapter(AdapterBase):
     def save_filter(self, slot: int) -> tuple[dict, bool]:
         """The slot's raw field values and enable flag."""
         return self._read_slot(self._filter_slot(slot), slot)
+
+    def disable_filter(self, slot: int) -> None:
+        """Bypass a slot: its enable sub-index to 0; the coefficients stay stored."""
+        fo = self._filter_slot(slot)
+        self.write_object(fo.address(slot, "enabled"), 0)
 
     def restore_filter(self, slot: int, saved: tuple[dict, bool]) -> None:
         values, enabled = saved

@@ -71,6 +71,7 @@ __all__ = ["CanopenDriveFirmware", "CanopenDriveServer", "start", "start_socketc
 CAPTURE_CHUNK_RECORDS = 4096
 #: A drive that saw SYNC and then none for this long (wall time) while enabled faults (0x8250).
 SYNC_WATCHDOG_S = 1.0
+IDLE_S = 0.02  # a bus reader this long without a frame has nothing queued (heartbeat consumer)
 COAST_S = 2.0  # simulated time the axis is left to coast after the power stage is switched off
 
 ABORT_VALUE = 0x06090030
@@ -206,7 +207,8 @@ class CanopenDriveFirmware:
         self.capture_record_size = 0
 
         self.consumers: dict[int, tuple[int, int]] = {}  # 0x1016 sub-index -> (producer node, time ms)
-        self.heard: dict[int, float] = {}  # producer node -> wall time of its last heartbeat (monitoring on)
+        self.heard: dict[int, float] = {}  # producer node -> bus timestamp (s) of its last heartbeat (monitoring on)
+        self.last_frame = (0.0, 0.0)  # (bus timestamp, monotonic time it was handled) of the last frame received
         self.host_lost: set[int] = set()  # producers whose heartbeat event fired and that stayed silent since
         self.heartbeat_events = 0
         self._on_producer = self._guard(self._on_producer_heartbeat)
@@ -550,14 +552,30 @@ class CanopenDriveFirmware:
         node_id = can_id - 0x700
         with self.lock:
             if any(n == node_id for n, _ in self.consumers.values()):
-                self.heard[node_id] = time.monotonic()
+                self.heard[node_id] = timestamp
                 self.host_lost.discard(node_id)
 
+    def on_frame(self, msg) -> None:
+        """Every received frame, after its handlers ran: how far the drive has read the bus."""
+        self.last_frame = (msg.timestamp, time.monotonic())
+
     def _check_consumers(self, now: float) -> None:
-        """The heartbeat event: a watched producer silent for longer than its consumer time."""
+        """The heartbeat event: a watched producer silent for longer than its consumer time.
+
+        A real drive handles each frame as it arrives. This one reads the bus in
+        a thread that may lag behind a flood of SYNCs, so silence is judged by
+        bus timestamps: the event fires when a frame stamped after the deadline
+        was read with no heartbeat before it, or when the deadline passed and
+        nothing is left to read (``IDLE_S`` without a frame).
+        """
+        wall = time.time()
+        last_stamp, last_handled = self.last_frame
         for node_id, time_ms in self.consumers.values():
             seen = self.heard.get(node_id)
-            if seen is None or node_id in self.host_lost or now - seen <= time_ms / 1000.0:
+            if seen is None or node_id in self.host_lost:
+                continue
+            deadline = seen + time_ms / 1000.0
+            if not (last_stamp > deadline or (wall > deadline and now - last_handled > IDLE_S)):
                 continue
             self.host_lost.add(node_id)
             self.heartbeat_events += 1
@@ -894,6 +912,7 @@ class CanopenDriveServer:
         network.connect(interface=self.interface, channel=self.channel, receive_own_messages=False)
         self.network = network
         self.firmware.attach(network)
+        network.notifier.add_listener(self.firmware.on_frame)
         self._thread = threading.Thread(target=self._clock, name="canopen-drive-clock", daemon=True)
         self._thread.start()
         return self
