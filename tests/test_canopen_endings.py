@@ -149,8 +149,7 @@ def test_a_host_that_dies_hard_leaves_the_drive_switched_off_within_the_consumer
 
 
 def test_abort_option_fault_latches_and_the_next_session_needs_the_reset(twin, tmp_path):
-    driver = driver_copy(tmp_path, toml=[("emcy_sample_index = true", "emcy_sample_index = true\n"
-                                                                     "abort_connection_option = 1")])
+    driver = driver_copy(tmp_path, toml=[("abort_connection_option = 2", "abort_connection_option = 1")])
     t = twin(driver)
     ad = t.open()
     assert "0x6007 = 1 (fault)" in ad.connect_report.device_net
@@ -184,8 +183,7 @@ def test_a_drive_without_a_heartbeat_consumer_gets_no_net_and_says_so(twin, tmp_
 
 
 def test_the_host_node_id_must_differ_from_the_drive(twin, tmp_path):
-    t = twin(driver_copy(tmp_path, toml=[("emcy_sample_index = true", "emcy_sample_index = true\n"
-                                                                      "host_node_id = 1")]))
+    t = twin(driver_copy(tmp_path, toml=[("host_node_id = 127", "host_node_id = 1")]))
     with pytest.raises(ConfigError, match=r"canopen\.host_node_id.*also the drive's node id"):
         t.open()
 

@@ -41,6 +41,21 @@ def parse_socketcand_port(port: str) -> tuple[str, int, str]:
     return host, int(number), channel
 
 
+class _BusGoneFilter(logging.Filter):
+    """Drops python-can's traceback when a cyclic send (the host's heartbeat) fails because the bus went away.
+
+    The task stops on that error by design; the run notices the lost bus itself
+    and reports it as one :class:`DeviceError` naming the interface and channel.
+    """
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        exc = record.exc_info[1] if record.exc_info else None
+        return not isinstance(exc, (can.CanError, OSError))
+
+
+_BUS_GONE = _BusGoneFilter()
+
+
 def bus_arguments(device: DeviceConfig, default_bitrate: int) -> dict:
     """Keyword arguments of :class:`can.Bus` for ``[device]``."""
     kwargs = {"interface": device.can_interface, "bitrate": device.baudrate or default_bitrate}
@@ -120,6 +135,9 @@ def open_network(device: DeviceConfig, default_bitrate: int, label: str) -> Trac
         A malformed socketcand port.
     """
     kwargs = bus_arguments(device, default_bitrate)
+    cyclic_log = logging.getLogger("can.bcm")  # python-can's cyclic send tasks
+    if _BUS_GONE not in cyclic_log.filters:
+        cyclic_log.addFilter(_BUS_GONE)
     network = TracingNetwork()
     try:
         network.connect(**kwargs)
