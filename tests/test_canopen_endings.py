@@ -360,3 +360,37 @@ def test_sigkill_of_hilident_run_leaves_the_socketcand_drive_switched_off(twin, 
     assert took <= HOST_TIMEOUT_S + TOLERANCE_S + 0.1
     assert time.monotonic() - killed >= HOST_TIMEOUT_S * 2 / 3 - 0.01
     assert t.fw.heartbeat_events == 1 and t.fw.state is cia402.State.SWITCH_ON_DISABLED
+
+
+@pytest.mark.parametrize("direction", ["wb", "rb"])
+def test_a_signal_in_the_middle_of_a_block_transfer_still_stops_the_drive(twin, direction):
+    # Ctrl-C lands while a table goes down or a capture comes up: the interrupted block transfer is
+    # aborted, so the drive's SDO server takes the Disable Voltage that follows, and the next run works
+    t = twin()
+    ad = t.open()
+    ad.configure(FS, "torque")
+    real_open = ad.node.sdo.open
+
+    def open_interrupted(index, subindex=0, mode="rb", **options):
+        stream = real_open(index, subindex, mode, **options)
+        if mode == direction:
+            name = "write" if mode == "wb" else "read"
+            real = getattr(stream, name)
+            calls = []
+
+            def interrupted(*args):
+                calls.append(1)
+                if len(calls) == 20:
+                    raise KeyboardInterrupt
+                return real(*args)
+
+            setattr(stream, name, interrupted)
+        return stream
+
+    ad.node.sdo.open = open_interrupted
+    with pytest.raises(KeyboardInterrupt):
+        ad.stream(np.zeros(3000), lambda i, rows: None)
+    assert t.fw.state is cia402.State.SWITCH_ON_DISABLED and not t.emulated.drive.enabled
+    ad.node.sdo.open = real_open
+    result = ad.stream(np.zeros(1000), lambda i, rows: None)
+    assert result.completed and result.stats.samples == 1000

@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import io
 import math
 import time
 from struct import error as struct_error
@@ -76,6 +77,7 @@ __all__ = ["CanopenDriveAdapter", "DriveIdentity", "ChannelCodec", "LIMIT_TRIP_C
 LIMIT_TRIP_CODES = {0x8311: "torque_limit", 0x8400: "velocity_limit", 0x8612: "position_limit"}
 _NMT_OPERATIONAL = 5
 _TPDO_BASES = (0x180, 0x280, 0x380, 0x480)
+_ABORT_GENERAL = 0x08000000  # SDO abort code: general error (a transfer the host broke off)
 _STATE_POLL_S = 0.002
 
 
@@ -403,28 +405,67 @@ class CanopenDriveAdapter(AdapterBase):
 
     def read_domain(self, addr: ObjectAddress) -> bytes:
         """Upload a DOMAIN object (block transfer when the description says so)."""
-        try:
-            if self.desc.block_transfer:
-                with self.node.sdo.open(addr.index, addr.subindex, "rb", block_transfer=True, buffering=0) as f:
-                    return bytes(f.readall())
-            return bytes(self.node.sdo.upload(addr.index, addr.subindex))
-        except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
-            raise self._sdo_error(exc, addr, "reading") from None
+        if not self.desc.block_transfer:
+            try:
+                return bytes(self.node.sdo.upload(addr.index, addr.subindex))
+            except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
+                raise self._sdo_error(exc, addr, "reading") from None
+
+        def upload(f):
+            return bytes(f.readall())
+
+        return self._block_transfer(addr, "rb", upload, {})
 
     def write_domain(self, addr: ObjectAddress, data: bytes) -> None:
         """Download a DOMAIN object (block transfer when the description says so)."""
-        try:
-            if self.desc.block_transfer:
-                with self.node.sdo.open(addr.index, addr.subindex, "wb", size=len(data), block_transfer=True,
-                                        buffering=0) as f:
-                    view = memoryview(data)
-                    pos = 0
-                    while pos < len(data):
-                        pos += f.write(view[pos:pos + 7])
-            else:
+        if not self.desc.block_transfer:
+            try:
                 self.node.sdo.download(addr.index, addr.subindex, data, force_segment=True)
+            except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
+                raise self._sdo_error(exc, addr, "writing") from None
+            return
+
+        def download(f):
+            view = memoryview(data)
+            pos = 0
+            while pos < len(data):
+                pos += f.write(view[pos:pos + 7])
+
+        self._block_transfer(addr, "wb", download, {"size": len(data)})
+
+    def _block_transfer(self, addr: ObjectAddress, mode: str, body, options: dict):
+        """Run ``body(stream)`` on an SDO block transfer stream; an interrupted transfer is aborted.
+
+        A signal (or any exception not from the transfer itself) in the middle
+        of a block download leaves the drive's SDO server reading sub-block
+        segments, where every frame but an abort counts as data: the next
+        request (the Disable Voltage of ``safe_stop``) would be swallowed. So
+        the transfer is ended with an SDO abort, never with canopen's normal
+        close, which would send the end-of-transfer request and wait for it.
+        """
+        action = "reading" if mode == "rb" else "writing"
+        try:
+            stream = self.node.sdo.open(addr.index, addr.subindex, mode, block_transfer=True, buffering=0,
+                                        **options)
         except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
-            raise self._sdo_error(exc, addr, "writing") from None
+            raise self._sdo_error(exc, addr, action) from None
+        try:
+            result = body(stream)
+        except BaseException as exc:
+            io.RawIOBase.close(stream)  # closed without the end-of-transfer exchange
+            if not isinstance(exc, SdoAbortedError):  # the drive aborted: its server is idle already
+                with contextlib.suppress(Exception):
+                    self.node.sdo.abort(_ABORT_GENERAL)
+            if isinstance(exc, (SdoCommunicationError, can.CanError, OSError)):
+                raise self._sdo_error(exc, addr, action) from None
+            if isinstance(exc, SdoAbortedError):
+                raise self._sdo_error(exc, addr, action) from None
+            raise
+        try:
+            stream.close()
+        except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
+            raise self._sdo_error(exc, addr, action) from None
+        return result
 
     # --- identity, heartbeat, emergencies ------------------------------------------------------
 
