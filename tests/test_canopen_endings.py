@@ -30,7 +30,7 @@ from hilident.protocol import cia402
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 CONFIG = CONFIGS / "emulated-canopen-gantry.toml"
 FS = 1000.0
-HOST_TIMEOUT_S = 0.2
+HOST_TIMEOUT_S = 0.3
 TOLERANCE_S = 0.1  # the twin's clock checks the consumer every 4 ms; thread scheduling on a busy machine
 
 
@@ -119,9 +119,9 @@ def without_consumer(eds: str) -> str:
 def test_the_drive_watches_the_host_heartbeat_once_connected(twin):
     t = twin()
     ad = t.open()
-    assert ad.connect_report.device_net == ("heartbeat consumer 0x1016:1: host node 127, 200 ms (host heartbeat "
-                                            "every 67 ms); 0x6007 = 2 (disable voltage)")
-    assert t.fw.consumers == {1: (127, 200)}
+    assert ad.connect_report.device_net == ("heartbeat consumer 0x1016:1: host node 127, 300 ms (host heartbeat "
+                                            "every 100 ms); 0x6007 = 2 (disable voltage)")
+    assert t.fw.consumers == {1: (127, 300)}
     assert wait_until(lambda: 127 in t.fw.heard, 1.0) < 1.0  # the host's heartbeat reaches the drive
     time.sleep(3 * HOST_TIMEOUT_S)  # a host alive: no heartbeat event
     assert t.fw.heartbeat_events == 0
@@ -135,12 +135,11 @@ def test_a_host_that_dies_hard_leaves_the_drive_switched_off_within_the_consumer
     ad.enable()
     assert t.fw.state is cia402.State.OPERATION_ENABLED and t.emulated.drive.enabled
     time.sleep(0.1)
-    died = time.monotonic()
     die_hard(ad)
     took = wait_until(lambda: not t.emulated.drive.enabled, HOST_TIMEOUT_S + 1.0)
     assert took <= HOST_TIMEOUT_S + TOLERANCE_S
-    # not before the consumer time (the last heartbeat went out up to one host period before the death)
-    assert time.monotonic() - died >= HOST_TIMEOUT_S * 2 / 3 - 0.01
+    # a real timeout: not before the consumer time after the last heartbeat the drive heard
+    assert t.fw.heartbeat_event_wall - t.fw.heard[127] >= HOST_TIMEOUT_S
     assert t.fw.state is cia402.State.SWITCH_ON_DISABLED  # 0x6007 = 2: Disable Voltage
     assert t.fw.heartbeat_events == 1 and t.fw.error_history[0] == EMCY_HEARTBEAT
     # the next session starts cleanly and finds the drive off
@@ -194,7 +193,7 @@ def test_a_consumer_entry_watching_another_node_is_left_alone(twin):
     t.fw.consumers[1] = (5, 1000)
     ad = t.open()
     assert ad.connect_report.device_net.startswith("heartbeat consumer 0x1016:2: host node 127")
-    assert t.fw.consumers == {1: (5, 1000), 2: (127, 200)}
+    assert t.fw.consumers == {1: (5, 1000), 2: (127, 300)}
 
 
 # --- known state at connect ---------------------------------------------------------------------------
@@ -332,65 +331,43 @@ def test_the_socketcand_server_vanishing_mid_run_is_a_device_error(twin, acquisi
 # --- a real process, killed --------------------------------------------------------------------------
 
 
-def test_sigkill_of_hilident_run_leaves_the_socketcand_drive_switched_off(twin, tmp_path):
-    t = twin(socketcand=True, time_scale=1.0)
-    port = t.emulated.device.port
+def _run_command(tmp_path, port: str, out: str) -> list[str]:
+    """``hilident run`` of the shipped gantry (short, no friction test) against the drive at ``port``."""
     text = CONFIG.read_text().replace('port = "emulator"', f'port = "{port}"')
     text = text.replace('can_interface = "socketcan"', 'can_interface = "socketcand"')
     text = text.replace("allow_fault_reset = false", f"allow_fault_reset = false\nhost_timeout_s = {HOST_TIMEOUT_S}")
+    text = text.replace("[friction_test]", "[friction_test]\nenabled = false").replace("duration_s = 16.0",
+                                                                                       "duration_s = 8.0")
     cfg = tmp_path / "bench.toml"
     cfg.write_text(text)
-    command = [sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o")]
+    command = [sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / out), "-q"]
     if "--yes" in subprocess.run([*command[:4], "--help"], capture_output=True, text=True).stdout:
         command.append("--yes")  # a real port: armed without asking
-    run = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                           env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    return command
+
+
+def test_sigkill_of_hilident_run_leaves_the_socketcand_drive_switched_off(twin, tmp_path):
+    t = twin(socketcand=True, time_scale=8.0)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    run = subprocess.Popen(_run_command(tmp_path, t.emulated.device.port, "o1"), stdout=subprocess.DEVNULL,
+                           stderr=subprocess.DEVNULL, env=env)
     try:
         assert wait_until(lambda: t.emulated.drive.enabled, 60.0) < 60.0, "the run never enabled the drive"
         time.sleep(0.3)
         assert t.emulated.drive.enabled
         run.send_signal(signal.SIGKILL)
-        killed = time.monotonic()
-        assert run.wait(timeout=10) == -signal.SIGKILL
         took = wait_until(lambda: not t.emulated.drive.enabled, HOST_TIMEOUT_S + 2.0)
+        assert run.wait(timeout=10) == -signal.SIGKILL
     finally:
         if run.poll() is None:
             run.kill()
     # the TCP connection closing is no stop signal: the heartbeat consumer is
     assert took <= HOST_TIMEOUT_S + TOLERANCE_S + 0.1
-    assert time.monotonic() - killed >= HOST_TIMEOUT_S * 2 / 3 - 0.01
+    assert t.fw.heartbeat_event_wall - t.fw.heard[127] >= HOST_TIMEOUT_S
     assert t.fw.heartbeat_events == 1 and t.fw.state is cia402.State.SWITCH_ON_DISABLED
-
-
-@pytest.mark.parametrize("direction", ["wb", "rb"])
-def test_a_signal_in_the_middle_of_a_block_transfer_still_stops_the_drive(twin, direction):
-    # Ctrl-C lands while a table goes down or a capture comes up: the interrupted block transfer is
-    # aborted, so the drive's SDO server takes the Disable Voltage that follows, and the next run works
-    t = twin()
-    ad = t.open()
-    ad.configure(FS, "torque")
-    real_open = ad.node.sdo.open
-
-    def open_interrupted(index, subindex=0, mode="rb", **options):
-        stream = real_open(index, subindex, mode, **options)
-        if mode == direction:
-            name = "write" if mode == "wb" else "read"
-            real = getattr(stream, name)
-            calls = []
-
-            def interrupted(*args):
-                calls.append(1)
-                if len(calls) == 20:
-                    raise KeyboardInterrupt
-                return real(*args)
-
-            setattr(stream, name, interrupted)
-        return stream
-
-    ad.node.sdo.open = open_interrupted
-    with pytest.raises(KeyboardInterrupt):
-        ad.stream(np.zeros(3000), lambda i, rows: None)
-    assert t.fw.state is cia402.State.SWITCH_ON_DISABLED and not t.emulated.drive.enabled
-    ad.node.sdo.open = real_open
-    result = ad.stream(np.zeros(1000), lambda i, rows: None)
-    assert result.completed and result.stats.samples == 1000
+    # and the next session on the same drive runs from start to end
+    second = subprocess.run(_run_command(tmp_path, t.emulated.device.port, "o2"), capture_output=True, text=True,
+                            env=env, timeout=120)
+    assert second.returncode == 0, second.stderr
+    assert "resonances: 21." in second.stdout
+    assert not t.emulated.drive.enabled and t.fw.consumers == {}  # closed cleanly: consumer disarmed

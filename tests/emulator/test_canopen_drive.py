@@ -366,3 +366,40 @@ def test_heartbeat_consumer_entries_follow_cia301(drive_host):
     for bad in (4, -1):
         with pytest.raises(SdoAbortedError):
             host.write(0x6007, 0, bad)
+
+
+def test_socketcand_frames_flow_only_after_the_rawmode_ok():
+    # python-can's client reads exactly "< ok >" after "< open >" and "< rawmode >": a frame in between
+    # (the drive's heartbeat is always on the bus) breaks its handshake
+    import socket
+
+    driver = find_driver("canopen-servo")
+    emulated = start_socketcand(emulator_config(), driver, DeviceConfig(driver="canopen-servo", node_id=NODE))
+    try:
+        emulated.server.firmware.node.sdo[0x1017].raw = 5  # a heartbeat every 5 ms
+        port = int(emulated.device.port.split(":")[1].split("/")[0])
+        with socket.create_connection(("127.0.0.1", port), timeout=1.0) as sock:
+
+            def received(wait_s):
+                """Everything that arrives within ``wait_s``."""
+                deadline = time.monotonic() + wait_s
+                data = b""
+                while (left := deadline - time.monotonic()) > 0:
+                    sock.settimeout(left)
+                    try:
+                        chunk = sock.recv(65536)
+                    except socket.timeout:
+                        break
+                    if not chunk:
+                        break
+                    data += chunk
+                return data
+
+            assert received(0.1) == b"< hi >"
+            sock.sendall(b"< open can0 >")
+            assert received(0.2) == b"< ok >"
+            sock.sendall(b"< rawmode >")
+            data = received(0.5)
+            assert data.startswith(b"< ok >< frame 703 ")
+    finally:
+        emulated.close()

@@ -209,8 +209,11 @@ class CanopenDriveFirmware:
         self.consumers: dict[int, tuple[int, int]] = {}  # 0x1016 sub-index -> (producer node, time ms)
         self.heard: dict[int, float] = {}  # producer node -> bus timestamp (s) of its last heartbeat (monitoring on)
         self.last_frame = (0.0, 0.0)  # (bus timestamp, monotonic time it was handled) of the last frame received
+        self.last_tick = 0.0
+        self.resumed = 0.0  # monotonic time the clock thread ran again after a stall of the process
         self.host_lost: set[int] = set()  # producers whose heartbeat event fired and that stayed silent since
         self.heartbeat_events = 0
+        self.heartbeat_event_wall: float | None = None  # wall time (s) the last heartbeat event fired
         self._on_producer = self._guard(self._on_producer_heartbeat)
         if HEARTBEAT_CONSUMER_INDEX in od:
             for sub in range(1, int(self._stored(HEARTBEAT_CONSUMER_INDEX, 0)) + 1):
@@ -566,7 +569,9 @@ class CanopenDriveFirmware:
         a thread that may lag behind a flood of SYNCs, so silence is judged by
         bus timestamps: the event fires when a frame stamped after the deadline
         was read with no heartbeat before it, or when the deadline passed and
-        nothing is left to read (``IDLE_S`` without a frame).
+        nothing is left to read (``IDLE_S`` without a frame, counted from when the
+        twin's own clock last ran on time: a process that was not scheduled has
+        frames waiting that its reader threads have not had the chance to read).
         """
         wall = time.time()
         last_stamp, last_handled = self.last_frame
@@ -575,10 +580,12 @@ class CanopenDriveFirmware:
             if seen is None or node_id in self.host_lost:
                 continue
             deadline = seen + time_ms / 1000.0
-            if not (last_stamp > deadline or (wall > deadline and now - last_handled > IDLE_S)):
+            idle = now - max(last_handled, self.resumed) > IDLE_S
+            if not (last_stamp > deadline or (wall > deadline and idle)):
                 continue
             self.host_lost.add(node_id)
             self.heartbeat_events += 1
+            self.heartbeat_event_wall = wall
             self._abort_connection()
 
     def _abort_connection(self) -> None:
@@ -862,6 +869,9 @@ class CanopenDriveFirmware:
     def tick(self, now: float) -> None:
         """Clock work: the heartbeat consumer, table playback, coasting with the power stage off, the SYNC watchdog."""
         with self.lock:
+            if now - self.last_tick > IDLE_S:
+                self.resumed = now
+            self.last_tick = now
             if self.consumers:
                 self._check_consumers(now)
             if self.state is cia402.State.OPERATION_ENABLED:
