@@ -225,6 +225,28 @@ def test_a_drive_left_enabled_by_a_killed_session_is_switched_off_at_connect(twi
     assert second.connect_report.faults == []
 
 
+def test_pdos_and_emergencies_from_before_the_configuration_are_counted_and_dropped(twin):
+    # a drive left Operational by another master keeps sending its TPDOs on that master's SYNCs, and an
+    # old emergency is repeated; here a second bus member plays that part while the host connects
+    import can
+
+    t = twin()
+    other = can.Bus(interface="virtual", channel=t.emulated.device.port, receive_own_messages=False)
+    stale = [can.Message(arbitration_id=0x181, data=bytes(8), is_extended_id=False),
+             can.Message(arbitration_id=0x81, data=bytes.fromhex("1183110000000000"), is_extended_id=False)]
+    try:
+        tasks = [other.send_periodic(msg, 0.002) for msg in stale]
+        ad = t.open()
+        for task in tasks:
+            task.stop()
+    finally:
+        other.shutdown()
+    assert ad.connect_report.discarded_frames >= 2
+    ad.configure(FS, "torque")
+    result = ad.stream(np.zeros(500), lambda i, rows: None)
+    assert result.completed and result.events[-1]["kind"] == "capture_end"
+
+
 # --- safe_stop, events, first cause ---------------------------------------------------------------------
 
 

@@ -181,13 +181,21 @@ class CanopenDriveAdapter(AdapterBase):
 
     @classmethod
     def open_device(cls, device: DeviceConfig, driver: DriverDescription, link=None) -> "CanopenDriveAdapter":
-        """Open the bus, load the EDS, check the identity and start heartbeat monitoring.
+        """Open the bus, load the EDS, check the identity, bring the drive to a known state, arm the net.
+
+        See the module docstring: NMT Pre-operational, frames from before
+        counted in ``connect_report.discarded_frames``, Disable Voltage, a
+        latched fault reported (reset only with ``device.allow_fault_reset``),
+        then the host's heartbeat and the drive's heartbeat consumer.
 
         Raises
         ------
         DeviceError
-            The bus cannot be opened, the node does not answer, or it is not the
-            drive the description expects (the message names the object).
+            The bus cannot be opened, the node does not answer, it is not the
+            drive the description expects (the message names the object), or it
+            has a latched fault and resetting it is not allowed.
+        ConfigError
+            ``[canopen] host_node_id`` is the drive's own node id.
         """
         source = str(driver.folder / "driver.toml")
         desc = CanopenDescription.from_sections(driver.sections, source)
@@ -198,9 +206,9 @@ class CanopenDriveAdapter(AdapterBase):
         if not eds.is_file():
             raise ConfigError("canopen.eds", f"EDS file {eds} not found", source)
         if desc.host_node_id == device.node_id:
-            raise ConfigError("canopen.host_node_id", f"{desc.host_node_id} is also the drive's node id "
-                                                      "(device.node_id): the host's heartbeat needs a node id of its own",
-                              source)
+            raise ConfigError("canopen.host_node_id",
+                              f"{desc.host_node_id} is also the drive's node id (device.node_id): the host's "
+                              "heartbeat needs a node id of its own", source)
         network = open_network(device, driver.default_baudrate, label)
         adapter = None
         try:

@@ -60,8 +60,9 @@ from hilident.emulator.drive import DriveLoop
 from hilident.errors import ConfigError, DataError
 from hilident.protocol import cia402
 from hilident.protocol.canopen_objects import (
-    ABORT_CONNECTION_INDEX, HEARTBEAT_CONSUMER_INDEX, NUMERIC_TYPES, REAL32, CanopenDescription, ObjectAddress, TableState, TABLE_START, TABLE_STOP, encode_si,
-    numpy_type, parse_consumer_entry, parse_mapping_entry, record_dtype, type_bits,
+    ABORT_CONNECTION_INDEX, HEARTBEAT_CONSUMER_INDEX, NUMERIC_TYPES, REAL32, TABLE_START, TABLE_STOP,
+    CanopenDescription, ObjectAddress, TableState, encode_si, numpy_type, parse_consumer_entry, parse_mapping_entry,
+    record_dtype, type_bits,
 )
 from hilident.protocol.filter_encoding import FilterEncoding
 

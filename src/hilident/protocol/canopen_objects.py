@@ -36,8 +36,9 @@ __all__ = [
     "ObjectAddress", "ModeSpec", "FilterObjects", "CanopenDescription", "BOOLEAN", "INTEGER8", "INTEGER16",
     "INTEGER32", "UNSIGNED8", "UNSIGNED16", "UNSIGNED32", "REAL32", "DOMAIN", "NUMERIC_TYPES", "type_bits",
     "numpy_type", "record_dtype", "encode_si", "decode_raw", "mapping_entry", "parse_mapping_entry",
-    "pack_frames", "TableState", "ABORT_CONNECTION_OPTIONS", "HEARTBEAT_CONSUMER_INDEX",
-    "ABORT_CONNECTION_INDEX", "consumer_entry", "parse_consumer_entry", "TABLE_START", "TABLE_STOP", "ROLE_SCALING", "parse_address",
+    "pack_frames", "TableState", "TABLE_START", "TABLE_STOP", "ROLE_SCALING", "parse_address",
+    "ABORT_CONNECTION_OPTIONS", "HEARTBEAT_CONSUMER_INDEX", "ABORT_CONNECTION_INDEX", "consumer_entry",
+    "parse_consumer_entry",
 ]
 
 # CiA 301 data type codes
