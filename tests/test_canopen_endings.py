@@ -350,6 +350,41 @@ def test_the_socketcand_server_vanishing_mid_run_is_a_device_error(twin, acquisi
     assert wait_until(lambda: not t.emulated.drive.enabled, HOST_TIMEOUT_S + 1.0) <= HOST_TIMEOUT_S + TOLERANCE_S
 
 
+@pytest.mark.parametrize("direction", ["wb", "rb"])
+def test_a_signal_in_the_middle_of_a_block_transfer_still_stops_the_drive(twin, direction, caplog):
+    # Ctrl-C lands while a table goes down or a capture comes up: the interrupted block transfer is
+    # aborted, so the drive's SDO server takes the Disable Voltage that follows, and the next run works
+    t = twin()
+    ad = t.open()
+    ad.configure(FS, "torque")
+    real_open = ad.node.sdo.open
+
+    def open_interrupted(index, subindex=0, mode="rb", **options):
+        stream = real_open(index, subindex, mode, **options)
+        if mode == direction:
+            name = "write" if mode == "wb" else "read"
+            real = getattr(stream, name)
+            calls = []
+
+            def interrupted(*args):
+                calls.append(1)
+                if len(calls) == 20:
+                    raise KeyboardInterrupt
+                return real(*args)
+
+            setattr(stream, name, interrupted)
+        return stream
+
+    ad.node.sdo.open = open_interrupted
+    with pytest.raises(KeyboardInterrupt), caplog.at_level("INFO", logger="canopen"):
+        ad.stream(np.zeros(3000), lambda i, rows: None)
+    assert t.fw.state is cia402.State.SWITCH_ON_DISABLED and not t.emulated.drive.enabled
+    assert not [r for r in caplog.records if r.levelname in ("WARNING", "ERROR")]  # the interruption says it all
+    ad.node.sdo.open = real_open
+    result = ad.stream(np.zeros(1000), lambda i, rows: None)
+    assert result.completed and result.stats.samples == 1000
+
+
 # --- a real process, killed --------------------------------------------------------------------------
 
 
