@@ -385,6 +385,41 @@ def test_a_signal_in_the_middle_of_a_block_transfer_still_stops_the_drive(twin, 
     assert result.completed and result.stats.samples == 1000
 
 
+def test_safe_stop_from_a_handler_that_interrupted_a_table_download(twin):
+    # a signal handler that calls safe_stop() at once runs in the middle of whatever the main thread did
+    t = twin()
+    ad = t.open()
+    ad.configure(FS, "torque")
+    ad.enable()
+    real_open = ad.node.sdo.open
+    states = []
+
+    def open_with_handler(index, subindex=0, mode="rb", **options):
+        stream = real_open(index, subindex, mode, **options)
+        real_write = stream.write
+        calls = []
+
+        def write(b):
+            calls.append(1)
+            if len(calls) == 20:  # the "handler": stop now, then end the run
+                ad.safe_stop()
+                states.append(t.fw.state)
+                raise KeyboardInterrupt
+            return real_write(b)
+
+        stream.write = write
+        return stream
+
+    ad.node.sdo.open = open_with_handler
+    with pytest.raises(KeyboardInterrupt):
+        ad.write_domain(ad.desc.address("table"), np.zeros(3000, "<f4").tobytes())
+    assert states == [cia402.State.SWITCH_ON_DISABLED]
+    ad.node.sdo.open = real_open
+    ad.enable()
+    ad.safe_stop()
+    assert t.fw.state is cia402.State.SWITCH_ON_DISABLED
+
+
 # --- a real process, killed --------------------------------------------------------------------------
 
 

@@ -167,6 +167,7 @@ class CanopenDriveAdapter(AdapterBase):
         self.run_fault: dict | None = None  # the first fault event of the current run (the first cause)
         self._host_heartbeat = None  # the periodic task producing the host's heartbeat
         self._consumer: ObjectAddress | None = None  # the 0x1016 entry watching the host
+        self._in_block_transfer = False  # a block transfer is under way (safe_stop must abort it first)
         self.emergencies: collections.deque[Emergency] = collections.deque()
         self.heartbeat_s: float | None = None
         self.heartbeat_state: int | None = None
@@ -457,9 +458,11 @@ class CanopenDriveAdapter(AdapterBase):
                                         **options)
         except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
             raise self._sdo_error(exc, addr, action) from None
+        self._in_block_transfer = True
         try:
             result = body(stream)
         except BaseException as exc:
+            self._in_block_transfer = False
             io.RawIOBase.close(stream)  # closed without the end-of-transfer exchange
             if not isinstance(exc, SdoAbortedError):  # the drive aborted: its server is idle already
                 with contextlib.suppress(Exception):
@@ -469,6 +472,7 @@ class CanopenDriveAdapter(AdapterBase):
             if isinstance(exc, SdoAbortedError):
                 raise self._sdo_error(exc, addr, action) from None
             raise
+        self._in_block_transfer = False
         try:
             stream.close()
         except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
@@ -609,9 +613,14 @@ class CanopenDriveAdapter(AdapterBase):
 
         One SDO write, whatever the state (a drive in Fault keeps its fault and
         its power stage stays off). The bus and the host's heartbeat stay up.
-        Never raises; a drive that does not answer costs one SDO timeout.
+        Never raises; a drive that does not answer costs one SDO timeout. Safe
+        to call from a signal handler that interrupted a block transfer: that
+        transfer is aborted first, or the drive would take the request for a
+        data segment.
         """
         try:
+            if self._in_block_transfer:
+                self.node.sdo.abort(_ABORT_GENERAL)
             self.write("controlword", int(cia402.Command.DISABLE_VOLTAGE))
         except Exception:
             pass
