@@ -168,6 +168,7 @@ class CanopenDriveAdapter(AdapterBase):
         self._host_heartbeat = None  # the periodic task producing the host's heartbeat
         self._consumer: ObjectAddress | None = None  # the 0x1016 entry watching the host
         self._in_block_transfer = False  # a block transfer is under way (safe_stop must abort it first)
+        self.answered = True  # the drive answered the last safe_stop()
         self.emergencies: collections.deque[Emergency] = collections.deque()
         self.heartbeat_s: float | None = None
         self.heartbeat_state: int | None = None
@@ -243,8 +244,9 @@ class CanopenDriveAdapter(AdapterBase):
         """
         try:
             self.safe_stop()
-            with contextlib.suppress(Exception):
-                self._disarm_device_net()
+            if self.answered:
+                with contextlib.suppress(Exception):
+                    self._disarm_device_net()
             with contextlib.suppress(Exception):
                 self.nmt("PRE-OPERATIONAL")  # no PDOs from here on
         finally:
@@ -622,8 +624,9 @@ class CanopenDriveAdapter(AdapterBase):
             if self._in_block_transfer:
                 self.node.sdo.abort(_ABORT_GENERAL)
             self.write("controlword", int(cia402.Command.DISABLE_VOLTAGE))
+            self.answered = True
         except Exception:
-            pass
+            self.answered = False  # gone or not listening: close() does not wait for it again
 
     # --- configuration ---------------------------------------------------------------------------
 
