@@ -31,7 +31,7 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 CONFIG = CONFIGS / "emulated-canopen-gantry.toml"
 FS = 1000.0
 HOST_TIMEOUT_S = 0.3
-TOLERANCE_S = 0.1  # the twin's clock checks the consumer every 4 ms; thread scheduling on a busy machine
+TOLERANCE_S = 0.15  # the twin's clock checks the consumer every 4 ms; thread scheduling on a busy machine
 
 
 class Twin:
@@ -145,6 +145,21 @@ def test_a_host_that_dies_hard_leaves_the_drive_switched_off_within_the_consumer
     # the next session starts cleanly and finds the drive off
     ad2 = t.open(acquisition)
     assert ad2.connect_report.faults == [] and ad2.drive_state() is cia402.State.SWITCH_ON_DISABLED
+
+
+def test_a_host_whose_heartbeat_thread_starves_keeps_the_drive_while_it_talks_to_it(twin):
+    # the cyclic sender waits for the interpreter; the thread polling the drive sends the heartbeat instead
+    t = twin()
+    ad = t.open()
+    ad.configure(FS, "torque")
+    ad.enable()
+    ad._host_heartbeat.stop()
+    end = time.monotonic() + 3 * HOST_TIMEOUT_S
+    while time.monotonic() < end:
+        ad.drive_state()
+        time.sleep(0.02)
+    assert t.fw.heartbeat_events == 0 and t.fw.state is cia402.State.OPERATION_ENABLED
+    assert wait_until(lambda: not t.emulated.drive.enabled, HOST_TIMEOUT_S + 1.0) <= HOST_TIMEOUT_S + TOLERANCE_S
 
 
 def test_abort_option_fault_latches_and_the_next_session_needs_the_reset(twin, tmp_path):
@@ -284,7 +299,7 @@ def test_events_reach_the_adapter_while_the_run_goes_on(twin):
     t = twin(drop_pdo_rate=0.02)
     ad = t.open("streamed")
     ad.configure(FS, "torque")
-    ad.sync_rate_hz = 5000.0  # the emulated drive's clock follows SYNC
+    ad.sync_rate_hz = 2000.0  # the emulated drive's clock follows SYNC
     seen = []
     result = ad.stream(np.zeros(2000), lambda i, rows: seen.append(len(ad.events)))
     lost = [e for e in result.events if e["kind"] == "lost_blocks"]
@@ -457,8 +472,9 @@ def test_sigkill_of_hilident_run_leaves_the_socketcand_drive_switched_off(twin, 
     finally:
         if run.poll() is None:
             run.kill()
-    # the TCP connection closing is no stop signal: the heartbeat consumer is
-    assert took <= HOST_TIMEOUT_S + TOLERANCE_S + 0.1
+    # the TCP connection closing is no stop signal: the heartbeat consumer is (a twin sharing a busy
+    # machine with the host it watches gets more slack than one in the test's own process)
+    assert took <= HOST_TIMEOUT_S + 2 * TOLERANCE_S
     assert t.fw.heartbeat_event_wall - t.fw.heard[127] >= HOST_TIMEOUT_S
     assert t.fw.heartbeat_events == 1 and t.fw.state is cia402.State.SWITCH_ON_DISABLED
     # and the next session on the same drive runs from start to end

@@ -169,6 +169,8 @@ class CanopenDriveAdapter(AdapterBase):
         self._consumer: ObjectAddress | None = None  # the 0x1016 entry watching the host
         self._in_block_transfer = False  # a block transfer is under way (safe_stop must abort it first)
         self.answered = True  # the drive answered the last safe_stop()
+        self._beat: tuple[int, float] = (0, 0.0)  # (COB-ID, period s) of the host's heartbeat
+        self._beat_s = 0.0  # when the host's heartbeat last went out (monotonic s)
         self.emergencies: collections.deque[Emergency] = collections.deque()
         self.heartbeat_s: float | None = None
         self.heartbeat_state: int | None = None
@@ -351,8 +353,27 @@ class CanopenDriveAdapter(AdapterBase):
     def _start_host_heartbeat(self, host: int, period_s: float) -> None:
         """python-can's cyclic sender in a daemon thread: it dies with the process, which is the point."""
         msg = can.Message(arbitration_id=0x700 + host, data=[_NMT_OPERATIONAL], is_extended_id=False)
+        self._beat = (msg.arbitration_id, period_s)
+        self._beat_s = time.monotonic()
         self._host_heartbeat = can.broadcastmanager.ThreadBasedCyclicSendTask(
-            self.network.bus, self.network.send_lock, msg, period_s, on_error=lambda exc: False)
+            self.network.bus, self.network.send_lock, msg, period_s, on_error=lambda exc: False,
+            modifier_callback=self._on_beat)
+
+    def _on_beat(self, msg) -> None:
+        self._beat_s = time.monotonic()
+
+    def beat_if_due(self) -> None:
+        """Send the host's heartbeat from this thread when the cyclic sender is a period late.
+
+        On a loaded machine the sender thread can wait for the interpreter
+        longer than the drive's consumer time while the thread talking to the
+        drive keeps running; a heartbeat from that thread is just as true.
+        """
+        if self._host_heartbeat is None or time.monotonic() - self._beat_s < self._beat[1]:
+            return
+        self._beat_s = time.monotonic()
+        with contextlib.suppress(can.CanError, OSError):
+            self.network.send_message(self._beat[0], bytes([_NMT_OPERATIONAL]))
 
     def _stop_host_heartbeat(self) -> None:
         task, self._host_heartbeat = self._host_heartbeat, None
@@ -389,6 +410,7 @@ class CanopenDriveAdapter(AdapterBase):
         var = self.node.object_dictionary.get_variable(addr.index, addr.subindex)
         if var is None:
             raise DeviceError(f"{self.port}: object {addr} is not in the EDS {self.desc.eds}")
+        self.beat_if_due()
         try:
             return var.decode_raw(self.node.sdo.upload(addr.index, addr.subindex))
         except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
@@ -403,6 +425,7 @@ class CanopenDriveAdapter(AdapterBase):
             data = var.encode_raw(value)
         except (ValueError, TypeError, struct_error) as exc:
             raise DataError(f"{self.port}: value {value!r} does not fit {self.describe(addr)}: {exc}") from None
+        self.beat_if_due()
         try:
             self.node.sdo.download(addr.index, addr.subindex, data)
         except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
@@ -744,7 +767,8 @@ class CanopenDriveAdapter(AdapterBase):
             self.node.nmt.state = state
         except Exception as exc:
             raise DeviceError(f"{self.port}: NMT command {state} failed: {exc}") from None
-        self._nmt_settled_s = time.monotonic() + 2 * self.desc.heartbeat_ms / 1000.0 + 0.05
+        # heartbeats sent before the drive took the command may still be on their way (a loaded bus reader)
+        self._nmt_settled_s = time.monotonic() + self.desc.heartbeat_timeout_ms / 1000.0
 
     @staticmethod
     def channel_index(codecs, name: str) -> int:

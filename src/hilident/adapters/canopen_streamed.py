@@ -154,6 +154,7 @@ def run_streamed(ad, x: np.ndarray, sink, progress=None) -> RunResult:
                     send(rpdo_cob, rpdo_pack.pack(sent % rx_mod, setpoints[sent]))
                     send(0x80, bytes([sent % overflow + 1]) if overflow > 1 else b"")
                     sent += 1
+            ad.beat_if_due()
             newest = drain(sent)
             if newest > top:
                 top, heard_s = newest, now

@@ -73,6 +73,7 @@ CAPTURE_CHUNK_RECORDS = 4096
 #: A drive that saw SYNC and then none for this long (wall time) while enabled faults (0x8250).
 SYNC_WATCHDOG_S = 1.0
 IDLE_S = 0.02  # a bus reader this long without a frame has nothing queued (heartbeat consumer)
+STALL_S = 0.1  # the clock thread ran this late: the whole process stood still (heartbeat consumer)
 COAST_S = 2.0  # simulated time the axis is left to coast after the power stage is switched off
 
 ABORT_VALUE = 0x06090030
@@ -571,8 +572,9 @@ class CanopenDriveFirmware:
         bus timestamps: the event fires when a frame stamped after the deadline
         was read with no heartbeat before it, or when the deadline passed and
         nothing is left to read (``IDLE_S`` without a frame, counted from when the
-        twin's own clock last ran on time: a process that was not scheduled has
-        frames waiting that its reader threads have not had the chance to read).
+        twin's own clock ran again after a stall of ``STALL_S``: a process that
+        was not scheduled has frames waiting that its reader threads have not
+        had the chance to read).
         """
         wall = time.time()
         last_stamp, last_handled = self.last_frame
@@ -870,7 +872,7 @@ class CanopenDriveFirmware:
     def tick(self, now: float) -> None:
         """Clock work: the heartbeat consumer, table playback, coasting with the power stage off, the SYNC watchdog."""
         with self.lock:
-            if now - self.last_tick > IDLE_S:
+            if now - self.last_tick > STALL_S:
                 self.resumed = now
             self.last_tick = now
             if self.consumers:
