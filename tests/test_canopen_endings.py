@@ -31,7 +31,7 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 CONFIG = CONFIGS / "emulated-canopen-gantry.toml"
 FS = 1000.0
 HOST_TIMEOUT_S = 0.3
-TOLERANCE_S = 0.15  # the twin's clock checks the consumer every 4 ms; thread scheduling on a busy machine
+TOLERANCE_S = 0.25  # the twin checks every 4 ms; the rest is thread scheduling on a busy (CI) machine
 
 
 class Twin:
