@@ -315,3 +315,91 @@ def test_socketcand_bridge_serves_the_bus(tmp_path):
             can.Bus(interface="socketcand", host=host, port=int(port), channel="can9")
     finally:
         emulated.close()
+
+
+def _beat(host, node, period_s):
+    """A heartbeat producer for ``node`` on the host's bus (what a master sends)."""
+    return host.network.send_periodic(0x700 + node, b"\x05", period_s)
+
+
+@pytest.mark.parametrize("option, after", [(0, cia402.State.OPERATION_ENABLED),
+                                           (1, cia402.State.FAULT),
+                                           (2, cia402.State.SWITCH_ON_DISABLED),
+                                           (3, cia402.State.SWITCH_ON_DISABLED)])
+def test_heartbeat_consumer_fires_emcy_8130_and_the_abort_option(drive_host, option, after):
+    host, emulated, _ = drive_host()
+    host.limits()
+    host.write(0x1016, 1, (100 << 16) | 150)  # watch node 100, 150 ms
+    host.write(0x6007, 0, option)
+    assert host.read(0x1016, 1) == (100 << 16) | 150 and host.read(0x6007) == option
+    host.enable()
+    time.sleep(0.4)  # no heartbeat yet: monitoring has not started (CiA 301)
+    assert host.state() is cia402.State.OPERATION_ENABLED and host.emcy == []
+    beat = _beat(host, 100, 0.03)
+    time.sleep(0.3)
+    assert host.state() is cia402.State.OPERATION_ENABLED  # heard in time
+    beat.stop()
+    stopped = time.monotonic()
+    deadline = stopped + 1.0
+    while not host.emcy and time.monotonic() < deadline:
+        time.sleep(0.002)
+    took = time.monotonic() - stopped
+    assert 0.15 - 0.03 - 0.01 <= took <= 0.15 + 0.1
+    assert [e.code for e in host.emcy] == [0x8130]
+    assert host.state() is after
+    assert emulated.drive.enabled == (option == 0)
+
+
+def test_heartbeat_consumer_entries_follow_cia301(drive_host):
+    host, emulated, _ = drive_host()
+    host.write(0x1016, 1, (100 << 16) | 150)
+    with pytest.raises(SdoAbortedError) as err:
+        host.write(0x1016, 2, (100 << 16) | 300)  # one producer, one entry
+    assert err.value.code == 0x06040043
+    host.write(0x1016, 2, (101 << 16) | 300)
+    host.write(0x1016, 1, 0)  # off
+    beat = _beat(host, 100, 0.03)
+    time.sleep(0.3)
+    beat.stop()
+    time.sleep(0.3)
+    assert host.emcy == []  # node 100 is no longer watched
+    for bad in (4, -1):
+        with pytest.raises(SdoAbortedError):
+            host.write(0x6007, 0, bad)
+
+
+def test_socketcand_frames_flow_only_after_the_rawmode_ok():
+    # python-can's client reads exactly "< ok >" after "< open >" and "< rawmode >": a frame in between
+    # (the drive's heartbeat is always on the bus) breaks its handshake
+    import socket
+
+    driver = find_driver("canopen-servo")
+    emulated = start_socketcand(emulator_config(), driver, DeviceConfig(driver="canopen-servo", node_id=NODE))
+    try:
+        emulated.server.firmware.node.sdo[0x1017].raw = 5  # a heartbeat every 5 ms
+        port = int(emulated.device.port.split(":")[1].split("/")[0])
+        with socket.create_connection(("127.0.0.1", port), timeout=1.0) as sock:
+
+            def received(wait_s):
+                """Everything that arrives within ``wait_s``."""
+                deadline = time.monotonic() + wait_s
+                data = b""
+                while (left := deadline - time.monotonic()) > 0:
+                    sock.settimeout(left)
+                    try:
+                        chunk = sock.recv(65536)
+                    except socket.timeout:
+                        break
+                    if not chunk:
+                        break
+                    data += chunk
+                return data
+
+            assert received(0.1) == b"< hi >"
+            sock.sendall(b"< open can0 >")
+            assert received(0.2) == b"< ok >"
+            sock.sendall(b"< rawmode >")
+            data = received(0.5)
+            assert data.startswith(b"< ok >< frame 703 ")
+    finally:
+        emulated.close()

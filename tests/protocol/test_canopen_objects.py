@@ -102,3 +102,31 @@ def test_description_errors_name_the_key():
     del sections["canopen"]["objects"]["capture_data"]
     with pytest.raises(ConfigError, match="capture_data"):  # buffered is this drive's default
         co.CanopenDescription.from_sections(sections)
+
+
+@given(st.integers(0, 127), st.integers(0, 0xFFFF))
+def test_heartbeat_consumer_entries_round_trip(node, time_ms):
+    entry = co.consumer_entry(node, time_ms)
+    assert 0 <= entry < 2**24 and co.parse_consumer_entry(entry) == (node, time_ms)
+
+
+def test_heartbeat_consumer_entry_is_the_cia301_layout():
+    assert co.consumer_entry(127, 500) == 0x007F01F4
+    with pytest.raises(DataError, match="node 128"):
+        co.consumer_entry(128, 500)
+
+
+def test_device_net_keys_of_the_description():
+    sections = find_driver("canopen-servo").sections
+    desc = co.CanopenDescription.from_sections(sections)
+    assert (desc.host_node_id, desc.abort_connection_option) == (127, 2)
+    for key, value, match in [("host_node_id", 0, "1..127"), ("host_node_id", 200, "1..127"),
+                              ("abort_connection_option", 0, r"\[1, 2, 3\]"),
+                              ("abort_connection_option", -1, "quick stop"), ("host_node_id", "x", "must be int")]:
+        broken = copy.deepcopy(sections)
+        broken["canopen"][key] = value
+        with pytest.raises(ConfigError, match=rf"canopen\.{key}.*{match}"):
+            co.CanopenDescription.from_sections(broken, "driver.toml")
+    bare = copy.deepcopy(sections)
+    del bare["canopen"]["host_node_id"], bare["canopen"]["abort_connection_option"]
+    assert co.CanopenDescription.from_sections(bare).host_node_id == 127

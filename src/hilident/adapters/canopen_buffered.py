@@ -36,7 +36,7 @@ def run_buffered(ad, x: np.ndarray, sink, progress=None) -> RunResult:
     stats = StreamStats()
     result = RunResult(requested_samples=n, stats=stats)
     ad.last_result = result
-    events = result.events
+    events = ad.events  # live: the session writes them to the recording while the run goes on
     d = ad.desc
     capacity = int(ad.read("table_capacity"))
     if n > capacity:
@@ -63,7 +63,7 @@ def run_buffered(ad, x: np.ndarray, sink, progress=None) -> RunResult:
             events.append(event)
             if event["kind"] != "emergency_reset":
                 fault = event
-                result.fault = event["message"]
+                ad.note_fault(event)
                 _stop_table(ad)  # an emergency stops the excitation, whatever the drive does on its own
         ad.check_link()
         state = int(ad.read("table_state"))
@@ -98,7 +98,8 @@ def run_buffered(ad, x: np.ndarray, sink, progress=None) -> RunResult:
             event = ad.emergency_event(ad.emergencies.popleft(), captured)
             events.append(event)
             if event["kind"] != "emergency_reset":
-                fault, result.fault = event, event["message"]
+                fault = event
+                ad.note_fault(event)
     if fault is not None:
         raise ad.fault_error(fault)
     if state == TableState.STOPPED:

@@ -18,6 +18,22 @@ driver's ``default_acquisition``):
     plays it at its own rate and captures; the host reads the capture back in
     chunks while it runs.
 
+Connecting brings the drive to a known state whatever the previous session left
+(it may have been killed): the drive is told NMT Pre-operational (no PDOs from
+before), frames that arrived before that are discarded and counted, the power
+stage is switched off (Disable Voltage: Switch On Disabled), and a drive in
+Fault is reported with its error code (0x603F) and reset only with
+``device.allow_fault_reset``; otherwise the connection is refused.
+
+The device-side net for a host that dies hard (SIGKILL, power cut, cable
+pulled): the host produces a heartbeat (COB-ID 0x700 + ``[canopen]
+host_node_id``, state Operational) every third of ``device.host_timeout_s``
+from a background thread, and arms the drive's heartbeat consumer (0x1016) to
+watch it with ``host_timeout_s``; where the EDS has the abort connection option
+code (0x6007) it is set to ``[canopen] abort_connection_option`` (2, Disable
+Voltage, by default). A drive whose EDS lacks 0x1016 gets no net, and
+``connect_report.device_net`` says so.
+
 SDO aborts become :class:`~hilident.errors.DeviceError` naming the object
 (``0x6072:0 (Max torque)``) and the abort's meaning. canopen's ``BaseNode402``
 is not used: the state machine and the PDO set-up live here and in
@@ -28,6 +44,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import io
 import math
 import time
 from struct import error as struct_error
@@ -40,7 +57,7 @@ import canopen
 import numpy as np
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
-from hilident.adapters.base import AdapterBase, RunResult
+from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, refuse_latched_faults
 from hilident.adapters.canopen_link import open_network
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription
@@ -49,7 +66,8 @@ from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
 from hilident.protocol import cia402
 from hilident.protocol.canopen_objects import (
-    CanopenDescription, ObjectAddress, encode_si, mapping_entry, numpy_type, pack_frames, type_bits,
+    ABORT_CONNECTION_INDEX, ABORT_CONNECTION_OPTIONS, HEARTBEAT_CONSUMER_INDEX, CanopenDescription, ObjectAddress,
+    consumer_entry, encode_si, mapping_entry, numpy_type, pack_frames, parse_consumer_entry, type_bits,
 )
 from hilident.protocol.filter_encoding import FilterEncoding
 
@@ -58,6 +76,8 @@ __all__ = ["CanopenDriveAdapter", "DriveIdentity", "ChannelCodec", "LIMIT_TRIP_C
 #: Emergency codes that mean a safety limit tripped (they raise LimitTrip).
 LIMIT_TRIP_CODES = {0x8311: "torque_limit", 0x8400: "velocity_limit", 0x8612: "position_limit"}
 _NMT_OPERATIONAL = 5
+_TPDO_BASES = (0x180, 0x280, 0x380, 0x480)
+_ABORT_GENERAL = 0x08000000  # SDO abort code: general error (a transfer the host broke off)
 _STATE_POLL_S = 0.002
 
 
@@ -142,6 +162,15 @@ class CanopenDriveAdapter(AdapterBase):
         self.rpdo: tuple | None = None  # (COB-ID, counter type, set-point type, set-point role)
         self._configured_for = ""  # the acquisition configure() mapped the objects for
         self.last_result: RunResult | None = None
+        self.events: list[dict] = []
+        self.connect_report = ConnectReport()
+        self.run_fault: dict | None = None  # the first fault event of the current run (the first cause)
+        self._host_heartbeat = None  # the periodic task producing the host's heartbeat
+        self._consumer: ObjectAddress | None = None  # the 0x1016 entry watching the host
+        self._in_block_transfer = False  # a block transfer is under way (safe_stop must abort it first)
+        self.answered = True  # the drive answered the last safe_stop()
+        self._beat: tuple[int, float] = (0, 0.0)  # (COB-ID, period s) of the host's heartbeat
+        self._beat_s = 0.0  # when the host's heartbeat last went out (monotonic s)
         self.emergencies: collections.deque[Emergency] = collections.deque()
         self.heartbeat_s: float | None = None
         self.heartbeat_state: int | None = None
@@ -156,13 +185,21 @@ class CanopenDriveAdapter(AdapterBase):
 
     @classmethod
     def open_device(cls, device: DeviceConfig, driver: DriverDescription, link=None) -> "CanopenDriveAdapter":
-        """Open the bus, load the EDS, check the identity and start heartbeat monitoring.
+        """Open the bus, load the EDS, check the identity, bring the drive to a known state, arm the net.
+
+        See the module docstring: NMT Pre-operational, frames from before
+        counted in ``connect_report.discarded_frames``, Disable Voltage, a
+        latched fault reported (reset only with ``device.allow_fault_reset``),
+        then the host's heartbeat and the drive's heartbeat consumer.
 
         Raises
         ------
         DeviceError
-            The bus cannot be opened, the node does not answer, or it is not the
-            drive the description expects (the message names the object).
+            The bus cannot be opened, the node does not answer, it is not the
+            drive the description expects (the message names the object), or it
+            has a latched fault and resetting it is not allowed.
+        ConfigError
+            ``[canopen] host_node_id`` is the drive's own node id.
         """
         source = str(driver.folder / "driver.toml")
         desc = CanopenDescription.from_sections(driver.sections, source)
@@ -172,14 +209,28 @@ class CanopenDriveAdapter(AdapterBase):
         eds = driver.folder / desc.eds
         if not eds.is_file():
             raise ConfigError("canopen.eds", f"EDS file {eds} not found", source)
+        if desc.host_node_id == device.node_id:
+            raise ConfigError("canopen.host_node_id",
+                              f"{desc.host_node_id} is also the drive's node id (device.node_id): the host's "
+                              "heartbeat needs a node id of its own", source)
         network = open_network(device, driver.default_baudrate, label)
+        adapter = None
         try:
             od = canopen.import_od(str(eds), device.node_id)
             node = canopen.RemoteNode(device.node_id, od)
             network.add_node(node)
             adapter = cls(network, node, driver, desc, device, label)
-            adapter._identify()
+            early = adapter._count_early_frames()
+            try:
+                adapter._identify()
+                adapter._to_known_state()
+            finally:
+                early.stop()
+            adapter.connect_report.discarded_frames += early.frames
+            adapter._arm_device_net()
         except BaseException:
+            if adapter is not None:
+                adapter._stop_host_heartbeat()
             try:
                 network.disconnect()
             except Exception:
@@ -188,16 +239,152 @@ class CanopenDriveAdapter(AdapterBase):
         return adapter
 
     def close(self) -> None:
-        """Zero torque, drive in a safe state, heartbeat off, bus released. Never raises."""
+        """Zero torque, drive in a safe state, its heartbeat consumer off, host heartbeat off, bus released.
+
+        Never raises. The consumer entry is cleared before the host's heartbeat
+        stops, so a clean close does not look like a dead host to the drive.
+        """
         try:
             self.safe_stop()
+            if self.answered:
+                with contextlib.suppress(Exception):
+                    self._disarm_device_net()
             with contextlib.suppress(Exception):
                 self.nmt("PRE-OPERATIONAL")  # no PDOs from here on
         finally:
+            self._stop_host_heartbeat()
             with contextlib.suppress(Exception):
                 self.network.stop_trace()
             with contextlib.suppress(Exception):
                 self.network.disconnect()
+
+    # --- known state at connect, device-side net -------------------------------------------------
+
+    def _count_early_frames(self) -> "_FrameCounter":
+        """Count the TPDOs and emergencies that arrive while the host has configured nothing."""
+        cobs = [base + self.node.id for base in _TPDO_BASES]
+        counter = _FrameCounter(self.network, cobs)
+        return counter
+
+    def _to_known_state(self) -> None:
+        """NMT Pre-operational, power stage off, latched faults reported (reset only when allowed).
+
+        Raises
+        ------
+        DeviceError
+            The drive is in Fault and ``device.allow_fault_reset`` is false (the
+            message names the fault and how to clear it), or it does not leave Fault.
+        """
+        self.nmt("PRE-OPERATIONAL")  # PDOs of an earlier session stop here
+        state = self.drive_state()
+        if state in (cia402.State.FAULT, cia402.State.FAULT_REACTION_ACTIVE):
+            self.connect_report.faults = [f"{state.value}, {self.last_error_text()}"]
+            if not self.device.allow_fault_reset:
+                raise refuse_latched_faults(self.port, self.connect_report.faults)
+            self._reset_fault(state)
+            self.connect_report.faults_cleared = True
+        elif cia402.path_to_safe_state(state):
+            self.safe_stop()  # left switched on by someone else: off before anything moves
+            state = self.drive_state()
+            if state is not cia402.State.SWITCH_ON_DISABLED:
+                raise DeviceError(f"{self.port}: the drive does not switch its power stage off: it stays in "
+                                  f"{state.value} after Disable Voltage "
+                                  f"({self.describe(self.desc.address('controlword'))})")
+        self.connect_report.discarded_frames += len(self.emergencies)
+        self.emergencies.clear()  # emergencies of an earlier session: their fault is handled above
+
+    def _reset_fault(self, state: cia402.State) -> None:
+        """Fault reset (a rising edge of controlword bit 7) to Switch On Disabled."""
+        previous = 0
+        for cw in (int(cia402.Command.DISABLE_VOLTAGE), int(cia402.Command.FAULT_RESET)):
+            state = self._command(state, cw, previous)
+            previous = cw
+        if state is not cia402.State.SWITCH_ON_DISABLED:
+            raise DeviceError(f"{self.port}: the fault did not clear: the drive is in {state.value} "
+                              f"({self.last_error_text()})")
+
+    def _arm_device_net(self) -> None:
+        """Produce the host's heartbeat and have the drive watch it (0x1016, 0x6007 when the EDS has them)."""
+        od = self.node.object_dictionary
+        if HEARTBEAT_CONSUMER_INDEX not in od:
+            self.connect_report.device_net = (f"none: {self.desc.eds} has no heartbeat consumer (0x1016); the drive "
+                                              "does not stop on its own when the host dies")
+            return
+        host = self.desc.host_node_id
+        time_ms = max(1, min(0xFFFF, round(self.device.host_timeout_s * 1000)))
+        period_s = time_ms / 3000.0
+        entry = self._consumer_entry_for(host)
+        self.write_object(entry, consumer_entry(host, time_ms))
+        self._consumer = entry
+        # after the entry: the task's first frame goes out at once and starts the drive's monitoring
+        # (CiA 301: a consumer watches from the first heartbeat it receives)
+        self._start_host_heartbeat(host, period_s)
+        net = (f"heartbeat consumer {entry}: host node {host}, {time_ms} ms "
+               f"(host heartbeat every {period_s * 1e3:.0f} ms)")
+        if ABORT_CONNECTION_INDEX in od:
+            option = self.desc.abort_connection_option
+            self.write_object(ObjectAddress(ABORT_CONNECTION_INDEX, 0), option)
+            net += f"; 0x6007 = {option} ({ABORT_CONNECTION_OPTIONS[option]})"
+        else:
+            net += "; no 0x6007: the drive's own reaction to a lost heartbeat"
+        self.connect_report.device_net = net
+
+    def _consumer_entry_for(self, host: int) -> ObjectAddress:
+        """The 0x1016 entry already watching ``host``, else the first unused one."""
+        var = self.node.object_dictionary[HEARTBEAT_CONSUMER_INDEX]
+        count = int(self.read_object(ObjectAddress(HEARTBEAT_CONSUMER_INDEX, 0)))
+        free, others = None, []
+        for sub in range(1, count + 1):
+            if var.get(sub) is None:
+                continue
+            addr = ObjectAddress(HEARTBEAT_CONSUMER_INDEX, sub)
+            node, time_ms = parse_consumer_entry(int(self.read_object(addr)))
+            if node == host:
+                return addr
+            if node == 0 or time_ms == 0:
+                free = free or addr
+            else:
+                others.append(f"{addr}: node {node}")
+        if free is None:
+            raise DeviceError(f"{self.port}: every heartbeat consumer entry of 0x1016 watches another node "
+                              f"({', '.join(others)}); free one for the host (node {host}, [canopen] host_node_id)")
+        return free
+
+    def _start_host_heartbeat(self, host: int, period_s: float) -> None:
+        """python-can's cyclic sender in a daemon thread: it dies with the process, which is the point."""
+        msg = can.Message(arbitration_id=0x700 + host, data=[_NMT_OPERATIONAL], is_extended_id=False)
+        self._beat = (msg.arbitration_id, period_s)
+        self._beat_s = time.monotonic()
+        self._host_heartbeat = can.broadcastmanager.ThreadBasedCyclicSendTask(
+            self.network.bus, self.network.send_lock, msg, period_s, on_error=lambda exc: False,
+            modifier_callback=self._on_beat)
+
+    def _on_beat(self, msg) -> None:
+        self._beat_s = time.monotonic()
+
+    def beat_if_due(self) -> None:
+        """Send the host's heartbeat from this thread when the cyclic sender is a period late.
+
+        On a loaded machine the sender thread can wait for the interpreter
+        longer than the drive's consumer time while the thread talking to the
+        drive keeps running; a heartbeat from that thread is just as true.
+        """
+        if self._host_heartbeat is None or time.monotonic() - self._beat_s < self._beat[1]:
+            return
+        self._beat_s = time.monotonic()
+        with contextlib.suppress(can.CanError, OSError):
+            self.network.send_message(self._beat[0], bytes([_NMT_OPERATIONAL]))
+
+    def _stop_host_heartbeat(self) -> None:
+        task, self._host_heartbeat = self._host_heartbeat, None
+        if task is not None:
+            with contextlib.suppress(Exception):
+                task.stop()
+
+    def _disarm_device_net(self) -> None:
+        entry, self._consumer = self._consumer, None
+        if entry is not None:
+            self.write_object(entry, 0)
 
     # --- object access ----------------------------------------------------------------------
 
@@ -223,6 +410,7 @@ class CanopenDriveAdapter(AdapterBase):
         var = self.node.object_dictionary.get_variable(addr.index, addr.subindex)
         if var is None:
             raise DeviceError(f"{self.port}: object {addr} is not in the EDS {self.desc.eds}")
+        self.beat_if_due()
         try:
             return var.decode_raw(self.node.sdo.upload(addr.index, addr.subindex))
         except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
@@ -237,6 +425,7 @@ class CanopenDriveAdapter(AdapterBase):
             data = var.encode_raw(value)
         except (ValueError, TypeError, struct_error) as exc:
             raise DataError(f"{self.port}: value {value!r} does not fit {self.describe(addr)}: {exc}") from None
+        self.beat_if_due()
         try:
             self.node.sdo.download(addr.index, addr.subindex, data)
         except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
@@ -250,28 +439,70 @@ class CanopenDriveAdapter(AdapterBase):
 
     def read_domain(self, addr: ObjectAddress) -> bytes:
         """Upload a DOMAIN object (block transfer when the description says so)."""
-        try:
-            if self.desc.block_transfer:
-                with self.node.sdo.open(addr.index, addr.subindex, "rb", block_transfer=True, buffering=0) as f:
-                    return bytes(f.readall())
-            return bytes(self.node.sdo.upload(addr.index, addr.subindex))
-        except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
-            raise self._sdo_error(exc, addr, "reading") from None
+        if not self.desc.block_transfer:
+            try:
+                return bytes(self.node.sdo.upload(addr.index, addr.subindex))
+            except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
+                raise self._sdo_error(exc, addr, "reading") from None
+
+        def upload(f):
+            return bytes(f.readall())
+
+        return self._block_transfer(addr, "rb", upload, {})
 
     def write_domain(self, addr: ObjectAddress, data: bytes) -> None:
         """Download a DOMAIN object (block transfer when the description says so)."""
-        try:
-            if self.desc.block_transfer:
-                with self.node.sdo.open(addr.index, addr.subindex, "wb", size=len(data), block_transfer=True,
-                                        buffering=0) as f:
-                    view = memoryview(data)
-                    pos = 0
-                    while pos < len(data):
-                        pos += f.write(view[pos:pos + 7])
-            else:
+        if not self.desc.block_transfer:
+            try:
                 self.node.sdo.download(addr.index, addr.subindex, data, force_segment=True)
+            except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
+                raise self._sdo_error(exc, addr, "writing") from None
+            return
+
+        def download(f):
+            view = memoryview(data)
+            pos = 0
+            while pos < len(data):
+                pos += f.write(view[pos:pos + 7])
+
+        self._block_transfer(addr, "wb", download, {"size": len(data)})
+
+    def _block_transfer(self, addr: ObjectAddress, mode: str, body, options: dict):
+        """Run ``body(stream)`` on an SDO block transfer stream; an interrupted transfer is aborted.
+
+        A signal (or any exception not from the transfer itself) in the middle
+        of a block download leaves the drive's SDO server reading sub-block
+        segments, where every frame but an abort counts as data: the next
+        request (the Disable Voltage of ``safe_stop``) would be swallowed. So
+        the transfer is ended with an SDO abort, never with canopen's normal
+        close, which would send the end-of-transfer request and wait for it.
+        """
+        action = "reading" if mode == "rb" else "writing"
+        try:
+            stream = self.node.sdo.open(addr.index, addr.subindex, mode, block_transfer=True, buffering=0,
+                                        **options)
         except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
-            raise self._sdo_error(exc, addr, "writing") from None
+            raise self._sdo_error(exc, addr, action) from None
+        self._in_block_transfer = True
+        try:
+            result = body(stream)
+        except BaseException as exc:
+            self._in_block_transfer = False
+            io.RawIOBase.close(stream)  # closed without the end-of-transfer exchange
+            if not isinstance(exc, SdoAbortedError):  # the drive aborted: its server is idle already
+                with contextlib.suppress(Exception):
+                    self.node.sdo.abort(_ABORT_GENERAL)
+            if isinstance(exc, (SdoCommunicationError, can.CanError, OSError)):
+                raise self._sdo_error(exc, addr, action) from None
+            if isinstance(exc, SdoAbortedError):
+                raise self._sdo_error(exc, addr, action) from None
+            raise
+        self._in_block_transfer = False
+        try:
+            stream.close()
+        except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
+            raise self._sdo_error(exc, addr, action) from None
+        return result
 
     # --- identity, heartbeat, emergencies ------------------------------------------------------
 
@@ -304,9 +535,6 @@ class CanopenDriveAdapter(AdapterBase):
         if self.heartbeat_s is None:
             raise DeviceError(f"{self.port}: no heartbeat within {self.timeout_s:g} s after setting "
                               f"{self.describe(d.address('heartbeat_time'))} to {d.heartbeat_ms} ms")
-        state = self.drive_state()
-        if state is cia402.State.OPERATION_ENABLED or state.torque_on:
-            self.safe_stop()  # left running by someone else: switch it off before anything moves
 
     def _on_heartbeat(self, state: int) -> None:
         self.heartbeat_s = time.monotonic()
@@ -347,7 +575,9 @@ class CanopenDriveAdapter(AdapterBase):
     def fault_error(self, event: dict) -> DeviceError:
         """The exception a run ends with after ``event`` (LimitTrip for a limit)."""
         cls = LimitTrip if event["kind"] == "limit_trip" else DeviceError
-        return cls(f"{self.port}: {event['message']} at sample {event['sample_index']}")
+        error = cls(f"{self.port}: {event['message']} at sample {event['sample_index']}")
+        error.event = event  # the run's first cause, for first_cause()
+        return error
 
     # --- CiA 402 state machine ----------------------------------------------------------------
 
@@ -404,17 +634,22 @@ class CanopenDriveAdapter(AdapterBase):
         return f"error code 0x{code:04X}: {cia402.emcy_meaning(code)}" if code else "no error code"
 
     def safe_stop(self) -> None:
-        """Power stage off (Disable Voltage), whatever the state. Never raises."""
-        for _ in range(2):
-            try:
-                state = self.drive_state()
-                path = cia402.path_to_safe_state(state)
-                if not path:
-                    return
-                for cw in path:
-                    self.write("controlword", cw)
-            except Exception:
-                time.sleep(0.01)
+        """Power stage off now: Disable Voltage (transitions 7, 9, 10, 12 to Switch On Disabled).
+
+        One SDO write, whatever the state (a drive in Fault keeps its fault and
+        its power stage stays off). The bus and the host's heartbeat stay up.
+        Never raises; a drive that does not answer costs one SDO timeout. Safe
+        to call from a signal handler that interrupted a block transfer: that
+        transfer is aborted first, or the drive would take the request for a
+        data segment.
+        """
+        try:
+            if self._in_block_transfer:
+                self.node.sdo.abort(_ABORT_GENERAL)
+            self.write("controlword", int(cia402.Command.DISABLE_VOLTAGE))
+            self.answered = True
+        except Exception:
+            self.answered = False  # gone or not listening: close() does not wait for it again
 
     # --- configuration ---------------------------------------------------------------------------
 
@@ -532,7 +767,8 @@ class CanopenDriveAdapter(AdapterBase):
             self.node.nmt.state = state
         except Exception as exc:
             raise DeviceError(f"{self.port}: NMT command {state} failed: {exc}") from None
-        self._nmt_settled_s = time.monotonic() + 2 * self.desc.heartbeat_ms / 1000.0 + 0.05
+        # heartbeats sent before the drive took the command may still be on their way (a loaded bus reader)
+        self._nmt_settled_s = time.monotonic() + self.desc.heartbeat_timeout_ms / 1000.0
 
     @staticmethod
     def channel_index(codecs, name: str) -> int:
@@ -571,6 +807,8 @@ class CanopenDriveAdapter(AdapterBase):
         if not self.channels or self._configured_for != self.acquisition:
             raise DeviceError(f"{self.port}: configure() for {self.acquisition} acquisition before stream()")
         self.emergencies.clear()
+        self.events.clear()
+        self.run_fault = None
         self.last_result = None
         trace_path, self._trace_path = self._trace_path, None
         if trace_path is not None:
@@ -579,11 +817,57 @@ class CanopenDriveAdapter(AdapterBase):
             except (OSError, ValueError) as exc:
                 raise DeviceError(f"{self.port}: cannot write the CAN trace {trace_path}: {exc}") from None
         run = run_streamed if self.acquisition == "streamed" else run_buffered
+        from_sink: list[BaseException] = []
+
+        def deliver(index, rows):
+            try:
+                sink(index, rows)
+            except BaseException as exc:
+                from_sink.append(exc)
+                raise
+
         try:
-            return run(self, x, sink, progress)
+            return run(self, x, deliver, progress)
+        except BaseException as exc:
+            if any(exc is e for e in from_sink):
+                raise  # a full disk, a signal in the session's writer: its own error, after the drive is off
+            if isinstance(exc, DeviceError):
+                first = self.first_cause(exc)
+                if first is not exc:
+                    raise first from None
+                raise
+            if isinstance(exc, (can.CanError, OSError)):  # the bus itself failed (e.g. a send)
+                raise self.first_cause(DeviceError(f"{self.port}: bus failure during the run: {exc}")) from None
+            raise
         finally:
             self.safe_stop()
-            self.network.stop_trace()
+            with contextlib.suppress(Exception):
+                self.network.stop_trace()
+            if self.last_result is not None:
+                self.last_result.events = list(self.events)
+
+    def note_fault(self, event: dict) -> None:
+        """Record ``event`` as the run's fault; the first one stays the cause."""
+        if self.run_fault is None:
+            self.run_fault = event
+            if self.last_result is not None:
+                self.last_result.fault = event["message"]
+
+    def first_cause(self, exc: DeviceError) -> DeviceError:
+        """The error a run ends with: the drive's first fault (a limit trip: LimitTrip), else ``exc``.
+
+        Emergencies still queued are looked at too: an SDO abort or a lost
+        link is often only the consequence of a fault the drive just reported.
+        """
+        while self.run_fault is None and self.emergencies:
+            sample = self.last_result.stats.samples if self.last_result is not None else 0
+            event = self.emergency_event(self.emergencies.popleft(), sample)
+            self.events.append(event)
+            if event["kind"] != "emergency_reset":
+                self.note_fault(event)
+        if self.run_fault is None or getattr(exc, "event", None) is self.run_fault:
+            return exc
+        return self.fault_error(self.run_fault)
 
     def decode_rows(self, raw_columns: list[np.ndarray]) -> np.ndarray:
         """Raw channel columns -> SI rows."""
@@ -638,6 +922,11 @@ class CanopenDriveAdapter(AdapterBase):
         """The slot's raw field values and enable flag."""
         return self._read_slot(self._filter_slot(slot), slot)
 
+    def disable_filter(self, slot: int) -> None:
+        """Bypass a slot: its enable sub-index to 0; the coefficients stay stored."""
+        fo = self._filter_slot(slot)
+        self.write_object(fo.address(slot, "enabled"), 0)
+
     def restore_filter(self, slot: int, saved: tuple[dict, bool]) -> None:
         values, enabled = saved
         fo = self._filter_slot(slot)
@@ -645,3 +934,22 @@ class CanopenDriveAdapter(AdapterBase):
         if enabled:
             self.write_object(fo.address(slot, "enabled"), 1)
 
+
+
+class _FrameCounter:
+    """Counts frames on some COB-IDs until stopped (PDOs left over from an earlier session)."""
+
+    def __init__(self, network, cobs: list[int]):
+        self.network = network
+        self.cobs = cobs
+        self.frames = 0
+        for cob in cobs:
+            network.subscribe(cob, self._on_frame)
+
+    def _on_frame(self, can_id, data, timestamp) -> None:
+        self.frames += 1
+
+    def stop(self) -> None:
+        for cob in self.cobs:
+            with contextlib.suppress(KeyError, ValueError):
+                self.network.unsubscribe(cob, self._on_frame)

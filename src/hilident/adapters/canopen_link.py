@@ -41,6 +41,36 @@ def parse_socketcand_port(port: str) -> tuple[str, int, str]:
     return host, int(number), channel
 
 
+class _BusGoneFilter(logging.Filter):
+    """Drops python-can's traceback when a cyclic send (the host's heartbeat) fails because the bus went away.
+
+    The task stops on that error by design; the run notices the lost bus itself
+    and reports it as one :class:`DeviceError` naming the interface and channel.
+    """
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        exc = record.exc_info[1] if record.exc_info else None
+        return not isinstance(exc, (can.CanError, OSError))
+
+
+_BUS_GONE = _BusGoneFilter()
+
+
+class _OwnAbortFilter(logging.Filter):
+    """Drops canopen's log lines about SDO transfers the host itself broke off.
+
+    The adapter aborts a block transfer a signal interrupted (and canopen's
+    client aborts one that failed); what the user needs is the one-line error
+    or the interruption, not the library's account of the abort.
+    """
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not str(record.msg).startswith(("Transfer aborted by client", "Block transfer was not finished"))
+
+
+_OWN_ABORT = _OwnAbortFilter()
+
+
 def bus_arguments(device: DeviceConfig, default_bitrate: int) -> dict:
     """Keyword arguments of :class:`can.Bus` for ``[device]``."""
     kwargs = {"interface": device.can_interface, "bitrate": device.baudrate or default_bitrate}
@@ -120,6 +150,12 @@ def open_network(device: DeviceConfig, default_bitrate: int, label: str) -> Trac
         A malformed socketcand port.
     """
     kwargs = bus_arguments(device, default_bitrate)
+    cyclic_log = logging.getLogger("can.bcm")  # python-can's cyclic send tasks
+    if _BUS_GONE not in cyclic_log.filters:
+        cyclic_log.addFilter(_BUS_GONE)
+    sdo_log = logging.getLogger("canopen.sdo.client")
+    if _OWN_ABORT not in sdo_log.filters:
+        sdo_log.addFilter(_OWN_ABORT)
     network = TracingNetwork()
     try:
         network.connect(**kwargs)

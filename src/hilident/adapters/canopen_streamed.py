@@ -7,7 +7,8 @@ counter ``k`` and carrying the state at the start of that period. The host
 assembles a sample from its TPDOs:
 
 * a sample whose TPDOs did not all arrive within ``window`` sample periods
-  after its SYNC is lost: counted (``lost_samples``, ``lost_blocks``, and
+  after its SYNC (at the end of the run: ``_GRACE_S`` after the last SYNC or
+  the last new sample, whichever is later) is lost: counted (``lost_samples``, ``lost_blocks``, and
   ``lost_frames`` for the missing TPDOs), logged as a ``lost_blocks`` event,
   never filled in;
 * a TPDO arriving after its sample was given up is late: counted as
@@ -46,7 +47,7 @@ def run_streamed(ad, x: np.ndarray, sink, progress=None) -> RunResult:
     stats = StreamStats()
     result = RunResult(requested_samples=n, stats=stats)
     ad.last_result = result
-    events = result.events
+    events = ad.events  # live: the session writes them to the recording while the run goes on
     od = ad.node.object_dictionary
     counter_addr = ad.desc.address("sample_counter")
     counter_type = od.get_variable(counter_addr.index, counter_addr.subindex).data_type
@@ -141,6 +142,7 @@ def run_streamed(ad, x: np.ndarray, sink, progress=None) -> RunResult:
         t0 = time.perf_counter() + 0.001
         ended = None
         top = -1
+        heard_s = 0.0  # when the newest sample so far arrived
         while True:
             now = time.perf_counter()
             if fault is None:
@@ -152,13 +154,16 @@ def run_streamed(ad, x: np.ndarray, sink, progress=None) -> RunResult:
                     send(rpdo_cob, rpdo_pack.pack(sent % rx_mod, setpoints[sent]))
                     send(0x80, bytes([sent % overflow + 1]) if overflow > 1 else b"")
                     sent += 1
-            top = max(top, drain(sent))
+            ad.beat_if_due()
+            newest = drain(sent)
+            if newest > top:
+                top, heard_s = newest, now
             while ad.emergencies and fault is None:
                 event = ad.emergency_event(ad.emergencies.popleft(), max(top, 0))
                 events.append(event)
                 if event["kind"] != "emergency_reset":
                     fault = event
-                    result.fault = event["message"]
+                    ad.note_fault(event)
                     ended = now
             if fault is not None:
                 last = min(sent, fault["sample_index"] + 1)
@@ -174,7 +179,9 @@ def run_streamed(ad, x: np.ndarray, sink, progress=None) -> RunResult:
                                       f"{1 / period:g} SYNC/s")
                 if sent == n:
                     ended = ended or now
-                    if now - ended > _GRACE_S or mask[state["final"]:].min(initial=full) == full:
+                    # the grace runs from the last SYNC or the last new sample, whichever is later: a drive
+                    # still answering the last SYNCs is slow, not silent
+                    if now - max(ended, heard_s) > _GRACE_S or mask[state["final"]:].min(initial=full) == full:
                         finalize(n)
                         break
                 else:

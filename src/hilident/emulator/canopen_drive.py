@@ -20,7 +20,15 @@ does goes through its object dictionary and the bus:
   stored fields with :meth:`FilterEncoding.applied` and loads it into
   ``drive.filters``: the same chain the plant sees;
 * heartbeat producer (0x1017), EMCY on every fault (limit trips too; the first
-  four manufacturer bytes carry the sample index of the fault).
+  four manufacturer bytes carry the sample index of the fault);
+* heartbeat consumer (0x1016, when the EDS has it), as CiA 301 describes it:
+  each entry ``node << 16 | time_ms`` watches the heartbeat of one producer
+  (the host); monitoring starts with the first heartbeat received after the
+  entry was written. When one stays away longer than its time the drive sends
+  EMCY 0x8130 (life guard or heartbeat error) and does what the abort
+  connection option code (0x6007, CiA 402) says: 0 nothing, 1 Fault, 2 Disable
+  Voltage, 3 Quick Stop (both end in Switch On Disabled, power stage off).
+  A drive with 0x1016 but no 0x6007 goes to Fault (the CiA 402 default).
 
 Fault switches (``[emulator.faults]``): ``drive_fault_after_s`` (EMCY 0x4310 and
 Fault), ``heartbeat_stops_after_s``, ``abort_object`` (SDO abort on every
@@ -52,8 +60,9 @@ from hilident.emulator.drive import DriveLoop
 from hilident.errors import ConfigError, DataError
 from hilident.protocol import cia402
 from hilident.protocol.canopen_objects import (
-    NUMERIC_TYPES, REAL32, CanopenDescription, ObjectAddress, TableState, TABLE_START, TABLE_STOP, encode_si,
-    numpy_type, parse_mapping_entry, record_dtype, type_bits,
+    ABORT_CONNECTION_INDEX, HEARTBEAT_CONSUMER_INDEX, NUMERIC_TYPES, REAL32, TABLE_START, TABLE_STOP,
+    CanopenDescription, ObjectAddress, TableState, encode_si, numpy_type, parse_consumer_entry, parse_mapping_entry,
+    record_dtype, type_bits,
 )
 from hilident.protocol.filter_encoding import FilterEncoding
 
@@ -63,6 +72,8 @@ __all__ = ["CanopenDriveFirmware", "CanopenDriveServer", "start", "start_socketc
 CAPTURE_CHUNK_RECORDS = 4096
 #: A drive that saw SYNC and then none for this long (wall time) while enabled faults (0x8250).
 SYNC_WATCHDOG_S = 1.0
+IDLE_S = 0.02  # a bus reader this long without a frame has nothing queued (heartbeat consumer)
+STALL_S = 0.1  # the clock thread ran this late: the whole process stood still (heartbeat consumer)
 COAST_S = 2.0  # simulated time the axis is left to coast after the power stage is switched off
 
 ABORT_VALUE = 0x06090030
@@ -79,6 +90,8 @@ EMCY_OF_TRIP = {"torque_limit": 0x8311, "velocity_limit": 0x8400, "position_limi
 EMCY_DRIVE_FAULT = 0x4310  # excess temperature, drive (the injected fault)
 EMCY_SYNC_TIMEOUT = 0x8250
 EMCY_INTERNAL = 0x6100  # internal software error
+EMCY_HEARTBEAT = 0x8130  # life guard or heartbeat error (the host's heartbeat stopped)
+ABORT_INCOMPATIBLE = 0x06040043  # general parameter incompatibility (a producer in two consumer entries)
 
 _COLUMN_OF_ROLE = {
     "position_actual": "position_m", "velocity_actual": "velocity_mps", "torque_actual": "torque_nm",
@@ -195,6 +208,20 @@ class CanopenDriveFirmware:
         self.capture_stopped = False
         self.capture_record_size = 0
 
+        self.consumers: dict[int, tuple[int, int]] = {}  # 0x1016 sub-index -> (producer node, time ms)
+        self.heard: dict[int, float] = {}  # producer node -> bus timestamp (s) of its last heartbeat (monitoring on)
+        self.last_frame = (0.0, 0.0)  # (bus timestamp, monotonic time it was handled) of the last frame received
+        self.last_tick = 0.0
+        self.resumed = 0.0  # monotonic time the clock thread ran again after a stall of the process
+        self.host_lost: set[int] = set()  # producers whose heartbeat event fired and that stayed silent since
+        self.heartbeat_events = 0
+        self.heartbeat_event_wall: float | None = None  # wall time (s) the last heartbeat event fired
+        self._on_producer = self._guard(self._on_producer_heartbeat)
+        if HEARTBEAT_CONSUMER_INDEX in od:
+            for sub in range(1, int(self._stored(HEARTBEAT_CONSUMER_INDEX, 0)) + 1):
+                node_id, time_ms = parse_consumer_entry(int(self._stored(HEARTBEAT_CONSUMER_INDEX, sub)))
+                if node_id and time_ms:
+                    self.consumers[sub] = (node_id, time_ms)
         self.pdos = {("tpdo", n): self._load_pdo("tpdo", n) for n in range(4) if 0x1800 + n in od}
         self.pdos.update({("rpdo", n): self._load_pdo("rpdo", n) for n in range(4) if 0x1400 + n in od})
         self.last_row = drive.run(np.zeros(1))[0]
@@ -256,6 +283,8 @@ class CanopenDriveFirmware:
         network[self.node.id] = self.node
         network.subscribe(0x80, self._guard(self._on_sync))
         network.subscribe(0, self._guard(self._on_nmt))
+        for node_id, _ in self.consumers.values():
+            network.subscribe(0x700 + node_id, self._on_producer)
         for (kind, n), cfg in self.pdos.items():
             if kind == "rpdo" and cfg.valid:
                 network.subscribe(cfg.cob_id, self._guard(self._rpdo_handler(n)))
@@ -505,6 +534,82 @@ class CanopenDriveFirmware:
                 self._power_off()  # communication lost its operational state: switch off
                 self.state = cia402.State.SWITCH_ON_DISABLED
 
+    # --- heartbeat consumer (0x1016) and abort connection option (0x6007) -------------------------
+
+    def _write_consumer(self, sub: int, value: int) -> None:
+        """CiA 301: one producer per entry; node 0 or time 0 switches the entry off."""
+        node_id, time_ms = parse_consumer_entry(value)
+        active = bool(node_id and time_ms)
+        if active and any(n == node_id for s, (n, _) in self.consumers.items() if s != sub):
+            raise SdoAbortedError(ABORT_INCOMPATIBLE)
+        old = self.consumers.pop(sub, None)
+        if old is not None:
+            self.heard.pop(old[0], None)
+            self.host_lost.discard(old[0])
+        if active:
+            self.consumers[sub] = (node_id, time_ms)
+            self.heard.pop(node_id, None)  # monitoring starts with the next heartbeat
+            self.host_lost.discard(node_id)
+            if self.network is not None:
+                self.network.subscribe(0x700 + node_id, self._on_producer)
+
+    def _on_producer_heartbeat(self, can_id, data, timestamp) -> None:
+        node_id = can_id - 0x700
+        with self.lock:
+            if any(n == node_id for n, _ in self.consumers.values()):
+                self.heard[node_id] = timestamp
+                self.host_lost.discard(node_id)
+
+    def on_frame(self, msg) -> None:
+        """Every received frame, after its handlers ran: how far the drive has read the bus."""
+        self.last_frame = (msg.timestamp, time.monotonic())
+
+    def _check_consumers(self, now: float) -> None:
+        """The heartbeat event: a watched producer silent for longer than its consumer time.
+
+        A real drive handles each frame as it arrives. This one reads the bus in
+        a thread that may lag behind a flood of SYNCs, so silence is judged by
+        bus timestamps: the event fires when a frame stamped after the deadline
+        was read with no heartbeat before it, or when the deadline passed and
+        nothing is left to read (``IDLE_S`` without a frame, counted from when the
+        twin's own clock ran again after a stall of ``STALL_S``: a process that
+        was not scheduled has frames waiting that its reader threads have not
+        had the chance to read).
+        """
+        wall = time.time()
+        last_stamp, last_handled = self.last_frame
+        for node_id, time_ms in self.consumers.values():
+            seen = self.heard.get(node_id)
+            if seen is None or node_id in self.host_lost:
+                continue
+            deadline = seen + time_ms / 1000.0
+            idle = now - max(last_handled, self.resumed) > IDLE_S
+            if not (last_stamp > deadline or (wall > deadline and idle)):
+                continue
+            self.host_lost.add(node_id)
+            self.heartbeat_events += 1
+            self.heartbeat_event_wall = wall
+            self._abort_connection()
+
+    def _abort_connection(self) -> None:
+        """EMCY 0x8130, then the action of the abort connection option code (0x6007)."""
+        option = int(self._stored(ABORT_CONNECTION_INDEX, 0)) if ABORT_CONNECTION_INDEX in self.od else 1
+        if option == 1:
+            self.fault(EMCY_HEARTBEAT, self.sample_index)
+            return
+        self.error_history = [EMCY_HEARTBEAT, *self.error_history][:8]
+        data = struct.pack("<I", max(0, int(self.sample_index)) & 0xFFFFFFFF) + b"\0"
+        self._send(0x80 + self.node.id, struct.pack("<HB5s", EMCY_HEARTBEAT, _error_register(EMCY_HEARTBEAT), data))
+        if option in (2, 3) and self.state in (cia402.State.OPERATION_ENABLED, cia402.State.SWITCHED_ON,
+                                               cia402.State.READY_TO_SWITCH_ON, cia402.State.QUICK_STOP_ACTIVE):
+            if self.state is cia402.State.OPERATION_ENABLED:
+                self._power_off()  # quick stop in a torque mode: the torque ramps to zero; here at once
+            self.state = cia402.State.SWITCH_ON_DISABLED
+
+    def _write_abort_option(self, value: int) -> None:
+        if not 0 <= value <= 3:
+            raise SdoAbortedError(ABORT_VALUE)  # negative (manufacturer) codes: none on this drive
+
     # --- SDO callbacks ----------------------------------------------------------------------------
 
     def _on_read(self, index: int, subindex: int, od):
@@ -551,6 +656,12 @@ class CanopenDriveFirmware:
             base = index & 0xFFFC
             if base in _PDO_KINDS and index - base < 4:
                 self._write_pdo(base, index - base, subindex, int(value))
+                return
+            if index == HEARTBEAT_CONSUMER_INDEX and subindex > 0:
+                self._write_consumer(subindex, int(value))
+                return
+            if index == ABORT_CONNECTION_INDEX:
+                self._write_abort_option(int(value))
                 return
             if self.desc.filters is not None and index in self.desc.filters.indices:
                 if subindex == self.desc.filters.enable_subindex:
@@ -759,8 +870,13 @@ class CanopenDriveFirmware:
             self.state = cia402.State.SWITCHED_ON
 
     def tick(self, now: float) -> None:
-        """Clock work: table playback, coasting with the power stage off, the SYNC watchdog."""
+        """Clock work: the heartbeat consumer, table playback, coasting with the power stage off, the SYNC watchdog."""
         with self.lock:
+            if now - self.last_tick > STALL_S:
+                self.resumed = now
+            self.last_tick = now
+            if self.consumers:
+                self._check_consumers(now)
             if self.state is cia402.State.OPERATION_ENABLED:
                 if self.table_state == TableState.PLAYING:
                     self.advance_table(now)
@@ -809,6 +925,7 @@ class CanopenDriveServer:
         network.connect(interface=self.interface, channel=self.channel, receive_own_messages=False)
         self.network = network
         self.firmware.attach(network)
+        network.notifier.add_listener(self.firmware.on_frame)
         self._thread = threading.Thread(target=self._clock, name="canopen-drive-clock", daemon=True)
         self._thread.start()
         return self

@@ -97,7 +97,7 @@ class SocketcandServer:
         try:
             conn.sendall(b"< hi >")
             conn.settimeout(0.2)
-            raw = False
+            raw = opened = False
             while not self._stop.is_set():
                 try:
                     data = conn.recv(65536)
@@ -118,14 +118,16 @@ class SocketcandServer:
                     if not raw:
                         if words[0] == "open":
                             if len(words) == 2 and words[1] == self.bus_name:
-                                bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
-                                self._spawn(self._forward, "socketcand-forward", conn, bus)
+                                opened = True
                                 conn.sendall(b"< ok >")
                             else:
                                 conn.sendall(b"< error could not open bus >")
-                        elif words[0] == "rawmode" and bus is not None:
+                        elif words[0] == "rawmode" and opened:
+                            # frames flow only in raw mode and only after its "< ok >", as from socketcand
+                            bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
                             raw = True
                             conn.sendall(b"< ok >")
+                            self._spawn(self._forward, "socketcand-forward", conn, bus)
                         else:
                             conn.sendall(b"< error unknown command >")
                     elif words[0] == "send" and len(words) >= 3:

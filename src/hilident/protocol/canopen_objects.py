@@ -37,6 +37,8 @@ __all__ = [
     "INTEGER32", "UNSIGNED8", "UNSIGNED16", "UNSIGNED32", "REAL32", "DOMAIN", "NUMERIC_TYPES", "type_bits",
     "numpy_type", "record_dtype", "encode_si", "decode_raw", "mapping_entry", "parse_mapping_entry",
     "pack_frames", "TableState", "TABLE_START", "TABLE_STOP", "ROLE_SCALING", "parse_address",
+    "ABORT_CONNECTION_OPTIONS", "HEARTBEAT_CONSUMER_INDEX", "ABORT_CONNECTION_INDEX", "consumer_entry",
+    "parse_consumer_entry",
 ]
 
 # CiA 301 data type codes
@@ -83,6 +85,11 @@ REQUIRED_ROLES = (
 BUFFERED_ROLES = ("table", "table_length", "table_divider", "table_command", "table_state", "capture_count",
                   "table_capacity", "capture_offset", "capture_mapping", "capture_data")
 ACQUISITIONS = ("streamed", "buffered")
+#: CiA 402 abort connection option codes (0x6007) hilident arms: what the drive does when it loses the host.
+ABORT_CONNECTION_OPTIONS = {1: "fault", 2: "disable voltage", 3: "quick stop"}
+#: Standard objects of the device-side net (CiA 301 heartbeat consumer, CiA 402 abort connection option).
+HEARTBEAT_CONSUMER_INDEX = 0x1016
+ABORT_CONNECTION_INDEX = 0x6007
 
 
 @dataclass(frozen=True, order=True)
@@ -183,6 +190,14 @@ class CanopenDescription:
     channels : dict
         Channel name -> role of the object that carries it.
     filters : FilterObjects or None
+    host_node_id : int
+        Node id the host's heartbeat (COB-ID 0x700 + id) is produced under, and
+        the drive's heartbeat consumer (0x1016) watches. Must differ from the
+        drive's own node id.
+    abort_connection_option : int
+        Value written to the abort connection option code (0x6007) when the EDS
+        has it: what the drive does when the host's heartbeat stops (CiA 402:
+        1 fault, 2 disable voltage, 3 quick stop).
     """
 
     eds: str
@@ -199,6 +214,8 @@ class CanopenDescription:
     modes: dict[str, ModeSpec] = field(default_factory=dict)
     channels: dict[str, str] = field(default_factory=dict)
     filters: FilterObjects | None = None
+    host_node_id: int = 127
+    abort_connection_option: int = 2
 
     @classmethod
     def from_sections(cls, sections: dict, source: str = "") -> "CanopenDescription":
@@ -276,6 +293,15 @@ class CanopenDescription:
         for key in ("vendor_id", "product_code"):
             if not 0 <= get(key, int) <= 0xFFFFFFFF:
                 raise ConfigError(f"canopen.{key}", f"must fit UNSIGNED32, got {get(key, int)}", source)
+        host_node_id = get("host_node_id", int, 127)
+        if not 1 <= host_node_id <= 127:
+            raise ConfigError("canopen.host_node_id", f"must be a node id 1..127, got {host_node_id}", source)
+        abort_option = get("abort_connection_option", int, 2)
+        if abort_option not in ABORT_CONNECTION_OPTIONS:
+            raise ConfigError("canopen.abort_connection_option",
+                              f"must be one of {sorted(ABORT_CONNECTION_OPTIONS)} "
+                              f"({', '.join(f'{k} {v}' for k, v in ABORT_CONNECTION_OPTIONS.items())}), "
+                              f"got {abort_option}", source)
         desc = cls(
             eds=get("eds", str), vendor_id=get("vendor_id", int), product_code=get("product_code", int),
             default_acquisition=acquisition, heartbeat_ms=hb, heartbeat_timeout_ms=hb_timeout,
@@ -283,6 +309,7 @@ class CanopenDescription:
             position_unit_m=units["position_unit_m"], velocity_unit_mps=units["velocity_unit_mps"],
             objects=objects, modes=modes, channels=channels,
             filters=_filter_objects(sections.get("filters"), source),
+            host_node_id=host_node_id, abort_connection_option=abort_option,
         )
         if desc.default_acquisition == "buffered":
             desc.require_buffered(source)
@@ -393,6 +420,18 @@ def encode_si(values, datatype: int, scale: float) -> np.ndarray:
 def decode_raw(raw, scale: float) -> np.ndarray:
     """Raw object values to SI (float64)."""
     return np.asarray(raw, dtype=float) * scale
+
+
+def consumer_entry(node_id: int, time_ms: int) -> int:
+    """A CiA 301 heartbeat consumer entry (0x1016:n): ``node_id << 16 | time_ms`` (0: not used)."""
+    if not (0 <= node_id <= 127 and 0 <= time_ms <= 0xFFFF):
+        raise DataError(f"heartbeat consumer entry: node {node_id}, {time_ms} ms out of range")
+    return (node_id << 16) | time_ms
+
+
+def parse_consumer_entry(value: int) -> tuple[int, int]:
+    """Inverse of :func:`consumer_entry`: (producer node id, consumer time in ms)."""
+    return (int(value) >> 16) & 0x7F, int(value) & 0xFFFF
 
 
 def mapping_entry(address: ObjectAddress, bits: int) -> int:
