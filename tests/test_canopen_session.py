@@ -133,7 +133,7 @@ def test_standalone_drive_over_socketcand_runs_a_session_like_hardware(tmp_path,
     cfg = _bench_config(tmp_path, port, **{"[friction_test]": "[friction_test]\nenabled = false",
                                            "duration_s = 16.0": "duration_s = 8.0"})
     out = subprocess.run([sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o"),
-                          "-q"], capture_output=True, text=True, timeout=120)
+                          "-q", "--yes"], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert "resonances: 21." in out.stdout and "0 lost blocks" in out.stdout
     assert (tmp_path / "o" / "summary.json").is_file()
@@ -142,7 +142,8 @@ def test_standalone_drive_over_socketcand_runs_a_session_like_hardware(tmp_path,
 def test_ctrl_c_mid_run_leaves_the_standalone_drive_switched_off(tmp_path, standalone_emulator):
     port = standalone_emulator("canopen", CONFIG, "--time-scale", "1")
     cfg = _bench_config(tmp_path, port)
-    run = subprocess.Popen([sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o")],
+    run = subprocess.Popen([sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o"),
+                            "--yes"],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         for line in run.stderr:  # progress lines: wait until the friction run is under way
