@@ -30,7 +30,7 @@ Pure functions on arrays; no files.
 Example
 -------
 >>> import numpy as np
->>> from hilident.ident.frequency import FrequencyResponse
+>>> from hilident.ident.frequency import FrequencyResponse, _cross_spectra
 >>> frf = FrequencyResponse(np.array([10.0]), np.array([1.0 + 0j]), np.array([0.9]), 8, "h1")
 >>> u = frf_uncertainty(frf)
 >>> print(f"{u.magnitude_rel_std[0]:.3f}, +{u.upper_db[0]:.2f} dB")
@@ -46,7 +46,7 @@ from numpy.typing import ArrayLike
 from scipy import signal, stats
 
 from hilident.errors import ConfigError, DataError
-from hilident.ident.frequency import FrequencyResponse
+from hilident.ident.frequency import FrequencyResponse, _cross_spectra
 
 
 @dataclass(frozen=True)
@@ -219,6 +219,42 @@ def check_resolution(
     return ResolutionCheck(df, per_mode, anti, float(1.0 / needed_df), warnings)  # 0: nothing to resolve
 
 
+def welch_psd(x: np.ndarray, sample_rate_hz: float, nperseg: int, noverlap: int | None = None,
+              window: str = "hann", detrend: str | bool = "constant") -> tuple[np.ndarray, np.ndarray]:
+    """One-sided power spectral density by Welch's method, as ``scipy.signal.welch`` with its defaults.
+
+    The same estimate (density scaling, unit^2/Hz, mean over segments) with
+    the segments transformed a block at a time, so a long record needs no
+    memory beyond its own (scipy holds every segment and its transform).
+
+    Parameters
+    ----------
+    x : ndarray
+        1-D float64 record.
+    sample_rate_hz : float
+        Sample rate, Hz.
+    nperseg : int
+        Samples per segment.
+    noverlap : int, optional
+        Samples shared by neighbouring segments; default ``nperseg // 2``.
+    window : str
+        Window name for ``scipy.signal.get_window``.
+    detrend : {"constant", "linear", False}
+        Per-segment detrending.
+
+    Returns
+    -------
+    frequency_hz, psd : ndarray
+    """
+    nperseg = int(nperseg)
+    noverlap = nperseg // 2 if noverlap is None else int(noverlap)
+    win = signal.get_window(window, nperseg)
+    p = _cross_spectra({"x": x}, [("x", "x")], nperseg, noverlap, window, detrend)["x", "x"]
+    p = p / (sample_rate_hz * (win * win).sum())
+    p[1:None if nperseg % 2 else -1] *= 2.0  # one-sided: every bin but DC and Nyquist counts twice
+    return np.fft.rfftfreq(nperseg, 1.0 / sample_rate_hz), p
+
+
 @dataclass(frozen=True)
 class InputSpectrum:
     """Spectrum of an excitation over a band of interest.
@@ -287,8 +323,8 @@ def input_spectrum(
         raise ConfigError("band_hz", f"must satisfy 0 <= low < high <= Nyquist, got {band_hz!r}")
     nper = int(min(segment_length or min(max(x.size // 8, 256), 2**14), x.size))
     window = "boxcar" if periodic and segment_length else "hann"
-    f, p = signal.welch(x - x.mean(), fs=sample_rate_hz, window=window, nperseg=nper, noverlap=0 if periodic else None,
-                        detrend=False)
+    mean = x.mean()
+    f, p = welch_psd(x - mean, sample_rate_hz, nper, noverlap=0 if periodic else None, window=window, detrend=False)
     keep = (f >= lo) & (f <= hi)
     if not np.any(keep):
         raise DataError(f"no spectrum bin between {lo:g} and {hi:g} Hz; record too short")
@@ -296,12 +332,23 @@ def input_spectrum(
     with np.errstate(divide="ignore"):
         level = 10.0 * np.log10(pb)
     top = float(np.max(level))
-    rms = float(np.sqrt(np.mean((x - x.mean()) ** 2)))
+    rms, peak = _rms_and_peak(x, mean)
     return InputSpectrum(
-        band_hz=(lo, hi), rms=rms, crest_factor=float(np.max(np.abs(x - x.mean())) / rms) if rms else np.inf,
+        band_hz=(lo, hi), rms=rms, crest_factor=peak / rms if rms else np.inf,
         level_min_db=float(np.min(level)), level_max_db=top, spread_db=float(top - np.min(level)),
         coverage=float(np.mean(level >= top - floor_db)), frequency_hz=fb, psd=pb,
     )
+
+
+def _rms_and_peak(x: np.ndarray, mean: float, block: int = 1 << 18) -> tuple[float, float]:
+    """Root mean square and largest magnitude of ``x - mean``, a block at a time (no record-sized temporaries)."""
+    squares = 0.0
+    peak = 0.0
+    for start in range(0, x.size, block):
+        d = x[start:start + block] - mean
+        squares += float(d @ d)
+        peak = max(peak, float(np.max(np.abs(d))))
+    return float(np.sqrt(squares / x.size)), peak
 
 
 def excited_band(u: ArrayLike, sample_rate_hz: float, segment_length: int, floor_db: float = 20.0) -> tuple[float, float]:
@@ -318,7 +365,7 @@ def excited_band(u: ArrayLike, sample_rate_hz: float, segment_length: int, floor
     x = np.asarray(u, dtype=float)
     if x.ndim != 1 or x.size < max(int(segment_length), 16) or not np.all(np.isfinite(x)):
         raise DataError(f"the input needs at least {segment_length} finite samples to find its excited band")
-    f, p = signal.welch(x - x.mean(), fs=sample_rate_hz, nperseg=int(segment_length))
+    f, p = welch_psd(x - x.mean(), sample_rate_hz, int(segment_length))
     f, p = f[1:], p[1:]
     if not np.any(p > 0):
         raise DataError("the input has no power at any frequency")
