@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from hilident.ident.frequency import _cross_spectra, _period_sums, frf_from_reference, h1_estimate
-from hilident.ident.frfquality import excited_band, input_spectrum, welch_psd
+from hilident.ident.frequency import _cross_spectra, _period_sums, frf_from_reference, h1_estimate, welch_psd
+from hilident.ident.frfquality import excited_band, input_spectrum
 
 FS = 1000.0
 

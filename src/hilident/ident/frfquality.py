@@ -30,7 +30,7 @@ Pure functions on arrays; no files.
 Example
 -------
 >>> import numpy as np
->>> from hilident.ident.frequency import FrequencyResponse, _cross_spectra
+>>> from hilident.ident.frequency import FrequencyResponse
 >>> frf = FrequencyResponse(np.array([10.0]), np.array([1.0 + 0j]), np.array([0.9]), 8, "h1")
 >>> u = frf_uncertainty(frf)
 >>> print(f"{u.magnitude_rel_std[0]:.3f}, +{u.upper_db[0]:.2f} dB")
@@ -43,10 +43,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import signal, stats
+from scipy import stats
 
 from hilident.errors import ConfigError, DataError
-from hilident.ident.frequency import FrequencyResponse, _cross_spectra
+from hilident.ident.frequency import FrequencyResponse, welch_psd
 
 
 @dataclass(frozen=True)
@@ -217,42 +217,6 @@ def check_resolution(
                 f"{min_bins_to_antiresonance / gap if gap else np.inf:.3g} s separates them"
             )
     return ResolutionCheck(df, per_mode, anti, float(1.0 / needed_df), warnings)  # 0: nothing to resolve
-
-
-def welch_psd(x: np.ndarray, sample_rate_hz: float, nperseg: int, noverlap: int | None = None,
-              window: str = "hann", detrend: str | bool = "constant") -> tuple[np.ndarray, np.ndarray]:
-    """One-sided power spectral density by Welch's method, as ``scipy.signal.welch`` with its defaults.
-
-    The same estimate (density scaling, unit^2/Hz, mean over segments) with
-    the segments transformed a block at a time, so a long record needs no
-    memory beyond its own (scipy holds every segment and its transform).
-
-    Parameters
-    ----------
-    x : ndarray
-        1-D float64 record.
-    sample_rate_hz : float
-        Sample rate, Hz.
-    nperseg : int
-        Samples per segment.
-    noverlap : int, optional
-        Samples shared by neighbouring segments; default ``nperseg // 2``.
-    window : str
-        Window name for ``scipy.signal.get_window``.
-    detrend : {"constant", "linear", False}
-        Per-segment detrending.
-
-    Returns
-    -------
-    frequency_hz, psd : ndarray
-    """
-    nperseg = int(nperseg)
-    noverlap = nperseg // 2 if noverlap is None else int(noverlap)
-    win = signal.get_window(window, nperseg)
-    p = _cross_spectra({"x": x}, [("x", "x")], nperseg, noverlap, window, detrend)["x", "x"]
-    p = p / (sample_rate_hz * (win * win).sum())
-    p[1:None if nperseg % 2 else -1] *= 2.0  # one-sided: every bin but DC and Nyquist counts twice
-    return np.fft.rfftfreq(nperseg, 1.0 / sample_rate_hz), p
 
 
 @dataclass(frozen=True)
