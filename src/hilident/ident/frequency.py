@@ -152,12 +152,14 @@ def _welch_setup(n: int, segment_length: int, overlap: float) -> tuple[int, int,
 BLOCK_SAMPLES = 1 << 18
 
 
-def _segment_blocks(signals: dict[str, np.ndarray], nperseg, noverlap, window, detrend, block_samples=None):
+def _segment_blocks(signals: dict[str, np.ndarray], nperseg, noverlap, window, detrend, block_samples=None,
+                    offsets: dict[str, float] | None = None):
     """Windowed FFTs of the Welch segments, a block of segments at a time.
 
     Yields ``(count, ffts)`` with ``ffts[name]`` of shape ``(count, nperseg // 2 + 1)``.
     Only one block of segments (``block_samples`` samples per signal, at least
     one segment) is ever held: a long record needs no memory beyond its own.
+    ``offsets[name]`` is subtracted from every sample of that signal first.
     """
     win = signal.get_window(window, nperseg)
     step = nperseg - noverlap
@@ -168,9 +170,11 @@ def _segment_blocks(signals: dict[str, np.ndarray], nperseg, noverlap, window, d
         ffts = {}
         for name, view in views.items():
             seg = view[start:start + per_block]
+            if offsets and name in offsets:
+                seg = seg - offsets[name]
             if detrend:
                 seg = signal.detrend(seg, axis=-1, type=detrend)
-            if seg.flags.writeable:  # detrend's own copy: window it in place
+            if seg.flags.writeable:  # a copy already: window it in place
                 seg *= win
             else:  # the read-only view of the signal
                 seg = seg * win
@@ -178,18 +182,19 @@ def _segment_blocks(signals: dict[str, np.ndarray], nperseg, noverlap, window, d
         yield len(seg), ffts
 
 
-def _cross_spectra(signals: dict[str, np.ndarray], pairs, nperseg, noverlap, window, detrend, block_samples=None):
+def _cross_spectra(signals: dict[str, np.ndarray], pairs, nperseg, noverlap, window, detrend, block_samples=None,
+                   offsets: dict[str, float] | None = None):
     """Welch cross spectra ``S_ab = E[conj(A) B]`` for the requested pairs.
 
     Each signal is segmented, windowed and transformed once; every spectrum is
     then an average of products, so many pairs cost little more than one. The
     products are summed block by block (:func:`_segment_blocks`), so the memory
     needed does not grow with the record; auto spectra (``a == b``) come out
-    real.
+    real. ``offsets`` as for :func:`_segment_blocks`.
     """
     sums: dict = {}
     total = 0
-    for count, ffts in _segment_blocks(signals, nperseg, noverlap, window, detrend, block_samples):
+    for count, ffts in _segment_blocks(signals, nperseg, noverlap, window, detrend, block_samples, offsets):
         total += count
         for a, b in pairs:
             if a == b:
@@ -206,7 +211,8 @@ def _cross_spectra(signals: dict[str, np.ndarray], pairs, nperseg, noverlap, win
 
 
 def welch_psd(x: np.ndarray, sample_rate_hz: float, nperseg: int, noverlap: int | None = None,
-              window: str = "hann", detrend: str | bool = "constant") -> tuple[np.ndarray, np.ndarray]:
+              window: str = "hann", detrend: str | bool = "constant", subtract: float = 0.0,
+              ) -> tuple[np.ndarray, np.ndarray]:
     """One-sided power spectral density by Welch's method, as ``scipy.signal.welch`` with its defaults.
 
     The same estimate (density scaling, unit^2/Hz, mean over segments) with
@@ -227,6 +233,9 @@ def welch_psd(x: np.ndarray, sample_rate_hz: float, nperseg: int, noverlap: int 
         Window name for ``scipy.signal.get_window``.
     detrend : {"constant", "linear", False}
         Per-segment detrending.
+    subtract : float
+        Taken off every sample first (e.g. the record's mean), a block at a
+        time: the spectrum of ``x - subtract`` without a copy of the record.
 
     Returns
     -------
@@ -235,7 +244,8 @@ def welch_psd(x: np.ndarray, sample_rate_hz: float, nperseg: int, noverlap: int 
     nperseg = int(nperseg)
     noverlap = nperseg // 2 if noverlap is None else int(noverlap)
     win = signal.get_window(window, nperseg)
-    p = _cross_spectra({"x": x}, [("x", "x")], nperseg, noverlap, window, detrend)["x", "x"]
+    offsets = {"x": float(subtract)} if subtract else None
+    p = _cross_spectra({"x": x}, [("x", "x")], nperseg, noverlap, window, detrend, offsets=offsets)["x", "x"]
     p = p / (sample_rate_hz * (win * win).sum())
     p[1:None if nperseg % 2 else -1] *= 2.0  # one-sided: every bin but DC and Nyquist counts twice
     return np.fft.rfftfreq(nperseg, 1.0 / sample_rate_hz), p

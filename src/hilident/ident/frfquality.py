@@ -288,7 +288,8 @@ def input_spectrum(
     nper = int(min(segment_length or min(max(x.size // 8, 256), 2**14), x.size))
     window = "boxcar" if periodic and segment_length else "hann"
     mean = x.mean()
-    f, p = welch_psd(x - mean, sample_rate_hz, nper, noverlap=0 if periodic else None, window=window, detrend=False)
+    f, p = welch_psd(x, sample_rate_hz, nper, noverlap=0 if periodic else None, window=window, detrend=False,
+                     subtract=mean)
     keep = (f >= lo) & (f <= hi)
     if not np.any(keep):
         raise DataError(f"no spectrum bin between {lo:g} and {hi:g} Hz; record too short")
@@ -329,7 +330,7 @@ def excited_band(u: ArrayLike, sample_rate_hz: float, segment_length: int, floor
     x = np.asarray(u, dtype=float)
     if x.ndim != 1 or x.size < max(int(segment_length), 16) or not np.all(np.isfinite(x)):
         raise DataError(f"the input needs at least {segment_length} finite samples to find its excited band")
-    f, p = welch_psd(x - x.mean(), sample_rate_hz, int(segment_length))
+    f, p = welch_psd(x, sample_rate_hz, int(segment_length), subtract=x.mean())
     f, p = f[1:], p[1:]
     if not np.any(p > 0):
         raise DataError("the input has no power at any frequency")

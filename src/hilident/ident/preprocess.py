@@ -114,16 +114,41 @@ def detrend(x: ArrayLike, kind: str = "linear") -> np.ndarray:
     n = x.shape[-1]
     if kind == "constant" or n < 2:
         return x - x.mean(axis=-1, keepdims=True)
+    if x.ndim == 1:
+        return _remove_line(x)
     # closed-form least-squares line on centred time: a tenth of scipy's time and memory
-    t = np.arange(n, dtype=np.float64)
-    t -= (n - 1) / 2.0
+    t = np.arange(n, dtype=np.float64) - (n - 1) / 2.0
     slope = (x @ t) / (t @ t)
-    out = x - x.mean(axis=-1, keepdims=True)
-    if out.ndim == 1:  # the line in place of the time axis: no third record-sized array
-        t *= slope
-        out -= t
-    else:
-        out -= np.multiply.outer(slope, t)
+    return x - x.mean(axis=-1, keepdims=True) - np.multiply.outer(slope, t)
+
+
+#: Samples of the time axis :func:`_remove_line` makes at once.
+_LINE_BLOCK = 1 << 18
+
+
+def _remove_line(x: np.ndarray) -> np.ndarray:
+    """``x`` (1-D) minus its least-squares line, with the centred time axis made a block at a time.
+
+    The same closed form as :func:`detrend` for several rows, but the only
+    record-sized array is the result: a long recording is not held twice more.
+    """
+    n = x.size
+    centre = (n - 1) / 2.0
+    starts = range(0, n, _LINE_BLOCK)
+
+    def time_axis(start: int) -> np.ndarray:
+        t = np.arange(start, min(start + _LINE_BLOCK, n), dtype=np.float64)
+        t -= centre
+        return t
+
+    # sum of t^2 over the centred axis: n (n^2 - 1) / 12
+    slope = sum(float(x[a:a + _LINE_BLOCK] @ time_axis(a)) for a in starts) / (n * (n * n - 1.0) / 12.0)
+    out = x - x.mean()
+    for a in starts:
+        line = time_axis(a)
+        line *= slope
+        out[a:a + _LINE_BLOCK] -= line
+        del line  # one block at a time
     return out
 
 
