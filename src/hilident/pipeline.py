@@ -264,13 +264,17 @@ def identify_plant(
     excited_bins : array_like of int, optional
         DFT bins of one period that carry excitation (default: found from the data).
     """
-    s = check_signals({"excitation": excitation, "torque": torque, "output": output, "velocity": velocity})
+    # only read here, never written: no copies of a long record
+    s = check_signals({"excitation": excitation, "torque": torque, "output": output, "velocity": velocity},
+                      copy=False)
     warnings: list[str] = []
     u = s["torque"]
     if friction is not None:
         u = fr.compensate(u, s["velocity"], friction, velocity_deadband_mps)
-    r, u, y = (_condition(x, cfg, sample_rate_hz) for x in (s["excitation"], u, s["output"]))
-    del s  # the checked copies are done with: a long record should not be held twice during the FRF
+    u, y = (_condition(x, cfg, sample_rate_hz) for x in (u, s["output"]))
+    # a recording without an excitation column gives the torque as excitation: condition it once
+    r = u if s["excitation"] is s["torque"] and friction is None else _condition(s["excitation"], cfg, sample_rate_hz)
+    del s
     seg = _segment(len(r), cfg, sample_rate_hz, period_samples, warnings)
     if seg is None:
         plant = periodic_frf(u, y, period_samples, sample_rate_hz, skip_periods=0, bins=excited_bins)
@@ -331,7 +335,7 @@ def loop_response(
 
     This is all a verification run needs: no friction model, no resonance search.
     """
-    s = check_signals({"excitation": excitation, "output": output})
+    s = check_signals({"excitation": excitation, "output": output}, copy=False)
     warnings: list[str] = []
     r, y = (_condition(x, cfg, sample_rate_hz) for x in (s["excitation"], s["output"]))
     seg = _segment(len(r), cfg, sample_rate_hz, period_samples, warnings)

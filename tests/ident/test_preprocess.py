@@ -1,5 +1,8 @@
+import tracemalloc
+
 import numpy as np
 import pytest
+from scipy import signal
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -73,6 +76,24 @@ def test_detrend_linear_removes_line_keeps_oscillation():
     assert np.allclose(out, detrend(osc, "linear"), atol=1e-12)
     assert abs(out.mean()) < 1e-12
     assert np.polyfit(t, out, 1)[0] == pytest.approx(0.0, abs=1e-10)
+
+
+def test_detrend_linear_of_a_long_record_equals_scipy_in_bounded_memory():
+    rng = np.random.default_rng(5)
+    n = 2_000_001  # several blocks of the time axis, the last one partial
+    x = 4.0 - 3e-5 * np.arange(n) + rng.standard_normal(n)
+    want = signal.detrend(x, type="linear")
+    tracemalloc.start()
+    try:
+        base = tracemalloc.get_traced_memory()[0]
+        tracemalloc.reset_peak()
+        got = detrend(x, "linear")
+        peak = tracemalloc.get_traced_memory()[1] - base
+    finally:
+        tracemalloc.stop()
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-10)
+    # the result (8 bytes a sample) and one block of the time axis; a whole time axis would add 8 more
+    assert peak < 12 * n, f"{peak / n:.1f} bytes a sample"
 
 
 def test_detrend_constant_removes_mean_only():

@@ -12,6 +12,11 @@
   periods, averaged, read at the excited bins; no leakage, no window.
 * :func:`etfe` -- the empirical transfer function estimate: DFT of the output
   over DFT of the input over the whole record.
+* :func:`welch_psd` -- power spectral density as ``scipy.signal.welch``.
+
+The Welch and periodic estimates transform a block of segments (or periods)
+at a time and sum the products, so their memory does not grow with the
+record: a long recording needs little beyond its own samples.
 
 Spectra are one-sided; frequencies in Hz. ``u`` and ``y`` are in whatever units
 were recorded (N·m and m/s for a velocity FRF), the response in units of
@@ -47,6 +52,7 @@ __all__ = [
     "frf_from_reference",
     "periodic_frf",
     "etfe",
+    "welch_psd",
 ]
 
 
@@ -141,22 +147,108 @@ def _welch_setup(n: int, segment_length: int, overlap: float) -> tuple[int, int,
     return nperseg, noverlap, n_avg
 
 
-def _cross_spectra(signals: dict[str, np.ndarray], pairs, nperseg, noverlap, window, detrend):
-    """Welch cross spectra ``S_ab = E[conj(A) B]`` for the requested pairs.
+#: Samples per signal transformed at once by :func:`_cross_spectra`: bounds its working memory
+#: (about 15 MB for three signals) whatever the record length.
+BLOCK_SAMPLES = 1 << 18
 
-    Each signal is segmented, windowed and transformed once; every spectrum is
-    then an average of products, so many pairs cost little more than one.
+
+def _segment_blocks(signals: dict[str, np.ndarray], nperseg, noverlap, window, detrend, block_samples=None,
+                    offsets: dict[str, float] | None = None):
+    """Windowed FFTs of the Welch segments, a block of segments at a time.
+
+    Yields ``(count, ffts)`` with ``ffts[name]`` of shape ``(count, nperseg // 2 + 1)``.
+    Only one block of segments (``block_samples`` samples per signal, at least
+    one segment) is ever held: a long record needs no memory beyond its own.
+    ``offsets[name]`` is subtracted from every sample of that signal first.
     """
     win = signal.get_window(window, nperseg)
     step = nperseg - noverlap
-    ffts = {}
-    for name, x in signals.items():
-        seg = np.lib.stride_tricks.sliding_window_view(x, nperseg)[::step]
-        if detrend:
-            seg = signal.detrend(seg, axis=-1, type=detrend)
-        ffts[name] = np.fft.rfft(seg * win, axis=-1)
+    views = {name: np.lib.stride_tricks.sliding_window_view(x, nperseg)[::step] for name, x in signals.items()}
+    n_seg = len(next(iter(views.values())))
+    per_block = max(1, int(block_samples or BLOCK_SAMPLES) // nperseg)
+    for start in range(0, n_seg, per_block):
+        ffts = {}
+        for name, view in views.items():
+            seg = view[start:start + per_block]
+            if offsets and name in offsets:
+                seg = seg - offsets[name]
+            if detrend:
+                seg = signal.detrend(seg, axis=-1, type=detrend)
+            if seg.flags.writeable:  # a copy already: window it in place
+                seg *= win
+            else:  # the read-only view of the signal
+                seg = seg * win
+            ffts[name] = np.fft.rfft(seg, axis=-1)
+        yield len(seg), ffts
+
+
+def _cross_spectra(signals: dict[str, np.ndarray], pairs, nperseg, noverlap, window, detrend, block_samples=None,
+                   offsets: dict[str, float] | None = None):
+    """Welch cross spectra ``S_ab = E[conj(A) B]`` for the requested pairs.
+
+    Each signal is segmented, windowed and transformed once; every spectrum is
+    then an average of products, so many pairs cost little more than one. The
+    products are summed block by block (:func:`_segment_blocks`), so the memory
+    needed does not grow with the record; auto spectra (``a == b``) come out
+    real. ``offsets`` as for :func:`_segment_blocks`.
+    """
+    sums: dict = {}
+    total = 0
+    for count, ffts in _segment_blocks(signals, nperseg, noverlap, window, detrend, block_samples, offsets):
+        total += count
+        for a, b in pairs:
+            if a == b:
+                x = ffts[a]
+                part = np.add.reduce(x.real * x.real + x.imag * x.imag, axis=0)
+            else:
+                part = np.add.reduce(np.conj(ffts[a]) * ffts[b], axis=0)
+            if (a, b) in sums:
+                sums[a, b] += part
+            else:
+                sums[a, b] = part
     # Density scaling and the one-sided factor cancel in every ratio used here.
-    return {(a, b): np.mean(np.conj(ffts[a]) * ffts[b], axis=0) for a, b in pairs}
+    return {pair: s / total for pair, s in sums.items()}
+
+
+def welch_psd(x: np.ndarray, sample_rate_hz: float, nperseg: int, noverlap: int | None = None,
+              window: str = "hann", detrend: str | bool = "constant", subtract: float = 0.0,
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """One-sided power spectral density by Welch's method, as ``scipy.signal.welch`` with its defaults.
+
+    The same estimate (density scaling, unit^2/Hz, mean over segments) with
+    the segments transformed a block at a time, so a long record needs no
+    memory beyond its own (scipy holds every segment and its transform).
+
+    Parameters
+    ----------
+    x : ndarray
+        1-D float64 record.
+    sample_rate_hz : float
+        Sample rate, Hz.
+    nperseg : int
+        Samples per segment.
+    noverlap : int, optional
+        Samples shared by neighbouring segments; default ``nperseg // 2``.
+    window : str
+        Window name for ``scipy.signal.get_window``.
+    detrend : {"constant", "linear", False}
+        Per-segment detrending.
+    subtract : float
+        Taken off every sample first (e.g. the record's mean), a block at a
+        time: the spectrum of ``x - subtract`` without a copy of the record.
+
+    Returns
+    -------
+    frequency_hz, psd : ndarray
+    """
+    nperseg = int(nperseg)
+    noverlap = nperseg // 2 if noverlap is None else int(noverlap)
+    win = signal.get_window(window, nperseg)
+    offsets = {"x": float(subtract)} if subtract else None
+    p = _cross_spectra({"x": x}, [("x", "x")], nperseg, noverlap, window, detrend, offsets=offsets)["x", "x"]
+    p = p / (sample_rate_hz * (win * win).sum())
+    p[1:None if nperseg % 2 else -1] *= 2.0  # one-sided: every bin but DC and Nyquist counts twice
+    return np.fft.rfftfreq(nperseg, 1.0 / sample_rate_hz), p
 
 
 def _ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
@@ -167,7 +259,7 @@ def _ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
 
 def _coherence(s_ab: np.ndarray, s_aa: np.ndarray, s_bb: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
-        c = np.abs(s_ab) ** 2 / (s_aa.real * s_bb.real)
+        c = np.abs(s_ab) ** 2 / (np.real(s_aa) * np.real(s_bb))
     return np.clip(np.nan_to_num(c, nan=0.0, posinf=0.0), 0.0, 1.0)
 
 
@@ -211,12 +303,12 @@ def h1_estimate(
         ``method="h1"``, ``n_averages`` = number of segments.
     """
     fs = _check_rate(sample_rate_hz)
-    sig = check_signals({"u": u, "y": y})
+    sig = check_signals({"u": u, "y": y}, copy=False)
     nperseg, noverlap, n_avg = _welch_setup(sig["u"].size, segment_length, overlap)
     S = _cross_spectra(sig, [("u", "u"), ("y", "y"), ("u", "y")], nperseg, noverlap, window, detrend)
     return FrequencyResponse(
         frequency_hz=np.fft.rfftfreq(nperseg, 1.0 / fs),
-        response=_ratio(S["u", "y"], S["u", "u"].real),
+        response=_ratio(S["u", "y"], S["u", "u"]),
         coherence=_coherence(S["u", "y"], S["u", "u"], S["y", "y"]),
         n_averages=n_avg,
         method="h1",
@@ -265,7 +357,7 @@ def frf_from_reference(
         ``method="reference"``.
     """
     fs = _check_rate(sample_rate_hz)
-    sig = check_signals({"r": r, "u": u, "y": y})
+    sig = check_signals({"r": r, "u": u, "y": y}, copy=False)
     nperseg, noverlap, n_avg = _welch_setup(sig["r"].size, segment_length, overlap)
     pairs = [("r", "r"), ("u", "u"), ("y", "y"), ("r", "u"), ("r", "y")]
     S = _cross_spectra(sig, pairs, nperseg, noverlap, window, detrend)
@@ -279,6 +371,32 @@ def frf_from_reference(
         n_averages=n_avg,
         method="reference",
     )
+
+
+def _period_sums(u: np.ndarray, y: np.ndarray, period: int, skip: int, n_periods: int,
+                 block_samples: int | None = None) -> dict[str, np.ndarray]:
+    """Sums over whole periods of the DFTs ``U_m``, ``Y_m`` and of ``conj(U_m) Y_m``, ``|U_m|^2``, ``|Y_m|^2``.
+
+    Every bin of one period, periods ``skip .. skip + n_periods - 1``,
+    transformed a block of periods at a time (at least one; about
+    ``block_samples`` samples), so the memory needed does not grow with the
+    record.
+    """
+    per_block = max(1, int(block_samples or BLOCK_SAMPLES) // period)
+    sums: dict[str, np.ndarray] = {}
+    for first in range(skip, skip + n_periods, per_block):
+        last = min(first + per_block, skip + n_periods)
+        U = np.fft.rfft(u[first * period:last * period].reshape(last - first, period), axis=-1)
+        Y = np.fft.rfft(y[first * period:last * period].reshape(last - first, period), axis=-1)
+        parts = {"u": U, "y": Y, "uy": np.conj(U) * Y, "uu": U.real * U.real + U.imag * U.imag,
+                 "yy": Y.real * Y.real + Y.imag * Y.imag}
+        for name, part in parts.items():
+            total = np.add.reduce(part, axis=0)
+            if name in sums:
+                sums[name] += total
+            else:
+                sums[name] = total
+    return sums
 
 
 def periodic_frf(
@@ -326,7 +444,7 @@ def periodic_frf(
         ``method="periodic"``, ``n_averages`` = periods used (at least 2).
     """
     fs = _check_rate(sample_rate_hz)
-    sig = check_signals({"u": u, "y": y})
+    sig = check_signals({"u": u, "y": y}, copy=False)
     if int(period_samples) != period_samples or period_samples < 4:
         raise ConfigError("period_samples", f"must be an integer >= 4, got {period_samples!r}")
     if int(skip_periods) != skip_periods or skip_periods < 0:
@@ -338,10 +456,8 @@ def periodic_frf(
             f"{sig['u'].size} samples hold {sig['u'].size // P} periods of {P}; "
             f"after skipping {skip} at least 2 are needed"
         )
-    sl = slice(skip * P, (skip + n_periods) * P)
-    U = np.fft.rfft(sig["u"][sl].reshape(n_periods, P), axis=-1)
-    Y = np.fft.rfft(sig["y"][sl].reshape(n_periods, P), axis=-1)
-    u_mean = U.mean(axis=0)
+    sums = _period_sums(sig["u"], sig["y"], P, skip, n_periods)
+    u_mean = sums["u"] / n_periods
     if bins is None:
         power = np.abs(u_mean) ** 2
         power[0] = 0.0
@@ -353,14 +469,10 @@ def periodic_frf(
         k = np.unique(np.asarray(bins, dtype=np.int64))
         if k.size == 0 or k.min() < 1 or k.max() > P // 2:
             raise ConfigError("bins", f"must be indices in 1..{P // 2}, got {bins!r}")
-    Uk, Yk = U[:, k], Y[:, k]
-    s_uy = np.sum(np.conj(Uk) * Yk, axis=0)
-    s_uu = np.sum(np.abs(Uk) ** 2, axis=0)
-    s_yy = np.sum(np.abs(Yk) ** 2, axis=0)
     return FrequencyResponse(
         frequency_hz=k * fs / P,
-        response=_ratio(Yk.mean(axis=0), u_mean[k]),
-        coherence=_coherence(s_uy, s_uu, s_yy),
+        response=_ratio(sums["y"][k] / n_periods, u_mean[k]),
+        coherence=_coherence(sums["uy"][k], sums["uu"][k], sums["yy"][k]),
         n_averages=n_periods,
         method="periodic",
     )
@@ -375,7 +487,7 @@ def etfe(u: ArrayLike, y: ArrayLike, sample_rate_hz: float) -> FrequencyResponse
     returned as NaN.
     """
     fs = _check_rate(sample_rate_hz)
-    sig = check_signals({"u": u, "y": y})
+    sig = check_signals({"u": u, "y": y}, copy=False)
     n = sig["u"].size
     return FrequencyResponse(
         frequency_hz=np.fft.rfftfreq(n, 1.0 / fs),

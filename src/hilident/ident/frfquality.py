@@ -43,10 +43,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import signal, stats
+from scipy import stats
 
 from hilident.errors import ConfigError, DataError
-from hilident.ident.frequency import FrequencyResponse
+from hilident.ident.frequency import FrequencyResponse, welch_psd
 
 
 @dataclass(frozen=True)
@@ -287,8 +287,9 @@ def input_spectrum(
         raise ConfigError("band_hz", f"must satisfy 0 <= low < high <= Nyquist, got {band_hz!r}")
     nper = int(min(segment_length or min(max(x.size // 8, 256), 2**14), x.size))
     window = "boxcar" if periodic and segment_length else "hann"
-    f, p = signal.welch(x - x.mean(), fs=sample_rate_hz, window=window, nperseg=nper, noverlap=0 if periodic else None,
-                        detrend=False)
+    mean = x.mean()
+    f, p = welch_psd(x, sample_rate_hz, nper, noverlap=0 if periodic else None, window=window, detrend=False,
+                     subtract=mean)
     keep = (f >= lo) & (f <= hi)
     if not np.any(keep):
         raise DataError(f"no spectrum bin between {lo:g} and {hi:g} Hz; record too short")
@@ -296,12 +297,23 @@ def input_spectrum(
     with np.errstate(divide="ignore"):
         level = 10.0 * np.log10(pb)
     top = float(np.max(level))
-    rms = float(np.sqrt(np.mean((x - x.mean()) ** 2)))
+    rms, peak = _rms_and_peak(x, mean)
     return InputSpectrum(
-        band_hz=(lo, hi), rms=rms, crest_factor=float(np.max(np.abs(x - x.mean())) / rms) if rms else np.inf,
+        band_hz=(lo, hi), rms=rms, crest_factor=peak / rms if rms else np.inf,
         level_min_db=float(np.min(level)), level_max_db=top, spread_db=float(top - np.min(level)),
         coverage=float(np.mean(level >= top - floor_db)), frequency_hz=fb, psd=pb,
     )
+
+
+def _rms_and_peak(x: np.ndarray, mean: float, block: int = 1 << 18) -> tuple[float, float]:
+    """Root mean square and largest magnitude of ``x - mean``, a block at a time (no record-sized temporaries)."""
+    squares = 0.0
+    peak = 0.0
+    for start in range(0, x.size, block):
+        d = x[start:start + block] - mean
+        squares += float(d @ d)
+        peak = max(peak, float(np.max(np.abs(d))))
+    return float(np.sqrt(squares / x.size)), peak
 
 
 def excited_band(u: ArrayLike, sample_rate_hz: float, segment_length: int, floor_db: float = 20.0) -> tuple[float, float]:
@@ -318,7 +330,7 @@ def excited_band(u: ArrayLike, sample_rate_hz: float, segment_length: int, floor
     x = np.asarray(u, dtype=float)
     if x.ndim != 1 or x.size < max(int(segment_length), 16) or not np.all(np.isfinite(x)):
         raise DataError(f"the input needs at least {segment_length} finite samples to find its excited band")
-    f, p = signal.welch(x - x.mean(), fs=sample_rate_hz, nperseg=int(segment_length))
+    f, p = welch_psd(x, sample_rate_hz, int(segment_length), subtract=x.mean())
     f, p = f[1:], p[1:]
     if not np.any(p > 0):
         raise DataError("the input has no power at any frequency")
