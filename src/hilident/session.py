@@ -274,7 +274,8 @@ class Session:
             self.progress.step(f"filter slot(s) {sorted(self._bypassed)} bypassed while the plant is measured")
 
     def _restore_filters(self) -> None:
-        """Put back what the slots held, when the session ends before its upload. Never raises."""
+        """Put back what the slots held, when the session ends without an upload (early, or with nothing to
+        notch). Never raises."""
         if self._uploaded or not self._bypassed or self.adapter is None:
             return
         for slot, saved in sorted(self._bypassed.items()):
@@ -421,10 +422,10 @@ class Session:
         except BaseException:
             with endings.shielded():
                 self.safe_stop()
-                self._restore_filters()
             raise
         finally:
             with endings.shielded():
+                self._restore_filters()  # nothing to do once the new notches are uploaded
                 self.close()
         endings.raise_pending()
         model = self._greybox()
