@@ -137,3 +137,16 @@ def test_a_session_ended_before_its_upload_puts_the_filters_back(serial_twin, tm
     third = _run(config, tmp_path / "three", "--dry-run")
     assert third.returncode == 0, third.stderr
     assert f"filter slots [{stored_before['slot']}] hold filters" in third.stdout
+
+
+def test_a_session_with_nothing_to_upload_leaves_the_filters_as_it_found_them(serial_twin, tmp_path):
+    config = serial_twin.host_config("bench", notch={"verify": False})
+    assert _run(config, tmp_path / "one", "--yes", "-q").returncode == 0
+    measuring_only = serial_twin.host_config("measure", notch={"enabled": False})
+    second = _run(measuring_only, tmp_path / "two", "--yes", "-q")
+    assert second.returncode == 0, second.stderr
+    found = json.loads((tmp_path / "two" / "summary.json").read_text())["filters_found"]
+    enabled = [f for f in found if f["enabled"]]
+    assert enabled and enabled[0]["bypassed"] and enabled[0]["restored"]
+    third = _run(config, tmp_path / "three", "--dry-run")
+    assert f"filter slots [{enabled[0]['slot']}] hold filters" in third.stdout
