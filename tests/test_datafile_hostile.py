@@ -48,8 +48,9 @@ def hilident_h5(path, rate=RATE, rows=None):
         w.append(np.column_stack([TAU, V]))
     with h5py.File(path, "a") as f:
         f.attrs["sample_rate_hz"] = rate
-        if rows is not None:
+        if rows is not None:  # a damaged or foreign file: no flushed_samples to say which rows are good
             f["samples"].resize((rows, 2))
+            del f.attrs["flushed_samples"]
 
 
 H5_MAPPING = DataConfig(torque="torque_nm", velocity="velocity_mps")
