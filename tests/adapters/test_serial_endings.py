@@ -485,7 +485,8 @@ def test_a_sigkilled_session_is_stopped_by_the_board_watchdog_and_the_next_host_
         bench.write_text(config.replace('port = "emulator"', f'port = "{port}"')
                          .replace("[friction_test]", "[friction_test]\nenabled = false"))
         out = tmp_path / "out"
-        host = subprocess.Popen([sys.executable, "-m", "hilident.cli", "run", str(bench), "--out", str(out), "-q"],
+        host = subprocess.Popen([sys.executable, "-m", "hilident.cli", "run", str(bench), "--out", str(out), "-q",
+                                 "--yes", "--no-plots"],
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         assert wait_until(lambda: (out / "identification.h5").exists(), 30.0)
         time.sleep(0.5)  # streaming now
