@@ -436,3 +436,30 @@ def test_port_without_a_board_raises_device_error_naming_it():
     finally:
         os.close(master)
         os.close(slave)
+
+
+def test_a_tcp_line_is_read_in_whole_chunks_and_without_nagle():
+    """pyserial's socket:// says 0 or 1 for in_waiting; the adapter asks the socket for the real count."""
+    import socket as socketlib
+    import time as timelib
+
+    import serial as pyserial
+
+    from hilident.adapters.serial_board import _bytes_waiting, _no_nagle
+
+    server = socketlib.create_server(("127.0.0.1", 0))
+    link = pyserial.serial_for_url(f"socket://127.0.0.1:{server.getsockname()[1]}", timeout=0.02)
+    conn, _ = server.accept()
+    try:
+        _no_nagle(link)
+        assert link._socket.getsockopt(socketlib.IPPROTO_TCP, socketlib.TCP_NODELAY)
+        conn.sendall(bytes(1000))
+        deadline = timelib.monotonic() + 2.0
+        while _bytes_waiting(link) < 1000 and timelib.monotonic() < deadline:
+            timelib.sleep(0.01)
+        assert _bytes_waiting(link) == 1000
+        assert len(link.read(_bytes_waiting(link))) == 1000
+    finally:
+        link.close()
+        conn.close()
+        server.close()

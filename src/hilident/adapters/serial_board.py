@@ -16,11 +16,19 @@ built to it is handled the same way.
 from __future__ import annotations
 
 import secrets
+import socket
+import struct
 import time
 from typing import Callable
 
 import numpy as np
 import serial
+
+try:  # POSIX: the exact byte count of a TCP line
+    import fcntl
+    import termios
+except ImportError:  # pragma: no cover
+    pass
 
 from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, StreamStats, refuse_latched_faults
 from hilident.config import DeviceConfig
@@ -60,6 +68,37 @@ _FAULT_MEANING = {
     sb.FaultCode.WATCHDOG: "the board's watchdog stopped a run whose host went silent",
     sb.FaultCode.NONE: "no fault code given",
 }
+
+
+def _no_nagle(link) -> None:
+    """Send small frames at once on a TCP line (``socket://``, a serial-to-Ethernet converter).
+
+    pyserial leaves Nagle's algorithm on; with the peer's delayed ACKs it holds
+    back the small excitation and PING frames for tens of milliseconds, long
+    enough for the board's buffer to run dry at high sample rates.
+    """
+    sock = getattr(link, "_socket", None)  # pyserial's socket:// and rfc2217:// keep their socket here
+    if sock is not None:
+        try:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        except OSError:
+            pass
+
+
+def _bytes_waiting(link) -> int:
+    """Bytes ready to read without waiting.
+
+    pyserial's ``socket://`` reports ``in_waiting`` as 0 or 1 (readable or
+    not), which would make the host read a TCP line one byte per call and fall
+    behind the board; the socket itself knows the real count (FIONREAD).
+    """
+    sock = getattr(link, "_socket", None)
+    if sock is not None:
+        try:
+            return struct.unpack("i", fcntl.ioctl(sock.fileno(), termios.FIONREAD, b"\0\0\0\0"))[0]
+        except (OSError, ValueError, NameError):
+            pass
+    return link.in_waiting
 
 
 class SerialBoardAdapter(AdapterBase):
@@ -141,6 +180,7 @@ class SerialBoardAdapter(AdapterBase):
             link = serial.serial_for_url(port, baudrate=baudrate or driver.default_baudrate, timeout=_READ_TIMEOUT_S)
         except (serial.SerialException, ValueError, OSError) as exc:
             raise DeviceError(f"{port}: cannot open: {exc}") from None
+        _no_nagle(link)
         return cls._connected(cls(link, driver, port, timeout_s, allow_fault_reset=allow_fault_reset))
 
     @staticmethod
@@ -249,7 +289,7 @@ class SerialBoardAdapter(AdapterBase):
         deadline = time.monotonic() + timeout
         while True:
             try:
-                data = self.link.read(max(1, self.link.in_waiting))
+                data = self.link.read(max(1, _bytes_waiting(self.link)))
             except (serial.SerialException, OSError, LinkClosed) as e:
                 raise DeviceError(f"{self.port}: line lost: {e}") from None
             messages = []
