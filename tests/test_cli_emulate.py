@@ -13,7 +13,7 @@ import pytest
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 
-@pytest.mark.parametrize("extra", [(), ("--tcp",)], ids=["pty", "socket-url"])
+@pytest.mark.parametrize("extra", [("--tcp",)], ids=["socket-url"])  # the pty: tests/test_serial_endings.py
 def test_standalone_emulator_runs_a_session_like_hardware(tmp_path, extra, standalone_emulator):
     port = standalone_emulator("serial", CONFIGS / "emulated-gantry.toml", "--time-scale", "8", *extra)
     assert port.startswith("/dev/") or port.startswith("socket://127.0.0.1:")

@@ -46,7 +46,9 @@ class TestEndingMatrix:
     """One class over every transport: each ending leaves a stopped axis, true files and a device ready to go."""
 
     def _start_and_wait_for_motion(self, twin, tmp_path, name="first", fsize_limit=None, **sections):
+        """A first session, long enough to be ended mid-run, once the twin's drive is enabled."""
         out = tmp_path / name
+        sections.setdefault("excitation", {"duration_s": 16.0})
         proc = host(twin.host_config(name, **sections), out, fsize_limit=fsize_limit)
         wait_until(lambda: twin.enabled, 60, proc)
         return proc, out

@@ -39,7 +39,7 @@ def quick(raw: dict, transport: str) -> dict:
     """The shipped config made quick: no friction test, two 4 s multisine periods, fast simulated time."""
     raw = json.loads(json.dumps(raw))
     raw["friction_test"] = {"enabled": False}
-    raw["excitation"].update(period_s=4.0, duration_s=8.0)
+    raw["excitation"].update(period_s=2.0, duration_s=4.0)
     raw["emulator"]["time_scale"] = 8.0
     raw["notch"]["verify"] = False
     raw["device"]["host_timeout_s"] = HOST_TIMEOUT_S
