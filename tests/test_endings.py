@@ -145,3 +145,25 @@ class TestEndingMatrix:
         run = self._recording(out)
         assert run.status == "aborted"
         self._second_session_finds_the_resonance(twin, tmp_path, clear_fault=True)
+
+
+def test_a_second_ctrl_c_after_the_stop_keeps_the_exit_code(tmp_path):
+    """The second Ctrl-C may land after the cleanup finished: the exit code is still 130, not a death by SIGINT."""
+    import os
+    import sys
+    import textwrap
+
+    script = textwrap.dedent("""
+        import os, signal, sys
+        from hilident import endings
+        from hilident.errors import Interrupted
+        try:
+            with endings.signals_end_the_session():
+                os.kill(os.getpid(), signal.SIGINT)
+        except Interrupted as exc:
+            os.kill(os.getpid(), signal.SIGINT)  # the second one, after the session's handlers are gone
+            sys.exit(exc.exit_code)
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60,
+                          env=dict(os.environ))
+    assert done.returncode == 130, done.stderr

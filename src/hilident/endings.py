@@ -61,7 +61,9 @@ def signals_end_the_session():
         yield
     finally:
         for s, handler in previous.items():
-            signal.signal(s, handler)
+            # once a signal ended the session the process is on its way out: a late second Ctrl-C
+            # must not turn the documented exit code into a death by signal
+            signal.signal(s, signal.SIG_IGN if _state.received else handler)
 
 
 @contextlib.contextmanager
