@@ -1,7 +1,7 @@
 """CANopen transport benchmarks against the emulated CiA 402 drive. Run by hand, never by the tests::
 
-    python bench/canopen.py                   # 60 s per streaming trial: about half an hour
-    python bench/canopen.py --duration 5      # quick look, a few minutes
+    python bench/canopen_transport.py                   # 60 s per streaming trial: about half an hour
+    python bench/canopen_transport.py --duration 5      # quick look, a few minutes
 
 Two setups, each measured the same way:
 
@@ -35,13 +35,10 @@ Two setups, each measured the same way:
 from __future__ import annotations
 
 import argparse
-import os
 import subprocess
 import sys
 import time
 
-# this file is named like the canopen package: keep its folder off the import path
-sys.path[:] = [p for p in sys.path if os.path.abspath(p or os.curdir) != os.path.dirname(os.path.abspath(__file__))]
 from dataclasses import dataclass, replace
 from pathlib import Path
 
