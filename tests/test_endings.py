@@ -155,14 +155,15 @@ def test_a_second_ctrl_c_after_the_stop_keeps_the_exit_code(tmp_path):
 
     script = textwrap.dedent("""
         import os, signal, sys
-        from hilident import endings
-        from hilident.errors import Interrupted
-        try:
-            with endings.signals_end_the_session():
-                os.kill(os.getpid(), signal.SIGINT)
-        except Interrupted as exc:
-            os.kill(os.getpid(), signal.SIGINT)  # the second one, after the session's handlers are gone
-            sys.exit(exc.exit_code)
+        from hilident import cli
+
+        def run(args):  # a session that a Ctrl-C ends
+            os.kill(os.getpid(), signal.SIGINT)
+
+        cli._run = run
+        code = cli.main(["run", "any.toml"])
+        os.kill(os.getpid(), signal.SIGINT)  # the second one, after the session's handlers are gone
+        sys.exit(code)
     """)
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60,
                           env=dict(os.environ))

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from test_identify_offline import GANTRY  # the same frictionless gantry
 
 from hilident import pipeline
 from hilident.cli import main
@@ -19,20 +20,6 @@ from hilident.errors import DataError
 from hilident.recording import RunWriter
 from hilident.signals import multisine
 
-GANTRY = """
-[emulator.plant]
-model = "two_mass"
-m1 = 40.0
-m2 = 10.0
-k = 1.5e5
-d = 40.0
-c = 10.0
-[emulator.friction]
-model = "none"
-[emulator.sensors]
-encoder_resolution_m = 1e-7
-torque_noise_nm = 0.01
-"""
 RATE = 1000.0
 PERIOD_S = 4.0
 PERIOD = int(PERIOD_S * RATE)

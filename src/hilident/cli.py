@@ -261,6 +261,7 @@ def main(argv: list[str] | None = None) -> int:
         _say(f"hilident: error: {exc}")
         return exc.exit_code
     except Interrupted as exc:
+        endings.ignore_further_signals()
         _say(f"hilident: {exc}; axis stopped, recordings closed as aborted")
         return exc.exit_code
     except KeyboardInterrupt:

@@ -61,9 +61,15 @@ def signals_end_the_session():
         yield
     finally:
         for s, handler in previous.items():
-            # once a signal ended the session the process is on its way out: a late second Ctrl-C
-            # must not turn the documented exit code into a death by signal
-            signal.signal(s, signal.SIG_IGN if _state.received else handler)
+            signal.signal(s, handler)
+
+
+def ignore_further_signals() -> None:
+    """For a process on its way out after a signal ended its session: a late second Ctrl-C must not turn
+    the documented exit code into a death by signal."""
+    if threading.current_thread() is threading.main_thread():
+        for s in ENDING_SIGNALS:
+            signal.signal(s, signal.SIG_IGN)
 
 
 @contextlib.contextmanager
