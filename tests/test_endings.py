@@ -168,3 +168,31 @@ def test_a_second_ctrl_c_after_the_stop_keeps_the_exit_code(tmp_path):
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60,
                           env=dict(os.environ))
     assert done.returncode == 130, done.stderr
+
+
+def test_nohup_keeps_sighup_ignored(tmp_path):
+    """A session started with SIGHUP ignored (``nohup``) is not ended by it; SIGTERM still ends it."""
+    import os
+    import sys
+    import textwrap
+
+    script = textwrap.dedent("""
+        import os, signal, sys, time
+        from hilident import cli
+
+        def run(args):  # a session that gets a SIGHUP, then a SIGTERM
+            os.kill(os.getpid(), signal.SIGHUP)
+            time.sleep(0.05)
+            print("still running after SIGHUP", flush=True)
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.05)
+            return 0
+
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
+        cli._run = run
+        sys.exit(cli.main(["run", "any.toml"]))
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60,
+                          env=dict(os.environ))
+    assert "still running after SIGHUP" in done.stdout
+    assert done.returncode == 143, done.stderr

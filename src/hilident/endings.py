@@ -47,15 +47,19 @@ def _on_signal(signum, frame) -> None:
 def signals_end_the_session():
     """Within this block, SIGINT, SIGTERM and SIGHUP raise :class:`Interrupted` once.
 
+    Signals the process ignores (``nohup`` ignores SIGHUP) stay ignored.
+
     Only the main thread can install signal handlers; elsewhere (a test
     running a session in a thread) the block changes nothing.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = {s: signal.getsignal(s) for s in ENDING_SIGNALS}
+    # a signal the process was started ignoring stays ignored (``nohup`` ignores SIGHUP; a shell's
+    # background job, SIGINT): ending the session on it would undo what the user asked for
+    previous = {s: h for s in ENDING_SIGNALS if (h := signal.getsignal(s)) is not signal.SIG_IGN}
     _state.__init__()
-    for s in ENDING_SIGNALS:
+    for s in previous:
         signal.signal(s, _on_signal)
     try:
         yield

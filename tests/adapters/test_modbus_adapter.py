@@ -523,6 +523,8 @@ def test_a_signal_in_the_middle_of_a_request_stops_the_drive_and_the_line_stays_
 
     with drive(link, time_scale=1.0) as (emu, ad, _):
         ad.configure(1000.0, "torque")
+        # Ctrl-C as at a terminal, also when the suite was started with SIGINT ignored (a background job)
+        previous = signal.signal(signal.SIGINT, signal.default_int_handler)
         timer = threading.Timer(0.4, signal.pthread_kill, (threading.main_thread().ident, signal.SIGINT))
         timer.start()
         try:
@@ -530,6 +532,7 @@ def test_a_signal_in_the_middle_of_a_request_stops_the_drive_and_the_line_stays_
                 ad.stream(np.full(3000, 0.3), Recorder())  # mostly waiting for answers when the signal comes
         finally:
             timer.cancel()
+            signal.signal(signal.SIGINT, previous)
         assert not emu.drive.enabled and not emu.server.firmware.running
         # the answer the interrupted request never read is not taken for another one
         rec = Recorder()
