@@ -36,6 +36,7 @@ def test_ctrl_c_mid_run_stops_and_keeps_the_recording(tmp_path):
     proc = subprocess.Popen(
         [sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o")],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as at a terminal, also in a background job
     )
     try:
         for line in proc.stderr:  # progress lines: wait until the friction test is streaming

@@ -166,7 +166,7 @@ def test_a_second_ctrl_c_after_the_stop_keeps_the_exit_code(tmp_path):
         sys.exit(code)
     """)
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60,
-                          env=dict(os.environ))
+                          env=dict(os.environ), preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     assert done.returncode == 130, done.stderr
 
 

@@ -81,6 +81,8 @@ def host(config: Path, out: Path, *extra: str, fsize_limit: int | None = None) -
     env = dict(os.environ, HILIDENT_LOCK_DIR=str(out.parent / "locks"))
 
     def limit_file_size():
+        # Ctrl-C reaches the host as from a terminal, also when this suite runs as a background job (SIGINT ignored)
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
         if fsize_limit is not None:
             signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails (EFBIG) as on a full disk
             resource.setrlimit(resource.RLIMIT_FSIZE, (fsize_limit, fsize_limit))
