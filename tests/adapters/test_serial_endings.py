@@ -227,7 +227,26 @@ def test_disable_filter_bypasses_a_slot_and_keeps_its_coefficients():
 # --- reordered frames ----------------------------------------------------------------------------
 
 
-class SwapOneBlockPair(OneFrameReads):
+class RoutedFrames(OneFrameReads):
+    """A line that passes every whole frame the board sends through ``_route`` (to hold, reorder or add frames)."""
+
+    def __init__(self, link):
+        super().__init__(link)
+        self._frames = bytearray()
+
+    def _route_arrived_frames(self) -> None:
+        self._frames += self.link.read(max(1, self.link.in_waiting))
+        while 0 in self._frames:
+            end = self._frames.index(0) + 1
+            frame = bytes(self._frames[:end])
+            del self._frames[:end]
+            self._buffer += self._route(frame)
+
+    def _route(self, frame: bytes) -> bytes:
+        return frame
+
+
+class SwapOneBlockPair(RoutedFrames):
     """A line that delivers one sample block after the block that follows it."""
 
     def __init__(self, link, block_index: int = 6):
@@ -235,15 +254,9 @@ class SwapOneBlockPair(OneFrameReads):
         self.block_index = block_index
         self.held: bytes | None = None
         self.swapped: tuple[int, int] | None = None  # first_sample, rows of the late block
-        self._frames = bytearray()
 
     def read(self, size: int = 1) -> bytes:
-        self._frames += self.link.read(max(1, self.link.in_waiting))
-        while 0 in self._frames:
-            end = self._frames.index(0) + 1
-            frame = bytes(self._frames[:end])
-            del self._frames[:end]
-            self._buffer += self._route(frame)
+        self._route_arrived_frames()
         data = bytes(self._buffer[:size])
         del self._buffer[:size]
         return data
@@ -283,7 +296,7 @@ def test_a_reordered_block_is_out_of_order_not_lost_and_never_spliced_in():
 # --- the first cause wins -----------------------------------------------------------------------
 
 
-class InjectNak(OneFrameReads):
+class InjectNak(RoutedFrames):
     """A line on which the board's refusal of an in-flight EXCITATION appears next to ``trigger``.
 
     ``trigger(msg)`` picks the board frame the NAK travels with; ``before``
@@ -297,16 +310,10 @@ class InjectNak(OneFrameReads):
         self.before = before
         self.error = error
         self.injected = False
-        self._frames = bytearray()
         self.channels: tuple = ()  # the host's channel selection, to read the blocks
 
     def read(self, size: int = 1) -> bytes:
-        self._frames += self.link.read(max(1, self.link.in_waiting))
-        while 0 in self._frames:
-            end = self._frames.index(0) + 1
-            frame = bytes(self._frames[:end])
-            del self._frames[:end]
-            self._buffer += self._route(frame)
+        self._route_arrived_frames()
         data = bytes(self._buffer)  # the NAK arrives in the same read as the frame it travels with
         self._buffer.clear()
         return data
