@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from canopen.sdo import SdoCommunicationError
 
 from hilident.adapters.canopen_drive import CanopenDriveAdapter
 from hilident.config import load_config
@@ -398,6 +399,38 @@ def test_a_signal_in_the_middle_of_a_block_transfer_still_stops_the_drive(twin, 
     ad.node.sdo.open = real_open
     result = ad.stream(np.zeros(1000), lambda i, rows: None)
     assert result.completed and result.stats.samples == 1000
+
+
+def test_a_drive_silent_at_the_end_of_a_capture_upload_is_a_device_error(twin):
+    # the drive answers every segment of the capture, then not the end of the transfer (it vanished):
+    # canopen 2.4.1 turns that timeout into an AttributeError of its own; the host names the object
+    t = twin()
+    ad = t.open()
+    ad.configure(FS, "torque")
+    real_open = ad.node.sdo.open
+    real_read_response = ad.node.sdo.read_response
+    last_segment_seen = []
+
+    def silent_after_last_segment():
+        if last_segment_seen:
+            ad.node.sdo.read_response = real_read_response  # silent once: the end-of-upload answer
+            raise SdoCommunicationError("No SDO response received")
+        response = real_read_response()
+        if response[0] & 0x80:  # a block upload segment with the "no more segments" bit
+            last_segment_seen.append(1)
+        return response
+
+    def open_going_silent(index, subindex=0, mode="rb", **options):
+        stream = real_open(index, subindex, mode, **options)
+        if mode == "rb" and options.get("block_transfer"):  # the capture upload
+            ad.node.sdo.read_response = silent_after_last_segment
+        return stream
+
+    ad.node.sdo.open = open_going_silent
+    with pytest.raises(DeviceError, match=r"no valid SDO answer reading 0x2203:0 \(Capture data\)") as info:
+        ad.stream(np.zeros(1000), lambda i, rows: None)
+    assert type(info.value) is DeviceError and last_segment_seen
+    assert t.fw.state is cia402.State.SWITCH_ON_DISABLED and not t.emulated.drive.enabled
 
 
 def test_safe_stop_from_a_handler_that_interrupted_a_table_download(twin):

@@ -78,6 +78,24 @@ LIMIT_TRIP_CODES = {0x8311: "torque_limit", 0x8400: "velocity_limit", 0x8612: "p
 _NMT_OPERATIONAL = 5
 _TPDO_BASES = (0x180, 0x280, 0x380, 0x480)
 _ABORT_GENERAL = 0x08000000  # SDO abort code: general error (a transfer the host broke off)
+_TRANSFER_ERRORS = (SdoAbortedError, SdoCommunicationError, can.CanError, OSError)
+
+
+def _transfer_error(exc: BaseException) -> BaseException | None:
+    """The SDO or bus error behind ``exc``, or None when ``exc`` is something else.
+
+    canopen 2.4.1's ``BlockUploadStream._end_upload`` calls a method it does not
+    have (``self.abort``) when the end-of-upload response times out, so a drive
+    that vanishes at the end of a capture surfaces as an ``AttributeError``
+    raised while handling the ``SdoCommunicationError``: that one is the cause.
+    """
+    while exc is not None:
+        if isinstance(exc, _TRANSFER_ERRORS):
+            return exc
+        if not isinstance(exc, AttributeError):
+            return None
+        exc = exc.__context__
+    return None
 _STATE_POLL_S = 0.002
 
 
@@ -489,19 +507,21 @@ class CanopenDriveAdapter(AdapterBase):
         except BaseException as exc:
             self._in_block_transfer = False
             io.RawIOBase.close(stream)  # closed without the end-of-transfer exchange
-            if not isinstance(exc, SdoAbortedError):  # the drive aborted: its server is idle already
+            cause = _transfer_error(exc)
+            if not isinstance(cause, SdoAbortedError):  # the drive aborted: its server is idle already
                 with contextlib.suppress(Exception):
                     self.node.sdo.abort(_ABORT_GENERAL)
-            if isinstance(exc, (SdoCommunicationError, can.CanError, OSError)):
-                raise self._sdo_error(exc, addr, action) from None
-            if isinstance(exc, SdoAbortedError):
-                raise self._sdo_error(exc, addr, action) from None
+            if cause is not None:
+                raise self._sdo_error(cause, addr, action) from None
             raise
         self._in_block_transfer = False
         try:
             stream.close()
-        except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
-            raise self._sdo_error(exc, addr, action) from None
+        except Exception as exc:
+            cause = _transfer_error(exc)
+            if cause is None:
+                raise
+            raise self._sdo_error(cause, addr, action) from None
         return result
 
     # --- identity, heartbeat, emergencies ------------------------------------------------------
