@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 import pytest
-from twins import HOST_TIMEOUT_S, TRANSPORTS, Twin, host, wait_until
+from twins import HOST_TIMEOUT_S, TRANSPORTS, Twin, finish, host, wait_until
 
 from hilident.recording import read_run
 
@@ -54,12 +54,7 @@ class TestEndingMatrix:
         return proc, out
 
     def _finish(self, proc, timeout=60):
-        try:
-            out, err = proc.communicate(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            out, err = proc.communicate()
-        return proc.returncode, err
+        return finish(proc, timeout)
 
     def _second_session_finds_the_resonance(self, twin, tmp_path, clear_fault: bool):
         out = tmp_path / "second"

@@ -78,11 +78,14 @@ class Twin:
 
 
 def host(config: Path, out: Path, *extra: str, fsize_limit: int | None = None) -> subprocess.Popen:
-    env = dict(os.environ, HILIDENT_LOCK_DIR=str(out.parent / "locks"))
+    # PYTHONFAULTHANDLER: a host that hangs dumps every thread's stack on SIGABRT (see finish())
+    env = dict(os.environ, HILIDENT_LOCK_DIR=str(out.parent / "locks"), PYTHONFAULTHANDLER="1")
 
     def limit_file_size():
-        # Ctrl-C reaches the host as from a terminal, also when this suite runs as a background job (SIGINT ignored)
+        # Ctrl-C and a closed terminal reach the host as at a terminal, also when this suite runs as a
+        # background job (SIGINT ignored) or under nohup (SIGHUP ignored): ignored signals stay ignored in hilident
         signal.signal(signal.SIGINT, signal.SIG_DFL)
+        signal.signal(signal.SIGHUP, signal.SIG_DFL)
         if fsize_limit is not None:
             signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails (EFBIG) as on a full disk
             resource.setrlimit(resource.RLIMIT_FSIZE, (fsize_limit, fsize_limit))
@@ -90,6 +93,25 @@ def host(config: Path, out: Path, *extra: str, fsize_limit: int | None = None) -
     return subprocess.Popen([sys.executable, "-m", "hilident.cli", "run", str(config), "--out", str(out), "--yes",
                              "-q", "--no-plots", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
                             preexec_fn=limit_file_size)
+
+
+def finish(proc: subprocess.Popen, timeout: float = 60) -> tuple[int, str]:
+    """Wait for a host to exit; returns (exit code, stderr).
+
+    A host still running after ``timeout`` s is sent SIGABRT first, so its
+    stderr ends with the stack of every thread (faulthandler), then killed.
+    """
+    try:
+        _, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGABRT)
+        try:
+            _, err = proc.communicate(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            _, err = proc.communicate()
+        err = f"host still running after {timeout:g} s; its threads:\n{err}"
+    return proc.returncode, err
 
 
 def wait_until(condition, timeout_s: float, proc: subprocess.Popen | None = None) -> float:
