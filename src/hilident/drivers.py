@@ -266,6 +266,8 @@ def load_driver(folder: str | os.PathLike) -> DriverDescription:
         raise ConfigError("board.max_sample_rate_hz", f"{board.max_sample_rate_hz:g} Hz exceeds board.loop_rate_hz "
                                                       f"= {board.loop_rate_hz:g} Hz", source)
     channels = tuple(ChannelSpec(c.name, c.unit, c.format, c.scale, c.stream) for c in parsed.channels)
+    if not channels and d.transport == "canopen":
+        channels = _canopen_channels(folder, data, source)
     if not channels:
         raise ConfigError("channels", "a driver needs at least one [[channels]] entry", source)
     zero = next((i for i, c in enumerate(channels) if c.scale == 0), None)
@@ -295,6 +297,50 @@ def load_driver(folder: str | os.PathLike) -> DriverDescription:
     )
 
 
+def load_object_dictionary(driver: "DriverDescription | Path", node_id: int | None = None):
+    """The object dictionary of a CANopen driver folder's EDS (``[canopen] eds``).
+
+    Parameters
+    ----------
+    driver : DriverDescription or Path
+        The driver, or its folder.
+    node_id : int, optional
+        Node id that ``$NODEID`` in the EDS stands for.
+
+    Raises
+    ------
+    ConfigError
+        No ``[canopen] eds``, the file is missing, or it cannot be read; the message names the file.
+    """
+    import canopen
+
+    folder = driver.folder if isinstance(driver, DriverDescription) else Path(driver)
+    source = str(folder / DESCRIPTION_FILE)
+    sections = driver.sections if isinstance(driver, DriverDescription) else parse_toml(
+        read_toml_text(folder / DESCRIPTION_FILE, "driver description"), source)
+    co = sections.get("canopen")
+    name = co.get("eds") if isinstance(co, dict) else None
+    if not isinstance(name, str) or not name:
+        raise ConfigError("canopen.eds", "a CANopen driver names its EDS file", source)
+    path = folder / name
+    if not _is_file(path):
+        raise ConfigError("canopen.eds", f"EDS file {path} not found", source)
+    try:
+        return canopen.import_od(str(path), node_id)
+    except Exception as exc:  # the EDS parser raises whatever its input provokes
+        raise ConfigError("canopen.eds", f"cannot read the EDS {path}: {type(exc).__name__}: {exc}"[:400],
+                          source) from None
+
+
+def _canopen_channels(folder: Path, data: dict, source: str) -> tuple[ChannelSpec, ...]:
+    """The channels of a CANopen drive whose description lists none: from the objects its EDS has."""
+    from hilident.protocol.canopen_objects import CanopenDescription
+    from hilident.protocol.canopen_profile import CHANNEL_UNITS
+
+    desc = CanopenDescription.from_sections(data, source, load_object_dictionary(folder))
+    return tuple(ChannelSpec(name, CHANNEL_UNITS.get(name, "1")) for name in desc.channels)
+
+
 # --- checks of a run against its driver, before connecting ----------------------------------
 
 #: Largest loop-rate divider a device takes (a 16-bit field on every transport).
@@ -304,9 +350,16 @@ SERIAL_MODES = ("torque", "torque_injection", "velocity", "position")
 
 
 def declared_modes(driver: DriverDescription) -> tuple[str, ...]:
-    """hilident modes the device runs: ``[canopen.modes]``, ``[modbus.modes]``, or every serial mode."""
+    """hilident modes the device runs: ``[canopen.modes]`` or those its EDS offers, ``[modbus.modes]``, or every
+    serial mode."""
     if driver.transport == "serial":
         return SERIAL_MODES
+    if driver.transport == "canopen":
+        from hilident.protocol.canopen_objects import CanopenDescription
+
+        desc = CanopenDescription.from_sections(driver.sections, str(driver.folder / DESCRIPTION_FILE),
+                                                load_object_dictionary(driver))
+        return tuple(desc.modes)
     table = driver.sections.get(driver.transport, {})
     modes = table.get("modes", {}) if isinstance(table, dict) else {}
     return tuple(modes) if isinstance(modes, dict) else ()
@@ -370,8 +423,8 @@ def check_run_against_driver(cfg, driver: DriverDescription) -> None:
     if cfg.friction_test.enabled and "velocity" not in modes:
         raise ConfigError("friction_test.enabled", f"the friction test runs in velocity mode, which {what} does "
                                                    f"not have (it has: {', '.join(modes) or 'none'})", src)
-    if cfg.notch.enabled and cfg.identification.max_resonances > 0 and driver.filter_slots < 1:
-        raise ConfigError("notch.enabled", f"{what} has no filter slots to hold a notch", src)
+    # a device without filter slots is no error: the session designs the notch, reports it and says why it was
+    # not uploaded
 
 
 def _check_sample_rate(cfg, driver: DriverDescription, what: str) -> None:

@@ -547,6 +547,13 @@ class Session:
         if not nc.enabled or not plant.resonances:
             return [], upload
         ad = self.adapter
+        if ad.identity.filter_slots < 1:
+            # designed all the same, for the user to enter by hand or to describe the drive's filter objects
+            designs = pipeline.design_notches(plant.resonances, nc, ad.identity.loop_rate_hz, [0])
+            upload["not_uploaded"] = (f"driver {self.driver.name!r} describes no filter capability (no [filters] "
+                                      "table in its driver.toml): the designed notch was not uploaded")
+            self.warnings.append(upload["not_uploaded"])
+            return designs, upload
         slots = list(range(ad.identity.filter_slots))
         designs = pipeline.design_notches(plant.resonances, nc, ad.identity.loop_rate_hz, slots)
         self.progress.step(f"notch: uploading {len(designs)} filter(s)")
@@ -587,7 +594,7 @@ class Session:
         return designs, upload
 
     def _verify(self, excitation: Excitation, plant, designs):
-        if not designs or not self.cfg.notch.verify:
+        if not designs or not self.cfg.notch.verify or not self._uploaded:
             return None
         exp = self.record("verification", self.cfg.excitation.mode, excitation.samples,
                           period_samples=excitation.period_samples)

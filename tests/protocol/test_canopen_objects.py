@@ -78,8 +78,8 @@ def test_shipped_descriptions_are_complete(name):
     assert {m.code for m in desc.modes.values()} == {10, -3, 9, 8}
     assert desc.modes["torque"].setpoint == "target_torque" and desc.modes["velocity"].setpoint == "target_velocity"
     assert set(c.name for c in driver.channels) == set(desc.channels)
-    assert desc.scale("torque_actual", 1000.0) == pytest.approx(1e-3)  # per mille of 1 N*m
-    assert desc.scale("position_actual", 1000.0) == 1e-7
+    assert desc.scale("torque_actual", 1.0) == pytest.approx(1e-3)  # per mille of 1 N*m
+    assert desc.scale("position_actual", 1.0) == 1e-7
     assert desc.filters.address(2, "a1") == co.ObjectAddress(0x2302, 5)
     desc.require_buffered()
 

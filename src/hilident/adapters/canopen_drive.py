@@ -60,15 +60,16 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, refuse_latched_faults
 from hilident.adapters.canopen_link import open_network
 from hilident.config import DeviceConfig
-from hilident.drivers import DriverDescription
+from hilident.drivers import DriverDescription, load_object_dictionary
 from hilident.errors import ConfigError, DataError, DeviceError, LimitTrip
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
 from hilident.protocol import cia402
 from hilident.protocol.canopen_objects import (
     ABORT_CONNECTION_INDEX, ABORT_CONNECTION_OPTIONS, HEARTBEAT_CONSUMER_INDEX, CanopenDescription, ObjectAddress,
-    consumer_entry, encode_si, mapping_entry, numpy_type, pack_frames, parse_consumer_entry, type_bits,
+    REAL32, consumer_entry, encode_si, mapping_entry, numpy_type, pack_frames, parse_consumer_entry, type_bits,
 )
+from hilident.protocol.canopen_profile import decode_supported_modes, period_fields
 from hilident.protocol.filter_encoding import FilterEncoding
 
 __all__ = ["CanopenDriveAdapter", "DriveIdentity", "ChannelCodec", "LIMIT_TRIP_CODES"]
@@ -79,6 +80,7 @@ _NMT_OPERATIONAL = 5
 _TPDO_BASES = (0x180, 0x280, 0x380, 0x480)
 _ABORT_GENERAL = 0x08000000  # SDO abort code: general error (a transfer the host broke off)
 _TRANSFER_ERRORS = (SdoAbortedError, SdoCommunicationError, can.CanError, OSError)
+_STATE_POLL_S = 0.002
 
 
 def _transfer_error(exc: BaseException) -> BaseException | None:
@@ -96,7 +98,6 @@ def _transfer_error(exc: BaseException) -> BaseException | None:
             return None
         exc = exc.__context__
     return None
-_STATE_POLL_S = 0.002
 
 
 @dataclass(frozen=True)
@@ -113,18 +114,35 @@ class DriveIdentity:
 
 @dataclass(frozen=True)
 class ChannelCodec:
-    """A recorded channel: the object carrying it, its CANopen data type and SI value per unit."""
+    """A recorded channel: the object carrying it, its CANopen data type and SI value per unit.
+
+    ``role`` and ``address`` are None for a channel the host records itself
+    (the set-point it sent, on a drive that does not report the one it applied).
+    """
 
     name: str
     unit: str
-    role: str
-    address: ObjectAddress
+    role: str | None
+    address: ObjectAddress | None
     datatype: int
     scale: float
 
     @property
     def bits(self) -> int:
         return type_bits(self.datatype)
+
+    @property
+    def on_host(self) -> bool:
+        return self.address is None
+
+
+@dataclass(frozen=True)
+class PdoSlot:
+    """One PDO the drive's EDS declares: its number, how many objects it maps at most, its COB-ID."""
+
+    number: int
+    max_entries: int
+    cob_id: int
 
 
 @dataclass
@@ -175,7 +193,10 @@ class CanopenDriveAdapter(AdapterBase):
         self.channel_units: list[str] = []
         self.sync_rate_hz: float | None = None
         self.sync_overflow = 0
-        self.rated_torque_mnm = 0.0
+        self.rated_torque_nm = 0.0
+        self.rated_current_a = 0.0
+        self.torque_problem = ""  # why torque objects cannot be scaled, when they cannot
+        self.supported_modes: tuple[str, ...] | None = None  # read from 0x6502 at connect
         self.tpdo_layout: list[tuple[int, list[int]]] = []  # (COB-ID, channel indices after the counter)
         self.rpdo: tuple | None = None  # (COB-ID, counter type, set-point type, set-point role)
         self._configured_for = ""  # the acquisition configure() mapped the objects for
@@ -194,6 +215,8 @@ class CanopenDriveAdapter(AdapterBase):
         self.heartbeat_state: int | None = None
         self._trace_path: Path | None = None
         self._limits: tuple | None = None
+        self._host_checks: list = []
+        self.device_limits: tuple[str, ...] = ()  # the limit objects the drive holds (the rest: host-checked only)
         self._nmt_settled_s = 0.0  # heartbeats before this may still carry the NMT state before our last command
         node.sdo.RESPONSE_TIMEOUT = max(0.05, min(self.timeout_s, 1.0))
         node.nmt.add_heartbeat_callback(self._on_heartbeat)
@@ -220,13 +243,11 @@ class CanopenDriveAdapter(AdapterBase):
             ``[canopen] host_node_id`` is the drive's own node id.
         """
         source = str(driver.folder / "driver.toml")
-        desc = CanopenDescription.from_sections(driver.sections, source)
+        od = load_object_dictionary(driver, device.node_id)
+        desc = CanopenDescription.from_sections(driver.sections, source, od)
         if device.acquisition == "buffered" or (device.acquisition == "auto" and desc.default_acquisition == "buffered"):
             desc.require_buffered(source)
         label = f"{device.can_interface}:{device.port} node {device.node_id}"
-        eds = driver.folder / desc.eds
-        if not eds.is_file():
-            raise ConfigError("canopen.eds", f"EDS file {eds} not found", source)
         if desc.host_node_id == device.node_id:
             raise ConfigError("canopen.host_node_id",
                               f"{desc.host_node_id} is also the drive's node id (device.node_id): the host's "
@@ -234,7 +255,6 @@ class CanopenDriveAdapter(AdapterBase):
         network = open_network(device, driver.default_baudrate, label)
         adapter = None
         try:
-            od = canopen.import_od(str(eds), device.node_id)
             node = canopen.RemoteNode(device.node_id, od)
             network.add_node(node)
             adapter = cls(network, node, driver, desc, device, label)
@@ -527,27 +547,43 @@ class CanopenDriveAdapter(AdapterBase):
     # --- identity, heartbeat, emergencies ------------------------------------------------------
 
     def _identify(self) -> None:
+        """Identity, rated torque and current, supported modes; then the drive's heartbeat.
+
+        Only objects the EDS has are read; the identity is checked when the
+        driver description gives one.
+        """
         d = self.desc
-        vendor, product = int(self.read("vendor_id")), int(self.read("product_code"))
-        if (vendor, product) != (d.vendor_id, d.product_code):
-            raise DeviceError(
-                f"{self.port}: the node reports vendor 0x{vendor:08X}, product 0x{product:08X} "
-                f"({self.describe(d.address('vendor_id'))}, {self.describe(d.address('product_code'))}); "
-                f"driver {self.driver.name!r} expects 0x{d.vendor_id:08X}, 0x{d.product_code:08X}")
+        vendor = int(self.read("vendor_id")) if d.has("vendor_id") else 0
+        product = int(self.read("product_code")) if d.has("product_code") else 0
+        for key, expected, got in (("vendor_id", d.vendor_id, vendor), ("product_code", d.product_code, product)):
+            if expected is not None and got != expected:
+                raise DeviceError(
+                    f"{self.port}: the node reports {key.replace('_', ' ')} 0x{got:08X} "
+                    f"({self.describe(d.address(key))}); driver {self.driver.name!r} expects 0x{expected:08X}")
         if d.has("loop_rate"):
             rate = float(self.read("loop_rate"))
             if abs(rate - self.driver.loop_rate_hz) > 1e-6 * self.driver.loop_rate_hz:
                 raise DeviceError(f"{self.port}: the drive's loop runs at {rate:g} Hz "
                                   f"({self.describe(d.address('loop_rate'))}); driver {self.driver.name!r} says "
                                   f"{self.driver.loop_rate_hz:g} Hz")
-        self.identity = DriveIdentity(str(self.read("device_name")), str(self.read("software_version")),
-                                      float(self.driver.loop_rate_hz), int(self.driver.filter_slots), vendor, product)
-        self.rated_torque_mnm = float(self.read("rated_torque"))
-        if not self.rated_torque_mnm > 0:
-            raise DeviceError(f"{self.port}: {self.describe(d.address('rated_torque'))} is "
-                              f"{self.rated_torque_mnm:g}: torque objects cannot be scaled")
+        name = str(self.read("device_name")) if d.has("device_name") else self.driver.name
+        version = str(self.read("software_version")) if d.has("software_version") else ""
+        self.identity = DriveIdentity(name, version, float(self.driver.loop_rate_hz), int(self.driver.filter_slots),
+                                      vendor, product)
+        try:
+            self.rated_torque_nm = d.rated_torque(float(self.read("rated_torque")) if d.has("rated_torque") else None)
+        except DataError as exc:
+            self.rated_torque_nm = 0.0  # an experiment that needs torque objects says so
+            self.torque_problem = str(exc)
+        self.rated_current_a = d.rated_current(float(self.read("rated_current")) if d.has("rated_current") else None)
+        if d.has("supported_modes"):
+            self.supported_modes = decode_supported_modes(int(self.read("supported_modes")))
+            self.desc = d = d.with_supported_modes(self.supported_modes)
         if d.has("sync_overflow"):
             self.sync_overflow = int(self.read("sync_overflow"))
+        if not d.has("heartbeat_time"):
+            raise DeviceError(f"{self.port}: the EDS {d.eds} has no producer heartbeat time (0x1017): hilident "
+                              "watches the drive by its heartbeat")
         self.write("heartbeat_time", d.heartbeat_ms)
         deadline = time.monotonic() + max(self.timeout_s, 3 * d.heartbeat_ms / 1000.0)
         while self.heartbeat_s is None and time.monotonic() < deadline:
@@ -674,28 +710,57 @@ class CanopenDriveAdapter(AdapterBase):
     # --- configuration ---------------------------------------------------------------------------
 
     def set_limits(self, torque_nm: float, velocity_mps: float, position_min_m: float, position_max_m: float) -> None:
-        """Load the trip limits into the drive (max torque, max speed, software position limits)."""
+        """Load the trip limits into the drive where it has them, and read each back.
+
+        Max torque 0x6072, max motor speed 0x6080, software position limits
+        0x607D. Whatever the drive has, the host also checks every sample it
+        receives against the limits (see :meth:`stream`).
+
+        Raises
+        ------
+        ConfigError
+            A limit does not fit its object's type.
+        DeviceError
+            The drive stores another value than the one written.
+        """
         d = self.desc
-        values = {
-            "max_torque": math.floor(torque_nm / self.scale("max_torque")),
-            "max_velocity": math.floor(velocity_mps / self.scale("max_velocity")),
-            "position_limit_min": math.ceil(position_min_m / self.scale("position_limit_min")),
-            "position_limit_max": math.floor(position_max_m / self.scale("position_limit_max")),
+        wanted = {
+            "max_torque": lambda: math.floor(torque_nm / self.scale("max_torque")),
+            "max_velocity": lambda: math.floor(velocity_mps / self.scale("max_velocity")),
+            "position_limit_min": lambda: math.ceil(position_min_m / self.scale("position_limit_min")),
+            "position_limit_max": lambda: math.floor(position_max_m / self.scale("position_limit_max")),
         }
-        for role, raw in values.items():
+        values = {}
+        for role, raw in wanted.items():
+            if not d.has(role) or (role == "max_torque" and not self.rated_torque_nm > 0):
+                continue
+            values[role] = raw()
             var = self.node.object_dictionary.get_variable(d.address(role).index, d.address(role).subindex)
             info = np.iinfo(numpy_type(var.data_type))
-            if not info.min <= raw <= info.max:
-                raise ConfigError(f"limits ({role})", f"{raw} units do not fit {self.describe(d.address(role))}")
+            if not info.min <= values[role] <= info.max:
+                raise ConfigError(f"limits ({role})", f"{values[role]} units do not fit {self.describe(d.address(role))}")
         for role, raw in values.items():
             self.write(role, raw)
+            back = int(self.read(role))
+            if back != raw:
+                raise DeviceError(f"{self.port}: wrote {raw} to {self.describe(d.address(role))}, the drive holds {back}")
+        self.device_limits = tuple(values)
         self._limits = (torque_nm, velocity_mps, position_min_m, position_max_m)
 
     def scale(self, role: str) -> float:
-        return self.desc.scale(role, self.rated_torque_mnm)
+        """SI value of one raw unit of the object of ``role``; DeviceError when it cannot be scaled."""
+        try:
+            return self.desc.scale(role, self.rated_torque_nm, self.rated_current_a)
+        except DataError as exc:
+            raise DeviceError(f"{self.port}: {self.describe(self.desc.address(role))}: "
+                              f"{self.torque_problem or exc}") from None
 
     def configure(self, sample_rate_hz: float, mode: str, channels: list[str] | None = None) -> list[str]:
-        """Mode of operation, sample rate and the PDO (or capture) mapping of the channels."""
+        """Mode of operation, sample period and the PDO (or capture) mapping of the channels.
+
+        The period goes to whichever of 0x1006 (us) and 0x60C2 (value and
+        exponent) the drive has.
+        """
         ident = self.identity
         divider = ident.loop_rate_hz / sample_rate_hz
         if abs(divider - round(divider)) > 1e-9 or round(divider) < 1:
@@ -706,8 +771,10 @@ class CanopenDriveAdapter(AdapterBase):
         if rate > self.driver.max_sample_rate_hz * (1 + 1e-9):
             raise DeviceError(f"{self.port}: sample rate {rate:g} Hz exceeds the drive's {self.driver.max_sample_rate_hz:g} Hz")
         if mode not in self.desc.modes:
+            supported = f"; 0x6502 says it supports {', '.join(self.supported_modes) or 'no mode'}" \
+                if self.supported_modes is not None else ""
             raise DeviceError(f"{self.port}: driver {self.driver.name!r} has no mode for {mode!r} "
-                              f"(it has {', '.join(self.desc.modes)})")
+                              f"(it has {', '.join(self.desc.modes) or 'none'}{supported})")
         names = channels or [c.name for c in self.driver.streamed_channels]
         units = {c.name: c.unit for c in self.driver.channels}
         codecs = []
@@ -716,14 +783,33 @@ class CanopenDriveAdapter(AdapterBase):
                 raise DeviceError(f"{self.port}: driver {self.driver.name!r} has no channel {name!r} "
                                   f"(it has {', '.join(self.desc.channels)})")
             role = self.desc.channels[name]
+            if role is None:
+                codecs.append(ChannelCodec(name, units[name], None, None, REAL32, 1.0))
+                continue
             addr = self.desc.address(role)
             var = self.node.object_dictionary.get_variable(addr.index, addr.subindex)
-            if var is None:
-                raise DeviceError(f"{self.port}: channel {name!r}: object {addr} is not in the EDS")
             codecs.append(ChannelCodec(name, units[name], role, addr, var.data_type, self.scale(role)))
+        if self.acquisition == "buffered" and any(c.on_host for c in codecs):
+            raise DeviceError(f"{self.port}: a drive-buffered run records only drive objects; channel "
+                              f"{next(c.name for c in codecs if c.on_host)!r} has none")
+        spec = self.desc.modes[mode]
+        for role in (spec.setpoint, spec.hold):
+            if role:
+                self.scale(role)  # a set-point that cannot be scaled stops here, before anything moves
         self.safe_stop()
-        self.write("modes_of_operation", self.desc.modes[mode].code)
-        self.write("cycle_period", int(round(1e6 * divider / ident.loop_rate_hz)))
+        self.write("modes_of_operation", spec.code)
+        period_s = divider / ident.loop_rate_hz
+        if self.desc.has("cycle_period"):
+            self.write("cycle_period", int(round(1e6 * period_s)))
+        if self.desc.has("interpolation_period"):
+            try:
+                value, exponent = period_fields(period_s)
+            except ValueError as exc:
+                raise DeviceError(f"{self.port}: {self.describe(self.desc.address('interpolation_period'))}: "
+                                  f"{exc}") from None
+            self.write("interpolation_period", value)
+            if self.desc.has("interpolation_exponent"):
+                self.write("interpolation_exponent", exponent)
         if self.desc.has("table_divider"):
             self.write("table_divider", divider)
         if self.acquisition == "streamed":
@@ -749,36 +835,85 @@ class CanopenDriveAdapter(AdapterBase):
             self.write_object(ObjectAddress(comm_index, 2), 1)  # synchronous, every SYNC
             self.write_object(ObjectAddress(comm_index, 1), cob_id)
 
+    def pdo_slots(self, kind: str) -> list[PdoSlot]:
+        """The RPDOs (``kind = "rpdo"``) or TPDOs the EDS declares, with their mapping capacity.
+
+        A PDO counts when both its communication and its mapping object exist.
+        Its capacity is the number of mapping sub-indices the EDS declares, or
+        the highest count sub-index 0 accepts, whichever is larger (at most 64).
+        The COB-ID is the predefined connection set's for PDOs 1-4 and the
+        EDS default for the others.
+        """
+        od = self.node.object_dictionary
+        comm_base, map_base, cob_base = (0x1400, 0x1600, 0x200) if kind == "rpdo" else (0x1800, 0x1A00, 0x180)
+        slots = []
+        for n in range(512):
+            if comm_base + n not in od or map_base + n not in od:
+                continue
+            mapping = od[map_base + n]
+            declared = len([sub for sub in getattr(mapping, "subindices", {}) if sub > 0])
+            count = mapping[0] if 0 in getattr(mapping, "subindices", {}) else None
+            high = count.max if count is not None and isinstance(count.max, int) else 0
+            capacity = min(64, max(declared, high))
+            if n < 4:
+                cob = cob_base + 0x100 * n + self.node.id
+            else:
+                var = od.get_variable(comm_base + n, 1)
+                cob = int(var.default or 0) & 0x7FF if var is not None else 0
+            if capacity and cob:
+                slots.append(PdoSlot(n, capacity, cob))
+        return slots
+
     def _map_pdos(self, codecs: list[ChannelCodec], mode: str) -> None:
+        """Map the channels into TPDOs and the set-point into an RPDO, within what the EDS allows.
+
+        On a drive with the hilident counters every PDO is headed by one (the
+        sample counter, the set-point counter); otherwise the TPDOs carry the
+        channels only and the host matches them to SYNCs by their order.
+        """
         node_id = self.node.id
-        counter = self.desc.address("sample_counter")
-        counter_bits = type_bits(self.node.object_dictionary.get_variable(counter.index, counter.subindex).data_type)
+        od = self.node.object_dictionary
+        counted = self.desc.counted
+        mapped = [c for c in codecs if not c.on_host]
+        tpdos, rpdos = self.pdo_slots("tpdo"), self.pdo_slots("rpdo")
+        header = []
+        if counted:
+            counter = self.desc.address("sample_counter")
+            header = [(counter, type_bits(od.get_variable(counter.index, counter.subindex).data_type))]
+        per_frame = min((s.max_entries for s in tpdos[:4]), default=0) - len(header)
         try:
-            frames = pack_frames([(c.name, c.bits) for c in codecs], header_bits=counter_bits)
+            frames = pack_frames([(c.name, c.bits) for c in mapped], header_bits=sum(b for _, b in header),
+                                 max_frames=len(tpdos), max_entries=per_frame)
         except DataError as exc:
-            raise DeviceError(f"{self.port}: {exc}") from None
+            raise DeviceError(f"{self.port}: {exc} ({self.desc.eds}: {len(tpdos)} TPDOs of "
+                              f"{', '.join(str(s.max_entries) for s in tpdos)} entries)") from None
         self.nmt("PRE-OPERATIONAL")
         layout = []
-        for n in range(4):
-            cob = 0x180 + 0x100 * n + node_id
-            members = frames[n] if n < len(frames) else []
+        for i, slot in enumerate(tpdos):
+            members = frames[i] if i < len(frames) else []
             idx = [self.channel_index(codecs, m) for m in members]
-            entries = [mapping_entry(counter, counter_bits)] + [mapping_entry(codecs[i].address, codecs[i].bits)
-                                                               for i in idx] if members else []
-            self._write_mapping(0x1800 + n, 0x1A00 + n, entries, cob)
+            entries = ([mapping_entry(a, b) for a, b in header] +
+                       [mapping_entry(codecs[j].address, codecs[j].bits) for j in idx]) if members else []
+            self._write_mapping(0x1800 + slot.number, 0x1A00 + slot.number, entries, slot.cob_id)
             if members:
-                layout.append((cob, idx))
+                layout.append((slot.cob_id, idx))
         spec = self.desc.modes[mode]
         sp = self.desc.address(spec.setpoint)
-        rx_counter = self.desc.address("setpoint_counter")
-        sp_var = self.node.object_dictionary.get_variable(sp.index, sp.subindex)
-        rx_var = self.node.object_dictionary.get_variable(rx_counter.index, rx_counter.subindex)
-        entries = [mapping_entry(rx_counter, type_bits(rx_var.data_type)), mapping_entry(sp, type_bits(sp_var.data_type))]
-        self._write_mapping(0x1400, 0x1600, entries, 0x200 + node_id)
-        for n in range(1, 4):
-            self._write_mapping(0x1400 + n, 0x1600 + n, [], 0x200 + 0x100 * n + node_id)
+        sp_var = od.get_variable(sp.index, sp.subindex)
+        if not rpdos:
+            raise DeviceError(f"{self.port}: the EDS {self.desc.eds} declares no RPDO: set-points cannot be streamed")
+        rx_type = None
+        entries = []
+        if counted:
+            rx_counter = self.desc.address("setpoint_counter")
+            rx_type = od.get_variable(rx_counter.index, rx_counter.subindex).data_type
+            entries.append(mapping_entry(rx_counter, type_bits(rx_type)))
+        entries.append(mapping_entry(sp, type_bits(sp_var.data_type)))
+        self._write_mapping(0x1400 + rpdos[0].number, 0x1600 + rpdos[0].number, entries, rpdos[0].cob_id)
+        for slot in rpdos[1:4]:
+            self._write_mapping(0x1400 + slot.number, 0x1600 + slot.number, [], slot.cob_id)
         self.tpdo_layout = layout
-        self.rpdo = (0x200 + node_id, rx_var.data_type, sp_var.data_type, spec.setpoint)
+        self.rpdo = (rpdos[0].cob_id, rx_type, sp_var.data_type, spec.setpoint)
         self.nmt("OPERATIONAL")
 
     def nmt(self, state: str) -> None:
@@ -798,8 +933,8 @@ class CanopenDriveAdapter(AdapterBase):
         index = self.desc.address("capture_mapping").index
         self._write_mapping(None, index, [mapping_entry(c.address, c.bits) for c in codecs], None)
         self.nmt("OPERATIONAL")  # for the heartbeat's NMT check; no PDOs are mapped
-        for n in range(4):  # no stale TPDOs beside the capture
-            self.write_object(ObjectAddress(0x1800 + n, 1), 0x180 + 0x100 * n + self.node.id | 0x80000000)
+        for slot in self.pdo_slots("tpdo"):  # no stale TPDOs beside the capture
+            self.write_object(ObjectAddress(0x1800 + slot.number, 1), slot.cob_id | 0x80000000)
 
     # --- runs --------------------------------------------------------------------------------------
 
@@ -837,14 +972,22 @@ class CanopenDriveAdapter(AdapterBase):
             except (OSError, ValueError) as exc:
                 raise DeviceError(f"{self.port}: cannot write the CAN trace {trace_path}: {exc}") from None
         run = run_streamed if self.acquisition == "streamed" else run_buffered
+        self._host_checks = self._host_limit_columns()
         from_sink: list[BaseException] = []
 
         def deliver(index, rows):
+            if self.run_fault is not None and self.run_fault.get("host_check"):
+                return  # nothing after the sample the host stopped the axis at
+            tripped = self._host_limit_trip(index, rows)
+            if tripped is not None:
+                index, rows = index[:tripped + 1], rows[:tripped + 1]
             try:
                 sink(index, rows)
             except BaseException as exc:
                 from_sink.append(exc)
                 raise
+            if tripped is not None:
+                raise self.fault_error(self.run_fault)
 
         try:
             return run(self, x, deliver, progress)
@@ -865,6 +1008,41 @@ class CanopenDriveAdapter(AdapterBase):
                 self.network.stop_trace()
             if self.last_result is not None:
                 self.last_result.events = list(self.events)
+
+    def _host_limit_columns(self) -> list[tuple[int, float, float, str]]:
+        """(channel column, low, high, limit name) of the limits the host checks on every sample.
+
+        Speed and position always; torque when the drive holds no torque limit
+        of its own (0x6072): its loop trips on the filtered command, which the
+        host does not see, while the measured torque carries sensor noise.
+        """
+        if self._limits is None:
+            return []
+        torque, velocity, pmin, pmax = self._limits
+        bounds = {"velocity_mps": (-velocity, velocity, "velocity_limit"),
+                  "position_m": (pmin, pmax, "position_limit")}
+        if "max_torque" not in self.device_limits:
+            bounds["torque_nm"] = (-torque, torque, "torque_limit")
+        return [(j, *bounds[c.name]) for j, c in enumerate(self.channels) if c.name in bounds]
+
+    def _host_limit_trip(self, index: np.ndarray, rows: np.ndarray) -> int | None:
+        """Row of the first sample outside a limit (noted as the run's fault), or None."""
+        first = None
+        for j, low, high, name in self._host_checks:
+            out = np.flatnonzero((rows[:, j] < low) | (rows[:, j] > high))
+            if len(out) and (first is None or out[0] < first[0]):
+                first = (int(out[0]), j, name, low, high)
+        if first is None:
+            return None
+        row, j, name, low, high = first
+        value = float(rows[row, j])
+        event = {"kind": "limit_trip", "sample_index": int(index[row]), "value": value, "host_check": True,
+                 "message": f"{name}: {self.channels[j].name} = {value:.4g} outside [{low:.4g}, {high:.4g}] "
+                            "(checked by the host): axis stopped, torque zero"}
+        self.events.append(event)
+        self.note_fault(event)
+        self.safe_stop()
+        return row
 
     def note_fault(self, event: dict) -> None:
         """Record ``event`` as the run's fault; the first one stays the cause."""

@@ -1,10 +1,25 @@
 """Host-streamed runs on a CANopen drive: an RPDO set-point and a SYNC every sample period.
 
-For sample ``k`` the host sends RPDO1 (set-point counter ``k mod 2**16``, the
-set-point) and then SYNC; the drive applies the set-point for the sample
-period that SYNC starts and answers with its TPDOs, each headed by the sample
-counter ``k`` and carrying the state at the start of that period. The host
-assembles a sample from its TPDOs:
+For sample ``k`` the host sends the RPDO with the set-point and then SYNC; the
+drive applies the set-point for the sample period that SYNC starts and answers
+with its TPDOs (transmission type 1), carrying the state at the start of that
+period. Which sample a TPDO belongs to is known in one of two ways:
+
+* **counted**: on a drive with the hilident counters every TPDO is headed by
+  the sample counter ``k`` (and the RPDO by the set-point counter), so each
+  frame names its sample;
+* **ordered** (every other CiA 402 drive, standard objects only): CAN keeps
+  the order of frames, and a drive answers each SYNC with its TPDOs in PDO
+  number order, so the answers form consecutive sets; a frame whose PDO
+  number is not above the previous frame's starts the next set, and the
+  ``n``-th set answers the ``n``-th SYNC. A set with a frame missing is a lost
+  sample at a known index. A SYNC the drive did not answer at all (a whole set
+  missing) shows only in the count: the samples after it shift by one, which the
+  run reports (``sync_unanswered``) with the number of unanswered SYNCs; such
+  samples are never filled in. Channels the drive does not report (the
+  set-point, on drives without an applied-set-point object) are the host's own.
+
+The host assembles a sample from its TPDOs:
 
 * a sample whose TPDOs did not all arrive within ``window`` sample periods
   after its SYNC (at the end of the run: ``_GRACE_S`` after the last SYNC or
@@ -36,7 +51,10 @@ from hilident.adapters.base import RunResult, StreamStats
 from hilident.errors import DeviceError
 from hilident.protocol.canopen_objects import numpy_type, type_bits
 
-__all__ = ["run_streamed"]
+__all__ = ["run_streamed", "POSITION_SETPOINTS"]
+
+#: Set-point roles that are positions (targets relative to where the axis holds at enable).
+POSITION_SETPOINTS = ("target_position", "interpolation_data")
 
 _GRACE_S = 0.25  # after the last SYNC (or an emergency), wait this long for the TPDOs in flight
 
@@ -49,18 +67,25 @@ def run_streamed(ad, x: np.ndarray, sink, progress=None) -> RunResult:
     ad.last_result = result
     events = ad.events  # live: the session writes them to the recording while the run goes on
     od = ad.node.object_dictionary
-    counter_addr = ad.desc.address("sample_counter")
-    counter_type = od.get_variable(counter_addr.index, counter_addr.subindex).data_type
-    counter_mod = 1 << type_bits(counter_type)
+    counted = ad.desc.counted
+    counter_char, counter_mod = "", 0
+    if counted:
+        counter_addr = ad.desc.address("sample_counter")
+        counter_type = od.get_variable(counter_addr.index, counter_addr.subindex).data_type
+        counter_char, counter_mod = numpy_type(counter_type).char, 1 << type_bits(counter_type)
     n_ch = len(ad.channels)
     frames = {}
-    for bit, (cob, idx) in enumerate(ad.tpdo_layout):
-        fmt = "<" + numpy_type(counter_type).char + "".join(numpy_type(ad.channels[i].datatype).char for i in idx)
-        frames[cob] = (1 << bit, struct.Struct(fmt), np.asarray(idx, dtype=np.intp))
+    for rank, (cob, idx) in enumerate(ad.tpdo_layout):
+        fmt = "<" + counter_char + "".join(numpy_type(ad.channels[i].datatype).char for i in idx)
+        frames[cob] = (1 << rank, struct.Struct(fmt), np.asarray(idx, dtype=np.intp), rank)
     full = (1 << len(frames)) - 1
     scales = np.array([c.scale for c in ad.channels])
     raw = np.zeros((n, n_ch))
-    mask = np.zeros(n, dtype=np.uint8)
+    for j, c in enumerate(ad.channels):
+        if c.on_host:
+            raw[:, j] = x  # the set-point the host sends, in SI units (scale 1)
+    mask = np.zeros(n, dtype=np.uint32)
+    answered = {"set": -1, "rank": len(frames)}  # ordered matching: the set being received, its last PDO
 
     rx = collections.deque()
 
@@ -68,8 +93,17 @@ def run_streamed(ad, x: np.ndarray, sink, progress=None) -> RunResult:
         rx.append((can_id, bytes(data)))
 
     rpdo_cob, rx_type, sp_type, sp_role = ad.rpdo
-    rx_mod = 1 << type_bits(rx_type)
-    rpdo_pack = struct.Struct("<" + numpy_type(rx_type).char + numpy_type(sp_type).char)
+    if rx_type is not None:
+        rx_mod = 1 << type_bits(rx_type)
+        rpdo_struct = struct.Struct("<" + numpy_type(rx_type).char + numpy_type(sp_type).char)
+
+        def rpdo_pack(k, value):
+            return rpdo_struct.pack(k % rx_mod, value)
+    else:
+        rpdo_struct = struct.Struct("<" + numpy_type(sp_type).char)
+
+        def rpdo_pack(k, value):
+            return rpdo_struct.pack(value)
     period = 1.0 / (ad.sync_rate_hz or ad.sample_rate_hz)
     window = max(16, int(round(0.1 / period)))
     lag_limit = max(10 * window, int(round(1.0 / period)))  # the drive is not keeping up: stop flooding it
@@ -113,16 +147,27 @@ def run_streamed(ad, x: np.ndarray, sink, progress=None) -> RunResult:
             spec = frames.get(cob)
             if spec is None:
                 continue
-            bit, packer, idx = spec
+            bit, packer, idx, rank = spec
+            if not counted:  # a PDO number not above the last one's starts the answer to the next SYNC
+                if rank <= answered["rank"]:
+                    answered["set"] += 1
+                answered["rank"] = rank
             if len(data) < packer.size:
                 stats.corrupt_frames += 1
                 continue
             values = packer.unpack_from(data)
-            k = ref - ((ref - values[0]) % counter_mod)
+            if counted:
+                k = ref - ((ref - values[0]) % counter_mod)
+                values = values[1:]
+            else:
+                k = answered["set"]
+                if k >= sent:
+                    stats.corrupt_frames += 1  # an answer to a SYNC the host never sent: not this run's
+                    continue
             if k < final or k < 0:
                 stats.out_of_order += 1  # arrived after its sample was given up: late
                 continue
-            raw[k, idx] = values[1:]
+            raw[k, idx] = values
             mask[k] |= bit
             top = max(top, k)
         return top
@@ -133,9 +178,13 @@ def run_streamed(ad, x: np.ndarray, sink, progress=None) -> RunResult:
     fault = None
     sent = 0
     try:
-        # start from a harmless set-point: zero torque/speed/offset, or the present position in CSP
-        position = sp_role == "target_position"
+        # start from a harmless set-point: zero torque/speed/offset, or the present position in CSP and IP;
+        # a torque offset injected in CSP or CSV is held by the present position or zero speed
+        position = sp_role in POSITION_SETPOINTS
         ad.write(sp_role, int(ad.read("position_actual")) if position else 0)
+        hold = ad.desc.modes[ad.mode].hold
+        if hold:
+            ad.write(hold, int(ad.read("position_actual")) if hold in POSITION_SETPOINTS else 0)
         ad.enable()
         origin = int(ad.read("position_actual")) if position else 0  # CSP targets: relative to where it holds
         setpoints = ad.encode_setpoints(x, sp_type, sp_role, origin).tolist()
@@ -151,7 +200,7 @@ def run_streamed(ad, x: np.ndarray, sink, progress=None) -> RunResult:
                     if late > period:
                         late_syncs += 1
                         worst_late = max(worst_late, late)
-                    send(rpdo_cob, rpdo_pack.pack(sent % rx_mod, setpoints[sent]))
+                    send(rpdo_cob, rpdo_pack(sent, setpoints[sent]))
                     send(0x80, bytes([sent % overflow + 1]) if overflow > 1 else b"")
                     sent += 1
             ad.beat_if_due()
@@ -192,13 +241,21 @@ def run_streamed(ad, x: np.ndarray, sink, progress=None) -> RunResult:
             events.append({"kind": "sync_late", "sample_index": 0, "value": float(late_syncs),
                            "message": f"{late_syncs} SYNC(s) sent more than one period late "
                                       f"(worst {worst_late * 1e3:.2f} ms)"})
-        if fault is None:
+        if fault is None and not counted:
+            unanswered = sent - 1 - answered["set"]
+            if unanswered > 0:
+                events.append({"kind": "sync_unanswered", "sample_index": int(answered["set"] + 1),
+                               "value": float(unanswered),
+                               "message": f"{unanswered} SYNC(s) got no TPDO at all: the drive skipped them or "
+                                          "their answers were lost; matched by order, the samples after such a SYNC "
+                                          "are shifted, so the run's last samples are counted lost"})
+        if fault is None and counted:
             stats.underruns = int(ad.read("setpoint_underruns"))
             sync_errors = int(ad.read("sync_errors"))
             if sync_errors:
                 events.append({"kind": "sync_errors", "sample_index": 0, "value": float(sync_errors),
                                "message": f"the drive saw {sync_errors} SYNC counter jump(s)"})
-            result.completed = True
+        result.completed = fault is None
     except BaseException:
         try:
             drain(sent)

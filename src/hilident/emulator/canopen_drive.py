@@ -54,7 +54,7 @@ import numpy as np
 from canopen.sdo import SdoAbortedError
 
 from hilident.config import DeviceConfig, EmulatorConfig, FaultsConfig
-from hilident.drivers import DriverDescription
+from hilident.drivers import DriverDescription, load_object_dictionary
 from hilident.emulator.canopen_sdo import BlockSdoServer, parse_fault_object
 from hilident.emulator.drive import DriveLoop
 from hilident.errors import ConfigError, DataError
@@ -63,6 +63,10 @@ from hilident.protocol.canopen_objects import (
     ABORT_CONNECTION_INDEX, HEARTBEAT_CONSUMER_INDEX, NUMERIC_TYPES, REAL32, TABLE_START, TABLE_STOP,
     CanopenDescription, ObjectAddress, TableState, encode_si, numpy_type, parse_consumer_entry, parse_mapping_entry,
     record_dtype, type_bits,
+)
+from hilident.protocol.canopen_profile import (
+    CYCLIC_MODES, MODE_CODES, SETPOINT_OF_MODE, decode_supported_modes, encode_supported_modes, mode_name_of_code,
+    period_from_fields,
 )
 from hilident.protocol.filter_encoding import FilterEncoding
 
@@ -95,11 +99,14 @@ ABORT_INCOMPATIBLE = 0x06040043  # general parameter incompatibility (a producer
 
 _COLUMN_OF_ROLE = {
     "position_actual": "position_m", "velocity_actual": "velocity_mps", "torque_actual": "torque_nm",
+    "current_actual": "torque_nm",
     "torque_demand": "torque_cmd_nm", "applied_excitation": "excitation", "load_position": "load_position_m",
 }
-_TARGET_ROLES = ("target_torque", "torque_offset", "target_velocity", "target_position")
+_TARGET_ROLES = ("target_torque", "torque_offset", "target_velocity", "target_position", "interpolation_data")
 _LIMIT_ROLES = ("max_torque", "max_velocity", "position_limit_min", "position_limit_max")
 _PDO_KINDS = {0x1400: ("rpdo", "comm"), 0x1600: ("rpdo", "map"), 0x1800: ("tpdo", "comm"), 0x1A00: ("tpdo", "map")}
+#: CiA 402 modes of operation and the drive loop mode that runs them (torque offsets are added in each).
+_LOOP_MODE_OF_CODE = {10: "torque", 9: "velocity", 8: "position", 7: "position"}
 
 _channel_numbers = itertools.count(1)
 
@@ -113,6 +120,29 @@ class PdoConfig:
     trans_type: int
     entries: list = field(default_factory=list)  # (ObjectAddress, datatype)
     packer: struct.Struct | None = None
+
+
+def _supported_modes(desc: CanopenDescription, od, emulator: dict) -> tuple[str, ...]:
+    """The modes this drive runs: 0x6502's EDS default, else the driver's ``[emulator] supported_modes``,
+    else every cyclic mode whose set-point object the EDS has."""
+    addr = desc.objects.get("supported_modes")
+    var = od.get_variable(addr.index, addr.subindex) if addr is not None else None
+    if var is not None and isinstance(var.default, int) and var.default > 0:
+        return decode_supported_modes(var.default)
+    listed = emulator.get("supported_modes") if isinstance(emulator, dict) else None
+    if isinstance(listed, list) and all(m in MODE_CODES for m in listed):
+        return tuple(listed)
+    if desc.explicit_modes:
+        return tuple(m for m in MODE_CODES if MODE_CODES[m] in {spec.code for spec in desc.modes.values()})
+    return tuple(m for m in CYCLIC_MODES if SETPOINT_OF_MODE[m] in desc.objects)
+
+
+def _mapping_capacity(mapping) -> int:
+    """How many objects a PDO mapping record takes: its declared sub-indices or sub-index 0's maximum."""
+    subs = getattr(mapping, "subindices", {})
+    declared = len([sub for sub in subs if sub > 0])
+    high = subs[0].max if 0 in subs and isinstance(subs[0].max, int) else 0
+    return min(64, max(declared, high))
 
 
 def _error_register(code: int) -> int:
@@ -145,13 +175,15 @@ class CanopenDriveFirmware:
         self.drive = drive
         self.driver = driver
         source = str(driver.folder / "driver.toml")
-        self.desc = CanopenDescription.from_sections(driver.sections, source)
+        od = load_object_dictionary(driver, node_id)
+        desc = CanopenDescription.from_sections(driver.sections, source, od)
+        self.supported = _supported_modes(desc, od, driver.sections.get("emulator", {}))
+        self.desc = desc = desc.with_supported_modes(self.supported)
         self.encoding = (FilterEncoding.from_table(driver.sections["filters"], source)
                          if self.desc.filters is not None else None)
         self.faults = faults or FaultsConfig()
         self.time_scale = float(time_scale)
         self.loop_rate = float(driver.loop_rate_hz)
-        od = canopen.import_od(str(driver.folder / self.desc.eds), node_id)
         node = canopen.LocalNode(node_id, od)
         node.sdo = BlockSdoServer(0x600 + node_id, 0x580 + node_id, node, parse_fault_object(self.faults.abort_object))
         node.sdo.size_limit = self._size_limit
@@ -161,8 +193,19 @@ class CanopenDriveFirmware:
         self.od = od
         self.lock = threading.RLock()
         self.role_of = {addr: role for role, addr in self.desc.objects.items()}
-        self.rated_torque_mnm = float(self._default(self.desc.address("rated_torque")))
-        self.scales = {role: self.desc.scale(role, self.rated_torque_mnm) for role in self.desc.objects}
+        try:
+            self.rated_torque_nm = desc.rated_torque(
+                float(self._default(desc.address("rated_torque"))) if desc.has("rated_torque") else None)
+        except DataError:
+            self.rated_torque_nm = 0.0  # no torque objects to scale
+        self.rated_current_a = desc.rated_current(
+            float(self._default(desc.address("rated_current"))) if desc.has("rated_current") else None)
+        self.scales = {}
+        for role in desc.objects:
+            try:
+                self.scales[role] = desc.scale(role, self.rated_torque_nm, self.rated_current_a)
+            except DataError:
+                pass  # a torque or current object without its reference: the drive cannot be asked for it
         self.columns = {name: i for i, name in enumerate(DriveLoop.CHANNELS)}
         self._codecs: dict = {}
         self.network = None
@@ -175,7 +218,9 @@ class CanopenDriveFirmware:
         self.targets = {role: 0 for role in _TARGET_ROLES if self.desc.has(role)}
         self.rx_counter = 0
         self.limits_raw: dict[str, int] = {}
-        self.limits_loaded = False
+        # a drive with no limit object of its own can be enabled without any (the host checks the limits)
+        self.limits_loaded = not any(desc.has(r) and r in self.scales for r in _LIMIT_ROLES)
+        self.interpolation_period = [0, -3]  # 0x60C2 value and exponent as last written
         self.sync_divider = 0
         self.sync_overflow = int(self._default(self.desc.address("sync_overflow"))) if self.desc.has("sync_overflow") else 0
         self.last_sync_counter: int | None = None
@@ -185,6 +230,7 @@ class CanopenDriveFirmware:
         self.underruns = 0
         self.sync_errors = 0
         self.tpdos_dropped = 0
+        self.dropped: list[tuple[int, int]] = []  # (sample index, COB-ID) of each TPDO the drop fault swallowed
         self.run_start_tick = drive.tick
         self.injected: set[str] = set()
         self.heartbeat_stopped = False
@@ -222,8 +268,9 @@ class CanopenDriveFirmware:
                 node_id, time_ms = parse_consumer_entry(int(self._stored(HEARTBEAT_CONSUMER_INDEX, sub)))
                 if node_id and time_ms:
                     self.consumers[sub] = (node_id, time_ms)
-        self.pdos = {("tpdo", n): self._load_pdo("tpdo", n) for n in range(4) if 0x1800 + n in od}
-        self.pdos.update({("rpdo", n): self._load_pdo("rpdo", n) for n in range(4) if 0x1400 + n in od})
+        self.pdos = {("tpdo", n): self._load_pdo("tpdo", n) for n in range(512) if 0x1800 + n in od and 0x1A00 + n in od}
+        self.pdos.update({("rpdo", n): self._load_pdo("rpdo", n) for n in range(512)
+                          if 0x1400 + n in od and 0x1600 + n in od})
         self.last_row = drive.run(np.zeros(1))[0]
         drive.disable()
 
@@ -257,7 +304,7 @@ class CanopenDriveFirmware:
 
     def _set_mapping(self, kind: str, n: int, cfg: PdoConfig, count: int) -> None:
         mapping = (0x1600 if kind == "rpdo" else 0x1A00) + n
-        if count > 8:
+        if count > _mapping_capacity(self.od[mapping]):
             raise SdoAbortedError(ABORT_PDO_LENGTH)
         entries, bits = [], 0
         for sub in range(1, count + 1):
@@ -315,6 +362,14 @@ class CanopenDriveFirmware:
     def mode_spec(self):
         return self.desc.mode_by_code(self.mode_code)
 
+    def loop_mode(self) -> str | None:
+        """The drive loop mode of the selected mode of operation (None: not one this drive runs)."""
+        spec = self.mode_spec
+        if self.desc.explicit_modes:
+            return spec.name if spec is not None else None
+        name = mode_name_of_code(self.mode_code)
+        return _LOOP_MODE_OF_CODE.get(self.mode_code) if name in self.supported else None
+
     def statusword(self) -> int:
         internal_limit = self.drive.fault is not None
         return cia402.statusword(self.state, target_reached=self.table_state == TableState.DONE,
@@ -326,10 +381,10 @@ class CanopenDriveFirmware:
             self.cw = cw
             return
         if new is cia402.State.OPERATION_ENABLED:
-            spec = self.mode_spec
-            if not self.limits_loaded or spec is None:
+            loop_mode = self.loop_mode()
+            if not self.limits_loaded or loop_mode is None:
                 raise SdoAbortedError(ABORT_STATE)  # no limits loaded, or no supported mode selected
-            self.drive.set_mode(spec.name)
+            self.drive.set_mode(loop_mode)
             self.drive.enable()
             self._start_run()
         elif self.state is cia402.State.OPERATION_ENABLED:
@@ -495,16 +550,29 @@ class CanopenDriveFirmware:
             for cob_id, payload in frames:
                 if rate and self.rng.random() < rate:
                     self.tpdos_dropped += 1
+                    self.dropped.append((k, cob_id))
                     continue
                 self._send(cob_id, payload)
             self._check_faults()
 
+    def _si(self, role: str) -> float:
+        return self.targets.get(role, 0) * self.scales.get(role, 1.0)
+
     def _setpoint_si(self) -> float:
-        spec = self.mode_spec
-        x = self.targets.get(spec.setpoint, 0) * self.scales.get(spec.setpoint, 1.0)
-        if spec.name == "position":
-            x -= self.drive.hold_position_m  # CSP targets are absolute; the drive loop takes them relative
-        return x
+        """The drive loop's input for the next ticks; the torque offset (0x60B2) goes to the loop on its own."""
+        if self.desc.explicit_modes:
+            spec = self.mode_spec
+            x = self._si(spec.setpoint)
+            if spec.name == "position":
+                x -= self.drive.hold_position_m  # CSP targets are absolute; the drive loop takes them relative
+            return x
+        self.drive.torque_offset_nm = self._si("torque_offset")
+        if self.mode_code == 10:
+            return self._si("target_torque")
+        if self.mode_code == 9:
+            return self._si("target_velocity")
+        target = "target_position" if self.mode_code == 8 else "interpolation_data"
+        return self._si(target) - self.drive.hold_position_m
 
     def _rpdo_handler(self, n: int):
         def on_rpdo(can_id, data, timestamp):
@@ -627,6 +695,7 @@ class CanopenDriveFirmware:
                     row[self.columns["position_m"]] = self.drive.sensors.encoder(self.drive.plant.p1)
                 return self._live(role, addr, row, self.sample_index)
             values = {
+                "supported_modes": encode_supported_modes(self.supported),
                 "setpoint_underruns": self.underruns, "sync_errors": self.sync_errors,
                 "table_length": len(self.table), "table_state": self.table_state,
                 "capture_count": self.capture_count, "capture_offset": self.capture_offset,
@@ -653,8 +722,8 @@ class CanopenDriveFirmware:
         addr = ObjectAddress(index, subindex)
         role = self.role_of.get(addr)
         with self.lock:
-            base = index & 0xFFFC
-            if base in _PDO_KINDS and index - base < 4:
+            base = index & 0xFE00
+            if base in _PDO_KINDS and (("rpdo" if base < 0x1800 else "tpdo"), index - base) in self.pdos:
                 self._write_pdo(base, index - base, subindex, int(value))
                 return
             if index == HEARTBEAT_CONSUMER_INDEX and subindex > 0:
@@ -679,6 +748,8 @@ class CanopenDriveFirmware:
                 "controlword": lambda: self.apply_controlword(int(value)),
                 "modes_of_operation": lambda: self._write_mode(int(value)),
                 "cycle_period": lambda: self._write_cycle_period(int(value)),
+                "interpolation_period": lambda: self._write_interpolation_period(int(value), None),
+                "interpolation_exponent": lambda: self._write_interpolation_period(None, int(value)),
                 "setpoint_counter": lambda: setattr(self, "rx_counter", int(value)),
                 "table": lambda: self._write_table(value),
                 "table_divider": lambda: self._write_table_divider(int(value)),
@@ -718,12 +789,13 @@ class CanopenDriveFirmware:
             self._set_mapping(kind, n, cfg, value)  # entries 1..value were stored before
 
     def _write_mode(self, code: int) -> None:
-        spec = self.desc.mode_by_code(code)
-        if spec is None:
+        previous, self.mode_code = self.mode_code, code
+        loop_mode = self.loop_mode()
+        if loop_mode is None:
+            self.mode_code = previous
             raise SdoAbortedError(ABORT_VALUE)
-        self.mode_code = code
         if self.state is cia402.State.OPERATION_ENABLED:
-            self.drive.set_mode(spec.name)
+            self.drive.set_mode(loop_mode)
 
     def _write_cycle_period(self, period_us: int) -> None:
         if period_us == 0:
@@ -734,14 +806,32 @@ class CanopenDriveFirmware:
             raise SdoAbortedError(ABORT_VALUE)  # the SYNC period must be whole loop ticks
         self.sync_divider = int(round(ticks))
 
+    def _write_interpolation_period(self, value: int | None, exponent: int | None) -> None:
+        """0x60C2: the sample period is ``value * 10**exponent`` s; it must be whole loop ticks."""
+        period = list(self.interpolation_period)
+        if value is not None:
+            period[0] = value
+        if exponent is not None:
+            period[1] = exponent
+        seconds = period_from_fields(*period)
+        ticks = seconds * self.loop_rate
+        if seconds and (abs(ticks - round(ticks)) > 1e-6 or not 1 <= round(ticks) <= 65535):
+            if value is not None:  # the exponent may come second: only a value that fits no exponent is refused
+                raise SdoAbortedError(ABORT_VALUE)
+        self.interpolation_period = period
+        if seconds and abs(ticks - round(ticks)) <= 1e-6 and 1 <= round(ticks) <= 65535:
+            self.sync_divider = int(round(ticks))
+
     def _write_limit(self, role: str, raw: int) -> None:
         if role in ("max_torque", "max_velocity") and raw <= 0:
             raise SdoAbortedError(ABORT_TOO_LOW)
         self.limits_raw[role] = raw
-        if not all(r in self.limits_raw for r in _LIMIT_ROLES):
+        held = [r for r in _LIMIT_ROLES if self.desc.has(r) and r in self.scales]
+        if not all(r in self.limits_raw for r in held):
             return
-        si = {r: self.limits_raw[r] * self.scales[r] for r in _LIMIT_ROLES}
-        if si["position_limit_min"] >= si["position_limit_max"]:
+        si = {r: self.limits_raw[r] * self.scales[r] if r in held else None for r in _LIMIT_ROLES}
+        if (si["position_limit_min"] is not None and si["position_limit_max"] is not None
+                and si["position_limit_min"] >= si["position_limit_max"]):
             self.limits_loaded = False  # one end written, the other still to come
             return
         try:

@@ -162,6 +162,7 @@ class DriveLoop:
         self.position_min_m = -math.inf
         self.position_max_m = math.inf
         self.hold_position_m = sensors.encoder(plant.p1)
+        self.torque_offset_nm = 0.0  # added to the torque command in every mode (a CiA 402 drive's 0x60B2)
         self._last_position = self.hold_position_m
         self._velocity = 0.0
         self._integral = 0.0
@@ -295,6 +296,7 @@ class DriveLoop:
         pmax = self.position_max_m
         mode = MODES.index(self.mode)
         hold = self.hold_position_m
+        offset = self.torque_offset_nm
 
         plant = self.plant
         plant_step = plant.step
@@ -329,7 +331,7 @@ class DriveLoop:
                     fault, fault_value = "position_limit", pm
                 if fault is None:
                     if mode == 0:
-                        cmd = e
+                        cmd = e + offset
                     else:
                         if mode == 1:
                             verr = kp * (hold - pm) - vf
@@ -343,7 +345,7 @@ class DriveLoop:
                             integ = tmax
                         elif integ < -tmax:
                             integ = -tmax
-                        cmd = kv * verr + integ
+                        cmd = kv * verr + integ + offset
                         if mode == 1:
                             cmd += e
                     tf = filt(cmd)

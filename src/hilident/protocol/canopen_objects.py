@@ -26,7 +26,7 @@ array([1234567], dtype=int32)
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -38,7 +38,7 @@ __all__ = [
     "numpy_type", "record_dtype", "encode_si", "decode_raw", "mapping_entry", "parse_mapping_entry",
     "pack_frames", "TableState", "TABLE_START", "TABLE_STOP", "ROLE_SCALING", "parse_address",
     "ABORT_CONNECTION_OPTIONS", "HEARTBEAT_CONSUMER_INDEX", "ABORT_CONNECTION_INDEX", "consumer_entry",
-    "parse_consumer_entry",
+    "parse_consumer_entry", "COUNTER_ROLES", "REQUIRED_ROLES",
 ]
 
 # CiA 301 data type codes
@@ -67,21 +67,22 @@ TABLE_START = 1
 
 #: How an object of each role scales to SI: "position" (position_unit_m per
 #: increment), "velocity" (velocity_unit_mps per unit), "torque" (per mille of the
-#: rated torque, 0x6076 in mN·m), "si" (REAL32 already in SI units).
+#: rated torque), "current" (per mille of the rated current, as torque through the
+#: torque constant), "si" (REAL32 already in SI units).
 ROLE_SCALING = {
     "position_actual": "position", "target_position": "position", "position_limit_min": "position",
-    "position_limit_max": "position", "velocity_actual": "velocity", "target_velocity": "velocity",
-    "max_velocity": "velocity", "target_torque": "torque", "torque_offset": "torque", "torque_demand": "torque",
-    "torque_actual": "torque", "max_torque": "torque", "applied_excitation": "si", "load_position": "si",
+    "position_limit_max": "position", "interpolation_data": "position", "velocity_actual": "velocity",
+    "target_velocity": "velocity", "max_velocity": "velocity", "velocity_offset": "velocity",
+    "target_torque": "torque", "torque_offset": "torque", "torque_demand": "torque",
+    "torque_actual": "torque", "max_torque": "torque", "current_actual": "current",
+    "applied_excitation": "si", "load_position": "si",
 }
 
-#: Roles every CANopen driver description must name.
-REQUIRED_ROLES = (
-    "controlword", "statusword", "modes_of_operation", "modes_display", "device_name", "software_version",
-    "vendor_id", "product_code", "heartbeat_time", "cycle_period", "rated_torque", "max_torque", "max_velocity",
-    "position_limit_min", "position_limit_max", "sample_counter", "setpoint_counter",
-    "setpoint_underruns", "sync_errors",
-)
+#: Roles every CANopen drive must have (in its EDS, or named by its driver description).
+REQUIRED_ROLES = ("controlword", "statusword", "modes_of_operation")
+#: The hilident counters: a drive that has them numbers its TPDOs and RPDOs, so a streamed run is matched
+#: sample by sample; without them the host matches TPDOs to SYNCs by their order on the bus.
+COUNTER_ROLES = ("sample_counter", "setpoint_counter", "setpoint_underruns", "sync_errors")
 BUFFERED_ROLES = ("table", "table_length", "table_divider", "table_command", "table_state", "capture_count",
                   "table_capacity", "capture_offset", "capture_mapping", "capture_data")
 ACQUISITIONS = ("streamed", "buffered")
@@ -140,11 +141,17 @@ class ModeSpec:
         Mode of operation written to 0x6060 (CST 10, CSV 9, CSP 8; negative: manufacturer mode).
     setpoint : str
         Role of the object the excitation is written to each cycle.
+    hold : str
+        Role of the set-point that holds the axis while the excitation goes to
+        ``setpoint`` (a torque offset injected in CSP or CSV: "target_position",
+        written with the present position, or "target_velocity", written 0);
+        empty when nothing needs holding.
     """
 
     name: str
     code: int
     setpoint: str
+    hold: str = ""
 
 
 @dataclass(frozen=True)
@@ -162,14 +169,19 @@ class FilterObjects:
 
 @dataclass(frozen=True)
 class CanopenDescription:
-    """The ``[canopen]`` part of a driver description, validated.
+    """The ``[canopen]`` part of a driver description, validated against the drive's EDS.
+
+    Standard CiA 301/402 objects are found by their index in the EDS
+    (:data:`~hilident.protocol.canopen_profile.STANDARD_OBJECTS`); the driver
+    description names only what the EDS cannot say: vendor objects, units,
+    the torque reference, mode preference and vendor capabilities.
 
     Attributes
     ----------
     eds : str
         EDS file name, relative to the driver folder.
-    vendor_id, product_code : int
-        Identity (0x1018:1, 0x1018:2) the device must report.
+    vendor_id, product_code : int or None
+        Identity (0x1018:1, 0x1018:2) the device must report; None: not checked.
     default_acquisition : {"streamed", "buffered"}
         Used when ``device.acquisition = "auto"``.
     heartbeat_ms : int
@@ -182,13 +194,23 @@ class CanopenDescription:
         Emergency messages carry the run's sample index in their first four
         manufacturer bytes (UNSIGNED32, 0xFFFFFFFF: none).
     position_unit_m, velocity_unit_mps : float
-        SI value of one position increment and one velocity unit.
+        SI value of one position increment (m, or rad on a rotary axis) and one velocity unit.
+    rated_torque_unit_nm : float
+        Unit of the rated torque object 0x6076, N·m (CiA 402: mN·m, 1e-3).
+    rated_torque_nm : float
+        Rated torque used when 0x6076 is absent or reads 0, N·m (0: none given).
+    torque_constant_nm_per_a : float
+        Torque per ampere, for drives that report current only (0: none given).
+    rated_current_a : float
+        Rated current used when 0x6075 is absent or reads 0, A (0: none given).
+    cyclic_modes : tuple of str
+        Cyclic modes (``"cst"``, ``"csv"``, ``"csp"``, ``"ip"``) in the order the driver prefers them.
     objects : dict
-        Role -> ObjectAddress.
+        Role -> ObjectAddress: the standard objects the EDS has, and the vendor objects the description names.
     modes : dict
         hilident mode -> ModeSpec.
     channels : dict
-        Channel name -> role of the object that carries it.
+        Channel name -> role of the object that carries it; None: the host records it (the set-point it sent).
     filters : FilterObjects or None
     host_node_id : int
         Node id the host's heartbeat (COB-ID 0x700 + id) is produced under, and
@@ -198,11 +220,13 @@ class CanopenDescription:
         Value written to the abort connection option code (0x6007) when the EDS
         has it: what the drive does when the host's heartbeat stops (CiA 402:
         1 fault, 2 disable voltage, 3 quick stop).
+    explicit_modes : bool
+        ``[canopen.modes]`` fixed the modes; otherwise they follow the drive's supported modes (0x6502).
     """
 
     eds: str
-    vendor_id: int
-    product_code: int
+    vendor_id: int | None
+    product_code: int | None
     default_acquisition: str
     heartbeat_ms: int
     heartbeat_timeout_ms: int
@@ -212,20 +236,39 @@ class CanopenDescription:
     velocity_unit_mps: float
     objects: dict[str, ObjectAddress] = field(default_factory=dict)
     modes: dict[str, ModeSpec] = field(default_factory=dict)
-    channels: dict[str, str] = field(default_factory=dict)
+    channels: dict[str, str | None] = field(default_factory=dict)
     filters: FilterObjects | None = None
     host_node_id: int = 127
     abort_connection_option: int = 2
+    rated_torque_unit_nm: float = 1e-3
+    rated_torque_nm: float = 0.0
+    torque_constant_nm_per_a: float = 0.0
+    rated_current_a: float = 0.0
+    cyclic_modes: tuple[str, ...] = ("cst", "csv", "csp", "ip")
+    explicit_modes: bool = False
 
     @classmethod
-    def from_sections(cls, sections: dict, source: str = "") -> "CanopenDescription":
+    def from_sections(cls, sections: dict, source: str = "", od=None) -> "CanopenDescription":
         """Validate the ``[canopen]`` and ``[filters]`` tables of a parsed driver description.
+
+        Parameters
+        ----------
+        sections : dict
+            The parsed ``driver.toml``.
+        source : str
+            Its path, for messages.
+        od : canopen.ObjectDictionary, optional
+            The drive's object dictionary (its EDS): standard objects it has are
+            added by their index, and every object named must exist in it.
+            Without it only the description's own ``[canopen.objects]`` count.
 
         Raises
         ------
         ConfigError
             A table or key is missing or malformed; the message names the dotted key and ``source``.
         """
+        from hilident.protocol import canopen_profile as profile
+
         co = sections.get("canopen")
         if not isinstance(co, dict):
             raise ConfigError("canopen", "a CANopen driver needs a [canopen] table", source)
@@ -240,40 +283,45 @@ class CanopenDescription:
                 raise ConfigError(f"canopen.{key}", f"must be {kind.__name__}, got {value!r}", source)
             return value
 
-        acquisition = get("default_acquisition", str, "buffered")
+        acquisition = get("default_acquisition", str, "streamed")
         if acquisition not in ACQUISITIONS:
             raise ConfigError("canopen.default_acquisition", f"must be one of {ACQUISITIONS}, got {acquisition!r}",
                               source)
-        objects = {}
+
+        def present(addr: ObjectAddress) -> bool:
+            return od is not None and od.get_variable(addr.index, addr.subindex) is not None
+
+        objects = profile.standard_objects(present)
         table = co.get("objects", {})
         if not isinstance(table, dict):
             raise ConfigError("canopen.objects", "must be a table of role = \"0xIIII[:sub]\"", source)
         for role, text in table.items():
             objects[role] = parse_address(text, f"canopen.objects.{role}", source)
+            if od is not None and not present(objects[role]):
+                raise ConfigError(f"canopen.objects.{role}", f"object {objects[role]} is not in the EDS", source)
         missing = [r for r in REQUIRED_ROLES if r not in objects]
         if missing:
-            raise ConfigError("canopen.objects", f"lacks {', '.join(missing)}", source)
+            where = "the EDS has no" if od is not None else "[canopen.objects] lacks"
+            raise ConfigError("canopen.objects", f"{where} {', '.join(missing)}: not a CiA 402 drive", source)
 
+        preference = co.get("cyclic_modes", list(profile.CYCLIC_MODES))
+        if (not isinstance(preference, list) or not preference
+                or any(m not in profile.CYCLIC_MODES for m in preference)):
+            raise ConfigError("canopen.cyclic_modes", f"must be a list of {profile.CYCLIC_MODES}, got {preference!r}",
+                              source)
         modes = {}
         for name, spec in _table(co, "modes", source).items():
             if not isinstance(spec, dict) or not _is_int(spec.get("code")) or not isinstance(spec.get("setpoint"), str):
                 raise ConfigError(f"canopen.modes.{name}", "must be { code = <int>, setpoint = \"<role>\" }", source)
             if spec["setpoint"] not in objects:
                 raise ConfigError(f"canopen.modes.{name}.setpoint",
-                                  f"role {spec['setpoint']!r} is not in [canopen.objects]", source)
+                                  f"role {spec['setpoint']!r} is not an object of this drive", source)
             if not -128 <= spec["code"] <= 127:
                 raise ConfigError(f"canopen.modes.{name}.code", f"must fit INTEGER8, got {spec['code']}", source)
-            modes[name] = ModeSpec(name, spec["code"], spec["setpoint"])
+            modes[name] = ModeSpec(name, spec["code"], spec["setpoint"], str(spec.get("hold", "")))
+        explicit = bool(modes)
         if not modes:
-            raise ConfigError("canopen.modes", "needs at least one mode", source)
-
-        channels = {}
-        for name, role in _table(co, "channels", source).items():
-            if not isinstance(role, str) or role not in objects:
-                raise ConfigError(f"canopen.channels.{name}", f"role {role!r} is not in [canopen.objects]", source)
-            channels[name] = role
-        if not channels:
-            raise ConfigError("canopen.channels", "needs at least one channel", source)
+            modes = profile.standard_modes(objects, _default_supported(od, objects), preference)
 
         scaling = _table(co, "scaling", source)
         units = {}
@@ -282,6 +330,25 @@ class CanopenDescription:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
                 raise ConfigError(f"canopen.scaling.{key}", f"must be a positive number, got {value!r}", source)
             units[key] = float(value)
+        for key, default in (("rated_torque_unit_nm", 1e-3), ("rated_torque_nm", 0.0),
+                             ("torque_constant_nm_per_a", 0.0), ("rated_current_a", 0.0)):
+            value = scaling.get(key, default)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+                    math.isfinite(value) and value >= 0 and (value > 0 or default == 0.0)):
+                raise ConfigError(f"canopen.scaling.{key}", f"must be a {'positive' if default else 'non-negative'} "
+                                                            f"number, got {value!r}", source)
+            units[key] = float(value)
+
+        current_as_torque = units["torque_constant_nm_per_a"] > 0
+        channels: dict[str, str | None] = {}
+        if "channels" not in co:
+            channels = profile.standard_channels(objects, current_as_torque)
+        for name, role in _table(co, "channels", source).items():
+            if not isinstance(role, str) or role not in objects:
+                raise ConfigError(f"canopen.channels.{name}", f"role {role!r} is not an object of this drive", source)
+            channels[name] = role
+        if not channels:
+            raise ConfigError("canopen.channels", "needs at least one channel", source)
 
         hb = get("heartbeat_ms", int, 100)
         hb_timeout = get("heartbeat_timeout_ms", int, 4 * hb)
@@ -290,9 +357,12 @@ class CanopenDescription:
         if hb_timeout <= hb:
             raise ConfigError("canopen.heartbeat_timeout_ms", f"must exceed heartbeat_ms = {hb}, got {hb_timeout}",
                               source)
+        identity = {}
         for key in ("vendor_id", "product_code"):
-            if not 0 <= get(key, int) <= 0xFFFFFFFF:
-                raise ConfigError(f"canopen.{key}", f"must fit UNSIGNED32, got {get(key, int)}", source)
+            value = co.get(key)
+            if value is not None and not (_is_int(value) and 0 <= value <= 0xFFFFFFFF):
+                raise ConfigError(f"canopen.{key}", f"must fit UNSIGNED32, got {value!r}", source)
+            identity[key] = value
         host_node_id = get("host_node_id", int, 127)
         if not 1 <= host_node_id <= 127:
             raise ConfigError("canopen.host_node_id", f"must be a node id 1..127, got {host_node_id}", source)
@@ -303,27 +373,47 @@ class CanopenDescription:
                               f"({', '.join(f'{k} {v}' for k, v in ABORT_CONNECTION_OPTIONS.items())}), "
                               f"got {abort_option}", source)
         desc = cls(
-            eds=get("eds", str), vendor_id=get("vendor_id", int), product_code=get("product_code", int),
+            eds=get("eds", str), vendor_id=identity["vendor_id"], product_code=identity["product_code"],
             default_acquisition=acquisition, heartbeat_ms=hb, heartbeat_timeout_ms=hb_timeout,
             block_transfer=get("block_transfer", bool, True), emcy_sample_index=get("emcy_sample_index", bool, False),
             position_unit_m=units["position_unit_m"], velocity_unit_mps=units["velocity_unit_mps"],
             objects=objects, modes=modes, channels=channels,
             filters=_filter_objects(sections.get("filters"), source),
             host_node_id=host_node_id, abort_connection_option=abort_option,
+            rated_torque_unit_nm=units["rated_torque_unit_nm"], rated_torque_nm=units["rated_torque_nm"],
+            torque_constant_nm_per_a=units["torque_constant_nm_per_a"], rated_current_a=units["rated_current_a"],
+            cyclic_modes=tuple(preference), explicit_modes=explicit,
         )
         if desc.default_acquisition == "buffered":
             desc.require_buffered(source)
         return desc
 
     def address(self, role: str) -> ObjectAddress:
-        """The object of ``role``; ConfigError when the description does not name it."""
+        """The object of ``role``; ConfigError when the drive does not have it."""
         try:
             return self.objects[role]
         except KeyError:
-            raise ConfigError(f"canopen.objects.{role}", "is not named by this driver description") from None
+            raise ConfigError(f"canopen.objects.{role}", "is not an object of this drive (not in its EDS, not named "
+                                                         "by its driver description)") from None
 
     def has(self, role: str) -> bool:
         return role in self.objects
+
+    @property
+    def counted(self) -> bool:
+        """The drive has the hilident counters: streamed runs match TPDOs to samples by their counter."""
+        return all(r in self.objects for r in COUNTER_ROLES)
+
+    def with_supported_modes(self, supported) -> "CanopenDescription":
+        """This description with its modes chosen from ``supported`` (mode names read from 0x6502).
+
+        A description whose ``[canopen.modes]`` fixes the modes is returned unchanged.
+        """
+        if self.explicit_modes:
+            return self
+        from hilident.protocol import canopen_profile as profile
+
+        return replace(self, modes=profile.standard_modes(self.objects, supported, self.cyclic_modes))
 
     def require_buffered(self, source: str = "") -> None:
         """Raise ConfigError unless every object of the drive-buffered protocol is named."""
@@ -331,17 +421,48 @@ class CanopenDescription:
         if missing:
             raise ConfigError("canopen.objects", f"drive-buffered acquisition needs {', '.join(missing)}", source)
 
-    def scale(self, role: str, rated_torque_mnm: float) -> float:
-        """SI value of one raw unit of the object of ``role`` (1.0 for unscaled objects)."""
+    def rated_torque(self, raw: float | None) -> float:
+        """The rated torque in N·m: 0x6076 read as ``raw`` (None: absent), else ``rated_torque_nm``.
+
+        Raises
+        ------
+        DataError
+            Neither gives a positive torque.
+        """
+        if raw is not None and raw > 0:
+            return float(raw) * self.rated_torque_unit_nm
+        if self.rated_torque_nm > 0:
+            return self.rated_torque_nm
+        said = "is absent" if raw is None else f"reads {raw:g}"
+        raise DataError(f"the rated torque 0x6076 {said} and [canopen.scaling] rated_torque_nm is not given: "
+                        "torque objects (per mille of it) cannot be scaled")
+
+    def rated_current(self, raw: float | None) -> float:
+        """The rated current in A: 0x6075 (mA) read as ``raw`` (None: absent), else ``rated_current_a`` (0: none)."""
+        if raw is not None and raw > 0:
+            return float(raw) * 1e-3
+        return self.rated_current_a
+
+    def scale(self, role: str, rated_torque_nm: float, rated_current_a: float = 0.0) -> float:
+        """SI value of one raw unit of the object of ``role`` (1.0 for unscaled objects).
+
+        Torque objects are per mille of the rated torque; current objects per
+        mille of the rated current, turned into torque by the torque constant.
+        """
         kind = ROLE_SCALING.get(role)
         if kind == "position":
             return self.position_unit_m
         if kind == "velocity":
             return self.velocity_unit_mps
         if kind == "torque":
-            if not rated_torque_mnm > 0:
-                raise DataError(f"rated torque {rated_torque_mnm!r} mN*m: torque objects cannot be scaled")
-            return rated_torque_mnm * 1e-3 / 1000.0  # per mille of the rated torque
+            if not rated_torque_nm > 0:
+                raise DataError(f"rated torque {rated_torque_nm!r} N*m: torque objects cannot be scaled")
+            return rated_torque_nm / 1000.0
+        if kind == "current":
+            if not (rated_current_a > 0 and self.torque_constant_nm_per_a > 0):
+                raise DataError(f"rated current {rated_current_a!r} A, torque constant "
+                                f"{self.torque_constant_nm_per_a!r} N*m/A: current objects cannot be read as torque")
+            return rated_current_a / 1000.0 * self.torque_constant_nm_per_a
         return 1.0
 
     def mode_by_code(self, code: int) -> ModeSpec | None:
@@ -350,6 +471,20 @@ class CanopenDescription:
             if m.code == code:
                 return m
         return None
+
+
+def _default_supported(od, objects: dict) -> tuple[str, ...] | None:
+    """Mode names of 0x6502's EDS default, or None when the EDS gives none (the drive is asked at connect)."""
+    from hilident.protocol.canopen_profile import decode_supported_modes
+
+    addr = objects.get("supported_modes")
+    if od is None or addr is None:
+        return None
+    var = od.get_variable(addr.index, addr.subindex)
+    value = var.default if var is not None else None
+    if not isinstance(value, int) or value <= 0:
+        return None
+    return decode_supported_modes(value)
 
 
 def _table(parent: dict, key: str, source: str) -> dict:
@@ -447,15 +582,16 @@ def parse_mapping_entry(value: int) -> tuple[ObjectAddress, int]:
 
 
 def pack_frames(items: list[tuple[str, int]], header_bits: int = 16, frame_bits: int = 64,
-                max_frames: int = 4) -> list[list[str]]:
-    """Put mapped objects into PDO frames, each headed by a ``header_bits`` counter.
+                max_frames: int = 4, max_entries: int = 64) -> list[list[str]]:
+    """Put mapped objects into PDO frames, each headed by a ``header_bits`` counter (0: none).
 
-    First fit in the given order: an object goes into the first frame with room.
+    First fit in the given order: an object goes into the first frame with room
+    (bits, and fewer than ``max_entries`` objects: the drive's mapping capacity).
 
     Parameters
     ----------
     items : list of (name, bits)
-    header_bits, frame_bits, max_frames : int
+    header_bits, frame_bits, max_frames, max_entries : int
 
     Returns
     -------
@@ -476,8 +612,10 @@ def pack_frames(items: list[tuple[str, int]], header_bits: int = 16, frame_bits:
     for name, bits in items:
         if header_bits + bits > frame_bits:
             raise DataError(f"{name} ({bits} bits) does not fit a PDO beside the {header_bits}-bit counter")
+        if max_entries < 1:
+            raise DataError(f"{name}: the drive's PDOs map no object beside the counter")
         for i, u in enumerate(used):
-            if u + bits <= frame_bits:
+            if u + bits <= frame_bits and len(frames[i]) < max_entries:
                 frames[i].append(name)
                 used[i] += bits
                 break

@@ -1,0 +1,204 @@
+"""Driver folders of CiA 402 drives as vendors describe them: an EDS with standard objects only, a short driver.toml.
+
+The EDS files are written here, object by object, each drive modelled on
+traits real vendor files show: few entries per PDO, only two RPDOs, the cycle
+period in 0x60C2 or 0x1006, 0x6076 absent or 0, current instead of torque,
+0x6502 without a default, 0x6060 as UNSIGNED8. Nothing hilident-specific is in
+them: no counters, no table, no loop-rate object.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from hilident.protocol.canopen_profile import encode_supported_modes
+
+# (index, sub, name, type code, access, PDO-mappable, default) of the standard objects a drive may have
+_INT8, _INT16, _INT32, _UINT8, _UINT16, _UINT32, _VSTRING = 0x2, 0x3, 0x4, 0x5, 0x6, 0x7, 0x9
+
+
+@dataclass
+class VendorDrive:
+    """The traits of one vendor drive (see the module docstring)."""
+
+    name: str
+    modes: tuple[str, ...] = ("csp", "csv", "cst")
+    declare_modes: bool = True  # 0x6502 has a default value in the EDS
+    rpdos: int = 4
+    tpdos: int = 4
+    entries: int = 8  # mapping capacity of every PDO
+    period: str = "60C2"  # "60C2", "1006", "both" or "none"
+    torque: str = "rated"  # "rated" (0x6076 = 1000 mN*m), "rated_zero" (0x6076 = 0), "absent" (no 0x6076), "current"
+    mode_type: int = _INT8  # 0x6060's data type
+    mode_access: str = "rw"
+    limits: tuple[str, ...] = ("max_torque", "max_velocity", "position_limits")
+    torque_offset: bool = True
+    sync_counter: bool = False
+    loop_rate_hz: float = 4000.0
+    max_sample_rate_hz: float = 1000.0
+    extra_toml: str = ""
+    objects: list = field(default_factory=list)
+
+
+def _objects(d: VendorDrive) -> list[tuple]:
+    """(index, sub or None for a plain variable, name, type, access, mappable, default) in index order."""
+    objs: list[tuple] = [
+        (0x1000, None, "Device type", _UINT32, "ro", False, 0x00020192),
+        (0x1001, None, "Error register", _UINT8, "ro", True, 0),
+        (0x1008, None, "Manufacturer device name", _VSTRING, "const", False, d.name),
+        (0x100A, None, "Manufacturer software version", _VSTRING, "const", False, "2.1"),
+        (0x1017, None, "Producer heartbeat time", _UINT16, "rw", False, 0),
+        (0x1016, 0, "Number of entries", _UINT8, "ro", False, 1),
+        (0x1016, 1, "Consumer heartbeat time 1", _UINT32, "rw", False, 0),
+        (0x1018, 0, "Number of entries", _UINT8, "ro", False, 4),
+        (0x1018, 1, "Vendor-ID", _UINT32, "ro", False, 0x0000ACE1),
+        (0x1018, 2, "Product code", _UINT32, "ro", False, 0x00001234),
+        (0x1018, 3, "Revision number", _UINT32, "ro", False, 1),
+        (0x1018, 4, "Serial number", _UINT32, "ro", False, 7),
+    ]
+    if d.period in ("1006", "both"):
+        objs.append((0x1006, None, "Communication cycle period", _UINT32, "rw", False, 0))
+    if d.sync_counter:
+        objs.append((0x1019, None, "Synchronous counter overflow value", _UINT8, "rw", False, 0))
+    for kind, base, count, cob in (("Receive", 0x1400, d.rpdos, 0x200), ("Transmit", 0x1800, d.tpdos, 0x180)):
+        for n in range(count):
+            objs.append((base + n, 0, "Highest sub-index supported", _UINT8, "ro", False, 2))
+            objs.append((base + n, 1, "COB-ID", _UINT32, "rw", False,
+                         f"$NODEID+0x{cob + 0x100 * n:X}" if n < 4 else 0x80000000))
+            objs.append((base + n, 2, "Transmission type", _UINT8, "rw", False, 255))
+        for n in range(count):
+            objs.append((base + 0x200 + n, 0, "Number of mapped objects", _UINT8, "rw", False, 0))
+            for sub in range(1, d.entries + 1):
+                objs.append((base + 0x200 + n, sub, f"Mapped object {sub}", _UINT32, "rw", False, 0))
+    objs += [
+        (0x603F, None, "Error code", _UINT16, "ro", True, 0),
+        (0x6040, None, "Controlword", _UINT16, "rww", True, 0),
+        (0x6041, None, "Statusword", _UINT16, "ro", True, 0),
+        (0x6060, None, "Modes of operation", d.mode_type, d.mode_access, True, 0),
+        (0x6061, None, "Modes of operation display", _INT8, "ro", True, 0),
+        (0x6064, None, "Position actual value", _INT32, "ro", True, 0),
+        (0x606C, None, "Velocity actual value", _INT32, "ro", True, 0),
+    ]
+    if d.torque == "current":
+        objs += [(0x6075, None, "Motor rated current", _UINT32, "rw", False, 4000),
+                 (0x6078, None, "Current actual value", _INT16, "ro", True, 0)]
+    else:
+        objs += [(0x6071, None, "Target torque", _INT16, "rww", True, 0),
+                 (0x6074, None, "Torque demand", _INT16, "ro", True, 0),
+                 (0x6077, None, "Torque actual value", _INT16, "ro", True, 0)]
+        if d.torque != "absent":
+            objs.append((0x6076, None, "Motor rated torque", _UINT32, "rw", False,
+                         1000 if d.torque == "rated" else 0))
+        if "max_torque" in d.limits:
+            objs.append((0x6072, None, "Max torque", _UINT16, "rww", True, 1000))
+    objs.append((0x607A, None, "Target position", _INT32, "rww", True, 0))
+    if "position_limits" in d.limits:
+        objs += [(0x607D, 0, "Number of entries", _UINT8, "ro", False, 2),
+                 (0x607D, 1, "Min position limit", _INT32, "rw", False, -2**31),
+                 (0x607D, 2, "Max position limit", _INT32, "rw", False, 2**31 - 1)]
+    if "max_velocity" in d.limits:
+        objs.append((0x6080, None, "Max motor speed", _UINT32, "rw", False, 2**31))
+    if d.torque_offset and d.torque != "current":
+        objs.append((0x60B2, None, "Torque offset", _INT16, "rww", True, 0))
+    if "ip" in d.modes:
+        objs += [(0x60C1, 0, "Highest sub-index supported", _UINT8, "ro", False, 1),
+                 (0x60C1, 1, "Interpolation data record 1", _INT32, "rww", True, 0)]
+    if d.period in ("60C2", "both"):
+        objs += [(0x60C2, 0, "Highest sub-index supported", _UINT8, "ro", False, 2),
+                 (0x60C2, 1, "Interpolation time period value", _UINT8, "rw", False, 1),
+                 (0x60C2, 2, "Interpolation time index", _INT8, "rw", False, -3)]
+    objs.append((0x60FF, None, "Target velocity", _INT32, "rww", True, 0))
+    objs.append((0x6502, None, "Supported drive modes", _UINT32, "ro", False,
+                 encode_supported_modes(d.modes) if d.declare_modes else None))
+    return objs
+
+
+def eds_text(d: VendorDrive) -> str:
+    """The EDS of drive ``d``, as a vendor tool writes one (CiA 306)."""
+    objs = _objects(d)
+    indices = sorted({o[0] for o in objs})
+    lines = ["[FileInfo]", f"FileName={d.name}.eds", "FileVersion=1", "EDSVersion=4.0", "",
+             "[DeviceInfo]", "VendorName=ACME Motion", "VendorNumber=0x0000ACE1", f"ProductName={d.name}",
+             "ProductNumber=0x00001234", "BaudRate_1000=1", "SimpleBootUpSlave=1", "Granularity=8",
+             f"NrOfRXPDO={d.rpdos}", f"NrOfTXPDO={d.tpdos}", ""]
+    mandatory = [i for i in indices if i in (0x1000, 0x1001, 0x1018)]
+    optional = [i for i in indices if i < 0x2000 and i not in mandatory]
+    optional += [i for i in indices if i >= 0x6000]
+    for title, group in (("MandatoryObjects", mandatory), ("OptionalObjects", optional)):
+        lines.append(f"[{title}]")
+        lines.append(f"SupportedObjects={len(group)}")
+        lines += [f"{n}=0x{i:04X}" for n, i in enumerate(group, start=1)]
+        lines.append("")
+    lines += ["[ManufacturerObjects]", "SupportedObjects=0", ""]
+    for index in indices:
+        members = [o for o in objs if o[0] == index]
+        if members[0][1] is None:
+            lines += [f"[{index:04X}]"] + _variable_lines(members[0]) + [""]
+            continue
+        lines += [f"[{index:04X}]", f"ParameterName={_record_name(index)}", "ObjectType=0x9",
+                  f"SubNumber={len(members)}", ""]
+        for member in members:
+            lines += [f"[{index:04X}sub{member[1]:X}]"] + _variable_lines(member) + [""]
+    return "\r\n".join(lines)
+
+
+def _record_name(index: int) -> str:
+    if 0x1400 <= index < 0x1600:
+        return f"RPDO communication parameter {index - 0x1400 + 1}"
+    if 0x1600 <= index < 0x1800:
+        return f"RPDO mapping parameter {index - 0x1600 + 1}"
+    if 0x1800 <= index < 0x1A00:
+        return f"TPDO communication parameter {index - 0x1800 + 1}"
+    if 0x1A00 <= index < 0x1C00:
+        return f"TPDO mapping parameter {index - 0x1A00 + 1}"
+    return {0x1016: "Consumer heartbeat time", 0x1018: "Identity object", 0x607D: "Software position limit",
+            0x60C1: "Interpolation data record", 0x60C2: "Interpolation time period"}.get(index, f"Object {index:04X}")
+
+
+def _variable_lines(obj: tuple) -> list[str]:
+    _, _, name, dtype, access, mappable, default = obj
+    lines = [f"ParameterName={name}", "ObjectType=0x7", f"DataType=0x{dtype:04X}", f"AccessType={access}",
+             f"PDOMapping={int(mappable)}"]
+    if default is not None:
+        value = default if isinstance(default, str) else (f"0x{default:X}" if default >= 0 else str(default))
+        lines.append(f"DefaultValue={value}")
+    return lines
+
+
+def driver_toml(d: VendorDrive) -> str:
+    """The short driver.toml of ``d``: mechanics, torque reference and mode preference only."""
+    scaling = ["position_unit_m = 1e-7", "velocity_unit_mps = 1e-6"]
+    if d.torque in ("rated_zero", "absent"):
+        scaling.append("rated_torque_nm = 1.0")
+    if d.torque == "current":
+        scaling.append("torque_constant_nm_per_a = 0.25")
+    emulator = "" if d.declare_modes else f"\n[emulator]\nsupported_modes = {list(d.modes)!r}\n".replace("'", '"')
+    return f"""[driver]
+name = "{d.name}"
+description = "a CiA 402 drive described by its vendor EDS"
+transport = "canopen"
+default_baudrate = 1000000
+
+[board]
+loop_rate_hz = {d.loop_rate_hz}
+max_sample_rate_hz = {d.max_sample_rate_hz}
+filter_slots = 0
+
+[canopen]
+eds = "{d.name}.eds"
+heartbeat_ms = 50
+heartbeat_timeout_ms = 500
+
+[canopen.scaling]
+{chr(10).join(scaling)}
+{emulator}{d.extra_toml}"""
+
+
+def write_vendor_drive(folder: Path, d: VendorDrive) -> Path:
+    """Write the driver folder of ``d`` under ``folder``; returns it."""
+    path = Path(folder) / d.name
+    path.mkdir(parents=True, exist_ok=True)
+    (path / f"{d.name}.eds").write_bytes(eds_text(d).encode("latin-1"))
+    (path / "driver.toml").write_text(driver_toml(d))
+    return path
