@@ -6,19 +6,17 @@ interface's channel (``can0``, ``PCAN_USBBUS1``, ``0``, a virtual channel name).
 For ``socketcand`` the port is ``"HOST:PORT/CHANNEL"``, e.g.
 ``"127.0.0.1:29536/can0"``: the daemon's address and the bus it serves.
 
-:class:`TracingNetwork` is a :class:`canopen.Network` that can also hand every
-frame it sends and receives to a python-can logger (``.asc``, ``.blf``).
+:class:`TracingNetwork` and :class:`FrameTrace` (the CAN trace of a run) live in
+:mod:`hilident.adapters.canopen_trace` and are re-exported here.
 """
 
 from __future__ import annotations
 
 import logging
-import threading
-import time
 
 import can
-import canopen
 
+from hilident.adapters.canopen_trace import FrameTrace, TracingNetwork
 from hilident.config import DeviceConfig
 from hilident.errors import ConfigError, DeviceError
 
@@ -84,58 +82,6 @@ def bus_arguments(device: DeviceConfig, default_bitrate: int) -> dict:
     if device.can_interface == "virtual":
         kwargs["receive_own_messages"] = False
     return kwargs
-
-
-class FrameTrace(can.Listener):
-    """A python-can writer fed from two threads (sent and received frames)."""
-
-    def __init__(self, path):
-        self.writer = can.Logger(str(path))
-        self.lock = threading.Lock()
-        self.frames = 0
-
-    def on_message_received(self, msg: can.Message) -> None:
-        with self.lock:
-            self.writer.on_message_received(msg)
-            self.frames += 1
-
-    def stop(self) -> None:
-        with self.lock:
-            self.writer.stop()
-
-
-class TracingNetwork(canopen.Network):
-    """A canopen Network whose frames can also go to a :class:`FrameTrace`."""
-
-    NOTIFIER_CYCLE = 0.1  # a short receive timeout: disconnect() returns promptly
-
-    def __init__(self, bus=None):
-        super().__init__(bus)
-        self.trace: FrameTrace | None = None
-
-    def send_message(self, can_id: int, data, remote: bool = False) -> None:
-        super().send_message(can_id, data, remote)
-        trace = self.trace
-        if trace is not None:
-            trace.on_message_received(can.Message(timestamp=time.time(), arbitration_id=can_id, data=bytes(data),
-                                                  is_extended_id=can_id > 0x7FF, is_remote_frame=remote,
-                                                  is_rx=False))
-
-    def start_trace(self, path) -> FrameTrace:
-        trace = FrameTrace(path)
-        self.notifier.add_listener(trace)
-        self.trace = trace
-        return trace
-
-    def stop_trace(self) -> None:
-        trace, self.trace = self.trace, None
-        if trace is None:
-            return
-        try:
-            self.notifier.remove_listener(trace)
-        except (ValueError, AttributeError):
-            pass
-        trace.stop()
 
 
 def open_network(device: DeviceConfig, default_bitrate: int, label: str) -> TracingNetwork:

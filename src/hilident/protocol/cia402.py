@@ -302,10 +302,16 @@ _EMCY_CLASSES = (
 
 
 def emcy_meaning(code: int) -> str:
-    """What an emergency error code means: the exact entry, else its class."""
-    if code in EMCY_CODES:
-        return EMCY_CODES[code]
-    for mask, value, text in _EMCY_CLASSES:
-        if code & mask == value:
-            return f"{text} (0x{code:04X})"
-    return f"unknown error 0x{code:04X}"
+    """What an emergency error code means: its CiA 301/402 name, else its group's or class's.
+
+    See :func:`hilident.protocol.emcy_codes.emcy_name` (0xFF00-0xFFFF read
+    ``"manufacturer-specific 0xFFnn (device specific)"``). A value outside
+    0x0000-0xFFFF reads ``"invalid error code ..."`` rather than raising: the
+    text goes into error messages.
+    """
+    from hilident.protocol.emcy_codes import emcy_name
+
+    try:
+        return emcy_name(code)
+    except ValueError:
+        return f"invalid error code {code!r}"
