@@ -30,6 +30,8 @@ from __future__ import annotations
 
 from enum import Enum, IntEnum
 
+from hilident.protocol.emcy_codes import CODES, emcy_name
+
 __all__ = [
     "State", "Command", "ModeCode", "decode_statusword", "statusword", "command_of", "transition",
     "path_to_operation_enabled", "path_to_safe_state", "SAFE_STATES", "mode_name", "emcy_meaning",
@@ -262,43 +264,8 @@ def mode_name(code: int) -> str:
     return names.get(code, f"reserved mode {code}")
 
 
-#: Emergency error codes of CiA 301 and CiA 402 (the ones a servo drive sends).
-EMCY_CODES = {
-    0x0000: "error reset or no error",
-    0x1000: "generic error",
-    0x2310: "continuous over-current",
-    0x2320: "short circuit or earth leakage",
-    0x3110: "DC link over-voltage",
-    0x3120: "DC link under-voltage",
-    0x4210: "excess temperature, device",
-    0x4310: "excess temperature, drive",
-    0x5441: "safe torque off active",
-    0x6010: "software reset (watchdog)",
-    0x6100: "internal software error",
-    0x6320: "parameter error",
-    0x7121: "motor blocked",
-    0x7305: "incremental sensor 1 fault",
-    0x8110: "CAN overrun (objects lost)",
-    0x8120: "CAN in error passive mode",
-    0x8130: "life guard or heartbeat error",
-    0x8140: "recovered from bus off",
-    0x8210: "PDO not processed due to length error",
-    0x8220: "PDO length exceeded",
-    0x8250: "RPDO timeout",
-    0x8311: "excess torque",
-    0x8400: "velocity speed controller (over-speed)",
-    0x8500: "position controller",
-    0x8611: "following error",
-    0x8612: "reference limit (position limit)",
-    0xFF00: "device specific",
-}
-
-_EMCY_CLASSES = (
-    (0xFF00, 0x1000, "generic error"), (0xF000, 0x2000, "current"), (0xF000, 0x3000, "voltage"),
-    (0xF000, 0x4000, "temperature"), (0xFF00, 0x5000, "device hardware"), (0xF000, 0x6000, "device software"),
-    (0xFF00, 0x7000, "additional modules"), (0xF000, 0x8000, "monitoring"), (0xFF00, 0x9000, "external error"),
-    (0xFF00, 0xF000, "additional functions"), (0xFF00, 0xFF00, "device specific"),
-)
+#: Emergency error codes of CiA 301 and CiA 402 with their names (see :mod:`hilident.protocol.emcy_codes`).
+EMCY_CODES = CODES
 
 
 def emcy_meaning(code: int) -> str:
@@ -309,8 +276,6 @@ def emcy_meaning(code: int) -> str:
     0x0000-0xFFFF reads ``"invalid error code ..."`` rather than raising: the
     text goes into error messages.
     """
-    from hilident.protocol.emcy_codes import emcy_name
-
     try:
         return emcy_name(code)
     except ValueError:
