@@ -17,10 +17,10 @@ from vendor_drives import VendorDrive, write_vendor_drive
 
 from hilident.adapters.canopen_drive import CanopenDriveAdapter
 from hilident.config import load_config
-from hilident.drivers import load_driver
+from hilident.drivers import check_run_against_driver, load_driver
 from hilident.emulator.canopen_drive import start
 from hilident.emulator.factory import true_modes
-from hilident.errors import DeviceError, LimitTrip
+from hilident.errors import ConfigError, DeviceError, LimitTrip
 from hilident.recording import read_run
 from hilident.session import Session
 
@@ -177,3 +177,19 @@ def test_the_host_checks_limits_the_drive_does_not_hold(twin):
     speed = rows[:, ad.channel_names.index("velocity_mps")]
     assert abs(speed[-1]) > 0.05 and np.all(np.abs(speed[:-1]) <= 0.05)  # delivered up to the tripping sample
     assert not emu.drive.enabled
+
+
+def test_placeholders_run_on_the_emulator_and_are_refused_on_a_real_port(tmp_path):
+    drive = VendorDrive("acme-guessed", extra_toml="")
+    folder = write_vendor_drive(tmp_path, drive)
+    text = (folder / "driver.toml").read_text().replace(
+        'default_baudrate = 1000000', 'default_baudrate = 1000000\nplaceholders = ["canopen.scaling.position_unit_m"]')
+    (folder / "driver.toml").write_text(text)
+    driver = load_driver(folder)
+    assert driver.placeholders == ("canopen.scaling.position_unit_m",)
+    cfg = session_config(folder)
+    check_run_against_driver(cfg, driver)  # the emulator takes guesses
+    real = replace(cfg, device=replace(cfg.device, port="can0"))
+    with pytest.raises(ConfigError, match=r"driver\.placeholders.*canopen\.scaling\.position_unit_m") as err:
+        check_run_against_driver(real, driver)
+    assert str(folder / "driver.toml") in str(err.value)

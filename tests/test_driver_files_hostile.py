@@ -8,6 +8,7 @@ valid description; never in another exception.
 from __future__ import annotations
 
 import copy
+import shutil
 import tempfile
 import tomllib
 from pathlib import Path
@@ -17,7 +18,7 @@ from hostile_toml import toml_string, toml_value
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from hilident.drivers import find_driver, load_driver
+from hilident.drivers import find_driver, load_driver, load_object_dictionary
 from hilident.errors import ConfigError
 from hilident.protocol.canopen_objects import CanopenDescription
 from hilident.protocol.filter_encoding import FilterEncoding
@@ -80,10 +81,14 @@ def mutated_descriptions(draw):
     return name, data
 
 
+#: The EDS files of the shipped CANopen drivers: every hostile folder has them, as a real driver folder does.
+EDS_FILES = [f for name in SHIPPED for f in find_driver(name).folder.glob("*.eds")]
+
+
 def _parse_transport(driver) -> None:
     source = str(driver.folder / "driver.toml")
     if driver.transport == "canopen":
-        CanopenDescription.from_sections(driver.sections, source)
+        CanopenDescription.from_sections(driver.sections, source, load_object_dictionary(driver))
     elif driver.transport == "modbus":
         RegisterMap.parse(driver.sections, driver.filter_slots, source)
     if isinstance(driver.sections.get("filters"), dict) and "encoding" in driver.sections["filters"]:
@@ -95,6 +100,8 @@ def _load(text: bytes):
         folder = Path(tmp) / "hostile"
         folder.mkdir()
         (folder / "driver.toml").write_bytes(text)
+        for eds in EDS_FILES:
+            shutil.copyfile(eds, folder / eds.name)
         try:
             driver = load_driver(folder)
             _parse_transport(driver)

@@ -149,5 +149,5 @@ def test_modes_and_slots_must_be_declared(tmp_path):
         check_run_against_driver(_gantry(excitation={"mode": "torque_injection"}), driver)
     assert err.value.key == "friction_test.enabled"
     check_run_against_driver(_gantry(excitation={"mode": "torque_injection"}, friction_test={"enabled": False}), driver)
-    with pytest.raises(ConfigError, match="no filter slots") as err:
-        check_run_against_driver(_gantry(), dataclasses.replace(find_driver("myrio-board"), filter_slots=0))
+    # a device without filter slots is no error: the session designs the notch and reports it, not uploaded
+    check_run_against_driver(_gantry(), dataclasses.replace(find_driver("myrio-board"), filter_slots=0))

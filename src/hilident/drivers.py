@@ -71,6 +71,9 @@ class DriverDescription:
         (``[canopen]``, ``[modbus]``, ...).
     text : str
         The description file verbatim, stored in every recording.
+    placeholders : tuple of str
+        Keys of the description whose values were guessed (``hilident drivers
+        new``): accepted on the emulator, refused on a real port.
     """
 
     name: str
@@ -86,6 +89,7 @@ class DriverDescription:
     block_samples: int
     channels: tuple[ChannelSpec, ...]
     description: str = ""
+    placeholders: tuple[str, ...] = ()
     sections: dict = field(default_factory=dict, repr=False, compare=False)
     text: str = field(default="", repr=False)
 
@@ -113,6 +117,7 @@ class _DriverTable:
     protocol: str = spec("", doc="serial: the protocol the board speaks")
     protocol_version: int = spec(0, ge=0, le=65535, doc="serial: protocol version the board must report")
     default_baudrate: int = spec(0, ge=0, le=100_000_000, doc="line or CAN bit rate when the config gives none")
+    placeholders: list[str] = spec([], max_items=256, doc="keys whose values are guesses: refused on a real port")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -292,6 +297,7 @@ def load_driver(folder: str | os.PathLike) -> DriverDescription:
         excitation_buffer_samples=board.excitation_buffer_samples if serial else 0,
         block_samples=board.block_samples if serial else 0,
         channels=channels,
+        placeholders=tuple(d.placeholders),
         sections=data,
         text=text,
     )
@@ -386,7 +392,8 @@ def valid_sample_rates(driver: DriverDescription, count: int | None = None) -> l
 def check_run_against_driver(cfg, driver: DriverDescription) -> None:
     """Refuse, before connecting, what a run of ``cfg`` would only fail at on the device.
 
-    Checks the sample rate against the loop rate (the message lists valid rates),
+    Refuses a driver with placeholders on a real port. Checks the sample rate
+    against the loop rate (the message lists valid rates),
     the channels the session records and analyses, the modes of the excitation
     and of the friction test, and the filter slots the notches need.
 
@@ -401,6 +408,11 @@ def check_run_against_driver(cfg, driver: DriverDescription) -> None:
         Naming the configuration key, the configuration file and the driver.
     """
     src, what = cfg.source, f"driver {driver.name!r} ({driver.folder / DESCRIPTION_FILE})"
+    if driver.placeholders and cfg.device.port != "emulator":
+        raise ConfigError("driver.placeholders", f"{what} still has guessed values for "
+                                                 f"{', '.join(driver.placeholders)}: set them to the drive's real "
+                                                 "values (and remove them from the list) before a real port",
+                          str(driver.folder / DESCRIPTION_FILE))
     _check_sample_rate(cfg, driver, what)
     names = [c.name for c in driver.channels]
     for i, name in enumerate(cfg.run.channels):

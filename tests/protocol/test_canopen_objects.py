@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hilident.drivers import find_driver
+from hilident.drivers import find_driver, load_object_dictionary
 from hilident.errors import ConfigError, DataError
 from hilident.protocol import canopen_objects as co
 
@@ -70,10 +70,14 @@ def test_pdo_packing_first_fit_behind_the_counter():
         co.pack_frames([("big", 64)])
 
 
+#: The object dictionary of the shipped drive's EDS.
+SERVO_OD = load_object_dictionary(find_driver("canopen-servo"))
+
+
 @pytest.mark.parametrize("name", ["canopen-servo", "canopen-servo-fixed"])
 def test_shipped_descriptions_are_complete(name):
     driver = find_driver(name)
-    desc = co.CanopenDescription.from_sections(driver.sections, "x")
+    desc = co.CanopenDescription.from_sections(driver.sections, "x", load_object_dictionary(driver))
     assert driver.transport == "canopen" and (driver.folder / desc.eds).is_file()
     assert {m.code for m in desc.modes.values()} == {10, -3, 9, 8}
     assert desc.modes["torque"].setpoint == "target_torque" and desc.modes["velocity"].setpoint == "target_velocity"
@@ -85,23 +89,28 @@ def test_shipped_descriptions_are_complete(name):
 
 
 def test_description_errors_name_the_key():
-    sections = copy.deepcopy(find_driver("canopen-servo").sections)
-    del sections["canopen"]["objects"]["statusword"]
-    with pytest.raises(ConfigError, match="statusword") as err:
-        co.CanopenDescription.from_sections(sections, "drv.toml")
+    driver = find_driver("canopen-servo")
+    od = load_object_dictionary(driver)
+    del od[0x6041]  # an EDS without the statusword is no CiA 402 drive
+    with pytest.raises(ConfigError, match="the EDS has no statusword") as err:
+        co.CanopenDescription.from_sections(driver.sections, "drv.toml", od)
     assert "drv.toml" in str(err.value)
+    sections = copy.deepcopy(driver.sections)
+    sections["canopen"]["objects"]["load_position"] = "0x2999"
+    with pytest.raises(ConfigError, match=r"canopen\.objects\.load_position.*0x2999:0 is not in the EDS"):
+        co.CanopenDescription.from_sections(sections, "drv.toml", load_object_dictionary(driver))
     sections = copy.deepcopy(find_driver("canopen-servo").sections)
     sections["canopen"]["modes"]["torque"]["setpoint"] = "no_such_role"
     with pytest.raises(ConfigError, match="canopen.modes.torque.setpoint"):
-        co.CanopenDescription.from_sections(sections)
+        co.CanopenDescription.from_sections(sections, "", SERVO_OD)
     sections = copy.deepcopy(find_driver("canopen-servo").sections)
     sections["canopen"]["scaling"]["position_unit_m"] = 0
     with pytest.raises(ConfigError, match="position_unit_m"):
-        co.CanopenDescription.from_sections(sections)
+        co.CanopenDescription.from_sections(sections, "", SERVO_OD)
     sections = copy.deepcopy(find_driver("canopen-servo").sections)
     del sections["canopen"]["objects"]["capture_data"]
     with pytest.raises(ConfigError, match="capture_data"):  # buffered is this drive's default
-        co.CanopenDescription.from_sections(sections)
+        co.CanopenDescription.from_sections(sections, "", SERVO_OD)
 
 
 @given(st.integers(0, 127), st.integers(0, 0xFFFF))
@@ -118,7 +127,7 @@ def test_heartbeat_consumer_entry_is_the_cia301_layout():
 
 def test_device_net_keys_of_the_description():
     sections = find_driver("canopen-servo").sections
-    desc = co.CanopenDescription.from_sections(sections)
+    desc = co.CanopenDescription.from_sections(sections, "", SERVO_OD)
     assert (desc.host_node_id, desc.abort_connection_option) == (127, 2)
     for key, value, match in [("host_node_id", 0, "1..127"), ("host_node_id", 200, "1..127"),
                               ("abort_connection_option", 0, r"\[1, 2, 3\]"),
@@ -126,7 +135,7 @@ def test_device_net_keys_of_the_description():
         broken = copy.deepcopy(sections)
         broken["canopen"][key] = value
         with pytest.raises(ConfigError, match=rf"canopen\.{key}.*{match}"):
-            co.CanopenDescription.from_sections(broken, "driver.toml")
+            co.CanopenDescription.from_sections(broken, "driver.toml", SERVO_OD)
     bare = copy.deepcopy(sections)
     del bare["canopen"]["host_node_id"], bare["canopen"]["abort_connection_option"]
-    assert co.CanopenDescription.from_sections(bare).host_node_id == 127
+    assert co.CanopenDescription.from_sections(bare, "", SERVO_OD).host_node_id == 127

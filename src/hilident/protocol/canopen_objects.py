@@ -301,7 +301,7 @@ class CanopenDescription:
                 raise ConfigError(f"canopen.objects.{role}", f"object {objects[role]} is not in the EDS", source)
         missing = [r for r in REQUIRED_ROLES if r not in objects]
         if missing:
-            where = "the EDS has no" if od is not None else "[canopen.objects] lacks"
+            where = "the EDS has no" if od is not None else "names no"
             raise ConfigError("canopen.objects", f"{where} {', '.join(missing)}: not a CiA 402 drive", source)
 
         preference = co.get("cyclic_modes", list(profile.CYCLIC_MODES))
