@@ -35,6 +35,8 @@ class VendorDrive:
     limits: tuple[str, ...] = ("max_torque", "max_velocity", "position_limits")
     torque_offset: bool = True
     sync_counter: bool = False
+    abort_connection: bool = True  # 0x6007
+    vendor: str = "ACME Motion"
     loop_rate_hz: float = 4000.0
     max_sample_rate_hz: float = 1000.0
     extra_toml: str = ""
@@ -71,6 +73,8 @@ def _objects(d: VendorDrive) -> list[tuple]:
             objs.append((base + 0x200 + n, 0, "Number of mapped objects", _UINT8, "rw", False, 0))
             for sub in range(1, d.entries + 1):
                 objs.append((base + 0x200 + n, sub, f"Mapped object {sub}", _UINT32, "rw", False, 0))
+    if d.abort_connection:
+        objs.append((0x6007, None, "Abort connection option code", _INT16, "rw", False, 1))
     objs += [
         (0x603F, None, "Error code", _UINT16, "ro", True, 0),
         (0x6040, None, "Controlword", _UINT16, "rww", True, 0),
@@ -119,7 +123,7 @@ def eds_text(d: VendorDrive) -> str:
     objs = _objects(d)
     indices = sorted({o[0] for o in objs})
     lines = ["[FileInfo]", f"FileName={d.name}.eds", "FileVersion=1", "EDSVersion=4.0", "",
-             "[DeviceInfo]", "VendorName=ACME Motion", "VendorNumber=0x0000ACE1", f"ProductName={d.name}",
+             "[DeviceInfo]", f"VendorName={d.vendor}", "VendorNumber=0x0000ACE1", f"ProductName={d.name}",
              "ProductNumber=0x00001234", "BaudRate_1000=1", "SimpleBootUpSlave=1", "Granularity=8",
              f"NrOfRXPDO={d.rpdos}", f"NrOfTXPDO={d.tpdos}", ""]
     mandatory = [i for i in indices if i in (0x1000, 0x1001, 0x1018)]
