@@ -312,6 +312,8 @@ def _repair(sections: dict, source: str, warnings: list[str]) -> None:
     zeros = _Tally("decimal numbers with leading zeros; read as decimal")
     nodeid = _Tally("$NODEID expression not in the form $NODEID+0xNNN; rewritten as one")
     for name in list(sections):
+        if name not in sections:  # went with its object
+            continue
         sec = sections[name]
         m_obj, m_sub = _HEX_SECTION.match(name), _SUB_SECTION.match(name)
         m_name = _NAME_SECTION.match(name)
@@ -320,20 +322,23 @@ def _repair(sections: dict, source: str, warnings: list[str]) -> None:
                             f"not declare; skipped")
             del sections[name]
             continue
-        if m_name and (m_name.group(1) not in sections or _int(sec.get("NrOfEntries", ("", 0))[0]) is None
-                       or "CompactSubObj" not in sections[m_name.group(1)]):
-            warnings.append(f"{source}: [{name}] (line {_first_line(sec)}): names of a compact array that the file "
-                            f"does not declare as one (or without NrOfEntries); skipped")
+        if m_name:
+            continue  # after the objects: see _repair_names
+        if not (m_obj or m_sub or name in _KNOWN_SECTIONS) and re.match(r"[0-9A-Fa-f]{4}", name):
+            warnings.append(f"{source}: [{name}] (line {_first_line(sec)}): neither an object, a sub-index nor a "
+                            f"names section; skipped")
             del sections[name]
             continue
         if not (m_obj or m_sub):
             continue
-        if not _repair_object(name, sec, source, warnings, bool(m_sub)):
+        has_subs = bool(m_obj) and any(s.startswith(name + "sub") for s in sections)
+        if not _repair_object(name, sec, source, warnings, bool(m_sub), has_subs):
             del sections[name]
             if m_obj:  # its sub-index sections go with it
                 for sub in [s for s in sections if s.startswith(name + "sub")]:
                     del sections[sub]
             continue
+        _repair_custom_type(name, sec, sections, source, warnings)
         for key in ("DefaultValue", "ParameterValue", "LowLimit", "HighLimit"):
             if key not in sec:
                 continue
@@ -352,6 +357,45 @@ def _repair(sections: dict, source: str, warnings: list[str]) -> None:
                 sec[key] = (str(int(value, 10)), no)
     zeros.report(source, warnings)
     nodeid.report(source, warnings)
+    _repair_names(sections, source, warnings)
+    for name in [n for n in sections if _SUB_SECTION.match(n)]:
+        parent = sections.get(name[:4])
+        if parent is None or _int(parent.get("ObjectType", ("7", 0))[0]) not in (0x8, 0x9):
+            warnings.append(f"{source}: [{name}] (line {_first_line(sections[name])}): sub-index of an object that is "
+                            f"not an array or record; skipped")
+            del sections[name]
+
+
+def _repair_custom_type(name: str, sec: dict, sections: dict, source: str, warnings: list[str]) -> None:
+    """A data type beyond 0x1B names a type-definition section whose sub-index 1 holds the base type."""
+    dtype = _int(sec.get("DataType", ("", 0))[0])
+    if dtype is None or dtype <= 0x1B:
+        return
+    definition = sections.get(f"{dtype:X}sub1")
+    if definition is not None and _int(definition.get("DefaultValue", ("", 0))[0]) is None:
+        warnings.append(f"{source}: [{name}]: DataType=0x{dtype:04X} has no readable definition in [{dtype:X}sub1]; "
+                        f"read as DOMAIN")
+        sec["DataType"] = ("0x000F", sec["DataType"][1])
+
+
+def _repair_names(sections: dict, source: str, warnings: list[str]) -> None:
+    """[IIIIName] sections: names of a compact array's entries, NrOfEntries of them, numbered 1..N."""
+    for name in [n for n in sections if _NAME_SECTION.match(n)]:
+        sec, index = sections[name], name[:4]
+        count = _int(sec.get("NrOfEntries", ("", 0))[0])
+        if index not in sections or "CompactSubObj" not in sections[index] or count is None \
+                or _int(sections[index].get("ObjectType", ("7", 0))[0]) != 0x8:
+            warnings.append(f"{source}: [{name}] (line {_first_line(sec)}): names of a compact array that the file "
+                            f"does not declare as one (or without NrOfEntries); skipped")
+            del sections[name]
+            continue
+        present = 0
+        while str(present + 1) in sec and present < 255:
+            present += 1
+        if present != count:
+            warnings.append(f"{source}: [{name}] (line {_first_line(sec)}): NrOfEntries={count} but {present} names "
+                            f"follow in order; read {present}")
+        sec["NrOfEntries"] = (str(present), 0)
 
 
 def _first_line(sec: dict) -> int:
@@ -361,16 +405,20 @@ def _first_line(sec: dict) -> int:
 _ACCESS = ("ro", "wo", "rw", "rwr", "rww", "const")
 
 
-def _repair_object(name: str, sec: dict, source: str, warnings: list[str], is_sub: bool) -> bool:
+def _repair_object(name: str, sec: dict, source: str, warnings: list[str], is_sub: bool, has_subs: bool) -> bool:
     """Fill or fix one object section's keys; False when it cannot be used at all."""
     where = f"[{name}] (line {_first_line(sec)})"
     if "ParameterName" not in sec or not sec["ParameterName"][0]:
         warnings.append(f"{source}: {where}: no ParameterName; named 'Object {name}'")
         sec["ParameterName"] = (f"Object {name}", 0)
+    if "ObjectType" not in sec and has_subs and "DataType" not in sec:
+        warnings.append(f"{source}: {where}: no ObjectType, but sub-index sections follow; read as a record (0x9)")
+        sec["ObjectType"] = ("0x9", 0)
     otype = _int(sec.get("ObjectType", ("0x7", 0))[0])
     if otype is None or otype not in (0x0, 0x2, 0x5, 0x6, 0x7, 0x8, 0x9):
         warnings.append(f"{source}: {where}: ObjectType={sec['ObjectType'][0]!r} unknown; read as a variable (0x7)")
         sec["ObjectType"], otype = ("0x7", 0), 0x7
+    sec["ObjectType"] = (f"0x{otype:X}", sec.get("ObjectType", ("", 0))[1])
     if otype in (0x8, 0x9) and not is_sub:
         compact = _int(sec.get("CompactSubObj", ("0", 0))[0])
         if "CompactSubObj" in sec and not compact:
@@ -380,10 +428,10 @@ def _repair_object(name: str, sec: dict, source: str, warnings: list[str], is_su
             del sec["CompactSubObj"]
         if "CompactSubObj" not in sec:
             return True
-    if otype in (0x0, 0x5, 0x6):  # NULL, DEFTYPE, DEFSTRUCT: type definitions, not objects
+    if otype in (0x0, 0x5, 0x6) and not is_sub:  # NULL, DEFTYPE, DEFSTRUCT: type definitions, not objects
         return True
     dtype = _int(sec.get("DataType", ("", 0))[0])
-    if dtype is None:
+    if dtype is None or not 0 < dtype <= 0xFFFF:
         warnings.append(f"{source}: {where}: DataType={sec.get('DataType', ('(missing)', 0))[0]!r} unreadable; "
                         f"object skipped")
         return False
@@ -404,6 +452,7 @@ def _repair_info(sections: dict, source: str, warnings: list[str]) -> None:
     info = sections.get("DeviceInfo")
     if info is None:
         warnings.append(f"{source}: no [DeviceInfo] section; identity unknown")
+        sections["DeviceInfo"] = {}  # python-canopen would say so once more
     else:
         for key in ("VendorNumber", "ProductNumber", "RevisionNumber", "SimpleBootUpMaster", "SimpleBootUpSlave",
                     "Granularity", "DynamicChannelsSupported", "GroupMessaging", "NrOfRXPDO", "NrOfTXPDO",
@@ -429,8 +478,7 @@ def _repair_info(sections: dict, source: str, warnings: list[str]) -> None:
     if dummy is not None:
         for i in range(1, 8):
             key = f"Dummy{i:04d}"
-            if _int(dummy.get(key, ("", 0))[0]) is None:
-                dummy[key] = ("0", 0)
+            dummy[key] = (str(_int(dummy.get(key, ("", 0))[0]) or 0), 0)  # python-canopen reads base 10
     dc = sections.get("DeviceComissioning")
     if dc is not None:
         for key in ("NodeID", "Baudrate"):
