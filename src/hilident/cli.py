@@ -185,12 +185,18 @@ def _drivers(args) -> int:
     if getattr(args, "action", None) == "check":
         return _drivers_check(args)
     for name in available_drivers():
-        d = find_driver(name)
-        print(f"{name}\t{d.transport}\t{d.folder}")
+        try:
+            d = find_driver(name)
+        except HilidentError as exc:  # one broken folder does not hide the others
+            folder = next(p / name for p in search_path() if (p / name / "driver.toml").is_file())
+            print(f"{name}\t?\t{folder}\n  cannot be loaded: {exc}")
+        else:
+            folder = d.folder
+            print(f"{name}\t{d.transport}\t{folder}")
         if args.verbose:
             from hilident.driver_tools import describe_driver
 
-            print(describe_driver(d.folder))
+            print(describe_driver(folder))
     if args.verbose:
         print("searched: " + ", ".join(str(p) for p in search_path()))
     return 0

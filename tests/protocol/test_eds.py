@@ -219,7 +219,7 @@ def mutated(draw):
     return text
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(text=mutated(), node_id=st.none() | st.integers(1, 127))
 def test_mutated_eds_text_gives_an_object_dictionary_or_a_config_error(text, node_id):
     try:
