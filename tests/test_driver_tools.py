@@ -66,7 +66,8 @@ def test_limits_modes_and_period_of_a_four_entry_two_rpdo_drive(tmp_path):
 def test_an_8_ms_ip_only_drive_with_vendor_recorder_and_generator_listed_for_the_user(tmp_path):
     _, text, data = new(tmp_path, "period_60c2_8ms.eds")
     assert data["canopen"]["cyclic_modes"] == ["ip"]
-    assert data["board"]["loop_rate_hz"] == pytest.approx(125.0)
+    assert data["board"]["loop_rate_hz"] == 1000.0  # 8 ms is the default, not the fastest period
+    assert "loop_rate_hz = 1000.0  # PLACEHOLDER: the default period of 0x60C2 is 8 ms;" in text
     assert "0x60C2 (value 8, exponent -3: 8 ms by default)" in text
     assert "#   0x2010 Data recorder control" in text and "#   0x2050 PRBS excitation amplitude" in text
     assert data["board"]["filter_slots"] == 0
@@ -100,7 +101,7 @@ def test_the_eds_quirks_are_written_as_comments_naming_the_file_not_where_it_was
 
 def test_a_dcf_gets_its_configured_period(tmp_path):
     _, text, data = new(tmp_path, "configured.dcf")
-    assert data["board"]["loop_rate_hz"] == pytest.approx(500.0)  # ParameterValue 2 ms
+    assert "0x60C2 (value 2, exponent -3: 2 ms by default)" in text  # ParameterValue 2, DefaultValue 1
     assert data["canopen"]["eds"] == "configured.dcf"
 
 
@@ -139,6 +140,8 @@ def test_new_refuses_an_existing_driver_a_bad_name_and_an_unreadable_eds(tmp_pat
                            'j = "controlword", k = "modes_display", l = "position_actual", '
                            'm = "position_actual" }', ("do not fit", "4 TPDOs of up to 4 entries")),
     ('heartbeat_ms = 100', 'heartbeat_ms = 100\nchannels = { x = "current_actual" }', ("0x6078",)),
+    ('heartbeat_ms = 100', 'heartbeat_ms = 70000', ("heartbeat_ms", "UNSIGNED16")),
+    ('host_node_id = 127', 'host_node_id = 0', ("host_node_id", "1..127")),
 ])
 def test_check_reports_each_problem_as_an_error_naming_the_key(tmp_path, old, new_text, words):
     report, _, _ = new(tmp_path, "pdo4_rpdo2.eds")

@@ -217,12 +217,16 @@ def _baudrate(s: E.EdsSummary) -> int:
 
 
 def _rate_hz(s: E.EdsSummary) -> tuple[float, str]:
-    """Loop rate guess and why: the default cyclic period when it is a plausible servo rate, else 1 kHz."""
+    """Loop rate guess and why: 1 kHz (a common servo SYNC rate), or faster when the default period is shorter.
+
+    The default cyclic period proves only that the drive takes that rate, not that it takes no faster one.
+    """
     p = s.period
-    if p.seconds and 1e-5 <= p.seconds <= 0.02:
+    if p.seconds and 1e-5 <= p.seconds < 1.0 / _DEFAULT_RATE_HZ:
         return 1.0 / p.seconds, f"from the default period of {p.object} ({p.seconds * 1e3:g} ms); the drive's " \
                                 "filter rate and fastest SYNC rate may differ"
-    return _DEFAULT_RATE_HZ, "the EDS does not tell the drive's loop rate; 1 kHz assumed"
+    known = f"the default period of {p.object} is {p.seconds * 1e3:g} ms; " if p.seconds else ""
+    return _DEFAULT_RATE_HZ, f"{known}the EDS does not tell the drive's loop rate; 1 kHz assumed"
 
 
 def _board(t: _Toml, s: E.EdsSummary) -> None:
@@ -467,6 +471,7 @@ def check_driver_folder(folder) -> CheckReport:
     _check_filters(c)
     _check_save(c)
     _check_scaling(c)
+    _check_keys(c)
     _check_identity(c)
     _check_placeholders(c, placeholders, path)
     return CheckReport(folder, tuple(c.errors), tuple(c.warnings), placeholders, c.s)
@@ -627,6 +632,19 @@ def _check_scaling(c: _Checker) -> None:
         c.warn("canopen.scaling", "current-only drive without torque_constant_nm_per_a: no torque in N*m")
     if ref == "torque" and "rated_torque_nm" not in scaling:
         c.warn("canopen.scaling", "the EDS has no 0x6076 and rated_torque_nm is not given: no torque in N*m")
+
+
+def _check_keys(c: _Checker) -> None:
+    """[canopen] values that are written to the drive fit their objects."""
+    hb = c.co.get("heartbeat_ms", 100)
+    if not isinstance(hb, int) or isinstance(hb, bool) or not 1 <= hb <= 65535:
+        c.error("canopen.heartbeat_ms", f"must fit 0x1017 (UNSIGNED16 ms, 1..65535), got {hb!r}")
+    node = c.co.get("host_node_id", 127)
+    if not isinstance(node, int) or isinstance(node, bool) or not 1 <= node <= 127:
+        c.error("canopen.host_node_id", f"must be a node id 1..127, got {node!r}")
+    option = c.co.get("abort_connection_option")
+    if option is not None and not c.s.abort_connection:
+        c.warn("canopen.abort_connection_option", "the EDS has no 0x6007: the value is not written")
 
 
 def _check_identity(c: _Checker) -> None:

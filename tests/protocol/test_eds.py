@@ -182,6 +182,17 @@ def test_roles_carry_type_access_mapping_and_default():
     assert s.store_parameters and not s.abort_connection
 
 
+def test_vendor_objects_are_found_by_whole_words_of_their_names():
+    names = {0x2010: "Internal DataRecorder Control", 0x2011: "Acceptance Filter 00", 0x2012: "Velocity Unfiltered",
+             0x2013: "CurrFilt", 0x2014: "Sine sweep generator", 0x2015: "Anti-resonance zero Q",
+             0x6010: "Notch filter (not a vendor index)", 0x2016: "Upload Recording Data"}
+    text = HEAD + "".join(f"[{i:04X}]\nParameterName={n}\nDataType=0x0007\nAccessType=rw\n" for i, n in names.items())
+    s = inspect_eds(load_eds_text(text, "t.eds")[0])
+    assert [i for i, _ in s.vendor_filters] == [0x2013, 0x2015]
+    assert [i for i, _ in s.vendor_recorders] == [0x2010, 0x2016]
+    assert s.vendor_generators == ((0x2014, "Sine sweep generator"),)
+
+
 # --- never another exception --------------------------------------------------------------------------------------
 
 SMALL = (HEAD + "[DummyUsage]\nDummy0002=1\n[Comments]\nLines=1\nLine1=x\n"

@@ -93,8 +93,8 @@ CYCLIC_MODES = ("cst", "csv", "csp", "ip")
 MODE_SETPOINTS = {"cst": "target_torque", "csv": "target_velocity", "csp": "target_position",
                   "ip": "interpolation_data"}
 
-_FILTER_WORDS = ("notch", "filter", "biquad", "anti-resonance", "antiresonance", "resonance")
-_RECORDER_WORDS = ("recorder", "trace", "scope", "capture", "logging")
+_FILTER_WORDS = ("notch", "filt", "biquad", "anti-resonance", "antiresonance", "resonance")
+_RECORDER_WORDS = ("recorder", "recording", "trace", "scope", "capture", "logging")
 _GENERATOR_WORDS = ("generator", "excitation", "prbs", "sweep", "function gen")
 
 
@@ -832,7 +832,8 @@ def _vendor_objects(od):
         if not 0x2000 <= index <= 0x5FFF:
             continue
         name = od.indices[index].name
-        text = " " + re.sub(r"[^a-z0-9-]+", " ", name.lower().replace("_", " ")) + " "
+        words = re.sub(r"(?<=[a-z])(?=[A-Z])", " ", name)  # "DataRecorder" -> "Data Recorder"
+        text = " " + re.sub(r"[^a-z0-9-]+", " ", words.lower().replace("_", " ")) + " "
         if "acceptance filter" in text:  # a CAN identifier filter, not a signal filter
             continue
         for kind, words in (("f", _FILTER_WORDS), ("r", _RECORDER_WORDS), ("g", _GENERATOR_WORDS)):
