@@ -121,7 +121,8 @@ def test_new_refuses_an_existing_driver_a_bad_name_and_an_unreadable_eds(tmp_pat
 # --- check finds what is wrong ------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("old, new_text, words", [
-    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nobjects = { sample_counter = "0x2100" }', ("0x2100 is not in the EDS",)),
+    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nobjects = { sample_counter = "0x2100" }',
+     ("0x2100 is not in the EDS",)),
     ('heartbeat_ms = 100', 'heartbeat_ms = 100\nobjects = { statusword = "0x6071" }', ()),  # rww is readable
     ('heartbeat_ms = 100', 'heartbeat_ms = 100\nobjects = { target_torque = "0x6041" }', ("'ro'", "must write")),
     ('heartbeat_ms = 100', 'heartbeat_ms = 100\nobjects = { device_name = "0x6041" }', ("needs a bytes",)),

@@ -1,4 +1,4 @@
-"""Command line: ``hilident run``, ``hilident identify``, ``hilident emulate serial|modbus|canopen``, ``hilident drivers [new|check]``.
+"""Command line: ``hilident run``, ``hilident identify``, ``hilident emulate serial|modbus|canopen``, ``hilident drivers``.
 
 Thin on purpose: it parses arguments and calls the session, the emulator
 factory or the driver loader. Every :class:`~hilident.errors.HilidentError`

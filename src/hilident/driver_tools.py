@@ -189,7 +189,8 @@ def render_driver_toml(s: E.EdsSummary, eds_file: str, name: str, warnings=()) -
     _extras(body, s)
     head = _Toml()
     product = " ".join(x for x in (s.vendor_name, s.product_name) if x) or eds_file
-    head.add(f"# Driver description of {_comment(product)}, written by `hilident drivers new` from {_comment(eds_file)}.")
+    head.add(f"# Driver description of {_comment(product)}, written by `hilident drivers new` from "
+             f"{_comment(eds_file)}.")
     head.add("# Values marked PLACEHOLDER were assumed: check each against the drive's manual, then remove its key")
     head.add("# from [driver] placeholders. Placeholders are accepted on the emulator and refused on a real port.")
     head.add("# `hilident drivers check <this folder>` validates the folder against its EDS.")
@@ -203,7 +204,8 @@ def render_driver_toml(s: E.EdsSummary, eds_file: str, name: str, warnings=()) -
     head.key("description", _toml_str(f"{product} (from its EDS)"))
     head.key("transport", '"canopen"')
     head.key("default_baudrate", str(_baudrate(s)), "CAN bit rate when the config gives none")
-    head.add("# keys whose values were guessed by `hilident drivers new`: accepted on the emulator, refused on a real port")
+    head.add("# keys whose values were guessed by `hilident drivers new`: accepted on the emulator, refused on a "
+             "real port")
     placeholders = body.placeholders
     head.key("placeholders", "[" + ", ".join(_toml_str(p) for p in placeholders) + "]")
     text = "\n".join(head.lines + body.lines) + "\n"
@@ -245,7 +247,8 @@ def _canopen(t: _Toml, s: E.EdsSummary, eds_file: str) -> None:
     t.key("default_acquisition", '"streamed"', "host-streamed on standard objects")
     modes = ", ".join(_toml_str(m) for m in s.cyclic_modes)
     if s.cyclic_modes:
-        known = "0x6502 default" if s.supported_modes is not None else "set-point objects present (0x6502 has no default)"
+        known = ("0x6502 default" if s.supported_modes is not None
+                 else "set-point objects present (0x6502 has no default)")
         t.key("cyclic_modes", f"[{modes}]", f"preference order; from the {known}")
     else:
         t.key("cyclic_modes", "[]", "no cyclic mode (CST/CSV/CSP/IP): this drive cannot run a host-streamed session")

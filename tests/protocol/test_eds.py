@@ -207,8 +207,8 @@ SMALL = (HEAD + "[DummyUsage]\nDummy0002=1\n[Comments]\nLines=1\nLine1=x\n"
          "[2000]\nParameterName=Notch filter\nDataType=0x0008\nAccessType=rw\nDefaultValue=1.5\n"
          "[DeviceComissioning]\nNodeID=3\n")
 TOKENS = ["[", "]", "=", "\n", "\r\n", ";", "$NODEID", "sub", "0x", "-", "+", "Name", "DataType", "ObjectType=0x8",
-          "CompactSubObj", "DEFAULT", "\x00", "é", "\ufeff", " ", "[1018sub", "Lines=", "NrOfEntries=9", "DataType=-4\n",
-          "ObjectType=0x5\n", "07", "DataType=0x0040\n", "[0040sub1]\n", "Name]\n"]
+          "CompactSubObj", "DEFAULT", "\x00", "é", "\ufeff", " ", "[1018sub", "Lines=", "NrOfEntries=9",
+          "DataType=-4\n", "ObjectType=0x5\n", "07", "DataType=0x0040\n", "[0040sub1]\n", "Name]\n"]
 
 
 @st.composite

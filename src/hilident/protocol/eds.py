@@ -422,7 +422,7 @@ def _repair_object(name: str, sec: dict, source: str, warnings: list[str], is_su
     if otype in (0x8, 0x9) and not is_sub:
         compact = _int(sec.get("CompactSubObj", ("0", 0))[0])
         if "CompactSubObj" in sec and not compact:
-            del sec["CompactSubObj"]  # CompactSubObj=0 means "not compact"; python-canopen only asks whether it is there
+            del sec["CompactSubObj"]  # 0 means "not compact"; python-canopen only asks whether the key is there
         elif compact and otype == 0x9:
             warnings.append(f"{source}: {where}: CompactSubObj on a record (only arrays may be compact); ignored")
             del sec["CompactSubObj"]
@@ -723,7 +723,7 @@ class EdsSummary:
     product_name: str
     product_number: int | None
     revision_number: int | None
-    roles: dict
+    roles: dict = field(hash=False)
     supported_modes: tuple[str, ...] | None
     cyclic_modes: tuple[str, ...]
     rpdo_entries: tuple[int, ...]
@@ -732,7 +732,7 @@ class EdsSummary:
     period: PeriodInfo
     torque_objects: tuple[str, ...]
     current_objects: tuple[str, ...]
-    factor_group: dict = field(default_factory=dict)
+    factor_group: dict = field(default_factory=dict, hash=False)
     heartbeat_consumers: int = 0
     abort_connection: bool = False
     store_parameters: bool = False
