@@ -61,6 +61,7 @@ def test_limits_modes_and_period_of_a_four_entry_two_rpdo_drive(tmp_path):
     assert data["board"]["loop_rate_hz"] == 1000.0  # 0x60C2 default: 1 ms
     assert "emulator" not in data  # 0x6502 has a default: the twin reads it from the EDS
     assert data["canopen"]["save"]["object"] == "0x1010:1"
+    assert data["driver"]["default_baudrate"] == 1_000_000  # [DeviceInfo] BaudRate_1000=1, BaudRate_500=1
 
 
 def test_an_8_ms_ip_only_drive_with_vendor_recorder_and_generator_listed_for_the_user(tmp_path):
@@ -97,6 +98,7 @@ def test_the_eds_quirks_are_written_as_comments_naming_the_file_not_where_it_was
     assert str(FIXTURES) not in text
     assert "Müller" in data["driver"]["description"]
     assert "#   0x2300 Notch filter 1" in text
+    assert data["driver"]["default_baudrate"] == 500_000  # BaudRate_1000=0, BaudRate_500=1
 
 
 def test_a_dcf_gets_its_configured_period(tmp_path):

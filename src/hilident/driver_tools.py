@@ -203,7 +203,8 @@ def render_driver_toml(s: E.EdsSummary, eds_file: str, name: str, warnings=()) -
     head.key("name", _toml_str(name))
     head.key("description", _toml_str(f"{product} (from its EDS)"))
     head.key("transport", '"canopen"')
-    head.key("default_baudrate", str(_baudrate(s)), "CAN bit rate when the config gives none")
+    rate, note = _baudrate(s)
+    head.key("default_baudrate", str(rate), f"CAN bit rate when the config gives none; {note}")
     head.add("# keys whose values were guessed by `hilident drivers new`: accepted on the emulator, refused on a "
              "real port")
     placeholders = body.placeholders
@@ -213,9 +214,11 @@ def render_driver_toml(s: E.EdsSummary, eds_file: str, name: str, warnings=()) -
     return text, placeholders
 
 
-def _baudrate(s: E.EdsSummary) -> int:
-    # the EDS's allowed bit rates are not in EdsSummary; 1 Mbit/s is what every CiA 402 servo in the files takes
-    return 1_000_000
+def _baudrate(s: E.EdsSummary) -> tuple[int, str]:
+    """The fastest bit rate [DeviceInfo] declares (1 Mbit/s when it declares none), and a note saying which."""
+    if not s.baudrates:
+        return 1_000_000, "[DeviceInfo] declares no bit rate: 1 Mbit/s"
+    return s.baudrates[0], "the EDS declares " + ", ".join(f"{b // 1000}" for b in s.baudrates) + " kbit/s"
 
 
 def _rate_hz(s: E.EdsSummary) -> tuple[float, str]:

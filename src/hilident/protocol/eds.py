@@ -716,6 +716,8 @@ class EdsSummary:
         0x1010:1 exists.
     vendor_filters, vendor_recorders, vendor_generators : tuple of (int, str)
         Manufacturer objects (0x2000-0x5FFF) whose names look like filters, recorders or generators.
+    baudrates : tuple of int
+        CAN bit rates [DeviceInfo] declares (BaudRate_xxx = 1), bit/s, fastest first.
     """
 
     vendor_name: str
@@ -739,6 +741,7 @@ class EdsSummary:
     vendor_filters: tuple[tuple[int, str], ...] = ()
     vendor_recorders: tuple[tuple[int, str], ...] = ()
     vendor_generators: tuple[tuple[int, str], ...] = ()
+    baudrates: tuple[int, ...] = ()
 
     @property
     def rpdo_max_entries(self) -> int:
@@ -783,6 +786,7 @@ def inspect_eds(od) -> EdsSummary:
         factor_group=factor, heartbeat_consumers=consumers, abort_connection=0x6007 in od.indices,
         store_parameters="store_parameters" in roles, vendor_filters=filters, vendor_recorders=recorders,
         vendor_generators=generators,
+        baudrates=tuple(sorted(info.allowed_baudrates, reverse=True)),
     )
 
 
