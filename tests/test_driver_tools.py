@@ -143,6 +143,9 @@ def test_new_refuses_an_existing_driver_a_bad_name_and_an_unreadable_eds(tmp_pat
                            'j = "controlword", k = "modes_display", l = "position_actual", '
                            'm = "position_actual" }', ("do not fit", "4 TPDOs of up to 4 entries")),
     ('heartbeat_ms = 100', 'heartbeat_ms = 100\nchannels = { x = "current_actual" }', ("0x6078",)),
+    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nobjects = { vendor_setpoint = "0x6041" }\n'
+                           'modes = { velocity = { code = 9, setpoint = "vendor_setpoint" } }',
+     ("[canopen.modes.velocity.setpoint] 0x6041 (vendor_setpoint) is 'ro'",)),
     ('heartbeat_ms = 100', 'heartbeat_ms = 70000', ("heartbeat_ms", "UNSIGNED16")),
     ('host_node_id = 127', 'host_node_id = 0', ("host_node_id", "1..127")),
 ])
@@ -156,6 +159,15 @@ def test_check_reports_each_problem_as_an_error_naming_the_key(tmp_path, old, ne
     assert len(check.errors) == 1, check.errors
     assert all(w in check.errors[0] for w in words), check.errors[0]
     assert str(report.folder / "driver.toml") in check.errors[0]
+
+
+def test_check_warns_of_a_negative_mode_on_an_unsigned8_mode_object(tmp_path):
+    report, _, _ = new(tmp_path, "mode_u8_wo.eds")
+    edit(report.folder, "heartbeat_ms = 100", 'heartbeat_ms = 100\nmodes = { torque_injection = { code = -3, '
+                                              'setpoint = "torque_offset" } }')
+    check = check_driver_folder(report.folder)
+    assert check.ok
+    assert any("negative mode -3, but 0x6060 is UNSIGNED8: written as 253" in w for w in check.warnings)
 
 
 def test_check_validates_filter_objects_fields_and_encoding(tmp_path):

@@ -508,9 +508,16 @@ def _check_modes(c: _Checker) -> None:
             continue
         info = c.role(f"{key}.setpoint", spec["setpoint"])
         if info is not None:
-            c.access(f"{key}.setpoint", spec["setpoint"], info, write=True)
+            if spec["setpoint"] not in c.objects:  # else _check_objects has checked its type already
+                c.type(f"{key}.setpoint", spec["setpoint"], info)
+            if spec["setpoint"] not in c.objects or spec["setpoint"] not in _WRITTEN_ROLES:
+                c.access(f"{key}.setpoint", spec["setpoint"], info, write=True)
             if not info.pdo_mappable:
                 c.warn(f"{key}.setpoint", f"{info.address} is not PDO-mappable: it cannot be streamed")
+        mode_object = c.s.roles.get("modes_of_operation")
+        if spec["code"] < 0 and mode_object is not None and mode_object.data_type != E.INTEGER8:
+            c.warn(f"{key}.code", f"negative mode {spec['code']}, but 0x6060 is "
+                                  f"{E.type_name(mode_object.data_type)}: written as {spec['code'] & 0xFF}")
         bit = _MODE_BIT.get(spec["code"])
         if s.supported_modes is not None and bit is not None and E.MODE_BITS[bit] not in s.supported_modes:
             c.error(f"{key}.code", f"mode {spec['code']} ({E.MODE_BITS[bit].upper()}) is not in 0x6502 "
