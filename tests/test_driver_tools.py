@@ -107,6 +107,17 @@ def test_a_dcf_gets_its_configured_period(tmp_path):
     assert data["canopen"]["eds"] == "configured.dcf"
 
 
+def test_a_drive_without_cyclic_modes_gets_no_preference_and_a_comment_saying_why(tmp_path):
+    eds = tmp_path / "pp_only.eds"
+    text = (FIXTURES / "pdo4_rpdo2.eds").read_text(encoding="utf-8")
+    eds.write_text(text.replace("DefaultValue=0x000003A5", "DefaultValue=0x00000025"), encoding="utf-8")  # PP/PV/HM
+    report = new_driver_folder(eds, tmp_path / "drv")
+    data = tomllib.loads((report.folder / "driver.toml").read_text(encoding="utf-8"))
+    assert report.summary.cyclic_modes == () and "cyclic_modes" not in data["canopen"]
+    assert "# cyclic_modes: the drive has no cyclic mode" in (report.folder / "driver.toml").read_text()
+    assert check_driver_folder(report.folder).ok
+
+
 def test_new_refuses_an_existing_driver_a_bad_name_and_an_unreadable_eds(tmp_path):
     new(tmp_path, "pdo4_rpdo2.eds")
     with pytest.raises(UsageError, match="already holds"):

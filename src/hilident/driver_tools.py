@@ -253,8 +253,9 @@ def _canopen(t: _Toml, s: E.EdsSummary, eds_file: str) -> None:
         known = ("0x6502 default" if s.supported_modes is not None
                  else "set-point objects present (0x6502 has no default)")
         t.key("cyclic_modes", f"[{modes}]", f"preference order; from the {known}")
-    else:
-        t.key("cyclic_modes", "[]", "no cyclic mode (CST/CSV/CSP/IP): this drive cannot run a host-streamed session")
+    else:  # the key is left out: an empty preference is refused, and there is nothing to prefer
+        t.add("# cyclic_modes: the drive has no cyclic mode (CST/CSV/CSP/IP) with its set-point object: it cannot "
+              "run a host-streamed session")
     t.key("heartbeat_ms", "100", "producer heartbeat asked of the drive (0x1017)" if "heartbeat_time" in s.roles
           else "the EDS has no 0x1017: not used")
     t.key("host_node_id", "127", "the host's heartbeat node id, watched by the drive's 0x1016"
