@@ -180,12 +180,53 @@ def _emulate_canopen(args) -> int:
 def _drivers(args) -> int:
     from hilident.drivers import available_drivers, find_driver, search_path
 
+    if getattr(args, "action", None) == "new":
+        return _drivers_new(args)
+    if getattr(args, "action", None) == "check":
+        return _drivers_check(args)
     for name in available_drivers():
-        d = find_driver(name)
-        print(f"{name}\t{d.transport}\t{d.folder}")
+        try:
+            d = find_driver(name)
+        except HilidentError as exc:  # one broken folder does not hide the others
+            folder = next(p / name for p in search_path() if (p / name / "driver.toml").is_file())
+            print(f"{name}\t?\t{folder}\n  cannot be loaded: {exc}")
+        else:
+            folder = d.folder
+            print(f"{name}\t{d.transport}\t{folder}")
+        if args.verbose:
+            from hilident.driver_tools import describe_driver
+
+            print(describe_driver(folder))
     if args.verbose:
         print("searched: " + ", ".join(str(p) for p in search_path()))
     return 0
+
+
+def _drivers_new(args) -> int:
+    from hilident.driver_tools import new_driver_folder
+
+    r = new_driver_folder(args.eds, args.out, args.name)
+    for w in r.warnings:
+        print(f"warning: {w}")
+    print(f"wrote {r.folder / 'driver.toml'} and {r.folder / r.eds_file}")
+    print(f"cyclic modes: {', '.join(r.summary.cyclic_modes) or 'none'}")
+    for p in r.placeholders:
+        print(f"placeholder: {p}")
+    return 0
+
+
+def _drivers_check(args) -> int:
+    from hilident.driver_tools import check_driver_folder
+
+    r = check_driver_folder(args.folder)
+    for w in r.warnings:
+        print(f"warning: {w}")
+    for p in r.placeholders:
+        print(f"placeholder: {p} (accepted on the emulator, refused on a real port)")
+    for e in r.errors:
+        print(f"error: {e}")
+    print(f"{args.folder}: " + ("ok" if r.ok else f"{len(r.errors)} error(s)"))
+    return 0 if r.ok else 2
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -239,9 +280,18 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--port", type=int, default=0, help="TCP port (default: any free one)")
     co.set_defaults(func=_emulate_canopen)
 
-    drv = sub.add_parser("drivers", help="list the driver descriptions found")
-    drv.add_argument("-v", "--verbose", action="store_true")
+    drv = sub.add_parser("drivers", help="list the driver descriptions found; write or check a CANopen driver "
+                         "folder from a vendor EDS")
+    drv.add_argument("-v", "--verbose", action="store_true", help="each driver's channels, rates, modes, filter "
+                     "slots and capabilities")
     drv.set_defaults(func=_drivers)
+    drv_sub = drv.add_subparsers(dest="action")
+    dnew = drv_sub.add_parser("new", help="write a driver folder from a vendor EDS/DCF (assumed values marked)")
+    dnew.add_argument("--eds", required=True, help="the vendor's EDS or DCF file")
+    dnew.add_argument("--out", required=True, help="the driver folder to write")
+    dnew.add_argument("--name", help="driver name (default: from the EDS file name)")
+    dchk = drv_sub.add_parser("check", help="validate a driver folder against its EDS; exit 2 on errors")
+    dchk.add_argument("folder", help="the driver folder")
     return p
 
 

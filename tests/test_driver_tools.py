@@ -1,0 +1,243 @@
+"""`hilident drivers new` / `drivers check` / `drivers -v` on driver folders written from fixture EDS files."""
+
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from hilident.cli import main
+from hilident.driver_tools import check_driver_folder, describe_driver, new_driver_folder
+from hilident.errors import ConfigError, UsageError
+
+FIXTURES = Path(__file__).resolve().parent / "fixtures" / "eds"
+ALL = sorted(p.name for p in FIXTURES.iterdir())
+
+
+def new(tmp_path, fixture, **kw):
+    report = new_driver_folder(FIXTURES / fixture, tmp_path / "drv", **kw)
+    text = (report.folder / "driver.toml").read_text(encoding="utf-8")
+    return report, text, tomllib.loads(text)
+
+
+def edit(folder: Path, old: str, new_text: str) -> None:
+    path = folder / "driver.toml"
+    text = path.read_text(encoding="utf-8")
+    assert old in text, old
+    path.write_text(text.replace(old, new_text, 1), encoding="utf-8")
+
+
+def marked(text: str) -> list[str]:
+    """Dotted keys whose line carries a PLACEHOLDER comment."""
+    keys, table = [], ""
+    for line in text.splitlines():
+        if m := re.match(r"\[([^\]]+)\]", line):
+            table = m.group(1)
+        elif m := re.match(r"(\w+) = .*# PLACEHOLDER: \S", line):
+            keys.append(f"{table}.{m.group(1)}")
+    return keys
+
+
+@pytest.mark.parametrize("fixture", ALL)
+def test_every_fixture_gets_a_folder_that_parses_passes_check_and_lists_each_placeholder(tmp_path, fixture):
+    report, text, data = new(tmp_path, fixture)
+    assert (report.folder / fixture).read_bytes() == (FIXTURES / fixture).read_bytes()
+    assert data["canopen"]["eds"] == fixture and data["driver"]["transport"] == "canopen"
+    assert data["driver"]["placeholders"] == marked(text) == list(report.placeholders)
+    assert "board.loop_rate_hz" in report.placeholders and "canopen.scaling.position_unit_m" in report.placeholders
+    check = check_driver_folder(report.folder)
+    assert check.ok, check.errors
+    assert check.placeholders == report.placeholders
+
+
+def test_limits_modes_and_period_of_a_four_entry_two_rpdo_drive(tmp_path):
+    _, text, data = new(tmp_path, "pdo4_rpdo2.eds", name="four")
+    assert data["driver"]["name"] == "four"
+    assert data["canopen"]["cyclic_modes"] == ["cst", "csv", "csp"]
+    assert "2 RPDOs x up to 4 entries, 4 TPDOs x up to 4 entries" in text
+    assert data["board"]["loop_rate_hz"] == 1000.0  # 0x60C2 default: 1 ms
+    assert "emulator" not in data  # 0x6502 has a default: the twin reads it from the EDS
+    assert data["canopen"]["save"]["object"] == "0x1010:1"
+    assert data["driver"]["default_baudrate"] == 1_000_000  # [DeviceInfo] BaudRate_1000=1, BaudRate_500=1
+
+
+def test_an_8_ms_ip_only_drive_with_vendor_recorder_and_generator_listed_for_the_user(tmp_path):
+    _, text, data = new(tmp_path, "period_60c2_8ms.eds")
+    assert data["canopen"]["cyclic_modes"] == ["ip"]
+    assert data["board"]["loop_rate_hz"] == 1000.0  # 8 ms is the default, not the fastest period
+    assert "loop_rate_hz = 1000.0  # PLACEHOLDER: the default period of 0x60C2 is 8 ms;" in text
+    assert "0x60C2 (value 8, exponent -3: 8 ms by default)" in text
+    assert "#   0x2010 Data recorder control" in text and "#   0x2050 PRBS excitation amplitude" in text
+    assert data["board"]["filter_slots"] == 0
+
+
+def test_current_only_drive_asks_for_kt_and_takes_the_position_unit_from_the_feed_constant(tmp_path):
+    report, _, data = new(tmp_path, "current_only.eds")
+    scaling = data["canopen"]["scaling"]
+    assert "torque_constant_nm_per_a" in scaling and "rated_torque_nm" not in scaling
+    assert "rated_current_a" not in scaling  # 0x6075 has a default (5000 mA)
+    assert scaling["position_unit_m"] == pytest.approx(2 * math.pi / 10000, rel=1e-5)  # 0x6092: 10000 per shaft rev
+    assert "canopen.scaling.torque_constant_nm_per_a" in report.placeholders
+
+
+def test_without_a_6502_default_the_twin_gets_placeholder_modes_and_check_warns(tmp_path):
+    report, _, data = new(tmp_path, "no_6502_default.eds")
+    assert data["emulator"]["supported_modes"] == ["cst", "csv", "csp", "ip"]
+    assert "emulator.supported_modes" in report.placeholders
+    assert "canopen.scaling.rated_torque_nm" in report.placeholders  # 0x6076 defaults to 0
+    check = check_driver_folder(report.folder)
+    assert check.ok and any("0x6502 has no default" in w for w in check.warnings)
+
+
+def test_the_eds_quirks_are_written_as_comments_naming_the_file_not_where_it_was_read(tmp_path):
+    _, text, data = new(tmp_path, "quirks_dup_lower_crlf.eds")
+    assert "#   quirks_dup_lower_crlf.eds: line 1104 [6041]: duplicate key 'ObjectType'" in text
+    assert str(FIXTURES) not in text
+    assert "Müller" in data["driver"]["description"]
+    assert "#   0x2300 Notch filter 1" in text
+    assert data["driver"]["default_baudrate"] == 500_000  # BaudRate_1000=0, BaudRate_500=1
+
+
+def test_a_dcf_gets_its_configured_period(tmp_path):
+    _, text, data = new(tmp_path, "configured.dcf")
+    assert "0x60C2 (value 2, exponent -3: 2 ms by default)" in text  # ParameterValue 2, DefaultValue 1
+    assert data["canopen"]["eds"] == "configured.dcf"
+
+
+def test_a_drive_without_cyclic_modes_gets_no_preference_and_a_comment_saying_why(tmp_path):
+    eds = tmp_path / "pp_only.eds"
+    text = (FIXTURES / "pdo4_rpdo2.eds").read_text(encoding="utf-8")
+    eds.write_text(text.replace("DefaultValue=0x000003A5", "DefaultValue=0x00000025"), encoding="utf-8")  # PP/PV/HM
+    report = new_driver_folder(eds, tmp_path / "drv")
+    data = tomllib.loads((report.folder / "driver.toml").read_text(encoding="utf-8"))
+    assert report.summary.cyclic_modes == () and "cyclic_modes" not in data["canopen"]
+    assert "# cyclic_modes: the drive has no cyclic mode" in (report.folder / "driver.toml").read_text()
+    assert check_driver_folder(report.folder).ok
+
+
+def test_new_refuses_an_existing_driver_a_bad_name_and_an_unreadable_eds(tmp_path):
+    new(tmp_path, "pdo4_rpdo2.eds")
+    with pytest.raises(UsageError, match="already holds"):
+        new_driver_folder(FIXTURES / "pdo4_rpdo2.eds", tmp_path / "drv")
+    with pytest.raises(UsageError, match="--name"):
+        new_driver_folder(FIXTURES / "pdo4_rpdo2.eds", tmp_path / "other", name="a b/c")
+    bad = tmp_path / "bad.eds"
+    bad.write_text("not an eds\n")
+    with pytest.raises(ConfigError, match="bad.eds"):
+        new_driver_folder(bad, tmp_path / "other")
+    assert not (tmp_path / "other").exists()
+
+
+# --- check finds what is wrong ------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("old, new_text, words", [
+    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nobjects = { sample_counter = "0x2100" }',
+     ("0x2100 is not in the EDS",)),
+    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nobjects = { statusword = "0x6071" }', ()),  # rww is readable
+    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nobjects = { target_torque = "0x6041" }', ("'ro'", "must write")),
+    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nobjects = { device_name = "0x6041" }', ("needs a bytes",)),
+    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nobjects = { controlword = "60x40" }', ("object address",)),
+    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nmodes = { position = { code = 7, setpoint = "target_position" } }',
+     ("mode 7 (IP)", "not in 0x6502")),
+    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nmodes = { velocity = { code = 9, setpoint = "velocity_offset" } }',
+     ("0x60B1 is not in the EDS",)),
+    ('cyclic_modes = ["cst", "csv", "csp"]', 'cyclic_modes = ["ip"]', ("none of ip",)),
+    ('cyclic_modes = ["cst", "csv", "csp"]', 'cyclic_modes = ["turbo"]', ("must be a list of",)),
+    ("position_unit_m = ", "position_unit_m = -", ("position_unit_m", "positive")),
+    ('object = "0x1010:1"', 'object = "0x1010:3"', ("0x1010:3 is not in the EDS",)),
+    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nchannels = { a = "position_actual", b = "velocity_actual", '
+                           'c = "torque_actual", d = "torque_demand", e = "error_code", f = "statusword", '
+                           'g = "target_position", h = "target_velocity", i = "target_torque", '
+                           'j = "controlword", k = "modes_display", l = "position_actual", '
+                           'm = "position_actual" }', ("do not fit", "4 TPDOs of up to 4 entries")),
+    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nchannels = { x = "current_actual" }', ("0x6078",)),
+    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nobjects = { vendor_setpoint = "0x6041" }\n'
+                           'modes = { velocity = { code = 9, setpoint = "vendor_setpoint" } }',
+     ("[canopen.modes.velocity.setpoint] 0x6041 (vendor_setpoint) is 'ro'",)),
+    ('heartbeat_ms = 100', 'heartbeat_ms = 70000', ("heartbeat_ms", "UNSIGNED16")),
+    ('host_node_id = 127', 'host_node_id = 0', ("host_node_id", "1..127")),
+])
+def test_check_reports_each_problem_as_an_error_naming_the_key(tmp_path, old, new_text, words):
+    report, _, _ = new(tmp_path, "pdo4_rpdo2.eds")
+    edit(report.folder, old, new_text)
+    check = check_driver_folder(report.folder)
+    if not words:
+        assert check.ok, check.errors
+        return
+    assert len(check.errors) == 1, check.errors
+    assert all(w in check.errors[0] for w in words), check.errors[0]
+    assert str(report.folder / "driver.toml") in check.errors[0]
+
+
+def test_check_warns_of_a_negative_mode_on_an_unsigned8_mode_object(tmp_path):
+    report, _, _ = new(tmp_path, "mode_u8_wo.eds")
+    edit(report.folder, "heartbeat_ms = 100", 'heartbeat_ms = 100\nmodes = { torque_injection = { code = -3, '
+                                              'setpoint = "torque_offset" } }')
+    check = check_driver_folder(report.folder)
+    assert check.ok
+    assert any("negative mode -3, but 0x6060 is UNSIGNED8: written as 253" in w for w in check.warnings)
+
+
+def test_check_validates_filter_objects_fields_and_encoding(tmp_path):
+    report, _, _ = new(tmp_path, "quirks_dup_lower_crlf.eds")
+    path = report.folder / "driver.toml"
+    good = '\n[filters]\nencoding = "notch_parameters"\nobjects = ["0x2300"]\nenable_subindex = 1\n' \
+           'fields = { center = 1, width = 2, depth = 3 }\n'
+    path.write_text(path.read_text(encoding="utf-8") + good, encoding="utf-8")
+    assert check_driver_folder(report.folder).ok
+    edit(report.folder, 'encoding = "notch_parameters"', 'encoding = "real32"')
+    errors = check_driver_folder(report.folder).errors
+    assert len(errors) == 3 and all("UNSIGNED16" in e and "'real32' writes a float" in e for e in errors)
+    edit(report.folder, "depth = 3 }", "depth = 4 }")
+    assert any("0x2300:4 is not in the EDS" in e for e in check_driver_folder(report.folder).errors)
+
+
+def test_check_warns_about_placeholders_not_listed_or_not_keys(tmp_path):
+    report, _, _ = new(tmp_path, "pdo4_rpdo2.eds")
+    edit(report.folder, 'placeholders = ["board.loop_rate_hz", ', 'placeholders = ["board.nothing", ')
+    check = check_driver_folder(report.folder)
+    assert check.ok
+    assert any("'board.nothing' is not a key" in w for w in check.warnings)
+    assert any("board.loop_rate_hz is marked PLACEHOLDER but not listed" in w for w in check.warnings)
+
+
+def test_check_of_a_folder_without_its_eds_or_toml_is_an_error_not_a_traceback(tmp_path):
+    report, _, _ = new(tmp_path, "pdo4_rpdo2.eds")
+    (report.folder / "pdo4_rpdo2.eds").unlink()
+    check = check_driver_folder(report.folder)
+    assert not check.ok and "pdo4_rpdo2.eds" in check.errors[0]
+    assert not check_driver_folder(tmp_path / "nowhere").ok
+
+
+# --- command line -------------------------------------------------------------------------------------------------
+
+def test_cli_new_check_and_verbose_listing(tmp_path, capsys, monkeypatch):
+    out = tmp_path / "acme"
+    assert main(["drivers", "new", "--eds", str(FIXTURES / "current_only.eds"), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "placeholder: canopen.scaling.torque_constant_nm_per_a" in printed and "cyclic modes: csv, csp" in printed
+    assert main(["drivers", "check", str(out)]) == 0
+    assert f"{out}: ok" in capsys.readouterr().out
+    edit(out, "position_unit_m = ", "position_unit_m = -")
+    assert main(["drivers", "check", str(out)]) == 2
+    assert "error: " in capsys.readouterr().out
+    assert main(["drivers", "new", "--eds", str(tmp_path / "missing.eds"), "--out", str(tmp_path / "x")]) == 2
+    assert "missing.eds" in capsys.readouterr().err
+    monkeypatch.setenv("HILIDENT_DRIVER_PATH", str(tmp_path))
+    assert main(["drivers", "-v"]) == 0
+    listing = capsys.readouterr().out
+    assert re.search(rf"^acme\t.*\t{re.escape(str(out))}$", listing, re.M)
+    assert "modes: CSV, CSP" in listing and "0x6502: pp, pv, csp, csv" in listing
+
+
+def test_describe_names_channels_rates_modes_and_capabilities(tmp_path):
+    report, _, _ = new(tmp_path, "period_1006_only.eds")
+    text = describe_driver(report.folder)
+    assert "channels: position_m, velocity_mps, torque_nm, torque_cmd_nm" in text
+    assert "modes: CST, CSV, CSP" in text
+    assert "rates: loop 1000.0 Hz" in text and "filter slots: 0" in text
+    assert "period 0x1006" in text and "heartbeat consumer 0x1016" in text and "save 0x1010:1" in text
+    assert "placeholders (refused on a real port): board.loop_rate_hz" in text
