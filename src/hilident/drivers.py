@@ -303,8 +303,9 @@ def load_driver(folder: str | os.PathLike) -> DriverDescription:
     )
 
 
-def load_object_dictionary(driver: "DriverDescription | Path", node_id: int | None = None):
-    """The object dictionary of a CANopen driver folder's EDS (``[canopen] eds``).
+def load_object_dictionary(driver: "DriverDescription | Path", node_id: int | None = None,
+                           warnings: list[str] | None = None):
+    """The object dictionary of a CANopen driver folder's EDS (``[canopen] eds``), read as vendors write them.
 
     Parameters
     ----------
@@ -312,13 +313,16 @@ def load_object_dictionary(driver: "DriverDescription | Path", node_id: int | No
         The driver, or its folder.
     node_id : int, optional
         Node id that ``$NODEID`` in the EDS stands for.
+    warnings : list, optional
+        Receives one line per quirk of the file that was repaired (see
+        :func:`hilident.protocol.eds.load_eds`).
 
     Raises
     ------
     ConfigError
         No ``[canopen] eds``, the file is missing, or it cannot be read; the message names the file.
     """
-    import canopen
+    from hilident.protocol.eds import load_eds
 
     folder = driver.folder if isinstance(driver, DriverDescription) else Path(driver)
     source = str(folder / DESCRIPTION_FILE)
@@ -331,11 +335,10 @@ def load_object_dictionary(driver: "DriverDescription | Path", node_id: int | No
     path = folder / name
     if not _is_file(path):
         raise ConfigError("canopen.eds", f"EDS file {path} not found", source)
-    try:
-        return canopen.import_od(str(path), node_id)
-    except Exception as exc:  # the EDS parser raises whatever its input provokes
-        raise ConfigError("canopen.eds", f"cannot read the EDS {path}: {type(exc).__name__}: {exc}"[:400],
-                          source) from None
+    od, found = load_eds(path, node_id)
+    if warnings is not None:
+        warnings.extend(found)
+    return od
 
 
 def _canopen_channels(folder: Path, data: dict, source: str) -> tuple[ChannelSpec, ...]:

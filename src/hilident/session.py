@@ -225,6 +225,7 @@ class Session:
             if report_.faults:
                 self.warnings.append(f"connect: the device had latched fault(s): {'; '.join(report_.faults)}"
                                      + ("; cleared (allow_fault_reset)" if report_.faults_cleared else ""))
+            self.warnings += [f"connect: {w}" for w in report_.warnings]
         lim = cfg.limits
         self.adapter.set_limits(lim.torque_nm, lim.velocity_mps, lim.position_min_m, lim.position_max_m)
 

@@ -80,6 +80,9 @@ class ConnectReport:
         The device-side stop the host armed for when it dies (e.g.
         ``"heartbeat consumer 0x1016: 500 ms, 0x6007 = 2 (disable voltage)"``,
         ``"board watchdog 1 s"``), or ``""``.
+    warnings : list of str
+        What the host noticed about the device's description (e.g. the quirks
+        of a vendor EDS it repaired while reading it).
     """
 
     discarded_frames: int = 0
@@ -87,10 +90,12 @@ class ConnectReport:
     faults_cleared: bool = False
     found_state: str = ""
     device_net: str = ""
+    warnings: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return {"discarded_frames": self.discarded_frames, "found_state": self.found_state,
-                "faults": list(self.faults), "faults_cleared": self.faults_cleared, "device_net": self.device_net}
+                "faults": list(self.faults), "faults_cleared": self.faults_cleared, "device_net": self.device_net,
+                "warnings": list(self.warnings)}
 
 
 def refuse_latched_faults(port: str, faults: list[str]):

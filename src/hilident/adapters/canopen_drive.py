@@ -243,7 +243,8 @@ class CanopenDriveAdapter(AdapterBase):
             ``[canopen] host_node_id`` is the drive's own node id.
         """
         source = str(driver.folder / "driver.toml")
-        od = load_object_dictionary(driver, device.node_id)
+        eds_warnings: list[str] = []
+        od = load_object_dictionary(driver, device.node_id, eds_warnings)
         desc = CanopenDescription.from_sections(driver.sections, source, od)
         if device.acquisition == "buffered" or (device.acquisition == "auto" and desc.default_acquisition == "buffered"):
             desc.require_buffered(source)
@@ -258,6 +259,7 @@ class CanopenDriveAdapter(AdapterBase):
             node = canopen.RemoteNode(device.node_id, od)
             network.add_node(node)
             adapter = cls(network, node, driver, desc, device, label)
+            adapter.connect_report.warnings += eds_warnings
             early = adapter._count_early_frames()
             try:
                 adapter._identify()

@@ -60,7 +60,7 @@ from hilident.emulator.drive import DriveLoop
 from hilident.errors import ConfigError, DataError
 from hilident.protocol import cia402
 from hilident.protocol.canopen_objects import (
-    ABORT_CONNECTION_INDEX, HEARTBEAT_CONSUMER_INDEX, NUMERIC_TYPES, REAL32, TABLE_START, TABLE_STOP,
+    ABORT_CONNECTION_INDEX, DOMAIN, HEARTBEAT_CONSUMER_INDEX, NUMERIC_TYPES, REAL32, TABLE_START, TABLE_STOP,
     CanopenDescription, ObjectAddress, TableState, encode_si, numpy_type, parse_consumer_entry, parse_mapping_entry,
     record_dtype, type_bits,
 )
@@ -109,6 +109,7 @@ _PDO_KINDS = {0x1400: ("rpdo", "comm"), 0x1600: ("rpdo", "map"), 0x1800: ("tpdo"
 _LOOP_MODE_OF_CODE = {10: "torque", 9: "velocity", 8: "position", 7: "position"}
 
 _channel_numbers = itertools.count(1)
+_STRING_TYPES = (0x09, 0x0A, 0x0B)  # VISIBLE_STRING, OCTET_STRING, UNICODE_STRING
 
 
 @dataclass
@@ -707,7 +708,24 @@ class CanopenDriveFirmware:
                 if subindex == 0:
                     return len(self.error_history)
                 return self.error_history[subindex - 1] if subindex <= len(self.error_history) else 0
-        return None
+        return self._unset_value(index, subindex, od)
+
+    def _unset_value(self, index: int, subindex: int, od):
+        """The answer for an object never written whose EDS entry has no default (None: canopen serves it).
+
+        A drive answers every readable object: the identity from the EDS's
+        [DeviceInfo], an empty string, or 0.
+        """
+        if subindex in self.node.data_store.get(index, {}) or od.default is not None or od.value is not None:
+            return None
+        info = self.od.device_information
+        if (index, subindex) == (0x1018, 1) and info.vendor_number:
+            return int(info.vendor_number)
+        if (index, subindex) == (0x1018, 2) and info.product_number:
+            return int(info.product_number)
+        if (index, subindex) == (0x1008, 0):
+            return info.product_name or self.driver.name
+        return "" if od.data_type in _STRING_TYPES else (b"" if od.data_type == DOMAIN else 0)
 
     def _capture_chunk(self) -> bytes:
         start = self.capture_offset

@@ -116,8 +116,8 @@ def standard_modes(objects: dict[str, ObjectAddress], supported: Iterable[str] |
     dict
         ``torque`` (CST, 0x6071), ``velocity`` (CSV, 0x60FF), ``position`` (CSP
         0x607A, or IP 0x60C1:1), ``torque_injection`` (the excitation on the
-        torque offset 0x60B2 while CSP or CSV holds the axis), each only when the
-        drive has the mode and its objects.
+        torque offset 0x60B2 while CSP, IP or CSV holds the axis), each only when
+        the drive has the mode and its objects.
     """
     usable = [m for m in preference if m in CYCLIC_MODES and (supported is None or m in set(supported))]
     setpoint_of = SETPOINT_OF_MODE
@@ -131,7 +131,8 @@ def standard_modes(objects: dict[str, ObjectAddress], supported: Iterable[str] |
     if position is not None:
         modes["position"] = ModeSpec("position", MODE_CODES[position], setpoint_of[position])
     if "torque_offset" in objects:
-        hold = "csp" if "csp" in usable else ("csv" if "csv" in usable else None)  # a position hold is stiffer
+        # a position hold (CSP, else IP) is stiffer than a velocity hold (CSV)
+        hold = next((m for m in ("csp", "ip", "csv") if m in usable), None)
         if hold is not None:
             modes["torque_injection"] = ModeSpec("torque_injection", MODE_CODES[hold], "torque_offset",
                                                  hold=setpoint_of[hold])
