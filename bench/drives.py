@@ -112,7 +112,7 @@ def main(argv=None) -> int:
         started = time.monotonic()
         row = {"drive": eds.name}
         try:
-            new = new_driver_folder(eds, out / "drivers")
+            new = new_driver_folder(eds, out / "drivers" / eds.stem)
             check = check_driver_folder(new.folder)
             row["check"] = "ok" if check.ok else f"{len(check.errors)} error(s): {check.errors[0]}"
             row["placeholders"] = len(check.placeholders)

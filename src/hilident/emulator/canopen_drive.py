@@ -716,7 +716,9 @@ class CanopenDriveFirmware:
         A drive answers every readable object: the identity from the EDS's
         [DeviceInfo], an empty string, or 0.
         """
-        if subindex in self.node.data_store.get(index, {}) or od.default is not None or od.value is not None:
+        string = od.data_type in _STRING_TYPES
+        if subindex in self.node.data_store.get(index, {}) or (
+                (od.default is not None or od.value is not None) and not (string and not (od.value or od.default))):
             return None
         info = self.od.device_information
         if (index, subindex) == (0x1018, 1) and info.vendor_number:
@@ -725,7 +727,9 @@ class CanopenDriveFirmware:
             return int(info.product_number)
         if (index, subindex) == (0x1008, 0):
             return info.product_name or self.driver.name
-        return "" if od.data_type in _STRING_TYPES else (b"" if od.data_type == DOMAIN else 0)
+        if string:
+            return "n/a"  # an empty string cannot be uploaded (SDO abort 0x08000024); a drive says something
+        return b"\0" if od.data_type == DOMAIN else 0
 
     def _capture_chunk(self) -> bytes:
         start = self.capture_offset
