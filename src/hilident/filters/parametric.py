@@ -36,7 +36,7 @@ from hilident.errors import DataError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
 
-__all__ = ["achieved_notch", "attenuation_db", "rejection_band_section", "two_frequency_section"]
+__all__ = ["achieved_notch", "attenuation_db", "notch_width_hz", "rejection_band_section", "two_frequency_section"]
 
 
 def _warp_gain(frequency_hz: float, sample_rate_hz: float) -> float:
@@ -154,12 +154,24 @@ def achieved_notch(section: Biquad, sample_rate_hz: float, near_hz: float) -> No
     depth = attenuation_db(section, center, sample_rate_hz)
     if not depth > 0.0:
         raise DataError(f"the section does not attenuate near {near_hz:g} Hz")
-    k = _warp_gain(center, sample_rate_hz)
-    poles = section.poles()
-    if poles.size != 2:
-        raise DataError("the section has fewer than two poles; it is not a notch")
-    s = k * (poles - 1.0) / (poles + 1.0)
-    width = float(-np.sum(s).real / (2.0 * math.pi))
+    width = notch_width_hz(section, sample_rate_hz, center)
     if not width > 0.0:
         raise DataError(f"the section's poles give no positive width near {near_hz:g} Hz")
     return NotchSpec(center, width, depth)
+
+
+def notch_width_hz(section: Biquad, sample_rate_hz: float, center_hz: float) -> float:
+    """Width parameter (Hz) of the section's poles seen from ``center_hz``.
+
+    ``-(s1 + s2) / (2 pi)`` with ``s1, s2`` the poles mapped to the s-plane by
+    the bilinear transform pre-warped at ``center_hz``: the ``width_hz`` of
+    :class:`~hilident.filters.notch.NotchSpec` (the analog prototype's), so
+    near Nyquist it is wider than the digital -3 dB band.  ``0`` when the
+    section has fewer than two poles.
+    """
+    poles = section.poles()
+    if poles.size != 2:
+        return 0.0
+    k = _warp_gain(center_hz, sample_rate_hz)
+    s = k * (poles - 1.0) / (poles + 1.0)
+    return float(-np.sum(s).real / (2.0 * math.pi))

@@ -93,7 +93,7 @@ from dataclasses import dataclass, field
 from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec, design_notch, quantize_biquad
-from hilident.filters.parametric import (achieved_notch, attenuation_db, rejection_band_section,
+from hilident.filters.parametric import (achieved_notch, attenuation_db, notch_width_hz, rejection_band_section,
                                          two_frequency_section)
 
 COEFFICIENT_FIELDS = ("b0", "b1", "b2", "a1", "a2")
@@ -121,6 +121,14 @@ COPLEY_PLUS = {"words": 14, "coefficient_format": "float32",
 PRESETS = {"copley": COPLEY, "copley_plus": COPLEY_PLUS}
 #: a realised notch this much shallower than asked at the resonance is noted (float32 rounding is far less)
 DEPTH_TOLERANCE_DB = 0.1
+#: a realised width off by more than this factor from the asked one is noted
+WIDTH_TOLERANCE = 1.25
+#: INT16 blocks: how many of the best scalings realise() weighs against the asked depth
+SCALER_CHOICES = 48
+#: fields that set a notch's depth, and which way is deeper (+1: a larger value)
+DEEPER = {"depth": 1, "zero_q": 1, "num_damping": -1}
+#: pairs of fields that must hold the same frequency for the section to be a notch
+SAME_FREQUENCY = {"pole_zero_q": ("pole_hz", "zero_hz"), "pole_zero_damping": ("num_hz", "den_hz")}
 
 
 def float32(x: float) -> float:
@@ -365,10 +373,9 @@ class FilterEncoding:
         scales = {name: 1.0 for name in names}
         if self.kind == "notch_parameters":
             scales.update(center=self.center_scale, width=self.width_scale, depth=self.depth_scale)
-        if self.kind == "pole_zero_q":
-            scales.update(pole_q=0.0, zero_q=0.0)
-        if self.kind == "pole_zero_damping":
-            scales.update(num_damping=0.0, den_damping=0.0)
+        if self.kind in SAME_FREQUENCY:
+            # vendors of these keep REAL32 parameters unless the table says otherwise
+            scales = {name: 0.0 for name in names}
         scales.update({k: _positive(f"scales.{k}", v, zero_ok=True) for k, v in self.scales.items()})
         object.__setattr__(self, "scales", scales)
         ranges = {}
@@ -492,7 +499,8 @@ class FilterEncoding:
 
     # --- word blocks -----------------------------------------------------------------
 
-    def _encode_block(self, biquad: Biquad, spec: NotchSpec | None) -> bytes:
+    def _encode_block(self, biquad: Biquad, spec: NotchSpec | None, scaling: tuple | None = None) -> bytes:
+        """The block for ``biquad``; ``scaling`` = (INT16 coefficients, K) overrides the best one (see :meth:`realise`)."""
         lay = self.block
         words = [0] * lay.words
         words[lay.state_word] = lay.enabled_value
@@ -510,7 +518,7 @@ class FilterEncoding:
                 w = lay.coefficient_words[name]
                 words[w:w + 2] = pair
         else:
-            ints, k = _scaled_int16(biquad, lay.scaler_bits, self.feedback_sign)
+            ints, k = scaling or _scaled_int16(biquad, lay.scaler_bits, self.feedback_sign)[0]
             for name, n in zip(COEFFICIENT_FIELDS, ints):
                 words[lay.coefficient_words[name]] = n & 0xFFFF
             words[lay.scaler_word] = k
@@ -560,8 +568,13 @@ class FilterEncoding:
 
     # --- physical parameters -----------------------------------------------------------
 
-    def _ideal(self, spec: NotchSpec) -> dict[str, float]:
-        """The physical value of each field that would give ``spec`` exactly (before storage)."""
+    def _ideal(self, spec: NotchSpec, rate: float | None = None) -> dict[str, float]:
+        """The physical value of each field that would give ``spec`` exactly (before storage).
+
+        ``"center_band"`` with ``rate``: the band is narrowed by the frequency
+        warping at the centre, ``sin(w T) / (w T)``, so the section's width
+        parameter (the analog prototype's) matches ``spec.width_hz``.
+        """
         f, w, d = spec.center_hz, spec.width_hz, spec.depth_db
         ratio = 10.0 ** (-d / 20.0)
         if self.kind == "notch_parameters":
@@ -574,7 +587,11 @@ class FilterEncoding:
             return {"num_hz": f, "num_damping": damping * ratio, "den_hz": f, "den_damping": damping}
         if self.kind == "index_table":
             return {"center": f, "width": w / f, "depth": d}
-        return {"center": f, "band": w * math.pi / 3.0}
+        warp = 1.0
+        if rate is not None and 0.0 < f < 0.5 * rate:
+            wt = 2.0 * math.pi * f / rate
+            warp = math.sin(wt) / wt
+        return {"center": f, "band": w * warp * math.pi / 3.0}
 
     def _clamp(self, name: str, x: float) -> float:
         if name in self.ranges:
@@ -617,7 +634,12 @@ class FilterEncoding:
             return []
         n = x / scale
         low, high = self._integer_range(name)
-        return [m for m in range(math.floor(n) - 1, math.ceil(n) + 2) if low <= m <= high]
+        steps = list(range(math.floor(n) - 1, math.ceil(n) + 2))
+        if name in DEEPER:
+            # a centre off the resonance needs a deeper notch than asked: a few longer steps that way
+            edge = steps[-1] if DEEPER[name] > 0 else steps[0]
+            steps += [edge + DEEPER[name] * 2**j for j in range(1, 6)]
+        return [m for m in dict.fromkeys(steps) if low <= m <= high]
 
     def _integer_range(self, name: str) -> tuple[int, int]:
         scale = self.scales[name]
@@ -798,6 +820,8 @@ class FilterEncoding:
         notes = []
         if self.kind in PARAMETRIC:
             fields, section = self._fit(spec, filter_rate_hz, notes)
+        elif self.kind == "word_block" and self.block.coefficient_format == "int16":
+            fields, section = self._fit_scaler(spec, filter_rate_hz)
         else:
             fields = self.encode(design_notch(spec, filter_rate_hz), spec)
             section = self.applied(fields, filter_rate_hz)
@@ -811,8 +835,26 @@ class FilterEncoding:
                          f"not the {spec.depth_db:g} dB asked")
         return Realisation(fields, section, achieved, att, tuple(notes))
 
+    def _fit_scaler(self, spec: NotchSpec, rate: float) -> tuple[dict, Biquad]:
+        """INT16 block: among the best few scalings of the design, the one that meets the depth most closely."""
+        designed = design_notch(spec, rate)
+        best = None
+        for scaling in _scaled_int16(designed, self.block.scaler_bits, self.feedback_sign)[:SCALER_CHOICES]:
+            fields = {"block": self._encode_block(designed, spec, scaling)}
+            try:
+                section = self.applied(fields, rate)
+            except DataError:
+                continue
+            key = _depth_key(attenuation_db(section, spec.center_hz, rate), spec.depth_db,
+                             notch_width_hz(section, rate, spec.center_hz), spec.width_hz)
+            if best is None or key < best[0]:
+                best = (key, fields, section)
+        if best is None:
+            raise DataError(f"no INT16 scaling of the notch at {spec.center_hz:g} Hz gives a stable filter")
+        return best[1], best[2]
+
     def _fit(self, spec: NotchSpec, rate: float, notes: list) -> tuple[dict, Biquad]:
-        ideal = self._ideal(spec)
+        ideal = self._ideal(spec, rate)
         per_field = []
         for name in self.fields:
             x = self._clamp(name, ideal[name])
@@ -820,6 +862,11 @@ class FilterEncoding:
                 notes.append(f"{name} {ideal[name]:g} is outside the drive's range "
                              f"{self.ranges[name][0]:g}..{self.ranges[name][1]:g}; using {x:g}")
             per_field.append(self._candidates(name, x))
+        widened = self._widened(ideal, spec)
+        if widened is not None:
+            name, value = widened
+            per_field[self.fields.index(name)] += [c for c in self._candidates(name, value)
+                                                    if c not in per_field[self.fields.index(name)]]
         if self._is_index("width"):
             table = self.width_table
             ratio = ideal["width"]
@@ -827,33 +874,56 @@ class FilterEncoding:
                 notes.append(f"width {spec.width_hz:g} Hz ({ratio:.3g} of the centre) is outside the drive's "
                              f"table {min(table):g}..{max(table):g}")
         best = None
+        pair = SAME_FREQUENCY.get(self.kind)
         for combo in itertools.product(*per_field):
             values = dict(zip(self.fields, combo))
+            if pair and self._physical(pair[0], values[pair[0]]) != self._physical(pair[1], values[pair[1]]):
+                continue
             try:
                 section = self.applied(values, rate)
             except (DataError, ConfigError):
                 continue
             att = attenuation_db(section, spec.center_hz, rate)
-            width = self._notch_triplet(self._physical_values(values))[1]
-            if not width > 0.0:
+            width = notch_width_hz(section, rate, spec.center_hz)
+            if not (width > 0.0 and att > 0.0):
                 continue
-            short = att < spec.depth_db - 1e-9
-            excess = (spec.depth_db - att) if short else (att - spec.depth_db if math.isfinite(spec.depth_db) else 0.0)
-            key = (short, excess if math.isfinite(excess) else math.inf, abs(math.log(width / spec.width_hz)))
+            key = _depth_key(att, spec.depth_db, width, spec.width_hz)
             if best is None or key < best[0]:
                 best = (key, values, section)
         if best is None:
-            raise DataError(f"no value the {self.kind} encoding can store realises a notch at "
-                            f"{spec.center_hz:g} Hz, {spec.width_hz:g} Hz wide at {rate:g} Hz")
+            raise DataError(f"no value the {self.kind} encoding can store attenuates {spec.center_hz:g} Hz "
+                            f"with a notch {spec.width_hz:g} Hz wide at {rate:g} Hz")
+        width = notch_width_hz(best[2], rate, spec.center_hz)
+        if abs(math.log(width / spec.width_hz)) > math.log(WIDTH_TOLERANCE):
+            notes.append(f"width {spec.width_hz:.3g} Hz is realised as {width:.3g} Hz")
         return best[1], best[2]
+
+    def _widened(self, ideal: dict, spec: NotchSpec) -> tuple[str, float] | None:
+        """Pole/zero encodings whose zero range caps the depth: the pole field value (a wider
+        notch) that reaches the asked depth with the zero at its limit, or ``None``."""
+        if self.kind == "pole_zero_q" and "zero_q" in self.ranges and ideal["zero_q"] > self.ranges["zero_q"][1]:
+            return "pole_q", self._clamp("pole_q", self.ranges["zero_q"][1] * 10.0 ** (-spec.depth_db / 20.0))
+        if self.kind == "pole_zero_damping" and "num_damping" in self.ranges \
+                and ideal["num_damping"] < self.ranges["num_damping"][0]:
+            low = self.ranges["num_damping"][0]
+            return "den_damping", self._clamp("den_damping", low * 10.0 ** (spec.depth_db / 20.0))
+        return None
+
+
+def _depth_key(att: float, asked: float, width: float, asked_width: float) -> tuple:
+    """Sort key: deep enough first, then the attenuation closest to the asked depth, then the width."""
+    short = att < asked - 1e-9
+    excess = (asked - att) if short else (att - asked if math.isfinite(asked) else 0.0)
+    width_error = abs(math.log(width / asked_width)) if width > 0 else math.inf
+    return short, excess if math.isfinite(excess) else math.inf, width_error
 
 
 def _signed16(w: int) -> int:
     return w - 0x10000 if w & 0x8000 else w
 
 
-def _scaled_int16(biquad: Biquad, scaler_bits: int, feedback_sign: str) -> tuple[list[int], int]:
-    """INT16 coefficients and scaler ``K`` with ``c = n K / 2**scaler_bits`` closest to ``biquad``.
+def _scaled_int16(biquad: Biquad, scaler_bits: int, feedback_sign: str) -> list[tuple[list[int], int]]:
+    """INT16 coefficients and scaler ``K`` with ``c = n K / 2**scaler_bits``, closest to ``biquad`` first.
 
     ``K`` is searched from the smallest that fits (finest steps) over the next
     256 values; ``b1`` absorbs the rounding so the DC gain stays as close to
@@ -873,7 +943,7 @@ def _scaled_int16(biquad: Biquad, scaler_bits: int, feedback_sign: str) -> tuple
     if k_min > 0xFFFF:
         raise DataError(f"coefficient {big:g} overflows INT16 with a 16-bit scaler over 2**{scaler_bits}")
     dc = biquad.dc_gain()
-    best = None
+    found = []
     for k in range(k_min, min(k_min + 256, 0x10000)):
         step = k / unit
         n = [int(round(x / step)) for x in c]
@@ -885,9 +955,8 @@ def _scaled_int16(biquad: Biquad, scaler_bits: int, feedback_sign: str) -> tuple
         num = got[0] + got[1] + got[2]
         err = abs(num / den - dc) if den else math.inf
         err += max(abs(g - x) for g, x in zip(got, c))
-        if best is None or err < best[0]:
-            best = (err, n, k)
-    if best is None:
+        found.append((err, k, [n[0], n[1], n[2], int(sign * n[3]), int(sign * n[4])]))
+    if not found:
         raise DataError(f"coefficients {c} do not fit INT16 words with a 16-bit scaler")
-    n, k = best[1], best[2]
-    return [n[0], n[1], n[2], int(sign * n[3]), int(sign * n[4])], k
+    found.sort(key=lambda t: (t[0], t[1]))
+    return [(n, k) for _, k, n in found]
