@@ -125,6 +125,12 @@ DEPTH_TOLERANCE_DB = 0.1
 WIDTH_TOLERANCE = 1.25
 #: INT16 blocks: how many of the best scalings realise() weighs against the asked depth
 SCALER_CHOICES = 48
+#: coefficient encodings: extra design depth tried, in order, while rounding leaves the notch short (dB)
+DEPTH_MARGINS_DB = (0.0, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0, 3.0)
+#: a candidate attenuating the resonance by less than this is no notch (dB)
+MIN_ATTENUATION_DB = 1.0
+#: most single steps realise() takes from the best neighbour
+REFINE_STEPS = 40
 #: fields that set a notch's depth, and which way is deeper (+1: a larger value)
 DEEPER = {"depth": 1, "zero_q": 1, "num_damping": -1}
 #: pairs of fields that must hold the same frequency for the section to be a notch
@@ -626,6 +632,10 @@ class FilterEncoding:
             x = min(x, 1e9)
             step = self.resolution.get(name)
             if step is None:
+                if name in DEEPER:
+                    # float32 rounding can leave the depth a hair short: a few slightly deeper values
+                    grid = [self._deeper(name, x, m) for m in DEPTH_MARGINS_DB]
+                    return [float32(v) for v in grid if self._in_range(name, v)] or [float32(x)]
                 return [float32(x)]
             n = x / step
             grid = [step * m for m in range(math.floor(n) - 1, math.ceil(n) + 2)]
@@ -636,10 +646,16 @@ class FilterEncoding:
         low, high = self._integer_range(name)
         steps = list(range(math.floor(n) - 1, math.ceil(n) + 2))
         if name in DEEPER:
-            # a centre off the resonance needs a deeper notch than asked: a few longer steps that way
-            edge = steps[-1] if DEEPER[name] > 0 else steps[0]
-            steps += [edge + DEEPER[name] * 2**j for j in range(1, 6)]
+            # a centre off the resonance, or rounding, can need a slightly deeper notch than asked
+            steps += [int(round(self._deeper(name, x, m) / scale)) for m in DEPTH_MARGINS_DB[1:]]
         return [m for m in dict.fromkeys(steps) if low <= m <= high]
+
+    @staticmethod
+    def _deeper(name: str, x: float, margin_db: float) -> float:
+        """The value of depth-setting field ``name`` that deepens the notch by about ``margin_db``."""
+        if name == "depth":
+            return x + margin_db
+        return x * 10.0 ** (DEEPER[name] * margin_db / 20.0)
 
     def _integer_range(self, name: str) -> tuple[int, int]:
         scale = self.scales[name]
@@ -680,7 +696,8 @@ class FilterEncoding:
         out = {}
         for name in self.fields:
             x = self._physical(name, values[name])
-            if not math.isfinite(x) or (name in self.ranges and not self._in_range(name, x)):
+            if math.isnan(x) or (math.isinf(x) and name != "depth") or \
+                    (name in self.ranges and not self._in_range(name, x)):
                 low, high = self.ranges.get(name, (0, math.inf))
                 raise DataError(f"notch {name} {x:g} is outside the drive's range {low:g}..{high:g}")
             out[name] = x
@@ -771,11 +788,12 @@ class FilterEncoding:
 
     def _section_of(self, values: dict, rate: float) -> Biquad:
         if self.kind in ("notch_parameters", "index_table"):
-            spec = self.parameters(values)
-            if spec.center_hz >= rate / 2:
-                raise DataError(f"notch centre {spec.center_hz:g} Hz is not below half the {rate:g} Hz filter rate")
-            if spec.depth_db == 0.0:
+            center, width, depth = self._notch_triplet(self._physical_values(values))
+            if center >= rate / 2:
+                raise DataError(f"notch centre {center:g} Hz is not below half the {rate:g} Hz filter rate")
+            if depth <= 0.0:
                 return Biquad.identity()
+            spec = self.parameters(values)
             designed = design_notch(spec, rate)
             return _float32_biquad(*designed.b, designed.a[1], designed.a[2])
         return self._parametric_section(self._physical_values(values), rate)
@@ -820,11 +838,8 @@ class FilterEncoding:
         notes = []
         if self.kind in PARAMETRIC:
             fields, section = self._fit(spec, filter_rate_hz, notes)
-        elif self.kind == "word_block" and self.block.coefficient_format == "int16":
-            fields, section = self._fit_scaler(spec, filter_rate_hz)
         else:
-            fields = self.encode(design_notch(spec, filter_rate_hz), spec)
-            section = self.applied(fields, filter_rate_hz)
+            fields, section = self._fit_coefficients(spec, filter_rate_hz)
         att = attenuation_db(section, spec.center_hz, filter_rate_hz)
         try:
             achieved = achieved_notch(section, filter_rate_hz, spec.center_hz)
@@ -835,68 +850,108 @@ class FilterEncoding:
                          f"not the {spec.depth_db:g} dB asked")
         return Realisation(fields, section, achieved, att, tuple(notes))
 
-    def _fit_scaler(self, spec: NotchSpec, rate: float) -> tuple[dict, Biquad]:
-        """INT16 block: among the best few scalings of the design, the one that meets the depth most closely."""
-        designed = design_notch(spec, rate)
+    def _fit_coefficients(self, spec: NotchSpec, rate: float) -> tuple[dict, Biquad]:
+        """Coefficient encodings: the design, made a little deeper while rounding leaves it short;
+        INT16 blocks also weigh their best few scalings."""
         best = None
-        for scaling in _scaled_int16(designed, self.block.scaler_bits, self.feedback_sign)[:SCALER_CHOICES]:
-            fields = {"block": self._encode_block(designed, spec, scaling)}
-            try:
-                section = self.applied(fields, rate)
-            except DataError:
-                continue
-            key = _depth_key(attenuation_db(section, spec.center_hz, rate), spec.depth_db,
-                             notch_width_hz(section, rate, spec.center_hz), spec.width_hz)
-            if best is None or key < best[0]:
-                best = (key, fields, section)
+        for margin in DEPTH_MARGINS_DB:
+            designed = design_notch(NotchSpec(spec.center_hz, spec.width_hz, spec.depth_db + margin), rate)
+            if self.kind == "word_block" and self.block.coefficient_format == "int16":
+                scalings = _scaled_int16(designed, self.block.scaler_bits, self.feedback_sign)[:SCALER_CHOICES]
+                candidates = [{"block": self._encode_block(designed, spec, sc)} for sc in scalings]
+            else:
+                candidates = [self.encode(designed, spec)]
+            for fields in candidates:
+                best = self._better(best, fields, spec, rate)
+            if best is not None and not best[0][0] or not math.isfinite(spec.depth_db):
+                break
         if best is None:
-            raise DataError(f"no INT16 scaling of the notch at {spec.center_hz:g} Hz gives a stable filter")
+            raise DataError(f"no {self.kind} coefficients of the notch at {spec.center_hz:g} Hz give a stable filter")
         return best[1], best[2]
+
+    def _better(self, best, values: dict, spec: NotchSpec, rate: float):
+        """``best`` or the candidate ``values``, whichever meets ``spec`` better (see :meth:`realise`)."""
+        try:
+            section = self.applied(values, rate)
+        except (DataError, ConfigError):
+            return best
+        att = attenuation_db(section, spec.center_hz, rate)
+        width = notch_width_hz(section, rate, spec.center_hz)
+        if not (width > 0.0 and att >= MIN_ATTENUATION_DB):
+            return best
+        key = _depth_key(att, spec.depth_db, width, spec.width_hz)
+        return (key, values, section) if best is None or key < best[0] else best
 
     def _fit(self, spec: NotchSpec, rate: float, notes: list) -> tuple[dict, Biquad]:
         ideal = self._ideal(spec, rate)
         per_field = []
         for name in self.fields:
             x = self._clamp(name, ideal[name])
-            if x != ideal[name] and name not in ("depth", "zero_q", "num_damping"):
+            if x != ideal[name] and name not in DEEPER:
                 notes.append(f"{name} {ideal[name]:g} is outside the drive's range "
                              f"{self.ranges[name][0]:g}..{self.ranges[name][1]:g}; using {x:g}")
             per_field.append(self._candidates(name, x))
         widened = self._widened(ideal, spec)
         if widened is not None:
             name, value = widened
-            per_field[self.fields.index(name)] += [c for c in self._candidates(name, value)
-                                                    if c not in per_field[self.fields.index(name)]]
+            i = self.fields.index(name)
+            per_field[i] += [c for c in self._candidates(name, value) if c not in per_field[i]]
         if self._is_index("width"):
-            table = self.width_table
-            ratio = ideal["width"]
+            table, ratio = self.width_table, ideal["width"]
             if not min(table) <= ratio <= max(table):
                 notes.append(f"width {spec.width_hz:g} Hz ({ratio:.3g} of the centre) is outside the drive's "
                              f"table {min(table):g}..{max(table):g}")
         best = None
-        pair = SAME_FREQUENCY.get(self.kind)
         for combo in itertools.product(*per_field):
             values = dict(zip(self.fields, combo))
-            if pair and self._physical(pair[0], values[pair[0]]) != self._physical(pair[1], values[pair[1]]):
-                continue
-            try:
-                section = self.applied(values, rate)
-            except (DataError, ConfigError):
-                continue
-            att = attenuation_db(section, spec.center_hz, rate)
-            width = notch_width_hz(section, rate, spec.center_hz)
-            if not (width > 0.0 and att > 0.0):
-                continue
-            key = _depth_key(att, spec.depth_db, width, spec.width_hz)
-            if best is None or key < best[0]:
-                best = (key, values, section)
+            if self._same_frequency(values):
+                best = self._better(best, values, spec, rate)
         if best is None:
             raise DataError(f"no value the {self.kind} encoding can store attenuates {spec.center_hz:g} Hz "
                             f"with a notch {spec.width_hz:g} Hz wide at {rate:g} Hz")
+        best = self._refine(best, spec, rate)
         width = notch_width_hz(best[2], rate, spec.center_hz)
         if abs(math.log(width / spec.width_hz)) > math.log(WIDTH_TOLERANCE):
             notes.append(f"width {spec.width_hz:.3g} Hz is realised as {width:.3g} Hz")
         return best[1], best[2]
+
+    def _same_frequency(self, values: dict) -> bool:
+        pair = SAME_FREQUENCY.get(self.kind)
+        return not pair or self._physical(pair[0], values[pair[0]]) == self._physical(pair[1], values[pair[1]])
+
+    def _refine(self, best, spec: NotchSpec, rate: float):
+        """Move from ``best`` to a neighbour (one grid step or table entry in any fields) while that
+        meets ``spec`` better."""
+        pair = SAME_FREQUENCY.get(self.kind)
+        names = [n for n in self.fields if not (pair and n == pair[1])]
+        for _ in range(REFINE_STEPS):
+            start = best
+            around = [[best[1][n], *self._adjacent(n, best[1][n])] for n in names]
+            for combo in itertools.product(*around):
+                values = {**best[1], **dict(zip(names, combo))}
+                if pair:
+                    values[pair[1]] = values[pair[0]]
+                if values != start[1] and all(self._stored_in_range(k, v) for k, v in values.items()):
+                    best = self._better(best, values, spec, rate)
+            if best is start:
+                break
+        return best
+
+    def _adjacent(self, name: str, stored) -> list:
+        """The stored values one step either side of ``stored`` (none for REAL32 fields)."""
+        if self._is_index(name):
+            _, values = self._index_table(name)
+            i = values.index(stored)
+            return [values[j] for j in (i - 1, i + 1) if 0 <= j < len(values)]
+        if self.scales[name] == 0.0:
+            return []
+        return [stored - 1, stored + 1]
+
+    def _stored_in_range(self, name: str, stored) -> bool:
+        if self._is_index(name) or self.scales[name] == 0.0:
+            return True
+        low, high = self._integer_range(name)
+        return low <= stored <= high
 
     def _widened(self, ideal: dict, spec: NotchSpec) -> tuple[str, float] | None:
         """Pole/zero encodings whose zero range caps the depth: the pole field value (a wider
@@ -912,7 +967,7 @@ class FilterEncoding:
 
 def _depth_key(att: float, asked: float, width: float, asked_width: float) -> tuple:
     """Sort key: deep enough first, then the attenuation closest to the asked depth, then the width."""
-    short = att < asked - 1e-9
+    short = att < asked
     excess = (asked - att) if short else (att - asked if math.isfinite(asked) else 0.0)
     width_error = abs(math.log(width / asked_width)) if width > 0 else math.inf
     return short, excess if math.isfinite(excess) else math.inf, width_error
