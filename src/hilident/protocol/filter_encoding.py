@@ -869,8 +869,9 @@ class FilterEncoding:
             raise DataError(f"no {self.kind} coefficients of the notch at {spec.center_hz:g} Hz give a stable filter")
         return best[1], best[2]
 
-    def _better(self, best, values: dict, spec: NotchSpec, rate: float):
-        """``best`` or the candidate ``values``, whichever meets ``spec`` better (see :meth:`realise`)."""
+    def _better(self, best, values: dict, spec: NotchSpec, rate: float, max_width_error: float = math.inf):
+        """``best`` or the candidate ``values``, whichever meets ``spec`` better (see :meth:`realise`);
+        a candidate whose width is further than ``max_width_error`` (log ratio) from the asked one is not taken."""
         try:
             section = self.applied(values, rate)
         except (DataError, ConfigError):
@@ -880,6 +881,8 @@ class FilterEncoding:
         if not (width > 0.0 and att >= MIN_ATTENUATION_DB):
             return best
         key = _depth_key(att, spec.depth_db, width, spec.width_hz)
+        if key[2] > max_width_error:
+            return best
         return (key, values, section) if best is None or key < best[0] else best
 
     def _fit(self, spec: NotchSpec, rate: float, notes: list) -> tuple[dict, Biquad]:
@@ -921,9 +924,12 @@ class FilterEncoding:
 
     def _refine(self, best, spec: NotchSpec, rate: float):
         """Move from ``best`` to a neighbour (one grid step or table entry in any fields) while that
-        meets ``spec`` better."""
+        meets ``spec`` better, keeping the width within :data:`WIDTH_TOLERANCE` of the asked one
+        (or as close as ``best`` already is)."""
         pair = SAME_FREQUENCY.get(self.kind)
         names = [n for n in self.fields if not (pair and n == pair[1])]
+        # depth does not buy any width: the walk stays as close to the asked width as the start or the tolerance
+        bound = max(best[0][2], math.log(WIDTH_TOLERANCE))
         for _ in range(REFINE_STEPS):
             start = best
             around = [[best[1][n], *self._adjacent(n, best[1][n])] for n in names]
@@ -932,7 +938,7 @@ class FilterEncoding:
                 if pair:
                     values[pair[1]] = values[pair[0]]
                 if values != start[1] and all(self._stored_in_range(k, v) for k, v in values.items()):
-                    best = self._better(best, values, spec, rate)
+                    best = self._better(best, values, spec, rate, bound)
             if best is start:
                 break
         return best
