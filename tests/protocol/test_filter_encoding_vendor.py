@@ -326,3 +326,61 @@ def test_any_realisable_notch_is_at_least_20_db_deep(name, center, rel_width, de
     assert r.attenuation_db >= 20.0
     depth_notes = [n for n in r.notes if "reaches" in n]
     assert bool(depth_notes) == (r.attenuation_db < depth - 0.1)
+
+
+# --------------------------------------------------------------------------- the documented examples
+
+
+def documented_tables():
+    import pathlib
+    import re
+    import tomllib
+
+    text = (pathlib.Path(__file__).parents[2] / "docs" / "filter_encodings.md").read_text()
+    return [tomllib.loads(block)["filters"] for block in re.findall(r"```toml\n(.*?)```", text, re.S)]
+
+
+def test_every_documented_example_builds_and_realises_a_notch():
+    tables = documented_tables()
+    assert len(tables) >= 10
+    kinds = set()
+    for table in tables:
+        enc = FilterEncoding.from_table(table, "docs/filter_encodings.md")
+        kinds.add(enc.kind)
+        r = enc.realise(NotchSpec(300.0, 60.0, 20.0), RATE)
+        assert r.section == enc.applied(r.fields, RATE)
+        assert r.attenuation_db >= 20.0 or r.notes
+    assert kinds == {"real32", "fixed", "word_block", "notch_parameters", "pole_zero_q", "pole_zero_damping",
+                     "index_table", "center_band"}
+    copley = [t for t in tables if t.get("encoding") == "word_block" and "words" in t]
+    assert FilterEncoding.from_table(copley[0]) == FilterEncoding.from_table({"encoding": "word_block",
+                                                                              "preset": "copley"})
+
+
+@pytest.mark.parametrize("table, key", [
+    ({"encoding": "word_block", "preset": ["copley"]}, "filters.preset"),
+    ({"encoding": "word_block", "preset": "copley", "byte_order": "middle"}, "filters.byte_order"),
+    ({"encoding": "word_block", "preset": "copley_plus", "coefficient_words": {"b0": 13, "b1": 10, "b2": 12,
+                                                                             "a1": 4, "a2": 6}}, "filters.coefficient_words.b0"),
+    ({"encoding": "index_table", "width_table": [1.0, "wide"], "depth_table": [10.0]}, "filters.width_table"),
+    ({"encoding": "index_table", "width_table": [1.0], "depth_table": [-math.inf]}, "filters.depth_table"),
+    ({"encoding": "center_band", "ranges": {"band": "narrow"}}, "filters.ranges.band"),
+])
+def test_hostile_tables_name_the_key_and_file(table, key):
+    with pytest.raises(ConfigError) as info:
+        FilterEncoding.from_table(table, "drv/driver.toml")
+    assert info.value.key == key and info.value.file == "drv/driver.toml"
+
+
+@pytest.mark.parametrize("enc, values", [
+    (FilterEncoding("pole_zero_q"), {"pole_hz": 300.0, "pole_q": 0.0, "zero_hz": 300.0, "zero_q": 5.0}),
+    (FilterEncoding("pole_zero_damping"), {"num_hz": "300", "num_damping": 0.0, "den_hz": 300.0, "den_damping": 0.1}),
+    (FilterEncoding("pole_zero_damping"), {"num_hz": 1e300, "num_damping": 0.0, "den_hz": 300.0, "den_damping": 0.1}),
+    (FilterEncoding("center_band"), {"center": None, "band": 10}),
+    (FilterEncoding("fixed"), {"b0": 1.5, "b1": 0, "b2": 0, "a1": 0, "a2": 0}),
+    (FilterEncoding("real32"), {"b0": math.nan, "b1": 0, "b2": 0, "a1": 0, "a2": 0}),
+    (FilterEncoding.from_table({"encoding": "word_block", "preset": "copley_plus"}), {"block": 28}),
+])
+def test_values_from_the_wire_that_are_no_filter_are_data_errors(enc, values):
+    with pytest.raises(DataError):
+        enc.applied(values, RATE)

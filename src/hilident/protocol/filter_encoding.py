@@ -87,6 +87,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import numbers
 import struct
 from dataclasses import dataclass, field
 
@@ -135,6 +136,9 @@ REFINE_STEPS = 40
 DEEPER = {"depth": 1, "zero_q": 1, "num_damping": -1}
 #: pairs of fields that must hold the same frequency for the section to be a notch
 SAME_FREQUENCY = {"pole_zero_q": ("pole_hz", "zero_hz"), "pole_zero_damping": ("num_hz", "den_hz")}
+
+
+FLOAT32_MAX = 3.4028234663852886e38
 
 
 def float32(x: float) -> float:
@@ -207,7 +211,7 @@ class BlockLayout:
     def from_table(cls, table: dict) -> "BlockLayout":
         """Build from ``[filters]`` (``preset`` gives defaults, explicit keys win)."""
         preset = table.get("preset")
-        if preset is not None and preset not in PRESETS:
+        if preset is not None and not (isinstance(preset, str) and preset in PRESETS):
             _fail("preset", f"must be one of {tuple(PRESETS)}, got {preset!r}")
         merged = {**PRESETS.get(preset, {}), **{k: table[k] for k in _BLOCK_KEYS if k in table}}
         if "words" not in merged or "coefficient_words" not in merged:
@@ -734,6 +738,8 @@ class FilterEncoding:
         if self.kind == "center_band":
             return p["center"], 3.0 * p["band"] / math.pi, math.inf
         if self.kind == "pole_zero_q":
+            if not (p["zero_q"] > 0 and p["pole_q"] > 0):
+                raise DataError(f"pole and zero Q must be positive, got {p['pole_q']:g} and {p['zero_q']:g}")
             zero_d, pole_d, f_zero, f_pole = 0.5 / p["zero_q"], 0.5 / p["pole_q"], p["zero_hz"], p["pole_hz"]
         else:
             zero_d, pole_d, f_zero, f_pole = p["num_damping"], p["den_damping"], p["num_hz"], p["den_hz"]
@@ -744,10 +750,12 @@ class FilterEncoding:
         if self.kind == "center_band":
             return rejection_band_section(p["center"], p["band"], rate)
         if self.kind in ("pole_zero_q", "pole_zero_damping"):
+            f_zero, f_pole = (p["zero_hz"], p["pole_hz"]) if self.kind == "pole_zero_q" else (p["num_hz"], p["den_hz"])
+            _, width, _ = self._notch_triplet(p)  # checks the Q values
             if self.kind == "pole_zero_q":
-                args = (p["zero_hz"], 0.5 / p["zero_q"], p["pole_hz"], 0.5 / p["pole_q"])
+                args = (f_zero, 0.5 / p["zero_q"], f_pole, 0.5 / p["pole_q"])
             else:
-                args = (p["num_hz"], p["num_damping"], p["den_hz"], p["den_damping"])
+                args = (f_zero, p["num_damping"], f_pole, p["den_damping"])
             s = two_frequency_section(*args, rate)
             return _float32_biquad(*s.b, s.a[1], s.a[2])
         raise DataError(f'the "{self.kind}" encoding is not a pole/zero or rejection-band encoding')
@@ -764,9 +772,7 @@ class FilterEncoding:
         DataError
             A field is missing, or the values give an unstable or invalid filter.
         """
-        missing = [f for f in self.fields if f not in values]
-        if missing:
-            raise DataError(f"filter slot values lack {', '.join(missing)}")
+        self._check_values(values)
         if self.kind == "real32":
             return _float32_biquad(*self._stored_coefficients([values[f] for f in COEFFICIENT_FIELDS]))
         if self.kind == "fixed":
@@ -785,6 +791,24 @@ class FilterEncoding:
                 raise DataError(f"filter block coefficients b = {section.b}, a = {section.a} give an unstable filter")
             return section
         return self._section_of(values, filter_rate_hz)
+
+    def _check_values(self, values: dict) -> None:
+        """Every field present and of a type the encoding stores (values come from a wire)."""
+        if not isinstance(values, dict):
+            raise DataError(f"filter slot values must be a mapping of {self.fields}, got {type(values).__name__}")
+        missing = [f for f in self.fields if f not in values]
+        if missing:
+            raise DataError(f"filter slot values lack {', '.join(missing)}")
+        if self.kind == "word_block":
+            return
+        for name in self.fields:
+            v = values[name]
+            integral = self.kind == "fixed" or (self.kind in PARAMETRIC and
+                                               (self._is_index(name) or self.scales[name] != 0.0))
+            if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v) \
+                    or (integral and int(v) != v) or (not integral and abs(v) > FLOAT32_MAX):
+                kind = "an integer" if integral else "a finite REAL32 number"
+                raise DataError(f"filter field {name} must be {kind}, got {v!r}")
 
     def _section_of(self, values: dict, rate: float) -> Biquad:
         if self.kind in ("notch_parameters", "index_table"):
@@ -869,21 +893,36 @@ class FilterEncoding:
             raise DataError(f"no {self.kind} coefficients of the notch at {spec.center_hz:g} Hz give a stable filter")
         return best[1], best[2]
 
-    def _better(self, best, values: dict, spec: NotchSpec, rate: float, max_width_error: float = math.inf):
+    def _better(self, best, values: dict, spec: NotchSpec, rate: float, max_width_error: float = math.inf,
+                seen: dict | None = None):
         """``best`` or the candidate ``values``, whichever meets ``spec`` better (see :meth:`realise`);
-        a candidate whose width is further than ``max_width_error`` (log ratio) from the asked one is not taken."""
-        try:
-            section = self.applied(values, rate)
-        except (DataError, ConfigError):
+        a candidate whose width is further than ``max_width_error`` (log ratio) from the asked one is not
+        taken.  ``seen`` caches the evaluation of parameter candidates."""
+        memo = tuple(values.items()) if seen is not None else None
+        if memo is not None and memo in seen:
+            evaluated = seen[memo]
+        else:
+            evaluated = self._evaluate(values, spec, rate)
+            if memo is not None:
+                seen[memo] = evaluated
+        if evaluated is None:
             return best
-        att = attenuation_db(section, spec.center_hz, rate)
-        width = notch_width_hz(section, rate, spec.center_hz)
-        if not (width > 0.0 and att >= MIN_ATTENUATION_DB):
-            return best
-        key = _depth_key(att, spec.depth_db, width, spec.width_hz)
+        key, section = evaluated
         if key[2] > max_width_error:
             return best
         return (key, values, section) if best is None or key < best[0] else best
+
+    def _evaluate(self, values: dict, spec: NotchSpec, rate: float):
+        """``(sort key, section)`` of a candidate, or ``None`` when it is no notch the drive runs."""
+        try:
+            section = self.applied(values, rate)
+        except (DataError, ConfigError):
+            return None
+        att = attenuation_db(section, spec.center_hz, rate)
+        width = notch_width_hz(section, rate, spec.center_hz)
+        if not (width > 0.0 and att >= MIN_ATTENUATION_DB):
+            return None
+        return _depth_key(att, spec.depth_db, width, spec.width_hz), section
 
     def _fit(self, spec: NotchSpec, rate: float, notes: list) -> tuple[dict, Biquad]:
         ideal = self._ideal(spec, rate)
@@ -904,15 +943,15 @@ class FilterEncoding:
             if not min(table) <= ratio <= max(table):
                 notes.append(f"width {spec.width_hz:g} Hz ({ratio:.3g} of the centre) is outside the drive's "
                              f"table {min(table):g}..{max(table):g}")
-        best = None
+        best, seen = None, {}
         for combo in itertools.product(*per_field):
             values = dict(zip(self.fields, combo))
             if self._same_frequency(values):
-                best = self._better(best, values, spec, rate)
+                best = self._better(best, values, spec, rate, seen=seen)
         if best is None:
             raise DataError(f"no value the {self.kind} encoding can store attenuates {spec.center_hz:g} Hz "
                             f"with a notch {spec.width_hz:g} Hz wide at {rate:g} Hz")
-        best = self._refine(best, spec, rate)
+        best = self._refine(best, spec, rate, seen)
         width = notch_width_hz(best[2], rate, spec.center_hz)
         if abs(math.log(width / spec.width_hz)) > math.log(WIDTH_TOLERANCE):
             notes.append(f"width {spec.width_hz:.3g} Hz is realised as {width:.3g} Hz")
@@ -922,7 +961,7 @@ class FilterEncoding:
         pair = SAME_FREQUENCY.get(self.kind)
         return not pair or self._physical(pair[0], values[pair[0]]) == self._physical(pair[1], values[pair[1]])
 
-    def _refine(self, best, spec: NotchSpec, rate: float):
+    def _refine(self, best, spec: NotchSpec, rate: float, seen: dict):
         """Move from ``best`` to a neighbour (one grid step or table entry in any fields) while that
         meets ``spec`` better, keeping the width within :data:`WIDTH_TOLERANCE` of the asked one
         (or as close as ``best`` already is)."""
@@ -938,7 +977,7 @@ class FilterEncoding:
                 if pair:
                     values[pair[1]] = values[pair[0]]
                 if values != start[1] and all(self._stored_in_range(k, v) for k, v in values.items()):
-                    best = self._better(best, values, spec, rate, bound)
+                    best = self._better(best, values, spec, rate, bound, seen)
             if best is start:
                 break
         return best
