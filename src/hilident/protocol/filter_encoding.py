@@ -207,6 +207,10 @@ class BlockLayout:
     enabled_value: int = 0
     frequency_words: tuple = ()
 
+    def __hash__(self):
+        return hash((self.words, tuple(sorted(self.coefficient_words.items())), self.coefficient_format,
+                     self.scaler_word, self.state_word, self.disabled_value, self.enabled_value))
+
     @classmethod
     def from_table(cls, table: dict) -> "BlockLayout":
         """Build from ``[filters]`` (``preset`` gives defaults, explicit keys win)."""
@@ -373,6 +377,10 @@ class FilterEncoding:
         object.__setattr__(self, "order", order)
         if self.kind in PARAMETRIC:
             self._check_parameters()
+
+    def __hash__(self):
+        return hash((self.kind, self.order, self.feedback_sign, self.fractional_bits, self.total_bits,
+                     tuple(sorted(self.scales.items())), tuple(sorted(self.ranges.items())), self.block))
 
     def _check_parameters(self) -> None:
         names = PARAMETRIC[self.kind]
