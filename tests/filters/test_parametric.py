@@ -11,8 +11,13 @@ from hypothesis import strategies as st
 from hilident.errors import DataError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec, design_notch
-from hilident.filters.parametric import (achieved_notch, attenuation_db, notch_width_hz, rejection_band_section,
-                                         two_frequency_section)
+from hilident.filters.parametric import (
+    achieved_notch,
+    attenuation_db,
+    notch_width_hz,
+    rejection_band_section,
+    two_frequency_section,
+)
 
 RATE = 4000.0
 

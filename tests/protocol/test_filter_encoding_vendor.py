@@ -12,7 +12,11 @@ from hypothesis import strategies as st
 from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec, design_notch
-from hilident.filters.parametric import attenuation_db, rejection_band_section, two_frequency_section
+from hilident.filters.parametric import (
+    attenuation_db,
+    rejection_band_section,
+    two_frequency_section,
+)
 from hilident.protocol.filter_encoding import FilterEncoding, float32
 
 RATE = 4000.0
@@ -337,7 +341,7 @@ def documented_tables():
     import tomllib
 
     text = (pathlib.Path(__file__).parents[2] / "docs" / "filter_encodings.md").read_text()
-    return [tomllib.loads(block)["filters"] for block in re.findall(r"```toml\n(.*?)```", text, re.S)]
+    return [tomllib.loads(block)["filters"] for block in re.findall(r"```toml\n(.*?)```", text, re.DOTALL)]
 
 
 def test_every_documented_example_builds_and_realises_a_notch():

@@ -94,8 +94,13 @@ from dataclasses import dataclass, field
 from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec, design_notch, quantize_biquad
-from hilident.filters.parametric import (achieved_notch, attenuation_db, notch_width_hz, rejection_band_section,
-                                         two_frequency_section)
+from hilident.filters.parametric import (
+    achieved_notch,
+    attenuation_db,
+    notch_width_hz,
+    rejection_band_section,
+    two_frequency_section,
+)
 
 COEFFICIENT_FIELDS = ("b0", "b1", "b2", "a1", "a2")
 PARAMETER_FIELDS = ("center", "width", "depth")
@@ -212,7 +217,7 @@ class BlockLayout:
                      self.scaler_word, self.state_word, self.disabled_value, self.enabled_value))
 
     @classmethod
-    def from_table(cls, table: dict) -> "BlockLayout":
+    def from_table(cls, table: dict) -> BlockLayout:
         """Build from ``[filters]`` (``preset`` gives defaults, explicit keys win)."""
         preset = table.get("preset")
         if preset is not None and not (isinstance(preset, str) and preset in PRESETS):
@@ -371,8 +376,9 @@ class FilterEncoding:
         if self.kind == "word_block" and self.block is None:
             object.__setattr__(self, "block", BlockLayout.from_table({"preset": "copley"}))
         default = ("block",) if self.kind == "word_block" else PARAMETRIC.get(self.kind, COEFFICIENT_FIELDS)
-        order = tuple(self.order) if self.order is not None else default
-        if sorted(order) != sorted(default) or len(set(order)) != len(order):
+        order = tuple(self.order) if isinstance(self.order, (list, tuple)) else default if self.order is None \
+            else (self.order,)
+        if not all(isinstance(x, str) for x in order) or sorted(order) != sorted(default):
             _fail("order", f"must list each of {default} once, got {list(order)}")
         object.__setattr__(self, "order", order)
         if self.kind in PARAMETRIC:
@@ -425,7 +431,7 @@ class FilterEncoding:
                     object.__setattr__(self, f"{name}_values", stored)
 
     @classmethod
-    def from_table(cls, table: dict, source: str = "") -> "FilterEncoding":
+    def from_table(cls, table: dict, source: str = "") -> FilterEncoding:
         """Build from a driver description's ``[filters]`` table (keys of other layers are ignored).
 
         Raises
@@ -759,7 +765,7 @@ class FilterEncoding:
             return rejection_band_section(p["center"], p["band"], rate)
         if self.kind in ("pole_zero_q", "pole_zero_damping"):
             f_zero, f_pole = (p["zero_hz"], p["pole_hz"]) if self.kind == "pole_zero_q" else (p["num_hz"], p["den_hz"])
-            _, width, _ = self._notch_triplet(p)  # checks the Q values
+            self._notch_triplet(p)  # raises on Q values that are no filter
             if self.kind == "pole_zero_q":
                 args = (f_zero, 0.5 / p["zero_q"], f_pole, 0.5 / p["pole_q"])
             else:
@@ -820,7 +826,7 @@ class FilterEncoding:
 
     def _section_of(self, values: dict, rate: float) -> Biquad:
         if self.kind in ("notch_parameters", "index_table"):
-            center, width, depth = self._notch_triplet(self._physical_values(values))
+            center, _, depth = self._notch_triplet(self._physical_values(values))
             if center >= rate / 2:
                 raise DataError(f"notch centre {center:g} Hz is not below half the {rate:g} Hz filter rate")
             if depth <= 0.0:
