@@ -433,3 +433,51 @@ def test_center_band_round_trips_on_integer_hertz():
     section = enc.applied(values, RATE)
     assert section == rejection_band_section(40.0, 12.0, RATE)
     assert enc.realise(spec, RATE).fields == values
+
+
+# --------------------------------------------------------------------------- units and resolution
+
+
+def yaskawa_style():
+    return FilterEncoding.from_table({"encoding": "notch_parameters", "width_unit": "q", "depth_unit": "ratio",
+                                      "scales": {"center": 1, "width": 0.01, "depth": 0.001},
+                                      "ranges": {"center": [50, 5000], "width": [0.5, 10], "depth": [0, 1]}})
+
+
+def test_notch_parameters_in_q_and_depth_ratio():
+    enc = yaskawa_style()
+    # Q = 5 -> width = 300 / 5 = 60 Hz; depth ratio 0.032 -> 29.9 dB
+    values = {"center": 300, "width": 500, "depth": 32}
+    assert enc.parameters(values) == NotchSpec(300.0, 60.0, -20 * math.log10(0.032))
+    ref = FilterEncoding("real32").stored_form(design_notch(enc.parameters(values), RATE), None, RATE)
+    assert enc.applied(values, RATE) == ref
+    assert db_at(enc.applied({**values, "depth": 0}, RATE), 300.0) > 100.0  # 0 = full cut
+    assert enc.applied({**values, "depth": 1000}, RATE) == Biquad.identity()  # ratio 1 = pass
+    with pytest.raises(DataError, match="Q must be positive"):
+        FilterEncoding("notch_parameters", width_unit="q").applied({**values, "width": 0}, RATE)
+    with pytest.raises(ConfigError, match="filters.width_unit"):
+        FilterEncoding.from_table({"encoding": "notch_parameters", "width_unit": "octaves"})
+
+
+def test_realise_in_q_units_notes_the_range_in_its_unit_and_ties_full_cuts_on_width():
+    enc = yaskawa_style()
+    r = enc.realise(NotchSpec(1000.0, 50.0, 20.0), RATE)
+    assert r.fields["width"] == 1000  # Q 20 asked, 10 the most
+    assert r.notes[0] == "width 20 (Q) is outside the drive's range 0.5..10 (Q); using 10 (Q)"
+    # 80 dB asked: every full-cut candidate is deep enough, the asked Q = 2 decides
+    r = enc.realise(NotchSpec(1000.0, 500.0, 80.0), RATE)
+    assert r.fields == {"center": 1000, "width": 200, "depth": 0} and r.notes == ()
+    with pytest.raises(DataError, match="center 21.78 Hz is outside the drive's range 50..5000 Hz"):
+        enc.realise(NotchSpec(21.78, 6.5, 30.0), RATE)
+
+
+def test_real32_field_resolution_is_what_the_drive_honours():
+    enc = FilterEncoding("pole_zero_q", resolution={"pole_hz": 1.0, "zero_hz": 1.0})
+    values = {"pole_hz": 21.7, "pole_q": 3.0, "zero_hz": 21.7, "zero_q": 30.0}
+    assert enc.applied(values, RATE) == enc.applied({**values, "pole_hz": 22.0, "zero_hz": 22.0}, RATE)
+    r = enc.realise(NotchSpec(21.7849, 6.53, 20.0), RATE)
+    assert r.fields["pole_hz"] == r.fields["zero_hz"] == 22.0
+    assert r.attenuation_db >= 20.0 and r.notes == ()
+    # 0.2 Hz off a 6.5 Hz wide notch caps the depth near 2 * 0.2 / 6.5: 40 dB is out of reach, and said so
+    r = enc.realise(NotchSpec(21.7849, 6.53, 40.0), RATE)
+    assert 20.0 < r.attenuation_db < 26.0 and "not the 40 dB asked" in r.notes[-1]

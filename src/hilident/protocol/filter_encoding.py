@@ -38,7 +38,9 @@ has a ``scale`` -- physical units per integer step, or ``0`` for a REAL32 field
 -- a ``range`` in physical units and an optional ``resolution``):
 
 ``"notch_parameters"``
-    ``center``, ``width``, ``depth`` (Hz, Hz, dB); pre-warped Tustin notch
+    ``center``, ``width``, ``depth`` (Hz, Hz, dB -- or the width as a Q or a
+    ratio to the centre, the depth as a gain ratio or percent, see
+    ``width_unit`` and ``depth_unit``); pre-warped Tustin notch
     (:func:`~hilident.filters.notch.design_notch`).
 ``"pole_zero_q"``
     ``pole_hz``, ``pole_q``, ``zero_hz``, ``zero_q`` (Kollmorgen-style
@@ -133,12 +135,17 @@ WIDTH_TOLERANCE = 1.25
 SCALER_CHOICES = 48
 #: coefficient encodings: extra design depth tried, in order, while rounding leaves the notch short (dB)
 DEPTH_MARGINS_DB = (0.0, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0, 3.0)
+#: attenuations at or beyond this count as a full cut when candidates are compared (dB)
+FULL_DEPTH_DB = 150.0
 #: a candidate attenuating the resonance by less than this is no notch (dB)
 MIN_ATTENUATION_DB = 1.0
 #: most single steps realise() takes from the best neighbour
 REFINE_STEPS = 40
 #: fields that set a notch's depth, and which way is deeper (+1: a larger value)
 DEEPER = {"depth": 1, "zero_q": 1, "num_damping": -1}
+#: ``"notch_parameters"``: how the width and depth fields are expressed
+WIDTH_UNITS = ("hz", "q", "ratio")
+DEPTH_UNITS = ("db", "ratio", "percent")
 #: pairs of fields that must hold the same frequency for the section to be a notch
 SAME_FREQUENCY = {"pole_zero_q": ("pole_hz", "zero_hz"), "pole_zero_damping": ("num_hz", "den_hz")}
 
@@ -341,6 +348,12 @@ class FilterEncoding:
         ``"index_table"``: the stored integer of each table entry (``0, 1, ...`` when omitted).
     block : BlockLayout, optional
         ``"word_block"`` only.
+    width_unit : {"hz", "q", "ratio"}
+        ``"notch_parameters"``: the width field in Hz, as a Q (centre / width)
+        or as width / centre.
+    depth_unit : {"db", "ratio", "percent"}
+        ``"notch_parameters"``: the depth field in dB, or as the gain at the
+        centre (0 = full cut), plain or in percent.
     """
 
     kind: str
@@ -360,6 +373,8 @@ class FilterEncoding:
     width_values: tuple | None = None
     depth_values: tuple | None = None
     block: BlockLayout | None = None
+    width_unit: str = "hz"
+    depth_unit: str = "db"
 
     def __post_init__(self):
         if self.kind not in ENCODINGS:
@@ -373,6 +388,10 @@ class FilterEncoding:
             _fail("fractional_bits", f"must be below total_bits = {self.total_bits}, got {self.fractional_bits}")
         if self.feedback_sign not in ("minus", "plus"):
             _fail("feedback_sign", f'must be "minus" or "plus", got {self.feedback_sign!r}')
+        if self.width_unit not in WIDTH_UNITS:
+            _fail("width_unit", f"must be one of {WIDTH_UNITS}, got {self.width_unit!r}")
+        if self.depth_unit not in DEPTH_UNITS:
+            _fail("depth_unit", f"must be one of {DEPTH_UNITS}, got {self.depth_unit!r}")
         if self.kind == "word_block" and self.block is None:
             object.__setattr__(self, "block", BlockLayout.from_table({"preset": "copley"}))
         default = ("block",) if self.kind == "word_block" else PARAMETRIC.get(self.kind, COEFFICIENT_FIELDS)
@@ -386,6 +405,7 @@ class FilterEncoding:
 
     def __hash__(self):
         return hash((self.kind, self.order, self.feedback_sign, self.fractional_bits, self.total_bits,
+                     self.width_unit, self.depth_unit,
                      tuple(sorted(self.scales.items())), tuple(sorted(self.ranges.items())), self.block))
 
     def _check_parameters(self) -> None:
@@ -445,7 +465,7 @@ class FilterEncoding:
             raise ConfigError("filters.encoding", "is required", source)
         keys = ("fractional_bits", "total_bits", "center_scale", "width_scale", "depth_scale", "max_value",
                 "order", "feedback_sign", "scales", "ranges", "resolution", "width_table", "depth_table",
-                "width_values", "depth_values")
+                "width_values", "depth_values", "width_unit", "depth_unit")
         try:
             kwargs = {k: table[k] for k in keys if k in table}
             for k in ("order", "width_table", "depth_table", "width_values", "depth_values"):
@@ -488,10 +508,15 @@ class FilterEncoding:
             return {"block": self._encode_block(biquad, spec)}
         if spec is None:
             raise DataError(f'this drive takes notch parameters ({", ".join(self.fields)}); no NotchSpec was given')
-        if self.kind == "notch_parameters":
+        if self.kind == "notch_parameters" and self._legacy_units:
             return self._encode_notch_parameters(spec)
         ideal = self._ideal(spec)
         return {name: self._nearest(name, self._clamp(name, ideal[name])) for name in self.fields}
+
+    @property
+    def _legacy_units(self) -> bool:
+        """``"notch_parameters"`` in Hz and dB: integers 1..max_value, out-of-range values refused by encode()."""
+        return self.width_unit == "hz" and self.depth_unit == "db"
 
     def _stored_coefficients(self, values) -> tuple:
         """scipy ``(b0, b1, b2, a1, a2)`` -> stored ``b0 .. a2`` (the feedback terms negated for "plus")."""
@@ -602,7 +627,9 @@ class FilterEncoding:
         f, w, d = spec.center_hz, spec.width_hz, spec.depth_db
         ratio = 10.0 ** (-d / 20.0)
         if self.kind == "notch_parameters":
-            return {"center": f, "width": w, "depth": d}
+            width = {"hz": w, "q": f / w, "ratio": w / f}[self.width_unit]
+            depth = {"db": d, "ratio": ratio, "percent": 100.0 * ratio}[self.depth_unit]
+            return {"center": f, "width": width, "depth": depth}
         if self.kind == "pole_zero_q":
             q = f / w
             return {"pole_hz": f, "pole_q": q, "zero_hz": f, "zero_q": q / ratio if ratio > 0 else math.inf}
@@ -668,16 +695,24 @@ class FilterEncoding:
             steps += [int(round(self._deeper(name, x, m) / scale)) for m in DEPTH_MARGINS_DB[1:]]
         return [m for m in dict.fromkeys(steps) if low <= m <= high]
 
-    @staticmethod
-    def _deeper(name: str, x: float, margin_db: float) -> float:
+    def _deeper_sign(self, name: str) -> int:
+        """+1 when a larger value of depth-setting field ``name`` makes the notch deeper, else -1."""
+        if name == "depth" and self.kind == "notch_parameters" and self.depth_unit != "db":
+            return -1
+        return DEEPER[name]
+
+    def _deeper(self, name: str, x: float, margin_db: float) -> float:
         """The value of depth-setting field ``name`` that deepens the notch by about ``margin_db``."""
-        if name == "depth":
+        if name == "depth" and self._deeper_sign(name) > 0:
             return x + margin_db
-        return x * 10.0 ** (DEEPER[name] * margin_db / 20.0)
+        return x * 10.0 ** (self._deeper_sign(name) * margin_db / 20.0)
 
     def _integer_range(self, name: str) -> tuple[int, int]:
         scale = self.scales[name]
-        low, high = (1, self.max_value) if self.kind == "notch_parameters" else (0, 2**32 - 1)
+        if self.kind == "notch_parameters":
+            low, high = (1 if self._legacy_units else 0), self.max_value
+        else:
+            low, high = 0, 2**32 - 1
         if name in self.ranges:
             low = max(low, math.ceil(self.ranges[name][0] / scale - 1e-9))
             high = min(high, math.floor(self.ranges[name][1] / scale + 1e-9))
@@ -746,7 +781,7 @@ class FilterEncoding:
     def _notch_triplet(self, p: dict[str, float]) -> tuple[float, float, float]:
         """Centre (Hz), width (Hz) and depth (dB) of the physical field values ``p``."""
         if self.kind == "notch_parameters":
-            return p["center"], p["width"], p["depth"]
+            return self._notch_parameters_triplet(p)
         if self.kind == "index_table":
             return p["center"], p["width"] * p["center"], p["depth"]
         if self.kind == "center_band":
@@ -759,6 +794,19 @@ class FilterEncoding:
             zero_d, pole_d, f_zero, f_pole = p["num_damping"], p["den_damping"], p["num_hz"], p["den_hz"]
         depth = math.inf if zero_d == 0 else 20.0 * math.log10(pole_d / zero_d) if pole_d > 0 else -math.inf
         return f_zero, 2.0 * pole_d * f_pole, depth
+
+    def _notch_parameters_triplet(self, p: dict[str, float]) -> tuple[float, float, float]:
+        center, width, depth = p["center"], p["width"], p["depth"]
+        if self.width_unit == "q":
+            if not width > 0:
+                raise DataError(f"notch Q must be positive, got {width:g}")
+            width = center / width
+        elif self.width_unit == "ratio":
+            width *= center
+        if self.depth_unit != "db":
+            ratio = depth / 100.0 if self.depth_unit == "percent" else depth
+            depth = math.inf if ratio <= 0 else -20.0 * math.log10(ratio)
+        return center, width, depth
 
     def _parametric_section(self, p: dict[str, float], rate: float) -> Biquad:
         if self.kind == "center_band":
@@ -944,8 +992,9 @@ class FilterEncoding:
         for name in self.fields:
             x = self._clamp(name, ideal[name])
             if x != ideal[name] and name not in DEEPER:
-                notes.append(f"{name} {ideal[name]:g} is outside the drive's range "
-                             f"{self.ranges[name][0]:g}..{self.ranges[name][1]:g}; using {x:g}")
+                unit = self._unit(name)
+                notes.append(f"{name} {ideal[name]:g}{unit} is outside the drive's range "
+                             f"{self.ranges[name][0]:g}..{self.ranges[name][1]:g}{unit}; using {x:g}{unit}")
             per_field.append(self._candidates(name, x))
         widened = self._widened(ideal, spec)
         if widened is not None:
@@ -963,13 +1012,24 @@ class FilterEncoding:
             if self._same_frequency(values):
                 best = self._better(best, values, spec, rate, seen=seen)
         if best is None:
+            why = "".join(f"; {n}" for n in notes)
             raise DataError(f"no value the {self.kind} encoding can store attenuates {spec.center_hz:g} Hz "
-                            f"with a notch {spec.width_hz:g} Hz wide at {rate:g} Hz")
+                            f"with a notch {spec.width_hz:g} Hz wide at {rate:g} Hz{why}")
         best = self._refine(best, spec, rate, seen)
         width = notch_width_hz(best[2], rate, spec.center_hz)
         if abs(math.log(width / spec.width_hz)) > math.log(WIDTH_TOLERANCE):
             notes.append(f"width {spec.width_hz:.3g} Hz is realised as {width:.3g} Hz")
         return best[1], best[2]
+
+    def _unit(self, name: str) -> str:
+        """The unit of a field's physical value, for notes (with its leading space)."""
+        if name in ("center", "band") or name.endswith("_hz"):
+            return " Hz"
+        if name == "width" and self.kind == "notch_parameters":
+            return {"hz": " Hz", "q": " (Q)", "ratio": " (of the centre)"}[self.width_unit]
+        if name == "depth" and self.kind == "notch_parameters":
+            return {"db": " dB", "ratio": " (ratio)", "percent": " %"}[self.depth_unit]
+        return ""
 
     def _same_frequency(self, values: dict) -> bool:
         pair = SAME_FREQUENCY.get(self.kind)
@@ -1025,7 +1085,12 @@ class FilterEncoding:
 
 
 def _depth_key(att: float, asked: float, width: float, asked_width: float) -> tuple:
-    """Sort key: deep enough first, then the attenuation closest to the asked depth, then the width."""
+    """Sort key: deep enough first, then the attenuation closest to the asked depth, then the width.
+
+    Attenuations beyond :data:`FULL_DEPTH_DB` count as equal: a zero on the unit
+    circle evaluates to some hundreds of dB that only say how well it was rounded.
+    """
+    att, asked = min(att, FULL_DEPTH_DB), min(asked, FULL_DEPTH_DB)
     short = att < asked
     excess = (asked - att) if short else (att - asked if math.isfinite(asked) else 0.0)
     width_error = abs(math.log(width / asked_width)) if width > 0 else math.inf
