@@ -480,3 +480,17 @@ def test_real32_field_resolution_is_what_the_drive_honours():
     # 0.2 Hz off a 6.5 Hz wide notch caps the depth near 2 * 0.2 / 6.5: 40 dB is out of reach, and said so
     r = enc.realise(NotchSpec(21.7849, 6.53, 40.0), RATE)
     assert 20.0 < r.attenuation_db < 26.0 and "not the 40 dB asked" in r.notes[-1]
+
+
+def test_value_kinds_for_checking_against_an_eds():
+    assert FilterEncoding("real32").value_kind("a1") == "float32"
+    assert FilterEncoding("fixed").value_kind("b0") == "integer"
+    assert FilterEncoding.from_table({"encoding": "word_block", "preset": "copley"}).value_kind("block") == "octets"
+    akd = FilterEncoding("pole_zero_q")
+    akd2g = FilterEncoding("pole_zero_q", scales={"pole_hz": 0.001, "pole_q": 0.001, "zero_hz": 0.001,
+                                                  "zero_q": 0.001})
+    assert {akd.value_kind(f) for f in akd.fields} == {"float32"}
+    assert {akd2g.value_kind(f) for f in akd2g.fields} == {"integer"}
+    assert {panasonic().value_kind(f) for f in ("center", "width", "depth")} == {"integer"}
+    with pytest.raises(DataError, match='"b0" is no field of the center_band encoding'):
+        FilterEncoding("center_band").value_kind("b0")

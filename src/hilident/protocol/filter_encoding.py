@@ -485,6 +485,25 @@ class FilterEncoding:
         """Names of the values one slot holds, in order (``("block",)`` for a word block)."""
         return self.order
 
+    def value_kind(self, name: str) -> str:
+        """What field ``name`` holds on the wire: ``"float32"`` (a REAL32 object or register),
+        ``"integer"`` (signed for ``"fixed"``, unsigned otherwise) or ``"octets"`` (a word block of
+        ``2 * block.words`` bytes) -- for checking a driver description against its EDS.
+
+        Raises
+        ------
+        DataError
+            ``name`` is no field of this encoding.
+        """
+        if name not in self.fields:
+            raise DataError(f'"{name}" is no field of the {self.kind} encoding (fields: {", ".join(self.fields)})')
+        if self.kind == "word_block":
+            return "octets"
+        if self.kind == "real32" or (self.kind in PARAMETRIC and not self._is_index(name)
+                                     and self.scales[name] == 0.0):
+            return "float32"
+        return "integer"
+
     # --- host side -------------------------------------------------------------------
 
     def encode(self, biquad: Biquad, spec: NotchSpec | None = None) -> dict:
