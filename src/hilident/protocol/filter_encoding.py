@@ -678,7 +678,13 @@ class FilterEncoding:
         return self.kind == "index_table" and name in ("width", "depth")
 
     def _candidates(self, name: str, x: float) -> list:
-        """Stored values of field ``name`` around the physical value ``x``: two each side."""
+        """Stored values of field ``name`` around the physical value ``x``.
+
+        Integer fields: the grid steps from one below the lower neighbour to one
+        above the upper; table fields: the three nearest entries; REAL32 fields:
+        ``x`` itself (or the neighbours on its ``resolution``).  Depth-setting
+        fields add a few settings deeper by :data:`DEPTH_MARGINS_DB`.
+        """
         if self._is_index(name):
             table, stored = self._index_table(name)
             log = name == "width"
