@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from vendor_drives import VendorDrive, write_vendor_drive
+from vendor_drives import FILTER_DRIVES, VendorDrive, write_vendor_drive
 
 from hilident.adapters.canopen_drive import CanopenDriveAdapter
 from hilident.config import load_config
@@ -193,3 +193,18 @@ def test_placeholders_run_on_the_emulator_and_are_refused_on_a_real_port(tmp_pat
     with pytest.raises(ConfigError, match=r"driver\.placeholders.*canopen\.scaling\.position_unit_m") as err:
         check_run_against_driver(real, driver)
     assert str(folder / "driver.toml") in str(err.value)
+
+
+@pytest.mark.parametrize("drive", FILTER_DRIVES, ids=lambda d: d.filters)
+def test_the_notch_goes_into_a_vendor_encoding_and_the_resonance_is_gone(tmp_path, drive):
+    # REAL32 coefficients in the drive's own order, a Copley-style word block in one octet string, and
+    # Kollmorgen-style pole/zero frequency and Q pairs: fitted to the encoding, read back, verified
+    folder = write_vendor_drive(tmp_path / "drivers", drive)
+    cfg = session_config(folder)
+    session = Session(cfg, tmp_path / "out", plots=False)
+    summary = session.run()
+    upload = summary["upload"]
+    assert upload["written"] and upload["verified_readback"], summary["warnings"]
+    assert summary["verification"]["peak_reduction_db"] >= 20.0
+    biquad, enabled = session.emulator.drive.filters.read(0)
+    assert enabled and biquad.b == tuple(upload["slots"][0]["readback_b"])

@@ -35,6 +35,7 @@ class VendorDrive:
     limits: tuple[str, ...] = ("max_torque", "max_velocity", "position_limits")
     torque_offset: bool = True
     sync_counter: bool = False
+    filters: str = ""  # "", "biquad" (REAL32 a1 a2 b0 b1 b2), "copley" (one octet-string block), "pole_zero" (REAL32 Q pairs)
     abort_connection: bool = True  # 0x6007
     vendor: str = "ACME Motion"
     loop_rate_hz: float = 4000.0
@@ -112,9 +113,40 @@ def _objects(d: VendorDrive) -> list[tuple]:
         objs += [(0x60C2, 0, "Highest sub-index supported", _UINT8, "ro", False, 2),
                  (0x60C2, 1, "Interpolation time period value", _UINT8, "rw", False, 1),
                  (0x60C2, 2, "Interpolation time index", _INT8, "rw", False, -3)]
+    objs += _filter_objects(d.filters)
     objs.append((0x60FF, None, "Target velocity", _INT32, "rww", True, 0))
     objs.append((0x6502, None, "Supported drive modes", _UINT32, "ro", False,
                  encode_supported_modes(d.modes) if d.declare_modes else None))
+    return objs
+
+
+_REAL32, _OCTETS = 0x8, 0xA
+#: Filter capabilities of the project's test drives: EDS objects of two slots, and the [filters] table.
+FILTERS = {
+    "biquad": ([(0x2300 + n, [(1, "Enable", _UINT8, 0)] + [(2 + i, f, _REAL32, 0.0) for i, f in
+                                                          enumerate(("a1", "a2", "b0", "b1", "b2"))]) for n in range(2)],
+               '[filters]\nencoding = "real32"\norder = ["a1", "a2", "b0", "b1", "b2"]\nfeedback_sign = "minus"\n'
+               'objects = ["0x2300", "0x2301"]\nenable_subindex = 1\nfields = { a1 = 2, a2 = 3, b0 = 4, b1 = 5, b2 = 6 }\n'),
+    "copley": ([(0x2106, None), (0x2108, None)],
+               '[filters]\nencoding = "word_block"\npreset = "copley"\nobjects = ["0x2106", "0x2108"]\n'),
+    "pole_zero": ([(0x2400 + n, [(1, "Enable", _UINT8, 0)] + [(2 + i, f, _REAL32, 100.0 if "hz" in f else 0.5) for i, f in
+                                                             enumerate(("pole_hz", "pole_q", "zero_hz", "zero_q"))])
+                   for n in range(2)],
+                  '[filters]\nencoding = "pole_zero_q"\nranges = { pole_hz = [5, 5000], zero_hz = [5, 5000], '
+                  'pole_q = [0.2, 20], zero_q = [0.1, 5] }\nobjects = ["0x2400", "0x2401"]\nenable_subindex = 1\n'
+                  'fields = { pole_hz = 2, pole_q = 3, zero_hz = 4, zero_q = 5 }\n'),
+}
+
+
+def _filter_objects(kind: str) -> list[tuple]:
+    objs = []
+    for index, members in (FILTERS[kind][0] if kind else []):
+        if members is None:  # a Copley-style block: 9 words, word 0 = 0xFFFF: disabled
+            objs.append((index, None, f"Filter coefficients 0x{index:04X}", _OCTETS, "rw", False,
+                         bytes.fromhex("FFFF") + bytes(16)))
+            continue
+        objs.append((index, 0, "Highest sub-index supported", _UINT8, "ro", False, len(members)))
+        objs += [(index, sub, name, dtype, "rw", False, default) for sub, name, dtype, default in members]
     return objs
 
 
@@ -129,12 +161,14 @@ def eds_text(d: VendorDrive) -> str:
     mandatory = [i for i in indices if i in (0x1000, 0x1001, 0x1018)]
     optional = [i for i in indices if i < 0x2000 and i not in mandatory]
     optional += [i for i in indices if i >= 0x6000]
+    manufacturer = [i for i in indices if 0x2000 <= i < 0x6000]
     for title, group in (("MandatoryObjects", mandatory), ("OptionalObjects", optional)):
         lines.append(f"[{title}]")
         lines.append(f"SupportedObjects={len(group)}")
         lines += [f"{n}=0x{i:04X}" for n, i in enumerate(group, start=1)]
         lines.append("")
-    lines += ["[ManufacturerObjects]", "SupportedObjects=0", ""]
+    lines += ["[ManufacturerObjects]", f"SupportedObjects={len(manufacturer)}"]
+    lines += [f"{n}=0x{i:04X}" for n, i in enumerate(manufacturer, start=1)] + [""]
     for index in indices:
         members = [o for o in objs if o[0] == index]
         if members[0][1] is None:
@@ -165,7 +199,12 @@ def _variable_lines(obj: tuple) -> list[str]:
     lines = [f"ParameterName={name}", "ObjectType=0x7", f"DataType=0x{dtype:04X}", f"AccessType={access}",
              f"PDOMapping={int(mappable)}"]
     if default is not None:
-        value = default if isinstance(default, str) else (f"0x{default:X}" if default >= 0 else str(default))
+        if isinstance(default, bytes):
+            value = default.hex().upper()
+        elif isinstance(default, (str, float)):
+            value = str(default)
+        else:
+            value = f"0x{default:X}" if default >= 0 else str(default)
         lines.append(f"DefaultValue={value}")
     return lines
 
@@ -178,6 +217,8 @@ def driver_toml(d: VendorDrive) -> str:
     if d.torque == "current":
         scaling.append("torque_constant_nm_per_a = 0.25")
     emulator = "" if d.declare_modes else f"\n[emulator]\nsupported_modes = {list(d.modes)!r}\n".replace("'", '"')
+    if d.filters:
+        emulator += "\n" + FILTERS[d.filters][1]
     return f"""[driver]
 name = "{d.name}"
 description = "a CiA 402 drive described by its vendor EDS"
@@ -187,7 +228,7 @@ default_baudrate = 1000000
 [board]
 loop_rate_hz = {d.loop_rate_hz}
 max_sample_rate_hz = {d.max_sample_rate_hz}
-filter_slots = 0
+filter_slots = {2 if d.filters else 0}
 
 [canopen]
 eds = "{d.name}.eds"
@@ -206,3 +247,7 @@ def write_vendor_drive(folder: Path, d: VendorDrive) -> Path:
     (path / f"{d.name}.eds").write_bytes(eds_text(d).encode("latin-1"))
     (path / "driver.toml").write_text(driver_toml(d))
     return path
+
+
+#: The project's drives with a filter capability, one per kind of encoding (bench/drives.py --project-drives).
+FILTER_DRIVES = [VendorDrive(f"acme-{kind}", filters=kind) for kind in FILTERS]

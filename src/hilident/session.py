@@ -578,6 +578,9 @@ class Session:
                     "the slot's previous contents were restored"
                 )
             matches.append(same)
+            notes = getattr(ad, "filter_notes", None)  # drives whose encoding fits the notch to what it can store
+            if notes is not None:
+                self.warnings += [f"filter slot {d.slot}: {note}" for note in notes(d.spec)]
             achieved = pipeline.achieved_notch(d, stored)
             lost = d.spec.depth_db - achieved["attenuation_at_design_center_db"]
             if lost > 3.0:

@@ -1091,18 +1091,43 @@ class CanopenDriveAdapter(AdapterBase):
         return fo
 
     def write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None = None, *, enabled: bool) -> None:
-        """Store a notch in a slot, in the drive's encoding; it takes effect with the enable write."""
+        """Store a notch in a slot, fitted to what the drive's encoding can hold; it takes effect when enabled.
+
+        With ``spec`` the notch is realised in the encoding (the stored values
+        closest to it, :meth:`FilterEncoding.realise`); without, ``biquad`` is
+        rounded to the encoding.
+        """
         fo = self._filter_slot(slot)
-        values = self.encoding.encode(biquad, spec)
+        values = self._realise(biquad, spec).fields if spec is not None else self.encoding.encode(biquad, spec)
         self._write_slot(fo, slot, values, enabled)
 
+    def _realise(self, biquad: Biquad, spec: NotchSpec | None):
+        try:
+            return self.encoding.realise(spec, self.identity.loop_rate_hz)
+        except DataError as exc:
+            raise DeviceError(f"{self.port}: the drive's {self.encoding.kind} filter slots cannot hold the "
+                              f"{spec.center_hz:.4g} Hz notch: {exc}") from None
+
+    def filter_notes(self, spec: NotchSpec) -> tuple[str, ...]:
+        """Why the drive's encoding cannot meet ``spec`` exactly (depth or width out of reach), if it cannot."""
+        return self._realise(None, spec).notes
+
     def _write_slot(self, fo, slot: int, values: dict, enabled: bool) -> None:
+        if fo.enable_subindex is None:  # the enable lives inside the one block
+            block = values if enabled else self.encoding.disabled(values)
+            self.write_object(fo.address(slot, "block"), block["block"])
+            return
         for name, value in values.items():
             self.write_object(fo.address(slot, name), value)
         self.write_object(fo.address(slot, "enabled"), int(bool(enabled)))
 
     def _read_slot(self, fo, slot: int) -> tuple[dict, bool]:
         values = {name: self.read_object(fo.address(slot, name)) for name in self.encoding.fields}
+        if fo.enable_subindex is None:
+            try:
+                return values, bool(self.encoding.slot_enabled(values))
+            except DataError as exc:
+                raise DeviceError(f"{self.port}: filter slot {slot} (object 0x{fo.indices[slot]:04X}): {exc}") from None
         return values, bool(self.read_object(fo.address(slot, "enabled")))
 
     def read_filter(self, slot: int) -> tuple[Biquad, bool]:
@@ -1110,12 +1135,16 @@ class CanopenDriveAdapter(AdapterBase):
         fo = self._filter_slot(slot)
         values, enabled = self._read_slot(fo, slot)
         try:
+            if fo.enable_subindex is None:  # a block read back disabled: what it holds, as it would run
+                values = self.encoding.enabled(values)
             return self.encoding.applied(values, self.identity.loop_rate_hz), enabled
         except DataError as exc:
             raise DeviceError(f"{self.port}: filter slot {slot} (object 0x{fo.indices[slot]:04X}): {exc}") from None
 
     def stored_form(self, biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
-        """What the drive will run after its own rounding of ``biquad``/``spec``."""
+        """What the drive will run once :meth:`write_filter` stored ``biquad``/``spec``."""
+        if spec is not None:
+            return self._realise(biquad, spec).section
         return self.encoding.stored_form(biquad, spec, self.identity.loop_rate_hz)
 
     def save_filter(self, slot: int) -> tuple[dict, bool]:
@@ -1123,17 +1152,23 @@ class CanopenDriveAdapter(AdapterBase):
         return self._read_slot(self._filter_slot(slot), slot)
 
     def disable_filter(self, slot: int) -> None:
-        """Bypass a slot: its enable sub-index to 0; the coefficients stay stored."""
+        """Bypass a slot: its enable to 0 (or its block's state word to bypass); the coefficients stay stored."""
         fo = self._filter_slot(slot)
+        if fo.enable_subindex is None:
+            values, _ = self._read_slot(fo, slot)
+            self._write_slot(fo, slot, values, False)
+            return
         self.write_object(fo.address(slot, "enabled"), 0)
 
     def restore_filter(self, slot: int, saved: tuple[dict, bool]) -> None:
         values, enabled = saved
         fo = self._filter_slot(slot)
+        if fo.enable_subindex is None:
+            self.write_object(fo.address(slot, "block"), values["block"])  # the block as found, enable and all
+            return
         self._write_slot(fo, slot, values, False)
         if enabled:
             self.write_object(fo.address(slot, "enabled"), 1)
-
 
 
 class _FrameCounter:

@@ -337,7 +337,10 @@ class CanopenDriveFirmware:
             if kind == "rpdo" and cfg.valid:
                 network.subscribe(cfg.cob_id, self._guard(self._rpdo_handler(n)))
         self.node.nmt.state = "INITIALISING"  # boot-up message
-        self.node.nmt.state = "PRE-OPERATIONAL"  # starts the heartbeat if 0x1017 is set
+        if 0x1017 in self.od:
+            self.node.nmt.state = "PRE-OPERATIONAL"  # starts the heartbeat if 0x1017 is set
+        else:
+            self.node.nmt._state = 127  # Pre-operational, no heartbeat to start (canopen would look up 0x1017)
 
     def _guard(self, callback):
         def guarded(can_id, data, timestamp):
@@ -755,8 +758,12 @@ class CanopenDriveFirmware:
                 self._write_abort_option(int(value))
                 return
             if self.desc.filters is not None and index in self.desc.filters.indices:
-                if subindex == self.desc.filters.enable_subindex:
-                    self._apply_filter(self.desc.filters.indices.index(index), bool(value))
+                slot = self.desc.filters.indices.index(index)
+                if self.desc.filters.enable_subindex is None:  # one block, its enable inside
+                    if subindex == self.desc.filters.fields["block"]:
+                        self._apply_filter(slot, None, {"block": bytes(value)})
+                elif subindex == self.desc.filters.enable_subindex:
+                    self._apply_filter(slot, bool(value))
                 return
             if self.desc.has("capture_mapping") and index == self.desc.address("capture_mapping").index:
                 self._write_capture_mapping(subindex, int(value))
@@ -863,10 +870,15 @@ class CanopenDriveFirmware:
             raise SdoAbortedError(ABORT_VALUE) from None
         self.limits_loaded = True
 
-    def _apply_filter(self, slot: int, enabled: bool) -> None:
+    def _apply_filter(self, slot: int, enabled: bool | None, values: dict | None = None) -> None:
+        """Load a slot's section into the drive loop: from its stored fields when its enable is written, or
+        from the block being written (``values``; its state word says ``enabled``)."""
         fo = self.desc.filters
-        values = {name: self._stored(fo.indices[slot], sub) for name, sub in fo.fields.items()}
+        if values is None:
+            values = {name: self._stored(fo.indices[slot], sub) for name, sub in fo.fields.items()}
         try:
+            if enabled is None:
+                enabled = bool(self.encoding.slot_enabled(values))
             biquad = self.encoding.applied(values, self.loop_rate)
         except (DataError, ConfigError):
             raise SdoAbortedError(ABORT_VALUE) from None

@@ -156,13 +156,21 @@ class ModeSpec:
 
 @dataclass(frozen=True)
 class FilterObjects:
-    """Where the drive keeps its filter slots: one record per slot."""
+    """Where the drive keeps its filter slots: one object per slot.
+
+    Each field of the encoding sits at a sub-index of the slot's object; the
+    slot's enable at ``enable_subindex``, or, for an encoding that keeps its
+    enable inside its one value (a ``word_block``: ``fields = { block = 0 }``
+    on an octet-string object), nowhere else (``enable_subindex`` None).
+    """
 
     indices: tuple[int, ...]
-    enable_subindex: int
+    enable_subindex: int | None
     fields: dict[str, int]
 
     def address(self, slot: int, name: str) -> ObjectAddress:
+        if name == "enabled" and self.enable_subindex is None:
+            raise ConfigError("filters.enable_subindex", "this encoding keeps the enable inside its block")
         sub = self.enable_subindex if name == "enabled" else self.fields[name]
         return ObjectAddress(self.indices[slot], sub)
 
@@ -505,9 +513,14 @@ def _filter_objects(table, source) -> FilterObjects | None:
     if not isinstance(table["objects"], list):
         raise ConfigError("filters.objects", "must be a list of object indices", source)
     indices = tuple(parse_address(x, "filters.objects", source).index for x in table["objects"])
-    fields = table.get("fields")
-    if not isinstance(fields, dict) or not all(_is_int(v) and 0 < v < 256 for v in fields.values()):
+    block = table.get("encoding") == "word_block"
+    fields = table.get("fields", {"block": 0} if block else None)
+    if not isinstance(fields, dict) or not fields or not all(_is_int(v) and 0 <= v < 256 for v in fields.values()):
         raise ConfigError("filters.fields", "must map each field to its sub-index, e.g. { b0 = 2, ... }", source)
+    if block:
+        if set(fields) != {"block"}:
+            raise ConfigError("filters.fields", f"a word_block slot is one field, block, got {sorted(fields)}", source)
+        return FilterObjects(indices, None, dict(fields))
     enable = table.get("enable_subindex", 1)
     if not _is_int(enable) or not 0 < enable < 256 or enable in fields.values():
         raise ConfigError("filters.enable_subindex", f"must be a free sub-index 1..255, got {enable!r}", source)

@@ -626,12 +626,20 @@ class FilterEncoding:
         DataError
             The encoding keeps its enable elsewhere, or the block is malformed.
         """
+        return self._with_state(values, enabled=False)
+
+    def enabled(self, values: dict) -> dict:
+        """``"word_block"``: the values with the state word set to run the filter, coefficients kept
+        (what a slot read back disabled would run once enabled)."""
+        return self._with_state(values, enabled=True)
+
+    def _with_state(self, values: dict, enabled: bool) -> dict:
         if self.kind != "word_block":
             raise DataError(f'the "{self.kind}" encoding has no enable of its own; write the slot\'s enable object')
         lay = self.block
         words = lay.unpack(values.get("block"))
-        words[lay.state_word] = (words[lay.state_word] & ~lay.state_mask & 0xFFFF) | \
-                                (lay.disabled_value & lay.state_mask)
+        state = lay.enabled_value if enabled else lay.disabled_value
+        words[lay.state_word] = (words[lay.state_word] & ~lay.state_mask & 0xFFFF) | (state & lay.state_mask)
         return {"block": lay.pack(words)}
 
     # --- physical parameters -----------------------------------------------------------
