@@ -20,6 +20,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from hilident.drivers import declared_modes, load_driver
 from hilident.errors import ConfigError, UsageError
 from hilident.protocol import eds as E
 
@@ -713,6 +714,11 @@ def describe_driver(folder) -> str:
     if transport == "canopen":
         caps, modes, more = _describe_canopen(folder, data, co)
         channels = channels or more
+        try:  # what a session would use: the channels and hilident modes the driver loader derives
+            loaded = load_driver(folder)
+            channels, modes = [c.name for c in loaded.channels], list(declared_modes(loaded))
+        except ConfigError as exc:
+            caps.append(f"not loadable: {exc}")
     elif transport == "modbus":
         mb = data.get("modbus", {})
         modes = list(mb.get("modes", {})) if isinstance(mb, dict) and isinstance(mb.get("modes"), dict) else []
