@@ -236,8 +236,9 @@ def test_cli_new_check_and_verbose_listing(tmp_path, capsys, monkeypatch):
 def test_describe_names_channels_rates_modes_and_capabilities(tmp_path):
     report, _, _ = new(tmp_path, "period_1006_only.eds")
     text = describe_driver(report.folder)
-    assert "channels: position_m, velocity_mps, torque_nm, torque_cmd_nm" in text
-    assert "modes: CST, CSV, CSP" in text
+    # what a session would record and run: the host's set-point channel and the drive's objects; hilident modes
+    assert "channels: excitation, torque_cmd_nm, torque_nm, position_m, velocity_mps" in text
+    assert "modes: torque, velocity, position, torque_injection" in text and "0x6502: csp, csv, cst" in text
     assert "rates: loop 1000.0 Hz" in text and "filter slots: 0" in text
     assert "period 0x1006" in text and "heartbeat consumer 0x1016" in text and "save 0x1010:1" in text
     assert "placeholders (refused on a real port): board.loop_rate_hz" in text

@@ -35,6 +35,9 @@ def check_against_truth(cfg, summary, min_reduction_db=20.0):
         got, want = summary["friction"]["params"], cfg.emulator.friction
         assert abs(got["Fc"] - want.Fc) / want.Fc < 0.10
         assert abs(got["Fv"] - want.Fv) / want.Fv < 0.10
+    if "not_uploaded" in summary["upload"]:  # the drive describes no filter capability: designed, reported
+        assert summary["notch_filters"] and not summary["upload"]["written"]
+        return
     assert summary["upload"]["written"] and summary["upload"]["verified_readback"]
     if min_reduction_db is not None:
         assert summary["verification"]["peak_reduction_db"] >= min_reduction_db
@@ -43,6 +46,8 @@ def check_against_truth(cfg, summary, min_reduction_db=20.0):
 @pytest.mark.parametrize("path", EMULATOR_CONFIGS, ids=lambda p: p.stem)
 def test_every_shipped_emulator_config_runs(path, tmp_path):
     cfg = load_config(path)
+    if cfg.device.acquisition == "streamed":  # played in real time: two excitation periods
+        cfg = replace(cfg, excitation=replace(cfg.excitation, duration_s=2 * cfg.excitation.period_s))
     summary = Session(cfg, tmp_path).run()
     # Only the gantry promises 20 dB: the lecture's 0.225 Hz mode is too slow for REAL32
     # coefficients at a 4 kHz filter rate, and the session says so in a warning.
