@@ -208,3 +208,17 @@ def test_the_notch_goes_into_a_vendor_encoding_and_the_resonance_is_gone(tmp_pat
     assert summary["verification"]["peak_reduction_db"] >= 20.0
     biquad, enabled = session.emulator.drive.filters.read(0)
     assert enabled and biquad.b == tuple(upload["slots"][0]["readback_b"])
+
+
+@pytest.mark.parametrize("save", [False, True])
+def test_parameters_are_stored_only_with_save_and_only_after_verification(tmp_path, save):
+    folder = write_vendor_drive(tmp_path / "drivers", FILTER_DRIVES[0])
+    session = Session(session_config(folder), tmp_path / "out", plots=False, save=save)
+    summary = session.run()
+    fw = session.emulator.server.firmware
+    assert summary["verification"]["peak_reduction_db"] >= 20.0
+    assert summary["upload"]["saved"] is save and fw.saves == int(save)
+    if save:  # what the drive stored is the verified notch
+        stored, enabled = fw.stored_parameters[0]
+        assert enabled and stored.b == tuple(summary["upload"]["slots"][0]["readback_b"])
+        assert "0x1010:1" in summary["upload"]["saved_with"]

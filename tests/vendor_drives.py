@@ -37,6 +37,7 @@ class VendorDrive:
     sync_counter: bool = False
     filters: str = ""  # "", "biquad" (REAL32 a1 a2 b0 b1 b2), "copley" (one octet-string block), "pole_zero" (REAL32 Q pairs)
     abort_connection: bool = True  # 0x6007
+    store: bool = True  # 0x1010:1 store parameters
     vendor: str = "ACME Motion"
     loop_rate_hz: float = 4000.0
     max_sample_rate_hz: float = 1000.0
@@ -60,6 +61,9 @@ def _objects(d: VendorDrive) -> list[tuple]:
         (0x1018, 3, "Revision number", _UINT32, "ro", False, 1),
         (0x1018, 4, "Serial number", _UINT32, "ro", False, 7),
     ]
+    if d.store:
+        objs += [(0x1010, 0, "Highest sub-index supported", _UINT8, "ro", False, 1),
+                 (0x1010, 1, "Save all parameters", _UINT32, "rw", False, 1)]
     if d.period in ("1006", "both"):
         objs.append((0x1006, None, "Communication cycle period", _UINT32, "rw", False, 0))
     if d.sync_counter:

@@ -29,7 +29,7 @@ def _run(args) -> int:
         cfg = replace(cfg, device=replace(cfg.device, allow_fault_reset=True))
     out = Path(args.out) if args.out else Path("runs") / Path(args.config).stem
     session = Session(cfg, out, Progress(enabled=not args.quiet), confirm=_go_ahead(args.yes), dry_run=args.dry_run,
-                      plots=not args.no_plots)
+                      plots=not args.no_plots, save=args.save)
     summary = session.run()
     if args.dry_run:
         print(session.plan.describe())
@@ -44,6 +44,8 @@ def _run(args) -> int:
     red = summary["verification"]["peak_reduction_db"]
     if red is not None:
         print(f"verification: resonance peak reduced by {red:.1f} dB")
+    if summary["upload"].get("saved"):
+        print("saved: the device stored its parameters in non-volatile memory")
     s = summary["stream"]
     print(f"stream: {s['samples']} samples, {s['lost_blocks']} lost blocks, {s['corrupt_frames']} corrupt frames, "
           f"{s['underruns']} underruns")
@@ -246,6 +248,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "(scripted and nightly runs)")
     run.add_argument("--clear-fault", action="store_true", help="clear a fault the device has latched "
                      "(a limit trip, a watchdog) when connecting, as [device] allow_fault_reset = true")
+    run.add_argument("--save", action="store_true", help="once the notches are uploaded, read back and verified, "
+                     "have the device store its parameters in non-volatile memory (they survive a power cycle)")
     run.set_defaults(func=_run)
 
     ide = sub.add_parser("identify", help="identify the plant in a recording (hilident HDF5, CSV or .mat)")

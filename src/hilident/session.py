@@ -165,7 +165,8 @@ class Session:
     """
 
     def __init__(self, cfg: Config, out_dir: str | Path, progress: Progress | None = None,
-                 confirm: Callable[[RunPlan], bool] | None = None, dry_run: bool = False, plots: bool = True):
+                 confirm: Callable[[RunPlan], bool] | None = None, dry_run: bool = False, plots: bool = True,
+                 save: bool = False):
         if cfg.limits is None:
             raise ConfigError(
                 "limits", "is required for a bench run: torque_nm, velocity_mps, position_min_m, position_max_m",
@@ -184,6 +185,7 @@ class Session:
         self.confirm = confirm
         self.dry_run = dry_run
         self.plots = plots
+        self.save = save  # store the device's parameters once the new notches are verified
         self.plan: RunPlan | None = None
         self.lock: DeviceLock | None = None
         self.filters_found: list[dict] = []  # what the filter slots held when the session began
@@ -420,6 +422,7 @@ class Session:
             plant = self._identify(ident, excitation, friction)
             designs, upload = self._notch_step(plant)
             verification = self._verify(excitation, plant, designs)
+            self._save_step(upload, verification)
         except BaseException:
             with endings.shielded():
                 self.safe_stop()
@@ -596,6 +599,24 @@ class Session:
         upload["verified_readback"] = all(matches)
         self._uploaded = True  # from here the device holds the new notches; other bypassed slots stay bypassed
         return designs, upload
+
+    def _save_step(self, upload: dict, verification) -> None:
+        """With ``save``: the device stores its parameters, only after an upload read back and verified."""
+        upload["saved"] = False
+        if not self.save:
+            return
+        if not (upload["written"] and upload["verified_readback"] and verification is not None):
+            upload["not_saved"] = "nothing was saved: the notches were not uploaded, read back and verified"
+            self.warnings.append(upload["not_saved"])
+            return
+        store = getattr(self.adapter, "save_parameters", None)  # transports whose devices can store parameters
+        if store is None:
+            upload["not_saved"] = f"a {self.driver.transport} device has no store-parameters command in hilident"
+            self.warnings.append(upload["not_saved"])
+            return
+        self.progress.step("saving the device's parameters to non-volatile memory")
+        upload["saved_with"] = store()
+        upload["saved"] = True
 
     def _verify(self, excitation: Excitation, plant, designs):
         if not designs or not self.cfg.notch.verify or not self._uploaded:

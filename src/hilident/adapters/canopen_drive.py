@@ -67,7 +67,8 @@ from hilident.filters.notch import NotchSpec
 from hilident.protocol import cia402
 from hilident.protocol.canopen_objects import (
     ABORT_CONNECTION_INDEX, ABORT_CONNECTION_OPTIONS, HEARTBEAT_CONSUMER_INDEX, CanopenDescription, ObjectAddress,
-    REAL32, consumer_entry, encode_si, mapping_entry, numpy_type, pack_frames, parse_consumer_entry, type_bits,
+    REAL32, consumer_entry, encode_si, mapping_entry, numpy_type, pack_frames, parse_address, parse_consumer_entry,
+    type_bits,
 )
 from hilident.protocol.canopen_profile import decode_supported_modes, period_fields
 from hilident.protocol.filter_encoding import FilterEncoding
@@ -81,6 +82,8 @@ _TPDO_BASES = (0x180, 0x280, 0x380, 0x480)
 _ABORT_GENERAL = 0x08000000  # SDO abort code: general error (a transfer the host broke off)
 _TRANSFER_ERRORS = (SdoAbortedError, SdoCommunicationError, can.CanError, OSError)
 _STATE_POLL_S = 0.002
+#: CiA 301 store parameters (0x1010): writing "save" (ASCII, little-endian) stores them in non-volatile memory.
+STORE_SIGNATURE = 0x65766173
 
 
 def _transfer_error(exc: BaseException) -> BaseException | None:
@@ -1159,6 +1162,35 @@ class CanopenDriveAdapter(AdapterBase):
             self._write_slot(fo, slot, values, False)
             return
         self.write_object(fo.address(slot, "enabled"), 0)
+
+    def save_parameters(self) -> str:
+        """Have the drive store its parameters in non-volatile memory (CiA 301 0x1010:1, signature "save").
+
+        ``[canopen.save]`` in the driver description may name another object
+        and value (``object = "0x2F00"``, ``value = 1``) for drives that store
+        by a vendor command.
+
+        Returns
+        -------
+        str
+            What was written, e.g. ``"0x1010:1 (Save all parameters) = 0x65766173"``.
+
+        Raises
+        ------
+        DeviceError
+            The drive has no store object, or refuses the command.
+        """
+        table = self.driver.sections.get("canopen", {}).get("save")
+        if isinstance(table, dict) and "object" in table:
+            addr = parse_address(table["object"], "canopen.save.object", str(self.driver.folder / "driver.toml"))
+            value = table.get("value", STORE_SIGNATURE)
+        elif self.desc.has("store_parameters"):
+            addr, value = self.desc.address("store_parameters"), STORE_SIGNATURE
+        else:
+            raise DeviceError(f"{self.port}: the EDS {self.desc.eds} has no store parameters object (0x1010) and the "
+                              "driver names none ([canopen.save] object): the drive cannot be asked to save")
+        self.write_object(addr, value)
+        return f"{self.describe(addr)} = 0x{int(value):08X}"
 
     def restore_filter(self, slot: int, saved: tuple[dict, bool]) -> None:
         values, enabled = saved

@@ -231,6 +231,8 @@ class CanopenDriveFirmware:
         self.underruns = 0
         self.sync_errors = 0
         self.tpdos_dropped = 0
+        self.saves = 0  # times the host had the parameters stored (0x1010:1 "save")
+        self.stored_parameters: dict = {}  # the filter slots as they were when last stored
         self.dropped: list[tuple[int, int]] = []  # (sample index, COB-ID) of each TPDO the drop fault swallowed
         self.run_start_tick = drive.tick
         self.injected: set[str] = set()
@@ -774,6 +776,7 @@ class CanopenDriveFirmware:
                 self.error_history = []
                 return
             handler = {
+                "store_parameters": lambda: self._store_parameters(int(value)),
                 "controlword": lambda: self.apply_controlword(int(value)),
                 "modes_of_operation": lambda: self._write_mode(int(value)),
                 "cycle_period": lambda: self._write_cycle_period(int(value)),
@@ -834,6 +837,13 @@ class CanopenDriveFirmware:
         if abs(ticks - round(ticks)) > 1e-6 or not 1 <= round(ticks) <= 65535:
             raise SdoAbortedError(ABORT_VALUE)  # the SYNC period must be whole loop ticks
         self.sync_divider = int(round(ticks))
+
+    def _store_parameters(self, value: int) -> None:
+        """0x1010:1: with the signature "save" the drive keeps its parameters (here: the filter slots) as stored."""
+        if value != 0x65766173:
+            raise SdoAbortedError(0x08000020)  # data cannot be transferred or stored (CiA 301)
+        self.stored_parameters = {slot: self.drive.filters.read(slot) for slot in range(len(self.drive.filters.enabled))}
+        self.saves += 1
 
     def _write_interpolation_period(self, value: int | None, exponent: int | None) -> None:
         """0x60C2: the sample period is ``value * 10**exponent`` s; it must be whole loop ticks."""
