@@ -8,11 +8,13 @@ with no sample lost; the host matches TPDOs to SYNCs by their order on the bus.
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from twins import wait_until
 from vendor_drives import FILTER_DRIVES, VendorDrive, write_vendor_drive
 
 from hilident.adapters.canopen_drive import CanopenDriveAdapter
@@ -34,6 +36,8 @@ DRIVES = {
     "narrow": VendorDrive("acme-narrow", entries=4, rpdos=2, period="1006", torque="rated_zero", mode_type=0x5,
                           limits=("max_torque",), sync_counter=True),
     # no 0x6502 default, current instead of torque, IP as the only cyclic mode
+    # no heartbeat producer (0x1017), no heartbeat consumer: node guarding and life guarding instead
+    "guarded": VendorDrive("acme-guarded", heartbeat=False),
     "ip-current": VendorDrive("acme-ip", modes=("pp", "pv", "hm", "ip"), declare_modes=False, torque="current",
                               limits=("max_velocity", "position_limits")),
 }
@@ -222,3 +226,18 @@ def test_parameters_are_stored_only_with_save_and_only_after_verification(tmp_pa
         stored, enabled = fw.stored_parameters[0]
         assert enabled and stored.b == tuple(summary["upload"]["slots"][0]["readback_b"])
         assert "0x1010:1" in summary["upload"]["saved_with"]
+
+
+def test_a_drive_without_heartbeat_is_node_guarded_and_stops_when_the_host_goes_silent(twin):
+    ad, emu = twin("guarded")
+    assert "life guarding 0x100C x 0x100D: 50 ms" in ad.connect_report.device_net
+    ad.configure(FS, "torque")
+    result = ad.stream(np.zeros(500), lambda i, rows: None)
+    assert result.completed and result.stats.lost_samples == 0  # the guard answers kept the link alive
+    ad.enable()
+    assert emu.drive.enabled
+    ad.node.nmt.stop_node_guarding()  # the host dies: no more guard requests, life guarding not disarmed
+    silent = time.monotonic()
+    lifetime_s = 50 * int(emu.server.firmware._stored(0x100D, 0)) / 1000.0
+    stopped = wait_until(lambda: not emu.drive.enabled, lifetime_s + 2.0)
+    assert stopped - silent < lifetime_s + 0.5 and emu.server.firmware.heartbeat_events == 1

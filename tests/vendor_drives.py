@@ -38,6 +38,7 @@ class VendorDrive:
     filters: str = ""  # "", "biquad" (REAL32 a1 a2 b0 b1 b2), "copley" (one octet-string block), "pole_zero" (REAL32 Q pairs)
     abort_connection: bool = True  # 0x6007
     store: bool = True  # 0x1010:1 store parameters
+    heartbeat: bool = True  # 0x1017; without it, node guarding (0x100C, 0x100D)
     vendor: str = "ACME Motion"
     loop_rate_hz: float = 4000.0
     max_sample_rate_hz: float = 1000.0
@@ -52,7 +53,6 @@ def _objects(d: VendorDrive) -> list[tuple]:
         (0x1001, None, "Error register", _UINT8, "ro", True, 0),
         (0x1008, None, "Manufacturer device name", _VSTRING, "const", False, d.name),
         (0x100A, None, "Manufacturer software version", _VSTRING, "const", False, "2.1"),
-        (0x1017, None, "Producer heartbeat time", _UINT16, "rw", False, 0),
         (0x1016, 0, "Number of entries", _UINT8, "ro", False, 1),
         (0x1016, 1, "Consumer heartbeat time 1", _UINT32, "rw", False, 0),
         (0x1018, 0, "Number of entries", _UINT8, "ro", False, 4),
@@ -61,6 +61,11 @@ def _objects(d: VendorDrive) -> list[tuple]:
         (0x1018, 3, "Revision number", _UINT32, "ro", False, 1),
         (0x1018, 4, "Serial number", _UINT32, "ro", False, 7),
     ]
+    if d.heartbeat:
+        objs.append((0x1017, None, "Producer heartbeat time", _UINT16, "rw", False, 0))
+    else:  # node guarding instead (CiA 301)
+        objs += [(0x100C, None, "Guard time", _UINT16, "rw", False, 0),
+                 (0x100D, None, "Life time factor", _UINT8, "rw", False, 0)]
     if d.store:
         objs += [(0x1010, 0, "Highest sub-index supported", _UINT8, "ro", False, 1),
                  (0x1010, 1, "Save all parameters", _UINT32, "rw", False, 1)]

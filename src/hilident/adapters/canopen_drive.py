@@ -84,6 +84,7 @@ _TRANSFER_ERRORS = (SdoAbortedError, SdoCommunicationError, can.CanError, OSErro
 _STATE_POLL_S = 0.002
 #: CiA 301 store parameters (0x1010): writing "save" (ASCII, little-endian) stores them in non-volatile memory.
 STORE_SIGNATURE = 0x65766173
+_GUARD_TIME, _LIFE_TIME_FACTOR = 0x100C, 0x100D  # CiA 301 node guarding
 
 
 def _transfer_error(exc: BaseException) -> BaseException | None:
@@ -208,6 +209,7 @@ class CanopenDriveAdapter(AdapterBase):
         self.connect_report = ConnectReport()
         self.run_fault: dict | None = None  # the first fault event of the current run (the first cause)
         self._host_heartbeat = None  # the periodic task producing the host's heartbeat
+        self._guarding = False  # the host guards the drive (no 0x1017): node guarding requests go out
         self._consumer: ObjectAddress | None = None  # the 0x1016 entry watching the host
         self._in_block_transfer = False  # a block transfer is under way (safe_stop must abort it first)
         self.answered = True  # the drive answered the last safe_stop()
@@ -349,6 +351,19 @@ class CanopenDriveAdapter(AdapterBase):
     def _arm_device_net(self) -> None:
         """Produce the host's heartbeat and have the drive watch it (0x1016, 0x6007 when the EDS has them)."""
         od = self.node.object_dictionary
+        guarding = ""
+        if self._guarding:
+            guard = int(self.read_object(ObjectAddress(_GUARD_TIME, 0)))
+            factor = int(self.read_object(ObjectAddress(_LIFE_TIME_FACTOR, 0)))
+            guarding = f"life guarding 0x100C x 0x100D: {guard} ms x {factor}; "
+        if HEARTBEAT_CONSUMER_INDEX not in od and guarding:
+            net = guarding.rstrip("; ")
+            if ABORT_CONNECTION_INDEX in od:
+                option = self.desc.abort_connection_option
+                self.write_object(ObjectAddress(ABORT_CONNECTION_INDEX, 0), option)
+                net += f"; 0x6007 = {option} ({ABORT_CONNECTION_OPTIONS[option]})"
+            self.connect_report.device_net = net
+            return
         if HEARTBEAT_CONSUMER_INDEX not in od:
             self.connect_report.device_net = (f"none: {self.desc.eds} has no heartbeat consumer (0x1016); the drive "
                                               "does not stop on its own when the host dies")
@@ -362,7 +377,7 @@ class CanopenDriveAdapter(AdapterBase):
         # after the entry: the task's first frame goes out at once and starts the drive's monitoring
         # (CiA 301: a consumer watches from the first heartbeat it receives)
         self._start_host_heartbeat(host, period_s)
-        net = (f"heartbeat consumer {entry}: host node {host}, {time_ms} ms "
+        net = (f"{guarding}heartbeat consumer {entry}: host node {host}, {time_ms} ms "
                f"(host heartbeat every {period_s * 1e3:.0f} ms)")
         if ABORT_CONNECTION_INDEX in od:
             option = self.desc.abort_connection_option
@@ -423,11 +438,16 @@ class CanopenDriveAdapter(AdapterBase):
         if task is not None:
             with contextlib.suppress(Exception):
                 task.stop()
+        if self._guarding:
+            with contextlib.suppress(Exception):
+                self.node.nmt.stop_node_guarding()
 
     def _disarm_device_net(self) -> None:
         entry, self._consumer = self._consumer, None
         if entry is not None:
             self.write_object(entry, 0)
+        if self._guarding:  # life time factor 0: the drive stops life guarding before the requests stop
+            self.write_object(ObjectAddress(_LIFE_TIME_FACTOR, 0), 0)
 
     # --- object access ----------------------------------------------------------------------
 
@@ -586,16 +606,32 @@ class CanopenDriveAdapter(AdapterBase):
             self.desc = d = d.with_supported_modes(self.supported_modes)
         if d.has("sync_overflow"):
             self.sync_overflow = int(self.read("sync_overflow"))
-        if not d.has("heartbeat_time"):
-            raise DeviceError(f"{self.port}: the EDS {d.eds} has no producer heartbeat time (0x1017): hilident "
-                              "watches the drive by its heartbeat")
-        self.write("heartbeat_time", d.heartbeat_ms)
+        od = self.node.object_dictionary
+        if d.has("heartbeat_time"):
+            self.write("heartbeat_time", d.heartbeat_ms)
+            how = f"setting {self.describe(d.address('heartbeat_time'))} to {d.heartbeat_ms} ms"
+        elif _GUARD_TIME in od and _LIFE_TIME_FACTOR in od:
+            self._start_node_guarding()
+            how = f"starting node guarding every {d.heartbeat_ms} ms (the EDS has no 0x1017)"
+        else:
+            raise DeviceError(f"{self.port}: the EDS {d.eds} has neither a producer heartbeat time (0x1017) nor "
+                              "node guarding (0x100C, 0x100D): hilident watches the drive by one of them")
         deadline = time.monotonic() + max(self.timeout_s, 3 * d.heartbeat_ms / 1000.0)
         while self.heartbeat_s is None and time.monotonic() < deadline:
             time.sleep(0.005)
         if self.heartbeat_s is None:
-            raise DeviceError(f"{self.port}: no heartbeat within {self.timeout_s:g} s after setting "
-                              f"{self.describe(d.address('heartbeat_time'))} to {d.heartbeat_ms} ms")
+            raise DeviceError(f"{self.port}: no heartbeat within {self.timeout_s:g} s after {how}")
+
+    def _start_node_guarding(self) -> None:
+        """CiA 301 node guarding for a drive without a heartbeat producer: the host asks for the drive's
+        state every guard time (its answers are watched like heartbeats), and the drive's life guarding
+        (guard time x life time factor) is its net for a host that dies."""
+        guard_ms = self.desc.heartbeat_ms
+        factor = max(2, math.ceil(self.device.host_timeout_s * 1000 / guard_ms))
+        self.write_object(ObjectAddress(_GUARD_TIME, 0), guard_ms)
+        self.write_object(ObjectAddress(_LIFE_TIME_FACTOR, 0), min(255, factor))
+        self._guarding = True
+        self.node.nmt.start_node_guarding(guard_ms / 1000.0)
 
     def _on_heartbeat(self, state: int) -> None:
         self.heartbeat_s = time.monotonic()

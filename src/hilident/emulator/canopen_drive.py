@@ -263,6 +263,9 @@ class CanopenDriveFirmware:
         self.last_tick = 0.0
         self.resumed = 0.0  # monotonic time the clock thread ran again after a stall of the process
         self.host_lost: set[int] = set()  # producers whose heartbeat event fired and that stayed silent since
+        self.guard_toggle = 0  # node guarding: the toggle bit of the next answer
+        self.guard_heard: float | None = None  # bus timestamp of the last guard request (life guarding on)
+        self.guard_lost = False
         self.heartbeat_events = 0
         self.heartbeat_event_wall: float | None = None  # wall time (s) the last heartbeat event fired
         self._on_producer = self._guard(self._on_producer_heartbeat)
@@ -635,8 +638,40 @@ class CanopenDriveFirmware:
                 self.host_lost.discard(node_id)
 
     def on_frame(self, msg) -> None:
-        """Every received frame, after its handlers ran: how far the drive has read the bus."""
+        """Every received frame, after its handlers ran: how far the drive has read the bus.
+
+        Also node guarding (CiA 301), for a drive that has a guard time
+        (0x100C): a remote frame on 0x700 + node id is answered with the NMT
+        state and the toggle bit, and restarts the life guarding.
+        """
+        if msg.is_remote_frame and msg.arbitration_id == 0x700 + self.node.id and 0x100C in self.od:
+            with self.lock:
+                self._answer_guarding(msg.timestamp)
         self.last_frame = (msg.timestamp, time.monotonic())
+
+    def _answer_guarding(self, timestamp: float) -> None:
+        state = {"OPERATIONAL": 5, "STOPPED": 4, "PRE-OPERATIONAL": 127}.get(self.node.nmt.state, 127)
+        self._send(0x700 + self.node.id, bytes([state | self.guard_toggle]))
+        self.guard_toggle ^= 0x80
+        self.guard_heard = timestamp
+        self.guard_lost = False
+
+    def _check_life_guarding(self, now: float) -> None:
+        """Life guarding: no guard request for guard time x life time factor (0x100C x 0x100D) -> the
+        drive has lost its host (EMCY 0x8130, then what 0x6007 says)."""
+        if self.guard_heard is None or self.guard_lost or 0x100D not in self.od:
+            return
+        lifetime_s = int(self._stored(0x100C, 0)) * int(self._stored(0x100D, 0)) / 1000.0
+        if lifetime_s <= 0:
+            return
+        deadline = self.guard_heard + lifetime_s
+        last_stamp, last_handled = self.last_frame
+        idle = now - max(last_handled, self.resumed) > IDLE_S
+        if last_stamp > deadline or (time.time() > deadline and idle):
+            self.guard_lost = True
+            self.heartbeat_events += 1
+            self.heartbeat_event_wall = time.time()
+            self._abort_connection()
 
     def _check_consumers(self, now: float) -> None:
         """The heartbeat event: a watched producer silent for longer than its consumer time.
@@ -1011,6 +1046,7 @@ class CanopenDriveFirmware:
             self.last_tick = now
             if self.consumers:
                 self._check_consumers(now)
+            self._check_life_guarding(now)
             if self.state is cia402.State.OPERATION_ENABLED:
                 if self.table_state == TableState.PLAYING:
                     self.advance_table(now)
