@@ -52,6 +52,7 @@ standard drive lacks.
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import subprocess
 import sys
@@ -251,12 +252,20 @@ def find_sync_rate(setup: Setup, duration: float, sample_rate: float, resolution
     return good, trials
 
 
+def machine_load() -> str:
+    """The load average over 1 and 5 minutes and the CPU count: the trials share the machine."""
+    one, five, _ = os.getloadavg()
+    return f"load average {one:.2f} (1 min), {five:.2f} (5 min) on {os.cpu_count()} CPUs"
+
+
 def fixed_rate_trial(driver: str, rate: float, duration: float) -> Trial:
     """``rate`` SYNC/s in real time for ``duration`` s, the drive in its own process behind socketcand."""
     setup = Setup("socketcand", driver)
+    print(f"  before: {machine_load()}", flush=True)
     try:
         return streaming_trial(setup, None, duration, rate)
     finally:
+        print(f"  after:  {machine_load()}", flush=True)
         setup.close()
 
 
@@ -375,6 +384,8 @@ def main(argv=None) -> int:
         print(f"\n== fixed rate: {args.driver} ==", flush=True)
         fixed = fixed_rate_trial(args.driver, args.fixed_rate, args.fixed_duration)
         print_fixed(args.driver, fixed, args.fixed_duration)
+    if "search" in parts:
+        print(f"\nsearch starts at {machine_load()}", flush=True)
     rows = {}  # (driver, setup) -> [SYNC/s held, trials, SDO, buffered, TPDO matching]
     drivers = _names(args.search_drivers) + [args.driver]
     drivers = list(dict.fromkeys(drivers))
