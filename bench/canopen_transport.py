@@ -394,7 +394,7 @@ def main(argv=None) -> int:
             wanted = ("search" in parts) or ("table" in parts and driver == args.driver)
             if not wanted:
                 continue
-            print(f"\n== {driver}, {kind} ==", flush=True)
+            print(f"\n== {driver}, {kind} ({machine_load()}) ==", flush=True)
             setup = Setup(kind, driver)
             row = rows.setdefault((driver, kind), ["-", "-", "-", "-", "-"])
             row[4] = "counter" if setup.adapter.desc.counted else "order"
@@ -426,4 +426,8 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    try:
+        sys.exit(main())
+    except HilidentError as exc:  # a driver that is not there, a drive that does not answer: one line
+        print(f"canopen_transport: {exc}", file=sys.stderr)
+        sys.exit(1)
