@@ -57,7 +57,6 @@ import re
 import subprocess
 import sys
 import time
-
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -194,7 +193,7 @@ def streaming_trial(setup: Setup, rate: float | None, duration: float, sample_ra
     ad.configure(sample_rate, "torque")
     ad.sync_rate_hz = rate
     rate = rate or ad.sample_rate_hz
-    n = int(round(rate * duration))
+    n = round(rate * duration)
     x = 0.5 * np.sin(2 * np.pi * 3.0 * np.arange(n) / ad.sample_rate_hz)
     count = [0]
 
@@ -269,9 +268,13 @@ def fixed_rate_trial(driver: str, rate: float, duration: float) -> Trial:
         setup.close()
 
 
+def passed(t: Trial) -> bool:
+    """The fixed-rate criterion: nothing lost, every sample home, the run not broken off."""
+    return t.lost_samples == 0 and t.lost_frames == 0 and t.samples == t.asked and not t.note
+
+
 def print_fixed(driver: str, t: Trial, duration: float) -> None:
-    verdict = "PASS" if t.lost_samples == 0 and t.lost_frames == 0 and t.samples == t.asked and not t.note \
-        else "FAIL"
+    verdict = "PASS" if passed(t) else "FAIL"
     print(f"{driver}, socketcand, {t.rate:g} SYNC/s for {duration:g} s (real time, drive in its own process):\n"
           f"  samples {t.samples} of {t.asked}, lost samples {t.lost_samples}, lost frames {t.lost_frames}, "
           f"late frames {t.late}, corrupt frames {t.corrupt}\n"
@@ -411,8 +414,7 @@ def main(argv=None) -> int:
                 setup.close()
     print("\n== summary ==")
     if fixed is not None:
-        verdict = "PASS" if fixed.lost_samples == 0 and fixed.lost_frames == 0 and fixed.samples == fixed.asked \
-            and not fixed.note else "FAIL"
+        verdict = "PASS" if passed(fixed) else "FAIL"
         print(f"fixed rate, {args.driver}, socketcand, {fixed.rate:g} SYNC/s x {args.fixed_duration:g} s: "
               f"{fixed.samples}/{fixed.asked} samples, lost {fixed.lost_samples} samples / {fixed.lost_frames} frames, "
               f"sync_late {fixed.late_syncs} (worst {fixed.worst_late_ms:.2f} ms), "
@@ -422,7 +424,7 @@ def main(argv=None) -> int:
               f"{'SDO block down/up, segmented down/up kB/s':42s} buffered {args.capture_s:g} s: run, lag")
         for (driver, kind), (best, n, sdo, cap, matching) in rows.items():
             print(f"{driver:16s} {matching:8s} {kind:10s} {best:>11s} {n:>6s}   {sdo:42s} {cap}")
-    return 0
+    return 1 if fixed is not None and not passed(fixed) else 0
 
 
 if __name__ == "__main__":
