@@ -172,6 +172,14 @@ def run_streamed(ad, x: np.ndarray, sink, progress=None) -> RunResult:
             top = max(top, k)
         return top
 
+    def note_late_syncs() -> None:
+        """The ``sync_late`` event (once): how many SYNCs went out more than a period late, the worst in s."""
+        if late_syncs and not any(e["kind"] == "sync_late" for e in events):
+            events.append({"kind": "sync_late", "sample_index": 0, "value": float(late_syncs),
+                           "worst_s": float(worst_late),
+                           "message": f"{late_syncs} SYNC(s) sent more than one period late "
+                                      f"(worst {worst_late * 1e3:.2f} ms)"})
+
     for cob in frames:
         ad.network.subscribe(cob, on_tpdo)
     late_syncs, worst_late = 0, 0.0
@@ -237,10 +245,7 @@ def run_streamed(ad, x: np.ndarray, sink, progress=None) -> RunResult:
                     finalize(sent - window)
             wait = t0 + sent * period - time.perf_counter()
             time.sleep(min(max(wait, 0.0), 0.005) if sent < n and fault is None else 0.002)
-        if late_syncs:
-            events.append({"kind": "sync_late", "sample_index": 0, "value": float(late_syncs),
-                           "message": f"{late_syncs} SYNC(s) sent more than one period late "
-                                      f"(worst {worst_late * 1e3:.2f} ms)"})
+        note_late_syncs()
         if fault is None and not counted:
             unanswered = sent - 1 - answered["set"]
             if unanswered > 0:
@@ -257,6 +262,7 @@ def run_streamed(ad, x: np.ndarray, sink, progress=None) -> RunResult:
                                "message": f"the drive saw {sync_errors} SYNC counter jump(s)"})
         result.completed = fault is None
     except BaseException:
+        note_late_syncs()  # a run that broke off says how late its SYNCs went out too
         try:
             drain(sent)
             finalize(sent - window)  # long overdue: lost
