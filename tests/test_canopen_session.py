@@ -33,7 +33,7 @@ def short_config(acquisition="buffered", time_scale=20.0, period_s=1.0, duration
 
 def test_streamed_session_on_the_fixed_point_drive(tmp_path):
     # the host sends every set-point and SYNC in real time; the notch goes into Q2.29 INTEGER32 slots
-    cfg = short_config("streamed", period_s=2.0, duration_s=4.0)
+    cfg = short_config("streamed")
     cfg = replace(cfg, device=replace(cfg.device, driver="canopen-servo-fixed"))
     session = Session(cfg, tmp_path)
     summary = session.run()
@@ -44,13 +44,14 @@ def test_streamed_session_on_the_fixed_point_drive(tmp_path):
     assert summary["upload"]["verified_readback"] and summary["upload"]["slots"][0]["matches"]
     assert summary["verification"]["peak_reduction_db"] >= 20.0
     stream = summary["stream"]
-    assert stream["samples"] == 2 * 6000 and stream["lost_samples"] == 0 and stream["underruns"] == 0
+    n = read_run(tmp_path / "identification.h5").n_samples
+    assert stream["samples"] == 2 * n and stream["lost_samples"] == 0 and stream["underruns"] == 0
     biquad, enabled = session.emulator.drive.filters.read(0)
     assert enabled and biquad.b == tuple(summary["upload"]["slots"][0]["readback_b"])
     assert not session.emulator.drive.enabled
     for name in summary["recordings"]:
         run = read_run(tmp_path / name)
-        assert run.complete and np.array_equal(run.samples["sample_index"], np.arange(6000))
+        assert run.complete and np.array_equal(run.samples["sample_index"], np.arange(n))
 
 
 def _aborted(tmp_path, cfg, match, error=DeviceError):
