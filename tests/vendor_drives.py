@@ -51,6 +51,7 @@ def _objects(d: VendorDrive) -> list[tuple]:
     objs: list[tuple] = [
         (0x1000, None, "Device type", _UINT32, "ro", False, 0x00020192),
         (0x1001, None, "Error register", _UINT8, "ro", True, 0),
+        (0x1005, None, "COB-ID SYNC", _UINT32, "rw", False, 0x80),
         (0x1008, None, "Manufacturer device name", _VSTRING, "const", False, d.name),
         (0x100A, None, "Manufacturer software version", _VSTRING, "const", False, "2.1"),
         (0x1016, 0, "Number of entries", _UINT8, "ro", False, 1),
