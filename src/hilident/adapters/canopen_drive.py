@@ -70,7 +70,7 @@ from hilident.protocol.canopen_objects import (
     REAL32, consumer_entry, encode_si, mapping_entry, numpy_type, pack_frames, parse_address, parse_consumer_entry,
     type_bits,
 )
-from hilident.protocol.canopen_profile import decode_supported_modes, period_fields
+from hilident.protocol.canopen_profile import decode_supported_modes, mapping_capacity, period_fields
 from hilident.protocol.filter_encoding import FilterEncoding
 
 __all__ = ["CanopenDriveAdapter", "DriveIdentity", "ChannelCodec", "LIMIT_TRIP_CODES"]
@@ -879,9 +879,8 @@ class CanopenDriveAdapter(AdapterBase):
     def pdo_slots(self, kind: str) -> list[PdoSlot]:
         """The RPDOs (``kind = "rpdo"``) or TPDOs the EDS declares, with their mapping capacity.
 
-        A PDO counts when both its communication and its mapping object exist.
-        Its capacity is the number of mapping sub-indices the EDS declares, or
-        the highest count sub-index 0 accepts, whichever is larger (at most 64).
+        A PDO counts when both its communication and its mapping object exist;
+        its capacity is :func:`~hilident.protocol.canopen_profile.mapping_capacity`.
         The COB-ID is the predefined connection set's for PDOs 1-4 and the
         EDS default for the others.
         """
@@ -891,11 +890,7 @@ class CanopenDriveAdapter(AdapterBase):
         for n in range(512):
             if comm_base + n not in od or map_base + n not in od:
                 continue
-            mapping = od[map_base + n]
-            declared = len([sub for sub in getattr(mapping, "subindices", {}) if sub > 0])
-            count = mapping[0] if 0 in getattr(mapping, "subindices", {}) else None
-            high = count.max if count is not None and isinstance(count.max, int) else 0
-            capacity = min(64, max(declared, high))
+            capacity = mapping_capacity(od[map_base + n])
             if n < 4:
                 cob = cob_base + 0x100 * n + self.node.id
             else:
@@ -912,7 +907,6 @@ class CanopenDriveAdapter(AdapterBase):
         sample counter, the set-point counter); otherwise the TPDOs carry the
         channels only and the host matches them to SYNCs by their order.
         """
-        node_id = self.node.id
         od = self.node.object_dictionary
         counted = self.desc.counted
         mapped = [c for c in codecs if not c.on_host]

@@ -61,11 +61,11 @@ from hilident.errors import ConfigError, DataError
 from hilident.protocol import cia402
 from hilident.protocol.canopen_objects import (
     ABORT_CONNECTION_INDEX, DOMAIN, HEARTBEAT_CONSUMER_INDEX, NUMERIC_TYPES, REAL32, TABLE_START, TABLE_STOP,
-    CanopenDescription, ObjectAddress, TableState, encode_si, numpy_type, parse_consumer_entry, parse_mapping_entry,
-    record_dtype, type_bits,
+    CanopenDescription, ObjectAddress, TableState, default_supported_modes, encode_si, numpy_type,
+    parse_consumer_entry, parse_mapping_entry, record_dtype, type_bits,
 )
 from hilident.protocol.canopen_profile import (
-    CYCLIC_MODES, MODE_CODES, SETPOINT_OF_MODE, decode_supported_modes, encode_supported_modes, mode_name_of_code,
+    CYCLIC_MODES, MODE_CODES, SETPOINT_OF_MODE, encode_supported_modes, mapping_capacity, mode_name_of_code,
     period_from_fields,
 )
 from hilident.protocol.filter_encoding import FilterEncoding
@@ -126,24 +126,15 @@ class PdoConfig:
 def _supported_modes(desc: CanopenDescription, od, emulator: dict) -> tuple[str, ...]:
     """The modes this drive runs: 0x6502's EDS default, else the driver's ``[emulator] supported_modes``,
     else every cyclic mode whose set-point object the EDS has."""
-    addr = desc.objects.get("supported_modes")
-    var = od.get_variable(addr.index, addr.subindex) if addr is not None else None
-    if var is not None and isinstance(var.default, int) and var.default > 0:
-        return decode_supported_modes(var.default)
+    declared = default_supported_modes(od, desc.objects)
+    if declared is not None:
+        return declared
     listed = emulator.get("supported_modes") if isinstance(emulator, dict) else None
     if isinstance(listed, list) and all(m in MODE_CODES for m in listed):
         return tuple(listed)
     if desc.explicit_modes:
         return tuple(m for m in MODE_CODES if MODE_CODES[m] in {spec.code for spec in desc.modes.values()})
     return tuple(m for m in CYCLIC_MODES if SETPOINT_OF_MODE[m] in desc.objects)
-
-
-def _mapping_capacity(mapping) -> int:
-    """How many objects a PDO mapping record takes: its declared sub-indices or sub-index 0's maximum."""
-    subs = getattr(mapping, "subindices", {})
-    declared = len([sub for sub in subs if sub > 0])
-    high = subs[0].max if 0 in subs and isinstance(subs[0].max, int) else 0
-    return min(64, max(declared, high))
 
 
 def _error_register(code: int) -> int:
@@ -310,7 +301,7 @@ class CanopenDriveFirmware:
 
     def _set_mapping(self, kind: str, n: int, cfg: PdoConfig, count: int) -> None:
         mapping = (0x1600 if kind == "rpdo" else 0x1A00) + n
-        if count > _mapping_capacity(self.od[mapping]):
+        if count > mapping_capacity(self.od[mapping]):
             raise SdoAbortedError(ABORT_PDO_LENGTH)
         entries, bits = [], 0
         for sub in range(1, count + 1):

@@ -38,7 +38,7 @@ __all__ = [
     "numpy_type", "record_dtype", "encode_si", "decode_raw", "mapping_entry", "parse_mapping_entry",
     "pack_frames", "TableState", "TABLE_START", "TABLE_STOP", "ROLE_SCALING", "parse_address",
     "ABORT_CONNECTION_OPTIONS", "HEARTBEAT_CONSUMER_INDEX", "ABORT_CONNECTION_INDEX", "consumer_entry",
-    "parse_consumer_entry", "COUNTER_ROLES", "REQUIRED_ROLES",
+    "parse_consumer_entry", "COUNTER_ROLES", "REQUIRED_ROLES", "default_supported_modes",
 ]
 
 # CiA 301 data type codes
@@ -329,7 +329,7 @@ class CanopenDescription:
             modes[name] = ModeSpec(name, spec["code"], spec["setpoint"], str(spec.get("hold", "")))
         explicit = bool(modes)
         if not modes:
-            modes = profile.standard_modes(objects, _default_supported(od, objects), preference)
+            modes = profile.standard_modes(objects, default_supported_modes(od, objects), preference)
 
         scaling = _table(co, "scaling", source)
         units = {}
@@ -481,7 +481,7 @@ class CanopenDescription:
         return None
 
 
-def _default_supported(od, objects: dict) -> tuple[str, ...] | None:
+def default_supported_modes(od, objects: dict) -> tuple[str, ...] | None:
     """Mode names of 0x6502's EDS default, or None when the EDS gives none (the drive is asked at connect)."""
     from hilident.protocol.canopen_profile import decode_supported_modes
 

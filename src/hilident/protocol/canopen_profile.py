@@ -32,7 +32,7 @@ from hilident.protocol.canopen_objects import ModeSpec, ObjectAddress
 
 __all__ = [
     "STANDARD_OBJECTS", "MODE_CODES", "MODE_BITS", "CYCLIC_MODES", "SETPOINT_OF_MODE", "CHANNEL_UNITS", "decode_supported_modes",
-    "encode_supported_modes", "standard_objects", "standard_modes", "standard_channels", "period_fields",
+    "encode_supported_modes", "mapping_capacity", "standard_objects", "standard_modes", "standard_channels", "period_fields",
     "period_from_fields", "mode_name_of_code",
 ]
 
@@ -64,9 +64,9 @@ STANDARD_OBJECTS: dict[str, ObjectAddress] = {
 }
 
 #: CiA 402 modes of operation (0x6060 values).
-MODE_CODES = {"pp": 1, "vl": 2, "pv": 3, "tq": 4, "hm": 6, "ip": 7, "csp": 8, "csv": 9, "cst": 10}
+MODE_CODES = {"pp": 1, "vl": 2, "pv": 3, "tq": 4, "hm": 6, "ip": 7, "csp": 8, "csv": 9, "cst": 10, "cstca": 11}
 #: Bits of the supported drive modes object 0x6502.
-MODE_BITS = {"pp": 0, "vl": 1, "pv": 2, "tq": 3, "hm": 5, "ip": 6, "csp": 7, "csv": 8, "cst": 9}
+MODE_BITS = {"pp": 0, "vl": 1, "pv": 2, "tq": 3, "hm": 5, "ip": 6, "csp": 7, "csv": 8, "cst": 9, "cstca": 10}
 #: Modes in which the drive takes a new set-point every SYNC: the ones a host-streamed run uses.
 CYCLIC_MODES = ("cst", "csv", "csp", "ip")
 #: The set-point object of each cyclic mode.
@@ -159,6 +159,16 @@ def standard_channels(objects: dict[str, ObjectAddress], current_as_torque: bool
     if "velocity_actual" in objects:
         channels["velocity_mps"] = "velocity_actual"
     return channels
+
+
+def mapping_capacity(mapping) -> int:
+    """How many objects a PDO mapping record (a canopen ``ODRecord``) takes: the highest sub-index its EDS
+    declares, or the highest count sub-index 0 accepts, whichever is larger (CiA 301: at most 64)."""
+    subs = getattr(mapping, "subindices", {})
+    declared = max((sub for sub in subs if sub > 0), default=0)
+    head = subs.get(0)
+    high = head.max if head is not None and isinstance(head.max, int) else 0
+    return min(64, max(declared, high))
 
 
 def period_fields(period_s: float) -> tuple[int, int]:

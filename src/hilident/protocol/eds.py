@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from hilident.errors import ConfigError
+from hilident.protocol import canopen_profile as profile
 
 __all__ = [
     "load_eds", "load_eds_text", "inspect_eds", "EdsSummary", "ObjectInfo", "PeriodInfo", "ROLES", "MODE_BITS",
@@ -83,15 +84,14 @@ _PROFILE_CHECKED = ("modes_of_operation", "modes_display", "controlword", "statu
                     "velocity_actual", "torque_actual", "torque_offset")
 _PROFILE_EXTRA = {0x6073: ("max_current", UNSIGNED16)}  # checked, but not a role the host uses
 
-#: 0x6502 bits (CiA 402) -> mode name.
-MODE_BITS = {0: "pp", 1: "vl", 2: "pv", 3: "tq", 5: "hm", 6: "ip", 7: "csp", 8: "csv", 9: "cst", 10: "cstca"}
+#: 0x6502 bits (CiA 402) -> mode name (the profile's table, by bit).
+MODE_BITS = {bit: name for name, bit in profile.MODE_BITS.items()}
 #: Mode name -> mode of operation code written to 0x6060.
-MODE_CODES = {"pp": 1, "vl": 2, "pv": 3, "tq": 4, "hm": 6, "ip": 7, "csp": 8, "csv": 9, "cst": 10, "cstca": 11}
+MODE_CODES = profile.MODE_CODES
 #: Cyclic modes a host can stream set-points in, in hilident's preference order (torque excitation first).
-CYCLIC_MODES = ("cst", "csv", "csp", "ip")
+CYCLIC_MODES = profile.CYCLIC_MODES
 #: Cyclic mode -> standard role of its set-point object.
-MODE_SETPOINTS = {"cst": "target_torque", "csv": "target_velocity", "csp": "target_position",
-                  "ip": "interpolation_data"}
+MODE_SETPOINTS = profile.SETPOINT_OF_MODE
 
 _FILTER_WORDS = ("notch", "filt", "biquad", "anti-resonance", "antiresonance", "resonance")
 _RECORDER_WORDS = ("recorder", "recording", "trace", "scope", "capture", "logging")
@@ -793,7 +793,7 @@ def inspect_eds(od) -> EdsSummary:
 def _supported_modes(var: ObjectInfo | None) -> tuple[str, ...] | None:
     if var is None or not isinstance(var.default, int) or isinstance(var.default, bool):
         return None
-    return tuple(name for bit, name in sorted(MODE_BITS.items()) if var.default >> bit & 1)
+    return profile.decode_supported_modes(var.default)
 
 
 def _pdo_entries(od, comm_base: int, map_base: int) -> tuple[tuple[int, ...], bool]:
@@ -803,11 +803,8 @@ def _pdo_entries(od, comm_base: int, map_base: int) -> tuple[tuple[int, ...], bo
         comm, mapping = od.indices.get(comm_base + n), od.indices.get(map_base + n)
         if comm is None or mapping is None:
             continue
-        subs = getattr(mapping, "subindices", {})
-        declared = max((s for s in subs if s > 0), default=0)
-        head = subs.get(0)
-        high = head.max if head is not None and isinstance(head.max, int) else 0
-        counts.append(max(declared, min(high, 64)))
+        counts.append(profile.mapping_capacity(mapping))
+        head = getattr(mapping, "subindices", {}).get(0)
         writable_all = writable_all and head is not None and writable(head.access_type or "ro")
     return tuple(counts), writable_all
 
