@@ -4,11 +4,13 @@
     python bench/drives.py ../shared/drives/eds
 
 For each file: ``hilident drivers new`` writes a driver folder (no hand edit),
-``hilident drivers check`` validates it, and, when the drive has a cyclic mode
-that can carry a torque excitation (CST, or the torque offset 0x60B2 in CSP,
-IP or CSV), the gantry session of ``configs/emulated-canopen-gantry.toml`` runs
-against the drive's twin, built from that folder alone, host-streamed: the
-friction test (when the drive has CSV) and the identification run. Printed per
+``hilident drivers check`` validates it, and, when the drive has any cyclic
+mode, the gantry session of ``configs/emulated-canopen-gantry.toml`` runs
+against the drive's twin, built from that folder alone, host-streamed. The
+excitation enters where the drive lets it: torque (CST), the torque offset
+0x60B2 while CSP, IP or CSV holds the axis, else a velocity (CSV) or position
+(CSP, IP) set-point perturbation in closed loop. The friction test runs in CSV,
+or as a position profile in CSP or IP. Printed per
 drive: the modes used, the TPDOs mapped, the samples lost, the resonance and
 friction errors against the twin's truth, the notch (uploaded and achieved, or
 why not), and the time taken.
@@ -32,13 +34,21 @@ ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "configs" / "emulated-canopen-gantry.toml"
 
 
+#: Set-point perturbations for drives that take no torque excitation: a few percent of the speed limit and a
+#: tenth of a millimetre, enough for a coherent response in the gantry's band.
+SETPOINT_AMPLITUDES = {"velocity": ("amplitude_mps", 0.05), "position": ("amplitude_m", 0.002)}
+
+
 def _session_config(folder: Path, mode: str, friction: bool, duration_s: float):
     from hilident.config import load_config
 
     cfg = load_config(CONFIG)
+    excitation = replace(cfg.excitation, mode=mode, duration_s=duration_s)
+    if mode in SETPOINT_AMPLITUDES:
+        key, value = SETPOINT_AMPLITUDES[mode]
+        excitation = replace(excitation, **{key: value})
     return replace(cfg, device=replace(cfg.device, driver=str(folder), acquisition="streamed"),
-                   friction_test=replace(cfg.friction_test, enabled=friction),
-                   excitation=replace(cfg.excitation, mode=mode, duration_s=duration_s))
+                   friction_test=replace(cfg.friction_test, enabled=friction), excitation=excitation)
 
 
 def _truth(cfg):
@@ -56,19 +66,23 @@ def run_drive(folder: Path, out: Path, duration_s: float) -> dict:
 
     driver = load_driver(folder)
     modes = declared_modes(driver)
-    mode = next((m for m in ("torque", "torque_injection") if m in modes), None)
+    mode = next((m for m in ("torque", "torque_injection", "velocity", "position") if m in modes), None)
     row = {"modes": ", ".join(modes) or "none"}
     if mode is None:
-        row["result"] = "not run: no torque excitation (needs CST, or 0x60B2 with CSP/IP/CSV)"
+        row["result"] = "not run: no cyclic mode (CST, CSV, CSP or IP)"
         return row
-    friction = "velocity" in modes and any(c.name == "torque_nm" for c in driver.channels)
+    friction = bool({"velocity", "position"} & set(modes)) and any(c.name == "torque_nm" for c in driver.channels)
     cfg = _session_config(folder, mode, friction, duration_s)
     session = Session(cfg, out, plots=False)
     summary = session.run()
     true_f, true_friction = _truth(cfg)
     ad = session.adapter
-    code = ad.desc.modes[mode].code
-    row["modes"] = f"{mode} ({(mode_name_of_code(code) or str(code)).upper()})" + (", friction in CSV" if friction else "")
+
+    def named(m):
+        code = ad.desc.modes[m].code
+        return (mode_name_of_code(code) or str(code)).upper()
+
+    row["modes"] = f"{mode} ({named(mode)})" + (f", friction in {named(session.friction_mode)}" if friction else "")
     stream = summary["stream"]
     row["lost"] = stream.get("lost_samples", 0)
     found = summary["resonances"]
@@ -79,7 +93,7 @@ def run_drive(folder: Path, out: Path, duration_s: float) -> dict:
         row["friction"] = (f"Fc {100 * (got['Fc'] - true_friction.Fc) / true_friction.Fc:+.1f} %, "
                            f"Fv {100 * (got['Fv'] - true_friction.Fv) / true_friction.Fv:+.1f} %")
     else:
-        row["friction"] = "no CSV: not measured" if not friction else "-"
+        row["friction"] = "no torque channel: not measured" if not friction else "-"
     upload = summary["upload"]
     if upload.get("written"):
         reduction = summary["verification"]["peak_reduction_db"]

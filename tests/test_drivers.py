@@ -145,9 +145,13 @@ def test_modes_and_slots_must_be_declared(tmp_path):
     with pytest.raises(ConfigError) as err:
         check_run_against_driver(_gantry(), driver)  # excitation.mode = "torque"
     assert err.value.key == "excitation.mode" and "torque_injection, position" in str(err.value)
+    # no velocity mode: the friction legs run as a position profile
+    check_run_against_driver(_gantry(excitation={"mode": "torque_injection"}), driver)
+    del sections["canopen"]["modes"]["position"]
+    driver = dataclasses.replace(base, sections=sections)
     with pytest.raises(ConfigError) as err:
         check_run_against_driver(_gantry(excitation={"mode": "torque_injection"}), driver)
-    assert err.value.key == "friction_test.enabled"
+    assert err.value.key == "friction_test.enabled" and "velocity (or position)" in str(err.value)
     check_run_against_driver(_gantry(excitation={"mode": "torque_injection"}, friction_test={"enabled": False}), driver)
     # a device without filter slots is no error: the session designs the notch and reports it, not uploaded
     check_run_against_driver(_gantry(), dataclasses.replace(find_driver("myrio-board"), filter_slots=0))

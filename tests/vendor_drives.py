@@ -29,7 +29,10 @@ class VendorDrive:
     tpdos: int = 4
     entries: int = 8  # mapping capacity of every PDO
     period: str = "60C2"  # "60C2", "1006", "both" or "none"
-    torque: str = "rated"  # "rated" (0x6076 = 1000 mN*m), "rated_zero" (0x6076 = 0), "absent" (no 0x6076), "current"
+    # "rated" (0x6076 = 1000 mN*m), "rated_zero" (0x6076 = 0), "absent" (no 0x6076), "current", or "effort" (no
+    # standard torque or current object: a vendor "Control effort" 0x2022, per mille of the rated torque)
+    torque: str = "rated"
+    unmappable: tuple[int, ...] = ()  # standard objects the EDS declares not PDO-mappable (e.g. 0x607A)
     mode_type: int = _INT8  # 0x6060's data type
     mode_access: str = "rw"
     limits: tuple[str, ...] = ("max_torque", "max_velocity", "position_limits")
@@ -98,6 +101,8 @@ def _objects(d: VendorDrive) -> list[tuple]:
     if d.torque == "current":
         objs += [(0x6075, None, "Motor rated current", _UINT32, "rw", False, 4000),
                  (0x6078, None, "Current actual value", _INT16, "ro", True, 0)]
+    elif d.torque == "effort":
+        objs.append((0x2022, None, "Control effort", _INT16, "ro", True, 0))
     else:
         objs += [(0x6071, None, "Target torque", _INT16, "rww", True, 0),
                  (0x6074, None, "Torque demand", _INT16, "ro", True, 0),
@@ -127,7 +132,7 @@ def _objects(d: VendorDrive) -> list[tuple]:
     objs.append((0x60FF, None, "Target velocity", _INT32, "rww", True, 0))
     objs.append((0x6502, None, "Supported drive modes", _UINT32, "ro", False,
                  encode_supported_modes(d.modes) if d.declare_modes else None))
-    return objs
+    return [o[:5] + (False,) + o[6:] if o[0] in d.unmappable else o for o in objs]
 
 
 _REAL32, _OCTETS = 0x8, 0xA
@@ -222,10 +227,12 @@ def _variable_lines(obj: tuple) -> list[str]:
 def driver_toml(d: VendorDrive) -> str:
     """The short driver.toml of ``d``: mechanics, torque reference and mode preference only."""
     scaling = ["position_unit_m = 1e-7", "velocity_unit_mps = 1e-6"]
-    if d.torque in ("rated_zero", "absent"):
+    if d.torque in ("rated_zero", "absent", "effort"):
         scaling.append("rated_torque_nm = 1.0")
     if d.torque == "current":
         scaling.append("torque_constant_nm_per_a = 0.25")
+    if d.torque == "effort":
+        scaling.append('\n[canopen.objects]\ntorque_demand = "0x2022"  # the vendor\'s control effort')
     emulator = "" if d.declare_modes else f"\n[emulator]\nsupported_modes = {list(d.modes)!r}\n".replace("'", '"')
     if d.filters:
         emulator += "\n" + FILTERS[d.filters][1]

@@ -109,11 +109,24 @@ class FrictionTestConfig:
     velocity_deadband_mps: float = _spec(0.0, ge=0, doc="no friction compensation below this speed")
 
 
+#: Where an excitation can enter, and the key of its amplitude (N·m, m/s, m).
+AMPLITUDE_KEY_OF_MODE = {"torque_injection": "amplitude_nm", "torque": "amplitude_nm",
+                         "velocity": "amplitude_mps", "position": "amplitude_m"}
+EXCITATION_MODES = tuple(AMPLITUDE_KEY_OF_MODE)
+#: Modes whose excitation is a set-point perturbation of a loop the drive closes.
+SETPOINT_MODES = ("velocity", "position")
+
+
 @dataclass(frozen=True)
 class ExcitationConfig:
     kind: str = _spec("multisine", choices=("sine", "square", "chirp", "noise", "prbs", "multisine", "step"))
-    mode: str = _spec("torque_injection", choices=("torque_injection", "torque"), doc="where the excitation enters")
-    amplitude_nm: float = _spec(1.0, gt=0, doc="peak torque of the excitation (noise: rms)")
+    mode: str = _spec("torque_injection", choices=EXCITATION_MODES,
+                      doc="where the excitation enters: torque_injection (added to the torque of a loop holding the "
+                          "axis), torque (open loop), velocity or position (a set-point perturbation in closed loop)")
+    amplitude_nm: float = _spec(1.0, gt=0, doc="peak torque of the excitation (noise: rms), modes torque and "
+                                               "torque_injection")
+    amplitude_mps: float = _spec(0.0, ge=0, doc="peak velocity set-point perturbation (noise: rms), mode velocity")
+    amplitude_m: float = _spec(0.0, ge=0, doc="peak position set-point perturbation (noise: rms), mode position")
     f_min_hz: float = _spec(1.0, gt=0)
     f_max_hz: float = _spec(100.0, gt=0)
     frequency_hz: float = _spec(10.0, gt=0, doc="sine and square")
@@ -123,6 +136,21 @@ class ExcitationConfig:
     register_length: int = _spec(10, ge=2, le=32, doc="PRBS shift-register length")
     clock_divider: int = _spec(1, ge=1, doc="PRBS samples per bit")
     fade_s: float = _spec(0.1, ge=0, doc="raised-cosine fade in and out")
+
+    @property
+    def amplitude_key(self) -> str:
+        """The key that holds the amplitude for :attr:`mode`."""
+        return AMPLITUDE_KEY_OF_MODE[self.mode]
+
+    @property
+    def amplitude(self) -> float:
+        """The amplitude in the unit of :attr:`mode` (N·m, m/s or m)."""
+        return getattr(self, self.amplitude_key)
+
+    @property
+    def closed_loop(self) -> bool:
+        """Whether the excitation perturbs a set-point of a closed loop (the FRF's reference is that set-point)."""
+        return self.mode in SETPOINT_MODES
 
 
 @dataclass(frozen=True)
@@ -456,6 +484,10 @@ def _cross_check(cfg: Config) -> None:
         raise ConfigError("emulator.sensors.laser_range_m", "must be [min, max] with min < max", src)
     if exc.f_min_hz >= exc.f_max_hz:
         raise ConfigError("excitation.f_min_hz", "must be below excitation.f_max_hz", src)
+    if not exc.amplitude > 0:
+        unit = {"amplitude_mps": "m/s", "amplitude_m": "m"}.get(exc.amplitude_key, "N*m")
+        raise ConfigError(f"excitation.{exc.amplitude_key}", f"must be set (> 0, in {unit}) for mode = "
+                                                             f"{exc.mode!r}: the set-point perturbation's size", src)
     ic = cfg.identification
     if ic.f_min_hz and ic.f_max_hz and ic.f_min_hz >= ic.f_max_hz:
         raise ConfigError("identification.f_min_hz", "must be below identification.f_max_hz", src)
@@ -477,10 +509,16 @@ def _check_limits(cfg: Config) -> None:
     src, lim, exc = cfg.source, cfg.limits, cfg.excitation
     if lim.position_min_m >= lim.position_max_m:
         raise ConfigError("limits.position_min_m", "must be below limits.position_max_m", src)
-    if exc.amplitude_nm > lim.torque_nm:
+    if exc.mode in ("torque", "torque_injection") and exc.amplitude_nm > lim.torque_nm:
         raise ConfigError(
             "excitation.amplitude_nm", f"{exc.amplitude_nm:g} N*m exceeds limits.torque_nm = {lim.torque_nm:g}", src
         )
+    if exc.mode == "velocity" and exc.amplitude_mps >= lim.velocity_mps:
+        raise ConfigError("excitation.amplitude_mps",
+                          f"{exc.amplitude_mps:g} m/s reaches limits.velocity_mps = {lim.velocity_mps:g}", src)
+    if exc.mode == "position" and 2 * exc.amplitude_m >= lim.position_max_m - lim.position_min_m:
+        raise ConfigError("excitation.amplitude_m", f"{exc.amplitude_m:g} m each way does not fit the position "
+                                                    f"window [{lim.position_min_m:g}, {lim.position_max_m:g}] m", src)
     if any(v <= 0 for v in cfg.friction_test.speeds_mps):
         raise ConfigError("friction_test.speeds_mps", "speeds must be positive (each is run both ways)", src)
     if cfg.friction_test.enabled and max(cfg.friction_test.speeds_mps, default=0) >= lim.velocity_mps:

@@ -303,6 +303,16 @@ def _scaling(t: _Toml, s: E.EdsSummary) -> None:
         if current is None or not (isinstance(current.default, int) and current.default > 0):
             why = "the EDS has no 0x6075" if current is None else "0x6075 has no non-zero default"
             t.key("rated_current_a", "1.0", placeholder=f"{why}: the motor's rated current, A")
+    elif s.vendor_torque:
+        index, name, role = s.vendor_torque[0]
+        t.add("# the EDS has neither torque nor current objects; a vendor object named like a torque stands in:")
+        t.add(f"# torque_nm is 0x{index:04X} ({_comment(name)}), read as per mille of rated_torque_nm")
+        t.key("rated_torque_nm", "1.0", placeholder=f"the scaling of 0x{index:04X} {_comment(name)!r} is not in "
+                                                    "the EDS: per mille of 1 N*m assumed")
+        t.start("canopen.objects")
+        what = "what the drive commands" if role == "torque_demand" else "what the drive measures"
+        t.key(role, _toml_str(f"0x{index:04X}"),
+              placeholder=f"vendor object {_comment(name)!r} taken as the torque ({what}); check the manual")
     else:
         t.add("# the EDS has neither torque nor current objects: no torque can be measured or commanded")
 

@@ -435,9 +435,9 @@ def check_run_against_driver(cfg, driver: DriverDescription) -> None:
     if cfg.excitation.mode not in modes:
         raise ConfigError("excitation.mode", f"{what} runs no {cfg.excitation.mode!r} mode (it has: "
                                              f"{', '.join(modes) or 'none'})", src)
-    if cfg.friction_test.enabled and "velocity" not in modes:
-        raise ConfigError("friction_test.enabled", f"the friction test runs in velocity mode, which {what} does "
-                                                   f"not have (it has: {', '.join(modes) or 'none'})", src)
+    if cfg.friction_test.enabled and not {"velocity", "position"} & set(modes):
+        raise ConfigError("friction_test.enabled", f"the friction test runs in velocity (or position) mode, which "
+                                                   f"{what} does not have (it has: {', '.join(modes) or 'none'})", src)
     # a device without filter slots is no error: the session designs the notch, reports it and says why it was
     # not uploaded
 

@@ -12,6 +12,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from hilident.config import Config
+from hilident.signals.generators import position_of
 
 
 @dataclass
@@ -25,7 +26,7 @@ class PlannedExperiment:
     description : str
         What is played, e.g. ``"multisine 1-100 Hz"``.
     mode : str
-        Where the set-point enters (``velocity``, ``torque``, ``torque_injection``).
+        Where the set-point enters (``torque``, ``torque_injection``, ``velocity``, ``position``).
     duration_s : float
     samples : int
     peak_torque_nm : float or None
@@ -88,7 +89,8 @@ class RunPlan:
         return "\n".join(lines)
 
 
-def make_plan(cfg: Config, excitation, friction_profile, adapter, filters_found: list[dict]) -> RunPlan:
+def make_plan(cfg: Config, excitation, friction_profile, adapter, filters_found: list[dict],
+              friction_mode: str = "velocity") -> RunPlan:
     """The plan of a session from its config, its built signals and the device it reached.
 
     Parameters
@@ -102,6 +104,8 @@ def make_plan(cfg: Config, excitation, friction_profile, adapter, filters_found:
         The open device (``identity``, ``port``, ``sample_rate_hz``).
     filters_found : list of dict
         ``{slot, enabled, ...}`` per filter slot, as read from the device.
+    friction_mode : str
+        ``velocity``, or ``position`` when the friction legs run as a position profile.
     """
     fs = cfg.run.sample_rate_hz
     lim = cfg.limits
@@ -117,18 +121,39 @@ def make_plan(cfg: Config, excitation, friction_profile, adapter, filters_found:
         sp = np.asarray(friction_profile.setpoint_mps)
         speeds = cfg.friction_test.speeds_mps
         plan.experiments.append(PlannedExperiment(
-            "friction", f"constant-velocity legs both ways at {min(speeds):g}..{max(speeds):g} m/s", "velocity",
+            "friction", f"constant-velocity legs both ways at {min(speeds):g}..{max(speeds):g} m/s", friction_mode,
             len(sp) / fs, len(sp), peak_speed_mps=float(np.max(np.abs(sp))) if len(sp) else 0.0,
             travel_m=float(friction_profile.max_excursion_m)))
     e = cfg.excitation
     x = np.asarray(excitation.samples)
     what = e.kind if e.kind in ("sine", "square", "step") else f"{e.kind} {excitation.band_hz[0]:g}-{excitation.band_hz[1]:g} Hz"
-    peak = float(np.max(np.abs(x))) if len(x) else 0.0
-    plan.experiments.append(PlannedExperiment("identification", what, e.mode, len(x) / fs, len(x),
-                                              peak_torque_nm=peak))
+    if e.closed_loop:
+        what += f" {e.mode} set-point perturbation, closed loop"
+    peaks = _excitation_peaks(e.mode, x, fs)
+    plan.experiments.append(PlannedExperiment("identification", what, e.mode, len(x) / fs, len(x), **peaks))
     if cfg.notch.enabled and cfg.identification.max_resonances:
         plan.notch_slots = min(cfg.identification.max_resonances, adapter.identity.filter_slots)
         if cfg.notch.verify and plan.notch_slots:
             plan.experiments.append(PlannedExperiment("verification", "the same excitation with the new notches",
-                                                      e.mode, len(x) / fs, len(x), peak_torque_nm=peak))
+                                                      e.mode, len(x) / fs, len(x), **peaks))
     return plan
+
+
+def _excitation_peaks(mode: str, x: np.ndarray, sample_rate_hz: float) -> dict:
+    """What the excitation commands: its peak torque, or its peak speed and travel for a set-point perturbation."""
+    peak = float(np.max(np.abs(x))) if len(x) else 0.0
+    if mode == "velocity":
+        return {"peak_speed_mps": peak, "travel_m": excitation_travel_m(mode, x, sample_rate_hz)}
+    if mode == "position":
+        return {"travel_m": peak}
+    return {"peak_torque_nm": peak}
+
+
+def excitation_travel_m(mode: str, setpoints: np.ndarray, sample_rate_hz: float) -> float:
+    """Largest distance from the held position a set-point perturbation commands, m (0 for torque modes)."""
+    x = np.asarray(setpoints, dtype=float)
+    if mode == "velocity":
+        x = position_of(x, sample_rate_hz)
+    elif mode != "position":
+        return 0.0
+    return float(np.max(np.abs(x))) if len(x) else 0.0

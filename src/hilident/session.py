@@ -38,9 +38,9 @@ from hilident import __version__, endings, pipeline, report
 from hilident.adapters.base import StreamStats, adapter_class
 from hilident.config import Config
 from hilident.devicelock import DeviceLock, device_key
-from hilident.drivers import DriverDescription, check_run_against_driver, find_driver
+from hilident.drivers import DriverDescription, check_run_against_driver, declared_modes, find_driver
 from hilident.errors import ArmingRefused, ConfigError, DataError, HilidentError, UsageError
-from hilident.plan import RunPlan, make_plan
+from hilident.plan import RunPlan, excitation_travel_m, make_plan
 from hilident.recording import RunWriter, read_run
 from hilident.signals import generators as sig
 
@@ -108,35 +108,41 @@ class Excitation:
 
 
 def build_excitation(cfg: Config) -> Excitation:
-    """The identification excitation described by ``[excitation]`` (torque, N·m)."""
+    """The identification excitation described by ``[excitation]``, in the unit of its mode.
+
+    Torque (N·m) for ``torque`` and ``torque_injection``; a velocity (m/s) or
+    position (m, relative to where the axis holds) set-point perturbation for
+    ``velocity`` and ``position``.
+    """
     e = cfg.excitation
     fs = cfg.run.sample_rate_hz
+    amplitude = e.amplitude
     period = None
     band = (e.f_min_hz, e.f_max_hz)
     if e.kind == "multisine":
         n_periods = max(1, int(round(e.duration_s / e.period_s)))
-        ms = sig.multisine(e.amplitude_nm, e.f_min_hz, e.f_max_hz, e.period_s, n_periods, fs)
+        ms = sig.multisine(amplitude, e.f_min_hz, e.f_max_hz, e.period_s, n_periods, fs)
         # one extra period first: it lets the transient die out and is skipped by the analysis
         x = np.concatenate([ms.samples[: ms.period_samples], ms.samples])
         return Excitation(x, ms.period_samples, band, ms.excited_bins)
     if e.kind == "sine":
-        x, band = sig.sine(e.amplitude_nm, e.frequency_hz, e.duration_s, fs), (e.frequency_hz, e.frequency_hz)
+        x, band = sig.sine(amplitude, e.frequency_hz, e.duration_s, fs), (e.frequency_hz, e.frequency_hz)
     elif e.kind == "square":
-        x, band = sig.square(e.amplitude_nm, e.frequency_hz, e.duration_s, fs), (e.frequency_hz, e.f_max_hz)
+        x, band = sig.square(amplitude, e.frequency_hz, e.duration_s, fs), (e.frequency_hz, e.f_max_hz)
     elif e.kind == "chirp":
-        x = sig.chirp(e.amplitude_nm, e.f_min_hz, e.f_max_hz, e.duration_s, fs, method=e.chirp_method)
+        x = sig.chirp(amplitude, e.f_min_hz, e.f_max_hz, e.duration_s, fs, method=e.chirp_method)
     elif e.kind == "noise":
         x = sig.band_limited_noise(
-            e.amplitude_nm / 3.0, e.f_min_hz, e.f_max_hz, e.duration_s, fs, seed=cfg.run.seed, peak=e.amplitude_nm
+            amplitude / 3.0, e.f_min_hz, e.f_max_hz, e.duration_s, fs, seed=cfg.run.seed, peak=amplitude
         )
     elif e.kind == "prbs":
         length = (2**e.register_length - 1) * e.clock_divider
         periods = max(1, int(round(e.duration_s * fs / length)))
-        x = sig.prbs(e.amplitude_nm, e.register_length, e.clock_divider, fs, periods=periods + 1)
+        x = sig.prbs(amplitude, e.register_length, e.clock_divider, fs, periods=periods + 1)
         period = length if periods >= 3 else None
         band = (fs / length, min(e.f_max_hz, fs / (2 * e.clock_divider)))
     else:  # step
-        x = sig.step(e.amplitude_nm, e.duration_s, fs, step_time_s=0.1 * e.duration_s)
+        x = sig.step(amplitude, e.duration_s, fs, step_time_s=0.1 * e.duration_s)
     if e.fade_s and period is None:
         x = sig.fade(x, e.fade_s, fs)
     return Excitation(np.asarray(x, dtype=float), period, band)
@@ -190,6 +196,7 @@ class Session:
         self.lock: DeviceLock | None = None
         self.filters_found: list[dict] = []  # what the filter slots held when the session began
         self._bypassed: dict[int, object] = {}  # slot -> saved contents, until the new notches are uploaded
+        self.friction_mode = "velocity"  # or "position" on a drive without a velocity mode (set by prepare)
         self._uploaded = False
 
     # --- connection -----------------------------------------------------------------------
@@ -411,7 +418,8 @@ class Session:
         try:
             self.connect()
             self._read_filter_slots()
-            self.plan = make_plan(self.cfg, excitation, profile, self.adapter, self.filters_found)
+            self.plan = make_plan(self.cfg, excitation, profile, self.adapter, self.filters_found,
+                                  self.friction_mode)
             self._arm()
             if self.dry_run:
                 return {"dry_run": True, "plan": self.plan.to_dict()}
@@ -453,6 +461,10 @@ class Session:
         self.driver = find_driver(cfg.device.driver, cfg.device.driver_paths)
         check_run_against_driver(cfg, self.driver)
         excitation = build_excitation(cfg)
+        self._check_excitation_travel(excitation)
+        modes = declared_modes(self.driver)
+        # a drive without a velocity mode runs the friction test's legs as a position profile
+        self.friction_mode = "velocity" if "velocity" in modes else "position"
         profile = None
         ft = cfg.friction_test
         if ft.enabled:
@@ -466,6 +478,21 @@ class Session:
                     "speeds)", cfg.source,
                 )
         return excitation, profile
+
+    def _check_excitation_travel(self, excitation: Excitation) -> None:
+        """A set-point perturbation must keep the axis within half the position window (it starts anywhere in it)."""
+        e, lim = self.cfg.excitation, self.cfg.limits
+        if not e.closed_loop:
+            return  # a torque excitation's travel depends on the plant; the limits guard it
+        travel = excitation_travel_m(e.mode, excitation.samples, self.cfg.run.sample_rate_hz)
+        half = (lim.position_max_m - lim.position_min_m) / 2
+        if travel >= half:
+            raise ConfigError(
+                f"excitation.{e.amplitude_key}",
+                f"the {e.mode} set-point perturbation travels up to {travel:.4g} m from where the axis holds, more "
+                f"than half the position window [{lim.position_min_m:g}, {lim.position_max_m:g}] m (a smaller "
+                f"amplitude or a higher f_min_hz)", self.cfg.source,
+            )
 
     def _prepare_out(self) -> None:
         """The output folder exists and takes files, or a one-line error before anything moves."""
@@ -488,7 +515,10 @@ class Session:
         if profile is None:
             return None
         windows = np.array(profile.windows, dtype=float).reshape(-1, 3)
-        exp = self.record("friction", "velocity", profile.setpoint_mps,
+        setpoints = profile.setpoint_mps
+        if self.friction_mode == "position":
+            setpoints = sig.position_of(setpoints, self.cfg.run.sample_rate_hz)
+        exp = self.record("friction", self.friction_mode, setpoints,
                           tables={"windows": {"start": windows[:, 0], "stop": windows[:, 1], "velocity_mps": windows[:, 2]}})
         rows = self._rows_by_index(exp)
         kept = [(rows[a], rows[b - 1] + 1, v) for a, b, v in profile.windows if a in rows and b - 1 in rows
@@ -650,6 +680,7 @@ class Session:
             "config": cfg.source,
             "device": {"driver": self.driver.name, "port": self.adapter.port, "emulated": cfg.uses_emulator},
             "sample_rate_hz": cfg.run.sample_rate_hz,
+            "excitation": self._excitation_record(),
             "resonances": pipeline.resonance_records(plant.resonances),
             "plant_model": plant.model.to_dict() if plant.model else None,
             "measurement": plant.quality,
@@ -679,6 +710,16 @@ class Session:
         if verification is not None:
             out["verification"] = {"peak_reduction_db": verification["peak_reduction_db"],
                                    "resonances": verification["resonances"]}
+        return out
+
+    def _excitation_record(self) -> dict:
+        """What excited the axis, where it entered, and in which unit (summary.json)."""
+        e = self.cfg.excitation
+        unit = {"velocity": "m/s", "position": "m"}.get(e.mode, "N*m")
+        out = {"kind": e.kind, "mode": e.mode, "amplitude": e.amplitude, "unit": unit, "closed_loop": e.closed_loop}
+        if e.closed_loop:
+            out["reference"] = (f"the {e.mode} set-point perturbation: the plant (torque to output) is estimated "
+                                "against it, so noise the drive's loop feeds back does not bias it")
         return out
 
     def _plots(self, friction, plant, designs, verification) -> None:

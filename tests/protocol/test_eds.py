@@ -131,12 +131,15 @@ def test_four_entry_pdos_and_two_rpdos():
     assert s.cyclic_modes == ("cst", "csv", "csp")
 
 
-def test_pdo_limit_is_the_larger_of_declared_subindices_and_sub0_highlimit():
+def test_pdo_limit_is_the_declared_entries_and_sub0_highlimit_only_when_none_is_declared():
+    # one entry declared, sub-index 0 accepting 64: the undeclared entries cannot be written by name
     text = (HEAD + "[1400]\nParameterName=R\nObjectType=0x9\n[1400sub0]\nParameterName=n\nDataType=0x0005\n"
             "AccessType=ro\n[1600]\nParameterName=M\nObjectType=0x9\n[1600sub0]\nParameterName=n\nDataType=0x0005\n"
-            "AccessType=rw\nHighLimit=6\n[1600sub1]\nParameterName=e\nDataType=0x0007\nAccessType=rw\n")
+            "AccessType=rw\nHighLimit=64\n[1600sub1]\nParameterName=e\nDataType=0x0007\nAccessType=rw\n")
     s = inspect_eds(load_eds_text(text, "t.eds")[0])
-    assert s.rpdo_entries == (6,) and s.tpdo_entries == ()
+    assert s.rpdo_entries == (1,) and s.tpdo_entries == ()
+    bare = text.replace("[1600sub1]\nParameterName=e\nDataType=0x0007\nAccessType=rw\n", "").replace("=64", "=6")
+    assert inspect_eds(load_eds_text(bare, "t.eds")[0]).rpdo_entries == (6,)
 
 
 def test_interpolation_period_of_8_ms_and_ip_only_with_vendor_recorder_and_generator():

@@ -218,6 +218,7 @@ class CanopenDriveFirmware:
         self.last_sync_counter: int | None = None
         self.last_sync_wall: float | None = None
         self.sync_driven = False
+        self.position_setpoint_m = None
         self.sample_index = 0
         self.underruns = 0
         self.sync_errors = 0
@@ -402,6 +403,7 @@ class CanopenDriveFirmware:
         self.sync_errors = 0
         self.last_sync_counter = None
         self.sync_driven = False
+        self.position_setpoint_m: float | None = None  # last position set-point, the start of the next ramp
         self.run_start_tick = self.drive.tick
         self.injected = set()
         self.coast_ticks = 0
@@ -542,7 +544,7 @@ class CanopenDriveFirmware:
             k = self.sample_index
             if self.rx_counter != k & 0xFFFF:
                 self.underruns += 1  # no fresh set-point for this sample: the last one is held
-            rows = self.drive.run(np.full(self._divider(), self._setpoint_si()))
+            rows = self.drive.run(self._setpoint_ticks(self._setpoint_si()))
             self.sample_index = k + 1
             self.last_row = rows[-1]
             frames = self._tpdo_frames(rows[0], k)
@@ -557,6 +559,21 @@ class CanopenDriveFirmware:
 
     def _si(self, role: str) -> float:
         return self.targets.get(role, 0) * self.scales.get(role, 1.0)
+
+    def _setpoint_ticks(self, target: float) -> np.ndarray:
+        """The loop's input for each tick of one SYNC period.
+
+        A position set-point (CSP, IP) is interpolated linearly from the last
+        one over the period (CiA 402 linear interpolation, 0x60C0 = 0): a step
+        every period would jolt the position loop at the SYNC rate. Other
+        set-points are held.
+        """
+        n = self._divider()
+        if self.drive.mode != "position":
+            return np.full(n, target)
+        start = target if self.position_setpoint_m is None else self.position_setpoint_m
+        self.position_setpoint_m = target
+        return start + (target - start) * np.arange(1, n + 1) / n
 
     def _setpoint_si(self) -> float:
         """The drive loop's input for the next ticks; the torque offset (0x60B2) goes to the loop on its own."""
@@ -854,6 +871,7 @@ class CanopenDriveFirmware:
             raise SdoAbortedError(ABORT_VALUE)
         if self.state is cia402.State.OPERATION_ENABLED:
             self.drive.set_mode(loop_mode)
+            self.position_setpoint_m = None
 
     def _write_cycle_period(self, period_us: int) -> None:
         if period_us == 0:

@@ -175,6 +175,12 @@ class FilterObjects:
         return ObjectAddress(self.indices[slot], sub)
 
 
+def _pdo_mappable(od, addr: ObjectAddress) -> bool:
+    """Whether the EDS lets ``addr`` be mapped into a PDO (True when there is no EDS to ask)."""
+    var = od.get_variable(addr.index, addr.subindex) if od is not None else None
+    return var is None or bool(getattr(var, "pdo_mappable", True))
+
+
 @dataclass(frozen=True)
 class CanopenDescription:
     """The ``[canopen]`` part of a driver description, validated against the drive's EDS.
@@ -230,6 +236,9 @@ class CanopenDescription:
         1 fault, 2 disable voltage, 3 quick stop).
     explicit_modes : bool
         ``[canopen.modes]`` fixed the modes; otherwise they follow the drive's supported modes (0x6502).
+    unmappable : tuple of str
+        Roles whose object the EDS declares not PDO-mappable (a cyclic mode whose set-point is one of them
+        cannot be streamed).
     """
 
     eds: str
@@ -254,6 +263,7 @@ class CanopenDescription:
     rated_current_a: float = 0.0
     cyclic_modes: tuple[str, ...] = ("cst", "csv", "csp", "ip")
     explicit_modes: bool = False
+    unmappable: tuple[str, ...] = ()
 
     @classmethod
     def from_sections(cls, sections: dict, source: str = "", od=None) -> "CanopenDescription":
@@ -328,8 +338,9 @@ class CanopenDescription:
                 raise ConfigError(f"canopen.modes.{name}.code", f"must fit INTEGER8, got {spec['code']}", source)
             modes[name] = ModeSpec(name, spec["code"], spec["setpoint"], str(spec.get("hold", "")))
         explicit = bool(modes)
+        unmappable = tuple(role for role, addr in objects.items() if not _pdo_mappable(od, addr))
         if not modes:
-            modes = profile.standard_modes(objects, default_supported_modes(od, objects), preference)
+            modes = profile.standard_modes(objects, default_supported_modes(od, objects), preference, unmappable)
 
         scaling = _table(co, "scaling", source)
         units = {}
@@ -390,7 +401,7 @@ class CanopenDescription:
             host_node_id=host_node_id, abort_connection_option=abort_option,
             rated_torque_unit_nm=units["rated_torque_unit_nm"], rated_torque_nm=units["rated_torque_nm"],
             torque_constant_nm_per_a=units["torque_constant_nm_per_a"], rated_current_a=units["rated_current_a"],
-            cyclic_modes=tuple(preference), explicit_modes=explicit,
+            cyclic_modes=tuple(preference), explicit_modes=explicit, unmappable=unmappable,
         )
         if desc.default_acquisition == "buffered":
             desc.require_buffered(source)
@@ -421,7 +432,8 @@ class CanopenDescription:
             return self
         from hilident.protocol import canopen_profile as profile
 
-        return replace(self, modes=profile.standard_modes(self.objects, supported, self.cyclic_modes))
+        return replace(self, modes=profile.standard_modes(self.objects, supported, self.cyclic_modes,
+                                                          self.unmappable))
 
     def require_buffered(self, source: str = "") -> None:
         """Raise ConfigError unless every object of the drive-buffered protocol is named."""

@@ -98,7 +98,7 @@ def standard_objects(present: Callable[[ObjectAddress], bool]) -> dict[str, Obje
 
 
 def standard_modes(objects: dict[str, ObjectAddress], supported: Iterable[str] | None,
-                   preference: Sequence[str] = CYCLIC_MODES) -> dict[str, ModeSpec]:
+                   preference: Sequence[str] = CYCLIC_MODES, unmappable: Iterable[str] = ()) -> dict[str, ModeSpec]:
     """hilident mode -> CiA 402 mode and set-point object, from what the drive has.
 
     Parameters
@@ -110,6 +110,9 @@ def standard_modes(objects: dict[str, ObjectAddress], supported: Iterable[str] |
         cyclic mode whose set-point object exists is assumed.
     preference : sequence of str
         Cyclic modes in the order the driver prefers them; modes not listed are not used.
+    unmappable : iterable of str
+        Roles whose object cannot be mapped into a PDO: a mode whose set-point is one of them is not streamed
+        (a holding mode's set-point may be, it is written once by SDO).
 
     Returns
     -------
@@ -122,15 +125,17 @@ def standard_modes(objects: dict[str, ObjectAddress], supported: Iterable[str] |
     usable = [m for m in preference if m in CYCLIC_MODES and (supported is None or m in set(supported))]
     setpoint_of = SETPOINT_OF_MODE
     usable = [m for m in usable if setpoint_of[m] in objects]
+    fixed = set(unmappable)
+    streamable = [m for m in usable if setpoint_of[m] not in fixed]
     modes: dict[str, ModeSpec] = {}
-    if "cst" in usable:
+    if "cst" in streamable:
         modes["torque"] = ModeSpec("torque", MODE_CODES["cst"], "target_torque")
-    if "csv" in usable:
+    if "csv" in streamable:
         modes["velocity"] = ModeSpec("velocity", MODE_CODES["csv"], "target_velocity")
-    position = next((m for m in usable if m in ("csp", "ip")), None)
+    position = next((m for m in streamable if m in ("csp", "ip")), None)
     if position is not None:
         modes["position"] = ModeSpec("position", MODE_CODES[position], setpoint_of[position])
-    if "torque_offset" in objects:
+    if "torque_offset" in objects and "torque_offset" not in fixed:
         # a position hold (CSP, else IP) is stiffer than a velocity hold (CSV)
         hold = next((m for m in ("csp", "ip", "csv") if m in usable), None)
         if hold is not None:
@@ -145,7 +150,8 @@ def standard_channels(objects: dict[str, ObjectAddress], current_as_torque: bool
     ``excitation`` is the set-point the host sent, unless the drive reports the
     one it applied (a vendor ``applied_excitation`` object). ``torque_nm`` is
     the torque actual value 0x6077, or the current actual value 0x6078 times
-    the torque constant when ``current_as_torque``.
+    the torque constant when ``current_as_torque``, or else the torque demand
+    0x6074 (or the vendor object standing in for it).
     """
     channels: dict[str, str | None] = {"excitation": "applied_excitation" if "applied_excitation" in objects else None}
     if "torque_demand" in objects:
@@ -154,6 +160,8 @@ def standard_channels(objects: dict[str, ObjectAddress], current_as_torque: bool
         channels["torque_nm"] = "torque_actual"
     elif current_as_torque and "current_actual" in objects:
         channels["torque_nm"] = "current_actual"
+    elif "torque_demand" in objects:  # nothing measures the torque: the drive's command is the best there is
+        channels["torque_nm"] = channels.pop("torque_cmd_nm")
     if "position_actual" in objects:
         channels["position_m"] = "position_actual"
     if "velocity_actual" in objects:
@@ -163,12 +171,18 @@ def standard_channels(objects: dict[str, ObjectAddress], current_as_torque: bool
 
 def mapping_capacity(mapping) -> int:
     """How many objects a PDO mapping record (a canopen ``ODRecord``) takes: the highest sub-index its EDS
-    declares, or the highest count sub-index 0 accepts, whichever is larger (CiA 301: at most 64)."""
+    declares (CiA 301: at most 64).
+
+    Only when the EDS declares no entry at all is the highest count sub-index 0
+    accepts taken: an entry the EDS does not declare cannot be written by name,
+    even when sub-index 0 accepts a larger count (some files declare one entry
+    with a limit of 64).
+    """
     subs = getattr(mapping, "subindices", {})
     declared = max((sub for sub in subs if sub > 0), default=0)
     head = subs.get(0)
     high = head.max if head is not None and isinstance(head.max, int) else 0
-    return min(64, max(declared, high))
+    return min(64, declared or high)
 
 
 def period_fields(period_s: float) -> tuple[int, int]:

@@ -96,6 +96,14 @@ MODE_SETPOINTS = profile.SETPOINT_OF_MODE
 _FILTER_WORDS = ("notch", "filt", "biquad", "anti-resonance", "antiresonance", "resonance")
 _RECORDER_WORDS = ("recorder", "recording", "trace", "scope", "capture", "logging")
 _GENERATOR_WORDS = ("generator", "excitation", "prbs", "sweep", "function gen")
+#: Names of manufacturer objects that carry a torque (or current) where the standard objects are missing, and the
+#: standard role each stands in for: what the drive commands, or what it measures.
+_TORQUE_NAMES = (("control effort", "torque_demand"), ("torque demand", "torque_demand"),
+                 ("current demand", "torque_demand"), ("torque actual", "torque_actual"),
+                 ("actual torque", "torque_actual"), ("current actual", "torque_actual"),
+                 ("actual current", "torque_actual"))
+#: Words that make such a name a setting, not a signal ("Actual Current Limit").
+_NOT_A_TORQUE = ("limit", "threshold", "max", "maximum", "offset", "protection", "setting", "parameter", "mode")
 
 
 # --- reading ---------------------------------------------------------------------------------------------------
@@ -716,6 +724,10 @@ class EdsSummary:
         0x1010:1 exists.
     vendor_filters, vendor_recorders, vendor_generators : tuple of (int, str)
         Manufacturer objects (0x2000-0x5FFF) whose names look like filters, recorders or generators.
+    vendor_torque : tuple of (int, str, str)
+        Manufacturer objects (plain, readable, PDO-mappable integers) named like a torque or current demand or
+        actual value: ``(index, name, role)`` with the standard role each could stand in for
+        (``torque_demand`` or ``torque_actual``).
     baudrates : tuple of int
         CAN bit rates [DeviceInfo] declares (BaudRate_xxx = 1), bit/s, fastest first.
     """
@@ -741,6 +753,7 @@ class EdsSummary:
     vendor_filters: tuple[tuple[int, str], ...] = ()
     vendor_recorders: tuple[tuple[int, str], ...] = ()
     vendor_generators: tuple[tuple[int, str], ...] = ()
+    vendor_torque: tuple[tuple[int, str, str], ...] = ()
     baudrates: tuple[int, ...] = ()
 
     @property
@@ -785,7 +798,7 @@ def inspect_eds(od) -> EdsSummary:
         current_objects=tuple(f"0x{i:04X}" for i in (0x6075, 0x6078) if i in od.indices),
         factor_group=factor, heartbeat_consumers=consumers, abort_connection=0x6007 in od.indices,
         store_parameters="store_parameters" in roles, vendor_filters=filters, vendor_recorders=recorders,
-        vendor_generators=generators,
+        vendor_generators=generators, vendor_torque=_vendor_torque(od),
         baudrates=tuple(sorted(info.allowed_baudrates, reverse=True)),
     )
 
@@ -824,6 +837,25 @@ def _period(od, roles: dict) -> PeriodInfo:
         ok = isinstance(value, int) and value > 0
         return PeriodInfo("0x1006", value * 1e-6 if ok else None, value if isinstance(value, int) else None)
     return PeriodInfo("")
+
+
+def _vendor_torque(od) -> tuple[tuple[int, str, str], ...]:
+    """Manufacturer objects named like a torque or current, that a host could map and read (see EdsSummary)."""
+    from canopen.objectdictionary import datatypes
+
+    found = []
+    for index in sorted(od.indices):
+        obj = od.indices[index]
+        if not 0x2000 <= index <= 0x5FFF or getattr(obj, "subindices", None) is not None:
+            continue
+        text = " " + re.sub(r"[^a-z0-9]+", " ", obj.name.lower()) + " "
+        role = next((r for words, r in _TORQUE_NAMES if f" {words} " in text), None)
+        if any(f" {w} " in text for w in _NOT_A_TORQUE):
+            continue
+        integer = obj.data_type in datatypes.INTEGER_TYPES
+        if role and integer and getattr(obj, "pdo_mappable", False) and "r" in (obj.access_type or "ro"):
+            found.append((index, obj.name, role))
+    return tuple(found)
 
 
 def _vendor_objects(od):

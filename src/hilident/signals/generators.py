@@ -472,13 +472,28 @@ def velocity_ramps(
         pieces += [up, np.full(n_hold, v), up[::-1]]
         position = hold_start + n_hold + n_ramp
     setpoint = np.concatenate(pieces)
-    travel = scipy.integrate.cumulative_trapezoid(setpoint, dx=1.0 / fs, initial=0.0)
+    travel = position_of(setpoint, fs)
     return RampProfile(
         setpoint_mps=_frozen(setpoint),
         windows=tuple(windows),
         speeds_mps=speeds,
         excursion_m=(float(travel.min()), float(travel.max())),
     )
+
+
+def position_of(velocity_mps, sample_rate_hz) -> np.ndarray:
+    """The position a velocity set-point leads to, relative to the start (trapezoidal integral), m.
+
+    A position-controlled axis follows this profile to run a velocity profile
+    (e.g. the friction test on a drive that has no velocity mode).
+
+    Example
+    -------
+    >>> position_of([0.0, 1.0, 1.0, 0.0], sample_rate_hz=10.0).round(3).tolist()
+    [0.0, 0.05, 0.15, 0.2]
+    """
+    fs = chk.positive("sample_rate_hz", sample_rate_hz)
+    return scipy.integrate.cumulative_trapezoid(np.asarray(velocity_mps, dtype=float), dx=1.0 / fs, initial=0.0)
 
 
 def _ramp_legs(speeds_mps, hold_s, accel_mps2, sample_rate_hz, settle_s, alternate):

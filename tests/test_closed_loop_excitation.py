@@ -1,0 +1,147 @@
+"""Set-point perturbation in closed loop: drives that take no torque excitation.
+
+A drive that runs only CSV, CSP or IP (no CST, no torque offset 0x60B2) is
+excited through the set-point of the loop it closes: the excitation is a
+velocity or position perturbation, the FRF's reference, and the plant (torque
+to output) is estimated against it. The friction test runs in velocity mode,
+or as a position profile when the drive has no velocity mode.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from vendor_drives import VendorDrive, write_vendor_drive
+
+from hilident.config import load_config
+from hilident.drivers import load_driver
+from hilident.emulator.factory import true_modes
+from hilident.errors import ConfigError
+from hilident.protocol.canopen_objects import CanopenDescription
+from hilident.protocol.eds import inspect_eds, load_eds
+from hilident.recording import read_run
+from hilident.session import Session, build_excitation
+
+ROOT = Path(__file__).resolve().parents[1]
+CANOPEN = ROOT / "configs" / "emulated-canopen-gantry.toml"
+SERIAL = ROOT / "configs" / "emulated-gantry.toml"
+
+#: maxon EPOS2-like: CSP and CSV only, current instead of torque, no torque offset
+CURRENT_CSV = VendorDrive("acme-csv-current", modes=("pp", "pv", "hm", "csp", "csv"), torque="current")
+#: Technosoft-like: IP only, no standard torque or current object, a vendor "Control effort"
+IP_EFFORT = VendorDrive("acme-ip-effort", modes=("pp", "hm", "ip"), torque="effort", torque_offset=False,
+                        limits=("max_velocity", "position_limits"))
+
+
+def _config(path: Path, toml: str) -> Path:
+    path.write_text(toml)
+    return path
+
+
+def _excitation_toml(mode: str, amplitude: str) -> str:
+    text = SERIAL.read_text().replace('mode = "torque"', f'mode = "{mode}"')
+    return text.replace("amplitude_nm = 8.0", amplitude)
+
+
+@pytest.mark.parametrize("mode, amplitude, key", [
+    ("velocity", "", "excitation.amplitude_mps"),  # not set: a set-point perturbation has no default size
+    ("velocity", "amplitude_mps = 0.4", "excitation.amplitude_mps"),  # reaches limits.velocity_mps = 0.4
+    ("position", "amplitude_m = 0.6", "excitation.amplitude_m"),  # does not fit the window [-0.6, 0.6]
+    ("position", "amplitude_mps = 0.05", "excitation.amplitude_m"),  # the other mode's key
+])
+def test_a_set_point_perturbation_needs_its_own_amplitude_within_the_limits(tmp_path, mode, amplitude, key):
+    with pytest.raises(ConfigError) as err:
+        load_config(_config(tmp_path / "c.toml", _excitation_toml(mode, amplitude)))
+    assert err.value.key == key and "c.toml" in str(err.value)
+
+
+def test_a_velocity_perturbation_that_travels_too_far_is_refused_before_anything_moves(tmp_path):
+    # a velocity step of 0.2 m/s for 16 s would travel about 3 m: the window is 1.2 m wide
+    toml = _excitation_toml("velocity", "amplitude_mps = 0.2").replace('kind = "multisine"', 'kind = "step"')
+    cfg = load_config(_config(tmp_path / "c.toml", toml))
+    session = Session(cfg, tmp_path / "out", plots=False)
+    with pytest.raises(ConfigError) as err:
+        session.prepare()
+    assert err.value.key == "excitation.amplitude_mps" and "travels up to" in str(err.value)
+    assert session.adapter is None  # nothing was opened
+
+
+def test_the_excitation_is_built_in_the_unit_of_its_mode(tmp_path):
+    cfg = load_config(_config(tmp_path / "c.toml", _excitation_toml("velocity", "amplitude_mps = 0.05")))
+    x = build_excitation(cfg).samples
+    assert 0.03 < np.max(np.abs(x)) <= 0.05 + 1e-12  # m/s, not the 8 N*m of amplitude_nm
+    torque = load_config(SERIAL)
+    assert np.max(np.abs(build_excitation(torque).samples)) > 1.0
+
+
+def _vendor_session(tmp_path, drive: VendorDrive, mode: str, amplitude: dict, friction: bool):
+    folder = write_vendor_drive(tmp_path / "drivers", drive)
+    cfg = load_config(CANOPEN)
+    ft = replace(cfg.friction_test, enabled=friction, speeds_mps=[0.003, 0.006, 0.01, 0.02, 0.05, 0.1, 0.2], hold_s=0.8, settle_s=0.4)
+    # SYNC at 500 Hz: a host-streamed run is paced in real time, and this keeps it light on a busy machine
+    cfg = replace(cfg, device=replace(cfg.device, driver=str(folder), acquisition="streamed"),
+                  run=replace(cfg.run, sample_rate_hz=500.0),
+                  emulator=replace(cfg.emulator, time_scale=20.0), friction_test=ft,
+                  excitation=replace(cfg.excitation, mode=mode, period_s=1.0, duration_s=3.0, **amplitude))
+    session = Session(cfg, tmp_path / "out", plots=False)
+    return cfg, session, session.run()
+
+
+def _resonance_error(cfg, summary) -> float:
+    (true_f, _), = true_modes(cfg.emulator)
+    (res,) = summary["resonances"]
+    return abs(res["frequency_hz"] - true_f) / true_f
+
+
+def test_a_current_only_csv_drive_is_identified_through_its_velocity_set_point(tmp_path):
+    cfg, session, summary = _vendor_session(tmp_path, CURRENT_CSV, "velocity", {"amplitude_mps": 0.05},
+                                            friction=False)
+    assert _resonance_error(cfg, summary) < 0.005
+    assert summary["stream"]["lost_samples"] == 0
+    assert summary["excitation"]["closed_loop"] is True and summary["excitation"]["unit"] == "m/s"
+    run = read_run(tmp_path / "out" / "identification.h5")
+    assert run.attrs["mode"] == "velocity"
+    # the excitation column is the velocity set-point perturbation the host streamed
+    assert 0.03 < np.max(np.abs(run.samples["excitation"])) <= 0.05 + 1e-9
+    assert session.plan.experiments[0].peak_speed_mps == pytest.approx(0.05, rel=0.3)
+    assert session.plan.experiments[0].peak_torque_nm is None
+    assert not session.emulator.drive.enabled
+
+
+def test_an_ip_only_drive_runs_friction_as_a_position_profile_and_is_excited_through_its_position(tmp_path):
+    cfg, session, summary = _vendor_session(tmp_path, IP_EFFORT, "position", {"amplitude_m": 0.002},
+                                            friction=True)
+    assert session.friction_mode == "position"
+    assert [e.mode for e in session.plan.experiments[:2]] == ["position", "position"]
+    assert _resonance_error(cfg, summary) < 0.005
+    assert summary["stream"]["lost_samples"] == 0
+    truth = cfg.emulator.friction
+    got = summary["friction"]["params"]
+    assert abs(got["Fc"] - truth.Fc) / truth.Fc < 0.10 and abs(got["Fv"] - truth.Fv) / truth.Fv < 0.10
+    run = read_run(tmp_path / "out" / "friction.h5")
+    assert run.attrs["mode"] == "position"
+    # the torque is the vendor's control effort, the only torque this drive gives
+    assert np.ptp(run.samples["torque_nm"]) > 0.1
+
+
+def test_a_mode_whose_set_point_the_eds_will_not_map_is_not_streamed(tmp_path):
+    # CSP's 0x607A not PDO-mappable (as on one real file): position runs in IP, CSP may still hold the axis
+    drive = VendorDrive("acme-csp-fixed", modes=("csp", "ip"), unmappable=(0x607A,))
+    folder = write_vendor_drive(tmp_path, drive)
+    desc = CanopenDescription.from_sections(load_driver(folder).sections, str(folder / "driver.toml"),
+                                            load_eds(folder / f"{drive.name}.eds")[0])
+    assert desc.modes["position"].setpoint == "interpolation_data"
+    assert desc.modes["torque_injection"].hold == "target_position"
+    assert "target_position" in desc.unmappable
+
+
+def test_a_vendor_torque_stands_in_only_where_the_eds_has_no_standard_torque(tmp_path):
+    folder = write_vendor_drive(tmp_path, IP_EFFORT)
+    summary = inspect_eds(load_eds(folder / f"{IP_EFFORT.name}.eds")[0])
+    assert summary.torque_reference == "none"
+    assert summary.vendor_torque == ((0x2022, "Control effort", "torque_demand"),)
+    plain = write_vendor_drive(tmp_path, VendorDrive("acme-limits", objects=[]))
+    assert inspect_eds(load_eds(plain / "acme-limits.eds")[0]).torque_reference == "rated_torque"
