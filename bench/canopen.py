@@ -1,8 +1,8 @@
 """CANopen transport benchmarks against emulated CiA 402 drives. Run by hand, never by the tests::
 
-    python bench/canopen_transport.py                      # 60 s per search trial: about an hour
-    python bench/canopen_transport.py --duration 5         # quick search; the 1 kHz / 60 s trial stays in full
-    python bench/canopen_transport.py --parts fixed        # only the 1 kHz / 60 s trial over socketcand
+    python bench/canopen.py                      # 60 s per search trial: about an hour
+    python bench/canopen.py --duration 5         # quick search; the 1 kHz / 60 s trial stays in full
+    python bench/canopen.py --parts fixed        # only the 1 kHz / 60 s trial over socketcand
 
 Two setups, each measured the same way:
 
@@ -56,6 +56,11 @@ import os
 import re
 import subprocess
 import sys
+
+# Run as `python bench/canopen.py`, this file's folder comes first on sys.path, where "canopen" would name this
+# script instead of the canopen package hilident uses: take the folder off before anything imports it.
+_HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path[:] = [p for p in sys.path if os.path.abspath(p or os.curdir) != _HERE]
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -431,5 +436,5 @@ if __name__ == "__main__":
     try:
         sys.exit(main())
     except HilidentError as exc:  # a driver that is not there, a drive that does not answer: one line
-        print(f"canopen_transport: {exc}", file=sys.stderr)
+        print(f"bench/canopen.py: {exc}", file=sys.stderr)
         sys.exit(1)
