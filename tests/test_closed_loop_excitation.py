@@ -147,3 +147,18 @@ def test_a_vendor_torque_stands_in_only_where_the_eds_has_no_standard_torque(tmp
     assert summary.vendor_torque == ((0x2022, "Control effort", "torque_demand"),)
     plain = write_vendor_drive(tmp_path, VendorDrive("acme-limits", objects=[]))
     assert inspect_eds(load_eds(plain / "acme-limits.eds")[0]).torque_reference == "rated_torque"
+
+
+def test_drivers_new_writes_the_vendor_torque_as_a_placeholder_and_the_folder_runs(tmp_path):
+    from hilident.driver_tools import check_driver_folder, new_driver_folder
+
+    eds = write_vendor_drive(tmp_path / "vendor", IP_EFFORT) / f"{IP_EFFORT.name}.eds"
+    report = new_driver_folder(eds, tmp_path / "acme")
+    assert "canopen.objects.torque_demand" in report.placeholders
+    assert "canopen.scaling.rated_torque_nm" in report.placeholders
+    check = check_driver_folder(tmp_path / "acme")
+    assert check.ok, check.errors
+    desc = CanopenDescription.from_sections(load_driver(tmp_path / "acme").sections, "driver.toml",
+                                            load_eds(tmp_path / "acme" / eds.name)[0])
+    assert desc.channels["torque_nm"] == "torque_demand" and "torque_cmd_nm" not in desc.channels
+    assert desc.objects["torque_demand"].index == 0x2022
