@@ -69,7 +69,7 @@ class DeviceConfig:
     device_id: int = _spec(1, ge=0, le=247, doc="Modbus: device (unit/slave) id")
     parity: str = _spec("E", choices=("N", "E", "O"), doc="Modbus RTU: parity")
     stopbits: int = _spec(1, ge=1, le=2, doc="Modbus RTU: stop bits")
-    acquisition: str = _spec("auto", choices=("auto", "streamed", "buffered"),
+    acquisition: str = _spec("auto", choices=("auto", "streamed", "buffered", "recorder"),
                              doc="streamed: the host sends set-points each cycle; buffered: the drive plays a "
                                  "stored table and captures into its buffer; auto: the driver's choice")
     allow_fault_reset: bool = _spec(False, doc="clear a fault the device has latched (a limit trip, a watchdog, a drive "

@@ -59,6 +59,7 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, refuse_latched_faults
 from hilident.adapters.canopen_link import open_network
+from hilident.adapters.canopen_recorder import configure_recorder, run_recorder
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription, load_object_dictionary
 from hilident.errors import ConfigError, DataError, DeviceError, LimitTrip
@@ -204,6 +205,7 @@ class CanopenDriveAdapter(AdapterBase):
         self.tpdo_layout: list[tuple[int, list[int]]] = []  # (COB-ID, channel indices after the counter)
         self.rpdo: tuple | None = None  # (COB-ID, counter type, set-point type, set-point role)
         self._configured_for = ""  # the acquisition configure() mapped the objects for
+        self.excitation_recipe: dict | None = None  # what a drive's own generator plays (recorder runs)
         self.last_result: RunResult | None = None
         self.events: list[dict] = []
         self.connect_report = ConnectReport()
@@ -830,7 +832,9 @@ class CanopenDriveAdapter(AdapterBase):
             addr = self.desc.address(role)
             var = self.node.object_dictionary.get_variable(addr.index, addr.subindex)
             codecs.append(ChannelCodec(name, units[name], role, addr, var.data_type, self.scale(role)))
-        if self.acquisition == "buffered" and any(c.on_host for c in codecs):
+        if self.acquisition == "recorder":
+            configure_recorder(self, codecs)
+        elif self.acquisition == "buffered" and any(c.on_host for c in codecs):
             raise DeviceError(f"{self.port}: a drive-buffered run records only drive objects; channel "
                               f"{next(c.name for c in codecs if c.on_host)!r} has none")
         spec = self.desc.modes[mode]
@@ -855,7 +859,7 @@ class CanopenDriveAdapter(AdapterBase):
             self.write("table_divider", divider)
         if self.acquisition == "streamed":
             self._map_pdos(codecs, mode)
-        else:
+        elif self.acquisition == "buffered":
             self._map_capture(codecs)
         self.divider, self.sample_rate_hz, self.mode = divider, rate, mode
         self._configured_for = self.acquisition
@@ -1007,6 +1011,8 @@ class CanopenDriveAdapter(AdapterBase):
             except (OSError, ValueError) as exc:
                 raise DeviceError(f"{self.port}: cannot write the CAN trace {trace_path}: {exc}") from None
         run = run_streamed if self.acquisition == "streamed" else run_buffered
+        if self.acquisition == "recorder":
+            run = run_recorder
         self._host_checks = self._host_limit_columns()
         from_sink: list[BaseException] = []
 
@@ -1043,6 +1049,14 @@ class CanopenDriveAdapter(AdapterBase):
                 self.network.stop_trace()
             if self.last_result is not None:
                 self.last_result.events = list(self.events)
+
+    def set_excitation_recipe(self, recipe: dict | None) -> None:
+        """The excitation of the next :meth:`stream` as parameters (``kind``, ``amplitude``, band, ...).
+
+        A recorder run has the drive's generator play it (see
+        :mod:`hilident.adapters.canopen_recorder`); the other runs play the samples.
+        """
+        self.excitation_recipe = dict(recipe) if recipe is not None else None
 
     def _host_limit_columns(self) -> list[tuple[int, float, float, str]]:
         """(channel column, low, high, limit name) of the limits the host checks on every sample.
