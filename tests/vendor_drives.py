@@ -257,14 +257,14 @@ targets = { target_torque = 1 }
 code = 2
 method = "logarithmic"
 amplitude = { object = "0x2512:1", scale = "torque", min = 0.0, max = 10.0 }
-f_start_hz = { object = "0x2512:2", scale = 0.01, min = 0.1, max = 500.0 }
-f_end_hz = { object = "0x2512:3", scale = 0.01, min = 0.1, max = 500.0 }
+f_start_hz = { object = "0x2512:2", scale = 0.01, min = 0.1, max = 200.0 }
+f_end_hz = { object = "0x2512:3", scale = 0.01, min = 0.1, max = 200.0 }
 duration_s = { object = "0x2512:4", scale = 0.001, max = 60.0 }
 
 [canopen.generator.kinds.sine]
 code = 3
 amplitude = { object = "0x2513:1", scale = "torque", min = 0.0, max = 10.0 }
-frequency_hz = { object = "0x2513:2", scale = 0.01, min = 0.1, max = 500.0 }
+frequency_hz = { object = "0x2513:2", scale = 0.01, min = 0.1, max = 200.0 }
 """),
 }
 

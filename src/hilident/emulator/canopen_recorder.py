@@ -169,7 +169,7 @@ class DriveRecorder:
     def _generator_command(self, command: int) -> None:
         g = self.gen
         if command == g.commands["stop"]:
-            self.stop_generator()
+            self.gen_state = g.states["idle"]  # from running or done
             return
         if command != g.commands["start"]:
             raise SdoAbortedError(ABORT_VALUE)
