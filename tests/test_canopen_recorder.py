@@ -143,6 +143,26 @@ def test_a_sine_sweep_is_recorded_channel_by_channel_and_its_excitation_computed
     assert not emu.drive.enabled and fw.recorder.gen_state == 0  # stopped, generator idle
 
 
+def test_the_generator_feeds_the_torque_offset_while_the_drive_holds_its_position(twin):
+    ad, emu, cfg = twin(PRBS)
+    assert ad.desc.modes["torque_injection"].setpoint == "torque_offset"
+    ad.configure(FS, "torque_injection")
+    full = replace(cfg, excitation=replace(cfg.excitation, kind="prbs", mode="torque_injection", amplitude_nm=2.0,
+                                           register_length=9, duration_s=1.5))
+    x = build_excitation(full).samples
+    ad.set_excitation_recipe(excitation_recipe(full))
+    seen = []
+    result = ad.stream(x, lambda i, rows: seen.append(rows))
+    rows = np.vstack(seen)
+    assert result.completed and len(rows) == len(x) and result.stats.lost_samples == 0
+    assert np.array_equal(rows[:, ad.channel_names.index("excitation")], x)
+    velocity = rows[:, ad.channel_names.index("velocity_mps")]
+    position = rows[:, ad.channel_names.index("position_m")]
+    # the offset shook the axis, and the position loop (CSP at the position at enable) kept it in place
+    assert np.std(velocity) > 1e-4 and np.ptp(position) < 5e-3
+    assert abs(emu.drive.torque_offset_nm) < 1e-12  # nothing of the generator left in the loop after the run
+
+
 @pytest.mark.parametrize("drive, excitation, key", [
     (PRBS, {"kind": "multisine", "duration_s": 2.0}, "excitation.kind"),
     (PRBS, {"kind": "prbs", "amplitude_nm": 25.0, "duration_s": 2.0}, "excitation.amplitude_nm"),

@@ -572,7 +572,12 @@ def plan_generator(cap: RecorderCapability, recipe: dict, target: str, samples: 
                 p.maximum is not None and si > p.maximum + 1e-12 * abs(si)):
             raise ConfigError(key, f"{si:g} is outside the range [{_show(p.minimum)}, {_show(p.maximum)}] of {where} "
                                    f"({kind.name} {name}, object {p.address})")
-        raw[name] = int(round(si / scale)) if name not in ("register_length", "clock_divider") else int(si)
+        if name in ("register_length", "clock_divider"):
+            raw[name] = int(si)
+        elif name == "duration_s":  # never a cycle short of the last sample
+            raw[name] = int(math.ceil(si / scale - 1e-9))
+        else:
+            raw[name] = int(round(si / scale))
         values[name] = raw[name] * scale if name not in ("register_length", "clock_divider") else raw[name]
     return GeneratorSettings(kind, target, raw, values)
 
