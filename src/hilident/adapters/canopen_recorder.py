@@ -99,8 +99,9 @@ class RecorderRun:
         ad = self.ad
         if self.recipe is None:
             raise ConfigError("device.acquisition", '"recorder" plays only what the drive\'s generator plays, '
-                                                    "and this run has no excitation recipe (a friction test is a "
-                                                    'streamed run: set device.acquisition = "streamed" for it)',
+                                                    "and this run has no excitation recipe (the friction test's "
+                                                    "ramps are host-streamed: set friction_test.enabled = false, or "
+                                                    'run the friction test with device.acquisition = "streamed")',
                               self.source)
         if self.period not in self.rec.sample_periods:
             raise ConfigError("run.sample_rate_hz", f"{ad.sample_rate_hz:g} Hz is a sample period of {self.period} "
