@@ -25,6 +25,7 @@ from hilident.drivers import load_driver, load_object_dictionary
 from hilident.emulator.canopen_drive import start
 from hilident.emulator.factory import true_modes
 from hilident.errors import ConfigError, DeviceError
+from hilident.protocol.canopen_objects import ObjectAddress
 from hilident.protocol.canopen_recorder import (
     MAX_LEN_SEQ_TAPS, GeneratorKind, generator_output, parse_recorder, prbs_bits,
 )
@@ -306,3 +307,18 @@ def test_a_drive_without_a_recorder_refuses_recorder_acquisition(tmp_path):
             ad.close()
     finally:
         emu.close()
+
+
+def test_the_twins_generator_refuses_what_its_description_refuses(twin):
+    # written past the host's checks, straight by SDO: the drive answers as a drive does
+    ad, emu, cfg = twin(PRBS)
+    with pytest.raises(DeviceError, match=r"0x2511:1 .*PRBS amplitude.*0x06090031"):
+        ad.write_object(ObjectAddress(0x2511, 1), 25000)  # 25 N*m in per mille of 1 N*m: above its 20 N*m
+    with pytest.raises(DeviceError, match=r"0x2510:3 .*Signal type.*0x06090030"):
+        ad.write_object(ObjectAddress(0x2510, 3), 7)  # no such signal
+    with pytest.raises(DeviceError, match=r"0x2500:4 .*Sampling period.*0x06090030"):
+        ad.write_object(ObjectAddress(0x2500, 4), 3)  # not an allowed sample period
+    with pytest.raises(DeviceError, match=r"0x2501:1 .*0x06040041"):
+        ad.write_object(ObjectAddress(0x2501, 1), 0x60400010)  # the controlword is not a sampled signal
+    with pytest.raises(DeviceError, match=r"0x2510:1 .*0x08000022"):
+        ad.write_object(ObjectAddress(0x2510, 1), 1)  # start while the power stage is off

@@ -38,6 +38,8 @@ from hilident.protocol.canopen_recorder import RecorderCapability, generator_out
 __all__ = ["DriveRecorder"]
 
 ABORT_VALUE = 0x06090030
+ABORT_TOO_HIGH = 0x06090031
+ABORT_TOO_LOW = 0x06090032
 ABORT_STATE = 0x08000022
 ABORT_NO_DATA = 0x08000024
 ABORT_NOT_MAPPABLE = 0x06040041
@@ -103,10 +105,33 @@ class DriveRecorder:
                 raise SdoAbortedError(ABORT_STATE)  # the set-up is fixed while it records
             if addr in r.channels and int(value):
                 self._channel(int(value))
+            bad = {r.trigger: lambda v: v not in r.triggers.values(),
+                   r.sample_period: lambda v: v not in r.sample_periods,
+                   r.samples: lambda v: not 1 <= v <= r.max_samples}.get(addr)
+            if bad is not None and bad(int(value)):
+                raise SdoAbortedError(ABORT_VALUE)
         elif g is not None and addr == g.control:
             self._generator_command(int(value))
-        elif g is not None and self.gen_state == g.states["running"]:
-            raise SdoAbortedError(ABORT_STATE)  # parameters are fixed while it plays
+        elif g is not None:
+            if self.gen_state == g.states["running"]:
+                raise SdoAbortedError(ABORT_STATE)  # parameters are fixed while it plays
+            self._check_generator_value(addr, int(value))
+
+    def _check_generator_value(self, addr, value: int) -> None:
+        """A kind or target code the generator does not know, or a parameter out of its range: refused."""
+        g = self.gen
+        if addr == g.kind and value not in {k.code for k in g.kinds.values()}:
+            raise SdoAbortedError(ABORT_VALUE)
+        if addr == g.target and value not in g.targets.values():
+            raise SdoAbortedError(ABORT_VALUE)
+        for kind in g.kinds.values():
+            for name, p in kind.parameters.items():
+                if p.address != addr:
+                    continue
+                si = value if name in ("register_length", "clock_divider") else value * self._scale(p.scale)
+                tol = 1e-9 * max(1.0, abs(si))
+                if (p.minimum is not None and si < p.minimum - tol) or (p.maximum is not None and si > p.maximum + tol):
+                    raise SdoAbortedError(ABORT_TOO_HIGH if p.maximum is not None and si > p.maximum else ABORT_TOO_LOW)
 
     def _stored(self, addr) -> int:
         return int(self.fw._stored(addr.index, addr.subindex))
