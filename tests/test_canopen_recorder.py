@@ -27,7 +27,11 @@ from hilident.emulator.factory import true_modes
 from hilident.errors import ConfigError, DeviceError
 from hilident.protocol.canopen_objects import ObjectAddress
 from hilident.protocol.canopen_recorder import (
-    MAX_LEN_SEQ_TAPS, GeneratorKind, generator_output, parse_recorder, prbs_bits,
+    MAX_LEN_SEQ_TAPS,
+    GeneratorKind,
+    generator_output,
+    parse_recorder,
+    prbs_bits,
 )
 from hilident.recording import read_run
 from hilident.session import build_excitation, excitation_recipe
@@ -135,6 +139,7 @@ def test_a_sine_sweep_is_recorded_channel_by_channel_and_its_excitation_computed
     # computed from what the drive stores: the sweep without the host's fade in and out
     plain = sig.chirp(4.0, 2.0, 80.0, 2.0, FS, method="logarithmic")
     assert np.allclose(excitation, plain, atol=1e-9)
+    assert np.allclose(excitation[200:-200], x[200:-200], atol=1e-9) and not np.allclose(excitation[:50], x[:50])
     kinds = [e["kind"] for e in result.events]
     assert "excitation_computed" in kinds and "excitation_differs" in kinds  # the host's samples are faded
     # the drive played it: the torque it measured follows the sweep (CST, torque actual in per mille of 1 N*m)
@@ -188,7 +193,7 @@ def test_a_recipe_the_generator_cannot_play_is_refused_before_anything_moves(twi
 
 
 def test_a_run_without_a_recipe_is_refused(twin):
-    ad, emu, cfg = twin(PRBS)
+    ad, _, _ = twin(PRBS)
     ad.configure(FS, "torque")
     with pytest.raises(ConfigError, match=r"\[device.acquisition\].*no excitation recipe"):
         ad.stream(np.zeros(100), lambda i, rows: None)
@@ -311,7 +316,7 @@ def test_a_drive_without_a_recorder_refuses_recorder_acquisition(tmp_path):
 
 def test_the_twins_generator_refuses_what_its_description_refuses(twin):
     # written past the host's checks, straight by SDO: the drive answers as a drive does
-    ad, emu, cfg = twin(PRBS)
+    ad, _, _ = twin(PRBS)
     with pytest.raises(DeviceError, match=r"0x2511:1 .*PRBS amplitude.*0x06090031"):
         ad.write_object(ObjectAddress(0x2511, 1), 25000)  # 25 N*m in per mille of 1 N*m: above its 20 N*m
     with pytest.raises(DeviceError, match=r"0x2510:3 .*Signal type.*0x06090030"):

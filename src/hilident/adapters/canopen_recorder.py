@@ -37,7 +37,12 @@ import numpy as np
 
 from hilident.adapters.base import RunResult, StreamStats
 from hilident.errors import ConfigError, DeviceError
-from hilident.protocol.canopen_objects import ObjectAddress, mapping_entry, numpy_type, record_dtype
+from hilident.protocol.canopen_objects import (
+    ObjectAddress,
+    mapping_entry,
+    numpy_type,
+    record_dtype,
+)
 from hilident.protocol.canopen_recorder import generator_output, plan_generator
 
 __all__ = ["RecorderRun", "configure_recorder", "run_recorder"]

@@ -32,7 +32,13 @@ import numpy as np
 from canopen.sdo import SdoAbortedError
 
 from hilident.protocol import cia402
-from hilident.protocol.canopen_objects import NUMERIC_TYPES, encode_si, parse_mapping_entry, record_dtype, type_bits
+from hilident.protocol.canopen_objects import (
+    NUMERIC_TYPES,
+    encode_si,
+    parse_mapping_entry,
+    record_dtype,
+    type_bits,
+)
 from hilident.protocol.canopen_recorder import RecorderCapability, generator_output
 
 __all__ = ["DriveRecorder"]

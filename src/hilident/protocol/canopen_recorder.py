@@ -31,9 +31,20 @@ import numpy as np
 from hilident.errors import ConfigError
 
 __all__ = [
-    "Parameter", "GeneratorKind", "GeneratorSpec", "RecorderSpec", "RecorderCapability", "parse_recorder",
-    "prbs_bits", "generator_output", "GeneratorSettings", "plan_generator", "MAX_LEN_SEQ_TAPS", "TARGET_ROLES",
-    "SCALE_KINDS", "KIND_PARAMETERS",
+    "KIND_PARAMETERS",
+    "MAX_LEN_SEQ_TAPS",
+    "SCALE_KINDS",
+    "TARGET_ROLES",
+    "GeneratorKind",
+    "GeneratorSettings",
+    "GeneratorSpec",
+    "Parameter",
+    "RecorderCapability",
+    "RecorderSpec",
+    "generator_output",
+    "parse_recorder",
+    "plan_generator",
+    "prbs_bits",
 ]
 
 #: Feedback taps of :func:`scipy.signal.max_len_seq` per register length: the sequence of
@@ -247,7 +258,7 @@ class _Parser:
             out[name] = self.integer(value[name], f"{key}.{name}", 0, 0xFFFF)
         unknown = set(value) - set(names)
         if unknown:
-            self.fail(f"{key}.{sorted(unknown)[0]}", f"is not one of {', '.join(names)}")
+            self.fail(f"{key}.{min(unknown)}", f"is not one of {', '.join(names)}")
         return out
 
     def recorder(self, t: dict) -> RecorderSpec:
@@ -303,7 +314,7 @@ class _Parser:
             self.fail(f"{key}.min", f"{bounds[0]:g} exceeds max {bounds[1]:g}")
         unknown = set(value) - {"object", "scale", "min", "max"}
         if unknown:
-            self.fail(f"{key}.{sorted(unknown)[0]}", "is not a parameter key (object, scale, min, max)")
+            self.fail(f"{key}.{min(unknown)}", "is not a parameter key (object, scale, min, max)")
         return Parameter(name, self.address(value.get("object"), f"{key}.object"),
                          scale if isinstance(scale, str) else float(scale), *bounds)
 
@@ -320,7 +331,7 @@ class _Parser:
                 self.fail(f"{key}.{pname}", f"is required for a {name} generator")
         extra = set(t) - set(params) - {"code", "method", "taps", "seed"}
         if extra:
-            self.fail(f"{key}.{sorted(extra)[0]}", f"is not a key of a {name} generator")
+            self.fail(f"{key}.{min(extra)}", f"is not a key of a {name} generator")
         method, taps, seed = "", {}, -1
         if name == "chirp":
             method = t.get("method", "linear")
@@ -575,9 +586,9 @@ def plan_generator(cap: RecorderCapability, recipe: dict, target: str, samples: 
         if name in ("register_length", "clock_divider"):
             raw[name] = int(si)
         elif name == "duration_s":  # never a cycle short of the last sample
-            raw[name] = int(math.ceil(si / scale - 1e-9))
+            raw[name] = math.ceil(si / scale - 1e-9)
         else:
-            raw[name] = int(round(si / scale))
+            raw[name] = round(si / scale)
         values[name] = raw[name] * scale if name not in ("register_length", "clock_divider") else raw[name]
     return GeneratorSettings(kind, target, raw, values)
 
