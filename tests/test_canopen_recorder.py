@@ -327,3 +327,25 @@ def test_the_twins_generator_refuses_what_its_description_refuses(twin):
         ad.write_object(ObjectAddress(0x2501, 1), 0x60400010)  # the controlword is not a sampled signal
     with pytest.raises(DeviceError, match=r"0x2510:1 .*0x08000022"):
         ad.write_object(ObjectAddress(0x2510, 1), 1)  # start while the power stage is off
+
+
+def test_the_driver_can_make_the_recorder_its_default(tmp_path):
+    folder = write_vendor_drive(tmp_path, PRBS)
+    toml = folder / "driver.toml"
+    toml.write_text(toml.read_text().replace("[canopen]\n", '[canopen]\ndefault_acquisition = "recorder"\n'))
+    driver = load_driver(folder)
+    cfg = load_config(CONFIG)
+    emu = start(replace(cfg.emulator, time_scale=20.0), driver, replace(cfg.device, driver=str(folder)))
+    try:
+        ad = CanopenDriveAdapter.open_device(replace(emu.device, acquisition="auto", timeout_s=0.5), driver)
+        ad.close()
+    finally:
+        emu.close()
+    assert ad.acquisition == "recorder"
+    # without a recorder to default to, the description is refused, naming the key and the file
+    plain = write_vendor_drive(tmp_path, VendorDrive("acme-plain"))
+    toml = plain / "driver.toml"
+    toml.write_text(toml.read_text().replace("[canopen]\n", '[canopen]\ndefault_acquisition = "recorder"\n'))
+    with pytest.raises(ConfigError) as info:
+        load_driver(plain)
+    assert info.value.key == "canopen.default_acquisition" and info.value.file == str(toml)

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from hilident.errors import ConfigError, DataError
-from hilident.protocol.canopen_recorder import parse_recorder
+from hilident.protocol.canopen_recorder import RecorderCapability, parse_recorder
 
 __all__ = [
     "ObjectAddress", "ModeSpec", "FilterObjects", "CanopenDescription", "BOOLEAN", "INTEGER8", "INTEGER16",
@@ -191,7 +191,7 @@ class CanopenDescription:
         EDS file name, relative to the driver folder.
     vendor_id, product_code : int or None
         Identity (0x1018:1, 0x1018:2) the device must report; None: not checked.
-    default_acquisition : {"streamed", "buffered"}
+    default_acquisition : {"streamed", "buffered", "recorder"}
         Used when ``device.acquisition = "auto"``.
     heartbeat_ms : int
         Producer heartbeat time the host asks of the drive (0x1017).
@@ -231,6 +231,8 @@ class CanopenDescription:
         1 fault, 2 disable voltage, 3 quick stop).
     explicit_modes : bool
         ``[canopen.modes]`` fixed the modes; otherwise they follow the drive's supported modes (0x6502).
+    recorder : RecorderCapability or None
+        The drive's own generator and recorder (:mod:`hilident.protocol.canopen_recorder`).
     """
 
     eds: str
@@ -255,7 +257,7 @@ class CanopenDescription:
     rated_current_a: float = 0.0
     cyclic_modes: tuple[str, ...] = ("cst", "csv", "csp", "ip")
     explicit_modes: bool = False
-    recorder: object = None  # a RecorderCapability (protocol.canopen_recorder): the drive's generator and recorder
+    recorder: RecorderCapability | None = None
 
     @classmethod
     def from_sections(cls, sections: dict, source: str = "", od=None) -> "CanopenDescription":
