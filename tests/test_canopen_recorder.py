@@ -349,3 +349,14 @@ def test_the_driver_can_make_the_recorder_its_default(tmp_path):
     with pytest.raises(ConfigError) as info:
         load_driver(plain)
     assert info.value.key == "canopen.default_acquisition" and info.value.file == str(toml)
+
+
+def test_the_twins_generator_feeds_the_torque_set_point_only_in_cst(twin):
+    ad, emu, cfg = twin(PRBS)
+    ad.configure(FS, "torque_injection")  # CSP: the torque set-point is not the loop's input
+    ad.enable()
+    ad.write_object(ObjectAddress(0x2510, 3), 1)  # PRBS
+    ad.write_object(ObjectAddress(0x2510, 4), 1)  # target: the torque set-point
+    with pytest.raises(DeviceError, match=r"0x2510:1 .*0x08000022"):
+        ad.write_object(ObjectAddress(0x2510, 1), 1)
+    ad.safe_stop()

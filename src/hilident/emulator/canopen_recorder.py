@@ -211,6 +211,8 @@ class DriveRecorder:
         target = next((role for role, c in g.targets.items() if c == self._stored(g.target)), None)
         if kind is None or target is None or not self.fw.desc.has(target):
             raise SdoAbortedError(ABORT_VALUE)
+        if target != "torque_offset" and not self._mode_takes(target):
+            raise SdoAbortedError(ABORT_STATE)  # a torque (velocity) set-point is the loop's input in CST (CSV) only
         values = {}
         for name, p in kind.parameters.items():
             raw = self._stored(p.address)
@@ -225,6 +227,13 @@ class DriveRecorder:
         if self.rec_state == self.rec.states["waiting"]:
             self.rec_state = self.rec.states["recording"]
             self.recording_from = self.gen_tick
+
+    def _mode_takes(self, target: str) -> bool:
+        """The selected mode of operation takes its set-point from the object of role ``target``."""
+        spec = self.fw.mode_spec
+        if self.fw.desc.explicit_modes:
+            return spec is not None and spec.setpoint == target
+        return {"target_torque": 10, "target_velocity": 9}.get(target) == self.fw.mode_code
 
     def stop_generator(self) -> None:
         if self.gen is not None and self.gen_state == self.gen.states["running"]:
