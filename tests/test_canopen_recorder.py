@@ -352,7 +352,7 @@ def test_the_driver_can_make_the_recorder_its_default(tmp_path):
 
 
 def test_the_twins_generator_feeds_the_torque_set_point_only_in_cst(twin):
-    ad, emu, cfg = twin(PRBS)
+    ad, _, _ = twin(PRBS)
     ad.configure(FS, "torque_injection")  # CSP: the torque set-point is not the loop's input
     ad.enable()
     ad.write_object(ObjectAddress(0x2510, 3), 1)  # PRBS
