@@ -524,7 +524,9 @@ def plan_generator(cap: RecorderCapability, recipe: dict, target: str, samples: 
     cap : RecorderCapability
     recipe : dict
         ``kind``, ``amplitude`` (SI of the mode), ``f_min_hz``, ``f_max_hz``, ``frequency_hz``,
-        ``duration_s``, ``register_length``, ``clock_divider`` (samples per bit), ``chirp_method``.
+        ``duration_s``, ``register_length``, ``clock_divider`` (samples per bit), ``chirp_method``;
+        optionally ``amplitude_key``, the config key the amplitude came from (messages name it; default
+        ``"excitation.amplitude_nm"``).
     target : str
         Role of the set-point the mode excites (``target_torque``, ``torque_offset``, ``target_velocity``).
     samples : int
@@ -560,7 +562,8 @@ def plan_generator(cap: RecorderCapability, recipe: dict, target: str, samples: 
     if kind.name == "chirp" and recipe.get("chirp_method", "linear") != kind.method:
         raise ConfigError("excitation.chirp_method", f"{recipe.get('chirp_method')!r}: {where} sweeps "
                                                      f"{kind.method}ly")
-    wanted = {"amplitude": ("excitation.amplitude_nm", float(recipe.get("amplitude", 0.0)))}
+    amplitude_key = recipe.get("amplitude_key", "excitation.amplitude_nm")  # the mode's key: amplitude_mps, ...
+    wanted = {"amplitude": (amplitude_key, float(recipe.get("amplitude", 0.0)))}
     if kind.name == "prbs":
         wanted["register_length"] = ("excitation.register_length", int(recipe.get("register_length", 0)))
         wanted["clock_divider"] = ("excitation.clock_divider", int(recipe.get("clock_divider", 1)) * sample_period)
