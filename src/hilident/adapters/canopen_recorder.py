@@ -148,7 +148,7 @@ class RecorderRun:
             self._hold_axis()
             ad.enable()
             ad.write_object(self.cap.generator.control, self.cap.generator.commands["start"])
-            recorded = self._wait(n, progress)
+            recorded = min(n, self._wait(n, progress))  # a recorder that kept going past n: the n asked for
         finally:
             self._stop()
         if ad.run_fault is not None:  # what was recorded up to the fault, then the fault
