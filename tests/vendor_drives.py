@@ -16,6 +16,7 @@ from hilident.protocol.canopen_profile import encode_supported_modes
 
 # (index, sub, name, type code, access, PDO-mappable, default) of the standard objects a drive may have
 _INT8, _INT16, _INT32, _UINT8, _UINT16, _UINT32, _VSTRING = 0x2, 0x3, 0x4, 0x5, 0x6, 0x7, 0x9
+_DOMAIN = 0xF
 
 
 @dataclass
@@ -47,6 +48,9 @@ class VendorDrive:
     max_sample_rate_hz: float = 1000.0
     extra_toml: str = ""
     objects: list = field(default_factory=list)
+    recorder: str = ""  # "", "prbs" (recorder + PRBS generator with an output object), "sweep" (per-channel buffers,
+    # a sine-sweep and sine generator without an output object)
+    recorder_max_samples: int = 8192
 
 
 def _objects(d: VendorDrive) -> list[tuple]:
@@ -129,6 +133,7 @@ def _objects(d: VendorDrive) -> list[tuple]:
                  (0x60C2, 1, "Interpolation time period value", _UINT8, "rw", False, 1),
                  (0x60C2, 2, "Interpolation time index", _INT8, "rw", False, -3)]
     objs += _filter_objects(d.filters)
+    objs += _recorder_objects(d)
     objs.append((0x60FF, None, "Target velocity", _INT32, "rww", True, 0))
     objs.append((0x6502, None, "Supported drive modes", _UINT32, "ro", False,
                  encode_supported_modes(d.modes) if d.declare_modes else None))
@@ -163,6 +168,110 @@ def _filter_objects(kind: str) -> list[tuple]:
         objs.append((index, 0, "Highest sub-index supported", _UINT8, "ro", False, len(members)))
         objs += [(index, sub, name, dtype, "rw", False, default) for sub, name, dtype, default in members]
     return objs
+
+
+def _recorder_objects(d: VendorDrive) -> list[tuple]:
+    """A data recorder (0x2500-0x2503) and a signal generator (0x2510-0x2512), in a vendor's style."""
+    if not d.recorder:
+        return []
+    objs = [(0x2500, 0, "Highest sub-index supported", _UINT8, "ro", False, 7),
+            (0x2500, 1, "Recorder control", _UINT8, "rw", False, 0),
+            (0x2500, 2, "Recorder status", _UINT8, "ro", False, 0),
+            (0x2500, 3, "Trigger source", _UINT8, "rw", False, 0),
+            (0x2500, 4, "Sampling period", _UINT16, "rw", False, 1),
+            (0x2500, 5, "Number of samples", _UINT32, "rw", False, 1000),
+            (0x2500, 6, "Recorded samples", _UINT32, "ro", False, 0),
+            (0x2500, 7, "Maximum samples", _UINT32, "const", False, d.recorder_max_samples),
+            (0x2501, 0, "Number of channels", _UINT8, "ro", False, 6)]
+    objs += [(0x2501, sub, f"Channel {sub} object", _UINT32, "rw", False, 0) for sub in range(1, 7)]
+    if d.recorder == "prbs":
+        objs.append((0x2502, None, "Recorder data buffer", _DOMAIN, "ro", False, None))
+    else:
+        objs.append((0x2503, 0, "Highest sub-index supported", _UINT8, "ro", False, 6))
+        objs += [(0x2503, sub, f"Channel {sub} data", _DOMAIN, "ro", False, None) for sub in range(1, 7)]
+    objs += [(0x2510, 0, "Highest sub-index supported", _UINT8, "ro", False, 5 if d.recorder == "prbs" else 4),
+             (0x2510, 1, "Generator control", _UINT8, "rw", False, 0),
+             (0x2510, 2, "Generator status", _UINT8, "ro", False, 0),
+             (0x2510, 3, "Signal type", _UINT8, "rw", False, 0),
+             (0x2510, 4, "Signal target", _UINT8, "rw", False, 0)]
+    if d.recorder == "prbs":
+        objs.append((0x2510, 5, "Generator output", _INT16, "ro", True, 0))
+        objs += [(0x2511, 0, "Highest sub-index supported", _UINT8, "ro", False, 4),
+                 (0x2511, 1, "PRBS amplitude", _UINT16, "rw", False, 0),
+                 (0x2511, 2, "PRBS register length", _UINT8, "rw", False, 10),
+                 (0x2511, 3, "PRBS clock divider", _UINT16, "rw", False, 1),
+                 (0x2511, 4, "PRBS duration", _UINT32, "rw", False, 0)]
+    else:
+        objs += [(0x2512, 0, "Highest sub-index supported", _UINT8, "ro", False, 4),
+                 (0x2512, 1, "Sweep amplitude", _UINT16, "rw", False, 0),
+                 (0x2512, 2, "Sweep start frequency", _UINT32, "rw", False, 100),
+                 (0x2512, 3, "Sweep end frequency", _UINT32, "rw", False, 10000),
+                 (0x2512, 4, "Sweep duration", _UINT32, "rw", False, 1000),
+                 (0x2513, 0, "Highest sub-index supported", _UINT8, "ro", False, 2),
+                 (0x2513, 1, "Sine amplitude", _UINT16, "rw", False, 0),
+                 (0x2513, 2, "Sine frequency", _UINT32, "rw", False, 1000)]
+    return objs
+
+
+_RECORDER_TOML = """[canopen.recorder]
+control = "0x2500:1"
+state = "0x2500:2"
+trigger = "0x2500:3"
+sample_period = "0x2500:4"
+samples = "0x2500:5"
+recorded = "0x2500:6"
+sample_periods = [1, 2, 4, 8]
+max_samples = {max_samples}
+channels = ["0x2501:1", "0x2501:2", "0x2501:3", "0x2501:4", "0x2501:5", "0x2501:6"]
+"""
+#: Recorder and generator capabilities of the project's test drives: the [canopen.recorder] and
+#: [canopen.generator] tables (the EDS objects are written by _recorder_objects).
+RECORDERS = {
+    "prbs": ("recorder + PRBS generator, one interleaved buffer, a generator output object",
+             _RECORDER_TOML + """buffer = "0x2502"
+
+[canopen.generator]
+control = "0x2510:1"
+state = "0x2510:2"
+kind = "0x2510:3"
+target = "0x2510:4"
+output = "0x2510:5"
+output_scale = "torque"
+targets = { target_torque = 1, torque_offset = 2 }
+
+[canopen.generator.kinds.prbs]
+code = 1
+taps = "max_len_seq"
+amplitude = { object = "0x2511:1", scale = "torque", min = 0.0, max = 20.0 }
+register_length = { object = "0x2511:2", min = 7, max = 14 }
+clock_divider = { object = "0x2511:3", min = 1, max = 1000 }
+duration_s = { object = "0x2511:4", scale = 0.001 }
+"""),
+    "sweep": ("recorder with one buffer per channel + sine-sweep and sine generator, no output object",
+              _RECORDER_TOML + """buffers = ["0x2503:1", "0x2503:2", "0x2503:3", "0x2503:4", "0x2503:5", "0x2503:6"]
+block_transfer = false
+
+[canopen.generator]
+control = "0x2510:1"
+state = "0x2510:2"
+kind = "0x2510:3"
+target = "0x2510:4"
+targets = { target_torque = 1 }
+
+[canopen.generator.kinds.chirp]
+code = 2
+method = "logarithmic"
+amplitude = { object = "0x2512:1", scale = "torque", min = 0.0, max = 10.0 }
+f_start_hz = { object = "0x2512:2", scale = 0.01, min = 0.1, max = 200.0 }
+f_end_hz = { object = "0x2512:3", scale = 0.01, min = 0.1, max = 200.0 }
+duration_s = { object = "0x2512:4", scale = 0.001, max = 60.0 }
+
+[canopen.generator.kinds.sine]
+code = 3
+amplitude = { object = "0x2513:1", scale = "torque", min = 0.0, max = 10.0 }
+frequency_hz = { object = "0x2513:2", scale = 0.01, min = 0.1, max = 200.0 }
+"""),
+}
 
 
 def eds_text(d: VendorDrive) -> str:
@@ -236,6 +345,8 @@ def driver_toml(d: VendorDrive) -> str:
     emulator = "" if d.declare_modes else f"\n[emulator]\nsupported_modes = {list(d.modes)!r}\n".replace("'", '"')
     if d.filters:
         emulator += "\n" + FILTERS[d.filters][1]
+    if d.recorder:
+        emulator += "\n" + RECORDERS[d.recorder][1].replace("{max_samples}", str(d.recorder_max_samples))
     return f"""[driver]
 name = "{d.name}"
 description = "a CiA 402 drive described by its vendor EDS"

@@ -69,9 +69,10 @@ class DeviceConfig:
     device_id: int = _spec(1, ge=0, le=247, doc="Modbus: device (unit/slave) id")
     parity: str = _spec("E", choices=("N", "E", "O"), doc="Modbus RTU: parity")
     stopbits: int = _spec(1, ge=1, le=2, doc="Modbus RTU: stop bits")
-    acquisition: str = _spec("auto", choices=("auto", "streamed", "buffered"),
+    acquisition: str = _spec("auto", choices=("auto", "streamed", "buffered", "recorder"),
                              doc="streamed: the host sends set-points each cycle; buffered: the drive plays a "
-                                 "stored table and captures into its buffer; auto: the driver's choice")
+                                 "stored table and captures into its buffer; recorder: the drive's own generator "
+                                 "plays and its recorder records; auto: the driver's choice")
     allow_fault_reset: bool = _spec(False, doc="clear a fault the device has latched (a limit trip, a watchdog, a drive "
                                     "fault) when connecting; without it such a device is refused "
                                     "(hilident run --clear-fault sets it for one run)")
@@ -266,7 +267,7 @@ class FaultsConfig:
     exception_code: int = _spec(4, ge=1, le=11, doc="Modbus: the exception code answered (4: server device failure)")
     response_delay_s: float = _spec(0.0, ge=0, doc="Modbus: every response is delayed this long")
     missing_response_rate: float = _spec(0.0, ge=0, le=1, doc="Modbus: probability that a request gets no response")
-    capture_stops_after_s: float = _spec(0.0, ge=0, doc="CANopen/Modbus buffered runs: the capture stops this long "
+    capture_stops_after_s: float = _spec(0.0, ge=0, doc="CANopen/Modbus buffered and recorder runs: the capture stops this long "
                                          "(simulated time) after the start; 0: never")
 
 

@@ -488,6 +488,7 @@ def check_driver_folder(folder) -> CheckReport:
     _check_channels(c)
     _check_filters(c)
     _check_save(c)
+    _check_recorder(c)
     _check_scaling(c)
     _check_keys(c)
     _check_identity(c)
@@ -657,6 +658,16 @@ def _check_scaling(c: _Checker) -> None:
         c.warn("canopen.scaling", "current-only drive without torque_constant_nm_per_a: no torque in N*m")
     if ref == "torque" and "rated_torque_nm" not in scaling:
         c.warn("canopen.scaling", "the EDS has no 0x6076 and rated_torque_nm is not given: no torque in N*m")
+
+
+def _check_recorder(c: _Checker) -> None:
+    """[canopen.recorder] and [canopen.generator]: their vocabulary, and every object they name in the EDS."""
+    from hilident.protocol.canopen_recorder import parse_recorder
+
+    try:
+        parse_recorder(c.data, c.source, c.od)
+    except ConfigError as exc:
+        c.errors.append(str(exc))
 
 
 def _check_keys(c: _Checker) -> None:

@@ -148,6 +148,16 @@ def build_excitation(cfg: Config) -> Excitation:
     return Excitation(np.asarray(x, dtype=float), period, band)
 
 
+def excitation_recipe(cfg: Config) -> dict:
+    """``[excitation]`` as parameters, for a drive whose own generator plays it (``device.acquisition = "recorder"``)."""
+    e = cfg.excitation
+    return {"kind": e.kind, "mode": e.mode, "amplitude": e.amplitude,
+            "amplitude_key": f"excitation.{e.amplitude_key}", "f_min_hz": e.f_min_hz,
+            "f_max_hz": e.f_max_hz, "frequency_hz": e.frequency_hz, "duration_s": e.duration_s,
+            "period_s": e.period_s, "register_length": e.register_length, "clock_divider": e.clock_divider,
+            "chirp_method": e.chirp_method, "sample_rate_hz": cfg.run.sample_rate_hz}
+
+
 @dataclass
 class Experiment:
     """Samples of one recorded experiment (read back from its file)."""
@@ -358,6 +368,8 @@ class Session:
         status, reason = "aborted", ""
         ad.last_result = None
         try:
+            if hasattr(ad, "set_excitation_recipe"):  # the identification excitation, for a drive's own generator
+                ad.set_excitation_recipe(excitation_recipe(cfg) if name in ("identification", "verification") else None)
             result = ad.stream(excitation, sink, self.progress.fraction(name))
             status = "complete"
         except BaseException as exc:

@@ -7,7 +7,7 @@ drive's emergencies, drives the CiA 402 state machine
 (:mod:`hilident.protocol.cia402`) to Operation Enabled for each run and back
 to a safe state (Disable Voltage: zero torque) on every exit path.
 
-Each run is played one of two ways (``device.acquisition``; ``"auto"`` takes the
+Each run is played one of three ways (``device.acquisition``; ``"auto"`` takes the
 driver's ``default_acquisition``):
 
 ``"streamed"`` (:mod:`hilident.adapters.canopen_streamed`)
@@ -16,7 +16,11 @@ driver's ``default_acquisition``):
 ``"buffered"`` (:mod:`hilident.adapters.canopen_buffered`)
     the excitation table goes to the drive by SDO (block transfer), the drive
     plays it at its own rate and captures; the host reads the capture back in
-    chunks while it runs.
+    chunks while it runs;
+``"recorder"`` (:mod:`hilident.adapters.canopen_recorder`)
+    the drive's own generator plays the excitation (a PRBS, a sweep, a sine,
+    set up from its parameters) and its recorder records; the host reads the
+    recorder's buffers by SDO once it is done.
 
 Connecting brings the drive to a known state whatever the previous session left
 (it may have been killed): the drive is told NMT Pre-operational (no PDOs from
@@ -59,6 +63,7 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, refuse_latched_faults
 from hilident.adapters.canopen_link import open_network
+from hilident.adapters.canopen_recorder import configure_recorder, run_recorder
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription, load_object_dictionary
 from hilident.errors import ConfigError, DataError, DeviceError, LimitTrip
@@ -167,7 +172,7 @@ class CanopenDriveAdapter(AdapterBase):
 
     Attributes
     ----------
-    acquisition : {"streamed", "buffered"}
+    acquisition : {"streamed", "buffered", "recorder"}
         How :meth:`stream` plays a run.
     sync_rate_hz : float or None
         SYNC frames per second in streamed runs; None: the sample rate (real
@@ -204,6 +209,7 @@ class CanopenDriveAdapter(AdapterBase):
         self.tpdo_layout: list[tuple[int, list[int]]] = []  # (COB-ID, channel indices after the counter)
         self.rpdo: tuple | None = None  # (COB-ID, counter type, set-point type, set-point role)
         self._configured_for = ""  # the acquisition configure() mapped the objects for
+        self.excitation_recipe: dict | None = None  # what a drive's own generator plays (recorder runs)
         self.last_result: RunResult | None = None
         self.events: list[dict] = []
         self.connect_report = ConnectReport()
@@ -830,7 +836,9 @@ class CanopenDriveAdapter(AdapterBase):
             addr = self.desc.address(role)
             var = self.node.object_dictionary.get_variable(addr.index, addr.subindex)
             codecs.append(ChannelCodec(name, units[name], role, addr, var.data_type, self.scale(role)))
-        if self.acquisition == "buffered" and any(c.on_host for c in codecs):
+        if self.acquisition == "recorder":
+            configure_recorder(self, codecs)
+        elif self.acquisition == "buffered" and any(c.on_host for c in codecs):
             raise DeviceError(f"{self.port}: a drive-buffered run records only drive objects; channel "
                               f"{next(c.name for c in codecs if c.on_host)!r} has none")
         spec = self.desc.modes[mode]
@@ -855,7 +863,7 @@ class CanopenDriveAdapter(AdapterBase):
             self.write("table_divider", divider)
         if self.acquisition == "streamed":
             self._map_pdos(codecs, mode)
-        else:
+        elif self.acquisition == "buffered":
             self._map_capture(codecs)
         self.divider, self.sample_rate_hz, self.mode = divider, rate, mode
         self._configured_for = self.acquisition
@@ -1007,6 +1015,8 @@ class CanopenDriveAdapter(AdapterBase):
             except (OSError, ValueError) as exc:
                 raise DeviceError(f"{self.port}: cannot write the CAN trace {trace_path}: {exc}") from None
         run = run_streamed if self.acquisition == "streamed" else run_buffered
+        if self.acquisition == "recorder":
+            run = run_recorder
         self._host_checks = self._host_limit_columns()
         from_sink: list[BaseException] = []
 
@@ -1043,6 +1053,14 @@ class CanopenDriveAdapter(AdapterBase):
                 self.network.stop_trace()
             if self.last_result is not None:
                 self.last_result.events = list(self.events)
+
+    def set_excitation_recipe(self, recipe: dict | None) -> None:
+        """The excitation of the next :meth:`stream` as parameters (``kind``, ``amplitude``, band, ...).
+
+        A recorder run has the drive's generator play it (see
+        :mod:`hilident.adapters.canopen_recorder`); the other runs play the samples.
+        """
+        self.excitation_recipe = dict(recipe) if recipe is not None else None
 
     def _host_limit_columns(self) -> list[tuple[int, float, float, str]]:
         """(channel column, low, high, limit name) of the limits the host checks on every sample.

@@ -55,6 +55,7 @@ from canopen.sdo import SdoAbortedError
 
 from hilident.config import DeviceConfig, EmulatorConfig, FaultsConfig
 from hilident.drivers import DriverDescription, load_object_dictionary
+from hilident.emulator.canopen_recorder import DriveRecorder
 from hilident.emulator.canopen_sdo import BlockSdoServer, parse_fault_object
 from hilident.emulator.drive import DriveLoop
 from hilident.errors import ConfigError, DataError
@@ -271,6 +272,7 @@ class CanopenDriveFirmware:
                           if 0x1400 + n in od and 0x1600 + n in od})
         self.last_row = drive.run(np.zeros(1))[0]
         drive.disable()
+        self.recorder = DriveRecorder(self, desc.recorder) if desc.recorder is not None else None
 
     # --- object dictionary helpers --------------------------------------------------------
 
@@ -733,6 +735,8 @@ class CanopenDriveFirmware:
         addr = ObjectAddress(index, subindex)
         role = self.role_of.get(addr)
         with self.lock:
+            if self.recorder is not None and self.recorder.owns(addr) and (live := self.recorder.on_read(addr)) is not None:
+                return live
             if role == "capture_data":
                 return self._capture_chunk()
             if role in _COLUMN_OF_ROLE or role in ("sample_counter", "statusword", "modes_display", "error_code",
@@ -792,6 +796,8 @@ class CanopenDriveFirmware:
         addr = ObjectAddress(index, subindex)
         role = self.role_of.get(addr)
         with self.lock:
+            if self.recorder is not None and self.recorder.owns(addr):
+                return self.recorder.on_write(addr, value)
             base = index & 0xFE00
             if base in _PDO_KINDS and (("rpdo" if base < 0x1800 else "tpdo"), index - base) in self.pdos:
                 self._write_pdo(base, index - base, subindex, int(value))
@@ -1056,6 +1062,8 @@ class CanopenDriveFirmware:
             if self.consumers:
                 self._check_consumers(now)
             self._check_life_guarding(now)
+            if self.recorder is not None:
+                self.recorder.tick(now)
             if self.state is cia402.State.OPERATION_ENABLED:
                 if self.table_state == TableState.PLAYING:
                     self.advance_table(now)

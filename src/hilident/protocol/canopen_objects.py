@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from hilident.errors import ConfigError, DataError
+from hilident.protocol.canopen_recorder import RecorderCapability, parse_recorder
 
 __all__ = [
     "ObjectAddress", "ModeSpec", "FilterObjects", "CanopenDescription", "BOOLEAN", "INTEGER8", "INTEGER16",
@@ -85,7 +86,7 @@ REQUIRED_ROLES = ("controlword", "statusword", "modes_of_operation")
 COUNTER_ROLES = ("sample_counter", "setpoint_counter", "setpoint_underruns", "sync_errors")
 BUFFERED_ROLES = ("table", "table_length", "table_divider", "table_command", "table_state", "capture_count",
                   "table_capacity", "capture_offset", "capture_mapping", "capture_data")
-ACQUISITIONS = ("streamed", "buffered")
+ACQUISITIONS = ("streamed", "buffered", "recorder")
 #: CiA 402 abort connection option codes (0x6007) hilident arms: what the drive does when it loses the host.
 ABORT_CONNECTION_OPTIONS = {1: "fault", 2: "disable voltage", 3: "quick stop"}
 #: Standard objects of the device-side net (CiA 301 heartbeat consumer, CiA 402 abort connection option).
@@ -196,7 +197,7 @@ class CanopenDescription:
         EDS file name, relative to the driver folder.
     vendor_id, product_code : int or None
         Identity (0x1018:1, 0x1018:2) the device must report; None: not checked.
-    default_acquisition : {"streamed", "buffered"}
+    default_acquisition : {"streamed", "buffered", "recorder"}
         Used when ``device.acquisition = "auto"``.
     heartbeat_ms : int
         Producer heartbeat time the host asks of the drive (0x1017).
@@ -239,6 +240,8 @@ class CanopenDescription:
     unmappable : tuple of str
         Roles whose object the EDS declares not PDO-mappable (a cyclic mode whose set-point is one of them
         cannot be streamed).
+    recorder : RecorderCapability or None
+        The drive's own generator and recorder (:mod:`hilident.protocol.canopen_recorder`).
     """
 
     eds: str
@@ -264,6 +267,7 @@ class CanopenDescription:
     cyclic_modes: tuple[str, ...] = ("cst", "csv", "csp", "ip")
     explicit_modes: bool = False
     unmappable: tuple[str, ...] = ()
+    recorder: RecorderCapability | None = None
 
     @classmethod
     def from_sections(cls, sections: dict, source: str = "", od=None) -> "CanopenDescription":
@@ -402,9 +406,12 @@ class CanopenDescription:
             rated_torque_unit_nm=units["rated_torque_unit_nm"], rated_torque_nm=units["rated_torque_nm"],
             torque_constant_nm_per_a=units["torque_constant_nm_per_a"], rated_current_a=units["rated_current_a"],
             cyclic_modes=tuple(preference), explicit_modes=explicit, unmappable=unmappable,
+            recorder=parse_recorder(sections, source, od),
         )
         if desc.default_acquisition == "buffered":
             desc.require_buffered(source)
+        if desc.default_acquisition == "recorder" and desc.recorder is None:
+            raise ConfigError("canopen.default_acquisition", "is \"recorder\" but there is no [canopen.recorder]", source)
         return desc
 
     def address(self, role: str) -> ObjectAddress:

@@ -1,0 +1,332 @@
+"""Recorder runs on a CANopen drive: the drive's own generator plays, its own recorder records.
+
+For drives that cannot play an arbitrary table but have a vendor generator
+and recorder, described by ``[canopen.generator]`` and ``[canopen.recorder]``
+(:mod:`hilident.protocol.canopen_recorder`; ``device.acquisition =
+"recorder"``):
+
+1. The excitation *recipe* (``adapter.set_excitation_recipe``) is mapped onto
+   the generator's parameters; a recipe it cannot play (a kind it lacks, an
+   amplitude or frequency out of its range, more samples than the recorder
+   holds) is a ConfigError before anything is written.
+2. The recorder's channel-selection objects get the mapping entries of the
+   channels asked for (and of the generator's output object when the drive has
+   one: that is the recorded ``excitation``; otherwise the excitation is
+   computed from the parameters the drive stores, and an event says so); its
+   sample period, sample count and trigger (the generator's start) follow, the
+   generator's kind, target and parameters are written and read back.
+3. The recorder is started (it waits for its trigger), the drive enabled in the
+   mode's mode of operation, the generator started. While they run, the host
+   watches the heartbeat and the emergencies, and polls the recorder's state.
+4. The buffer(s) are read by SDO (block transfer when ``[canopen.recorder]
+   block_transfer``), decoded and delivered from sample 0. A recorder that
+   ends with fewer samples than asked has them delivered and the rest counted
+   lost (never filled), then the run ends with DeviceError naming the object;
+   so does a buffer shorter than the count it reported.
+
+The generator and the recorder are stopped on every ending, and the adapter's
+``stream()`` leaves the drive in Switch On Disabled.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+
+import numpy as np
+
+from hilident.adapters.base import RunResult, StreamStats
+from hilident.errors import ConfigError, DeviceError
+from hilident.protocol.canopen_objects import (
+    ObjectAddress,
+    mapping_entry,
+    numpy_type,
+    record_dtype,
+)
+from hilident.protocol.canopen_recorder import generator_output, plan_generator
+
+__all__ = ["RecorderRun", "configure_recorder", "run_recorder"]
+
+_POLL_S = 0.05
+_POSITION_SETPOINTS = ("target_position", "interpolation_data")
+
+
+def configure_recorder(ad, codecs) -> None:
+    """``configure()``'s part for a recorder run: the drive has a recorder, the channels fit it, no PDO runs."""
+    cap = ad.desc.recorder
+    source = str(ad.driver.folder / "driver.toml")
+    if cap is None:
+        raise ConfigError("device.acquisition", f'"recorder": driver {ad.driver.name!r} describes no '
+                                                "[canopen.recorder]", source)
+    wanted = [c for c in codecs if not c.on_host]
+    output = cap.generator.output if cap.generator is not None else None
+    if any(c.on_host for c in codecs) and output is not None:
+        wanted.append(None)  # the generator's output object records the excitation
+    if len(wanted) > len(cap.recorder.channels):
+        raise ConfigError("run.channels", f"{len(wanted)} recorded channels; the drive's recorder has "
+                                          f"{len(cap.recorder.channels)} ([canopen.recorder] channels)", source)
+    ad.nmt("OPERATIONAL")  # for the heartbeat's NMT check; no PDOs are mapped
+    for slot in ad.pdo_slots("tpdo"):  # no stale TPDOs beside the recorder
+        ad.write_object(ObjectAddress(0x1800 + slot.number, 1), slot.cob_id | 0x80000000)
+
+
+def run_recorder(ad, x: np.ndarray, deliver, progress=None) -> RunResult:
+    """``stream()``'s run for ``"recorder"`` acquisition: :meth:`RecorderRun.run` with the adapter's recipe."""
+    return RecorderRun(ad, ad.excitation_recipe).run(x, deliver, progress)
+
+
+class RecorderRun:
+    """One run of the drive's generator and recorder (see the module docstring).
+
+    Parameters
+    ----------
+    ad : CanopenDriveAdapter
+        Configured for ``"recorder"`` acquisition.
+    recipe : dict or None
+        The excitation recipe (``set_excitation_recipe``).
+    """
+
+    def __init__(self, ad, recipe: dict | None):
+        self.ad = ad
+        self.cap = ad.desc.recorder
+        self.rec = self.cap.recorder
+        self.recipe = recipe
+        self.source = str(ad.driver.folder / "driver.toml")
+        self.period = ad.divider
+        self.settings = None
+        self.channels: list[tuple[ObjectAddress, int, float]] = []  # (object, data type, SI per unit) recorded
+        self.excitation_column: int | None = None  # index into self.channels, or None: computed
+
+    # --- planning (nothing moves) ----------------------------------------------------------------
+
+    def plan(self, n: int):
+        """The generator's settings for ``n`` samples; ConfigError when the drive cannot play the recipe."""
+        ad = self.ad
+        if self.recipe is None:
+            raise ConfigError("device.acquisition", '"recorder" plays only what the drive\'s generator plays, '
+                                                    "and this run has no excitation recipe (the friction test's "
+                                                    "ramps are host-streamed: set friction_test.enabled = false, or "
+                                                    'run the friction test with device.acquisition = "streamed")',
+                              self.source)
+        if self.period not in self.rec.sample_periods:
+            raise ConfigError("run.sample_rate_hz", f"{ad.sample_rate_hz:g} Hz is a sample period of {self.period} "
+                                                    f"loop cycles; the drive's recorder takes "
+                                                    f"{list(self.rec.sample_periods)} ([canopen.recorder] "
+                                                    "sample_periods)", self.source)
+        target = ad.desc.modes[ad.mode].setpoint
+        scales = {}
+        for kind, role in (("torque", "target_torque"), ("velocity", "target_velocity"),
+                           ("position", "target_position")):
+            with contextlib.suppress(Exception):
+                scales[kind] = ad.desc.scale(role, ad.rated_torque_nm, ad.rated_current_a)
+        try:
+            self.settings = plan_generator(self.cap, self.recipe, target, n, self.period,
+                                           ad.identity.loop_rate_hz, scales)
+        except KeyError as exc:  # a parameter scaled like torque on a drive whose torque cannot be scaled
+            raise DeviceError(f"{ad.port}: the generator's {exc.args[0]} parameters cannot be scaled: "
+                              f"{ad.torque_problem}") from None
+        return self.settings
+
+    def expected(self, n: int) -> np.ndarray:
+        """What the generator plays at the recorder's ``n`` sample instants, from the values it stores."""
+        s = self.settings
+        return generator_output(s.kind, s.values, np.arange(n) * self.period, self.ad.identity.loop_rate_hz)
+
+    # --- the run -------------------------------------------------------------------------------------
+
+    def run(self, x: np.ndarray, deliver, progress=None) -> RunResult:
+        ad = self.ad
+        n = len(x)
+        stats = StreamStats()
+        result = RunResult(requested_samples=n, stats=stats)
+        ad.last_result = result
+        settings = self.plan(n)
+        self._compare(x, n)
+        try:
+            self._set_up(n)
+            ad.write_object(self.rec.control, self.rec.commands["start"])  # waits for the generator's start
+            self._hold_axis()
+            ad.enable()
+            ad.write_object(self.cap.generator.control, self.cap.generator.commands["start"])
+            recorded = min(n, self._wait(n, progress))  # a recorder that kept going past n: the n asked for
+        finally:
+            self._stop()
+        if ad.run_fault is not None:  # what was recorded up to the fault, then the fault
+            with contextlib.suppress(DeviceError):
+                self._upload(min(n, int(ad.read_object(self.rec.recorded))), n, deliver, progress)
+            raise ad.fault_error(ad.run_fault)
+        self._upload(recorded, n, deliver, progress)
+        if recorded < n:
+            stats.lost_samples += n - recorded
+            stats.lost_blocks += 1
+            message = (f"the drive's recorder holds only {recorded} of {n} samples "
+                       f"({ad.describe(self.rec.recorded)}): its recording ended early")
+            ad.events.append({"kind": "capture_short", "sample_index": recorded, "value": float(n - recorded),
+                              "message": message})
+            result.fault = message
+            raise DeviceError(f"{ad.port}: {message}")
+        ad.events.append({"kind": "capture_end", "sample_index": n, "value": float(n),
+                          "message": f"the drive's {settings.kind.name} generator played and its recorder "
+                                     f"took {n} samples"})
+        result.completed = True
+        return result
+
+    def _compare(self, x: np.ndarray, n: int) -> None:
+        """A warning event when the generator will not play what the host meant (its samples ``x``)."""
+        kind = self.settings.kind
+        if kind.name == "prbs" and not kind.taps:
+            self.ad.events.append({"kind": "excitation_differs", "sample_index": 0, "value": float("nan"),
+                                   "message": "the drive's PRBS sequence is not described ([canopen.generator."
+                                              "kinds.prbs] taps): what it plays cannot be compared"})
+            return
+        expected = self.expected(n)
+        step = abs(self.settings.values["amplitude"] - float(self.recipe.get("amplitude", 0.0)))
+        diff = np.abs(expected - x)
+        worst = int(np.argmax(diff)) if n else 0
+        if n and diff[worst] > step + 1e-6 * max(1.0, abs(self.settings.values["amplitude"])):
+            self.ad.events.append({
+                "kind": "excitation_differs", "sample_index": worst, "value": float(diff[worst]),
+                "message": f"the drive's {kind.name} generator plays another signal than the host's excitation "
+                           f"(largest difference {diff[worst]:.4g} at sample {worst}); the recording holds what "
+                           "the drive played"})
+
+    def _set_up(self, n: int) -> None:
+        """Recorder channels, period, count and trigger; the generator's kind, target and parameters (read back)."""
+        ad, rec, gen = self.ad, self.rec, self.cap.generator
+        ad.write_object(rec.control, rec.commands["stop"])
+        ad.write_object(gen.control, gen.commands["stop"])
+        objects = []
+        self.excitation_column = None
+        for c in ad.channels:
+            if not c.on_host:
+                objects.append((c.address, c.datatype, c.scale))
+            elif gen.output is not None:
+                self.excitation_column = len(objects)
+                var = ad.node.object_dictionary.get_variable(gen.output.index, gen.output.subindex)
+                scale = gen.output_scale if not isinstance(gen.output_scale, str) else ad.scale(
+                    {"torque": "target_torque", "velocity": "target_velocity",
+                     "position": "target_position"}[gen.output_scale])
+                objects.append((gen.output, var.data_type, scale))
+        self.channels = objects
+        for i, addr in enumerate(rec.channels):
+            entry = mapping_entry(objects[i][0], numpy_type(objects[i][1]).itemsize * 8) if i < len(objects) else 0
+            ad.write_object(addr, entry)
+        ad.write_object(rec.sample_period, self.period)
+        ad.write_object(rec.samples, n)
+        ad.write_object(rec.trigger, rec.triggers["generator"])
+        s = self.settings
+        if gen.kind is not None:
+            ad.write_object(gen.kind, s.kind.code)
+        ad.write_object(gen.target, gen.targets[s.target])
+        for name, raw in s.raw.items():
+            addr = s.kind.parameters[name].address
+            ad.write_object(addr, raw)
+            back = int(ad.read_object(addr))
+            if back != raw:
+                raise DeviceError(f"{ad.port}: wrote {raw} to {ad.describe(addr)} (generator {name}), the drive "
+                                  f"holds {back}")
+        if any(c.on_host for c in ad.channels) and self.excitation_column is None:
+            ad.events.append({"kind": "excitation_computed", "sample_index": 0, "value": 0.0,
+                              "message": f"the drive has no generator output object: the excitation column is "
+                                         f"its {s.kind.name} computed from the parameters it stores"})
+
+    def _hold_axis(self) -> None:
+        """A harmless set-point before enabling: zero torque/speed, the present position in CSP/IP."""
+        ad = self.ad
+        spec = ad.desc.modes[ad.mode]
+        for role in (spec.setpoint, spec.hold):
+            if role:
+                ad.write(role, int(ad.read("position_actual")) if role in _POSITION_SETPOINTS else 0)
+
+    def _wait(self, n: int, progress) -> int:
+        """Poll the recorder until it is done; emergencies and the heartbeat watched. Returns its count."""
+        ad, rec = self.ad, self.rec
+        recorded = 0
+        last_change = time.monotonic()
+        stall_limit = max(2.0, 2 * ad.timeout_s)
+        while True:
+            if self._emergencies(recorded):
+                return recorded
+            ad.check_link()
+            state = int(ad.read_object(rec.state))
+            count = int(ad.read_object(rec.recorded))
+            if count != recorded:
+                recorded, last_change = count, time.monotonic()
+                if progress is not None:
+                    progress(min(1.0, 0.9 * count / max(n, 1)))
+            if state == rec.states["done"] or state == rec.states["idle"]:
+                return recorded
+            if time.monotonic() - last_change > stall_limit:
+                raise DeviceError(f"{ad.port}: the recorder stalled at {recorded} of {n} samples for "
+                                  f"{stall_limit:g} s ({ad.describe(rec.recorded)})")
+            time.sleep(_POLL_S)
+
+    def _emergencies(self, sample: int) -> bool:
+        """Log the emergencies received; True when one is a fault (the run's first cause)."""
+        ad = self.ad
+        while ad.emergencies and ad.run_fault is None:
+            event = ad.emergency_event(ad.emergencies.popleft(), sample)
+            ad.events.append(event)
+            if event["kind"] != "emergency_reset":
+                ad.note_fault(event)
+        return ad.run_fault is not None
+
+    def _stop(self) -> None:
+        """Generator off, recorder off, power stage off: on every ending, whatever fails."""
+        ad = self.ad
+        with contextlib.suppress(Exception):
+            ad.write_object(self.cap.generator.control, self.cap.generator.commands["stop"])
+        ad.safe_stop()
+        with contextlib.suppress(Exception):
+            if int(ad.read_object(self.rec.state)) != self.rec.states["done"]:
+                ad.write_object(self.rec.control, self.rec.commands["stop"])
+
+    def _upload(self, recorded: int, n: int, deliver, progress) -> None:
+        """Read the buffer(s), decode, deliver samples 0 .. recorded-1."""
+        ad, rec = self.ad, self.rec
+        if recorded == 0:
+            return
+        types = [t for _, t, _ in self.channels]
+        if rec.interleaved:
+            dtype = record_dtype(types)
+            data = self._read(rec.buffers[0])
+            if len(data) < recorded * dtype.itemsize:
+                raise DeviceError(f"{ad.port}: the recorder's buffer {ad.describe(rec.buffers[0])} holds "
+                                  f"{len(data)} bytes; {recorded} samples of {dtype.itemsize} bytes were recorded")
+            records = np.frombuffer(data[:recorded * dtype.itemsize], dtype=dtype)
+            columns = [records[f"f{i}"] for i in range(len(types))]
+        else:
+            columns = []
+            for i, t in enumerate(types):
+                size = numpy_type(t).itemsize
+                data = self._read(rec.buffers[i])
+                if len(data) < recorded * size:
+                    raise DeviceError(f"{ad.port}: the recorder's buffer {ad.describe(rec.buffers[i])} holds "
+                                      f"{len(data) // size} samples; {recorded} were recorded")
+                columns.append(np.frombuffer(data[:recorded * size], dtype=numpy_type(t)))
+        si = [col.astype(float) * scale for col, (_, _, scale) in zip(columns, self.channels)]
+        rows, k = [], 0
+        for c in ad.channels:
+            if c.on_host and self.excitation_column is None:
+                rows.append(self.expected(recorded))
+            else:
+                rows.append(si[k])
+                k += 1
+        deliver(np.arange(recorded, dtype=np.int64), np.column_stack(rows))
+        ad.last_result.stats.samples += recorded
+        if progress is not None:
+            progress(min(1.0, recorded / max(n, 1)))
+
+    def _read(self, addr: ObjectAddress) -> bytes:
+        ad = self.ad
+        if self.rec.block_transfer:
+            return ad._block_transfer(addr, "rb", lambda f: bytes(f.readall()), {})
+        try:
+            return bytes(ad.node.sdo.upload(addr.index, addr.subindex))
+        except Exception as exc:
+            from hilident.adapters.canopen_drive import _transfer_error
+
+            cause = _transfer_error(exc)
+            if cause is None:
+                raise
+            raise ad._sdo_error(cause, addr, "reading") from None
