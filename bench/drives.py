@@ -17,7 +17,9 @@ why not), and the time taken.
 
 Also run, with ``--project-drives``: the project's own test drives
 (``tests/vendor_drives.py``) that describe a filter capability, to show the
-notch uploaded, read back and verified on each encoding.
+notch uploaded, read back and verified on each encoding, and one whose own
+PRBS generator and data recorder play and record the run
+(``acquisition = "recorder"``).
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ CONFIG = ROOT / "configs" / "emulated-canopen-gantry.toml"
 SETPOINT_AMPLITUDES = {"velocity": ("amplitude_mps", 0.05), "position": ("amplitude_m", 0.002)}
 
 
-def _session_config(folder: Path, mode: str, friction: bool, duration_s: float):
+def _session_config(folder: Path, mode: str, friction: bool, duration_s: float, acquisition: str = "streamed"):
     from hilident.config import load_config
 
     cfg = load_config(CONFIG)
@@ -47,7 +49,10 @@ def _session_config(folder: Path, mode: str, friction: bool, duration_s: float):
     if mode in SETPOINT_AMPLITUDES:
         key, value = SETPOINT_AMPLITUDES[mode]
         excitation = replace(excitation, **{key: value})
-    return replace(cfg, device=replace(cfg.device, driver=str(folder), acquisition="streamed"),
+    if acquisition == "recorder":  # the drive's own generator plays a PRBS: four periods of a 10-bit register
+        excitation = replace(excitation, kind="prbs", register_length=10, clock_divider=1,
+                             duration_s=3 * 1023 / cfg.run.sample_rate_hz, f_max_hz=200.0)
+    return replace(cfg, device=replace(cfg.device, driver=str(folder), acquisition=acquisition),
                    friction_test=replace(cfg.friction_test, enabled=friction), excitation=excitation)
 
 
@@ -58,7 +63,7 @@ def _truth(cfg):
     return f, cfg.emulator.friction
 
 
-def run_drive(folder: Path, out: Path, duration_s: float) -> dict:
+def run_drive(folder: Path, out: Path, duration_s: float, acquisition: str = "streamed") -> dict:
     """The session on the twin of ``folder``; a row of the table."""
     from hilident.drivers import declared_modes, load_driver
     from hilident.protocol.canopen_profile import mode_name_of_code
@@ -72,7 +77,8 @@ def run_drive(folder: Path, out: Path, duration_s: float) -> dict:
         row["result"] = "not run: no cyclic mode (CST, CSV, CSP or IP)"
         return row
     friction = bool({"velocity", "position"} & set(modes)) and any(c.name == "torque_nm" for c in driver.channels)
-    cfg = _session_config(folder, mode, friction, duration_s)
+    friction = friction and acquisition == "streamed"  # the friction legs are host-streamed
+    cfg = _session_config(folder, mode, friction, duration_s, acquisition)
     session = Session(cfg, out, plots=False)
     summary = session.run()
     true_f, true_friction = _truth(cfg)
@@ -103,7 +109,8 @@ def run_drive(folder: Path, out: Path, duration_s: float) -> dict:
         notches = summary.get("notch_filters") or []
         designed = f"designed {notches[0]['center_hz']:.2f} Hz; " if notches else ""
         row["notch"] = designed + (upload.get("not_uploaded") or "no notch")
-    row["pdos"] = f"{len(ad.tpdo_layout)} TPDO ({'+'.join(str(len(idx)) for _, idx in ad.tpdo_layout)} objects)"
+    row["pdos"] = (f"{len(ad.tpdo_layout)} TPDO ({'+'.join(str(len(idx)) for _, idx in ad.tpdo_layout)} objects)"
+                   if acquisition == "streamed" else f"none: the drive's {acquisition}")
     row["result"] = "ok"
     return row
 
@@ -148,15 +155,17 @@ def main(argv=None) -> int:
 
 
 def _project_drives(out: Path, duration_s: float) -> list[dict]:
-    from vendor_drives import FILTER_DRIVES, write_vendor_drive
+    from vendor_drives import FILTER_DRIVES, VendorDrive, write_vendor_drive
 
     rows = []
-    for drive in FILTER_DRIVES:
+    runs = [(drive, "streamed") for drive in FILTER_DRIVES]
+    runs.append((VendorDrive("acme-recorder", recorder="prbs"), "recorder"))  # the drive's generator and recorder
+    for drive, acquisition in runs:
         started = time.monotonic()
         folder = write_vendor_drive(out / "project-drives", drive)
         row = {"drive": f"{drive.name} (project)", "check": "-", "placeholders": 0, "warnings": 0}
         try:
-            row.update(run_drive(folder, out / "sessions" / drive.name, duration_s))
+            row.update(run_drive(folder, out / "sessions" / drive.name, duration_s, acquisition))
         except Exception as exc:
             row["result"] = f"FAILED: {type(exc).__name__}: {exc}"[:300]
             traceback.print_exc()
