@@ -288,7 +288,7 @@ class AdapterBase:
     events: list
     last_result: RunResult | None = None
     run_fault: dict | None = None
-    _host_checks: list = []
+    _host_checks: tuple | list = ()  # (column, low, high, limit name) of the run, from _host_limit_columns()
 
     def __enter__(self):
         return self
@@ -333,6 +333,7 @@ class AdapterBase:
             was commanded safe.
         """
         x = checked_excitation(excitation)
+        self.last_result = None
         self._prepare_run(x)
         self.events = []
         self.run_fault = None

@@ -19,7 +19,6 @@ import secrets
 import socket
 import struct
 import time
-from typing import Callable
 
 import numpy as np
 import serial
@@ -34,7 +33,7 @@ from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, RunStr
 from hilident.adapters.events import Kind, RunEvent
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription
-from hilident.errors import DeviceError, LimitTrip, ProtocolError
+from hilident.errors import DeviceError, ProtocolError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
 from hilident.links import LinkClosed
