@@ -297,14 +297,30 @@ class AdapterBase:
         self.close()
 
     @staticmethod
-    def _identified(adapter):
-        """``adapter`` after a successful ``identify()``; closed again when that fails."""
+    def _or_closed(adapter, step: Callable[[], Any]):
+        """``adapter`` after ``step()`` succeeded; closed again (connection released) when it raised."""
         try:
-            adapter.identify()
+            step()
         except BaseException:
             adapter.close()
             raise
         return adapter
+
+    @classmethod
+    def _identified(cls, adapter):
+        """``adapter`` after a successful ``identify()``; closed again when that fails."""
+        return cls._or_closed(adapter, adapter.identify)
+
+    def _clear_latched_fault(self, fault: str, allowed: bool, clear: Callable[[], None]) -> None:
+        """A fault found at connect: reported in :attr:`connect_report`, refused unless ``allowed``, else cleared.
+
+        ``clear()`` resets the device and raises :class:`DeviceError` when the fault stays.
+        """
+        self.connect_report.faults.append(fault)
+        if not allowed:
+            raise refuse_latched_faults(self.port, self.connect_report.faults)
+        clear()
+        self.connect_report.faults_cleared = True
 
     # --- the run template -------------------------------------------------------------------
 

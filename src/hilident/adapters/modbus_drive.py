@@ -47,7 +47,7 @@ import serial
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException
 
-from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, StreamStats, refuse_latched_faults
+from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, StreamStats
 from hilident.adapters.events import Kind, RunEvent
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription
@@ -214,12 +214,8 @@ class ModbusDriveAdapter(AdapterBase):
         adapter = cls(client, driver, regmap, port, device.device_id, device.timeout_s)
         adapter._drain_line()
         adapter = cls._identified(adapter)
-        try:
-            adapter._bring_to_known_state(device.allow_fault_reset, device.host_timeout_s)
-        except BaseException:
-            adapter.close()
-            raise
-        return adapter
+        return cls._or_closed(adapter, lambda: adapter._bring_to_known_state(device.allow_fault_reset,
+                                                                             device.host_timeout_s))
 
     def _drain_line(self) -> None:
         """RTU: drop the answers still on their way to an earlier host, until the line is quiet (counted)."""
@@ -254,16 +250,15 @@ class ModbusDriveAdapter(AdapterBase):
         st = self.status()
         report = self.connect_report
         if "fault" in st.flags:
-            report.faults = [self._describe_fault(st)]
-            if not allow_fault_reset:
-                raise refuse_latched_faults(self.port, report.faults)
-            self.clear_fault()
-            after = self.status()
-            if "fault" in after.flags:
-                raise DeviceError(f"{self.port}: {self.map.describe(self.map.register('fault_code').address)} still "
-                                  f"holds {self.map.fault_name(after.fault_code)} after a fault reset; the cause "
-                                  "is still there (check the drive's display)")
-            report.faults_cleared = True
+            def clear() -> None:
+                self.clear_fault()
+                after = self.status()
+                if "fault" in after.flags:
+                    raise DeviceError(f"{self.port}: {self.map.describe(self.map.register('fault_code').address)} "
+                                      f"still holds {self.map.fault_name(after.fault_code)} after a fault reset; the "
+                                      "cause is still there (check the drive's display)")
+
+            self._clear_latched_fault(self._describe_fault(st), allow_fault_reset, clear)
         self._arm_comm_timeout(host_timeout_s)
         client_stale = getattr(self.client, "stale_frames", 0)
         report.discarded_frames += client_stale + self.dropped_frames + self.bad_responses

@@ -29,7 +29,7 @@ try:  # POSIX: the exact byte count of a TCP line
 except ImportError:  # pragma: no cover
     pass
 
-from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, RunStrategy, refuse_latched_faults
+from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, RunStrategy
 from hilident.adapters.events import Kind, RunEvent
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription
@@ -184,15 +184,10 @@ class SerialBoardAdapter(AdapterBase):
         _no_nagle(link)
         return cls._connected(cls(link, driver, port, timeout_s, allow_fault_reset=allow_fault_reset))
 
-    @staticmethod
-    def _connected(adapter: "SerialBoardAdapter") -> "SerialBoardAdapter":
+    @classmethod
+    def _connected(cls, adapter: "SerialBoardAdapter") -> "SerialBoardAdapter":
         """``adapter`` after a successful :meth:`connect`; the line is closed again when that fails."""
-        try:
-            adapter.connect()
-        except BaseException:
-            adapter.close()
-            raise
-        return adapter
+        return cls._or_closed(adapter, adapter.connect)
 
     def connect(self) -> ConnectReport:
         """Identify the board and bring it to a known state, whatever the last session left.
@@ -221,15 +216,15 @@ class SerialBoardAdapter(AdapterBase):
             self.found_state = report.found_state = found.state.name
             status = self.status()
             if status.state == sb.State.FAULT:
-                report.faults.append(
-                    f"board in FAULT {status.fault.name} ({_FAULT_MEANING.get(status.fault, 'unknown fault')})"
-                )
-                if not self.allow_fault_reset:
-                    raise refuse_latched_faults(self.port, report.faults)
-                self.clear_fault()
-                if self.status().state == sb.State.FAULT:
-                    raise DeviceError(f"{self.port}: the board stays in FAULT {status.fault.name} after CLEAR_FAULT")
-                report.faults_cleared = True
+                def clear() -> None:
+                    self.clear_fault()
+                    if self.status().state == sb.State.FAULT:
+                        raise DeviceError(f"{self.port}: the board stays in FAULT {status.fault.name} after "
+                                          "CLEAR_FAULT")
+
+                meaning = _FAULT_MEANING.get(status.fault, "unknown fault")
+                self._clear_latched_fault(f"board in FAULT {status.fault.name} ({meaning})", self.allow_fault_reset,
+                                          clear)
         finally:
             self._connecting = False
             report.discarded_frames += self.decoder.stats.corrupt - corrupt_before
