@@ -273,8 +273,10 @@ class AdapterBase:
     ``_fault_text(event)``, ``_collect_faults()``, ``_as_device_error(exc)``
         how a fault is worded, faults still queued at the device, transport
         exceptions that are device errors;
-    ``_command_safe()``
-        the one command that makes the axis safe (for :meth:`safe_stop`);
+    ``_command_safe()``, ``_stop_for_close()``, ``_release()``
+        the one command that makes the axis safe (for :meth:`safe_stop`), the
+        stop before closing (default: the same) and releasing the connection
+        (for :meth:`close`);
     ``_read_raw_slot(slot)``, ``_write_raw_slot(slot, saved)``
         a filter slot's contents, opaque (for :meth:`save_filter` / :meth:`restore_filter`).
 
@@ -481,6 +483,24 @@ class AdapterBase:
         return row
 
     # --- stopping -------------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """The axis stopped, the connection released. Never raises."""
+        try:
+            self._stop_for_close()
+        finally:
+            try:
+                self._release()
+            except Exception:
+                pass  # closing a connection that is already gone
+
+    def _stop_for_close(self) -> None:
+        """The stop before the connection is released (hook; default :meth:`safe_stop`)."""
+        self.safe_stop()
+
+    def _release(self) -> None:
+        """Release the connection (hook)."""
+        raise NotImplementedError
 
     def safe_stop(self) -> None:
         """Command the axis safe now; never raises (see :class:`DeviceAdapter`)."""

@@ -282,15 +282,12 @@ class ModbusDriveAdapter(AdapterBase):
         self.comm_timeout_s = back / 1000.0
         self.connect_report.device_net = f"communication timeout {self.map.describe(r.address)}: {back:g} ms"
 
-    def close(self) -> None:
-        """Stop the axis (zero torque, drive disabled) and release the connection. Never raises."""
-        try:
-            self.stop()
-        finally:
-            try:
-                self.client.close()
-            except Exception:
-                pass
+    def _stop_for_close(self) -> None:
+        """Zero torque, drive disabled, waiting as long as any answer (not the quick :meth:`safe_stop`)."""
+        self.stop()
+
+    def _release(self) -> None:
+        self.client.close()
 
     def _command_safe(self) -> None:
         """Write 0 to the control word now (run stopped, drive disabled, zero torque).

@@ -256,15 +256,8 @@ class SerialBoardAdapter(AdapterBase):
                 self.connect_report.discarded_frames += 1
         raise DeviceError(f"{self.port}: no answer to Stop within {self.timeout_s:g} s")
 
-    def close(self) -> None:
-        """Stop the axis and close the line. Never raises."""
-        try:
-            self.safe_stop()
-        finally:
-            try:
-                self.link.close()
-            except Exception:
-                pass
+    def _release(self) -> None:
+        self.link.close()
 
     # --- low-level exchange ---------------------------------------------------------------
 
