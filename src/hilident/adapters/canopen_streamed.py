@@ -68,7 +68,10 @@ class DriveHost(Protocol):
     objects), ``channels`` (the recorded channels' codecs), ``mode``,
     ``sample_rate_hz``, ``sync_rate_hz``, ``sync_overflow``, ``tpdo_layout``
     and ``rpdo`` (streamed), ``timeout_s``, ``port``; the bus: ``network``
-    (``send_message``, ``subscribe``, ``unsubscribe``) and ``node``.
+    (``send_message``, ``subscribe``, ``unsubscribe``) and ``node``; the run:
+    ``events`` (read only: log with :meth:`log_event`), ``run_fault`` (read
+    only: note with :meth:`take_emergency_fault`) and ``emergencies`` (the
+    queue, to wait for one).
     """
 
     port: str
