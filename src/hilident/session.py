@@ -368,8 +368,8 @@ class Session:
         status, reason = "aborted", ""
         ad.last_result = None
         try:
-            if hasattr(ad, "set_excitation_recipe"):  # the identification excitation, for a drive's own generator
-                ad.set_excitation_recipe(excitation_recipe(cfg) if name in ("identification", "verification") else None)
+            # the identification excitation as parameters, for a drive whose own generator plays it
+            ad.set_excitation_recipe(excitation_recipe(cfg) if name in ("identification", "verification") else None)
             result = ad.stream(excitation, sink, self.progress.fraction(name))
             status = "complete"
         except BaseException as exc:

@@ -7,13 +7,17 @@ adapters register under the ``hilident.adapters`` entry point group.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from typing import Any, Callable, Protocol
 
 import numpy as np
 
-from hilident.errors import ConfigError
+from hilident.adapters.events import Kind, RunEvent
+from hilident.errors import ConfigError, DataError, DeviceError, LimitTrip
+
+_PROGRESS_S = 0.1  # progress is reported at most this often, and at the end
 
 
 @dataclass
@@ -218,8 +222,75 @@ class DeviceAdapter(Protocol):
         """Zero torque, drive disabled, connection released. Never raises."""
 
 
+@dataclass
+class FilterUpload:
+    """What :meth:`AdapterBase.upload_filter` left in a slot.
+
+    Attributes
+    ----------
+    stored : Biquad
+        The biquad the slot applies, read back from the device.
+    expected : Biquad
+        What the device should hold after its own rounding (:meth:`~DeviceAdapter.stored_form`).
+    matches : bool
+        Read back as written and enabled; when not, the slot's previous contents were put back.
+    """
+
+    stored: Any
+    expected: Any
+    matches: bool
+
+
+def checked_excitation(excitation) -> np.ndarray:
+    """``excitation`` as a float array; DataError unless it is finite and one-dimensional."""
+    x = np.asarray(excitation, dtype=float)
+    if x.ndim != 1 or not np.all(np.isfinite(x)):
+        raise DataError("excitation must be a finite one-dimensional array")
+    return x
+
+
 class AdapterBase:
-    """What every adapter class shares: ``with`` support and identify-or-close on opening."""
+    """The public run, upload and stop logic of every adapter, once; transports supply protected hooks.
+
+    In the style of python-can's ``BusABC``: :meth:`stream`, :meth:`upload_filter`,
+    :meth:`save_filter`, :meth:`restore_filter`, :meth:`disable_filter` and
+    :meth:`safe_stop` hold what every transport must do the same way (the
+    excitation checked, the events emptied, ``last_result`` set also when the
+    run raises, the first cause winning, the axis commanded safe on every
+    ending); a transport's adapter supplies
+
+    ``_play(x, deliver, result)`` (required)
+        play ``x``, pass ``(sample_index, rows)`` blocks to ``deliver``, fill
+        ``result.stats``, set ``result.completed``; log events with
+        :meth:`log_event` and a fault with :meth:`note_fault` as soon as known;
+    ``_prepare_run(x)``
+        refuse a run before anything was cleared or moved (not configured, ...);
+    ``_end_run(result)``
+        after every ending, a signal included: at least the safe stop (the default);
+    ``_host_limit_columns()``
+        ``(column, low, high, limit name)`` the host checks on every sample
+        (default: none, the device enforces its limits);
+    ``_fault_text(event)``, ``_collect_faults()``, ``_as_device_error(exc)``
+        how a fault is worded, faults still queued at the device, transport
+        exceptions that are device errors;
+    ``_command_safe()``, ``_stop_for_close()``, ``_release()``
+        the one command that makes the axis safe (for :meth:`safe_stop`), the
+        stop before closing (default: the same) and releasing the connection
+        (for :meth:`close`);
+    ``_read_raw_slot(slot)``, ``_write_raw_slot(slot, saved)``
+        a filter slot's contents, opaque (for :meth:`save_filter` / :meth:`restore_filter`).
+
+    Attributes
+    ----------
+    run_fault : dict or None
+        The first fault event of the current run (its cause), or None.
+    """
+
+    port: str = ""
+    events: list
+    last_result: RunResult | None = None
+    run_fault: dict | None = None
+    _host_checks: tuple | list = ()  # (column, low, high, limit name) of the run, from _host_limit_columns()
 
     def __enter__(self):
         return self
@@ -228,14 +299,301 @@ class AdapterBase:
         self.close()
 
     @staticmethod
-    def _identified(adapter):
-        """``adapter`` after a successful ``identify()``; closed again when that fails."""
+    def _or_closed(adapter, step: Callable[[], Any]):
+        """``adapter`` after ``step()`` succeeded; closed again (connection released) when it raised."""
         try:
-            adapter.identify()
+            step()
         except BaseException:
             adapter.close()
             raise
         return adapter
+
+    @classmethod
+    def _identified(cls, adapter):
+        """``adapter`` after a successful ``identify()``; closed again when that fails."""
+        return cls._or_closed(adapter, adapter.identify)
+
+    def _clear_latched_fault(self, fault: str, allowed: bool, clear: Callable[[], None]) -> None:
+        """A fault found at connect: reported in :attr:`connect_report`, refused unless ``allowed``, else cleared.
+
+        ``clear()`` resets the device and raises :class:`DeviceError` when the fault stays.
+        """
+        self.connect_report.faults.append(fault)
+        if not allowed:
+            raise refuse_latched_faults(self.port, self.connect_report.faults)
+        clear()
+        self.connect_report.faults_cleared = True
+
+    # --- the run template -------------------------------------------------------------------
+
+    def stream(self, excitation: np.ndarray, sink: Callable[[np.ndarray, np.ndarray], None],
+               progress: Callable[[float], None] | None = None) -> RunResult:
+        """Play ``excitation`` and pass ``(sample_index, rows)`` blocks to ``sink``; see :class:`DeviceAdapter`.
+
+        ``progress(fraction)`` is called as samples arrive. The axis is
+        commanded safe on every ending; events are appended to
+        :attr:`events` as soon as known; :attr:`last_result` is set also when
+        this raises.
+
+        Raises
+        ------
+        DataError
+            ``excitation`` is not a finite one-dimensional array.
+        LimitTrip
+            A limit tripped (the device's, or the host's check); the samples
+            up to it were delivered. The first cause wins: whatever fails
+            after a fault, the run ends with the fault.
+        DeviceError
+            The device faulted, the line or bus failed, the device did not
+            keep up, ... (the transport's adapter names the object or register).
+        Exception
+            Whatever ``sink`` raised (a full disk, a signal), after the axis
+            was commanded safe.
+        """
+        x = checked_excitation(excitation)
+        self.last_result = None
+        self._prepare_run(x)
+        self.events = []
+        self.run_fault = None
+        result = self.last_result = RunResult(requested_samples=len(x), stats=StreamStats())
+        self._host_checks = self._host_limit_columns()
+        from_sink: list[BaseException] = []
+        shown = [0.0]  # when progress was last called (monotonic s)
+
+        def deliver(index: np.ndarray, rows: np.ndarray) -> None:
+            if self.run_fault is not None and self.run_fault.get("host_check"):
+                return  # nothing after the sample the host stopped the axis at
+            tripped = self._host_limit_trip(index, rows)
+            if tripped is not None:
+                index, rows = index[:tripped + 1], rows[:tripped + 1]
+            try:
+                sink(index, rows)
+            except BaseException as exc:
+                from_sink.append(exc)
+                raise
+            if progress is not None and len(index):
+                done = min(1.0, (int(index[-1]) + 1) / max(len(x), 1))
+                now = time.monotonic()
+                if done == 1.0 or now - shown[0] > _PROGRESS_S:
+                    shown[0] = now
+                    progress(done)
+            if tripped is not None:
+                raise self.fault_error(self.run_fault)
+
+        try:
+            self._play(x, deliver, result)
+        except BaseException as exc:
+            if any(exc is e for e in from_sink):
+                raise  # a full disk, a signal in the session's writer: its own error, after the axis is safe
+            first = self._first_cause(exc)
+            if first is not exc:
+                raise first from None
+            raise
+        finally:
+            try:
+                self._end_run(result)
+            finally:
+                result.events = list(self.events)
+        if self.run_fault is not None:
+            raise self.fault_error(self.run_fault) from None
+        return result
+
+    def set_excitation_recipe(self, recipe: dict | None) -> None:
+        """The next run's excitation as parameters (``kind``, ``amplitude``, band, ...), or None.
+
+        Only a device whose own generator plays the excitation needs it (a
+        CANopen drive's recorder runs); every other run plays the samples it
+        is given, so the default keeps nothing.
+        """
+
+    def _prepare_run(self, x: np.ndarray) -> None:
+        """Refuse a run of ``x`` before anything is cleared or moved (hook; default: nothing to check)."""
+
+    def _play(self, x: np.ndarray, deliver: Callable[[np.ndarray, np.ndarray], None], result: RunResult) -> None:
+        """Play ``x`` on the device and pass what comes back to ``deliver`` (hook, required)."""
+        raise NotImplementedError
+
+    def _end_run(self, result: RunResult) -> None:
+        """After every ending of a run (hook): the axis commanded safe."""
+        self.safe_stop()
+
+    def log_event(self, event: RunEvent) -> dict:
+        """Append ``event`` to :attr:`events` now (the session records it while the run goes on); its dict."""
+        entry = event.to_dict()
+        self.events.append(entry)
+        return entry
+
+    def note_fault(self, event: dict) -> None:
+        """Record ``event`` as the run's fault; the first one stays the cause."""
+        if self.run_fault is None:
+            self.run_fault = event
+            if self.last_result is not None:
+                self.last_result.fault = event["message"]
+
+    def fault_error(self, event: dict, then: BaseException | None = None) -> DeviceError:
+        """The exception a run ends with after fault ``event`` (LimitTrip for a limit); ``then``: what failed after it."""
+        cls = LimitTrip if event["kind"] == Kind.LIMIT_TRIP.value else DeviceError
+        text = f"{self.port}: {self._fault_text(event)}"
+        if then is not None:
+            text += f" (then: {then})"
+        error = cls(text)
+        error.event = event  # the run's first cause, for _first_cause()
+        return error
+
+    def _fault_text(self, event: dict) -> str:
+        """A fault event in the words its run ends with (hook)."""
+        return event["message"]
+
+    def _collect_faults(self) -> None:
+        """Note faults the device reported that are still queued (hook; default: none are)."""
+
+    def _as_device_error(self, exc: BaseException) -> BaseException:
+        """A transport exception that means the device or its line failed, as a DeviceError (hook)."""
+        return exc
+
+    def _first_cause(self, exc: BaseException) -> BaseException:
+        """The error a run that raised ``exc`` ends with: the first fault the device reported, else ``exc``.
+
+        A lost line or a refused request is often only the consequence of a
+        fault (a limit trip) the device just reported: the fault is the cause.
+        """
+        exc = self._as_device_error(exc)
+        if not isinstance(exc, DeviceError):
+            return exc
+        self._collect_faults()
+        if self.run_fault is None or getattr(exc, "event", None) is self.run_fault:
+            return exc
+        return self.fault_error(self.run_fault, then=exc)
+
+    # --- the host's limit check -------------------------------------------------------------------
+
+    def _host_limit_columns(self) -> list[tuple[int, float, float, str]]:
+        """(channel column, low, high, limit name) checked by the host on every sample (hook; default none)."""
+        return []
+
+    def _host_limit_trip(self, index: np.ndarray, rows: np.ndarray) -> int | None:
+        """Row of the first sample outside a host-checked limit (logged and noted as the run's fault), or None."""
+        first = None
+        for j, low, high, name in self._host_checks:
+            out = np.flatnonzero((rows[:, j] < low) | (rows[:, j] > high))
+            if len(out) and (first is None or out[0] < first[0]):
+                first = (int(out[0]), j, name, low, high)
+        if first is None:
+            return None
+        row, j, name, low, high = first
+        value = float(rows[row, j])
+        event = self.log_event(RunEvent(
+            Kind.LIMIT_TRIP, f"{name}: {self.channel_names[j]} = {value:.4g} outside [{low:.4g}, {high:.4g}] "
+                             "(checked by the host): axis stopped, torque zero",
+            int(index[row]), value=value, host_check=True))
+        self.note_fault(event)
+        self.safe_stop()
+        return row
+
+    # --- stopping -------------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """The axis stopped, the connection released. Never raises."""
+        try:
+            self._stop_for_close()
+        finally:
+            try:
+                self._release()
+            except Exception:
+                pass  # closing a connection that is already gone
+
+    def _stop_for_close(self) -> None:
+        """The stop before the connection is released (hook; default :meth:`safe_stop`)."""
+        self.safe_stop()
+
+    def _release(self) -> None:
+        """Release the connection (hook)."""
+        raise NotImplementedError
+
+    def safe_stop(self) -> None:
+        """Command the axis safe now; never raises (see :class:`DeviceAdapter`)."""
+        try:
+            self._command_safe()
+        except Exception:
+            pass  # the device-side net (watchdog, timeout, heartbeat consumer) stops a device that is gone
+
+    def _command_safe(self) -> None:
+        """Send the transport's one stop command (hook)."""
+        raise NotImplementedError
+
+    # --- filter slots -----------------------------------------------------------------------------
+
+    def upload_filter(self, slot: int, biquad, spec=None) -> FilterUpload:
+        """Store a notch in ``slot`` so that it is either applied as written or not changed at all.
+
+        The slot's contents are kept, the notch written disabled, read back and
+        compared with :meth:`stored_form`; only a notch that came back as
+        written is enabled (and read back again). Otherwise the previous
+        contents are restored.
+        """
+        previous = self.save_filter(slot)
+        self.write_filter(slot, biquad, spec, enabled=False)
+        stored, _ = self.read_filter(slot)
+        expected = self.stored_form(biquad, spec)
+        same = stored == expected
+        if same:
+            self.write_filter(slot, biquad, spec, enabled=True)
+            stored, enabled = self.read_filter(slot)
+            same = enabled and stored == expected
+        if not same:
+            self.restore_filter(slot, previous)
+        return FilterUpload(stored, expected, bool(same))
+
+    def save_filter(self, slot: int) -> Any:
+        """The slot's contents, opaque, for :meth:`restore_filter`."""
+        return self._read_raw_slot(slot)
+
+    def restore_filter(self, slot: int, saved: Any) -> None:
+        """Put back what :meth:`save_filter` returned."""
+        self._write_raw_slot(slot, saved)
+
+    def disable_filter(self, slot: int) -> None:
+        """Bypass ``slot``: it is rewritten disabled, its contents kept (:meth:`restore_filter` brings it back)."""
+        biquad, enabled = self.read_filter(slot)
+        if enabled:
+            self.write_filter(slot, biquad, enabled=False)
+
+    def _read_raw_slot(self, slot: int) -> Any:
+        """A filter slot's contents as the device holds them (hook)."""
+        raise NotImplementedError
+
+    def _write_raw_slot(self, slot: int, saved: Any) -> None:
+        """Write back what :meth:`_read_raw_slot` returned (hook)."""
+        raise NotImplementedError
+
+
+class RunStrategy:
+    """One acquisition strategy's run: it owns the run's state and talks to its adapter through hooks.
+
+    A transport with several ways of playing a run (CANopen: host-streamed,
+    drive-buffered, ...) keeps a table ``{acquisition name: strategy}``; its
+    ``_play`` looks the strategy up and calls :meth:`play`. A strategy is any
+    callable ``(adapter, x, deliver, result)``; subclasses of this class take
+    their arguments in ``__init__`` and do the work in :meth:`run`.
+    """
+
+    def __init__(self, adapter, x: np.ndarray, deliver: Callable[[np.ndarray, np.ndarray], None],
+                 result: RunResult):
+        self.ad = adapter
+        self.x = x
+        self.n = len(x)
+        self.deliver = deliver
+        self.result = result
+        self.stats = result.stats
+
+    @classmethod
+    def play(cls, adapter, x: np.ndarray, deliver, result: RunResult) -> None:
+        """Run ``x`` on ``adapter`` with a fresh instance (the strategy-table entry)."""
+        cls(adapter, x, deliver, result).run()
+
+    def run(self) -> None:
+        """Play the run; fill ``self.result`` (hook, required)."""
+        raise NotImplementedError
 
 
 def adapter_class(transport: str):

@@ -20,108 +20,120 @@ import time
 
 import numpy as np
 
-from hilident.adapters.base import RunResult, StreamStats
+from hilident.adapters.base import RunStrategy
+from hilident.adapters.events import Kind, RunEvent
 from hilident.errors import DeviceError
 from hilident.protocol.canopen_objects import TABLE_START, TABLE_STOP, TableState, record_dtype
 
-__all__ = ["run_buffered"]
+__all__ = ["BufferedRun"]
 
 _POLL_S = 0.05
 _EMCY_WAIT_S = 0.3  # a table that stopped early: wait this long for the emergency that says why
 
 
-def run_buffered(ad, x: np.ndarray, sink, progress=None) -> RunResult:
-    """Play ``x`` from the drive's table behind adapter ``ad``; see the module docstring."""
-    n = len(x)
-    stats = StreamStats()
-    result = RunResult(requested_samples=n, stats=stats)
-    ad.last_result = result
-    events = ad.events  # live: the session writes them to the recording while the run goes on
-    d = ad.desc
-    capacity = int(ad.read("table_capacity"))
-    if n > capacity:
-        raise DeviceError(
-            f"{ad.port}: the excitation has {n} samples; the drive's table holds {capacity} "
-            f"({ad.describe(d.address('table_capacity'))}); use device.acquisition = \"streamed\" or a shorter run")
-    ad.write_domain(d.address("table"), np.asarray(x, dtype="<f4").tobytes())
-    length = int(ad.read("table_length"))
-    if length != n:
-        raise DeviceError(f"{ad.port}: wrote {n} table samples, the drive holds {length} "
-                          f"({ad.describe(d.address('table_length'))})")
-    dtype = record_dtype([c.datatype for c in ad.channels])
-    size = dtype.itemsize
-    ad.enable()
-    ad.write("table_command", TABLE_START)
-    captured = 0
-    last_change = time.monotonic()
-    stall_limit = max(2.0, 2 * ad.timeout_s)
-    fault = None
-    state = TableState.PLAYING
-    while True:
-        while ad.emergencies and fault is None:
-            event = ad.emergency_event(ad.emergencies.popleft(), captured)
-            events.append(event)
-            if event["kind"] != "emergency_reset":
-                fault = event
-                ad.note_fault(event)
-                _stop_table(ad)  # an emergency stops the excitation, whatever the drive does on its own
-        ad.check_link()
-        state = int(ad.read("table_state"))
-        count = int(ad.read("capture_count"))
-        if count > captured:
-            last_change = time.monotonic()
-        while captured < count:
-            ad.write("capture_offset", captured)
-            data = ad.read_domain(d.address("capture_data"))
+class BufferedRun(RunStrategy):
+    """One drive-buffered run: the table downloaded, played, and its capture read back as it fills.
+
+    State: the samples captured so far, when the capture last grew, the
+    table's state. The adapter is used through
+    :class:`~hilident.adapters.canopen_streamed.DriveHost`.
+    """
+
+    def __init__(self, adapter, x: np.ndarray, deliver, result):
+        super().__init__(adapter, x, deliver, result)
+        self.captured = 0
+        self.state = TableState.PLAYING
+        self.dtype = None
+
+    def where(self, role: str) -> str:
+        """The object of ``role``, for messages."""
+        return self.ad.describe(self.ad.desc.address(role))
+
+    def load(self) -> None:
+        """Download the excitation into the table and check the length the drive holds."""
+        ad, n = self.ad, self.n
+        capacity = int(ad.read("table_capacity"))
+        if n > capacity:
+            raise DeviceError(f"{ad.port}: the excitation has {n} samples; the drive's table holds {capacity} "
+                              f"({self.where('table_capacity')}); use device.acquisition = \"streamed\" or a shorter run")
+        ad.write_domain(ad.desc.address("table"), np.asarray(self.x, dtype="<f4").tobytes())
+        length = int(ad.read("table_length"))
+        if length != n:
+            raise DeviceError(f"{ad.port}: wrote {n} table samples, the drive holds {length} "
+                              f"({self.where('table_length')})")
+
+    def read_capture(self, count: int) -> None:
+        """Upload and deliver the records from :attr:`captured` up to ``count``."""
+        ad, size = self.ad, self.dtype.itemsize
+        while self.captured < count:
+            ad.write("capture_offset", self.captured)
+            data = ad.read_domain(ad.desc.address("capture_data"))
             m = len(data) // size
             if m == 0 or len(data) % size:
                 raise DeviceError(f"{ad.port}: a capture chunk of {len(data)} bytes from "
-                                  f"{ad.describe(d.address('capture_data'))} is not whole {size}-byte records")
-            records = np.frombuffer(data, dtype=dtype)
+                                  f"{self.where('capture_data')} is not whole {size}-byte records")
+            records = np.frombuffer(data, dtype=self.dtype)
             rows = ad.decode_rows([records[f"f{i}"] for i in range(len(ad.channels))])
-            sink(np.arange(captured, captured + m, dtype=np.int64), rows)
-            captured += m
-            stats.samples += m
-            if progress is not None:
-                progress(min(1.0, captured / max(n, 1)))
-        if state != TableState.PLAYING:
-            break
-        if time.monotonic() - last_change > stall_limit:
-            raise DeviceError(f"{ad.port}: the capture stalled at {captured} of {n} samples for "
-                              f"{stall_limit:g} s ({ad.describe(d.address('capture_count'))})")
-        time.sleep(_POLL_S)
-    if state == TableState.STOPPED and fault is None:
-        deadline = time.monotonic() + _EMCY_WAIT_S
-        while not ad.emergencies and time.monotonic() < deadline:
-            time.sleep(0.01)
-        while ad.emergencies and fault is None:
-            event = ad.emergency_event(ad.emergencies.popleft(), captured)
-            events.append(event)
-            if event["kind"] != "emergency_reset":
-                fault = event
-                ad.note_fault(event)
-    if fault is not None:
-        raise ad.fault_error(fault)
-    if state == TableState.STOPPED:
-        result.fault = f"the drive stopped the table at sample {captured} without an emergency"
-        raise DeviceError(f"{ad.port}: {result.fault} ({ad.describe(d.address('table_state'))})")
-    if captured < n:
-        stats.lost_samples += n - captured
-        stats.lost_blocks += 1
-        message = (f"the drive captured only {captured} of {n} samples "
-                   f"({ad.describe(d.address('capture_count'))}): its capture ended early")
-        events.append({"kind": "capture_short", "sample_index": captured, "value": float(n - captured),
-                       "message": message})
-        result.fault = message
-        raise DeviceError(f"{ad.port}: {message}")
-    events.append({"kind": "capture_end", "sample_index": n, "value": float(n),
-                   "message": f"table played and {n} samples captured"})
-    result.completed = True
-    return result
+            self.deliver(np.arange(self.captured, self.captured + m, dtype=np.int64), rows)
+            self.captured += m
+            self.stats.samples += m
 
+    def take_emergencies(self) -> None:
+        """Emergencies queued so far; the first fault stops the table."""
+        if self.ad.run_fault is None and self.ad.take_emergency_fault(self.captured) is not None:
+            self.stop_table()  # an emergency stops the excitation, whatever the drive does on its own
 
-def _stop_table(ad) -> None:
-    try:
-        ad.write("table_command", TABLE_STOP)
-    except DeviceError:
-        pass  # a drive in Fault may refuse; its power stage is off anyway
+    def run(self) -> None:
+        """Play the table and capture; see the module docstring."""
+        ad, n = self.ad, self.n
+        self.load()
+        self.dtype = record_dtype([c.datatype for c in ad.channels])
+        ad.enable()
+        ad.write("table_command", TABLE_START)
+        last_change = time.monotonic()
+        stall_limit = max(2.0, 2 * ad.timeout_s)
+        while True:
+            self.take_emergencies()
+            ad.check_link()
+            self.state = int(ad.read("table_state"))
+            count = int(ad.read("capture_count"))
+            if count > self.captured:
+                last_change = time.monotonic()
+            self.read_capture(count)
+            if self.state != TableState.PLAYING:
+                break
+            if time.monotonic() - last_change > stall_limit:
+                raise DeviceError(f"{ad.port}: the capture stalled at {self.captured} of {n} samples for "
+                                  f"{stall_limit:g} s ({self.where('capture_count')})")
+            time.sleep(_POLL_S)
+        if self.state == TableState.STOPPED and ad.run_fault is None:
+            deadline = time.monotonic() + _EMCY_WAIT_S
+            while not ad.emergencies and time.monotonic() < deadline:
+                time.sleep(0.01)
+            ad.take_emergency_fault(self.captured)
+        if ad.run_fault is not None:
+            return
+        self.check_complete()
+
+    def check_complete(self) -> None:
+        """DeviceError when the table stopped early or the capture is short; else the ``capture_end`` event."""
+        ad, n, captured = self.ad, self.n, self.captured
+        if self.state == TableState.STOPPED:
+            self.result.fault = f"the drive stopped the table at sample {captured} without an emergency"
+            raise DeviceError(f"{ad.port}: {self.result.fault} ({self.where('table_state')})")
+        if captured < n:
+            self.stats.lost_samples += n - captured
+            self.stats.lost_blocks += 1
+            message = (f"the drive captured only {captured} of {n} samples "
+                       f"({self.where('capture_count')}): its capture ended early")
+            ad.log_event(RunEvent(Kind.CAPTURE_SHORT, message, captured, value=float(n - captured)))
+            self.result.fault = message
+            raise DeviceError(f"{ad.port}: {message}")
+        ad.log_event(RunEvent(Kind.CAPTURE_END, f"table played and {n} samples captured", n, value=float(n)))
+        self.result.completed = True
+
+    def stop_table(self) -> None:
+        try:
+            self.ad.write("table_command", TABLE_STOP)
+        except DeviceError:
+            pass  # a drive in Fault may refuse; its power stage is off anyway

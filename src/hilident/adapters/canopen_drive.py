@@ -54,7 +54,6 @@ import time
 from struct import error as struct_error
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import can
 import canopen
@@ -62,11 +61,14 @@ import numpy as np
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, refuse_latched_faults
+from hilident.adapters.canopen_buffered import BufferedRun
 from hilident.adapters.canopen_link import open_network
-from hilident.adapters.canopen_recorder import configure_recorder, run_recorder
+from hilident.adapters.canopen_recorder import RecorderRun, configure_recorder
+from hilident.adapters.canopen_streamed import StreamedRun
+from hilident.adapters.events import Kind, RunEvent
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription, load_object_dictionary
-from hilident.errors import ConfigError, DataError, DeviceError, LimitTrip
+from hilident.errors import ConfigError, DataError, DeviceError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
 from hilident.protocol import cia402
@@ -79,6 +81,14 @@ from hilident.protocol.canopen_profile import decode_supported_modes, mapping_ca
 from hilident.protocol.filter_encoding import FilterEncoding
 
 __all__ = ["CanopenDriveAdapter", "DriveIdentity", "ChannelCodec", "LIMIT_TRIP_CODES"]
+
+#: How a run is played, by acquisition name (``device.acquisition``): a strategy ``(adapter, x, deliver,
+#: result)`` (:class:`~hilident.adapters.base.RunStrategy`). A new acquisition strategy joins with one line.
+ACQUISITIONS = {
+    "streamed": StreamedRun.play,
+    "buffered": BufferedRun.play,
+    "recorder": RecorderRun.play,
+}
 
 #: Emergency codes that mean a safety limit tripped (they raise LimitTrip).
 LIMIT_TRIP_CODES = {0x8311: "torque_limit", 0x8400: "velocity_limit", 0x8612: "position_limit"}
@@ -658,8 +668,8 @@ class CanopenDriveAdapter(AdapterBase):
             state = canopen.nmt.NMT_STATES.get(self.heartbeat_state, str(self.heartbeat_state))
             raise DeviceError(f"{self.port}: the drive left NMT Operational (heartbeat says {state})")
 
-    def emergency_event(self, e: Emergency, fallback_index: int) -> dict:
-        """The run-log entry of an emergency (a limit trip names its limit)."""
+    def emergency_event(self, e: Emergency, fallback_index: int) -> RunEvent:
+        """The run event of an emergency (a limit trip names its limit)."""
         index = fallback_index
         if self.desc.emcy_sample_index and len(e.data) >= 4:
             value = int.from_bytes(e.data[:4], "little")
@@ -667,20 +677,27 @@ class CanopenDriveAdapter(AdapterBase):
                 index = value
         meaning = cia402.emcy_meaning(e.code)
         if e.code in LIMIT_TRIP_CODES:
-            kind, message = "limit_trip", f"{LIMIT_TRIP_CODES[e.code]}: axis stopped, torque zero (EMCY 0x{e.code:04X} {meaning})"
+            kind = Kind.LIMIT_TRIP
+            message = f"{LIMIT_TRIP_CODES[e.code]}: axis stopped, torque zero (EMCY 0x{e.code:04X} {meaning})"
         elif e.code & 0xFF00 == 0:
-            kind, message = "emergency_reset", "EMCY 0x0000: error reset"
+            kind, message = Kind.EMERGENCY_RESET, "EMCY 0x0000: error reset"
         else:
-            kind, message = "emergency", f"EMCY 0x{e.code:04X} {meaning}, error register 0x{e.register:02X}"
-        return {"kind": kind, "message": message, "sample_index": int(index), "code": int(e.code),
-                "register": int(e.register), "data": e.data.hex()}
+            kind, message = Kind.EMERGENCY, f"EMCY 0x{e.code:04X} {meaning}, error register 0x{e.register:02X}"
+        return RunEvent(kind, message, int(index), code=e.code, register=e.register, data=e.data.hex())
 
-    def fault_error(self, event: dict) -> DeviceError:
-        """The exception a run ends with after ``event`` (LimitTrip for a limit)."""
-        cls = LimitTrip if event["kind"] == "limit_trip" else DeviceError
-        error = cls(f"{self.port}: {event['message']} at sample {event['sample_index']}")
-        error.event = event  # the run's first cause, for first_cause()
-        return error
+    def take_emergency_fault(self, sample_index: int) -> dict | None:
+        """Log the queued emergencies up to the first fault, note that as the run's fault and return it.
+
+        ``sample_index`` is where the host is, for drives whose EMCY does not
+        name the sample. Emergencies after the fault stay queued; None when
+        no fault was queued.
+        """
+        while self.emergencies:
+            event = self.log_event(self.emergency_event(self.emergencies.popleft(), sample_index))
+            if event["kind"] != Kind.EMERGENCY_RESET.value:
+                self.note_fault(event)
+                return event
+        return None
 
     # --- CiA 402 state machine ----------------------------------------------------------------
 
@@ -985,74 +1002,40 @@ class CanopenDriveAdapter(AdapterBase):
         """Write a CAN trace (``.asc`` or ``.blf``) of the next run to ``path``."""
         self._trace_path = Path(path)
 
-    def stream(self, excitation: np.ndarray, sink: Callable[[np.ndarray, np.ndarray], None],
-               progress: Callable[[float], None] | None = None) -> RunResult:
-        """Play ``excitation`` (one value per sample, in the mode's SI unit) and deliver the samples.
-
-        Raises
-        ------
-        LimitTrip
-            The drive tripped a limit (the samples up to then were delivered).
-        DeviceError
-            Emergency, heartbeat lost, SDO abort, short capture, ...
-        """
-        from hilident.adapters.canopen_buffered import run_buffered
-        from hilident.adapters.canopen_streamed import run_streamed
-
-        x = np.asarray(excitation, dtype=float)
-        if x.ndim != 1 or not np.all(np.isfinite(x)):
-            raise DataError("excitation must be a finite one-dimensional array")
+    def _prepare_run(self, x: np.ndarray) -> None:
+        """Configured for this acquisition; emergencies from before dropped; the CAN trace started."""
         if not self.channels or self._configured_for != self.acquisition:
             raise DeviceError(f"{self.port}: configure() for {self.acquisition} acquisition before stream()")
         self.emergencies.clear()
-        self.events.clear()
-        self.run_fault = None
-        self.last_result = None
         trace_path, self._trace_path = self._trace_path, None
         if trace_path is not None:
             try:
                 self.network.start_trace(trace_path)
             except (OSError, ValueError) as exc:
                 raise DeviceError(f"{self.port}: cannot write the CAN trace {trace_path}: {exc}") from None
-        run = run_streamed if self.acquisition == "streamed" else run_buffered
-        if self.acquisition == "recorder":
-            run = run_recorder
-        self._host_checks = self._host_limit_columns()
-        from_sink: list[BaseException] = []
 
-        def deliver(index, rows):
-            if self.run_fault is not None and self.run_fault.get("host_check"):
-                return  # nothing after the sample the host stopped the axis at
-            tripped = self._host_limit_trip(index, rows)
-            if tripped is not None:
-                index, rows = index[:tripped + 1], rows[:tripped + 1]
-            try:
-                sink(index, rows)
-            except BaseException as exc:
-                from_sink.append(exc)
-                raise
-            if tripped is not None:
-                raise self.fault_error(self.run_fault)
+    def _play(self, x: np.ndarray, deliver, result: RunResult) -> None:
+        """Play ``x`` (one value per sample, in the mode's SI unit) with the strategy of :attr:`acquisition`."""
+        ACQUISITIONS[self.acquisition](self, x, deliver, result)
 
-        try:
-            return run(self, x, deliver, progress)
-        except BaseException as exc:
-            if any(exc is e for e in from_sink):
-                raise  # a full disk, a signal in the session's writer: its own error, after the drive is off
-            if isinstance(exc, DeviceError):
-                first = self.first_cause(exc)
-                if first is not exc:
-                    raise first from None
-                raise
-            if isinstance(exc, (can.CanError, OSError)):  # the bus itself failed (e.g. a send)
-                raise self.first_cause(DeviceError(f"{self.port}: bus failure during the run: {exc}")) from None
-            raise
-        finally:
-            self.safe_stop()
-            with contextlib.suppress(Exception):
-                self.network.stop_trace()
-            if self.last_result is not None:
-                self.last_result.events = list(self.events)
+    def _end_run(self, result: RunResult) -> None:
+        """Power stage off, CAN trace closed."""
+        self.safe_stop()
+        with contextlib.suppress(Exception):
+            self.network.stop_trace()
+
+    def _fault_text(self, event: dict) -> str:
+        return f"{event['message']} at sample {event['sample_index']}"
+
+    def _collect_faults(self) -> None:
+        """Emergencies still queued: an SDO abort or a lost link is often the consequence of one."""
+        if self.run_fault is None:
+            self.take_emergency_fault(self.last_result.stats.samples if self.last_result is not None else 0)
+
+    def _as_device_error(self, exc: BaseException) -> BaseException:
+        if isinstance(exc, (can.CanError, OSError)):  # the bus itself failed (e.g. a send)
+            return DeviceError(f"{self.port}: bus failure during the run: {exc}")
+        return exc
 
     def set_excitation_recipe(self, recipe: dict | None) -> None:
         """The excitation of the next :meth:`stream` as parameters (``kind``, ``amplitude``, band, ...).
@@ -1077,48 +1060,6 @@ class CanopenDriveAdapter(AdapterBase):
         if "max_torque" not in self.device_limits:
             bounds["torque_nm"] = (-torque, torque, "torque_limit")
         return [(j, *bounds[c.name]) for j, c in enumerate(self.channels) if c.name in bounds]
-
-    def _host_limit_trip(self, index: np.ndarray, rows: np.ndarray) -> int | None:
-        """Row of the first sample outside a limit (noted as the run's fault), or None."""
-        first = None
-        for j, low, high, name in self._host_checks:
-            out = np.flatnonzero((rows[:, j] < low) | (rows[:, j] > high))
-            if len(out) and (first is None or out[0] < first[0]):
-                first = (int(out[0]), j, name, low, high)
-        if first is None:
-            return None
-        row, j, name, low, high = first
-        value = float(rows[row, j])
-        event = {"kind": "limit_trip", "sample_index": int(index[row]), "value": value, "host_check": True,
-                 "message": f"{name}: {self.channels[j].name} = {value:.4g} outside [{low:.4g}, {high:.4g}] "
-                            "(checked by the host): axis stopped, torque zero"}
-        self.events.append(event)
-        self.note_fault(event)
-        self.safe_stop()
-        return row
-
-    def note_fault(self, event: dict) -> None:
-        """Record ``event`` as the run's fault; the first one stays the cause."""
-        if self.run_fault is None:
-            self.run_fault = event
-            if self.last_result is not None:
-                self.last_result.fault = event["message"]
-
-    def first_cause(self, exc: DeviceError) -> DeviceError:
-        """The error a run ends with: the drive's first fault (a limit trip: LimitTrip), else ``exc``.
-
-        Emergencies still queued are looked at too: an SDO abort or a lost
-        link is often only the consequence of a fault the drive just reported.
-        """
-        while self.run_fault is None and self.emergencies:
-            sample = self.last_result.stats.samples if self.last_result is not None else 0
-            event = self.emergency_event(self.emergencies.popleft(), sample)
-            self.events.append(event)
-            if event["kind"] != "emergency_reset":
-                self.note_fault(event)
-        if self.run_fault is None or getattr(exc, "event", None) is self.run_fault:
-            return exc
-        return self.fault_error(self.run_fault)
 
     def decode_rows(self, raw_columns: list[np.ndarray]) -> np.ndarray:
         """Raw channel columns -> SI rows."""

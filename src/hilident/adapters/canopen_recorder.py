@@ -35,7 +35,8 @@ import time
 
 import numpy as np
 
-from hilident.adapters.base import RunResult, StreamStats
+from hilident.adapters.base import RunStrategy
+from hilident.adapters.events import Kind, RunEvent
 from hilident.errors import ConfigError, DeviceError
 from hilident.protocol.canopen_objects import (
     ObjectAddress,
@@ -45,7 +46,7 @@ from hilident.protocol.canopen_objects import (
 )
 from hilident.protocol.canopen_recorder import generator_output, plan_generator
 
-__all__ = ["RecorderRun", "configure_recorder", "run_recorder"]
+__all__ = ["RecorderRun", "configure_recorder"]
 
 _POLL_S = 0.05
 _POSITION_SETPOINTS = ("target_position", "interpolation_data")
@@ -70,27 +71,21 @@ def configure_recorder(ad, codecs) -> None:
         ad.write_object(ObjectAddress(0x1800 + slot.number, 1), slot.cob_id | 0x80000000)
 
 
-def run_recorder(ad, x: np.ndarray, deliver, progress=None) -> RunResult:
-    """``stream()``'s run for ``"recorder"`` acquisition: :meth:`RecorderRun.run` with the adapter's recipe."""
-    return RecorderRun(ad, ad.excitation_recipe).run(x, deliver, progress)
-
-
-class RecorderRun:
+class RecorderRun(RunStrategy):
     """One run of the drive's generator and recorder (see the module docstring).
 
-    Parameters
-    ----------
-    ad : CanopenDriveAdapter
-        Configured for ``"recorder"`` acquisition.
-    recipe : dict or None
-        The excitation recipe (``set_excitation_recipe``).
+    The strategy of ``"recorder"`` acquisition (the adapter's ``ACQUISITIONS``
+    table). State: the generator's settings for the run, the objects the
+    recorder records. The recipe is the adapter's ``excitation_recipe``
+    (``set_excitation_recipe``).
     """
 
-    def __init__(self, ad, recipe: dict | None):
-        self.ad = ad
+    def __init__(self, adapter, x: np.ndarray, deliver, result):
+        super().__init__(adapter, x, deliver, result)
+        ad = adapter
         self.cap = ad.desc.recorder
         self.rec = self.cap.recorder
-        self.recipe = recipe
+        self.recipe = ad.excitation_recipe
         self.source = str(ad.driver.folder / "driver.toml")
         self.period = ad.divider
         self.settings = None
@@ -134,12 +129,9 @@ class RecorderRun:
 
     # --- the run -------------------------------------------------------------------------------------
 
-    def run(self, x: np.ndarray, deliver, progress=None) -> RunResult:
-        ad = self.ad
-        n = len(x)
-        stats = StreamStats()
-        result = RunResult(requested_samples=n, stats=stats)
-        ad.last_result = result
+    def run(self) -> None:
+        """Set up, play, record, upload; a fault ends it early (the adapter raises it once the axis is safe)."""
+        ad, n, x = self.ad, self.n, self.x
         settings = self.plan(n)
         self._compare(x, n)
         try:
@@ -148,47 +140,43 @@ class RecorderRun:
             self._hold_axis()
             ad.enable()
             ad.write_object(self.cap.generator.control, self.cap.generator.commands["start"])
-            recorded = min(n, self._wait(n, progress))  # a recorder that kept going past n: the n asked for
+            recorded = min(n, self._wait(n))  # a recorder that kept going past n: the n asked for
         finally:
             self._stop()
-        if ad.run_fault is not None:  # what was recorded up to the fault, then the fault
+        if ad.run_fault is not None:  # what was recorded up to the fault; the fault ends the run
             with contextlib.suppress(DeviceError):
-                self._upload(min(n, int(ad.read_object(self.rec.recorded))), n, deliver, progress)
-            raise ad.fault_error(ad.run_fault)
-        self._upload(recorded, n, deliver, progress)
+                self._upload(min(n, int(ad.read_object(self.rec.recorded))))
+            return
+        self._upload(recorded)
         if recorded < n:
-            stats.lost_samples += n - recorded
-            stats.lost_blocks += 1
+            self.stats.lost_samples += n - recorded
+            self.stats.lost_blocks += 1
             message = (f"the drive's recorder holds only {recorded} of {n} samples "
                        f"({ad.describe(self.rec.recorded)}): its recording ended early")
-            ad.events.append({"kind": "capture_short", "sample_index": recorded, "value": float(n - recorded),
-                              "message": message})
-            result.fault = message
+            ad.log_event(RunEvent(Kind.CAPTURE_SHORT, message, recorded, value=float(n - recorded)))
+            self.result.fault = message
             raise DeviceError(f"{ad.port}: {message}")
-        ad.events.append({"kind": "capture_end", "sample_index": n, "value": float(n),
-                          "message": f"the drive's {settings.kind.name} generator played and its recorder "
-                                     f"took {n} samples"})
-        result.completed = True
-        return result
+        ad.log_event(RunEvent(Kind.CAPTURE_END, f"the drive's {settings.kind.name} generator played and its "
+                                                f"recorder took {n} samples", n, value=float(n)))
+        self.result.completed = True
 
     def _compare(self, x: np.ndarray, n: int) -> None:
         """A warning event when the generator will not play what the host meant (its samples ``x``)."""
         kind = self.settings.kind
         if kind.name == "prbs" and not kind.taps:
-            self.ad.events.append({"kind": "excitation_differs", "sample_index": 0, "value": float("nan"),
-                                   "message": "the drive's PRBS sequence is not described ([canopen.generator."
-                                              "kinds.prbs] taps): what it plays cannot be compared"})
+            self.ad.log_event(RunEvent(Kind.EXCITATION_DIFFERS, "the drive's PRBS sequence is not described "
+                                       "([canopen.generator.kinds.prbs] taps): what it plays cannot be compared",
+                                       0, value=float("nan")))
             return
         expected = self.expected(n)
         step = abs(self.settings.values["amplitude"] - float(self.recipe.get("amplitude", 0.0)))
         diff = np.abs(expected - x)
         worst = int(np.argmax(diff)) if n else 0
         if n and diff[worst] > step + 1e-6 * max(1.0, abs(self.settings.values["amplitude"])):
-            self.ad.events.append({
-                "kind": "excitation_differs", "sample_index": worst, "value": float(diff[worst]),
-                "message": f"the drive's {kind.name} generator plays another signal than the host's excitation "
-                           f"(largest difference {diff[worst]:.4g} at sample {worst}); the recording holds what "
-                           "the drive played"})
+            self.ad.log_event(RunEvent(
+                Kind.EXCITATION_DIFFERS, f"the drive's {kind.name} generator plays another signal than the host's "
+                f"excitation (largest difference {diff[worst]:.4g} at sample {worst}); the recording holds what the "
+                "drive played", worst, value=float(diff[worst])))
 
     def _set_up(self, n: int) -> None:
         """Recorder channels, period, count and trigger; the generator's kind, target and parameters (read back)."""
@@ -226,9 +214,9 @@ class RecorderRun:
                 raise DeviceError(f"{ad.port}: wrote {raw} to {ad.describe(addr)} (generator {name}), the drive "
                                   f"holds {back}")
         if any(c.on_host for c in ad.channels) and self.excitation_column is None:
-            ad.events.append({"kind": "excitation_computed", "sample_index": 0, "value": 0.0,
-                              "message": f"the drive has no generator output object: the excitation column is "
-                                         f"its {s.kind.name} computed from the parameters it stores"})
+            ad.log_event(RunEvent(Kind.EXCITATION_COMPUTED, f"the drive has no generator output object: the "
+                                                             f"excitation column is its {s.kind.name} computed "
+                                                             "from the parameters it stores", 0, value=0.0))
 
     def _hold_axis(self) -> None:
         """A harmless set-point before enabling: zero torque/speed, the present position in CSP/IP."""
@@ -238,38 +226,26 @@ class RecorderRun:
             if role:
                 ad.write(role, int(ad.read("position_actual")) if role in _POSITION_SETPOINTS else 0)
 
-    def _wait(self, n: int, progress) -> int:
+    def _wait(self, n: int) -> int:
         """Poll the recorder until it is done; emergencies and the heartbeat watched. Returns its count."""
         ad, rec = self.ad, self.rec
         recorded = 0
         last_change = time.monotonic()
         stall_limit = max(2.0, 2 * ad.timeout_s)
         while True:
-            if self._emergencies(recorded):
+            if self.ad.take_emergency_fault(recorded) is not None:
                 return recorded
             ad.check_link()
             state = int(ad.read_object(rec.state))
             count = int(ad.read_object(rec.recorded))
             if count != recorded:
                 recorded, last_change = count, time.monotonic()
-                if progress is not None:
-                    progress(min(1.0, 0.9 * count / max(n, 1)))
             if state == rec.states["done"] or state == rec.states["idle"]:
                 return recorded
             if time.monotonic() - last_change > stall_limit:
                 raise DeviceError(f"{ad.port}: the recorder stalled at {recorded} of {n} samples for "
                                   f"{stall_limit:g} s ({ad.describe(rec.recorded)})")
             time.sleep(_POLL_S)
-
-    def _emergencies(self, sample: int) -> bool:
-        """Log the emergencies received; True when one is a fault (the run's first cause)."""
-        ad = self.ad
-        while ad.emergencies and ad.run_fault is None:
-            event = ad.emergency_event(ad.emergencies.popleft(), sample)
-            ad.events.append(event)
-            if event["kind"] != "emergency_reset":
-                ad.note_fault(event)
-        return ad.run_fault is not None
 
     def _stop(self) -> None:
         """Generator off, recorder off, power stage off: on every ending, whatever fails."""
@@ -281,7 +257,7 @@ class RecorderRun:
             if int(ad.read_object(self.rec.state)) != self.rec.states["done"]:
                 ad.write_object(self.rec.control, self.rec.commands["stop"])
 
-    def _upload(self, recorded: int, n: int, deliver, progress) -> None:
+    def _upload(self, recorded: int) -> None:
         """Read the buffer(s), decode, deliver samples 0 .. recorded-1."""
         ad, rec = self.ad, self.rec
         if recorded == 0:
@@ -312,10 +288,8 @@ class RecorderRun:
             else:
                 rows.append(si[k])
                 k += 1
-        deliver(np.arange(recorded, dtype=np.int64), np.column_stack(rows))
-        ad.last_result.stats.samples += recorded
-        if progress is not None:
-            progress(min(1.0, recorded / max(n, 1)))
+        self.stats.samples += recorded
+        self.deliver(np.arange(recorded, dtype=np.int64), np.column_stack(rows))
 
     def _read(self, addr: ObjectAddress) -> bytes:
         ad = self.ad

@@ -44,14 +44,16 @@ from __future__ import annotations
 import collections
 import struct
 import time
+from typing import Protocol
 
 import numpy as np
 
-from hilident.adapters.base import RunResult, StreamStats
+from hilident.adapters.base import RunStrategy
+from hilident.adapters.events import Kind, RunEvent
 from hilident.errors import DeviceError
 from hilident.protocol.canopen_objects import numpy_type, type_bits
 
-__all__ = ["run_streamed", "POSITION_SETPOINTS"]
+__all__ = ["StreamedRun", "DriveHost", "POSITION_SETPOINTS"]
 
 #: Set-point roles that are positions (targets relative to where the axis holds at enable).
 POSITION_SETPOINTS = ("target_position", "interpolation_data")
@@ -59,143 +61,250 @@ POSITION_SETPOINTS = ("target_position", "interpolation_data")
 _GRACE_S = 0.25  # after the last SYNC (or an emergency), wait this long for the TPDOs in flight
 
 
-def run_streamed(ad, x: np.ndarray, sink, progress=None) -> RunResult:
-    """Play ``x`` on the drive behind adapter ``ad``, one SYNC per sample; see the module docstring."""
-    n = len(x)
-    stats = StreamStats()
-    result = RunResult(requested_samples=n, stats=stats)
-    ad.last_result = result
-    events = ad.events  # live: the session writes them to the recording while the run goes on
-    od = ad.node.object_dictionary
-    counted = ad.desc.counted
-    counter_char, counter_mod = "", 0
-    if counted:
-        counter_addr = ad.desc.address("sample_counter")
-        counter_type = od.get_variable(counter_addr.index, counter_addr.subindex).data_type
-        counter_char, counter_mod = numpy_type(counter_type).char, 1 << type_bits(counter_type)
-    n_ch = len(ad.channels)
-    frames = {}
-    for rank, (cob, idx) in enumerate(ad.tpdo_layout):
-        fmt = "<" + counter_char + "".join(numpy_type(ad.channels[i].datatype).char for i in idx)
-        frames[cob] = (1 << rank, struct.Struct(fmt), np.asarray(idx, dtype=np.intp), rank)
-    full = (1 << len(frames)) - 1
-    scales = np.array([c.scale for c in ad.channels])
-    raw = np.zeros((n, n_ch))
-    for j, c in enumerate(ad.channels):
-        if c.on_host:
-            raw[:, j] = x  # the set-point the host sends, in SI units (scale 1)
-    mask = np.zeros(n, dtype=np.uint32)
-    answered = {"set": -1, "rank": len(frames)}  # ordered matching: the set being received, its last PDO
+class DriveHost(Protocol):
+    """What a CANopen acquisition strategy uses of its adapter (:class:`~hilident.adapters.canopen_drive.CanopenDriveAdapter`).
 
-    rx = collections.deque()
+    Configuration, as :meth:`configure` left it: ``desc`` (the driver's
+    objects), ``channels`` (the recorded channels' codecs), ``mode``,
+    ``sample_rate_hz``, ``sync_rate_hz``, ``sync_overflow``, ``tpdo_layout``
+    and ``rpdo`` (streamed), ``timeout_s``, ``port``; the bus: ``network``
+    (``send_message``, ``subscribe``, ``unsubscribe``) and ``node``; the run:
+    ``events`` (read only: log with :meth:`log_event`), ``run_fault`` (read
+    only: note with :meth:`take_emergency_fault`) and ``emergencies`` (the
+    queue, to wait for one).
+    """
 
-    def on_tpdo(can_id, data, timestamp):
-        rx.append((can_id, bytes(data)))
+    port: str
+    timeout_s: float
 
-    rpdo_cob, rx_type, sp_type, sp_role = ad.rpdo
-    if rx_type is not None:
-        rx_mod = 1 << type_bits(rx_type)
-        rpdo_struct = struct.Struct("<" + numpy_type(rx_type).char + numpy_type(sp_type).char)
+    def read(self, role: str): ...
 
-        def rpdo_pack(k, value):
-            return rpdo_struct.pack(k % rx_mod, value)
-    else:
-        rpdo_struct = struct.Struct("<" + numpy_type(sp_type).char)
+    def write(self, role: str, value) -> None: ...
 
-        def rpdo_pack(k, value):
-            return rpdo_struct.pack(value)
-    period = 1.0 / (ad.sync_rate_hz or ad.sample_rate_hz)
-    window = max(16, int(round(0.1 / period)))
-    lag_limit = max(10 * window, int(round(1.0 / period)))  # the drive is not keeping up: stop flooding it
-    overflow = ad.sync_overflow
-    send = ad.network.send_message
+    def read_domain(self, addr) -> bytes: ...
 
-    state = {"final": 0, "last_progress": 0.0}
+    def write_domain(self, addr, data: bytes) -> None: ...
 
-    def finalize(limit: int, count_lost: bool = True) -> None:
+    def describe(self, addr) -> str: ...
+
+    def enable(self) -> None:
+        """CiA 402 state machine to Operation Enabled."""
+
+    def check_link(self) -> None:
+        """DeviceError when the drive's heartbeat stopped or it left NMT Operational."""
+
+    def beat_if_due(self) -> None:
+        """The host's heartbeat, when the run's loop is the one producing it."""
+
+    def take_emergency_fault(self, sample_index: int) -> dict | None:
+        """Log the queued emergencies up to the first fault; that fault (noted as the run's), or None."""
+
+    def log_event(self, event: RunEvent) -> dict: ...
+
+    def encode_setpoints(self, x: np.ndarray, datatype: int, role: str, origin_raw: int = 0) -> np.ndarray: ...
+
+    def decode_rows(self, raw_columns: list[np.ndarray]) -> np.ndarray: ...
+
+
+class StreamedRun(RunStrategy):
+    """One host-streamed run: the set-points, SYNCs, received TPDOs and their matching to samples.
+
+    See the module docstring. State: the raw sample table and the mask of
+    the TPDOs received per sample, the index below which samples are final
+    (delivered or counted lost), the SYNCs sent, late and unanswered.
+    """
+
+    def __init__(self, adapter: DriveHost, x: np.ndarray, deliver, result):
+        super().__init__(adapter, x, deliver, result)
+        ad = adapter
+        n = self.n
+        self.counted = ad.desc.counted
+        counter_char, self.counter_mod = "", 0
+        if self.counted:
+            counter_addr = ad.desc.address("sample_counter")
+            counter_type = ad.node.object_dictionary.get_variable(counter_addr.index, counter_addr.subindex).data_type
+            counter_char, self.counter_mod = numpy_type(counter_type).char, 1 << type_bits(counter_type)
+        self.frames = {}
+        for rank, (cob, idx) in enumerate(ad.tpdo_layout):
+            fmt = "<" + counter_char + "".join(numpy_type(ad.channels[i].datatype).char for i in idx)
+            self.frames[cob] = (1 << rank, struct.Struct(fmt), np.asarray(idx, dtype=np.intp), rank)
+        self.full = (1 << len(self.frames)) - 1
+        self.scales = np.array([c.scale for c in ad.channels])
+        self.raw = np.zeros((n, len(ad.channels)))
+        for j, c in enumerate(ad.channels):
+            if c.on_host:
+                self.raw[:, j] = x  # the set-point the host sends, in SI units (scale 1)
+        self.mask = np.zeros(n, dtype=np.uint32)
+        self.answered_set, self.answered_rank = -1, len(self.frames)  # ordered matching: the set, its last PDO
+        self.rx = collections.deque()
+        self.period = 1.0 / (ad.sync_rate_hz or ad.sample_rate_hz)
+        self.window = max(16, int(round(0.1 / self.period)))
+        self.final = 0  # samples below are delivered or counted lost
+        self.sent = 0  # SYNCs sent
+        self.late_syncs, self.worst_late = 0, 0.0
+
+    # --- receiving ---------------------------------------------------------------------------------
+
+    def on_tpdo(self, can_id, data, timestamp) -> None:
+        self.rx.append((can_id, bytes(data)))
+
+    def finalize(self, limit: int, count_lost: bool = True) -> None:
         """Deliver complete samples below ``limit``; count the others as lost (or drop them silently)."""
-        a = state["final"]
+        a, stats, mask = self.final, self.stats, self.mask
         if limit <= a:
             return
         seg = mask[a:limit]
-        complete = seg == full
+        complete = seg == self.full
         idx = np.flatnonzero(complete) + a
         if len(idx):
-            sink(idx.astype(np.int64), raw[idx] * scales)
+            self.deliver(idx.astype(np.int64), self.raw[idx] * self.scales)
             stats.samples += len(idx)
         if count_lost and not complete.all():
             missing = np.flatnonzero(~complete) + a
             stats.lost_samples += len(missing)
             stats.lost_blocks += len(missing)
-            stats.lost_frames += int(sum(bin(full & ~int(m)).count("1") for m in mask[missing]))
+            stats.lost_frames += int(sum(bin(self.full & ~int(m)).count("1") for m in mask[missing]))
             breaks = np.flatnonzero(np.diff(missing) != 1) + 1
             for run in np.split(missing, breaks):
-                events.append({"kind": "lost_blocks", "sample_index": int(run[0]), "value": float(len(run)),
-                               "message": f"{len(run)} sample(s) lost on the bus: samples {run[0]}..{run[-1]}"})
-        state["final"] = limit
-        if progress is not None and (limit == n or time.monotonic() - state["last_progress"] > 0.1):
-            state["last_progress"] = time.monotonic()
-            progress(min(1.0, limit / max(n, 1)))
+                self.ad.log_event(RunEvent(Kind.LOST_BLOCKS, f"{len(run)} sample(s) lost on the bus: samples "
+                                                             f"{run[0]}..{run[-1]}", int(run[0]), value=float(len(run))))
+        self.final = limit
 
-    def drain(sent: int) -> int:
+    def drain(self) -> int:
         """Sort received TPDOs into samples; returns the highest sample index seen."""
         top = -1
+        sent, final, rx, stats = self.sent, self.final, self.rx, self.stats
         ref = sent - 1
-        final = state["final"]
         while rx:
             cob, data = rx.popleft()
-            spec = frames.get(cob)
+            spec = self.frames.get(cob)
             if spec is None:
                 continue
             bit, packer, idx, rank = spec
-            if not counted:  # a PDO number not above the last one's starts the answer to the next SYNC
-                if rank <= answered["rank"]:
-                    answered["set"] += 1
-                answered["rank"] = rank
+            if not self.counted:  # a PDO number not above the last one's starts the answer to the next SYNC
+                if rank <= self.answered_rank:
+                    self.answered_set += 1
+                self.answered_rank = rank
             if len(data) < packer.size:
                 stats.corrupt_frames += 1
                 continue
             values = packer.unpack_from(data)
-            if counted:
-                k = ref - ((ref - values[0]) % counter_mod)
+            if self.counted:
+                k = ref - ((ref - values[0]) % self.counter_mod)
                 values = values[1:]
             else:
-                k = answered["set"]
+                k = self.answered_set
                 if k >= sent:
                     stats.corrupt_frames += 1  # an answer to a SYNC the host never sent: not this run's
                     continue
             if k < final or k < 0:
                 stats.out_of_order += 1  # arrived after its sample was given up: late
                 continue
-            raw[k, idx] = values
-            mask[k] |= bit
+            self.raw[k, idx] = values
+            self.mask[k] |= bit
             top = max(top, k)
         return top
 
-    def note_late_syncs() -> None:
-        """The ``sync_late`` event (once): how many SYNCs went out more than a period late, the worst in s."""
-        if late_syncs and not any(e["kind"] == "sync_late" for e in events):
-            events.append({"kind": "sync_late", "sample_index": 0, "value": float(late_syncs),
-                           "worst_s": float(worst_late),
-                           "message": f"{late_syncs} SYNC(s) sent more than one period late "
-                                      f"(worst {worst_late * 1e3:.2f} ms)"})
+    def complete_from_final(self, end: int | None = None) -> bool:
+        """Whether every sample from the final index to ``end`` has all its TPDOs."""
+        return self.mask[self.final:end].min(initial=self.full) == self.full
 
-    for cob in frames:
-        ad.network.subscribe(cob, on_tpdo)
-    late_syncs, worst_late = 0, 0.0
-    fault = None
-    sent = 0
-    try:
-        # start from a harmless set-point: zero torque/speed/offset, or the present position in CSP and IP;
-        # a torque offset injected in CSP or CSV is held by the present position or zero speed
+    # --- events --------------------------------------------------------------------------------------
+
+    def note_late_syncs(self) -> None:
+        """The ``sync_late`` event (once): how many SYNCs went out more than a period late, the worst in s."""
+        if self.late_syncs and not any(e["kind"] == Kind.SYNC_LATE.value for e in self.ad.events):
+            self.ad.log_event(RunEvent(Kind.SYNC_LATE, f"{self.late_syncs} SYNC(s) sent more than one period late "
+                                                       f"(worst {self.worst_late * 1e3:.2f} ms)",
+                                       0, value=float(self.late_syncs), worst_s=float(self.worst_late)))
+
+    def note_unanswered(self) -> None:
+        """Ordered matching: SYNCs no TPDO answered show only in the count of answer sets."""
+        unanswered = self.sent - 1 - self.answered_set
+        if unanswered > 0:
+            self.ad.log_event(RunEvent(
+                Kind.SYNC_UNANSWERED, f"{unanswered} SYNC(s) got no TPDO at all: the drive skipped them or their "
+                                      "answers were lost; matched by order, the samples after such a SYNC are shifted, "
+                                      "so the run's last samples are counted lost",
+                int(self.answered_set + 1), value=float(unanswered)))
+
+    def read_drive_counters(self) -> None:
+        """The hilident counters at the end of a counted run: underruns and SYNC counter jumps."""
+        ad = self.ad
+        self.stats.underruns = int(ad.read("setpoint_underruns"))
+        sync_errors = int(ad.read("sync_errors"))
+        if sync_errors:
+            ad.log_event(RunEvent(Kind.SYNC_ERRORS, f"the drive saw {sync_errors} SYNC counter jump(s)", 0,
+                                  value=float(sync_errors)))
+
+    # --- the run -----------------------------------------------------------------------------------
+
+    def rpdo_packer(self):
+        """``pack(k, value)``: the RPDO of sample ``k`` (headed by the set-point counter where there is one)."""
+        rx_type, sp_type = self.ad.rpdo[1], self.ad.rpdo[2]
+        if rx_type is not None:
+            rx_mod = 1 << type_bits(rx_type)
+            rpdo_struct = struct.Struct("<" + numpy_type(rx_type).char + numpy_type(sp_type).char)
+            return lambda k, value: rpdo_struct.pack(k % rx_mod, value)
+        rpdo_struct = struct.Struct("<" + numpy_type(sp_type).char)
+        return lambda k, value: rpdo_struct.pack(value)
+
+    def start(self) -> list:
+        """Harmless set-points first, then Operation Enabled; the run's raw set-points.
+
+        Zero torque/speed/offset, or the present position in CSP and IP; a
+        torque offset injected in CSP or CSV is held by the present position or
+        zero speed. Position set-points are relative to where the axis holds.
+        """
+        ad = self.ad
+        sp_type, sp_role = ad.rpdo[2], ad.rpdo[3]
         position = sp_role in POSITION_SETPOINTS
         ad.write(sp_role, int(ad.read("position_actual")) if position else 0)
         hold = ad.desc.modes[ad.mode].hold
         if hold:
             ad.write(hold, int(ad.read("position_actual")) if hold in POSITION_SETPOINTS else 0)
         ad.enable()
-        origin = int(ad.read("position_actual")) if position else 0  # CSP targets: relative to where it holds
-        setpoints = ad.encode_setpoints(x, sp_type, sp_role, origin).tolist()
+        origin = int(ad.read("position_actual")) if position else 0
+        return ad.encode_setpoints(self.x, sp_type, sp_role, origin).tolist()
+
+    def run(self) -> None:
+        """Play the run; see the module docstring."""
+        ad = self.ad
+        for cob in self.frames:
+            ad.network.subscribe(cob, self.on_tpdo)
+        try:
+            self._loop()
+            self.note_late_syncs()
+            if ad.run_fault is None and not self.counted:
+                self.note_unanswered()
+            if ad.run_fault is None and self.counted:
+                self.read_drive_counters()
+            self.result.completed = ad.run_fault is None
+        except BaseException:
+            self.note_late_syncs()  # a run that broke off says how late its SYNCs went out too
+            try:
+                self.drain()
+                self.finalize(self.sent - self.window)  # long overdue: lost
+                self.finalize(self.sent, count_lost=False)  # still in flight when the run broke off
+            except Exception:
+                pass
+            raise
+        finally:
+            for cob in self.frames:
+                try:
+                    ad.network.unsubscribe(cob, self.on_tpdo)
+                except (KeyError, ValueError):
+                    pass
+
+    def _loop(self) -> None:
+        """SYNCs on time, TPDOs matched, samples delivered, until the run ends or a fault stops it."""
+        ad, n, period, window = self.ad, self.n, self.period, self.window
+        lag_limit = max(10 * window, int(round(1.0 / period)))  # the drive is not keeping up: stop flooding it
+        overflow = ad.sync_overflow
+        send = ad.network.send_message
+        rpdo_cob, pack = ad.rpdo[0], self.rpdo_packer()
+        setpoints = self.start()
+        fault = None
         t0 = time.perf_counter() + 0.001
         ended = None
         top = -1
@@ -203,79 +312,42 @@ def run_streamed(ad, x: np.ndarray, sink, progress=None) -> RunResult:
         while True:
             now = time.perf_counter()
             if fault is None:
-                while sent < n and now >= t0 + sent * period:
-                    late = now - (t0 + sent * period)
+                while self.sent < n and now >= t0 + self.sent * period:
+                    late = now - (t0 + self.sent * period)
                     if late > period:
-                        late_syncs += 1
-                        worst_late = max(worst_late, late)
-                    send(rpdo_cob, rpdo_pack(sent, setpoints[sent]))
-                    send(0x80, bytes([sent % overflow + 1]) if overflow > 1 else b"")
-                    sent += 1
+                        self.late_syncs += 1
+                        self.worst_late = max(self.worst_late, late)
+                    send(rpdo_cob, pack(self.sent, setpoints[self.sent]))
+                    send(0x80, bytes([self.sent % overflow + 1]) if overflow > 1 else b"")
+                    self.sent += 1
             ad.beat_if_due()
-            newest = drain(sent)
+            newest = self.drain()
             if newest > top:
                 top, heard_s = newest, now
-            while ad.emergencies and fault is None:
-                event = ad.emergency_event(ad.emergencies.popleft(), max(top, 0))
-                events.append(event)
-                if event["kind"] != "emergency_reset":
-                    fault = event
-                    ad.note_fault(event)
+            if fault is None:
+                fault = ad.take_emergency_fault(max(top, 0))
+                if fault is not None:
                     ended = now
             if fault is not None:
-                last = min(sent, fault["sample_index"] + 1)
-                if now - ended > _GRACE_S or mask[state["final"]:last].min(initial=full) == full:
-                    finalize(last)
-                    finalize(min(sent, top + 1), count_lost=False)
-                    break
+                last = min(self.sent, fault["sample_index"] + 1)
+                if now - ended > _GRACE_S or self.complete_from_final(last):
+                    self.finalize(last)
+                    self.finalize(min(self.sent, top + 1), count_lost=False)
+                    return
             else:
                 ad.check_link()
-                if sent - 1 - top > lag_limit:
-                    raise DeviceError(f"{ad.port}: the drive's TPDOs lag {sent - 1 - top} samples behind the SYNCs "
-                                      f"(more than {lag_limit * period:.2g} s): it does not keep up with "
+                if self.sent - 1 - top > lag_limit:
+                    raise DeviceError(f"{ad.port}: the drive's TPDOs lag {self.sent - 1 - top} samples behind the "
+                                      f"SYNCs (more than {lag_limit * period:.2g} s): it does not keep up with "
                                       f"{1 / period:g} SYNC/s")
-                if sent == n:
+                if self.sent == n:
                     ended = ended or now
                     # the grace runs from the last SYNC or the last new sample, whichever is later: a drive
                     # still answering the last SYNCs is slow, not silent
-                    if now - max(ended, heard_s) > _GRACE_S or mask[state["final"]:].min(initial=full) == full:
-                        finalize(n)
-                        break
+                    if now - max(ended, heard_s) > _GRACE_S or self.complete_from_final():
+                        self.finalize(n)
+                        return
                 else:
-                    finalize(sent - window)
-            wait = t0 + sent * period - time.perf_counter()
-            time.sleep(min(max(wait, 0.0), 0.005) if sent < n and fault is None else 0.002)
-        note_late_syncs()
-        if fault is None and not counted:
-            unanswered = sent - 1 - answered["set"]
-            if unanswered > 0:
-                events.append({"kind": "sync_unanswered", "sample_index": int(answered["set"] + 1),
-                               "value": float(unanswered),
-                               "message": f"{unanswered} SYNC(s) got no TPDO at all: the drive skipped them or "
-                                          "their answers were lost; matched by order, the samples after such a SYNC "
-                                          "are shifted, so the run's last samples are counted lost"})
-        if fault is None and counted:
-            stats.underruns = int(ad.read("setpoint_underruns"))
-            sync_errors = int(ad.read("sync_errors"))
-            if sync_errors:
-                events.append({"kind": "sync_errors", "sample_index": 0, "value": float(sync_errors),
-                               "message": f"the drive saw {sync_errors} SYNC counter jump(s)"})
-        result.completed = fault is None
-    except BaseException:
-        note_late_syncs()  # a run that broke off says how late its SYNCs went out too
-        try:
-            drain(sent)
-            finalize(sent - window)  # long overdue: lost
-            finalize(sent, count_lost=False)  # still in flight when the run broke off
-        except Exception:
-            pass
-        raise
-    finally:
-        for cob in frames:
-            try:
-                ad.network.unsubscribe(cob, on_tpdo)
-            except (KeyError, ValueError):
-                pass
-    if fault is not None:
-        raise ad.fault_error(fault)
-    return result
+                    self.finalize(self.sent - window)
+            wait = t0 + self.sent * period - time.perf_counter()
+            time.sleep(min(max(wait, 0.0), 0.005) if self.sent < n and fault is None else 0.002)

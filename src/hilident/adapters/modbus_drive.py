@@ -47,10 +47,11 @@ import serial
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException
 
-from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, StreamStats, refuse_latched_faults
+from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, StreamStats
+from hilident.adapters.events import Kind, RunEvent
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription
-from hilident.errors import ConfigError, DataError, DeviceError, LimitTrip
+from hilident.errors import ConfigError, DataError, DeviceError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
 from hilident.protocol.modbus_registers import (
@@ -157,6 +158,7 @@ class ModbusDriveAdapter(AdapterBase):
         self.bad_responses = 0  # answers that were not the one asked for
         self.dropped_frames = 0  # late answers dropped from an RTU line after a lost or foreign answer
         self.connect_report = ConnectReport()
+        self._run_counts = (0, 0)  # missing and bad answers when the run started
         self.comm_timeout_s = 0.0  # the drive's communication timeout as armed at connect (0: none), s
         self._mask = 0
         self._order: list[int] = []
@@ -212,12 +214,8 @@ class ModbusDriveAdapter(AdapterBase):
         adapter = cls(client, driver, regmap, port, device.device_id, device.timeout_s)
         adapter._drain_line()
         adapter = cls._identified(adapter)
-        try:
-            adapter._bring_to_known_state(device.allow_fault_reset, device.host_timeout_s)
-        except BaseException:
-            adapter.close()
-            raise
-        return adapter
+        return cls._or_closed(adapter, lambda: adapter._bring_to_known_state(device.allow_fault_reset,
+                                                                             device.host_timeout_s))
 
     def _drain_line(self) -> None:
         """RTU: drop the answers still on their way to an earlier host, until the line is quiet (counted)."""
@@ -252,16 +250,15 @@ class ModbusDriveAdapter(AdapterBase):
         st = self.status()
         report = self.connect_report
         if "fault" in st.flags:
-            report.faults = [self._describe_fault(st)]
-            if not allow_fault_reset:
-                raise refuse_latched_faults(self.port, report.faults)
-            self.clear_fault()
-            after = self.status()
-            if "fault" in after.flags:
-                raise DeviceError(f"{self.port}: {self.map.describe(self.map.register('fault_code').address)} still "
-                                  f"holds {self.map.fault_name(after.fault_code)} after a fault reset; the cause "
-                                  "is still there (check the drive's display)")
-            report.faults_cleared = True
+            def clear() -> None:
+                self.clear_fault()
+                after = self.status()
+                if "fault" in after.flags:
+                    raise DeviceError(f"{self.port}: {self.map.describe(self.map.register('fault_code').address)} "
+                                      f"still holds {self.map.fault_name(after.fault_code)} after a fault reset; the "
+                                      "cause is still there (check the drive's display)")
+
+            self._clear_latched_fault(self._describe_fault(st), allow_fault_reset, clear)
         self._arm_comm_timeout(host_timeout_s)
         client_stale = getattr(self.client, "stale_frames", 0)
         report.discarded_frames += client_stale + self.dropped_frames + self.bad_responses
@@ -285,18 +282,15 @@ class ModbusDriveAdapter(AdapterBase):
         self.comm_timeout_s = back / 1000.0
         self.connect_report.device_net = f"communication timeout {self.map.describe(r.address)}: {back:g} ms"
 
-    def close(self) -> None:
-        """Stop the axis (zero torque, drive disabled) and release the connection. Never raises."""
-        try:
-            self.stop()
-        finally:
-            try:
-                self.client.close()
-            except Exception:
-                pass
+    def _stop_for_close(self) -> None:
+        """Zero torque, drive disabled, waiting as long as any answer (not the quick :meth:`safe_stop`)."""
+        self.stop()
 
-    def safe_stop(self) -> None:
-        """Write 0 to the control word now (run stopped, drive disabled, zero torque). Never raises.
+    def _release(self) -> None:
+        self.client.close()
+
+    def _command_safe(self) -> None:
+        """Write 0 to the control word now (run stopped, drive disabled, zero torque).
 
         Quick: the answer is waited for at most 50 ms, and the write sent at
         most twice. The connection stays open.
@@ -533,11 +527,11 @@ class ModbusDriveAdapter(AdapterBase):
         """The biquad the drive runs after its own rounding of ``spec`` (0.1 Hz, 0.1 dB steps)."""
         return self.map.filter_encoding.stored_form(biquad, spec, self.identity.loop_rate_hz)
 
-    def save_filter(self, slot: int) -> tuple[int, ...]:
-        """The slot's registers as they are, for :meth:`restore_filter`."""
+    def _read_raw_slot(self, slot: int) -> tuple[int, ...]:
+        """The slot's registers as they are."""
         return tuple(self.read(self._slot(slot), self.map.filters.span, f"reading filter slot {slot}"))
 
-    def restore_filter(self, slot: int, saved: tuple[int, ...]) -> None:
+    def _write_raw_slot(self, slot: int, saved: tuple[int, ...]) -> None:
         self.write(self._slot(slot), list(saved), f"restoring filter slot {slot}")
 
     def disable_filter(self, slot: int) -> None:
@@ -590,9 +584,9 @@ class ModbusDriveAdapter(AdapterBase):
             self._pages["capture"] = None
         stats.lost_blocks += 1
         stats.lost_samples += c.samples
-        self.events.append({"kind": "lost_blocks", "sample_index": c.first_sample, "value": 1.0,
-                            "message": f"capture samples {c.first_sample}..{c.first_sample + c.samples - 1} "
-                                       f"could not be read ({1 + _RETRIES} attempts); not filled"})
+        self.log_event(RunEvent(Kind.LOST_BLOCKS, f"capture samples {c.first_sample}..{c.first_sample + c.samples - 1} "
+                                                  f"could not be read ({1 + _RETRIES} attempts); not filled",
+                                c.first_sample, value=1.0))
 
     def _trigger(self) -> None:
         """Start the run: one write of the run bit, never repeated."""
@@ -607,8 +601,8 @@ class ModbusDriveAdapter(AdapterBase):
             after = self.status()
             if not after.flags & {"running", "done"}:
                 raise DeviceError(f"{exc}; the drive is not running (not repeated: a start is never sent twice)") from None
-            self.events.append({"kind": "missing_response", "sample_index": 0, "value": 0.0,
-                                "message": "the answer to the start command was lost; the drive reports the run started"})
+            self.log_event(RunEvent(Kind.MISSING_RESPONSE, "the answer to the start command was lost; the drive "
+                                                           "reports the run started", 0, value=0.0))
 
     def load_table(self, excitation: np.ndarray) -> np.ndarray:
         """Stop the drive, arm a run of ``len(excitation)`` samples and write the table; returns its registers.
@@ -663,76 +657,50 @@ class ModbusDriveAdapter(AdapterBase):
             end = c.first_sample + c.samples
         return end
 
-    def stream(self, excitation: np.ndarray, sink: Callable[[np.ndarray, np.ndarray], None],
-               progress: Callable[[float], None] | None = None) -> RunResult:
-        """Play ``excitation`` from the drive's table and hand the captured samples to ``sink``.
+    def _play(self, x: np.ndarray, deliver, result: RunResult) -> None:
+        """Play ``x`` from the drive's table and hand the captured samples to ``deliver``.
 
-        ``excitation[k]`` is held over sample period ``k``; row ``k`` is the
-        drive's state at the start of that period. Samples the capture lacks
-        (chunks that could not be read, a capture that stopped early) are
-        counted in the result's stats, never filled. The drive is left
-        disabled, at zero torque, on every exit path.
-
-        ``self.events`` is emptied first and grows as events become known (a
-        fault as soon as a status read shows it). While the drive is enabled
-        each answer is waited for at most 40 % of the communication timeout.
+        ``x[k]`` is held over sample period ``k``; row ``k`` is the drive's
+        state at the start of that period. Samples the capture lacks (chunks
+        that could not be read, a capture that stopped early) are counted in
+        the result's stats, never filled. A fault is logged as soon as a status
+        read shows it. While the drive is enabled each answer is waited for at
+        most 40 % of the communication timeout.
 
         Raises
         ------
-        LimitTrip
-            The drive tripped a limit (the samples captured up to then were
-            delivered). The first cause wins: a device error after the trip
-            (a read that fails, a lost connection) still raises this.
         DeviceError
-            The drive refused a request (the message names the register), stopped
-            answering, lost the connection, faulted (its communication timeout
-            included), or did not finish in time.
-        Exception
-            Whatever ``sink`` or ``progress`` raised (a full disk, an interrupt),
-            after the drive was stopped.
+            The drive refused a request (the message names the register),
+            stopped answering, lost the connection, or did not finish in time.
+        DataError
+            The excitation is empty or a value does not fit the table's type.
         """
-        x = np.asarray(excitation, dtype=float)
-        n = len(x)
-        self.events = []
-        stats = StreamStats()
-        result = RunResult(requested_samples=n, stats=stats)
-        missing_before = self.missing_responses
-        bad_before = self.bad_responses
-        try:
-            self.load_table(x)
-            with self._answers_within(self._enabled_wait_s):
-                self._trigger()
-                self._capture(n, stats, result, sink, progress)
-            result.completed = result.fault is None
-        except DeviceError as exc:
-            if _is_limit(result.fault) and not isinstance(exc, LimitTrip):
-                raise LimitTrip(f"{self.port}: {result.fault} (then: {exc})") from None
-            raise
-        finally:
-            self.safe_stop()
-            stats.lost_frames = self.missing_responses - missing_before
-            stats.corrupt_frames += self.bad_responses - bad_before
-            result.events = list(self.events)
-            self.last_result = result
-        if result.fault:
-            error = LimitTrip if _is_limit(result.fault) else DeviceError
-            raise error(f"{self.port}: {result.fault}")
-        return result
+        self._run_counts = (self.missing_responses, self.bad_responses)
+        self.load_table(x)
+        with self._answers_within(self._enabled_wait_s):
+            self._trigger()
+            self._capture(len(x), result.stats, deliver)
+        result.completed = self.run_fault is None
 
-    def _capture(self, n: int, stats: StreamStats, result: RunResult, sink, progress) -> RunResult:
+    def _end_run(self, result: RunResult) -> None:
+        """The drive stopped and disabled; the run's unanswered and bad answers counted."""
+        self.safe_stop()
+        missing_before, bad_before = self._run_counts
+        result.stats.lost_frames = self.missing_responses - missing_before
+        result.stats.corrupt_frames += self.bad_responses - bad_before
+
+    def _capture(self, n: int, stats: StreamStats, deliver) -> None:
         """Poll the status and read the capture as it fills, until the run has ended and all is read."""
         started = time.monotonic()
         deadline = started + 1.2 * n / self.sample_rate_hz + 2.0 + 2 * self.timeout_s
         read_to = 0
         while True:
             st = self.status()
-            if "fault" in st.flags and result.fault is None:
-                self._note_fault(st, result)  # known now: the first cause, whatever fails after it
+            if "fault" in st.flags and self.run_fault is None:
+                self._note_fault(st)  # known now: the first cause, whatever fails after it
             available = min(st.sample_count, n)
             before = read_to
-            read_to = self.read_capture(read_to, available - read_to, sink, stats, _CHUNKS_PER_POLL)
-            if progress:
-                progress(min(1.0, read_to / n))
+            read_to = self.read_capture(read_to, available - read_to, deliver, stats, _CHUNKS_PER_POLL)
             ended = "running" not in st.flags
             if ended and read_to >= available:
                 break
@@ -745,18 +713,15 @@ class ModbusDriveAdapter(AdapterBase):
                                       f"({self.map.describe(self.map.register('status_word').address)} still shows "
                                       "running); stopped")
                 time.sleep(_POLL_S)
-        if result.fault:
-            return result
+        if self.run_fault is not None:
+            return
         if available < n:
             stats.lost_samples += n - available
-            self.events.append({
-                "kind": "capture_stopped", "sample_index": available, "value": float(n - available),
-                "message": f"the drive's capture stopped at sample {available} of {n}; samples {available}.."
-                           f"{n - 1} were not recorded (not filled)",
-            })
+            self.log_event(RunEvent(Kind.CAPTURE_STOPPED, f"the drive's capture stopped at sample {available} of {n}; "
+                                                          f"samples {available}..{n - 1} were not recorded (not filled)",
+                                    available, value=float(n - available)))
         else:
-            self.events.append({"kind": "finished", "message": "run complete", "sample_index": n, "value": 0.0})
-        return result
+            self.log_event(RunEvent(Kind.FINISHED, "run complete", n, value=0.0))
 
     def _describe_fault(self, st: DriveStatus) -> str:
         """A latched fault in words: name, register, sample and value."""
@@ -767,20 +732,14 @@ class ModbusDriveAdapter(AdapterBase):
                     f"on its own ({where} = {st.fault_code}, at sample {st.fault_sample})")
         return f"{name} ({where} = {st.fault_code}, at sample {st.fault_sample}, value {st.fault_value:g})"
 
-    def _note_fault(self, st: DriveStatus, result: RunResult) -> None:
-        """Record a fault the status shows as an event, at once, and as the run's outcome."""
+    def _note_fault(self, st: DriveStatus) -> None:
+        """Log a fault the status shows as an event, at once, and note it as the run's cause."""
         name = self.map.fault_name(st.fault_code)
         message = self._describe_fault(st)
         if name != "comm_timeout":
             message = message.replace(" (", ": axis stopped, torque zero (", 1)
-        kind = "limit_trip" if name in _LIMIT_FAULTS else "fault"
-        self.events.append({"kind": kind, "message": message, "sample_index": st.fault_sample,
-                            "value": st.fault_value})
-        result.fault = message
-
-
-def _is_limit(fault: str | None) -> bool:
-    return bool(fault) and fault.split(":")[0] in _LIMIT_FAULTS
+        kind = Kind.LIMIT_TRIP if name in _LIMIT_FAULTS else Kind.FAULT
+        self.note_fault(self.log_event(RunEvent(kind, message, st.fault_sample, value=st.fault_value)))
 
 
 def _reason(exc: BaseException) -> str:

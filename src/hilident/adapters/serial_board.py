@@ -19,7 +19,6 @@ import secrets
 import socket
 import struct
 import time
-from typing import Callable
 
 import numpy as np
 import serial
@@ -30,10 +29,11 @@ try:  # POSIX: the exact byte count of a TCP line
 except ImportError:  # pragma: no cover
     pass
 
-from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, StreamStats, refuse_latched_faults
+from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, RunStrategy
+from hilident.adapters.events import Kind, RunEvent
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription
-from hilident.errors import DeviceError, LimitTrip, ProtocolError
+from hilident.errors import DeviceError, ProtocolError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
 from hilident.links import LinkClosed
@@ -152,6 +152,7 @@ class SerialBoardAdapter(AdapterBase):
         self.lost_frames = 0
         self.events: list[dict] = []
         self.last_result: RunResult | None = None
+        self._run_counts = (0, 0)  # the decoder's corrupt frames and the lost frames when the run started
         self._backlog: list = []  # messages that arrived while waiting for an answer
         if hasattr(link, "timeout"):
             link.timeout = _READ_TIMEOUT_S  # short reads: the adapter polls and keeps the line busy
@@ -183,15 +184,10 @@ class SerialBoardAdapter(AdapterBase):
         _no_nagle(link)
         return cls._connected(cls(link, driver, port, timeout_s, allow_fault_reset=allow_fault_reset))
 
-    @staticmethod
-    def _connected(adapter: "SerialBoardAdapter") -> "SerialBoardAdapter":
+    @classmethod
+    def _connected(cls, adapter: "SerialBoardAdapter") -> "SerialBoardAdapter":
         """``adapter`` after a successful :meth:`connect`; the line is closed again when that fails."""
-        try:
-            adapter.connect()
-        except BaseException:
-            adapter.close()
-            raise
-        return adapter
+        return cls._or_closed(adapter, adapter.connect)
 
     def connect(self) -> ConnectReport:
         """Identify the board and bring it to a known state, whatever the last session left.
@@ -220,15 +216,15 @@ class SerialBoardAdapter(AdapterBase):
             self.found_state = report.found_state = found.state.name
             status = self.status()
             if status.state == sb.State.FAULT:
-                report.faults.append(
-                    f"board in FAULT {status.fault.name} ({_FAULT_MEANING.get(status.fault, 'unknown fault')})"
-                )
-                if not self.allow_fault_reset:
-                    raise refuse_latched_faults(self.port, report.faults)
-                self.clear_fault()
-                if self.status().state == sb.State.FAULT:
-                    raise DeviceError(f"{self.port}: the board stays in FAULT {status.fault.name} after CLEAR_FAULT")
-                report.faults_cleared = True
+                def clear() -> None:
+                    self.clear_fault()
+                    if self.status().state == sb.State.FAULT:
+                        raise DeviceError(f"{self.port}: the board stays in FAULT {status.fault.name} after "
+                                          "CLEAR_FAULT")
+
+                meaning = _FAULT_MEANING.get(status.fault, "unknown fault")
+                self._clear_latched_fault(f"board in FAULT {status.fault.name} ({meaning})", self.allow_fault_reset,
+                                          clear)
         finally:
             self._connecting = False
             report.discarded_frames += self.decoder.stats.corrupt - corrupt_before
@@ -260,15 +256,8 @@ class SerialBoardAdapter(AdapterBase):
                 self.connect_report.discarded_frames += 1
         raise DeviceError(f"{self.port}: no answer to Stop within {self.timeout_s:g} s")
 
-    def close(self) -> None:
-        """Stop the axis and close the line. Never raises."""
-        try:
-            self.safe_stop()
-        finally:
-            try:
-                self.link.close()
-            except Exception:
-                pass
+    def _release(self) -> None:
+        self.link.close()
 
     # --- low-level exchange ---------------------------------------------------------------
 
@@ -327,7 +316,7 @@ class SerialBoardAdapter(AdapterBase):
             if self._connecting:
                 self.connect_report.discarded_frames += 1
             else:
-                self.events.append({"kind": "protocol_error", "message": str(e), "sample_index": -1})
+                self.log_event(RunEvent(Kind.PROTOCOL_ERROR, str(e), -1))
             return None
         self._track_seq(header.seq)
         return msg
@@ -392,9 +381,7 @@ class SerialBoardAdapter(AdapterBase):
         )
 
     def _note_event(self, ev: sb.Event) -> dict:
-        entry = {"kind": ev.code.name.lower(), "message": ev.message, "sample_index": ev.sample_index, "value": ev.value}
-        self.events.append(entry)
-        return entry
+        return self.log_event(RunEvent(Kind(ev.code.name.lower()), ev.message, ev.sample_index, value=ev.value))
 
     # --- device operations ------------------------------------------------------------------
 
@@ -454,42 +441,34 @@ class SerialBoardAdapter(AdapterBase):
         """Send CLEAR_FAULT (the board leaves FAULT; it does not re-enable the drive)."""
         self._request(sb.ClearFault())
 
-    def safe_stop(self) -> None:
-        """Send STOP (zero torque) now, without waiting for its ACK. Never raises.
+    def _command_safe(self) -> None:
+        """Send STOP (zero torque) now, without waiting for its ACK (:meth:`safe_stop` never raises).
 
         A 0x00 goes first: if an exception (a signal) cut the previous frame
         short, its remains end there as one corrupt frame at the board instead
         of swallowing the STOP (PROTOCOL.md section 2).
         """
-        try:
-            if not getattr(self.link, "is_open", True):
-                return
-            self._seq = (self._seq + 1) & 0xFFFF
-            self.link.write(b"\x00" + encode_frame(sb.encode(sb.Stop(), self._seq)))
-            flush = getattr(self.link, "flush", None)
-            if flush is not None:
-                flush()
-        except Exception:
-            pass
+        if not getattr(self.link, "is_open", True):
+            return
+        self._seq = (self._seq + 1) & 0xFFFF
+        self.link.write(b"\x00" + encode_frame(sb.encode(sb.Stop(), self._seq)))
+        flush = getattr(self.link, "flush", None)
+        if flush is not None:
+            flush()
 
-    stop = safe_stop
-
-    def disable_filter(self, slot: int) -> None:
-        """Bypass ``slot``: its coefficients stay stored, only ``enabled`` is cleared."""
-        biquad, enabled = self.read_filter(slot)
-        if enabled:
-            self.write_filter(slot, biquad, enabled=False)
+    def stop(self) -> None:
+        """Send STOP now (as :meth:`safe_stop`)."""
+        self.safe_stop()
 
     def write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None = None, *, enabled: bool) -> None:
         """Store a biquad in a filter slot (the board takes coefficients; ``spec`` is not used)."""
         self._request(sb.WriteFilter(sb.FilterCoefficients(slot, enabled, biquad.b, biquad.a)))
 
-    def save_filter(self, slot: int) -> tuple[Biquad, bool]:
-        """The slot's present contents, for :meth:`restore_filter`."""
+    def _read_raw_slot(self, slot: int) -> tuple[Biquad, bool]:
+        """The slot's present contents (the board stores what it is sent, REAL32)."""
         return self.read_filter(slot)
 
-    def restore_filter(self, slot: int, saved: tuple[Biquad, bool]) -> None:
-        """Put back what :meth:`save_filter` returned."""
+    def _write_raw_slot(self, slot: int, saved: tuple[Biquad, bool]) -> None:
         biquad, enabled = saved
         self.write_filter(slot, biquad, enabled=enabled)
 
@@ -513,55 +492,36 @@ class SerialBoardAdapter(AdapterBase):
 
     # --- streaming ----------------------------------------------------------------------------
 
-    def stream(
-        self,
-        excitation: np.ndarray,
-        sink: Callable[[np.ndarray, np.ndarray], None],
-        progress: Callable[[float], None] | None = None,
-    ) -> RunResult:
-        """Play ``excitation`` (one value per sample) and hand every received block to ``sink``.
+    def _play(self, x: np.ndarray, deliver, result: RunResult) -> None:
+        """Play ``x`` (one value per sample) with flow control and hand every received block to ``deliver``.
 
-        ``sink(sample_index, rows)`` gets the absolute sample indices and an
-        ``(n, n_channels)`` array. Missing blocks are counted, never filled; a
-        block that arrives after a later one is discarded and counted as out of
-        order, not as lost. Events are appended to :attr:`events` as they are
-        decoded. The axis is stopped on every exit path; anything ``sink`` or a
-        signal raises propagates after STOP was sent.
+        Missing blocks are counted, never filled; a block that arrives after a
+        later one is discarded and counted as out of order, not as lost.
 
         The first cause wins: after the board reported a limit trip, a frame it
-        refuses is no error of its own and :class:`LimitTrip` is raised; after a
-        run the board finished, a refused in-flight frame is no error at all.
+        refuses is no error of its own; after a run the board finished, a
+        refused in-flight frame is no error at all.
 
         Raises
         ------
-        LimitTrip
-            The board tripped a safety limit (the samples up to then were delivered).
         DeviceError
-            The line was lost, the board went silent, refused a frame while it
-            was running the host's run, or its watchdog stopped the axis.
+            The line was lost, the board went silent, or refused a frame while
+            it was running the host's run.
         """
-        excitation = np.asarray(excitation, dtype=float)
-        run = _Run(self, excitation, sink, progress)
-        self.events = []
         self._missing_seqs.clear()
         self._backlog = []  # blocks and events kept from before this run belong to an earlier one
-        result = run.result
-        corrupt_before = self.decoder.stats.corrupt
-        lost_before = self.lost_frames
-        try:
-            run.play()
-            self._finish_run(run)
-        finally:
-            if not result.completed:
-                self.safe_stop()
-            result.stats.corrupt_frames = self.decoder.stats.corrupt - corrupt_before
-            result.stats.lost_frames = self.lost_frames - lost_before
-            result.events = list(self.events)
-            self.last_result = result
-        if result.fault:
-            error = LimitTrip if run.fault_code == sb.EventCode.LIMIT_TRIP else DeviceError
-            raise error(f"{self.port}: {result.fault}") from None
-        return result
+        self._run_counts = (self.decoder.stats.corrupt, self.lost_frames)
+        run = _Run(self, x, deliver, result)
+        run.run()
+        self._finish_run(run)
+
+    def _end_run(self, result: RunResult) -> None:
+        """STOP unless the board finished the run; the line's counters of the run."""
+        if not result.completed:
+            self.safe_stop()
+        corrupt_before, lost_before = self._run_counts
+        result.stats.corrupt_frames = self.decoder.stats.corrupt - corrupt_before
+        result.stats.lost_frames = self.lost_frames - lost_before
 
     def _finish_run(self, run: "_Run") -> None:
         """Take late events and the board's own counters, and count what never arrived.
@@ -576,34 +536,30 @@ class SerialBoardAdapter(AdapterBase):
                     run.take(msg, time.monotonic())
             status = self.status()
         except DeviceError:
-            if result.fault is None:
+            if self.run_fault is None:
                 raise
             return  # the fault the board reported is the cause; the line failing after it is not
-        if result.fault is None and status.state == sb.State.FAULT:
-            result.fault = f"board in FAULT {status.fault.name} after the run (its event was lost on the line)"
-            run.fault_code = sb.EventCode.LIMIT_TRIP if status.fault in _LIMIT_FAULTS else sb.EventCode.FAULT
         end = max(run.expected_sample, 0)
-        if result.fault is None and end < n:
+        if self.run_fault is None and status.state == sb.State.FAULT:
+            kind = Kind.LIMIT_TRIP if status.fault in _LIMIT_FAULTS else Kind.FAULT
+            self.note_fault(RunEvent(kind, f"board in FAULT {status.fault.name} after the run (its event was lost "
+                                           "on the line)", end).to_dict())  # the run's cause; no event was logged
+        if self.run_fault is None and end < n:
             stats.lost_samples += n - end
-            self.events.append({"kind": "lost_blocks", "sample_index": end, "value": 0.0,
-                                "message": f"end of run lost on the line: samples {end}..{n - 1}"})
+            self.log_event(RunEvent(Kind.LOST_BLOCKS, f"end of run lost on the line: samples {end}..{n - 1}", end,
+                                    value=0.0))
         stats.underruns = status.underruns
         stats.board_dropped_blocks = status.dropped_blocks
-        result.completed = result.fault is None
+        result.completed = self.run_fault is None
 
 
-class _Run:
-    """Bookkeeping of one :meth:`SerialBoardAdapter.stream`: what was sent, received, lost and refused."""
+class _Run(RunStrategy):
+    """Bookkeeping of one run on the board: what was sent, received, lost and refused."""
 
-    def __init__(self, adapter: SerialBoardAdapter, excitation: np.ndarray, sink, progress):
-        self.ad = adapter
-        self.excitation = excitation
-        self.n = len(excitation)
-        self.sink = sink
-        self.progress = progress
+    def __init__(self, adapter: SerialBoardAdapter, x: np.ndarray, deliver, result: RunResult):
+        super().__init__(adapter, x, deliver, result)
         capacity = adapter.identity.excitation_buffer_samples
         self.window = max(_EXCITATION_CHUNK, capacity - _EXCITATION_CHUNK)
-        self.result = RunResult(requested_samples=self.n, stats=StreamStats())
         self.sent = self.consumed = 0
         self.expected_block: int | None = None
         self.expected_sample = 0
@@ -612,7 +568,6 @@ class _Run:
         self.end_seen: float | None = None  # when the board announced the end of the run
         self.refusal: sb.Nak | None = None  # a NAK waiting for the board's reason
         self.refused_at = 0.0
-        self.fault_code: sb.EventCode | None = None
 
     def send_excitation(self) -> int:
         """Top the board's buffer up within the window; the number of values sent."""
@@ -620,13 +575,13 @@ class _Run:
             return 0  # the board left the run or lost the stream's index: sending more cannot help
         count = 0
         while self.sent + count < self.n and self.sent + count - self.consumed + _EXCITATION_CHUNK <= self.window:
-            chunk = self.excitation[self.sent + count : self.sent + count + _EXCITATION_CHUNK]
+            chunk = self.x[self.sent + count : self.sent + count + _EXCITATION_CHUNK]
             self.ad._send(sb.Excitation(self.sent + count, chunk))
             count += len(chunk)
         self.sent += count
         return count
 
-    def play(self) -> None:
+    def run(self) -> None:
         """Pre-fill, START, then top up, keep the line alive and take blocks until the run ends."""
         ad = self.ad
         self.send_excitation()  # pre-fill the board's buffer so the run starts without underruns
@@ -659,9 +614,7 @@ class _Run:
         elif isinstance(msg, sb.Event):
             entry = self.ad._note_event(msg)
             if msg.code in (sb.EventCode.LIMIT_TRIP, sb.EventCode.WATCHDOG, sb.EventCode.FAULT):
-                if self.result.fault is None:  # the first cause wins
-                    self.result.fault = entry["message"]
-                    self.fault_code = msg.code
+                self.ad.note_fault(entry)  # the first cause wins
             if msg.code in _END_EVENTS and self.end_seen is None:
                 self.end_seen = now
         elif isinstance(msg, sb.Nak):
@@ -679,10 +632,8 @@ class _Run:
             what = sb.MsgType(nak.acked_type).name
         except ValueError:
             what = f"type 0x{nak.acked_type:02x}"
-        self.ad.events.append({
-            "kind": "refused", "sample_index": self.expected_sample, "value": float(nak.error),
-            "message": f"board refused a frame ({what}): {nak.error.name} ({nak.detail})",
-        })
+        self.ad.log_event(RunEvent(Kind.REFUSED, f"board refused a frame ({what}): {nak.error.name} ({nak.detail})",
+                                   self.expected_sample, value=float(nak.error)))
         if self.done or self.end_seen is not None or self.refusal is not None:
             return
         self.refusal, self.refused_at = nak, now
@@ -698,11 +649,9 @@ class _Run:
             stats.lost_samples += msg.first_sample - self.expected_sample
             if gap <= _MAX_TRACKED_GAPS:
                 self.lost.update(dict.fromkeys(range(self.expected_block, msg.block_index)))
-            ad.events.append({
-                "kind": "lost_blocks", "sample_index": self.expected_sample,
-                "message": f"{gap} sample block(s) lost: samples {self.expected_sample}..{msg.first_sample - 1}",
-                "value": float(gap),
-            })
+            ad.log_event(RunEvent(
+                Kind.LOST_BLOCKS, f"{gap} sample block(s) lost: samples {self.expected_sample}..{msg.first_sample - 1}",
+                self.expected_sample, value=float(gap)))
         self.expected_block = msg.block_index + 1
         self.expected_sample = msg.first_sample + len(msg.data)
         self.consumed = max(self.consumed, msg.excitation_consumed)
@@ -710,10 +659,8 @@ class _Run:
         if msg.flags & sb.FLAG_CLIPPED:
             stats.clipped_blocks += 1
         if len(msg.data):
-            self.sink(msg.first_sample + np.arange(len(msg.data)), msg.data)
+            self.deliver(msg.first_sample + np.arange(len(msg.data)), msg.data)
             stats.samples += len(msg.data)
-        if self.progress:
-            self.progress(min(1.0, self.expected_sample / max(self.n, 1)))
         if msg.flags & sb.FLAG_LAST:
             self.done = True
 
@@ -732,8 +679,6 @@ class _Run:
             del self.lost[msg.block_index]
             stats.lost_blocks -= 1
             stats.lost_samples -= rows
-        self.ad.events.append({
-            "kind": "out_of_order", "sample_index": msg.first_sample, "value": float(rows),
-            "message": f"sample block {msg.block_index} arrived after a later one and was discarded: "
-                       f"{span} are missing from the recording",
-        })
+        self.ad.log_event(RunEvent(
+            Kind.OUT_OF_ORDER, f"sample block {msg.block_index} arrived after a later one and was discarded: "
+                               f"{span} are missing from the recording", msg.first_sample, value=float(rows)))
