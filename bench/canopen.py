@@ -51,16 +51,13 @@ standard drive lacks.
 
 from __future__ import annotations
 
+import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
+
 import argparse
 import os
 import re
 import subprocess
 import sys
-
-# Run as `python bench/canopen.py`, this file's folder comes first on sys.path, where "canopen" would name this
-# script instead of the canopen package hilident uses: take the folder off before anything imports it.
-_HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path[:] = [p for p in sys.path if os.path.abspath(p or os.curdir) != _HERE]
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path

@@ -24,6 +24,8 @@ PRBS generator and data recorder play and record the run
 
 from __future__ import annotations
 
+import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
+
 import argparse
 import sys
 import tempfile

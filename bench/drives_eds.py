@@ -23,6 +23,8 @@ Usage::
 
 from __future__ import annotations
 
+import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
+
 import argparse
 import sys
 import tempfile

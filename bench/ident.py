@@ -44,6 +44,8 @@ What is measured
 
 from __future__ import annotations
 
+import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
+
 import argparse
 import contextlib
 import cProfile

@@ -15,6 +15,8 @@ Run by hand (it is not part of the test suite)::
 
 from __future__ import annotations
 
+import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
+
 import argparse
 import os
 import subprocess

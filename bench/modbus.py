@@ -25,6 +25,8 @@ stamps included), not request headers.
 
 from __future__ import annotations
 
+import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
+
 import argparse
 import sys
 import time

@@ -19,6 +19,8 @@ Needs ``tomli-w`` (installed with ``.[test]``).
 
 from __future__ import annotations
 
+import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
+
 import argparse
 import json
 import os

@@ -30,6 +30,8 @@ run in real time (s = 1) to confirm what a real board at that baud rate can do.
 
 from __future__ import annotations
 
+import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
+
 import argparse
 import math
 import multiprocessing as mp

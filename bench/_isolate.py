@@ -1,0 +1,12 @@
+"""Imported first by every bench script: takes the bench folder off ``sys.path``.
+
+``python bench/X.py`` puts ``bench/`` first on ``sys.path``, where
+``bench/canopen.py`` would be found instead of the ``canopen`` package that
+hilident's CANopen adapter imports.
+"""
+
+import os
+import sys
+
+_HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path[:] = [p for p in sys.path if os.path.abspath(p or os.curdir) != _HERE]
