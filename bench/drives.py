@@ -101,7 +101,8 @@ def run_drive(folder: Path, out: Path, duration_s: float, acquisition: str = "st
         row["friction"] = (f"Fc {100 * (got['Fc'] - true_friction.Fc) / true_friction.Fc:+.1f} %, "
                            f"Fv {100 * (got['Fv'] - true_friction.Fv) / true_friction.Fv:+.1f} %")
     else:
-        row["friction"] = "no torque channel: not measured" if not friction else "-"
+        why = "no torque channel" if acquisition == "streamed" else "its legs are host-streamed"
+        row["friction"] = f"{why}: not measured" if not friction else "-"
     upload = summary["upload"]
     if upload.get("written"):
         reduction = summary["verification"]["peak_reduction_db"]
