@@ -85,6 +85,18 @@ def resolve_config(cfg: Config | None, data_path: str | Path) -> tuple[Config, R
     return dataclasses.replace(own, source=cfg.source, text=cfg.text), info
 
 
+def model_for(cfg: Config, info: RunInfo | None) -> ModelConfig:
+    """``[model]`` for this recording: ``input_hold = "zoh"`` for a hilident open-loop torque run unless set.
+
+    Measured data are point samples (``sample``, the default); in an
+    open-loop torque run the recorded torque is the command the drive held
+    over each sample period.
+    """
+    if info is not None and info.mode == "torque" and "input_hold" not in _explicit(cfg, "model"):
+        return dataclasses.replace(cfg.model, input_hold="zoh")
+    return cfg.model
+
+
 def data_mapping(cfg: Config, info: RunInfo | None, available=None) -> DataConfig:
     """``[data]`` for this recording: the run's channels for keys not set, and ``[identification].output`` honoured.
 
@@ -299,7 +311,7 @@ def identify_recording(cfg: Config | None, data_path: str | Path, out_dir: str |
     say = progress.step if progress else (lambda message: None)
     cfg, info = resolve_config(cfg, data_path)
     data_cfg = data_mapping(cfg, info)
-    cfg = dataclasses.replace(cfg, data=data_cfg)
+    cfg = dataclasses.replace(cfg, data=data_cfg, model=model_for(cfg, info))
     ds = load_dataset(data_path, data_cfg, cfg.source)
     validation = load_dataset(validation_path, data_mapping(cfg, read_run_info(validation_path, data_cfg.format)),
                               cfg.source) if validation_path else None
