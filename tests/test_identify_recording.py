@@ -1,0 +1,88 @@
+"""`hilident identify` on hilident's own recordings: no --config, and the same resonances as the run."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+
+import h5py
+import pytest
+
+from hilident.cli import main
+from hilident.config import load_config
+from hilident.session import Session
+
+CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+
+
+def quick_run(tmp_path: Path, name: str, time_scale: float, period_s: float, periods: int) -> Path:
+    """A short emulated session of a shipped config (pipe link, no friction test, no verification run)."""
+    text = (CONFIGS / name).read_text()
+    raw = tomllib.loads(text)
+    for table, key in (("friction_test", "enabled"), ("notch", "verify")):
+        if key not in raw.get(table, {}):
+            assert f"[{table}]\n" in text
+            text = text.replace(f"[{table}]\n", f"[{table}]\n{key} = false\n", 1)
+    cfg = load_config(CONFIGS / name)
+    text = text.replace('link = "pty"', 'link = "pipe"')
+    text = text.replace(f"time_scale = {cfg.emulator.time_scale}", f"time_scale = {time_scale}")
+    text = text.replace(f"period_s = {cfg.excitation.period_s}", f"period_s = {period_s}")
+    text = text.replace(f"duration_s = {cfg.excitation.duration_s}", f"duration_s = {period_s * periods}")
+    path = tmp_path / name
+    path.write_text(text)
+    quick = load_config(path)
+    assert (quick.emulator.link, quick.emulator.time_scale, quick.excitation.period_s, quick.friction_test.enabled,
+            quick.notch.verify) == ("pipe", time_scale, period_s, False, False)
+    out = tmp_path / "run"
+    Session(quick, out).run()
+    return out
+
+
+@pytest.mark.parametrize("name, time_scale, period_s, periods", [
+    ("emulated-gantry.toml", 8.0, 2.0, 3),
+    ("emulated-msd.toml", 60.0, 40.0, 2),
+])
+def test_identify_on_a_run_recording_needs_no_config_and_matches_the_run(tmp_path, capsys, name, time_scale,
+                                                                          period_s, periods):
+    run = quick_run(tmp_path, name, time_scale, period_s, periods)
+    ran = json.loads((run / "summary.json").read_text())
+    assert ran["resonances"], ran["warnings"]
+    recording = run / "identification.h5"
+    with h5py.File(recording) as f:
+        assert "period_samples" in f.attrs and "config_toml" in f.attrs
+        rate = float(f.attrs["sample_rate_hz"])
+    assert main(["identify", str(recording), "--out", str(tmp_path / "again"), "-q"]) == 0
+    assert "configuration: the one stored in" in capsys.readouterr().out
+    again = json.loads((tmp_path / "again" / "summary.json").read_text())
+    assert len(again["resonances"]) == len(ran["resonances"])
+    for a, r in zip(again["resonances"], ran["resonances"]):
+        assert abs(a["frequency_hz"] - r["frequency_hz"]) / r["frequency_hz"] < 0.005, (a, r)
+        assert abs(a["damping_ratio"] - r["damping_ratio"]) / r["damping_ratio"] < 0.15, (a, r)
+    data = again["data"]
+    assert data["period_samples"] == int(round(period_s * rate))  # whole periods, as the run
+    assert data["mapping"]["excitation"] == "excitation" and data["mapping"]["output"] == "velocity_mps"
+    assert data["recorded_mode"] == "torque"
+
+
+def test_a_config_given_with_a_recording_overrides_its_tables(tmp_path):
+    run = quick_run(tmp_path, "emulated-gantry.toml", 8.0, 2.0, 3)
+    cfg = tmp_path / "override.toml"
+    cfg.write_text('[identification]\noutput = "position_m"\nmax_resonances = 1\n')
+    assert main(["identify", str(run / "identification.h5"), "--config", str(cfg), "--out",
+                 str(tmp_path / "o"), "-q"]) == 0
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    # [data] left out: the recorded channels; [identification] from the file given: position is the output
+    assert summary["data"]["mapping"]["output"] == "position_m"
+    assert summary["data"]["mapping"]["torque"] == "torque_nm"
+    ran = json.loads((run / "summary.json").read_text())
+    # another output, another response: the same mode within the resolution the 2 s period gives
+    assert abs(summary["resonances"][0]["frequency_hz"] / ran["resonances"][0]["frequency_hz"] - 1) < 0.01
+
+
+def test_a_file_that_is_no_hilident_recording_needs_a_config(tmp_path, capsys):
+    data = tmp_path / "d.csv"
+    data.write_text("t,tau,v\n" + "".join(f"{i / 1000},{(i % 7) - 3},{i % 5}\n" for i in range(200)))
+    assert main(["identify", str(data), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "is not a hilident recording" in err and "--config" in err and "Traceback" not in err
