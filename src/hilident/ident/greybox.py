@@ -641,9 +641,12 @@ def fit_rigid_axis(
 
     and with ``asymmetric=True``::
 
-        M q'' + Fv+ max(q', 0) + Fv- min(q', 0) + Fc+ [q' > 0] - Fc- [q' < 0] + offset = force
+        M q'' + Fv+ max(q', 0) + Fv- min(q', 0) + Fc+ [q' > 0] - Fc- [q' < 0] = force
 
     so ``Fc+`` and ``Fc-`` are both positive magnitudes for the usual friction.
+    It has no ``offset``: every row used moves, so ``[q' > 0] + [q' < 0] = 1``
+    and a constant load would be the same column; it shows as half the
+    difference of ``Fc+`` and ``Fc-``.
     ``offset`` takes up a constant load (gravity on an inclined axis, a
     torque-sensor bias).
 
