@@ -962,6 +962,7 @@ def load_dataset(path: str | Path, cfg: DataConfig, config_source: str = "") -> 
     if configured:
         used, segments = _whole_periods_of(path, used, segments, configured, info, notes)
     info["sample_rates_hz"] = rates
+    info["sample_rate_spread"] = (max(rates.values()) - min(rates.values())) / rate
     if info["used_rows"] < MIN_SAMPLES:
         raise DataError(f"{path}: {info['used_rows']} gap-free samples; at least {MIN_SAMPLES} are needed")
     for key, values in used.items():
