@@ -16,11 +16,20 @@ from hilident.session import Session
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
 
-def quick_run(tmp_path: Path, name: str, time_scale: float, period_s: float, periods: int) -> Path:
-    """A short emulated session of a shipped config (pipe link, no friction test, no verification run)."""
+def quick_run(tmp_path: Path, name: str, time_scale: float, period_s: float, periods: int,
+              friction_test: bool = False) -> Path:
+    """A short emulated session of a shipped config (pipe link, no verification run).
+
+    Without ``friction_test`` the friction test is disabled; with it, the test runs four speeds each way.
+    """
     text = (CONFIGS / name).read_text()
     raw = tomllib.loads(text)
-    for table, key in (("friction_test", "enabled"), ("notch", "verify")):
+    if friction_test:
+        speeds = str(raw["friction_test"]["speeds_mps"]).replace("'", "")
+        text = text.replace(f"speeds_mps = {speeds}", "speeds_mps = [0.01, 0.04, 0.1, 0.2]", 1)
+        text = text.replace(f"hold_s = {raw['friction_test']['hold_s']}", "hold_s = 0.6", 1)
+    disabled = (("notch", "verify"),) if friction_test else (("friction_test", "enabled"), ("notch", "verify"))
+    for table, key in disabled:
         if key not in raw.get(table, {}):
             assert f"[{table}]\n" in text
             text = text.replace(f"[{table}]\n", f"[{table}]\n{key} = false\n", 1)
@@ -33,7 +42,9 @@ def quick_run(tmp_path: Path, name: str, time_scale: float, period_s: float, per
     path.write_text(text)
     quick = load_config(path)
     assert (quick.emulator.link, quick.emulator.time_scale, quick.excitation.period_s, quick.friction_test.enabled,
-            quick.notch.verify) == ("pipe", time_scale, period_s, False, False)
+            quick.notch.verify) == ("pipe", time_scale, period_s, friction_test, False)
+    if friction_test:
+        assert (quick.friction_test.speeds_mps, quick.friction_test.hold_s) == ([0.01, 0.04, 0.1, 0.2], 0.6)
     out = tmp_path / "run"
     Session(quick, out).run()
     return out
@@ -86,3 +97,22 @@ def test_a_file_that_is_no_hilident_recording_needs_a_config(tmp_path, capsys):
     assert main(["identify", str(data), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert "is not a hilident recording" in err and "--config" in err and "Traceback" not in err
+
+
+def test_identify_removes_the_friction_the_run_removed(tmp_path):
+    run = quick_run(tmp_path, "emulated-gantry.toml", 8.0, 2.0, 3, friction_test=True)
+    ran = json.loads((run / "summary.json").read_text())
+    assert (run / "friction.h5").is_file() and ran["friction"] is not None
+    assert main(["identify", str(run / "identification.h5"), "--out", str(tmp_path / "again"), "-q"]) == 0
+    again = json.loads((tmp_path / "again" / "summary.json").read_text())
+    # refitted from friction.h5 beside the recording, as the run fitted it
+    for key, value in ran["friction"]["params"].items():
+        assert again["friction"]["params"][key] == pytest.approx(value, rel=1e-9)
+    (a,), (r,) = again["resonances"], ran["resonances"]
+    assert abs(a["frequency_hz"] / r["frequency_hz"] - 1) < 0.005
+    assert abs(a["damping_ratio"] / r["damping_ratio"] - 1) < 0.15
+    # without the friction test beside it, the torque keeps its friction, and a warning says so
+    (run / "friction.h5").rename(tmp_path / "elsewhere.h5")
+    assert main(["identify", str(run / "identification.h5"), "--out", str(tmp_path / "bare"), "-q"]) == 0
+    bare = json.loads((tmp_path / "bare" / "summary.json").read_text())
+    assert bare["friction"] is None and any("no friction test recorded beside" in w for w in bare["warnings"])

@@ -920,6 +920,38 @@ def read_run_info(path: str | Path, fmt: str = "auto") -> RunInfo | None:
             raise DataError(f"{path}: damaged hilident run file ({_why(exc)})") from None
 
 
+def read_friction_test(path: str | Path) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, float]]]:
+    """Velocity (m/s), torque (N·m) and the constant-velocity windows of a hilident friction-test recording.
+
+    The windows (``/tables/windows``: ``start``, ``stop`` on the sample
+    clock and the set-point ``velocity_mps``) are turned into row ranges;
+    a window with a lost sample is left out, as the run does.
+
+    Raises
+    ------
+    DataError
+        Not a friction-test recording, or a damaged one.
+    """
+    path = Path(path)
+    raw = read_columns(path, "hilident", {"sample_index": "sample_index", "velocity_mps": "velocity_mps",
+                                          "torque_nm": "torque_nm"})
+    with _open_h5(path) as f:
+        try:
+            table = f["tables/windows"]
+            windows = np.column_stack([np.asarray(table[c][()], float) for c in ("start", "stop", "velocity_mps")])
+        except Exception as exc:  # HDF5 reports a missing or damaged table as many types
+            raise DataError(f"{path}: no friction-test windows table ({_why(exc)})") from None
+    if windows.ndim != 2 or windows.shape[1] != 3 or len(windows) > raw.columns["sample_index"].size:
+        raise DataError(f"{path}: damaged friction-test windows table")
+    rows = {int(i): r for r, i in enumerate(raw.columns["sample_index"].astype(np.int64))}
+    kept = []
+    for a, b, v in windows:
+        a, b = int(a), int(b)
+        if a in rows and b - 1 in rows and rows[b - 1] - rows[a] == b - 1 - a:
+            kept.append((rows[a], rows[b - 1] + 1, float(v)))
+    return raw.columns["velocity_mps"], raw.columns["torque_nm"], kept
+
+
 # ---------------------------------------------------------------------- mapping
 
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from hilident import __version__, pipeline, report
 from hilident.config import Config, DataConfig, ModelConfig, build_table, parse_config, parse_toml
-from hilident.datafile import RATE_TOLERANCE, Dataset, RunInfo, load_dataset, read_run_info
+from hilident.datafile import RATE_TOLERANCE, Dataset, RunInfo, load_dataset, read_friction_test, read_run_info
 from hilident.errors import ConfigError, DataError, HilidentError, UsageError
 from hilident.ident import greybox
 from hilident.ident.frequency import FrequencyResponse
@@ -164,6 +164,41 @@ def _run_excitation(cfg: Config, info: RunInfo | None, ds: Dataset):
     return exc
 
 
+def run_friction(cfg: Config, info: RunInfo | None, data_path: str | Path, warnings: list[str]):
+    """The friction the run removed from the torque: refitted from ``friction.h5`` beside the recording.
+
+    None when the recording is not a hilident identification or verification
+    run, or no friction test was recorded beside it (a note says so when one
+    should have been).
+    """
+    if info is None or info.experiment not in ("identification", "verification"):
+        return None
+    path = Path(data_path).with_name("friction.h5")
+    test = read_run_info(path) if path.is_file() else None
+    if test is None or test.experiment != "friction":
+        if cfg.friction_test.enabled:
+            warnings.append(f"no friction test recorded beside {Path(data_path).name} (friction.h5): the torque "
+                            "is used as recorded, with friction in it (the run removed its friction fit)")
+        return None
+    try:
+        velocity, torque, windows = read_friction_test(path)
+        return pipeline.identify_friction(velocity, torque, windows, cfg.friction_test.model)
+    except HilidentError as exc:
+        warnings.append(f"friction test {path}: {exc}; the torque is used as recorded")
+        return None
+
+
+def friction_record(friction) -> dict | None:
+    """``summary.json["friction"]`` as :class:`hilident.session.Session` writes it."""
+    if friction is None:
+        return None
+    p = friction.fit.params
+    return {"model": friction.model,
+            "params": {"Fc": p.Fc, "Fs": p.Fs, "Fv": p.Fv, "vs": p.vs, "delta_v": p.delta_v, "delta_s": p.delta_s},
+            "stderr": friction.fit.stderr, "rms_residual_nm": friction.fit.rms_residual,
+            "points": len(friction.points.v_mean)}
+
+
 def _one_period_plant(r, u, y, sample_rate_hz: float, period: int, cfg, band_hz) -> pipeline.PlantResult:
     """A record of exactly one excitation period: the full-record DFT at the excited lines.
 
@@ -198,7 +233,7 @@ def _one_period_plant(r, u, y, sample_rate_hz: float, period: int, cfg, band_hz)
                                 quality=quality)
 
 
-def _identify(cfg: Config, ds: Dataset, band, excited_bins) -> pipeline.PlantResult:
+def _identify(cfg: Config, ds: Dataset, band, excited_bins, friction=None) -> pipeline.PlantResult:
     s = ds.signals
     r = s.get("excitation", s["torque"])
     velocity = s.get("velocity", s["output"])
@@ -206,6 +241,8 @@ def _identify(cfg: Config, ds: Dataset, band, excited_bins) -> pipeline.PlantRes
     if period and period <= len(ds) < 2 * period:
         return _one_period_plant(r, s["torque"], s["output"], ds.sample_rate_hz, period, cfg.identification, band)
     return pipeline.identify_plant(r, s["torque"], s["output"], velocity, ds.sample_rate_hz, cfg.identification, band,
+                                   friction=friction.fit.params if friction is not None else None,
+                                   velocity_deadband_mps=cfg.friction_test.velocity_deadband_mps,
                                    period_samples=period, excited_bins=excited_bins)
 
 
@@ -330,13 +367,10 @@ def identify_recording(cfg: Config | None, data_path: str | Path, out_dir: str |
             "closed-loop data without an excitation column: the torque-to-output estimate is biased where "
             "the controller feeds noise back (give [data].excitation to use the excitation as reference)"
         )
-    if info is not None and info.experiment == "identification" and Path(data_path).with_name("friction.h5").is_file():
-        warnings.append("the run removed its friction test's fit from the torque; identify has no friction test "
-                        "and uses the torque as recorded")
     say(f"{ds.source}: {ds.info.get('used_rows', len(ds))} of {ds.info.get('rows', len(ds))} samples at "
         f"{ds.sample_rate_hz:g} Hz" + (f" in {ds.info['segments']} gap-free segment(s)"
                                        if ds.info.get("segments", 1) > 1 else ""))
-    state: dict = {"plant": None, "designs": [], "model": None}
+    state: dict = {"plant": None, "designs": [], "model": None, "friction": None, "data_path": data_path}
     summary = _summary(cfg, data_info, state, warnings, started)
     try:
         _steps(cfg, ds, validation, info, state, warnings)
@@ -357,11 +391,13 @@ def identify_recording(cfg: Config | None, data_path: str | Path, out_dir: str |
 
 def _steps(cfg: Config, ds: Dataset, validation: Dataset | None, info, state: dict, warnings: list[str]) -> None:
     """Frequency response and resonances, notch design, grey-box model; ``state`` keeps what succeeded."""
+    state["step"] = "friction"
+    state["friction"] = run_friction(cfg, info, state["data_path"], warnings)
     state["step"] = "identification"
     run = _run_excitation(cfg, info, ds)
     ic = cfg.identification
     band = (ic.f_min_hz or run.band_hz[0], ic.f_max_hz or run.band_hz[1]) if run is not None else _band(cfg, ds)
-    plant = _identify(cfg, ds, band, run.excited_bins if run is not None else None)
+    plant = _identify(cfg, ds, band, run.excited_bins if run is not None else None, state["friction"])
     warnings += plant.warnings
     state["plant"] = plant
     state["step"] = "notch design"
@@ -390,7 +426,7 @@ def _summary(cfg: Config, data_info: dict, state: dict, warnings: list[str], sta
         "config": cfg.source,
         "data": data_info,
         "resonances": pipeline.resonance_records(plant.resonances) if plant else [],
-        "friction": None,
+        "friction": friction_record(state["friction"]),
         "model": None if model is None else model.to_dict(),
         "plant_model": plant.model.to_dict() if plant and plant.model else None,
         "measurement": plant.quality if plant else {},
