@@ -18,7 +18,7 @@ CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
 def quick_run(tmp_path: Path, name: str, time_scale: float, period_s: float, periods: int,
               friction_test: bool = False) -> Path:
-    """A short emulated session of a shipped config (pipe link, no verification run).
+    """A short emulated session of a shipped config (a serial twin on an in-memory line, no verification run).
 
     Without ``friction_test`` the friction test is disabled; with it, the test runs four speeds each way.
     """
@@ -41,8 +41,8 @@ def quick_run(tmp_path: Path, name: str, time_scale: float, period_s: float, per
     path = tmp_path / name
     path.write_text(text)
     quick = load_config(path)
-    assert (quick.emulator.link, quick.emulator.time_scale, quick.excitation.period_s, quick.friction_test.enabled,
-            quick.notch.verify) == ("pipe", time_scale, period_s, friction_test, False)
+    assert (quick.emulator.time_scale, quick.excitation.period_s, quick.friction_test.enabled,
+            quick.notch.verify) == (time_scale, period_s, friction_test, False)
     if friction_test:
         assert (quick.friction_test.speeds_mps, quick.friction_test.hold_s) == ([0.01, 0.04, 0.1, 0.2], 0.6)
     out = tmp_path / "run"
@@ -50,13 +50,28 @@ def quick_run(tmp_path: Path, name: str, time_scale: float, period_s: float, per
     return out
 
 
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """Quick runs by config name, made once for this module."""
+    made: dict[str, Path] = {}
+
+    def get(name, *args):
+        if name not in made:
+            made[name] = quick_run(tmp_path_factory.mktemp(name.split(".")[0]), name, *args)
+        return made[name]
+
+    return get
+
+
 @pytest.mark.parametrize("name, time_scale, period_s, periods", [
     ("emulated-gantry.toml", 8.0, 2.0, 3),
     ("emulated-msd.toml", 60.0, 40.0, 2),
+    ("emulated-modbus-gantry.toml", 8.0, 2.0, 3),
+    ("emulated-canopen-gantry.toml", 8.0, 2.0, 3),
 ])
-def test_identify_on_a_run_recording_needs_no_config_and_matches_the_run(tmp_path, capsys, name, time_scale,
+def test_identify_on_a_run_recording_needs_no_config_and_matches_the_run(tmp_path, capsys, runs, name, time_scale,
                                                                           period_s, periods):
-    run = quick_run(tmp_path, name, time_scale, period_s, periods)
+    run = runs(name, time_scale, period_s, periods)
     ran = json.loads((run / "summary.json").read_text())
     assert ran["resonances"], ran["warnings"]
     recording = run / "identification.h5"
@@ -76,8 +91,8 @@ def test_identify_on_a_run_recording_needs_no_config_and_matches_the_run(tmp_pat
     assert data["recorded_mode"] == "torque"
 
 
-def test_a_config_given_with_a_recording_overrides_its_tables(tmp_path):
-    run = quick_run(tmp_path, "emulated-gantry.toml", 8.0, 2.0, 3)
+def test_a_config_given_with_a_recording_overrides_its_tables(tmp_path, runs):
+    run = runs("emulated-gantry.toml", 8.0, 2.0, 3)
     cfg = tmp_path / "override.toml"
     cfg.write_text('[identification]\noutput = "position_m"\nmax_resonances = 1\n')
     assert main(["identify", str(run / "identification.h5"), "--config", str(cfg), "--out",
