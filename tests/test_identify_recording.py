@@ -50,6 +50,16 @@ def quick_run(tmp_path: Path, name: str, time_scale: float, period_s: float, per
     return out
 
 
+def comparable(ran: dict) -> None:
+    """Skip when the host fell behind the sped-up twin (a loaded machine).
+
+    Then the board played zeros, the periods differ, and identify rightly
+    refuses to average them as periods: run and identify cannot agree.
+    """
+    if ran["stream"]["underruns"]:
+        pytest.skip(f"{ran['stream']['underruns']} underrun samples in the run")
+
+
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     """Quick runs by config name, made once for this module."""
@@ -65,7 +75,7 @@ def runs(tmp_path_factory):
 
 @pytest.mark.parametrize("name, time_scale, period_s, periods", [
     ("emulated-gantry.toml", 8.0, 2.0, 3),
-    ("emulated-msd.toml", 60.0, 40.0, 2),
+    ("emulated-msd.toml", 25.0, 40.0, 2),
     ("emulated-modbus-gantry.toml", 8.0, 2.0, 3),
     ("emulated-canopen-gantry.toml", 8.0, 2.0, 3),
 ])
@@ -73,6 +83,7 @@ def test_identify_on_a_run_recording_needs_no_config_and_matches_the_run(tmp_pat
                                                                           period_s, periods):
     run = runs(name, time_scale, period_s, periods)
     ran = json.loads((run / "summary.json").read_text())
+    comparable(ran)
     assert ran["resonances"], ran["warnings"]
     recording = run / "identification.h5"
     with h5py.File(recording) as f:
@@ -102,6 +113,7 @@ def test_a_config_given_with_a_recording_overrides_its_tables(tmp_path, runs):
     assert summary["data"]["mapping"]["output"] == "position_m"
     assert summary["data"]["mapping"]["torque"] == "torque_nm"
     ran = json.loads((run / "summary.json").read_text())
+    comparable(ran)
     # another output, another response: the same mode within the resolution the 2 s period gives
     assert abs(summary["resonances"][0]["frequency_hz"] / ran["resonances"][0]["frequency_hz"] - 1) < 0.01
 
@@ -117,6 +129,7 @@ def test_a_file_that_is_no_hilident_recording_needs_a_config(tmp_path, capsys):
 def test_identify_removes_the_friction_the_run_removed(tmp_path):
     run = quick_run(tmp_path, "emulated-gantry.toml", 8.0, 2.0, 3, friction_test=True)
     ran = json.loads((run / "summary.json").read_text())
+    comparable(ran)
     assert (run / "friction.h5").is_file() and ran["friction"] is not None
     assert main(["identify", str(run / "identification.h5"), "--out", str(tmp_path / "again"), "-q"]) == 0
     again = json.loads((tmp_path / "again" / "summary.json").read_text())

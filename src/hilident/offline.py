@@ -75,14 +75,12 @@ def resolve_config(cfg: Config | None, data_path: str | Path) -> tuple[Config, R
             raise UsageError(f"{data_path} {what}: give --config with a [data] table naming its columns and rate")
         return cfg, info
     source = f"{data_path} (config_toml attribute)"
-    stored = parse_config(info.config_toml, source)
     if cfg is None:
-        return stored, info
-    merged = {**parse_toml(info.config_toml, source), **parse_toml(cfg.text, cfg.source)} if cfg.text else None
-    if merged is None:
+        return parse_config(info.config_toml, source), info
+    if not cfg.text:
         return cfg, info
-    own = build_table(Config, merged, "", cfg.source)
-    return dataclasses.replace(own, source=cfg.source, text=cfg.text), info
+    merged = {**parse_toml(info.config_toml, source), **parse_toml(cfg.text, cfg.source)}
+    return dataclasses.replace(build_table(Config, merged, "", cfg.source), source=cfg.source, text=cfg.text), info
 
 
 def model_for(cfg: Config, info: RunInfo | None) -> ModelConfig:
@@ -97,7 +95,7 @@ def model_for(cfg: Config, info: RunInfo | None) -> ModelConfig:
     return cfg.model
 
 
-def data_mapping(cfg: Config, info: RunInfo | None, available=None) -> DataConfig:
+def data_mapping(cfg: Config, info: RunInfo | None) -> DataConfig:
     """``[data]`` for this recording: the run's channels for keys not set, and ``[identification].output`` honoured.
 
     The response column is ``data.output`` when set; else the channel (or
@@ -107,19 +105,16 @@ def data_mapping(cfg: Config, info: RunInfo | None, available=None) -> DataConfi
     """
     explicit = _explicit(cfg, "data")
     data = cfg.data
+    channels = set(info.channels) if info is not None else None
     if info is not None:
-        channels = set(info.channels)
-        run = {key: ch for key, ch in RUN_CHANNELS.items() if ch in channels}
-        fill = {key: run.get(key, "") for key in RUN_CHANNELS if key not in explicit}
-        fill.update(format="hilident") if "format" not in explicit else None
-        if "closed_loop" not in explicit:
-            fill["closed_loop"] = info.mode not in ("", "torque")
+        fill = {key: (ch if ch in channels else "") for key, ch in RUN_CHANNELS.items() if key not in explicit}
+        defaults = {"format": "hilident", "closed_loop": info.mode not in ("", "torque")}  # a loop held the axis
+        fill.update({key: value for key, value in defaults.items() if key not in explicit})
         data = dataclasses.replace(data, **fill)
-        available = channels
     if data.output:
         return data
     out = cfg.identification.output
-    set_here = "output" in _explicit(cfg, "identification") or (available is not None and out in available)
+    set_here = "output" in _explicit(cfg, "identification") or (channels is not None and out in channels)
     if not set_here:
         return data
     if out in ("position", "velocity"):
@@ -159,9 +154,11 @@ def _run_excitation(cfg: Config, info: RunInfo | None, ds: Dataset):
         exc = build_excitation(cfg)
     except HilidentError:
         return None
-    if exc.period_samples != ds.period_samples:
-        return dataclasses.replace(exc, excited_bins=None) if not ds.period_samples else None
-    return exc
+    if exc.period_samples == ds.period_samples:
+        return exc
+    if not ds.period_samples:  # analysed as a stretch (too few whole periods): the band still holds
+        return dataclasses.replace(exc, excited_bins=None)
+    return None  # the stored configuration describes another excitation than the one recorded
 
 
 def run_friction(cfg: Config, info: RunInfo | None, data_path: str | Path, warnings: list[str]):
