@@ -172,6 +172,7 @@ def test_a_failing_step_still_writes_the_summary_naming_it(tmp_path, capsys):
     write_csv(tmp_path / "d.csv", {"t": rec["t"], "f": rec["f"], "x": rec["x"]})
     code, summary = identify(tmp_path, tmp_path / "d.csv", '[data]\ntime = "t"\ntorque = "f"\noutput = "x"\n'
                                                            '[model]\nkind = "mass_spring_damper"\n')
-    assert code == 2 and "data.position" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert code == 2 and "data.position" in err and "up to the failed step" in err
     assert summary["failed_step"] == "model" and "data.position" in summary["error"]
     assert summary["resonances"] and summary["plant_model"] is not None

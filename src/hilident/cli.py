@@ -98,7 +98,15 @@ def _identify(args) -> int:
 
     cfg = load_config(args.config) if args.config else None
     out = Path(args.out) if args.out else Path("runs") / Path(args.data).stem
-    summary = identify_recording(cfg, args.data, out, Progress(enabled=not args.quiet), args.validation)
+    started = time.time()
+    try:
+        summary = identify_recording(cfg, args.data, out, Progress(enabled=not args.quiet), args.validation)
+    except HilidentError:
+        written = out / "summary.json"
+        if written.is_file() and written.stat().st_mtime >= started - 1.0:  # this run's (filesystems round)
+            # the steps that succeeded are in it, and the one that failed is named
+            _say(f"hilident: wrote {written} up to the failed step")
+        raise
     if summary["data"].get("configuration") == "stored in the recording":
         print(f"configuration: the one stored in {args.data} (mode {summary['data'].get('recorded_mode')})")
     res = ", ".join(f"{r['frequency_hz']:.4g} Hz (zeta {r['damping_ratio']:.3f})" for r in summary["resonances"])
