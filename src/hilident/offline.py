@@ -66,7 +66,11 @@ def resolve_config(cfg: Config | None, data_path: str | Path) -> tuple[Config, R
     ------
     UsageError
         No configuration and none in the file.
+    DataError
+        No such file.
     """
+    if not Path(data_path).is_file():
+        raise DataError(f"{data_path}: no such file")
     fmt = cfg.data.format if cfg is not None else "auto"
     info = read_run_info(data_path, fmt)
     if info is None or not info.config_toml.strip():
