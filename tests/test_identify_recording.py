@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import tomllib
 from pathlib import Path
 
@@ -145,3 +146,22 @@ def test_identify_removes_the_friction_the_run_removed(tmp_path):
     assert main(["identify", str(run / "identification.h5"), "--out", str(tmp_path / "bare"), "-q"]) == 0
     bare = json.loads((tmp_path / "bare" / "summary.json").read_text())
     assert bare["friction"] is None and any("no friction test recorded beside" in w for w in bare["warnings"])
+
+
+def test_a_run_whose_device_underran_is_not_averaged_as_periods_and_the_warning_says_why(tmp_path, runs):
+    run = runs("emulated-gantry.toml", 8.0, 2.0, 3)
+    copy = tmp_path / "identification.h5"
+    shutil.copy(run / "identification.h5", copy)
+    with h5py.File(copy, "r+") as f:
+        period = int(f.attrs["period_samples"])
+        col = [str(c) for c in f.attrs["channel_names"]].index("excitation")
+        samples = f["samples"]
+        for p in (1, 3):  # the device played zeros for a while in two periods: no two neighbours repeat
+            block = samples[p * period:p * period + 300, :]
+            block[:, col] = 0.0
+            samples[p * period:p * period + 300, :] = block
+        f.attrs["stream_json"] = json.dumps({"underruns": 600})
+    assert main(["identify", str(copy), "--out", str(tmp_path / "o"), "-q"]) == 0
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["data"]["period_samples"] is None
+    assert any("600 underrun samples" in w and "not to be trusted" in w for w in summary["warnings"])

@@ -147,6 +147,7 @@ class RawColumns:
     period_samples: int | None = None
     flushed_samples: int | None = None
     notes: list[str] = field(default_factory=list)
+    underruns: int = 0
 
     @property
     def indexed(self) -> bool:
@@ -819,7 +820,19 @@ def _read_hilident_open(path: Path, f, names, fmt: str, version: int, check) -> 
     period, why = _recorded_period(attrs, rate)
     if why:
         notes.append(f"{path.name}: {why}")
-    return RawColumns(dict(zip(wanted, columns)), channels, rate, status, reason, period, flushed, notes)
+    return RawColumns(dict(zip(wanted, columns)), channels, rate, status, reason, period, flushed, notes,
+                      _recorded_underruns(attrs))
+
+
+def _recorded_underruns(attrs) -> int:
+    """Samples the device played with no excitation left (``stream_json`` ``underruns``; 0 when not recorded)."""
+    import json
+
+    try:
+        value = json.loads(_attr_text(attrs.get("stream_json", "{}"))).get("underruns", 0)
+        return int(value) if isinstance(value, (int, float)) and value > 0 else 0
+    except (ValueError, AttributeError, OverflowError):
+        return 0
 
 
 def _read_rows(ds, rows: int, cols: list[int], block: int = 1 << 16) -> list[np.ndarray]:
@@ -986,7 +999,12 @@ def load_dataset(path: str | Path, cfg: DataConfig, config_source: str = "") -> 
     configured = _configured_period(cfg, rate, config_source)
     period = raw.period_samples if raw.indexed and not configured else None
     if period:
+        stored = period
         period, why = _confirmed_period(index, raw.columns.get("excitation"), period)
+        if why and raw.underruns:
+            why = (f"the run had {raw.underruns} underrun samples (the device ran out of excitation and played "
+                   f"zeros), so the recorded excitation does not repeat every {stored} samples: whole periods are "
+                   "not used, and the run's own result, which averaged them, is not to be trusted")
         notes += [f"{path.name}: {why}"] if why else []
     raw.columns.clear()  # the mapped signals hold what is still needed
     used, segments, info = _gap_free(path, signals, index, period)
