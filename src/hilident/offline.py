@@ -280,8 +280,9 @@ def fit_greybox(cfg: ModelConfig, torque, position, sample_rate_hz: float,
     warnings = list(fit.warnings)
     estimation = greybox.validate_fit(fit, est)
     if est.low_speed_rows:
+        why = "model.min_speed" if cfg.min_speed else "2 % of the RMS speed; model.min_speed sets it"
         warnings.append(f"{cfg.kind}: {est.low_speed_rows} of {est.low_speed_rows + estimation['samples']} rows "
-                        f"slower than {est.min_speed:.3g} (model.min_speed) left out of the fit")
+                        f"slower than {est.min_speed:.3g} ({why}) left out of the fit")
     checked = {}
     for name, (tq, pos) in records.items():
         try:
