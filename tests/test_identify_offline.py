@@ -139,7 +139,8 @@ def test_grey_box_parameters_with_standard_deviations(tmp_path):
     cfg, cols = simulate(STIFF_MSD, f_min=1.0, f_max=40.0, amplitude=50.0, periods=3)
     data = tmp_path / "msd.csv"
     write_csv(data, cols)
-    config = identify_config(tmp_path, '\n[model]\nkind = "mass_spring_damper"\ncutoff_hz = 40.0\n')
+    # the simulated drive holds each torque sample for a whole sample period: the data say so
+    config = identify_config(tmp_path, '\n[model]\nkind = "mass_spring_damper"\ncutoff_hz = 40.0\ninput_hold = "zoh"\n')
     assert main(["identify", str(data), "--config", str(config), "--out", str(tmp_path / "o"), "-q"]) == 0
     model = json.loads((tmp_path / "o" / "summary.json").read_text())["model"]
     for name, truth in (("m", 5.0), ("b", 20.0), ("k", 2.0e4)):

@@ -80,9 +80,15 @@ def _print_model(m: dict | None) -> None:
     params = ", ".join(
         f"{k} {v:.5g} ± {m['stderr'][k]:.2g} ({m['relative_stderr_percent'][k]:.2g} %)" for k, v in m["params"].items()
     )
-    checks = ", ".join(f"{v['fit_percent']:.1f} % on {name}" for name, v in m["validation"].items())
-    print(f"{m['kind']}: {params}; fit {m['estimation']['fit_percent']:.1f} % on the estimation data"
-          + (f", {checks}" if checks else ""))
+    def figures(v: dict) -> str:
+        rel = v.get("relative_error")
+        return f"{v['fit_percent']:.1f} %" + (f" (relative error {rel:.3g})" if rel is not None else "")
+
+    checks = ", ".join(f"{figures(v)} on {name}" for name, v in m["validation"].items())
+    excluded = m["estimation"].get("low_speed_rows_excluded")
+    print(f"{m['kind']}: {params}; fit {figures(m['estimation'])} on the estimation data"
+          + (f", {checks}" if checks else "")
+          + (f"; {excluded} low-speed rows left out" if excluded else ""))
 
 
 def _identify(args) -> int:
@@ -90,9 +96,19 @@ def _identify(args) -> int:
     from hilident.offline import identify_recording
     from hilident.session import Progress
 
-    cfg = load_config(args.config)
+    cfg = load_config(args.config) if args.config else None
     out = Path(args.out) if args.out else Path("runs") / Path(args.data).stem
-    summary = identify_recording(cfg, args.data, out, Progress(enabled=not args.quiet), args.validation)
+    started = time.time()
+    try:
+        summary = identify_recording(cfg, args.data, out, Progress(enabled=not args.quiet), args.validation)
+    except HilidentError:
+        written = out / "summary.json"
+        if written.is_file() and written.stat().st_mtime >= started - 1.0:  # this run's (filesystems round)
+            # the steps that succeeded are in it, and the one that failed is named
+            _say(f"hilident: wrote {written} up to the failed step")
+        raise
+    if summary["data"].get("configuration") == "stored in the recording":
+        print(f"configuration: the one stored in {args.data} (mode {summary['data'].get('recorded_mode')})")
     res = ", ".join(f"{r['frequency_hz']:.4g} Hz (zeta {r['damping_ratio']:.3f})" for r in summary["resonances"])
     print(f"resonances: {res or 'none found'}")
     _print_model(summary.get("model"))
@@ -254,7 +270,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     ide = sub.add_parser("identify", help="identify the plant in a recording (hilident HDF5, CSV or .mat)")
     ide.add_argument("data", help="recording file")
-    ide.add_argument("--config", required=True, help="TOML configuration with [data] (column mapping) and [model]")
+    ide.add_argument("--config", help="TOML configuration with [data] (column mapping) and [model]; not needed "
+                     "for a hilident recording, which holds its run's configuration (a config given overrides it "
+                     "table by table)")
     ide.add_argument("--out", help="output folder (default: runs/<data name>)")
     ide.add_argument("--validation", help="a second recording of the same axis to validate the [model] fit on "
                                           "(default: the last [model].holdout of the data)")

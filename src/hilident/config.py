@@ -180,20 +180,26 @@ class NotchConfig:
 
 @dataclass(frozen=True)
 class DataConfig:
-    format: str = _spec("auto", choices=("auto", "hilident", "csv", "mat"), doc="file format; auto: by extension")
+    format: str = _spec("auto", choices=("auto", "hilident", "csv", "mat"),
+                        doc="file format; auto: by extension (.h5/.hdf5 hilident, .csv/.txt/.dat/.tsv csv, .mat)")
     sample_rate_hz: float = _spec(0.0, ge=0, doc="0: from the time column (or the hilident file)")
     time: str = _spec("", doc="column of time stamps in s; must be uniform")
+    column_names: list[str] = _spec([], doc="names of the columns of a headerless numeric file, in order (default: "
+                                            "their positions \"0\", \"1\", ...)")
     excitation: str = _spec("", doc="column of the external excitation (closed-loop data); empty: none")
-    torque: str = _spec("torque_nm", doc="column of the input torque or force")
+    torque: str = _spec("torque_nm", doc="column of the input torque (or force for a linear axis)")
     velocity: str = _spec("", doc="column of the velocity; empty: derived from position")
     position: str = _spec("", doc="column of the position")
-    output: str = _spec("", doc="column of the response output; empty: the velocity")
-    torque_scale: float = _spec(1.0, gt=0, doc="multiplies the torque column to give N*m")
-    velocity_scale: float = _spec(1.0, gt=0, doc="multiplies the velocity column to give m/s")
-    position_scale: float = _spec(1.0, gt=0, doc="multiplies the position column to give m")
+    output: str = _spec("", doc="column of the response output; empty: [identification].output, else the velocity")
+    torque_scale: float = _spec(1.0, gt=0, doc="multiplies the torque column to give N*m (rotary) or N (linear axis)")
+    velocity_scale: float = _spec(1.0, gt=0, doc="multiplies the velocity column to give m/s (or rad/s)")
+    position_scale: float = _spec(1.0, gt=0, doc="multiplies the position column to give m (or rad)")
     output_scale: float = _spec(1.0, gt=0)
     excitation_scale: float = _spec(1.0, gt=0)
     closed_loop: bool = _spec(False, doc="the data were recorded with a controller closed around the axis")
+    period_s: float = _spec(0.0, ge=0, doc="period of a periodic excitation, s: whole periods are averaged "
+                                           "(leakage-free at the excited lines); 0: not periodic")
+    period_samples: int = _spec(0, ge=0, doc="the same period in samples (exact); 0: not periodic")
 
 
 @dataclass(frozen=True)
@@ -201,11 +207,16 @@ class ModelConfig:
     kind: str = _spec("none", choices=("none", "mass_spring_damper", "rigid_axis"), doc="grey-box model fitted to the data")
     c: float = _spec(1.0, gt=0, doc="torque-to-force constant: force = c * torque")
     cutoff_hz: float = _spec(0.0, ge=0, doc="state-variable filter cut-off; 0: a tenth of the sample rate")
-    input_hold: str = _spec("zoh", choices=("zoh", "sample"),
-                            doc="zoh: the torque was held over each sample period (a drive's command); sample: point samples")
+    input_hold: str = _spec("sample", choices=("zoh", "sample"),
+                            doc="sample: the torque column holds point samples (a measured torque or current, the "
+                                "usual case); zoh: it holds a command the drive kept constant over each sample period")
     filter_rate_hz: float = _spec(4000.0, gt=0, doc="rate the notch biquads are designed for (no device to ask)")
     holdout: float = _spec(0.3, ge=0, lt=1, doc="fraction at the end of the data kept out of the fit to validate it "
                                                 "when there is no separate validation record")
+    asymmetric: bool = _spec(False, doc="rigid_axis: Coulomb and viscous friction per direction (Fc+, Fc-, Fv+, Fv-)")
+    min_speed: float = _spec(0.0, ge=0, doc="rigid_axis: rows slower than this (m/s or rad/s, filtered) are left out "
+                                            "of the fit; 0: 2 % of the RMS filtered speed")
+    decimate: int = _spec(1, ge=1, le=1_000_000, doc="use every decimate-th filtered sample in the regression")
 
 
 # --- emulator -----------------------------------------------------------------------------
@@ -489,6 +500,7 @@ def _cross_check(cfg: Config) -> None:
         unit = {"amplitude_mps": "m/s", "amplitude_m": "m"}.get(exc.amplitude_key, "N*m")
         raise ConfigError(f"excitation.{exc.amplitude_key}", f"must be set (> 0, in {unit}) for mode = "
                                                              f"{exc.mode!r}: the set-point perturbation's size", src)
+    _check_data_and_model(cfg)
     ic = cfg.identification
     if ic.f_min_hz and ic.f_max_hz and ic.f_min_hz >= ic.f_max_hz:
         raise ConfigError("identification.f_min_hz", "must be below identification.f_max_hz", src)
@@ -504,6 +516,27 @@ def _cross_check(cfg: Config) -> None:
     excitation_samples(cfg)
     if cfg.friction_test.enabled:
         _friction_extent(cfg)
+
+
+def _check_data_and_model(cfg: Config) -> None:
+    """``[data]`` and ``[model]`` keys that only make sense together."""
+    d, m, src = cfg.data, cfg.model, cfg.source
+    if d.period_s and d.period_samples:
+        raise ConfigError("data.period_samples", "give the period once: data.period_s or data.period_samples", src)
+    if d.period_s and d.sample_rate_hz:
+        exact = d.period_s * d.sample_rate_hz
+        if abs(exact - round(exact)) > 1e-6 * max(exact, 1.0) or round(exact) < 4:
+            raise ConfigError("data.period_s", f"{d.period_s:g} s is {exact:.6g} samples at data.sample_rate_hz = "
+                                               f"{d.sample_rate_hz:g} Hz: a period must be a whole number (>= 4) of "
+                                               "samples (or give data.period_samples)", src)
+    if 0 < d.period_samples < 4:
+        raise ConfigError("data.period_samples", f"must be >= 4 samples, got {d.period_samples}", src)
+    if len(set(d.column_names)) != len(d.column_names):
+        raise ConfigError("data.column_names", "names a column twice", src)
+    if m.kind != "rigid_axis":
+        for key, default in (("asymmetric", False), ("min_speed", 0.0)):
+            if getattr(m, key) != default:
+                raise ConfigError(f"model.{key}", f"applies to kind = \"rigid_axis\" only (kind is {m.kind!r})", src)
 
 
 def _check_limits(cfg: Config) -> None:

@@ -63,6 +63,14 @@ _NUMERIC_MAT_CLASSES = frozenset(
 
 _SIGNAL_KEYS = ("torque", "velocity", "position", "output", "excitation")
 
+#: Formats ``[data] format = "auto"`` tells from the extension.
+_FORMAT_OF_SUFFIX = {".h5": "hilident", ".hdf5": "hilident", ".csv": "csv", ".txt": "csv", ".dat": "csv",
+                     ".tsv": "csv", ".mat": "mat"}
+
+#: Largest relative difference between two sample rates of one record (or of two records) accepted as one
+#: clock: a crystal is good to 1e-4 and time stamps rounded to microseconds add a little.
+RATE_TOLERANCE = 1e-4
+
 
 @dataclass
 class Dataset:
@@ -139,6 +147,7 @@ class RawColumns:
     period_samples: int | None = None
     flushed_samples: int | None = None
     notes: list[str] = field(default_factory=list)
+    underruns: int = 0
 
     @property
     def indexed(self) -> bool:
@@ -196,7 +205,7 @@ def _short(text: str, limit: int = 40) -> str:
 # ---------------------------------------------------------------------- reading
 
 
-def read_columns(path: str | Path, fmt: str = "auto", names=None) -> RawColumns:
+def read_columns(path: str | Path, fmt: str = "auto", names=None, column_names=()) -> RawColumns:
     """The columns ``names`` of a file (all numeric ones when None), and what the file says about itself.
 
     Parameters
@@ -208,7 +217,13 @@ def read_columns(path: str | Path, fmt: str = "auto", names=None) -> RawColumns:
         Columns (or variables) to read. A dict maps each name to the
         configuration key that asked for it: then a name the file lacks is a
         :class:`DataError` naming that key, raised before any data is read;
-        otherwise names the file lacks are left out.
+        otherwise names the file lacks are left out. In a CSV file a name
+        that is a whole number (``"2"``) is the column at that position,
+        counting from 0, unless the file has a column of that name.
+    column_names : sequence of str
+        Names of the columns of a headerless CSV file (default: their
+        positions ``"0"``, ``"1"``, ...). A CSV file is headerless when every
+        cell of its first line is a number.
 
     Raises
     ------
@@ -220,10 +235,11 @@ def read_columns(path: str | Path, fmt: str = "auto", names=None) -> RawColumns:
     path = Path(path)
     if not path.is_file():
         raise DataError(f"{path}: no such file")
-    kind = fmt if fmt != "auto" else {".h5": "hilident", ".hdf5": "hilident", ".csv": "csv", ".txt": "csv",
-                                      ".mat": "mat"}.get(path.suffix.lower())
+    kind = fmt if fmt != "auto" else _FORMAT_OF_SUFFIX.get(path.suffix.lower())
     if kind is None:
-        raise ConfigError("data.format", f"cannot tell the format of {path.name}; set hilident, csv or mat", str(path))
+        raise ConfigError("data.format", f"cannot tell the format of {path.name} from its extension; set "
+                                         "[data] format = \"csv\" (numeric text, with or without a header row), "
+                                         "\"mat\" or \"hilident\"", str(path))
     labels = names if isinstance(names, dict) else {}
     wanted = None if names is None else list(dict.fromkeys(names))
 
@@ -236,7 +252,7 @@ def read_columns(path: str | Path, fmt: str = "auto", names=None) -> RawColumns:
         if kind == "hilident":
             return _read_hilident(path, wanted, check)
         if kind == "csv":
-            return _read_csv(path, wanted, check)
+            return _read_csv(path, wanted, check, tuple(column_names))
         return _read_mat(path, wanted, check)
     except MemoryError:
         raise DataError(f"{path}: not enough memory to read the data") from None
@@ -323,16 +339,49 @@ def _read_header(path: Path) -> tuple[list[str], int, str, str | None, list[str]
     return _split_header(header, delimiter), line_no, encoding, delimiter, notes
 
 
-def _read_csv(path: Path, names, check=lambda available: None) -> RawColumns:
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return "_" not in cell
+
+
+def _headerless(path: Path, cells: list[str], column_names: tuple[str, ...], notes: list[str]) -> list[str]:
+    """Column names of a file whose first line is data: ``column_names``, else the positions."""
+    if not column_names:
+        notes.append(f"{path.name}: no header row (the first line is numbers): columns are named by position, "
+                     f"0 to {len(cells) - 1}")
+        return [str(i) for i in range(len(cells))]
+    if len(column_names) != len(cells):
+        raise ConfigError("data.column_names", f"names {len(column_names)} column(s); {path.name} has "
+                                               f"{len(cells)} per line", str(path))
+    return list(column_names)
+
+
+def _by_position(names, columns: list[str]) -> dict[str, str]:
+    """Requested names that are positions (``"2"``) of columns not named so, mapped to the column's name."""
+    return {n: columns[int(n)] for n in (names or ()) if n not in columns and n.isdigit() and int(n) < len(columns)}
+
+
+def _read_csv(path: Path, names, check=lambda available: None, column_names: tuple[str, ...] = ()) -> RawColumns:
     encoding = "text"
     try:
         columns, header_lines, encoding, delimiter, notes = _read_header(path)
-        check(columns)
-        wanted = columns if names is None else [n for n in names if n in columns]
+        if all(_is_number(c) for c in columns if c) and any(columns):
+            columns = _headerless(path, columns, column_names, notes)
+            header_lines -= 1  # the first line is data
+        elif column_names:
+            raise ConfigError("data.column_names", f"is for files without a header row; {path.name} has one: "
+                                                   "map its names, or remove data.column_names", str(path))
+        aliases = _by_position(names, columns)
+        check(list(columns) + list(aliases))
+        wanted = columns if names is None else [n for n in names if n in columns or n in aliases]
         for n in wanted:
+            n = aliases.get(n, n)
             if columns.count(n) > 1:
                 raise DataError(f"{path}: column {n!r} appears {columns.count(n)} times in the header")
-        usecols = [columns.index(n) for n in wanted]
+        usecols = [columns.index(aliases.get(n, n)) for n in wanted]
         bound = _line_bound(path)
         _check_fits(path, bound, len(usecols), "the CSV file", "has up to")
         text, encoding = _open_text(path)
@@ -771,7 +820,19 @@ def _read_hilident_open(path: Path, f, names, fmt: str, version: int, check) -> 
     period, why = _recorded_period(attrs, rate)
     if why:
         notes.append(f"{path.name}: {why}")
-    return RawColumns(dict(zip(wanted, columns)), channels, rate, status, reason, period, flushed, notes)
+    return RawColumns(dict(zip(wanted, columns)), channels, rate, status, reason, period, flushed, notes,
+                      _recorded_underruns(attrs))
+
+
+def _recorded_underruns(attrs) -> int:
+    """Samples the device played with no excitation left (``stream_json`` ``underruns``; 0 when not recorded)."""
+    import json
+
+    try:
+        value = json.loads(_attr_text(attrs.get("stream_json", "{}"))).get("underruns", 0)
+        return int(value) if isinstance(value, (int, float)) and value > 0 else 0
+    except (ValueError, AttributeError, OverflowError):
+        return 0
 
 
 def _read_rows(ds, rows: int, cols: list[int], block: int = 1 << 16) -> list[np.ndarray]:
@@ -810,6 +871,100 @@ def _recorded_period(attrs, rate: float) -> tuple[int | None, str]:
         return None, f"the stored configuration cannot be read ({_why(exc)}); the excitation period is unknown"
 
 
+@dataclass
+class RunInfo:
+    """What a hilident run file says about the run that recorded it.
+
+    Attributes
+    ----------
+    config_toml : str
+        The run's configuration (TOML text; empty when not stored).
+    config_source : str
+        Where that configuration was loaded from.
+    experiment : str
+        ``identification``, ``verification``, ``friction``, ...
+    mode : str
+        Where the excitation entered (``torque``, ``torque_injection``, ``velocity``, ``position``).
+    channels, units : list of str
+        Recorded channels and their units.
+    period_samples : int or None
+        Excitation period recorded with the run.
+    sample_rate_hz : float
+    """
+
+    config_toml: str
+    config_source: str
+    experiment: str
+    mode: str
+    channels: list[str]
+    units: list[str]
+    period_samples: int | None
+    sample_rate_hz: float
+
+
+def read_run_info(path: str | Path, fmt: str = "auto") -> RunInfo | None:
+    """The run attributes of a hilident run file; None when ``path`` is not one (CSV, MATLAB, other HDF5).
+
+    Raises
+    ------
+    DataError
+        The file says it is a hilident run file but cannot be read.
+    """
+    import h5py
+
+    path = Path(path)
+    kind = fmt if fmt != "auto" else _FORMAT_OF_SUFFIX.get(path.suffix.lower())
+    if kind != "hilident" or not path.is_file() or not h5py.is_hdf5(path):
+        return None
+    from hilident.recording import FORMAT
+
+    with _open_h5(path) as f:
+        try:
+            a = f.attrs
+            if _attr_text(a.get("format", "")) != FORMAT:
+                return None
+            channels = [_attr_text(c) for c in np.atleast_1d(a.get("channel_names", []))]
+            units = [_attr_text(c) for c in np.atleast_1d(a.get("channel_units", []))]
+            period = int(a["period_samples"]) if "period_samples" in a else None
+            return RunInfo(_attr_text(a.get("config_toml", "")), _attr_text(a.get("config_source", "")),
+                           _attr_text(a.get("experiment", "")), _attr_text(a.get("mode", "")), channels, units,
+                           period if period and period > 0 else None, float(a.get("sample_rate_hz", math.nan)))
+        except Exception as exc:  # HDF5 reports damaged structures as many types
+            raise DataError(f"{path}: damaged hilident run file ({_why(exc)})") from None
+
+
+def read_friction_test(path: str | Path) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, float]]]:
+    """Velocity (m/s), torque (N·m) and the constant-velocity windows of a hilident friction-test recording.
+
+    The windows (``/tables/windows``: ``start``, ``stop`` on the sample
+    clock and the set-point ``velocity_mps``) are turned into row ranges;
+    a window with a lost sample is left out, as the run does.
+
+    Raises
+    ------
+    DataError
+        Not a friction-test recording, or a damaged one.
+    """
+    path = Path(path)
+    raw = read_columns(path, "hilident", {"sample_index": "sample_index", "velocity_mps": "velocity_mps",
+                                          "torque_nm": "torque_nm"})
+    with _open_h5(path) as f:
+        try:
+            table = f["tables/windows"]
+            windows = np.column_stack([np.asarray(table[c][()], float) for c in ("start", "stop", "velocity_mps")])
+        except Exception as exc:  # HDF5 reports a missing or damaged table as many types
+            raise DataError(f"{path}: no friction-test windows table ({_why(exc)})") from None
+    if windows.ndim != 2 or windows.shape[1] != 3 or len(windows) > raw.columns["sample_index"].size:
+        raise DataError(f"{path}: damaged friction-test windows table")
+    rows = {int(i): r for r, i in enumerate(raw.columns["sample_index"].astype(np.int64))}
+    kept = []
+    for a, b, v in windows:
+        a, b = int(a), int(b)
+        if a in rows and b - 1 in rows and rows[b - 1] - rows[a] == b - 1 - a:
+            kept.append((rows[a], rows[b - 1] + 1, float(v)))
+    return raw.columns["velocity_mps"], raw.columns["torque_nm"], kept
+
+
 # ---------------------------------------------------------------------- mapping
 
 
@@ -833,21 +988,31 @@ def load_dataset(path: str | Path, cfg: DataConfig, config_source: str = "") -> 
     labels = {name: f"data.{key}" for key, (name, _) in wanted.items()}
     if cfg.time:
         labels.setdefault(cfg.time, "data.time")
-    raw = read_columns(path, cfg.format, labels)
+    raw = read_columns(path, cfg.format, labels, cfg.column_names)
     signals = _mapped(path, raw, wanted)
     n = len(next(iter(signals.values())))
     if n < MIN_SAMPLES:
         raise DataError(f"{path}: {n} samples; at least {MIN_SAMPLES} are needed")
     index, time_rate = _row_index(path, cfg, raw, n)
-    rate = _sample_rate(path, cfg, time_rate, raw.sample_rate_hz, config_source)
+    rate, rates = _sample_rate(path, cfg, time_rate, raw.sample_rate_hz, config_source)
     notes = list(raw.notes) + _status_notes(path, raw)
-    period = raw.period_samples if raw.indexed else None
+    configured = _configured_period(cfg, rate, config_source)
+    period = raw.period_samples if raw.indexed and not configured else None
     if period:
+        stored = period
         period, why = _confirmed_period(index, raw.columns.get("excitation"), period)
+        if why and raw.underruns:
+            why = (f"the run had {raw.underruns} underrun samples (the device ran out of excitation and played "
+                   f"zeros), so the recorded excitation does not repeat every {stored} samples: whole periods are "
+                   "not used, and the run's own result, which averaged them, is not to be trusted")
         notes += [f"{path.name}: {why}"] if why else []
     raw.columns.clear()  # the mapped signals hold what is still needed
     used, segments, info = _gap_free(path, signals, index, period)
     notes += info.pop("warnings")
+    if configured:
+        used, segments = _whole_periods_of(path, used, segments, configured, info, notes)
+    info["sample_rates_hz"] = rates
+    info["sample_rate_spread"] = (max(rates.values()) - min(rates.values())) / rate
     if info["used_rows"] < MIN_SAMPLES:
         raise DataError(f"{path}: {info['used_rows']} gap-free samples; at least {MIN_SAMPLES} are needed")
     for key, values in used.items():
@@ -855,12 +1020,14 @@ def load_dataset(path: str | Path, cfg: DataConfig, config_source: str = "") -> 
             raise DataError(
                 f"{path}: column {wanted[key][0]!r} (data.{key}) is constant ({values[0]:g}): it excites nothing"
             )
-    if "velocity" not in used:
-        if "position" not in used:
-            raise ConfigError("data.velocity", "neither a velocity nor a position column is configured", config_source)
+    if "velocity" not in used and "position" in used:
         used["velocity"] = _derivative(used["position"], segments, rate)
         notes.append("velocity derived from position by central differences (within each gap-free segment)")
     if "output" not in used:
+        if "velocity" not in used:
+            raise ConfigError("data.output", "names no column, and neither data.velocity nor data.position does: "
+                                             "give the response column (a torque-to-output response needs no "
+                                             "velocity)", config_source)
         used["output"] = used["velocity"]
     info.update(status=raw.status, reason=raw.reason, flushed_samples=raw.flushed_samples)
     return Dataset(used, rate, str(path), notes, info, info["period_samples"], segments)
@@ -1040,15 +1207,65 @@ def _time_index(path: Path, name: str, raw: RawColumns, n: int) -> tuple[np.ndar
     return np.arange(n, dtype=np.int64) + np.cumsum(skip), rate
 
 
-def _sample_rate(path, cfg: DataConfig, from_time, file_rate, source) -> float:
-    rates = [r for r in (cfg.sample_rate_hz or None, from_time, file_rate) if r]
+def _sample_rate(path, cfg: DataConfig, from_time, file_rate, source) -> tuple[float, dict]:
+    """The sample rate, Hz, and where it came from (``{source: rate}``, for ``summary.json``).
+
+    ``data.sample_rate_hz`` wins when it is set; else the file's recorded
+    rate, else the time column's. Rates from several sources must agree to
+    :data:`RATE_TOLERANCE` (relative): the message names the keys the user
+    can change, never one that was not set.
+    """
+    rates = {}
+    if cfg.sample_rate_hz:
+        rates["data.sample_rate_hz"] = float(cfg.sample_rate_hz)
+    if file_rate:
+        rates["recorded sample_rate_hz attribute"] = float(file_rate)
+    if from_time:
+        rates[f"time column {cfg.time!r} (data.time)"] = float(from_time)
     if not rates:
-        raise ConfigError("data.sample_rate_hz", "is needed: the data have no time column and no recorded rate", source)
-    if any(not math.isfinite(r) or r <= 0 for r in rates):
-        raise DataError(f"{path}: sample rate {rates} is not a positive finite number")
-    if any(abs(r - rates[0]) > 1e-3 * rates[0] for r in rates):
-        raise DataError(f"{path}: sample rates disagree: config {cfg.sample_rate_hz:g} Hz, data {rates}")
-    return float(rates[0])
+        raise ConfigError("data.sample_rate_hz", "is needed: the data have no time column (data.time) and no "
+                                                 "recorded rate", source)
+    if any(not math.isfinite(r) or r <= 0 for r in rates.values()):
+        raise DataError(f"{path}: sample rate {list(rates.values())} is not a positive finite number")
+    (first, rate), *others = rates.items()
+    for what, r in others:
+        spread = abs(r - rate) / rate
+        if spread > RATE_TOLERANCE:
+            fix = ("correct data.sample_rate_hz or leave it out" if first == "data.sample_rate_hz" else
+                   "check the time unit of data.time (seconds), or leave data.time out")
+            raise DataError(f"{path}: {first} gives {rate:.9g} Hz, the {what} {r:.9g} Hz: they differ by "
+                            f"{spread:.2g} (relative; {RATE_TOLERANCE:g} is accepted): {fix}")
+    return float(rate), rates
+
+
+def _configured_period(cfg: DataConfig, rate: float, source: str) -> int | None:
+    """``data.period_samples``, or ``data.period_s`` in whole samples at ``rate`` (None: not set)."""
+    if cfg.period_samples:
+        return int(cfg.period_samples)
+    if not cfg.period_s:
+        return None
+    exact = cfg.period_s * rate
+    period = int(round(exact))
+    if period < 4 or abs(exact - period) > 1e-3:
+        raise ConfigError("data.period_s", f"{cfg.period_s:g} s is {exact:.6g} samples at {rate:.9g} Hz, not a whole "
+                                           "number (>= 4): give data.period_samples", source)
+    return period
+
+
+def _whole_periods_of(path: Path, used: dict, segments, period: int, info: dict, notes: list[str]):
+    """The whole periods of the longest gap-free stretch (a periodic signal's periods can start anywhere)."""
+    a, b = max(segments, key=lambda r: r[1] - r[0])
+    count = (b - a) // period
+    if count < 1:
+        raise DataError(f"{path}: {b - a} gap-free samples are less than one excitation period of {period} "
+                        "samples (data.period_s / data.period_samples)")
+    stop = a + count * period
+    if (a, stop) != (0, len(next(iter(used.values())))):
+        used = {k: v[a:stop] for k, v in used.items()}
+        notes.append(f"{path.name}: {count} whole period(s) of {period} samples analysed"
+                     + (f"; {b - stop} samples after the last whole period left out" if b > stop else ""))
+    info.update(used_rows=count * period, segments=1, period_samples=period)
+    return used, [(0, count * period)]
 
 
 def _derivative(x: np.ndarray, segments: list[tuple[int, int]], rate: float) -> np.ndarray:

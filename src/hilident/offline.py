@@ -7,21 +7,132 @@ and ``summary.json["data"]`` says which), then the same steps as a bench run
 follow:
 frequency response with coherence, resonances, notch design for a filter rate
 given in the configuration, and, when ``[model].kind`` asks for it, a grey-box
-fit with parameter standard deviations and fit %. ``summary.json`` has the same
-keys as after ``hilident run`` (upload and verification stay empty).
+fit with parameter standard deviations, fit % and relative error.
+``summary.json`` has the same keys as after ``hilident run`` (upload and
+verification stay empty).
+
+A hilident recording describes itself: its attributes hold the run's
+configuration, the excitation mode and period and the channels, so
+:func:`identify_recording` needs no configuration for it and analyses it as
+the run did (the recorded excitation as reference, whole periods, the band of
+the run's excitation). A configuration given as well overrides table by table;
+``[data]`` keys it leaves out follow the recorded channels.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 
+import numpy as np
 
 from hilident import __version__, pipeline, report
-from hilident.config import Config
-from hilident.datafile import Dataset, load_dataset
-from hilident.errors import ConfigError
+from hilident.config import Config, DataConfig, ModelConfig, build_table, parse_config, parse_toml
+from hilident.datafile import RATE_TOLERANCE, Dataset, RunInfo, load_dataset, read_friction_test, read_run_info
+from hilident.errors import ConfigError, DataError, HilidentError, UsageError
+from hilident.ident import greybox
+from hilident.ident.frequency import FrequencyResponse
 from hilident.ident.frfquality import excited_band
+from hilident.ident.resonance import find_resonances
+from hilident.ident.validation import overfitting_warning
+
+#: Channel a hilident recording holds for each ``[data]`` signal.
+RUN_CHANNELS = {"torque": "torque_nm", "velocity": "velocity_mps", "position": "position_m", "excitation": "excitation"}
+
+#: Excitation lines of a one-period record: within this many dB of the strongest.
+_LINE_FLOOR_DB = 40.0
+
+
+# ---------------------------------------------------------------------- configuration
+
+
+def _explicit(cfg: Config | None, table: str) -> dict:
+    """The keys of ``[table]`` the configuration's file sets (an empty dict when none, or no file)."""
+    if cfg is None or not cfg.text:
+        return {}
+    value = parse_toml(cfg.text, cfg.source).get(table, {})
+    return value if isinstance(value, dict) else {}
+
+
+def resolve_config(cfg: Config | None, data_path: str | Path) -> tuple[Config, RunInfo | None]:
+    """The configuration ``identify`` runs with, and the recording's run attributes (None: not a hilident run).
+
+    Without ``cfg`` the recording must be a hilident run file holding its
+    configuration. With both, the tables ``cfg``'s file sets win and the
+    others come from the recording's configuration.
+
+    Raises
+    ------
+    UsageError
+        No configuration and none in the file.
+    DataError
+        No such file.
+    """
+    if not Path(data_path).is_file():
+        raise DataError(f"{data_path}: no such file")
+    fmt = cfg.data.format if cfg is not None else "auto"
+    info = read_run_info(data_path, fmt)
+    if info is None or not info.config_toml.strip():
+        if cfg is None:
+            what = "holds no stored configuration" if info is not None else "is not a hilident recording"
+            raise UsageError(f"{data_path} {what}: give --config with a [data] table naming its columns and rate")
+        return cfg, info
+    source = f"{data_path} (config_toml attribute)"
+    if cfg is None:
+        return parse_config(info.config_toml, source), info
+    if not cfg.text:
+        return cfg, info
+    merged = {**parse_toml(info.config_toml, source), **parse_toml(cfg.text, cfg.source)}
+    return dataclasses.replace(build_table(Config, merged, "", cfg.source), source=cfg.source, text=cfg.text), info
+
+
+def model_for(cfg: Config, info: RunInfo | None) -> ModelConfig:
+    """``[model]`` for this recording: ``input_hold = "zoh"`` for a hilident open-loop torque run unless set.
+
+    Measured data are point samples (``sample``, the default); in an
+    open-loop torque run the recorded torque is the command the drive held
+    over each sample period.
+    """
+    if info is not None and info.mode == "torque" and "input_hold" not in _explicit(cfg, "model"):
+        return dataclasses.replace(cfg.model, input_hold="zoh")
+    return cfg.model
+
+
+def data_mapping(cfg: Config, info: RunInfo | None) -> DataConfig:
+    """``[data]`` for this recording: the run's channels for keys not set, and ``[identification].output`` honoured.
+
+    The response column is ``data.output`` when set; else the channel (or
+    the ``[data]`` signal: ``position``, ``velocity``) ``[identification]
+    output`` names when the recording holds it or the configuration sets
+    it; else the velocity.
+    """
+    explicit = _explicit(cfg, "data")
+    data = cfg.data
+    channels = set(info.channels) if info is not None else None
+    if info is not None:
+        fill = {key: (ch if ch in channels else "") for key, ch in RUN_CHANNELS.items() if key not in explicit}
+        defaults = {"format": "hilident", "closed_loop": info.mode not in ("", "torque")}  # a loop held the axis
+        fill.update({key: value for key, value in defaults.items() if key not in explicit})
+        data = dataclasses.replace(data, **fill)
+    if data.output:
+        return data
+    out = cfg.identification.output
+    set_here = "output" in _explicit(cfg, "identification") or (channels is not None and out in channels)
+    if not set_here:
+        return data
+    if out in ("position", "velocity"):
+        column = getattr(data, out)
+        if not column:
+            raise ConfigError("identification.output", f"is {out!r} but data.{out} names no column", cfg.source)
+        return dataclasses.replace(data, output=column, output_scale=getattr(data, f"{out}_scale"))
+    if out in (data.velocity, data.position):
+        key = "velocity" if out == data.velocity else "position"
+        return dataclasses.replace(data, output=out, output_scale=getattr(data, f"{key}_scale"))
+    return dataclasses.replace(data, output=out)
+
+
+# ---------------------------------------------------------------------- analysis
 
 
 def _band(cfg: Config, ds: Dataset) -> tuple[float, float]:
@@ -29,8 +140,160 @@ def _band(cfg: Config, ds: Dataset) -> tuple[float, float]:
     ic = cfg.identification
     u = ds.signals.get("excitation", ds.signals["torque"])
     segment = min(int(round(ic.segment_s * ds.sample_rate_hz)), len(u) // 2)
+    if ds.period_samples and len(u) >= ds.period_samples:
+        segment = ds.period_samples
     lo, hi = excited_band(u, ds.sample_rate_hz, segment)
     return ic.f_min_hz or max(lo, 2.0 / (len(ds) / ds.sample_rate_hz)), ic.f_max_hz or min(hi, 0.4 * ds.sample_rate_hz)
+
+
+def _run_excitation(cfg: Config, info: RunInfo | None, ds: Dataset):
+    """The excitation the recorded run played (band and excited lines), None when it cannot be rebuilt."""
+    if info is None or info.experiment not in ("identification", "verification") or not info.config_toml:
+        return None
+    if abs(cfg.run.sample_rate_hz - ds.sample_rate_hz) > RATE_TOLERANCE * ds.sample_rate_hz:
+        return None
+    from hilident.session import build_excitation
+
+    try:
+        exc = build_excitation(cfg)
+    except HilidentError:
+        return None
+    if exc.period_samples == ds.period_samples:
+        return exc
+    if not ds.period_samples:  # analysed as a stretch (too few whole periods): the band still holds
+        return dataclasses.replace(exc, excited_bins=None)
+    return None  # the stored configuration describes another excitation than the one recorded
+
+
+def run_friction(cfg: Config, info: RunInfo | None, data_path: str | Path, warnings: list[str]):
+    """The friction the run removed from the torque: refitted from ``friction.h5`` beside the recording.
+
+    None when the recording is not a hilident identification or verification
+    run, or no friction test was recorded beside it (a note says so when one
+    should have been).
+    """
+    if info is None or info.experiment not in ("identification", "verification"):
+        return None
+    path = Path(data_path).with_name("friction.h5")
+    test = read_run_info(path) if path.is_file() else None
+    if test is None or test.experiment != "friction":
+        if cfg.friction_test.enabled:
+            warnings.append(f"no friction test recorded beside {Path(data_path).name} (friction.h5): the torque "
+                            "is used as recorded, with friction in it (the run removed its friction fit)")
+        return None
+    try:
+        velocity, torque, windows = read_friction_test(path)
+        return pipeline.identify_friction(velocity, torque, windows, cfg.friction_test.model)
+    except HilidentError as exc:
+        warnings.append(f"friction test {path}: {exc}; the torque is used as recorded")
+        return None
+
+
+def friction_record(friction) -> dict | None:
+    """``summary.json["friction"]`` as :class:`hilident.session.Session` writes it."""
+    if friction is None:
+        return None
+    p = friction.fit.params
+    return {"model": friction.model,
+            "params": {"Fc": p.Fc, "Fs": p.Fs, "Fv": p.Fv, "vs": p.vs, "delta_v": p.delta_v, "delta_s": p.delta_s},
+            "stderr": friction.fit.stderr, "rms_residual_nm": friction.fit.rms_residual,
+            "points": len(friction.points.v_mean)}
+
+
+def _one_period_plant(r, u, y, sample_rate_hz: float, period: int, cfg, band_hz) -> pipeline.PlantResult:
+    """A record of exactly one excitation period: the full-record DFT at the excited lines.
+
+    A periodic excitation in steady state does not leak, so the DFT of one
+    whole period is exact at its lines; with a single period there is no
+    average, so no coherence: resonances are taken on prominence alone.
+    """
+    n = len(r) // period * period
+    R, U, Y = (np.fft.rfft(np.asarray(x[:n], float) - np.mean(x[:n])) for x in (r, u, y))
+    power = np.abs(R) ** 2
+    power[0] = 0.0
+    k = np.flatnonzero(power > power.max() * 10 ** (-_LINE_FLOOR_DB / 10))
+    f = k * sample_rate_hz / n
+    nan = np.full(k.size, np.nan)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        plant = FrequencyResponse(f, Y[k] / U[k], nan, 1, "periodic")
+        loop = FrequencyResponse(f, Y[k] / R[k], nan.copy(), 1, "periodic")
+    warnings = [f"one excitation period ({period} samples) recorded: its DFT at the {k.size} excited lines is "
+                "leakage-free but has no average, so no coherence; resonances are judged on prominence alone "
+                "(record two or more periods to judge the noise)"]
+    resonances = find_resonances(plant, coherence_threshold=None, min_prominence_db=cfg.min_prominence_db,
+                                 max_count=max(cfg.max_resonances, 1), band_hz=band_hz)
+    model = None
+    if cfg.model_max_order:
+        try:
+            model = pipeline.fit_plant_model(plant, band_hz, cfg.model_max_order, 0.0)
+        except (DataError, ConfigError) as exc:
+            warnings.append(f"transfer-function fit: {exc}")
+    antires = [hz for hz, _ in model.modal.antiresonances] if model else []
+    quality, more = pipeline.measurement_quality(plant, resonances, r, sample_rate_hz, band_hz, period, antires)
+    return pipeline.PlantResult(plant=plant, loop=loop, resonances=resonances, warnings=warnings + more, model=model,
+                                quality=quality)
+
+
+def _identify(cfg: Config, ds: Dataset, band, excited_bins, friction=None) -> pipeline.PlantResult:
+    s = ds.signals
+    r = s.get("excitation", s["torque"])
+    velocity = s.get("velocity", s["output"])
+    period = ds.period_samples
+    if period and period <= len(ds) < 2 * period:
+        return _one_period_plant(r, s["torque"], s["output"], ds.sample_rate_hz, period, cfg.identification, band)
+    return pipeline.identify_plant(r, s["torque"], s["output"], velocity, ds.sample_rate_hz, cfg.identification, band,
+                                   friction=friction.fit.params if friction is not None else None,
+                                   velocity_deadband_mps=cfg.friction_test.velocity_deadband_mps,
+                                   period_samples=period, excited_bins=excited_bins)
+
+
+# ---------------------------------------------------------------------- grey box
+
+
+def greybox_regression(cfg: ModelConfig, torque, position, sample_rate_hz: float) -> greybox.Regression:
+    """The regression ``[model]`` asks for, every key honoured (asymmetric, min_speed, decimate, input_hold)."""
+    force = cfg.c * np.asarray(torque, dtype=float)
+    cutoff = cfg.cutoff_hz or sample_rate_hz / 10.0
+    if cfg.kind == "mass_spring_damper":
+        return greybox.mass_spring_damper_regression(force, position, sample_rate_hz, cutoff, decimate=cfg.decimate,
+                                                     input_hold=cfg.input_hold)
+    return greybox.rigid_axis_regression(position, force, sample_rate_hz, cutoff, asymmetric=cfg.asymmetric,
+                                         decimate=cfg.decimate, min_speed=cfg.min_speed or None,
+                                         input_hold=cfg.input_hold)
+
+
+def fit_greybox(cfg: ModelConfig, torque, position, sample_rate_hz: float,
+                validation_records: dict | None = None) -> pipeline.GreyBoxResult:
+    """:func:`hilident.pipeline.fit_greybox` with every ``[model]`` key, and the rows left out reported.
+
+    Without a validation record the last ``cfg.holdout`` of the data validates the fit.
+    """
+    torque = np.asarray(torque, dtype=float)
+    position = np.asarray(position, dtype=float)
+    records = dict(validation_records or {})
+    if not records and cfg.holdout > 0:
+        cut = int(round(len(torque) * (1.0 - cfg.holdout)))
+        records["holdout"] = (torque[cut:], position[cut:])
+        torque, position = torque[:cut], position[:cut]
+    est = greybox_regression(cfg, torque, position, sample_rate_hz)
+    fit = greybox.fit_regression(est)
+    warnings = list(fit.warnings)
+    estimation = greybox.validate_fit(fit, est)
+    if est.low_speed_rows:
+        why = "model.min_speed" if cfg.min_speed else "2 % of the RMS speed; model.min_speed sets it"
+        warnings.append(f"{cfg.kind}: {est.low_speed_rows} of {est.low_speed_rows + estimation['samples']} rows "
+                        f"slower than {est.min_speed:.3g} ({why}) left out of the fit")
+    checked = {}
+    for name, (tq, pos) in records.items():
+        try:
+            checked[name] = greybox.validate_fit(fit, greybox_regression(cfg, tq, pos, sample_rate_hz))
+        except DataError as exc:
+            warnings.append(f"{cfg.kind} validation on {name}: {exc}")
+            continue
+        w = overfitting_warning(estimation["fit_percent"], checked[name]["fit_percent"])
+        if w:
+            warnings.append(f"{cfg.kind} on {name}: {w}")
+    return pipeline.GreyBoxResult(cfg.kind, fit, estimation, checked, warnings)
 
 
 def fit_model(cfg: Config, ds: Dataset, validation: Dataset | None = None):
@@ -41,53 +304,111 @@ def fit_model(cfg: Config, ds: Dataset, validation: Dataset | None = None):
     """
     if cfg.model.kind == "none":
         return None
-    for d, key in ((ds, "data.position"), (validation, "data.position")):
+    for d in (ds, validation):
         if d is not None and "position" not in d.signals:
-            raise ConfigError(key, f"a {cfg.model.kind} fit needs the position column ({d.source})", cfg.source)
+            raise ConfigError("data.position", f"a {cfg.model.kind} fit needs the position column ({d.source})",
+                              cfg.source)
     # a time-domain fit runs its filters along the record: it must not cross a lost block
     ds = ds.longest_segment()
     records = None
     if validation is not None:
         validation = validation.longest_segment()
         records = {Path(validation.source).name: (validation.signals["torque"], validation.signals["position"])}
-    return pipeline.fit_greybox(cfg.model, ds.signals["torque"], ds.signals["position"], ds.sample_rate_hz, records)
+    return fit_greybox(cfg.model, ds.signals["torque"], ds.signals["position"], ds.sample_rate_hz, records)
 
 
-def identify_recording(cfg: Config, data_path: str | Path, out_dir: str | Path, progress=None,
+# ---------------------------------------------------------------------- the command
+
+
+def _check_validation_rate(ds: Dataset, validation: Dataset) -> float:
+    """Relative difference of the two records' rates; refused above :data:`RATE_TOLERANCE`."""
+    spread = abs(validation.sample_rate_hz - ds.sample_rate_hz) / ds.sample_rate_hz
+    if spread > RATE_TOLERANCE:
+        def where(d):
+            return ", ".join(d.info.get("sample_rates_hz", {})) or "the file"
+        raise DataError(f"{validation.source} runs at {validation.sample_rate_hz:.9g} Hz (from {where(validation)}), "
+                        f"{ds.source} at {ds.sample_rate_hz:.9g} Hz (from {where(ds)}): they differ by {spread:.2g} "
+                        f"(relative; {RATE_TOLERANCE:g} is accepted as one clock); if both were sampled at one "
+                        "nominal rate, set [data] sample_rate_hz to it")
+    return spread
+
+
+def identify_recording(cfg: Config | None, data_path: str | Path, out_dir: str | Path, progress=None,
                        validation_path: str | Path | None = None) -> dict:
     """Identify the plant in ``data_path``; writes ``summary.json`` and plots into ``out_dir``.
 
-    ``validation_path`` is a second recording of the same axis (same ``[data]``
-    mapping) on which the grey-box model is validated.
+    ``cfg`` may be None for a hilident recording (its stored configuration is
+    used). ``validation_path`` is a second recording of the same axis (same
+    ``[data]`` mapping) on which the grey-box model is validated. Once the
+    data are read, ``summary.json`` is written whatever step fails after;
+    it then names the step (``failed_step``) and the error, and the error is
+    raised.
     """
     started = time.monotonic()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     say = progress.step if progress else (lambda message: None)
-    ds = load_dataset(data_path, cfg.data, cfg.source)
-    validation = load_dataset(validation_path, cfg.data, cfg.source) if validation_path else None
-    if validation is not None and abs(validation.sample_rate_hz - ds.sample_rate_hz) > 1e-6 * ds.sample_rate_hz:
-        raise ConfigError("data.sample_rate_hz", f"the validation record runs at {validation.sample_rate_hz:g} Hz, "
-                          f"the data at {ds.sample_rate_hz:g} Hz", cfg.source)
+    cfg, info = resolve_config(cfg, data_path)
+    data_cfg = data_mapping(cfg, info)
+    cfg = dataclasses.replace(cfg, data=data_cfg, model=model_for(cfg, info))
+    ds = load_dataset(data_path, data_cfg, cfg.source)
+    validation = load_dataset(validation_path, data_mapping(cfg, read_run_info(validation_path, data_cfg.format)),
+                              cfg.source) if validation_path else None
     warnings = list(ds.notes) + ([f"validation: {n}" for n in validation.notes] if validation is not None else [])
-    s = ds.signals
-    if cfg.data.closed_loop and "excitation" not in s:
+    data_info = {"file": ds.source, "samples": len(ds), "sample_rate_hz": ds.sample_rate_hz, **ds.info,
+                 "mapping": {k: getattr(data_cfg, k) for k in ("torque", "velocity", "position", "output",
+                                                               "excitation") if getattr(data_cfg, k)}}
+    if info is not None:
+        unit = dict(zip(info.channels, info.units))
+        data_info["units"] = {key: unit[col] for key, col in data_info["mapping"].items() if unit.get(col)}
+        data_info.update(recorded_mode=info.mode, recorded_experiment=info.experiment,
+                         configuration="stored in the recording" if cfg.source.endswith("(config_toml attribute)")
+                         else cfg.source)
+    if validation is not None:
+        data_info["validation_rate_difference"] = _check_validation_rate(ds, validation)
+    if data_cfg.closed_loop and "excitation" not in ds.signals:
         warnings.append(
             "closed-loop data without an excitation column: the torque-to-output estimate is biased where "
             "the controller feeds noise back (give [data].excitation to use the excitation as reference)"
         )
-    used = ds.info.get("used_rows", len(ds))
-    rows = ds.info.get("rows", len(ds))
-    say(f"{ds.source}: {used} of {rows} samples at {ds.sample_rate_hz:g} Hz"
-        + (f" in {ds.info['segments']} gap-free segment(s)" if ds.info.get("segments", 1) > 1 else ""))
-    band = _band(cfg, ds)
-    plant = pipeline.identify_plant(
-        s.get("excitation", s["torque"]), s["torque"], s["output"], s["velocity"], ds.sample_rate_hz,
-        cfg.identification, band, period_samples=ds.period_samples,
-    )
+    say(f"{ds.source}: {ds.info.get('used_rows', len(ds))} of {ds.info.get('rows', len(ds))} samples at "
+        f"{ds.sample_rate_hz:g} Hz" + (f" in {ds.info['segments']} gap-free segment(s)"
+                                       if ds.info.get("segments", 1) > 1 else ""))
+    state: dict = {"plant": None, "designs": [], "model": None, "friction": None, "data_path": data_path}
+    summary = _summary(cfg, data_info, state, warnings, started)
+    try:
+        _steps(cfg, ds, validation, info, state, warnings)
+    except HilidentError as exc:
+        summary = _summary(cfg, data_info, state, warnings, started)
+        summary.update(failed_step=state["step"], error=str(exc))
+        report.write_summary(out / "summary.json", summary)
+        raise
+    summary = _summary(cfg, data_info, state, warnings, started)
+    report.write_summary(out / "summary.json", summary)
+    plant, designs = state["plant"], state["designs"]
+    notch = pipeline.notch_chain_response(designs, plant.plant.frequency_hz)
+    report.plot_bode(out / "bode.png", [("plant (input to output)", plant.plant)], resonances=plant.resonances,
+                     notch_response=notch, coherence_threshold=cfg.identification.coherence_threshold,
+                     **pipeline.bode_extras(plant))
+    return summary
+
+
+def _steps(cfg: Config, ds: Dataset, validation: Dataset | None, info, state: dict, warnings: list[str]) -> None:
+    """Frequency response and resonances, notch design, grey-box model; ``state`` keeps what succeeded."""
+    state["step"] = "friction"
+    state["friction"] = run_friction(cfg, info, state["data_path"], warnings)
+    state["step"] = "identification"
+    run = _run_excitation(cfg, info, ds)
+    ic = cfg.identification
+    band = (ic.f_min_hz or run.band_hz[0], ic.f_max_hz or run.band_hz[1]) if run is not None else _band(cfg, ds)
+    plant = _identify(cfg, ds, band, run.excited_bins if run is not None else None, state["friction"])
     warnings += plant.warnings
-    slots = list(range(max(cfg.identification.max_resonances, 1)))
-    designs = pipeline.design_notches(plant.resonances, cfg.notch, cfg.model.filter_rate_hz, slots) if cfg.notch.enabled else []
+    state["plant"] = plant
+    state["step"] = "notch design"
+    if cfg.notch.enabled:
+        slots = list(range(max(ic.max_resonances, 1)))
+        state["designs"] = pipeline.design_notches(plant.resonances, cfg.notch, cfg.model.filter_rate_hz, slots)
+    state["step"] = "model"
     model = fit_model(cfg, ds, validation)
     if model is not None:
         if len(ds.segments) > 1:
@@ -96,31 +417,29 @@ def identify_recording(cfg: Config, data_path: str | Path, out_dir: str | Path, 
                             "a time-domain fit must not run across a lost block")
         warnings += list(model.warnings)
         if cfg.data.closed_loop:
-            warnings.append(
-                f"{cfg.model.kind} fitted to closed-loop data: noise fed back through the controller biases "
-                "least squares; compare with an open-loop record"
-            )
-    summary = {
+            warnings.append(f"{cfg.model.kind} fitted to closed-loop data: noise fed back through the controller "
+                            "biases least squares; compare with an open-loop record")
+        state["model"] = model
+
+
+def _summary(cfg: Config, data_info: dict, state: dict, warnings: list[str], started: float) -> dict:
+    plant, model = state["plant"], state["model"]
+    samples = data_info["samples"]
+    return {
         "hilident_version": __version__,
         "config": cfg.source,
-        "data": {"file": ds.source, "samples": len(ds), "sample_rate_hz": ds.sample_rate_hz, **ds.info},
-        "resonances": pipeline.resonance_records(plant.resonances),
-        "friction": None,
+        "data": data_info,
+        "resonances": pipeline.resonance_records(plant.resonances) if plant else [],
+        "friction": friction_record(state["friction"]),
         "model": None if model is None else model.to_dict(),
-        "plant_model": plant.model.to_dict() if plant.model else None,
-        "measurement": plant.quality,
-        "notch_filters": pipeline.notch_records(designs),
+        "plant_model": plant.model.to_dict() if plant and plant.model else None,
+        "measurement": plant.quality if plant else {},
+        "notch_filters": pipeline.notch_records(state["designs"]),
         "upload": {"written": False, "verified_readback": False, "slots": []},
         "verification": {"peak_reduction_db": None, "resonances": []},
-        "stream": {"samples": len(ds), "lost_frames": 0, "lost_blocks": 0,
-                   "lost_samples": ds.info.get("missing_samples", 0), "corrupt_frames": 0, "out_of_order": 0,
+        "stream": {"samples": samples, "lost_frames": 0, "lost_blocks": 0,
+                   "lost_samples": data_info.get("missing_samples", 0), "corrupt_frames": 0, "out_of_order": 0,
                    "underruns": 0, "board_dropped_blocks": 0},
         "elapsed_s": time.monotonic() - started,
-        "warnings": warnings,
+        "warnings": list(warnings),
     }
-    report.write_summary(out / "summary.json", summary)
-    notch = pipeline.notch_chain_response(designs, plant.plant.frequency_hz)
-    report.plot_bode(out / "bode.png", [("plant (input to output)", plant.plant)], resonances=plant.resonances,
-                     notch_response=notch, coherence_threshold=cfg.identification.coherence_threshold,
-                     **pipeline.bode_extras(plant))
-    return summary

@@ -429,11 +429,17 @@ class Regression:
         What ``sum(param * regressor)`` should equal.
     n_effective : float or None
         Independent rows (a low-pass makes neighbouring rows alike).
+    low_speed_rows : int
+        Rows left out because the filtered speed was below ``min_speed``.
+    min_speed : float or None
+        That threshold (m/s or rad/s); None when no rows are selected by speed.
     """
 
     regressors: dict
     target: np.ndarray
     n_effective: float | None = None
+    low_speed_rows: int = 0
+    min_speed: float | None = None
 
 
 def _second_order_regression(
@@ -504,7 +510,9 @@ def validate_fit(fit: LinearFit, regression: Regression, max_lag: int = 25) -> d
     Returns
     -------
     dict
-        ``fit_percent`` (NRMSE, as MATLAB ``compare``), ``residual_rms``,
+        ``fit_percent`` (NRMSE, as MATLAB ``compare``), ``relative_error``
+        (``||e|| / ||y||``, the figure identification benchmarks publish; unlike
+        fit % it does not remove the mean of the target), ``residual_rms``,
         ``residuals_white`` and ``ljung_box_p`` (autocorrelation of the
         residuals within the 99 % band), ``independent_of_input`` (their
         cross-correlation with the first regressor within the band), ``samples``.
@@ -514,8 +522,13 @@ def validate_fit(fit: LinearFit, regression: Regression, max_lag: int = 25) -> d
     predicted = fit.predict(regression.regressors)
     target = np.asarray(regression.target, dtype=float)
     residuals = target - predicted
-    out = {"fit_percent": float(fit_percent(target, predicted)), "residual_rms": float(np.sqrt(np.mean(residuals**2))),
-           "samples": int(target.size)}
+    norm = float(np.linalg.norm(target))
+    out = {"fit_percent": float(fit_percent(target, predicted)),
+           "relative_error": float(np.linalg.norm(residuals) / norm) if norm > 0 else float("inf"),
+           "residual_rms": float(np.sqrt(np.mean(residuals**2))), "samples": int(target.size),
+           "low_speed_rows_excluded": int(regression.low_speed_rows)}
+    if regression.min_speed is not None:
+        out["min_speed"] = regression.min_speed
     lag = int(min(max_lag, max(1, target.size // 4 - 1)))
     try:
         ra = residual_analysis(residuals, regression.regressors[fit.names[0]], max_lag=lag)
@@ -628,9 +641,12 @@ def fit_rigid_axis(
 
     and with ``asymmetric=True``::
 
-        M q'' + Fv+ max(q', 0) + Fv- min(q', 0) + Fc+ [q' > 0] - Fc- [q' < 0] + offset = force
+        M q'' + Fv+ max(q', 0) + Fv- min(q', 0) + Fc+ [q' > 0] - Fc- [q' < 0] = force
 
     so ``Fc+`` and ``Fc-`` are both positive magnitudes for the usual friction.
+    It has no ``offset``: every row used moves, so ``[q' > 0] + [q' < 0] = 1``
+    and a constant load would be the same column; it shows as half the
+    difference of ``Fc+`` and ``Fc-``.
     ``offset`` takes up a constant load (gravity on an inclined axis, a
     torque-sensor bias).
 
@@ -719,6 +735,7 @@ def rigid_axis_regression(
     else:
         reg = {"M": Q[2], "Fv": v, "Fc": lp(np.sign(v)), "offset": np.ones_like(v)}
     rows = np.arange(edge, v.size - edge, decimate)
+    candidates = rows.size
     rows = rows[np.abs(v[rows]) >= min_speed]
     if rows.size <= len(reg):
         raise DataError(
@@ -726,7 +743,8 @@ def rigid_axis_regression(
             f"min_speed={min_speed:g}; record longer or move faster"
         )
     n_eff = _bandwidth_samples(rows.size, decimate, cutoff_hz, fs)
-    return Regression({k: c[rows] for k, c in reg.items()}, F[rows], n_eff)
+    return Regression({k: c[rows] for k, c in reg.items()}, F[rows], n_eff, int(candidates - rows.size),
+                      float(min_speed))
 
 
 def fit_torque_constant(
