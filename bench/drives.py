@@ -45,6 +45,7 @@ SETPOINT_AMPLITUDES = {"velocity": ("amplitude_mps", 0.05), "position": ("amplit
 
 def _session_config(folder: Path, mode: str, friction: bool, duration_s: float, acquisition: str = "streamed"):
     from hilident.config import load_config
+    from hilident.drivers import declared_modes, load_driver
 
     cfg = load_config(CONFIG)
     excitation = replace(cfg.excitation, mode=mode, duration_s=duration_s)
@@ -54,8 +55,12 @@ def _session_config(folder: Path, mode: str, friction: bool, duration_s: float, 
     if acquisition == "recorder":  # the drive's own generator plays a PRBS: four periods of a 10-bit register
         excitation = replace(excitation, kind="prbs", register_length=10, clock_divider=1,
                              duration_s=3 * 1023 / cfg.run.sample_rate_hz, f_max_hz=200.0)
+    friction_test = replace(cfg.friction_test, enabled=friction)
+    if "velocity" not in declared_modes(load_driver(folder)):
+        # the legs run as a position profile: the position loop needs longer to settle after each ramp
+        friction_test = replace(friction_test, hold_s=friction_test.hold_s + 0.5, settle_s=friction_test.settle_s + 0.5)
     return replace(cfg, device=replace(cfg.device, driver=str(folder), acquisition=acquisition),
-                   friction_test=replace(cfg.friction_test, enabled=friction), excitation=excitation)
+                   friction_test=friction_test, excitation=excitation)
 
 
 def _truth(cfg):

@@ -80,8 +80,9 @@ def test_the_excitation_is_built_in_the_unit_of_its_mode(tmp_path):
 def _vendor_session(tmp_path, drive: VendorDrive, mode: str, amplitude: dict, friction: bool):
     folder = write_vendor_drive(tmp_path / "drivers", drive)
     cfg = load_config(CANOPEN)
-    # speeds above the Stribeck range: a Coulomb-viscous fit of few legs recovers Fc and Fv
-    ft = replace(cfg.friction_test, enabled=friction, speeds_mps=[0.03, 0.08, 0.2], hold_s=0.8, settle_s=0.4,
+    # speeds above the Stribeck range: a Coulomb-viscous fit of few legs recovers Fc and Fv; as a position
+    # profile the legs need a settle long enough for the position loop's transient after each ramp
+    ft = replace(cfg.friction_test, enabled=friction, speeds_mps=[0.03, 0.1, 0.2], hold_s=1.2, settle_s=0.8,
                  model="coulomb_viscous")
     # SYNC at 500 Hz: a host-streamed run is paced in real time, and this keeps it light on a busy machine
     cfg = replace(cfg, device=replace(cfg.device, driver=str(folder), acquisition="streamed"),
