@@ -163,3 +163,13 @@ def test_drivers_new_writes_the_vendor_torque_as_a_placeholder_and_the_folder_ru
                                             load_eds(tmp_path / "acme" / eds.name)[0])
     assert desc.channels["torque_nm"] == "torque_demand" and "torque_cmd_nm" not in desc.channels
     assert desc.objects["torque_demand"].index == 0x2022
+
+
+def test_many_late_syncs_are_a_warning_few_are_not():
+    from hilident.session import late_sampling_warnings
+
+    late = [{"kind": "sync_late", "message": "", "sample_index": 0, "value": 300.0, "worst_s": 0.054}]
+    (warning,) = late_sampling_warnings("identification", late, 12000)
+    assert "300 of 12000 SYNCs (2.5 %)" in warning and "54.0 ms" in warning and "run.sample_rate_hz" in warning
+    assert late_sampling_warnings("identification", [dict(late[0], value=50.0)], 12000) == []
+    assert late_sampling_warnings("identification", [{"kind": "lost_blocks", "value": 900.0}], 12000) == []

@@ -148,6 +148,31 @@ def build_excitation(cfg: Config) -> Excitation:
     return Excitation(np.asarray(x, dtype=float), period, band)
 
 
+#: Share of a host-clocked run's samples whose SYNC may be late before the session warns of uneven sampling.
+LATE_SYNC_SHARE = 0.01
+
+
+def late_sampling_warnings(name: str, events: list[dict], samples: int) -> list[str]:
+    """A warning when the host sent many SYNCs late: the drive then sampled at uneven instants.
+
+    A drive samples when the SYNC arrives while its own loop runs on, so a
+    late SYNC shifts that sample in time; a few are harmless, many distort the
+    frequency response (its phase above all) without losing a sample.
+    """
+    out = []
+    for ev in events:
+        if ev.get("kind") != "sync_late" or not samples:
+            continue
+        late = int(ev.get("value", 0))
+        if late > LATE_SYNC_SHARE * samples:
+            worst = ev.get("worst_s")
+            out.append(f"{name}: {late} of {samples} SYNCs ({100 * late / samples:.1f} %) were sent more than one "
+                       "period late" + (f" (worst {1e3 * worst:.1f} ms)" if worst is not None else "")
+                       + ": the drive sampled at uneven instants and the frequency response is distorted; run on a "
+                         "machine with less load, or at a lower run.sample_rate_hz")
+    return out
+
+
 def excitation_recipe(cfg: Config) -> dict:
     """``[excitation]`` as parameters, for a drive whose own generator plays it (``device.acquisition = "recorder"``)."""
     e = cfg.excitation
@@ -389,6 +414,7 @@ class Session:
                 f"{stats.out_of_order} blocks out of order (discarded), "
                 f"{stats.corrupt_frames} corrupt frames, {stats.underruns} underrun samples"
             )
+        self.warnings += late_sampling_warnings(name, result.events, stats.samples)
         return Experiment(name, path, run.samples, stats, result.events)
 
     def _close_recording(self, writer: RunWriter, status: str, reason: str, flush, write_events, ad) -> None:
