@@ -98,6 +98,9 @@ def run_drive(folder: Path, out: Path, duration_s: float, acquisition: str = "st
     row["modes"] = f"{mode} ({named(mode)})" + (f", friction in {named(session.friction_mode)}" if friction else "")
     stream = summary["stream"]
     row["lost"] = stream.get("lost_samples", 0)
+    late = [w.split(":")[0] for w in summary["warnings"] if "SYNCs (" in w and "late" in w]
+    if late:  # nothing lost, but sampled at uneven instants: the figures below are distorted
+        row["lost"] = f"{row['lost']} (many late SYNCs in {', '.join(late)})"
     found = summary["resonances"]
     row["resonance"] = (f"{100 * (min(found, key=lambda r: abs(r['frequency_hz'] - true_f))['frequency_hz'] - true_f) / true_f:+.2f} %"
                         if found else "none found")
