@@ -31,11 +31,9 @@ from hilident import __version__, pipeline, report
 from hilident.config import Config, DataConfig, ModelConfig, build_table, parse_config, parse_toml
 from hilident.datafile import RATE_TOLERANCE, Dataset, RunInfo, load_dataset, read_friction_test, read_run_info
 from hilident.errors import ConfigError, DataError, HilidentError, UsageError
-from hilident.ident import greybox
 from hilident.ident.frequency import FrequencyResponse
 from hilident.ident.frfquality import excited_band
 from hilident.ident.resonance import find_resonances
-from hilident.ident.validation import overfitting_warning
 
 #: Channel a hilident recording holds for each ``[data]`` signal.
 RUN_CHANNELS = {"torque": "torque_nm", "velocity": "velocity_mps", "position": "position_m", "excitation": "excitation"}
@@ -88,13 +86,19 @@ def resolve_config(cfg: Config | None, data_path: str | Path) -> tuple[Config, R
 
 
 def model_for(cfg: Config, info: RunInfo | None) -> ModelConfig:
-    """``[model]`` for this recording: ``input_hold = "zoh"`` for a hilident open-loop torque run unless set.
+    """``[model]`` for this recording: ``input_hold = "zoh"`` for a hilident open-loop torque run unless set
+    (see :func:`model_for_mode`)."""
+    return model_for_mode(cfg, info.mode if info is not None else "")
+
+
+def model_for_mode(cfg: Config, mode: str) -> ModelConfig:
+    """``[model]`` for a run in ``mode``: ``input_hold = "zoh"`` for an open-loop torque run unless the file sets it.
 
     Measured data are point samples (``sample``, the default); in an
     open-loop torque run the recorded torque is the command the drive held
     over each sample period.
     """
-    if info is not None and info.mode == "torque" and "input_hold" not in _explicit(cfg, "model"):
+    if mode == "torque" and "input_hold" not in _explicit(cfg, "model"):
         return dataclasses.replace(cfg.model, input_hold="zoh")
     return cfg.model
 
@@ -250,52 +254,6 @@ def _identify(cfg: Config, ds: Dataset, band, excited_bins, friction=None) -> pi
 # ---------------------------------------------------------------------- grey box
 
 
-def greybox_regression(cfg: ModelConfig, torque, position, sample_rate_hz: float) -> greybox.Regression:
-    """The regression ``[model]`` asks for, every key honoured (asymmetric, min_speed, decimate, input_hold)."""
-    force = cfg.c * np.asarray(torque, dtype=float)
-    cutoff = cfg.cutoff_hz or sample_rate_hz / 10.0
-    if cfg.kind == "mass_spring_damper":
-        return greybox.mass_spring_damper_regression(force, position, sample_rate_hz, cutoff, decimate=cfg.decimate,
-                                                     input_hold=cfg.input_hold)
-    return greybox.rigid_axis_regression(position, force, sample_rate_hz, cutoff, asymmetric=cfg.asymmetric,
-                                         decimate=cfg.decimate, min_speed=cfg.min_speed or None,
-                                         input_hold=cfg.input_hold)
-
-
-def fit_greybox(cfg: ModelConfig, torque, position, sample_rate_hz: float,
-                validation_records: dict | None = None) -> pipeline.GreyBoxResult:
-    """:func:`hilident.pipeline.fit_greybox` with every ``[model]`` key, and the rows left out reported.
-
-    Without a validation record the last ``cfg.holdout`` of the data validates the fit.
-    """
-    torque = np.asarray(torque, dtype=float)
-    position = np.asarray(position, dtype=float)
-    records = dict(validation_records or {})
-    if not records and cfg.holdout > 0:
-        cut = int(round(len(torque) * (1.0 - cfg.holdout)))
-        records["holdout"] = (torque[cut:], position[cut:])
-        torque, position = torque[:cut], position[:cut]
-    est = greybox_regression(cfg, torque, position, sample_rate_hz)
-    fit = greybox.fit_regression(est)
-    warnings = list(fit.warnings)
-    estimation = greybox.validate_fit(fit, est)
-    if est.low_speed_rows:
-        why = "model.min_speed" if cfg.min_speed else "2 % of the RMS speed; model.min_speed sets it"
-        warnings.append(f"{cfg.kind}: {est.low_speed_rows} of {est.low_speed_rows + estimation['samples']} rows "
-                        f"slower than {est.min_speed:.3g} ({why}) left out of the fit")
-    checked = {}
-    for name, (tq, pos) in records.items():
-        try:
-            checked[name] = greybox.validate_fit(fit, greybox_regression(cfg, tq, pos, sample_rate_hz))
-        except DataError as exc:
-            warnings.append(f"{cfg.kind} validation on {name}: {exc}")
-            continue
-        w = overfitting_warning(estimation["fit_percent"], checked[name]["fit_percent"])
-        if w:
-            warnings.append(f"{cfg.kind} on {name}: {w}")
-    return pipeline.GreyBoxResult(cfg.kind, fit, estimation, checked, warnings)
-
-
 def fit_model(cfg: Config, ds: Dataset, validation: Dataset | None = None):
     """The grey-box model of ``[model]`` fitted to the data and validated (None for ``kind = "none"``).
 
@@ -314,7 +272,7 @@ def fit_model(cfg: Config, ds: Dataset, validation: Dataset | None = None):
     if validation is not None:
         validation = validation.longest_segment()
         records = {Path(validation.source).name: (validation.signals["torque"], validation.signals["position"])}
-    return fit_greybox(cfg.model, ds.signals["torque"], ds.signals["position"], ds.sample_rate_hz, records)
+    return pipeline.fit_greybox(cfg.model, ds.signals["torque"], ds.signals["position"], ds.sample_rate_hz, records)
 
 
 # ---------------------------------------------------------------------- the command

@@ -470,12 +470,16 @@ def notch_chain_response(designs: list[NotchDesign], frequency_hz) -> tuple[np.n
 # --- grey-box model of the axis ----------------------------------------------------------
 
 
-def _greybox_regression(cfg: ModelConfig, torque, position, sample_rate_hz: float):
+def greybox_regression(cfg: ModelConfig, torque, position, sample_rate_hz: float):
+    """The regression ``[model]`` asks for, every key honoured (asymmetric, min_speed, decimate, input_hold)."""
     force = cfg.c * np.asarray(torque, dtype=float)
     cutoff = cfg.cutoff_hz or sample_rate_hz / 10.0
     if cfg.kind == "mass_spring_damper":
-        return greybox.mass_spring_damper_regression(force, position, sample_rate_hz, cutoff, input_hold=cfg.input_hold)
-    return greybox.rigid_axis_regression(position, force, sample_rate_hz, cutoff, input_hold=cfg.input_hold)
+        return greybox.mass_spring_damper_regression(force, position, sample_rate_hz, cutoff, decimate=cfg.decimate,
+                                                     input_hold=cfg.input_hold)
+    return greybox.rigid_axis_regression(position, force, sample_rate_hz, cutoff, asymmetric=cfg.asymmetric,
+                                         decimate=cfg.decimate, min_speed=cfg.min_speed or None,
+                                         input_hold=cfg.input_hold)
 
 
 @dataclass
@@ -526,14 +530,18 @@ def fit_greybox(cfg: ModelConfig, torque, position, sample_rate_hz: float,
         cut = int(round(len(torque) * (1.0 - cfg.holdout)))
         records["holdout"] = (torque[cut:], position[cut:])
         torque, position = torque[:cut], position[:cut]
-    est = _greybox_regression(cfg, torque, position, sample_rate_hz)
+    est = greybox_regression(cfg, torque, position, sample_rate_hz)
     fit = greybox.fit_regression(est)
     warnings = list(fit.warnings)
     estimation = greybox.validate_fit(fit, est)
+    if est.low_speed_rows:
+        why = "model.min_speed" if cfg.min_speed else "2 % of the RMS speed; model.min_speed sets it"
+        warnings.append(f"{cfg.kind}: {est.low_speed_rows} of {est.low_speed_rows + estimation['samples']} rows "
+                        f"slower than {est.min_speed:.3g} ({why}) left out of the fit")
     checked = {}
     for name, (tq, pos) in records.items():
         try:
-            checked[name] = greybox.validate_fit(fit, _greybox_regression(cfg, tq, pos, sample_rate_hz))
+            checked[name] = greybox.validate_fit(fit, greybox_regression(cfg, tq, pos, sample_rate_hz))
         except DataError as exc:
             warnings.append(f"{cfg.kind} validation on {name}: {exc}")
             continue

@@ -40,6 +40,7 @@ from hilident.config import Config
 from hilident.devicelock import DeviceLock, device_key
 from hilident.drivers import DriverDescription, check_run_against_driver, declared_modes, find_driver
 from hilident.errors import ArmingRefused, ConfigError, DataError, HilidentError, UsageError
+from hilident.offline import model_for_mode
 from hilident.plan import RunPlan, excitation_travel_m, make_plan
 from hilident.recording import RunWriter, read_run
 from hilident.signals import generators as sig
@@ -588,7 +589,8 @@ class Session:
             return None
         self.progress.step(f"model: {self.cfg.model.kind} grey-box fit")
         try:
-            result = pipeline.fit_greybox(self.cfg.model, s["torque_nm"], s["position_m"], self.cfg.run.sample_rate_hz,
+            model = model_for_mode(self.cfg, self.cfg.excitation.mode)  # a held torque command in open loop
+            result = pipeline.fit_greybox(model, s["torque_nm"], s["position_m"], self.cfg.run.sample_rate_hz,
                                           others or None)
         except DataError as exc:
             self.warnings.append(f"[model] {self.cfg.model.kind}: {exc}")
