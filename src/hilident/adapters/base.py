@@ -595,6 +595,24 @@ class RunStrategy:
         """Play the run; fill ``self.result`` (hook, required)."""
         raise NotImplementedError
 
+    def finish_capture(self, got: int, short_message: str, done_message: str) -> None:
+        """End a run the device captured on its own: ``got`` of the run's samples came home.
+
+        All of them: the ``capture_end`` event and the run complete. Fewer:
+        the rest counted lost (never filled), the ``capture_short`` event,
+        and DeviceError with ``short_message`` (which names the object or
+        register that told).
+        """
+        n, ad = self.n, self.ad
+        if got < n:
+            self.stats.lost_samples += n - got
+            self.stats.lost_blocks += 1
+            ad.log_event(RunEvent(Kind.CAPTURE_SHORT, short_message, got, value=float(n - got)))
+            self.result.fault = short_message
+            raise DeviceError(f"{ad.port}: {short_message}")
+        ad.log_event(RunEvent(Kind.CAPTURE_END, done_message, n, value=float(n)))
+        self.result.completed = True
+
 
 def adapter_class(transport: str):
     """The adapter class registered for ``transport`` under ``hilident.adapters``."""

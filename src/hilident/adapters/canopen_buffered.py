@@ -21,7 +21,6 @@ import time
 import numpy as np
 
 from hilident.adapters.base import RunStrategy
-from hilident.adapters.events import Kind, RunEvent
 from hilident.errors import DeviceError
 from hilident.protocol.canopen_objects import TABLE_START, TABLE_STOP, TableState, record_dtype
 
@@ -121,16 +120,9 @@ class BufferedRun(RunStrategy):
         if self.state == TableState.STOPPED:
             self.result.fault = f"the drive stopped the table at sample {captured} without an emergency"
             raise DeviceError(f"{ad.port}: {self.result.fault} ({self.where('table_state')})")
-        if captured < n:
-            self.stats.lost_samples += n - captured
-            self.stats.lost_blocks += 1
-            message = (f"the drive captured only {captured} of {n} samples "
-                       f"({self.where('capture_count')}): its capture ended early")
-            ad.log_event(RunEvent(Kind.CAPTURE_SHORT, message, captured, value=float(n - captured)))
-            self.result.fault = message
-            raise DeviceError(f"{ad.port}: {message}")
-        ad.log_event(RunEvent(Kind.CAPTURE_END, f"table played and {n} samples captured", n, value=float(n)))
-        self.result.completed = True
+        self.finish_capture(captured, f"the drive captured only {captured} of {n} samples "
+                                      f"({self.where('capture_count')}): its capture ended early",
+                            f"table played and {n} samples captured")
 
     def stop_table(self) -> None:
         try:

@@ -148,17 +148,9 @@ class RecorderRun(RunStrategy):
                 self._upload(min(n, int(ad.read_object(self.rec.recorded))))
             return
         self._upload(recorded)
-        if recorded < n:
-            self.stats.lost_samples += n - recorded
-            self.stats.lost_blocks += 1
-            message = (f"the drive's recorder holds only {recorded} of {n} samples "
-                       f"({ad.describe(self.rec.recorded)}): its recording ended early")
-            ad.log_event(RunEvent(Kind.CAPTURE_SHORT, message, recorded, value=float(n - recorded)))
-            self.result.fault = message
-            raise DeviceError(f"{ad.port}: {message}")
-        ad.log_event(RunEvent(Kind.CAPTURE_END, f"the drive's {settings.kind.name} generator played and its "
-                                                f"recorder took {n} samples", n, value=float(n)))
-        self.result.completed = True
+        self.finish_capture(recorded, f"the drive's recorder holds only {recorded} of {n} samples "
+                                      f"({ad.describe(self.rec.recorded)}): its recording ended early",
+                            f"the drive's {settings.kind.name} generator played and its recorder took {n} samples")
 
     def _compare(self, x: np.ndarray, n: int) -> None:
         """A warning event when the generator will not play what the host meant (its samples ``x``)."""

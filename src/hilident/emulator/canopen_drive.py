@@ -56,17 +56,49 @@ from canopen.sdo import SdoAbortedError
 from hilident.config import DeviceConfig, EmulatorConfig, FaultsConfig
 from hilident.drivers import DriverDescription, load_object_dictionary
 from hilident.emulator.canopen_recorder import DriveRecorder
-from hilident.emulator.canopen_sdo import BlockSdoServer, parse_fault_object
+from hilident.emulator.canopen_sdo import (
+    ABORT_INCOMPATIBLE,
+    ABORT_LENGTH,
+    ABORT_LENGTH_HIGH,
+    ABORT_NO_DATA,
+    ABORT_NOT_MAPPABLE,
+    ABORT_PDO_LENGTH,
+    ABORT_STATE,
+    ABORT_TOO_HIGH,
+    ABORT_TOO_LOW,
+    ABORT_VALUE,
+    BlockSdoServer,
+    parse_fault_object,
+)
 from hilident.emulator.drive import DriveLoop
 from hilident.errors import ConfigError, DataError
 from hilident.protocol import cia402
 from hilident.protocol.canopen_objects import (
-    ABORT_CONNECTION_INDEX, DOMAIN, HEARTBEAT_CONSUMER_INDEX, NUMERIC_TYPES, REAL32, TABLE_START, TABLE_STOP,
-    CanopenDescription, ObjectAddress, TableState, default_supported_modes, encode_si, numpy_type,
-    parse_consumer_entry, parse_mapping_entry, record_dtype, type_bits,
+    ABORT_CONNECTION_INDEX,
+    DOMAIN,
+    HEARTBEAT_CONSUMER_INDEX,
+    NUMERIC_TYPES,
+    REAL32,
+    TABLE_START,
+    TABLE_STOP,
+    CanopenDescription,
+    ObjectAddress,
+    TableState,
+    default_supported_modes,
+    encode_si,
+    numpy_type,
+    parse_consumer_entry,
+    parse_mapping_entry,
+    record_dtype,
+    type_bits,
 )
 from hilident.protocol.canopen_profile import (
-    CYCLIC_MODES, MODE_CODES, SETPOINT_OF_MODE, encode_supported_modes, mapping_capacity, mode_name_of_code,
+    CYCLIC_MODES,
+    MODE_CODES,
+    SETPOINT_OF_MODE,
+    encode_supported_modes,
+    mapping_capacity,
+    mode_name_of_code,
     period_from_fields,
 )
 from hilident.protocol.filter_encoding import FilterEncoding
@@ -81,22 +113,12 @@ IDLE_S = 0.02  # a bus reader this long without a frame has nothing queued (hear
 STALL_S = 0.1  # the clock thread ran this late: the whole process stood still (heartbeat consumer)
 COAST_S = 2.0  # simulated time the axis is left to coast after the power stage is switched off
 
-ABORT_VALUE = 0x06090030
-ABORT_TOO_HIGH = 0x06090031
-ABORT_TOO_LOW = 0x06090032
-ABORT_STATE = 0x08000022
-ABORT_NO_DATA = 0x08000024
-ABORT_NOT_MAPPABLE = 0x06040041
-ABORT_PDO_LENGTH = 0x06040042
-ABORT_LENGTH = 0x06070010
-ABORT_LENGTH_HIGH = 0x06070012
 
 EMCY_OF_TRIP = {"torque_limit": 0x8311, "velocity_limit": 0x8400, "position_limit": 0x8612}
 EMCY_DRIVE_FAULT = 0x4310  # excess temperature, drive (the injected fault)
 EMCY_SYNC_TIMEOUT = 0x8250
 EMCY_INTERNAL = 0x6100  # internal software error
 EMCY_HEARTBEAT = 0x8130  # life guard or heartbeat error (the host's heartbeat stopped)
-ABORT_INCOMPATIBLE = 0x06040043  # general parameter incompatibility (a producer in two consumer entries)
 
 _COLUMN_OF_ROLE = {
     "position_actual": "position_m", "velocity_actual": "velocity_mps", "torque_actual": "torque_nm",

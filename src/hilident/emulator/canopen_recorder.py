@@ -31,6 +31,14 @@ import time
 import numpy as np
 from canopen.sdo import SdoAbortedError
 
+from hilident.emulator.canopen_sdo import (
+    ABORT_NO_DATA,
+    ABORT_NOT_MAPPABLE,
+    ABORT_STATE,
+    ABORT_TOO_HIGH,
+    ABORT_TOO_LOW,
+    ABORT_VALUE,
+)
 from hilident.protocol import cia402
 from hilident.protocol.canopen_objects import (
     NUMERIC_TYPES,
@@ -43,14 +51,7 @@ from hilident.protocol.canopen_recorder import RecorderCapability, generator_out
 
 __all__ = ["DriveRecorder"]
 
-ABORT_VALUE = 0x06090030
-ABORT_TOO_HIGH = 0x06090031
-ABORT_TOO_LOW = 0x06090032
-ABORT_STATE = 0x08000022
-ABORT_NO_DATA = 0x08000024
-ABORT_NOT_MAPPABLE = 0x06040041
 _CATCH_UP_S = 0.05  # at most this much simulated time per clock step: a slow machine resumes, never bursts
-
 
 class DriveRecorder:
     """Generator and recorder of one emulated drive (see the module docstring).
