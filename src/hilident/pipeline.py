@@ -474,9 +474,10 @@ class _Notes(list):
 def _resonances_and_model(plant: FrequencyResponse, cfg: IdentificationConfig, band_hz):
     """Screened peaks, the fitted model, and the one list of resonances both support."""
     notes = _Notes()
+    # every candidate first: the count limit applies to the peaks the model confirms
     found, rejected = screen_resonances(
         plant, coherence_threshold=cfg.coherence_threshold, min_prominence_db=cfg.min_prominence_db,
-        max_count=max(cfg.max_resonances, 1), band_hz=band_hz,
+        max_count=_MAX_CANDIDATES, band_hz=band_hz,
     )
     if cfg.model_max_order:
         try:
@@ -490,6 +491,14 @@ def _resonances_and_model(plant: FrequencyResponse, cfg: IdentificationConfig, b
     resolution = float(np.median(np.diff(plant.frequency_hz))) if len(plant) > 1 else 0.0
     found, rejected, more = reconcile_resonances(found, rejected, notes.model, cfg.model_max_order, resolution)
     notes += more
+    found, rejected = _most_prominent(found, rejected, cfg.max_resonances)
+    if notes.model is not None and notes.model.mode_notes:
+        kept = {r.frequency_hz for r in found}
+        for note in notes.model.mode_notes:
+            if note["reported"] and note["resonance_hz"] not in kept:
+                note.update(reported=False, reason="beyond identification.max_resonances = "
+                            f"{cfg.max_resonances} (the most prominent are reported)")
+                del note["resonance_hz"]
     if not found:
         notes.append(
             f"no resonance with coherence >= {cfg.coherence_threshold:g} and prominence >= "
@@ -497,6 +506,21 @@ def _resonances_and_model(plant: FrequencyResponse, cfg: IdentificationConfig, b
             + (f" ({len(rejected)} peak(s) rejected, see rejected_peaks)" if rejected else "")
         )
     return found, rejected, notes
+
+
+#: Peaks refined before the model and the count limit decide (``max_resonances`` may be at most 16).
+_MAX_CANDIDATES = 16
+
+
+def _most_prominent(found: list[Resonance], rejected: list[RejectedPeak], max_count: int):
+    """The `max_count` most prominent resonances; the others join the rejected peaks with the reason."""
+    ranked = sorted(found, key=lambda r: -np.nan_to_num(r.prominence_db, nan=-np.inf))
+    kept, dropped = ranked[:max_count], ranked[max_count:]
+    rejected = rejected + [RejectedPeak(r.frequency_hz, r.peak_magnitude_db, r.coherence,
+                                        f"beyond identification.max_resonances = {max_count} (prominence "
+                                        f"{r.prominence_db:.1f} dB; the most prominent are reported)")
+                           for r in dropped]
+    return sorted(kept, key=lambda r: r.frequency_hz), sorted(rejected, key=lambda r: r.frequency_hz)
 
 
 def _model_warnings(model: PlantModel) -> list[str]:
@@ -511,7 +535,17 @@ def _model_warnings(model: PlantModel) -> list[str]:
                    + " (non-minimum phase, usually a delay or a non-collocated sensor; not anti-resonances)")
     if not roots.stable:
         out.append(f"transfer-function fit: the model is not stable ({roots.stability})")
+    fit = model.fit
+    if fit.weighting == "coherence" and fit.weighted_cost > _MISFIT_RATIO:
+        out.append(f"transfer-function fit: the best structure misses the measured response by {fit.fit_db_rms:.1f} dB "
+                   f"rms, {np.sqrt(fit.weighted_cost):.1f} times the scatter the coherence implies: the response is not "
+                   "that of a linear plant at this amplitude (friction sticking, backlash) or the excitation is too "
+                   "weak for its coherence to mean much (raise the excitation amplitude)")
     return out
+
+
+#: Weighted cost (about 1 when the model explains the data to within the noise) above which a fit is called a misfit.
+_MISFIT_RATIO = 10.0
 
 
 def _condition(x: np.ndarray, cfg: IdentificationConfig, sample_rate_hz: float) -> np.ndarray:

@@ -88,6 +88,9 @@ class Resonance:
         rms over the same bins of the standard deviation of ``|H|`` in dB that
         the coherence and the number of averages imply: what a perfect model
         would leave (NaN without coherence).
+    prominence_db : float
+        Prominence of the peak bin (``scipy.signal.find_peaks``), dB; NaN when
+        not set.
     """
 
     frequency_hz: float
@@ -99,6 +102,7 @@ class Resonance:
     damping_ci95: float = float("nan")
     local_fit_db_rms: float = float("nan")
     local_noise_db_rms: float = float("nan")
+    prominence_db: float = float("nan")
 
     @property
     def bandwidth_hz(self) -> float:
@@ -469,7 +473,7 @@ def screen_resonances(
         if len(found) == max_count:
             reject(i, c, f"beyond the {max_count} most prominent peaks (identification.max_resonances)")
             continue
-        res = _refine(f, H, coh, int(i), df, frf.n_averages)
+        res = dataclasses.replace(_refine(f, H, coh, int(i), df, frf.n_averages), prominence_db=float(prom_of[int(i)]))
         width = res.damping_ratio * res.frequency_hz if np.isfinite(res.damping_ratio) else df
         twin = [r for r in found if abs(res.frequency_hz - r.frequency_hz) <= max(width, df)]
         if twin:

@@ -994,7 +994,10 @@ def select_structure(
 
     Unlike the lecture's rule of thumb (relative degree from the roll-off
     above the last resonance, integrators from the slope at the bottom of the
-    band), no part of the band decides alone.
+    band), no part of the band decides alone. A structure with a pole more
+    than a decade above the band (in the band a constant) or, with free
+    integrators, below it (in the band an integrator) ranks after those
+    without.
 
     Parameters
     ----------
@@ -1070,6 +1073,16 @@ def select_structure(
         return TfOrderCandidate(m, n, fit, N * np.log(v / N) + 2 * p, N * np.log(v / N) + p * np.log(N),
                                 integrators=k, validation=val)
 
+    def slow(r):
+        # A free pole more than a decade outside the band is not a feature the data
+        # show: below the band it acts as an integrator (with a slight leak, e.g.
+        # uncompensated viscous friction), above it as a constant. A structure
+        # without such poles ranks first.
+        free = np.abs(r.fit.poles[: len(r.fit.poles) - r.fit.integrators])
+        lo, hi = r.fit.band_hz
+        below = integrators is None and np.any(free < _TWO_PI * lo / 10.0)
+        return bool(below or np.any(free > _TWO_PI * hi * 10.0))
+
     def rank(rows):
         ok = [r for r in rows if r.fit is not None]
         if not ok:
@@ -1078,9 +1091,9 @@ def select_structure(
             best = min(r.validation for r in ok)
             # the held-out cost of n lines scatters by about sqrt(2 / n) of itself
             slack = best * np.sqrt(2.0 / max(int(hold.sum()), 1))
-            return sorted(ok, key=lambda r: (r.validation > best + slack, r.n_params, r.validation))
+            return sorted(ok, key=lambda r: (slow(r), r.validation > best + slack, r.n_params, r.validation))
         key = "bic" if criterion == "mdl" else "aic"
-        return sorted(ok, key=lambda r: (getattr(r, key), r.n_params))
+        return sorted(ok, key=lambda r: (slow(r), getattr(r, key), r.n_params))
 
     # Screen every structure with the linear (Levy + Sanathanan-Koerner) fit,
     # then refine the few best with Levenberg-Marquardt and rank again.
@@ -1179,12 +1192,13 @@ def classify_roots(
       imaginary axis; the model is then only marginally stable);
     * ``|p| / 2 pi`` lies above ``outside_factor`` times the top of the band
       or below the bottom divided by it (the fit put it there to bend the
-      response at the band edge; it is not a mode the data show);
+      response at the band edge; it is not a mode the data show), or, for a
+      complex pair, outside the band at all;
     * with `resolution_hz`, its half-power bandwidth ``2 zeta f`` is under a
       tenth of the line spacing (the measurement cannot resolve it).
 
     Zeros in the right half plane are listed as such with an explanation,
-    never as anti-resonances.
+    never as anti-resonances; complex zero pairs outside the band are flagged.
 
     Parameters
     ----------
@@ -1221,6 +1235,8 @@ def classify_roots(
         elif f_hz > outside_factor * hi or f_hz < lo / outside_factor:
             reason = (f"far outside the fitted band {lo:.4g}-{hi:.4g} Hz: the fit uses it to bend the response "
                       "at the band edge")
+        elif is_complex and not lo <= f_hz <= hi:
+            reason = f"outside the fitted band {lo:.4g}-{hi:.4g} Hz: the data show at most its skirt"
         elif is_complex and resolution_hz and 2.0 * zeta * f_hz < 0.1 * resolution_hz:
             reason = (f"half-power bandwidth {2 * zeta * f_hz:.3g} Hz is under a tenth of the "
                       f"{resolution_hz:.3g} Hz line spacing: the measurement cannot resolve it")
@@ -1242,6 +1258,9 @@ def classify_roots(
                         "kind": "complex pair" if is_complex else "real", "explanation": _RHP_EXPLANATION})
         elif f_hz > outside_factor * hi or f_hz < lo / outside_factor:
             flagged_z.append({"frequency_hz": float(f_hz), "reason": f"far outside the fitted band {lo:.4g}-{hi:.4g} Hz"})
+        elif is_complex and not lo <= f_hz <= hi:
+            flagged_z.append({"frequency_hz": float(f_hz),
+                              "reason": f"outside the fitted band {lo:.4g}-{hi:.4g} Hz: not an anti-resonance the data show"})
         elif is_complex:
             anti.append((float(f_hz), float(-z.real / abs(z))))
         else:
