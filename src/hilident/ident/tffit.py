@@ -994,10 +994,10 @@ def select_structure(
 
     Unlike the lecture's rule of thumb (relative degree from the roll-off
     above the last resonance, integrators from the slope at the bottom of the
-    band), no part of the band decides alone. A structure with a pole more
-    than a decade above the band (in the band a constant) or, with free
-    integrators, below it (in the band an integrator) ranks after those
-    without.
+    band), no part of the band decides alone. A structure with a pole or
+    zero more than a decade above the band (in the band a constant) or, with
+    free integrators, below it (in the band an integrator or its inverse)
+    ranks after those without.
 
     Parameters
     ----------
@@ -1074,14 +1074,17 @@ def select_structure(
                                 integrators=k, validation=val)
 
     def slow(r):
-        # A free pole more than a decade outside the band is not a feature the data
-        # show: below the band it acts as an integrator (with a slight leak, e.g.
-        # uncompensated viscous friction), above it as a constant. A structure
-        # without such poles ranks first.
+        # A free pole or zero more than a decade outside the band is not a feature the
+        # data show: below the band a pole acts as an integrator (with a slight leak,
+        # e.g. uncompensated viscous friction) and a zero cancels one (without
+        # integrators a zero at 0 is a real differentiator), above it either acts as
+        # a constant. A structure without such roots ranks first.
         free = np.abs(r.fit.poles[: len(r.fit.poles) - r.fit.integrators])
+        zeros = np.abs(r.fit.zeros)
         lo, hi = r.fit.band_hz
-        below = integrators is None and np.any(free < _TWO_PI * lo / 10.0)
-        return bool(below or np.any(free > _TWO_PI * hi * 10.0))
+        low = _TWO_PI * lo / 10.0
+        below = integrators is None and (np.any(free < low) or (r.integrators > 0 and np.any(zeros < low)))
+        return bool(below or np.any(np.r_[free, zeros] > _TWO_PI * hi * 10.0))
 
     def rank(rows):
         ok = [r for r in rows if r.fit is not None]
@@ -1136,7 +1139,8 @@ class RootReport:
         ``real_part_rad_s``, ``kind`` (``"real"`` or ``"complex pair"``),
         ``explanation``.
     flagged_zeros : list of dict
-        Left-half-plane zeros far outside the band (``frequency_hz``, ``reason``).
+        Zeros far outside the band, either half plane, and complex zero pairs
+        outside it (``frequency_hz``, ``reason``).
     real_poles_hz, real_zeros_hz : list of float
         Corner frequencies of real left-half-plane poles and zeros in range, Hz.
     stable : bool
@@ -1197,8 +1201,9 @@ def classify_roots(
     * with `resolution_hz`, its half-power bandwidth ``2 zeta f`` is under a
       tenth of the line spacing (the measurement cannot resolve it).
 
-    Zeros in the right half plane are listed as such with an explanation,
-    never as anti-resonances; complex zero pairs outside the band are flagged.
+    Zeros in the right half plane within reach of the band are listed as
+    such with an explanation, never as anti-resonances; zeros far outside the
+    band and complex zero pairs outside it are flagged.
 
     Parameters
     ----------
@@ -1253,11 +1258,13 @@ def classify_roots(
             continue
         f_hz = abs(z) / _TWO_PI
         is_complex = z.imag > _REAL_TOL * abs(z)
-        if z.real > axis_tol * abs(z):
+        if f_hz > outside_factor * hi or f_hz < lo / outside_factor:
+            side = "right" if z.real > axis_tol * abs(z) else "left"
+            flagged_z.append({"frequency_hz": float(f_hz), "real_part_rad_s": float(z.real),
+                              "reason": f"{side}-half-plane zero far outside the fitted band {lo:.4g}-{hi:.4g} Hz"})
+        elif z.real > axis_tol * abs(z):
             rhp.append({"frequency_hz": float(f_hz), "real_part_rad_s": float(z.real),
                         "kind": "complex pair" if is_complex else "real", "explanation": _RHP_EXPLANATION})
-        elif f_hz > outside_factor * hi or f_hz < lo / outside_factor:
-            flagged_z.append({"frequency_hz": float(f_hz), "reason": f"far outside the fitted band {lo:.4g}-{hi:.4g} Hz"})
         elif is_complex and not lo <= f_hz <= hi:
             flagged_z.append({"frequency_hz": float(f_hz),
                               "reason": f"outside the fitted band {lo:.4g}-{hi:.4g} Hz: not an anti-resonance the data show"})
