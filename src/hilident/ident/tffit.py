@@ -996,8 +996,9 @@ def select_structure(
     above the last resonance, integrators from the slope at the bottom of the
     band), no part of the band decides alone. A structure with a pole or
     zero more than a decade above the band (in the band a constant) or, with
-    free integrators, below it (in the band an integrator or its inverse)
-    ranks after those without.
+    free integrators, below it (in the band an integrator or its inverse),
+    or with a complex pole or zero pair outside the band (a mode the data do
+    not show) ranks after those without.
 
     Parameters
     ----------
@@ -1078,13 +1079,19 @@ def select_structure(
         # data show: below the band a pole acts as an integrator (with a slight leak,
         # e.g. uncompensated viscous friction) and a zero cancels one (without
         # integrators a zero at 0 is a real differentiator), above it either acts as
-        # a constant. A structure without such roots ranks first.
-        free = np.abs(r.fit.poles[: len(r.fit.poles) - r.fit.integrators])
-        zeros = np.abs(r.fit.zeros)
+        # a constant; a complex pair outside the band bends only its edge. A
+        # structure without such roots ranks first.
+        poles = r.fit.poles[: len(r.fit.poles) - r.fit.integrators]
+        zeros = r.fit.zeros
         lo, hi = r.fit.band_hz
         low = _TWO_PI * lo / 10.0
-        below = integrators is None and (np.any(free < low) or (r.integrators > 0 and np.any(zeros < low)))
-        return bool(below or np.any(np.r_[free, zeros] > _TWO_PI * hi * 10.0))
+        below = integrators is None and (np.any(np.abs(poles) < low)
+                                         or (r.integrators > 0 and np.any(np.abs(zeros) < low)))
+        roots = np.r_[poles, zeros]
+        # a complex pair outside the band is a resonance or anti-resonance the data do not show
+        pair = np.abs(roots.imag) > _REAL_TOL * np.abs(roots)
+        outside = (np.abs(roots) < _TWO_PI * lo) | (np.abs(roots) > _TWO_PI * hi)
+        return bool(below or np.any(np.abs(roots) > _TWO_PI * hi * 10.0) or np.any(pair & outside))
 
     def rank(rows):
         ok = [r for r in rows if r.fit is not None]
@@ -1260,8 +1267,10 @@ def classify_roots(
         is_complex = z.imag > _REAL_TOL * abs(z)
         if f_hz > outside_factor * hi or f_hz < lo / outside_factor:
             side = "right" if z.real > axis_tol * abs(z) else "left"
+            acts = "a differentiator s" if f_hz < lo else "a constant"
             flagged_z.append({"frequency_hz": float(f_hz), "real_part_rad_s": float(z.real),
-                              "reason": f"{side}-half-plane zero far outside the fitted band {lo:.4g}-{hi:.4g} Hz"})
+                              "reason": f"{side}-half-plane zero far outside the fitted band {lo:.4g}-{hi:.4g} Hz: "
+                                        f"in the band it acts as {acts}"})
         elif z.real > axis_tol * abs(z):
             rhp.append({"frequency_hz": float(f_hz), "real_part_rad_s": float(z.real),
                         "kind": "complex pair" if is_complex else "real", "explanation": _RHP_EXPLANATION})
