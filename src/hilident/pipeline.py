@@ -842,6 +842,26 @@ class GreyBoxResult:
         return {"kind": self.kind, **self.fit.to_dict(), "estimation": self.estimation, "validation": self.validation}
 
 
+def residual_warnings(kind: str, name: str, check: dict) -> list[str]:
+    """What failing residual tests of a grey-box fit (:func:`~hilident.ident.greybox.validate_fit`) mean and what to change.
+
+    Tests that were not computed (None) say nothing.
+    """
+    out = []
+    p = check.get("ljung_box_p")
+    if check.get("residuals_white") is False:
+        out.append(
+            f"[model] {kind} on {name}: the residuals are not white (Ljung-Box p = "
+            f"{'n/a' if p is None else format(p, '.3g')}): "
+            "the model leaves dynamics unexplained; try the other input_hold, a lower cutoff_hz, or a model with "
+            "more physics (a second mass, friction) before trusting its parameters' standard deviations")
+    if check.get("independent_of_input") is False:
+        out.append(
+            f"[model] {kind} on {name}: the residuals are correlated with the input: part of the input's effect is "
+            "missing from the model (a delay, an unmodelled force such as friction, or a wrong kind)")
+    return out
+
+
 def fit_greybox(cfg: ModelConfig, torque, position, sample_rate_hz: float,
                 validation_records: dict | None = None) -> GreyBoxResult:
     """Fit ``[model]`` to torque and position and validate it.
@@ -869,6 +889,7 @@ def fit_greybox(cfg: ModelConfig, torque, position, sample_rate_hz: float,
     fit = greybox.fit_regression(est)
     warnings = list(fit.warnings)
     estimation = greybox.validate_fit(fit, est)
+    warnings += residual_warnings(cfg.kind, "the estimation data", estimation)
     checked = {}
     for name, (tq, pos) in records.items():
         try:
