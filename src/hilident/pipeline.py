@@ -897,6 +897,7 @@ def fit_greybox(cfg: ModelConfig, torque, position, sample_rate_hz: float,
         except DataError as exc:
             warnings.append(f"{cfg.kind} validation on {name}: {exc}")
             continue
+        warnings += residual_warnings(cfg.kind, name, checked[name])
         w = overfitting_warning(estimation["fit_percent"], checked[name]["fit_percent"])
         if w:
             warnings.append(f"{cfg.kind} on {name}: {w}")
