@@ -791,7 +791,8 @@ def notch_records(designs: list[NotchDesign]) -> list[dict]:
     """Designed notches as plain records for ``summary.json`` (biquad ``b``, ``a`` in scipy convention)."""
     return [
         {"center_hz": d.spec.center_hz, "width_hz": d.spec.width_hz, "depth_db": d.spec.depth_db,
-         "sample_rate_hz": d.sample_rate_hz, "slot": d.slot, "b": list(d.biquad.b), "a": list(d.biquad.a)}
+         "sample_rate_hz": d.sample_rate_hz, "slot": d.slot, "b": list(d.biquad.b), "a": list(d.biquad.a),
+         "predicted_band_reduction_db": d.predicted_band_reduction_db}
         for d in designs
     ]
 
