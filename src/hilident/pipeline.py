@@ -531,7 +531,9 @@ def _model_warnings(model: PlantModel) -> list[str]:
             f"pole at {p['frequency_hz']:.4g} Hz not reported as a mode ({p['reason']})" for p in roots.flagged_poles))
     if roots.rhp_zeros:
         out.append("transfer-function fit: right-half-plane zero(s) at "
-                   + ", ".join(f"{z['frequency_hz']:.4g} Hz" for z in roots.rhp_zeros)
+                   + ", ".join(f"{z['frequency_hz']:.4g} Hz" + (f" (the phase of a {1e3 * z['equivalent_delay_s']:.3g} ms "
+                                                                  "delay)" if "equivalent_delay_s" in z else "")
+                               for z in roots.rhp_zeros)
                    + " (non-minimum phase, usually a delay or a non-collocated sensor; not anti-resonances)")
     if not roots.stable:
         out.append(f"transfer-function fit: the model is not stable ({roots.stability})")

@@ -92,6 +92,7 @@ def test_right_half_plane_zero_is_reported_as_such():
     roots = classify_roots(fit)
     (rhp,) = roots.rhp_zeros
     assert rhp["frequency_hz"] == pytest.approx(40.0, rel=0.02) and rhp["kind"] == "real"
+    assert rhp["equivalent_delay_s"] == pytest.approx(1 / z, rel=0.02)
     assert "right-half-plane" in rhp["explanation"] and "no anti-resonance" in rhp["explanation"]
     assert roots.antiresonances == [] and roots.real_zeros_hz == []  # never a negative corner frequency
 

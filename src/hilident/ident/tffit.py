@@ -1159,7 +1159,8 @@ class RootReport:
     rhp_zeros : list of dict
         Right-half-plane zeros: ``frequency_hz`` (``|z| / 2 pi``),
         ``real_part_rad_s``, ``kind`` (``"real"`` or ``"complex pair"``),
-        ``explanation``.
+        ``explanation`` and, for a real one, ``equivalent_delay_s`` (``1 / z``:
+        the delay whose phase lag it has well below ``z``).
     flagged_zeros : list of dict
         Zeros far outside the band, either half plane, and complex zero pairs
         outside it (``frequency_hz``, ``reason``).
@@ -1287,8 +1288,12 @@ def classify_roots(
                               "reason": f"{side}-half-plane zero far outside the fitted band {lo:.4g}-{hi:.4g} Hz: "
                                         f"in the band it acts as {acts}"})
         elif z.real > axis_tol * abs(z):
-            rhp.append({"frequency_hz": float(f_hz), "real_part_rad_s": float(z.real),
-                        "kind": "complex pair" if is_complex else "real", "explanation": _RHP_EXPLANATION})
+            entry = {"frequency_hz": float(f_hz), "real_part_rad_s": float(z.real),
+                     "kind": "complex pair" if is_complex else "real", "explanation": _RHP_EXPLANATION}
+            if not is_complex:
+                # below it, 1 - s/z has the phase of a delay 1/z (and no effect on |G|)
+                entry["equivalent_delay_s"] = float(1.0 / z.real)
+            rhp.append(entry)
         elif is_complex and not lo <= f_hz <= hi:
             flagged_z.append({"frequency_hz": float(f_hz),
                               "reason": f"outside the fitted band {lo:.4g}-{hi:.4g} Hz: not an anti-resonance the data show"})
