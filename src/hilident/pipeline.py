@@ -200,8 +200,9 @@ def reconcile_resonances(found: list[Resonance], rejected: list[RejectedPeak], m
     A peak is confirmed by a mode of the model (``model.roots.modes``) within
     its half-power bandwidth, its 95 % frequency interval or two lines,
     whichever is widest. An unconfirmed peak is rejected with the reason,
-    unless the model used every pole ``max_order`` allows (it may then lack
-    the poles for this mode: a warning says so). Each model mode is noted
+    unless the model misses the data as a whole (weighted cost over
+    ``_MISFIT_RATIO``) or used every pole ``max_order`` allows (it may then
+    lack the poles for this mode): a warning says so and the peak stays. Each model mode is noted
     in ``model.mode_notes`` as reported or not, with the reason.
 
     Parameters
@@ -223,6 +224,7 @@ def reconcile_resonances(found: list[Resonance], rejected: list[RejectedPeak], m
         return list(found), list(rejected), []
     modes = list(model.roots.modes)
     at_limit = model.fit.n_den + model.fit.integrators >= max_order
+    misfit = model.fit.weighting == "coherence" and model.fit.weighted_cost > _MISFIT_RATIO
     kept, rejected, warnings = [], list(rejected), []
     matched: dict[int, float] = {}
     for r in found:
@@ -233,6 +235,10 @@ def reconcile_resonances(found: list[Resonance], rejected: list[RejectedPeak], m
             j = min(near, key=lambda j: abs(modes[j][0] - r.frequency_hz))
             matched[j] = r.frequency_hz
             kept.append(r)
+        elif misfit:
+            kept.append(r)
+            warnings.append(f"the resonance at {r.frequency_hz:.4g} Hz is not confirmed: the fitted model misses the "
+                            "measured response as a whole (see the transfer-function warning)")
         elif at_limit:
             kept.append(r)
             warnings.append(

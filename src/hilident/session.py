@@ -641,7 +641,11 @@ class Session:
 
         def raise_to(factor: float) -> str:
             if not (np.isfinite(factor) and factor > 1.0):
-                return ""
+                # no figure from the measurement (a misfit, a peak without a fit): friction and noise
+                # weigh less at a higher amplitude, so try twice the amplitude
+                value = f" to {2 * amplitude:.3g}" if amplitude else ""
+                return (f"; try excitation.{e.amplitude_key}{value} (x2): friction and noise distort a peak less "
+                        "at a higher amplitude")
             value = f" to {amplitude * factor:.3g}" if amplitude else ""
             return (f"; raise excitation.{e.amplitude_key}{value} (x{factor:.2g}) or record {factor ** 2:.2g} times "
                     "as many periods (excitation.duration_s)")
@@ -654,6 +658,8 @@ class Session:
                 target = min(ic.coherence_threshold + 0.1, 0.95)
                 hint = (f"; the strongest peak ({peak.frequency_hz:.4g} Hz) has coherence {peak.coherence:.2f} "
                         f"(target {target:.2f})" + raise_to(pipeline.coherence_amplitude_factor(peak.coherence, target)))
+            elif plant.rejected:
+                hint = raise_to(float("nan"))
             upload["skipped_reason"] = "no resonance was identified, so no notch was designed (see rejected_peaks)" + hint
             if hint:
                 self.warnings.append(upload["skipped_reason"])
