@@ -496,8 +496,10 @@ def _resonances_and_model(plant: FrequencyResponse, cfg: IdentificationConfig, b
         notes += _model_warnings(notes.model)
     resolution = float(np.median(np.diff(plant.frequency_hz))) if len(plant) > 1 else 0.0
     found, rejected, more = reconcile_resonances(found, rejected, notes.model, cfg.model_max_order, resolution)
-    notes += more
+    confirmed = found
     found, rejected = _most_prominent(found, rejected, cfg.max_resonances)
+    dropped = [f"at {r.frequency_hz:.4g} Hz" for r in confirmed if r not in found]
+    notes += [w for w in more if not any(d in w for d in dropped)]
     if notes.model is not None and notes.model.mode_notes:
         kept = {r.frequency_hz for r in found}
         for note in notes.model.mode_notes:

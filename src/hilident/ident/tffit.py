@@ -1054,7 +1054,7 @@ def select_structure(
             f"no structure with order {order if order is not None else f'<= {max_order}'}, relative degree "
             f"{relative_degree} and {integrators} integrator(s)",
         )
-    w_all, _ = _weights(frf, frf.response, weights)
+    w_all, weighting = _weights(frf, frf.response, weights)
     train_w = w_all
     hold = np.zeros(len(frf), dtype=bool)
     if criterion == "validation":
@@ -1136,7 +1136,7 @@ def select_structure(
         fit = fit_transfer_function(frf, chosen.n_num, chosen.n_den, weights=w_all,
                                     integrators=chosen.integrators, refine=refine, **fit_options)
     table = [dataclasses.replace(r, selected=r is chosen) for r in rows]
-    return fit, table
+    return dataclasses.replace(fit, weighting=weighting), table
 
 
 # --- which roots the data support ---------------------------------------------
