@@ -180,7 +180,8 @@ def test_sampling_rule_violation_is_a_warning_that_says_what_to_change():
 def test_a_misfitting_model_does_not_reject_peaks_but_says_so():
     frf = mode_frf()
     model = pipeline.fit_plant_model(frf, (1.0, 79.0), 4)
-    model.fit = dataclasses.replace(model.fit, weighted_cost=100.0)  # misses the data by 10 times the scatter
+    # misses the data by 10 times the scatter, and by 3 dB
+    model.fit = dataclasses.replace(model.fit, weighted_cost=100.0, fit_db_rms=3.0)
     found, rejected, warnings = pipeline.reconcile_resonances([resonance(f0=50.0)], [], model, 8, 0.5)
     assert len(found) == 1 and rejected == []
     assert "misses the measured response" in warnings[0]

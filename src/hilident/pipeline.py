@@ -201,7 +201,7 @@ def reconcile_resonances(found: list[Resonance], rejected: list[RejectedPeak], m
     its half-power bandwidth, its 95 % frequency interval or two lines,
     whichever is widest. An unconfirmed peak is rejected with the reason,
     unless the model misses the data as a whole (weighted cost over
-    ``_MISFIT_RATIO``) or used every pole ``max_order`` allows (it may then
+    ``_MISFIT_RATIO`` and more than ``_MISFIT_DB`` rms) or used every pole ``max_order`` allows (it may then
     lack the poles for this mode): a warning says so and the peak stays. Each model mode is noted
     in ``model.mode_notes`` as reported or not, with the reason.
 
@@ -224,7 +224,7 @@ def reconcile_resonances(found: list[Resonance], rejected: list[RejectedPeak], m
         return list(found), list(rejected), []
     modes = list(model.roots.modes)
     at_limit = model.fit.n_den + model.fit.integrators >= max_order
-    misfit = model.fit.weighting == "coherence" and model.fit.weighted_cost > _MISFIT_RATIO
+    misfit = _misfits(model.fit)
     kept, rejected, warnings = [], list(rejected), []
     matched: dict[int, float] = {}
     for r in found:
@@ -546,7 +546,7 @@ def _model_warnings(model: PlantModel) -> list[str]:
     if not roots.stable:
         out.append(f"transfer-function fit: the model is not stable ({roots.stability})")
     fit = model.fit
-    if fit.weighting == "coherence" and fit.weighted_cost > _MISFIT_RATIO:
+    if _misfits(fit):
         out.append(f"transfer-function fit: the best structure misses the measured response by {fit.fit_db_rms:.1f} dB "
                    f"rms, {np.sqrt(fit.weighted_cost):.1f} times the scatter the coherence implies: the response is not "
                    "that of a linear plant at this amplitude (friction sticking, backlash) or the excitation is too "
@@ -554,8 +554,15 @@ def _model_warnings(model: PlantModel) -> list[str]:
     return out
 
 
-#: Weighted cost (about 1 when the model explains the data to within the noise) above which a fit is called a misfit.
+#: Weighted cost (about 1 when the model explains the data to within the noise) above which a fit is called a
+#: misfit, when it also misses by more than _MISFIT_DB rms (a fit within a dB is useful however small the noise).
 _MISFIT_RATIO = 10.0
+_MISFIT_DB = 1.0
+
+
+def _misfits(fit: TfFit) -> bool:
+    """The coherence-weighted fit misses the data by far more than their scatter, and by more than a dB."""
+    return fit.weighting == "coherence" and fit.weighted_cost > _MISFIT_RATIO and fit.fit_db_rms > _MISFIT_DB
 
 
 def _condition(x: np.ndarray, cfg: IdentificationConfig, sample_rate_hz: float) -> np.ndarray:
