@@ -177,12 +177,13 @@ def test_sampling_rule_violation_is_a_warning_that_says_what_to_change():
     assert "decimate by 2" in w and "within_rule" in w
 
 
-def test_a_misfitting_model_does_not_reject_peaks_but_says_so():
+def test_a_misfitting_model_confirms_nothing_and_says_so():
     frf = mode_frf()
     model = pipeline.fit_plant_model(frf, (1.0, 79.0), 4)
-    # misses the data by 10 times the scatter, and by 3 dB
+    # misses the data by 10 times the scatter, and by 3 dB; even at the order limit it confirms nothing
     model.fit = dataclasses.replace(model.fit, weighted_cost=100.0, fit_db_rms=3.0)
-    found, rejected, warnings = pipeline.reconcile_resonances([resonance(f0=50.0)], [], model, 8, 0.5)
-    assert len(found) == 1 and rejected == []
-    assert "misses the measured response" in warnings[0]
+    found, rejected, _ = pipeline.reconcile_resonances([resonance(), resonance(f0=50.0)], [], model, 1, 0.5)
+    assert found == [] and len(rejected) == 2
+    assert all("misses the measured response as a whole" in p.reason for p in rejected)
+    assert not any(n["reported"] for n in model.mode_notes)
     assert any("not that of a linear plant" in w for w in pipeline._model_warnings(model))

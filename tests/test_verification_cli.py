@@ -11,10 +11,10 @@ CONFIG = Path(__file__).resolve().parents[1] / "configs" / "emulated-gantry.toml
 class _FakeSession:
     """Stands in for a session: returns a finished summary without a device."""
 
-    verification = {"band_reduction_db": 21.43, "peak_reduction_db": 32.51, "band_bandwidths": 2.0, "resonances": []}
-
     def __init__(self, cfg, out, *args, **kwargs):
         self.out = out
+        self.verification = {"band_reduction_db": 21.43, "peak_reduction_db": 32.51, "band_bandwidths": 2.0,
+                             "resonances": []}
 
     def run(self):
         return {"resonances": [{"frequency_hz": 21.8, "damping_ratio": 0.018}], "friction": None, "model": None,

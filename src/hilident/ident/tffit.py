@@ -955,13 +955,13 @@ _SCREEN_BINS = 200
 def _structures(max_order, order, relative_degree, integrators):
     """``(n_num, n_den_free, integrators)`` candidates; `order` counts every pole (integrators included)."""
     orders = [order] if order is not None else range(1, max_order + 1)
-    ints = [integrators] if integrators is not None else range(0, 3)
+    ints = [integrators] if integrators is not None else range(3)
     out = []
     for k in ints:
         for n in orders:
             if n < k:
                 continue
-            rds = [relative_degree] if relative_degree is not None else range(0, min(n, 3) + 1)
+            rds = [relative_degree] if relative_degree is not None else range(min(n, 3) + 1)
             out += [(n - rd, n - k, k) for rd in rds if 0 <= n - rd]
     return sorted(set(out), key=lambda c: (c[0] + 1 + c[1], c[1] + c[2], c[2], c[0]))
 
