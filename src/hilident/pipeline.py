@@ -328,7 +328,8 @@ def bode_extras(plant: PlantResult) -> dict:
         f = plant.plant.frequency_hz
         fine = np.geomspace(max(f[f > 0].min(), 1e-3), f.max(), 2000) if np.any(f > 0) else f
         fit = plant.model.fit
-        extras["model"] = (f"fitted model ({fit.n_num}/{fit.n_den + fit.integrators})", fine, fit.response(fine))
+        extras["model"] = (f"fitted model ({fit.n_num}/{fit.n_den + fit.integrators}, {plant.model.criterion})", fine,
+                           fit.response(fine))
     if plant.plant.n_averages >= 2 and np.all(np.isfinite(plant.plant.coherence)):
         unc = frf_uncertainty(plant.plant)
         extras["bounds_db"] = (unc.lower_db, unc.upper_db)

@@ -118,3 +118,20 @@ def test_mode_narrower_than_the_line_spacing_is_flagged():
     assert classify_roots(fit, resolution_hz=0.5).modes
     roots = classify_roots(fit, resolution_hz=5.0)
     assert roots.modes == [] and "line spacing" in roots.flagged_poles[0]["reason"]
+
+
+def test_identification_keys_fix_the_structure_of_the_plant_model():
+    from hilident import pipeline
+    from hilident.config import parse_config
+
+    limits = "[limits]\ntorque_nm = 10\nvelocity_mps = 1\nposition_min_m = -1\nposition_max_m = 1\n"
+    cfg = parse_config(limits + '[identification]\nmodel_order = "4"\nmodel_integrators = "1"\n'
+                       'model_relative_degree = "1"\nmodel_criterion = "validation"\n').identification
+    frf = noisy_frf(*two_mass_velocity(), F, 0.9, seed=2)
+    model = pipeline.fit_plant_model(frf, (0.5, 99.0), cfg.model_max_order, 0.0, cfg.model_order,
+                                     cfg.model_relative_degree, cfg.model_integrators, cfg.model_criterion)
+    d = model.to_dict()
+    assert (d["n_den"] + d["integrators"], d["integrators"], d["relative_degree"]) == (4, 1, 1)
+    assert d["criterion"] == "validation"
+    with pytest.raises(ConfigError, match="identification.model_order"):
+        parse_config(limits + "[identification]\nmodel_order = 3\n")  # a number must be quoted
