@@ -25,8 +25,8 @@ def mode_frf(f0=22.0, zeta=0.018, df=0.5, top=80.0):
     return FrequencyResponse(f, h, np.full(f.size, 0.99), 8, "h1")
 
 
-def resonance(f0=22.0, zeta=0.018, ci=0.01, fit_db=0.1, noise_db=0.3):
-    return Resonance(f0, zeta, -40.0, 0.99, "fit", ci, 0.001, fit_db, noise_db, 20.0)
+def resonance(f0=22.0, zeta=0.018, ci=0.01, fit_db=0.1, noise_db=0.3, ratio=0.5):
+    return Resonance(f0, zeta, -40.0, 0.99, "fit", ci, 0.001, fit_db, noise_db, 20.0, ratio)
 
 
 def notched(frf, biquad):
@@ -88,8 +88,13 @@ def test_notch_eligibility_reasons():
     wide = pipeline.notch_eligibility(resonance(ci=0.6))  # 1.2 Hz interval, 0.78 Hz bandwidth
     assert not wide["notchable"] and "95 % interval" in wide["reason"]
     assert wide["amplitude_factor"] == pytest.approx(2 * 1.2 / (2 * 0.018 * 22.0))
-    bad = pipeline.notch_eligibility(resonance(fit_db=4.0, noise_db=0.5))
-    assert not bad["notchable"] and "local fit" in bad["reason"]
+    bad = pipeline.notch_eligibility(resonance(fit_db=4.0, noise_db=0.5, ratio=5.0))
+    assert not bad["notchable"] and "local fit" in bad["reason"] and "5.0 times" in bad["reason"]
+    # a peak fitted as well as its noisy bins allow is fine however large its dB error
+    assert pipeline.notch_eligibility(resonance(fit_db=2.5, noise_db=2.0, ratio=1.2))["notchable"]
+    # without coherence the dB error alone decides
+    blind = pipeline.notch_eligibility(resonance(fit_db=4.0, ratio=float("nan")))
+    assert not blind["notchable"] and "without a coherence" in blind["reason"]
     grid = pipeline.notch_eligibility(dataclasses.replace(resonance(), method="half_power",
                                                           frequency_ci95_hz=float("nan")))
     assert not grid["notchable"] and "no local fit" in grid["reason"]

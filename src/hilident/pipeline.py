@@ -278,8 +278,9 @@ def coherence_amplitude_factor(coherence: float, target: float) -> float:
     return float(np.sqrt((t / (1.0 - t)) / (c / (1.0 - c))))
 
 
-#: A notch needs the local fit's rms error within this many times the noise the coherence implies (and 1 dB).
-NOTCH_FIT_NOISE_RATIO = 2.0
+#: A notch needs the local fit's error within this many times the scatter of each bin
+#: (:attr:`Resonance.local_fit_ratio`), or, without coherence, within NOTCH_FIT_FLOOR_DB rms.
+NOTCH_FIT_NOISE_RATIO = 3.0
 NOTCH_FIT_FLOOR_DB = 1.0
 
 
@@ -288,9 +289,9 @@ def notch_eligibility(res: Resonance) -> dict:
 
     A notch needs a resonance from a local fit whose 95 % frequency interval
     (full width ``2 frequency_ci95_hz``) is narrower than its half-power
-    bandwidth ``2 zeta f`` and whose rms fit error is within
-    :data:`NOTCH_FIT_NOISE_RATIO` times the noise the coherence implies (at
-    least :data:`NOTCH_FIT_FLOOR_DB`).
+    bandwidth ``2 zeta f`` and whose fit error is within
+    :data:`NOTCH_FIT_NOISE_RATIO` times the scatter of each bin
+    (``local_fit_ratio``; without coherence, :data:`NOTCH_FIT_FLOOR_DB` rms).
 
     Returns
     -------
@@ -312,10 +313,15 @@ def notch_eligibility(res: Resonance) -> dict:
         out["reason"] = (f"the 95 % interval of its frequency ({res.frequency_hz:.4g} +- {res.frequency_ci95_hz:.3g} Hz) "
                          f"is not narrower than its half-power bandwidth ({bandwidth:.3g} Hz): a notch could miss it")
         return out
-    limit = max(NOTCH_FIT_FLOOR_DB, NOTCH_FIT_NOISE_RATIO * np.nan_to_num(res.local_noise_db_rms, nan=0.0))
-    if not res.local_fit_db_rms <= limit:
+    if np.isfinite(res.local_fit_ratio):
+        if not res.local_fit_ratio <= NOTCH_FIT_NOISE_RATIO:
+            out["reason"] = (f"the local fit misses the measured peak by {res.local_fit_ratio:.1f} times the scatter of "
+                             f"the estimate ({res.local_fit_db_rms:.2f} dB rms; allowed {NOTCH_FIT_NOISE_RATIO:g} times): "
+                             "the peak is not one clean mode")
+            return out
+    elif not res.local_fit_db_rms <= NOTCH_FIT_FLOOR_DB:
         out["reason"] = (f"the local fit misses the measured peak by {res.local_fit_db_rms:.2f} dB rms (allowed "
-                         f"{limit:.2f} dB from the scatter of the estimate): the peak is not one clean mode")
+                         f"{NOTCH_FIT_FLOOR_DB:g} dB without a coherence to judge it by): the peak is not one clean mode")
         return out
     out["notchable"] = True
     return out
@@ -796,6 +802,7 @@ def resonance_records(resonances) -> list[dict]:
             "coherence": r.coherence, "method": r.method, "frequency_ci95_hz": r.frequency_ci95_hz,
             "damping_ci95": r.damping_ci95, "half_power_bandwidth_hz": r.bandwidth_hz,
             "local_fit_db_rms": r.local_fit_db_rms, "local_noise_db_rms": r.local_noise_db_rms,
+            "local_fit_ratio": r.local_fit_ratio,
             "notchable": ok["notchable"], **({"not_notchable": ok["reason"]} if not ok["notchable"] else {}),
         })
     return out

@@ -51,6 +51,9 @@ _NOISE_SIGMAS = 5.0
 # Two-sided 95 % quantile of the normal distribution.
 _Z95 = 1.959963984540054
 _DB = 20.0 / np.log(10.0)
+# Least scatter (dB) a bin is judged against in Resonance.local_fit_ratio: the
+# model error a single mode plus background may leave on real data.
+_MODEL_FLOOR_DB = 0.25
 
 
 @dataclass(frozen=True)
@@ -91,6 +94,11 @@ class Resonance:
     prominence_db : float
         Prominence of the peak bin (``scipy.signal.find_peaks``), dB; NaN when
         not set.
+    local_fit_ratio : float
+        rms over the bins of the local fit of ``20 log10 |model / H|`` divided
+        by each bin's own standard deviation in dB (at least 0.25 dB, for model
+        error): about 1 when the model explains the peak to within the noise
+        (NaN without a fit or coherence).
     """
 
     frequency_hz: float
@@ -103,6 +111,7 @@ class Resonance:
     local_fit_db_rms: float = float("nan")
     local_noise_db_rms: float = float("nan")
     prominence_db: float = float("nan")
+    local_fit_ratio: float = float("nan")
 
     @property
     def bandwidth_hz(self) -> float:
@@ -313,10 +322,15 @@ def _refine(f, H, coh, i, df, n_averages=1):
             with np.errstate(divide="ignore", invalid="ignore"):
                 err_db = 20.0 * np.log10(np.abs(fit.model(f[sel]) / H[sel]))
             fit_db = float(np.sqrt(np.mean(err_db**2)))
-            noise_db = (float(np.sqrt(np.mean(_noise_db(coh[sel], n_averages) ** 2)))
-                        if np.all(np.isfinite(coh[sel])) else float("nan"))
+            noise_db, ratio = float("nan"), float("nan")
+            if np.all(np.isfinite(coh[sel])):
+                sigma = _noise_db(coh[sel], n_averages)
+                noise_db = float(np.sqrt(np.mean(sigma**2)))
+                # each bin against its own scatter: the low-coherence bins of a nearby
+                # anti-resonance count little; the floor stands for model error
+                ratio = float(np.sqrt(np.mean((err_db / np.maximum(sigma, _MODEL_FLOOR_DB)) ** 2)))
             return Resonance(fn, zeta, peak_db, float(coh[i]), "fit", _Z95 * fit.frequency_std_hz,
-                             _Z95 * fit.damping_std, fit_db, noise_db)
+                             _Z95 * fit.damping_std, fit_db, noise_db, local_fit_ratio=ratio)
     peak_db = float(10.0 * np.log10(mag2[i]))
     if half_width is not None:
         return Resonance(float(fp), float(half_width / fp), peak_db, float(coh[i]), "half_power")
