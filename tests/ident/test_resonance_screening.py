@@ -57,6 +57,7 @@ def test_frequency_interval_covers_the_truth_and_shrinks_with_less_noise():
             # adjacent Welch lines are correlated: allow twice the stated interval
             misses += abs(res.frequency_hz - 20.0) > 2 * res.frequency_ci95_hz
             assert 0 < res.local_fit_db_rms < 3.0 and res.local_noise_db_rms > 0
+            assert 0 < res.local_fit_ratio < 3.0  # one mode explains the peak to within its scatter
             assert res.prominence_db >= 3.0
     assert misses <= 1
     assert np.median(widths[0.02]) < np.median(widths[0.1])
@@ -67,5 +68,15 @@ def test_noise_free_mode_has_a_tight_interval_and_fit():
     frf = analytic_frf(num, den, np.arange(1.0, 50.0, 0.25), coherence=0.999)
     (res,) = find_resonances(frf)
     assert res.frequency_ci95_hz < 1e-3 * res.bandwidth_hz
-    assert res.local_fit_db_rms < 1e-3
+    assert res.local_fit_db_rms < 1e-3 and res.local_fit_ratio < 1e-2
     assert res.bandwidth_hz == pytest.approx(2 * 0.02 * 20.0, rel=1e-3)
+
+
+def test_two_modes_in_one_peak_fit_badly():
+    # two modes 0.6 Hz apart read as one peak on 0.25 Hz lines: one pole pair cannot explain it
+    f = np.arange(1.0, 60.0, 0.25)
+    s = 2j * np.pi * f
+    h = sum(w**2 / (s**2 + 2 * 0.01 * w * s + w**2) for w in (2 * np.pi * 20.0, 2 * np.pi * 20.6))
+    frf = FrequencyResponse(f, h, np.full(f.size, 0.99), 20, "h1")
+    fits = [r for r in find_resonances(frf, max_count=4) if r.method == "fit"]
+    assert fits and max(r.local_fit_ratio for r in fits) > 3.0
