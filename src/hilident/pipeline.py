@@ -916,8 +916,8 @@ def fit_greybox(cfg: ModelConfig, torque, position, sample_rate_hz: float,
     fit = greybox.fit_regression(est)
     warnings = list(fit.warnings)
     estimation = greybox.validate_fit(fit, est)
-    warnings += residual_warnings(cfg.kind, "the estimation data", estimation)
     checked = {}
+    warnings += residual_warnings(cfg.kind, "the estimation data", estimation)
     for name, (tq, pos) in records.items():
         try:
             checked[name] = greybox.validate_fit(fit, _greybox_regression(cfg, tq, pos, sample_rate_hz))
