@@ -948,6 +948,8 @@ def select_order(
 # --- structure selection ------------------------------------------------------
 
 _STRUCTURE_CRITERIA = ("mdl", "aic", "validation")
+#: Least damping ratio of a pole counted off the imaginary axis (classify_roots' default).
+_AXIS_TOL = 1e-6
 #: Most lines the screening fits of :func:`select_structure` use.
 _SCREEN_BINS = 200
 
@@ -999,8 +1001,9 @@ def select_structure(
     band), no part of the band decides alone. A structure with a pole or
     zero more than a decade above the band (in the band a constant) or, with
     free integrators, below it (in the band an integrator or its inverse),
-    or with a complex pole or zero pair outside the band (a mode the data do
-    not show) ranks after those without.
+    with a complex pole or zero pair outside the band (a mode the data do
+    not show), or with a pole on the imaginary axis ranks after those
+    without.
 
     Parameters
     ----------
@@ -1106,7 +1109,9 @@ def select_structure(
         # a complex pair outside the band is a resonance or anti-resonance the data do not show
         pair = np.abs(roots.imag) > _REAL_TOL * np.abs(roots)
         outside = (np.abs(roots) < _TWO_PI * lo) | (np.abs(roots) > _TWO_PI * hi)
-        return bool(below or np.any(np.abs(roots) > _TWO_PI * hi * 10.0) or np.any(pair & outside))
+        # a pole on the imaginary axis (a fit that ran off to an undamped mode)
+        undamped = np.any(-poles.real <= _AXIS_TOL * np.abs(poles))
+        return bool(below or undamped or np.any(np.abs(roots) > _TWO_PI * hi * 10.0) or np.any(pair & outside))
 
     def rank(rows):
         ok = [r for r in rows if r.fit is not None]
@@ -1207,7 +1212,7 @@ _RHP_EXPLANATION = (
 def classify_roots(
     fit: TfFit,
     band_hz: tuple[float, float] | None = None,
-    axis_tol: float = 1e-6,
+    axis_tol: float = _AXIS_TOL,
     outside_factor: float = 10.0,
     resolution_hz: float | None = None,
 ) -> RootReport:
