@@ -187,8 +187,11 @@ def test_a_misfitting_model_confirms_nothing_and_says_so():
     model = pipeline.fit_plant_model(frf, (1.0, 79.0), 4)
     # misses the data by 10 times the scatter, and by 3 dB; even at the order limit it confirms nothing
     model.fit = dataclasses.replace(model.fit, weighted_cost=100.0, fit_db_rms=3.0)
-    found, rejected, _ = pipeline.reconcile_resonances([resonance(), resonance(f0=50.0)], [], model, 1, 0.5)
-    assert found == [] and len(rejected) == 2
-    assert all("misses the measured response as a whole" in p.reason for p in rejected)
+    clean, vague = resonance(f0=50.0), resonance(ci=0.6)  # the second's frequency interval is too wide
+    found, rejected, warnings = pipeline.reconcile_resonances([clean, vague], [], model, 1, 0.5)
+    assert found == [clean] and "local fit alone" in warnings[0]  # stands on its own evidence
+    (rej,) = rejected
+    assert rej.frequency_hz == 22.0 and "misses the measured response as a whole" in rej.reason
+    assert "95 % interval" in rej.reason
     assert not any(n["reported"] for n in model.mode_notes)
     assert any("not that of a linear plant" in w for w in pipeline._model_warnings(model))

@@ -199,11 +199,12 @@ def reconcile_resonances(found: list[Resonance], rejected: list[RejectedPeak], m
 
     A peak is confirmed by a mode of the model (``model.roots.modes``) within
     its half-power bandwidth, its 95 % frequency interval or two lines,
-    whichever is widest. An unconfirmed peak is rejected with the reason
-    (also when the model misses the data as a whole: weighted cost over
-    ``_MISFIT_RATIO`` and more than ``_MISFIT_DB`` rms), unless the model
-    used every pole ``max_order`` allows (it may then lack the poles for this
-    mode): a warning says so and the peak stays. Each model mode is noted
+    whichever is widest. An unconfirmed peak is rejected with the reason,
+    unless the model used every pole ``max_order`` allows (it may then lack
+    the poles for this mode): a warning says so and the peak stays. When the
+    model misses the data as a whole (weighted cost over ``_MISFIT_RATIO``
+    and more than ``_MISFIT_DB`` rms) it confirms nothing: a peak stays only
+    on local evidence good enough for a notch (:func:`notch_eligibility`). Each model mode is noted
     in ``model.mode_notes`` as reported or not, with the reason.
 
     Parameters
@@ -233,9 +234,16 @@ def reconcile_resonances(found: list[Resonance], rejected: list[RejectedPeak], m
                     r.frequency_ci95_hz if np.isfinite(r.frequency_ci95_hz) else 0.0, 2.0 * resolution_hz)
         near = [j for j, (fm, _) in enumerate(modes) if abs(fm - r.frequency_hz) <= reach]
         if misfit:
-            rejected.append(RejectedPeak(r.frequency_hz, r.peak_magnitude_db, r.coherence,
-                                         "not confirmed: the fitted model misses the measured response as a whole "
-                                         f"({model.fit.fit_db_rms:.1f} dB rms), so nothing confirms this peak is a mode"))
+            # the model cannot confirm anything; a peak stands on its own local evidence only
+            ok = notch_eligibility(r)
+            if ok["notchable"]:
+                kept.append(r)
+                warnings.append(f"the resonance at {r.frequency_hz:.4g} Hz rests on its local fit alone: the fitted "
+                                "model misses the measured response as a whole")
+            else:
+                rejected.append(RejectedPeak(r.frequency_hz, r.peak_magnitude_db, r.coherence,
+                                             "not confirmed: the fitted model misses the measured response as a whole "
+                                             f"({model.fit.fit_db_rms:.1f} dB rms) and {ok['reason']}"))
         elif near:
             j = min(near, key=lambda j: abs(modes[j][0] - r.frequency_hz))
             matched[j] = r.frequency_hz
