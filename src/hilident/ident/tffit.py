@@ -365,7 +365,7 @@ class TfOrderCandidate:
         return self.n_num + 1 + self.n_den
 
 
-# --- helpers ------------------------------------------------------------------
+# --- internals ----------------------------------------------------------------
 
 
 def _zpk_response(frequency_hz, gain, zeros, poles, reference_hz, delay_s) -> np.ndarray:
