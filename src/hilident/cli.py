@@ -41,9 +41,11 @@ def _run(args) -> int:
         p = summary["friction"]["params"]
         print(f"friction: Fc {p['Fc']:.3g} N*m, Fs {p['Fs']:.3g} N*m, Fv {p['Fv']:.3g}")
     _print_model(summary.get("model"))
-    red = summary["verification"]["peak_reduction_db"]
-    if red is not None:
-        print(f"verification: resonance peak reduced by {red:.1f} dB")
+    ver = summary["verification"]
+    if ver["peak_reduction_db"] is not None:
+        band = ver.get("band_reduction_db")
+        head = "" if band is None else f"largest response near the resonance reduced by {band:.1f} dB, "
+        print(f"verification: {head}{ver['peak_reduction_db']:.1f} dB at the resonance line")
     if summary["upload"].get("saved"):
         print("saved: the device stored its parameters in non-volatile memory")
     s = summary["stream"]

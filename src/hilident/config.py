@@ -166,6 +166,18 @@ class IdentificationConfig:
     min_prominence_db: float = _spec(6.0, ge=0)
     model_max_order: int = _spec(4, ge=0, le=12, doc="highest denominator order of the transfer function fitted "
                                  "to the plant response (modal form in summary.json); 0: no fit")
+    model_order: str = _spec("auto", choices=("auto",) + tuple(str(n) for n in range(1, 13)),
+                             doc='denominator degree of the fitted transfer function, integrators included, as a '
+                                 'string ("3"); auto: chosen by model_criterion up to model_max_order')
+    model_relative_degree: str = _spec("auto", choices=("auto",) + tuple(str(n) for n in range(0, 7)),
+                                       doc='denominator minus numerator degree, as a string ("1"); auto: chosen by '
+                                           "model_criterion (0 to 3)")
+    model_integrators: str = _spec("auto", choices=("auto", "0", "1", "2"),
+                                   doc='poles at s = 0 (rigid-body modes), as a string ("1"); auto: chosen by '
+                                       "model_criterion")
+    model_criterion: str = _spec("mdl", choices=("mdl", "aic", "validation"),
+                                 doc="what picks the structure: mdl (minimum description length on the coherence-"
+                                     "weighted complex error), aic, or validation (error on held-out frequency lines)")
 
 
 @dataclass(frozen=True)
@@ -175,7 +187,12 @@ class NotchConfig:
     width_factor: float = _spec(1.0, gt=0, doc="notch width relative to the resonance's half-power bandwidth")
     min_width_ratio: float = _spec(0.15, ge=0, lt=1, doc="smallest notch width as a fraction of its centre frequency")
     verify: bool = _spec(True, doc="run the excitation again with the notches enabled")
-    min_reduction_db: float = _spec(20.0, ge=0, doc="warn when the verification shows less reduction")
+    min_reduction_db: float = _spec(20.0, ge=0, doc="warn when the verification shows less reduction (band figure); "
+                                    "the notch width is chosen to reach it where the plant allows")
+    verify_band_bandwidths: float = _spec(2.0, gt=0, le=50, doc="verification band figure: largest response within "
+                                          "this many half-power bandwidths either side of the mode, before vs after")
+    max_width_ratio: float = _spec(1.0, gt=0, lt=2, doc="widest notch the width search may choose, as a fraction "
+                                   "of its centre frequency")
 
 
 @dataclass(frozen=True)

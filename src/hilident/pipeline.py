@@ -22,9 +22,8 @@ from hilident.ident.discretize import sampling_advice
 from hilident.ident.frequency import FrequencyResponse, frf_from_reference, h1_estimate, periodic_frf
 from hilident.ident.frfquality import check_resolution, frf_uncertainty, input_spectrum
 from hilident.ident.preprocess import check_signals, detrend, lowpass
-from hilident.ident.resonance import Resonance, find_resonances
-from hilident.ident.tffit import ModalModel, TfFit, modal_form
-from hilident.ident.tffit import select_order as select_tf_order
+from hilident.ident.resonance import RejectedPeak, Resonance, screen_resonances
+from hilident.ident.tffit import ModalModel, RootReport, TfFit, classify_roots, modal_form, select_structure
 
 
 @dataclass
@@ -80,6 +79,7 @@ class PlantResult:
     warnings: list[str] = field(default_factory=list)
     model: "PlantModel | None" = None
     quality: dict = field(default_factory=dict)
+    rejected: list[RejectedPeak] = field(default_factory=list)
 
 
 @dataclass
@@ -90,75 +90,249 @@ class PlantModel:
     ----------
     fit : TfFit
     modal : ModalModel
-        The same transfer function as resonances and anti-resonances.
+        The same transfer function as resonances and anti-resonances (every
+        root, supported or not).
     candidates : list of dict
-        Orders tried: ``n_num``, ``n_den``, ``weighted_cost``, ``selected``.
+        Structures tried: ``n_num``, ``n_den``, ``integrators``,
+        ``weighted_cost``, ``mdl``, ``aic``, ``selected``.
+    roots : RootReport
+        The roots the data support (modes) and those they do not (flagged
+        poles, right-half-plane zeros).
+    criterion : str
+        What chose the structure.
+    mode_notes : list of dict
+        One per supported mode: ``frequency_hz``, ``damping_ratio``,
+        ``reported`` (a top-level resonance confirms it) and, when not,
+        ``reason``. Set by :func:`identify_plant`.
     """
 
     fit: TfFit
     modal: ModalModel
     candidates: list
+    roots: RootReport | None = None
+    criterion: str = "mdl"
+    mode_notes: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
         f, m = self.fit, self.modal
-        return {
-            "n_num": f.n_num, "n_den": f.n_den, "integrators": f.integrators, "band_hz": list(f.band_hz),
-            "fit_db_rms": f.fit_db_rms, "phase_rms_deg": f.phase_rms_deg, "weighted_cost": f.weighted_cost,
-            "stable": f.stable, "gain": m.gain,
-            "resonances": [{"frequency_hz": hz, "damping_ratio": z} for hz, z in m.resonances],
-            "antiresonances": [{"frequency_hz": hz, "damping_ratio": z} for hz, z in m.antiresonances],
-            "real_poles_hz": list(m.real_poles_hz), "real_zeros_hz": list(m.real_zeros_hz),
+        roots = self.roots or classify_roots(f)
+        out = {
+            "n_num": f.n_num, "n_den": f.n_den, "integrators": f.integrators,
+            "relative_degree": f.n_den + f.integrators - f.n_num, "criterion": self.criterion,
+            "band_hz": list(f.band_hz), "fit_db_rms": f.fit_db_rms, "phase_rms_deg": f.phase_rms_deg,
+            "weighted_cost": f.weighted_cost, "gain": m.gain,
+            **roots.to_dict(),
             "poles_rad_s": [[p.real, p.imag] for p in f.poles], "zeros_rad_s": [[z.real, z.imag] for z in f.zeros],
             "num": list(f.num), "den": list(f.den), "candidates": self.candidates,
         }
+        if self.mode_notes:
+            out["resonances"] = self.mode_notes
+        return out
 
 
-def _slope_db_per_decade(frf: FrequencyResponse, lo: float, hi: float) -> float:
-    keep = (frf.frequency_hz >= lo) & (frf.frequency_hz <= hi) & np.isfinite(frf.response) & (frf.response != 0)
-    if keep.sum() < 3:
-        return float("nan")
-    x = np.log10(frf.frequency_hz[keep])
-    return float(np.polyfit(x, 20 * np.log10(np.abs(frf.response[keep])), 1)[0])
+def _auto(value) -> int | None:
+    """``"auto"`` (or None) -> None, else the integer a string config key holds."""
+    return None if value in (None, "auto") else int(value)
 
 
 def fit_plant_model(frf: FrequencyResponse, band_hz: tuple[float, float], max_order: int,
-                    coherence_threshold: float = 0.0) -> PlantModel:
+                    coherence_threshold: float = 0.0, order=None, relative_degree=None, integrators=None,
+                    criterion: str = "mdl") -> PlantModel:
     """Transfer function and modal form of a measured plant response.
 
-    The integrators (rigid-body modes: a velocity response of a free axis has
-    one) are read from the slope over the lowest fifth of the band on a log
-    axis, the relative degree from the slope over the highest fifth; then
-    :func:`~hilident.ident.tffit.select_order` picks the smallest adequate
-    order up to ``max_order``, weighting each bin by its coherence.
+    Numerator and denominator degrees, integrators (rigid-body modes) and
+    relative degree are chosen by
+    :func:`~hilident.ident.tffit.select_structure` with a criterion that
+    penalises order (MDL on the coherence-weighted complex error by
+    default), each bin weighted by its coherence; any of them can be fixed.
+    The roots are then sorted by :func:`~hilident.ident.tffit.classify_roots`
+    into modes the data support and flagged poles / right-half-plane zeros.
+
+    Parameters
+    ----------
+    frf : FrequencyResponse
+    band_hz : (float, float)
+        Band fitted, Hz.
+    max_order : int
+        Highest denominator degree tried (integrators included).
+    coherence_threshold : float
+        Bins under it are left out.
+    order, relative_degree, integrators : int or "auto", optional
+        Fixed structure (``[identification] model_order``,
+        ``model_relative_degree``, ``model_integrators``).
+    criterion : {"mdl", "aic", "validation"}
 
     Raises
     ------
     DataError
-        No stable fit, or too few coherent bins.
+        No fit, or too few coherent bins.
     """
     f_lo, f_hi = band_hz
     frf = frf.band(f_lo, f_hi)
     keep = frf.coherence >= coherence_threshold if np.all(np.isfinite(frf.coherence)) else np.ones(len(frf), bool)
     if keep.sum() < 8:
         raise DataError(f"only {int(keep.sum())} bins with coherence >= {coherence_threshold:g} to fit a model to")
+    resolution = float(np.median(np.diff(frf.frequency_hz))) if len(frf) > 1 else None
     frf = FrequencyResponse(frf.frequency_hz[keep], frf.response[keep], frf.coherence[keep], frf.n_averages,
                             frf.method)
-    decade = np.log10(f_hi / f_lo)
-    low = _slope_db_per_decade(frf, f_lo, f_lo * 10 ** (decade / 5))
-    high = _slope_db_per_decade(frf, f_hi / 10 ** (decade / 5), f_hi)
-    integrators = int(np.clip(np.round(-low / 20.0), 0, 2)) if np.isfinite(low) else 0
-    relative = int(np.clip(np.round(-high / 20.0), 0, 4)) if np.isfinite(high) else integrators
-    relative_free = max(relative - integrators, 0)
     weights = "coherence" if np.all(np.isfinite(frf.coherence)) and frf.n_averages > 1 else None
     if weights == "coherence":
         # a bin with coherence 1 (noise-free) would get infinite weight
         frf = FrequencyResponse(frf.frequency_hz, frf.response, np.minimum(frf.coherence, 0.9999), frf.n_averages,
                                 frf.method)
-    fit, table = select_tf_order(frf, max_order=max(max_order, relative_free, 1), relative_degree=relative_free,
-                                 integrators=integrators, weights=weights)
-    candidates = [{"n_num": r.n_num, "n_den": r.n_den, "selected": r.selected,
-                   "weighted_cost": None if r.fit is None else r.fit.weighted_cost} for r in table]
-    return PlantModel(fit=fit, modal=modal_form(fit), candidates=candidates)
+    order, relative_degree, integrators = _auto(order), _auto(relative_degree), _auto(integrators)
+    top = max(max_order, order or 1, 1)
+    fit, table = select_structure(frf, max_order=top, order=order, relative_degree=relative_degree,
+                                  integrators=integrators, criterion=criterion, weights=weights)
+    candidates = [{"n_num": r.n_num, "n_den": r.n_den, "integrators": r.integrators, "selected": r.selected,
+                   "weighted_cost": None if r.fit is None else r.fit.weighted_cost,
+                   "mdl": None if r.fit is None else r.bic, "aic": None if r.fit is None else r.aic}
+                  for r in table]
+    roots = classify_roots(fit, band_hz=(float(frf.frequency_hz.min()), float(frf.frequency_hz.max())),
+                           resolution_hz=resolution)
+    return PlantModel(fit=fit, modal=modal_form(fit), candidates=candidates, roots=roots, criterion=criterion)
+
+
+def reconcile_resonances(found: list[Resonance], rejected: list[RejectedPeak], model: PlantModel | None,
+                         max_order: int, resolution_hz: float) -> tuple[list[Resonance], list[RejectedPeak], list[str]]:
+    """One list of resonances: measured peaks that the fitted model confirms.
+
+    A peak is confirmed by a mode of the model (``model.roots.modes``) within
+    its half-power bandwidth, its 95 % frequency interval or two lines,
+    whichever is widest. An unconfirmed peak is rejected with the reason,
+    unless the model used every pole ``max_order`` allows (it may then lack
+    the poles for this mode): a warning says so and the peak stays. When the
+    model misses the data as a whole (weighted cost over ``_MISFIT_RATIO``
+    and more than ``_MISFIT_DB`` rms) it confirms nothing: a peak stays only
+    on local evidence good enough for a notch (:func:`notch_eligibility`). Each model mode is noted
+    in ``model.mode_notes`` as reported or not, with the reason.
+
+    Parameters
+    ----------
+    found, rejected : as :func:`~hilident.ident.resonance.screen_resonances` returns them
+    model : PlantModel or None
+        Without a model every screened peak is reported.
+    max_order : int
+        ``[identification] model_max_order``.
+    resolution_hz : float
+        Line spacing of the response, Hz.
+
+    Returns
+    -------
+    (list of Resonance, list of RejectedPeak, list of str)
+        Reported resonances, rejected peaks (both by frequency) and warnings.
+    """
+    if model is None or model.roots is None:
+        return list(found), list(rejected), []
+    modes = list(model.roots.modes)
+    at_limit = model.fit.n_den + model.fit.integrators >= max_order
+    misfit = _misfits(model.fit)
+    kept, rejected, warnings = [], list(rejected), []
+    matched: dict[int, float] = {}
+    for r in found:
+        reach = max(r.bandwidth_hz if np.isfinite(r.bandwidth_hz) else 0.0,
+                    r.frequency_ci95_hz if np.isfinite(r.frequency_ci95_hz) else 0.0, 2.0 * resolution_hz)
+        near = [j for j, (fm, _) in enumerate(modes) if abs(fm - r.frequency_hz) <= reach]
+        if misfit:
+            # the model cannot confirm anything; a peak stands on its own local evidence only
+            ok = notch_eligibility(r)
+            if ok["notchable"]:
+                kept.append(r)
+                warnings.append(f"the resonance at {r.frequency_hz:.4g} Hz rests on its local fit alone: the fitted "
+                                "model misses the measured response as a whole")
+            else:
+                rejected.append(RejectedPeak(r.frequency_hz, r.peak_magnitude_db, r.coherence,
+                                             "not confirmed: the fitted model misses the measured response as a whole "
+                                             f"({model.fit.fit_db_rms:.1f} dB rms) and {ok['reason']}"))
+        elif near:
+            j = min(near, key=lambda j: abs(modes[j][0] - r.frequency_hz))
+            matched[j] = r.frequency_hz
+            kept.append(r)
+        elif at_limit:
+            kept.append(r)
+            warnings.append(
+                f"the resonance at {r.frequency_hz:.4g} Hz has no mode in the fitted model, which uses all "
+                f"identification.model_max_order = {max_order} poles: raise it to let the model hold this mode")
+        else:
+            rejected.append(RejectedPeak(r.frequency_hz, r.peak_magnitude_db, r.coherence,
+                                         f"not confirmed by the fitted model (no pole pair within {reach:.3g} Hz; "
+                                         f"the model's structure {model.fit.n_num}/{model.fit.n_den + model.fit.integrators} "
+                                         f"was chosen by {model.criterion})"))
+    notes = []
+    for j, (fm, zm) in enumerate(modes):
+        if j in matched:
+            notes.append({"frequency_hz": fm, "damping_ratio": zm, "reported": True, "resonance_hz": matched[j]})
+            continue
+        peak = min(rejected, key=lambda p: abs(p.frequency_hz - fm), default=None)
+        if peak is not None and abs(peak.frequency_hz - fm) <= max(2.0 * zm * fm, 2.0 * resolution_hz):
+            why = f"its peak in the measured response was rejected: {peak.reason}"
+        else:
+            why = "no peak of the measured response stands out of the scatter there"
+        notes.append({"frequency_hz": fm, "damping_ratio": zm, "reported": False, "reason": why})
+    model.mode_notes = notes
+    return kept, sorted(rejected, key=lambda p: p.frequency_hz), warnings
+
+
+def coherence_amplitude_factor(coherence: float, target: float) -> float:
+    """Factor on the excitation amplitude that lifts `coherence` to `target` when the noise stays as measured.
+
+    Coherence is ``SNR / (1 + SNR)`` with the power ratio ``SNR`` growing as
+    the amplitude squared, so the factor is
+    ``sqrt((t / (1 - t)) / (c / (1 - c)))``. NaN for a coherence of 0 or 1.
+    """
+    c, t = float(coherence), min(float(target), 0.999)
+    if not (0.0 < c < 1.0):
+        return float("nan")
+    return float(np.sqrt((t / (1.0 - t)) / (c / (1.0 - c))))
+
+
+#: A notch needs the local fit's error within this many times the scatter of each bin
+#: (:attr:`Resonance.local_fit_ratio`), or, without coherence, within NOTCH_FIT_FLOOR_DB rms.
+NOTCH_FIT_NOISE_RATIO = 3.0
+NOTCH_FIT_FLOOR_DB = 1.0
+
+
+def notch_eligibility(res: Resonance) -> dict:
+    """Whether a resonance may be notched, and why not.
+
+    A notch needs a resonance from a local fit whose 95 % frequency interval
+    (full width ``2 frequency_ci95_hz``) is narrower than its half-power
+    bandwidth ``2 zeta f`` and whose fit error is within
+    :data:`NOTCH_FIT_NOISE_RATIO` times the scatter of each bin
+    (``local_fit_ratio``; without coherence, :data:`NOTCH_FIT_FLOOR_DB` rms).
+
+    Returns
+    -------
+    dict
+        ``frequency_hz``, ``notchable`` (bool), ``reason`` ("" when
+        notchable) and ``amplitude_factor``: by how much the excitation
+        amplitude would have to grow for the interval to be half the bandwidth
+        (the interval shrinks as ``1 / (amplitude sqrt(averages))`` while the
+        noise dominates; 1.0 when nothing needs to change, NaN when unknown).
+    """
+    out = {"frequency_hz": res.frequency_hz, "notchable": False, "reason": "", "amplitude_factor": float("nan")}
+    if res.method != "fit" or not np.isfinite(res.frequency_ci95_hz):
+        out["reason"] = (f"no local fit of the peak at {res.frequency_hz:.4g} Hz (method {res.method!r}): its frequency "
+                         "and damping are read off the frequency grid")
+        return out
+    interval, bandwidth = 2.0 * res.frequency_ci95_hz, res.bandwidth_hz
+    out["amplitude_factor"] = float(max(1.0, 2.0 * interval / bandwidth))
+    if not interval < bandwidth:
+        out["reason"] = (f"the 95 % interval of its frequency ({res.frequency_hz:.4g} +- {res.frequency_ci95_hz:.3g} Hz) "
+                         f"is not narrower than its half-power bandwidth ({bandwidth:.3g} Hz): a notch could miss it")
+        return out
+    if np.isfinite(res.local_fit_ratio):
+        if not res.local_fit_ratio <= NOTCH_FIT_NOISE_RATIO:
+            out["reason"] = (f"the local fit misses the measured peak by {res.local_fit_ratio:.1f} times the scatter of "
+                             f"the estimate ({res.local_fit_db_rms:.2f} dB rms; allowed {NOTCH_FIT_NOISE_RATIO:g} times): "
+                             "the peak is not one clean mode")
+            return out
+    elif not res.local_fit_db_rms <= NOTCH_FIT_FLOOR_DB:
+        out["reason"] = (f"the local fit misses the measured peak by {res.local_fit_db_rms:.2f} dB rms (allowed "
+                         f"{NOTCH_FIT_FLOOR_DB:g} dB without a coherence to judge it by): the peak is not one clean mode")
+        return out
+    out["notchable"] = True
+    return out
 
 
 def bode_extras(plant: PlantResult) -> dict:
@@ -168,7 +342,8 @@ def bode_extras(plant: PlantResult) -> dict:
         f = plant.plant.frequency_hz
         fine = np.geomspace(max(f[f > 0].min(), 1e-3), f.max(), 2000) if np.any(f > 0) else f
         fit = plant.model.fit
-        extras["model"] = (f"fitted model ({fit.n_num}/{fit.n_den + fit.integrators})", fine, fit.response(fine))
+        extras["model"] = (f"fitted model ({fit.n_num}/{fit.n_den + fit.integrators}, {plant.model.criterion})", fine,
+                           fit.response(fine))
     if plant.plant.n_averages >= 2 and np.all(np.isfinite(plant.plant.coherence)):
         unc = frf_uncertainty(plant.plant)
         extras["bounds_db"] = (unc.lower_db, unc.upper_db)
@@ -221,10 +396,30 @@ def measurement_quality(plant: FrequencyResponse, resonances: list[Resonance], e
                        "within_rule": bool(a["sample_rate_min_hz"] <= sample_rate_hz <= a["sample_rate_max_hz"])})
     out["sampling"] = {"sample_rate_hz": sample_rate_hz, "rule": "omega0 * h = 0.2 .. 0.6 (for discrete-time models)",
                        "resonances": advice}
+    warnings += _sampling_warnings(advice, sample_rate_hz)
     if band_hz[1] > 0.4 * sample_rate_hz:
         warnings.append(f"the band reaches {band_hz[1]:g} Hz, above 40 % of the {sample_rate_hz:g} Hz sample rate: "
                         "anti-aliasing and hold effects distort the top of the band")
     return out, warnings
+
+
+def _sampling_warnings(advice: list[dict], sample_rate_hz: float) -> list[str]:
+    """What to change when the sample rate breaks the ``omega0 h = 0.2 .. 0.6`` rule for a resonance."""
+    out = []
+    for a in advice:
+        if a["within_rule"]:
+            continue
+        f0, lo, hi = a["frequency_hz"], a["sample_rate_min_hz"], a["sample_rate_max_hz"]
+        if sample_rate_hz > hi:
+            factor = int(np.ceil(sample_rate_hz / hi))
+            change = (f"decimate by {factor} (to {sample_rate_hz / factor:.4g} Hz) before fitting a discrete-time "
+                      "model (ARX, discretised grey-box)")
+        else:
+            change = f"sample at {lo:.4g} Hz or faster (run.sample_rate_hz)"
+        out.append(f"sampling: {sample_rate_hz:g} Hz is outside {lo:.4g}-{hi:.4g} Hz, the omega0 * h = 0.2 .. 0.6 "
+                   f"rule for the {f0:.4g} Hz resonance (sampling.within_rule: false): {change}; the frequency "
+                   "response and the notch do not depend on it")
+    return out
 
 
 def identify_plant(
@@ -282,26 +477,108 @@ def identify_plant(
     else:
         plant = frf_from_reference(r, u, y, sample_rate_hz, seg)
         loop = h1_estimate(r, y, sample_rate_hz, seg)
-    resonances = find_resonances(
-        plant, coherence_threshold=cfg.coherence_threshold, min_prominence_db=cfg.min_prominence_db,
-        max_count=cfg.max_resonances, band_hz=band_hz,
-    )
-    if not resonances:
-        warnings.append(
-            f"no resonance with coherence >= {cfg.coherence_threshold:g} and prominence >= "
-            f"{cfg.min_prominence_db:g} dB between {band_hz[0]:g} and {band_hz[1]:g} Hz"
-        )
-    model = None
-    if cfg.model_max_order:
-        try:
-            model = fit_plant_model(plant, band_hz, cfg.model_max_order, cfg.coherence_threshold)
-        except (DataError, ConfigError) as exc:
-            warnings.append(f"transfer-function fit: {exc}")
-    antires = [hz for hz, _ in model.modal.antiresonances] if model else []
+    resonances, rejected, more = _resonances_and_model(plant, cfg, band_hz)
+    warnings += more
+    model = more.model
+    antires = [hz for hz, _ in model.roots.antiresonances] if model else []
     quality, more = measurement_quality(plant, resonances, r, sample_rate_hz, band_hz,
                                         period_samples if seg is None else None, antires)
     return PlantResult(plant=plant, loop=loop, resonances=resonances, warnings=warnings + more, model=model,
-                       quality=quality)
+                       quality=quality, rejected=rejected)
+
+
+class _Notes(list):
+    """Warnings, and the model fitted on the way."""
+
+    model: PlantModel | None = None
+
+
+def _resonances_and_model(plant: FrequencyResponse, cfg: IdentificationConfig, band_hz):
+    """Screened peaks, the fitted model, and the one list of resonances both support."""
+    notes = _Notes()
+    # every candidate first: the count limit applies to the peaks the model confirms
+    found, rejected = screen_resonances(
+        plant, coherence_threshold=cfg.coherence_threshold, min_prominence_db=cfg.min_prominence_db,
+        max_count=_MAX_CANDIDATES, band_hz=band_hz,
+    )
+    if cfg.model_max_order:
+        try:
+            notes.model = fit_plant_model(plant, band_hz, cfg.model_max_order, cfg.coherence_threshold,
+                                          cfg.model_order, cfg.model_relative_degree, cfg.model_integrators,
+                                          cfg.model_criterion)
+        except (DataError, ConfigError) as exc:
+            notes.append(f"transfer-function fit: {exc}")
+    if notes.model is not None:
+        notes += _model_warnings(notes.model)
+    resolution = float(np.median(np.diff(plant.frequency_hz))) if len(plant) > 1 else 0.0
+    found, rejected, more = reconcile_resonances(found, rejected, notes.model, cfg.model_max_order, resolution)
+    confirmed = found
+    found, rejected = _most_prominent(found, rejected, cfg.max_resonances)
+    dropped = [f"at {r.frequency_hz:.4g} Hz" for r in confirmed if r not in found]
+    notes += [w for w in more if not any(d in w for d in dropped)]
+    if notes.model is not None and notes.model.mode_notes:
+        kept = {r.frequency_hz for r in found}
+        for note in notes.model.mode_notes:
+            if note["reported"] and note["resonance_hz"] not in kept:
+                note.update(reported=False, reason="beyond identification.max_resonances = "
+                            f"{cfg.max_resonances} (the most prominent are reported)")
+                del note["resonance_hz"]
+    if not found:
+        notes.append(
+            f"no resonance with coherence >= {cfg.coherence_threshold:g} and prominence >= "
+            f"{cfg.min_prominence_db:g} dB between {band_hz[0]:g} and {band_hz[1]:g} Hz"
+            + (f" ({len(rejected)} peak(s) rejected, see rejected_peaks)" if rejected else "")
+        )
+    return found, rejected, notes
+
+
+#: Peaks refined before the model and the count limit decide (``max_resonances`` may be at most 16).
+_MAX_CANDIDATES = 16
+
+
+def _most_prominent(found: list[Resonance], rejected: list[RejectedPeak], max_count: int):
+    """The `max_count` most prominent resonances; the others join the rejected peaks with the reason."""
+    ranked = sorted(found, key=lambda r: -np.nan_to_num(r.prominence_db, nan=-np.inf))
+    kept, dropped = ranked[:max_count], ranked[max_count:]
+    rejected = rejected + [RejectedPeak(r.frequency_hz, r.peak_magnitude_db, r.coherence,
+                                        f"beyond identification.max_resonances = {max_count} (prominence "
+                                        f"{r.prominence_db:.1f} dB; the most prominent are reported)")
+                           for r in dropped]
+    return sorted(kept, key=lambda r: r.frequency_hz), sorted(rejected, key=lambda r: r.frequency_hz)
+
+
+def _model_warnings(model: PlantModel) -> list[str]:
+    roots = model.roots
+    out = []
+    if roots.flagged_poles:
+        out.append("transfer-function fit: " + "; ".join(
+            f"pole at {p['frequency_hz']:.4g} Hz not reported as a mode ({p['reason']})" for p in roots.flagged_poles))
+    if roots.rhp_zeros:
+        out.append("transfer-function fit: right-half-plane zero(s) at "
+                   + ", ".join(f"{z['frequency_hz']:.4g} Hz" + (f" (the phase of a {1e3 * z['equivalent_delay_s']:.3g} ms "
+                                                                  "delay)" if "equivalent_delay_s" in z else "")
+                               for z in roots.rhp_zeros)
+                   + " (non-minimum phase, usually a delay or a non-collocated sensor; not anti-resonances)")
+    if not roots.stable:
+        out.append(f"transfer-function fit: the model is not stable ({roots.stability})")
+    fit = model.fit
+    if _misfits(fit):
+        out.append(f"transfer-function fit: the best structure misses the measured response by {fit.fit_db_rms:.1f} dB "
+                   f"rms, {np.sqrt(fit.weighted_cost):.1f} times the scatter the coherence implies: the response is not "
+                   "that of a linear plant at this amplitude (friction sticking, backlash) or the excitation is too "
+                   "weak for its coherence to mean much (raise the excitation amplitude)")
+    return out
+
+
+#: Weighted cost (about 1 when the model explains the data to within the noise) above which a fit is called a
+#: misfit, when it also misses by more than _MISFIT_DB rms (a fit within a dB is useful however small the noise).
+_MISFIT_RATIO = 10.0
+_MISFIT_DB = 1.0
+
+
+def _misfits(fit: TfFit) -> bool:
+    """The coherence-weighted fit misses the data by far more than their scatter, and by more than a dB."""
+    return fit.weighting == "coherence" and fit.weighted_cost > _MISFIT_RATIO and fit.fit_db_rms > _MISFIT_DB
 
 
 def _condition(x: np.ndarray, cfg: IdentificationConfig, sample_rate_hz: float) -> np.ndarray:
@@ -346,52 +623,131 @@ def loop_response(
 
 @dataclass
 class NotchDesign:
-    """One notch, designed for one resonance and assigned to a filter slot."""
+    """One notch, designed for one resonance and assigned to a filter slot.
+
+    Attributes
+    ----------
+    predicted_band_reduction_db : float
+        Band figure (see :func:`peak_reductions`) the notch gives on the
+        resonance's local model, worst case over its 95 % frequency interval.
+    warning : str
+        Set when the width search could not reach the target.
+    """
 
     spec: NotchSpec
     biquad: Biquad
     slot: int
     sample_rate_hz: float
     resonance: Resonance
+    predicted_band_reduction_db: float = float("nan")
+    warning: str = ""
 
 
-def design_notches(resonances, cfg: NotchConfig, filter_rate_hz: float, slots: list[int]) -> list[NotchDesign]:
+def band_of(frequency_hz: float, damping_ratio: float, bandwidths: float) -> tuple[float, float]:
+    """``f -+ bandwidths * 2 zeta f``, the band of the verification's band figure, Hz (at least +-1 % of f)."""
+    half = bandwidths * 2.0 * damping_ratio * frequency_hz if np.isfinite(damping_ratio) else 0.0
+    half = max(half, 0.01 * frequency_hz)
+    return max(frequency_hz - half, 0.0), frequency_hz + half
+
+
+def predicted_band_reduction_db(res: Resonance, biquad: Biquad, sample_rate_hz: float, bandwidths: float,
+                                response: FrequencyResponse | None = None) -> float:
+    """Band figure (:func:`peak_reductions`) a notch is predicted to give on a resonance, dB.
+
+    With the measured `response` (the loop the verification will measure
+    again, e.g. ``PlantResult.loop``), the prediction is that response with
+    and without the notch in series, over :func:`band_of` around the
+    resonance: it includes the background the mode sits on and the
+    estimate's own resolution, which is what the verification sees. Without
+    it, a single mode ``1 / (1 - r^2 + 2 j zeta r)``, worst case over the
+    resonance's 95 % frequency interval.
+    """
+    zeta = res.damping_ratio if np.isfinite(res.damping_ratio) else 0.05
+    if response is not None:
+        lo, hi = band_of(res.frequency_hz, zeta, bandwidths)
+        f = response.frequency_hz
+        band = (f >= lo) & (f <= hi) & np.isfinite(response.response)
+        if band.sum() >= 2:
+            h = response.response[band]
+            after = np.abs(h * biquad.response(f[band], sample_rate_hz))
+            return float(20.0 * np.log10(np.abs(h).max() / max(after.max(), 1e-300)))
+    ci = res.frequency_ci95_hz if np.isfinite(res.frequency_ci95_hz) else 0.0
+    worst = np.inf
+    for f0 in (res.frequency_hz - ci, res.frequency_hz, res.frequency_hz + ci):
+        lo, hi = band_of(f0, zeta, bandwidths)
+        f = np.linspace(max(lo, 1e-9), hi, 801)
+        r = f / f0
+        h = 1.0 / (1.0 - r * r + 2j * zeta * r)
+        after = np.abs(h * biquad.response(f, sample_rate_hz))
+        worst = min(worst, float(20.0 * np.log10(np.abs(h).max() / max(after.max(), 1e-300))))
+    return worst
+
+
+#: Margin over ``min_reduction_db`` the width search aims for: the verification repeats a noisy measurement.
+_PREDICTION_MARGIN_DB = 1.0
+
+
+def design_notches(resonances, cfg: NotchConfig, filter_rate_hz: float, slots: list[int],
+                   response: FrequencyResponse | None = None) -> list[NotchDesign]:
     """A notch per resonance (most prominent first), as many as there are free slots.
 
-    The width is ``width_factor`` times the half-power bandwidth ``2 zeta f`` but
-    at least ``min_width_ratio * f``, so an identification error of a fraction of
-    a percent in the centre frequency still leaves the resonance deep in the notch.
+    The width starts at ``width_factor`` times the half-power bandwidth
+    ``2 zeta f``, at least ``min_width_ratio * f``, so an identification error
+    of a fraction of a percent in the centre frequency still leaves the
+    resonance deep in the notch. It then grows (by 25 % a step, up to
+    ``max_width_ratio * f``) until the predicted band figure
+    (:func:`predicted_band_reduction_db`, ``verify_band_bandwidths``) reaches
+    ``min_reduction_db`` plus a 1 dB margin; the depth is at least 6 dB more than that. When the
+    widest notch still falls short, the design keeps it and says so in
+    ``warning`` with the figure it achieves. With `response` (the measured
+    loop the verification repeats) the prediction uses it.
     """
     ordered = sorted(resonances, key=lambda r: -r.peak_magnitude_db)[: len(slots)]
     designs = []
+    target = cfg.min_reduction_db
+    depth = max(cfg.depth_db, target + 6.0)
     for slot, res in zip(slots, sorted(ordered, key=lambda r: r.frequency_hz)):
         zeta = res.damping_ratio if np.isfinite(res.damping_ratio) else 0.05
-        spec = notch_from_resonance(
-            res.frequency_hz, zeta, depth_db=cfg.depth_db, width_factor=cfg.width_factor,
-            min_relative_width=cfg.min_width_ratio,
-        )
-        designs.append(NotchDesign(spec, design_notch(spec, filter_rate_hz), slot, filter_rate_hz, res))
+        spec = notch_from_resonance(res.frequency_hz, zeta, depth_db=depth, width_factor=cfg.width_factor,
+                                    min_relative_width=cfg.min_width_ratio)
+        widest = max(cfg.max_width_ratio * res.frequency_hz, spec.width_hz)
+        while True:
+            biquad = design_notch(spec, filter_rate_hz)
+            predicted = predicted_band_reduction_db(res, biquad, filter_rate_hz, cfg.verify_band_bandwidths, response)
+            if predicted >= target + _PREDICTION_MARGIN_DB or spec.width_hz >= widest:
+                break
+            spec = NotchSpec(spec.center_hz, min(1.25 * spec.width_hz, widest), spec.depth_db)
+        warning = ""
+        if predicted < target:
+            warning = (f"notch at {res.frequency_hz:.4g} Hz: even {spec.width_hz:.3g} Hz wide (notch.max_width_ratio = "
+                       f"{cfg.max_width_ratio:g}) it is predicted to reduce the band figure by only {predicted:.1f} dB "
+                       f"(notch.min_reduction_db = {target:g}): the response beside the mode stays above the notched "
+                       "peak; a finer frequency resolution (identification.segment_s, excitation.period_s) sharpens "
+                       "the measured peak")
+        designs.append(NotchDesign(spec, biquad, slot, filter_rate_hz, res, predicted, warning))
     return designs
 
 
-def peak_reductions(before: FrequencyResponse, after: FrequencyResponse, resonances, band_ratio: float = 0.05):
+def peak_reductions(before: FrequencyResponse, after: FrequencyResponse, resonances, band_bandwidths: float = 2.0):
     """Measured reduction of each resonance between two runs with the same excitation.
 
     Both responses come from measurements; the notch design does not enter the
     numbers. For each resonance two figures are reported:
 
-    * ``reduction_db``: ``|before| / |after|`` at the identified resonance
-      frequency (nearest line), i.e. how much less the axis answers at the
-      frequency where the plant resonates;
-    * ``band_peak_reduction_db``: largest ``|before|`` over largest ``|after|``
-      within ``± band_ratio`` of it, which also counts a peak that moved or the
-      skirts the notch leaves.
+    * ``band_reduction_db`` (the headline): largest ``|before|`` over largest
+      ``|after|`` within ``band_bandwidths`` half-power bandwidths
+      (``2 zeta f``) either side of the resonance (:func:`band_of`). It counts
+      the skirts a notch leaves and a peak that moved: it is what the Bode
+      plot shows a person;
+    * ``reduction_db`` (``peak_reduction_db`` in the summary): ``|before| /
+      |after|`` at the identified resonance frequency (nearest line).
 
     Returns
     -------
     list of dict
         ``frequency_hz``, ``before_db``, ``after_db``, ``reduction_db``,
-        ``band_peak_reduction_db`` per resonance.
+        ``band_hz``, ``band_before_db``, ``band_after_db``,
+        ``band_reduction_db`` per resonance.
     """
     f = before.frequency_hz
     mag_before = np.abs(before.response)
@@ -405,15 +761,20 @@ def peak_reductions(before: FrequencyResponse, after: FrequencyResponse, resonan
     out = []
     for res in resonances:
         i = int(np.argmin(np.abs(f - res.frequency_hz)))
-        band = np.flatnonzero(np.abs(f - res.frequency_hz) <= band_ratio * res.frequency_hz)
+        lo, hi = band_of(res.frequency_hz, res.damping_ratio, band_bandwidths)
+        band = np.flatnonzero((f >= lo) & (f <= hi))
         band = band if len(band) else np.array([i])
         b_db, a_db = 20 * np.log10(mag_before[i]), 20 * np.log10(mag_after[i])
+        band_b, band_a = 20 * np.log10(mag_before[band].max()), 20 * np.log10(mag_after[band].max())
         out.append({
             "frequency_hz": float(f[i]),
             "before_db": float(b_db),
             "after_db": float(a_db),
             "reduction_db": float(b_db - a_db),
-            "band_peak_reduction_db": float(20 * np.log10(mag_before[band].max() / mag_after[band].max())),
+            "band_hz": [float(lo), float(hi)],
+            "band_before_db": float(band_b),
+            "band_after_db": float(band_a),
+            "band_reduction_db": float(band_b - band_a),
         })
     return out
 
@@ -440,19 +801,32 @@ def achieved_notch(design: NotchDesign, stored: Biquad) -> dict:
 
 
 def resonance_records(resonances) -> list[dict]:
-    """Resonances as plain records for ``summary.json``."""
-    return [
-        {"frequency_hz": r.frequency_hz, "damping_ratio": r.damping_ratio, "peak_magnitude_db": r.peak_magnitude_db,
-         "coherence": r.coherence, "method": r.method}
-        for r in resonances
-    ]
+    """Resonances as plain records for ``summary.json``, with their uncertainty and whether they may be notched."""
+    out = []
+    for r in resonances:
+        ok = notch_eligibility(r)
+        out.append({
+            "frequency_hz": r.frequency_hz, "damping_ratio": r.damping_ratio, "peak_magnitude_db": r.peak_magnitude_db,
+            "coherence": r.coherence, "method": r.method, "frequency_ci95_hz": r.frequency_ci95_hz,
+            "damping_ci95": r.damping_ci95, "half_power_bandwidth_hz": r.bandwidth_hz,
+            "local_fit_db_rms": r.local_fit_db_rms, "local_noise_db_rms": r.local_noise_db_rms,
+            "local_fit_ratio": r.local_fit_ratio,
+            "notchable": ok["notchable"], **({"not_notchable": ok["reason"]} if not ok["notchable"] else {}),
+        })
+    return out
+
+
+def rejected_peak_records(rejected) -> list[dict]:
+    """Rejected peaks as plain records for ``summary.json`` (``rejected_peaks``)."""
+    return [p.to_dict() for p in rejected]
 
 
 def notch_records(designs: list[NotchDesign]) -> list[dict]:
     """Designed notches as plain records for ``summary.json`` (biquad ``b``, ``a`` in scipy convention)."""
     return [
         {"center_hz": d.spec.center_hz, "width_hz": d.spec.width_hz, "depth_db": d.spec.depth_db,
-         "sample_rate_hz": d.sample_rate_hz, "slot": d.slot, "b": list(d.biquad.b), "a": list(d.biquad.a)}
+         "sample_rate_hz": d.sample_rate_hz, "slot": d.slot, "b": list(d.biquad.b), "a": list(d.biquad.a),
+         "predicted_band_reduction_db": d.predicted_band_reduction_db}
         for d in designs
     ]
 
@@ -507,6 +881,26 @@ class GreyBoxResult:
         return {"kind": self.kind, **self.fit.to_dict(), "estimation": self.estimation, "validation": self.validation}
 
 
+def residual_warnings(kind: str, name: str, check: dict) -> list[str]:
+    """What failing residual tests of a grey-box fit (:func:`~hilident.ident.greybox.validate_fit`) mean and what to change.
+
+    Tests that were not computed (None) say nothing.
+    """
+    out = []
+    p = check.get("ljung_box_p")
+    if check.get("residuals_white") is False:
+        out.append(
+            f"[model] {kind} on {name}: the residuals are not white (Ljung-Box p = "
+            f"{'n/a' if p is None else format(p, '.3g')}): "
+            "the model leaves dynamics unexplained; try the other input_hold, a lower cutoff_hz, or a model with "
+            "more physics (a second mass, friction) before trusting its parameters' standard deviations")
+    if check.get("independent_of_input") is False:
+        out.append(
+            f"[model] {kind} on {name}: the residuals are correlated with the input: part of the input's effect is "
+            "missing from the model (a delay, an unmodelled force such as friction, or a wrong kind)")
+    return out
+
+
 def fit_greybox(cfg: ModelConfig, torque, position, sample_rate_hz: float,
                 validation_records: dict | None = None) -> GreyBoxResult:
     """Fit ``[model]`` to torque and position and validate it.
@@ -539,12 +933,14 @@ def fit_greybox(cfg: ModelConfig, torque, position, sample_rate_hz: float,
         warnings.append(f"{cfg.kind}: {est.low_speed_rows} of {est.low_speed_rows + estimation['samples']} rows "
                         f"slower than {est.min_speed:.3g} ({why}) left out of the fit")
     checked = {}
+    warnings += residual_warnings(cfg.kind, "the estimation data", estimation)
     for name, (tq, pos) in records.items():
         try:
             checked[name] = greybox.validate_fit(fit, greybox_regression(cfg, tq, pos, sample_rate_hz))
         except DataError as exc:
             warnings.append(f"{cfg.kind} validation on {name}: {exc}")
             continue
+        warnings += residual_warnings(cfg.kind, name, checked[name])
         w = overfitting_warning(estimation["fit_percent"], checked[name]["fit_percent"])
         if w:
             warnings.append(f"{cfg.kind} on {name}: {w}")

@@ -618,18 +618,22 @@ class Session:
     def _notch_step(self, plant):
         nc = self.cfg.notch
         upload = {"written": False, "verified_readback": False, "slots": []}
-        if not nc.enabled or not plant.resonances:
+        if not nc.enabled:
+            return [], upload
+        resonances = self._notchable(plant, upload)
+        if not resonances:
             return [], upload
         ad = self.adapter
         if ad.identity.filter_slots < 1:
             # designed all the same, for the user to enter by hand or to describe the drive's filter objects
-            designs = pipeline.design_notches(plant.resonances, nc, ad.identity.loop_rate_hz, [0])
+            designs = pipeline.design_notches(resonances, nc, ad.identity.loop_rate_hz, [0], plant.loop)
             upload["not_uploaded"] = (f"driver {self.driver.name!r} describes no filter capability (no [filters] "
                                       "table in its driver.toml): the designed notch was not uploaded")
             self.warnings.append(upload["not_uploaded"])
             return designs, upload
         slots = list(range(ad.identity.filter_slots))
-        designs = pipeline.design_notches(plant.resonances, nc, ad.identity.loop_rate_hz, slots)
+        designs = pipeline.design_notches(resonances, nc, ad.identity.loop_rate_hz, slots, plant.loop)
+        self.warnings += [d.warning for d in designs if d.warning]
         self.progress.step(f"notch: uploading {len(designs)} filter(s)")
         matches = []
         for d in designs:
@@ -670,6 +674,48 @@ class Session:
         self._uploaded = True  # from here the device holds the new notches; other bypassed slots stay bypassed
         return designs, upload
 
+    def _notchable(self, plant, upload: dict) -> list:
+        """The resonances the evidence supports a notch for; why the others get none goes to warnings and upload."""
+        e, ic = self.cfg.excitation, self.cfg.identification
+        amplitude = e.amplitude if isinstance(e.amplitude, (int, float)) else None
+
+        def raise_to(factor: float) -> str:
+            if not (np.isfinite(factor) and factor > 1.0):
+                # no figure from the measurement (a misfit, a peak without a fit): friction and noise
+                # weigh less at a higher amplitude, so try twice the amplitude
+                value = f" to {2 * amplitude:.3g}" if amplitude else ""
+                return (f"; try excitation.{e.amplitude_key}{value} (x2): friction and noise distort a peak less "
+                        "at a higher amplitude")
+            value = f" to {amplitude * factor:.3g}" if amplitude else ""
+            return (f"; raise excitation.{e.amplitude_key}{value} (x{factor:.2g}) or record {factor ** 2:.2g} times "
+                    "as many periods (excitation.duration_s)")
+
+        if not plant.resonances:
+            low = [p for p in plant.rejected if p.coherence < ic.coherence_threshold]
+            hint = ""
+            if low:
+                peak = max(low, key=lambda p: p.peak_magnitude_db)
+                target = min(ic.coherence_threshold + 0.1, 0.95)
+                hint = (f"; the strongest peak ({peak.frequency_hz:.4g} Hz) has coherence {peak.coherence:.2f} "
+                        f"(target {target:.2f})" + raise_to(pipeline.coherence_amplitude_factor(peak.coherence, target)))
+            elif plant.rejected:
+                hint = raise_to(float("nan"))
+            upload["skipped_reason"] = "no resonance was identified, so no notch was designed (see rejected_peaks)" + hint
+            if hint:
+                self.warnings.append(upload["skipped_reason"])
+            return []
+        keep, reasons = [], []
+        for r in plant.resonances:
+            ok = pipeline.notch_eligibility(r)
+            if ok["notchable"]:
+                keep.append(r)
+            else:
+                reasons.append(f"no notch at {r.frequency_hz:.4g} Hz: {ok['reason']}{raise_to(ok['amplitude_factor'])}")
+        self.warnings += reasons
+        if not keep:
+            upload["skipped_reason"] = "; ".join(reasons)
+        return keep
+
     def _save_step(self, upload: dict, verification) -> None:
         """With ``save``: the device stores its parameters, only after an upload read back and verified."""
         upload["saved"] = False
@@ -701,14 +747,19 @@ class Session:
             self.cfg.identification, excitation.period_samples, excitation.excited_bins,
         )
         self.warnings += warnings
-        reductions = pipeline.peak_reductions(plant.loop, loop_after, [d.resonance for d in designs])
-        worst = min(r["reduction_db"] for r in reductions)
-        if worst < self.cfg.notch.min_reduction_db:
+        nc = self.cfg.notch
+        reductions = pipeline.peak_reductions(plant.loop, loop_after, [d.resonance for d in designs],
+                                              nc.verify_band_bandwidths)
+        band = min(reductions, key=lambda r: r["band_reduction_db"])
+        at_peak = min(r["reduction_db"] for r in reductions)
+        if band["band_reduction_db"] < nc.min_reduction_db:
             self.warnings.append(
-                f"verification: resonance reduced by only {worst:.1f} dB "
-                f"(notch.min_reduction_db = {self.cfg.notch.min_reduction_db:g})"
+                f"verification: the largest response within +-{nc.verify_band_bandwidths:g} half-power bandwidths of "
+                f"{band['frequency_hz']:.4g} Hz dropped by only {band['band_reduction_db']:.1f} dB (at the resonance "
+                f"line: {band['reduction_db']:.1f} dB; notch.min_reduction_db = {nc.min_reduction_db:g})"
             )
-        return {"loop_after": loop_after, "resonances": reductions, "peak_reduction_db": worst}
+        return {"loop_after": loop_after, "resonances": reductions, "band_reduction_db": band["band_reduction_db"],
+                "peak_reduction_db": at_peak, "band_bandwidths": nc.verify_band_bandwidths}
 
     # --- outputs ----------------------------------------------------------------------------
 
@@ -722,12 +773,13 @@ class Session:
             "sample_rate_hz": cfg.run.sample_rate_hz,
             "excitation": self._excitation_record(),
             "resonances": pipeline.resonance_records(plant.resonances),
+            "rejected_peaks": pipeline.rejected_peak_records(plant.rejected),
             "plant_model": plant.model.to_dict() if plant.model else None,
             "measurement": plant.quality,
             "friction": None,
             "notch_filters": pipeline.notch_records(designs),
             "upload": upload,
-            "verification": {"peak_reduction_db": None, "resonances": []},
+            "verification": {"band_reduction_db": None, "peak_reduction_db": None, "resonances": []},
             "stream": {
                 "samples": t.samples, "lost_frames": t.lost_frames, "lost_blocks": t.lost_blocks,
                 "lost_samples": t.lost_samples, "corrupt_frames": t.corrupt_frames, "out_of_order": t.out_of_order,
@@ -748,7 +800,9 @@ class Session:
                 "points": len(friction.points.v_mean),
             }
         if verification is not None:
-            out["verification"] = {"peak_reduction_db": verification["peak_reduction_db"],
+            out["verification"] = {"band_reduction_db": verification["band_reduction_db"],
+                                   "peak_reduction_db": verification["peak_reduction_db"],
+                                   "band_bandwidths": verification["band_bandwidths"],
                                    "resonances": verification["resonances"]}
         return out
 

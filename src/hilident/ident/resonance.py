@@ -43,11 +43,17 @@ from scipy import signal
 from hilident.errors import ConfigError
 from hilident.ident.frequency import FrequencyResponse
 
-__all__ = ["Resonance", "find_resonances", "fit_local_mode"]
+__all__ = ["Resonance", "RejectedPeak", "find_resonances", "screen_resonances", "fit_local_mode"]
 
 # Least height of a peak over its local background, in standard deviations of
 # |H| in dB implied by the coherence.
 _NOISE_SIGMAS = 5.0
+# Two-sided 95 % quantile of the normal distribution.
+_Z95 = 1.959963984540054
+_DB = 20.0 / np.log(10.0)
+# Least scatter (dB) a bin is judged against in Resonance.local_fit_ratio: the
+# model error a single mode plus background may leave on real data.
+_MODEL_FLOOR_DB = 0.25
 
 
 @dataclass(frozen=True)
@@ -70,6 +76,29 @@ class Resonance:
         ``"fit"`` (local rational fit), ``"half_power"`` (fit failed; zeta from
         the -3 dB bandwidth, frequency from the peak bin) or ``"peak"``
         (neither worked; damping unknown).
+    frequency_ci95_hz : float
+        Half-width of the 95 % confidence interval of `frequency_hz`, Hz,
+        from the local fit's covariance (residual variance times the inverse
+        normal matrix of the last Sanathanan-Koerner step); NaN without a fit.
+        Neighbouring bins of a Welch estimate are correlated, so the true
+        interval is somewhat wider.
+    damping_ci95 : float
+        The same for `damping_ratio`.
+    local_fit_db_rms : float
+        rms of ``20 log10 |model / H|`` over the bins of the local fit, dB
+        (NaN without a fit).
+    local_noise_db_rms : float
+        rms over the same bins of the standard deviation of ``|H|`` in dB that
+        the coherence and the number of averages imply: what a perfect model
+        would leave (NaN without coherence).
+    prominence_db : float
+        Prominence of the peak bin (``scipy.signal.find_peaks``), dB; NaN when
+        not set.
+    local_fit_ratio : float
+        rms over the bins of the local fit of ``20 log10 |model / H|`` divided
+        by each bin's own standard deviation in dB (at least 0.25 dB, for model
+        error): about 1 when the model explains the peak to within the noise
+        (NaN without a fit or coherence).
     """
 
     frequency_hz: float
@@ -77,6 +106,43 @@ class Resonance:
     peak_magnitude_db: float
     coherence: float
     method: str = "fit"
+    frequency_ci95_hz: float = float("nan")
+    damping_ci95: float = float("nan")
+    local_fit_db_rms: float = float("nan")
+    local_noise_db_rms: float = float("nan")
+    prominence_db: float = float("nan")
+    local_fit_ratio: float = float("nan")
+
+    @property
+    def bandwidth_hz(self) -> float:
+        """Half-power bandwidth ``2 zeta f``, Hz (NaN when the damping is unknown)."""
+        return 2.0 * self.damping_ratio * self.frequency_hz
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
+class RejectedPeak:
+    """A peak of ``|H|`` that is not reported as a resonance, and why.
+
+    Attributes
+    ----------
+    frequency_hz : float
+        Frequency of the peak bin, Hz.
+    peak_magnitude_db : float
+        ``|H|`` at the peak bin, dB.
+    coherence : float
+        Mean coherence of the peak bin and two neighbours either side.
+    reason : str
+        What failed, with the numbers (coherence, height over the scatter,
+        count limit, duplicate).
+    """
+
+    frequency_hz: float
+    peak_magnitude_db: float
+    coherence: float
+    reason: str
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -90,41 +156,17 @@ def _weights(H: np.ndarray, coh: np.ndarray) -> np.ndarray:
     return np.sqrt(c / (1.0 - c)) / np.maximum(np.abs(H), np.finfo(float).tiny)
 
 
-def fit_local_mode(
-    frequency_hz: np.ndarray,
-    response: np.ndarray,
-    weights: np.ndarray | None = None,
-    center_hz: float | None = None,
-    iterations: int = 30,
-):
-    """Fit one pole pair plus background ``N(s) / (s D(s))`` to FRF points.
+@dataclass(frozen=True)
+class _LocalFit:
+    frequency_hz: float
+    damping_ratio: float
+    model: object
+    frequency_std_hz: float
+    damping_std: float
 
-    Parameters
-    ----------
-    frequency_hz : ndarray
-        Frequencies of the points, Hz (> 0), at least 4.
-    response : ndarray of complex
-        Measured response at those frequencies.
-    weights : ndarray, optional
-        Weight per point (inverse standard deviation of `response`).
-    center_hz : float, optional
-        Frequency used to normalise ``s``; default the mean of `frequency_hz`.
-    iterations : int
-        Most Sanathanan-Koerner iterations after the Levy start.
 
-    Returns
-    -------
-    (frequency_hz, damping_ratio, model) or None
-        Natural frequency (Hz) and damping ratio of the pole pair, and a
-        callable ``model(f_hz) -> complex response``; None when the points do
-        not yield a stable, complex pole pair.
-    """
-    f = np.asarray(frequency_hz, dtype=np.float64)
-    H = np.asarray(response, dtype=np.complex128)
-    if f.size < 4:
-        return None
-    w = np.ones(f.size) if weights is None else np.asarray(weights, dtype=np.float64)
-    fc = float(np.mean(f)) if center_hz is None else float(center_hz)
+def _fit_local(f, H, w, fc, iterations) -> _LocalFit | None:
+    """Levy + Sanathanan-Koerner fit of ``N(x) / (x D(x))``; see :func:`fit_local_mode`."""
     x = 1j * f / fc
     scale = float(np.max(np.abs(H)))
     Hn = H / scale
@@ -162,11 +204,69 @@ def fit_local_mode(
     zeta = a1 / (2.0 * wn)
     num = theta[2:][::-1]
 
+    # Covariance of (a1, a0) of the last (linear) step: residual variance
+    # times the inverse normal matrix, then first-order propagation.
+    dof = br.size - theta.size
+    f_std = z_std = float("nan")
+    if dof > 0:
+        An = Ar / col
+        resid = br - An @ sol
+        sigma2 = float(resid @ resid) / dof
+        try:
+            cov = sigma2 * np.linalg.pinv(An.T @ An)[:2, :2] / np.outer(col[:2], col[:2])
+        except np.linalg.LinAlgError:
+            cov = None
+        if cov is not None and np.all(np.isfinite(cov)):
+            # fn = fc sqrt(a0); zeta = a1 / (2 sqrt(a0))
+            g_f = np.array([0.0, fc / (2.0 * wn)])
+            g_z = np.array([1.0 / (2.0 * wn), -a1 / (4.0 * wn**3)])
+            f_std = float(np.sqrt(max(g_f @ cov @ g_f, 0.0)))
+            z_std = float(np.sqrt(max(g_z @ cov @ g_z, 0.0)))
+
     def model(f_hz):
         xx = 1j * np.asarray(f_hz, dtype=np.float64) / fc
         return scale * np.polyval(num, xx) / (xx * (xx**2 + a1 * xx + a0))
 
-    return float(wn * fc), float(zeta), model
+    return _LocalFit(float(wn * fc), float(zeta), model, f_std, z_std)
+
+
+def fit_local_mode(
+    frequency_hz: np.ndarray,
+    response: np.ndarray,
+    weights: np.ndarray | None = None,
+    center_hz: float | None = None,
+    iterations: int = 30,
+):
+    """Fit one pole pair plus background ``N(s) / (s D(s))`` to FRF points.
+
+    Parameters
+    ----------
+    frequency_hz : ndarray
+        Frequencies of the points, Hz (> 0), at least 4.
+    response : ndarray of complex
+        Measured response at those frequencies.
+    weights : ndarray, optional
+        Weight per point (inverse standard deviation of `response`).
+    center_hz : float, optional
+        Frequency used to normalise ``s``; default the mean of `frequency_hz`.
+    iterations : int
+        Most Sanathanan-Koerner iterations after the Levy start.
+
+    Returns
+    -------
+    (frequency_hz, damping_ratio, model) or None
+        Natural frequency (Hz) and damping ratio of the pole pair, and a
+        callable ``model(f_hz) -> complex response``; None when the points do
+        not yield a stable, complex pole pair.
+    """
+    f = np.asarray(frequency_hz, dtype=np.float64)
+    H = np.asarray(response, dtype=np.complex128)
+    if f.size < 4:
+        return None
+    w = np.ones(f.size) if weights is None else np.asarray(weights, dtype=np.float64)
+    fc = float(np.mean(f)) if center_hz is None else float(center_hz)
+    fit = _fit_local(f, H, w, fc, iterations)
+    return None if fit is None else (fit.frequency_hz, fit.damping_ratio, fit.model)
 
 
 def _half_power(f: np.ndarray, mag2: np.ndarray, i: int):
@@ -188,7 +288,13 @@ def _half_power(f: np.ndarray, mag2: np.ndarray, i: int):
     return f_left, f_right
 
 
-def _refine(f, H, coh, i, df):
+def _noise_db(coh: np.ndarray, n_averages: int) -> np.ndarray:
+    """Standard deviation of ``|H|`` in dB implied by the coherence, ``sqrt((1 - coh) / (2 n coh))``."""
+    c = np.clip(coh, 1e-6, 1.0)
+    return _DB * np.sqrt((1.0 - c) / (2.0 * max(n_averages, 1) * c))
+
+
+def _refine(f, H, coh, i, df, n_averages=1):
     """Resonance at peak bin i: local fit, else half-power, else the peak."""
     mag2 = np.abs(H) ** 2
     fp = f[i]
@@ -207,21 +313,32 @@ def _refine(f, H, coh, i, df):
     sel = (f >= fp - reach) & (f <= fp + reach)
     fit = None
     if np.count_nonzero(sel) >= 8:
-        fit = fit_local_mode(f[sel], H[sel], _weights(H[sel], coh[sel]), center_hz=fp)
+        fit = _fit_local(f[sel], H[sel], _weights(H[sel], coh[sel]), fp, 30)
     if fit is not None:
-        fn, zeta, model = fit
+        fn, zeta = fit.frequency_hz, fit.damping_ratio
         if fp - reach < fn < fp + reach and 0.0 < zeta < 1.0:
             grid = np.linspace(fp - reach, fp + reach, 1024)
-            peak_db = float(20.0 * np.log10(np.max(np.abs(model(grid)))))
-            return Resonance(fn, zeta, peak_db, float(coh[i]), "fit")
+            peak_db = float(20.0 * np.log10(np.max(np.abs(fit.model(grid)))))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                err_db = 20.0 * np.log10(np.abs(fit.model(f[sel]) / H[sel]))
+            fit_db = float(np.sqrt(np.mean(err_db**2)))
+            noise_db, ratio = float("nan"), float("nan")
+            if np.all(np.isfinite(coh[sel])):
+                sigma = _noise_db(coh[sel], n_averages)
+                noise_db = float(np.sqrt(np.mean(sigma**2)))
+                # each bin against its own scatter: the low-coherence bins of a nearby
+                # anti-resonance count little; the floor stands for model error
+                ratio = float(np.sqrt(np.mean((err_db / np.maximum(sigma, _MODEL_FLOOR_DB)) ** 2)))
+            return Resonance(fn, zeta, peak_db, float(coh[i]), "fit", _Z95 * fit.frequency_std_hz,
+                             _Z95 * fit.damping_std, fit_db, noise_db, local_fit_ratio=ratio)
     peak_db = float(10.0 * np.log10(mag2[i]))
     if half_width is not None:
         return Resonance(float(fp), float(half_width / fp), peak_db, float(coh[i]), "half_power")
     return Resonance(float(fp), float("nan"), peak_db, float(coh[i]), "peak")
 
 
-def _stands_out(mag_db: np.ndarray, i: int, coh: float, n_averages: int) -> bool:
-    """Whether peak bin i rises clearly above the scatter of its surroundings.
+def _stands_out(mag_db: np.ndarray, i: int, coh: float, n_averages: int) -> tuple[float, float]:
+    """How far peak bin i rises above its surroundings, and how far it must (both dB).
 
     The surroundings are about four half-power widths either side (at least
     10 bins); their median level is the background, insensitive to the deep
@@ -237,9 +354,8 @@ def _stands_out(mag_db: np.ndarray, i: int, coh: float, n_averages: int) -> bool
     reach = max(10, 2 * (left + right))
     window = mag_db[max(0, i - reach): i + reach + 1]
     background = np.median(window[np.isfinite(window)])
-    c = min(max(coh, 1e-6), 1.0)
-    sigma_db = 20.0 / np.log(10.0) * np.sqrt((1.0 - c) / (2.0 * max(n_averages, 1) * c))
-    return bool(mag_db[i] - background >= _NOISE_SIGMAS * sigma_db)
+    sigma_db = float(_noise_db(np.array([coh]), n_averages)[0])
+    return float(mag_db[i] - background), _NOISE_SIGMAS * sigma_db
 
 
 def find_resonances(
@@ -289,6 +405,31 @@ def find_resonances(
     list of Resonance
         Empty when no bin qualifies, e.g. when coherence is low everywhere.
     """
+    found, _ = screen_resonances(frf, coherence_threshold, min_prominence_db, max_count, band_hz)
+    return found
+
+
+def screen_resonances(
+    frf: FrequencyResponse,
+    coherence_threshold: float | None = 0.8,
+    min_prominence_db: float = 3.0,
+    max_count: int = 4,
+    band_hz: tuple[float, float] | None = None,
+    max_rejected: int = 8,
+) -> tuple[list[Resonance], list[RejectedPeak]]:
+    """:func:`find_resonances`, and the prominent peaks it did not report with the reason.
+
+    Parameters are those of :func:`find_resonances`, and
+
+    max_rejected : int
+        Most rejected peaks listed (the most prominent ones): noise makes
+        many small peaks where the coherence is low.
+
+    Returns
+    -------
+    (list of Resonance, list of RejectedPeak)
+        Both sorted by frequency.
+    """
     if coherence_threshold is not None and not 0.0 <= coherence_threshold <= 1.0:
         raise ConfigError(
             "coherence_threshold", f"must lie in [0, 1] or be None, got {coherence_threshold!r}"
@@ -307,31 +448,52 @@ def find_resonances(
         valid &= (f >= f_lo) & (f <= f_hi)
     idx = np.flatnonzero(valid)
     if idx.size < 3:
-        return []
+        return [], []
     f, H, coh = f[idx], H[idx], coh[idx]
     df = float(np.median(np.diff(f)))
 
     mag_db = 20.0 * np.log10(np.abs(H))
     peaks, props = signal.find_peaks(mag_db, prominence=min_prominence_db)
     prominence = props["prominences"]
-    if coherence_threshold is not None:
-        # A resonance spans several bins: judge the coherence around the
-        # peak, not at one bin that noise may have lifted over the threshold.
-        near = np.clip(peaks[:, None] + np.arange(-2, 3), 0, f.size - 1)
-        coh_near = np.nan_to_num(coh[near], nan=0.0).mean(axis=1)
-        ok = coh_near >= coherence_threshold
-        peaks, prominence, coh_near = peaks[ok], prominence[ok], coh_near[ok]
-        ok = [_stands_out(mag_db, i, c, frf.n_averages) for i, c in zip(peaks, coh_near)]
-        peaks, prominence = peaks[ok], prominence[ok]
-    order = np.argsort(prominence)[::-1]
+    # A resonance spans several bins: judge the coherence around the peak,
+    # not at one bin that noise may have lifted over the threshold.
+    near = np.clip(peaks[:, None] + np.arange(-2, 3), 0, f.size - 1)
+    coh_near = np.nan_to_num(coh[near], nan=0.0).mean(axis=1) if peaks.size else np.zeros(0)
+    rejected: list[RejectedPeak] = []
+
+    def reject(i, c, reason):
+        rejected.append((float(prom_of[int(i)]), RejectedPeak(float(f[i]), float(mag_db[i]), float(c), reason)))
+
+    prom_of = dict(zip(peaks.tolist(), prominence.tolist()))
+
+    kept = []
+    for i, p, c in zip(peaks, prominence, coh_near):
+        if coherence_threshold is not None:
+            if c < coherence_threshold:
+                reject(i, c, f"coherence {c:.3f} around the peak is under identification.coherence_threshold "
+                             f"= {coherence_threshold:g}")
+                continue
+            height, needed = _stands_out(mag_db, int(i), c, frf.n_averages)
+            if height < needed:
+                reject(i, c, f"rises {height:.1f} dB over its surroundings, within the scatter of the estimate "
+                             f"(needs {needed:.1f} dB: {_NOISE_SIGMAS:g} standard deviations at coherence {c:.3f} "
+                             f"over {frf.n_averages} averages)")
+                continue
+        kept.append((i, p, c))
+    kept.sort(key=lambda k: -k[1])
 
     found: list[Resonance] = []
-    for i in peaks[order]:
+    for i, _, c in kept:
         if len(found) == max_count:
-            break
-        res = _refine(f, H, coh, int(i), df)
+            reject(i, c, f"beyond the {max_count} most prominent peaks (identification.max_resonances)")
+            continue
+        res = dataclasses.replace(_refine(f, H, coh, int(i), df, frf.n_averages), prominence_db=float(prom_of[int(i)]))
         width = res.damping_ratio * res.frequency_hz if np.isfinite(res.damping_ratio) else df
-        if any(abs(res.frequency_hz - r.frequency_hz) <= max(width, df) for r in found):
+        twin = [r for r in found if abs(res.frequency_hz - r.frequency_hz) <= max(width, df)]
+        if twin:
+            reject(i, c, f"the same mode as the resonance at {twin[0].frequency_hz:.4g} Hz")
             continue
         found.append(res)
-    return sorted(found, key=lambda r: r.frequency_hz)
+    # noise makes many small peaks where the coherence is low: list the most prominent
+    listed = [r for _, r in sorted(rejected, key=lambda pr: -pr[0])[:max_rejected]]
+    return sorted(found, key=lambda r: r.frequency_hz), sorted(listed, key=lambda r: r.frequency_hz)

@@ -67,6 +67,7 @@ Example
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -84,6 +85,9 @@ __all__ = [
     "fit_transfer_function",
     "modal_form",
     "select_order",
+    "select_structure",
+    "RootReport",
+    "classify_roots",
 ]
 
 _TWO_PI = 2.0 * np.pi
@@ -339,6 +343,11 @@ class TfOrderCandidate:
         The chosen order.
     error : str
         Why the fit failed ("" when it did not).
+    integrators : int
+        Poles fixed at ``s = 0`` (:func:`select_structure`).
+    validation : float
+        Weighted cost on the held-out lines (:func:`select_structure` with
+        ``criterion="validation"``), else NaN.
     """
 
     n_num: int
@@ -348,13 +357,15 @@ class TfOrderCandidate:
     bic: float
     selected: bool = False
     error: str = ""
+    integrators: int = 0
+    validation: float = float("nan")
 
     @property
     def n_params(self) -> int:
         return self.n_num + 1 + self.n_den
 
 
-# --- helpers ------------------------------------------------------------------
+# --- internals ----------------------------------------------------------------
 
 
 def _zpk_response(frequency_hz, gain, zeros, poles, reference_hz, delay_s) -> np.ndarray:
@@ -932,3 +943,372 @@ def select_order(
     ]
     return chosen.fit, table
 
+
+
+# --- structure selection ------------------------------------------------------
+
+_STRUCTURE_CRITERIA = ("mdl", "aic", "validation")
+#: Least damping ratio of a pole counted off the imaginary axis (classify_roots' default).
+_AXIS_TOL = 1e-6
+#: Most lines the screening fits of :func:`select_structure` use.
+_SCREEN_BINS = 200
+
+
+def _structures(max_order, order, relative_degree, integrators):
+    """``(n_num, n_den_free, integrators)`` candidates; `order` counts every pole (integrators included)."""
+    orders = [order] if order is not None else range(1, max_order + 1)
+    ints = [integrators] if integrators is not None else range(3)
+    out = []
+    for k in ints:
+        for n in orders:
+            if n < k:
+                continue
+            rds = [relative_degree] if relative_degree is not None else range(min(n, 3) + 1)
+            out += [(n - rd, n - k, k) for rd in rds if 0 <= n - rd]
+    return sorted(set(out), key=lambda c: (c[0] + 1 + c[1], c[1] + c[2], c[2], c[0]))
+
+
+def select_structure(
+    frf: FrequencyResponse,
+    max_order: int = 4,
+    order: int | None = None,
+    relative_degree: int | None = None,
+    integrators: int | None = None,
+    criterion: str = "mdl",
+    weights: str | ArrayLike | None = "coherence",
+    holdout_every: int = 4,
+    **fit_options,
+) -> tuple[TfFit, list[TfOrderCandidate]]:
+    """Degrees, integrators and relative degree of a transfer function, chosen by a criterion that penalises order.
+
+    Every structure within the limits is fitted (:func:`fit_transfer_function`)
+    and scored on the weighted complex error ``V`` (sum of squares over
+    ``N = 2 * bins`` real residuals) with ``p = n_num + 1 + n_den`` free
+    parameters:
+
+    * ``"mdl"`` (default): ``N ln(V / N) + p ln N`` (Rissanen's minimum
+      description length, the same as BIC): an extra pole pair must lower
+      ``V`` by more than a factor ``N^(-4 / N)`` to be kept, which noise alone
+      does not do.
+    * ``"aic"``: ``N ln(V / N) + 2 p`` (penalises less; keeps more structure).
+    * ``"validation"``: every `holdout_every`-th line is left out of the fit
+      and the weighted cost on those lines decides; a structure that fits the
+      noise of the fitted lines does worse on lines it has not seen. Ties
+      within the held-out cost's own scatter go to fewer parameters.
+
+    Unlike the lecture's rule of thumb (relative degree from the roll-off
+    above the last resonance, integrators from the slope at the bottom of the
+    band), no part of the band decides alone. A structure with a pole or
+    zero more than a decade above the band (in the band a constant) or, with
+    free integrators, below it (in the band an integrator or its inverse),
+    with a complex pole or zero pair outside the band (a mode the data do
+    not show), or with a pole on the imaginary axis ranks after those
+    without.
+
+    Parameters
+    ----------
+    frf : FrequencyResponse
+    max_order : int
+        Highest denominator degree tried, integrators included (>= 1).
+    order, relative_degree, integrators : int, optional
+        Fix the denominator degree (integrators included), ``deg D - deg N``
+        and the poles at ``s = 0``; None lets the criterion choose
+        (integrators 0 to 2, relative degree 0 to 3).
+    criterion : {"mdl", "aic", "validation"}
+    weights : None, "coherence" or array_like
+        As for :func:`fit_transfer_function`.
+    holdout_every : int
+        Line spacing of the held-out lines for ``"validation"`` (>= 2).
+    **fit_options
+        Passed to :func:`fit_transfer_function` (delay_s, band_hz, ...).
+
+    Every structure is first fitted without the Levenberg-Marquardt stage
+    (on at most 200 evenly picked lines); the three best are refitted with it
+    on every line and ranked again.
+
+    Returns
+    -------
+    (TfFit, list of TfOrderCandidate)
+        The chosen fit (refitted on every line for ``"validation"``) and one
+        row per structure, sorted by parameter count; ``selected`` marks the
+        choice.
+
+    Raises
+    ------
+    ConfigError
+        Limits or criterion out of range, or no structure satisfies them.
+    DataError
+        No structure gave a fit.
+    """
+    if criterion not in _STRUCTURE_CRITERIA:
+        raise ConfigError("criterion", f"must be one of {_STRUCTURE_CRITERIA}, got {criterion!r}")
+    max_order = _check_order("max_order", max_order, 1)
+    if order is not None:
+        order = _check_order("model_order", order, 1)
+    if relative_degree is not None:
+        relative_degree = _check_order("model_relative_degree", relative_degree, 0)
+    if integrators is not None:
+        integrators = _check_order("model_integrators", integrators, 0)
+    holdout_every = _check_order("holdout_every", holdout_every, 2)
+    cands = _structures(max_order, order, relative_degree, integrators)
+    if not cands:
+        raise ConfigError(
+            "model_relative_degree",
+            f"no structure with order {order if order is not None else f'<= {max_order}'}, relative degree "
+            f"{relative_degree} and {integrators} integrator(s)",
+        )
+    w_all, weighting = _weights(frf, frf.response, weights)
+    train_w = w_all
+    hold = np.zeros(len(frf), dtype=bool)
+    if criterion == "validation":
+        usable = np.flatnonzero((frf.frequency_hz > 0.0) & np.isfinite(frf.response) & (w_all > 0.0))
+        hold[usable[holdout_every // 2::holdout_every]] = True
+        train_w = np.where(hold, 0.0, w_all)
+
+    # The screening fits use at most _SCREEN_BINS lines (every k-th): their ranking
+    # changes little, their cost a lot; the final ranking uses every line.
+    iterations = fit_options.pop("iterations", 30)
+    usable = np.flatnonzero(train_w > 0.0)
+    step = max(1, -(-usable.size // _SCREEN_BINS))
+    screen_w = train_w
+    if step > 1:
+        screen_w = np.zeros_like(train_w)
+        screen_w[usable[::step]] = train_w[usable[::step]]
+
+    def score(m, n, k, refine):
+        try:
+            fit = fit_transfer_function(frf, m, n, weights=train_w if refine else screen_w, integrators=k,
+                                        refine=refine, iterations=iterations if refine else min(iterations, 15),
+                                        **fit_options)
+        except DataError as exc:
+            return TfOrderCandidate(m, n, None, np.inf, np.inf, error=str(exc), integrators=k)
+        N = 2 * fit.n_bins
+        v = max(fit.weighted_cost * N / 2.0, np.finfo(float).tiny)
+        p = fit.n_params
+        val = float("nan")
+        if criterion == "validation":
+            e = w_all[hold] * (frf.response[hold] - fit.response(frf.frequency_hz[hold]))
+            val = float(np.mean(np.abs(e) ** 2))
+        return TfOrderCandidate(m, n, fit, N * np.log(v / N) + 2 * p, N * np.log(v / N) + p * np.log(N),
+                                integrators=k, validation=val)
+
+    def slow(r):
+        # A free pole or zero more than a decade outside the band is not a feature the
+        # data show: below the band a pole acts as an integrator (with a slight leak,
+        # e.g. uncompensated viscous friction) and a zero cancels one (without
+        # integrators a zero at 0 is a real differentiator), above it either acts as
+        # a constant; a complex pair outside the band bends only its edge. A
+        # structure without such roots ranks first.
+        poles = r.fit.poles[: len(r.fit.poles) - r.fit.integrators]
+        zeros = r.fit.zeros
+        lo, hi = r.fit.band_hz
+        low = _TWO_PI * lo / 10.0
+        below = integrators is None and (np.any(np.abs(poles) < low)
+                                         or (r.integrators > 0 and np.any(np.abs(zeros) < low)))
+        roots = np.r_[poles, zeros]
+        # a complex pair outside the band is a resonance or anti-resonance the data do not show
+        pair = np.abs(roots.imag) > _REAL_TOL * np.abs(roots)
+        outside = (np.abs(roots) < _TWO_PI * lo) | (np.abs(roots) > _TWO_PI * hi)
+        # a pole on the imaginary axis (a fit that ran off to an undamped mode)
+        undamped = np.any(-poles.real <= _AXIS_TOL * np.abs(poles))
+        return bool(below or undamped or np.any(np.abs(roots) > _TWO_PI * hi * 10.0) or np.any(pair & outside))
+
+    def rank(rows):
+        ok = [r for r in rows if r.fit is not None]
+        if not ok:
+            raise DataError("no structure could be fitted: " + "; ".join(r.error for r in rows if r.error))
+        if criterion == "validation":
+            best = min(r.validation for r in ok)
+            # the held-out cost of n lines scatters by about sqrt(2 / n) of itself
+            slack = best * np.sqrt(2.0 / max(int(hold.sum()), 1))
+            return sorted(ok, key=lambda r: (slow(r), r.validation > best + slack, r.n_params, r.validation))
+        key = "bic" if criterion == "mdl" else "aic"
+        return sorted(ok, key=lambda r: (slow(r), getattr(r, key), r.n_params))
+
+    # Screen every structure with the linear (Levy + Sanathanan-Koerner) fit,
+    # then refine the few best with Levenberg-Marquardt and rank again.
+    refine = fit_options.pop("refine", True)
+    rows = [score(m, n, k, False) for m, n, k in cands]
+    if refine:
+        short = rank(rows)[:3]
+        refined = {id(r): score(r.n_num, r.n_den, r.integrators, True) for r in short}
+        rows = [refined.get(id(r), r) for r in rows]
+        chosen = rank([refined[id(r)] for r in short])[0]
+    else:
+        chosen = rank(rows)[0]
+    fit = chosen.fit
+    if criterion == "validation":
+        fit = fit_transfer_function(frf, chosen.n_num, chosen.n_den, weights=w_all,
+                                    integrators=chosen.integrators, refine=refine, **fit_options)
+    table = [dataclasses.replace(r, selected=r is chosen) for r in rows]
+    return dataclasses.replace(fit, weighting=weighting), table
+
+
+# --- which roots the data support ---------------------------------------------
+
+
+@dataclass(frozen=True)
+class RootReport:
+    """The poles and zeros of a fit, sorted into what the data support and what they do not.
+
+    Attributes
+    ----------
+    modes : list of (float, float)
+        ``(frequency_hz, damping_ratio)`` of complex pole pairs inside the
+        supported range: the resonances the model claims.
+    flagged_poles : list of dict
+        Poles that are not reported as modes: ``frequency_hz``,
+        ``damping_ratio`` (NaN for a real pole), ``reason``.
+    antiresonances : list of (float, float)
+        Complex left-half-plane zero pairs inside the supported range.
+    rhp_zeros : list of dict
+        Right-half-plane zeros: ``frequency_hz`` (``|z| / 2 pi``),
+        ``real_part_rad_s``, ``kind`` (``"real"`` or ``"complex pair"``),
+        ``explanation`` and, for a real one, ``equivalent_delay_s`` (``1 / z``:
+        the delay whose phase lag it has well below ``z``).
+    flagged_zeros : list of dict
+        Zeros far outside the band, either half plane, and complex zero pairs
+        outside it (``frequency_hz``, ``reason``).
+    real_poles_hz, real_zeros_hz : list of float
+        Corner frequencies of real left-half-plane poles and zeros in range, Hz.
+    stable : bool
+        Every pole except the integrators lies in the left half plane by more
+        than the numerical tolerance.
+    stability : str
+        ``"stable"``, or why not (``"marginal: ..."``).
+    """
+
+    modes: list
+    flagged_poles: list
+    antiresonances: list
+    rhp_zeros: list
+    flagged_zeros: list
+    real_poles_hz: list
+    real_zeros_hz: list
+    stable: bool
+    stability: str
+
+    def to_dict(self) -> dict:
+        return {
+            "resonances": [{"frequency_hz": f, "damping_ratio": z} for f, z in self.modes],
+            "flagged_poles": list(self.flagged_poles),
+            "antiresonances": [{"frequency_hz": f, "damping_ratio": z} for f, z in self.antiresonances],
+            "rhp_zeros": list(self.rhp_zeros),
+            "flagged_zeros": list(self.flagged_zeros),
+            "real_poles_hz": list(self.real_poles_hz),
+            "real_zeros_hz": list(self.real_zeros_hz),
+            "stable": self.stable,
+            "stability": self.stability,
+        }
+
+
+_RHP_EXPLANATION = (
+    "right-half-plane (non-minimum-phase) zero: it adds phase lag without a dip in |G|, so it is no "
+    "anti-resonance; on a drive it usually stands for a delay (computation, transport, current loop) or for "
+    "a sensor that is not collocated with the actuator"
+)
+
+
+def classify_roots(
+    fit: TfFit,
+    band_hz: tuple[float, float] | None = None,
+    axis_tol: float = _AXIS_TOL,
+    outside_factor: float = 10.0,
+    resolution_hz: float | None = None,
+) -> RootReport:
+    """Which poles and zeros of a fit the data can support.
+
+    A pole is flagged, not reported as a mode, when
+
+    * its damping ratio is below `axis_tol` (within numerical noise of the
+      imaginary axis; the model is then only marginally stable);
+    * ``|p| / 2 pi`` lies above ``outside_factor`` times the top of the band
+      or below the bottom divided by it (the fit put it there to bend the
+      response at the band edge; it is not a mode the data show), or, for a
+      complex pair, outside the band at all;
+    * with `resolution_hz`, its half-power bandwidth ``2 zeta f`` is under a
+      tenth of the line spacing (the measurement cannot resolve it).
+
+    Zeros in the right half plane within reach of the band are listed as
+    such with an explanation, never as anti-resonances; zeros far outside the
+    band and complex zero pairs outside it are flagged.
+
+    Parameters
+    ----------
+    fit : TfFit
+    band_hz : (float, float), optional
+        Band the data cover, Hz; default ``fit.band_hz``.
+    axis_tol : float
+        Least damping ratio of a pole (or ``|Re z| / |z|`` of a zero) counted
+        off the imaginary axis.
+    outside_factor : float
+        How far outside the band a root may lie and still count (> 1).
+    resolution_hz : float, optional
+        Line spacing of the measured response, Hz.
+
+    Returns
+    -------
+    RootReport
+    """
+    lo, hi = fit.band_hz if band_hz is None else band_hz
+    poles = np.asarray(fit.poles)[: len(fit.poles) - fit.integrators]
+    modes, flagged, real_p = [], [], []
+    marginal = []
+    for p in poles:
+        if p.imag < -_REAL_TOL * abs(p):
+            continue  # the conjugate speaks for the pair
+        f_hz = abs(p) / _TWO_PI
+        is_complex = p.imag > _REAL_TOL * abs(p)
+        zeta = -p.real / abs(p) if abs(p) > 0 else float("nan")
+        reason = ""
+        if not zeta > axis_tol:
+            reason = (f"on the imaginary axis within numerical noise (zeta {zeta:.2g}): an undamped pole the "
+                      "data cannot support")
+            marginal.append(f_hz)
+        elif f_hz > outside_factor * hi or f_hz < lo / outside_factor:
+            reason = (f"far outside the fitted band {lo:.4g}-{hi:.4g} Hz: the fit uses it to bend the response "
+                      "at the band edge")
+        elif is_complex and not lo <= f_hz <= hi:
+            reason = f"outside the fitted band {lo:.4g}-{hi:.4g} Hz: the data show at most its skirt"
+        elif is_complex and resolution_hz and 2.0 * zeta * f_hz < 0.1 * resolution_hz:
+            reason = (f"half-power bandwidth {2 * zeta * f_hz:.3g} Hz is under a tenth of the "
+                      f"{resolution_hz:.3g} Hz line spacing: the measurement cannot resolve it")
+        if reason:
+            flagged.append({"frequency_hz": float(f_hz), "damping_ratio": float(zeta) if is_complex else float("nan"),
+                            "real_part_rad_s": float(p.real), "reason": reason})
+        elif is_complex:
+            modes.append((float(f_hz), float(zeta)))
+        else:
+            real_p.append(float(f_hz))
+    anti, rhp, flagged_z, real_z = [], [], [], []
+    for z in np.asarray(fit.zeros):
+        if z.imag < -_REAL_TOL * abs(z):
+            continue
+        f_hz = abs(z) / _TWO_PI
+        is_complex = z.imag > _REAL_TOL * abs(z)
+        if f_hz > outside_factor * hi or f_hz < lo / outside_factor:
+            side = "right" if z.real > axis_tol * abs(z) else "left"
+            acts = "a differentiator s" if f_hz < lo else "a constant"
+            flagged_z.append({"frequency_hz": float(f_hz), "real_part_rad_s": float(z.real),
+                              "reason": f"{side}-half-plane zero far outside the fitted band {lo:.4g}-{hi:.4g} Hz: "
+                                        f"in the band it acts as {acts}"})
+        elif z.real > axis_tol * abs(z):
+            entry = {"frequency_hz": float(f_hz), "real_part_rad_s": float(z.real),
+                     "kind": "complex pair" if is_complex else "real", "explanation": _RHP_EXPLANATION}
+            if not is_complex:
+                # below it, 1 - s/z has the phase of a delay 1/z (and no effect on |G|)
+                entry["equivalent_delay_s"] = float(1.0 / z.real)
+            rhp.append(entry)
+        elif is_complex and not lo <= f_hz <= hi:
+            flagged_z.append({"frequency_hz": float(f_hz),
+                              "reason": f"outside the fitted band {lo:.4g}-{hi:.4g} Hz: not an anti-resonance the data show"})
+        elif is_complex:
+            anti.append((float(f_hz), float(-z.real / abs(z))))
+        else:
+            real_z.append(float(f_hz))
+    stable = not marginal and bool(np.all(poles.real < 0.0))
+    stability = "stable" if stable else (
+        "marginal: pole(s) at " + ", ".join(f"{f:.4g} Hz" for f in marginal) + " lie on the imaginary axis"
+        if marginal else "unstable: a pole lies in the right half plane")
+    return RootReport(sorted(modes), flagged, sorted(anti), rhp, flagged_z, sorted(real_p), sorted(real_z),
+                      stable, stability)

@@ -1,0 +1,39 @@
+"""A session with too weak an excitation: the mode within 1 %, or no notch and a warning that says what to change."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+from hilident.config import load_config
+from hilident.emulator.factory import true_modes
+from hilident.session import Session
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
+
+def test_weak_excitation_never_notches_where_there_is_no_mode(tmp_path):
+    cfg = load_config(CONFIGS / "emulated-gantry.toml")
+    cfg = replace(cfg, excitation=replace(cfg.excitation, amplitude_nm=0.5),
+                  friction_test=replace(cfg.friction_test, enabled=False),
+                  emulator=replace(cfg.emulator, link="pipe", time_scale=6.0))
+    (true_f, _), = true_modes(cfg.emulator)
+    summary = Session(cfg, tmp_path, plots=False).run()
+    written = json.loads((tmp_path / "summary.json").read_text())
+    assert "rejected_peaks" in written and all(p["reason"] for p in written["rejected_peaks"])
+    if summary["upload"]["written"]:
+        (notch,) = summary["notch_filters"]
+        assert abs(notch["center_hz"] - true_f) / true_f < 0.01
+        assert summary["verification"]["band_reduction_db"] is not None
+        return
+    reason = summary["upload"]["skipped_reason"]
+    assert "excitation.amplitude_nm to " in reason  # a value computed from the measurement
+    suggested = float(reason.split("excitation.amplitude_nm to ")[1].split()[0])
+    assert suggested > 0.5
+    assert summary["notch_filters"] == [] and summary["verification"]["band_reduction_db"] is None
+    assert any(reason in w for w in summary["warnings"])
+    # the fitted model's modes and the reported resonances tell one story
+    model = written["plant_model"]
+    reported = {r["frequency_hz"] for r in written["resonances"]}
+    assert {m["resonance_hz"] for m in model["resonances"] if m["reported"]} == reported
