@@ -138,9 +138,12 @@ def test_identify_removes_the_friction_the_run_removed(tmp_path):
     # refitted from friction.h5 beside the recording, as the run fitted it
     for key, value in ran["friction"]["params"].items():
         assert again["friction"]["params"][key] == pytest.approx(value, rel=1e-9)
-    (a,), (r,) = again["resonances"], ran["resonances"]
-    assert abs(a["frequency_hz"] / r["frequency_hz"] - 1) < 0.005
-    assert abs(a["damping_ratio"] / r["damping_ratio"] - 1) < 0.15
+    # the same evidence, the same verdict: the same resonances (a run this short may confirm none, and then
+    # identify must not find one either)
+    assert len(again["resonances"]) == len(ran["resonances"])
+    for a, r in zip(again["resonances"], ran["resonances"]):
+        assert abs(a["frequency_hz"] / r["frequency_hz"] - 1) < 0.005
+        assert abs(a["damping_ratio"] / r["damping_ratio"] - 1) < 0.15
     # without the friction test beside it, the torque keeps its friction, and a warning says so
     (run / "friction.h5").rename(tmp_path / "elsewhere.h5")
     assert main(["identify", str(run / "identification.h5"), "--out", str(tmp_path / "bare"), "-q"]) == 0

@@ -40,7 +40,8 @@ def check_against_truth(cfg, summary, min_reduction_db=20.0):
         return
     assert summary["upload"]["written"] and summary["upload"]["verified_readback"]
     if min_reduction_db is not None:
-        assert summary["verification"]["peak_reduction_db"] >= min_reduction_db
+        # the band figure (largest response within two half-power bandwidths) is what the Bode plot shows a person
+        assert summary["verification"]["band_reduction_db"] >= min_reduction_db
 
 
 @pytest.mark.parametrize("path", EMULATOR_CONFIGS, ids=lambda p: p.stem)

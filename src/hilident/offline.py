@@ -365,7 +365,15 @@ def _steps(cfg: Config, ds: Dataset, validation: Dataset | None, info, state: di
     state["step"] = "notch design"
     if cfg.notch.enabled:
         slots = list(range(max(ic.max_resonances, 1)))
-        state["designs"] = pipeline.design_notches(plant.resonances, cfg.notch, cfg.model.filter_rate_hz, slots)
+        notchable = []
+        for r in plant.resonances:  # the same evidence rule as a run's upload
+            verdict = pipeline.notch_eligibility(r)
+            if verdict["notchable"]:
+                notchable.append(r)
+            else:
+                warnings.append(f"no notch at {r.frequency_hz:.4g} Hz: {verdict['reason']}")
+        state["designs"] = pipeline.design_notches(notchable, cfg.notch, cfg.model.filter_rate_hz, slots,
+                                                   response=plant.loop)
     state["step"] = "model"
     model = fit_model(cfg, ds, validation)
     if model is not None:
@@ -388,13 +396,14 @@ def _summary(cfg: Config, data_info: dict, state: dict, warnings: list[str], sta
         "config": cfg.source,
         "data": data_info,
         "resonances": pipeline.resonance_records(plant.resonances) if plant else [],
+        "rejected_peaks": pipeline.rejected_peak_records(plant.rejected) if plant else [],
         "friction": friction_record(state["friction"]),
         "model": None if model is None else model.to_dict(),
         "plant_model": plant.model.to_dict() if plant and plant.model else None,
         "measurement": plant.quality if plant else {},
         "notch_filters": pipeline.notch_records(state["designs"]),
         "upload": {"written": False, "verified_readback": False, "slots": []},
-        "verification": {"peak_reduction_db": None, "resonances": []},
+        "verification": {"band_reduction_db": None, "peak_reduction_db": None, "resonances": []},
         "stream": {"samples": samples, "lost_frames": 0, "lost_blocks": 0,
                    "lost_samples": data_info.get("missing_samples", 0), "corrupt_frames": 0, "out_of_order": 0,
                    "underruns": 0, "board_dropped_blocks": 0},
