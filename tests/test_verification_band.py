@@ -1,6 +1,7 @@
 """One list of resonances, notches only where the evidence allows, and the verification's band figure."""
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -195,3 +196,18 @@ def test_a_misfitting_model_confirms_nothing_and_says_so():
     assert "95 % interval" in rej.reason
     assert not any(n["reported"] for n in model.mode_notes)
     assert any("not that of a linear plant" in w for w in pipeline._model_warnings(model))
+
+
+def test_a_count_key_takes_a_number_or_its_text(tmp_path):
+    from hilident.config import load_config
+    from hilident.errors import ConfigError
+
+    base = (Path(__file__).resolve().parents[1] / "configs" / "emulated-gantry.toml").read_text()
+    for value, expected in (("3", "3"), ('"3"', "3"), ('"auto"', "auto")):
+        path = tmp_path / "c.toml"
+        path.write_text(base.replace("[identification]\n", f"[identification]\nmodel_order = {value}\n", 1))
+        assert load_config(path).identification.model_order == expected
+    path.write_text(base.replace("[identification]\n", "[identification]\nmodel_order = 13\n", 1))
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    assert err.value.key == "identification.model_order"

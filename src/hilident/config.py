@@ -462,6 +462,9 @@ _BOUNDS = (("gt", lambda v, b: v > b, ">"), ("ge", lambda v, b: v >= b, ">="),
 
 
 def _scalar(hint, value, meta, key, source):
+    choices = meta.get("choices") or ()
+    if hint is str and isinstance(value, int) and not isinstance(value, bool) and str(value) in choices:
+        value = str(value)  # a choice of "auto" or a count: model_order = 3 as well as "3"
     if hint is float and isinstance(value, int) and not isinstance(value, bool):
         if not abs(value) <= 1e300:
             raise ConfigError(key, f"must be a finite number, got {show(value)}", source)
