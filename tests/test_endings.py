@@ -134,11 +134,7 @@ class TestEndingMatrix:
         assert not twin.enabled
         assert "Traceback" not in err
         assert self._recording(out).status == "aborted"
-        fresh = Twin(twin.transport, twin.link, dict((t, c) for t, _, c in TRANSPORTS)[twin.transport], tmp_path)
-        try:
-            self._second_session_finds_the_resonance(fresh, tmp_path, clear_fault=False)
-        finally:
-            fresh.close()
+        # no second session: the device is gone, and a fresh one on another port would show nothing of this ending
 
     def test_disk_full(self, adapter_twin, tmp_path):
         twin = adapter_twin

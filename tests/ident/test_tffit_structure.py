@@ -133,5 +133,6 @@ def test_identification_keys_fix_the_structure_of_the_plant_model():
     d = model.to_dict()
     assert (d["n_den"] + d["integrators"], d["integrators"], d["relative_degree"]) == (4, 1, 1)
     assert d["criterion"] == "validation"
+    assert parse_config(limits + "[identification]\nmodel_order = 3\n").identification.model_order == "3"
     with pytest.raises(ConfigError, match="identification.model_order"):
-        parse_config(limits + "[identification]\nmodel_order = 3\n")  # a number must be quoted
+        parse_config(limits + "[identification]\nmodel_order = 0\n")  # not a choice
