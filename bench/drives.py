@@ -113,9 +113,10 @@ def run_drive(folder: Path, out: Path, duration_s: float, acquisition: str = "st
         row["friction"] = f"{why}: not measured" if not friction else "-"
     upload = summary["upload"]
     if upload.get("written"):
-        reduction = summary["verification"]["peak_reduction_db"]
-        row["notch"] = f"uploaded, read back {'ok' if upload['verified_readback'] else 'DIFFERS'}, " \
-                       f"{reduction:.1f} dB" if reduction is not None else "uploaded"
+        v = summary["verification"]
+        band, line = v.get("band_reduction_db"), v.get("peak_reduction_db")
+        row["notch"] = (f"uploaded, read back {'ok' if upload['verified_readback'] else 'DIFFERS'}, "
+                        f"{band:.1f} dB in the band ({line:.1f} dB at the resonance)" if band is not None else "uploaded")
     else:
         notches = summary.get("notch_filters") or []
         designed = f"designed {notches[0]['center_hz']:.2f} Hz; " if notches else ""

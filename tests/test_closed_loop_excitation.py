@@ -173,3 +173,26 @@ def test_many_late_syncs_are_a_warning_few_are_not():
     assert "300 of 12000 SYNCs (2.5 %)" in warning and "54.0 ms" in warning and "run.sample_rate_hz" in warning
     assert late_sampling_warnings("identification", [dict(late[0], value=50.0)], 12000) == []
     assert late_sampling_warnings("identification", [{"kind": "lost_blocks", "value": 900.0}], 12000) == []
+
+
+def test_a_reading_at_its_integer_limit_is_counted_clipped_with_one_event():
+    from types import SimpleNamespace
+
+    from hilident.adapters.base import RunResult, StreamStats
+    from hilident.adapters.canopen_drive import CanopenDriveAdapter, ChannelCodec
+    from hilident.protocol.canopen_objects import ObjectAddress
+
+    events = []
+    stub = SimpleNamespace(
+        channels=[ChannelCodec("excitation", "m/s", None, None, 0x8, 1.0),  # the host's own set-point: never
+                  ChannelCodec("torque_nm", "N*m", "current_actual", ObjectAddress(0x6078), 0x3, 5e-5)],  # INTEGER16
+        last_result=RunResult(10, StreamStats()), log_event=events.append, describe=str)
+    raw = np.zeros((10, 2))
+    raw[:, 0] = 40000.0  # beyond any INTEGER16, but recorded by the host
+    raw[[3, 4, 7], 1] = [32767, -32768, 32767]
+    CanopenDriveAdapter.count_saturated(stub, raw, 100)
+    assert stub.last_result.stats.clipped_blocks == 3
+    (event,) = events
+    assert event.kind.value == "clipped" and event.sample_index == 103 and "torque_nm" in event.message
+    CanopenDriveAdapter.count_saturated(stub, raw, 110)  # later blocks are counted, not announced again
+    assert stub.last_result.stats.clipped_blocks == 6 and len(events) == 1

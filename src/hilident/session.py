@@ -415,6 +415,10 @@ class Session:
                 f"{stats.out_of_order} blocks out of order (discarded), "
                 f"{stats.corrupt_frames} corrupt frames, {stats.underruns} underrun samples"
             )
+        if stats.clipped_blocks:
+            self.warnings.append(f"{name}: {stats.clipped_blocks} samples hold a value at the limit of its format "
+                                 "(saturated, not measured; see the recording's events): the response there is not "
+                                 "the plant's")
         self.warnings += late_sampling_warnings(name, result.events, stats.samples)
         return Experiment(name, path, run.samples, stats, result.events)
 

@@ -72,7 +72,7 @@ class BufferedRun(RunStrategy):
                 raise DeviceError(f"{ad.port}: a capture chunk of {len(data)} bytes from "
                                   f"{self.where('capture_data')} is not whole {size}-byte records")
             records = np.frombuffer(data, dtype=self.dtype)
-            rows = ad.decode_rows([records[f"f{i}"] for i in range(len(ad.channels))])
+            rows = ad.decode_rows([records[f"f{i}"] for i in range(len(ad.channels))], self.captured)
             self.deliver(np.arange(self.captured, self.captured + m, dtype=np.int64), rows)
             self.captured += m
             self.stats.samples += m

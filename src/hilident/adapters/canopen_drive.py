@@ -1061,9 +1061,39 @@ class CanopenDriveAdapter(AdapterBase):
             bounds["torque_nm"] = (-torque, torque, "torque_limit")
         return [(j, *bounds[c.name]) for j, c in enumerate(self.channels) if c.name in bounds]
 
-    def decode_rows(self, raw_columns: list[np.ndarray]) -> np.ndarray:
-        """Raw channel columns -> SI rows."""
-        return np.column_stack([c.astype(float) * codec.scale for c, codec in zip(raw_columns, self.channels)])
+    def decode_rows(self, raw_columns: list[np.ndarray], first_index: int = 0) -> np.ndarray:
+        """Raw channel columns -> SI rows (values at their integer type's limit counted, see :meth:`count_saturated`)."""
+        raw = np.column_stack([c.astype(float) for c in raw_columns])
+        self.count_saturated(raw, first_index)
+        return raw * np.array([codec.scale for codec in self.channels])
+
+    def count_saturated(self, raw: np.ndarray, first_index: int) -> None:
+        """Count the rows of ``raw`` (raw values, one column per channel) in which a drive-reported integer sits at
+        its type's limit: the drive's value is saturated there, not measured (kept, counted as clipped).
+
+        The first such sample of a run gets a ``clipped`` event naming the channel and its object.
+        """
+        hit = np.zeros(len(raw), dtype=bool)
+        first = None
+        for j, c in enumerate(self.channels):
+            kind = numpy_type(c.datatype) if not c.on_host else None
+            if kind is None or kind.kind not in "iu":
+                continue
+            info = np.iinfo(kind)
+            at = (raw[:, j] >= info.max) | (raw[:, j] <= info.min)
+            if at.any() and first is None:
+                first = (c, int(np.argmax(at)))
+            hit |= at
+        if not hit.any() or self.last_result is None:
+            return
+        stats = self.last_result.stats
+        if first is not None and not stats.clipped_blocks:
+            c, row = first
+            self.log_event(RunEvent(
+                Kind.CLIPPED, f"{c.name} reached the range of {self.describe(c.address)} ({numpy_type(c.datatype)}): "
+                f"the drive's value is saturated there; its scaling ([canopen.scaling]) or the excitation is too large",
+                first_index + row))
+        stats.clipped_blocks += int(hit.sum())
 
     def encode_setpoints(self, x: np.ndarray, datatype: int, role: str, origin_raw: int = 0) -> np.ndarray:
         """Excitation in SI units -> raw set-point values of the object of ``role``."""

@@ -157,6 +157,7 @@ class StreamedRun(RunStrategy):
         complete = seg == self.full
         idx = np.flatnonzero(complete) + a
         if len(idx):
+            self.ad.count_saturated(self.raw[idx], int(idx[0]))
             self.deliver(idx.astype(np.int64), self.raw[idx] * self.scales)
             stats.samples += len(idx)
         if count_lost and not complete.all():

@@ -42,6 +42,7 @@ class Kind(str, enum.Enum):
     REFUSED = "refused"  # the device refused a frame
     MISSING_RESPONSE = "missing_response"  # an answer was lost; the device's state says what happened
     UNDERRUN = "underrun"  # the serial board played without a fresh set-point
+    CLIPPED = "clipped"  # a value reached the range of its integer object (CANopen): saturated, not measured
     # host-produced SYNC (CANopen streamed runs)
     SYNC_LATE = "sync_late"
     SYNC_UNANSWERED = "sync_unanswered"
