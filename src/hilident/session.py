@@ -34,16 +34,19 @@ from typing import Callable
 
 import numpy as np
 
-from hilident import __version__, endings, pipeline, report
+from hilident import __version__, endings, report
 from hilident.adapters.base import StreamStats, adapter_class
 from hilident.config import Config
 from hilident.devicelock import DeviceLock, device_key
 from hilident.drivers import DriverDescription, check_run_against_driver, declared_modes, find_driver
 from hilident.errors import ArmingRefused, ConfigError, DataError, HilidentError, UsageError
-from hilident.offline import model_for_mode
 from hilident.plan import RunPlan, excitation_travel_m, make_plan
 from hilident.recording import RunWriter, read_run
+from hilident.lazy import lazy_module
 from hilident.signals import generators as sig
+
+#: The analysis, imported once an experiment needs it (a run ended before that starts and stops faster).
+pipeline = lazy_module("hilident.pipeline")
 
 #: Longest stretch of data (and wall-clock time) held in memory before it is written to the recording, s.
 FLUSH_INTERVAL_S = 0.5
@@ -593,6 +596,8 @@ class Session:
             return None
         self.progress.step(f"model: {self.cfg.model.kind} grey-box fit")
         try:
+            from hilident.offline import model_for_mode
+
             model = model_for_mode(self.cfg, self.cfg.excitation.mode)  # a held torque command in open loop
             result = pipeline.fit_greybox(model, s["torque_nm"], s["position_m"], self.cfg.run.sample_rate_hz,
                                           others or None)

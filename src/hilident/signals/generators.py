@@ -21,8 +21,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.integrate
-import scipy.signal
 
 from hilident.errors import ConfigError, DataError
 from hilident.signals import _checks as chk
@@ -93,6 +91,8 @@ def square(amplitude, frequency_hz, duration_s, sample_rate_hz, duty=0.5) -> np.
     d = chk.finite("duty", duty)
     if not 0.0 < d < 1.0:
         raise ConfigError("duty", f"must lie strictly between 0 and 1, got {chk.show(duty)}")
+    import scipy.signal  # here, not at import: a host that never builds this signal starts faster
+
     return a * scipy.signal.square(2.0 * np.pi * f * t, duty=d)
 
 
@@ -113,6 +113,8 @@ def chirp(amplitude, f0_hz, f1_hz, duration_s, sample_rate_hz, method="linear") 
     f1 = chk.below_nyquist("f1_hz", check("f1_hz", f1_hz), sample_rate_hz)
     if f0 == f1:
         raise ConfigError("f1_hz", f"must differ from f0_hz, both are {f0:g} Hz")
+    import scipy.signal
+
     return a * scipy.signal.chirp(t, f0, float(duration_s), f1, method=method, phi=-90.0)
 
 
@@ -238,6 +240,8 @@ def prbs(amplitude, register_length, clock_divider, sample_rate_hz, periods=1) -
     period_samples = (2**nbits - 1) * hold
     chk.at_most("clock_divider" if hold > 1 else "register_length", period_samples)
     chk.at_most("periods", period_samples * n_periods)
+    import scipy.signal
+
     bits, _ = scipy.signal.max_len_seq(nbits)
     one_period = np.repeat(np.where(bits == 1, a, -a).astype(np.float64), hold)
     return np.tile(one_period, n_periods)
@@ -493,6 +497,8 @@ def position_of(velocity_mps, sample_rate_hz) -> np.ndarray:
     [0.0, 0.05, 0.15, 0.2]
     """
     fs = chk.positive("sample_rate_hz", sample_rate_hz)
+    import scipy.integrate
+
     return scipy.integrate.cumulative_trapezoid(np.asarray(velocity_mps, dtype=float), dx=1.0 / fs, initial=0.0)
 
 
