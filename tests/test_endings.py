@@ -10,8 +10,9 @@ way: the twin's own state shows the axis stopped, the exit code is the
 documented one, every recording is readable with the right status, and a
 second session on the twin then succeeds and finds the right resonance.
 Endings the host handles whatever link carries its frames (the signals, a
-full disk) run once per adapter; the ones where the link matters (SIGKILL and
-the device-side net, the device vanishing, a limit trip) on every link.
+full disk) and the device-side net after SIGKILL (the board's watchdog, the
+Modbus timeout, the heartbeat consumer) run once per adapter; the ones where
+the link matters (the device vanishing, a limit trip) on every link.
 """
 
 from __future__ import annotations
@@ -112,7 +113,8 @@ class TestEndingMatrix:
             # no latched fault (a watchdog would have latched one): the next session needs no --clear-fault
             self._second_session_finds_the_resonance(twin, tmp_path, clear_fault=False)
 
-    def test_sigkill_the_device_stops_itself(self, twin, tmp_path):
+    def test_sigkill_the_device_stops_itself(self, adapter_twin, tmp_path):
+        twin = adapter_twin  # the device-side net is the adapter's (watchdog, timeout, heartbeat), not the link's
         proc, out = self._start_and_wait_for_motion(twin, tmp_path)
         time.sleep(0.8)
         proc.kill()
