@@ -392,13 +392,14 @@ def valid_sample_rates(driver: DriverDescription, count: int | None = None) -> l
     return rates
 
 
-def check_run_against_driver(cfg, driver: DriverDescription) -> None:
+def check_run_against_driver(cfg, driver: DriverDescription) -> tuple[str, ...]:
     """Refuse, before connecting, what a run of ``cfg`` would only fail at on the device.
 
     Refuses a driver with placeholders on a real port. Checks the sample rate
     against the loop rate (the message lists valid rates),
     the channels the session records and analyses, the modes of the excitation
     and of the friction test, and the filter slots the notches need.
+    Returns the modes the device runs (:func:`declared_modes`), read once here.
 
     Parameters
     ----------
@@ -440,6 +441,7 @@ def check_run_against_driver(cfg, driver: DriverDescription) -> None:
                                                    f"{what} does not have (it has: {', '.join(modes) or 'none'})", src)
     # a device without filter slots is no error: the session designs the notch, reports it and says why it was
     # not uploaded
+    return modes
 
 
 def _check_sample_rate(cfg, driver: DriverDescription, what: str) -> None:

@@ -38,7 +38,7 @@ from hilident import __version__, endings, report
 from hilident.adapters.base import StreamStats, adapter_class
 from hilident.config import Config
 from hilident.devicelock import DeviceLock, device_key
-from hilident.drivers import DriverDescription, check_run_against_driver, declared_modes, find_driver
+from hilident.drivers import DriverDescription, check_run_against_driver, find_driver
 from hilident.errors import ArmingRefused, ConfigError, DataError, HilidentError, UsageError
 from hilident.plan import RunPlan, excitation_travel_m, make_plan
 from hilident.recording import RunWriter, read_run
@@ -505,10 +505,9 @@ class Session:
         self._prepare_out()
         cfg = self.cfg
         self.driver = find_driver(cfg.device.driver, cfg.device.driver_paths)
-        check_run_against_driver(cfg, self.driver)
+        modes = check_run_against_driver(cfg, self.driver)
         excitation = build_excitation(cfg)
         self._check_excitation_travel(excitation)
-        modes = declared_modes(self.driver)
         # a drive without a velocity mode runs the friction test's legs as a position profile
         self.friction_mode = "velocity" if "velocity" in modes else "position"
         profile = None
@@ -646,19 +645,10 @@ class Session:
         self.progress.step(f"notch: uploading {len(designs)} filter(s)")
         matches = []
         for d in designs:
-            # keep the slot's contents, write disabled, read back, compare; enable only
-            # what came back as written, and put the old contents back when it did not
-            previous = ad.save_filter(d.slot)
-            ad.write_filter(d.slot, d.biquad, d.spec, enabled=False)
-            stored, _ = ad.read_filter(d.slot)
-            expected = ad.stored_form(d.biquad, d.spec)
-            same = stored == expected
-            if same:
-                ad.write_filter(d.slot, d.biquad, d.spec, enabled=True)
-                stored, enabled = ad.read_filter(d.slot)
-                same = enabled and stored == expected
+            # written disabled, read back, compared; enabled only as written, else the old contents put back
+            up = ad.upload_filter(d.slot, d.biquad, d.spec)
+            stored, expected, same = up.stored, up.expected, up.matches
             if not same:
-                ad.restore_filter(d.slot, previous)
                 self.warnings.append(
                     f"filter slot {d.slot}: read-back {stored} differs from written {expected}; "
                     "the slot's previous contents were restored"
