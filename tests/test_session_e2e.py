@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from twins import assert_friction_matches
+
 from hilident.cli import main
 from hilident.config import load_config, parse_config
 from hilident.emulator.factory import true_modes
@@ -32,9 +34,7 @@ def check_against_truth(cfg, summary, min_reduction_db=20.0):
     assert abs(best["frequency_hz"] - true_f) / true_f < 0.005
     assert abs(best["damping_ratio"] - true_zeta) / true_zeta < 0.15
     if cfg.friction_test.enabled:
-        got, want = summary["friction"]["params"], cfg.emulator.friction
-        assert abs(got["Fc"] - want.Fc) / want.Fc < 0.10
-        assert abs(got["Fv"] - want.Fv) / want.Fv < 0.10
+        assert_friction_matches(summary["friction"], cfg.emulator.friction)
     if "not_uploaded" in summary["upload"]:  # the drive describes no filter capability: designed, reported
         assert summary["notch_filters"] and not summary["upload"]["written"]
         return
