@@ -69,6 +69,7 @@ def _session_config(tmp_path: Path, drive: VendorDrive, excitation: str) -> Path
                                                                                      "time_scale = 20.0")
     text = re.sub(r"\[excitation\][^\[]*", excitation, text)
     text = text.replace("[friction_test]", "[friction_test]\nenabled = false")
+    text = text.replace("[emulator]\n", '[emulator]\npreset = "clean"\n', 1)  # the torque follows the PRBS tick for tick
     path = tmp_path / "recorder.toml"
     path.write_text(text)
     return path
@@ -104,7 +105,7 @@ def twin(tmp_path):
         folder = write_vendor_drive(tmp_path, drive)
         driver = load_driver(folder)
         cfg = load_config(CONFIG)
-        emu_cfg = replace(cfg.emulator, time_scale=20.0, faults=replace(cfg.emulator.faults, **faults))
+        emu_cfg = replace(cfg.emulator, preset="clean", time_scale=20.0, faults=replace(cfg.emulator.faults, **faults))
         emu = start(emu_cfg, driver, replace(cfg.device, driver=str(folder)))
         ad = CanopenDriveAdapter.open_device(replace(emu.device, acquisition="recorder", timeout_s=0.5), driver)
         opened.append((ad, emu))

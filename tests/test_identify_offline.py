@@ -16,6 +16,8 @@ from hilident.recording import RunWriter
 from hilident.signals import multisine
 
 GANTRY = """
+[emulator]
+preset = "clean"
 [emulator.plant]
 model = "two_mass"
 m1 = 40.0
@@ -30,6 +32,8 @@ encoder_resolution_m = 1e-7
 torque_noise_nm = 0.01
 """
 STIFF_MSD = """
+[emulator]
+preset = "clean"
 [emulator.plant]
 model = "mass_spring_damper"
 m = 5.0

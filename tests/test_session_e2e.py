@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from twins import assert_friction_matches
+
 from hilident.cli import main
 from hilident.config import load_config, parse_config
 from hilident.emulator.factory import true_modes
@@ -23,18 +25,16 @@ EMULATOR_CONFIGS = sorted(
 )
 
 
-def check_against_truth(cfg, summary, min_reduction_db=20.0):
+def check_against_truth(cfg, summary, min_reduction_db=20.0, zeta_tolerance=0.15):
     """The acceptance figures of a session, compared with the configured plant."""
     (true_f, true_zeta), = true_modes(cfg.emulator)
     found = summary["resonances"]
     assert found, summary["warnings"]
     best = min(found, key=lambda r: abs(r["frequency_hz"] - true_f))
     assert abs(best["frequency_hz"] - true_f) / true_f < 0.005
-    assert abs(best["damping_ratio"] - true_zeta) / true_zeta < 0.15
+    assert abs(best["damping_ratio"] - true_zeta) / true_zeta < zeta_tolerance
     if cfg.friction_test.enabled:
-        got, want = summary["friction"]["params"], cfg.emulator.friction
-        assert abs(got["Fc"] - want.Fc) / want.Fc < 0.10
-        assert abs(got["Fv"] - want.Fv) / want.Fv < 0.10
+        assert_friction_matches(summary["friction"], cfg.emulator.friction)
     if "not_uploaded" in summary["upload"]:  # the drive describes no filter capability: designed, reported
         assert summary["notch_filters"] and not summary["upload"]["written"]
         return
@@ -47,15 +47,19 @@ def check_against_truth(cfg, summary, min_reduction_db=20.0):
 @pytest.mark.parametrize("path", EMULATOR_CONFIGS, ids=lambda p: p.stem)
 def test_every_shipped_emulator_config_runs(path, tmp_path):
     cfg = load_config(path)
+    zeta_tolerance = 0.15
     if cfg.device.acquisition == "streamed":  # played in real time: three excitation periods, no friction legs
         cfg = replace(cfg, excitation=replace(cfg.excitation, duration_s=3 * cfg.excitation.period_s),
                       friction_test=replace(cfg.friction_test, enabled=False))
+        # Without its friction test the Coulomb friction stays in the torque and adds apparent damping (about
+        # 15 % here, 20 % with the bench's disturbances); the shipped run, friction test included, meets 15 %.
+        zeta_tolerance = 0.3
     elif cfg.emulator.time_scale <= 4.0:  # the whole session as shipped, in simulated time twice as fast
         cfg = replace(cfg, emulator=replace(cfg.emulator, time_scale=2 * cfg.emulator.time_scale))
     summary = Session(cfg, tmp_path).run()
     # Only the gantry promises 20 dB: the lecture's 0.225 Hz mode is too slow for REAL32
     # coefficients at a 4 kHz filter rate, and the session says so in a warning.
-    check_against_truth(cfg, summary, 20.0 if "gantry" in path.stem else None)
+    check_against_truth(cfg, summary, 20.0 if "gantry" in path.stem else None, zeta_tolerance)
     assert summary["stream"]["lost_blocks"] == 0 and summary["stream"]["corrupt_frames"] == 0
     for name in summary["recordings"]:
         run = read_run(tmp_path / name)

@@ -34,6 +34,6 @@ def test_weak_excitation_never_notches_where_there_is_no_mode(tmp_path):
     assert summary["notch_filters"] == [] and summary["verification"]["band_reduction_db"] is None
     assert any(reason in w for w in summary["warnings"])
     # the fitted model's modes and the reported resonances tell one story
-    model = written["plant_model"]
+    model = written["plant_model"]  # None when too few bins were coherent enough to fit one
     reported = {r["frequency_hz"] for r in written["resonances"]}
-    assert {m["resonance_hz"] for m in model["resonances"] if m["reported"]} == reported
+    assert {m["resonance_hz"] for m in (model or {"resonances": []})["resonances"] if m["reported"]} == reported

@@ -38,8 +38,12 @@ def _run(args) -> int:
     res = ", ".join(f"{r['frequency_hz']:.2f} Hz (zeta {r['damping_ratio']:.3f})" for r in summary["resonances"])
     print(f"resonances: {res or 'none found'}")
     if summary["friction"]:
-        p = summary["friction"]["params"]
-        print(f"friction: Fc {p['Fc']:.3g} N*m, Fs {p['Fs']:.3g} N*m, Fv {p['Fv']:.3g}")
+        f = summary["friction"]
+        p = f["params"]
+        if f.get("structure") == "coulomb_viscous":
+            print(f"friction: Coulomb + viscous: Fc {p['Fc']:.3g} N*m, Fv {p['Fv']:.3g} N*m/(m/s)")
+        else:
+            print(f"friction: Fc {p['Fc']:.3g} N*m, Fs {p['Fs']:.3g} N*m, Fv {p['Fv']:.3g}, vs {p['vs']:.3g} m/s")
     _print_model(summary.get("model"))
     ver = summary["verification"]
     if ver["peak_reduction_db"] is not None:

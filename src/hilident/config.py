@@ -269,11 +269,32 @@ class DriveConfig:
     ti_s: float = _spec(0.05, gt=0, doc="velocity loop integral time")
     velocity_filter_hz: float = _spec(500.0, gt=0, doc="low-pass of the drive's velocity estimate")
     torque_max_nm: float = _spec(50.0, gt=0, doc="drive torque saturation")
+    current_loop_hz: float | None = _spec(None, gt=0, doc="bandwidth of the current loop (first order), Hz; "
+                                          "unset: the preset's (bench 1000 Hz, clean ideal)")
+    delay_s: float | None = _spec(None, ge=0, le=0.1, doc="computation and transport delay before the current "
+                                  "loop, rounded to whole loop ticks; unset: the preset's (bench one tick, clean 0)")
+
+
+@dataclass(frozen=True)
+class DisturbanceConfig:
+    torque_noise_nm: float | None = _spec(None, ge=0, doc="rms of the coloured process torque noise on the axis "
+                                          "(not measured), N*m; unset: the preset's (bench 0.3 % of torque_max_nm)")
+    torque_noise_corner_hz: float = _spec(10.0, gt=0, doc="corner of the first-order low-pass colouring it, Hz")
+    cogging_nm: float | None = _spec(None, ge=0, doc="amplitude of the torque ripple periodic in position, N*m; "
+                                     "unset: the preset's (bench 0.5 % of torque_max_nm)")
+    cogging_period_m: float = _spec(0.01, gt=0, doc="period of the ripple in cart position, m")
+    load_step_nm: float | None = _spec(None, ge=0, doc="largest level of random load-torque steps, N*m; unset: the "
+                                       "preset's (bench 0.2 % of torque_max_nm)")
+    load_step_rate_hz: float = _spec(0.2, ge=0, doc="mean number of load steps per second")
+    load_noise_n: float | None = _spec(None, ge=0, doc="rms of the coloured force noise on the load (floor, "
+                                       "process), N; unset: the preset's (bench 0.3 % of c * torque_max_nm)")
 
 
 @dataclass(frozen=True)
 class SensorsConfig:
     encoder_resolution_m: float = _spec(1e-6, ge=0)
+    encoder_noise_m: float | None = _spec(None, ge=0, doc="rms of the encoder's interpolation noise before "
+                                          "quantisation, m; unset: the preset's (bench half a count, clean 0)")
     torque_noise_nm: float = _spec(0.02, ge=0, doc="rms noise of the measured torque")
     laser_range_m: list[float] = _spec([-0.005, 0.005], max_items=2, doc="load deflection window the load sensor sees")
     laser_noise_m: float = _spec(0.0, ge=0)
@@ -304,11 +325,16 @@ class EmulatorConfig:
     link: str = _spec("pty", choices=("pty", "tcp", "pipe"),
                       doc="pseudo-terminal (real serial path), raw TCP on 127.0.0.1 (socket://), or in-memory pipe")
     time_scale: float = _spec(1.0, gt=0, le=100, doc="simulated seconds per wall-clock second")
-    seed: int = _spec(1, ge=0, le=2**32 - 1, doc="seed of the sensor noise")
+    seed: int = _spec(1, ge=0, le=2**32 - 1, doc="seed of the sensor noise and the disturbances")
+    preset: str = _spec("bench", choices=("bench", "clean"),
+                        doc="defaults of the keys left unset in [emulator.disturbance], [emulator.drive] "
+                            "(current_loop_hz, delay_s) and [emulator.sensors] (encoder_noise_m): 'bench' as messy as "
+                            "a real axis, 'clean' none of it (exact physics for tests)")
     plant: PlantConfig = _spec(PlantConfig())
     friction: FrictionConfig = _spec(FrictionConfig())
     drive: DriveConfig = _spec(DriveConfig())
     sensors: SensorsConfig = _spec(SensorsConfig())
+    disturbance: DisturbanceConfig = _spec(DisturbanceConfig())
     faults: FaultsConfig = _spec(FaultsConfig())
 
 

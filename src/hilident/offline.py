@@ -187,7 +187,9 @@ def run_friction(cfg: Config, info: RunInfo | None, data_path: str | Path, warni
         return None
     try:
         velocity, torque, windows = read_friction_test(path)
-        return pipeline.identify_friction(velocity, torque, windows, cfg.friction_test.model)
+        result = pipeline.identify_friction(velocity, torque, windows, cfg.friction_test.model)
+        warnings += result.warnings
+        return result
     except HilidentError as exc:
         warnings.append(f"friction test {path}: {exc}; the torque is used as recorded")
         return None
@@ -200,6 +202,7 @@ def friction_record(friction) -> dict | None:
     p = friction.fit.params
     return {"model": friction.model,
             "params": {"Fc": p.Fc, "Fs": p.Fs, "Fv": p.Fv, "vs": p.vs, "delta_v": p.delta_v, "delta_s": p.delta_s},
+            "structure": friction.fit.structure or friction.model, "aicc": friction.fit.criterion,
             "stderr": friction.fit.stderr, "rms_residual_nm": friction.fit.rms_residual,
             "points": len(friction.points.v_mean)}
 

@@ -33,6 +33,7 @@ class FrictionResult:
     fit: fr.FrictionFit
     points: fr.SteadyStatePoints
     model: str
+    warnings: list[str] = field(default_factory=list)
 
 
 def identify_friction(velocity, torque, windows, model: str = "stribeck") -> FrictionResult:
@@ -45,6 +46,8 @@ def identify_friction(velocity, torque, windows, model: str = "stribeck") -> Fri
     windows : sequence of (start, stop, nominal_velocity_mps)
         Sample ranges at constant velocity.
     model : {"stribeck", "coulomb_viscous"}
+        ``"stribeck"``: the Stribeck structure the points support (Coulomb + viscous,
+        fixed exponents or all six parameters, by AICc; :func:`~hilident.ident.friction.fit_friction`).
     """
     checked = check_signals({"velocity": velocity, "torque": torque})
     points = fr.steady_state_points(checked["velocity"], checked["torque"], windows)
@@ -53,10 +56,17 @@ def identify_friction(velocity, torque, windows, model: str = "stribeck") -> Fri
             f"only {len(points.v_mean)} steady constant-velocity windows; a friction fit needs at least 4 "
             "(longer friction_test.hold_s, or slower accelerations)"
         )
-    fit = fr.fit_stribeck(points.v_mean, points.tau_mean) if model == "stribeck" else fr.fit_coulomb_viscous(
+    fit = fr.fit_friction(points.v_mean, points.tau_mean) if model == "stribeck" else fr.fit_coulomb_viscous(
         points.v_mean, points.tau_mean
     )
-    return FrictionResult(fit=fit, points=points, model=model)
+    loose = fr.undetermined(fit)
+    warnings = []
+    if loose:
+        se = ", ".join(f"{n} {getattr(fit.params, n):.3g} +- {fit.stderr[n]:.2g}" for n in loose)
+        warnings.append(f"friction: {se}: not determined by the {fit.n_points} points (standard error above the "
+                        "value); measure more speeds around where the torque bends (friction_test.speeds_mps) or "
+                        "hold each longer (friction_test.hold_s) before trusting them")
+    return FrictionResult(fit=fit, points=points, model=model, warnings=warnings)
 
 
 @dataclass

@@ -569,8 +569,10 @@ class Session:
         kept = [(rows[a], rows[b - 1] + 1, v) for a, b, v in profile.windows if a in rows and b - 1 in rows
                 and rows[b - 1] - rows[a] == b - 1 - a]
         self.progress.step("friction: fitting the friction curve")
-        return pipeline.identify_friction(exp.samples["velocity_mps"], exp.samples["torque_nm"], kept,
-                                          self.cfg.friction_test.model)
+        result = pipeline.identify_friction(exp.samples["velocity_mps"], exp.samples["torque_nm"], kept,
+                                            self.cfg.friction_test.model)
+        self.warnings += result.warnings
+        return result
 
     @staticmethod
     def _rows_by_index(exp: Experiment) -> dict[int, int]:
@@ -791,13 +793,9 @@ class Session:
             "warnings": self.warnings,
         }
         if friction is not None:
-            p = friction.fit.params
-            out["friction"] = {
-                "model": friction.model,
-                "params": {"Fc": p.Fc, "Fs": p.Fs, "Fv": p.Fv, "vs": p.vs, "delta_v": p.delta_v, "delta_s": p.delta_s},
-                "stderr": friction.fit.stderr, "rms_residual_nm": friction.fit.rms_residual,
-                "points": len(friction.points.v_mean),
-            }
+            from hilident.offline import friction_record
+
+            out["friction"] = friction_record(friction)
         if verification is not None:
             out["verification"] = {"band_reduction_db": verification["band_reduction_db"],
                                    "peak_reduction_db": verification["peak_reduction_db"],

@@ -79,6 +79,7 @@ position_min_m = {lo}
 position_max_m = {hi}
 
 [emulator]
+preset = "clean"
 time_scale = {time_scale}
 seed = 7
 

@@ -23,6 +23,9 @@ velocity_mps = 1.0
 position_min_m = -1.0
 position_max_m = 1.0
 
+[emulator]
+preset = "clean"
+
 [emulator.sensors]
 torque_noise_nm = 0.0
 """

@@ -342,6 +342,7 @@ position_min_m = -0.6
 position_max_m = 0.6
 
 [emulator]
+preset = "clean"
 seed = 5
 
 [emulator.plant]

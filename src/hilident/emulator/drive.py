@@ -9,7 +9,13 @@ One loop tick (period ``1 / loop_rate_hz``) does what a real drive does:
 4. compute the torque command for the mode (position P -> velocity PI -> torque);
 5. pass it through the enabled biquad slots, check the torque limit, saturate at
    ``torque_max_nm``;
-6. hold that torque on the plant for the tick.
+6. after ``delay_ticks`` ticks of computation and transport delay, the current loop
+   (first order, bandwidth ``current_loop_hz``) makes the motor torque follow that
+   command; the drive reports this torque (its measured current) through the torque
+   sensor;
+7. hold the motor torque, plus any process disturbance the drive does not measure
+   (:class:`~hilident.emulator.disturbance.ProcessDisturbance`), on the plant for
+   the tick.
 
 The drive knows only its measurements; it never sees the true state.
 """
@@ -21,6 +27,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from hilident.emulator.disturbance import ProcessDisturbance
 from hilident.emulator.plant import Plant
 from hilident.emulator.sensors import SensorModel
 from hilident.errors import ConfigError, DataError, DeviceError
@@ -53,6 +60,12 @@ class DriveTuning:
         Cut-off of the first-order low-pass on the velocity estimate, Hz.
     torque_max_nm : float
         Torque saturation of the power stage, N·m.
+    current_loop_hz : float
+        Bandwidth of the current (torque) loop, Hz: the motor torque follows the
+        command through a first-order lag; ``math.inf`` for an ideal loop.
+    delay_ticks : int
+        Computation and transport delay between the controller's command and the
+        current loop, in loop ticks (0: none).
     """
 
     loop_rate_hz: float = 4000.0
@@ -61,15 +74,21 @@ class DriveTuning:
     ti_s: float = 0.05
     velocity_filter_hz: float = 500.0
     torque_max_nm: float = 50.0
+    current_loop_hz: float = math.inf
+    delay_ticks: int = 0
 
     def __post_init__(self):
         for f in fields(self):
             value = getattr(self, f.name)
+            if f.name == "delay_ticks":
+                if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 1000:
+                    raise ConfigError(f.name, f"must be an int in [0, 1000], got {value!r}")
+                continue
             try:
                 x = float(value)
             except (TypeError, ValueError):
                 raise ConfigError(f.name, f"must be a number, got {value!r}") from None
-            finite_ok = f.name == "ti_s"
+            finite_ok = f.name in ("ti_s", "current_loop_hz")
             if isinstance(value, bool) or not x > 0.0 or (not finite_ok and not math.isfinite(x)):
                 raise ConfigError(f.name, f"must be > 0{'' if finite_ok else ' and finite'}, got {value!r}")
             object.__setattr__(self, f.name, x)
@@ -87,6 +106,8 @@ class DriveLoop:
     sensors : SensorModel
     n_filter_slots : int
         Number of biquad slots in :attr:`filters`.
+    disturbance : ProcessDisturbance, optional
+        Unmeasured torque added on the plant every tick; None for none.
 
     Attributes
     ----------
@@ -137,7 +158,7 @@ class DriveLoop:
                         "position": "m"}
 
     def __init__(self, plant: Plant, tuning: DriveTuning, sensors: SensorModel,
-                 n_filter_slots: int = 4):
+                 n_filter_slots: int = 4, disturbance: ProcessDisturbance | None = None):
         if not isinstance(plant, Plant):
             raise TypeError(f"plant must be a Plant, got {type(plant).__name__}")
         if not isinstance(tuning, DriveTuning):
@@ -146,7 +167,10 @@ class DriveLoop:
             raise TypeError(f"sensors must be a SensorModel, got {type(sensors).__name__}")
         if isinstance(n_filter_slots, bool) or not isinstance(n_filter_slots, int) or n_filter_slots < 0:
             raise ConfigError("n_filter_slots", f"must be an int >= 0, got {n_filter_slots!r}")
+        if disturbance is not None and not isinstance(disturbance, ProcessDisturbance):
+            raise TypeError(f"disturbance must be a ProcessDisturbance or None, got {type(disturbance).__name__}")
         self.plant = plant
+        self.disturbance = disturbance if disturbance is not None and disturbance.active else None
         self.tuning = tuning
         self.sensors = sensors
         self.filters = BiquadChain(n_filter_slots)
@@ -166,6 +190,9 @@ class DriveLoop:
         self._last_position = self.hold_position_m
         self._velocity = 0.0
         self._integral = 0.0
+        # Commands on their way to the current loop (oldest first) and the motor torque.
+        self._pending = [0.0] * tuning.delay_ticks
+        self._motor_torque = 0.0
 
     # -- configuration -------------------------------------------------------
 
@@ -297,6 +324,13 @@ class DriveLoop:
         mode = MODES.index(self.mode)
         hold = self.hold_position_m
         offset = self.torque_offset_nm
+        # Current loop: motor torque += beta * (command - motor torque) per tick (beta 1: ideal).
+        beta = -math.expm1(-2.0 * math.pi * tn.current_loop_hz * T) if math.isfinite(tn.current_loop_hz) else 1.0
+        pending = self._pending
+        motor = self._motor_torque
+        disturbance = self.disturbance
+        disturb = disturbance.torque if disturbance is not None else None
+        push_load = self.plant.push_load if disturbance is not None and disturbance.load_noise_n else None
 
         plant = self.plant
         plant_step = plant.step
@@ -358,8 +392,20 @@ class DriveLoop:
                     fault_tick = tick
                     integ = 0.0
                     applied = 0.0
-            append((tick * T, e, cmd, measure_torque(applied), pm, vf, lm))
-            plant_step(applied, T)
+            if enabled:
+                if pending:
+                    pending.append(applied)
+                    applied = pending.pop(0)
+                motor = applied if beta == 1.0 else motor + beta * (applied - motor)
+            else:
+                # A disabled power stage carries no current: the torque is 0 at once.
+                motor = 0.0
+                if pending:
+                    pending[:] = [0.0] * len(pending)
+            append((tick * T, e, cmd, measure_torque(motor), pm, vf, lm))
+            if push_load is not None:
+                push_load(disturbance.load_force(), T)
+            plant_step(motor if disturb is None else motor + disturb(p1), T)
             tick += 1
 
         self.enabled = enabled
@@ -370,4 +416,5 @@ class DriveLoop:
         self._last_position = last
         self._velocity = vf
         self._integral = integ
+        self._motor_torque = motor
         return np.array(rows, dtype=float)

@@ -12,13 +12,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+
+import numpy as np
 from typing import Callable
 
 from hilident.config import DeviceConfig, EmulatorConfig
 from hilident.drivers import DriverDescription
 from hilident.emulator.board import BoardFirmware
+from hilident.emulator.disturbance import ProcessDisturbance
 from hilident.emulator.drive import DriveLoop, DriveTuning
 from hilident.emulator.plant import MassSpringDamper, Plant, StribeckFriction, TwoMass, modes
+from hilident.emulator.preset import realism
 from hilident.emulator.sensors import SensorModel
 from hilident.emulator.serial_server import BoardServer, LineFaults, PipeLink, PtyLink, TcpLink
 from hilident.links import pipe_pair
@@ -46,23 +50,31 @@ def true_modes(cfg: EmulatorConfig) -> list[tuple[float, float]]:
 
 
 def build_drive(cfg: EmulatorConfig, driver: DriverDescription) -> DriveLoop:
-    """Plant, sensors and drive loop as configured."""
+    """Plant, sensors, disturbances and drive loop as configured (unset keys from ``cfg.preset``)."""
     s = cfg.sensors
     d = cfg.drive
+    r = realism(cfg, driver.loop_rate_hz)
     sensors = SensorModel(
         encoder_resolution_m=s.encoder_resolution_m, torque_noise_nm=s.torque_noise_nm,
         laser_range_m=tuple(s.laser_range_m), laser_noise_m=s.laser_noise_m,
-        laser_resolution_m=s.laser_resolution_m, seed=cfg.seed,
+        laser_resolution_m=s.laser_resolution_m, encoder_noise_m=r.encoder_noise_m, seed=cfg.seed,
     )
     tuning = DriveTuning(
         loop_rate_hz=driver.loop_rate_hz, kp_pos_per_s=d.kp_pos_per_s, kv_nm_per_mps=d.kv_nm_per_mps,
         ti_s=d.ti_s, velocity_filter_hz=d.velocity_filter_hz, torque_max_nm=d.torque_max_nm,
+        current_loop_hz=r.current_loop_hz, delay_ticks=r.delay_ticks,
+    )
+    # The sensors' noise streams are children 0-2 of the seed; the disturbance is child 3.
+    disturbance = ProcessDisturbance(
+        period_s=1.0 / driver.loop_rate_hz, noise_nm=r.torque_noise_nm, noise_corner_hz=r.torque_noise_corner_hz,
+        cogging_nm=r.cogging_nm, cogging_period_m=r.cogging_period_m, load_step_nm=r.load_step_nm,
+        load_step_rate_hz=r.load_step_rate_hz, load_noise_n=r.load_noise_n, seed=np.random.SeedSequence(cfg.seed, spawn_key=(3,)),
     )
     # Integrate at least 4x the loop rate, and at least 40 steps per period of the fastest mode.
     fastest = max((f for f, _ in true_modes(cfg)), default=0.0)
     substep = min(1.0 / (4 * driver.loop_rate_hz), 1.0 / (40 * fastest) if fastest else math.inf)
     plant = Plant(plant_model(cfg), friction_model(cfg), max_substep_s=substep)
-    return DriveLoop(plant, tuning, sensors, n_filter_slots=driver.filter_slots)
+    return DriveLoop(plant, tuning, sensors, n_filter_slots=driver.filter_slots, disturbance=disturbance)
 
 
 def identity_from_driver(driver: DriverDescription) -> sb.Identity:

@@ -427,6 +427,19 @@ class Plant:
         """True while friction holds the driven mass (``v1 == 0.0`` with friction)."""
         return self._fr is not None and self.v1 == 0.0
 
+    def push_load(self, force_n: float, dt_s: float) -> None:
+        """Apply ``force_n`` on the load mass for ``dt_s`` as one impulse (a disturbance, not a drive input).
+
+        The load's velocity jumps by ``force_n * dt_s / m2`` (the single mass's,
+        by ``/ m``, for a mass-spring-damper). Exact enough for noise whose
+        spectrum lies far below ``1 / dt_s``.
+        """
+        if self._mirror:
+            self.v1 += force_n * dt_s / self.model.m
+            self.v2 = self.v1
+        else:
+            self.v2 += force_n * dt_s / self.model.m2
+
     # -- integration -------------------------------------------------------------
 
     def substeps(self, dt_s: float) -> int:

@@ -1,14 +1,15 @@
 """Sensors of the emulated axis: what a drive and a load laser report of the true state.
 
-* Encoder on the driven mass: position floored to whole counts.
+* Encoder on the driven mass: position (plus interpolation noise, if any) floored
+  to whole counts.
 * Torque: the applied torque plus white Gaussian noise.
 * Laser on the load (the thesis's Baumer sensor, mounted on the cart): the load
   position ``p2`` with noise and a finite resolution, NaN while the load's
   deflection from the cart ``p2 - p1`` is outside the sensor's window.
 
-Noise comes from a seeded numpy Generator, drawn in blocks for speed. Torque and
-laser noise use independent streams (children of one ``SeedSequence``), so
-enabling one does not shift the other.
+Noise comes from a seeded numpy Generator, drawn in blocks for speed. Torque,
+laser and encoder noise use independent streams (children of one
+``SeedSequence``), so enabling one does not shift the others.
 """
 
 from __future__ import annotations
@@ -43,6 +44,9 @@ class SensorModel:
     ----------
     encoder_resolution_m : float
         One encoder count, m; 0 gives an ideal (unquantised) position.
+    encoder_noise_m : float
+        Standard deviation of the encoder's interpolation noise, added to the
+        position before it is floored to counts, m.
     torque_noise_nm : float
         Standard deviation of the torque measurement noise, N·m.
     laser_range_m : (float, float)
@@ -67,8 +71,10 @@ class SensorModel:
 
     def __init__(self, *, encoder_resolution_m: float = 1e-6, torque_noise_nm: float = 0.0,
                  laser_range_m: tuple[float, float] = (-0.052, 0.052),
-                 laser_noise_m: float = 0.0, laser_resolution_m: float = 0.0, seed):
+                 laser_noise_m: float = 0.0, laser_resolution_m: float = 0.0, encoder_noise_m: float = 0.0,
+                 seed):
         self.encoder_resolution_m = _number("encoder_resolution_m", encoder_resolution_m)
+        self.encoder_noise_m = _number("encoder_noise_m", encoder_noise_m)
         self.torque_noise_nm = _number("torque_noise_nm", torque_noise_nm)
         self.laser_noise_m = _number("laser_noise_m", laser_noise_m)
         self.laser_resolution_m = _number("laser_resolution_m", laser_resolution_m)
@@ -83,9 +89,13 @@ class SensorModel:
             raise ConfigError("seed", f"must be an int or SeedSequence, got {seed!r}")
         self.seed = seed
         ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
-        torque_ss, laser_ss = ss.spawn(2)
+        # spawn(3)'s first two children are spawn(2)'s: adding the encoder stream kept the others.
+        torque_ss, laser_ss, encoder_ss = ss.spawn(3)
         self._torque_rng = np.random.Generator(np.random.PCG64(torque_ss))
         self._laser_rng = np.random.Generator(np.random.PCG64(laser_ss))
+        self._encoder_rng = np.random.Generator(np.random.PCG64(encoder_ss))
+        self._encoder_buf: list[float] = []
+        self._encoder_i = 0
         self._torque_buf: list[float] = []
         self._torque_i = 0
         self._laser_buf: list[float] = []
@@ -93,6 +103,13 @@ class SensorModel:
 
     def encoder(self, p1: float) -> float:
         """Encoder position (m) of the driven mass at true position ``p1``: floor to counts."""
+        if self.encoder_noise_m != 0.0:
+            i = self._encoder_i
+            if i >= len(self._encoder_buf):
+                self._encoder_buf = self._encoder_rng.standard_normal(_BLOCK).tolist()
+                i = 0
+            self._encoder_i = i + 1
+            p1 = p1 + self.encoder_noise_m * self._encoder_buf[i]
         r = self.encoder_resolution_m
         if r == 0.0:
             return p1

@@ -42,6 +42,8 @@ __all__ = [
     "steady_state_points",
     "fit_stribeck",
     "fit_coulomb_viscous",
+    "fit_friction",
+    "undetermined",
     "compensate",
 ]
 
@@ -232,6 +234,11 @@ class FrictionFit:
         Number of points used (zero-velocity points are dropped).
     model : str
         ``"stribeck"`` or ``"coulomb_viscous"``.
+    structure : str
+        The fitted structure: ``"coulomb_viscous"``, ``"stribeck_fixed_exponents"``
+        (``delta_v = 1``, ``delta_s = 2``) or ``"stribeck"`` (all six free).
+    criterion : dict of str to float
+        AICc of each structure tried by :func:`fit_friction` (empty otherwise).
     """
 
     params: StribeckParams
@@ -239,19 +246,26 @@ class FrictionFit:
     rms_residual: float = 0.0
     n_points: int = 0
     model: str = "stribeck"
+    structure: str = ""
+    criterion: dict[str, float] = field(default_factory=dict)
 
     def predict(self, v: ArrayLike) -> np.ndarray:
         """Friction torque (N·m) at velocity `v` (m/s)."""
         return stribeck(v, self.params)
 
     def to_dict(self) -> dict:
-        return {
+        out = {
             "model": self.model,
             "params": self.params.to_dict(),
             "stderr": dict(self.stderr),
             "rms_residual": self.rms_residual,
             "n_points": self.n_points,
         }
+        if self.structure:
+            out["structure"] = self.structure
+        if self.criterion:
+            out["aicc"] = dict(self.criterion)
+        return out
 
 
 def _fold(v: ArrayLike, tau: ArrayLike, sigma: ArrayLike | None):
@@ -366,11 +380,13 @@ def fit_stribeck(
     points, ``vs`` where the torque excess over that line has decayed to 1/e,
     times 0.1, 1 and 10, and a few values of the exponents. The best start wins.
     Bounds: ``0 <= Fc, Fs <= 10 max|tau|``, ``Fv >= 0``,
-    ``1e-3 min|v| <= vs <= 10 max|v|``, ``0.05 <= delta_v <= 3``,
+    ``min|v| / 3 <= vs <= 10 max|v|``, ``0.05 <= delta_v <= 3``,
     ``0.1 <= delta_s <= 5``.
 
     ``Fs`` and ``vs`` are only determined by points below and around ``vs``:
-    measure densely near zero speed (log-spaced speeds work well). ``Fv`` is
+    measure densely near zero speed (log-spaced speeds work well). A Stribeck
+    velocity far below the slowest measured speed cannot be told from Coulomb
+    friction (``Fs`` then takes any value), hence the lower bound on ``vs``. ``Fv`` is
     the viscous torque at 1 m/s; with ``delta_v`` free and data well below
     1 m/s it trades off against ``delta_v`` (see its stderr).
 
@@ -419,7 +435,7 @@ def fit_stribeck(
 
     guess = _initial_guess(a, t)
     tmax = float(np.abs(t).max())
-    log_lo, log_hi = np.log(a.min() * 1e-3), np.log(a.max() * 10.0)
+    log_lo, log_hi = np.log(a.min() / 3.0), np.log(a.max() * 10.0)
     bounds_by_name = {
         "Fc": (0.0, 10.0 * tmax),
         "Fs": (0.0, 10.0 * tmax),
@@ -527,6 +543,74 @@ def fit_coulomb_viscous(v: ArrayLike, tau: ArrayLike) -> FrictionFit:
         n_points=int(a.size),
         model="coulomb_viscous",
     )
+
+
+def _aicc(rss: float, n: int, k: int, floor: float) -> float:
+    """Corrected Akaike criterion of a least-squares fit with Gaussian residuals (``rss`` at least ``floor``)."""
+    rss = max(rss, floor, 1e-300)
+    penalty = 2.0 * k + (2.0 * k * (k + 1) / (n - k - 1) if n - k - 1 > 0 else np.inf)
+    return n * float(np.log(rss / n)) + penalty
+
+
+def fit_friction(v: ArrayLike, tau: ArrayLike) -> FrictionFit:
+    """The friction structure the points support, chosen by AICc.
+
+    Fits Coulomb + viscous (2 parameters), Stribeck with the classic exponents
+    ``delta_v = 1``, ``delta_s = 2`` (4) and the full Stribeck curve (6), and
+    keeps the one with the smallest corrected Akaike criterion. Steady-state
+    points on a real axis scatter (cogging, load changes, noise); six free
+    parameters then fit the scatter and return a Stribeck part of any size.
+    The criterion keeps only what the scatter cannot explain.
+
+    Parameters
+    ----------
+    v : array_like
+        Steady velocities, m/s.
+    tau : array_like
+        Friction torques at those velocities, N·m.
+
+    Returns
+    -------
+    FrictionFit
+        ``structure`` names the winner, ``criterion`` holds every AICc.
+
+    Examples
+    --------
+    >>> true = StribeckParams(Fc=0.2, Fs=0.35, Fv=2.0, vs=0.005)
+    >>> v = np.concatenate([-np.geomspace(0.002, 0.3, 8), np.geomspace(0.002, 0.3, 8)])
+    >>> fit_friction(v, stribeck(v, true)).structure
+    'stribeck_fixed_exponents'
+    >>> fit_friction(v, 0.2 * np.sign(v) + 2.0 * v).structure
+    'coulomb_viscous'
+    """
+    a, t, _ = _fold(v, tau, None)
+    n = a.size
+    candidates = {"coulomb_viscous": (2, lambda: fit_coulomb_viscous(v, tau))}
+    if n >= 6:
+        candidates["stribeck_fixed_exponents"] = (4, lambda: fit_stribeck(v, tau, fix_delta_v=1.0, fix_delta_s=2.0))
+    if n >= 8:
+        candidates["stribeck"] = (6, lambda: fit_stribeck(v, tau))
+    # Residuals below a part in 1e9 of the torque are rounding: exact data ties, and the penalty decides.
+    floor = n * (1e-9 * float(np.abs(t).max())) ** 2
+    fits: dict[str, FrictionFit] = {}
+    scores: dict[str, float] = {}
+    for name, (k, fit) in candidates.items():
+        try:
+            result = fit()
+        except DataError:
+            continue
+        fits[name] = result
+        scores[name] = _aicc(result.rms_residual**2 * n, n, k, floor)
+    if not fits:
+        raise DataError(f"{n} friction points with v != 0 fit no friction structure")
+    best = min(scores, key=scores.get)
+    return dataclasses.replace(fits[best], structure=best, criterion=scores)
+
+
+def undetermined(fit: FrictionFit) -> list[str]:
+    """Names of the fitted parameters whose standard error exceeds their value (not determined by the data)."""
+    params = fit.params.to_dict()
+    return [name for name, se in fit.stderr.items() if se > 0.0 and not se < abs(params[name])]
 
 
 def compensate(
