@@ -150,7 +150,8 @@ def _agrees(found: list[tuple[float, float]], reference: list[dict]) -> None:
 @pytest.mark.parametrize("rate_hz", [1024.0, 1.0])
 def test_identify_reports_the_two_modes_and_nothing_else(tmp_path, reference, rate_hz):
     config = tmp_path / "arm.toml"
-    config.write_text(f'[data]\ntorque = "0"\noutput = "1"\nsample_rate_hz = {rate_hz}\nperiod_samples = {PERIOD}\n')
+    config.write_text(f'[data]\ntorque = "0"\noutput = "1"\nsample_rate_hz = {rate_hz}\nperiod_samples = {PERIOD}\n'
+                      f"[model]\nfilter_rate_hz = {4 * rate_hz}\n")  # notches for a drive at 4x the data's rate
     out = tmp_path / "o"
     assert main(["identify", str(DATA), "--config", str(config), "--out", str(out), "-q"]) == 0
     summary = json.loads((out / "summary.json").read_text())
@@ -160,3 +161,14 @@ def test_identify_reports_the_two_modes_and_nothing_else(tmp_path, reference, ra
     _agrees([(r["frequency_hz"] / rate_hz, r["damping_ratio"]) for r in model["resonances"]], reference)
     assert model["stable"] is True
     assert not model["flagged_poles"] and not model["real_poles_hz"]
+    # the noise of the lines the sweep leaves out supports both modes: they are notched
+    assert all(r["coherence"] >= 0.8 and r["notchable"] for r in summary["resonances"])
+    u, _ = load_record()
+    power = np.abs(np.fft.rfft(u)) ** 2
+    odd_above_floor = np.count_nonzero(power[1::2] > 1e-4 * power.max())  # the 40 dB floor, on the odd lines
+    assert summary["measurement"]["one_period"] == {"excited_lines": odd_above_floor, "line_step": 2,
+                                                    "noise_from_non_excited_lines": True}
+    centres = [n["center_hz"] / rate_hz for n in summary["notch_filters"]]
+    assert len(centres) == 2
+    for c, mode in zip(sorted(centres), reference):
+        assert c == pytest.approx(mode["f"], rel=FREQUENCY_TOLERANCE)
