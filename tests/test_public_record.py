@@ -63,8 +63,8 @@ def line_variance(X: np.ndarray, k: np.ndarray) -> np.ndarray:
 
 
 def _one_mode(p, x):
-    kn, zeta, ar, ai, cr, ci = p
-    return (ar + 1j * ai) * -x**2 / (kn**2 - x**2 + 2j * zeta * kn * x) + (cr + 1j * ci)
+    kn, zeta, a_re, a_im, c_re, c_im = p
+    return (a_re + 1j * a_im) * -x**2 / (kn**2 - x**2 + 2j * zeta * kn * x) + (c_re + 1j * c_im)
 
 
 def fit_mode(k: np.ndarray, H: np.ndarray, sigma: np.ndarray, peak: int) -> tuple[float, float, float, float]:
