@@ -40,6 +40,11 @@ RUN_CHANNELS = {"torque": "torque_nm", "velocity": "velocity_mps", "position": "
 
 #: Excitation lines of a one-period record: within this many dB of the strongest.
 _LINE_FLOOR_DB = 40.0
+#: A sparser grid of those lines (every 2nd, 3rd or 4th line, e.g. the odd lines of an odd multisine or sweep)
+#: is the excitation's when it holds this share of their power: the other lines carry noise, not excitation.
+_GRID_POWER_SHARE = 0.99
+#: Non-excited lines at most this many lines from an excited one measure its noise.
+_NOISE_NEIGHBOURS = 2
 
 
 # ---------------------------------------------------------------------- configuration
@@ -207,38 +212,121 @@ def friction_record(friction) -> dict | None:
             "points": len(friction.points.v_mean)}
 
 
+def excitation_lines(power: np.ndarray) -> tuple[np.ndarray, int]:
+    """The DFT lines a periodic excitation holds, from the power of one period's DFT.
+
+    Lines within :data:`_LINE_FLOOR_DB` of the strongest (DC excluded); of
+    those, the sparsest grid of every ``m``-th line (``m`` = 2, 3, 4, any
+    offset) that holds :data:`_GRID_POWER_SHARE` of their power, when one
+    does. A measured input has noise, transients and distortion at the lines
+    the design leaves out (the even lines of an odd multisine), so a
+    threshold alone takes them for excitation.
+
+    Parameters
+    ----------
+    power : ndarray
+        ``|DFT|^2`` of one period of the reference, lines 0 .. N/2.
+
+    Returns
+    -------
+    (ndarray of int, int)
+        The excited lines and their spacing, in lines (the greatest common
+        divisor of their differences; 1: no line left out between them).
+    """
+    power = np.array(power, dtype=float)
+    power[0] = 0.0
+    k = np.flatnonzero(power > power.max() * 10 ** (-_LINE_FLOOR_DB / 10))
+    best = k
+    for m in (2, 3, 4):
+        for offset in range(m):
+            on = k[k % m == offset]
+            if on.size < best.size and power[on].sum() >= _GRID_POWER_SHARE * power[k].sum():
+                best = on
+    return best, int(np.gcd.reduce(np.diff(best))) if best.size > 1 else 1
+
+
+def line_coherence(U: np.ndarray, Y: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """Coherence of ``Y / U`` at the excited lines ``k``, from the noise at the non-excited lines beside them.
+
+    With ``N_U``, ``N_Y`` the mean power of the non-excited lines within
+    :data:`_NOISE_NEIGHBOURS` lines of line ``k``, the scatter of ``H`` is
+    ``var H = (N_Y + |H|^2 N_U) / |U|^2`` and the coherence is ``S / (S +
+    N_Y + |H|^2 N_U)`` with ``S = |Y|^2 - N_Y`` the output power without
+    its noise: the value whose Welch variance formula gives that scatter for
+    one average. Those lines also hold transients and distortion, so it is a
+    lower bound.
+
+    Returns
+    -------
+    ndarray
+        One value per line in ``k``; all NaN when some excited line has no
+        non-excited line that close (every line excited).
+    """
+    quiet = np.setdiff1d(np.arange(1, len(U)), k)
+    near = np.abs(k[:, None] - quiet[None, :]) <= _NOISE_NEIGHBOURS
+    count = near.sum(axis=1)
+    if k.size == 0 or not count.all():
+        return np.full(k.size, np.nan)
+    noise_u = (near * np.abs(U[quiet]) ** 2).sum(axis=1) / count
+    noise_y = (near * np.abs(Y[quiet]) ** 2).sum(axis=1) / count
+    # |Y|^2 holds the output noise too: take it out of the signal, which would otherwise be biased up by it
+    signal = np.maximum(np.abs(Y[k]) ** 2 - noise_y, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h2 = np.abs(Y[k] / U[k]) ** 2
+        return np.nan_to_num(signal / (signal + noise_y + h2 * noise_u), nan=0.0)
+
+
 def _one_period_plant(r, u, y, sample_rate_hz: float, period: int, cfg, band_hz) -> pipeline.PlantResult:
     """A record of exactly one excitation period: the full-record DFT at the excited lines.
 
     A periodic excitation in steady state does not leak, so the DFT of one
-    whole period is exact at its lines; with a single period there is no
-    average, so no coherence: resonances are taken on prominence alone.
+    whole period is exact at its lines. With a single period there is no
+    average; when the excitation leaves lines out between its lines, their
+    noise gives each line a coherence (:func:`line_coherence`) and the
+    resonances and model are judged by it as after a run; otherwise
+    resonances are taken on prominence alone.
     """
     n = len(r) // period * period
     R, U, Y = (np.fft.rfft(np.asarray(x[:n], float) - np.mean(x[:n])) for x in (r, u, y))
-    power = np.abs(R) ** 2
-    power[0] = 0.0
-    k = np.flatnonzero(power > power.max() * 10 ** (-_LINE_FLOOR_DB / 10))
+    k, step = excitation_lines(np.abs(R) ** 2)
     f = k * sample_rate_hz / n
-    nan = np.full(k.size, np.nan)
+    coherence, loop_coherence = line_coherence(U, Y, k), line_coherence(R, Y, k)
     with np.errstate(divide="ignore", invalid="ignore"):
-        plant = FrequencyResponse(f, Y[k] / U[k], nan, 1, "periodic")
-        loop = FrequencyResponse(f, Y[k] / R[k], nan.copy(), 1, "periodic")
-    warnings = [f"one excitation period ({period} samples) recorded: its DFT at the {k.size} excited lines is "
-                "leakage-free but has no average, so no coherence; resonances are judged on prominence alone "
-                "(record two or more periods to judge the noise)"]
+        plant = FrequencyResponse(f, Y[k] / U[k], coherence, 1, "periodic")
+        loop = FrequencyResponse(f, Y[k] / R[k], loop_coherence, 1, "periodic")
+    grid = f" (one line in {step})" if step > 1 else ""
+    head = (f"one excitation period ({period} samples) recorded: its DFT at the {k.size} excited lines{grid} is "
+            "leakage-free but has no average")
+    if np.isfinite(coherence).all():
+        warnings = [head + "; the noise of each line is taken from the non-excited lines beside it (coherence "
+                    "from that, a lower bound where they hold transients or distortion too)"]
+        resonances, rejected, notes = pipeline._resonances_and_model(plant, cfg, band_hz)
+        warnings += notes
+        model = notes.model
+    else:
+        warnings = [head + ", so no coherence; resonances are judged on prominence alone (record two or more "
+                    "periods to judge the noise)"]
+        resonances, rejected, model = _prominent_resonances(plant, cfg, band_hz, warnings)
+    antires = [hz for hz, _ in model.roots.antiresonances] if model else []
+    quality, more = pipeline.measurement_quality(plant, resonances, r, sample_rate_hz, band_hz, period, antires)
+    quality["one_period"] = {"excited_lines": int(k.size), "line_step": step,
+                             "noise_from_non_excited_lines": bool(np.isfinite(coherence).all())}
+    return pipeline.PlantResult(plant=plant, loop=loop, resonances=resonances, warnings=warnings + more, model=model,
+                                quality=quality, rejected=rejected)
+
+
+def _prominent_resonances(plant: FrequencyResponse, cfg, band_hz, warnings: list[str]):
+    """Resonances on prominence alone and the transfer-function fit, for a response without coherence."""
     resonances = find_resonances(plant, coherence_threshold=None, min_prominence_db=cfg.min_prominence_db,
                                  max_count=max(cfg.max_resonances, 1), band_hz=band_hz)
     model = None
     if cfg.model_max_order:
         try:
-            model = pipeline.fit_plant_model(plant, band_hz, cfg.model_max_order, 0.0)
+            model = pipeline.fit_plant_model(plant, band_hz, cfg.model_max_order, 0.0, cfg.model_order,
+                                             cfg.model_relative_degree, cfg.model_integrators, cfg.model_criterion)
         except (DataError, ConfigError) as exc:
             warnings.append(f"transfer-function fit: {exc}")
-    antires = [hz for hz, _ in model.modal.antiresonances] if model else []
-    quality, more = pipeline.measurement_quality(plant, resonances, r, sample_rate_hz, band_hz, period, antires)
-    return pipeline.PlantResult(plant=plant, loop=loop, resonances=resonances, warnings=warnings + more, model=model,
-                                quality=quality)
+    return resonances, [], model
 
 
 def _identify(cfg: Config, ds: Dataset, band, excited_bins, friction=None) -> pipeline.PlantResult:
