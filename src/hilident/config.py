@@ -161,9 +161,11 @@ class ExcitationConfig:
                                  "without one AUTO_START_SHARE of the ceiling")
     auto_max_nm: float = _spec(0.0, ge=0, doc="auto: largest amplitude auto may choose, N*m; 0: limits.torque_nm")
     auto_safety: float = _spec(1.5, ge=1, le=10, doc="auto: factor on the amplitude the trials predict is needed")
-    auto_friction_share: float = _spec(0.1, gt=0, le=1, doc="auto: largest rms of the fitted friction's nonlinear "
-                                       "part (Coulomb and Stribeck), relative to the rms excitation: stick-slip "
-                                       "repeats every period, so coherence does not see the distortion it causes")
+    auto_nonlinear_share: float = _spec(0.1, gt=0, le=1, doc="auto: largest share of nonlinear distortion the run "
+                                        "may carry: the fitted friction's nonlinear part (Coulomb and Stribeck) over "
+                                        "the excitation (rms), or without a friction test the change of the measured "
+                                        "response between two trials, scaled to the higher amplitude; stick-slip "
+                                        "repeats every period, so coherence does not see the distortion it causes")
 
     @property
     def amplitude_auto(self) -> bool:

@@ -206,6 +206,9 @@ AUTO_TORQUE_MARGIN = 0.95
 AUTO_STUCK_SHARE = 0.1
 #: Factor to the next trial when a trial's response does not rise above the noise (nothing to scale from).
 AUTO_NO_RESPONSE_STEP = 4.0
+#: Without a friction test, the factor from a first trial to the second (the response change between two
+#: amplitudes is what bounds the distortion then).
+AUTO_LINEARITY_STEP = 2.0
 #: Neighbouring excited lines a noise estimate is averaged over (a single period's line has two degrees of freedom).
 AUTO_NOISE_LINES = 5
 
@@ -257,6 +260,20 @@ def coherence_factor(signal: dict, noise: dict, periods: int, target: float) -> 
     if gap(lo) >= 0:
         return 1e-3
     return float(np.exp(brentq(gap, lo, hi, xtol=1e-4)))
+
+
+def response_change(low: dict, high: dict) -> float:
+    """Nonlinear distortion at the higher of two trials' amplitudes, from how much the response changed.
+
+    For a linear plant the responses ``G = mean Y / mean U`` of two trials
+    agree within their noise. Friction-like distortion falls as ``1 / A``, so
+    the median change over the lines, its noise (``var G / |G|^2`` of both)
+    taken out, over ``A_high / A_low - 1`` is the share left at ``A_high``.
+    ``low`` and ``high``: ``{amplitude_nm, frf, relative_variance}``.
+    """
+    change = np.abs(high["frf"] - low["frf"]) ** 2 / np.maximum(np.abs(high["frf"]) ** 2, 1e-300)
+    excess = np.median(change - low["relative_variance"] - high["relative_variance"])
+    return float(np.sqrt(max(excess, 0.0)) / (high["amplitude_nm"] / low["amplitude_nm"] - 1.0))
 
 
 def friction_share(velocity: np.ndarray, excitation: np.ndarray, friction, stuck_mps: float) -> float:
@@ -703,9 +720,12 @@ class Session:
                            f"{band[0]:g}-{band[1]:g} Hz, ceiling {ceiling:g} N*m)")
         noise = self._auto_noise(period, lines, fit)
         amplitude = min(e.auto_start_nm or self._auto_start(probe, fit, ceiling), ceiling)
-        trials, chosen, reason = [], None, ""
+        trials, chosen, reason, needed = [], None, "", None
         for i in range(e.auto_max_trials):
-            t = self._auto_trial(i + 1, amplitude, period, lines, run_periods, noise, fit, target)
+            t = self._auto_trial(i + 1, amplitude, period, lines, run_periods, noise, fit, target,
+                                 trials[-1] if trials else None)
+            if t is None:
+                continue
             trials.append(t)
             cap, cap_by = min((ceiling, "the ceiling"), (t["cap_nm"], t["cap_by"]))
             needed = t["needed_nm"]
@@ -715,8 +735,8 @@ class Session:
                           f"excitation.auto_safety = {e.auto_safety:g}, at least the trial's, at most {cap:.3g} N*m; "
                           f"coherence >= {target:.2f} at {AUTO_BAND_SHARE:.0%} of the excited lines over "
                           f"{band[0]:g}-{band[1]:g} Hz predicted for the run's {run_periods} periods"
-                          + (f"; friction's share within excitation.auto_friction_share = {e.auto_friction_share:g}"
-                             if fit is not None else "; no friction test: stick-slip distortion not bounded"))
+                          + f"; nonlinear distortion ({'friction' if fit is not None else 'response change between trials'}"
+                          f") within excitation.auto_nonlinear_share = {e.auto_nonlinear_share:g}")
                 break
             if amplitude >= cap * (1 - 1e-9):
                 chosen = cap
@@ -724,6 +744,10 @@ class Session:
                 break
             amplitude = min(cap, max(needed * e.auto_safety, 1.5 * amplitude))
         else:
+            if not trials:
+                raise DataError(f"excitation.amplitude_nm = \"auto\": none of the {e.auto_max_trials} trials could be "
+                                "analysed (lost samples, see the warnings); check the line, or give the amplitude as "
+                                "a number")
             chosen = amplitude  # the last prediction, not tried
             reason = (f"excitation.auto_max_trials = {e.auto_max_trials} trials made before the target was met: the "
                       f"run uses the amplitude the last trial predicts ({amplitude:.3g} N*m, capped at "
@@ -745,7 +769,7 @@ class Session:
         return build_excitation(self.cfg)
 
     def _auto_start(self, probe: Excitation, fit, ceiling: float) -> float:
-        """First trial's amplitude, N·m: the multisine whose rms is the friction test's ``Fs / auto_friction_share``.
+        """First trial's amplitude, N·m: the multisine whose rms is the friction test's ``Fs / auto_nonlinear_share``.
 
         Friction torque is at most Fs (breakaway) and about Fc while sliding, so
         below that rms its nonlinear part would exceed its allowed share for
@@ -755,14 +779,14 @@ class Session:
             return AUTO_START_SHARE * ceiling
         x = probe.samples[probe.period_samples:]  # amplitude 1: peak over rms is the crest factor
         crest = float(np.max(np.abs(x)) / np.sqrt(np.mean(np.square(x))))
-        return crest * fit.Fs / self.cfg.excitation.auto_friction_share
+        return crest * fit.Fs / self.cfg.excitation.auto_nonlinear_share
 
     def _auto_capped(self, trial: dict, cap: float, cap_by: str, target: float) -> str:
         """The reason (and a warning) when the cap stops the amplitude before the target."""
         band = trial["report"]["predicted_coherence_band"]
         reason = (f"capped at {cap:.3g} N*m by {cap_by} before the target: coherence {band:.2f} "
                   f"predicted at {AUTO_BAND_SHARE:.0%} of the lines (target {target:.2f}), "
-                  f"{trial['needed_nm']:.3g} N*m would be needed")
+                  f"{trial['needed_nm']:.3g} N*m would be needed (set by {trial['report']['needed_by']})")
         self.warnings.append(f"excitation: auto amplitude {reason}; the notch decision will then rest on the "
                              "evidence gates")
         return reason
@@ -803,7 +827,7 @@ class Session:
         return out
 
     def _auto_trial(self, number: int, amplitude: float, period: int, lines: np.ndarray, run_periods: int,
-                    noise: dict, fit, target: float) -> dict:
+                    noise: dict, fit, target: float, previous: dict | None) -> dict | None:
         """One trial: the multisine at ``amplitude`` for a few periods, and what it predicts for the run."""
         cfg = self.cfg
         e, lim = cfg.excitation, cfg.limits
@@ -812,7 +836,11 @@ class Session:
         x = build_excitation(trial_cfg, amplitude=amplitude)
         exp = self.record(f"auto_trial_{number}", e.mode, x.samples, period_samples=period,
                           recipe=excitation_recipe(cfg, amplitude=amplitude, duration_s=duration))
-        s = self._analysis_samples(exp, x)
+        try:
+            s = self._analysis_samples(exp, x)
+        except DataError as exc:  # lost samples: nothing to predict from, the next trial repeats it
+            self.warnings.append(f"excitation: auto trial {number} at {amplitude:.3g} N*m could not be analysed: {exc}")
+            return None
         spectra = {"output": period_spectra(s[cfg.identification.output], period, lines),
                    "torque": period_spectra(self._plant_input(s, fit), period, lines)}
         m = len(s["sample_index"]) // period
@@ -824,14 +852,22 @@ class Session:
             scatter[key] = np.maximum(scatter[key], 1e-12 * max(float(np.max(signal[key])), 1e-300))
         coh = predicted_coherence(signal, scatter, 1.0, run_periods)
         factor = coherence_factor(signal, scatter, run_periods, target)
-        stuck = max(cfg.friction_test.velocity_deadband_mps, AUTO_STUCK_SHARE * fit.vs) if fit is not None else 0.0
-        share = friction_share(s["velocity_mps"], s["excitation"], fit, stuck) if fit is not None else 0.0
+        means = {key: spec.mean(axis=0) for key, spec in spectra.items()}
+        torque_mean = np.where(means["torque"] == 0, 1e-300, means["torque"])
+        this = {"amplitude_nm": amplitude, "frf": means["output"] / torque_mean,
+                "relative_variance": sum(scatter[k] / np.maximum(signal[k], 1e-300) for k in spectra) / m}
+        share, share_by = None, "nonlinear distortion unknown until a second trial"
+        if fit is not None:
+            stuck = max(cfg.friction_test.velocity_deadband_mps, AUTO_STUCK_SHARE * fit.vs)
+            share, share_by = friction_share(s["velocity_mps"], s["excitation"], fit, stuck), "friction's share"
+        elif previous is not None and amplitude > 1.05 * previous["frf"]["amplitude_nm"]:
+            share, share_by = response_change(previous["frf"], this), "response change between trials"
+        nonlinear = share / e.auto_nonlinear_share if share is not None else AUTO_LINEARITY_STEP / e.auto_safety
         moved = np.median(signal["output"]) > np.median(scatter["output"]) and np.ptp(s[cfg.identification.output]) > 0
         if not moved:  # nothing above the noise: no prediction, only a larger step
-            factor = AUTO_NO_RESPONSE_STEP / e.auto_safety
-        needed = amplitude * max(factor, share / e.auto_friction_share)
-        needed_by = ("no response above the noise" if not moved else
-                     "friction's share" if share / e.auto_friction_share > factor else "coherence")
+            factor, nonlinear = AUTO_NO_RESPONSE_STEP / e.auto_safety, 0.0
+        needed = amplitude * max(factor, nonlinear)
+        needed_by = ("no response above the noise" if not moved else share_by if nonlinear > factor else "coherence")
         # what the run would command, scaled linearly from what this trial measured
         full = exp.samples
         speed = float(np.max(np.abs(full["velocity_mps"])))
@@ -853,13 +889,14 @@ class Session:
         cap, cap_by = min(caps)
         report_ = {"amplitude_nm": float(amplitude), "predicted_coherence_min": float(np.min(coh)),
                    "predicted_coherence_median": float(np.median(coh)), "predicted_coherence_band": band_coherence(coh),
-                   "coherence_factor": float(factor), "friction_share": float(share) if fit is not None else None,
+                   "coherence_factor": float(factor), "nonlinear_share": float(share) if share is not None else None,
+                   "nonlinear_share_from": "friction fit" if fit is not None else "response change between trials",
                    "responded": bool(moved),
                    "needed_nm": float(needed), "needed_by": needed_by, "peak_speed_mps": speed, "peak_torque_nm": torque,
                    "travel_m": float(travel) if travel is not None else None, "cap_nm": float(cap), "cap_by": cap_by}
         self.progress.step(f"  trial {number}: {amplitude:.3g} N*m -> coherence {report_['predicted_coherence_band']:.2f} "
                            f"predicted, {needed:.3g} N*m needed")
-        return {"report": report_, "needed_nm": float(needed), "cap_nm": float(cap), "cap_by": cap_by}
+        return {"report": report_, "needed_nm": float(needed), "cap_nm": float(cap), "cap_by": cap_by, "frf": this}
 
     def _analysis_samples(self, exp: Experiment, excitation: Excitation) -> dict[str, np.ndarray]:
         """Whole gap-free periods of a periodic excitation, else the longest gap-free stretch (never spliced)."""
