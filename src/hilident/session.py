@@ -209,6 +209,8 @@ AUTO_NO_RESPONSE_STEP = 4.0
 #: Without a friction test, the factor from a first trial to the second (the response change between two
 #: amplitudes is what bounds the distortion then).
 AUTO_LINEARITY_STEP = 2.0
+#: Smallest factor between two trials (a smaller step tells nothing new).
+AUTO_MIN_STEP = 1.1
 #: Neighbouring excited lines a noise estimate is averaged over (a single period's line has two degrees of freedom).
 AUTO_NOISE_LINES = 5
 
@@ -266,14 +268,18 @@ def response_change(low: dict, high: dict) -> float:
     """Nonlinear distortion at the higher of two trials' amplitudes, from how much the response changed.
 
     For a linear plant the responses ``G = mean Y / mean U`` of two trials
-    agree within their noise. Friction-like distortion falls as ``1 / A``, so
-    the median change over the lines, its noise (``var G / |G|^2`` of both)
-    taken out, over ``A_high / A_low - 1`` is the share left at ``A_high``.
-    ``low`` and ``high``: ``{amplitude_nm, frf, relative_variance}``.
+    agree within their noise. Friction-like distortion ``D`` falls as
+    ``1 / A``: with ``G(A) = G0 (1 + D0 / A)`` the relative change
+    ``x = |G_low - G_high| / |G_high|`` is ``D (r - 1) / (1 + D)`` for the
+    share ``D`` left at ``A_high`` and ``r = A_high / A_low``, so
+    ``D = x / (r - 1 - x)``. ``x`` is the median over the lines, their noise
+    (``var G / |G|^2`` of both) taken out. ``low`` and ``high``:
+    ``{amplitude_nm, frf, relative_variance}``; inf when the change is too large to say.
     """
     change = np.abs(high["frf"] - low["frf"]) ** 2 / np.maximum(np.abs(high["frf"]) ** 2, 1e-300)
-    excess = np.median(change - low["relative_variance"] - high["relative_variance"])
-    return float(np.sqrt(max(excess, 0.0)) / (high["amplitude_nm"] / low["amplitude_nm"] - 1.0))
+    x = float(np.sqrt(max(np.median(change - low["relative_variance"] - high["relative_variance"]), 0.0)))
+    room = high["amplitude_nm"] / low["amplitude_nm"] - 1.0 - x
+    return x / room if room > 0 else float("inf")
 
 
 def friction_share(velocity: np.ndarray, excitation: np.ndarray, friction, stuck_mps: float) -> float:
@@ -716,10 +722,11 @@ class Session:
         run_periods = len(probe.samples) // period - 1
         fit = friction.fit.params if friction is not None else None
         ceiling, target = amplitude_ceiling_nm(cfg), auto_coherence_target(cfg)
+        highest = min(ceiling, AUTO_TORQUE_MARGIN * cfg.limits.torque_nm)  # a trial's peak stays off the trip level
         self.progress.step(f"excitation: choosing the amplitude (coherence target {target:.2f} over "
                            f"{band[0]:g}-{band[1]:g} Hz, ceiling {ceiling:g} N*m)")
         noise = self._auto_noise(period, lines, fit)
-        amplitude = min(e.auto_start_nm or self._auto_start(probe, fit, ceiling), ceiling)
+        amplitude = min(e.auto_start_nm or self._auto_start(probe, fit, ceiling), highest)
         trials, chosen, reason, needed = [], None, "", None
         for i in range(e.auto_max_trials):
             t = self._auto_trial(i + 1, amplitude, period, lines, run_periods, noise, fit, target,
@@ -727,18 +734,21 @@ class Session:
             if t is None:
                 continue
             trials.append(t)
-            cap, cap_by = min((ceiling, "the ceiling"), (t["cap_nm"], t["cap_by"]))
+            cap, cap_by = min((highest, "the ceiling" if highest == ceiling else "limits.torque_nm (with its margin)"),
+                              (t["cap_nm"], t["cap_by"]))
             needed = t["needed_nm"]
-            if needed <= amplitude * (1 + 1e-9):
+            close = amplitude * AUTO_MIN_STEP >= cap  # no room left for a trial that would tell more
+            if needed <= amplitude * (1 + 1e-9) or (close and needed <= cap):
                 chosen = min(cap, max(amplitude, needed * e.auto_safety))
-                reason = (f"target met: {needed:.3g} N*m needed (set by {t['report']['needed_by']}) times "
+                reason = (("target met" if needed <= amplitude * (1 + 1e-9) else
+                           "target met as predicted (the cap leaves no room for another trial)") + f": {needed:.3g} N*m needed (set by {t['report']['needed_by']}) times "
                           f"excitation.auto_safety = {e.auto_safety:g}, at least the trial's, at most {cap:.3g} N*m; "
                           f"coherence >= {target:.2f} at {AUTO_BAND_SHARE:.0%} of the excited lines over "
                           f"{band[0]:g}-{band[1]:g} Hz predicted for the run's {run_periods} periods"
                           + f"; nonlinear distortion ({'friction' if fit is not None else 'response change between trials'}"
                           f") within excitation.auto_nonlinear_share = {e.auto_nonlinear_share:g}")
                 break
-            if amplitude >= cap * (1 - 1e-9):
+            if close:
                 chosen = cap
                 reason = self._auto_capped(t, cap, cap_by, target)
                 break
@@ -860,8 +870,11 @@ class Session:
         if fit is not None:
             stuck = max(cfg.friction_test.velocity_deadband_mps, AUTO_STUCK_SHARE * fit.vs)
             share, share_by = friction_share(s["velocity_mps"], s["excitation"], fit, stuck), "friction's share"
-        elif previous is not None and amplitude > 1.05 * previous["frf"]["amplitude_nm"]:
+        elif previous is not None and amplitude >= AUTO_MIN_STEP * previous["frf"]["amplitude_nm"]:
             share, share_by = response_change(previous["frf"], this), "response change between trials"
+        elif previous is not None and previous["share"] is not None:  # as 1 / A from the last estimate
+            share = previous["share"] * previous["frf"]["amplitude_nm"] / amplitude
+            share_by = "response change between trials"
         nonlinear = share / e.auto_nonlinear_share if share is not None else AUTO_LINEARITY_STEP / e.auto_safety
         moved = np.median(signal["output"]) > np.median(scatter["output"]) and np.ptp(s[cfg.identification.output]) > 0
         if not moved:  # nothing above the noise: no prediction, only a larger step
@@ -896,7 +909,8 @@ class Session:
                    "travel_m": float(travel) if travel is not None else None, "cap_nm": float(cap), "cap_by": cap_by}
         self.progress.step(f"  trial {number}: {amplitude:.3g} N*m -> coherence {report_['predicted_coherence_band']:.2f} "
                            f"predicted, {needed:.3g} N*m needed")
-        return {"report": report_, "needed_nm": float(needed), "cap_nm": float(cap), "cap_by": cap_by, "frf": this}
+        return {"report": report_, "needed_nm": float(needed), "cap_nm": float(cap), "cap_by": cap_by, "frf": this,
+                "share": share}
 
     def _analysis_samples(self, exp: Experiment, excitation: Excitation) -> dict[str, np.ndarray]:
         """Whole gap-free periods of a periodic excitation, else the longest gap-free stretch (never spliced)."""
