@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -19,10 +20,20 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 GANTRY = CONFIGS / "emulated-gantry.toml"
 
 
+def auto_text(path: Path) -> str:
+    """A shipped gantry config with its amplitude chosen automatically (they give the value auto picks)."""
+    text = path.read_text()
+    assert "amplitude_nm = 8.0" in text
+    return re.sub(r"^amplitude_nm = 8\.0.*$", 'amplitude_nm = "auto"', text, flags=re.M)
+
+
+AUTO_GANTRY = auto_text(GANTRY)
+
+
 def quick(path: Path = GANTRY, friction_test: bool = False, **excitation):
     """A shipped config with auto amplitude made quick: 2 s periods, no verification, 16x simulated time."""
-    cfg = load_config(path)
-    assert cfg.excitation.amplitude_auto  # the shipped gantries choose their amplitude
+    cfg = parse_config(auto_text(path), str(path))
+    assert cfg.excitation.amplitude_auto
     exc = replace(cfg.excitation, period_s=2.0, duration_s=4.0, **excitation)
     emu = replace(cfg.emulator, time_scale=16.0, **({"link": "pipe"} if cfg.emulator.link == "pty" else {}))
     return replace(cfg, excitation=exc, emulator=emu, notch=replace(cfg.notch, verify=False),
@@ -93,12 +104,21 @@ def test_friction_share_counts_a_stuck_axis_as_all_friction():
 ])
 def test_bad_auto_settings_name_the_key_and_file(tmp_path, change, key):
     path = tmp_path / "bad.toml"
-    path.write_text(GANTRY.read_text().replace(*change))
+    path.write_text(AUTO_GANTRY.replace(*change))
     with pytest.raises(ConfigError) as err:
         load_config(path)
     assert err.value.key == key and "bad.toml" in str(err.value)
     if key == "excitation.amplitude_mps":
         assert "torque" in str(err.value)  # auto is for the torque modes; a set-point needs its number
+
+
+def test_auto_for_another_kind_set_in_code_is_refused_before_anything_moves(tmp_path):
+    cfg = quick()
+    cfg = replace(cfg, excitation=replace(cfg.excitation, kind="noise"))
+    with pytest.raises(ConfigError) as err:
+        Session(cfg, tmp_path).run()
+    assert err.value.key == "excitation.amplitude_nm"
+    assert not list(tmp_path.glob("*.h5"))
 
 
 def test_plan_shows_auto_and_the_ceiling(tmp_path):

@@ -581,7 +581,7 @@ def _cross_check(cfg: Config) -> None:
         raise ConfigError("emulator.sensors.laser_range_m", "must be [min, max] with min < max", src)
     if exc.f_min_hz >= exc.f_max_hz:
         raise ConfigError("excitation.f_min_hz", "must be below excitation.f_max_hz", src)
-    _check_auto(cfg)
+    check_auto_amplitude(cfg)
     if not exc.amplitude_auto and not exc.amplitude > 0:
         unit = {"amplitude_mps": "m/s", "amplitude_m": "m"}.get(exc.amplitude_key, "N*m")
         raise ConfigError(f"excitation.{exc.amplitude_key}", f"must be set (> 0, in {unit}) for mode = "
@@ -604,7 +604,7 @@ def _cross_check(cfg: Config) -> None:
         _friction_extent(cfg)
 
 
-def _check_auto(cfg: Config) -> None:
+def check_auto_amplitude(cfg: Config) -> None:
     """``amplitude_nm = "auto"``: a multisine (trials are whole periods of it), within the limits."""
     e, src = cfg.excitation, cfg.source
     if not e.amplitude_auto:

@@ -38,7 +38,7 @@ import numpy as np
 from hilident import __version__, endings, report
 from hilident.adapters.base import StreamStats, adapter_class
 from hilident.config import (AUTO_BAND_SHARE, AUTO_START_SHARE, Config, amplitude_ceiling_nm,
-                              auto_coherence_target)
+                              auto_coherence_target, check_auto_amplitude)
 from hilident.devicelock import DeviceLock, device_key
 from hilident.drivers import DriverDescription, check_run_against_driver, find_driver
 from hilident.errors import ArmingRefused, ConfigError, DataError, HilidentError, UsageError
@@ -624,6 +624,7 @@ class Session:
         cfg = self.cfg
         self.driver = find_driver(cfg.device.driver, cfg.device.driver_paths)
         modes = check_run_against_driver(cfg, self.driver)
+        check_auto_amplitude(cfg)  # again: a config changed in code after loading
         excitation = build_excitation(cfg)
         self._check_excitation_travel(excitation)
         # a drive without a velocity mode runs the friction test's legs as a position profile
@@ -737,16 +738,11 @@ class Session:
             cap, cap_by = min((highest, "the ceiling" if highest == ceiling else "limits.torque_nm (with its margin)"),
                               (t["cap_nm"], t["cap_by"]))
             needed = t["needed_nm"]
+            enough = needed <= amplitude * (1 + 1e-9)
             close = amplitude * AUTO_MIN_STEP >= cap  # no room left for a trial that would tell more
-            if needed <= amplitude * (1 + 1e-9) or (close and needed <= cap):
+            if enough or (close and needed <= cap):
                 chosen = min(cap, max(amplitude, needed * e.auto_safety))
-                reason = (("target met" if needed <= amplitude * (1 + 1e-9) else
-                           "target met as predicted (the cap leaves no room for another trial)") + f": {needed:.3g} N*m needed (set by {t['report']['needed_by']}) times "
-                          f"excitation.auto_safety = {e.auto_safety:g}, at least the trial's, at most {cap:.3g} N*m; "
-                          f"coherence >= {target:.2f} at {AUTO_BAND_SHARE:.0%} of the excited lines over "
-                          f"{band[0]:g}-{band[1]:g} Hz predicted for the run's {run_periods} periods"
-                          + f"; nonlinear distortion ({'friction' if fit is not None else 'response change between trials'}"
-                          f") within excitation.auto_nonlinear_share = {e.auto_nonlinear_share:g}")
+                reason = self._auto_met(t, cap, band, run_periods, fit, tried=enough)
                 break
             if close:
                 chosen = cap
@@ -754,18 +750,7 @@ class Session:
                 break
             amplitude = min(cap, max(needed * e.auto_safety, 1.5 * amplitude))
         else:
-            if not trials:
-                raise DataError(f"excitation.amplitude_nm = \"auto\": none of the {e.auto_max_trials} trials could be "
-                                "analysed (lost samples, see the warnings); check the line, or give the amplitude as "
-                                "a number")
-            chosen = amplitude  # the last prediction, not tried
-            reason = (f"excitation.auto_max_trials = {e.auto_max_trials} trials made before the target was met: the "
-                      f"run uses the amplitude the last trial predicts ({amplitude:.3g} N*m, capped at "
-                      f"{min(ceiling, trials[-1]['cap_nm']):.3g} N*m)")
-            if needed > amplitude:
-                self.warnings.append(f"excitation: auto amplitude {amplitude:.3g} N*m is below the {needed:.3g} N*m "
-                                     "the last trial predicts the target needs; the notch decision will rest on the "
-                                     "evidence gates")
+            chosen, reason = self._auto_out_of_trials(trials, amplitude, needed)
         self._auto = {"chosen_nm": float(chosen), "reason": reason, "target_coherence": target,
                       "band_share": AUTO_BAND_SHARE, "band_hz": [float(band[0]), float(band[1])],
                       "ceiling_nm": float(ceiling), "safety": e.auto_safety, "run_periods": run_periods,
@@ -777,6 +762,32 @@ class Session:
                            + f"; {len(trials)} trial{'s' if len(trials) != 1 else ''})")
         self.cfg = dataclasses.replace(cfg, excitation=dataclasses.replace(e, amplitude_nm=float(chosen)))
         return build_excitation(self.cfg)
+
+    def _auto_met(self, trial: dict, cap: float, band, run_periods: int, fit, tried: bool) -> str:
+        """The reason when the target is met (by the last trial, or as it predicts when the cap is that close)."""
+        e = self.cfg.excitation
+        how = "target met" if tried else "target met as predicted (the cap leaves no room for another trial)"
+        source = "friction" if fit is not None else "response change between trials"
+        return (f"{how}: {trial['needed_nm']:.3g} N*m needed (set by {trial['report']['needed_by']}) times "
+                f"excitation.auto_safety = {e.auto_safety:g}, at least the trial's, at most {cap:.3g} N*m; "
+                f"coherence >= {auto_coherence_target(self.cfg):.2f} at {AUTO_BAND_SHARE:.0%} of the excited lines "
+                f"over {band[0]:g}-{band[1]:g} Hz predicted for the run's {run_periods} periods; nonlinear "
+                f"distortion ({source}) within excitation.auto_nonlinear_share = {e.auto_nonlinear_share:g}")
+
+    def _auto_out_of_trials(self, trials: list, amplitude: float, needed: float | None) -> tuple[float, str]:
+        """``auto_max_trials`` made before the target: the last prediction (not tried), or an error without any."""
+        e = self.cfg.excitation
+        if not trials:
+            raise DataError(f"excitation.amplitude_nm = \"auto\": none of the {e.auto_max_trials} trials could be "
+                            "analysed (lost samples, see the warnings); check the line, or give the amplitude as "
+                            "a number")
+        reason = (f"excitation.auto_max_trials = {e.auto_max_trials} trials made before the target was met: the run "
+                  f"uses the amplitude the last trial predicts ({amplitude:.3g} N*m, within its caps)")
+        if needed > amplitude:
+            self.warnings.append(f"excitation: auto amplitude {amplitude:.3g} N*m is below the {needed:.3g} N*m the "
+                                 "last trial predicts the target needs; the notch decision will rest on the evidence "
+                                 "gates")
+        return amplitude, reason
 
     def _auto_start(self, probe: Excitation, fit, ceiling: float) -> float:
         """First trial's amplitude, N·m: the multisine whose rms is the friction test's ``Fs / auto_nonlinear_share``.
@@ -817,8 +828,8 @@ class Session:
     def _auto_noise(self, period: int, lines: np.ndarray, fit) -> dict:
         """Noise power per excited line and period, output and torque, from a record with zero excitation."""
         mode = self.cfg.excitation.mode
-        exp = self.record("auto_noise", mode, np.zeros(period + period // 4), period_samples=period,
-                          recipe=excitation_recipe(self.cfg, amplitude=0.0, duration_s=1.25 * self.cfg.excitation.period_s))
+        recipe = excitation_recipe(self.cfg, amplitude=0.0, duration_s=1.25 * self.cfg.excitation.period_s)
+        exp = self.record("auto_noise", mode, np.zeros(period + period // 4), period_samples=period, recipe=recipe)
         s = exp.samples
         index = s["sample_index"]
         out = {"output": np.zeros(len(lines)), "torque": np.zeros(len(lines))}
@@ -828,8 +839,8 @@ class Session:
             out["report"] = None
             return out
         last = {k: v[-period:] for k, v in s.items()}
-        out["output"] = smooth_lines(np.abs(period_spectra(last[self.cfg.identification.output], period, lines)[0]) ** 2)
-        out["torque"] = smooth_lines(np.abs(period_spectra(self._plant_input(last, fit), period, lines)[0]) ** 2)
+        for key, x in (("output", last[self.cfg.identification.output]), ("torque", self._plant_input(last, fit))):
+            out[key] = smooth_lines(np.abs(period_spectra(x, period, lines)[0]) ** 2)
         # as the amplitude of a sine on one line (peak), the unit of the channel
         out["report"] = {"output_median": float(np.median(2 * np.sqrt(out["output"]) / period)),
                          "torque_nm_median": float(np.median(2 * np.sqrt(out["torque"]) / period)),
@@ -840,7 +851,7 @@ class Session:
                     noise: dict, fit, target: float, previous: dict | None) -> dict | None:
         """One trial: the multisine at ``amplitude`` for a few periods, and what it predicts for the run."""
         cfg = self.cfg
-        e, lim = cfg.excitation, cfg.limits
+        e = cfg.excitation
         duration = e.auto_trial_periods * e.period_s
         trial_cfg = dataclasses.replace(cfg, excitation=dataclasses.replace(e, duration_s=duration))
         x = build_excitation(trial_cfg, amplitude=amplitude)
@@ -881,8 +892,29 @@ class Session:
             factor, nonlinear = AUTO_NO_RESPONSE_STEP / e.auto_safety, 0.0
         needed = amplitude * max(factor, nonlinear)
         needed_by = ("no response above the noise" if not moved else share_by if nonlinear > factor else "coherence")
-        # what the run would command, scaled linearly from what this trial measured
-        full = exp.samples
+        limits = self._auto_caps(exp.samples, amplitude, period, run_periods)
+        speed, torque, travel, cap, cap_by = (limits[k] for k in ("speed", "torque", "travel", "cap", "cap_by"))
+        report_ = {"amplitude_nm": float(amplitude), "predicted_coherence_min": float(np.min(coh)),
+                   "predicted_coherence_median": float(np.median(coh)), "predicted_coherence_band": band_coherence(coh),
+                   "coherence_factor": float(factor), "nonlinear_share": float(share) if share is not None else None,
+                   "nonlinear_share_from": "friction fit" if fit is not None else "response change between trials",
+                   "responded": bool(moved),
+                   "needed_nm": float(needed), "needed_by": needed_by, "peak_speed_mps": speed,
+                   "peak_torque_nm": torque,
+                   "travel_m": float(travel) if travel is not None else None, "cap_nm": float(cap), "cap_by": cap_by}
+        self.progress.step(f"  trial {number}: {amplitude:.3g} N*m -> coherence "
+                           f"{report_['predicted_coherence_band']:.2f} predicted, {needed:.3g} N*m needed")
+        return {"report": report_, "needed_nm": float(needed), "cap_nm": float(cap), "cap_by": cap_by, "frf": this,
+                "share": share}
+
+    def _auto_caps(self, full: dict, amplitude: float, period: int, run_periods: int) -> dict:
+        """What a trial's measurements allow: the run's peak torque, speed and travel, scaled linearly, in ``[limits]``.
+
+        The travel adds the trial's drift per period (an open-loop axis creeps)
+        over the run's extra periods; the room is to the nearer end of the
+        position window from where the trial started or ended.
+        """
+        e, lim = self.cfg.excitation, self.cfg.limits
         speed = float(np.max(np.abs(full["velocity_mps"])))
         torque = float(np.max(np.abs(full["torque_nm"])))
         caps = [(amplitude * AUTO_TORQUE_MARGIN * lim.torque_nm / torque if torque > 0 else np.inf,
@@ -894,23 +926,13 @@ class Session:
             pos = full["position_m"]
             start, end = float(pos[0]), float(pos[-1])
             excursion = float(np.max(np.abs(pos - start)))
-            drift = abs(end - float(pos[min(period, len(pos) - 1)])) / e.auto_trial_periods  # per period, open loop
+            drift = abs(end - float(pos[min(period, len(pos) - 1)])) / e.auto_trial_periods
             travel = excursion + drift * max(run_periods - e.auto_trial_periods, 0)
             room = min(lim.position_max_m - max(start, end), min(start, end) - lim.position_min_m)
             caps.append((amplitude * AUTO_LIMIT_MARGIN * max(room, 0.0) / travel if travel > 0 else np.inf,
                          "the position window (the trial's travel and drift, scaled)"))
         cap, cap_by = min(caps)
-        report_ = {"amplitude_nm": float(amplitude), "predicted_coherence_min": float(np.min(coh)),
-                   "predicted_coherence_median": float(np.median(coh)), "predicted_coherence_band": band_coherence(coh),
-                   "coherence_factor": float(factor), "nonlinear_share": float(share) if share is not None else None,
-                   "nonlinear_share_from": "friction fit" if fit is not None else "response change between trials",
-                   "responded": bool(moved),
-                   "needed_nm": float(needed), "needed_by": needed_by, "peak_speed_mps": speed, "peak_torque_nm": torque,
-                   "travel_m": float(travel) if travel is not None else None, "cap_nm": float(cap), "cap_by": cap_by}
-        self.progress.step(f"  trial {number}: {amplitude:.3g} N*m -> coherence {report_['predicted_coherence_band']:.2f} "
-                           f"predicted, {needed:.3g} N*m needed")
-        return {"report": report_, "needed_nm": float(needed), "cap_nm": float(cap), "cap_by": cap_by, "frf": this,
-                "share": share}
+        return {"speed": speed, "torque": torque, "travel": travel, "cap": float(cap), "cap_by": cap_by}
 
     def _analysis_samples(self, exp: Experiment, excitation: Excitation) -> dict[str, np.ndarray]:
         """Whole gap-free periods of a periodic excitation, else the longest gap-free stretch (never spliced)."""
