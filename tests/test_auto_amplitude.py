@@ -12,7 +12,9 @@ import pytest
 from hilident.config import load_config, parse_config
 from hilident.emulator.factory import true_modes
 from hilident.errors import ConfigError
+from hilident.ident.frequency import periodic_frf
 from hilident.ident.friction import StribeckParams
+from hilident.recording import read_run
 from hilident.session import (Session, band_coherence, coherence_factor, friction_share, predicted_coherence,
                               response_change)
 
@@ -34,7 +36,7 @@ def quick(path: Path = GANTRY, friction_test: bool = False, **excitation):
     """A shipped config with auto amplitude made quick: 2 s periods, no verification, 16x simulated time."""
     cfg = parse_config(auto_text(path), str(path))
     assert cfg.excitation.amplitude_auto
-    exc = replace(cfg.excitation, period_s=2.0, duration_s=4.0, **excitation)
+    exc = replace(cfg.excitation, **{"period_s": 2.0, "duration_s": 4.0, **excitation})
     emu = replace(cfg.emulator, time_scale=16.0, **({"link": "pipe"} if cfg.emulator.link == "pty" else {}))
     return replace(cfg, excitation=exc, emulator=emu, notch=replace(cfg.notch, verify=False),
                    friction_test=replace(cfg.friction_test, enabled=friction_test))
@@ -134,21 +136,38 @@ def test_plan_shows_auto_and_the_ceiling(tmp_path):
 # --- whole sessions ------------------------------------------------------------------------------
 
 
-def test_auto_meets_the_target_and_finds_the_mode(tmp_path):
-    cfg = quick()
+def run_coherence(path: Path, band_hz) -> np.ndarray:
+    """Coherence over periods of a recorded run at its excited lines in ``band_hz`` (torque to velocity)."""
+    run = read_run(path)
+    period = int(run.attrs["period_samples"])
+    s = run.samples
+    frf = periodic_frf(s["torque_nm"], s["velocity_mps"], period, run.sample_rate_hz, skip_periods=1)
+    inside = (frf.frequency_hz >= band_hz[0]) & (frf.frequency_hz <= band_hz[1])
+    return frf.coherence[inside]
+
+
+def test_auto_meets_the_target_it_predicts_and_finds_the_mode(tmp_path):
+    cfg = quick(duration_s=8.0)  # four periods: the prediction is for the run's own number of periods
+    noisy = replace(cfg.emulator.sensors, encoder_resolution_m=3e-6, torque_noise_nm=0.05)  # coherence < 1
+    cfg = replace(cfg, emulator=replace(cfg.emulator, sensors=noisy))
     summary = Session(cfg, tmp_path).run()
     auto = summary["excitation"]["auto"]
     assert summary["excitation"]["amplitude_setting"] == "auto"
     assert summary["excitation"]["amplitude"] == auto["chosen_nm"]
     assert auto["reason"].startswith("target met"), auto["reason"]
-    last = auto["trials"][-1]
+    first, last = auto["trials"][0], auto["trials"][-1]
+    assert first["predicted_coherence_band"] < auto["target_coherence"]  # the noise made the start too weak
     # the chosen amplitude is one a trial showed enough, with the safety factor on what it predicted
     assert last["needed_nm"] <= last["amplitude_nm"] <= auto["chosen_nm"] <= cfg.limits.torque_nm
     assert last["predicted_coherence_band"] >= auto["target_coherence"]
     assert len(auto["trials"]) >= 2  # no friction test: the distortion is bounded by two trials' responses
-    assert auto["trials"][-1]["nonlinear_share"] <= cfg.excitation.auto_nonlinear_share
-    assert auto["noise_floor"]["torque_nm_median"] > 0
-    assert {"auto_noise.h5", "auto_trial_1.h5"} <= set(summary["recordings"])
+    assert last["nonlinear_share"] <= cfg.excitation.auto_nonlinear_share
+    # (at rest a quantised encoder may read nothing: the output's noise then comes from the trials' scatter)
+    assert auto["noise_floor"]["torque_nm_median"] > 0 and auto["noise_floor"]["output_median"] >= 0
+    assert {"auto_noise.h5", "auto_trial_1.h5", "auto_trial_2.h5"} <= set(summary["recordings"])
+    # what the run measured is what the trials predicted
+    coherence = run_coherence(tmp_path / "identification.h5", auto["band_hz"])
+    assert np.quantile(coherence, 1 - auto["band_share"]) >= auto["target_coherence"] - 0.02
     assert_mode_found(cfg, summary)
 
 

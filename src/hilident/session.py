@@ -868,7 +868,9 @@ class Session:
         signal, scatter = {}, {}
         for key, spec in spectra.items():
             scatter[key] = np.maximum(smooth_lines(np.var(spec, axis=0, ddof=1)), noise[key])
-            signal[key] = np.maximum(np.abs(spec.mean(axis=0)) ** 2 - scatter[key] / m, 0.0)
+            # the periodic part less the mean's own noise; a line lost in the noise keeps a small signal (a tenth
+            # of what the mean's noise could hide), so what it needs stays finite, and large
+            signal[key] = np.maximum(np.abs(spec.mean(axis=0)) ** 2 - scatter[key] / m, 0.1 * scatter[key] / m)
             # no noise at all (a quantised sensor at rest): a floor far below the signal keeps the ratios finite
             scatter[key] = np.maximum(scatter[key], 1e-12 * max(float(np.max(signal[key])), 1e-300))
         coh = predicted_coherence(signal, scatter, 1.0, run_periods)
@@ -888,8 +890,8 @@ class Session:
             share_by = "response change between trials"
         nonlinear = share / e.auto_nonlinear_share if share is not None else AUTO_LINEARITY_STEP / e.auto_safety
         moved = np.median(signal["output"]) > np.median(scatter["output"]) and np.ptp(s[cfg.identification.output]) > 0
-        if not moved:  # nothing above the noise: no prediction, only a larger step
-            factor, nonlinear = AUTO_NO_RESPONSE_STEP / e.auto_safety, 0.0
+        if not moved:  # nothing above the noise: the prediction is weak, step at least this far
+            factor, nonlinear = max(min(factor, 1e3), AUTO_NO_RESPONSE_STEP / e.auto_safety), 0.0
         needed = amplitude * max(factor, nonlinear)
         needed_by = ("no response above the noise" if not moved else share_by if nonlinear > factor else "coherence")
         limits = self._auto_caps(exp.samples, amplitude, period, run_periods)
