@@ -122,6 +122,7 @@ AMPLITUDE_KEY_OF_MODE = {"torque_injection": "amplitude_nm", "torque": "amplitud
 EXCITATION_MODES = tuple(AMPLITUDE_KEY_OF_MODE)
 #: Modes whose excitation is a set-point perturbation of a loop the drive closes.
 SETPOINT_MODES = ("velocity", "position")
+#: Why amplitude_mps / amplitude_m refuse "auto".
 AUTO_SETPOINT_REFUSED = ('"auto" chooses a torque amplitude (excitation.amplitude_nm, modes torque and '
                          "torque_injection); a set-point perturbation's size must be given as a number")
 #: amplitude_nm = "auto": share of the band's excited lines that must reach the coherence target.
@@ -157,8 +158,9 @@ class ExcitationConfig:
                                   "identification.coherence_threshold + 0.15, at most 0.95")
     auto_trial_periods: int = _spec(2, ge=2, le=16, doc="auto: multisine periods of each trial (plus one lead-in)")
     auto_max_trials: int = _spec(4, ge=1, le=16, doc="auto: most trials before the run")
-    auto_start_nm: float = _spec(0.0, ge=0, doc="auto: first trial's amplitude, N*m; 0: the friction test's Fs, "
-                                 "without one AUTO_START_SHARE of the ceiling")
+    auto_start_nm: float = _spec(0.0, ge=0, doc="auto: first trial's amplitude, N*m; 0: the multisine whose rms is "
+                                 "the friction test's Fs / auto_nonlinear_share, without one AUTO_START_SHARE of the "
+                                 "ceiling")
     auto_max_nm: float = _spec(0.0, ge=0, doc="auto: largest amplitude auto may choose, N*m; 0: limits.torque_nm")
     auto_safety: float = _spec(1.5, ge=1, le=10, doc="auto: factor on the amplitude the trials predict is needed")
     auto_nonlinear_share: float = _spec(0.1, gt=0, le=1, doc="auto: largest share of nonlinear distortion the run "
