@@ -155,6 +155,7 @@ def test_auto_meets_the_target_it_predicts_and_finds_the_mode(tmp_path):
     assert summary["excitation"]["amplitude_setting"] == "auto"
     assert summary["excitation"]["amplitude"] == auto["chosen_nm"]
     assert auto["reason"].startswith("target met"), auto["reason"]
+    assert "predicted" in auto["line"] and auto["line"].endswith(f"{len(auto['trials'])} trials)")
     first, last = auto["trials"][0], auto["trials"][-1]
     assert first["predicted_coherence_band"] < auto["target_coherence"]  # the noise made the start too weak
     # the chosen amplitude is one a trial showed enough, with the safety factor on what it predicted
@@ -180,6 +181,8 @@ def test_auto_never_exceeds_the_torque_limit_and_says_so(tmp_path):
     assert all(t["amplitude_nm"] <= 1.0 for t in auto["trials"])
     assert auto["chosen_nm"] <= 1.0
     assert auto["reason"].startswith("capped"), auto["reason"]
+    assert auto["line"].startswith(f"excitation: auto amplitude {auto['chosen_nm']:.3g} N*m (capped")
+    assert "evidence gates" in auto["line"]
     assert auto["trials"][-1]["needed_nm"] > 1.0
     assert any("evidence gates" in w for w in summary["warnings"])
 

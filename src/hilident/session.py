@@ -755,11 +755,15 @@ class Session:
                       "band_share": AUTO_BAND_SHARE, "band_hz": [float(band[0]), float(band[1])],
                       "ceiling_nm": float(ceiling), "safety": e.auto_safety, "run_periods": run_periods,
                       "noise_floor": noise["report"], "trials": [t["report"] for t in trials]}
-        met = reason.startswith("target met")
-        self.progress.step(f"excitation: auto amplitude {chosen:.3g} N*m ("
-                           + (f"coherence >= {target:.2f} over {band[0]:g}-{band[1]:g} Hz predicted"
-                              if met else reason.split(":")[0])
-                           + f"; {len(trials)} trial{'s' if len(trials) != 1 else ''})")
+        if reason.startswith("target met"):
+            why = f"coherence >= {target:.2f} over {band[0]:g}-{band[1]:g} Hz predicted"
+        elif reason.startswith("capped"):
+            why = reason.split(":")[0] + f" (coherence {target:.2f}): the notch decision rests on the evidence gates"
+        else:
+            why = f"target not reached in excitation.auto_max_trials = {e.auto_max_trials}"
+        self._auto["line"] = (f"excitation: auto amplitude {chosen:.3g} N*m ({why}; "
+                              f"{len(trials)} trial{'s' if len(trials) != 1 else ''})")
+        self.progress.step(self._auto["line"])
         self.cfg = dataclasses.replace(cfg, excitation=dataclasses.replace(e, amplitude_nm=float(chosen)))
         return build_excitation(self.cfg)
 
