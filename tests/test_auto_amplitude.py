@@ -189,6 +189,7 @@ def test_auto_never_exceeds_the_torque_limit_and_says_so(tmp_path):
 
 def test_auto_over_modbus_tcp_with_the_friction_test(tmp_path):
     cfg = quick(CONFIGS / "emulated-modbus-gantry.toml", friction_test=True)
+    cfg = replace(cfg, emulator=replace(cfg.emulator, time_scale=32.0))  # the drive plays its table: no hurry
     summary = Session(cfg, tmp_path).run()
     auto = summary["excitation"]["auto"]
     assert summary["device"]["port"].startswith("tcp://")
