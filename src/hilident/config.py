@@ -44,9 +44,15 @@ INT_RANGE = (-(2**31), 2**31 - 1)
 FLOAT_MAX = 1e30
 
 
-def _spec(default=dataclasses.MISSING, *, gt=None, ge=None, le=None, lt=None, choices=None, max_items=None, doc=""):
-    """A dataclass field with validation metadata (bounds, choices, list length)."""
-    meta = {"gt": gt, "ge": ge, "le": le, "lt": lt, "choices": choices, "max_items": max_items, "doc": doc}
+def _spec(default=dataclasses.MISSING, *, gt=None, ge=None, le=None, lt=None, choices=None, max_items=None, doc="",
+          auto=None):
+    """A dataclass field with validation metadata (bounds, choices, list length).
+
+    ``auto``: the string ``"auto"`` is accepted besides a number (``True``), or
+    refused with this message (a str) where it cannot apply.
+    """
+    meta = {"gt": gt, "ge": ge, "le": le, "lt": lt, "choices": choices, "max_items": max_items, "doc": doc,
+            "auto": auto}
     if isinstance(default, (list, dict)):
         return field(default_factory=lambda d=default: type(d)(d), metadata=meta)
     return field(default=default, metadata=meta)
@@ -116,6 +122,13 @@ AMPLITUDE_KEY_OF_MODE = {"torque_injection": "amplitude_nm", "torque": "amplitud
 EXCITATION_MODES = tuple(AMPLITUDE_KEY_OF_MODE)
 #: Modes whose excitation is a set-point perturbation of a loop the drive closes.
 SETPOINT_MODES = ("velocity", "position")
+#: Why amplitude_mps / amplitude_m refuse "auto".
+AUTO_SETPOINT_REFUSED = ('"auto" chooses a torque amplitude (excitation.amplitude_nm, modes torque and '
+                         "torque_injection); a set-point perturbation's size must be given as a number")
+#: amplitude_nm = "auto": share of the band's excited lines that must reach the coherence target.
+AUTO_BAND_SHARE = 0.9
+#: amplitude_nm = "auto" without a friction test or auto_start_nm: the first trial's share of the ceiling.
+AUTO_START_SHARE = 0.05
 
 
 @dataclass(frozen=True)
@@ -124,10 +137,13 @@ class ExcitationConfig:
     mode: str = _spec("torque_injection", choices=EXCITATION_MODES,
                       doc="where the excitation enters: torque_injection (added to the torque of a loop holding the "
                           "axis), torque (open loop), velocity or position (a set-point perturbation in closed loop)")
-    amplitude_nm: float = _spec(1.0, gt=0, doc="peak torque of the excitation (noise: rms), modes torque and "
-                                               "torque_injection")
-    amplitude_mps: float = _spec(0.0, ge=0, doc="peak velocity set-point perturbation (noise: rms), mode velocity")
-    amplitude_m: float = _spec(0.0, ge=0, doc="peak position set-point perturbation (noise: rms), mode position")
+    amplitude_nm: float | str = _spec(1.0, gt=0, auto=True,
+                                      doc='peak torque of the excitation (noise: rms), modes torque and '
+                                          'torque_injection; "auto": chosen by short trials before the run (multisine)')
+    amplitude_mps: float = _spec(0.0, ge=0, auto=AUTO_SETPOINT_REFUSED,
+                                 doc="peak velocity set-point perturbation (noise: rms), mode velocity")
+    amplitude_m: float = _spec(0.0, ge=0, auto=AUTO_SETPOINT_REFUSED,
+                               doc="peak position set-point perturbation (noise: rms), mode position")
     f_min_hz: float = _spec(1.0, gt=0)
     f_max_hz: float = _spec(100.0, gt=0)
     frequency_hz: float = _spec(10.0, gt=0, doc="sine and square")
@@ -137,6 +153,26 @@ class ExcitationConfig:
     register_length: int = _spec(10, ge=2, le=32, doc="PRBS shift-register length")
     clock_divider: int = _spec(1, ge=1, doc="PRBS samples per bit")
     fade_s: float = _spec(0.1, ge=0, doc="raised-cosine fade in and out")
+    auto_coherence: float = _spec(0.0, ge=0, lt=1, doc='amplitude_nm = "auto": coherence the run must reach at '
+                                  "AUTO_BAND_SHARE of the excited lines of the band; 0: "
+                                  "identification.coherence_threshold + 0.15, at most 0.95")
+    auto_trial_periods: int = _spec(2, ge=2, le=16, doc="auto: multisine periods of each trial (plus one lead-in)")
+    auto_max_trials: int = _spec(4, ge=1, le=16, doc="auto: most trials before the run")
+    auto_start_nm: float = _spec(0.0, ge=0, doc="auto: first trial's amplitude, N*m; 0: the multisine whose rms is "
+                                 "the friction test's Fs / auto_nonlinear_share, without one AUTO_START_SHARE of the "
+                                 "ceiling")
+    auto_max_nm: float = _spec(0.0, ge=0, doc="auto: largest amplitude auto may choose, N*m; 0: limits.torque_nm")
+    auto_safety: float = _spec(1.5, ge=1, le=10, doc="auto: factor on the amplitude the trials predict is needed")
+    auto_nonlinear_share: float = _spec(0.1, gt=0, le=1, doc="auto: largest share of nonlinear distortion the run "
+                                        "may carry: the fitted friction's nonlinear part (Coulomb and Stribeck) over "
+                                        "the excitation (rms), or without a friction test the change of the measured "
+                                        "response between two trials, scaled to the higher amplitude; stick-slip "
+                                        "repeats every period, so coherence does not see the distortion it causes")
+
+    @property
+    def amplitude_auto(self) -> bool:
+        """Whether the torque amplitude is chosen by trials before the run (``amplitude_nm = "auto"``)."""
+        return self.mode in ("torque", "torque_injection") and self.amplitude_nm == "auto"
 
     @property
     def amplitude_key(self) -> str:
@@ -144,8 +180,8 @@ class ExcitationConfig:
         return AMPLITUDE_KEY_OF_MODE[self.mode]
 
     @property
-    def amplitude(self) -> float:
-        """The amplitude in the unit of :attr:`mode` (N·m, m/s or m)."""
+    def amplitude(self) -> float | str:
+        """The amplitude in the unit of :attr:`mode` (N·m, m/s or m), or ``"auto"`` (see :attr:`amplitude_auto`)."""
         return getattr(self, self.amplitude_key)
 
     @property
@@ -358,6 +394,30 @@ class Config:
         return self.device.port == "emulator"
 
 
+def amplitude_ceiling_nm(cfg: Config) -> float:
+    """Largest torque amplitude ``amplitude_nm = "auto"`` may choose, N·m: ``auto_max_nm``, else the torque limit.
+
+    What the plan shows and the limit checks use before the trials choose.
+    Without ``[limits]`` (``hilident identify``) it is ``auto_max_nm`` or 0.
+    """
+    e = cfg.excitation
+    if e.auto_max_nm:
+        return e.auto_max_nm
+    return cfg.limits.torque_nm if cfg.limits is not None else 0.0
+
+
+def auto_coherence_target(cfg: Config) -> float:
+    """Coherence ``amplitude_nm = "auto"`` aims for at ``AUTO_BAND_SHARE`` of the band's excited lines.
+
+    ``excitation.auto_coherence``, else ``identification.coherence_threshold``
+    + 0.15, at most 0.95 (and never below the threshold itself).
+    """
+    if cfg.excitation.auto_coherence:
+        return cfg.excitation.auto_coherence
+    threshold = cfg.identification.coherence_threshold
+    return max(threshold, min(threshold + 0.15, 0.95))
+
+
 # --- loading --------------------------------------------------------------------------------
 
 
@@ -488,6 +548,13 @@ _BOUNDS = (("gt", lambda v, b: v > b, ">"), ("ge", lambda v, b: v >= b, ">="),
 
 
 def _scalar(hint, value, meta, key, source):
+    auto = meta.get("auto")
+    if auto and isinstance(value, str) and value == "auto":
+        if auto is True:
+            return value
+        raise ConfigError(key, auto, source)
+    if auto is True and isinstance(value, str):
+        raise ConfigError(key, f'must be a number or "auto", got {show(value)}', source)
     choices = meta.get("choices") or ()
     if hint is str and isinstance(value, int) and not isinstance(value, bool) and str(value) in choices:
         value = str(value)  # a choice of "auto" or a count: model_order = 3 as well as "3"
@@ -542,7 +609,8 @@ def _cross_check(cfg: Config) -> None:
         raise ConfigError("emulator.sensors.laser_range_m", "must be [min, max] with min < max", src)
     if exc.f_min_hz >= exc.f_max_hz:
         raise ConfigError("excitation.f_min_hz", "must be below excitation.f_max_hz", src)
-    if not exc.amplitude > 0:
+    check_auto_amplitude(cfg)
+    if not exc.amplitude_auto and not exc.amplitude > 0:
         unit = {"amplitude_mps": "m/s", "amplitude_m": "m"}.get(exc.amplitude_key, "N*m")
         raise ConfigError(f"excitation.{exc.amplitude_key}", f"must be set (> 0, in {unit}) for mode = "
                                                              f"{exc.mode!r}: the set-point perturbation's size", src)
@@ -562,6 +630,24 @@ def _cross_check(cfg: Config) -> None:
     excitation_samples(cfg)
     if cfg.friction_test.enabled:
         _friction_extent(cfg)
+
+
+def check_auto_amplitude(cfg: Config) -> None:
+    """``amplitude_nm = "auto"``: a multisine (trials are whole periods of it), within the limits."""
+    e, src = cfg.excitation, cfg.source
+    if not e.amplitude_auto:
+        return
+    if e.kind != "multisine":
+        raise ConfigError("excitation.amplitude_nm", f'"auto" needs kind = "multisine" (the trials are whole '
+                                                     f"periods of it), got kind = {e.kind!r}; give a number", src)
+    ceiling = amplitude_ceiling_nm(cfg)
+    if cfg.limits is not None and e.auto_max_nm > cfg.limits.torque_nm:
+        raise ConfigError("excitation.auto_max_nm", f"{e.auto_max_nm:g} N*m exceeds limits.torque_nm = "
+                                                    f"{cfg.limits.torque_nm:g}", src)
+    if ceiling and e.auto_start_nm > ceiling:
+        raise ConfigError("excitation.auto_start_nm", f"{e.auto_start_nm:g} N*m is above the largest amplitude auto "
+                                                      f"may choose ({ceiling:g} N*m: excitation.auto_max_nm, else "
+                                                      "limits.torque_nm)", src)
 
 
 def _check_data_and_model(cfg: Config) -> None:
@@ -589,7 +675,7 @@ def _check_limits(cfg: Config) -> None:
     src, lim, exc = cfg.source, cfg.limits, cfg.excitation
     if lim.position_min_m >= lim.position_max_m:
         raise ConfigError("limits.position_min_m", "must be below limits.position_max_m", src)
-    if exc.mode in ("torque", "torque_injection") and exc.amplitude_nm > lim.torque_nm:
+    if exc.mode in ("torque", "torque_injection") and not exc.amplitude_auto and exc.amplitude_nm > lim.torque_nm:
         raise ConfigError(
             "excitation.amplitude_nm", f"{exc.amplitude_nm:g} N*m exceeds limits.torque_nm = {lim.torque_nm:g}", src
         )

@@ -11,7 +11,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from hilident.config import Config
+from hilident.config import Config, amplitude_ceiling_nm, auto_coherence_target
 from hilident.signals.generators import position_of
 
 
@@ -30,7 +30,8 @@ class PlannedExperiment:
     duration_s : float
     samples : int
     peak_torque_nm : float or None
-        Largest excitation torque (``None`` when the drive's loop chooses the torque).
+        Largest excitation torque (``None`` when the drive's loop chooses the torque); with
+        ``amplitude_nm = "auto"`` the ceiling the trials may reach.
     peak_speed_mps : float or None
         Largest commanded speed (``None`` when not commanded).
     travel_m : float or None
@@ -45,6 +46,7 @@ class PlannedExperiment:
     peak_torque_nm: float | None = None
     peak_speed_mps: float | None = None
     travel_m: float | None = None
+    amplitude: str = ""
 
 
 @dataclass
@@ -78,7 +80,10 @@ class RunPlan:
                 peaks.append(f"peak speed {e.peak_speed_mps:.3g} m/s")
             if e.travel_m is not None:
                 peaks.append(f"travel up to {e.travel_m:.3g} m each way")
-            lines.append(f"  {i}. {e.name}: {e.description}, {e.mode} mode, {e.duration_s:.1f} s"
+            if e.amplitude:
+                peaks.insert(0, f"amplitude {e.amplitude}")
+            lines.append(f"  {i}. {e.name}: {e.description}, {e.mode} mode, "
+                         + ("up to " if e.name == "auto amplitude" else "") + f"{e.duration_s:.1f} s"
                          + (", " + ", ".join(peaks) if peaks else ""))
         if self.filters_enabled:
             lines.append(f"  filter slots {self.filters_enabled} hold filters: bypassed while the plant is measured, "
@@ -130,6 +135,10 @@ def make_plan(cfg: Config, excitation, friction_profile, adapter, filters_found:
     if e.closed_loop:
         what += f" {e.mode} set-point perturbation, closed loop"
     peaks = _excitation_peaks(e.mode, x, fs)
+    if e.amplitude_auto:
+        ceiling = amplitude_ceiling_nm(cfg)
+        peaks["amplitude"] = f"auto (at most {ceiling:g} N*m)"
+        plan.experiments.append(_auto_trials(cfg, excitation, ceiling))
     plan.experiments.append(PlannedExperiment("identification", what, e.mode, len(x) / fs, len(x), **peaks))
     if cfg.notch.enabled and cfg.identification.max_resonances:
         plan.notch_slots = min(cfg.identification.max_resonances, adapter.identity.filter_slots)
@@ -137,6 +146,17 @@ def make_plan(cfg: Config, excitation, friction_profile, adapter, filters_found:
             plan.experiments.append(PlannedExperiment("verification", "the same excitation with the new notches",
                                                       e.mode, len(x) / fs, len(x), **peaks))
     return plan
+
+
+def _auto_trials(cfg: Config, excitation, ceiling_nm: float) -> PlannedExperiment:
+    """The records ``amplitude_nm = "auto"`` makes before the run: standstill, then at most ``auto_max_trials``."""
+    e, fs = cfg.excitation, cfg.run.sample_rate_hz
+    period = excitation.period_samples
+    n = period + period // 4 + e.auto_max_trials * (e.auto_trial_periods + 1) * period
+    return PlannedExperiment(
+        "auto amplitude", f"standstill noise record, then up to {e.auto_max_trials} trials of "
+        f"{e.auto_trial_periods} multisine periods (+1 lead-in) until coherence "
+        f"{auto_coherence_target(cfg):.2f} is predicted", e.mode, n / fs, n, peak_torque_nm=ceiling_nm)
 
 
 def _excitation_peaks(mode: str, x: np.ndarray, sample_rate_hz: float) -> dict:
