@@ -302,3 +302,31 @@ def test_three_mass_step_matches_lsim_and_friction_holds_it_below_breakaway():
     assert np.all(x[:, 0] == 0.0) and np.all(x[:, 1] == 0.0)
     moving = Plant(CHAIN, FRICTION)
     assert simulate(moving, 0.81, dt, 300)[-1, 1] > 0.0
+
+
+# -- backlash ------------------------------------------------------------------------
+
+AXIS = TwoMass(m1=40.0, m2=10.0, k=1.5e5, d=40.0, c=10.0)
+
+
+def test_inside_the_play_the_load_moves_freely_and_outside_it_bounces_back():
+    plant = Plant(AXIS, backlash_m=1e-3)
+    plant.reset(p1=0.0, p2=0.0, v2=0.01)  # the load drifts at 10 mm/s, 0.5 mm from either side
+    x = simulate(plant, 0.0, 1e-3, 40)
+    assert np.all(x[:, 1] == 0.0)  # the cart feels nothing while the load crosses the gap ...
+    assert x[40, 2] == pytest.approx(0.0004, rel=1e-9)
+    x = simulate(plant, 0.0, 1e-3, 200)
+    assert x[-1, 1] != 0.0 and np.min(x[:, 3]) < 0.0  # ... then hits its side, pushes the cart, comes back
+    momentum = AXIS.m1 * x[:, 1] + AXIS.m2 * x[:, 3]
+    assert np.allclose(momentum, AXIS.m2 * 0.01, rtol=1e-9)  # only internal forces
+
+
+def test_a_vanishing_play_is_the_linear_coupling_and_play_rejects_a_single_mass():
+    linear, played = Plant(AXIS), Plant(AXIS, backlash_m=1e-15)
+    for i in range(400):
+        torque = math.sin(0.05 * i)
+        linear.step(torque, 2.5e-4)
+        played.step(torque, 2.5e-4)
+    assert np.allclose(played.state, linear.state, rtol=1e-6, atol=1e-12)
+    with pytest.raises(ConfigError, match="backlash_m"):
+        Plant(MassSpringDamper(m=5.0, b=1.0, k=10.0), backlash_m=1e-3)

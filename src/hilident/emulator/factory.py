@@ -75,7 +75,8 @@ def build_drive(cfg: EmulatorConfig, driver: DriverDescription) -> DriveLoop:
     # Integrate at least 4x the loop rate, and at least 40 steps per period of the fastest mode.
     fastest = max((f for f, _ in true_modes(cfg)), default=0.0)
     substep = min(1.0 / (4 * driver.loop_rate_hz), 1.0 / (40 * fastest) if fastest else math.inf)
-    plant = Plant(plant_model(cfg), friction_model(cfg), max_substep_s=substep)
+    backlash = cfg.plant.backlash_m if cfg.plant.model != "mass_spring_damper" else 0.0
+    plant = Plant(plant_model(cfg), friction_model(cfg), max_substep_s=substep, backlash_m=backlash)
     return DriveLoop(plant, tuning, sensors, n_filter_slots=driver.filter_slots, disturbance=disturbance)
 
 

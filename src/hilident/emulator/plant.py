@@ -428,6 +428,10 @@ class Plant:
     max_substep_s : float
         Longest integration substep, s. :meth:`step` splits ``dt_s`` into equal
         substeps no longer than this.
+    backlash_m : float
+        Total play in the first coupling (cart to load), m: inside it the spring and
+        damper carry no force. :func:`modes` and :func:`frf` describe the coupling
+        in contact.
 
     Attributes
     ----------
@@ -463,7 +467,7 @@ class Plant:
     """
 
     def __init__(self, model: Model, friction: StribeckFriction | None = None,
-                 max_substep_s: float = 1.0 / 20000.0):
+                 max_substep_s: float = 1.0 / 20000.0, backlash_m: float = 0.0):
         if not isinstance(model, (TwoMass, ThreeMass, MassSpringDamper)):
             raise TypeError(f"model must be TwoMass, ThreeMass or MassSpringDamper, got {type(model).__name__}")
         if friction is not None and not isinstance(friction, StribeckFriction):
@@ -474,12 +478,22 @@ class Plant:
             raise ConfigError("max_substep_s", f"must be a number, got {max_substep_s!r}") from None
         if not (math.isfinite(h) and h > 0.0):
             raise ConfigError("max_substep_s", f"must be > 0 and finite, got {max_substep_s!r}")
+        try:
+            gap = float(backlash_m)
+        except (TypeError, ValueError):
+            raise ConfigError("backlash_m", f"must be a number, got {backlash_m!r}") from None
+        if not (math.isfinite(gap) and gap >= 0.0):
+            raise ConfigError("backlash_m", f"must be >= 0 and finite, got {backlash_m!r}")
+        if gap and isinstance(model, MassSpringDamper):
+            raise ConfigError("backlash_m", "needs a coupling between two masses (two_mass or three_mass)")
         self.model = model
         self.friction = friction
         self.max_substep_s = h
+        self.backlash_m = gap
         self._c = model.c
         self._mirror = isinstance(model, MassSpringDamper)
         self._chain = isinstance(model, ThreeMass)
+        self._general = self._chain or gap > 0.0
         if self._chain:
             A, B = state_matrices(model)
             mass = model.m1
@@ -578,64 +592,102 @@ class Plant:
         self._cache[dt_s] = entry
         return entry
 
-    def _prepare_chain(self, dt_s: float) -> tuple:
-        """Substep matrices of a ThreeMass: the whole chain, and the chain without the stuck cart."""
+    def _regime_matrices(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """``(A, w)`` per coupling regime: ``x' = A x + B u + w``.
+
+        Without backlash one regime. With it three: the first coupling in contact on
+        the positive side (its spring force is ``k (e - g)``, ``e = p1 - p2``, ``g`` half
+        the gap: the linear ``A`` plus a constant ``w``), in the gap (no spring or
+        damper force), in contact on the negative side.
+        """
+        A = self._A
+        if self.backlash_m == 0.0:
+            return [(A, np.zeros(A.shape[0]))]
+        m = self.model
+        k, d, g = m.k, m.d, 0.5 * self.backlash_m
+        coupling = np.zeros_like(A)  # the first spring and damper's part of A (p1, v1, p2, v2 are states 0-3)
+        coupling[1, :4] = [-k / m.m1, -d / m.m1, k / m.m1, d / m.m1]
+        coupling[3, :4] = [k / m.m2, d / m.m2, -k / m.m2, -d / m.m2]
+        w = np.zeros(A.shape[0])
+        w[1], w[3] = k * g / m.m1, -k * g / m.m2
+        return [(A, w), (A - coupling, np.zeros(A.shape[0])), (A, -w)]
+
+    def _prepare_general(self, dt_s: float) -> tuple:
+        """Substep matrices per regime: the whole state, and the state with the cart held."""
         if not (math.isfinite(dt_s) and dt_s > 0.0):
             raise ValueError(f"dt_s must be > 0 and finite, got {dt_s!r}")
         n = self.substeps(dt_s)
         h = dt_s / n
         nx = self._A.shape[0]
-        M = np.zeros((nx + 1, nx + 1))
-        M[:nx, :nx] = self._A
-        M[:nx, nx] = self._B
-        E = expm(M * h)
-        # States 2.. with p1 fixed and v1 = 0: x_r' = A_rr x_r + A[2:, 0] p1.
-        Ms = np.zeros((nx - 1, nx - 1))
-        Ms[:nx - 2, :nx - 2] = self._A[2:, 2:]
-        Ms[:nx - 2, nx - 2] = self._A[2:, 0]
-        Es = expm(Ms * h)
-        entry = (n, E[:nx, :nx], E[:nx, nx], Es[:nx - 2, :nx - 2], Es[:nx - 2, nx - 2],
-                 self.model.m1 * self._A[1])
+        mass = self.model.m1
+        regimes = []
+        for A, w in self._regime_matrices():
+            M = np.zeros((nx + 2, nx + 2))
+            M[:nx, :nx] = A
+            M[:nx, nx] = self._B
+            M[:nx, nx + 1] = w
+            E = expm(M * h)
+            # States 2.. with p1 fixed and v1 = 0: x_r' = A_rr x_r + A[2:, 0] p1 + w[2:].
+            Ms = np.zeros((nx, nx))
+            Ms[:nx - 2, :nx - 2] = A[2:, 2:]
+            Ms[:nx - 2, nx - 2] = A[2:, 0]
+            Ms[:nx - 2, nx - 1] = w[2:]
+            Es = expm(Ms * h)
+            regimes.append((E[:nx, :nx], E[:nx, nx], E[:nx, nx + 1], Es[:nx - 2, :nx - 2], Es[:nx - 2, nx - 2],
+                            Es[:nx - 2, nx - 1], mass * A[1], mass * w[1]))
+        entry = (n, regimes)
         if len(self._cache) >= _CACHE_LIMIT:
             self._cache.clear()
         self._cache[dt_s] = entry
         return entry
 
-    def _step_chain(self, tau: float, dt_s: float) -> None:
-        """:meth:`step` for a ThreeMass: the same Karnopp friction on the cart, with matrix products."""
+    def _step_general(self, tau: float, dt_s: float) -> None:
+        """:meth:`step` with matrix products: a ThreeMass, or backlash in the first coupling.
+
+        The same Karnopp friction on the cart; with backlash the regime (contact on
+        either side, or in the gap) is taken at each substep's start.
+        """
         entry = self._cache.get(dt_s)
         if entry is None:
-            entry = self._prepare_chain(dt_s)
-        n, phi, gam, stuck_phi, stuck_gam, force_row = entry
+            entry = self._prepare_general(dt_s)
+        n, regimes = entry
         if not math.isfinite(tau):
             raise ValueError(f"torque_nm must be finite, got {tau!r}")
         ctau = self._c * tau
-        x = np.concatenate(([self.p1, self.v1, self.p2, self.v2], self._x3))
+        x = np.array([self.p1, self.v1, self.p2, self.v2, *(self._x3 if self._chain else ())])
+        half_gap = 0.5 * self.backlash_m
         fr = self._fr
         for _ in range(n):
+            if len(regimes) == 1:
+                r = regimes[0]
+            else:
+                e = x[0] - x[2]
+                r = regimes[0] if e > half_gap else (regimes[2] if e < -half_gap else regimes[1])
+            phi, gam, off, stuck_phi, stuck_gam, stuck_off, force_row, force_off = r
             if fr is None:
-                x = phi @ x + gam * ctau
+                x = phi @ x + gam * ctau + off
                 continue
             Fc, Fs, Fv, vs, dv, ds = fr
             brk = self._c * Fs
             v1 = x[1]
             if v1 == 0.0:
-                fnet = ctau + float(force_row @ x)
+                fnet = ctau + float(force_row @ x) + force_off
                 if -brk <= fnet <= brk:
-                    x[2:] = stuck_phi @ x[2:] + stuck_gam * x[0]
+                    x[2:] = stuck_phi @ x[2:] + stuck_gam * x[0] + stuck_off
                     continue
-                x = phi @ x + gam * (ctau - brk if fnet > 0.0 else ctau + brk)
+                x = phi @ x + gam * (ctau - brk if fnet > 0.0 else ctau + brk) + off
                 continue
             a = abs(v1)
             ffr = self._c * (Fc + (Fs - Fc) * math.exp(-((a / vs) ** ds)) + Fv * a**dv)
-            nxt = phi @ x + gam * (ctau - ffr if v1 > 0.0 else ctau + ffr)
+            nxt = phi @ x + gam * (ctau - ffr if v1 > 0.0 else ctau + ffr) + off
             if nxt[1] == 0.0 or (nxt[1] > 0.0) != (v1 > 0.0):
-                fnet = ctau + float(force_row @ np.concatenate(([nxt[0], 0.0], nxt[2:])))
-                if -brk <= fnet <= brk:
+                held = np.concatenate(([nxt[0], 0.0], nxt[2:]))
+                if -brk <= ctau + float(force_row @ held) + force_off <= brk:
                     nxt[1] = 0.0
             x = nxt
         self.p1, self.v1, self.p2, self.v2 = (float(v) for v in x[:4])
-        self._x3 = x[4:].copy()
+        if self._chain:
+            self._x3 = x[4:].copy()
 
     def step(self, torque_nm: float, dt_s: float) -> None:
         """Advance the state by ``dt_s`` seconds with ``torque_nm`` held constant.
@@ -647,8 +699,8 @@ class Plant:
         dt_s : float
             Time to advance, s; split into ``substeps(dt_s)`` equal substeps.
         """
-        if self._chain:
-            self._step_chain(float(torque_nm), dt_s)
+        if self._general:
+            self._step_general(float(torque_nm), dt_s)
             return
         entry = self._cache.get(dt_s)
         if entry is None:
