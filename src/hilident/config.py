@@ -277,9 +277,14 @@ class ModelConfig:
 
 @dataclass(frozen=True)
 class PlantConfig:
-    model: str = _spec("two_mass", choices=("two_mass", "mass_spring_damper"))
+    model: str = _spec("two_mass", choices=("two_mass", "three_mass", "mass_spring_damper"))
     m1: float = _spec(40.0, gt=0, doc="two_mass: cart mass, kg")
     m2: float = _spec(10.0, gt=0, doc="two_mass: load mass, kg")
+    m3: float = _spec(2.0, gt=0, doc="three_mass: a third mass hung from the load, kg")
+    k2: float = _spec(2.0e5, gt=0, doc="three_mass: stiffness between the load and the third mass, N/m")
+    d2: float = _spec(10.0, ge=0, doc="three_mass: damping between the load and the third mass, N*s/m")
+    backlash_m: float = _spec(0.0, ge=0, le=0.1, doc="two_mass, three_mass: total play in the cart-to-load "
+                              "coupling, m (inside it the coupling carries no force)")
     k: float = _spec(1.5e5, gt=0, doc="spring stiffness, N/m")
     d: float = _spec(40.0, ge=0, doc="two_mass: coupling damping, N*s/m")
     c: float = _spec(1.0, gt=0, doc="torque-to-force constant, N/(N*m)")

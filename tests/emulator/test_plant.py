@@ -12,6 +12,7 @@ from hilident.emulator.plant import (
     MassSpringDamper,
     Plant,
     StribeckFriction,
+    ThreeMass,
     TwoMass,
     frf,
     modes,
@@ -246,3 +247,86 @@ def test_step_rejects_bad_arguments():
         plant.step(math.nan, 1e-3)
     with pytest.raises(ValueError):
         plant.step(1.0, -1e-3)
+
+
+# -- three masses ------------------------------------------------------------------
+
+# A light cart (10 kg) so that the second mode, the third mass against the load, moves it visibly.
+CHAIN = ThreeMass(m1=10.0, m2=10.0, m3=5.0, k=1.5e5, d=40.0, k2=3e5, d2=20.0, c=10.0)
+
+
+def test_three_mass_modes_are_the_state_matrix_eigenvalues_and_the_frf_peaks():
+    A, _ = state_matrices(CHAIN)
+    lam = np.linalg.eigvals(A)
+    flexible = sorted(lam[np.abs(lam) > 1e-3], key=abs)[::2]  # one of each conjugate pair
+    got = modes(CHAIN)
+    assert len(got) == 2
+    for (f, zeta), z in zip(got, flexible):
+        assert f == pytest.approx(abs(z) / (2 * np.pi), rel=1e-9)
+        assert zeta == pytest.approx(-z.real / abs(z), rel=1e-6)
+    f = np.linspace(5.0, 100.0, 19001)
+    mag = np.abs(frf(CHAIN, f, "velocity"))
+    peaks, _ = signal.find_peaks(20 * np.log10(mag), prominence=3.0)
+    assert len(peaks) == 2  # each mode peaks in the cart's response, near it (its neighbours shift it a little)
+    for i, (fm, _) in zip(peaks, got):
+        assert f[i] == pytest.approx(fm, rel=0.02)
+
+
+def test_three_mass_with_a_vanishing_third_mass_is_the_two_mass_axis():
+    tiny = ThreeMass(m1=40.0, m2=10.0, m3=1e-6, k=1.5e5, d=40.0, k2=1e3, d2=0.0, c=10.0)  # its own mode: 5 kHz
+    (f, zeta), = [m for m in modes(tiny) if m[0] < 100.0]
+    (f2, zeta2), = modes(TwoMass(m1=40.0, m2=10.0, k=1.5e5, d=40.0, c=10.0))
+    assert f == pytest.approx(f2, rel=1e-6) and zeta == pytest.approx(zeta2, rel=1e-5)
+
+
+@pytest.mark.parametrize("output", ["velocity", "position", "load_position"])
+def test_three_mass_frf_equals_state_space_response(output):
+    A, B = state_matrices(CHAIN)
+    row = {"velocity": 1, "position": 0, "load_position": 2}[output]
+    f = np.array([0.3, 5.0, 20.0, 56.0, 400.0])
+    expected = [CHAIN.c * np.linalg.solve(2j * np.pi * fi * np.eye(6) - A, B)[row] for fi in f]
+    assert np.allclose(frf(CHAIN, f, output), expected, rtol=1e-9, atol=0)
+
+
+def test_three_mass_step_matches_lsim_and_friction_holds_it_below_breakaway():
+    A, B = state_matrices(CHAIN)
+    plant = Plant(CHAIN)
+    dt, n = 1e-3, 500
+    x = simulate(plant, 1.0, dt, n)
+    t = np.arange(n + 1) * dt
+    _, y, _ = signal.lsim((A, (CHAIN.c * B)[:, None], np.eye(6), np.zeros((6, 1))), np.ones(n + 1), t,
+                          interp=False)
+    assert np.max(np.abs(x[:, :4] - y[:, :4])) <= 1e-9 * np.max(np.abs(y[:, :4]))
+    held = Plant(CHAIN, FRICTION)
+    x = simulate(held, 0.79, dt, 300)
+    assert np.all(x[:, 0] == 0.0) and np.all(x[:, 1] == 0.0)
+    moving = Plant(CHAIN, FRICTION)
+    assert simulate(moving, 0.81, dt, 300)[-1, 1] > 0.0
+
+
+# -- backlash ------------------------------------------------------------------------
+
+AXIS = TwoMass(m1=40.0, m2=10.0, k=1.5e5, d=40.0, c=10.0)
+
+
+def test_inside_the_play_the_load_moves_freely_and_outside_it_bounces_back():
+    plant = Plant(AXIS, backlash_m=1e-3)
+    plant.reset(p1=0.0, p2=0.0, v2=0.01)  # the load drifts at 10 mm/s, 0.5 mm from either side
+    x = simulate(plant, 0.0, 1e-3, 40)
+    assert np.all(x[:, 1] == 0.0)  # the cart feels nothing while the load crosses the gap ...
+    assert x[40, 2] == pytest.approx(0.0004, rel=1e-9)
+    x = simulate(plant, 0.0, 1e-3, 200)
+    assert x[-1, 1] != 0.0 and np.min(x[:, 3]) < 0.0  # ... then hits its side, pushes the cart, comes back
+    momentum = AXIS.m1 * x[:, 1] + AXIS.m2 * x[:, 3]
+    assert np.allclose(momentum, AXIS.m2 * 0.01, rtol=1e-9)  # only internal forces
+
+
+def test_a_vanishing_play_is_the_linear_coupling_and_play_rejects_a_single_mass():
+    linear, played = Plant(AXIS), Plant(AXIS, backlash_m=1e-15)
+    for i in range(400):
+        torque = math.sin(0.05 * i)
+        linear.step(torque, 2.5e-4)
+        played.step(torque, 2.5e-4)
+    assert np.allclose(played.state, linear.state, rtol=1e-6, atol=1e-12)
+    with pytest.raises(ConfigError, match="backlash_m"):
+        Plant(MassSpringDamper(m=5.0, b=1.0, k=10.0), backlash_m=1e-3)

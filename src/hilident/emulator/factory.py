@@ -21,7 +21,7 @@ from hilident.drivers import DriverDescription
 from hilident.emulator.board import BoardFirmware
 from hilident.emulator.disturbance import ProcessDisturbance
 from hilident.emulator.drive import DriveLoop, DriveTuning
-from hilident.emulator.plant import MassSpringDamper, Plant, StribeckFriction, TwoMass, modes
+from hilident.emulator.plant import MassSpringDamper, Plant, StribeckFriction, ThreeMass, TwoMass, modes
 from hilident.emulator.preset import realism
 from hilident.emulator.sensors import SensorModel
 from hilident.emulator.serial_server import BoardServer, LineFaults, PipeLink, PtyLink, TcpLink
@@ -30,10 +30,12 @@ from hilident.protocol import serial_board as sb
 
 
 def plant_model(cfg: EmulatorConfig):
-    """The configured plant as an emulator model (TwoMass or MassSpringDamper)."""
+    """The configured plant as an emulator model (TwoMass, ThreeMass or MassSpringDamper)."""
     p = cfg.plant
     if p.model == "two_mass":
         return TwoMass(m1=p.m1, m2=p.m2, k=p.k, d=p.d, c=p.c)
+    if p.model == "three_mass":
+        return ThreeMass(m1=p.m1, m2=p.m2, m3=p.m3, k=p.k, d=p.d, k2=p.k2, d2=p.d2, c=p.c)
     return MassSpringDamper(m=p.m, b=p.b, k=p.k, c=p.c)
 
 
@@ -73,7 +75,8 @@ def build_drive(cfg: EmulatorConfig, driver: DriverDescription) -> DriveLoop:
     # Integrate at least 4x the loop rate, and at least 40 steps per period of the fastest mode.
     fastest = max((f for f, _ in true_modes(cfg)), default=0.0)
     substep = min(1.0 / (4 * driver.loop_rate_hz), 1.0 / (40 * fastest) if fastest else math.inf)
-    plant = Plant(plant_model(cfg), friction_model(cfg), max_substep_s=substep)
+    backlash = cfg.plant.backlash_m if cfg.plant.model != "mass_spring_damper" else 0.0
+    plant = Plant(plant_model(cfg), friction_model(cfg), max_substep_s=substep, backlash_m=backlash)
     return DriveLoop(plant, tuning, sensors, n_filter_slots=driver.filter_slots, disturbance=disturbance)
 
 

@@ -10,6 +10,9 @@ Two linear plants and one friction law, integrated on a simulated clock:
       m1 p1'' = c (tau - tau_fr) - k (p1 - p2) - d (p1' - p2')
       m2 p2'' =                    k (p1 - p2) - d (p2' - p1')
 
+* :class:`ThreeMass` -- the same chain with a third mass ``m3`` hung from the load
+  by ``k2``, ``d2``: a second, higher mode, as a real gantry's tool or beam has.
+
 * :class:`MassSpringDamper` -- the lecture's ``m y'' + b y' + k y = F`` with
   ``F = c * (tau - tau_fr)``.
 
@@ -34,6 +37,7 @@ from hilident.errors import ConfigError
 
 __all__ = [
     "TwoMass",
+    "ThreeMass",
     "MassSpringDamper",
     "StribeckFriction",
     "Plant",
@@ -94,6 +98,44 @@ class TwoMass:
 
     def __post_init__(self):
         _check_fields(self, positive=("m1", "m2", "k", "c"), nonnegative=("d",))
+
+
+@dataclass(frozen=True)
+class ThreeMass:
+    """Three masses in a chain: the two-mass axis with a third mass on the load.
+
+    ``m1`` (cart, driven) --``k``, ``d``-- ``m2`` (load, seen by the laser)
+    --``k2``, ``d2``-- ``m3``. Two modes; the drive's torque acts on ``m1`` as
+    the force ``c * (tau - tau_friction)``.
+
+    Parameters
+    ----------
+    m1, m2, m3 : float
+        Masses, kg.
+    k, k2 : float
+        Stiffness between m1 and m2, and between m2 and m3, N/m.
+    d, d2 : float
+        Damping of those couplings, N·s/m.
+    c : float
+        Torque-to-force constant, N/(N·m).
+
+    Examples
+    --------
+    >>> [round(f, 2) for f, _ in modes(ThreeMass(40.0, 10.0, 2.0, 1.5e5, 40.0, 2e5, 10.0, c=10.0))]
+    [20.05, 55.79]
+    """
+
+    m1: float
+    m2: float
+    m3: float
+    k: float
+    d: float
+    k2: float
+    d2: float
+    c: float = 1.0
+
+    def __post_init__(self):
+        _check_fields(self, positive=("m1", "m2", "m3", "k", "k2", "c"), nonnegative=("d", "d2"))
 
 
 @dataclass(frozen=True)
@@ -181,7 +223,7 @@ class StribeckFriction:
     torque = __call__
 
 
-Model = TwoMass | MassSpringDamper
+Model = TwoMass | ThreeMass | MassSpringDamper
 
 
 def state_matrices(model: Model) -> tuple[np.ndarray, np.ndarray]:
@@ -207,11 +249,30 @@ def state_matrices(model: Model) -> tuple[np.ndarray, np.ndarray]:
         )
         B = np.array([0.0, 1.0 / m1, 0.0, 0.0])
         return A, B
+    if isinstance(model, ThreeMass):
+        M, D, K = _chain(model)
+        Minv = np.diag(1.0 / np.diag(M))
+        A = np.zeros((6, 6))
+        A[0::2, 1::2] = np.eye(3)
+        A[1::2, 0::2] = -Minv @ K
+        A[1::2, 1::2] = -Minv @ D
+        B = np.zeros(6)
+        B[1] = 1.0 / model.m1
+        return A, B
     if isinstance(model, MassSpringDamper):
         A = np.array([[0.0, 1.0], [-model.k / model.m, -model.b / model.m]])
         B = np.array([0.0, 1.0 / model.m])
         return A, B
     raise TypeError(f"unknown plant model {type(model).__name__}")
+
+
+def _chain(model: ThreeMass) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mass, damping and stiffness matrices of the three-mass chain (positions p1, p2, p3)."""
+    k, k2, d, d2 = model.k, model.k2, model.d, model.d2
+    M = np.diag([model.m1, model.m2, model.m3])
+    K = np.array([[k, -k, 0.0], [-k, k + k2, -k2], [0.0, -k2, k2]])
+    D = np.array([[d, -d, 0.0], [-d, d + d2, -d2], [0.0, -d2, d2]])
+    return M, D, K
 
 
 def _flexible_matrix(model: Model) -> np.ndarray | None:
@@ -226,11 +287,40 @@ def _flexible_matrix(model: Model) -> np.ndarray | None:
     if isinstance(model, TwoMass):
         mu = model.m1 * model.m2 / (model.m1 + model.m2)
         return np.array([[0.0, 1.0], [-model.k / mu, -model.d / mu]])
+    if isinstance(model, ThreeMass):
+        # Relative coordinates e1 = p1 - p2, e2 = p2 - p3: the rigid-body motion drops out of
+        # M q'' + D q' + K q = 0 (q = T e + 1 p3) once p3'' is eliminated through the
+        # momentum balance 1' M q'' = 0.
+        M, D, K = _chain(model)
+        T = np.array([[1.0, 1.0], [0.0, 1.0], [0.0, 0.0]])
+        ones = np.ones(3)
+        # p3'' = -(1' M T e'') / (1' M 1): q'' = (T - 1 (1' M T) / (1' M 1)) e'' = P e''
+        P = T - np.outer(ones, ones @ M @ T) / (ones @ M @ ones)
+        Me = P.T @ M @ P
+        Ke = P.T @ K @ T
+        De = P.T @ D @ T
+        A = np.zeros((4, 4))
+        A[0::2, 1::2] = np.eye(2)
+        Mi = np.linalg.inv(Me)
+        A[1::2, 0::2] = -Mi @ Ke
+        A[1::2, 1::2] = -Mi @ De
+        return A
     if isinstance(model, MassSpringDamper):
         if model.k == 0.0:
             return None
         return state_matrices(model)[0]
     raise TypeError(f"unknown plant model {type(model).__name__}")
+
+
+def _pairs(lam: np.ndarray) -> list[tuple[float, float]]:
+    """(frequency_hz, damping_ratio) of the eigenvalue pairs of a flexible state matrix, slowest first."""
+    lam = np.asarray(lam)
+    complex_ = sorted(lam[np.imag(lam) > 0], key=abs)
+    real = sorted(np.real(lam[np.imag(lam) == 0]), key=abs)
+    out = [(abs(z), -z.real / abs(z)) for z in complex_]
+    out += [(math.sqrt(a * b), -(a + b) / (2.0 * math.sqrt(a * b))) for a, b in zip(real[0::2], real[1::2])
+            if a * b > 0]
+    return sorted(((float(w) / (2.0 * math.pi), float(z) + 0.0) for w, z in out if w > 0.0), key=lambda m: m[0])
 
 
 def modes(model: Model) -> list[tuple[float, float]]:
@@ -260,6 +350,8 @@ def modes(model: Model) -> list[tuple[float, float]]:
     A = _flexible_matrix(model)
     if A is None:
         return []
+    if isinstance(model, ThreeMass):
+        return _pairs(np.linalg.eigvals(A))
     lam = np.linalg.eigvals(A)
     omega = math.sqrt(max(float(np.real(lam[0] * lam[1])), 0.0))
     if omega == 0.0:
@@ -300,6 +392,17 @@ def frf(model: Model, frequency_hz, output: str = "velocity") -> np.ndarray:
                 h = (d * s + k) / den
             else:
                 h = (m2 * s * s + d * s + k) / den
+        elif isinstance(model, ThreeMass):
+            M, D, K = _chain(model)
+            s1 = np.atleast_1d(s)
+            moving = s1 != 0  # the rigid-body pole: infinite at 0 Hz
+            Z = M * (s1[moving] ** 2)[:, None, None] + D * s1[moving][:, None, None] + K
+            force = np.zeros((Z.shape[0], 3, 1), dtype=complex)
+            force[:, 0, 0] = 1.0
+            x = np.linalg.solve(Z, force)[:, :, 0]
+            h1 = np.full(s1.shape, np.inf + 0j)
+            h1[moving] = x[:, 1] if output == "load_position" else x[:, 0]
+            h = h1.reshape(np.shape(s))
         elif isinstance(model, MassSpringDamper):
             h = 1.0 / (model.m * s * s + model.b * s + model.k)
         else:
@@ -325,6 +428,10 @@ class Plant:
     max_substep_s : float
         Longest integration substep, s. :meth:`step` splits ``dt_s`` into equal
         substeps no longer than this.
+    backlash_m : float
+        Total play in the first coupling (cart to load), m: inside it the spring and
+        damper carry no force. :func:`modes` and :func:`frf` describe the coupling
+        in contact.
 
     Attributes
     ----------
@@ -360,9 +467,9 @@ class Plant:
     """
 
     def __init__(self, model: Model, friction: StribeckFriction | None = None,
-                 max_substep_s: float = 1.0 / 20000.0):
-        if not isinstance(model, (TwoMass, MassSpringDamper)):
-            raise TypeError(f"model must be TwoMass or MassSpringDamper, got {type(model).__name__}")
+                 max_substep_s: float = 1.0 / 20000.0, backlash_m: float = 0.0):
+        if not isinstance(model, (TwoMass, ThreeMass, MassSpringDamper)):
+            raise TypeError(f"model must be TwoMass, ThreeMass or MassSpringDamper, got {type(model).__name__}")
         if friction is not None and not isinstance(friction, StribeckFriction):
             raise TypeError(f"friction must be StribeckFriction or None, got {type(friction).__name__}")
         try:
@@ -371,12 +478,26 @@ class Plant:
             raise ConfigError("max_substep_s", f"must be a number, got {max_substep_s!r}") from None
         if not (math.isfinite(h) and h > 0.0):
             raise ConfigError("max_substep_s", f"must be > 0 and finite, got {max_substep_s!r}")
+        try:
+            gap = float(backlash_m)
+        except (TypeError, ValueError):
+            raise ConfigError("backlash_m", f"must be a number, got {backlash_m!r}") from None
+        if not (math.isfinite(gap) and gap >= 0.0):
+            raise ConfigError("backlash_m", f"must be >= 0 and finite, got {backlash_m!r}")
+        if gap and isinstance(model, MassSpringDamper):
+            raise ConfigError("backlash_m", "needs a coupling between two masses (two_mass or three_mass)")
         self.model = model
         self.friction = friction
         self.max_substep_s = h
+        self.backlash_m = gap
         self._c = model.c
         self._mirror = isinstance(model, MassSpringDamper)
-        if self._mirror:
+        self._chain = isinstance(model, ThreeMass)
+        self._general = self._chain or gap > 0.0
+        if self._chain:
+            A, B = state_matrices(model)
+            mass = model.m1
+        elif self._mirror:
             # Embed y'' into the 4-state form with a frozen second half; p2/v2 are
             # copied from p1/v1 after every step.
             a, b = state_matrices(model)
@@ -391,8 +512,9 @@ class Plant:
         self._A = A
         self._B = B
         # Net non-friction force on the stopped driven mass (v1 = 0), besides c*tau:
-        # f0*p1 + f2*p2 + f3*v2.
+        # f0*p1 + f2*p2 + f3*v2 (the third mass, if any, does not touch the first).
         self._fstick = (mass * A[1, 0], mass * A[1, 2], mass * A[1, 3])
+        self._x3 = np.zeros(2)  # p3, v3 of a ThreeMass
         if friction is None:
             self._fr = None
         else:
@@ -416,6 +538,7 @@ class Plant:
         self.p1, self.v1, self.p2, self.v2 = (float(v) for v in vals)
         if self._mirror:
             self.p2, self.v2 = self.p1, self.v1
+        self._x3 = np.array([self.p2, self.v2])  # a third mass starts undeflected from the load
 
     @property
     def state(self) -> tuple[float, float, float, float]:
@@ -469,6 +592,103 @@ class Plant:
         self._cache[dt_s] = entry
         return entry
 
+    def _regime_matrices(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """``(A, w)`` per coupling regime: ``x' = A x + B u + w``.
+
+        Without backlash one regime. With it three: the first coupling in contact on
+        the positive side (its spring force is ``k (e - g)``, ``e = p1 - p2``, ``g`` half
+        the gap: the linear ``A`` plus a constant ``w``), in the gap (no spring or
+        damper force), in contact on the negative side.
+        """
+        A = self._A
+        if self.backlash_m == 0.0:
+            return [(A, np.zeros(A.shape[0]))]
+        m = self.model
+        k, d, g = m.k, m.d, 0.5 * self.backlash_m
+        coupling = np.zeros_like(A)  # the first spring and damper's part of A (p1, v1, p2, v2 are states 0-3)
+        coupling[1, :4] = [-k / m.m1, -d / m.m1, k / m.m1, d / m.m1]
+        coupling[3, :4] = [k / m.m2, d / m.m2, -k / m.m2, -d / m.m2]
+        w = np.zeros(A.shape[0])
+        w[1], w[3] = k * g / m.m1, -k * g / m.m2
+        return [(A, w), (A - coupling, np.zeros(A.shape[0])), (A, -w)]
+
+    def _prepare_general(self, dt_s: float) -> tuple:
+        """Substep matrices per regime: the whole state, and the state with the cart held."""
+        if not (math.isfinite(dt_s) and dt_s > 0.0):
+            raise ValueError(f"dt_s must be > 0 and finite, got {dt_s!r}")
+        n = self.substeps(dt_s)
+        h = dt_s / n
+        nx = self._A.shape[0]
+        mass = self.model.m1
+        regimes = []
+        for A, w in self._regime_matrices():
+            M = np.zeros((nx + 2, nx + 2))
+            M[:nx, :nx] = A
+            M[:nx, nx] = self._B
+            M[:nx, nx + 1] = w
+            E = expm(M * h)
+            # States 2.. with p1 fixed and v1 = 0: x_r' = A_rr x_r + A[2:, 0] p1 + w[2:].
+            Ms = np.zeros((nx, nx))
+            Ms[:nx - 2, :nx - 2] = A[2:, 2:]
+            Ms[:nx - 2, nx - 2] = A[2:, 0]
+            Ms[:nx - 2, nx - 1] = w[2:]
+            Es = expm(Ms * h)
+            regimes.append((E[:nx, :nx], E[:nx, nx], E[:nx, nx + 1], Es[:nx - 2, :nx - 2], Es[:nx - 2, nx - 2],
+                            Es[:nx - 2, nx - 1], mass * A[1], mass * w[1]))
+        entry = (n, regimes)
+        if len(self._cache) >= _CACHE_LIMIT:
+            self._cache.clear()
+        self._cache[dt_s] = entry
+        return entry
+
+    def _step_general(self, tau: float, dt_s: float) -> None:
+        """:meth:`step` with matrix products: a ThreeMass, or backlash in the first coupling.
+
+        The same Karnopp friction on the cart; with backlash the regime (contact on
+        either side, or in the gap) is taken at each substep's start.
+        """
+        entry = self._cache.get(dt_s)
+        if entry is None:
+            entry = self._prepare_general(dt_s)
+        n, regimes = entry
+        if not math.isfinite(tau):
+            raise ValueError(f"torque_nm must be finite, got {tau!r}")
+        ctau = self._c * tau
+        x = np.array([self.p1, self.v1, self.p2, self.v2, *(self._x3 if self._chain else ())])
+        half_gap = 0.5 * self.backlash_m
+        fr = self._fr
+        for _ in range(n):
+            if len(regimes) == 1:
+                r = regimes[0]
+            else:
+                e = x[0] - x[2]
+                r = regimes[0] if e > half_gap else (regimes[2] if e < -half_gap else regimes[1])
+            phi, gam, off, stuck_phi, stuck_gam, stuck_off, force_row, force_off = r
+            if fr is None:
+                x = phi @ x + gam * ctau + off
+                continue
+            Fc, Fs, Fv, vs, dv, ds = fr
+            brk = self._c * Fs
+            v1 = x[1]
+            if v1 == 0.0:
+                fnet = ctau + float(force_row @ x) + force_off
+                if -brk <= fnet <= brk:
+                    x[2:] = stuck_phi @ x[2:] + stuck_gam * x[0] + stuck_off
+                    continue
+                x = phi @ x + gam * (ctau - brk if fnet > 0.0 else ctau + brk) + off
+                continue
+            a = abs(v1)
+            ffr = self._c * (Fc + (Fs - Fc) * math.exp(-((a / vs) ** ds)) + Fv * a**dv)
+            nxt = phi @ x + gam * (ctau - ffr if v1 > 0.0 else ctau + ffr) + off
+            if nxt[1] == 0.0 or (nxt[1] > 0.0) != (v1 > 0.0):
+                held = np.concatenate(([nxt[0], 0.0], nxt[2:]))
+                if -brk <= ctau + float(force_row @ held) + force_off <= brk:
+                    nxt[1] = 0.0
+            x = nxt
+        self.p1, self.v1, self.p2, self.v2 = (float(v) for v in x[:4])
+        if self._chain:
+            self._x3 = x[4:].copy()
+
     def step(self, torque_nm: float, dt_s: float) -> None:
         """Advance the state by ``dt_s`` seconds with ``torque_nm`` held constant.
 
@@ -479,6 +699,9 @@ class Plant:
         dt_s : float
             Time to advance, s; split into ``substeps(dt_s)`` equal substeps.
         """
+        if self._general:
+            self._step_general(float(torque_nm), dt_s)
+            return
         entry = self._cache.get(dt_s)
         if entry is None:
             entry = self._prepare(dt_s)
