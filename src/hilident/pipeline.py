@@ -335,6 +335,87 @@ def notch_eligibility(res: Resonance) -> dict:
     return out
 
 
+@dataclass
+class NotchDecision:
+    """Which identified resonances get a notch, and why the others do not.
+
+    Attributes
+    ----------
+    resonances : list of Resonance
+        The resonances the evidence supports a notch for (:func:`notch_eligibility`).
+    warnings : list of str
+        What the user should know: each refused resonance with its reason and
+        what to change, or why nothing was found.
+    skipped_reason : str or None
+        ``upload.skipped_reason`` of ``summary.json`` when no notch is
+        designed, else None.
+    """
+
+    resonances: list
+    warnings: list[str] = field(default_factory=list)
+    skipped_reason: str | None = None
+
+
+def notch_decision(plant: PlantResult, coherence_threshold: float, amplitude_key: str,
+                   amplitude: float | None = None) -> NotchDecision:
+    """The resonances of an identification run that may be notched, with the reasons for the others.
+
+    This is the whole decision between identification and upload: a
+    resonance gets a notch only when :func:`notch_eligibility` allows it;
+    when none does (or none was identified) the reason is given, with the
+    amplitude that would have reached the evidence when the measurement
+    tells it (:func:`coherence_amplitude_factor`).
+
+    Parameters
+    ----------
+    plant : PlantResult
+        What :func:`identify_plant` returned.
+    coherence_threshold : float
+        ``[identification] coherence_threshold``.
+    amplitude_key : str
+        The ``[excitation]`` key holding the amplitude (``amplitude_nm``, ...), named in the advice.
+    amplitude : float, optional
+        The amplitude played, in that key's unit; None when it is not a number
+        the advice can scale.
+
+    Returns
+    -------
+    NotchDecision
+    """
+
+    def raise_to(factor: float) -> str:
+        if not (np.isfinite(factor) and factor > 1.0):
+            # no figure from the measurement (a misfit, a peak without a fit): friction and noise
+            # weigh less at a higher amplitude, so try twice the amplitude
+            value = f" to {2 * amplitude:.3g}" if amplitude else ""
+            return (f"; try excitation.{amplitude_key}{value} (x2): friction and noise distort a peak less "
+                    "at a higher amplitude")
+        value = f" to {amplitude * factor:.3g}" if amplitude else ""
+        return (f"; raise excitation.{amplitude_key}{value} (x{factor:.2g}) or record {factor ** 2:.2g} times "
+                "as many periods (excitation.duration_s)")
+
+    if not plant.resonances:
+        low = [p for p in plant.rejected if p.coherence < coherence_threshold]
+        hint = ""
+        if low:
+            peak = max(low, key=lambda p: p.peak_magnitude_db)
+            target = min(coherence_threshold + 0.1, 0.95)
+            hint = (f"; the strongest peak ({peak.frequency_hz:.4g} Hz) has coherence {peak.coherence:.2f} "
+                    f"(target {target:.2f})" + raise_to(coherence_amplitude_factor(peak.coherence, target)))
+        elif plant.rejected:
+            hint = raise_to(float("nan"))
+        reason = "no resonance was identified, so no notch was designed (see rejected_peaks)" + hint
+        return NotchDecision([], [reason] if hint else [], reason)
+    keep, reasons = [], []
+    for r in plant.resonances:
+        ok = notch_eligibility(r)
+        if ok["notchable"]:
+            keep.append(r)
+        else:
+            reasons.append(f"no notch at {r.frequency_hz:.4g} Hz: {ok['reason']}{raise_to(ok['amplitude_factor'])}")
+    return NotchDecision(keep, reasons, None if keep else "; ".join(reasons))
+
+
 def bode_extras(plant: PlantResult) -> dict:
     """The fitted model's curve and the plant response's 95 % band, as :func:`report.plot_bode` takes them."""
     extras: dict = {}
@@ -420,6 +501,12 @@ def _sampling_warnings(advice: list[dict], sample_rate_hz: float) -> list[str]:
                    f"rule for the {f0:.4g} Hz resonance (sampling.within_rule: false): {change}; the frequency "
                    "response and the notch do not depend on it")
     return out
+
+
+def analysis_band(cfg: IdentificationConfig, excitation_band_hz: tuple[float, float]) -> tuple[float, float]:
+    """Band searched for resonances, Hz: ``[identification] f_min_hz``/``f_max_hz``, each defaulting to the
+    excitation's band."""
+    return (cfg.f_min_hz or excitation_band_hz[0], cfg.f_max_hz or excitation_band_hz[1])
 
 
 def identify_plant(
