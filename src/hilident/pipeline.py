@@ -290,6 +290,14 @@ def coherence_amplitude_factor(coherence: float, target: float) -> float:
 #: (:attr:`Resonance.local_fit_ratio`), or, without coherence, within NOTCH_FIT_FLOOR_DB rms.
 NOTCH_FIT_NOISE_RATIO = 3.0
 NOTCH_FIT_FLOOR_DB = 1.0
+#: A notch must sit within this fraction of the mode's frequency (the precision it is verified against); a damped
+#: mode's half-power bandwidth alone would allow an interval of +-zeta, several per cent.
+NOTCH_FREQUENCY_TOLERANCE = 0.005
+#: The 95 % half-width a notch needs, as a fraction of the frequency: half NOTCH_FREQUENCY_TOLERANCE, because the
+#: interval comes from the scatter of the bins around the local fit and misses systematic errors (friction left
+#: in the torque, noise fed back through a closed loop); on random plants those put the estimate up to about
+#: twice its interval off (tests/test_no_false_notch.py).
+NOTCH_FREQUENCY_CI_FRACTION = NOTCH_FREQUENCY_TOLERANCE / 2.0
 
 
 def notch_eligibility(res: Resonance) -> dict:
@@ -297,7 +305,8 @@ def notch_eligibility(res: Resonance) -> dict:
 
     A notch needs a resonance from a local fit whose 95 % frequency interval
     (full width ``2 frequency_ci95_hz``) is narrower than its half-power
-    bandwidth ``2 zeta f`` and whose fit error is within
+    bandwidth ``2 zeta f`` and within :data:`NOTCH_FREQUENCY_CI_FRACTION` of
+    the frequency either side, and whose fit error is within
     :data:`NOTCH_FIT_NOISE_RATIO` times the scatter of each bin
     (``local_fit_ratio``; without coherence, :data:`NOTCH_FIT_FLOOR_DB` rms).
 
@@ -307,8 +316,9 @@ def notch_eligibility(res: Resonance) -> dict:
         ``frequency_hz``, ``notchable`` (bool), ``reason`` ("" when
         notchable) and ``amplitude_factor``: by how much the excitation
         amplitude would have to grow for the interval to be half the bandwidth
-        (the interval shrinks as ``1 / (amplitude sqrt(averages))`` while the
-        noise dominates; 1.0 when nothing needs to change, NaN when unknown).
+        (and, when it is wider than the tolerance, half the tolerance; the
+        interval shrinks as ``1 / (amplitude sqrt(averages))`` while the noise
+        dominates; 1.0 when nothing needs to change, NaN when unknown).
     """
     out = {"frequency_hz": res.frequency_hz, "notchable": False, "reason": "", "amplitude_factor": float("nan")}
     if res.method != "fit" or not np.isfinite(res.frequency_ci95_hz):
@@ -316,10 +326,17 @@ def notch_eligibility(res: Resonance) -> dict:
                          "and damping are read off the frequency grid")
         return out
     interval, bandwidth = 2.0 * res.frequency_ci95_hz, res.bandwidth_hz
+    tolerance_hz = NOTCH_FREQUENCY_CI_FRACTION * res.frequency_hz
     out["amplitude_factor"] = float(max(1.0, 2.0 * interval / bandwidth))
     if not interval < bandwidth:
         out["reason"] = (f"the 95 % interval of its frequency ({res.frequency_hz:.4g} +- {res.frequency_ci95_hz:.3g} Hz) "
                          f"is not narrower than its half-power bandwidth ({bandwidth:.3g} Hz): a notch could miss it")
+        return out
+    if not res.frequency_ci95_hz <= tolerance_hz:
+        out["amplitude_factor"] = float(max(out["amplitude_factor"], 2.0 * res.frequency_ci95_hz / tolerance_hz))
+        out["reason"] = (f"the 95 % interval of its frequency ({res.frequency_hz:.4g} +- {res.frequency_ci95_hz:.3g} Hz) "
+                         f"is wider than +-{100 * NOTCH_FREQUENCY_CI_FRACTION:g} % of it: the notch could sit off the "
+                         f"mode by more than {100 * NOTCH_FREQUENCY_TOLERANCE:g} %")
         return out
     if np.isfinite(res.local_fit_ratio):
         if not res.local_fit_ratio <= NOTCH_FIT_NOISE_RATIO:
