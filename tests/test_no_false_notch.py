@@ -27,8 +27,8 @@ from hypothesis import strategies as st
 from hilident import pipeline
 from hilident.config import parse_config
 from hilident.drivers import find_driver
-from hilident.errors import DataError
 from hilident.emulator.factory import build_drive, true_modes
+from hilident.errors import DataError
 from hilident.ident.friction import StribeckParams
 from hilident.session import build_excitation
 
@@ -106,7 +106,7 @@ def run_and_analyse(cfg, friction_error: float = 1.0):
     excitation = build_excitation(cfg)
     drive = build_drive(cfg.emulator, DRIVER)
     # the board plays each sample for `divider` loop ticks and records the first tick of each
-    divider = int(round(DRIVER.loop_rate_hz / cfg.run.sample_rate_hz))
+    divider = round(DRIVER.loop_rate_hz / cfg.run.sample_rate_hz)
     drive.set_mode(cfg.excitation.mode)
     drive.enable()
     rows = drive.run(np.repeat(excitation.samples, divider))[::divider]
@@ -143,16 +143,22 @@ def false_notches(cfg, decision) -> list[str]:
     return out
 
 
-def check_no_false_notch(cfg, decision) -> None:
+def check_no_false_notch(cfg, plant, decision) -> None:
+    """No notch off a true mode; nothing uploaded only with a reason, and one naming the amplitude to change
+    when a resonance was found but its evidence fell short."""
     problems = false_notches(cfg, decision)
     assert not problems, "\n".join(problems) + "\n" + cfg.text
     if not decision.resonances:
         assert decision.skipped_reason, "nothing would be uploaded, and no reason is given"
+        if plant.resonances:
+            assert f"excitation.{cfg.excitation.amplitude_key}" in decision.skipped_reason, decision.skipped_reason
 
 
 # --- plants ------------------------------------------------------------------------------------
 
-log_uniform = lambda lo, hi: st.floats(math.log(lo), math.log(hi)).map(math.exp)  # noqa: E731
+def log_uniform(lo: float, hi: float):
+    """Floats from `lo` to `hi`, uniform in their logarithm."""
+    return st.floats(math.log(lo), math.log(hi)).map(math.exp)
 
 
 @st.composite
@@ -187,31 +193,32 @@ def frictions(draw) -> dict | None:
 @settings(max_examples=12, deadline=None, derandomize=True, database=None, phases=[Phase.explicit, Phase.generate],
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 @given(plant=plants(), friction=frictions(), amplitude=log_uniform(0.02, 16.0),
-       mode=st.sampled_from(["torque", "torque_injection"]), friction_error=st.floats(0.7, 1.3),
+       mode=st.sampled_from(["torque", "torque_injection"]), friction_error=st.floats(0.9, 1.1),
        seed=st.integers(0, 2**16))
-# Cases the property found with the gate before NOTCH_FREQUENCY_CI_FRACTION, each a notch 0.56-2.2 % off the mode:
-# a heavily damped mode under weak excitation, a lightly damped one between the lines in closed loop, one with
-# an interval under 0.5 % but 0.56 % off.
+# Cases the property found before the gate asked for NOTCH_FREQUENCY_TOLERANCE: a heavily damped mode under weak
+# excitation (notch 1.1 % off, +-1.3 %), a lightly damped one between the lines in closed loop (2.2 % off, +-0.51 %).
 @example(plant={"model": "two_mass", "m1": 16.584586346107294, "m2": 6.472067601753561, "k": 2622.887400677285,
                 "d": 15.978717455409285, "c": 15.423058455324016},
          friction=None, amplitude=0.033550700061503805, mode="torque", friction_error=1.0, seed=45050)
 @example(plant={"model": "two_mass", "m1": 7.65624638186981, "m2": 11.084504455507926, "k": 3859.5140598654,
                 "d": 1.716193900659687, "c": 19.581793703077178},
          friction=None, amplitude=11.79085159430692, mode="torque_injection", friction_error=1.0, seed=2770)
-@example(plant={"model": "two_mass", "m1": 39.58728280220766, "m2": 19.481625880770228, "k": 9387.041299134442,
-                "d": 65.75180540939827, "c": 7.561918691460473},
-         friction=None, amplitude=0.10072710379264703, mode="torque", friction_error=1.0, seed=37160)
+# A weak excitation of a plant whose mode (94 Hz) lies above the band: a "mode" narrower than a line at 68.7 Hz,
+# which the misfitting model could not confirm, was notched on its local fit alone.
+@example(plant={"model": "two_mass", "m1": 44.12461889398282, "m2": 14.50830506154086, "k": 3811723.2488279645,
+                "d": 646.8424834239443, "c": 13.171398691866969},
+         friction=None, amplitude=0.1655080838371778, mode="torque", friction_error=1.0, seed=22487)
 def test_a_notch_only_at_a_true_mode(plant, friction, amplitude, mode, friction_error, seed):
     cfg = parse_config(bench_toml(plant, friction, mode, amplitude, seed))
     try:
-        _, decision = run_and_analyse(cfg, friction_error)
+        plant_result, decision = run_and_analyse(cfg, friction_error)
     except DataError as exc:
         # e.g. stiction held the axis: the run ends at its identification step, nothing is uploaded
         event("identification refused the data")
         assert str(exc)
         return
     event("notched" if decision.resonances else "nothing uploaded")
-    check_no_false_notch(cfg, decision)
+    check_no_false_notch(cfg, plant_result, decision)
 
 
 # --- the strong-excitation cases must find the mode (the property cannot pass by never notching) -----------
@@ -228,8 +235,8 @@ GANTRY_FRICTION = {"model": "stribeck", "Fc": 0.2, "Fs": 0.35, "Fv": 2.0, "vs": 
 ])
 def test_ample_excitation_finds_the_mode(plant, friction, mode):
     cfg = parse_config(bench_toml(plant, friction, mode, 8.0, 11))
-    _, decision = run_and_analyse(cfg)
-    check_no_false_notch(cfg, decision)
+    plant_result, decision = run_and_analyse(cfg)
+    check_no_false_notch(cfg, plant_result, decision)
     assert decision.resonances, decision.skipped_reason
 
 
@@ -247,8 +254,8 @@ def test_a_damped_mode_known_only_to_its_bandwidth_gets_no_notch():
     # zeta 0.07 at 3.8 Hz: a 0.53 Hz bandwidth, so a +-0.05 Hz (1.3 %) interval passes the bandwidth rule
     res = Resonance(3.8, 0.07, -40.0, 0.99, "fit", 0.05, 0.01, 0.2, 0.3, 10.0, 0.8)
     verdict = pipeline.notch_eligibility(res)
-    assert not verdict["notchable"] and "0.25 %" in verdict["reason"]
-    assert verdict["amplitude_factor"] == pytest.approx(2 * 0.05 / (0.0025 * 3.8))
+    assert not verdict["notchable"] and "0.5 %" in verdict["reason"]
+    assert verdict["amplitude_factor"] == pytest.approx(2 * 0.05 / (0.005 * 3.8))
     assert pipeline.notch_eligibility(Resonance(3.8, 0.07, -40.0, 0.99, "fit", 0.005, 0.01, 0.2, 0.3, 10.0,
                                                 0.8))["notchable"]
 
@@ -263,5 +270,7 @@ def test_torque_injection_recorded_below_the_loop_rate():
     friction = {"model": "stribeck", "Fc": 0.21602178927464633, "Fs": 0.23674914099719024, "Fv": 4.494669509273522,
                 "vs": 0.0010489481686790185}
     cfg = parse_config(bench_toml(plant, friction, "torque_injection", 7.8741680998615315, 59953, 1000.0))
-    _, decision = run_and_analyse(cfg, 0.7993662423956174)
-    check_no_false_notch(cfg, decision)
+    plant_result, decision = run_and_analyse(cfg, 0.7993662423956174)
+    # passes once the mode is found and notched where it is (refusing it would not be the fix either)
+    assert decision.resonances, decision.skipped_reason
+    check_no_false_notch(cfg, plant_result, decision)
