@@ -12,7 +12,10 @@ mode (:func:`hilident.emulator.factory.true_modes`); when none is, the
 upload's ``skipped_reason`` says why.
 
 The ``[emulator]`` tables name only the plant, the friction and the seed, so
-the emulator's default sensors and drive (its realistic noise) apply.
+the emulator's default sensors and drive (its realistic noise) apply. The
+friction the analysis removes is the true one off by up to 10 % (a friction
+test's error). Samples are recorded at the drive's loop rate: below it, a
+torque_injection run's torque is misread (see the xfail test at the end).
 """
 
 from __future__ import annotations
