@@ -193,7 +193,7 @@ def frictions(draw) -> dict | None:
             "vs": draw(log_uniform(0.001, 0.02))}
 
 
-@settings(max_examples=12, deadline=None, derandomize=True, database=None, phases=[Phase.explicit, Phase.generate],
+@settings(max_examples=8, deadline=None, derandomize=True, database=None, phases=[Phase.explicit, Phase.generate],
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 @given(plant=plants(), friction=frictions(), amplitude=log_uniform(0.02, 16.0),
        mode=st.sampled_from(["torque", "torque_injection"]), friction_error=st.floats(0.9, 1.1),
