@@ -214,7 +214,8 @@ def reconcile_resonances(found: list[Resonance], rejected: list[RejectedPeak], m
     the poles for this mode): a warning says so and the peak stays. When the
     model misses the data as a whole (weighted cost over ``_MISFIT_RATIO``
     and more than ``_MISFIT_DB`` rms) it confirms nothing: a peak stays only
-    on local evidence good enough for a notch (:func:`notch_eligibility`). Each model mode is noted
+    on local evidence good enough for a notch (:func:`notch_eligibility`)
+    and a half-power bandwidth of at least one line. Each model mode is noted
     in ``model.mode_notes`` as reported or not, with the reason.
 
     Parameters
@@ -246,6 +247,11 @@ def reconcile_resonances(found: list[Resonance], rejected: list[RejectedPeak], m
         if misfit:
             # the model cannot confirm anything; a peak stands on its own local evidence only
             ok = notch_eligibility(r)
+            if ok["notchable"] and not r.bandwidth_hz >= resolution_hz:
+                # a fitted mode narrower than a line rests on the skirts of one or two bins: one noisy line
+                # fits that as well as a mode does (a weak excitation showed a 68.7 Hz "mode" of a 94 Hz plant)
+                ok = {"notchable": False, "reason": f"its half-power bandwidth ({r.bandwidth_hz:.3g} Hz) is narrower "
+                      f"than the line spacing ({resolution_hz:.3g} Hz): one line's error may make the peak"}
             if ok["notchable"]:
                 kept.append(r)
                 warnings.append(f"the resonance at {r.frequency_hz:.4g} Hz rests on its local fit alone: the fitted "
@@ -300,6 +306,10 @@ def coherence_amplitude_factor(coherence: float, target: float) -> float:
 #: (:attr:`Resonance.local_fit_ratio`), or, without coherence, within NOTCH_FIT_FLOOR_DB rms.
 NOTCH_FIT_NOISE_RATIO = 3.0
 NOTCH_FIT_FLOOR_DB = 1.0
+#: A notch needs the 95 % interval of its resonance's frequency within this fraction of the frequency either side
+#: (the precision a notch is placed with and verified against): a damped mode's half-power bandwidth alone would
+#: allow an interval of +-zeta, several per cent.
+NOTCH_FREQUENCY_TOLERANCE = 0.005
 
 
 def notch_eligibility(res: Resonance) -> dict:
@@ -307,7 +317,8 @@ def notch_eligibility(res: Resonance) -> dict:
 
     A notch needs a resonance from a local fit whose 95 % frequency interval
     (full width ``2 frequency_ci95_hz``) is narrower than its half-power
-    bandwidth ``2 zeta f`` and whose fit error is within
+    bandwidth ``2 zeta f`` and within :data:`NOTCH_FREQUENCY_TOLERANCE` of
+    the frequency either side, and whose fit error is within
     :data:`NOTCH_FIT_NOISE_RATIO` times the scatter of each bin
     (``local_fit_ratio``; without coherence, :data:`NOTCH_FIT_FLOOR_DB` rms).
 
@@ -317,8 +328,9 @@ def notch_eligibility(res: Resonance) -> dict:
         ``frequency_hz``, ``notchable`` (bool), ``reason`` ("" when
         notchable) and ``amplitude_factor``: by how much the excitation
         amplitude would have to grow for the interval to be half the bandwidth
-        (the interval shrinks as ``1 / (amplitude sqrt(averages))`` while the
-        noise dominates; 1.0 when nothing needs to change, NaN when unknown).
+        (and, when it is wider than the tolerance, half the tolerance; the
+        interval shrinks as ``1 / (amplitude sqrt(averages))`` while the noise
+        dominates; 1.0 when nothing needs to change, NaN when unknown).
     """
     out = {"frequency_hz": res.frequency_hz, "notchable": False, "reason": "", "amplitude_factor": float("nan")}
     if res.method != "fit" or not np.isfinite(res.frequency_ci95_hz):
@@ -326,10 +338,17 @@ def notch_eligibility(res: Resonance) -> dict:
                          "and damping are read off the frequency grid")
         return out
     interval, bandwidth = 2.0 * res.frequency_ci95_hz, res.bandwidth_hz
+    tolerance_hz = NOTCH_FREQUENCY_TOLERANCE * res.frequency_hz
     out["amplitude_factor"] = float(max(1.0, 2.0 * interval / bandwidth))
     if not interval < bandwidth:
         out["reason"] = (f"the 95 % interval of its frequency ({res.frequency_hz:.4g} +- {res.frequency_ci95_hz:.3g} Hz) "
                          f"is not narrower than its half-power bandwidth ({bandwidth:.3g} Hz): a notch could miss it")
+        return out
+    if not res.frequency_ci95_hz <= tolerance_hz:
+        out["amplitude_factor"] = float(max(out["amplitude_factor"], 2.0 * res.frequency_ci95_hz / tolerance_hz))
+        out["reason"] = (f"the 95 % interval of its frequency ({res.frequency_hz:.4g} +- {res.frequency_ci95_hz:.3g} Hz) "
+                         f"is wider than +-{100 * NOTCH_FREQUENCY_TOLERANCE:g} % of it: the notch could sit off the "
+                         "mode by more than that")
         return out
     if np.isfinite(res.local_fit_ratio):
         if not res.local_fit_ratio <= NOTCH_FIT_NOISE_RATIO:
@@ -343,6 +362,87 @@ def notch_eligibility(res: Resonance) -> dict:
         return out
     out["notchable"] = True
     return out
+
+
+@dataclass
+class NotchDecision:
+    """Which identified resonances get a notch, and why the others do not.
+
+    Attributes
+    ----------
+    resonances : list of Resonance
+        The resonances the evidence supports a notch for (:func:`notch_eligibility`).
+    warnings : list of str
+        What the user should know: each refused resonance with its reason and
+        what to change, or why nothing was found.
+    skipped_reason : str or None
+        ``upload.skipped_reason`` of ``summary.json`` when no notch is
+        designed, else None.
+    """
+
+    resonances: list
+    warnings: list[str] = field(default_factory=list)
+    skipped_reason: str | None = None
+
+
+def notch_decision(plant: PlantResult, coherence_threshold: float, amplitude_key: str,
+                   amplitude: float | None = None) -> NotchDecision:
+    """The resonances of an identification run that may be notched, with the reasons for the others.
+
+    This is the whole decision between identification and upload: a
+    resonance gets a notch only when :func:`notch_eligibility` allows it;
+    when none does (or none was identified) the reason is given, with the
+    amplitude that would have reached the evidence when the measurement
+    tells it (:func:`coherence_amplitude_factor`).
+
+    Parameters
+    ----------
+    plant : PlantResult
+        What :func:`identify_plant` returned.
+    coherence_threshold : float
+        ``[identification] coherence_threshold``.
+    amplitude_key : str
+        The ``[excitation]`` key holding the amplitude (``amplitude_nm``, ...), named in the advice.
+    amplitude : float, optional
+        The amplitude played, in that key's unit; None when it is not a number
+        the advice can scale.
+
+    Returns
+    -------
+    NotchDecision
+    """
+
+    def raise_to(factor: float) -> str:
+        if not (np.isfinite(factor) and factor > 1.0):
+            # no figure from the measurement (a misfit, a peak without a fit): friction and noise
+            # weigh less at a higher amplitude, so try twice the amplitude
+            value = f" to {2 * amplitude:.3g}" if amplitude else ""
+            return (f"; try excitation.{amplitude_key}{value} (x2): friction and noise distort a peak less "
+                    "at a higher amplitude")
+        value = f" to {amplitude * factor:.3g}" if amplitude else ""
+        return (f"; raise excitation.{amplitude_key}{value} (x{factor:.2g}) or record {factor ** 2:.2g} times "
+                "as many periods (excitation.duration_s)")
+
+    if not plant.resonances:
+        low = [p for p in plant.rejected if p.coherence < coherence_threshold]
+        hint = ""
+        if low:
+            peak = max(low, key=lambda p: p.peak_magnitude_db)
+            target = min(coherence_threshold + 0.1, 0.95)
+            hint = (f"; the strongest peak ({peak.frequency_hz:.4g} Hz) has coherence {peak.coherence:.2f} "
+                    f"(target {target:.2f})" + raise_to(coherence_amplitude_factor(peak.coherence, target)))
+        elif plant.rejected:
+            hint = raise_to(float("nan"))
+        reason = "no resonance was identified, so no notch was designed (see rejected_peaks)" + hint
+        return NotchDecision([], [reason] if hint else [], reason)
+    keep, reasons = [], []
+    for r in plant.resonances:
+        ok = notch_eligibility(r)
+        if ok["notchable"]:
+            keep.append(r)
+        else:
+            reasons.append(f"no notch at {r.frequency_hz:.4g} Hz: {ok['reason']}{raise_to(ok['amplitude_factor'])}")
+    return NotchDecision(keep, reasons, None if keep else "; ".join(reasons))
 
 
 def bode_extras(plant: PlantResult) -> dict:
@@ -430,6 +530,12 @@ def _sampling_warnings(advice: list[dict], sample_rate_hz: float) -> list[str]:
                    f"rule for the {f0:.4g} Hz resonance (sampling.within_rule: false): {change}; the frequency "
                    "response and the notch do not depend on it")
     return out
+
+
+def analysis_band(cfg: IdentificationConfig, excitation_band_hz: tuple[float, float]) -> tuple[float, float]:
+    """Band searched for resonances, Hz: ``[identification] f_min_hz``/``f_max_hz``, each defaulting to the
+    excitation's band."""
+    return (cfg.f_min_hz or excitation_band_hz[0], cfg.f_max_hz or excitation_band_hz[1])
 
 
 def identify_plant(

@@ -977,7 +977,7 @@ class Session:
         s = self._analysis_samples(exp, excitation)
         self._analysed["identification"] = s
         ic = cfg.identification
-        band = (ic.f_min_hz or excitation.band_hz[0], ic.f_max_hz or excitation.band_hz[1])
+        band = pipeline.analysis_band(ic, excitation.band_hz)
         self.progress.step("identification: frequency response and resonances")
         result = pipeline.identify_plant(
             s["excitation"], s["torque_nm"], s[ic.output], s["velocity_mps"], cfg.run.sample_rate_hz, ic, band,
@@ -1040,45 +1040,14 @@ class Session:
 
     def _notchable(self, plant, upload: dict) -> list:
         """The resonances the evidence supports a notch for; why the others get none goes to warnings and upload."""
-        e, ic = self.cfg.excitation, self.cfg.identification
+        e = self.cfg.excitation
         amplitude = e.amplitude if isinstance(e.amplitude, (int, float)) else None
-
-        def raise_to(factor: float) -> str:
-            if not (np.isfinite(factor) and factor > 1.0):
-                # no figure from the measurement (a misfit, a peak without a fit): friction and noise
-                # weigh less at a higher amplitude, so try twice the amplitude
-                value = f" to {2 * amplitude:.3g}" if amplitude else ""
-                return (f"; try excitation.{e.amplitude_key}{value} (x2): friction and noise distort a peak less "
-                        "at a higher amplitude")
-            value = f" to {amplitude * factor:.3g}" if amplitude else ""
-            return (f"; raise excitation.{e.amplitude_key}{value} (x{factor:.2g}) or record {factor ** 2:.2g} times "
-                    "as many periods (excitation.duration_s)")
-
-        if not plant.resonances:
-            low = [p for p in plant.rejected if p.coherence < ic.coherence_threshold]
-            hint = ""
-            if low:
-                peak = max(low, key=lambda p: p.peak_magnitude_db)
-                target = min(ic.coherence_threshold + 0.1, 0.95)
-                hint = (f"; the strongest peak ({peak.frequency_hz:.4g} Hz) has coherence {peak.coherence:.2f} "
-                        f"(target {target:.2f})" + raise_to(pipeline.coherence_amplitude_factor(peak.coherence, target)))
-            elif plant.rejected:
-                hint = raise_to(float("nan"))
-            upload["skipped_reason"] = "no resonance was identified, so no notch was designed (see rejected_peaks)" + hint
-            if hint:
-                self.warnings.append(upload["skipped_reason"])
-            return []
-        keep, reasons = [], []
-        for r in plant.resonances:
-            ok = pipeline.notch_eligibility(r)
-            if ok["notchable"]:
-                keep.append(r)
-            else:
-                reasons.append(f"no notch at {r.frequency_hz:.4g} Hz: {ok['reason']}{raise_to(ok['amplitude_factor'])}")
-        self.warnings += reasons
-        if not keep:
-            upload["skipped_reason"] = "; ".join(reasons)
-        return keep
+        decision = pipeline.notch_decision(plant, self.cfg.identification.coherence_threshold, e.amplitude_key,
+                                           amplitude)
+        self.warnings += decision.warnings
+        if decision.skipped_reason is not None:
+            upload["skipped_reason"] = decision.skipped_reason
+        return decision.resonances
 
     def _save_step(self, upload: dict, verification) -> None:
         """With ``save``: the device stores its parameters, only after an upload read back and verified."""
