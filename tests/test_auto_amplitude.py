@@ -23,10 +23,10 @@ GANTRY = CONFIGS / "emulated-gantry.toml"
 
 
 def auto_text(path: Path) -> str:
-    """A shipped gantry config with its amplitude chosen automatically (they give the value auto picks)."""
+    """A shipped gantry config with its amplitude chosen automatically (as the shipped gantries ship)."""
     text = path.read_text()
-    assert "amplitude_nm = 8.0" in text
-    return re.sub(r"^amplitude_nm = 8\.0.*$", 'amplitude_nm = "auto"', text, flags=re.M)
+    assert re.search(r"^amplitude_nm = ", text, flags=re.M)
+    return re.sub(r"^amplitude_nm = .*$", 'amplitude_nm = "auto"', text, flags=re.M)
 
 
 AUTO_GANTRY = auto_text(GANTRY)
@@ -148,8 +148,9 @@ def run_coherence(path: Path, band_hz) -> np.ndarray:
 
 def test_auto_meets_the_target_it_predicts_and_finds_the_mode(tmp_path):
     cfg = quick(duration_s=8.0)  # four periods: the prediction is for the run's own number of periods
+    # the clean twin with noisier sensors: sensor noise alone sets the coherence, so the target is reachable
     noisy = replace(cfg.emulator.sensors, encoder_resolution_m=3e-6, torque_noise_nm=0.05)  # coherence < 1
-    cfg = replace(cfg, emulator=replace(cfg.emulator, sensors=noisy))
+    cfg = replace(cfg, emulator=replace(cfg.emulator, preset="clean", sensors=noisy))
     summary = Session(cfg, tmp_path).run()
     auto = summary["excitation"]["auto"]
     assert summary["excitation"]["amplitude_setting"] == "auto"

@@ -105,6 +105,7 @@ def twin(tmp_path):
         folder = write_vendor_drive(tmp_path, drive)
         driver = load_driver(folder)
         cfg = load_config(CONFIG)
+        cfg = replace(cfg, excitation=replace(cfg.excitation, amplitude_nm=8.0))
         emu_cfg = replace(cfg.emulator, preset="clean", time_scale=20.0, faults=replace(cfg.emulator.faults, **faults))
         emu = start(emu_cfg, driver, replace(cfg.device, driver=str(folder)))
         ad = CanopenDriveAdapter.open_device(replace(emu.device, acquisition="recorder", timeout_s=0.5), driver)

@@ -28,7 +28,7 @@ def short_config(acquisition="buffered", time_scale=20.0, period_s=1.0, duration
     emu = replace(cfg.emulator, time_scale=time_scale, faults=replace(cfg.emulator.faults, **faults))
     return replace(cfg, device=replace(cfg.device, acquisition=acquisition), emulator=emu,
                    friction_test=replace(cfg.friction_test, enabled=False),
-                   excitation=replace(cfg.excitation, period_s=period_s, duration_s=duration_s))
+                   excitation=replace(cfg.excitation, period_s=period_s, duration_s=duration_s, amplitude_nm=8.0))
 
 
 def test_streamed_session_on_the_fixed_point_drive(tmp_path):
@@ -118,6 +118,7 @@ def test_lost_pdos_are_counted_and_left_out(tmp_path):
 def _bench_config(tmp_path, port, **replacements) -> Path:
     text = CONFIG.read_text().replace('port = "emulator"', f'port = "{port}"')
     text = text.replace('can_interface = "socketcan"', 'can_interface = "socketcand"')
+    text = text.replace('amplitude_nm = "auto"', "amplitude_nm = 8.0")  # the session, not the trials, is the point
     for old, new in replacements.items():
         text = text.replace(old, new)
     path = tmp_path / "bench.toml"

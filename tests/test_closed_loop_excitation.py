@@ -9,6 +9,7 @@ or as a position profile when the drive has no velocity mode.
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -44,7 +45,7 @@ def _config(path: Path, toml: str) -> Path:
 
 def _excitation_toml(mode: str, amplitude: str) -> str:
     text = SERIAL.read_text().replace('mode = "torque"', f'mode = "{mode}"')
-    return text.replace("amplitude_nm = 8.0", amplitude)
+    return re.sub(r"^amplitude_nm = .*$", amplitude, text, flags=re.M)
 
 
 @pytest.mark.parametrize("mode, amplitude, key", [

@@ -27,7 +27,7 @@ def test_defaults_fill_what_is_not_given():
     "text, key",
     [
         (LIMITS + "[emulator.plant]\nm1 = 0\n", "emulator.plant.m1"),
-        (LIMITS + "[emulator.plant]\nmodel = 'three_mass'\n", "emulator.plant.model"),
+        (LIMITS + "[emulator.plant]\nmodel = 'four_mass'\n", "emulator.plant.model"),
         (LIMITS + "[excitation]\nkind = 'sine'\nduration_s = 'long'\n", "excitation.duration_s"),
         (LIMITS + "[excitation]\nf_max_hz = 600.0\n", "excitation.f_max_hz"),
         (LIMITS + "[excitation]\namplitude_nm = 11.0\n", "excitation.amplitude_nm"),

@@ -31,7 +31,7 @@ def short_config(duration_s: float = 8.0, friction: bool = False, timeout_s: flo
     # a loaded test machine can stall a host for half a second: the drive's communication timeout is 2 s here
     return replace(cfg, emulator=emu, device=replace(cfg.device, timeout_s=timeout_s, host_timeout_s=2.0),
                    friction_test=replace(cfg.friction_test, enabled=friction),
-                   excitation=replace(cfg.excitation, duration_s=duration_s))
+                   excitation=replace(cfg.excitation, duration_s=duration_s, amplitude_nm=8.0))
 
 
 @pytest.fixture
@@ -147,6 +147,7 @@ def test_standalone_modbus_tcp_emulator_runs_a_session_like_hardware(tmp_path, s
     assert port.startswith("tcp://127.0.0.1:")
     text = CONFIG.read_text().replace('port = "emulator"', f'port = "{port}"\nhost_timeout_s = 2.0')
     text = text.replace("[friction_test]", "[friction_test]\nenabled = false")
+    text = text.replace('amplitude_nm = "auto"', "amplitude_nm = 8.0")  # the session, not the trials, is the point
     cfg = tmp_path / "bench.toml"
     cfg.write_text(text)
     out = subprocess.run(

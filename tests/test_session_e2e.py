@@ -75,7 +75,9 @@ def gantry_variant(**changes) -> object:
     emu = cfg.emulator
     plant = replace(emu.plant, **{k: v for k, v in changes.items() if k in ("m1", "m2", "k", "d")})
     friction = replace(emu.friction, **{k: v for k, v in changes.items() if k in ("Fc", "Fs", "Fv", "vs")})
-    return replace(cfg, emulator=replace(emu, plant=plant, friction=friction, link="pipe", time_scale=8.0))
+    # a fixed amplitude: these variants test other plants and faults, and their runs start with the identification
+    return replace(cfg, emulator=replace(emu, plant=plant, friction=friction, link="pipe", time_scale=8.0),
+                   excitation=replace(cfg.excitation, amplitude_nm=8.0))
 
 
 def test_other_gantry_plant_meets_the_same_figures(tmp_path):

@@ -36,11 +36,11 @@ HOST_TIMEOUT_S = 1.0
 
 
 def quick(raw: dict, transport: str) -> dict:
-    """The shipped config made quick: no friction test, two 4 s multisine periods, fast simulated time, the clean
-    twin."""
+    """The shipped config made quick: no friction test, two 2 s multisine periods at a fixed amplitude, fast
+    simulated time, the clean twin."""
     raw = json.loads(json.dumps(raw))
     raw["friction_test"] = {"enabled": False}
-    raw["excitation"].update(period_s=2.0, duration_s=4.0)
+    raw["excitation"].update(period_s=2.0, duration_s=4.0, amplitude_nm=8.0)  # no auto trials before the run
     raw["emulator"]["time_scale"] = 8.0
     raw["emulator"]["preset"] = "clean"  # these twins test endings and protocol, not the bench's noise
     raw["notch"]["verify"] = False

@@ -37,6 +37,9 @@ def _run(args) -> int:
         return 0
     res = ", ".join(f"{r['frequency_hz']:.2f} Hz (zeta {r['damping_ratio']:.3f})" for r in summary["resonances"])
     print(f"resonances: {res or 'none found'}")
+    auto = (summary.get("excitation") or {}).get("auto")
+    if auto and args.quiet:  # otherwise the progress already showed it
+        print(auto["line"])
     if summary["friction"]:
         f = summary["friction"]
         p = f["params"]
