@@ -6,7 +6,10 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
+import pytest
+
 from hilident.config import load_config
+from hilident.errors import DataError
 from hilident.emulator.factory import true_modes
 from hilident.session import Session
 
@@ -37,3 +40,18 @@ def test_weak_excitation_never_notches_where_there_is_no_mode(tmp_path):
     model = written["plant_model"]  # None when too few bins were coherent enough to fit one
     reported = {r["frequency_hz"] for r in written["resonances"]}
     assert {m["resonance_hz"] for m in (model or {"resonances": []})["resonances"] if m["reported"]} == reported
+
+
+def test_an_axis_too_weakly_excited_to_move_keeps_the_friction_test_and_names_what_to_change(tmp_path):
+    cfg = load_config(CONFIGS / "emulated-gantry.toml")
+    ft = replace(cfg.friction_test, speeds_mps=[0.01, 0.04, 0.1, 0.2], hold_s=0.6)
+    cfg = replace(cfg, excitation=replace(cfg.excitation, amplitude_nm=0.05, period_s=2.0, duration_s=4.0),
+                  friction_test=ft, emulator=replace(cfg.emulator, preset="clean", link="pipe", time_scale=8.0))
+    with pytest.raises(DataError, match=r"did not move.*excitation\.amplitude_nm") as err:
+        Session(cfg, tmp_path, plots=False).run()
+    written = json.loads((tmp_path / "summary.json").read_text())
+    assert written["failed_step"] == "identification" and written["error"] == str(err.value)
+    assert written["friction"]["params"]["Fc"] > 0  # what the friction test found is kept
+    assert written["resonances"] == [] and written["notch_filters"] == []
+    fs = written["friction"]["params"]["Fs"]
+    assert f"{3 * fs:.3g} N*m" in str(err.value)  # a value computed from the measurement

@@ -577,6 +577,7 @@ class Session:
         started = time.monotonic()
         friction = plant = verification = None
         designs, upload = [], {"written": False, "verified_readback": False, "slots": []}
+        step = "connect"
         try:
             self.connect()
             self._read_filter_slots()
@@ -586,18 +587,28 @@ class Session:
             if self.dry_run:
                 return {"dry_run": True, "plan": self.plan.to_dict()}
             self._bypass_filters()
+            step = "friction test"
             friction = self._friction_step(profile)
             if self.cfg.excitation.amplitude_auto:
+                step = "auto amplitude"
                 excitation = self._auto_amplitude(friction)  # the run then plays the chosen amplitude
+            step = "identification"
             ident = self.record("identification", self.cfg.excitation.mode, excitation.samples,
                                 period_samples=excitation.period_samples, recipe=excitation_recipe(self.cfg))
             plant = self._identify(ident, excitation, friction)
+            step = "notch upload"
             designs, upload = self._notch_step(plant)
+            step = "verification"
             verification = self._verify(excitation, plant, designs)
+            step = "save"
             self._save_step(upload, verification)
-        except BaseException:
+        except BaseException as exc:
             with endings.shielded():
                 self.safe_stop()
+            if isinstance(exc, HilidentError) and (friction is not None or plant is not None):
+                with endings.shielded():  # what the steps before found is kept, and the step that failed named
+                    self._write_partial_summary(step, exc, friction, plant, designs, upload, verification,
+                                                time.monotonic() - started)
             raise
         finally:
             with endings.shielded():
@@ -978,6 +989,7 @@ class Session:
         self._analysed["identification"] = s
         ic = cfg.identification
         band = pipeline.analysis_band(ic, excitation.band_hz)
+        self._check_it_moved(s[ic.output], friction)
         self.progress.step("identification: frequency response and resonances")
         result = pipeline.identify_plant(
             s["excitation"], s["torque_nm"], s[ic.output], s["velocity_mps"], cfg.run.sample_rate_hz, ic, band,
@@ -987,6 +999,23 @@ class Session:
         )
         self.warnings += result.warnings
         return result
+
+    def _check_it_moved(self, output: np.ndarray, friction) -> None:
+        """A DataError that says what to change when the axis did not move at all during the identification."""
+        finite = output[np.isfinite(output)]
+        if finite.size and np.ptp(finite) > 0.0:
+            return
+        e = self.cfg.excitation
+        held = ""
+        if friction is not None and e.mode in ("torque", "torque_injection"):
+            fs = max(friction.fit.params.Fs, friction.fit.params.Fc)
+            held = (f"; the friction test measured a breakaway of {fs:.3g} N*m, so an amplitude of at least "
+                    f"{3 * fs:.3g} N*m is needed to move it over most of each period")
+        raise DataError(f"identification: the axis did not move ({self.cfg.identification.output} constant at "
+                        f"{finite[0] if finite.size else float('nan'):g}): the excitation ({e.amplitude:g} "
+                        f"{ {'velocity': 'm/s', 'position': 'm'}.get(e.mode, 'N*m') }) is too weak"
+                        f"{held}; raise excitation.{e.amplitude_key}"
+                        + (' or set it to "auto"' if e.amplitude_key == "amplitude_nm" else ""))
 
     def _notch_step(self, plant):
         nc = self.cfg.notch
@@ -1096,19 +1125,29 @@ class Session:
 
     # --- outputs ----------------------------------------------------------------------------
 
+    def _write_partial_summary(self, step: str, exc: BaseException, friction, plant, designs, upload,
+                               verification, elapsed_s: float) -> None:
+        """``summary.json`` of a session a step of which failed after others succeeded: their results, the
+        failed step's name (``failed_step``) and its error."""
+        summary = self._summary(friction, plant, designs, upload, verification, elapsed_s)
+        summary.update(failed_step=step, error=str(exc))
+        report.write_summary(self.out / "summary.json", summary)
+        self.progress.step(f"wrote {self.out / 'summary.json'} up to the failed step ({step})")
+
     def _summary(self, friction, plant, designs, upload, verification, elapsed_s) -> dict:
         cfg = self.cfg
         t = self.totals
         out = {
             "hilident_version": __version__,
             "config": cfg.source,
-            "device": {"driver": self.driver.name, "port": self.adapter.port, "emulated": cfg.uses_emulator},
+            "device": {"driver": self.driver.name, "port": self.adapter.port if self.adapter else None,
+                       "emulated": cfg.uses_emulator},
             "sample_rate_hz": cfg.run.sample_rate_hz,
             "excitation": self._excitation_record(),
-            "resonances": pipeline.resonance_records(plant.resonances),
-            "rejected_peaks": pipeline.rejected_peak_records(plant.rejected),
-            "plant_model": plant.model.to_dict() if plant.model else None,
-            "measurement": plant.quality,
+            "resonances": pipeline.resonance_records(plant.resonances) if plant else [],
+            "rejected_peaks": pipeline.rejected_peak_records(plant.rejected) if plant else [],
+            "plant_model": plant.model.to_dict() if plant and plant.model else None,
+            "measurement": plant.quality if plant else None,
             "friction": None,
             "notch_filters": pipeline.notch_records(designs),
             "upload": upload,
@@ -1118,7 +1157,8 @@ class Session:
                 "lost_samples": t.lost_samples, "corrupt_frames": t.corrupt_frames, "out_of_order": t.out_of_order,
                 "underruns": t.underruns, "board_dropped_blocks": t.board_dropped_blocks,
             },
-            "connect": self.adapter.connect_report.to_dict() if hasattr(self.adapter, "connect_report") else None,
+            "connect": (self.adapter.connect_report.to_dict() if self.adapter is not None
+                        and hasattr(self.adapter, "connect_report") else None),
             "filters_found": self.filters_found,
             "recordings": sorted(p.name for p in self.out.glob("*.h5")),
             "elapsed_s": elapsed_s,
