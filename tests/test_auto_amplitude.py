@@ -186,20 +186,3 @@ def test_auto_never_exceeds_the_torque_limit_and_says_so(tmp_path):
     assert "evidence gates" in auto["line"]
     assert auto["trials"][-1]["needed_nm"] > 1.0
     assert any("evidence gates" in w for w in summary["warnings"])
-
-
-def test_auto_over_modbus_tcp_with_the_friction_test(tmp_path):
-    cfg = quick(CONFIGS / "emulated-modbus-gantry.toml", friction_test=True)
-    cfg = replace(cfg, emulator=replace(cfg.emulator, time_scale=32.0))  # the drive plays its table: no hurry
-    summary = Session(cfg, tmp_path).run()
-    auto = summary["excitation"]["auto"]
-    assert summary["device"]["port"].startswith("tcp://")
-    first = auto["trials"][0]
-    fs = summary["friction"]["params"]["Fs"]
-    # started from the friction test's Fs: the multisine whose rms holds Fs to its allowed share
-    assert fs / cfg.excitation.auto_nonlinear_share < first["amplitude_nm"] <= 0.95 * cfg.limits.torque_nm
-    assert first["nonlinear_share_from"] == "friction fit"
-    assert auto["reason"].startswith("target met"), auto["reason"]
-    assert auto["trials"][-1]["nonlinear_share"] <= cfg.excitation.auto_nonlinear_share
-    assert auto["trials"][-1]["predicted_coherence_band"] >= auto["target_coherence"]
-    assert_mode_found(cfg, summary)

@@ -48,7 +48,7 @@ def session_config(folder: Path, period_s=1.0, duration_s=2.0):
     emu = replace(cfg.emulator, time_scale=20.0)
     return replace(cfg, device=replace(cfg.device, driver=str(folder), acquisition="streamed"), emulator=emu,
                    friction_test=replace(cfg.friction_test, enabled=False),
-                   excitation=replace(cfg.excitation, period_s=period_s, duration_s=duration_s))
+                   excitation=replace(cfg.excitation, period_s=period_s, duration_s=duration_s, amplitude_nm=8.0))
 
 
 @pytest.mark.parametrize("name", ["narrow"])

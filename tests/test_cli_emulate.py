@@ -19,6 +19,7 @@ def test_standalone_emulator_runs_a_session_like_hardware(tmp_path, extra, stand
     assert port.startswith("/dev/") or port.startswith("socket://127.0.0.1:")
     text = (CONFIGS / "emulated-gantry.toml").read_text().replace('port = "emulator"', f'port = "{port}"')
     text = text.replace("[friction_test]", "[friction_test]\nenabled = false")
+    text = text.replace('amplitude_nm = "auto"', "amplitude_nm = 8.0")  # the line and the process, not the trials
     cfg = tmp_path / "bench.toml"
     cfg.write_text(text)
     out = subprocess.run(
@@ -77,7 +78,7 @@ def test_a_closed_output_pipe_does_not_end_the_run(tmp_path):
 
     raw = tomllib.loads((CONFIGS / "emulated-gantry.toml").read_text())
     raw["friction_test"] = {"enabled": False}
-    raw["excitation"].update(period_s=2.0, duration_s=4.0)
+    raw["excitation"].update(period_s=2.0, duration_s=4.0, amplitude_nm=8.0)
     raw["emulator"]["time_scale"] = 8.0
     cfg = tmp_path / "quick.toml"
     cfg.write_text(tomli_w.dumps(raw))

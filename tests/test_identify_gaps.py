@@ -358,6 +358,7 @@ def test_identify_on_a_bench_recording_finds_what_the_run_found(tmp_path):
     text = text.replace('link = "pty"', 'link = "pipe"').replace("time_scale = 4.0", "time_scale = 8.0")
     text = text.replace("[friction_test]", "[friction_test]\nenabled = false").replace("duration_s = 16.0",
                                                                                        "duration_s = 8.0")
+    text = text.replace('amplitude_nm = "auto"', "amplitude_nm = 8.0")
     run = Session(parse_config(text, "gantry"), tmp_path / "run").run()
     summary = identify(tmp_path, tmp_path / "run" / "identification.h5")
     assert summary["data"]["period_samples"] == PERIOD and summary["data"]["used_rows"] == 2 * PERIOD

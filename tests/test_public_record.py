@@ -169,6 +169,18 @@ def test_identify_reports_the_two_modes_and_nothing_else(tmp_path, reference, ra
     assert summary["measurement"]["one_period"] == {"excited_lines": odd_above_floor, "line_step": 2,
                                                     "noise_from_non_excited_lines": True}
     centres = [n["center_hz"] / rate_hz for n in summary["notch_filters"]]
-    assert len(centres) == 2
+    assert len(centres) == 2 and summary["notch_skipped_reason"] is None
     for c, mode in zip(sorted(centres), reference):
         assert c == pytest.approx(mode["f"], rel=FREQUENCY_TOLERANCE)
+
+
+def test_identify_says_why_no_notch_when_the_evidence_is_short(tmp_path):
+    config = tmp_path / "arm.toml"
+    config.write_text(f'[data]\ntorque = "0"\noutput = "1"\nsample_rate_hz = 1024.0\nperiod_samples = {PERIOD}\n'
+                      "[identification]\ncoherence_threshold = 0.999\n")  # more than one period's noise allows
+    out = tmp_path / "o"
+    assert main(["identify", str(DATA), "--config", str(config), "--out", str(out), "-q"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["notch_filters"] == []
+    assert "no notch was designed" in summary["notch_skipped_reason"]
+    assert summary["notch_skipped_reason"] in summary["warnings"]

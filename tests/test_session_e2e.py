@@ -44,6 +44,21 @@ def check_against_truth(cfg, summary, min_reduction_db=20.0, zeta_tolerance=0.15
         assert summary["verification"]["band_reduction_db"] >= min_reduction_db
 
 
+def check_auto_amplitude(cfg, summary):
+    """The trials met their target, starting from the friction test's breakaway, under the torque limit."""
+    auto = summary["excitation"]["auto"]
+    assert auto["reason"].startswith("target met"), auto["reason"]
+    first, last = auto["trials"][0], auto["trials"][-1]
+    if cfg.friction_test.enabled:
+        # the multisine whose rms holds the breakaway to its allowed share of the torque
+        fs = summary["friction"]["params"]["Fs"]
+        assert fs / cfg.excitation.auto_nonlinear_share < first["amplitude_nm"] <= 0.95 * cfg.limits.torque_nm
+        assert first["nonlinear_share_from"] == "friction fit"
+    assert last["nonlinear_share"] <= cfg.excitation.auto_nonlinear_share
+    assert last["predicted_coherence_band"] >= auto["target_coherence"]
+    assert summary["excitation"]["amplitude"] == auto["chosen_nm"] <= cfg.limits.torque_nm
+
+
 @pytest.mark.parametrize("path", EMULATOR_CONFIGS, ids=lambda p: p.stem)
 def test_every_shipped_emulator_config_runs(path, tmp_path):
     cfg = load_config(path)
@@ -60,6 +75,8 @@ def test_every_shipped_emulator_config_runs(path, tmp_path):
     # Only the gantry promises 20 dB: the lecture's 0.225 Hz mode is too slow for REAL32
     # coefficients at a 4 kHz filter rate, and the session says so in a warning.
     check_against_truth(cfg, summary, 20.0 if "gantry" in path.stem else None, zeta_tolerance)
+    if cfg.excitation.amplitude_auto:  # the shipped gantries choose their amplitude
+        check_auto_amplitude(cfg, summary)
     assert summary["stream"]["lost_blocks"] == 0 and summary["stream"]["corrupt_frames"] == 0
     for name in summary["recordings"]:
         run = read_run(tmp_path / name)

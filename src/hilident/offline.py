@@ -456,14 +456,13 @@ def _steps(cfg: Config, ds: Dataset, validation: Dataset | None, info, state: di
     state["step"] = "notch design"
     if cfg.notch.enabled:
         slots = list(range(max(ic.max_resonances, 1)))
-        notchable = []
-        for r in plant.resonances:  # the same evidence rule as a run's upload
-            verdict = pipeline.notch_eligibility(r)
-            if verdict["notchable"]:
-                notchable.append(r)
-            else:
-                warnings.append(f"no notch at {r.frequency_hz:.4g} Hz: {verdict['reason']}")
-        state["designs"] = pipeline.design_notches(notchable, cfg.notch, cfg.model.filter_rate_hz, slots,
+        # the same decision as a run's upload; the amplitude advice only for a run's own recording
+        e = cfg.excitation
+        amplitude = e.amplitude if info is not None and isinstance(e.amplitude, (int, float)) else None
+        decision = pipeline.notch_decision(plant, ic.coherence_threshold, e.amplitude_key, amplitude)
+        warnings += decision.warnings
+        state["notch_skipped_reason"] = decision.skipped_reason
+        state["designs"] = pipeline.design_notches(decision.resonances, cfg.notch, cfg.model.filter_rate_hz, slots,
                                                    response=plant.loop)
     state["step"] = "model"
     model = fit_model(cfg, ds, validation)
@@ -493,6 +492,7 @@ def _summary(cfg: Config, data_info: dict, state: dict, warnings: list[str], sta
         "plant_model": plant.model.to_dict() if plant and plant.model else None,
         "measurement": plant.quality if plant else {},
         "notch_filters": pipeline.notch_records(state["designs"]),
+        "notch_skipped_reason": state.get("notch_skipped_reason"),
         "upload": {"written": False, "verified_readback": False, "slots": []},
         "verification": {"band_reduction_db": None, "peak_reduction_db": None, "resonances": []},
         "stream": {"samples": samples, "lost_frames": 0, "lost_blocks": 0,

@@ -704,7 +704,25 @@ def _condition(x: np.ndarray, cfg: IdentificationConfig, sample_rate_hz: float) 
     """
     if cfg.lowpass_hz:
         x = lowpass(x, cfg.lowpass_hz, sample_rate_hz)
-    return detrend(x, "linear")
+    return _remove_drift(x)
+
+
+#: Degree of the polynomial trend removed from every signal before a frequency response: an integrating output
+#: (a position) drifts under load changes in ramps and parabolas, which no excitation line holds.
+_DRIFT_DEGREE = 3
+
+
+def _remove_drift(x: np.ndarray) -> np.ndarray:
+    """``x`` minus its least-squares polynomial of degree :data:`_DRIFT_DEGREE` (Legendre basis, well conditioned).
+
+    Its spectrum lies below about ``degree / record length``; an excitation band
+    starting at a few periods of the record is left alone.
+    """
+    n = x.size
+    if n <= 2 * _DRIFT_DEGREE:
+        return detrend(x, "linear")
+    t = np.linspace(-1.0, 1.0, n)
+    return x - np.polynomial.legendre.Legendre.fit(t, x, _DRIFT_DEGREE, domain=[-1, 1])(t)
 
 
 def _segment(n: int, cfg: IdentificationConfig, sample_rate_hz: float, period_samples, warnings: list[str]):

@@ -490,7 +490,7 @@ def test_a_sigkilled_session_is_stopped_by_the_board_watchdog_and_the_next_host_
         assert port, emulator.stderr.read()
         bench = tmp_path / "bench.toml"
         bench.write_text(config.replace('port = "emulator"', f'port = "{port}"')
-                         .replace("[friction_test]", "[friction_test]\nenabled = false"))
+                         .replace("[friction_test]", "[friction_test]\nenabled = false").replace('amplitude_nm = "auto"', "amplitude_nm = 8.0"))
         out = tmp_path / "out"
         host = subprocess.Popen([sys.executable, "-m", "hilident.cli", "run", str(bench), "--out", str(out), "-q",
                                  "--yes", "--no-plots"],
