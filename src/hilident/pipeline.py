@@ -21,7 +21,7 @@ from hilident.ident.validation import overfitting_warning
 from hilident.ident.discretize import sampling_advice
 from hilident.ident.frequency import FrequencyResponse, frf_from_reference, h1_estimate, periodic_frf
 from hilident.ident.frfquality import check_resolution, frf_uncertainty, input_spectrum
-from hilident.ident.preprocess import check_signals, detrend, lowpass
+from hilident.ident.preprocess import check_signals, lowpass, remove_drift
 from hilident.ident.resonance import RejectedPeak, Resonance, screen_resonances
 from hilident.ident.tffit import ModalModel, RootReport, TfFit, classify_roots, modal_form, select_structure
 
@@ -582,9 +582,10 @@ def identify_plant(
     u = s["torque"]
     if friction is not None:
         u = fr.compensate(u, s["velocity"], friction, velocity_deadband_mps)
-    u, y = (_condition(x, cfg, sample_rate_hz) for x in (u, s["output"]))
+    u, y = (_condition(x, cfg, sample_rate_hz, period_samples) for x in (u, s["output"]))
     # a recording without an excitation column gives the torque as excitation: condition it once
-    r = u if s["excitation"] is s["torque"] and friction is None else _condition(s["excitation"], cfg, sample_rate_hz)
+    r = (u if s["excitation"] is s["torque"] and friction is None
+         else _condition(s["excitation"], cfg, sample_rate_hz, period_samples))
     del s
     seg = _segment(len(r), cfg, sample_rate_hz, period_samples, warnings)
     if seg is None:
@@ -697,32 +698,15 @@ def _misfits(fit: TfFit) -> bool:
     return fit.weighting == "coherence" and fit.weighted_cost > _MISFIT_RATIO and fit.fit_db_rms > _MISFIT_DB
 
 
-def _condition(x: np.ndarray, cfg: IdentificationConfig, sample_rate_hz: float) -> np.ndarray:
-    """Optional zero-phase low-pass, then a linear trend removed.
+def _condition(x: np.ndarray, cfg: IdentificationConfig, sample_rate_hz: float,
+               period_samples: int | None) -> np.ndarray:
+    """Optional zero-phase low-pass, then the mean and a slow drift removed (:func:`remove_drift`).
 
     The same filter on every signal of a ratio leaves the ratio intact.
     """
     if cfg.lowpass_hz:
         x = lowpass(x, cfg.lowpass_hz, sample_rate_hz)
-    return _remove_drift(x)
-
-
-#: Degree of the polynomial trend removed from every signal before a frequency response: an integrating output
-#: (a position) drifts under load changes in ramps and parabolas, which no excitation line holds.
-_DRIFT_DEGREE = 3
-
-
-def _remove_drift(x: np.ndarray) -> np.ndarray:
-    """``x`` minus its least-squares polynomial of degree :data:`_DRIFT_DEGREE` (Legendre basis, well conditioned).
-
-    Its spectrum lies below about ``degree / record length``; an excitation band
-    starting at a few periods of the record is left alone.
-    """
-    n = x.size
-    if n <= 2 * _DRIFT_DEGREE:
-        return detrend(x, "linear")
-    t = np.linspace(-1.0, 1.0, n)
-    return x - np.polynomial.legendre.Legendre.fit(t, x, _DRIFT_DEGREE, domain=[-1, 1])(t)
+    return remove_drift(x, period_samples)
 
 
 def _segment(n: int, cfg: IdentificationConfig, sample_rate_hz: float, period_samples, warnings: list[str]):
@@ -748,7 +732,7 @@ def loop_response(
     """
     s = check_signals({"excitation": excitation, "output": output}, copy=False)
     warnings: list[str] = []
-    r, y = (_condition(x, cfg, sample_rate_hz) for x in (s["excitation"], s["output"]))
+    r, y = (_condition(x, cfg, sample_rate_hz, period_samples) for x in (s["excitation"], s["output"]))
     seg = _segment(len(r), cfg, sample_rate_hz, period_samples, warnings)
     if seg is None:
         return periodic_frf(r, y, period_samples, sample_rate_hz, skip_periods=0, bins=excited_bins), warnings

@@ -14,6 +14,7 @@ from hilident.ident.preprocess import (
     detrend,
     highpass,
     lowpass,
+    remove_drift,
 )
 
 FS = 1000.0
@@ -188,3 +189,38 @@ def test_central_difference_exact_for_quadratic_inside(a, b, c):
     x = a + b * t + c * t**2
     d = central_difference(x, 100.0)
     assert np.allclose(d[1:-1], b + 2 * c * t[1:-1], atol=1e-8)
+
+
+# --- remove_drift --------------------------------------------------------------
+
+
+@settings(max_examples=30, deadline=None)
+@given(coefs=st.lists(st.floats(-5.0, 5.0), min_size=4, max_size=4),
+       periods=st.integers(2, 9), tail=st.integers(0, 99))
+def test_remove_drift_takes_a_cubic_and_leaves_any_periodic_signal(coefs, periods, tail):
+    rng = np.random.default_rng(periods * 100 + tail)
+    period = 100
+    one_period = rng.standard_normal(period)
+    n = periods * period + tail
+    periodic = np.resize(one_period, n)
+    t = np.linspace(-1.0, 1.0, n)
+    drift = np.polynomial.polynomial.polyval(t, coefs)
+    y = remove_drift(periodic + drift, period_samples=period)
+    expected = periodic - periodic[: periods * period].mean()
+    assert np.allclose(y, expected, atol=1e-9 * (1 + np.abs(coefs).sum()))
+
+
+def test_remove_drift_without_two_periods_removes_a_line_only():
+    x = sine(3.0) + np.linspace(0.0, 2.0, 4000)
+    assert np.array_equal(remove_drift(x), detrend(x, "linear"))
+    assert np.array_equal(remove_drift(x, period_samples=3000), detrend(x, "linear"))
+
+
+def test_a_cubic_fit_alone_would_bend_a_periodic_response_that_remove_drift_keeps():
+    # the response of a two-period record: an ordinary cubic detrend takes part of its lowest line
+    period = 500
+    x = np.resize(sine(2.0, n=period), 2 * period)
+    t = np.linspace(-1.0, 1.0, x.size)
+    plain = x - np.polynomial.legendre.Legendre.fit(t, x, 3)(t)
+    assert np.max(np.abs(plain - x)) > 0.05
+    assert np.max(np.abs(remove_drift(x, period_samples=period) - (x - x.mean()))) < 1e-12
