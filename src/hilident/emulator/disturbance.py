@@ -28,23 +28,12 @@ import math
 
 import numpy as np
 
+from hilident.emulator.checks import number
 from hilident.errors import ConfigError
 
 __all__ = ["ProcessDisturbance"]
 
 _BLOCK = 4096
-
-
-def _nonnegative(key: str, value) -> float:
-    if isinstance(value, bool):
-        raise ConfigError(key, f"must be a number, got {value!r}")
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(key, f"must be a number, got {value!r}") from None
-    if not (math.isfinite(x) and x >= 0.0):
-        raise ConfigError(key, f"must be >= 0 and finite, got {value!r}")
-    return x
 
 
 class ProcessDisturbance:
@@ -84,16 +73,16 @@ class ProcessDisturbance:
     def __init__(self, *, period_s: float, noise_nm: float = 0.0, noise_corner_hz: float = 20.0,
                  cogging_nm: float = 0.0, cogging_period_m: float = 0.01, load_step_nm: float = 0.0,
                  load_step_rate_hz: float = 0.0, load_noise_n: float = 0.0, seed):
-        self.period_s = _nonnegative("period_s", period_s)
+        self.period_s = number("period_s", period_s)
         if self.period_s == 0.0:
             raise ConfigError("period_s", "must be > 0")
-        self.noise_nm = _nonnegative("noise_nm", noise_nm)
-        self.noise_corner_hz = _nonnegative("noise_corner_hz", noise_corner_hz)
-        self.cogging_nm = _nonnegative("cogging_nm", cogging_nm)
-        self.cogging_period_m = _nonnegative("cogging_period_m", cogging_period_m)
-        self.load_step_nm = _nonnegative("load_step_nm", load_step_nm)
-        self.load_step_rate_hz = _nonnegative("load_step_rate_hz", load_step_rate_hz)
-        self.load_noise_n = _nonnegative("load_noise_n", load_noise_n)
+        self.noise_nm = number("noise_nm", noise_nm)
+        self.noise_corner_hz = number("noise_corner_hz", noise_corner_hz)
+        self.cogging_nm = number("cogging_nm", cogging_nm)
+        self.cogging_period_m = number("cogging_period_m", cogging_period_m)
+        self.load_step_nm = number("load_step_nm", load_step_nm)
+        self.load_step_rate_hz = number("load_step_rate_hz", load_step_rate_hz)
+        self.load_noise_n = number("load_noise_n", load_noise_n)
         if (self.noise_nm or self.load_noise_n) and self.noise_corner_hz == 0.0:
             raise ConfigError("noise_corner_hz", "must be > 0 when there is torque noise")
         if self.cogging_nm and self.cogging_period_m == 0.0:

@@ -18,23 +18,12 @@ import math
 
 import numpy as np
 
+from hilident.emulator.checks import number
 from hilident.errors import ConfigError
 
 __all__ = ["SensorModel"]
 
 _BLOCK = 4096
-
-
-def _number(key: str, value, *, minimum: float = 0.0, strict: bool = False) -> float:
-    if isinstance(value, bool):
-        raise ConfigError(key, f"must be a number, got {value!r}")
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(key, f"must be a number, got {value!r}") from None
-    if not math.isfinite(x) or (x <= minimum if strict else x < minimum):
-        raise ConfigError(key, f"must be {'>' if strict else '>='} {minimum:g} and finite, got {value!r}")
-    return x
 
 
 class SensorModel:
@@ -73,11 +62,11 @@ class SensorModel:
                  laser_range_m: tuple[float, float] = (-0.052, 0.052),
                  laser_noise_m: float = 0.0, laser_resolution_m: float = 0.0, encoder_noise_m: float = 0.0,
                  seed):
-        self.encoder_resolution_m = _number("encoder_resolution_m", encoder_resolution_m)
-        self.encoder_noise_m = _number("encoder_noise_m", encoder_noise_m)
-        self.torque_noise_nm = _number("torque_noise_nm", torque_noise_nm)
-        self.laser_noise_m = _number("laser_noise_m", laser_noise_m)
-        self.laser_resolution_m = _number("laser_resolution_m", laser_resolution_m)
+        self.encoder_resolution_m = number("encoder_resolution_m", encoder_resolution_m)
+        self.encoder_noise_m = number("encoder_noise_m", encoder_noise_m)
+        self.torque_noise_nm = number("torque_noise_nm", torque_noise_nm)
+        self.laser_noise_m = number("laser_noise_m", laser_noise_m)
+        self.laser_resolution_m = number("laser_resolution_m", laser_resolution_m)
         try:
             lo, hi = (float(x) for x in laser_range_m)
         except (TypeError, ValueError):

@@ -88,6 +88,7 @@ from hilident.ident.preprocess import (
     detrend,
     highpass,
     lowpass,
+    remove_drift,
 )
 from hilident.ident.resonance import Resonance, find_resonances, fit_local_mode
 from hilident.ident.filtering import decimate, decimation_filter, moving_average, rc_alpha, rc_lowpass

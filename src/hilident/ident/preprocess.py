@@ -26,6 +26,7 @@ from hilident.errors import ConfigError, DataError
 __all__ = [
     "check_signals",
     "detrend",
+    "remove_drift",
     "lowpass",
     "highpass",
     "bandpass",

@@ -1,0 +1,28 @@
+"""Checks of the numbers an emulator part is built from, with errors that name the key."""
+
+from __future__ import annotations
+
+import math
+
+from hilident.errors import ConfigError
+
+__all__ = ["number"]
+
+
+def number(key: str, value, *, minimum: float = 0.0, strict: bool = False) -> float:
+    """``value`` as a finite float at or above ``minimum`` (above it when ``strict``).
+
+    Raises
+    ------
+    ConfigError
+        Naming ``key``, for a bool, a non-number, a non-finite value or one out of range.
+    """
+    if isinstance(value, bool):
+        raise ConfigError(key, f"must be a number, got {value!r}")
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(key, f"must be a number, got {value!r}") from None
+    if not math.isfinite(x) or (x <= minimum if strict else x < minimum):
+        raise ConfigError(key, f"must be {'>' if strict else '>='} {minimum:g} and finite, got {value!r}")
+    return x
