@@ -541,7 +541,7 @@ class _RtuLine:
     def _arm(self, delay: float) -> None:
         if self.timer is not None:
             self.timer.cancel()
-        self.timer = self.loop.call_later(delay, self._silence) if self.buffer else None
+        self.timer = self.loop.call_later(delay, self._silence) if self.buffer or self.garbled else None
 
     def _frames(self) -> None:
         """Answer every complete frame at the front of the buffer whose length the function code gives."""
