@@ -13,14 +13,17 @@ from __future__ import annotations
 import socket
 import struct
 import time
+from dataclasses import replace
 
 import pytest
 import serial
 
+from hilident.adapters.modbus_drive import ModbusDriveAdapter, NoResponse
 from hilident.config import DeviceConfig, parse_config
 from hilident.drivers import find_driver
 from hilident.emulator.modbus_drive import start
 from hilident.emulator.modbus_pdu import handle, request_length
+from hilident.errors import DeviceError
 from hilident.protocol.modbus_registers import RegisterMap
 
 DRIVER = find_driver("modbus-servo")
@@ -408,3 +411,67 @@ def test_rtu_frame_lengths_come_from_the_function_code(frame, length):
     assert request_length(frame) == length
     if length is not None:
         assert length == len(frame)
+
+
+# --- the host side: a late answer on an RTU line is never taken for a fresh one -----------------
+
+
+@pytest.fixture
+def late_answers(rtu_twin):
+    """The RTU twin's answers delayed by the seconds ``set(delay)`` says (as the switch of the next answer)."""
+    server = rtu_twin.server
+    before = server.faults
+
+    def set_delay(seconds: float) -> None:
+        server.faults = replace(before, response_delay_s=seconds)
+
+    yield set_delay
+    server.faults = before
+
+
+def rtu_adapter(emu, timeout_s: float) -> ModbusDriveAdapter:
+    device = DeviceConfig(driver="modbus-servo", port=emu.port, baudrate=RTU_BAUD, parity="N", timeout_s=timeout_s)
+    return ModbusDriveAdapter.open_device(device, DRIVER)
+
+
+def discarded(ad: ModbusDriveAdapter) -> int:
+    return ad.client.stale_frames + ad.dropped_frames + ad.bad_responses
+
+
+@pytest.mark.parametrize("delay_s,timeout_s,first_count", [
+    (0.3, 0.2, 1),  # the late answer comes while the adapter waits for it after the timeout
+    (0.4, 0.15, 2),  # it comes while the next request waits: another length, dropped there
+], ids=["after-timeout", "during-next-request"])
+def test_a_late_rtu_answer_is_dropped_and_the_next_request_gets_its_own(rtu_twin, late_answers, delay_s, timeout_s,
+                                                                        first_count):
+    ad = rtu_adapter(rtu_twin, timeout_s)
+    try:
+        assert ad.read(DIVIDER, 1) == [1]
+        assert ad.read(0, 1) == [MAP.device_type]
+        before = discarded(ad)
+        late_answers(delay_s)
+        with pytest.raises(NoResponse, match="no answer within"):
+            ad.read(0, first_count, retry=False)  # device_type (and map_version): its answer comes late
+        late_answers(0.0)
+        assert ad.read(DIVIDER, 1) == [1]  # the same length as the late answer, another value
+        assert discarded(ad) > before
+        assert ad.read(0, 1) == [MAP.device_type]
+    finally:
+        ad.close()
+
+
+def test_an_exception_answer_names_the_register_and_what_the_code_means(tcp_twin):
+    device = DeviceConfig(driver="modbus-servo", port=tcp_twin.port, timeout_s=1.0)
+    ad = ModbusDriveAdapter.open_device(device, DRIVER)
+    try:
+        with pytest.raises(DeviceError, match=r"register 7 \(not in the driver map\): Modbus exception 2 "
+                                              r"\(illegal data address.*not in the drive's map"):
+            ad.read(7, 1)
+        with pytest.raises(DeviceError, match=r"register 110 \(mode\): Modbus exception 3 \(illegal data value.*"
+                                              r"refused the value or the quantity"):
+            ad.write(MAP.register("mode").address, [77])
+        with pytest.raises(DeviceError, match=r"Modbus exception 1 \(illegal function.*does not support function 4"):
+            ad._request("reading input registers", 0, 1,
+                        lambda: ad.client.read_input_registers(0, count=1, device_id=UNIT), lambda r: True, retry=False)
+    finally:
+        ad.close()
