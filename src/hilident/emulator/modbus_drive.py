@@ -188,16 +188,16 @@ def _address_tables(regmap: RegisterMap | None) -> tuple[np.ndarray, np.ndarray,
 class _ServedFirmware:
     """The firmware as the wire reaches it: addresses outside the map refused (02), and the fault switch."""
 
-    def __init__(self, firmware, faults: FaultsConfig):
+    def __init__(self, firmware, server: "ModbusDriveServer"):
         self.firmware = firmware
         self.functions = frozenset(firmware.functions)
-        self.faults = faults
+        self.server = server  # its fault switches, as they are now
         self._tables = _address_tables(getattr(firmware, "map", None))
 
     def _refusal(self, table: int, address: int, count: int) -> int | None:
         if self._tables is not None and not self._tables[table][address : address + count].all():
             return ILLEGAL_DATA_ADDRESS
-        f = self.faults
+        f = self.server.faults
         if f.exception_register >= 0 and address <= f.exception_register < address + count:
             return f.exception_code
         return None
@@ -279,7 +279,7 @@ class ModbusDriveServer:
         self.dropped_responses = 0
         self.device_failures = 0
         self.last_failure: BaseException | None = None
-        self._served = _ServedFirmware(firmware, self.faults)
+        self._served = _ServedFirmware(firmware, self)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._loop_thread: threading.Thread | None = None
         self._clock_thread: threading.Thread | None = None
