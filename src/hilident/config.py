@@ -357,6 +357,9 @@ class FaultsConfig:
     exception_code: int = _spec(4, ge=1, le=11, doc="Modbus: the exception code answered (4: server device failure)")
     response_delay_s: float = _spec(0.0, ge=0, doc="Modbus: every response is delayed this long")
     missing_response_rate: float = _spec(0.0, ge=0, le=1, doc="Modbus: probability that a request gets no response")
+    unknown_unit_id: str = _spec("ignore", choices=("ignore", "gateway_exception"),
+                                 doc="Modbus TCP: a request to a unit id other than [device].device_id and 255 is "
+                                     "ignored, or answered with exception 11 (gateway target device failed to respond)")
     capture_stops_after_s: float = _spec(0.0, ge=0, doc="CANopen/Modbus buffered and recorder runs: the capture stops this long "
                                          "(simulated time) after the start; 0: never")
 

@@ -35,6 +35,7 @@ encodes and decodes it.
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import logging
 import math
@@ -45,7 +46,7 @@ from typing import Callable
 import numpy as np
 import serial
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
-from pymodbus.exceptions import ConnectionException, ModbusException
+from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
 from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, StreamStats
 from hilident.adapters.events import Kind, RunEvent
@@ -74,8 +75,24 @@ _DRAIN_QUIET_S = 0.25  # RTU at connect: the line must stay quiet this long (at 
 _DRAIN_MAX_S = 2.0  # ... but a line that never goes quiet is left after this long
 
 
+class _StaleAnswer(ModbusIOException):
+    """Only frames that answer another request came back (dropped and counted)."""
+
+
 class _SerialClient(ModbusSerialClient):
-    """pymodbus's RTU client, counting the stale frames it drops from the line before each request."""
+    """pymodbus's RTU client, made safe for a line that may hold answers to earlier requests.
+
+    pymodbus drops what is on the line before each request (counted here as
+    ``stale_frames``) and skips frames from other device ids, but it takes
+    any frame from the right device as the answer. An RTU frame carries no
+    transaction id, so an answer that comes after its request timed out could
+    pass for the answer to the next one. This client also checks the answer's
+    function code and what it echoes (:func:`_answers`); a frame that does not
+    answer the request is dropped and counted, and the client goes on waiting
+    for the real answer (a second frame read together with the dropped one is
+    lost with it: the request then times out and is asked again, never
+    mistaken).
+    """
 
     stale_frames = 0
 
@@ -87,6 +104,37 @@ class _SerialClient(ModbusSerialClient):
             except (OSError, ValueError):
                 pass  # pymodbus's own send reports a broken line
         return super().send(request, addr)
+
+    def execute(self, no_response_expected: bool, request):
+        response = super().execute(no_response_expected, request)
+        while response is not None and not _answers(request, response):
+            self.stale_frames += 1
+            try:
+                response = self.transaction.sync_get_response(request.dev_id, request.transaction_id)
+            except asyncio.TimeoutError:
+                raise _StaleAnswer("only answers to other requests came back") from None
+        return response
+
+
+def _answers(request, response) -> bool:
+    """Whether ``response`` can be the answer to ``request`` (function code and echoed fields).
+
+    An exception answer must carry the request's function code; a read must
+    return the registers asked for; a write must echo its address (and value,
+    or quantity).
+    """
+    function = request.function_code
+    if response.function_code == function | 0x80:
+        return True
+    if response.function_code != function:
+        return False
+    if function in (3, 4):
+        return len(response.registers) == request.count
+    if function == 6:
+        return response.address == request.address and list(response.registers) == list(request.registers)
+    if function == 16:
+        return response.address == request.address and response.count == len(request.registers)
+    return True
 
 
 class NoResponse(DeviceError):
@@ -305,7 +353,8 @@ class ModbusDriveAdapter(AdapterBase):
 
         ``tries`` overrides the number of attempts. A lost connection is a
         :class:`DeviceError` at once: whatever the drive did since, it was not
-        this session's request.
+        this session's request. An exception answer is a :class:`DeviceError`
+        that names the registers and says what the code means for them.
         """
         where = self.map.describe(address, count, page)
         attempts = tries or 1 + (_RETRIES if retry else 0)
@@ -319,6 +368,11 @@ class ModbusDriveAdapter(AdapterBase):
                 raise DeviceError(f"{self.port}: {what} {where}: the connection to the drive was lost "
                                   f"({_reason(exc)}); was it switched off, or its cable or gateway "
                                   "disconnected?") from None
+            except _StaleAnswer:
+                self.bad_responses += 1
+                self._resync()
+                error = "only answers to earlier requests came back"
+                continue
             except ModbusException:
                 self.missing_responses += 1
                 self._resync()
@@ -332,8 +386,9 @@ class ModbusDriveAdapter(AdapterBase):
                     time.sleep(0.05)
                     error = f"exception {code}"
                     continue
-                raise DeviceError(f"{self.port}: {what} {where}: Modbus exception {code} "
-                                  f"({exception_meaning(code)})")
+                function = int(getattr(response, "function_code", 0x80)) & 0x7F
+                raise DeviceError(f"{self.port}: {what} {where}: "
+                                  f"{_exception_text(code, function, self.device_id)}")
             if not check(response):
                 self.bad_responses += 1
                 self._resync()
@@ -344,14 +399,34 @@ class ModbusDriveAdapter(AdapterBase):
         raise NoResponse(f"{self.port}: {what} {where}: {error}{tries}; device id {self.device_id}")
 
     def _resync(self) -> None:
-        """After a lost or foreign answer on an RTU line, let a late answer arrive and drop it (counted)."""
-        if self.rtu and self.client.socket is not None:
-            try:
-                time.sleep(min(0.05, self.timeout_s))
-                if waiting := self.client.socket.in_waiting:
-                    self.dropped_frames += count_rtu_frames(self.client.socket.read(waiting))
-            except Exception:
-                pass
+        """After a lost or foreign answer on an RTU line, wait for a late answer and drop it (counted).
+
+        An RTU answer carries no transaction id: one that comes after its
+        request timed out would pass for the next request's answer. So the
+        line is watched for up to one answer timeout (as libmodbus does after
+        a timeout), and left as soon as a whole frame has come and the line
+        has been quiet for a few characters since.
+        """
+        if not self.rtu or self.client.socket is None:
+            return
+        sock = self.client.socket
+        params = self.client.comm_params
+        quiet = max(0.002, 4 * 11 / (params.baudrate or 9600))
+        deadline = time.monotonic() + params.timeout_connect
+        data, last = b"", time.monotonic()
+        try:
+            while time.monotonic() < deadline:
+                if waiting := sock.in_waiting:
+                    data += sock.read(waiting)
+                    last = time.monotonic()
+                elif data and count_rtu_frames(data) and time.monotonic() - last >= quiet:
+                    break
+                else:
+                    time.sleep(min(quiet, 0.005))
+        except Exception:
+            pass  # the next request reports a broken line
+        if data:
+            self.dropped_frames += count_rtu_frames(data)
 
     @contextlib.contextmanager
     def _answers_within(self, seconds: float):
@@ -752,6 +827,23 @@ def _reason(exc: BaseException) -> str:
     if "cannot connect" in text.lower():
         return "it does not accept a connection"
     return text or type(exc).__name__
+
+
+def _exception_text(code: int, function: int, device_id: int) -> str:
+    """A Modbus exception answer in words: the code, its meaning, and what it says about this request."""
+    head = f"Modbus exception {code} ({exception_meaning(code)})"
+    why = {
+        1: f"the drive does not support function {function}; its map does not declare it",
+        2: "the address range is not in the drive's map, or not writable there",
+        3: "the drive refused the value or the quantity of registers",
+        4: "the drive failed while carrying out the request",
+        5: "the drive accepted the request and is still working on it",
+        6: "the drive is busy with an earlier request; try again later",
+        10: f"the gateway has no path to device id {device_id} (check [device].device_id)",
+        11: f"no device with id {device_id} answered behind the gateway (check [device].device_id and "
+            "the line behind the gateway)",
+    }.get(code)
+    return f"{head}: {why}" if why else head
 
 
 def _serial_error(port: str, baudrate: int, device: DeviceConfig) -> str:

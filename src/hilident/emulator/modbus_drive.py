@@ -1,16 +1,30 @@
 """The emulated Modbus drive on a real wire: Modbus TCP on 127.0.0.1, or Modbus RTU on a pseudo-terminal.
 
 :class:`ModbusDriveServer` serves a
-:class:`~hilident.emulator.modbus_firmware.ModbusDriveFirmware` with pymodbus
-(``ModbusTcpServer``, or ``ModbusSerialServer`` with the RTU framer) in a
-background asyncio loop, and advances its drive in simulated time
-(``time_scale`` simulated seconds per wall second) in a second thread. Its
-registers are a pymodbus ``SimDevice`` built from the driver's register map;
-every request goes through the firmware, so the host sees exactly what the map
-describes.
+:class:`~hilident.emulator.modbus_firmware.ModbusDriveFirmware` in a
+background asyncio loop and advances its drive in simulated time
+(``time_scale`` simulated seconds per wall second) in a second thread. The
+wire follows the MODBUS Application Protocol V1.1b3 (requests answered by
+:func:`hilident.emulator.modbus_pdu.handle`), the MODBUS Messaging on TCP/IP
+Implementation Guide V1.0b (MBAP header) and MODBUS over Serial Line V1.02
+(RTU frames), so any master, not only pymodbus, sees what a specification
+reader expects:
+
+* a function code the drive does not declare (``firmware.functions``) gets
+  exception 01; a quantity out of range or a byte count that does not match it
+  exception 03; an address the map does not hold (or a write into a read-only
+  register) exception 02; 04 only when the drive itself fails;
+* Modbus TCP: several connections, the transaction id echoed; requests to the
+  configured unit id and to 255 are answered, others ignored (or answered with
+  exception 11 with ``[emulator.faults] unknown_unit_id = "gateway_exception"``);
+* Modbus RTU: only frames to its own address are answered; a broadcast
+  (address 0) write is carried out without an answer, a broadcast read
+  ignored; a frame with a bad CRC is dropped in silence. A frame ends where its
+  function code says (its length, or its byte count), else at 3.5 characters
+  of silence (1.75 ms above 19200 baud).
 
 Modbus RTU runs over two pseudo-terminals joined like a null-modem cable
-(:class:`PtyBridge`): the pymodbus server opens one end like a serial port, the
+(:class:`PtyBridge`): the server opens one end like a serial port, the
 host opens the other (``/dev/pts/N``), and the bridge carries the bytes at the
 line rate (start bit, 8 data bits, parity bit unless ``N``, stop bits). A
 pseudo-terminal carries no parity bit, and some kernels refuse to set one, so
@@ -25,7 +39,8 @@ Fault switches (``[emulator.faults]``): ``exception_register`` /
 ``exception_code`` (every request touching that register is answered with
 that exception), ``response_delay_s`` (every answer comes this late),
 ``missing_response_rate`` (answers lost; the request itself was carried out),
-``capture_stops_after_s`` and ``drive_fault_after_s`` (see the firmware).
+``unknown_unit_id`` (see above), ``capture_stops_after_s`` and
+``drive_fault_after_s`` (see the firmware).
 
 The drive's communication timeout (register ``comm_timeout_ms``) is watched on
 the wall clock by the clock thread, whatever ``time_scale`` is: a host that
@@ -41,30 +56,34 @@ import asyncio
 import logging
 import os
 import select
+import struct
 import threading
 import time
 import tty
 from dataclasses import replace
 
 import numpy as np
-from pymodbus.constants import ExcCodes
-from pymodbus.framer import FramerType
-from pymodbus.server import ModbusSerialServer, ModbusTcpServer
-from pymodbus.simulator import DataType, SimData, SimDevice
 
 from hilident.config import DeviceConfig, EmulatorConfig, FaultsConfig
 from hilident.drivers import DriverDescription
 from hilident.emulator.factory import EmulatedDevice, build_drive
 from hilident.emulator.modbus_firmware import ModbusDriveFirmware
+from hilident.emulator.modbus_pdu import (
+    GATEWAY_TARGET_FAILED, ILLEGAL_DATA_ADDRESS, SERVER_DEVICE_FAILURE, WRITE_FUNCTIONS, exception_response, handle,
+    request_length,
+)
 from hilident.errors import ConfigError
-from hilident.protocol.modbus_registers import RegisterMap
+from hilident.protocol.modbus_registers import EXCEPTION_MEANINGS, RegisterMap, rtu_crc
 
-logging.getLogger("pymodbus").addHandler(logging.NullHandler())  # no library chatter on stderr
+log = logging.getLogger(__name__)
 
 _COAST_S = 2.0  # simulated seconds the axis coasts, drive disabled, after a run
 _BEAT_S = 0.005  # the server loop notes every so often that it is free to hear requests
 _STALL_S = 0.02  # a longer gap between two notes: this process was not scheduled (a loaded machine)
-
+_TCP_UNIT_ANY = 0xFF  # the unit id of a directly addressed Modbus TCP device
+_MBAP_MAX_LENGTH = 1 + 253 + 16  # unit id + the longest PDU, with room to answer an oversized request with 03
+_BROADCAST = 0
+_RTU_STALL_S = 0.1  # a frame whose length is known waits this long for its missing bytes (a loaded machine)
 
 class PtyBridge:
     """Two pseudo-terminals joined like a null-modem cable, carrying bytes at a line rate.
@@ -139,14 +158,65 @@ class PtyBridge:
                 pass
 
 
-def _simdata(regmap: RegisterMap) -> list[SimData]:
-    """The addresses the drive answers, read-only where the map says so (writes there get exception 2)."""
-    blocks = [(r.address, r.count, not r.writable) for r in regmap.registers.values()]
-    blocks.append((regmap.table.base, regmap.table.registers, False))
-    blocks.append((regmap.capture.base, regmap.capture.registers, True))
-    f = regmap.filters
-    blocks += [(f.address(i), f.span, False) for i in range(f.slots)]
-    return [SimData(a, count=n, values=0, datatype=DataType.REGISTERS, readonly=ro) for a, n, ro in sorted(blocks)]
+def _address_tables(regmap: RegisterMap | None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Which addresses read as holding registers, take writes, and read as input registers.
+
+    The map's registers (read-only where it says so), the excitation table
+    window, the capture window (read-only) and the filter slots, when the map
+    has them. None without a map: the firmware then decides alone.
+    """
+    if regmap is None:
+        return None
+    readable, writable, inputs = (np.zeros(1 << 16, dtype=bool) for _ in range(3))
+    for r in regmap.registers.values():
+        if getattr(r, "table", "holding") == "input":
+            inputs[r.address : r.end] = True
+            continue
+        readable[r.address : r.end] = True
+        writable[r.address : r.end] = r.writable
+    for name, writes in (("table", True), ("capture", False)):
+        if (w := getattr(regmap, name, None)) is not None:
+            readable[w.base : w.end] = True
+            writable[w.base : w.end] = writes
+    if (f := getattr(regmap, "filters", None)) is not None:
+        for i in range(f.slots):
+            readable[f.address(i) : f.address(i) + f.span] = True
+            writable[f.address(i) : f.address(i) + f.span] = True
+    return readable, writable, inputs
+
+
+class _ServedFirmware:
+    """The firmware as the wire reaches it: addresses outside the map refused (02), and the fault switch."""
+
+    def __init__(self, firmware, server: "ModbusDriveServer"):
+        self.firmware = firmware
+        self.functions = frozenset(firmware.functions)
+        self.server = server  # its fault switches, as they are now
+        self._tables = _address_tables(getattr(firmware, "map", None))
+
+    def _refusal(self, table: int, address: int, count: int) -> int | None:
+        if self._tables is not None and not self._tables[table][address : address + count].all():
+            return ILLEGAL_DATA_ADDRESS
+        f = self.server.faults
+        if f.exception_register >= 0 and address <= f.exception_register < address + count:
+            return f.exception_code
+        return None
+
+    def read(self, address: int, count: int, input_registers: bool = False):
+        refused = self._refusal(2 if input_registers else 0, address, count)
+        if refused is None:
+            return self.firmware.read(address, count, input_registers=input_registers)
+        return refused
+
+    def write(self, address: int, values):
+        refused = self._refusal(1, address, len(values))
+        return self.firmware.write(address, values) if refused is None else refused
+
+    def read_bits(self, address: int, count: int, discrete: bool = False):
+        return self.firmware.read_bits(address, count, discrete=discrete)
+
+    def write_bits(self, address: int, values):
+        return self.firmware.write_bits(address, values)
 
 
 class ModbusDriveServer:
@@ -155,6 +225,8 @@ class ModbusDriveServer:
     Parameters
     ----------
     firmware : ModbusDriveFirmware
+        Or any drive with ``functions``, ``read`` and ``write`` (see
+        :mod:`hilident.emulator.modbus_pdu`) and the clock's methods.
     device_id : int
         Modbus device (unit) id it answers (0: any).
     rtu : bool
@@ -175,6 +247,13 @@ class ModbusDriveServer:
         What stopped the server, if anything did.
     lock : threading.Lock
         Held while the firmware is read, written or advanced.
+    requests : int
+        Requests addressed to this drive (broadcasts included).
+    dropped_responses : int
+        Answers lost on purpose (``missing_response_rate``).
+    device_failures : int
+        Requests answered with exception 04 because the firmware failed
+        (``last_failure`` holds the latest cause).
     """
 
     def __init__(self, firmware: ModbusDriveFirmware, *, device_id: int = 1, rtu: bool = False,
@@ -188,22 +267,27 @@ class ModbusDriveServer:
         self.stopbits = stopbits
         self.time_scale = time_scale
         self.faults = faults or FaultsConfig()
-        if self.faults.exception_register >= 0 and self.faults.exception_code not in set(ExcCodes):
+        if self.faults.exception_register >= 0 and self.faults.exception_code not in EXCEPTION_MEANINGS:
             raise ConfigError("emulator.faults.exception_code",
                               f"{self.faults.exception_code} is not a Modbus exception code "
-                              f"({', '.join(str(int(c)) for c in ExcCodes)})")
+                              f"({', '.join(str(c) for c in EXCEPTION_MEANINGS)})")
         self._rng = np.random.default_rng(seed)
         self.lock = threading.Lock()
         self.error: BaseException | None = None
         self.port = ""
         self.requests = 0
         self.dropped_responses = 0
+        self.device_failures = 0
+        self.last_failure: BaseException | None = None
+        self._served = _ServedFirmware(firmware, self)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._loop_thread: threading.Thread | None = None
         self._clock_thread: threading.Thread | None = None
         self._stop = threading.Event()
-        self._server = None
+        self._server: asyncio.AbstractServer | None = None
+        self._connections: set[asyncio.StreamWriter] = set()
         self._bridge: PtyBridge | None = None
+        self._rtu = _RtuLine(self) if rtu else None
         self._beat_at = time.monotonic()
         self._beat_task: asyncio.Task | None = None
 
@@ -211,8 +295,7 @@ class ModbusDriveServer:
 
     def start(self) -> "ModbusDriveServer":
         if self.rtu:
-            bits = 1 + 8 + (0 if self.parity == "N" else 1) + self.stopbits
-            self._bridge = PtyBridge(self.baudrate, bits).start()
+            self._bridge = PtyBridge(self.baudrate, self.bits_per_char).start()
         self._loop = asyncio.new_event_loop()
         self._loop_thread = threading.Thread(target=self._loop.run_forever, name="modbus-server", daemon=True)
         self._loop_thread.start()
@@ -225,19 +308,18 @@ class ModbusDriveServer:
         self._clock_thread.start()
         return self
 
+    @property
+    def bits_per_char(self) -> int:
+        """Start bit, 8 data bits, parity bit (unless ``N``) and stop bits of one RTU character."""
+        return 1 + 8 + (0 if self.parity == "N" else 1) + self.stopbits
+
     async def _serve(self) -> None:
-        device = SimDevice(id=self.device_id, simdata=_simdata(self.firmware.map), action=self._action)
         if self.rtu:
-            self._server = ModbusSerialServer(
-                device, framer=FramerType.RTU, port=self._bridge.device_path, baudrate=self.baudrate or 115200,
-                parity="N", stopbits=self.stopbits, trace_packet=self._trace_packet,
-            )
-            await self._server.serve_forever(background=True)
+            self._rtu.open(self._bridge.device_path, asyncio.get_running_loop())
             self.port = self._bridge.host_path
         else:
-            self._server = ModbusTcpServer(device, address=("127.0.0.1", 0), trace_packet=self._trace_packet)
-            await self._server.serve_forever(background=True)
-            self.port = f"tcp://127.0.0.1:{self._server.transport.sockets[0].getsockname()[1]}"
+            self._server = await asyncio.start_server(self._tcp_connection, "127.0.0.1", 0)
+            self.port = f"tcp://127.0.0.1:{self._server.sockets[0].getsockname()[1]}"
         self._beat_at = time.monotonic()
         self._beat_task = asyncio.ensure_future(self._beat())
 
@@ -252,6 +334,16 @@ class ModbusDriveServer:
                 with self.lock:
                     self.firmware.excuse_silence(stalled)
 
+    async def _shutdown(self) -> None:
+        if self._beat_task is not None:
+            self._beat_task.cancel()
+        if self._server is not None:
+            self._server.close()
+        for writer in list(self._connections):
+            writer.close()
+        if self._rtu is not None:
+            self._rtu.close()
+
     def close(self) -> None:
         """Stop the axis, the clock and the server; release the port."""
         self._stop.set()
@@ -260,13 +352,10 @@ class ModbusDriveServer:
         with self.lock:
             self.firmware.drive.disable()
         if self._loop is not None and self._loop.is_running():
-            if self._beat_task is not None:
-                self._loop.call_soon_threadsafe(self._beat_task.cancel)
-            if self._server is not None:
-                try:
-                    asyncio.run_coroutine_threadsafe(self._server.shutdown(), self._loop).result(timeout=2.0)
-                except Exception:
-                    pass
+            try:
+                asyncio.run_coroutine_threadsafe(self._shutdown(), self._loop).result(timeout=2.0)
+            except Exception:
+                pass
             self._loop.call_soon_threadsafe(self._loop.stop)
             if self._loop_thread is not None:
                 self._loop_thread.join(timeout=2.0)
@@ -283,28 +372,21 @@ class ModbusDriveServer:
 
     # --- requests ---------------------------------------------------------------------------
 
-    async def _action(self, function_code, start_address, address, count, registers, set_values):
-        """Every request that passed pymodbus's address checks lands here."""
+    def _answer(self, pdu: bytes) -> bytes | None:
+        """Carry out one request addressed to this drive; its response PDU (None: nothing to answer)."""
         self.requests += 1
         with self.lock:
             self.firmware.heard_from_host(time.monotonic())
-        f = self.faults
-        if f.exception_register >= 0 and address <= f.exception_register < address + count:
-            return ExcCodes(f.exception_code)
-        with self.lock:
-            if set_values is None:
-                result = self.firmware.read(address, count)
-                if not isinstance(result, int):
-                    registers[address - start_address : address - start_address + count] = result
-                    result = None
-            else:
-                result = self.firmware.write(address, list(set_values))
-        return ExcCodes(result) if result else None
+            try:
+                return handle(self._served, pdu)
+            except Exception as exc:  # the drive itself failed: exception 04, and the server goes on
+                self.device_failures += 1
+                self.last_failure = exc
+                log.warning("emulated Modbus drive failed on request %s: %r", pdu.hex(), exc)
+                return exception_response(pdu[0], SERVER_DEVICE_FAILURE)
 
-    def _trace_packet(self, sending: bool, data: bytes) -> bytes:
-        """Every frame in and out passes here: the place for slow and missing answers."""
-        if not sending:
-            return data
+    def _deliver(self) -> bool:
+        """Whether an answer leaves now: the place for slow and missing answers."""
         if self.faults.response_delay_s:
             # a slow drive answers one request after the other: block this server's loop, so a
             # late answer never overtakes (or takes the transaction id of) the next request
@@ -312,8 +394,60 @@ class ModbusDriveServer:
         rate = self.faults.missing_response_rate
         if rate and self._rng.random() < rate:
             self.dropped_responses += 1
-            return b""  # carried out, never answered
-        return data
+            return False  # carried out, never answered
+        return True
+
+    def _answers_unit(self, unit: int) -> bool:
+        return self.device_id == 0 or unit == self.device_id
+
+    # --- Modbus TCP ---------------------------------------------------------------------------
+
+    async def _tcp_connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        """One client connection: MBAP header, PDU, answer with the same transaction id."""
+        self._connections.add(writer)
+        try:
+            while True:
+                transaction, protocol, length, unit = struct.unpack(">HHHB", await reader.readexactly(7))
+                if not 2 <= length <= _MBAP_MAX_LENGTH:
+                    break  # not a Modbus frame: the stream cannot be resynchronised, close it
+                pdu = await reader.readexactly(length - 1)
+                if protocol != 0:
+                    continue  # another protocol multiplexed on the port: not ours
+                answer = self._tcp_answer(unit, pdu)
+                if answer is None or not self._deliver():
+                    continue
+                writer.write(struct.pack(">HHHB", transaction, 0, len(answer) + 1, unit) + answer)
+                await writer.drain()
+        except (asyncio.IncompleteReadError, ConnectionError, OSError):
+            pass
+        finally:
+            self._connections.discard(writer)
+            writer.close()
+
+    def _tcp_answer(self, unit: int, pdu: bytes) -> bytes | None:
+        if unit == _TCP_UNIT_ANY or self._answers_unit(unit):
+            return self._answer(pdu)
+        if self.faults.unknown_unit_id == "gateway_exception" and pdu:
+            return exception_response(pdu[0], GATEWAY_TARGET_FAILED)
+        return None  # another unit behind this address: not ours to answer
+
+    # --- Modbus RTU ---------------------------------------------------------------------------
+
+    def _rtu_frame(self, frame: bytes) -> bytes | None:
+        """The RTU answer frame to a request frame whose CRC is good (None: stay silent)."""
+        address, pdu = frame[0], frame[1:-2]
+        if address == _BROADCAST:
+            if pdu and pdu[0] in WRITE_FUNCTIONS:
+                self._answer(pdu)  # carried out, never answered
+            return None
+        if not self._answers_unit(address):
+            return None
+        answer = self._answer(pdu)
+        if answer is None or not self._deliver():
+            return None
+        body = bytes([address]) + answer
+        crc = rtu_crc(body)
+        return body + bytes([crc & 0xFF, crc >> 8])
 
     # --- the drive's clock --------------------------------------------------------------------
 
@@ -355,6 +489,100 @@ class ModbusDriveServer:
             self.error = exc
             with self.lock:
                 fw.drive.disable()
+
+
+class _RtuLine:
+    """The drive's end of an RTU line: finds request frames in the bytes, answers through the server."""
+
+    def __init__(self, server: ModbusDriveServer):
+        self.server = server
+        self.fd: int | None = None
+        self.loop: asyncio.AbstractEventLoop | None = None
+        self.buffer = b""
+        self.garbled = False  # a bad frame was seen: drop everything until the line is silent
+        self.last_byte = 0.0
+        self.timer: asyncio.TimerHandle | None = None
+        self.silence_s = 0.0
+
+    def open(self, path: str, loop: asyncio.AbstractEventLoop) -> None:
+        server = self.server
+        char_s = server.bits_per_char / (server.baudrate or 115200)
+        # t3.5 (Modbus over serial line V1.02, 2.5.1.1): 3.5 characters, fixed at 1.75 ms above 19200 baud
+        self.silence_s = 3.5 * char_s if (server.baudrate or 115200) <= 19200 else 0.00175
+        self.fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        tty.setraw(self.fd)
+        self.loop = loop
+        loop.add_reader(self.fd, self._readable)
+
+    def close(self) -> None:
+        if self.timer is not None:
+            self.timer.cancel()
+        if self.fd is not None:
+            self.loop.remove_reader(self.fd)
+            os.close(self.fd)
+            self.fd = None
+
+    def _readable(self) -> None:
+        try:
+            data = os.read(self.fd, 4096)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            time.sleep(0.005)  # the other end is not open yet (or no longer): nothing to read
+            return
+        if not data:
+            return
+        self.buffer += data
+        self.last_byte = time.monotonic()
+        if not self.garbled:
+            self._frames()
+        self._arm(self.silence_s)
+
+    def _arm(self, delay: float) -> None:
+        if self.timer is not None:
+            self.timer.cancel()
+        self.timer = self.loop.call_later(delay, self._silence) if self.buffer or self.garbled else None
+
+    def _frames(self) -> None:
+        """Answer every complete frame at the front of the buffer whose length the function code gives."""
+        while self.buffer:
+            n = request_length(self.buffer)
+            if n is None or len(self.buffer) < n:
+                return
+            frame, self.buffer = self.buffer[:n], self.buffer[n:]
+            if not _crc_ok(frame):
+                self.garbled = True  # where the next frame starts is unknown: wait for the silence
+                return
+            self._send(self.server._rtu_frame(frame))
+
+    def _silence(self) -> None:
+        """3.5 characters without a byte: whatever is in the buffer is one frame (or the rest of a bad one)."""
+        self.timer = None
+        n = request_length(self.buffer)
+        waited = time.monotonic() - self.last_byte
+        if not self.garbled and n is not None and len(self.buffer) < n and waited < _RTU_STALL_S:
+            # a frame of known length is still short: on a loaded machine the rest can come late
+            self._arm(_RTU_STALL_S - waited)
+            return
+        frame, self.buffer = self.buffer, b""
+        garbled, self.garbled = self.garbled, False
+        if not garbled and n is None and len(frame) >= 4 and _crc_ok(frame):
+            self._send(self.server._rtu_frame(frame))  # a function whose length is unknown ends here
+
+    def _send(self, frame: bytes | None) -> None:
+        view = memoryview(frame or b"")
+        deadline = time.monotonic() + 0.5
+        while view and time.monotonic() < deadline:
+            try:
+                view = view[os.write(self.fd, view):]
+            except (BlockingIOError, InterruptedError):
+                select.select([], [self.fd], [], 0.05)
+            except OSError:
+                return  # nobody at the other end: the answer is lost, as on an open line
+
+
+def _crc_ok(frame: bytes) -> bool:
+    return len(frame) >= 4 and rtu_crc(frame[:-2]) == frame[-2] | frame[-1] << 8
 
 
 def start(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig,

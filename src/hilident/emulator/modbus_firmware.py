@@ -4,8 +4,10 @@
 holds the register image described by the driver's map
 (:class:`~hilident.protocol.modbus_registers.RegisterMap`), the excitation
 table and the capture buffer behind their paged windows, and the drive loop.
-:mod:`hilident.emulator.modbus_drive` serves it with pymodbus and advances it
-in (scaled) real time.
+:mod:`hilident.emulator.modbus_drive` serves it on a Modbus wire and advances
+it in (scaled) real time; ``functions`` says which Modbus function codes it
+declares (read/write holding registers: 3, 6, 16; 4 when the map has input
+registers), and every other one is refused by the server with exception 1.
 
 Reads and writes return a Modbus exception code (int) when the drive refuses,
 as a real one would:
@@ -49,6 +51,26 @@ from hilident.protocol.modbus_registers import STAMP_MODULUS, RegisterMap, table
 ILLEGAL_ADDRESS = 2
 ILLEGAL_VALUE = 3
 DEVICE_BUSY = 6
+
+_HOLDING_FUNCTIONS = frozenset({3, 6, 16})  # read holding registers, write single, write multiple
+_INPUT_FUNCTION = 4  # read input registers
+
+
+def _input_registers(regmap: RegisterMap) -> list:
+    """The map's input registers (function 4), none on a map that has only holding registers."""
+    return [r for r in regmap.registers.values() if getattr(r, "table", "holding") == "input"]
+
+
+def _declared_functions(regmap: RegisterMap) -> frozenset:
+    """The Modbus function codes a drive with this map answers."""
+    return _HOLDING_FUNCTIONS | ({_INPUT_FUNCTION} if _input_registers(regmap) else frozenset())
+
+
+def _all_input(regmap: RegisterMap, address: int, count: int) -> bool:
+    """Whether every address of ``address .. address + count - 1`` belongs to an input register."""
+    inputs = _input_registers(regmap)
+    return all(any(r.address <= a < r.end for r in inputs) for a in range(address, address + count))
+
 
 _CONFIG = ("mode", "sample_divider", "capture_mask", "table_length")  # fixed while a run is in progress
 _LIMITS = ("torque_limit_nm", "velocity_limit_mps", "position_min_m", "position_max_m")
@@ -97,6 +119,7 @@ class ModbusDriveFirmware:
         self.capture_stopped = False
         self.limits_loaded = False
         self.runs = 0  # runs started since power-up (the server's clock watches it)
+        self.functions = _declared_functions(regmap)
         self.last_heard: float | None = None  # wall-clock time of the last request addressed to the drive, s
         self._crc: int | None = None
         self._values = np.zeros(0)
@@ -168,8 +191,15 @@ class ModbusDriveFirmware:
 
     # --- reads ----------------------------------------------------------------------------
 
-    def read(self, address: int, count: int) -> list[int] | int:
-        """Registers ``address .. address + count - 1``, or an exception code."""
+    def read(self, address: int, count: int, input_registers: bool = False) -> list[int] | int:
+        """Registers ``address .. address + count - 1``, or an exception code.
+
+        ``input_registers``: read the input registers (function 4) instead of
+        the holding registers; exception 2 unless every address is an input
+        register of the map.
+        """
+        if input_registers and not _all_input(self.map, address, count):
+            return ILLEGAL_ADDRESS
         end = address + count
         self._refresh(address, end)
         out = self.image[address:end].copy()
