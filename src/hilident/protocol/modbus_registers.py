@@ -64,8 +64,12 @@ __all__ = [
 
 #: Registers per value and numpy type code of the numeric types.
 TYPES: dict[str, tuple[int, str]] = {"u16": (1, "u2"), "i16": (1, "i2"), "u32": (2, "u4"), "i32": (2, "i4"),
-                                     "f32": (2, "f4")}
+                                     "f32": (2, "f4"), "u64": (4, "u8"), "i64": (4, "i8"), "f64": (4, "f8")}
 WORD_ORDERS = ("big", "little")
+BYTE_ORDERS = ("big", "little")
+REGISTER_TABLES = ("holding", "input")
+#: types of the excitation table and capture channels (one or two registers)
+WINDOW_TYPES = ("u16", "i16", "u32", "i32", "f32")
 MODES = ("torque", "torque_injection", "velocity", "position")
 
 #: Meaning of each Modbus exception code (Modbus Application Protocol V1.1b3, section 7).
@@ -133,21 +137,26 @@ def exception_meaning(code: int) -> str:
 
 
 def encode_values(values, type_: str, scale: float = 1.0, word_order: str = "big",
-                  saturate: bool = False) -> np.ndarray:
+                  saturate: bool = False, byte_order: str = "big", offset: float = 0.0) -> np.ndarray:
     """Registers holding ``values`` (physical units) as ``type_``.
 
     Parameters
     ----------
     values : array_like
-        Physical values; raw = values / scale (rounded to the nearest integer
-        for the integer types).
-    type_ : {"u16", "i16", "u32", "i32", "f32"}
+        Physical values; raw = (values - offset) / scale (rounded to the
+        nearest integer for the integer types).
+    type_ : {"u16", "i16", "u32", "i32", "f32", "u64", "i64", "f64"}
     scale : float
         Physical value per raw unit.
     word_order : {"big", "little"}
-        Two-register types: which word comes first.
+        Multi-register types: ``"big"`` puts the most significant word first,
+        ``"little"`` the least significant.
     saturate : bool
         Clip values beyond the type's range (and NaN to 0) instead of raising.
+    byte_order : {"big", "little"}
+        Byte order inside each register (``"big"``: as Modbus sends them).
+    offset : float
+        Physical value of raw 0.
 
     Returns
     -------
@@ -160,14 +169,15 @@ def encode_values(values, type_: str, scale: float = 1.0, word_order: str = "big
         A value does not fit the type (unless ``saturate``).
     """
     n_regs, code = _numeric(type_)
-    x = np.asarray(values, dtype=float).ravel() / scale
-    if type_ == "f32":
-        big = np.abs(x) > np.finfo(np.float32).max
+    x = (np.asarray(values, dtype=float).ravel() - offset) / scale
+    if code.startswith("f"):
+        top = np.finfo(code).max
+        big = np.abs(x) > top
         if np.any(big & np.isfinite(x)):
             if not saturate:
-                raise DataError(f"value {x[big][0] * scale:g} does not fit a float32")
-            x = np.clip(x, -np.finfo(np.float32).max, np.finfo(np.float32).max)
-        raw = x.astype(">f4")
+                raise DataError(f"value {x[big][0] * scale + offset:g} does not fit a float{8 * int(code[1])}")
+            x = np.clip(x, -top, top)
+        raw = x.astype(">" + code)
     else:
         info = np.iinfo(code)
         bad = ~np.isfinite(x)
@@ -176,22 +186,32 @@ def encode_values(values, type_: str, scale: float = 1.0, word_order: str = "big
                 raise DataError(f"value {x[bad][0] * scale!r} cannot be stored as {type_}")
             x = np.where(bad, 0.0, x)
         q = np.rint(x)
-        out = (q < info.min) | (q > info.max)
+        # float64 cannot hold every 64-bit integer: compare against the limits as floats, clip below them
+        out = (q < float(info.min)) | (q >= float(info.max) + 1.0)
         if np.any(out):
             if not saturate:
                 raise DataError(
-                    f"value {q[out][0] * scale:g} is beyond the {type_} range "
-                    f"{info.min * scale:g}..{info.max * scale:g} (scale {scale:g})"
+                    f"value {q[out][0] * scale + offset:g} is beyond the {type_} range "
+                    f"{info.min * scale + offset:g}..{info.max * scale + offset:g} (scale {scale:g})"
                 )
-            q = np.clip(q, info.min, info.max)
+            q = np.clip(q, float(info.min), np.nextafter(float(info.max) + 1.0, 0.0))
         raw = q.astype(">" + code)
-    words = raw.view(">u2").reshape(-1, n_regs)
-    if word_order == "little" and n_regs == 2:
+    return _order_words(raw.view(">u2").reshape(-1, n_regs), word_order, byte_order)
+
+
+def _order_words(words: np.ndarray, word_order: str, byte_order: str) -> np.ndarray:
+    """Big-endian words of each value (one row per value) in the register order and byte order asked for;
+    the same operation undoes itself."""
+    words = np.asarray(words, dtype=np.uint16)
+    if word_order == "little" and words.shape[1] > 1:
         words = words[:, ::-1]
+    if byte_order == "little":
+        words = (words >> 8) | ((words & 0xFF) << 8)
     return words.astype(np.uint16).ravel()
 
 
-def decode_values(registers, type_: str, scale: float = 1.0, word_order: str = "big") -> np.ndarray:
+def decode_values(registers, type_: str, scale: float = 1.0, word_order: str = "big", byte_order: str = "big",
+                  offset: float = 0.0) -> np.ndarray:
     """Physical values held in ``registers`` as ``type_`` (inverse of :func:`encode_values`).
 
     Raises
@@ -205,11 +225,9 @@ def decode_values(registers, type_: str, scale: float = 1.0, word_order: str = "
         raise DataError(f"{len(r)} registers do not hold whole {type_} values")
     if np.any((r < 0) | (r > 0xFFFF)):
         raise DataError("register values must lie in 0..65535")
-    words = r.reshape(-1, n_regs)
-    if word_order == "little" and n_regs == 2:
-        words = words[:, ::-1]
+    words = _order_words(r.reshape(-1, n_regs), word_order, byte_order).reshape(-1, n_regs)
     raw = np.ascontiguousarray(words).astype(">u2").view(">" + code).ravel()
-    return raw.astype(float) * scale
+    return raw.astype(float) * scale + offset
 
 
 def encode_string(text: str, length: int) -> np.ndarray:
@@ -579,8 +597,8 @@ class RegisterMap:
 
         tb = subtable(mb, "table", "modbus")
         table_type = tb.get("type", "f32")
-        if table_type not in tuple(TYPES):
-            fail("modbus.table.type", f"must be one of {tuple(TYPES)}, got {table_type!r}")
+        if table_type not in WINDOW_TYPES:
+            fail("modbus.table.type", f"must be one of {WINDOW_TYPES}, got {table_type!r}")
         table_scale = number(tb, "scale", "modbus.table", 1.0)
         table_page = integer(tb, "page_samples", "modbus.table", 1, 65535)
         table = Window("table", integer(tb, "base", "modbus.table", 0, 65535), table_page,
@@ -598,8 +616,8 @@ class RegisterMap:
             key = f"modbus.capture.channels[{i}]"
             if not isinstance(ch, dict) or not isinstance(ch.get("name"), str):
                 fail(f"{key}.name", "is required")
-            if ch.get("type") not in tuple(TYPES):
-                fail(f"{key}.type", f"must be one of {tuple(TYPES)}, got {ch.get('type')!r}")
+            if ch.get("type") not in WINDOW_TYPES:
+                fail(f"{key}.type", f"must be one of {WINDOW_TYPES}, got {ch.get('type')!r}")
             channels.append(CaptureChannel(ch["name"], ch["type"], number(ch, "scale", key, 1.0), i))
         if len({c.name for c in channels}) != len(channels):
             fail("modbus.capture.channels", "channel names must be distinct")
