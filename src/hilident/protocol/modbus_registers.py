@@ -1167,7 +1167,8 @@ class RegisterMap:
     def describe(self, address: int, count: int = 1, page: int | None = None, table: str = "holding") -> str:
         """Human-readable name of registers ``address .. address + count - 1`` (for messages)."""
         last = address + max(count, 1) - 1
-        where = f"register {address}" if last == address else f"registers {address}..{last}"
+        fmt = "#06x" if self.rule is not None else "d"
+        where = f"register {address:{fmt}}" if last == address else f"registers {address:{fmt}}..{last:{fmt}}"
         names = [r.label for r in sorted(self.registers.values(), key=lambda r: r.address)
                  if r.address <= last and r.end > address and r.table == table]
         for w, label in ((self.table, "excitation table window"), (self.capture, "capture window")):
