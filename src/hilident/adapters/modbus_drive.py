@@ -489,7 +489,8 @@ class ModbusDriveAdapter(AdapterBase):
         return ConfigError(
             "device.driver",
             f"driver {driver.name!r} describes a drive without an excitation capability (no [modbus.table] "
-            "and [modbus.capture] in its driver.toml): hilident cannot play an experiment on it. Record the axis "
+            f"and [modbus.capture] in {driver.folder / 'driver.toml'}): hilident cannot play an experiment on it. "
+            "Record the axis "
             "another way (the drive vendor's scope exported to CSV, or a serial board on the same axis), run "
             "`hilident identify RECORDING`, then `hilident upload --from RUN_DIR --config CONFIG` to write the notch",
             str(driver.folder / "driver.toml"))
