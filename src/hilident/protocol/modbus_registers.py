@@ -171,6 +171,14 @@ def encode_values(values, type_: str, scale: float = 1.0, word_order: str = "big
         A value does not fit the type (unless ``saturate``).
     """
     n_regs, code = _numeric(type_)
+    exact = _exact_integers(values, code, scale, offset)
+    if exact is not None:  # whole numbers into an unscaled integer type: no detour through float64
+        info = np.iinfo(code)
+        bad = [v for v in exact if not info.min <= v <= info.max]
+        if bad and not saturate:
+            raise DataError(f"value {bad[0]} is beyond the {type_} range {info.min}..{info.max}")
+        raw = np.array([min(max(v, int(info.min)), int(info.max)) for v in exact], dtype=">" + code)
+        return _order_words(raw.view(">u2").reshape(-1, n_regs), word_order, byte_order)
     x = (np.asarray(values, dtype=float).ravel() - offset) / scale
     if code.startswith("f"):
         top = np.finfo(code).max
@@ -199,6 +207,17 @@ def encode_values(values, type_: str, scale: float = 1.0, word_order: str = "big
             q = np.clip(q, float(info.min), np.nextafter(float(info.max) + 1.0, 0.0))
         raw = q.astype(">" + code)
     return _order_words(raw.view(">u2").reshape(-1, n_regs), word_order, byte_order)
+
+
+def _exact_integers(values, code: str, scale: float, offset: float) -> list[int] | None:
+    """``values`` as Python ints when they are all integers going into an unscaled integer type, else None."""
+    if code.startswith("f") or scale != 1.0 or offset != 0.0 or (isinstance(values, np.ndarray)
+                                                                  and values.dtype.kind not in "iuO"):
+        return None
+    items = list(np.asarray(values, dtype=object).ravel())
+    if not all(isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_)) for v in items):
+        return None
+    return [int(v) for v in items]
 
 
 def _order_words(words: np.ndarray, word_order: str, byte_order: str) -> np.ndarray:
