@@ -180,3 +180,40 @@ def test_run_refuses_a_drive_without_an_excitation_capability(tmp_path):
     text = str(err.value)
     assert "no excitation capability" in text.replace("without an excitation capability", "no excitation capability")
     assert "hilident identify" in text and "hilident upload --from" in text
+
+
+def test_a_notch_that_does_not_read_back_is_never_enabled_and_the_slot_is_put_back(dsy):
+    adapter, emu = dsy
+    fw = emu.server.firmware
+    honest = fw.write
+
+    def widening(address, values):  # a drive that stores another width than it was sent
+        values = list(values)
+        if address <= 0x0803 < address + len(values):
+            values[0x0803 - address] = min(values[0x0803 - address] + 1, 8)
+        return honest(address, values)
+
+    fw.write = widening
+    spec = NotchSpec(RESONANCE_HZ, 6.5, 30.0)
+    up = adapter.upload_filter(0, design_notch(spec, DRIVER.loop_rate_hz), spec)
+    fw.write = honest
+    assert not up.matches
+    assert adapter.read(0x0802, 3) == [4000, 8, 50]  # never enabled, and the previous values put back
+    assert emu.drive.filters.read(0)[1] is False
+
+
+def test_the_notch_goes_over_modbus_rtu_too():
+    cfg = clean_config()
+    cfg = replace(cfg, emulator=replace(cfg.emulator, link="pty"), device=replace(cfg.device, parity="N"))
+    emu = start_emulator(cfg.emulator, DRIVER, cfg.device)
+    try:
+        adapter = ModbusDriveAdapter.open_device(emu.device, DRIVER)
+        try:
+            spec = NotchSpec(RESONANCE_HZ, 6.5, 30.0)
+            assert adapter.upload_filter(0, design_notch(spec, DRIVER.loop_rate_hz), spec).matches
+            assert adapter.read(0x0802, 3) == list(MAP.filter_encoding.realise(spec, DRIVER.loop_rate_hz)
+                                                   .fields.values())
+        finally:
+            adapter.close()
+    finally:
+        emu.close()
