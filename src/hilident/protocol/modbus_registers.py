@@ -12,15 +12,35 @@ Value types
 -----------
 ``u16``, ``i16``
     One register, unsigned or two's complement.
-``u32``, ``i32``, ``f32``
-    Two registers (IEEE-754 single precision for ``f32``). ``word_order``
-    ``"big"`` puts the high word at the lower address, ``"little"`` the low
-    word. Within a register the bytes are big-endian (Modbus).
+``u32``, ``i32``, ``f32``; ``u64``, ``i64``, ``f64``
+    Two (four) registers (IEEE-754 for the floats). ``word_order`` ``"big"``
+    puts the most significant word at the lowest address, ``"little"`` the
+    least significant. ``byte_order`` ``"big"`` sends each register high byte
+    first, as Modbus does; ``"little"`` swaps the two bytes. Both are set per
+    register, defaulting to ``[modbus] word_order`` / ``byte_order``.
 ``str``
     ``length`` registers, two ASCII characters each (first character in the
     high byte), NUL padded.
 
-A physical value is ``raw * scale``.
+A physical value is ``raw * scale + offset``; ``min``/``max`` bound it (a
+write outside is refused before it is sent, naming the register).
+
+The map language
+----------------
+Each ``[modbus.registers]`` entry goes through the typed schema of
+:mod:`hilident.config` (:class:`_RegisterSpec`): ``address`` or ``parameter``
+(a vendor code such as ``"P08.02"`` resolved by the rule of
+``[modbus.parameters]``, :class:`ParameterRule`), ``type``, ``access``,
+``table`` (holding or input), ``scale``, ``offset``, ``unit``, ``min``,
+``max``, ``word_order``, ``byte_order``, ``channel``/``channel_scale`` (the
+drive channel a feedback register shows), plus ``bits`` (named masks) and
+``default`` (the value at power-up). Capabilities are tables of their own:
+hilident's excitation table and capture (``[modbus.table]``,
+``[modbus.capture]`` with the control/status registers they need; a map
+without them describes a parameter drive, :attr:`RegisterMap.excitation`),
+``[modbus.filters]`` (hilident's four-register slots, or ``slots`` naming the
+drive's own notch parameters, :class:`FieldSlots`), ``[modbus.identity]``,
+``[modbus.save]`` and ``[modbus.stop]``.
 
 Paged windows
 -------------
@@ -1103,8 +1123,8 @@ class RegisterMap:
                 fail(k1, f"registers {b0}..{b1 - 1} overlap {k0} ({a0}..{a1 - 1})")
 
         return cls(
-            map_version=integer(mb, "map_version", "modbus", 0, 0xFFFF) if excitation else mb.get("map_version", 0),
-            device_type=integer(mb, "device_type", "modbus", 0, 0xFFFF) if excitation else mb.get("device_type", 0),
+            map_version=integer(mb, "map_version", "modbus", 0, 0xFFFF, None if excitation else 0),
+            device_type=integer(mb, "device_type", "modbus", 0, 0xFFFF, None if excitation else 0),
             word_order=word_order, max_read=max_read, max_write=max_write, registers=registers,
             control=control, status=status, fault_codes=fault_codes, modes=modes,
             table=table, table_type=table_type, table_scale=table_scale,
