@@ -118,6 +118,11 @@ def test_a_notch_is_written_read_back_and_attenuates_on_the_twin(dsy):
     assert achieved == pytest.approx(realised.attenuation_db, abs=0.05)
     assert achieved >= min(spec.depth_db, realised.attenuation_db) - 1.0
     assert achieved > 20.0
+    report = adapter.filter_parameters(0)
+    assert report["enabled"] and report["fields"]["center"] == {"register": "notch1_center_hz", "parameter": "P08.02",
+                                                                "address": 0x0802, "value": center}
+    assert report["notch"]["center_hz"] == center
+    assert report["notch"]["width_hz"] == pytest.approx(WIDTH_RATIO[width] * center)
     # the twin's physics: a torque sine at the resonance through the drive's filter chain
     with emu.server.lock:
         drive = emu.drive

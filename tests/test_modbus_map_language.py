@@ -14,7 +14,11 @@ from hypothesis import strategies as st
 from hilident.drivers import find_driver
 from hilident.errors import ConfigError, DataError
 from hilident.protocol.modbus_registers import (
-    FieldSlots, ParameterRule, RegisterMap, decode_values, encode_values,
+    FieldSlots,
+    ParameterRule,
+    RegisterMap,
+    decode_values,
+    encode_values,
 )
 
 STRUCT = {"u16": "H", "i16": "h", "u32": "I", "i32": "i", "f32": "f", "u64": "Q", "i64": "q", "f64": "d"}

@@ -669,6 +669,23 @@ class ModbusDriveAdapter(AdapterBase):
             raise DeviceError(f"{self.port}: the drive's {self.map.filter_encoding.kind} filter parameters cannot "
                               f"hold the {spec.center_hz:.4g} Hz notch: {exc}") from None
 
+    def filter_parameters(self, slot: int) -> dict:
+        """What a parameter drive's slot holds, for a report: each field's register, parameter code and stored
+        integer, whether it is enabled, and the notch (centre, width, depth) the values stand for."""
+        regs = self._fields(slot)
+        stored = self._read_fields(slot)
+        values, enabled = self._slot_state(stored)
+        out = {"slot": slot, "enabled": enabled,
+               "fields": {f: {"register": regs[f].name, "parameter": regs[f].parameter, "address": regs[f].address,
+                              "value": v} for f, v in stored.items()}}
+        if enabled:
+            try:
+                spec = self.map.filter_encoding.parameters(values)
+                out["notch"] = {"center_hz": spec.center_hz, "width_hz": spec.width_hz, "depth_db": spec.depth_db}
+            except DataError as exc:
+                out["notch_error"] = str(exc)
+        return out
+
     def filter_notes(self, spec: NotchSpec) -> tuple[str, ...]:
         """Why a parameter drive's notch parameters cannot meet ``spec`` exactly, if they cannot."""
         return self._realise(spec).notes if self._named_slots else ()

@@ -40,7 +40,12 @@ import numpy as np
 
 from hilident.errors import DataError
 from hilident.filters.biquad import Biquad
-from hilident.protocol.modbus_registers import FieldSlots, Register, RegisterMap, encode_values
+from hilident.protocol.modbus_registers import (
+    FieldSlots,
+    Register,
+    RegisterMap,
+    encode_values,
+)
 
 ILLEGAL_ADDRESS = 2
 ILLEGAL_VALUE = 3
