@@ -222,3 +222,40 @@ def test_the_notch_goes_over_modbus_rtu_too():
             adapter.close()
     finally:
         emu.close()
+
+
+def test_a_parameter_twin_with_input_registers_and_an_enable_register():
+    """The twin follows any parameter map: input registers behind function 4, a slot with its own enable."""
+    sections = {
+        "modbus": {
+            "parameters": {"address": "group * 0x100 + 2 * index"},
+            "registers": {
+                "model": {"parameter": "P0.01", "type": "u16", "default": 7},
+                "temperature": {"address": 0x0010, "type": "i16", "table": "input", "scale": 0.1, "default": 25.0},
+                "c": {"parameter": "P2.23", "type": "u32", "access": "rw", "word_order": "little", "default": 1000},
+                "q": {"parameter": "P2.24", "type": "u16", "access": "rw", "default": 100},
+                "d": {"parameter": "P2.25", "type": "u16", "access": "rw", "default": 10},
+                "on": {"parameter": "P2.26", "type": "u16", "access": "rw", "min": 0, "max": 1, "default": 0},
+            },
+            "identity": {"registers": ["model"]},
+            "filters": {"slots": [{"center": "c", "width": "q", "depth": "d", "enable": "on"}]},
+        },
+        "filters": {"encoding": "notch_parameters", "width_unit": "q", "depth_unit": "percent",
+                    "scales": {"center": 0.1, "width": 0.01, "depth": 1.0}},
+    }
+    regmap = RegisterMap.parse(sections, 1, "synthetic")
+    driver = replace(DRIVER, filter_slots=1, sections=sections)
+    drive = build_drive(clean_config().emulator, driver)
+    fw = ParameterDriveFirmware(drive, regmap, driver)
+    assert fw.functions == frozenset({3, 4, 6, 16})
+    assert fw.read(0x0010, 1, input_registers=True) == [250]
+    assert fw.read(0x0010, 1) == 2  # not a holding register
+    assert regmap.register("c").address == 0x022E  # P2.23 by the Delta-style rule
+    assert fw.read(0x022E, 2) == [1000, 0]  # low word first
+    assert drive.filters.read(0)[1] is False
+    assert fw.write(0x0234, [1]) is None  # P2.26: enable
+    section, enabled = drive.filters.read(0)
+    assert enabled
+    gain = abs(section.response(np.array([100.0]), DRIVER.loop_rate_hz)[0])
+    assert gain == pytest.approx(0.1, rel=0.01)  # depth 10 % at the 100.0 Hz centre
+    assert fw.write(0x0234, [2]) == 3  # beyond the enable's range
