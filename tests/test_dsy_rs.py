@@ -178,6 +178,15 @@ def test_feedback_registers_show_the_axis_in_si_units(dsy):
     assert feedback["torque_nm"] == pytest.approx(0.0, abs=0.02)  # disabled: sensor noise, 0.1 % steps
 
 
+def test_experiments_are_refused_at_the_adapter_too(dsy):
+    adapter, _ = dsy
+    adapter.set_limits(19.0, 0.4, -0.6, 0.6)  # nothing to load, nothing moves: connecting stays possible
+    with pytest.raises(ConfigError, match="excitation capability"):
+        adapter.configure(1000.0, "torque")
+    with pytest.raises(ConfigError, match="hilident upload --from"):
+        adapter.stream(np.zeros(10), lambda index, rows: None)
+
+
 def test_run_refuses_a_drive_without_an_excitation_capability(tmp_path):
     with pytest.raises(ConfigError) as err:
         Session(load_config(CONFIG), tmp_path).prepare()

@@ -553,8 +553,13 @@ class ModbusDriveAdapter(AdapterBase):
                            int(v["fault_sample"]), float(v["fault_value"]))
 
     def set_limits(self, torque_nm: float, velocity_mps: float, position_min_m: float, position_max_m: float) -> None:
-        """Load the limits the drive enforces on its own (crossing one stops the axis)."""
-        self._refuse_run()
+        """Load the limits the drive enforces on its own (crossing one stops the axis).
+
+        A parameter drive's map holds no limit registers and hilident moves
+        nothing on it (no experiment can run): there is nothing to load.
+        """
+        if not self.map.excitation:
+            return
         self.write_names(torque_limit_nm=torque_nm, velocity_limit_mps=velocity_mps,
                          position_min_m=position_min_m, position_max_m=position_max_m)
         if "limits_loaded" not in self.status().flags:
