@@ -40,7 +40,7 @@ import contextlib
 import logging
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
@@ -48,7 +48,7 @@ import serial
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
-from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, StreamStats
+from hilident.adapters.base import AdapterBase, ConnectReport, FilterUpload, RunResult, StreamStats
 from hilident.adapters.events import Kind, RunEvent
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription
@@ -56,7 +56,8 @@ from hilident.errors import ConfigError, DataError, DeviceError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
 from hilident.protocol.modbus_registers import (
-    STAMP_MODULUS, Chunk, RegisterMap, Window, count_rtu_frames, exception_meaning, plan_chunks, table_crc,
+    STAMP_MODULUS, Chunk, FieldSlots, RegisterMap, Window, count_rtu_frames, exception_meaning, plan_chunks,
+    table_crc,
 )
 
 logging.getLogger("pymodbus").addHandler(logging.NullHandler())  # no library chatter on stderr
@@ -154,6 +155,7 @@ class ModbusIdentity:
     capture_capacity: int
     device_type: int
     map_version: int
+    registers: dict = field(default_factory=dict)  # parameter drives: what the identity registers hold
 
 
 @dataclass(frozen=True)
@@ -240,10 +242,13 @@ class ModbusDriveAdapter(AdapterBase):
             raise ConfigError("device.acquisition", "a Modbus drive runs drive-buffered experiments only "
                               '(use "buffered" or "auto")')
         regmap = RegisterMap.from_driver(driver)
-        missing = [c.name for c in driver.channels if c.name not in regmap.capture_channel_names()]
+        shown = regmap.capture_channel_names() if regmap.excitation else \
+            [r.channel for r in regmap.registers.values() if r.channel]
+        missing = [c.name for c in driver.channels if c.name not in shown]
         if missing:
+            where = "[[modbus.capture.channels]]" if regmap.excitation else "registers (key channel) of [modbus.registers]"
             raise ConfigError("channels", f"driver {driver.name!r} lists channels {missing} that its "
-                              "[[modbus.capture.channels]] do not hold", str(driver.folder / "driver.toml"))
+                              f"{where} do not hold", str(driver.folder / "driver.toml"))
         port = device.port
         if port.startswith("tcp://"):
             host, _, number = port[len("tcp://"):].rpartition(":")
@@ -294,9 +299,15 @@ class ModbusDriveAdapter(AdapterBase):
             (the message says how to clear it), the fault does not clear, or
             the timeout does not read back as written.
         """
+        report = self.connect_report
+        if not self.map.excitation:
+            if self.map.stop:
+                self.write_names(**self.map.stop)  # no speed, no torque asked of the drive
+            self._arm_comm_timeout(host_timeout_s)
+            report.discarded_frames += getattr(self.client, "stale_frames", 0) + self.dropped_frames + self.bad_responses
+            return
         self.write_names(control_word=0)  # stopped, disabled, zero torque, ready for a fresh 0 -> 1 edge
         st = self.status()
-        report = self.connect_report
         if "fault" in st.flags:
             def clear() -> None:
                 self.clear_fault()
@@ -445,11 +456,12 @@ class ModbusDriveAdapter(AdapterBase):
         return _ENABLED_WAIT * self.comm_timeout_s if self.comm_timeout_s else self.timeout_s
 
     def read(self, address: int, count: int, what: str = "reading", retry: bool = True,
-             page: int | None = None) -> list[int]:
-        """Registers ``address .. address + count - 1`` (read holding registers)."""
+             page: int | None = None, input_registers: bool = False) -> list[int]:
+        """Registers ``address .. address + count - 1`` (read holding registers, or input registers)."""
+        reader = self.client.read_input_registers if input_registers else self.client.read_holding_registers
         response = self._request(
             what, address, count,
-            lambda: self.client.read_holding_registers(address, count=count, device_id=self.device_id),
+            lambda: reader(address, count=count, device_id=self.device_id),
             lambda r: len(r.registers) == count, retry, page,
         )
         return list(response.registers)
@@ -466,10 +478,11 @@ class ModbusDriveAdapter(AdapterBase):
     def read_names(self, *names: str) -> dict:
         """Values of the named registers (neighbours share a request)."""
         out = {}
-        for address, count in self.map.read_groups(names):
-            regs = self.read(address, count)
-            out.update(self.map.decode_span([n for n in names if address <= self.map.register(n).address
-                                             < address + count], address, regs))
+        for table, address, count in self.map.request_groups(names):
+            regs = self.read(address, count, input_registers=table == "input")
+            out.update(self.map.decode_span([n for n in names if self.map.register(n).table == table and
+                                             address <= self.map.register(n).address < address + count],
+                                            address, regs))
         return out
 
     def write_names(self, **values) -> None:
@@ -477,7 +490,14 @@ class ModbusDriveAdapter(AdapterBase):
         regs = {}
         for name, value in values.items():
             r = self.map.register(name)
-            for i, v in enumerate(self.map.encode(name, value)):
+            if not r.writable:
+                raise DeviceError(f"{self.port}: {self.map.describe(r.address, r.count, table=r.table)} is read-only "
+                                  f"in driver {self.driver.name!r}")
+            try:
+                words = self.map.encode(name, value)
+            except DataError as exc:
+                raise DeviceError(f"{self.port}: not written: {exc}") from None
+            for i, v in enumerate(words):
                 regs[r.address + i] = v
         addresses = sorted(regs)
         start = addresses[0]
@@ -490,6 +510,8 @@ class ModbusDriveAdapter(AdapterBase):
 
     def identify(self) -> ModbusIdentity:
         """Read the identity registers and check the drive is the one the driver describes."""
+        if not self.map.excitation:
+            return self._identify_parameters()
         v = self.read_names(*_IDENTITY)
         m, d = self.map, self.driver
 
@@ -514,6 +536,90 @@ class ModbusDriveAdapter(AdapterBase):
         )
         return self.identity
 
+    def _identify_parameters(self) -> ModbusIdentity:
+        """A parameter drive: the registers ``[modbus.identity]`` names, checked against ``expect``."""
+        m, d = self.map, self.driver
+        v = self.read_names(*m.identity)
+        for name, want in m.expect.items():
+            if v[name] != want:
+                r = m.register(name)
+                raise DeviceError(f"{self.port}: {m.describe(r.address, r.count, table=r.table)} holds {v[name]}; "
+                                  f"driver {d.name!r} expects {want} (is device id {self.device_id} the drive?)")
+        slots = m.filters.slots if m.filters is not None else 0
+        firmware = ", ".join(f"{n} {v[n]}" for n in m.identity)
+        self.identity = ModbusIdentity(
+            name=d.name, firmware=firmware, loop_rate_hz=float(d.loop_rate_hz),
+            max_sample_rate_hz=float(d.max_sample_rate_hz), filter_slots=slots, table_capacity=0,
+            capture_capacity=0, device_type=int(m.device_type), map_version=int(m.map_version), registers=dict(v))
+        return self.identity
+
+    # --- a parameter drive ---------------------------------------------------------------------
+
+    @classmethod
+    def run_refusal(cls, driver: DriverDescription) -> ConfigError | None:
+        """Why ``hilident run`` cannot run on ``driver`` (a drive without the excitation capability), or None."""
+        regmap = RegisterMap.from_driver(driver)
+        if regmap.excitation:
+            return None
+        return ConfigError(
+            "device.driver",
+            f"driver {driver.name!r} describes a drive without an excitation capability (no [modbus.table] "
+            f"and [modbus.capture] in {driver.folder / 'driver.toml'}): hilident cannot play an experiment on it. "
+            "Record the axis "
+            "another way (the drive vendor's scope exported to CSV, or a serial board on the same axis), run "
+            "`hilident identify RECORDING`, then `hilident upload --from RUN_DIR --config CONFIG` to write the notch",
+            str(driver.folder / "driver.toml"))
+
+    def _refuse_run(self) -> None:
+        refusal = self.run_refusal(self.driver)
+        if refusal is not None:
+            raise refusal
+
+    def _prepare_run(self, x: np.ndarray) -> None:
+        self._refuse_run()
+
+    def read_parameter(self, code: str) -> float | int:
+        """The physical value of vendor parameter ``code`` (``"P08.02"``), through the map's rule."""
+        try:
+            r = self.map.parameter(code)
+        except DataError as exc:
+            raise DeviceError(f"{self.port}: {exc}") from None
+        return r.decode(self.read(r.address, r.count, f"reading parameter {code}", input_registers=r.table == "input"))
+
+    def write_parameter(self, code: str, value) -> None:
+        """Write vendor parameter ``code``; refused before sending when it is read-only or out of its range."""
+        try:
+            r = self.map.parameter(code)
+            words = r.encode(value)
+        except DataError as exc:
+            raise DeviceError(f"{self.port}: parameter {code} not written: {exc}") from None
+        if not r.writable:
+            raise DeviceError(f"{self.port}: parameter {code} ({self.map.describe(r.address, table=r.table)}) is "
+                              "read-only")
+        self.write(r.address, words, f"writing parameter {code}")
+
+    def read_feedback(self) -> dict[str, float]:
+        """Channels the drive shows in registers (``channel`` in the map), in SI units."""
+        shown = {r.name: r for r in self.map.registers.values() if r.channel}
+        values = self.read_names(*shown) if shown else {}
+        return {r.channel: float(values[n]) * r.channel_scale for n, r in shown.items()}
+
+    def save_parameters(self) -> str:
+        """Store the drive's parameters in non-volatile memory (``[modbus.save]``); returns what was written.
+
+        Raises
+        ------
+        DeviceError
+            The map describes no save parameter, or the drive refuses it.
+        """
+        if self.map.save is None:
+            raise DeviceError(f"{self.port}: driver {self.driver.name!r} describes no save parameter "
+                              "([modbus.save] in its driver.toml)")
+        name, value = self.map.save
+        r = self.map.register(name)
+        self.write(r.address, self.map.encode(name, value), "saving the parameters to non-volatile memory")
+        return f"{self.map.describe(r.address, r.count)} = {value:g}"
+
     def status(self) -> DriveStatus:
         """The status registers, in one request."""
         v = self.read_names(*_STATUS)
@@ -522,7 +628,13 @@ class ModbusDriveAdapter(AdapterBase):
                            int(v["fault_sample"]), float(v["fault_value"]))
 
     def set_limits(self, torque_nm: float, velocity_mps: float, position_min_m: float, position_max_m: float) -> None:
-        """Load the limits the drive enforces on its own (crossing one stops the axis)."""
+        """Load the limits the drive enforces on its own (crossing one stops the axis).
+
+        A parameter drive's map holds no limit registers and hilident moves
+        nothing on it (no experiment can run): there is nothing to load.
+        """
+        if not self.map.excitation:
+            return
         self.write_names(torque_limit_nm=torque_nm, velocity_limit_mps=velocity_mps,
                          position_min_m=position_min_m, position_max_m=position_max_m)
         if "limits_loaded" not in self.status().flags:
@@ -531,6 +643,7 @@ class ModbusDriveAdapter(AdapterBase):
 
     def configure(self, sample_rate_hz: float, mode: str, channels: list[str] | None = None) -> list[str]:
         """Choose the capture rate, excitation mode and captured channels; returns the channel names."""
+        self._refuse_run()
         ident = self.identity
         divider = ident.loop_rate_hz / sample_rate_hz
         if abs(divider - round(divider)) > 1e-9 or round(divider) < 1:
@@ -558,6 +671,9 @@ class ModbusDriveAdapter(AdapterBase):
         self._stop(tries=2, wait_s=self.timeout_s)
 
     def _stop(self, tries: int, wait_s: float) -> None:
+        if not self.map.excitation:
+            self._stop_parameters(wait_s)
+            return
         r = self.map.register("control_word")
         try:
             with self._answers_within(wait_s):
@@ -566,6 +682,16 @@ class ModbusDriveAdapter(AdapterBase):
                               lambda resp: resp.address == r.address, retry=True, tries=tries)
         except Exception:
             pass  # the drive's communication timeout stops it when the host cannot
+
+    def _stop_parameters(self, wait_s: float) -> None:
+        """A parameter drive: write ``[modbus.stop]`` (no speed, no torque), if the map gives it. Never raises."""
+        if not self.map.stop:
+            return
+        try:
+            with self._answers_within(wait_s):
+                self.write_names(**self.map.stop)
+        except Exception:
+            pass
 
     def clear_fault(self) -> None:
         """Clear a latched fault (0 -> 1 edge of the fault_reset bit)."""
@@ -581,13 +707,124 @@ class ModbusDriveAdapter(AdapterBase):
         except DataError as exc:
             raise DeviceError(f"{self.port}: {exc}") from None
 
+    # Filter slots of named registers (a parameter drive's notch parameters): each field is one register
+    # holding the encoding's stored integer; the slot is bypassed by its enable register or by the "off"
+    # value of one field.
+
+    @property
+    def _named_slots(self) -> bool:
+        return isinstance(self.map.filters, FieldSlots)
+
+    def _fields(self, slot: int) -> dict:
+        if self.map.filters is None:
+            raise DeviceError(f"{self.port}: driver {self.driver.name!r} describes no filter slots")
+        try:
+            return self.map.filters.fields(slot)
+        except DataError as exc:
+            raise DeviceError(f"{self.port}: {exc}") from None
+
+    def _read_fields(self, slot: int) -> dict[str, int]:
+        """The stored integer of each field of ``slot`` (one request for neighbouring registers)."""
+        regs = self._fields(slot)
+        values = self.read_names(*(r.name for r in regs.values()))
+        return {f: int(round((values[r.name] - r.offset) / r.scale)) for f, r in regs.items()}
+
+    def _write_fields(self, slot: int, stored: dict[str, int]) -> None:
+        regs = self._fields(slot)
+        self.write_names(**{regs[f].name: v * regs[f].scale + regs[f].offset for f, v in stored.items()})
+
+    def _slot_state(self, stored: dict[str, int]) -> tuple[dict, bool]:
+        """``(encoding values, enabled)`` of a named slot's stored integers."""
+        values = {k: v for k, v in stored.items() if k != "enable"}
+        if "enable" in stored:
+            return values, bool(stored["enable"])
+        return values, not all(values.get(k) == v for k, v in self.map.filters.off.items())
+
+    def _realise(self, spec: NotchSpec | None):
+        if spec is None:
+            raise DeviceError(f"{self.port}: the drive takes notch parameters; no notch specification was given")
+        try:
+            return self.map.filter_encoding.realise(spec, self.identity.loop_rate_hz)
+        except DataError as exc:
+            raise DeviceError(f"{self.port}: the drive's {self.map.filter_encoding.kind} filter parameters cannot "
+                              f"hold the {spec.center_hz:.4g} Hz notch: {exc}") from None
+
+    def filter_parameters(self, slot: int) -> dict:
+        """What a parameter drive's slot holds, for a report: each field's register, parameter code and stored
+        integer, whether it is enabled, and the notch (centre, width, depth) the values stand for."""
+        regs = self._fields(slot)
+        stored = self._read_fields(slot)
+        values, enabled = self._slot_state(stored)
+        out = {"slot": slot, "enabled": enabled,
+               "fields": {f: {"register": regs[f].name, "parameter": regs[f].parameter, "address": regs[f].address,
+                              "value": v} for f, v in stored.items()}}
+        if enabled:
+            try:
+                spec = self.map.filter_encoding.parameters(values)
+                out["notch"] = {"center_hz": spec.center_hz, "width_hz": spec.width_hz, "depth_db": spec.depth_db}
+            except DataError as exc:
+                out["notch_error"] = str(exc)
+        return out
+
+    def filter_notes(self, spec: NotchSpec) -> tuple[str, ...]:
+        """Why a parameter drive's notch parameters cannot meet ``spec`` exactly, if they cannot."""
+        return self._realise(spec).notes if self._named_slots else ()
+
+    def upload_filter(self, slot: int, biquad, spec=None) -> FilterUpload:
+        """As :meth:`AdapterBase.upload_filter`; a slot bypassed by the "off" value of one of its fields is
+        written bypassed with the other fields, those read back and compared, then the off field written
+        (the notch takes effect), the whole slot read back and compared; anything else puts the previous
+        contents back."""
+        fs = self.map.filters
+        if not self._named_slots or fs.has_enable:
+            return super().upload_filter(slot, biquad, spec)
+        previous = self.save_filter(slot)
+        values = self._realise(spec).fields
+        expected = self.stored_form(biquad, spec)
+        self._write_fields(slot, {**values, **fs.off})
+        back, enabled = self._slot_state(self._read_fields(slot))
+        same = not enabled and all(back[k] == v for k, v in values.items() if k not in fs.off)
+        stored = Biquad.identity()
+        if same:
+            self._write_fields(slot, values)
+            stored, enabled = self.read_filter(slot)
+            same = enabled and stored == expected
+        if not same:
+            self.restore_filter(slot, previous)
+        return FilterUpload(stored, expected, bool(same))
+
     def write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None = None, *, enabled: bool) -> None:
-        """Store a notch in a slot as the drive takes it: centre, width, depth (scaled integers), enable."""
+        """Store a notch in a slot as the drive takes it: centre, width, depth (scaled integers), enable.
+
+        A parameter drive's slot gets the stored values closest to ``spec``
+        (:meth:`FilterEncoding.realise`), bypassed by its off value when not ``enabled``.
+        """
+        if self._named_slots:
+            stored = dict(self._realise(spec).fields)
+            if self.map.filters.has_enable:
+                stored["enable"] = int(bool(enabled))
+            elif not enabled:
+                stored.update(self.map.filters.off)
+            self._write_fields(slot, stored)
+            return
         values = self.map.filter_encoding.encode(biquad, spec)
         self.write(self._slot(slot), self.map.encode_filter(values, enabled), f"writing filter slot {slot}")
 
     def read_filter(self, slot: int) -> tuple[Biquad, bool]:
-        """The biquad the slot's registers make the drive run, and whether it is enabled."""
+        """The biquad the slot's registers make the drive run, and whether it is enabled.
+
+        A parameter drive's slot bypassed by an off value runs the identity section.
+        """
+        if self._named_slots:
+            values, enabled = self._slot_state(self._read_fields(slot))
+            if not enabled and not self.map.filters.has_enable:
+                return Biquad.identity(), False
+            try:
+                return self.map.filter_encoding.applied(values, self.identity.loop_rate_hz), enabled
+            except DataError as exc:
+                regs = self._fields(slot)
+                raise DeviceError(f"{self.port}: filter slot {slot} ({', '.join(r.label for r in regs.values())}) "
+                                  f"holds {values}: {exc}") from None
         address = self._slot(slot)
         values, enabled = self.map.decode_filter(self.read(address, self.map.filters.span, f"reading filter slot {slot}"))
         if not any(values.values()):
@@ -599,18 +836,33 @@ class ModbusDriveAdapter(AdapterBase):
                               f"({self.map.describe(address, self.map.filters.span)}) holds {values}: {exc}") from None
 
     def stored_form(self, biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
-        """The biquad the drive runs after its own rounding of ``spec`` (0.1 Hz, 0.1 dB steps)."""
+        """The biquad the drive runs after its own rounding of ``spec`` (0.1 Hz, 0.1 dB steps), or what a
+        parameter drive runs with the stored values closest to ``spec``."""
+        if self._named_slots:
+            return self._realise(spec).section
         return self.map.filter_encoding.stored_form(biquad, spec, self.identity.loop_rate_hz)
 
     def _read_raw_slot(self, slot: int) -> tuple[int, ...]:
         """The slot's registers as they are."""
+        if self._named_slots:
+            return tuple(sorted(self._read_fields(slot).items()))
         return tuple(self.read(self._slot(slot), self.map.filters.span, f"reading filter slot {slot}"))
 
-    def _write_raw_slot(self, slot: int, saved: tuple[int, ...]) -> None:
+    def _write_raw_slot(self, slot: int, saved: tuple) -> None:
+        if self._named_slots:
+            self._write_fields(slot, dict(saved))
+            return
         self.write(self._slot(slot), list(saved), f"restoring filter slot {slot}")
 
     def disable_filter(self, slot: int) -> None:
-        """Bypass a slot: its enable register to 0, centre, width and depth kept (:meth:`restore_filter` undoes it)."""
+        """Bypass a slot: its enable register to 0, centre, width and depth kept (:meth:`restore_filter` undoes it).
+
+        A parameter drive's slot without an enable gets its off value, the other fields kept.
+        """
+        if self._named_slots:
+            fs = self.map.filters
+            self._write_fields(slot, {"enable": 0} if fs.has_enable else dict(fs.off))
+            return
         self.write(self._slot(slot) + self.map.filters.offsets["enable"], [0], f"disabling filter slot {slot}")
 
     # --- buffered runs ------------------------------------------------------------------------

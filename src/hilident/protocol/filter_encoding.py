@@ -38,9 +38,10 @@ has a ``scale`` -- physical units per integer step, or ``0`` for a REAL32 field
 -- a ``range`` in physical units and an optional ``resolution``):
 
 ``"notch_parameters"``
-    ``center``, ``width``, ``depth`` (Hz, Hz, dB -- or the width as a Q or a
-    ratio to the centre, the depth as a gain ratio or percent, see
-    ``width_unit`` and ``depth_unit``); pre-warped Tustin notch
+    ``center``, ``width``, ``depth`` (Hz, Hz, dB -- or the width as a Q, a
+    ratio to the centre or an index into ``width_table`` of bandwidth/centre
+    ratios, the depth as a gain ratio, percent or an index into ``depth_table``
+    of dB, see ``width_unit`` and ``depth_unit``); pre-warped Tustin notch
     (:func:`~hilident.filters.notch.design_notch`).
 ``"pole_zero_q"``
     ``pole_hz``, ``pole_q``, ``zero_hz``, ``zero_q`` (Kollmorgen-style
@@ -144,8 +145,8 @@ REFINE_STEPS = 40
 #: fields that set a notch's depth, and which way is deeper (+1: a larger value)
 DEEPER = {"depth": 1, "zero_q": 1, "num_damping": -1}
 #: ``"notch_parameters"``: how the width and depth fields are expressed
-WIDTH_UNITS = ("hz", "q", "ratio")
-DEPTH_UNITS = ("db", "ratio", "percent")
+WIDTH_UNITS = ("hz", "q", "ratio", "index")
+DEPTH_UNITS = ("db", "ratio", "percent", "index")
 #: pairs of fields that must hold the same frequency for the section to be a notch
 SAME_FREQUENCY = {"pole_zero_q": ("pole_hz", "zero_hz"), "pole_zero_damping": ("num_hz", "den_hz")}
 
@@ -433,8 +434,8 @@ class FilterEncoding:
         object.__setattr__(self, "ranges", ranges)
         object.__setattr__(self, "resolution", {k: _positive(f"resolution.{k}", v)
                                                 for k, v in self.resolution.items()})
-        if self.kind == "index_table":
-            for name in ("width", "depth"):
+        for name in ("width", "depth"):
+            if self._is_index(name):
                 table = getattr(self, f"{name}_table")
                 if not isinstance(table, (list, tuple)) or not table:
                     _fail(f"{name}_table", "must be a non-empty list of numbers")
@@ -654,8 +655,8 @@ class FilterEncoding:
         f, w, d = spec.center_hz, spec.width_hz, spec.depth_db
         ratio = 10.0 ** (-d / 20.0)
         if self.kind == "notch_parameters":
-            width = {"hz": w, "q": f / w, "ratio": w / f}[self.width_unit]
-            depth = {"db": d, "ratio": ratio, "percent": 100.0 * ratio}[self.depth_unit]
+            width = {"hz": w, "q": f / w, "ratio": w / f, "index": w / f}[self.width_unit]
+            depth = {"db": d, "ratio": ratio, "percent": 100.0 * ratio, "index": d}[self.depth_unit]
             return {"center": f, "width": width, "depth": depth}
         if self.kind == "pole_zero_q":
             q = f / w
@@ -683,7 +684,11 @@ class FilterEncoding:
         return table, stored
 
     def _is_index(self, name: str) -> bool:
-        return self.kind == "index_table" and name in ("width", "depth")
+        """Whether field ``name`` stores an index into ``width_table`` / ``depth_table``."""
+        if self.kind == "index_table":
+            return name in ("width", "depth")
+        return self.kind == "notch_parameters" and ((name == "width" and self.width_unit == "index")
+                                                    or (name == "depth" and self.depth_unit == "index"))
 
     def _candidates(self, name: str, x: float) -> list:
         """Stored values of field ``name`` around the physical value ``x``.
@@ -730,7 +735,7 @@ class FilterEncoding:
 
     def _deeper_sign(self, name: str) -> int:
         """+1 when a larger value of depth-setting field ``name`` makes the notch deeper, else -1."""
-        if name == "depth" and self.kind == "notch_parameters" and self.depth_unit != "db":
+        if name == "depth" and self.kind == "notch_parameters" and self.depth_unit not in ("db", "index"):
             return -1
         return DEEPER[name]
 
@@ -834,9 +839,9 @@ class FilterEncoding:
             if not width > 0:
                 raise DataError(f"notch Q must be positive, got {width:g}")
             width = center / width
-        elif self.width_unit == "ratio":
+        elif self.width_unit in ("ratio", "index"):
             width *= center
-        if self.depth_unit != "db":
+        if self.depth_unit not in ("db", "index"):
             ratio = depth / 100.0 if self.depth_unit == "percent" else depth
             depth = math.inf if ratio <= 0 else -20.0 * math.log10(ratio)
         return center, width, depth
@@ -1059,9 +1064,9 @@ class FilterEncoding:
         if name in ("center", "band") or name.endswith("_hz"):
             return " Hz"
         if name == "width" and self.kind == "notch_parameters":
-            return {"hz": " Hz", "q": " (Q)", "ratio": " (of the centre)"}[self.width_unit]
+            return {"hz": " Hz", "q": " (Q)", "ratio": " (of the centre)", "index": " (of the centre)"}[self.width_unit]
         if name == "depth" and self.kind == "notch_parameters":
-            return {"db": " dB", "ratio": " (ratio)", "percent": " %"}[self.depth_unit]
+            return {"db": " dB", "ratio": " (ratio)", "percent": " %", "index": " dB"}[self.depth_unit]
         return ""
 
     def _same_frequency(self, values: dict) -> bool:

@@ -12,15 +12,35 @@ Value types
 -----------
 ``u16``, ``i16``
     One register, unsigned or two's complement.
-``u32``, ``i32``, ``f32``
-    Two registers (IEEE-754 single precision for ``f32``). ``word_order``
-    ``"big"`` puts the high word at the lower address, ``"little"`` the low
-    word. Within a register the bytes are big-endian (Modbus).
+``u32``, ``i32``, ``f32``; ``u64``, ``i64``, ``f64``
+    Two (four) registers (IEEE-754 for the floats). ``word_order`` ``"big"``
+    puts the most significant word at the lowest address, ``"little"`` the
+    least significant. ``byte_order`` ``"big"`` sends each register high byte
+    first, as Modbus does; ``"little"`` swaps the two bytes. Both are set per
+    register, defaulting to ``[modbus] word_order`` / ``byte_order``.
 ``str``
     ``length`` registers, two ASCII characters each (first character in the
     high byte), NUL padded.
 
-A physical value is ``raw * scale``.
+A physical value is ``raw * scale + offset``; ``min``/``max`` bound it (a
+write outside is refused before it is sent, naming the register).
+
+The map language
+----------------
+Each ``[modbus.registers]`` entry goes through the typed schema of
+:mod:`hilident.config` (:class:`_RegisterSpec`): ``address`` or ``parameter``
+(a vendor code such as ``"P08.02"`` resolved by the rule of
+``[modbus.parameters]``, :class:`ParameterRule`), ``type``, ``access``,
+``table`` (holding or input), ``scale``, ``offset``, ``unit``, ``min``,
+``max``, ``word_order``, ``byte_order``, ``channel``/``channel_scale`` (the
+drive channel a feedback register shows), plus ``bits`` (named masks) and
+``default`` (the value at power-up). Capabilities are tables of their own:
+hilident's excitation table and capture (``[modbus.table]``,
+``[modbus.capture]`` with the control/status registers they need; a map
+without them describes a parameter drive, :attr:`RegisterMap.excitation`),
+``[modbus.filters]`` (hilident's four-register slots, or ``slots`` naming the
+drive's own notch parameters, :class:`FieldSlots`), ``[modbus.identity]``,
+``[modbus.save]`` and ``[modbus.stop]``.
 
 Paged windows
 -------------
@@ -49,10 +69,12 @@ from __future__ import annotations
 
 import binascii
 import math
-from dataclasses import dataclass, field
+import re
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from hilident.config import _spec, build_table
 from hilident.errors import ConfigError, DataError
 from hilident.protocol.filter_encoding import FilterEncoding
 
@@ -64,8 +86,12 @@ __all__ = [
 
 #: Registers per value and numpy type code of the numeric types.
 TYPES: dict[str, tuple[int, str]] = {"u16": (1, "u2"), "i16": (1, "i2"), "u32": (2, "u4"), "i32": (2, "i4"),
-                                     "f32": (2, "f4")}
+                                     "f32": (2, "f4"), "u64": (4, "u8"), "i64": (4, "i8"), "f64": (4, "f8")}
 WORD_ORDERS = ("big", "little")
+BYTE_ORDERS = ("big", "little")
+REGISTER_TABLES = ("holding", "input")
+#: types of the excitation table and capture channels (one or two registers)
+WINDOW_TYPES = ("u16", "i16", "u32", "i32", "f32")
 MODES = ("torque", "torque_injection", "velocity", "position")
 
 #: Meaning of each Modbus exception code (Modbus Application Protocol V1.1b3, section 7).
@@ -133,21 +159,26 @@ def exception_meaning(code: int) -> str:
 
 
 def encode_values(values, type_: str, scale: float = 1.0, word_order: str = "big",
-                  saturate: bool = False) -> np.ndarray:
+                  saturate: bool = False, byte_order: str = "big", offset: float = 0.0) -> np.ndarray:
     """Registers holding ``values`` (physical units) as ``type_``.
 
     Parameters
     ----------
     values : array_like
-        Physical values; raw = values / scale (rounded to the nearest integer
-        for the integer types).
-    type_ : {"u16", "i16", "u32", "i32", "f32"}
+        Physical values; raw = (values - offset) / scale (rounded to the
+        nearest integer for the integer types).
+    type_ : {"u16", "i16", "u32", "i32", "f32", "u64", "i64", "f64"}
     scale : float
         Physical value per raw unit.
     word_order : {"big", "little"}
-        Two-register types: which word comes first.
+        Multi-register types: ``"big"`` puts the most significant word first,
+        ``"little"`` the least significant.
     saturate : bool
         Clip values beyond the type's range (and NaN to 0) instead of raising.
+    byte_order : {"big", "little"}
+        Byte order inside each register (``"big"``: as Modbus sends them).
+    offset : float
+        Physical value of raw 0.
 
     Returns
     -------
@@ -160,14 +191,23 @@ def encode_values(values, type_: str, scale: float = 1.0, word_order: str = "big
         A value does not fit the type (unless ``saturate``).
     """
     n_regs, code = _numeric(type_)
-    x = np.asarray(values, dtype=float).ravel() / scale
-    if type_ == "f32":
-        big = np.abs(x) > np.finfo(np.float32).max
+    exact = _exact_integers(values, code, scale, offset)
+    if exact is not None:  # whole numbers into an unscaled integer type: no detour through float64
+        info = np.iinfo(code)
+        bad = [v for v in exact if not info.min <= v <= info.max]
+        if bad and not saturate:
+            raise DataError(f"value {bad[0]} is beyond the {type_} range {info.min}..{info.max}")
+        raw = np.array([min(max(v, int(info.min)), int(info.max)) for v in exact], dtype=">" + code)
+        return _order_words(raw.view(">u2").reshape(-1, n_regs), word_order, byte_order)
+    x = (np.asarray(values, dtype=float).ravel() - offset) / scale
+    if code.startswith("f"):
+        top = np.finfo(code).max
+        big = np.abs(x) > top
         if np.any(big & np.isfinite(x)):
             if not saturate:
-                raise DataError(f"value {x[big][0] * scale:g} does not fit a float32")
-            x = np.clip(x, -np.finfo(np.float32).max, np.finfo(np.float32).max)
-        raw = x.astype(">f4")
+                raise DataError(f"value {x[big][0] * scale + offset:g} does not fit a float{8 * int(code[1])}")
+            x = np.clip(x, -top, top)
+        raw = x.astype(">" + code)
     else:
         info = np.iinfo(code)
         bad = ~np.isfinite(x)
@@ -176,22 +216,43 @@ def encode_values(values, type_: str, scale: float = 1.0, word_order: str = "big
                 raise DataError(f"value {x[bad][0] * scale!r} cannot be stored as {type_}")
             x = np.where(bad, 0.0, x)
         q = np.rint(x)
-        out = (q < info.min) | (q > info.max)
+        # float64 cannot hold every 64-bit integer: compare against the limits as floats, clip below them
+        out = (q < float(info.min)) | (q >= float(info.max) + 1.0)
         if np.any(out):
             if not saturate:
                 raise DataError(
-                    f"value {q[out][0] * scale:g} is beyond the {type_} range "
-                    f"{info.min * scale:g}..{info.max * scale:g} (scale {scale:g})"
+                    f"value {q[out][0] * scale + offset:g} is beyond the {type_} range "
+                    f"{info.min * scale + offset:g}..{info.max * scale + offset:g} (scale {scale:g})"
                 )
-            q = np.clip(q, info.min, info.max)
+            q = np.clip(q, float(info.min), np.nextafter(float(info.max) + 1.0, 0.0))
         raw = q.astype(">" + code)
-    words = raw.view(">u2").reshape(-1, n_regs)
-    if word_order == "little" and n_regs == 2:
+    return _order_words(raw.view(">u2").reshape(-1, n_regs), word_order, byte_order)
+
+
+def _exact_integers(values, code: str, scale: float, offset: float) -> list[int] | None:
+    """``values`` as Python ints when they are all integers going into an unscaled integer type, else None."""
+    if code.startswith("f") or scale != 1.0 or offset != 0.0 or (isinstance(values, np.ndarray)
+                                                                  and values.dtype.kind not in "iuO"):
+        return None
+    items = list(np.asarray(values, dtype=object).ravel())
+    if not all(isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_)) for v in items):
+        return None
+    return [int(v) for v in items]
+
+
+def _order_words(words: np.ndarray, word_order: str, byte_order: str) -> np.ndarray:
+    """Big-endian words of each value (one row per value) in the register order and byte order asked for;
+    the same operation undoes itself."""
+    words = np.asarray(words, dtype=np.uint16)
+    if word_order == "little" and words.shape[1] > 1:
         words = words[:, ::-1]
+    if byte_order == "little":
+        words = (words >> 8) | ((words & 0xFF) << 8)
     return words.astype(np.uint16).ravel()
 
 
-def decode_values(registers, type_: str, scale: float = 1.0, word_order: str = "big") -> np.ndarray:
+def decode_values(registers, type_: str, scale: float = 1.0, word_order: str = "big", byte_order: str = "big",
+                  offset: float = 0.0) -> np.ndarray:
     """Physical values held in ``registers`` as ``type_`` (inverse of :func:`encode_values`).
 
     Raises
@@ -205,11 +266,9 @@ def decode_values(registers, type_: str, scale: float = 1.0, word_order: str = "
         raise DataError(f"{len(r)} registers do not hold whole {type_} values")
     if np.any((r < 0) | (r > 0xFFFF)):
         raise DataError("register values must lie in 0..65535")
-    words = r.reshape(-1, n_regs)
-    if word_order == "little" and n_regs == 2:
-        words = words[:, ::-1]
+    words = _order_words(r.reshape(-1, n_regs), word_order, byte_order).reshape(-1, n_regs)
     raw = np.ascontiguousarray(words).astype(">u2").view(">" + code).ravel()
-    return raw.astype(float) * scale
+    return raw.astype(float) * scale + offset
 
 
 def encode_string(text: str, length: int) -> np.ndarray:
@@ -346,12 +405,28 @@ class Register:
     address : int
         First register (0-based protocol address).
     type : str
-        ``u16``, ``i16``, ``u32``, ``i32``, ``f32`` or ``str``.
+        One of :data:`TYPES` or ``str``.
     access : {"r", "rw"}
-    scale : float
-        Physical value per raw unit.
+    scale, offset : float
+        Physical value = raw value * scale + offset.
     count : int
         Registers it occupies.
+    word_order, byte_order : {"big", "little"}
+        Order of the words of a multi-register value, and of the bytes inside each register.
+    table : {"holding", "input"}
+        Input registers are read with function 4 and never written.
+    unit : str
+        Unit of the physical value (for messages and documents).
+    minimum, maximum : float or None
+        Range of the physical value; a write outside it is refused before it is sent.
+    bits : dict
+        Named bit fields: name to mask (for flags and small fields inside one register).
+    parameter : str
+        The vendor's parameter code (``"P08.02"``) when the address came from the parameter rule.
+    channel : str
+        The drive channel the register shows (feedback), with ``channel_scale`` SI units per physical unit.
+    default : float, str or None
+        Value at power-up (the vendor's default; the emulated drive starts with it).
     """
 
     name: str
@@ -360,6 +435,18 @@ class Register:
     access: str = "r"
     scale: float = 1.0
     count: int = 1
+    word_order: str = "big"
+    byte_order: str = "big"
+    table: str = "holding"
+    offset: float = 0.0
+    unit: str = ""
+    minimum: float | None = None
+    maximum: float | None = None
+    bits: dict = field(default_factory=dict, compare=False, hash=False)
+    parameter: str = ""
+    channel: str = ""
+    channel_scale: float = 1.0
+    default: float | str | None = None
 
     @property
     def end(self) -> int:
@@ -368,7 +455,146 @@ class Register:
 
     @property
     def writable(self) -> bool:
-        return self.access == "rw"
+        return self.access == "rw" and self.table == "holding"
+
+    @property
+    def label(self) -> str:
+        """``name`` with its parameter code, for messages."""
+        return f"{self.name}, {self.parameter}" if self.parameter and self.parameter != self.name else self.name
+
+    def check_range(self, value) -> None:
+        """DataError when the physical ``value`` lies outside ``minimum .. maximum`` (naming the register)."""
+        if self.type == "str" or (self.minimum is None and self.maximum is None):
+            return
+        x = float(value)
+        low = -math.inf if self.minimum is None else self.minimum
+        high = math.inf if self.maximum is None else self.maximum
+        if not low <= x <= high:
+            unit = f" {self.unit}" if self.unit else ""
+            raise DataError(f"register {self.address:#06x} ({self.label}): {x:g}{unit} is outside its range "
+                            f"{low:g}..{high:g}{unit}")
+
+    def encode(self, value) -> list[int]:
+        """The registers holding the physical ``value`` (DataError naming the register when it does not fit)."""
+        if self.type == "str":
+            return encode_string(str(value), self.count).tolist()
+        self.check_range(value)
+        try:
+            return encode_values([value], self.type, self.scale, self.word_order, byte_order=self.byte_order,
+                                 offset=self.offset).tolist()
+        except DataError as exc:
+            raise DataError(f"register {self.address} ({self.label}): {exc}") from None
+
+    def decode(self, registers) -> float | int | str:
+        """The physical value ``registers`` hold (an int for unscaled integer types)."""
+        if self.type == "str":
+            return decode_string(registers)
+        value = float(decode_values(registers, self.type, self.scale, self.word_order, self.byte_order,
+                                    self.offset)[0])
+        exact = not self.type.startswith("f") and self.scale == 1.0 and self.offset == 0.0
+        if exact and self.type in ("u64", "i64"):  # beyond float64's 53 bits: from the words themselves
+            data = _order_words(np.asarray(registers, dtype=np.int64).reshape(1, -1), self.word_order,
+                                self.byte_order).astype(">u2").tobytes()
+            return int.from_bytes(data, "big", signed=self.type == "i64")
+        return int(value) if exact else value
+
+    def bit_field(self, name: str, registers) -> int:
+        """The value of bit field ``name`` (shifted down to its lowest bit)."""
+        mask = self.bits[name]
+        word = int(self.decode(registers)) if self.type != "str" else 0
+        return (word & mask) >> ((mask & -mask).bit_length() - 1)
+
+
+@dataclass(frozen=True, kw_only=True)
+class _RegisterSpec:
+    """One ``[modbus.registers]`` entry, validated by the typed schema of :mod:`hilident.config`."""
+
+    address: int = _spec(-1, ge=-1, le=65535, doc="0-based protocol address; -1: from `parameter` and the rule")
+    parameter: str = _spec("", doc='vendor parameter code resolved by [modbus.parameters] (e.g. "P08.02")')
+    type: str = _spec(choices=(*TYPES, "str"))
+    access: str = _spec("r", choices=("r", "rw"))
+    table: str = _spec("holding", choices=REGISTER_TABLES)
+    scale: float = _spec(1.0, doc="physical units per raw unit (non-zero)")
+    offset: float = _spec(0.0, doc="physical value of raw 0")
+    unit: str = _spec("")
+    min: float | None = _spec(None, doc="smallest physical value (writes below it are refused)")
+    max: float | None = _spec(None, doc="largest physical value")
+    length: int = _spec(1, ge=1, le=125, doc="str: registers")
+    word_order: str = _spec("", choices=("", *WORD_ORDERS), doc="default: [modbus] word_order")
+    byte_order: str = _spec("", choices=("", *BYTE_ORDERS), doc="default: [modbus] byte_order")
+    channel: str = _spec("", doc="drive channel the register shows")
+    channel_scale: float = _spec(1.0, doc="SI units of the channel per physical unit")
+    description: str = _spec("")
+
+
+@dataclass(frozen=True)
+class ParameterRule:
+    """Parameter addressing: ``address = group * group_factor + index * index_factor + base``.
+
+    A rule is written as in the vendor's manual, ``"group * 0x100 + index"`` or
+    ``"group * 256 + 2 * index"``: a sum of terms, each an integer, ``group``,
+    ``index``, or an integer times one of them (decimal or ``0x`` hex). It is
+    parsed, never evaluated as code. Parameter codes are ``<prefix><group>.<index>``
+    (``P08.02``: group 8, index 2), both decimal.
+
+    >>> rule = ParameterRule.parse("group * 0x100 + index")
+    >>> hex(rule.address_of("P08.02")), rule.code(0x1201)
+    ('0x802', 'P18.01')
+    """
+
+    group_factor: int
+    index_factor: int
+    base: int = 0
+    prefix: str = "P"
+    text: str = ""
+
+    @classmethod
+    def parse(cls, text, prefix: str = "P", key: str = "modbus.parameters.address", source: str = ""):
+        """Read a rule; ConfigError naming ``key`` when it is not a sum of the allowed terms."""
+        def bad(why):
+            raise ConfigError(key, f"{why} in {text!r}; write it as a sum of terms such as "
+                                   '"group * 0x100 + index" or "group * 256 + 2 * index"', source or None)
+
+        if not isinstance(text, str) or not text.strip() or len(text) > 200:
+            bad("a rule must be a short string")
+        factors = {"group": 0, "index": 0, "": 0}
+        number = r"(?:0[xX][0-9a-fA-F]+|\d+)"
+        term = re.compile(rf"^(?:({number})\s*\*\s*(group|index)|(group|index)\s*\*\s*({number})|"
+                          rf"(group|index)|({number}))$")
+        for raw in text.split("+"):
+            m = term.match(raw.strip())
+            if not m:
+                bad(f"{raw.strip()!r} is not a term (an integer, group, index, or an integer times one of them)")
+            n1, v1, v2, n2, v3, n3 = m.groups()
+            name = v1 or v2 or v3 or ""
+            factors[name] += int(n1 or n2 or n3 or "1", 0)
+        if not factors["group"] or not factors["index"]:
+            bad("the rule must use both group and index")
+        return cls(factors["group"], factors["index"], factors[""], prefix, text)
+
+    def split(self, code: str) -> tuple[int, int]:
+        """``(group, index)`` of a parameter code; DataError when it is not one."""
+        m = re.fullmatch(rf"{re.escape(self.prefix)}(\d{{1,3}})\.(\d{{1,3}})", code or "")
+        if not m:
+            raise DataError(f"{code!r} is not a parameter code ({self.prefix}<group>.<index>, e.g. {self.prefix}08.02)")
+        return int(m.group(1)), int(m.group(2))
+
+    def address_of(self, code: str) -> int:
+        """The protocol address of parameter ``code`` (DataError beyond the 16-bit address space)."""
+        group, index = self.split(code)
+        address = group * self.group_factor + index * self.index_factor + self.base
+        if not 0 <= address <= 0xFFFF:
+            raise DataError(f"parameter {code} gives address {address}, outside 0..65535 ({self.text})")
+        return address
+
+    def code(self, address: int) -> str | None:
+        """The parameter code at ``address``, or None when the rule gives no parameter there."""
+        rest = address - self.base
+        group, rest = divmod(rest, self.group_factor)
+        index, left = divmod(rest, self.index_factor)
+        if left or group < 0 or index < 0 or index * self.index_factor >= self.group_factor:
+            return None
+        return f"{self.prefix}{group:02d}.{index:02d}"
 
 
 @dataclass(frozen=True)
@@ -452,6 +678,266 @@ class FilterSlots:
         return self.base + (self.slots - 1) * self.stride + self.span if self.slots else self.base
 
 
+@dataclass(frozen=True)
+class FieldSlots:
+    """Filter slots whose fields are named registers of the map (a vendor's notch parameters).
+
+    Attributes
+    ----------
+    registers : tuple of dict
+        Per slot, field name (``center``, ``width``, ``depth``, ... of the
+        encoding, and ``enable`` when the drive has one) to its :class:`Register`.
+    off : dict
+        Drives without an enable register: the field and stored integer that
+        bypass the slot (``{"center": 4000}``); the other fields keep their values.
+    """
+
+    registers: tuple
+    off: dict = field(default_factory=dict, hash=False, compare=False)
+
+    @property
+    def slots(self) -> int:
+        return len(self.registers)
+
+    @property
+    def has_enable(self) -> bool:
+        return bool(self.registers) and "enable" in self.registers[0]
+
+    def fields(self, slot: int) -> dict:
+        """Field name to :class:`Register` of ``slot`` (DataError when there is no such slot)."""
+        if not 0 <= slot < self.slots:
+            raise DataError(f"filter slot {slot} does not exist (the drive has {self.slots})")
+        return self.registers[slot]
+
+    def address(self, slot: int) -> int:
+        """The lowest address of the slot's fields."""
+        return min(r.address for r in self.fields(slot).values())
+
+    def slot_at(self, address: int) -> int | None:
+        for i, regs in enumerate(self.registers):
+            if any(r.address <= address < r.end for r in regs.values()):
+                return i
+        return None
+
+
+def _fail_in(source: str):
+    def fail(key, message):
+        raise ConfigError(key, message, source or None)
+    return fail
+
+
+def _parse_rule(mb: dict, source: str) -> ParameterRule:
+    """``[modbus.parameters]``: ``address`` (the rule) and ``prefix`` of the parameter codes."""
+    fail = _fail_in(source)
+    table = mb["parameters"]
+    if not isinstance(table, dict):
+        fail("modbus.parameters", "must be a table {address, prefix}")
+    unknown = set(table) - {"address", "prefix"}
+    if unknown:
+        fail(f"modbus.parameters.{sorted(unknown)[0]}", "unknown key (known here: address, prefix)")
+    prefix = table.get("prefix", "P")
+    if not isinstance(prefix, str) or not re.fullmatch(r"[A-Za-z]{0,8}", prefix):
+        fail("modbus.parameters.prefix", f"must be up to 8 letters, got {prefix!r}")
+    if "address" not in table:
+        fail("modbus.parameters.address", 'is required (e.g. "group * 0x100 + index")')
+    return ParameterRule.parse(table["address"], prefix, "modbus.parameters.address", source)
+
+
+def _parse_registers(table: dict, rule: ParameterRule | None, word_order: str, byte_order: str,
+                     source: str) -> dict[str, Register]:
+    """``[modbus.registers]``: each entry through the typed schema, plus ``bits`` and ``default``."""
+    fail = _fail_in(source)
+    registers: dict[str, Register] = {}
+    for name, raw in table.items():
+        key = f"modbus.registers.{name}"
+        if not isinstance(raw, dict):
+            fail(key, "must be a table {address, type, access}")
+        spec = build_table(_RegisterSpec, {k: v for k, v in raw.items() if k not in ("bits", "default")},
+                           key + ".", source)
+        if spec.scale == 0:
+            fail(f"{key}.scale", "must be a non-zero finite number, got 0")
+        count = spec.length if spec.type == "str" else TYPES[spec.type][0]
+        code, address = spec.parameter, spec.address
+        if address < 0:
+            code = code or name
+            if rule is None:
+                fail(f"{key}.address", "is required (or a parameter code with a [modbus.parameters] rule)")
+            try:
+                address = rule.address_of(code)
+            except DataError as exc:
+                fail(f"{key}.parameter" if spec.parameter else f"{key}.address", str(exc))
+        elif code and rule is not None:
+            try:
+                if rule.address_of(code) != address:
+                    fail(f"{key}.address", f"{address:#06x} is not where {rule.text!r} puts {code}")
+            except DataError as exc:
+                fail(f"{key}.parameter", str(exc))
+        if address + count > 65536:
+            fail(f"{key}.address", f"{count} registers from {address} leave the 16-bit address space")
+        if spec.table == "input" and spec.access == "rw":
+            fail(f"{key}.access", 'an input register is read only: "r"')
+        low, high = spec.min, spec.max
+        if low is not None and high is not None and low > high:
+            fail(f"{key}.min", f"{low:g} is above max {high:g}")
+        register = Register(
+            name, address, spec.type, spec.access, spec.scale, count, spec.word_order or word_order,
+            spec.byte_order or byte_order, spec.table, spec.offset, spec.unit, low, high,
+            _parse_bits(raw.get("bits", {}), spec.type, count, f"{key}.bits", fail), code, spec.channel,
+            spec.channel_scale, None)
+        if "default" in raw:
+            default = raw["default"]
+            if isinstance(default, bool) or not isinstance(default, (int, float, str)) \
+                    or isinstance(default, str) != (spec.type == "str"):
+                fail(f"{key}.default", f"must be a {'string' if spec.type == 'str' else 'number'}, got {default!r}")
+            try:
+                register.encode(default)
+            except DataError as exc:
+                fail(f"{key}.default", str(exc))
+            register = replace(register, default=default)
+        registers[name] = register
+    return registers
+
+
+def _parse_bits(bits, type_: str, count: int, key: str, fail) -> dict[str, int]:
+    """``bits = { name = mask }``: masks of an integer register, non-zero, within its width."""
+    if not isinstance(bits, dict):
+        fail(key, f"must be a table {{name = mask}}, got {bits!r}")
+    if bits and (type_ == "str" or type_.startswith("f")):
+        fail(key, f"bit fields need an integer type, not {type_}")
+    out = {}
+    for name, mask in bits.items():
+        if isinstance(mask, bool) or not isinstance(mask, int) or not 0 < mask < 1 << (16 * count):
+            fail(f"{key}.{name}", f"must be a non-zero mask within {16 * count} bits, got {mask!r}")
+        out[name] = mask
+    return out
+
+
+def _check_required(registers: dict[str, Register], fail) -> None:
+    """A map with the excitation capability names every register of hilident's table-and-capture protocol."""
+    for name, types in REQUIRED_REGISTERS.items():
+        if name not in registers:
+            fail(f"modbus.registers.{name}", "is required")
+        if registers[name].type not in types:
+            fail(f"modbus.registers.{name}.type", f"must be one of {types}, got {registers[name].type!r}")
+    for name in WRITABLE:
+        if not registers[name].writable:
+            fail(f"modbus.registers.{name}.access", 'must be "rw": the host writes it')
+    for name, types in OPTIONAL_REGISTERS.items():
+        if name in registers and registers[name].type not in types:
+            fail(f"modbus.registers.{name}.type", f"must be one of {types}, got {registers[name].type!r}")
+        if name in registers and not registers[name].writable:
+            fail(f"modbus.registers.{name}.access", 'must be "rw": the host writes it')
+
+
+def _named_register(value, registers: dict, rule: ParameterRule | None, key: str, fail) -> Register:
+    """A register of the map by name, or by parameter code through the rule (a ``u16`` holding register)."""
+    if not isinstance(value, str):
+        fail(key, f"must name a register or a parameter code, got {value!r}")
+    if value in registers:
+        return registers[value]
+    for r in registers.values():
+        if r.parameter == value:
+            return r
+    if rule is None:
+        fail(key, f"{value!r} is no register of [modbus.registers]")
+    try:
+        return Register(value, rule.address_of(value), "u16", "rw", parameter=value)
+    except DataError as exc:
+        fail(key, f"{value!r} is no register of [modbus.registers], nor a parameter: {exc}")
+
+
+def _parse_field_slots(ft: dict, encoding: FilterEncoding, registers: dict, rule, filter_slots: int,
+                       fail) -> FieldSlots:
+    """``[modbus.filters]`` with ``slots = [{center = ..., width = ..., depth = ...}]`` and ``off`` or ``enable``."""
+    if encoding.kind == "word_block" or encoding.kind not in ("notch_parameters", "index_table", "pole_zero_q",
+                                                                "pole_zero_damping", "center_band"):
+        fail("filters.encoding", f"filter slots of named registers hold notch parameters, not {encoding.kind!r}")
+    unknown = set(ft) - {"slots", "off"}
+    if unknown:
+        fail(f"modbus.filters.{sorted(unknown)[0]}", "unknown key (known with slots: slots, off)")
+    raw = ft["slots"]
+    if not isinstance(raw, list) or len(raw) != filter_slots:
+        fail("modbus.filters.slots", f"must list board.filter_slots = {filter_slots} slot(s), got "
+                                     f"{len(raw) if isinstance(raw, list) else raw!r}")
+    slots = []
+    for i, entry in enumerate(raw):
+        key = f"modbus.filters.slots[{i}]"
+        names = (*encoding.fields, "enable")
+        if not isinstance(entry, dict) or set(entry) - set(names) or not set(encoding.fields) <= set(entry):
+            fail(key, f"must name the register of each of {', '.join(encoding.fields)} (and optionally enable)")
+        regs = {}
+        for name in entry:
+            r = _named_register(entry[name], registers, rule, f"{key}.{name}", fail)
+            if r.type == "str" or r.table != "holding" or r.access != "rw":
+                fail(f"{key}.{name}", f"{r.label} must be a numeric read-write holding register")
+            regs[name] = r
+        slots.append(regs)
+    off = ft.get("off", {})
+    has_enable = bool(slots) and "enable" in slots[0]
+    if not isinstance(off, dict) or (not has_enable and len(off) != 1) or set(off) - set(encoding.fields):
+        fail("modbus.filters.off", "slots without an enable register need off = {field = stored value} "
+                                   f"for one of {', '.join(encoding.fields)}: the value that bypasses the slot")
+    for name, value in off.items():
+        if isinstance(value, bool) or not isinstance(value, int):
+            fail(f"modbus.filters.off.{name}", f"must be the stored integer, got {value!r}")
+    return FieldSlots(tuple(slots), dict(off))
+
+
+def _parse_identity(mb: dict, registers: dict, excitation: bool, fail) -> tuple[tuple[str, ...], dict]:
+    """``[modbus.identity]``: registers read at connect (``registers``) and values they must hold (``expect``)."""
+    table = mb.get("identity")
+    if table is None:
+        if not excitation:
+            fail("modbus.identity", "table is required: the registers that identify the drive "
+                                    '(registers = ["motor_model", "software_version"])')
+        return (), {}
+    if not isinstance(table, dict) or set(table) - {"registers", "expect"}:
+        fail("modbus.identity", "must be a table {registers, expect}")
+    names = table.get("registers", [])
+    if not isinstance(names, list) or not names or any(n not in registers for n in names):
+        fail("modbus.identity.registers", f"must list registers of [modbus.registers], got {names!r}")
+    expect = table.get("expect", {})
+    if not isinstance(expect, dict):
+        fail("modbus.identity.expect", "must be a table {register = value}")
+    for name, value in expect.items():
+        if name not in names:
+            fail(f"modbus.identity.expect.{name}", "must be one of modbus.identity.registers")
+        if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+            fail(f"modbus.identity.expect.{name}", f"must be a number or a string, got {value!r}")
+    return tuple(names), dict(expect)
+
+
+def _parse_save(mb: dict, registers: dict, rule, fail) -> tuple[str, float] | None:
+    """``[modbus.save]``: the register (or parameter) written to store the parameters, and the value."""
+    table = mb.get("save")
+    if table is None:
+        return None
+    if not isinstance(table, dict) or set(table) != {"register", "value"}:
+        fail("modbus.save", "must be a table {register, value}")
+    r = _named_register(table["register"], registers, rule, "modbus.save.register", fail)
+    if r.name not in registers:
+        registers[r.name] = r
+    if not r.writable:
+        fail("modbus.save.register", f"{r.label} must be a read-write holding register")
+    value = table["value"]
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        fail("modbus.save.value", f"must be a number, got {value!r}")
+    return r.name, value
+
+
+def _parse_stop(mb: dict, registers: dict, fail) -> dict:
+    """``[modbus.stop]``: register values that bring the axis to a stop (written at connect and on every ending)."""
+    table = mb.get("stop", {})
+    if not isinstance(table, dict):
+        fail("modbus.stop", "must be a table {register = value}")
+    for name, value in table.items():
+        if name not in registers or not registers[name].writable:
+            fail(f"modbus.stop.{name}", "must name a read-write holding register of [modbus.registers]")
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            fail(f"modbus.stop.{name}", f"must be a number, got {value!r}")
+    return dict(table)
+
+
 class RegisterMap:
     """A parsed Modbus register map (see the module docstring and ``drivers/modbus-servo/README.md``).
 
@@ -461,8 +947,16 @@ class RegisterMap:
     def __init__(self, *, map_version: int, device_type: int, word_order: str, max_read: int, max_write: int,
                  registers: dict[str, Register], control: dict[str, int], status: dict[str, int],
                  fault_codes: dict[str, int], modes: dict[str, int], table: Window, table_type: str,
-                 table_scale: float, capture: Window, capture_channels: tuple[CaptureChannel, ...],
-                 filters: FilterSlots, filter_encoding: FilterEncoding):
+                 table_scale: float, capture: Window | None, capture_channels: tuple[CaptureChannel, ...],
+                 filters: FilterSlots | FieldSlots | None, filter_encoding: FilterEncoding | None,
+                 byte_order: str = "big", rule: ParameterRule | None = None, identity: tuple[str, ...] = (),
+                 expect: dict | None = None, save: tuple[str, float] | None = None, stop: dict | None = None):
+        self.byte_order = byte_order
+        self.rule = rule
+        self.identity = identity
+        self.expect = dict(expect or {})
+        self.save = save
+        self.stop = dict(stop or {})
         self.map_version = map_version
         self.device_type = device_type
         self.word_order = word_order
@@ -525,126 +1019,139 @@ class RegisterMap:
         word_order = mb.get("word_order", "big")
         if word_order not in WORD_ORDERS:
             fail("modbus.word_order", f"must be one of {WORD_ORDERS}, got {word_order!r}")
+        byte_order = mb.get("byte_order", "big")
+        if byte_order not in BYTE_ORDERS:
+            fail("modbus.byte_order", f"must be one of {BYTE_ORDERS}, got {byte_order!r}")
         max_read = integer(mb, "max_read_registers", "modbus", 1, 125, 125)
         max_write = integer(mb, "max_write_registers", "modbus", 1, 123, 123)
+        rule = _parse_rule(mb, source) if "parameters" in mb else None
+        registers = _parse_registers(subtable(mb, "registers", "modbus"), rule, word_order, byte_order, source)
+        excitation = "table" in mb or "capture" in mb
 
-        registers: dict[str, Register] = {}
-        for name, spec in subtable(mb, "registers", "modbus").items():
-            key = f"modbus.registers.{name}"
-            if not isinstance(spec, dict):
-                fail(key, "must be a table {address, type, access}")
-            unknown = set(spec) - {"address", "type", "access", "scale", "length"}
-            if unknown:
-                fail(f"{key}.{sorted(unknown)[0]}", "unknown key (known: address, type, access, scale, length)")
-            type_ = spec.get("type")
-            if type_ not in (*TYPES, "str"):
-                fail(f"{key}.type", f"must be one of {(*TYPES, 'str')}, got {type_!r}")
-            access = spec.get("access", "r")
-            if access not in ("r", "rw"):
-                fail(f"{key}.access", f'must be "r" or "rw", got {access!r}')
-            count = integer(spec, "length", key, 1, 125) if type_ == "str" else TYPES[type_][0]
-            address = integer(spec, "address", key, 0, 65536 - count)
-            registers[name] = Register(name, address, type_, access, number(spec, "scale", key, 1.0), count)
-        for name, types in REQUIRED_REGISTERS.items():
-            if name not in registers:
-                fail(f"modbus.registers.{name}", "is required")
-            if registers[name].type not in types:
-                fail(f"modbus.registers.{name}.type", f"must be one of {types}, got {registers[name].type!r}")
-        for name in WRITABLE:
-            if not registers[name].writable:
-                fail(f"modbus.registers.{name}.access", 'must be "rw": the host writes it')
-        for name, types in OPTIONAL_REGISTERS.items():
-            if name in registers and registers[name].type not in types:
-                fail(f"modbus.registers.{name}.type", f"must be one of {types}, got {registers[name].type!r}")
-            if name in registers and not registers[name].writable:
-                fail(f"modbus.registers.{name}.access", 'must be "rw": the host writes it')
+        control, status, fault_codes, modes = {}, {}, {}, {}
+        table = capture = None
+        table_type, table_scale, channels = "f32", 1.0, []
+        if excitation:
+            _check_required(registers, fail)
 
-        def codes(key, names, bits):
-            table = subtable(mb, key, "modbus")
-            out = {}
-            for name in names:
-                value = integer(table, name, f"modbus.{key}", 1, 0xFFFF)
-                if bits and value & (value - 1):
-                    fail(f"modbus.{key}.{name}", f"must be a single bit, got {value:#x}")
-                out[name] = value
-            if len(set(out.values())) != len(out):
-                fail(f"modbus.{key}", "values must be distinct")
-            return out
+            def codes(key, names, bits):
+                table = subtable(mb, key, "modbus")
+                out = {}
+                for name in names:
+                    value = integer(table, name, f"modbus.{key}", 1, 0xFFFF)
+                    if bits and value & (value - 1):
+                        fail(f"modbus.{key}.{name}", f"must be a single bit, got {value:#x}")
+                    out[name] = value
+                if len(set(out.values())) != len(out):
+                    fail(f"modbus.{key}", "values must be distinct")
+                return out
 
-        control = codes("control", CONTROL_BITS, True)
-        status = codes("status", STATUS_BITS, True)
-        fault_codes = codes("fault_codes", FAULT_NAMES, False)
-        fault_codes.update(_optional_fault_codes(mb["fault_codes"], registers, fault_codes, fail))
-        modes = codes("modes", MODES, False)
+            control = codes("control", CONTROL_BITS, True)
+            status = codes("status", STATUS_BITS, True)
+            fault_codes = codes("fault_codes", FAULT_NAMES, False)
+            fault_codes.update(_optional_fault_codes(mb["fault_codes"], registers, fault_codes, fail))
+            modes = codes("modes", MODES, False)
 
-        tb = subtable(mb, "table", "modbus")
-        table_type = tb.get("type", "f32")
-        if table_type not in tuple(TYPES):
-            fail("modbus.table.type", f"must be one of {tuple(TYPES)}, got {table_type!r}")
-        table_scale = number(tb, "scale", "modbus.table", 1.0)
-        table_page = integer(tb, "page_samples", "modbus.table", 1, 65535)
-        table = Window("table", integer(tb, "base", "modbus.table", 0, 65535), table_page,
-                       integer(tb, "capacity_samples", "modbus.table", 1, 2**32 - 1, 65536),
-                       table_page * TYPES[table_type][0], "table_page")
+            tb = subtable(mb, "table", "modbus")
+            table_type = tb.get("type", "f32")
+            if table_type not in WINDOW_TYPES:
+                fail("modbus.table.type", f"must be one of {WINDOW_TYPES}, got {table_type!r}")
+            table_scale = number(tb, "scale", "modbus.table", 1.0)
+            table_page = integer(tb, "page_samples", "modbus.table", 1, 65535)
+            table = Window("table", integer(tb, "base", "modbus.table", 0, 65535), table_page,
+                           integer(tb, "capacity_samples", "modbus.table", 1, 2**32 - 1, 65536),
+                           table_page * TYPES[table_type][0], "table_page")
 
-        cp = subtable(mb, "capture", "modbus")
-        channels = []
-        raw_channels = cp.get("channels")
-        if not isinstance(raw_channels, list) or not raw_channels:
-            fail("modbus.capture.channels", "needs at least one [[modbus.capture.channels]] entry")
-        if len(raw_channels) > 16:
-            fail("modbus.capture.channels", f"capture_mask has 16 bits; {len(raw_channels)} channels given")
-        for i, ch in enumerate(raw_channels):
-            key = f"modbus.capture.channels[{i}]"
-            if not isinstance(ch, dict) or not isinstance(ch.get("name"), str):
-                fail(f"{key}.name", "is required")
-            if ch.get("type") not in tuple(TYPES):
-                fail(f"{key}.type", f"must be one of {tuple(TYPES)}, got {ch.get('type')!r}")
-            channels.append(CaptureChannel(ch["name"], ch["type"], number(ch, "scale", key, 1.0), i))
-        if len({c.name for c in channels}) != len(channels):
-            fail("modbus.capture.channels", "channel names must be distinct")
-        capture_page = integer(cp, "page_samples", "modbus.capture", 1, 65535)
-        record_max = 1 + sum(c.count for c in channels)
-        capture = Window("capture", integer(cp, "base", "modbus.capture", 0, 65535), capture_page,
-                         integer(cp, "capacity_samples", "modbus.capture", 1, 2**32 - 1, 65536),
-                         capture_page * record_max, "capture_page")
+            cp = subtable(mb, "capture", "modbus")
+            raw_channels = cp.get("channels")
+            if not isinstance(raw_channels, list) or not raw_channels:
+                fail("modbus.capture.channels", "needs at least one [[modbus.capture.channels]] entry")
+            if len(raw_channels) > 16:
+                fail("modbus.capture.channels", f"capture_mask has 16 bits; {len(raw_channels)} channels given")
+            for i, ch in enumerate(raw_channels):
+                key = f"modbus.capture.channels[{i}]"
+                if not isinstance(ch, dict) or not isinstance(ch.get("name"), str):
+                    fail(f"{key}.name", "is required")
+                if ch.get("type") not in WINDOW_TYPES:
+                    fail(f"{key}.type", f"must be one of {WINDOW_TYPES}, got {ch.get('type')!r}")
+                channels.append(CaptureChannel(ch["name"], ch["type"], number(ch, "scale", key, 1.0), i))
+            if len({c.name for c in channels}) != len(channels):
+                fail("modbus.capture.channels", "channel names must be distinct")
+            capture_page = integer(cp, "page_samples", "modbus.capture", 1, 65535)
+            record_max = 1 + sum(c.count for c in channels)
+            capture = Window("capture", integer(cp, "base", "modbus.capture", 0, 65535), capture_page,
+                             integer(cp, "capacity_samples", "modbus.capture", 1, 2**32 - 1, 65536),
+                             capture_page * record_max, "capture_page")
+            for w in (table, capture):
+                if w.end > 65536:
+                    fail(f"modbus.{w.name}.base", f"the window {w.base}..{w.end - 1} leaves the 16-bit address space")
+                if w.pages > 65536:
+                    fail(f"modbus.{w.name}.page_samples", f"{w.pages} pages do not fit the u16 {w.page_register}")
 
-        ft = subtable(mb, "filters", "modbus")
-        offsets = {f: integer(ft, f, "modbus.filters", 0, 3) for f in FILTER_FIELDS}
-        if sorted(offsets.values()) != [0, 1, 2, 3]:
-            fail("modbus.filters", "center, width, depth and enable must be the offsets 0, 1, 2, 3 in some order")
-        filters = FilterSlots(integer(ft, "base", "modbus.filters", 0, 65535),
-                              integer(ft, "stride", "modbus.filters", 4, 65535, 4), filter_slots, offsets)
-        encoding = FilterEncoding.from_table(sections.get("filters", {}), source)
-        if encoding.kind != "notch_parameters":
-            fail("filters.encoding", f'a Modbus drive map holds "notch_parameters", got {encoding.kind!r}')
+        filters = encoding = None
+        if excitation or "filters" in mb:
+            encoding = FilterEncoding.from_table(sections.get("filters", {}), source)
+            ft = subtable(mb, "filters", "modbus")
+            if "slots" in ft:
+                filters = _parse_field_slots(ft, encoding, registers, rule, filter_slots, fail)
+            else:
+                if encoding.kind != "notch_parameters":
+                    fail("filters.encoding", f'a Modbus drive map holds "notch_parameters", got {encoding.kind!r}')
+                offsets = {f: integer(ft, f, "modbus.filters", 0, 3) for f in FILTER_FIELDS}
+                if sorted(offsets.values()) != [0, 1, 2, 3]:
+                    fail("modbus.filters", "center, width, depth and enable must be the offsets 0, 1, 2, 3 in some order")
+                filters = FilterSlots(integer(ft, "base", "modbus.filters", 0, 65535),
+                                      integer(ft, "stride", "modbus.filters", 4, 65535, 4), filter_slots, offsets)
+                if filters.end > 65536:
+                    fail("modbus.filters.base", "the filter slots leave the 16-bit address space")
+        elif filter_slots:
+            fail("modbus.filters", f"is required: board.filter_slots = {filter_slots}")
 
-        for w in (table, capture):
-            if w.end > 65536:
-                fail(f"modbus.{w.name}.base", f"the window {w.base}..{w.end - 1} leaves the 16-bit address space")
-            if w.pages > 65536:
-                fail(f"modbus.{w.name}.page_samples", f"{w.pages} pages do not fit the u16 {w.page_register}")
-        if filters.end > 65536:
-            fail("modbus.filters.base", "the filter slots leave the 16-bit address space")
+        identity, expect = _parse_identity(mb, registers, excitation, fail)
+        save = _parse_save(mb, registers, rule, fail)
+        stop = _parse_stop(mb, registers, fail)
 
-        # nothing may overlap: registers, windows, filter slots
-        spans = [(r.address, r.end, f"modbus.registers.{r.name}") for r in registers.values()]
-        spans += [(w.base, w.end, f"modbus.{w.name}") for w in (table, capture)]
-        spans += [(filters.base + i * filters.stride, filters.base + i * filters.stride + filters.span,
-                   f"modbus.filters (slot {i})") for i in range(filter_slots)]
+        # nothing may overlap: registers (holding and input apart), windows, filter slots
+        spans = [(r.table, r.address, r.end, f"modbus.registers.{r.name}") for r in registers.values()]
+        spans += [("holding", w.base, w.end, f"modbus.{w.name}") for w in (table, capture) if w is not None]
+        if isinstance(filters, FilterSlots):
+            spans += [("holding", filters.base + i * filters.stride, filters.base + i * filters.stride + filters.span,
+                       f"modbus.filters (slot {i})") for i in range(filter_slots)]
         spans.sort()
-        for (a0, a1, k0), (b0, b1, k1) in zip(spans, spans[1:]):
-            if b0 < a1:
+        for (t0, a0, a1, k0), (t1, b0, b1, k1) in zip(spans, spans[1:]):
+            if t0 == t1 and b0 < a1:
                 fail(k1, f"registers {b0}..{b1 - 1} overlap {k0} ({a0}..{a1 - 1})")
 
         return cls(
-            map_version=integer(mb, "map_version", "modbus", 0, 0xFFFF),
-            device_type=integer(mb, "device_type", "modbus", 0, 0xFFFF),
+            map_version=integer(mb, "map_version", "modbus", 0, 0xFFFF, None if excitation else 0),
+            device_type=integer(mb, "device_type", "modbus", 0, 0xFFFF, None if excitation else 0),
             word_order=word_order, max_read=max_read, max_write=max_write, registers=registers,
             control=control, status=status, fault_codes=fault_codes, modes=modes,
             table=table, table_type=table_type, table_scale=table_scale,
             capture=capture, capture_channels=tuple(channels), filters=filters, filter_encoding=encoding,
+            byte_order=byte_order, rule=rule, identity=identity, expect=expect, save=save, stop=stop,
         )
+
+    @property
+    def excitation(self) -> bool:
+        """Whether the drive offers hilident's excitation-table and capture capability."""
+        return self.table is not None
+
+    def parameter(self, code: str) -> Register:
+        """The register of vendor parameter ``code`` (``"P08.02"``): the map's own entry, else a ``u16``
+        holding register at the rule's address.
+
+        Raises
+        ------
+        DataError
+            The map has no parameter rule, or ``code`` is not a parameter code.
+        """
+        for r in self.registers.values():
+            if r.parameter == code or r.name == code:
+                return r
+        if self.rule is None:
+            raise DataError(f"the map has no [modbus.parameters] rule to find parameter {code!r}")
+        return Register(code, self.rule.address_of(code), "u16", "rw", parameter=code)
 
     # --- single registers ----------------------------------------------------------------
 
@@ -652,22 +1159,13 @@ class RegisterMap:
         return self.registers[name]
 
     def encode(self, name: str, value) -> list[int]:
-        """Registers holding ``value`` in register ``name`` (DataError when it does not fit)."""
-        r = self.registers[name]
-        if r.type == "str":
-            return encode_string(str(value), r.count).tolist()
-        try:
-            return encode_values([value], r.type, r.scale, self.word_order).tolist()
-        except DataError as exc:
-            raise DataError(f"register {r.address} ({name}): {exc}") from None
+        """Registers holding ``value`` in register ``name`` (DataError naming the register when it does not fit
+        or lies outside the register's range)."""
+        return self.registers[name].encode(value)
 
     def decode(self, name: str, registers) -> float | int | str:
         """The value ``registers`` hold in register ``name`` (ints for unscaled integer types)."""
-        r = self.registers[name]
-        if r.type == "str":
-            return decode_string(registers)
-        value = float(decode_values(registers, r.type, r.scale, self.word_order)[0])
-        return int(value) if r.type != "f32" and r.scale == 1.0 else value
+        return self.registers[name].decode(registers)
 
     def span(self, *names: str) -> tuple[int, int]:
         """``(address, count)`` of one request covering registers ``names``."""
@@ -682,14 +1180,20 @@ class RegisterMap:
         drive answers a read across a gap with exception 2); each request holds
         at most ``max_read`` registers.
         """
-        regs = sorted((self.registers[n] for n in names), key=lambda r: r.address)
-        groups: list[list[int]] = []
+        return [(a, n) for _, a, n in self.request_groups(names)]
+
+    def request_groups(self, names) -> list[tuple[str, int, int]]:
+        """``(table, address, count)`` read requests covering registers ``names``: as :meth:`read_groups`,
+        holding and input registers apart."""
+        regs = sorted((self.registers[n] for n in names), key=lambda r: (r.table, r.address))
+        groups: list[list] = []
         for r in regs:
-            if groups and r.address == groups[-1][1] and r.end - groups[-1][0] <= self.max_read:
-                groups[-1][1] = r.end
+            if groups and r.table == groups[-1][0] and r.address == groups[-1][2] \
+                    and r.end - groups[-1][1] <= self.max_read:
+                groups[-1][2] = r.end
             else:
-                groups.append([r.address, r.end])
-        return [(a, b - a) for a, b in groups]
+                groups.append([r.table, r.address, r.end])
+        return [(t, a, b - a) for t, a, b in groups]
 
     def decode_span(self, names, address: int, registers) -> dict:
         """Values of ``names`` from ``registers`` read starting at ``address``."""
@@ -699,17 +1203,23 @@ class RegisterMap:
             out[n] = self.decode(n, registers[r.address - address : r.end - address])
         return out
 
-    def describe(self, address: int, count: int = 1, page: int | None = None) -> str:
+    def describe(self, address: int, count: int = 1, page: int | None = None, table: str = "holding") -> str:
         """Human-readable name of registers ``address .. address + count - 1`` (for messages)."""
         last = address + max(count, 1) - 1
-        where = f"register {address}" if last == address else f"registers {address}..{last}"
-        names = [r.name for r in sorted(self.registers.values(), key=lambda r: r.address)
-                 if r.address <= last and r.end > address]
+        fmt = "#06x" if self.rule is not None else "d"
+        where = f"register {address:{fmt}}" if last == address else f"registers {address:{fmt}}..{last:{fmt}}"
+        names = [r.label for r in sorted(self.registers.values(), key=lambda r: r.address)
+                 if r.address <= last and r.end > address and r.table == table]
         for w, label in ((self.table, "excitation table window"), (self.capture, "capture window")):
-            if w.base <= last and w.end > address:
+            if w is not None and table == "holding" and w.base <= last and w.end > address:
                 names.append(label + (f", page {page}" if page is not None else ""))
-        slots = sorted({s for a in range(address, last + 1) if (s := self.filters.slot_at(a)) is not None})
-        names += [f"filter slot {s}" for s in slots]
+        if self.filters is not None and table == "holding":
+            slots = sorted({s for a in range(address, last + 1) if (s := self.filters.slot_at(a)) is not None})
+            names += [f"filter slot {s}" for s in slots]
+        if not names and self.rule is not None and table == "holding" and (code := self.rule.code(address)):
+            names.append(f"parameter {code}")
+        if table == "input":
+            where = "input " + where
         return f"{where} ({', '.join(names) or 'not in the driver map'})"
 
     # --- codes and bits --------------------------------------------------------------------
