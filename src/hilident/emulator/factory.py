@@ -136,20 +136,10 @@ def start_emulator(cfg: EmulatorConfig, driver: DriverDescription, device: Devic
 
         starters["canopen"] = start_canopen
     elif driver.transport == "modbus":
-        starters["modbus"] = _modbus_starter(driver)
+        from hilident.emulator.modbus_drive import start as start_modbus
+
+        starters["modbus"] = start_modbus
     return starters[driver.transport](cfg, driver, device)
-
-
-def _modbus_starter(driver: DriverDescription) -> Callable[..., EmulatedDevice]:
-    """The Modbus twin of ``driver``: hilident's table-and-capture drive, or a parameter drive (a real drive's
-    parameter list, without the excitation capability)."""
-    from hilident.protocol.modbus_registers import RegisterMap
-
-    if RegisterMap.from_driver(driver).excitation:
-        from hilident.emulator.modbus_drive import start
-    else:
-        from hilident.emulator.modbus_param_firmware import start
-    return start
 
 
 def _start_serial_for_session(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig) -> EmulatedDevice:
@@ -226,7 +216,9 @@ def start_standalone(cfg: EmulatorConfig, driver: DriverDescription, device: Dev
     if driver.transport == "serial":
         return start_serial_board(cfg, driver, device.baudrate or driver.default_baudrate, link=link)
     if driver.transport == "modbus":
-        return _modbus_starter(driver)(cfg, driver, device, link="pty" if link == "rtu" else "tcp")
+        from hilident.emulator.modbus_drive import start as start_modbus
+
+        return start_modbus(cfg, driver, device, link="pty" if link == "rtu" else "tcp")
     from hilident.emulator.canopen_drive import start_socketcand
 
     return start_socketcand(cfg, driver, device, port=port)

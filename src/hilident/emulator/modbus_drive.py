@@ -68,12 +68,13 @@ from hilident.config import DeviceConfig, EmulatorConfig, FaultsConfig
 from hilident.drivers import DriverDescription
 from hilident.emulator.factory import EmulatedDevice, build_drive
 from hilident.emulator.modbus_firmware import ModbusDriveFirmware
+from hilident.emulator.modbus_param_firmware import ParameterDriveFirmware
 from hilident.emulator.modbus_pdu import (
     GATEWAY_TARGET_FAILED, ILLEGAL_DATA_ADDRESS, SERVER_DEVICE_FAILURE, WRITE_FUNCTIONS, exception_response, handle,
     request_length,
 )
 from hilident.errors import ConfigError
-from hilident.protocol.modbus_registers import EXCEPTION_MEANINGS, RegisterMap, rtu_crc
+from hilident.protocol.modbus_registers import EXCEPTION_MEANINGS, FilterSlots, RegisterMap, rtu_crc
 
 log = logging.getLogger(__name__)
 
@@ -178,7 +179,7 @@ def _address_tables(regmap: RegisterMap | None) -> tuple[np.ndarray, np.ndarray,
         if (w := getattr(regmap, name, None)) is not None:
             readable[w.base : w.end] = True
             writable[w.base : w.end] = writes
-    if (f := getattr(regmap, "filters", None)) is not None:
+    if isinstance(f := getattr(regmap, "filters", None), FilterSlots):  # FieldSlots are map registers
         for i in range(f.slots):
             readable[f.address(i) : f.address(i) + f.span] = True
             writable[f.address(i) : f.address(i) + f.span] = True
@@ -609,8 +610,11 @@ def start(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig,
     rtu = (link or cfg.link) == "pty"
     regmap = RegisterMap.from_driver(driver)
     drive = build_drive(cfg, driver)
-    firmware = ModbusDriveFirmware(drive, regmap, driver, cfg.faults.drive_fault_after_s,
-                                   cfg.faults.capture_stops_after_s)
+    if regmap.excitation:
+        firmware = ModbusDriveFirmware(drive, regmap, driver, cfg.faults.drive_fault_after_s,
+                                       cfg.faults.capture_stops_after_s)
+    else:  # a real drive's parameter list: no table, no capture
+        firmware = ParameterDriveFirmware(drive, regmap, driver)
     baudrate = device.baudrate or driver.default_baudrate
     server = ModbusDriveServer(
         firmware, device_id=device.device_id, rtu=rtu, baudrate=baudrate, parity=device.parity,
