@@ -161,7 +161,7 @@ def read_source(source: str | Path) -> Source:
         No such file or folder, no ``summary.json`` in the folder, not JSON,
         or not a summary (naming the file).
     """
-    path = Path(source)
+    path = Path(source).absolute()
     if path.is_dir():
         path = path / "summary.json"
         if not path.is_file():
@@ -291,7 +291,8 @@ def slots_for(count: int, first: int | None, designed: list[int], filter_slots: 
             raise UsageError(f"--slot {first}: {count} notch(es) from slot {first} do not fit the "
                              f"{filter_slots} filter slot(s) of {driver_name} (slots 0 to {filter_slots - 1})")
         return list(range(first, first + count))
-    if len(set(designed)) == count and all(0 <= s < filter_slots for s in designed):
+    whole = all(isinstance(s, int) and not isinstance(s, bool) for s in designed)
+    if whole and len(set(designed)) == count and all(0 <= s < filter_slots for s in designed):
         return list(designed)
     if count > filter_slots:
         raise UsageError(f"the source has {count} notches but {driver_name} has {filter_slots} filter slot(s): "
@@ -378,6 +379,7 @@ class UploadCommand:
         self.device = _Device(cfg, self.progress, self.warnings)
         self.plan: UploadPlan | None = None
         self.summary: dict = {}
+        self._created_out = False  # the command made --out (removed again when it ends before writing anything)
 
     def run(self) -> dict:
         """Connect, plan, ask, upload with rollback, store; returns the summary (also in ``<out>/summary.json``).
@@ -395,10 +397,11 @@ class UploadCommand:
         if not self.dry_run:
             self._prepare_out()
         dev = self.device
-        dev.find_driver()
         state = {"before": [], "designs": [], "slots": [], "rolled_back": [], "saved": False, "step": "connect",
                  "touched": []}
+        failed = False
         try:
+            dev.find_driver()
             dev.open_device()
             state["step"] = "plan"
             designs = self._designs()
@@ -415,6 +418,7 @@ class UploadCommand:
                 saved_with, _ = store_parameters(dev.adapter, dev.driver.transport, self.progress)
                 state.update(saved=True, saved_with=saved_with)
         except BaseException as exc:
+            failed = True
             with endings.shielded():
                 dev.safe_stop()
                 if state["touched"] and not state["rolled_back"]:
@@ -426,12 +430,17 @@ class UploadCommand:
         finally:
             with endings.shielded():
                 dev.close()
+                if failed and self._created_out and not self.summary \
+                        and not any(self.out.iterdir()):
+                    self.out.rmdir()  # refused before anything was written: no empty folder left behind
         endings.raise_pending()
         return self._write(state, started)
 
     # --- steps ------------------------------------------------------------------------------------
 
     def _prepare_out(self) -> None:
+        """The output folder takes files, or a one-line error before the device is opened."""
+        self._created_out = not self.out.exists()
         try:
             self.out.mkdir(parents=True, exist_ok=True)
             probe = self.out / ".hilident-write-test"
