@@ -261,3 +261,16 @@ def test_slot_beyond_the_devices_slots_is_a_usage_error(tmp_path, capsys):
     assert upload("--from", str(source), "--config", str(CONFIGS / "emulated-gantry.toml"), "--slot", "4",
                   "-q") == 2
     assert "--slot 4" in capsys.readouterr().err and not (tmp_path / "run-upload").exists()
+
+
+def test_a_failing_save_puts_the_slots_back(tmp_path):
+    # the shipped CANopen drive's EDS has no store object (0x1010): the save fails after the upload verified
+    cfg = load_config(CONFIGS / "emulated-canopen-gantry.toml")
+    source = write_source(tmp_path / "run", 21.79, 4000.0)
+    command = UploadCommand(cfg, source, tmp_path / "out", save=True)
+    with pytest.raises(DeviceError, match="store parameters"):
+        command.run()
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["failed_step"] == "save" and summary["upload"]["slots"][0]["matches"]
+    assert summary["upload"]["rolled_back"] == [{"slot": 0, "restored": True}] and not summary["upload"]["saved"]
+    assert command.device.emulator.drive.filters.read(0) == (Biquad.identity(), False)
