@@ -274,3 +274,31 @@ def test_a_failing_save_puts_the_slots_back(tmp_path):
     assert summary["failed_step"] == "save" and summary["upload"]["slots"][0]["matches"]
     assert summary["upload"]["rolled_back"] == [{"slot": 0, "restored": True}] and not summary["upload"]["saved"]
     assert command.device.emulator.drive.filters.read(0) == (Biquad.identity(), False)
+
+
+def test_identify_a_recording_then_upload_its_notch_to_the_modbus_twin(tmp_path):
+    # the flow of a drive hilident cannot excite: a recording made elsewhere (here a short serial-board run),
+    # identified offline, its notch uploaded to another device
+    import tomllib
+
+    import tomli_w
+    from twins import quick
+
+    raw = quick(tomllib.loads((CONFIGS / "emulated-gantry.toml").read_text()), "serial")
+    raw["excitation"]["duration_s"] = 6.0
+    (tmp_path / "run.toml").write_text(tomli_w.dumps(raw))
+    assert main(["run", str(tmp_path / "run.toml"), "--out", str(tmp_path / "run"), "-q", "--no-plots"]) == 0
+    assert main(["identify", str(tmp_path / "run" / "identification.h5"), "--out", str(tmp_path / "ident"),
+                 "-q"]) == 0
+    ident = json.loads((tmp_path / "ident" / "summary.json").read_text())
+    assert len(ident["notch_filters"]) == 1, (ident["notch_skipped_reason"], ident["warnings"])
+    (notch,) = ident["notch_filters"]
+    assert notch["center_hz"] == pytest.approx(21.79, rel=0.005)
+    command = UploadCommand(load_config(CONFIGS / "emulated-modbus-gantry.toml"), tmp_path / "ident")
+    summary = command.run()
+    (slot,) = summary["upload"]["slots"]
+    assert slot["matches"] and summary["upload"]["verified_readback"]
+    biquad, enabled = command.device.emulator.drive.filters.read(slot["slot"])
+    assert enabled and list(biquad.b) == slot["readback_b"]
+    assert abs(slot["achieved"]["depth_error_db"]) < 1.0  # the drive's parameter rounding costs under 1 dB
+    assert command.out == tmp_path / "ident-upload" and (command.out / "summary.json").is_file()
