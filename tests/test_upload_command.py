@@ -148,7 +148,7 @@ def faulty(base, bad_slot: int):
 
 def test_a_failing_read_back_rolls_every_slot_back_and_exits_with_a_partial_summary(tmp_path, locks, capsys,
                                                                                     monkeypatch, serial_twin):
-    import hilident.session as session
+    from hilident import session
 
     old = SerialBoardAdapter.stored_form(design_notch(NotchSpec(50.0, 10.0, 20.0), 4000.0))  # as the board holds it
     serial_twin.emu.drive.filters.write(0, old, True)  # an older notch the drive runs now
@@ -177,7 +177,7 @@ def vendor_config(tmp_path: Path):
 
 
 def test_save_stores_only_after_every_slot_read_back(tmp_path, monkeypatch):
-    import hilident.session as session
+    from hilident import session
 
     cfg = vendor_config(tmp_path)
     source = write_source(tmp_path / "run", 21.79, 4000.0)

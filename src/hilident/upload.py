@@ -24,12 +24,19 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 from hilident import __version__, endings, report
-from hilident.errors import ArmingRefused, ConfigError, DataError, DeviceError, HilidentError, UsageError
+from hilident.errors import (
+    ArmingRefused,
+    ConfigError,
+    DataError,
+    DeviceError,
+    HilidentError,
+    UsageError,
+)
 from hilident.session import DeviceConnection, Progress
 
 #: Attenuation lost to the device's rounding (design minus achieved at the centre) above which the run warns, dB.
