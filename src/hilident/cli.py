@@ -1,4 +1,4 @@
-"""Command line: ``hilident run``, ``hilident identify``, ``hilident upload``, ``hilident emulate serial|modbus|canopen``, ``hilident drivers``.
+"""Command line: ``hilident run``, ``identify``, ``upload``, ``emulate serial|modbus|canopen``, ``drivers``.
 
 Thin on purpose: it parses arguments and calls the session, the emulator
 factory or the driver loader. Every :class:`~hilident.errors.HilidentError`
