@@ -1,4 +1,4 @@
-"""Command line: ``hilident run``, ``hilident identify``, ``hilident emulate serial|modbus|canopen``, ``hilident drivers``.
+"""Command line: ``hilident run``, ``identify``, ``upload``, ``emulate serial|modbus|canopen``, ``drivers``.
 
 Thin on purpose: it parses arguments and calls the session, the emulator
 factory or the driver loader. Every :class:`~hilident.errors.HilidentError`
@@ -64,8 +64,10 @@ def _run(args) -> int:
     return 0
 
 
-def _go_ahead(yes: bool):
-    """How a run on a real port gets its go-ahead: ``--yes``, or the user at a terminal."""
+def _go_ahead(yes: bool, question: str = "Move the axis as planned?",
+              refusal: str = "this run moves a real axis: confirm at a terminal, or pass --yes "
+                             "(hilident run --dry-run shows the plan without moving)"):
+    """How a run (or an upload) on a real port gets its go-ahead: ``--yes``, or the user at a terminal."""
 
     def confirm(plan) -> bool:
         print(plan.describe(), file=sys.stderr, flush=True)
@@ -74,12 +76,47 @@ def _go_ahead(yes: bool):
         if not (sys.stdin.isatty() and sys.stderr.isatty()):
             from hilident.errors import ArmingRefused
 
-            raise ArmingRefused("this run moves a real axis: confirm at a terminal, or pass --yes "
-                                "(hilident run --dry-run shows the plan without moving)")
-        answer = input("Move the axis as planned? Type 'yes' to go ahead: ")
+            raise ArmingRefused(refusal)
+        answer = input(f"{question} Type 'yes' to go ahead: ")
         return answer.strip().lower() == "yes"
 
     return confirm
+
+
+def _upload(args) -> int:
+    from hilident.config import load_config
+    from hilident.session import Progress
+    from hilident.upload import UploadCommand
+
+    cfg = load_config(args.config)
+    confirm = _go_ahead(args.yes, "Write these filters to the device?",
+                        "this upload changes the filters of a real drive: confirm at a terminal, or pass --yes "
+                        "(hilident upload --dry-run shows what would be written)")
+    command = UploadCommand(cfg, getattr(args, "from"), args.out, Progress(enabled=not args.quiet), confirm=confirm,
+                            slot=args.slot, save=args.save, dry_run=args.dry_run)
+    try:
+        summary = command.run()
+    except HilidentError:
+        if command.summary:
+            _say(f"hilident: wrote {command.out / 'summary.json'} up to the failed step; every slot written "
+                 "was put back as it was")
+        raise
+    if args.dry_run:
+        print(command.plan.describe())
+        for w in summary["warnings"]:
+            print(f"warning: {w}")
+        print("dry run: device reached and its slots read; nothing written")
+        return 0
+    for s in summary["upload"]["slots"]:
+        a = s["achieved"]
+        print(f"slot {s['slot']}: read back as written, enabled; {a['attenuation_at_design_center_db']:.1f} dB at "
+              f"the designed centre ({a['depth_error_db']:+.2f} dB from the design), deepest at {a['center_hz']:.5g} Hz")
+    if summary["upload"]["saved"]:
+        print("saved: the device stored its parameters in non-volatile memory")
+    for w in summary["warnings"]:
+        print(f"warning: {w}")
+    print(f"wrote {command.out / 'summary.json'}")
+    return 0
 
 
 def _print_model(m: dict | None) -> None:
@@ -288,6 +325,24 @@ def build_parser() -> argparse.ArgumentParser:
     ide.add_argument("-q", "--quiet", action="store_true")
     ide.set_defaults(func=_identify)
 
+    upl = sub.add_parser("upload", help="upload the notches of an earlier run or identify to a device, with "
+                         "read-back, enable-after-match and rollback")
+    upl.add_argument("--from", required=True, metavar="RUN_DIR|SUMMARY", help="a run or identify folder, or its "
+                     "summary.json")
+    upl.add_argument("--config", required=True, help="TOML configuration of the device ([device], [emulator] for "
+                     "the twin, [notch] for a notch designed at another filter rate)")
+    upl.add_argument("--slot", type=int, help="first filter slot (the notches go to it and the ones after it; "
+                     "default: the slots they were designed for)")
+    upl.add_argument("--save", action="store_true", help="once every slot read back as written, have the device "
+                     "store its parameters in non-volatile memory")
+    upl.add_argument("--dry-run", action="store_true", help="connect, read the slots, print what would be written "
+                     "(the stored form and its attenuation); write nothing")
+    upl.add_argument("--yes", action="store_true", help="go ahead on a real port without asking (the plan is still "
+                     "printed)")
+    upl.add_argument("--out", help="output folder (default: a new folder beside the source, <source>-upload)")
+    upl.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    upl.set_defaults(func=_upload)
+
     emu = sub.add_parser("emulate", help="run an emulated device standalone")
     emu_sub = emu.add_subparsers(dest="transport", required=True)
     ser = emu_sub.add_parser("serial", help="emulated serial board on a pseudo-terminal; prints its device path or URL")
@@ -334,7 +389,7 @@ def main(argv: list[str] | None = None) -> int:
 
     args = build_parser().parse_args(argv)
     try:
-        if args.command == "run":
+        if args.command in ("run", "upload"):
             with endings.signals_end_the_session():
                 return args.func(args)
         return args.func(args)

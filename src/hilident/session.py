@@ -49,6 +49,8 @@ from hilident.signals import generators as sig
 
 #: The analysis, imported once an experiment needs it (a run ended before that starts and stops faster).
 pipeline = lazy_module("hilident.pipeline")
+#: The upload step, shared with ``hilident upload``.
+uploading = lazy_module("hilident.upload")
 
 #: Longest stretch of data (and wall-clock time) held in memory before it is written to the recording, s.
 FLUSH_INTERVAL_S = 0.5
@@ -311,7 +313,80 @@ class Experiment:
     events: list[dict] = field(default_factory=list)
 
 
-class Session:
+class DeviceConnection:
+    """A device opened as ``[device]`` says (or the embedded emulator), one session per device.
+
+    What ``hilident run`` and ``hilident upload`` share: the subclass sets
+    ``cfg``, ``progress`` and ``warnings`` and may set ``driver``;
+    :meth:`open_device` fills ``adapter``, ``emulator`` and ``lock``.
+    """
+
+    cfg: Config
+    progress: Progress
+    warnings: list[str]
+    driver: DriverDescription | None = None
+    adapter = None
+    emulator = None
+    lock: DeviceLock | None = None
+
+    def open_device(self) -> None:
+        """Open the device (taking its lock), or start the embedded emulator and open it like a device.
+
+        The adapter brings the device to a known state as it opens (stale
+        frames discarded, axis stopped, latched faults reported and cleared
+        only when allowed); what it found goes to ``warnings``.
+        """
+        cfg = self.cfg
+        self.driver = self.driver or find_driver(cfg.device.driver, cfg.device.driver_paths)
+        cls = adapter_class(self.driver.transport)
+        device, link = cfg.device, None
+        if cfg.uses_emulator:
+            from hilident.emulator.factory import start_emulator
+
+            self.emulator = start_emulator(cfg.emulator, self.driver, cfg.device)
+            device, link = self.emulator.device, self.emulator.link
+        else:
+            d = cfg.device
+            self.lock = DeviceLock(device_key(self.driver.transport, d.port, node_id=d.node_id,
+                                              device_id=d.device_id, can_interface=d.can_interface)).acquire()
+            if self.lock.recovered_from:
+                self.progress.step(f"device lock of pid {self.lock.recovered_from} recovered (that session died)")
+        self.adapter = cls.open_device(device, self.driver, link=link)
+        where = "emulated" if cfg.uses_emulator else "connected to"
+        self.progress.step(f"{where} {self.adapter.identity.name} on {self.adapter.port}")
+        report_ = getattr(self.adapter, "connect_report", None)
+        if report_ is not None:
+            if report_.discarded_frames:
+                self.warnings.append(f"connect: {report_.discarded_frames} frame(s) left over from an earlier "
+                                     "session were discarded")
+            if report_.faults:
+                self.warnings.append(f"connect: the device had latched fault(s): {'; '.join(report_.faults)}"
+                                     + ("; cleared (allow_fault_reset)" if report_.faults_cleared else ""))
+            self.warnings += [f"connect: {w}" for w in report_.warnings]
+
+    def safe_stop(self) -> None:
+        """Command the axis safe now (first thing on every ending). Never raises."""
+        if self.adapter is not None:
+            try:
+                self.adapter.safe_stop()
+            except Exception:
+                pass
+
+    def close(self) -> None:
+        """Stop the axis and release the device (and the emulator, and the device lock)."""
+        try:
+            if self.adapter is not None:
+                self.adapter.close()
+        finally:
+            try:
+                if self.emulator is not None:
+                    self.emulator.close()
+            finally:
+                if self.lock is not None:
+                    self.lock.release()
+
+
+class Session(DeviceConnection):
     """A whole bench run as described by one configuration.
 
     Parameters
@@ -361,56 +436,9 @@ class Session:
         frames discarded, axis stopped, latched faults reported and cleared
         only when allowed); the limits the device enforces are loaded.
         """
-        cfg = self.cfg
-        self.driver = self.driver or find_driver(cfg.device.driver, cfg.device.driver_paths)
-        cls = adapter_class(self.driver.transport)
-        device, link = cfg.device, None
-        if cfg.uses_emulator:
-            from hilident.emulator.factory import start_emulator
-
-            self.emulator = start_emulator(cfg.emulator, self.driver, cfg.device)
-            device, link = self.emulator.device, self.emulator.link
-        else:
-            d = cfg.device
-            self.lock = DeviceLock(device_key(self.driver.transport, d.port, node_id=d.node_id,
-                                              device_id=d.device_id, can_interface=d.can_interface)).acquire()
-            if self.lock.recovered_from:
-                self.progress.step(f"device lock of pid {self.lock.recovered_from} recovered (that session died)")
-        self.adapter = cls.open_device(device, self.driver, link=link)
-        where = "emulated" if cfg.uses_emulator else "connected to"
-        self.progress.step(f"{where} {self.adapter.identity.name} on {self.adapter.port}")
-        report_ = getattr(self.adapter, "connect_report", None)
-        if report_ is not None:
-            if report_.discarded_frames:
-                self.warnings.append(f"connect: {report_.discarded_frames} frame(s) left over from an earlier "
-                                     "session were discarded")
-            if report_.faults:
-                self.warnings.append(f"connect: the device had latched fault(s): {'; '.join(report_.faults)}"
-                                     + ("; cleared (allow_fault_reset)" if report_.faults_cleared else ""))
-            self.warnings += [f"connect: {w}" for w in report_.warnings]
-        lim = cfg.limits
+        self.open_device()
+        lim = self.cfg.limits
         self.adapter.set_limits(lim.torque_nm, lim.velocity_mps, lim.position_min_m, lim.position_max_m)
-
-    def safe_stop(self) -> None:
-        """Command the axis safe now (first thing on every ending). Never raises."""
-        if self.adapter is not None:
-            try:
-                self.adapter.safe_stop()
-            except Exception:
-                pass
-
-    def close(self) -> None:
-        """Stop the axis and release the device (and the emulator, and the device lock)."""
-        try:
-            if self.adapter is not None:
-                self.adapter.close()
-        finally:
-            try:
-                if self.emulator is not None:
-                    self.emulator.close()
-            finally:
-                if self.lock is not None:
-                    self.lock.release()
 
     # --- filter slots: identify the bare plant ---------------------------------------------
 
@@ -1040,33 +1068,8 @@ class Session:
         designs = pipeline.design_notches(resonances, nc, ad.identity.loop_rate_hz, slots, plant.loop)
         self.warnings += [d.warning for d in designs if d.warning]
         self.progress.step(f"notch: uploading {len(designs)} filter(s)")
-        matches = []
-        for d in designs:
-            # written disabled, read back, compared; enabled only as written, else the old contents put back
-            up = ad.upload_filter(d.slot, d.biquad, d.spec)
-            stored, expected, same = up.stored, up.expected, up.matches
-            if not same:
-                self.warnings.append(
-                    f"filter slot {d.slot}: read-back {stored} differs from written {expected}; "
-                    "the slot's previous contents were restored"
-                )
-            matches.append(same)
-            notes = getattr(ad, "filter_notes", None)  # drives whose encoding fits the notch to what it can store
-            if notes is not None:
-                self.warnings += [f"filter slot {d.slot}: {note}" for note in notes(d.spec)]
-            achieved = pipeline.achieved_notch(d, stored)
-            lost = d.spec.depth_db - achieved["attenuation_at_design_center_db"]
-            if lost > 3.0:
-                self.warnings.append(
-                    f"filter slot {d.slot}: the device's coefficient rounding moves the {d.spec.center_hz:.4g} Hz notch "
-                    f"to {achieved['center_hz']:.4g} Hz; it attenuates only "
-                    f"{achieved['attenuation_at_design_center_db']:.1f} dB at the resonance "
-                    f"(designed {d.spec.depth_db:g} dB; notches far below the {d.sample_rate_hz:g} Hz filter rate suffer)"
-                )
-            upload["slots"].append({"slot": d.slot, "readback_b": list(stored.b), "readback_a": list(stored.a),
-                                    "matches": same, "achieved": achieved})
-        upload["written"] = True
-        upload["verified_readback"] = all(matches)
+        # written disabled, read back, compared; enabled only as written, else the old contents put back
+        uploading.upload_designs(ad, designs, self.warnings, upload)
         self._uploaded = True  # from here the device holds the new notches; other bypassed slots stay bypassed
         return designs, upload
 
@@ -1090,13 +1093,12 @@ class Session:
             upload["not_saved"] = "nothing was saved: the notches were not uploaded, read back and verified"
             self.warnings.append(upload["not_saved"])
             return
-        store = getattr(self.adapter, "save_parameters", None)  # transports whose devices can store parameters
-        if store is None:
-            upload["not_saved"] = f"a {self.driver.transport} device has no store-parameters command in hilident"
+        saved_with, reason = uploading.store_parameters(self.adapter, self.driver.transport, self.progress)
+        if saved_with is None:
+            upload["not_saved"] = reason
             self.warnings.append(upload["not_saved"])
             return
-        self.progress.step("saving the device's parameters to non-volatile memory")
-        upload["saved_with"] = store()
+        upload["saved_with"] = saved_with
         upload["saved"] = True
 
     def _verify(self, excitation: Excitation, plant, designs):
