@@ -302,3 +302,29 @@ def test_identify_a_recording_then_upload_its_notch_to_the_modbus_twin(tmp_path)
     assert enabled and list(biquad.b) == slot["readback_b"]
     assert abs(slot["achieved"]["depth_error_db"]) < 1.0  # the drive's parameter rounding costs under 1 dB
     assert command.out == tmp_path / "ident-upload" and (command.out / "summary.json").is_file()
+    check_upload_to_a_parameter_drive(tmp_path / "ident", tmp_path / "dsy-upload", notch["center_hz"])
+
+
+def check_upload_to_a_parameter_drive(source: Path, out: Path, center_hz: float) -> None:
+    """The same notch into the DSY-RS twin, a drive of notch parameters (centre in 1 Hz steps, a width
+    table, a depth in %), with --save: its integers written, read back equal, the attenuation at the centre
+    from them as the design after the drive's quantisation, and the store carried out."""
+    command = UploadCommand(load_config(CONFIGS / "emulated-dsy-rs.toml"), source, out, save=True)
+    summary = command.run()
+    (slot,) = summary["upload"]["slots"]
+    assert slot["matches"] and summary["upload"]["verified_readback"] and summary["upload"]["saved"]
+    (before,) = summary["filters_before"]
+    assert before["parameters"]["center"]["value"] == 4000 and not before["enabled"]  # the drive's "off"
+    firmware = command.device.emulator.server.firmware
+    written = {field: p["value"] for field, p in slot["parameters"].items()}
+    assert written == {"center": firmware.value("notch1_center_hz"), "width": firmware.value("notch1_width"),
+                       "depth": firmware.value("notch1_depth")}
+    assert written["center"] == round(center_hz)  # the nearest 1 Hz step of the drive
+    assert slot["parameters"]["center"]["parameter"] == "P08.02"
+    assert firmware.saves == 1 and firmware.eeprom[0x0802] == written["center"]
+    biquad, enabled = command.device.emulator.drive.filters.read(0)
+    assert enabled and list(biquad.b) == slot["readback_b"]
+    achieved = slot["achieved"]
+    designed = achieved["attenuation_at_design_center_db"] - achieved["depth_error_db"]
+    assert achieved["realisable_db"] == pytest.approx(designed - achieved["quantisation_loss_db"])
+    assert abs(achieved["beyond_quantisation_db"]) < 1.0 and achieved["realisable_db"] > 20.0

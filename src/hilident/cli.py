@@ -110,7 +110,8 @@ def _upload(args) -> int:
     for s in summary["upload"]["slots"]:
         a = s["achieved"]
         print(f"slot {s['slot']}: read back as written, enabled; {a['attenuation_at_design_center_db']:.1f} dB at "
-              f"the designed centre ({a['depth_error_db']:+.2f} dB from the design), deepest at {a['center_hz']:.5g} Hz")
+              f"the designed centre (designed {a['attenuation_at_design_center_db'] - a['depth_error_db']:.1f} dB, "
+              f"realisable on the device {a['realisable_db']:.1f} dB), deepest at {a['center_hz']:.5g} Hz")
     if summary["upload"]["saved"]:
         print("saved: the device stored its parameters in non-volatile memory")
     for w in summary["warnings"]:

@@ -903,25 +903,60 @@ def peak_reductions(before: FrequencyResponse, after: FrequencyResponse, resonan
     return out
 
 
-def achieved_notch(design: NotchDesign, stored: Biquad) -> dict:
-    """What the coefficients a device stores actually do, next to what was designed.
+def achieved_notch(design: NotchDesign, stored: Biquad, planned: Biquad | None = None) -> dict:
+    """What the section a device stores actually does, next to what was designed.
 
-    A device rounds coefficients (REAL32, fixed point, scaled integers). For a
-    notch far below the filter rate that rounding can move the notch; this
-    reports where the stored section's minimum lies and its attenuation at the
-    designed centre, both computed from the stored coefficients.
+    A device rounds what it is sent: coefficients to REAL32, fixed point or
+    scaled integers; physical notch parameters to its grid (a centre in 1 Hz
+    steps, a width from a table). For a notch far below the filter rate that
+    rounding can move the notch. This reports where the stored section's
+    minimum lies and its attenuation at the designed centre, computed from the
+    stored section.
+
+    Parameters
+    ----------
+    design : NotchDesign
+        The notch asked for (centre, width and depth) and its filter rate.
+    stored : Biquad
+        The section the device runs, from what it reads back.
+    planned : Biquad, optional
+        The section the host expected the device to store (the design after
+        the device's quantisation, before anything was written).
+
+    Returns
+    -------
+    dict
+        ``center_hz`` (deepest point within half an octave, Hz), ``depth_db``
+        (its attenuation), ``attenuation_at_design_center_db``,
+        ``depth_error_db`` (that attenuation minus the designed depth, dB),
+        ``dc_gain``, ``stable``; with ``planned`` also ``realisable_db`` (the
+        planned section's attenuation at the designed centre: the design minus
+        the device's quantisation), ``quantisation_loss_db`` (designed depth
+        minus ``realisable_db``) and ``beyond_quantisation_db``
+        (``realisable_db`` minus the stored attenuation: zero when the device
+        holds what was planned).
     """
     f0, fs = design.spec.center_hz, design.sample_rate_hz
+
+    def attenuation(section: Biquad) -> float:
+        return float(-20 * np.log10(max(float(np.abs(section.response(np.array([f0]), fs))[0]), 1e-300)))
+
     grid = np.linspace(0.5 * f0, 1.5 * f0, 4001)
     mag = np.abs(stored.response(grid, fs))
-    at_center = float(np.abs(stored.response(np.array([f0]), fs))[0])
-    return {
+    at_center = attenuation(stored)
+    out = {
         "center_hz": float(grid[int(np.argmin(mag))]),
         "depth_db": float(-20 * np.log10(max(mag.min(), 1e-300))),
-        "attenuation_at_design_center_db": float(-20 * np.log10(max(at_center, 1e-300))),
+        "attenuation_at_design_center_db": at_center,
+        "depth_error_db": at_center - float(design.spec.depth_db),
         "dc_gain": float(stored.dc_gain()),
         "stable": bool(stored.is_stable()),
     }
+    if planned is not None:
+        realisable = attenuation(planned)
+        out.update(realisable_db=realisable, quantisation_loss_db=float(design.spec.depth_db) - realisable,
+                   beyond_quantisation_db=realisable - at_center)
+    return out
 
 
 def resonance_records(resonances) -> list[dict]:

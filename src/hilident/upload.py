@@ -65,7 +65,8 @@ def upload_design(adapter, design, warnings: list[str]) -> dict:
     -------
     dict
         ``slot``, ``readback_b``, ``readback_a``, ``matches`` and ``achieved``
-        (:func:`hilident.pipeline.achieved_notch` of the stored coefficients),
+        (:func:`hilident.pipeline.achieved_notch` of the stored section against the planned one:
+        the attenuation at the designed centre, what the device's quantisation allows, the difference),
         plus ``expected_b``/``expected_a`` in the private key ``_expected``.
     """
     from hilident import pipeline
@@ -79,15 +80,14 @@ def upload_design(adapter, design, warnings: list[str]) -> dict:
             "the slot's previous contents were restored"
         )
     notes = getattr(adapter, "filter_notes", None)  # drives whose encoding fits the notch to what it can store
-    if notes is not None:
-        warnings += [f"filter slot {d.slot}: {note}" for note in notes(d.spec)]
-    achieved = pipeline.achieved_notch(d, stored)
-    lost = d.spec.depth_db - achieved["attenuation_at_design_center_db"]
-    if lost > ROUNDING_WARNING_DB:
+    notes = list(notes(d.spec)) if notes is not None else []
+    warnings += [f"filter slot {d.slot}: {note}" for note in notes]
+    achieved = pipeline.achieved_notch(d, stored, planned=expected)
+    if achieved["quantisation_loss_db"] > ROUNDING_WARNING_DB and not notes:  # notes already say why
         warnings.append(
             f"filter slot {d.slot}: the device's coefficient rounding moves the {d.spec.center_hz:.4g} Hz notch "
             f"to {achieved['center_hz']:.4g} Hz; it attenuates only "
-            f"{achieved['attenuation_at_design_center_db']:.1f} dB at the resonance "
+            f"{achieved['realisable_db']:.1f} dB at the resonance "
             f"(designed {d.spec.depth_db:g} dB; notches far below the {d.sample_rate_hz:g} Hz filter rate suffer)"
         )
     return {"slot": d.slot, "readback_b": list(stored.b), "readback_a": list(stored.a), "matches": same,
@@ -325,7 +325,7 @@ class UploadPlan:
                          f"{r['depth_db']:.4g} dB deep")
             lines.append(f"    the device will hold b = {_coeffs(r['expected_b'])}, a = {_coeffs(r['expected_a'])}: "
                          f"{r['achieved']['attenuation_at_design_center_db']:.1f} dB at {r['center_hz']:.5g} Hz "
-                         f"({r['achieved']['depth_error_db']:+.2f} dB from the design), deepest at "
+                         f"({r['achieved']['depth_error_db']:+.2f} dB from the design: its quantisation), deepest at "
                          f"{r['achieved']['center_hz']:.5g} Hz")
         lines.append("  each slot written disabled, read back, enabled only when equal; any failure puts every slot "
                      "back as it was" + ("; then the parameters are stored in non-volatile memory (--save)"
@@ -341,9 +341,12 @@ def _coeffs(values) -> str:
     return "[" + ", ".join(f"{float(v):.9g}" for v in values) + "]"
 
 
-def _with_depth_error(achieved: dict, design) -> dict:
-    """``achieved`` plus ``depth_error_db``: attenuation at the designed centre minus the designed depth, dB."""
-    return {**achieved, "depth_error_db": float(achieved["attenuation_at_design_center_db"] - design.spec.depth_db)}
+def _parameters_of(adapter, slot: int) -> dict:
+    """``{"parameters": ...}`` of a drive whose slots are its notch parameters (each field's parameter code,
+    address and stored integer), else nothing."""
+    if getattr(adapter, "parameter_slots", False):
+        return {"parameters": adapter.filter_parameters(slot)["fields"]}
+    return {}
 
 
 class UploadCommand:
@@ -478,7 +481,8 @@ class UploadCommand:
         for slot in range(ad.identity.filter_slots):
             biquad, enabled = ad.read_filter(slot)
             out.append({"slot": slot, "enabled": bool(enabled), "b": [float(x) for x in biquad.b],
-                        "a": [float(x) for x in biquad.a], "_saved": ad.save_filter(slot)})
+                        "a": [float(x) for x in biquad.a], "_saved": ad.save_filter(slot),
+                        **_parameters_of(ad, slot)})
         return out
 
     def _plan(self, designs: list, before: list[dict]) -> UploadPlan:
@@ -492,7 +496,7 @@ class UploadCommand:
             plan.rows.append({"slot": d.slot, "center_hz": d.spec.center_hz, "width_hz": d.spec.width_hz,
                               "depth_db": d.spec.depth_db, "expected_b": list(expected.b),
                               "expected_a": list(expected.a),
-                              "achieved": _with_depth_error(pipeline.achieved_notch(d, expected), d),
+                              "achieved": pipeline.achieved_notch(d, expected, planned=expected),
                               "before": {"enabled": was["enabled"], "b": was["b"], "a": was["a"]}})
         return plan
 
@@ -511,7 +515,7 @@ class UploadCommand:
             record = upload_design(self.device.adapter, d, self.warnings)
             expected = record.pop("_expected")
             record.update(expected_b=list(expected.b), expected_a=list(expected.a),
-                          achieved=_with_depth_error(record["achieved"], d))
+                          **_parameters_of(self.device.adapter, d.slot))
             state["slots"].append(record)
             if not record["matches"]:
                 raise DeviceError(f"{self.device.adapter.port}: filter slot {d.slot} read back "

@@ -712,7 +712,8 @@ class ModbusDriveAdapter(AdapterBase):
     # value of one field.
 
     @property
-    def _named_slots(self) -> bool:
+    def parameter_slots(self) -> bool:
+        """Whether the filter slots are the drive's notch parameters (:meth:`filter_parameters` reports them)."""
         return isinstance(self.map.filters, FieldSlots)
 
     def _fields(self, slot: int) -> dict:
@@ -768,7 +769,7 @@ class ModbusDriveAdapter(AdapterBase):
 
     def filter_notes(self, spec: NotchSpec) -> tuple[str, ...]:
         """Why a parameter drive's notch parameters cannot meet ``spec`` exactly, if they cannot."""
-        return self._realise(spec).notes if self._named_slots else ()
+        return self._realise(spec).notes if self.parameter_slots else ()
 
     def upload_filter(self, slot: int, biquad, spec=None) -> FilterUpload:
         """As :meth:`AdapterBase.upload_filter`; a slot bypassed by the "off" value of one of its fields is
@@ -776,7 +777,7 @@ class ModbusDriveAdapter(AdapterBase):
         (the notch takes effect), the whole slot read back and compared; anything else puts the previous
         contents back."""
         fs = self.map.filters
-        if not self._named_slots or fs.has_enable:
+        if not self.parameter_slots or fs.has_enable:
             return super().upload_filter(slot, biquad, spec)
         previous = self.save_filter(slot)
         values = self._realise(spec).fields
@@ -799,7 +800,7 @@ class ModbusDriveAdapter(AdapterBase):
         A parameter drive's slot gets the stored values closest to ``spec``
         (:meth:`FilterEncoding.realise`), bypassed by its off value when not ``enabled``.
         """
-        if self._named_slots:
+        if self.parameter_slots:
             stored = dict(self._realise(spec).fields)
             if self.map.filters.has_enable:
                 stored["enable"] = int(bool(enabled))
@@ -815,7 +816,7 @@ class ModbusDriveAdapter(AdapterBase):
 
         A parameter drive's slot bypassed by an off value runs the identity section.
         """
-        if self._named_slots:
+        if self.parameter_slots:
             values, enabled = self._slot_state(self._read_fields(slot))
             if not enabled and not self.map.filters.has_enable:
                 return Biquad.identity(), False
@@ -838,18 +839,18 @@ class ModbusDriveAdapter(AdapterBase):
     def stored_form(self, biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
         """The biquad the drive runs after its own rounding of ``spec`` (0.1 Hz, 0.1 dB steps), or what a
         parameter drive runs with the stored values closest to ``spec``."""
-        if self._named_slots:
+        if self.parameter_slots:
             return self._realise(spec).section
         return self.map.filter_encoding.stored_form(biquad, spec, self.identity.loop_rate_hz)
 
     def _read_raw_slot(self, slot: int) -> tuple[int, ...]:
         """The slot's registers as they are."""
-        if self._named_slots:
+        if self.parameter_slots:
             return tuple(sorted(self._read_fields(slot).items()))
         return tuple(self.read(self._slot(slot), self.map.filters.span, f"reading filter slot {slot}"))
 
     def _write_raw_slot(self, slot: int, saved: tuple) -> None:
-        if self._named_slots:
+        if self.parameter_slots:
             self._write_fields(slot, dict(saved))
             return
         self.write(self._slot(slot), list(saved), f"restoring filter slot {slot}")
@@ -859,7 +860,7 @@ class ModbusDriveAdapter(AdapterBase):
 
         A parameter drive's slot without an enable gets its off value, the other fields kept.
         """
-        if self._named_slots:
+        if self.parameter_slots:
             fs = self.map.filters
             self._write_fields(slot, {"enable": 0} if fs.has_enable else dict(fs.off))
             return

@@ -343,16 +343,17 @@ class FilterEncoding:
         step (``0`` for a REAL32 field), ``(low, high)`` in physical units, and
         the step a REAL32 field is rounded to by the drive.
     width_table, depth_table : tuple of float
-        ``"index_table"``: bandwidth/centre ratio and depth in dB (positive,
-        ``inf`` = full cut) for each stored value.
+        ``"index_table"`` (and ``"notch_parameters"`` with an ``"index"`` unit):
+        bandwidth/centre ratio and depth in dB (positive, ``inf`` = full cut)
+        for each stored value.
     width_values, depth_values : tuple of int, optional
-        ``"index_table"``: the stored integer of each table entry (``0, 1, ...`` when omitted).
+        The stored integer of each table entry (``0, 1, ...`` when omitted).
     block : BlockLayout, optional
         ``"word_block"`` only.
-    width_unit : {"hz", "q", "ratio"}
-        ``"notch_parameters"``: the width field in Hz, as a Q (centre / width)
-        or as width / centre.
-    depth_unit : {"db", "ratio", "percent"}
+    width_unit : {"hz", "q", "ratio", "index"}
+        ``"notch_parameters"``: the width field in Hz, as a Q (centre / width),
+        as width / centre, or as an index into ``width_table``.
+    depth_unit : {"db", "ratio", "percent", "index"}
         ``"notch_parameters"``: the depth field in dB, or as the gain at the
         centre (0 = full cut), plain or in percent.
     """
