@@ -268,3 +268,12 @@ def test_a_parameter_twin_with_input_registers_and_an_enable_register():
     gain = abs(section.response(np.array([100.0]), DRIVER.loop_rate_hz)[0])
     assert gain == pytest.approx(0.1, rel=0.01)  # depth 10 % at the 100.0 Hz centre
     assert fw.write(0x0234, [2]) == 3  # beyond the enable's range
+
+
+def test_drivers_v_says_what_the_parameter_drive_offers():
+    from hilident.driver_tools import describe_driver
+
+    caps = next(line for line in describe_driver(DRIVER.folder).splitlines() if "capabilities:" in line)
+    assert "parameters PXX.YY at group * 0x100 + index" in caps
+    assert "no excitation" in caps and "upload" in caps
+    assert "save (save_to_eeprom = 1, with --save)" in caps

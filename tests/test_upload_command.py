@@ -170,6 +170,39 @@ def test_a_failing_read_back_rolls_every_slot_back_and_exits_with_a_partial_summ
     assert summary["filters_before"][0]["enabled"] and summary["filters_before"][0]["b"] == list(old.b)
 
 
+def test_a_signal_during_the_upload_puts_every_slot_back_and_exits_143(tmp_path, locks, capsys, monkeypatch,
+                                                                       serial_twin):
+    import os
+    import signal
+
+    from hilident import session
+
+    old = SerialBoardAdapter.stored_form(design_notch(NotchSpec(50.0, 10.0, 20.0), 4000.0))
+    serial_twin.emu.drive.filters.write(0, old, True)
+    before = slots(serial_twin)
+    source = write_source(tmp_path / "run", serial_twin.truth_hz, 4000.0, extra_hz=(60.0,))
+    real = session.adapter_class
+
+    def terminated_at_slot_1(transport):
+        class Terminated(real(transport)):
+            def upload_filter(self, slot, biquad, spec=None):
+                done = super().upload_filter(slot, biquad, spec)
+                if slot == 1:  # slot 1 written and enabled when SIGTERM arrives
+                    os.kill(os.getpid(), signal.SIGTERM)
+                return done
+        return Terminated
+
+    monkeypatch.setattr(session, "adapter_class", terminated_at_slot_1)
+    rc = upload("--from", str(source), "--config", str(serial_twin.host_config("bench")), "--yes", "-q")
+    assert rc == 143
+    assert "Traceback" not in capsys.readouterr().err
+    assert slots(serial_twin) == before  # both slots as they were: the older notch enabled in 0, 1 untouched
+    summary = json.loads((tmp_path / "run-upload" / "summary.json").read_text())
+    assert summary["failed_step"] == "upload"
+    assert summary["upload"]["rolled_back"] == [{"slot": 0, "restored": True}, {"slot": 1, "restored": True}]
+    assert not summary["upload"]["written"]
+
+
 def vendor_config(tmp_path: Path):
     folder = write_vendor_drive(tmp_path / "drivers", VendorDrive("acme-biquad", filters="biquad"))
     cfg = load_config(CONFIGS / "emulated-canopen-gantry.toml")

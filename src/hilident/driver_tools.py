@@ -714,6 +714,22 @@ def _check_placeholders(c: _Checker, placeholders: tuple[str, ...], path: Path) 
 
 # --- drivers -v ---------------------------------------------------------------------------------------------------
 
+def _describe_modbus(mb: dict) -> list[str]:
+    """A Modbus map's capabilities for ``drivers -v``: parameter rule, excitation, save."""
+    caps = []
+    rule = mb.get("parameters")
+    if isinstance(rule, dict) and rule.get("address"):
+        caps.append(f"parameters {rule.get('prefix', '')}XX.YY at {rule['address']}")
+    if isinstance(mb.get("table"), dict) and isinstance(mb.get("capture"), dict):
+        caps.append("excitation (table and capture)")
+    else:
+        caps.append("no excitation: identify a recording, then upload")
+    save = mb.get("save")
+    if isinstance(save, dict):
+        caps.append(f"save ({save.get('register', '?')} = {save.get('value', '?')}, with --save)")
+    return caps
+
+
 def describe_driver(folder) -> str:
     """Several lines for ``hilident drivers -v``: channels, rates, modes, filter slots and capabilities."""
     folder = Path(folder)
@@ -741,8 +757,9 @@ def describe_driver(folder) -> str:
         except ConfigError as exc:
             caps.append(f"not loadable: {exc}")
     elif transport == "modbus":
-        mb = data.get("modbus", {})
-        modes = list(mb.get("modes", {})) if isinstance(mb, dict) and isinstance(mb.get("modes"), dict) else []
+        mb = data.get("modbus", {}) if isinstance(data.get("modbus"), dict) else {}
+        modes = list(mb.get("modes", {})) if isinstance(mb.get("modes"), dict) else []
+        caps = _describe_modbus(mb)
     else:
         modes = ["torque", "torque_injection", "velocity", "position"]
     out.append(f"  channels: {', '.join(channels) or 'none'}")

@@ -1,4 +1,5 @@
-"""The emulated Modbus drive: register logic against the drive loop's truth, and its pymodbus server."""
+"""The emulated Modbus drive: register logic against the drive loop's truth, and its MBAP/RTU server reached by
+pymodbus clients (tests/test_modbus_conformance.py probes it with raw frames)."""
 
 from __future__ import annotations
 
