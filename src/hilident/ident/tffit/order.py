@@ -82,68 +82,83 @@ def select_order(
             "orders", "give exactly one of orders=[(n_num, n_den), ...] and max_order"
         )
     if orders is None:
-        max_order = check_order("max_order", max_order, 1)
-        if relative_degree is None:
-            orders = [(m, n) for n in range(1, max_order + 1) for m in range(n + 1)]
-        else:
-            rd = check_order("relative_degree", relative_degree, 0)
-            orders = [(n - rd, n) for n in range(max(1, rd), max_order + 1)]
-        if not orders:
-            raise ConfigError(
-                "max_order", f"{max_order} leaves no order with relative_degree={relative_degree}"
-            )
+        orders = _orders_up_to(max_order, relative_degree)
     else:
-        checked = []
-        for item in orders:
-            try:
-                m, n = item
-            except (TypeError, ValueError):
-                raise ConfigError(
-                    "orders", f"entries must be (n_num, n_den), got {item!r}"
-                ) from None
-            checked.append((check_order("orders.n_num", m, 0), check_order("orders.n_den", n, 0)))
-        if not checked:
-            raise ConfigError("orders", "must not be empty")
-        orders = list(dict.fromkeys(checked))
+        orders = _checked_orders(orders)
     orders = sorted(orders, key=lambda mn: (mn[0] + 1 + mn[1], mn[1], mn[0]))
 
-    rows = []
-    for m, n in orders:
-        try:
-            fit = fit_transfer_function(frf, m, n, **fit_options)
-        except DataError as exc:
-            rows.append(TfOrderCandidate(m, n, None, np.inf, np.inf, error=str(exc)))
-            continue
-        N = 2 * fit.n_bins
-        v = max(fit.weighted_cost * N / 2.0, np.finfo(float).tiny)  # sum of squares
-        p = fit.n_params
-        rows.append(
-            TfOrderCandidate(
-                m, n, fit, N * np.log(v / N) + 2 * p, N * np.log(v / N) + p * np.log(N)
-            )
-        )
+    rows = [_order_candidate(frf, m, n, fit_options) for m, n in orders]
     ok = [r for r in rows if r.fit is not None and r.fit.stable]
     if not ok:
         why = "; ".join(r.error for r in rows if r.error)
         raise DataError(f"no candidate order gave a stable fit: {why}")
 
     if criterion == "threshold":
-        # Tiny absolute slack so that noise-free data (costs near rounding) does not
-        # force the largest model.
-        slack = 1e-12 * max(r.fit.weighted_cost for r in ok)
-        chosen = ok[-1]
-        for i, r in enumerate(ok):
-            larger = [q for q in ok[i + 1:] if q.n_params > r.n_params]
-            limit = [(1.0 + threshold) * q.fit.weighted_cost + slack for q in larger]
-            if all(r.fit.weighted_cost <= lim for lim in limit):
-                chosen = r
-                break
+        chosen = _smallest_adequate(ok, threshold)
     else:
         chosen = min(ok, key=lambda r: (getattr(r, criterion), r.n_params))
     table = [
         TfOrderCandidate(r.n_num, r.n_den, r.fit, r.aic, r.bic, r is chosen, r.error) for r in rows
     ]
     return chosen.fit, table
+
+
+def _orders_up_to(max_order, relative_degree) -> list[tuple[int, int]]:
+    """``(n_num, n_den)`` for ``n_den = 1 .. max_order``: every numerator degree, or ``n_den - relative_degree``."""
+    max_order = check_order("max_order", max_order, 1)
+    if relative_degree is None:
+        orders = [(m, n) for n in range(1, max_order + 1) for m in range(n + 1)]
+    else:
+        rd = check_order("relative_degree", relative_degree, 0)
+        orders = [(n - rd, n) for n in range(max(1, rd), max_order + 1)]
+    if not orders:
+        raise ConfigError(
+            "max_order", f"{max_order} leaves no order with relative_degree={relative_degree}"
+        )
+    return orders
+
+
+def _checked_orders(orders) -> list[tuple[int, int]]:
+    """The given ``(n_num, n_den)`` pairs, checked, without repeats, in their order."""
+    checked = []
+    for item in orders:
+        try:
+            m, n = item
+        except (TypeError, ValueError):
+            raise ConfigError(
+                "orders", f"entries must be (n_num, n_den), got {item!r}"
+            ) from None
+        checked.append((check_order("orders.n_num", m, 0), check_order("orders.n_den", n, 0)))
+    if not checked:
+        raise ConfigError("orders", "must not be empty")
+    return list(dict.fromkeys(checked))
+
+
+def _order_candidate(frf: FrequencyResponse, m: int, n: int, fit_options: dict) -> TfOrderCandidate:
+    """One row of :func:`select_order`: the fit of ``(m, n)`` and its AIC and BIC, or why it failed."""
+    try:
+        fit = fit_transfer_function(frf, m, n, **fit_options)
+    except DataError as exc:
+        return TfOrderCandidate(m, n, None, np.inf, np.inf, error=str(exc))
+    N = 2 * fit.n_bins
+    v = max(fit.weighted_cost * N / 2.0, np.finfo(float).tiny)  # sum of squares
+    p = fit.n_params
+    return TfOrderCandidate(
+        m, n, fit, N * np.log(v / N) + 2 * p, N * np.log(v / N) + p * np.log(N)
+    )
+
+
+def _smallest_adequate(ok: list[TfOrderCandidate], threshold: float) -> TfOrderCandidate:
+    """The first candidate (fewest parameters) that no larger one improves on by more than `threshold`."""
+    # Tiny absolute slack so that noise-free data (costs near rounding) does not
+    # force the largest model.
+    slack = 1e-12 * max(r.fit.weighted_cost for r in ok)
+    for i, r in enumerate(ok):
+        larger = [q for q in ok[i + 1:] if q.n_params > r.n_params]
+        limit = [(1.0 + threshold) * q.fit.weighted_cost + slack for q in larger]
+        if all(r.fit.weighted_cost <= lim for lim in limit):
+            return r
+    return ok[-1]
 
 
 def _structures(max_order, order, relative_degree, integrators):

@@ -118,28 +118,15 @@ def classify_roots(
     RootReport
     """
     lo, hi = fit.band_hz if band_hz is None else band_hz
+    band = _Band(lo, hi, axis_tol, outside_factor, resolution_hz)
     poles = np.asarray(fit.poles)[: len(fit.poles) - fit.integrators]
     modes, flagged, real_p = [], [], []
     marginal = []
-    for p in poles:
-        if p.imag < -REAL_TOL * abs(p):
-            continue  # the conjugate speaks for the pair
-        f_hz = abs(p) / TWO_PI
-        is_complex = p.imag > REAL_TOL * abs(p)
-        zeta = -p.real / abs(p) if abs(p) > 0 else float("nan")
-        reason = ""
+    for p in _upper_half(poles):
+        f_hz, zeta, is_complex = abs(p) / TWO_PI, _damping(p), _is_complex(p)
+        reason = band.pole_reason(f_hz, zeta, is_complex)
         if not zeta > axis_tol:
-            reason = (f"on the imaginary axis within numerical noise (zeta {zeta:.2g}): an undamped pole the "
-                      "data cannot support")
             marginal.append(f_hz)
-        elif f_hz > outside_factor * hi or f_hz < lo / outside_factor:
-            reason = (f"far outside the fitted band {lo:.4g}-{hi:.4g} Hz: the fit uses it to bend the response "
-                      "at the band edge")
-        elif is_complex and not lo <= f_hz <= hi:
-            reason = f"outside the fitted band {lo:.4g}-{hi:.4g} Hz: the data show at most its skirt"
-        elif is_complex and resolution_hz and 2.0 * zeta * f_hz < 0.1 * resolution_hz:
-            reason = (f"half-power bandwidth {2 * zeta * f_hz:.3g} Hz is under a tenth of the "
-                      f"{resolution_hz:.3g} Hz line spacing: the measurement cannot resolve it")
         if reason:
             flagged.append({"frequency_hz": float(f_hz), "damping_ratio": float(zeta) if is_complex else float("nan"),
                             "real_part_rad_s": float(p.real), "reason": reason})
@@ -148,24 +135,12 @@ def classify_roots(
         else:
             real_p.append(float(f_hz))
     anti, rhp, flagged_z, real_z = [], [], [], []
-    for z in np.asarray(fit.zeros):
-        if z.imag < -REAL_TOL * abs(z):
-            continue
-        f_hz = abs(z) / TWO_PI
-        is_complex = z.imag > REAL_TOL * abs(z)
-        if f_hz > outside_factor * hi or f_hz < lo / outside_factor:
-            side = "right" if z.real > axis_tol * abs(z) else "left"
-            acts = "a differentiator s" if f_hz < lo else "a constant"
-            flagged_z.append({"frequency_hz": float(f_hz), "real_part_rad_s": float(z.real),
-                              "reason": f"{side}-half-plane zero far outside the fitted band {lo:.4g}-{hi:.4g} Hz: "
-                                        f"in the band it acts as {acts}"})
+    for z in _upper_half(np.asarray(fit.zeros)):
+        f_hz, is_complex = abs(z) / TWO_PI, _is_complex(z)
+        if band.far_outside(f_hz):
+            flagged_z.append(band.far_zero(z, f_hz))
         elif z.real > axis_tol * abs(z):
-            entry = {"frequency_hz": float(f_hz), "real_part_rad_s": float(z.real),
-                     "kind": "complex pair" if is_complex else "real", "explanation": _RHP_EXPLANATION}
-            if not is_complex:
-                # below it, 1 - s/z has the phase of a delay 1/z (and no effect on |G|)
-                entry["equivalent_delay_s"] = float(1.0 / z.real)
-            rhp.append(entry)
+            rhp.append(_rhp_zero(z, f_hz, is_complex))
         elif is_complex and not lo <= f_hz <= hi:
             flagged_z.append({"frequency_hz": float(f_hz),
                               "reason": f"outside the fitted band {lo:.4g}-{hi:.4g} Hz: not an anti-resonance the data show"})
@@ -174,8 +149,74 @@ def classify_roots(
         else:
             real_z.append(float(f_hz))
     stable = not marginal and bool(np.all(poles.real < 0.0))
-    stability = "stable" if stable else (
-        "marginal: pole(s) at " + ", ".join(f"{f:.4g} Hz" for f in marginal) + " lie on the imaginary axis"
-        if marginal else "unstable: a pole lies in the right half plane")
     return RootReport(sorted(modes), flagged, sorted(anti), rhp, flagged_z, sorted(real_p), sorted(real_z),
-                      stable, stability)
+                      stable, _stability(stable, marginal))
+
+
+def _upper_half(roots: np.ndarray) -> list[complex]:
+    """The roots without the lower member of each complex pair (the upper one speaks for the pair)."""
+    return [r for r in roots if not r.imag < -REAL_TOL * abs(r)]
+
+
+def _is_complex(r: complex) -> bool:
+    return bool(r.imag > REAL_TOL * abs(r))
+
+
+def _damping(p: complex) -> float:
+    """``-Re p / |p|``; NaN for a pole at 0."""
+    return -p.real / abs(p) if abs(p) > 0 else float("nan")
+
+
+@dataclass(frozen=True)
+class _Band:
+    """The band the data cover and the limits of :func:`classify_roots`."""
+
+    lo: float
+    hi: float
+    axis_tol: float
+    outside_factor: float
+    resolution_hz: float | None
+
+    def far_outside(self, f_hz: float) -> bool:
+        return bool(f_hz > self.outside_factor * self.hi or f_hz < self.lo / self.outside_factor)
+
+    def pole_reason(self, f_hz: float, zeta: float, is_complex: bool) -> str:
+        """Why a pole is not reported as a mode ("" when it is)."""
+        lo, hi = self.lo, self.hi
+        if not zeta > self.axis_tol:
+            return (f"on the imaginary axis within numerical noise (zeta {zeta:.2g}): an undamped pole the "
+                    "data cannot support")
+        if self.far_outside(f_hz):
+            return (f"far outside the fitted band {lo:.4g}-{hi:.4g} Hz: the fit uses it to bend the response "
+                    "at the band edge")
+        if is_complex and not lo <= f_hz <= hi:
+            return f"outside the fitted band {lo:.4g}-{hi:.4g} Hz: the data show at most its skirt"
+        if is_complex and self.resolution_hz and 2.0 * zeta * f_hz < 0.1 * self.resolution_hz:
+            return (f"half-power bandwidth {2 * zeta * f_hz:.3g} Hz is under a tenth of the "
+                    f"{self.resolution_hz:.3g} Hz line spacing: the measurement cannot resolve it")
+        return ""
+
+    def far_zero(self, z: complex, f_hz: float) -> dict:
+        """The flag of a zero far outside the band, either half plane."""
+        side = "right" if z.real > self.axis_tol * abs(z) else "left"
+        acts = "a differentiator s" if f_hz < self.lo else "a constant"
+        return {"frequency_hz": float(f_hz), "real_part_rad_s": float(z.real),
+                "reason": f"{side}-half-plane zero far outside the fitted band {self.lo:.4g}-{self.hi:.4g} Hz: "
+                          f"in the band it acts as {acts}"}
+
+
+def _rhp_zero(z: complex, f_hz: float, is_complex: bool) -> dict:
+    entry = {"frequency_hz": float(f_hz), "real_part_rad_s": float(z.real),
+             "kind": "complex pair" if is_complex else "real", "explanation": _RHP_EXPLANATION}
+    if not is_complex:
+        # below it, 1 - s/z has the phase of a delay 1/z (and no effect on |G|)
+        entry["equivalent_delay_s"] = float(1.0 / z.real)
+    return entry
+
+
+def _stability(stable: bool, marginal: list[float]) -> str:
+    if stable:
+        return "stable"
+    if marginal:
+        return "marginal: pole(s) at " + ", ".join(f"{f:.4g} Hz" for f in marginal) + " lie on the imaginary axis"
+    return "unstable: a pole lies in the right half plane"
