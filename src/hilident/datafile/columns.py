@@ -11,9 +11,9 @@ from hilident.datafile.mat_reader import read_mat
 from hilident.datafile.raw import (
     FORMAT_OF_SUFFIX,
     RawColumns,
+    exception_text,
     listed_names,
     open_h5,
-    why,
 )
 from hilident.datafile.run_reader import read_hilident
 from hilident.errors import ConfigError, DataError
@@ -94,7 +94,7 @@ def read_friction_test(path: str | Path) -> tuple[np.ndarray, np.ndarray, list[t
             table = f["tables/windows"]
             windows = np.column_stack([np.asarray(table[c][()], float) for c in ("start", "stop", "velocity_mps")])
         except Exception as exc:  # HDF5 reports a missing or damaged table as many types
-            raise DataError(f"{path}: no friction-test windows table ({why(exc)})") from None
+            raise DataError(f"{path}: no friction-test windows table ({exception_text(exc)})") from None
     if windows.ndim != 2 or windows.shape[1] != 3 or len(windows) > raw.columns["sample_index"].size:
         raise DataError(f"{path}: damaged friction-test windows table")
     rows = {int(i): r for r, i in enumerate(raw.columns["sample_index"].astype(np.int64))}

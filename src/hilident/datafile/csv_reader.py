@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hilident.datafile.raw import RawColumns, check_fits, short, why
+from hilident.datafile.raw import RawColumns, check_fits, exception_text, short
 from hilident.errors import ConfigError, DataError
 
 #: Lines parsed per CSV chunk.
@@ -152,9 +152,9 @@ def read_csv(path: Path, names, check=lambda available: None, column_names: tupl
                 text.readline()
             data = _parse_body(path, text, header_lines, bound, usecols, wanted, delimiter)
     except UnicodeError as exc:
-        raise DataError(f"{path}: not valid {encoding.upper()} text ({why(exc)}); save it as UTF-8 CSV") from None
+        raise DataError(f"{path}: not valid {encoding.upper()} text ({exception_text(exc)}); save it as UTF-8 CSV") from None
     except csv.Error as exc:
-        raise DataError(f"{path}: not a readable CSV file: {why(exc)}") from None
+        raise DataError(f"{path}: not a readable CSV file: {exception_text(exc)}") from None
     return RawColumns(dict(zip(wanted, data)), columns, notes=notes)
 
 

@@ -105,13 +105,7 @@ def load_dataset(path: str | Path, cfg: DataConfig, config_source: str = "") -> 
     configured = _configured_period(cfg, rate, config_source)
     period = raw.period_samples if raw.indexed and not configured else None
     if period:
-        stored = period
-        period, why = _confirmed_period(index, raw.columns.get("excitation"), period)
-        if why and raw.underruns:
-            why = (f"the run had {raw.underruns} underrun samples (the device ran out of excitation and played "
-                   f"zeros), so the recorded excitation does not repeat every {stored} samples: whole periods are "
-                   "not used, and the run's own result, which averaged them, is not to be trusted")
-        notes += [f"{path.name}: {why}"] if why else []
+        period = _recorded_period_checked(path, raw, index, period, notes)
     raw.columns.clear()  # the mapped signals hold what is still needed
     used, segments, info = _gap_free(path, signals, index, period)
     notes += info.pop("warnings")
@@ -121,11 +115,37 @@ def load_dataset(path: str | Path, cfg: DataConfig, config_source: str = "") -> 
     info["sample_rate_spread"] = (max(rates.values()) - min(rates.values())) / rate
     if info["used_rows"] < MIN_SAMPLES:
         raise DataError(f"{path}: {info['used_rows']} gap-free samples; at least {MIN_SAMPLES} are needed")
+    _check_varying(path, used, wanted)
+    _complete_motion(used, segments, rate, notes, config_source)
+    info.update(status=raw.status, reason=raw.reason, flushed_samples=raw.flushed_samples)
+    return Dataset(used, rate, str(path), notes, info, info["period_samples"], segments)
+
+
+def _recorded_period_checked(path: Path, raw: RawColumns, index: np.ndarray | None, period: int,
+                             notes: list[str]) -> int | None:
+    """The period a hilident recording states, if its excitation confirms it (else None and a note)."""
+    stored = period
+    period, why = _confirmed_period(index, raw.columns.get("excitation"), period)
+    if why and raw.underruns:
+        why = (f"the run had {raw.underruns} underrun samples (the device ran out of excitation and played "
+               f"zeros), so the recorded excitation does not repeat every {stored} samples: whole periods are "
+               "not used, and the run's own result, which averaged them, is not to be trusted")
+    notes += [f"{path.name}: {why}"] if why else []
+    return period
+
+
+def _check_varying(path: Path, used: dict[str, np.ndarray], wanted: dict) -> None:
+    """Refuse a mapped column that is constant over the rows analysed."""
     for key, values in used.items():
         if np.ptp(values) == 0.0:
             raise DataError(
                 f"{path}: column {wanted[key][0]!r} (data.{key}) is constant ({values[0]:g}): it excites nothing"
             )
+
+
+def _complete_motion(used: dict[str, np.ndarray], segments, rate: float, notes: list[str],
+                     config_source: str) -> None:
+    """Velocity from position when only position is mapped; the output is the velocity when not mapped."""
     if "velocity" not in used and "position" in used:
         used["velocity"] = _derivative(used["position"], segments, rate)
         notes.append("velocity derived from position by central differences (within each gap-free segment)")
@@ -135,8 +155,6 @@ def load_dataset(path: str | Path, cfg: DataConfig, config_source: str = "") -> 
                                              "give the response column (a torque-to-output response needs no "
                                              "velocity)", config_source)
         used["output"] = used["velocity"]
-    info.update(status=raw.status, reason=raw.reason, flushed_samples=raw.flushed_samples)
-    return Dataset(used, rate, str(path), notes, info, info["period_samples"], segments)
 
 
 def _gap_free(path: Path, signals: dict[str, np.ndarray], index: np.ndarray | None, period: int | None):

@@ -9,7 +9,13 @@ from pathlib import Path
 
 import numpy as np
 
-from hilident.datafile.raw import RawColumns, check_fits, check_stored, open_h5, why
+from hilident.datafile.raw import (
+    RawColumns,
+    check_fits,
+    check_stored,
+    exception_text,
+    open_h5,
+)
 from hilident.errors import DataError
 
 _NUMERIC_MAT_CLASSES = frozenset(
@@ -44,7 +50,7 @@ def read_mat(path: Path, names, check=lambda available: None) -> RawColumns:
     try:
         major, _ = matfile_version(path)
     except Exception as exc:  # a damaged header can fail in several ways
-        raise DataError(f"{path}: not a readable MATLAB file ({why(exc)})") from None
+        raise DataError(f"{path}: not a readable MATLAB file ({exception_text(exc)})") from None
     if major == 2:
         return _read_mat73(path, names, check)
     if major == 0:
@@ -86,7 +92,7 @@ def _load_mat_variable(path: Path, var: _MatVariable, header: bytes, loadmat) ->
             blob = io.BytesIO(header + fh.read(var.stop - var.start))
         raw = loadmat(blob, squeeze_me=True)
     except Exception as exc:  # truncated or corrupted data behind valid headers
-        raise DataError(f"{path}: variable {var.name!r} cannot be read ({why(exc)})") from None
+        raise DataError(f"{path}: variable {var.name!r} cannot be read ({exception_text(exc)})") from None
     if var.name not in raw:
         raise DataError(f"{path}: variable {var.name!r} cannot be read")
     return raw[var.name]
@@ -159,7 +165,7 @@ def _mat5_listing(path: Path) -> tuple[list[_MatVariable], bytes]:
                 try:
                     head = zlib.decompressobj().decompress(fh.read(min(nbytes, 1 << 16)), _MAT_HEADER_BYTES)
                 except zlib.error as exc:
-                    raise DataError(f"{path}: damaged compressed variable at byte {pos} ({why(exc)})") from None
+                    raise DataError(f"{path}: damaged compressed variable at byte {pos} ({exception_text(exc)})") from None
             elif mdtype == _MI_MATRIX:
                 head = struct.pack(order + "II", mdtype, nbytes) + fh.read(min(nbytes, _MAT_HEADER_BYTES))
             else:
@@ -249,5 +255,5 @@ def _read_mat73(path: Path, names, check=lambda available: None) -> RawColumns:
         except DataError:
             raise
         except Exception as exc:  # HDF5 reports damaged structures as many types
-            raise DataError(f"{path}: damaged MATLAB v7.3 file ({why(exc)})") from None
+            raise DataError(f"{path}: damaged MATLAB v7.3 file ({exception_text(exc)})") from None
     return RawColumns(columns, available)

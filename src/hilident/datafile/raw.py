@@ -97,7 +97,7 @@ def listed_names(names) -> str:
     return ", ".join(shown) + (f" and {more} more" if more > 0 else "")
 
 
-def why(exc: BaseException, limit: int = 200) -> str:
+def exception_text(exc: BaseException, limit: int = 200) -> str:
     """A library's exception as part of one line: type, message, no line breaks, bounded length."""
     text = " ".join(str(exc).split())
     if len(text) > limit:
@@ -119,7 +119,7 @@ def open_h5(path: Path):
         try:
             return h5py.File(path, "r")
         except OSError as exc:
-            raise DataError(f"{path}: not a readable HDF5 file ({why(exc)})") from None
+            raise DataError(f"{path}: not a readable HDF5 file ({exception_text(exc)})") from None
 
 
 def check_stored(path: Path, ds, rows: int, what: str) -> None:

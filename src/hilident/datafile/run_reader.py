@@ -13,8 +13,8 @@ from hilident.datafile.raw import (
     RawColumns,
     check_fits,
     check_stored,
+    exception_text,
     open_h5,
-    why,
 )
 from hilident.errors import ConfigError, DataError, HilidentError
 
@@ -40,34 +40,17 @@ def read_hilident(path: Path, names, check=lambda available: None) -> RawColumns
         except (DataError, ConfigError):
             raise
         except Exception as exc:  # HDF5 reports damaged structures as many types
-            raise DataError(f"{path}: damaged hilident run file ({why(exc)})") from None
+            raise DataError(f"{path}: damaged hilident run file ({exception_text(exc)})") from None
 
 
 def _read_hilident_open(path: Path, f, names, fmt: str, version: int, check) -> RawColumns:
-    import h5py
-
     attrs = f.attrs
-    if _attr_text(attrs.get("format", "")) != fmt:
-        raise DataError(f"{path}: not a hilident run file (root attribute format != {fmt!r})")
-    if _attr_text(attrs.get("format_version", "")) != str(version):
-        raise DataError(f"{path}: unsupported hilident run format_version "
-                        f"{_attr_text(attrs.get('format_version', ''))!r} (this reader: {version})")
+    _check_format(path, attrs, fmt, version)
     channels = [_attr_text(c) for c in np.atleast_1d(attrs.get("channel_names", []))]
-    ds = f.get("samples")
-    if not isinstance(ds, h5py.Dataset) or ds.ndim != 2 or ds.shape[1] != len(channels) or ds.dtype.kind != "f":
-        raise DataError(f"{path}: damaged run file: /samples does not match channel_names")
+    ds = _samples(path, f, channels)
     check(channels)
-    rows = int(ds.shape[0])
     notes: list[str] = []
-    flushed = None
-    if "flushed_samples" in attrs:
-        flushed = int(attrs["flushed_samples"])
-        if flushed < 0:
-            raise DataError(f"{path}: damaged run file: flushed_samples = {flushed}")
-        if flushed < rows:
-            notes.append(f"{path.name}: {rows - flushed} rows after the last flushed sample ({flushed}) "
-                         "were not counted as recorded")
-        rows = min(rows, flushed)
+    rows, flushed = _counted_rows(path, attrs, int(ds.shape[0]), notes)
     wanted = [n for n in (names if names is not None else channels) if n in channels]
     for extra in ("sample_index", "excitation"):  # row numbers; the played excitation proves the period
         if extra in channels and extra not in wanted:
@@ -85,6 +68,38 @@ def _read_hilident_open(path: Path, f, names, fmt: str, version: int, check) -> 
         notes.append(f"{path.name}: {why}")
     return RawColumns(dict(zip(wanted, columns)), channels, rate, status, reason, period, flushed, notes,
                       _recorded_underruns(attrs))
+
+
+def _check_format(path: Path, attrs, fmt: str, version: int) -> None:
+    """Refuse a file whose root attributes do not name this format and version."""
+    if _attr_text(attrs.get("format", "")) != fmt:
+        raise DataError(f"{path}: not a hilident run file (root attribute format != {fmt!r})")
+    if _attr_text(attrs.get("format_version", "")) != str(version):
+        raise DataError(f"{path}: unsupported hilident run format_version "
+                        f"{_attr_text(attrs.get('format_version', ''))!r} (this reader: {version})")
+
+
+def _samples(path: Path, f, channels: list[str]):
+    """The ``/samples`` dataset: two-dimensional floats with one column per channel."""
+    import h5py
+
+    ds = f.get("samples")
+    if not isinstance(ds, h5py.Dataset) or ds.ndim != 2 or ds.shape[1] != len(channels) or ds.dtype.kind != "f":
+        raise DataError(f"{path}: damaged run file: /samples does not match channel_names")
+    return ds
+
+
+def _counted_rows(path: Path, attrs, rows: int, notes: list[str]) -> tuple[int, int | None]:
+    """Rows counted as recorded (none after the last flushed sample) and ``flushed_samples`` when recorded."""
+    if "flushed_samples" not in attrs:
+        return rows, None
+    flushed = int(attrs["flushed_samples"])
+    if flushed < 0:
+        raise DataError(f"{path}: damaged run file: flushed_samples = {flushed}")
+    if flushed < rows:
+        notes.append(f"{path.name}: {rows - flushed} rows after the last flushed sample ({flushed}) "
+                     "were not counted as recorded")
+    return min(rows, flushed), flushed
 
 
 def _recorded_underruns(attrs) -> int:
@@ -131,7 +146,7 @@ def _recorded_period(attrs, rate: float) -> tuple[int | None, str]:
     try:
         return excitation_period_samples(parse_config(text, "config_toml attribute").excitation, rate), ""
     except HilidentError as exc:
-        return None, f"the stored configuration cannot be read ({why(exc)}); the excitation period is unknown"
+        return None, f"the stored configuration cannot be read ({exception_text(exc)}); the excitation period is unknown"
 
 
 @dataclass
@@ -193,4 +208,4 @@ def read_run_info(path: str | Path, fmt: str = "auto") -> RunInfo | None:
                            _attr_text(a.get("experiment", "")), _attr_text(a.get("mode", "")), channels, units,
                            period if period and period > 0 else None, float(a.get("sample_rate_hz", math.nan)))
         except Exception as exc:  # HDF5 reports damaged structures as many types
-            raise DataError(f"{path}: damaged hilident run file ({why(exc)})") from None
+            raise DataError(f"{path}: damaged hilident run file ({exception_text(exc)})") from None
