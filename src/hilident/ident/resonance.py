@@ -444,7 +444,7 @@ def screen_resonances(
     # not at one bin that noise may have lifted over the threshold.
     near = np.clip(peaks[:, None] + np.arange(-2, 3), 0, f.size - 1)
     coh_near = np.nan_to_num(coh[near], nan=0.0).mean(axis=1) if peaks.size else np.zeros(0)
-    rejected: list[RejectedPeak] = []
+    rejected: list[tuple[float, RejectedPeak]] = []  # (prominence, peak)
 
     def reject(i, c, reason):
         rejected.append((float(prom_of[int(i)]), RejectedPeak(float(f[i]), float(mag_db[i]), float(c), reason)))
