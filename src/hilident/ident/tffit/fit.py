@@ -5,6 +5,8 @@ The stages and the weighting are described in :mod:`hilident.ident.tffit`.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy import optimize
@@ -123,35 +125,65 @@ def _params_from_poles(poles: np.ndarray, n_den: int) -> np.ndarray:
     return np.array(theta)
 
 
+@dataclass(frozen=True)
+class _Normalised:
+    """Fitting data in normalised frequency: ``x = j f / reference_hz``, response `H`, weights `w`."""
+
+    x: np.ndarray
+    H: np.ndarray
+    w: np.ndarray
+    n_num: int
+    n_den: int
+
+    def d_of(self, poles: np.ndarray) -> np.ndarray:
+        """The monic denominator with roots `poles`, evaluated at every ``x``."""
+        return np.prod(self.x[:, None] - poles[None, :], axis=1)
+
+    def cost_of(self, poles: np.ndarray) -> tuple[float, np.ndarray]:
+        """Weighted mean squared error with the best numerator for these poles, and that numerator."""
+        Dx = self.d_of(poles)
+        num = _numerator_for(self.x, self.H, self.w, Dx, self.n_num)
+        r = self.w * (self.H - np.polyval(num, self.x) / Dx)
+        return float(np.mean(np.abs(r) ** 2)), num
+
+
 def _fit_normalised(x, H, w, n_num, n_den, iterations, tol, refine, max_nfev):
     """Levy, SK and LM on normalised data.
 
     Returns ``(num_x, poles_x, sk_iterations, reflections)`` with the numerator
     highest power first and the poles of the monic denominator.
     """
-    reflected = 0
-    Xn = x[:, None] ** np.arange(n_num + 1)
-
-    def d_of(poles):
-        return np.prod(x[:, None] - poles[None, :], axis=1)
-
-    def cost_of(poles):
-        Dx = d_of(poles)
-        num = _numerator_for(x, H, w, Dx, n_num)
-        r = w * (H - np.polyval(num, x) / Dx)
-        return float(np.mean(np.abs(r) ** 2)), num
-
+    data = _Normalised(x, H, w, n_num, n_den)
     if n_den == 0:
         none = np.array([], dtype=np.complex128)
-        return cost_of(none)[1], none, 0, 0
+        return data.cost_of(none)[1], none, 0, 0
+    best, first, last, its, reflected = _levy_sk(data, iterations, tol)
+    if not refine:
+        return best[1], best[2], its, reflected
+    # Started from the best, the last and the Levy iterate: when the order is
+    # higher than the data support, they can lie in different basins.
+    starts = [best]
+    for cand in (last, first):
+        if not any(np.array_equal(cand[2], s_[2]) for s_ in starts):
+            starts.append(cand)
+    best = _levenberg_marquardt(data, starts, best, max_nfev)
+    return best[1], best[2], its, reflected
 
-    # Levy + Sanathanan-Koerner: H (x^n + a_{n-1} x^{n-1} + ... + a0) - N(x) = 0.
-    A = np.hstack([H[:, None] * x[:, None] ** np.arange(n_den), -Xn])
+
+def _levy_sk(data: _Normalised, iterations: int, tol: float):
+    """Levy start and Sanathanan-Koerner iterations.
+
+    Returns ``(best, first, last, iterations_run, reflections)``; each of the
+    first three is ``(cost, numerator, poles)``.
+    """
+    x, H, w, n_den = data.x, data.H, data.w, data.n_den
+    # H (x^n + a_{n-1} x^{n-1} + ... + a0) - N(x) = 0.
+    A = np.hstack([H[:, None] * x[:, None] ** np.arange(n_den), -x[:, None] ** np.arange(data.n_num + 1)])
     b = -H * x**n_den
     sk = np.ones(x.size)
     best = first = last = None
     den_prev = None
-    its = 0
+    its = reflected = 0
     for its in range(iterations + 1):
         ww = w * sk
         theta = _lstsq_complex(ww[:, None] * A, ww * b)
@@ -160,12 +192,12 @@ def _fit_normalised(x, H, w, n_num, n_den, iterations, tol, refine, max_nfev):
             break
         poles, n_bad = _reflect(np.roots(den))
         reflected += n_bad
-        c, num = cost_of(poles)
+        c, num = data.cost_of(poles)
         last = (c, num, poles)
         first = first or last
         if best is None or c < best[0]:
             best = last
-        Dx = d_of(poles)
+        Dx = data.d_of(poles)
         if np.any(Dx == 0.0):
             break
         sk = 1.0 / np.abs(Dx)
@@ -177,14 +209,20 @@ def _fit_normalised(x, H, w, n_num, n_den, iterations, tol, refine, max_nfev):
         raise DataError(
             "the Levy start failed (non-finite denominator); check the data for NaN/Inf"
         )
-    if not refine:
-        return best[1], best[2], its, reflected
+    return best, first, last, its, reflected
 
-    # Levenberg-Marquardt over stable factors; the numerator is the linear
-    # least-squares optimum for each denominator (variable projection) and the
-    # Jacobian is Kaufman's: J_j = P_perp (dD/dtheta_j / D) (w N / D), with
-    # P_perp the projection off the numerator's column space.
-    yr = np.concatenate([(w * H).real, (w * H).imag])
+
+def _projected_problem(data: _Normalised):
+    """Residual and Jacobian of the variable-projection problem, as one memoised function of theta.
+
+    Levenberg-Marquardt runs over stable factors; the numerator is the linear
+    least-squares optimum for each denominator (variable projection) and the
+    Jacobian is Kaufman's: ``J_j = P_perp (dD/dtheta_j / D) (w N / D)``, with
+    ``P_perp`` the projection off the numerator's column space.
+    """
+    x, w, n_den = data.x, data.w, data.n_den
+    Xn = x[:, None] ** np.arange(data.n_num + 1)
+    yr = np.concatenate([(w * data.H).real, (w * data.H).imag])
     memo = {}
 
     def evaluate(theta):
@@ -210,15 +248,15 @@ def _fit_normalised(x, H, w, n_num, n_den, iterations, tol, refine, max_nfev):
             memo[key] = (r, Gr - Q @ (Q.T @ Gr))
         return memo[key]
 
-    # Started from the best, the last and the Levy iterate: when the order is
-    # higher than the data support, they can lie in different basins.
-    starts = [best]
-    for cand in (last, first):
-        if not any(np.array_equal(cand[2], s_[2]) for s_ in starts):
-            starts.append(cand)
+    return evaluate
+
+
+def _levenberg_marquardt(data: _Normalised, starts, best, max_nfev):
+    """The best of `best` and a Levenberg-Marquardt refinement from each start's poles."""
+    evaluate = _projected_problem(data)
     for _, _, poles0 in starts:
         try:
-            theta0 = _params_from_poles(poles0, n_den)
+            theta0 = _params_from_poles(poles0, data.n_den)
         except DataError:
             continue
         res = optimize.least_squares(
@@ -229,11 +267,11 @@ def _fit_normalised(x, H, w, n_num, n_den, iterations, tol, refine, max_nfev):
             max_nfev=max_nfev,
             x_scale="jac",
         )
-        poles = _poles_from_params(res.x, n_den)
-        c, num = cost_of(poles)
+        poles = _poles_from_params(res.x, data.n_den)
+        c, num = data.cost_of(poles)
         if np.isfinite(c) and c <= best[0]:
             best = (c, num, poles)
-    return best[1], best[2], its, reflected
+    return best
 
 
 def fit_transfer_function(
