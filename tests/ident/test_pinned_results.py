@@ -22,7 +22,6 @@ from hilident.ident.friction import StribeckParams, fit_stribeck, stribeck
 from hilident.ident.greybox import fit_linear
 from hilident.ident.resonance import screen_resonances
 from hilident.ident.tffit import TfFit, classify_roots, fit_transfer_function, select_order
-
 from ident.pinned import assert_same, flatten, load_expected, store_expected
 
 EXPECTED = Path(__file__).with_name("pinned_results.json")

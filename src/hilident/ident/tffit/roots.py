@@ -143,7 +143,8 @@ def classify_roots(
             rhp.append(_rhp_zero(z, f_hz, is_complex))
         elif is_complex and not lo <= f_hz <= hi:
             flagged_z.append({"frequency_hz": float(f_hz),
-                              "reason": f"outside the fitted band {lo:.4g}-{hi:.4g} Hz: not an anti-resonance the data show"})
+                              "reason": f"outside the fitted band {lo:.4g}-{hi:.4g} Hz: "
+                                        "not an anti-resonance the data show"})
         elif is_complex:
             anti.append((float(f_hz), float(-z.real / abs(z))))
         else:
