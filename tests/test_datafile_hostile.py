@@ -151,7 +151,7 @@ def test_mat_whose_variable_inflates_past_the_bound_is_refused_unread(tmp_path, 
     # 12 MB of zeros compress to a few kB; the bound is lowered so the test stays small
     savemat(tmp_path / "bomb.mat", {"t": T, "tau": np.zeros(1_500_000), "v": V}, do_compression=True)
     assert (tmp_path / "bomb.mat").stat().st_size < 100_000
-    monkeypatch.setattr(datafile, "MAX_DATA_BYTES", 4_000_000)
+    monkeypatch.setattr(datafile.raw, "MAX_DATA_BYTES", 4_000_000)
     tracemalloc.start()
     try:
         with pytest.raises(DataError, match=r"variable 'tau'.*declares 1500000 rows"):
@@ -211,7 +211,7 @@ def test_mat73_declaring_a_huge_vector_is_refused(tmp_path):
         f.create_dataset("tau", shape=(1, 3_000_000_000), chunks=(1, 4096), dtype="<f8")
         f["v"] = V[None, :]
     with pytest.raises(DataError, match="declares 3000000000 rows"):
-        datafile._read_mat73(tmp_path / "big.h5", ["tau", "v"])
+        datafile.mat_reader._read_mat73(tmp_path / "big.h5", ["tau", "v"])
 
 
 @pytest.mark.parametrize("rate", [float("nan"), float("inf"), -5.0, 0.0])
@@ -348,7 +348,7 @@ def test_csv_larger_than_the_bound_is_refused_before_parsing(tmp_path, monkeypat
     t = np.arange(rows) / RATE
     np.savetxt(tmp_path / "d.csv", np.column_stack([t, np.sin(t), np.cos(t)]), delimiter=",", header="t,tau,v",
                comments="", fmt="%.4f")
-    monkeypatch.setattr(datafile, "MAX_DATA_BYTES", 1_000_000)
+    monkeypatch.setattr(datafile.raw, "MAX_DATA_BYTES", 1_000_000)
     tracemalloc.start()
     try:
         with pytest.raises(DataError, match=r"has up to 400002 rows of 3 column\(s\)"):

@@ -236,7 +236,7 @@ def test_the_period_identify_assumes_is_the_one_a_bench_run_plays(excitation):
 
 
 def test_time_stamps_are_checked_chunk_by_chunk_with_the_right_rows(tmp_path, monkeypatch):
-    from hilident import datafile
+    from hilident.datafile import mapping as datafile
 
     monkeypatch.setattr(datafile, "_TIME_CHUNK", 7)  # many chunks, gaps and faults on their borders
     n = 200

@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+__all__ = ["Biquad", "BiquadChain", "BiquadSection"]
+
 
 @dataclass(frozen=True)
 class Biquad:

@@ -12,7 +12,8 @@ Pure functions; no files, devices or clocks.
 - ``discretize``: ZOH, Euler, Tustin and back; controllability and observability
 - ``frequency``: ETFE, H1 with coherence, closed-loop and periodic frequency responses
 - ``tffit``: transfer functions fitted to a frequency response (Levy, Sanathanan-Koerner,
-  Levenberg-Marquardt on the complex error), modal form, order selection
+  Levenberg-Marquardt on the complex error), modal form, order selection, which roots the
+  data support; a package of ``model``, ``fit``, ``order`` and ``roots``
 - ``filtering``: first-order RC low-pass, moving average, anti-aliased decimation
 - ``kalman``: steady-state and time-varying Kalman filters, pole-placement observers
 - ``resonance``: resonances of a frequency response by local rational fits
@@ -55,6 +56,13 @@ from hilident.ident.discretize import (
     tustin,
     zoh,
 )
+from hilident.ident.filtering import (
+    decimate,
+    decimation_filter,
+    moving_average,
+    rc_alpha,
+    rc_lowpass,
+)
 from hilident.ident.frequency import (
     FrequencyResponse,
     etfe,
@@ -81,6 +89,15 @@ from hilident.ident.greybox import (
     fit_rigid_axis,
     fit_torque_constant,
 )
+from hilident.ident.kalman import (
+    KalmanFilter,
+    check_observable,
+    observer_gain_by_pole_placement,
+    run_observer,
+    steady_state_kalman,
+    two_mass_discrete,
+    two_mass_model,
+)
 from hilident.ident.preprocess import (
     bandpass,
     central_difference,
@@ -91,20 +108,105 @@ from hilident.ident.preprocess import (
     remove_drift,
 )
 from hilident.ident.resonance import Resonance, find_resonances, fit_local_mode
-from hilident.ident.filtering import decimate, decimation_filter, moving_average, rc_alpha, rc_lowpass
-from hilident.ident.kalman import (
-    KalmanFilter,
-    check_observable,
-    observer_gain_by_pole_placement,
-    run_observer,
-    steady_state_kalman,
-    two_mass_discrete,
-    two_mass_model,
+from hilident.ident.tffit import (
+    ModalModel,
+    TfFit,
+    TfOrderCandidate,
+    fit_transfer_function,
+    modal_form,
 )
-from hilident.ident.tffit import ModalModel, TfFit, TfOrderCandidate, fit_transfer_function, modal_form
 from hilident.ident.tffit import select_order as select_tf_order
-from hilident.ident.validation import ResidualAnalysis, fit_percent, overfitting_warning, residual_analysis
+from hilident.ident.validation import (
+    ResidualAnalysis,
+    fit_percent,
+    overfitting_warning,
+    residual_analysis,
+)
 
-import types as _types
-
-__all__ = sorted(n for n, v in globals().items() if not n.startswith("_") and not isinstance(v, _types.ModuleType))
+__all__ = [
+    "ArxModel",
+    "DampedMode",
+    "DecayFit",
+    "DiscreteStateSpace",
+    "FrequencyResponse",
+    "FrictionFit",
+    "KalmanFilter",
+    "LinearFit",
+    "ModalModel",
+    "OdeCandidate",
+    "OrderCandidate",
+    "OrderSearch",
+    "ResidualAnalysis",
+    "Resonance",
+    "StateSpace",
+    "SteadyStatePoints",
+    "StribeckParams",
+    "TfFit",
+    "TfOrderCandidate",
+    "arx_order_search",
+    "arx_to_ba",
+    "bandpass",
+    "c2d_tf",
+    "central_difference",
+    "check_excitation",
+    "check_observable",
+    "check_signals",
+    "compensate",
+    "controllability_matrix",
+    "d2c_tf",
+    "d2c_tustin",
+    "d2c_zoh",
+    "decay_poles",
+    "decimate",
+    "decimation_filter",
+    "detrend",
+    "etfe",
+    "find_resonances",
+    "finite_difference_derivatives",
+    "fit_arx",
+    "fit_coulomb_viscous",
+    "fit_dc_motor_speed",
+    "fit_linear",
+    "fit_local_mode",
+    "fit_mass_spring_damper",
+    "fit_percent",
+    "fit_rigid_axis",
+    "fit_stribeck",
+    "fit_torque_constant",
+    "fit_transfer_function",
+    "forward_euler",
+    "frf_from_reference",
+    "h1_estimate",
+    "highpass",
+    "is_controllable",
+    "is_observable",
+    "lowpass",
+    "modal_form",
+    "moving_average",
+    "observability_matrix",
+    "observer_gain_by_pole_placement",
+    "ode_order_search",
+    "overfitting_warning",
+    "periodic_frf",
+    "predict",
+    "rc_alpha",
+    "rc_lowpass",
+    "remove_drift",
+    "residual_analysis",
+    "run_observer",
+    "sampling_advice",
+    "second_order_poles",
+    "select_order",
+    "select_tf_order",
+    "settling_samples",
+    "simulate",
+    "state_variable_filter",
+    "steady_state_kalman",
+    "steady_state_points",
+    "stribeck",
+    "svf_sections",
+    "tustin",
+    "two_mass_discrete",
+    "two_mass_model",
+    "zoh",
+]

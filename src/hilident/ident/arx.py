@@ -395,75 +395,96 @@ def arx_order_search(
     nas = _as_range("na_range", na_range)
     nbs = _as_range("nb_range", nb_range)
     nks = _as_range("nk_range", nk_range)
-    if tolerance is None:
-        tolerance = 0.5 if criterion == "validation" else 2.0
-    if not np.isfinite(tolerance) or tolerance < 0:
-        raise ConfigError("tolerance", f"must be a number >= 0, got {tolerance!r}")
+    tolerance = _checked_tolerance(tolerance, criterion)
     u, y = _signals(u, y)
-    have_val = u_val is not None or y_val is not None
-    if criterion == "validation" and not (u_val is not None and y_val is not None):
-        raise ConfigError("u_val", "criterion 'validation' needs both u_val and y_val")
-    if have_val:
-        if u_val is None or y_val is None:
-            raise ConfigError("u_val" if u_val is None else "y_val", "give both u_val and y_val")
-        u_val, y_val = _signals(u_val, y_val, tag="_val")
+    validation = _validation_data(u_val, y_val, criterion)
 
     max_na, max_u_lag = max(nas), max(nk + nb - 1 for nk in nks for nb in nbs)
     n0 = max(max_na, max_u_lag, 0)
     u_lag_all = list(range(0, max(max_u_lag, -1) + 1))
     full = _regressors(u, y, range(1, max_na + 1), u_lag_all, n0)
-    n_rows = full.shape[0]
-    energy = float(full[:, -1] @ full[:, -1])
-
-    rows: list[OrderCandidate] = []
-    for na, nb, nk in product(nas, nbs, nks):
-        if na + nb == 0:
-            continue
-        cols = list(range(na)) + [max_na + j for j in range(nk, nk + nb)] + [full.shape[1] - 1]
-        p = na + nb
-        try:
-            model = _solve(full[:, cols], na, nb, nk)
-        except DataError:  # rank deficient: the data cannot determine p parameters
-            nan = float("nan")
-            rows.append(OrderCandidate(na, nb, nk, p, nan, np.inf, np.inf, nan, -np.inf))
-            continue
-        rss = max(2.0 * model.V, _RSS_FLOOR * energy, np.finfo(float).tiny)
-        base = n_rows * np.log(rss / n_rows)
-        fit_val = np.nan
-        if have_val:
-            y_sim = simulate(model, u_val, y0=y_val[:n0])
-            with np.errstate(all="ignore"):
-                fit_val = float(fit_percent(y_val[n0:], y_sim[n0:]))
-            if not np.isfinite(fit_val):
-                fit_val = -np.inf
-        rows.append(
-            OrderCandidate(
-                na=na,
-                nb=nb,
-                nk=nk,
-                n_params=p,
-                V=model.V,
-                aic=float(base + 2 * p),
-                bic=float(base + p * np.log(n_rows)),
-                fit_percent=model.fit_percent,
-                fit_validation_percent=fit_val,
-            )
-        )
+    rows = [
+        _order_candidate(full, max_na, na, nb, nk, n0, validation)
+        for na, nb, nk in product(nas, nbs, nks)
+        if na + nb != 0
+    ]
     if not rows:
         raise ConfigError("na_range", "the grid holds only na=0, nb=0")
     if all(np.isinf(r.aic) for r in rows):
         raise DataError("no candidate of the order grid can be determined from the data")
 
+    c = rows[_smallest_adequate(rows, criterion, tolerance)]
+    return OrderSearch(
+        candidates=tuple(rows),
+        model=fit_arx(u, y, c.na, c.nb, c.nk),
+        criterion=criterion,
+    )
+
+
+def _checked_tolerance(tolerance: float | None, criterion: str) -> float:
+    """`tolerance`, or its default for `criterion` (0.5 % fit for validation, 2 for AIC/BIC)."""
+    if tolerance is None:
+        tolerance = 0.5 if criterion == "validation" else 2.0
+    if not np.isfinite(tolerance) or tolerance < 0:
+        raise ConfigError("tolerance", f"must be a number >= 0, got {tolerance!r}")
+    return tolerance
+
+
+def _validation_data(u_val, y_val, criterion: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """Checked ``(u_val, y_val)``, or None when neither is given."""
+    if criterion == "validation" and not (u_val is not None and y_val is not None):
+        raise ConfigError("u_val", "criterion 'validation' needs both u_val and y_val")
+    if u_val is None and y_val is None:
+        return None
+    if u_val is None or y_val is None:
+        raise ConfigError("u_val" if u_val is None else "y_val", "give both u_val and y_val")
+    return _signals(u_val, y_val, tag="_val")
+
+
+def _order_candidate(full: np.ndarray, max_na: int, na: int, nb: int, nk: int, n0: int,
+                     validation: tuple[np.ndarray, np.ndarray] | None) -> OrderCandidate:
+    """One row of :func:`arx_order_search`, fitted on the columns of the shared regressor matrix `full`."""
+    n_rows = full.shape[0]
+    energy = float(full[:, -1] @ full[:, -1])
+    cols = list(range(na)) + [max_na + j for j in range(nk, nk + nb)] + [full.shape[1] - 1]
+    p = na + nb
+    try:
+        model = _solve(full[:, cols], na, nb, nk)
+    except DataError:  # rank deficient: the data cannot determine p parameters
+        nan = float("nan")
+        return OrderCandidate(na, nb, nk, p, nan, np.inf, np.inf, nan, -np.inf)
+    rss = max(2.0 * model.V, _RSS_FLOOR * energy, np.finfo(float).tiny)
+    base = n_rows * np.log(rss / n_rows)
+    return OrderCandidate(
+        na=na,
+        nb=nb,
+        nk=nk,
+        n_params=p,
+        V=model.V,
+        aic=float(base + 2 * p),
+        bic=float(base + p * np.log(n_rows)),
+        fit_percent=model.fit_percent,
+        fit_validation_percent=_validation_fit(model, validation, n0),
+    )
+
+
+def _validation_fit(model: ArxModel, validation: tuple[np.ndarray, np.ndarray] | None, n0: int) -> float:
+    """Free-run simulation fit (%) on the validation data; NaN without them, -inf when it diverges."""
+    if validation is None:
+        return np.nan
+    u_val, y_val = validation
+    y_sim = simulate(model, u_val, y0=y_val[:n0])
+    with np.errstate(all="ignore"):
+        fit_val = float(fit_percent(y_val[n0:], y_sim[n0:]))
+    return fit_val if np.isfinite(fit_val) else -np.inf
+
+
+def _smallest_adequate(rows: list[OrderCandidate], criterion: str, tolerance: float) -> int:
+    """Index of the candidate with the fewest parameters within `tolerance` of the best score."""
     if criterion == "validation":
         score = np.array([-r.fit_validation_percent for r in rows])
     else:
         score = np.array([getattr(r, criterion) for r in rows])
     best = np.min(score)
     adequate = [i for i, s in enumerate(score) if s <= best + tolerance]
-    chosen = min(adequate, key=lambda i: (rows[i].n_params, score[i]))
-    c = rows[chosen]
-    return OrderSearch(
-        candidates=tuple(rows),
-        model=fit_arx(u, y, c.na, c.nb, c.nk),
-        criterion=criterion,
-    )
+    return min(adequate, key=lambda i: (rows[i].n_params, score[i]))

@@ -414,14 +414,7 @@ def fit_stribeck(
         non-finite data.
     """
     a, t, s = _fold(v, tau, sigma)
-    fixed: dict[str, float] = {}
-    if fix_delta_v is not None:
-        fixed["delta_v"] = float(fix_delta_v)
-    if fix_delta_s is not None:
-        fixed["delta_s"] = float(fix_delta_s)
-    for key, value in fixed.items():
-        if not np.isfinite(value) or value <= 0.0:
-            raise ConfigError(f"fix_{key}", f"must be > 0, got {value!r}")
+    fixed = _fixed_exponents(fix_delta_v, fix_delta_s)
     names = [n for n in _NAMES if n not in fixed]
     if a.size < len(names) + 1:
         raise DataError(
@@ -432,8 +425,42 @@ def fit_stribeck(
         raise DataError("friction points need at least 3 distinct speeds |v|")
     w = 1.0 / s
     fun, jac, unpack = _residual_and_jac(a, t, w, names, fixed)
+    lower, upper = _bounds(a, t, names)
+    best = _best_fit(fun, jac, _starts(a, t, names, fixed, lower, upper), lower, upper)
 
-    guess = _initial_guess(a, t)
+    p = unpack(best.x)
+    params = StribeckParams(
+        Fc=p["Fc"], Fs=p["Fs"], Fv=p["Fv"], vs=float(np.exp(p["vs"])),
+        delta_v=p["delta_v"], delta_s=p["delta_s"],
+    )
+    stderr = _stderr(best.jac, best.fun, names, params)
+    for n in fixed:
+        stderr[n] = 0.0
+    resid = stribeck(a, params) - t
+    return FrictionFit(
+        params=params,
+        stderr={n: stderr[n] for n in _NAMES},
+        rms_residual=float(np.sqrt(np.mean(resid**2))),
+        n_points=int(a.size),
+        model="stribeck",
+    )
+
+
+def _fixed_exponents(fix_delta_v: float | None, fix_delta_s: float | None) -> dict[str, float]:
+    """The exponents held fixed, checked (> 0)."""
+    fixed: dict[str, float] = {}
+    if fix_delta_v is not None:
+        fixed["delta_v"] = float(fix_delta_v)
+    if fix_delta_s is not None:
+        fixed["delta_s"] = float(fix_delta_s)
+    for key, value in fixed.items():
+        if not np.isfinite(value) or value <= 0.0:
+            raise ConfigError(f"fix_{key}", f"must be > 0, got {value!r}")
+    return fixed
+
+
+def _bounds(a: np.ndarray, t: np.ndarray, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper bounds of the free parameters (``vs`` as its logarithm), see :func:`fit_stribeck`."""
     tmax = float(np.abs(t).max())
     log_lo, log_hi = np.log(a.min() / 3.0), np.log(a.max() * 10.0)
     bounds_by_name = {
@@ -446,7 +473,13 @@ def fit_stribeck(
     }
     lower = np.array([bounds_by_name[n][0] for n in names])
     upper = np.array([bounds_by_name[n][1] for n in names])
+    return lower, upper
 
+
+def _starts(a, t, names: list[str], fixed: dict[str, float], lower: np.ndarray,
+            upper: np.ndarray) -> list[np.ndarray]:
+    """Starting points: the initial guess with ``vs`` times 0.1, 1, 10 and a few exponents."""
+    guess = _initial_guess(a, t)
     # starts strictly inside the box, as the trust-region method requires
     width = np.where(np.isfinite(upper - lower), upper - lower, 1.0)
     inner_lo, inner_hi = lower + 1e-6 * width, upper - 1e-6 * width
@@ -466,7 +499,11 @@ def fit_stribeck(
             # keep the viscous torque at the fastest point unchanged
             p0["Fv"] = guess["Fv"] * a.max() ** (1.0 - dv)
         starts.append(np.clip([p0[n] for n in names], inner_lo, inner_hi))
+    return starts
 
+
+def _best_fit(fun, jac, starts: list[np.ndarray], lower: np.ndarray, upper: np.ndarray):
+    """The least-squares result of lowest cost over `starts`."""
     best = None
     for x0 in starts:
         try:
@@ -480,23 +517,7 @@ def fit_stribeck(
             best = res
     if best is None:
         raise DataError("friction fit failed from every start")
-
-    p = unpack(best.x)
-    params = StribeckParams(
-        Fc=p["Fc"], Fs=p["Fs"], Fv=p["Fv"], vs=float(np.exp(p["vs"])),
-        delta_v=p["delta_v"], delta_s=p["delta_s"],
-    )
-    stderr = _stderr(best.jac, best.fun, names, params)
-    for n in fixed:
-        stderr[n] = 0.0
-    resid = stribeck(a, params) - t
-    return FrictionFit(
-        params=params,
-        stderr={n: stderr[n] for n in _NAMES},
-        rms_residual=float(np.sqrt(np.mean(resid**2))),
-        n_points=int(a.size),
-        model="stribeck",
-    )
+    return best
 
 
 def _stderr(J: np.ndarray, r: np.ndarray, names, params: StribeckParams) -> dict[str, float]:

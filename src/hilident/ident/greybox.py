@@ -317,28 +317,12 @@ def fit_linear(
         data cannot identify (named in the message).
     """
     y = check_signals({"target": target}, min_samples=1)["target"]
-    names = tuple(regressors) if names is None else tuple(names)
-    if not names:
-        raise DataError("no regressors given")
-    if len(set(names)) != len(names):
-        raise ConfigError("names", f"must be unique, got {names}")
-    missing = [n for n in names if n not in regressors]
-    if missing:
-        raise ConfigError("names", f"{missing} are not among the regressors {list(regressors)}")
+    names = _regressor_names(regressors, names)
     N, p = y.size, len(names)
     A = np.column_stack([_column(n, regressors[n], N) for n in names])
     if N <= p:
         raise DataError(f"{N} samples cannot determine {p} parameters {names}; need more than {p}")
-    if n_effective is None:
-        n_eff = float(N)
-    else:
-        n_eff = float(n_effective)
-        if not np.isfinite(n_eff) or n_eff <= p:
-            raise DataError(
-                f"n_effective={n_effective!r} must exceed the number of parameters {p}: "
-                "record longer or raise the cutoff"
-            )
-        n_eff = min(n_eff, float(N))
+    n_eff = _effective_rows(n_effective, N, p)
 
     warnings = check_excitation(A, names, max_condition, warn_condition)
     norms, U, s, Vt = _scaled_svd(A)
@@ -351,30 +335,16 @@ def fit_linear(
     cov = (W @ W.T) / np.outer(norms, norms) * s2 * (N / n_eff)
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
 
-    y_rms = float(np.sqrt(np.mean(y**2)))
     fit = fit_percent(y, y - e) if np.ptp(y) > 0 else float("nan")
     params = {n: float(t) for n, t in zip(names, theta)}
     stderr = {n: float(v) for n, v in zip(names, se)}
-    rel = {
-        n: (100.0 * stderr[n] / abs(params[n]) if params[n] != 0.0 else float("inf"))
-        for n in names
-    }
-    contribution = {
-        n: float(np.sqrt(np.mean((A[:, i] * theta[i]) ** 2)) / y_rms) if y_rms > 0 else 0.0
-        for i, n in enumerate(names)
-    }
-    for n in names:
-        if abs(params[n]) < 2.0 * stderr[n]:
-            warnings.append(
-                f"parameter {n!r} = {params[n]:.4g} is not significant "
-                f"(stderr {stderr[n]:.3g}, |value| < 2 stderr)"
-            )
+    warnings += _insignificant(params, stderr)
     return LinearFit(
         names=names,
         params=params,
         stderr=stderr,
-        relative_stderr_percent=rel,
-        contribution=contribution,
+        relative_stderr_percent=_relative_stderr(params, stderr),
+        contribution=_contributions(A, theta, y, names),
         covariance=cov,
         residual_rms=float(np.sqrt(sse / N)),
         cost_V=0.5 * sse,
@@ -384,6 +354,59 @@ def fit_linear(
         n_effective=n_eff,
         warnings=tuple(warnings),
     )
+
+
+def _regressor_names(regressors: Mapping[str, ArrayLike], names: Sequence[str] | None) -> tuple[str, ...]:
+    """The regressors to use, checked: given, unique and present (default: all, in mapping order)."""
+    names = tuple(regressors) if names is None else tuple(names)
+    if not names:
+        raise DataError("no regressors given")
+    if len(set(names)) != len(names):
+        raise ConfigError("names", f"must be unique, got {names}")
+    missing = [n for n in names if n not in regressors]
+    if missing:
+        raise ConfigError("names", f"{missing} are not among the regressors {list(regressors)}")
+    return names
+
+
+def _effective_rows(n_effective: float | None, N: int, p: int) -> float:
+    """Independent rows of the regression (at most `N`, more than the `p` parameters)."""
+    if n_effective is None:
+        return float(N)
+    n_eff = float(n_effective)
+    if not np.isfinite(n_eff) or n_eff <= p:
+        raise DataError(
+            f"n_effective={n_effective!r} must exceed the number of parameters {p}: "
+            "record longer or raise the cutoff"
+        )
+    return min(n_eff, float(N))
+
+
+def _relative_stderr(params: dict[str, float], stderr: dict[str, float]) -> dict[str, float]:
+    """Standard error in % of each value (inf for a value of 0)."""
+    return {
+        n: (100.0 * stderr[n] / abs(params[n]) if params[n] != 0.0 else float("inf"))
+        for n in params
+    }
+
+
+def _contributions(A: np.ndarray, theta: np.ndarray, y: np.ndarray, names: tuple[str, ...]) -> dict[str, float]:
+    """RMS of each term ``theta_i A[:, i]`` relative to the RMS of the target (0 for a zero target)."""
+    y_rms = float(np.sqrt(np.mean(y**2)))
+    return {
+        n: float(np.sqrt(np.mean((A[:, i] * theta[i]) ** 2)) / y_rms) if y_rms > 0 else 0.0
+        for i, n in enumerate(names)
+    }
+
+
+def _insignificant(params: dict[str, float], stderr: dict[str, float]) -> list[str]:
+    """A warning per parameter smaller than twice its standard error."""
+    return [
+        f"parameter {n!r} = {params[n]:.4g} is not significant "
+        f"(stderr {stderr[n]:.3g}, |value| < 2 stderr)"
+        for n in params
+        if abs(params[n]) < 2.0 * stderr[n]
+    ]
 
 
 # --- shared plumbing for the physical models ---------------------------------

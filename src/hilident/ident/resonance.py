@@ -430,26 +430,11 @@ def screen_resonances(
     (list of Resonance, list of RejectedPeak)
         Both sorted by frequency.
     """
-    if coherence_threshold is not None and not 0.0 <= coherence_threshold <= 1.0:
-        raise ConfigError(
-            "coherence_threshold", f"must lie in [0, 1] or be None, got {coherence_threshold!r}"
-        )
-    if not min_prominence_db >= 0.0:
-        raise ConfigError("min_prominence_db", f"must be >= 0 dB, got {min_prominence_db!r}")
-    if int(max_count) != max_count or max_count < 1:
-        raise ConfigError("max_count", f"must be a positive integer, got {max_count!r}")
-
-    f, H, coh = frf.frequency_hz, frf.response, frf.coherence
-    valid = (f > 0.0) & np.isfinite(H) & (H != 0.0)
-    if band_hz is not None:
-        f_lo, f_hi = band_hz
-        if not f_lo < f_hi:
-            raise ConfigError("band_hz", f"must be (f_lo, f_hi) with f_lo < f_hi, got {band_hz!r}")
-        valid &= (f >= f_lo) & (f <= f_hi)
-    idx = np.flatnonzero(valid)
+    _check_screen_limits(coherence_threshold, min_prominence_db, max_count)
+    idx = _usable_bins(frf, band_hz)
     if idx.size < 3:
         return [], []
-    f, H, coh = f[idx], H[idx], coh[idx]
+    f, H, coh = frf.frequency_hz[idx], frf.response[idx], frf.coherence[idx]
     df = float(np.median(np.diff(f)))
 
     mag_db = 20.0 * np.log10(np.abs(H))
@@ -459,7 +444,7 @@ def screen_resonances(
     # not at one bin that noise may have lifted over the threshold.
     near = np.clip(peaks[:, None] + np.arange(-2, 3), 0, f.size - 1)
     coh_near = np.nan_to_num(coh[near], nan=0.0).mean(axis=1) if peaks.size else np.zeros(0)
-    rejected: list[RejectedPeak] = []
+    rejected: list[tuple[float, RejectedPeak]] = []  # (prominence, peak)
 
     def reject(i, c, reason):
         rejected.append((float(prom_of[int(i)]), RejectedPeak(float(f[i]), float(mag_db[i]), float(c), reason)))
@@ -468,18 +453,11 @@ def screen_resonances(
 
     kept = []
     for i, p, c in zip(peaks, prominence, coh_near):
-        if coherence_threshold is not None:
-            if c < coherence_threshold:
-                reject(i, c, f"coherence {c:.3f} around the peak is under identification.coherence_threshold "
-                             f"= {coherence_threshold:g}")
-                continue
-            height, needed = _stands_out(mag_db, int(i), c, frf.n_averages)
-            if height < needed:
-                reject(i, c, f"rises {height:.1f} dB over its surroundings, within the scatter of the estimate "
-                             f"(needs {needed:.1f} dB: {_NOISE_SIGMAS:g} standard deviations at coherence {c:.3f} "
-                             f"over {frf.n_averages} averages)")
-                continue
-        kept.append((i, p, c))
+        doubt = _doubt(mag_db, int(i), c, coherence_threshold, frf.n_averages)
+        if doubt:
+            reject(i, c, doubt)
+        else:
+            kept.append((i, p, c))
     kept.sort(key=lambda k: -k[1])
 
     found: list[Resonance] = []
@@ -488,8 +466,7 @@ def screen_resonances(
             reject(i, c, f"beyond the {max_count} most prominent peaks (identification.max_resonances)")
             continue
         res = dataclasses.replace(_refine(f, H, coh, int(i), df, frf.n_averages), prominence_db=float(prom_of[int(i)]))
-        width = res.damping_ratio * res.frequency_hz if np.isfinite(res.damping_ratio) else df
-        twin = [r for r in found if abs(res.frequency_hz - r.frequency_hz) <= max(width, df)]
+        twin = _same_mode(res, found, df)
         if twin:
             reject(i, c, f"the same mode as the resonance at {twin[0].frequency_hz:.4g} Hz")
             continue
@@ -497,3 +474,47 @@ def screen_resonances(
     # noise makes many small peaks where the coherence is low: list the most prominent
     listed = [r for _, r in sorted(rejected, key=lambda pr: -pr[0])[:max_rejected]]
     return sorted(found, key=lambda r: r.frequency_hz), sorted(listed, key=lambda r: r.frequency_hz)
+
+
+def _check_screen_limits(coherence_threshold: float | None, min_prominence_db: float, max_count: int) -> None:
+    if coherence_threshold is not None and not 0.0 <= coherence_threshold <= 1.0:
+        raise ConfigError(
+            "coherence_threshold", f"must lie in [0, 1] or be None, got {coherence_threshold!r}"
+        )
+    if not min_prominence_db >= 0.0:
+        raise ConfigError("min_prominence_db", f"must be >= 0 dB, got {min_prominence_db!r}")
+    if int(max_count) != max_count or max_count < 1:
+        raise ConfigError("max_count", f"must be a positive integer, got {max_count!r}")
+
+
+def _usable_bins(frf: FrequencyResponse, band_hz: tuple[float, float] | None) -> np.ndarray:
+    """Indices of the bins at ``f > 0`` with a finite non-zero response, within `band_hz` when given."""
+    f, H = frf.frequency_hz, frf.response
+    valid = (f > 0.0) & np.isfinite(H) & (H != 0.0)
+    if band_hz is not None:
+        f_lo, f_hi = band_hz
+        if not f_lo < f_hi:
+            raise ConfigError("band_hz", f"must be (f_lo, f_hi) with f_lo < f_hi, got {band_hz!r}")
+        valid &= (f >= f_lo) & (f <= f_hi)
+    return np.flatnonzero(valid)
+
+
+def _doubt(mag_db: np.ndarray, i: int, c: float, coherence_threshold: float | None, n_averages: int) -> str:
+    """Why the peak at bin `i` (coherence `c` around it) is not a resonance the data show ("" when it is)."""
+    if coherence_threshold is None:
+        return ""
+    if c < coherence_threshold:
+        return (f"coherence {c:.3f} around the peak is under identification.coherence_threshold "
+                f"= {coherence_threshold:g}")
+    height, needed = _stands_out(mag_db, i, c, n_averages)
+    if height < needed:
+        return (f"rises {height:.1f} dB over its surroundings, within the scatter of the estimate "
+                f"(needs {needed:.1f} dB: {_NOISE_SIGMAS:g} standard deviations at coherence {c:.3f} "
+                f"over {n_averages} averages)")
+    return ""
+
+
+def _same_mode(res: Resonance, found: list[Resonance], df: float) -> list[Resonance]:
+    """The resonances already found within ``zeta f`` (at least a line) of `res`."""
+    width = res.damping_ratio * res.frequency_hz if np.isfinite(res.damping_ratio) else df
+    return [r for r in found if abs(res.frequency_hz - r.frequency_hz) <= max(width, df)]

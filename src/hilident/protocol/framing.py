@@ -56,7 +56,7 @@ class FrameDecoder:
     Examples
     --------
     >>> dec = FrameDecoder()
-    >>> wire = encode_frame(b"abc") + b"\\x13\\x37" + encode_frame(b"def")
+    >>> wire = encode_frame(b"abc") + b"\\x13\\x37\\x00" + encode_frame(b"def")
     >>> dec.feed(wire[:5]) + dec.feed(wire[5:])
     [b'abc', b'def']
     >>> dec.stats.corrupt
