@@ -20,11 +20,14 @@ and a pyserial port URL that writes a file (``spy://...?file=``) is refused.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+import sys
 import tomllib
 import types
 import typing
 import urllib.parse
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -45,24 +48,93 @@ FLOAT_MAX = 1e30
 
 
 def _spec(default=dataclasses.MISSING, *, gt=None, ge=None, le=None, lt=None, choices=None, max_items=None, doc="",
-          auto=None):
+          auto=None, check=None):
     """A dataclass field with validation metadata (bounds, choices, list length).
 
     ``auto``: the string ``"auto"`` is accepted besides a number (``True``), or
-    refused with this message (a str) where it cannot apply.
+    refused with this message (a str) where it cannot apply. ``check``: a
+    callable ``check(value, key, source)`` run on a value that passed the other
+    checks; it raises :class:`ConfigError` naming ``key``.
     """
     meta = {"gt": gt, "ge": ge, "le": le, "lt": lt, "choices": choices, "max_items": max_items, "doc": doc,
-            "auto": auto}
+            "auto": auto, "check": check}
     if isinstance(default, (list, dict)):
         return field(default_factory=lambda d=default: type(d)(d), metadata=meta)
     return field(default=default, metadata=meta)
+
+
+class ConfigKeyDeprecationWarning(DeprecationWarning):
+    """A key of an earlier release was read; the message names it, the file and where it lives now."""
+
+
+if not sys.warnoptions:  # shown once per key and file, unless the user chose what to do with warnings
+    warnings.filterwarnings("default", category=ConfigKeyDeprecationWarning)
+
+
+def _moved_keys_readable(cls):
+    """Keep the flat attributes of the keys ``cls.moved_keys`` moved into sub-tables.
+
+    Each moved key stays a read-only attribute of ``cls`` (``device.node_id``
+    reads ``device.canopen.node_id``) and a keyword of the constructor and of
+    :func:`dataclasses.replace`, which set it in its sub-table. Readers should
+    move to the sub-table attribute; the aliases go with the flat keys.
+    """
+    init = cls.__init__
+
+    @functools.wraps(init)
+    def __init__(self, *args, **kwargs):
+        flat = {name: kwargs.pop(name) for name in list(kwargs) if name in cls.moved_keys}
+        init(self, *args, **kwargs)
+        for sub in dict.fromkeys(cls.moved_keys[name] for name in flat):
+            given = {name: value for name, value in flat.items() if cls.moved_keys[name] == sub}
+            object.__setattr__(self, sub, dataclasses.replace(getattr(self, sub), **given))
+
+    cls.__init__ = __init__
+    for name, sub in cls.moved_keys.items():
+        setattr(cls, name, property(lambda self, n=name, s=sub: getattr(getattr(self, s), n),
+                                    doc=f"Deprecated alias of ``{sub}.{name}``."))
+    return cls
+
+
+def _check_object_address(value: str, key: str, source: str) -> None:
+    """An object address ``"0x3100"`` or ``"0x3100:2"`` (or empty: none)."""
+    if value.strip():
+        from hilident.protocol.canopen_objects import parse_address
+
+        parse_address(value, key, source)
 
 
 # --- device and run -------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
+class CanopenDeviceConfig:
+    """``[device.canopen]``: how the host reaches a CANopen drive."""
+
+    can_interface: str = _spec("socketcan", doc="python-can interface (socketcan, pcan, kvaser, socketcand, virtual, "
+                                                "...)")
+    node_id: int = _spec(1, ge=1, le=127, doc="node id of the drive")
+    trace: str = _spec("", choices=("", "asc", "blf"), doc='write a CAN trace of each run next to its recording: "", '
+                                                           '"asc" or "blf"')
+
+
+@dataclass(frozen=True)
+class ModbusDeviceConfig:
+    """``[device.modbus]``: how the host addresses a Modbus drive."""
+
+    device_id: int = _spec(1, ge=0, le=247, doc="device (unit/slave) id")
+    parity: str = _spec("E", choices=("N", "E", "O"), doc="RTU: parity")
+    stopbits: int = _spec(1, ge=1, le=2, doc="RTU: stop bits")
+
+
+@_moved_keys_readable
+@dataclass(frozen=True)
 class DeviceConfig:
+    #: Flat keys of earlier releases and the sub-table each moved to (read with a DeprecationWarning).
+    moved_keys: typing.ClassVar[dict[str, str]] = {
+        "can_interface": "canopen", "node_id": "canopen", "trace": "canopen",
+        "device_id": "modbus", "parity": "modbus", "stopbits": "modbus"}
+
     driver: str = _spec("myrio-board", doc="driver name (folder in drivers/) or path to a driver folder")
     port: str = _spec("emulator", doc='"emulator"; serial board: a device path, COMx or pyserial URL (socket://, '
                       'rfc2217://); CANopen: the python-can channel (can0, PCAN_USBBUS1, ...); '
@@ -70,11 +142,6 @@ class DeviceConfig:
     baudrate: int = _spec(0, ge=0, doc="serial or RTU line rate in baud, or CAN bit rate; 0 uses the driver's default")
     timeout_s: float = _spec(2.0, gt=0, doc="how long to wait for an answer from the device")
     driver_paths: list[str] = _spec([], max_items=32, doc="extra folders searched for driver descriptions")
-    can_interface: str = _spec("socketcan", doc="CANopen: python-can interface (socketcan, pcan, kvaser, socketcand, virtual, ...)")
-    node_id: int = _spec(1, ge=1, le=127, doc="CANopen: node id of the drive")
-    device_id: int = _spec(1, ge=0, le=247, doc="Modbus: device (unit/slave) id")
-    parity: str = _spec("E", choices=("N", "E", "O"), doc="Modbus RTU: parity")
-    stopbits: int = _spec(1, ge=1, le=2, doc="Modbus RTU: stop bits")
     acquisition: str = _spec("auto", choices=("auto", "streamed", "buffered", "recorder"),
                              doc="streamed: the host sends set-points each cycle; buffered: the drive plays a "
                                  "stored table and captures into its buffer; recorder: the drive's own generator "
@@ -86,7 +153,8 @@ class DeviceConfig:
                                   "before it stops the axis on its own: CANopen heartbeat consumer (0x1016), Modbus "
                                   "the driver's communication-timeout parameter; the serial board's watchdog is "
                                   "fixed by the board (PROTOCOL.md section 8)")
-    trace: str = _spec("", choices=("", "asc", "blf"), doc='CANopen: write a CAN trace of each run next to its recording: "", "asc" or "blf"')
+    canopen: CanopenDeviceConfig = _spec(CanopenDeviceConfig(), doc="CANopen drives")
+    modbus: ModbusDeviceConfig = _spec(ModbusDeviceConfig(), doc="Modbus drives")
 
 
 @dataclass(frozen=True)
@@ -343,25 +411,56 @@ class SensorsConfig:
 
 
 @dataclass(frozen=True)
-class FaultsConfig:
+class SerialFaultsConfig:
+    """``[emulator.faults.serial]``: faults of the serial board's line."""
+
     corrupt_frame_rate: float = _spec(0.0, ge=0, le=1, doc="probability that a board->host frame gets a byte flipped")
     drop_frame_rate: float = _spec(0.0, ge=0, le=1, doc="probability that bytes of a frame are lost on the line")
     close_after_s: float = _spec(0.0, ge=0, doc="close the line this long after a run starts; 0: never")
+
+
+@dataclass(frozen=True)
+class CanopenFaultsConfig:
+    """``[emulator.faults.canopen]``: faults of an emulated CANopen drive."""
+
+    heartbeat_stops_after_s: float = _spec(0.0, ge=0, doc="the heartbeat stops this long after a run starts")
+    abort_object: str = _spec("", check=_check_object_address,
+                              doc='every SDO access to this object aborts, "0x3100" or "0x3100:2"')
+    drop_pdo_rate: float = _spec(0.0, ge=0, le=1, doc="probability that a TPDO is not sent")
+
+
+@dataclass(frozen=True)
+class ModbusFaultsConfig:
+    """``[emulator.faults.modbus]``: faults of an emulated Modbus drive."""
+
+    exception_register: int = _spec(-1, ge=-1, le=65535, doc="requests touching this register get an exception; "
+                                    "-1: none")
+    exception_code: int = _spec(4, ge=1, le=11, doc="the exception code answered (4: server device failure)")
+    response_delay_s: float = _spec(0.0, ge=0, doc="every response is delayed this long")
+    missing_response_rate: float = _spec(0.0, ge=0, le=1, doc="probability that a request gets no response")
+    unknown_unit_id: str = _spec("ignore", choices=("ignore", "gateway_exception"),
+                                 doc="Modbus TCP: a request to a unit id other than [device.modbus].device_id and 255 "
+                                     "is ignored, or answered with exception 11 (gateway target device failed to "
+                                     "respond)")
+
+
+@_moved_keys_readable
+@dataclass(frozen=True)
+class FaultsConfig:
+    #: Flat keys of earlier releases and the sub-table each moved to (read with a DeprecationWarning).
+    moved_keys: typing.ClassVar[dict[str, str]] = {
+        "corrupt_frame_rate": "serial", "drop_frame_rate": "serial", "close_after_s": "serial",
+        "heartbeat_stops_after_s": "canopen", "abort_object": "canopen", "drop_pdo_rate": "canopen",
+        "exception_register": "modbus", "exception_code": "modbus", "response_delay_s": "modbus",
+        "missing_response_rate": "modbus", "unknown_unit_id": "modbus"}
+
     drive_fault_after_s: float = _spec(0.0, ge=0, doc="CANopen/Modbus: the drive faults this long (simulated time) "
                                        "after a run starts (CANopen: EMCY and Fault state); 0: never")
-    heartbeat_stops_after_s: float = _spec(0.0, ge=0, doc="CANopen: the heartbeat stops this long after a run starts")
-    abort_object: str = _spec("", doc='CANopen: every SDO access to this object aborts, "0x3100" or "0x3100:2"')
-    drop_pdo_rate: float = _spec(0.0, ge=0, le=1, doc="CANopen: probability that a TPDO is not sent")
-    exception_register: int = _spec(-1, ge=-1, le=65535, doc="Modbus: requests touching this register get an "
-                                    "exception; -1: none")
-    exception_code: int = _spec(4, ge=1, le=11, doc="Modbus: the exception code answered (4: server device failure)")
-    response_delay_s: float = _spec(0.0, ge=0, doc="Modbus: every response is delayed this long")
-    missing_response_rate: float = _spec(0.0, ge=0, le=1, doc="Modbus: probability that a request gets no response")
-    unknown_unit_id: str = _spec("ignore", choices=("ignore", "gateway_exception"),
-                                 doc="Modbus TCP: a request to a unit id other than [device].device_id and 255 is "
-                                     "ignored, or answered with exception 11 (gateway target device failed to respond)")
-    capture_stops_after_s: float = _spec(0.0, ge=0, doc="CANopen/Modbus buffered and recorder runs: the capture stops this long "
-                                         "(simulated time) after the start; 0: never")
+    capture_stops_after_s: float = _spec(0.0, ge=0, doc="CANopen/Modbus buffered and recorder runs: the capture stops "
+                                         "this long (simulated time) after the start; 0: never")
+    serial: SerialFaultsConfig = _spec(SerialFaultsConfig(), doc="the serial board's line")
+    canopen: CanopenFaultsConfig = _spec(CanopenFaultsConfig(), doc="CANopen drives")
+    modbus: ModbusFaultsConfig = _spec(ModbusFaultsConfig(), doc="Modbus drives")
 
 
 @dataclass(frozen=True)
@@ -516,7 +615,8 @@ def _build(cls, table, prefix: str, source: str):
         raise ConfigError(prefix.rstrip(".") or "(file)", f"must be a table, got {show(table)}", source)
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if not f.metadata.get("internal")}
-    unknown = sorted(set(table) - set(fields))
+    moved = _moved_values(cls, table, prefix, source)
+    unknown = sorted(set(table) - set(fields) - set(moved))
     if unknown and not getattr(cls, "open_table", False):
         raise ConfigError(
             prefix + _name(unknown[0]), f"unknown key (known here: {', '.join(sorted(fields))})", source
@@ -529,7 +629,33 @@ def _build(cls, table, prefix: str, source: str):
                 raise ConfigError(key, "is required", source)
             continue
         values[name] = _convert(hints[name], table[name], f.metadata, key, source)
-    return cls(**values)
+    return cls(**values, **moved)
+
+
+def _moved_values(cls, table: dict, prefix: str, source: str) -> dict:
+    """The flat keys of an earlier release in ``table``, validated, each with a deprecation warning.
+
+    Raises
+    ------
+    ConfigError
+        A value is invalid, or the key is given both flat and in its sub-table.
+    """
+    values = {}
+    for name, sub in getattr(cls, "moved_keys", {}).items():
+        if name not in table:
+            continue
+        new_key = f"{prefix}{sub}.{name}"
+        if isinstance(table.get(sub), dict) and name in table[sub]:
+            raise ConfigError(prefix + name, f"is given twice: here and as [{new_key}]; keep the latter", source)
+        sub_cls = typing.get_type_hints(cls)[sub]
+        sub_field = next(f for f in dataclasses.fields(sub_cls) if f.name == name)
+        values[name] = _convert(typing.get_type_hints(sub_cls)[name], table[name], sub_field.metadata,
+                                prefix + name, source)
+        # explicit: the place worth naming is the file and key, not this line of hilident
+        warnings.warn_explicit(f"{source}: [{prefix}{name}] is deprecated: write it as {name} in "
+                               f"[{prefix}{sub}] ([{new_key}]); the flat key is read until the next release",
+                               ConfigKeyDeprecationWarning, "hilident.config", 0, module="hilident.config")
+    return values
 
 
 def _convert(hint, value, meta, key: str, source: str):
@@ -588,6 +714,8 @@ def _scalar(hint, value, meta, key, source):
         b = bounds.get(bound)
         if b is not None and not ok(value, b):
             raise ConfigError(key, f"must be {text} {show(b)}, got {show(value)}", source)
+    if meta.get("check"):
+        meta["check"](value, key, source)
     return value
 
 
@@ -606,10 +734,6 @@ def _cross_check(cfg: Config) -> None:
     lim = cfg.limits
     exc = cfg.excitation
     _check_port(cfg.device.port, src)
-    if cfg.emulator.faults.abort_object.strip():
-        from hilident.protocol.canopen_objects import parse_address
-
-        parse_address(cfg.emulator.faults.abort_object, "emulator.faults.abort_object", src)
     if lim is not None:
         _check_limits(cfg)
     rng = cfg.emulator.sensors.laser_range_m
