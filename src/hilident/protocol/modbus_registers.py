@@ -74,7 +74,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from hilident.config import _spec, build_table
+from hilident.schema import build_table
+from hilident.schema import spec as _spec
 from hilident.errors import ConfigError, DataError
 from hilident.protocol.filter_encoding import FilterEncoding
 
