@@ -55,8 +55,9 @@ def spec(default=dataclasses.MISSING, *, gt=None, ge=None, le=None, lt=None, cho
 
     ``auto``: the string ``"auto"`` is accepted besides a number (``True``), or
     refused with this message (a str) where it cannot apply. ``check``: a
-    callable ``check(value, key, source)`` run on a value that passed the other
-    checks; it raises :class:`ConfigError` naming ``key``.
+    callable ``check(value, key, source)`` run on a value (a list: the whole
+    list) that passed the other checks; it raises :class:`ConfigError` naming
+    ``key``.
     """
     meta = {"gt": gt, "ge": ge, "le": le, "lt": lt, "choices": choices, "max_items": max_items, "doc": doc,
             "auto": auto, "check": check}
@@ -172,18 +173,25 @@ def _convert(hint, value, meta, key: str, source: str):
         hint = next(h for h in typing.get_args(hint) if h is not type(None))
     if dataclasses.is_dataclass(hint):
         return _build(hint, value, key + ".", source)
-    origin = typing.get_origin(hint)
-    if origin is list:
-        (item,) = typing.get_args(hint)
-        if not isinstance(value, list):
-            raise ConfigError(key, f"must be a list, got {show(value)}", source)
-        limit = meta.get("max_items") or MAX_LIST_ITEMS
-        if len(value) > limit:
-            raise ConfigError(key, f"may hold at most {limit} items, got {len(value)}", source)
-        if dataclasses.is_dataclass(item):
-            return [_build(item, v, f"{key}[{i}].", source) for i, v in enumerate(value)]
-        return [_scalar(item, v, meta, f"{key}[{i}]", source) for i, v in enumerate(value)]
+    if typing.get_origin(hint) is list:
+        return _list(typing.get_args(hint)[0], value, meta, key, source)
     return _scalar(hint, value, meta, key, source)
+
+
+def _list(item, value, meta, key: str, source: str) -> list:
+    """A list of ``item`` (tables or scalars, each checked as the field says); ``check`` sees the whole list."""
+    if not isinstance(value, list):
+        raise ConfigError(key, f"must be a list, got {show(value)}", source)
+    limit = meta.get("max_items") or MAX_LIST_ITEMS
+    if len(value) > limit:
+        raise ConfigError(key, f"may hold at most {limit} items, got {len(value)}", source)
+    if dataclasses.is_dataclass(item):
+        return [_build(item, v, f"{key}[{i}].", source) for i, v in enumerate(value)]
+    item_meta = {**meta, "check": None}
+    items = [_scalar(item, v, item_meta, f"{key}[{i}]", source) for i, v in enumerate(value)]
+    if meta.get("check"):
+        meta["check"](items, key, source)
+    return items
 
 
 _BOUNDS = (("gt", lambda v, b: v > b, ">"), ("ge", lambda v, b: v >= b, ">="),
