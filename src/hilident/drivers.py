@@ -26,9 +26,8 @@ from pathlib import Path
 from typing import ClassVar
 
 from hilident.config import parse_toml, read_toml_text
-from hilident.schema import build_table
-from hilident.schema import spec
 from hilident.errors import ConfigError
+from hilident.schema import build_table, spec
 from hilident.signals._checks import show
 
 DESCRIPTION_FILE = "driver.toml"
