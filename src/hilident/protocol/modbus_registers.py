@@ -748,56 +748,69 @@ def _parse_rule(mb: dict, source: str) -> ParameterRule:
 def _parse_registers(table: dict, rule: ParameterRule | None, word_order: str, byte_order: str,
                      source: str) -> dict[str, Register]:
     """``[modbus.registers]``: each entry through the typed schema, plus ``bits`` and ``default``."""
+    return {name: _parse_register(name, raw, rule, word_order, byte_order, source) for name, raw in table.items()}
+
+
+def _parse_register(name: str, raw, rule: ParameterRule | None, word_order: str, byte_order: str,
+                    source: str) -> Register:
+    """One ``[modbus.registers]`` entry; ``word_order`` and ``byte_order`` are the map's defaults."""
     fail = _fail_in(source)
-    registers: dict[str, Register] = {}
-    for name, raw in table.items():
-        key = f"modbus.registers.{name}"
-        if not isinstance(raw, dict):
-            fail(key, "must be a table {address, type, access}")
-        spec = build_table(_RegisterSpec, {k: v for k, v in raw.items() if k not in ("bits", "default")},
-                           key + ".", source)
-        if spec.scale == 0:
-            fail(f"{key}.scale", "must be a non-zero finite number, got 0")
-        count = spec.length if spec.type == "str" else TYPES[spec.type][0]
-        code, address = spec.parameter, spec.address
-        if address < 0:
-            code = code or name
-            if rule is None:
-                fail(f"{key}.address", "is required (or a parameter code with a [modbus.parameters] rule)")
-            try:
-                address = rule.address_of(code)
-            except DataError as exc:
-                fail(f"{key}.parameter" if spec.parameter else f"{key}.address", str(exc))
-        elif code and rule is not None:
-            try:
-                if rule.address_of(code) != address:
-                    fail(f"{key}.address", f"{address:#06x} is not where {rule.text!r} puts {code}")
-            except DataError as exc:
-                fail(f"{key}.parameter", str(exc))
-        if address + count > 65536:
-            fail(f"{key}.address", f"{count} registers from {address} leave the 16-bit address space")
-        if spec.table == "input" and spec.access == "rw":
-            fail(f"{key}.access", 'an input register is read only: "r"')
-        low, high = spec.min, spec.max
-        if low is not None and high is not None and low > high:
-            fail(f"{key}.min", f"{low:g} is above max {high:g}")
-        register = Register(
-            name, address, spec.type, spec.access, spec.scale, count, spec.word_order or word_order,
-            spec.byte_order or byte_order, spec.table, spec.offset, spec.unit, low, high,
-            _parse_bits(raw.get("bits", {}), spec.type, count, f"{key}.bits", fail), code, spec.channel,
-            spec.channel_scale, None)
-        if "default" in raw:
-            default = raw["default"]
-            if isinstance(default, bool) or not isinstance(default, (int, float, str)) \
-                    or isinstance(default, str) != (spec.type == "str"):
-                fail(f"{key}.default", f"must be a {'string' if spec.type == 'str' else 'number'}, got {default!r}")
-            try:
-                register.encode(default)
-            except DataError as exc:
-                fail(f"{key}.default", str(exc))
-            register = replace(register, default=default)
-        registers[name] = register
-    return registers
+    key = f"modbus.registers.{name}"
+    if not isinstance(raw, dict):
+        fail(key, "must be a table {address, type, access}")
+    spec = build_table(_RegisterSpec, {k: v for k, v in raw.items() if k not in ("bits", "default")},
+                       key + ".", source)
+    if spec.scale == 0:
+        fail(f"{key}.scale", "must be a non-zero finite number, got 0")
+    count = spec.length if spec.type == "str" else TYPES[spec.type][0]
+    code, address = _register_address(name, spec, rule, key, fail)
+    if address + count > 65536:
+        fail(f"{key}.address", f"{count} registers from {address} leave the 16-bit address space")
+    if spec.table == "input" and spec.access == "rw":
+        fail(f"{key}.access", 'an input register is read only: "r"')
+    if spec.min is not None and spec.max is not None and spec.min > spec.max:
+        fail(f"{key}.min", f"{spec.min:g} is above max {spec.max:g}")
+    register = Register(
+        name, address, spec.type, spec.access, spec.scale, count, spec.word_order or word_order,
+        spec.byte_order or byte_order, spec.table, spec.offset, spec.unit, spec.min, spec.max,
+        _parse_bits(raw.get("bits", {}), spec.type, count, f"{key}.bits", fail), code, spec.channel,
+        spec.channel_scale, None)
+    if "default" in raw:
+        register = replace(register, default=_register_default(register, raw["default"], key, fail))
+    return register
+
+
+def _register_address(name: str, spec: _RegisterSpec, rule: ParameterRule | None, key: str, fail) -> tuple[str, int]:
+    """The parameter code and address of a register: ``address``, else its code through the rule (they must agree)."""
+    code, address = spec.parameter, spec.address
+    if address < 0:
+        code = code or name
+        if rule is None:
+            fail(f"{key}.address", "is required (or a parameter code with a [modbus.parameters] rule)")
+        try:
+            return code, rule.address_of(code)
+        except DataError as exc:
+            fail(f"{key}.parameter" if spec.parameter else f"{key}.address", str(exc))
+    if code and rule is not None:
+        try:
+            where = rule.address_of(code)
+        except DataError as exc:
+            fail(f"{key}.parameter", str(exc))
+        if where != address:
+            fail(f"{key}.address", f"{address:#06x} is not where {rule.text!r} puts {code}")
+    return code, address
+
+
+def _register_default(register: Register, default, key: str, fail):
+    """``default``: the register's value at power-up, of its kind and within what it encodes."""
+    is_str = register.type == "str"
+    if isinstance(default, bool) or not isinstance(default, (int, float, str)) or isinstance(default, str) != is_str:
+        fail(f"{key}.default", f"must be a {'string' if is_str else 'number'}, got {default!r}")
+    try:
+        register.encode(default)
+    except DataError as exc:
+        fail(f"{key}.default", str(exc))
+    return default
 
 
 def _parse_bits(bits, type_: str, count: int, key: str, fail) -> dict[str, int]:
@@ -861,19 +874,8 @@ def _parse_field_slots(ft: dict, encoding: FilterEncoding, registers: dict, rule
     if not isinstance(raw, list) or len(raw) != filter_slots:
         fail("modbus.filters.slots", f"must list board.filter_slots = {filter_slots} slot(s), got "
                                      f"{len(raw) if isinstance(raw, list) else raw!r}")
-    slots = []
-    for i, entry in enumerate(raw):
-        key = f"modbus.filters.slots[{i}]"
-        names = (*encoding.fields, "enable")
-        if not isinstance(entry, dict) or set(entry) - set(names) or not set(encoding.fields) <= set(entry):
-            fail(key, f"must name the register of each of {', '.join(encoding.fields)} (and optionally enable)")
-        regs = {}
-        for name in entry:
-            r = _named_register(entry[name], registers, rule, f"{key}.{name}", fail)
-            if r.type == "str" or r.table != "holding" or r.access != "rw":
-                fail(f"{key}.{name}", f"{r.label} must be a numeric read-write holding register")
-            regs[name] = r
-        slots.append(regs)
+    slots = [_field_slot(f"modbus.filters.slots[{i}]", entry, encoding, registers, rule, fail)
+             for i, entry in enumerate(raw)]
     off = ft.get("off", {})
     has_enable = bool(slots) and "enable" in slots[0]
     if not isinstance(off, dict) or (not has_enable and len(off) != 1) or set(off) - set(encoding.fields):
@@ -883,6 +885,20 @@ def _parse_field_slots(ft: dict, encoding: FilterEncoding, registers: dict, rule
         if isinstance(value, bool) or not isinstance(value, int):
             fail(f"modbus.filters.off.{name}", f"must be the stored integer, got {value!r}")
     return FieldSlots(tuple(slots), dict(off))
+
+
+def _field_slot(key: str, entry, encoding: FilterEncoding, registers: dict, rule, fail) -> dict[str, Register]:
+    """One slot: the numeric read-write holding register of each field of the encoding (and optionally enable)."""
+    names = (*encoding.fields, "enable")
+    if not isinstance(entry, dict) or set(entry) - set(names) or not set(encoding.fields) <= set(entry):
+        fail(key, f"must name the register of each of {', '.join(encoding.fields)} (and optionally enable)")
+    regs = {}
+    for name in entry:
+        r = _named_register(entry[name], registers, rule, f"{key}.{name}", fail)
+        if r.type == "str" or r.table != "holding" or r.access != "rw":
+            fail(f"{key}.{name}", f"{r.label} must be a numeric read-write holding register")
+        regs[name] = r
+    return regs
 
 
 def _parse_identity(mb: dict, registers: dict, excitation: bool, fail) -> tuple[tuple[str, ...], dict]:
@@ -1276,17 +1292,23 @@ class RegisterMap:
         where = f"register {address:{fmt}}" if last == address else f"registers {address:{fmt}}..{last:{fmt}}"
         names = [r.label for r in sorted(self.registers.values(), key=lambda r: r.address)
                  if r.address <= last and r.end > address and r.table == table]
-        for w, label in ((self.table, "excitation table window"), (self.capture, "capture window")):
-            if w is not None and table == "holding" and w.base <= last and w.end > address:
-                names.append(label + (f", page {page}" if page is not None else ""))
-        if self.filters is not None and table == "holding":
-            slots = sorted({s for a in range(address, last + 1) if (s := self.filters.slot_at(a)) is not None})
-            names += [f"filter slot {s}" for s in slots]
-        if not names and self.rule is not None and table == "holding" and (code := self.rule.code(address)):
-            names.append(f"parameter {code}")
+        if table == "holding":
+            names += self._holding_names(address, last, page, bool(names))
         if table == "input":
             where = "input " + where
         return f"{where} ({', '.join(names) or 'not in the driver map'})"
+
+    def _holding_names(self, address: int, last: int, page: int | None, named: bool) -> list[str]:
+        """What else holding registers ``address..last`` are: windows, filter slots, else a parameter code."""
+        names = [label + (f", page {page}" if page is not None else "")
+                 for w, label in ((self.table, "excitation table window"), (self.capture, "capture window"))
+                 if w is not None and w.base <= last and w.end > address]
+        if self.filters is not None:
+            slots = sorted({s for a in range(address, last + 1) if (s := self.filters.slot_at(a)) is not None})
+            names += [f"filter slot {s}" for s in slots]
+        if not names and not named and self.rule is not None and (code := self.rule.code(address)):
+            names.append(f"parameter {code}")
+        return names
 
     # --- codes and bits --------------------------------------------------------------------
 
