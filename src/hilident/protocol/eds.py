@@ -823,32 +823,44 @@ class EdsSummary:
 
 def inspect_eds(od) -> EdsSummary:
     """Summarise a loaded object dictionary (see :class:`EdsSummary`). Pure."""
-    info = od.device_information
     roles = {role: o for role, (i, s, _, _) in ROLES.items() if (o := object_info(od, i, s)) is not None}
     supported = _supported_modes(roles.get("supported_modes"))
     cyclic = tuple(m for m in CYCLIC_MODES if MODE_SETPOINTS[m] in roles and (supported is None or m in supported))
     rpdo, rpdo_w = _pdo_entries(od, 0x1400, 0x1600)
     tpdo, tpdo_w = _pdo_entries(od, 0x1800, 0x1A00)
-    factor = {r: roles[r].default for r in ("encoder_increments", "motor_revolutions", "gear_motor_revs",
-                                            "gear_shaft_revs", "feed", "feed_shaft_revs") if r in roles}
-    hb = od.indices.get(0x1016)
-    consumers = len([s for s in getattr(hb, "subindices", {}) if s > 0]) if hb is not None else 0
-    if hb is not None and consumers == 0:
-        consumers = 1
     filters, recorders, generators = _vendor_objects(od)
     return EdsSummary(
-        vendor_name=str(info.vendor_name or ""), vendor_number=info.vendor_number,
-        product_name=str(info.product_name or ""), product_number=info.product_number,
-        revision_number=info.revision_number, roles=roles, supported_modes=supported, cyclic_modes=cyclic,
+        **_identity(od.device_information), roles=roles, supported_modes=supported, cyclic_modes=cyclic,
         rpdo_entries=rpdo, tpdo_entries=tpdo, pdo_mapping_writable=bool(rpdo or tpdo) and rpdo_w and tpdo_w,
         period=_period(od, roles),
         torque_objects=tuple(f"0x{i:04X}" for i in (0x6071, 0x6072, 0x6074, 0x6076, 0x6077) if i in od.indices),
         current_objects=tuple(f"0x{i:04X}" for i in (0x6075, 0x6078) if i in od.indices),
-        factor_group=factor, heartbeat_consumers=consumers, abort_connection=0x6007 in od.indices,
-        store_parameters="store_parameters" in roles, vendor_filters=filters, vendor_recorders=recorders,
-        vendor_generators=generators, vendor_torque=_vendor_torque(od),
-        baudrates=tuple(sorted(info.allowed_baudrates, reverse=True)),
+        factor_group=_factor_group(roles), heartbeat_consumers=_heartbeat_consumers(od),
+        abort_connection=0x6007 in od.indices, store_parameters="store_parameters" in roles,
+        vendor_filters=filters, vendor_recorders=recorders, vendor_generators=generators,
+        vendor_torque=_vendor_torque(od), baudrates=tuple(sorted(od.device_information.allowed_baudrates, reverse=True)),
     )
+
+
+def _identity(info) -> dict:
+    """Vendor and product of ``[DeviceInfo]``."""
+    return {"vendor_name": str(info.vendor_name or ""), "vendor_number": info.vendor_number,
+            "product_name": str(info.product_name or ""), "product_number": info.product_number,
+            "revision_number": info.revision_number}
+
+
+def _factor_group(roles: dict) -> dict:
+    """Default values of the CiA 402 factor group objects the EDS has."""
+    return {r: roles[r].default for r in ("encoder_increments", "motor_revolutions", "gear_motor_revs",
+                                          "gear_shaft_revs", "feed", "feed_shaft_revs") if r in roles}
+
+
+def _heartbeat_consumers(od) -> int:
+    """Entries of the heartbeat consumer 0x1016 (a variable: one); 0 without it."""
+    hb = od.indices.get(0x1016)
+    if hb is None:
+        return 0
+    return len([s for s in getattr(hb, "subindices", {}) if s > 0]) or 1
 
 
 def _supported_modes(var: ObjectInfo | None) -> tuple[str, ...] | None:
