@@ -452,6 +452,25 @@ class Config:
         return self.device.port == "emulator"
 
 
+def device_table(device: DeviceConfig, keys=None) -> dict:
+    """The ``[device]`` table of ``device`` as a dict for a TOML writer, transport keys in their sub-tables.
+
+    Parameters
+    ----------
+    device : DeviceConfig
+    keys : iterable of str, optional
+        The keys to write, flat names (``node_id``) included; default: all of them.
+    """
+    if keys is None:
+        subs = set(DeviceConfig.moved_keys.values())
+        keys = [f.name for f in dataclasses.fields(DeviceConfig) if f.name not in subs] + list(DeviceConfig.moved_keys)
+    table: dict = {}
+    for key in keys:
+        sub = DeviceConfig.moved_keys.get(key)
+        (table.setdefault(sub, {}) if sub else table)[key] = getattr(device, key)
+    return table
+
+
 def amplitude_ceiling_nm(cfg: Config) -> float:
     """Largest torque amplitude ``amplitude_nm = "auto"`` may choose, N·m: ``auto_max_nm``, else the torque limit.
 
