@@ -60,3 +60,76 @@ def test_a_bench_run_needs_limits():
     with pytest.raises(ConfigError) as err:
         Session(cfg, "unused")
     assert err.value.key == "limits" and "bench.toml" in str(err.value)
+
+
+OLD_STYLE = """
+[device]
+driver = "canopen-servo"
+node_id = 5
+can_interface = "virtual"
+parity = "N"
+[emulator.faults]
+exception_register = 117
+close_after_s = 0.8
+drive_fault_after_s = 1.0
+"""
+
+
+def test_flat_keys_of_the_last_release_are_read_with_a_deprecation_warning():
+    with pytest.warns(DeprecationWarning) as caught:
+        cfg = parse_config(LIMITS + OLD_STYLE, "old.toml")
+    said = [str(w.message) for w in caught]
+    assert len(said) == 5 and all("old.toml" in s for s in said)
+    assert any("[device.node_id]" in s and "[device.canopen.node_id]" in s for s in said)
+    assert any("[emulator.faults.exception_register]" in s and "[emulator.faults.modbus]" in s for s in said)
+    assert cfg.device.canopen.node_id == 5 and cfg.device.node_id == 5 and cfg.device.can_interface == "virtual"
+    assert cfg.device.modbus.parity == "N" and cfg.emulator.faults.modbus.exception_register == 117
+    assert cfg.emulator.faults.serial.close_after_s == 0.8 and cfg.emulator.faults.drive_fault_after_s == 1.0
+    new_style = parse_config(LIMITS + '[device]\ndriver = "canopen-servo"\n[device.canopen]\nnode_id = 5\n'
+                             'can_interface = "virtual"\n[device.modbus]\nparity = "N"\n[emulator.faults]\n'
+                             "drive_fault_after_s = 1.0\n[emulator.faults.modbus]\nexception_register = 117\n"
+                             "[emulator.faults.serial]\nclose_after_s = 0.8\n", "old.toml")
+    assert new_style.device == cfg.device and new_style.emulator == cfg.emulator
+
+
+def test_the_deprecation_is_a_line_on_stderr(tmp_path):
+    import subprocess
+    import sys
+
+    path = tmp_path / "old.toml"
+    path.write_text(LIMITS + "[device]\nnode_id = 5\n")
+    code = "import sys; from hilident.config import load_config; print(load_config(sys.argv[1]).device.node_id)"
+    run = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, check=True)
+    assert run.stdout.strip() == "5"
+    assert "DeprecationWarning" in run.stderr and "[device.node_id]" in run.stderr and str(path) in run.stderr
+
+
+def test_a_key_given_flat_and_in_its_sub_table_is_refused():
+    err = error(LIMITS + "[device]\nnode_id = 5\n[device.canopen]\nnode_id = 6\n")
+    assert err.key == "device.node_id" and "device.canopen.node_id" in err.message
+
+
+@pytest.mark.parametrize("text, key", [
+    ("[device]\nnode_id = 0\n", "device.node_id"),
+    ("[device.canopen]\nnode_id = 0\n", "device.canopen.node_id"),
+    ("[emulator.faults.canopen]\nabort_object = 'zz'\n", "emulator.faults.canopen.abort_object"),
+    ("[emulator.faults.modbus]\nunknown_unit_id = 'x'\n", "emulator.faults.modbus.unknown_unit_id"),
+])
+def test_sub_table_errors_name_the_key_as_written(text, key):
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        err = error(LIMITS + text)
+    assert err.key == key and f"[{key}]" in str(err)
+
+
+def test_moved_attributes_replace_into_their_sub_table():
+    from dataclasses import replace
+
+    from hilident.config import DeviceConfig, FaultsConfig
+
+    device = replace(DeviceConfig(node_id=3, parity="O"), can_interface="virtual", port="x")
+    assert device.canopen.node_id == 3 and device.canopen.can_interface == "virtual" and device.modbus.parity == "O"
+    faults = replace(FaultsConfig(), response_delay_s=0.1, corrupt_frame_rate=0.5)
+    assert faults.modbus.response_delay_s == 0.1 and faults.serial.corrupt_frame_rate == 0.5

@@ -2,8 +2,12 @@
 
 Each TOML table maps onto one frozen dataclass below; unknown keys, wrong types
 and out-of-range values raise :class:`~hilident.errors.ConfigError` naming the
-dotted key and the file. The README documents every key; the dataclass field
-comments here are the reference.
+dotted key and the file (the mechanism is :mod:`hilident.schema`, shared with
+the driver files). Transport settings live in sub-tables: ``[device.canopen]``,
+``[device.modbus]``, ``[emulator.faults.serial]``,
+``[emulator.faults.canopen]``, ``[emulator.faults.modbus]``; their flat keys of
+earlier releases are still read, with a deprecation warning. The README
+documents every key; the dataclass field comments here are the reference.
 
 Whatever a file holds, loading it gives a Config or a ConfigError, before
 anything is allocated or moved: files are at most :data:`MAX_FILE_BYTES` of
@@ -22,47 +26,66 @@ from __future__ import annotations
 import dataclasses
 import math
 import tomllib
-import types
 import typing
 import urllib.parse
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from hilident.errors import ConfigError
+from hilident.schema import (  # noqa: F401  (re-exported: the mechanism's names as they were)
+    FLOAT_MAX,
+    INT_RANGE,
+    MAX_FILE_BYTES,
+    MAX_LIST_ITEMS,
+    MAX_STRING_CHARS,
+    ConfigKeyDeprecationWarning,
+    build_table,
+    moved_keys_readable,
+)
+from hilident.schema import spec as _spec
 from hilident.signals._checks import MAX_SAMPLES, show
 from hilident.signals.generators import ramp_extent
 
-#: Largest configuration or driver description file read, bytes.
-MAX_FILE_BYTES = 1 << 20
-#: Most items a list in a configuration may hold (unless its key says fewer).
-MAX_LIST_ITEMS = 1024
-#: Longest string value, characters.
-MAX_STRING_CHARS = 4096
-#: Integers without their own bounds must fit a signed 32-bit C integer.
-INT_RANGE = (-(2**31), 2**31 - 1)
-#: Every number must be finite and within +-FLOAT_MAX (a REAL32 object holds 3.4e38).
-FLOAT_MAX = 1e30
 
+def _check_object_address(value: str, key: str, source: str) -> None:
+    """An object address ``"0x3100"`` or ``"0x3100:2"`` (or empty: none)."""
+    if value.strip():
+        from hilident.protocol.canopen_objects import parse_address
 
-def _spec(default=dataclasses.MISSING, *, gt=None, ge=None, le=None, lt=None, choices=None, max_items=None, doc="",
-          auto=None):
-    """A dataclass field with validation metadata (bounds, choices, list length).
-
-    ``auto``: the string ``"auto"`` is accepted besides a number (``True``), or
-    refused with this message (a str) where it cannot apply.
-    """
-    meta = {"gt": gt, "ge": ge, "le": le, "lt": lt, "choices": choices, "max_items": max_items, "doc": doc,
-            "auto": auto}
-    if isinstance(default, (list, dict)):
-        return field(default_factory=lambda d=default: type(d)(d), metadata=meta)
-    return field(default=default, metadata=meta)
+        parse_address(value, key, source)
 
 
 # --- device and run -------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
+class CanopenDeviceConfig:
+    """``[device.canopen]``: how the host reaches a CANopen drive."""
+
+    can_interface: str = _spec("socketcan", doc="python-can interface (socketcan, pcan, kvaser, socketcand, virtual, "
+                                                "...)")
+    node_id: int = _spec(1, ge=1, le=127, doc="node id of the drive")
+    trace: str = _spec("", choices=("", "asc", "blf"), doc='write a CAN trace of each run next to its recording: "", '
+                                                           '"asc" or "blf"')
+
+
+@dataclass(frozen=True)
+class ModbusDeviceConfig:
+    """``[device.modbus]``: how the host addresses a Modbus drive."""
+
+    device_id: int = _spec(1, ge=0, le=247, doc="device (unit/slave) id")
+    parity: str = _spec("E", choices=("N", "E", "O"), doc="RTU: parity")
+    stopbits: int = _spec(1, ge=1, le=2, doc="RTU: stop bits")
+
+
+@moved_keys_readable
+@dataclass(frozen=True)
 class DeviceConfig:
+    #: Flat keys of earlier releases and the sub-table each moved to (read with a DeprecationWarning).
+    moved_keys: typing.ClassVar[dict[str, str]] = {
+        "can_interface": "canopen", "node_id": "canopen", "trace": "canopen",
+        "device_id": "modbus", "parity": "modbus", "stopbits": "modbus"}
+
     driver: str = _spec("myrio-board", doc="driver name (folder in drivers/) or path to a driver folder")
     port: str = _spec("emulator", doc='"emulator"; serial board: a device path, COMx or pyserial URL (socket://, '
                       'rfc2217://); CANopen: the python-can channel (can0, PCAN_USBBUS1, ...); '
@@ -70,11 +93,6 @@ class DeviceConfig:
     baudrate: int = _spec(0, ge=0, doc="serial or RTU line rate in baud, or CAN bit rate; 0 uses the driver's default")
     timeout_s: float = _spec(2.0, gt=0, doc="how long to wait for an answer from the device")
     driver_paths: list[str] = _spec([], max_items=32, doc="extra folders searched for driver descriptions")
-    can_interface: str = _spec("socketcan", doc="CANopen: python-can interface (socketcan, pcan, kvaser, socketcand, virtual, ...)")
-    node_id: int = _spec(1, ge=1, le=127, doc="CANopen: node id of the drive")
-    device_id: int = _spec(1, ge=0, le=247, doc="Modbus: device (unit/slave) id")
-    parity: str = _spec("E", choices=("N", "E", "O"), doc="Modbus RTU: parity")
-    stopbits: int = _spec(1, ge=1, le=2, doc="Modbus RTU: stop bits")
     acquisition: str = _spec("auto", choices=("auto", "streamed", "buffered", "recorder"),
                              doc="streamed: the host sends set-points each cycle; buffered: the drive plays a "
                                  "stored table and captures into its buffer; recorder: the drive's own generator "
@@ -86,7 +104,8 @@ class DeviceConfig:
                                   "before it stops the axis on its own: CANopen heartbeat consumer (0x1016), Modbus "
                                   "the driver's communication-timeout parameter; the serial board's watchdog is "
                                   "fixed by the board (PROTOCOL.md section 8)")
-    trace: str = _spec("", choices=("", "asc", "blf"), doc='CANopen: write a CAN trace of each run next to its recording: "", "asc" or "blf"')
+    canopen: CanopenDeviceConfig = _spec(CanopenDeviceConfig(), doc="CANopen drives")
+    modbus: ModbusDeviceConfig = _spec(ModbusDeviceConfig(), doc="Modbus drives")
 
 
 @dataclass(frozen=True)
@@ -343,25 +362,56 @@ class SensorsConfig:
 
 
 @dataclass(frozen=True)
-class FaultsConfig:
+class SerialFaultsConfig:
+    """``[emulator.faults.serial]``: faults of the serial board's line."""
+
     corrupt_frame_rate: float = _spec(0.0, ge=0, le=1, doc="probability that a board->host frame gets a byte flipped")
     drop_frame_rate: float = _spec(0.0, ge=0, le=1, doc="probability that bytes of a frame are lost on the line")
     close_after_s: float = _spec(0.0, ge=0, doc="close the line this long after a run starts; 0: never")
+
+
+@dataclass(frozen=True)
+class CanopenFaultsConfig:
+    """``[emulator.faults.canopen]``: faults of an emulated CANopen drive."""
+
+    heartbeat_stops_after_s: float = _spec(0.0, ge=0, doc="the heartbeat stops this long after a run starts")
+    abort_object: str = _spec("", check=_check_object_address,
+                              doc='every SDO access to this object aborts, "0x3100" or "0x3100:2"')
+    drop_pdo_rate: float = _spec(0.0, ge=0, le=1, doc="probability that a TPDO is not sent")
+
+
+@dataclass(frozen=True)
+class ModbusFaultsConfig:
+    """``[emulator.faults.modbus]``: faults of an emulated Modbus drive."""
+
+    exception_register: int = _spec(-1, ge=-1, le=65535, doc="requests touching this register get an exception; "
+                                    "-1: none")
+    exception_code: int = _spec(4, ge=1, le=11, doc="the exception code answered (4: server device failure)")
+    response_delay_s: float = _spec(0.0, ge=0, doc="every response is delayed this long")
+    missing_response_rate: float = _spec(0.0, ge=0, le=1, doc="probability that a request gets no response")
+    unknown_unit_id: str = _spec("ignore", choices=("ignore", "gateway_exception"),
+                                 doc="Modbus TCP: a request to a unit id other than [device.modbus].device_id and 255 "
+                                     "is ignored, or answered with exception 11 (gateway target device failed to "
+                                     "respond)")
+
+
+@moved_keys_readable
+@dataclass(frozen=True)
+class FaultsConfig:
+    #: Flat keys of earlier releases and the sub-table each moved to (read with a DeprecationWarning).
+    moved_keys: typing.ClassVar[dict[str, str]] = {
+        "corrupt_frame_rate": "serial", "drop_frame_rate": "serial", "close_after_s": "serial",
+        "heartbeat_stops_after_s": "canopen", "abort_object": "canopen", "drop_pdo_rate": "canopen",
+        "exception_register": "modbus", "exception_code": "modbus", "response_delay_s": "modbus",
+        "missing_response_rate": "modbus", "unknown_unit_id": "modbus"}
+
     drive_fault_after_s: float = _spec(0.0, ge=0, doc="CANopen/Modbus: the drive faults this long (simulated time) "
                                        "after a run starts (CANopen: EMCY and Fault state); 0: never")
-    heartbeat_stops_after_s: float = _spec(0.0, ge=0, doc="CANopen: the heartbeat stops this long after a run starts")
-    abort_object: str = _spec("", doc='CANopen: every SDO access to this object aborts, "0x3100" or "0x3100:2"')
-    drop_pdo_rate: float = _spec(0.0, ge=0, le=1, doc="CANopen: probability that a TPDO is not sent")
-    exception_register: int = _spec(-1, ge=-1, le=65535, doc="Modbus: requests touching this register get an "
-                                    "exception; -1: none")
-    exception_code: int = _spec(4, ge=1, le=11, doc="Modbus: the exception code answered (4: server device failure)")
-    response_delay_s: float = _spec(0.0, ge=0, doc="Modbus: every response is delayed this long")
-    missing_response_rate: float = _spec(0.0, ge=0, le=1, doc="Modbus: probability that a request gets no response")
-    unknown_unit_id: str = _spec("ignore", choices=("ignore", "gateway_exception"),
-                                 doc="Modbus TCP: a request to a unit id other than [device].device_id and 255 is "
-                                     "ignored, or answered with exception 11 (gateway target device failed to respond)")
-    capture_stops_after_s: float = _spec(0.0, ge=0, doc="CANopen/Modbus buffered and recorder runs: the capture stops this long "
-                                         "(simulated time) after the start; 0: never")
+    capture_stops_after_s: float = _spec(0.0, ge=0, doc="CANopen/Modbus buffered and recorder runs: the capture stops "
+                                         "this long (simulated time) after the start; 0: never")
+    serial: SerialFaultsConfig = _spec(SerialFaultsConfig(), doc="the serial board's line")
+    canopen: CanopenFaultsConfig = _spec(CanopenFaultsConfig(), doc="CANopen drives")
+    modbus: ModbusFaultsConfig = _spec(ModbusFaultsConfig(), doc="Modbus drives")
 
 
 @dataclass(frozen=True)
@@ -400,6 +450,25 @@ class Config:
     @property
     def uses_emulator(self) -> bool:
         return self.device.port == "emulator"
+
+
+def device_table(device: DeviceConfig, keys=None) -> dict:
+    """The ``[device]`` table of ``device`` as a dict for a TOML writer, transport keys in their sub-tables.
+
+    Parameters
+    ----------
+    device : DeviceConfig
+    keys : iterable of str, optional
+        The keys to write, flat names (``node_id``) included; default: all of them.
+    """
+    if keys is None:
+        subs = set(DeviceConfig.moved_keys.values())
+        keys = [f.name for f in dataclasses.fields(DeviceConfig) if f.name not in subs] + list(DeviceConfig.moved_keys)
+    table: dict = {}
+    for key in keys:
+        sub = DeviceConfig.moved_keys.get(key)
+        (table.setdefault(sub, {}) if sub else table)[key] = getattr(device, key)
+    return table
 
 
 def amplitude_ceiling_nm(cfg: Config) -> float:
@@ -491,113 +560,6 @@ def parse_config(text: str, source: str = "<string>") -> Config:
     return cfg
 
 
-def build_table(cls, table, prefix: str, source: str):
-    """Validate TOML ``table`` into the dataclass ``cls`` (fields declared with ``_spec``).
-
-    Unknown keys are refused unless ``cls`` sets ``open_table = True`` (a class
-    attribute): such a table also holds keys other readers validate.
-
-    Raises
-    ------
-    ConfigError
-        Naming ``source`` and the dotted key below ``prefix``.
-    """
-    return _build(cls, table, prefix, source)
-
-
-def _name(key: str) -> str:
-    """A key as printed in a message (a hostile key may be huge or hold control characters)."""
-    text = key if key.isprintable() else repr(key)
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
-def _build(cls, table, prefix: str, source: str):
-    if not isinstance(table, dict):
-        raise ConfigError(prefix.rstrip(".") or "(file)", f"must be a table, got {show(table)}", source)
-    hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls) if not f.metadata.get("internal")}
-    unknown = sorted(set(table) - set(fields))
-    if unknown and not getattr(cls, "open_table", False):
-        raise ConfigError(
-            prefix + _name(unknown[0]), f"unknown key (known here: {', '.join(sorted(fields))})", source
-        )
-    values = {}
-    for name, f in fields.items():
-        key = prefix + name
-        if name not in table:
-            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
-                raise ConfigError(key, "is required", source)
-            continue
-        values[name] = _convert(hints[name], table[name], f.metadata, key, source)
-    return cls(**values)
-
-
-def _convert(hint, value, meta, key: str, source: str):
-    if isinstance(hint, types.UnionType):  # "X | None": the table, when given
-        hint = next(h for h in typing.get_args(hint) if h is not type(None))
-    if dataclasses.is_dataclass(hint):
-        return _build(hint, value, key + ".", source)
-    origin = typing.get_origin(hint)
-    if origin is list:
-        (item,) = typing.get_args(hint)
-        if not isinstance(value, list):
-            raise ConfigError(key, f"must be a list, got {show(value)}", source)
-        limit = meta.get("max_items") or MAX_LIST_ITEMS
-        if len(value) > limit:
-            raise ConfigError(key, f"may hold at most {limit} items, got {len(value)}", source)
-        if dataclasses.is_dataclass(item):
-            return [_build(item, v, f"{key}[{i}].", source) for i, v in enumerate(value)]
-        return [_scalar(item, v, meta, f"{key}[{i}]", source) for i, v in enumerate(value)]
-    return _scalar(hint, value, meta, key, source)
-
-
-_BOUNDS = (("gt", lambda v, b: v > b, ">"), ("ge", lambda v, b: v >= b, ">="),
-           ("le", lambda v, b: v <= b, "<="), ("lt", lambda v, b: v < b, "<"))
-
-
-def _scalar(hint, value, meta, key, source):
-    auto = meta.get("auto")
-    if auto and isinstance(value, str) and value == "auto":
-        if auto is True:
-            return value
-        raise ConfigError(key, auto, source)
-    if auto is True and isinstance(value, str):
-        raise ConfigError(key, f'must be a number or "auto", got {show(value)}', source)
-    choices = meta.get("choices") or ()
-    if hint is str and isinstance(value, int) and not isinstance(value, bool) and str(value) in choices:
-        value = str(value)  # a choice of "auto" or a count: model_order = 3 as well as "3"
-    if hint is float and isinstance(value, int) and not isinstance(value, bool):
-        if not abs(value) <= 1e300:
-            raise ConfigError(key, f"must be a finite number, got {show(value)}", source)
-        value = float(value)
-    if hint is not bool and isinstance(value, bool) or not isinstance(value, hint):
-        raise ConfigError(key, f"must be {hint.__name__}, got {show(value)}", source)
-    if hint is float and not math.isfinite(value):
-        raise ConfigError(key, f"must be a finite number, got {show(value)}", source)
-    if hint is float and abs(value) > FLOAT_MAX:
-        raise ConfigError(key, f"must lie within +-{FLOAT_MAX:g}, got {show(value)}", source)
-    if hint is str:
-        _check_string(value, key, source)
-    if meta.get("choices") and value not in meta["choices"]:
-        raise ConfigError(key, f"must be one of {', '.join(map(repr, meta['choices']))}, got {show(value)}", source)
-    bounds = dict(meta)
-    if hint is int:  # what a device register, a C int or a numpy seed can hold
-        bounds["ge"] = INT_RANGE[0] if bounds.get("ge") is None and bounds.get("gt") is None else bounds.get("ge")
-        bounds["le"] = INT_RANGE[1] if bounds.get("le") is None and bounds.get("lt") is None else bounds.get("le")
-    for bound, ok, text in _BOUNDS:
-        b = bounds.get(bound)
-        if b is not None and not ok(value, b):
-            raise ConfigError(key, f"must be {text} {show(b)}, got {show(value)}", source)
-    return value
-
-
-def _check_string(value: str, key: str, source: str) -> None:
-    if len(value) > MAX_STRING_CHARS:
-        raise ConfigError(key, f"may be at most {MAX_STRING_CHARS} characters long, got {len(value)}", source)
-    if not value.isprintable() and any(ord(c) < 32 or ord(c) == 127 for c in value):
-        raise ConfigError(key, f"must not contain control characters, got {show(value)}", source)
-
-
 # --- checks across keys, before anything moves ------------------------------------------------
 
 
@@ -606,10 +568,6 @@ def _cross_check(cfg: Config) -> None:
     lim = cfg.limits
     exc = cfg.excitation
     _check_port(cfg.device.port, src)
-    if cfg.emulator.faults.abort_object.strip():
-        from hilident.protocol.canopen_objects import parse_address
-
-        parse_address(cfg.emulator.faults.abort_object, "emulator.faults.abort_object", src)
     if lim is not None:
         _check_limits(cfg)
     rng = cfg.emulator.sensors.laser_range_m

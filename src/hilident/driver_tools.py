@@ -509,7 +509,7 @@ def _check_objects(c: _Checker) -> None:
 
 
 def _check_modes(c: _Checker) -> None:
-    s = c.s
+    """``[canopen.modes]`` against the EDS, then ``cyclic_modes``."""
     modes = c.co.get("modes", {})
     if not isinstance(modes, dict):
         c.error("canopen.modes", "must be a table of mode = { code = <int>, setpoint = \"<role>\" }")
@@ -519,24 +519,42 @@ def _check_modes(c: _Checker) -> None:
         if not isinstance(spec, dict) or not isinstance(spec.get("code"), int) or "setpoint" not in spec:
             c.error(key, 'must be { code = <int>, setpoint = "<role>" }')
             continue
-        info = c.role(f"{key}.setpoint", spec["setpoint"])
-        if info is not None:
-            if spec["setpoint"] not in c.objects:  # else _check_objects has checked its type already
-                c.type(f"{key}.setpoint", spec["setpoint"], info)
-            if spec["setpoint"] not in c.objects or spec["setpoint"] not in _WRITTEN_ROLES:
-                c.access(f"{key}.setpoint", spec["setpoint"], info, write=True)
-            if not info.pdo_mappable:
-                c.warn(f"{key}.setpoint", f"{info.address} is not PDO-mappable: it cannot be streamed")
-        mode_object = c.s.roles.get("modes_of_operation")
-        if spec["code"] < 0 and mode_object is not None and mode_object.data_type != E.INTEGER8:
-            c.warn(f"{key}.code", f"negative mode {spec['code']}, but 0x6060 is "
-                                  f"{E.type_name(mode_object.data_type)}: written as {spec['code'] & 0xFF}")
-        bit = _MODE_BIT.get(spec["code"])
-        if s.supported_modes is not None and bit is not None and E.MODE_BITS[bit] not in s.supported_modes:
-            c.error(f"{key}.code", f"mode {spec['code']} ({E.MODE_BITS[bit].upper()}) is not in 0x6502 "
-                                   f"({', '.join(s.supported_modes) or 'none'})")
-        elif bit is None:
-            c.warn(f"{key}.code", f"mode {spec['code']} is not a CiA 402 mode 0x6502 lists; not checked")
+        _check_mode_setpoint(c, key, spec["setpoint"])
+        _check_mode_code(c, key, spec["code"])
+    _check_cyclic_modes(c)
+
+
+def _check_mode_setpoint(c: _Checker, key: str, role: str) -> None:
+    """The set-point object of a mode: of its type, writable, PDO-mappable."""
+    info = c.role(f"{key}.setpoint", role)
+    if info is None:
+        return
+    if role not in c.objects:  # else _check_objects has checked its type already
+        c.type(f"{key}.setpoint", role, info)
+    if role not in c.objects or role not in _WRITTEN_ROLES:
+        c.access(f"{key}.setpoint", role, info, write=True)
+    if not info.pdo_mappable:
+        c.warn(f"{key}.setpoint", f"{info.address} is not PDO-mappable: it cannot be streamed")
+
+
+def _check_mode_code(c: _Checker, key: str, code: int) -> None:
+    """A mode code fits 0x6060 and is one 0x6502 lists."""
+    s = c.s
+    mode_object = s.roles.get("modes_of_operation")
+    if code < 0 and mode_object is not None and mode_object.data_type != E.INTEGER8:
+        c.warn(f"{key}.code", f"negative mode {code}, but 0x6060 is "
+                              f"{E.type_name(mode_object.data_type)}: written as {code & 0xFF}")
+    bit = _MODE_BIT.get(code)
+    if s.supported_modes is not None and bit is not None and E.MODE_BITS[bit] not in s.supported_modes:
+        c.error(f"{key}.code", f"mode {code} ({E.MODE_BITS[bit].upper()}) is not in 0x6502 "
+                               f"({', '.join(s.supported_modes) or 'none'})")
+    elif bit is None:
+        c.warn(f"{key}.code", f"mode {code} is not a CiA 402 mode 0x6502 lists; not checked")
+
+
+def _check_cyclic_modes(c: _Checker) -> None:
+    """``cyclic_modes``: known modes, at least one the drive supports; say when 0x6502 cannot tell."""
+    s = c.s
     preferred = c.co.get("cyclic_modes", [])
     if not isinstance(preferred, list) or any(m not in E.CYCLIC_MODES for m in preferred):
         c.error("canopen.cyclic_modes", f"must be a list of {', '.join(E.CYCLIC_MODES)}, got {preferred!r}")
@@ -553,7 +571,8 @@ def _check_modes(c: _Checker) -> None:
     if preferred and not usable:
         c.error("canopen.cyclic_modes", f"none of {', '.join(preferred)} is supported by the drive")
     if preferred and s.supported_modes is None:
-        emu = c.data.get("emulator", {}).get("supported_modes") if isinstance(c.data.get("emulator"), dict) else None
+        emulator = c.data.get("emulator")
+        emu = emulator.get("supported_modes") if isinstance(emulator, dict) else None
         c.warn("canopen.cyclic_modes", "0x6502 has no default: the modes are read from the drive at connect"
                + ("" if emu else "; the twin needs [emulator] supported_modes"))
 
@@ -737,40 +756,44 @@ def describe_driver(folder) -> str:
         data = tomllib.loads((folder / DESCRIPTION_FILE).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         return f"  unreadable {DESCRIPTION_FILE}: {exc}"
-    board = data.get("board", {}) if isinstance(data.get("board"), dict) else {}
-    driver = data.get("driver", {}) if isinstance(data.get("driver"), dict) else {}
-    transport = driver.get("transport", "?")
-    out = []
-    if driver.get("description"):
-        out.append(f"  {driver['description']}")
+    board, driver = _table_of(data, "board"), _table_of(data, "driver")
+    out = [f"  {driver['description']}"] if driver.get("description") else []
     out.append(f"  rates: loop {board.get('loop_rate_hz', '?')} Hz, samples up to "
                f"{board.get('max_sample_rate_hz', '?')} Hz; filter slots: {board.get('filter_slots', 0)}")
-    channels = [c.get("name", "?") for c in data.get("channels", []) if isinstance(c, dict)]
-    co = data.get("canopen", {}) if isinstance(data.get("canopen"), dict) else {}
-    caps = []
-    if transport == "canopen":
-        caps, modes, more = _describe_canopen(folder, data, co)
-        channels = channels or more
-        try:  # what a session would use: the channels and hilident modes the driver loader derives
-            loaded = load_driver(folder)
-            channels, modes = [c.name for c in loaded.channels], list(declared_modes(loaded))
-        except ConfigError as exc:
-            caps.append(f"not loadable: {exc}")
-    elif transport == "modbus":
-        mb = data.get("modbus", {}) if isinstance(data.get("modbus"), dict) else {}
-        modes = list(mb.get("modes", {})) if isinstance(mb.get("modes"), dict) else []
-        caps = _describe_modbus(mb)
-    else:
-        modes = ["torque", "torque_injection", "velocity", "position"]
+    channels, modes, caps = _transport_features(folder, data, driver.get("transport", "?"))
     out.append(f"  channels: {', '.join(channels) or 'none'}")
     out.append(f"  modes: {', '.join(modes) or 'none'}")
-    if isinstance(data.get("filters"), dict) and data["filters"].get("encoding"):
+    if _table_of(data, "filters").get("encoding"):
         caps.append(f"filters ({data['filters']['encoding']})")
     placeholders = driver.get("placeholders") or []
     out.append(f"  capabilities: {', '.join(caps) or 'none beyond the transport'}")
     if placeholders:
         out.append(f"  placeholders (refused on a real port): {', '.join(map(str, placeholders))}")
     return "\n".join(out)
+
+
+def _table_of(data: dict, key: str) -> dict:
+    """``data[key]`` when it is a table, else an empty one (a description being described may be broken)."""
+    value = data.get(key)
+    return value if isinstance(value, dict) else {}
+
+
+def _transport_features(folder: Path, data: dict, transport: str) -> tuple[list, list, list]:
+    """Channels, modes and capabilities as the transport's description gives them."""
+    channels = [c.get("name", "?") for c in data.get("channels", []) if isinstance(c, dict)]
+    if transport == "canopen":
+        caps, modes, more = _describe_canopen(folder, data, _table_of(data, "canopen"))
+        channels = channels or more
+        try:  # what a session would use: the channels and hilident modes the driver loader derives
+            loaded = load_driver(folder)
+            channels, modes = [c.name for c in loaded.channels], list(declared_modes(loaded))
+        except ConfigError as exc:
+            caps.append(f"not loadable: {exc}")
+        return channels, modes, caps
+    if transport == "modbus":
+        mb = _table_of(data, "modbus")
+        return channels, list(_table_of(mb, "modes")), _describe_modbus(mb)
+    return channels, ["torque", "torque_injection", "velocity", "position"], []
 
 
 def _describe_canopen(folder: Path, data: dict, co: dict):

@@ -25,9 +25,9 @@ from importlib import resources
 from pathlib import Path
 from typing import ClassVar
 
-from hilident.config import build_table, parse_toml, read_toml_text
-from hilident.config import _spec as spec
+from hilident.config import parse_toml, read_toml_text
 from hilident.errors import ConfigError
+from hilident.schema import build_table, spec
 from hilident.signals._checks import show
 
 DESCRIPTION_FILE = "driver.toml"

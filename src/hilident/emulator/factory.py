@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from typing import Callable
 
-from hilident.config import DeviceConfig, EmulatorConfig
+from hilident.config import DeviceConfig, EmulatorConfig, device_table
 from hilident.drivers import DriverDescription
 from hilident.emulator.board import BoardFirmware
 from hilident.emulator.disturbance import ProcessDisturbance
@@ -229,4 +229,4 @@ def host_device_table(device: DeviceConfig) -> dict:
     standalone twin."""
     keys = ("driver", "port", "baudrate", "timeout_s", "can_interface", "node_id", "device_id", "parity",
             "stopbits", "acquisition", "allow_fault_reset", "host_timeout_s")
-    return {key: getattr(device, key) for key in keys}
+    return device_table(device, keys)

@@ -25,13 +25,14 @@ array([1234567], dtype=int32)
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
+from typing import ClassVar
 
 import numpy as np
 
 from hilident.errors import ConfigError, DataError
 from hilident.protocol.canopen_recorder import RecorderCapability, parse_recorder
+from hilident.schema import build_table, spec
 
 __all__ = [
     "ObjectAddress", "ModeSpec", "FilterObjects", "CanopenDescription", "BOOLEAN", "INTEGER8", "INTEGER16",
@@ -273,6 +274,10 @@ class CanopenDescription:
     def from_sections(cls, sections: dict, source: str = "", od=None) -> "CanopenDescription":
         """Validate the ``[canopen]`` and ``[filters]`` tables of a parsed driver description.
 
+        The scalar keys of ``[canopen]`` and ``[canopen.scaling]`` are typed
+        tables of :mod:`hilident.schema`; objects, modes and channels are checked
+        against the EDS.
+
         Parameters
         ----------
         sections : dict
@@ -289,130 +294,37 @@ class CanopenDescription:
         ConfigError
             A table or key is missing or malformed; the message names the dotted key and ``source``.
         """
-        from hilident.protocol import canopen_profile as profile
-
         co = sections.get("canopen")
         if not isinstance(co, dict):
             raise ConfigError("canopen", "a CANopen driver needs a [canopen] table", source)
-
-        def get(key, kind, default=None):
-            value = co.get(key, default)
-            if value is None:
-                raise ConfigError(f"canopen.{key}", "is required", source)
-            if kind is float and isinstance(value, int) and not isinstance(value, bool):
-                value = float(value)
-            if not isinstance(value, kind) or (kind is not bool and isinstance(value, bool)):
-                raise ConfigError(f"canopen.{key}", f"must be {kind.__name__}, got {value!r}", source)
-            return value
-
-        acquisition = get("default_acquisition", str, "streamed")
-        if acquisition not in ACQUISITIONS:
-            raise ConfigError("canopen.default_acquisition", f"must be one of {ACQUISITIONS}, got {acquisition!r}",
-                              source)
-
-        def present(addr: ObjectAddress) -> bool:
-            return od is not None and od.get_variable(addr.index, addr.subindex) is not None
-
-        objects = profile.standard_objects(present)
-        table = co.get("objects", {})
-        if not isinstance(table, dict):
-            raise ConfigError("canopen.objects", "must be a table of role = \"0xIIII[:sub]\"", source)
-        for role, text in table.items():
-            objects[role] = parse_address(text, f"canopen.objects.{role}", source)
-            if od is not None and not present(objects[role]):
-                raise ConfigError(f"canopen.objects.{role}", f"object {objects[role]} is not in the EDS", source)
-        missing = [r for r in REQUIRED_ROLES if r not in objects]
-        if missing:
-            where = "the EDS has no" if od is not None else "names no"
-            raise ConfigError("canopen.objects", f"{where} {', '.join(missing)}: not a CiA 402 drive", source)
-
-        preference = co.get("cyclic_modes", list(profile.CYCLIC_MODES))
-        if (not isinstance(preference, list) or not preference
-                or any(m not in profile.CYCLIC_MODES for m in preference)):
-            raise ConfigError("canopen.cyclic_modes", f"must be a list of {profile.CYCLIC_MODES}, got {preference!r}",
-                              source)
-        modes = {}
-        for name, spec in _table(co, "modes", source).items():
-            if not isinstance(spec, dict) or not _is_int(spec.get("code")) or not isinstance(spec.get("setpoint"), str):
-                raise ConfigError(f"canopen.modes.{name}", "must be { code = <int>, setpoint = \"<role>\" }", source)
-            if spec["setpoint"] not in objects:
-                raise ConfigError(f"canopen.modes.{name}.setpoint",
-                                  f"role {spec['setpoint']!r} is not an object of this drive", source)
-            if not -128 <= spec["code"] <= 127:
-                raise ConfigError(f"canopen.modes.{name}.code", f"must fit INTEGER8, got {spec['code']}", source)
-            modes[name] = ModeSpec(name, spec["code"], spec["setpoint"], str(spec.get("hold", "")))
-        explicit = bool(modes)
-        unmappable = tuple(role for role, addr in objects.items() if not _pdo_mappable(od, addr))
-        if not modes:
-            modes = profile.standard_modes(objects, default_supported_modes(od, objects), preference, unmappable)
-
-        scaling = _table(co, "scaling", source)
-        units = {}
-        for key in ("position_unit_m", "velocity_unit_mps"):
-            value = scaling.get(key)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
-                raise ConfigError(f"canopen.scaling.{key}", f"must be a positive number, got {value!r}", source)
-            units[key] = float(value)
-        for key, default in (("rated_torque_unit_nm", 1e-3), ("rated_torque_nm", 0.0),
-                             ("torque_constant_nm_per_a", 0.0), ("rated_current_a", 0.0)):
-            value = scaling.get(key, default)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
-                    math.isfinite(value) and value >= 0 and (value > 0 or default == 0.0)):
-                raise ConfigError(f"canopen.scaling.{key}", f"must be a {'positive' if default else 'non-negative'} "
-                                                            f"number, got {value!r}", source)
-            units[key] = float(value)
-
-        current_as_torque = units["torque_constant_nm_per_a"] > 0
-        channels: dict[str, str | None] = {}
-        if "channels" not in co:
-            channels = profile.standard_channels(objects, current_as_torque)
-        for name, role in _table(co, "channels", source).items():
-            if not isinstance(role, str) or role not in objects:
-                raise ConfigError(f"canopen.channels.{name}", f"role {role!r} is not an object of this drive", source)
-            channels[name] = role
-        if not channels:
-            raise ConfigError("canopen.channels", "needs at least one channel", source)
-
-        hb = get("heartbeat_ms", int, 100)
-        hb_timeout = get("heartbeat_timeout_ms", int, 4 * hb)
-        if not 1 <= hb <= 65535:
-            raise ConfigError("canopen.heartbeat_ms", f"must be 1..65535, got {hb}", source)
-        if hb_timeout <= hb:
-            raise ConfigError("canopen.heartbeat_timeout_ms", f"must exceed heartbeat_ms = {hb}, got {hb_timeout}",
-                              source)
-        identity = {}
-        for key in ("vendor_id", "product_code"):
-            value = co.get(key)
-            if value is not None and not (_is_int(value) and 0 <= value <= 0xFFFFFFFF):
-                raise ConfigError(f"canopen.{key}", f"must fit UNSIGNED32, got {value!r}", source)
-            identity[key] = value
-        host_node_id = get("host_node_id", int, 127)
-        if not 1 <= host_node_id <= 127:
-            raise ConfigError("canopen.host_node_id", f"must be a node id 1..127, got {host_node_id}", source)
-        abort_option = get("abort_connection_option", int, 2)
-        if abort_option not in ABORT_CONNECTION_OPTIONS:
-            raise ConfigError("canopen.abort_connection_option",
-                              f"must be one of {sorted(ABORT_CONNECTION_OPTIONS)} "
-                              f"({', '.join(f'{k} {v}' for k, v in ABORT_CONNECTION_OPTIONS.items())}), "
-                              f"got {abort_option}", source)
+        keys = build_table(_CanopenTable, co, "canopen.", source)
+        objects = _objects(co, od, source)
+        modes, explicit, unmappable = _modes(co, objects, keys.cyclic_modes, od, source)
+        units = build_table(_ScalingTable, _table(co, "scaling", source), "canopen.scaling.", source)
+        channels = _channels(co, objects, units.torque_constant_nm_per_a > 0, source)
         desc = cls(
-            eds=get("eds", str), vendor_id=identity["vendor_id"], product_code=identity["product_code"],
-            default_acquisition=acquisition, heartbeat_ms=hb, heartbeat_timeout_ms=hb_timeout,
-            block_transfer=get("block_transfer", bool, True), emcy_sample_index=get("emcy_sample_index", bool, False),
-            position_unit_m=units["position_unit_m"], velocity_unit_mps=units["velocity_unit_mps"],
+            eds=keys.eds, vendor_id=keys.vendor_id, product_code=keys.product_code,
+            default_acquisition=keys.default_acquisition, heartbeat_ms=keys.heartbeat_ms,
+            heartbeat_timeout_ms=keys.heartbeat_timeout(source),
+            block_transfer=keys.block_transfer, emcy_sample_index=keys.emcy_sample_index,
+            position_unit_m=units.position_unit_m, velocity_unit_mps=units.velocity_unit_mps,
             objects=objects, modes=modes, channels=channels,
             filters=_filter_objects(sections.get("filters"), source),
-            host_node_id=host_node_id, abort_connection_option=abort_option,
-            rated_torque_unit_nm=units["rated_torque_unit_nm"], rated_torque_nm=units["rated_torque_nm"],
-            torque_constant_nm_per_a=units["torque_constant_nm_per_a"], rated_current_a=units["rated_current_a"],
-            cyclic_modes=tuple(preference), explicit_modes=explicit, unmappable=unmappable,
+            host_node_id=keys.host_node_id, abort_connection_option=keys.abort_connection_option,
+            rated_torque_unit_nm=units.rated_torque_unit_nm, rated_torque_nm=units.rated_torque_nm,
+            torque_constant_nm_per_a=units.torque_constant_nm_per_a, rated_current_a=units.rated_current_a,
+            cyclic_modes=tuple(keys.cyclic_modes), explicit_modes=explicit, unmappable=unmappable,
             recorder=parse_recorder(sections, source, od),
         )
-        if desc.default_acquisition == "buffered":
-            desc.require_buffered(source)
-        if desc.default_acquisition == "recorder" and desc.recorder is None:
-            raise ConfigError("canopen.default_acquisition", "is \"recorder\" but there is no [canopen.recorder]", source)
+        desc._check_default_acquisition(source)
         return desc
+
+    def _check_default_acquisition(self, source: str) -> None:
+        """The default acquisition needs the objects of its protocol, or a ``[canopen.recorder]``."""
+        if self.default_acquisition == "buffered":
+            self.require_buffered(source)
+        if self.default_acquisition == "recorder" and self.recorder is None:
+            raise ConfigError("canopen.default_acquisition", "is \"recorder\" but there is no [canopen.recorder]", source)
 
     def address(self, role: str) -> ObjectAddress:
         """The object of ``role``; ConfigError when the drive does not have it."""
@@ -512,6 +424,139 @@ def default_supported_modes(od, objects: dict) -> tuple[str, ...] | None:
     if not isinstance(value, int) or value <= 0:
         return None
     return decode_supported_modes(value)
+
+
+# --- the [canopen] tables ---------------------------------------------------------------------
+
+
+def _within(lo: int, hi: int, what: str):
+    """A schema ``check``: an integer in ``lo..hi``, the message saying ``what`` it is."""
+    def check(value, key, source):
+        if not lo <= value <= hi:
+            raise ConfigError(key, f"must be {what}{lo}..{hi}, got {value}", source)
+    return check
+
+
+def _abort_option(value, key, source):
+    if value not in ABORT_CONNECTION_OPTIONS:
+        raise ConfigError(key, f"must be one of {sorted(ABORT_CONNECTION_OPTIONS)} "
+                               f"({', '.join(f'{k} {v}' for k, v in ABORT_CONNECTION_OPTIONS.items())}), "
+                               f"got {value}", source)
+
+
+def _cyclic_modes(value, key, source):
+    from hilident.protocol.canopen_profile import CYCLIC_MODES
+
+    if not value or any(m not in CYCLIC_MODES for m in value):
+        raise ConfigError(key, f"must be a list of {CYCLIC_MODES}, got {value!r}", source)
+
+
+def _unsigned32(value, key, source):
+    if not 0 <= value <= 0xFFFFFFFF:
+        raise ConfigError(key, f"must fit UNSIGNED32, got {value!r}", source)
+
+
+@dataclass(frozen=True, kw_only=True)
+class _CanopenTable:
+    """The scalar keys of ``[canopen]``; its sub-tables are read by the functions below."""
+
+    open_table: ClassVar[bool] = True  # objects, modes, channels, scaling, recorder, ...
+    eds: str = spec(doc="EDS file name, relative to the driver folder")
+    vendor_id: int | None = spec(None, check=_unsigned32, doc="0x1018:1 the device must report")
+    product_code: int | None = spec(None, check=_unsigned32, doc="0x1018:2 the device must report")
+    default_acquisition: str = spec("streamed", choices=ACQUISITIONS)
+    heartbeat_ms: int = spec(100, check=_within(1, 65535, ""), doc="producer heartbeat time written to 0x1017")
+    heartbeat_timeout_ms: int | None = spec(None, doc="a longer heartbeat gap stops the run; default 4 heartbeats")
+    block_transfer: bool = spec(True)
+    emcy_sample_index: bool = spec(False)
+    host_node_id: int = spec(127, check=_within(1, 127, "a node id "))
+    abort_connection_option: int = spec(2, check=_abort_option)
+    cyclic_modes: list[str] = spec(["cst", "csv", "csp", "ip"], max_items=8, check=_cyclic_modes)
+
+    def heartbeat_timeout(self, source: str) -> int:
+        """``heartbeat_timeout_ms``, or four heartbeats; it must exceed one."""
+        timeout = 4 * self.heartbeat_ms if self.heartbeat_timeout_ms is None else self.heartbeat_timeout_ms
+        if timeout <= self.heartbeat_ms:
+            raise ConfigError("canopen.heartbeat_timeout_ms", f"must exceed heartbeat_ms = {self.heartbeat_ms}, got "
+                                                              f"{timeout}", source)
+        return timeout
+
+
+@dataclass(frozen=True, kw_only=True)
+class _ScalingTable:
+    """``[canopen.scaling]``: SI values of the drive's units."""
+
+    open_table: ClassVar[bool] = True
+    position_unit_m: float = spec(gt=0, doc="one increment of 0x6064, 0x607A, 0x607D")
+    velocity_unit_mps: float = spec(gt=0, doc="one unit of 0x606C, 0x60FF, 0x6080")
+    rated_torque_unit_nm: float = spec(1e-3, gt=0, doc="unit of the rated torque 0x6076")
+    rated_torque_nm: float = spec(0.0, ge=0, doc="when 0x6076 is absent or reads 0; 0: none given")
+    torque_constant_nm_per_a: float = spec(0.0, ge=0, doc="for drives that report current only; 0: none given")
+    rated_current_a: float = spec(0.0, ge=0, doc="when 0x6075 is absent or reads 0; 0: none given")
+
+
+def _objects(co: dict, od, source: str) -> dict[str, ObjectAddress]:
+    """The standard objects the EDS has, and the vendor objects ``[canopen.objects]`` names."""
+    from hilident.protocol import canopen_profile as profile
+
+    def present(addr: ObjectAddress) -> bool:
+        return od is not None and od.get_variable(addr.index, addr.subindex) is not None
+
+    objects = profile.standard_objects(present)
+    table = co.get("objects", {})
+    if not isinstance(table, dict):
+        raise ConfigError("canopen.objects", "must be a table of role = \"0xIIII[:sub]\"", source)
+    for role, text in table.items():
+        objects[role] = parse_address(text, f"canopen.objects.{role}", source)
+        if od is not None and not present(objects[role]):
+            raise ConfigError(f"canopen.objects.{role}", f"object {objects[role]} is not in the EDS", source)
+    missing = [r for r in REQUIRED_ROLES if r not in objects]
+    if missing:
+        where = "the EDS has no" if od is not None else "names no"
+        raise ConfigError("canopen.objects", f"{where} {', '.join(missing)}: not a CiA 402 drive", source)
+    return objects
+
+
+def _modes(co: dict, objects: dict, preference: list[str], od, source: str):
+    """``[canopen.modes]`` (explicit), else the standard modes of the drive; and the roles no PDO can map."""
+    from hilident.protocol import canopen_profile as profile
+
+    modes = {}
+    for name, spec_ in _table(co, "modes", source).items():
+        modes[name] = _mode(name, spec_, objects, source)
+    unmappable = tuple(role for role, addr in objects.items() if not _pdo_mappable(od, addr))
+    if modes:
+        return modes, True, unmappable
+    return profile.standard_modes(objects, default_supported_modes(od, objects), preference, unmappable), False, \
+        unmappable
+
+
+def _mode(name: str, spec_, objects: dict, source: str) -> ModeSpec:
+    """One ``[canopen.modes]`` entry: ``{ code = <int>, setpoint = "<role>" }``."""
+    if not isinstance(spec_, dict) or not _is_int(spec_.get("code")) or not isinstance(spec_.get("setpoint"), str):
+        raise ConfigError(f"canopen.modes.{name}", "must be { code = <int>, setpoint = \"<role>\" }", source)
+    if spec_["setpoint"] not in objects:
+        raise ConfigError(f"canopen.modes.{name}.setpoint",
+                          f"role {spec_['setpoint']!r} is not an object of this drive", source)
+    if not -128 <= spec_["code"] <= 127:
+        raise ConfigError(f"canopen.modes.{name}.code", f"must fit INTEGER8, got {spec_['code']}", source)
+    return ModeSpec(name, spec_["code"], spec_["setpoint"], str(spec_.get("hold", "")))
+
+
+def _channels(co: dict, objects: dict, current_as_torque: bool, source: str) -> dict[str, str | None]:
+    """``[canopen.channels]``: channel -> role; without the table the standard channels of the objects."""
+    from hilident.protocol import canopen_profile as profile
+
+    channels: dict[str, str | None] = {}
+    if "channels" not in co:
+        channels = profile.standard_channels(objects, current_as_torque)
+    for name, role in _table(co, "channels", source).items():
+        if not isinstance(role, str) or role not in objects:
+            raise ConfigError(f"canopen.channels.{name}", f"role {role!r} is not an object of this drive", source)
+        channels[name] = role
+    if not channels:
+        raise ConfigError("canopen.channels", "needs at least one channel", source)
+    return channels
 
 
 def _table(parent: dict, key: str, source: str) -> dict:

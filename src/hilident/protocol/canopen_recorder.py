@@ -542,6 +542,21 @@ def plan_generator(cap: RecorderCapability, recipe: dict, target: str, samples: 
     ConfigError
         The generator cannot play it: the message names the ``[excitation]`` key and the driver's generator.
     """
+    kind = _playable_kind(cap, recipe, target, samples, sample_period)
+    where = f"the drive's generator ([canopen.generator] of {cap.source})"
+    wanted = _wanted_parameters(kind, recipe, samples, sample_period, loop_rate_hz, where)
+    raw, values = {}, {}
+    for name, (key, si) in wanted.items():
+        raw[name] = _raw_parameter(kind, name, key, si, scales, where)
+        p = kind.parameters[name]
+        scale = scales[p.scale] if isinstance(p.scale, str) else p.scale
+        values[name] = raw[name] * scale if name not in ("register_length", "clock_divider") else raw[name]
+    return GeneratorSettings(kind, target, raw, values)
+
+
+def _playable_kind(cap: RecorderCapability, recipe: dict, target: str, samples: int, sample_period: int):
+    """The generator's kind for ``recipe``, refused when the generator cannot feed ``target`` or the recorder
+    cannot hold ``samples``."""
     g = cap.generator
     where = f"the drive's generator ([canopen.generator] of {cap.source})"
     kind_name = recipe.get("kind")
@@ -562,6 +577,12 @@ def plan_generator(cap: RecorderCapability, recipe: dict, target: str, samples: 
     if kind.name == "chirp" and recipe.get("chirp_method", "linear") != kind.method:
         raise ConfigError("excitation.chirp_method", f"{recipe.get('chirp_method')!r}: {where} sweeps "
                                                      f"{kind.method}ly")
+    return kind
+
+
+def _wanted_parameters(kind, recipe: dict, samples: int, sample_period: int, loop_rate_hz: float,
+                       where: str) -> dict[str, tuple[str, float]]:
+    """Generator parameter -> (the ``[excitation]`` key it comes from, its SI value)."""
     amplitude_key = recipe.get("amplitude_key", "excitation.amplitude_nm")  # the mode's key: amplitude_mps, ...
     wanted = {"amplitude": (amplitude_key, float(recipe.get("amplitude", 0.0)))}
     if kind.name == "prbs":
@@ -578,22 +599,22 @@ def plan_generator(cap: RecorderCapability, recipe: dict, target: str, samples: 
         wanted["frequency_hz"] = ("excitation.frequency_hz", float(recipe.get("frequency_hz", 0.0)))
     if "duration_s" in kind.parameters and "duration_s" not in wanted:
         wanted["duration_s"] = ("excitation.duration_s", samples * sample_period / loop_rate_hz)
-    raw, values = {}, {}
-    for name, (key, si) in wanted.items():
-        p = kind.parameters[name]
-        scale = scales[p.scale] if isinstance(p.scale, str) else p.scale
-        if (p.minimum is not None and si < p.minimum - 1e-12 * abs(si)) or (
-                p.maximum is not None and si > p.maximum + 1e-12 * abs(si)):
-            raise ConfigError(key, f"{si:g} is outside the range [{_show(p.minimum)}, {_show(p.maximum)}] of {where} "
-                                   f"({kind.name} {name}, object {p.address})")
-        if name in ("register_length", "clock_divider"):
-            raw[name] = int(si)
-        elif name == "duration_s":  # never a cycle short of the last sample
-            raw[name] = math.ceil(si / scale - 1e-9)
-        else:
-            raw[name] = round(si / scale)
-        values[name] = raw[name] * scale if name not in ("register_length", "clock_divider") else raw[name]
-    return GeneratorSettings(kind, target, raw, values)
+    return wanted
+
+
+def _raw_parameter(kind, name: str, key: str, si: float, scales: dict, where: str) -> int:
+    """The raw value of generator parameter ``name`` for ``si``, refused outside the parameter's range."""
+    p = kind.parameters[name]
+    scale = scales[p.scale] if isinstance(p.scale, str) else p.scale
+    if (p.minimum is not None and si < p.minimum - 1e-12 * abs(si)) or (
+            p.maximum is not None and si > p.maximum + 1e-12 * abs(si)):
+        raise ConfigError(key, f"{si:g} is outside the range [{_show(p.minimum)}, {_show(p.maximum)}] of {where} "
+                               f"({kind.name} {name}, object {p.address})")
+    if name in ("register_length", "clock_divider"):
+        return int(si)
+    if name == "duration_s":  # never a cycle short of the last sample
+        return math.ceil(si / scale - 1e-9)
+    return round(si / scale)
 
 
 def _show(x) -> str:

@@ -234,58 +234,73 @@ class _Tally:
 
 def _parse_sections(text: str, source: str, warnings: list[str]) -> dict[str, dict[str, tuple[str, int]]]:
     """Sections -> {key: (value, line number)}, canonical names, first of duplicates kept."""
-    lines = text.split("\n")
-    crlf = _Tally("CRLF line ends; read as plain line ends")
-    case = _Tally("section or key names not in the EDS spelling (e.g. lower case); read case-insensitively")
-    for no, raw in enumerate(lines, 1):
+    reader = _SectionReader(source, warnings)
+    for no, raw in enumerate(text.split("\n"), 1):
+        reader.line(no, raw)
+    reader.crlf.report(source, warnings)
+    reader.case.report(source, warnings)
+    return reader.sections
+
+
+class _SectionReader:
+    """Reads an EDS line by line into sections, warning of what it skips or reads leniently."""
+
+    def __init__(self, source: str, warnings: list[str]):
+        self.source, self.warnings = source, warnings
+        self.crlf = _Tally("CRLF line ends; read as plain line ends")
+        self.case = _Tally("section or key names not in the EDS spelling (e.g. lower case); read case-insensitively")
+        self.sections: dict[str, dict[str, tuple[str, int]]] = {}
+        self.current: dict[str, tuple[str, int]] | None = None
+        self.name = ""
+
+    def line(self, no: int, raw: str) -> None:
         if raw.endswith("\r"):
-            crlf.add(f"line {no}")
-    sections: dict[str, dict[str, tuple[str, int]]] = {}
-    current: dict[str, tuple[str, int]] | None = None
-    name = ""
-    for no, raw in enumerate(lines, 1):
+            self.crlf.add(f"line {no}")
         line = raw.replace("\r", "").strip()
         if not line or line[0] in ";#":
-            continue
+            return
         m = _SECTION.match(line)
         if m:
-            given = m.group(1).strip()
-            name = _canonical_section(given)
-            if name != given and name.lower() == given.lower() and not _SUB_SECTION.match(given) \
-                    and not _HEX_SECTION.match(given):
-                case.add(f"line {no} [{given}]")
-            if not name or name.upper() == "DEFAULT" or any(c in name for c in "[]\n"):
-                warnings.append(f"{source}: line {no}: section [{given}] cannot be read; skipped with its keys")
-                current = None
-            elif name in sections:
-                warnings.append(f"{source}: line {no}: section [{given}] appears again; the first one is kept, "
-                                f"this one skipped")
-                current = None
-            else:
-                current = sections[name] = {}
-            continue
-        if current is None:
-            if not name:
-                warnings.append(f"{source}: line {no}: text before the first section; skipped")
-                name = "?"
-            continue
+            self.header(no, m.group(1).strip())
+        elif self.current is None:
+            if not self.name:
+                self.warnings.append(f"{self.source}: line {no}: text before the first section; skipped")
+                self.name = "?"
+        else:
+            self.entry(no, line)
+
+    def header(self, no: int, given: str) -> None:
+        """A ``[section]`` line: the sections that follow go into it, unless it is unreadable or repeated."""
+        name = self.name = _canonical_section(given)
+        if name != given and name.lower() == given.lower() and not _SUB_SECTION.match(given) \
+                and not _HEX_SECTION.match(given):
+            self.case.add(f"line {no} [{given}]")
+        self.current = None
+        if not name or name.upper() == "DEFAULT" or any(c in name for c in "[]\n"):
+            self.warnings.append(f"{self.source}: line {no}: section [{given}] cannot be read; skipped with its keys")
+        elif name in self.sections:
+            self.warnings.append(f"{self.source}: line {no}: section [{given}] appears again; the first one is "
+                                 f"kept, this one skipped")
+        else:
+            self.current = self.sections[name] = {}
+
+    def entry(self, no: int, line: str) -> None:
+        """A ``key=value`` line of the current section (comments after `` ;`` dropped)."""
         key, eq, value = line.partition("=")
         key = key.strip()
         value = re.split(r"\s;", value, maxsplit=1)[0].strip()
         if not eq or not key or any(c in key for c in ":[]") or key.upper() == "DEFAULT":
-            warnings.append(f"{source}: line {no} [{name}]: {line[:60]!r} is not a key=value line; skipped")
-            continue
+            self.warnings.append(f"{self.source}: line {no} [{self.name}]: {line[:60]!r} is not a key=value line; "
+                                 "skipped")
+            return
         canon = _canonical_key(key)
         if canon != key:
-            case.add(f"line {no} [{name}] {key!r}")
-        if canon in current:
-            warnings.append(f"{source}: line {no} [{name}]: duplicate key {key!r}; the first (line "
-                            f"{current[canon][1]}) is kept")
-            continue
-        current[canon] = (value, no)
-    crlf.report(source, warnings)
-    case.report(source, warnings)
-    return sections
+            self.case.add(f"line {no} [{self.name}] {key!r}")
+        if canon in self.current:
+            self.warnings.append(f"{self.source}: line {no} [{self.name}]: duplicate key {key!r}; the first (line "
+                                 f"{self.current[canon][1]}) is kept")
+            return
+        self.current[canon] = (value, no)
 
 
 def _int(text) -> int | None:
@@ -320,52 +335,66 @@ def _repair(sections: dict, source: str, warnings: list[str]) -> None:
     zeros = _Tally("decimal numbers with leading zeros; read as decimal")
     nodeid = _Tally("$NODEID expression not in the form $NODEID+0xNNN; rewritten as one")
     for name in list(sections):
-        if name not in sections:  # went with its object
-            continue
-        sec = sections[name]
-        m_obj, m_sub = _HEX_SECTION.match(name), _SUB_SECTION.match(name)
-        m_name = _NAME_SECTION.match(name)
-        if m_sub and m_sub.group(1) not in sections:
-            warnings.append(f"{source}: [{name}] (line {_first_line(sec)}): sub-index of an object the file does "
-                            f"not declare; skipped")
-            del sections[name]
-            continue
-        if m_name:
-            continue  # after the objects: see _repair_names
-        if not (m_obj or m_sub or name in _KNOWN_SECTIONS) and re.match(r"[0-9A-Fa-f]{4}", name):
-            warnings.append(f"{source}: [{name}] (line {_first_line(sec)}): neither an object, a sub-index nor a "
-                            f"names section; skipped")
-            del sections[name]
-            continue
-        if not (m_obj or m_sub):
-            continue
-        has_subs = bool(m_obj) and any(s.startswith(name + "sub") for s in sections)
-        if not _repair_object(name, sec, source, warnings, bool(m_sub), has_subs):
-            del sections[name]
-            if m_obj:  # its sub-index sections go with it
-                for sub in [s for s in sections if s.startswith(name + "sub")]:
-                    del sections[sub]
-            continue
-        _repair_custom_type(name, sec, sections, source, warnings)
-        for key in ("DefaultValue", "ParameterValue", "LowLimit", "HighLimit"):
-            if key not in sec:
-                continue
-            value, no = sec[key]
-            if "$" in value:
-                canon = _nodeid_expression(value)
-                if canon is None:
-                    warnings.append(f"{source}: line {no} [{name}]: {key}={value!r} is not a $NODEID+offset "
-                                    f"expression; dropped")
-                    del sec[key]
-                elif canon != value:
-                    nodeid.add(f"line {no} [{name}] {value!r}")
-                    sec[key] = (canon, no)
-            elif re.fullmatch(r"[+-]?0+\d+", value):
-                zeros.add(f"line {no} [{name}] {key}={value}")
-                sec[key] = (str(int(value, 10)), no)
+        if name in sections and _keep_section(name, sections, source, warnings):  # not gone with its object
+            sec = sections[name]
+            _repair_custom_type(name, sec, sections, source, warnings)
+            _repair_values(name, sec, zeros, nodeid, source, warnings)
     zeros.report(source, warnings)
     nodeid.report(source, warnings)
     _repair_names(sections, source, warnings)
+    _drop_orphan_subs(sections, source, warnings)
+
+
+def _keep_section(name: str, sections: dict, source: str, warnings: list[str]) -> bool:
+    """Whether ``name`` is a usable object or sub-index section (repaired); unusable ones are deleted."""
+    sec = sections[name]
+    m_obj, m_sub = _HEX_SECTION.match(name), _SUB_SECTION.match(name)
+    if m_sub and m_sub.group(1) not in sections:
+        warnings.append(f"{source}: [{name}] (line {_first_line(sec)}): sub-index of an object the file does "
+                        f"not declare; skipped")
+        del sections[name]
+        return False
+    if _NAME_SECTION.match(name):
+        return False  # after the objects: see _repair_names
+    if not (m_obj or m_sub or name in _KNOWN_SECTIONS) and re.match(r"[0-9A-Fa-f]{4}", name):
+        warnings.append(f"{source}: [{name}] (line {_first_line(sec)}): neither an object, a sub-index nor a "
+                        f"names section; skipped")
+        del sections[name]
+        return False
+    if not (m_obj or m_sub):
+        return False
+    has_subs = bool(m_obj) and any(s.startswith(name + "sub") for s in sections)
+    if _repair_object(name, sec, source, warnings, bool(m_sub), has_subs):
+        return True
+    del sections[name]
+    if m_obj:  # its sub-index sections go with it
+        for sub in [s for s in sections if s.startswith(name + "sub")]:
+            del sections[sub]
+    return False
+
+
+def _repair_values(name: str, sec: dict, zeros: _Tally, nodeid: _Tally, source: str, warnings: list[str]) -> None:
+    """Values with a ``$NODEID`` expression in canonical form, decimals with leading zeros read as decimal."""
+    for key in ("DefaultValue", "ParameterValue", "LowLimit", "HighLimit"):
+        if key not in sec:
+            continue
+        value, no = sec[key]
+        if "$" in value:
+            canon = _nodeid_expression(value)
+            if canon is None:
+                warnings.append(f"{source}: line {no} [{name}]: {key}={value!r} is not a $NODEID+offset "
+                                f"expression; dropped")
+                del sec[key]
+            elif canon != value:
+                nodeid.add(f"line {no} [{name}] {value!r}")
+                sec[key] = (canon, no)
+        elif re.fullmatch(r"[+-]?0+\d+", value):
+            zeros.add(f"line {no} [{name}] {key}={value}")
+            sec[key] = (str(int(value, 10)), no)
+
+
+def _drop_orphan_subs(sections: dict, source: str, warnings: list[str]) -> None:
+    """Sub-index sections of an object that is no array or record are skipped."""
     for name in [n for n in sections if _SUB_SECTION.match(n)]:
         parent = sections.get(name[:4])
         if parent is None or _int(parent.get("ObjectType", ("7", 0))[0]) not in (0x8, 0x9):
@@ -419,23 +448,9 @@ def _repair_object(name: str, sec: dict, source: str, warnings: list[str], is_su
     if "ParameterName" not in sec or not sec["ParameterName"][0]:
         warnings.append(f"{source}: {where}: no ParameterName; named 'Object {name}'")
         sec["ParameterName"] = (f"Object {name}", 0)
-    if "ObjectType" not in sec and has_subs and "DataType" not in sec:
-        warnings.append(f"{source}: {where}: no ObjectType, but sub-index sections follow; read as a record (0x9)")
-        sec["ObjectType"] = ("0x9", 0)
-    otype = _int(sec.get("ObjectType", ("0x7", 0))[0])
-    if otype is None or otype not in (0x0, 0x2, 0x5, 0x6, 0x7, 0x8, 0x9):
-        warnings.append(f"{source}: {where}: ObjectType={sec['ObjectType'][0]!r} unknown; read as a variable (0x7)")
-        sec["ObjectType"], otype = ("0x7", 0), 0x7
-    sec["ObjectType"] = (f"0x{otype:X}", sec.get("ObjectType", ("", 0))[1])
-    if otype in (0x8, 0x9) and not is_sub:
-        compact = _int(sec.get("CompactSubObj", ("0", 0))[0])
-        if "CompactSubObj" in sec and not compact:
-            del sec["CompactSubObj"]  # 0 means "not compact"; python-canopen only asks whether the key is there
-        elif compact and otype == 0x9:
-            warnings.append(f"{source}: {where}: CompactSubObj on a record (only arrays may be compact); ignored")
-            del sec["CompactSubObj"]
-        if "CompactSubObj" not in sec:
-            return True
+    otype = _repair_object_type(sec, where, has_subs, source, warnings)
+    if otype in (0x8, 0x9) and not is_sub and not _compact(sec, otype, where, source, warnings):
+        return True
     if otype in (0x0, 0x5, 0x6) and not is_sub:  # NULL, DEFTYPE, DEFSTRUCT: type definitions, not objects
         return True
     dtype = _int(sec.get("DataType", ("", 0))[0])
@@ -444,6 +459,36 @@ def _repair_object(name: str, sec: dict, source: str, warnings: list[str], is_su
                         f"object skipped")
         return False
     sec["DataType"] = (f"0x{dtype:04X}", sec.get("DataType", ("", 0))[1])
+    _repair_access(sec, where, source, warnings)
+    return True
+
+
+def _repair_object_type(sec: dict, where: str, has_subs: bool, source: str, warnings: list[str]) -> int:
+    """The object type, in canonical form (a section with sub-indices and no type of its own: a record)."""
+    if "ObjectType" not in sec and has_subs and "DataType" not in sec:
+        warnings.append(f"{source}: {where}: no ObjectType, but sub-index sections follow; read as a record (0x9)")
+        sec["ObjectType"] = ("0x9", 0)
+    otype = _int(sec.get("ObjectType", ("0x7", 0))[0])
+    if otype is None or otype not in (0x0, 0x2, 0x5, 0x6, 0x7, 0x8, 0x9):
+        warnings.append(f"{source}: {where}: ObjectType={sec['ObjectType'][0]!r} unknown; read as a variable (0x7)")
+        sec["ObjectType"], otype = ("0x7", 0), 0x7
+    sec["ObjectType"] = (f"0x{otype:X}", sec.get("ObjectType", ("", 0))[1])
+    return otype
+
+
+def _compact(sec: dict, otype: int, where: str, source: str, warnings: list[str]) -> bool:
+    """Whether an array or record is compact (``CompactSubObj``: arrays only; 0 means not compact)."""
+    compact = _int(sec.get("CompactSubObj", ("0", 0))[0])
+    if "CompactSubObj" in sec and not compact:
+        del sec["CompactSubObj"]  # 0 means "not compact"; python-canopen only asks whether the key is there
+    elif compact and otype == 0x9:
+        warnings.append(f"{source}: {where}: CompactSubObj on a record (only arrays may be compact); ignored")
+        del sec["CompactSubObj"]
+    return "CompactSubObj" in sec
+
+
+def _repair_access(sec: dict, where: str, source: str, warnings: list[str]) -> None:
+    """AccessType in lower case (unknown: read only); PDOMapping 0 or 1 (unreadable: 0)."""
     access = sec.get("AccessType", ("", 0))[0].strip().lower()
     if access not in _ACCESS:
         warnings.append(f"{source}: {where}: AccessType={access or '(missing)'!r} unknown; read as 'ro'")
@@ -452,7 +497,11 @@ def _repair_object(name: str, sec: dict, source: str, warnings: list[str], is_su
     if "PDOMapping" in sec and _int(sec["PDOMapping"][0]) not in (0, 1):
         warnings.append(f"{source}: {where}: PDOMapping={sec['PDOMapping'][0]!r} unreadable; read as 0 (not mappable)")
         sec["PDOMapping"] = ("0", sec["PDOMapping"][1])
-    return True
+
+
+_DEVICE_INFO_NUMBERS = ("VendorNumber", "ProductNumber", "RevisionNumber", "SimpleBootUpMaster", "SimpleBootUpSlave",
+                        "Granularity", "DynamicChannelsSupported", "GroupMessaging", "NrOfRXPDO", "NrOfTXPDO",
+                        "LSS_Supported") + tuple(k for k in _KNOWN_KEYS if k.startswith("BaudRate_"))
 
 
 def _repair_info(sections: dict, source: str, warnings: list[str]) -> None:
@@ -462,40 +511,39 @@ def _repair_info(sections: dict, source: str, warnings: list[str]) -> None:
         warnings.append(f"{source}: no [DeviceInfo] section; identity unknown")
         sections["DeviceInfo"] = {}  # python-canopen would say so once more
     else:
-        for key in ("VendorNumber", "ProductNumber", "RevisionNumber", "SimpleBootUpMaster", "SimpleBootUpSlave",
-                    "Granularity", "DynamicChannelsSupported", "GroupMessaging", "NrOfRXPDO", "NrOfTXPDO",
-                    "LSS_Supported") + tuple(k for k in _KNOWN_KEYS if k.startswith("BaudRate_")):
-            if key in info and _int(info[key][0]) is None:
-                warnings.append(f"{source}: line {info[key][1]} [DeviceInfo]: {key}={info[key][0]!r} is not a "
-                                f"number; ignored")
-                del info[key]
-            elif key in info:
-                info[key] = (str(_int(info[key][0])), info[key][1])
-    comments = sections.get("Comments")
-    if comments is not None:
-        present = sorted(int(k[4:]) for k in comments if re.fullmatch(r"Line\d+", k))
-        lines = _int(comments.get("Lines", ("", 0))[0])
-        count = 0
-        while count + 1 in present:
-            count += 1
-        if lines != count:
-            warnings.append(f"{source}: [Comments]: Lines={comments.get('Lines', ('(missing)', 0))[0]} but "
-                            f"{count} comment lines follow in order; read {count}")
-        comments["Lines"] = (str(count), comments.get("Lines", ("", 0))[1])
+        _repair_numbers(info, "DeviceInfo", _DEVICE_INFO_NUMBERS, source, warnings)
+    if "Comments" in sections:
+        _repair_comments(sections["Comments"], source, warnings)
     dummy = sections.get("DummyUsage")
     if dummy is not None:
         for i in range(1, 8):
             key = f"Dummy{i:04d}"
             dummy[key] = (str(_int(dummy.get(key, ("", 0))[0]) or 0), 0)  # python-canopen reads base 10
-    dc = sections.get("DeviceComissioning")
-    if dc is not None:
-        for key in ("NodeID", "Baudrate"):
-            if key in dc and _int(dc[key][0]) is None:
-                warnings.append(f"{source}: line {dc[key][1]} [DeviceComissioning]: {key}={dc[key][0]!r} is not a "
-                                f"number; ignored")
-                del dc[key]
-            elif key in dc:
-                dc[key] = (str(_int(dc[key][0])), dc[key][1])
+    if "DeviceComissioning" in sections:
+        _repair_numbers(sections["DeviceComissioning"], "DeviceComissioning", ("NodeID", "Baudrate"), source, warnings)
+
+
+def _repair_numbers(sec: dict, name: str, keys, source: str, warnings: list[str]) -> None:
+    """``keys`` of section ``name`` as decimal integers; one that is no number is dropped with a warning."""
+    for key in keys:
+        if key in sec and _int(sec[key][0]) is None:
+            warnings.append(f"{source}: line {sec[key][1]} [{name}]: {key}={sec[key][0]!r} is not a number; ignored")
+            del sec[key]
+        elif key in sec:
+            sec[key] = (str(_int(sec[key][0])), sec[key][1])
+
+
+def _repair_comments(comments: dict, source: str, warnings: list[str]) -> None:
+    """``Lines`` is the number of ``LineN`` keys that follow in order."""
+    present = sorted(int(k[4:]) for k in comments if re.fullmatch(r"Line\d+", k))
+    lines = _int(comments.get("Lines", ("", 0))[0])
+    count = 0
+    while count + 1 in present:
+        count += 1
+    if lines != count:
+        warnings.append(f"{source}: [Comments]: Lines={comments.get('Lines', ('(missing)', 0))[0]} but "
+                        f"{count} comment lines follow in order; read {count}")
+    comments["Lines"] = (str(count), comments.get("Lines", ("", 0))[1])
 
 
 class _Collect(logging.Handler):
@@ -775,32 +823,44 @@ class EdsSummary:
 
 def inspect_eds(od) -> EdsSummary:
     """Summarise a loaded object dictionary (see :class:`EdsSummary`). Pure."""
-    info = od.device_information
     roles = {role: o for role, (i, s, _, _) in ROLES.items() if (o := object_info(od, i, s)) is not None}
     supported = _supported_modes(roles.get("supported_modes"))
     cyclic = tuple(m for m in CYCLIC_MODES if MODE_SETPOINTS[m] in roles and (supported is None or m in supported))
     rpdo, rpdo_w = _pdo_entries(od, 0x1400, 0x1600)
     tpdo, tpdo_w = _pdo_entries(od, 0x1800, 0x1A00)
-    factor = {r: roles[r].default for r in ("encoder_increments", "motor_revolutions", "gear_motor_revs",
-                                            "gear_shaft_revs", "feed", "feed_shaft_revs") if r in roles}
-    hb = od.indices.get(0x1016)
-    consumers = len([s for s in getattr(hb, "subindices", {}) if s > 0]) if hb is not None else 0
-    if hb is not None and consumers == 0:
-        consumers = 1
     filters, recorders, generators = _vendor_objects(od)
     return EdsSummary(
-        vendor_name=str(info.vendor_name or ""), vendor_number=info.vendor_number,
-        product_name=str(info.product_name or ""), product_number=info.product_number,
-        revision_number=info.revision_number, roles=roles, supported_modes=supported, cyclic_modes=cyclic,
+        **_identity(od.device_information), roles=roles, supported_modes=supported, cyclic_modes=cyclic,
         rpdo_entries=rpdo, tpdo_entries=tpdo, pdo_mapping_writable=bool(rpdo or tpdo) and rpdo_w and tpdo_w,
         period=_period(od, roles),
         torque_objects=tuple(f"0x{i:04X}" for i in (0x6071, 0x6072, 0x6074, 0x6076, 0x6077) if i in od.indices),
         current_objects=tuple(f"0x{i:04X}" for i in (0x6075, 0x6078) if i in od.indices),
-        factor_group=factor, heartbeat_consumers=consumers, abort_connection=0x6007 in od.indices,
-        store_parameters="store_parameters" in roles, vendor_filters=filters, vendor_recorders=recorders,
-        vendor_generators=generators, vendor_torque=_vendor_torque(od),
-        baudrates=tuple(sorted(info.allowed_baudrates, reverse=True)),
+        factor_group=_factor_group(roles), heartbeat_consumers=_heartbeat_consumers(od),
+        abort_connection=0x6007 in od.indices, store_parameters="store_parameters" in roles,
+        vendor_filters=filters, vendor_recorders=recorders, vendor_generators=generators,
+        vendor_torque=_vendor_torque(od), baudrates=tuple(sorted(od.device_information.allowed_baudrates, reverse=True)),
     )
+
+
+def _identity(info) -> dict:
+    """Vendor and product of ``[DeviceInfo]``."""
+    return {"vendor_name": str(info.vendor_name or ""), "vendor_number": info.vendor_number,
+            "product_name": str(info.product_name or ""), "product_number": info.product_number,
+            "revision_number": info.revision_number}
+
+
+def _factor_group(roles: dict) -> dict:
+    """Default values of the CiA 402 factor group objects the EDS has."""
+    return {r: roles[r].default for r in ("encoder_increments", "motor_revolutions", "gear_motor_revs",
+                                          "gear_shaft_revs", "feed", "feed_shaft_revs") if r in roles}
+
+
+def _heartbeat_consumers(od) -> int:
+    """Entries of the heartbeat consumer 0x1016 (a variable: one); 0 without it."""
+    hb = od.indices.get(0x1016)
+    if hb is None:
+        return 0
+    return len([s for s in getattr(hb, "subindices", {}) if s > 0]) or 1
 
 
 def _supported_modes(var: ObjectInfo | None) -> tuple[str, ...] | None:

@@ -241,23 +241,8 @@ class BlockLayout:
         cw = merged["coefficient_words"]
         if not isinstance(cw, dict) or set(cw) != set(COEFFICIENT_FIELDS):
             _fail("coefficient_words", f"must give the first word of each of {COEFFICIENT_FIELDS}, got {cw!r}")
-        used = []
-        for name in COEFFICIENT_FIELDS:
-            w = _int_in(f"coefficient_words.{name}", cw[name], 0, words - width)
-            used += range(w, w + width)
         scaler = merged.get("scaler_word")
-        if fmt == "int16":
-            if scaler is None:
-                _fail("scaler_word", 'an "int16" block needs the word of its scaler K')
-            used.append(_int_in("scaler_word", scaler, 0, words - 1))
-        state = _int_in("state_word", merged.get("state_word", 0), 0, words - 1)
-        freq = merged.get("frequency_words", [])
-        if not isinstance(freq, (list, tuple)) or len(freq) not in (0, 2):
-            _fail("frequency_words", f"must list two word indices or none, got {freq!r}")
-        freq = tuple(_int_in("frequency_words", w, 0, words - 1) for w in freq)
-        used += [state, *freq]
-        if len(set(used)) != len(used):
-            _fail("coefficient_words", f"coefficients, scaler, state and frequency words overlap: {sorted(used)}")
+        state, freq = _block_words(merged, words, fmt, width)
         for key, allowed in (("word_order", ("high_first", "low_first")), ("byte_order", ("little", "big"))):
             if merged.get(key, allowed[0]) not in allowed:
                 _fail(key, f"must be one of {allowed}, got {merged[key]!r}")
@@ -288,6 +273,39 @@ class BlockLayout:
 
     def is_enabled(self, words: list[int]) -> bool:
         return (words[self.state_word] & self.state_mask) != (self.disabled_value & self.state_mask)
+
+
+def _checked_range(name: str, r) -> tuple[float, float]:
+    """``ranges.<name> = [low, high]``: non-negative, low not above high."""
+    if not isinstance(r, (list, tuple)) or len(r) != 2:
+        _fail(f"ranges.{name}", f"must be [low, high], got {r!r}")
+    low, high = _positive(f"ranges.{name}", r[0], zero_ok=True), _positive(f"ranges.{name}", r[1])
+    if low > high:
+        _fail(f"ranges.{name}", f"low {low:g} is above high {high:g}")
+    return low, high
+
+
+def _block_words(merged: dict, words: int, fmt: str, width: int) -> tuple[int, tuple]:
+    """The state word and frequency words, checked with the coefficient and scaler words: in the block, apart."""
+    cw = merged["coefficient_words"]
+    used = []
+    for name in COEFFICIENT_FIELDS:
+        w = _int_in(f"coefficient_words.{name}", cw[name], 0, words - width)
+        used += range(w, w + width)
+    scaler = merged.get("scaler_word")
+    if fmt == "int16":
+        if scaler is None:
+            _fail("scaler_word", 'an "int16" block needs the word of its scaler K')
+        used.append(_int_in("scaler_word", scaler, 0, words - 1))
+    state = _int_in("state_word", merged.get("state_word", 0), 0, words - 1)
+    freq = merged.get("frequency_words", [])
+    if not isinstance(freq, (list, tuple)) or len(freq) not in (0, 2):
+        _fail("frequency_words", f"must list two word indices or none, got {freq!r}")
+    freq = tuple(_int_in("frequency_words", w, 0, words - 1) for w in freq)
+    used += [state, *freq]
+    if len(set(used)) != len(used):
+        _fail("coefficient_words", f"coefficients, scaler, state and frequency words overlap: {sorted(used)}")
+    return state, freq
 
 
 _BLOCK_KEYS = ("words", "coefficient_words", "coefficient_format", "scaler_word", "scaler_bits", "word_order",
@@ -411,11 +429,22 @@ class FilterEncoding:
                      tuple(sorted(self.scales.items())), tuple(sorted(self.ranges.items())), self.block))
 
     def _check_parameters(self) -> None:
+        """Validate and complete ``scales``, ``ranges``, ``resolution`` and the index tables of a parametric kind."""
         names = PARAMETRIC[self.kind]
         for table_name in ("scales", "ranges", "resolution"):
             table = getattr(self, table_name)
             if not isinstance(table, dict) or not set(table) <= set(names):
                 _fail(table_name, f"must be a table with keys among {names}, got {table!r}")
+        object.__setattr__(self, "scales", self._checked_scales(names))
+        object.__setattr__(self, "ranges", {name: _checked_range(name, r) for name, r in self.ranges.items()})
+        object.__setattr__(self, "resolution", {k: _positive(f"resolution.{k}", v)
+                                                for k, v in self.resolution.items()})
+        for name in ("width", "depth"):
+            if self._is_index(name):
+                self._check_index_table(name)
+
+    def _checked_scales(self, names) -> dict:
+        """Scale of each field: the kind's default (0.0: REAL32), overridden by ``scales``."""
         scales = {name: 1.0 for name in names}
         if self.kind == "notch_parameters":
             scales.update(center=self.center_scale, width=self.width_scale, depth=self.depth_scale)
@@ -423,34 +452,25 @@ class FilterEncoding:
             # vendors of these keep REAL32 parameters unless the table says otherwise
             scales = {name: 0.0 for name in names}
         scales.update({k: _positive(f"scales.{k}", v, zero_ok=True) for k, v in self.scales.items()})
-        object.__setattr__(self, "scales", scales)
-        ranges = {}
-        for name, r in self.ranges.items():
-            if not isinstance(r, (list, tuple)) or len(r) != 2:
-                _fail(f"ranges.{name}", f"must be [low, high], got {r!r}")
-            low, high = _positive(f"ranges.{name}", r[0], zero_ok=True), _positive(f"ranges.{name}", r[1])
-            if low > high:
-                _fail(f"ranges.{name}", f"low {low:g} is above high {high:g}")
-            ranges[name] = (low, high)
-        object.__setattr__(self, "ranges", ranges)
-        object.__setattr__(self, "resolution", {k: _positive(f"resolution.{k}", v)
-                                                for k, v in self.resolution.items()})
-        for name in ("width", "depth"):
-            if self._is_index(name):
-                table = getattr(self, f"{name}_table")
-                if not isinstance(table, (list, tuple)) or not table:
-                    _fail(f"{name}_table", "must be a non-empty list of numbers")
-                values = tuple(_positive(f"{name}_table", v, zero_ok=name == "depth") if not
-                               (name == "depth" and v == math.inf) else math.inf for v in table)
-                object.__setattr__(self, f"{name}_table", values)
-                stored = getattr(self, f"{name}_values")
-                if stored is not None:
-                    if not isinstance(stored, (list, tuple)) or len(stored) != len(values):
-                        _fail(f"{name}_values", f"must list one stored integer per {name}_table entry")
-                    stored = tuple(_int_in(f"{name}_values", v, 0, 2**32 - 1) for v in stored)
-                    if len(set(stored)) != len(stored):
-                        _fail(f"{name}_values", "must not repeat a stored integer")
-                    object.__setattr__(self, f"{name}_values", stored)
+        return scales
+
+    def _check_index_table(self, name: str) -> None:
+        """``<name>_table`` (the physical values) and ``<name>_values`` (what is stored for each)."""
+        table = getattr(self, f"{name}_table")
+        if not isinstance(table, (list, tuple)) or not table:
+            _fail(f"{name}_table", "must be a non-empty list of numbers")
+        values = tuple(_positive(f"{name}_table", v, zero_ok=name == "depth") if not
+                       (name == "depth" and v == math.inf) else math.inf for v in table)
+        object.__setattr__(self, f"{name}_table", values)
+        stored = getattr(self, f"{name}_values")
+        if stored is None:
+            return
+        if not isinstance(stored, (list, tuple)) or len(stored) != len(values):
+            _fail(f"{name}_values", f"must list one stored integer per {name}_table entry")
+        stored = tuple(_int_in(f"{name}_values", v, 0, 2**32 - 1) for v in stored)
+        if len(set(stored)) != len(stored):
+            _fail(f"{name}_values", "must not repeat a stored integer")
+        object.__setattr__(self, f"{name}_values", stored)
 
     @classmethod
     def from_table(cls, table: dict, source: str = "") -> FilterEncoding:
@@ -700,32 +720,12 @@ class FilterEncoding:
         fields add a few settings deeper by :data:`DEPTH_MARGINS_DB`.
         """
         if self._is_index(name):
-            table, stored = self._index_table(name)
-            log = name == "width"
-            dist = [abs(math.log(t / x)) if log else (0.0 if t == x else abs(t - x)) for t in table]
-            ranked = sorted(range(len(table)), key=lambda i: dist[i])[:3]
-            if name == "depth":
-                # the next deeper entry too: a centre off the resonance can need it
-                deeper = [i for i in range(len(table)) if table[i] > x]
-                if deeper:
-                    ranked.append(min(deeper, key=lambda i: table[i]))
-            return [stored[i] for i in dict.fromkeys(ranked)]
-        scale = self.scales[name]
-        if scale == 0.0:
-            # an infinite Q or frequency has no REAL32 form; the largest finite stand-in is deep enough
-            x = min(x, 1e9)
-            step = self.resolution.get(name)
-            if step is None:
-                if name in DEEPER:
-                    # float32 rounding can leave the depth a hair short: a few slightly deeper values
-                    grid = [self._deeper(name, x, m) for m in DEPTH_MARGINS_DB]
-                    return [float32(v) for v in grid if self._in_range(name, v)] or [float32(x)]
-                return [float32(x)]
-            n = x / step
-            grid = [step * m for m in range(math.floor(n) - 1, math.ceil(n) + 2)]
-            return [float32(v) for v in grid if self._in_range(name, v)]
+            return self._index_candidates(name, x)
+        if self.scales[name] == 0.0:
+            return self._real_candidates(name, x)
         if not math.isfinite(x):
             return []
+        scale = self.scales[name]
         n = x / scale
         low, high = self._integer_range(name)
         steps = list(range(math.floor(n) - 1, math.ceil(n) + 2))
@@ -733,6 +733,34 @@ class FilterEncoding:
             # a centre off the resonance, or rounding, can need a slightly deeper notch than asked
             steps += [int(round(self._deeper(name, x, m) / scale)) for m in DEPTH_MARGINS_DB[1:]]
         return [m for m in dict.fromkeys(steps) if low <= m <= high]
+
+    def _index_candidates(self, name: str, x: float) -> list:
+        """The stored values of the three table entries nearest ``x`` (depth: and the next deeper one)."""
+        table, stored = self._index_table(name)
+        log = name == "width"
+        dist = [abs(math.log(t / x)) if log else (0.0 if t == x else abs(t - x)) for t in table]
+        ranked = sorted(range(len(table)), key=lambda i: dist[i])[:3]
+        if name == "depth":
+            # the next deeper entry too: a centre off the resonance can need it
+            deeper = [i for i in range(len(table)) if table[i] > x]
+            if deeper:
+                ranked.append(min(deeper, key=lambda i: table[i]))
+        return [stored[i] for i in dict.fromkeys(ranked)]
+
+    def _real_candidates(self, name: str, x: float) -> list:
+        """REAL32 values around ``x``: itself, or the neighbours on the field's ``resolution``."""
+        # an infinite Q or frequency has no REAL32 form; the largest finite stand-in is deep enough
+        x = min(x, 1e9)
+        step = self.resolution.get(name)
+        if step is None:
+            if name in DEEPER:
+                # float32 rounding can leave the depth a hair short: a few slightly deeper values
+                grid = [self._deeper(name, x, m) for m in DEPTH_MARGINS_DB]
+                return [float32(v) for v in grid if self._in_range(name, v)] or [float32(x)]
+            return [float32(x)]
+        n = x / step
+        grid = [step * m for m in range(math.floor(n) - 1, math.ceil(n) + 2)]
+        return [float32(v) for v in grid if self._in_range(name, v)]
 
     def _deeper_sign(self, name: str) -> int:
         """+1 when a larger value of depth-setting field ``name`` makes the notch deeper, else -1."""

@@ -71,12 +71,14 @@ import binascii
 import math
 import re
 from dataclasses import dataclass, field, replace
+from typing import ClassVar
 
 import numpy as np
 
-from hilident.config import _spec, build_table
 from hilident.errors import ConfigError, DataError
 from hilident.protocol.filter_encoding import FilterEncoding
+from hilident.schema import build_table
+from hilident.schema import spec as _spec
 
 __all__ = [
     "EXCEPTION_MEANINGS", "TYPES", "CaptureChannel", "Chunk", "FilterSlots", "Register", "RegisterMap", "Window",
@@ -746,56 +748,69 @@ def _parse_rule(mb: dict, source: str) -> ParameterRule:
 def _parse_registers(table: dict, rule: ParameterRule | None, word_order: str, byte_order: str,
                      source: str) -> dict[str, Register]:
     """``[modbus.registers]``: each entry through the typed schema, plus ``bits`` and ``default``."""
+    return {name: _parse_register(name, raw, rule, word_order, byte_order, source) for name, raw in table.items()}
+
+
+def _parse_register(name: str, raw, rule: ParameterRule | None, word_order: str, byte_order: str,
+                    source: str) -> Register:
+    """One ``[modbus.registers]`` entry; ``word_order`` and ``byte_order`` are the map's defaults."""
     fail = _fail_in(source)
-    registers: dict[str, Register] = {}
-    for name, raw in table.items():
-        key = f"modbus.registers.{name}"
-        if not isinstance(raw, dict):
-            fail(key, "must be a table {address, type, access}")
-        spec = build_table(_RegisterSpec, {k: v for k, v in raw.items() if k not in ("bits", "default")},
-                           key + ".", source)
-        if spec.scale == 0:
-            fail(f"{key}.scale", "must be a non-zero finite number, got 0")
-        count = spec.length if spec.type == "str" else TYPES[spec.type][0]
-        code, address = spec.parameter, spec.address
-        if address < 0:
-            code = code or name
-            if rule is None:
-                fail(f"{key}.address", "is required (or a parameter code with a [modbus.parameters] rule)")
-            try:
-                address = rule.address_of(code)
-            except DataError as exc:
-                fail(f"{key}.parameter" if spec.parameter else f"{key}.address", str(exc))
-        elif code and rule is not None:
-            try:
-                if rule.address_of(code) != address:
-                    fail(f"{key}.address", f"{address:#06x} is not where {rule.text!r} puts {code}")
-            except DataError as exc:
-                fail(f"{key}.parameter", str(exc))
-        if address + count > 65536:
-            fail(f"{key}.address", f"{count} registers from {address} leave the 16-bit address space")
-        if spec.table == "input" and spec.access == "rw":
-            fail(f"{key}.access", 'an input register is read only: "r"')
-        low, high = spec.min, spec.max
-        if low is not None and high is not None and low > high:
-            fail(f"{key}.min", f"{low:g} is above max {high:g}")
-        register = Register(
-            name, address, spec.type, spec.access, spec.scale, count, spec.word_order or word_order,
-            spec.byte_order or byte_order, spec.table, spec.offset, spec.unit, low, high,
-            _parse_bits(raw.get("bits", {}), spec.type, count, f"{key}.bits", fail), code, spec.channel,
-            spec.channel_scale, None)
-        if "default" in raw:
-            default = raw["default"]
-            if isinstance(default, bool) or not isinstance(default, (int, float, str)) \
-                    or isinstance(default, str) != (spec.type == "str"):
-                fail(f"{key}.default", f"must be a {'string' if spec.type == 'str' else 'number'}, got {default!r}")
-            try:
-                register.encode(default)
-            except DataError as exc:
-                fail(f"{key}.default", str(exc))
-            register = replace(register, default=default)
-        registers[name] = register
-    return registers
+    key = f"modbus.registers.{name}"
+    if not isinstance(raw, dict):
+        fail(key, "must be a table {address, type, access}")
+    spec = build_table(_RegisterSpec, {k: v for k, v in raw.items() if k not in ("bits", "default")},
+                       key + ".", source)
+    if spec.scale == 0:
+        fail(f"{key}.scale", "must be a non-zero finite number, got 0")
+    count = spec.length if spec.type == "str" else TYPES[spec.type][0]
+    code, address = _register_address(name, spec, rule, key, fail)
+    if address + count > 65536:
+        fail(f"{key}.address", f"{count} registers from {address} leave the 16-bit address space")
+    if spec.table == "input" and spec.access == "rw":
+        fail(f"{key}.access", 'an input register is read only: "r"')
+    if spec.min is not None and spec.max is not None and spec.min > spec.max:
+        fail(f"{key}.min", f"{spec.min:g} is above max {spec.max:g}")
+    register = Register(
+        name, address, spec.type, spec.access, spec.scale, count, spec.word_order or word_order,
+        spec.byte_order or byte_order, spec.table, spec.offset, spec.unit, spec.min, spec.max,
+        _parse_bits(raw.get("bits", {}), spec.type, count, f"{key}.bits", fail), code, spec.channel,
+        spec.channel_scale, None)
+    if "default" in raw:
+        register = replace(register, default=_register_default(register, raw["default"], key, fail))
+    return register
+
+
+def _register_address(name: str, spec: _RegisterSpec, rule: ParameterRule | None, key: str, fail) -> tuple[str, int]:
+    """The parameter code and address of a register: ``address``, else its code through the rule (they must agree)."""
+    code, address = spec.parameter, spec.address
+    if address < 0:
+        code = code or name
+        if rule is None:
+            fail(f"{key}.address", "is required (or a parameter code with a [modbus.parameters] rule)")
+        try:
+            return code, rule.address_of(code)
+        except DataError as exc:
+            fail(f"{key}.parameter" if spec.parameter else f"{key}.address", str(exc))
+    if code and rule is not None:
+        try:
+            where = rule.address_of(code)
+        except DataError as exc:
+            fail(f"{key}.parameter", str(exc))
+        if where != address:
+            fail(f"{key}.address", f"{address:#06x} is not where {rule.text!r} puts {code}")
+    return code, address
+
+
+def _register_default(register: Register, default, key: str, fail):
+    """``default``: the register's value at power-up, of its kind and within what it encodes."""
+    is_str = register.type == "str"
+    if isinstance(default, bool) or not isinstance(default, (int, float, str)) or isinstance(default, str) != is_str:
+        fail(f"{key}.default", f"must be a {'string' if is_str else 'number'}, got {default!r}")
+    try:
+        register.encode(default)
+    except DataError as exc:
+        fail(f"{key}.default", str(exc))
+    return default
 
 
 def _parse_bits(bits, type_: str, count: int, key: str, fail) -> dict[str, int]:
@@ -859,19 +874,8 @@ def _parse_field_slots(ft: dict, encoding: FilterEncoding, registers: dict, rule
     if not isinstance(raw, list) or len(raw) != filter_slots:
         fail("modbus.filters.slots", f"must list board.filter_slots = {filter_slots} slot(s), got "
                                      f"{len(raw) if isinstance(raw, list) else raw!r}")
-    slots = []
-    for i, entry in enumerate(raw):
-        key = f"modbus.filters.slots[{i}]"
-        names = (*encoding.fields, "enable")
-        if not isinstance(entry, dict) or set(entry) - set(names) or not set(encoding.fields) <= set(entry):
-            fail(key, f"must name the register of each of {', '.join(encoding.fields)} (and optionally enable)")
-        regs = {}
-        for name in entry:
-            r = _named_register(entry[name], registers, rule, f"{key}.{name}", fail)
-            if r.type == "str" or r.table != "holding" or r.access != "rw":
-                fail(f"{key}.{name}", f"{r.label} must be a numeric read-write holding register")
-            regs[name] = r
-        slots.append(regs)
+    slots = [_field_slot(f"modbus.filters.slots[{i}]", entry, encoding, registers, rule, fail)
+             for i, entry in enumerate(raw)]
     off = ft.get("off", {})
     has_enable = bool(slots) and "enable" in slots[0]
     if not isinstance(off, dict) or (not has_enable and len(off) != 1) or set(off) - set(encoding.fields):
@@ -881,6 +885,20 @@ def _parse_field_slots(ft: dict, encoding: FilterEncoding, registers: dict, rule
         if isinstance(value, bool) or not isinstance(value, int):
             fail(f"modbus.filters.off.{name}", f"must be the stored integer, got {value!r}")
     return FieldSlots(tuple(slots), dict(off))
+
+
+def _field_slot(key: str, entry, encoding: FilterEncoding, registers: dict, rule, fail) -> dict[str, Register]:
+    """One slot: the numeric read-write holding register of each field of the encoding (and optionally enable)."""
+    names = (*encoding.fields, "enable")
+    if not isinstance(entry, dict) or set(entry) - set(names) or not set(encoding.fields) <= set(entry):
+        fail(key, f"must name the register of each of {', '.join(encoding.fields)} (and optionally enable)")
+    regs = {}
+    for name in entry:
+        r = _named_register(entry[name], registers, rule, f"{key}.{name}", fail)
+        if r.type == "str" or r.table != "holding" or r.access != "rw":
+            fail(f"{key}.{name}", f"{r.label} must be a numeric read-write holding register")
+        regs[name] = r
+    return regs
 
 
 def _parse_identity(mb: dict, registers: dict, excitation: bool, fail) -> tuple[tuple[str, ...], dict]:
@@ -938,6 +956,189 @@ def _parse_stop(mb: dict, registers: dict, fail) -> dict:
     return dict(table)
 
 
+# --- the [modbus] tables ----------------------------------------------------------------------
+
+
+def _non_zero(value, key, source):
+    if value == 0:
+        raise ConfigError(key, f"must be a non-zero finite number, got {value!r}", source or None)
+
+
+@dataclass(frozen=True, kw_only=True)
+class _ModbusTable:
+    """The scalar keys of ``[modbus]``; its sub-tables are read by the functions below."""
+
+    open_table: ClassVar[bool] = True  # registers, parameters, table, capture, filters, identity, save, stop, ...
+    word_order: str = _spec("big", choices=WORD_ORDERS, doc="order of the words of a 32-bit value")
+    byte_order: str = _spec("big", choices=BYTE_ORDERS, doc="order of the bytes in a word")
+    max_read_registers: int = _spec(125, ge=1, le=125, doc="most registers one read request asks for")
+    max_write_registers: int = _spec(123, ge=1, le=123, doc="most registers one write request carries")
+    map_version: int | None = _spec(None, ge=0, le=0xFFFF, doc="excitation maps: the map version register's value")
+    device_type: int | None = _spec(None, ge=0, le=0xFFFF, doc="excitation maps: the device type register's value")
+
+    def identity_code(self, name: str, excitation: bool, source: str) -> int:
+        """``map_version`` or ``device_type``: required by an excitation map, else 0 when not given."""
+        value = getattr(self, name)
+        if value is None and excitation:
+            raise ConfigError(f"modbus.{name}", "is required", source or None)
+        return 0 if value is None else value
+
+
+@dataclass(frozen=True, kw_only=True)
+class _WindowTable:
+    """``[modbus.table]`` and ``[modbus.capture]``: a paged window onto a buffer."""
+
+    open_table: ClassVar[bool] = True  # [modbus.table] type and scale, [[modbus.capture.channels]]
+    base: int = _spec(ge=0, le=65535, doc="address of the window")
+    page_samples: int = _spec(ge=1, le=65535, doc="samples the window shows")
+    capacity_samples: int = _spec(65536, ge=1, le=2**32 - 1, doc="length of the buffer, samples")
+
+
+@dataclass(frozen=True, kw_only=True)
+class _TableType:
+    """``[modbus.table]`` type and scale of the excitation samples."""
+
+    open_table: ClassVar[bool] = True
+    type: str = _spec("f32", choices=WINDOW_TYPES)
+    scale: float = _spec(1.0, check=_non_zero, doc="physical units per raw unit")
+
+
+@dataclass(frozen=True, kw_only=True)
+class _CaptureChannelTable:
+    """One ``[[modbus.capture.channels]]`` entry."""
+
+    open_table: ClassVar[bool] = True
+    name: str = _spec()
+    type: str = _spec(choices=WINDOW_TYPES)
+    scale: float = _spec(1.0, check=_non_zero)
+
+
+_NO_EXCITATION = {"control": {}, "status": {}, "fault_codes": {}, "modes": {}, "table": None, "table_type": "f32",
+                  "table_scale": 1.0, "capture": None, "capture_channels": ()}
+
+
+def _subtable(parent: dict, key: str, prefix: str, fail) -> dict:
+    value = parent.get(key)
+    if not isinstance(value, dict):
+        fail(f"{prefix}.{key}" if prefix else key, "table is required")
+    return value
+
+
+def _codes(mb: dict, key: str, names, bits: bool, fail) -> dict[str, int]:
+    """``[modbus.<key>]``: a distinct 16-bit code (a single bit when ``bits``) for each of ``names``."""
+    table = _subtable(mb, key, "modbus", fail)
+    out = {}
+    for name in names:
+        value = table.get(name)
+        if value is None:
+            fail(f"modbus.{key}.{name}", "is required")
+        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 0xFFFF:
+            fail(f"modbus.{key}.{name}", f"must be an integer in 1..65535, got {value!r}")
+        if bits and value & (value - 1):
+            fail(f"modbus.{key}.{name}", f"must be a single bit, got {value:#x}")
+        out[name] = value
+    if len(set(out.values())) != len(out):
+        fail(f"modbus.{key}", "values must be distinct")
+    return out
+
+
+def _parse_excitation(mb: dict, registers: dict, source: str) -> dict:
+    """hilident's table-and-capture protocol: control/status/fault/mode codes, the table and the capture."""
+    fail = _fail_in(source)
+    _check_required(registers, fail)
+    out = {"control": _codes(mb, "control", CONTROL_BITS, True, fail),
+           "status": _codes(mb, "status", STATUS_BITS, True, fail),
+           "fault_codes": _codes(mb, "fault_codes", FAULT_NAMES, False, fail)}
+    out["fault_codes"].update(_optional_fault_codes(mb["fault_codes"], registers, out["fault_codes"], fail))
+    out["modes"] = _codes(mb, "modes", MODES, False, fail)
+    tb = _subtable(mb, "table", "modbus", fail)
+    kind = build_table(_TableType, tb, "modbus.table.", source)
+    window = build_table(_WindowTable, tb, "modbus.table.", source)
+    table = Window("table", window.base, window.page_samples, window.capacity_samples,
+                   window.page_samples * TYPES[kind.type][0], "table_page")
+    capture, channels = _parse_capture(_subtable(mb, "capture", "modbus", fail), source)
+    for w in (table, capture):
+        if w.end > 65536:
+            fail(f"modbus.{w.name}.base", f"the window {w.base}..{w.end - 1} leaves the 16-bit address space")
+        if w.pages > 65536:
+            fail(f"modbus.{w.name}.page_samples", f"{w.pages} pages do not fit the u16 {w.page_register}")
+    return {**out, "table": table, "table_type": kind.type, "table_scale": kind.scale, "capture": capture,
+            "capture_channels": channels}
+
+
+def _parse_capture(cp: dict, source: str) -> tuple[Window, tuple[CaptureChannel, ...]]:
+    """``[modbus.capture]``: its window and channels (at most 16: the bits of ``capture_mask``)."""
+    fail = _fail_in(source)
+    raw = cp.get("channels")
+    if not isinstance(raw, list) or not raw:
+        fail("modbus.capture.channels", "needs at least one [[modbus.capture.channels]] entry")
+    if len(raw) > 16:
+        fail("modbus.capture.channels", f"capture_mask has 16 bits; {len(raw)} channels given")
+    channels = []
+    for i, ch in enumerate(raw):
+        if not isinstance(ch, dict):
+            fail(f"modbus.capture.channels[{i}].name", "is required")
+        c = build_table(_CaptureChannelTable, ch, f"modbus.capture.channels[{i}].", source)
+        channels.append(CaptureChannel(c.name, c.type, c.scale, i))
+    if len({c.name for c in channels}) != len(channels):
+        fail("modbus.capture.channels", "channel names must be distinct")
+    window = build_table(_WindowTable, cp, "modbus.capture.", source)
+    record_max = 1 + sum(c.count for c in channels)
+    capture = Window("capture", window.base, window.page_samples, window.capacity_samples,
+                     window.page_samples * record_max, "capture_page")
+    return capture, tuple(channels)
+
+
+def _parse_filters(sections: dict, mb: dict, registers: dict, rule, filter_slots: int, excitation: bool,
+                   source: str) -> tuple[FilterSlots | FieldSlots | None, FilterEncoding | None]:
+    """``[modbus.filters]`` with the ``[filters]`` encoding: hilident's slots or the drive's named registers."""
+    fail = _fail_in(source)
+    if not (excitation or "filters" in mb):
+        if filter_slots:
+            fail("modbus.filters", f"is required: board.filter_slots = {filter_slots}")
+        return None, None
+    encoding = FilterEncoding.from_table(sections.get("filters", {}), source)
+    ft = _subtable(mb, "filters", "modbus", fail)
+    if "slots" in ft:
+        return _parse_field_slots(ft, encoding, registers, rule, filter_slots, fail), encoding
+    if encoding.kind != "notch_parameters":
+        fail("filters.encoding", f'a Modbus drive map holds "notch_parameters", got {encoding.kind!r}')
+    keys = build_table(_FilterSlotsTable, ft, "modbus.filters.", source)
+    offsets = {f: getattr(keys, f) for f in FILTER_FIELDS}
+    if sorted(offsets.values()) != [0, 1, 2, 3]:
+        fail("modbus.filters", "center, width, depth and enable must be the offsets 0, 1, 2, 3 in some order")
+    filters = FilterSlots(keys.base, keys.stride, filter_slots, offsets)
+    if filters.end > 65536:
+        fail("modbus.filters.base", "the filter slots leave the 16-bit address space")
+    return filters, encoding
+
+
+@dataclass(frozen=True, kw_only=True)
+class _FilterSlotsTable:
+    """``[modbus.filters]`` of hilident's four-register slots: base, stride and each field's offset."""
+
+    open_table: ClassVar[bool] = True
+    base: int = _spec(ge=0, le=65535, doc="address of slot 0")
+    stride: int = _spec(4, ge=4, le=65535, doc="registers from one slot to the next")
+    center: int = _spec(ge=0, le=3)
+    width: int = _spec(ge=0, le=3)
+    depth: int = _spec(ge=0, le=3)
+    enable: int = _spec(ge=0, le=3)
+
+
+def _check_overlaps(registers: dict, table, capture, filters, filter_slots: int, fail) -> None:
+    """Nothing may overlap: registers (holding and input apart), windows, filter slots."""
+    spans = [(r.table, r.address, r.end, f"modbus.registers.{r.name}") for r in registers.values()]
+    spans += [("holding", w.base, w.end, f"modbus.{w.name}") for w in (table, capture) if w is not None]
+    if isinstance(filters, FilterSlots):
+        spans += [("holding", filters.base + i * filters.stride, filters.base + i * filters.stride + filters.span,
+                   f"modbus.filters (slot {i})") for i in range(filter_slots)]
+    spans.sort()
+    for (t0, a0, a1, k0), (t1, b0, b1, k1) in zip(spans, spans[1:]):
+        if t0 == t1 and b0 < a1:
+            fail(k1, f"registers {b0}..{b1 - 1} overlap {k0} ({a0}..{a1 - 1})")
+
+
 class RegisterMap:
     """A parsed Modbus register map (see the module docstring and ``drivers/modbus-servo/README.md``).
 
@@ -992,144 +1193,25 @@ class RegisterMap:
             A table or key is missing, has the wrong type, or registers overlap;
             the message names the dotted key and ``source``.
         """
-        def fail(key, message):
-            raise ConfigError(key, message, source or None)
-
-        def integer(table, key, prefix, lo=0, hi=None, default=None):
-            value = table.get(key, default)
-            if value is None:
-                fail(f"{prefix}.{key}", "is required")
-            if isinstance(value, bool) or not isinstance(value, int) or value < lo or (hi is not None and value > hi):
-                fail(f"{prefix}.{key}", f"must be an integer in {lo}..{hi if hi is not None else 'inf'}, got {value!r}")
-            return value
-
-        def number(table, key, prefix, default):
-            value = table.get(key, default)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value == 0:
-                fail(f"{prefix}.{key}", f"must be a non-zero finite number, got {value!r}")
-            return float(value)
-
-        def subtable(parent, key, prefix):
-            value = parent.get(key)
-            if not isinstance(value, dict):
-                fail(f"{prefix}.{key}" if prefix else key, "table is required")
-            return value
-
-        mb = subtable(sections, "modbus", "")
-        word_order = mb.get("word_order", "big")
-        if word_order not in WORD_ORDERS:
-            fail("modbus.word_order", f"must be one of {WORD_ORDERS}, got {word_order!r}")
-        byte_order = mb.get("byte_order", "big")
-        if byte_order not in BYTE_ORDERS:
-            fail("modbus.byte_order", f"must be one of {BYTE_ORDERS}, got {byte_order!r}")
-        max_read = integer(mb, "max_read_registers", "modbus", 1, 125, 125)
-        max_write = integer(mb, "max_write_registers", "modbus", 1, 123, 123)
+        fail = _fail_in(source)
+        mb = _subtable(sections, "modbus", "", fail)
+        keys = build_table(_ModbusTable, mb, "modbus.", source)
         rule = _parse_rule(mb, source) if "parameters" in mb else None
-        registers = _parse_registers(subtable(mb, "registers", "modbus"), rule, word_order, byte_order, source)
+        registers = _parse_registers(_subtable(mb, "registers", "modbus", fail), rule, keys.word_order,
+                                     keys.byte_order, source)
         excitation = "table" in mb or "capture" in mb
-
-        control, status, fault_codes, modes = {}, {}, {}, {}
-        table = capture = None
-        table_type, table_scale, channels = "f32", 1.0, []
-        if excitation:
-            _check_required(registers, fail)
-
-            def codes(key, names, bits):
-                table = subtable(mb, key, "modbus")
-                out = {}
-                for name in names:
-                    value = integer(table, name, f"modbus.{key}", 1, 0xFFFF)
-                    if bits and value & (value - 1):
-                        fail(f"modbus.{key}.{name}", f"must be a single bit, got {value:#x}")
-                    out[name] = value
-                if len(set(out.values())) != len(out):
-                    fail(f"modbus.{key}", "values must be distinct")
-                return out
-
-            control = codes("control", CONTROL_BITS, True)
-            status = codes("status", STATUS_BITS, True)
-            fault_codes = codes("fault_codes", FAULT_NAMES, False)
-            fault_codes.update(_optional_fault_codes(mb["fault_codes"], registers, fault_codes, fail))
-            modes = codes("modes", MODES, False)
-
-            tb = subtable(mb, "table", "modbus")
-            table_type = tb.get("type", "f32")
-            if table_type not in WINDOW_TYPES:
-                fail("modbus.table.type", f"must be one of {WINDOW_TYPES}, got {table_type!r}")
-            table_scale = number(tb, "scale", "modbus.table", 1.0)
-            table_page = integer(tb, "page_samples", "modbus.table", 1, 65535)
-            table = Window("table", integer(tb, "base", "modbus.table", 0, 65535), table_page,
-                           integer(tb, "capacity_samples", "modbus.table", 1, 2**32 - 1, 65536),
-                           table_page * TYPES[table_type][0], "table_page")
-
-            cp = subtable(mb, "capture", "modbus")
-            raw_channels = cp.get("channels")
-            if not isinstance(raw_channels, list) or not raw_channels:
-                fail("modbus.capture.channels", "needs at least one [[modbus.capture.channels]] entry")
-            if len(raw_channels) > 16:
-                fail("modbus.capture.channels", f"capture_mask has 16 bits; {len(raw_channels)} channels given")
-            for i, ch in enumerate(raw_channels):
-                key = f"modbus.capture.channels[{i}]"
-                if not isinstance(ch, dict) or not isinstance(ch.get("name"), str):
-                    fail(f"{key}.name", "is required")
-                if ch.get("type") not in WINDOW_TYPES:
-                    fail(f"{key}.type", f"must be one of {WINDOW_TYPES}, got {ch.get('type')!r}")
-                channels.append(CaptureChannel(ch["name"], ch["type"], number(ch, "scale", key, 1.0), i))
-            if len({c.name for c in channels}) != len(channels):
-                fail("modbus.capture.channels", "channel names must be distinct")
-            capture_page = integer(cp, "page_samples", "modbus.capture", 1, 65535)
-            record_max = 1 + sum(c.count for c in channels)
-            capture = Window("capture", integer(cp, "base", "modbus.capture", 0, 65535), capture_page,
-                             integer(cp, "capacity_samples", "modbus.capture", 1, 2**32 - 1, 65536),
-                             capture_page * record_max, "capture_page")
-            for w in (table, capture):
-                if w.end > 65536:
-                    fail(f"modbus.{w.name}.base", f"the window {w.base}..{w.end - 1} leaves the 16-bit address space")
-                if w.pages > 65536:
-                    fail(f"modbus.{w.name}.page_samples", f"{w.pages} pages do not fit the u16 {w.page_register}")
-
-        filters = encoding = None
-        if excitation or "filters" in mb:
-            encoding = FilterEncoding.from_table(sections.get("filters", {}), source)
-            ft = subtable(mb, "filters", "modbus")
-            if "slots" in ft:
-                filters = _parse_field_slots(ft, encoding, registers, rule, filter_slots, fail)
-            else:
-                if encoding.kind != "notch_parameters":
-                    fail("filters.encoding", f'a Modbus drive map holds "notch_parameters", got {encoding.kind!r}')
-                offsets = {f: integer(ft, f, "modbus.filters", 0, 3) for f in FILTER_FIELDS}
-                if sorted(offsets.values()) != [0, 1, 2, 3]:
-                    fail("modbus.filters", "center, width, depth and enable must be the offsets 0, 1, 2, 3 in some order")
-                filters = FilterSlots(integer(ft, "base", "modbus.filters", 0, 65535),
-                                      integer(ft, "stride", "modbus.filters", 4, 65535, 4), filter_slots, offsets)
-                if filters.end > 65536:
-                    fail("modbus.filters.base", "the filter slots leave the 16-bit address space")
-        elif filter_slots:
-            fail("modbus.filters", f"is required: board.filter_slots = {filter_slots}")
-
+        protocol = _parse_excitation(mb, registers, source) if excitation else _NO_EXCITATION
+        filters, encoding = _parse_filters(sections, mb, registers, rule, filter_slots, excitation, source)
         identity, expect = _parse_identity(mb, registers, excitation, fail)
         save = _parse_save(mb, registers, rule, fail)
         stop = _parse_stop(mb, registers, fail)
-
-        # nothing may overlap: registers (holding and input apart), windows, filter slots
-        spans = [(r.table, r.address, r.end, f"modbus.registers.{r.name}") for r in registers.values()]
-        spans += [("holding", w.base, w.end, f"modbus.{w.name}") for w in (table, capture) if w is not None]
-        if isinstance(filters, FilterSlots):
-            spans += [("holding", filters.base + i * filters.stride, filters.base + i * filters.stride + filters.span,
-                       f"modbus.filters (slot {i})") for i in range(filter_slots)]
-        spans.sort()
-        for (t0, a0, a1, k0), (t1, b0, b1, k1) in zip(spans, spans[1:]):
-            if t0 == t1 and b0 < a1:
-                fail(k1, f"registers {b0}..{b1 - 1} overlap {k0} ({a0}..{a1 - 1})")
-
+        _check_overlaps(registers, protocol["table"], protocol["capture"], filters, filter_slots, fail)
         return cls(
-            map_version=integer(mb, "map_version", "modbus", 0, 0xFFFF, None if excitation else 0),
-            device_type=integer(mb, "device_type", "modbus", 0, 0xFFFF, None if excitation else 0),
-            word_order=word_order, max_read=max_read, max_write=max_write, registers=registers,
-            control=control, status=status, fault_codes=fault_codes, modes=modes,
-            table=table, table_type=table_type, table_scale=table_scale,
-            capture=capture, capture_channels=tuple(channels), filters=filters, filter_encoding=encoding,
-            byte_order=byte_order, rule=rule, identity=identity, expect=expect, save=save, stop=stop,
+            map_version=keys.identity_code("map_version", excitation, source),
+            device_type=keys.identity_code("device_type", excitation, source),
+            word_order=keys.word_order, max_read=keys.max_read_registers, max_write=keys.max_write_registers,
+            registers=registers, **protocol, filters=filters, filter_encoding=encoding,
+            byte_order=keys.byte_order, rule=rule, identity=identity, expect=expect, save=save, stop=stop,
         )
 
     @property
@@ -1210,17 +1292,23 @@ class RegisterMap:
         where = f"register {address:{fmt}}" if last == address else f"registers {address:{fmt}}..{last:{fmt}}"
         names = [r.label for r in sorted(self.registers.values(), key=lambda r: r.address)
                  if r.address <= last and r.end > address and r.table == table]
-        for w, label in ((self.table, "excitation table window"), (self.capture, "capture window")):
-            if w is not None and table == "holding" and w.base <= last and w.end > address:
-                names.append(label + (f", page {page}" if page is not None else ""))
-        if self.filters is not None and table == "holding":
-            slots = sorted({s for a in range(address, last + 1) if (s := self.filters.slot_at(a)) is not None})
-            names += [f"filter slot {s}" for s in slots]
-        if not names and self.rule is not None and table == "holding" and (code := self.rule.code(address)):
-            names.append(f"parameter {code}")
+        if table == "holding":
+            names += self._holding_names(address, last, page, bool(names))
         if table == "input":
             where = "input " + where
         return f"{where} ({', '.join(names) or 'not in the driver map'})"
+
+    def _holding_names(self, address: int, last: int, page: int | None, named: bool) -> list[str]:
+        """What else holding registers ``address..last`` are: windows, filter slots, else a parameter code."""
+        names = [label + (f", page {page}" if page is not None else "")
+                 for w, label in ((self.table, "excitation table window"), (self.capture, "capture window"))
+                 if w is not None and w.base <= last and w.end > address]
+        if self.filters is not None:
+            slots = sorted({s for a in range(address, last + 1) if (s := self.filters.slot_at(a)) is not None})
+            names += [f"filter slot {s}" for s in slots]
+        if not names and not named and self.rule is not None and (code := self.rule.code(address)):
+            names.append(f"parameter {code}")
+        return names
 
     # --- codes and bits --------------------------------------------------------------------
 

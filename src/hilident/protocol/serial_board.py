@@ -397,6 +397,14 @@ def encode(msg, seq: int, *, sample_channels: tuple[ChannelSelection, ...] = (),
 
 
 def _encode_body(msg, sample_channels, excitation) -> tuple[int, bytes]:
+    encoded = _encode_host_body(msg, excitation) or _encode_board_body(msg, sample_channels)
+    if encoded is None:
+        raise TypeError(f"not a protocol message: {msg!r}")
+    return encoded
+
+
+def _encode_host_body(msg, excitation) -> tuple[int, bytes] | None:
+    """Type and body of a host -> board message; None for any other."""
     if isinstance(msg, Identify):
         return MsgType.IDENTIFY, b""
     if isinstance(msg, StatusRequest):
@@ -427,6 +435,11 @@ def _encode_body(msg, sample_channels, excitation) -> tuple[int, bytes]:
         return MsgType.WRITE_FILTER, _filter_body(msg.coefficients)
     if isinstance(msg, ReadFilter):
         return MsgType.READ_FILTER, struct.pack("<B", msg.slot)
+    return None
+
+
+def _encode_board_body(msg, sample_channels) -> tuple[int, bytes] | None:
+    """Type and body of a board -> host message; None for any other."""
     if isinstance(msg, Identity):
         body = struct.pack(
             "<BffBI", msg.protocol_version, msg.loop_rate_hz, msg.max_sample_rate_hz,
@@ -455,7 +468,7 @@ def _encode_body(msg, sample_channels, excitation) -> tuple[int, bytes]:
         return MsgType.FILTER, _filter_body(msg)
     if isinstance(msg, Event):
         return MsgType.EVENT, struct.pack("<BIf", msg.code, msg.sample_index, msg.value) + _string(msg.message)
-    raise TypeError(f"not a protocol message: {msg!r}")
+    return None
 
 
 def _filter_body(c: FilterCoefficients) -> bytes:
@@ -500,6 +513,16 @@ def decode(payload: bytes, *, sample_channels: tuple[ChannelSelection, ...] = ()
 
 
 def _decode_body(mtype: MsgType, r: _Reader, sample_channels, excitation):
+    msg = _decode_host_body(mtype, r, excitation)
+    if msg is None:
+        msg = _decode_board_body(mtype, r, sample_channels)
+    if msg is None:  # pragma: no cover - every type is handled
+        raise ProtocolError(f"no decoder for {mtype.name}")
+    return msg
+
+
+def _decode_host_body(mtype: MsgType, r: _Reader, excitation):
+    """A host -> board message of type ``mtype``; None for a board -> host type."""
     simple = {
         MsgType.IDENTIFY: Identify, MsgType.STATUS_REQUEST: StatusRequest,
         MsgType.CLEAR_FAULT: ClearFault, MsgType.PING: Ping,
@@ -529,6 +552,11 @@ def _decode_body(mtype: MsgType, r: _Reader, sample_channels, excitation):
         return WriteFilter(_decode_filter(r))
     if mtype == MsgType.READ_FILTER:
         return ReadFilter(*r.take("B"))
+    return None
+
+
+def _decode_board_body(mtype: MsgType, r: _Reader, sample_channels):
+    """A board -> host message of type ``mtype``; None for any other type."""
     if mtype == MsgType.IDENTITY:
         version, loop_rate, max_rate, slots, buffer_samples = r.take("BffBI")
         name, firmware = r.string(), r.string()
@@ -556,7 +584,7 @@ def _decode_body(mtype: MsgType, r: _Reader, sample_channels, excitation):
     if mtype == MsgType.EVENT:
         code, index, value = r.take("BIf")
         return Event(_enum(EventCode, code, "event code"), index, value, r.string())
-    raise ProtocolError(f"no decoder for {mtype.name}")  # pragma: no cover - every type is handled
+    return None
 
 
 def _enum(cls, value, what):
