@@ -41,7 +41,7 @@ import h5py
 import numpy as np
 
 from hilident.errors import DataError
-from hilident.report import to_jsonable
+from hilident.serialise import to_jsonable
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "DiskFull", "RunData", "RunWriter", "read_run"]
 
@@ -367,7 +367,7 @@ class RunWriter:
         **fields
             Extra data, stored as a JSON object in the ``data`` column
             (numpy values, complex, NaN are converted as by
-            :func:`hilident.report.to_jsonable`).
+            :func:`hilident.serialise.to_jsonable`).
 
         Raises
         ------

@@ -1,4 +1,4 @@
-"""Plots and ``summary.json`` of a run.
+"""Plots of a run (and ``summary.json`` by its old name: :func:`write_summary`).
 
 Pure output helpers: arrays in, files out. Plots are drawn with matplotlib's
 object API (:class:`matplotlib.figure.Figure`, rendered by Agg), so nothing
@@ -7,7 +7,8 @@ matplotlib is only imported when a plot is drawn.
 
 Every writer creates the parent folder if needed and writes atomically (a
 temporary file in the same folder, then :func:`os.replace`), so a reader never
-sees half a PNG or half a JSON file.
+sees half a PNG or half a JSON file. JSON is :mod:`hilident.serialise`'s job;
+``to_jsonable`` is re-exported here for older imports.
 
 Example
 -------
@@ -18,13 +19,7 @@ Example
 
 from __future__ import annotations
 
-import dataclasses
-import datetime as _dt
-import enum
-import json
-import math
 import os
-import tempfile
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -32,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from hilident.errors import DataError
+from hilident.serialise import atomic_write, to_jsonable, write_json
 
 __all__ = [
     "plot_bode",
@@ -49,147 +45,9 @@ _MAX_PLOT_POINTS = 20_000
 # --------------------------------------------------------------------------- JSON
 
 
-def to_jsonable(obj: Any) -> Any:
-    """Convert ``obj`` recursively into plain JSON types.
-
-    Handles numpy scalars and arrays, dataclass instances (as dicts of their
-    fields), named tuples (as dicts), other tuples/lists/sets (as lists),
-    mappings (keys become ``str``), complex numbers (as ``{"re": .., "im": ..}``),
-    :class:`~pathlib.Path` (as ``str``), dates and times (ISO 8601), enums (their
-    value) and ``bytes`` (UTF-8 text). NaN and infinities become ``None``,
-    because JSON has no spelling for them.
-
-    Parameters
-    ----------
-    obj : Any
-        The object to convert.
-
-    Returns
-    -------
-    Any
-        ``None``, ``bool``, ``int``, ``float``, ``str``, ``list`` or ``dict``,
-        nested.
-
-    Raises
-    ------
-    TypeError
-        For an object of a type not listed above.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> to_jsonable({"f_hz": np.array([1.0, np.inf]), "n": np.int64(3)})
-    {'f_hz': [1.0, None], 'n': 3}
-    """
-    if isinstance(obj, np.generic):  # before float: np.float64 subclasses float
-        return to_jsonable(obj.item())
-    if obj is None or isinstance(obj, bool):
-        return obj
-    if isinstance(obj, str):
-        return str(obj)
-    if isinstance(obj, int):
-        return to_jsonable(obj.value) if isinstance(obj, enum.Enum) else int(obj)
-    if isinstance(obj, float):
-        return float(obj) if math.isfinite(obj) else None
-    if isinstance(obj, complex):
-        return {"re": to_jsonable(obj.real), "im": to_jsonable(obj.imag)}
-    if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist())
-    if isinstance(obj, enum.Enum):
-        return to_jsonable(obj.value)
-    if isinstance(obj, Path):
-        return str(obj)
-    if isinstance(obj, (_dt.datetime, _dt.date, _dt.time)):
-        return obj.isoformat()
-    if isinstance(obj, (bytes, bytearray)):
-        return bytes(obj).decode("utf-8", errors="replace")
-    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return {f.name: to_jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
-    if isinstance(obj, tuple) and hasattr(obj, "_asdict"):
-        return {str(k): to_jsonable(v) for k, v in obj._asdict().items()}
-    if isinstance(obj, Mapping):
-        return {_json_key(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, (set, frozenset)):
-        items = [to_jsonable(v) for v in obj]
-        try:
-            return sorted(items)
-        except TypeError:
-            return items
-    raise TypeError(f"to_jsonable: cannot convert object of type {type(obj).__name__}: {obj!r:.80}")
-
-
-def _json_key(key: Any) -> str:
-    if isinstance(key, str):
-        return key
-    converted = to_jsonable(key)
-    return converted if isinstance(converted, str) else json.dumps(converted)
-
-
 def write_summary(path: str | os.PathLike, summary: Mapping[str, Any]) -> Path:
-    """Write ``summary`` as pretty JSON (indent 2, key order kept), atomically.
-
-    Parameters
-    ----------
-    path : str or path-like
-        Destination, e.g. ``out/summary.json``; the parent folder is created.
-    summary : mapping
-        Anything :func:`to_jsonable` accepts.
-
-    Returns
-    -------
-    pathlib.Path
-        The written file.
-
-    Raises
-    ------
-    DataError
-        If ``summary`` holds an object that cannot be converted to JSON.
-    """
-    path = Path(path)
-    try:
-        plain = to_jsonable(summary)
-    except TypeError as exc:
-        raise DataError(f"{path}: summary cannot be written as JSON: {exc}") from None
-    text = json.dumps(plain, indent=2, sort_keys=False, allow_nan=False, ensure_ascii=False) + "\n"
-    _atomic_write(path, lambda fh: fh.write(text.encode("utf-8")))
-    return path
-
-
-def _atomic_write(path: Path, write) -> None:
-    """Call ``write(binary_file)`` on a temporary file next to ``path``, then rename it.
-
-    The file gets the permissions a plain ``open()`` would give (0644 under
-    the usual umask). A full disk or an unwritable folder is a
-    :class:`DataError` naming the file; the previous file, if any, is kept.
-    """
-    tmp = None
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        with os.fdopen(fd, "wb") as fh:
-            write(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)  # mkstemp creates 0600
-        os.replace(tmp, path)
-    except OSError as exc:
-        _discard(tmp)
-        raise DataError(f"{path}: cannot write: {exc.strerror or exc}") from None
-    except BaseException:
-        _discard(tmp)
-        raise
-
-
-def _discard(tmp: str | None) -> None:
-    if tmp is not None:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
+    """Write ``summary`` as ``summary.json`` (:func:`hilident.serialise.write_json`, kept here by name)."""
+    return write_json(path, summary)
 
 
 # --------------------------------------------------------------------------- validation
@@ -214,7 +72,7 @@ def _same_length(a: np.ndarray, a_name: str, b: np.ndarray, b_name: str) -> None
 
 def _save(fig, path: str | os.PathLike) -> Path:
     path = Path(path)
-    _atomic_write(path, lambda fh: fig.savefig(fh, format="png"))
+    atomic_write(path, lambda fh: fig.savefig(fh, format="png"))
     return path
 
 
