@@ -41,6 +41,7 @@ import h5py
 import numpy as np
 
 from hilident.errors import DataError
+from hilident.events import Kind, RunEvent
 from hilident.serialise import to_jsonable
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "DiskFull", "RunData", "RunWriter", "read_run"]
@@ -391,6 +392,14 @@ class RunWriter:
             f.flush()
         except (OSError, RuntimeError) as exc:
             self._write_failed(exc)
+
+    def log(self, event: RunEvent) -> None:
+        """Append a run event of the shared vocabulary (:class:`hilident.events.RunEvent`) to ``/events``.
+
+        Its ``kind``, ``message`` and ``sample_index`` go to their columns, the
+        other fields that are set to the ``data`` column (as :meth:`event`).
+        """
+        self.event(Kind(event.kind).value, event.message, int(event.sample_index), **event.extra)
 
     def write_table(self, name: str, **columns: Any) -> None:
         """Write a small table as ``/tables/<name>``, one 1-D dataset per column.

@@ -41,6 +41,7 @@ from hilident.config import (AUTO_BAND_SHARE, AUTO_START_SHARE, Config, amplitud
                               auto_coherence_target, check_auto_amplitude)
 from hilident.devicelock import DeviceLock, device_key
 from hilident.drivers import DriverDescription, check_run_against_driver, find_driver
+from hilident.events import RunEvent
 from hilident.errors import ArmingRefused, ConfigError, DataError, HilidentError, UsageError
 from hilident.plan import RunPlan, excitation_travel_m, make_plan
 from hilident.recording import RunWriter, read_run
@@ -516,8 +517,7 @@ class Session(DeviceConnection):
 
         def write_events(events: list[dict]) -> None:
             for ev in events[held["events"]:]:
-                extra = {k: v for k, v in ev.items() if k not in ("kind", "message", "sample_index")}
-                writer.event(ev["kind"], ev.get("message", ""), int(ev.get("sample_index", -1)), **extra)
+                writer.log(RunEvent.from_dict(ev))
             held["events"] = max(held["events"], len(events))
 
         def flush() -> None:
@@ -535,7 +535,7 @@ class Session(DeviceConnection):
             if held["rows"] >= flush_rows or time.monotonic() - held["since"] >= FLUSH_INTERVAL_S:
                 flush()
 
-        if cfg.device.trace and hasattr(ad, "set_trace"):
+        if cfg.device.trace:
             ad.set_trace(self.out / f"{name}.{cfg.device.trace}")  # CAN trace beside the recording
         self.progress.step(f"{name}: {len(excitation) / fs:.1f} s of {mode} excitation")
         result = None
