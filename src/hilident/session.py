@@ -36,6 +36,9 @@ from typing import Callable
 import numpy as np
 
 from hilident import __version__, endings, report
+from hilident.serialise import write_json
+from hilident.summary import (NOT_REACHED, DevicePart, ExcitationPart, StreamStatistics, Summary,
+                              UploadOutcome, VerificationPart)
 from hilident.adapters.base import StreamStats, adapter_class
 from hilident.config import (AUTO_BAND_SHARE, AUTO_START_SHARE, Config, amplitude_ceiling_nm,
                               auto_coherence_target, check_auto_amplitude)
@@ -604,7 +607,7 @@ class Session(DeviceConnection):
         excitation, profile = self.prepare()
         started = time.monotonic()
         friction = plant = verification = None
-        designs, upload = [], {"written": False, "verified_readback": False, "slots": []}
+        designs, upload = [], UploadOutcome()
         step = "connect"
         try:
             self.connect()
@@ -644,9 +647,10 @@ class Session(DeviceConnection):
                 self.close()
         endings.raise_pending()
         model = self._greybox()
-        self.summary = self._summary(friction, plant, designs, upload, verification, time.monotonic() - started)
-        self.summary["model"] = model.to_dict() if model else None
-        report.write_summary(self.out / "summary.json", self.summary)
+        self.result = self._summary(friction, plant, designs, upload, verification, time.monotonic() - started,
+                                    model=model)
+        self.summary = self.result.to_dict()
+        write_json(self.out / "summary.json", self.summary)
         if self.plots:
             self._plots(friction, plant, designs, verification)
         return self.summary
@@ -1050,7 +1054,7 @@ class Session(DeviceConnection):
 
     def _notch_step(self, plant):
         nc = self.cfg.notch
-        upload = {"written": False, "verified_readback": False, "slots": []}
+        upload = UploadOutcome()
         if not nc.enabled:
             return [], upload
         resonances = self._notchable(plant, upload)
@@ -1060,9 +1064,9 @@ class Session(DeviceConnection):
         if ad.identity.filter_slots < 1:
             # designed all the same, for the user to enter by hand or to describe the drive's filter objects
             designs = pipeline.design_notches(resonances, nc, ad.identity.loop_rate_hz, [0], plant.loop)
-            upload["not_uploaded"] = (f"driver {self.driver.name!r} describes no filter capability (no [filters] "
-                                      "table in its driver.toml): the designed notch was not uploaded")
-            self.warnings.append(upload["not_uploaded"])
+            upload.not_uploaded = (f"driver {self.driver.name!r} describes no filter capability (no [filters] "
+                                   "table in its driver.toml): the designed notch was not uploaded")
+            self.warnings.append(upload.not_uploaded)
             return designs, upload
         slots = list(range(ad.identity.filter_slots))
         designs = pipeline.design_notches(resonances, nc, ad.identity.loop_rate_hz, slots, plant.loop)
@@ -1073,7 +1077,7 @@ class Session(DeviceConnection):
         self._uploaded = True  # from here the device holds the new notches; other bypassed slots stay bypassed
         return designs, upload
 
-    def _notchable(self, plant, upload: dict) -> list:
+    def _notchable(self, plant, upload: UploadOutcome) -> list:
         """The resonances the evidence supports a notch for; why the others get none goes to warnings and upload."""
         e = self.cfg.excitation
         amplitude = e.amplitude if isinstance(e.amplitude, (int, float)) else None
@@ -1081,25 +1085,25 @@ class Session(DeviceConnection):
                                            amplitude)
         self.warnings += decision.warnings
         if decision.skipped_reason is not None:
-            upload["skipped_reason"] = decision.skipped_reason
+            upload.skipped_reason = decision.skipped_reason
         return decision.resonances
 
-    def _save_step(self, upload: dict, verification) -> None:
+    def _save_step(self, upload: UploadOutcome, verification) -> None:
         """With ``save``: the device stores its parameters, only after an upload read back and verified."""
-        upload["saved"] = False
+        upload.saved = False
         if not self.save:
             return
-        if not (upload["written"] and upload["verified_readback"] and verification is not None):
-            upload["not_saved"] = "nothing was saved: the notches were not uploaded, read back and verified"
-            self.warnings.append(upload["not_saved"])
+        if not (upload.written and upload.verified_readback and verification is not None):
+            upload.not_saved = "nothing was saved: the notches were not uploaded, read back and verified"
+            self.warnings.append(upload.not_saved)
             return
         saved_with, reason = uploading.store_parameters(self.adapter, self.driver.transport, self.progress)
         if saved_with is None:
-            upload["not_saved"] = reason
-            self.warnings.append(upload["not_saved"])
+            upload.not_saved = reason
+            self.warnings.append(upload.not_saved)
             return
-        upload["saved_with"] = saved_with
-        upload["saved"] = True
+        upload.saved_with = saved_with
+        upload.saved = True
 
     def _verify(self, excitation: Excitation, plant, designs):
         if not designs or not self.cfg.notch.verify or not self._uploaded:
@@ -1125,8 +1129,7 @@ class Session(DeviceConnection):
                 f"{band['frequency_hz']:.4g} Hz dropped by only {band['band_reduction_db']:.1f} dB (at the resonance "
                 f"line: {band['reduction_db']:.1f} dB; notch.min_reduction_db = {nc.min_reduction_db:g})"
             )
-        return {"loop_after": loop_after, "resonances": reductions, "band_reduction_db": band["band_reduction_db"],
-                "peak_reduction_db": at_peak, "band_bandwidths": nc.verify_band_bandwidths}
+        return VerificationPart(band["band_reduction_db"], at_peak, nc.verify_band_bandwidths, reductions, loop_after)
 
     # --- outputs ----------------------------------------------------------------------------
 
@@ -1134,64 +1137,22 @@ class Session(DeviceConnection):
                                verification, elapsed_s: float) -> None:
         """``summary.json`` of a session a step of which failed after others succeeded: their results, the
         failed step's name (``failed_step``) and its error."""
-        summary = self._summary(friction, plant, designs, upload, verification, elapsed_s)
-        summary.update(failed_step=step, error=str(exc))
-        report.write_summary(self.out / "summary.json", summary)
+        summary = self._summary(friction, plant, designs, upload, verification, elapsed_s).failed(step, str(exc))
+        write_json(self.out / "summary.json", summary.to_dict())
         self.progress.step(f"wrote {self.out / 'summary.json'} up to the failed step ({step})")
 
-    def _summary(self, friction, plant, designs, upload, verification, elapsed_s) -> dict:
-        cfg = self.cfg
-        t = self.totals
-        out = {
-            "hilident_version": __version__,
-            "config": cfg.source,
-            "device": {"driver": self.driver.name, "port": self.adapter.port if self.adapter else None,
-                       "emulated": cfg.uses_emulator},
-            "sample_rate_hz": cfg.run.sample_rate_hz,
-            "excitation": self._excitation_record(),
-            "resonances": pipeline.resonance_records(plant.resonances) if plant else [],
-            "rejected_peaks": pipeline.rejected_peak_records(plant.rejected) if plant else [],
-            "plant_model": plant.model.to_dict() if plant and plant.model else None,
-            "measurement": plant.quality if plant else None,
-            "friction": None,
-            "notch_filters": pipeline.notch_records(designs),
-            "upload": upload,
-            "verification": {"band_reduction_db": None, "peak_reduction_db": None, "resonances": []},
-            "stream": {
-                "samples": t.samples, "lost_frames": t.lost_frames, "lost_blocks": t.lost_blocks,
-                "lost_samples": t.lost_samples, "corrupt_frames": t.corrupt_frames, "out_of_order": t.out_of_order,
-                "underruns": t.underruns, "board_dropped_blocks": t.board_dropped_blocks,
-            },
-            "connect": (self.adapter.connect_report.to_dict() if self.adapter is not None
-                        and hasattr(self.adapter, "connect_report") else None),
-            "filters_found": self.filters_found,
-            "recordings": sorted(p.name for p in self.out.glob("*.h5")),
-            "elapsed_s": elapsed_s,
-            "warnings": self.warnings,
-        }
-        if friction is not None:
-            from hilident.offline import friction_record
-
-            out["friction"] = friction_record(friction)
-        if verification is not None:
-            out["verification"] = {"band_reduction_db": verification["band_reduction_db"],
-                                   "peak_reduction_db": verification["peak_reduction_db"],
-                                   "band_bandwidths": verification["band_bandwidths"],
-                                   "resonances": verification["resonances"]}
-        return out
-
-    def _excitation_record(self) -> dict:
-        """What excited the axis, where it entered, and in which unit (summary.json)."""
-        e = self.cfg.excitation
-        unit = {"velocity": "m/s", "position": "m"}.get(e.mode, "N*m")
-        out = {"kind": e.kind, "mode": e.mode, "amplitude": e.amplitude, "unit": unit, "closed_loop": e.closed_loop}
-        if self._auto is not None:
-            out["amplitude_setting"] = "auto"
-            out["auto"] = self._auto
-        if e.closed_loop:
-            out["reference"] = (f"the {e.mode} set-point perturbation: the plant (torque to output) is estimated "
-                                "against it, so noise the drive's loop feeds back does not bias it")
-        return out
+    def _summary(self, friction, plant, designs, upload: UploadOutcome, verification: VerificationPart | None,
+                 elapsed_s: float, model=NOT_REACHED) -> Summary:
+        """The run's :class:`~hilident.summary.Summary` (``model`` left out when the run failed before it)."""
+        cfg, ad = self.cfg, self.adapter
+        connect = ad.connect_report.to_dict() if ad is not None and hasattr(ad, "connect_report") else None
+        return Summary.of_run(
+            config=cfg.source, device=DevicePart(self.driver.name, ad.port if ad else None, cfg.uses_emulator),
+            sample_rate_hz=cfg.run.sample_rate_hz, excitation=ExcitationPart.of(cfg.excitation, self._auto),
+            plant=plant, friction=friction, designs=designs, upload=upload, verification=verification,
+            stream=StreamStatistics.of(self.totals), connect=connect, filters_found=self.filters_found,
+            recordings=sorted(p.name for p in self.out.glob("*.h5")), elapsed_s=elapsed_s, warnings=self.warnings,
+            model=model)
 
     def _plots(self, friction, plant, designs, verification) -> None:
         if friction is not None:
@@ -1204,7 +1165,7 @@ class Session(DeviceConnection):
                                  label=friction.model)
         responses = [("plant (net torque to output)", plant.plant), ("excitation to output, before notch", plant.loop)]
         if verification is not None:
-            responses.append(("excitation to output, after notch", verification["loop_after"]))
+            responses.append(("excitation to output, after notch", verification.loop_after))
         notch = pipeline.notch_chain_response(designs, plant.plant.frequency_hz)
         report.plot_bode(self.out / "bode.png", responses, resonances=plant.resonances, notch_response=notch,
                          coherence_threshold=self.cfg.identification.coherence_threshold,
