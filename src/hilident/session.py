@@ -50,6 +50,8 @@ from hilident.plan import RunPlan, excitation_travel_m, make_plan
 from hilident.recording import RunWriter, read_run
 from hilident.lazy import lazy_module
 from hilident.signals import generators as sig
+from hilident.signals.excitation import Excitation
+from hilident.signals.excitation import build_excitation as excitation_signal
 
 #: The analysis, imported once an experiment needs it (a run ended before that starts and stops faster).
 pipeline = lazy_module("hilident.pipeline")
@@ -109,18 +111,8 @@ class Progress:
         return update
 
 
-@dataclass
-class Excitation:
-    """An excitation as played: samples, and the period when it is periodic."""
-
-    samples: np.ndarray
-    period_samples: int | None
-    band_hz: tuple[float, float]
-    excited_bins: np.ndarray | None = None
-
-
 def build_excitation(cfg: Config, amplitude: float | None = None) -> Excitation:
-    """The identification excitation described by ``[excitation]``, in the unit of its mode.
+    """The identification excitation of ``cfg`` (:func:`hilident.signals.excitation.build_excitation`).
 
     Torque (N·m) for ``torque`` and ``torque_injection``; a velocity (m/s) or
     position (m, relative to where the axis holds) set-point perturbation for
@@ -129,38 +121,9 @@ def build_excitation(cfg: Config, amplitude: float | None = None) -> Excitation:
     the plan shows and the limits are checked against).
     """
     e = cfg.excitation
-    fs = cfg.run.sample_rate_hz
     if amplitude is None:
         amplitude = (amplitude_ceiling_nm(cfg) or 1.0) if e.amplitude_auto else e.amplitude
-    period = None
-    band = (e.f_min_hz, e.f_max_hz)
-    if e.kind == "multisine":
-        n_periods = max(1, int(round(e.duration_s / e.period_s)))
-        ms = sig.multisine(amplitude, e.f_min_hz, e.f_max_hz, e.period_s, n_periods, fs)
-        # one extra period first: it lets the transient die out and is skipped by the analysis
-        x = np.concatenate([ms.samples[: ms.period_samples], ms.samples])
-        return Excitation(x, ms.period_samples, band, ms.excited_bins)
-    if e.kind == "sine":
-        x, band = sig.sine(amplitude, e.frequency_hz, e.duration_s, fs), (e.frequency_hz, e.frequency_hz)
-    elif e.kind == "square":
-        x, band = sig.square(amplitude, e.frequency_hz, e.duration_s, fs), (e.frequency_hz, e.f_max_hz)
-    elif e.kind == "chirp":
-        x = sig.chirp(amplitude, e.f_min_hz, e.f_max_hz, e.duration_s, fs, method=e.chirp_method)
-    elif e.kind == "noise":
-        x = sig.band_limited_noise(
-            amplitude / 3.0, e.f_min_hz, e.f_max_hz, e.duration_s, fs, seed=cfg.run.seed, peak=amplitude
-        )
-    elif e.kind == "prbs":
-        length = (2**e.register_length - 1) * e.clock_divider
-        periods = max(1, int(round(e.duration_s * fs / length)))
-        x = sig.prbs(amplitude, e.register_length, e.clock_divider, fs, periods=periods + 1)
-        period = length if periods >= 3 else None
-        band = (fs / length, min(e.f_max_hz, fs / (2 * e.clock_divider)))
-    else:  # step
-        x = sig.step(amplitude, e.duration_s, fs, step_time_s=0.1 * e.duration_s)
-    if e.fade_s and period is None:
-        x = sig.fade(x, e.fade_s, fs)
-    return Excitation(np.asarray(x, dtype=float), period, band)
+    return excitation_signal(e, cfg.run.sample_rate_hz, amplitude, seed=cfg.run.seed)
 
 
 #: Share of a host-clocked run's samples whose SYNC may be late before the session warns of uneven sampling.
