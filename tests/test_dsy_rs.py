@@ -20,7 +20,7 @@ from hilident.emulator.modbus_param_firmware import ParameterDriveFirmware
 from hilident.errors import ConfigError, DeviceError
 from hilident.filters.notch import NotchSpec, design_notch
 from hilident.protocol.modbus_registers import RegisterMap
-from hilident.session import Session
+from hilident.session import ConnectedDevice, Session
 from hilident.summary import UploadOutcome
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "emulated-dsy-rs.toml"
@@ -157,7 +157,7 @@ def test_save_is_written_only_after_a_verified_upload(dsy, tmp_path):
     assert adapter.upload_filter(0, design_notch(spec, DRIVER.loop_rate_hz), spec).matches
     assert fw.saves == 0  # an upload alone stores nothing
     session = Session(clean_config(), tmp_path, save=True)
-    session.driver, session.adapter = DRIVER, adapter
+    session.driver, session.device = DRIVER, ConnectedDevice(DRIVER, adapter)
     unverified = UploadOutcome(written=True, verified_readback=True)
     session._save_step(unverified, verification=None)
     assert fw.saves == 0 and not unverified.saved

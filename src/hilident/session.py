@@ -31,7 +31,7 @@ import time
 from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -52,6 +52,9 @@ from hilident.lazy import lazy_module
 from hilident.signals import generators as sig
 from hilident.signals.excitation import Excitation
 from hilident.signals.excitation import build_excitation as excitation_signal
+
+if TYPE_CHECKING:
+    from hilident.adapters.base import AdapterBase
 
 #: The analysis, imported once an experiment needs it (a run ended before that starts and stops faster).
 pipeline = lazy_module("hilident.pipeline")
@@ -280,70 +283,27 @@ class Experiment:
     events: list[dict] = field(default_factory=list)
 
 
-class DeviceConnection:
-    """A device opened as ``[device]`` says (or the embedded emulator), one session per device.
+@dataclass(frozen=True)
+class ConnectedDevice:
+    """An open device, complete: its driver, the adapter talking to it, and what was started or taken to reach
+    it (the embedded emulator, the device lock). Made by :func:`connect_device`."""
 
-    What ``hilident run`` and ``hilident upload`` share: the subclass sets
-    ``cfg``, ``progress`` and ``warnings`` and may set ``driver``;
-    :meth:`open_device` fills ``adapter``, ``emulator`` and ``lock``.
-    """
-
-    cfg: Config
-    progress: Progress
-    warnings: list[str]
-    driver: DriverDescription | None = None
-    adapter = None
-    emulator = None
+    driver: DriverDescription
+    adapter: "AdapterBase"
+    emulator: object | None = None
     lock: DeviceLock | None = None
-
-    def open_device(self) -> None:
-        """Open the device (taking its lock), or start the embedded emulator and open it like a device.
-
-        The adapter brings the device to a known state as it opens (stale
-        frames discarded, axis stopped, latched faults reported and cleared
-        only when allowed); what it found goes to ``warnings``.
-        """
-        cfg = self.cfg
-        self.driver = self.driver or find_driver(cfg.device.driver, cfg.device.driver_paths)
-        cls = adapter_class(self.driver.transport)
-        device, link = cfg.device, None
-        if cfg.uses_emulator:
-            from hilident.emulator.factory import start_emulator
-
-            self.emulator = start_emulator(cfg.emulator, self.driver, cfg.device)
-            device, link = self.emulator.device, self.emulator.link
-        else:
-            d = cfg.device
-            self.lock = DeviceLock(device_key(self.driver.transport, d.port, node_id=d.node_id,
-                                              device_id=d.device_id, can_interface=d.can_interface)).acquire()
-            if self.lock.recovered_from:
-                self.progress.step(f"device lock of pid {self.lock.recovered_from} recovered (that session died)")
-        self.adapter = cls.open_device(device, self.driver, link=link)
-        where = "emulated" if cfg.uses_emulator else "connected to"
-        self.progress.step(f"{where} {self.adapter.identity.name} on {self.adapter.port}")
-        report_ = getattr(self.adapter, "connect_report", None)
-        if report_ is not None:
-            if report_.discarded_frames:
-                self.warnings.append(f"connect: {report_.discarded_frames} frame(s) left over from an earlier "
-                                     "session were discarded")
-            if report_.faults:
-                self.warnings.append(f"connect: the device had latched fault(s): {'; '.join(report_.faults)}"
-                                     + ("; cleared (allow_fault_reset)" if report_.faults_cleared else ""))
-            self.warnings += [f"connect: {w}" for w in report_.warnings]
 
     def safe_stop(self) -> None:
         """Command the axis safe now (first thing on every ending). Never raises."""
-        if self.adapter is not None:
-            try:
-                self.adapter.safe_stop()
-            except Exception:
-                pass
+        try:
+            self.adapter.safe_stop()
+        except Exception:
+            pass
 
     def close(self) -> None:
         """Stop the axis and release the device (and the emulator, and the device lock)."""
         try:
-            if self.adapter is not None:
-                self.adapter.close()
+            self.adapter.close()
         finally:
             try:
                 if self.emulator is not None:
@@ -351,6 +311,110 @@ class DeviceConnection:
             finally:
                 if self.lock is not None:
                     self.lock.release()
+
+
+def connect_device(cfg: Config, driver: DriverDescription, progress: Progress) -> ConnectedDevice:
+    """Open the device of ``[device]`` (taking its lock), or start the embedded emulator and open it like one.
+
+    The adapter brings the device to a known state as it opens (stale frames
+    discarded, axis stopped, latched faults reported and cleared only when
+    allowed). The lock and the emulator are released again when opening fails.
+    """
+    cls = adapter_class(driver.transport)
+    device, link, emulator, lock = cfg.device, None, None, None
+    if cfg.uses_emulator:
+        from hilident.emulator.factory import start_emulator
+
+        emulator = start_emulator(cfg.emulator, driver, cfg.device)
+        device, link = emulator.device, emulator.link
+    else:
+        d = cfg.device
+        lock = DeviceLock(device_key(driver.transport, d.port, node_id=d.node_id, device_id=d.device_id,
+                                     can_interface=d.can_interface)).acquire()
+        if lock.recovered_from:
+            progress.step(f"device lock of pid {lock.recovered_from} recovered (that session died)")
+    try:
+        adapter = cls.open_device(device, driver, link=link)
+    except BaseException:
+        with endings.shielded():
+            _release(emulator, lock)
+        raise
+    return ConnectedDevice(driver, adapter, emulator, lock)
+
+
+def _release(emulator, lock: DeviceLock | None) -> None:
+    """Stop an emulator and release a lock of a device that did not open."""
+    try:
+        if emulator is not None:
+            emulator.close()
+    finally:
+        if lock is not None:
+            lock.release()
+
+
+def connect_warnings(report_) -> list[str]:
+    """What :attr:`AdapterBase.connect_report` found, as the session's warnings."""
+    out = []
+    if report_.discarded_frames:
+        out.append(f"connect: {report_.discarded_frames} frame(s) left over from an earlier session were discarded")
+    if report_.faults:
+        out.append(f"connect: the device had latched fault(s): {'; '.join(report_.faults)}"
+                   + ("; cleared (allow_fault_reset)" if report_.faults_cleared else ""))
+    return out + [f"connect: {w}" for w in report_.warnings]
+
+
+class DeviceConnection:
+    """A device opened as ``[device]`` says (or the embedded emulator), one session per device.
+
+    What ``hilident run`` and ``hilident upload`` share: the subclass sets
+    ``cfg``, ``progress`` and ``warnings`` and may set ``driver``;
+    :meth:`open_device` makes :attr:`device` (a :class:`ConnectedDevice`);
+    ``adapter``, ``emulator`` and ``lock`` are its parts (None until then).
+    """
+
+    cfg: Config
+    progress: Progress
+    warnings: list[str]
+    driver: DriverDescription | None = None
+    device: ConnectedDevice | None = None
+
+    @property
+    def adapter(self):
+        """The open device's adapter (None before :meth:`open_device`)."""
+        return self.device.adapter if self.device is not None else None
+
+    @property
+    def emulator(self):
+        """The embedded emulator (None on a real port, or before :meth:`open_device`)."""
+        return self.device.emulator if self.device is not None else None
+
+    @property
+    def lock(self) -> DeviceLock | None:
+        """The device lock (None for the emulator, or before :meth:`open_device`)."""
+        return self.device.lock if self.device is not None else None
+
+    def open_device(self) -> None:
+        """Open the device (taking its lock), or start the embedded emulator and open it like a device.
+
+        What the adapter found as it brought the device to a known state goes to ``warnings``.
+        """
+        self.driver = self.driver or find_driver(self.cfg.device.driver, self.cfg.device.driver_paths)
+        self.device = connect_device(self.cfg, self.driver, self.progress)
+        where = "emulated" if self.cfg.uses_emulator else "connected to"
+        self.progress.step(f"{where} {self.adapter.identity.name} on {self.adapter.port}")
+        report_ = getattr(self.adapter, "connect_report", None)
+        if report_ is not None:
+            self.warnings += connect_warnings(report_)
+
+    def safe_stop(self) -> None:
+        """Command the axis safe now (first thing on every ending). Never raises."""
+        if self.device is not None:
+            self.device.safe_stop()
+
+    def close(self) -> None:
+        """Stop the axis and release the device (and the emulator, and the device lock)."""
+        if self.device is not None:
+            self.device.close()
 
 
 class Session(DeviceConnection):
@@ -376,8 +440,7 @@ class Session(DeviceConnection):
         self.out = Path(out_dir)
         self.progress = progress or Progress(enabled=False)
         self.driver: DriverDescription | None = None
-        self.adapter = None
-        self.emulator = None
+        self.device: ConnectedDevice | None = None
         self.totals = StreamStats()
         self.warnings: list[str] = []
         self.summary: dict = {}
@@ -387,7 +450,6 @@ class Session(DeviceConnection):
         self.plots = plots
         self.save = save  # store the device's parameters once the new notches are verified
         self.plan: RunPlan | None = None
-        self.lock: DeviceLock | None = None
         self.filters_found: list[dict] = []  # what the filter slots held when the session began
         self._bypassed: dict[int, object] = {}  # slot -> saved contents, until the new notches are uploaded
         self.friction_mode = "velocity"  # or "position" on a drive without a velocity mode (set by prepare)
