@@ -30,6 +30,7 @@ from hilident.errors import DataError
 from hilident.serialise import atomic_write, to_jsonable, write_json
 
 __all__ = [
+    "plot_run",
     "plot_bode",
     "plot_friction",
     "plot_timeseries",
@@ -173,9 +174,44 @@ def plot_bode(
     """
     from matplotlib.figure import Figure
 
-    curves = []
+    curves = _bode_curves(responses)
+    notch = None if notch_response is None else _positive_curve(*notch_response, "notch_response")
+
+    fig = Figure(figsize=(8.0, 9.0), dpi=110, layout="constrained")
+    axes = fig.subplots(3, 1, sharex=True)
+    ax_mag, ax_phase, ax_coh = axes
+    with np.errstate(divide="ignore", invalid="ignore"):
+        magnitudes_db = _draw_responses(axes, curves, responses, bounds_db)
+        if notch is not None and notch[0].size:
+            mag_db = 20 * np.log10(np.abs(notch[1]))
+            magnitudes_db.append(mag_db)
+            ax_mag.semilogx(notch[0], mag_db, "k--", lw=1.2, label="notch chain")
+        if model is not None:
+            m_label = model[0]
+            mf, mh = _positive_curve(model[1], model[2], "model")
+            ax_mag.semilogx(mf, 20 * np.log10(np.abs(mh)), color="k", lw=0.8, label=m_label)
+            ax_phase.semilogx(mf, _unwrapped_phase_deg(mh), color="k", lw=0.8, label=m_label)
+    ax_mag.set_ylim(*_magnitude_limits_db(np.concatenate(magnitudes_db)))
+
+    has_coherence = any(c[3] is not None for c in curves)
+    if coherence_threshold is not None:
+        ax_coh.axhline(float(coherence_threshold), color="0.3", ls="--", lw=1.0,
+                       label=f"threshold {float(coherence_threshold):g}")
+    if not has_coherence:
+        ax_coh.text(0.5, 0.5, "no coherence", transform=ax_coh.transAxes, ha="center", va="center", color="0.4")
+    _mark_resonances(axes, resonances)
+    _bode_axes(axes)
+    ax_mag.legend(loc="best", fontsize=8)
+    if coherence_threshold is not None or has_coherence:
+        ax_coh.legend(loc="lower left", fontsize=8)
+    return _save(fig, path)
+
+
+def _bode_curves(responses: Sequence[tuple[str, Any]]) -> list[tuple[str, np.ndarray, np.ndarray, Any]]:
+    """``(label, f, h, coherence or None)`` of each response, checked, at positive frequencies only."""
     if len(responses) == 0:
         raise DataError("plot_bode: responses is empty; pass at least one (label, frf)")
+    curves = []
     for label, frf in responses:
         f = _vector(getattr(frf, "frequency_hz", None), f"responses[{label!r}].frequency_hz")
         h = _vector(getattr(frf, "response", None), f"responses[{label!r}].response", dtype=complex)
@@ -189,77 +225,69 @@ def plot_bode(
         if not np.any(keep):
             raise DataError(f"responses[{label!r}].frequency_hz: no positive frequency to plot")
         curves.append((str(label), f[keep], h[keep], None if coh is None else coh[keep]))
+    return curves
 
-    notch = None if notch_response is None else _positive_curve(*notch_response, "notch_response")
 
-    fig = Figure(figsize=(8.0, 9.0), dpi=110, layout="constrained")
-    ax_mag, ax_phase, ax_coh = fig.subplots(3, 1, sharex=True)
-
+def _draw_responses(axes, curves: list, responses: Sequence[tuple[str, Any]], bounds_db) -> list[np.ndarray]:
+    """Magnitude, phase (near the first curve's) and coherence of every curve; their magnitudes, dB."""
+    ax_mag, ax_phase, ax_coh = axes
     magnitudes_db = []
     reference_phase = None
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for i, (label, f, h, coh) in enumerate(curves):
-            mag_db = 20 * np.log10(np.abs(h))
-            magnitudes_db.append(mag_db)
-            line = ax_mag.semilogx(f, mag_db, label=label)[0]
-            if i == 0 and bounds_db is not None:
-                f_all = _vector(responses[0][1].frequency_hz, "responses[0].frequency_hz")
-                lo = _vector(bounds_db[0], "bounds_db lower")
-                hi = _vector(bounds_db[1], "bounds_db upper")
-                _same_length(f_all, "responses[0].frequency_hz", lo, "bounds_db lower")
-                _same_length(f_all, "responses[0].frequency_hz", hi, "bounds_db upper")
-                k = f_all > 0
-                lo_db = np.maximum(mag_db + lo[k], mag_db - 40.0)  # a bin with no coherence: cap the band
-                ax_mag.fill_between(f, lo_db, mag_db + hi[k], color=line.get_color(), alpha=0.25, lw=0,
-                                    label="95 % confidence")
-            phase = _phase_near(f, _unwrapped_phase_deg(h), reference_phase)
-            if reference_phase is None:
-                reference_phase = (f, phase)
-            ax_phase.semilogx(f, phase, color=line.get_color(), label=label)
-            if coh is not None:
-                ax_coh.semilogx(f, coh, color=line.get_color(), label=label)
-        if notch is not None and notch[0].size:
-            mag_db = 20 * np.log10(np.abs(notch[1]))
-            magnitudes_db.append(mag_db)
-            ax_mag.semilogx(notch[0], mag_db, "k--", lw=1.2, label="notch chain")
-        if model is not None:
-            m_label = model[0]
-            mf, mh = _positive_curve(model[1], model[2], "model")
-            ax_mag.semilogx(mf, 20 * np.log10(np.abs(mh)), color="k", lw=0.8, label=m_label)
-            ax_phase.semilogx(mf, _unwrapped_phase_deg(mh), color="k", lw=0.8, label=m_label)
-    ax_mag.set_ylim(*_magnitude_limits_db(np.concatenate(magnitudes_db)))
+    for i, (label, f, h, coh) in enumerate(curves):
+        mag_db = 20 * np.log10(np.abs(h))
+        magnitudes_db.append(mag_db)
+        line = ax_mag.semilogx(f, mag_db, label=label)[0]
+        if i == 0 and bounds_db is not None:
+            _confidence_band(ax_mag, f, mag_db, responses[0][1], bounds_db, line.get_color())
+        phase = _phase_near(f, _unwrapped_phase_deg(h), reference_phase)
+        if reference_phase is None:
+            reference_phase = (f, phase)
+        ax_phase.semilogx(f, phase, color=line.get_color(), label=label)
+        if coh is not None:
+            ax_coh.semilogx(f, coh, color=line.get_color(), label=label)
+    return magnitudes_db
 
-    if coherence_threshold is not None:
-        ax_coh.axhline(float(coherence_threshold), color="0.3", ls="--", lw=1.0,
-                       label=f"threshold {float(coherence_threshold):g}")
-    if not any(c[3] is not None for c in curves):
-        ax_coh.text(0.5, 0.5, "no coherence", transform=ax_coh.transAxes, ha="center", va="center", color="0.4")
 
+def _confidence_band(ax_mag, f: np.ndarray, mag_db: np.ndarray, frf, bounds_db, color) -> None:
+    """The first response's 95 % band (``bounds_db``, dB relative to it, one value per bin), shaded."""
+    f_all = _vector(frf.frequency_hz, "responses[0].frequency_hz")
+    lo = _vector(bounds_db[0], "bounds_db lower")
+    hi = _vector(bounds_db[1], "bounds_db upper")
+    _same_length(f_all, "responses[0].frequency_hz", lo, "bounds_db lower")
+    _same_length(f_all, "responses[0].frequency_hz", hi, "bounds_db upper")
+    k = f_all > 0
+    lo_db = np.maximum(mag_db + lo[k], mag_db - 40.0)  # a bin with no coherence: cap the band
+    ax_mag.fill_between(f, lo_db, mag_db + hi[k], color=color, alpha=0.25, lw=0, label="95 % confidence")
+
+
+def _mark_resonances(axes, resonances: Iterable[Any]) -> None:
+    """A dotted red line at each resonance on every axis, its frequency written at the top."""
+    ax_mag = axes[0]
     for i, res in enumerate(resonances):
         f_res = float(getattr(res, "frequency_hz"))
-        for ax in (ax_mag, ax_phase, ax_coh):
+        for ax in axes:
             ax.axvline(f_res, color="tab:red", ls=":", lw=1.0, label="resonance" if (i == 0 and ax is ax_mag) else None)
         ax_mag.annotate(f"{f_res:.4g} Hz", xy=(f_res, 1.0), xycoords=("data", "axes fraction"),
                         xytext=(3, -3), textcoords="offset points", ha="left", va="top",
                         fontsize=8, color="tab:red")
 
+
+def _bode_axes(axes) -> None:
+    """Labels, limits, grid and 1-2-5 frequency ticks of the three axes."""
+    from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
+
+    ax_mag, ax_phase, ax_coh = axes
     ax_mag.set_ylabel("magnitude [dB]")
     ax_phase.set_ylabel("phase [deg]")
     ax_coh.set_ylabel("coherence [-]")
     ax_coh.set_ylim(0.0, 1.05)
     ax_coh.set_xlabel("frequency [Hz]")
-    from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
-
-    for ax in (ax_mag, ax_phase, ax_coh):
+    for ax in axes:
         ax.grid(True, which="both", alpha=0.3)
         # plain numbers at 1-2-5 steps read better than 10^x labels crowding each other
         ax.xaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
         ax.xaxis.set_major_formatter(ScalarFormatter())
         ax.xaxis.set_minor_formatter(NullFormatter())
-    ax_mag.legend(loc="best", fontsize=8)
-    if coherence_threshold is not None or any(c[3] is not None for c in curves):
-        ax_coh.legend(loc="lower left", fontsize=8)
-    return _save(fig, path)
 
 
 # --------------------------------------------------------------------------- friction
@@ -427,3 +455,33 @@ def plot_timeseries(
                              color="tab:red", rotation=90)
     axes[-1].set_xlabel("time [s]")
     return _save(fig, path)
+
+
+# --------------------------------------------------------------------------- a run's plots
+
+
+def plot_run(out: str | os.PathLike, friction, plant, designs: list, loop_after=None,
+             coherence_threshold: float | None = None) -> None:
+    """``friction.png`` (with a friction test) and ``bode.png`` of a run into the folder ``out``.
+
+    ``friction`` is the friction test's result (or None), ``plant`` the
+    identification's, ``designs`` the notch designs, ``loop_after`` the
+    verification run's response (None without one).
+    """
+    from hilident import pipeline
+
+    out = Path(out)
+    if friction is not None:
+        from hilident.ident.friction import stribeck
+
+        pts = friction.points
+        vmax = float(np.max(np.abs(pts.v_mean)))
+        v = np.linspace(-vmax, vmax, 801)
+        plot_friction(out / "friction.png", pts.v_mean, pts.tau_mean, v, stribeck(v, friction.fit.params),
+                      label=friction.model)
+    responses = [("plant (net torque to output)", plant.plant), ("excitation to output, before notch", plant.loop)]
+    if loop_after is not None:
+        responses.append(("excitation to output, after notch", loop_after))
+    notch = pipeline.notch_chain_response(designs, plant.plant.frequency_hz)
+    plot_bode(out / "bode.png", responses, resonances=plant.resonances, notch_response=notch,
+              coherence_threshold=coherence_threshold, **pipeline.bode_extras(plant))

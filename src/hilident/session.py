@@ -41,6 +41,7 @@ from hilident.config import Config, check_auto_amplitude
 from hilident.devicelock import DeviceLock, device_key
 from hilident.drivers import DriverDescription, check_run_against_driver, find_driver
 from hilident.errors import ArmingRefused, ConfigError, DataError, HilidentError, UsageError
+from hilident.filter_slots import BypassedSlots
 from hilident.plan import RunPlan, excitation_travel_m, make_plan
 from hilident.experiment import (FLUSH_INTERVAL_S, Experiment, ExperimentRecorder,  # noqa: F401 (kept importable)
                                  late_sampling_warnings, package_versions)
@@ -264,8 +265,7 @@ class Session(DeviceConnection):
         self.plots = plots
         self.save = save  # store the device's parameters once the new notches are verified
         self.plan: RunPlan | None = None
-        self.filters_found: list[dict] = []  # what the filter slots held when the session began
-        self._bypassed: dict[int, object] = {}  # slot -> saved contents, until the new notches are uploaded
+        self.slots = BypassedSlots()  # what the filter slots held, and what is bypassed until the upload
         self.friction_mode = "velocity"  # or "position" on a drive without a velocity mode (set by prepare)
         self._uploaded = False
         self._auto: dict | None = None  # the automatic amplitude's choice, trials and reason
@@ -285,42 +285,21 @@ class Session(DeviceConnection):
 
     # --- filter slots: identify the bare plant ---------------------------------------------
 
+    @property
+    def filters_found(self) -> list[dict]:
+        """What every filter slot held when the session began (for the plan and summary.json)."""
+        return self.slots.found
+
     def _read_filter_slots(self) -> None:
-        """What every filter slot holds before the session changes anything (for the plan and summary.json)."""
-        ad = self.adapter
-        self.filters_found = []
-        for slot in range(ad.identity.filter_slots):
-            biquad, enabled = ad.read_filter(slot)
-            self.filters_found.append({"slot": slot, "enabled": bool(enabled), "b": [float(x) for x in biquad.b],
-                                       "a": [float(x) for x in biquad.a]})
+        self.slots.read(self.adapter)
 
     def _bypass_filters(self) -> None:
-        """Bypass every slot that filters now, so identification measures the bare plant."""
-        ad = self.adapter
-        for found in self.filters_found:
-            if found["enabled"]:
-                slot = found["slot"]
-                saved = ad.save_filter(slot)
-                ad.disable_filter(slot)
-                self._bypassed[slot] = saved
-                found["bypassed"] = True
-        if self._bypassed:
-            self.progress.step(f"filter slot(s) {sorted(self._bypassed)} bypassed while the plant is measured")
+        self.slots.bypass(self.adapter, self.progress)
 
     def _restore_filters(self) -> None:
-        """Put back what the slots held, when the session ends without an upload (early, or with nothing to
-        notch). Never raises."""
-        if self._uploaded or not self._bypassed or self.adapter is None:
-            return
-        for slot, saved in sorted(self._bypassed.items()):
-            try:
-                self.adapter.restore_filter(slot, saved)
-                for found in self.filters_found:
-                    if found["slot"] == slot:
-                        found["restored"] = True
-            except Exception as exc:
-                self.warnings.append(f"filter slot {slot}: could not restore its previous contents: {exc}")
-        self._bypassed.clear()
+        """Put back what the slots held when the session ends before its upload. Never raises."""
+        if not self._uploaded and self.adapter is not None:
+            self.slots.restore(self.adapter, self.warnings)
 
     # --- experiments ----------------------------------------------------------------------
 
@@ -666,18 +645,5 @@ class Session(DeviceConnection):
             model=model)
 
     def _plots(self, friction, plant, designs, verification) -> None:
-        if friction is not None:
-            pts = friction.points
-            vmax = float(np.max(np.abs(pts.v_mean)))
-            v = np.linspace(-vmax, vmax, 801)
-            from hilident.ident.friction import stribeck
-
-            report.plot_friction(self.out / "friction.png", pts.v_mean, pts.tau_mean, v, stribeck(v, friction.fit.params),
-                                 label=friction.model)
-        responses = [("plant (net torque to output)", plant.plant), ("excitation to output, before notch", plant.loop)]
-        if verification is not None:
-            responses.append(("excitation to output, after notch", verification.loop_after))
-        notch = pipeline.notch_chain_response(designs, plant.plant.frequency_hz)
-        report.plot_bode(self.out / "bode.png", responses, resonances=plant.resonances, notch_response=notch,
-                         coherence_threshold=self.cfg.identification.coherence_threshold,
-                         **pipeline.bode_extras(plant))
+        report.plot_run(self.out, friction, plant, designs, verification.loop_after if verification else None,
+                        self.cfg.identification.coherence_threshold)
