@@ -168,26 +168,7 @@ class RunWriter:
     ):
         self._path = Path(path)
         self._file: h5py.File | None = None
-        channels = list(channels)
-        units = list(units)
-        if not channels or not all(isinstance(c, str) and c for c in channels):
-            raise DataError(f"{self._path}: channels must be a non-empty list of non-empty names, got {channels!r}")
-        if len(set(channels)) != len(channels):
-            raise DataError(f"{self._path}: channel names must be unique, got {channels!r}")
-        if len(units) != len(channels) or not all(isinstance(u, str) for u in units):
-            raise DataError(
-                f"{self._path}: units must be {len(channels)} strings (one per channel), got {units!r}"
-            )
-        try:
-            rate = float(sample_rate_hz)
-        except (TypeError, ValueError):
-            rate = math.nan
-        if not (math.isfinite(rate) and rate > 0):
-            raise DataError(f"{self._path}: sample_rate_hz must be a positive finite number, got {sample_rate_hz!r}")
-        if isinstance(chunk_rows, bool) or not isinstance(chunk_rows, (int, np.integer)) or chunk_rows < 1:
-            raise DataError(f"{self._path}: chunk_rows must be a positive integer, got {chunk_rows!r}")
-        if compression not in (None, "lzf"):
-            raise DataError(f"{self._path}: compression must be None or 'lzf', got {compression!r}")
+        channels, units, rate = self._checked_layout(channels, units, sample_rate_hz, chunk_rows, compression)
         if self._path.exists() and not overwrite:
             raise DataError(f"{self._path}: file exists; choose another path or pass overwrite=True")
         if attrs is not None:
@@ -237,6 +218,31 @@ class RunWriter:
             self._file = None
             raise
         self._n_samples = 0
+
+    def _checked_layout(self, channels, units, sample_rate_hz, chunk_rows, compression
+                        ) -> tuple[list[str], list[str], float]:
+        """Channels, units and rate as lists and a float, or a :class:`DataError` naming the file and the value."""
+        channels = list(channels)
+        units = list(units)
+        if not channels or not all(isinstance(c, str) and c for c in channels):
+            raise DataError(f"{self._path}: channels must be a non-empty list of non-empty names, got {channels!r}")
+        if len(set(channels)) != len(channels):
+            raise DataError(f"{self._path}: channel names must be unique, got {channels!r}")
+        if len(units) != len(channels) or not all(isinstance(u, str) for u in units):
+            raise DataError(
+                f"{self._path}: units must be {len(channels)} strings (one per channel), got {units!r}"
+            )
+        try:
+            rate = float(sample_rate_hz)
+        except (TypeError, ValueError):
+            rate = math.nan
+        if not (math.isfinite(rate) and rate > 0):
+            raise DataError(f"{self._path}: sample_rate_hz must be a positive finite number, got {sample_rate_hz!r}")
+        if isinstance(chunk_rows, bool) or not isinstance(chunk_rows, (int, np.integer)) or chunk_rows < 1:
+            raise DataError(f"{self._path}: chunk_rows must be a positive integer, got {chunk_rows!r}")
+        if compression not in (None, "lzf"):
+            raise DataError(f"{self._path}: compression must be None or 'lzf', got {compression!r}")
+        return channels, units, rate
 
     # ------------------------------------------------------------------ properties
 
