@@ -98,6 +98,40 @@ class Progress:
         return update
 
 
+def check_excitation_travel(cfg: Config, excitation: Excitation) -> None:
+    """A set-point perturbation must keep the axis within half the position window (it starts anywhere in it)."""
+    e, lim = cfg.excitation, cfg.limits
+    if not e.closed_loop:
+        return  # a torque excitation's travel depends on the plant; the limits guard it
+    travel = excitation_travel_m(e.mode, excitation.samples, cfg.run.sample_rate_hz)
+    half = (lim.position_max_m - lim.position_min_m) / 2
+    if travel >= half:
+        raise ConfigError(
+            f"excitation.{e.amplitude_key}",
+            f"the {e.mode} set-point perturbation travels up to {travel:.4g} m from where the axis holds, more "
+            f"than half the position window [{lim.position_min_m:g}, {lim.position_max_m:g}] m (a smaller "
+            f"amplitude or a higher f_min_hz)", cfg.source,
+        )
+
+
+def check_it_moved(cfg: Config, output: np.ndarray, friction) -> None:
+    """A DataError that says what to change when the axis did not move at all during the identification."""
+    finite = output[np.isfinite(output)]
+    if finite.size and np.ptp(finite) > 0.0:
+        return
+    e = cfg.excitation
+    held = ""
+    if friction is not None and e.mode in ("torque", "torque_injection"):
+        fs = max(friction.fit.params.Fs, friction.fit.params.Fc)
+        held = (f"; the friction test measured a breakaway of {fs:.3g} N*m, so an amplitude of at least "
+                f"{3 * fs:.3g} N*m is needed to move it over most of each period")
+    raise DataError(f"identification: the axis did not move ({cfg.identification.output} constant at "
+                    f"{finite[0] if finite.size else float('nan'):g}): the excitation ({e.amplitude:g} "
+                    f"{ {'velocity': 'm/s', 'position': 'm'}.get(e.mode, 'N*m') }) is too weak"
+                    f"{held}; raise excitation.{e.amplitude_key}"
+                    + (' or set it to "auto"' if e.amplitude_key == "amplitude_nm" else ""))
+
+
 @dataclass(frozen=True)
 class ConnectedDevice:
     """An open device, complete: its driver, the adapter talking to it, and what was started or taken to reach
@@ -393,7 +427,7 @@ class Session(DeviceConnection):
         modes = check_run_against_driver(cfg, self.driver)
         check_auto_amplitude(cfg)  # again: a config changed in code after loading
         excitation = build_excitation(cfg)
-        self._check_excitation_travel(excitation)
+        check_excitation_travel(cfg, excitation)
         # a drive without a velocity mode runs the friction test's legs as a position profile
         self.friction_mode = "velocity" if "velocity" in modes else "position"
         profile = None
@@ -409,21 +443,6 @@ class Session(DeviceConnection):
                     "speeds)", cfg.source,
                 )
         return excitation, profile
-
-    def _check_excitation_travel(self, excitation: Excitation) -> None:
-        """A set-point perturbation must keep the axis within half the position window (it starts anywhere in it)."""
-        e, lim = self.cfg.excitation, self.cfg.limits
-        if not e.closed_loop:
-            return  # a torque excitation's travel depends on the plant; the limits guard it
-        travel = excitation_travel_m(e.mode, excitation.samples, self.cfg.run.sample_rate_hz)
-        half = (lim.position_max_m - lim.position_min_m) / 2
-        if travel >= half:
-            raise ConfigError(
-                f"excitation.{e.amplitude_key}",
-                f"the {e.mode} set-point perturbation travels up to {travel:.4g} m from where the axis holds, more "
-                f"than half the position window [{lim.position_min_m:g}, {lim.position_max_m:g}] m (a smaller "
-                f"amplitude or a higher f_min_hz)", self.cfg.source,
-            )
 
     def _prepare_out(self) -> None:
         """The output folder exists and takes files, or a one-line error before anything moves."""
@@ -514,7 +533,7 @@ class Session(DeviceConnection):
         self._analysed["identification"] = s
         ic = cfg.identification
         band = pipeline.analysis_band(ic, excitation.band_hz)
-        self._check_it_moved(s[ic.output], friction)
+        check_it_moved(cfg, s[ic.output], friction)
         self.progress.step("identification: frequency response and resonances")
         result = pipeline.identify_plant(
             s["excitation"], s["torque_nm"], s[ic.output], s["velocity_mps"], cfg.run.sample_rate_hz, ic, band,
@@ -524,23 +543,6 @@ class Session(DeviceConnection):
         )
         self.warnings += result.warnings
         return result
-
-    def _check_it_moved(self, output: np.ndarray, friction) -> None:
-        """A DataError that says what to change when the axis did not move at all during the identification."""
-        finite = output[np.isfinite(output)]
-        if finite.size and np.ptp(finite) > 0.0:
-            return
-        e = self.cfg.excitation
-        held = ""
-        if friction is not None and e.mode in ("torque", "torque_injection"):
-            fs = max(friction.fit.params.Fs, friction.fit.params.Fc)
-            held = (f"; the friction test measured a breakaway of {fs:.3g} N*m, so an amplitude of at least "
-                    f"{3 * fs:.3g} N*m is needed to move it over most of each period")
-        raise DataError(f"identification: the axis did not move ({self.cfg.identification.output} constant at "
-                        f"{finite[0] if finite.size else float('nan'):g}): the excitation ({e.amplitude:g} "
-                        f"{ {'velocity': 'm/s', 'position': 'm'}.get(e.mode, 'N*m') }) is too weak"
-                        f"{held}; raise excitation.{e.amplitude_key}"
-                        + (' or set it to "auto"' if e.amplitude_key == "amplitude_nm" else ""))
 
     def _notch_step(self, plant):
         nc = self.cfg.notch
