@@ -293,6 +293,7 @@ class Session(DeviceConnection):
         self.recorder: ExperimentRecorder | None = None  # made once the device is connected
         self.warnings: list[str] = []
         self.summary: dict = {}
+        self.result: Summary | None = None  # the typed summary behind ``summary`` once the run has ended
         self._analysed: dict[str, dict[str, np.ndarray]] = {}  # gap-free samples of each analysed run
         self.confirm = confirm
         self.dry_run = dry_run
@@ -314,6 +315,7 @@ class Session(DeviceConnection):
         only when allowed); the limits the device enforces are loaded.
         """
         self.open_device()
+        self.recorder = ExperimentRecorder(self.device, self.out, self.progress, self.warnings)
         lim = self.cfg.limits
         self.adapter.set_limits(lim.torque_nm, lim.velocity_mps, lim.position_min_m, lim.position_max_m)
 
@@ -342,7 +344,7 @@ class Session(DeviceConnection):
         """Stream ``excitation`` in ``mode`` and record it to ``<out>/<name>.h5``
         (:meth:`hilident.experiment.ExperimentRecorder.record`, with the session's configuration)."""
         if self.recorder is None:
-            self.recorder = ExperimentRecorder(self.device, self.out, self.progress, self.warnings)
+            raise UsageError(f"{name}: the session records only once connected (Session.connect)")
         return self.recorder.record(self.cfg, name, mode, excitation, tables, period_samples, recipe)
 
     @property
