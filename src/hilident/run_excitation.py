@@ -6,6 +6,8 @@ The config-level step between ``[excitation]``/``[run]`` and
 
 from __future__ import annotations
 
+from typing import Any
+
 from hilident.config import Config, amplitude_ceiling_nm
 from hilident.signals.excitation import Excitation
 from hilident.signals.excitation import build_excitation as excitation_signal
@@ -13,7 +15,7 @@ from hilident.signals.excitation import build_excitation as excitation_signal
 __all__ = ["Excitation", "build_excitation", "excitation_recipe"]
 
 
-def build_excitation(cfg: Config, amplitude: float | None = None) -> Excitation:
+def build_excitation(cfg: Config, amplitude: Any = None) -> Excitation:
     """The identification excitation of ``cfg`` (:func:`hilident.signals.excitation.build_excitation`).
 
     Torque (N·m) for ``torque`` and ``torque_injection``; a velocity (m/s) or

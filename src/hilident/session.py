@@ -28,7 +28,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
@@ -53,7 +53,7 @@ from hilident.signals import generators as sig
 from hilident.run_excitation import Excitation, build_excitation, excitation_recipe  # noqa: F401 (kept importable)
 
 if TYPE_CHECKING:
-    from hilident.adapters.base import AdapterBase
+    from hilident.adapters.base import DeviceAdapter
 
 #: The analysis, imported once an experiment needs it (a run ended before that starts and stops faster).
 pipeline = lazy_module("hilident.pipeline")
@@ -138,8 +138,8 @@ class ConnectedDevice:
     it (the embedded emulator, the device lock). Made by :func:`connect_device`."""
 
     driver: DriverDescription
-    adapter: "AdapterBase"
-    emulator: object | None = None
+    adapter: "DeviceAdapter"
+    emulator: Any = None
     lock: DeviceLock | None = None
 
     def safe_stop(self) -> None:
@@ -242,7 +242,7 @@ class DeviceConnection:
         """The device lock (None for the emulator, or before :meth:`open_device`)."""
         return self.device.lock if self.device is not None else None
 
-    def open_device(self) -> None:
+    def open_device(self) -> ConnectedDevice:
         """Open the device (taking its lock), or start the embedded emulator and open it like a device.
 
         What the adapter found as it brought the device to a known state goes to ``warnings``.
@@ -254,6 +254,7 @@ class DeviceConnection:
         report_ = getattr(self.adapter, "connect_report", None)
         if report_ is not None:
             self.warnings += connect_warnings(report_)
+        return self.device
 
     def safe_stop(self) -> None:
         """Command the axis safe now (first thing on every ending). Never raises."""
@@ -314,8 +315,8 @@ class Session(DeviceConnection):
         frames discarded, axis stopped, latched faults reported and cleared
         only when allowed); the limits the device enforces are loaded.
         """
-        self.open_device()
-        self.recorder = ExperimentRecorder(self.device, self.out, self.progress, self.warnings)
+        device = self.open_device()
+        self.recorder = ExperimentRecorder(device, self.out, self.progress, self.warnings)
         lim = self.cfg.limits
         self.adapter.set_limits(lim.torque_nm, lim.velocity_mps, lim.position_min_m, lim.position_max_m)
 
