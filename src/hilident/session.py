@@ -19,6 +19,12 @@ filters are bypassed first and put back if the session ends before its upload.
 On every ending (normal, error, signal, full disk) the device is commanded
 safe first, then the filter slots are restored when needed, then every
 recording is closed with its status and cause, then the device is released.
+
+The session keeps the order; its parts live beside it (``docs/results.md``):
+:func:`connect_device` (a complete :class:`ConnectedDevice`),
+:mod:`hilident.experiment` (recording), :mod:`hilident.auto_amplitude`,
+:mod:`hilident.filter_slots`, :mod:`hilident.run_excitation`,
+:mod:`hilident.summary` (the typed ``summary.json``).
 """
 
 from __future__ import annotations
