@@ -20,7 +20,8 @@ from hilident.emulator.modbus_param_firmware import ParameterDriveFirmware
 from hilident.errors import ConfigError, DeviceError
 from hilident.filters.notch import NotchSpec, design_notch
 from hilident.protocol.modbus_registers import RegisterMap
-from hilident.session import Session
+from hilident.session import ConnectedDevice, Session
+from hilident.summary import UploadOutcome
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "emulated-dsy-rs.toml"
 DRIVER = find_driver("dsy-rs")
@@ -156,13 +157,13 @@ def test_save_is_written_only_after_a_verified_upload(dsy, tmp_path):
     assert adapter.upload_filter(0, design_notch(spec, DRIVER.loop_rate_hz), spec).matches
     assert fw.saves == 0  # an upload alone stores nothing
     session = Session(clean_config(), tmp_path, save=True)
-    session.driver, session.adapter = DRIVER, adapter
-    unverified = {"written": True, "verified_readback": True}
+    session.driver, session.device = DRIVER, ConnectedDevice(DRIVER, adapter)
+    unverified = UploadOutcome(written=True, verified_readback=True)
     session._save_step(unverified, verification=None)
-    assert fw.saves == 0 and not unverified["saved"]
-    verified = {"written": True, "verified_readback": True}
+    assert fw.saves == 0 and not unverified.saved
+    verified = UploadOutcome(written=True, verified_readback=True)
     session._save_step(verified, verification={"band_reduction_db": 25.0})
-    assert fw.saves == 1 and verified["saved"] and "P10.04" in verified["saved_with"]
+    assert fw.saves == 1 and verified.saved and "P10.04" in verified.saved_with
     assert fw.eeprom[0x0802] == adapter.read(0x0802, 1)[0] != 4000  # the notch is what was stored
     assert adapter.read_parameter("P10.04") == 0  # the drive acknowledges the store
 

@@ -9,6 +9,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
+from summary_keys import assert_layout
 from twins import Twin
 from vendor_drives import VendorDrive, write_vendor_drive
 
@@ -90,6 +91,7 @@ def test_upload_writes_reads_back_and_enables_on_every_transport(tmp_path, locks
         assert summary["source"]["summary"] == str(source / "summary.json")
         assert fingerprint(source) == before_files  # the source run is not touched
         assert "slot 0: read back as written, enabled" in capsys.readouterr().out
+        assert_layout(f"upload-{transport}", summary)  # a documented interface: its keys stay as they were
     finally:
         twin.close()
 

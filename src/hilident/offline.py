@@ -27,13 +27,14 @@ from pathlib import Path
 
 import numpy as np
 
-from hilident import __version__, pipeline, report
+from hilident import pipeline, report
 from hilident.config import Config, DataConfig, ModelConfig, build_table, parse_config, parse_toml
 from hilident.datafile import RATE_TOLERANCE, Dataset, RunInfo, load_dataset, read_friction_test, read_run_info
 from hilident.errors import ConfigError, DataError, HilidentError, UsageError
 from hilident.ident.frequency import FrequencyResponse
 from hilident.ident.frfquality import excited_band
 from hilident.ident.resonance import find_resonances
+from hilident.summary import Summary, friction_summary
 
 #: Channel a hilident recording holds for each ``[data]`` signal.
 RUN_CHANNELS = {"torque": "torque_nm", "velocity": "velocity_mps", "position": "position_m", "excitation": "excitation"}
@@ -202,14 +203,7 @@ def run_friction(cfg: Config, info: RunInfo | None, data_path: str | Path, warni
 
 def friction_record(friction) -> dict | None:
     """``summary.json["friction"]`` as :class:`hilident.session.Session` writes it."""
-    if friction is None:
-        return None
-    p = friction.fit.params
-    return {"model": friction.model,
-            "params": {"Fc": p.Fc, "Fs": p.Fs, "Fv": p.Fv, "vs": p.vs, "delta_v": p.delta_v, "delta_s": p.delta_s},
-            "structure": friction.fit.structure or friction.model, "aicc": friction.fit.criterion,
-            "stderr": friction.fit.stderr, "rms_residual_nm": friction.fit.rms_residual,
-            "points": len(friction.points.v_mean)}
+    return friction_summary(friction)
 
 
 def excitation_lines(power: np.ndarray) -> tuple[np.ndarray, int]:
@@ -479,25 +473,7 @@ def _steps(cfg: Config, ds: Dataset, validation: Dataset | None, info, state: di
 
 
 def _summary(cfg: Config, data_info: dict, state: dict, warnings: list[str], started: float) -> dict:
-    plant, model = state["plant"], state["model"]
-    samples = data_info["samples"]
-    return {
-        "hilident_version": __version__,
-        "config": cfg.source,
-        "data": data_info,
-        "resonances": pipeline.resonance_records(plant.resonances) if plant else [],
-        "rejected_peaks": pipeline.rejected_peak_records(plant.rejected) if plant else [],
-        "friction": friction_record(state["friction"]),
-        "model": None if model is None else model.to_dict(),
-        "plant_model": plant.model.to_dict() if plant and plant.model else None,
-        "measurement": plant.quality if plant else {},
-        "notch_filters": pipeline.notch_records(state["designs"]),
-        "notch_skipped_reason": state.get("notch_skipped_reason"),
-        "upload": {"written": False, "verified_readback": False, "slots": []},
-        "verification": {"band_reduction_db": None, "peak_reduction_db": None, "resonances": []},
-        "stream": {"samples": samples, "lost_frames": 0, "lost_blocks": 0,
-                   "lost_samples": data_info.get("missing_samples", 0), "corrupt_frames": 0, "out_of_order": 0,
-                   "underruns": 0, "board_dropped_blocks": 0},
-        "elapsed_s": time.monotonic() - started,
-        "warnings": list(warnings),
-    }
+    return Summary.of_identify(
+        config=cfg.source, data=data_info, plant=state["plant"], friction=state["friction"], model=state["model"],
+        designs=state["designs"], notch_skipped_reason=state.get("notch_skipped_reason"),
+        elapsed_s=time.monotonic() - started, warnings=warnings).to_dict()

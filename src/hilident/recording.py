@@ -41,7 +41,8 @@ import h5py
 import numpy as np
 
 from hilident.errors import DataError
-from hilident.report import to_jsonable
+from hilident.events import Kind, RunEvent
+from hilident.serialise import to_jsonable
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "DiskFull", "RunData", "RunWriter", "read_run"]
 
@@ -167,26 +168,7 @@ class RunWriter:
     ):
         self._path = Path(path)
         self._file: h5py.File | None = None
-        channels = list(channels)
-        units = list(units)
-        if not channels or not all(isinstance(c, str) and c for c in channels):
-            raise DataError(f"{self._path}: channels must be a non-empty list of non-empty names, got {channels!r}")
-        if len(set(channels)) != len(channels):
-            raise DataError(f"{self._path}: channel names must be unique, got {channels!r}")
-        if len(units) != len(channels) or not all(isinstance(u, str) for u in units):
-            raise DataError(
-                f"{self._path}: units must be {len(channels)} strings (one per channel), got {units!r}"
-            )
-        try:
-            rate = float(sample_rate_hz)
-        except (TypeError, ValueError):
-            rate = math.nan
-        if not (math.isfinite(rate) and rate > 0):
-            raise DataError(f"{self._path}: sample_rate_hz must be a positive finite number, got {sample_rate_hz!r}")
-        if isinstance(chunk_rows, bool) or not isinstance(chunk_rows, (int, np.integer)) or chunk_rows < 1:
-            raise DataError(f"{self._path}: chunk_rows must be a positive integer, got {chunk_rows!r}")
-        if compression not in (None, "lzf"):
-            raise DataError(f"{self._path}: compression must be None or 'lzf', got {compression!r}")
+        channels, units, rate = self._checked_layout(channels, units, sample_rate_hz, chunk_rows, compression)
         if self._path.exists() and not overwrite:
             raise DataError(f"{self._path}: file exists; choose another path or pass overwrite=True")
         if attrs is not None:
@@ -236,6 +218,31 @@ class RunWriter:
             self._file = None
             raise
         self._n_samples = 0
+
+    def _checked_layout(self, channels, units, sample_rate_hz, chunk_rows, compression
+                        ) -> tuple[list[str], list[str], float]:
+        """Channels, units and rate as lists and a float, or a :class:`DataError` naming the file and the value."""
+        channels = list(channels)
+        units = list(units)
+        if not channels or not all(isinstance(c, str) and c for c in channels):
+            raise DataError(f"{self._path}: channels must be a non-empty list of non-empty names, got {channels!r}")
+        if len(set(channels)) != len(channels):
+            raise DataError(f"{self._path}: channel names must be unique, got {channels!r}")
+        if len(units) != len(channels) or not all(isinstance(u, str) for u in units):
+            raise DataError(
+                f"{self._path}: units must be {len(channels)} strings (one per channel), got {units!r}"
+            )
+        try:
+            rate = float(sample_rate_hz)
+        except (TypeError, ValueError):
+            rate = math.nan
+        if not (math.isfinite(rate) and rate > 0):
+            raise DataError(f"{self._path}: sample_rate_hz must be a positive finite number, got {sample_rate_hz!r}")
+        if isinstance(chunk_rows, bool) or not isinstance(chunk_rows, (int, np.integer)) or chunk_rows < 1:
+            raise DataError(f"{self._path}: chunk_rows must be a positive integer, got {chunk_rows!r}")
+        if compression not in (None, "lzf"):
+            raise DataError(f"{self._path}: compression must be None or 'lzf', got {compression!r}")
+        return channels, units, rate
 
     # ------------------------------------------------------------------ properties
 
@@ -367,7 +374,7 @@ class RunWriter:
         **fields
             Extra data, stored as a JSON object in the ``data`` column
             (numpy values, complex, NaN are converted as by
-            :func:`hilident.report.to_jsonable`).
+            :func:`hilident.serialise.to_jsonable`).
 
         Raises
         ------
@@ -391,6 +398,14 @@ class RunWriter:
             f.flush()
         except (OSError, RuntimeError) as exc:
             self._write_failed(exc)
+
+    def log(self, event: RunEvent) -> None:
+        """Append a run event of the shared vocabulary (:class:`hilident.events.RunEvent`) to ``/events``.
+
+        Its ``kind``, ``message`` and ``sample_index`` go to their columns, the
+        other fields that are set to the ``data`` column (as :meth:`event`).
+        """
+        self.event(Kind(event.kind).value, event.message, int(event.sample_index), **event.extra)
 
     def write_table(self, name: str, **columns: Any) -> None:
         """Write a small table as ``/tables/<name>``, one 1-D dataset per column.

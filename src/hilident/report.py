@@ -1,4 +1,4 @@
-"""Plots and ``summary.json`` of a run.
+"""Plots of a run (and ``summary.json`` by its old name: :func:`write_summary`).
 
 Pure output helpers: arrays in, files out. Plots are drawn with matplotlib's
 object API (:class:`matplotlib.figure.Figure`, rendered by Agg), so nothing
@@ -7,7 +7,8 @@ matplotlib is only imported when a plot is drawn.
 
 Every writer creates the parent folder if needed and writes atomically (a
 temporary file in the same folder, then :func:`os.replace`), so a reader never
-sees half a PNG or half a JSON file.
+sees half a PNG or half a JSON file. JSON is :mod:`hilident.serialise`'s job;
+``to_jsonable`` is re-exported here for older imports.
 
 Example
 -------
@@ -18,13 +19,7 @@ Example
 
 from __future__ import annotations
 
-import dataclasses
-import datetime as _dt
-import enum
-import json
-import math
 import os
-import tempfile
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -32,8 +27,10 @@ from typing import Any
 import numpy as np
 
 from hilident.errors import DataError
+from hilident.serialise import atomic_write, to_jsonable, write_json
 
 __all__ = [
+    "plot_run",
     "plot_bode",
     "plot_friction",
     "plot_timeseries",
@@ -49,147 +46,9 @@ _MAX_PLOT_POINTS = 20_000
 # --------------------------------------------------------------------------- JSON
 
 
-def to_jsonable(obj: Any) -> Any:
-    """Convert ``obj`` recursively into plain JSON types.
-
-    Handles numpy scalars and arrays, dataclass instances (as dicts of their
-    fields), named tuples (as dicts), other tuples/lists/sets (as lists),
-    mappings (keys become ``str``), complex numbers (as ``{"re": .., "im": ..}``),
-    :class:`~pathlib.Path` (as ``str``), dates and times (ISO 8601), enums (their
-    value) and ``bytes`` (UTF-8 text). NaN and infinities become ``None``,
-    because JSON has no spelling for them.
-
-    Parameters
-    ----------
-    obj : Any
-        The object to convert.
-
-    Returns
-    -------
-    Any
-        ``None``, ``bool``, ``int``, ``float``, ``str``, ``list`` or ``dict``,
-        nested.
-
-    Raises
-    ------
-    TypeError
-        For an object of a type not listed above.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> to_jsonable({"f_hz": np.array([1.0, np.inf]), "n": np.int64(3)})
-    {'f_hz': [1.0, None], 'n': 3}
-    """
-    if isinstance(obj, np.generic):  # before float: np.float64 subclasses float
-        return to_jsonable(obj.item())
-    if obj is None or isinstance(obj, bool):
-        return obj
-    if isinstance(obj, str):
-        return str(obj)
-    if isinstance(obj, int):
-        return to_jsonable(obj.value) if isinstance(obj, enum.Enum) else int(obj)
-    if isinstance(obj, float):
-        return float(obj) if math.isfinite(obj) else None
-    if isinstance(obj, complex):
-        return {"re": to_jsonable(obj.real), "im": to_jsonable(obj.imag)}
-    if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist())
-    if isinstance(obj, enum.Enum):
-        return to_jsonable(obj.value)
-    if isinstance(obj, Path):
-        return str(obj)
-    if isinstance(obj, (_dt.datetime, _dt.date, _dt.time)):
-        return obj.isoformat()
-    if isinstance(obj, (bytes, bytearray)):
-        return bytes(obj).decode("utf-8", errors="replace")
-    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return {f.name: to_jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
-    if isinstance(obj, tuple) and hasattr(obj, "_asdict"):
-        return {str(k): to_jsonable(v) for k, v in obj._asdict().items()}
-    if isinstance(obj, Mapping):
-        return {_json_key(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, (set, frozenset)):
-        items = [to_jsonable(v) for v in obj]
-        try:
-            return sorted(items)
-        except TypeError:
-            return items
-    raise TypeError(f"to_jsonable: cannot convert object of type {type(obj).__name__}: {obj!r:.80}")
-
-
-def _json_key(key: Any) -> str:
-    if isinstance(key, str):
-        return key
-    converted = to_jsonable(key)
-    return converted if isinstance(converted, str) else json.dumps(converted)
-
-
 def write_summary(path: str | os.PathLike, summary: Mapping[str, Any]) -> Path:
-    """Write ``summary`` as pretty JSON (indent 2, key order kept), atomically.
-
-    Parameters
-    ----------
-    path : str or path-like
-        Destination, e.g. ``out/summary.json``; the parent folder is created.
-    summary : mapping
-        Anything :func:`to_jsonable` accepts.
-
-    Returns
-    -------
-    pathlib.Path
-        The written file.
-
-    Raises
-    ------
-    DataError
-        If ``summary`` holds an object that cannot be converted to JSON.
-    """
-    path = Path(path)
-    try:
-        plain = to_jsonable(summary)
-    except TypeError as exc:
-        raise DataError(f"{path}: summary cannot be written as JSON: {exc}") from None
-    text = json.dumps(plain, indent=2, sort_keys=False, allow_nan=False, ensure_ascii=False) + "\n"
-    _atomic_write(path, lambda fh: fh.write(text.encode("utf-8")))
-    return path
-
-
-def _atomic_write(path: Path, write) -> None:
-    """Call ``write(binary_file)`` on a temporary file next to ``path``, then rename it.
-
-    The file gets the permissions a plain ``open()`` would give (0644 under
-    the usual umask). A full disk or an unwritable folder is a
-    :class:`DataError` naming the file; the previous file, if any, is kept.
-    """
-    tmp = None
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        with os.fdopen(fd, "wb") as fh:
-            write(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)  # mkstemp creates 0600
-        os.replace(tmp, path)
-    except OSError as exc:
-        _discard(tmp)
-        raise DataError(f"{path}: cannot write: {exc.strerror or exc}") from None
-    except BaseException:
-        _discard(tmp)
-        raise
-
-
-def _discard(tmp: str | None) -> None:
-    if tmp is not None:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
+    """Write ``summary`` as ``summary.json`` (:func:`hilident.serialise.write_json`, kept here by name)."""
+    return write_json(path, summary)
 
 
 # --------------------------------------------------------------------------- validation
@@ -214,7 +73,7 @@ def _same_length(a: np.ndarray, a_name: str, b: np.ndarray, b_name: str) -> None
 
 def _save(fig, path: str | os.PathLike) -> Path:
     path = Path(path)
-    _atomic_write(path, lambda fh: fig.savefig(fh, format="png"))
+    atomic_write(path, lambda fh: fig.savefig(fh, format="png"))
     return path
 
 
@@ -315,9 +174,44 @@ def plot_bode(
     """
     from matplotlib.figure import Figure
 
-    curves = []
+    curves = _bode_curves(responses)
+    notch = None if notch_response is None else _positive_curve(*notch_response, "notch_response")
+
+    fig = Figure(figsize=(8.0, 9.0), dpi=110, layout="constrained")
+    axes = fig.subplots(3, 1, sharex=True)
+    ax_mag, ax_phase, ax_coh = axes
+    with np.errstate(divide="ignore", invalid="ignore"):
+        magnitudes_db = _draw_responses(axes, curves, responses, bounds_db)
+        if notch is not None and notch[0].size:
+            mag_db = 20 * np.log10(np.abs(notch[1]))
+            magnitudes_db.append(mag_db)
+            ax_mag.semilogx(notch[0], mag_db, "k--", lw=1.2, label="notch chain")
+        if model is not None:
+            m_label = model[0]
+            mf, mh = _positive_curve(model[1], model[2], "model")
+            ax_mag.semilogx(mf, 20 * np.log10(np.abs(mh)), color="k", lw=0.8, label=m_label)
+            ax_phase.semilogx(mf, _unwrapped_phase_deg(mh), color="k", lw=0.8, label=m_label)
+    ax_mag.set_ylim(*_magnitude_limits_db(np.concatenate(magnitudes_db)))
+
+    has_coherence = any(c[3] is not None for c in curves)
+    if coherence_threshold is not None:
+        ax_coh.axhline(float(coherence_threshold), color="0.3", ls="--", lw=1.0,
+                       label=f"threshold {float(coherence_threshold):g}")
+    if not has_coherence:
+        ax_coh.text(0.5, 0.5, "no coherence", transform=ax_coh.transAxes, ha="center", va="center", color="0.4")
+    _mark_resonances(axes, resonances)
+    _bode_axes(axes)
+    ax_mag.legend(loc="best", fontsize=8)
+    if coherence_threshold is not None or has_coherence:
+        ax_coh.legend(loc="lower left", fontsize=8)
+    return _save(fig, path)
+
+
+def _bode_curves(responses: Sequence[tuple[str, Any]]) -> list[tuple[str, np.ndarray, np.ndarray, Any]]:
+    """``(label, f, h, coherence or None)`` of each response, checked, at positive frequencies only."""
     if len(responses) == 0:
         raise DataError("plot_bode: responses is empty; pass at least one (label, frf)")
+    curves = []
     for label, frf in responses:
         f = _vector(getattr(frf, "frequency_hz", None), f"responses[{label!r}].frequency_hz")
         h = _vector(getattr(frf, "response", None), f"responses[{label!r}].response", dtype=complex)
@@ -331,77 +225,69 @@ def plot_bode(
         if not np.any(keep):
             raise DataError(f"responses[{label!r}].frequency_hz: no positive frequency to plot")
         curves.append((str(label), f[keep], h[keep], None if coh is None else coh[keep]))
+    return curves
 
-    notch = None if notch_response is None else _positive_curve(*notch_response, "notch_response")
 
-    fig = Figure(figsize=(8.0, 9.0), dpi=110, layout="constrained")
-    ax_mag, ax_phase, ax_coh = fig.subplots(3, 1, sharex=True)
-
+def _draw_responses(axes, curves: list, responses: Sequence[tuple[str, Any]], bounds_db) -> list[np.ndarray]:
+    """Magnitude, phase (near the first curve's) and coherence of every curve; their magnitudes, dB."""
+    ax_mag, ax_phase, ax_coh = axes
     magnitudes_db = []
     reference_phase = None
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for i, (label, f, h, coh) in enumerate(curves):
-            mag_db = 20 * np.log10(np.abs(h))
-            magnitudes_db.append(mag_db)
-            line = ax_mag.semilogx(f, mag_db, label=label)[0]
-            if i == 0 and bounds_db is not None:
-                f_all = _vector(responses[0][1].frequency_hz, "responses[0].frequency_hz")
-                lo = _vector(bounds_db[0], "bounds_db lower")
-                hi = _vector(bounds_db[1], "bounds_db upper")
-                _same_length(f_all, "responses[0].frequency_hz", lo, "bounds_db lower")
-                _same_length(f_all, "responses[0].frequency_hz", hi, "bounds_db upper")
-                k = f_all > 0
-                lo_db = np.maximum(mag_db + lo[k], mag_db - 40.0)  # a bin with no coherence: cap the band
-                ax_mag.fill_between(f, lo_db, mag_db + hi[k], color=line.get_color(), alpha=0.25, lw=0,
-                                    label="95 % confidence")
-            phase = _phase_near(f, _unwrapped_phase_deg(h), reference_phase)
-            if reference_phase is None:
-                reference_phase = (f, phase)
-            ax_phase.semilogx(f, phase, color=line.get_color(), label=label)
-            if coh is not None:
-                ax_coh.semilogx(f, coh, color=line.get_color(), label=label)
-        if notch is not None and notch[0].size:
-            mag_db = 20 * np.log10(np.abs(notch[1]))
-            magnitudes_db.append(mag_db)
-            ax_mag.semilogx(notch[0], mag_db, "k--", lw=1.2, label="notch chain")
-        if model is not None:
-            m_label = model[0]
-            mf, mh = _positive_curve(model[1], model[2], "model")
-            ax_mag.semilogx(mf, 20 * np.log10(np.abs(mh)), color="k", lw=0.8, label=m_label)
-            ax_phase.semilogx(mf, _unwrapped_phase_deg(mh), color="k", lw=0.8, label=m_label)
-    ax_mag.set_ylim(*_magnitude_limits_db(np.concatenate(magnitudes_db)))
+    for i, (label, f, h, coh) in enumerate(curves):
+        mag_db = 20 * np.log10(np.abs(h))
+        magnitudes_db.append(mag_db)
+        line = ax_mag.semilogx(f, mag_db, label=label)[0]
+        if i == 0 and bounds_db is not None:
+            _confidence_band(ax_mag, f, mag_db, responses[0][1], bounds_db, line.get_color())
+        phase = _phase_near(f, _unwrapped_phase_deg(h), reference_phase)
+        if reference_phase is None:
+            reference_phase = (f, phase)
+        ax_phase.semilogx(f, phase, color=line.get_color(), label=label)
+        if coh is not None:
+            ax_coh.semilogx(f, coh, color=line.get_color(), label=label)
+    return magnitudes_db
 
-    if coherence_threshold is not None:
-        ax_coh.axhline(float(coherence_threshold), color="0.3", ls="--", lw=1.0,
-                       label=f"threshold {float(coherence_threshold):g}")
-    if not any(c[3] is not None for c in curves):
-        ax_coh.text(0.5, 0.5, "no coherence", transform=ax_coh.transAxes, ha="center", va="center", color="0.4")
 
+def _confidence_band(ax_mag, f: np.ndarray, mag_db: np.ndarray, frf, bounds_db, color) -> None:
+    """The first response's 95 % band (``bounds_db``, dB relative to it, one value per bin), shaded."""
+    f_all = _vector(frf.frequency_hz, "responses[0].frequency_hz")
+    lo = _vector(bounds_db[0], "bounds_db lower")
+    hi = _vector(bounds_db[1], "bounds_db upper")
+    _same_length(f_all, "responses[0].frequency_hz", lo, "bounds_db lower")
+    _same_length(f_all, "responses[0].frequency_hz", hi, "bounds_db upper")
+    k = f_all > 0
+    lo_db = np.maximum(mag_db + lo[k], mag_db - 40.0)  # a bin with no coherence: cap the band
+    ax_mag.fill_between(f, lo_db, mag_db + hi[k], color=color, alpha=0.25, lw=0, label="95 % confidence")
+
+
+def _mark_resonances(axes, resonances: Iterable[Any]) -> None:
+    """A dotted red line at each resonance on every axis, its frequency written at the top."""
+    ax_mag = axes[0]
     for i, res in enumerate(resonances):
         f_res = float(getattr(res, "frequency_hz"))
-        for ax in (ax_mag, ax_phase, ax_coh):
+        for ax in axes:
             ax.axvline(f_res, color="tab:red", ls=":", lw=1.0, label="resonance" if (i == 0 and ax is ax_mag) else None)
         ax_mag.annotate(f"{f_res:.4g} Hz", xy=(f_res, 1.0), xycoords=("data", "axes fraction"),
                         xytext=(3, -3), textcoords="offset points", ha="left", va="top",
                         fontsize=8, color="tab:red")
 
+
+def _bode_axes(axes) -> None:
+    """Labels, limits, grid and 1-2-5 frequency ticks of the three axes."""
+    from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
+
+    ax_mag, ax_phase, ax_coh = axes
     ax_mag.set_ylabel("magnitude [dB]")
     ax_phase.set_ylabel("phase [deg]")
     ax_coh.set_ylabel("coherence [-]")
     ax_coh.set_ylim(0.0, 1.05)
     ax_coh.set_xlabel("frequency [Hz]")
-    from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
-
-    for ax in (ax_mag, ax_phase, ax_coh):
+    for ax in axes:
         ax.grid(True, which="both", alpha=0.3)
         # plain numbers at 1-2-5 steps read better than 10^x labels crowding each other
         ax.xaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
         ax.xaxis.set_major_formatter(ScalarFormatter())
         ax.xaxis.set_minor_formatter(NullFormatter())
-    ax_mag.legend(loc="best", fontsize=8)
-    if coherence_threshold is not None or any(c[3] is not None for c in curves):
-        ax_coh.legend(loc="lower left", fontsize=8)
-    return _save(fig, path)
 
 
 # --------------------------------------------------------------------------- friction
@@ -569,3 +455,33 @@ def plot_timeseries(
                              color="tab:red", rotation=90)
     axes[-1].set_xlabel("time [s]")
     return _save(fig, path)
+
+
+# --------------------------------------------------------------------------- a run's plots
+
+
+def plot_run(out: str | os.PathLike, friction, plant, designs: list, loop_after=None,
+             coherence_threshold: float | None = None) -> None:
+    """``friction.png`` (with a friction test) and ``bode.png`` of a run into the folder ``out``.
+
+    ``friction`` is the friction test's result (or None), ``plant`` the
+    identification's, ``designs`` the notch designs, ``loop_after`` the
+    verification run's response (None without one).
+    """
+    from hilident import pipeline
+
+    out = Path(out)
+    if friction is not None:
+        from hilident.ident.friction import stribeck
+
+        pts = friction.points
+        vmax = float(np.max(np.abs(pts.v_mean)))
+        v = np.linspace(-vmax, vmax, 801)
+        plot_friction(out / "friction.png", pts.v_mean, pts.tau_mean, v, stribeck(v, friction.fit.params),
+                      label=friction.model)
+    responses = [("plant (net torque to output)", plant.plant), ("excitation to output, before notch", plant.loop)]
+    if loop_after is not None:
+        responses.append(("excitation to output, after notch", loop_after))
+    notch = pipeline.notch_chain_response(designs, plant.plant.frequency_hz)
+    plot_bode(out / "bode.png", responses, resonances=plant.resonances, notch_response=notch,
+              coherence_threshold=coherence_threshold, **pipeline.bode_extras(plant))

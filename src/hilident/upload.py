@@ -28,7 +28,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from hilident import __version__, endings, report
+from hilident import endings
+from hilident.serialise import write_json
+from hilident.summary import DevicePart, Summary, UploadOutcome
 from hilident.errors import (
     ArmingRefused,
     ConfigError,
@@ -94,10 +96,10 @@ def upload_design(adapter, design, warnings: list[str]) -> dict:
             "achieved": achieved, "_expected": expected}
 
 
-def upload_designs(adapter, designs: list, warnings: list[str], upload: dict) -> dict:
+def upload_designs(adapter, designs: list, warnings: list[str], upload: UploadOutcome) -> UploadOutcome:
     """The upload step of a run: every design through :func:`upload_design`; fills and returns ``upload``.
 
-    ``upload["slots"]`` gets one record per design; ``written`` becomes True
+    ``upload.slots`` gets one record per design; ``written`` becomes True
     and ``verified_readback`` says whether every slot read back as written.
     A slot that did not is back as it was; the others keep their new notch.
     """
@@ -106,9 +108,9 @@ def upload_designs(adapter, designs: list, warnings: list[str], upload: dict) ->
         record = upload_design(adapter, d, warnings)
         record.pop("_expected")
         matches.append(record["matches"])
-        upload["slots"].append(record)
-    upload["written"] = True
-    upload["verified_readback"] = all(matches)
+        upload.slots.append(record)
+    upload.written = True
+    upload.verified_readback = all(matches)
     return upload
 
 
@@ -541,37 +543,27 @@ class UploadCommand:
                 self.warnings.append(f"filter slot {slot}: could not put back its previous contents: {exc}")
 
     def _write(self, state: dict, started: float, **failure) -> dict:
-        from hilident import pipeline
 
         dev = self.device
         ad = dev.adapter
-        ident = ad.identity if ad is not None else None
         slots = state["slots"]
         written = bool(slots)
         verified = written and all(s["matches"] for s in slots) and len(slots) == len(state["designs"])
-        upload = {"written": written and not state["rolled_back"], "verified_readback": verified,
-                  "slots": slots, "rolled_back": state["rolled_back"], "saved": state["saved"]}
-        if "saved_with" in state:
-            upload["saved_with"] = state["saved_with"]
-        summary = {
-            "hilident_version": __version__,
-            "command": "upload",
-            "config": self.cfg.source,
-            "source": {"summary": str(self.source.path), "kind": self.source.kind,
-                       "notch_filters": self.source.summary.get("notch_filters")},
-            "device": {"driver": dev.driver.name if dev.driver else None, "port": ad.port if ad else None,
-                       "emulated": self.cfg.uses_emulator,
-                       "name": getattr(ident, "name", None), "firmware": getattr(ident, "firmware", None),
-                       "loop_rate_hz": getattr(ident, "loop_rate_hz", None),
-                       "filter_slots": getattr(ident, "filter_slots", None)},
-            "filters_before": [{k: v for k, v in b.items() if k != "_saved"} for b in state["before"]],
-            "notch_filters": pipeline.notch_records(state["designs"]),
-            "upload": upload,
-            "elapsed_s": time.monotonic() - started,
-            "warnings": self.warnings,
-            **failure,
-        }
-        report.write_summary(self.out / "summary.json", summary)
+        upload = UploadOutcome(written and not state["rolled_back"], verified, slots,
+                               rolled_back=state["rolled_back"], saved=state["saved"],
+                               saved_with=state.get("saved_with"))
+        result = Summary.of_upload(
+            config=self.cfg.source,
+            source={"summary": str(self.source.path), "kind": self.source.kind,
+                    "notch_filters": self.source.summary.get("notch_filters")},
+            device=DevicePart.reported(dev.driver.name if dev.driver else None, ad.port if ad else None,
+                                       self.cfg.uses_emulator, ad.identity if ad is not None else None),
+            filters_before=[{k: v for k, v in b.items() if k != "_saved"} for b in state["before"]],
+            designs=state["designs"], upload=upload, elapsed_s=time.monotonic() - started, warnings=self.warnings)
+        if failure:
+            result.failed(failure["failed_step"], failure["error"])
+        summary = result.to_dict()
+        write_json(self.out / "summary.json", summary)
         self.summary = summary
         return summary
 

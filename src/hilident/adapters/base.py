@@ -14,7 +14,7 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-from hilident.adapters.events import Kind, RunEvent
+from hilident.events import Kind, RunEvent
 from hilident.errors import ConfigError, DataError, DeviceError, LimitTrip
 
 _PROGRESS_S = 0.1  # progress is reported at most this often, and at the end
@@ -397,6 +397,10 @@ class AdapterBase:
         if self.run_fault is not None:
             raise self.fault_error(self.run_fault) from None
         return result
+
+    def set_trace(self, path) -> None:
+        """Write a wire trace of the next run to ``path`` where the transport keeps one (CANopen: ``.asc`` or
+        ``.blf``); the default keeps none, so a session may ask every adapter."""
 
     def set_excitation_recipe(self, recipe: dict | None) -> None:
         """The next run's excitation as parameters (``kind``, ``amplitude``, band, ...), or None.

@@ -65,7 +65,7 @@ from hilident.adapters.canopen_buffered import BufferedRun
 from hilident.adapters.canopen_link import open_network
 from hilident.adapters.canopen_recorder import RecorderRun, configure_recorder
 from hilident.adapters.canopen_streamed import StreamedRun
-from hilident.adapters.events import Kind, RunEvent
+from hilident.events import Kind, RunEvent
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription, load_object_dictionary
 from hilident.errors import ConfigError, DataError, DeviceError

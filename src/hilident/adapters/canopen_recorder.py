@@ -36,7 +36,7 @@ import time
 import numpy as np
 
 from hilident.adapters.base import RunStrategy
-from hilident.adapters.events import Kind, RunEvent
+from hilident.events import Kind, RunEvent
 from hilident.errors import ConfigError, DeviceError
 from hilident.protocol.canopen_objects import (
     ObjectAddress,

@@ -49,7 +49,7 @@ from typing import Protocol
 import numpy as np
 
 from hilident.adapters.base import RunStrategy
-from hilident.adapters.events import Kind, RunEvent
+from hilident.events import Kind, RunEvent
 from hilident.errors import DeviceError
 from hilident.protocol.canopen_objects import numpy_type, type_bits
 

@@ -49,7 +49,7 @@ from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
 from hilident.adapters.base import AdapterBase, ConnectReport, FilterUpload, RunResult, StreamStats
-from hilident.adapters.events import Kind, RunEvent
+from hilident.events import Kind, RunEvent
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription
 from hilident.errors import ConfigError, DataError, DeviceError

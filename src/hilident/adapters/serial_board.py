@@ -30,7 +30,7 @@ except ImportError:  # pragma: no cover
     pass
 
 from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, RunStrategy
-from hilident.adapters.events import Kind, RunEvent
+from hilident.events import Kind, RunEvent
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription
 from hilident.errors import DeviceError, ProtocolError

@@ -1,0 +1,215 @@
+"""One recorded experiment: stream an excitation into the device and append every sample to its HDF5 file.
+
+:class:`ExperimentRecorder` is what a session records with once its device is
+connected; every ending of a run (normal, error, signal, full disk) leaves
+the file closed with its status, the device's events and the stream counters.
+"""
+
+from __future__ import annotations
+
+import platform
+import time
+from dataclasses import dataclass, field
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from hilident import __version__, endings
+from hilident.adapters.base import StreamStats
+from hilident.config import Config
+from hilident.errors import HilidentError
+from hilident.events import RunEvent
+from hilident.recording import RunWriter, read_run
+
+if TYPE_CHECKING:
+    from hilident.session import ConnectedDevice, Progress
+
+__all__ = ["Experiment", "ExperimentRecorder", "FLUSH_INTERVAL_S", "late_sampling_warnings", "package_versions"]
+
+#: Longest stretch of data (and wall-clock time) held in memory before it is written to the recording, s.
+FLUSH_INTERVAL_S = 0.5
+
+
+def package_versions() -> dict[str, str]:
+    """Versions of hilident and the libraries that shape its numbers."""
+    out = {"hilident": __version__, "python": platform.python_version()}
+    for name in ("numpy", "scipy", "h5py", "pyserial", "cobs", "matplotlib", "python-can", "canopen", "pymodbus"):
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            pass
+    return out
+
+
+#: Share of a host-clocked run's samples whose SYNC may be late before the session warns of uneven sampling.
+LATE_SYNC_SHARE = 0.01
+
+
+def late_sampling_warnings(name: str, events: list[dict], samples: int) -> list[str]:
+    """A warning when the host sent many SYNCs late: the drive then sampled at uneven instants.
+
+    A drive samples when the SYNC arrives while its own loop runs on, so a
+    late SYNC shifts that sample in time; a few are harmless, many distort the
+    frequency response (its phase above all) without losing a sample.
+    """
+    out = []
+    for ev in events:
+        if ev.get("kind") != "sync_late" or not samples:
+            continue
+        late = int(ev.get("value", 0))
+        if late > LATE_SYNC_SHARE * samples:
+            worst = ev.get("worst_s")
+            out.append(f"{name}: {late} of {samples} SYNCs ({100 * late / samples:.1f} %) were sent more than one "
+                       "period late" + (f" (worst {1e3 * worst:.1f} ms)" if worst is not None else "")
+                       + ": the drive sampled at uneven instants and the frequency response is distorted; run on a "
+                         "machine with less load, or at a lower run.sample_rate_hz")
+    return out
+
+
+@dataclass
+class Experiment:
+    """Samples of one recorded experiment (read back from its file)."""
+
+    name: str
+    path: Path
+    samples: dict[str, np.ndarray]
+    stats: StreamStats
+    events: list[dict] = field(default_factory=list)
+
+
+class ExperimentRecorder:
+    """Records the experiments of one session on its connected device.
+
+    Parameters
+    ----------
+    device : ConnectedDevice
+    out : path
+        The folder the recordings go to.
+    progress : Progress
+    warnings : list of str
+        Appended to: lost or corrupt data, saturated values, late SYNCs.
+
+    Attributes
+    ----------
+    totals : StreamStats
+        The stream counters of every run recorded so far, added.
+    """
+
+    def __init__(self, device: "ConnectedDevice", out: Path, progress: "Progress", warnings: list[str]):
+        self.device = device
+        self.out = out
+        self.progress = progress
+        self.warnings = warnings
+        self.totals = StreamStats()
+
+    def record(self, cfg: Config, name: str, mode: str, excitation: np.ndarray, tables: dict | None = None,
+               period_samples: int | None = None, recipe: dict | None = None) -> Experiment:
+        """Stream ``excitation`` in ``mode`` and record every sample to ``<out>/<name>.h5`` (``cfg``: the run's).
+
+        ``period_samples`` (a periodic excitation's period) is stored with the
+        recording, so ``hilident identify`` analyses it in whole periods too.
+        ``recipe`` is the excitation as parameters, for a drive whose own
+        generator plays it (:func:`excitation_recipe`); None for host-made
+        set-points such as the friction test's ramps.
+        """
+        ad = self.device.adapter
+        channels = ad.configure(cfg.run.sample_rate_hz, mode, cfg.run.channels or None)
+        fs = ad.sample_rate_hz
+        path = self.out / f"{name}.h5"
+        attrs = {
+            "experiment": name, "mode": mode, "seed": cfg.run.seed, "config_toml": cfg.text,
+            "config_source": cfg.source, "driver_toml": self.device.driver.text, "versions": package_versions(),
+            "device": {"name": ad.identity.name, "firmware": ad.identity.firmware, "port": ad.port},
+        }
+        if period_samples:
+            attrs["period_samples"] = int(period_samples)
+        writer = RunWriter(path, ["sample_index", "time_s", *channels], ["1", "s", *ad.channel_units], fs, attrs,
+                           overwrite=True)
+        for table, columns in (tables or {}).items():
+            writer.write_table(table, **columns)
+
+        # Blocks are gathered for at most FLUSH_INTERVAL_S of data or of wall-clock time (one HDF5 flush per
+        # block would stall the line), then written with the events known so far: a crash loses no more.
+        pending: list[np.ndarray] = []
+        held = {"rows": 0, "since": time.monotonic(), "events": 0}
+        flush_rows = max(1, int(FLUSH_INTERVAL_S * fs))
+
+        def write_events(events: list[dict]) -> None:
+            for ev in events[held["events"]:]:
+                writer.log(RunEvent.from_dict(ev))
+            held["events"] = max(held["events"], len(events))
+
+        def flush() -> None:
+            if pending:
+                block = np.concatenate(pending)
+                pending.clear()
+                held["rows"] = 0
+                writer.append(block)
+            write_events(getattr(ad, "events", []))
+            held["since"] = time.monotonic()
+
+        def sink(index: np.ndarray, rows: np.ndarray) -> None:
+            pending.append(np.column_stack([index, index / fs, rows]))
+            held["rows"] += len(rows)
+            if held["rows"] >= flush_rows or time.monotonic() - held["since"] >= FLUSH_INTERVAL_S:
+                flush()
+
+        if cfg.device.trace:
+            ad.set_trace(self.out / f"{name}.{cfg.device.trace}")  # CAN trace beside the recording
+        self.progress.step(f"{name}: {len(excitation) / fs:.1f} s of {mode} excitation")
+        result = None
+        status, reason = "aborted", ""
+        ad.last_result = None
+        try:
+            ad.set_excitation_recipe(recipe)  # for a drive whose own generator plays the excitation
+            result = ad.stream(excitation, sink, self.progress.fraction(name))
+            status = "complete"
+        except BaseException as exc:
+            with endings.shielded():
+                self.device.safe_stop()  # the device first, whatever ended the run
+            reason = str(exc) or type(exc).__name__
+            raise
+        finally:
+            with endings.shielded():
+                self._close_recording(writer, status, reason, flush, write_events, ad)
+        endings.raise_pending()
+        run = read_run(path)
+        stats = result.stats
+        if stats.lost_blocks or stats.corrupt_frames or stats.underruns or stats.out_of_order:
+            self.warnings.append(
+                f"{name}: {stats.lost_blocks} sample blocks ({stats.lost_samples} samples) lost, "
+                f"{stats.out_of_order} blocks out of order (discarded), "
+                f"{stats.corrupt_frames} corrupt frames, {stats.underruns} underrun samples"
+            )
+        if stats.clipped_blocks:
+            self.warnings.append(f"{name}: {stats.clipped_blocks} samples hold a value at the limit of its format "
+                                 "(saturated, not measured; see the recording's events): the response there is not "
+                                 "the plant's")
+        self.warnings += late_sampling_warnings(name, result.events, stats.samples)
+        return Experiment(name, path, run.samples, stats, result.events)
+
+    def _close_recording(self, writer: RunWriter, status: str, reason: str, flush, write_events, ad) -> None:
+        """Write what is still held, the events and the stream counters, and close the file with its status.
+
+        Runs on every ending; a write that fails here (the disk that ended the
+        run is still full) leaves the file closed as ``aborted`` and never hides
+        the error that ended the run.
+        """
+        result = ad.last_result
+        failure = None
+        try:
+            flush()
+            if result is not None:
+                write_events(result.events)
+                writer.set_attrs(stream=result.stats.__dict__)
+        except HilidentError as exc:
+            failure = exc
+            reason = reason or str(exc)
+        finally:
+            if result is not None:
+                self.totals = self.totals.add(result.stats)
+            writer.close("aborted" if failure else status, reason)
+        if failure is not None and status == "complete":
+            raise failure  # the run itself went well: the write is what failed
