@@ -16,7 +16,7 @@ import numpy as np
 
 from hilident.adapters.backends import adapter_class  # noqa: F401  (re-exported: the session's import)
 from hilident.adapters.events import Kind, RunEvent
-from hilident.errors import ConfigError, DataError, DeviceError, LimitTrip
+from hilident.errors import DataError, DeviceError, LimitTrip
 
 _PROGRESS_S = 0.1  # progress is reported at most this often, and at the end
 
