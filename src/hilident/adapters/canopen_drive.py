@@ -268,6 +268,22 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
         d = self.desc
         vendor = int(self.read("vendor_id")) if d.has("vendor_id") else 0
         product = int(self.read("product_code")) if d.has("product_code") else 0
+        self._check_identity(vendor, product)
+        name = str(self.read("device_name")) if d.has("device_name") else self.driver.name
+        version = str(self.read("software_version")) if d.has("software_version") else ""
+        self.identity = DriveIdentity(name, version, float(self.driver.loop_rate_hz), int(self.driver.filter_slots),
+                                      vendor, product)
+        self._read_ratings()
+        if d.has("supported_modes"):
+            self.supported_modes = decode_supported_modes(int(self.read("supported_modes")))
+            self.desc = d = d.with_supported_modes(self.supported_modes)
+        if d.has("sync_overflow"):
+            self.sync_overflow = int(self.read("sync_overflow"))
+        self._watch_drive_heartbeat()
+
+    def _check_identity(self, vendor: int, product: int) -> None:
+        """DeviceError when the vendor id, product code or loop rate is not the driver description's."""
+        d = self.desc
         for key, expected, got in (("vendor_id", d.vendor_id, vendor), ("product_code", d.product_code, product)):
             if expected is not None and got != expected:
                 raise DeviceError(
@@ -279,21 +295,20 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
                 raise DeviceError(f"{self.port}: the drive's loop runs at {rate:g} Hz "
                                   f"({self.describe(d.address('loop_rate'))}); driver {self.driver.name!r} says "
                                   f"{self.driver.loop_rate_hz:g} Hz")
-        name = str(self.read("device_name")) if d.has("device_name") else self.driver.name
-        version = str(self.read("software_version")) if d.has("software_version") else ""
-        self.identity = DriveIdentity(name, version, float(self.driver.loop_rate_hz), int(self.driver.filter_slots),
-                                      vendor, product)
+
+    def _read_ratings(self) -> None:
+        """Rated torque (N·m; 0 with the reason kept when it cannot be scaled) and rated current (A)."""
+        d = self.desc
         try:
             self.rated_torque_nm = d.rated_torque(float(self.read("rated_torque")) if d.has("rated_torque") else None)
         except DataError as exc:
             self.rated_torque_nm = 0.0  # an experiment that needs torque objects says so
             self.torque_problem = str(exc)
         self.rated_current_a = d.rated_current(float(self.read("rated_current")) if d.has("rated_current") else None)
-        if d.has("supported_modes"):
-            self.supported_modes = decode_supported_modes(int(self.read("supported_modes")))
-            self.desc = d = d.with_supported_modes(self.supported_modes)
-        if d.has("sync_overflow"):
-            self.sync_overflow = int(self.read("sync_overflow"))
+
+    def _watch_drive_heartbeat(self) -> None:
+        """Ask for the drive's heartbeat (0x1017) or start node guarding, then wait for the first beat."""
+        d = self.desc
         od = self.node.object_dictionary
         if d.has("heartbeat_time"):
             self.write("heartbeat_time", d.heartbeat_ms)
@@ -309,7 +324,6 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
             time.sleep(0.005)
         if self.heartbeat_s is None:
             raise DeviceError(f"{self.port}: no heartbeat within {self.timeout_s:g} s after {how}")
-
 
     # --- CiA 402 state machine ----------------------------------------------------------------
 

@@ -91,6 +91,34 @@ class ChannelMapping:
         The period goes to whichever of 0x1006 (us) and 0x60C2 (value and
         exponent) the drive has.
         """
+        divider, rate = self._divider_for(sample_rate_hz)
+        self._check_mode(mode)
+        codecs = self._channel_codecs(channels)
+        if self.acquisition == "recorder":
+            configure_recorder(self, codecs)
+        elif self.acquisition == "buffered" and any(c.on_host for c in codecs):
+            raise DeviceError(f"{self.port}: a drive-buffered run records only drive objects; channel "
+                              f"{next(c.name for c in codecs if c.on_host)!r} has none")
+        spec = self.desc.modes[mode]
+        for role in (spec.setpoint, spec.hold):
+            if role:
+                self.scale(role)  # a set-point that cannot be scaled stops here, before anything moves
+        self.safe_stop()
+        self.write("modes_of_operation", spec.code)
+        self._write_period(divider)
+        if self.acquisition == "streamed":
+            self._map_pdos(codecs, mode)
+        elif self.acquisition == "buffered":
+            self._map_capture(codecs)
+        self.divider, self.sample_rate_hz, self.mode = divider, rate, mode
+        self._configured_for = self.acquisition
+        self.channels = codecs
+        self.channel_names = [c.name for c in codecs]
+        self.channel_units = [c.unit for c in codecs]
+        return self.channel_names
+
+    def _divider_for(self, sample_rate_hz: float) -> tuple[int, float]:
+        """(loop periods per sample, sample rate in Hz); DeviceError when the rate does not fit the drive."""
         ident = self.identity
         divider = ident.loop_rate_hz / sample_rate_hz
         if abs(divider - round(divider)) > 1e-9 or round(divider) < 1:
@@ -100,11 +128,18 @@ class ChannelMapping:
         rate = ident.loop_rate_hz / divider
         if rate > self.driver.max_sample_rate_hz * (1 + 1e-9):
             raise DeviceError(f"{self.port}: sample rate {rate:g} Hz exceeds the drive's {self.driver.max_sample_rate_hz:g} Hz")
+        return divider, rate
+
+    def _check_mode(self, mode: str) -> None:
+        """DeviceError naming the modes the driver has (and 0x6502's) when it has none for ``mode``."""
         if mode not in self.desc.modes:
             supported = f"; 0x6502 says it supports {', '.join(self.supported_modes) or 'no mode'}" \
                 if self.supported_modes is not None else ""
             raise DeviceError(f"{self.port}: driver {self.driver.name!r} has no mode for {mode!r} "
                               f"(it has {', '.join(self.desc.modes) or 'none'}{supported})")
+
+    def _channel_codecs(self, channels: list[str] | None) -> list[ChannelCodec]:
+        """The codec of each channel (the driver's streamed channels by default); DeviceError for an unknown one."""
         names = channels or [c.name for c in self.driver.streamed_channels]
         units = {c.name: c.unit for c in self.driver.channels}
         codecs = []
@@ -119,18 +154,11 @@ class ChannelMapping:
             addr = self.desc.address(role)
             var = self.node.object_dictionary.get_variable(addr.index, addr.subindex)
             codecs.append(ChannelCodec(name, units[name], role, addr, var.data_type, self.scale(role)))
-        if self.acquisition == "recorder":
-            configure_recorder(self, codecs)
-        elif self.acquisition == "buffered" and any(c.on_host for c in codecs):
-            raise DeviceError(f"{self.port}: a drive-buffered run records only drive objects; channel "
-                              f"{next(c.name for c in codecs if c.on_host)!r} has none")
-        spec = self.desc.modes[mode]
-        for role in (spec.setpoint, spec.hold):
-            if role:
-                self.scale(role)  # a set-point that cannot be scaled stops here, before anything moves
-        self.safe_stop()
-        self.write("modes_of_operation", spec.code)
-        period_s = divider / ident.loop_rate_hz
+        return codecs
+
+    def _write_period(self, divider: int) -> None:
+        """The sample period to whichever of 0x1006, 0x60C2 and the table divider the drive has."""
+        period_s = divider / self.identity.loop_rate_hz
         if self.desc.has("cycle_period"):
             self.write("cycle_period", int(round(1e6 * period_s)))
         if self.desc.has("interpolation_period"):
@@ -144,16 +172,6 @@ class ChannelMapping:
                 self.write("interpolation_exponent", exponent)
         if self.desc.has("table_divider"):
             self.write("table_divider", divider)
-        if self.acquisition == "streamed":
-            self._map_pdos(codecs, mode)
-        elif self.acquisition == "buffered":
-            self._map_capture(codecs)
-        self.divider, self.sample_rate_hz, self.mode = divider, rate, mode
-        self._configured_for = self.acquisition
-        self.channels = codecs
-        self.channel_names = [c.name for c in codecs]
-        self.channel_units = [c.unit for c in codecs]
-        return self.channel_names
 
     def _write_mapping(self, comm_index: int | None, map_index: int, entries: list[int], cob_id: int | None) -> None:
         """CiA 301 order: invalidate, clear the count, write entries, set the count, validate."""
