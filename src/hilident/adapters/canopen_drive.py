@@ -42,6 +42,13 @@ SDO aborts become :class:`~hilident.errors.DeviceError` naming the object
 (``0x6072:0 (Max torque)``) and the abort's meaning. canopen's ``BaseNode402``
 is not used: the state machine and the PDO set-up live here and in
 :mod:`hilident.protocol`.
+
+The adapter class is composed of parts along its seams (see :mod:`hilident.adapters`):
+object access (:mod:`~hilident.adapters.canopen_sdo`), NMT, heartbeats and
+emergencies (:mod:`~hilident.adapters.canopen_net`), configuration and PDO mapping
+(:mod:`~hilident.adapters.canopen_mapping`) and filter slots
+(:mod:`~hilident.adapters.canopen_slots`); this module keeps opening, closing,
+identity, the CiA 402 state machine and the run hooks.
 """
 
 from __future__ import annotations

@@ -31,6 +31,12 @@ USB adapter unplugged) is a :class:`~hilident.errors.DeviceError` naming the
 port, never repeated. The register map is the driver's (see
 ``drivers/modbus-servo/README.md``); :mod:`hilident.protocol.modbus_registers`
 encodes and decodes it.
+
+The adapter class is composed of parts along its seams (see :mod:`hilident.adapters`):
+register requests (:mod:`~hilident.adapters.modbus_requests`), filter slots
+(:mod:`~hilident.adapters.modbus_slots`) and the table and capture
+(:mod:`~hilident.adapters.modbus_capture`); this module keeps opening and the
+known state at connect, the RTU line, identity, the parameter drive and the stop.
 """
 
 from __future__ import annotations
