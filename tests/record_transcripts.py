@@ -3,10 +3,10 @@
 Run from the repository root when a protocol or an adapter changes what it
 sends on purpose::
 
-    PYTHONPATH=src:tests python tests/record_transcripts.py [serial modbus canopen]
+    PYTHONPATH=src:tests python tests/record_transcripts.py [serial modbus modbus-rtu canopen]
 
 For each transport a twin of the shipped emulated config is served (serial
-board and Modbus drive on TCP, the CANopen drive on python-can's ``virtual``
+board and Modbus drive on TCP, the Modbus drive's RTU line through a TCP tap, the CANopen drive on python-can's ``virtual``
 bus), the adapter runs :func:`conversation` against it through a recording
 tap, and what the host sent and the device answered is saved as one
 transcript. ``tests/adapters/test_replay.py`` plays each one back with no twin.
@@ -81,8 +81,8 @@ def fixed_serial_sequence():
 class StreamTap:
     """A TCP relay between the host and a twin that keeps every chunk, in order, with its direction."""
 
-    def __init__(self, upstream: tuple[str, int]):
-        self.upstream = upstream
+    def __init__(self, upstream: tuple[str, int] | str):
+        self.upstream = upstream  # (host, port) of a TCP twin, or the pseudo-terminal of an RTU twin
         self.server = socket.create_server(("127.0.0.1", 0))
         self.port = self.server.getsockname()[1]
         self.chunks: list[tuple[str, bytes]] = []
@@ -91,9 +91,12 @@ class StreamTap:
 
     def _serve(self) -> None:
         host, _ = self.server.accept()
-        device = socket.create_connection(self.upstream)
-        for sock in (host, device):
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        host.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        if isinstance(self.upstream, str):
+            device = _LineEnd(self.upstream)
+        else:
+            device = socket.create_connection(self.upstream)
+            device.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         threading.Thread(target=self._relay, args=(host, device, "send"), daemon=True).start()
         self._relay(device, host, "receive")
 
@@ -129,23 +132,50 @@ class StreamTap:
         return out
 
 
-def record_stream(transport: str) -> Transcript:
+class _LineEnd:
+    """A serial line (the RTU twin's pseudo-terminal) with the socket calls the tap uses."""
+
+    def __init__(self, port: str):
+        import serial
+
+        self.line = serial.serial_for_url(port, timeout=0.01)
+        self.closed = False
+
+    def recv(self, size: int) -> bytes:
+        while not self.closed:
+            data = self.line.read(size)
+            if data:
+                return data
+        return b""
+
+    def sendall(self, data: bytes) -> None:
+        self.line.write(data)
+
+    def shutdown(self, how) -> None:
+        self.closed = True
+
+
+def record_stream(transport: str, link: str = "tcp") -> Transcript:
     from hilident.emulator.factory import start_standalone
 
     emulator, device, driver = settings(transport)
-    emu = start_standalone(emulator, driver, device, "tcp")
+    emu = start_standalone(emulator, driver, device, link)
     undo = fixed_serial_sequence()
     try:
-        prefix = "socket://" if transport == "serial" else "tcp://"
-        host, _, port = emu.device.port[len(prefix):].rpartition(":")
-        tap = StreamTap((host, int(port)))
-        reach = replace(emu.device, port=f"{prefix}127.0.0.1:{tap.port}")
+        if link == "rtu":
+            tap = StreamTap(emu.device.port)
+            reach = replace(emu.device, port=f"socket://127.0.0.1:{tap.port}")
+        else:
+            prefix = "socket://" if transport == "serial" else "tcp://"
+            host, _, port = emu.device.port[len(prefix):].rpartition(":")
+            tap = StreamTap((host, int(port)))
+            reach = replace(emu.device, port=f"{prefix}127.0.0.1:{tap.port}")
         conversation(adapter_class(transport), reach, driver, sample_rate_hz(transport))
         time.sleep(0.3)  # the last answers through the tap
     finally:
         undo()
         emu.close()
-    return Transcript(transport, "stream", tap.exchanges(), _settings_note(transport, driver))
+    return Transcript(transport, "stream", tap.exchanges(), _settings_note(transport, driver) | {"link": link})
 
 
 # --- CAN: a listener on the twin's virtual channel ---------------------------------------------------------------
@@ -211,12 +241,20 @@ def _settings_note(transport: str, driver) -> dict:
                             "(save, write disabled, read back, write enabled, read back), safe_stop, close"}
 
 
-def record(transport: str) -> Path:
-    transcript = record_can() if transport == "canopen" else record_stream(transport)
-    return transcript.save(transport)
+#: transcript name -> how it is recorded
+RECORDINGS = {
+    "serial": lambda: record_stream("serial"),
+    "modbus": lambda: record_stream("modbus"),
+    "modbus-rtu": lambda: record_stream("modbus", "rtu"),
+    "canopen": record_can,
+}
+
+
+def record(name: str) -> Path:
+    return RECORDINGS[name]().save(name)
 
 
 if __name__ == "__main__":
-    for name in sys.argv[1:] or list(SOURCES):
+    for name in sys.argv[1:] or list(RECORDINGS):
         path = record(name)
         print(f"{name}: {path} ({path.stat().st_size} bytes)")
