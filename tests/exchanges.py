@@ -63,7 +63,7 @@ class Transcript:
     periodic: list[int] = field(default_factory=list)
 
     @classmethod
-    def load(cls, name: str) -> "Transcript":
+    def load(cls, name: str) -> Transcript:
         raw = json.loads((TRANSCRIPTS / f"{name}.json").read_text())
         decode = _decode_stream if raw["wire"] == "stream" else _decode_can
         exchanges = [Exchange(decode(e["send"]), [decode(r) for r in e["receive"]]) for e in raw["exchanges"]]

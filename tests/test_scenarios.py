@@ -17,9 +17,9 @@ from __future__ import annotations
 
 import re
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import pytest
@@ -66,6 +66,12 @@ def _canopen_config(acquisition="buffered", time_scale=20.0, period_s=1.0, durat
     return replace(cfg, device=replace(cfg.device, acquisition=acquisition), emulator=emu,
                    friction_test=replace(cfg.friction_test, enabled=False),
                    excitation=replace(cfg.excitation, period_s=period_s, duration_s=duration_s, amplitude_nm=8.0))
+
+
+def _serial_line_closing_config():
+    """The board closes its line 0.8 s into the run (on a pseudo-terminal: a real serial path)."""
+    cfg = _serial_config(close_after_s=0.8)
+    return replace(cfg, emulator=replace(cfg.emulator, link="pty"))
 
 
 def _serial_lost_config():
@@ -154,8 +160,7 @@ SERIAL = Transport(
     trip_overrides={"emulator": {"link": "pipe", "time_scale": 8.0}},
     lost_config=_serial_lost_config, lost_extra=_serial_lost_extra,
     trip_ends_the_recording=False,  # the board's blocks already on the line after the trip are recorded too
-    falls_silent=Fault(lambda: replace(_s := _serial_config(close_after_s=0.8),
-                                       emulator=replace(_s.emulator, link="pty")), match=""),
+    falls_silent=Fault(_serial_line_closing_config, match=""),
     skip={
         "drive_fault": "the board's firmware has no drive-fault switch (drive_fault_after_s is a CANopen/Modbus "
                        "drive's); its latched faults come from limit trips and the watchdog, tested by "
