@@ -17,7 +17,6 @@ from hilident.adapters.base import adapter_class
 from hilident.config import load_config, parse_config
 from hilident.drivers import find_driver
 from hilident.emulator.factory import true_modes
-from hilident.errors import DeviceError
 from hilident.recording import read_run
 from hilident.session import Session
 from summary_keys import assert_layout
@@ -140,52 +139,10 @@ def test_grey_box_model_in_a_bench_run_is_validated_on_the_verification_run(tmp_
     assert summary["measurement"]["resolution"]["lowest_antiresonance"]["bins"] > 5
 
 
-def test_corrupted_and_dropped_bytes_are_counted_not_filled(tmp_path):
-    cfg = gantry_variant()
-    faults = replace(cfg.emulator.faults, corrupt_frame_rate=0.02, drop_frame_rate=0.02)
-    cfg = replace(cfg, emulator=replace(cfg.emulator, faults=faults),
-                  friction_test=replace(cfg.friction_test, enabled=False),
-                  excitation=replace(cfg.excitation, kind="noise"))
-    summary = Session(cfg, tmp_path).run()
-    s = summary["stream"]
-    assert s["corrupt_frames"] > 0
-    assert s["lost_blocks"] > 0 and s["lost_samples"] > 0
-    assert any("lost" in w for w in summary["warnings"])
-    run = read_run(tmp_path / "identification.h5")
-    index = run.samples["sample_index"]
-    gaps = np.flatnonzero(np.diff(index) != 1)
-    assert len(gaps) > 0  # holes stay holes
-    assert run.n_samples < int(index[-1]) + 1
-    assert any(e["kind"] == "lost_blocks" for e in run.events)
 
 
-def test_closed_port_mid_run_stops_cleanly(tmp_path):
-    cfg = gantry_variant()
-    cfg = replace(cfg, emulator=replace(cfg.emulator, link="pty", faults=replace(cfg.emulator.faults, close_after_s=0.8)),
-                  friction_test=replace(cfg.friction_test, enabled=False))
-    session = Session(cfg, tmp_path)
-    with pytest.raises(DeviceError) as err:
-        session.run()
-    assert session.emulator.port in str(err.value)
-    assert not session.emulator.drive.enabled  # torque zero
-    run = read_run(tmp_path / "identification.h5")
-    assert run.status == "aborted" and run.n_samples > 0
-    assert session.emulator.port in run.reason
 
 
-def test_limit_trip_is_a_clean_stop(tmp_path):
-    # accelerating at 5 m/s^2 needs about 25 N*m, beyond limits.torque_nm: the board trips mid-run
-    code_cfg = tmp_path / "trip.toml"
-    text = (CONFIGS / "emulated-gantry.toml").read_text().replace("accel_mps2 = 0.5", "accel_mps2 = 5.0")
-    text = text.replace('link = "pty"', 'link = "pipe"').replace("time_scale = 4.0", "time_scale = 8.0")
-    code_cfg.write_text(text)
-    rc = main(["run", str(code_cfg), "--out", str(tmp_path / "out"), "-q"])
-    assert rc != 0
-    run = read_run(tmp_path / "out" / "friction.h5")
-    assert run.status == "aborted"
-    trips = [e for e in run.events if e["kind"] == "limit_trip"]
-    assert trips and "torque_limit" in trips[0]["message"]
-    assert not (tmp_path / "out" / "summary.json").exists()
 
 
 def test_malformed_config_names_the_key_and_file(tmp_path, capsys):

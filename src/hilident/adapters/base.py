@@ -1,21 +1,22 @@
 """What every device adapter offers the session, whatever its transport.
 
 An adapter is the host side of one transport. The session only talks to this
-interface, so a CANopen or Modbus adapter slots in beside the serial one. New
-adapters register under the ``hilident.adapters`` entry point group.
+interface, so a CANopen or Modbus adapter slots in beside the serial one. The
+built-in adapters are listed in :mod:`hilident.adapters.backends`; new ones
+register under the ``hilident.adapters`` entry point group.
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from importlib.metadata import entry_points
 from typing import Any, Callable, Protocol
 
 import numpy as np
 
+from hilident.adapters.backends import adapter_class  # noqa: F401  (re-exported: the session's import)
+from hilident.errors import DataError, DeviceError, LimitTrip
 from hilident.events import Kind, RunEvent
-from hilident.errors import ConfigError, DataError, DeviceError, LimitTrip
 
 _PROGRESS_S = 0.1  # progress is reported at most this often, and at the end
 
@@ -616,16 +617,3 @@ class RunStrategy:
             raise DeviceError(f"{ad.port}: {short_message}")
         ad.log_event(RunEvent(Kind.CAPTURE_END, done_message, n, value=float(n)))
         self.result.completed = True
-
-
-def adapter_class(transport: str):
-    """The adapter class registered for ``transport`` under ``hilident.adapters``."""
-    for ep in entry_points(group="hilident.adapters"):
-        if ep.name == transport:
-            return ep.load()
-    if transport == "serial":  # running from a checkout that was never installed
-        from hilident.adapters.serial_board import SerialBoardAdapter
-
-        return SerialBoardAdapter
-    known = sorted(ep.name for ep in entry_points(group="hilident.adapters"))
-    raise ConfigError("driver.transport", f"no adapter for transport {transport!r} (installed: {known})")

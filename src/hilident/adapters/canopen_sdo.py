@@ -1,0 +1,152 @@
+"""Object access by SDO for the CANopen adapter: read and write by role or address, block transfers, aborts named.
+
+One part of :class:`~hilident.adapters.canopen_drive.CanopenDriveAdapter`, which composes the parts
+(see that module); a part only uses the adapter's attributes and the other parts' methods.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+from struct import error as struct_error
+
+import can
+import canopen
+from canopen.sdo import SdoAbortedError, SdoCommunicationError
+
+from hilident.adapters.canopen_common import (
+    _ABORT_GENERAL,
+    _transfer_error,
+)
+from hilident.errors import DataError, DeviceError
+from hilident.protocol.canopen_objects import (
+    ObjectAddress,
+)
+
+
+class SdoAccess:
+    """The object-access part of :class:`~hilident.adapters.canopen_drive.CanopenDriveAdapter`.
+
+    Every SDO read and write goes through here, so an abort or a lost bus becomes a
+    :class:`~hilident.errors.DeviceError` that names the object and the abort's meaning.
+    """
+
+    # --- object access ----------------------------------------------------------------------
+
+    def describe(self, addr: ObjectAddress) -> str:
+        """``0x6072:0 (Max torque)``: an object as messages name it."""
+        var = self.node.object_dictionary.get_variable(addr.index, addr.subindex)
+        name = var.name if var is not None else "not in the EDS"
+        if var is not None and var.parent is not None and not isinstance(var.parent, canopen.ObjectDictionary):
+            name = f"{var.parent.name}: {var.name}"
+        return f"{addr} ({name})"
+
+    def _sdo_error(self, exc: Exception, addr: ObjectAddress, action: str) -> DeviceError:
+        if isinstance(exc, SdoAbortedError):
+            meaning = SdoAbortedError.CODES.get(exc.code, "unknown abort code")
+            return DeviceError(f"{self.port}: SDO abort {action} {self.describe(addr)}: 0x{exc.code:08X} {meaning}")
+        if isinstance(exc, SdoCommunicationError):
+            return DeviceError(f"{self.port}: no valid SDO answer {action} {self.describe(addr)}: {exc} "
+                               "(is the drive powered, on this bus, with this node id?)")
+        return DeviceError(f"{self.port}: bus failure {action} {self.describe(addr)}: {exc}")
+
+    def read_object(self, addr: ObjectAddress):
+        """Upload one object and decode it by its EDS data type."""
+        var = self.node.object_dictionary.get_variable(addr.index, addr.subindex)
+        if var is None:
+            raise DeviceError(f"{self.port}: object {addr} is not in the EDS {self.desc.eds}")
+        self.beat_if_due()
+        try:
+            return var.decode_raw(self.node.sdo.upload(addr.index, addr.subindex))
+        except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
+            raise self._sdo_error(exc, addr, "reading") from None
+
+    def write_object(self, addr: ObjectAddress, value) -> None:
+        """Download one object, encoded by its EDS data type."""
+        var = self.node.object_dictionary.get_variable(addr.index, addr.subindex)
+        if var is None:
+            raise DeviceError(f"{self.port}: object {addr} is not in the EDS {self.desc.eds}")
+        try:
+            data = var.encode_raw(value)
+        except (ValueError, TypeError, struct_error) as exc:
+            raise DataError(f"{self.port}: value {value!r} does not fit {self.describe(addr)}: {exc}") from None
+        self.beat_if_due()
+        try:
+            self.node.sdo.download(addr.index, addr.subindex, data)
+        except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
+            raise self._sdo_error(exc, addr, "writing") from None
+
+    def read(self, role: str):
+        return self.read_object(self.desc.address(role))
+
+    def write(self, role: str, value) -> None:
+        self.write_object(self.desc.address(role), value)
+
+    def read_domain(self, addr: ObjectAddress) -> bytes:
+        """Upload a DOMAIN object (block transfer when the description says so)."""
+        if not self.desc.block_transfer:
+            try:
+                return bytes(self.node.sdo.upload(addr.index, addr.subindex))
+            except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
+                raise self._sdo_error(exc, addr, "reading") from None
+
+        def upload(f):
+            return bytes(f.readall())
+
+        return self._block_transfer(addr, "rb", upload, {})
+
+    def write_domain(self, addr: ObjectAddress, data: bytes) -> None:
+        """Download a DOMAIN object (block transfer when the description says so)."""
+        if not self.desc.block_transfer:
+            try:
+                self.node.sdo.download(addr.index, addr.subindex, data, force_segment=True)
+            except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
+                raise self._sdo_error(exc, addr, "writing") from None
+            return
+
+        def download(f):
+            view = memoryview(data)
+            pos = 0
+            while pos < len(data):
+                pos += f.write(view[pos:pos + 7])
+
+        self._block_transfer(addr, "wb", download, {"size": len(data)})
+
+    def _block_transfer(self, addr: ObjectAddress, mode: str, body, options: dict):
+        """Run ``body(stream)`` on an SDO block transfer stream; an interrupted transfer is aborted.
+
+        A signal (or any exception not from the transfer itself) in the middle
+        of a block download leaves the drive's SDO server reading sub-block
+        segments, where every frame but an abort counts as data: the next
+        request (the Disable Voltage of ``safe_stop``) would be swallowed. So
+        the transfer is ended with an SDO abort, never with canopen's normal
+        close, which would send the end-of-transfer request and wait for it.
+        """
+        action = "reading" if mode == "rb" else "writing"
+        try:
+            stream = self.node.sdo.open(addr.index, addr.subindex, mode, block_transfer=True, buffering=0,
+                                        **options)
+        except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
+            raise self._sdo_error(exc, addr, action) from None
+        self._in_block_transfer = True
+        try:
+            result = body(stream)
+        except BaseException as exc:
+            self._in_block_transfer = False
+            io.RawIOBase.close(stream)  # closed without the end-of-transfer exchange
+            cause = _transfer_error(exc)
+            if not isinstance(cause, SdoAbortedError):  # the drive aborted: its server is idle already
+                with contextlib.suppress(Exception):
+                    self.node.sdo.abort(_ABORT_GENERAL)
+            if cause is not None:
+                raise self._sdo_error(cause, addr, action) from None
+            raise
+        self._in_block_transfer = False
+        try:
+            stream.close()
+        except Exception as exc:
+            cause = _transfer_error(exc)
+            if cause is None:
+                raise
+            raise self._sdo_error(cause, addr, action) from None
+        return result

@@ -1,0 +1,190 @@
+"""Filter slots of a Modbus drive: a notch written as registers or parameters, read back, saved, restored.
+
+One part of :class:`~hilident.adapters.modbus_drive.ModbusDriveAdapter`, which composes the parts
+(see that module); a part only uses the adapter's attributes and the other parts' methods.
+"""
+
+from __future__ import annotations
+
+from hilident.adapters.base import FilterUpload
+from hilident.errors import DataError, DeviceError
+from hilident.filters.biquad import Biquad
+from hilident.filters.notch import NotchSpec
+from hilident.protocol.modbus_registers import (
+    FieldSlots,
+)
+
+
+class FilterSlots:
+    """The filter-slot part of :class:`~hilident.adapters.modbus_drive.ModbusDriveAdapter`.
+
+    A slot is either a register block of the map or a set of parameters (a parameter
+    drive); both are written disabled, read back and compared before they are enabled.
+    """
+
+    # --- filters ------------------------------------------------------------------------------
+
+    def _slot(self, slot: int) -> int:
+        try:
+            return self.map.filters.address(slot)
+        except DataError as exc:
+            raise DeviceError(f"{self.port}: {exc}") from None
+
+    # Filter slots of named registers (a parameter drive's notch parameters): each field is one register
+    # holding the encoding's stored integer; the slot is bypassed by its enable register or by the "off"
+    # value of one field.
+
+    @property
+    def parameter_slots(self) -> bool:
+        """Whether the filter slots are the drive's notch parameters (:meth:`filter_parameters` reports them)."""
+        return isinstance(self.map.filters, FieldSlots)
+
+    def _fields(self, slot: int) -> dict:
+        if self.map.filters is None:
+            raise DeviceError(f"{self.port}: driver {self.driver.name!r} describes no filter slots")
+        try:
+            return self.map.filters.fields(slot)
+        except DataError as exc:
+            raise DeviceError(f"{self.port}: {exc}") from None
+
+    def _read_fields(self, slot: int) -> dict[str, int]:
+        """The stored integer of each field of ``slot`` (one request for neighbouring registers)."""
+        regs = self._fields(slot)
+        values = self.read_names(*(r.name for r in regs.values()))
+        return {f: int(round((values[r.name] - r.offset) / r.scale)) for f, r in regs.items()}
+
+    def _write_fields(self, slot: int, stored: dict[str, int]) -> None:
+        regs = self._fields(slot)
+        self.write_names(**{regs[f].name: v * regs[f].scale + regs[f].offset for f, v in stored.items()})
+
+    def _slot_state(self, stored: dict[str, int]) -> tuple[dict, bool]:
+        """``(encoding values, enabled)`` of a named slot's stored integers."""
+        values = {k: v for k, v in stored.items() if k != "enable"}
+        if "enable" in stored:
+            return values, bool(stored["enable"])
+        return values, not all(values.get(k) == v for k, v in self.map.filters.off.items())
+
+    def _realise(self, spec: NotchSpec | None):
+        if spec is None:
+            raise DeviceError(f"{self.port}: the drive takes notch parameters; no notch specification was given")
+        try:
+            return self.map.filter_encoding.realise(spec, self.identity.loop_rate_hz)
+        except DataError as exc:
+            raise DeviceError(f"{self.port}: the drive's {self.map.filter_encoding.kind} filter parameters cannot "
+                              f"hold the {spec.center_hz:.4g} Hz notch: {exc}") from None
+
+    def filter_parameters(self, slot: int) -> dict:
+        """What a parameter drive's slot holds, for a report: each field's register, parameter code and stored
+        integer, whether it is enabled, and the notch (centre, width, depth) the values stand for."""
+        regs = self._fields(slot)
+        stored = self._read_fields(slot)
+        values, enabled = self._slot_state(stored)
+        out = {"slot": slot, "enabled": enabled,
+               "fields": {f: {"register": regs[f].name, "parameter": regs[f].parameter, "address": regs[f].address,
+                              "value": v} for f, v in stored.items()}}
+        if enabled:
+            try:
+                spec = self.map.filter_encoding.parameters(values)
+                out["notch"] = {"center_hz": spec.center_hz, "width_hz": spec.width_hz, "depth_db": spec.depth_db}
+            except DataError as exc:
+                out["notch_error"] = str(exc)
+        return out
+
+    def filter_notes(self, spec: NotchSpec) -> tuple[str, ...]:
+        """Why a parameter drive's notch parameters cannot meet ``spec`` exactly, if they cannot."""
+        return self._realise(spec).notes if self.parameter_slots else ()
+
+    def upload_filter(self, slot: int, biquad, spec=None) -> FilterUpload:
+        """As :meth:`AdapterBase.upload_filter`; a slot bypassed by the "off" value of one of its fields is
+        written bypassed with the other fields, those read back and compared, then the off field written
+        (the notch takes effect), the whole slot read back and compared; anything else puts the previous
+        contents back."""
+        fs = self.map.filters
+        if not self.parameter_slots or fs.has_enable:
+            return super().upload_filter(slot, biquad, spec)
+        previous = self.save_filter(slot)
+        values = self._realise(spec).fields
+        expected = self.stored_form(biquad, spec)
+        self._write_fields(slot, {**values, **fs.off})
+        back, enabled = self._slot_state(self._read_fields(slot))
+        same = not enabled and all(back[k] == v for k, v in values.items() if k not in fs.off)
+        stored = Biquad.identity()
+        if same:
+            self._write_fields(slot, values)
+            stored, enabled = self.read_filter(slot)
+            same = enabled and stored == expected
+        if not same:
+            self.restore_filter(slot, previous)
+        return FilterUpload(stored, expected, bool(same))
+
+    def write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None = None, *, enabled: bool) -> None:
+        """Store a notch in a slot as the drive takes it: centre, width, depth (scaled integers), enable.
+
+        A parameter drive's slot gets the stored values closest to ``spec``
+        (:meth:`FilterEncoding.realise`), bypassed by its off value when not ``enabled``.
+        """
+        if self.parameter_slots:
+            stored = dict(self._realise(spec).fields)
+            if self.map.filters.has_enable:
+                stored["enable"] = int(bool(enabled))
+            elif not enabled:
+                stored.update(self.map.filters.off)
+            self._write_fields(slot, stored)
+            return
+        values = self.map.filter_encoding.encode(biquad, spec)
+        self.write(self._slot(slot), self.map.encode_filter(values, enabled), f"writing filter slot {slot}")
+
+    def read_filter(self, slot: int) -> tuple[Biquad, bool]:
+        """The biquad the slot's registers make the drive run, and whether it is enabled.
+
+        A parameter drive's slot bypassed by an off value runs the identity section.
+        """
+        if self.parameter_slots:
+            values, enabled = self._slot_state(self._read_fields(slot))
+            if not enabled and not self.map.filters.has_enable:
+                return Biquad.identity(), False
+            try:
+                return self.map.filter_encoding.applied(values, self.identity.loop_rate_hz), enabled
+            except DataError as exc:
+                regs = self._fields(slot)
+                raise DeviceError(f"{self.port}: filter slot {slot} ({', '.join(r.label for r in regs.values())}) "
+                                  f"holds {values}: {exc}") from None
+        address = self._slot(slot)
+        values, enabled = self.map.decode_filter(self.read(address, self.map.filters.span, f"reading filter slot {slot}"))
+        if not any(values.values()):
+            return Biquad.identity(), enabled  # an empty slot passes the torque through
+        try:
+            return self.map.filter_encoding.applied(values, self.identity.loop_rate_hz), enabled
+        except DataError as exc:
+            raise DeviceError(f"{self.port}: filter slot {slot} "
+                              f"({self.map.describe(address, self.map.filters.span)}) holds {values}: {exc}") from None
+
+    def stored_form(self, biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
+        """The biquad the drive runs after its own rounding of ``spec`` (0.1 Hz, 0.1 dB steps), or what a
+        parameter drive runs with the stored values closest to ``spec``."""
+        if self.parameter_slots:
+            return self._realise(spec).section
+        return self.map.filter_encoding.stored_form(biquad, spec, self.identity.loop_rate_hz)
+
+    def _read_raw_slot(self, slot: int) -> tuple[int, ...]:
+        """The slot's registers as they are."""
+        if self.parameter_slots:
+            return tuple(sorted(self._read_fields(slot).items()))
+        return tuple(self.read(self._slot(slot), self.map.filters.span, f"reading filter slot {slot}"))
+
+    def _write_raw_slot(self, slot: int, saved: tuple) -> None:
+        if self.parameter_slots:
+            self._write_fields(slot, dict(saved))
+            return
+        self.write(self._slot(slot), list(saved), f"restoring filter slot {slot}")
+
+    def disable_filter(self, slot: int) -> None:
+        """Bypass a slot: its enable register to 0, centre, width and depth kept (:meth:`restore_filter` undoes it).
+
+        A parameter drive's slot without an enable gets its off value, the other fields kept.
+        """
+        if self.parameter_slots:
+            fs = self.map.filters
+            self._write_fields(slot, {"enable": 0} if fs.has_enable else dict(fs.off))
+            return
+        self.write(self._slot(slot) + self.map.filters.offsets["enable"], [0], f"disabling filter slot {slot}")
