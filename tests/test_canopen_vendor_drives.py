@@ -20,7 +20,7 @@ from vendor_drives import FILTER_DRIVES, VendorDrive, write_vendor_drive
 from hilident.adapters.canopen_drive import CanopenDriveAdapter
 from hilident.config import load_config
 from hilident.drivers import check_run_against_driver, load_driver
-from hilident.emulator.canopen_drive import start
+from hilident.emulator.canopen.server import start
 from hilident.emulator.factory import true_modes
 from hilident.errors import ConfigError, DeviceError, LimitTrip
 from hilident.recording import read_run

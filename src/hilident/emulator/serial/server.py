@@ -1,6 +1,6 @@
 """The emulated board on a line: a pseudo-terminal or an in-memory pipe.
 
-:class:`BoardServer` runs :class:`~hilident.emulator.board.BoardFirmware` in a
+:class:`BoardServer` runs :class:`~hilident.emulator.serial.firmware.BoardFirmware` in a
 background thread. It steps the physics in real time (times ``time_scale``), and
 writes its frames at the configured baud rate, so a host sees the same
 throughput limits as on a real UART: when the host asks for more samples than
@@ -14,190 +14,25 @@ opens like a USB serial board.
 from __future__ import annotations
 
 import math
-import os
-import select
-import socket
 import threading
 import time
-import tty
 from collections import deque
+from dataclasses import replace
 
-import numpy as np
-
+from hilident.config import DeviceConfig, EmulatorConfig
+from hilident.drivers import DriverDescription
+from hilident.emulator.device import EmulatedDevice, build_drive
+from hilident.emulator.serial.firmware import BoardFirmware
+from hilident.emulator.serial.links import LineFaults, PipeLink, PtyLink, TcpLink
 from hilident.errors import ConfigError
-from hilident.links import LinkClosed, PipeEnd
+from hilident.links import LinkClosed, pipe_pair
+from hilident.protocol import serial_board as sb
 from hilident.protocol.framing import FrameDecoder, encode_frame
+
+__all__ = ["BITS_PER_BYTE", "BoardServer", "identity_from_driver", "start", "start_serial_board"]
 
 #: Bits on the line per byte: start + 8 data + stop (8N1).
 BITS_PER_BYTE = 10
-
-
-class PtyLink:
-    """Device side of a pseudo-terminal; :attr:`path` is what the host opens."""
-
-    def __init__(self) -> None:
-        self.master, self._slave = os.openpty()
-        tty.setraw(self._slave)  # no echo, no line discipline: a raw 8-bit line
-        self.path = os.ttyname(self._slave)
-        self._closed = False
-
-    def read_some(self, timeout: float) -> bytes:
-        if self._closed:
-            raise LinkClosed(f"{self.path}: closed")
-        ready, _, _ = select.select([self.master], [], [], timeout)
-        if not ready:
-            return b""
-        try:
-            return os.read(self.master, 65536)
-        except OSError as exc:
-            raise LinkClosed(f"{self.path}: {exc}") from None
-
-    def write(self, data: bytes) -> None:
-        view = memoryview(data)
-        while view:
-            if self._closed:
-                raise LinkClosed(f"{self.path}: closed")
-            _, ready, _ = select.select([], [self.master], [], 0.05)
-            if ready:
-                n = os.write(self.master, view)
-                view = view[n:]
-
-    def close(self) -> None:
-        if not self._closed:
-            self._closed = True
-            for fd in (self.master, self._slave):
-                try:
-                    os.close(fd)
-                except OSError:
-                    pass
-
-
-class TcpLink:
-    """Device side of a raw TCP line on 127.0.0.1, reached as ``socket://127.0.0.1:PORT``.
-
-    This is what a serial-to-Ethernet converter looks like to pyserial. One host
-    at a time; a new connection replaces the old one.
-    """
-
-    def __init__(self, port: int = 0):
-        self._listener = socket.create_server(("127.0.0.1", port))
-        self._listener.setblocking(False)
-        self.port = self._listener.getsockname()[1]
-        self.path = f"socket://127.0.0.1:{self.port}"
-        self._conn: socket.socket | None = None
-        self._closed = False
-
-    def _accept(self, timeout: float) -> bool:
-        ready, _, _ = select.select([self._listener], [], [], timeout)
-        if ready:
-            conn, _ = self._listener.accept()
-            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            if self._conn is not None:
-                self._conn.close()
-            self._conn = conn
-        return self._conn is not None
-
-    def read_some(self, timeout: float) -> bytes:
-        if self._closed:
-            raise LinkClosed(f"{self.path}: closed")
-        conn = self._conn  # the transmit thread may drop it meanwhile
-        if conn is None:
-            self._accept(timeout)
-            return b""
-        try:
-            ready, _, _ = select.select([conn, self._listener], [], [], timeout)
-        except (OSError, ValueError):  # closed by the transmit thread
-            return b""
-        if self._listener in ready:
-            self._accept(0)
-            return b""
-        if not ready:
-            return b""
-        try:
-            data = conn.recv(65536)
-        except OSError:  # reset by a host that died: the line is free for the next one
-            data = b""
-        if not data:  # the host hung up: wait for the next one
-            self._drop(conn)
-        return data
-
-    def write(self, data: bytes) -> None:
-        if self._closed:
-            raise LinkClosed(f"{self.path}: closed")
-        conn = self._conn
-        if conn is None:
-            return  # nobody listening: bytes on an unconnected line are lost
-        try:
-            conn.sendall(data)
-        except OSError:  # the host went away; what it did not take is lost, as on a real line
-            self._drop(conn)
-
-    def _drop(self, conn: socket.socket) -> None:
-        conn.close()
-        if self._conn is conn:
-            self._conn = None
-
-    def close(self) -> None:
-        if not self._closed:
-            self._closed = True
-            for s in (self._conn, self._listener):
-                if s is not None:
-                    s.close()
-
-
-class PipeLink:
-    """Device side of an in-memory pipe (see :func:`hilident.links.pipe_pair`)."""
-
-    def __init__(self, end: PipeEnd):
-        self.end = end
-        self.path = end.port
-
-    def read_some(self, timeout: float) -> bytes:
-        self.end.timeout = timeout
-        return self.end.read(max(1, self.end.in_waiting))
-
-    def write(self, data: bytes) -> None:
-        self.end.write(data)
-
-    def close(self) -> None:
-        self.end.close()
-
-
-class LineFaults:
-    """Seeded damage to board->host frames, for fault tests.
-
-    Parameters
-    ----------
-    corrupt_frame_rate : float
-        Probability that one byte of a frame is flipped.
-    drop_frame_rate : float
-        Probability that a run of bytes of a frame is lost.
-    seed : int
-    """
-
-    def __init__(self, corrupt_frame_rate=0.0, drop_frame_rate=0.0, seed=0):
-        self.corrupt = corrupt_frame_rate
-        self.drop = drop_frame_rate
-        self.rng = np.random.default_rng(seed)
-        self.corrupted = 0
-        self.dropped = 0
-
-    def apply(self, frame: bytes) -> bytes:
-        if not (self.corrupt or self.drop) or len(frame) < 4:
-            return frame
-        data = bytearray(frame)
-        if self.corrupt and self.rng.random() < self.corrupt:
-            i = int(self.rng.integers(0, len(data) - 1))
-            data[i] ^= 1 << int(self.rng.integers(0, 8))
-            if data[i] == 0:
-                data[i] = 0x55  # a new zero would split the frame: still corrupt, just differently
-            self.corrupted += 1
-        if self.drop and self.rng.random() < self.drop:
-            i = int(self.rng.integers(0, len(data) - 1))
-            n = int(self.rng.integers(1, 9))
-            del data[i : min(i + n, len(data) - 1)]
-            self.dropped += 1
-        return bytes(data)
 
 
 class BoardServer:
@@ -381,3 +216,56 @@ class BoardServer:
                 self.bytes_sent += len(frame)
         except (LinkClosed, OSError):
             pass
+
+
+def identity_from_driver(driver: DriverDescription) -> sb.Identity:
+    """What the emulated board answers to IDENTIFY: the driver description's board."""
+    return sb.Identity(
+        protocol_version=sb.PROTOCOL_VERSION,
+        name=driver.name,
+        firmware=driver.firmware,
+        loop_rate_hz=driver.loop_rate_hz,
+        max_sample_rate_hz=driver.max_sample_rate_hz,
+        filter_slots=driver.filter_slots,
+        excitation_buffer_samples=driver.excitation_buffer_samples,
+        channels=tuple(sb.ChannelInfo(c.name, c.unit) for c in driver.channels),
+    )
+
+
+def start(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig) -> EmulatedDevice:
+    """Start the emulated board for a session configured with ``device`` (its baud rate, else the driver's)."""
+    return start_serial_board(cfg, driver, device.baudrate or driver.default_baudrate)
+
+
+def start_serial_board(cfg: EmulatorConfig, driver: DriverDescription, baudrate: int,
+                       link: str | None = None) -> EmulatedDevice:
+    """Start an emulated serial board on a pseudo-terminal or an in-memory pipe.
+
+    Parameters
+    ----------
+    cfg : EmulatorConfig
+        Plant, friction, drive, sensors, faults, time scale.
+    driver : DriverDescription
+        The board to emulate.
+    baudrate : int
+        Line rate the board paces its output to (0: unpaced).
+    link : {"pty", "tcp", "pipe"}, optional
+        Overrides ``cfg.link``: a pseudo-terminal, a raw TCP line on 127.0.0.1
+        (``socket://`` for pyserial), or an in-memory pipe.
+    """
+    kind = link or cfg.link
+    firmware = BoardFirmware(build_drive(cfg, driver), identity_from_driver(driver))
+    faults = LineFaults(cfg.faults.corrupt_frame_rate, cfg.faults.drop_frame_rate, seed=cfg.seed + 1)
+    if kind == "pty":
+        device_link, host_link = PtyLink(), None
+    elif kind == "tcp":
+        device_link, host_link = TcpLink(), None
+    else:
+        host_link, device_end = pipe_pair()
+        device_link = PipeLink(device_end)
+    server = BoardServer(
+        firmware, device_link, baudrate=baudrate, time_scale=cfg.time_scale,
+        faults=faults, close_after_s=cfg.faults.close_after_s,
+    ).start()
+    device = replace(DeviceConfig(), driver=str(driver.folder), port=device_link.path, baudrate=baudrate)
+    return EmulatedDevice(server=server, device=device, drive=firmware.drive, link=host_link)

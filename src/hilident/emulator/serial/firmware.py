@@ -3,7 +3,7 @@
 :class:`BoardFirmware` is what runs on the board, minus the clock and the UART:
 it takes request payloads, answers them, and, asked to advance by some number
 of samples, steps the drive loop, fills sample blocks and watches the safety
-limits. :mod:`hilident.emulator.serial_server` gives it a clock and a line.
+limits. :mod:`hilident.emulator.serial.server` gives it a clock and a line.
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@
 holds the register image described by the driver's map
 (:class:`~hilident.protocol.modbus_registers.RegisterMap`), the excitation
 table and the capture buffer behind their paged windows, and the drive loop.
-:mod:`hilident.emulator.modbus_drive` serves it on a Modbus wire and advances
+:mod:`hilident.emulator.modbus.server` serves it on a Modbus wire and advances
 it in (scaled) real time; ``functions`` says which Modbus function codes it
 declares (read/write holding registers: 3, 6, 16; 4 when the map has input
 registers), and every other one is refused by the server with exception 1.

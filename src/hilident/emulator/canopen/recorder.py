@@ -31,7 +31,8 @@ import time
 import numpy as np
 from canopen.sdo import SdoAbortedError
 
-from hilident.emulator.canopen_sdo import (
+from hilident.emulator.canopen.roles import COLUMN_OF_ROLE
+from hilident.emulator.canopen.sdo import (
     ABORT_NO_DATA,
     ABORT_NOT_MAPPABLE,
     ABORT_STATE,
@@ -148,7 +149,7 @@ class DriveRecorder:
         addr, bits = parse_mapping_entry(entry)
         obj = self.fw.od.get_variable(addr.index, addr.subindex)
         role = self.fw.role_of.get(addr)
-        sampled = role in _sampled_roles() or (self.gen is not None and addr == self.gen.output)
+        sampled = role in COLUMN_OF_ROLE or (self.gen is not None and addr == self.gen.output)
         if obj is None or obj.data_type not in NUMERIC_TYPES or bits != type_bits(obj.data_type) or not sampled:
             raise SdoAbortedError(ABORT_NOT_MAPPABLE)
         return addr, obj.data_type
@@ -355,11 +356,5 @@ class DriveRecorder:
             self.rec_state = self.rec.states["done"]
 
 
-def _sampled_roles():
-    from hilident.emulator.canopen_drive import _COLUMN_OF_ROLE
-
-    return _COLUMN_OF_ROLE
-
-
 def _column(role: str) -> str:
-    return _sampled_roles()[role]
+    return COLUMN_OF_ROLE[role]

@@ -41,22 +41,31 @@ access), ``drop_pdo_rate`` (TPDOs not sent), ``capture_stops_after_s``.
 
 from __future__ import annotations
 
-import itertools
 import math
-import os
 import struct
 import threading
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import canopen
 import numpy as np
 from canopen.sdo import SdoAbortedError
 
-from hilident.config import DeviceConfig, EmulatorConfig, FaultsConfig
+from hilident.config import FaultsConfig
 from hilident.drivers import DriverDescription, load_object_dictionary
-from hilident.emulator.canopen_recorder import DriveRecorder
-from hilident.emulator.canopen_sdo import (
+from hilident.emulator.canopen.recorder import DriveRecorder
+from hilident.emulator.canopen.roles import (
+    COLUMN_OF_ROLE,
+    EMCY_DRIVE_FAULT,
+    EMCY_HEARTBEAT,
+    EMCY_INTERNAL,
+    EMCY_OF_TRIP,
+    EMCY_SYNC_TIMEOUT,
+    LIMIT_ROLES,
+    TARGET_ROLES,
+    error_register,
+)
+from hilident.emulator.canopen.sdo import (
     ABORT_INCOMPATIBLE,
     ABORT_LENGTH,
     ABORT_LENGTH_HIGH,
@@ -103,7 +112,7 @@ from hilident.protocol.canopen_profile import (
 )
 from hilident.protocol.filter_encoding import FilterEncoding
 
-__all__ = ["CanopenDriveFirmware", "CanopenDriveServer", "start", "start_socketcand", "CAPTURE_CHUNK_RECORDS"]
+__all__ = ["CAPTURE_CHUNK_RECORDS", "CanopenDriveFirmware"]
 
 #: Most capture records one upload of the capture-data object returns.
 CAPTURE_CHUNK_RECORDS = 4096
@@ -114,24 +123,10 @@ STALL_S = 0.1  # the clock thread ran this late: the whole process stood still (
 COAST_S = 2.0  # simulated time the axis is left to coast after the power stage is switched off
 
 
-EMCY_OF_TRIP = {"torque_limit": 0x8311, "velocity_limit": 0x8400, "position_limit": 0x8612}
-EMCY_DRIVE_FAULT = 0x4310  # excess temperature, drive (the injected fault)
-EMCY_SYNC_TIMEOUT = 0x8250
-EMCY_INTERNAL = 0x6100  # internal software error
-EMCY_HEARTBEAT = 0x8130  # life guard or heartbeat error (the host's heartbeat stopped)
-
-_COLUMN_OF_ROLE = {
-    "position_actual": "position_m", "velocity_actual": "velocity_mps", "torque_actual": "torque_nm",
-    "current_actual": "torque_nm",
-    "torque_demand": "torque_cmd_nm", "applied_excitation": "excitation", "load_position": "load_position_m",
-}
-_TARGET_ROLES = ("target_torque", "torque_offset", "target_velocity", "target_position", "interpolation_data")
-_LIMIT_ROLES = ("max_torque", "max_velocity", "position_limit_min", "position_limit_max")
 _PDO_KINDS = {0x1400: ("rpdo", "comm"), 0x1600: ("rpdo", "map"), 0x1800: ("tpdo", "comm"), 0x1A00: ("tpdo", "map")}
 #: CiA 402 modes of operation and the drive loop mode that runs them (torque offsets are added in each).
 _LOOP_MODE_OF_CODE = {10: "torque", 9: "velocity", 8: "position", 7: "position"}
 
-_channel_numbers = itertools.count(1)
 _STRING_TYPES = (0x09, 0x0A, 0x0B)  # VISIBLE_STRING, OCTET_STRING, UNICODE_STRING
 
 
@@ -158,14 +153,6 @@ def _supported_modes(desc: CanopenDescription, od, emulator: dict) -> tuple[str,
     if desc.explicit_modes:
         return tuple(m for m in MODE_CODES if MODE_CODES[m] in {spec.code for spec in desc.modes.values()})
     return tuple(m for m in CYCLIC_MODES if SETPOINT_OF_MODE[m] in desc.objects)
-
-
-def _error_register(code: int) -> int:
-    bits = 0x01
-    bits |= {0x2: 0x02, 0x3: 0x04, 0x4: 0x08}.get(code >> 12, 0)
-    if code & 0xFF00 in (0x8100, 0x8200):
-        bits |= 0x10
-    return bits
 
 
 class CanopenDriveFirmware:
@@ -230,11 +217,11 @@ class CanopenDriveFirmware:
         self.state = cia402.State.SWITCH_ON_DISABLED
         self.cw = 0
         self.mode_code = int(self._default(self.desc.address("modes_of_operation")))
-        self.targets = {role: 0 for role in _TARGET_ROLES if self.desc.has(role)}
+        self.targets = {role: 0 for role in TARGET_ROLES if self.desc.has(role)}
         self.rx_counter = 0
         self.limits_raw: dict[str, int] = {}
         # a drive with no limit object of its own can be enabled without any (the host checks the limits)
-        self.limits_loaded = not any(desc.has(r) and r in self.scales for r in _LIMIT_ROLES)
+        self.limits_loaded = not any(desc.has(r) and r in self.scales for r in LIMIT_ROLES)
         self.interpolation_period = [0, -3]  # 0x60C2 value and exponent as last written
         self.sync_divider = 0
         self.sync_overflow = int(self._default(self.desc.address("sync_overflow"))) if self.desc.has("sync_overflow") else 0
@@ -448,7 +435,7 @@ class CanopenDriveFirmware:
         self.error_code = code
         self.error_history = [code, *self.error_history][:8]
         data = struct.pack("<I", max(0, int(sample_index)) & 0xFFFFFFFF) + b"\0"
-        self._send(0x80 + self.node.id, struct.pack("<HB5s", code, _error_register(code), data))
+        self._send(0x80 + self.node.id, struct.pack("<HB5s", code, error_register(code), data))
 
     def _check_faults(self) -> None:
         """After the physics advanced: limit trips and the injected faults."""
@@ -485,7 +472,7 @@ class CanopenDriveFirmware:
 
     def _live(self, role: str | None, addr: ObjectAddress, row, k: int):
         """Raw value of a readable object for the sample in ``row`` (SDO reads and TPDOs)."""
-        if role in _COLUMN_OF_ROLE:
+        if role in COLUMN_OF_ROLE:
             column, scale, lo, hi = self._scalar_codec(role, addr)
             x = float(row[column])
             if scale is None:
@@ -509,7 +496,7 @@ class CanopenDriveFirmware:
         if role == "error_code":
             return self.error_code
         if role == "error_register":
-            return _error_register(self.error_code) if self.error_code else 0
+            return error_register(self.error_code) if self.error_code else 0
         return self._stored(addr.index, addr.subindex)
 
     def _scalar_codec(self, role: str, addr: ObjectAddress):
@@ -517,7 +504,7 @@ class CanopenDriveFirmware:
         codec = self._codecs.get(addr)
         if codec is None:
             obj = self._variable(addr)
-            column = self.columns[_COLUMN_OF_ROLE[role]]
+            column = self.columns[COLUMN_OF_ROLE[role]]
             if obj.data_type == REAL32:
                 codec = (column, None, 0, 0)
             else:
@@ -530,8 +517,8 @@ class CanopenDriveFirmware:
         """Capture records of ``rows`` (samples ``first`` ...) as a packed structured array."""
         out = np.empty(len(rows), dtype=record_dtype([t for _, t in self.capture_layout]))
         for i, (role, dtype) in enumerate(self.capture_layout):
-            if role in _COLUMN_OF_ROLE:
-                out[f"f{i}"] = encode_si(rows[:, self.columns[_COLUMN_OF_ROLE[role]]], dtype, self.scales[role])
+            if role in COLUMN_OF_ROLE:
+                out[f"f{i}"] = encode_si(rows[:, self.columns[COLUMN_OF_ROLE[role]]], dtype, self.scales[role])
             elif role == "sample_counter":
                 out[f"f{i}"] = (first + np.arange(len(rows))) & 0xFFFF
             else:  # statusword, mode display: constant over a chunk
@@ -740,7 +727,7 @@ class CanopenDriveFirmware:
             return
         self.error_history = [EMCY_HEARTBEAT, *self.error_history][:8]
         data = struct.pack("<I", max(0, int(self.sample_index)) & 0xFFFFFFFF) + b"\0"
-        self._send(0x80 + self.node.id, struct.pack("<HB5s", EMCY_HEARTBEAT, _error_register(EMCY_HEARTBEAT), data))
+        self._send(0x80 + self.node.id, struct.pack("<HB5s", EMCY_HEARTBEAT, error_register(EMCY_HEARTBEAT), data))
         if option in (2, 3) and self.state in (cia402.State.OPERATION_ENABLED, cia402.State.SWITCHED_ON,
                                                cia402.State.READY_TO_SWITCH_ON, cia402.State.QUICK_STOP_ACTIVE):
             if self.state is cia402.State.OPERATION_ENABLED:
@@ -761,7 +748,7 @@ class CanopenDriveFirmware:
                 return live
             if role == "capture_data":
                 return self._capture_chunk()
-            if role in _COLUMN_OF_ROLE or role in ("sample_counter", "statusword", "modes_display", "error_code",
+            if role in COLUMN_OF_ROLE or role in ("sample_counter", "statusword", "modes_display", "error_code",
                                                    "error_register", "modes_of_operation", "controlword",
                                                    "setpoint_counter") or role in self.targets:
                 row = self.last_row
@@ -864,7 +851,7 @@ class CanopenDriveFirmware:
                 handler()
             elif role in self.targets:
                 self.targets[role] = int(value)
-            elif role in _LIMIT_ROLES:
+            elif role in LIMIT_ROLES:
                 self._write_limit(role, int(value))
 
     def _write_pdo(self, base: int, n: int, sub: int, value: int) -> None:
@@ -937,10 +924,10 @@ class CanopenDriveFirmware:
         if role in ("max_torque", "max_velocity") and raw <= 0:
             raise SdoAbortedError(ABORT_TOO_LOW)
         self.limits_raw[role] = raw
-        held = [r for r in _LIMIT_ROLES if self.desc.has(r) and r in self.scales]
+        held = [r for r in LIMIT_ROLES if self.desc.has(r) and r in self.scales]
         if not all(r in self.limits_raw for r in held):
             return
-        si = {r: self.limits_raw[r] * self.scales[r] if r in held else None for r in _LIMIT_ROLES}
+        si = {r: self.limits_raw[r] * self.scales[r] if r in held else None for r in LIMIT_ROLES}
         if (si["position_limit_min"] is not None and si["position_limit_max"] is not None
                 and si["position_limit_min"] >= si["position_limit_max"]):
             self.limits_loaded = False  # one end written, the other still to come
@@ -1007,7 +994,7 @@ class CanopenDriveFirmware:
             obj = self.od.get_variable(addr.index, addr.subindex)
             role = self.role_of.get(addr)
             if obj is None or obj.data_type not in NUMERIC_TYPES or width != type_bits(obj.data_type) or not (
-                    role in _COLUMN_OF_ROLE or role in ("sample_counter", "statusword", "modes_display")):
+                    role in COLUMN_OF_ROLE or role in ("sample_counter", "statusword", "modes_display")):
                 raise SdoAbortedError(ABORT_NOT_MAPPABLE)  # only sampled signals can be captured
             layout.append((role, obj.data_type))
             size += width // 8
@@ -1098,126 +1085,3 @@ class CanopenDriveFirmware:
                     self.last_row = self.drive.run(np.zeros(n))[-1]
                     self.coast_ticks -= n
                     self.coast_clock = now
-
-
-class CanopenDriveServer:
-    """Runs a :class:`CanopenDriveFirmware` on a python-can bus: its network and its clock thread.
-
-    Parameters
-    ----------
-    firmware : CanopenDriveFirmware
-    interface, channel : str
-        python-can bus the node joins (``"virtual"`` and a channel name unique to it).
-    """
-
-    def __init__(self, firmware: CanopenDriveFirmware, interface: str = "virtual", channel: str = ""):
-        self.firmware = firmware
-        self.interface = interface
-        self.channel = channel or f"hilident-canopen-{os.getpid()}-{next(_channel_numbers)}"
-        self.network: canopen.Network | None = None
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._error: BaseException | None = None
-        self.extra: list = []  # other services sharing this drive's lifetime (a socketcand server)
-
-    @property
-    def error(self) -> BaseException | None:
-        return self._error or self.firmware.error
-
-    @property
-    def path(self) -> str:
-        return self.channel
-
-    def start(self) -> "CanopenDriveServer":
-        network = canopen.Network()
-        network.NOTIFIER_CYCLE = 0.1  # a short receive timeout: close() returns promptly
-        network.connect(interface=self.interface, channel=self.channel, receive_own_messages=False)
-        self.network = network
-        self.firmware.attach(network)
-        network.notifier.add_listener(self.firmware.on_frame)
-        self._thread = threading.Thread(target=self._clock, name="canopen-drive-clock", daemon=True)
-        self._thread.start()
-        return self
-
-    def _clock(self) -> None:
-        try:
-            while not self._stop.wait(0.004):
-                self.firmware.tick(time.monotonic())
-        except BaseException as exc:
-            self._error = exc
-            self.firmware.drive.disable()
-
-    def close(self) -> None:
-        """Power stage off, threads stopped, bus released."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-        fw = self.firmware
-        with fw.lock:
-            fw.drive.disable()
-        for service in self.extra:
-            try:
-                service.close()
-            except Exception:
-                pass
-        try:
-            fw.node.nmt.stop_heartbeat()
-        except Exception:
-            pass
-        if self.network is not None:
-            try:
-                self.network.disconnect()
-            except Exception:
-                pass
-            self.network = None
-
-    def __enter__(self):
-        return self.start()
-
-    def __exit__(self, *exc):
-        self.close()
-
-
-def _firmware(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig) -> CanopenDriveFirmware:
-    from hilident.emulator.factory import build_drive
-
-    if driver.transport != "canopen":
-        raise ConfigError("device.driver", f"driver {driver.name!r} is not a CANopen drive (transport "
-                                           f"{driver.transport!r})")
-    return CanopenDriveFirmware(build_drive(cfg, driver), driver, device.node_id, cfg.faults, cfg.time_scale, cfg.seed)
-
-
-def start(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig):
-    """Start the emulated drive in-process on a virtual CAN bus of its own.
-
-    Returns an :class:`~hilident.emulator.factory.EmulatedDevice` whose ``device``
-    reaches it: ``can_interface = "virtual"``, ``port`` = the channel name.
-    """
-    from hilident.emulator.factory import EmulatedDevice
-
-    firmware = _firmware(cfg, driver, device)
-    server = CanopenDriveServer(firmware).start()
-    reach = replace(device, can_interface="virtual", port=server.channel)
-    return EmulatedDevice(server=server, device=reach, drive=firmware.drive)
-
-
-def start_socketcand(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig, port: int = 0,
-                     bus_name: str = "can0"):
-    """Start the emulated drive and serve its bus over socketcand on 127.0.0.1.
-
-    The host reaches it with ``can_interface = "socketcand"`` and ``port =
-    "127.0.0.1:PORT/can0"`` (``EmulatedDevice.device`` holds exactly that).
-    """
-    from hilident.emulator.factory import EmulatedDevice
-    from hilident.emulator.socketcand_server import SocketcandServer
-
-    firmware = _firmware(cfg, driver, device)
-    server = CanopenDriveServer(firmware).start()
-    try:
-        bridge = SocketcandServer(server.channel, bus_name=bus_name, port=port).start()
-    except BaseException:
-        server.close()
-        raise
-    server.extra.append(bridge)
-    reach = replace(device, can_interface="socketcand", port=bridge.address)
-    return EmulatedDevice(server=server, device=reach, drive=firmware.drive)
