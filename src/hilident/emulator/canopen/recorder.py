@@ -40,6 +40,7 @@ from hilident.emulator.canopen.sdo import (
     ABORT_TOO_LOW,
     ABORT_VALUE,
 )
+from hilident.emulator.clock import SimClock, cut_at
 from hilident.protocol import cia402
 from hilident.protocol.canopen_objects import (
     NUMERIC_TYPES,
@@ -52,7 +53,6 @@ from hilident.protocol.canopen_recorder import RecorderCapability, generator_out
 
 __all__ = ["DriveRecorder"]
 
-_CATCH_UP_S = 0.05  # at most this much simulated time per clock step: a slow machine resumes, never bursts
 
 class DriveRecorder:
     """Generator and recorder of one emulated drive (see the module docstring).
@@ -81,7 +81,7 @@ class DriveRecorder:
         self.gen_tick = 0  # loop cycles the drive's clock ran since the generator (or the recording) started
         self.gen_start = 0  # the tick the generator started at
         self.gen_settings = None  # (GeneratorKind, target role, SI parameter values)
-        self.clock = (0.0, 0)  # (wall time, generator tick) the pacing counts from
+        self.pacing = SimClock(firmware.loop_rate, firmware.time_scale)  # one generator tick per loop tick
         self.stopped_early = False
 
     # --- object dictionary ---------------------------------------------------------------------
@@ -142,7 +142,7 @@ class DriveRecorder:
                     raise SdoAbortedError(ABORT_TOO_HIGH if p.maximum is not None and si > p.maximum else ABORT_TOO_LOW)
 
     def _stored(self, addr) -> int:
-        return int(self.fw._stored(addr.index, addr.subindex))
+        return int(self.fw.stored(addr.index, addr.subindex))
 
     def _channel(self, entry: int):
         """The (address, data type) a mapping entry selects; SDO abort when it is not a sampled signal."""
@@ -261,8 +261,8 @@ class DriveRecorder:
 
     def _start_clock(self) -> None:
         self.gen_tick = 0
-        self.clock = (time.monotonic(), 0)
-        self.fw._start_run()
+        self.pacing.start_run(time.monotonic())
+        self.fw.start_run()
 
     @property
     def active(self) -> bool:
@@ -283,16 +283,8 @@ class DriveRecorder:
             return
         if not self.active:
             return
-        rate = fw.loop_rate * fw.time_scale
-        wall0, tick0 = self.clock
-        due = int((now - wall0) * rate) - (self.gen_tick - tick0)
-        cap = max(1, int(_CATCH_UP_S * fw.loop_rate))
-        if due > cap:
-            self.clock, due = (now, self.gen_tick), cap
-        for t in fw._pending_fault_times():  # stop exactly where an injected fault is due
-            k = math.ceil(t * fw.loop_rate - 1e-9)
-            if self.gen_tick < k < self.gen_tick + due:
-                due = k - self.gen_tick
+        due = self.pacing.samples_due(now, self.gen_tick, fw.loop_rate)
+        due = cut_at(self.gen_tick, due, fw.pending_fault_times(), fw.loop_rate)  # stop where a fault is due
         if due <= 0:
             return
         ticks = self.gen_tick + np.arange(due)
@@ -302,7 +294,7 @@ class DriveRecorder:
         self.gen_tick += due
         fw.sample_index = self.gen_tick // max(1, self.period)
         fw.last_row = rows[-1]
-        fw._check_faults()
+        fw.check_faults()
         if self.gen_settings is not None and self.gen_state == self.gen.states["running"]:
             _, _, values = self.gen_settings
             if "duration_s" in values and self.gen_tick - self.gen_start >= round(values["duration_s"] * fw.loop_rate):
@@ -317,7 +309,7 @@ class DriveRecorder:
     def _run(self, g: np.ndarray) -> np.ndarray:
         """The drive loop over ``len(g)`` cycles with the generator's output added to its target set-point."""
         fw = self.fw
-        base = fw._setpoint_si()  # also loads the host's torque offset into the loop
+        base = fw.setpoint_si()  # also loads the host's torque offset into the loop
         target = self.gen_settings[1] if self.gen_settings is not None else ""
         if target != "torque_offset":
             return fw.drive.run(base + g)

@@ -44,6 +44,7 @@ import math
 
 import numpy as np
 
+from hilident.emulator.clock import Played, TablePlayer
 from hilident.errors import DataError
 from hilident.filters.biquad import Biquad
 from hilident.protocol.modbus_registers import STAMP_MODULUS, RegisterMap, table_crc
@@ -123,9 +124,8 @@ class ModbusDriveFirmware:
         self.last_heard: float | None = None  # wall-clock time of the last request addressed to the drive, s
         self._crc: int | None = None
         self._values = np.zeros(0)
-        self._run_divider = 1
         self._run_mask = 0
-        self._run_start_tick = 0
+        self._player = TablePlayer(drive, 1, self.loop_rate_hz)
         self._set("device_type", regmap.device_type)
         self._set("map_version", regmap.map_version)
         self._set("loop_rate_hz", driver.loop_rate_hz)
@@ -160,7 +160,7 @@ class ModbusDriveFirmware:
 
     @property
     def sample_rate_hz(self) -> float:
-        return self.loop_rate_hz / self._run_divider
+        return self._player.sample_rate_hz
 
     def status_word(self) -> int:
         s = self.map.status
@@ -370,12 +370,11 @@ class ModbusDriveFirmware:
     def _start(self) -> None:
         n = self.table_length
         mode = {v: k for k, v in self.map.modes.items()}[int(self._get("mode"))]
-        self._run_divider = int(self._get("sample_divider"))
         self._run_mask = int(self._get("capture_mask"))
         self.stamps[:n] = self._invalid_stamps(0, n)
         self.drive.set_mode(mode)
         self.drive.enable()
-        self._run_start_tick = self.drive.tick
+        self._player.restart(int(self._get("sample_divider")))
         self.produced = self.captured = 0
         self.capture_stopped = False
         self.running = True
@@ -395,36 +394,33 @@ class ModbusDriveFirmware:
         """Play up to ``n_samples`` samples of the table through the drive and capture them."""
         if not self.running or n_samples <= 0:
             return
-        rate = self.sample_rate_hz
-        n = min(int(n_samples), self.table_length - self.produced)
+        player, k0 = self._player, self.produced
+        n = min(int(n_samples), self.table_length - k0)
         if self.drive_fault_after_s:
-            k_fault = max(0, math.ceil(self.drive_fault_after_s * rate))
-            if self.produced >= k_fault:
-                self._fault(self.map.fault_codes["drive_fault"], self.produced, 0.0)
+            if k0 >= player.samples_before(self.drive_fault_after_s):
+                self._fault(self.map.fault_codes["drive_fault"], k0, 0.0)
                 return
-            n = min(n, k_fault - self.produced)
-        k0 = self.produced
-        divider = self._run_divider
-        rows = self.drive.run(np.repeat(self._values[k0 : k0 + n], divider))[::divider]
-        keep = n
-        tripped = self.drive.fault is not None
-        if tripped:
-            keep = min(n, (int(self.drive.fault_tick) - self._run_start_tick) // divider - k0 + 1)
-        stop = k0 + keep
-        if self.capture_stops_after_s:
-            stop = min(stop, max(k0, round(self.capture_stops_after_s * rate)))
-        if stop > k0:
-            self.capture[k0:stop] = rows[: stop - k0][:, self._columns]
-            self.stamps[k0:stop] = np.arange(k0, stop) % STAMP_MODULUS
-            self.captured = stop
-        self.produced = k0 + keep
+            n = player.cut_at(k0, n, (self.drive_fault_after_s,))
+        played = player.play(self._values[k0 : k0 + n], k0)
+        self._capture(played)
+        self.produced = played.end
         if self.captured < self.produced:
             self.capture_stopped = True
-        if tripped:
+        if played.faulted:
             code = self.map.fault_codes.get(self.drive.fault, self.map.fault_codes["drive_fault"])
-            self._fault(code, k0 + keep - 1, float(self.drive.fault_value or 0.0))
+            self._fault(code, played.end - 1, float(self.drive.fault_value or 0.0))
         elif self.produced >= self.table_length:
             self._end()
+
+    def _capture(self, played: Played) -> None:
+        """Record the kept samples, up to ``capture_stops_after_s`` when that fault is switched on."""
+        k0, stop = played.first, played.end
+        if self.capture_stops_after_s:
+            stop = min(stop, max(k0, self._player.samples_before(self.capture_stops_after_s)))
+        if stop > k0:
+            self.capture[k0:stop] = played.rows[: stop - k0][:, self._columns]
+            self.stamps[k0:stop] = np.arange(k0, stop) % STAMP_MODULUS
+            self.captured = stop
 
     def _fault(self, code: int, sample: int, value: float) -> None:
         self.fault_code = code

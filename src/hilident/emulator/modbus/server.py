@@ -63,6 +63,7 @@ import numpy as np
 
 from hilident.config import DeviceConfig, EmulatorConfig, FaultsConfig
 from hilident.drivers import DriverDescription
+from hilident.emulator.clock import SimClock
 from hilident.emulator.device import EmulatedDevice, build_drive
 from hilident.emulator.modbus.firmware import ModbusDriveFirmware
 from hilident.emulator.modbus.parameter_firmware import ParameterDriveFirmware
@@ -85,7 +86,6 @@ from hilident.protocol.modbus_registers import (
 
 log = logging.getLogger(__name__)
 
-_COAST_S = 2.0  # simulated seconds the axis coasts, drive disabled, after a run
 _BEAT_S = 0.005  # the server loop notes every so often that it is free to hear requests
 _STALL_S = 0.02  # a longer gap between two notes: this process was not scheduled (a loaded machine)
 _TCP_UNIT_ANY = 0xFF  # the unit id of a directly addressed Modbus TCP device
@@ -387,37 +387,20 @@ class ModbusDriveServer:
 
     def _clock(self) -> None:
         fw = self.firmware
-        loop_rate = fw.loop_rate_hz
+        # at most 20 ms of samples per step: the lock is held while they play, and requests wait for it
+        clock = SimClock(fw.loop_rate_hz, self.time_scale, max_catch_up_s=0.02)
         runs_seen = fw.runs
-        origin = time.monotonic()
-        at_origin = 0
-        coast_left = 0
-        coast_clock = origin
         try:
             while not self._stop.is_set():
                 now = time.monotonic()
                 with self.lock:
                     listening = now - self._beat_at < _STALL_S + _BEAT_S  # else the silence may be ours
                     if listening and fw.watch_host(now):  # the host went silent: the drive stopped on its own
-                        coast_left, coast_clock = int(_COAST_S * loop_rate), now
+                        clock.start_coast(now)
                     if fw.runs != runs_seen:  # a run was triggered since the last look
                         runs_seen = fw.runs
-                        origin, at_origin = now, 0
-                    if fw.running:
-                        rate = fw.sample_rate_hz * self.time_scale
-                        due = int((now - origin) * rate) - (fw.produced - at_origin)
-                        cap = max(1, int(0.02 * rate))
-                        if due > cap:  # fell behind (slow machine): resume from now, never burst
-                            origin, at_origin, due = now, fw.produced, cap
-                        fw.advance(due)
-                        if not fw.running:
-                            coast_left, coast_clock = int(_COAST_S * loop_rate), now
-                    elif coast_left > 0:
-                        n = min(coast_left, int((now - coast_clock) * loop_rate * self.time_scale))
-                        if n > 0:
-                            fw.idle(n)
-                            coast_left -= n
-                            coast_clock = now
+                        clock.start_run(now)
+                    clock.step(fw, now)
                 time.sleep(0.002)
         except BaseException as exc:  # keep the failure for the owner to see
             self.error = exc

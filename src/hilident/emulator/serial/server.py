@@ -21,6 +21,7 @@ from dataclasses import replace
 
 from hilident.config import DeviceConfig, EmulatorConfig
 from hilident.drivers import DriverDescription
+from hilident.emulator.clock import SimClock
 from hilident.emulator.device import EmulatedDevice, build_drive
 from hilident.emulator.serial.firmware import BoardFirmware
 from hilident.emulator.serial.links import LineFaults, PipeLink, PtyLink, TcpLink
@@ -79,6 +80,8 @@ class BoardServer:
         self._threads: list[threading.Thread] = []
         self.error: BaseException | None = None
         self.bytes_sent = 0
+        self._last_rx = 0.0  # wall time (s) the host was last heard
+        self._run_started: float | None = None  # wall time (s) the latest run started
 
     @property
     def path(self) -> str:
@@ -111,52 +114,18 @@ class BoardServer:
 
     def _board_loop(self) -> None:
         fw = self.firmware
-        loop_rate = fw.identity.loop_rate_hz
-        last_rx = time.monotonic()
-        run_started = None
-        run_origin = 0.0
-        samples_at_origin = 0
-        idle_clock = time.monotonic()
-        idle_ticks_left = 0
+        clock = SimClock(fw.identity.loop_rate_hz, self.time_scale)
+        self._last_rx = time.monotonic()
         try:
             while not self._stop.is_set():
                 data = self.link.read_some(0.002)
                 now = time.monotonic()
                 if data:
-                    last_rx = now
-                    for payload in self.decoder.feed(data):
-                        was_running = fw.running
-                        fw.receive(payload)
-                        if fw.running and not was_running:
-                            run_started = run_origin = now
-                            samples_at_origin = 0
-                    fw.line_corrupt = self.decoder.stats.corrupt
-                if fw.running:
-                    due = int((now - run_origin) * fw.sample_rate_hz * self.time_scale) - (
-                        fw._produced - samples_at_origin
-                    )
-                    cap = max(1, int(0.05 * fw.sample_rate_hz * self.time_scale))
-                    if due > cap:  # fell behind (slow machine): resume from now, never burst
-                        run_origin = now
-                        samples_at_origin = fw._produced
-                        due = cap
-                    fw.advance(due)
-                    if fw.running and now - last_rx > self.watchdog_s:
-                        fw.watchdog_expired()
-                    if self.close_after_s and run_started and now - run_started > self.close_after_s:
-                        self._flush_outbox()
-                        self.link.close()
-                        self.firmware.drive.disable()
-                        return
-                    if not fw.running:
-                        idle_clock = now
-                        idle_ticks_left = int(2.0 * loop_rate)  # let the axis coast to rest
-                elif idle_ticks_left > 0:
-                    n = min(idle_ticks_left, int((now - idle_clock) * loop_rate * self.time_scale))
-                    if n > 0:
-                        fw.idle(n)
-                        idle_ticks_left -= n
-                        idle_clock = now
+                    self._receive(data, now, clock)
+                was_running = fw.running
+                clock.step(fw, now)
+                if was_running and self._run_checks(now, clock):
+                    return
                 self._flush_outbox()
         except LinkClosed:
             pass
@@ -167,6 +136,31 @@ class BoardServer:
             self._stop.set()
             with self._tx_cond:
                 self._tx_cond.notify_all()
+
+    def _receive(self, data: bytes, now: float, clock: SimClock) -> None:
+        """Hand the host's frames to the firmware; a run that starts starts the clock's pacing."""
+        fw = self.firmware
+        self._last_rx = now
+        for payload in self.decoder.feed(data):
+            was_running = fw.running
+            fw.receive(payload)
+            if fw.running and not was_running:
+                self._run_started = now
+                clock.start_run(now, fw.produced)
+        fw.line_corrupt = self.decoder.stats.corrupt
+
+    def _run_checks(self, now: float, clock: SimClock) -> bool:
+        """During a run: the host watchdog, and the line that closes on purpose; True when the line closed."""
+        fw = self.firmware
+        if fw.running and now - self._last_rx > self.watchdog_s:
+            fw.watchdog_expired()
+            clock.start_coast(now)  # let the axis coast to rest
+        if self.close_after_s and self._run_started and now - self._run_started > self.close_after_s:
+            self._flush_outbox()
+            self.link.close()
+            fw.drive.disable()
+            return True
+        return False
 
     def _flush_outbox(self) -> None:
         fw = self.firmware
