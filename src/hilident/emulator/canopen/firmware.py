@@ -53,6 +53,7 @@ from hilident.config import FaultsConfig
 from hilident.drivers import DriverDescription, load_object_dictionary
 from hilident.emulator.canopen.guarding import HostWatch
 from hilident.emulator.canopen.objects import ObjectStore
+from hilident.emulator.canopen.parameters import DriveParameters
 from hilident.emulator.canopen.pdo import PdoExchange
 from hilident.emulator.canopen.playback import CAPTURE_CHUNK_RECORDS, TablePlayback
 from hilident.emulator.canopen.recorder import DriveRecorder
@@ -69,14 +70,12 @@ from hilident.emulator.canopen.roles import (
 )
 from hilident.emulator.canopen.sdo import (
     ABORT_STATE,
-    ABORT_TOO_LOW,
     ABORT_VALUE,
     BlockSdoServer,
     parse_fault_object,
 )
 from hilident.emulator.clock import SimClock
 from hilident.emulator.drive import DriveLoop
-from hilident.errors import ConfigError, DataError
 from hilident.protocol import cia402
 from hilident.protocol.canopen_objects import (
     ABORT_CONNECTION_INDEX,
@@ -105,8 +104,6 @@ _LOOP_MODE_OF_CODE = {10: "torque", 9: "velocity", 8: "position", 7: "position"}
 #: Roles whose value is the drive's state now, not what was stored.
 _LIVE_STATES = ("sample_counter", "statusword", "modes_display", "error_code", "error_register",
                 "modes_of_operation", "controlword", "setpoint_counter")
-_STORE_SIGNATURE = 0x65766173  # "save" (CiA 301, 0x1010)
-_ABORT_NOT_STORED = 0x08000020  # data cannot be transferred or stored (CiA 301)
 #: Abort connection options (0x6007) that end in Switch On Disabled, and the states they leave.
 _SWITCHED_OFF_BY_ABORT = (cia402.State.OPERATION_ENABLED, cia402.State.SWITCHED_ON,
                           cia402.State.READY_TO_SWITCH_ON, cia402.State.QUICK_STOP_ACTIVE)
@@ -160,6 +157,8 @@ class CanopenDriveFirmware:
     interpolation_period = _part("pdo", "interpolation_period")
     tpdos_dropped = _part("pdo", "tpdos_dropped")
     dropped = _part("pdo", "dropped")
+    saves = _part("parameters", "saves")
+    stored_parameters = _part("parameters", "stored_parameters")
     consumers = _part("watch", "consumers")
     heard = _part("watch", "heard")
     heartbeat_events = _part("watch", "heartbeat_events")
@@ -178,6 +177,7 @@ class CanopenDriveFirmware:
         self.clock = SimClock(self.loop_rate, self.time_scale)
         self._describe(driver, node_id)
         self._power_up_state()
+        self.parameters = DriveParameters(self)
         self.watch = HostWatch(self)
         self.pdo = PdoExchange(self, seed)
         self.playback = TablePlayback(self)
@@ -215,12 +215,7 @@ class CanopenDriveFirmware:
         self.mode_code = int(self.default(desc.address("modes_of_operation")))
         self.targets = {role: 0 for role in TARGET_ROLES if desc.has(role)}
         self.rx_counter = 0
-        self.limits_raw: dict[str, int] = {}
-        # a drive with no limit object of its own can be enabled without any (the host checks the limits)
-        self.limits_loaded = not any(desc.has(r) and r in self.scales for r in LIMIT_ROLES)
         self.sample_index = 0
-        self.saves = 0  # times the host had the parameters stored (0x1010:1 "save")
-        self.stored_parameters: dict = {}  # the filter slots as they were when last stored
         self.run_start_tick = self.drive.tick
         self.injected: set[str] = set()
         self.heartbeat_stopped = False
@@ -298,7 +293,7 @@ class CanopenDriveFirmware:
             return
         if new is cia402.State.OPERATION_ENABLED:
             loop_mode = self.loop_mode()
-            if not self.limits_loaded or loop_mode is None:
+            if not self.parameters.limits_loaded or loop_mode is None:
                 raise SdoAbortedError(ABORT_STATE)  # no limits loaded, or no supported mode selected
             self.drive.set_mode(loop_mode)
             self.drive.enable()
@@ -497,7 +492,7 @@ class CanopenDriveFirmware:
             if not 0 <= int(value) <= 3:
                 raise SdoAbortedError(ABORT_VALUE)  # negative (manufacturer) codes: none on this drive
         elif self.desc.filters is not None and index in self.desc.filters.indices:
-            self._write_filter(self.desc.filters.indices.index(index), subindex, value)
+            self.parameters.write_filter(self.desc.filters.indices.index(index), subindex, value)
         elif self.desc.has("capture_mapping") and index == self.desc.address("capture_mapping").index:
             self.playback.write_capture_mapping(subindex, int(value))
         elif self._is_error_history(index):
@@ -511,7 +506,7 @@ class CanopenDriveFirmware:
     def _write_role(self, role: str | None, value) -> None:
         """Writes to objects known by their role."""
         handler = {
-            "store_parameters": self._store_parameters,
+            "store_parameters": self.parameters.store,
             "controlword": self.apply_controlword,
             "modes_of_operation": self._write_mode,
             "cycle_period": self.pdo.write_cycle_period,
@@ -530,7 +525,7 @@ class CanopenDriveFirmware:
         elif role in self.targets:
             self.targets[role] = int(value)
         elif role in LIMIT_ROLES:
-            self._write_limit(role, int(value))
+            self.parameters.write_limit(role, int(value))
 
     def _write_mode(self, code: int) -> None:
         previous, self.mode_code = self.mode_code, code
@@ -541,56 +536,6 @@ class CanopenDriveFirmware:
         if self.state is cia402.State.OPERATION_ENABLED:
             self.drive.set_mode(loop_mode)
             self.pdo.position_setpoint_m = None
-
-    def _store_parameters(self, value: int) -> None:
-        """0x1010:1: with the signature "save" the drive keeps its parameters (here: the filter slots) as stored."""
-        if value != _STORE_SIGNATURE:
-            raise SdoAbortedError(_ABORT_NOT_STORED)
-        self.stored_parameters = {slot: self.drive.filters.read(slot) for slot in range(len(self.drive.filters.enabled))}
-        self.saves += 1
-
-    def _write_limit(self, role: str, raw: int) -> None:
-        if role in ("max_torque", "max_velocity") and raw <= 0:
-            raise SdoAbortedError(ABORT_TOO_LOW)
-        self.limits_raw[role] = raw
-        held = [r for r in LIMIT_ROLES if self.desc.has(r) and r in self.scales]
-        if not all(r in self.limits_raw for r in held):
-            return
-        si = {r: self.limits_raw[r] * self.scales[r] if r in held else None for r in LIMIT_ROLES}
-        if (si["position_limit_min"] is not None and si["position_limit_max"] is not None
-                and si["position_limit_min"] >= si["position_limit_max"]):
-            self.limits_loaded = False  # one end written, the other still to come
-            return
-        try:
-            self.drive.set_limits(si["max_torque"], si["max_velocity"], si["position_limit_min"],
-                                  si["position_limit_max"])
-        except (ConfigError, ValueError):
-            raise SdoAbortedError(ABORT_VALUE) from None
-        self.limits_loaded = True
-
-    def _write_filter(self, slot: int, subindex: int, value) -> None:
-        fo = self.desc.filters
-        if fo.enable_subindex is None:  # one block, its enable inside
-            if subindex == fo.fields["block"]:
-                self._apply_filter(slot, None, {"block": bytes(value)})
-        elif subindex == fo.enable_subindex:
-            self._apply_filter(slot, bool(value))
-
-    def _apply_filter(self, slot: int, enabled: bool | None, values: dict | None = None) -> None:
-        """Load a slot's section into the drive loop: from its stored fields when its enable is written, or
-        from the block being written (``values``; its state word says ``enabled``)."""
-        fo = self.desc.filters
-        if values is None:
-            values = {name: self.stored(fo.indices[slot], sub) for name, sub in fo.fields.items()}
-        try:
-            if enabled is None:
-                enabled = bool(self.encoding.slot_enabled(values))
-            biquad = self.encoding.applied(values, self.loop_rate)
-        except (DataError, ConfigError):
-            raise SdoAbortedError(ABORT_VALUE) from None
-        if enabled and not biquad.is_stable():
-            raise SdoAbortedError(ABORT_VALUE)  # an unstable section is never switched in
-        self.drive.filters.write(slot, biquad, enabled)
 
     # --- the clock ------------------------------------------------------------------------------------
 
