@@ -208,6 +208,19 @@ class DriveRecorder:
             raise SdoAbortedError(ABORT_VALUE)
         if self.fw.state is not cia402.State.OPERATION_ENABLED or self.gen_state == g.states["running"]:
             raise SdoAbortedError(ABORT_STATE)
+        settings = self._generator_settings()
+        if not self.active:
+            self._start_clock()
+        self.gen_settings = settings
+        self.gen_state = g.states["running"]
+        self.gen_start = self.gen_tick
+        if self.rec_state == self.rec.states["waiting"]:
+            self.rec_state = self.rec.states["recording"]
+            self.recording_from = self.gen_tick
+
+    def _generator_settings(self):
+        """(kind, target role, SI parameter values) as stored; SDO abort when the generator cannot play them."""
+        g = self.gen
         code = self._stored(g.kind) if g.kind is not None else next(iter(g.kinds.values())).code
         kind = next((k for k in g.kinds.values() if k.code == code), None)
         target = next((role for role, c in g.targets.items() if c == self._stored(g.target)), None)
@@ -221,14 +234,7 @@ class DriveRecorder:
             values[name] = raw if name in ("register_length", "clock_divider") else raw * self._scale(p.scale)
         if kind.name == "prbs" and (values["clock_divider"] < 1 or values["register_length"] not in kind.taps):
             raise SdoAbortedError(ABORT_VALUE)  # a register this firmware has no sequence for
-        if not self.active:
-            self._start_clock()
-        self.gen_settings = (kind, target, values)
-        self.gen_state = g.states["running"]
-        self.gen_start = self.gen_tick
-        if self.rec_state == self.rec.states["waiting"]:
-            self.rec_state = self.rec.states["recording"]
-            self.recording_from = self.gen_tick
+        return kind, target, values
 
     def _mode_takes(self, target: str) -> bool:
         """The selected mode of operation takes its set-point from the object of role ``target``."""

@@ -276,37 +276,39 @@ class ModbusDriveFirmware:
         return None
 
     def _check(self, touched: list[str], slots: list[int], old_control: int | None) -> int | None:
-        m = self.map
+        """The exception code that refuses a write of the ``touched`` registers and ``slots`` (None: accepted)."""
         if self.running and any(n in touched for n in (*_CONFIG, *_LIMITS)):
             return DEVICE_BUSY
-        if "mode" in touched and int(self._get("mode")) not in m.modes.values():
+        if not self._values_valid(touched):
             return ILLEGAL_VALUE
-        if "sample_divider" in touched:
-            d = int(self._get("sample_divider"))
-            if d < 1 or self.loop_rate_hz / d > self.max_sample_rate_hz * (1 + 1e-9):
-                return ILLEGAL_VALUE
-        if "capture_mask" in touched:
-            mask = int(self._get("capture_mask"))
-            if mask == 0 or mask >> len(m.capture_channels):
-                return ILLEGAL_VALUE
-        if "table_length" in touched:
-            n = self.table_length
-            if n > m.table.capacity_samples or n > m.capture.capacity_samples:
-                return ILLEGAL_VALUE
-        for name, window in (("table_page", m.table), ("capture_page", m.capture)):
-            if name in touched and int(self._get(name)) >= window.pages:
-                return ILLEGAL_VALUE
         if any(n in touched for n in _LIMITS) and self._limits() is None:
             return ILLEGAL_VALUE
-        for slot in slots:
-            if self._slot_filter(slot) is None:
-                return ILLEGAL_VALUE
+        if any(self._slot_filter(slot) is None for slot in slots):
+            return ILLEGAL_VALUE
         if old_control is not None:
-            new = int(self._get("control_word"))
-            run = m.control["run"]
-            if new & run and not old_control & run and not self.running:
+            run = self.map.control["run"]
+            if int(self._get("control_word")) & run and not old_control & run and not self.running:
                 return self._start_refusal()
         return None
+
+    def _values_valid(self, touched: list[str]) -> bool:
+        """Whether every touched configuration register holds a value the drive takes."""
+        m = self.map
+        checks = {
+            "mode": lambda: int(self._get("mode")) in m.modes.values(),
+            "sample_divider": lambda: self._divider_valid(int(self._get("sample_divider"))),
+            "capture_mask": lambda: self._mask_valid(int(self._get("capture_mask"))),
+            "table_length": lambda: self.table_length <= min(m.table.capacity_samples, m.capture.capacity_samples),
+            "table_page": lambda: int(self._get("table_page")) < m.table.pages,
+            "capture_page": lambda: int(self._get("capture_page")) < m.capture.pages,
+        }
+        return all(check() for name, check in checks.items() if name in touched)
+
+    def _divider_valid(self, divider: int) -> bool:
+        return divider >= 1 and self.loop_rate_hz / divider <= self.max_sample_rate_hz * (1 + 1e-9)
+
+    def _mask_valid(self, mask: int) -> bool:
+        return mask != 0 and not mask >> len(self.map.capture_channels)
 
     def _apply(self, touched: list[str], slots: list[int], old_control: int) -> None:
         if "table_length" in touched:  # a new table re-arms the capture: the last run's records are gone
