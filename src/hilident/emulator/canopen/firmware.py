@@ -65,7 +65,6 @@ from hilident.emulator.canopen.roles import (
     EMCY_OF_TRIP,
     EMCY_SYNC_TIMEOUT,
     LIMIT_ROLES,
-    TARGET_ROLES,
     error_register,
 )
 from hilident.emulator.canopen.sdo import (
@@ -74,6 +73,7 @@ from hilident.emulator.canopen.sdo import (
     BlockSdoServer,
     parse_fault_object,
 )
+from hilident.emulator.canopen.setpoints import SetPoints
 from hilident.emulator.clock import SimClock
 from hilident.emulator.drive import DriveLoop
 from hilident.protocol import cia402
@@ -91,7 +91,6 @@ from hilident.protocol.canopen_profile import (
     MODE_CODES,
     SETPOINT_OF_MODE,
     encode_supported_modes,
-    mode_name_of_code,
 )
 from hilident.protocol.filter_encoding import FilterEncoding
 
@@ -99,8 +98,6 @@ __all__ = ["CAPTURE_CHUNK_RECORDS", "EMCY_HEARTBEAT", "SYNC_WATCHDOG_S", "Canope
 
 #: A drive that saw SYNC and then none for this long (wall time) while enabled faults (0x8250).
 SYNC_WATCHDOG_S = 1.0
-#: CiA 402 modes of operation and the drive loop mode that runs them (torque offsets are added in each).
-_LOOP_MODE_OF_CODE = {10: "torque", 9: "velocity", 8: "position", 7: "position"}
 #: Roles whose value is the drive's state now, not what was stored.
 _LIVE_STATES = ("sample_counter", "statusword", "modes_display", "error_code", "error_register",
                 "modes_of_operation", "controlword", "setpoint_counter")
@@ -212,9 +209,8 @@ class CanopenDriveFirmware:
         desc = self.desc
         self.state = cia402.State.SWITCH_ON_DISABLED
         self.cw = 0
-        self.mode_code = int(self.default(desc.address("modes_of_operation")))
-        self.targets = {role: 0 for role in TARGET_ROLES if desc.has(role)}
-        self.rx_counter = 0
+        self.setpoints = SetPoints(desc, self.scales, self.supported,
+                                   int(self.default(desc.address("modes_of_operation"))), self.drive)
         self.sample_index = 0
         self.run_start_tick = self.drive.tick
         self.injected: set[str] = set()
@@ -269,18 +265,6 @@ class CanopenDriveFirmware:
 
     # --- CiA 402 -------------------------------------------------------------------------------
 
-    @property
-    def mode_spec(self):
-        return self.desc.mode_by_code(self.mode_code)
-
-    def loop_mode(self) -> str | None:
-        """The drive loop mode of the selected mode of operation (None: not one this drive runs)."""
-        spec = self.mode_spec
-        if self.desc.explicit_modes:
-            return spec.name if spec is not None else None
-        name = mode_name_of_code(self.mode_code)
-        return _LOOP_MODE_OF_CODE.get(self.mode_code) if name in self.supported else None
-
     def statusword(self) -> int:
         internal_limit = self.drive.fault is not None
         return cia402.statusword(self.state, target_reached=self.playback.state == TableState.DONE,
@@ -292,7 +276,7 @@ class CanopenDriveFirmware:
             self.cw = cw
             return
         if new is cia402.State.OPERATION_ENABLED:
-            loop_mode = self.loop_mode()
+            loop_mode = self.setpoints.loop_mode()
             if not self.parameters.limits_loaded or loop_mode is None:
                 raise SdoAbortedError(ABORT_STATE)  # no limits loaded, or no supported mode selected
             self.drive.set_mode(loop_mode)
@@ -385,45 +369,23 @@ class CanopenDriveFirmware:
 
     def receive_setpoint(self, role: str | None, value: int) -> None:
         """A set-point, set-point counter or controlword the host sent in an RPDO."""
-        if role in self.targets:
-            self.targets[role] = value
-        elif role == "setpoint_counter":
-            self.rx_counter = value
-        elif role == "controlword":
+        if not self.setpoints.receive(role, value) and role == "controlword":
             try:
                 self.apply_controlword(value)
             except SdoAbortedError:
                 pass
 
-    def _si(self, role: str) -> float:
-        return self.targets.get(role, 0) * self.scales.get(role, 1.0)
-
-    def setpoint_si(self) -> float:
-        """The drive loop's input for the next ticks; the torque offset (0x60B2) goes to the loop on its own."""
-        if self.desc.explicit_modes:
-            spec = self.mode_spec
-            x = self._si(spec.setpoint)
-            if spec.name == "position":
-                x -= self.drive.hold_position_m  # CSP targets are absolute; the drive loop takes them relative
-            return x
-        self.drive.torque_offset_nm = self._si("torque_offset")
-        if self.mode_code == 10:
-            return self._si("target_torque")
-        if self.mode_code == 9:
-            return self._si("target_velocity")
-        target = "target_position" if self.mode_code == 8 else "interpolation_data"
-        return self._si(target) - self.drive.hold_position_m
-
     def live(self, role: str | None, addr: ObjectAddress, row, k: int):
         """Raw value of a readable object for the sample in ``row`` (SDO reads, TPDOs, captures)."""
         if role in COLUMN_OF_ROLE:
             return self.objects.sampled(role, addr, row)
-        if role in self.targets:
-            return self.targets[role]
+        sp = self.setpoints
+        if role in sp.targets:
+            return sp.targets[role]
         states = {
             "sample_counter": lambda: k & 0xFFFF, "statusword": self.statusword,
-            "modes_display": lambda: self.mode_code, "modes_of_operation": lambda: self.mode_code,
-            "setpoint_counter": lambda: self.rx_counter, "controlword": lambda: self.cw,
+            "modes_display": lambda: sp.mode_code, "modes_of_operation": lambda: sp.mode_code,
+            "setpoint_counter": lambda: sp.rx_counter, "controlword": lambda: self.cw,
             "error_code": lambda: self.error_code,
             "error_register": lambda: error_register(self.error_code) if self.error_code else 0,
         }
@@ -447,7 +409,7 @@ class CanopenDriveFirmware:
         """What the drive answers for an object whose value it keeps itself (None: the stored value)."""
         if role == "capture_data":
             return self.playback.capture_chunk()
-        if role in COLUMN_OF_ROLE or role in _LIVE_STATES or role in self.targets:
+        if role in COLUMN_OF_ROLE or role in _LIVE_STATES or role in self.setpoints.targets:
             row = self.last_row
             if role == "position_actual":  # the encoder now, as the loop would sample it (the hold at enable)
                 row = row.copy()
@@ -512,7 +474,6 @@ class CanopenDriveFirmware:
             "cycle_period": self.pdo.write_cycle_period,
             "interpolation_period": lambda v: self.pdo.write_interpolation_period(v, None),
             "interpolation_exponent": lambda v: self.pdo.write_interpolation_period(None, v),
-            "setpoint_counter": lambda v: setattr(self, "rx_counter", v),
             "table_divider": self.playback.write_divider,
             "table_command": self.playback.write_command,
             "capture_offset": self.playback.write_capture_offset,
@@ -522,17 +483,16 @@ class CanopenDriveFirmware:
             self.playback.write_table(value)
         elif handler is not None:
             handler(int(value))
-        elif role in self.targets:
-            self.targets[role] = int(value)
+        elif role in self.setpoints.targets or role == "setpoint_counter":
+            self.setpoints.receive(role, int(value))
         elif role in LIMIT_ROLES:
             self.parameters.write_limit(role, int(value))
 
     def _write_mode(self, code: int) -> None:
-        previous, self.mode_code = self.mode_code, code
-        loop_mode = self.loop_mode()
+        loop_mode = self.setpoints.loop_mode(code)
         if loop_mode is None:
-            self.mode_code = previous
             raise SdoAbortedError(ABORT_VALUE)
+        self.setpoints.mode_code = code
         if self.state is cia402.State.OPERATION_ENABLED:
             self.drive.set_mode(loop_mode)
             self.pdo.position_setpoint_m = None

@@ -229,9 +229,9 @@ class PdoExchange:
             self.sync_driven = True
             self.last_sync_wall = time.monotonic()
             k = fw.sample_index
-            if fw.rx_counter != k & 0xFFFF:
+            if fw.setpoints.rx_counter != k & 0xFFFF:
                 self.underruns += 1  # no fresh set-point for this sample: the last one is held
-            rows = fw.drive.run(self._setpoint_ticks(fw.setpoint_si()))
+            rows = fw.drive.run(self._setpoint_ticks(fw.setpoints.drive_input()))
             fw.sample_index = k + 1
             fw.last_row = rows[-1]
             self._send_tpdos(rows[0], k)

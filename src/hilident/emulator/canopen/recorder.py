@@ -238,10 +238,10 @@ class DriveRecorder:
 
     def _mode_takes(self, target: str) -> bool:
         """The selected mode of operation takes its set-point from the object of role ``target``."""
-        spec = self.fw.mode_spec
+        spec = self.fw.setpoints.mode_spec
         if self.fw.desc.explicit_modes:
             return spec is not None and spec.setpoint == target
-        return {"target_torque": 10, "target_velocity": 9}.get(target) == self.fw.mode_code
+        return {"target_torque": 10, "target_velocity": 9}.get(target) == self.fw.setpoints.mode_code
 
     def stop_generator(self) -> None:
         if self.gen is not None and self.gen_state == self.gen.states["running"]:
@@ -315,7 +315,7 @@ class DriveRecorder:
     def _run(self, g: np.ndarray) -> np.ndarray:
         """The drive loop over ``len(g)`` cycles with the generator's output added to its target set-point."""
         fw = self.fw
-        base = fw.setpoint_si()  # also loads the host's torque offset into the loop
+        base = fw.setpoints.drive_input()  # also loads the host's torque offset into the loop
         target = self.gen_settings[1] if self.gen_settings is not None else ""
         if target != "torque_offset":
             return fw.drive.run(base + g)
