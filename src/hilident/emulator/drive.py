@@ -157,6 +157,20 @@ class DriveLoop:
     EXCITATION_UNITS = {"torque": "N·m", "torque_injection": "N·m", "velocity": "m/s",
                         "position": "m"}
 
+    @classmethod
+    def columns_of(cls, names, what: str) -> list[int]:
+        """Row columns of the channels ``names`` (``what`` names them in the error).
+
+        Raises
+        ------
+        ValueError
+            A name that is not one of :attr:`CHANNELS`.
+        """
+        try:
+            return [list(cls.CHANNELS).index(name) for name in names]
+        except ValueError as exc:
+            raise ValueError(f"{what} not produced by the drive loop: {exc}") from None
+
     def __init__(self, plant: Plant, tuning: DriveTuning, sensors: SensorModel,
                  n_filter_slots: int = 4, disturbance: ProcessDisturbance | None = None):
         if not isinstance(plant, Plant):

@@ -100,11 +100,7 @@ class ModbusDriveFirmware:
         self.max_sample_rate_hz = float(driver.max_sample_rate_hz)
         self.drive_fault_after_s = drive_fault_after_s
         self.capture_stops_after_s = capture_stops_after_s
-        columns = list(drive.CHANNELS)
-        try:
-            self._columns = [columns.index(c.name) for c in regmap.capture_channels]
-        except ValueError as exc:
-            raise ValueError(f"capture channel not produced by the drive loop: {exc}") from None
+        self._columns = drive.columns_of([c.name for c in regmap.capture_channels], "capture channel")
         self.image = np.zeros(65536, dtype=np.uint16)
         rps = regmap.table_registers_per_sample
         self.table = np.zeros(regmap.table.capacity_samples * rps, dtype=np.uint16)

@@ -55,11 +55,7 @@ class BoardFirmware:
     def __init__(self, drive, identity: sb.Identity):
         self.drive = drive
         self.identity = identity
-        columns = list(drive.CHANNELS)
-        try:
-            self._column = [columns.index(c.name) for c in identity.channels]
-        except ValueError as exc:
-            raise ValueError(f"board channel not produced by the drive loop: {exc}") from None
+        self._column = drive.columns_of([c.name for c in identity.channels], "board channel")
         self.state = sb.State.IDLE
         self.fault = sb.FaultCode.NONE
         self.counters = BoardCounters()
