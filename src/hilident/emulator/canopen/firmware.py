@@ -7,36 +7,28 @@ does goes through its object dictionary and the bus:
 * the CiA 402 state machine runs in the controlword's write callback
   (:func:`hilident.protocol.cia402.transition`); Operation Enabled closes the
   :class:`~hilident.emulator.drive.DriveLoop`, every other state opens it;
-* PDO communication and mapping objects are honoured as the host writes them;
-  on each SYNC (while Operation Enabled) the drive runs ``loop_rate /
-  sample_rate`` ticks of the drive loop with the latest RPDO set-point and
-  sends its TPDOs with the state at the start of that sample period. In these
-  synchronous runs the drive's clock *is* SYNC: one SYNC, one sample period;
-* drive-buffered runs: the host downloads an excitation table, starts it, and
-  the drive plays it at its own rate (``time_scale`` simulated seconds per wall
-  second), recording the mapped objects into its capture buffer, which the host
-  uploads in chunks;
-* writing a filter slot's enable sub-index rebuilds the slot's biquad from its
-  stored fields with :meth:`FilterEncoding.applied` and loads it into
-  ``drive.filters``: the same chain the plant sees;
+* SDO reads and writes are dispatched to the firmware's parts: stored values
+  and scalings (:mod:`.objects`), modes and set-points (:mod:`.setpoints`),
+  limits and filter slots (:mod:`.parameters`), PDOs and SYNC-driven runs
+  (:mod:`.pdo`), heartbeat consumer and node guarding (:mod:`.guarding`),
+  drive-buffered table runs and the capture (:mod:`.playback`), a vendor
+  drive's recorder and generator (:mod:`.recorder`);
 * heartbeat producer (0x1017), EMCY on every fault (limit trips too; the first
   four manufacturer bytes carry the sample index of the fault);
-* heartbeat consumer (0x1016, when the EDS has it), as CiA 301 describes it:
-  each entry ``node << 16 | time_ms`` watches the heartbeat of one producer
-  (the host); monitoring starts with the first heartbeat received after the
-  entry was written. When one stays away longer than its time the drive sends
+* when the host is lost (heartbeat consumer or life guarding) the drive sends
   EMCY 0x8130 (life guard or heartbeat error) and does what the abort
   connection option code (0x6007, CiA 402) says: 0 nothing, 1 Fault, 2 Disable
   Voltage, 3 Quick Stop (both end in Switch On Disabled, power stage off).
   A drive with 0x1016 but no 0x6007 goes to Fault (the CiA 402 default).
 
+Its clock (:meth:`CanopenDriveFirmware.tick`, called by
+:class:`~hilident.emulator.canopen.server.CanopenDriveServer`) runs the host
+watch, the recorder, table playback and coasting on the twins' one
+:class:`~hilident.emulator.clock.SimClock`, and the SYNC watchdog.
+
 Fault switches (``[emulator.faults]``): ``drive_fault_after_s`` (EMCY 0x4310 and
 Fault), ``heartbeat_stops_after_s``, ``abort_object`` (SDO abort on every
 access), ``drop_pdo_rate`` (TPDOs not sent), ``capture_stops_after_s``.
-
-:func:`start` runs it in-process on python-can's ``virtual`` bus;
-:func:`start_socketcand` also serves that bus over the socketcand protocol on
-127.0.0.1, for a host in another process (``hilident emulate canopen``).
 """
 
 from __future__ import annotations

@@ -1,7 +1,8 @@
-"""The emulated board on a line: a pseudo-terminal or an in-memory pipe.
+"""The emulated board on a line: a pseudo-terminal, a raw TCP line or an in-memory pipe.
 
 :class:`BoardServer` runs :class:`~hilident.emulator.serial.firmware.BoardFirmware` in a
-background thread. It steps the physics in real time (times ``time_scale``), and
+background thread. It steps the physics in real time (times ``time_scale``, on
+:class:`~hilident.emulator.clock.SimClock`), and
 writes its frames at the configured baud rate, so a host sees the same
 throughput limits as on a real UART: when the host asks for more samples than
 the line carries, the board's transmit buffer fills and sample blocks are
