@@ -90,9 +90,17 @@ __all__ = ["CAPTURE_CHUNK_RECORDS", "EMCY_HEARTBEAT", "SYNC_WATCHDOG_S", "Canope
 
 #: A drive that saw SYNC and then none for this long (wall time) while enabled faults (0x8250).
 SYNC_WATCHDOG_S = 1.0
-#: Roles whose value is the drive's state now, not what was stored.
-_LIVE_STATES = ("sample_counter", "statusword", "modes_display", "error_code", "error_register",
-                "modes_of_operation", "controlword", "setpoint_counter")
+#: Roles whose value is the drive's state now, not what was stored: ``value(firmware, sample index)``.
+_LIVE_VALUES = {
+    "sample_counter": lambda fw, k: k & 0xFFFF,
+    "statusword": lambda fw, k: fw.statusword(),
+    "modes_display": lambda fw, k: fw.setpoints.mode_code,
+    "modes_of_operation": lambda fw, k: fw.setpoints.mode_code,
+    "setpoint_counter": lambda fw, k: fw.setpoints.rx_counter,
+    "controlword": lambda fw, k: fw.cw,
+    "error_code": lambda fw, k: fw.error_code,
+    "error_register": lambda fw, k: error_register(fw.error_code) if fw.error_code else 0,
+}
 #: Abort connection options (0x6007) that end in Switch On Disabled, and the states they leave.
 _SWITCHED_OFF_BY_ABORT = (cia402.State.OPERATION_ENABLED, cia402.State.SWITCHED_ON,
                           cia402.State.READY_TO_SWITCH_ON, cia402.State.QUICK_STOP_ACTIVE)
@@ -371,18 +379,11 @@ class CanopenDriveFirmware:
         """Raw value of a readable object for the sample in ``row`` (SDO reads, TPDOs, captures)."""
         if role in COLUMN_OF_ROLE:
             return self.objects.sampled(role, addr, row)
-        sp = self.setpoints
-        if role in sp.targets:
-            return sp.targets[role]
-        states = {
-            "sample_counter": lambda: k & 0xFFFF, "statusword": self.statusword,
-            "modes_display": lambda: sp.mode_code, "modes_of_operation": lambda: sp.mode_code,
-            "setpoint_counter": lambda: sp.rx_counter, "controlword": lambda: self.cw,
-            "error_code": lambda: self.error_code,
-            "error_register": lambda: error_register(self.error_code) if self.error_code else 0,
-        }
-        value = states.get(role)
-        return value() if value is not None else self.stored(addr.index, addr.subindex)
+        targets = self.setpoints.targets
+        if role in targets:
+            return targets[role]
+        value = _LIVE_VALUES.get(role)
+        return value(self, k) if value is not None else self.stored(addr.index, addr.subindex)
 
     # --- SDO reads ------------------------------------------------------------------------------------
 
@@ -401,7 +402,7 @@ class CanopenDriveFirmware:
         """What the drive answers for an object whose value it keeps itself (None: the stored value)."""
         if role == "capture_data":
             return self.playback.capture_chunk()
-        if role in COLUMN_OF_ROLE or role in _LIVE_STATES or role in self.setpoints.targets:
+        if role in COLUMN_OF_ROLE or role in _LIVE_VALUES or role in self.setpoints.targets:
             row = self.last_row
             if role == "position_actual":  # the encoder now, as the loop would sample it (the hold at enable)
                 row = row.copy()

@@ -8,6 +8,8 @@ never written and has no default.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from canopen.sdo import SdoAbortedError
 
@@ -117,7 +119,7 @@ class ObjectStore:
         if scale is None:
             return x  # REAL32
         v = x / scale
-        if not np.isfinite(v):
+        if not math.isfinite(v):
             return 0
         return min(max(round(v), lo), hi)  # as encode_si: half to even, clipped to the type
 
