@@ -135,7 +135,7 @@ class ModbusDriveFirmware:
         self._set("sample_divider", 1)
         self._set("capture_mask", regmap.mask_of(regmap.capture_channel_names()))
 
-    # --- register image helpers -------------------------------------------------------
+    # --- the register image -------------------------------------------------------------
 
     def _set(self, name: str, value) -> None:
         r = self.map.register(name)
