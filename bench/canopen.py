@@ -67,7 +67,7 @@ import numpy as np
 from hilident.adapters.canopen_drive import CanopenDriveAdapter
 from hilident.config import load_config
 from hilident.drivers import find_driver
-from hilident.emulator.canopen_drive import start
+from hilident.emulator.canopen.server import start
 from hilident.errors import HilidentError
 
 # the gantry of the shipped configs; the bench picks the driver, the plant is the same for all

@@ -39,7 +39,7 @@ from hilident.adapters.base import StreamStats
 from hilident.adapters.modbus_drive import ModbusDriveAdapter
 from hilident.config import DeviceConfig, load_config
 from hilident.drivers import find_driver
-from hilident.emulator.modbus_drive import start
+from hilident.emulator.modbus.server import start
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "emulated-modbus-gantry.toml"
 

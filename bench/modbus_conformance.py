@@ -23,7 +23,7 @@ import serial
 
 from hilident.config import DeviceConfig, parse_config
 from hilident.drivers import find_driver
-from hilident.emulator.modbus_drive import start
+from hilident.emulator.modbus.server import start
 from hilident.protocol.modbus_registers import rtu_crc
 
 BAUD = 115200

@@ -118,7 +118,7 @@ class _BoardMonitor:
 
 def _serve_board(conn, config_toml: str, driver_name: str, baudrate: int) -> None:
     """Child process: one emulated board on a pseudo-terminal, answering stats requests on ``conn``."""
-    from hilident.emulator.factory import start_serial_board
+    from hilident.emulator.serial.server import start_serial_board
 
     cfg = parse_config(config_toml, "<bench>")
     device = start_serial_board(cfg.emulator, find_driver(driver_name), baudrate, link="pty")

@@ -20,7 +20,8 @@ from canopen.sdo import SdoCommunicationError
 from hilident.adapters.canopen_drive import CanopenDriveAdapter
 from hilident.config import load_config
 from hilident.drivers import find_driver, load_driver
-from hilident.emulator.canopen_drive import EMCY_HEARTBEAT, start, start_socketcand
+from hilident.emulator.canopen.roles import EMCY_HEARTBEAT
+from hilident.emulator.canopen.server import start, start_socketcand
 from hilident.errors import ConfigError, DeviceError, LimitTrip
 from hilident.protocol import cia402
 

@@ -22,7 +22,7 @@ from hilident.cli import main
 from hilident.config import load_config
 from hilident.driver_tools import check_driver_folder
 from hilident.drivers import load_driver, load_object_dictionary
-from hilident.emulator.canopen_drive import start
+from hilident.emulator.canopen.server import start
 from hilident.emulator.factory import true_modes
 from hilident.errors import ConfigError, DeviceError
 from hilident.protocol.canopen_objects import ObjectAddress

@@ -20,7 +20,7 @@ from vendor_drives import FILTER_DRIVES, VendorDrive, write_vendor_drive
 from hilident.adapters.canopen_drive import CanopenDriveAdapter
 from hilident.config import load_config
 from hilident.drivers import check_run_against_driver, load_driver
-from hilident.emulator.canopen_drive import start
+from hilident.emulator.canopen.server import start
 from hilident.emulator.factory import true_modes
 from hilident.errors import ConfigError, DeviceError, LimitTrip
 from hilident.recording import read_run
@@ -230,6 +230,6 @@ def test_a_drive_without_heartbeat_is_node_guarded_and_stops_when_the_host_goes_
     assert emu.drive.enabled
     ad.node.nmt.stop_node_guarding()  # the host dies: no more guard requests, life guarding not disarmed
     silent = time.monotonic()
-    lifetime_s = 50 * int(emu.server.firmware._stored(0x100D, 0)) / 1000.0
+    lifetime_s = 50 * int(emu.server.firmware.stored(0x100D, 0)) / 1000.0
     stopped = wait_until(lambda: not emu.drive.enabled, lifetime_s + 2.0)
     assert stopped - silent < lifetime_s + 0.5 and emu.server.firmware.heartbeat_events == 1

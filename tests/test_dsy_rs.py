@@ -16,7 +16,7 @@ from hilident.config import load_config
 from hilident.drivers import find_driver
 from hilident.emulator.drive import DriveLoop
 from hilident.emulator.factory import build_drive, start_emulator
-from hilident.emulator.modbus_param_firmware import ParameterDriveFirmware
+from hilident.emulator.modbus.parameter_firmware import ParameterDriveFirmware
 from hilident.errors import ConfigError, DeviceError
 from hilident.filters.notch import NotchSpec, design_notch
 from hilident.protocol.modbus_registers import RegisterMap

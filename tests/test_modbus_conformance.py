@@ -21,8 +21,8 @@ import serial
 from hilident.adapters.modbus_drive import ModbusDriveAdapter, NoResponse
 from hilident.config import DeviceConfig, parse_config
 from hilident.drivers import find_driver
-from hilident.emulator.modbus_drive import start
-from hilident.emulator.modbus_pdu import handle, request_length
+from hilident.emulator.modbus.server import start
+from hilident.emulator.modbus.pdu import handle, request_length
 from hilident.errors import DeviceError
 from hilident.protocol.modbus_registers import RegisterMap
 

@@ -15,7 +15,7 @@ import pytest
 from hilident.adapters.modbus_drive import ModbusDriveAdapter
 from hilident.config import DeviceConfig, load_config
 from hilident.drivers import find_driver
-from hilident.emulator import modbus_drive
+from hilident.emulator.modbus import server as modbus_server
 from hilident.errors import DataError, DeviceError
 from hilident.recording import read_run
 from hilident.session import Session
@@ -38,14 +38,14 @@ def short_config(duration_s: float = 8.0, friction: bool = False, timeout_s: flo
 def drive_at_shutdown(monkeypatch):
     """The emulated drive's state when its server shuts down (after the host closed the adapter)."""
     seen = {}
-    close = modbus_drive.ModbusDriveServer.close
+    close = modbus_server.ModbusDriveServer.close
 
     def watched(self):
         seen.setdefault("enabled", self.firmware.drive.enabled)
         seen.setdefault("running", self.firmware.running)
         close(self)
 
-    monkeypatch.setattr(modbus_drive.ModbusDriveServer, "close", watched)
+    monkeypatch.setattr(modbus_server.ModbusDriveServer, "close", watched)
     return seen
 
 

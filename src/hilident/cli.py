@@ -182,7 +182,7 @@ def _serve_until_stopped(device) -> int:
 
 
 def _emulate_serial(args) -> int:
-    from hilident.emulator.factory import start_serial_board
+    from hilident.emulator.serial.server import start_serial_board
 
     cfg, emu_cfg, driver = _emulator_setup(args, "serial", "myrio-board")
     baud = args.baudrate or cfg.device.baudrate or driver.default_baudrate
@@ -220,7 +220,7 @@ def _emulator_setup(args, transport: str, default_driver: str):
 
 
 def _emulate_modbus(args) -> int:
-    from hilident.emulator.modbus_drive import start
+    from hilident.emulator.modbus.server import start
 
     cfg, emu_cfg, driver = _emulator_setup(args, "modbus", "modbus-servo")
     device = start(emu_cfg, driver, cfg.device, link="pty" if args.rtu else "tcp")
@@ -232,7 +232,7 @@ def _emulate_modbus(args) -> int:
 
 
 def _emulate_canopen(args) -> int:
-    from hilident.emulator.canopen_drive import start_socketcand
+    from hilident.emulator.canopen.server import start_socketcand
 
     cfg, emu_cfg, driver = _emulator_setup(args, "canopen", "canopen-servo")
     device = start_socketcand(emu_cfg, driver, cfg.device, port=args.port)

@@ -288,7 +288,7 @@ def test_an_emulated_run_writes_a_clean_trace(tmp_path, fmt):
     from hilident.adapters.canopen_drive import CanopenDriveAdapter
     from hilident.config import load_config
     from hilident.drivers import find_driver
-    from hilident.emulator.canopen_drive import start
+    from hilident.emulator.canopen.server import start
 
     cfg = load_config(CONFIG)
     driver = find_driver(cfg.device.driver, cfg.device.driver_paths)

@@ -16,7 +16,7 @@ from hilident.adapters.canopen_drive import CanopenDriveAdapter
 from hilident.adapters.canopen_link import bus_arguments, parse_socketcand_port
 from hilident.config import DeviceConfig, load_config
 from hilident.drivers import find_driver, load_driver
-from hilident.emulator.canopen_drive import start
+from hilident.emulator.canopen.server import start
 from hilident.errors import ConfigError, DeviceError, LimitTrip
 from hilident.filters.notch import NotchSpec, design_notch
 from hilident.protocol import cia402

@@ -19,7 +19,7 @@ from hilident.adapters.modbus_drive import ModbusDriveAdapter
 from hilident.config import DeviceConfig, parse_config
 from hilident.drivers import find_driver, load_driver
 from hilident.emulator.factory import build_drive
-from hilident.emulator.modbus_drive import start
+from hilident.emulator.modbus.server import start
 from hilident.errors import ConfigError, DeviceError, LimitTrip
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec, design_notch

@@ -15,7 +15,7 @@ from scipy.signal import iirnotch
 from hilident.adapters.serial_board import SerialBoardAdapter
 from hilident.config import parse_config
 from hilident.drivers import find_driver
-from hilident.emulator.factory import start_serial_board
+from hilident.emulator.serial.server import start_serial_board
 from hilident.errors import DeviceError, LimitTrip
 from hilident.filters.biquad import Biquad
 from hilident.protocol import serial_board as sb

@@ -24,7 +24,7 @@ from scipy.signal import iirnotch
 
 from hilident.adapters.serial_board import WATCHDOG_NET, SerialBoardAdapter
 from hilident.config import DeviceConfig
-from hilident.emulator.factory import start_serial_board
+from hilident.emulator.serial.server import start_serial_board
 from hilident.errors import DeviceError, LimitTrip
 from hilident.filters.biquad import Biquad
 from hilident.links import pipe_pair

@@ -12,8 +12,9 @@ from scipy.signal import iirnotch, lfilter
 
 from hilident.config import parse_config
 from hilident.drivers import find_driver
-from hilident.emulator.board import BoardFirmware
-from hilident.emulator.factory import build_drive, identity_from_driver
+from hilident.emulator.device import build_drive
+from hilident.emulator.serial.firmware import BoardFirmware
+from hilident.emulator.serial.server import identity_from_driver
 from hilident.protocol import serial_board as sb
 
 CONFIG = """

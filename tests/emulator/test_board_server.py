@@ -8,9 +8,10 @@ import pytest
 
 from hilident.config import parse_config
 from hilident.drivers import find_driver
-from hilident.emulator.board import BoardFirmware
-from hilident.emulator.factory import build_drive, identity_from_driver
-from hilident.emulator.serial_server import BoardServer, PipeLink
+from hilident.emulator.device import build_drive
+from hilident.emulator.serial.firmware import BoardFirmware
+from hilident.emulator.serial.links import PipeLink
+from hilident.emulator.serial.server import BoardServer, identity_from_driver
 from hilident.errors import ConfigError
 from hilident.links import pipe_pair
 

@@ -16,7 +16,7 @@ from canopen.sdo import SdoAbortedError
 
 from hilident.config import DeviceConfig, load_config
 from hilident.drivers import find_driver
-from hilident.emulator.canopen_drive import start, start_socketcand
+from hilident.emulator.canopen.server import start, start_socketcand
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec, design_notch
 from hilident.protocol import cia402

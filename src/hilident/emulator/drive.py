@@ -157,6 +157,20 @@ class DriveLoop:
     EXCITATION_UNITS = {"torque": "N·m", "torque_injection": "N·m", "velocity": "m/s",
                         "position": "m"}
 
+    @classmethod
+    def columns_of(cls, names, what: str) -> list[int]:
+        """Row columns of the channels ``names`` (``what`` names them in the error).
+
+        Raises
+        ------
+        ValueError
+            A name that is not one of :attr:`CHANNELS`.
+        """
+        try:
+            return [list(cls.CHANNELS).index(name) for name in names]
+        except ValueError as exc:
+            raise ValueError(f"{what} not produced by the drive loop: {exc}") from None
+
     def __init__(self, plant: Plant, tuning: DriveTuning, sensors: SensorModel,
                  n_filter_slots: int = 4, disturbance: ProcessDisturbance | None = None):
         if not isinstance(plant, Plant):
@@ -309,25 +323,14 @@ class DriveLoop:
         if x.size == 0:
             return np.empty((0, len(self.CHANNELS)))
 
-        tn = self.tuning
         T = self.period_s
         inv_T = 1.0 / T
-        alpha = -math.expm1(-2.0 * math.pi * tn.velocity_filter_hz * T)
-        kp = tn.kp_pos_per_s
-        kv = tn.kv_nm_per_mps
-        ki_T = kv * T / tn.ti_s  # integrator gain per tick, N·m per (m/s)
-        tmax = tn.torque_max_nm
-        tlim = self.torque_limit_nm
-        vlim = self.velocity_limit_mps
-        pmin = self.position_min_m
-        pmax = self.position_max_m
-        mode = MODES.index(self.mode)
-        hold = self.hold_position_m
-        offset = self.torque_offset_nm
+        alpha = -math.expm1(-2.0 * math.pi * self.tuning.velocity_filter_hz * T)
+        law_tick = _control_law(self)
         # Current loop: motor torque += beta * (command - motor torque) per tick (beta 1: ideal).
-        beta = -math.expm1(-2.0 * math.pi * tn.current_loop_hz * T) if math.isfinite(tn.current_loop_hz) else 1.0
-        pending = self._pending
-        motor = self._motor_torque
+        cl_hz = self.tuning.current_loop_hz
+        beta = -math.expm1(-2.0 * math.pi * cl_hz * T) if math.isfinite(cl_hz) else 1.0
+        pending = self._pending  # commands on their way to the current loop, oldest first
         disturbance = self.disturbance
         disturb = disturbance.torque if disturbance is not None else None
         push_load = self.plant.push_load if disturbance is not None and disturbance.load_noise_n else None
@@ -337,16 +340,13 @@ class DriveLoop:
         encoder = self.sensors.encoder
         measure_torque = self.sensors.torque
         laser = self.sensors.laser
-        filt = self.filters.step
 
         enabled = self.enabled
-        fault = self.fault
-        fault_tick = self.fault_tick
-        fault_value = self.fault_value
         tick = self.tick
         last = self._last_position
         vf = self._velocity
         integ = self._integral
+        motor = self._motor_torque
 
         rows = []
         append = rows.append
@@ -359,37 +359,11 @@ class DriveLoop:
             cmd = 0.0
             applied = 0.0
             if enabled:
-                if vf > vlim or vf < -vlim:
-                    fault, fault_value = "velocity_limit", vf
-                elif pm < pmin or pm > pmax:
-                    fault, fault_value = "position_limit", pm
-                if fault is None:
-                    if mode == 0:
-                        cmd = e + offset
-                    else:
-                        if mode == 1:
-                            verr = kp * (hold - pm) - vf
-                        elif mode == 2:
-                            verr = e - vf
-                        else:
-                            verr = kp * (hold + e - pm) - vf
-                        integ += ki_T * verr
-                        # Clamp so the integrator cannot wind up beyond the power stage.
-                        if integ > tmax:
-                            integ = tmax
-                        elif integ < -tmax:
-                            integ = -tmax
-                        cmd = kv * verr + integ + offset
-                        if mode == 1:
-                            cmd += e
-                    tf = filt(cmd)
-                    if tf > tlim or tf < -tlim:
-                        fault, fault_value = "torque_limit", tf
-                    else:
-                        applied = tmax if tf > tmax else (-tmax if tf < -tmax else tf)
-                if fault is not None:
+                cmd, applied, integ, trip = law_tick(e, pm, vf, integ)
+                if trip is not None:
                     enabled = False
-                    fault_tick = tick
+                    self.fault, self.fault_value = trip
+                    self.fault_tick = tick
                     integ = 0.0
                     applied = 0.0
             if enabled:
@@ -409,12 +383,58 @@ class DriveLoop:
             tick += 1
 
         self.enabled = enabled
-        self.fault = fault
-        self.fault_tick = fault_tick
-        self.fault_value = fault_value
         self.tick = tick
         self._last_position = last
         self._velocity = vf
         self._integral = integ
         self._motor_torque = motor
         return np.array(rows, dtype=float)
+
+
+def _control_law(loop: DriveLoop):
+    """The enabled tick of ``loop`` as it stands: ``tick(e, pm, vf, integ) -> (cmd, applied, integ, trip)``.
+
+    ``cmd`` is the torque command before the filter slots, ``applied`` the
+    torque the power stage is asked for (N·m), ``integ`` the new integrator
+    state and ``trip`` None or ``(fault name, the value that tripped)``. Gains,
+    limits and mode are bound once per :meth:`DriveLoop.run` call: the tick
+    loop reads them as closure constants.
+    """
+    tn = loop.tuning
+    kp, kv, tmax = tn.kp_pos_per_s, tn.kv_nm_per_mps, tn.torque_max_nm
+    ki_T = kv * loop.period_s / tn.ti_s  # integrator gain per tick, N·m per (m/s)
+    tlim, vlim = loop.torque_limit_nm, loop.velocity_limit_mps
+    pmin, pmax = loop.position_min_m, loop.position_max_m
+    mode = MODES.index(loop.mode)
+    hold, offset = loop.hold_position_m, loop.torque_offset_nm
+    filt = loop.filters.step
+
+    def tick(e: float, pm: float, vf: float, integ: float):
+        if vf > vlim or vf < -vlim:
+            return 0.0, 0.0, integ, ("velocity_limit", vf)
+        if pm < pmin or pm > pmax:
+            return 0.0, 0.0, integ, ("position_limit", pm)
+        if mode == 0:
+            cmd = e + offset
+        else:
+            if mode == 1:
+                verr = kp * (hold - pm) - vf
+            elif mode == 2:
+                verr = e - vf
+            else:
+                verr = kp * (hold + e - pm) - vf
+            integ += ki_T * verr
+            # Clamp so the integrator cannot wind up beyond the power stage.
+            if integ > tmax:
+                integ = tmax
+            elif integ < -tmax:
+                integ = -tmax
+            cmd = kv * verr + integ + offset
+            if mode == 1:
+                cmd += e
+        tf = filt(cmd)
+        if tf > tlim or tf < -tlim:
+            return cmd, 0.0, integ, ("torque_limit", tf)
+        return cmd, (tmax if tf > tmax else (-tmax if tf < -tmax else tf)), integ, None
+
+    return tick

@@ -4,7 +4,7 @@
 holds the register image described by the driver's map
 (:class:`~hilident.protocol.modbus_registers.RegisterMap`), the excitation
 table and the capture buffer behind their paged windows, and the drive loop.
-:mod:`hilident.emulator.modbus_drive` serves it on a Modbus wire and advances
+:mod:`hilident.emulator.modbus.server` serves it on a Modbus wire and advances
 it in (scaled) real time; ``functions`` says which Modbus function codes it
 declares (read/write holding registers: 3, 6, 16; 4 when the map has input
 registers), and every other one is refused by the server with exception 1.
@@ -44,6 +44,7 @@ import math
 
 import numpy as np
 
+from hilident.emulator.clock import Played, TablePlayer
 from hilident.errors import DataError
 from hilident.filters.biquad import Biquad
 from hilident.protocol.modbus_registers import STAMP_MODULUS, RegisterMap, table_crc
@@ -99,11 +100,7 @@ class ModbusDriveFirmware:
         self.max_sample_rate_hz = float(driver.max_sample_rate_hz)
         self.drive_fault_after_s = drive_fault_after_s
         self.capture_stops_after_s = capture_stops_after_s
-        columns = list(drive.CHANNELS)
-        try:
-            self._columns = [columns.index(c.name) for c in regmap.capture_channels]
-        except ValueError as exc:
-            raise ValueError(f"capture channel not produced by the drive loop: {exc}") from None
+        self._columns = drive.columns_of([c.name for c in regmap.capture_channels], "capture channel")
         self.image = np.zeros(65536, dtype=np.uint16)
         rps = regmap.table_registers_per_sample
         self.table = np.zeros(regmap.table.capacity_samples * rps, dtype=np.uint16)
@@ -123,9 +120,8 @@ class ModbusDriveFirmware:
         self.last_heard: float | None = None  # wall-clock time of the last request addressed to the drive, s
         self._crc: int | None = None
         self._values = np.zeros(0)
-        self._run_divider = 1
         self._run_mask = 0
-        self._run_start_tick = 0
+        self._player = TablePlayer(drive, 1, self.loop_rate_hz)
         self._set("device_type", regmap.device_type)
         self._set("map_version", regmap.map_version)
         self._set("loop_rate_hz", driver.loop_rate_hz)
@@ -139,7 +135,7 @@ class ModbusDriveFirmware:
         self._set("sample_divider", 1)
         self._set("capture_mask", regmap.mask_of(regmap.capture_channel_names()))
 
-    # --- register image helpers -------------------------------------------------------
+    # --- the register image -------------------------------------------------------------
 
     def _set(self, name: str, value) -> None:
         r = self.map.register(name)
@@ -160,7 +156,7 @@ class ModbusDriveFirmware:
 
     @property
     def sample_rate_hz(self) -> float:
-        return self.loop_rate_hz / self._run_divider
+        return self._player.sample_rate_hz
 
     def status_word(self) -> int:
         s = self.map.status
@@ -276,37 +272,39 @@ class ModbusDriveFirmware:
         return None
 
     def _check(self, touched: list[str], slots: list[int], old_control: int | None) -> int | None:
-        m = self.map
+        """The exception code that refuses a write of the ``touched`` registers and ``slots`` (None: accepted)."""
         if self.running and any(n in touched for n in (*_CONFIG, *_LIMITS)):
             return DEVICE_BUSY
-        if "mode" in touched and int(self._get("mode")) not in m.modes.values():
+        if not self._values_valid(touched):
             return ILLEGAL_VALUE
-        if "sample_divider" in touched:
-            d = int(self._get("sample_divider"))
-            if d < 1 or self.loop_rate_hz / d > self.max_sample_rate_hz * (1 + 1e-9):
-                return ILLEGAL_VALUE
-        if "capture_mask" in touched:
-            mask = int(self._get("capture_mask"))
-            if mask == 0 or mask >> len(m.capture_channels):
-                return ILLEGAL_VALUE
-        if "table_length" in touched:
-            n = self.table_length
-            if n > m.table.capacity_samples or n > m.capture.capacity_samples:
-                return ILLEGAL_VALUE
-        for name, window in (("table_page", m.table), ("capture_page", m.capture)):
-            if name in touched and int(self._get(name)) >= window.pages:
-                return ILLEGAL_VALUE
         if any(n in touched for n in _LIMITS) and self._limits() is None:
             return ILLEGAL_VALUE
-        for slot in slots:
-            if self._slot_filter(slot) is None:
-                return ILLEGAL_VALUE
+        if any(self._slot_filter(slot) is None for slot in slots):
+            return ILLEGAL_VALUE
         if old_control is not None:
-            new = int(self._get("control_word"))
-            run = m.control["run"]
-            if new & run and not old_control & run and not self.running:
+            run = self.map.control["run"]
+            if int(self._get("control_word")) & run and not old_control & run and not self.running:
                 return self._start_refusal()
         return None
+
+    def _values_valid(self, touched: list[str]) -> bool:
+        """Whether every touched configuration register holds a value the drive takes."""
+        m = self.map
+        checks = {
+            "mode": lambda: int(self._get("mode")) in m.modes.values(),
+            "sample_divider": lambda: self._divider_valid(int(self._get("sample_divider"))),
+            "capture_mask": lambda: self._mask_valid(int(self._get("capture_mask"))),
+            "table_length": lambda: self.table_length <= min(m.table.capacity_samples, m.capture.capacity_samples),
+            "table_page": lambda: int(self._get("table_page")) < m.table.pages,
+            "capture_page": lambda: int(self._get("capture_page")) < m.capture.pages,
+        }
+        return all(check() for name, check in checks.items() if name in touched)
+
+    def _divider_valid(self, divider: int) -> bool:
+        return divider >= 1 and self.loop_rate_hz / divider <= self.max_sample_rate_hz * (1 + 1e-9)
+
+    def _mask_valid(self, mask: int) -> bool:
+        return mask != 0 and not mask >> len(self.map.capture_channels)
 
     def _apply(self, touched: list[str], slots: list[int], old_control: int) -> None:
         if "table_length" in touched:  # a new table re-arms the capture: the last run's records are gone
@@ -370,12 +368,11 @@ class ModbusDriveFirmware:
     def _start(self) -> None:
         n = self.table_length
         mode = {v: k for k, v in self.map.modes.items()}[int(self._get("mode"))]
-        self._run_divider = int(self._get("sample_divider"))
         self._run_mask = int(self._get("capture_mask"))
         self.stamps[:n] = self._invalid_stamps(0, n)
         self.drive.set_mode(mode)
         self.drive.enable()
-        self._run_start_tick = self.drive.tick
+        self._player.restart(int(self._get("sample_divider")))
         self.produced = self.captured = 0
         self.capture_stopped = False
         self.running = True
@@ -395,36 +392,33 @@ class ModbusDriveFirmware:
         """Play up to ``n_samples`` samples of the table through the drive and capture them."""
         if not self.running or n_samples <= 0:
             return
-        rate = self.sample_rate_hz
-        n = min(int(n_samples), self.table_length - self.produced)
+        player, k0 = self._player, self.produced
+        n = min(int(n_samples), self.table_length - k0)
         if self.drive_fault_after_s:
-            k_fault = max(0, math.ceil(self.drive_fault_after_s * rate))
-            if self.produced >= k_fault:
-                self._fault(self.map.fault_codes["drive_fault"], self.produced, 0.0)
+            if k0 >= player.samples_before(self.drive_fault_after_s):
+                self._fault(self.map.fault_codes["drive_fault"], k0, 0.0)
                 return
-            n = min(n, k_fault - self.produced)
-        k0 = self.produced
-        divider = self._run_divider
-        rows = self.drive.run(np.repeat(self._values[k0 : k0 + n], divider))[::divider]
-        keep = n
-        tripped = self.drive.fault is not None
-        if tripped:
-            keep = min(n, (int(self.drive.fault_tick) - self._run_start_tick) // divider - k0 + 1)
-        stop = k0 + keep
-        if self.capture_stops_after_s:
-            stop = min(stop, max(k0, round(self.capture_stops_after_s * rate)))
-        if stop > k0:
-            self.capture[k0:stop] = rows[: stop - k0][:, self._columns]
-            self.stamps[k0:stop] = np.arange(k0, stop) % STAMP_MODULUS
-            self.captured = stop
-        self.produced = k0 + keep
+            n = player.cut_at(k0, n, (self.drive_fault_after_s,))
+        played = player.play(self._values[k0 : k0 + n], k0)
+        self._capture(played)
+        self.produced = played.end
         if self.captured < self.produced:
             self.capture_stopped = True
-        if tripped:
+        if played.faulted:
             code = self.map.fault_codes.get(self.drive.fault, self.map.fault_codes["drive_fault"])
-            self._fault(code, k0 + keep - 1, float(self.drive.fault_value or 0.0))
+            self._fault(code, played.end - 1, float(self.drive.fault_value or 0.0))
         elif self.produced >= self.table_length:
             self._end()
+
+    def _capture(self, played: Played) -> None:
+        """Record the kept samples, up to ``capture_stops_after_s`` when that fault is switched on."""
+        k0, stop = played.first, played.end
+        if self.capture_stops_after_s:
+            stop = min(stop, max(k0, self._player.samples_before(self.capture_stops_after_s)))
+        if stop > k0:
+            self.capture[k0:stop] = played.rows[: stop - k0][:, self._columns]
+            self.stamps[k0:stop] = np.arange(k0, stop) % STAMP_MODULUS
+            self.captured = stop
 
     def _fault(self, code: int, sample: int, value: float) -> None:
         self.fault_code = code

@@ -2,7 +2,7 @@
 
 :func:`handle` takes one request PDU (function code and data, without the
 MBAP header or the RTU address and CRC) and returns the response PDU. It
-knows nothing of the wire: :mod:`hilident.emulator.modbus_drive` frames it
+knows nothing of the wire: :mod:`hilident.emulator.modbus.server` frames it
 for Modbus TCP and Modbus RTU. The drive behind it is a *firmware* object:
 
 ``functions`` : frozenset of int

@@ -107,49 +107,63 @@ class BlockSdoServer(SdoServer):
             return
         if block is not None and data[0] & 0xE0 == REQUEST_ABORTED:
             self._block = None
+        refusal = self._refusal(data)
+        if refusal is not None:
+            self._block = None
+            self.abort(refusal)
+            return
         ccs = data[0] & 0xE0
-        if ccs in (REQUEST_UPLOAD, REQUEST_DOWNLOAD, REQUEST_BLOCK_UPLOAD, REQUEST_BLOCK_DOWNLOAD):
-            initiate = ccs != REQUEST_BLOCK_UPLOAD or data[0] & 0x03 == 0
-            initiate = initiate and (ccs != REQUEST_BLOCK_DOWNLOAD or data[0] & 0x01 == 0)
-            if initiate:
-                _, index, sub = SDO_STRUCT.unpack_from(data)
-                if self._faulty(index, sub):
-                    self._index, self._subindex = index, sub
-                    self.aborted_by_fault += 1
-                    self._block = None
-                    self.abort(ABORT_HARDWARE)
-                    return
-            sized = (ccs == REQUEST_DOWNLOAD and data[0] & 0x03 == 0x01) or (
-                ccs == REQUEST_BLOCK_DOWNLOAD and data[0] & _SIZE)  # segmented / block download with a size
-            if initiate and sized:
-                size = struct.unpack_from("<L", data, 4)[0]  # announced size of a segmented or block download
-                limit = self.size_limit(index, sub) if self.size_limit else None
-                if limit is not None and size > limit:
-                    self._index, self._subindex = index, sub
-                    self._block = None
-                    self.abort(0x06070012)  # refused before a byte is sent, as the data would not fit
-                    return
+        if ccs in (REQUEST_BLOCK_UPLOAD, REQUEST_BLOCK_DOWNLOAD):
+            self._block_request(ccs, data)
+            return
+        super().on_request(can_id, data, timestamp)
+
+    def _refusal(self, data: bytes) -> int | None:
+        """The abort code that refuses a request initiating a transfer (None: served).
+
+        An object with the abort fault switched on is refused with a hardware
+        error; a download whose announced size does not fit the object before
+        a byte is sent.
+        """
+        ccs = data[0] & 0xE0
+        initiate = (ccs in (REQUEST_UPLOAD, REQUEST_DOWNLOAD)
+                    or (ccs == REQUEST_BLOCK_UPLOAD and data[0] & 0x03 == 0)
+                    or (ccs == REQUEST_BLOCK_DOWNLOAD and data[0] & 0x01 == 0))
+        if not initiate:
+            return None
+        _, index, sub = SDO_STRUCT.unpack_from(data)
+        if self._faulty(index, sub):
+            self._index, self._subindex = index, sub
+            self.aborted_by_fault += 1
+            return ABORT_HARDWARE
+        sized = (ccs == REQUEST_DOWNLOAD and data[0] & 0x03 == 0x01) or (
+            ccs == REQUEST_BLOCK_DOWNLOAD and data[0] & _SIZE)  # segmented / block download with a size
+        if not sized:
+            return None
+        size = struct.unpack_from("<L", data, 4)[0]  # announced size of a segmented or block download
+        limit = self.size_limit(index, sub) if self.size_limit else None
+        if limit is not None and size > limit:
+            self._index, self._subindex = index, sub
+            return ABORT_LENGTH_HIGH  # refused before a byte is sent, as the data would not fit
+        return None
+
+    def _block_request(self, ccs: int, data: bytes) -> None:
+        """A block upload or download request; a failure aborts the transfer and the server goes on."""
         try:
             if ccs == REQUEST_BLOCK_UPLOAD:
                 self._block_upload(data)
-                return
-            if ccs == REQUEST_BLOCK_DOWNLOAD:
+            else:
                 self._block_download(data)
-                return
         except SdoAbortedError as exc:
             self._block = None
             self.abort(exc.code)
-            return
         except KeyError:
             self._block = None
             self.abort(ABORT_NOT_IN_OD)
-            return
         except Exception as exc:  # keep serving; the transfer is aborted
             logger.exception(exc)
             self._block = None
             self.abort(ABORT_GENERAL_ERROR)
-            return
-        super().on_request(can_id, data, timestamp)
 
     def _faulty(self, index: int, sub: int) -> bool:
         f = self.abort_object

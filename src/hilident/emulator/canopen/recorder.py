@@ -31,7 +31,8 @@ import time
 import numpy as np
 from canopen.sdo import SdoAbortedError
 
-from hilident.emulator.canopen_sdo import (
+from hilident.emulator.canopen.roles import COLUMN_OF_ROLE
+from hilident.emulator.canopen.sdo import (
     ABORT_NO_DATA,
     ABORT_NOT_MAPPABLE,
     ABORT_STATE,
@@ -39,6 +40,7 @@ from hilident.emulator.canopen_sdo import (
     ABORT_TOO_LOW,
     ABORT_VALUE,
 )
+from hilident.emulator.clock import SimClock, cut_at
 from hilident.protocol import cia402
 from hilident.protocol.canopen_objects import (
     NUMERIC_TYPES,
@@ -51,7 +53,6 @@ from hilident.protocol.canopen_recorder import RecorderCapability, generator_out
 
 __all__ = ["DriveRecorder"]
 
-_CATCH_UP_S = 0.05  # at most this much simulated time per clock step: a slow machine resumes, never bursts
 
 class DriveRecorder:
     """Generator and recorder of one emulated drive (see the module docstring).
@@ -80,7 +81,7 @@ class DriveRecorder:
         self.gen_tick = 0  # loop cycles the drive's clock ran since the generator (or the recording) started
         self.gen_start = 0  # the tick the generator started at
         self.gen_settings = None  # (GeneratorKind, target role, SI parameter values)
-        self.clock = (0.0, 0)  # (wall time, generator tick) the pacing counts from
+        self.pacing = SimClock(firmware.loop_rate, firmware.time_scale)  # one generator tick per loop tick
         self.stopped_early = False
 
     # --- object dictionary ---------------------------------------------------------------------
@@ -141,14 +142,14 @@ class DriveRecorder:
                     raise SdoAbortedError(ABORT_TOO_HIGH if p.maximum is not None and si > p.maximum else ABORT_TOO_LOW)
 
     def _stored(self, addr) -> int:
-        return int(self.fw._stored(addr.index, addr.subindex))
+        return int(self.fw.stored(addr.index, addr.subindex))
 
     def _channel(self, entry: int):
         """The (address, data type) a mapping entry selects; SDO abort when it is not a sampled signal."""
         addr, bits = parse_mapping_entry(entry)
         obj = self.fw.od.get_variable(addr.index, addr.subindex)
         role = self.fw.role_of.get(addr)
-        sampled = role in _sampled_roles() or (self.gen is not None and addr == self.gen.output)
+        sampled = role in COLUMN_OF_ROLE or (self.gen is not None and addr == self.gen.output)
         if obj is None or obj.data_type not in NUMERIC_TYPES or bits != type_bits(obj.data_type) or not sampled:
             raise SdoAbortedError(ABORT_NOT_MAPPABLE)
         return addr, obj.data_type
@@ -207,6 +208,19 @@ class DriveRecorder:
             raise SdoAbortedError(ABORT_VALUE)
         if self.fw.state is not cia402.State.OPERATION_ENABLED or self.gen_state == g.states["running"]:
             raise SdoAbortedError(ABORT_STATE)
+        settings = self._generator_settings()
+        if not self.active:
+            self._start_clock()
+        self.gen_settings = settings
+        self.gen_state = g.states["running"]
+        self.gen_start = self.gen_tick
+        if self.rec_state == self.rec.states["waiting"]:
+            self.rec_state = self.rec.states["recording"]
+            self.recording_from = self.gen_tick
+
+    def _generator_settings(self):
+        """(kind, target role, SI parameter values) as stored; SDO abort when the generator cannot play them."""
+        g = self.gen
         code = self._stored(g.kind) if g.kind is not None else next(iter(g.kinds.values())).code
         kind = next((k for k in g.kinds.values() if k.code == code), None)
         target = next((role for role, c in g.targets.items() if c == self._stored(g.target)), None)
@@ -220,21 +234,14 @@ class DriveRecorder:
             values[name] = raw if name in ("register_length", "clock_divider") else raw * self._scale(p.scale)
         if kind.name == "prbs" and (values["clock_divider"] < 1 or values["register_length"] not in kind.taps):
             raise SdoAbortedError(ABORT_VALUE)  # a register this firmware has no sequence for
-        if not self.active:
-            self._start_clock()
-        self.gen_settings = (kind, target, values)
-        self.gen_state = g.states["running"]
-        self.gen_start = self.gen_tick
-        if self.rec_state == self.rec.states["waiting"]:
-            self.rec_state = self.rec.states["recording"]
-            self.recording_from = self.gen_tick
+        return kind, target, values
 
     def _mode_takes(self, target: str) -> bool:
         """The selected mode of operation takes its set-point from the object of role ``target``."""
-        spec = self.fw.mode_spec
+        spec = self.fw.setpoints.mode_spec
         if self.fw.desc.explicit_modes:
             return spec is not None and spec.setpoint == target
-        return {"target_torque": 10, "target_velocity": 9}.get(target) == self.fw.mode_code
+        return {"target_torque": 10, "target_velocity": 9}.get(target) == self.fw.setpoints.mode_code
 
     def stop_generator(self) -> None:
         if self.gen is not None and self.gen_state == self.gen.states["running"]:
@@ -260,8 +267,8 @@ class DriveRecorder:
 
     def _start_clock(self) -> None:
         self.gen_tick = 0
-        self.clock = (time.monotonic(), 0)
-        self.fw._start_run()
+        self.pacing.start_run(time.monotonic())
+        self.fw.start_run()
 
     @property
     def active(self) -> bool:
@@ -282,16 +289,8 @@ class DriveRecorder:
             return
         if not self.active:
             return
-        rate = fw.loop_rate * fw.time_scale
-        wall0, tick0 = self.clock
-        due = int((now - wall0) * rate) - (self.gen_tick - tick0)
-        cap = max(1, int(_CATCH_UP_S * fw.loop_rate))
-        if due > cap:
-            self.clock, due = (now, self.gen_tick), cap
-        for t in fw._pending_fault_times():  # stop exactly where an injected fault is due
-            k = math.ceil(t * fw.loop_rate - 1e-9)
-            if self.gen_tick < k < self.gen_tick + due:
-                due = k - self.gen_tick
+        due = self.pacing.samples_due(now, self.gen_tick, fw.loop_rate)
+        due = cut_at(self.gen_tick, due, fw.pending_fault_times(), fw.loop_rate)  # stop where a fault is due
         if due <= 0:
             return
         ticks = self.gen_tick + np.arange(due)
@@ -301,7 +300,7 @@ class DriveRecorder:
         self.gen_tick += due
         fw.sample_index = self.gen_tick // max(1, self.period)
         fw.last_row = rows[-1]
-        fw._check_faults()
+        fw.check_faults()
         if self.gen_settings is not None and self.gen_state == self.gen.states["running"]:
             _, _, values = self.gen_settings
             if "duration_s" in values and self.gen_tick - self.gen_start >= round(values["duration_s"] * fw.loop_rate):
@@ -316,7 +315,7 @@ class DriveRecorder:
     def _run(self, g: np.ndarray) -> np.ndarray:
         """The drive loop over ``len(g)`` cycles with the generator's output added to its target set-point."""
         fw = self.fw
-        base = fw._setpoint_si()  # also loads the host's torque offset into the loop
+        base = fw.setpoints.drive_input()  # also loads the host's torque offset into the loop
         target = self.gen_settings[1] if self.gen_settings is not None else ""
         if target != "torque_offset":
             return fw.drive.run(base + g)
@@ -355,11 +354,5 @@ class DriveRecorder:
             self.rec_state = self.rec.states["done"]
 
 
-def _sampled_roles():
-    from hilident.emulator.canopen_drive import _COLUMN_OF_ROLE
-
-    return _COLUMN_OF_ROLE
-
-
 def _column(role: str) -> str:
-    return _sampled_roles()[role]
+    return COLUMN_OF_ROLE[role]

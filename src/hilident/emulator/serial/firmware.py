@@ -3,7 +3,7 @@
 :class:`BoardFirmware` is what runs on the board, minus the clock and the UART:
 it takes request payloads, answers them, and, asked to advance by some number
 of samples, steps the drive loop, fills sample blocks and watches the safety
-limits. :mod:`hilident.emulator.serial_server` gives it a clock and a line.
+limits. :mod:`hilident.emulator.serial.server` gives it a clock and a line.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hilident.emulator.clock import TablePlayer
 from hilident.errors import HilidentError, ProtocolError
 from hilident.filters.biquad import Biquad
 from hilident.protocol import serial_board as sb
@@ -54,11 +55,7 @@ class BoardFirmware:
     def __init__(self, drive, identity: sb.Identity):
         self.drive = drive
         self.identity = identity
-        columns = list(drive.CHANNELS)
-        try:
-            self._column = [columns.index(c.name) for c in identity.channels]
-        except ValueError as exc:
-            raise ValueError(f"board channel not produced by the drive loop: {exc}") from None
+        self._column = drive.columns_of([c.name for c in identity.channels], "board channel")
         self.state = sb.State.IDLE
         self.fault = sb.FaultCode.NONE
         self.counters = BoardCounters()
@@ -79,7 +76,7 @@ class BoardFirmware:
         self.outbox: list[bytes] = []  # encoded payloads waiting for the line
         self.limits_loaded = False  # a board never moves the axis before it was told its limits
         self.line_corrupt = 0  # frames the line layer rejected (set by the server)
-        self._run_start_tick = 0
+        self._player = TablePlayer(drive, 1, identity.loop_rate_hz)
         self.sample_blocks_out = 0
 
     # --- messages ---------------------------------------------------------------
@@ -179,7 +176,7 @@ class BoardFirmware:
         self.drive.enable()
         self._run_samples = msg.n_samples
         self._produced = 0
-        self._run_start_tick = self.drive.tick
+        self._player.restart(self.config.sample_divider)
         self.counters.underruns = 0  # per-run counters; limit trips and corrupt frames count since power-up
         self.counters.dropped_blocks = 0
         self._pending, self._pending_rows, self._pending_flags = [], 0, 0
@@ -248,6 +245,11 @@ class BoardFirmware:
         return self.state == sb.State.RUNNING
 
     @property
+    def produced(self) -> int:
+        """Samples played in this run."""
+        return self._produced
+
+    @property
     def sample_rate_hz(self) -> float:
         return self.identity.loop_rate_hz / self.config.sample_divider
 
@@ -257,7 +259,6 @@ class BoardFirmware:
             return
         if self._run_samples:
             n_samples = min(n_samples, self._run_samples - self._produced)
-        divider = self.config.sample_divider
         available = self._fifo_written - self._fifo_read
         k = min(n_samples, available)
         values = np.zeros(n_samples)
@@ -278,10 +279,10 @@ class BoardFirmware:
         elif k:
             self._in_underrun = False
         # sample, then update: a row holds the state at the start of its period, when its excitation begins
-        rows = self.drive.run(np.repeat(values, divider))[::divider]
         first = self._produced
+        played = self._player.play(values, first)
         self._produced += n_samples
-        self._append(rows[:, self._selected_columns()])
+        self._append(played.rows[:, self._selected_columns()])
         if self.drive.fault:
             self._trip(first)
         elif self._run_samples and self._produced >= self._run_samples:
@@ -345,8 +346,8 @@ class BoardFirmware:
     def _trip(self, first_sample: int) -> None:
         self.fault = _FAULTS.get(self.drive.fault, sb.FaultCode.TORQUE_LIMIT)
         self.counters.limit_trips += 1
-        tick = getattr(self.drive, "fault_tick", None)
-        index = first_sample if tick is None else (int(tick) - self._run_start_tick) // self.config.sample_divider
+        fault_sample = self._player.fault_sample()
+        index = first_sample if fault_sample is None else fault_sample
         value = float(getattr(self.drive, "fault_value", 0.0) or 0.0)
         self.send(sb.Event(sb.EventCode.LIMIT_TRIP, index, value, f"{self.drive.fault}: axis stopped, torque zero"))
         self._flush_last()

@@ -1,11 +1,11 @@
 """The emulated Modbus drive on a real wire: Modbus TCP on 127.0.0.1, or Modbus RTU on a pseudo-terminal.
 
 :class:`ModbusDriveServer` serves a
-:class:`~hilident.emulator.modbus_firmware.ModbusDriveFirmware` in a
+:class:`~hilident.emulator.modbus.firmware.ModbusDriveFirmware` in a
 background asyncio loop and advances its drive in simulated time
 (``time_scale`` simulated seconds per wall second) in a second thread. The
 wire follows the MODBUS Application Protocol V1.1b3 (requests answered by
-:func:`hilident.emulator.modbus_pdu.handle`), the MODBUS Messaging on TCP/IP
+:func:`hilident.emulator.modbus.pdu.handle`), the MODBUS Messaging on TCP/IP
 Implementation Guide V1.0b (MBAP header) and MODBUS over Serial Line V1.02
 (RTU frames), so any master, not only pymodbus, sees what a specification
 reader expects:
@@ -54,110 +54,43 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import os
-import select
 import struct
 import threading
 import time
-import tty
 from dataclasses import replace
 
 import numpy as np
 
 from hilident.config import DeviceConfig, EmulatorConfig, FaultsConfig
 from hilident.drivers import DriverDescription
-from hilident.emulator.factory import EmulatedDevice, build_drive
-from hilident.emulator.modbus_firmware import ModbusDriveFirmware
-from hilident.emulator.modbus_param_firmware import ParameterDriveFirmware
-from hilident.emulator.modbus_pdu import (
-    GATEWAY_TARGET_FAILED, ILLEGAL_DATA_ADDRESS, SERVER_DEVICE_FAILURE, WRITE_FUNCTIONS, exception_response, handle,
-    request_length,
+from hilident.emulator.clock import SimClock
+from hilident.emulator.device import EmulatedDevice, build_drive
+from hilident.emulator.modbus.firmware import ModbusDriveFirmware
+from hilident.emulator.modbus.parameter_firmware import ParameterDriveFirmware
+from hilident.emulator.modbus.pdu import (
+    GATEWAY_TARGET_FAILED,
+    ILLEGAL_DATA_ADDRESS,
+    SERVER_DEVICE_FAILURE,
+    WRITE_FUNCTIONS,
+    exception_response,
+    handle,
 )
+from hilident.emulator.modbus.rtu import PtyBridge, RtuLine
 from hilident.errors import ConfigError
-from hilident.protocol.modbus_registers import EXCEPTION_MEANINGS, FilterSlots, RegisterMap, rtu_crc
+from hilident.protocol.modbus_registers import (
+    EXCEPTION_MEANINGS,
+    FilterSlots,
+    RegisterMap,
+    rtu_crc,
+)
 
 log = logging.getLogger(__name__)
 
-_COAST_S = 2.0  # simulated seconds the axis coasts, drive disabled, after a run
 _BEAT_S = 0.005  # the server loop notes every so often that it is free to hear requests
 _STALL_S = 0.02  # a longer gap between two notes: this process was not scheduled (a loaded machine)
 _TCP_UNIT_ANY = 0xFF  # the unit id of a directly addressed Modbus TCP device
 _MBAP_MAX_LENGTH = 1 + 253 + 16  # unit id + the longest PDU, with room to answer an oversized request with 03
 _BROADCAST = 0
-_RTU_STALL_S = 0.1  # a frame whose length is known waits this long for its missing bytes (a loaded machine)
-
-class PtyBridge:
-    """Two pseudo-terminals joined like a null-modem cable, carrying bytes at a line rate.
-
-    Parameters
-    ----------
-    baudrate : int
-        Line rate; 0 carries bytes as fast as they come.
-    bits_per_char : int
-        Start bit, data bits, parity bit and stop bits of one character.
-
-    Attributes
-    ----------
-    device_path, host_path : str
-        The two serial device paths (``/dev/pts/N``).
-    """
-
-    def __init__(self, baudrate: int, bits_per_char: int = 11):
-        self._device_master, self._device_slave = os.openpty()
-        self._host_master, self._host_slave = os.openpty()
-        for fd in (self._device_slave, self._host_slave):
-            tty.setraw(fd)
-        self.device_path = os.ttyname(self._device_slave)
-        self.host_path = os.ttyname(self._host_slave)
-        self.char_time_s = bits_per_char / baudrate if baudrate else 0.0
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self.bytes_carried = 0
-
-    def start(self) -> "PtyBridge":
-        self._thread = threading.Thread(target=self._run, name="modbus-pty-bridge", daemon=True)
-        self._thread.start()
-        return self
-
-    def _run(self) -> None:
-        other = {self._device_master: self._host_master, self._host_master: self._device_master}
-        while not self._stop.is_set():
-            try:
-                ready, _, _ = select.select(list(other), [], [], 0.05)
-            except (OSError, ValueError):
-                return
-            for fd in ready:
-                try:
-                    data = os.read(fd, 4096)
-                except OSError:
-                    time.sleep(0.01)
-                    continue
-                if self.char_time_s:
-                    time.sleep(len(data) * self.char_time_s)  # the characters take this long on the line
-                self._write(other[fd], data)
-                self.bytes_carried += len(data)
-
-    def _write(self, fd: int, data: bytes) -> None:
-        view = memoryview(data)
-        deadline = time.monotonic() + 0.5
-        while view and not self._stop.is_set() and time.monotonic() < deadline:
-            try:
-                _, ready, _ = select.select([], [fd], [], 0.05)
-                if ready:
-                    view = view[os.write(fd, view):]
-            except OSError:
-                return  # nobody at the other end: the bytes are lost, as on an open line
-
-    def close(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-        for fd in (self._device_master, self._device_slave, self._host_master, self._host_slave):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
-
 
 def _address_tables(regmap: RegisterMap | None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Which addresses read as holding registers, take writes, and read as input registers.
@@ -227,7 +160,7 @@ class ModbusDriveServer:
     ----------
     firmware : ModbusDriveFirmware
         Or any drive with ``functions``, ``read`` and ``write`` (see
-        :mod:`hilident.emulator.modbus_pdu`) and the clock's methods.
+        :mod:`hilident.emulator.modbus.pdu`) and the clock's methods.
     device_id : int
         Modbus device (unit) id it answers (0: any).
     rtu : bool
@@ -288,7 +221,7 @@ class ModbusDriveServer:
         self._server: asyncio.AbstractServer | None = None
         self._connections: set[asyncio.StreamWriter] = set()
         self._bridge: PtyBridge | None = None
-        self._rtu = _RtuLine(self) if rtu else None
+        self._rtu = RtuLine(self) if rtu else None
         self._beat_at = time.monotonic()
         self._beat_task: asyncio.Task | None = None
 
@@ -434,7 +367,7 @@ class ModbusDriveServer:
 
     # --- Modbus RTU ---------------------------------------------------------------------------
 
-    def _rtu_frame(self, frame: bytes) -> bytes | None:
+    def rtu_frame(self, frame: bytes) -> bytes | None:
         """The RTU answer frame to a request frame whose CRC is good (None: stay silent)."""
         address, pdu = frame[0], frame[1:-2]
         if address == _BROADCAST:
@@ -454,136 +387,25 @@ class ModbusDriveServer:
 
     def _clock(self) -> None:
         fw = self.firmware
-        loop_rate = fw.loop_rate_hz
+        # at most 20 ms of samples per step: the lock is held while they play, and requests wait for it
+        clock = SimClock(fw.loop_rate_hz, self.time_scale, max_catch_up_s=0.02)
         runs_seen = fw.runs
-        origin = time.monotonic()
-        at_origin = 0
-        coast_left = 0
-        coast_clock = origin
         try:
             while not self._stop.is_set():
                 now = time.monotonic()
                 with self.lock:
                     listening = now - self._beat_at < _STALL_S + _BEAT_S  # else the silence may be ours
                     if listening and fw.watch_host(now):  # the host went silent: the drive stopped on its own
-                        coast_left, coast_clock = int(_COAST_S * loop_rate), now
+                        clock.start_coast(now)
                     if fw.runs != runs_seen:  # a run was triggered since the last look
                         runs_seen = fw.runs
-                        origin, at_origin = now, 0
-                    if fw.running:
-                        rate = fw.sample_rate_hz * self.time_scale
-                        due = int((now - origin) * rate) - (fw.produced - at_origin)
-                        cap = max(1, int(0.02 * rate))
-                        if due > cap:  # fell behind (slow machine): resume from now, never burst
-                            origin, at_origin, due = now, fw.produced, cap
-                        fw.advance(due)
-                        if not fw.running:
-                            coast_left, coast_clock = int(_COAST_S * loop_rate), now
-                    elif coast_left > 0:
-                        n = min(coast_left, int((now - coast_clock) * loop_rate * self.time_scale))
-                        if n > 0:
-                            fw.idle(n)
-                            coast_left -= n
-                            coast_clock = now
+                        clock.start_run(now)
+                    clock.step(fw, now)
                 time.sleep(0.002)
         except BaseException as exc:  # keep the failure for the owner to see
             self.error = exc
             with self.lock:
                 fw.drive.disable()
-
-
-class _RtuLine:
-    """The drive's end of an RTU line: finds request frames in the bytes, answers through the server."""
-
-    def __init__(self, server: ModbusDriveServer):
-        self.server = server
-        self.fd: int | None = None
-        self.loop: asyncio.AbstractEventLoop | None = None
-        self.buffer = b""
-        self.garbled = False  # a bad frame was seen: drop everything until the line is silent
-        self.last_byte = 0.0
-        self.timer: asyncio.TimerHandle | None = None
-        self.silence_s = 0.0
-
-    def open(self, path: str, loop: asyncio.AbstractEventLoop) -> None:
-        server = self.server
-        char_s = server.bits_per_char / (server.baudrate or 115200)
-        # t3.5 (Modbus over serial line V1.02, 2.5.1.1): 3.5 characters, fixed at 1.75 ms above 19200 baud
-        self.silence_s = 3.5 * char_s if (server.baudrate or 115200) <= 19200 else 0.00175
-        self.fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
-        tty.setraw(self.fd)
-        self.loop = loop
-        loop.add_reader(self.fd, self._readable)
-
-    def close(self) -> None:
-        if self.timer is not None:
-            self.timer.cancel()
-        if self.fd is not None:
-            self.loop.remove_reader(self.fd)
-            os.close(self.fd)
-            self.fd = None
-
-    def _readable(self) -> None:
-        try:
-            data = os.read(self.fd, 4096)
-        except (BlockingIOError, InterruptedError):
-            return
-        except OSError:
-            time.sleep(0.005)  # the other end is not open yet (or no longer): nothing to read
-            return
-        if not data:
-            return
-        self.buffer += data
-        self.last_byte = time.monotonic()
-        if not self.garbled:
-            self._frames()
-        self._arm(self.silence_s)
-
-    def _arm(self, delay: float) -> None:
-        if self.timer is not None:
-            self.timer.cancel()
-        self.timer = self.loop.call_later(delay, self._silence) if self.buffer or self.garbled else None
-
-    def _frames(self) -> None:
-        """Answer every complete frame at the front of the buffer whose length the function code gives."""
-        while self.buffer:
-            n = request_length(self.buffer)
-            if n is None or len(self.buffer) < n:
-                return
-            frame, self.buffer = self.buffer[:n], self.buffer[n:]
-            if not _crc_ok(frame):
-                self.garbled = True  # where the next frame starts is unknown: wait for the silence
-                return
-            self._send(self.server._rtu_frame(frame))
-
-    def _silence(self) -> None:
-        """3.5 characters without a byte: whatever is in the buffer is one frame (or the rest of a bad one)."""
-        self.timer = None
-        n = request_length(self.buffer)
-        waited = time.monotonic() - self.last_byte
-        if not self.garbled and n is not None and len(self.buffer) < n and waited < _RTU_STALL_S:
-            # a frame of known length is still short: on a loaded machine the rest can come late
-            self._arm(_RTU_STALL_S - waited)
-            return
-        frame, self.buffer = self.buffer, b""
-        garbled, self.garbled = self.garbled, False
-        if not garbled and n is None and len(frame) >= 4 and _crc_ok(frame):
-            self._send(self.server._rtu_frame(frame))  # a function whose length is unknown ends here
-
-    def _send(self, frame: bytes | None) -> None:
-        view = memoryview(frame or b"")
-        deadline = time.monotonic() + 0.5
-        while view and time.monotonic() < deadline:
-            try:
-                view = view[os.write(self.fd, view):]
-            except (BlockingIOError, InterruptedError):
-                select.select([], [self.fd], [], 0.05)
-            except OSError:
-                return  # nobody at the other end: the answer is lost, as on an open line
-
-
-def _crc_ok(frame: bytes) -> bool:
-    return len(frame) >= 4 and rtu_crc(frame[:-2]) == frame[-2] | frame[-1] << 8
 
 
 def start(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig,

@@ -27,7 +27,7 @@ excitation capability) around the same
 The axis is never moved by this twin: with no excitation capability hilident
 runs no experiment on it, and the drive stays disabled (it coasts when idle).
 
-Same contract as :class:`~hilident.emulator.modbus_firmware.ModbusDriveFirmware`
+Same contract as :class:`~hilident.emulator.modbus.firmware.ModbusDriveFirmware`
 for a server: ``read``, ``write``, ``functions``, ``advance``, ``idle``,
 ``heard_from_host``, ``watch_host``, ``excuse_silence``.
 """

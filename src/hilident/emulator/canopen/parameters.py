@@ -1,0 +1,98 @@
+"""The emulated CANopen drive's parameters: limits, filter slots, and storing them (0x1010).
+
+Limit objects load the drive loop's limits once every one the drive has was
+written (and a position range is a range). Writing a filter slot's enable
+sub-index (or its whole block) rebuilds the slot's biquad from its stored
+fields with :meth:`FilterEncoding.applied` and loads it into ``drive.filters``:
+the same chain the plant sees.
+"""
+
+from __future__ import annotations
+
+from canopen.sdo import SdoAbortedError
+
+from hilident.emulator.canopen.roles import LIMIT_ROLES
+from hilident.emulator.canopen.sdo import ABORT_TOO_LOW, ABORT_VALUE
+from hilident.errors import ConfigError, DataError
+
+__all__ = ["DriveParameters"]
+
+_STORE_SIGNATURE = 0x65766173  # "save" (CiA 301, 0x1010)
+_ABORT_NOT_STORED = 0x08000020  # data cannot be transferred or stored (CiA 301)
+
+
+class DriveParameters:
+    """Limits and filter slots of one drive.
+
+    Parameters
+    ----------
+    firmware : CanopenDriveFirmware
+        The drive it belongs to: description, scalings, stored values, drive loop.
+
+    Attributes
+    ----------
+    limits_loaded : bool
+        The drive may be enabled: every limit object it has holds a valid value.
+    saves : int
+        Times the host had the parameters stored (0x1010:1 "save").
+    stored_parameters : dict
+        The filter slots as they were when last stored.
+    """
+
+    def __init__(self, firmware):
+        self.fw = firmware
+        self.limits_raw: dict[str, int] = {}
+        # a drive with no limit object of its own can be enabled without any (the host checks the limits)
+        self.limits_loaded = not any(firmware.desc.has(r) and r in firmware.scales for r in LIMIT_ROLES)
+        self.saves = 0
+        self.stored_parameters: dict = {}
+
+    def store(self, value: int) -> None:
+        """0x1010:1: with the signature "save" the drive keeps its parameters (here: the filter slots) as stored."""
+        if value != _STORE_SIGNATURE:
+            raise SdoAbortedError(_ABORT_NOT_STORED)
+        self.stored_parameters = {slot: self.fw.drive.filters.read(slot) for slot in range(len(self.fw.drive.filters.enabled))}
+        self.saves += 1
+
+    def write_limit(self, role: str, raw: int) -> None:
+        if role in ("max_torque", "max_velocity") and raw <= 0:
+            raise SdoAbortedError(ABORT_TOO_LOW)
+        self.limits_raw[role] = raw
+        held = [r for r in LIMIT_ROLES if self.fw.desc.has(r) and r in self.fw.scales]
+        if not all(r in self.limits_raw for r in held):
+            return
+        si = {r: self.limits_raw[r] * self.fw.scales[r] if r in held else None for r in LIMIT_ROLES}
+        if (si["position_limit_min"] is not None and si["position_limit_max"] is not None
+                and si["position_limit_min"] >= si["position_limit_max"]):
+            self.limits_loaded = False  # one end written, the other still to come
+            return
+        try:
+            self.fw.drive.set_limits(si["max_torque"], si["max_velocity"], si["position_limit_min"],
+                                  si["position_limit_max"])
+        except (ConfigError, ValueError):
+            raise SdoAbortedError(ABORT_VALUE) from None
+        self.limits_loaded = True
+
+    def write_filter(self, slot: int, subindex: int, value) -> None:
+        fo = self.fw.desc.filters
+        if fo.enable_subindex is None:  # one block, its enable inside
+            if subindex == fo.fields["block"]:
+                self._apply_filter(slot, None, {"block": bytes(value)})
+        elif subindex == fo.enable_subindex:
+            self._apply_filter(slot, bool(value))
+
+    def _apply_filter(self, slot: int, enabled: bool | None, values: dict | None = None) -> None:
+        """Load a slot's section into the drive loop: from its stored fields when its enable is written, or
+        from the block being written (``values``; its state word says ``enabled``)."""
+        fo = self.fw.desc.filters
+        if values is None:
+            values = {name: self.fw.stored(fo.indices[slot], sub) for name, sub in fo.fields.items()}
+        try:
+            if enabled is None:
+                enabled = bool(self.fw.encoding.slot_enabled(values))
+            biquad = self.fw.encoding.applied(values, self.fw.loop_rate)
+        except (DataError, ConfigError):
+            raise SdoAbortedError(ABORT_VALUE) from None
+        if enabled and not biquad.is_stable():
+            raise SdoAbortedError(ABORT_VALUE)  # an unstable section is never switched in
+        self.fw.drive.filters.write(slot, biquad, enabled)

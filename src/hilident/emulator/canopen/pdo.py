@@ -1,0 +1,285 @@
+"""PDOs and SYNC of the emulated CANopen drive: mapping, transmission, and synchronous runs.
+
+PDO communication and mapping objects are honoured as the host writes them.
+On each SYNC (while Operation Enabled, no table playing) the drive runs
+``loop_rate / sample_rate`` ticks of the drive loop with the latest RPDO
+set-point and sends its TPDOs with the state at the start of that sample
+period. In these synchronous runs the drive's clock *is* SYNC: one SYNC, one
+sample period (the :class:`~hilident.emulator.clock.SimClock` paces table
+playback only).
+"""
+
+from __future__ import annotations
+
+import struct
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from canopen.sdo import SdoAbortedError
+
+from hilident.emulator.canopen.sdo import (
+    ABORT_NOT_MAPPABLE,
+    ABORT_PDO_LENGTH,
+    ABORT_STATE,
+    ABORT_VALUE,
+)
+from hilident.protocol import cia402
+from hilident.protocol.canopen_objects import (
+    NUMERIC_TYPES,
+    numpy_type,
+    parse_mapping_entry,
+    type_bits,
+)
+from hilident.protocol.canopen_profile import mapping_capacity, period_from_fields
+
+__all__ = ["PDO_KINDS", "PdoConfig", "PdoExchange"]
+
+#: Base index of each PDO object range: (rpdo or tpdo, communication or mapping).
+PDO_KINDS = {0x1400: ("rpdo", "comm"), 0x1600: ("rpdo", "map"), 0x1800: ("tpdo", "comm"), 0x1A00: ("tpdo", "map")}
+_MAX_TICKS = 65535  # most loop ticks one SYNC period may span
+
+
+@dataclass
+class PdoConfig:
+    """One PDO as the host configured it."""
+
+    cob_id: int
+    valid: bool
+    trans_type: int
+    entries: list = field(default_factory=list)  # (ObjectAddress, datatype)
+    packer: struct.Struct | None = None
+
+
+def _whole_ticks(seconds: float, loop_rate: float) -> int | None:
+    """``seconds`` in loop ticks, when it is a whole number of them that one SYNC period may span."""
+    ticks = seconds * loop_rate
+    if abs(ticks - round(ticks)) > 1e-6 or not 1 <= round(ticks) <= _MAX_TICKS:
+        return None
+    return int(round(ticks))
+
+
+class PdoExchange:
+    """The PDOs of one drive and its synchronous runs.
+
+    Parameters
+    ----------
+    firmware : CanopenDriveFirmware
+        The drive it belongs to: object dictionary, CiA 402 state, set-points, drive loop.
+    seed : int
+        Seed of the PDO-drop fault.
+
+    Attributes
+    ----------
+    pdos : dict
+        (``"rpdo"`` or ``"tpdo"``, number) -> :class:`PdoConfig`.
+    sync_divider : int
+        Loop ticks per SYNC period (0: not set).
+    underruns, sync_errors, tpdos_dropped : int
+        Samples without a fresh set-point, SYNC counter jumps, TPDOs the drop fault swallowed.
+    dropped : list
+        (sample index, COB-ID) of each TPDO the drop fault swallowed.
+    """
+
+    def __init__(self, firmware, seed: int = 0):
+        self.fw = firmware
+        od = firmware.od
+        self.rng = np.random.default_rng(seed + 2)
+        self.interpolation_period = [0, -3]  # 0x60C2 value and exponent as last written
+        self.sync_divider = 0
+        self.sync_overflow = (int(firmware.default(firmware.desc.address("sync_overflow")))
+                              if firmware.desc.has("sync_overflow") else 0)
+        self.last_sync_wall: float | None = None
+        self.tpdos_dropped = 0
+        self.dropped: list[tuple[int, int]] = []
+        self.restart()
+        self.pdos = {("tpdo", n): self._load("tpdo", n) for n in range(512) if 0x1800 + n in od and 0x1A00 + n in od}
+        self.pdos.update({("rpdo", n): self._load("rpdo", n) for n in range(512)
+                          if 0x1400 + n in od and 0x1600 + n in od})
+
+    def restart(self) -> None:
+        """A run starts: counters cleared, not yet driven by SYNC."""
+        self.underruns = 0
+        self.sync_errors = 0
+        self.last_sync_counter: int | None = None
+        self.sync_driven = False
+        self.position_setpoint_m: float | None = None  # last position set-point, the start of the next ramp
+
+    # --- configuration -----------------------------------------------------------------------
+
+    def _load(self, kind: str, n: int) -> PdoConfig:
+        fw = self.fw
+        comm = (0x1400 if kind == "rpdo" else 0x1800) + n
+        cob = int(fw.stored(comm, 1))
+        cfg = PdoConfig(cob & 0x7FF, not cob & 0x80000000, int(fw.stored(comm, 2)))
+        self._set_mapping(kind, n, cfg, int(fw.stored(comm + 0x200, 0)))
+        return cfg
+
+    def _set_mapping(self, kind: str, n: int, cfg: PdoConfig, count: int) -> None:
+        od = self.fw.od
+        mapping = (0x1600 if kind == "rpdo" else 0x1A00) + n
+        if count > mapping_capacity(od[mapping]):
+            raise SdoAbortedError(ABORT_PDO_LENGTH)
+        entries, bits = [], 0
+        for sub in range(1, count + 1):
+            addr, width = parse_mapping_entry(int(self.fw.stored(mapping, sub)))
+            obj = od.get_variable(addr.index, addr.subindex)
+            if obj is None or not obj.pdo_mappable or obj.data_type not in NUMERIC_TYPES:
+                raise SdoAbortedError(ABORT_NOT_MAPPABLE)
+            if width != type_bits(obj.data_type) or not (obj.writable if kind == "rpdo" else obj.readable):
+                raise SdoAbortedError(ABORT_NOT_MAPPABLE)
+            entries.append((addr, obj.data_type))
+            bits += width
+        if bits > 64:
+            raise SdoAbortedError(ABORT_PDO_LENGTH)
+        cfg.entries = entries
+        cfg.packer = struct.Struct("<" + "".join(numpy_type(t).char for _, t in entries)) if entries else None
+
+    def owns(self, index: int) -> bool:
+        base = index & 0xFE00
+        return base in PDO_KINDS and (PDO_KINDS[base][0], index - base) in self.pdos
+
+    def write(self, index: int, sub: int, value: int) -> None:
+        """The host wrote a PDO communication or mapping object (:meth:`owns` ``index``)."""
+        base = index & 0xFE00
+        kind, part = PDO_KINDS[base]
+        n = index - base
+        cfg = self.pdos[(kind, n)]
+        if part == "comm":
+            self._write_comm(kind, n, cfg, sub, value)
+            return
+        if cfg.valid:
+            raise SdoAbortedError(ABORT_STATE)  # mapping changes need the PDO invalid
+        if sub == 0:
+            self._set_mapping(kind, n, cfg, value)  # entries 1..value were stored before
+
+    def _write_comm(self, kind: str, n: int, cfg: PdoConfig, sub: int, value: int) -> None:
+        if sub == 1:
+            valid = not value & 0x80000000
+            if valid and cfg.valid and (value & 0x7FF) != cfg.cob_id:
+                raise SdoAbortedError(ABORT_VALUE)  # CiA 301: invalidate a PDO before moving it
+            network = self.fw.network
+            if kind == "rpdo" and network is not None:
+                if cfg.valid:
+                    network.unsubscribe(cfg.cob_id)
+                if valid:
+                    network.subscribe(value & 0x7FF, self.fw.guarded(self._rpdo_handler(n)))
+            cfg.cob_id, cfg.valid = value & 0x7FF, valid
+        elif sub == 2:
+            if kind == "tpdo" and not 1 <= value <= 240:
+                raise SdoAbortedError(ABORT_VALUE)  # this drive sends TPDOs on SYNC only
+            cfg.trans_type = value
+
+    def write_cycle_period(self, period_us: int) -> None:
+        """0x1006: the SYNC period, µs; it must be whole loop ticks (0: not set)."""
+        if period_us == 0:
+            self.sync_divider = 0
+            return
+        ticks = _whole_ticks(period_us / 1e6, self.fw.loop_rate)
+        if ticks is None:
+            raise SdoAbortedError(ABORT_VALUE)
+        self.sync_divider = ticks
+
+    def write_interpolation_period(self, value: int | None, exponent: int | None) -> None:
+        """0x60C2: the sample period is ``value * 10**exponent`` s; it must be whole loop ticks."""
+        period = list(self.interpolation_period)
+        if value is not None:
+            period[0] = value
+        if exponent is not None:
+            period[1] = exponent
+        seconds = period_from_fields(*period)
+        ticks = _whole_ticks(seconds, self.fw.loop_rate) if seconds else None
+        if seconds and ticks is None and value is not None:
+            raise SdoAbortedError(ABORT_VALUE)  # the exponent may come second: only a value that fits no exponent
+        self.interpolation_period = period
+        if ticks is not None:
+            self.sync_divider = ticks
+
+    def subscribe(self, network) -> None:
+        for (kind, n), cfg in self.pdos.items():
+            if kind == "rpdo" and cfg.valid:
+                network.subscribe(cfg.cob_id, self.fw.guarded(self._rpdo_handler(n)))
+
+    # --- receiving ---------------------------------------------------------------------------------
+
+    def _rpdo_handler(self, n: int):
+        def on_rpdo(can_id, data, timestamp):
+            fw = self.fw
+            with fw.lock:
+                cfg = self.pdos[("rpdo", n)]
+                if fw.node.nmt.state != "OPERATIONAL" or not cfg.valid or cfg.packer is None:
+                    return
+                if len(data) < cfg.packer.size:
+                    return  # CiA 301: a too-short PDO is not processed
+                for (addr, _), value in zip(cfg.entries, cfg.packer.unpack_from(bytes(data))):
+                    fw.receive_setpoint(fw.role_of.get(addr), value)
+        on_rpdo.__name__ = f"on_rpdo{n + 1}"
+        return on_rpdo
+
+    # --- SYNC ----------------------------------------------------------------------------------------
+
+    def on_sync(self, can_id, data, timestamp) -> None:
+        fw = self.fw
+        with fw.lock:
+            if fw.node.nmt.state != "OPERATIONAL":
+                return
+            self._count_sync(data)
+            if fw.state is not cia402.State.OPERATION_ENABLED or fw.playback.playing:
+                return
+            self.sync_driven = True
+            self.last_sync_wall = time.monotonic()
+            k = fw.sample_index
+            if fw.setpoints.rx_counter != k & 0xFFFF:
+                self.underruns += 1  # no fresh set-point for this sample: the last one is held
+            rows = fw.drive.run(self._setpoint_ticks(fw.setpoints.drive_input()))
+            fw.sample_index = k + 1
+            fw.last_row = rows[-1]
+            self._send_tpdos(rows[0], k)
+            fw.check_faults()
+
+    def _count_sync(self, data) -> None:
+        """SYNC counter (CiA 301): a counter that does not follow the last one is a lost or extra SYNC."""
+        if len(data) >= 1 and self.sync_overflow > 1:
+            counter = data[0]
+            if self.last_sync_counter is not None and counter != self.last_sync_counter % self.sync_overflow + 1:
+                self.sync_errors += 1
+            self.last_sync_counter = counter
+
+    def _send_tpdos(self, row, k: int) -> None:
+        rate = self.fw.faults.drop_pdo_rate
+        for cob_id, payload in self._tpdo_frames(row, k):
+            if rate and self.rng.random() < rate:
+                self.tpdos_dropped += 1
+                self.dropped.append((k, cob_id))
+                continue
+            self.fw.send(cob_id, payload)
+
+    def _tpdo_frames(self, row, k: int) -> list[tuple[int, bytes]]:
+        fw, frames = self.fw, []
+        for (kind, _), cfg in self.pdos.items():
+            if kind != "tpdo" or not cfg.valid or cfg.packer is None:
+                continue
+            if cfg.trans_type > 1 and (k % cfg.trans_type):
+                continue
+            values = [fw.live(fw.role_of.get(addr), addr, row, k) for addr, _ in cfg.entries]
+            frames.append((cfg.cob_id, cfg.packer.pack(*values)))
+        return frames
+
+    def _setpoint_ticks(self, target: float) -> np.ndarray:
+        """The loop's input for each tick of one SYNC period.
+
+        A position set-point (CSP, IP) is interpolated linearly from the last
+        one over the period (CiA 402 linear interpolation, 0x60C0 = 0): a step
+        every period would jolt the position loop at the SYNC rate. Other
+        set-points are held.
+        """
+        n = self.fw.divider()
+        if self.fw.drive.mode != "position":
+            return np.full(n, target)
+        start = target if self.position_setpoint_m is None else self.position_setpoint_m
+        self.position_setpoint_m = target
+        return start + (target - start) * np.arange(1, n + 1) / n
+
+    def sync_timed_out(self, now: float, timeout_s: float) -> bool:
+        """A SYNC-driven run that saw no SYNC for ``timeout_s`` (wall time) up to ``now``."""
+        return self.sync_driven and self.last_sync_wall is not None and now - self.last_sync_wall > timeout_s

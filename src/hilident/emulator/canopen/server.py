@@ -1,0 +1,143 @@
+"""The emulated CANopen drive on a bus: its network, its clock thread, and how a session starts it.
+
+:func:`start` runs the drive in-process on python-can's ``virtual`` bus;
+:func:`start_socketcand` also serves that bus over the socketcand protocol on
+127.0.0.1, for a host in another process (``hilident emulate canopen``).
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import threading
+import time
+from dataclasses import replace
+
+import canopen
+
+from hilident.config import DeviceConfig, EmulatorConfig
+from hilident.drivers import DriverDescription
+from hilident.emulator.canopen.firmware import CanopenDriveFirmware
+from hilident.emulator.canopen.socketcand import SocketcandServer
+from hilident.emulator.device import EmulatedDevice, build_drive
+from hilident.errors import ConfigError
+
+__all__ = ["CanopenDriveServer", "start", "start_socketcand"]
+
+_channel_numbers = itertools.count(1)
+
+
+class CanopenDriveServer:
+    """Runs a :class:`CanopenDriveFirmware` on a python-can bus: its network and its clock thread.
+
+    Parameters
+    ----------
+    firmware : CanopenDriveFirmware
+    interface, channel : str
+        python-can bus the node joins (``"virtual"`` and a channel name unique to it).
+    """
+
+    def __init__(self, firmware: CanopenDriveFirmware, interface: str = "virtual", channel: str = ""):
+        self.firmware = firmware
+        self.interface = interface
+        self.channel = channel or f"hilident-canopen-{os.getpid()}-{next(_channel_numbers)}"
+        self.network: canopen.Network | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
+        self.extra: list = []  # other services sharing this drive's lifetime (a socketcand server)
+
+    @property
+    def error(self) -> BaseException | None:
+        return self._error or self.firmware.error
+
+    @property
+    def path(self) -> str:
+        return self.channel
+
+    def start(self) -> "CanopenDriveServer":
+        network = canopen.Network()
+        network.NOTIFIER_CYCLE = 0.1  # a short receive timeout: close() returns promptly
+        network.connect(interface=self.interface, channel=self.channel, receive_own_messages=False)
+        self.network = network
+        self.firmware.attach(network)
+        network.notifier.add_listener(self.firmware.on_frame)
+        self._thread = threading.Thread(target=self._clock, name="canopen-drive-clock", daemon=True)
+        self._thread.start()
+        return self
+
+    def _clock(self) -> None:
+        try:
+            while not self._stop.wait(0.004):
+                self.firmware.tick(time.monotonic())
+        except BaseException as exc:
+            self._error = exc
+            self.firmware.drive.disable()
+
+    def close(self) -> None:
+        """Power stage off, threads stopped, bus released."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+        fw = self.firmware
+        with fw.lock:
+            fw.drive.disable()
+        for service in self.extra:
+            try:
+                service.close()
+            except Exception:
+                pass
+        try:
+            fw.node.nmt.stop_heartbeat()
+        except Exception:
+            pass
+        if self.network is not None:
+            try:
+                self.network.disconnect()
+            except Exception:
+                pass
+            self.network = None
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def _firmware(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig) -> CanopenDriveFirmware:
+    if driver.transport != "canopen":
+        raise ConfigError("device.driver", f"driver {driver.name!r} is not a CANopen drive (transport "
+                                           f"{driver.transport!r})")
+    return CanopenDriveFirmware(build_drive(cfg, driver), driver, device.node_id, cfg.faults, cfg.time_scale, cfg.seed)
+
+
+def start(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig) -> EmulatedDevice:
+    """Start the emulated drive in-process on a virtual CAN bus of its own.
+
+    Returns an :class:`~hilident.emulator.device.EmulatedDevice` whose ``device``
+    reaches it: ``can_interface = "virtual"``, ``port`` = the channel name.
+    """
+    firmware = _firmware(cfg, driver, device)
+    server = CanopenDriveServer(firmware).start()
+    reach = replace(device, can_interface="virtual", port=server.channel)
+    return EmulatedDevice(server=server, device=reach, drive=firmware.drive)
+
+
+def start_socketcand(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig, port: int = 0,
+                     bus_name: str = "can0") -> EmulatedDevice:
+    """Start the emulated drive and serve its bus over socketcand on 127.0.0.1.
+
+    The host reaches it with ``can_interface = "socketcand"`` and ``port =
+    "127.0.0.1:PORT/can0"`` (``EmulatedDevice.device`` holds exactly that).
+    """
+    firmware = _firmware(cfg, driver, device)
+    server = CanopenDriveServer(firmware).start()
+    try:
+        bridge = SocketcandServer(server.channel, bus_name=bus_name, port=port).start()
+    except BaseException:
+        server.close()
+        raise
+    server.extra.append(bridge)
+    reach = replace(device, can_interface="socketcand", port=bridge.address)
+    return EmulatedDevice(server=server, device=reach, drive=firmware.drive)

@@ -1,0 +1,92 @@
+"""Set-points and modes of operation of the emulated CANopen drive (CiA 402).
+
+The host selects a mode of operation (0x6060) and sends the set-point of that
+mode (target torque, velocity or position, interpolation data, a torque
+offset) by SDO or RPDO; :meth:`SetPoints.drive_input` turns them into the
+drive loop's input, in SI units.
+"""
+
+from __future__ import annotations
+
+from hilident.emulator.canopen.roles import TARGET_ROLES
+from hilident.protocol.canopen_objects import CanopenDescription
+from hilident.protocol.canopen_profile import mode_name_of_code
+
+__all__ = ["SetPoints"]
+
+#: CiA 402 modes of operation and the drive loop mode that runs them (torque offsets are added in each).
+_LOOP_MODE_OF_CODE = {10: "torque", 9: "velocity", 8: "position", 7: "position"}
+_SETPOINT_OF_CODE = {10: "target_torque", 9: "target_velocity", 8: "target_position"}
+
+
+class SetPoints:
+    """The selected mode of operation and the set-points the host sent.
+
+    Parameters
+    ----------
+    desc : CanopenDescription
+    scales : dict
+        Role -> SI per object unit.
+    supported : tuple of str
+        The modes this drive runs.
+    mode_code : int
+        The mode of operation at power-up (0x6060's default).
+    drive : DriveLoop
+        Where the torque offset goes and the hold position comes from.
+
+    Attributes
+    ----------
+    targets : dict
+        Set-point role -> raw value as last written.
+    rx_counter : int
+        The set-point counter as last written (a fresh set-point for each sample).
+    """
+
+    def __init__(self, desc: CanopenDescription, scales: dict, supported: tuple[str, ...], mode_code: int, drive):
+        self.desc = desc
+        self.scales = scales
+        self.supported = supported
+        self.mode_code = mode_code
+        self.drive = drive
+        self.targets = {role: 0 for role in TARGET_ROLES if desc.has(role)}
+        self.rx_counter = 0
+
+    @property
+    def mode_spec(self):
+        return self.desc.mode_by_code(self.mode_code)
+
+    def loop_mode(self, code: int | None = None) -> str | None:
+        """The drive loop mode of mode of operation ``code`` (the selected one by default; None: not one this
+        drive runs)."""
+        code = self.mode_code if code is None else code
+        if self.desc.explicit_modes:
+            spec = self.desc.mode_by_code(code)
+            return spec.name if spec is not None else None
+        return _LOOP_MODE_OF_CODE.get(code) if mode_name_of_code(code) in self.supported else None
+
+    def receive(self, role: str | None, value: int) -> bool:
+        """A set-point or the set-point counter, written by SDO or RPDO; False when ``role`` is neither."""
+        if role in self.targets:
+            self.targets[role] = value
+        elif role == "setpoint_counter":
+            self.rx_counter = value
+        else:
+            return False
+        return True
+
+    def _si(self, role: str) -> float:
+        return self.targets.get(role, 0) * self.scales.get(role, 1.0)
+
+    def drive_input(self) -> float:
+        """The drive loop's input for the next ticks; the torque offset (0x60B2) goes to the loop on its own."""
+        if self.desc.explicit_modes:
+            spec = self.mode_spec
+            x = self._si(spec.setpoint)
+            if spec.name == "position":
+                x -= self.drive.hold_position_m  # CSP targets are absolute; the drive loop takes them relative
+            return x
+        self.drive.torque_offset_nm = self._si("torque_offset")
+        if self.mode_code in (10, 9):
+            return self._si(_SETPOINT_OF_CODE[self.mode_code])
+        target = "target_position" if self.mode_code == 8 else "interpolation_data"
+        return self._si(target) - self.drive.hold_position_m

@@ -1,0 +1,1 @@
+"""The serial board's twin: :mod:`.firmware` (protocol state machine), :mod:`.links` (the line), :mod:`.server`."""
