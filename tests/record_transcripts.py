@@ -191,7 +191,7 @@ def _from_host(cob_id: int, node: int) -> bool:
 def record_can() -> Transcript:
     import can
 
-    from hilident.emulator.canopen_drive import start
+    from hilident.emulator.canopen.server import start
 
     emulator, device, driver = settings("canopen")
     emu = start(emulator, driver, device)
