@@ -467,3 +467,26 @@ def test_safe_stop_from_a_handler_that_interrupted_a_table_download(twin):
     ad.enable()
     ad.safe_stop()
     assert t.fw.state is cia402.State.SWITCH_ON_DISABLED
+
+
+def test_safe_stop_takes_a_stale_sdo_answer_for_what_it_is_and_writes_again(twin):
+    # the answer of a transfer the host gave up on arrives after safe_stop's request went out: canopen reads it as
+    # the answer to the controlword write ("Unexpected response"); the drive must still end up without power
+    t = twin()
+    ad = t.open()
+    ad.configure(FS, "torque")
+    t.fw.state = cia402.State.OPERATION_ENABLED
+    real_read_response = ad.node.sdo.read_response
+    stale = []
+
+    def stale_answer_first():
+        if not stale:
+            stale.append(real_read_response())  # the write's own answer, consumed
+            return bytes([0xC1, 0, 0, 0, 0, 0, 0, 0])  # ... and in its place a block upload's end
+        return real_read_response()
+
+    ad.node.sdo.read_response = stale_answer_first
+    ad.safe_stop()
+    ad.node.sdo.read_response = real_read_response
+    assert stale and ad.answered
+    assert t.fw.state is cia402.State.SWITCH_ON_DISABLED

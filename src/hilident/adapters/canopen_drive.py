@@ -119,6 +119,10 @@ ACQUISITIONS = {
 
 
 
+#: What canopen says when an SDO request got no answer within the timeout
+_NO_ANSWER = "No SDO response received"
+
+
 class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, AdapterBase):
     """A CiA 402 drive on a CAN bus.
 
@@ -394,15 +398,27 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
         Never raises; a drive that does not answer costs one SDO timeout. Safe
         to call from a signal handler that interrupted a block transfer: that
         transfer is aborted first, or the drive would take the request for a
-        data segment.
+        data segment. An answer of that transfer arriving late can be taken
+        for this write's answer (SDO has no request id): the write is then
+        repeated once.
         """
         try:
             if self._in_block_transfer:
                 self.node.sdo.abort(_ABORT_GENERAL)
-            self.write("controlword", int(cia402.Command.DISABLE_VOLTAGE))
-            self.answered = True
+            self.answered = self._disable_voltage()
         except Exception:
             self.answered = False  # gone or not listening: close() does not wait for it again
+
+    def _disable_voltage(self) -> bool:
+        """Write Disable Voltage; once more when the answer read was not this write's (a stale one)."""
+        for attempt in (1, 2):
+            try:
+                self.write("controlword", int(cia402.Command.DISABLE_VOLTAGE))
+                return True
+            except DeviceError as exc:
+                if attempt == 2 or _NO_ANSWER in str(exc):  # silence is not retried: it costs a timeout
+                    return False
+        return False
 
     # --- runs --------------------------------------------------------------------------------------
 
