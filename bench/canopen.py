@@ -51,8 +51,6 @@ standard drive lacks.
 
 from __future__ import annotations
 
-import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
-
 import argparse
 import os
 import re
@@ -64,6 +62,7 @@ from pathlib import Path
 
 import numpy as np
 
+import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
 from hilident.adapters.canopen_drive import CanopenDriveAdapter
 from hilident.config import load_config
 from hilident.drivers import find_driver

@@ -24,8 +24,6 @@ PRBS generator and data recorder play and record the run
 
 from __future__ import annotations
 
-import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
-
 import argparse
 import sys
 import tempfile
@@ -33,6 +31,8 @@ import time
 import traceback
 from dataclasses import replace
 from pathlib import Path
+
+import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "configs" / "emulated-canopen-gantry.toml"

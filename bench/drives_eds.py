@@ -23,14 +23,13 @@ Usage::
 
 from __future__ import annotations
 
-import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
-
 import argparse
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
 from hilident.driver_tools import check_driver_folder, new_driver_folder
 from hilident.errors import HilidentError
 

@@ -44,8 +44,6 @@ What is measured
 
 from __future__ import annotations
 
-import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
-
 import argparse
 import contextlib
 import cProfile
@@ -67,6 +65,7 @@ import numpy as np
 import scipy
 from scipy import signal
 
+import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
 from hilident.config import IdentificationConfig, NotchConfig, parse_config
 from hilident.drivers import find_driver
 from hilident.emulator.drive import DriveLoop
@@ -318,7 +317,7 @@ def bench_pipeline(rec: Record, s: Setup, repeats: int, cfg) -> PipelineResult:
 
     lib = _timeit(lambda: run_identify_plant(rec, s), repeats)
     best, mean = _best_mean(lib)
-    print(f"   reference: identify_plant (check, compensate, low-pass and detrend of 3 signals,")
+    print("   reference: identify_plant (check, compensate, low-pass and detrend of 3 signals,")
     print(f"   frf_from_reference + h1_estimate, resonances) {1e3 * best:.1f} ms best, {1e3 * mean:.1f} ms mean")
     _print_outcome(result, s, cfg)
     return result

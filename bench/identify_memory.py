@@ -15,8 +15,6 @@ Run by hand (it is not part of the test suite)::
 
 from __future__ import annotations
 
-import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
-
 import argparse
 import os
 import subprocess
@@ -27,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 from scipy import signal
+
+import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
 
 RATE = 1000.0
 CHUNK = 1_000_000

@@ -25,8 +25,6 @@ stamps included), not request headers.
 
 from __future__ import annotations
 
-import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
-
 import argparse
 import sys
 import time
@@ -35,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
 from hilident.adapters.base import StreamStats
 from hilident.adapters.modbus_drive import ModbusDriveAdapter
 from hilident.config import DeviceConfig, load_config

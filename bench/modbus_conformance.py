@@ -12,8 +12,6 @@ Serial Line V1.02). Exit code 1 when a row differs.
 
 from __future__ import annotations
 
-import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
-
 import socket
 import struct
 import sys
@@ -21,6 +19,7 @@ import time
 
 import serial
 
+import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
 from hilident.config import DeviceConfig, parse_config
 from hilident.drivers import find_driver
 from hilident.emulator.modbus.server import start

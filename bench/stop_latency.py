@@ -19,8 +19,6 @@ Needs ``tomli-w`` (installed with ``.[test]``).
 
 from __future__ import annotations
 
-import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
-
 import argparse
 import json
 import os
@@ -36,6 +34,7 @@ from pathlib import Path
 
 import tomli_w
 
+import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
 from hilident.config import parse_config
 from hilident.drivers import find_driver
 from hilident.emulator.factory import host_device_table, start_standalone

@@ -30,8 +30,6 @@ run in real time (s = 1) to confirm what a real board at that baud rate can do.
 
 from __future__ import annotations
 
-import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
-
 import argparse
 import math
 import multiprocessing as mp
@@ -43,6 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
 from hilident.adapters.serial_board import SerialBoardAdapter
 from hilident.config import parse_config
 from hilident.drivers import ChannelSpec, DriverDescription, find_driver
@@ -96,7 +95,7 @@ class _BoardMonitor:
             return 0.0
         return (self.last[1] - self.first[1]) / (self.last[0] - self.first[0])
 
-    def start(self) -> "_BoardMonitor":
+    def start(self) -> _BoardMonitor:
         threading.Thread(target=self._run, name="tx-monitor", daemon=True).start()
         return self
 

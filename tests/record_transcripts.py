@@ -22,7 +22,6 @@ from dataclasses import replace
 from pathlib import Path
 
 from exchanges import Exchange, Transcript
-
 from hilident.adapters.backends import adapter_class
 from hilident.config import load_config
 from hilident.drivers import find_driver

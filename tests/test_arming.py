@@ -10,10 +10,10 @@ import time
 from pathlib import Path
 
 import pytest
-from twins import Twin, host, wait_until
 
 from hilident.devicelock import DeviceLock, device_key
 from hilident.errors import DeviceError
+from twins import Twin, host, wait_until
 
 
 @pytest.fixture

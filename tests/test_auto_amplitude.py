@@ -15,8 +15,14 @@ from hilident.errors import ConfigError
 from hilident.ident.frequency import periodic_frf
 from hilident.ident.friction import StribeckParams
 from hilident.recording import read_run
-from hilident.session import (Session, band_coherence, coherence_factor, friction_share, predicted_coherence,
-                              response_change)
+from hilident.session import (
+    Session,
+    band_coherence,
+    coherence_factor,
+    friction_share,
+    predicted_coherence,
+    response_change,
+)
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 GANTRY = CONFIGS / "emulated-gantry.toml"

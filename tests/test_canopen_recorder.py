@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.signal
-from vendor_drives import VendorDrive, write_vendor_drive
 
 from hilident.adapters.canopen_drive import CanopenDriveAdapter
 from hilident.cli import main
@@ -36,6 +35,7 @@ from hilident.protocol.canopen_recorder import (
 from hilident.recording import read_run
 from hilident.session import build_excitation, excitation_recipe
 from hilident.signals import generators as sig
+from vendor_drives import VendorDrive, write_vendor_drive
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "emulated-canopen-gantry.toml"
 FS = 1000.0

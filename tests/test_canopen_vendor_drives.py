@@ -14,8 +14,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from twins import wait_until
-from vendor_drives import FILTER_DRIVES, VendorDrive, write_vendor_drive
 
 from hilident.adapters.canopen_drive import CanopenDriveAdapter
 from hilident.config import load_config
@@ -25,6 +23,8 @@ from hilident.emulator.factory import true_modes
 from hilident.errors import ConfigError, DeviceError, LimitTrip
 from hilident.recording import read_run
 from hilident.session import Session
+from twins import wait_until
+from vendor_drives import FILTER_DRIVES, VendorDrive, write_vendor_drive
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "emulated-canopen-gantry.toml"
 FS = 1000.0

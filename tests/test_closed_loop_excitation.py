@@ -15,8 +15,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from twins import assert_friction_matches
-from vendor_drives import VendorDrive, write_vendor_drive
 
 from hilident.config import load_config
 from hilident.drivers import load_driver
@@ -26,6 +24,8 @@ from hilident.protocol.canopen_objects import CanopenDescription
 from hilident.protocol.eds import inspect_eds, load_eds
 from hilident.recording import read_run
 from hilident.session import Session, build_excitation
+from twins import assert_friction_matches
+from vendor_drives import VendorDrive, write_vendor_drive
 
 ROOT = Path(__file__).resolve().parents[1]
 CANOPEN = ROOT / "configs" / "emulated-canopen-gantry.toml"

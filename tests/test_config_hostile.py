@@ -11,7 +11,6 @@ import tracemalloc
 import typing
 
 import pytest
-from hostile_toml import toml_string, toml_value
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
@@ -19,6 +18,7 @@ from hilident.config import Config, excitation_samples, load_config, parse_confi
 from hilident.errors import ConfigError
 from hilident.signals import ramp_extent, velocity_ramps
 from hilident.signals._checks import MAX_SAMPLES
+from hostile_toml import toml_string, toml_value
 
 LIMITS = {"torque_nm": 10, "velocity_mps": 1, "position_min_m": -1, "position_max_m": 1}
 

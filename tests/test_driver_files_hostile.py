@@ -14,7 +14,6 @@ import tomllib
 from pathlib import Path
 
 import pytest
-from hostile_toml import toml_string, toml_value
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -23,6 +22,7 @@ from hilident.errors import ConfigError
 from hilident.protocol.canopen_objects import CanopenDescription
 from hilident.protocol.filter_encoding import FilterEncoding
 from hilident.protocol.modbus_registers import RegisterMap
+from hostile_toml import toml_string, toml_value
 
 SHIPPED = ("myrio-board", "canopen-servo", "canopen-servo-fixed", "modbus-servo")
 ORIGINALS = {name: tomllib.loads(find_driver(name).text) for name in SHIPPED}

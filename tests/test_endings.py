@@ -24,9 +24,9 @@ import time
 from pathlib import Path
 
 import pytest
-from twins import HOST_TIMEOUT_S, TRANSPORTS, Twin, finish, host, wait_until
 
 from hilident.recording import read_run
+from twins import HOST_TIMEOUT_S, TRANSPORTS, Twin, finish, host, wait_until
 
 #: Exit codes the README documents.
 EXIT = {"sigterm": 143, "sighup": 129, "sigint_twice": 130, "sigkill": -signal.SIGKILL,

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from test_identify_offline import GANTRY  # the same frictionless gantry
 
 from hilident import pipeline
 from hilident.cli import main
@@ -19,6 +18,7 @@ from hilident.emulator.factory import build_drive, true_modes
 from hilident.errors import DataError
 from hilident.recording import RunWriter
 from hilident.signals import multisine
+from test_identify_offline import GANTRY  # the same frictionless gantry
 
 RATE = 1000.0
 PERIOD_S = 4.0

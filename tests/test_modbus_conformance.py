@@ -21,8 +21,8 @@ import serial
 from hilident.adapters.modbus_drive import ModbusDriveAdapter, NoResponse
 from hilident.config import DeviceConfig, parse_config
 from hilident.drivers import find_driver
-from hilident.emulator.modbus.server import start
 from hilident.emulator.modbus.pdu import handle, request_length
+from hilident.emulator.modbus.server import start
 from hilident.errors import DeviceError
 from hilident.protocol.modbus_registers import RegisterMap
 
@@ -92,7 +92,7 @@ class Tcp:
         self.sock.settimeout(timeout)
         try:
             header = self._exactly(7)
-        except socket.timeout:
+        except TimeoutError:
             return None
         self.sock.settimeout(2.0)
         return header + self._exactly(struct.unpack(">H", header[4:6])[0] - 1)

@@ -143,7 +143,7 @@ def test_to_jsonable_nested_numpy_nan_complex():
         "point": Point(0.1, 0.3),
         "file": Path("/tmp/run.h5"),
         "mode": Mode.SINE,
-        "when": dt.datetime(2024, 5, 1, 12, 0, tzinfo=dt.timezone.utc),
+        "when": dt.datetime(2024, 5, 1, 12, 0, tzinfo=dt.UTC),
         "tags": {"b", "a"},
         5: (1, 2),
         np.int64(6): None,

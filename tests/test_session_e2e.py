@@ -10,16 +10,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from twins import assert_friction_matches
-
-from hilident.cli import main
 from hilident.adapters.base import adapter_class
-from hilident.config import load_config, parse_config
+from hilident.cli import main
+from hilident.config import load_config
 from hilident.drivers import find_driver
 from hilident.emulator.factory import true_modes
 from hilident.recording import read_run
 from hilident.session import Session
 from summary_keys import assert_layout
+from twins import assert_friction_matches
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 

@@ -8,8 +8,15 @@ from hilident.adapters.base import StreamStats
 from hilident.events import Kind, RunEvent
 from hilident.recording import RunWriter, read_run
 from hilident.serialise import write_json
-from hilident.summary import (LAYOUTS, DevicePart, ExcitationPart, StreamStatistics, Summary, UploadOutcome,
-                              VerificationPart)
+from hilident.summary import (
+    LAYOUTS,
+    DevicePart,
+    ExcitationPart,
+    StreamStatistics,
+    Summary,
+    UploadOutcome,
+    VerificationPart,
+)
 
 
 class _Excitation:

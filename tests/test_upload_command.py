@@ -9,9 +9,6 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
-from summary_keys import assert_layout
-from twins import Twin
-from vendor_drives import VendorDrive, write_vendor_drive
 
 from hilident import pipeline
 from hilident.adapters.serial_board import SerialBoardAdapter
@@ -22,6 +19,9 @@ from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec, design_notch
 from hilident.ident.resonance import Resonance
 from hilident.upload import UploadCommand
+from summary_keys import assert_layout
+from twins import Twin
+from vendor_drives import VendorDrive, write_vendor_drive
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 ZETA = 0.018
@@ -317,6 +317,7 @@ def test_identify_a_recording_then_upload_its_notch_to_the_modbus_twin(tmp_path)
     import tomllib
 
     import tomli_w
+
     from twins import quick
 
     raw = quick(tomllib.loads((CONFIGS / "emulated-gantry.toml").read_text()), "serial")

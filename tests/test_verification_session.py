@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from hilident.config import load_config
-from hilident.errors import DataError
 from hilident.emulator.factory import true_modes
+from hilident.errors import DataError
 from hilident.session import Session
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"

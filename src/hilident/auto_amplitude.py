@@ -9,7 +9,7 @@ the session's recorder and chooses.
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

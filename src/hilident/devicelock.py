@@ -84,7 +84,7 @@ class DeviceLock:
         self._fd: int | None = None
         self.recovered_from: int | None = None  # pid of a dead holder whose lock was taken over
 
-    def acquire(self) -> "DeviceLock":
+    def acquire(self) -> DeviceLock:
         """Take the lock, or raise :class:`DeviceError` naming the pid that holds it."""
         if fcntl is None:  # pragma: no cover
             return self
@@ -122,7 +122,7 @@ class DeviceLock:
             os.close(self._fd)  # closing drops the flock
         self._fd = None
 
-    def __enter__(self) -> "DeviceLock":
+    def __enter__(self) -> DeviceLock:
         return self.acquire()
 
     def __exit__(self, *exc) -> None:

@@ -303,7 +303,7 @@ def load_driver(folder: str | os.PathLike) -> DriverDescription:
     )
 
 
-def load_object_dictionary(driver: "DriverDescription | Path", node_id: int | None = None,
+def load_object_dictionary(driver: DriverDescription | Path, node_id: int | None = None,
                            warnings: list[str] | None = None):
     """The object dictionary of a CANopen driver folder's EDS (``[canopen] eds``), read as vendors write them.
 

@@ -99,7 +99,7 @@ class RunEvent:
     data: str | None = None
 
     @classmethod
-    def from_dict(cls, entry: dict) -> "RunEvent":
+    def from_dict(cls, entry: dict) -> RunEvent:
         """The event :meth:`to_dict` made ``entry`` of (the inverse: ``RunEvent.from_dict(e.to_dict()) == e``).
 
         >>> RunEvent.from_dict({"kind": "underrun", "message": "3 samples", "sample_index": 7, "value": 3.0})

@@ -97,7 +97,7 @@ class ExperimentRecorder:
         The stream counters of every run recorded so far, added.
     """
 
-    def __init__(self, device: "ConnectedDevice", out: Path, progress: "Progress", warnings: list[str]):
+    def __init__(self, device: ConnectedDevice, out: Path, progress: Progress, warnings: list[str]):
         self.device = device
         self.out = out
         self.progress = progress

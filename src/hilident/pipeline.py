@@ -17,13 +17,13 @@ from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec, design_notch, notch_from_resonance
 from hilident.ident import friction as fr
 from hilident.ident import greybox
-from hilident.ident.validation import overfitting_warning
 from hilident.ident.discretize import sampling_advice
 from hilident.ident.frequency import FrequencyResponse, frf_from_reference, h1_estimate, periodic_frf
 from hilident.ident.frfquality import check_resolution, frf_uncertainty, input_spectrum
 from hilident.ident.preprocess import check_signals, lowpass, remove_drift
 from hilident.ident.resonance import RejectedPeak, Resonance, screen_resonances
 from hilident.ident.tffit import ModalModel, RootReport, TfFit, classify_roots, modal_form, select_structure
+from hilident.ident.validation import overfitting_warning
 
 
 @dataclass
@@ -87,7 +87,7 @@ class PlantResult:
     loop: FrequencyResponse
     resonances: list[Resonance]
     warnings: list[str] = field(default_factory=list)
-    model: "PlantModel | None" = None
+    model: PlantModel | None = None
     quality: dict = field(default_factory=dict)
     rejected: list[RejectedPeak] = field(default_factory=list)
 

@@ -64,7 +64,7 @@ _EVENT_DTYPE = np.dtype(
 
 
 def _utc_now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
 
 
 def _to_json_text(value: Any, what: str) -> str:

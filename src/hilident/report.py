@@ -264,7 +264,7 @@ def _mark_resonances(axes, resonances: Iterable[Any]) -> None:
     """A dotted red line at each resonance on every axis, its frequency written at the top."""
     ax_mag = axes[0]
     for i, res in enumerate(resonances):
-        f_res = float(getattr(res, "frequency_hz"))
+        f_res = float(res.frequency_hz)
         for ax in axes:
             ax.axvline(f_res, color="tab:red", ls=":", lw=1.0, label="resonance" if (i == 0 and ax is ax_mag) else None)
         ax_mag.annotate(f"{f_res:.4g} Hz", xy=(f_res, 1.0), xycoords=("data", "axes fraction"),

@@ -32,31 +32,51 @@ from __future__ import annotations
 import os
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from hilident import endings, report
-from hilident.serialise import write_json
-from hilident.summary import (NOT_REACHED, DevicePart, ExcitationPart, StreamStatistics, Summary,
-                              UploadOutcome, VerificationPart)
 from hilident.adapters.base import StreamStats, adapter_class
+from hilident.auto_amplitude import (  # noqa: F401 (kept importable)
+    AutoAmplitude,
+    band_coherence,
+    coherence_factor,
+    friction_share,
+    period_spectra,
+    predicted_coherence,
+    response_change,
+    smooth_lines,
+)
 from hilident.config import Config, check_auto_amplitude
 from hilident.devicelock import DeviceLock, device_key
 from hilident.drivers import DriverDescription, check_run_against_driver, find_driver
 from hilident.errors import ArmingRefused, ConfigError, DataError, HilidentError, UsageError
+from hilident.experiment import (  # noqa: F401 (kept importable)
+    FLUSH_INTERVAL_S,
+    Experiment,
+    ExperimentRecorder,
+    late_sampling_warnings,
+    package_versions,
+)
 from hilident.filter_slots import BypassedSlots
-from hilident.plan import RunPlan, excitation_travel_m, make_plan
-from hilident.experiment import (FLUSH_INTERVAL_S, Experiment, ExperimentRecorder,  # noqa: F401 (kept importable)
-                                 late_sampling_warnings, package_versions)
 from hilident.lazy import lazy_module
-from hilident.auto_amplitude import (AutoAmplitude, band_coherence, coherence_factor,  # noqa: F401 (kept importable)
-                                     friction_share, period_spectra, predicted_coherence, response_change,
-                                     smooth_lines)
-from hilident.signals import generators as sig
+from hilident.plan import RunPlan, excitation_travel_m, make_plan
 from hilident.run_excitation import Excitation, build_excitation, excitation_recipe  # noqa: F401 (kept importable)
+from hilident.serialise import write_json
+from hilident.signals import generators as sig
+from hilident.summary import (
+    NOT_REACHED,
+    DevicePart,
+    ExcitationPart,
+    StreamStatistics,
+    Summary,
+    UploadOutcome,
+    VerificationPart,
+)
 
 if TYPE_CHECKING:
     from hilident.adapters.base import DeviceAdapter
@@ -144,7 +164,7 @@ class ConnectedDevice:
     it (the embedded emulator, the device lock). Made by :func:`connect_device`."""
 
     driver: DriverDescription
-    adapter: "DeviceAdapter"
+    adapter: DeviceAdapter
     emulator: Any = None
     lock: DeviceLock | None = None
 

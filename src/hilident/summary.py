@@ -69,7 +69,7 @@ class StreamStatistics:
     board_dropped_blocks: int = 0
 
     @classmethod
-    def of(cls, stats: Any) -> "StreamStatistics":
+    def of(cls, stats: Any) -> StreamStatistics:
         """From a :class:`hilident.adapters.base.StreamStats` (the session's totals)."""
         return cls(stats.samples, stats.lost_frames, stats.lost_blocks, stats.lost_samples, stats.corrupt_frames,
                    stats.out_of_order, stats.underruns, stats.board_dropped_blocks)
@@ -140,7 +140,7 @@ class ExcitationPart:
     reference: str | None = None
 
     @classmethod
-    def of(cls, e: Any, auto: dict | None) -> "ExcitationPart":
+    def of(cls, e: Any, auto: dict | None) -> ExcitationPart:
         """From ``[excitation]`` and the automatic amplitude's record (None: the amplitude was given)."""
         reference = None
         if e.closed_loop:
@@ -166,7 +166,7 @@ class DevicePart:
     identity: dict | None = None
 
     @classmethod
-    def reported(cls, driver: str | None, port: str | None, emulated: bool, identity: Any) -> "DevicePart":
+    def reported(cls, driver: str | None, port: str | None, emulated: bool, identity: Any) -> DevicePart:
         """With the device's ``name``, ``firmware``, ``loop_rate_hz`` and ``filter_slots`` (None: not opened)."""
         return cls(driver, port, emulated, {key: getattr(identity, key, None)
                                             for key in ("name", "firmware", "loop_rate_hz", "filter_slots")})
@@ -185,7 +185,7 @@ class PlantPart:
     measurement: dict | None = None
 
     @classmethod
-    def of(cls, plant: Any, no_measurement: Any = None) -> "PlantPart":
+    def of(cls, plant: Any, no_measurement: Any = None) -> PlantPart:
         """From a :class:`hilident.pipeline.PlantResult` (None: the step was not reached)."""
         if plant is None:
             return cls(measurement=no_measurement)
@@ -250,7 +250,7 @@ class Summary:
                plant: Any, friction: Any, designs: list, upload: UploadOutcome,
                verification: VerificationPart | None, stream: StreamStatistics, connect: dict | None,
                filters_found: list[dict], recordings: list[str], elapsed_s: float, warnings: list[str],
-               model: Any = NOT_REACHED) -> "Summary":
+               model: Any = NOT_REACHED) -> Summary:
         """``hilident run``'s summary (``model``: the grey-box fit, None when not asked for; left out when the
         run failed before it)."""
         return cls("run", config, elapsed_s, warnings, upload, designs, PlantPart.of(plant), friction_summary(friction),
@@ -260,7 +260,7 @@ class Summary:
 
     @classmethod
     def of_identify(cls, *, config: str, data: dict, plant: Any, friction: Any, model: Any, designs: list,
-                    notch_skipped_reason: str | None, elapsed_s: float, warnings: list[str]) -> "Summary":
+                    notch_skipped_reason: str | None, elapsed_s: float, warnings: list[str]) -> Summary:
         """``hilident identify``'s summary: no upload or verification, the stream is the data file's rows."""
         stream = StreamStatistics(samples=data["samples"], lost_samples=data.get("missing_samples", 0))
         return cls("identify", config, elapsed_s, list(warnings), UploadOutcome(), designs,
@@ -269,12 +269,12 @@ class Summary:
 
     @classmethod
     def of_upload(cls, *, config: str, source: dict, device: DevicePart, filters_before: list[dict], designs: list,
-                  upload: UploadOutcome, elapsed_s: float, warnings: list[str]) -> "Summary":
+                  upload: UploadOutcome, elapsed_s: float, warnings: list[str]) -> Summary:
         """``hilident upload``'s summary: the source, the device and what its slots held before and after."""
         return cls("upload", config, elapsed_s, warnings, upload, designs, device=device,
                    extra={"command": "upload", "source": source, "filters_before": filters_before})
 
-    def failed(self, step: str, error: str) -> "Summary":
+    def failed(self, step: str, error: str) -> Summary:
         """This summary, naming the step that failed and its error."""
         self.failure = Failure(step, error)
         return self

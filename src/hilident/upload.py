@@ -29,8 +29,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from hilident import endings
-from hilident.serialise import write_json
-from hilident.summary import DevicePart, Summary, UploadOutcome
 from hilident.errors import (
     ArmingRefused,
     ConfigError,
@@ -39,7 +37,9 @@ from hilident.errors import (
     HilidentError,
     UsageError,
 )
+from hilident.serialise import write_json
 from hilident.session import DeviceConnection, Progress
+from hilident.summary import DevicePart, Summary, UploadOutcome
 
 #: Attenuation lost to the device's rounding (design minus achieved at the centre) above which the run warns, dB.
 ROUNDING_WARNING_DB = 3.0

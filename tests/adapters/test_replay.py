@@ -11,10 +11,10 @@ from __future__ import annotations
 from dataclasses import replace
 
 import pytest
-from exchanges import Exchange, Transcript, UnexpectedExchange, expected_exchanges
-from record_transcripts import conversation, fixed_serial_sequence, sample_rate_hz, settings
 
+from exchanges import Exchange, Transcript, UnexpectedExchange, expected_exchanges
 from hilident.adapters.backends import adapter_class
+from record_transcripts import conversation, fixed_serial_sequence, sample_rate_hz, settings
 
 #: Every transcript (``tests/data/transcripts/NAME.json``); Modbus RTU reaches its fake line over ``socket://``.
 TRANSCRIPTS = ["serial", "modbus", "modbus-rtu", "canopen"]

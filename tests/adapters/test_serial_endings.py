@@ -21,6 +21,18 @@ import numpy as np
 import pytest
 from cobs import cobs
 from scipy.signal import iirnotch
+from test_serial_adapter import (
+    CHANNELS,
+    DRIVER,
+    RATE_HZ,
+    OneFrameReads,
+    Recorder,
+    assert_clean,
+    excitation,
+    make_config,
+    pipe_board,
+    wait_until,
+)
 
 from hilident.adapters.serial_board import WATCHDOG_NET, SerialBoardAdapter
 from hilident.config import DeviceConfig
@@ -30,11 +42,6 @@ from hilident.filters.biquad import Biquad
 from hilident.links import pipe_pair
 from hilident.protocol import serial_board as sb
 from hilident.protocol.framing import FrameDecoder, encode_frame
-
-from test_serial_adapter import (
-    CHANNELS, DRIVER, RATE_HZ, OneFrameReads, Recorder, assert_clean, excitation, make_config, pipe_board,
-    wait_until,
-)
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -162,7 +169,7 @@ class IndependentBoard:
         except OSError:  # the host closed the line
             pass
 
-    def start(self) -> "IndependentBoard":
+    def start(self) -> IndependentBoard:
         self._thread.start()
         return self
 

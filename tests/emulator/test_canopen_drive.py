@@ -9,11 +9,11 @@ from dataclasses import replace
 from pathlib import Path
 
 import can
-import canopen
 import numpy as np
 import pytest
 from canopen.sdo import SdoAbortedError
 
+import canopen
 from hilident.config import DeviceConfig, load_config
 from hilident.drivers import find_driver
 from hilident.emulator.canopen.server import start, start_socketcand
@@ -388,7 +388,7 @@ def test_socketcand_frames_flow_only_after_the_rawmode_ok():
                     sock.settimeout(left)
                     try:
                         chunk = sock.recv(65536)
-                    except socket.timeout:
+                    except TimeoutError:
                         break
                     if not chunk:
                         break

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import ast
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 import hilident.emulator
@@ -19,7 +19,7 @@ def _module_name(path: Path) -> str:
     return ".".join((PACKAGE, *parts))
 
 
-@lru_cache(maxsize=None)
+@cache
 def _imports(path: Path, name: str) -> frozenset[str]:
     """Every module ``path`` imports, at any depth of the file (function-level imports too)."""
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]

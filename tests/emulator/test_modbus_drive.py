@@ -13,8 +13,8 @@ from pymodbus.exceptions import ModbusException
 from hilident.config import DeviceConfig, parse_config
 from hilident.drivers import find_driver
 from hilident.emulator.factory import build_drive
-from hilident.emulator.modbus.server import start
 from hilident.emulator.modbus.firmware import ModbusDriveFirmware
+from hilident.emulator.modbus.server import start
 from hilident.filters.biquad import Biquad
 from hilident.protocol.modbus_registers import RegisterMap, plan_chunks, table_crc
 

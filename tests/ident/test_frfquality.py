@@ -3,7 +3,7 @@ import pytest
 from scipy import signal
 
 from hilident.errors import ConfigError, DataError
-from hilident.ident.frequency import FrequencyResponse, h1_estimate, periodic_frf
+from hilident.ident.frequency import FrequencyResponse, h1_estimate
 from hilident.ident.frfquality import check_resolution, frf_uncertainty, input_spectrum
 from hilident.signals.generators import multisine
 

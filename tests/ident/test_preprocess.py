@@ -2,9 +2,9 @@ import tracemalloc
 
 import numpy as np
 import pytest
-from scipy import signal
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy import signal
 
 from hilident.errors import ConfigError, DataError
 from hilident.ident.preprocess import (

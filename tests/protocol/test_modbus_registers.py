@@ -15,8 +15,16 @@ from hilident.drivers import find_driver
 from hilident.errors import ConfigError, DataError
 from hilident.filters.notch import NotchSpec, design_notch
 from hilident.protocol.modbus_registers import (
-    RegisterMap, count_rtu_frames, decode_string, decode_values, encode_string, encode_values, exception_meaning,
-    plan_chunks, rtu_crc, table_crc,
+    RegisterMap,
+    count_rtu_frames,
+    decode_string,
+    decode_values,
+    encode_string,
+    encode_values,
+    exception_meaning,
+    plan_chunks,
+    rtu_crc,
+    table_crc,
 )
 
 DRIVER = find_driver("modbus-servo")

@@ -9,8 +9,9 @@ register under the ``hilident.adapters`` entry point group.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -60,7 +61,7 @@ class StreamStats:
     board_dropped_blocks: int = 0
     clipped_blocks: int = 0
 
-    def add(self, other: "StreamStats") -> "StreamStats":
+    def add(self, other: StreamStats) -> StreamStats:
         """Field-wise sum (for the totals of a session)."""
         return StreamStats(**{k: getattr(self, k) + getattr(other, k) for k in self.__dataclass_fields__})
 
@@ -154,13 +155,13 @@ class DeviceAdapter(Protocol):
     port: str
     identity: Any
     events: list[dict]
-    connect_report: "ConnectReport"
+    connect_report: ConnectReport
     sample_rate_hz: float
     channel_units: list[str]
     last_result: RunResult | None
 
     @classmethod
-    def open_device(cls, device, driver, link=None) -> "DeviceAdapter":
+    def open_device(cls, device, driver, link=None) -> DeviceAdapter:
         """Connect as the ``[device]`` config says, check the device matches ``driver``
         and bring it to a known state.
 

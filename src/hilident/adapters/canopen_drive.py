@@ -59,9 +59,9 @@ import time
 from pathlib import Path
 
 import can
-import canopen
 import numpy as np
 
+import canopen
 from hilident.adapters.base import (
     AdapterBase,
     ConnectReport,
@@ -91,10 +91,10 @@ from hilident.adapters.canopen_recorder import RecorderRun
 from hilident.adapters.canopen_sdo import SdoAccess
 from hilident.adapters.canopen_slots import FilterSlots
 from hilident.adapters.canopen_streamed import StreamedRun
-from hilident.events import Kind, RunEvent
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription, load_object_dictionary
 from hilident.errors import ConfigError, DataError, DeviceError
+from hilident.events import Kind, RunEvent
 from hilident.protocol import cia402
 from hilident.protocol.canopen_objects import (
     CanopenDescription,
@@ -195,7 +195,7 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
     # --- opening and closing --------------------------------------------------------------
 
     @classmethod
-    def open_device(cls, device: DeviceConfig, driver: DriverDescription, link=None) -> "CanopenDriveAdapter":
+    def open_device(cls, device: DeviceConfig, driver: DriverDescription, link=None) -> CanopenDriveAdapter:
         """Open the bus, load the EDS, check the identity, bring the drive to a known state, arm the net.
 
         See the module docstring: NMT Pre-operational, frames from before

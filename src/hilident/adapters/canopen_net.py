@@ -11,8 +11,8 @@ import math
 import time
 
 import can
-import canopen
 
+import canopen
 from hilident.adapters.base import (
     refuse_latched_faults,
 )
@@ -24,8 +24,8 @@ from hilident.adapters.canopen_common import (
     LIMIT_TRIP_CODES,
     Emergency,
 )
-from hilident.events import Kind, RunEvent
 from hilident.errors import DeviceError
+from hilident.events import Kind, RunEvent
 from hilident.protocol import cia402
 from hilident.protocol.canopen_objects import (
     ABORT_CONNECTION_INDEX,
@@ -47,7 +47,7 @@ class NetWatch:
 
     # --- known state at connect, device-side net -------------------------------------------------
 
-    def _count_early_frames(self) -> "_FrameCounter":
+    def _count_early_frames(self) -> _FrameCounter:
         """Count the TPDOs and emergencies that arrive while the host has configured nothing."""
         cobs = [base + self.node.id for base in _TPDO_BASES]
         counter = _FrameCounter(self.network, cobs)

@@ -36,8 +36,8 @@ import time
 import numpy as np
 
 from hilident.adapters.base import RunStrategy
-from hilident.events import Kind, RunEvent
 from hilident.errors import ConfigError, DeviceError
+from hilident.events import Kind, RunEvent
 from hilident.protocol.canopen_objects import (
     ObjectAddress,
     mapping_entry,

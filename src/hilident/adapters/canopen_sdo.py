@@ -11,9 +11,9 @@ import io
 from struct import error as struct_error
 
 import can
-import canopen
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
+import canopen
 from hilident.adapters.canopen_common import (
     _ABORT_GENERAL,
     _transfer_error,

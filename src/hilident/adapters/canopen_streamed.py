@@ -49,8 +49,8 @@ from typing import Protocol
 import numpy as np
 
 from hilident.adapters.base import RunStrategy
-from hilident.events import Kind, RunEvent
 from hilident.errors import DeviceError
+from hilident.events import Kind, RunEvent
 from hilident.protocol.canopen_objects import numpy_type, type_bits
 
 __all__ = ["StreamedRun", "DriveHost", "POSITION_SETPOINTS"]

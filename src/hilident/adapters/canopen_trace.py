@@ -47,6 +47,7 @@ import time
 from pathlib import Path
 
 import can
+
 import canopen
 
 __all__ = ["FLUSH_INTERVAL_S", "TRACE_CHANNEL", "FrameTrace", "TraceClock", "TracingNetwork"]

@@ -11,7 +11,6 @@ import time
 import numpy as np
 
 from hilident.adapters.base import RunResult, StreamStats
-from hilident.events import Kind, RunEvent
 from hilident.adapters.modbus_common import (
     _CHUNKS_PER_POLL,
     _LIMIT_FAULTS,
@@ -21,6 +20,7 @@ from hilident.adapters.modbus_common import (
     NoResponse,
 )
 from hilident.errors import DataError, DeviceError
+from hilident.events import Kind, RunEvent
 from hilident.protocol.modbus_registers import (
     STAMP_MODULUS,
     Chunk,

@@ -8,7 +8,6 @@ Split from :mod:`hilident.adapters.modbus_drive` so that its parts
 
 from __future__ import annotations
 
-import asyncio
 import logging
 from dataclasses import dataclass, field
 
@@ -75,7 +74,7 @@ class _SerialClient(ModbusSerialClient):
             self.stale_frames += 1
             try:
                 response = self.transaction.sync_get_response(request.dev_id, request.transaction_id)
-            except asyncio.TimeoutError:
+            except TimeoutError:
                 raise _StaleAnswer("only answers to other requests came back") from None
         return response
 

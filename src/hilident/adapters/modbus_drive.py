@@ -50,9 +50,26 @@ from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from hilident.adapters.base import AdapterBase, ConnectReport, RunResult
 from hilident.adapters.modbus_capture import TableCapture
 from hilident.adapters.modbus_common import (  # noqa: F401  (re-exported)
-    _RETRIES, _RETRY_LATER, _POLL_S, _CHUNKS_PER_POLL, _LIMIT_FAULTS, _IDENTITY, _STATUS, _STOP_WAIT_S,
-    _ENABLED_WAIT, _DRAIN_QUIET_S, _DRAIN_MAX_S, _StaleAnswer, _SerialClient, _answers, NoResponse, ModbusIdentity,
-    DriveStatus, _reason, _exception_text, _serial_error,
+    _CHUNKS_PER_POLL,
+    _DRAIN_MAX_S,
+    _DRAIN_QUIET_S,
+    _ENABLED_WAIT,
+    _IDENTITY,
+    _LIMIT_FAULTS,
+    _POLL_S,
+    _RETRIES,
+    _RETRY_LATER,
+    _STATUS,
+    _STOP_WAIT_S,
+    DriveStatus,
+    ModbusIdentity,
+    NoResponse,
+    _answers,
+    _exception_text,
+    _reason,
+    _serial_error,
+    _SerialClient,
+    _StaleAnswer,
 )
 from hilident.adapters.modbus_requests import RegisterAccess
 from hilident.adapters.modbus_slots import FilterSlots
@@ -60,7 +77,8 @@ from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription
 from hilident.errors import ConfigError, DataError, DeviceError
 from hilident.protocol.modbus_registers import (
-    RegisterMap, count_rtu_frames,
+    RegisterMap,
+    count_rtu_frames,
 )
 
 
@@ -111,7 +129,7 @@ class ModbusDriveAdapter(RegisterAccess, FilterSlots, TableCapture, AdapterBase)
     # --- opening --------------------------------------------------------------------
 
     @classmethod
-    def open_device(cls, device: DeviceConfig, driver: DriverDescription, link=None) -> "ModbusDriveAdapter":
+    def open_device(cls, device: DeviceConfig, driver: DriverDescription, link=None) -> ModbusDriveAdapter:
         """Connect as ``[device]`` says (``tcp://HOST:PORT`` or a serial port), identify the drive and
         bring it to a known state.
 

@@ -30,10 +30,10 @@ except ImportError:  # pragma: no cover
     pass
 
 from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, RunStrategy
-from hilident.events import Kind, RunEvent
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription
 from hilident.errors import DeviceError, ProtocolError
+from hilident.events import Kind, RunEvent
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
 from hilident.links import LinkClosed
@@ -162,7 +162,7 @@ class SerialBoardAdapter(AdapterBase):
     # --- opening --------------------------------------------------------------------
 
     @classmethod
-    def open_device(cls, device: DeviceConfig, driver: DriverDescription, link=None) -> "SerialBoardAdapter":
+    def open_device(cls, device: DeviceConfig, driver: DriverDescription, link=None) -> SerialBoardAdapter:
         """Connect as ``[device]`` says, or over an already open ``link``, and bring the board to a known state.
 
         See :meth:`connect`; ``device.allow_fault_reset`` decides whether a latched fault is cleared.
@@ -185,7 +185,7 @@ class SerialBoardAdapter(AdapterBase):
         return cls._connected(cls(link, driver, port, timeout_s, allow_fault_reset=allow_fault_reset))
 
     @classmethod
-    def _connected(cls, adapter: "SerialBoardAdapter") -> "SerialBoardAdapter":
+    def _connected(cls, adapter: SerialBoardAdapter) -> SerialBoardAdapter:
         """``adapter`` after a successful :meth:`connect`; the line is closed again when that fails."""
         return cls._or_closed(adapter, adapter.connect)
 
@@ -523,7 +523,7 @@ class SerialBoardAdapter(AdapterBase):
         result.stats.corrupt_frames = self.decoder.stats.corrupt - corrupt_before
         result.stats.lost_frames = self.lost_frames - lost_before
 
-    def _finish_run(self, run: "_Run") -> None:
+    def _finish_run(self, run: _Run) -> None:
         """Take late events and the board's own counters, and count what never arrived.
 
         A board found in FAULT after a run whose fault event was lost on the

@@ -62,7 +62,7 @@ class Dataset:
     period_samples: int | None = None
     segments: list[tuple[int, int]] = field(default_factory=list)
 
-    def longest_segment(self) -> "Dataset":
+    def longest_segment(self) -> Dataset:
         """The longest stretch recorded without a break (this dataset when it has one segment)."""
         if len(self.segments) <= 1:
             return self

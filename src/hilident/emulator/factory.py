@@ -12,7 +12,7 @@ one wraps the same :class:`~hilident.emulator.drive.DriveLoop` built by
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 from hilident.config import DeviceConfig, EmulatorConfig, device_table
 from hilident.drivers import DriverDescription

@@ -44,7 +44,7 @@ class Biquad:
         object.__setattr__(self, "a", a)
 
     @classmethod
-    def identity(cls) -> "Biquad":
+    def identity(cls) -> Biquad:
         """The pass-through section ``H(z) = 1``."""
         return cls((1.0, 0.0, 0.0), (1.0, 0.0, 0.0))
 

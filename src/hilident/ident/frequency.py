@@ -110,7 +110,7 @@ class FrequencyResponse:
             phase = np.unwrap(phase)
         return np.degrees(phase)
 
-    def band(self, f_lo: float, f_hi: float) -> "FrequencyResponse":
+    def band(self, f_lo: float, f_hi: float) -> FrequencyResponse:
         """Copy restricted to ``f_lo <= f <= f_hi`` (Hz)."""
         if not f_lo <= f_hi:
             raise ConfigError("f_lo", f"must not exceed f_hi={f_hi!r}, got {f_lo!r}")

@@ -271,7 +271,7 @@ class CanopenDescription:
     recorder: RecorderCapability | None = None
 
     @classmethod
-    def from_sections(cls, sections: dict, source: str = "", od=None) -> "CanopenDescription":
+    def from_sections(cls, sections: dict, source: str = "", od=None) -> CanopenDescription:
         """Validate the ``[canopen]`` and ``[filters]`` tables of a parsed driver description.
 
         The scalar keys of ``[canopen]`` and ``[canopen.scaling]`` are typed
@@ -342,7 +342,7 @@ class CanopenDescription:
         """The drive has the hilident counters: streamed runs match TPDOs to samples by their counter."""
         return all(r in self.objects for r in COUNTER_ROLES)
 
-    def with_supported_modes(self, supported) -> "CanopenDescription":
+    def with_supported_modes(self, supported) -> CanopenDescription:
         """This description with its modes chosen from ``supported`` (mode names read from 0x6502).
 
         A description whose ``[canopen.modes]`` fixes the modes is returned unchanged.

@@ -26,7 +26,7 @@ Examples
 from __future__ import annotations
 
 import math
-from typing import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 
 from hilident.protocol.canopen_objects import ModeSpec, ObjectAddress
 

@@ -1179,12 +1179,12 @@ class RegisterMap:
     # --- parsing -----------------------------------------------------------------------
 
     @classmethod
-    def from_driver(cls, driver) -> "RegisterMap":
+    def from_driver(cls, driver) -> RegisterMap:
         """The map of a :class:`~hilident.drivers.DriverDescription` (its ``sections``)."""
         return cls.parse(driver.sections, driver.filter_slots, str(driver.folder / "driver.toml"))
 
     @classmethod
-    def parse(cls, sections: dict, filter_slots: int, source: str = "") -> "RegisterMap":
+    def parse(cls, sections: dict, filter_slots: int, source: str = "") -> RegisterMap:
         """Validate the ``[modbus]`` tables of a parsed driver description.
 
         Raises

@@ -37,10 +37,10 @@ import struct
 import threading
 import time
 
-import canopen
 import numpy as np
 from canopen.sdo import SdoAbortedError
 
+import canopen
 from hilident.config import FaultsConfig
 from hilident.drivers import DriverDescription, load_object_dictionary
 from hilident.emulator.canopen.guarding import HostWatch

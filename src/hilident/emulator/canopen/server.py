@@ -14,7 +14,6 @@ import time
 from dataclasses import replace
 
 import canopen
-
 from hilident.config import DeviceConfig, EmulatorConfig
 from hilident.drivers import DriverDescription
 from hilident.emulator.canopen.firmware import CanopenDriveFirmware
@@ -55,7 +54,7 @@ class CanopenDriveServer:
     def path(self) -> str:
         return self.channel
 
-    def start(self) -> "CanopenDriveServer":
+    def start(self) -> CanopenDriveServer:
         network = canopen.Network()
         network.NOTIFIER_CYCLE = 0.1  # a short receive timeout: close() returns promptly
         network.connect(interface=self.interface, channel=self.channel, receive_own_messages=False)

@@ -68,7 +68,7 @@ class SocketcandServer:
         """``"127.0.0.1:PORT/BUS"``: what goes in ``[device].port`` with ``can_interface = "socketcand"``."""
         return f"127.0.0.1:{self.port}/{self.bus_name}"
 
-    def start(self) -> "SocketcandServer":
+    def start(self) -> SocketcandServer:
         self._spawn(self._accept_loop, "socketcand-accept")
         return self
 
@@ -82,7 +82,7 @@ class SocketcandServer:
         while not self._stop.is_set():
             try:
                 conn, _ = self._listener.accept()
-            except socket.timeout:
+            except TimeoutError:
                 continue
             except OSError:
                 return
@@ -101,7 +101,7 @@ class SocketcandServer:
             while not self._stop.is_set():
                 try:
                     data = conn.recv(65536)
-                except socket.timeout:
+                except TimeoutError:
                     continue
                 if not data:
                     return

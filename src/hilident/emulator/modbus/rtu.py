@@ -62,7 +62,7 @@ class PtyBridge:
         self._thread: threading.Thread | None = None
         self.bytes_carried = 0
 
-    def start(self) -> "PtyBridge":
+    def start(self) -> PtyBridge:
         self._thread = threading.Thread(target=self._run, name="modbus-pty-bridge", daemon=True)
         self._thread.start()
         return self

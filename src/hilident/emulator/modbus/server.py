@@ -122,7 +122,7 @@ def _address_tables(regmap: RegisterMap | None) -> tuple[np.ndarray, np.ndarray,
 class _ServedFirmware:
     """The firmware as the wire reaches it: addresses outside the map refused (02), and the fault switch."""
 
-    def __init__(self, firmware, server: "ModbusDriveServer"):
+    def __init__(self, firmware, server: ModbusDriveServer):
         self.firmware = firmware
         self.functions = frozenset(firmware.functions)
         self.server = server  # its fault switches, as they are now
@@ -227,7 +227,7 @@ class ModbusDriveServer:
 
     # --- lifecycle -------------------------------------------------------------------------
 
-    def start(self) -> "ModbusDriveServer":
+    def start(self) -> ModbusDriveServer:
         if self.rtu:
             self._bridge = PtyBridge(self.baudrate, self.bits_per_char).start()
         self._loop = asyncio.new_event_loop()

@@ -88,7 +88,7 @@ class BoardServer:
     def path(self) -> str:
         return self.link.path
 
-    def start(self) -> "BoardServer":
+    def start(self) -> BoardServer:
         for target in (self._board_loop, self._tx_loop):
             t = threading.Thread(target=target, name=f"board-{target.__name__}", daemon=True)
             t.start()
