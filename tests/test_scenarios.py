@@ -160,7 +160,7 @@ SERIAL = Transport(
     trip_overrides={"emulator": {"link": "pipe", "time_scale": 8.0}},
     lost_config=_serial_lost_config, lost_extra=_serial_lost_extra,
     trip_ends_the_recording=False,  # the board's blocks already on the line after the trip are recorded too
-    falls_silent=Fault(_serial_line_closing_config, match=""),
+    falls_silent=Fault(_serial_line_closing_config, match="line lost|write failed|no data from the board"),
     skip={
         "drive_fault": "the board's firmware has no drive-fault switch (drive_fault_after_s is a CANopen/Modbus "
                        "drive's); its latched faults come from limit trips and the watchdog, tested by "

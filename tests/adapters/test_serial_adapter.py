@@ -298,7 +298,7 @@ class SampleBlockFaults:
 
 @pytest.mark.parametrize("corrupt, drop", [(0.15, 0.0), (0.0, 0.15), (0.1, 0.1)])
 def test_damaged_frames_are_counted_and_leave_holes_never_filled(corrupt, drop):
-    cfg = make_config(faults=f"corrupt_frame_rate = {corrupt}\ndrop_frame_rate = {drop}")
+    cfg = make_config(faults=f"[emulator.faults.serial]\ncorrupt_frame_rate = {corrupt}\ndrop_frame_rate = {drop}")
     with pipe_board(cfg, spy=SampleBlockFaults) as (device, adapter):
         spy = device.server.faults
         assert (spy.faults.corrupt, spy.faults.drop) == (corrupt, drop)  # the configured line
@@ -363,7 +363,7 @@ def test_limit_trip_raises_and_keeps_the_samples_up_to_the_trip():
 
 @pytest.mark.parametrize("link", ["pipe", "pty"])
 def test_line_closed_mid_run_raises_device_error_and_the_axis_stops(link):
-    cfg = make_config(faults="close_after_s = 0.3")
+    cfg = make_config(faults="[emulator.faults.serial]\nclose_after_s = 0.3")
     device = start_serial_board(cfg.emulator, DRIVER, baudrate=DRIVER.default_baudrate, link=link)
     try:
         if link == "pipe":

@@ -307,7 +307,8 @@ def test_a_buffered_run_takes_its_duration_over_the_time_scale():
 
 
 def test_fault_switches_of_the_server():
-    faults = "exception_register = 117\nexception_code = 4\nresponse_delay_s = 0.05\nmissing_response_rate = 0.3"
+    faults = ("[emulator.faults.modbus]\nexception_register = 117\nexception_code = 4\nresponse_delay_s = 0.05\n"
+              "missing_response_rate = 0.3")
     emu = start(emulator_config(faults), DRIVER, DeviceConfig(), link="tcp")
     client = tcp_client(emu.port, timeout=0.2)
     try:
@@ -339,7 +340,7 @@ def test_exception_code_must_be_a_modbus_code():
     from hilident.errors import ConfigError
 
     with pytest.raises(ConfigError, match="exception_code"):
-        start(emulator_config("exception_register = 100\nexception_code = 9"), DRIVER, DeviceConfig(), link="tcp")
+        start(emulator_config("[emulator.faults.modbus]\nexception_register = 100\nexception_code = 9"), DRIVER, DeviceConfig(), link="tcp")
 
 
 # --- communication timeout ------------------------------------------------------------------

@@ -202,7 +202,7 @@ class ModbusDriveServer:
         self.time_scale = time_scale
         self.faults = faults or FaultsConfig()
         if self.faults.exception_register >= 0 and self.faults.exception_code not in EXCEPTION_MEANINGS:
-            raise ConfigError("emulator.faults.exception_code",
+            raise ConfigError("emulator.faults.modbus.exception_code",
                               f"{self.faults.exception_code} is not a Modbus exception code "
                               f"({', '.join(str(c) for c in EXCEPTION_MEANINGS)})")
         self._rng = np.random.default_rng(seed)
