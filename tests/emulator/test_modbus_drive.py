@@ -340,7 +340,8 @@ def test_exception_code_must_be_a_modbus_code():
     from hilident.errors import ConfigError
 
     with pytest.raises(ConfigError, match="exception_code"):
-        start(emulator_config("[emulator.faults.modbus]\nexception_register = 100\nexception_code = 9"), DRIVER, DeviceConfig(), link="tcp")
+        faults = "[emulator.faults.modbus]\nexception_register = 100\nexception_code = 9"
+        start(emulator_config(faults), DRIVER, DeviceConfig(), link="tcp")
 
 
 # --- communication timeout ------------------------------------------------------------------
