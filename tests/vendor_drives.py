@@ -81,7 +81,7 @@ def _objects(d: VendorDrive) -> list[tuple]:
         objs.append((0x1006, None, "Communication cycle period", _UINT32, "rw", False, 0))
     if d.sync_counter:
         objs.append((0x1019, None, "Synchronous counter overflow value", _UINT8, "rw", False, 0))
-    for kind, base, count, cob in (("Receive", 0x1400, d.rpdos, 0x200), ("Transmit", 0x1800, d.tpdos, 0x180)):
+    for _kind, base, count, cob in (("Receive", 0x1400, d.rpdos, 0x200), ("Transmit", 0x1800, d.tpdos, 0x180)):
         for n in range(count):
             objs.append((base + n, 0, "Highest sub-index supported", _UINT8, "ro", False, 2))
             objs.append((base + n, 1, "COB-ID", _UINT32, "rw", False,

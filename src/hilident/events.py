@@ -22,7 +22,7 @@ from typing import Any
 __all__ = ["Kind", "RunEvent"]
 
 
-class Kind(str, enum.Enum):
+class Kind(str, enum.Enum):  # noqa: UP042 - StrEnum would change str()/format() of members in messages
     """The kinds of run event; the value is what the recording stores."""
 
     # the run ended, or stopped early

@@ -195,7 +195,7 @@ def test_connecting_uses_only_protocol_messages_and_stops_before_clearing():
 def test_an_answer_queued_behind_a_long_drain_is_waited_for():
     # a slow line still carrying the old run's blocks for longer than the answer timeout
     host_end, board_end = pipe_pair("pipe://independent", timeout=0.02)
-    board = IndependentBoard(board_end, stale_blocks=20, stale_spacing_s=0.03).start()
+    _board = IndependentBoard(board_end, stale_blocks=20, stale_spacing_s=0.03).start()
     adapter = SerialBoardAdapter.open_device(
         device_config("pipe://independent", allow_fault_reset=True, timeout_s=0.25), DRIVER, link=host_end)
     try:

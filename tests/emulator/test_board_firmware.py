@@ -37,13 +37,14 @@ NAMES = [c.name for c in DRIVER.channels]
 # excitation, torque command and measured torque, in that order
 TORQUE_CHANNELS = tuple(sb.ChannelSelection(NAMES.index(n)) for n in ("excitation", "torque_cmd_nm", "torque_nm"))
 EXC, CMD, TRQ = 0, 1, 2
+DEFAULT_LIMITS = sb.Limits(5.0, 1.0, -1.0, 1.0)
 
 
 class Bench:
     """A firmware instance, a host-side sequence counter and the decoded answers."""
 
     def __init__(self, config: str = CONFIG, identity: sb.Identity | None = None,
-                 limits: sb.Limits | None = sb.Limits(5.0, 1.0, -1.0, 1.0)):
+                 limits: sb.Limits | None = DEFAULT_LIMITS):
         self.drive = build_drive(parse_config(config).emulator, DRIVER)
         self.fw = BoardFirmware(self.drive, identity or identity_from_driver(DRIVER))
         self.seq = 0

@@ -76,10 +76,10 @@ def test_zoh_gamma_is_the_integral_of_eq_2_23():
 def test_euler_and_tustin_approximate_phi_as_in_eqs_2_28_and_2_30():
     A, B, C, D = two_mass()
     h = 1e-4
-    I = np.eye(4)
-    np.testing.assert_allclose(forward_euler(A, B, C, D, h).Phi, I + A * h)
+    eye = np.eye(4)
+    np.testing.assert_allclose(forward_euler(A, B, C, D, h).Phi, eye + A * h)
     np.testing.assert_allclose(
-        tustin(A, B, C, D, h).Phi, (I + A * h / 2) @ np.linalg.inv(I - A * h / 2), rtol=1e-12
+        tustin(A, B, C, D, h).Phi, (eye + A * h / 2) @ np.linalg.inv(eye - A * h / 2), rtol=1e-12
     )
     exact = zoh(A, B, C, D, h).Phi
     assert np.max(np.abs(tustin(A, B, C, D, h).Phi - exact)) < np.max(

@@ -184,7 +184,7 @@ def _levy_sk(data: _Normalised, iterations: int, tol: float):
     best = first = last = None
     den_prev = None
     its = reflected = 0
-    for its in range(iterations + 1):
+    for its in range(iterations + 1):  # noqa: B007 - its is returned: the iterations run
         ww = w * sk
         theta = _lstsq_complex(ww[:, None] * A, ww * b)
         den = np.r_[1.0, theta[:n_den][::-1]]
