@@ -142,7 +142,7 @@ def test_the_reference_finds_two_modes_and_a_time_domain_fit_agrees(reference):
 
 def _agrees(found: list[tuple[float, float]], reference: list[dict]) -> None:
     assert len(found) == len(reference), found
-    for (f, zeta), mode in zip(sorted(found), reference):
+    for (f, zeta), mode in zip(sorted(found), reference, strict=True):
         assert f == pytest.approx(mode["f"], rel=FREQUENCY_TOLERANCE)
         assert zeta == pytest.approx(mode["zeta"], rel=DAMPING_TOLERANCE)
 
@@ -170,7 +170,7 @@ def test_identify_reports_the_two_modes_and_nothing_else(tmp_path, reference, ra
                                                     "noise_from_non_excited_lines": True}
     centres = [n["center_hz"] / rate_hz for n in summary["notch_filters"]]
     assert len(centres) == 2 and summary["notch_skipped_reason"] is None
-    for c, mode in zip(sorted(centres), reference):
+    for c, mode in zip(sorted(centres), reference, strict=False):
         assert c == pytest.approx(mode["f"], rel=FREQUENCY_TOLERANCE)
 
 

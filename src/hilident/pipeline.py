@@ -830,7 +830,7 @@ def design_notches(resonances, cfg: NotchConfig, filter_rate_hz: float, slots: l
     designs = []
     target = cfg.min_reduction_db
     depth = max(cfg.depth_db, target + 6.0)
-    for slot, res in zip(slots, sorted(ordered, key=lambda r: r.frequency_hz)):
+    for slot, res in zip(slots, sorted(ordered, key=lambda r: r.frequency_hz), strict=False):
         zeta = res.damping_ratio if np.isfinite(res.damping_ratio) else 0.05
         spec = notch_from_resonance(res.frequency_hz, zeta, depth_db=depth, width_factor=cfg.width_factor,
                                     min_relative_width=cfg.min_width_ratio)
@@ -1119,7 +1119,7 @@ def contiguous_runs(sample_index) -> list[tuple[int, int]]:
         return []
     breaks = np.flatnonzero(np.diff(index) != 1) + 1
     edges = np.concatenate(([0], breaks, [len(index)]))
-    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
 
 
 @dataclass
@@ -1212,7 +1212,7 @@ def _kept_segments(keep: np.ndarray, step: np.ndarray) -> list[tuple[int, int]]:
     joined = np.concatenate(([False], (step == 1) & keep[:-1] & keep[1:]))  # row r continues row r - 1
     starts = np.flatnonzero(keep & ~joined)
     stops = np.flatnonzero(keep & ~np.concatenate((joined[1:], [False]))) + 1
-    return [(int(a), int(b)) for a, b in zip(starts, stops)]
+    return [(int(a), int(b)) for a, b in zip(starts, stops, strict=False)]
 
 
 def _longest_run(n: int, runs, name: str) -> tuple[np.ndarray, list[str]]:
