@@ -152,7 +152,8 @@ def read_csv(path: Path, names, check=lambda available: None, column_names: tupl
                 text.readline()
             data = _parse_body(path, text, header_lines, bound, usecols, wanted, delimiter)
     except UnicodeError as exc:
-        raise DataError(f"{path}: not valid {encoding.upper()} text ({exception_text(exc)}); save it as UTF-8 CSV") from None
+        raise DataError(f"{path}: not valid {encoding.upper()} text ({exception_text(exc)}); "
+                        "save it as UTF-8 CSV") from None
     except csv.Error as exc:
         raise DataError(f"{path}: not a readable CSV file: {exception_text(exc)}") from None
     return RawColumns(dict(zip(wanted, data, strict=False)), columns, notes=notes)

@@ -146,7 +146,8 @@ def _recorded_period(attrs, rate: float) -> tuple[int | None, str]:
     try:
         return excitation_period_samples(parse_config(text, "config_toml attribute").excitation, rate), ""
     except HilidentError as exc:
-        return None, f"the stored configuration cannot be read ({exception_text(exc)}); the excitation period is unknown"
+        return None, (f"the stored configuration cannot be read ({exception_text(exc)}); "
+                      "the excitation period is unknown")
 
 
 @dataclass

@@ -318,7 +318,8 @@ def _pairs(lam: np.ndarray) -> list[tuple[float, float]]:
     complex_ = sorted(lam[np.imag(lam) > 0], key=abs)
     real = sorted(np.real(lam[np.imag(lam) == 0]), key=abs)
     out = [(abs(z), -z.real / abs(z)) for z in complex_]
-    out += [(math.sqrt(a * b), -(a + b) / (2.0 * math.sqrt(a * b))) for a, b in zip(real[0::2], real[1::2], strict=False)
+    out += [(math.sqrt(a * b), -(a + b) / (2.0 * math.sqrt(a * b)))
+            for a, b in zip(real[0::2], real[1::2], strict=False)
             if a * b > 0]
     return sorted(((float(w) / (2.0 * math.pi), float(z) + 0.0) for w, z in out if w > 0.0), key=lambda m: m[0])
 

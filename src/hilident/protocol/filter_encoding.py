@@ -583,14 +583,16 @@ class FilterEncoding:
                 raise DataError(f"notch {name} {value!r} cannot be encoded as an integer")
             n = int(round(value / scale))
             if not 1 <= n <= self.max_value:
-                raise DataError(f"notch {name} {value:g} is {n} steps of {scale:g}; the drive takes 1..{self.max_value}")
+                raise DataError(f"notch {name} {value:g} is {n} steps of {scale:g}; "
+                                f"the drive takes 1..{self.max_value}")
             out[name] = n
         return {name: out[name] for name in self.fields}
 
     # --- word blocks -----------------------------------------------------------------
 
     def _encode_block(self, biquad: Biquad, spec: NotchSpec | None, scaling: tuple | None = None) -> bytes:
-        """The block for ``biquad``; ``scaling`` = (INT16 coefficients, K) overrides the best one (see :meth:`realise`)."""
+        """The block for ``biquad``; ``scaling`` = (INT16 coefficients, K) overrides the best one (see
+        :meth:`realise`)."""
         lay = self.block
         words = [0] * lay.words
         words[lay.state_word] = lay.enabled_value
