@@ -100,7 +100,8 @@ def independent_modes() -> list[dict]:
     var_h = (line_variance(Y, k) + np.abs(H) ** 2 * line_variance(U, k)) / np.abs(U[k]) ** 2
     sigma = np.sqrt(var_h / 2.0)
     mag = np.abs(H)
-    peaks = [i for i in range(1, len(k) - 1) if mag[i] > mag[i - 1] and mag[i] > mag[i + 1] and mag[i] > 5 * np.median(mag)]
+    peaks = [i for i in range(1, len(k) - 1)
+             if mag[i] > mag[i - 1] and mag[i] > mag[i + 1] and mag[i] > 5 * np.median(mag)]
     modes = []
     for i in peaks:
         kn, zeta, s_kn, s_zeta = fit_mode(k, H, sigma, int(k[i]))

@@ -124,7 +124,8 @@ def test_identify_answers_what_the_driver_description_says():
     assert ident.protocol_version == 1 == DRIVER.protocol_version
     assert (ident.name, ident.firmware) == (DRIVER.name, DRIVER.firmware)
     assert (ident.loop_rate_hz, ident.max_sample_rate_hz) == (DRIVER.loop_rate_hz, DRIVER.max_sample_rate_hz)
-    assert (ident.filter_slots, ident.excitation_buffer_samples) == (DRIVER.filter_slots, DRIVER.excitation_buffer_samples)
+    assert ((ident.filter_slots, ident.excitation_buffer_samples)
+            == (DRIVER.filter_slots, DRIVER.excitation_buffer_samples))
     assert [(c.name, c.unit) for c in ident.channels] == [(c.name, c.unit) for c in DRIVER.channels]
     assert bench.fw.state == sb.State.IDLE
 
