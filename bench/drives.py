@@ -102,8 +102,9 @@ def run_drive(folder: Path, out: Path, duration_s: float, acquisition: str = "st
     if late:  # nothing lost, but sampled at uneven instants: the figures below are distorted
         row["lost"] = f"{row['lost']} (many late SYNCs in {', '.join(late)})"
     found = summary["resonances"]
-    row["resonance"] = (f"{100 * (min(found, key=lambda r: abs(r['frequency_hz'] - true_f))['frequency_hz'] - true_f) / true_f:+.2f} %"
-                        if found else "none found")
+    row["resonance"] = (
+        f"{100 * (min(found, key=lambda r: abs(r['frequency_hz'] - true_f))['frequency_hz'] - true_f) / true_f:+.2f} %"
+        if found else "none found")
     if friction and summary.get("friction"):
         got = summary["friction"]["params"]
         row["friction"] = (f"Fc {100 * (got['Fc'] - true_friction.Fc) / true_friction.Fc:+.1f} %, "
@@ -116,7 +117,8 @@ def run_drive(folder: Path, out: Path, duration_s: float, acquisition: str = "st
         v = summary["verification"]
         band, line = v.get("band_reduction_db"), v.get("peak_reduction_db")
         row["notch"] = (f"uploaded, read back {'ok' if upload['verified_readback'] else 'DIFFERS'}, "
-                        f"{band:.1f} dB in the band ({line:.1f} dB at the resonance)" if band is not None else "uploaded")
+                        f"{band:.1f} dB in the band ({line:.1f} dB at the resonance)"
+                        if band is not None else "uploaded")
     else:
         notches = summary.get("notch_filters") or []
         designed = f"designed {notches[0]['center_hz']:.2f} Hz; " if notches else ""
@@ -139,7 +141,8 @@ def main(argv=None) -> int:
     from hilident.driver_tools import check_driver_folder, new_driver_folder
 
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="hilident-drives-"))
-    files = sorted(f for f in Path(args.folder).iterdir() if f.suffix.lower() in (".eds", ".dcf")) if args.folder else []
+    files = (sorted(f for f in Path(args.folder).iterdir() if f.suffix.lower() in (".eds", ".dcf"))
+             if args.folder else [])
     rows = []
     for eds in files:
         started = time.monotonic()

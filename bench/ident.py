@@ -412,7 +412,7 @@ def bench_arx(result: PipelineResult, s: Setup, repeats: int, sippy_samples: int
     for n, label in runs:
         uu, yy = u[:n], y[:n]
         reps = max(1, min(repeats, 3))
-        t_h = min(_timeit(lambda: arx_order_search(uu, yy, nas, nbs, nks), reps, warmup=False))
+        t_h = min(_timeit(lambda uu=uu, yy=yy: arx_order_search(uu, yy, nas, nbs, nks), reps, warmup=False))
         search = arx_order_search(uu, yy, nas, nbs, nks)
         strict = min(search.candidates, key=lambda c: c.aic)
         m = search.model

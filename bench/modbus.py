@@ -106,7 +106,8 @@ def main(argv=None) -> int:
         rows.append(r)
         print(f"{r['link']:>11}  ({r['port']}): {r['samples']} samples, {r['record']} registers a record", flush=True)
     print()
-    print(f"{'link':>11} | {'table write':>28} | {'capture read':>28} | {'whole ' + format(args.duration, 'g') + ' s experiment':>26}")
+    print(f"{'link':>11} | {'table write':>28} | {'capture read':>28} | "
+          f"{'whole ' + format(args.duration, 'g') + ' s experiment':>26}")
     print(f"{'':>11} | {'registers/s':>13} {'samples/s':>14} | {'registers/s':>13} {'samples/s':>14} | "
           f"{'wall s':>8} {'lost':>6} {'no answer':>10}")
     for r in rows:

@@ -433,10 +433,12 @@ def probe_baud(driver: DriverDescription, specs, baudrate: int, duration_s: floa
         d = 1
         while loop / d * row_bytes / capacity > best.requested_fraction:
             d += 1
-        above = (f"; the next one up, {loop / (d - 1):g} Hz, would need {loop / (d - 1) * row_bytes / capacity:.3f} of C"
+        above = (f"; the next one up, {loop / (d - 1):g} Hz, would need "
+                 f"{loop / (d - 1) * row_bytes / capacity:.3f} of C"
                  if d > 1 else "; it is the board's maximum")
         print(f"  real time (s = 1): highest supported rate within the clean load is {loop / d:g} Hz{above}")
-        for d in range(d, d + 4):  # step down the ladder a few rates if needed
+        d_start = d
+        for d in range(d_start, d_start + 4):  # step down the ladder a few rates if needed
             t = attempt(d, 1.0)
             if t.clean:
                 real_time = t

@@ -6,8 +6,8 @@ sends on purpose::
     PYTHONPATH=src:tests python tests/record_transcripts.py [serial modbus modbus-rtu canopen]
 
 For each transport a twin of the shipped emulated config is served (serial
-board and Modbus drive on TCP, the Modbus drive's RTU line through a TCP tap, the CANopen drive on python-can's ``virtual``
-bus), the adapter runs :func:`conversation` against it through a recording
+board and Modbus drive on TCP, the Modbus drive's RTU line through a TCP tap, the CANopen drive on
+python-can's ``virtual`` bus), the adapter runs :func:`conversation` against it through a recording
 tap, and what the host sent and the device answered is saved as one
 transcript. ``tests/adapters/test_replay.py`` plays each one back with no twin.
 """

@@ -69,7 +69,8 @@ def _session_config(tmp_path: Path, drive: VendorDrive, excitation: str) -> Path
                                                                                      "time_scale = 20.0")
     text = re.sub(r"\[excitation\][^\[]*", excitation, text)
     text = text.replace("[friction_test]", "[friction_test]\nenabled = false")
-    text = text.replace("[emulator]\n", '[emulator]\npreset = "clean"\n', 1)  # the torque follows the PRBS tick for tick
+    # the torque follows the PRBS tick for tick
+    text = text.replace("[emulator]\n", '[emulator]\npreset = "clean"\n', 1)
     path = tmp_path / "recorder.toml"
     path.write_text(text)
     return path

@@ -29,7 +29,7 @@ MAPPING = DataConfig(time="t", torque="tau", velocity="v")
 
 
 def csv_text(names=("t", "tau", "v")) -> str:
-    rows = "".join(f"{a:.6f},{b:.9g},{c:.9g}\n" for a, b, c in zip(T, TAU, V))
+    rows = "".join(f"{a:.6f},{b:.9g},{c:.9g}\n" for a, b, c in zip(T, TAU, V, strict=False))
     return ",".join(names) + "\n" + rows
 
 

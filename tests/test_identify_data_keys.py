@@ -46,7 +46,7 @@ def identify(tmp_path, data, config: str, *extra) -> tuple[int, dict | None]:
 def check_modes(summary):
     found = [(r["frequency_hz"], r["damping_ratio"]) for r in summary["resonances"]]
     assert len(found) == len(MODES), found
-    for (f, z), (ft, zt) in zip(found, MODES):
+    for (f, z), (ft, zt) in zip(found, MODES, strict=True):
         assert abs(f - ft) / ft < 0.005, found
         assert abs(z - zt) / zt < 0.15, found
 

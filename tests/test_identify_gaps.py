@@ -328,8 +328,9 @@ def test_a_stored_configuration_that_does_not_match_the_played_excitation_is_not
 
     table, _ = bench_run
     path = tmp_path / "identification.h5"
-    with RunWriter(path, CHANNELS, UNITS, RATE, {"experiment": "identification",
-                                                 "config_toml": RUN_CONFIG.replace("period_s = 4.0", "period_s = 3.0")}) as w:
+    with RunWriter(path, CHANNELS, UNITS, RATE,
+                   {"experiment": "identification",
+                    "config_toml": RUN_CONFIG.replace("period_s = 4.0", "period_s = 3.0")}) as w:
         w.append(np.delete(table, np.r_[2 * PERIOD + 10:2 * PERIOD + 20], axis=0))
     ds = load_dataset(path, DataConfig(torque="torque_nm", velocity="velocity_mps"))
     assert ds.period_samples is None and len(ds) == 3 * PERIOD - 20  # the longest stretch, not 3 s "periods"

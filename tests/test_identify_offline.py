@@ -211,7 +211,8 @@ def test_bad_recordings_are_one_clear_line(tmp_path, gantry_data, capsys):
 
     short = {k: v[:20] for k, v in cols.items()}
     write_csv(tmp_path / "short.csv", short)
-    assert "at least" in one_line_error(capsys, ["identify", str(tmp_path / "short.csv"), "--config", str(config), *out], 3)
+    assert "at least" in one_line_error(capsys, ["identify", str(tmp_path / "short.csv"), "--config", str(config),
+                                                 *out], 3)
 
     savemat(tmp_path / "ragged.mat", dict(cols, v=cols["v"][:-5]))
     assert "different lengths" in one_line_error(

@@ -98,7 +98,7 @@ def test_identify_on_a_run_recording_needs_no_config_and_matches_the_run(tmp_pat
         assert_layout("run-quick", ran)
         assert_layout("identify", again)
     assert len(again["resonances"]) == len(ran["resonances"])
-    for a, r in zip(again["resonances"], ran["resonances"]):
+    for a, r in zip(again["resonances"], ran["resonances"], strict=True):
         assert abs(a["frequency_hz"] - r["frequency_hz"]) / r["frequency_hz"] < 0.005, (a, r)
         assert abs(a["damping_ratio"] - r["damping_ratio"]) / r["damping_ratio"] < 0.15, (a, r)
     data = again["data"]
@@ -145,7 +145,7 @@ def test_identify_removes_the_friction_the_run_removed(tmp_path):
     # the same evidence, the same verdict: the same resonances (a run this short may confirm none, and then
     # identify must not find one either)
     assert len(again["resonances"]) == len(ran["resonances"])
-    for a, r in zip(again["resonances"], ran["resonances"]):
+    for a, r in zip(again["resonances"], ran["resonances"], strict=True):
         assert abs(a["frequency_hz"] / r["frequency_hz"] - 1) < 0.005
         assert abs(a["damping_ratio"] / r["damping_ratio"] - 1) < 0.15
     # without the friction test beside it, the torque keeps its friction, and a warning says so

@@ -366,7 +366,8 @@ class CoilDrive:
     def read_bits(self, address, count, discrete=False):
         if address + count > 32:
             return 2
-        return [not b for b in self.coils[address : address + count]] if discrete else self.coils[address : address + count]
+        return ([not b for b in self.coils[address : address + count]] if discrete
+                else self.coils[address : address + count])
 
     def write_bits(self, address, values):
         if address + len(values) > 32:

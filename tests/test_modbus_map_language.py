@@ -194,7 +194,8 @@ def notch_sections() -> dict:
         "w": {"parameter": "P08.03", "type": "u16", "access": "rw"},
         "d": {"parameter": "P08.04", "type": "u16", "access": "rw"},
     })
-    sections["modbus"]["filters"] = {"off": {"center": 4000}, "slots": [{"center": "c", "width": "w", "depth": "P08.04"}]}
+    sections["modbus"]["filters"] = {"off": {"center": 4000},
+                                     "slots": [{"center": "c", "width": "w", "depth": "P08.04"}]}
     sections["filters"] = {"encoding": "notch_parameters", "center_scale": 1.0, "depth_scale": 1.0,
                            "width_unit": "index", "depth_unit": "percent", "width_table": [0.5, 1.0, 2.0]}
     return sections
@@ -234,7 +235,8 @@ def test_the_table_and_capture_map_loads_unchanged_with_its_capability():
 def test_requests_never_mix_holding_and_input_registers():
     m = parameter_map({
         "a": {"address": 0x10, "type": "u16"}, "b": {"address": 0x11, "type": "u16"},
-        "c": {"address": 0x12, "type": "u16", "table": "input"}, "d": {"address": 0x13, "type": "u16", "table": "input"},
+        "c": {"address": 0x12, "type": "u16", "table": "input"},
+        "d": {"address": 0x13, "type": "u16", "table": "input"},
     })
     assert m.request_groups(["a", "b", "c", "d"]) == [("holding", 0x10, 2), ("input", 0x12, 2)]
     assert "input register" in m.describe(0x12, table="input")

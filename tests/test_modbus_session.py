@@ -73,7 +73,8 @@ def test_an_exception_stops_the_run_cleanly_and_names_the_register(tmp_path, dri
 
 def test_slow_answers_beyond_the_timeout_name_the_register(tmp_path, drive_at_shutdown):
     cfg = short_config(timeout_s=0.05, response_delay_s=0.15)
-    with pytest.raises(DeviceError, match=r"reading registers 0\.\.6 \(device_type.*no answer within 0\.05 s \(4 attempts\)"):
+    with pytest.raises(DeviceError,
+                       match=r"reading registers 0\.\.6 \(device_type.*no answer within 0\.05 s \(4 attempts\)"):
         Session(cfg, tmp_path).run()
     assert drive_at_shutdown["enabled"] is False
 

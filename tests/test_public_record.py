@@ -100,7 +100,8 @@ def independent_modes() -> list[dict]:
     var_h = (line_variance(Y, k) + np.abs(H) ** 2 * line_variance(U, k)) / np.abs(U[k]) ** 2
     sigma = np.sqrt(var_h / 2.0)
     mag = np.abs(H)
-    peaks = [i for i in range(1, len(k) - 1) if mag[i] > mag[i - 1] and mag[i] > mag[i + 1] and mag[i] > 5 * np.median(mag)]
+    peaks = [i for i in range(1, len(k) - 1)
+             if mag[i] > mag[i - 1] and mag[i] > mag[i + 1] and mag[i] > 5 * np.median(mag)]
     modes = []
     for i in peaks:
         kn, zeta, s_kn, s_zeta = fit_mode(k, H, sigma, int(k[i]))
@@ -142,7 +143,7 @@ def test_the_reference_finds_two_modes_and_a_time_domain_fit_agrees(reference):
 
 def _agrees(found: list[tuple[float, float]], reference: list[dict]) -> None:
     assert len(found) == len(reference), found
-    for (f, zeta), mode in zip(sorted(found), reference):
+    for (f, zeta), mode in zip(sorted(found), reference, strict=True):
         assert f == pytest.approx(mode["f"], rel=FREQUENCY_TOLERANCE)
         assert zeta == pytest.approx(mode["zeta"], rel=DAMPING_TOLERANCE)
 
@@ -170,7 +171,7 @@ def test_identify_reports_the_two_modes_and_nothing_else(tmp_path, reference, ra
                                                     "noise_from_non_excited_lines": True}
     centres = [n["center_hz"] / rate_hz for n in summary["notch_filters"]]
     assert len(centres) == 2 and summary["notch_skipped_reason"] is None
-    for c, mode in zip(sorted(centres), reference):
+    for c, mode in zip(sorted(centres), reference, strict=False):
         assert c == pytest.approx(mode["f"], rel=FREQUENCY_TOLERANCE)
 
 

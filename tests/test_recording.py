@@ -47,7 +47,7 @@ def test_round_trip_samples_units_attrs(tmp_path):
     for i, name in enumerate(CHANNELS):
         np.testing.assert_array_equal(run.channel(name), expected[:, i])
         assert run.channel(name).dtype == np.float64
-    assert run.units == dict(zip(CHANNELS, UNITS))
+    assert run.units == dict(zip(CHANNELS, UNITS, strict=False))
     assert run.sample_rate_hz == RATE_HZ
     assert run.status == "complete" and run.complete and run.reason == ""
     assert run.n_samples == len(expected)

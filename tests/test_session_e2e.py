@@ -95,7 +95,8 @@ def test_every_shipped_emulator_config_runs(path, tmp_path):
         run = read_run(tmp_path / name)
         assert run.complete and run.n_samples > 0
         assert np.all(np.diff(run.samples["sample_index"]) == 1)
-    assert json.loads((tmp_path / "summary.json").read_text())["resonances"] == json.loads(json.dumps(summary["resonances"]))
+    assert (json.loads((tmp_path / "summary.json").read_text())["resonances"]
+            == json.loads(json.dumps(summary["resonances"])))
     assert (tmp_path / "bode.png").stat().st_size > 10_000
     if path.stem == "emulated-gantry":  # summary.json is a documented interface: its keys stay as they were
         assert_layout("run", json.loads((tmp_path / "summary.json").read_text()))
@@ -157,7 +158,8 @@ def test_malformed_config_names_the_key_and_file(tmp_path, capsys):
 
 def test_unknown_port_is_one_line(tmp_path, capsys):
     cfg = tmp_path / "real.toml"
-    cfg.write_text((CONFIGS / "emulated-gantry.toml").read_text().replace('port = "emulator"', 'port = "/dev/does-not-exist"'))
+    cfg.write_text((CONFIGS / "emulated-gantry.toml").read_text()
+                   .replace('port = "emulator"', 'port = "/dev/does-not-exist"'))
     assert main(["run", str(cfg), "--out", str(tmp_path / "o")]) == 4
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "/dev/does-not-exist" in err[0]

@@ -94,8 +94,8 @@ def host(config: Path, out: Path, *extra: str, fsize_limit: int | None = None) -
             resource.setrlimit(resource.RLIMIT_FSIZE, (fsize_limit, fsize_limit))
 
     return subprocess.Popen([sys.executable, "-m", "hilident.cli", "run", str(config), "--out", str(out), "--yes",
-                             "-q", "--no-plots", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-                            preexec_fn=limit_file_size)
+                             "-q", "--no-plots", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=env, preexec_fn=limit_file_size)
 
 
 def finish(proc: subprocess.Popen, timeout: float = 60) -> tuple[int, str]:

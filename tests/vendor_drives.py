@@ -39,7 +39,8 @@ class VendorDrive:
     limits: tuple[str, ...] = ("max_torque", "max_velocity", "position_limits")
     torque_offset: bool = True
     sync_counter: bool = False
-    filters: str = ""  # "", "biquad" (REAL32 a1 a2 b0 b1 b2), "copley" (one octet-string block), "pole_zero" (REAL32 Q pairs)
+    # "", "biquad" (REAL32 a1 a2 b0 b1 b2), "copley" (one octet-string block), "pole_zero" (REAL32 Q pairs)
+    filters: str = ""
     abort_connection: bool = True  # 0x6007
     store: bool = True  # 0x1010:1 store parameters
     heartbeat: bool = True  # 0x1017; without it, node guarding (0x100C, 0x100D)
@@ -81,7 +82,7 @@ def _objects(d: VendorDrive) -> list[tuple]:
         objs.append((0x1006, None, "Communication cycle period", _UINT32, "rw", False, 0))
     if d.sync_counter:
         objs.append((0x1019, None, "Synchronous counter overflow value", _UINT8, "rw", False, 0))
-    for kind, base, count, cob in (("Receive", 0x1400, d.rpdos, 0x200), ("Transmit", 0x1800, d.tpdos, 0x180)):
+    for _kind, base, count, cob in (("Receive", 0x1400, d.rpdos, 0x200), ("Transmit", 0x1800, d.tpdos, 0x180)):
         for n in range(count):
             objs.append((base + n, 0, "Highest sub-index supported", _UINT8, "ro", False, 2))
             objs.append((base + n, 1, "COB-ID", _UINT32, "rw", False,
@@ -144,13 +145,16 @@ _REAL32, _OCTETS = 0x8, 0xA
 #: Filter capabilities of the project's test drives: EDS objects of two slots, and the [filters] table.
 FILTERS = {
     "biquad": ([(0x2300 + n, [(1, "Enable", _UINT8, 0)] + [(2 + i, f, _REAL32, 0.0) for i, f in
-                                                          enumerate(("a1", "a2", "b0", "b1", "b2"))]) for n in range(2)],
+                                                          enumerate(("a1", "a2", "b0", "b1", "b2"))])
+                for n in range(2)],
                '[filters]\nencoding = "real32"\norder = ["a1", "a2", "b0", "b1", "b2"]\nfeedback_sign = "minus"\n'
-               'objects = ["0x2300", "0x2301"]\nenable_subindex = 1\nfields = { a1 = 2, a2 = 3, b0 = 4, b1 = 5, b2 = 6 }\n'),
+               'objects = ["0x2300", "0x2301"]\nenable_subindex = 1\n'
+               'fields = { a1 = 2, a2 = 3, b0 = 4, b1 = 5, b2 = 6 }\n'),
     "copley": ([(0x2106, None), (0x2108, None)],
                '[filters]\nencoding = "word_block"\npreset = "copley"\nobjects = ["0x2106", "0x2108"]\n'),
-    "pole_zero": ([(0x2400 + n, [(1, "Enable", _UINT8, 0)] + [(2 + i, f, _REAL32, 100.0 if "hz" in f else 0.5) for i, f in
-                                                             enumerate(("pole_hz", "pole_q", "zero_hz", "zero_q"))])
+    "pole_zero": ([(0x2400 + n, [(1, "Enable", _UINT8, 0)]
+                    + [(2 + i, f, _REAL32, 100.0 if "hz" in f else 0.5)
+                       for i, f in enumerate(("pole_hz", "pole_q", "zero_hz", "zero_q"))])
                    for n in range(2)],
                   '[filters]\nencoding = "pole_zero_q"\nranges = { pole_hz = [5, 5000], zero_hz = [5, 5000], '
                   'pole_q = [0.2, 20], zero_q = [0.1, 5] }\nobjects = ["0x2400", "0x2401"]\nenable_subindex = 1\n'

@@ -295,7 +295,8 @@ def _drivers_check(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="hilident", description="Hardware-in-the-loop excitation, identification and notch tuning.")
+    p = argparse.ArgumentParser(prog="hilident",
+                                description="Hardware-in-the-loop excitation, identification and notch tuning.")
     p.add_argument("--version", action="version", version=f"hilident {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -351,7 +352,8 @@ def build_parser() -> argparse.ArgumentParser:
     ser.add_argument("--driver", help="driver name or folder (default: the config's, or myrio-board)")
     ser.add_argument("--baudrate", type=int, default=0)
     ser.add_argument("--time-scale", type=float, default=0.0, help="simulated seconds per second (default 1)")
-    ser.add_argument("--tcp", action="store_true", help="serve a raw TCP line on 127.0.0.1 (socket://) instead of a pty")
+    ser.add_argument("--tcp", action="store_true",
+                     help="serve a raw TCP line on 127.0.0.1 (socket://) instead of a pty")
     ser.set_defaults(func=_emulate_serial)
     mb = emu_sub.add_parser("modbus", help="emulated Modbus drive (TCP on 127.0.0.1, or RTU on a pty); prints its port")
     mb.add_argument("--config", help="take [emulator] and [device] (device_id, baudrate) from this config")

@@ -97,8 +97,8 @@ class DeviceConfig:
                              doc="streamed: the host sends set-points each cycle; buffered: the drive plays a "
                                  "stored table and captures into its buffer; recorder: the drive's own generator "
                                  "plays and its recorder records; auto: the driver's choice")
-    allow_fault_reset: bool = _spec(False, doc="clear a fault the device has latched (a limit trip, a watchdog, a drive "
-                                    "fault) when connecting; without it such a device is refused "
+    allow_fault_reset: bool = _spec(False, doc="clear a fault the device has latched (a limit trip, a watchdog, "
+                                    "a drive fault) when connecting; without it such a device is refused "
                                     "(hilident run --clear-fault sets it for one run)")
     host_timeout_s: float = _spec(0.5, gt=0, le=60, doc="how long the device may go without hearing from the host "
                                   "before it stops the axis on its own: CANopen heartbeat consumer (0x1016), Modbus "
@@ -276,7 +276,8 @@ class DataConfig:
 
 @dataclass(frozen=True)
 class ModelConfig:
-    kind: str = _spec("none", choices=("none", "mass_spring_damper", "rigid_axis"), doc="grey-box model fitted to the data")
+    kind: str = _spec("none", choices=("none", "mass_spring_damper", "rigid_axis"),
+                      doc="grey-box model fitted to the data")
     c: float = _spec(1.0, gt=0, doc="torque-to-force constant: force = c * torque")
     cutoff_hz: float = _spec(0.0, ge=0, doc="state-variable filter cut-off; 0: a tenth of the sample rate")
     input_hold: str = _spec("sample", choices=("zoh", "sample"),
@@ -654,7 +655,8 @@ def _check_limits(cfg: Config) -> None:
     if any(v <= 0 for v in cfg.friction_test.speeds_mps):
         raise ConfigError("friction_test.speeds_mps", "speeds must be positive (each is run both ways)", src)
     if cfg.friction_test.enabled and max(cfg.friction_test.speeds_mps, default=0) >= lim.velocity_mps:
-        raise ConfigError("friction_test.speeds_mps", f"a speed reaches limits.velocity_mps = {lim.velocity_mps:g}", src)
+        raise ConfigError("friction_test.speeds_mps",
+                          f"a speed reaches limits.velocity_mps = {lim.velocity_mps:g}", src)
     if cfg.friction_test.settle_s >= cfg.friction_test.hold_s:
         raise ConfigError("friction_test.settle_s", "must be shorter than friction_test.hold_s", src)
     if cfg.friction_test.enabled:
@@ -720,7 +722,8 @@ def excitation_samples(cfg: Config) -> int:
         total = (periods + 1) * length
         if total > MAX_SAMPLES:
             key = "excitation.clock_divider" if e.clock_divider > 1 else "excitation.register_length"
-            refuse(key, total, f"{periods + 1} PRBS periods of (2**{e.register_length} - 1) * {e.clock_divider} samples")
+            refuse(key, total,
+                   f"{periods + 1} PRBS periods of (2**{e.register_length} - 1) * {e.clock_divider} samples")
         fade_applies = periods < 3
     else:
         total = int(round(exact))

@@ -302,7 +302,9 @@ def _scaling(t: _Toml, s: E.EdsSummary) -> None:
         current = s.roles.get("rated_current")
         if current is None or not (isinstance(current.default, int) and current.default > 0):
             why = "the EDS has no 0x6075" if current is None else "0x6075 has no non-zero default"
-            t.key("rated_current_a", "10.0", placeholder=f"{why}: the motor's rated current, A (10 A assumed: current objects are per mille of it, so it also sets their range)")
+            t.key("rated_current_a", "10.0",
+                  placeholder=f"{why}: the motor's rated current, A (10 A assumed: current objects are "
+                              "per mille of it, so it also sets their range)")
     elif s.vendor_torque:
         index, name, role = s.vendor_torque[0]
         t.add("# the EDS has neither torque nor current objects; a vendor object named like a torque stands in:")

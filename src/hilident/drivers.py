@@ -159,7 +159,8 @@ _SERIAL_REQUIRED = (("driver", "protocol_version"), ("driver", "default_baudrate
 
 
 def _looks_like_path(value: str) -> bool:
-    """A ``device.driver`` value names a folder when it looks like a path: ``./x``, ``../x``, ``/x``, ``~/x``, ``a/b``."""
+    """A ``device.driver`` value names a folder when it looks like a path: ``./x``, ``../x``, ``/x``, ``~/x``,
+    ``a/b``."""
     separators = {"/", os.sep} | ({os.altsep} if os.altsep else set())
     return value in (".", "..") or value.startswith("~") or any(c in value for c in separators)
 

@@ -22,7 +22,7 @@ from typing import Any
 __all__ = ["Kind", "RunEvent"]
 
 
-class Kind(str, enum.Enum):
+class Kind(str, enum.Enum):  # noqa: UP042 - StrEnum would change str()/format() of members in messages
     """The kinds of run event; the value is what the recording stores."""
 
     # the run ended, or stopped early
@@ -122,7 +122,8 @@ host_check=False, code=None, register=None, data=None)
     def to_dict(self) -> dict:
         """The event as the recording and the session take it: ``kind``, ``message``, ``sample_index``,
         then the fields that are set, in declaration order."""
-        out: dict[str, Any] = {"kind": Kind(self.kind).value, "message": self.message, "sample_index": int(self.sample_index)}
+        out: dict[str, Any] = {"kind": Kind(self.kind).value, "message": self.message,
+                               "sample_index": int(self.sample_index)}
         if self.value is not None:
             out["value"] = float(self.value)
         if self.worst_s is not None:

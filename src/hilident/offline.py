@@ -402,7 +402,7 @@ def identify_recording(cfg: Config | None, data_path: str | Path, out_dir: str |
                  "mapping": {k: getattr(data_cfg, k) for k in ("torque", "velocity", "position", "output",
                                                                "excitation") if getattr(data_cfg, k)}}
     if info is not None:
-        unit = dict(zip(info.channels, info.units))
+        unit = dict(zip(info.channels, info.units, strict=False))
         data_info["units"] = {key: unit[col] for key, col in data_info["mapping"].items() if unit.get(col)}
         data_info.update(recorded_mode=info.mode, recorded_experiment=info.experiment,
                          configuration="stored in the recording" if cfg.source.endswith("(config_toml attribute)")

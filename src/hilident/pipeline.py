@@ -272,8 +272,8 @@ def reconcile_resonances(found: list[Resonance], rejected: list[RejectedPeak], m
         else:
             rejected.append(RejectedPeak(r.frequency_hz, r.peak_magnitude_db, r.coherence,
                                          f"not confirmed by the fitted model (no pole pair within {reach:.3g} Hz; "
-                                         f"the model's structure {model.fit.n_num}/{model.fit.n_den + model.fit.integrators} "
-                                         f"was chosen by {model.criterion})"))
+                                         f"the model's structure {model.fit.n_num}/"
+                                         f"{model.fit.n_den + model.fit.integrators} was chosen by {model.criterion})"))
     notes = []
     for j, (fm, zm) in enumerate(modes):
         if j in matched:
@@ -334,31 +334,33 @@ def notch_eligibility(res: Resonance) -> dict:
     """
     out = {"frequency_hz": res.frequency_hz, "notchable": False, "reason": "", "amplitude_factor": float("nan")}
     if res.method != "fit" or not np.isfinite(res.frequency_ci95_hz):
-        out["reason"] = (f"no local fit of the peak at {res.frequency_hz:.4g} Hz (method {res.method!r}): its frequency "
-                         "and damping are read off the frequency grid")
+        out["reason"] = (f"no local fit of the peak at {res.frequency_hz:.4g} Hz (method {res.method!r}): "
+                         "its frequency and damping are read off the frequency grid")
         return out
     interval, bandwidth = 2.0 * res.frequency_ci95_hz, res.bandwidth_hz
     tolerance_hz = NOTCH_FREQUENCY_TOLERANCE * res.frequency_hz
     out["amplitude_factor"] = float(max(1.0, 2.0 * interval / bandwidth))
     if not interval < bandwidth:
-        out["reason"] = (f"the 95 % interval of its frequency ({res.frequency_hz:.4g} +- {res.frequency_ci95_hz:.3g} Hz) "
-                         f"is not narrower than its half-power bandwidth ({bandwidth:.3g} Hz): a notch could miss it")
+        out["reason"] = (f"the 95 % interval of its frequency ({res.frequency_hz:.4g} +- "
+                         f"{res.frequency_ci95_hz:.3g} Hz) is not narrower than its half-power bandwidth "
+                         f"({bandwidth:.3g} Hz): a notch could miss it")
         return out
     if not res.frequency_ci95_hz <= tolerance_hz:
         out["amplitude_factor"] = float(max(out["amplitude_factor"], 2.0 * res.frequency_ci95_hz / tolerance_hz))
-        out["reason"] = (f"the 95 % interval of its frequency ({res.frequency_hz:.4g} +- {res.frequency_ci95_hz:.3g} Hz) "
-                         f"is wider than +-{100 * NOTCH_FREQUENCY_TOLERANCE:g} % of it: the notch could sit off the "
-                         "mode by more than that")
+        out["reason"] = (f"the 95 % interval of its frequency ({res.frequency_hz:.4g} +- "
+                         f"{res.frequency_ci95_hz:.3g} Hz) is wider than +-{100 * NOTCH_FREQUENCY_TOLERANCE:g} % "
+                         "of it: the notch could sit off the mode by more than that")
         return out
     if np.isfinite(res.local_fit_ratio):
         if not res.local_fit_ratio <= NOTCH_FIT_NOISE_RATIO:
-            out["reason"] = (f"the local fit misses the measured peak by {res.local_fit_ratio:.1f} times the scatter of "
-                             f"the estimate ({res.local_fit_db_rms:.2f} dB rms; allowed {NOTCH_FIT_NOISE_RATIO:g} times): "
-                             "the peak is not one clean mode")
+            out["reason"] = (f"the local fit misses the measured peak by {res.local_fit_ratio:.1f} times the "
+                             f"scatter of the estimate ({res.local_fit_db_rms:.2f} dB rms; allowed "
+                             f"{NOTCH_FIT_NOISE_RATIO:g} times): the peak is not one clean mode")
             return out
     elif not res.local_fit_db_rms <= NOTCH_FIT_FLOOR_DB:
         out["reason"] = (f"the local fit misses the measured peak by {res.local_fit_db_rms:.2f} dB rms (allowed "
-                         f"{NOTCH_FIT_FLOOR_DB:g} dB without a coherence to judge it by): the peak is not one clean mode")
+                         f"{NOTCH_FIT_FLOOR_DB:g} dB without a coherence to judge it by): the peak is not one "
+                         "clean mode")
         return out
     out["notchable"] = True
     return out
@@ -672,18 +674,20 @@ def _model_warnings(model: PlantModel) -> list[str]:
             f"pole at {p['frequency_hz']:.4g} Hz not reported as a mode ({p['reason']})" for p in roots.flagged_poles))
     if roots.rhp_zeros:
         out.append("transfer-function fit: right-half-plane zero(s) at "
-                   + ", ".join(f"{z['frequency_hz']:.4g} Hz" + (f" (the phase of a {1e3 * z['equivalent_delay_s']:.3g} ms "
-                                                                  "delay)" if "equivalent_delay_s" in z else "")
+                   + ", ".join(f"{z['frequency_hz']:.4g} Hz"
+                               + (f" (the phase of a {1e3 * z['equivalent_delay_s']:.3g} ms delay)"
+                                  if "equivalent_delay_s" in z else "")
                                for z in roots.rhp_zeros)
                    + " (non-minimum phase, usually a delay or a non-collocated sensor; not anti-resonances)")
     if not roots.stable:
         out.append(f"transfer-function fit: the model is not stable ({roots.stability})")
     fit = model.fit
     if _misfits(fit):
-        out.append(f"transfer-function fit: the best structure misses the measured response by {fit.fit_db_rms:.1f} dB "
-                   f"rms, {np.sqrt(fit.weighted_cost):.1f} times the scatter the coherence implies: the response is not "
-                   "that of a linear plant at this amplitude (friction sticking, backlash) or the excitation is too "
-                   "weak for its coherence to mean much (raise the excitation amplitude)")
+        out.append(f"transfer-function fit: the best structure misses the measured response by "
+                   f"{fit.fit_db_rms:.1f} dB rms, {np.sqrt(fit.weighted_cost):.1f} times the scatter the coherence "
+                   "implies: the response is not that of a linear plant at this amplitude (friction sticking, "
+                   "backlash) or the excitation is too weak for its coherence to mean much (raise the excitation "
+                   "amplitude)")
     return out
 
 
@@ -830,7 +834,7 @@ def design_notches(resonances, cfg: NotchConfig, filter_rate_hz: float, slots: l
     designs = []
     target = cfg.min_reduction_db
     depth = max(cfg.depth_db, target + 6.0)
-    for slot, res in zip(slots, sorted(ordered, key=lambda r: r.frequency_hz)):
+    for slot, res in zip(slots, sorted(ordered, key=lambda r: r.frequency_hz), strict=False):
         zeta = res.damping_ratio if np.isfinite(res.damping_ratio) else 0.05
         spec = notch_from_resonance(res.frequency_hz, zeta, depth_db=depth, width_factor=cfg.width_factor,
                                     min_relative_width=cfg.min_width_ratio)
@@ -1041,7 +1045,8 @@ class GreyBoxResult:
 
 
 def residual_warnings(kind: str, name: str, check: dict) -> list[str]:
-    """What failing residual tests of a grey-box fit (:func:`~hilident.ident.greybox.validate_fit`) mean and what to change.
+    """What failing residual tests of a grey-box fit (:func:`~hilident.ident.greybox.validate_fit`)
+    mean and what to change.
 
     Tests that were not computed (None) say nothing.
     """
@@ -1119,7 +1124,7 @@ def contiguous_runs(sample_index) -> list[tuple[int, int]]:
         return []
     breaks = np.flatnonzero(np.diff(index) != 1) + 1
     edges = np.concatenate(([0], breaks, [len(index)]))
-    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
 
 
 @dataclass
@@ -1212,7 +1217,7 @@ def _kept_segments(keep: np.ndarray, step: np.ndarray) -> list[tuple[int, int]]:
     joined = np.concatenate(([False], (step == 1) & keep[:-1] & keep[1:]))  # row r continues row r - 1
     starts = np.flatnonzero(keep & ~joined)
     stops = np.flatnonzero(keep & ~np.concatenate((joined[1:], [False]))) + 1
-    return [(int(a), int(b)) for a, b in zip(starts, stops)]
+    return [(int(a), int(b)) for a, b in zip(starts, stops, strict=False)]
 
 
 def _longest_run(n: int, runs, name: str) -> tuple[np.ndarray, list[str]]:

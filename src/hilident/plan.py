@@ -131,7 +131,8 @@ def make_plan(cfg: Config, excitation, friction_profile, adapter, filters_found:
             travel_m=float(friction_profile.max_excursion_m)))
     e = cfg.excitation
     x = np.asarray(excitation.samples)
-    what = e.kind if e.kind in ("sine", "square", "step") else f"{e.kind} {excitation.band_hz[0]:g}-{excitation.band_hz[1]:g} Hz"
+    what = (e.kind if e.kind in ("sine", "square", "step")
+            else f"{e.kind} {excitation.band_hz[0]:g}-{excitation.band_hz[1]:g} Hz")
     if e.closed_loop:
         what += f" {e.mode} set-point perturbation, closed loop"
     peaks = _excitation_peaks(e.mode, x, fs)

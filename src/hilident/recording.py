@@ -722,7 +722,7 @@ def _read_open_file(f: h5py.File, path: Path) -> RunData:
     return RunData(
         path=path,
         samples=samples,
-        units=dict(zip(names, units)),
+        units=dict(zip(names, units, strict=False)),
         sample_rate_hz=float(attrs["sample_rate_hz"]),
         attrs=attrs,
         events=events,

@@ -441,7 +441,7 @@ def plot_timeseries(
 
     fig = Figure(figsize=(9.0, 1.2 + 1.8 * len(traces)), dpi=100, layout="constrained")
     axes = np.atleast_1d(fig.subplots(len(traces), 1, sharex=True, squeeze=False)[:, 0])
-    for ax, (name, tt, yy) in zip(axes, traces):
+    for ax, (name, tt, yy) in zip(axes, traces, strict=False):
         ax.plot(tt, yy, lw=0.8)
         unit = units.get(name, "")
         ax.set_ylabel(f"{name} [{unit}]" if unit else name)

@@ -498,7 +498,8 @@ class Session(DeviceConnection):
         if self.friction_mode == "position":
             setpoints = sig.position_of(setpoints, self.cfg.run.sample_rate_hz)
         exp = self.record("friction", self.friction_mode, setpoints,
-                          tables={"windows": {"start": windows[:, 0], "stop": windows[:, 1], "velocity_mps": windows[:, 2]}})
+                          tables={"windows": {"start": windows[:, 0], "stop": windows[:, 1],
+                                              "velocity_mps": windows[:, 2]}})
         rows = self._rows_by_index(exp)
         kept = [(rows[a], rows[b - 1] + 1, v) for a, b, v in profile.windows if a in rows and b - 1 in rows
                 and rows[b - 1] - rows[a] == b - 1 - a]

@@ -250,7 +250,7 @@ def designs_for_device(src: Source, cfg, loop_rate_hz: float, slots: list[int], 
     from hilident.filters.notch import NotchSpec
 
     designs = []
-    for i, (rec, slot) in enumerate(zip(notch_records(src), slots)):
+    for i, (rec, slot) in enumerate(zip(notch_records(src), slots, strict=False)):
         rate = float(rec["sample_rate_hz"])
         if abs(rate - loop_rate_hz) <= _RATE_TOLERANCE * loop_rate_hz:
             spec = NotchSpec(float(rec["center_hz"]), float(rec["width_hz"]), float(rec["depth_db"]))

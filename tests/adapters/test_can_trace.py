@@ -253,7 +253,7 @@ def test_network_trace_of_requests_answers_and_reactions_reads_back_clean(tmp_pa
     for i in range(300):
         data = i.to_bytes(4, "little")
         assert position[(0x601, data)] < position[(0x581, data)]
-    for can_id, data, _ in seen_by_canopen:
+    for _can_id, data, _ in seen_by_canopen:
         assert position[(0x181, data)] < position[(0x201, data)]
     # canopen still gets the bus's own timestamps: the trace stamped copies
     bus_times = {bytes(m.data): m.timestamp for m in peer.sent if m.arbitration_id == 0x181}

@@ -195,7 +195,7 @@ def test_connecting_uses_only_protocol_messages_and_stops_before_clearing():
 def test_an_answer_queued_behind_a_long_drain_is_waited_for():
     # a slow line still carrying the old run's blocks for longer than the answer timeout
     host_end, board_end = pipe_pair("pipe://independent", timeout=0.02)
-    board = IndependentBoard(board_end, stale_blocks=20, stale_spacing_s=0.03).start()
+    _board = IndependentBoard(board_end, stale_blocks=20, stale_spacing_s=0.03).start()
     adapter = SerialBoardAdapter.open_device(
         device_config("pipe://independent", allow_fault_reset=True, timeout_s=0.25), DRIVER, link=host_end)
     try:
@@ -208,7 +208,8 @@ def test_an_answer_queued_behind_a_long_drain_is_waited_for():
 def test_without_permission_the_independent_board_is_refused_and_the_line_closed():
     host_end, board_end = pipe_pair("pipe://independent", timeout=0.02)
     board = IndependentBoard(board_end).start()
-    with pytest.raises(DeviceError, match="pipe://independent: the device has a latched fault: board in FAULT WATCHDOG"):
+    with pytest.raises(DeviceError,
+                       match="pipe://independent: the device has a latched fault: board in FAULT WATCHDOG"):
         SerialBoardAdapter.open_device(device_config("pipe://independent"), DRIVER, link=host_end)
     assert "CLEAR_FAULT" not in board.received and board.state == sb.State.FAULT
     assert not host_end.is_open
@@ -488,8 +489,8 @@ def test_a_sigkilled_session_is_stopped_by_the_board_watchdog_and_the_next_host_
     """(tests/test_endings.py runs the same ending over the TCP line too.)"""
     config = (REPO / "configs" / "emulated-gantry.toml").read_text()
     emulator = subprocess.Popen(
-        [sys.executable, "-m", "hilident.cli", "emulate", "serial", "--config", str(REPO / "configs" / "emulated-gantry.toml"),
-         "--time-scale", "2", *(["--tcp"] if tcp else [])],
+        [sys.executable, "-m", "hilident.cli", "emulate", "serial",
+         "--config", str(REPO / "configs" / "emulated-gantry.toml"), "--time-scale", "2", *(["--tcp"] if tcp else [])],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     host = None
     try:
@@ -497,7 +498,8 @@ def test_a_sigkilled_session_is_stopped_by_the_board_watchdog_and_the_next_host_
         assert port, emulator.stderr.read()
         bench = tmp_path / "bench.toml"
         bench.write_text(config.replace('port = "emulator"', f'port = "{port}"')
-                         .replace("[friction_test]", "[friction_test]\nenabled = false").replace('amplitude_nm = "auto"', "amplitude_nm = 8.0"))
+                         .replace("[friction_test]", "[friction_test]\nenabled = false")
+                         .replace('amplitude_nm = "auto"', "amplitude_nm = 8.0"))
         out = tmp_path / "out"
         host = subprocess.Popen([sys.executable, "-m", "hilident.cli", "run", str(bench), "--out", str(out), "-q",
                                  "--yes", "--no-plots"],

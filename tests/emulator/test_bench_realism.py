@@ -135,7 +135,7 @@ def _coherence(preset: str) -> tuple[np.ndarray, np.ndarray]:
     rate = driver.loop_rate_hz
     t = np.arange(int(2 * rate)) / rate
     phases = np.random.default_rng(5).uniform(0, 2 * np.pi, 199)
-    period = sum(np.cos(2 * np.pi * (k / 2) * t + ph) for k, ph in zip(range(2, 201), phases))
+    period = sum(np.cos(2 * np.pi * (k / 2) * t + ph) for k, ph in zip(range(2, 201), phases, strict=True))
     x = np.tile(3.0 * period / np.std(period), 11)
     rows = drive.run(x)[int(2 * rate):: int(rate // 1000)]  # the first period is the transient
     return signal.coherence(column(rows, "torque_nm"), column(rows, "velocity_mps"), fs=1000.0,

@@ -37,13 +37,14 @@ NAMES = [c.name for c in DRIVER.channels]
 # excitation, torque command and measured torque, in that order
 TORQUE_CHANNELS = tuple(sb.ChannelSelection(NAMES.index(n)) for n in ("excitation", "torque_cmd_nm", "torque_nm"))
 EXC, CMD, TRQ = 0, 1, 2
+DEFAULT_LIMITS = sb.Limits(5.0, 1.0, -1.0, 1.0)
 
 
 class Bench:
     """A firmware instance, a host-side sequence counter and the decoded answers."""
 
     def __init__(self, config: str = CONFIG, identity: sb.Identity | None = None,
-                 limits: sb.Limits | None = sb.Limits(5.0, 1.0, -1.0, 1.0)):
+                 limits: sb.Limits | None = DEFAULT_LIMITS):
         self.drive = build_drive(parse_config(config).emulator, DRIVER)
         self.fw = BoardFirmware(self.drive, identity or identity_from_driver(DRIVER))
         self.seq = 0
@@ -123,7 +124,8 @@ def test_identify_answers_what_the_driver_description_says():
     assert ident.protocol_version == 1 == DRIVER.protocol_version
     assert (ident.name, ident.firmware) == (DRIVER.name, DRIVER.firmware)
     assert (ident.loop_rate_hz, ident.max_sample_rate_hz) == (DRIVER.loop_rate_hz, DRIVER.max_sample_rate_hz)
-    assert (ident.filter_slots, ident.excitation_buffer_samples) == (DRIVER.filter_slots, DRIVER.excitation_buffer_samples)
+    assert ((ident.filter_slots, ident.excitation_buffer_samples)
+            == (DRIVER.filter_slots, DRIVER.excitation_buffer_samples))
     assert [(c.name, c.unit) for c in ident.channels] == [(c.name, c.unit) for c in DRIVER.channels]
     assert bench.fw.state == sb.State.IDLE
 

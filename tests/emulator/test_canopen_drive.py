@@ -47,12 +47,14 @@ class Host:
         return self.node.sdo[index] if sub is None else self.node.sdo[index][sub] if sub else self.node.sdo[index]
 
     def write(self, index, sub, value):
-        var = self.node.sdo[index][sub] if isinstance(self.node.sdo[index], (canopen.sdo.SdoRecord, canopen.sdo.SdoArray)) \
+        var = self.node.sdo[index][sub] if isinstance(self.node.sdo[index],
+                                                      (canopen.sdo.SdoRecord, canopen.sdo.SdoArray)) \
             else self.node.sdo[index]
         var.raw = value
 
     def read(self, index, sub=0):
-        var = self.node.sdo[index][sub] if isinstance(self.node.sdo[index], (canopen.sdo.SdoRecord, canopen.sdo.SdoArray)) \
+        var = self.node.sdo[index][sub] if isinstance(self.node.sdo[index],
+                                                      (canopen.sdo.SdoRecord, canopen.sdo.SdoArray)) \
             else self.node.sdo[index]
         return var.raw
 

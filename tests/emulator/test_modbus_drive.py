@@ -78,7 +78,8 @@ class Drive:
         assert self.set(table_length=len(x)) is None
         for c in plan_chunks(0, len(x), 2, MAP.table.page_samples, MAP.max_write):
             assert self.set(table_page=c.page) is None
-            assert self.fw.write(MAP.table.base + c.offset, regs[2 * c.first_sample : 2 * (c.first_sample + c.samples)]) is None
+            assert self.fw.write(MAP.table.base + c.offset,
+                                 regs[2 * c.first_sample : 2 * (c.first_sample + c.samples)]) is None
         return regs
 
     def capture(self, n, mask):
@@ -293,7 +294,8 @@ def test_a_buffered_run_takes_its_duration_over_the_time_scale():
         regs = MAP.encode_table(np.zeros(2000))
         for c in plan_chunks(0, 2000, 2, MAP.table.page_samples, MAP.max_write):
             write("table_page", c.page)
-            client.write_registers(MAP.table.base + c.offset, regs[2 * c.first_sample : 2 * (c.first_sample + c.samples)].tolist(), device_id=1)
+            client.write_registers(MAP.table.base + c.offset,
+                                   regs[2 * c.first_sample : 2 * (c.first_sample + c.samples)].tolist(), device_id=1)
         t = time.monotonic()
         write("control_word", MAP.control["run"])
         status = REG["status_word"].address

@@ -261,14 +261,14 @@ def test_three_mass_modes_are_the_state_matrix_eigenvalues_and_the_frf_peaks():
     flexible = sorted(lam[np.abs(lam) > 1e-3], key=abs)[::2]  # one of each conjugate pair
     got = modes(CHAIN)
     assert len(got) == 2
-    for (f, zeta), z in zip(got, flexible):
+    for (f, zeta), z in zip(got, flexible, strict=False):
         assert f == pytest.approx(abs(z) / (2 * np.pi), rel=1e-9)
         assert zeta == pytest.approx(-z.real / abs(z), rel=1e-6)
     f = np.linspace(5.0, 100.0, 19001)
     mag = np.abs(frf(CHAIN, f, "velocity"))
     peaks, _ = signal.find_peaks(20 * np.log10(mag), prominence=3.0)
     assert len(peaks) == 2  # each mode peaks in the cart's response, near it (its neighbours shift it a little)
-    for i, (fm, _) in zip(peaks, got):
+    for i, (fm, _) in zip(peaks, got, strict=False):
         assert f[i] == pytest.approx(fm, rel=0.02)
 
 

@@ -60,7 +60,7 @@ def test_state_space_matches_scipy(name, dt, ours, scipy_method):
     A, B, C, D = SYSTEMS[name]
     got = ours(A, B, C, D, dt)
     ref = signal.cont2discrete((A, B, C, D), dt, method=scipy_method)
-    for mine, theirs in zip(got[:4], ref[:4]):
+    for mine, theirs in zip(got[:4], ref[:4], strict=False):
         np.testing.assert_allclose(mine, theirs, rtol=1e-9, atol=1e-12 * np.max(np.abs(theirs)))
     assert got.dt == dt
 
@@ -76,10 +76,10 @@ def test_zoh_gamma_is_the_integral_of_eq_2_23():
 def test_euler_and_tustin_approximate_phi_as_in_eqs_2_28_and_2_30():
     A, B, C, D = two_mass()
     h = 1e-4
-    I = np.eye(4)
-    np.testing.assert_allclose(forward_euler(A, B, C, D, h).Phi, I + A * h)
+    eye = np.eye(4)
+    np.testing.assert_allclose(forward_euler(A, B, C, D, h).Phi, eye + A * h)
     np.testing.assert_allclose(
-        tustin(A, B, C, D, h).Phi, (I + A * h / 2) @ np.linalg.inv(I - A * h / 2), rtol=1e-12
+        tustin(A, B, C, D, h).Phi, (eye + A * h / 2) @ np.linalg.inv(eye - A * h / 2), rtol=1e-12
     )
     exact = zoh(A, B, C, D, h).Phi
     assert np.max(np.abs(tustin(A, B, C, D, h).Phi - exact)) < np.max(
@@ -123,7 +123,7 @@ def test_inverse_zoh_and_tustin_round_trip(name, dt):
         (tustin, d2c_tustin, {"prewarp_hz": 15.0}),
     ):
         back = inv(*fwd(A, B, C, D, dt, **kw), **kw)
-        for mine, truth in zip(back, (A, B, C, D)):
+        for mine, truth in zip(back, (A, B, C, D), strict=False):
             np.testing.assert_allclose(mine, truth, rtol=1e-7, atol=1e-9 * max(1.0, np.max(np.abs(truth))))
 
 

@@ -109,7 +109,7 @@ def test_piezo_noise_free_is_recovered_exactly(piezo_grid, weights):
     modal = modal_form(fit)
     assert modal.gain == pytest.approx(0.673, rel=1e-9)
     np.testing.assert_allclose(modal.response(f), G, rtol=1e-8)
-    for (fa, za), (w, z) in zip(modal.antiresonances, PIEZO_ANTI):
+    for (fa, za), (w, z) in zip(modal.antiresonances, PIEZO_ANTI, strict=False):
         assert fa == pytest.approx(hz(w), rel=1e-8) and za == pytest.approx(z, rel=1e-6)
     # The scipy polynomials describe the same system.
     np.testing.assert_allclose(signal.freqs(fit.num, fit.den, 2 * np.pi * f)[1], G, rtol=1e-8)
@@ -275,7 +275,7 @@ def test_modal_round_trip(f1, ratio, z1, z2, za, gain, corner):
     fit = fit_transfer_function(frf, 2, 5)
     m = modal_form(fit)
     assert m.gain == pytest.approx(gain, rel=1e-6)
-    for got, want in zip(m.resonances, truth.resonances):
+    for got, want in zip(m.resonances, truth.resonances, strict=False):
         assert got == pytest.approx(want, rel=1e-5)
     assert m.antiresonances[0] == pytest.approx(truth.antiresonances[0], rel=1e-5)
     assert m.real_poles_hz[0] == pytest.approx(corner * f1, rel=1e-5)

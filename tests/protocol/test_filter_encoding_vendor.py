@@ -274,7 +274,7 @@ def test_realise_meets_the_depth_where_nearest_rounding_misses_it():
     # no neighbour one step away in any field is deep enough and closer to the asked depth
     steps = [(-1, 0, 1)] * 3
     for delta in itertools.product(*steps):
-        values = {k: v + d for (k, v), d in zip(r.fields.items(), delta)}
+        values = {k: v + d for (k, v), d in zip(r.fields.items(), delta, strict=False)}
         att = db_at(enc.applied(values, RATE), spec.center_hz)
         assert not 40.0 <= att < r.attenuation_db
     assert r.achieved.center_hz == pytest.approx(r.fields["center"] * 0.1, abs=1e-3)
@@ -373,7 +373,8 @@ def test_every_documented_example_builds_and_realises_a_notch():
     ({"encoding": "word_block", "preset": ["copley"]}, "filters.preset"),
     ({"encoding": "word_block", "preset": "copley", "byte_order": "middle"}, "filters.byte_order"),
     ({"encoding": "word_block", "preset": "copley_plus", "coefficient_words": {"b0": 13, "b1": 10, "b2": 12,
-                                                                             "a1": 4, "a2": 6}}, "filters.coefficient_words.b0"),
+                                                                             "a1": 4, "a2": 6}},
+     "filters.coefficient_words.b0"),
     ({"encoding": "index_table", "width_table": [1.0, "wide"], "depth_table": [10.0]}, "filters.width_table"),
     ({"encoding": "index_table", "width_table": [1.0], "depth_table": [-math.inf]}, "filters.depth_table"),
     ({"encoding": "center_band", "ranges": {"band": "narrow"}}, "filters.ranges.band"),
@@ -416,7 +417,7 @@ def test_real32_parameter_encodings_round_trip(enc, center, rel_width, depth):
     exact = (two_frequency_section(p[2], 0.5 / p[3], p[0], 0.5 / p[1], RATE) if enc.kind == "pole_zero_q"
              else two_frequency_section(p[0], p[1], p[2], p[3], RATE))
     assert section == FilterEncoding("real32").applied(dict(zip(("b0", "b1", "b2", "a1", "a2"),
-                                                                (*exact.b, *exact.a[1:]))), RATE)
+                                                                (*exact.b, *exact.a[1:]), strict=False)), RATE)
     # pre-warped at the centre: the analog depth there (the drive's REAL32 section then rounds it,
     # which costs a fraction of a dB for narrow deep notches far below the rate)
     assert db_at(exact, center) == pytest.approx(depth, abs=1e-3)

@@ -41,7 +41,7 @@ def reference_cobs(data: bytes) -> bytes:
 
 def split_at(data: bytes, cuts: list[int]) -> list[bytes]:
     edges = sorted({0, len(data), *(c % (len(data) + 1) for c in cuts)})
-    return [data[a:b] for a, b in zip(edges[:-1], edges[1:])]
+    return [data[a:b] for a, b in zip(edges[:-1], edges[1:], strict=True)]
 
 
 def feed_all(decoder: FrameDecoder, chunks) -> list[bytes]:

@@ -149,7 +149,8 @@ def test_shipped_map():
 
 def test_describe_names_registers_windows_and_slots():
     assert MAP.describe(100) == "register 100 (control_word)"
-    assert MAP.describe(120, 8) == "registers 120..127 (torque_limit_nm, velocity_limit_mps, position_min_m, position_max_m)"
+    assert MAP.describe(120, 8) == ("registers 120..127 (torque_limit_nm, velocity_limit_mps, position_min_m, "
+                                    "position_max_m)")
     assert MAP.describe(4096 + 9, 117, page=2) == "registers 4105..4221 (capture window, page 2)"
     assert MAP.describe(204, 4) == "registers 204..207 (filter slot 1)"
     assert "not in the driver map" in MAP.describe(7)
@@ -221,7 +222,8 @@ def sections() -> dict:
     (lambda s: s["modbus"]["fault_codes"].pop("comm_timeout"), "modbus.fault_codes.comm_timeout"),
     (lambda s: s["modbus"]["fault_codes"].update(comm_timeout=4), "modbus.fault_codes"),
     (lambda s: s["modbus"]["fault_codes"].update(comm_timeout=0), "modbus.fault_codes.comm_timeout"),
-    (lambda s: s["modbus"]["registers"]["comm_timeout_ms"].update(access="r"), "modbus.registers.comm_timeout_ms.access"),
+    (lambda s: s["modbus"]["registers"]["comm_timeout_ms"].update(access="r"),
+     "modbus.registers.comm_timeout_ms.access"),
     (lambda s: s["modbus"]["registers"]["comm_timeout_ms"].update(type="f32"), "modbus.registers.comm_timeout_ms.type"),
 ])
 def test_invalid_maps_name_the_key(change, key):

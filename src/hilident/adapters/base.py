@@ -437,7 +437,8 @@ class AdapterBase:
                 self.last_result.fault = event["message"]
 
     def fault_error(self, event: dict, then: BaseException | None = None) -> DeviceError:
-        """The exception a run ends with after fault ``event`` (LimitTrip for a limit); ``then``: what failed after it."""
+        """The exception a run ends with after fault ``event`` (LimitTrip for a limit);
+        ``then``: what failed after it."""
         cls = LimitTrip if event["kind"] == Kind.LIMIT_TRIP.value else DeviceError
         text = f"{self.port}: {self._fault_text(event)}"
         if then is not None:

@@ -54,7 +54,8 @@ class BufferedRun(RunStrategy):
         capacity = int(ad.read("table_capacity"))
         if n > capacity:
             raise DeviceError(f"{ad.port}: the excitation has {n} samples; the drive's table holds {capacity} "
-                              f"({self.where('table_capacity')}); use device.acquisition = \"streamed\" or a shorter run")
+                              f"({self.where('table_capacity')}); use device.acquisition = \"streamed\" "
+                              "or a shorter run")
         ad.write_domain(ad.desc.address("table"), np.asarray(self.x, dtype="<f4").tobytes())
         length = int(ad.read("table_length"))
         if length != n:

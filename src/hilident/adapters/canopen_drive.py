@@ -216,7 +216,8 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
         eds_warnings: list[str] = []
         od = load_object_dictionary(driver, device.node_id, eds_warnings)
         desc = CanopenDescription.from_sections(driver.sections, source, od)
-        if device.acquisition == "buffered" or (device.acquisition == "auto" and desc.default_acquisition == "buffered"):
+        if device.acquisition == "buffered" or (device.acquisition == "auto"
+                                                and desc.default_acquisition == "buffered"):
             desc.require_buffered(source)
         label = f"{device.can_interface}:{device.port} node {device.node_id}"
         if desc.host_node_id == device.node_id:
@@ -486,7 +487,8 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
         return [(j, *bounds[c.name]) for j, c in enumerate(self.channels) if c.name in bounds]
 
     def decode_rows(self, raw_columns: list[np.ndarray], first_index: int = 0) -> np.ndarray:
-        """Raw channel columns -> SI rows (values at their integer type's limit counted, see :meth:`count_saturated`)."""
+        """Raw channel columns -> SI rows (values at their integer type's limit counted, see
+        :meth:`count_saturated`)."""
         raw = np.column_stack([c.astype(float) for c in raw_columns])
         self.count_saturated(raw, first_index)
         return raw * np.array([codec.scale for codec in self.channels])

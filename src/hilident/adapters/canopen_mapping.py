@@ -68,12 +68,14 @@ class ChannelMapping:
             var = self.node.object_dictionary.get_variable(d.address(role).index, d.address(role).subindex)
             info = np.iinfo(numpy_type(var.data_type))
             if not info.min <= values[role] <= info.max:
-                raise ConfigError(f"limits ({role})", f"{values[role]} units do not fit {self.describe(d.address(role))}")
+                raise ConfigError(f"limits ({role})",
+                                  f"{values[role]} units do not fit {self.describe(d.address(role))}")
         for role, raw in values.items():
             self.write(role, raw)
             back = int(self.read(role))
             if back != raw:
-                raise DeviceError(f"{self.port}: wrote {raw} to {self.describe(d.address(role))}, the drive holds {back}")
+                raise DeviceError(f"{self.port}: wrote {raw} to {self.describe(d.address(role))}, "
+                                  f"the drive holds {back}")
         self.device_limits = tuple(values)
         self._limits = (torque_nm, velocity_mps, position_min_m, position_max_m)
 
@@ -127,7 +129,8 @@ class ChannelMapping:
         divider = int(round(divider))
         rate = ident.loop_rate_hz / divider
         if rate > self.driver.max_sample_rate_hz * (1 + 1e-9):
-            raise DeviceError(f"{self.port}: sample rate {rate:g} Hz exceeds the drive's {self.driver.max_sample_rate_hz:g} Hz")
+            raise DeviceError(f"{self.port}: sample rate {rate:g} Hz exceeds the drive's "
+                              f"{self.driver.max_sample_rate_hz:g} Hz")
         return divider, rate
 
     def _check_mode(self, mode: str) -> None:

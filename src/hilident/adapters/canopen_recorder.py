@@ -272,7 +272,7 @@ class RecorderRun(RunStrategy):
                     raise DeviceError(f"{ad.port}: the recorder's buffer {ad.describe(rec.buffers[i])} holds "
                                       f"{len(data) // size} samples; {recorded} were recorded")
                 columns.append(np.frombuffer(data[:recorded * size], dtype=numpy_type(t)))
-        si = [col.astype(float) * scale for col, (_, _, scale) in zip(columns, self.channels)]
+        si = [col.astype(float) * scale for col, (_, _, scale) in zip(columns, self.channels, strict=False)]
         rows, k = [], 0
         for c in ad.channels:
             if c.on_host and self.excitation_column is None:

@@ -62,7 +62,8 @@ _GRACE_S = 0.25  # after the last SYNC (or an emergency), wait this long for the
 
 
 class DriveHost(Protocol):
-    """What a CANopen acquisition strategy uses of its adapter (:class:`~hilident.adapters.canopen_drive.CanopenDriveAdapter`).
+    """What a CANopen acquisition strategy uses of its adapter
+    (:class:`~hilident.adapters.canopen_drive.CanopenDriveAdapter`).
 
     Configuration, as :meth:`configure` left it: ``desc`` (the driver's
     objects), ``channels`` (the recorded channels' codecs), ``mode``,
@@ -168,7 +169,8 @@ class StreamedRun(RunStrategy):
             breaks = np.flatnonzero(np.diff(missing) != 1) + 1
             for run in np.split(missing, breaks):
                 self.ad.log_event(RunEvent(Kind.LOST_BLOCKS, f"{len(run)} sample(s) lost on the bus: samples "
-                                                             f"{run[0]}..{run[-1]}", int(run[0]), value=float(len(run))))
+                                                             f"{run[0]}..{run[-1]}",
+                                           int(run[0]), value=float(len(run))))
         self.final = limit
 
     def drain(self) -> int:

@@ -1,4 +1,5 @@
-"""Drive-buffered runs of the Modbus adapter: the excitation table written through its page window, the capture read back.
+"""Drive-buffered runs of the Modbus adapter: the excitation table written through its page window,
+the capture read back.
 
 One part of :class:`~hilident.adapters.modbus_drive.ModbusDriveAdapter`, which composes the parts
 (see that module); a part only uses the adapter's attributes and the other parts' methods.
@@ -100,7 +101,8 @@ class TableCapture:
             # the command may have arrived: ask the drive instead of sending it again
             after = self.status()
             if not after.flags & {"running", "done"}:
-                raise DeviceError(f"{exc}; the drive is not running (not repeated: a start is never sent twice)") from None
+                raise DeviceError(f"{exc}; the drive is not running "
+                                  "(not repeated: a start is never sent twice)") from None
             self.log_event(RunEvent(Kind.MISSING_RESPONSE, "the answer to the start command was lost; the drive "
                                                            "reports the run started", 0, value=0.0))
 
@@ -218,7 +220,8 @@ class TableCapture:
         if available < n:
             stats.lost_samples += n - available
             self.log_event(RunEvent(Kind.CAPTURE_STOPPED, f"the drive's capture stopped at sample {available} of {n}; "
-                                                          f"samples {available}..{n - 1} were not recorded (not filled)",
+                                                          f"samples {available}..{n - 1} were not recorded "
+                                                          "(not filled)",
                                     available, value=float(n - available)))
         else:
             self.log_event(RunEvent(Kind.FINISHED, "run complete", n, value=0.0))

@@ -158,7 +158,8 @@ class ModbusDriveAdapter(RegisterAccess, FilterSlots, TableCapture, AdapterBase)
             [r.channel for r in regmap.registers.values() if r.channel]
         missing = [c.name for c in driver.channels if c.name not in shown]
         if missing:
-            where = "[[modbus.capture.channels]]" if regmap.excitation else "registers (key channel) of [modbus.registers]"
+            where = ("[[modbus.capture.channels]]" if regmap.excitation
+                     else "registers (key channel) of [modbus.registers]")
             raise ConfigError("channels", f"driver {driver.name!r} lists channels {missing} that its "
                               f"{where} do not hold", str(driver.folder / "driver.toml"))
         port = device.port
@@ -216,7 +217,8 @@ class ModbusDriveAdapter(RegisterAccess, FilterSlots, TableCapture, AdapterBase)
             if self.map.stop:
                 self.write_names(**self.map.stop)  # no speed, no torque asked of the drive
             self._arm_comm_timeout(host_timeout_s)
-            report.discarded_frames += getattr(self.client, "stale_frames", 0) + self.dropped_frames + self.bad_responses
+            report.discarded_frames += (getattr(self.client, "stale_frames", 0) + self.dropped_frames
+                                        + self.bad_responses)
             return
         self.write_names(control_word=0)  # stopped, disabled, zero torque, ready for a fresh 0 -> 1 edge
         st = self.status()

@@ -180,7 +180,7 @@ class RegisterAccess:
                 regs[r.address + i] = v
         addresses = sorted(regs)
         start = addresses[0]
-        for a, b in zip(addresses, addresses[1:] + [None]):
+        for a, b in zip(addresses, addresses[1:] + [None], strict=True):
             if b != a + 1 or b - start >= self.map.max_write:
                 self.write(start, [regs[x] for x in range(start, a + 1)])
                 start = b

@@ -150,7 +150,8 @@ class FilterSlots:
                 raise DeviceError(f"{self.port}: filter slot {slot} ({', '.join(r.label for r in regs.values())}) "
                                   f"holds {values}: {exc}") from None
         address = self._slot(slot)
-        values, enabled = self.map.decode_filter(self.read(address, self.map.filters.span, f"reading filter slot {slot}"))
+        values, enabled = self.map.decode_filter(
+            self.read(address, self.map.filters.span, f"reading filter slot {slot}"))
         if not any(values.values()):
             return Biquad.identity(), enabled  # an empty slot passes the torque through
         try:

@@ -400,7 +400,8 @@ class SerialBoardAdapter(AdapterBase):
         offered = [c.name for c in ident.channels]
         missing = [c.name for c in self.driver.channels if c.name not in offered]
         if missing:
-            raise DeviceError(f"{self.port}: board {ident.name!r} lacks channels {missing} of driver {self.driver.name!r}")
+            raise DeviceError(f"{self.port}: board {ident.name!r} lacks channels {missing} "
+                              f"of driver {self.driver.name!r}")
         self.identity = ident
         return ident
 

@@ -152,10 +152,11 @@ def read_csv(path: Path, names, check=lambda available: None, column_names: tupl
                 text.readline()
             data = _parse_body(path, text, header_lines, bound, usecols, wanted, delimiter)
     except UnicodeError as exc:
-        raise DataError(f"{path}: not valid {encoding.upper()} text ({exception_text(exc)}); save it as UTF-8 CSV") from None
+        raise DataError(f"{path}: not valid {encoding.upper()} text ({exception_text(exc)}); "
+                        "save it as UTF-8 CSV") from None
     except csv.Error as exc:
         raise DataError(f"{path}: not a readable CSV file: {exception_text(exc)}") from None
-    return RawColumns(dict(zip(wanted, data)), columns, notes=notes)
+    return RawColumns(dict(zip(wanted, data, strict=False)), columns, notes=notes)
 
 
 def _sniff(lines: list[str]) -> str | None:
@@ -229,7 +230,7 @@ def _slow_chunk(path: Path, lines: list[str], first_line: int, usecols: list[int
         if not any(c.strip() for c in cells):
             continue
         row = []
-        for j, name in zip(usecols, names):
+        for j, name in zip(usecols, names, strict=False):
             cell = cells[j].strip() if j < len(cells) else ""
             row.append(_number(cell, path, first_line + k + 1, name))
         rows.append(row)

@@ -185,7 +185,7 @@ def _gap_free(path: Path, signals: dict[str, np.ndarray], index: np.ndarray | No
         return signals, selection.segments, info
     used = {key: v[selection.keep] for key, v in signals.items()}
     edges = np.cumsum([0] + [b - a for a, b in selection.segments])
-    return used, [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])], info
+    return used, [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)], info
 
 
 def _confirmed_period(index: np.ndarray, excitation: np.ndarray | None, period: int) -> tuple[int | None, str]:

@@ -165,7 +165,8 @@ def _mat5_listing(path: Path) -> tuple[list[_MatVariable], bytes]:
                 try:
                     head = zlib.decompressobj().decompress(fh.read(min(nbytes, 1 << 16)), _MAT_HEADER_BYTES)
                 except zlib.error as exc:
-                    raise DataError(f"{path}: damaged compressed variable at byte {pos} ({exception_text(exc)})") from None
+                    raise DataError(f"{path}: damaged compressed variable at byte {pos} "
+                                    f"({exception_text(exc)})") from None
             elif mdtype == _MI_MATRIX:
                 head = struct.pack(order + "II", mdtype, nbytes) + fh.read(min(nbytes, _MAT_HEADER_BYTES))
             else:

@@ -66,7 +66,7 @@ def _read_hilident_open(path: Path, f, names, fmt: str, version: int, check) -> 
     period, why = _recorded_period(attrs, rate)
     if why:
         notes.append(f"{path.name}: {why}")
-    return RawColumns(dict(zip(wanted, columns)), channels, rate, status, reason, period, flushed, notes,
+    return RawColumns(dict(zip(wanted, columns, strict=False)), channels, rate, status, reason, period, flushed, notes,
                       _recorded_underruns(attrs))
 
 
@@ -119,7 +119,7 @@ def _read_rows(ds, rows: int, cols: list[int], block: int = 1 << 16) -> list[np.
     for a in range(0, rows, block):
         b = min(a + block, rows)
         part = ds[a:b, :]
-        for arr, j in zip(out, cols):
+        for arr, j in zip(out, cols, strict=False):
             arr[a:b] = part[:, j]
     return out
 
@@ -146,7 +146,8 @@ def _recorded_period(attrs, rate: float) -> tuple[int | None, str]:
     try:
         return excitation_period_samples(parse_config(text, "config_toml attribute").excitation, rate), ""
     except HilidentError as exc:
-        return None, f"the stored configuration cannot be read ({exception_text(exc)}); the excitation period is unknown"
+        return None, (f"the stored configuration cannot be read ({exception_text(exc)}); "
+                      "the excitation period is unknown")
 
 
 @dataclass

@@ -73,7 +73,8 @@ def build_drive(cfg: EmulatorConfig, driver: DriverDescription) -> DriveLoop:
     disturbance = ProcessDisturbance(
         period_s=1.0 / driver.loop_rate_hz, noise_nm=r.torque_noise_nm, noise_corner_hz=r.torque_noise_corner_hz,
         cogging_nm=r.cogging_nm, cogging_period_m=r.cogging_period_m, load_step_nm=r.load_step_nm,
-        load_step_rate_hz=r.load_step_rate_hz, load_noise_n=r.load_noise_n, seed=np.random.SeedSequence(cfg.seed, spawn_key=(3,)),
+        load_step_rate_hz=r.load_step_rate_hz, load_noise_n=r.load_noise_n,
+        seed=np.random.SeedSequence(cfg.seed, spawn_key=(3,)),
     )
     # Integrate at least 4x the loop rate, and at least 40 steps per period of the fastest mode.
     fastest = max((f for f, _ in true_modes(cfg)), default=0.0)

@@ -318,7 +318,8 @@ def _pairs(lam: np.ndarray) -> list[tuple[float, float]]:
     complex_ = sorted(lam[np.imag(lam) > 0], key=abs)
     real = sorted(np.real(lam[np.imag(lam) == 0]), key=abs)
     out = [(abs(z), -z.real / abs(z)) for z in complex_]
-    out += [(math.sqrt(a * b), -(a + b) / (2.0 * math.sqrt(a * b))) for a, b in zip(real[0::2], real[1::2])
+    out += [(math.sqrt(a * b), -(a + b) / (2.0 * math.sqrt(a * b)))
+            for a, b in zip(real[0::2], real[1::2], strict=False)
             if a * b > 0]
     return sorted(((float(w) / (2.0 * math.pi), float(z) + 0.0) for w, z in out if w > 0.0), key=lambda m: m[0])
 
@@ -532,7 +533,7 @@ class Plant:
         For a mass-spring-damper ``p2``/``v2`` are ignored and mirror ``p1``/``v1``.
         """
         vals = [p1, v1, p1 if p2 is None else p2, v1 if v2 is None else v2]
-        for name, v in zip(("p1", "v1", "p2", "v2"), vals):
+        for name, v in zip(("p1", "v1", "p2", "v2"), vals, strict=True):
             if not math.isfinite(float(v)):
                 raise ValueError(f"{name} must be finite, got {v!r}")
         self.p1, self.v1, self.p2, self.v2 = (float(v) for v in vals)

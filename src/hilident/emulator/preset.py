@@ -9,7 +9,8 @@ it: the physics of the first twins, exact, for tests that compare with theory.
 
 Torques scale with the drive's ``torque_max_nm``, because a motor's ripple and a
 bench's disturbances grow with the motor: a 20 N·m drive gets 0.06 N·m of noise,
-a 2 N·m drive 0.006 N·m (forces on the load: the same fraction of ``c * torque_max_nm``). A key set in the config always wins over its preset.
+a 2 N·m drive 0.006 N·m (forces on the load: the same fraction of ``c * torque_max_nm``).
+A key set in the config always wins over its preset.
 """
 
 from __future__ import annotations

@@ -124,7 +124,7 @@ class BiquadChain:
         self.coefficients[slot] = coefficients
         self.enabled[slot] = bool(enabled)
         self.sections[slot].load(coefficients)
-        self._active = [s for s, on in zip(self.sections, self.enabled) if on]
+        self._active = [s for s, on in zip(self.sections, self.enabled, strict=False) if on]
 
     def read(self, slot: int) -> tuple[Biquad, bool]:
         """Coefficients and enable flag of ``slot``."""
@@ -144,7 +144,7 @@ class BiquadChain:
     def response(self, frequency_hz: np.ndarray, sample_rate_hz: float) -> np.ndarray:
         """Complex response of the enabled slots in series."""
         h = np.ones(np.shape(frequency_hz), dtype=complex)
-        for c, on in zip(self.coefficients, self.enabled):
+        for c, on in zip(self.coefficients, self.enabled, strict=False):
             if on:
                 h = h * c.response(frequency_hz, sample_rate_hz)
         return h

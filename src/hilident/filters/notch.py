@@ -288,14 +288,14 @@ def quantize_biquad(biquad: Biquad, fractional_bits, total_bits=32, preserve_dc=
     lo, hi = -(2 ** (total - 1)), 2 ** (total - 1) - 1
     names = ("b0", "b1", "b2", "a1", "a2")
     values = (*biquad.b, biquad.a[1], biquad.a[2])
-    ints = {name: int(np.round(c * scale)) for name, c in zip(names, values)}
+    ints = {name: int(np.round(c * scale)) for name, c in zip(names, values, strict=False)}
     if preserve_dc:
         # integers on the grid, so the sums below are exact
         den_sum = 2**frac + ints["a1"] + ints["a2"]
         num_sum = int(np.round(biquad.dc_gain() * den_sum)) if den_sum else None
         if num_sum is not None:
             ints["b1"] = num_sum - ints["b0"] - ints["b2"]
-    for name, c in zip(names, values):
+    for name, c in zip(names, values, strict=False):
         if not lo <= ints[name] <= hi:
             raise DataError(
                 f"coefficient {name} = {c!r} overflows Q{total - frac}.{frac} "

@@ -81,7 +81,8 @@ def two_frequency_section(zero_hz, zero_damping, pole_hz, pole_damping, sample_r
         unstable section.
     """
     if not (zero_damping >= 0.0 and pole_damping > 0.0) or not all(map(math.isfinite, (zero_damping, pole_damping))):
-        raise DataError(f"damping ratios must be finite, zero >= 0 and pole > 0, got {zero_damping!r}, {pole_damping!r}")
+        raise DataError("damping ratios must be finite, zero >= 0 and pole > 0, "
+                        f"got {zero_damping!r}, {pole_damping!r}")
     num = _bilinear_quadratic(zero_hz, zero_damping, _warp_gain(zero_hz, sample_rate_hz))
     den = _bilinear_quadratic(pole_hz, pole_damping, _warp_gain(pole_hz, sample_rate_hz))
     section = Biquad(tuple(x / den[0] for x in num), (1.0, den[1] / den[0], den[2] / den[0]))
@@ -111,7 +112,8 @@ def rejection_band_section(center_hz, band_hz, sample_rate_hz) -> Biquad:
         the pole radius is not in ``(0, 1)``.
     """
     if not 0.0 < center_hz < 0.5 * sample_rate_hz:
-        raise DataError(f"notch centre {center_hz:g} Hz is not between 0 and half the {sample_rate_hz:g} Hz filter rate")
+        raise DataError(f"notch centre {center_hz:g} Hz is not between 0 and half the "
+                        f"{sample_rate_hz:g} Hz filter rate")
     r = 1.0 - 3.0 * band_hz / sample_rate_hz
     if not 0.0 < r < 1.0:
         raise DataError(f"rejection band {band_hz:g} Hz gives pole radius {r:g} at {sample_rate_hz:g} Hz "

@@ -155,7 +155,7 @@ class DecayFit:
 def _basis(t: np.ndarray, sigmas, omegas) -> np.ndarray:
     """Columns ``e^(-s t) cos(w t)``, ``e^(-s t) sin(w t)`` per mode, then 1."""
     cols = []
-    for s, w in zip(sigmas, omegas):
+    for s, w in zip(sigmas, omegas, strict=False):
         env = np.exp(-s * t)
         cols.append(env * np.cos(w * t))
         cols.append(env * np.sin(w * t))

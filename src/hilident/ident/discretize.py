@@ -84,7 +84,7 @@ def _abcd(A, B, C, D) -> tuple[np.ndarray, ...]:
         a, b, c, d = (np.asarray(m, dtype=np.float64) for m in signal.abcd_normalize(A, B, C, D))
     except ValueError as exc:
         raise DataError(f"inconsistent state-space matrices: {exc}") from None
-    for name, m in zip("ABCD", (a, b, c, d)):
+    for name, m in zip("ABCD", (a, b, c, d), strict=True):
         if not np.all(np.isfinite(m)):
             raise DataError(f"matrix {name} has non-finite entries")
     return a, b, c, d

@@ -316,7 +316,8 @@ def _rms_and_peak(x: np.ndarray, mean: float, block: int = 1 << 18) -> tuple[flo
     return float(np.sqrt(squares / x.size)), peak
 
 
-def excited_band(u: ArrayLike, sample_rate_hz: float, segment_length: int, floor_db: float = 20.0) -> tuple[float, float]:
+def excited_band(u: ArrayLike, sample_rate_hz: float, segment_length: int,
+                 floor_db: float = 20.0) -> tuple[float, float]:
     """Lowest and highest frequency where the input's spectrum is within ``floor_db`` of its peak, Hz.
 
     For records from elsewhere, whose excitation band nobody wrote down. The

@@ -330,7 +330,7 @@ def _residual_and_jac(a, t, w, names, fixed):
 
     def unpack(x):
         p = dict(fixed)
-        p.update(zip(names, x))
+        p.update(zip(names, x, strict=False))
         return p
 
     def model(x):
@@ -530,7 +530,7 @@ def _stderr(J: np.ndarray, r: np.ndarray, names, params: StribeckParams) -> dict
     except np.linalg.LinAlgError:
         var = np.full(m, np.inf)
     out = {}
-    for name, vi in zip(names, var):
+    for name, vi in zip(names, var, strict=False):
         se = float(np.sqrt(vi)) if vi >= 0 and np.isfinite(vi) else float("inf")
         if name == "vs":  # fitted as log(vs): d vs = vs * d log(vs)
             se *= params.vs

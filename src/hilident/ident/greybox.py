@@ -136,7 +136,7 @@ class LinearFit:
         if missing:
             raise DataError(f"regressors {missing} missing for prediction")
         cols = [np.asarray(regressors[n], dtype=np.float64) for n in self.names]
-        return np.sum([c * self.params[n] for n, c in zip(self.names, cols)], axis=0)
+        return np.sum([c * self.params[n] for n, c in zip(self.names, cols, strict=True)], axis=0)
 
     def to_dict(self) -> dict:
         """Plain data (e.g. for summary.json)."""
@@ -166,7 +166,7 @@ def _scaled_svd(A: np.ndarray):
 
 
 def _excitation_report(norms, s, Vt, names, max_condition, warn_condition) -> list[str]:
-    zero = [n for n, c in zip(names, norms) if c == 0.0]
+    zero = [n for n, c in zip(names, norms, strict=False) if c == 0.0]
     if zero:
         raise DataError(
             f"parameters {zero} are not identifiable: their regressor columns are all zero "
@@ -176,12 +176,12 @@ def _excitation_report(norms, s, Vt, names, max_condition, warn_condition) -> li
     warnings = []
     bad: list[str] = []
     detail = []
-    for si, v in zip(s, Vt):
+    for si, v in zip(s, Vt, strict=False):
         cond = np.inf if si == 0.0 else (smax / si) ** 2
         if cond <= warn_condition:
             continue
         v = v / np.abs(v).max()
-        involved = [n for n, c in zip(names, v) if abs(c) >= 0.1]
+        involved = [n for n, c in zip(names, v, strict=False) if abs(c) >= 0.1]
         # the same dependency between the unscaled columns, for the message
         w = v / norms
         w = w / np.abs(w[[names.index(n) for n in involved]]).max()
@@ -336,8 +336,8 @@ def fit_linear(
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
 
     fit = fit_percent(y, y - e) if np.ptp(y) > 0 else float("nan")
-    params = {n: float(t) for n, t in zip(names, theta)}
-    stderr = {n: float(v) for n, v in zip(names, se)}
+    params = {n: float(t) for n, t in zip(names, theta, strict=False)}
+    stderr = {n: float(v) for n, v in zip(names, se, strict=False)}
     warnings += _insignificant(params, stderr)
     return LinearFit(
         names=names,

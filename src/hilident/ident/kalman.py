@@ -631,7 +631,7 @@ def observer_gain_by_pole_placement(
     """
     a, _, c = _system(A, np.zeros((np.shape(A)[0], 1)), C)
     _form(form)
-    n, p = a.shape[0], c.shape[0]
+    n = a.shape[0]
     z = np.atleast_1d(np.asarray(poles, dtype=complex))
     if z.ndim != 1 or z.size != n:
         raise ConfigError("poles", f"need {n} poles (one per state), got {z.size}")

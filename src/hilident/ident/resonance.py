@@ -449,10 +449,10 @@ def screen_resonances(
     def reject(i, c, reason):
         rejected.append((float(prom_of[int(i)]), RejectedPeak(float(f[i]), float(mag_db[i]), float(c), reason)))
 
-    prom_of = dict(zip(peaks.tolist(), prominence.tolist()))
+    prom_of = dict(zip(peaks.tolist(), prominence.tolist(), strict=False))
 
     kept = []
-    for i, p, c in zip(peaks, prominence, coh_near):
+    for i, p, c in zip(peaks, prominence, coh_near, strict=False):
         doubt = _doubt(mag_db, int(i), c, coherence_threshold, frf.n_averages)
         if doubt:
             reject(i, c, doubt)

@@ -324,7 +324,8 @@ class CanopenDescription:
         if self.default_acquisition == "buffered":
             self.require_buffered(source)
         if self.default_acquisition == "recorder" and self.recorder is None:
-            raise ConfigError("canopen.default_acquisition", "is \"recorder\" but there is no [canopen.recorder]", source)
+            raise ConfigError("canopen.default_acquisition", "is \"recorder\" but there is no [canopen.recorder]",
+                              source)
 
     def address(self, role: str) -> ObjectAddress:
         """The object of ``role``; ConfigError when the drive does not have it."""

@@ -31,9 +31,9 @@ from collections.abc import Callable, Iterable, Sequence
 from hilident.protocol.canopen_objects import ModeSpec, ObjectAddress
 
 __all__ = [
-    "STANDARD_OBJECTS", "MODE_CODES", "MODE_BITS", "CYCLIC_MODES", "SETPOINT_OF_MODE", "CHANNEL_UNITS", "decode_supported_modes",
-    "encode_supported_modes", "mapping_capacity", "standard_objects", "standard_modes", "standard_channels", "period_fields",
-    "period_from_fields", "mode_name_of_code",
+    "STANDARD_OBJECTS", "MODE_CODES", "MODE_BITS", "CYCLIC_MODES", "SETPOINT_OF_MODE", "CHANNEL_UNITS",
+    "decode_supported_modes", "encode_supported_modes", "mapping_capacity", "standard_objects", "standard_modes",
+    "standard_channels", "period_fields", "period_from_fields", "mode_name_of_code",
 ]
 
 #: Standard objects by role (CiA 301 communication profile, CiA 402 drive profile).

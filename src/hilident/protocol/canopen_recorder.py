@@ -1,4 +1,5 @@
-"""A drive's own signal generator and data recorder, as ``[canopen.generator]`` and ``[canopen.recorder]`` describe them.
+"""A drive's own signal generator and data recorder, as ``[canopen.generator]`` and
+``[canopen.recorder]`` describe them.
 
 Real drives cannot play an arbitrary table, but most have a **generator**
 (a parametric signal: PRBS, sine sweep, sine, fed into a torque or velocity

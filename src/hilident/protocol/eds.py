@@ -838,7 +838,8 @@ def inspect_eds(od) -> EdsSummary:
         factor_group=_factor_group(roles), heartbeat_consumers=_heartbeat_consumers(od),
         abort_connection=0x6007 in od.indices, store_parameters="store_parameters" in roles,
         vendor_filters=filters, vendor_recorders=recorders, vendor_generators=generators,
-        vendor_torque=_vendor_torque(od), baudrates=tuple(sorted(od.device_information.allowed_baudrates, reverse=True)),
+        vendor_torque=_vendor_torque(od),
+        baudrates=tuple(sorted(od.device_information.allowed_baudrates, reverse=True)),
     )
 
 

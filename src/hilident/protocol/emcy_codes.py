@@ -59,8 +59,9 @@ CLASSES: tuple[tuple[int, int, str], ...] = (
     (0xFF00, 0xFF00, "device specific"),
 )
 
-#: Named codes and groups of CiA 301 and CiA 402 (0xFF00-0xFFFF are the manufacturer's). A key with a zero low byte or nibble also names the group
-#: below it (0x2300 "current, device output side" for 0x23xx; 0x2310 "continuous over-current" for 0x231x).
+#: Named codes and groups of CiA 301 and CiA 402 (0xFF00-0xFFFF are the manufacturer's). A key with a zero low
+#: byte or nibble also names the group below it (0x2300 "current, device output side" for 0x23xx; 0x2310
+#: "continuous over-current" for 0x231x).
 CODES: dict[int, str] = {
     0x0000: "error reset or no error",
     0x1000: "generic error",

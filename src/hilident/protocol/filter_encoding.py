@@ -567,12 +567,12 @@ class FilterEncoding:
     def _encode_coefficients(self, biquad: Biquad) -> dict:
         if self.kind == "real32":
             values = self._stored_coefficients((*biquad.b, biquad.a[1], biquad.a[2]))
-            out = dict(zip(COEFFICIENT_FIELDS, map(float32, values)))
+            out = dict(zip(COEFFICIENT_FIELDS, map(float32, values), strict=False))
         else:
             q = quantize_biquad(biquad, self.fractional_bits, self.total_bits)
             scale = 2.0**self.fractional_bits
             values = self._stored_coefficients((*q.b, q.a[1], q.a[2]))
-            out = {name: int(round(v * scale)) for name, v in zip(COEFFICIENT_FIELDS, values)}
+            out = {name: int(round(v * scale)) for name, v in zip(COEFFICIENT_FIELDS, values, strict=False)}
         return {name: out[name] for name in self.fields}
 
     def _encode_notch_parameters(self, spec: NotchSpec) -> dict:
@@ -583,14 +583,16 @@ class FilterEncoding:
                 raise DataError(f"notch {name} {value!r} cannot be encoded as an integer")
             n = int(round(value / scale))
             if not 1 <= n <= self.max_value:
-                raise DataError(f"notch {name} {value:g} is {n} steps of {scale:g}; the drive takes 1..{self.max_value}")
+                raise DataError(f"notch {name} {value:g} is {n} steps of {scale:g}; "
+                                f"the drive takes 1..{self.max_value}")
             out[name] = n
         return {name: out[name] for name in self.fields}
 
     # --- word blocks -----------------------------------------------------------------
 
     def _encode_block(self, biquad: Biquad, spec: NotchSpec | None, scaling: tuple | None = None) -> bytes:
-        """The block for ``biquad``; ``scaling`` = (INT16 coefficients, K) overrides the best one (see :meth:`realise`)."""
+        """The block for ``biquad``; ``scaling`` = (INT16 coefficients, K) overrides the best one (see
+        :meth:`realise`)."""
         lay = self.block
         words = [0] * lay.words
         words[lay.state_word] = lay.enabled_value
@@ -598,18 +600,18 @@ class FilterEncoding:
             # the -3 dB edges of the notch: f1 f2 = f0^2, f2 - f1 = width
             half = 0.5 * spec.width_hz
             f2 = half + math.sqrt(half * half + spec.center_hz**2)
-            for w, f in zip(lay.frequency_words, (spec.center_hz**2 / f2, f2)):
+            for w, f in zip(lay.frequency_words, (spec.center_hz**2 / f2, f2), strict=False):
                 words[w] = min(int(round(f)), 0xFFFF)
         stored = self._stored_coefficients((*biquad.b, biquad.a[1], biquad.a[2]))
         if lay.coefficient_format == "float32":
-            for name, value in zip(COEFFICIENT_FIELDS, stored):
+            for name, value in zip(COEFFICIENT_FIELDS, stored, strict=False):
                 bits = struct.unpack("<I", struct.pack("<f", value))[0]
                 pair = (bits >> 16, bits & 0xFFFF) if lay.word_order == "high_first" else (bits & 0xFFFF, bits >> 16)
                 w = lay.coefficient_words[name]
                 words[w:w + 2] = pair
         else:
             ints, k = scaling or _scaled_int16(biquad, lay.scaler_bits, self.feedback_sign)[0]
-            for name, n in zip(COEFFICIENT_FIELDS, ints):
+            for name, n in zip(COEFFICIENT_FIELDS, ints, strict=False):
                 words[lay.coefficient_words[name]] = n & 0xFFFF
             words[lay.scaler_word] = k
         return lay.pack(words)
@@ -1075,7 +1077,7 @@ class FilterEncoding:
                              f"table {min(table):g}..{max(table):g}")
         best, seen = None, {}
         for combo in itertools.product(*per_field):
-            values = dict(zip(self.fields, combo))
+            values = dict(zip(self.fields, combo, strict=False))
             if self._same_frequency(values):
                 best = self._better(best, values, spec, rate, seen=seen)
         if best is None:
@@ -1114,7 +1116,7 @@ class FilterEncoding:
             start = best
             around = [[best[1][n], *self._adjacent(n, best[1][n])] for n in names]
             for combo in itertools.product(*around):
-                values = {**best[1], **dict(zip(names, combo))}
+                values = {**best[1], **dict(zip(names, combo, strict=True))}
                 if pair:
                     values[pair[1]] = values[pair[0]]
                 if values != start[1] and all(self._stored_in_range(k, v) for k, v in values.items()):
@@ -1200,7 +1202,7 @@ def _scaled_int16(biquad: Biquad, scaler_bits: int, feedback_sign: str) -> list[
         got = [v * step for v in n]
         num = got[0] + got[1] + got[2]
         err = abs(num / den - dc) if den else math.inf
-        err += max(abs(g - x) for g, x in zip(got, c))
+        err += max(abs(g - x) for g, x in zip(got, c, strict=False))
         found.append((err, k, [n[0], n[1], n[2], int(sign * n[3]), int(sign * n[4])]))
     if not found:
         raise DataError(f"coefficients {c} do not fit INT16 words with a 16-bit scaler")

@@ -1134,7 +1134,7 @@ def _check_overlaps(registers: dict, table, capture, filters, filter_slots: int,
         spans += [("holding", filters.base + i * filters.stride, filters.base + i * filters.stride + filters.span,
                    f"modbus.filters (slot {i})") for i in range(filter_slots)]
     spans.sort()
-    for (t0, a0, a1, k0), (t1, b0, b1, k1) in zip(spans, spans[1:]):
+    for (t0, a0, a1, k0), (t1, b0, b1, k1) in zip(spans, spans[1:], strict=False):
         if t0 == t1 and b0 < a1:
             fail(k1, f"registers {b0}..{b1 - 1} overlap {k0} ({a0}..{a1 - 1})")
 

@@ -535,7 +535,8 @@ def _decode_host_body(mtype: MsgType, r: _Reader, excitation):
             ChannelSelection(ch, _enum(Format, fmt, "format"), scale)
             for ch, fmt, scale in (r.take("BBf") for _ in range(n))
         )
-        return Configure(divider, _enum(Mode, mode, "mode"), block, channels, _enum(Format, exc_fmt, "format"), exc_scale)
+        return Configure(divider, _enum(Mode, mode, "mode"), block, channels, _enum(Format, exc_fmt, "format"),
+                         exc_scale)
     if mtype == MsgType.SET_LIMITS:
         return Limits(*r.take("ffff"))
     if mtype == MsgType.START:

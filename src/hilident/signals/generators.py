@@ -469,7 +469,7 @@ def velocity_ramps(
     pieces: list[np.ndarray] = []
     windows: list[tuple[int, int, float]] = []
     position = 0
-    for v, n_ramp in zip(legs, ramps):
+    for v, n_ramp in zip(legs, ramps, strict=False):
         up = v * np.arange(n_ramp) / n_ramp  # 0 .. v (exclusive)
         hold_start = position + n_ramp
         windows.append((hold_start + n_settle, hold_start + n_hold, float(v)))
@@ -545,7 +545,7 @@ def ramp_extent(speeds_mps, hold_s, accel_mps2, sample_rate_hz, settle_s, altern
     fs, legs, ramps, n_hold, _ = _ramp_legs(speeds_mps, hold_s, accel_mps2, sample_rate_hz, settle_s, alternate)
     # a leg's samples sum to v * (n_ramp - 1 + n_hold); it starts and ends at 0, so that sum / fs is its travel
     position, extreme = 0.0, 0.0
-    for v, n_ramp in zip(legs, ramps):
+    for v, n_ramp in zip(legs, ramps, strict=False):
         position += v * (n_ramp - 1 + n_hold) / fs
         extreme = max(extreme, abs(position))
     return sum(2 * r + n_hold for r in ramps), extreme

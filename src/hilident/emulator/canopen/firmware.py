@@ -189,7 +189,8 @@ class CanopenDriveFirmware:
         desc = CanopenDescription.from_sections(driver.sections, source, od)
         self.supported = _supported_modes(desc, od, driver.sections.get("emulator", {}))
         self.desc = desc = desc.with_supported_modes(self.supported)
-        self.encoding = FilterEncoding.from_table(driver.sections["filters"], source) if desc.filters is not None else None
+        self.encoding = (FilterEncoding.from_table(driver.sections["filters"], source)
+                         if desc.filters is not None else None)
         node = canopen.LocalNode(node_id, od)
         node.sdo = BlockSdoServer(0x600 + node_id, 0x580 + node_id, node, parse_fault_object(self.faults.abort_object))
         node.add_read_callback(self._on_read)
@@ -391,7 +392,8 @@ class CanopenDriveFirmware:
         addr = ObjectAddress(index, subindex)
         role = self.role_of.get(addr)
         with self.lock:
-            if self.recorder is not None and self.recorder.owns(addr) and (live := self.recorder.on_read(addr)) is not None:
+            if (self.recorder is not None and self.recorder.owns(addr)
+                    and (live := self.recorder.on_read(addr)) is not None):
                 return live
             value = self._read_live(role, addr)
             if value is not None:

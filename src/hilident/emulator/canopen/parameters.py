@@ -51,7 +51,8 @@ class DriveParameters:
         """0x1010:1: with the signature "save" the drive keeps its parameters (here: the filter slots) as stored."""
         if value != _STORE_SIGNATURE:
             raise SdoAbortedError(_ABORT_NOT_STORED)
-        self.stored_parameters = {slot: self.fw.drive.filters.read(slot) for slot in range(len(self.fw.drive.filters.enabled))}
+        self.stored_parameters = {slot: self.fw.drive.filters.read(slot)
+                                  for slot in range(len(self.fw.drive.filters.enabled))}
         self.saves += 1
 
     def write_limit(self, role: str, raw: int) -> None:

@@ -211,7 +211,7 @@ class PdoExchange:
                     return
                 if len(data) < cfg.packer.size:
                     return  # CiA 301: a too-short PDO is not processed
-                for (addr, _), value in zip(cfg.entries, cfg.packer.unpack_from(bytes(data))):
+                for (addr, _), value in zip(cfg.entries, cfg.packer.unpack_from(bytes(data)), strict=False):
                     fw.receive_setpoint(fw.role_of.get(addr), value)
         on_rpdo.__name__ = f"on_rpdo{n + 1}"
         return on_rpdo

@@ -193,7 +193,7 @@ class DriveRecorder:
         if not self.rec.interleaved:
             return bytes(self.data[i])
         records = np.empty(self.count, dtype=record_dtype([t for _, t in self.layout]))
-        for j, (_, t) in enumerate(self.layout):
+        for j, (_, _t) in enumerate(self.layout):
             records[f"f{j}"] = np.frombuffer(bytes(self.data[j]), dtype=records.dtype[j])
         return records.tobytes()
 

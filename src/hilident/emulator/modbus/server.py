@@ -444,5 +444,6 @@ def start(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig,
     ).start()
     # a pseudo-terminal carries no parity bit (some kernels refuse the setting): both ends open it
     # without one, while the bridge still times each character with the configured parity bit
-    host = replace(device, port=server.port, baudrate=baudrate, parity="N") if rtu else replace(device, port=server.port)
+    host = (replace(device, port=server.port, baudrate=baudrate, parity="N") if rtu
+            else replace(device, port=server.port))
     return EmulatedDevice(server=server, device=host, drive=drive)

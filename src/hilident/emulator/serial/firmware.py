@@ -92,7 +92,8 @@ class BoardFirmware:
 
     def receive(self, payload: bytes) -> None:
         """Handle one request payload from the host (answers go to :attr:`outbox`)."""
-        excitation = (self.config.excitation_format, self.config.excitation_scale) if self.config else (sb.Format.F32, 1.0)
+        excitation = ((self.config.excitation_format, self.config.excitation_scale) if self.config
+                      else (sb.Format.F32, 1.0))
         try:
             header, msg = sb.decode(payload, excitation=excitation)
         except ProtocolError as exc:

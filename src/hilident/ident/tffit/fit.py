@@ -114,7 +114,7 @@ def _params_from_poles(poles: np.ndarray, n_den: int) -> np.ndarray:
     lin = None
     if real.size % 2:
         lin, real = real[-1], real[:-1]
-    quads += [(-(a + b), a * b) for a, b in zip(real[0::2], real[1::2])]
+    quads += [(-(a + b), a * b) for a, b in zip(real[0::2], real[1::2], strict=False)]
     theta = []
     for a1, a0 in quads:
         theta += [np.log(max(a1, tiny)), np.log(max(a0, tiny))]
@@ -184,7 +184,7 @@ def _levy_sk(data: _Normalised, iterations: int, tol: float):
     best = first = last = None
     den_prev = None
     its = reflected = 0
-    for its in range(iterations + 1):
+    for its in range(iterations + 1):  # noqa: B007 - its is returned: the iterations run
         ww = w * sk
         theta = _lstsq_complex(ww[:, None] * A, ww * b)
         den = np.r_[1.0, theta[:n_den][::-1]]
@@ -232,7 +232,7 @@ def _projected_problem(data: _Normalised):
             quads, c = _factors(theta, n_den)
             factors = [x**2 + a1 * x + a0 for a1, a0 in quads]
             dlog = []  # dD/dtheta_j / D
-            for (a1, a0), q in zip(quads, factors):
+            for (a1, a0), q in zip(quads, factors, strict=True):
                 dlog += [a1 * x / q, a0 / q]
             if c is not None:
                 factors.append(x + c)
