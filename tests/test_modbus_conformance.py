@@ -231,7 +231,8 @@ def test_another_protocol_id_is_not_answered(tcp):
 
 
 def test_other_unit_ids_get_exception_11_when_the_twin_acts_as_a_gateway():
-    emu = start(twin_config('[emulator.faults.modbus]\nunknown_unit_id = "gateway_exception"'), DRIVER, DeviceConfig(device_id=UNIT), link="tcp")
+    gateway = twin_config('[emulator.faults.modbus]\nunknown_unit_id = "gateway_exception"')
+    emu = start(gateway, DRIVER, DeviceConfig(device_id=UNIT), link="tcp")
     client = Tcp(emu.port)
     try:
         assert client.ask(pdu(3, 0, 1), unit=2) == b"\x83\x0b"
