@@ -12,7 +12,6 @@ from hilident.summary import (
     LAYOUTS,
     DevicePart,
     ExcitationPart,
-    StreamStatistics,
     Summary,
     UploadOutcome,
     VerificationPart,
@@ -26,7 +25,7 @@ class _Excitation:
 def _run(**extra) -> Summary:
     return Summary.of_run(config="a.toml", device=DevicePart("myrio-board", "emulator", True), sample_rate_hz=1000.0,
                           excitation=ExcitationPart.of(_Excitation(), None), plant=None, friction=None, designs=[],
-                          upload=UploadOutcome(), verification=None, stream=StreamStatistics.of(StreamStats()),
+                          upload=UploadOutcome(), verification=None, stream=StreamStats(),
                           connect=None, filters_found=[], recordings=[], elapsed_s=1.0, warnings=["w"], **extra)
 
 

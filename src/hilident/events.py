@@ -7,6 +7,9 @@ takes the same typed events (:meth:`hilident.recording.RunWriter.log`):
 ``kind``, ``message`` and ``sample_index`` go to their columns of the
 ``/events`` table, every other field to the ``data`` column.
 
+:class:`StreamStats` counts what the line delivered and lost in a run; the
+session sums them and ``summary.json["stream"]`` reports them.
+
 Example
 -------
 >>> RunEvent(Kind.LOST_BLOCKS, "2 sample block(s) lost", 100, value=2.0).to_dict()
@@ -19,7 +22,7 @@ import enum
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["Kind", "RunEvent"]
+__all__ = ["Kind", "RunEvent", "StreamStats"]
 
 
 class Kind(str, enum.Enum):  # noqa: UP042 - StrEnum would change str()/format() of members in messages
@@ -136,3 +139,51 @@ host_check=False, code=None, register=None, data=None)
         if self.data is not None:
             out["data"] = self.data
         return out
+
+
+@dataclass
+class StreamStats:
+    """What happened on the line during one run.
+
+    Attributes
+    ----------
+    samples : int
+        Samples received and recorded.
+    lost_frames : int
+        Frames of any kind missing from the board's sequence numbers.
+    lost_blocks : int
+        Sample blocks missing from the block counter.
+    lost_samples : int
+        Samples in the missing blocks (never filled in the recording).
+    corrupt_frames : int
+        Frames rejected by COBS decoding or CRC.
+    out_of_order : int
+        Sample blocks that arrived after a later one (discarded; counted here
+        and not as lost).
+    underruns : int
+        Samples the device played without a fresh set-point because its
+        excitation buffer was empty (it holds the last set-point, PROTOCOL.md
+        section 6).
+    board_dropped_blocks : int
+        Sample blocks the board could not send (its transmit buffer was full).
+    clipped_blocks : int
+        Blocks in which a value did not fit its integer format.
+    """
+
+    samples: int = 0
+    lost_frames: int = 0
+    lost_blocks: int = 0
+    lost_samples: int = 0
+    corrupt_frames: int = 0
+    out_of_order: int = 0
+    underruns: int = 0
+    board_dropped_blocks: int = 0
+    clipped_blocks: int = 0
+
+    def add(self, other: StreamStats) -> StreamStats:
+        """Field-wise sum (for the totals of a session)."""
+        return StreamStats(**{k: getattr(self, k) + getattr(other, k) for k in self.__dataclass_fields__})
+
+    def to_summary(self) -> dict[str, int]:
+        """``summary.json["stream"]``: every count but ``clipped_blocks`` (reported as a warning instead)."""
+        return {k: v for k, v in self.__dict__.items() if k != "clipped_blocks"}

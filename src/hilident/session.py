@@ -72,7 +72,6 @@ from hilident.summary import (
     NOT_REACHED,
     DevicePart,
     ExcitationPart,
-    StreamStatistics,
     Summary,
     UploadOutcome,
     VerificationPart,
@@ -672,7 +671,7 @@ class Session(DeviceConnection):
             config=cfg.source, device=DevicePart(self.driver.name, ad.port if ad else None, cfg.uses_emulator),
             sample_rate_hz=cfg.run.sample_rate_hz, excitation=ExcitationPart.of(cfg.excitation, self._auto),
             plant=plant, friction=friction, designs=designs, upload=upload, verification=verification,
-            stream=StreamStatistics.of(self.totals), connect=connect, filters_found=self.filters_found,
+            stream=self.totals, connect=connect, filters_found=self.filters_found,
             recordings=sorted(p.name for p in self.out.glob("*.h5")), elapsed_s=elapsed_s, warnings=self.warnings,
             model=model)
 

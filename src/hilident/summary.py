@@ -22,8 +22,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hilident import __version__
+from hilident.events import StreamStats
 
-__all__ = ["DevicePart", "ExcitationPart", "Failure", "PlantPart", "StreamStatistics", "Summary", "UploadOutcome",
+__all__ = ["DevicePart", "ExcitationPart", "Failure", "PlantPart", "Summary", "UploadOutcome",
            "VerificationPart", "friction_summary"]
 
 #: The top-level keys of each command's summary.json, in their documented order.
@@ -53,29 +54,6 @@ NOT_REACHED: Any = _NotReached()
 def _set_fields(obj: Any, names: tuple[str, ...]) -> dict[str, Any]:
     """``names`` of ``obj`` that are not None, in that order."""
     return {name: getattr(obj, name) for name in names if getattr(obj, name) is not None}
-
-
-@dataclass
-class StreamStatistics:
-    """What the line delivered and lost over every recorded run (``summary.json["stream"]``), counts."""
-
-    samples: int = 0
-    lost_frames: int = 0
-    lost_blocks: int = 0
-    lost_samples: int = 0
-    corrupt_frames: int = 0
-    out_of_order: int = 0
-    underruns: int = 0
-    board_dropped_blocks: int = 0
-
-    @classmethod
-    def of(cls, stats: Any) -> StreamStatistics:
-        """From a :class:`hilident.adapters.base.StreamStats` (the session's totals)."""
-        return cls(stats.samples, stats.lost_frames, stats.lost_blocks, stats.lost_samples, stats.corrupt_frames,
-                   stats.out_of_order, stats.underruns, stats.board_dropped_blocks)
-
-    def to_dict(self) -> dict[str, int]:
-        return dict(self.__dict__)
 
 
 @dataclass
@@ -239,7 +217,7 @@ class Summary:
     friction: dict | None = None
     model: Any = None
     verification: VerificationPart = field(default_factory=VerificationPart)
-    stream: StreamStatistics = field(default_factory=StreamStatistics)
+    stream: StreamStats = field(default_factory=StreamStats)
     device: DevicePart | None = None
     excitation: ExcitationPart | None = None
     extra: dict[str, Any] = field(default_factory=dict)  # the command's own sections (data, source, connect, ...)
@@ -248,7 +226,7 @@ class Summary:
     @classmethod
     def of_run(cls, *, config: str, device: DevicePart, sample_rate_hz: float, excitation: ExcitationPart,
                plant: Any, friction: Any, designs: list, upload: UploadOutcome,
-               verification: VerificationPart | None, stream: StreamStatistics, connect: dict | None,
+               verification: VerificationPart | None, stream: StreamStats, connect: dict | None,
                filters_found: list[dict], recordings: list[str], elapsed_s: float, warnings: list[str],
                model: Any = NOT_REACHED) -> Summary:
         """``hilident run``'s summary (``model``: the grey-box fit, None when not asked for; left out when the
@@ -262,7 +240,7 @@ class Summary:
     def of_identify(cls, *, config: str, data: dict, plant: Any, friction: Any, model: Any, designs: list,
                     notch_skipped_reason: str | None, elapsed_s: float, warnings: list[str]) -> Summary:
         """``hilident identify``'s summary: no upload or verification, the stream is the data file's rows."""
-        stream = StreamStatistics(samples=data["samples"], lost_samples=data.get("missing_samples", 0))
+        stream = StreamStats(samples=data["samples"], lost_samples=data.get("missing_samples", 0))
         return cls("identify", config, elapsed_s, list(warnings), UploadOutcome(), designs,
                    PlantPart.of(plant, no_measurement={}), friction_summary(friction), model, stream=stream,
                    extra={"data": data, "notch_skipped_reason": notch_skipped_reason})
@@ -290,7 +268,7 @@ class Summary:
             "plant_model": self.plant.plant_model, "measurement": self.plant.measurement,
             "friction": self.friction, "model": model, "notch_filters": _notch_filters(self.designs),
             "upload": self.upload.to_dict(), "verification": self.verification.to_dict(),
-            "stream": self.stream.to_dict(), "elapsed_s": self.elapsed_s, "warnings": self.warnings,
+            "stream": self.stream.to_summary(), "elapsed_s": self.elapsed_s, "warnings": self.warnings,
             **self.extra,
         }
 

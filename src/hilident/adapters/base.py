@@ -17,53 +17,9 @@ import numpy as np
 
 from hilident.adapters.backends import adapter_class  # noqa: F401  (re-exported: the session's import)
 from hilident.errors import DataError, DeviceError, LimitTrip
-from hilident.events import Kind, RunEvent
+from hilident.events import Kind, RunEvent, StreamStats  # noqa: F401  (StreamStats re-exported)
 
 _PROGRESS_S = 0.1  # progress is reported at most this often, and at the end
-
-
-@dataclass
-class StreamStats:
-    """What happened on the line during one run.
-
-    Attributes
-    ----------
-    samples : int
-        Samples received and recorded.
-    lost_frames : int
-        Frames of any kind missing from the board's sequence numbers.
-    lost_blocks : int
-        Sample blocks missing from the block counter.
-    lost_samples : int
-        Samples in the missing blocks (never filled in the recording).
-    corrupt_frames : int
-        Frames rejected by COBS decoding or CRC.
-    out_of_order : int
-        Sample blocks that arrived after a later one (discarded; counted here
-        and not as lost).
-    underruns : int
-        Samples the device played without a fresh set-point because its
-        excitation buffer was empty (it holds the last set-point, PROTOCOL.md
-        section 6).
-    board_dropped_blocks : int
-        Sample blocks the board could not send (its transmit buffer was full).
-    clipped_blocks : int
-        Blocks in which a value did not fit its integer format.
-    """
-
-    samples: int = 0
-    lost_frames: int = 0
-    lost_blocks: int = 0
-    lost_samples: int = 0
-    corrupt_frames: int = 0
-    out_of_order: int = 0
-    underruns: int = 0
-    board_dropped_blocks: int = 0
-    clipped_blocks: int = 0
-
-    def add(self, other: StreamStats) -> StreamStats:
-        """Field-wise sum (for the totals of a session)."""
-        return StreamStats(**{k: getattr(self, k) + getattr(other, k) for k in self.__dataclass_fields__})
 
 
 @dataclass
