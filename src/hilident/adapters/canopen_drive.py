@@ -357,6 +357,15 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
                 return now_state
             time.sleep(_STATE_POLL_S)
 
+    def _follow(self, state: cia402.State, commands) -> cia402.State:
+        """Write ``commands`` (controlwords) one after another, each once the drive shows the state the last
+        one led to; the state the drive ends in."""
+        previous = 0
+        for cw in commands:
+            state = self._command(state, cw, previous)
+            previous = cw
+        return state
+
     def enable(self) -> None:
         """Drive the state machine to Operation Enabled (fault reset only if allowed).
 
@@ -374,10 +383,7 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
         except ValueError:
             raise DeviceError(f"{self.port}: the drive is in {state.value} ({self.last_error_text()}); set "
                               "device.allow_fault_reset = true to let hilident reset it") from None
-        previous = 0
-        for cw in path:
-            state = self._command(state, cw, previous)
-            previous = cw
+        state = self._follow(state, path)
         if state is not cia402.State.OPERATION_ENABLED:
             raise DeviceError(f"{self.port}: the drive did not reach Operation Enabled: it is in {state.value} "
                               f"({self.last_error_text()})")

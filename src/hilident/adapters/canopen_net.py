@@ -82,10 +82,7 @@ class NetWatch:
 
     def _reset_fault(self, state: cia402.State) -> None:
         """Fault reset (a rising edge of controlword bit 7) to Switch On Disabled."""
-        previous = 0
-        for cw in (int(cia402.Command.DISABLE_VOLTAGE), int(cia402.Command.FAULT_RESET)):
-            state = self._command(state, cw, previous)
-            previous = cw
+        state = self._follow(state, (int(cia402.Command.DISABLE_VOLTAGE), int(cia402.Command.FAULT_RESET)))
         if state is not cia402.State.SWITCH_ON_DISABLED:
             raise DeviceError(f"{self.port}: the fault did not clear: the drive is in {state.value} "
                               f"({self.last_error_text()})")
