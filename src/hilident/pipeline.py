@@ -15,6 +15,7 @@ from hilident.config import IdentificationConfig, ModelConfig, NotchConfig
 from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec, design_notch, notch_from_resonance
+from hilident.filters.parametric import attenuation_db
 from hilident.ident import friction as fr
 from hilident.ident import greybox
 from hilident.ident.discretize import sampling_advice
@@ -907,6 +908,10 @@ def peak_reductions(before: FrequencyResponse, after: FrequencyResponse, resonan
     return out
 
 
+#: Attenuation reported for an exact zero of a stored section (-20 log10 1e-300), dB
+_DEEPEST_DB = 6000.0
+
+
 def achieved_notch(design: NotchDesign, stored: Biquad, planned: Biquad | None = None) -> dict:
     """What the section a device stores actually does, next to what was designed.
 
@@ -942,8 +947,8 @@ def achieved_notch(design: NotchDesign, stored: Biquad, planned: Biquad | None =
     """
     f0, fs = design.spec.center_hz, design.sample_rate_hz
 
-    def attenuation(section: Biquad) -> float:
-        return float(-20 * np.log10(max(float(np.abs(section.response(np.array([f0]), fs))[0]), 1e-300)))
+    def attenuation(section: Biquad) -> float:  # finite at an exact zero, for summary.json
+        return min(attenuation_db(section, f0, fs), _DEEPEST_DB)
 
     grid = np.linspace(0.5 * f0, 1.5 * f0, 4001)
     mag = np.abs(stored.response(grid, fs))
