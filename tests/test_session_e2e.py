@@ -28,8 +28,7 @@ def _runs_experiments(path: Path) -> bool:
     only identified from recordings and uploaded to; tests/test_dsy_rs.py covers it)."""
     cfg = load_config(path)
     driver = find_driver(cfg.device.driver, cfg.device.driver_paths)
-    refusal = getattr(adapter_class(driver.transport), "run_refusal", None)
-    return refusal is None or refusal(driver) is None
+    return adapter_class(driver.transport).run_refusal(driver) is None
 
 
 EMULATOR_CONFIGS = sorted(

@@ -449,8 +449,7 @@ class Session(DeviceConnection):
         self._prepare_out()
         cfg = self.cfg
         self.driver = find_driver(cfg.device.driver, cfg.device.driver_paths)
-        refusal = getattr(adapter_class(self.driver.transport), "run_refusal", None)  # a drive that cannot play
-        if refusal is not None and (error := refusal(self.driver)) is not None:
+        if (error := adapter_class(self.driver.transport).run_refusal(self.driver)) is not None:  # cannot play
             raise ConfigError(error.key, error.message, cfg.source)
         modes = check_run_against_driver(cfg, self.driver)
         check_auto_amplitude(cfg)  # again: a config changed in code after loading

@@ -16,7 +16,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from hilident.adapters.backends import adapter_class  # noqa: F401  (re-exported: the session's import)
-from hilident.errors import DataError, DeviceError, LimitTrip
+from hilident.errors import ConfigError, DataError, DeviceError, LimitTrip
 from hilident.events import Kind, RunEvent, StreamStats  # noqa: F401  (StreamStats re-exported)
 
 _PROGRESS_S = 0.1  # progress is reported at most this often, and at the end
@@ -355,6 +355,13 @@ class AdapterBase:
         if self.run_fault is not None:
             raise self.fault_error(self.run_fault) from None
         return result
+
+    @classmethod
+    def run_refusal(cls, driver) -> ConfigError | None:
+        """Why ``hilident run`` cannot play experiments on a device described by ``driver`` (a ConfigError
+        naming the driver file, to raise or report), or None when it can: the default, every device with an
+        excitation path."""
+        return None
 
     def set_trace(self, path) -> None:
         """Write a wire trace of the next run to ``path`` where the transport keeps one (CANopen: ``.asc`` or
