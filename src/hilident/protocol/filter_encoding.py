@@ -88,11 +88,12 @@ True
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 import numbers
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad
@@ -989,7 +990,18 @@ class FilterEncoding:
         DataError
             No stored value gives a valid filter (a centre beyond half the rate,
             coefficients that overflow the format).
+
+        Notes
+        -----
+        The fit is remembered per encoding, notch and rate: on a parameter
+        grid it weighs hundreds of candidates (about 0.4 s), and one upload
+        asks for the same fit when it plans, writes and reports.
         """
+        realised = _remembered_fit(self, spec, float(filter_rate_hz))
+        return replace(realised, fields=dict(realised.fields))  # the caller may change its copy
+
+    def _realise(self, spec: NotchSpec, filter_rate_hz: float) -> Realisation:
+        """:meth:`realise`, computed."""
         notes = []
         if self.kind in PARAMETRIC:
             fields, section = self._fit(spec, filter_rate_hz, notes)
@@ -1208,3 +1220,8 @@ def _scaled_int16(biquad: Biquad, scaler_bits: int, feedback_sign: str) -> list[
         raise DataError(f"coefficients {c} do not fit INT16 words with a 16-bit scaler")
     found.sort(key=lambda t: (t[0], t[1]))
     return [(n, k) for _, k, n in found]
+
+
+@functools.lru_cache(maxsize=64)
+def _remembered_fit(encoding: FilterEncoding, spec: NotchSpec, filter_rate_hz: float) -> Realisation:
+    return encoding._realise(spec, filter_rate_hz)
