@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -161,7 +162,7 @@ class AutoAmplitude:
         cfg = self.cfg
         e = cfg.excitation
         probe = build_excitation(cfg, amplitude=1.0)
-        period = probe.period_samples
+        period = probe.period
         band = self._band(probe)
         fs = cfg.run.sample_rate_hz
         bins = np.asarray(probe.excited_bins)
@@ -171,12 +172,15 @@ class AutoAmplitude:
         run_periods = len(probe.samples) // period - 1
         fit = friction.fit.params if friction is not None else None
         ceiling, target = amplitude_ceiling_nm(cfg), auto_coherence_target(cfg)
-        highest = min(ceiling, AUTO_TORQUE_MARGIN * cfg.limits.torque_nm)  # a trial's peak stays off the trip level
+        # a trial's peak stays off the trip level
+        highest = min(ceiling, AUTO_TORQUE_MARGIN * cfg.bench_limits.torque_nm)
         self.progress.step(f"excitation: choosing the amplitude (coherence target {target:.2f} over "
                            f"{band[0]:g}-{band[1]:g} Hz, ceiling {ceiling:g} N*m)")
         noise = self._auto_noise(period, lines, fit)
         amplitude = min(e.auto_start_nm or self._auto_start(probe, fit, ceiling), highest)
-        trials, chosen, reason, needed = [], None, "", None
+        trials: list[dict] = []
+        chosen: float | None = None
+        reason, needed = "", None
         for i in range(e.auto_max_trials):
             t = self._auto_trial(i + 1, amplitude, period, lines, run_periods, noise, fit, target,
                                  trials[-1] if trials else None)
@@ -234,7 +238,7 @@ class AutoAmplitude:
                             "a number")
         reason = (f"excitation.auto_max_trials = {e.auto_max_trials} trials made before the target was met: the run "
                   f"uses the amplitude the last trial predicts ({amplitude:.3g} N*m, within its caps)")
-        if needed > amplitude:
+        if needed is not None and needed > amplitude:
             self.warnings.append(f"excitation: auto amplitude {amplitude:.3g} N*m is below the {needed:.3g} N*m the "
                                  "last trial predicts the target needs; the notch decision will rest on the evidence "
                                  "gates")
@@ -249,7 +253,7 @@ class AutoAmplitude:
         """
         if fit is None or not fit.Fs > 0:
             return AUTO_START_SHARE * ceiling
-        x = probe.samples[probe.period_samples:]  # amplitude 1: peak over rms is the crest factor
+        x = probe.samples[probe.period:]  # amplitude 1: peak over rms is the crest factor
         crest = float(np.max(np.abs(x)) / np.sqrt(np.mean(np.square(x))))
         return crest * fit.Fs / self.cfg.excitation.auto_nonlinear_share
 
@@ -283,7 +287,7 @@ class AutoAmplitude:
         exp = self.record("auto_noise", mode, np.zeros(period + period // 4), period_samples=period, recipe=recipe)
         s = exp.samples
         index = s["sample_index"]
-        out = {"output": np.zeros(len(lines)), "torque": np.zeros(len(lines))}
+        out: dict[str, Any] = {"output": np.zeros(len(lines)), "torque": np.zeros(len(lines))}
         if len(index) < period or index[-1] - index[-period] != period - 1:
             self.warnings.append("excitation: the standstill record lost samples; the noise floor comes from the "
                                  "trials' period-to-period scatter alone")
@@ -367,7 +371,7 @@ class AutoAmplitude:
         over the run's extra periods; the room is to the nearer end of the
         position window from where the trial started or ended.
         """
-        e, lim = self.cfg.excitation, self.cfg.limits
+        e, lim = self.cfg.excitation, self.cfg.bench_limits
         speed = float(np.max(np.abs(full["velocity_mps"])))
         torque = float(np.max(np.abs(full["torque_nm"])))
         caps = [(amplitude * AUTO_TORQUE_MARGIN * lim.torque_nm / torque if torque > 0 else np.inf,

@@ -32,7 +32,8 @@ def _run(args) -> int:
                       plots=not args.no_plots, save=args.save)
     summary = session.run()
     if args.dry_run:
-        print(session.plan.describe())
+        if session.plan is not None:  # made before the dry run returns
+            print(session.plan.describe())
         print("dry run: device reached and checked; nothing moved")
         return 0
     res = ", ".join(f"{r['frequency_hz']:.2f} Hz (zeta {r['damping_ratio']:.3f})" for r in summary["resonances"])
@@ -102,7 +103,8 @@ def _upload(args) -> int:
                  "was put back as it was")
         raise
     if args.dry_run:
-        print(command.plan.describe())
+        if command.plan is not None:  # made before the dry run returns
+            print(command.plan.describe())
         for w in summary["warnings"]:
             print(f"warning: {w}")
         print("dry run: device reached and its slots read; nothing written")
@@ -226,7 +228,7 @@ def _emulate_modbus(args) -> int:
     device = start(emu_cfg, driver, cfg.device, link="pty" if args.rtu else "tcp")
     print(device.port, flush=True)
     line = f"Modbus RTU at {device.device.baudrate} baud, parity N" if args.rtu else "Modbus TCP"
-    print(f"emulated {driver.name} ({line}, device id {device.device.device_id}); Ctrl-C to stop",
+    print(f"emulated {driver.name} ({line}, device id {device.device.modbus.device_id}); Ctrl-C to stop",
           file=sys.stderr, flush=True)
     return _serve_until_stopped(device)
 
@@ -237,8 +239,8 @@ def _emulate_canopen(args) -> int:
     cfg, emu_cfg, driver = _emulator_setup(args, "canopen", "canopen-servo")
     device = start_socketcand(emu_cfg, driver, cfg.device, port=args.port)
     print(device.port, flush=True)
-    print(f'emulated {driver.name}, node {device.device.node_id}, on socketcand: [device] can_interface = '
-          f'"socketcand", port = "{device.port}"; Ctrl-C to stop', file=sys.stderr, flush=True)
+    print(f'emulated {driver.name}, node {device.device.canopen.node_id}, on socketcand: [device.canopen] '
+          f'can_interface = "socketcand", [device] port = "{device.port}"; Ctrl-C to stop', file=sys.stderr, flush=True)
     return _serve_until_stopped(device)
 
 

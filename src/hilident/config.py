@@ -204,6 +204,12 @@ class ExcitationConfig:
         return getattr(self, self.amplitude_key)
 
     @property
+    def amplitude_value(self) -> float:
+        """The amplitude as a number in the unit of :attr:`mode`; 0.0 while ``"auto"`` has not been chosen yet."""
+        value = self.amplitude
+        return 0.0 if isinstance(value, str) else float(value)
+
+    @property
     def closed_loop(self) -> bool:
         """Whether the excitation perturbs a set-point of a closed loop (the FRF's reference is that set-point)."""
         return self.mode in SETPOINT_MODES
@@ -452,6 +458,22 @@ class Config:
     def uses_emulator(self) -> bool:
         return self.device.port == "emulator"
 
+    @property
+    def bench_limits(self) -> LimitsConfig:
+        """``[limits]``, which every run on a device needs (``hilident identify`` does not).
+
+        Raises
+        ------
+        ConfigError
+            The config has no ``[limits]`` table.
+        """
+        if self.limits is None:
+            raise ConfigError(
+                "limits", "is required for a bench run: torque_nm, velocity_mps, position_min_m, position_max_m",
+                self.source,
+            )
+        return self.limits
+
 
 def device_table(device: DeviceConfig, keys=None) -> dict:
     """The ``[device]`` table of ``device`` as a dict for a TOML writer, transport keys in their sub-tables.
@@ -570,14 +592,14 @@ def _cross_check(cfg: Config) -> None:
     exc = cfg.excitation
     _check_port(cfg.device.port, src)
     if lim is not None:
-        _check_limits(cfg)
+        _check_limits(cfg, lim)
     rng = cfg.emulator.sensors.laser_range_m
     if len(rng) != 2 or rng[0] >= rng[1]:
         raise ConfigError("emulator.sensors.laser_range_m", "must be [min, max] with min < max", src)
     if exc.f_min_hz >= exc.f_max_hz:
         raise ConfigError("excitation.f_min_hz", "must be below excitation.f_max_hz", src)
     check_auto_amplitude(cfg)
-    if not exc.amplitude_auto and not exc.amplitude > 0:
+    if not exc.amplitude_auto and not exc.amplitude_value > 0:
         unit = {"amplitude_mps": "m/s", "amplitude_m": "m"}.get(exc.amplitude_key, "N*m")
         raise ConfigError(f"excitation.{exc.amplitude_key}", f"must be set (> 0, in {unit}) for mode = "
                                                              f"{exc.mode!r}: the set-point perturbation's size", src)
@@ -638,13 +660,13 @@ def _check_data_and_model(cfg: Config) -> None:
                 raise ConfigError(f"model.{key}", f"applies to kind = \"rigid_axis\" only (kind is {m.kind!r})", src)
 
 
-def _check_limits(cfg: Config) -> None:
-    src, lim, exc = cfg.source, cfg.limits, cfg.excitation
+def _check_limits(cfg: Config, lim: LimitsConfig) -> None:
+    src, exc = cfg.source, cfg.excitation
     if lim.position_min_m >= lim.position_max_m:
         raise ConfigError("limits.position_min_m", "must be below limits.position_max_m", src)
-    if exc.mode in ("torque", "torque_injection") and not exc.amplitude_auto and exc.amplitude_nm > lim.torque_nm:
+    if exc.mode in ("torque", "torque_injection") and exc.amplitude_value > lim.torque_nm:
         raise ConfigError(
-            "excitation.amplitude_nm", f"{exc.amplitude_nm:g} N*m exceeds limits.torque_nm = {lim.torque_nm:g}", src
+            "excitation.amplitude_nm", f"{exc.amplitude_value:g} N*m exceeds limits.torque_nm = {lim.torque_nm:g}", src
         )
     if exc.mode == "velocity" and exc.amplitude_mps >= lim.velocity_mps:
         raise ConfigError("excitation.amplitude_mps",

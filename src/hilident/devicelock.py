@@ -25,7 +25,7 @@ from hilident.errors import DeviceError
 try:  # POSIX; on Windows the OS already refuses a second open of a COM port
     import fcntl
 except ImportError:  # pragma: no cover
-    fcntl = None
+    fcntl = None  # type: ignore[assignment]  # the module or None: checked before use
 
 
 def lock_folder() -> Path:

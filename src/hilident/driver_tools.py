@@ -467,14 +467,16 @@ def check_driver_folder(folder) -> CheckReport:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         return CheckReport(folder, errors=(f"{source}: cannot be read as TOML: {getattr(exc, 'strerror', '') or exc}",))
-    driver = data.get("driver") if isinstance(data.get("driver"), dict) else {}
+    table = data.get("driver")
+    driver = table if isinstance(table, dict) else {}
     placeholders = driver.get("placeholders", [])
     placeholders = tuple(str(p) for p in placeholders) if isinstance(placeholders, list) else ()
     if driver.get("transport") != "canopen":
         return CheckReport(folder, errors=(f"{source}: [driver.transport] is {driver.get('transport')!r}; "
                                            f"`drivers check` validates CANopen drivers against their EDS",),
                            placeholders=placeholders)
-    co = data.get("canopen") if isinstance(data.get("canopen"), dict) else {}
+    table = data.get("canopen")
+    co = table if isinstance(table, dict) else {}
     eds_name = co.get("eds")
     if not isinstance(eds_name, str) or not eds_name:
         return CheckReport(folder, errors=(f"{source}: [canopen.eds] must name the EDS/DCF file in the folder",),
@@ -714,7 +716,7 @@ def _check_identity(c: _Checker) -> None:
 
 def _check_placeholders(c: _Checker, placeholders: tuple[str, ...], path: Path) -> None:
     for p in placeholders:
-        node = c.data
+        node: object = c.data
         for part in p.split("."):
             node = node.get(part) if isinstance(node, dict) else None
         if node is None:
@@ -799,7 +801,8 @@ def _transport_features(folder: Path, data: dict, transport: str) -> tuple[list,
 
 
 def _describe_canopen(folder: Path, data: dict, co: dict):
-    caps, channels = [], []
+    caps: list[str] = []
+    channels: list[str] = []
     modes = list(co.get("modes", {})) if isinstance(co.get("modes"), dict) else []
     if isinstance(co.get("cyclic_modes"), list):
         modes += [m.upper() for m in co["cyclic_modes"] if isinstance(m, str)]

@@ -384,7 +384,7 @@ def valid_sample_rates(driver: DriverDescription, count: int | None = None) -> l
     count : int, optional
         Return only the ``count`` highest rates.
     """
-    rates = []
+    rates: list[float] = []
     first = max(1, math.ceil(driver.loop_rate_hz / driver.max_sample_rate_hz - 1e-9))
     for divider in range(first, MAX_DIVIDER + 1):
         if count is not None and len(rates) >= count:

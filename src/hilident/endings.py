@@ -27,6 +27,10 @@ ENDING_SIGNALS = tuple(s for s in (signal.SIGINT, signal.SIGTERM, getattr(signal
 
 class _State:
     def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """No signal received, none raised, no shield up."""
         self.received: list[int] = []
         self.raised = False
         self.shield_depth = 0
@@ -58,7 +62,7 @@ def signals_end_the_session():
     # a signal the process was started ignoring stays ignored (``nohup`` ignores SIGHUP; a shell's
     # background job, SIGINT): ending the session on it would undo what the user asked for
     previous = {s: h for s in ENDING_SIGNALS if (h := signal.getsignal(s)) is not signal.SIG_IGN}
-    _state.__init__()
+    _state.reset()
     for s in previous:
         signal.signal(s, _on_signal)
     try:

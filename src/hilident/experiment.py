@@ -133,31 +133,35 @@ class ExperimentRecorder:
         # Blocks are gathered for at most FLUSH_INTERVAL_S of data or of wall-clock time (one HDF5 flush per
         # block would stall the line), then written with the events known so far: a crash loses no more.
         pending: list[np.ndarray] = []
-        held = {"rows": 0, "since": time.monotonic(), "events": 0}
+        rows_held, held_since, events_written = 0, time.monotonic(), 0
         flush_rows = max(1, int(FLUSH_INTERVAL_S * fs))
 
         def write_events(events: list[dict]) -> None:
-            for ev in events[held["events"]:]:
+            nonlocal events_written
+            for ev in events[events_written:]:
                 writer.log(RunEvent.from_dict(ev))
-            held["events"] = max(held["events"], len(events))
+            events_written = max(events_written, len(events))
 
         def flush() -> None:
+            nonlocal rows_held, held_since
             if pending:
                 block = np.concatenate(pending)
                 pending.clear()
-                held["rows"] = 0
+                rows_held = 0
                 writer.append(block)
             write_events(getattr(ad, "events", []))
-            held["since"] = time.monotonic()
+            held_since = time.monotonic()
 
         def sink(index: np.ndarray, rows: np.ndarray) -> None:
+            nonlocal rows_held
             pending.append(np.column_stack([index, index / fs, rows]))
-            held["rows"] += len(rows)
-            if held["rows"] >= flush_rows or time.monotonic() - held["since"] >= FLUSH_INTERVAL_S:
+            rows_held += len(rows)
+            if rows_held >= flush_rows or time.monotonic() - held_since >= FLUSH_INTERVAL_S:
                 flush()
 
-        if cfg.device.trace:
-            ad.set_trace(self.out / f"{name}.{cfg.device.trace}")  # CAN trace beside the recording
+        trace = cfg.device.canopen.trace
+        if trace:
+            ad.set_trace(self.out / f"{name}.{trace}")  # CAN trace beside the recording
         self.progress.step(f"{name}: {len(excitation) / fs:.1f} s of {mode} excitation")
         result = None
         status, reason = "aborted", ""

@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -120,8 +121,9 @@ def data_mapping(cfg: Config, info: RunInfo | None) -> DataConfig:
     explicit = _explicit(cfg, "data")
     data = cfg.data
     channels = set(info.channels) if info is not None else None
-    if info is not None:
-        fill = {key: (ch if ch in channels else "") for key, ch in RUN_CHANNELS.items() if key not in explicit}
+    if info is not None and channels is not None:
+        fill: dict[str, Any] = {key: (ch if ch in channels else "") for key, ch in RUN_CHANNELS.items()
+                                if key not in explicit}
         defaults = {"format": "hilident", "closed_loop": info.mode not in ("", "torque")}  # a loop held the axis
         fill.update({key: value for key, value in defaults.items() if key not in explicit})
         data = dataclasses.replace(data, **fill)

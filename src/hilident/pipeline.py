@@ -120,7 +120,7 @@ class PlantModel:
     fit: TfFit
     modal: ModalModel
     candidates: list
-    roots: RootReport | None = None
+    roots: RootReport
     criterion: str = "mdl"
     mode_notes: list = field(default_factory=list)
 
@@ -340,14 +340,15 @@ def notch_eligibility(res: Resonance) -> dict:
         return out
     interval, bandwidth = 2.0 * res.frequency_ci95_hz, res.bandwidth_hz
     tolerance_hz = NOTCH_FREQUENCY_TOLERANCE * res.frequency_hz
-    out["amplitude_factor"] = float(max(1.0, 2.0 * interval / bandwidth))
+    factor = float(max(1.0, 2.0 * interval / bandwidth))
+    out["amplitude_factor"] = factor
     if not interval < bandwidth:
         out["reason"] = (f"the 95 % interval of its frequency ({res.frequency_hz:.4g} +- "
                          f"{res.frequency_ci95_hz:.3g} Hz) is not narrower than its half-power bandwidth "
                          f"({bandwidth:.3g} Hz): a notch could miss it")
         return out
     if not res.frequency_ci95_hz <= tolerance_hz:
-        out["amplitude_factor"] = float(max(out["amplitude_factor"], 2.0 * res.frequency_ci95_hz / tolerance_hz))
+        out["amplitude_factor"] = float(max(factor, 2.0 * res.frequency_ci95_hz / tolerance_hz))
         out["reason"] = (f"the 95 % interval of its frequency ({res.frequency_hz:.4g} +- "
                          f"{res.frequency_ci95_hz:.3g} Hz) is wider than +-{100 * NOTCH_FREQUENCY_TOLERANCE:g} % "
                          "of it: the notch could sit off the mode by more than that")
@@ -590,11 +591,12 @@ def identify_plant(
     r = (u if s["excitation"] is s["torque"] and friction is None
          else _condition(s["excitation"], cfg, sample_rate_hz, period_samples))
     del s
-    seg = _segment(len(r), cfg, sample_rate_hz, period_samples, warnings)
-    if seg is None:
-        plant = periodic_frf(u, y, period_samples, sample_rate_hz, skip_periods=0, bins=excited_bins)
-        loop = periodic_frf(r, y, period_samples, sample_rate_hz, skip_periods=0, bins=excited_bins)
+    averaged = _averaged_period(len(r), period_samples)
+    if averaged is not None:
+        plant = periodic_frf(u, y, averaged, sample_rate_hz, skip_periods=0, bins=excited_bins)
+        loop = periodic_frf(r, y, averaged, sample_rate_hz, skip_periods=0, bins=excited_bins)
     else:
+        seg = _segment(len(r), cfg, sample_rate_hz, period_samples, warnings)
         plant = frf_from_reference(r, u, y, sample_rate_hz, seg)
         loop = h1_estimate(r, y, sample_rate_hz, seg)
     resonances, rejected, more = _resonances_and_model(plant, cfg, band_hz)
@@ -602,7 +604,7 @@ def identify_plant(
     model = more.model
     antires = [hz for hz, _ in model.roots.antiresonances] if model else []
     quality, more = measurement_quality(plant, resonances, r, sample_rate_hz, band_hz,
-                                        period_samples if seg is None else None, antires)
+                                        averaged, antires)
     return PlantResult(plant=plant, loop=loop, resonances=resonances, warnings=warnings + more, model=model,
                        quality=quality, rejected=rejected)
 
@@ -714,10 +716,14 @@ def _condition(x: np.ndarray, cfg: IdentificationConfig, sample_rate_hz: float,
     return remove_drift(x, period_samples)
 
 
-def _segment(n: int, cfg: IdentificationConfig, sample_rate_hz: float, period_samples, warnings: list[str]):
-    """Welch segment length for a record of ``n`` samples, or None when whole periods are averaged."""
-    if period_samples and n >= 2 * period_samples:
-        return None
+def _averaged_period(n: int, period_samples: int | None) -> int | None:
+    """The period, samples, when a record of ``n`` samples holds two whole periods to average; else None."""
+    return period_samples if period_samples and n >= 2 * period_samples else None
+
+
+def _segment(n: int, cfg: IdentificationConfig, sample_rate_hz: float, period_samples: int | None,
+             warnings: list[str]) -> int:
+    """Welch segment length for a record of ``n`` samples that does not hold two whole periods."""
     if period_samples:
         warnings.append("fewer than two whole excitation periods recorded: Welch averaging used instead")
     seg = int(round(cfg.segment_s * sample_rate_hz))
@@ -738,10 +744,10 @@ def loop_response(
     s = check_signals({"excitation": excitation, "output": output}, copy=False)
     warnings: list[str] = []
     r, y = (_condition(x, cfg, sample_rate_hz, period_samples) for x in (s["excitation"], s["output"]))
-    seg = _segment(len(r), cfg, sample_rate_hz, period_samples, warnings)
-    if seg is None:
-        return periodic_frf(r, y, period_samples, sample_rate_hz, skip_periods=0, bins=excited_bins), warnings
-    return h1_estimate(r, y, sample_rate_hz, seg), warnings
+    averaged = _averaged_period(len(r), period_samples)
+    if averaged is not None:
+        return periodic_frf(r, y, averaged, sample_rate_hz, skip_periods=0, bins=excited_bins), warnings
+    return h1_estimate(r, y, sample_rate_hz, _segment(len(r), cfg, sample_rate_hz, period_samples, warnings)), warnings
 
 
 @dataclass

@@ -113,7 +113,7 @@ def make_plan(cfg: Config, excitation, friction_profile, adapter, filters_found:
         ``velocity``, or ``position`` when the friction legs run as a position profile.
     """
     fs = cfg.run.sample_rate_hz
-    lim = cfg.limits
+    lim = cfg.bench_limits
     plan = RunPlan(
         device=f"{adapter.identity.name} (firmware {adapter.identity.firmware})",
         port=adapter.port,

@@ -305,6 +305,8 @@ class RunWriter:
         cleanly.
         """
         f = self._file
+        if f is None:  # closed already: nothing left to cut
+            return
         chunk = self._samples.chunks[0]
         boundary = self._n_samples // chunk * chunk
         # HDF5 may rewrite the chunk at the new edge from its damaged cache: keep that one out of the good rows too

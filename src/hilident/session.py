@@ -125,7 +125,7 @@ class Progress:
 
 def check_excitation_travel(cfg: Config, excitation: Excitation) -> None:
     """A set-point perturbation must keep the axis within half the position window (it starts anywhere in it)."""
-    e, lim = cfg.excitation, cfg.limits
+    e, lim = cfg.excitation, cfg.bench_limits
     if not e.closed_loop:
         return  # a torque excitation's travel depends on the plant; the limits guard it
     travel = excitation_travel_m(e.mode, excitation.samples, cfg.run.sample_rate_hz)
@@ -203,8 +203,8 @@ def connect_device(cfg: Config, driver: DriverDescription, progress: Progress) -
         device, link = emulator.device, emulator.link
     else:
         d = cfg.device
-        lock = DeviceLock(device_key(driver.transport, d.port, node_id=d.node_id, device_id=d.device_id,
-                                     can_interface=d.can_interface)).acquire()
+        lock = DeviceLock(device_key(driver.transport, d.port, node_id=d.canopen.node_id,
+                                     device_id=d.modbus.device_id, can_interface=d.canopen.can_interface)).acquire()
         if lock.recovered_from:
             progress.step(f"device lock of pid {lock.recovered_from} recovered (that session died)")
     try:
@@ -253,6 +253,19 @@ class DeviceConnection:
     device: ConnectedDevice | None = None
 
     @property
+    def found_driver(self) -> DriverDescription:
+        """The driver description, once :meth:`open_device` (or :meth:`Session.prepare`) found it.
+
+        Raises
+        ------
+        RuntimeError
+            Asked before the driver was looked up (a caller's mistake).
+        """
+        if self.driver is None:
+            raise RuntimeError("the driver is looked up by open_device() or prepare() first")
+        return self.driver
+
+    @property
     def adapter(self):
         """The open device's adapter (None before :meth:`open_device`)."""
         return self.device.adapter if self.device is not None else None
@@ -272,8 +285,8 @@ class DeviceConnection:
 
         What the adapter found as it brought the device to a known state goes to ``warnings``.
         """
-        self.driver = self.driver or find_driver(self.cfg.device.driver, self.cfg.device.driver_paths)
-        self.device = connect_device(self.cfg, self.driver, self.progress)
+        driver = self.driver = self.driver or find_driver(self.cfg.device.driver, self.cfg.device.driver_paths)
+        self.device = connect_device(self.cfg, driver, self.progress)
         where = "emulated" if self.cfg.uses_emulator else "connected to"
         self.progress.step(f"{where} {self.adapter.identity.name} on {self.adapter.port}")
         report_ = getattr(self.adapter, "connect_report", None)
@@ -306,11 +319,7 @@ class Session(DeviceConnection):
     def __init__(self, cfg: Config, out_dir: str | Path, progress: Progress | None = None,
                  confirm: Callable[[RunPlan], bool] | None = None, dry_run: bool = False, plots: bool = True,
                  save: bool = False):
-        if cfg.limits is None:
-            raise ConfigError(
-                "limits", "is required for a bench run: torque_nm, velocity_mps, position_min_m, position_max_m",
-                cfg.source,
-            )
+        cfg.bench_limits  # noqa: B018 - raises the ConfigError of a config without [limits] before anything starts
         self.cfg = cfg
         self.out = Path(out_dir)
         self.progress = progress or Progress(enabled=False)
@@ -342,7 +351,7 @@ class Session(DeviceConnection):
         """
         device = self.open_device()
         self.recorder = ExperimentRecorder(device, self.out, self.progress, self.warnings)
-        lim = self.cfg.limits
+        lim = self.cfg.bench_limits
         self.adapter.set_limits(lim.torque_nm, lim.velocity_mps, lim.position_min_m, lim.position_max_m)
 
     # --- filter slots: identify the bare plant ---------------------------------------------
@@ -395,11 +404,11 @@ class Session(DeviceConnection):
         try:
             self.connect()
             self._read_filter_slots()
-            self.plan = make_plan(self.cfg, excitation, profile, self.adapter, self.filters_found,
-                                  self.friction_mode)
-            self._arm()
+            plan = self.plan = make_plan(self.cfg, excitation, profile, self.adapter, self.filters_found,
+                                         self.friction_mode)
+            self._arm(plan)
             if self.dry_run:
-                return {"dry_run": True, "plan": self.plan.to_dict()}
+                return {"dry_run": True, "plan": plan.to_dict()}
             self._bypass_filters()
             step = "friction test"
             friction = self._friction_step(profile)
@@ -448,10 +457,10 @@ class Session(DeviceConnection):
         """
         self._prepare_out()
         cfg = self.cfg
-        self.driver = find_driver(cfg.device.driver, cfg.device.driver_paths)
-        if (error := adapter_class(self.driver.transport).run_refusal(self.driver)) is not None:  # cannot play
+        driver = self.driver = find_driver(cfg.device.driver, cfg.device.driver_paths)
+        if (error := adapter_class(driver.transport).run_refusal(driver)) is not None:  # cannot play
             raise ConfigError(error.key, error.message, cfg.source)
-        modes = check_run_against_driver(cfg, self.driver)
+        modes = check_run_against_driver(cfg, driver)
         check_auto_amplitude(cfg)  # again: a config changed in code after loading
         excitation = build_excitation(cfg)
         check_excitation_travel(cfg, excitation)
@@ -461,7 +470,7 @@ class Session(DeviceConnection):
         ft = cfg.friction_test
         if ft.enabled:
             profile = sig.velocity_ramps(ft.speeds_mps, ft.hold_s, ft.accel_mps2, cfg.run.sample_rate_hz, ft.settle_s)
-            lim = cfg.limits
+            lim = cfg.bench_limits
             if profile.max_excursion_m >= (lim.position_max_m - lim.position_min_m) / 2:
                 raise ConfigError(
                     "friction_test.speeds_mps",
@@ -481,11 +490,11 @@ class Session(DeviceConnection):
         except OSError as exc:
             raise UsageError(f"--out {self.out}: cannot write there: {exc.strerror or exc}") from None
 
-    def _arm(self) -> None:
+    def _arm(self, plan: RunPlan) -> None:
         """On a real port, move only with the user's go-ahead: ``confirm(plan)`` shows the plan and asks."""
         if self.dry_run or self.cfg.uses_emulator:
             return
-        if self.confirm is None or not self.confirm(self.plan):
+        if self.confirm is None or not self.confirm(plan):
             raise ArmingRefused("the run was not confirmed; nothing moved")
 
     def _friction_step(self, profile):
@@ -584,7 +593,7 @@ class Session(DeviceConnection):
         if ad.identity.filter_slots < 1:
             # designed all the same, for the user to enter by hand or to describe the drive's filter objects
             designs = pipeline.design_notches(resonances, nc, ad.identity.loop_rate_hz, [0], plant.loop)
-            upload.not_uploaded = (f"driver {self.driver.name!r} describes no filter capability (no [filters] "
+            upload.not_uploaded = (f"driver {self.found_driver.name!r} describes no filter capability (no [filters] "
                                    "table in its driver.toml): the designed notch was not uploaded")
             self.warnings.append(upload.not_uploaded)
             return designs, upload
@@ -617,7 +626,7 @@ class Session(DeviceConnection):
             upload.not_saved = "nothing was saved: the notches were not uploaded, read back and verified"
             self.warnings.append(upload.not_saved)
             return
-        saved_with, reason = uploading.store_parameters(self.adapter, self.driver.transport, self.progress)
+        saved_with, reason = uploading.store_parameters(self.adapter, self.found_driver.transport, self.progress)
         if saved_with is None:
             upload.not_saved = reason
             self.warnings.append(upload.not_saved)
@@ -667,7 +676,7 @@ class Session(DeviceConnection):
         cfg, ad = self.cfg, self.adapter
         connect = ad.connect_report.to_dict() if ad is not None and hasattr(ad, "connect_report") else None
         return Summary.of_run(
-            config=cfg.source, device=DevicePart(self.driver.name, ad.port if ad else None, cfg.uses_emulator),
+            config=cfg.source, device=DevicePart(self.found_driver.name, ad.port if ad else None, cfg.uses_emulator),
             sample_rate_hz=cfg.run.sample_rate_hz, excitation=ExcitationPart.of(cfg.excitation, self._auto),
             plant=plant, friction=friction, designs=designs, upload=upload, verification=verification,
             stream=self.totals, connect=connect, filters_found=self.filters_found,

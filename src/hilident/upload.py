@@ -27,6 +27,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from hilident import endings
 from hilident.errors import (
@@ -230,11 +231,20 @@ def _resonance_for(src: Source, rec: dict, index: int):
     if abs(r["frequency_hz"] - rec["center_hz"]) > 1e-6 * rec["center_hz"]:
         raise DataError(f"{src.path}: notch_filters[{index}] ({rec['center_hz']:.6g} Hz) matches no entry of "
                         "resonances, so it cannot be redesigned for the device's filter rate")
-    optional = {k: float(r[k]) for k in ("peak_magnitude_db", "coherence", "frequency_ci95_hz", "damping_ci95")
-                if isinstance(r.get(k), (int, float))}
-    return Resonance(float(r["frequency_hz"]), float(r["damping_ratio"]),
-                     optional.pop("peak_magnitude_db", float("nan")), optional.pop("coherence", float("nan")),
-                     **optional)
+
+    def number(key: str) -> float:
+        return float(r[key]) if isinstance(r.get(key), (int, float)) else float("nan")
+
+    return Resonance(float(r["frequency_hz"]), float(r["damping_ratio"]), number("peak_magnitude_db"),
+                     number("coherence"), frequency_ci95_hz=number("frequency_ci95_hz"),
+                     damping_ci95=number("damping_ci95"))
+
+
+def _three(values) -> tuple[float, float, float]:
+    """Three coefficients of a stored biquad as floats (a ValueError when there are not three)."""
+    if len(values) != 3:
+        raise ValueError("a biquad needs three b and three a coefficients")
+    return float(values[0]), float(values[1]), float(values[2])
 
 
 def designs_for_device(src: Source, cfg, loop_rate_hz: float, slots: list[int], warnings: list[str]) -> list:
@@ -255,7 +265,7 @@ def designs_for_device(src: Source, cfg, loop_rate_hz: float, slots: list[int], 
         if abs(rate - loop_rate_hz) <= _RATE_TOLERANCE * loop_rate_hz:
             spec = NotchSpec(float(rec["center_hz"]), float(rec["width_hz"]), float(rec["depth_db"]))
             try:
-                biquad = Biquad(tuple(float(x) for x in rec["b"]), tuple(float(x) for x in rec["a"]))
+                biquad = Biquad(_three(rec["b"]), _three(rec["a"]))
             except ValueError as exc:
                 raise DataError(f"{src.path}: notch_filters[{i}].a: {exc}") from None
             try:
@@ -287,7 +297,7 @@ def default_out(src: Source) -> Path:
     raise UsageError(f"--out: give an output folder ({base.name}-upload-* are all taken)")
 
 
-def slots_for(count: int, first: int | None, designed: list[int], filter_slots: int, driver_name: str) -> list[int]:
+def slots_for(count: int, first: int | None, designed: list[object], filter_slots: int, driver_name: str) -> list[int]:
     """The slots the ``count`` notches go to: ``--slot N`` and the ones after it, else the slots they were designed for.
 
     Raises
@@ -300,9 +310,9 @@ def slots_for(count: int, first: int | None, designed: list[int], filter_slots: 
             raise UsageError(f"--slot {first}: {count} notch(es) from slot {first} do not fit the "
                              f"{filter_slots} filter slot(s) of {driver_name} (slots 0 to {filter_slots - 1})")
         return list(range(first, first + count))
-    whole = all(isinstance(s, int) and not isinstance(s, bool) for s in designed)
-    if whole and len(set(designed)) == count and all(0 <= s < filter_slots for s in designed):
-        return list(designed)
+    whole = [s for s in designed if isinstance(s, int) and not isinstance(s, bool)]
+    if len(whole) == len(designed) and len(set(whole)) == count and all(0 <= s < filter_slots for s in whole):
+        return whole
     if count > filter_slots:
         raise UsageError(f"the source has {count} notches but {driver_name} has {filter_slots} filter slot(s): "
                          "upload them one by one with --slot")
@@ -409,8 +419,8 @@ class UploadCommand:
         if not self.dry_run:
             self._prepare_out()
         dev = self.device
-        state = {"before": [], "designs": [], "slots": [], "rolled_back": [], "saved": False, "step": "connect",
-                 "touched": []}
+        state: dict[str, Any] = {"before": [], "designs": [], "slots": [], "rolled_back": [], "saved": False,
+                                 "step": "connect", "touched": []}
         failed = False
         try:
             dev.find_driver()
@@ -419,15 +429,15 @@ class UploadCommand:
             designs = self._designs()
             state["designs"] = designs
             state["before"] = self._read_slots()
-            self.plan = self._plan(designs, state["before"])
+            plan = self.plan = self._plan(designs, state["before"])
             if self.dry_run:
-                return {"dry_run": True, "plan": self.plan.to_dict(), "warnings": self.warnings}
-            self._arm()
+                return {"dry_run": True, "plan": plan.to_dict(), "warnings": self.warnings}
+            self._arm(plan)
             state["step"] = "upload"
             self._upload(designs, state)
             if self.save:
                 state["step"] = "save"
-                saved_with, _ = store_parameters(dev.adapter, dev.driver.transport, self.progress)
+                saved_with, _ = store_parameters(dev.adapter, dev.found_driver.transport, self.progress)
                 state.update(saved=True, saved_with=saved_with)
         except BaseException as exc:
             failed = True
@@ -463,17 +473,17 @@ class UploadCommand:
 
     def _designs(self) -> list:
         dev = self.device
-        ident = dev.adapter.identity
-        driver_toml = dev.driver.folder / "driver.toml"
+        ident, driver = dev.adapter.identity, dev.found_driver
+        driver_toml = driver.folder / "driver.toml"
         if ident.filter_slots < 1:
-            raise ConfigError("filters", f"driver {dev.driver.name!r} describes no filter capability (no [filters] "
+            raise ConfigError("filters", f"driver {driver.name!r} describes no filter capability (no [filters] "
                                          "table): there is no slot to upload a notch to", str(driver_toml))
         if self.save and getattr(dev.adapter, "save_parameters", None) is None:
-            raise UsageError(f"--save: a {dev.driver.transport} device has no store-parameters command in hilident "
+            raise UsageError(f"--save: a {driver.transport} device has no store-parameters command in hilident "
                              "(upload without --save)")
         records = notch_records(self.source)
         slots = slots_for(len(records), self.first_slot, [r.get("slot") for r in records], ident.filter_slots,
-                          dev.driver.name)
+                          dev.found_driver.name)
         return designs_for_device(self.source, self.cfg, float(ident.loop_rate_hz), slots, self.warnings)
 
     def _read_slots(self) -> list[dict]:
@@ -491,7 +501,7 @@ class UploadCommand:
         from hilident import pipeline
 
         ad = self.device.adapter
-        plan = UploadPlan(self.device.driver.name, ad.port, self.source.path, save=self.save)
+        plan = UploadPlan(self.device.found_driver.name, ad.port, self.source.path, save=self.save)
         for d in designs:
             expected = ad.stored_form(d.biquad, d.spec)
             was = before[d.slot]
@@ -502,11 +512,11 @@ class UploadCommand:
                               "before": {"enabled": was["enabled"], "b": was["b"], "a": was["a"]}})
         return plan
 
-    def _arm(self) -> None:
+    def _arm(self, plan: UploadPlan) -> None:
         """On a real port, write only with the go-ahead ``hilident run`` asks for (``--yes`` or the terminal)."""
         if self.cfg.uses_emulator:
             return
-        if self.confirm is None or not self.confirm(self.plan):
+        if self.confirm is None or not self.confirm(plan):
             raise ArmingRefused("the upload was not confirmed; nothing was written")
 
     def _upload(self, designs: list, state: dict) -> None:
@@ -556,7 +566,7 @@ class UploadCommand:
             config=self.cfg.source,
             source={"summary": str(self.source.path), "kind": self.source.kind,
                     "notch_filters": self.source.summary.get("notch_filters")},
-            device=DevicePart.reported(dev.driver.name if dev.driver else None, ad.port if ad else None,
+            device=DevicePart.reported(dev.found_driver.name if dev.driver else None, ad.port if ad else None,
                                        self.cfg.uses_emulator, ad.identity if ad is not None else None),
             filters_before=[{k: v for k, v in b.items() if k != "_saved"} for b in state["before"]],
             designs=state["designs"], upload=upload, elapsed_s=time.monotonic() - started, warnings=self.warnings)

@@ -30,6 +30,7 @@ Example
 
 from __future__ import annotations
 
+import typing
 from dataclasses import dataclass
 from itertools import product
 
@@ -204,7 +205,8 @@ def _solve(z: np.ndarray, na: int, nb: int, nk: int) -> ArxModel:
     scale = np.sqrt(np.einsum("ij,ij->j", z, z))
     if np.any(scale[:p] == 0.0):
         raise DataError(f"a regressor column of ARX(na={na}, nb={nb}, nk={nk}) is all zero")
-    r = np.linalg.qr(z / scale, mode="r")
+    # mode "r" returns R alone; numpy's stubs type every mode as the (Q, R) pair
+    r = typing.cast(np.ndarray, np.linalg.qr(z / scale, mode="r"))
     r11 = r[:p, :p]
     sv = linalg.svdvals(r11)
     if sv[-1] <= sv[0] * max(m, p) * np.finfo(float).eps:
@@ -329,7 +331,7 @@ def simulate(model: ArxModel, u: ArrayLike, y0: ArrayLike | None = None) -> np.n
 
 
 def _as_range(key: str, values) -> list[int]:
-    vals = [values] if np.isscalar(values) else list(values)
+    vals: list[typing.Any] = [values] if np.isscalar(values) else list(values)
     if not vals:
         raise ConfigError(key, "must contain at least one order")
     for v in vals:

@@ -484,8 +484,8 @@ def _starts(a, t, names: list[str], fixed: dict[str, float], lower: np.ndarray,
     width = np.where(np.isfinite(upper - lower), upper - lower, 1.0)
     inner_lo, inner_hi = lower + 1e-6 * width, upper - 1e-6 * width
     starts = []
-    dv_starts = [fixed.get("delta_v")] if "delta_v" in fixed else [1.0, 0.5]
-    ds_starts = [fixed.get("delta_s")] if "delta_s" in fixed else [2.0, 1.0, 0.5]
+    dv_starts = [fixed["delta_v"]] if "delta_v" in fixed else [1.0, 0.5]
+    ds_starts = [fixed["delta_s"]] if "delta_s" in fixed else [2.0, 1.0, 0.5]
     for vs_mul, dv, ds in itertools.product((0.1, 1.0, 10.0), dv_starts, ds_starts):
         p0 = {
             "Fc": guess["Fc"],
@@ -624,7 +624,7 @@ def fit_friction(v: ArrayLike, tau: ArrayLike) -> FrictionFit:
         scores[name] = _aicc(result.rms_residual**2 * n, n, k, floor)
     if not fits:
         raise DataError(f"{n} friction points with v != 0 fit no friction structure")
-    best = min(scores, key=scores.get)
+    best = min(scores, key=scores.__getitem__)
     return dataclasses.replace(fits[best], structure=best, criterion=scores)
 
 

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -502,7 +503,7 @@ def _second_order_regression(
             "samples at each end; record longer or raise cutoff_hz"
         )
     n_eff = (
-        _bandwidth_samples(rows.size, decimate, cutoff_hz, fs) if method == "svf" else None
+        _bandwidth_samples(rows.size, decimate, cutoff_hz, fs) if method == "svf" and cutoff_hz is not None else None
     )
     reg = {names[0]: Y[2, rows], names[1]: Y[1, rows], names[2]: Y[0, rows]}
     return Regression(reg, Uf[rows], n_eff)
@@ -546,7 +547,7 @@ def validate_fit(fit: LinearFit, regression: Regression, max_lag: int = 25) -> d
     target = np.asarray(regression.target, dtype=float)
     residuals = target - predicted
     norm = float(np.linalg.norm(target))
-    out = {"fit_percent": float(fit_percent(target, predicted)),
+    out: dict[str, Any] = {"fit_percent": float(fit_percent(target, predicted)),
            "relative_error": float(np.linalg.norm(residuals) / norm) if norm > 0 else float("inf"),
            "residual_rms": float(np.sqrt(np.mean(residuals**2))), "samples": int(target.size),
            "low_speed_rows_excluded": int(regression.low_speed_rows)}

@@ -160,7 +160,7 @@ def remove_drift(x: ArrayLike, period_samples: int | None = None, degree: int = 
     x = np.asarray(x, dtype=np.float64)
     n = x.size
     periods = n // period_samples if period_samples else 0
-    if periods < 2 or degree < 1:
+    if period_samples is None or periods < 2 or degree < 1:
         return detrend(x, "linear")
     whole = periods * period_samples
     t = np.linspace(-1.0, 1.0, whole)

@@ -35,6 +35,7 @@ Example
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -160,7 +161,7 @@ def _weights(H: np.ndarray, coh: np.ndarray) -> np.ndarray:
 class _LocalFit:
     frequency_hz: float
     damping_ratio: float
-    model: object
+    model: Callable[[np.ndarray], np.ndarray]  # the fitted FRF at frequencies in Hz
     frequency_std_hz: float
     damping_std: float
 
@@ -176,7 +177,7 @@ def _fit_local(f, H, w, fc, iterations) -> _LocalFit | None:
     b = -Hn * x**3
     a_prev = None
     sk = np.ones(f.size)
-    theta = None
+    theta = np.zeros(A.shape[1])
     for _ in range(iterations + 1):
         ww = w * sk
         Ar = np.vstack([(A * ww[:, None]).real, (A * ww[:, None]).imag])

@@ -47,6 +47,19 @@ class Excitation:
     band_hz: tuple[float, float]
     excited_bins: np.ndarray | None = None
 
+    @property
+    def period(self) -> int:
+        """Samples per period of an excitation that must be periodic.
+
+        Raises
+        ------
+        ValueError
+            The excitation is not periodic (a caller's mistake: the config checks rule that out).
+        """
+        if self.period_samples is None:
+            raise ValueError("a periodic excitation was expected")
+        return self.period_samples
+
 
 def build_excitation(e: Any, sample_rate_hz: float, amplitude: float, seed: int | None = None) -> Excitation:
     """The excitation ``e`` (an ``[excitation]`` table) at ``amplitude``, sampled at ``sample_rate_hz``, Hz.

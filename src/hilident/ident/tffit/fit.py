@@ -223,7 +223,7 @@ def _projected_problem(data: _Normalised):
     x, w, n_den = data.x, data.w, data.n_den
     Xn = x[:, None] ** np.arange(data.n_num + 1)
     yr = np.concatenate([(w * data.H).real, (w * data.H).imag])
-    memo = {}
+    memo: dict[bytes, tuple] = {}
 
     def evaluate(theta):
         key = theta.tobytes()

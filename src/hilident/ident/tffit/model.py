@@ -239,7 +239,7 @@ class ModalModel:
 
 
 def _roots_of(quadratics, corners_hz, n_zero) -> np.ndarray:
-    roots = []
+    roots: list[complex] = []
     for f0, z in quadratics:
         w = TWO_PI * f0
         roots.extend(np.roots([1.0, 2.0 * z * w, w * w]).astype(np.complex128))
@@ -285,6 +285,11 @@ class TfOrderCandidate:
     @property
     def n_params(self) -> int:
         return self.n_num + 1 + self.n_den
+
+    @property
+    def weighted_cost(self) -> float:
+        """The fit's weighted cost (:attr:`TfFit.weighted_cost`); infinite when the fit could not be made."""
+        return self.fit.weighted_cost if self.fit is not None else float("inf")
 
 
 def zpk_response(frequency_hz, gain, zeros, poles, reference_hz, delay_s) -> np.ndarray:

@@ -100,6 +100,7 @@ def select_order(
     table = [
         TfOrderCandidate(r.n_num, r.n_den, r.fit, r.aic, r.bic, r is chosen, r.error) for r in rows
     ]
+    assert chosen.fit is not None  # ok holds the candidates with a fit
     return chosen.fit, table
 
 
@@ -152,11 +153,11 @@ def _smallest_adequate(ok: list[TfOrderCandidate], threshold: float) -> TfOrderC
     """The first candidate (fewest parameters) that no larger one improves on by more than `threshold`."""
     # Tiny absolute slack so that noise-free data (costs near rounding) does not
     # force the largest model.
-    slack = 1e-12 * max(r.fit.weighted_cost for r in ok)
+    slack = 1e-12 * max(r.weighted_cost for r in ok)
     for i, r in enumerate(ok):
         larger = [q for q in ok[i + 1:] if q.n_params > r.n_params]
-        limit = [(1.0 + threshold) * q.fit.weighted_cost + slack for q in larger]
-        if all(r.fit.weighted_cost <= lim for lim in limit):
+        limit = [(1.0 + threshold) * q.weighted_cost + slack for q in larger]
+        if all(r.weighted_cost <= lim for lim in limit):
             return r
     return ok[-1]
 
