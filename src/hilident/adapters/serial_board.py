@@ -405,9 +405,15 @@ class SerialBoardAdapter(AdapterBase):
         self.identity = ident
         return ident
 
+    def _known_identity(self) -> sb.Identity:
+        """What :meth:`identify` read; DeviceError when the board was not identified (never connected)."""
+        if self.identity is None:
+            raise DeviceError(f"{self.port}: the board has not been identified (connect to it first)")
+        return self.identity
+
     def configure(self, sample_rate_hz: float, mode: str, channels: list[str] | None = None) -> list[str]:
         """Choose rate, excitation mode and streamed channels; returns the channel names."""
-        ident = self.identity
+        ident = self._known_identity()
         divider = ident.loop_rate_hz / sample_rate_hz
         if abs(divider - round(divider)) > 1e-9 or round(divider) < 1:
             raise DeviceError(
@@ -489,7 +495,9 @@ class SerialBoardAdapter(AdapterBase):
     @staticmethod
     def stored_form(biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
         """The coefficients as this board stores them (REAL32), for read-back comparison."""
-        return Biquad(tuple(sb.float32(x) for x in biquad.b), (1.0, sb.float32(biquad.a[1]), sb.float32(biquad.a[2])))
+        b0, b1, b2 = biquad.b
+        return Biquad((sb.float32(b0), sb.float32(b1), sb.float32(b2)),
+                      (1.0, sb.float32(biquad.a[1]), sb.float32(biquad.a[2])))
 
     # --- streaming ----------------------------------------------------------------------------
 
@@ -554,12 +562,12 @@ class SerialBoardAdapter(AdapterBase):
         result.completed = self.run_fault is None
 
 
-class _Run(RunStrategy):
+class _Run(RunStrategy["SerialBoardAdapter"]):
     """Bookkeeping of one run on the board: what was sent, received, lost and refused."""
 
     def __init__(self, adapter: SerialBoardAdapter, x: np.ndarray, deliver, result: RunResult):
         super().__init__(adapter, x, deliver, result)
-        capacity = adapter.identity.excitation_buffer_samples
+        capacity = adapter._known_identity().excitation_buffer_samples
         self.window = max(_EXCITATION_CHUNK, capacity - _EXCITATION_CHUNK)
         self.sent = self.consumed = 0
         self.expected_block: int | None = None
