@@ -28,6 +28,7 @@ _PROGRESS_S = 0.1  # progress is reported at most this often, and at the end
 #: A block handed on by a run: ``(sample_index, rows)``.
 Deliver = Callable[[np.ndarray, np.ndarray], None]
 
+
 class _CanClose(Protocol):
     def close(self) -> None: ...
 

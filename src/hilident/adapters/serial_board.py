@@ -29,7 +29,7 @@ try:  # POSIX: the exact byte count of a TCP line
 except ImportError:  # pragma: no cover
     pass
 
-from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, RunStrategy
+from hilident.adapters.base import AdapterBase, ConnectReport, Deliver, RunResult, RunStrategy
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription
 from hilident.errors import DeviceError, ProtocolError
@@ -501,7 +501,7 @@ class SerialBoardAdapter(AdapterBase):
 
     # --- streaming ----------------------------------------------------------------------------
 
-    def _play(self, x: np.ndarray, deliver, result: RunResult) -> None:
+    def _play(self, x: np.ndarray, deliver: Deliver, result: RunResult) -> None:
         """Play ``x`` (one value per sample) with flow control and hand every received block to ``deliver``.
 
         Missing blocks are counted, never filled; a block that arrives after a
@@ -562,10 +562,10 @@ class SerialBoardAdapter(AdapterBase):
         result.completed = self.run_fault is None
 
 
-class _Run(RunStrategy["SerialBoardAdapter"]):
+class _Run(RunStrategy[SerialBoardAdapter]):
     """Bookkeeping of one run on the board: what was sent, received, lost and refused."""
 
-    def __init__(self, adapter: SerialBoardAdapter, x: np.ndarray, deliver, result: RunResult):
+    def __init__(self, adapter: SerialBoardAdapter, x: np.ndarray, deliver: Deliver, result: RunResult):
         super().__init__(adapter, x, deliver, result)
         capacity = adapter._known_identity().excitation_buffer_samples
         self.window = max(_EXCITATION_CHUNK, capacity - _EXCITATION_CHUNK)
