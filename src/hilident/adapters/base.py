@@ -12,7 +12,7 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Generic, Protocol, Self, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, Protocol, Self, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -22,6 +22,10 @@ from hilident.errors import ConfigError, DataError, DeviceError, LimitTrip
 from hilident.events import Kind, RunEvent, StreamStats  # noqa: F401  (StreamStats re-exported)
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
+
+if TYPE_CHECKING:
+    from hilident.config import DeviceConfig
+    from hilident.drivers import DriverDescription
 
 _PROGRESS_S = 0.1  # progress is reported at most this often, and at the end
 
@@ -145,7 +149,7 @@ class DeviceAdapter(Protocol):
     last_result: RunResult | None
 
     @classmethod
-    def open_device(cls, device, driver, link=None) -> DeviceAdapter:
+    def open_device(cls, device: DeviceConfig, driver: DriverDescription, link: object = None) -> DeviceAdapter:
         """Connect as the ``[device]`` config says, check the device matches ``driver``
         and bring it to a known state.
 
@@ -177,13 +181,13 @@ class DeviceAdapter(Protocol):
         was commanded safe.
         """
 
-    def write_filter(self, slot: int, biquad, spec=None, *, enabled: bool) -> None:
+    def write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None = None, *, enabled: bool) -> None:
         """Store a notch in a filter slot, in the device's own encoding (coefficients or parameters)."""
 
-    def read_filter(self, slot: int) -> tuple[Any, bool]:
+    def read_filter(self, slot: int) -> tuple[Biquad, bool]:
         """The biquad the slot now applies, and whether it is enabled."""
 
-    def stored_form(self, biquad, spec=None):
+    def stored_form(self, biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
         """The biquad the device will apply after its own rounding of ``biquad``/``spec``."""
 
     def save_filter(self, slot: int) -> Any:
@@ -395,7 +399,7 @@ class AdapterBase:
         return result
 
     @classmethod
-    def run_refusal(cls, driver) -> ConfigError | None:
+    def run_refusal(cls, driver: DriverDescription) -> ConfigError | None:
         """Why ``hilident run`` cannot play experiments on a device described by ``driver`` (a ConfigError
         naming the driver file, to raise or report), or None when it can: the default, every device with an
         excitation path."""

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import serial
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ModbusIOException
+from pymodbus.pdu import ModbusPDU
 
 from hilident.adapters.base import AdapterBase
 from hilident.config import DeviceConfig
@@ -62,7 +63,7 @@ class _SerialClient(ModbusSerialClient):
 
     stale_frames = 0
 
-    def send(self, request: bytes, addr=None) -> int:
+    def send(self, request: bytes, addr: tuple | None = None) -> int:
         if request and self.socket is not None:
             try:
                 if waiting := self.socket.in_waiting:
@@ -71,7 +72,7 @@ class _SerialClient(ModbusSerialClient):
                 pass  # pymodbus's own send reports a broken line
         return super().send(request, addr)
 
-    def execute(self, no_response_expected: bool, request):
+    def execute(self, no_response_expected: bool, request: ModbusPDU) -> ModbusPDU:
         response = super().execute(no_response_expected, request)
         while response is not None and not _answers(request, response):
             self.stale_frames += 1
@@ -82,7 +83,7 @@ class _SerialClient(ModbusSerialClient):
         return response
 
 
-def _answers(request, response) -> bool:
+def _answers(request: ModbusPDU, response: ModbusPDU) -> bool:
     """Whether ``response`` can be the answer to ``request`` (function code and echoed fields).
 
     An exception answer must carry the request's function code; a read must

@@ -365,7 +365,7 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
             raise DeviceError(f"{self.port}: {exc}") from None
         return r.decode(self.read(r.address, r.count, f"reading parameter {code}", input_registers=r.table == "input"))
 
-    def write_parameter(self, code: str, value) -> None:
+    def write_parameter(self, code: str, value: float | int | str) -> None:
         """Write vendor parameter ``code``; refused before sending when it is read-only or out of its range."""
         try:
             r = self.map.parameter(code)
