@@ -19,6 +19,7 @@ import secrets
 import socket
 import struct
 import time
+from typing import Protocol
 
 import numpy as np
 import serial
@@ -70,7 +71,24 @@ _FAULT_MEANING = {
 }
 
 
-def _no_nagle(link) -> None:
+class ByteLink(Protocol):
+    """What the adapter needs of a line: pyserial's ``Serial`` (any URL), a :class:`~hilident.links.PipeEnd`, ...
+
+    ``timeout``, ``write_timeout``, ``is_open`` and ``flush`` are used when the
+    line has them.
+    """
+
+    @property
+    def in_waiting(self) -> int: ...
+
+    def read(self, size: int = 1) -> bytes: ...
+
+    def write(self, data: bytes) -> int | None: ...
+
+    def close(self) -> None: ...
+
+
+def _no_nagle(link: ByteLink) -> None:
     """Send small frames at once on a TCP line (``socket://``, a serial-to-Ethernet converter).
 
     pyserial leaves Nagle's algorithm on; with the peer's delayed ACKs it holds
@@ -85,7 +103,7 @@ def _no_nagle(link) -> None:
             pass
 
 
-def _bytes_waiting(link) -> int:
+def _bytes_waiting(link: ByteLink) -> int:
     """Bytes ready to read without waiting.
 
     pyserial's ``socket://`` reports ``in_waiting`` as 0 or 1 (readable or
@@ -129,7 +147,7 @@ class SerialBoardAdapter(AdapterBase):
 
     transport = "serial"
 
-    def __init__(self, link, driver: DriverDescription, port: str, timeout_s: float = 2.0,
+    def __init__(self, link: ByteLink, driver: DriverDescription, port: str, timeout_s: float = 2.0,
                  allow_fault_reset: bool = False):
         self.link = link
         self.driver = driver
@@ -162,7 +180,8 @@ class SerialBoardAdapter(AdapterBase):
     # --- opening --------------------------------------------------------------------
 
     @classmethod
-    def open_device(cls, device: DeviceConfig, driver: DriverDescription, link=None) -> SerialBoardAdapter:
+    def open_device(cls, device: DeviceConfig, driver: DriverDescription,
+                    link: ByteLink | None = None) -> SerialBoardAdapter:
         """Connect as ``[device]`` says, or over an already open ``link``, and bring the board to a known state.
 
         See :meth:`connect`; ``device.allow_fault_reset`` decides whether a latched fault is cleared.
