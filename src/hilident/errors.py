@@ -58,6 +58,8 @@ class DeviceError(HilidentError):
     """The device or its link failed; the message names the port, object or register."""
 
     exit_code = 4
+    #: The run's fault event this error ends the run with (set by ``AdapterBase.fault_error``), or None.
+    event: dict | None = None
 
 
 class ProtocolError(DeviceError):

@@ -189,6 +189,23 @@ def test_configuration_errors_name_the_cause():
             ad.stream(np.zeros(MAP.table.capacity_samples + 1), Recorder())
 
 
+def test_an_adapter_that_never_identified_the_drive_says_so_before_asking_it_anything():
+    from pymodbus.client import ModbusTcpClient
+
+    ad = ModbusDriveAdapter(ModbusTcpClient("127.0.0.1", port=9, retries=0), DRIVER, MAP, "tcp://127.0.0.1:9")
+    with pytest.raises(DeviceError, match=r"tcp://127.0.0.1:9: the drive has not been identified"):
+        ad.configure(1000.0, "torque")
+    with pytest.raises(DeviceError, match="not been identified"):
+        ad.stored_form(Biquad.identity(), NotchSpec(center_hz=80.0, width_hz=20.0, depth_db=30.0))
+
+
+def test_a_gateway_exception_names_the_device_id_key_where_it_now_lives():
+    from hilident.adapters.modbus_common import _exception_text
+
+    assert "check [device.modbus] device_id" in _exception_text(10, 3, 7)
+    assert "with id 7" in _exception_text(11, 3, 7) and "[device.modbus] device_id" in _exception_text(11, 3, 7)
+
+
 def test_a_different_device_is_refused(tmp_path):
     folder = tmp_path / "other-servo"
     shutil.copytree(DRIVER.folder, folder)

@@ -464,3 +464,15 @@ def test_a_tcp_line_is_read_in_whole_chunks_and_without_nagle():
         link.close()
         conn.close()
         server.close()
+
+
+def test_a_board_that_was_never_identified_is_refused_with_its_port_named():
+    import serial
+
+    link = serial.serial_for_url("loop://", timeout=0.01)
+    try:
+        ad = SerialBoardAdapter(link, DRIVER, "loop://")
+        with pytest.raises(DeviceError, match=r"loop://: the board has not been identified"):
+            ad.configure(RATE_HZ, "torque", CHANNELS)
+    finally:
+        link.close()

@@ -24,9 +24,11 @@ Layout
     ``canopen_link`` opens the bus and ``canopen_trace`` writes CAN traces.
 ``modbus_drive``
     A Modbus drive (TCP or RTU), composed of ``modbus_requests`` (register
-    requests, retries, exceptions), ``modbus_slots`` (filter slots) and
+    requests, retries, exceptions, status), ``modbus_slots`` (filter slots) and
     ``modbus_capture`` (excitation table and capture); ``modbus_common`` holds
-    what the parts share.
+    what the parts share, among it ``ModbusAdapterState``, the adapter's
+    attributes declared for the parts (the ``modbus_drive`` docstring says how
+    the parts are typed).
 
 A part is a class whose methods use only the adapter's attributes and the
 other parts' methods; the adapter class lists the parts before

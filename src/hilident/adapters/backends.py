@@ -10,7 +10,7 @@ name always wins over an entry point of the same name.
 from __future__ import annotations
 
 from importlib import import_module
-from importlib.metadata import entry_points
+from importlib.metadata import EntryPoint, entry_points
 
 from hilident.errors import ConfigError
 
@@ -29,7 +29,7 @@ def _load(target: str) -> type:
     return getattr(import_module(module_name), class_name)
 
 
-def _registered() -> dict[str, object]:
+def _registered() -> dict[str, EntryPoint]:
     """Entry points of the ``hilident.adapters`` group, by transport name."""
     return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
 
@@ -58,5 +58,5 @@ def adapter_class(transport: str) -> type:
         return _load(BACKENDS[transport])
     registered = _registered()
     if transport in registered:
-        return registered[transport].load()  # type: ignore[attr-defined]
+        return registered[transport].load()
     raise ConfigError("driver.transport", f"no adapter for transport {transport!r} (known: {known_transports()})")

@@ -8,18 +8,52 @@ register under the ``hilident.adapters`` entry point group.
 
 from __future__ import annotations
 
+import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Generic, Protocol, Self, TypeVar
 
 import numpy as np
+import numpy.typing as npt
 
 from hilident.adapters.backends import adapter_class  # noqa: F401  (re-exported: the session's import)
 from hilident.errors import ConfigError, DataError, DeviceError, LimitTrip
 from hilident.events import Kind, RunEvent, StreamStats  # noqa: F401  (StreamStats re-exported)
+from hilident.filters.biquad import Biquad
+from hilident.filters.notch import NotchSpec
+
+if TYPE_CHECKING:
+    from hilident.config import DeviceConfig
+    from hilident.drivers import DriverDescription
 
 _PROGRESS_S = 0.1  # progress is reported at most this often, and at the end
+
+#: A block handed on by a run: ``(sample_index, rows)``.
+Deliver = Callable[[np.ndarray, np.ndarray], None]
+
+
+class _CanClose(Protocol):
+    def close(self) -> None: ...
+
+
+class _CanIdentify(_CanClose, Protocol):
+    def identify(self) -> object: ...
+
+
+_Closable = TypeVar("_Closable", bound=_CanClose)
+_Identifiable = TypeVar("_Identifiable", bound=_CanIdentify)
+
+
+class RunHost(Protocol):
+    """What :class:`RunStrategy` itself uses of its adapter."""
+
+    port: str
+
+    def log_event(self, event: RunEvent) -> dict: ...
+
+
+_Host = TypeVar("_Host", bound=RunHost)
 
 
 @dataclass
@@ -60,10 +94,8 @@ class ConnectReport:
                 "warnings": list(self.warnings)}
 
 
-def refuse_latched_faults(port: str, faults: list[str]):
+def refuse_latched_faults(port: str, faults: list[str]) -> DeviceError:
     """The :class:`DeviceError` for a device found with latched ``faults`` and no permission to clear them."""
-    from hilident.errors import DeviceError
-
     return DeviceError(
         f"{port}: the device has a latched fault: {'; '.join(faults)}. Check the axis, then clear it with "
         "[device] allow_fault_reset = true or hilident run --clear-fault"
@@ -117,7 +149,7 @@ class DeviceAdapter(Protocol):
     last_result: RunResult | None
 
     @classmethod
-    def open_device(cls, device, driver, link=None) -> DeviceAdapter:
+    def open_device(cls, device: DeviceConfig, driver: DriverDescription, link: object = None) -> DeviceAdapter:
         """Connect as the ``[device]`` config says, check the device matches ``driver``
         and bring it to a known state.
 
@@ -149,13 +181,13 @@ class DeviceAdapter(Protocol):
         was commanded safe.
         """
 
-    def write_filter(self, slot: int, biquad, spec=None, *, enabled: bool) -> None:
+    def write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None = None, *, enabled: bool) -> None:
         """Store a notch in a filter slot, in the device's own encoding (coefficients or parameters)."""
 
-    def read_filter(self, slot: int) -> tuple[Any, bool]:
+    def read_filter(self, slot: int) -> tuple[Biquad, bool]:
         """The biquad the slot now applies, and whether it is enabled."""
 
-    def stored_form(self, biquad, spec=None):
+    def stored_form(self, biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
         """The biquad the device will apply after its own rounding of ``biquad``/``spec``."""
 
     def save_filter(self, slot: int) -> Any:
@@ -194,12 +226,12 @@ class FilterUpload:
         Read back as written and enabled; when not, the slot's previous contents were put back.
     """
 
-    stored: Any
-    expected: Any
+    stored: Biquad
+    expected: Biquad
     matches: bool
 
 
-def checked_excitation(excitation) -> np.ndarray:
+def checked_excitation(excitation: npt.ArrayLike) -> np.ndarray:
     """``excitation`` as a float array; DataError unless it is finite and one-dimensional."""
     x = np.asarray(excitation, dtype=float)
     if x.ndim != 1 or not np.all(np.isfinite(x)):
@@ -236,28 +268,37 @@ class AdapterBase:
         stop before closing (default: the same) and releasing the connection
         (for :meth:`close`);
     ``_read_raw_slot(slot)``, ``_write_raw_slot(slot, saved)``
-        a filter slot's contents, opaque (for :meth:`save_filter` / :meth:`restore_filter`).
+        a filter slot's contents, opaque (for :meth:`save_filter` / :meth:`restore_filter`);
+    ``write_filter(slot, biquad, spec, enabled=...)``, ``read_filter(slot)``, ``stored_form(biquad, spec)``
+        the filter-slot operations of :class:`DeviceAdapter` that :meth:`upload_filter` builds on.
 
     Attributes
     ----------
     run_fault : dict or None
         The first fault event of the current run (its cause), or None.
+
+    A transport's adapter sets :attr:`connect_report` and :attr:`channel_names`
+    (and the other attributes of :class:`DeviceAdapter`) in its ``__init__``;
+    they are declared here, without a value, because the template reads them.
     """
 
     port: str = ""
-    events: list
+    events: list[dict]
+    connect_report: ConnectReport
+    channel_names: list[str]  # of the configured channels, in column order
     last_result: RunResult | None = None
     run_fault: dict | None = None
-    _host_checks: tuple | list = ()  # (column, low, high, limit name) of the run, from _host_limit_columns()
+    # (column, low, high, limit name) of the run, from _host_limit_columns()
+    _host_checks: Sequence[tuple[int, float, float, str]] = ()
 
-    def __enter__(self):
+    def __enter__(self) -> Self:
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     @staticmethod
-    def _or_closed(adapter, step: Callable[[], Any]):
+    def _or_closed(adapter: _Closable, step: Callable[[], object]) -> _Closable:
         """``adapter`` after ``step()`` succeeded; closed again (connection released) when it raised."""
         try:
             step()
@@ -267,7 +308,7 @@ class AdapterBase:
         return adapter
 
     @classmethod
-    def _identified(cls, adapter):
+    def _identified(cls, adapter: _Identifiable) -> _Identifiable:
         """``adapter`` after a successful ``identify()``; closed again when that fails."""
         return cls._or_closed(adapter, adapter.identify)
 
@@ -336,6 +377,7 @@ class AdapterBase:
                     shown[0] = now
                     progress(done)
             if tripped is not None:
+                assert self.run_fault is not None  # _host_limit_trip noted the trip (or an earlier fault) as the cause
                 raise self.fault_error(self.run_fault)
 
         try:
@@ -357,13 +399,13 @@ class AdapterBase:
         return result
 
     @classmethod
-    def run_refusal(cls, driver) -> ConfigError | None:
+    def run_refusal(cls, driver: DriverDescription) -> ConfigError | None:
         """Why ``hilident run`` cannot play experiments on a device described by ``driver`` (a ConfigError
         naming the driver file, to raise or report), or None when it can: the default, every device with an
         excitation path."""
         return None
 
-    def set_trace(self, path) -> None:
+    def set_trace(self, path: str | os.PathLike[str]) -> None:
         """Write a wire trace of the next run to ``path`` where the transport keeps one (CANopen: ``.asc`` or
         ``.blf``); the default keeps none, so a session may ask every adapter."""
 
@@ -378,7 +420,7 @@ class AdapterBase:
     def _prepare_run(self, x: np.ndarray) -> None:
         """Refuse a run of ``x`` before anything is cleared or moved (hook; default: nothing to check)."""
 
-    def _play(self, x: np.ndarray, deliver: Callable[[np.ndarray, np.ndarray], None], result: RunResult) -> None:
+    def _play(self, x: np.ndarray, deliver: Deliver, result: RunResult) -> None:
         """Play ``x`` on the device and pass what comes back to ``deliver`` (hook, required)."""
         raise NotImplementedError
 
@@ -431,7 +473,7 @@ class AdapterBase:
         if not isinstance(exc, DeviceError):
             return exc
         self._collect_faults()
-        if self.run_fault is None or getattr(exc, "event", None) is self.run_fault:
+        if self.run_fault is None or exc.event is self.run_fault:
             return exc
         return self.fault_error(self.run_fault, then=exc)
 
@@ -443,7 +485,7 @@ class AdapterBase:
 
     def _host_limit_trip(self, index: np.ndarray, rows: np.ndarray) -> int | None:
         """Row of the first sample outside a host-checked limit (logged and noted as the run's fault), or None."""
-        first = None
+        first: tuple[int, int, str, float, float] | None = None
         for j, low, high, name in self._host_checks:
             out = np.flatnonzero((rows[:, j] < low) | (rows[:, j] > high))
             if len(out) and (first is None or out[0] < first[0]):
@@ -493,7 +535,7 @@ class AdapterBase:
 
     # --- filter slots -----------------------------------------------------------------------------
 
-    def upload_filter(self, slot: int, biquad, spec=None) -> FilterUpload:
+    def upload_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None = None) -> FilterUpload:
         """Store a notch in ``slot`` so that it is either applied as written or not changed at all.
 
         The slot's contents are kept, the notch written disabled, read back and
@@ -528,6 +570,18 @@ class AdapterBase:
         if enabled:
             self.write_filter(slot, biquad, enabled=False)
 
+    def write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None = None, *, enabled: bool) -> None:
+        """Store a notch in ``slot`` in the device's own encoding, enabled or bypassed (hook, required)."""
+        raise NotImplementedError
+
+    def read_filter(self, slot: int) -> tuple[Biquad, bool]:
+        """The biquad ``slot`` now applies, and whether it is enabled (hook, required)."""
+        raise NotImplementedError
+
+    def stored_form(self, biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
+        """The biquad the device applies after its own rounding of ``biquad``/``spec`` (hook, required)."""
+        raise NotImplementedError
+
     def _read_raw_slot(self, slot: int) -> Any:
         """A filter slot's contents as the device holds them (hook)."""
         raise NotImplementedError
@@ -537,18 +591,18 @@ class AdapterBase:
         raise NotImplementedError
 
 
-class RunStrategy:
+class RunStrategy(Generic[_Host]):
     """One acquisition strategy's run: it owns the run's state and talks to its adapter through hooks.
 
     A transport with several ways of playing a run (CANopen: host-streamed,
     drive-buffered, ...) keeps a table ``{acquisition name: strategy}``; its
     ``_play`` looks the strategy up and calls :meth:`play`. A strategy is any
     callable ``(adapter, x, deliver, result)``; subclasses of this class take
-    their arguments in ``__init__`` and do the work in :meth:`run`.
+    their arguments in ``__init__`` and do the work in :meth:`run`. ``RunStrategy[SomeAdapter]`` types
+    :attr:`ad` as that adapter.
     """
 
-    def __init__(self, adapter, x: np.ndarray, deliver: Callable[[np.ndarray, np.ndarray], None],
-                 result: RunResult):
+    def __init__(self, adapter: _Host, x: np.ndarray, deliver: Deliver, result: RunResult):
         self.ad = adapter
         self.x = x
         self.n = len(x)
@@ -557,7 +611,7 @@ class RunStrategy:
         self.stats = result.stats
 
     @classmethod
-    def play(cls, adapter, x: np.ndarray, deliver, result: RunResult) -> None:
+    def play(cls, adapter: _Host, x: np.ndarray, deliver: Deliver, result: RunResult) -> None:
         """Run ``x`` on ``adapter`` with a fresh instance (the strategy-table entry)."""
         cls(adapter, x, deliver, result).run()
 

@@ -2,7 +2,7 @@
 the capture read back.
 
 One part of :class:`~hilident.adapters.modbus_drive.ModbusDriveAdapter`, which composes the parts
-(see that module); a part only uses the adapter's attributes and the other parts' methods.
+(see that module); it builds on the request part (:class:`~hilident.adapters.modbus_requests.RegisterAccess`).
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from hilident.adapters.base import RunResult, StreamStats
+from hilident.adapters.base import Deliver, RunResult, StreamStats
 from hilident.adapters.modbus_common import (
     _CHUNKS_PER_POLL,
     _LIMIT_FAULTS,
@@ -20,6 +20,7 @@ from hilident.adapters.modbus_common import (
     DriveStatus,
     NoResponse,
 )
+from hilident.adapters.modbus_requests import RegisterAccess
 from hilident.errors import DataError, DeviceError
 from hilident.events import Kind, RunEvent
 from hilident.protocol.modbus_registers import (
@@ -31,7 +32,7 @@ from hilident.protocol.modbus_registers import (
 )
 
 
-class TableCapture:
+class TableCapture(RegisterAccess):
     """The table and capture part of :class:`~hilident.adapters.modbus_drive.ModbusDriveAdapter`.
 
     The table goes to the drive in pages and is checked by its CRC; the run is triggered
@@ -41,6 +42,13 @@ class TableCapture:
 
     # --- buffered runs ------------------------------------------------------------------------
 
+    def _window(self, name: str) -> Window:
+        """The drive's ``"table"`` or ``"capture"`` window; DeviceError when its map has no excitation capability."""
+        window = self.map.table if name == "table" else self.map.capture
+        if window is None:
+            raise DeviceError(f"{self.port}: driver {self.driver.name!r} describes no [modbus.{name}] window")
+        return window
+
     def _select_page(self, window: Window, page: int) -> None:
         if self._pages[window.name] != page:
             self._pages[window.name] = None  # unknown until the drive confirms
@@ -49,7 +57,7 @@ class TableCapture:
 
     def _upload(self, registers: np.ndarray, n: int) -> None:
         rps = self.map.table_registers_per_sample
-        w = self.map.table
+        w = self._window("table")
         for c in plan_chunks(0, n, rps, w.page_samples, self.map.max_write):
             self._select_page(w, c.page)
             try:
@@ -59,9 +67,9 @@ class TableCapture:
                 self._pages["table"] = None
                 raise
 
-    def _read_chunk(self, c: Chunk, stats: StreamStats, sink) -> None:
+    def _read_chunk(self, c: Chunk, stats: StreamStats, sink: Deliver) -> None:
         """Read one chunk of capture records; deliver it, or count it lost."""
-        w = self.map.capture
+        w = self._window("capture")
         expected = (c.first_sample + np.arange(c.samples)) % STAMP_MODULUS
         for _ in range(1 + _RETRIES):
             try:
@@ -123,7 +131,7 @@ class TableCapture:
         n = len(x)
         if n < 1:
             raise DataError("the excitation is empty")
-        ident = self.identity
+        ident = self._known_identity()
         for cap, name in ((ident.table_capacity, "table_capacity"), (ident.capture_capacity, "capture_capacity")):
             if n > cap:
                 raise DeviceError(f"{self.port}: {n} samples exceed the drive's {cap} "
@@ -145,21 +153,22 @@ class TableCapture:
                               "not arrive intact")
         return table
 
-    def read_capture(self, first: int, count: int, sink, stats: StreamStats, max_chunks: int | None = None) -> int:
+    def read_capture(self, first: int, count: int, sink: Deliver, stats: StreamStats,
+                     max_chunks: int | None = None) -> int:
         """Read capture records ``first .. first + count - 1`` (or the first ``max_chunks`` requests of them).
 
         Each chunk is delivered to ``sink(sample_index, rows)`` or counted lost
         in ``stats``. Returns the index after the last record read.
         """
         width = self.map.record_registers(self._mask)
-        chunks = plan_chunks(first, count, width, self.map.capture.page_samples, self.map.max_read)
+        chunks = plan_chunks(first, count, width, self._window("capture").page_samples, self.map.max_read)
         end = first
         for c in chunks[:max_chunks]:
             self._read_chunk(c, stats, sink)
             end = c.first_sample + c.samples
         return end
 
-    def _play(self, x: np.ndarray, deliver, result: RunResult) -> None:
+    def _play(self, x: np.ndarray, deliver: Deliver, result: RunResult) -> None:
         """Play ``x`` from the drive's table and hand the captured samples to ``deliver``.
 
         ``x[k]`` is held over sample period ``k``; row ``k`` is the drive's
@@ -191,7 +200,7 @@ class TableCapture:
         result.stats.lost_frames = self.missing_responses - missing_before
         result.stats.corrupt_frames += self.bad_responses - bad_before
 
-    def _capture(self, n: int, stats: StreamStats, deliver) -> None:
+    def _capture(self, n: int, stats: StreamStats, deliver: Deliver) -> None:
         """Poll the status and read the capture as it fills, until the run has ended and all is read."""
         started = time.monotonic()
         deadline = started + 1.2 * n / self.sample_rate_hz + 2.0 + 2 * self.timeout_s

@@ -1,5 +1,5 @@
 """What the parts of the Modbus adapter share: timing constants, the RTU client, identity and status records,
-and the words for a failed request.
+the words for a failed request, and :class:`ModbusAdapterState`, the attributes every part reads.
 
 Split from :mod:`hilident.adapters.modbus_drive` so that its parts
 (:mod:`~hilident.adapters.modbus_requests`, :mod:`~hilident.adapters.modbus_slots`,
@@ -12,12 +12,16 @@ import logging
 from dataclasses import dataclass, field
 
 import serial
-from pymodbus.client import ModbusSerialClient
+from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ModbusIOException
+from pymodbus.pdu import ModbusPDU
 
+from hilident.adapters.base import AdapterBase
 from hilident.config import DeviceConfig
+from hilident.drivers import DriverDescription
 from hilident.errors import DeviceError
 from hilident.protocol.modbus_registers import (
+    RegisterMap,
     count_rtu_frames,
     exception_meaning,
 )
@@ -59,7 +63,7 @@ class _SerialClient(ModbusSerialClient):
 
     stale_frames = 0
 
-    def send(self, request: bytes, addr=None) -> int:
+    def send(self, request: bytes, addr: tuple | None = None) -> int:
         if request and self.socket is not None:
             try:
                 if waiting := self.socket.in_waiting:
@@ -68,7 +72,7 @@ class _SerialClient(ModbusSerialClient):
                 pass  # pymodbus's own send reports a broken line
         return super().send(request, addr)
 
-    def execute(self, no_response_expected: bool, request):
+    def execute(self, no_response_expected: bool, request: ModbusPDU) -> ModbusPDU:
         response = super().execute(no_response_expected, request)
         while response is not None and not _answers(request, response):
             self.stale_frames += 1
@@ -79,7 +83,7 @@ class _SerialClient(ModbusSerialClient):
         return response
 
 
-def _answers(request, response) -> bool:
+def _answers(request: ModbusPDU, response: ModbusPDU) -> bool:
     """Whether ``response`` can be the answer to ``request`` (function code and echoed fields).
 
     An exception answer must carry the request's function code; a read must
@@ -132,6 +136,45 @@ class DriveStatus:
     fault_value: float
 
 
+class ModbusAdapterState(AdapterBase):
+    """The attributes of :class:`~hilident.adapters.modbus_drive.ModbusDriveAdapter` that its parts read.
+
+    The attributes are declared without values (nothing changes at run time);
+    the adapter's ``__init__`` sets them. Two small readers narrow the ones
+    that may be absent (the RTU line, the identity). Every part is a subclass
+    of this class, so a part is type-checked against the attributes it uses
+    and against :class:`~hilident.adapters.base.AdapterBase`, whose template it
+    fills in.
+    """
+
+    client: ModbusTcpClient | ModbusSerialClient  # connected, retries=0: the adapter decides what is repeated
+    driver: DriverDescription
+    map: RegisterMap
+    device_id: int  # Modbus device (unit) id
+    timeout_s: float  # longest wait for one answer, s
+    rtu: bool  # an RTU line (ModbusSerialClient), not Modbus TCP
+    identity: ModbusIdentity | None  # None until identify()
+    sample_rate_hz: float
+    channel_units: list[str]
+    missing_responses: int  # requests never answered, since opening
+    bad_responses: int  # answers that were not the one asked for
+    dropped_frames: int  # late answers dropped from an RTU line after a lost or foreign answer
+    comm_timeout_s: float  # the drive's communication timeout as armed at connect (0: none), s
+    _run_counts: tuple[int, int]  # missing and bad answers when the run started
+    _mask: int  # capture mask of the configured channels
+    _order: list[int]  # column of each configured channel in a capture record
+    _pages: dict[str, int | None]  # page selected in each window ("table", "capture"); None: unknown
+
+    def _rtu_line(self) -> serial.Serial | None:
+        """The RTU client's serial line while it is open, else None (Modbus TCP, or a closed line)."""
+        return self.client.socket if isinstance(self.client, ModbusSerialClient) else None
+
+    def _known_identity(self) -> ModbusIdentity:
+        """What :meth:`identify` read; DeviceError when the drive was not identified (never opened)."""
+        if self.identity is None:
+            raise DeviceError(f"{self.port}: the drive has not been identified (open it first)")
+        return self.identity
+
 
 def _reason(exc: BaseException) -> str:
     """Why a connection failed, in a few words (pymodbus's messages repeat the client's repr)."""
@@ -155,8 +198,8 @@ def _exception_text(code: int, function: int, device_id: int) -> str:
         4: "the drive failed while carrying out the request",
         5: "the drive accepted the request and is still working on it",
         6: "the drive is busy with an earlier request; try again later",
-        10: f"the gateway has no path to device id {device_id} (check [device].device_id)",
-        11: f"no device with id {device_id} answered behind the gateway (check [device].device_id and "
+        10: f"the gateway has no path to device id {device_id} (check [device.modbus] device_id)",
+        11: f"no device with id {device_id} answered behind the gateway (check [device.modbus] device_id and "
             "the line behind the gateway)",
     }.get(code)
     return f"{head}: {why}" if why else head
@@ -165,7 +208,7 @@ def _exception_text(code: int, function: int, device_id: int) -> str:
 def _serial_error(port: str, baudrate: int, device: DeviceConfig) -> str:
     """Why pyserial cannot open ``port`` (pymodbus only says that it could not)."""
     try:
-        serial.serial_for_url(port, baudrate=baudrate, parity=device.parity, stopbits=device.stopbits,
+        serial.serial_for_url(port, baudrate=baudrate, parity=device.modbus.parity, stopbits=device.modbus.stopbits,
                               timeout=0).close()
     except Exception as exc:
         return str(exc) or type(exc).__name__

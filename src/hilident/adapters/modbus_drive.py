@@ -33,21 +33,33 @@ port, never repeated. The register map is the driver's (see
 encodes and decodes it.
 
 The adapter class is composed of parts along its seams (see :mod:`hilident.adapters`):
-register requests (:mod:`~hilident.adapters.modbus_requests`), filter slots
-(:mod:`~hilident.adapters.modbus_slots`) and the table and capture
+register requests and the status registers (:mod:`~hilident.adapters.modbus_requests`),
+filter slots (:mod:`~hilident.adapters.modbus_slots`) and the table and capture
 (:mod:`~hilident.adapters.modbus_capture`); this module keeps opening and the
 known state at connect, the RTU line, identity, the parameter drive and the stop.
+
+How the parts see each other (and how mypy checks them): one chain of
+inheritance, no stubs. :class:`~hilident.adapters.modbus_common.ModbusAdapterState`
+is an :class:`~hilident.adapters.base.AdapterBase` that declares, without
+values, the attributes ``__init__`` below sets; the request part
+(:class:`~hilident.adapters.modbus_requests.RegisterAccess`) builds on it; the
+filter-slot and capture parts build on the request part, whose methods are all
+they call besides the template's. A method a part needs from elsewhere moves to
+the part it belongs to (the status read lives with the requests), and a new
+attribute is declared in the state class. The parts define no name twice, so
+the order of the bases decides nothing.
 """
 
 from __future__ import annotations
 
 import math
 import time
+from typing import NoReturn
 
 import numpy as np
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 
-from hilident.adapters.base import AdapterBase, ConnectReport, RunResult
+from hilident.adapters.base import ConnectReport, RunResult
 from hilident.adapters.modbus_capture import TableCapture
 from hilident.adapters.modbus_common import (  # noqa: F401  (re-exported)
     _CHUNKS_PER_POLL,
@@ -82,7 +94,7 @@ from hilident.protocol.modbus_registers import (
 )
 
 
-class ModbusDriveAdapter(RegisterAccess, FilterSlots, TableCapture, AdapterBase):
+class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
     """A servo drive with a Modbus register map, experiments played from its own table.
 
     Parameters
@@ -101,8 +113,8 @@ class ModbusDriveAdapter(RegisterAccess, FilterSlots, TableCapture, AdapterBase)
 
     transport = "modbus"
 
-    def __init__(self, client, driver: DriverDescription, regmap: RegisterMap, port: str, device_id: int = 1,
-                 timeout_s: float = 2.0):
+    def __init__(self, client: ModbusTcpClient | ModbusSerialClient, driver: DriverDescription, regmap: RegisterMap,
+                 port: str, device_id: int = 1, timeout_s: float = 2.0):
         self.client = client
         self.driver = driver
         self.map = regmap
@@ -163,6 +175,7 @@ class ModbusDriveAdapter(RegisterAccess, FilterSlots, TableCapture, AdapterBase)
             raise ConfigError("channels", f"driver {driver.name!r} lists channels {missing} that its "
                               f"{where} do not hold", str(driver.folder / "driver.toml"))
         port = device.port
+        client: ModbusTcpClient | ModbusSerialClient
         if port.startswith("tcp://"):
             host, _, number = port[len("tcp://"):].rpartition(":")
             if not host or not number.isdigit():
@@ -172,12 +185,13 @@ class ModbusDriveAdapter(RegisterAccess, FilterSlots, TableCapture, AdapterBase)
                 raise DeviceError(f"{port}: cannot connect to {host}:{number} (is the drive on and the port right?)")
         else:
             baudrate = device.baudrate or driver.default_baudrate
-            client = _SerialClient(port, baudrate=baudrate, parity=device.parity, stopbits=device.stopbits,
+            line = device.modbus
+            client = _SerialClient(port, baudrate=baudrate, parity=line.parity, stopbits=line.stopbits,
                                    timeout=device.timeout_s, retries=0)
             if not client.connect():
-                raise DeviceError(f"{port}: cannot open at {baudrate} baud, parity {device.parity}, "
-                                  f"{device.stopbits} stop bit(s): {_serial_error(port, baudrate, device)}")
-        adapter = cls(client, driver, regmap, port, device.device_id, device.timeout_s)
+                raise DeviceError(f"{port}: cannot open at {baudrate} baud, parity {line.parity}, "
+                                  f"{line.stopbits} stop bit(s): {_serial_error(port, baudrate, device)}")
+        adapter = cls(client, driver, regmap, port, device.modbus.device_id, device.timeout_s)
         adapter._drain_line()
         adapter = cls._identified(adapter)
         return cls._or_closed(adapter, lambda: adapter._bring_to_known_state(device.allow_fault_reset,
@@ -185,7 +199,7 @@ class ModbusDriveAdapter(RegisterAccess, FilterSlots, TableCapture, AdapterBase)
 
     def _drain_line(self) -> None:
         """RTU: drop the answers still on their way to an earlier host, until the line is quiet (counted)."""
-        sock = self.client.socket if self.rtu else None
+        sock = self._rtu_line()
         if sock is None:
             return
         quiet = min(self.timeout_s, _DRAIN_QUIET_S)
@@ -279,7 +293,7 @@ class ModbusDriveAdapter(RegisterAccess, FilterSlots, TableCapture, AdapterBase)
         v = self.read_names(*_IDENTITY)
         m, d = self.map, self.driver
 
-        def mismatch(name, got, want, hint=""):
+        def mismatch(name: str, got: object, want: object, hint: str = "") -> NoReturn:
             raise DeviceError(f"{self.port}: {m.describe(m.register(name).address)} holds {got}; driver "
                               f"{d.name!r} expects {want}{hint}")
 
@@ -288,12 +302,12 @@ class ModbusDriveAdapter(RegisterAccess, FilterSlots, TableCapture, AdapterBase)
                      f" (is device id {self.device_id} the drive?)")
         if v["map_version"] != m.map_version:
             mismatch("map_version", v["map_version"], m.map_version)
-        if abs(v["loop_rate_hz"] - d.loop_rate_hz) > 1e-6 * d.loop_rate_hz:
+        if abs(float(v["loop_rate_hz"]) - d.loop_rate_hz) > 1e-6 * d.loop_rate_hz:
             mismatch("loop_rate_hz", f"{v['loop_rate_hz']:g} Hz", f"{d.loop_rate_hz:g} Hz")
         if v["filter_slots"] != d.filter_slots:
             mismatch("filter_slots", v["filter_slots"], d.filter_slots)
         self.identity = ModbusIdentity(
-            name=v["device_name"] or d.name, firmware=v["firmware"], loop_rate_hz=float(v["loop_rate_hz"]),
+            name=str(v["device_name"] or d.name), firmware=str(v["firmware"]), loop_rate_hz=float(v["loop_rate_hz"]),
             max_sample_rate_hz=float(v["max_sample_rate_hz"]), filter_slots=int(v["filter_slots"]),
             table_capacity=int(v["table_capacity"]), capture_capacity=int(v["capture_capacity"]),
             device_type=int(v["device_type"]), map_version=int(v["map_version"]),
@@ -342,15 +356,16 @@ class ModbusDriveAdapter(RegisterAccess, FilterSlots, TableCapture, AdapterBase)
     def _prepare_run(self, x: np.ndarray) -> None:
         self._refuse_run()
 
-    def read_parameter(self, code: str) -> float | int:
-        """The physical value of vendor parameter ``code`` (``"P08.02"``), through the map's rule."""
+    def read_parameter(self, code: str) -> float | int | str:
+        """The physical value of vendor parameter ``code`` (``"P08.02"``), through the map's rule (a string for a
+        text parameter)."""
         try:
             r = self.map.parameter(code)
         except DataError as exc:
             raise DeviceError(f"{self.port}: {exc}") from None
         return r.decode(self.read(r.address, r.count, f"reading parameter {code}", input_registers=r.table == "input"))
 
-    def write_parameter(self, code: str, value) -> None:
+    def write_parameter(self, code: str, value: float | int | str) -> None:
         """Write vendor parameter ``code``; refused before sending when it is read-only or out of its range."""
         try:
             r = self.map.parameter(code)
@@ -384,13 +399,6 @@ class ModbusDriveAdapter(RegisterAccess, FilterSlots, TableCapture, AdapterBase)
         self.write(r.address, self.map.encode(name, value), "saving the parameters to non-volatile memory")
         return f"{self.map.describe(r.address, r.count)} = {value:g}"
 
-    def status(self) -> DriveStatus:
-        """The status registers, in one request."""
-        v = self.read_names(*_STATUS)
-        word = int(v["status_word"])
-        return DriveStatus(word, self.map.status_flags(word), int(v["fault_code"]), int(v["sample_count"]),
-                           int(v["fault_sample"]), float(v["fault_value"]))
-
     def set_limits(self, torque_nm: float, velocity_mps: float, position_min_m: float, position_max_m: float) -> None:
         """Load the limits the drive enforces on its own (crossing one stops the axis).
 
@@ -408,7 +416,7 @@ class ModbusDriveAdapter(RegisterAccess, FilterSlots, TableCapture, AdapterBase)
     def configure(self, sample_rate_hz: float, mode: str, channels: list[str] | None = None) -> list[str]:
         """Choose the capture rate, excitation mode and captured channels; returns the channel names."""
         self._refuse_run()
-        ident = self.identity
+        ident = self._known_identity()
         divider = ident.loop_rate_hz / sample_rate_hz
         if abs(divider - round(divider)) > 1e-9 or round(divider) < 1:
             raise DeviceError(f"{self.port}: sample rate {sample_rate_hz:g} Hz does not divide the drive's loop "

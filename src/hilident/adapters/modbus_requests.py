@@ -1,21 +1,27 @@
-"""Register requests of the Modbus adapter: read and write by name or address, retries, stale answers, exceptions named.
+"""Register requests of the Modbus adapter: read and write by name or address, retries, stale answers,
+exceptions named, and the status registers.
 
 One part of :class:`~hilident.adapters.modbus_drive.ModbusDriveAdapter`, which composes the parts
-(see that module); a part only uses the adapter's attributes and the other parts' methods.
+(see that module); the other parts build on this one.
 """
 
 from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 
+import numpy as np
 from pymodbus.exceptions import ConnectionException, ModbusException
+from pymodbus.pdu import ModbusPDU
 
 from hilident.adapters.modbus_common import (
     _ENABLED_WAIT,
     _RETRIES,
     _RETRY_LATER,
+    _STATUS,
+    DriveStatus,
+    ModbusAdapterState,
     NoResponse,
     _exception_text,
     _reason,
@@ -27,7 +33,7 @@ from hilident.protocol.modbus_registers import (
 )
 
 
-class RegisterAccess:
+class RegisterAccess(ModbusAdapterState):
     """The request part of :class:`~hilident.adapters.modbus_drive.ModbusDriveAdapter`.
 
     Every request goes through :meth:`_request`: what is safe to repeat is retried after a
@@ -37,8 +43,9 @@ class RegisterAccess:
 
     # --- requests -------------------------------------------------------------------------
 
-    def _request(self, what: str, address: int, count: int, call: Callable, check: Callable,
-                 retry: bool, page: int | None = None, tries: int | None = None):
+    def _request(self, what: str, address: int, count: int, call: Callable[[], ModbusPDU],
+                 check: Callable[[ModbusPDU], bool], retry: bool, page: int | None = None,
+                 tries: int | None = None) -> ModbusPDU:
         """Run one request; retried after a lost answer only when ``retry`` (safe to repeat).
 
         ``tries`` overrides the number of attempts. A lost connection is a
@@ -85,8 +92,8 @@ class RegisterAccess:
                 error = "the answer did not match the request"
                 continue
             return response
-        tries = f" ({attempts} attempts)" if attempts > 1 else ""
-        raise NoResponse(f"{self.port}: {what} {where}: {error}{tries}; device id {self.device_id}")
+        counted = f" ({attempts} attempts)" if attempts > 1 else ""
+        raise NoResponse(f"{self.port}: {what} {where}: {error}{counted}; device id {self.device_id}")
 
     def _resync(self) -> None:
         """After a lost or foreign answer on an RTU line, wait for a late answer and drop it (counted).
@@ -97,9 +104,9 @@ class RegisterAccess:
         a timeout), and left as soon as a whole frame has come and the line
         has been quiet for a few characters since.
         """
-        if not self.rtu or self.client.socket is None:
+        sock = self._rtu_line()
+        if sock is None:
             return
-        sock = self.client.socket
         params = self.client.comm_params
         quiet = max(0.002, 4 * 11 / (params.baudrate or 9600))
         deadline = time.monotonic() + params.timeout_connect
@@ -119,7 +126,7 @@ class RegisterAccess:
             self.dropped_frames += count_rtu_frames(data)
 
     @contextlib.contextmanager
-    def _answers_within(self, seconds: float):
+    def _answers_within(self, seconds: float) -> Iterator[None]:
         """Wait at most ``seconds`` (never more than ``timeout_s``) for each answer inside the block."""
         params = self.client.comm_params
         before = params.timeout_connect
@@ -145,18 +152,19 @@ class RegisterAccess:
         )
         return list(response.registers)
 
-    def write(self, address: int, values, what: str = "writing", page: int | None = None) -> None:
+    def write(self, address: int, values: Sequence[int] | np.ndarray, what: str = "writing",
+              page: int | None = None) -> None:
         """Write registers from ``address`` (write multiple registers); repeated after a lost answer."""
-        values = [int(v) for v in values]
+        words = [int(v) for v in values]
         self._request(
-            what, address, len(values),
-            lambda: self.client.write_registers(address, values, device_id=self.device_id),
-            lambda r: r.address == address and r.count == len(values), True, page,
+            what, address, len(words),
+            lambda: self.client.write_registers(address, words, device_id=self.device_id),
+            lambda r: r.address == address and r.count == len(words), True, page,
         )
 
-    def read_names(self, *names: str) -> dict:
+    def read_names(self, *names: str) -> dict[str, float | int | str]:
         """Values of the named registers (neighbours share a request)."""
-        out = {}
+        out: dict[str, float | int | str] = {}
         for table, address, count in self.map.request_groups(names):
             regs = self.read(address, count, input_registers=table == "input")
             out.update(self.map.decode_span([n for n in names if self.map.register(n).table == table and
@@ -164,9 +172,9 @@ class RegisterAccess:
                                             address, regs))
         return out
 
-    def write_names(self, **values) -> None:
+    def write_names(self, **values: float | int | str) -> None:
         """Write named registers; neighbours share one request."""
-        regs = {}
+        regs: dict[int, int] = {}
         for name, value in values.items():
             r = self.map.register(name)
             if not r.writable:
@@ -180,7 +188,16 @@ class RegisterAccess:
                 regs[r.address + i] = v
         addresses = sorted(regs)
         start = addresses[0]
-        for a, b in zip(addresses, addresses[1:] + [None], strict=True):
-            if b != a + 1 or b - start >= self.map.max_write:
-                self.write(start, [regs[x] for x in range(start, a + 1)])
+        for a, b in zip(addresses, [*addresses[1:], None], strict=True):
+            if b is not None and b == a + 1 and b - start < self.map.max_write:
+                continue  # register b joins this request
+            self.write(start, [regs[x] for x in range(start, a + 1)])
+            if b is not None:
                 start = b
+
+    def status(self) -> DriveStatus:
+        """The status registers, in one request."""
+        v = self.read_names(*_STATUS)
+        word = int(v["status_word"])
+        return DriveStatus(word, self.map.status_flags(word), int(v["fault_code"]), int(v["sample_count"]),
+                           int(v["fault_sample"]), float(v["fault_value"]))

@@ -1,21 +1,42 @@
 """Filter slots of a Modbus drive: a notch written as registers or parameters, read back, saved, restored.
 
 One part of :class:`~hilident.adapters.modbus_drive.ModbusDriveAdapter`, which composes the parts
-(see that module); a part only uses the adapter's attributes and the other parts' methods.
+(see that module); it builds on the request part (:class:`~hilident.adapters.modbus_requests.RegisterAccess`).
 """
 
 from __future__ import annotations
 
 from hilident.adapters.base import FilterUpload
+from hilident.adapters.modbus_requests import RegisterAccess
 from hilident.errors import DataError, DeviceError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
-from hilident.protocol.modbus_registers import (
-    FieldSlots,
-)
+from hilident.protocol.filter_encoding import FilterEncoding, Realisation
+from hilident.protocol.modbus_registers import FieldSlots, Register
+from hilident.protocol.modbus_registers import FilterSlots as RegisterSlots
+
+#: A slot's contents as :meth:`FilterSlots.save_filter` keeps them: the register block's words, or a parameter
+#: drive's ``(field, stored integer)`` pairs.
+SavedSlot = tuple[int, ...] | tuple[tuple[str, int], ...]
 
 
-class FilterSlots:
+def _saved_words(saved: SavedSlot) -> list[int]:
+    """The words of a register block's saved slot."""
+    words = [w for w in saved if isinstance(w, int)]
+    if len(words) != len(saved):
+        raise DataError("a saved filter slot of a register block holds its registers' words")
+    return words
+
+
+def _saved_fields(saved: SavedSlot) -> dict[str, int]:
+    """The stored integer of each field of a parameter drive's saved slot."""
+    pairs = [pair for pair in saved if isinstance(pair, tuple)]
+    if len(pairs) != len(saved):
+        raise DataError("a saved filter slot of a parameter drive holds (field, stored integer) pairs")
+    return dict(pairs)
+
+
+class FilterSlots(RegisterAccess):
     """The filter-slot part of :class:`~hilident.adapters.modbus_drive.ModbusDriveAdapter`.
 
     A slot is either a register block of the map or a set of parameters (a parameter
@@ -24,11 +45,24 @@ class FilterSlots:
 
     # --- filters ------------------------------------------------------------------------------
 
+    def _register_slots(self) -> RegisterSlots:
+        """The slots as a block of registers; DeviceError when the map describes no such block."""
+        fs = self.map.filters
+        if not isinstance(fs, RegisterSlots):
+            raise DeviceError(f"{self.port}: driver {self.driver.name!r} describes no filter slots in registers")
+        return fs
+
     def _slot(self, slot: int) -> int:
         try:
-            return self.map.filters.address(slot)
+            return self._register_slots().address(slot)
         except DataError as exc:
             raise DeviceError(f"{self.port}: {exc}") from None
+
+    def _encoding(self) -> FilterEncoding:
+        """How the drive stores a notch; DeviceError when the driver describes no filter encoding."""
+        if self.map.filter_encoding is None:
+            raise DeviceError(f"{self.port}: driver {self.driver.name!r} describes no filter encoding")
+        return self.map.filter_encoding
 
     # Filter slots of named registers (a parameter drive's notch parameters): each field is one register
     # holding the encoding's stored integer; the slot is bypassed by its enable register or by the "off"
@@ -37,13 +71,25 @@ class FilterSlots:
     @property
     def parameter_slots(self) -> bool:
         """Whether the filter slots are the drive's notch parameters (:meth:`filter_parameters` reports them)."""
-        return isinstance(self.map.filters, FieldSlots)
+        return self._field_slots() is not None
 
-    def _fields(self, slot: int) -> dict:
-        if self.map.filters is None:
-            raise DeviceError(f"{self.port}: driver {self.driver.name!r} describes no filter slots")
+    def _field_slots(self) -> FieldSlots | None:
+        """The slots when they are named registers (a parameter drive's notch parameters), else None."""
+        fs = self.map.filters
+        return fs if isinstance(fs, FieldSlots) else None
+
+    def _named_slots(self) -> FieldSlots:
+        """The slots as named registers; DeviceError when the map describes them otherwise, or none."""
+        fs = self._field_slots()
+        if fs is None:
+            raise DeviceError(f"{self.port}: driver {self.driver.name!r} describes no filter slots of named "
+                              "registers (notch parameters)")
+        return fs
+
+    def _fields(self, slot: int) -> dict[str, Register]:
+        fs = self._named_slots()
         try:
-            return self.map.filters.fields(slot)
+            return fs.fields(slot)
         except DataError as exc:
             raise DeviceError(f"{self.port}: {exc}") from None
 
@@ -51,26 +97,27 @@ class FilterSlots:
         """The stored integer of each field of ``slot`` (one request for neighbouring registers)."""
         regs = self._fields(slot)
         values = self.read_names(*(r.name for r in regs.values()))
-        return {f: int(round((values[r.name] - r.offset) / r.scale)) for f, r in regs.items()}
+        return {f: int(round((float(values[r.name]) - r.offset) / r.scale)) for f, r in regs.items()}
 
     def _write_fields(self, slot: int, stored: dict[str, int]) -> None:
         regs = self._fields(slot)
         self.write_names(**{regs[f].name: v * regs[f].scale + regs[f].offset for f, v in stored.items()})
 
-    def _slot_state(self, stored: dict[str, int]) -> tuple[dict, bool]:
+    def _slot_state(self, stored: dict[str, int]) -> tuple[dict[str, int], bool]:
         """``(encoding values, enabled)`` of a named slot's stored integers."""
         values = {k: v for k, v in stored.items() if k != "enable"}
         if "enable" in stored:
             return values, bool(stored["enable"])
-        return values, not all(values.get(k) == v for k, v in self.map.filters.off.items())
+        return values, not all(values.get(k) == v for k, v in self._named_slots().off.items())
 
-    def _realise(self, spec: NotchSpec | None):
+    def _realise(self, spec: NotchSpec | None) -> Realisation:
         if spec is None:
             raise DeviceError(f"{self.port}: the drive takes notch parameters; no notch specification was given")
+        encoding = self._encoding()
         try:
-            return self.map.filter_encoding.realise(spec, self.identity.loop_rate_hz)
+            return encoding.realise(spec, self._known_identity().loop_rate_hz)
         except DataError as exc:
-            raise DeviceError(f"{self.port}: the drive's {self.map.filter_encoding.kind} filter parameters cannot "
+            raise DeviceError(f"{self.port}: the drive's {encoding.kind} filter parameters cannot "
                               f"hold the {spec.center_hz:.4g} Hz notch: {exc}") from None
 
     def filter_parameters(self, slot: int) -> dict:
@@ -79,12 +126,12 @@ class FilterSlots:
         regs = self._fields(slot)
         stored = self._read_fields(slot)
         values, enabled = self._slot_state(stored)
-        out = {"slot": slot, "enabled": enabled,
+        out: dict[str, object] = {"slot": slot, "enabled": enabled,
                "fields": {f: {"register": regs[f].name, "parameter": regs[f].parameter, "address": regs[f].address,
                               "value": v} for f, v in stored.items()}}
         if enabled:
             try:
-                spec = self.map.filter_encoding.parameters(values)
+                spec = self._encoding().parameters(values)
                 out["notch"] = {"center_hz": spec.center_hz, "width_hz": spec.width_hz, "depth_db": spec.depth_db}
             except DataError as exc:
                 out["notch_error"] = str(exc)
@@ -94,13 +141,13 @@ class FilterSlots:
         """Why a parameter drive's notch parameters cannot meet ``spec`` exactly, if they cannot."""
         return self._realise(spec).notes if self.parameter_slots else ()
 
-    def upload_filter(self, slot: int, biquad, spec=None) -> FilterUpload:
+    def upload_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None = None) -> FilterUpload:
         """As :meth:`AdapterBase.upload_filter`; a slot bypassed by the "off" value of one of its fields is
         written bypassed with the other fields, those read back and compared, then the off field written
         (the notch takes effect), the whole slot read back and compared; anything else puts the previous
         contents back."""
-        fs = self.map.filters
-        if not self.parameter_slots or fs.has_enable:
+        fs = self._field_slots()
+        if fs is None or fs.has_enable:
             return super().upload_filter(slot, biquad, spec)
         previous = self.save_filter(slot)
         values = self._realise(spec).fields
@@ -123,15 +170,16 @@ class FilterSlots:
         A parameter drive's slot gets the stored values closest to ``spec``
         (:meth:`FilterEncoding.realise`), bypassed by its off value when not ``enabled``.
         """
-        if self.parameter_slots:
+        fs = self._field_slots()
+        if fs is not None:
             stored = dict(self._realise(spec).fields)
-            if self.map.filters.has_enable:
+            if fs.has_enable:
                 stored["enable"] = int(bool(enabled))
             elif not enabled:
-                stored.update(self.map.filters.off)
+                stored.update(fs.off)
             self._write_fields(slot, stored)
             return
-        values = self.map.filter_encoding.encode(biquad, spec)
+        values = self._encoding().encode(biquad, spec)
         self.write(self._slot(slot), self.map.encode_filter(values, enabled), f"writing filter slot {slot}")
 
     def read_filter(self, slot: int) -> tuple[Biquad, bool]:
@@ -139,53 +187,54 @@ class FilterSlots:
 
         A parameter drive's slot bypassed by an off value runs the identity section.
         """
-        if self.parameter_slots:
+        fs = self._field_slots()
+        if fs is not None:
             values, enabled = self._slot_state(self._read_fields(slot))
-            if not enabled and not self.map.filters.has_enable:
+            if not enabled and not fs.has_enable:
                 return Biquad.identity(), False
             try:
-                return self.map.filter_encoding.applied(values, self.identity.loop_rate_hz), enabled
+                return self._encoding().applied(values, self._known_identity().loop_rate_hz), enabled
             except DataError as exc:
                 regs = self._fields(slot)
                 raise DeviceError(f"{self.port}: filter slot {slot} ({', '.join(r.label for r in regs.values())}) "
                                   f"holds {values}: {exc}") from None
         address = self._slot(slot)
-        values, enabled = self.map.decode_filter(
-            self.read(address, self.map.filters.span, f"reading filter slot {slot}"))
-        if not any(values.values()):
+        span = self._register_slots().span
+        words, enabled = self.map.decode_filter(self.read(address, span, f"reading filter slot {slot}"))
+        if not any(words.values()):
             return Biquad.identity(), enabled  # an empty slot passes the torque through
         try:
-            return self.map.filter_encoding.applied(values, self.identity.loop_rate_hz), enabled
+            return self._encoding().applied(words, self._known_identity().loop_rate_hz), enabled
         except DataError as exc:
             raise DeviceError(f"{self.port}: filter slot {slot} "
-                              f"({self.map.describe(address, self.map.filters.span)}) holds {values}: {exc}") from None
+                              f"({self.map.describe(address, span)}) holds {words}: {exc}") from None
 
     def stored_form(self, biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
         """The biquad the drive runs after its own rounding of ``spec`` (0.1 Hz, 0.1 dB steps), or what a
         parameter drive runs with the stored values closest to ``spec``."""
         if self.parameter_slots:
             return self._realise(spec).section
-        return self.map.filter_encoding.stored_form(biquad, spec, self.identity.loop_rate_hz)
+        return self._encoding().stored_form(biquad, spec, self._known_identity().loop_rate_hz)
 
-    def _read_raw_slot(self, slot: int) -> tuple[int, ...]:
-        """The slot's registers as they are."""
+    def _read_raw_slot(self, slot: int) -> SavedSlot:
+        """The slot's registers as they are (a parameter drive: its fields' stored integers, by name)."""
         if self.parameter_slots:
             return tuple(sorted(self._read_fields(slot).items()))
-        return tuple(self.read(self._slot(slot), self.map.filters.span, f"reading filter slot {slot}"))
+        return tuple(self.read(self._slot(slot), self._register_slots().span, f"reading filter slot {slot}"))
 
-    def _write_raw_slot(self, slot: int, saved: tuple) -> None:
+    def _write_raw_slot(self, slot: int, saved: SavedSlot) -> None:
         if self.parameter_slots:
-            self._write_fields(slot, dict(saved))
+            self._write_fields(slot, _saved_fields(saved))
             return
-        self.write(self._slot(slot), list(saved), f"restoring filter slot {slot}")
+        self.write(self._slot(slot), _saved_words(saved), f"restoring filter slot {slot}")
 
     def disable_filter(self, slot: int) -> None:
         """Bypass a slot: its enable register to 0, centre, width and depth kept (:meth:`restore_filter` undoes it).
 
         A parameter drive's slot without an enable gets its off value, the other fields kept.
         """
-        if self.parameter_slots:
-            fs = self.map.filters
+        fs = self._field_slots()
+        if fs is not None:
             self._write_fields(slot, {"enable": 0} if fs.has_enable else dict(fs.off))
             return
-        self.write(self._slot(slot) + self.map.filters.offsets["enable"], [0], f"disabling filter slot {slot}")
+        self.write(self._slot(slot) + self._register_slots().offsets["enable"], [0], f"disabling filter slot {slot}")

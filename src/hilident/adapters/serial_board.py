@@ -19,6 +19,7 @@ import secrets
 import socket
 import struct
 import time
+from typing import Protocol
 
 import numpy as np
 import serial
@@ -29,7 +30,7 @@ try:  # POSIX: the exact byte count of a TCP line
 except ImportError:  # pragma: no cover
     pass
 
-from hilident.adapters.base import AdapterBase, ConnectReport, RunResult, RunStrategy
+from hilident.adapters.base import AdapterBase, ConnectReport, Deliver, RunResult, RunStrategy
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription
 from hilident.errors import DeviceError, ProtocolError
@@ -70,7 +71,24 @@ _FAULT_MEANING = {
 }
 
 
-def _no_nagle(link) -> None:
+class ByteLink(Protocol):
+    """What the adapter needs of a line: pyserial's ``Serial`` (any URL), a :class:`~hilident.links.PipeEnd`, ...
+
+    ``timeout``, ``write_timeout``, ``is_open`` and ``flush`` are used when the
+    line has them.
+    """
+
+    @property
+    def in_waiting(self) -> int: ...
+
+    def read(self, size: int = 1) -> bytes: ...
+
+    def write(self, data: bytes) -> int | None: ...
+
+    def close(self) -> None: ...
+
+
+def _no_nagle(link: ByteLink) -> None:
     """Send small frames at once on a TCP line (``socket://``, a serial-to-Ethernet converter).
 
     pyserial leaves Nagle's algorithm on; with the peer's delayed ACKs it holds
@@ -85,7 +103,7 @@ def _no_nagle(link) -> None:
             pass
 
 
-def _bytes_waiting(link) -> int:
+def _bytes_waiting(link: ByteLink) -> int:
     """Bytes ready to read without waiting.
 
     pyserial's ``socket://`` reports ``in_waiting`` as 0 or 1 (readable or
@@ -129,7 +147,7 @@ class SerialBoardAdapter(AdapterBase):
 
     transport = "serial"
 
-    def __init__(self, link, driver: DriverDescription, port: str, timeout_s: float = 2.0,
+    def __init__(self, link: ByteLink, driver: DriverDescription, port: str, timeout_s: float = 2.0,
                  allow_fault_reset: bool = False):
         self.link = link
         self.driver = driver
@@ -162,7 +180,8 @@ class SerialBoardAdapter(AdapterBase):
     # --- opening --------------------------------------------------------------------
 
     @classmethod
-    def open_device(cls, device: DeviceConfig, driver: DriverDescription, link=None) -> SerialBoardAdapter:
+    def open_device(cls, device: DeviceConfig, driver: DriverDescription,
+                    link: ByteLink | None = None) -> SerialBoardAdapter:
         """Connect as ``[device]`` says, or over an already open ``link``, and bring the board to a known state.
 
         See :meth:`connect`; ``device.allow_fault_reset`` decides whether a latched fault is cleared.
@@ -405,9 +424,15 @@ class SerialBoardAdapter(AdapterBase):
         self.identity = ident
         return ident
 
+    def _known_identity(self) -> sb.Identity:
+        """What :meth:`identify` read; DeviceError when the board was not identified (never connected)."""
+        if self.identity is None:
+            raise DeviceError(f"{self.port}: the board has not been identified (connect to it first)")
+        return self.identity
+
     def configure(self, sample_rate_hz: float, mode: str, channels: list[str] | None = None) -> list[str]:
         """Choose rate, excitation mode and streamed channels; returns the channel names."""
-        ident = self.identity
+        ident = self._known_identity()
         divider = ident.loop_rate_hz / sample_rate_hz
         if abs(divider - round(divider)) > 1e-9 or round(divider) < 1:
             raise DeviceError(
@@ -489,11 +514,13 @@ class SerialBoardAdapter(AdapterBase):
     @staticmethod
     def stored_form(biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
         """The coefficients as this board stores them (REAL32), for read-back comparison."""
-        return Biquad(tuple(sb.float32(x) for x in biquad.b), (1.0, sb.float32(biquad.a[1]), sb.float32(biquad.a[2])))
+        b0, b1, b2 = biquad.b
+        return Biquad((sb.float32(b0), sb.float32(b1), sb.float32(b2)),
+                      (1.0, sb.float32(biquad.a[1]), sb.float32(biquad.a[2])))
 
     # --- streaming ----------------------------------------------------------------------------
 
-    def _play(self, x: np.ndarray, deliver, result: RunResult) -> None:
+    def _play(self, x: np.ndarray, deliver: Deliver, result: RunResult) -> None:
         """Play ``x`` (one value per sample) with flow control and hand every received block to ``deliver``.
 
         Missing blocks are counted, never filled; a block that arrives after a
@@ -554,12 +581,12 @@ class SerialBoardAdapter(AdapterBase):
         result.completed = self.run_fault is None
 
 
-class _Run(RunStrategy):
+class _Run(RunStrategy[SerialBoardAdapter]):
     """Bookkeeping of one run on the board: what was sent, received, lost and refused."""
 
-    def __init__(self, adapter: SerialBoardAdapter, x: np.ndarray, deliver, result: RunResult):
+    def __init__(self, adapter: SerialBoardAdapter, x: np.ndarray, deliver: Deliver, result: RunResult):
         super().__init__(adapter, x, deliver, result)
-        capacity = adapter.identity.excitation_buffer_samples
+        capacity = adapter._known_identity().excitation_buffer_samples
         self.window = max(_EXCITATION_CHUNK, capacity - _EXCITATION_CHUNK)
         self.sent = self.consumed = 0
         self.expected_block: int | None = None
