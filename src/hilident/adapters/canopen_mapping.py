@@ -11,6 +11,7 @@ import math
 import numpy as np
 
 from hilident.adapters.canopen_common import (
+    CanopenState,
     ChannelCodec,
     PdoSlot,
 )
@@ -30,7 +31,7 @@ from hilident.protocol.canopen_profile import (
 )
 
 
-class ChannelMapping:
+class ChannelMapping(CanopenState):
     """The configuration part of :class:`~hilident.adapters.canopen_drive.CanopenDriveAdapter`.
 
     Mode of operation and sample period, the limits the drive holds, channel codecs,
@@ -121,7 +122,7 @@ class ChannelMapping:
 
     def _divider_for(self, sample_rate_hz: float) -> tuple[int, float]:
         """(loop periods per sample, sample rate in Hz); DeviceError when the rate does not fit the drive."""
-        ident = self.identity
+        ident = self.drive_identity()
         divider = ident.loop_rate_hz / sample_rate_hz
         if abs(divider - round(divider)) > 1e-9 or round(divider) < 1:
             raise DeviceError(f"{self.port}: sample rate {sample_rate_hz:g} Hz does not divide the drive's loop rate "
@@ -161,7 +162,7 @@ class ChannelMapping:
 
     def _write_period(self, divider: int) -> None:
         """The sample period to whichever of 0x1006, 0x60C2 and the table divider the drive has."""
-        period_s = divider / self.identity.loop_rate_hz
+        period_s = divider / self.drive_identity().loop_rate_hz
         if self.desc.has("cycle_period"):
             self.write("cycle_period", int(round(1e6 * period_s)))
         if self.desc.has("interpolation_period"):

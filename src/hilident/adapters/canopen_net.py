@@ -22,6 +22,7 @@ from hilident.adapters.canopen_common import (
     _NMT_OPERATIONAL,
     _TPDO_BASES,
     LIMIT_TRIP_CODES,
+    CanopenState,
     Emergency,
 )
 from hilident.errors import DeviceError
@@ -37,7 +38,7 @@ from hilident.protocol.canopen_objects import (
 )
 
 
-class NetWatch:
+class NetWatch(CanopenState):
     """The NMT and heartbeat part of :class:`~hilident.adapters.canopen_drive.CanopenDriveAdapter`.
 
     The known state at connect (pre-operational, early frames counted, power stage off,

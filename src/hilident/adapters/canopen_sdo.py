@@ -16,6 +16,7 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 import canopen
 from hilident.adapters.canopen_common import (
     _ABORT_GENERAL,
+    CanopenState,
     _transfer_error,
 )
 from hilident.errors import DataError, DeviceError
@@ -24,7 +25,7 @@ from hilident.protocol.canopen_objects import (
 )
 
 
-class SdoAccess:
+class SdoAccess(CanopenState):
     """The object-access part of :class:`~hilident.adapters.canopen_drive.CanopenDriveAdapter`.
 
     Every SDO read and write goes through here, so an abort or a lost bus becomes a
