@@ -148,6 +148,7 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
         self.desc = desc
         self.device = device
         self.port = label
+        self.node_id = device.canopen.node_id
         self.timeout_s = device.timeout_s
         self.encoding = FilterEncoding.from_table(driver.sections["filters"], str(driver.folder)) \
             if desc.filters is not None else None

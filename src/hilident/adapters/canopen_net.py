@@ -50,7 +50,7 @@ class NetWatch(CanopenState):
 
     def _count_early_frames(self) -> _FrameCounter:
         """Count the TPDOs and emergencies that arrive while the host has configured nothing."""
-        cobs = [base + self.node.id for base in _TPDO_BASES]
+        cobs = [base + self.node_id for base in _TPDO_BASES]
         counter = _FrameCounter(self.network, cobs)
         return counter
 
@@ -129,11 +129,12 @@ class NetWatch(CanopenState):
 
     def _consumer_entry_for(self, host: int) -> ObjectAddress:
         """The 0x1016 entry already watching ``host``, else the first unused one."""
-        var = self.node.object_dictionary[HEARTBEAT_CONSUMER_INDEX]
+        od = self.node.object_dictionary
         count = int(self.read_object(ObjectAddress(HEARTBEAT_CONSUMER_INDEX, 0)))
-        free, others = None, []
+        free: ObjectAddress | None = None
+        others: list[str] = []
         for sub in range(1, count + 1):
-            if var.get(sub) is None:
+            if od.get_variable(HEARTBEAT_CONSUMER_INDEX, sub) is None:
                 continue
             addr = ObjectAddress(HEARTBEAT_CONSUMER_INDEX, sub)
             node, time_ms = parse_consumer_entry(int(self.read_object(addr)))
@@ -150,11 +151,14 @@ class NetWatch(CanopenState):
 
     def _start_host_heartbeat(self, host: int, period_s: float) -> None:
         """python-can's cyclic sender in a daemon thread: it dies with the process, which is the point."""
+        bus = self.network.bus
+        if bus is None:
+            raise DeviceError(f"{self.port}: the CAN bus is not open: the host's heartbeat cannot be sent")
         msg = can.Message(arbitration_id=0x700 + host, data=[_NMT_OPERATIONAL], is_extended_id=False)
         self._beat = (msg.arbitration_id, period_s)
         self._beat_s = time.monotonic()
         self._host_heartbeat = can.broadcastmanager.ThreadBasedCyclicSendTask(
-            self.network.bus, self.network.send_lock, msg, period_s, on_error=lambda exc: False,
+            bus, self.network.send_lock, msg, period_s, on_error=lambda exc: False,
             modifier_callback=self._on_beat)
 
     def _on_beat(self, msg) -> None:

@@ -11,12 +11,14 @@ import io
 from struct import error as struct_error
 
 import can
+from canopen.objectdictionary import ODVariable
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 import canopen
 from hilident.adapters.canopen_common import (
     _ABORT_GENERAL,
     CanopenState,
+    ObjectValue,
     _transfer_error,
 )
 from hilident.errors import DataError, DeviceError
@@ -42,6 +44,20 @@ class SdoAccess(CanopenState):
             name = f"{var.parent.name}: {var.name}"
         return f"{addr} ({name})"
 
+    def eds_variable(self, addr: ObjectAddress) -> ODVariable:
+        """The EDS entry of ``addr``; DeviceError when the EDS has none."""
+        var = self.node.object_dictionary.get_variable(addr.index, addr.subindex)
+        if var is None:
+            raise DeviceError(f"{self.port}: object {addr} is not in the EDS {self.desc.eds}")
+        return var
+
+    def data_type(self, addr: ObjectAddress) -> int:
+        """The CiA 301 data type the EDS gives ``addr``; DeviceError when it is not there or has none."""
+        data_type = self.eds_variable(addr).data_type
+        if data_type is None:
+            raise DeviceError(f"{self.port}: the EDS {self.desc.eds} gives {self.describe(addr)} no data type")
+        return data_type
+
     def _sdo_error(self, exc: Exception, addr: ObjectAddress, action: str) -> DeviceError:
         if isinstance(exc, SdoAbortedError):
             meaning = SdoAbortedError.CODES.get(exc.code, "unknown abort code")
@@ -51,22 +67,18 @@ class SdoAccess(CanopenState):
                                "(is the drive powered, on this bus, with this node id?)")
         return DeviceError(f"{self.port}: bus failure {action} {self.describe(addr)}: {exc}")
 
-    def read_object(self, addr: ObjectAddress):
+    def read_object(self, addr: ObjectAddress) -> ObjectValue:
         """Upload one object and decode it by its EDS data type."""
-        var = self.node.object_dictionary.get_variable(addr.index, addr.subindex)
-        if var is None:
-            raise DeviceError(f"{self.port}: object {addr} is not in the EDS {self.desc.eds}")
+        var = self.eds_variable(addr)
         self.beat_if_due()
         try:
             return var.decode_raw(self.node.sdo.upload(addr.index, addr.subindex))
         except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
             raise self._sdo_error(exc, addr, "reading") from None
 
-    def write_object(self, addr: ObjectAddress, value) -> None:
+    def write_object(self, addr: ObjectAddress, value: ObjectValue) -> None:
         """Download one object, encoded by its EDS data type."""
-        var = self.node.object_dictionary.get_variable(addr.index, addr.subindex)
-        if var is None:
-            raise DeviceError(f"{self.port}: object {addr} is not in the EDS {self.desc.eds}")
+        var = self.eds_variable(addr)
         try:
             data = var.encode_raw(value)
         except (ValueError, TypeError, struct_error) as exc:
@@ -77,10 +89,10 @@ class SdoAccess(CanopenState):
         except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
             raise self._sdo_error(exc, addr, "writing") from None
 
-    def read(self, role: str):
+    def read(self, role: str) -> ObjectValue:
         return self.read_object(self.desc.address(role))
 
-    def write(self, role: str, value) -> None:
+    def write(self, role: str, value: ObjectValue) -> None:
         self.write_object(self.desc.address(role), value)
 
     def read_domain(self, addr: ObjectAddress) -> bytes:
