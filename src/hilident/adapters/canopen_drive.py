@@ -56,6 +56,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import can
@@ -90,7 +91,7 @@ from hilident.adapters.canopen_net import NetWatch
 from hilident.adapters.canopen_recorder import RecorderRun
 from hilident.adapters.canopen_sdo import SdoAccess
 from hilident.adapters.canopen_slots import FilterSlots
-from hilident.adapters.canopen_streamed import StreamedRun
+from hilident.adapters.canopen_streamed import Deliver, DriveHost, StreamedRun
 from hilident.adapters.canopen_trace import TracingNetwork
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription, load_object_dictionary
@@ -111,7 +112,7 @@ __all__ = ["CanopenDriveAdapter", "DriveIdentity", "ChannelCodec", "LIMIT_TRIP_C
 
 #: How a run is played, by acquisition name (``device.acquisition``): a strategy ``(adapter, x, deliver,
 #: result)`` (:class:`~hilident.adapters.base.RunStrategy`). A new acquisition strategy joins with one line.
-ACQUISITIONS = {
+ACQUISITIONS: dict[str, Callable[[DriveHost, np.ndarray, Deliver, RunResult], None]] = {
     "streamed": StreamedRun.play,
     "buffered": BufferedRun.play,
     "recorder": RecorderRun.play,
@@ -453,7 +454,7 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
             except (OSError, ValueError) as exc:
                 raise DeviceError(f"{self.port}: cannot write the CAN trace {trace_path}: {exc}") from None
 
-    def _play(self, x: np.ndarray, deliver, result: RunResult) -> None:
+    def _play(self, x: np.ndarray, deliver: Deliver, result: RunResult) -> None:
         """Play ``x`` (one value per sample, in the mode's SI unit) with the strategy of :attr:`acquisition`."""
         ACQUISITIONS[self.acquisition](self, x, deliver, result)
 

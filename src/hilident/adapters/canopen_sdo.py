@@ -95,15 +95,16 @@ class SdoAccess(CanopenState):
     def write(self, role: str, value: ObjectValue) -> None:
         self.write_object(self.desc.address(role), value)
 
-    def read_domain(self, addr: ObjectAddress) -> bytes:
-        """Upload a DOMAIN object (block transfer when the description says so)."""
-        if not self.desc.block_transfer:
+    def read_domain(self, addr: ObjectAddress, block_transfer: bool | None = None) -> bytes:
+        """Upload a DOMAIN object, by block transfer when ``block_transfer`` says so (None: when the
+        description's ``block_transfer`` does)."""
+        if not (self.desc.block_transfer if block_transfer is None else block_transfer):
             try:
                 return bytes(self.node.sdo.upload(addr.index, addr.subindex))
             except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
                 raise self._sdo_error(exc, addr, "reading") from None
 
-        def upload(f):
+        def upload(f: io.RawIOBase) -> bytes:
             return bytes(f.readall())
 
         return self._block_transfer(addr, "rb", upload, {})
