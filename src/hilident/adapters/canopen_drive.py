@@ -49,6 +49,19 @@ emergencies (:mod:`~hilident.adapters.canopen_net`), configuration and PDO mappi
 (:mod:`~hilident.adapters.canopen_mapping`) and filter slots
 (:mod:`~hilident.adapters.canopen_slots`); this module keeps opening, closing,
 identity, the CiA 402 state machine and the run hooks.
+
+How the parts are typed: every part derives from
+:class:`~hilident.adapters.canopen_common.CanopenState`, which declares the
+attributes this class sets in ``__init__`` (bare annotations: nothing changes
+at run time) and, under ``TYPE_CHECKING`` only, the signatures of the methods
+one part calls that another part, this class or
+:class:`~hilident.adapters.base.AdapterBase` defines. The type checker holds
+each definition to its declaration; a part uses nothing CanopenState does not
+declare, and a new cross-part call or shared attribute is declared there first.
+The acquisition strategies are separate objects: they see the adapter through
+the protocol :class:`~hilident.adapters.canopen_streamed.DriveHost`, and
+:data:`ACQUISITIONS` is typed with it, so the checker verifies that this class
+provides everything a strategy uses.
 """
 
 from __future__ import annotations
@@ -56,7 +69,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import can
@@ -366,7 +379,7 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
                 return now_state
             time.sleep(_STATE_POLL_S)
 
-    def _follow(self, state: cia402.State, commands) -> cia402.State:
+    def _follow(self, state: cia402.State, commands: Iterable[int]) -> cia402.State:
         """Write ``commands`` (controlwords) one after another, each once the drive shows the state the last
         one led to; the state the drive ends in."""
         previous = 0
@@ -438,7 +451,7 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
 
     # --- runs --------------------------------------------------------------------------------------
 
-    def set_trace(self, path) -> None:
+    def set_trace(self, path: str | Path) -> None:
         """Write a CAN trace (``.asc`` or ``.blf``) of the next run to ``path``."""
         self._trace_path = Path(path)
 

@@ -1,7 +1,8 @@
 """NMT, heartbeats and emergencies for the CANopen adapter: the known state at connect and the device-side net.
 
 One part of :class:`~hilident.adapters.canopen_drive.CanopenDriveAdapter`, which composes the parts
-(see that module); a part only uses the adapter's attributes and the other parts' methods.
+(see that module); a part uses only the attributes and methods
+:class:`~hilident.adapters.canopen_common.CanopenState` declares.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import math
 import time
 
 import can
+from canopen.emcy import EmcyError
 
 import canopen
 from hilident.adapters.base import (
@@ -161,7 +163,7 @@ class NetWatch(CanopenState):
             bus, self.network.send_lock, msg, period_s, on_error=lambda exc: False,
             modifier_callback=self._on_beat)
 
-    def _on_beat(self, msg) -> None:
+    def _on_beat(self, msg: can.Message) -> None:
         self._beat_s = time.monotonic()
 
     def beat_if_due(self) -> None:
@@ -211,7 +213,7 @@ class NetWatch(CanopenState):
         self.heartbeat_s = time.monotonic()
         self.heartbeat_state = state
 
-    def _on_emcy(self, error) -> None:
+    def _on_emcy(self, error: EmcyError) -> None:
         self.emergencies.append(Emergency(error.code, error.register, bytes(error.data), time.monotonic()))
 
     def check_link(self) -> None:
@@ -270,14 +272,14 @@ class NetWatch(CanopenState):
 class _FrameCounter:
     """Counts frames on some COB-IDs until stopped (PDOs left over from an earlier session)."""
 
-    def __init__(self, network, cobs: list[int]):
+    def __init__(self, network: canopen.Network, cobs: list[int]) -> None:
         self.network = network
         self.cobs = cobs
         self.frames = 0
         for cob in cobs:
             network.subscribe(cob, self._on_frame)
 
-    def _on_frame(self, can_id, data, timestamp) -> None:
+    def _on_frame(self, can_id: int, data: bytearray, timestamp: float) -> None:
         self.frames += 1
 
     def stop(self) -> None:

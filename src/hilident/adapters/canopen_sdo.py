@@ -1,18 +1,22 @@
 """Object access by SDO for the CANopen adapter: read and write by role or address, block transfers, aborts named.
 
 One part of :class:`~hilident.adapters.canopen_drive.CanopenDriveAdapter`, which composes the parts
-(see that module); a part only uses the adapter's attributes and the other parts' methods.
+(see that module); a part uses only the attributes and methods
+:class:`~hilident.adapters.canopen_common.CanopenState` declares.
 """
 
 from __future__ import annotations
 
 import contextlib
 import io
+from collections.abc import Callable
 from struct import error as struct_error
+from typing import TypeVar
 
 import can
 from canopen.objectdictionary import ODVariable
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
+from canopen.sdo.client import BlockDownloadStream, BlockUploadStream
 
 import canopen
 from hilident.adapters.canopen_common import (
@@ -25,6 +29,9 @@ from hilident.errors import DataError, DeviceError
 from hilident.protocol.canopen_objects import (
     ObjectAddress,
 )
+
+_Stream = TypeVar("_Stream", bound=io.RawIOBase)  # the block transfer stream a body reads or writes
+_Result = TypeVar("_Result")  # what the body returns
 
 
 class SdoAccess(CanopenState):
@@ -104,7 +111,7 @@ class SdoAccess(CanopenState):
             except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
                 raise self._sdo_error(exc, addr, "reading") from None
 
-        def upload(f: io.RawIOBase) -> bytes:
+        def upload(f: BlockUploadStream) -> bytes:
             return bytes(f.readall())
 
         return self._block_transfer(addr, "rb", upload, {})
@@ -118,7 +125,7 @@ class SdoAccess(CanopenState):
                 raise self._sdo_error(exc, addr, "writing") from None
             return
 
-        def download(f):
+        def download(f: BlockDownloadStream) -> None:
             view = memoryview(data)
             pos = 0
             while pos < len(data):
@@ -126,7 +133,8 @@ class SdoAccess(CanopenState):
 
         self._block_transfer(addr, "wb", download, {"size": len(data)})
 
-    def _block_transfer(self, addr: ObjectAddress, mode: str, body, options: dict):
+    def _block_transfer(self, addr: ObjectAddress, mode: str, body: Callable[[_Stream], _Result],
+                        options: dict[str, int]) -> _Result:
         """Run ``body(stream)`` on an SDO block transfer stream; an interrupted transfer is aborted.
 
         A signal (or any exception not from the transfer itself) in the middle

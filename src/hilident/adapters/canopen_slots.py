@@ -1,7 +1,8 @@
 """Filter slots of a CANopen drive: notch coefficients written, read back, saved and restored by SDO.
 
 One part of :class:`~hilident.adapters.canopen_drive.CanopenDriveAdapter`, which composes the parts
-(see that module); a part only uses the adapter's attributes and the other parts' methods.
+(see that module); a part uses only the attributes and methods
+:class:`~hilident.adapters.canopen_common.CanopenState` declares.
 """
 
 from __future__ import annotations

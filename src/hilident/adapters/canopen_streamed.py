@@ -195,7 +195,7 @@ class StreamedRun(RunStrategy):
 
     # --- receiving ---------------------------------------------------------------------------------
 
-    def on_tpdo(self, can_id, data, timestamp) -> None:
+    def on_tpdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
         self.rx.append((can_id, bytes(data)))
 
     def finalize(self, limit: int, count_lost: bool = True) -> None:
@@ -291,7 +291,7 @@ class StreamedRun(RunStrategy):
 
     # --- the run -----------------------------------------------------------------------------------
 
-    def rpdo_packer(self):
+    def rpdo_packer(self) -> Callable[[int, int | float], bytes]:
         """``pack(k, value)``: the RPDO of sample ``k`` (headed by the set-point counter where there is one)."""
         rx_type, sp_type = self.rpdo[1], self.rpdo[2]
         if rx_type is not None:
