@@ -297,6 +297,18 @@ def test_identity_mismatch_and_silent_node(rig, tmp_path):
     assert "node 9" in str(err.value)
 
 
+def test_the_parts_state_class_declares_for_the_type_checker_only():
+    # A method defined on CanopenState at run time would come before AdapterBase's in the adapter's MRO and
+    # silently replace it (log_event, note_fault): the class holds annotations and TYPE_CHECKING stubs only.
+    from hilident.adapters.base import AdapterBase
+    from hilident.adapters.canopen_common import CanopenState
+
+    assert {name for name in vars(CanopenState) if not name.startswith("__")} == set()
+    assert "node" in CanopenState.__annotations__ and "desc" in CanopenState.__annotations__
+    assert CanopenDriveAdapter.log_event is AdapterBase.log_event
+    assert CanopenDriveAdapter.note_fault is AdapterBase.note_fault
+
+
 def test_bus_arguments_from_the_device_table():
     assert parse_socketcand_port("127.0.0.1:29536/can0") == ("127.0.0.1", 29536, "can0")
     with pytest.raises(ConfigError, match="device.port"):
