@@ -214,7 +214,7 @@ def record_can() -> Transcript:
         thread.join()
         listener.shutdown()
         emu.close()
-    node = emu.device.node_id
+    node = emu.device.canopen.node_id
     host_heartbeat = 0x700 + int(driver.sections.get("canopen", {}).get("host_node_id", 127))
     exchanges: list[Exchange] = []
     for cob_id, data in frames:

@@ -14,7 +14,7 @@ import pytest
 from hilident.adapters.base import adapter_class
 from hilident.adapters.canopen_drive import CanopenDriveAdapter
 from hilident.adapters.canopen_link import bus_arguments, parse_socketcand_port
-from hilident.config import DeviceConfig, load_config
+from hilident.config import CanopenDeviceConfig, DeviceConfig, load_config
 from hilident.drivers import find_driver, load_driver
 from hilident.emulator.canopen.server import start
 from hilident.errors import ConfigError, DeviceError, LimitTrip
@@ -292,19 +292,35 @@ def test_identity_mismatch_and_silent_node(rig, tmp_path):
         CanopenDriveAdapter.open_device(r.device, load_driver(folder))
     assert "0x00040299" in str(err.value)
     with pytest.raises(DeviceError, match="no valid SDO answer") as err:
-        CanopenDriveAdapter.open_device(replace(r.device, node_id=9, timeout_s=0.1), r.driver)
+        CanopenDriveAdapter.open_device(replace(r.device, canopen=replace(r.device.canopen, node_id=9), timeout_s=0.1),
+                                        r.driver)
     assert "node 9" in str(err.value)
+
+
+def test_the_parts_state_class_declares_for_the_type_checker_only():
+    # A method defined on CanopenState at run time would come before AdapterBase's in the adapter's MRO and
+    # silently replace it (log_event, note_fault): the class holds annotations and TYPE_CHECKING stubs only.
+    from hilident.adapters.base import AdapterBase
+    from hilident.adapters.canopen_common import CanopenState
+
+    assert {name for name in vars(CanopenState) if not name.startswith("__")} == set()
+    assert "node" in CanopenState.__annotations__ and "desc" in CanopenState.__annotations__
+    assert CanopenDriveAdapter.log_event is AdapterBase.log_event
+    assert CanopenDriveAdapter.note_fault is AdapterBase.note_fault
 
 
 def test_bus_arguments_from_the_device_table():
     assert parse_socketcand_port("127.0.0.1:29536/can0") == ("127.0.0.1", 29536, "can0")
     with pytest.raises(ConfigError, match="device.port"):
         parse_socketcand_port("127.0.0.1/can0")
-    args = bus_arguments(DeviceConfig(can_interface="socketcand", port="10.0.0.2:29536/vcan1"), 500000)
+    args = bus_arguments(DeviceConfig(canopen=CanopenDeviceConfig(can_interface="socketcand"),
+                                      port="10.0.0.2:29536/vcan1"), 500000)
     assert args == {"interface": "socketcand", "bitrate": 500000, "channel": "vcan1", "host": "10.0.0.2",
                     "port": 29536, "tcp_tune": True}
-    args = bus_arguments(DeviceConfig(can_interface="pcan", port="PCAN_USBBUS1", baudrate=250000), 1000000)
+    args = bus_arguments(DeviceConfig(canopen=CanopenDeviceConfig(can_interface="pcan"), port="PCAN_USBBUS1",
+                                      baudrate=250000), 1000000)
     assert args == {"interface": "pcan", "bitrate": 250000, "channel": "PCAN_USBBUS1"}
     with pytest.raises(DeviceError, match="no-such-interface"):
-        CanopenDriveAdapter.open_device(DeviceConfig(driver="canopen-servo", can_interface="no-such-interface",
-                                                     port="x"), find_driver("canopen-servo"))
+        CanopenDriveAdapter.open_device(DeviceConfig(driver="canopen-servo", port="x",
+                                                     canopen=CanopenDeviceConfig(can_interface="no-such-interface")),
+                                        find_driver("canopen-servo"))

@@ -20,7 +20,8 @@ import time
 
 import numpy as np
 
-from hilident.adapters.base import RunStrategy
+from hilident.adapters.base import RunResult, RunStrategy
+from hilident.adapters.canopen_streamed import Deliver, DriveHost
 from hilident.errors import DeviceError
 from hilident.protocol.canopen_objects import TABLE_START, TABLE_STOP, TableState, record_dtype
 
@@ -38,11 +39,13 @@ class BufferedRun(RunStrategy):
     :class:`~hilident.adapters.canopen_streamed.DriveHost`.
     """
 
-    def __init__(self, adapter, x: np.ndarray, deliver, result):
+    ad: DriveHost
+
+    def __init__(self, adapter: DriveHost, x: np.ndarray, deliver: Deliver, result: RunResult):
         super().__init__(adapter, x, deliver, result)
         self.captured = 0
         self.state = TableState.PLAYING
-        self.dtype = None
+        self.dtype = record_dtype([c.datatype for c in adapter.channels])  # one capture record
 
     def where(self, role: str) -> str:
         """The object of ``role``, for messages."""
@@ -87,7 +90,6 @@ class BufferedRun(RunStrategy):
         """Play the table and capture; see the module docstring."""
         ad, n = self.ad, self.n
         self.load()
-        self.dtype = record_dtype([c.datatype for c in ad.channels])
         ad.enable()
         ad.write("table_command", TABLE_START)
         last_change = time.monotonic()

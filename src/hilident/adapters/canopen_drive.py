@@ -49,6 +49,19 @@ emergencies (:mod:`~hilident.adapters.canopen_net`), configuration and PDO mappi
 (:mod:`~hilident.adapters.canopen_mapping`) and filter slots
 (:mod:`~hilident.adapters.canopen_slots`); this module keeps opening, closing,
 identity, the CiA 402 state machine and the run hooks.
+
+How the parts are typed: every part derives from
+:class:`~hilident.adapters.canopen_common.CanopenState`, which declares the
+attributes this class sets in ``__init__`` (bare annotations: nothing changes
+at run time) and, under ``TYPE_CHECKING`` only, the signatures of the methods
+one part calls that another part, this class or
+:class:`~hilident.adapters.base.AdapterBase` defines. The type checker holds
+each definition to its declaration; a part uses nothing CanopenState does not
+declare, and a new cross-part call or shared attribute is declared there first.
+The acquisition strategies are separate objects: they see the adapter through
+the protocol :class:`~hilident.adapters.canopen_streamed.DriveHost`, and
+:data:`ACQUISITIONS` is typed with it, so the checker verifies that this class
+provides everything a strategy uses.
 """
 
 from __future__ import annotations
@@ -56,6 +69,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import time
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import can
@@ -90,7 +104,8 @@ from hilident.adapters.canopen_net import NetWatch
 from hilident.adapters.canopen_recorder import RecorderRun
 from hilident.adapters.canopen_sdo import SdoAccess
 from hilident.adapters.canopen_slots import FilterSlots
-from hilident.adapters.canopen_streamed import StreamedRun
+from hilident.adapters.canopen_streamed import Deliver, DriveHost, StreamedRun
+from hilident.adapters.canopen_trace import TracingNetwork
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription, load_object_dictionary
 from hilident.errors import ConfigError, DataError, DeviceError
@@ -98,7 +113,6 @@ from hilident.events import Kind, RunEvent
 from hilident.protocol import cia402
 from hilident.protocol.canopen_objects import (
     CanopenDescription,
-    ObjectAddress,
     encode_si,
     numpy_type,
 )
@@ -111,7 +125,7 @@ __all__ = ["CanopenDriveAdapter", "DriveIdentity", "ChannelCodec", "LIMIT_TRIP_C
 
 #: How a run is played, by acquisition name (``device.acquisition``): a strategy ``(adapter, x, deliver,
 #: result)`` (:class:`~hilident.adapters.base.RunStrategy`). A new acquisition strategy joins with one line.
-ACQUISITIONS = {
+ACQUISITIONS: dict[str, Callable[[DriveHost, np.ndarray, Deliver, RunResult], None]] = {
     "streamed": StreamedRun.play,
     "buffered": BufferedRun.play,
     "recorder": RecorderRun.play,
@@ -140,53 +154,54 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
 
     transport = "canopen"
 
-    def __init__(self, network, node: canopen.RemoteNode, driver: DriverDescription, desc: CanopenDescription,
-                 device: DeviceConfig, label: str):
+    def __init__(self, network: TracingNetwork, node: canopen.RemoteNode, driver: DriverDescription,
+                 desc: CanopenDescription, device: DeviceConfig, label: str):
         self.network = network
         self.node = node
         self.driver = driver
         self.desc = desc
         self.device = device
         self.port = label
+        self.node_id = device.canopen.node_id
         self.timeout_s = device.timeout_s
         self.encoding = FilterEncoding.from_table(driver.sections["filters"], str(driver.folder)) \
             if desc.filters is not None else None
         self.acquisition = desc.default_acquisition if device.acquisition == "auto" else device.acquisition
-        self.identity: DriveIdentity | None = None
+        self.identity = None
         self.sample_rate_hz = 0.0
         self.divider = 0
         self.mode = ""
-        self.channels: list[ChannelCodec] = []
-        self.channel_names: list[str] = []
-        self.channel_units: list[str] = []
-        self.sync_rate_hz: float | None = None
+        self.channels = []
+        self.channel_names = []
+        self.channel_units = []
+        self.sync_rate_hz = None
         self.sync_overflow = 0
         self.rated_torque_nm = 0.0
         self.rated_current_a = 0.0
         self.torque_problem = ""  # why torque objects cannot be scaled, when they cannot
-        self.supported_modes: tuple[str, ...] | None = None  # read from 0x6502 at connect
-        self.tpdo_layout: list[tuple[int, list[int]]] = []  # (COB-ID, channel indices after the counter)
-        self.rpdo: tuple | None = None  # (COB-ID, counter type, set-point type, set-point role)
+        self.supported_modes = None  # read from 0x6502 at connect
+        self.tpdo_layout = []  # (COB-ID, channel indices after the counter)
+        self.rpdo = None  # (COB-ID, counter type, set-point type, set-point role)
         self._configured_for = ""  # the acquisition configure() mapped the objects for
-        self.excitation_recipe: dict | None = None  # what a drive's own generator plays (recorder runs)
-        self.last_result: RunResult | None = None
-        self.events: list[dict] = []
+        self.excitation_recipe = None  # what a drive's own generator plays (recorder runs)
+        self.last_result = None
+        self.events = []
         self.connect_report = ConnectReport()
-        self.run_fault: dict | None = None  # the first fault event of the current run (the first cause)
+        self.run_fault = None  # the first fault event of the current run (the first cause)
         self._host_heartbeat = None  # the periodic task producing the host's heartbeat
         self._guarding = False  # the host guards the drive (no 0x1017): node guarding requests go out
-        self._consumer: ObjectAddress | None = None  # the 0x1016 entry watching the host
+        self._consumer = None  # the 0x1016 entry watching the host
         self._in_block_transfer = False  # a block transfer is under way (safe_stop must abort it first)
         self.answered = True  # the drive answered the last safe_stop()
-        self._beat: tuple[int, float] = (0, 0.0)  # (COB-ID, period s) of the host's heartbeat
+        self._beat = (0, 0.0)  # (COB-ID, period s) of the host's heartbeat
         self._beat_s = 0.0  # when the host's heartbeat last went out (monotonic s)
-        self.emergencies: collections.deque[Emergency] = collections.deque()
-        self.heartbeat_s: float | None = None
-        self.heartbeat_state: int | None = None
-        self._trace_path: Path | None = None
-        self._limits: tuple | None = None
+        self.emergencies = collections.deque()
+        self.heartbeat_s = None
+        self.heartbeat_state = None
+        self._trace_path = None
+        self._limits = None
         self._host_checks: list = []
-        self.device_limits: tuple[str, ...] = ()  # the limit objects the drive holds (the rest: host-checked only)
+        self.device_limits = ()  # the limit objects the drive holds (the rest: host-checked only)
         self._nmt_settled_s = 0.0  # heartbeats before this may still carry the NMT state before our last command
         node.sdo.RESPONSE_TIMEOUT = max(0.05, min(self.timeout_s, 1.0))
         node.nmt.add_heartbeat_callback(self._on_heartbeat)
@@ -213,21 +228,22 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
             ``[canopen] host_node_id`` is the drive's own node id.
         """
         source = str(driver.folder / "driver.toml")
+        node_id = device.canopen.node_id
         eds_warnings: list[str] = []
-        od = load_object_dictionary(driver, device.node_id, eds_warnings)
+        od = load_object_dictionary(driver, node_id, eds_warnings)
         desc = CanopenDescription.from_sections(driver.sections, source, od)
         if device.acquisition == "buffered" or (device.acquisition == "auto"
                                                 and desc.default_acquisition == "buffered"):
             desc.require_buffered(source)
-        label = f"{device.can_interface}:{device.port} node {device.node_id}"
-        if desc.host_node_id == device.node_id:
+        label = f"{device.canopen.can_interface}:{device.port} node {node_id}"
+        if desc.host_node_id == node_id:
             raise ConfigError("canopen.host_node_id",
-                              f"{desc.host_node_id} is also the drive's node id (device.node_id): the host's "
-                              "heartbeat needs a node id of its own", source)
+                              f"{desc.host_node_id} is also the drive's node id (device.canopen.node_id): the "
+                              "host's heartbeat needs a node id of its own", source)
         network = open_network(device, driver.default_baudrate, label)
         adapter = None
         try:
-            node = canopen.RemoteNode(device.node_id, od)
+            node = canopen.RemoteNode(node_id, od)
             network.add_node(node)
             adapter = cls(network, node, driver, desc, device, label)
             adapter.connect_report.warnings += eds_warnings
@@ -293,6 +309,12 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
             self.sync_overflow = int(self.read("sync_overflow"))
         self._watch_drive_heartbeat()
 
+    def drive_identity(self) -> DriveIdentity:
+        """:attr:`identity`, which :meth:`open_device` reads; DeviceError on an adapter it has not identified."""
+        if self.identity is None:
+            raise DeviceError(f"{self.port}: the drive has not been identified (open it with open_device)")
+        return self.identity
+
     def _check_identity(self, vendor: int, product: int) -> None:
         """DeviceError when the vendor id, product code or loop rate is not the driver description's."""
         d = self.desc
@@ -357,7 +379,7 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
                 return now_state
             time.sleep(_STATE_POLL_S)
 
-    def _follow(self, state: cia402.State, commands) -> cia402.State:
+    def _follow(self, state: cia402.State, commands: Iterable[int]) -> cia402.State:
         """Write ``commands`` (controlwords) one after another, each once the drive shows the state the last
         one led to; the state the drive ends in."""
         previous = 0
@@ -429,7 +451,7 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
 
     # --- runs --------------------------------------------------------------------------------------
 
-    def set_trace(self, path) -> None:
+    def set_trace(self, path: str | Path) -> None:
         """Write a CAN trace (``.asc`` or ``.blf``) of the next run to ``path``."""
         self._trace_path = Path(path)
 
@@ -445,7 +467,7 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
             except (OSError, ValueError) as exc:
                 raise DeviceError(f"{self.port}: cannot write the CAN trace {trace_path}: {exc}") from None
 
-    def _play(self, x: np.ndarray, deliver, result: RunResult) -> None:
+    def _play(self, x: np.ndarray, deliver: Deliver, result: RunResult) -> None:
         """Play ``x`` (one value per sample, in the mode's SI unit) with the strategy of :attr:`acquisition`."""
         ACQUISITIONS[self.acquisition](self, x, deliver, result)
 
@@ -508,21 +530,23 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
         hit = np.zeros(len(raw), dtype=bool)
         first = None
         for j, c in enumerate(self.channels):
-            kind = numpy_type(c.datatype) if not c.on_host else None
-            if kind is None or kind.kind not in "iu":
+            if c.address is None:  # the host's own column (the set-point it sent)
+                continue
+            kind = numpy_type(c.datatype)
+            if kind.kind not in "iu":
                 continue
             info = np.iinfo(kind)
             at = (raw[:, j] >= info.max) | (raw[:, j] <= info.min)
             if at.any() and first is None:
-                first = (c, int(np.argmax(at)))
+                first = (c, c.address, int(np.argmax(at)))
             hit |= at
         if not hit.any() or self.last_result is None:
             return
         stats = self.last_result.stats
         if first is not None and not stats.clipped_blocks:
-            c, row = first
+            c, address, row = first
             self.log_event(RunEvent(
-                Kind.CLIPPED, f"{c.name} reached the range of {self.describe(c.address)} ({numpy_type(c.datatype)}): "
+                Kind.CLIPPED, f"{c.name} reached the range of {self.describe(address)} ({numpy_type(c.datatype)}): "
                 f"the drive's value is saturated there; its scaling ([canopen.scaling]) or the excitation is too large",
                 first_index + row))
         stats.clipped_blocks += int(hit.sum())

@@ -1,7 +1,7 @@
 """Opening the CAN bus a CANopen drive hangs on, and tracing it.
 
-``[device]`` names the bus the python-can way: ``can_interface`` (socketcan,
-pcan, kvaser, ixxat, vector, slcan, socketcand, virtual, ...) and ``port``, the
+``[device]`` names the bus the python-can way: ``[device.canopen] can_interface``
+(socketcan, pcan, kvaser, ixxat, vector, slcan, socketcand, virtual, ...) and ``port``, the
 interface's channel (``can0``, ``PCAN_USBBUS1``, ``0``, a virtual channel name).
 For ``socketcand`` the port is ``"HOST:PORT/CHANNEL"``, e.g.
 ``"127.0.0.1:29536/can0"``: the daemon's address and the bus it serves.
@@ -71,15 +71,16 @@ _OWN_ABORT = _OwnAbortFilter()
 
 def bus_arguments(device: DeviceConfig, default_bitrate: int) -> dict:
     """Keyword arguments of :class:`can.Bus` for ``[device]``."""
-    kwargs = {"interface": device.can_interface, "bitrate": device.baudrate or default_bitrate}
-    if device.can_interface == "socketcand":
+    interface = device.canopen.can_interface
+    kwargs = {"interface": interface, "bitrate": device.baudrate or default_bitrate}
+    if interface == "socketcand":
         host, port, channel = parse_socketcand_port(device.port)
         kwargs.update(channel=channel, host=host, port=port, tcp_tune=True)
         # its client warns each time TCP splits a frame line, which is routine: keep real errors only
         logging.getLogger("can.interfaces.socketcand.socketcand").setLevel(logging.ERROR)
     else:
         kwargs["channel"] = device.port
-    if device.can_interface == "virtual":
+    if interface == "virtual":
         kwargs["receive_own_messages"] = False
     return kwargs
 
@@ -106,6 +107,6 @@ def open_network(device: DeviceConfig, default_bitrate: int, label: str) -> Trac
     try:
         network.connect(**kwargs)
     except (can.CanError, OSError, ValueError, TypeError, ImportError, NotImplementedError, TimeoutError) as exc:
-        raise DeviceError(f"{label}: cannot open CAN interface {device.can_interface!r} on {device.port!r}: {exc}") \
-            from None
+        raise DeviceError(f"{label}: cannot open CAN interface {device.canopen.can_interface!r} on {device.port!r}: "
+                          f"{exc}") from None
     return network

@@ -1,7 +1,8 @@
 """Configuration of a CANopen run: mode, sample period, limits, and the PDO or capture mapping of the channels.
 
 One part of :class:`~hilident.adapters.canopen_drive.CanopenDriveAdapter`, which composes the parts
-(see that module); a part only uses the adapter's attributes and the other parts' methods.
+(see that module); a part uses only the attributes and methods
+:class:`~hilident.adapters.canopen_common.CanopenState` declares.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import math
 import numpy as np
 
 from hilident.adapters.canopen_common import (
+    CanopenState,
     ChannelCodec,
     PdoSlot,
 )
@@ -30,7 +32,7 @@ from hilident.protocol.canopen_profile import (
 )
 
 
-class ChannelMapping:
+class ChannelMapping(CanopenState):
     """The configuration part of :class:`~hilident.adapters.canopen_drive.CanopenDriveAdapter`.
 
     Mode of operation and sample period, the limits the drive holds, channel codecs,
@@ -60,13 +62,12 @@ class ChannelMapping:
             "position_limit_min": lambda: math.ceil(position_min_m / self.scale("position_limit_min")),
             "position_limit_max": lambda: math.floor(position_max_m / self.scale("position_limit_max")),
         }
-        values = {}
-        for role, raw in wanted.items():
+        values: dict[str, int] = {}
+        for role, compute in wanted.items():
             if not d.has(role) or (role == "max_torque" and not self.rated_torque_nm > 0):
                 continue
-            values[role] = raw()
-            var = self.node.object_dictionary.get_variable(d.address(role).index, d.address(role).subindex)
-            info = np.iinfo(numpy_type(var.data_type))
+            values[role] = compute()
+            info = np.iinfo(numpy_type(self.data_type(d.address(role))))
             if not info.min <= values[role] <= info.max:
                 raise ConfigError(f"limits ({role})",
                                   f"{values[role]} units do not fit {self.describe(d.address(role))}")
@@ -121,7 +122,7 @@ class ChannelMapping:
 
     def _divider_for(self, sample_rate_hz: float) -> tuple[int, float]:
         """(loop periods per sample, sample rate in Hz); DeviceError when the rate does not fit the drive."""
-        ident = self.identity
+        ident = self.drive_identity()
         divider = ident.loop_rate_hz / sample_rate_hz
         if abs(divider - round(divider)) > 1e-9 or round(divider) < 1:
             raise DeviceError(f"{self.port}: sample rate {sample_rate_hz:g} Hz does not divide the drive's loop rate "
@@ -155,13 +156,12 @@ class ChannelMapping:
                 codecs.append(ChannelCodec(name, units[name], None, None, REAL32, 1.0))
                 continue
             addr = self.desc.address(role)
-            var = self.node.object_dictionary.get_variable(addr.index, addr.subindex)
-            codecs.append(ChannelCodec(name, units[name], role, addr, var.data_type, self.scale(role)))
+            codecs.append(ChannelCodec(name, units[name], role, addr, self.data_type(addr), self.scale(role)))
         return codecs
 
     def _write_period(self, divider: int) -> None:
         """The sample period to whichever of 0x1006, 0x60C2 and the table divider the drive has."""
-        period_s = divider / self.identity.loop_rate_hz
+        period_s = divider / self.drive_identity().loop_rate_hz
         if self.desc.has("cycle_period"):
             self.write("cycle_period", int(round(1e6 * period_s)))
         if self.desc.has("interpolation_period"):
@@ -176,17 +176,21 @@ class ChannelMapping:
         if self.desc.has("table_divider"):
             self.write("table_divider", divider)
 
-    def _write_mapping(self, comm_index: int | None, map_index: int, entries: list[int], cob_id: int | None) -> None:
-        """CiA 301 order: invalidate, clear the count, write entries, set the count, validate."""
-        if comm_index is not None:
-            self.write_object(ObjectAddress(comm_index, 1), (cob_id or 0) | 0x80000000)
+    def _write_mapping(self, pdo: tuple[int, int] | None, map_index: int, entries: list[int]) -> None:
+        """CiA 301 order: invalidate, clear the count, write entries, set the count, validate.
+
+        ``pdo`` is the PDO's (communication object index, COB-ID), None for a mapping that is no PDO's
+        (the capture's).
+        """
+        if pdo is not None:
+            self.write_object(ObjectAddress(pdo[0], 1), pdo[1] | 0x80000000)
         self.write_object(ObjectAddress(map_index, 0), 0)
         for i, entry in enumerate(entries, start=1):
             self.write_object(ObjectAddress(map_index, i), entry)
         self.write_object(ObjectAddress(map_index, 0), len(entries))
-        if comm_index is not None and entries:
-            self.write_object(ObjectAddress(comm_index, 2), 1)  # synchronous, every SYNC
-            self.write_object(ObjectAddress(comm_index, 1), cob_id)
+        if pdo is not None and entries:
+            self.write_object(ObjectAddress(pdo[0], 2), 1)  # synchronous, every SYNC
+            self.write_object(ObjectAddress(pdo[0], 1), pdo[1])
 
     def pdo_slots(self, kind: str) -> list[PdoSlot]:
         """The RPDOs (``kind = "rpdo"``) or TPDOs the EDS declares, with their mapping capacity.
@@ -204,7 +208,7 @@ class ChannelMapping:
                 continue
             capacity = mapping_capacity(od[map_base + n])
             if n < 4:
-                cob = cob_base + 0x100 * n + self.node.id
+                cob = cob_base + 0x100 * n + self.node_id
             else:
                 var = od.get_variable(comm_base + n, 1)
                 cob = int(var.default or 0) & 0x7FF if var is not None else 0
@@ -219,14 +223,13 @@ class ChannelMapping:
         sample counter, the set-point counter); otherwise the TPDOs carry the
         channels only and the host matches them to SYNCs by their order.
         """
-        od = self.node.object_dictionary
         counted = self.desc.counted
         mapped = [c for c in codecs if not c.on_host]
         tpdos, rpdos = self.pdo_slots("tpdo"), self.pdo_slots("rpdo")
         header = []
         if counted:
             counter = self.desc.address("sample_counter")
-            header = [(counter, type_bits(od.get_variable(counter.index, counter.subindex).data_type))]
+            header = [(counter, type_bits(self.data_type(counter)))]
         per_frame = min((s.max_entries for s in tpdos[:4]), default=0) - len(header)
         try:
             frames = pack_frames([(c.name, c.bits) for c in mapped], header_bits=sum(b for _, b in header),
@@ -240,36 +243,43 @@ class ChannelMapping:
             members = frames[i] if i < len(frames) else []
             idx = [self.channel_index(codecs, m) for m in members]
             entries = ([mapping_entry(a, b) for a, b in header] +
-                       [mapping_entry(codecs[j].address, codecs[j].bits) for j in idx]) if members else []
-            self._write_mapping(0x1800 + slot.number, 0x1A00 + slot.number, entries, slot.cob_id)
+                       [mapping_entry(self._drive_object(codecs[j]), codecs[j].bits) for j in idx]) if members else []
+            self._write_mapping((0x1800 + slot.number, slot.cob_id), 0x1A00 + slot.number, entries)
             if members:
                 layout.append((slot.cob_id, idx))
         spec = self.desc.modes[mode]
         sp = self.desc.address(spec.setpoint)
-        sp_var = od.get_variable(sp.index, sp.subindex)
+        sp_type = self.data_type(sp)
         if not rpdos:
             raise DeviceError(f"{self.port}: the EDS {self.desc.eds} declares no RPDO: set-points cannot be streamed")
         rx_type = None
         entries = []
         if counted:
             rx_counter = self.desc.address("setpoint_counter")
-            rx_type = od.get_variable(rx_counter.index, rx_counter.subindex).data_type
+            rx_type = self.data_type(rx_counter)
             entries.append(mapping_entry(rx_counter, type_bits(rx_type)))
-        entries.append(mapping_entry(sp, type_bits(sp_var.data_type)))
-        self._write_mapping(0x1400 + rpdos[0].number, 0x1600 + rpdos[0].number, entries, rpdos[0].cob_id)
+        entries.append(mapping_entry(sp, type_bits(sp_type)))
+        self._write_mapping((0x1400 + rpdos[0].number, rpdos[0].cob_id), 0x1600 + rpdos[0].number, entries)
         for slot in rpdos[1:4]:
-            self._write_mapping(0x1400 + slot.number, 0x1600 + slot.number, [], slot.cob_id)
+            self._write_mapping((0x1400 + slot.number, slot.cob_id), 0x1600 + slot.number, [])
         self.tpdo_layout = layout
-        self.rpdo = (rpdos[0].cob_id, rx_type, sp_var.data_type, spec.setpoint)
+        self.rpdo = (rpdos[0].cob_id, rx_type, sp_type, spec.setpoint)
         self.nmt("OPERATIONAL")
 
     @staticmethod
-    def channel_index(codecs, name: str) -> int:
+    def channel_index(codecs: list[ChannelCodec], name: str) -> int:
         return [c.name for c in codecs].index(name)
+
+    def _drive_object(self, codec: ChannelCodec) -> ObjectAddress:
+        """The object carrying ``codec``'s channel; DeviceError for a channel the host records itself."""
+        if codec.address is None:
+            raise DeviceError(f"{self.port}: channel {codec.name!r} is recorded by the host: no drive object "
+                              "carries it")
+        return codec.address
 
     def _map_capture(self, codecs: list[ChannelCodec]) -> None:
         index = self.desc.address("capture_mapping").index
-        self._write_mapping(None, index, [mapping_entry(c.address, c.bits) for c in codecs], None)
+        self._write_mapping(None, index, [mapping_entry(self._drive_object(c), c.bits) for c in codecs])
         self.nmt("OPERATIONAL")  # for the heartbeat's NMT check; no PDOs are mapped
         for slot in self.pdo_slots("tpdo"):  # no stale TPDOs beside the capture
             self.write_object(ObjectAddress(0x1800 + slot.number, 1), slot.cob_id | 0x80000000)

@@ -1,7 +1,8 @@
 """NMT, heartbeats and emergencies for the CANopen adapter: the known state at connect and the device-side net.
 
 One part of :class:`~hilident.adapters.canopen_drive.CanopenDriveAdapter`, which composes the parts
-(see that module); a part only uses the adapter's attributes and the other parts' methods.
+(see that module); a part uses only the attributes and methods
+:class:`~hilident.adapters.canopen_common.CanopenState` declares.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import math
 import time
 
 import can
+from canopen.emcy import EmcyError
 
 import canopen
 from hilident.adapters.base import (
@@ -22,6 +24,7 @@ from hilident.adapters.canopen_common import (
     _NMT_OPERATIONAL,
     _TPDO_BASES,
     LIMIT_TRIP_CODES,
+    CanopenState,
     Emergency,
 )
 from hilident.errors import DeviceError
@@ -37,7 +40,7 @@ from hilident.protocol.canopen_objects import (
 )
 
 
-class NetWatch:
+class NetWatch(CanopenState):
     """The NMT and heartbeat part of :class:`~hilident.adapters.canopen_drive.CanopenDriveAdapter`.
 
     The known state at connect (pre-operational, early frames counted, power stage off,
@@ -49,7 +52,7 @@ class NetWatch:
 
     def _count_early_frames(self) -> _FrameCounter:
         """Count the TPDOs and emergencies that arrive while the host has configured nothing."""
-        cobs = [base + self.node.id for base in _TPDO_BASES]
+        cobs = [base + self.node_id for base in _TPDO_BASES]
         counter = _FrameCounter(self.network, cobs)
         return counter
 
@@ -128,11 +131,12 @@ class NetWatch:
 
     def _consumer_entry_for(self, host: int) -> ObjectAddress:
         """The 0x1016 entry already watching ``host``, else the first unused one."""
-        var = self.node.object_dictionary[HEARTBEAT_CONSUMER_INDEX]
+        od = self.node.object_dictionary
         count = int(self.read_object(ObjectAddress(HEARTBEAT_CONSUMER_INDEX, 0)))
-        free, others = None, []
+        free: ObjectAddress | None = None
+        others: list[str] = []
         for sub in range(1, count + 1):
-            if var.get(sub) is None:
+            if od.get_variable(HEARTBEAT_CONSUMER_INDEX, sub) is None:
                 continue
             addr = ObjectAddress(HEARTBEAT_CONSUMER_INDEX, sub)
             node, time_ms = parse_consumer_entry(int(self.read_object(addr)))
@@ -149,14 +153,17 @@ class NetWatch:
 
     def _start_host_heartbeat(self, host: int, period_s: float) -> None:
         """python-can's cyclic sender in a daemon thread: it dies with the process, which is the point."""
+        bus = self.network.bus
+        if bus is None:
+            raise DeviceError(f"{self.port}: the CAN bus is not open: the host's heartbeat cannot be sent")
         msg = can.Message(arbitration_id=0x700 + host, data=[_NMT_OPERATIONAL], is_extended_id=False)
         self._beat = (msg.arbitration_id, period_s)
         self._beat_s = time.monotonic()
         self._host_heartbeat = can.broadcastmanager.ThreadBasedCyclicSendTask(
-            self.network.bus, self.network.send_lock, msg, period_s, on_error=lambda exc: False,
+            bus, self.network.send_lock, msg, period_s, on_error=lambda exc: False,
             modifier_callback=self._on_beat)
 
-    def _on_beat(self, msg) -> None:
+    def _on_beat(self, msg: can.Message) -> None:
         self._beat_s = time.monotonic()
 
     def beat_if_due(self) -> None:
@@ -206,7 +213,7 @@ class NetWatch:
         self.heartbeat_s = time.monotonic()
         self.heartbeat_state = state
 
-    def _on_emcy(self, error) -> None:
+    def _on_emcy(self, error: EmcyError) -> None:
         self.emergencies.append(Emergency(error.code, error.register, bytes(error.data), time.monotonic()))
 
     def check_link(self) -> None:
@@ -265,14 +272,14 @@ class NetWatch:
 class _FrameCounter:
     """Counts frames on some COB-IDs until stopped (PDOs left over from an earlier session)."""
 
-    def __init__(self, network, cobs: list[int]):
+    def __init__(self, network: canopen.Network, cobs: list[int]) -> None:
         self.network = network
         self.cobs = cobs
         self.frames = 0
         for cob in cobs:
             network.subscribe(cob, self._on_frame)
 
-    def _on_frame(self, can_id, data, timestamp) -> None:
+    def _on_frame(self, can_id: int, data: bytearray, timestamp: float) -> None:
         self.frames += 1
 
     def stop(self) -> None:

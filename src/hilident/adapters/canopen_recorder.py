@@ -35,16 +35,26 @@ import time
 
 import numpy as np
 
-from hilident.adapters.base import RunStrategy
+from hilident.adapters.base import RunResult, RunStrategy
+from hilident.adapters.canopen_common import CanopenState, ChannelCodec
+from hilident.adapters.canopen_streamed import Deliver, DriveHost
+from hilident.drivers import DriverDescription
 from hilident.errors import ConfigError, DeviceError
 from hilident.events import Kind, RunEvent
 from hilident.protocol.canopen_objects import (
+    CanopenDescription,
     ObjectAddress,
     mapping_entry,
     numpy_type,
     record_dtype,
 )
-from hilident.protocol.canopen_recorder import generator_output, plan_generator
+from hilident.protocol.canopen_recorder import (
+    GeneratorSettings,
+    GeneratorSpec,
+    RecorderCapability,
+    generator_output,
+    plan_generator,
+)
 
 __all__ = ["RecorderRun", "configure_recorder"]
 
@@ -52,14 +62,19 @@ _POLL_S = 0.05
 _POSITION_SETPOINTS = ("target_position", "interpolation_data")
 
 
-def configure_recorder(ad, codecs) -> None:
+def _capability(desc: CanopenDescription, driver: DriverDescription) -> RecorderCapability:
+    """The drive's recorder (and generator); ConfigError naming the driver file when it describes none."""
+    if desc.recorder is None:
+        raise ConfigError("device.acquisition", f'"recorder": driver {driver.name!r} describes no '
+                                                "[canopen.recorder]", str(driver.folder / "driver.toml"))
+    return desc.recorder
+
+
+def configure_recorder(ad: CanopenState, codecs: list[ChannelCodec]) -> None:
     """``configure()``'s part for a recorder run: the drive has a recorder, the channels fit it, no PDO runs."""
-    cap = ad.desc.recorder
+    cap = _capability(ad.desc, ad.driver)
     source = str(ad.driver.folder / "driver.toml")
-    if cap is None:
-        raise ConfigError("device.acquisition", f'"recorder": driver {ad.driver.name!r} describes no '
-                                                "[canopen.recorder]", source)
-    wanted = [c for c in codecs if not c.on_host]
+    wanted: list[ChannelCodec | None] = [c for c in codecs if not c.on_host]
     output = cap.generator.output if cap.generator is not None else None
     if any(c.on_host for c in codecs) and output is not None:
         wanted.append(None)  # the generator's output object records the excitation
@@ -80,52 +95,67 @@ class RecorderRun(RunStrategy):
     (``set_excitation_recipe``).
     """
 
-    def __init__(self, adapter, x: np.ndarray, deliver, result):
+    ad: DriveHost
+
+    def __init__(self, adapter: DriveHost, x: np.ndarray, deliver: Deliver, result: RunResult):
         super().__init__(adapter, x, deliver, result)
         ad = adapter
-        self.cap = ad.desc.recorder
+        self.cap = _capability(ad.desc, ad.driver)
         self.rec = self.cap.recorder
-        self.recipe = ad.excitation_recipe
         self.source = str(ad.driver.folder / "driver.toml")
-        self.period = ad.divider
-        self.settings = None
-        self.channels: list[tuple[ObjectAddress, int, float]] = []  # (object, data type, SI per unit) recorded
-        self.excitation_column: int | None = None  # index into self.channels, or None: computed
-
-    # --- planning (nothing moves) ----------------------------------------------------------------
-
-    def plan(self, n: int):
-        """The generator's settings for ``n`` samples; ConfigError when the drive cannot play the recipe."""
-        ad = self.ad
-        if self.recipe is None:
+        if ad.excitation_recipe is None:
             raise ConfigError("device.acquisition", '"recorder" plays only what the drive\'s generator plays, '
                                                     "and this run has no excitation recipe (the friction test's "
                                                     "ramps are host-streamed: set friction_test.enabled = false, or "
                                                     'run the friction test with device.acquisition = "streamed")',
                               self.source)
+        self.recipe: dict = ad.excitation_recipe
+        self.period = ad.divider
+        self.settings: GeneratorSettings | None = None  # what plan() chose
+        self.channels: list[tuple[ObjectAddress, int, float]] = []  # (object, data type, SI per unit) recorded
+        self.excitation_column: int | None = None  # index into self.channels, or None: computed
+
+    # --- planning (nothing moves) ----------------------------------------------------------------
+
+    def plan(self, n: int) -> GeneratorSettings:
+        """The generator's settings for ``n`` samples; ConfigError when the drive cannot play the recipe."""
+        ad = self.ad
         if self.period not in self.rec.sample_periods:
             raise ConfigError("run.sample_rate_hz", f"{ad.sample_rate_hz:g} Hz is a sample period of {self.period} "
                                                     f"loop cycles; the drive's recorder takes "
                                                     f"{list(self.rec.sample_periods)} ([canopen.recorder] "
                                                     "sample_periods)", self.source)
         target = ad.desc.modes[ad.mode].setpoint
-        scales = {}
+        scales: dict[str, float] = {}
         for kind, role in (("torque", "target_torque"), ("velocity", "target_velocity"),
                            ("position", "target_position")):
             with contextlib.suppress(Exception):
                 scales[kind] = ad.desc.scale(role, ad.rated_torque_nm, ad.rated_current_a)
         try:
             self.settings = plan_generator(self.cap, self.recipe, target, n, self.period,
-                                           ad.identity.loop_rate_hz, scales)
+                                           ad.drive_identity().loop_rate_hz, scales)
         except KeyError as exc:  # a parameter scaled like torque on a drive whose torque cannot be scaled
             raise DeviceError(f"{ad.port}: the generator's {exc.args[0]} parameters cannot be scaled: "
                               f"{ad.torque_problem}") from None
         return self.settings
 
+    def planned(self) -> GeneratorSettings:
+        """The settings :meth:`plan` chose (RuntimeError before it ran: a misuse of this class)."""
+        if self.settings is None:
+            raise RuntimeError("RecorderRun.plan() has not run: the generator's settings are not known yet")
+        return self.settings
+
+    def generator(self) -> GeneratorSpec:
+        """The drive's generator; ConfigError when the driver describes none (:meth:`plan` refuses that first)."""
+        if self.cap.generator is None:
+            raise ConfigError("device.acquisition", '"recorder" plays what the drive\'s generator plays, and the '
+                                                    "driver describes no [canopen.generator]", self.source)
+        return self.cap.generator
+
     def expected(self, n: int) -> np.ndarray:
         """What the generator plays at the recorder's ``n`` sample instants, from the values it stores."""
-        s = self.settings
-        return generator_output(s.kind, s.values, np.arange(n) * self.period, self.ad.identity.loop_rate_hz)
+        s = self.planned()
+        return generator_output(s.kind, s.values, np.arange(n) * self.period, self.ad.drive_identity().loop_rate_hz)
 
     # --- the run -------------------------------------------------------------------------------------
 
@@ -133,13 +163,14 @@ class RecorderRun(RunStrategy):
         """Set up, play, record, upload; a fault ends it early (the adapter raises it once the axis is safe)."""
         ad, n, x = self.ad, self.n, self.x
         settings = self.plan(n)
-        self._compare(x, n)
+        gen = self.generator()
+        self._compare(x, n, settings)
         try:
-            self._set_up(n)
+            self._set_up(n, settings, gen)
             ad.write_object(self.rec.control, self.rec.commands["start"])  # waits for the generator's start
             self._hold_axis()
             ad.enable()
-            ad.write_object(self.cap.generator.control, self.cap.generator.commands["start"])
+            ad.write_object(gen.control, gen.commands["start"])
             recorded = min(n, self._wait(n))  # a recorder that kept going past n: the n asked for
         finally:
             self._stop()
@@ -152,41 +183,40 @@ class RecorderRun(RunStrategy):
                                       f"({ad.describe(self.rec.recorded)}): its recording ended early",
                             f"the drive's {settings.kind.name} generator played and its recorder took {n} samples")
 
-    def _compare(self, x: np.ndarray, n: int) -> None:
+    def _compare(self, x: np.ndarray, n: int, settings: GeneratorSettings) -> None:
         """A warning event when the generator will not play what the host meant (its samples ``x``)."""
-        kind = self.settings.kind
+        kind = settings.kind
         if kind.name == "prbs" and not kind.taps:
             self.ad.log_event(RunEvent(Kind.EXCITATION_DIFFERS, "the drive's PRBS sequence is not described "
                                        "([canopen.generator.kinds.prbs] taps): what it plays cannot be compared",
                                        0, value=float("nan")))
             return
         expected = self.expected(n)
-        step = abs(self.settings.values["amplitude"] - float(self.recipe.get("amplitude", 0.0)))
+        step = abs(settings.values["amplitude"] - float(self.recipe.get("amplitude", 0.0)))
         diff = np.abs(expected - x)
         worst = int(np.argmax(diff)) if n else 0
-        if n and diff[worst] > step + 1e-6 * max(1.0, abs(self.settings.values["amplitude"])):
+        if n and diff[worst] > step + 1e-6 * max(1.0, abs(settings.values["amplitude"])):
             self.ad.log_event(RunEvent(
                 Kind.EXCITATION_DIFFERS, f"the drive's {kind.name} generator plays another signal than the host's "
                 f"excitation (largest difference {diff[worst]:.4g} at sample {worst}); the recording holds what the "
                 "drive played", worst, value=float(diff[worst])))
 
-    def _set_up(self, n: int) -> None:
+    def _set_up(self, n: int, settings: GeneratorSettings, gen: GeneratorSpec) -> None:
         """Recorder channels, period, count and trigger; the generator's kind, target and parameters (read back)."""
-        ad, rec, gen = self.ad, self.rec, self.cap.generator
+        ad, rec = self.ad, self.rec
         ad.write_object(rec.control, rec.commands["stop"])
         ad.write_object(gen.control, gen.commands["stop"])
-        objects = []
+        objects: list[tuple[ObjectAddress, int, float]] = []
         self.excitation_column = None
         for c in ad.channels:
-            if not c.on_host:
+            if c.address is not None:  # a drive object (else the host's own column: the excitation)
                 objects.append((c.address, c.datatype, c.scale))
             elif gen.output is not None:
                 self.excitation_column = len(objects)
-                var = ad.node.object_dictionary.get_variable(gen.output.index, gen.output.subindex)
                 scale = gen.output_scale if not isinstance(gen.output_scale, str) else ad.scale(
                     {"torque": "target_torque", "velocity": "target_velocity",
                      "position": "target_position"}[gen.output_scale])
-                objects.append((gen.output, var.data_type, scale))
+                objects.append((gen.output, ad.data_type(gen.output), scale))
         self.channels = objects
         for i, addr in enumerate(rec.channels):
             entry = mapping_entry(objects[i][0], numpy_type(objects[i][1]).itemsize * 8) if i < len(objects) else 0
@@ -194,7 +224,7 @@ class RecorderRun(RunStrategy):
         ad.write_object(rec.sample_period, self.period)
         ad.write_object(rec.samples, n)
         ad.write_object(rec.trigger, rec.triggers["generator"])
-        s = self.settings
+        s = settings
         if gen.kind is not None:
             ad.write_object(gen.kind, s.kind.code)
         ad.write_object(gen.target, gen.targets[s.target])
@@ -242,8 +272,10 @@ class RecorderRun(RunStrategy):
     def _stop(self) -> None:
         """Generator off, recorder off, power stage off: on every ending, whatever fails."""
         ad = self.ad
-        with contextlib.suppress(Exception):
-            ad.write_object(self.cap.generator.control, self.cap.generator.commands["stop"])
+        gen = self.cap.generator
+        if gen is not None:
+            with contextlib.suppress(Exception):
+                ad.write_object(gen.control, gen.commands["stop"])
         ad.safe_stop()
         with contextlib.suppress(Exception):
             if int(ad.read_object(self.rec.state)) != self.rec.states["done"]:
@@ -284,15 +316,5 @@ class RecorderRun(RunStrategy):
         self.deliver(np.arange(recorded, dtype=np.int64), np.column_stack(rows))
 
     def _read(self, addr: ObjectAddress) -> bytes:
-        ad = self.ad
-        if self.rec.block_transfer:
-            return ad._block_transfer(addr, "rb", lambda f: bytes(f.readall()), {})
-        try:
-            return bytes(ad.node.sdo.upload(addr.index, addr.subindex))
-        except Exception as exc:
-            from hilident.adapters.canopen_drive import _transfer_error
-
-            cause = _transfer_error(exc)
-            if cause is None:
-                raise
-            raise ad._sdo_error(cause, addr, "reading") from None
+        """A recorder buffer, by block transfer when ``[canopen.recorder] block_transfer`` says so."""
+        return self.ad.read_domain(addr, block_transfer=self.rec.block_transfer)

@@ -1,21 +1,28 @@
 """Object access by SDO for the CANopen adapter: read and write by role or address, block transfers, aborts named.
 
 One part of :class:`~hilident.adapters.canopen_drive.CanopenDriveAdapter`, which composes the parts
-(see that module); a part only uses the adapter's attributes and the other parts' methods.
+(see that module); a part uses only the attributes and methods
+:class:`~hilident.adapters.canopen_common.CanopenState` declares.
 """
 
 from __future__ import annotations
 
 import contextlib
 import io
+from collections.abc import Callable
 from struct import error as struct_error
+from typing import TypeVar
 
 import can
+from canopen.objectdictionary import ODVariable
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
+from canopen.sdo.client import BlockDownloadStream, BlockUploadStream
 
 import canopen
 from hilident.adapters.canopen_common import (
     _ABORT_GENERAL,
+    CanopenState,
+    ObjectValue,
     _transfer_error,
 )
 from hilident.errors import DataError, DeviceError
@@ -23,8 +30,11 @@ from hilident.protocol.canopen_objects import (
     ObjectAddress,
 )
 
+_Stream = TypeVar("_Stream", bound=io.RawIOBase)  # the block transfer stream a body reads or writes
+_Result = TypeVar("_Result")  # what the body returns
 
-class SdoAccess:
+
+class SdoAccess(CanopenState):
     """The object-access part of :class:`~hilident.adapters.canopen_drive.CanopenDriveAdapter`.
 
     Every SDO read and write goes through here, so an abort or a lost bus becomes a
@@ -41,6 +51,20 @@ class SdoAccess:
             name = f"{var.parent.name}: {var.name}"
         return f"{addr} ({name})"
 
+    def eds_variable(self, addr: ObjectAddress) -> ODVariable:
+        """The EDS entry of ``addr``; DeviceError when the EDS has none."""
+        var = self.node.object_dictionary.get_variable(addr.index, addr.subindex)
+        if var is None:
+            raise DeviceError(f"{self.port}: object {addr} is not in the EDS {self.desc.eds}")
+        return var
+
+    def data_type(self, addr: ObjectAddress) -> int:
+        """The CiA 301 data type the EDS gives ``addr``; DeviceError when it is not there or has none."""
+        data_type = self.eds_variable(addr).data_type
+        if data_type is None:
+            raise DeviceError(f"{self.port}: the EDS {self.desc.eds} gives {self.describe(addr)} no data type")
+        return data_type
+
     def _sdo_error(self, exc: Exception, addr: ObjectAddress, action: str) -> DeviceError:
         if isinstance(exc, SdoAbortedError):
             meaning = SdoAbortedError.CODES.get(exc.code, "unknown abort code")
@@ -50,22 +74,18 @@ class SdoAccess:
                                "(is the drive powered, on this bus, with this node id?)")
         return DeviceError(f"{self.port}: bus failure {action} {self.describe(addr)}: {exc}")
 
-    def read_object(self, addr: ObjectAddress):
+    def read_object(self, addr: ObjectAddress) -> ObjectValue:
         """Upload one object and decode it by its EDS data type."""
-        var = self.node.object_dictionary.get_variable(addr.index, addr.subindex)
-        if var is None:
-            raise DeviceError(f"{self.port}: object {addr} is not in the EDS {self.desc.eds}")
+        var = self.eds_variable(addr)
         self.beat_if_due()
         try:
             return var.decode_raw(self.node.sdo.upload(addr.index, addr.subindex))
         except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
             raise self._sdo_error(exc, addr, "reading") from None
 
-    def write_object(self, addr: ObjectAddress, value) -> None:
+    def write_object(self, addr: ObjectAddress, value: ObjectValue) -> None:
         """Download one object, encoded by its EDS data type."""
-        var = self.node.object_dictionary.get_variable(addr.index, addr.subindex)
-        if var is None:
-            raise DeviceError(f"{self.port}: object {addr} is not in the EDS {self.desc.eds}")
+        var = self.eds_variable(addr)
         try:
             data = var.encode_raw(value)
         except (ValueError, TypeError, struct_error) as exc:
@@ -76,21 +96,22 @@ class SdoAccess:
         except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
             raise self._sdo_error(exc, addr, "writing") from None
 
-    def read(self, role: str):
+    def read(self, role: str) -> ObjectValue:
         return self.read_object(self.desc.address(role))
 
-    def write(self, role: str, value) -> None:
+    def write(self, role: str, value: ObjectValue) -> None:
         self.write_object(self.desc.address(role), value)
 
-    def read_domain(self, addr: ObjectAddress) -> bytes:
-        """Upload a DOMAIN object (block transfer when the description says so)."""
-        if not self.desc.block_transfer:
+    def read_domain(self, addr: ObjectAddress, block_transfer: bool | None = None) -> bytes:
+        """Upload a DOMAIN object, by block transfer when ``block_transfer`` says so (None: when the
+        description's ``block_transfer`` does)."""
+        if not (self.desc.block_transfer if block_transfer is None else block_transfer):
             try:
                 return bytes(self.node.sdo.upload(addr.index, addr.subindex))
             except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
                 raise self._sdo_error(exc, addr, "reading") from None
 
-        def upload(f):
+        def upload(f: BlockUploadStream) -> bytes:
             return bytes(f.readall())
 
         return self._block_transfer(addr, "rb", upload, {})
@@ -104,7 +125,7 @@ class SdoAccess:
                 raise self._sdo_error(exc, addr, "writing") from None
             return
 
-        def download(f):
+        def download(f: BlockDownloadStream) -> None:
             view = memoryview(data)
             pos = 0
             while pos < len(data):
@@ -112,7 +133,8 @@ class SdoAccess:
 
         self._block_transfer(addr, "wb", download, {"size": len(data)})
 
-    def _block_transfer(self, addr: ObjectAddress, mode: str, body, options: dict):
+    def _block_transfer(self, addr: ObjectAddress, mode: str, body: Callable[[_Stream], _Result],
+                        options: dict[str, int]) -> _Result:
         """Run ``body(stream)`` on an SDO block transfer stream; an interrupted transfer is aborted.
 
         A signal (or any exception not from the transfer itself) in the middle

@@ -44,19 +44,27 @@ from __future__ import annotations
 import collections
 import struct
 import time
+from collections.abc import Callable
 from typing import Protocol
 
 import numpy as np
 
-from hilident.adapters.base import RunStrategy
+import canopen
+from hilident.adapters.base import RunResult, RunStrategy
+from hilident.adapters.canopen_common import ChannelCodec, DriveIdentity, Emergency, ObjectValue
+from hilident.adapters.canopen_trace import TracingNetwork
+from hilident.drivers import DriverDescription
 from hilident.errors import DeviceError
 from hilident.events import Kind, RunEvent
-from hilident.protocol.canopen_objects import numpy_type, type_bits
+from hilident.protocol.canopen_objects import CanopenDescription, ObjectAddress, numpy_type, type_bits
 
-__all__ = ["StreamedRun", "DriveHost", "POSITION_SETPOINTS"]
+__all__ = ["StreamedRun", "DriveHost", "Deliver", "POSITION_SETPOINTS"]
 
 #: Set-point roles that are positions (targets relative to where the axis holds at enable).
 POSITION_SETPOINTS = ("target_position", "interpolation_data")
+
+#: Where a strategy hands ``(sample indices, rows)`` blocks (the template's ``deliver``).
+Deliver = Callable[[np.ndarray, np.ndarray], None]
 
 _GRACE_S = 0.25  # after the last SYNC (or an emergency), wait this long for the TPDOs in flight
 
@@ -66,30 +74,63 @@ class DriveHost(Protocol):
     (:class:`~hilident.adapters.canopen_drive.CanopenDriveAdapter`).
 
     Configuration, as :meth:`configure` left it: ``desc`` (the driver's
-    objects), ``channels`` (the recorded channels' codecs), ``mode``,
-    ``sample_rate_hz``, ``sync_rate_hz``, ``sync_overflow``, ``tpdo_layout``
-    and ``rpdo`` (streamed), ``timeout_s``, ``port``; the bus: ``network``
-    (``send_message``, ``subscribe``, ``unsubscribe``) and ``node``; the run:
+    objects), ``driver``, ``channels`` (the recorded channels' codecs), ``mode``,
+    ``sample_rate_hz``, ``divider``, ``sync_rate_hz``, ``sync_overflow``, ``tpdo_layout``
+    and ``rpdo`` (streamed), ``excitation_recipe`` (recorder), the ratings, ``timeout_s``, ``port``;
+    the bus: ``network`` (``send_message``, ``subscribe``, ``unsubscribe``) and ``node``; the run:
     ``events`` (read only: log with :meth:`log_event`), ``run_fault`` (read
     only: note with :meth:`take_emergency_fault`) and ``emergencies`` (the
-    queue, to wait for one).
+    queue, to wait for one). The adapter's ``ACQUISITIONS`` table is typed with
+    this protocol, so the type checker holds the adapter to it.
     """
 
     port: str
     timeout_s: float
+    network: TracingNetwork
+    node: canopen.RemoteNode
+    driver: DriverDescription
+    desc: CanopenDescription
+    channels: list[ChannelCodec]
+    mode: str
+    sample_rate_hz: float
+    divider: int
+    sync_rate_hz: float | None
+    sync_overflow: int
+    tpdo_layout: list[tuple[int, list[int]]]
+    rpdo: tuple[int, int | None, int, str] | None
+    excitation_recipe: dict | None
+    rated_torque_nm: float
+    rated_current_a: float
+    torque_problem: str
+    events: list[dict]
+    run_fault: dict | None
+    emergencies: collections.deque[Emergency]
 
-    def read(self, role: str): ...
+    def read(self, role: str) -> ObjectValue: ...
 
-    def write(self, role: str, value) -> None: ...
+    def write(self, role: str, value: ObjectValue) -> None: ...
 
-    def read_domain(self, addr) -> bytes: ...
+    def read_object(self, addr: ObjectAddress) -> ObjectValue: ...
 
-    def write_domain(self, addr, data: bytes) -> None: ...
+    def write_object(self, addr: ObjectAddress, value: ObjectValue) -> None: ...
 
-    def describe(self, addr) -> str: ...
+    def read_domain(self, addr: ObjectAddress, block_transfer: bool | None = None) -> bytes: ...
+
+    def write_domain(self, addr: ObjectAddress, data: bytes) -> None: ...
+
+    def describe(self, addr: ObjectAddress) -> str: ...
+
+    def data_type(self, addr: ObjectAddress) -> int: ...
+
+    def drive_identity(self) -> DriveIdentity: ...
+
+    def scale(self, role: str) -> float: ...
 
     def enable(self) -> None:
         """CiA 402 state machine to Operation Enabled."""
+
+    def safe_stop(self) -> None:
+        """Power stage off now; never raises."""
 
     def check_link(self) -> None:
         """DeviceError when the drive's heartbeat stopped or it left NMT Operational."""
@@ -104,7 +145,9 @@ class DriveHost(Protocol):
 
     def encode_setpoints(self, x: np.ndarray, datatype: int, role: str, origin_raw: int = 0) -> np.ndarray: ...
 
-    def decode_rows(self, raw_columns: list[np.ndarray]) -> np.ndarray: ...
+    def decode_rows(self, raw_columns: list[np.ndarray], first_index: int = 0) -> np.ndarray: ...
+
+    def count_saturated(self, raw: np.ndarray, first_index: int) -> None: ...
 
 
 class StreamedRun(RunStrategy):
@@ -115,17 +158,23 @@ class StreamedRun(RunStrategy):
     (delivered or counted lost), the SYNCs sent, late and unanswered.
     """
 
-    def __init__(self, adapter: DriveHost, x: np.ndarray, deliver, result):
+    ad: DriveHost
+
+    def __init__(self, adapter: DriveHost, x: np.ndarray, deliver: Deliver, result: RunResult):
         super().__init__(adapter, x, deliver, result)
         ad = adapter
         n = self.n
+        if ad.rpdo is None:
+            raise DeviceError(f"{ad.port}: configure() for streamed acquisition before stream(): no RPDO is mapped")
+        #: (COB-ID, set-point counter type or None, set-point type, set-point role) of the RPDO configure() mapped
+        self.rpdo = ad.rpdo
         self.counted = ad.desc.counted
         counter_char, self.counter_mod = "", 0
         if self.counted:
-            counter_addr = ad.desc.address("sample_counter")
-            counter_type = ad.node.object_dictionary.get_variable(counter_addr.index, counter_addr.subindex).data_type
+            counter_type = ad.data_type(ad.desc.address("sample_counter"))
             counter_char, self.counter_mod = numpy_type(counter_type).char, 1 << type_bits(counter_type)
-        self.frames = {}
+        #: COB-ID -> (its bit in the mask, its layout, the channel columns it carries, its rank in PDO order)
+        self.frames: dict[int, tuple[int, struct.Struct, np.ndarray, int]] = {}
         for rank, (cob, idx) in enumerate(ad.tpdo_layout):
             fmt = "<" + counter_char + "".join(numpy_type(ad.channels[i].datatype).char for i in idx)
             self.frames[cob] = (1 << rank, struct.Struct(fmt), np.asarray(idx, dtype=np.intp), rank)
@@ -137,7 +186,7 @@ class StreamedRun(RunStrategy):
                 self.raw[:, j] = x  # the set-point the host sends, in SI units (scale 1)
         self.mask = np.zeros(n, dtype=np.uint32)
         self.answered_set, self.answered_rank = -1, len(self.frames)  # ordered matching: the set, its last PDO
-        self.rx = collections.deque()
+        self.rx: collections.deque[tuple[int, bytes]] = collections.deque()  # (COB-ID, data) as received
         self.period = 1.0 / (ad.sync_rate_hz or ad.sample_rate_hz)
         self.window = max(16, int(round(0.1 / self.period)))
         self.final = 0  # samples below are delivered or counted lost
@@ -146,7 +195,7 @@ class StreamedRun(RunStrategy):
 
     # --- receiving ---------------------------------------------------------------------------------
 
-    def on_tpdo(self, can_id, data, timestamp) -> None:
+    def on_tpdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
         self.rx.append((can_id, bytes(data)))
 
     def finalize(self, limit: int, count_lost: bool = True) -> None:
@@ -242,9 +291,9 @@ class StreamedRun(RunStrategy):
 
     # --- the run -----------------------------------------------------------------------------------
 
-    def rpdo_packer(self):
+    def rpdo_packer(self) -> Callable[[int, int | float], bytes]:
         """``pack(k, value)``: the RPDO of sample ``k`` (headed by the set-point counter where there is one)."""
-        rx_type, sp_type = self.ad.rpdo[1], self.ad.rpdo[2]
+        rx_type, sp_type = self.rpdo[1], self.rpdo[2]
         if rx_type is not None:
             rx_mod = 1 << type_bits(rx_type)
             rpdo_struct = struct.Struct("<" + numpy_type(rx_type).char + numpy_type(sp_type).char)
@@ -260,7 +309,7 @@ class StreamedRun(RunStrategy):
         zero speed. Position set-points are relative to where the axis holds.
         """
         ad = self.ad
-        sp_type, sp_role = ad.rpdo[2], ad.rpdo[3]
+        sp_type, sp_role = self.rpdo[2], self.rpdo[3]
         position = sp_role in POSITION_SETPOINTS
         ad.write(sp_role, int(ad.read("position_actual")) if position else 0)
         hold = ad.desc.modes[ad.mode].hold
@@ -305,11 +354,12 @@ class StreamedRun(RunStrategy):
         lag_limit = max(10 * window, int(round(1.0 / period)))  # the drive is not keeping up: stop flooding it
         overflow = ad.sync_overflow
         send = ad.network.send_message
-        rpdo_cob, pack = ad.rpdo[0], self.rpdo_packer()
+        rpdo_cob, pack = self.rpdo[0], self.rpdo_packer()
         setpoints = self.start()
         fault = None
         t0 = time.perf_counter() + 0.001
-        ended = None
+        ended: float | None = None  # when the last SYNC went out
+        fault_s = 0.0  # when the fault was taken
         top = -1
         heard_s = 0.0  # when the newest sample so far arrived
         while True:
@@ -330,10 +380,10 @@ class StreamedRun(RunStrategy):
             if fault is None:
                 fault = ad.take_emergency_fault(max(top, 0))
                 if fault is not None:
-                    ended = now
+                    fault_s = now
             if fault is not None:
                 last = min(self.sent, fault["sample_index"] + 1)
-                if now - ended > _GRACE_S or self.complete_from_final(last):
+                if now - fault_s > _GRACE_S or self.complete_from_final(last):
                     self.finalize(last)
                     self.finalize(min(self.sent, top + 1), count_lost=False)
                     return

@@ -66,7 +66,7 @@ class TraceClock:
     as a calendar date, and the ASC header the date of the first frame.
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         self._epoch_s = time.time()
         self._start_s = time.monotonic()
 
@@ -94,7 +94,7 @@ class FrameTrace(can.Listener):
         python-can knows no writer for the suffix.
     """
 
-    def __init__(self, path, clock: TraceClock | None = None):
+    def __init__(self, path: str | Path, clock: TraceClock | None = None) -> None:
         self.path = Path(path)
         self.clock = clock or TraceClock()
         self.writer = can.Logger(str(self.path), channel=TRACE_CHANNEL)
@@ -150,11 +150,11 @@ class TracingNetwork(canopen.Network):
 
     NOTIFIER_CYCLE = 0.1  # a short receive timeout: disconnect() returns promptly
 
-    def __init__(self, bus=None):
+    def __init__(self, bus: can.BusABC | None = None) -> None:
         super().__init__(bus)
         self.trace: FrameTrace | None = None
 
-    def send_message(self, can_id: int, data, remote: bool = False) -> None:
+    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
         """Send a frame; while a trace runs, write it there once the interface has taken it."""
         trace = self.trace
         if trace is None:
@@ -166,7 +166,7 @@ class TracingNetwork(canopen.Network):
             trace.write_sent(can.Message(arbitration_id=can_id, data=bytes(data), is_extended_id=can_id > 0x7FF,
                                          is_remote_frame=remote, check=False))
 
-    def start_trace(self, path, clock: TraceClock | None = None) -> FrameTrace:
+    def start_trace(self, path: str | Path, clock: TraceClock | None = None) -> FrameTrace:
         """Start writing every frame to ``path`` (see :class:`FrameTrace` for what it raises)."""
         self.stop_trace()
         trace = FrameTrace(path, clock)

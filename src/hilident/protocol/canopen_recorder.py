@@ -26,10 +26,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from hilident.errors import ConfigError
+
+if TYPE_CHECKING:
+    from hilident.protocol.canopen_objects import ObjectAddress  # imports this module: no import at run time
 
 __all__ = [
     "KIND_PARAMETERS",
@@ -84,7 +88,7 @@ class Parameter:
     """
 
     name: str
-    address: object  # ObjectAddress
+    address: ObjectAddress
     scale: float | str = 1.0
     minimum: float | None = None
     maximum: float | None = None
@@ -123,15 +127,15 @@ class GeneratorKind:
 class GeneratorSpec:
     """The ``[canopen.generator]`` table."""
 
-    control: object
-    state: object
-    kind: object | None
-    target: object
+    control: ObjectAddress
+    state: ObjectAddress
+    kind: ObjectAddress | None
+    target: ObjectAddress
     commands: dict
     states: dict
     targets: dict
     kinds: dict
-    output: object | None = None
+    output: ObjectAddress | None = None
     output_scale: float | str = 1.0
 
 
@@ -139,19 +143,19 @@ class GeneratorSpec:
 class RecorderSpec:
     """The ``[canopen.recorder]`` table."""
 
-    control: object
-    state: object
-    trigger: object
-    sample_period: object
-    samples: object
-    recorded: object
+    control: ObjectAddress
+    state: ObjectAddress
+    trigger: ObjectAddress
+    sample_period: ObjectAddress
+    samples: ObjectAddress
+    recorded: ObjectAddress
     commands: dict
     states: dict
     triggers: dict
     sample_periods: tuple[int, ...]
     max_samples: int
-    channels: tuple
-    buffers: tuple
+    channels: tuple[ObjectAddress, ...]
+    buffers: tuple[ObjectAddress, ...]
     interleaved: bool
     block_transfer: bool
 
