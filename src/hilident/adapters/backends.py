@@ -11,8 +11,12 @@ from __future__ import annotations
 
 from importlib import import_module
 from importlib.metadata import EntryPoint, entry_points
+from typing import TYPE_CHECKING
 
 from hilident.errors import ConfigError
+
+if TYPE_CHECKING:
+    from hilident.adapters.base import DeviceAdapter
 
 ENTRY_POINT_GROUP = "hilident.adapters"
 
@@ -23,7 +27,7 @@ BACKENDS: dict[str, str] = {
 }
 
 
-def _load(target: str) -> type:
+def _load(target: str) -> type[DeviceAdapter]:
     """The class named by ``"module:Class"``."""
     module_name, _, class_name = target.partition(":")
     return getattr(import_module(module_name), class_name)
@@ -39,7 +43,7 @@ def known_transports() -> list[str]:
     return sorted(set(BACKENDS) | set(_registered()))
 
 
-def adapter_class(transport: str) -> type:
+def adapter_class(transport: str) -> type[DeviceAdapter]:
     """The adapter class for ``transport``.
 
     Parameters

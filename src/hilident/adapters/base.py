@@ -199,6 +199,16 @@ class DeviceAdapter(Protocol):
     def disable_filter(self, slot: int) -> None:
         """Bypass a filter slot (its contents stay stored; :meth:`restore_filter` brings it back)."""
 
+    @classmethod
+    def run_refusal(cls, driver: DriverDescription) -> ConfigError | None:
+        """Why ``hilident run`` cannot play an excitation on a device ``driver`` describes, or None."""
+
+    def set_trace(self, path: str | os.PathLike[str]) -> None:
+        """Write a wire trace of the next run to ``path`` where the transport keeps one."""
+
+    def set_excitation_recipe(self, recipe: dict | None) -> None:
+        """The next run's excitation as parameters, for a device whose own generator plays it."""
+
     def safe_stop(self) -> None:
         """Command the axis safe now: serial STOP (zero torque); CiA 402 out of
         Operation Enabled to Switch On Disabled; Modbus stop and disable.

@@ -68,6 +68,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import os
 import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -451,7 +452,7 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
 
     # --- runs --------------------------------------------------------------------------------------
 
-    def set_trace(self, path: str | Path) -> None:
+    def set_trace(self, path: str | os.PathLike[str]) -> None:
         """Write a CAN trace (``.asc`` or ``.blf``) of the next run to ``path``."""
         self._trace_path = Path(path)
 
