@@ -93,7 +93,9 @@ import itertools
 import math
 import numbers
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import Literal, NoReturn
 
 from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad
@@ -154,6 +156,12 @@ SAME_FREQUENCY = {"pole_zero_q": ("pole_hz", "zero_hz"), "pole_zero_damping": ("
 
 FLOAT32_MAX = 3.4028234663852886e38
 
+#: how a candidate meets the asked notch, smaller is better: (too shallow, depth error in dB, width error as
+#: the absolute log ratio), see :func:`_depth_key`
+_Key = tuple[bool, float, float]
+#: a candidate's key, its field values and the section the drive runs with them
+_Candidate = tuple[_Key, dict, Biquad]
+
 
 def float32(x: float) -> float:
     """``x`` rounded to IEEE-754 single precision (what a REAL32 object holds)."""
@@ -164,7 +172,7 @@ def _float32_biquad(b0, b1, b2, a1, a2) -> Biquad:
     return Biquad((float32(b0), float32(b1), float32(b2)), (1.0, float32(a1), float32(a2)))
 
 
-def _fail(key: str, message: str):
+def _fail(key: str, message: str) -> NoReturn:
     raise ConfigError(f"filters.{key}", message)
 
 
@@ -209,17 +217,17 @@ class BlockLayout:
     """
 
     words: int
-    coefficient_words: dict
+    coefficient_words: dict[str, int]
     coefficient_format: str = "int16"
     scaler_word: int | None = None
     scaler_bits: int = 27
     word_order: str = "high_first"
-    byte_order: str = "little"
+    byte_order: Literal["little", "big"] = "little"
     state_word: int = 0
     state_mask: int = 0xFFFF
     disabled_value: int = 0xFFFF
     enabled_value: int = 0
-    frequency_words: tuple = ()
+    frequency_words: tuple[int, ...] = ()
 
     def __hash__(self):
         return hash((self.words, tuple(sorted(self.coefficient_words.items())), self.coefficient_format,
@@ -231,7 +239,8 @@ class BlockLayout:
         preset = table.get("preset")
         if preset is not None and not (isinstance(preset, str) and preset in PRESETS):
             _fail("preset", f"must be one of {tuple(PRESETS)}, got {preset!r}")
-        merged = {**PRESETS.get(preset, {}), **{k: table[k] for k in _BLOCK_KEYS if k in table}}
+        defaults = PRESETS[preset] if preset is not None else {}
+        merged = {**defaults, **{k: table[k] for k in _BLOCK_KEYS if k in table}}
         if "words" not in merged or "coefficient_words" not in merged:
             _fail("words", 'a "word_block" encoding needs words and coefficient_words (or a preset)')
         words = _int_in("words", merged["words"], 1, 4096)
@@ -275,6 +284,19 @@ class BlockLayout:
     def is_enabled(self, words: list[int]) -> bool:
         return (words[self.state_word] & self.state_mask) != (self.disabled_value & self.state_mask)
 
+    @property
+    def scaler_index(self) -> int:
+        """``"int16"``: the word holding the scaler ``K``.
+
+        Raises
+        ------
+        DataError
+            The layout names no scaler word (a block built without :meth:`from_table`).
+        """
+        if self.scaler_word is None:
+            raise DataError('an "int16" word block needs scaler_word, the word of its scaler K')
+        return self.scaler_word
+
 
 def _checked_range(name: str, r) -> tuple[float, float]:
     """``ranges.<name> = [low, high]``: non-negative, low not above high."""
@@ -286,10 +308,10 @@ def _checked_range(name: str, r) -> tuple[float, float]:
     return low, high
 
 
-def _block_words(merged: dict, words: int, fmt: str, width: int) -> tuple[int, tuple]:
+def _block_words(merged: dict, words: int, fmt: str, width: int) -> tuple[int, tuple[int, ...]]:
     """The state word and frequency words, checked with the coefficient and scaler words: in the block, apart."""
     cw = merged["coefficient_words"]
-    used = []
+    used: list[int] = []
     for name in COEFFICIENT_FIELDS:
         w = _int_in(f"coefficient_words.{name}", cw[name], 0, words - width)
         used += range(w, w + width)
@@ -299,10 +321,10 @@ def _block_words(merged: dict, words: int, fmt: str, width: int) -> tuple[int, t
             _fail("scaler_word", 'an "int16" block needs the word of its scaler K')
         used.append(_int_in("scaler_word", scaler, 0, words - 1))
     state = _int_in("state_word", merged.get("state_word", 0), 0, words - 1)
-    freq = merged.get("frequency_words", [])
-    if not isinstance(freq, (list, tuple)) or len(freq) not in (0, 2):
-        _fail("frequency_words", f"must list two word indices or none, got {freq!r}")
-    freq = tuple(_int_in("frequency_words", w, 0, words - 1) for w in freq)
+    listed = merged.get("frequency_words", [])
+    if not isinstance(listed, (list, tuple)) or len(listed) not in (0, 2):
+        _fail("frequency_words", f"must list two word indices or none, got {listed!r}")
+    freq = tuple(_int_in("frequency_words", w, 0, words - 1) for w in listed)
     used += [state, *freq]
     if len(set(used)) != len(used):
         _fail("coefficient_words", f"coefficients, scaler, state and frequency words overlap: {sorted(used)}")
@@ -331,7 +353,7 @@ class Realisation:
         Why the asked notch could not be met (depth or width out of reach).
     """
 
-    fields: dict
+    fields: dict[str, int | float | bytes]
     section: Biquad
     achieved: NotchSpec | None
     attenuation_db: float
@@ -384,7 +406,7 @@ class FilterEncoding:
     width_scale: float = 0.1
     depth_scale: float = 0.1
     max_value: int = 65535
-    order: tuple | None = None
+    order: tuple[str, ...] | None = None
     feedback_sign: str = "minus"
     scales: dict = field(default_factory=dict)
     ranges: dict = field(default_factory=dict)
@@ -498,7 +520,8 @@ class FilterEncoding:
                     kwargs[k] = tuple(kwargs[k])
             if table["encoding"] == "word_block":
                 kwargs["block"] = BlockLayout.from_table(table)
-                kwargs.setdefault("feedback_sign", PRESETS.get(table.get("preset"), {}).get("feedback_sign", "minus"))
+                preset = PRESETS.get(table["preset"], {}) if isinstance(table.get("preset"), str) else {}
+                kwargs.setdefault("feedback_sign", preset.get("feedback_sign", "minus"))
             return cls(table["encoding"], **kwargs)
         except ConfigError as exc:
             raise ConfigError(exc.key, exc.message, source) from None
@@ -506,7 +529,15 @@ class FilterEncoding:
     @property
     def fields(self) -> tuple[str, ...]:
         """Names of the values one slot holds, in order (``("block",)`` for a word block)."""
+        assert self.order is not None  # __post_init__ completes it
         return self.order
+
+    @property
+    def _layout(self) -> BlockLayout:
+        """``"word_block"``: the block layout (DataError for the encodings that have none)."""
+        if self.block is None:
+            raise DataError(f'the "{self.kind}" encoding stores no word block')
+        return self.block
 
     def value_kind(self, name: str) -> str:
         """What field ``name`` holds on the wire: ``"float32"`` (a REAL32 object or register),
@@ -560,10 +591,10 @@ class FilterEncoding:
         """``"notch_parameters"`` in Hz and dB: integers 1..max_value, out-of-range values refused by encode()."""
         return self.width_unit == "hz" and self.depth_unit == "db"
 
-    def _stored_coefficients(self, values) -> tuple:
+    def _stored_coefficients(self, values: Sequence[float]) -> tuple[float, float, float, float, float]:
         """scipy ``(b0, b1, b2, a1, a2)`` -> stored ``b0 .. a2`` (the feedback terms negated for "plus")."""
         sign = -1.0 if self.feedback_sign == "plus" else 1.0
-        return (*values[:3], sign * values[3], sign * values[4])
+        return (values[0], values[1], values[2], sign * values[3], sign * values[4])
 
     def _encode_coefficients(self, biquad: Biquad) -> dict:
         if self.kind == "real32":
@@ -594,7 +625,7 @@ class FilterEncoding:
     def _encode_block(self, biquad: Biquad, spec: NotchSpec | None, scaling: tuple | None = None) -> bytes:
         """The block for ``biquad``; ``scaling`` = (INT16 coefficients, K) overrides the best one (see
         :meth:`realise`)."""
-        lay = self.block
+        lay = self._layout
         words = [0] * lay.words
         words[lay.state_word] = lay.enabled_value
         if lay.frequency_words and spec is not None:
@@ -614,11 +645,11 @@ class FilterEncoding:
             ints, k = scaling or _scaled_int16(biquad, lay.scaler_bits, self.feedback_sign)[0]
             for name, n in zip(COEFFICIENT_FIELDS, ints, strict=False):
                 words[lay.coefficient_words[name]] = n & 0xFFFF
-            words[lay.scaler_word] = k
+            words[lay.scaler_index] = k
         return lay.pack(words)
 
     def _block_section(self, words: list[int]) -> Biquad:
-        lay = self.block
+        lay = self._layout
         if lay.coefficient_format == "float32":
             values = []
             for name in COEFFICIENT_FIELDS:
@@ -626,7 +657,7 @@ class FilterEncoding:
                 hi, lo = (words[w], words[w + 1]) if lay.word_order == "high_first" else (words[w + 1], words[w])
                 values.append(struct.unpack("<f", struct.pack("<I", (hi << 16) | lo))[0])
         else:
-            k = words[lay.scaler_word]
+            k = words[lay.scaler_index]
             step = k / 2.0**lay.scaler_bits
             values = [_signed16(words[lay.coefficient_words[name]]) * step for name in COEFFICIENT_FIELDS]
         b0, b1, b2, a1, a2 = self._stored_coefficients(values)
@@ -639,7 +670,7 @@ class FilterEncoding:
         encodings (their enable is a separate object or register)."""
         if self.kind != "word_block":
             return None
-        return self.block.is_enabled(self.block.unpack(values.get("block")))
+        return self._layout.is_enabled(self._layout.unpack(values.get("block")))
 
     def disabled(self, values: dict) -> dict:
         """``"word_block"``: the values with the state word set to bypass, coefficients kept.
@@ -661,7 +692,7 @@ class FilterEncoding:
     def _with_state(self, values: dict, enabled: bool) -> dict:
         if self.kind != "word_block":
             raise DataError(f'the "{self.kind}" encoding has no enable of its own; write the slot\'s enable object')
-        lay = self.block
+        lay = self._layout
         words = lay.unpack(values.get("block"))
         state = lay.enabled_value if enabled else lay.disabled_value
         words[lay.state_word] = (words[lay.state_word] & ~lay.state_mask & 0xFFFF) | (state & lay.state_mask)
@@ -910,13 +941,13 @@ class FilterEncoding:
         if self.kind == "fixed":
             scale = 2.0**self.fractional_bits
             c = self._stored_coefficients([int(values[f]) / scale for f in COEFFICIENT_FIELDS])
-            section = Biquad(tuple(c[:3]), (1.0, c[3], c[4]))
+            section = Biquad((c[0], c[1], c[2]), (1.0, c[3], c[4]))
             if not section.is_stable():
                 raise DataError(f"fixed-point coefficients {dict(values)} give an unstable filter")
             return section
         if self.kind == "word_block":
-            words = self.block.unpack(values["block"])
-            if not self.block.is_enabled(words):
+            words = self._layout.unpack(values["block"])
+            if not self._layout.is_enabled(words):
                 return Biquad.identity()
             section = self._block_section(words)
             if not section.is_stable():
@@ -937,9 +968,11 @@ class FilterEncoding:
             v = values[name]
             integral = self.kind == "fixed" or (self.kind in PARAMETRIC and
                                                (self._is_index(name) or self.scales[name] != 0.0))
-            if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v) \
-                    or (integral and int(v) != v) or (not integral and abs(v) > FLOAT32_MAX):
-                kind = "an integer" if integral else "a finite REAL32 number"
+            kind = "an integer" if integral else "a finite REAL32 number"
+            if isinstance(v, bool) or not isinstance(v, numbers.Real):
+                raise DataError(f"filter field {name} must be {kind}, got {v!r}")
+            x = float(v)
+            if not math.isfinite(x) or (integral and int(x) != x) or (not integral and abs(x) > FLOAT32_MAX):
                 raise DataError(f"filter field {name} must be {kind}, got {v!r}")
 
     def _section_of(self, values: dict, rate: float) -> Biquad:
@@ -1002,7 +1035,7 @@ class FilterEncoding:
 
     def _realise(self, spec: NotchSpec, filter_rate_hz: float) -> Realisation:
         """:meth:`realise`, computed."""
-        notes = []
+        notes: list[str] = []
         if self.kind in PARAMETRIC:
             fields, section = self._fit(spec, filter_rate_hz, notes)
         else:
@@ -1020,11 +1053,11 @@ class FilterEncoding:
     def _fit_coefficients(self, spec: NotchSpec, rate: float) -> tuple[dict, Biquad]:
         """Coefficient encodings: the design, made a little deeper while rounding leaves it short;
         INT16 blocks also weigh their best few scalings."""
-        best = None
+        best: _Candidate | None = None
         for margin in DEPTH_MARGINS_DB:
             designed = design_notch(NotchSpec(spec.center_hz, spec.width_hz, spec.depth_db + margin), rate)
-            if self.kind == "word_block" and self.block.coefficient_format == "int16":
-                scalings = _scaled_int16(designed, self.block.scaler_bits, self.feedback_sign)[:SCALER_CHOICES]
+            if self.kind == "word_block" and self._layout.coefficient_format == "int16":
+                scalings = _scaled_int16(designed, self._layout.scaler_bits, self.feedback_sign)[:SCALER_CHOICES]
                 candidates = [{"block": self._encode_block(designed, spec, sc)} for sc in scalings]
             else:
                 candidates = [self.encode(designed, spec)]
@@ -1036,18 +1069,19 @@ class FilterEncoding:
             raise DataError(f"no {self.kind} coefficients of the notch at {spec.center_hz:g} Hz give a stable filter")
         return best[1], best[2]
 
-    def _better(self, best, values: dict, spec: NotchSpec, rate: float, max_width_error: float = math.inf,
-                seen: dict | None = None):
+    def _better(self, best: _Candidate | None, values: dict, spec: NotchSpec, rate: float,
+                max_width_error: float = math.inf,
+                seen: dict[tuple, tuple[_Key, Biquad] | None] | None = None) -> _Candidate | None:
         """``best`` or the candidate ``values``, whichever meets ``spec`` better (see :meth:`realise`);
         a candidate whose width is further than ``max_width_error`` (log ratio) from the asked one is not
         taken.  ``seen`` caches the evaluation of parameter candidates."""
-        memo = tuple(values.items()) if seen is not None else None
-        if memo is not None and memo in seen:
-            evaluated = seen[memo]
-        else:
+        if seen is None:
             evaluated = self._evaluate(values, spec, rate)
-            if memo is not None:
-                seen[memo] = evaluated
+        else:
+            memo = tuple(values.items())
+            if memo not in seen:
+                seen[memo] = self._evaluate(values, spec, rate)
+            evaluated = seen[memo]
         if evaluated is None:
             return best
         key, section = evaluated
@@ -1055,7 +1089,7 @@ class FilterEncoding:
             return best
         return (key, values, section) if best is None or key < best[0] else best
 
-    def _evaluate(self, values: dict, spec: NotchSpec, rate: float):
+    def _evaluate(self, values: dict, spec: NotchSpec, rate: float) -> tuple[_Key, Biquad] | None:
         """``(sort key, section)`` of a candidate, or ``None`` when it is no notch the drive runs."""
         try:
             section = self.applied(values, rate)
@@ -1067,7 +1101,7 @@ class FilterEncoding:
             return None
         return _depth_key(att, spec.depth_db, width, spec.width_hz), section
 
-    def _fit(self, spec: NotchSpec, rate: float, notes: list) -> tuple[dict, Biquad]:
+    def _fit(self, spec: NotchSpec, rate: float, notes: list[str]) -> tuple[dict, Biquad]:
         ideal = self._ideal(spec, rate)
         per_field = []
         for name in self.fields:
@@ -1087,7 +1121,8 @@ class FilterEncoding:
             if not min(table) <= ratio <= max(table):
                 notes.append(f"width {spec.width_hz:g} Hz ({ratio:.3g} of the centre) is outside the drive's "
                              f"table {min(table):g}..{max(table):g}")
-        best, seen = None, {}
+        best: _Candidate | None = None
+        seen: dict[tuple, tuple[_Key, Biquad] | None] = {}
         for combo in itertools.product(*per_field):
             values = dict(zip(self.fields, combo, strict=False))
             if self._same_frequency(values):
@@ -1096,11 +1131,11 @@ class FilterEncoding:
             why = "".join(f"; {n}" for n in notes)
             raise DataError(f"no value the {self.kind} encoding can store attenuates {spec.center_hz:g} Hz "
                             f"with a notch {spec.width_hz:g} Hz wide at {rate:g} Hz{why}")
-        best = self._refine(best, spec, rate, seen)
-        width = notch_width_hz(best[2], rate, spec.center_hz)
+        refined = self._refine(best, spec, rate, seen)
+        width = notch_width_hz(refined[2], rate, spec.center_hz)
         if abs(math.log(width / spec.width_hz)) > math.log(WIDTH_TOLERANCE):
             notes.append(f"width {spec.width_hz:.3g} Hz is realised as {width:.3g} Hz")
-        return best[1], best[2]
+        return refined[1], refined[2]
 
     def _unit(self, name: str) -> str:
         """The unit of a field's physical value, for notes (with its leading space)."""
@@ -1116,7 +1151,8 @@ class FilterEncoding:
         pair = SAME_FREQUENCY.get(self.kind)
         return not pair or self._physical(pair[0], values[pair[0]]) == self._physical(pair[1], values[pair[1]])
 
-    def _refine(self, best, spec: NotchSpec, rate: float, seen: dict):
+    def _refine(self, best: _Candidate, spec: NotchSpec, rate: float,
+                seen: dict[tuple, tuple[_Key, Biquad] | None]) -> _Candidate:
         """Move from ``best`` to a neighbour (one grid step or table entry in any fields) while that
         meets ``spec`` better, keeping the width within :data:`WIDTH_TOLERANCE` of the asked one
         (or as close as ``best`` already is)."""
@@ -1132,7 +1168,7 @@ class FilterEncoding:
                 if pair:
                     values[pair[1]] = values[pair[0]]
                 if values != start[1] and all(self._stored_in_range(k, v) for k, v in values.items()):
-                    best = self._better(best, values, spec, rate, bound, seen)
+                    best = self._better(best, values, spec, rate, bound, seen) or best  # never None given a best
             if best is start:
                 break
         return best
@@ -1165,7 +1201,7 @@ class FilterEncoding:
         return None
 
 
-def _depth_key(att: float, asked: float, width: float, asked_width: float) -> tuple:
+def _depth_key(att: float, asked: float, width: float, asked_width: float) -> _Key:
     """Sort key: deep enough first, then the attenuation closest to the asked depth, then the width.
 
     Attenuations beyond :data:`FULL_DEPTH_DB` count as equal: a zero on the unit

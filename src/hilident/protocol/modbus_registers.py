@@ -1109,7 +1109,8 @@ def _parse_capture(cp: dict, source: str) -> tuple[Window, tuple[CaptureChannel,
 
 
 def _parse_filters(sections: dict, mb: dict, registers: dict[str, Register], rule: ParameterRule | None,
-                   filter_slots: int, excitation: bool, source: str) -> tuple[FilterSlots | FieldSlots | None, FilterEncoding | None]:
+                   filter_slots: int, excitation: bool,
+                   source: str) -> tuple[FilterSlots | FieldSlots | None, FilterEncoding | None]:
     """``[modbus.filters]`` with the ``[filters]`` encoding: hilident's slots or the drive's named registers."""
     fail = _fail_in(source)
     if not (excitation or "filters" in mb):
