@@ -126,6 +126,7 @@ class BlockLayout:
         return [int.from_bytes(block[i:i + 2], self.byte_order) for i in range(0, len(block), 2)]
 
     def is_enabled(self, words: list[int]) -> bool:
+        """Whether the block's state word runs the filter (anything but ``disabled_value`` under the mask)."""
         return (words[self.state_word] & self.state_mask) != (self.disabled_value & self.state_mask)
 
     @property
@@ -215,6 +216,7 @@ def block_section(lay: BlockLayout, words: list[int], feedback_sign: str) -> Biq
 
 
 def signed16(w: int) -> int:
+    """A 16-bit word read as two's complement."""
     return w - 0x10000 if w & 0x8000 else w
 
 

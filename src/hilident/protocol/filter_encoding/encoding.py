@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import numbers
 from dataclasses import dataclass, field, replace
+from typing import ClassVar
 
 from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad
@@ -34,8 +35,40 @@ from hilident.protocol.filter_encoding.vocabulary import (
     positive,
     stored_coefficients,
 )
+from hilident.schema import build_table, spec
 
 __all__ = ["FilterEncoding"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class _FiltersTable:
+    """The keys of ``[filters]`` that choose and shape the encoding, as :func:`~hilident.schema.build_table` reads them.
+
+    The table is open: it also holds a word block's keys (:meth:`BlockLayout.from_table`) and where the
+    transport keeps the slots. Lists and tables are checked entry by entry by :class:`FilterEncoding`
+    (a depth table may hold ``inf``, a full cut, which the schema's numbers may not).
+    """
+
+    open_table: ClassVar[bool] = True
+    encoding: str = spec(choices=ENCODINGS, doc="how a slot stores a notch (docs/filter_encodings.md)")
+    fractional_bits: int = spec(29, ge=0, le=62, doc='"fixed": fractional bits of the Q format')
+    total_bits: int = spec(32, ge=2, le=64, doc='"fixed": bits of a coefficient')
+    center_scale: float = spec(0.1, gt=0.0, doc='"notch_parameters": Hz per stored step of the centre')
+    width_scale: float = spec(0.1, gt=0.0, doc='"notch_parameters": Hz per stored step of the width')
+    depth_scale: float = spec(0.1, gt=0.0, doc='"notch_parameters": dB per stored step of the depth')
+    max_value: int = spec(65535, ge=1, le=2**32 - 1, doc='"notch_parameters": largest integer a field holds')
+    order: list | None = spec(None, doc="the fields in the order the slot holds them")
+    feedback_sign: str = spec("", choices=("", "minus", "plus"),
+                              doc='sign of the stored feedback terms; "": the preset\'s, else "minus"')
+    scales: dict = spec({}, doc="physical units per stored step of each field (0: REAL32)")
+    ranges: dict = spec({}, doc="[low, high] of each field, physical units")
+    resolution: dict = spec({}, doc="step a REAL32 field is rounded to by the drive")
+    width_table: list = spec([], doc="bandwidth/centre ratio of each width setting")
+    depth_table: list = spec([], doc="depth in dB of each depth setting (inf: a full cut)")
+    width_values: list | None = spec(None, doc="the integer stored for each width_table entry")
+    depth_values: list | None = spec(None, doc="the integer stored for each depth_table entry")
+    width_unit: str = spec("hz", choices=WIDTH_UNITS, doc='"notch_parameters": how the width is expressed')
+    depth_unit: str = spec("db", choices=DEPTH_UNITS, doc='"notch_parameters": how the depth is expressed')
 
 
 @dataclass(frozen=True)
@@ -177,30 +210,31 @@ class FilterEncoding:
     def from_table(cls, table: dict, source: str = "") -> FilterEncoding:
         """Build from a driver description's ``[filters]`` table (keys of other layers are ignored).
 
+        The keys go through the typed schema (:class:`_FiltersTable`,
+        :func:`hilident.schema.build_table`), then through the checks of the
+        encoding itself; a word block's keys through :meth:`BlockLayout.from_table`.
+
         Raises
         ------
         ConfigError
             A key is missing, of the wrong type or out of range; names the key and ``source``.
         """
-        if not isinstance(table, dict):
-            raise ConfigError("filters", f"must be a table, got {type(table).__name__}", source)
-        if "encoding" not in table:
-            raise ConfigError("filters.encoding", "is required", source)
-        keys = ("fractional_bits", "total_bits", "center_scale", "width_scale", "depth_scale", "max_value",
-                "order", "feedback_sign", "scales", "ranges", "resolution", "width_table", "depth_table",
-                "width_values", "depth_values", "width_unit", "depth_unit")
+        keys = build_table(_FiltersTable, table, "filters.", source)
         try:
-            kwargs = {k: table[k] for k in keys if k in table}
-            for k in ("order", "width_table", "depth_table", "width_values", "depth_values"):
-                if k in kwargs:
-                    if not isinstance(kwargs[k], (list, tuple)):
-                        fail(k, f"must be a list, got {kwargs[k]!r}")
-                    kwargs[k] = tuple(kwargs[k])
-            if table["encoding"] == "word_block":
-                kwargs["block"] = BlockLayout.from_table(table)
-                preset = PRESETS.get(table["preset"], {}) if isinstance(table.get("preset"), str) else {}
-                kwargs.setdefault("feedback_sign", preset.get("feedback_sign", "minus"))
-            return cls(table["encoding"], **kwargs)
+            block = BlockLayout.from_table(table) if keys.encoding == "word_block" else None
+            preset = PRESETS.get(table["preset"], {}) if block is not None and isinstance(table.get("preset"), str) \
+                else {}
+            preset_sign = preset.get("feedback_sign")
+            return cls(
+                keys.encoding, fractional_bits=keys.fractional_bits, total_bits=keys.total_bits,
+                center_scale=keys.center_scale, width_scale=keys.width_scale, depth_scale=keys.depth_scale,
+                max_value=keys.max_value, order=None if keys.order is None else tuple(keys.order),
+                feedback_sign=keys.feedback_sign or (preset_sign if isinstance(preset_sign, str) else "minus"),
+                scales=keys.scales, ranges=keys.ranges, resolution=keys.resolution,
+                width_table=tuple(keys.width_table), depth_table=tuple(keys.depth_table),
+                width_values=None if keys.width_values is None else tuple(keys.width_values),
+                depth_values=None if keys.depth_values is None else tuple(keys.depth_values),
+                block=block, width_unit=keys.width_unit, depth_unit=keys.depth_unit)
         except ConfigError as exc:
             raise ConfigError(exc.key, exc.message, source) from None
 
@@ -263,6 +297,7 @@ class FilterEncoding:
         return {name: grid.nearest(self, name, grid.clamp(self, name, ideal[name])) for name in self.fields}
 
     def _encode_coefficients(self, biquad: Biquad) -> dict:
+        """``"real32"`` and ``"fixed"``: the five coefficients of ``biquad`` rounded to the format."""
         if self.kind == "real32":
             values = stored_coefficients((*biquad.b, biquad.a[1], biquad.a[2]), self.feedback_sign)
             out = dict(zip(COEFFICIENT_FIELDS, map(float32, values), strict=False))
@@ -274,6 +309,7 @@ class FilterEncoding:
         return {name: out[name] for name in self.fields}
 
     def _encode_notch_parameters(self, spec: NotchSpec) -> dict:
+        """``"notch_parameters"`` in Hz and dB: each value in whole steps, refused beyond 1..max_value."""
         out = {}
         for name, value in (("center", spec.center_hz), ("width", spec.width_hz), ("depth", spec.depth_db)):
             scale = self.scales[name]
@@ -311,6 +347,7 @@ class FilterEncoding:
         return self._with_state(values, enabled=True)
 
     def _with_state(self, values: dict, enabled: bool) -> dict:
+        """``"word_block"``: ``values`` with the state word set to run (``enabled``) or bypass the filter."""
         if self.kind != "word_block":
             raise DataError(f'the "{self.kind}" encoding has no enable of its own; write the slot\'s enable object')
         lay = self.layout
@@ -392,6 +429,7 @@ class FilterEncoding:
                 raise DataError(f"filter field {name} must be {kind}, got {v!r}")
 
     def _section_of(self, values: dict, rate: float) -> Biquad:
+        """Physical-parameter encodings: the section the drive builds from ``values`` at ``rate`` (Hz)."""
         if self.kind in ("notch_parameters", "index_table"):
             center, _, depth = grid.notch_triplet(self, grid.physical_values(self, values))
             if center >= rate / 2:

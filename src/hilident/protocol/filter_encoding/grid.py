@@ -60,6 +60,7 @@ def ideal(enc: FilterEncoding, spec: NotchSpec, rate: float | None = None) -> di
 
 
 def clamp(enc: FilterEncoding, name: str, x: float) -> float:
+    """``x`` clamped into the range of field ``name`` (unchanged when the field has none)."""
     if name in enc.ranges:
         low, high = enc.ranges[name]
         return min(max(x, low), high)
@@ -67,6 +68,7 @@ def clamp(enc: FilterEncoding, name: str, x: float) -> float:
 
 
 def index_table(enc: FilterEncoding, name: str) -> tuple[tuple, tuple]:
+    """``"width"`` or ``"depth"``: the table of physical values and the integer stored for each entry."""
     table = getattr(enc, f"{name}_table")
     stored = getattr(enc, f"{name}_values") or tuple(range(len(table)))
     return table, stored
@@ -149,6 +151,7 @@ def deeper(enc: FilterEncoding, name: str, x: float, margin_db: float) -> float:
 
 
 def integer_range(enc: FilterEncoding, name: str) -> tuple[int, int]:
+    """The stored integers field ``name`` may hold: the encoding's limits within the field's range."""
     scale = enc.scales[name]
     if enc.kind == "notch_parameters":
         low, high = (1 if legacy_units(enc) else 0), enc.max_value
@@ -161,11 +164,13 @@ def integer_range(enc: FilterEncoding, name: str) -> tuple[int, int]:
 
 
 def in_range(enc: FilterEncoding, name: str, v: float) -> bool:
+    """Whether the physical value ``v`` lies in the range of field ``name`` (to 1e-12)."""
     low, high = enc.ranges.get(name, (0.0, math.inf))
     return low - 1e-12 <= v <= high + 1e-12
 
 
 def nearest(enc: FilterEncoding, name: str, x: float):
+    """The stored value of field ``name`` whose physical value is nearest ``x`` (DataError when none)."""
     cands = candidates(enc, name, x)
     if not cands:
         raise DataError(f"notch {name} {x!r} cannot be stored")
@@ -191,6 +196,7 @@ def physical(enc: FilterEncoding, name: str, stored) -> float:
 
 
 def physical_values(enc: FilterEncoding, values: dict) -> dict[str, float]:
+    """The physical value of every field of ``values``, refused outside the drive's ranges."""
     out = {}
     for name in enc.fields:
         x = physical(enc, name, values[name])
@@ -221,6 +227,7 @@ def notch_triplet(enc: FilterEncoding, p: dict[str, float]) -> tuple[float, floa
 
 
 def notch_parameters_triplet(enc: FilterEncoding, p: dict[str, float]) -> tuple[float, float, float]:
+    """``"notch_parameters"``: centre (Hz), width (Hz) and depth (dB) of the fields in their units."""
     center, width, depth = p["center"], p["width"], p["depth"]
     if enc.width_unit == "q":
         if not width > 0:
@@ -235,6 +242,7 @@ def notch_parameters_triplet(enc: FilterEncoding, p: dict[str, float]) -> tuple[
 
 
 def parametric_section(enc: FilterEncoding, p: dict[str, float], rate: float) -> Biquad:
+    """Pole/zero and rejection-band encodings: the section the drive builds at ``rate`` (Hz)."""
     if enc.kind == "center_band":
         return rejection_band_section(p["center"], p["band"], rate)
     if enc.kind in ("pole_zero_q", "pole_zero_damping"):
@@ -261,6 +269,7 @@ def unit(enc: FilterEncoding, name: str) -> str:
 
 
 def same_frequency(enc: FilterEncoding, values: dict) -> bool:
+    """Pole/zero encodings: whether the two frequencies of ``values`` are equal (then it is a notch)."""
     pair = SAME_FREQUENCY.get(enc.kind)
     return not pair or physical(enc, pair[0], values[pair[0]]) == physical(enc, pair[1], values[pair[1]])
 
@@ -277,6 +286,7 @@ def adjacent(enc: FilterEncoding, name: str, stored) -> list:
 
 
 def stored_in_range(enc: FilterEncoding, name: str, stored) -> bool:
+    """Whether an integer field may store ``stored`` (tables and REAL32 fields: always)."""
     if is_index(enc, name) or enc.scales[name] == 0.0:
         return True
     low, high = integer_range(enc, name)

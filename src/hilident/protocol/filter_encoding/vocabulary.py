@@ -73,16 +73,24 @@ def fail(key: str, message: str) -> NoReturn:
 
 
 def int_in(key: str, v, low: int, high: int) -> int:
+    """``v`` when it is an integer in ``low..high``; else the ConfigError of ``[filters] <key>``."""
     if isinstance(v, bool) or not isinstance(v, int) or not low <= v <= high:
         fail(key, f"must be an integer in {low}..{high}, got {v!r}")
     return v
 
 
 def positive(key: str, v, zero_ok: bool = False) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0 \
-            or (v == 0 and not zero_ok):
-        fail(key, f"must be a {'non-negative' if zero_ok else 'positive'} number, got {v!r}")
-    return float(v)
+    """``v`` as a float when it is a finite positive (or, ``zero_ok``, non-negative) number; else ConfigError."""
+    what = "non-negative" if zero_ok else "positive"
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        fail(key, f"must be a {what} number, got {v!r}")
+    try:
+        x = float(v)
+    except OverflowError:  # an integer beyond any float
+        fail(key, f"must be a {what} number, got an integer of {int(v).bit_length()} bits")
+    if not math.isfinite(x) or x < 0 or (x == 0 and not zero_ok):
+        fail(key, f"must be a {what} number, got {v!r}")
+    return x
 
 
 def checked_range(name: str, r) -> tuple[float, float]:
