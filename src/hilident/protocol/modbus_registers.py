@@ -136,6 +136,16 @@ FILTER_FIELDS = ("center", "width", "depth", "enable")
 STAMP_MODULUS = 1 << 16
 
 
+#: ``fail(key, message)`` raises the :class:`ConfigError` naming ``key`` and the driver file.
+_Fail = Callable[[str, str], NoReturn]
+
+
+def _fail_in(source: str) -> _Fail:
+    def fail(key: str, message: str) -> NoReturn:
+        raise ConfigError(key, message, source or None)
+    return fail
+
+
 def _optional_fault_codes(table: dict, registers: dict, required: dict, fail: _Fail) -> dict[str, int]:
     """The codes of the optional faults in ``[modbus.fault_codes]``, each required when its register is named."""
     out = {}
@@ -721,16 +731,6 @@ class FieldSlots:
             if any(r.address <= address < r.end for r in regs.values()):
                 return i
         return None
-
-
-#: ``fail(key, message)`` raises the :class:`ConfigError` naming ``key`` and the driver file.
-_Fail = Callable[[str, str], NoReturn]
-
-
-def _fail_in(source: str) -> _Fail:
-    def fail(key: str, message: str) -> NoReturn:
-        raise ConfigError(key, message, source or None)
-    return fail
 
 
 def _parse_rule(mb: dict, source: str) -> ParameterRule:
