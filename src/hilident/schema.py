@@ -36,6 +36,8 @@ from dataclasses import field
 from hilident.errors import ConfigError
 from hilident.signals._checks import show
 
+_Table = typing.TypeVar("_Table")
+
 #: Largest configuration or driver description file read, bytes.
 MAX_FILE_BYTES = 1 << 20
 #: Most items a list in a configuration may hold (unless its key says fewer).
@@ -108,7 +110,7 @@ def _moved_alias(name: str, sub: str) -> property:
 
 
 
-def build_table(cls, table, prefix: str, source: str):
+def build_table(cls: type[_Table], table: object, prefix: str, source: str) -> _Table:
     """Validate TOML ``table`` into the dataclass ``cls`` (fields declared with ``_spec``).
 
     Unknown keys are refused unless ``cls`` sets ``open_table = True`` (a class
