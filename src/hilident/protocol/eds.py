@@ -159,7 +159,7 @@ def load_eds_text(text: str, name: str, node_id: int | None = None, source: str 
     """:func:`load_eds` on the file's text. See there."""
     source = source or name
     if node_id is not None and not (isinstance(node_id, int) and 1 <= node_id <= 127):
-        raise ConfigError("device.node_id", f"must be a node id 1..127, got {node_id!r}", source)
+        raise ConfigError("device.canopen.node_id", f"must be a node id 1..127, got {node_id!r}", source)
     if "\x00" in text:
         raise ConfigError("canopen.eds", "holds NUL bytes: not an EDS/DCF text file", source)
     warnings: list[str] = []
