@@ -119,13 +119,13 @@ class FilterEncoding:
     max_value: int = 65535
     order: tuple[str, ...] | None = None
     feedback_sign: str = "minus"
-    scales: dict = field(default_factory=dict)
-    ranges: dict = field(default_factory=dict)
-    resolution: dict = field(default_factory=dict)
-    width_table: tuple = ()
-    depth_table: tuple = ()
-    width_values: tuple | None = None
-    depth_values: tuple | None = None
+    scales: dict[str, float] = field(default_factory=dict)
+    ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
+    resolution: dict[str, float] = field(default_factory=dict)
+    width_table: tuple[float, ...] = ()
+    depth_table: tuple[float, ...] = ()
+    width_values: tuple[int, ...] | None = None
+    depth_values: tuple[int, ...] | None = None
     block: BlockLayout | None = None
     width_unit: str = "hz"
     depth_unit: str = "db"

@@ -67,11 +67,10 @@ def clamp(enc: FilterEncoding, name: str, x: float) -> float:
     return x
 
 
-def index_table(enc: FilterEncoding, name: str) -> tuple[tuple, tuple]:
+def index_table(enc: FilterEncoding, name: str) -> tuple[tuple[float, ...], tuple[int, ...]]:
     """``"width"`` or ``"depth"``: the table of physical values and the integer stored for each entry."""
-    table = getattr(enc, f"{name}_table")
-    stored = getattr(enc, f"{name}_values") or tuple(range(len(table)))
-    return table, stored
+    table, stored = (enc.width_table, enc.width_values) if name == "width" else (enc.depth_table, enc.depth_values)
+    return table, stored or tuple(range(len(table)))
 
 
 def is_index(enc: FilterEncoding, name: str) -> bool:
