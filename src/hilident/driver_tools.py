@@ -351,7 +351,7 @@ def _extras(t: _Toml, s: E.EdsSummary) -> None:
         if items:
             t.add()
             t.add(f"# Vendor objects that look like {title}: describe them here to use them "
-                  + ("([filters], encodings in protocol/filter_encoding.py)" if title == "filters" else
+                  + ("([filters], encodings in protocol/filter_encoding/)" if title == "filters" else
                      "(a vendor capability)"))
             for index, name in items:
                 t.add(f"#   0x{index:04X} {_comment(name)}")

@@ -36,6 +36,8 @@ from dataclasses import field
 from hilident.errors import ConfigError
 from hilident.signals._checks import show
 
+_Table = typing.TypeVar("_Table")
+
 #: Largest configuration or driver description file read, bytes.
 MAX_FILE_BYTES = 1 << 20
 #: Most items a list in a configuration may hold (unless its key says fewer).
@@ -61,8 +63,8 @@ def spec(default=dataclasses.MISSING, *, gt=None, ge=None, le=None, lt=None, cho
     """
     meta = {"gt": gt, "ge": ge, "le": le, "lt": lt, "choices": choices, "max_items": max_items, "doc": doc,
             "auto": auto, "check": check}
-    if isinstance(default, (list, dict)):
-        return field(default_factory=lambda d=default: type(d)(d), metadata=meta)
+    if isinstance(default, (list, dict)):  # each instance gets its own copy of a mutable default
+        return field(default_factory=functools.partial(type(default), default), metadata=meta)
     return field(default=default, metadata=meta)
 
 
@@ -94,13 +96,21 @@ def moved_keys_readable(cls):
 
     cls.__init__ = __init__
     for name, sub in cls.moved_keys.items():
-        setattr(cls, name, property(lambda self, n=name, s=sub: getattr(getattr(self, s), n),
-                                    doc=f"Deprecated alias of ``{sub}.{name}``."))
+        setattr(cls, name, _moved_alias(name, sub))
     return cls
 
 
+def _moved_alias(name: str, sub: str) -> property:
+    """A read-only attribute ``name`` that reads ``self.<sub>.<name>``."""
 
-def build_table(cls, table, prefix: str, source: str):
+    def read(self: object) -> object:
+        return getattr(getattr(self, sub), name)
+
+    return property(read, doc=f"Deprecated alias of ``{sub}.{name}``.")
+
+
+
+def build_table(cls: type[_Table], table: object, prefix: str, source: str) -> _Table:
     """Validate TOML ``table`` into the dataclass ``cls`` (fields declared with ``_spec``).
 
     Unknown keys are refused unless ``cls`` sets ``open_table = True`` (a class

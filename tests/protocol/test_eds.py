@@ -121,6 +121,18 @@ def test_a_missing_file_or_a_folder_is_a_config_error_naming_it(tmp_path):
         load_eds(tmp_path)
 
 
+def test_a_node_id_outside_1_to_127_names_its_place_in_the_run_config():
+    with pytest.raises(ConfigError) as info:
+        load_eds(FIXTURES / "configured.dcf", node_id=128)
+    assert info.value.key == "device.canopen.node_id" and "1..127" in info.value.message
+
+
+def test_a_path_the_system_refuses_is_a_config_error_saying_why(tmp_path):
+    # the OS refuses a NUL byte with a ValueError, which has no strerror
+    with pytest.raises(ConfigError, match="cannot read the EDS: embedded null byte"):
+        load_eds(tmp_path / "bad\x00name.eds")
+
+
 # --- the summary ------------------------------------------------------------------------------------------------------
 
 def test_four_entry_pdos_and_two_rpdos():

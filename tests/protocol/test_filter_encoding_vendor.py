@@ -385,6 +385,18 @@ def test_hostile_tables_name_the_key_and_file(table, key):
     assert info.value.key == key and info.value.file == "drv/driver.toml"
 
 
+@pytest.mark.parametrize("table, key", [
+    ({"encoding": "notch_parameters", "center_scale": 10**400}, "filters.center_scale"),
+    ({"encoding": "pole_zero_q", "ranges": {"pole_hz": [0, 10**400]}}, "filters.ranges.pole_hz"),
+    ({"encoding": "index_table", "width_table": [1.0], "depth_table": [10**400]}, "filters.depth_table"),
+])
+def test_an_integer_beyond_any_float_is_a_config_error(table, key):
+    # TOML integers may be arbitrarily long; float() of one overflows
+    with pytest.raises(ConfigError) as info:
+        FilterEncoding.from_table(table, "drv/driver.toml")
+    assert info.value.key == key and info.value.file == "drv/driver.toml"
+
+
 @pytest.mark.parametrize("enc, values", [
     (FilterEncoding("pole_zero_q"), {"pole_hz": 300.0, "pole_q": 0.0, "zero_hz": 300.0, "zero_q": 5.0}),
     (FilterEncoding("pole_zero_damping"), {"num_hz": "300", "num_damping": 0.0, "den_hz": 300.0, "den_damping": 0.1}),

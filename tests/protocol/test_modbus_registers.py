@@ -196,6 +196,14 @@ def test_filter_slot_registers_hold_the_notch_parameters():
         MAP.filters.address(4)
 
 
+def test_four_register_slot_words_are_refused_for_a_map_whose_slots_are_named_registers():
+    named = RegisterMap.from_driver(find_driver("dsy-rs"))  # notch parameters in the drive's own registers
+    with pytest.raises(DataError, match="filter slots of named registers, not hilident's four-register slots"):
+        named.encode_filter({"center": 218, "width": 65, "depth": 400}, enabled=True)
+    with pytest.raises(DataError, match="four-register slots"):
+        named.decode_filter([218, 65, 400, 1])
+
+
 def test_exception_meanings():
     assert "illegal data address" in exception_meaning(2)
     assert "busy" in exception_meaning(6)

@@ -104,7 +104,7 @@ def load_dataset(path: str | Path, cfg: DataConfig, config_source: str = "") -> 
     notes = list(raw.notes) + _status_notes(path, raw)
     configured = _configured_period(cfg, rate, config_source)
     period = raw.period_samples if raw.indexed and not configured else None
-    if period:
+    if period and index is not None:  # an indexed recording always has its row index
         period = _recorded_period_checked(path, raw, index, period, notes)
     raw.columns.clear()  # the mapped signals hold what is still needed
     used, segments, info = _gap_free(path, signals, index, period)
@@ -121,17 +121,16 @@ def load_dataset(path: str | Path, cfg: DataConfig, config_source: str = "") -> 
     return Dataset(used, rate, str(path), notes, info, info["period_samples"], segments)
 
 
-def _recorded_period_checked(path: Path, raw: RawColumns, index: np.ndarray | None, period: int,
+def _recorded_period_checked(path: Path, raw: RawColumns, index: np.ndarray, period: int,
                              notes: list[str]) -> int | None:
     """The period a hilident recording states, if its excitation confirms it (else None and a note)."""
-    stored = period
-    period, why = _confirmed_period(index, raw.columns.get("excitation"), period)
+    confirmed, why = _confirmed_period(index, raw.columns.get("excitation"), period)
     if why and raw.underruns:
         why = (f"the run had {raw.underruns} underrun samples (the device ran out of excitation and played "
-               f"zeros), so the recorded excitation does not repeat every {stored} samples: whole periods are "
+               f"zeros), so the recorded excitation does not repeat every {period} samples: whole periods are "
                "not used, and the run's own result, which averaged them, is not to be trusted")
     notes += [f"{path.name}: {why}"] if why else []
-    return period
+    return confirmed
 
 
 def _check_varying(path: Path, used: dict[str, np.ndarray], wanted: dict) -> None:
@@ -230,7 +229,7 @@ def _check_config_rate(cfg: DataConfig, source: str) -> None:
 def _mapped(path: Path, raw: RawColumns, wanted: dict) -> dict[str, np.ndarray]:
     """Scaled signals of the mapped columns, all finite and equally long."""
     signals = {}
-    uses = {}
+    uses: dict[str, int] = {}
     for name, _ in wanted.values():
         uses[name] = uses.get(name, 0) + 1
     for key, (name, scale) in wanted.items():

@@ -57,7 +57,7 @@ def read_mat(path: Path, names, check=lambda available: None) -> RawColumns:
         listing, header = _mat4_listing(path), b""
     else:
         listing, header = _mat5_listing(path)
-    variables = {}
+    variables: dict[str, _MatVariable] = {}
     for var in listing:
         variables.setdefault(var.name, var)
     check(variables)

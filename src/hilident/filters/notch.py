@@ -302,7 +302,7 @@ def quantize_biquad(biquad: Biquad, fractional_bits, total_bits=32, preserve_dc=
                 f"(range {lo / scale:g} .. {hi / scale:g})"
             )
     rounded = [ints[name] / scale for name in names]
-    section = Biquad(tuple(rounded[:3]), (1.0, rounded[3], rounded[4]))
+    section = Biquad((rounded[0], rounded[1], rounded[2]), (1.0, rounded[3], rounded[4]))
     _require_stable(section, f"quantised to {total} bits with {frac} fractional bits")
     return section
 
@@ -315,9 +315,9 @@ def float32_biquad(biquad: Biquad) -> Biquad:
     DataError
         The rounded section is unstable.
     """
-    b = tuple(float(np.float32(x)) for x in biquad.b)
+    b0, b1, b2 = (float(np.float32(x)) for x in biquad.b)
     a = (1.0, float(np.float32(biquad.a[1])), float(np.float32(biquad.a[2])))
-    section = Biquad(b, a)
+    section = Biquad((b0, b1, b2), a)
     _require_stable(section, "rounded to float32")
     return section
 

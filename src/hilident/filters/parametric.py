@@ -85,7 +85,7 @@ def two_frequency_section(zero_hz, zero_damping, pole_hz, pole_damping, sample_r
                         f"got {zero_damping!r}, {pole_damping!r}")
     num = _bilinear_quadratic(zero_hz, zero_damping, _warp_gain(zero_hz, sample_rate_hz))
     den = _bilinear_quadratic(pole_hz, pole_damping, _warp_gain(pole_hz, sample_rate_hz))
-    section = Biquad(tuple(x / den[0] for x in num), (1.0, den[1] / den[0], den[2] / den[0]))
+    section = Biquad((num[0] / den[0], num[1] / den[0], num[2] / den[0]), (1.0, den[1] / den[0], den[2] / den[0]))
     if not section.is_stable():
         raise DataError(f"section with poles at {pole_hz:g} Hz (damping {pole_damping:g}) is unstable "
                         f"at {sample_rate_hz:g} Hz")

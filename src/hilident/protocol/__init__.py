@@ -1,0 +1,13 @@
+"""Wire formats, shared by the host adapters and the emulated twins: pure, no sockets, no clocks.
+
+- ``framing``, ``serial_board``: the serial board protocol (COBS frames with CRC-32, its messages)
+- ``cia402``, ``emcy_codes``: the CiA 402 power state machine, mode codes and emergency codes
+- ``canopen_profile``, ``canopen_objects``, ``canopen_recorder``, ``eds``: a CANopen drive as its EDS and
+  ``driver.toml`` describe it (standard and vendor objects, drive-side generator and recorder)
+- ``modbus_registers``: a Modbus drive's register map and value encodings
+- ``filter_encoding``: how a drive stores a notch in one filter slot
+
+Import from the modules; this package re-exports nothing.
+"""
+
+__all__: list[str] = []

@@ -171,10 +171,12 @@ class FilterObjects:
     fields: dict[str, int]
 
     def address(self, slot: int, name: str) -> ObjectAddress:
-        if name == "enabled" and self.enable_subindex is None:
+        """The object of field ``name`` (or ``"enabled"``) of filter slot ``slot``."""
+        if name != "enabled":
+            return ObjectAddress(self.indices[slot], self.fields[name])
+        if self.enable_subindex is None:
             raise ConfigError("filters.enable_subindex", "this encoding keeps the enable inside its block")
-        sub = self.enable_subindex if name == "enabled" else self.fields[name]
-        return ObjectAddress(self.indices[slot], sub)
+        return ObjectAddress(self.indices[slot], self.enable_subindex)
 
 
 def _pdo_mappable(od, addr: ObjectAddress) -> bool:

@@ -26,14 +26,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NoReturn
 
 import numpy as np
 
 from hilident.errors import ConfigError
 
-if TYPE_CHECKING:
-    from hilident.protocol.canopen_objects import ObjectAddress  # imports this module: no import at run time
+if TYPE_CHECKING:  # canopen_objects imports this module
+    from hilident.protocol.canopen_objects import ObjectAddress
 
 __all__ = [
     "KIND_PARAMETERS",
@@ -131,10 +131,10 @@ class GeneratorSpec:
     state: ObjectAddress
     kind: ObjectAddress | None
     target: ObjectAddress
-    commands: dict
-    states: dict
-    targets: dict
-    kinds: dict
+    commands: dict[str, int]
+    states: dict[str, int]
+    targets: dict[str, int]
+    kinds: dict[str, GeneratorKind]
     output: ObjectAddress | None = None
     output_scale: float | str = 1.0
 
@@ -149,9 +149,9 @@ class RecorderSpec:
     sample_period: ObjectAddress
     samples: ObjectAddress
     recorded: ObjectAddress
-    commands: dict
-    states: dict
-    triggers: dict
+    commands: dict[str, int]
+    states: dict[str, int]
+    triggers: dict[str, int]
     sample_periods: tuple[int, ...]
     max_samples: int
     channels: tuple[ObjectAddress, ...]
@@ -168,9 +168,9 @@ class RecorderCapability:
     generator: GeneratorSpec | None
     source: str = ""
 
-    def objects(self) -> dict:
+    def objects(self) -> dict[str, ObjectAddress]:
         """Dotted key -> ObjectAddress of every object the description references."""
-        out = {}
+        out: dict[str, ObjectAddress] = {}
         r = self.recorder
         for key in _RECORDER_OBJECTS:
             out[f"canopen.recorder.{key}"] = getattr(r, key)
@@ -212,7 +212,9 @@ def parse_recorder(sections: dict, source: str = "", od=None) -> RecorderCapabil
         A key is missing or malformed, or names an object the EDS lacks; the message names the dotted key
         and ``source``.
     """
-    co = sections.get("canopen") if isinstance(sections.get("canopen"), dict) else {}
+    co = sections.get("canopen")
+    if not isinstance(co, dict):
+        co = {}
     rec, gen = co.get("recorder"), co.get("generator")
     if rec is None:
         if gen is not None:
@@ -232,7 +234,7 @@ class _Parser:
     def __init__(self, source: str, od):
         self.source, self.od = source, od
 
-    def fail(self, key: str, text: str):
+    def fail(self, key: str, text: str) -> NoReturn:
         raise ConfigError(key, text, self.source)
 
     def table(self, value, key: str) -> dict:
@@ -240,7 +242,7 @@ class _Parser:
             self.fail(key, f"must be a table, got {value!r}"[:200])
         return value
 
-    def address(self, value, key: str):
+    def address(self, value, key: str) -> ObjectAddress:
         from hilident.protocol.canopen_objects import parse_address
 
         if value is None:
@@ -275,6 +277,7 @@ class _Parser:
         chans = tuple(self.address(c, f"{k}.channels") for c in channels)
         if ("buffer" in t) == ("buffers" in t):
             self.fail(f"{k}.buffer", "give either buffer (one interleaved DOMAIN) or buffers (one DOMAIN per channel)")
+        buffers: tuple[ObjectAddress, ...]
         if "buffer" in t:
             buffers, interleaved = (self.address(t["buffer"], f"{k}.buffer"),), True
         else:
@@ -309,19 +312,20 @@ class _Parser:
         if isinstance(scale, bool) or not (scale in SCALE_KINDS or (
                 isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0)):
             self.fail(f"{key}.scale", f"must be a positive number or one of {SCALE_KINDS}, got {scale!r}")
-        bounds = []
+        bounds: list[float | None] = []
         for end in ("min", "max"):
             b = value.get(end)
             if b is not None and (isinstance(b, bool) or not isinstance(b, (int, float)) or not math.isfinite(b)):
                 self.fail(f"{key}.{end}", f"must be a number, got {b!r}")
             bounds.append(None if b is None else float(b))
-        if None not in bounds and bounds[0] > bounds[1]:
-            self.fail(f"{key}.min", f"{bounds[0]:g} exceeds max {bounds[1]:g}")
+        low, high = bounds
+        if low is not None and high is not None and low > high:
+            self.fail(f"{key}.min", f"{low:g} exceeds max {high:g}")
         unknown = set(value) - {"object", "scale", "min", "max"}
         if unknown:
             self.fail(f"{key}.{min(unknown)}", "is not a parameter key (object, scale, min, max)")
         return Parameter(name, self.address(value.get("object"), f"{key}.object"),
-                         scale if isinstance(scale, str) else float(scale), *bounds)
+                         scale if isinstance(scale, str) else float(scale), low, high)
 
     def kind(self, name: str, t, key: str) -> GeneratorKind:
         if name not in KIND_PARAMETERS:

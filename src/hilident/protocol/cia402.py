@@ -252,7 +252,7 @@ class ModeCode(IntEnum):
 
 def mode_name(code: int) -> str:
     """Readable name of a mode-of-operation code; negative codes are manufacturer specific."""
-    names = {
+    names: dict[int, str] = {
         ModeCode.NO_MODE: "no mode", ModeCode.PROFILE_POSITION: "profile position",
         ModeCode.PROFILE_VELOCITY: "profile velocity", ModeCode.PROFILE_TORQUE: "profile torque",
         ModeCode.HOMING: "homing", ModeCode.INTERPOLATED_POSITION: "interpolated position",

@@ -134,7 +134,8 @@ def load_eds(path, node_id: int | None = None):
     try:
         data = path.read_bytes()
     except (OSError, ValueError) as exc:
-        raise ConfigError("canopen.eds", f"cannot read the EDS: {exc.strerror or exc}", str(path)) from None
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+        raise ConfigError("canopen.eds", f"cannot read the EDS: {reason}", str(path)) from None
     return load_eds_bytes(data, path.name, node_id, source=str(path))
 
 
@@ -158,7 +159,7 @@ def load_eds_text(text: str, name: str, node_id: int | None = None, source: str 
     """:func:`load_eds` on the file's text. See there."""
     source = source or name
     if node_id is not None and not (isinstance(node_id, int) and 1 <= node_id <= 127):
-        raise ConfigError("device.node_id", f"must be a node id 1..127, got {node_id!r}", source)
+        raise ConfigError("device.canopen.node_id", f"must be a node id 1..127, got {node_id!r}", source)
     if "\x00" in text:
         raise ConfigError("canopen.eds", "holds NUL bytes: not an EDS/DCF text file", source)
     warnings: list[str] = []
@@ -167,8 +168,8 @@ def load_eds_text(text: str, name: str, node_id: int | None = None, source: str 
         raise ConfigError("canopen.eds", "holds no object sections ([1000], [6040], ...): not an EDS/DCF", source)
     _repair(sections, source, warnings)
     if node_id is None and "DeviceComissioning" in sections:
-        value = sections["DeviceComissioning"].get("NodeID", ("", 0))[0]
-        node_id = _int(value) if _int(value) is not None and 1 <= _int(value) <= 127 else None
+        stored = _int(sections["DeviceComissioning"].get("NodeID", ("", 0))[0])
+        node_id = stored if stored is not None and 1 <= stored <= 127 else None
     od = _import(sections, name, node_id, source, warnings)
     _expand_compact(od, sections)
     _check_values(od, sections, source, warnings)
@@ -267,7 +268,7 @@ class _SectionReader:
                 self.warnings.append(f"{self.source}: line {no}: text before the first section; skipped")
                 self.name = "?"
         else:
-            self.entry(no, line)
+            self.entry(no, line, self.current)
 
     def header(self, no: int, given: str) -> None:
         """A ``[section]`` line: the sections that follow go into it, unless it is unreadable or repeated."""
@@ -284,8 +285,8 @@ class _SectionReader:
         else:
             self.current = self.sections[name] = {}
 
-    def entry(self, no: int, line: str) -> None:
-        """A ``key=value`` line of the current section (comments after `` ;`` dropped)."""
+    def entry(self, no: int, line: str, section: dict[str, tuple[str, int]]) -> None:
+        """A ``key=value`` line of the current section ``section`` (comments after `` ;`` dropped)."""
         key, eq, value = line.partition("=")
         key = key.strip()
         value = re.split(r"\s;", value, maxsplit=1)[0].strip()
@@ -296,11 +297,11 @@ class _SectionReader:
         canon = _canonical_key(key)
         if canon != key:
             self.case.add(f"line {no} [{self.name}] {key!r}")
-        if canon in self.current:
+        if canon in section:
             self.warnings.append(f"{self.source}: line {no} [{self.name}]: duplicate key {key!r}; the first (line "
-                                 f"{self.current[canon][1]}) is kept")
+                                 f"{section[canon][1]}) is kept")
             return
-        self.current[canon] = (value, no)
+        section[canon] = (value, no)
 
 
 def _int(text) -> int | None:
@@ -324,9 +325,10 @@ def _nodeid_expression(value: str) -> str | None:
     if sum(1 for t in terms if _NODEID.fullmatch(t)) != 1:
         return None
     rest = [_int(t) for t in terms if not _NODEID.fullmatch(t)]
-    if any(r is None for r in rest):
+    numbers = [r for r in rest if r is not None]
+    if len(numbers) != len(rest):
         return None
-    return f"$NODEID+0x{sum(rest):X}"
+    return f"$NODEID+0x{sum(numbers):X}"
 
 
 def _repair(sections: dict, source: str, warnings: list[str]) -> None:
@@ -926,8 +928,8 @@ def _vendor_objects(od):
         if not 0x2000 <= index <= 0x5FFF:
             continue
         name = od.indices[index].name
-        words = re.sub(r"(?<=[a-z])(?=[A-Z])", " ", name)  # "DataRecorder" -> "Data Recorder"
-        text = " " + re.sub(r"[^a-z0-9-]+", " ", words.lower().replace("_", " ")) + " "
+        spaced = re.sub(r"(?<=[a-z])(?=[A-Z])", " ", name)  # "DataRecorder" -> "Data Recorder"
+        text = " " + re.sub(r"[^a-z0-9-]+", " ", spaced.lower().replace("_", " ")) + " "
         if "acceptance filter" in text:  # a CAN identifier filter, not a signal filter
             continue
         for kind, words in (("f", _FILTER_WORDS), ("r", _RECORDER_WORDS), ("g", _GENERATOR_WORDS)):

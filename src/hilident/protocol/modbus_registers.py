@@ -70,8 +70,9 @@ from __future__ import annotations
 import binascii
 import math
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import ClassVar
+from typing import ClassVar, NoReturn
 
 import numpy as np
 
@@ -135,7 +136,17 @@ FILTER_FIELDS = ("center", "width", "depth", "enable")
 STAMP_MODULUS = 1 << 16
 
 
-def _optional_fault_codes(table: dict, registers: dict, required: dict, fail) -> dict[str, int]:
+#: ``fail(key, message)`` raises the :class:`ConfigError` naming ``key`` and the driver file.
+_Fail = Callable[[str, str], NoReturn]
+
+
+def _fail_in(source: str) -> _Fail:
+    def fail(key: str, message: str) -> NoReturn:
+        raise ConfigError(key, message, source or None)
+    return fail
+
+
+def _optional_fault_codes(table: dict, registers: dict, required: dict, fail: _Fail) -> dict[str, int]:
     """The codes of the optional faults in ``[modbus.fault_codes]``, each required when its register is named."""
     out = {}
     for name, register in OPTIONAL_FAULT_NAMES.items():
@@ -196,9 +207,9 @@ def encode_values(values, type_: str, scale: float = 1.0, word_order: str = "big
     exact = _exact_integers(values, code, scale, offset)
     if exact is not None:  # whole numbers into an unscaled integer type: no detour through float64
         info = np.iinfo(code)
-        bad = [v for v in exact if not info.min <= v <= info.max]
-        if bad and not saturate:
-            raise DataError(f"value {bad[0]} is beyond the {type_} range {info.min}..{info.max}")
+        beyond = [v for v in exact if not info.min <= v <= info.max]
+        if beyond and not saturate:
+            raise DataError(f"value {beyond[0]} is beyond the {type_} range {info.min}..{info.max}")
         raw = np.array([min(max(v, int(info.min)), int(info.max)) for v in exact], dtype=">" + code)
         return _order_words(raw.view(">u2").reshape(-1, n_regs), word_order, byte_order)
     x = (np.asarray(values, dtype=float).ravel() - offset) / scale
@@ -551,9 +562,9 @@ class ParameterRule:
     text: str = ""
 
     @classmethod
-    def parse(cls, text, prefix: str = "P", key: str = "modbus.parameters.address", source: str = ""):
+    def parse(cls, text, prefix: str = "P", key: str = "modbus.parameters.address", source: str = "") -> ParameterRule:
         """Read a rule; ConfigError naming ``key`` when it is not a sum of the allowed terms."""
-        def bad(why):
+        def bad(why: str) -> NoReturn:
             raise ConfigError(key, f"{why} in {text!r}; write it as a sum of terms such as "
                                    '"group * 0x100 + index" or "group * 256 + 2 * index"', source or None)
 
@@ -656,7 +667,7 @@ class FilterSlots:
     base: int
     stride: int
     slots: int
-    offsets: dict = field(default_factory=dict)
+    offsets: dict[str, int] = field(default_factory=dict)
 
     @property
     def span(self) -> int:
@@ -722,12 +733,6 @@ class FieldSlots:
         return None
 
 
-def _fail_in(source: str):
-    def fail(key, message):
-        raise ConfigError(key, message, source or None)
-    return fail
-
-
 def _parse_rule(mb: dict, source: str) -> ParameterRule:
     """``[modbus.parameters]``: ``address`` (the rule) and ``prefix`` of the parameter codes."""
     fail = _fail_in(source)
@@ -780,7 +785,8 @@ def _parse_register(name: str, raw, rule: ParameterRule | None, word_order: str,
     return register
 
 
-def _register_address(name: str, spec: _RegisterSpec, rule: ParameterRule | None, key: str, fail) -> tuple[str, int]:
+def _register_address(name: str, spec: _RegisterSpec, rule: ParameterRule | None, key: str,
+                      fail: _Fail) -> tuple[str, int]:
     """The parameter code and address of a register: ``address``, else its code through the rule (they must agree)."""
     code, address = spec.parameter, spec.address
     if address < 0:
@@ -801,7 +807,7 @@ def _register_address(name: str, spec: _RegisterSpec, rule: ParameterRule | None
     return code, address
 
 
-def _register_default(register: Register, default, key: str, fail):
+def _register_default(register: Register, default: float | str, key: str, fail: _Fail) -> float | str:
     """``default``: the register's value at power-up, of its kind and within what it encodes."""
     is_str = register.type == "str"
     if isinstance(default, bool) or not isinstance(default, (int, float, str)) or isinstance(default, str) != is_str:
@@ -813,7 +819,7 @@ def _register_default(register: Register, default, key: str, fail):
     return default
 
 
-def _parse_bits(bits, type_: str, count: int, key: str, fail) -> dict[str, int]:
+def _parse_bits(bits, type_: str, count: int, key: str, fail: _Fail) -> dict[str, int]:
     """``bits = { name = mask }``: masks of an integer register, non-zero, within its width."""
     if not isinstance(bits, dict):
         fail(key, f"must be a table {{name = mask}}, got {bits!r}")
@@ -827,7 +833,7 @@ def _parse_bits(bits, type_: str, count: int, key: str, fail) -> dict[str, int]:
     return out
 
 
-def _check_required(registers: dict[str, Register], fail) -> None:
+def _check_required(registers: dict[str, Register], fail: _Fail) -> None:
     """A map with the excitation capability names every register of hilident's table-and-capture protocol."""
     for name, types in REQUIRED_REGISTERS.items():
         if name not in registers:
@@ -844,7 +850,8 @@ def _check_required(registers: dict[str, Register], fail) -> None:
             fail(f"modbus.registers.{name}.access", 'must be "rw": the host writes it')
 
 
-def _named_register(value, registers: dict, rule: ParameterRule | None, key: str, fail) -> Register:
+def _named_register(value, registers: dict[str, Register], rule: ParameterRule | None, key: str,
+                    fail: _Fail) -> Register:
     """A register of the map by name, or by parameter code through the rule (a ``u16`` holding register)."""
     if not isinstance(value, str):
         fail(key, f"must name a register or a parameter code, got {value!r}")
@@ -861,8 +868,8 @@ def _named_register(value, registers: dict, rule: ParameterRule | None, key: str
         fail(key, f"{value!r} is no register of [modbus.registers], nor a parameter: {exc}")
 
 
-def _parse_field_slots(ft: dict, encoding: FilterEncoding, registers: dict, rule, filter_slots: int,
-                       fail) -> FieldSlots:
+def _parse_field_slots(ft: dict, encoding: FilterEncoding, registers: dict[str, Register],
+                       rule: ParameterRule | None, filter_slots: int, fail: _Fail) -> FieldSlots:
     """``[modbus.filters]`` with ``slots = [{center = ..., width = ..., depth = ...}]`` and ``off`` or ``enable``."""
     if encoding.kind == "word_block" or encoding.kind not in ("notch_parameters", "index_table", "pole_zero_q",
                                                                 "pole_zero_damping", "center_band"):
@@ -887,7 +894,8 @@ def _parse_field_slots(ft: dict, encoding: FilterEncoding, registers: dict, rule
     return FieldSlots(tuple(slots), dict(off))
 
 
-def _field_slot(key: str, entry, encoding: FilterEncoding, registers: dict, rule, fail) -> dict[str, Register]:
+def _field_slot(key: str, entry, encoding: FilterEncoding, registers: dict[str, Register],
+                rule: ParameterRule | None, fail: _Fail) -> dict[str, Register]:
     """One slot: the numeric read-write holding register of each field of the encoding (and optionally enable)."""
     names = (*encoding.fields, "enable")
     if not isinstance(entry, dict) or set(entry) - set(names) or not set(encoding.fields) <= set(entry):
@@ -901,7 +909,7 @@ def _field_slot(key: str, entry, encoding: FilterEncoding, registers: dict, rule
     return regs
 
 
-def _parse_identity(mb: dict, registers: dict, excitation: bool, fail) -> tuple[tuple[str, ...], dict]:
+def _parse_identity(mb: dict, registers: dict, excitation: bool, fail: _Fail) -> tuple[tuple[str, ...], dict]:
     """``[modbus.identity]``: registers read at connect (``registers``) and values they must hold (``expect``)."""
     table = mb.get("identity")
     if table is None:
@@ -925,7 +933,8 @@ def _parse_identity(mb: dict, registers: dict, excitation: bool, fail) -> tuple[
     return tuple(names), dict(expect)
 
 
-def _parse_save(mb: dict, registers: dict, rule, fail) -> tuple[str, float] | None:
+def _parse_save(mb: dict, registers: dict[str, Register], rule: ParameterRule | None,
+                fail: _Fail) -> tuple[str, float] | None:
     """``[modbus.save]``: the register (or parameter) written to store the parameters, and the value."""
     table = mb.get("save")
     if table is None:
@@ -943,7 +952,7 @@ def _parse_save(mb: dict, registers: dict, rule, fail) -> tuple[str, float] | No
     return r.name, value
 
 
-def _parse_stop(mb: dict, registers: dict, fail) -> dict:
+def _parse_stop(mb: dict, registers: dict, fail: _Fail) -> dict:
     """``[modbus.stop]``: register values that bring the axis to a stop (written at connect and on every ending)."""
     table = mb.get("stop", {})
     if not isinstance(table, dict):
@@ -1013,18 +1022,29 @@ class _CaptureChannelTable:
     scale: float = _spec(1.0, check=_non_zero)
 
 
-_NO_EXCITATION = {"control": {}, "status": {}, "fault_codes": {}, "modes": {}, "table": None, "table_type": "f32",
-                  "table_scale": 1.0, "capture": None, "capture_channels": ()}
+@dataclass(frozen=True)
+class _ExcitationProtocol:
+    """hilident's table-and-capture protocol of a map (all empty for a parameter drive, which has none)."""
+
+    control: dict[str, int] = field(default_factory=dict)
+    status: dict[str, int] = field(default_factory=dict)
+    fault_codes: dict[str, int] = field(default_factory=dict)
+    modes: dict[str, int] = field(default_factory=dict)
+    table: Window | None = None
+    table_type: str = "f32"
+    table_scale: float = 1.0
+    capture: Window | None = None
+    capture_channels: tuple[CaptureChannel, ...] = ()
 
 
-def _subtable(parent: dict, key: str, prefix: str, fail) -> dict:
+def _subtable(parent: dict, key: str, prefix: str, fail: _Fail) -> dict:
     value = parent.get(key)
     if not isinstance(value, dict):
         fail(f"{prefix}.{key}" if prefix else key, "table is required")
     return value
 
 
-def _codes(mb: dict, key: str, names, bits: bool, fail) -> dict[str, int]:
+def _codes(mb: dict, key: str, names, bits: bool, fail: _Fail) -> dict[str, int]:
     """``[modbus.<key>]``: a distinct 16-bit code (a single bit when ``bits``) for each of ``names``."""
     table = _subtable(mb, key, "modbus", fail)
     out = {}
@@ -1042,15 +1062,15 @@ def _codes(mb: dict, key: str, names, bits: bool, fail) -> dict[str, int]:
     return out
 
 
-def _parse_excitation(mb: dict, registers: dict, source: str) -> dict:
+def _parse_excitation(mb: dict, registers: dict[str, Register], source: str) -> _ExcitationProtocol:
     """hilident's table-and-capture protocol: control/status/fault/mode codes, the table and the capture."""
     fail = _fail_in(source)
     _check_required(registers, fail)
-    out = {"control": _codes(mb, "control", CONTROL_BITS, True, fail),
-           "status": _codes(mb, "status", STATUS_BITS, True, fail),
-           "fault_codes": _codes(mb, "fault_codes", FAULT_NAMES, False, fail)}
-    out["fault_codes"].update(_optional_fault_codes(mb["fault_codes"], registers, out["fault_codes"], fail))
-    out["modes"] = _codes(mb, "modes", MODES, False, fail)
+    control = _codes(mb, "control", CONTROL_BITS, True, fail)
+    status = _codes(mb, "status", STATUS_BITS, True, fail)
+    fault_codes = _codes(mb, "fault_codes", FAULT_NAMES, False, fail)
+    fault_codes.update(_optional_fault_codes(mb["fault_codes"], registers, fault_codes, fail))
+    modes = _codes(mb, "modes", MODES, False, fail)
     tb = _subtable(mb, "table", "modbus", fail)
     kind = build_table(_TableType, tb, "modbus.table.", source)
     window = build_table(_WindowTable, tb, "modbus.table.", source)
@@ -1062,8 +1082,7 @@ def _parse_excitation(mb: dict, registers: dict, source: str) -> dict:
             fail(f"modbus.{w.name}.base", f"the window {w.base}..{w.end - 1} leaves the 16-bit address space")
         if w.pages > 65536:
             fail(f"modbus.{w.name}.page_samples", f"{w.pages} pages do not fit the u16 {w.page_register}")
-    return {**out, "table": table, "table_type": kind.type, "table_scale": kind.scale, "capture": capture,
-            "capture_channels": channels}
+    return _ExcitationProtocol(control, status, fault_codes, modes, table, kind.type, kind.scale, capture, channels)
 
 
 def _parse_capture(cp: dict, source: str) -> tuple[Window, tuple[CaptureChannel, ...]]:
@@ -1089,7 +1108,8 @@ def _parse_capture(cp: dict, source: str) -> tuple[Window, tuple[CaptureChannel,
     return capture, tuple(channels)
 
 
-def _parse_filters(sections: dict, mb: dict, registers: dict, rule, filter_slots: int, excitation: bool,
+def _parse_filters(sections: dict, mb: dict, registers: dict[str, Register], rule: ParameterRule | None,
+                   filter_slots: int, excitation: bool,
                    source: str) -> tuple[FilterSlots | FieldSlots | None, FilterEncoding | None]:
     """``[modbus.filters]`` with the ``[filters]`` encoding: hilident's slots or the drive's named registers."""
     fail = _fail_in(source)
@@ -1126,7 +1146,8 @@ class _FilterSlotsTable:
     enable: int = _spec(ge=0, le=3)
 
 
-def _check_overlaps(registers: dict, table, capture, filters, filter_slots: int, fail) -> None:
+def _check_overlaps(registers: dict[str, Register], table: Window | None, capture: Window | None,
+                    filters: FilterSlots | FieldSlots | None, filter_slots: int, fail: _Fail) -> None:
     """Nothing may overlap: registers (holding and input apart), windows, filter slots."""
     spans = [(r.table, r.address, r.end, f"modbus.registers.{r.name}") for r in registers.values()]
     spans += [("holding", w.base, w.end, f"modbus.{w.name}") for w in (table, capture) if w is not None]
@@ -1147,7 +1168,7 @@ class RegisterMap:
 
     def __init__(self, *, map_version: int, device_type: int, word_order: str, max_read: int, max_write: int,
                  registers: dict[str, Register], control: dict[str, int], status: dict[str, int],
-                 fault_codes: dict[str, int], modes: dict[str, int], table: Window, table_type: str,
+                 fault_codes: dict[str, int], modes: dict[str, int], table: Window | None, table_type: str,
                  table_scale: float, capture: Window | None, capture_channels: tuple[CaptureChannel, ...],
                  filters: FilterSlots | FieldSlots | None, filter_encoding: FilterEncoding | None,
                  byte_order: str = "big", rule: ParameterRule | None = None, identity: tuple[str, ...] = (),
@@ -1200,17 +1221,20 @@ class RegisterMap:
         registers = _parse_registers(_subtable(mb, "registers", "modbus", fail), rule, keys.word_order,
                                      keys.byte_order, source)
         excitation = "table" in mb or "capture" in mb
-        protocol = _parse_excitation(mb, registers, source) if excitation else _NO_EXCITATION
+        protocol = _parse_excitation(mb, registers, source) if excitation else _ExcitationProtocol()
         filters, encoding = _parse_filters(sections, mb, registers, rule, filter_slots, excitation, source)
         identity, expect = _parse_identity(mb, registers, excitation, fail)
         save = _parse_save(mb, registers, rule, fail)
         stop = _parse_stop(mb, registers, fail)
-        _check_overlaps(registers, protocol["table"], protocol["capture"], filters, filter_slots, fail)
+        _check_overlaps(registers, protocol.table, protocol.capture, filters, filter_slots, fail)
         return cls(
             map_version=keys.identity_code("map_version", excitation, source),
             device_type=keys.identity_code("device_type", excitation, source),
             word_order=keys.word_order, max_read=keys.max_read_registers, max_write=keys.max_write_registers,
-            registers=registers, **protocol, filters=filters, filter_encoding=encoding,
+            registers=registers, control=protocol.control, status=protocol.status,
+            fault_codes=protocol.fault_codes, modes=protocol.modes, table=protocol.table,
+            table_type=protocol.table_type, table_scale=protocol.table_scale, capture=protocol.capture,
+            capture_channels=protocol.capture_channels, filters=filters, filter_encoding=encoding,
             byte_order=keys.byte_order, rule=rule, identity=identity, expect=expect, save=save, stop=stop,
         )
 
@@ -1398,19 +1422,28 @@ class RegisterMap:
 
     # --- filter slots ---------------------------------------------------------------------
 
+    def _four_register_slots(self) -> FilterSlots:
+        """The map's filter slots when they are hilident's four-register slots (DataError otherwise)."""
+        if not isinstance(self.filters, FilterSlots):
+            held = "no filter slots" if self.filters is None else "filter slots of named registers"
+            raise DataError(f"the map has {held}, not hilident's four-register slots ([modbus.filters] base)")
+        return self.filters
+
     def encode_filter(self, values: dict, enabled: bool) -> list[int]:
         """The four registers of a filter slot, in address order."""
+        slots = self._four_register_slots()
         fields = {**{k: int(values[k]) for k in ("center", "width", "depth")}, "enable": int(bool(enabled))}
         for k, v in fields.items():
             if not 0 <= v <= 0xFFFF:
                 raise DataError(f"filter field {k} = {v} does not fit a 16-bit register")
-        out = [0] * self.filters.span
+        out = [0] * slots.span
         for k, v in fields.items():
-            out[self.filters.offsets[k]] = v
+            out[slots.offsets[k]] = v
         return out
 
     def decode_filter(self, registers) -> tuple[dict, bool]:
         """``({center, width, depth}, enabled)`` from a slot's four registers."""
+        offsets = self._four_register_slots().offsets
         regs = [int(x) for x in registers]
-        values = {k: regs[self.filters.offsets[k]] for k in ("center", "width", "depth")}
-        return values, bool(regs[self.filters.offsets["enable"]])
+        values = {k: regs[offsets[k]] for k in ("center", "width", "depth")}
+        return values, bool(regs[offsets["enable"]])
