@@ -6,6 +6,8 @@ One part of :class:`~hilident.adapters.modbus_drive.ModbusDriveAdapter`, which c
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 from hilident.adapters.base import FilterUpload
 from hilident.adapters.modbus_requests import RegisterAccess
 from hilident.errors import DataError, DeviceError
@@ -99,9 +101,15 @@ class FilterSlots(RegisterAccess):
         values = self.read_names(*(r.name for r in regs.values()))
         return {f: int(round((float(values[r.name]) - r.offset) / r.scale)) for f, r in regs.items()}
 
-    def _write_fields(self, slot: int, stored: dict[str, int]) -> None:
+    def _write_fields(self, slot: int, stored: Mapping[str, int | float | bytes]) -> None:
         regs = self._fields(slot)
-        self.write_names(**{regs[f].name: v * regs[f].scale + regs[f].offset for f, v in stored.items()})
+        physical = {}
+        for name, value in stored.items():
+            if isinstance(value, bytes):  # a word block's raw words: no register of a named slot holds one
+                raise DataError(f"{self.port}: filter slot {slot} field {name!r} is raw words; a parameter "
+                                "drive's slot holds numbers")
+            physical[regs[name].name] = value * regs[name].scale + regs[name].offset
+        self.write_names(**physical)
 
     def _slot_state(self, stored: dict[str, int]) -> tuple[dict[str, int], bool]:
         """``(encoding values, enabled)`` of a named slot's stored integers."""
@@ -152,7 +160,8 @@ class FilterSlots(RegisterAccess):
         previous = self.save_filter(slot)
         values = self._realise(spec).fields
         expected = self.stored_form(biquad, spec)
-        self._write_fields(slot, {**values, **fs.off})
+        bypassed: dict[str, int | float | bytes] = {**values, **fs.off}
+        self._write_fields(slot, bypassed)
         back, enabled = self._slot_state(self._read_fields(slot))
         same = not enabled and all(back[k] == v for k, v in values.items() if k not in fs.off)
         stored = Biquad.identity()
@@ -172,7 +181,7 @@ class FilterSlots(RegisterAccess):
         """
         fs = self._field_slots()
         if fs is not None:
-            stored = dict(self._realise(spec).fields)
+            stored: dict[str, int | float | bytes] = dict(self._realise(spec).fields)
             if fs.has_enable:
                 stored["enable"] = int(bool(enabled))
             elif not enabled:
