@@ -40,6 +40,7 @@ import numpy as np
 
 from hilident.errors import DataError
 from hilident.filters.biquad import Biquad
+from hilident.protocol.filter_encoding import FilterEncoding
 from hilident.protocol.modbus_registers import (
     FieldSlots,
     Register,
@@ -188,21 +189,38 @@ class ParameterDriveFirmware:
             if slot is not None:
                 self._apply_slot(slot)
 
+    def _filter_parameters(self) -> tuple[FieldSlots, FilterEncoding]:
+        """The map's filter slots (named parameters) and the notch equation the drive applies to them.
+
+        Raises
+        ------
+        ValueError
+            The map's slots are not named parameters (``[[modbus.filters.slots]]``),
+            or it has no filter encoding.
+        """
+        slots, encoding = self.map.filters, self.map.filter_encoding
+        if not isinstance(slots, FieldSlots) or encoding is None:
+            raise ValueError("a parameter drive's filter slots are named parameters ([[modbus.filters.slots]]) "
+                             "with a [filters] encoding")
+        return slots, encoding
+
     def slot_values(self, slot: int) -> tuple[dict, bool]:
         """``({field: stored integer}, enabled)`` of filter slot ``slot``."""
-        regs = self.map.filters.fields(slot)
+        slots, _ = self._filter_parameters()
+        regs = slots.fields(slot)
         raw = {name: int(r.decode(self.images["holding"][r.address : r.end])) for name, r in regs.items()}
         enabled = bool(raw.pop("enable")) if "enable" in raw else \
-            not all(raw[k] == v for k, v in self.map.filters.off.items())
+            not all(raw[k] == v for k, v in slots.off.items())
         return raw, enabled
 
     def _apply_slot(self, slot: int) -> None:
         """The drive's notch equation at its loop rate, from what the slot's parameters hold now."""
+        _, encoding = self._filter_parameters()
         values, enabled = self.slot_values(slot)
         section = Biquad.identity()
         if enabled:
             try:
-                section = self.map.filter_encoding.applied(values, self.loop_rate_hz)
+                section = encoding.applied(values, self.loop_rate_hz)
             except DataError:
                 enabled = False  # a setting that is no notch: the drive does not run it
         self.drive.filters.write(slot, section, enabled)

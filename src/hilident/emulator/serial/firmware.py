@@ -226,7 +226,9 @@ class BoardFirmware:
         if not all(np.isfinite(c.b + c.a)):
             return sb.ErrorCode.BAD_ARGUMENT, f"slot {c.slot}: coefficients must be finite"
         # The board stores REAL32 coefficients: what the host reads back is what runs.
-        stored = Biquad(tuple(sb.float32(x) for x in c.b), (1.0, sb.float32(c.a[1]), sb.float32(c.a[2])))
+        b0, b1, b2 = c.b
+        stored = Biquad((sb.float32(b0), sb.float32(b1), sb.float32(b2)),
+                        (1.0, sb.float32(c.a[1]), sb.float32(c.a[2])))
         if c.enabled and not stored.is_stable():
             return sb.ErrorCode.BAD_ARGUMENT, f"slot {c.slot}: unstable coefficients refused"
         self.drive.filters.write(c.slot, stored, c.enabled)
@@ -251,8 +253,21 @@ class BoardFirmware:
         return self._produced
 
     @property
+    def _run_config(self) -> sb.Configure:
+        """The CONFIGURE in force: a run and the sample blocks it sends are shaped by it.
+
+        Raises
+        ------
+        RuntimeError
+            The host has not configured the board (START refuses to run without it).
+        """
+        if self.config is None:
+            raise RuntimeError("the board has no configuration: send CONFIGURE before a run")
+        return self.config
+
+    @property
     def sample_rate_hz(self) -> float:
-        return self.identity.loop_rate_hz / self.config.sample_divider
+        return self.identity.loop_rate_hz / self._run_config.sample_divider
 
     def advance(self, n_samples: int) -> None:
         """Play ``n_samples`` excitation samples through the drive and record them."""
@@ -297,7 +312,7 @@ class BoardFirmware:
         open-loop torque drops to zero, the no-torque hold (holding a torque
         would keep accelerating the axis).
         """
-        if self.config.mode in (sb.Mode.VELOCITY, sb.Mode.POSITION):
+        if self._run_config.mode in (sb.Mode.VELOCITY, sb.Mode.POSITION):
             return self._last_value
         return 0.0
 
@@ -307,12 +322,12 @@ class BoardFirmware:
             self.drive.run(np.zeros(n_ticks))
 
     def _selected_columns(self) -> list[int]:
-        return [self._column[c.channel] for c in self.config.channels]
+        return [self._column[c.channel] for c in self._run_config.channels]
 
     def _append(self, rows: np.ndarray) -> None:
         self._pending.append(rows)
         self._pending_rows += len(rows)
-        block = self.config.block_samples
+        block = self._run_config.block_samples
         while self._pending_rows >= block:
             data = np.concatenate(self._pending)
             self._emit(data[:block])
@@ -325,7 +340,7 @@ class BoardFirmware:
         flags = self._pending_flags | extra_flags
         if self.fault != sb.FaultCode.NONE:
             flags |= sb.FLAG_FAULT
-        _, clipped = sb.pack_rows(data, self.config.channels)
+        _, clipped = sb.pack_rows(data, self._run_config.channels)
         if clipped:
             flags |= sb.FLAG_CLIPPED
         self.send(
@@ -340,7 +355,7 @@ class BoardFirmware:
 
     def _flush_last(self) -> None:
         """Send what is pending (possibly nothing) as the run's last block."""
-        data = np.concatenate(self._pending) if self._pending else np.zeros((0, len(self.config.channels)))
+        data = np.concatenate(self._pending) if self._pending else np.zeros((0, len(self._run_config.channels)))
         self._emit(data, sb.FLAG_LAST)
         self._pending, self._pending_rows = [], 0
 
