@@ -21,6 +21,12 @@ does goes through its object dictionary and the bus:
   Voltage, 3 Quick Stop (both end in Switch On Disabled, power stage off).
   A drive with 0x1016 but no 0x6007 goes to Fault (the CiA 402 default).
 
+The parts are composed, not mixed in: each is made with the firmware and
+reaches it through :class:`~hilident.emulator.canopen.host.FirmwareHost`, a
+protocol that declares the firmware state and calls the parts share. A type
+checker holds the firmware to it where it makes its parts, and the parts never
+import this module (no import cycle).
+
 Its clock (:meth:`CanopenDriveFirmware.tick`, called by
 :class:`~hilident.emulator.canopen.server.CanopenDriveServer`) runs the host
 watch, the recorder, table playback and coasting on the twins' one
@@ -179,7 +185,7 @@ class CanopenDriveFirmware:
         self.watch = HostWatch(self)
         self.pdo = PdoExchange(self, seed)
         self.playback = TablePlayback(self)
-        self.last_row = drive.run(np.zeros(1))[0]
+        self.last_row: np.ndarray = drive.run(np.zeros(1))[0]
         drive.disable()
         self.recorder = DriveRecorder(self, self.desc.recorder) if self.desc.recorder is not None else None
 

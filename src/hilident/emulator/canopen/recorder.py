@@ -31,6 +31,7 @@ import time
 import numpy as np
 from canopen.sdo import SdoAbortedError
 
+from hilident.emulator.canopen.host import FirmwareHost
 from hilident.emulator.canopen.roles import COLUMN_OF_ROLE
 from hilident.emulator.canopen.sdo import (
     ABORT_NO_DATA,
@@ -70,7 +71,7 @@ class DriveRecorder:
     cap : RecorderCapability
     """
 
-    def __init__(self, firmware, cap: RecorderCapability):
+    def __init__(self, firmware: FirmwareHost, cap: RecorderCapability):
         self.fw = firmware
         self.cap = cap
         self.rec = cap.recorder
@@ -273,6 +274,8 @@ class DriveRecorder:
     def _output_raw(self, g: GeneratorSpec, output: ObjectAddress, si) -> np.ndarray:
         """``si`` in the type and scale of the generator's output object ``output``."""
         obj = self.fw.od.get_variable(output.index, output.subindex)
+        if obj is None or obj.data_type is None:  # parse_recorder checked the EDS has it
+            raise RuntimeError(f"{self.cap.source}: the generator's output object {output} is not in the EDS")
         return encode_si(np.atleast_1d(si), obj.data_type, self._scale(g.output_scale))
 
     # --- the clock ---------------------------------------------------------------------------------

@@ -65,7 +65,8 @@ class SocketcandServer:
 
     @property
     def address(self) -> str:
-        """``"127.0.0.1:PORT/BUS"``: what goes in ``[device].port`` with ``can_interface = "socketcand"``."""
+        """``"127.0.0.1:PORT/BUS"``: what goes in ``[device].port``, with ``[device.canopen]``
+        ``can_interface = "socketcand"``."""
         return f"127.0.0.1:{self.port}/{self.bus_name}"
 
     def start(self) -> SocketcandServer:

@@ -44,7 +44,9 @@ import math
 
 import numpy as np
 
+from hilident.drivers import DriverDescription
 from hilident.emulator.clock import Played, TablePlayer
+from hilident.emulator.drive import DriveLoop
 from hilident.errors import DataError
 from hilident.filters.biquad import Biquad
 from hilident.protocol.filter_encoding import FilterEncoding
@@ -107,8 +109,8 @@ class ModbusDriveFirmware:
         served by :class:`~hilident.emulator.modbus.parameter_firmware.ParameterDriveFirmware`).
     """
 
-    def __init__(self, drive, regmap: RegisterMap, driver, drive_fault_after_s: float = 0.0,
-                 capture_stops_after_s: float = 0.0):
+    def __init__(self, drive: DriveLoop, regmap: RegisterMap, driver: DriverDescription,
+                 drive_fault_after_s: float = 0.0, capture_stops_after_s: float = 0.0):
         if (regmap.table is None or regmap.capture is None or regmap.filters is None
                 or regmap.filter_encoding is None):
             raise ValueError("a map without the excitation capability is served by ParameterDriveFirmware")
@@ -442,7 +444,8 @@ class ModbusDriveFirmware:
         if self.captured < self.produced:
             self.capture_stopped = True
         if played.faulted:
-            code = self.map.fault_codes.get(self.drive.fault, self.map.fault_codes["drive_fault"])
+            fault, unknown = self.drive.fault, self.map.fault_codes["drive_fault"]
+            code = self.map.fault_codes.get(fault, unknown) if fault is not None else unknown
             self._fault(code, played.end - 1, float(self.drive.fault_value or 0.0))
         elif self.produced >= self.table_length:
             self._end()

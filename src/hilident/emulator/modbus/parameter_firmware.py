@@ -38,6 +38,8 @@ import math
 
 import numpy as np
 
+from hilident.drivers import DriverDescription
+from hilident.emulator.drive import DriveLoop
 from hilident.errors import DataError
 from hilident.filters.biquad import Biquad
 from hilident.protocol.filter_encoding import FilterEncoding
@@ -73,7 +75,7 @@ class ParameterDriveFirmware:
     Not thread-safe: the server serialises calls.
     """
 
-    def __init__(self, drive, regmap: RegisterMap, driver):
+    def __init__(self, drive: DriveLoop, regmap: RegisterMap, driver: DriverDescription):
         if regmap.excitation:
             raise ValueError("a map with the excitation capability is served by ModbusDriveFirmware")
         self.drive = drive

@@ -28,7 +28,7 @@ Modbus RTU runs over two pseudo-terminals joined like a null-modem cable
 host opens the other (``/dev/pts/N``), and the bridge carries the bytes at the
 line rate (start bit, 8 data bits, parity bit unless ``N``, stop bits). A
 pseudo-terminal carries no parity bit, and some kernels refuse to set one, so
-both ends open it with parity ``N``; the host's ``[device].parity`` must be
+both ends open it with parity ``N``; the host's ``[device.modbus].parity`` must be
 ``"N"`` for an emulated RTU line.
 
 ``[emulator].link`` chooses the transport: ``"tcp"`` and ``"pipe"`` give Modbus

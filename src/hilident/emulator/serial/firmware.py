@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hilident.emulator.clock import TablePlayer
+from hilident.emulator.drive import DriveLoop
 from hilident.errors import HilidentError, ProtocolError
 from hilident.filters.biquad import Biquad
 from hilident.protocol import serial_board as sb
@@ -52,7 +53,7 @@ class BoardFirmware:
         ``drive.CHANNELS``.
     """
 
-    def __init__(self, drive, identity: sb.Identity):
+    def __init__(self, drive: DriveLoop, identity: sb.Identity):
         self.drive = drive
         self.identity = identity
         self._column = drive.columns_of([c.name for c in identity.channels], "board channel")
@@ -299,8 +300,9 @@ class BoardFirmware:
         played = self._player.play(values, first)
         self._produced += n_samples
         self._append(played.rows[:, self._selected_columns()])
-        if self.drive.fault:
-            self._trip(first)
+        fault = self.drive.fault
+        if fault:
+            self._trip(first, fault)
         elif self._run_samples and self._produced >= self._run_samples:
             self._finish(sb.EventCode.FINISHED, "run complete")
 
@@ -359,13 +361,14 @@ class BoardFirmware:
         self._emit(data, sb.FLAG_LAST)
         self._pending, self._pending_rows = [], 0
 
-    def _trip(self, first_sample: int) -> None:
-        self.fault = _FAULTS.get(self.drive.fault, sb.FaultCode.TORQUE_LIMIT)
+    def _trip(self, first_sample: int, fault: str) -> None:
+        """The drive tripped ``fault`` (a :data:`~hilident.emulator.drive.FAULTS` name) in this step."""
+        self.fault = _FAULTS.get(fault, sb.FaultCode.TORQUE_LIMIT)
         self.counters.limit_trips += 1
         fault_sample = self._player.fault_sample()
         index = first_sample if fault_sample is None else fault_sample
         value = float(getattr(self.drive, "fault_value", 0.0) or 0.0)
-        self.send(sb.Event(sb.EventCode.LIMIT_TRIP, index, value, f"{self.drive.fault}: axis stopped, torque zero"))
+        self.send(sb.Event(sb.EventCode.LIMIT_TRIP, index, value, f"{fault}: axis stopped, torque zero"))
         self._flush_last()
         self.state = sb.State.FAULT
         self._end_run()
