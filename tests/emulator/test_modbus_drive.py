@@ -10,7 +10,7 @@ import pytest
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
-from hilident.config import DeviceConfig, parse_config
+from hilident.config import DeviceConfig, ModbusDeviceConfig, parse_config
 from hilident.drivers import find_driver
 from hilident.emulator.factory import build_drive
 from hilident.emulator.modbus.firmware import ModbusDriveFirmware
@@ -247,7 +247,7 @@ def tcp_client(port: str, timeout: float = 1.0) -> ModbusTcpClient:
 
 
 def test_tcp_server_on_loopback_answers_as_the_map_says():
-    emu = start(emulator_config(), DRIVER, DeviceConfig(device_id=3), link="tcp")
+    emu = start(emulator_config(), DRIVER, DeviceConfig(modbus=ModbusDeviceConfig(device_id=3)), link="tcp")
     try:
         assert emu.port.startswith("tcp://127.0.0.1:") and int(emu.port.rsplit(":", 1)[1]) > 0
         client = tcp_client(emu.port)
@@ -265,7 +265,7 @@ def test_tcp_server_on_loopback_answers_as_the_map_says():
 def test_rtu_over_a_pseudo_terminal():
     emu = start(emulator_config(), DRIVER, DeviceConfig(baudrate=230400), link="pty")
     try:
-        assert emu.port.startswith("/dev/") and emu.device.parity == "N" and emu.device.baudrate == 230400
+        assert emu.port.startswith("/dev/") and emu.device.modbus.parity == "N" and emu.device.baudrate == 230400
         client = ModbusSerialClient(emu.port, baudrate=230400, parity="N", timeout=1.0, retries=0)
         assert client.connect()
         t = time.monotonic()
