@@ -346,6 +346,29 @@ def test_exception_code_must_be_a_modbus_code():
         start(emulator_config(faults), DRIVER, DeviceConfig(), link="tcp")
 
 
+def test_a_parameter_drive_with_register_block_slots_is_a_config_error_naming_the_table():
+    """A map without an excitation table whose slots are register blocks: the twin cannot run them, and says so
+    (it used to fail with an AttributeError while building the drive)."""
+    from dataclasses import replace
+
+    from hilident.errors import ConfigError
+
+    sections = {
+        "modbus": {
+            "registers": {"model": {"address": 0, "type": "u16", "default": 7}},
+            "identity": {"registers": ["model"]},
+            "filters": {"base": 0x100, "stride": 4, "center": 0, "width": 1, "depth": 2, "enable": 3},
+        },
+        "filters": {"encoding": "notch_parameters", "width_unit": "q", "depth_unit": "percent",
+                    "scales": {"center": 0.1, "width": 0.01, "depth": 1.0}},
+    }
+    driver = replace(find_driver("dsy-rs"), filter_slots=1, sections=sections)
+    assert not RegisterMap.from_driver(driver).excitation  # a parameter drive's map, slots and all, parses
+    with pytest.raises(ConfigError) as info:
+        start(emulator_config(), driver, DeviceConfig(), link="tcp")
+    assert info.value.key == "modbus.filters" and "driver.toml" in str(info.value)
+
+
 # --- communication timeout ------------------------------------------------------------------
 
 

@@ -40,7 +40,7 @@ import numpy as np
 
 from hilident.drivers import DriverDescription
 from hilident.emulator.drive import DriveLoop
-from hilident.errors import DataError
+from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad
 from hilident.protocol.filter_encoding import FilterEncoding
 from hilident.protocol.modbus_registers import (
@@ -73,11 +73,22 @@ class ParameterDriveFirmware:
         Stores carried out since power-up.
 
     Not thread-safe: the server serialises calls.
+
+    Raises
+    ------
+    ConfigError
+        The map's filter slots are register blocks (``[modbus.filters]`` base
+        and stride): this twin runs a parameter drive's slots as named
+        parameters (``[[modbus.filters.slots]]``) only.
     """
 
     def __init__(self, drive: DriveLoop, regmap: RegisterMap, driver: DriverDescription):
         if regmap.excitation:
             raise ValueError("a map with the excitation capability is served by ModbusDriveFirmware")
+        if regmap.filters is not None and not isinstance(regmap.filters, FieldSlots):
+            raise ConfigError("modbus.filters", "the twin of a drive without an excitation table runs filter slots "
+                              "of named parameters ([[modbus.filters.slots]]), not register blocks (base, stride)",
+                              str(driver.folder / "driver.toml"))
         self.drive = drive
         self.map = regmap
         self.loop_rate_hz = float(driver.loop_rate_hz)
@@ -197,13 +208,11 @@ class ParameterDriveFirmware:
         Raises
         ------
         ValueError
-            The map's slots are not named parameters (``[[modbus.filters.slots]]``),
-            or it has no filter encoding.
+            The map has no filter slots (the constructor refuses slots of another kind).
         """
         slots, encoding = self.map.filters, self.map.filter_encoding
         if not isinstance(slots, FieldSlots) or encoding is None:
-            raise ValueError("a parameter drive's filter slots are named parameters ([[modbus.filters.slots]]) "
-                             "with a [filters] encoding")
+            raise ValueError("the drive's map has no filter slots")
         return slots, encoding
 
     def slot_values(self, slot: int) -> tuple[dict, bool]:
