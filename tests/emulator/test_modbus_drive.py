@@ -369,6 +369,25 @@ def test_a_parameter_drive_with_register_block_slots_is_a_config_error_naming_th
     assert info.value.key == "modbus.filters" and "driver.toml" in str(info.value)
 
 
+def test_a_table_drive_with_named_parameter_slots_is_a_config_error_naming_the_table():
+    """The other way round: an excitation map whose slots are named parameters; the twin's filter writes would
+    all fail (exception 04), so it is refused when it is built."""
+    import copy
+    from dataclasses import replace
+
+    from hilident.errors import ConfigError
+
+    sections = copy.deepcopy(DRIVER.sections)
+    sections["modbus"]["registers"].update({name: {"address": 900 + i, "type": "u16", "access": "rw"}
+                                            for i, name in enumerate(("c", "w", "d", "on"))})
+    sections["modbus"]["filters"] = {"slots": [{"center": "c", "width": "w", "depth": "d", "enable": "on"}]}
+    driver = replace(DRIVER, filter_slots=1, sections=sections)
+    assert RegisterMap.from_driver(driver).excitation  # the map itself is valid
+    with pytest.raises(ConfigError) as info:
+        start(emulator_config(), driver, DeviceConfig(), link="tcp")
+    assert info.value.key == "modbus.filters" and "driver.toml" in str(info.value)
+
+
 # --- communication timeout ------------------------------------------------------------------
 
 

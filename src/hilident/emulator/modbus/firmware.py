@@ -47,12 +47,11 @@ import numpy as np
 from hilident.drivers import DriverDescription
 from hilident.emulator.clock import Played, TablePlayer
 from hilident.emulator.drive import DriveLoop
-from hilident.errors import DataError
+from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad
 from hilident.protocol.filter_encoding import FilterEncoding
 from hilident.protocol.modbus_registers import (
     STAMP_MODULUS,
-    FieldSlots,
     FilterSlots,
     RegisterMap,
     Window,
@@ -107,6 +106,9 @@ class ModbusDriveFirmware:
     ValueError
         The map lacks the excitation capability (a parameter drive's map is
         served by :class:`~hilident.emulator.modbus.parameter_firmware.ParameterDriveFirmware`).
+    ConfigError
+        The map's filter slots are named parameters (``[[modbus.filters.slots]]``):
+        beside an excitation table this twin runs hilident's four-register slots only.
     """
 
     def __init__(self, drive: DriveLoop, regmap: RegisterMap, driver: DriverDescription,
@@ -114,11 +116,15 @@ class ModbusDriveFirmware:
         if (regmap.table is None or regmap.capture is None or regmap.filters is None
                 or regmap.filter_encoding is None):
             raise ValueError("a map without the excitation capability is served by ParameterDriveFirmware")
+        if not isinstance(regmap.filters, FilterSlots):
+            raise ConfigError("modbus.filters", "the twin of a drive with an excitation table runs hilident's "
+                              "four-register filter slots (base, stride), not named parameters "
+                              "([[modbus.filters.slots]])", str(driver.folder / "driver.toml"))
         self.drive = drive
         self.map = regmap
         self._table_window: Window = regmap.table
         self._capture_window: Window = regmap.capture
-        self._slots: FilterSlots | FieldSlots = regmap.filters
+        self._slots: FilterSlots = regmap.filters
         self._encoding: FilterEncoding = regmap.filter_encoding
         self.loop_rate_hz = float(driver.loop_rate_hz)
         self.max_sample_rate_hz = float(driver.max_sample_rate_hz)
@@ -356,19 +362,9 @@ class ModbusDriveFirmware:
         return t, v, lo, hi
 
     def _slot_filter(self, slot: int) -> tuple[Biquad, bool] | None:
-        """What slot ``slot``'s registers ask for, or None when the values are not a valid notch.
-
-        Raises
-        ------
-        NotImplementedError
-            The map's slots are named parameters: this twin runs them beside a
-            parameter list (ParameterDriveFirmware), not beside an excitation table.
-        """
-        slots = self._slots
-        if not isinstance(slots, FilterSlots):
-            raise NotImplementedError("filter slots of named parameters beside an excitation table")
-        a = slots.address(slot)
-        values, enabled = self.map.decode_filter(self.image[a : a + slots.span])
+        """What slot ``slot``'s registers ask for, or None when the values are not a valid notch."""
+        a = self._slots.address(slot)
+        values, enabled = self.map.decode_filter(self.image[a : a + self._slots.span])
         if not any(values.values()):  # an empty slot passes the torque through; it cannot be enabled
             return None if enabled else (Biquad.identity(), False)
         try:
