@@ -19,7 +19,7 @@ import pytest
 import serial
 
 from hilident.adapters.modbus_drive import ModbusDriveAdapter, NoResponse
-from hilident.config import DeviceConfig, parse_config
+from hilident.config import DeviceConfig, ModbusDeviceConfig, parse_config
 from hilident.drivers import find_driver
 from hilident.emulator.modbus.pdu import handle, request_length
 from hilident.emulator.modbus.server import start
@@ -119,7 +119,7 @@ class Tcp:
 
 @pytest.fixture(scope="module")
 def tcp_twin():
-    emu = start(twin_config(), DRIVER, DeviceConfig(device_id=UNIT), link="tcp")
+    emu = start(twin_config(), DRIVER, DeviceConfig(modbus=ModbusDeviceConfig(device_id=UNIT)), link="tcp")
     yield emu
     emu.close()
 
@@ -232,7 +232,7 @@ def test_another_protocol_id_is_not_answered(tcp):
 
 def test_other_unit_ids_get_exception_11_when_the_twin_acts_as_a_gateway():
     gateway = twin_config('[emulator.faults.modbus]\nunknown_unit_id = "gateway_exception"')
-    emu = start(gateway, DRIVER, DeviceConfig(device_id=UNIT), link="tcp")
+    emu = start(gateway, DRIVER, DeviceConfig(modbus=ModbusDeviceConfig(device_id=UNIT)), link="tcp")
     client = Tcp(emu.port)
     try:
         assert client.ask(pdu(3, 0, 1), unit=2) == b"\x83\x0b"
@@ -289,7 +289,8 @@ class Rtu:
 
 @pytest.fixture(scope="module")
 def rtu_twin():
-    emu = start(twin_config(), DRIVER, DeviceConfig(device_id=UNIT, baudrate=RTU_BAUD), link="pty")
+    device = DeviceConfig(baudrate=RTU_BAUD, modbus=ModbusDeviceConfig(device_id=UNIT))
+    emu = start(twin_config(), DRIVER, device, link="pty")
     yield emu
     emu.close()
 
@@ -425,14 +426,15 @@ def late_answers(rtu_twin):
     before = server.faults
 
     def set_delay(seconds: float) -> None:
-        server.faults = replace(before, response_delay_s=seconds)
+        server.faults = replace(before, modbus=replace(before.modbus, response_delay_s=seconds))
 
     yield set_delay
     server.faults = before
 
 
 def rtu_adapter(emu, timeout_s: float) -> ModbusDriveAdapter:
-    device = DeviceConfig(driver="modbus-servo", port=emu.port, baudrate=RTU_BAUD, parity="N", timeout_s=timeout_s)
+    device = DeviceConfig(driver="modbus-servo", port=emu.port, baudrate=RTU_BAUD, timeout_s=timeout_s,
+                          modbus=ModbusDeviceConfig(parity="N"))
     return ModbusDriveAdapter.open_device(device, DRIVER)
 
 

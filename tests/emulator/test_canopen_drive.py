@@ -14,7 +14,7 @@ import pytest
 from canopen.sdo import SdoAbortedError
 
 import canopen
-from hilident.config import DeviceConfig, load_config
+from hilident.config import CanopenDeviceConfig, DeviceConfig, load_config
 from hilident.drivers import find_driver
 from hilident.emulator.canopen.server import start, start_socketcand
 from hilident.filters.biquad import Biquad
@@ -25,11 +25,14 @@ from hilident.protocol.filter_encoding import FilterEncoding
 
 CONFIG = Path(__file__).resolve().parents[2] / "configs" / "emulated-canopen-gantry.toml"
 NODE = 3
+BUS = CanopenDeviceConfig(node_id=NODE)  # [device.canopen] of the twins under test
 
 
-def emulator_config(**faults):
+def emulator_config(**canopen_faults):
+    """The shipped CANopen twin, ten times faster, with ``canopen_faults`` set in [emulator.faults.canopen]."""
     emu = load_config(CONFIG).emulator
-    return replace(emu, time_scale=10.0, faults=replace(emu.faults, **faults))
+    faults = replace(emu.faults, canopen=replace(emu.faults.canopen, **canopen_faults))
+    return replace(emu, time_scale=10.0, faults=faults)
 
 
 class Host:
@@ -38,7 +41,7 @@ class Host:
     def __init__(self, emulated, driver):
         self.network = canopen.Network()
         self.network.NOTIFIER_CYCLE = 0.05
-        self.network.connect(interface=emulated.device.can_interface, channel=emulated.device.port)
+        self.network.connect(interface=emulated.device.canopen.can_interface, channel=emulated.device.port)
         self.node = self.network.add_node(NODE, str(driver.folder / f"{driver.name}.eds"))
         self.emcy = []
         self.node.emcy.add_callback(self.emcy.append)
@@ -83,7 +86,7 @@ def drive_host():
 
     def make(driver_name="canopen-servo", **faults):
         driver = find_driver(driver_name)
-        emulated = start(emulator_config(**faults), driver, DeviceConfig(driver=driver_name, node_id=NODE))
+        emulated = start(emulator_config(**faults), driver, DeviceConfig(driver=driver_name, canopen=BUS))
         host = Host(emulated, driver)
         started.append((host, emulated))
         return host, emulated, driver
@@ -96,7 +99,7 @@ def drive_host():
 
 def test_identity_heartbeat_and_the_eds_objects(drive_host):
     host, emulated, driver = drive_host()
-    assert emulated.device.can_interface == "virtual" and emulated.device.port.startswith("hilident-canopen")
+    assert emulated.device.canopen.can_interface == "virtual" and emulated.device.port.startswith("hilident-canopen")
     assert host.read(0x1018, 1) == 0x0F1D and host.read(0x1018, 2) == 0x00040201
     assert host.read(0x1008) == "hilident CiA 402 servo"
     assert host.read(0x2000) == driver.loop_rate_hz
@@ -293,9 +296,9 @@ def test_abort_object_fault(drive_host):
 
 def test_socketcand_bridge_serves_the_bus(tmp_path):
     driver = find_driver("canopen-servo")
-    emulated = start_socketcand(emulator_config(), driver, DeviceConfig(driver="canopen-servo", node_id=NODE))
+    emulated = start_socketcand(emulator_config(), driver, DeviceConfig(driver="canopen-servo", canopen=BUS))
     try:
-        assert emulated.device.can_interface == "socketcand"
+        assert emulated.device.canopen.can_interface == "socketcand"
         host_port, _, channel = emulated.device.port.partition("/")
         host, port = host_port.split(":")
         assert host == "127.0.0.1" and channel == "can0"
@@ -376,7 +379,7 @@ def test_socketcand_frames_flow_only_after_the_rawmode_ok():
     import socket
 
     driver = find_driver("canopen-servo")
-    emulated = start_socketcand(emulator_config(), driver, DeviceConfig(driver="canopen-servo", node_id=NODE))
+    emulated = start_socketcand(emulator_config(), driver, DeviceConfig(driver="canopen-servo", canopen=BUS))
     try:
         emulated.server.firmware.node.sdo[0x1017].raw = 5  # a heartbeat every 5 ms
         port = int(emulated.device.port.split(":")[1].split("/")[0])

@@ -10,7 +10,7 @@ import pytest
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
-from hilident.config import DeviceConfig, parse_config
+from hilident.config import DeviceConfig, ModbusDeviceConfig, parse_config
 from hilident.drivers import find_driver
 from hilident.emulator.factory import build_drive
 from hilident.emulator.modbus.firmware import ModbusDriveFirmware
@@ -247,7 +247,7 @@ def tcp_client(port: str, timeout: float = 1.0) -> ModbusTcpClient:
 
 
 def test_tcp_server_on_loopback_answers_as_the_map_says():
-    emu = start(emulator_config(), DRIVER, DeviceConfig(device_id=3), link="tcp")
+    emu = start(emulator_config(), DRIVER, DeviceConfig(modbus=ModbusDeviceConfig(device_id=3)), link="tcp")
     try:
         assert emu.port.startswith("tcp://127.0.0.1:") and int(emu.port.rsplit(":", 1)[1]) > 0
         client = tcp_client(emu.port)
@@ -265,7 +265,7 @@ def test_tcp_server_on_loopback_answers_as_the_map_says():
 def test_rtu_over_a_pseudo_terminal():
     emu = start(emulator_config(), DRIVER, DeviceConfig(baudrate=230400), link="pty")
     try:
-        assert emu.port.startswith("/dev/") and emu.device.parity == "N" and emu.device.baudrate == 230400
+        assert emu.port.startswith("/dev/") and emu.device.modbus.parity == "N" and emu.device.baudrate == 230400
         client = ModbusSerialClient(emu.port, baudrate=230400, parity="N", timeout=1.0, retries=0)
         assert client.connect()
         t = time.monotonic()
@@ -344,6 +344,48 @@ def test_exception_code_must_be_a_modbus_code():
     with pytest.raises(ConfigError, match="exception_code"):
         faults = "[emulator.faults.modbus]\nexception_register = 100\nexception_code = 9"
         start(emulator_config(faults), DRIVER, DeviceConfig(), link="tcp")
+
+
+def test_a_parameter_drive_with_register_block_slots_is_a_config_error_naming_the_table():
+    """A map without an excitation table whose slots are register blocks: the twin cannot run them, and says so
+    (it used to fail with an AttributeError while building the drive)."""
+    from dataclasses import replace
+
+    from hilident.errors import ConfigError
+
+    sections = {
+        "modbus": {
+            "registers": {"model": {"address": 0, "type": "u16", "default": 7}},
+            "identity": {"registers": ["model"]},
+            "filters": {"base": 0x100, "stride": 4, "center": 0, "width": 1, "depth": 2, "enable": 3},
+        },
+        "filters": {"encoding": "notch_parameters", "width_unit": "q", "depth_unit": "percent",
+                    "scales": {"center": 0.1, "width": 0.01, "depth": 1.0}},
+    }
+    driver = replace(find_driver("dsy-rs"), filter_slots=1, sections=sections)
+    assert not RegisterMap.from_driver(driver).excitation  # a parameter drive's map, slots and all, parses
+    with pytest.raises(ConfigError) as info:
+        start(emulator_config(), driver, DeviceConfig(), link="tcp")
+    assert info.value.key == "modbus.filters" and "driver.toml" in str(info.value)
+
+
+def test_a_table_drive_with_named_parameter_slots_is_a_config_error_naming_the_table():
+    """The other way round: an excitation map whose slots are named parameters; the twin's filter writes would
+    all fail (exception 04), so it is refused when it is built."""
+    import copy
+    from dataclasses import replace
+
+    from hilident.errors import ConfigError
+
+    sections = copy.deepcopy(DRIVER.sections)
+    sections["modbus"]["registers"].update({name: {"address": 900 + i, "type": "u16", "access": "rw"}
+                                            for i, name in enumerate(("c", "w", "d", "on"))})
+    sections["modbus"]["filters"] = {"slots": [{"center": "c", "width": "w", "depth": "d", "enable": "on"}]}
+    driver = replace(DRIVER, filter_slots=1, sections=sections)
+    assert RegisterMap.from_driver(driver).excitation  # the map itself is valid
+    with pytest.raises(ConfigError) as info:
+        start(emulator_config(), driver, DeviceConfig(), link="tcp")
+    assert info.value.key == "modbus.filters" and "driver.toml" in str(info.value)
 
 
 # --- communication timeout ------------------------------------------------------------------

@@ -23,7 +23,8 @@ layout is the same for the three transports::
         rtu.py                  RTU framing on pseudo-terminals (null-modem bridge, t3.5 silence)
         server.py               ModbusDriveServer (Modbus TCP / RTU, the clock thread), start
       canopen/                  CiA 402 drives on a CAN bus
-        firmware.py             CanopenDriveFirmware: CiA 402 states and the SDO callbacks, around its parts:
+        firmware.py             CanopenDriveFirmware: CiA 402 states and the SDO callbacks, around its parts
+        host.py                   (FirmwareHost: what the parts ask of the firmware, a typed protocol):
         objects.py                ObjectStore (stored values, scalings), roles.py (object roles, EMCY codes),
         setpoints.py              SetPoints (modes of operation, set-points), parameters.py (limits, filters),
         pdo.py                    PdoExchange (PDO mapping, SYNC-driven runs), guarding.py (heartbeat
@@ -46,9 +47,11 @@ wire) and ``hilident.filters`` (the biquad the drive runs).
 ``firmware.py`` (device state and behaviour around a
 :class:`~hilident.emulator.drive.DriveLoop`; for table runs, play samples with
 :class:`~hilident.emulator.clock.TablePlayer` and offer ``running``,
-``produced``, ``sample_rate_hz``, ``advance(n)`` and ``idle(n)``) and a
-``server.py`` (the wire, a clock thread that calls
-:meth:`~hilident.emulator.clock.SimClock.step`, and ``start(cfg, driver,
-device) -> EmulatedDevice``); then add the transport to ``_STARTERS`` (and
+``produced``, ``sample_rate_hz``, ``advance(n)`` and ``idle(n)``: the
+:class:`~hilident.emulator.clock.PacedFirmware` protocol) and a ``server.py``
+(the wire, a clock thread that calls
+:meth:`~hilident.emulator.clock.SimClock.step`, ``close()`` and ``error``: the
+:class:`~hilident.emulator.device.EmulatorServer` protocol, and
+``start(cfg, driver, device) -> EmulatedDevice``); then add the transport to ``_STARTERS`` (and
 :data:`~hilident.emulator.factory.STANDALONE_LINKS`) in :mod:`factory`.
 """

@@ -30,9 +30,12 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from hilident.emulator.drive import DriveLoop
 
 __all__ = ["COAST_S", "PacedFirmware", "Played", "SimClock", "TablePlayer", "cut_at"]
 
@@ -206,7 +209,7 @@ class TablePlayer:
         The drive's tick when the run started (:meth:`restart`).
     """
 
-    def __init__(self, drive, divider: int, loop_rate_hz: float):
+    def __init__(self, drive: DriveLoop, divider: int, loop_rate_hz: float):
         self.drive = drive
         self.divider = int(divider)
         self.loop_rate_hz = float(loop_rate_hz)

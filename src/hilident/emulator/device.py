@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -28,11 +29,25 @@ from hilident.emulator.plant import (
 )
 from hilident.emulator.preset import realism
 from hilident.emulator.sensors import SensorModel
+from hilident.links import PipeEnd
 
-__all__ = ["EmulatedDevice", "build_drive", "friction_model", "plant_model", "true_modes"]
+__all__ = ["EmulatedDevice", "EmulatorServer", "build_drive", "friction_model", "plant_model", "true_modes"]
 
 
-def plant_model(cfg: EmulatorConfig):
+class EmulatorServer(Protocol):
+    """What every transport's running twin offers its owner."""
+
+    @property
+    def error(self) -> BaseException | None:
+        """The exception that stopped the twin, else None."""
+        ...
+
+    def close(self) -> None:
+        """Stop the axis and the twin's threads, release its line or bus."""
+        ...
+
+
+def plant_model(cfg: EmulatorConfig) -> TwoMass | ThreeMass | MassSpringDamper:
     """The configured plant as an emulator model (TwoMass, ThreeMass or MassSpringDamper)."""
     p = cfg.plant
     if p.model == "two_mass":
@@ -90,21 +105,21 @@ class EmulatedDevice:
 
     Attributes
     ----------
-    server : object
+    server : EmulatorServer
         The running emulator (``close()``; ``error`` holds an exception that
         stopped it, else None).
     device : DeviceConfig
         The ``[device]`` settings that reach it (port, interface, ids).
     drive : DriveLoop
         Its physics: plant, sensors and drive loop (tests compare with its truth).
-    link : object or None
+    link : hilident.links.PipeEnd or None
         Host end of an in-memory pipe (serial board only), else None.
     """
 
-    server: object
+    server: EmulatorServer
     device: DeviceConfig
     drive: DriveLoop
-    link: object | None = None
+    link: PipeEnd | None = None
 
     @property
     def port(self) -> str:

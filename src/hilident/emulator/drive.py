@@ -333,7 +333,8 @@ class DriveLoop:
         pending = self._pending  # commands on their way to the current loop, oldest first
         disturbance = self.disturbance
         disturb = disturbance.torque if disturbance is not None else None
-        push_load = self.plant.push_load if disturbance is not None and disturbance.load_noise_n else None
+        load_force = disturbance.load_force if disturbance is not None and disturbance.load_noise_n else None
+        push_load = self.plant.push_load
 
         plant = self.plant
         plant_step = plant.step
@@ -348,7 +349,7 @@ class DriveLoop:
         integ = self._integral
         motor = self._motor_torque
 
-        rows = []
+        rows: list[tuple[float, float, float, float, float, float, float]] = []
         append = rows.append
         for e in x.tolist():
             p1 = plant.p1
@@ -377,8 +378,8 @@ class DriveLoop:
                 if pending:
                     pending[:] = [0.0] * len(pending)
             append((tick * T, e, cmd, measure_torque(motor), pm, vf, lm))
-            if push_load is not None:
-                push_load(disturbance.load_force(), T)
+            if load_force is not None:
+                push_load(load_force(), T)
             plant_step(motor if disturb is None else motor + disturb(p1), T)
             tick += 1
 

@@ -495,10 +495,9 @@ class Plant:
         self._mirror = isinstance(model, MassSpringDamper)
         self._chain = isinstance(model, ThreeMass)
         self._general = self._chain or gap > 0.0
-        if self._chain:
-            A, B = state_matrices(model)
-            mass = model.m1
-        elif self._mirror:
+        # The first coupling (cart to load) of a two- or three-mass chain; None for a single mass.
+        self._coupling: TwoMass | ThreeMass | None
+        if isinstance(model, MassSpringDamper):
             # Embed y'' into the 4-state form with a frozen second half; p2/v2 are
             # copied from p1/v1 after every step.
             a, b = state_matrices(model)
@@ -506,10 +505,14 @@ class Plant:
             A[:2, :2] = a
             B = np.zeros(4)
             B[:2] = b
-            mass = model.m
+            mass = load_mass = model.m
+            self._coupling = None
         else:
             A, B = state_matrices(model)
-            mass = model.m1
+            mass, load_mass = model.m1, model.m2
+            self._coupling = model
+        self._driven_mass = mass  # kg, the mass the drive pushes and friction holds
+        self._load_mass = load_mass  # kg, the mass a load disturbance pushes
         self._A = A
         self._B = B
         # Net non-friction force on the stopped driven mass (v1 = 0), besides c*tau:
@@ -559,10 +562,10 @@ class Plant:
         spectrum lies far below ``1 / dt_s``.
         """
         if self._mirror:
-            self.v1 += force_n * dt_s / self.model.m
+            self.v1 += force_n * dt_s / self._load_mass
             self.v2 = self.v1
         else:
-            self.v2 += force_n * dt_s / self.model.m2
+            self.v2 += force_n * dt_s / self._load_mass
 
     # -- integration -------------------------------------------------------------
 
@@ -604,7 +607,8 @@ class Plant:
         A = self._A
         if self.backlash_m == 0.0:
             return [(A, np.zeros(A.shape[0]))]
-        m = self.model
+        m = self._coupling
+        assert m is not None, "the constructor refuses backlash without a coupling"
         k, d, g = m.k, m.d, 0.5 * self.backlash_m
         coupling = np.zeros_like(A)  # the first spring and damper's part of A (p1, v1, p2, v2 are states 0-3)
         coupling[1, :4] = [-k / m.m1, -d / m.m1, k / m.m1, d / m.m1]
@@ -620,7 +624,7 @@ class Plant:
         n = self.substeps(dt_s)
         h = dt_s / n
         nx = self._A.shape[0]
-        mass = self.model.m1
+        mass = self._driven_mass
         regimes = []
         for A, w in self._regime_matrices():
             M = np.zeros((nx + 2, nx + 2))

@@ -100,7 +100,7 @@ def realism(cfg: EmulatorConfig, loop_rate_hz: float) -> Realism:
     d, drive, sensors = cfg.disturbance, cfg.drive, cfg.sensors
     tmax = drive.torque_max_nm
     if drive.delay_s is None:
-        delay_ticks = BENCH["delay_ticks"] if preset == "bench" else 0
+        delay_ticks = int(BENCH["delay_ticks"]) if preset == "bench" else 0
     else:
         delay_ticks = int(round(drive.delay_s * loop_rate_hz))
     return Realism(

@@ -15,6 +15,7 @@ laser and encoder noise use independent streams (children of one
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -38,7 +39,7 @@ class SensorModel:
         position before it is floored to counts, m.
     torque_noise_nm : float
         Standard deviation of the torque measurement noise, N·m.
-    laser_range_m : (float, float)
+    laser_range_m : sequence of two floats
         Window ``(min, max)`` of the load deflection ``p2 - p1`` (m) inside which
         the laser reads; outside it returns NaN. The default spans 104 mm like the
         thesis's 16-120 mm sensor, centred on the undeflected load.
@@ -59,7 +60,7 @@ class SensorModel:
     """
 
     def __init__(self, *, encoder_resolution_m: float = 1e-6, torque_noise_nm: float = 0.0,
-                 laser_range_m: tuple[float, float] = (-0.052, 0.052),
+                 laser_range_m: Sequence[float] = (-0.052, 0.052),
                  laser_noise_m: float = 0.0, laser_resolution_m: float = 0.0, encoder_noise_m: float = 0.0,
                  seed):
         self.encoder_resolution_m = number("encoder_resolution_m", encoder_resolution_m)

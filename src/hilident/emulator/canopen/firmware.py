@@ -21,14 +21,21 @@ does goes through its object dictionary and the bus:
   Voltage, 3 Quick Stop (both end in Switch On Disabled, power stage off).
   A drive with 0x1016 but no 0x6007 goes to Fault (the CiA 402 default).
 
+The parts are composed, not mixed in: each is made with the firmware and
+reaches it through :class:`~hilident.emulator.canopen.host.FirmwareHost`, a
+protocol that declares the firmware state and calls the parts share. A type
+checker holds the firmware to it where it makes its parts, and the parts never
+import this module (no import cycle).
+
 Its clock (:meth:`CanopenDriveFirmware.tick`, called by
 :class:`~hilident.emulator.canopen.server.CanopenDriveServer`) runs the host
 watch, the recorder, table playback and coasting on the twins' one
 :class:`~hilident.emulator.clock.SimClock`, and the SYNC watchdog.
 
 Fault switches (``[emulator.faults]``): ``drive_fault_after_s`` (EMCY 0x4310 and
-Fault), ``heartbeat_stops_after_s``, ``abort_object`` (SDO abort on every
-access), ``drop_pdo_rate`` (TPDOs not sent), ``capture_stops_after_s``.
+Fault), ``capture_stops_after_s``; in ``[emulator.faults.canopen]``,
+``heartbeat_stops_after_s``, ``abort_object`` (SDO abort on every access),
+``drop_pdo_rate`` (TPDOs not sent).
 """
 
 from __future__ import annotations
@@ -169,7 +176,7 @@ class CanopenDriveFirmware:
         self.time_scale = float(time_scale)
         self.loop_rate = float(driver.loop_rate_hz)
         self.lock = threading.RLock()
-        self.network = None
+        self.network: canopen.Network | None = None
         self.error: BaseException | None = None
         self.clock = SimClock(self.loop_rate, self.time_scale)
         self._describe(driver, node_id)
@@ -178,7 +185,7 @@ class CanopenDriveFirmware:
         self.watch = HostWatch(self)
         self.pdo = PdoExchange(self, seed)
         self.playback = TablePlayback(self)
-        self.last_row = drive.run(np.zeros(1))[0]
+        self.last_row: np.ndarray = drive.run(np.zeros(1))[0]
         drive.disable()
         self.recorder = DriveRecorder(self, self.desc.recorder) if self.desc.recorder is not None else None
 
@@ -192,10 +199,12 @@ class CanopenDriveFirmware:
         self.encoding = (FilterEncoding.from_table(driver.sections["filters"], source)
                          if desc.filters is not None else None)
         node = canopen.LocalNode(node_id, od)
-        node.sdo = BlockSdoServer(0x600 + node_id, 0x580 + node_id, node, parse_fault_object(self.faults.abort_object))
+        node.sdo = BlockSdoServer(0x600 + node_id, 0x580 + node_id, node,
+                                  parse_fault_object(self.faults.canopen.abort_object))
         node.add_read_callback(self._on_read)
         node.add_write_callback(self._on_write)
         self.node = node
+        self.node_id = node_id
         self.od = od
         self.role_of = {addr: role for role, addr in desc.objects.items()}
         self.columns = {name: i for i, name in enumerate(DriveLoop.CHANNELS)}
@@ -224,7 +233,7 @@ class CanopenDriveFirmware:
     def attach(self, network: canopen.Network) -> None:
         """Join ``network``, send the boot-up message and enter Pre-operational."""
         self.network = network
-        network[self.node.id] = self.node
+        network[self.node_id] = self.node
         network.subscribe(0x80, self.guarded(self.pdo.on_sync))
         network.subscribe(0, self.guarded(self._on_nmt))
         self.watch.subscribe(network)
@@ -288,7 +297,7 @@ class CanopenDriveFirmware:
         if number == 15:  # fault reset
             self.drive.clear_fault()
             self.error_code = 0
-            self.send(0x80 + self.node.id, struct.pack("<HB5s", 0, 0, b""))  # EMCY error reset
+            self.send(0x80 + self.node_id, struct.pack("<HB5s", 0, 0, b""))  # EMCY error reset
         self.cw = cw
         self.state = new
 
@@ -320,22 +329,22 @@ class CanopenDriveFirmware:
         """EMCY ``code``, the run's sample index in its first manufacturer bytes; noted in the history."""
         self.error_history = [code, *self.error_history][:8]
         data = struct.pack("<I", max(0, int(sample_index)) & 0xFFFFFFFF) + b"\0"
-        self.send(0x80 + self.node.id, struct.pack("<HB5s", code, error_register(code), data))
+        self.send(0x80 + self.node_id, struct.pack("<HB5s", code, error_register(code), data))
 
     def check_faults(self) -> None:
         """After the physics advanced: limit trips and the injected faults."""
         drive = self.drive
         divider = self.divider()
-        if drive.fault is not None and self.state is cia402.State.OPERATION_ENABLED:
+        if drive.fault is not None and drive.fault_tick is not None and self.state is cia402.State.OPERATION_ENABLED:
             index = (int(drive.fault_tick) - self.run_start_tick) // divider
             self.fault(EMCY_OF_TRIP.get(drive.fault, 0x8311), index)
         elapsed = (drive.tick - self.run_start_tick) / self.loop_rate
-        f = self.faults
+        f, bus = self.faults, self.faults.canopen
         if (f.drive_fault_after_s and elapsed >= f.drive_fault_after_s and "drive" not in self.injected
                 and self.state is cia402.State.OPERATION_ENABLED):
             self.injected.add("drive")
             self.fault(EMCY_DRIVE_FAULT, (drive.tick - self.run_start_tick) // divider)
-        if f.heartbeat_stops_after_s and elapsed >= f.heartbeat_stops_after_s and not self.heartbeat_stopped:
+        if bus.heartbeat_stops_after_s and elapsed >= bus.heartbeat_stops_after_s and not self.heartbeat_stopped:
             self.heartbeat_stopped = True
             self.node.nmt.stop_heartbeat()
 
@@ -344,8 +353,8 @@ class CanopenDriveFirmware:
         f, times = self.faults, []
         if f.drive_fault_after_s and "drive" not in self.injected:
             times.append(f.drive_fault_after_s)
-        if f.heartbeat_stops_after_s and not self.heartbeat_stopped:
-            times.append(f.heartbeat_stops_after_s)
+        if f.canopen.heartbeat_stops_after_s and not self.heartbeat_stopped:
+            times.append(f.canopen.heartbeat_stops_after_s)
         return times
 
     def divider(self) -> int:
@@ -383,7 +392,7 @@ class CanopenDriveFirmware:
         targets = self.setpoints.targets
         if role in targets:
             return targets[role]
-        value = _LIVE_VALUES.get(role)
+        value = _LIVE_VALUES.get(role) if role is not None else None
         return value(self, k) if value is not None else self.stored(addr.index, addr.subindex)
 
     # --- SDO reads ------------------------------------------------------------------------------------
@@ -461,7 +470,9 @@ class CanopenDriveFirmware:
         return True
 
     def _write_role(self, role: str | None, value) -> None:
-        """Writes to objects known by their role."""
+        """Writes to objects known by their role (an object without one keeps what was written)."""
+        if role is None:
+            return
         handler = {
             "store_parameters": self.parameters.store,
             "controlword": self.apply_controlword,

@@ -23,6 +23,7 @@ import time
 
 from canopen.sdo import SdoAbortedError
 
+from hilident.emulator.canopen.host import FirmwareHost
 from hilident.emulator.canopen.sdo import ABORT_INCOMPATIBLE
 from hilident.protocol.canopen_objects import (
     HEARTBEAT_CONSUMER_INDEX,
@@ -57,7 +58,7 @@ class HostWatch:
         Wall time (s) the last event fired.
     """
 
-    def __init__(self, firmware):
+    def __init__(self, firmware: FirmwareHost):
         self.fw = firmware
         self.consumers: dict[int, tuple[int, int]] = {}
         self.heard: dict[int, float] = {}
@@ -112,7 +113,7 @@ class HostWatch:
     def on_frame(self, msg) -> None:
         """Every received frame, after its handlers ran: how far the drive has read the bus; node guarding."""
         fw = self.fw
-        if msg.is_remote_frame and msg.arbitration_id == 0x700 + fw.node.id and 0x100C in fw.od:
+        if msg.is_remote_frame and msg.arbitration_id == 0x700 + fw.node_id and 0x100C in fw.od:
             with fw.lock:
                 self._answer_guarding(msg.timestamp)
         self.last_frame = (msg.timestamp, time.monotonic())
@@ -120,7 +121,7 @@ class HostWatch:
     def _answer_guarding(self, timestamp: float) -> None:
         fw = self.fw
         state = _NMT_STATE_CODES.get(fw.node.nmt.state, 127)
-        fw.send(0x700 + fw.node.id, bytes([state | self.guard_toggle]))
+        fw.send(0x700 + fw.node_id, bytes([state | self.guard_toggle]))
         self.guard_toggle ^= 0x80
         self.guard_heard = timestamp
         self.guard_lost = False

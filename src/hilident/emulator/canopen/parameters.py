@@ -11,9 +11,12 @@ from __future__ import annotations
 
 from canopen.sdo import SdoAbortedError
 
+from hilident.emulator.canopen.host import FirmwareHost
 from hilident.emulator.canopen.roles import LIMIT_ROLES
 from hilident.emulator.canopen.sdo import ABORT_TOO_LOW, ABORT_VALUE
 from hilident.errors import ConfigError, DataError
+from hilident.protocol.canopen_objects import FilterObjects
+from hilident.protocol.filter_encoding import FilterEncoding
 
 __all__ = ["DriveParameters"]
 
@@ -39,7 +42,7 @@ class DriveParameters:
         The filter slots as they were when last stored.
     """
 
-    def __init__(self, firmware):
+    def __init__(self, firmware: FirmwareHost):
         self.fw = firmware
         self.limits_raw: dict[str, int] = {}
         # a drive with no limit object of its own can be enabled without any (the host checks the limits)
@@ -74,8 +77,21 @@ class DriveParameters:
             raise SdoAbortedError(ABORT_VALUE) from None
         self.limits_loaded = True
 
+    def _filter_slots(self) -> tuple[FilterObjects, FilterEncoding]:
+        """The filter-slot objects of the drive's description and their encoding.
+
+        Raises
+        ------
+        RuntimeError
+            The drive has no filter slots (the firmware routes no write here then).
+        """
+        fo, encoding = self.fw.desc.filters, self.fw.encoding
+        if fo is None or encoding is None:
+            raise RuntimeError(f"{self.fw.driver.name}: the drive has no filter slots")
+        return fo, encoding
+
     def write_filter(self, slot: int, subindex: int, value) -> None:
-        fo = self.fw.desc.filters
+        fo, _ = self._filter_slots()
         if fo.enable_subindex is None:  # one block, its enable inside
             if subindex == fo.fields["block"]:
                 self._apply_filter(slot, None, {"block": bytes(value)})
@@ -85,13 +101,13 @@ class DriveParameters:
     def _apply_filter(self, slot: int, enabled: bool | None, values: dict | None = None) -> None:
         """Load a slot's section into the drive loop: from its stored fields when its enable is written, or
         from the block being written (``values``; its state word says ``enabled``)."""
-        fo = self.fw.desc.filters
+        fo, encoding = self._filter_slots()
         if values is None:
             values = {name: self.fw.stored(fo.indices[slot], sub) for name, sub in fo.fields.items()}
         try:
             if enabled is None:
-                enabled = bool(self.fw.encoding.slot_enabled(values))
-            biquad = self.fw.encoding.applied(values, self.fw.loop_rate)
+                enabled = bool(encoding.slot_enabled(values))
+            biquad = encoding.applied(values, self.fw.loop_rate)
         except (DataError, ConfigError):
             raise SdoAbortedError(ABORT_VALUE) from None
         if enabled and not biquad.is_stable():

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from canopen.sdo import SdoAbortedError
 
+from hilident.emulator.canopen.host import FirmwareHost
 from hilident.emulator.canopen.sdo import (
     ABORT_NOT_MAPPABLE,
     ABORT_PDO_LENGTH,
@@ -81,7 +82,7 @@ class PdoExchange:
         (sample index, COB-ID) of each TPDO the drop fault swallowed.
     """
 
-    def __init__(self, firmware, seed: int = 0):
+    def __init__(self, firmware: FirmwareHost, seed: int = 0):
         self.fw = firmware
         od = firmware.od
         self.rng = np.random.default_rng(seed + 2)
@@ -246,7 +247,7 @@ class PdoExchange:
             self.last_sync_counter = counter
 
     def _send_tpdos(self, row, k: int) -> None:
-        rate = self.fw.faults.drop_pdo_rate
+        rate = self.fw.faults.canopen.drop_pdo_rate
         for cob_id, payload in self._tpdo_frames(row, k):
             if rate and self.rng.random() < rate:
                 self.tpdos_dropped += 1

@@ -14,6 +14,7 @@ import time
 import numpy as np
 from canopen.sdo import SdoAbortedError
 
+from hilident.emulator.canopen.host import FirmwareHost
 from hilident.emulator.canopen.roles import COLUMN_OF_ROLE
 from hilident.emulator.canopen.sdo import (
     ABORT_LENGTH,
@@ -61,7 +62,7 @@ class TablePlayback:
         Samples of the table played in this run.
     """
 
-    def __init__(self, firmware):
+    def __init__(self, firmware: FirmwareHost):
         self.fw = firmware
         desc = firmware.desc
         buffered = all(desc.has(r) for r in ("table", "table_divider", "table_capacity"))
@@ -70,7 +71,7 @@ class TablePlayback:
         self.capacity = int(firmware.default(desc.address("table_capacity"))) if buffered else 0
         self.state = TableState.IDLE
         self.produced = 0
-        self.layout: list[tuple[str | ObjectAddress, int]] = []
+        self.layout: list[tuple[str, int]] = []  # (role, data type) of each captured object
         self.record_size = 0
         self.capture = bytearray()
         self.count = 0
@@ -139,13 +140,14 @@ class TablePlayback:
             return
         fw = self.fw
         index = fw.desc.address("capture_mapping").index
-        layout, size = [], 0
+        layout: list[tuple[str, int]] = []
+        size = 0
         for s in range(1, value + 1):
             addr, width = parse_mapping_entry(int(fw.stored(index, s)))
             obj = fw.od.get_variable(addr.index, addr.subindex)
             role = fw.role_of.get(addr)
-            if obj is None or obj.data_type not in NUMERIC_TYPES or width != type_bits(obj.data_type) or not (
-                    role in COLUMN_OF_ROLE or role in _CAPTURED_STATES):
+            if (obj is None or role is None or obj.data_type not in NUMERIC_TYPES or width != type_bits(obj.data_type)
+                    or not (role in COLUMN_OF_ROLE or role in _CAPTURED_STATES)):
                 raise SdoAbortedError(ABORT_NOT_MAPPABLE)  # only sampled signals can be captured
             layout.append((role, obj.data_type))
             size += width // 8

@@ -31,6 +31,7 @@ import time
 import numpy as np
 from canopen.sdo import SdoAbortedError
 
+from hilident.emulator.canopen.host import FirmwareHost
 from hilident.emulator.canopen.roles import COLUMN_OF_ROLE
 from hilident.emulator.canopen.sdo import (
     ABORT_NO_DATA,
@@ -44,12 +45,18 @@ from hilident.emulator.clock import SimClock, cut_at
 from hilident.protocol import cia402
 from hilident.protocol.canopen_objects import (
     NUMERIC_TYPES,
+    ObjectAddress,
     encode_si,
     parse_mapping_entry,
     record_dtype,
     type_bits,
 )
-from hilident.protocol.canopen_recorder import RecorderCapability, generator_output
+from hilident.protocol.canopen_recorder import (
+    GeneratorKind,
+    GeneratorSpec,
+    RecorderCapability,
+    generator_output,
+)
 
 __all__ = ["DriveRecorder"]
 
@@ -64,7 +71,7 @@ class DriveRecorder:
     cap : RecorderCapability
     """
 
-    def __init__(self, firmware, cap: RecorderCapability):
+    def __init__(self, firmware: FirmwareHost, cap: RecorderCapability):
         self.fw = firmware
         self.cap = cap
         self.rec = cap.recorder
@@ -72,7 +79,7 @@ class DriveRecorder:
         self.addresses = set(cap.objects().values())
         self.rec_state = self.rec.states["idle"]
         self.gen_state = self.gen.states["idle"] if self.gen else 0
-        self.layout: list[tuple[object, int]] = []  # (ObjectAddress, data type) of the channels being recorded
+        self.layout: list[tuple[ObjectAddress, int]] = []  # (object, data type) of the channels being recorded
         self.data: list[bytearray] = []
         self.count = 0
         self.period = 1
@@ -80,16 +87,16 @@ class DriveRecorder:
         self.recording_from: int | None = None  # generator tick of the first recorded sample
         self.gen_tick = 0  # loop cycles the drive's clock ran since the generator (or the recording) started
         self.gen_start = 0  # the tick the generator started at
-        self.gen_settings = None  # (GeneratorKind, target role, SI parameter values)
+        self.gen_settings: tuple[GeneratorKind, str, dict[str, float]] | None = None  # (kind, target role, SI values)
         self.pacing = SimClock(firmware.loop_rate, firmware.time_scale)  # one generator tick per loop tick
         self.stopped_early = False
 
     # --- object dictionary ---------------------------------------------------------------------
 
-    def owns(self, addr) -> bool:
+    def owns(self, addr: ObjectAddress) -> bool:
         return addr in self.addresses
 
-    def on_read(self, addr):
+    def on_read(self, addr: ObjectAddress):
         """Live value of an object of the recorder or generator (None: the stored value)."""
         r, g = self.rec, self.gen
         if addr == r.state:
@@ -101,10 +108,10 @@ class DriveRecorder:
         if g is not None and addr == g.state:
             return self.gen_state
         if g is not None and addr == g.output:
-            return self._output_raw(self._output_now())[0].item()
+            return self._output_raw(g, addr, self._output_now())[0].item()
         return None
 
-    def on_write(self, addr, value) -> None:
+    def on_write(self, addr: ObjectAddress, value) -> None:
         r, g = self.rec, self.gen
         if addr == r.control:
             self._recorder_command(int(value))
@@ -119,15 +126,14 @@ class DriveRecorder:
             if bad is not None and bad(int(value)):
                 raise SdoAbortedError(ABORT_VALUE)
         elif g is not None and addr == g.control:
-            self._generator_command(int(value))
+            self._generator_command(g, int(value))
         elif g is not None:
             if self.gen_state == g.states["running"]:
                 raise SdoAbortedError(ABORT_STATE)  # parameters are fixed while it plays
-            self._check_generator_value(addr, int(value))
+            self._check_generator_value(g, addr, int(value))
 
-    def _check_generator_value(self, addr, value: int) -> None:
+    def _check_generator_value(self, g: GeneratorSpec, addr: ObjectAddress, value: int) -> None:
         """A kind or target code the generator does not know, or a parameter out of its range: refused."""
-        g = self.gen
         if addr == g.kind and value not in {k.code for k in g.kinds.values()}:
             raise SdoAbortedError(ABORT_VALUE)
         if addr == g.target and value not in g.targets.values():
@@ -144,7 +150,7 @@ class DriveRecorder:
     def _stored(self, addr) -> int:
         return int(self.fw.stored(addr.index, addr.subindex))
 
-    def _channel(self, entry: int):
+    def _channel(self, entry: int) -> tuple[ObjectAddress, int]:
         """The (address, data type) a mapping entry selects; SDO abort when it is not a sampled signal."""
         addr, bits = parse_mapping_entry(entry)
         obj = self.fw.od.get_variable(addr.index, addr.subindex)
@@ -199,8 +205,7 @@ class DriveRecorder:
 
     # --- generator -------------------------------------------------------------------------------
 
-    def _generator_command(self, command: int) -> None:
-        g = self.gen
+    def _generator_command(self, g: GeneratorSpec, command: int) -> None:
         if command == g.commands["stop"]:
             self.gen_state = g.states["idle"]  # from running or done
             return
@@ -208,7 +213,7 @@ class DriveRecorder:
             raise SdoAbortedError(ABORT_VALUE)
         if self.fw.state is not cia402.State.OPERATION_ENABLED or self.gen_state == g.states["running"]:
             raise SdoAbortedError(ABORT_STATE)
-        settings = self._generator_settings()
+        settings = self._generator_settings(g)
         if not self.active:
             self._start_clock()
         self.gen_settings = settings
@@ -218,9 +223,8 @@ class DriveRecorder:
             self.rec_state = self.rec.states["recording"]
             self.recording_from = self.gen_tick
 
-    def _generator_settings(self):
+    def _generator_settings(self, g: GeneratorSpec) -> tuple[GeneratorKind, str, dict[str, float]]:
         """(kind, target role, SI parameter values) as stored; SDO abort when the generator cannot play them."""
-        g = self.gen
         code = self._stored(g.kind) if g.kind is not None else next(iter(g.kinds.values())).code
         kind = next((k for k in g.kinds.values() if k.code == code), None)
         target = next((role for role, c in g.targets.items() if c == self._stored(g.target)), None)
@@ -228,7 +232,7 @@ class DriveRecorder:
             raise SdoAbortedError(ABORT_VALUE)
         if target != "torque_offset" and not self._mode_takes(target):
             raise SdoAbortedError(ABORT_STATE)  # a torque (velocity) set-point is the loop's input in CST (CSV) only
-        values = {}
+        values: dict[str, float] = {}
         for name, p in kind.parameters.items():
             raw = self._stored(p.address)
             values[name] = raw if name in ("register_length", "clock_divider") else raw * self._scale(p.scale)
@@ -253,15 +257,26 @@ class DriveRecorder:
         role = {"torque": "target_torque", "velocity": "target_velocity", "position": "target_position"}[scale]
         return self.fw.desc.scale(role, self.fw.rated_torque_nm, self.fw.rated_current_a)
 
+    def _playing(self) -> tuple[GeneratorKind, str, dict[str, float]] | None:
+        """The settings the generator plays, None while it does not."""
+        g = self.gen
+        if g is None or self.gen_settings is None or self.gen_state != g.states["running"]:
+            return None
+        return self.gen_settings
+
     def _output_now(self) -> float:
-        if self.gen_settings is None or self.gen_state != self.gen.states["running"]:
+        settings = self._playing()
+        if settings is None:
             return 0.0
-        kind, _, values = self.gen_settings
+        kind, _, values = settings
         return float(generator_output(kind, values, np.array([self.gen_tick - self.gen_start]), self.fw.loop_rate)[0])
 
-    def _output_raw(self, si):
-        obj = self.fw.od.get_variable(self.gen.output.index, self.gen.output.subindex)
-        return encode_si(np.atleast_1d(si), obj.data_type, self._scale(self.gen.output_scale))
+    def _output_raw(self, g: GeneratorSpec, output: ObjectAddress, si) -> np.ndarray:
+        """``si`` in the type and scale of the generator's output object ``output``."""
+        obj = self.fw.od.get_variable(output.index, output.subindex)
+        if obj is None or obj.data_type is None:  # parse_recorder checked the EDS has it
+            raise RuntimeError(f"{self.cap.source}: the generator's output object {output} is not in the EDS")
+        return encode_si(np.atleast_1d(si), obj.data_type, self._scale(g.output_scale))
 
     # --- the clock ---------------------------------------------------------------------------------
 
@@ -301,15 +316,17 @@ class DriveRecorder:
         fw.sample_index = self.gen_tick // max(1, self.period)
         fw.last_row = rows[-1]
         fw.check_faults()
-        if self.gen_settings is not None and self.gen_state == self.gen.states["running"]:
-            _, _, values = self.gen_settings
+        settings = self._playing()
+        if settings is not None and self.gen is not None:
+            _, _, values = settings
             if "duration_s" in values and self.gen_tick - self.gen_start >= round(values["duration_s"] * fw.loop_rate):
                 self.gen_state = self.gen.states["done"]
 
     def _played(self, ticks: np.ndarray) -> np.ndarray:
-        if self.gen_settings is None or self.gen_state != self.gen.states["running"]:
+        settings = self._playing()
+        if settings is None:
             return np.zeros(len(ticks))
-        kind, _, values = self.gen_settings
+        kind, _, values = settings
         return generator_output(kind, values, ticks - self.gen_start, self.fw.loop_rate)
 
     def _run(self, g: np.ndarray) -> np.ndarray:
@@ -344,7 +361,7 @@ class DriveRecorder:
         fw = self.fw
         for j, (addr, dtype) in enumerate(self.layout):
             if self.gen is not None and addr == self.gen.output:
-                raw = self._output_raw(g[pick])
+                raw = self._output_raw(self.gen, addr, g[pick])
             else:
                 role = fw.role_of[addr]
                 raw = encode_si(rows[pick, fw.columns[_column(role)]], dtype, fw.scales.get(role, 1.0))

@@ -17,6 +17,8 @@ from __future__ import annotations
 import binascii
 import logging
 import struct
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 from canopen.sdo import SdoAbortedError, SdoServer
 from canopen.sdo.constants import (
@@ -57,7 +59,7 @@ _SIZE = 0x02
 _NO_MORE = 0x80
 
 
-def crc16(data: bytes) -> int:
+def crc16(data: bytes | bytearray) -> int:
     """CRC-16/XMODEM of ``data``, as SDO block transfer uses it."""
     return binascii.crc_hqx(bytes(data), 0)
 
@@ -69,6 +71,68 @@ def parse_fault_object(text: str) -> tuple[int, int | None] | None:
         return None
     head, _, tail = text.partition(":")
     return int(head, 16), (int(tail, 0) if tail else None)
+
+
+@dataclass
+class _BlockUpload:
+    """A block upload in progress (server to client).
+
+    Attributes
+    ----------
+    data : bytes
+        The object's value, all of it.
+    crc : bool
+        The client asked for a CRC at the end.
+    blksize : int
+        Segments per sub-block the client takes.
+    pos : int
+        Bytes the client acknowledged.
+    block_start : int
+        Byte offset of the sub-block last sent.
+    sent : int
+        Segments in that sub-block.
+    last_sent : bool
+        That sub-block held the last byte.
+    ended : bool
+        The end was sent; the client's confirmation closes the transfer.
+    """
+
+    data: bytes
+    crc: bool
+    blksize: int
+    pos: int = 0
+    block_start: int = 0
+    sent: int = 0
+    last_sent: bool = False
+    ended: bool = False
+
+
+@dataclass
+class _BlockDownload:
+    """A block download in progress (client to server).
+
+    Attributes
+    ----------
+    crc : bool
+        The client sends a CRC at the end.
+    size : int or None
+        The size the client announced, bytes.
+    buffer : bytearray
+        Segment data received so far (7 bytes a segment).
+    seq : int
+        Last segment received in order in this sub-block.
+    done : bool
+        The last segment arrived.
+    ended : bool
+        Every segment is in; the client's end request (unused bytes, CRC) completes the transfer.
+    """
+
+    crc: bool
+    size: int | None
+    buffer: bytearray = field(default_factory=bytearray)
+    seq: int = 0
+    done: bool = False
+    ended: bool = False
 
 
 class BlockSdoServer(SdoServer):
@@ -83,15 +147,15 @@ class BlockSdoServer(SdoServer):
         Every transfer touching it is aborted (fault injection).
     """
 
-    def __init__(self, rx_cobid, tx_cobid, node, abort_object=None):
+    def __init__(self, rx_cobid: int, tx_cobid: int, node, abort_object: tuple[int, int | None] | None = None):
         super().__init__(rx_cobid, tx_cobid, node)
         self.abort_object = abort_object
         self._index = 0
         self._subindex = 0
-        self._block = None  # state of a block transfer in progress
+        self._block: _BlockUpload | _BlockDownload | None = None  # a block transfer in progress
         self.aborted_by_fault = 0
         #: ``size_limit(index, subindex) -> int or None``: largest download the object takes, in bytes
-        self.size_limit = None
+        self.size_limit: Callable[[int, int], int | None] | None = None
 
     # --- dispatch -------------------------------------------------------------------------
 
@@ -100,10 +164,10 @@ class BlockSdoServer(SdoServer):
         if len(data) < 8:
             data = data.ljust(8, b"\0")
         block = self._block
-        if block is not None and block["kind"] == "download_data" and data[0] != REQUEST_ABORTED:
+        if isinstance(block, _BlockDownload) and not block.ended and data[0] != REQUEST_ABORTED:
             # sub-block segments carry a sequence number (1..127, bit 7: last), not a command; only an
             # abort (0x80 exactly: sequence number 0 does not exist) interrupts them
-            self._download_segment(data)
+            self._download_segment(block, data)
             return
         if block is not None and data[0] & 0xE0 == REQUEST_ABORTED:
             self._block = None
@@ -181,45 +245,43 @@ class BlockSdoServer(SdoServer):
             if not 0 < blksize <= BLOCK_SIZE:
                 raise SdoAbortedError(ABORT_INVALID_BLOCK_SIZE)
             payload = bytes(self._node.get_data(index, sub, check_readable=True))
-            self._block = {"kind": "upload", "data": payload, "crc": bool(data[0] & _CRC), "blksize": blksize,
-                           "pos": 0, "block_start": 0, "sent": 0}
+            self._block = _BlockUpload(payload, crc=bool(data[0] & _CRC), blksize=blksize)
             response = bytearray(8)
             SDO_STRUCT.pack_into(response, 0, RESPONSE_BLOCK_UPLOAD | _CRC | _SIZE, index, sub)
             struct.pack_into("<L", response, 4, len(payload))
             self.send_response(response)
-        elif cs == 1 and block is not None and block["kind"] == "upload_end":  # client confirms the end
+        elif cs == 1 and isinstance(block, _BlockUpload) and block.ended:  # client confirms the end
             self._block = None
-        elif block is None or block["kind"] != "upload":
+        elif not isinstance(block, _BlockUpload) or block.ended:
             raise SdoAbortedError(ABORT_INVALID_COMMAND_SPECIFIER)
         elif cs == 3:  # start
-            self._send_upload_block()
+            self._send_upload_block(block)
         elif cs == 2:  # block acknowledged
             ackseq, blksize = data[1], data[2]
             if not 0 < blksize <= BLOCK_SIZE:
                 raise SdoAbortedError(ABORT_INVALID_BLOCK_SIZE)
-            block["pos"] = min(block["block_start"] + 7 * ackseq, len(block["data"]))
-            block["blksize"] = blksize
-            if ackseq < block["sent"]:
-                self._send_upload_block()  # retransmit from the first unacknowledged segment
-            elif block["pos"] >= len(block["data"]) and block.get("last_sent"):
-                n_unused = 7 - (len(block["data"]) - 7 * ((len(block["data"]) - 1) // 7)) if block["data"] else 7
+            block.pos = min(block.block_start + 7 * ackseq, len(block.data))
+            block.blksize = blksize
+            if ackseq < block.sent:
+                self._send_upload_block(block)  # retransmit from the first unacknowledged segment
+            elif block.pos >= len(block.data) and block.last_sent:
+                n_unused = 7 - (len(block.data) - 7 * ((len(block.data) - 1) // 7)) if block.data else 7
                 response = bytearray(8)
                 response[0] = RESPONSE_BLOCK_UPLOAD | (n_unused << 2) | 0x01
-                struct.pack_into("<H", response, 1, crc16(block["data"]) if block["crc"] else 0)
-                block["kind"] = "upload_end"
+                struct.pack_into("<H", response, 1, crc16(block.data) if block.crc else 0)
+                block.ended = True
                 self.send_response(response)
             else:
-                self._send_upload_block()
+                self._send_upload_block(block)
         else:
             raise SdoAbortedError(ABORT_INVALID_COMMAND_SPECIFIER)
 
-    def _send_upload_block(self) -> None:
-        block = self._block
-        payload = block["data"]
-        pos = block["block_start"] = block["pos"]
+    def _send_upload_block(self, block: _BlockUpload) -> None:
+        payload = block.data
+        pos = block.block_start = block.pos
         seq = 0
         last = False
-        while seq < block["blksize"] and not last:
+        while seq < block.blksize and not last:
             chunk = payload[pos:pos + 7]
             seq += 1
             pos += 7
@@ -228,8 +290,8 @@ class BlockSdoServer(SdoServer):
             frame[0] = seq | (_NO_MORE if last else 0)
             frame[1:1 + len(chunk)] = chunk
             self.send_response(frame)
-        block["sent"] = seq
-        block["last_sent"] = last
+        block.sent = seq
+        block.last_sent = last
 
     # --- block download (client -> server) ----------------------------------------------------
 
@@ -243,18 +305,17 @@ class BlockSdoServer(SdoServer):
             if not obj.writable:
                 raise SdoAbortedError(0x06010002)
             size = struct.unpack_from("<L", data, 4)[0] if data[0] & _SIZE else None
-            self._block = {"kind": "download_data", "buffer": bytearray(), "crc": bool(data[0] & _CRC),
-                           "size": size, "seq": 0, "block_len": 0, "done": False}
+            self._block = _BlockDownload(crc=bool(data[0] & _CRC), size=size)
             response = bytearray(8)
             SDO_STRUCT.pack_into(response, 0, RESPONSE_BLOCK_DOWNLOAD | _CRC, index, sub)
             response[4] = BLOCK_SIZE
             self.send_response(response)
-        elif block is not None and block["kind"] == "download_end":  # end: bytes unused, CRC
+        elif isinstance(block, _BlockDownload) and block.ended:  # end: bytes unused, CRC
             n_unused = (data[0] >> 2) & 0x07
-            buffer = block["buffer"]
+            buffer = block.buffer
             if n_unused:
                 del buffer[len(buffer) - n_unused:]
-            if block["crc"] and struct.unpack_from("<H", data, 1)[0] != crc16(buffer):
+            if block.crc and struct.unpack_from("<H", data, 1)[0] != crc16(buffer):
                 raise SdoAbortedError(ABORT_CRC_ERROR)
             self._block = None
             self._node.set_data(self._index, self._subindex, bytes(buffer), check_writable=True)
@@ -264,21 +325,20 @@ class BlockSdoServer(SdoServer):
         else:
             raise SdoAbortedError(ABORT_INVALID_COMMAND_SPECIFIER)
 
-    def _download_segment(self, data: bytes) -> None:
-        block = self._block
+    def _download_segment(self, block: _BlockDownload, data: bytes) -> None:
         seqno = data[0] & 0x7F
         last = bool(data[0] & _NO_MORE)
-        if seqno == block["seq"] + 1:
-            block["seq"] = seqno
-            block["buffer"] += data[1:8]
-            block["done"] = last
+        if seqno == block.seq + 1:
+            block.seq = seqno
+            block.buffer += data[1:8]
+            block.done = last
         # else: a lost or repeated segment; the acknowledgement below asks for it again
         if last or seqno >= BLOCK_SIZE:
             response = bytearray(8)
             response[0] = RESPONSE_BLOCK_DOWNLOAD | 0x02
-            response[1] = block["seq"]
+            response[1] = block.seq
             response[2] = BLOCK_SIZE
-            if block["done"]:
-                block["kind"] = "download_end"
-            block["seq"] = 0
+            if block.done:
+                block.ended = True
+            block.seq = 0
             self.send_response(response)

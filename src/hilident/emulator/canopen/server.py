@@ -60,6 +60,8 @@ class CanopenDriveServer:
         network.connect(interface=self.interface, channel=self.channel, receive_own_messages=False)
         self.network = network
         self.firmware.attach(network)
+        if network.notifier is None:
+            raise RuntimeError(f"CAN network on {self.channel!r} connected without a notifier")
         network.notifier.add_listener(self.firmware.on_frame)
         self._thread = threading.Thread(target=self._clock, name="canopen-drive-clock", daemon=True)
         self._thread.start()
@@ -108,7 +110,8 @@ def _firmware(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConf
     if driver.transport != "canopen":
         raise ConfigError("device.driver", f"driver {driver.name!r} is not a CANopen drive (transport "
                                            f"{driver.transport!r})")
-    return CanopenDriveFirmware(build_drive(cfg, driver), driver, device.node_id, cfg.faults, cfg.time_scale, cfg.seed)
+    return CanopenDriveFirmware(build_drive(cfg, driver), driver, device.canopen.node_id, cfg.faults, cfg.time_scale,
+                                cfg.seed)
 
 
 def start(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig) -> EmulatedDevice:
@@ -119,7 +122,7 @@ def start(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig) 
     """
     firmware = _firmware(cfg, driver, device)
     server = CanopenDriveServer(firmware).start()
-    reach = replace(device, can_interface="virtual", port=server.channel)
+    reach = replace(device, port=server.channel, canopen=replace(device.canopen, can_interface="virtual"))
     return EmulatedDevice(server=server, device=reach, drive=firmware.drive)
 
 
@@ -138,5 +141,5 @@ def start_socketcand(cfg: EmulatorConfig, driver: DriverDescription, device: Dev
         server.close()
         raise
     server.extra.append(bridge)
-    reach = replace(device, can_interface="socketcand", port=bridge.address)
+    reach = replace(device, port=bridge.address, canopen=replace(device.canopen, can_interface="socketcand"))
     return EmulatedDevice(server=server, device=reach, drive=firmware.drive)

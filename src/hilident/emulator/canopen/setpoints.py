@@ -9,6 +9,7 @@ drive loop's input, in SI units.
 from __future__ import annotations
 
 from hilident.emulator.canopen.roles import TARGET_ROLES
+from hilident.emulator.drive import DriveLoop
 from hilident.protocol.canopen_objects import CanopenDescription
 from hilident.protocol.canopen_profile import mode_name_of_code
 
@@ -42,7 +43,8 @@ class SetPoints:
         The set-point counter as last written (a fresh set-point for each sample).
     """
 
-    def __init__(self, desc: CanopenDescription, scales: dict, supported: tuple[str, ...], mode_code: int, drive):
+    def __init__(self, desc: CanopenDescription, scales: dict, supported: tuple[str, ...], mode_code: int,
+                 drive: DriveLoop):
         self.desc = desc
         self.scales = scales
         self.supported = supported

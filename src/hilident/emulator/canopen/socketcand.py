@@ -65,7 +65,8 @@ class SocketcandServer:
 
     @property
     def address(self) -> str:
-        """``"127.0.0.1:PORT/BUS"``: what goes in ``[device].port`` with ``can_interface = "socketcand"``."""
+        """``"127.0.0.1:PORT/BUS"``: what goes in ``[device].port``, with ``[device.canopen]``
+        ``can_interface = "socketcand"``."""
         return f"127.0.0.1:{self.port}/{self.bus_name}"
 
     def start(self) -> SocketcandServer:
@@ -92,12 +93,12 @@ class SocketcandServer:
             self._spawn(self._serve, "socketcand-client", conn)
 
     def _serve(self, conn: socket.socket) -> None:
-        bus = None
+        bus: can.BusABC | None = None  # opened by "rawmode": the connection is in raw mode from then on
         buffer = b""
         try:
             conn.sendall(b"< hi >")
             conn.settimeout(0.2)
-            raw = opened = False
+            opened = False
             while not self._stop.is_set():
                 try:
                     data = conn.recv(65536)
@@ -115,7 +116,7 @@ class SocketcandServer:
                     buffer = buffer[end + 1:]
                     if not words:
                         continue
-                    if not raw:
+                    if bus is None:
                         if words[0] == "open":
                             if len(words) == 2 and words[1] == self.bus_name:
                                 opened = True
@@ -125,7 +126,6 @@ class SocketcandServer:
                         elif words[0] == "rawmode" and opened:
                             # frames flow only in raw mode and only after its "< ok >", as from socketcand
                             bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
-                            raw = True
                             conn.sendall(b"< ok >")
                             self._spawn(self._forward, "socketcand-forward", conn, bus)
                         else:

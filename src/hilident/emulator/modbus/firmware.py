@@ -44,10 +44,19 @@ import math
 
 import numpy as np
 
+from hilident.drivers import DriverDescription
 from hilident.emulator.clock import Played, TablePlayer
-from hilident.errors import DataError
+from hilident.emulator.drive import DriveLoop
+from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad
-from hilident.protocol.modbus_registers import STAMP_MODULUS, RegisterMap, table_crc
+from hilident.protocol.filter_encoding import FilterEncoding
+from hilident.protocol.modbus_registers import (
+    STAMP_MODULUS,
+    FilterSlots,
+    RegisterMap,
+    Window,
+    table_crc,
+)
 
 ILLEGAL_ADDRESS = 2
 ILLEGAL_VALUE = 3
@@ -84,18 +93,39 @@ class ModbusDriveFirmware:
     ----------
     drive : DriveLoop
     regmap : RegisterMap
+        A map with the excitation capability (table, capture and filter slots).
     driver : DriverDescription
         Identity figures (name, firmware, loop rate, filter slots).
     drive_fault_after_s, capture_stops_after_s : float
         Fault switches (simulated seconds after a run starts; 0: never).
 
     Not thread-safe: the server serialises calls.
+
+    Raises
+    ------
+    ValueError
+        The map lacks the excitation capability (a parameter drive's map is
+        served by :class:`~hilident.emulator.modbus.parameter_firmware.ParameterDriveFirmware`).
+    ConfigError
+        The map's filter slots are named parameters (``[[modbus.filters.slots]]``):
+        beside an excitation table this twin runs hilident's four-register slots only.
     """
 
-    def __init__(self, drive, regmap: RegisterMap, driver, drive_fault_after_s: float = 0.0,
-                 capture_stops_after_s: float = 0.0):
+    def __init__(self, drive: DriveLoop, regmap: RegisterMap, driver: DriverDescription,
+                 drive_fault_after_s: float = 0.0, capture_stops_after_s: float = 0.0):
+        if (regmap.table is None or regmap.capture is None or regmap.filters is None
+                or regmap.filter_encoding is None):
+            raise ValueError("a map without the excitation capability is served by ParameterDriveFirmware")
+        if not isinstance(regmap.filters, FilterSlots):
+            raise ConfigError("modbus.filters", "the twin of a drive with an excitation table runs hilident's "
+                              "four-register filter slots (base, stride), not named parameters "
+                              "([[modbus.filters.slots]])", str(driver.folder / "driver.toml"))
         self.drive = drive
         self.map = regmap
+        self._table_window: Window = regmap.table
+        self._capture_window: Window = regmap.capture
+        self._slots: FilterSlots = regmap.filters
+        self._encoding: FilterEncoding = regmap.filter_encoding
         self.loop_rate_hz = float(driver.loop_rate_hz)
         self.max_sample_rate_hz = float(driver.max_sample_rate_hz)
         self.drive_fault_after_s = drive_fault_after_s
@@ -103,9 +133,9 @@ class ModbusDriveFirmware:
         self._columns = drive.columns_of([c.name for c in regmap.capture_channels], "capture channel")
         self.image = np.zeros(65536, dtype=np.uint16)
         rps = regmap.table_registers_per_sample
-        self.table = np.zeros(regmap.table.capacity_samples * rps, dtype=np.uint16)
-        self.capture = np.zeros((regmap.capture.capacity_samples, len(regmap.capture_channels)))
-        self.stamps = self._invalid_stamps(0, regmap.capture.capacity_samples)
+        self.table = np.zeros(self._table_window.capacity_samples * rps, dtype=np.uint16)
+        self.capture = np.zeros((self._capture_window.capacity_samples, len(regmap.capture_channels)))
+        self.stamps = self._invalid_stamps(0, self._capture_window.capacity_samples)
         self.running = False
         self.done = False
         self.fault_code = 0
@@ -127,8 +157,8 @@ class ModbusDriveFirmware:
         self._set("loop_rate_hz", driver.loop_rate_hz)
         self._set("max_sample_rate_hz", driver.max_sample_rate_hz)
         self._set("filter_slots", driver.filter_slots)
-        self._set("table_capacity", regmap.table.capacity_samples)
-        self._set("capture_capacity", regmap.capture.capacity_samples)
+        self._set("table_capacity", self._table_window.capacity_samples)
+        self._set("capture_capacity", self._capture_window.capacity_samples)
         self._set("device_name", driver.name)
         self._set("firmware", driver.firmware)
         self._set("mode", regmap.modes["torque"])
@@ -181,7 +211,7 @@ class ModbusDriveFirmware:
         self._set("fault_value", self.fault_value)
         if touched("table_crc"):
             if self._crc is None:
-                n = min(self.table_length, self.map.table.capacity_samples) * self.map.table_registers_per_sample
+                n = min(self.table_length, self._table_window.capacity_samples) * self.map.table_registers_per_sample
                 self._crc = table_crc(self.table[:n])
             self._set("table_crc", self._crc)
 
@@ -199,7 +229,7 @@ class ModbusDriveFirmware:
         end = address + count
         self._refresh(address, end)
         out = self.image[address:end].copy()
-        w = self.map.table
+        w = self._table_window
         lo, hi = max(address, w.base), min(end, w.end)
         if lo < hi:
             start = int(self._get("table_page")) * w.page_samples * self.map.table_registers_per_sample
@@ -208,7 +238,7 @@ class ModbusDriveFirmware:
             avail = max(0, min(b, len(self.table)) - a)
             part[:avail] = self.table[a : a + avail]
             out[lo - address : hi - address] = part
-        w = self.map.capture
+        w = self._capture_window
         lo, hi = max(address, w.base), min(end, w.end)
         if lo < hi:
             out[lo - address : hi - address] = self._capture_registers(lo - w.base, hi - w.base)
@@ -218,7 +248,7 @@ class ModbusDriveFirmware:
         """Window registers ``first .. end - 1`` (offsets) of the selected capture page."""
         mask = self._run_mask or int(self._get("capture_mask"))
         width = self.map.record_registers(mask)
-        w = self.map.capture
+        w = self._capture_window
         page0 = int(self._get("capture_page")) * w.page_samples
         r0, r1 = first // width, -(-end // width)  # records touched, relative to the page
         r1 = min(r1, w.page_samples)
@@ -242,10 +272,10 @@ class ModbusDriveFirmware:
         if np.any((values < 0) | (values > 0xFFFF)):
             return ILLEGAL_VALUE
         values = values.astype(np.uint16)
-        w = self.map.capture
+        w = self._capture_window
         if address < w.end and end > w.base:
             return ILLEGAL_ADDRESS
-        w = self.map.table
+        w = self._table_window
         lo, hi = max(address, w.base), min(end, w.end)
         if lo < hi:
             if self.running:
@@ -261,7 +291,7 @@ class ModbusDriveFirmware:
         if address < w.end and end > w.base:
             self.image[max(address, w.base) : min(end, w.end)] = 0  # the window is not image memory
         touched = [r.name for r in self.map.registers.values() if r.address < end and r.end > address]
-        slots = sorted({s for a in range(address, end) if (s := self.map.filters.slot_at(a)) is not None})
+        slots = sorted({s for a in range(address, end) if (s := self._slots.slot_at(a)) is not None})
         error = self._check(touched, slots, old_control=int(old[self.map.register("control_word").address - address])
                             if "control_word" in touched else None)
         if error:
@@ -294,9 +324,10 @@ class ModbusDriveFirmware:
             "mode": lambda: int(self._get("mode")) in m.modes.values(),
             "sample_divider": lambda: self._divider_valid(int(self._get("sample_divider"))),
             "capture_mask": lambda: self._mask_valid(int(self._get("capture_mask"))),
-            "table_length": lambda: self.table_length <= min(m.table.capacity_samples, m.capture.capacity_samples),
-            "table_page": lambda: int(self._get("table_page")) < m.table.pages,
-            "capture_page": lambda: int(self._get("capture_page")) < m.capture.pages,
+            "table_length": lambda: self.table_length <= min(self._table_window.capacity_samples,
+                                                             self._capture_window.capacity_samples),
+            "table_page": lambda: int(self._get("table_page")) < self._table_window.pages,
+            "capture_page": lambda: int(self._get("capture_page")) < self._capture_window.pages,
         }
         return all(check() for name, check in checks.items() if name in touched)
 
@@ -312,10 +343,14 @@ class ModbusDriveFirmware:
             self.done = self.capture_stopped = False
             self.captured = self.produced = 0
         if any(n in touched for n in _LIMITS):
-            self.drive.set_limits(*self._limits())
+            limits = self._limits()
+            assert limits is not None, "_check refuses a write that leaves the limits invalid"
+            self.drive.set_limits(*limits)
             self.limits_loaded = True
         for slot in slots:
-            biquad, enabled = self._slot_filter(slot)
+            section = self._slot_filter(slot)
+            assert section is not None, "_check refuses a write that leaves a slot without a valid notch"
+            biquad, enabled = section
             self.drive.filters.write(slot, biquad, enabled)
         if "control_word" in touched:
             self._control(old_control, int(self._get("control_word")))
@@ -328,12 +363,12 @@ class ModbusDriveFirmware:
 
     def _slot_filter(self, slot: int) -> tuple[Biquad, bool] | None:
         """What slot ``slot``'s registers ask for, or None when the values are not a valid notch."""
-        a = self.map.filters.address(slot)
-        values, enabled = self.map.decode_filter(self.image[a : a + self.map.filters.span])
+        a = self._slots.address(slot)
+        values, enabled = self.map.decode_filter(self.image[a : a + self._slots.span])
         if not any(values.values()):  # an empty slot passes the torque through; it cannot be enabled
             return None if enabled else (Biquad.identity(), False)
         try:
-            return self.map.filter_encoding.applied(values, self.loop_rate_hz), enabled
+            return self._encoding.applied(values, self.loop_rate_hz), enabled
         except DataError:
             return None
 
@@ -405,7 +440,8 @@ class ModbusDriveFirmware:
         if self.captured < self.produced:
             self.capture_stopped = True
         if played.faulted:
-            code = self.map.fault_codes.get(self.drive.fault, self.map.fault_codes["drive_fault"])
+            fault, unknown = self.drive.fault, self.map.fault_codes["drive_fault"]
+            code = self.map.fault_codes.get(fault, unknown) if fault is not None else unknown
             self._fault(code, played.end - 1, float(self.drive.fault_value or 0.0))
         elif self.produced >= self.table_length:
             self._end()

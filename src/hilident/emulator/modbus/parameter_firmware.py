@@ -38,8 +38,11 @@ import math
 
 import numpy as np
 
-from hilident.errors import DataError
+from hilident.drivers import DriverDescription
+from hilident.emulator.drive import DriveLoop
+from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad
+from hilident.protocol.filter_encoding import FilterEncoding
 from hilident.protocol.modbus_registers import (
     FieldSlots,
     Register,
@@ -70,11 +73,22 @@ class ParameterDriveFirmware:
         Stores carried out since power-up.
 
     Not thread-safe: the server serialises calls.
+
+    Raises
+    ------
+    ConfigError
+        The map's filter slots are register blocks (``[modbus.filters]`` base
+        and stride): this twin runs a parameter drive's slots as named
+        parameters (``[[modbus.filters.slots]]``) only.
     """
 
-    def __init__(self, drive, regmap: RegisterMap, driver):
+    def __init__(self, drive: DriveLoop, regmap: RegisterMap, driver: DriverDescription):
         if regmap.excitation:
             raise ValueError("a map with the excitation capability is served by ModbusDriveFirmware")
+        if regmap.filters is not None and not isinstance(regmap.filters, FieldSlots):
+            raise ConfigError("modbus.filters", "the twin of a drive without an excitation table runs filter slots "
+                              "of named parameters ([[modbus.filters.slots]]), not register blocks (base, stride)",
+                              str(driver.folder / "driver.toml"))
         self.drive = drive
         self.map = regmap
         self.loop_rate_hz = float(driver.loop_rate_hz)
@@ -188,21 +202,36 @@ class ParameterDriveFirmware:
             if slot is not None:
                 self._apply_slot(slot)
 
+    def _filter_parameters(self) -> tuple[FieldSlots, FilterEncoding]:
+        """The map's filter slots (named parameters) and the notch equation the drive applies to them.
+
+        Raises
+        ------
+        ValueError
+            The map has no filter slots (the constructor refuses slots of another kind).
+        """
+        slots, encoding = self.map.filters, self.map.filter_encoding
+        if not isinstance(slots, FieldSlots) or encoding is None:
+            raise ValueError("the drive's map has no filter slots")
+        return slots, encoding
+
     def slot_values(self, slot: int) -> tuple[dict, bool]:
         """``({field: stored integer}, enabled)`` of filter slot ``slot``."""
-        regs = self.map.filters.fields(slot)
+        slots, _ = self._filter_parameters()
+        regs = slots.fields(slot)
         raw = {name: int(r.decode(self.images["holding"][r.address : r.end])) for name, r in regs.items()}
         enabled = bool(raw.pop("enable")) if "enable" in raw else \
-            not all(raw[k] == v for k, v in self.map.filters.off.items())
+            not all(raw[k] == v for k, v in slots.off.items())
         return raw, enabled
 
     def _apply_slot(self, slot: int) -> None:
         """The drive's notch equation at its loop rate, from what the slot's parameters hold now."""
+        _, encoding = self._filter_parameters()
         values, enabled = self.slot_values(slot)
         section = Biquad.identity()
         if enabled:
             try:
-                section = self.map.filter_encoding.applied(values, self.loop_rate_hz)
+                section = encoding.applied(values, self.loop_rate_hz)
             except DataError:
                 enabled = False  # a setting that is no notch: the drive does not run it
         self.drive.filters.write(slot, section, enabled)

@@ -27,7 +27,7 @@ range within the 65536 of the table (else 02), then the firmware decides
 from __future__ import annotations
 
 import struct
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 READ_COILS = 1
 READ_DISCRETE_INPUTS = 2
@@ -64,6 +64,15 @@ class Firmware(Protocol):
     def read(self, address: int, count: int, input_registers: bool = False) -> list[int] | int: ...
 
     def write(self, address: int, values) -> int | None: ...
+
+
+@runtime_checkable
+class BitFirmware(Protocol):
+    """What :func:`handle` needs besides :class:`Firmware` from a drive that declares coils or discrete inputs."""
+
+    def read_bits(self, address: int, count: int, discrete: bool = False) -> list[bool] | int: ...
+
+    def write_bits(self, address: int, values) -> int | None: ...
 
 
 def exception_response(function: int, code: int) -> bytes:

@@ -26,10 +26,13 @@ _RTU_STALL_S = 0.1  # a frame whose length is known waits this long for its miss
 
 
 class RtuServer(Protocol):
-    """What the line needs of its server: the line settings and the answer to a frame."""
+    """What the line needs of its server: the line settings (read only) and the answer to a frame."""
 
-    baudrate: int
-    bits_per_char: int
+    @property
+    def baudrate(self) -> int: ...
+
+    @property
+    def bits_per_char(self) -> int: ...
 
     def rtu_frame(self, frame: bytes) -> bytes | None: ...
 
@@ -133,14 +136,21 @@ class RtuLine:
     def close(self) -> None:
         if self.timer is not None:
             self.timer.cancel()
-        if self.fd is not None:
+        if self.fd is not None and self.loop is not None:
             self.loop.remove_reader(self.fd)
             os.close(self.fd)
             self.fd = None
 
+    def _opened(self) -> tuple[int, asyncio.AbstractEventLoop]:
+        """The line's descriptor and event loop; only an open line reads, waits for silence and answers."""
+        if self.fd is None or self.loop is None:
+            raise RuntimeError("the RTU line is not open")
+        return self.fd, self.loop
+
     def _readable(self) -> None:
+        fd, _ = self._opened()
         try:
-            data = os.read(self.fd, 4096)
+            data = os.read(fd, 4096)
         except (BlockingIOError, InterruptedError):
             return
         except OSError:
@@ -157,7 +167,8 @@ class RtuLine:
     def _arm(self, delay: float) -> None:
         if self.timer is not None:
             self.timer.cancel()
-        self.timer = self.loop.call_later(delay, self._silence) if self.buffer or self.garbled else None
+        _, loop = self._opened()
+        self.timer = loop.call_later(delay, self._silence) if self.buffer or self.garbled else None
 
     def _frames(self) -> None:
         """Answer every complete frame at the front of the buffer whose length the function code gives."""
@@ -186,13 +197,14 @@ class RtuLine:
             self._send(self.server.rtu_frame(frame))  # a function whose length is unknown ends here
 
     def _send(self, frame: bytes | None) -> None:
+        fd, _ = self._opened()
         view = memoryview(frame or b"")
         deadline = time.monotonic() + 0.5
         while view and time.monotonic() < deadline:
             try:
-                view = view[os.write(self.fd, view):]
+                view = view[os.write(fd, view):]
             except (BlockingIOError, InterruptedError):
-                select.select([], [self.fd], [], 0.05)
+                select.select([], [fd], [], 0.05)
             except OSError:
                 return  # nobody at the other end: the answer is lost, as on an open line
 

@@ -16,7 +16,7 @@ reader expects:
   register) exception 02; 04 only when the drive itself fails;
 * Modbus TCP: several connections, the transaction id echoed; requests to the
   configured unit id and to 255 are answered, others ignored (or answered with
-  exception 11 with ``[emulator.faults] unknown_unit_id = "gateway_exception"``);
+  exception 11 with ``[emulator.faults.modbus] unknown_unit_id = "gateway_exception"``);
 * Modbus RTU: only frames to its own address are answered; a broadcast
   (address 0) write is carried out without an answer, a broadcast read
   ignored; a frame with a bad CRC is dropped in silence. A frame ends where its
@@ -28,19 +28,19 @@ Modbus RTU runs over two pseudo-terminals joined like a null-modem cable
 host opens the other (``/dev/pts/N``), and the bridge carries the bytes at the
 line rate (start bit, 8 data bits, parity bit unless ``N``, stop bits). A
 pseudo-terminal carries no parity bit, and some kernels refuse to set one, so
-both ends open it with parity ``N``; the host's ``[device].parity`` must be
+both ends open it with parity ``N``; the host's ``[device.modbus].parity`` must be
 ``"N"`` for an emulated RTU line.
 
 ``[emulator].link`` chooses the transport: ``"tcp"`` and ``"pipe"`` give Modbus
 TCP (there is no in-memory Modbus line; TCP on loopback is the fast one),
 ``"pty"`` gives Modbus RTU over a pseudo-terminal.
 
-Fault switches (``[emulator.faults]``): ``exception_register`` /
+Fault switches (``[emulator.faults.modbus]``): ``exception_register`` /
 ``exception_code`` (every request touching that register is answered with
 that exception), ``response_delay_s`` (every answer comes this late),
 ``missing_response_rate`` (answers lost; the request itself was carried out),
-``unknown_unit_id`` (see above), ``capture_stops_after_s`` and
-``drive_fault_after_s`` (see the firmware).
+``unknown_unit_id`` (see above); in ``[emulator.faults]``,
+``capture_stops_after_s`` and ``drive_fault_after_s`` (see the firmware).
 
 The drive's communication timeout (register ``comm_timeout_ms``) is watched on
 the wall clock by the clock thread, whatever ``time_scale`` is: a host that
@@ -58,6 +58,7 @@ import struct
 import threading
 import time
 from dataclasses import replace
+from typing import Protocol
 
 import numpy as np
 
@@ -65,6 +66,7 @@ from hilident.config import DeviceConfig, EmulatorConfig, FaultsConfig
 from hilident.drivers import DriverDescription
 from hilident.emulator.clock import SimClock
 from hilident.emulator.device import EmulatedDevice, build_drive
+from hilident.emulator.drive import DriveLoop
 from hilident.emulator.modbus.firmware import ModbusDriveFirmware
 from hilident.emulator.modbus.parameter_firmware import ParameterDriveFirmware
 from hilident.emulator.modbus.pdu import (
@@ -72,6 +74,7 @@ from hilident.emulator.modbus.pdu import (
     ILLEGAL_DATA_ADDRESS,
     SERVER_DEVICE_FAILURE,
     WRITE_FUNCTIONS,
+    BitFirmware,
     exception_response,
     handle,
 )
@@ -91,6 +94,51 @@ _STALL_S = 0.02  # a longer gap between two notes: this process was not schedule
 _TCP_UNIT_ANY = 0xFF  # the unit id of a directly addressed Modbus TCP device
 _MBAP_MAX_LENGTH = 1 + 253 + 16  # unit id + the longest PDU, with room to answer an oversized request with 03
 _BROADCAST = 0
+
+
+class ServedDrive(Protocol):
+    """What the server needs of a drive's firmware: its registers, its clock and its host watch.
+
+    :class:`~hilident.emulator.modbus.firmware.ModbusDriveFirmware` and
+    :class:`~hilident.emulator.modbus.parameter_firmware.ParameterDriveFirmware`
+    offer it (the register requests :func:`~hilident.emulator.modbus.pdu.handle`
+    makes, and :class:`~hilident.emulator.clock.PacedFirmware`'s methods).
+    """
+
+    @property
+    def drive(self) -> DriveLoop: ...
+
+    @property
+    def functions(self) -> frozenset[int]: ...
+
+    @property
+    def loop_rate_hz(self) -> float: ...
+
+    @property
+    def runs(self) -> int: ...
+
+    @property
+    def running(self) -> bool: ...
+
+    @property
+    def produced(self) -> int: ...
+
+    @property
+    def sample_rate_hz(self) -> float: ...
+
+    def read(self, address: int, count: int, input_registers: bool = False) -> list[int] | int: ...
+
+    def write(self, address: int, values) -> int | None: ...
+
+    def advance(self, n_samples: int) -> None: ...
+
+    def idle(self, n_ticks: int) -> None: ...
+
+    def heard_from_host(self, now: float) -> None: ...
+
+    def excuse_silence(self, seconds: float) -> None: ...
+
+    def watch_host(self, now: float) -> bool: ...
 
 def _address_tables(regmap: RegisterMap | None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Which addresses read as holding registers, take writes, and read as input registers.
@@ -122,7 +170,7 @@ def _address_tables(regmap: RegisterMap | None) -> tuple[np.ndarray, np.ndarray,
 class _ServedFirmware:
     """The firmware as the wire reaches it: addresses outside the map refused (02), and the fault switch."""
 
-    def __init__(self, firmware, server: ModbusDriveServer):
+    def __init__(self, firmware: ServedDrive, server: ModbusDriveServer):
         self.firmware = firmware
         self.functions = frozenset(firmware.functions)
         self.server = server  # its fault switches, as they are now
@@ -131,7 +179,7 @@ class _ServedFirmware:
     def _refusal(self, table: int, address: int, count: int) -> int | None:
         if self._tables is not None and not self._tables[table][address : address + count].all():
             return ILLEGAL_DATA_ADDRESS
-        f = self.server.faults
+        f = self.server.faults.modbus
         if f.exception_register >= 0 and address <= f.exception_register < address + count:
             return f.exception_code
         return None
@@ -146,11 +194,18 @@ class _ServedFirmware:
         refused = self._refusal(1, address, len(values))
         return self.firmware.write(address, values) if refused is None else refused
 
-    def read_bits(self, address: int, count: int, discrete: bool = False):
-        return self.firmware.read_bits(address, count, discrete=discrete)
+    def _bits(self) -> BitFirmware:
+        """The firmware's coils and discrete inputs (asked only for the function codes it declares)."""
+        if not isinstance(self.firmware, BitFirmware):
+            raise NotImplementedError(f"the drive declares functions {sorted(self.functions)} but has no coils "
+                                      "or discrete inputs")
+        return self.firmware
 
-    def write_bits(self, address: int, values):
-        return self.firmware.write_bits(address, values)
+    def read_bits(self, address: int, count: int, discrete: bool = False) -> list[bool] | int:
+        return self._bits().read_bits(address, count, discrete=discrete)
+
+    def write_bits(self, address: int, values) -> int | None:
+        return self._bits().write_bits(address, values)
 
 
 class ModbusDriveServer:
@@ -158,8 +213,9 @@ class ModbusDriveServer:
 
     Parameters
     ----------
-    firmware : ModbusDriveFirmware
-        Or any drive with ``functions``, ``read`` and ``write`` (see
+    firmware : ServedDrive
+        A :class:`ModbusDriveFirmware`, a :class:`ParameterDriveFirmware`, or
+        any drive with ``functions``, ``read`` and ``write`` (see
         :mod:`hilident.emulator.modbus.pdu`) and the clock's methods.
     device_id : int
         Modbus device (unit) id it answers (0: any).
@@ -170,6 +226,7 @@ class ModbusDriveServer:
     time_scale : float
         Simulated seconds per wall-clock second.
     faults : FaultsConfig, optional
+        Its ``modbus`` sub-table (``[emulator.faults.modbus]``) is what the wire does.
     seed : int
         Seed of the missing-response draws.
 
@@ -190,7 +247,7 @@ class ModbusDriveServer:
         (``last_failure`` holds the latest cause).
     """
 
-    def __init__(self, firmware: ModbusDriveFirmware, *, device_id: int = 1, rtu: bool = False,
+    def __init__(self, firmware: ServedDrive, *, device_id: int = 1, rtu: bool = False,
                  baudrate: int = 115200, parity: str = "E", stopbits: int = 1, time_scale: float = 1.0,
                  faults: FaultsConfig | None = None, seed: int = 0):
         self.firmware = firmware
@@ -201,9 +258,10 @@ class ModbusDriveServer:
         self.stopbits = stopbits
         self.time_scale = time_scale
         self.faults = faults or FaultsConfig()
-        if self.faults.exception_register >= 0 and self.faults.exception_code not in EXCEPTION_MEANINGS:
+        wire = self.faults.modbus
+        if wire.exception_register >= 0 and wire.exception_code not in EXCEPTION_MEANINGS:
             raise ConfigError("emulator.faults.modbus.exception_code",
-                              f"{self.faults.exception_code} is not a Modbus exception code "
+                              f"{wire.exception_code} is not a Modbus exception code "
                               f"({', '.join(str(c) for c in EXCEPTION_MEANINGS)})")
         self._rng = np.random.default_rng(seed)
         self.lock = threading.Lock()
@@ -249,6 +307,8 @@ class ModbusDriveServer:
 
     async def _serve(self) -> None:
         if self.rtu:
+            if self._rtu is None or self._bridge is None:
+                raise RuntimeError("an RTU server is served on its bridge: start() makes it")
             self._rtu.open(self._bridge.device_path, asyncio.get_running_loop())
             self.port = self._bridge.host_path
         else:
@@ -321,11 +381,12 @@ class ModbusDriveServer:
 
     def _deliver(self) -> bool:
         """Whether an answer leaves now: the place for slow and missing answers."""
-        if self.faults.response_delay_s:
+        wire = self.faults.modbus
+        if wire.response_delay_s:
             # a slow drive answers one request after the other: block this server's loop, so a
             # late answer never overtakes (or takes the transaction id of) the next request
-            time.sleep(self.faults.response_delay_s)
-        rate = self.faults.missing_response_rate
+            time.sleep(wire.response_delay_s)
+        rate = wire.missing_response_rate
         if rate and self._rng.random() < rate:
             self.dropped_responses += 1
             return False  # carried out, never answered
@@ -361,7 +422,7 @@ class ModbusDriveServer:
     def _tcp_answer(self, unit: int, pdu: bytes) -> bytes | None:
         if unit == _TCP_UNIT_ANY or self._answers_unit(unit):
             return self._answer(pdu)
-        if self.faults.unknown_unit_id == "gateway_exception" and pdu:
+        if self.faults.modbus.unknown_unit_id == "gateway_exception" and pdu:
             return exception_response(pdu[0], GATEWAY_TARGET_FAILED)
         return None  # another unit behind this address: not ours to answer
 
@@ -432,18 +493,20 @@ def start(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig,
     rtu = (link or cfg.link) == "pty"
     regmap = RegisterMap.from_driver(driver)
     drive = build_drive(cfg, driver)
+    firmware: ServedDrive
     if regmap.excitation:
         firmware = ModbusDriveFirmware(drive, regmap, driver, cfg.faults.drive_fault_after_s,
                                        cfg.faults.capture_stops_after_s)
     else:  # a real drive's parameter list: no table, no capture
         firmware = ParameterDriveFirmware(drive, regmap, driver)
     baudrate = device.baudrate or driver.default_baudrate
+    line = device.modbus
     server = ModbusDriveServer(
-        firmware, device_id=device.device_id, rtu=rtu, baudrate=baudrate, parity=device.parity,
-        stopbits=device.stopbits, time_scale=cfg.time_scale, faults=cfg.faults, seed=cfg.seed + 1,
+        firmware, device_id=line.device_id, rtu=rtu, baudrate=baudrate, parity=line.parity,
+        stopbits=line.stopbits, time_scale=cfg.time_scale, faults=cfg.faults, seed=cfg.seed + 1,
     ).start()
     # a pseudo-terminal carries no parity bit (some kernels refuse the setting): both ends open it
     # without one, while the bridge still times each character with the configured parity bit
-    host = (replace(device, port=server.port, baudrate=baudrate, parity="N") if rtu
+    host = (replace(device, port=server.port, baudrate=baudrate, modbus=replace(line, parity="N")) if rtu
             else replace(device, port=server.port))
     return EmulatedDevice(server=server, device=host, drive=drive)

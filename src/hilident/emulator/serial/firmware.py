@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hilident.emulator.clock import TablePlayer
+from hilident.emulator.drive import DriveLoop
 from hilident.errors import HilidentError, ProtocolError
 from hilident.filters.biquad import Biquad
 from hilident.protocol import serial_board as sb
@@ -52,7 +53,7 @@ class BoardFirmware:
         ``drive.CHANNELS``.
     """
 
-    def __init__(self, drive, identity: sb.Identity):
+    def __init__(self, drive: DriveLoop, identity: sb.Identity):
         self.drive = drive
         self.identity = identity
         self._column = drive.columns_of([c.name for c in identity.channels], "board channel")
@@ -226,7 +227,9 @@ class BoardFirmware:
         if not all(np.isfinite(c.b + c.a)):
             return sb.ErrorCode.BAD_ARGUMENT, f"slot {c.slot}: coefficients must be finite"
         # The board stores REAL32 coefficients: what the host reads back is what runs.
-        stored = Biquad(tuple(sb.float32(x) for x in c.b), (1.0, sb.float32(c.a[1]), sb.float32(c.a[2])))
+        b0, b1, b2 = c.b
+        stored = Biquad((sb.float32(b0), sb.float32(b1), sb.float32(b2)),
+                        (1.0, sb.float32(c.a[1]), sb.float32(c.a[2])))
         if c.enabled and not stored.is_stable():
             return sb.ErrorCode.BAD_ARGUMENT, f"slot {c.slot}: unstable coefficients refused"
         self.drive.filters.write(c.slot, stored, c.enabled)
@@ -251,8 +254,21 @@ class BoardFirmware:
         return self._produced
 
     @property
+    def _run_config(self) -> sb.Configure:
+        """The CONFIGURE in force: a run and the sample blocks it sends are shaped by it.
+
+        Raises
+        ------
+        RuntimeError
+            The host has not configured the board (START refuses to run without it).
+        """
+        if self.config is None:
+            raise RuntimeError("the board has no configuration: send CONFIGURE before a run")
+        return self.config
+
+    @property
     def sample_rate_hz(self) -> float:
-        return self.identity.loop_rate_hz / self.config.sample_divider
+        return self.identity.loop_rate_hz / self._run_config.sample_divider
 
     def advance(self, n_samples: int) -> None:
         """Play ``n_samples`` excitation samples through the drive and record them."""
@@ -284,8 +300,9 @@ class BoardFirmware:
         played = self._player.play(values, first)
         self._produced += n_samples
         self._append(played.rows[:, self._selected_columns()])
-        if self.drive.fault:
-            self._trip(first)
+        fault = self.drive.fault
+        if fault:
+            self._trip(first, fault)
         elif self._run_samples and self._produced >= self._run_samples:
             self._finish(sb.EventCode.FINISHED, "run complete")
 
@@ -297,7 +314,7 @@ class BoardFirmware:
         open-loop torque drops to zero, the no-torque hold (holding a torque
         would keep accelerating the axis).
         """
-        if self.config.mode in (sb.Mode.VELOCITY, sb.Mode.POSITION):
+        if self._run_config.mode in (sb.Mode.VELOCITY, sb.Mode.POSITION):
             return self._last_value
         return 0.0
 
@@ -307,12 +324,12 @@ class BoardFirmware:
             self.drive.run(np.zeros(n_ticks))
 
     def _selected_columns(self) -> list[int]:
-        return [self._column[c.channel] for c in self.config.channels]
+        return [self._column[c.channel] for c in self._run_config.channels]
 
     def _append(self, rows: np.ndarray) -> None:
         self._pending.append(rows)
         self._pending_rows += len(rows)
-        block = self.config.block_samples
+        block = self._run_config.block_samples
         while self._pending_rows >= block:
             data = np.concatenate(self._pending)
             self._emit(data[:block])
@@ -325,7 +342,7 @@ class BoardFirmware:
         flags = self._pending_flags | extra_flags
         if self.fault != sb.FaultCode.NONE:
             flags |= sb.FLAG_FAULT
-        _, clipped = sb.pack_rows(data, self.config.channels)
+        _, clipped = sb.pack_rows(data, self._run_config.channels)
         if clipped:
             flags |= sb.FLAG_CLIPPED
         self.send(
@@ -340,17 +357,18 @@ class BoardFirmware:
 
     def _flush_last(self) -> None:
         """Send what is pending (possibly nothing) as the run's last block."""
-        data = np.concatenate(self._pending) if self._pending else np.zeros((0, len(self.config.channels)))
+        data = np.concatenate(self._pending) if self._pending else np.zeros((0, len(self._run_config.channels)))
         self._emit(data, sb.FLAG_LAST)
         self._pending, self._pending_rows = [], 0
 
-    def _trip(self, first_sample: int) -> None:
-        self.fault = _FAULTS.get(self.drive.fault, sb.FaultCode.TORQUE_LIMIT)
+    def _trip(self, first_sample: int, fault: str) -> None:
+        """The drive tripped ``fault`` (a :data:`~hilident.emulator.drive.FAULTS` name) in this step."""
+        self.fault = _FAULTS.get(fault, sb.FaultCode.TORQUE_LIMIT)
         self.counters.limit_trips += 1
         fault_sample = self._player.fault_sample()
         index = first_sample if fault_sample is None else fault_sample
         value = float(getattr(self.drive, "fault_value", 0.0) or 0.0)
-        self.send(sb.Event(sb.EventCode.LIMIT_TRIP, index, value, f"{self.drive.fault}: axis stopped, torque zero"))
+        self.send(sb.Event(sb.EventCode.LIMIT_TRIP, index, value, f"{fault}: axis stopped, torque zero"))
         self._flush_last()
         self.state = sb.State.FAULT
         self._end_run()

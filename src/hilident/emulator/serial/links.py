@@ -11,12 +11,25 @@ import os
 import select
 import socket
 import tty
+from typing import Protocol
 
 import numpy as np
 
 from hilident.links import LinkClosed, PipeEnd
 
-__all__ = ["LineFaults", "PipeLink", "PtyLink", "TcpLink"]
+__all__ = ["BoardLink", "LineFaults", "PipeLink", "PtyLink", "TcpLink"]
+
+
+class BoardLink(Protocol):
+    """The device's end of a line, as :class:`~hilident.emulator.serial.server.BoardServer` uses it."""
+
+    path: str
+
+    def read_some(self, timeout: float) -> bytes: ...
+
+    def write(self, data: bytes) -> None: ...
+
+    def close(self) -> None: ...
 
 
 class PtyLink:

@@ -25,7 +25,7 @@ from hilident.drivers import DriverDescription
 from hilident.emulator.clock import SimClock
 from hilident.emulator.device import EmulatedDevice, build_drive
 from hilident.emulator.serial.firmware import BoardFirmware
-from hilident.emulator.serial.links import LineFaults, PipeLink, PtyLink, TcpLink
+from hilident.emulator.serial.links import BoardLink, LineFaults, PipeLink, PtyLink, TcpLink
 from hilident.errors import ConfigError
 from hilident.links import LinkClosed, pipe_pair
 from hilident.protocol import serial_board as sb
@@ -43,7 +43,8 @@ class BoardServer:
     Parameters
     ----------
     firmware : BoardFirmware
-    link : PtyLink or PipeLink
+    link : BoardLink
+        A :class:`PtyLink`, :class:`TcpLink` or :class:`PipeLink`.
     baudrate : int
         Line rate; frames leave no faster than ``baudrate / 10`` bytes per second.
         0 disables pacing (fast unit tests).
@@ -58,7 +59,7 @@ class BoardServer:
         Close the line this long (wall time) after a run starts; 0 never.
     """
 
-    def __init__(self, firmware, link, baudrate: int, time_scale: float = 1.0,
+    def __init__(self, firmware: BoardFirmware, link: BoardLink, baudrate: int, time_scale: float = 1.0,
                  tx_buffer_bytes: int = 65536, watchdog_s: float = 1.0,
                  faults: LineFaults | None = None, close_after_s: float = 0.0):
         if not (math.isfinite(time_scale) and time_scale > 0):
@@ -74,7 +75,7 @@ class BoardServer:
         self.faults = faults or LineFaults()
         self.close_after_s = close_after_s
         self.decoder = FrameDecoder()
-        self._tx = deque()
+        self._tx: deque[bytes] = deque()
         self._tx_bytes = 0
         self._tx_cond = threading.Condition()
         self._stop = threading.Event()
@@ -250,7 +251,9 @@ def start_serial_board(cfg: EmulatorConfig, driver: DriverDescription, baudrate:
     """
     kind = link or cfg.link
     firmware = BoardFirmware(build_drive(cfg, driver), identity_from_driver(driver))
-    faults = LineFaults(cfg.faults.corrupt_frame_rate, cfg.faults.drop_frame_rate, seed=cfg.seed + 1)
+    line = cfg.faults.serial
+    faults = LineFaults(line.corrupt_frame_rate, line.drop_frame_rate, seed=cfg.seed + 1)
+    device_link: BoardLink
     if kind == "pty":
         device_link, host_link = PtyLink(), None
     elif kind == "tcp":
@@ -260,7 +263,7 @@ def start_serial_board(cfg: EmulatorConfig, driver: DriverDescription, baudrate:
         device_link = PipeLink(device_end)
     server = BoardServer(
         firmware, device_link, baudrate=baudrate, time_scale=cfg.time_scale,
-        faults=faults, close_after_s=cfg.faults.close_after_s,
+        faults=faults, close_after_s=line.close_after_s,
     ).start()
     device = replace(DeviceConfig(), driver=str(driver.folder), port=device_link.path, baudrate=baudrate)
     return EmulatedDevice(server=server, device=device, drive=firmware.drive, link=host_link)
