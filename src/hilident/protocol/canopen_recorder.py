@@ -24,13 +24,16 @@ Example
 
 from __future__ import annotations
 
+import builtins
+import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
 from hilident.errors import ConfigError
+from hilident.schema import build_table, spec
 
 if TYPE_CHECKING:  # canopen_objects imports this module
     from hilident.protocol.canopen_objects import ObjectAddress
@@ -192,6 +195,10 @@ class RecorderCapability:
 
 
 # --- parsing ------------------------------------------------------------------------------------
+#
+# The keys are declared as tables of :mod:`hilident.schema` below; what a table cannot say (either ``buffer`` or
+# ``buffers``, one buffer per channel, the parameter tables each kind needs, PRBS taps and seed, the set-point roles,
+# the objects in the EDS) is checked by the small functions after them.
 
 
 def parse_recorder(sections: dict, source: str = "", od=None) -> RecorderCapability | None:
@@ -221,208 +228,316 @@ def parse_recorder(sections: dict, source: str = "", od=None) -> RecorderCapabil
             raise ConfigError("canopen.generator", "a generator needs a [canopen.recorder] to record what it plays",
                               source)
         return None
-    p = _Parser(source, od)
-    recorder = p.recorder(p.table(rec, "canopen.recorder"))
-    generator = p.generator(p.table(gen, "canopen.generator")) if gen is not None else None
+    recorder = _recorder(rec, source)
+    generator = _generator(gen, source) if gen is not None else None
     cap = RecorderCapability(recorder, generator, source)
     if od is not None:
-        p.check_objects(cap)
+        _check_objects(cap, od, source)
     return cap
 
 
-class _Parser:
-    def __init__(self, source: str, od):
-        self.source, self.od = source, od
+def _address(value: str, key: str, source: str) -> None:
+    """A schema ``check``: ``value`` is an object address like ``"0x2500:1"``."""
+    from hilident.protocol.canopen_objects import parse_address
 
-    def fail(self, key: str, text: str) -> NoReturn:
-        raise ConfigError(key, text, self.source)
+    parse_address(value, key, source)
 
-    def table(self, value, key: str) -> dict:
-        if not isinstance(value, dict):
-            self.fail(key, f"must be a table, got {value!r}"[:200])
+
+def _addresses(values: list[str], key: str, source: str) -> None:
+    """A schema ``check``: a non-empty list of object addresses."""
+    if not values:
+        raise ConfigError(key, 'must list objects, e.g. ["0x2501:1", "0x2501:2"]', source)
+    for value in values:
+        _address(value, key, source)
+
+
+def _sample_periods(values: list[int], key: str, source: str) -> None:
+    """A schema ``check``: a non-empty list of sample periods 1..65535 (loop cycles)."""
+    if not values or any(not 1 <= x <= 65535 for x in values):
+        raise ConfigError(key, f"must list the allowed sample periods in loop cycles, got {values!r}", source)
+
+
+def _scale(value: builtins.object, key: str, source: str) -> None:
+    """A schema ``check``: a positive finite number, or one of :data:`SCALE_KINDS`."""
+    if value not in SCALE_KINDS and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        raise ConfigError(key, f"must be a positive number or one of {SCALE_KINDS}, got {value!r}", source)
+
+
+def _scale_value(value: builtins.object) -> float | str:
+    """A scale :func:`_scale` accepted, as a float or the name of a kind of object."""
+    if isinstance(value, str):
         return value
+    if isinstance(value, (int, float)):
+        return float(value)
+    raise TypeError(f"a scale is a number or a name, got {value!r}")  # _scale refused anything else
 
-    def address(self, value, key: str) -> ObjectAddress:
-        from hilident.protocol.canopen_objects import parse_address
 
-        if value is None:
-            self.fail(key, 'is required: an object address like "0x2500:1"')
-        return parse_address(value, key, self.source)
+def _object(doc: str):
+    """A required object address key."""
+    return spec(check=_address, doc=doc)
 
-    def integer(self, value, key: str, low: int, high: int) -> int:
-        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-            self.fail(key, f"must be an integer {low}..{high}, got {value!r}")
-        return value
 
-    def codes(self, t: dict, key: str, names: tuple[str, ...], defaults: dict) -> dict:
-        value = t.get(key.rsplit(".", 1)[-1], defaults)
-        if not isinstance(value, dict):
-            self.fail(key, f"must be a table of {', '.join(f'{n} = <int>' for n in names)}")
-        out = {}
-        for name in names:
-            if name not in value:
-                self.fail(f"{key}.{name}", "is required")
-            out[name] = self.integer(value[name], f"{key}.{name}", 0, 0xFFFF)
-        unknown = set(value) - set(names)
-        if unknown:
-            self.fail(f"{key}.{min(unknown)}", f"is not one of {', '.join(names)}")
-        return out
+def _code(doc: str = ""):
+    """A required UNSIGNED16 code."""
+    return spec(ge=0, le=0xFFFF, doc=doc)
 
-    def recorder(self, t: dict) -> RecorderSpec:
-        k = "canopen.recorder"
-        objs = {name: self.address(t.get(name), f"{k}.{name}") for name in _RECORDER_OBJECTS}
-        channels = t.get("channels")
-        if not isinstance(channels, list) or not channels:
-            self.fail(f"{k}.channels", "must list the channel-selection objects, e.g. [\"0x2501:1\", \"0x2501:2\"]")
-        chans = tuple(self.address(c, f"{k}.channels") for c in channels)
-        if ("buffer" in t) == ("buffers" in t):
-            self.fail(f"{k}.buffer", "give either buffer (one interleaved DOMAIN) or buffers (one DOMAIN per channel)")
-        buffers: tuple[ObjectAddress, ...]
-        if "buffer" in t:
-            buffers, interleaved = (self.address(t["buffer"], f"{k}.buffer"),), True
-        else:
-            if not isinstance(t["buffers"], list) or len(t["buffers"]) != len(chans):
-                self.fail(f"{k}.buffers", f"must list one DOMAIN per channel ({len(chans)})")
-            buffers, interleaved = tuple(self.address(b, f"{k}.buffers") for b in t["buffers"]), False
-        periods = t.get("sample_periods", [1])
-        if (not isinstance(periods, list) or not periods
-                or any(isinstance(x, bool) or not isinstance(x, int) or not 1 <= x <= 65535 for x in periods)):
-            self.fail(f"{k}.sample_periods", f"must list the allowed sample periods in loop cycles, got {periods!r}")
-        encoding = t.get("channel_encoding", "mapping_entry")
-        if encoding != "mapping_entry":
-            self.fail(f"{k}.channel_encoding", f'must be "mapping_entry" (index << 16 | sub << 8 | bits), got '
-                                               f"{encoding!r}")
-        block = t.get("block_transfer", True)
-        if not isinstance(block, bool):
-            self.fail(f"{k}.block_transfer", f"must be true or false, got {block!r}")
-        return RecorderSpec(
-            **objs,
-            commands=self.codes(t, f"{k}.commands", ("stop", "start"), {"stop": 0, "start": 1}),
-            states=self.codes(t, f"{k}.states", ("idle", "waiting", "recording", "done"),
-                              {"idle": 0, "waiting": 1, "recording": 2, "done": 3}),
-            triggers=self.codes(t, f"{k}.triggers", ("immediate", "generator"), {"immediate": 0, "generator": 1}),
-            sample_periods=tuple(sorted(set(periods))),
-            max_samples=self.integer(t.get("max_samples"), f"{k}.max_samples", 1, 2**31 - 1),
-            channels=chans, buffers=buffers, interleaved=interleaved, block_transfer=block)
 
-    def parameter(self, name: str, value, key: str) -> Parameter:
-        if not isinstance(value, dict):
-            self.fail(key, 'must be { object = "0x2511:1", scale = <number or "torque">, min = .., max = .. }')
-        scale = value.get("scale", 1.0)
-        if isinstance(scale, bool) or not (scale in SCALE_KINDS or (
-                isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0)):
-            self.fail(f"{key}.scale", f"must be a positive number or one of {SCALE_KINDS}, got {scale!r}")
-        bounds: list[float | None] = []
-        for end in ("min", "max"):
-            b = value.get(end)
-            if b is not None and (isinstance(b, bool) or not isinstance(b, (int, float)) or not math.isfinite(b)):
-                self.fail(f"{key}.{end}", f"must be a number, got {b!r}")
-            bounds.append(None if b is None else float(b))
-        low, high = bounds
-        if low is not None and high is not None and low > high:
-            self.fail(f"{key}.min", f"{low:g} exceeds max {high:g}")
-        unknown = set(value) - {"object", "scale", "min", "max"}
-        if unknown:
-            self.fail(f"{key}.{min(unknown)}", "is not a parameter key (object, scale, min, max)")
-        return Parameter(name, self.address(value.get("object"), f"{key}.object"),
-                         scale if isinstance(scale, str) else float(scale), low, high)
+@dataclass(frozen=True, kw_only=True)
+class _StartStop:
+    """``commands``: the codes written to a control object."""
 
-    def kind(self, name: str, t, key: str) -> GeneratorKind:
-        if name not in KIND_PARAMETERS:
-            self.fail(key, f"is not a generator kind hilident plays ({', '.join(KIND_PARAMETERS)})")
-        t = self.table(t, key)
-        code = self.integer(t.get("code"), f"{key}.code", 0, 0xFFFF)
-        params = {}
-        for pname in (*KIND_PARAMETERS[name], "duration_s"):
-            if pname in t:
-                params[pname] = self.parameter(pname, t[pname], f"{key}.{pname}")
-            elif pname != "duration_s":
-                self.fail(f"{key}.{pname}", f"is required for a {name} generator")
-        extra = set(t) - set(params) - {"code", "method", "taps", "seed"}
-        if extra:
-            self.fail(f"{key}.{min(extra)}", f"is not a key of a {name} generator")
-        method, taps, seed = "", {}, -1
-        if name == "chirp":
-            method = t.get("method", "linear")
-            if method not in ("linear", "logarithmic"):
-                self.fail(f"{key}.method", f'must be "linear" or "logarithmic", got {method!r}')
-        if name == "prbs":
-            taps = self.taps(t.get("taps"), f"{key}.taps")
-            seed = t.get("seed", -1)
-            if isinstance(seed, str):
-                try:
-                    seed = int(seed, 0)
-                except ValueError:
-                    self.fail(f"{key}.seed", f"must be an integer (register state), got {seed!r}")
-            self.integer(seed, f"{key}.seed", -1, 2**32 - 1)
-            if seed == 0:
-                self.fail(f"{key}.seed", "0 locks a PRBS register: its sequence would be constant")
-        return GeneratorKind(name, code, params, method, taps, seed)
+    stop: int = _code("stops (the recorder: disarms)")
+    start: int = _code("starts (the recorder: arms, it then waits for its trigger)")
 
-    def taps(self, value, key: str) -> dict:
-        if value is None:
-            return {}
-        if value == "max_len_seq":
-            return dict(MAX_LEN_SEQ_TAPS)
-        if not isinstance(value, dict):
-            self.fail(key, f'must be "max_len_seq" or a table register_length = [taps], got {value!r}')
-        out = {}
-        for length, taps in value.items():
-            n = int(length) if str(length).isdigit() else 0
-            if not 2 <= n <= 32 or not isinstance(taps, list) or not taps or any(
-                    isinstance(x, bool) or not isinstance(x, int) or not 0 < x < n for x in taps):
-                self.fail(f"{key}.{length}", f"must map a register length 2..32 to taps 1..length-1, got {taps!r}")
-            out[n] = tuple(taps)
-        return out
 
-    def generator(self, t: dict) -> GeneratorSpec:
-        k = "canopen.generator"
-        objs = {name: self.address(t.get(name), f"{k}.{name}") for name in ("control", "state", "target")}
-        kinds_table = self.table(t.get("kinds"), f"{k}.kinds")
-        if not kinds_table:
-            self.fail(f"{k}.kinds", "must describe at least one kind (prbs, chirp, sine)")
-        kinds = {name: self.kind(name, v, f"{k}.kinds.{name}") for name, v in kinds_table.items()}
-        kind_object = self.address(t["kind"], f"{k}.kind") if "kind" in t else None
-        if kind_object is None and len(kinds) > 1:
-            self.fail(f"{k}.kind", "is required when the generator has more than one kind")
-        targets = t.get("targets")
-        if not isinstance(targets, dict) or not targets or any(r not in TARGET_ROLES for r in targets):
-            self.fail(f"{k}.targets", f"must map set-point roles ({', '.join(TARGET_ROLES)}) to the code written to "
-                                      f"the target object, got {targets!r}")
-        targets = {r: self.integer(c, f"{k}.targets.{r}", 0, 0xFFFF) for r, c in targets.items()}
-        output = self.address(t["output"], f"{k}.output") if "output" in t else None
-        scale = t.get("output_scale", 1.0)
-        if isinstance(scale, bool) or not (scale in SCALE_KINDS or (isinstance(scale, (int, float)) and scale > 0)):
-            self.fail(f"{k}.output_scale", f"must be a positive number or one of {SCALE_KINDS}, got {scale!r}")
-        return GeneratorSpec(
-            **objs, kind=kind_object,
-            commands=self.codes(t, f"{k}.commands", ("stop", "start"), {"stop": 0, "start": 1}),
-            states=self.codes(t, f"{k}.states", ("idle", "running", "done"), {"idle": 0, "running": 1, "done": 2}),
-            targets=targets, kinds=kinds, output=output,
-            output_scale=scale if isinstance(scale, str) else float(scale))
+@dataclass(frozen=True, kw_only=True)
+class _RecorderStates:
+    """``[canopen.recorder.states]``: the codes the recorder's state object reports."""
 
-    def check_objects(self, cap: RecorderCapability) -> None:
-        """Every object exists in the EDS, the host can write what it writes and read what it reads."""
-        written = {f"canopen.recorder.{k}" for k, w in _RECORDER_OBJECTS.items() if w}
-        written |= {f"canopen.generator.{k}" for k, w in _GENERATOR_OBJECTS.items() if w}
-        for key, addr in cap.objects().items():
-            var = self.od.get_variable(addr.index, addr.subindex)
-            if var is None:
-                self.fail(key, f"object {addr} is not in the EDS")
-            write = key in written or ".kinds." in key or key.startswith("canopen.recorder.channels")
-            if write and not var.writable:
-                self.fail(key, f"object {addr} is read-only in the EDS; the host must write it")
-            if not write and not var.readable:
-                self.fail(key, f"object {addr} is write-only in the EDS; the host must read it")
-            buffer = key.startswith("canopen.recorder.buffer")
-            if buffer and var.data_type not in (_DOMAIN, _OCTET_STRING):
-                self.fail(key, f"object {addr} must be a DOMAIN (or OCTET_STRING) to hold samples, the EDS says "
-                               f"data type 0x{var.data_type:04X}")
-            if not buffer and var.data_type in (_DOMAIN, _OCTET_STRING, 0x09):
-                self.fail(key, f"object {addr} must be a number, the EDS says data type 0x{var.data_type:04X}")
-            if key.startswith("canopen.recorder.channels") and var.data_type != _UNSIGNED32:
-                self.fail(key, f"object {addr} takes a mapping entry: it must be UNSIGNED32, the EDS says "
-                               f"data type 0x{var.data_type:04X}")
+    idle: int = _code()
+    waiting: int = _code("armed, waiting for its trigger")
+    recording: int = _code()
+    done: int = _code()
+
+
+@dataclass(frozen=True, kw_only=True)
+class _RecorderTriggers:
+    """``[canopen.recorder.triggers]``: the codes of the trigger object."""
+
+    immediate: int = _code()
+    generator: int = _code("the generator's start")
+
+
+@dataclass(frozen=True, kw_only=True)
+class _RecorderTable:
+    """``[canopen.recorder]``."""
+
+    control: str = _object("object the host writes commands.start (arm) or commands.stop to")
+    state: str = _object("object reporting states.idle, waiting (for its trigger), recording, done")
+    trigger: str = _object("object taking triggers.immediate or triggers.generator")
+    sample_period: str = _object("object taking the sample period in loop cycles")
+    samples: str = _object("object taking the number of samples to record")
+    recorded: str = _object("object reporting the number of samples recorded")
+    channels: list[str] = spec(check=_addresses, max_items=64,
+                               doc="channel-selection objects (UNSIGNED32 mapping entries): the most channels a run "
+                                   "records")
+    buffer: str | None = spec(None, check=_address, doc="one interleaved DOMAIN (or give buffers)")
+    buffers: list[str] | None = spec(None, check=_addresses, max_items=64, doc="one DOMAIN per channel")
+    sample_periods: list[int] = spec([1], check=_sample_periods, doc="allowed sample periods, loop cycles")
+    channel_encoding: str = spec("mapping_entry", choices=("mapping_entry",),
+                                 doc="a channel is chosen by its mapping entry index << 16 | sub << 8 | bits")
+    block_transfer: bool = spec(True, doc="read the buffers by SDO block upload, else segmented")
+    commands: _StartStop = spec(_StartStop(stop=0, start=1))
+    states: _RecorderStates = spec(_RecorderStates(idle=0, waiting=1, recording=2, done=3))
+    triggers: _RecorderTriggers = spec(_RecorderTriggers(immediate=0, generator=1))
+    max_samples: int = spec(ge=1, le=2**31 - 1, doc="most samples per channel the recorder holds")
+
+
+@dataclass(frozen=True, kw_only=True)
+class _GeneratorStates:
+    """``[canopen.generator.states]``: the codes the generator's state object reports."""
+
+    idle: int = _code()
+    running: int = _code()
+    done: int = _code()
+
+
+@dataclass(frozen=True, kw_only=True)
+class _TargetCodes:
+    """``[canopen.generator.targets]``: the code written to the target object per set-point role (at least one)."""
+
+    target_torque: int | None = spec(None, ge=0, le=0xFFFF)
+    torque_offset: int | None = spec(None, ge=0, le=0xFFFF)
+    target_velocity: int | None = spec(None, ge=0, le=0xFFFF)
+
+
+@dataclass(frozen=True, kw_only=True)
+class _GeneratorTable:
+    """``[canopen.generator]``; its ``kinds`` are read by :func:`_kind`."""
+
+    control: str = _object("object the host writes commands.start or commands.stop to")
+    state: str = _object("object reporting states.idle, running, done")
+    target: str = _object("object taking the code of targets for the set-point the signal feeds")
+    kinds: dict = spec(doc="kind name (prbs, chirp, sine) -> its table: code, parameters, ...")
+    kind: str | None = spec(None, check=_address,
+                            doc="object taking the kind's code; required with more than one kind")
+    targets: _TargetCodes = spec(doc="set-point role -> code written to the target object")
+    output: str | None = spec(None, check=_address, doc="object reporting the present output, recordable")
+    output_scale: builtins.object = spec(1.0, check=_scale,
+                                         doc='SI per raw unit of output: a number, or "torque", "velocity", '
+                                             '"position"')
+    commands: _StartStop = spec(_StartStop(stop=0, start=1))
+    states: _GeneratorStates = spec(_GeneratorStates(idle=0, running=1, done=2))
+
+
+@dataclass(frozen=True, kw_only=True)
+class _ParameterTable:
+    """One generator parameter: ``{ object = "0x2511:1", scale = .., min = .., max = .. }``."""
+
+    object: str = _object("object the host writes the raw value to")
+    scale: builtins.object = spec(1.0, check=_scale,
+                                  doc='SI per raw unit: a number, or "torque", "velocity", "position" (the '
+                                      "drive's scaling of such objects)")
+    min: float | None = spec(None, doc="lowest SI value the drive accepts")
+    max: float | None = spec(None, doc="highest SI value the drive accepts")
+
+
+@dataclass(frozen=True, kw_only=True)
+class _KindTable:
+    """The keys of ``[canopen.generator.kinds.<kind>]`` every kind has; :func:`_kind` reads the rest."""
+
+    open_table: ClassVar[bool] = True  # the kind's parameter tables, PRBS taps and seed
+    code: int = _code("value written to the generator's kind object")
+    method: str = spec("linear", choices=("linear", "logarithmic"), doc="chirp: how its frequency sweeps")
+
+
+_KIND_KEYS = ("code", "method", "taps", "seed")
+
+
+def _to_address(text: str) -> ObjectAddress:
+    """An address a schema ``check`` accepted."""
+    from hilident.protocol.canopen_objects import parse_address
+
+    return parse_address(text)
+
+
+def _recorder(raw: builtins.object, source: str) -> RecorderSpec:
+    """``[canopen.recorder]``: its schema, then either ``buffer`` or one of ``buffers`` per channel."""
+    k = "canopen.recorder"
+    t = build_table(_RecorderTable, raw, f"{k}.", source)
+    if (t.buffer is None) == (t.buffers is None):
+        raise ConfigError(f"{k}.buffer", "give either buffer (one interleaved DOMAIN) or buffers (one DOMAIN per "
+                                         "channel)", source)
+    if t.buffers is not None and len(t.buffers) != len(t.channels):
+        raise ConfigError(f"{k}.buffers", f"must list one DOMAIN per channel ({len(t.channels)})", source)
+    buffers = [t.buffer] if t.buffer is not None else t.buffers or []
+    return RecorderSpec(
+        control=_to_address(t.control), state=_to_address(t.state), trigger=_to_address(t.trigger),
+        sample_period=_to_address(t.sample_period), samples=_to_address(t.samples),
+        recorded=_to_address(t.recorded), commands=dataclasses.asdict(t.commands),
+        states=dataclasses.asdict(t.states), triggers=dataclasses.asdict(t.triggers),
+        sample_periods=tuple(sorted(set(t.sample_periods))), max_samples=t.max_samples,
+        channels=tuple(map(_to_address, t.channels)), buffers=tuple(map(_to_address, buffers)),
+        interleaved=t.buffer is not None, block_transfer=t.block_transfer)
+
+
+def _check_target_roles(raw: builtins.object, source: str) -> None:
+    """``targets`` names at least one set-point role and no other key (the schema would name the key itself)."""
+    targets = raw.get("targets") if isinstance(raw, dict) else None
+    if isinstance(targets, dict) and (not targets or any(r not in TARGET_ROLES for r in targets)):
+        raise ConfigError("canopen.generator.targets", f"must map set-point roles ({', '.join(TARGET_ROLES)}) to the "
+                                                       f"code written to the target object, got {targets!r}", source)
+
+
+def _generator(raw: builtins.object, source: str) -> GeneratorSpec:
+    """``[canopen.generator]``: its schema, its kinds, and a kind object when there is more than one kind."""
+    k = "canopen.generator"
+    _check_target_roles(raw, source)
+    t = build_table(_GeneratorTable, raw, f"{k}.", source)
+    if not t.kinds:
+        raise ConfigError(f"{k}.kinds", "must describe at least one kind (prbs, chirp, sine)", source)
+    kinds = {name: _kind(name, value, f"{k}.kinds.{name}", source) for name, value in t.kinds.items()}
+    if t.kind is None and len(kinds) > 1:
+        raise ConfigError(f"{k}.kind", "is required when the generator has more than one kind", source)
+    targets = {role: code for role, code in dataclasses.asdict(t.targets).items() if code is not None}
+    return GeneratorSpec(
+        control=_to_address(t.control), state=_to_address(t.state), target=_to_address(t.target),
+        kind=None if t.kind is None else _to_address(t.kind), commands=dataclasses.asdict(t.commands),
+        states=dataclasses.asdict(t.states), targets=targets, kinds=kinds,
+        output=None if t.output is None else _to_address(t.output), output_scale=_scale_value(t.output_scale))
+
+
+def _kind(name: str, raw: builtins.object, key: str, source: str) -> GeneratorKind:
+    """One ``[canopen.generator.kinds.<name>]``: its keys, the parameters :data:`KIND_PARAMETERS` asks, PRBS taps
+    and seed."""
+    if name not in KIND_PARAMETERS:
+        raise ConfigError(key, f"is not a generator kind hilident plays ({', '.join(KIND_PARAMETERS)})", source)
+    t = build_table(_KindTable, raw, f"{key}.", source)
+    assert isinstance(raw, dict)  # build_table refused anything else
+    params = {}
+    for pname in (*KIND_PARAMETERS[name], "duration_s"):
+        if pname in raw:
+            params[pname] = _parameter(pname, raw[pname], f"{key}.{pname}", source)
+        elif pname != "duration_s":
+            raise ConfigError(f"{key}.{pname}", f"is required for a {name} generator", source)
+    extra = set(raw) - set(params) - set(_KIND_KEYS)
+    if extra:
+        raise ConfigError(f"{key}.{min(extra)}", f"is not a key of a {name} generator", source)
+    if name != "prbs":
+        return GeneratorKind(name, t.code, params, t.method if name == "chirp" else "")
+    return GeneratorKind(name, t.code, params, "", _taps(raw.get("taps"), f"{key}.taps", source),
+                         _seed(raw.get("seed", -1), f"{key}.seed", source))
+
+
+def _parameter(name: str, raw: builtins.object, key: str, source: str) -> Parameter:
+    """One generator parameter table; ``min`` must not exceed ``max``."""
+    t = build_table(_ParameterTable, raw, f"{key}.", source)
+    if t.min is not None and t.max is not None and t.min > t.max:
+        raise ConfigError(f"{key}.min", f"{t.min:g} exceeds max {t.max:g}", source)
+    return Parameter(name, _to_address(t.object), _scale_value(t.scale), t.min, t.max)
+
+
+def _taps(value: builtins.object, key: str, source: str) -> dict[int, tuple[int, ...]]:
+    """PRBS ``taps``: absent (the sequence is not described), ``"max_len_seq"``, or register length -> taps."""
+    if value is None:
+        return {}
+    if value == "max_len_seq":
+        return dict(MAX_LEN_SEQ_TAPS)
+    if not isinstance(value, dict):
+        raise ConfigError(key, f'must be "max_len_seq" or a table register_length = [taps], got {value!r}', source)
+    out = {}
+    for length, taps in value.items():
+        n = int(length) if str(length).isdigit() else 0
+        if not 2 <= n <= 32 or not isinstance(taps, list) or not taps or any(
+                isinstance(x, bool) or not isinstance(x, int) or not 0 < x < n for x in taps):
+            raise ConfigError(f"{key}.{length}", f"must map a register length 2..32 to taps 1..length-1, got {taps!r}",
+                              source)
+        out[n] = tuple(taps)
+    return out
+
+
+def _seed(value: builtins.object, key: str, source: str) -> int:
+    """PRBS ``seed``: an integer or integer text (``"0x35"``), -1 (all ones) or a non-zero register state."""
+    if isinstance(value, str):
+        try:
+            value = int(value, 0)
+        except ValueError:
+            raise ConfigError(key, f"must be an integer (register state), got {value!r}", source) from None
+    if isinstance(value, bool) or not isinstance(value, int) or not -1 <= value <= 2**32 - 1:
+        raise ConfigError(key, f"must be an integer -1..{2**32 - 1}, got {value!r}", source)
+    if value == 0:
+        raise ConfigError(key, "0 locks a PRBS register: its sequence would be constant", source)
+    return value
+
+
+def _check_objects(cap: RecorderCapability, od, source: str) -> None:
+    """Every object exists in the EDS, the host can write what it writes and read what it reads, buffers hold
+    samples, channel-selection objects take a mapping entry and the others are numbers."""
+    written = {f"canopen.recorder.{k}" for k, w in _RECORDER_OBJECTS.items() if w}
+    written |= {f"canopen.generator.{k}" for k, w in _GENERATOR_OBJECTS.items() if w}
+    for key, addr in cap.objects().items():
+        var = od.get_variable(addr.index, addr.subindex)
+        if var is None:
+            raise ConfigError(key, f"object {addr} is not in the EDS", source)
+        write = key in written or ".kinds." in key or key.startswith("canopen.recorder.channels")
+        if write and not var.writable:
+            raise ConfigError(key, f"object {addr} is read-only in the EDS; the host must write it", source)
+        if not write and not var.readable:
+            raise ConfigError(key, f"object {addr} is write-only in the EDS; the host must read it", source)
+        _check_data_type(key, addr, var.data_type, source)
+
+
+def _check_data_type(key: str, addr: ObjectAddress, data_type: int, source: str) -> None:
+    """A buffer is a DOMAIN (or OCTET_STRING), a channel-selection object UNSIGNED32, any other object a number."""
+    buffer = key.startswith("canopen.recorder.buffer")
+    if buffer and data_type not in (_DOMAIN, _OCTET_STRING):
+        raise ConfigError(key, f"object {addr} must be a DOMAIN (or OCTET_STRING) to hold samples, the EDS says "
+                               f"data type 0x{data_type:04X}", source)
+    if not buffer and data_type in (_DOMAIN, _OCTET_STRING, 0x09):
+        raise ConfigError(key, f"object {addr} must be a number, the EDS says data type 0x{data_type:04X}", source)
+    if key.startswith("canopen.recorder.channels") and data_type != _UNSIGNED32:
+        raise ConfigError(key, f"object {addr} takes a mapping entry: it must be UNSIGNED32, the EDS says "
+                               f"data type 0x{data_type:04X}", source)
 
 
 # --- signals ------------------------------------------------------------------------------------
