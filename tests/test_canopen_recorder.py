@@ -274,6 +274,16 @@ def _sections(drive: VendorDrive, tmp_path: Path):
     (lambda r, g: r.update(state="0x2500:1"), None),  # rw is readable: accepted
     (lambda r, g: r.update(control="0x2500:7"), "canopen.recorder.control"),  # const: the host cannot write it
     (lambda r, g: r.update(buffer="0x2500:6"), "canopen.recorder.buffer[0]"),  # a number, not a DOMAIN
+    # keys a table does not know are refused, as in every table of a driver file (a typo is not ignored)
+    (lambda r, g: r.update(block_transfers=False), "canopen.recorder.block_transfers"),
+    (lambda r, g: g.update(output_scales="torque"), "canopen.generator.output_scales"),
+    (lambda r, g: g["kinds"]["prbs"]["amplitude"].update(mx=3.0), "canopen.generator.kinds.prbs.amplitude.mx"),
+    (lambda r, g: g.update(output_scale=float("inf")), "canopen.generator.output_scale"),  # a finite scale
+    (lambda r, g: g["targets"].update(target_torque=70000), "canopen.generator.targets.target_torque"),
+    (lambda r, g: r["triggers"].update(generator=-1) if "triggers" in r else r.update(triggers={"immediate": 0}),
+     "canopen.recorder.triggers.generator"),
+    (lambda r, g: g["kinds"]["prbs"].update(seed="0x35"), None),  # integer text: a register state
+    (lambda r, g: g["kinds"]["prbs"].update(seed=0), "canopen.generator.kinds.prbs.seed"),
 ])
 def test_vocabulary_errors_name_the_key_and_the_driver_file(tmp_path, edit, key):
     folder, sections = _sections(PRBS, tmp_path)

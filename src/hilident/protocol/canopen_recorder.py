@@ -8,7 +8,8 @@ writing CiA 301 mapping entries ``index << 16 | sub << 8 | bits`` into
 channel-selection objects, a sample period in loop cycles, a trigger, a state,
 and the samples read back by SDO). This module parses and validates the
 vocabulary of ``driver.toml`` that describes them (see ``docs/canopen_drives.md``,
-"Drive generator and recorder"), maps an excitation *recipe* onto the
+"Drive generator and recorder"), its keys declared as tables of
+:mod:`hilident.schema` like every other table hilident reads, maps an excitation *recipe* onto the
 generator's parameters, and computes the signal the generator plays from the
 parameter values it stores, for the host (to compare with what it meant) and
 the emulated twin (which plays it).
