@@ -279,6 +279,7 @@ def _sections(drive: VendorDrive, tmp_path: Path):
     (lambda r, g: g.update(output_scales="torque"), "canopen.generator.output_scales"),
     (lambda r, g: g["kinds"]["prbs"]["amplitude"].update(mx=3.0), "canopen.generator.kinds.prbs.amplitude.mx"),
     (lambda r, g: g.update(output_scale=float("inf")), "canopen.generator.output_scale"),  # a finite scale
+    (lambda r, g: g.update(output_scale=True), "canopen.generator.output_scale"),  # a bool is no number
     (lambda r, g: g["targets"].update(target_torque=70000), "canopen.generator.targets.target_torque"),
     (lambda r, g: r["triggers"].update(generator=-1) if "triggers" in r else r.update(triggers={"immediate": 0}),
      "canopen.recorder.triggers.generator"),

@@ -260,8 +260,18 @@ def _sample_periods(values: list[int], key: str, source: str) -> None:
 
 def _scale(value: builtins.object, key: str, source: str) -> None:
     """A schema ``check``: a positive finite number, or one of :data:`SCALE_KINDS`."""
-    if value not in SCALE_KINDS and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+    positive = (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+                and value > 0)
+    if value not in SCALE_KINDS and not positive:
         raise ConfigError(key, f"must be a positive number or one of {SCALE_KINDS}, got {value!r}", source)
+
+
+def _check_scale_is_no_bool(table: builtins.object, name: str, prefix: str, source: str) -> None:
+    """A scale of ``true`` or ``false`` is refused as :func:`_scale` says (the schema, reading a key typed
+    ``object``, would say "must be object")."""
+    value = table.get(name) if isinstance(table, dict) else None
+    if isinstance(value, bool):
+        _scale(value, prefix + name, source)
 
 
 def _scale_value(value: builtins.object) -> float | str:
@@ -434,6 +444,7 @@ def _generator(raw: builtins.object, source: str) -> GeneratorSpec:
     """``[canopen.generator]``: its schema, its kinds, and a kind object when there is more than one kind."""
     k = "canopen.generator"
     _check_target_roles(raw, source)
+    _check_scale_is_no_bool(raw, "output_scale", f"{k}.", source)
     t = build_table(_GeneratorTable, raw, f"{k}.", source)
     if not t.kinds:
         raise ConfigError(f"{k}.kinds", "must describe at least one kind (prbs, chirp, sine)", source)
@@ -472,6 +483,7 @@ def _kind(name: str, raw: builtins.object, key: str, source: str) -> GeneratorKi
 
 def _parameter(name: str, raw: builtins.object, key: str, source: str) -> Parameter:
     """One generator parameter table; ``min`` must not exceed ``max``."""
+    _check_scale_is_no_bool(raw, "scale", f"{key}.", source)
     t = build_table(_ParameterTable, raw, f"{key}.", source)
     if t.min is not None and t.max is not None and t.min > t.max:
         raise ConfigError(f"{key}.min", f"{t.min:g} exceeds max {t.max:g}", source)
