@@ -25,7 +25,7 @@ Example
 
 from __future__ import annotations
 
-import builtins
+import builtins  # `object` is also a key of a generator parameter table: its type is `builtins.object`
 import dataclasses
 import math
 from dataclasses import dataclass, field
