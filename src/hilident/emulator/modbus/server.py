@@ -64,7 +64,7 @@ import numpy as np
 
 from hilident.config import DeviceConfig, EmulatorConfig, FaultsConfig
 from hilident.drivers import DriverDescription
-from hilident.emulator.clock import SimClock
+from hilident.emulator.clock import PacedFirmware, SimClock
 from hilident.emulator.device import EmulatedDevice, build_drive
 from hilident.emulator.drive import DriveLoop
 from hilident.emulator.modbus.firmware import ModbusDriveFirmware
@@ -96,7 +96,7 @@ _MBAP_MAX_LENGTH = 1 + 253 + 16  # unit id + the longest PDU, with room to answe
 _BROADCAST = 0
 
 
-class ServedDrive(Protocol):
+class ServedDrive(PacedFirmware, Protocol):
     """What the server needs of a drive's firmware: its registers, its clock and its host watch.
 
     :class:`~hilident.emulator.modbus.firmware.ModbusDriveFirmware` and
@@ -117,22 +117,9 @@ class ServedDrive(Protocol):
     @property
     def runs(self) -> int: ...
 
-    @property
-    def running(self) -> bool: ...
-
-    @property
-    def produced(self) -> int: ...
-
-    @property
-    def sample_rate_hz(self) -> float: ...
-
     def read(self, address: int, count: int, input_registers: bool = False) -> list[int] | int: ...
 
     def write(self, address: int, values) -> int | None: ...
-
-    def advance(self, n_samples: int) -> None: ...
-
-    def idle(self, n_ticks: int) -> None: ...
 
     def heard_from_host(self, now: float) -> None: ...
 
