@@ -57,10 +57,11 @@ LOSS_KINDS = frozenset({Kind.LOST_BLOCKS, Kind.OUT_OF_ORDER, Kind.PROTOCOL_ERROR
                         Kind.UNDERRUN, Kind.CLIPPED, Kind.SYNC_LATE, Kind.SYNC_UNANSWERED, Kind.SYNC_ERRORS,
                         Kind.CAPTURE_SHORT, Kind.CAPTURE_STOPPED, Kind.EXCITATION_DIFFERS})
 
-#: (colour, line style, line width) of an event line by what the event means.
-_FAULT_STYLE = ("tab:red", "-", 1.4)
-_LOSS_STYLE = ("tab:orange", "--", 1.0)
-_OTHER_STYLE = ("0.45", ":", 1.0)
+#: (colour, line width) of an event line by what the event means; kinds of one meaning differ in line style.
+_FAULT_STYLE = ("tab:red", 1.4)
+_LOSS_STYLE = ("tab:orange", 1.0)
+_OTHER_STYLE = ("0.45", 1.0)
+_LINE_STYLES = ("-", "--", "-.", ":", (0, (5, 1, 1, 1, 1, 1)))
 
 
 @dataclass(frozen=True)
@@ -202,7 +203,7 @@ def _envelope(t: np.ndarray, y: np.ndarray, max_points: int) -> tuple[np.ndarray
     return np.repeat(tb, 3), np.column_stack([lo, hi, np.where(gap, np.nan, hi)]).ravel()
 
 
-def _event_style(kind: str) -> tuple[str, str, float]:
+def _event_style(kind: str) -> tuple[str, float]:
     if kind in FAULT_KINDS:
         return _FAULT_STYLE
     if kind in LOSS_KINDS:
@@ -232,8 +233,11 @@ def title_lines(run: RunData) -> list[str]:
     version = (a.get("versions") or {}).get("hilident") if isinstance(a.get("versions"), Mapping) else None
     if version:
         where.append(f"hilident {version}")
-    seconds = run.n_samples / run.sample_rate_hz
-    when = f"{run.sample_rate_hz:g} Hz, {run.n_samples} samples ({seconds:.4g} s)"
+    t = sample_times_s(run)
+    span = int(round((float(t[-1]) - float(t[0])) * run.sample_rate_hz)) + 1 if t.size else 0
+    when = f"{run.sample_rate_hz:g} Hz, {run.n_samples} samples over {span / run.sample_rate_hz:.4g} s"
+    if span > run.n_samples:
+        when += f" ({span - run.n_samples} not recorded)"
     if a.get("created_utc"):
         when += f", recorded {str(a['created_utc'])[:19].replace('T', ' ')} UTC"
     status = f"status {run.status}"
@@ -301,8 +305,11 @@ def draw_recording(fig: Figure, run: RunData, channels: Sequence[str] | None = N
 def _draw_events(fig: Figure, axes, events: Sequence[Mapping[str, Any]]) -> None:
     """A vertical line per event on every axis, one legend entry per kind (with its count) below the axes."""
     handles = []
+    kinds_of_style: dict[tuple[str, float], int] = {}
     for kind, times in _events_by_kind(events).items():
-        color, style, width = _event_style(kind)
+        color, width = _event_style(kind)
+        n = kinds_of_style[color, width] = kinds_of_style.get((color, width), -1) + 1
+        style = _LINE_STYLES[n % len(_LINE_STYLES)]
         for i, ax in enumerate(axes):
             lines = ax.vlines(times, 0.0, 1.0, transform=ax.get_xaxis_transform(), colors=color,
                               linestyles=style, linewidths=width, alpha=0.85, zorder=3,
