@@ -289,7 +289,7 @@ def draw_recording(fig: Figure, run: RunData, channels: Sequence[str] | None = N
             tt, yy = _with_gaps(t, run.samples[name], period_s)
             if tt.size > MAX_PLOT_POINTS:
                 tt, yy = _envelope(tt, yy, MAX_PLOT_POINTS)
-            ax.plot(tt, yy, lw=0.8, label=name)
+            ax.plot(tt, yy, lw=0.8, label=name, alpha=0.8 if len(members) > 1 else 1.0)  # overlaps stay visible
         ax.set_ylabel(axis_label(members, unit))
         ax.grid(True, alpha=0.3)
         if len(members) > 1:
