@@ -212,3 +212,33 @@ def test_a_damaged_recording_is_a_data_error(tmp_path, capsys):
         f.attrs["channel_names"] = np.array(["a"], dtype=h5py.string_dtype())
     assert main(["show", str(path)]) == 3
     assert "damaged run file" in capsys.readouterr().err
+
+
+def test_with_a_display_the_figure_goes_to_a_window(recording, monkeypatch):
+    from matplotlib.figure import Figure
+
+    class Pyplot:  # stands in for pyplot on a GUI backend
+        def __init__(self):
+            self.figures, self.shown = [], 0
+
+        def figure(self, **kwargs):
+            self.figures.append(Figure(**kwargs))
+            return self.figures[-1]
+
+        def show(self):
+            self.shown += 1
+
+    plt = Pyplot()
+    monkeypatch.setattr(show, "_interactive_pyplot", lambda: plt)
+    shown = show.show_recording(recording, ["torque_nm"], window=True)
+    assert shown.png is None and plt.shown == 1
+    assert [ax.get_ylabel() for ax in plt.figures[0].get_axes()] == ["torque_nm [N·m]"]
+    assert not recording.with_suffix(".png").exists()
+
+
+def test_an_empty_recording_and_the_counter_column_draw(tmp_path):
+    path = tmp_path / "empty.h5"
+    RunWriter(path, ["sample_index", "torque_nm"], ["1", "N*m"], RATE_HZ).close("aborted", "stopped at once")
+    fig = _figure(path, ["sample_index", "torque_nm"])
+    assert [ax.get_ylabel() for ax in fig.get_axes()] == ["sample_index [-]", "torque_nm [N·m]"]
+    assert "0 samples" in fig.get_suptitle() and "status aborted: stopped at once" in fig.get_suptitle()
