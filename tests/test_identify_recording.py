@@ -106,6 +106,7 @@ def test_identify_on_a_run_recording_needs_no_config_and_matches_the_run(tmp_pat
     assert data["mapping"]["excitation"] == "excitation" and data["mapping"]["output"] == "velocity_mps"
     assert data["recorded_mode"] == "torque"
     assert data["units"]["torque"] == "N*m" and data["units"]["output"] == "m/s"
+    assert data["units"]["excitation"] == "N*m"  # the unit of the recorded mode
 
 
 def test_a_config_given_with_a_recording_overrides_its_tables(tmp_path, runs):

@@ -167,6 +167,22 @@ def _identify(args) -> int:
     return 0
 
 
+def _show(args) -> int:
+    from hilident.show import parse_channel_list, show_recording
+
+    channels = None
+    if args.channels is not None:
+        channels = parse_channel_list(args.channels)
+        if not channels:
+            from hilident.errors import UsageError
+
+            raise UsageError("--channels: give channel names separated by commas, e.g. --channels excitation,torque_nm")
+    shown = show_recording(args.recording, channels, args.out)
+    if shown.png is not None:
+        print(f"wrote {shown.png}" + (f" ({shown.note}: no window opened)" if shown.note else ""))
+    return 0
+
+
 def _serve_until_stopped(device) -> int:
     """Keep an emulated device running until Ctrl-C or SIGTERM; re-raise what stopped it otherwise."""
     stop = []
@@ -346,6 +362,15 @@ def build_parser() -> argparse.ArgumentParser:
     upl.add_argument("--out", help="output folder (default: a new folder beside the source, <source>-upload)")
     upl.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     upl.set_defaults(func=_upload)
+
+    shw = sub.add_parser("show", help="plot a recording: its channels over time with units, its events and the "
+                         "run's metadata")
+    shw.add_argument("recording", help="a recording (.h5) written by hilident run")
+    shw.add_argument("--channels", metavar="A,B,...", help="channels to draw, separated by commas (default: all "
+                     "but sample_index and time_s)")
+    shw.add_argument("--out", metavar="PNG", help="write the figure to this PNG instead of opening a window "
+                     "(without a display it goes to <recording>.png beside the recording)")
+    shw.set_defaults(func=_show)
 
     emu = sub.add_parser("emulate", help="run an emulated device standalone")
     emu_sub = emu.add_subparsers(dest="transport", required=True)

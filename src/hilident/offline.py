@@ -36,6 +36,7 @@ from hilident.ident.frequency import FrequencyResponse
 from hilident.ident.frfquality import excited_band
 from hilident.ident.resonance import find_resonances
 from hilident.summary import Summary, friction_summary
+from hilident.units import recorded_units
 
 #: Channel a hilident recording holds for each ``[data]`` signal.
 RUN_CHANNELS = {"torque": "torque_nm", "velocity": "velocity_mps", "position": "position_m", "excitation": "excitation"}
@@ -404,7 +405,7 @@ def identify_recording(cfg: Config | None, data_path: str | Path, out_dir: str |
                  "mapping": {k: getattr(data_cfg, k) for k in ("torque", "velocity", "position", "output",
                                                                "excitation") if getattr(data_cfg, k)}}
     if info is not None:
-        unit = dict(zip(info.channels, info.units, strict=False))
+        unit = recorded_units(dict(zip(info.channels, info.units, strict=False)), {"mode": info.mode})
         data_info["units"] = {key: unit[col] for key, col in data_info["mapping"].items() if unit.get(col)}
         data_info.update(recorded_mode=info.mode, recorded_experiment=info.experiment,
                          configuration="stored in the recording" if cfg.source.endswith("(config_toml attribute)")

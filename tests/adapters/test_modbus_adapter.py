@@ -112,7 +112,7 @@ def test_every_sample_arrives_as_the_drive_loop_produced_it(link):
     with drive(link) as (emu, ad, cfg):
         names = ["velocity_mps", "excitation", "torque_nm", "position_m"]
         assert ad.configure(1000.0, "torque", names) == names
-        assert ad.channel_units == ["m/s", "1", "N*m", "m"] and ad.sample_rate_hz == 1000.0
+        assert ad.channel_units == ["m/s", "N*m", "N*m", "m"] and ad.sample_rate_hz == 1000.0
         n = 2300  # the capture crosses two page boundaries
         x = 3.0 * np.sin(2 * np.pi * 9.0 * np.arange(n) / 1000.0)
         rec = Recorder()

@@ -30,6 +30,7 @@ from hilident.protocol.canopen_profile import (
     mapping_capacity,
     period_fields,
 )
+from hilident.units import units_in_mode
 
 
 class ChannelMapping(CanopenState):
@@ -117,7 +118,7 @@ class ChannelMapping(CanopenState):
         self._configured_for = self.acquisition
         self.channels = codecs
         self.channel_names = [c.name for c in codecs]
-        self.channel_units = [c.unit for c in codecs]
+        self.channel_units = units_in_mode(self.channel_names, [c.unit for c in codecs], mode)
         return self.channel_names
 
     def _divider_for(self, sample_rate_hz: float) -> tuple[int, float]:

@@ -92,6 +92,7 @@ from hilident.protocol.modbus_registers import (
     RegisterMap,
     count_rtu_frames,
 )
+from hilident.units import units_in_mode
 
 
 class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
@@ -434,7 +435,7 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
         self._order = [record.index(n) for n in names]
         units = {c.name: c.unit for c in self.driver.channels}
         self.channel_names = names
-        self.channel_units = [units.get(n, "") for n in names]
+        self.channel_units = units_in_mode(names, [units.get(n, "") for n in names], mode)
         self.sample_rate_hz = ident.loop_rate_hz / round(divider)
         return self.channel_names
 

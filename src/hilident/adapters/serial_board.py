@@ -40,6 +40,7 @@ from hilident.filters.notch import NotchSpec
 from hilident.links import LinkClosed
 from hilident.protocol import serial_board as sb
 from hilident.protocol.framing import FrameDecoder, encode_frame
+from hilident.units import units_in_mode
 
 _END_EVENTS = (sb.EventCode.FINISHED, sb.EventCode.STOPPED, sb.EventCode.LIMIT_TRIP, sb.EventCode.WATCHDOG)
 
@@ -451,7 +452,7 @@ class SerialBoardAdapter(AdapterBase):
         self._request(sb.Configure(int(round(divider)), _MODES[mode], min(block, 4096), selection))
         self.channels = selection
         self.channel_names = [c.name for c in specs]
-        self.channel_units = [c.unit for c in specs]
+        self.channel_units = units_in_mode(self.channel_names, [c.unit for c in specs], mode)
         self.sample_rate_hz = ident.loop_rate_hz / round(divider)
         return self.channel_names
 
