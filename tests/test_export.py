@@ -250,3 +250,21 @@ def test_bad_sources_are_one_clear_line(tmp_path, capsys, made):
     assert "--rate-hz -5" in capsys.readouterr().err
     assert cli_export(made["run"], "json", "--out", str(tmp_path)) == 2
     assert "is a folder" in capsys.readouterr().err
+
+
+def test_the_readme_export_commands_run(made, tmp_path, monkeypatch):
+    import shlex
+    from pathlib import Path
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    block = readme.split("### Export", 1)[1].split("```sh", 1)[1].split("```", 1)[0]
+    commands = [shlex.split(line, comments=True) for line in block.splitlines() if line.startswith("hilident export")]
+    assert [c[4] for c in commands] == ["mat", "json", "python-control"]
+    monkeypatch.chdir(tmp_path)  # runs/gantry and plant.json relative to here
+    (tmp_path / "runs").mkdir()
+    (tmp_path / "runs" / "gantry").symlink_to(made["run"], target_is_directory=True)
+    for argv in commands:
+        assert main(argv[1:]) == 0, argv
+    assert loadmat(tmp_path / "runs" / "gantry" / "model.mat")["plant"].dtype.names
+    assert json.loads((tmp_path / "plant.json").read_text())["plant"]["discrete"]["sample_rate_hz"] == 4000.0
+    assert "ss_discrete = control.ss(" in (made["run"] / "model_control.py").read_text()
