@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from hilident.errors import DataError, UsageError
+from hilident.errors import DataError, HilidentError, UsageError
 
 __all__ = ["FORMATS", "export_document", "load_summary", "model_response", "run_export", "to_control",
            "to_mat_layout", "control_script", "write_control", "write_json", "write_mat"]
@@ -161,7 +161,7 @@ def _output_channel(summary: dict) -> tuple[str | None, str | None]:
             from hilident.config import load_config
 
             channel = load_config(summary["config"]).identification.output
-        except Exception:  # a moved or changed config only loses the output's name, not the export
+        except (HilidentError, OSError):  # a moved or changed config loses the output's name, not the export
             channel = None
     if channel and unit is None:
         unit = next((u for suffix, u in sorted(_CHANNEL_UNITS.items(), key=lambda kv: -len(kv[0]))
@@ -290,18 +290,19 @@ def _matlab_name(key: str) -> str:
 
 
 def _mat_value(value: Any) -> Any:
-    """A JSON value as savemat lays it out for MATLAB: dicts as structs, numbers as doubles."""
+    """A JSON value as savemat lays it out for MATLAB: dicts as structs, numbers as doubles, null as ``[]``."""
+    if value is None:
+        return np.zeros((0, 0))
     if isinstance(value, dict):
-        return {_matlab_name(str(k)): _mat_value(v) for k, v in value.items() if v is not None}
+        return {_matlab_name(str(k)): _mat_value(v) for k, v in value.items()}
     if isinstance(value, bool):
         return float(value)
     if isinstance(value, int | float):
         return float(value)
     if isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
-        return value  # handled by the caller (a struct of arrays)
+        return [_mat_value(v) for v in value]  # savemat writes a cell array of structs
     if isinstance(value, list):
-        arr = np.asarray(value, dtype=float) if value else np.zeros((0, 0))
-        return arr
+        return np.asarray(value, dtype=float) if value else np.zeros((0, 0))  # None in a list becomes NaN
     return value
 
 
