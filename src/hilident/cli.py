@@ -363,9 +363,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help="mat: MATLAB structs (scipy.io.savemat); json: one documented file; python-control: a small "
                      "script that rebuilds control.TransferFunction / StateSpace objects (needs pip install "
                      "'hilident[control]'; in Python, hilident.export.to_control gives them directly)")
-    exp.add_argument("--out", help="file to write (default: model.mat, model.json or model_control.py in DIR)")
-    exp.add_argument("--rate-hz", type=float, help="discretise at this rate, Hz (default: the drive's loop rate "
-                     "the summary names)")
+    exp.add_argument("--out", metavar="FILE",
+                     help="file to write (default: model.mat, model.json or model_control.py in DIR)")
+    exp.add_argument("--rate-hz", type=float, metavar="HZ",
+                     help="discretise at this rate, Hz (default: the drive's loop rate the summary names)")
     exp.set_defaults(func=_export)
 
     emu = sub.add_parser("emulate", help="run an emulated device standalone")
