@@ -122,6 +122,14 @@ def _upload(args) -> int:
     return 0
 
 
+def _export(args) -> int:
+    from hilident.export import run_export
+
+    written = run_export(args.dir, args.format, args.out, args.rate_hz)
+    print(f"wrote {written}")
+    return 0
+
+
 def _print_model(m: dict | None) -> None:
     """One line: grey-box parameters with standard deviations, and the fit % on each record."""
     if not m:
@@ -371,6 +379,20 @@ def build_parser() -> argparse.ArgumentParser:
     shw.add_argument("--out", metavar="PNG", help="write the figure to this PNG instead of opening a window "
                      "(without a display it goes to <recording>.png beside the recording)")
     shw.set_defaults(func=_show)
+
+    exp = sub.add_parser("export", help="write the plant model (transfer function and state space, continuous "
+                         "and at the drive's loop rate), grey-box parameters and notches for MATLAB, JSON or "
+                         "python-control")
+    exp.add_argument("dir", metavar="DIR", help="a run, identify or upload output folder (or its summary.json)")
+    exp.add_argument("--format", required=True, choices=["mat", "json", "python-control"],
+                     help="mat: MATLAB structs (scipy.io.savemat); json: one documented file; python-control: a small "
+                     "script that rebuilds control.TransferFunction / StateSpace objects (needs pip install "
+                     "'hilident[control]'; in Python, hilident.export.to_control gives them directly)")
+    exp.add_argument("--out", metavar="FILE",
+                     help="file to write (default: model.mat, model.json or model_control.py in DIR)")
+    exp.add_argument("--rate-hz", type=float, metavar="HZ",
+                     help="discretise at this rate, Hz (default: the drive's loop rate the summary names)")
+    exp.set_defaults(func=_export)
 
     emu = sub.add_parser("emulate", help="run an emulated device standalone")
     emu_sub = emu.add_subparsers(dest="transport", required=True)
