@@ -18,7 +18,8 @@ import can
 
 from hilident.adapters.canopen_trace import FrameTrace, TracingNetwork
 from hilident.config import DeviceConfig
-from hilident.errors import ConfigError, DeviceError
+from hilident.errors import ConfigError
+from hilident.ports import open_failure
 
 __all__ = ["bus_arguments", "parse_socketcand_port", "open_network", "TracingNetwork", "FrameTrace"]
 
@@ -107,6 +108,6 @@ def open_network(device: DeviceConfig, default_bitrate: int, label: str) -> Trac
     try:
         network.connect(**kwargs)
     except (can.CanError, OSError, ValueError, TypeError, ImportError, NotImplementedError, TimeoutError) as exc:
-        raise DeviceError(f"{label}: cannot open CAN interface {device.canopen.can_interface!r} on {device.port!r}: "
-                          f"{exc}") from None
+        raise open_failure(device.port, exc, f"{label}: cannot open CAN interface "
+                           f"{device.canopen.can_interface!r}") from None
     return network

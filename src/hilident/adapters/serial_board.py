@@ -38,6 +38,7 @@ from hilident.events import Kind, RunEvent
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
 from hilident.links import LinkClosed
+from hilident.ports import open_failure
 from hilident.protocol import serial_board as sb
 from hilident.protocol.framing import FrameDecoder, encode_frame
 
@@ -199,7 +200,7 @@ class SerialBoardAdapter(AdapterBase):
         try:
             link = serial.serial_for_url(port, baudrate=baudrate or driver.default_baudrate, timeout=_READ_TIMEOUT_S)
         except (serial.SerialException, ValueError, OSError) as exc:
-            raise DeviceError(f"{port}: cannot open: {exc}") from None
+            raise open_failure(port, exc) from None
         _no_nagle(link)
         return cls._connected(cls(link, driver, port, timeout_s, allow_fault_reset=allow_fault_reset))
 
