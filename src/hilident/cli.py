@@ -348,9 +348,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="hilident", formatter_class=raw, epilog=cli_help.TOP,
                                 description="Hardware-in-the-loop excitation, identification and notch tuning.")
     p.add_argument("--version", action="version", version=f"hilident {__version__}")
-    p.add_argument("--log-level", default="warning", type=str.lower,
-                   choices=("debug", "info", "warning", "error"),
-                   help="how much of the library's log reaches stderr (default: warning)")
+    p.add_argument("--log-level", type=str.lower, choices=("debug", "info", "warning", "error"),
+                   help="send the log of hilident and the libraries it drives (python-can, canopen, pymodbus) at "
+                        "this level and above to stderr (default: none configured, only the one-line messages)")
     sub = p.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="run a whole bench session from a config file", formatter_class=raw,
@@ -463,7 +463,8 @@ def main(argv: list[str] | None = None) -> int:
     from hilident.errors import Interrupted
 
     args = build_parser().parse_args(argv)
-    _configure_logging(args.log_level)
+    if args.log_level:
+        _configure_logging(args.log_level)
     try:
         if args.command in ("run", "upload"):
             with endings.signals_end_the_session():

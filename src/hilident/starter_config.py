@@ -46,6 +46,9 @@ stopbits = 1                     # RTU only: 1 or 2
 }
 
 
+_EMULATOR_LINK = {"serial": 'link = "pty"                     # the twin on a pseudo-terminal, as a USB board\n',
+                  "modbus": 'link = "tcp"                     # the twin as Modbus TCP on 127.0.0.1 ("pty": RTU)\n',
+                  "canopen": ""}
 _FRICTION_NOTE = {True: "constant-speed legs both ways, then a Stribeck friction fit",
                   False: "off: the driver has no velocity or position mode for the legs"}
 
@@ -159,7 +162,7 @@ verify = true                    # run the excitation again with the notches on 
 # The emulated twin (used while port = "emulator"; ignored on a real port): the gantry of
 # configs/emulated-gantry.toml. time_scale > 1 runs it faster than real time.
 [emulator]
-time_scale = 4.0
+{_EMULATOR_LINK[transport]}time_scale = 4.0
 seed = 3
 
 [emulator.plant]
