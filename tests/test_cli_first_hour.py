@@ -192,6 +192,16 @@ def test_can_open_failure_names_the_key_and_the_cause(monkeypatch):
     assert "hilident ports" in message
 
 
+def test_a_port_held_by_another_session_names_the_key(tmp_path):
+    from hilident.devicelock import DeviceLock, device_key
+    from hilident.errors import DeviceError
+
+    key = device_key("serial", "/dev/ttyUSB-held")
+    with DeviceLock(key, tmp_path), pytest.raises(DeviceError) as info:
+        DeviceLock(key, tmp_path).acquire()
+    assert str(info.value).startswith("[device.port] line:/dev/ttyUSB-held: in use by another hilident session")
+
+
 def test_a_missing_port_is_one_line_naming_the_key(tmp_path, capsys):
     cfg = tmp_path / "real.toml"
     cfg.write_text((CONFIGS / "emulated-gantry.toml").read_text()
