@@ -10,12 +10,15 @@ a serial line or a CAN channel.
 from __future__ import annotations
 
 import errno
+import logging
 import re
 import sys
 import threading
 from dataclasses import dataclass
 
 from hilident.errors import DeviceError
+
+log = logging.getLogger(__name__)
 
 #: python-can interfaces that answer ``detect_available_configs`` from the local machine at once (no network
 #: discovery, no vendor driver that may hang while probing).
@@ -78,7 +81,9 @@ def can_interfaces(interfaces=FAST_CAN_INTERFACES, timeout_s: float = CAN_DETECT
         for name in interfaces:
             try:
                 configs = can.detect_available_configs(interfaces=[name])
+                log.debug("python-can %s: %d channel(s)", name, len(configs))
             except Exception as exc:  # an interface's own failure must not hide the others
+                log.debug("python-can %s: detection failed", name, exc_info=True)
                 with lock:
                     notes.append(f"{name}: not asked ({type(exc).__name__}: {exc})")
                 continue
@@ -173,6 +178,7 @@ def open_failure(port: str, exc: BaseException, what: str = "cannot open", key: 
     >>> "dialout" in message
     True
     """
+    log.debug("%s: %s", port, what, exc_info=exc)
     detail = str(exc) or type(exc).__name__
     hint = open_hint(exc)
     return DeviceError(f"[{key}] {port!r}: {what}: {detail}" + (f"; {hint}" if hint else ""))

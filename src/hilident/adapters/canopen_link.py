@@ -21,6 +21,8 @@ from hilident.config import DeviceConfig
 from hilident.errors import ConfigError
 from hilident.ports import open_failure
 
+log = logging.getLogger(__name__)
+
 __all__ = ["bus_arguments", "parse_socketcand_port", "open_network", "TracingNetwork", "FrameTrace"]
 
 
@@ -105,6 +107,7 @@ def open_network(device: DeviceConfig, default_bitrate: int, label: str) -> Trac
     if _OWN_ABORT not in sdo_log.filters:
         sdo_log.addFilter(_OWN_ABORT)
     network = TracingNetwork()
+    log.debug("opening the CAN bus: %s", kwargs)
     try:
         network.connect(**kwargs)
     except (can.CanError, OSError, ValueError, TypeError, ImportError, NotImplementedError, TimeoutError) as exc:

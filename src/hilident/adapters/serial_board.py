@@ -15,6 +15,7 @@ built to it is handled the same way.
 
 from __future__ import annotations
 
+import logging
 import secrets
 import socket
 import struct
@@ -41,6 +42,8 @@ from hilident.links import LinkClosed
 from hilident.ports import open_failure
 from hilident.protocol import serial_board as sb
 from hilident.protocol.framing import FrameDecoder, encode_frame
+
+log = logging.getLogger(__name__)
 
 _END_EVENTS = (sb.EventCode.FINISHED, sb.EventCode.STOPPED, sb.EventCode.LIMIT_TRIP, sb.EventCode.WATCHDOG)
 
@@ -197,6 +200,7 @@ class SerialBoardAdapter(AdapterBase):
     def open(cls, port: str, driver: DriverDescription, baudrate: int = 0, timeout_s: float = 2.0,
              allow_fault_reset: bool = False):
         """Open ``port`` (device path, ``COMx`` or pyserial URL) and connect (:meth:`connect`)."""
+        log.debug("opening %s at %d baud", port, baudrate or driver.default_baudrate)
         try:
             link = serial.serial_for_url(port, baudrate=baudrate or driver.default_baudrate, timeout=_READ_TIMEOUT_S)
         except (serial.SerialException, ValueError, OSError) as exc:
