@@ -272,7 +272,7 @@ def test_default_out_is_a_new_timestamped_folder(tmp_path, monkeypatch):
     assert second != first and second.name.startswith("bench-")
 
 
-def test_run_and_identify_refuse_an_out_holding_results(tmp_path, capsys):
+def test_run_identify_and_upload_refuse_an_out_holding_results(tmp_path, capsys):
     out = tmp_path / "o"
     out.mkdir()
     (out / "summary.json").write_text("{}")
@@ -282,6 +282,12 @@ def test_run_and_identify_refuse_an_out_holding_results(tmp_path, capsys):
         err = capsys.readouterr().err
         assert f"--out {out}" in err and "--overwrite" in err
     assert (out / "summary.json").read_text() == "{}"
+    from test_upload_command import write_source
+
+    source = write_source(tmp_path / "src", 21.79, 4000.0)
+    assert main(["upload", "--from", str(source), "--config", str(CONFIGS / "emulated-gantry.toml"),
+                 "--out", str(out), "-q"]) == 2
+    assert f"--out {out}" in capsys.readouterr().err and (out / "summary.json").read_text() == "{}"
     empty = tmp_path / "empty"
     empty.mkdir()
     assert cli._out_folder(str(empty), "x", overwrite=False) == empty

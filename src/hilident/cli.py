@@ -121,6 +121,8 @@ def _upload(args) -> int:
                         "(hilident upload --dry-run shows what would be written)")
     command = UploadCommand(cfg, getattr(args, "from"), args.out, Progress(enabled=not args.quiet), confirm=confirm,
                             slot=args.slot, save=args.save, dry_run=args.dry_run)
+    if args.out and not args.dry_run:  # the default is always a new folder; a dry run writes nothing
+        _out_folder(args.out, "", args.overwrite)
     try:
         summary = command.run()
     except HilidentError:
@@ -399,6 +401,7 @@ def build_parser() -> argparse.ArgumentParser:
     upl.add_argument("--yes", action="store_true", help="go ahead on a real port without asking (the plan is still "
                      "printed)")
     upl.add_argument("--out", help="output folder (default: a new folder beside the source, <source>-upload)")
+    upl.add_argument("--overwrite", action="store_true", help="write into --out even when it holds earlier results")
     upl.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     upl.set_defaults(func=_upload)
 
