@@ -68,7 +68,7 @@ def _run(args) -> int:
 
 
 def _out_folder(given: str | None, stem: str, overwrite: bool) -> Path:
-    """Where a run or an identify writes: ``--out``, else ``runs/<stem>-<YYYYmmdd-HHMMSS>`` (a new folder).
+    """Where run and identify write (and upload, given ``--out``): ``--out``, else ``runs/<stem>-<YYYYmmdd-HHMMSS>``.
 
     Raises
     ------
