@@ -338,7 +338,7 @@ def _ports(args) -> int:
     from hilident.ports import can_interfaces, describe_ports, serial_ports
 
     serial_list = serial_ports()
-    can_list, notes = can_interfaces() if not args.no_can else ([], [])
+    can_list, notes = can_interfaces() if not args.no_can else ([], ["CAN channels not searched (--no-can)"])
     print(describe_ports(serial_list, can_list, notes))
     return 0
 

@@ -22,7 +22,7 @@ log = logging.getLogger(__name__)
 
 #: python-can interfaces that answer ``detect_available_configs`` from the local machine at once (no network
 #: discovery, no vendor driver that may hang while probing).
-FAST_CAN_INTERFACES = ("socketcan", "virtual", "pcan", "kvaser", "vector", "ixxat", "slcan", "gs_usb")
+FAST_CAN_INTERFACES = ("socketcan", "pcan", "kvaser", "vector", "ixxat", "slcan", "gs_usb")
 #: How long ``hilident ports`` waits for python-can's detection in all, s.
 CAN_DETECT_TIMEOUT_S = 2.0
 
@@ -72,6 +72,16 @@ def can_interfaces(interfaces=FAST_CAN_INTERFACES, timeout_s: float = CAN_DETECT
     lock = threading.Lock()
 
     def ask() -> None:
+        can_log = logging.getLogger("can")
+        level = can_log.level
+        if not logging.getLogger().handlers:  # no --log-level: a missing vendor library is no news here
+            can_log.setLevel(logging.ERROR)
+        try:
+            ask_each()
+        finally:
+            can_log.setLevel(level)
+
+    def ask_each() -> None:
         try:
             import can
         except ImportError as exc:  # pragma: no cover - a dependency
