@@ -282,6 +282,9 @@ def test_run_identify_and_upload_refuse_an_out_holding_results(tmp_path, capsys)
         err = capsys.readouterr().err
         assert f"--out {out}" in err and "--overwrite" in err
     assert (out / "summary.json").read_text() == "{}"
+    assert main(["run", str(CONFIGS / "emulated-gantry.toml"), "--out", str(out), "--dry-run"]) == 0  # writes nothing
+    assert sorted(p.name for p in out.iterdir()) == ["summary.json"]
+    capsys.readouterr()
     from test_upload_command import write_source
 
     source = write_source(tmp_path / "src", 21.79, 4000.0)

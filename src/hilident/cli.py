@@ -29,7 +29,7 @@ def _run(args) -> int:
     cfg = load_config(args.config)
     if args.clear_fault:
         cfg = replace(cfg, device=replace(cfg.device, allow_fault_reset=True))
-    out = _out_folder(args.out, Path(args.config).stem, args.overwrite)
+    out = _out_folder(args.out, Path(args.config).stem, args.overwrite or args.dry_run)  # a dry run writes nothing
     session = Session(cfg, out, Progress(enabled=not args.quiet), confirm=_go_ahead(args.yes), dry_run=args.dry_run,
                       plots=not args.no_plots, save=args.save)
     summary = session.run()
