@@ -1,4 +1,5 @@
-"""Command line: ``hilident run``, ``identify``, ``upload``, ``emulate serial|modbus|canopen``, ``drivers``.
+"""Command line: ``hilident run``, ``identify``, ``upload``, ``emulate serial|modbus|canopen``, ``drivers``,
+``init``, ``ports``.
 
 Thin on purpose: it parses arguments and calls the session, the emulator
 factory or the driver loader. Every :class:`~hilident.errors.HilidentError`
@@ -8,6 +9,7 @@ becomes one line on stderr and a non-zero exit code.
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import signal
 import sys
@@ -27,7 +29,7 @@ def _run(args) -> int:
     cfg = load_config(args.config)
     if args.clear_fault:
         cfg = replace(cfg, device=replace(cfg.device, allow_fault_reset=True))
-    out = Path(args.out) if args.out else Path("runs") / Path(args.config).stem
+    out = _out_folder(args.out, Path(args.config).stem, args.overwrite or args.dry_run)  # a dry run writes nothing
     session = Session(cfg, out, Progress(enabled=not args.quiet), confirm=_go_ahead(args.yes), dry_run=args.dry_run,
                       plots=not args.no_plots, save=args.save)
     summary = session.run()
@@ -65,6 +67,30 @@ def _run(args) -> int:
     return 0
 
 
+def _out_folder(given: str | None, stem: str, overwrite: bool) -> Path:
+    """Where run and identify write (and upload, given ``--out``): ``--out``, else ``runs/<stem>-<YYYYmmdd-HHMMSS>``.
+
+    Raises
+    ------
+    UsageError
+        ``--out`` is a folder that already holds files and ``overwrite`` is not set.
+    """
+    from hilident.errors import UsageError
+
+    if given is None:
+        base = Path("runs") / f"{stem}-{time.strftime('%Y%m%d-%H%M%S')}"
+        out, n = base, 1
+        while out.exists():  # two runs within one second
+            n += 1
+            out = base.with_name(f"{base.name}-{n}")
+        return out
+    out = Path(given)
+    if not overwrite and out.is_dir() and any(out.iterdir()):
+        raise UsageError(f"--out {out}: holds earlier results; pass --overwrite to write over them, or leave --out "
+                         "out for a new folder runs/<name>-<date>-<time>")
+    return out
+
+
 def _go_ahead(yes: bool, question: str = "Move the axis as planned?",
               refusal: str = "this run moves a real axis: confirm at a terminal, or pass --yes "
                              "(hilident run --dry-run shows the plan without moving)"):
@@ -95,6 +121,8 @@ def _upload(args) -> int:
                         "(hilident upload --dry-run shows what would be written)")
     command = UploadCommand(cfg, getattr(args, "from"), args.out, Progress(enabled=not args.quiet), confirm=confirm,
                             slot=args.slot, save=args.save, dry_run=args.dry_run)
+    if args.out and not args.dry_run:  # the default is always a new folder; a dry run writes nothing
+        _out_folder(args.out, "", args.overwrite)
     try:
         summary = command.run()
     except HilidentError:
@@ -154,7 +182,7 @@ def _identify(args) -> int:
     from hilident.session import Progress
 
     cfg = load_config(args.config) if args.config else None
-    out = Path(args.out) if args.out else Path("runs") / Path(args.data).stem
+    out = _out_folder(args.out, Path(args.data).stem, args.overwrite)
     started = time.time()
     try:
         summary = identify_recording(cfg, args.data, out, Progress(enabled=not args.quiet), args.validation)
@@ -320,15 +348,42 @@ def _drivers_check(args) -> int:
     return 0 if r.ok else 2
 
 
+def _init(args) -> int:
+    from hilident.starter_config import starter_config, write_starter_config
+
+    out = Path(args.out)
+    text = starter_config(args.transport, args.driver).replace("THIS_FILE", str(out))
+    write_starter_config(out, text, overwrite=args.overwrite)
+    print(f"wrote {out}: check the keys marked CHECK, then: hilident run {out} --dry-run")
+    return 0
+
+
+def _ports(args) -> int:
+    from hilident.ports import can_interfaces, describe_ports, serial_ports
+
+    serial_list = serial_ports()
+    can_list, notes = can_interfaces() if not args.no_can else ([], ["CAN channels not searched (--no-can)"])
+    print(describe_ports(serial_list, can_list, notes))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="hilident",
+    from hilident import cli_help
+
+    raw = argparse.RawDescriptionHelpFormatter
+    p = argparse.ArgumentParser(prog="hilident", formatter_class=raw, epilog=cli_help.TOP,
                                 description="Hardware-in-the-loop excitation, identification and notch tuning.")
     p.add_argument("--version", action="version", version=f"hilident {__version__}")
+    p.add_argument("--log-level", type=str.lower, choices=("debug", "info", "warning", "error"),
+                   help="send the log of hilident and the libraries it drives (python-can, canopen, pymodbus) at "
+                        "this level and above to stderr (default: none configured, only the one-line messages)")
     sub = p.add_subparsers(dest="command", required=True)
 
-    run = sub.add_parser("run", help="run a whole bench session from a config file")
+    run = sub.add_parser("run", help="run a whole bench session from a config file", formatter_class=raw,
+                         epilog=cli_help.RUN)
     run.add_argument("config", help="TOML configuration")
-    run.add_argument("--out", help="output folder (default: runs/<config name>)")
+    run.add_argument("--out", help="output folder (default: a new folder runs/<config name>-<YYYYmmdd-HHMMSS>)")
+    run.add_argument("--overwrite", action="store_true", help="write into --out even when it holds earlier results")
     run.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     run.add_argument("--yes", action="store_true", help="go ahead without asking (on a real port the plan is "
                      "still printed; without --yes a terminal is needed to confirm)")
@@ -342,19 +397,21 @@ def build_parser() -> argparse.ArgumentParser:
                      "have the device store its parameters in non-volatile memory (they survive a power cycle)")
     run.set_defaults(func=_run)
 
-    ide = sub.add_parser("identify", help="identify the plant in a recording (hilident HDF5, CSV or .mat)")
+    ide = sub.add_parser("identify", help="identify the plant in a recording (hilident HDF5, CSV or .mat)",
+                         formatter_class=raw, epilog=cli_help.IDENTIFY)
     ide.add_argument("data", help="recording file")
     ide.add_argument("--config", help="TOML configuration with [data] (column mapping) and [model]; not needed "
                      "for a hilident recording, which holds its run's configuration (a config given overrides it "
                      "table by table)")
-    ide.add_argument("--out", help="output folder (default: runs/<data name>)")
+    ide.add_argument("--out", help="output folder (default: a new folder runs/<data name>-<YYYYmmdd-HHMMSS>)")
+    ide.add_argument("--overwrite", action="store_true", help="write into --out even when it holds earlier results")
     ide.add_argument("--validation", help="a second recording of the same axis to validate the [model] fit on "
                                           "(default: the last [model].holdout of the data)")
-    ide.add_argument("-q", "--quiet", action="store_true")
+    ide.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     ide.set_defaults(func=_identify)
 
     upl = sub.add_parser("upload", help="upload the notches of an earlier run or identify to a device, with "
-                         "read-back, enable-after-match and rollback")
+                         "read-back, enable-after-match and rollback", formatter_class=raw, epilog=cli_help.UPLOAD)
     upl.add_argument("--from", required=True, metavar="RUN_DIR|SUMMARY", help="a run or identify folder, or its "
                      "summary.json")
     upl.add_argument("--config", required=True, help="TOML configuration of the device ([device], [emulator] for "
@@ -368,6 +425,7 @@ def build_parser() -> argparse.ArgumentParser:
     upl.add_argument("--yes", action="store_true", help="go ahead on a real port without asking (the plan is still "
                      "printed)")
     upl.add_argument("--out", help="output folder (default: a new folder beside the source, <source>-upload)")
+    upl.add_argument("--overwrite", action="store_true", help="write into --out even when it holds earlier results")
     upl.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     upl.set_defaults(func=_upload)
 
@@ -399,7 +457,8 @@ def build_parser() -> argparse.ArgumentParser:
     ser = emu_sub.add_parser("serial", help="emulated serial board on a pseudo-terminal; prints its device path or URL")
     ser.add_argument("--config", help="take [emulator] (plant, friction, drive) from this config")
     ser.add_argument("--driver", help="driver name or folder (default: the config's, or myrio-board)")
-    ser.add_argument("--baudrate", type=int, default=0)
+    ser.add_argument("--baudrate", type=int, default=0, help="line rate in baud (default: the config's, else the "
+                     "driver's)")
     ser.add_argument("--time-scale", type=float, default=0.0, help="simulated seconds per second (default 1)")
     ser.add_argument("--tcp", action="store_true",
                      help="serve a raw TCP line on 127.0.0.1 (socket://) instead of a pty")
@@ -430,6 +489,20 @@ def build_parser() -> argparse.ArgumentParser:
     dnew.add_argument("--name", help="driver name (default: from the EDS file name)")
     dchk = drv_sub.add_parser("check", help="validate a driver folder against its EDS; exit 2 on errors")
     dchk.add_argument("folder", help="the driver folder")
+
+    ini = sub.add_parser("init", help="write a commented configuration to start from (runs on the emulated twin "
+                         "as written; keys to check before a real port are marked CHECK)")
+    ini.add_argument("--transport", choices=("serial", "canopen", "modbus"),
+                     help="serial board, CANopen CiA 402 drive or Modbus drive (default: the driver's, else serial)")
+    ini.add_argument("--driver", help="driver name or folder (default: myrio-board, canopen-servo or modbus-servo "
+                     "for the transport; hilident drivers lists them)")
+    ini.add_argument("--out", default="hilident.toml", help="the file to write (default: hilident.toml)")
+    ini.add_argument("--overwrite", action="store_true", help="replace --out when it exists")
+    ini.set_defaults(func=_init)
+
+    prt = sub.add_parser("ports", help="list the serial ports and CAN channels found, for [device] port")
+    prt.add_argument("--no-can", action="store_true", help="serial ports only (skip python-can's detection)")
+    prt.set_defaults(func=_ports)
     return p
 
 
@@ -440,6 +513,8 @@ def main(argv: list[str] | None = None) -> int:
     from hilident.errors import Interrupted
 
     args = build_parser().parse_args(argv)
+    if args.log_level:
+        _configure_logging(args.log_level)
     try:
         if args.command in ("run", "upload"):
             with endings.signals_end_the_session():
@@ -459,6 +534,12 @@ def main(argv: list[str] | None = None) -> int:
         # the reader of our output went away (e.g. `| head`): the work is done, stay quiet
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+
+
+def _configure_logging(level: str) -> None:
+    """Send the library's log records at ``level`` and above to stderr (``--log-level``)."""
+    logging.basicConfig(level=getattr(logging, level.upper()), format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger().setLevel(getattr(logging, level.upper()))
 
 
 def _say(line: str) -> None:

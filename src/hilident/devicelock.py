@@ -101,8 +101,8 @@ class DeviceLock:
             holder = _read_pid(fd)
             os.close(fd)
             raise DeviceError(
-                f"{self.key}: in use by another hilident session (pid {holder if holder else 'unknown'}); "
-                f"one session per device (lock {self.path})"
+                f"[device.port] {self.key}: in use by another hilident session (pid {holder if holder else 'unknown'}"
+                f"); one session per device (lock {self.path})"
             ) from None
         previous = _read_pid(fd)
         if previous and previous != os.getpid():

@@ -20,7 +20,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from hilident.drivers import declared_modes, load_driver
+from hilident.drivers import declared_modes, load_driver, valid_sample_rates
 from hilident.errors import ConfigError, UsageError
 from hilident.protocol import eds as E
 
@@ -766,6 +766,7 @@ def describe_driver(folder) -> str:
                f"{board.get('max_sample_rate_hz', '?')} Hz; filter slots: {board.get('filter_slots', 0)}")
     channels, modes, caps = _transport_features(folder, data, driver.get("transport", "?"))
     out.append(f"  channels: {', '.join(channels) or 'none'}")
+    out += _loaded_figures(folder)
     out.append(f"  modes: {', '.join(modes) or 'none'}")
     if _table_of(data, "filters").get("encoding"):
         caps.append(f"filters ({data['filters']['encoding']})")
@@ -774,6 +775,18 @@ def describe_driver(folder) -> str:
     if placeholders:
         out.append(f"  placeholders (refused on a real port): {', '.join(map(str, placeholders))}")
     return "\n".join(out)
+
+
+def _loaded_figures(folder: Path) -> list[str]:
+    """The channels' units and the sample rates a session may record at, as the driver loader reads them."""
+    try:
+        d = load_driver(folder)
+        rates = valid_sample_rates(d, 6)
+    except (ConfigError, ValueError, ZeroDivisionError):  # a broken description is described, not refused
+        return []
+    units = ", ".join(f"{c.name} [{c.unit}]" for c in d.channels)
+    return [f"  channel units: {units or 'none'}",
+            f"  sample rates: {', '.join(f'{r:g}' for r in rates)}, ... Hz (the loop rate over a whole number)"]
 
 
 def _table_of(data: dict, key: str) -> dict:

@@ -26,10 +26,46 @@ from hilident.recording import RunWriter, read_run
 if TYPE_CHECKING:
     from hilident.session import ConnectedDevice, Progress
 
-__all__ = ["Experiment", "ExperimentRecorder", "FLUSH_INTERVAL_S", "late_sampling_warnings", "package_versions"]
+__all__ = ["Experiment", "ExperimentRecorder", "FLUSH_INTERVAL_S", "late_sampling_warnings", "length_line",
+           "package_versions"]
 
 #: Longest stretch of data (and wall-clock time) held in memory before it is written to the recording, s.
 FLUSH_INTERVAL_S = 0.5
+
+
+def length_line(name: str, mode: str, played_s: float, recipe: dict | None = None) -> str:
+    """The progress line of an experiment: how long it plays and, when that differs from the length asked, why.
+
+    Parameters
+    ----------
+    name, mode : str
+        The experiment and the mode it runs in.
+    played_s : float
+        Length of the excitation as played, s.
+    recipe : dict, optional
+        :func:`hilident.run_excitation.excitation_recipe` of the experiment:
+        its ``kind``, ``duration_s`` (asked, s) and ``period_s``; None for
+        set-points such as the friction test's ramps.
+
+    Examples
+    --------
+    >>> length_line("identification", "torque", 20.0, {"kind": "multisine", "duration_s": 16.0, "period_s": 4.0})
+    'identification: 16.0 s of torque excitation asked, 20.0 s played: one lead-in period (4.0 s, not analysed)'
+    """
+    asked = None if recipe is None else recipe.get("duration_s")
+    if not isinstance(asked, (int, float)) or abs(played_s - asked) < 0.05:
+        return f"{name}: {played_s:.1f} s of {mode} excitation"
+    head = f"{name}: {asked:.1f} s of {mode} excitation asked, {played_s:.1f} s played"
+    kind, period = recipe.get("kind") if recipe else None, recipe.get("period_s") if recipe else None
+    if kind == "multisine" and isinstance(period, (int, float)) and period > 0:
+        whole = max(1, round(asked / period))
+        why = f"one lead-in period ({period:.1f} s, not analysed)"
+        if abs(whole * period - asked) >= 0.05:
+            why = f"{whole} whole periods of {period:.1f} s and one lead-in period (not analysed)"
+        return f"{head}: {why}"
+    if kind == "prbs":
+        return f"{head}: whole PRBS sequences and one more"
+    return head
 
 
 def package_versions() -> dict[str, str]:
@@ -162,7 +198,7 @@ class ExperimentRecorder:
         trace = cfg.device.canopen.trace
         if trace:
             ad.set_trace(self.out / f"{name}.{trace}")  # CAN trace beside the recording
-        self.progress.step(f"{name}: {len(excitation) / fs:.1f} s of {mode} excitation")
+        self.progress.step(length_line(name, mode, len(excitation) / fs, recipe))
         result = None
         status, reason = "aborted", ""
         ad.last_result = None

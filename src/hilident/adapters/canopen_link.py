@@ -18,7 +18,10 @@ import can
 
 from hilident.adapters.canopen_trace import FrameTrace, TracingNetwork
 from hilident.config import DeviceConfig
-from hilident.errors import ConfigError, DeviceError
+from hilident.errors import ConfigError
+from hilident.ports import open_failure
+
+log = logging.getLogger(__name__)
 
 __all__ = ["bus_arguments", "parse_socketcand_port", "open_network", "TracingNetwork", "FrameTrace"]
 
@@ -104,9 +107,10 @@ def open_network(device: DeviceConfig, default_bitrate: int, label: str) -> Trac
     if _OWN_ABORT not in sdo_log.filters:
         sdo_log.addFilter(_OWN_ABORT)
     network = TracingNetwork()
+    log.debug("opening the CAN bus: %s", kwargs)
     try:
         network.connect(**kwargs)
     except (can.CanError, OSError, ValueError, TypeError, ImportError, NotImplementedError, TimeoutError) as exc:
-        raise DeviceError(f"{label}: cannot open CAN interface {device.canopen.can_interface!r} on {device.port!r}: "
-                          f"{exc}") from None
+        raise open_failure(device.port, exc, f"{label}: cannot open CAN interface "
+                           f"{device.canopen.can_interface!r}") from None
     return network

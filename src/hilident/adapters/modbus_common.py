@@ -8,6 +8,7 @@ Split from :mod:`hilident.adapters.modbus_drive` so that its parts
 
 from __future__ import annotations
 
+import errno
 import logging
 from dataclasses import dataclass, field
 
@@ -205,11 +206,11 @@ def _exception_text(code: int, function: int, device_id: int) -> str:
     return f"{head}: {why}" if why else head
 
 
-def _serial_error(port: str, baudrate: int, device: DeviceConfig) -> str:
-    """Why pyserial cannot open ``port`` (pymodbus only says that it could not)."""
+def _serial_error(port: str, baudrate: int, device: DeviceConfig) -> Exception:
+    """Why pyserial cannot open ``port`` (pymodbus only says that it could not), as the error it raises."""
     try:
         serial.serial_for_url(port, baudrate=baudrate, parity=device.modbus.parity, stopbits=device.modbus.stopbits,
                               timeout=0).close()
     except Exception as exc:
-        return str(exc) or type(exc).__name__
-    return "the port opened on a second try; check it is not in use"
+        return exc
+    return OSError(errno.EBUSY, "the port opened on a second try; check it is not in use")

@@ -88,6 +88,7 @@ from hilident.adapters.modbus_slots import FilterSlots
 from hilident.config import DeviceConfig
 from hilident.drivers import DriverDescription
 from hilident.errors import ConfigError, DataError, DeviceError
+from hilident.ports import open_failure
 from hilident.protocol.modbus_registers import (
     RegisterMap,
     count_rtu_frames,
@@ -190,8 +191,8 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
             client = _SerialClient(port, baudrate=baudrate, parity=line.parity, stopbits=line.stopbits,
                                    timeout=device.timeout_s, retries=0)
             if not client.connect():
-                raise DeviceError(f"{port}: cannot open at {baudrate} baud, parity {line.parity}, "
-                                  f"{line.stopbits} stop bit(s): {_serial_error(port, baudrate, device)}")
+                raise open_failure(port, _serial_error(port, baudrate, device), f"cannot open at {baudrate} baud, "
+                                   f"parity {line.parity}, {line.stopbits} stop bit(s)")
         adapter = cls(client, driver, regmap, port, device.modbus.device_id, device.timeout_s)
         adapter._drain_line()
         adapter = cls._identified(adapter)

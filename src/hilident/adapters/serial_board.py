@@ -15,6 +15,7 @@ built to it is handled the same way.
 
 from __future__ import annotations
 
+import logging
 import secrets
 import socket
 import struct
@@ -38,9 +39,12 @@ from hilident.events import Kind, RunEvent
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
 from hilident.links import LinkClosed
+from hilident.ports import open_failure
 from hilident.protocol import serial_board as sb
 from hilident.protocol.framing import FrameDecoder, encode_frame
 from hilident.units import units_in_mode
+
+log = logging.getLogger(__name__)
 
 _END_EVENTS = (sb.EventCode.FINISHED, sb.EventCode.STOPPED, sb.EventCode.LIMIT_TRIP, sb.EventCode.WATCHDOG)
 
@@ -197,10 +201,11 @@ class SerialBoardAdapter(AdapterBase):
     def open(cls, port: str, driver: DriverDescription, baudrate: int = 0, timeout_s: float = 2.0,
              allow_fault_reset: bool = False):
         """Open ``port`` (device path, ``COMx`` or pyserial URL) and connect (:meth:`connect`)."""
+        log.debug("opening %s at %d baud", port, baudrate or driver.default_baudrate)
         try:
             link = serial.serial_for_url(port, baudrate=baudrate or driver.default_baudrate, timeout=_READ_TIMEOUT_S)
         except (serial.SerialException, ValueError, OSError) as exc:
-            raise DeviceError(f"{port}: cannot open: {exc}") from None
+            raise open_failure(port, exc) from None
         _no_nagle(link)
         return cls._connected(cls(link, driver, port, timeout_s, allow_fault_reset=allow_fault_reset))
 
