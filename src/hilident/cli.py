@@ -22,9 +22,10 @@ def _run(args) -> int:
     from dataclasses import replace
 
     from hilident.config import load_config
-    from hilident.session import Progress, Session
 
     cfg = load_config(args.config)
+    from hilident.session import Progress, Session  # after the config: its error comes without the session's imports
+
     if args.clear_fault:
         cfg = replace(cfg, device=replace(cfg.device, allow_fault_reset=True))
     out = Path(args.out) if args.out else Path("runs") / Path(args.config).stem
