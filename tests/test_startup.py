@@ -19,7 +19,7 @@ import hilident
 
 SRC = Path(hilident.__file__).resolve().parents[1]
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
-HEAVY = ("scipy", "scipy.signal", "matplotlib", "h5py")
+HEAVY = ("numpy", "scipy", "scipy.signal", "matplotlib", "h5py")
 
 #: Runs the CLI with the given arguments, then prints the heavy modules imported and the exit code as JSON.
 PROBE = textwrap.dedent(

@@ -44,6 +44,7 @@ from hilident.schema import (  # noqa: F401  (re-exported: the mechanism's names
 )
 from hilident.schema import spec as _spec
 from hilident.signals._checks import MAX_SAMPLES, show
+from hilident.signals.ramp_legs import ramp_extent
 
 
 def _check_object_address(value: str, key: str, source: str) -> None:
@@ -783,8 +784,6 @@ def _multisine_samples(cfg: Config) -> int:
 
 def _friction_extent(cfg: Config) -> tuple[int, float]:
     """Samples and travel (m) of the friction test's velocity ramps, checked without building them."""
-    from hilident.signals.generators import ramp_extent  # numpy: only for a config with a friction test
-
     ft = cfg.friction_test
     try:
         return ramp_extent(ft.speeds_mps, ft.hold_s, ft.accel_mps2, cfg.run.sample_rate_hz, ft.settle_s)
