@@ -100,6 +100,13 @@ def test_loading_configs_from_python_imports_nothing_heavy(tmp_path):
     assert report["heavy"] == []
 
 
+def test_a_missing_recording_is_reported_before_the_analysis_is_imported(tmp_path):
+    report, stderr = probe(["identify", str(tmp_path / "missing.h5"), "--out", str(tmp_path / "out")], cwd=tmp_path)
+    assert report["code"] == 3
+    assert "missing.h5: no such file" in stderr and "Traceback" not in stderr
+    assert not {"scipy", "scipy.signal", "matplotlib"} & set(report["heavy"]), report["heavy"]
+
+
 def test_help_imports_nothing_heavy():
     report, _ = probe(["--help"])
     assert report["code"] == 0
