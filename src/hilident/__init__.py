@@ -16,11 +16,13 @@ See the README's "Python API" section.
 from __future__ import annotations
 
 import importlib
-from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
 
+TYPE_CHECKING = False  # as typing.TYPE_CHECKING (type checkers take it so) without importing typing at every start
 if TYPE_CHECKING:
+    from typing import Any
+
     from hilident.config import Config, load_config, parse_config
     from hilident.datafile import Dataset, load_dataset
     from hilident.errors import ConfigError, DataError, DeviceError, HilidentError, UsageError
