@@ -100,6 +100,17 @@ def test_loading_configs_from_python_imports_nothing_heavy(tmp_path):
     assert report["heavy"] == []
 
 
+@pytest.mark.parametrize("command", [["identify", "data.h5", "--config"], ["upload", "--from", "old", "--config"]],
+                         ids=["identify", "upload"])
+def test_other_commands_report_a_config_error_before_the_heavy_imports(tmp_path, command):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[device]\nport = "emulator"\nbogus = 1\n')
+    report, stderr = probe([*command, str(bad)], cwd=tmp_path)
+    assert report["code"] == 2
+    assert "device.bogus" in stderr and "Traceback" not in stderr
+    assert report["heavy"] == []
+
+
 def test_a_missing_recording_is_reported_before_the_analysis_is_imported(tmp_path):
     report, stderr = probe(["identify", str(tmp_path / "missing.h5"), "--out", str(tmp_path / "out")], cwd=tmp_path)
     assert report["code"] == 3

@@ -87,10 +87,11 @@ def _go_ahead(yes: bool, question: str = "Move the axis as planned?",
 
 def _upload(args) -> int:
     from hilident.config import load_config
-    from hilident.session import Progress
-    from hilident.upload import UploadCommand
 
     cfg = load_config(args.config)
+    from hilident.session import Progress  # after the config, as in _run
+    from hilident.upload import UploadCommand
+
     confirm = _go_ahead(args.yes, "Write these filters to the device?",
                         "this upload changes the filters of a real drive: confirm at a terminal, or pass --yes "
                         "(hilident upload --dry-run shows what would be written)")
@@ -143,10 +144,11 @@ def _print_model(m: dict | None) -> None:
 
 def _identify(args) -> int:
     from hilident.config import load_config
-    from hilident.offline import identify_recording
-    from hilident.session import Progress
 
     cfg = load_config(args.config) if args.config else None
+    from hilident.offline import identify_recording  # after the config, as in _run
+    from hilident.session import Progress
+
     out = Path(args.out) if args.out else Path("runs") / Path(args.data).stem
     started = time.time()
     try:
