@@ -129,7 +129,7 @@ def test_every_public_name_resolves():
     for name in hilident.__all__:
         assert getattr(hilident, name) is not None, name
     assert set(hilident.__all__) <= set(dir(hilident))
-    assert "importlib" not in dir(hilident)  # the helpers of the lazy loading are not offered
+    assert "importlib" not in dir(hilident)  # what the lazy loading imports is not offered
 
 
 def test_public_names_are_the_objects_of_their_modules():

@@ -86,6 +86,6 @@ def __getattr__(name: str) -> Any:
 
 
 def __dir__() -> list[str]:
-    """The public names (loaded or not) and the module's dunders, without the helpers imported here."""
+    """The public names (loaded or not) and the module's dunders, without the modules imported for the lazy loading."""
     dunders = {name for name in globals() if name.startswith("__") and name.endswith("__")}
     return sorted(dunders | set(__all__))
