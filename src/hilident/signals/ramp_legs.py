@@ -15,8 +15,8 @@ from hilident.signals import _checks as chk
 
 
 def _as_sequence(value) -> tuple:
-    """``value`` as a tuple of its items, a single value (a number, a string, a 0-d array) as a tuple of one."""
-    if isinstance(value, (str, bytes)) or getattr(value, "ndim", None) == 0 or not hasattr(value, "__iter__"):
+    """``value`` as a tuple of its items, a single value (a number, a string, a table, a 0-d array) as one."""
+    if isinstance(value, (str, bytes, dict)) or getattr(value, "ndim", None) == 0 or not hasattr(value, "__iter__"):
         return (value,)
     return tuple(value)
 
