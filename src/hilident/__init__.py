@@ -1,3 +1,91 @@
-"""hilident: hardware-in-the-loop DAQ and drive bridge for the lab bench."""
+"""hilident: hardware-in-the-loop DAQ and drive bridge for the lab bench.
+
+The names a script or a notebook needs are here, each loaded on first use
+(PEP 562), so ``import hilident`` stays light::
+
+    import hilident
+
+    cfg = hilident.load_config("configs/emulated-gantry.toml")
+    summary = hilident.Session(cfg, "runs/gantry").run()
+    run = hilident.read_run("runs/gantry/identification.h5")
+    again = hilident.identify(None, "runs/gantry/identification.h5", "runs/gantry-offline")
+
+See the README's "Python API" section.
+"""
+
+from __future__ import annotations
+
+import importlib
 
 __version__ = "0.1.0"
+
+TYPE_CHECKING = False  # as typing.TYPE_CHECKING (type checkers take it so) without importing typing at every start
+if TYPE_CHECKING:
+    from typing import Any
+
+    from hilident.config import Config, load_config, parse_config
+    from hilident.datafile import Dataset, load_dataset
+    from hilident.errors import ConfigError, DataError, DeviceError, HilidentError, UsageError
+    from hilident.offline import identify_recording
+    from hilident.offline import identify_recording as identify
+    from hilident.recording import RunData, RunWriter, read_run
+    from hilident.session import Progress, Session
+
+#: Public name -> (module, attribute) it is loaded from.
+_PUBLIC: dict[str, tuple[str, str]] = {
+    "Config": ("hilident.config", "Config"),
+    "load_config": ("hilident.config", "load_config"),
+    "parse_config": ("hilident.config", "parse_config"),
+    "Session": ("hilident.session", "Session"),
+    "Progress": ("hilident.session", "Progress"),
+    "identify": ("hilident.offline", "identify_recording"),
+    "identify_recording": ("hilident.offline", "identify_recording"),
+    "read_run": ("hilident.recording", "read_run"),
+    "RunData": ("hilident.recording", "RunData"),
+    "RunWriter": ("hilident.recording", "RunWriter"),
+    "load_dataset": ("hilident.datafile", "load_dataset"),
+    "Dataset": ("hilident.datafile", "Dataset"),
+    "HilidentError": ("hilident.errors", "HilidentError"),
+    "ConfigError": ("hilident.errors", "ConfigError"),
+    "DataError": ("hilident.errors", "DataError"),
+    "DeviceError": ("hilident.errors", "DeviceError"),
+    "UsageError": ("hilident.errors", "UsageError"),
+}
+
+__all__ = [
+    "Config",
+    "ConfigError",
+    "DataError",
+    "Dataset",
+    "DeviceError",
+    "HilidentError",
+    "Progress",
+    "RunData",
+    "RunWriter",
+    "Session",
+    "UsageError",
+    "__version__",
+    "identify",
+    "identify_recording",
+    "load_config",
+    "load_dataset",
+    "parse_config",
+    "read_run",
+]
+
+
+def __getattr__(name: str) -> Any:
+    """Load a public name from its module on first access (PEP 562); later accesses find it in the package."""
+    try:
+        module, attribute = _PUBLIC[name]
+    except KeyError:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+    value = getattr(importlib.import_module(module), attribute)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    """The public names (loaded or not) and the module's dunders, without the modules imported for the lazy loading."""
+    dunders = {name for name in globals() if name.startswith("__") and name.endswith("__")}
+    return sorted(dunders | set(__all__))

@@ -24,9 +24,10 @@ def _run(args) -> int:
     from dataclasses import replace
 
     from hilident.config import load_config
-    from hilident.session import Progress, Session
 
     cfg = load_config(args.config)
+    from hilident.session import Progress, Session  # after the config: its error comes without the session's imports
+
     if args.clear_fault:
         cfg = replace(cfg, device=replace(cfg.device, allow_fault_reset=True))
     out = _out_folder(args.out, Path(args.config).stem, args.overwrite or args.dry_run)  # a dry run writes nothing
@@ -112,10 +113,11 @@ def _go_ahead(yes: bool, question: str = "Move the axis as planned?",
 
 def _upload(args) -> int:
     from hilident.config import load_config
-    from hilident.session import Progress
-    from hilident.upload import UploadCommand
 
     cfg = load_config(args.config)
+    from hilident.session import Progress  # after the config, as in _run
+    from hilident.upload import UploadCommand
+
     confirm = _go_ahead(args.yes, "Write these filters to the device?",
                         "this upload changes the filters of a real drive: confirm at a terminal, or pass --yes "
                         "(hilident upload --dry-run shows what would be written)")
@@ -178,10 +180,11 @@ def _print_model(m: dict | None) -> None:
 
 def _identify(args) -> int:
     from hilident.config import load_config
-    from hilident.offline import identify_recording
-    from hilident.session import Progress
 
     cfg = load_config(args.config) if args.config else None
+    from hilident.offline import identify_recording  # after the config, as in _run
+    from hilident.session import Progress
+
     out = _out_folder(args.out, Path(args.data).stem, args.overwrite)
     started = time.time()
     try:

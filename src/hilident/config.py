@@ -44,7 +44,7 @@ from hilident.schema import (  # noqa: F401  (re-exported: the mechanism's names
 )
 from hilident.schema import spec as _spec
 from hilident.signals._checks import MAX_SAMPLES, show
-from hilident.signals.generators import ramp_extent
+from hilident.signals.ramp_legs import ramp_extent
 
 
 def _check_object_address(value: str, key: str, source: str) -> None:

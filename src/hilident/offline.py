@@ -24,19 +24,24 @@ from __future__ import annotations
 import dataclasses
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from hilident import pipeline, report
+from hilident import report
 from hilident.config import Config, DataConfig, ModelConfig, build_table, parse_config, parse_toml
 from hilident.datafile import RATE_TOLERANCE, Dataset, RunInfo, load_dataset, read_friction_test, read_run_info
 from hilident.errors import ConfigError, DataError, HilidentError, UsageError
-from hilident.ident.frequency import FrequencyResponse
-from hilident.ident.frfquality import excited_band
-from hilident.ident.resonance import find_resonances
+from hilident.lazy import lazy_module
 from hilident.summary import Summary, friction_summary
 from hilident.units import recorded_units
+
+if TYPE_CHECKING:
+    from hilident import pipeline
+    from hilident.ident.frequency import FrequencyResponse
+else:
+    #: The analysis (scipy), imported once a recording has been read: a missing file is reported without it.
+    pipeline = lazy_module("hilident.pipeline")
 
 #: Channel a hilident recording holds for each ``[data]`` signal.
 RUN_CHANNELS = {"torque": "torque_nm", "velocity": "velocity_mps", "position": "position_m", "excitation": "excitation"}
@@ -155,6 +160,8 @@ def _band(cfg: Config, ds: Dataset) -> tuple[float, float]:
     segment = min(int(round(ic.segment_s * ds.sample_rate_hz)), len(u) // 2)
     if ds.period_samples and len(u) >= ds.period_samples:
         segment = ds.period_samples
+    from hilident.ident.frfquality import excited_band
+
     lo, hi = excited_band(u, ds.sample_rate_hz, segment)
     return ic.f_min_hz or max(lo, 2.0 / (len(ds) / ds.sample_rate_hz)), ic.f_max_hz or min(hi, 0.4 * ds.sample_rate_hz)
 
@@ -283,6 +290,8 @@ def _one_period_plant(r, u, y, sample_rate_hz: float, period: int, cfg, band_hz)
     resonances and model are judged by it as after a run; otherwise
     resonances are taken on prominence alone.
     """
+    from hilident.ident.frequency import FrequencyResponse
+
     n = len(r) // period * period
     R, U, Y = (np.fft.rfft(np.asarray(x[:n], float) - np.mean(x[:n])) for x in (r, u, y))
     k, step = excitation_lines(np.abs(R) ** 2)
@@ -314,6 +323,8 @@ def _one_period_plant(r, u, y, sample_rate_hz: float, period: int, cfg, band_hz)
 
 def _prominent_resonances(plant: FrequencyResponse, cfg, band_hz, warnings: list[str]):
     """Resonances on prominence alone and the transfer-function fit, for a response without coherence."""
+    from hilident.ident.resonance import find_resonances
+
     resonances = find_resonances(plant, coherence_threshold=None, min_prominence_db=cfg.min_prominence_db,
                                  max_count=max(cfg.max_resonances, 1), band_hz=band_hz)
     model = None
