@@ -1,4 +1,4 @@
-"""Command line: ``hilident run``, ``identify``, ``upload``, ``emulate serial|modbus|canopen``, ``drivers``.
+"""Command line: ``hilident run``, ``identify``, ``upload``, ``report``, ``emulate serial|modbus|canopen``, ``drivers``.
 
 Thin on purpose: it parses arguments and calls the session, the emulator
 factory or the driver loader. Every :class:`~hilident.errors.HilidentError`
@@ -164,6 +164,13 @@ def _identify(args) -> int:
     for w in summary["warnings"]:
         print(f"warning: {w}")
     print(f"wrote {out / 'summary.json'}")
+    return 0
+
+
+def _report(args) -> int:
+    from hilident.html_report import write_report
+
+    print(f"wrote {write_report(args.dir)}")
     return 0
 
 
@@ -346,6 +353,11 @@ def build_parser() -> argparse.ArgumentParser:
     upl.add_argument("--out", help="output folder (default: a new folder beside the source, <source>-upload)")
     upl.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     upl.set_defaults(func=_upload)
+
+    rep = sub.add_parser("report", help="write report.html again from the summary.json, plots and recordings of a "
+                         "run, identify or upload folder")
+    rep.add_argument("dir", metavar="DIR", help="the output folder (it must hold summary.json)")
+    rep.set_defaults(func=_report)
 
     emu = sub.add_parser("emulate", help="run an emulated device standalone")
     emu_sub = emu.add_subparsers(dest="transport", required=True)

@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from hilident import endings, report
+from hilident import endings, html_report, report
 from hilident.adapters.base import StreamStats, adapter_class
 from hilident.auto_amplitude import (  # noqa: F401 (kept importable)
     AutoAmplitude,
@@ -445,6 +445,7 @@ class Session(DeviceConnection):
         write_json(self.out / "summary.json", self.summary)
         if self.plots:
             self._plots(friction, plant, designs, verification)
+        html_report.write_report_quietly(self.out)
         return self.summary
 
     def prepare(self):
