@@ -193,10 +193,12 @@ def warnings_section(inputs: ReportInputs) -> str:
     for g in group_warnings(warnings):
         items = []
         for finding, remedy in g.items:
-            todo = (f"<span class=\"todo\">What to do: {esc(remedy)}</span>" if remedy else
-                    f"<span class=\"todo general\">What to do (in general): {esc(g.advice)}</span>")
-            items.append(f"<li><span class=\"finding\">{esc(finding)}</span><br>{todo}</li>")
-        parts.append(f"<h3>{esc(g.topic)} ({len(g.items)})</h3><ul class=\"warnings\">{''.join(items)}</ul>")
+            todo = f"<br><span class=\"todo\">What to do: {esc(remedy)}</span>" if remedy else ""
+            items.append(f"<li><span class=\"finding\">{esc(finding)}</span>{todo}</li>")
+        general = ""
+        if any(not remedy for _, remedy in g.items):  # the warnings that name no remedy of their own
+            general = f"<p class=\"todo general\">What to do about these in general: {esc(g.advice)}</p>"
+        parts.append(f"<h3>{esc(g.topic)} ({len(g.items)})</h3>{general}<ul class=\"warnings\">{''.join(items)}</ul>")
     return section("warnings", "Warnings", "".join(parts))
 
 
@@ -319,16 +321,9 @@ def _plant_model(s: dict, ref: str) -> str:
     return body
 
 
-def _greybox_units(s: dict) -> dict[str, str]:
-    """Units of the grey-box parameters from the data's force and position units (N and m when not recorded)."""
-    units = _dict(_dict(s.get("data")).get("units"))
-    force, pos = str(units.get("torque") or "N"), str(units.get("position") or "m")
-    if (force, pos) == ("N", "m"):
-        mass, damping, stiffness = "kg", "N*s/m", "N/m"
-    else:
-        mass, damping, stiffness = f"{force}/({pos}/s^2)", f"{force}/({pos}/s)", f"{force}/{pos}"
-    return {"M": mass, "m": mass, "Fv": damping, "Fv+": damping, "Fv-": damping, "b": damping, "k": stiffness,
-            "Fc": force, "Fc+": force, "Fc-": force, "offset": force}
+#: Units of the grey-box parameters (hilident.ident.greybox: the force is [model] c times the torque, N).
+GREYBOX_UNITS = {"M": "kg", "m": "kg", "Fv": "N*s/m", "Fv+": "N*s/m", "Fv-": "N*s/m", "b": "N*s/m", "k": "N/m",
+                 "Fc": "N", "Fc+": "N", "Fc-": "N", "offset": "N"}
 
 
 def _validation_rows(model: dict) -> list[list[str]]:
@@ -348,11 +343,12 @@ def _greybox(s: dict) -> str:
     model = _dict(s.get("model"))
     if not model:
         return note("No grey-box model was asked for ([model] kind = \"none\") or its step was not reached.")
-    units = _units(model, _greybox_units(s))
+    units = _units(model, GREYBOX_UNITS)
     stderr, rel = _dict(model.get("stderr")), _dict(model.get("relative_stderr_percent"))
     rows = [[esc(k), num(v, units.get(k, "")), num(stderr.get(k), units.get(k, ""), 2), num(rel.get(k), "%", 2)]
             for k, v in _dict(model.get("params")).items()]
     body = (f"<h3>Grey-box model: {esc(model.get('kind', '?'))}</h3>"
+            + note("Force = [model] c × torque; parameters in SI units.")
             + table(["parameter", "value", "standard deviation", "relative"], rows)
             + table(["record", "fit", "relative error ‖e‖/‖y‖", "residuals white", "residuals independent of input",
                      "samples"], _validation_rows(model), "Validation"))
@@ -412,7 +408,9 @@ def notches(inputs: ReportInputs) -> str:
                                _coefficients(slot.get("readback_a")), ""])
     body += table(["slot", "", "b (b0, b1, b2)", "a (1, a1, a2)", "filter rate"], coeff_rows, "Biquad coefficients")
     extras = []
-    if upload:
+    if upload and inputs.kind == "identify":
+        extras.append(("uploaded", esc("no: identify uploads nothing (hilident upload --from this folder does)")))
+    elif upload:
         extras.append(("written and enabled", _yes_no(upload.get("written"))))
         extras.append(("every slot read back as written", _yes_no(upload.get("verified_readback"))))
         if upload.get("saved") is not None:
