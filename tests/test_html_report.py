@@ -317,3 +317,21 @@ def test_run_identify_and_upload_write_their_report(tmp_path):
                  str(upload), "-q"]) == 0
     page = Page((upload / REPORT_NAME).read_text())
     assert list(page.sections) == SECTION_IDS and "read back" in page.sections["notches"]
+
+
+def test_identify_that_fails_at_a_step_reports_what_it_found(tmp_path, capsys):
+    from test_identify_data_keys import msd_record, write_csv
+
+    rec = msd_record(1000.0, 4000, 4)
+    write_csv(tmp_path / "d.csv", {"t": rec["t"], "f": rec["f"], "x": rec["x"]})
+    (tmp_path / "c.toml").write_text('[data]\ntime = "t"\ntorque = "f"\noutput = "x"\n'
+                                     '[model]\nkind = "mass_spring_damper"\n')
+    out = tmp_path / "out"
+    assert main(["identify", str(tmp_path / "d.csv"), "--config", str(tmp_path / "c.toml"), "--out", str(out),
+                 "-q"]) == 2
+    assert "not written" not in capsys.readouterr().err
+    page = Page((out / REPORT_NAME).read_text())
+    assert list(page.sections) == SECTION_IDS
+    assert "The step “model” failed" in page.sections["headline"] and "data.position" in page.sections["headline"]
+    assert "resonance at" in page.sections["headline"]
+    assert '[model]\nkind = "mass_spring_damper"' in page.sections["run"]

@@ -427,6 +427,7 @@ def identify_recording(cfg: Config | None, data_path: str | Path, out_dir: str |
         summary = _summary(cfg, data_info, state, warnings, started)
         summary.update(failed_step=state["step"], error=str(exc))
         report.write_summary(out / "summary.json", summary)
+        html_report.write_report_quietly(out)
         raise
     summary = _summary(cfg, data_info, state, warnings, started)
     report.write_summary(out / "summary.json", summary)

@@ -669,6 +669,7 @@ class Session(DeviceConnection):
         failed step's name (``failed_step``) and its error."""
         summary = self._summary(friction, plant, designs, upload, verification, elapsed_s).failed(step, str(exc))
         write_json(self.out / "summary.json", summary.to_dict())
+        html_report.write_report_quietly(self.out)
         self.progress.step(f"wrote {self.out / 'summary.json'} up to the failed step ({step})")
 
     def _summary(self, friction, plant, designs, upload: UploadOutcome, verification: VerificationPart | None,

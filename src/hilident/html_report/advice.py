@@ -10,7 +10,7 @@ Example
 >>> split_advice("sampling: 1000 Hz is outside 228-685 Hz: decimate by 2 (to 500 Hz) before fitting")
 ('sampling: 1000 Hz is outside 228-685 Hz', 'decimate by 2 (to 500 Hz) before fitting')
 >>> [g.topic for g in group_warnings(["parameter 'Fc' = 0.1 is not significant", "connect: 3 frames discarded"])]
-['Model fit', 'Connection and stream']
+['Connection and stream', 'Model fit']
 """
 
 from __future__ import annotations
