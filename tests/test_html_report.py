@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import base64
 import json
+import re
 import shutil
 import struct
 import zlib
@@ -304,6 +305,7 @@ def test_run_identify_and_upload_write_their_report(tmp_path):
     assert sorted(i["alt"] for i in page.all("img")) == ["bode.png", "friction.png"]
     assert "identification.h5" in [a["href"] for a in page.all("a")]
     assert "stored in identification.h5" in page.sections["run"]
+    assert re.search(r"peak -\d+(\.\d+)? dB re 1 \(m/s\)/\(N\*m\)", page.sections["headline"])
     check_self_contained(page)
 
     ident = tmp_path / "ident"

@@ -60,6 +60,8 @@ class ReportInputs:
         The folder's ``.h5`` files (and, for ``identify``, the data file when it is a hilident recording).
     report_versions : dict of str to str
         hilident, numpy and scipy as installed where the report is written.
+    response_units : tuple of (str, str), optional
+        Units of the measured response's output and input (``("m/s", "N*m")``), when the data say them.
     """
 
     folder: Path
@@ -70,6 +72,7 @@ class ReportInputs:
     images: list[tuple[str, bytes]] = field(default_factory=list)
     recordings: list[Recording] = field(default_factory=list)
     report_versions: dict[str, str] = field(default_factory=dict)
+    response_units: tuple[str, str] | None = None
 
     @property
     def kind(self) -> str:
@@ -184,6 +187,27 @@ def _config(summary: dict[str, Any], folder: Path, recordings: list[Recording]) 
     return _stored_config(recordings)
 
 
+def _response_units(summary: dict[str, Any], config_text: str, recordings: list[Recording]) -> tuple[str, str] | None:
+    """Output and input units of the plant response: ``identify``'s data units, else the run's output channel (the
+    configuration's ``[identification] output``) and torque channel as its identification recording stores them."""
+    import tomllib
+
+    units = summary.get("data", {}).get("units") if isinstance(summary.get("data"), dict) else None
+    if isinstance(units, dict) and units.get("output") and units.get("torque"):
+        return str(units["output"]), str(units["torque"])
+    try:
+        output = tomllib.loads(config_text).get("identification", {}).get("output", "velocity_mps")
+    except (tomllib.TOMLDecodeError, AttributeError):
+        return None
+    for rec in recordings:
+        if rec.in_folder and rec.attrs.get("experiment") == "identification":
+            channels = dict(zip(rec.attrs.get("channel_names") or [], rec.attrs.get("channel_units") or [],
+                                strict=False))
+            if channels.get(output) and channels.get("torque_nm"):
+                return str(channels[output]), str(channels["torque_nm"])
+    return None
+
+
 def _versions() -> dict[str, str]:
     out = {}
     for name in ("hilident", "numpy", "scipy"):
@@ -216,4 +240,5 @@ def gather(folder: str | os.PathLike) -> ReportInputs:
             recordings.append(_recording(path, str(path), False))
     images = [(p.name, p.read_bytes()) for p in sorted(folder.glob("*.png"))]
     text, origin = _config(summary, folder, recordings)
-    return ReportInputs(folder, summary, when, text, origin, images, recordings, _versions())
+    return ReportInputs(folder, summary, when, text, origin, images, recordings, _versions(),
+                        _response_units(summary, text, recordings))

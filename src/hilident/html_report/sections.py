@@ -47,9 +47,10 @@ def _units(section_: dict, defaults: dict[str, str]) -> dict[str, str]:
 
 def _magnitude_reference(inputs: ReportInputs) -> str:
     """``dB re 1 (m/s)/(N*m)`` when the data say the output and input units, else ``dB``."""
-    units = _dict(_dict(inputs.summary.get("data")).get("units"))
-    out, into = units.get("output"), units.get("torque")
-    return f"dB re 1 ({out})/({into})" if out and into else "dB"
+    if inputs.response_units is None:
+        return "dB"
+    out, into = inputs.response_units
+    return f"dB re 1 ({out})/({into})"
 
 
 def title_of(inputs: ReportInputs) -> str:
@@ -422,10 +423,11 @@ def notches(inputs: ReportInputs) -> str:
     body += key_values(extras) if extras else ""
     ver = _dict(s.get("verification"))
     vres = _list(ver.get("resonances"))
+    ref = _magnitude_reference(inputs)
     if vres:
         body += table(["resonance", "before", "after", "reduction at the line", "band", "band reduction"],
-                      [[num(r.get("frequency_hz"), "Hz"), num(r.get("before_db"), "dB", 3),
-                        num(r.get("after_db"), "dB", 3), num(r.get("reduction_db"), "dB", 3),
+                      [[num(r.get("frequency_hz"), "Hz"), num(r.get("before_db"), ref, 3),
+                        num(r.get("after_db"), ref, 3), num(r.get("reduction_db"), "dB", 3),
                         esc(_band(r.get("band_hz"))), num(r.get("band_reduction_db"), "dB", 3)] for r in vres],
                       "Verification: the same excitation before and after the notch")
     return section("notches", "Notches: designed and achieved", body)
