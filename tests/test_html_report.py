@@ -88,11 +88,15 @@ def test_run_report_has_the_headline_figures_with_units(tmp_path):
     friction = page.sections["friction"]
     assert "Coulomb + viscous" in friction and "N*m/(m/s)" in friction
     assert f"{summary['friction']['stderr']['Fv']:.2g} N*m/(m/s)" in friction
+    assert "found IDLE, 0 stale frame(s) discarded, latched faults: none" in page.sections["run"]
+    assert "target met" in page.sections["run"]  # why the amplitude was chosen
+    model = page.sections["model"]
+    assert "Resonances of the measured response" in model and f"{res['half_power_bandwidth_hz']:.3g} Hz" in model
     # the notch table holds the designed and the read-back coefficients
     notches = page.sections["notches"]
     assert f"{summary['notch_filters'][0]['b'][0]:.9g}" in notches
     assert f"{summary['upload']['slots'][0]['readback_b'][0]:.9g}" in notches
-    assert "Verification" in notches
+    assert "Verification" in notches and "What the filter slots held before" in notches
     assert str(summary["stream"]["samples"]) in page.sections["stream"]
     # the sampling warning is grouped and its remedy is shown as what to do
     warnings = page.sections["warnings"]

@@ -100,6 +100,17 @@ def run_on_what(inputs: ReportInputs) -> str:
         loop = ", closed loop" if exc.get("closed_loop") else ""
         pairs.append(("excitation", esc(f"{exc.get('kind')} into {exc.get('mode')}{loop}, amplitude ") + amp
                       + esc(auto)))
+    chosen = _dict(exc.get("auto"))
+    if chosen.get("reason"):
+        pairs.append(("amplitude chosen because", _text(chosen["reason"])))
+    connect = _dict(s.get("connect"))
+    if connect:
+        faults = ", ".join(str(f) for f in connect.get("faults") or []) or "none"
+        pairs.append(("at connect", esc(f"found {connect.get('found_state', '?')}, "
+                                        f"{connect.get('discarded_frames', 0)} stale frame(s) discarded, latched "
+                                        f"faults: {faults}" + (" (cleared)" if connect.get("faults_cleared") else ""))))
+        if connect.get("device_net"):
+            pairs.append(("device-side net", _text(connect["device_net"])))
     recorded = inputs.first_attrs("created_utc")
     pairs.append(("date", esc(f"recorded {recorded}; " if recorded else "") + esc(f"summary written "
                                                                                 f"{inputs.summary_time_utc}")))
@@ -279,10 +290,28 @@ def friction(inputs: ReportInputs) -> str:
 # --------------------------------------------------------------------------- model
 
 
+def _notchable(r: dict) -> str:
+    if r.get("notchable"):
+        return esc("yes")
+    return _text(r.get("not_notchable") or ("no" if "notchable" in r else None))
+
+
+def _resonances(s: dict, ref: str) -> str:
+    """Every reported resonance with its intervals, coherence, bandwidth and whether a notch may be designed."""
+    rows = [[pm(r.get("frequency_hz"), r.get("frequency_ci95_hz"), "Hz", 6),
+             pm(r.get("damping_ratio"), r.get("damping_ci95"), "", 3), num(r.get("peak_magnitude_db"), ref, 4),
+             num(r.get("coherence"), "", 3), num(r.get("half_power_bandwidth_hz"), "Hz", 3), _text(r.get("method")),
+             _notchable(r)] for r in _list(s.get("resonances"))]
+    if not rows:
+        return ""
+    return table(["frequency (95 %)", "damping ratio (95 %)", "peak", "coherence", "half-power bandwidth", "method",
+                  "a notch may be designed"], rows, "Resonances of the measured response")
+
+
 def _plant_model(s: dict, ref: str) -> str:
     pm_ = _dict(s.get("plant_model"))
     if not pm_:
-        return note("No transfer function was fitted to the frequency response.")
+        return _resonances(s, ref) + note("No transfer function was fitted to the frequency response.")
     band = pm_.get("band_hz") if isinstance(pm_.get("band_hz"), list) else None
     pairs = [
         ("structure", esc(f"{pm_.get('n_num', '?')} zeros / {pm_.get('n_den', '?')} poles"
@@ -293,7 +322,8 @@ def _plant_model(s: dict, ref: str) -> str:
         ("band", esc(f"{band[0]:g} to {band[1]:g} Hz") if band and len(band) == 2 else MISSING),
         ("stability", _text(pm_.get("stability", "stable" if pm_.get("stable") else None))),
     ]
-    body = "<h3>Transfer function fitted to the frequency response</h3>" + key_values(pairs)
+    body = (_resonances(s, ref) + "<h3>Transfer function fitted to the frequency response</h3>"
+            + key_values(pairs))
     modes = _list(pm_.get("resonances"))
     anti = _list(pm_.get("antiresonances"))
     if modes or anti:
@@ -421,6 +451,12 @@ def notches(inputs: ReportInputs) -> str:
         for rb in _list(upload.get("rolled_back")):
             extras.append((f"slot {rb.get('slot')} put back", _yes_no(rb.get("restored"))))
     body += key_values(extras) if extras else ""
+    before = _list(s.get("filters_found")) or _list(s.get("filters_before"))
+    if before:
+        body += table(["slot", "enabled", "b", "a", "bypassed for the measurement", "put back"],
+                      [[num(f.get("slot")), _yes_no(f.get("enabled")), _coefficients(f.get("b")),
+                        _coefficients(f.get("a")), _yes_no(bool(f.get("bypassed"))), _yes_no(f.get("restored"))]
+                       for f in before], "What the filter slots held before")
     ver = _dict(s.get("verification"))
     vres = _list(ver.get("resonances"))
     ref = _magnitude_reference(inputs)
