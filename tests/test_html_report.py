@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import base64
 import json
+import os
 import re
 import shutil
 import struct
@@ -129,7 +130,7 @@ def test_upload_report_shows_the_achieved_notch_and_the_device(tmp_path):
     summary = json.loads((DATA / "upload.json").read_text())
     page = report_of(folder_with(tmp_path, "upload", pngs=()))
     assert "hilident-board 1.0" in page.sections["run"] and "4000 Hz" in page.sections["run"]
-    assert "No plots in this folder" in page.sections["plots"]
+    assert "No plots of this command in this folder" in page.sections["plots"]
     slot = summary["upload"]["slots"][0]
     assert f"{slot['achieved']['realisable_db']:.3g} dB" in page.sections["notches"]
     assert "every slot read back as written" in page.sections["notches"]
@@ -145,6 +146,15 @@ def test_plots_are_embedded_as_png_data(tmp_path):
         data = base64.b64decode(img["src"].removeprefix("data:image/png;base64,"), validate=True)
         assert data.startswith(PNG_SIGNATURE)
         assert data == (folder / img["alt"]).read_bytes()
+
+
+def test_plots_older_than_the_summary_are_left_out(tmp_path):
+    folder = folder_with(tmp_path, "run", pngs=("bode.png", "friction.png"))
+    summary_time = (folder / "summary.json").stat().st_mtime
+    os.utime(folder / "friction.png", (summary_time - 3600, summary_time - 3600))  # an earlier run's plot
+    page = report_of(folder)
+    assert [i["alt"] for i in page.all("img")] == ["bode.png"]
+    assert "older than summary.json" in page.sections["plots"] and "friction.png" in page.sections["plots"]
 
 
 def test_text_from_the_summary_is_escaped(tmp_path):

@@ -25,6 +25,9 @@ __all__ = ["Recording", "ReportInputs", "gather"]
 _ATTRS = ("experiment", "mode", "created_utc", "closed_utc", "status", "reason", "n_samples", "flushed_samples",
           "sample_rate_hz", "config_toml", "config_source", "versions", "device", "channel_names", "channel_units")
 
+#: A plot older than summary.json by more than this is an earlier command's (plots are drawn after the summary), s.
+STALE_PLOT_S = 10.0
+
 #: Largest config file read for the report (a path that is not a config must not fill the page), bytes.
 _MAX_CONFIG_BYTES = 256 * 1024
 
@@ -56,6 +59,8 @@ class ReportInputs:
         The configuration's TOML text and where it was read from (empty when not found).
     images : list of (str, bytes)
         Every PNG of the folder, by file name, with its bytes.
+    stale_images : list of str
+        PNGs left out: older than ``summary.json`` (an earlier command's, e.g. before a ``--no-plots`` run).
     recordings : list of Recording
         The folder's ``.h5`` files (and, for ``identify``, the data file when it is a hilident recording).
     report_versions : dict of str to str
@@ -70,6 +75,7 @@ class ReportInputs:
     config_text: str = ""
     config_origin: str = ""
     images: list[tuple[str, bytes]] = field(default_factory=list)
+    stale_images: list[str] = field(default_factory=list)
     recordings: list[Recording] = field(default_factory=list)
     report_versions: dict[str, str] = field(default_factory=dict)
     response_units: tuple[str, str] | None = None
@@ -238,7 +244,9 @@ def gather(folder: str | os.PathLike) -> ReportInputs:
         path = Path(data["file"])
         if path.suffix.lower() in (".h5", ".hdf5") and path.is_file() and path.parent.resolve() != folder.resolve():
             recordings.append(_recording(path, str(path), False))
-    images = [(p.name, p.read_bytes()) for p in sorted(folder.glob("*.png"))]
+    pngs = sorted(folder.glob("*.png"))
+    stale = [p.name for p in pngs if p.stat().st_mtime < mtime - STALE_PLOT_S]
+    images = [(p.name, p.read_bytes()) for p in pngs if p.name not in stale]
     text, origin = _config(summary, folder, recordings)
-    return ReportInputs(folder, summary, when, text, origin, images, recordings, _versions(),
+    return ReportInputs(folder, summary, when, text, origin, images, stale, recordings, _versions(),
                         _response_units(summary, text, recordings))

@@ -225,16 +225,18 @@ CAPTIONS = {
 
 
 def plots(inputs: ReportInputs) -> str:
+    stale = (note(f"Not shown, older than summary.json (an earlier command's): {', '.join(inputs.stale_images)}.")
+             if inputs.stale_images else "")
     if not inputs.images:
-        return section("plots", "Plots", note("No plots in this folder (an upload draws none; a run with "
-                                              "--no-plots neither)."))
+        return section("plots", "Plots", note("No plots of this command in this folder (an upload draws none; a run "
+                                              "with --no-plots neither).") + stale)
     figures = []
     for name, data in inputs.images:
         uri = "data:image/png;base64," + base64.b64encode(data).decode("ascii")
         caption = CAPTIONS.get(name, name)
         figures.append(f"<figure><img src=\"{uri}\" alt=\"{esc(name)}\"><figcaption>{esc(caption)} "
                        f"<span class=\"file\">({esc(name)})</span></figcaption></figure>")
-    return section("plots", "Plots", "".join(figures))
+    return section("plots", "Plots", "".join(figures) + stale)
 
 
 # --------------------------------------------------------------------------- friction
