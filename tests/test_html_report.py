@@ -246,7 +246,7 @@ def test_split_advice_keeps_the_remedy_of_a_warning():
     assert split_advice("parameter 'Fc' = 0.1 is not significant") == ("parameter 'Fc' = 0.1 is not significant", "")
 
 
-def test_run_identify_and_upload_write_their_report(tmp_path):
+def test_run_identify_and_upload_write_their_report(tmp_path, capsys):
     """A real session on the gantry twin, an identify on its recording and an upload of its notch."""
     from hilident.config import load_config
     from hilident.session import Session
@@ -264,6 +264,7 @@ def test_run_identify_and_upload_write_their_report(tmp_path):
 
     ident = tmp_path / "ident"
     assert main(["identify", str(run / "identification.h5"), "--out", str(ident), "-q"]) == 0
+    assert f"wrote {ident / REPORT_NAME} (open it in a browser)" in capsys.readouterr().out
     page = check_report(ident)
     assert [i["alt"] for i in page.all("img")] == ["bode.png"]
     assert "the data file, outside this folder" in page.sections["recordings"]

@@ -62,6 +62,7 @@ def _run(args) -> int:
     for w in summary["warnings"]:
         print(f"warning: {w}")
     print(f"wrote {out / 'summary.json'}")
+    _print_report(out)
     return 0
 
 
@@ -119,6 +120,7 @@ def _upload(args) -> int:
     for w in summary["warnings"]:
         print(f"warning: {w}")
     print(f"wrote {command.out / 'summary.json'}")
+    _print_report(command.out)
     return 0
 
 
@@ -164,7 +166,15 @@ def _identify(args) -> int:
     for w in summary["warnings"]:
         print(f"warning: {w}")
     print(f"wrote {out / 'summary.json'}")
+    _print_report(out)
     return 0
+
+
+def _print_report(folder: Path) -> None:
+    """Name the report the command wrote (a report that could not be written was a warning line already)."""
+    report, summary = folder / "report.html", folder / "summary.json"
+    if report.is_file() and report.stat().st_mtime >= summary.stat().st_mtime:
+        print(f"wrote {report} (open it in a browser)")
 
 
 def _report(args) -> int:
