@@ -76,6 +76,31 @@ def _device_pairs(inputs: ReportInputs) -> list[tuple[str, str]]:
     return pairs
 
 
+def _excitation_pairs(exc: dict) -> list[tuple[str, str]]:
+    if not exc:
+        return []
+    amp = num(exc.get("amplitude"), str(exc.get("unit", "")), 3)
+    auto = " (chosen automatically)" if exc.get("amplitude_setting") == "auto" else ""
+    loop = ", closed loop" if exc.get("closed_loop") else ""
+    pairs = [("excitation", esc(f"{exc.get('kind')} into {exc.get('mode')}{loop}, amplitude ") + amp + esc(auto))]
+    chosen = _dict(exc.get("auto"))
+    if chosen.get("reason"):
+        pairs.append(("amplitude chosen because", _text(chosen["reason"])))
+    return pairs
+
+
+def _connect_pairs(connect: dict) -> list[tuple[str, str]]:
+    if not connect:
+        return []
+    faults = ", ".join(str(f) for f in connect.get("faults") or []) or "none"
+    cleared = " (cleared)" if connect.get("faults_cleared") else ""
+    pairs = [("at connect", esc(f"found {connect.get('found_state', '?')}, {connect.get('discarded_frames', 0)} "
+                                f"stale frame(s) discarded, latched faults: {faults}{cleared}"))]
+    if connect.get("device_net"):
+        pairs.append(("device-side net", _text(connect["device_net"])))
+    return pairs
+
+
 def run_on_what(inputs: ReportInputs) -> str:
     s = inputs.summary
     pairs: list[tuple[str, str]] = [("command", esc(f"hilident {inputs.kind}")),
@@ -93,24 +118,7 @@ def run_on_what(inputs: ReportInputs) -> str:
     pairs += _device_pairs(inputs) or [("device", esc("not recorded in this folder"))]
     if s.get("sample_rate_hz") is not None:
         pairs.append(("sample rate", num(s["sample_rate_hz"], "Hz")))
-    exc = _dict(s.get("excitation"))
-    if exc:
-        amp = num(exc.get("amplitude"), str(exc.get("unit", "")), 3)
-        auto = " (chosen automatically)" if exc.get("amplitude_setting") == "auto" else ""
-        loop = ", closed loop" if exc.get("closed_loop") else ""
-        pairs.append(("excitation", esc(f"{exc.get('kind')} into {exc.get('mode')}{loop}, amplitude ") + amp
-                      + esc(auto)))
-    chosen = _dict(exc.get("auto"))
-    if chosen.get("reason"):
-        pairs.append(("amplitude chosen because", _text(chosen["reason"])))
-    connect = _dict(s.get("connect"))
-    if connect:
-        faults = ", ".join(str(f) for f in connect.get("faults") or []) or "none"
-        pairs.append(("at connect", esc(f"found {connect.get('found_state', '?')}, "
-                                        f"{connect.get('discarded_frames', 0)} stale frame(s) discarded, latched "
-                                        f"faults: {faults}" + (" (cleared)" if connect.get("faults_cleared") else ""))))
-        if connect.get("device_net"):
-            pairs.append(("device-side net", _text(connect["device_net"])))
+    pairs += _excitation_pairs(_dict(s.get("excitation"))) + _connect_pairs(_dict(s.get("connect")))
     recorded = inputs.first_attrs("created_utc")
     pairs.append(("date", esc(f"recorded {recorded}; " if recorded else "") + esc(f"summary written "
                                                                                 f"{inputs.summary_time_utc}")))
