@@ -219,6 +219,8 @@ def test_report_command_exit_codes(tmp_path, capsys):
     assert main(["report", str(folder)]) == 0
     assert f"wrote {folder / REPORT_NAME}" in capsys.readouterr().out
     assert (folder / REPORT_NAME).read_text().startswith("<!DOCTYPE html>")
+    (folder / REPORT_NAME).unlink()
+    assert main(["report", str(folder / "summary.json")]) == 0 and (folder / REPORT_NAME).is_file()
     empty = tmp_path / "empty"
     empty.mkdir()
     assert main(["report", str(empty)]) == 2

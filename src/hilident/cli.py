@@ -180,7 +180,10 @@ def _print_report(folder: Path) -> None:
 def _report(args) -> int:
     from hilident.html_report import write_report
 
-    print(f"wrote {write_report(args.dir)}")
+    folder = Path(args.dir)
+    if folder.name == "summary.json" and folder.is_file():  # the summary itself, as upload --from takes it
+        folder = folder.parent
+    print(f"wrote {write_report(folder)}")
     return 0
 
 
@@ -366,7 +369,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     rep = sub.add_parser("report", help="write report.html again from the summary.json, plots and recordings of a "
                          "run, identify or upload folder")
-    rep.add_argument("dir", metavar="DIR", help="the output folder (it must hold summary.json)")
+    rep.add_argument("dir", metavar="DIR", help="the output folder (it must hold summary.json), or its summary.json")
     rep.set_defaults(func=_report)
 
     emu = sub.add_parser("emulate", help="run an emulated device standalone")
