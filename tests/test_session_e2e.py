@@ -17,6 +17,7 @@ from hilident.drivers import find_driver
 from hilident.emulator.factory import true_modes
 from hilident.recording import read_run
 from hilident.session import Session
+from report_page import check_report
 from summary_keys import assert_layout
 from twins import assert_friction_matches
 
@@ -97,6 +98,7 @@ def test_every_shipped_emulator_config_runs(path, tmp_path):
     assert (json.loads((tmp_path / "summary.json").read_text())["resonances"]
             == json.loads(json.dumps(summary["resonances"])))
     assert (tmp_path / "bode.png").stat().st_size > 10_000
+    check_report(tmp_path)  # report.html: every section, self-contained
     if path.stem == "emulated-gantry":  # summary.json is a documented interface: its keys stay as they were
         assert_layout("run", json.loads((tmp_path / "summary.json").read_text()))
 

@@ -1,5 +1,5 @@
-"""Command line: ``hilident run``, ``identify``, ``upload``, ``emulate serial|modbus|canopen``, ``drivers``,
-``init``, ``ports``.
+"""Command line: ``hilident run``, ``identify``, ``upload``, ``report``, ``show``, ``export``,
+``emulate serial|modbus|canopen``, ``drivers``, ``init``, ``ports``.
 
 Thin on purpose: it parses arguments and calls the session, the emulator
 factory or the driver loader. Every :class:`~hilident.errors.HilidentError`
@@ -65,6 +65,7 @@ def _run(args) -> int:
     for w in summary["warnings"]:
         print(f"warning: {w}")
     print(f"wrote {out / 'summary.json'}")
+    _print_report(out)
     return 0
 
 
@@ -149,6 +150,7 @@ def _upload(args) -> int:
     for w in summary["warnings"]:
         print(f"warning: {w}")
     print(f"wrote {command.out / 'summary.json'}")
+    _print_report(command.out)
     return 0
 
 
@@ -203,6 +205,24 @@ def _identify(args) -> int:
     for w in summary["warnings"]:
         print(f"warning: {w}")
     print(f"wrote {out / 'summary.json'}")
+    _print_report(out)
+    return 0
+
+
+def _print_report(folder: Path) -> None:
+    """Name the report the command wrote (a report that could not be written was a warning line already)."""
+    report, summary = folder / "report.html", folder / "summary.json"
+    if report.is_file() and report.stat().st_mtime >= summary.stat().st_mtime:
+        print(f"wrote {report} (open it in a browser)")
+
+
+def _report(args) -> int:
+    from hilident.html_report import write_report
+
+    folder = Path(args.dir)
+    if folder.name == "summary.json" and folder.is_file():  # the summary itself, as upload --from takes it
+        folder = folder.parent
+    print(f"wrote {write_report(folder)}")
     return 0
 
 
@@ -454,6 +474,11 @@ def build_parser() -> argparse.ArgumentParser:
     exp.add_argument("--rate-hz", type=float, metavar="HZ",
                      help="discretise at this rate, Hz (default: the drive's loop rate the summary names)")
     exp.set_defaults(func=_export)
+
+    rep = sub.add_parser("report", help="write report.html again from the summary.json, plots and recordings of a "
+                         "run, identify or upload folder")
+    rep.add_argument("dir", metavar="DIR", help="the output folder (it must hold summary.json), or its summary.json")
+    rep.set_defaults(func=_report)
 
     emu = sub.add_parser("emulate", help="run an emulated device standalone")
     emu_sub = emu.add_subparsers(dest="transport", required=True)

@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from hilident import report
+from hilident import html_report, report
 from hilident.config import Config, DataConfig, ModelConfig, build_table, parse_config, parse_toml
 from hilident.datafile import RATE_TOLERANCE, Dataset, RunInfo, load_dataset, read_friction_test, read_run_info
 from hilident.errors import ConfigError, DataError, HilidentError, UsageError
@@ -439,6 +439,7 @@ def identify_recording(cfg: Config | None, data_path: str | Path, out_dir: str |
         summary = _summary(cfg, data_info, state, warnings, started)
         summary.update(failed_step=state["step"], error=str(exc))
         report.write_summary(out / "summary.json", summary)
+        html_report.write_report_quietly(out)
         raise
     summary = _summary(cfg, data_info, state, warnings, started)
     report.write_summary(out / "summary.json", summary)
@@ -447,6 +448,7 @@ def identify_recording(cfg: Config | None, data_path: str | Path, out_dir: str |
     report.plot_bode(out / "bode.png", [("plant (input to output)", plant.plant)], resonances=plant.resonances,
                      notch_response=notch, coherence_threshold=cfg.identification.coherence_threshold,
                      **pipeline.bode_extras(plant))
+    html_report.write_report_quietly(out)
     return summary
 
 

@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from hilident import endings, report
+from hilident import endings, html_report, report
 from hilident.adapters.base import StreamStats, adapter_class
 from hilident.auto_amplitude import (  # noqa: F401 (kept importable)
     AutoAmplitude,
@@ -445,6 +445,7 @@ class Session(DeviceConnection):
         write_json(self.out / "summary.json", self.summary)
         if self.plots:
             self._plots(friction, plant, designs, verification)
+        html_report.write_report_quietly(self.out)
         return self.summary
 
     def prepare(self):
@@ -668,6 +669,7 @@ class Session(DeviceConnection):
         failed step's name (``failed_step``) and its error."""
         summary = self._summary(friction, plant, designs, upload, verification, elapsed_s).failed(step, str(exc))
         write_json(self.out / "summary.json", summary.to_dict())
+        html_report.write_report_quietly(self.out)
         self.progress.step(f"wrote {self.out / 'summary.json'} up to the failed step ({step})")
 
     def _summary(self, friction, plant, designs, upload: UploadOutcome, verification: VerificationPart | None,

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hilident import endings
+from hilident import endings, html_report
 from hilident.errors import (
     ArmingRefused,
     ConfigError,
@@ -575,6 +575,7 @@ class UploadCommand:
         summary = result.to_dict()
         write_json(self.out / "summary.json", summary)
         self.summary = summary
+        html_report.write_report_quietly(self.out)
         return summary
 
 

@@ -1,0 +1,537 @@
+"""The sections of ``report.html``, one function each: :class:`ReportInputs` in, HTML out.
+
+Pure: no files are read here (:mod:`hilident.html_report.gather` did that).
+Every section is always there; one the command did not produce says so, so a
+reader (and a test) finds the same headings in every report. A summary key
+that is missing or of an unexpected type leaves its figure as "—".
+"""
+
+from __future__ import annotations
+
+import base64
+from collections.abc import Callable
+from typing import Any
+from urllib.parse import quote
+
+from hilident.html_report.advice import group_warnings
+from hilident.html_report.gather import ReportInputs
+from hilident.html_report.markup import MISSING, esc, key_values, note, num, pm, section, table
+
+__all__ = ["SECTIONS", "title_of"]
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _dict(value: Any) -> dict:
+    return value if isinstance(value, dict) else {}
+
+
+def _list(value: Any) -> list:
+    return [v for v in value if isinstance(v, dict)] if isinstance(value, list) else []
+
+
+def _text(value: Any) -> str:
+    return MISSING if value in (None, "") else esc(value)
+
+
+def _yes_no(value: Any) -> str:
+    return MISSING if value is None else ("yes" if value else "no")
+
+
+def _units(section_: dict, defaults: dict[str, str]) -> dict[str, str]:
+    """Units of a section's parameters: the summary's own ``units`` table when it has one, else ``defaults``."""
+    own = _dict(section_.get("units"))
+    return {**defaults, **{k: str(v) for k, v in own.items()}}
+
+
+def _magnitude_reference(inputs: ReportInputs) -> str:
+    """``dB re 1 (m/s)/(N*m)`` when the data say the output and input units, else ``dB``."""
+    if inputs.response_units is None:
+        return "dB"
+    out, into = inputs.response_units
+    return f"dB re 1 ({out})/({into})"
+
+
+def title_of(inputs: ReportInputs) -> str:
+    """The page title: the command and what it ran on."""
+    s = inputs.summary
+    subject = s.get("config") if inputs.kind != "identify" else _dict(s.get("data")).get("file", s.get("config"))
+    return f"hilident {inputs.kind}: {subject or inputs.folder.name}"
+
+
+# --------------------------------------------------------------------------- what was run on what
+
+
+def _device_pairs(inputs: ReportInputs) -> list[tuple[str, str]]:
+    dev = {**_dict(inputs.first_attrs("device")), **_dict(inputs.summary.get("device"))}
+    names = (("driver", "driver"), ("name", "device"), ("firmware", "firmware"), ("port", "port"))
+    pairs = [(label, _text(dev[key])) for key, label in names if dev.get(key) not in (None, "")]
+    if "emulated" in dev:
+        pairs.append(("emulated twin", _yes_no(dev["emulated"])))
+    if dev.get("loop_rate_hz") is not None:
+        pairs.append(("loop rate", num(dev["loop_rate_hz"], "Hz")))
+    if dev.get("filter_slots") is not None:
+        pairs.append(("filter slots", num(dev["filter_slots"])))
+    return pairs
+
+
+def _excitation_pairs(exc: dict) -> list[tuple[str, str]]:
+    if not exc:
+        return []
+    amp = num(exc.get("amplitude"), str(exc.get("unit", "")), 3)
+    auto = " (chosen automatically)" if exc.get("amplitude_setting") == "auto" else ""
+    loop = ", closed loop" if exc.get("closed_loop") else ""
+    pairs = [("excitation", esc(f"{exc.get('kind')} into {exc.get('mode')}{loop}, amplitude ") + amp + esc(auto))]
+    chosen = _dict(exc.get("auto"))
+    if chosen.get("reason"):
+        pairs.append(("amplitude chosen because", _text(chosen["reason"])))
+    return pairs
+
+
+def _connect_pairs(connect: dict) -> list[tuple[str, str]]:
+    if not connect:
+        return []
+    faults = ", ".join(str(f) for f in connect.get("faults") or []) or "none"
+    cleared = " (cleared)" if connect.get("faults_cleared") else ""
+    pairs = [("at connect", esc(f"found {connect.get('found_state', '?')}, {connect.get('discarded_frames', 0)} "
+                                f"stale frame(s) discarded, latched faults: {faults}{cleared}"))]
+    if connect.get("device_net"):
+        pairs.append(("device-side net", _text(connect["device_net"])))
+    return pairs
+
+
+def run_on_what(inputs: ReportInputs) -> str:
+    s = inputs.summary
+    pairs: list[tuple[str, str]] = [("command", esc(f"hilident {inputs.kind}")),
+                                    ("configuration", _text(s.get("config")))]
+    if inputs.kind == "identify":
+        data = _dict(s.get("data"))
+        pairs += [("data file", _text(data.get("file"))),
+                  ("samples used", f"{num(data.get('used_rows', data.get('samples')))} of {num(data.get('rows'))}"),
+                  ("sample rate", num(data.get("sample_rate_hz"), "Hz"))]
+        if data.get("recorded_experiment"):
+            pairs.append(("recorded experiment", esc(f"{data['recorded_experiment']} ({data.get('recorded_mode')})")))
+    if inputs.kind == "upload":
+        source = _dict(s.get("source"))
+        pairs.append(("notches from", esc(f"{source.get('summary', MISSING)} ({source.get('kind', '?')})")))
+    pairs += _device_pairs(inputs) or [("device", esc("not recorded in this folder"))]
+    if s.get("sample_rate_hz") is not None:
+        pairs.append(("sample rate", num(s["sample_rate_hz"], "Hz")))
+    pairs += _excitation_pairs(_dict(s.get("excitation"))) + _connect_pairs(_dict(s.get("connect")))
+    recorded = inputs.first_attrs("created_utc")
+    pairs.append(("date", esc(f"recorded {recorded}; " if recorded else "") + esc(f"summary written "
+                                                                                f"{inputs.summary_time_utc}")))
+    if s.get("elapsed_s") is not None:
+        pairs.append(("duration of the command", num(s["elapsed_s"], "s", 3)))
+    pairs.append(("versions", _versions(inputs)))
+    body = key_values(pairs)
+    if inputs.config_text:
+        body += (f"<details class=\"config screen-only\"><summary>Configuration ({esc(inputs.config_origin)})</summary>"
+                 f"<pre>{esc(inputs.config_text)}</pre></details>"
+                 f"<div class=\"print-only\"><h3>Configuration ({esc(inputs.config_origin)})</h3>"
+                 f"<pre>{esc(inputs.config_text)}</pre></div>")
+    else:
+        body += note("The configuration text was not found (neither the file the summary names nor a recording "
+                     "holding it is here).")
+    return section("run", "What was run on what", body)
+
+
+def _versions(inputs: ReportInputs) -> str:
+    recorded = _dict(inputs.first_attrs("versions"))
+    parts = []
+    if recorded:
+        keys = [k for k in ("hilident", "numpy", "scipy", "python") if k in recorded]
+        parts.append("recorded with " + ", ".join(f"{k} {recorded[k]}" for k in keys))
+    if inputs.summary.get("hilident_version"):
+        parts.append(f"analysed by hilident {inputs.summary['hilident_version']}")
+    rv = inputs.report_versions
+    if rv:
+        parts.append("report written with " + ", ".join(f"{k} {v}" for k, v in rv.items()))
+    return esc("; ".join(parts)) if parts else MISSING
+
+
+# --------------------------------------------------------------------------- headline
+
+
+def _failure(s: dict) -> str:
+    if not s.get("failed_step"):
+        return ""
+    return (f"<p class=\"failed\"><strong>The step &ldquo;{esc(s['failed_step'])}&rdquo; failed:</strong> "
+            f"{esc(s.get('error', ''))}. The figures below are those of the steps before it.</p>")
+
+
+def headline(inputs: ReportInputs) -> str:
+    s = inputs.summary
+    rows: list[tuple[str, str]] = []
+    ref = _magnitude_reference(inputs)
+    for r in _list(s.get("resonances")):
+        rows.append((f"resonance at {num(r.get('frequency_hz'), 'Hz')}",
+                     f"{pm(r.get('frequency_hz'), r.get('frequency_ci95_hz'), 'Hz', 6)} (95 %), damping ratio "
+                     f"{pm(r.get('damping_ratio'), r.get('damping_ci95'), '', 3)}, peak "
+                     f"{num(r.get('peak_magnitude_db'), ref, 4)}"))
+    if "resonances" in s and not _list(s.get("resonances")):
+        rows.append(("resonances", esc("none the evidence supports")))
+    fr = _dict(s.get("friction"))
+    if fr:
+        rows.append(("friction", _friction_line(fr)))
+    for design, slot in _designed_and_stored(s):
+        achieved = _dict(slot.get("achieved"))
+        rows.append((f"notch at {num(design.get('center_hz'), 'Hz')}",
+                     f"designed {num(design.get('depth_db'), 'dB', 3)}, achieved on the device "
+                     f"{num(achieved.get('attenuation_at_design_center_db'), 'dB', 3)}" if achieved else
+                     f"designed {num(design.get('depth_db'), 'dB', 3)}, not uploaded"))
+    ver = _dict(s.get("verification"))
+    if ver.get("band_reduction_db") is not None or ver.get("peak_reduction_db") is not None:
+        rows.append(("verification", f"largest response near the resonance reduced by "
+                                     f"{num(ver.get('band_reduction_db'), 'dB', 3)}, at the resonance line "
+                                     f"{num(ver.get('peak_reduction_db'), 'dB', 3)}"))
+    model = _dict(s.get("model"))
+    if model:
+        est = _dict(model.get("estimation"))
+        rows.append((f"grey-box model ({model.get('kind', '?')})",
+                     f"fit {num(est.get('fit_percent'), '%', 3)} on the estimation data"))
+    stream = _dict(s.get("stream"))
+    if stream:
+        rows.append(("stream", esc(f"{stream.get('samples', MISSING)} samples, {stream.get('lost_blocks', 0)} lost "
+                                   f"blocks, {stream.get('corrupt_frames', 0)} corrupt frames, "
+                                   f"{stream.get('underruns', 0)} underruns")))
+    n = len(s.get("warnings") or [])
+    rows.append(("warnings", esc(f"{n}, see below" if n else "none")))
+    body = _failure(s) + (key_values(rows) if rows else note("This summary holds no results."))
+    return section("headline", "Headline results", body)
+
+
+# --------------------------------------------------------------------------- warnings
+
+
+def warnings_section(inputs: ReportInputs) -> str:
+    warnings = inputs.summary.get("warnings")
+    if not isinstance(warnings, list) or not warnings:
+        return section("warnings", "Warnings", note("No warnings."))
+    parts = []
+    for g in group_warnings(warnings):
+        items = []
+        for finding, remedy in g.items:
+            todo = f"<br><span class=\"todo\">What to do: {esc(remedy)}</span>" if remedy else ""
+            items.append(f"<li><span class=\"finding\">{esc(finding)}</span>{todo}</li>")
+        general = ""
+        if any(not remedy for _, remedy in g.items):  # the warnings that name no remedy of their own
+            general = f"<p class=\"todo general\">What to do about these in general: {esc(g.advice)}</p>"
+        parts.append(f"<h3>{esc(g.topic)} ({len(g.items)})</h3>{general}<ul class=\"warnings\">{''.join(items)}</ul>")
+    return section("warnings", "Warnings", "".join(parts))
+
+
+# --------------------------------------------------------------------------- plots
+
+#: Captions of the plots hilident writes; any other PNG is shown under its file name.
+CAPTIONS = {
+    "bode.png": "Frequency response of the plant (magnitude, phase, coherence), the fitted model, the resonances "
+                "and the notch.",
+    "friction.png": "Friction: the mean force or torque of each constant-speed leg and the fitted curve.",
+}
+
+
+def plots(inputs: ReportInputs) -> str:
+    stale = (note(f"Not shown, older than summary.json (an earlier command's): {', '.join(inputs.stale_images)}.")
+             if inputs.stale_images else "")
+    if not inputs.images:
+        return section("plots", "Plots", note("No plots of this command in this folder (an upload draws none; a run "
+                                              "with --no-plots neither).") + stale)
+    figures = []
+    for name, data in inputs.images:
+        uri = "data:image/png;base64," + base64.b64encode(data).decode("ascii")
+        caption = CAPTIONS.get(name, name)
+        figures.append(f"<figure><img src=\"{uri}\" alt=\"{esc(name)}\"><figcaption>{esc(caption)} "
+                       f"<span class=\"file\">({esc(name)})</span></figcaption></figure>")
+    return section("plots", "Plots", "".join(figures) + stale)
+
+
+# --------------------------------------------------------------------------- friction
+
+#: Units of the friction parameters (README "summary.json holds": force or torque in N*m, speed in m/s).
+FRICTION_UNITS = {"Fc": "N*m", "Fs": "N*m", "Fv": "N*m/(m/s)", "vs": "m/s", "delta_v": "1", "delta_s": "1"}
+_FRICTION_NAMES = {"Fc": "Coulomb level Fc", "Fs": "static (stiction) level Fs", "Fv": "viscous coefficient Fv",
+                   "vs": "Stribeck speed vs", "delta_v": "viscous exponent delta_v",
+                   "delta_s": "Stribeck exponent delta_s"}
+_STRUCTURES = {"coulomb_viscous": "Coulomb + viscous", "stribeck_fixed_exponents": "Stribeck (exponents 1 and 2)",
+               "stribeck": "Stribeck (all six parameters)"}
+
+
+def _used_parameters(fr: dict) -> list[str]:
+    params = _dict(fr.get("params"))
+    if fr.get("structure") == "coulomb_viscous":
+        return [k for k in ("Fc", "Fv") if k in params]
+    if fr.get("structure") == "stribeck_fixed_exponents":
+        return [k for k in ("Fc", "Fs", "Fv", "vs") if k in params]
+    return list(params)
+
+
+def _friction_line(fr: dict) -> str:
+    units = _units(fr, FRICTION_UNITS)
+    params = _dict(fr.get("params"))
+    named = ", ".join(f"{esc(k)} {num(params[k], units.get(k, ''), 3)}" for k in _used_parameters(fr))
+    return esc(_STRUCTURES.get(str(fr.get("structure")), str(fr.get("structure", fr.get("model", "?"))))) + ": " + named
+
+
+def friction(inputs: ReportInputs) -> str:
+    fr = _dict(inputs.summary.get("friction"))
+    if not fr:
+        return section("friction", "Friction fit", note("No friction fit (no friction test was run or recorded "
+                                                        "with these data)."))
+    units = _units(fr, FRICTION_UNITS)
+    params, stderr = _dict(fr.get("params")), _dict(fr.get("stderr"))
+    used = _used_parameters(fr)
+    rows = [[esc(_FRICTION_NAMES.get(k, k)), num(v, units.get(k, "")),
+             num(stderr.get(k), units.get(k, ""), 2) if k in used else MISSING,
+             esc("fitted" if k in used else "fixed: not part of the chosen structure")] for k, v in params.items()]
+    structure = _STRUCTURES.get(str(fr.get("structure")), fr.get("structure"))
+    body = (f"<p>Structure the points support: <strong>{_text(structure)}</strong> (chosen by the corrected "
+            f"Akaike criterion from {num(fr.get('points'))} constant-speed "
+            f"points); RMS residual {num(fr.get('rms_residual_nm'), 'N*m', 3)}.</p>"
+            + table(["parameter", "value", "standard error", ""], rows))
+    aicc = _dict(fr.get("aicc"))
+    if aicc:
+        body += table(["structure", "AICc (lower is better)"],
+                      [[esc(_STRUCTURES.get(k, k)), num(v, "", 5)] for k, v in aicc.items()])
+    return section("friction", "Friction fit", body)
+
+
+# --------------------------------------------------------------------------- model
+
+
+def _notchable(r: dict) -> str:
+    if r.get("notchable"):
+        return esc("yes")
+    return _text(r.get("not_notchable") or ("no" if "notchable" in r else None))
+
+
+def _resonances(s: dict, ref: str) -> str:
+    """Every reported resonance with its intervals, coherence, bandwidth and whether a notch may be designed."""
+    rows = [[pm(r.get("frequency_hz"), r.get("frequency_ci95_hz"), "Hz", 6),
+             pm(r.get("damping_ratio"), r.get("damping_ci95"), "", 3), num(r.get("peak_magnitude_db"), ref, 4),
+             num(r.get("coherence"), "", 3), num(r.get("half_power_bandwidth_hz"), "Hz", 3), _text(r.get("method")),
+             _notchable(r)] for r in _list(s.get("resonances"))]
+    if not rows:
+        return ""
+    return table(["frequency (95 %)", "damping ratio (95 %)", "peak", "coherence", "half-power bandwidth", "method",
+                  "a notch may be designed"], rows, "Resonances of the measured response")
+
+
+def _plant_model(s: dict, ref: str) -> str:
+    pm_ = _dict(s.get("plant_model"))
+    if not pm_:
+        return _resonances(s, ref) + note("No transfer function was fitted to the frequency response.")
+    band = pm_.get("band_hz") if isinstance(pm_.get("band_hz"), list) else None
+    pairs = [
+        ("structure", esc(f"{pm_.get('n_num', '?')} zeros / {pm_.get('n_den', '?')} poles"
+                          f" + {pm_.get('integrators', 0)} integrator(s), relative degree "
+                          f"{pm_.get('relative_degree', '?')}, chosen by {pm_.get('criterion', '?')}")),
+        ("fit over the band", f"{num(pm_.get('fit_db_rms'), 'dB RMS', 3)} magnitude, "
+                              f"{num(pm_.get('phase_rms_deg'), 'deg RMS', 3)} phase"),
+        ("band", esc(f"{band[0]:g} to {band[1]:g} Hz") if band and len(band) == 2 else MISSING),
+        ("stability", _text(pm_.get("stability", "stable" if pm_.get("stable") else None))),
+    ]
+    body = (_resonances(s, ref) + "<h3>Transfer function fitted to the frequency response</h3>"
+            + key_values(pairs))
+    modes = _list(pm_.get("resonances"))
+    anti = _list(pm_.get("antiresonances"))
+    if modes or anti:
+        rows = [[esc("resonance"), num(m.get("frequency_hz"), "Hz"), num(m.get("damping_ratio"), "", 3),
+                 esc("reported" if m.get("reported") else m.get("reason", ""))] for m in modes]
+        rows += [[esc("anti-resonance"), num(m.get("frequency_hz"), "Hz"), num(m.get("damping_ratio"), "", 3), ""]
+                 for m in anti]
+        body += table(["", "frequency", "damping ratio", "note"], rows, "Modes of the fitted model")
+    unc = _list(_dict(_dict(s.get("measurement")).get("uncertainty")).get("at_resonances"))
+    if unc:
+        rows = []
+        for u in unc:
+            bounds = u.get("magnitude_bounds_db")
+            mag = (f"{num(bounds[0], '', 3)} / +{num(bounds[1], 'dB', 3)}" if isinstance(bounds, list)
+                   and len(bounds) == 2 else MISSING)
+            rows.append([num(u.get("frequency_hz"), "Hz"), mag, "± " + num(u.get("phase_bound_deg"), "deg", 3),
+                         num(u.get("confidence"), "", 2)])
+        body += table(["at", "magnitude bounds", "phase bound", "confidence"], rows,
+                      "Uncertainty of the measured response at each resonance")
+    rejected = _list(s.get("rejected_peaks"))
+    if rejected:
+        body += table(["frequency", "peak", "coherence", "why not reported"],
+                      [[num(r.get("frequency_hz"), "Hz"), num(r.get("peak_magnitude_db"), ref, 3),
+                        num(r.get("coherence"), "", 3), _text(r.get("reason"))] for r in rejected],
+                      "Peaks not reported")
+    return body
+
+
+#: Units of the grey-box parameters (hilident.ident.greybox: the force is [model] c times the torque, N).
+GREYBOX_UNITS = {"M": "kg", "m": "kg", "Fv": "N*s/m", "Fv+": "N*s/m", "Fv-": "N*s/m", "b": "N*s/m", "k": "N/m",
+                 "Fc": "N", "Fc+": "N", "Fc-": "N", "offset": "N"}
+
+
+def _validation_rows(model: dict) -> list[list[str]]:
+    records = [("estimation data", _dict(model.get("estimation")))]
+    records += [(str(name), _dict(v)) for name, v in _dict(model.get("validation")).items()]
+    rows = []
+    for name, v in records:
+        white = v.get("residuals_white")
+        white_text = _yes_no(white) + (f" (Ljung-Box p = {num(v.get('ljung_box_p'), '', 2)})"
+                                       if v.get("ljung_box_p") is not None else "")
+        rows.append([esc(name), num(v.get("fit_percent"), "%", 3), num(v.get("relative_error"), "", 3),
+                     white_text, _yes_no(v.get("independent_of_input")), num(v.get("samples"))])
+    return rows
+
+
+def _greybox(s: dict) -> str:
+    model = _dict(s.get("model"))
+    if not model:
+        return note("No grey-box model was asked for ([model] kind = \"none\") or its step was not reached.")
+    units = _units(model, GREYBOX_UNITS)
+    stderr, rel = _dict(model.get("stderr")), _dict(model.get("relative_stderr_percent"))
+    rows = [[esc(k), num(v, units.get(k, "")), num(stderr.get(k), units.get(k, ""), 2), num(rel.get(k), "%", 2)]
+            for k, v in _dict(model.get("params")).items()]
+    body = (f"<h3>Grey-box model: {esc(model.get('kind', '?'))}</h3>"
+            + note("Force = [model] c × torque; parameters in SI units.")
+            + table(["parameter", "value", "standard deviation", "relative"], rows)
+            + table(["record", "fit", "relative error ‖e‖/‖y‖", "residuals white", "residuals independent of input",
+                     "samples"], _validation_rows(model), "Validation"))
+    return body
+
+
+def model_section(inputs: ReportInputs) -> str:
+    s = inputs.summary
+    if inputs.kind == "upload":
+        return section("model", "Model, uncertainty and validation",
+                       note("An upload identifies nothing; the model is in the report of the run or identify the "
+                            "notches came from."))
+    return section("model", "Model, uncertainty and validation",
+                   _plant_model(s, _magnitude_reference(inputs)) + _greybox(s))
+
+
+# --------------------------------------------------------------------------- notches
+
+
+def _designed_and_stored(s: dict) -> list[tuple[dict, dict]]:
+    """Each designed notch with the upload record of its slot (an empty dict when it was not uploaded)."""
+    slots = {slot.get("slot"): slot for slot in _list(_dict(s.get("upload")).get("slots"))}
+    return [(d, slots.get(d.get("slot"), {})) for d in _list(s.get("notch_filters"))]
+
+
+def _coefficients(values: Any) -> str:
+    if not isinstance(values, list):
+        return MISSING
+    return esc(", ".join(f"{v:.9g}" if isinstance(v, (int, float)) else str(v) for v in values))
+
+
+def notches(inputs: ReportInputs) -> str:
+    s = inputs.summary
+    pairs = _designed_and_stored(s)
+    upload = _dict(s.get("upload"))
+    why = [upload.get(k) or s.get(k) for k in ("skipped_reason", "not_uploaded", "notch_skipped_reason")]
+    body = "".join(f"<p>{esc(w)}</p>" for w in why if w)
+    if not pairs:
+        return section("notches", "Notches: designed and achieved", body + note("No notch was designed."))
+    rows = []
+    for d, slot in pairs:
+        a = _dict(slot.get("achieved"))
+        rows.append([num(d.get("slot")), num(d.get("center_hz"), "Hz"), num(d.get("width_hz"), "Hz", 3),
+                     num(d.get("depth_db"), "dB", 3), num(d.get("predicted_band_reduction_db"), "dB", 3),
+                     num(a.get("center_hz"), "Hz") if a else MISSING,
+                     num(a.get("attenuation_at_design_center_db"), "dB", 3) if a else MISSING,
+                     num(a.get("realisable_db"), "dB", 3) if a else MISSING,
+                     (_yes_no(slot.get("matches")) if slot else esc("not uploaded"))])
+    body += table(["slot", "centre", "width", "designed depth", "predicted band reduction", "achieved: deepest at",
+                   "achieved at the designed centre", "realisable on the device", "read back as written"], rows)
+    coeff_rows = []
+    for d, slot in pairs:
+        coeff_rows.append([num(d.get("slot")), esc("designed"), _coefficients(d.get("b")), _coefficients(d.get("a")),
+                           num(d.get("sample_rate_hz"), "Hz")])
+        if slot:
+            coeff_rows.append([num(d.get("slot")), esc("read back"), _coefficients(slot.get("readback_b")),
+                               _coefficients(slot.get("readback_a")), ""])
+    body += table(["slot", "", "b (b0, b1, b2)", "a (1, a1, a2)", "filter rate"], coeff_rows, "Biquad coefficients")
+    extras = []
+    if upload and inputs.kind == "identify":
+        extras.append(("uploaded", esc("no: identify uploads nothing (hilident upload --from this folder does)")))
+    elif upload:
+        extras.append(("written and enabled", _yes_no(upload.get("written"))))
+        extras.append(("every slot read back as written", _yes_no(upload.get("verified_readback"))))
+        if upload.get("saved") is not None:
+            extras.append(("stored in non-volatile memory", _yes_no(upload.get("saved"))))
+        if upload.get("not_saved"):
+            extras.append(("not stored", _text(upload["not_saved"])))
+        for rb in _list(upload.get("rolled_back")):
+            extras.append((f"slot {rb.get('slot')} put back", _yes_no(rb.get("restored"))))
+    body += key_values(extras) if extras else ""
+    before = _list(s.get("filters_found")) or _list(s.get("filters_before"))
+    if before:
+        body += table(["slot", "enabled", "b", "a", "bypassed for the measurement", "put back"],
+                      [[num(f.get("slot")), _yes_no(f.get("enabled")), _coefficients(f.get("b")),
+                        _coefficients(f.get("a")), _yes_no(bool(f.get("bypassed"))), _yes_no(f.get("restored"))]
+                       for f in before], "What the filter slots held before")
+    ver = _dict(s.get("verification"))
+    vres = _list(ver.get("resonances"))
+    ref = _magnitude_reference(inputs)
+    if vres:
+        body += table(["resonance", "before", "after", "reduction at the line", "band", "band reduction"],
+                      [[num(r.get("frequency_hz"), "Hz"), num(r.get("before_db"), ref, 3),
+                        num(r.get("after_db"), ref, 3), num(r.get("reduction_db"), "dB", 3),
+                        esc(_band(r.get("band_hz"))), num(r.get("band_reduction_db"), "dB", 3)] for r in vres],
+                      "Verification: the same excitation before and after the notch")
+    return section("notches", "Notches: designed and achieved", body)
+
+
+def _band(value: Any) -> str:
+    if isinstance(value, list) and len(value) == 2 and all(isinstance(v, (int, float)) for v in value):
+        return f"{value[0]:.4g} to {value[1]:.4g} Hz"
+    return MISSING
+
+
+# --------------------------------------------------------------------------- stream and recordings
+
+_STREAM_NAMES = {"samples": "samples", "lost_frames": "lost frames", "lost_blocks": "lost blocks",
+                 "lost_samples": "lost samples", "corrupt_frames": "corrupt frames",
+                 "out_of_order": "out-of-order blocks", "underruns": "underruns",
+                 "board_dropped_blocks": "blocks the board dropped"}
+
+
+def stream_section(inputs: ReportInputs) -> str:
+    st = _dict(inputs.summary.get("stream"))
+    if not st:
+        return section("stream", "Stream statistics", note("No stream in this command (an upload streams nothing)."))
+    rows = [(_STREAM_NAMES.get(k, k), num(v, "", 12)) for k, v in st.items()]
+    return section("stream", "Stream statistics", key_values(rows))
+
+
+def _size(n: int) -> str:
+    return f"{n / 1e6:.1f} MB" if n >= 1e5 else f"{n / 1e3:.0f} kB"
+
+
+def recordings(inputs: ReportInputs) -> str:
+    if not inputs.recordings:
+        return section("recordings", "Recordings", note("No recordings (.h5) in this folder."))
+    rows = []
+    for rec in inputs.recordings:
+        a = rec.attrs
+        name = (f"<a href=\"{esc(quote(rec.name))}\">{esc(rec.name)}</a>" if rec.in_folder
+                else esc(f"{rec.name} (the data file, outside this folder)"))
+        rate, n = a.get("sample_rate_hz"), a.get("n_samples", a.get("flushed_samples"))
+        duration = num(n / rate, "s", 4) if isinstance(n, (int, float)) and isinstance(rate, (int, float)) and rate \
+            else MISSING
+        status = _text(a.get("status")) + (f": {esc(a['reason'])}" if a.get("reason") else "")
+        rows.append([name, _text(a.get("experiment")), _text(a.get("mode")), num(n), duration, status,
+                     num(a.get("events")), esc(_size(rec.size_bytes)) + (f" ({esc(rec.error)})" if rec.error else "")])
+    return section("recordings", "Recordings", table(["file", "experiment", "mode", "samples", "duration", "status",
+                                                      "events", "size"], rows))
+
+
+#: The sections in page order: (anchor, title, writer).
+SECTIONS: tuple[tuple[str, str, Callable[[ReportInputs], str]], ...] = (
+    ("run", "What was run on what", run_on_what),
+    ("headline", "Headline results", headline),
+    ("warnings", "Warnings", warnings_section),
+    ("plots", "Plots", plots),
+    ("friction", "Friction fit", friction),
+    ("model", "Model, uncertainty and validation", model_section),
+    ("notches", "Notches: designed and achieved", notches),
+    ("stream", "Stream statistics", stream_section),
+    ("recordings", "Recordings", recordings),
+)
