@@ -52,7 +52,7 @@ def run(tmp_path, data, model: str):
     cfg = tmp_path / "c.toml"
     cfg.write_text('[data]\nsample_rate_hz = 1000.0\ntorque = "F"\nposition = "q"\n[identification]\n'
                    'model_max_order = 0\n[model]\nkind = "rigid_axis"\ncutoff_hz = 20.0\n' + model)
-    assert main(["identify", str(data), "--config", str(cfg), "--out", str(tmp_path / "o"), "-q"]) == 0
+    assert main(["identify", str(data), "--config", str(cfg), "--out", str(tmp_path / "o"), "--overwrite", "-q"]) == 0
     return json.loads((tmp_path / "o" / "summary.json").read_text())
 
 
