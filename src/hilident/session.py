@@ -444,7 +444,7 @@ class Session(DeviceConnection):
         self.summary = self.result.to_dict()
         write_json(self.out / "summary.json", self.summary)
         if self.plots:
-            self._plots(friction, plant, designs, verification)
+            self._plots(friction, plant, designs, verification, excitation.band_hz)
         return self.summary
 
     def prepare(self):
@@ -683,6 +683,8 @@ class Session(DeviceConnection):
             recordings=sorted(p.name for p in self.out.glob("*.h5")), elapsed_s=elapsed_s, warnings=self.warnings,
             model=model)
 
-    def _plots(self, friction, plant, designs, verification) -> None:
+    def _plots(self, friction, plant, designs, verification, excitation_band_hz) -> None:
         report.plot_run(self.out, friction, plant, designs, verification.loop_after if verification else None,
-                        self.cfg.identification.coherence_threshold)
+                        self.cfg.identification.coherence_threshold, summary=self.summary,
+                        band_hz=pipeline.analysis_band(self.cfg.identification, excitation_band_hz),
+                        output=self.cfg.identification.output)
