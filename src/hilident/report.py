@@ -31,7 +31,7 @@ import numpy as np
 
 from hilident.errors import DataError
 from hilident.plots.bode import plot_bode
-from hilident.plots.common import channel_unit, plot_title, ratio_unit
+from hilident.plots.common import channel_unit, config_name, plot_title, ratio_unit
 from hilident.plots.common import same_length as _same_length
 from hilident.plots.common import save as _save
 from hilident.plots.common import vector as _vector
@@ -260,7 +260,7 @@ def plot_run(out: str | os.PathLike, friction, plant, designs: list, loop_after=
     """
     out = Path(out)
     summary = summary or {}
-    config = summary.get("config")
+    config = config_name(summary.get("config"))
     if friction is not None:
         _friction_png(out / "friction.png", friction, plot_title(config))
     out_unit = channel_unit(output)
@@ -354,8 +354,9 @@ def plot_identify(out: str | os.PathLike, summary: Mapping[str, Any], plant, des
     info = summary.get("data") or {}
     source = Path(str(info.get("file") or "recording")).name
     config = str(summary.get("config") or "")
-    name = source if not config or config.startswith(str(info.get("file"))) else f"{source} ({Path(config).name})"
-    title = plot_title(f"identify {name}" if name else None)
+    # a hilident recording's own configuration is named after the recording
+    name = source if not config or config.startswith(str(info.get("file"))) else f"{source} ({config_name(config)})"
+    title = plot_title(f"identify {name}")
     units, mapping = info.get("units") or {}, info.get("mapping") or {}
 
     def unit_of(key: str) -> str:

@@ -64,8 +64,6 @@ def ratio_unit(output_unit: str | None, input_unit: str | None) -> str:
     out, inp = pretty_unit(output_unit), pretty_unit(input_unit)
     if not out or not inp:
         return ""
-    if out == inp:
-        return f"{out}/{inp}"
 
     def group(u: str) -> str:
         return f"({u})" if any(c in u for c in "/·* ") else u
@@ -73,12 +71,19 @@ def ratio_unit(output_unit: str | None, input_unit: str | None) -> str:
     return f"{group(out)}/{group(inp)}"
 
 
-def plot_title(config: str | None, when: dt.datetime | None = None, what: str = "") -> str:
-    """``"bode: emulated-gantry.toml, 2026-11-23 19:40 UTC"``: what is drawn, the config's file name and the date."""
+def config_name(source: str | None) -> str:
+    """The file name of a config source: ``"configs/msd.toml"`` -> ``"msd.toml"``, ``"run.h5 (config_toml
+    attribute)"`` -> ``"run.h5"``; ``""`` for none."""
+    if not source:
+        return ""
+    return Path(str(source).split(" (")[0]).name
+
+
+def plot_title(subject: str | None, when: dt.datetime | None = None, what: str = "") -> str:
+    """``"Bode: emulated-gantry.toml, 2026-11-23 19:40 UTC"``: what is drawn, of what (a config's name), and when."""
     when = when or dt.datetime.now(dt.UTC)
-    name = Path(str(config).split(" (")[0]).name if config else "no config"
     stamp = when.astimezone(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
-    return f"{what + ': ' if what else ''}{name}, {stamp}"
+    return f"{what + ': ' if what else ''}{subject or 'no config'}, {stamp}"
 
 
 def plain_number(x: float, _pos: Any = None) -> str:
