@@ -92,7 +92,7 @@ def test_bode_greys_lines_outside_the_band_and_under_the_threshold(msd_bode):
 def test_bode_phase_is_on_the_branch_of_the_band(msd_bode):
     fig, _ = msd_bode
     phase = _lines(fig.axes[1], "plant (net torque to output)")[0]
-    x, y = phase.get_xdata(), np.asarray(phase.get_ydata())
+    y = np.asarray(phase.get_ydata())
     first = np.flatnonzero(np.isfinite(y))[0]
     assert -180.0 < y[first] <= 180.0
     assert y[first] == pytest.approx(90.0, abs=3.0)  # velocity over force starts at +90, not -270
@@ -282,6 +282,12 @@ def test_greybox_figure_shows_compare_and_residual_tests():
     assert [t.get_text() for t in axes[1][1].texts] == ["no residuals"]
     with pytest.raises(DataError, match="no record"):
         greybox_figure("mass_spring_damper", fit, {}, {})
+    # a record that could not be simulated, or has too few residuals, says why instead of failing the command
+    fig = greybox_figure("mass_spring_damper", fit, {"short.csv": "no simulation: 3 samples are too few"},
+                         {"short.csv": (np.arange(2.0), np.arange(2.0))})
+    assert fig.axes[0].texts[0].get_text() == "no simulation: 3 samples are too few"
+    assert fig.axes[1].texts[0].get_text().startswith("no residual test:")
+    assert fig.get_suptitle() == "mass_spring_damper: m = 5, b = 20, k = 2e+04"
 
 
 # --------------------------------------------------------------------------- a run's set
@@ -312,9 +318,8 @@ def test_plot_run_passes_units_band_title_and_the_stored_notch(tmp_path, monkeyp
 
 
 def test_identify_writes_bode_and_model_plots(tmp_path):
-    from test_identify_offline import STIFF_MSD, identify_config, simulate, write_csv
-
     from hilident.cli import main
+    from test_identify_offline import STIFF_MSD, identify_config, simulate, write_csv
 
     _, cols = simulate(STIFF_MSD, f_min=1.0, f_max=40.0, amplitude=50.0, periods=2)
     write_csv(tmp_path / "msd.csv", cols)

@@ -36,7 +36,7 @@ from hilident.plots.common import same_length as _same_length
 from hilident.plots.common import save as _save
 from hilident.plots.common import vector as _vector
 from hilident.plots.friction import plot_friction
-from hilident.plots.greybox import plot_greybox, simulate_greybox
+from hilident.plots.greybox import Simulation, plot_greybox, simulate_greybox
 from hilident.serialise import to_jsonable, write_json
 
 __all__ = [
@@ -202,7 +202,11 @@ def stored_notch_response(summary: Mapping[str, Any] | None, frequency_hz) -> tu
         b, a, rate = slot.get("readback_b"), slot.get("readback_a"), rates.get(slot.get("slot"))
         if b is None or a is None or not rate:
             continue
-        h = h * Biquad(tuple(float(x) for x in b), tuple(float(x) for x in a)).response(f, float(rate))
+        if len(b) != 3 or len(a) != 3:
+            raise DataError(f"upload slot {slot.get('slot')}: read-back b and a must hold 3 coefficients each, "
+                            f"got {b!r}, {a!r}")
+        section = Biquad((float(b[0]), float(b[1]), float(b[2])), (float(a[0]), float(a[1]), float(a[2])))
+        h = h * section.response(f, float(rate))
         found = True
     return (f, h) if found else None
 
@@ -308,10 +312,16 @@ def plot_model(path: str | os.PathLike, model_cfg, result, records: Mapping[str,
     from hilident import pipeline
 
     cutoff = model_cfg.cutoff_hz or sample_rate_hz / 10.0
-    sims, residuals, fits = {}, {}, {}
+    sims: dict[str, Simulation | str] = {}
+    residuals: dict[str, tuple[Any, Any]] = {}
+    fits: dict[str, float] = {}
     for name, (torque, position) in records.items():
-        sims[name] = simulate_greybox(model_cfg.kind, result.fit.params, model_cfg.c * np.asarray(torque, dtype=float),
-                                      position, sample_rate_hz, cutoff)
+        try:
+            sims[name] = simulate_greybox(model_cfg.kind, result.fit.params,
+                                          model_cfg.c * np.asarray(torque, dtype=float), position, sample_rate_hz,
+                                          cutoff)
+        except DataError as exc:  # the figure says why, the command goes on
+            sims[name] = f"no simulation: {exc}"
         try:
             reg = pipeline.greybox_regression(model_cfg, torque, position, sample_rate_hz)
         except DataError:

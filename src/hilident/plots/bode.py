@@ -185,15 +185,17 @@ def bode_figure(
             mf, mh = _positive_curve(model[1], model[2], "model")
             m_in = (mf >= band[0]) & (mf <= band[1])
             m_phase = _phase_near(mf, branch_phase_deg(mh, m_in), reference)
-            ax_mag.semilogx(mf[m_in], 20 * np.log10(np.abs(mh[m_in])), color="k", lw=0.9, zorder=10,
-                            label=str(model[0]))
-            ax_phase.semilogx(mf[m_in], m_phase[m_in], color="k", lw=0.9, zorder=10, label=str(model[0]))
-        for curve, style, label in ((notch, dict(color="0.25", ls=(0, (5, 2)), lw=1.2), notch_label),
-                                    (stored, dict(color="tab:red", ls="-", lw=1.4),
+            # dashed: the measured curve under it stays visible
+            style = dict(color="k", lw=0.9, ls=(0, (4, 2)), zorder=10, label=str(model[0]))
+            ax_mag.semilogx(mf[m_in], 20 * np.log10(np.abs(mh[m_in])), **style)
+            ax_phase.semilogx(mf[m_in], m_phase[m_in], **style)
+        # the designed notch dashed over the stored one: both visible where the device holds the design
+        for curve, style, label in ((notch, dict(color="tab:brown", ls=(0, (5, 2)), lw=1.3, zorder=9), notch_label),
+                                    (stored, dict(color="tab:red", ls="-", lw=2.0, alpha=0.8, zorder=8),
                                      "stored notch, read back [dB re 1]")):
             if curve is not None and curve[0].size:
                 n_db = 20 * np.log10(np.abs(curve[1]))
-                ax_mag.semilogx(curve[0], n_db, zorder=9, label=label, **style)
+                ax_mag.semilogx(curve[0], n_db, label=label, **style)
                 mags.append(n_db[(curve[0] >= band[0]) & (curve[0] <= band[1])])
     mag_limits = _limits(mags, 1.0)
     if mag_limits:

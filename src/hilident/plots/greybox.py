@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from hilident.errors import DataError
+from hilident.errors import ConfigError, DataError
 from hilident.plots.common import save, vector
 
 __all__ = ["Simulation", "simulate_greybox", "greybox_figure", "plot_greybox"]
@@ -167,7 +167,7 @@ def _simulate_rigid(params: Mapping[str, float], u: np.ndarray, q: np.ndarray, f
     return v_meas, sim, edge
 
 
-def greybox_figure(kind: str, fit: Any, simulations: Mapping[str, Simulation],
+def greybox_figure(kind: str, fit: Any, simulations: Mapping[str, Simulation | str],
                    residuals: Mapping[str, tuple[Any, Any]], *, title: str | None = None,
                    regression_fit_percent: Mapping[str, float] | None = None, max_lag: int = 25):
     """The figure of :func:`plot_greybox`, not saved.
@@ -175,6 +175,7 @@ def greybox_figure(kind: str, fit: Any, simulations: Mapping[str, Simulation],
     One row per record: simulated against measured, the residuals'
     autocorrelation and their cross-correlation with the first regressor
     (``residuals[name] = (residual, regressor)``, in the fit's target unit, N).
+    A simulation given as a string (why there is none) is written in its place.
     """
     from matplotlib.figure import Figure
 
@@ -189,22 +190,11 @@ def greybox_figure(kind: str, fit: Any, simulations: Mapping[str, Simulation],
     for row, name in zip(grid, names, strict=True):
         sim = simulations[name]
         ax, ax_auto, ax_cross = row
-        stride = max(1, sim.time_s.size // 20_000)
-        ax.plot(sim.time_s[::stride], sim.measured[::stride], color="0.35", lw=0.8, label="measured")
-        ax.plot(sim.time_s[::stride], sim.simulated[::stride], color="tab:blue", lw=1.0, ls="--",
-                label=f"simulated {kind} (fit {sim.fit_percent:.1f} %)")
-        ax.set_ylim(*_padded(sim.measured))
-        ax.set_xlabel("time [s]")
-        ax.set_ylabel(f"{sim.name} [{sim.unit}]")
-        extra = []
-        if regression_fit_percent and name in regression_fit_percent:
-            extra.append(f"equation fit {regression_fit_percent[name]:.1f} %")
-        if sim.note:
-            extra.append(sim.note)
-        ax.set_title(f"{name}: simulated vs measured {sim.name}" + (f" ({'; '.join(extra)})" if extra else ""),
-                     fontsize=9)
-        ax.grid(True, alpha=0.3)
-        ax.legend(loc="upper right", fontsize=8, framealpha=0.9)
+        if isinstance(sim, str):
+            ax.text(0.5, 0.5, sim, transform=ax.transAxes, ha="center", va="center", color="0.3", wrap=True)
+            ax.set_title(name, fontsize=9)
+        else:
+            _compare_axis(ax, kind, name, sim, regression_fit_percent)
         e, regressor = residuals.get(name, (None, None))
         if e is None:
             for a in (ax_auto, ax_cross):
@@ -212,16 +202,40 @@ def greybox_figure(kind: str, fit: Any, simulations: Mapping[str, Simulation],
             continue
         e = vector(e, f"residuals[{name!r}]")
         lag = int(min(max_lag, max(1, e.size // 4 - 1)))
-        ra = residual_analysis(e, regressor, max_lag=lag)
+        try:
+            ra = residual_analysis(e, regressor, max_lag=lag)
+        except (DataError, ConfigError) as exc:
+            ax_auto.text(0.5, 0.5, f"no residual test:\n{exc}", transform=ax_auto.transAxes, ha="center",
+                         va="center", color="0.4", fontsize=8, wrap=True)
+            continue
         _correlation_axis(ax_auto, ra.lags, ra.autocorr, ra.bound, "autocorrelation of residuals",
                           f"white: {'yes' if ra.white else 'no'}, Ljung-Box p = {ra.ljung_box_p:.2g}")
         if ra.cross_lags.size:
             _correlation_axis(ax_cross, ra.cross_lags, ra.crosscorr, ra.bound,
                               f"cross-corr. residual / {fit.names[0]} regressor",
                               f"independent: {'yes' if ra.independent else 'no'}")
-    if title:
-        fig.suptitle(f"{title}\n{kind}: {params}", fontsize=10)
+    fig.suptitle(f"{title}\n{kind}: {params}" if title else f"{kind}: {params}", fontsize=10)
     return fig
+
+
+def _compare_axis(ax, kind: str, name: str, sim: Simulation, regression_fit_percent) -> None:
+    """Measured and simulated output of one record, the simulation's fit % in the legend."""
+    stride = max(1, sim.time_s.size // 20_000)
+    ax.plot(sim.time_s[::stride], sim.measured[::stride], color="0.35", lw=0.8, label="measured")
+    ax.plot(sim.time_s[::stride], sim.simulated[::stride], color="tab:blue", lw=1.0, ls="--",
+            label=f"simulated {kind} (fit {sim.fit_percent:.1f} %)")
+    ax.set_ylim(*_padded(sim.measured))
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel(f"{sim.name} [{sim.unit}]")
+    extra = []
+    if regression_fit_percent and name in regression_fit_percent:
+        extra.append(f"equation fit {regression_fit_percent[name]:.1f} %")
+    if sim.note:
+        extra.append(sim.note)
+    ax.set_title(f"{name}: simulated vs measured {sim.name}" + (f" ({'; '.join(extra)})" if extra else ""),
+                 fontsize=9)
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper right", fontsize=8, framealpha=0.9)
 
 
 def _padded(y: np.ndarray) -> tuple[float, float]:
@@ -247,7 +261,7 @@ def _correlation_axis(ax, lags: np.ndarray, values: np.ndarray, bound: float, wh
     ax.legend(loc="upper right", fontsize=7)
 
 
-def plot_greybox(path: str | os.PathLike, kind: str, fit: Any, simulations: Mapping[str, Simulation],
+def plot_greybox(path: str | os.PathLike, kind: str, fit: Any, simulations: Mapping[str, Simulation | str],
                  residuals: Mapping[str, tuple[Any, Any]], **kwargs: Any) -> Path:
     """The grey-box model against each record, written as PNG.
 
