@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime as dt
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -328,3 +329,28 @@ def test_identify_writes_bode_and_model_plots(tmp_path):
                  "-q"]) == 0
     for name in ("bode.png", "model.png"):
         assert (tmp_path / "o" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_run_prints_the_friction_parameters_with_their_units(tmp_path, monkeypatch, capsys):
+    import hilident.session
+    from hilident.cli import main
+
+    summary = {"resonances": [], "excitation": {}, "model": None, "verification": {"peak_reduction_db": None},
+               "upload": {}, "warnings": [],
+               "stream": {"samples": 1, "lost_blocks": 0, "corrupt_frames": 0, "underruns": 0},
+               "friction": {"structure": "stribeck", "params": {"Fc": 0.2, "Fs": 0.35, "Fv": 2.01, "vs": 0.01}}}
+
+    class FakeSession:
+        plan = None
+
+        def __init__(self, *args, **kwargs):
+            pass
+
+        def run(self):
+            return summary
+
+    monkeypatch.setattr(hilident.session, "Session", FakeSession)
+    config = Path(__file__).resolve().parents[1] / "configs" / "emulated-gantry.toml"
+    assert main(["run", str(config), "--out", str(tmp_path), "-q"]) == 0
+    out = capsys.readouterr().out
+    assert "friction: Stribeck: Fc 0.2 N*m, Fs 0.35 N*m, Fv 2.01 N*m/(m/s), vs 0.01 m/s" in out
