@@ -1,4 +1,12 @@
-"""Checks, units, titles and file writing shared by the figures."""
+"""Checks, units, titles and file writing shared by the figures.
+
+Example
+-------
+>>> ratio_unit(channel_unit("velocity_mps"), "N*m")
+'(m/s)/(N·m)'
+>>> plain_number(0.05), plain_number(1000.0)
+('0.05', '1000')
+"""
 
 from __future__ import annotations
 
