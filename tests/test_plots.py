@@ -354,3 +354,28 @@ def test_run_prints_the_friction_parameters_with_their_units(tmp_path, monkeypat
     assert main(["run", str(config), "--out", str(tmp_path), "-q"]) == 0
     out = capsys.readouterr().out
     assert "friction: Stribeck: Fc 0.2 N*m, Fs 0.35 N*m, Fv 2.01 N*m/(m/s), vs 0.01 m/s" in out
+
+
+def test_greybox_records_split_as_the_fit_does():
+    t, q = np.arange(10.0), np.arange(10.0) * 2
+    split = report.greybox_records(0.3, (t, q))
+    assert list(split) == ["estimation data", "holdout"]
+    assert split["estimation data"][0].size == 7 and split["holdout"][1][0] == 14.0
+    other = report.greybox_records(0.3, (t, q), {"verification": (t[:4], q[:4])})
+    assert list(other) == ["estimation data", "verification"] and other["estimation data"][0].size == 10
+    assert list(report.greybox_records(0.0, (t, q))) == ["estimation data"]
+
+
+def test_a_bench_run_with_a_grey_box_model_draws_it(tmp_path):
+    from dataclasses import replace
+
+    from hilident.session import Session
+    from test_session_e2e import gantry_variant
+
+    cfg = gantry_variant()
+    cfg = replace(cfg, model=replace(cfg.model, kind="rigid_axis", c=10.0, cutoff_hz=8.0),
+                  friction_test=replace(cfg.friction_test, enabled=False))
+    summary = Session(cfg, tmp_path).run()
+    assert "verification" in summary["model"]["validation"]
+    assert (tmp_path / "model.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (tmp_path / "bode.png").is_file()

@@ -283,18 +283,19 @@ def plot_run(out: str | os.PathLike, friction, plant, designs: list, loop_after=
 # --------------------------------------------------------------------------- identify's plots
 
 
-def greybox_records(holdout: float, data, validation=None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+def greybox_records(holdout: float, estimation: tuple[Any, Any], validation: Mapping[str, tuple[Any, Any]] | None = None
+                    ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """``(torque, position)`` of the records a grey-box fit was estimated and validated on, by name.
 
-    As :func:`hilident.pipeline.fit_greybox` splits them: with a validation
-    record it is the other; without, the last ``holdout`` of the data.
+    As :func:`hilident.pipeline.fit_greybox` splits them: the validation
+    records by their names when there are any; without, the last
+    ``holdout`` of the estimation data (``"holdout"``).
     """
-    torque = np.asarray(data.signals["torque"], dtype=float)
-    position = np.asarray(data.signals["position"], dtype=float)
-    if validation is not None:
-        return {"estimation data": (torque, position),
-                Path(validation.source).name: (np.asarray(validation.signals["torque"], dtype=float),
-                                               np.asarray(validation.signals["position"], dtype=float))}
+    torque, position = (np.asarray(x, dtype=float) for x in estimation)
+    others = {name: (np.asarray(t, dtype=float), np.asarray(q, dtype=float))
+              for name, (t, q) in (validation or {}).items()}
+    if others:
+        return {"estimation data": (torque, position), **others}
     if holdout > 0:
         cut = int(round(len(torque) * (1.0 - holdout)))
         return {"estimation data": (torque[:cut], position[:cut]), "holdout": (torque[cut:], position[cut:])}
@@ -380,6 +381,8 @@ def plot_identify(out: str | os.PathLike, summary: Mapping[str, Any], plant, des
         _friction_png(out / "friction.png", friction, title)
         written.append(out / "friction.png")
     if model is not None and model_cfg is not None and data is not None:
-        records = greybox_records(model_cfg.holdout, data, validation)
+        others = None if validation is None else {
+            Path(validation.source).name: (validation.signals["torque"], validation.signals["position"])}
+        records = greybox_records(model_cfg.holdout, (data.signals["torque"], data.signals["position"]), others)
         written.append(plot_model(out / "model.png", model_cfg, model, records, data.sample_rate_hz, title))
     return written

@@ -258,7 +258,7 @@ def _correlation_axis(ax, lags: np.ndarray, values: np.ndarray, bound: float, wh
     ax.set_ylabel("correlation [-]")
     ax.set_title(f"{what}\n{verdict}", fontsize=8)
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper right", fontsize=7)
+    ax.legend(loc="best", fontsize=7, framealpha=0.9)
 
 
 def plot_greybox(path: str | os.PathLike, kind: str, fit: Any, simulations: Mapping[str, Simulation | str],
