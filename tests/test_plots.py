@@ -13,7 +13,7 @@ from scipy import signal
 from hilident import report
 from hilident.errors import DataError
 from hilident.filters.biquad import Biquad
-from hilident.plots.bode import bode_figure, branch_phase_deg
+from hilident.plots.bode import PER_CURVE, bode_figure, branch_phase_deg
 from hilident.plots.common import channel_unit, config_name, plot_title, ratio_unit
 from hilident.plots.friction import friction_figure, friction_parameter_lines
 from hilident.plots.greybox import greybox_figure, simulate_greybox
@@ -138,6 +138,8 @@ def test_bode_frequency_ticks_are_distinct_plain_numbers():
     assert len(labels) >= 3 and len(labels) == len(set(labels)), labels
     assert "0.05" in labels and "0.1" in labels and "0.2" in labels
     assert fig.axes[0].get_ylabel() == "magnitude [dB re 1 m/N]"
+    per_curve = bode_figure([("plant [m/N]", _frf(f, _msd_velocity(f, k=5.0)))], magnitude_unit=PER_CURVE)
+    assert per_curve.axes[0].get_ylabel() == "magnitude [dB re 1, units in legend]"
 
 
 def test_bode_without_unit_or_band_says_so():
@@ -310,7 +312,7 @@ def test_plot_run_passes_units_band_title_and_the_stored_notch(tmp_path, monkeyp
     assert seen["title"].startswith("Bode: emulated-msd.toml, ")
     assert seen["band_hz"] == (1.0, 50.0)
     # the plant is over torque, the loop over a velocity set-point: each curve says its unit
-    assert seen["magnitude_unit"] == "(unit per curve, see legend)"
+    assert seen["magnitude_unit"] == PER_CURVE
     assert [r[0] for r in seen["responses"]] == ["plant (net torque to output) [(m/s)/(N·m)]",
                                                  "excitation to output, before notch [(m/s)/(m/s)]"]
     fs_, hs = seen["stored_notch"]

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from hilident.errors import DataError
-from hilident.plots.bode import plot_bode
+from hilident.plots.bode import PER_CURVE, plot_bode
 from hilident.plots.common import channel_unit, config_name, plot_title, ratio_unit
 from hilident.plots.common import same_length as _same_length
 from hilident.plots.common import save as _save
@@ -275,7 +275,7 @@ def plot_run(out: str | os.PathLike, friction, plant, designs: list, loop_after=
                  ("excitation to output, before notch" + ("" if same else f" [{loop_unit}]"), plant.loop)]
     if loop_after is not None:
         responses.append(("excitation to output, after notch" + ("" if same else f" [{loop_unit}]"), loop_after))
-    unit = plant_unit if same else "(unit per curve, see legend)"
+    unit = plant_unit if same else PER_CURVE
     plot_bode(out / "bode.png", responses, title=plot_title(config, what="Bode"),
               magnitude_unit=unit or None, **_bode_args(plant, designs, summary, band_hz, coherence_threshold))
 

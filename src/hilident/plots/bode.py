@@ -20,7 +20,10 @@ import numpy as np
 from hilident.errors import DataError
 from hilident.plots.common import outside_legend, plain_number, same_length, save, vector
 
-__all__ = ["bode_figure", "plot_bode", "branch_phase_deg"]
+__all__ = ["PER_CURVE", "bode_figure", "plot_bode", "branch_phase_deg"]
+
+#: ``magnitude_unit`` when the curves have different units, each given in its label.
+PER_CURVE = "per curve"
 
 #: Colour and line style of each response in turn: told apart in colour and in black and white.
 _STYLES = (("tab:blue", "-"), ("tab:orange", "--"), ("tab:green", "-."), ("tab:purple", ":"))
@@ -258,7 +261,8 @@ def plot_bode(
         line of that response), shaded inside the analysis band.
     **kwargs
         ``title`` (str: config and date), ``magnitude_unit`` (str, e.g.
-        ``"(m/s)/(N·m)"``: the axis reads ``dB re 1 (m/s)/(N·m)``),
+        ``"(m/s)/(N·m)"``: the axis reads ``dB re 1 (m/s)/(N·m)``;
+        :data:`PER_CURVE` when each label gives its curve's unit),
         ``band_hz`` ((low, high) Hz: the analysis band; lines outside are
         greyed and the view reaches a factor 2 beyond it), ``stored_notch``
         ((frequency_hz, response): the chain the device stores, read back),
@@ -326,8 +330,11 @@ def _axes_labels(axes, magnitude_unit: str | None) -> None:
     from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
     ax_mag, ax_phase, ax_coh = axes
-    ax_mag.set_ylabel(f"magnitude [dB re 1 {magnitude_unit}]" if magnitude_unit
-                      else "magnitude [dB re 1, unit not recorded]")
+    if magnitude_unit == PER_CURVE:
+        ax_mag.set_ylabel("magnitude [dB re 1, units in legend]")
+    else:
+        ax_mag.set_ylabel(f"magnitude [dB re 1 {magnitude_unit}]" if magnitude_unit
+                          else "magnitude [dB re 1, unit not recorded]")
     ax_phase.set_ylabel("phase [deg]")
     ax_coh.set_ylabel("coherence [-]")
     ax_coh.set_ylim(0.0, 1.05)
