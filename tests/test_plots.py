@@ -381,3 +381,15 @@ def test_a_bench_run_with_a_grey_box_model_draws_it(tmp_path):
     assert "verification" in summary["model"]["validation"]
     assert (tmp_path / "model.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert (tmp_path / "bode.png").is_file()
+
+
+def test_bode_draws_a_response_whose_coherence_is_undefined():
+    # one period, no averages: the coherence is NaN on every line
+    f = np.geomspace(1, 100, 60)
+    fig = _drawn(bode_figure([("plant", _frf(f, _msd_velocity(f), np.full(f.size, np.nan)))], band_hz=(2.0, 50.0),
+                             coherence_threshold=0.8))
+    plant = _lines(fig.axes[0], "plant")[0]
+    x, y = plant.get_xdata(), np.asarray(plant.get_ydata())
+    # unknown is not low: the band stays in colour, only the lines outside it are greyed
+    assert np.all(np.isfinite(y[(x >= 2.0) & (x <= 50.0)])) and np.all(np.isnan(y[x > 50.0]))
+    assert np.all(np.isfinite(_lines(fig.axes[0], "outside band or coherence < 0.8")[0].get_ydata()))

@@ -42,6 +42,7 @@ from hilident.serialise import to_jsonable, write_json
 __all__ = [
     "plot_run",
     "plot_identify",
+    "plot_model",
     "plot_bode",
     "plot_friction",
     "plot_greybox",

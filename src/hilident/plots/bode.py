@@ -160,7 +160,10 @@ def bode_figure(
     with np.errstate(divide="ignore", invalid="ignore"):
         for i, (label, f, h, coh) in enumerate(curves):
             in_band = (f >= band[0]) & (f <= band[1])
-            trusted = in_band & (coh >= threshold if (coh is not None and threshold is not None) else True)
+            # an undefined coherence (NaN: one period, no averages) is unknown, not low: not greyed
+            trusted = in_band.copy()
+            if coh is not None and threshold is not None:
+                trusted &= ~(coh < threshold)
             color, ls = _STYLES[i % len(_STYLES)]
             z = 3 + len(curves) - i  # the first response (the plant) on top
             mag_db = 20 * np.log10(np.abs(h))
@@ -180,8 +183,10 @@ def bode_figure(
             phases.append(phase[trusted])
             if coh is not None:
                 ax_coh.semilogx(f, np.where(in_band, np.nan, coh), color=_GREY, lw=0.7, zorder=1)
+                inside = np.flatnonzero(in_band)
+                marks = slice(int(inside[0]), int(inside[-1]) + 1, max(1, inside.size // 10)) if inside.size else None
                 ax_coh.semilogx(f, np.where(in_band, coh, np.nan), color=color, ls=ls, lw=1.5, zorder=z,
-                                marker="os^v"[i % 4], markevery=0.08, ms=4, label=f"{label}")
+                                marker="os^v"[i % 4], markevery=marks, ms=4, label=f"{label}")
             if i == 0 and bounds_db is not None:
                 _confidence_band(ax_mag, f, mag_db, in_band, responses[0][1], bounds_db, color)
         if model is not None:
