@@ -38,7 +38,8 @@ def flexible_mechanism(noise: float = 1e-4, seed: int = 1):
 def identify(tmp_path, data, config: str, *extra) -> tuple[int, dict | None]:
     cfg = tmp_path / "c.toml"
     cfg.write_text(config)
-    code = main(["identify", str(data), "--config", str(cfg), "--out", str(tmp_path / "o"), "--overwrite", "-q", *extra])
+    code = main(["identify", str(data), "--config", str(cfg), "--out", str(tmp_path / "o"), "--overwrite", "-q",
+                 *extra])
     path = tmp_path / "o" / "summary.json"
     return code, json.loads(path.read_text()) if path.exists() else None
 

@@ -50,7 +50,8 @@ def _run(args) -> int:
         if f.get("structure") == "coulomb_viscous":
             print(f"friction: Coulomb + viscous: Fc {p['Fc']:.3g} N*m, Fv {p['Fv']:.3g} N*m/(m/s)")
         else:
-            print(f"friction: Fc {p['Fc']:.3g} N*m, Fs {p['Fs']:.3g} N*m, Fv {p['Fv']:.3g}, vs {p['vs']:.3g} m/s")
+            print(f"friction: Stribeck: Fc {p['Fc']:.3g} N*m, Fs {p['Fs']:.3g} N*m, Fv {p['Fv']:.3g} N*m/(m/s), "
+                  f"vs {p['vs']:.3g} m/s")
     _print_model(summary.get("model"))
     ver = summary["verification"]
     if ver["peak_reduction_db"] is not None:

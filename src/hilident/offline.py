@@ -444,10 +444,11 @@ def identify_recording(cfg: Config | None, data_path: str | Path, out_dir: str |
     summary = _summary(cfg, data_info, state, warnings, started)
     report.write_summary(out / "summary.json", summary)
     plant, designs = state["plant"], state["designs"]
-    notch = pipeline.notch_chain_response(designs, plant.plant.frequency_hz)
-    report.plot_bode(out / "bode.png", [("plant (input to output)", plant.plant)], resonances=plant.resonances,
-                     notch_response=notch, coherence_threshold=cfg.identification.coherence_threshold,
-                     **pipeline.bode_extras(plant))
+    model = state["model"]
+    report.plot_identify(out, summary, plant, designs, band_hz=state.get("band_hz"),
+                         coherence_threshold=cfg.identification.coherence_threshold, friction=state["friction"],
+                         model=model, model_cfg=cfg.model, data=ds.longest_segment() if model else None,
+                         validation=validation.longest_segment() if model and validation is not None else None)
     html_report.write_report_quietly(out)
     return summary
 
@@ -461,6 +462,7 @@ def _steps(cfg: Config, ds: Dataset, validation: Dataset | None, info, state: di
     ic = cfg.identification
     band = (ic.f_min_hz or run.band_hz[0], ic.f_max_hz or run.band_hz[1]) if run is not None else _band(cfg, ds)
     plant = _identify(cfg, ds, band, run.excited_bins if run is not None else None, state["friction"])
+    state["band_hz"] = band
     warnings += plant.warnings
     state["plant"] = plant
     state["step"] = "notch design"

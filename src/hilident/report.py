@@ -1,6 +1,9 @@
-"""Plots of a run (and ``summary.json`` by its old name: :func:`write_summary`).
+"""Plots of a run and of ``identify`` (and ``summary.json`` by its old name: :func:`write_summary`).
 
-Pure output helpers: arrays in, files out. Plots are drawn with matplotlib's
+Pure output helpers: arrays in, files out. The figures themselves live in
+:mod:`hilident.plots` (Bode, friction, grey-box); this module re-exports them
+and draws a run's and an identification's set (:func:`plot_run`,
+:func:`plot_identify`). Plots are drawn with matplotlib's
 object API (:class:`matplotlib.figure.Figure`, rendered by Agg), so nothing
 here touches pyplot's global state or the process-wide backend, and
 matplotlib is only imported when a plot is drawn.
@@ -20,19 +23,29 @@ Example
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from hilident.errors import DataError
-from hilident.serialise import atomic_write, to_jsonable, write_json
+from hilident.plots.bode import PER_CURVE, plot_bode
+from hilident.plots.common import channel_unit, config_name, plot_title, ratio_unit
+from hilident.plots.common import same_length as _same_length
+from hilident.plots.common import save as _save
+from hilident.plots.common import vector as _vector
+from hilident.plots.friction import plot_friction
+from hilident.plots.greybox import Simulation, plot_greybox, simulate_greybox
+from hilident.serialise import to_jsonable, write_json
 
 __all__ = [
     "plot_run",
+    "plot_identify",
+    "plot_model",
     "plot_bode",
     "plot_friction",
+    "plot_greybox",
     "plot_timeseries",
     "to_jsonable",
     "write_summary",
@@ -49,320 +62,6 @@ _MAX_PLOT_POINTS = 20_000
 def write_summary(path: str | os.PathLike, summary: Mapping[str, Any]) -> Path:
     """Write ``summary`` as ``summary.json`` (:func:`hilident.serialise.write_json`, kept here by name)."""
     return write_json(path, summary)
-
-
-# --------------------------------------------------------------------------- validation
-
-
-def _vector(value: Any, name: str, *, dtype=float) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=dtype)
-    except (TypeError, ValueError) as exc:
-        raise DataError(f"{name}: expected a 1-D numeric array ({exc})") from None
-    if arr.ndim != 1:
-        raise DataError(f"{name}: expected a 1-D array, got shape {arr.shape}")
-    if arr.size == 0:
-        raise DataError(f"{name}: array is empty")
-    return arr
-
-
-def _same_length(a: np.ndarray, a_name: str, b: np.ndarray, b_name: str) -> None:
-    if a.shape != b.shape:
-        raise DataError(f"{b_name} has {b.size} values but {a_name} has {a.size}; lengths must match")
-
-
-def _save(fig, path: str | os.PathLike) -> Path:
-    path = Path(path)
-    atomic_write(path, lambda fh: fig.savefig(fh, format="png"))
-    return path
-
-
-# --------------------------------------------------------------------------- Bode
-
-
-def _unwrapped_phase_deg(h: np.ndarray) -> np.ndarray:
-    """Unwrapped phase, shifted by whole turns so it starts in (-315, 45] deg.
-
-    Curves of the same plant (before/after a notch) then start on the same
-    branch instead of 360 deg apart when their first bin sits near +-180 deg.
-    """
-    phase = np.degrees(np.unwrap(np.angle(h)))
-    return phase - 360.0 * np.ceil((phase[0] - 45.0) / 360.0)
-
-
-def _positive_curve(frequency_hz, response, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """A checked ``(frequency_hz, complex response)`` pair without its non-positive frequencies (log axis)."""
-    f = _vector(frequency_hz, f"{name} frequency_hz")
-    h = _vector(response, f"{name} response", dtype=complex)
-    _same_length(f, f"{name} frequency_hz", h, f"{name} response")
-    keep = f > 0
-    return f[keep], h[keep]
-
-
-def _phase_near(f: np.ndarray, phase_deg: np.ndarray, reference: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
-    """``phase_deg`` moved bin by bin by whole turns to within 180 deg of a reference curve.
-
-    A notch's near-zero makes ``unwrap`` pick a branch at random; measured
-    before/after curves of one plant are compared on the same branch.
-    """
-    if reference is None:
-        return phase_deg
-    f_ref, p_ref = reference
-    inside = (f >= f_ref[0]) & (f <= f_ref[-1])
-    if not np.any(inside):
-        return phase_deg
-    ref = np.interp(f, f_ref, p_ref)
-    out = phase_deg.copy()
-    out[inside] -= 360.0 * np.round((phase_deg[inside] - ref[inside]) / 360.0)
-    return out
-
-
-def _magnitude_limits_db(mag_db: np.ndarray) -> tuple[float, float]:
-    """Y limits that show the curves but not a notch's one-bin dive to -300 dB."""
-    finite = mag_db[np.isfinite(mag_db)]
-    if finite.size == 0:
-        return -1.0, 1.0
-    top = float(finite.max())
-    bottom = max(float(finite.min()), float(np.percentile(finite, 0.5)) - 20.0)
-    span = max(top - bottom, 1.0)
-    return bottom - 0.05 * span, top + 0.05 * span
-
-
-def plot_bode(
-    path: str | os.PathLike,
-    responses: Sequence[tuple[str, Any]],
-    resonances: Iterable[Any] = (),
-    notch_response: tuple[Any, Any] | None = None,
-    coherence_threshold: float | None = None,
-    model: tuple[str, Any, Any] | None = None,
-    bounds_db: tuple[Any, Any] | None = None,
-) -> Path:
-    """Bode plot (magnitude, phase, coherence) of one or more measured responses.
-
-    Parameters
-    ----------
-    path : str or path-like
-        PNG to write.
-    responses : sequence of (label, frf)
-        ``frf`` has attributes ``frequency_hz`` (1-D, Hz), ``response`` (complex
-        1-D, same length) and ``coherence`` (1-D in 0..1, same length, or
-        ``None``). Labels go into the legend, e.g. ``"before notch"``.
-        Non-positive frequencies (the DC bin) are not drawn on the log axis.
-    resonances : iterable
-        Objects with a ``frequency_hz`` attribute; each gets a dotted vertical
-        marker on all three axes and its frequency written at the top.
-    notch_response : (frequency_hz, response), optional
-        Magnitude of the designed notch chain, drawn dashed on the magnitude axis.
-    coherence_threshold : float, optional
-        Drawn as a horizontal line on the coherence axis (e.g. 0.8).
-    model : (label, frequency_hz, response), optional
-        A fitted model's complex response, drawn thin and black on magnitude and phase.
-    bounds_db : (lower_db, upper_db), optional
-        Confidence band of the first response relative to itself (dB, one value
-        per bin of that response), shaded around its magnitude.
-
-    Returns
-    -------
-    pathlib.Path
-        The written PNG.
-
-    Raises
-    ------
-    DataError
-        If there is no response, lengths of one response's arrays differ, or a
-        response has no positive frequency.
-    """
-    from matplotlib.figure import Figure
-
-    curves = _bode_curves(responses)
-    notch = None if notch_response is None else _positive_curve(*notch_response, "notch_response")
-
-    fig = Figure(figsize=(8.0, 9.0), dpi=110, layout="constrained")
-    axes = fig.subplots(3, 1, sharex=True)
-    ax_mag, ax_phase, ax_coh = axes
-    with np.errstate(divide="ignore", invalid="ignore"):
-        magnitudes_db = _draw_responses(axes, curves, responses, bounds_db)
-        if notch is not None and notch[0].size:
-            mag_db = 20 * np.log10(np.abs(notch[1]))
-            magnitudes_db.append(mag_db)
-            ax_mag.semilogx(notch[0], mag_db, "k--", lw=1.2, label="notch chain")
-        if model is not None:
-            m_label = model[0]
-            mf, mh = _positive_curve(model[1], model[2], "model")
-            ax_mag.semilogx(mf, 20 * np.log10(np.abs(mh)), color="k", lw=0.8, label=m_label)
-            ax_phase.semilogx(mf, _unwrapped_phase_deg(mh), color="k", lw=0.8, label=m_label)
-    ax_mag.set_ylim(*_magnitude_limits_db(np.concatenate(magnitudes_db)))
-
-    has_coherence = any(c[3] is not None for c in curves)
-    if coherence_threshold is not None:
-        ax_coh.axhline(float(coherence_threshold), color="0.3", ls="--", lw=1.0,
-                       label=f"threshold {float(coherence_threshold):g}")
-    if not has_coherence:
-        ax_coh.text(0.5, 0.5, "no coherence", transform=ax_coh.transAxes, ha="center", va="center", color="0.4")
-    _mark_resonances(axes, resonances)
-    _bode_axes(axes)
-    ax_mag.legend(loc="best", fontsize=8)
-    if coherence_threshold is not None or has_coherence:
-        ax_coh.legend(loc="lower left", fontsize=8)
-    return _save(fig, path)
-
-
-def _bode_curves(responses: Sequence[tuple[str, Any]]) -> list[tuple[str, np.ndarray, np.ndarray, Any]]:
-    """``(label, f, h, coherence or None)`` of each response, checked, at positive frequencies only."""
-    if len(responses) == 0:
-        raise DataError("plot_bode: responses is empty; pass at least one (label, frf)")
-    curves = []
-    for label, frf in responses:
-        f = _vector(getattr(frf, "frequency_hz", None), f"responses[{label!r}].frequency_hz")
-        h = _vector(getattr(frf, "response", None), f"responses[{label!r}].response", dtype=complex)
-        _same_length(f, f"responses[{label!r}].frequency_hz", h, f"responses[{label!r}].response")
-        coh_raw = getattr(frf, "coherence", None)
-        coh = None
-        if coh_raw is not None:
-            coh = _vector(coh_raw, f"responses[{label!r}].coherence")
-            _same_length(f, f"responses[{label!r}].frequency_hz", coh, f"responses[{label!r}].coherence")
-        keep = f > 0
-        if not np.any(keep):
-            raise DataError(f"responses[{label!r}].frequency_hz: no positive frequency to plot")
-        curves.append((str(label), f[keep], h[keep], None if coh is None else coh[keep]))
-    return curves
-
-
-def _draw_responses(axes, curves: list, responses: Sequence[tuple[str, Any]], bounds_db) -> list[np.ndarray]:
-    """Magnitude, phase (near the first curve's) and coherence of every curve; their magnitudes, dB."""
-    ax_mag, ax_phase, ax_coh = axes
-    magnitudes_db = []
-    reference_phase = None
-    for i, (label, f, h, coh) in enumerate(curves):
-        mag_db = 20 * np.log10(np.abs(h))
-        magnitudes_db.append(mag_db)
-        line = ax_mag.semilogx(f, mag_db, label=label)[0]
-        if i == 0 and bounds_db is not None:
-            _confidence_band(ax_mag, f, mag_db, responses[0][1], bounds_db, line.get_color())
-        phase = _phase_near(f, _unwrapped_phase_deg(h), reference_phase)
-        if reference_phase is None:
-            reference_phase = (f, phase)
-        ax_phase.semilogx(f, phase, color=line.get_color(), label=label)
-        if coh is not None:
-            ax_coh.semilogx(f, coh, color=line.get_color(), label=label)
-    return magnitudes_db
-
-
-def _confidence_band(ax_mag, f: np.ndarray, mag_db: np.ndarray, frf, bounds_db, color) -> None:
-    """The first response's 95 % band (``bounds_db``, dB relative to it, one value per bin), shaded."""
-    f_all = _vector(frf.frequency_hz, "responses[0].frequency_hz")
-    lo = _vector(bounds_db[0], "bounds_db lower")
-    hi = _vector(bounds_db[1], "bounds_db upper")
-    _same_length(f_all, "responses[0].frequency_hz", lo, "bounds_db lower")
-    _same_length(f_all, "responses[0].frequency_hz", hi, "bounds_db upper")
-    k = f_all > 0
-    lo_db = np.maximum(mag_db + lo[k], mag_db - 40.0)  # a bin with no coherence: cap the band
-    ax_mag.fill_between(f, lo_db, mag_db + hi[k], color=color, alpha=0.25, lw=0, label="95 % confidence")
-
-
-def _mark_resonances(axes, resonances: Iterable[Any]) -> None:
-    """A dotted red line at each resonance on every axis, its frequency written at the top."""
-    ax_mag = axes[0]
-    for i, res in enumerate(resonances):
-        f_res = float(res.frequency_hz)
-        for ax in axes:
-            ax.axvline(f_res, color="tab:red", ls=":", lw=1.0, label="resonance" if (i == 0 and ax is ax_mag) else None)
-        ax_mag.annotate(f"{f_res:.4g} Hz", xy=(f_res, 1.0), xycoords=("data", "axes fraction"),
-                        xytext=(3, -3), textcoords="offset points", ha="left", va="top",
-                        fontsize=8, color="tab:red")
-
-
-def _bode_axes(axes) -> None:
-    """Labels, limits, grid and 1-2-5 frequency ticks of the three axes."""
-    from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
-
-    ax_mag, ax_phase, ax_coh = axes
-    ax_mag.set_ylabel("magnitude [dB]")
-    ax_phase.set_ylabel("phase [deg]")
-    ax_coh.set_ylabel("coherence [-]")
-    ax_coh.set_ylim(0.0, 1.05)
-    ax_coh.set_xlabel("frequency [Hz]")
-    for ax in axes:
-        ax.grid(True, which="both", alpha=0.3)
-        # plain numbers at 1-2-5 steps read better than 10^x labels crowding each other
-        ax.xaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
-        ax.xaxis.set_major_formatter(ScalarFormatter())
-        ax.xaxis.set_minor_formatter(NullFormatter())
-
-
-# --------------------------------------------------------------------------- friction
-
-
-def plot_friction(
-    path: str | os.PathLike,
-    velocity_mps: Any,
-    torque_nm: Any,
-    fit_velocity_mps: Any = None,
-    fit_torque_nm: Any = None,
-    label: str = "",
-) -> Path:
-    """Friction torque against velocity: measured steady-state points and the fit.
-
-    Measured points are drawn as markers, the fitted curve as a line. The fit
-    is split at zero velocity into its negative and positive branch, so the
-    Coulomb/stiction step at ``v = 0`` is not bridged by a sloped segment.
-
-    Parameters
-    ----------
-    path : str or path-like
-        PNG to write.
-    velocity_mps, torque_nm : array_like
-        Steady-state points, m/s and N·m, same length.
-    fit_velocity_mps, fit_torque_nm : array_like, optional
-        The fitted model evaluated on a grid (give both or neither), normally
-        over both velocity signs.
-    label : str
-        Title, e.g. the axis name.
-
-    Returns
-    -------
-    pathlib.Path
-        The written PNG.
-
-    Raises
-    ------
-    DataError
-        On empty or mismatched arrays, or only one of the fit arrays.
-    """
-    from matplotlib.figure import Figure
-
-    v = _vector(velocity_mps, "velocity_mps")
-    tau = _vector(torque_nm, "torque_nm")
-    _same_length(v, "velocity_mps", tau, "torque_nm")
-    if (fit_velocity_mps is None) != (fit_torque_nm is None):
-        raise DataError("plot_friction: give both fit_velocity_mps and fit_torque_nm, or neither")
-    fit = None
-    if fit_velocity_mps is not None:
-        fv = _vector(fit_velocity_mps, "fit_velocity_mps")
-        ft = _vector(fit_torque_nm, "fit_torque_nm")
-        _same_length(fv, "fit_velocity_mps", ft, "fit_torque_nm")
-        order = np.argsort(fv, kind="stable")
-        fit = (fv[order], ft[order])
-
-    fig = Figure(figsize=(7.0, 4.5), dpi=110, layout="constrained")
-    ax = fig.subplots()
-    ax.axhline(0.0, color="0.6", lw=0.6)
-    ax.axvline(0.0, color="0.6", lw=0.6)
-    ax.plot(v, tau, "o", ms=4, color="tab:blue", label="measured")
-    if fit is not None:
-        fv, ft = fit
-        first = True
-        for branch in (fv < 0, fv > 0):
-            if np.any(branch):
-                ax.plot(fv[branch], ft[branch], "-", color="tab:orange", lw=1.6, label="fit" if first else None)
-                first = False
-    ax.set_xlabel("velocity [m/s]")
-    ax.set_ylabel("torque [N·m]")
-    if label:
-        ax.set_title(label)
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
-    return _save(fig, path)
 
 
 # --------------------------------------------------------------------------- time series
@@ -459,29 +158,232 @@ def plot_timeseries(
 
 # --------------------------------------------------------------------------- a run's plots
 
+#: Points of the fine grid the notch curves are drawn on: log-spaced over the view, dense around each notch.
+_FINE_POINTS = 3000
+_NOTCH_POINTS = 801
+
+
+def model_label(model) -> str:
+    """What a fitted plant model is: ``"fitted TF, 3 zeros / 4 poles (1 integrator), MDL"``."""
+    fit = model.fit
+    poles = fit.n_den + fit.integrators
+    integ = f" ({fit.integrators} integrator{'s' if fit.integrators != 1 else ''})" if fit.integrators else ""
+    return (f"fitted TF, {fit.n_num} zero{'s' if fit.n_num != 1 else ''} / {poles} pole{'s' if poles != 1 else ''}"
+            f"{integ}, {str(model.criterion).upper()}")
+
+
+def _fine_grid(f: np.ndarray, band_hz: tuple[float, float] | None, designs: list) -> np.ndarray:
+    """Frequencies for the notch curves, Hz: the view of the Bode plot, and +-3 widths around every notch."""
+    f = f[f > 0]
+    lo, hi = (float(f.min()), float(f.max())) if f.size else (1.0, 1000.0)
+    if band_hz is not None:
+        lo, hi = max(lo, band_hz[0] / 2.0), min(hi, band_hz[1] * 2.0)
+    parts = [np.geomspace(max(lo, 1e-6), max(hi, 2 * lo), _FINE_POINTS)]
+    for d in designs:
+        c, w = d.spec.center_hz, d.spec.width_hz
+        parts.append(np.linspace(max(c - 3 * w, 1e-6), c + 3 * w, _NOTCH_POINTS))
+    return np.unique(np.concatenate(parts))
+
+
+def stored_notch_response(summary: Mapping[str, Any] | None, frequency_hz) -> tuple[np.ndarray, np.ndarray] | None:
+    """The chain the device stores, from ``summary["upload"]["slots"]`` read back, at ``frequency_hz``.
+
+    The rate of each slot is its design's (``notch_filters[].sample_rate_hz``,
+    same ``slot``). None when nothing was read back.
+    """
+    if not summary:
+        return None
+    from hilident.filters.biquad import Biquad
+
+    rates = {n.get("slot"): n.get("sample_rate_hz") for n in summary.get("notch_filters") or []}
+    f = np.asarray(frequency_hz, dtype=float)
+    h = np.ones(f.shape, dtype=complex)
+    found = False
+    for slot in (summary.get("upload") or {}).get("slots") or []:
+        b, a, rate = slot.get("readback_b"), slot.get("readback_a"), rates.get(slot.get("slot"))
+        if b is None or a is None or not rate:
+            continue
+        if len(b) != 3 or len(a) != 3:
+            raise DataError(f"upload slot {slot.get('slot')}: read-back b and a must hold 3 coefficients each, "
+                            f"got {b!r}, {a!r}")
+        section = Biquad((float(b[0]), float(b[1]), float(b[2])), (float(a[0]), float(a[1]), float(a[2])))
+        h = h * section.response(f, float(rate))
+        found = True
+    return (f, h) if found else None
+
+
+def _bode_args(plant, designs: list, summary, band_hz, coherence_threshold) -> dict:
+    """The keyword arguments of :func:`plot_bode` shared by a run and ``identify``."""
+    from hilident import pipeline
+
+    fine = _fine_grid(plant.plant.frequency_hz, band_hz, designs)
+    extras = pipeline.bode_extras(plant)
+    if "model" in extras and plant.model is not None:
+        extras["model"] = (model_label(plant.model), *extras["model"][1:])
+    stored = stored_notch_response(summary, fine)
+    uploaded = bool(((summary or {}).get("upload") or {}).get("slots"))
+    return dict(resonances=plant.resonances, notch_response=pipeline.notch_chain_response(designs, fine),
+                coherence_threshold=coherence_threshold, band_hz=band_hz, stored_notch=stored,
+                notch_label="designed notch [dB re 1]" + ("" if uploaded or not designs else ", not uploaded"),
+                **extras)
+
+
+def _friction_png(path: Path, friction, title: str) -> None:
+    from hilident.ident.friction import stribeck
+
+    pts = friction.points
+    vmax = float(np.max(np.abs(pts.v_mean)))
+    v = np.linspace(-vmax, vmax, 801)
+    p = friction.fit.params
+    params = {n: getattr(p, n) for n in ("Fc", "Fs", "Fv", "vs", "delta_v", "delta_s")}
+    plot_friction(path, pts.v_mean, pts.tau_mean, v, stribeck(v, p), label=title,
+                  structure=friction.fit.structure or friction.model, params=params, stderr=friction.fit.stderr)
+
 
 def plot_run(out: str | os.PathLike, friction, plant, designs: list, loop_after=None,
-             coherence_threshold: float | None = None) -> None:
+             coherence_threshold: float | None = None, *, summary: Mapping[str, Any] | None = None,
+             band_hz: tuple[float, float] | None = None, output: str | None = None) -> None:
     """``friction.png`` (with a friction test) and ``bode.png`` of a run into the folder ``out``.
 
-    ``friction`` is the friction test's result (or None), ``plant`` the
-    identification's, ``designs`` the notch designs, ``loop_after`` the
-    verification run's response (None without one).
+    Parameters
+    ----------
+    out : path-like
+        The run's folder.
+    friction, plant, designs, loop_after
+        The friction test's result (or None), the identification's
+        :class:`~hilident.pipeline.PlantResult`, the notch designs, the
+        verification run's response (None without one).
+    coherence_threshold : float, optional
+    summary : mapping, optional
+        The run's ``summary.json``: its ``config`` names the plots, its
+        ``excitation.unit`` gives the loop's input unit, its
+        ``upload.slots`` (read back) the stored notch.
+    band_hz : (float, float), optional
+        The analysis band, Hz.
+    output : str, optional
+        The output channel (``velocity_mps``): its unit is the responses' numerator.
+    """
+    out = Path(out)
+    summary = summary or {}
+    config = config_name(summary.get("config"))
+    if friction is not None:
+        _friction_png(out / "friction.png", friction, plot_title(config))
+    out_unit = channel_unit(output)
+    plant_unit = ratio_unit(out_unit, "N*m")
+    loop_unit = ratio_unit(out_unit, (summary.get("excitation") or {}).get("unit"))
+    same = plant_unit == loop_unit or not loop_unit
+    responses = [("plant (net torque to output)" + ("" if same else f" [{plant_unit}]"), plant.plant),
+                 ("excitation to output, before notch" + ("" if same else f" [{loop_unit}]"), plant.loop)]
+    if loop_after is not None:
+        responses.append(("excitation to output, after notch" + ("" if same else f" [{loop_unit}]"), loop_after))
+    unit = plant_unit if same else PER_CURVE
+    plot_bode(out / "bode.png", responses, title=plot_title(config, what="Bode"),
+              magnitude_unit=unit or None, **_bode_args(plant, designs, summary, band_hz, coherence_threshold))
+
+
+# --------------------------------------------------------------------------- identify's plots
+
+
+def greybox_records(holdout: float, estimation: tuple[Any, Any], validation: Mapping[str, tuple[Any, Any]] | None = None
+                    ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """``(torque, position)`` of the records a grey-box fit was estimated and validated on, by name.
+
+    As :func:`hilident.pipeline.fit_greybox` splits them: the validation
+    records by their names when there are any; without, the last
+    ``holdout`` of the estimation data (``"holdout"``).
+    """
+    torque, position = (np.asarray(x, dtype=float) for x in estimation)
+    others = {name: (np.asarray(t, dtype=float), np.asarray(q, dtype=float))
+              for name, (t, q) in (validation or {}).items()}
+    if others:
+        return {"estimation data": (torque, position), **others}
+    if holdout > 0:
+        cut = int(round(len(torque) * (1.0 - holdout)))
+        return {"estimation data": (torque[:cut], position[:cut]), "holdout": (torque[cut:], position[cut:])}
+    return {"estimation data": (torque, position)}
+
+
+def plot_model(path: str | os.PathLike, model_cfg, result, records: Mapping[str, tuple[Any, Any]],
+               sample_rate_hz: float, title: str | None = None) -> Path:
+    """``model.png``: the grey-box ``result`` simulated against each record, with its residual tests.
+
+    ``records`` are ``(torque N·m, position m)`` by name (:func:`greybox_records`);
+    the force is ``model_cfg.c`` times the torque, the residuals are those of
+    the fitted equation on each record's regression.
     """
     from hilident import pipeline
 
-    out = Path(out)
-    if friction is not None:
-        from hilident.ident.friction import stribeck
+    cutoff = model_cfg.cutoff_hz or sample_rate_hz / 10.0
+    sims: dict[str, Simulation | str] = {}
+    residuals: dict[str, tuple[Any, Any]] = {}
+    fits: dict[str, float] = {}
+    for name, (torque, position) in records.items():
+        try:
+            sims[name] = simulate_greybox(model_cfg.kind, result.fit.params,
+                                          model_cfg.c * np.asarray(torque, dtype=float), position, sample_rate_hz,
+                                          cutoff)
+        except DataError as exc:  # the figure says why, the command goes on
+            sims[name] = f"no simulation: {exc}"
+        try:
+            reg = pipeline.greybox_regression(model_cfg, torque, position, sample_rate_hz)
+        except DataError:
+            continue
+        residuals[name] = (np.asarray(reg.target) - result.fit.predict(reg.regressors),
+                           reg.regressors[result.fit.names[0]])
+        check = result.estimation if name == "estimation data" else result.validation.get(name, {})
+        if check.get("fit_percent") is not None:
+            fits[name] = check["fit_percent"]
+    return plot_greybox(path, model_cfg.kind, result.fit, sims, residuals, title=title, regression_fit_percent=fits)
 
-        pts = friction.points
-        vmax = float(np.max(np.abs(pts.v_mean)))
-        v = np.linspace(-vmax, vmax, 801)
-        plot_friction(out / "friction.png", pts.v_mean, pts.tau_mean, v, stribeck(v, friction.fit.params),
-                      label=friction.model)
-    responses = [("plant (net torque to output)", plant.plant), ("excitation to output, before notch", plant.loop)]
-    if loop_after is not None:
-        responses.append(("excitation to output, after notch", loop_after))
-    notch = pipeline.notch_chain_response(designs, plant.plant.frequency_hz)
-    plot_bode(out / "bode.png", responses, resonances=plant.resonances, notch_response=notch,
-              coherence_threshold=coherence_threshold, **pipeline.bode_extras(plant))
+
+def plot_identify(out: str | os.PathLike, summary: Mapping[str, Any], plant, designs: list, *,
+                  band_hz: tuple[float, float] | None = None, coherence_threshold: float | None = None,
+                  friction=None, model=None, model_cfg=None, data=None, validation=None) -> list[Path]:
+    """``bode.png``, and ``friction.png`` and ``model.png`` when there is one, of ``hilident identify``.
+
+    Parameters
+    ----------
+    out : path-like
+        The output folder.
+    summary : mapping
+        ``identify``'s ``summary.json``: ``config``, ``data.file``,
+        ``data.units`` and ``data.mapping`` (units of the responses).
+    plant, designs
+        The :class:`~hilident.pipeline.PlantResult` and the notch designs.
+    band_hz, coherence_threshold
+        The analysis band (Hz) and the coherence threshold.
+    friction : FrictionResult, optional
+    model : GreyBoxResult, optional
+        With ``model_cfg`` (``[model]``) and ``data`` (the dataset it was
+        fitted to, ``validation`` the other record): ``model.png``.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The PNGs written.
+    """
+    out = Path(out)
+    info = summary.get("data") or {}
+    source = Path(str(info.get("file") or "recording")).name
+    config = str(summary.get("config") or "")
+    # a hilident recording's own configuration is named after the recording
+    name = source if not config or config.startswith(str(info.get("file"))) else f"{source} ({config_name(config)})"
+    title = plot_title(f"identify {name}")
+    units, mapping = info.get("units") or {}, info.get("mapping") or {}
+
+    def unit_of(key: str) -> str:
+        return units.get(key) or channel_unit(mapping.get(key))
+
+    unit = ratio_unit(unit_of("output") or unit_of("velocity"), unit_of("torque") or unit_of("excitation"))
+    written = [plot_bode(out / "bode.png", [("plant (input to output)", plant.plant)],
+                         title=title.replace("identify", "Bode: identify", 1), magnitude_unit=unit or None,
+                         **_bode_args(plant, designs, summary, band_hz, coherence_threshold))]
+    if friction is not None:
+        _friction_png(out / "friction.png", friction, title)
+        written.append(out / "friction.png")
+    if model is not None and model_cfg is not None and data is not None:
+        others = None if validation is None else {
+            Path(validation.source).name: (validation.signals["torque"], validation.signals["position"])}
+        records = greybox_records(model_cfg.holdout, (data.signals["torque"], data.signals["position"]), others)
+        written.append(plot_model(out / "model.png", model_cfg, model, records, data.sample_rate_hz, title))
+    return written

@@ -444,7 +444,7 @@ class Session(DeviceConnection):
         self.summary = self.result.to_dict()
         write_json(self.out / "summary.json", self.summary)
         if self.plots:
-            self._plots(friction, plant, designs, verification)
+            self._plots(friction, plant, designs, verification, excitation.band_hz, model)
         html_report.write_report_quietly(self.out)
         return self.summary
 
@@ -685,6 +685,18 @@ class Session(DeviceConnection):
             recordings=sorted(p.name for p in self.out.glob("*.h5")), elapsed_s=elapsed_s, warnings=self.warnings,
             model=model)
 
-    def _plots(self, friction, plant, designs, verification) -> None:
+    def _plots(self, friction, plant, designs, verification, excitation_band_hz, model=None) -> None:
         report.plot_run(self.out, friction, plant, designs, verification.loop_after if verification else None,
-                        self.cfg.identification.coherence_threshold)
+                        self.cfg.identification.coherence_threshold, summary=self.summary,
+                        band_hz=pipeline.analysis_band(self.cfg.identification, excitation_band_hz),
+                        output=self.cfg.identification.output)
+        if model is not None:  # model.png: the fit of _greybox on the records it used
+            from hilident.offline import model_for_mode
+
+            s = self._analysed
+            others = {name: (v["torque_nm"], v["position_m"]) for name, v in s.items()
+                      if name != "identification" and "position_m" in v}
+            records = report.greybox_records(self.cfg.model.holdout, (s["identification"]["torque_nm"],
+                                                                      s["identification"]["position_m"]), others)
+            report.plot_model(self.out / "model.png", model_for_mode(self.cfg, self.cfg.excitation.mode), model,
+                              records, self.cfg.run.sample_rate_hz, report.plot_title(Path(self.cfg.source).name))

@@ -1,0 +1,10 @@
+"""Figures of a run and of ``identify``, drawn with matplotlib's object API (Agg, no pyplot state).
+
+:mod:`~hilident.plots.bode` (frequency responses with units, the analysis band,
+coherence, the model and the designed and stored notch),
+:mod:`~hilident.plots.friction` (friction points and the fitted curve with its
+parameters) and :mod:`~hilident.plots.greybox` (a grey-box model simulated
+against the measurement, and its residual tests). :mod:`hilident.report`
+re-exports the plot functions under their old names. matplotlib is imported
+only inside the functions that draw.
+"""
