@@ -28,8 +28,9 @@ if TYPE_CHECKING:
     from hilident.errors import ConfigError, DataError, DeviceError, HilidentError, UsageError
     from hilident.offline import identify_recording
     from hilident.offline import identify_recording as identify
+    from hilident.progress import Progress
     from hilident.recording import RunData, RunWriter, read_run
-    from hilident.session import Progress, Session
+    from hilident.session import Session
 
 #: Public name -> (module, attribute) it is loaded from.
 _PUBLIC: dict[str, tuple[str, str]] = {
@@ -37,7 +38,7 @@ _PUBLIC: dict[str, tuple[str, str]] = {
     "load_config": ("hilident.config", "load_config"),
     "parse_config": ("hilident.config", "parse_config"),
     "Session": ("hilident.session", "Session"),
-    "Progress": ("hilident.session", "Progress"),
+    "Progress": ("hilident.progress", "Progress"),
     "identify": ("hilident.offline", "identify_recording"),
     "identify_recording": ("hilident.offline", "identify_recording"),
     "read_run": ("hilident.recording", "read_run"),

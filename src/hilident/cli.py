@@ -117,7 +117,7 @@ def _upload(args) -> int:
     from hilident.config import load_config
 
     cfg = load_config(args.config)
-    from hilident.session import Progress  # after the config, as in _run
+    from hilident.progress import Progress
     from hilident.upload import UploadCommand
 
     confirm = _go_ahead(args.yes, "Write these filters to the device?",
@@ -186,7 +186,7 @@ def _identify(args) -> int:
 
     cfg = load_config(args.config) if args.config else None
     from hilident.offline import identify_recording  # after the config, as in _run
-    from hilident.session import Progress
+    from hilident.progress import Progress
 
     out = _out_folder(args.out, Path(args.data).stem, args.overwrite)
     started = time.time()

@@ -30,7 +30,6 @@ The session keeps the order; its parts live beside it (``docs/results.md``):
 from __future__ import annotations
 
 import os
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -65,6 +64,7 @@ from hilident.experiment import (  # noqa: F401 (kept importable)
 from hilident.filter_slots import BypassedSlots
 from hilident.lazy import lazy_module
 from hilident.plan import RunPlan, excitation_travel_m, make_plan
+from hilident.progress import Progress
 from hilident.run_excitation import Excitation, build_excitation, excitation_recipe  # noqa: F401 (kept importable)
 from hilident.serialise import write_json
 from hilident.signals import generators as sig
@@ -84,44 +84,6 @@ if TYPE_CHECKING:
 pipeline = lazy_module("hilident.pipeline")
 #: The upload step, shared with ``hilident upload``.
 uploading = lazy_module("hilident.upload")
-
-class Progress:
-    """Progress of long steps on stderr: one updating line on a terminal, a few lines otherwise."""
-
-    def __init__(self, stream=None, enabled: bool = True):
-        self.stream = stream or sys.stderr
-        self.enabled = enabled
-        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
-        self._last = -1
-
-    def step(self, message: str) -> None:
-        if self.enabled:
-            self._print(message)
-
-    def _print(self, text: str, end: str = "\n") -> None:
-        """Print, or fall silent when nobody reads any more (a closed pipe or terminal must not stop a run)."""
-        try:
-            print(text, end=end, file=self.stream, flush=True)
-        except (OSError, ValueError):
-            self.enabled = False
-
-    def fraction(self, label: str) -> Callable[[float], None]:
-        self._last = -1
-
-        def update(x: float) -> None:
-            pct = int(100 * x)
-            every = 1 if self.tty else 25
-            if not self.enabled or pct // every == self._last // every:
-                return
-            self._last = pct
-            if self.tty:
-                end = "\n" if pct >= 100 else ""
-                self._print(f"\r  {label}: {pct:3d} %", end=end)
-            else:
-                self._print(f"  {label}: {pct:3d} %")
-
-        return update
-
 
 def check_excitation_travel(cfg: Config, excitation: Excitation) -> None:
     """A set-point perturbation must keep the axis within half the position window (it starts anywhere in it)."""
