@@ -18,6 +18,7 @@ from hilident.emulator.factory import true_modes
 from hilident.recording import read_run
 from hilident.session import Session
 from report_page import check_report
+from schema_check import schema_errors
 from summary_keys import assert_layout
 from twins import assert_friction_matches
 
@@ -99,6 +100,8 @@ def test_every_shipped_emulator_config_runs(path, tmp_path):
             == json.loads(json.dumps(summary["resonances"])))
     assert (tmp_path / "bode.png").stat().st_size > 10_000
     check_report(tmp_path)  # report.html: every section, self-contained
+    written = json.loads((tmp_path / "summary.json").read_text())
+    assert schema_errors(written) == []  # the shipped JSON Schema holds for every shipped config's summary
     if path.stem == "emulated-gantry":  # summary.json is a documented interface: its keys stay as they were
         assert_layout("run", json.loads((tmp_path / "summary.json").read_text()))
 
