@@ -275,7 +275,9 @@ def test_run_identify_and_upload_write_their_report(tmp_path, capsys):
     upload = tmp_path / "upload"
     assert main(["upload", "--from", str(run), "--config", str(CONFIGS / "emulated-gantry.toml"), "--out",
                  str(upload), "-q"]) == 0
-    assert "read back" in check_report(upload).sections["notches"]
+    page = check_report(upload)
+    assert "read back" in page.sections["notches"]
+    assert [i["alt"] for i in page.all("img")] == ["notch.png"]  # designed vs stored, drawn by the upload
 
 
 def test_identify_that_fails_at_a_step_reports_what_it_found(tmp_path, capsys):

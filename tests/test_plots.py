@@ -393,3 +393,32 @@ def test_bode_draws_a_response_whose_coherence_is_undefined():
     # unknown is not low: the band stays in colour, only the lines outside it are greyed
     assert np.all(np.isfinite(y[(x >= 2.0) & (x <= 50.0)])) and np.all(np.isnan(y[x > 50.0]))
     assert np.all(np.isfinite(_lines(fig.axes[0], "outside band or coherence < 0.8")[0].get_ydata()))
+
+
+def test_upload_notch_plot_shows_designed_and_stored_chains():
+    """notch.png of an upload: the designed chain, the read-back chain, each centre marked; dB and Hz on the axes."""
+    import json
+
+    from hilident.plots.notches import notch_figure
+
+    summary = json.loads((Path(__file__).parent / "data" / "html_report" / "upload.json").read_text())
+    fig = notch_figure(summary)
+    ax = fig.axes[0]
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert any(label.startswith("designed") for label in labels)
+    assert any(label.startswith("stored in the device") for label in labels)
+    centre = float(summary["notch_filters"][0]["center_hz"])
+    assert any(f"{centre:.4g} Hz" in label for label in labels)
+    assert ax.get_xlabel() == "frequency [Hz]" and "dB" in ax.get_ylabel()
+    assert "Notches designed and stored" in ax.get_title()
+    stored = next(line for line in ax.get_lines() if line.get_label().startswith("stored"))
+    f, db = stored.get_xdata(), stored.get_ydata()
+    assert abs(f[np.argmin(db)] - centre) < 0.05 * centre  # the stored notch's minimum sits at the design centre
+    assert db.min() < -10.0
+
+
+def test_upload_notch_plot_needs_a_notch():
+    from hilident.plots.notches import notch_figure
+
+    with pytest.raises(DataError, match="no notch"):
+        notch_figure({"notch_filters": [], "upload": {"slots": []}})

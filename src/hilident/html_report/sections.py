@@ -229,6 +229,7 @@ CAPTIONS = {
     "bode.png": "Frequency response of the plant (magnitude, phase, coherence), the fitted model, the resonances "
                 "and the notch.",
     "friction.png": "Friction: the mean force or torque of each constant-speed leg and the fitted curve.",
+    "notch.png": "The notches as designed and as the device stores them (read back after the upload), in dB.",
     "model.png": "The grey-box or fitted model simulated against the measurement (fit %), and its residual tests "
                  "(autocorrelation and cross-correlation with their 99 % band).",
 }
