@@ -193,23 +193,12 @@ def stored_notch_response(summary: Mapping[str, Any] | None, frequency_hz) -> tu
     """
     if not summary:
         return None
-    from hilident.filters.biquad import Biquad
+    from hilident.plots.notches import records_chain
 
     rates = {n.get("slot"): n.get("sample_rate_hz") for n in summary.get("notch_filters") or []}
     f = np.asarray(frequency_hz, dtype=float)
-    h = np.ones(f.shape, dtype=complex)
-    found = False
-    for slot in (summary.get("upload") or {}).get("slots") or []:
-        b, a, rate = slot.get("readback_b"), slot.get("readback_a"), rates.get(slot.get("slot"))
-        if b is None or a is None or not rate:
-            continue
-        if len(b) != 3 or len(a) != 3:
-            raise DataError(f"upload slot {slot.get('slot')}: read-back b and a must hold 3 coefficients each, "
-                            f"got {b!r}, {a!r}")
-        section = Biquad((float(b[0]), float(b[1]), float(b[2])), (float(a[0]), float(a[1]), float(a[2])))
-        h = h * section.response(f, float(rate))
-        found = True
-    return (f, h) if found else None
+    h = records_chain((summary.get("upload") or {}).get("slots") or [], "readback_b", "readback_a", rates, f)
+    return (f, h) if h is not None else None
 
 
 def _bode_args(plant, designs: list, summary, band_hz, coherence_threshold) -> dict:

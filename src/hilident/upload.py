@@ -241,13 +241,6 @@ def _resonance_for(src: Source, rec: dict, index: int):
                      damping_ci95=number("damping_ci95"))
 
 
-def _three(values) -> tuple[float, float, float]:
-    """Three coefficients of a stored biquad as floats (a ValueError when there are not three)."""
-    if len(values) != 3:
-        raise ValueError("a biquad needs three b and three a coefficients")
-    return float(values[0]), float(values[1]), float(values[2])
-
-
 def designs_for_device(src: Source, cfg, loop_rate_hz: float, slots: list[int], warnings: list[str]) -> list:
     """The source's notches as :class:`~hilident.pipeline.NotchDesign` for slots ``slots`` at the device's rate.
 
@@ -266,7 +259,7 @@ def designs_for_device(src: Source, cfg, loop_rate_hz: float, slots: list[int], 
         if abs(rate - loop_rate_hz) <= _RATE_TOLERANCE * loop_rate_hz:
             spec = NotchSpec(float(rec["center_hz"]), float(rec["width_hz"]), float(rec["depth_db"]))
             try:
-                biquad = Biquad(_three(rec["b"]), _three(rec["a"]))
+                biquad = Biquad.from_sequences(rec["b"], rec["a"])
             except ValueError as exc:
                 raise DataError(f"{src.path}: notch_filters[{i}].a: {exc}") from None
             try:

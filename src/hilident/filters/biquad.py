@@ -11,6 +11,7 @@ transposed direct form II, the structure most servo drives use.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,6 +43,19 @@ class Biquad:
             raise ValueError(f"a[0] must be 1, got {a[0]!r}")
         object.__setattr__(self, "b", b)
         object.__setattr__(self, "a", a)
+
+    @classmethod
+    def from_sequences(cls, b: Sequence[float], a: Sequence[float]) -> Biquad:
+        """A section from two sequences of three numbers each (lists read from JSON, arrays).
+
+        Raises
+        ------
+        ValueError
+            Not three coefficients each, or ``a[0] != 1``.
+        """
+        if len(b) != 3 or len(a) != 3:
+            raise ValueError("a biquad needs three b and three a coefficients")
+        return cls((float(b[0]), float(b[1]), float(b[2])), (float(a[0]), float(a[1]), float(a[2])))
 
     @classmethod
     def identity(cls) -> Biquad:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -12,15 +12,23 @@ import numpy as np
 from hilident.errors import DataError
 from hilident.plots.common import config_name, outside_legend, plain_number, plot_title, save
 
-__all__ = ["notch_figure", "plot_notches"]
+__all__ = ["notch_figure", "plot_notches", "records_chain"]
 
 #: Points of the log frequency grid the chains are drawn on.
 GRID_POINTS = 4000
 
 
-def _chain(records: list[Mapping[str, Any]], b_key: str, a_key: str, rates: Mapping[Any, float],
-           f: np.ndarray) -> np.ndarray | None:
-    """The product of the biquads ``(record[b_key], record[a_key])`` at ``f`` (Hz); None when none has both."""
+def records_chain(records: Iterable[Mapping[str, Any]], b_key: str, a_key: str, rates: Mapping[Any, float],
+                  f: np.ndarray) -> np.ndarray | None:
+    """The biquads ``(record[b_key], record[a_key])`` in series at ``f`` (Hz); None when no record has both.
+
+    A record's rate is ``rates[record["slot"]]``, else its own ``sample_rate_hz``; a record without one is left out.
+
+    Raises
+    ------
+    DataError
+        A record's coefficients are not a biquad's (three each, ``a[0] = 1``), naming its slot and keys.
+    """
     from hilident.filters.biquad import Biquad
 
     h = np.ones(f.shape, dtype=complex)
@@ -29,9 +37,10 @@ def _chain(records: list[Mapping[str, Any]], b_key: str, a_key: str, rates: Mapp
         b, a, rate = r.get(b_key), r.get(a_key), rates.get(r.get("slot"), r.get("sample_rate_hz"))
         if b is None or a is None or not rate:
             continue
-        if len(b) != 3 or len(a) != 3:
-            raise DataError(f"slot {r.get('slot')}: {b_key} and {a_key} must hold 3 coefficients each")
-        section = Biquad((float(b[0]), float(b[1]), float(b[2])), (float(a[0]), float(a[1]), float(a[2])))
+        try:
+            section = Biquad.from_sequences(b, a)
+        except ValueError as exc:
+            raise DataError(f"slot {r.get('slot')}: {b_key} {b!r} and {a_key} {a!r}: {exc}") from None
         h = h * section.response(f, float(rate))
         found = True
     return h if found else None
@@ -58,11 +67,11 @@ def notch_figure(summary: Mapping[str, Any]):
 
     fig = Figure(figsize=(9.0, 4.5), layout="constrained")
     ax = fig.add_subplot()
-    designed = _chain(designs, "b", "a", rates, f)
+    designed = records_chain(designs, "b", "a", rates, f)
     if designed is not None:
         ax.semilogx(f, 20 * np.log10(np.abs(designed)), color="tab:blue", lw=1.5, ls="--",
                     label=f"designed ({len(designs)} notch{'es' if len(designs) != 1 else ''})")
-    stored = _chain(slots, "readback_b", "readback_a", rates, f)
+    stored = records_chain(slots, "readback_b", "readback_a", rates, f)
     if stored is not None:
         ax.semilogx(f, 20 * np.log10(np.abs(stored)), color="tab:red", lw=1.2,
                     label=f"stored in the device (read back, {len(slots)} slot{'s' if len(slots) != 1 else ''})")
