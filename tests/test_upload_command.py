@@ -364,3 +364,23 @@ def check_upload_to_a_parameter_drive(source: Path, out: Path, center_hz: float)
     designed = achieved["attenuation_at_design_center_db"] - achieved["depth_error_db"]
     assert achieved["realisable_db"] == pytest.approx(designed - achieved["quantisation_loss_db"])
     assert abs(achieved["beyond_quantisation_db"]) < 1.0 and achieved["realisable_db"] > 20.0
+
+
+def test_the_upload_draws_its_notches_and_a_failing_plot_is_only_a_warning(tmp_path, locks, capsys, serial_twin,
+                                                                          monkeypatch):
+    source = write_source(tmp_path / "run", serial_twin.truth_hz, 4000.0)
+    config = str(serial_twin.host_config("bench"))
+    assert upload("--from", str(source), "--config", config, "--yes", "-q", "--out", str(tmp_path / "a")) == 0
+    assert (tmp_path / "a" / "notch.png").stat().st_size > 10_000
+
+    import hilident.plots.notches
+
+    def broken(path, summary):
+        raise RuntimeError("no backend")
+
+    monkeypatch.setattr(hilident.plots.notches, "plot_notches", broken)
+    assert upload("--from", str(source), "--config", config, "--yes", "-q", "--out", str(tmp_path / "b")) == 0
+    summary = json.loads((tmp_path / "b" / "summary.json").read_text())
+    assert summary["upload"]["verified_readback"]  # the upload's result stands
+    assert any("notch.png not written: no backend" in w for w in summary["warnings"])
+    assert not (tmp_path / "b" / "notch.png").exists()

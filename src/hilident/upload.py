@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -567,23 +566,23 @@ class UploadCommand:
         if failure:
             result.failed(failure["failed_step"], failure["error"])
         summary = result.to_dict()
+        self._plot_notches(summary)
         write_json(self.out / "summary.json", summary)
         self.summary = summary
-        self._plot_notches(summary)
         html_report.write_report_quietly(self.out)
         return summary
 
     def _plot_notches(self, summary: dict) -> None:
-        """``notch.png``: the chain as designed and as read back; a plot that fails is a warning line, never a
-        failed upload (the device holds what the summary says either way)."""
+        """``notch.png``: the chain as designed and as read back; a plot that fails is a warning of the summary,
+        never a failed upload (the device holds what the summary says either way)."""
         if not summary.get("notch_filters"):
             return
         from hilident.plots.notches import plot_notches
 
         try:
             plot_notches(self.out / "notch.png", summary)
-        except (HilidentError, OSError, ValueError) as exc:
-            print(f"warning: {self.out / 'notch.png'} not written: {exc}", file=sys.stderr, flush=True)
+        except Exception as exc:  # the summary is written whatever the plot does
+            summary["warnings"] = [*summary.get("warnings", []), f"plots: {self.out / 'notch.png'} not written: {exc}"]
 
 
 class _Device(DeviceConnection):
