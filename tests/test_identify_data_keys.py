@@ -9,6 +9,7 @@ import pytest
 from scipy import signal
 
 from hilident.cli import main
+from schema_check import schema_errors
 
 FS = 256.0
 PERIOD = 1024
@@ -176,4 +177,5 @@ def test_a_failing_step_still_writes_the_summary_naming_it(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "data.position" in err and "up to the failed step" in err
     assert summary["failed_step"] == "model" and "data.position" in summary["error"]
+    assert schema_errors(summary) == []  # a partial summary is still a summary.json of its kind
     assert summary["resonances"] and summary["plant_model"] is not None

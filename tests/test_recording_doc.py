@@ -58,3 +58,26 @@ def test_reading_with_h5py_alone(doc_run, monkeypatch):
     assert ns["versions"]["hilident"] and ns["device"]["name"] == "myrio-board"
     assert [e[1] for e in ns["events"]] == [e["kind"] for e in run.events]
     assert ns["events"][-1][3] == run.events[-1]["data"]
+
+
+def test_the_layout_and_the_matlab_lines_name_what_a_recording_holds(doc_run):
+    """The doc's layout tree, its root-attribute table and its MATLAB lines (no MATLAB here: the paths,
+    attributes and event fields they read are checked in a recording instead)."""
+    import h5py
+
+    text = DOC.read_text(encoding="utf-8")
+    (tree,) = re.findall(r"^## Layout.*?^```\n(.*?)^```", text, flags=re.S | re.M)
+    (matlab,) = re.findall(r"^```matlab\n(.*?)^```", text, flags=re.S | re.M)
+    table = text.split("### Root attributes", 1)[1].split("\n\n", 2)[1]
+    attributes = [a for a in re.findall(r"^\| `(\w+)`", table, flags=re.M)]
+    with h5py.File(doc_run / "out" / "run.h5", "r") as f:
+        required = [line.split()[0] for line in tree.splitlines() if "optional" not in line]
+        assert [p for p in required if p != "/" and p not in f] == []
+        assert len(attributes) >= 10 and [a for a in attributes if a not in f.attrs] == []
+        datasets = re.findall(r'h5read\("run\.h5", "([^"]+)"\)', matlab)
+        read_attributes = re.findall(r'h5readatt\("run\.h5", "/", "(\w+)"\)', matlab)
+        fields = re.findall(r"ev\.(\w+)", matlab)
+        assert datasets and read_attributes and fields
+        assert [d for d in datasets if d not in f] == []
+        assert [a for a in read_attributes if a not in f.attrs] == []
+        assert [n for n in fields if n not in f["events"].dtype.names] == []

@@ -19,6 +19,7 @@ from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec, design_notch
 from hilident.ident.resonance import Resonance
 from hilident.upload import UploadCommand
+from schema_check import schema_errors
 from summary_keys import assert_layout
 from twins import Twin
 from vendor_drives import VendorDrive, write_vendor_drive
@@ -165,6 +166,7 @@ def test_a_failing_read_back_rolls_every_slot_back_and_exits_with_a_partial_summ
     assert slots(serial_twin) == before  # slot 0 holds the older notch again, enabled; slot 1 as it was
     summary = json.loads((tmp_path / "run-upload" / "summary.json").read_text())
     assert summary["failed_step"] == "upload" and "slot 1" in summary["error"]
+    assert schema_errors(summary) == []  # a partial summary is still a summary.json of its kind
     up = summary["upload"]
     assert [s["matches"] for s in up["slots"]] == [True, False]
     assert up["rolled_back"] == [{"slot": 0, "restored": True}, {"slot": 1, "restored": True}]
@@ -307,6 +309,7 @@ def test_a_failing_save_puts_the_slots_back(tmp_path):
         command.run()
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["failed_step"] == "save" and summary["upload"]["slots"][0]["matches"]
+    assert schema_errors(summary) == []
     assert summary["upload"]["rolled_back"] == [{"slot": 0, "restored": True}] and not summary["upload"]["saved"]
     assert command.device.emulator.drive.filters.read(0) == (Biquad.identity(), False)
 

@@ -12,6 +12,7 @@ from hilident.config import load_config
 from hilident.emulator.factory import true_modes
 from hilident.errors import DataError
 from hilident.session import Session
+from schema_check import schema_errors
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -51,6 +52,7 @@ def test_an_axis_too_weakly_excited_to_move_keeps_the_friction_test_and_names_wh
         Session(cfg, tmp_path, plots=False).run()
     written = json.loads((tmp_path / "summary.json").read_text())
     assert written["failed_step"] == "identification" and written["error"] == str(err.value)
+    assert schema_errors(written) == []  # a partial summary is still a summary.json of its kind
     assert written["friction"]["params"]["Fc"] > 0  # what the friction test found is kept
     assert written["resonances"] == [] and written["notch_filters"] == []
     fs = written["friction"]["params"]["Fs"]

@@ -328,6 +328,9 @@ class UploadPlan:
             now = "enabled" if r["before"]["enabled"] else "disabled"
             lines.append(f"  slot {r['slot']} (now {now}): notch {r['center_hz']:.5g} Hz, {r['width_hz']:.4g} Hz wide, "
                          f"{r['depth_db']:.4g} dB deep")
+            if r.get("parameters"):
+                lines.append("    the drive's parameters will be " + ", ".join(
+                    f"{p['parameter'] or p['register']} = {p['value']}" for p in r["parameters"].values()))
             lines.append(f"    the device will hold b = {_coeffs(r['expected_b'])}, a = {_coeffs(r['expected_a'])}: "
                          f"{r['achieved']['attenuation_at_design_center_db']:.1f} dB at {r['center_hz']:.5g} Hz "
                          f"({r['achieved']['depth_error_db']:+.2f} dB from the design: its quantisation), deepest at "
@@ -351,6 +354,13 @@ def _parameters_of(adapter, slot: int) -> dict:
     address and stored integer), else nothing."""
     if getattr(adapter, "parameter_slots", False):
         return {"parameters": adapter.filter_parameters(slot)["fields"]}
+    return {}
+
+
+def _planned_parameters_of(adapter, slot: int, spec) -> dict:
+    """``{"parameters": ...}`` a parameter drive's ``slot`` will hold for ``spec``, else nothing."""
+    if getattr(adapter, "parameter_slots", False):
+        return {"parameters": adapter.planned_parameters(slot, spec)}
     return {}
 
 
@@ -502,7 +512,8 @@ class UploadCommand:
                               "depth_db": d.spec.depth_db, "expected_b": list(expected.b),
                               "expected_a": list(expected.a),
                               "achieved": pipeline.achieved_notch(d, expected, planned=expected),
-                              "before": {"enabled": was["enabled"], "b": was["b"], "a": was["a"]}})
+                              "before": {"enabled": was["enabled"], "b": was["b"], "a": was["a"]},
+                              **_planned_parameters_of(ad, d.slot, d.spec)})
         return plan
 
     def _arm(self, plan: UploadPlan) -> None:

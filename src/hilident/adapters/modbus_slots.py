@@ -145,6 +145,13 @@ class FilterSlots(RegisterAccess):
                 out["notch_error"] = str(exc)
         return out
 
+    def planned_parameters(self, slot: int, spec: NotchSpec) -> dict:
+        """What a parameter drive's ``slot`` will hold for ``spec``: each field's register, parameter code and
+        the integer the drive's steps give (what ``hilident upload --dry-run`` shows)."""
+        regs = self._fields(slot)
+        return {f: {"register": regs[f].name, "parameter": regs[f].parameter, "value": v}
+                for f, v in self._realise(spec).fields.items()}
+
     def filter_notes(self, spec: NotchSpec) -> tuple[str, ...]:
         """Why a parameter drive's notch parameters cannot meet ``spec`` exactly, if they cannot."""
         return self._realise(spec).notes if self.parameter_slots else ()
