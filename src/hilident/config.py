@@ -257,6 +257,27 @@ class NotchConfig:
 
 
 @dataclass(frozen=True)
+class MapConfig:
+    """``[map]``: the resonance over the workspace: move to each position, hold it, excite, identify."""
+
+    positions_m: list[float] = _spec([], max_items=64, doc="cart positions to identify at, m (the encoder's axis, "
+                                     "within [limits] position_min_m .. position_max_m less margin_m)")
+    count: int = _spec(0, ge=0, le=64, doc="or: this many positions spread evenly over the position window less "
+                       "margin_m (0: positions_m)")
+    margin_m: float = _spec(0.05, ge=0, doc="distance every mapped position keeps from the position limits, m")
+    settle_s: float = _spec(0.5, ge=0, le=60, doc="hold at each position before the excitation starts, s")
+    max_velocity_mps: float = _spec(0.1, gt=0, doc="moves between positions: velocity limit, m/s (below "
+                                    "[limits] velocity_mps)")
+    max_accel_mps2: float = _spec(0.5, gt=0, le=1000, doc="moves between positions: acceleration limit, m/s^2")
+    k_degree: int = _spec(2, ge=0, le=4, doc="joint fit: degree of the stiffness k(p) polynomial in position")
+    d_degree: int = _spec(0, ge=0, le=4, doc="joint fit: degree of the damping d(p) polynomial in position")
+
+    @property
+    def enabled(self) -> bool:
+        return bool(self.positions_m) or self.count > 0
+
+
+@dataclass(frozen=True)
 class DataConfig:
     format: str = _spec("auto", choices=("auto", "hilident", "csv", "mat"),
                         doc="file format; auto: by extension (.h5/.hdf5 hilident, .csv/.txt/.dat/.tsv csv, .mat)")
@@ -450,6 +471,7 @@ class Config:
     excitation: ExcitationConfig = _spec(ExcitationConfig())
     identification: IdentificationConfig = _spec(IdentificationConfig())
     notch: NotchConfig = _spec(NotchConfig())
+    map: MapConfig = _spec(MapConfig())
     emulator: EmulatorConfig = _spec(EmulatorConfig())
     source: str = field(default="", metadata={"internal": True})
     text: str = field(default="", repr=False, metadata={"internal": True})
@@ -681,6 +703,8 @@ def _check_limits(cfg: Config, lim: LimitsConfig) -> None:
                           f"a speed reaches limits.velocity_mps = {lim.velocity_mps:g}", src)
     if cfg.friction_test.settle_s >= cfg.friction_test.hold_s:
         raise ConfigError("friction_test.settle_s", "must be shorter than friction_test.hold_s", src)
+    if cfg.map.enabled:
+        map_positions(cfg)
     if cfg.friction_test.enabled:
         _, travel = _friction_extent(cfg)
         half = (lim.position_max_m - lim.position_min_m) / 2
@@ -689,6 +713,37 @@ def _check_limits(cfg: Config, lim: LimitsConfig) -> None:
                 "friction_test.speeds_mps",
                 f"the friction test travels up to {travel:.3f} m, more than half the position window "
                 f"[{lim.position_min_m:g}, {lim.position_max_m:g}] m (shorter hold_s or lower speeds)", src)
+
+
+def map_positions(cfg: Config) -> list[float]:
+    """The cart positions ``[map]`` asks for, m: ``positions_m`` as given, or ``count`` spread evenly over the
+    position window less ``margin_m``.
+
+    Raises
+    ------
+    ConfigError
+        Both or fewer than two positions are given, a position lies outside the window less the margin, or the
+        moves between them would reach ``[limits] velocity_mps``.
+    """
+    m, src, lim = cfg.map, cfg.source, cfg.bench_limits
+    if m.positions_m and m.count:
+        raise ConfigError("map.count", "give either map.positions_m or map.count, not both", src)
+    lo, hi = lim.position_min_m + m.margin_m, lim.position_max_m - m.margin_m
+    if lo >= hi:
+        raise ConfigError("map.margin_m", f"{m.margin_m:g} m leaves nothing of the position window "
+                                          f"[{lim.position_min_m:g}, {lim.position_max_m:g}] m", src)
+    positions = [float(p) for p in m.positions_m] or [lo + (hi - lo) * i / max(m.count - 1, 1) for i in range(m.count)]
+    if len(positions) < 2:
+        raise ConfigError("map.positions_m" if m.positions_m else "map.count",
+                          "a map needs at least two positions", src)
+    outside = [p for p in positions if not lo <= p <= hi]
+    if outside:
+        raise ConfigError("map.positions_m", f"{outside[0]:g} m is outside the position window less map.margin_m, "
+                                             f"[{lo:g}, {hi:g}] m", src)
+    if m.max_velocity_mps >= lim.velocity_mps:
+        raise ConfigError("map.max_velocity_mps", f"{m.max_velocity_mps:g} m/s reaches limits.velocity_mps = "
+                                                  f"{lim.velocity_mps:g}", src)
+    return positions
 
 
 _PYSERIAL_FILE_OPTIONS = {"spy": ("file",)}

@@ -76,6 +76,7 @@ from hilident.summary import (
     UploadOutcome,
     VerificationPart,
 )
+from hilident.workspace_map import MAP_MODE, MapPoint, WorkspaceMap
 
 if TYPE_CHECKING:
     from hilident.adapters.base import DeviceAdapter
@@ -301,6 +302,8 @@ class Session(DeviceConnection):
         self.friction_mode = "velocity"  # or "position" on a drive without a velocity mode (set by prepare)
         self._uploaded = False
         self._auto: dict | None = None  # the automatic amplitude's choice, trials and reason
+        self.map_points: list[MapPoint] | None = None  # [map]: the mode at each mapped position
+        self.map_results: dict[str, Any] = {}  # [map]: each mapped position's identification, by recording
 
     # --- connection -----------------------------------------------------------------------
 
@@ -381,6 +384,9 @@ class Session(DeviceConnection):
             ident = self.record("identification", self.cfg.excitation.mode, excitation.samples,
                                 period_samples=excitation.period_samples, recipe=excitation_recipe(self.cfg))
             plant = self._identify(ident, excitation, friction)
+            if self.cfg.map.enabled:
+                step = "map"
+                self.map_points = self._map_step(ident, excitation, friction, plant)
             step = "notch upload"
             designs, upload = self._notch_step(plant)
             step = "verification"
@@ -401,6 +407,8 @@ class Session(DeviceConnection):
                 self.close()
         endings.raise_pending()
         model = self._greybox()
+        if self.plots and self.map_points:
+            self._map_plot()  # before the summary: a plot that cannot be drawn is one of its warnings
         self.result = self._summary(friction, plant, designs, upload, verification, time.monotonic() - started,
                                     model=model)
         self.summary = self.result.to_dict()
@@ -424,6 +432,9 @@ class Session(DeviceConnection):
         if (error := adapter_class(driver.transport).run_refusal(driver)) is not None:  # cannot play
             raise ConfigError(error.key, error.message, cfg.source)
         modes = check_run_against_driver(cfg, driver)
+        if cfg.map.enabled and not {"position", MAP_MODE} <= set(modes):
+            raise ConfigError("map", f"driver {driver.name!r} offers the modes {', '.join(modes) or 'none'}: a map "
+                                     f"needs position (to move) and {MAP_MODE} (to hold while exciting)", cfg.source)
         check_auto_amplitude(cfg)  # again: a config changed in code after loading
         excitation = build_excitation(cfg)
         check_excitation_travel(cfg, excitation)
@@ -526,15 +537,17 @@ class Session(DeviceConnection):
         self.warnings += result.warnings
         return result
 
-    def _identify(self, exp: Experiment, excitation: Excitation, friction):
+    def _identify(self, exp: Experiment, excitation: Excitation, friction, for_model: bool = True):
+        """The plant identified from ``exp`` (``for_model``: its samples also feed the grey-box fit)."""
         cfg = self.cfg
         period = excitation.period_samples
         s = self._analysis_samples(exp, excitation)
-        self._analysed["identification"] = s
+        if for_model:
+            self._analysed[exp.name] = s
         ic = cfg.identification
         band = pipeline.analysis_band(ic, excitation.band_hz)
         check_it_moved(cfg, s[ic.output], friction)
-        self.progress.step("identification: frequency response and resonances")
+        self.progress.step(f"{exp.name}: frequency response and resonances")
         result = pipeline.identify_plant(
             s["excitation"], s["torque_nm"], s[ic.output], s["velocity_mps"], cfg.run.sample_rate_hz, ic, band,
             friction=friction.fit.params if friction else None,
@@ -543,6 +556,20 @@ class Session(DeviceConnection):
         )
         self.warnings += result.warnings
         return result
+
+    def _map_step(self, ident: Experiment, excitation: Excitation, friction, plant) -> list[MapPoint]:
+        """``[map]``: the mode at every mapped position (:class:`~hilident.workspace_map.WorkspaceMap`), the
+        axis back where the identification ran."""
+        mapper = WorkspaceMap(self.cfg, self.record,
+                              lambda exp, name: self._identify(exp, excitation, friction, for_model=False),
+                              self.progress)
+        reference = plant.resonances[0].frequency_hz if plant.resonances else None
+        points = mapper.run(excitation, float(ident.samples["position_m"][-1]), reference, excitation_recipe(self.cfg))
+        missing = [p.target_m for p in points if p.frequency_hz is None]
+        if missing:
+            self.warnings.append("map: no resonance found at " + ", ".join(f"{p:+.3f} m" for p in missing))
+        self.map_results = mapper.results
+        return points
 
     def _notch_step(self, plant):
         nc = self.cfg.notch
@@ -645,7 +672,7 @@ class Session(DeviceConnection):
             plant=plant, friction=friction, designs=designs, upload=upload, verification=verification,
             stream=self.totals, connect=connect, filters_found=self.filters_found,
             recordings=sorted(p.name for p in self.out.glob("*.h5")), elapsed_s=elapsed_s, warnings=self.warnings,
-            model=model)
+            model=model, workspace_map=self.map_points)
 
     def _plots(self, friction, plant, designs, verification, excitation_band_hz, model=None) -> None:
         report.plot_run(self.out, friction, plant, designs, verification.loop_after if verification else None,
@@ -662,3 +689,13 @@ class Session(DeviceConnection):
                                                                       s["identification"]["position_m"]), others)
             report.plot_model(self.out / "model.png", model_for_mode(self.cfg, self.cfg.excitation.mode), model,
                               records, self.cfg.run.sample_rate_hz, report.plot_title(Path(self.cfg.source).name))
+
+    def _map_plot(self) -> None:
+        """``map.png``: the mode over the mapped positions (a plot that cannot be drawn is a warning)."""
+        from hilident.plots.workspace import plot_map
+
+        try:
+            plot_map(self.out / "map.png", [p.to_dict() for p in self.map_points or []],
+                     title=report.plot_title(Path(self.cfg.source).name, what="Mode over the workspace"))
+        except (DataError, ValueError) as exc:
+            self.warnings.append(f"map.png could not be drawn: {exc}")

@@ -31,7 +31,7 @@ __all__ = ["DevicePart", "ExcitationPart", "Failure", "PlantPart", "Summary", "U
 LAYOUTS: dict[str, tuple[str, ...]] = {
     "run": ("hilident_version", "config", "device", "sample_rate_hz", "excitation", "resonances", "rejected_peaks",
             "plant_model", "measurement", "friction", "notch_filters", "upload", "verification", "stream", "connect",
-            "filters_found", "recordings", "elapsed_s", "warnings", "model"),
+            "filters_found", "recordings", "elapsed_s", "warnings", "model", "map"),
     "identify": ("hilident_version", "config", "data", "resonances", "rejected_peaks", "friction", "model",
                  "plant_model", "measurement", "notch_filters", "notch_skipped_reason", "upload", "verification",
                  "stream", "elapsed_s", "warnings"),
@@ -228,13 +228,14 @@ class Summary:
                plant: Any, friction: Any, designs: list, upload: UploadOutcome,
                verification: VerificationPart | None, stream: StreamStats, connect: dict | None,
                filters_found: list[dict], recordings: list[str], elapsed_s: float, warnings: list[str],
-               model: Any = NOT_REACHED) -> Summary:
+               model: Any = NOT_REACHED, workspace_map: list | None = None) -> Summary:
         """``hilident run``'s summary (``model``: the grey-box fit, None when not asked for; left out when the
-        run failed before it)."""
+        run failed before it; ``workspace_map``: the ``[map]`` points, left out of a run without ``[map]``)."""
         return cls("run", config, elapsed_s, warnings, upload, designs, PlantPart.of(plant), friction_summary(friction),
                    model, verification or VerificationPart(), stream, device, excitation,
                    {"sample_rate_hz": sample_rate_hz, "connect": connect, "filters_found": filters_found,
-                    "recordings": recordings})
+                    "recordings": recordings,
+                    "map": NOT_REACHED if workspace_map is None else [p.to_dict() for p in workspace_map]})
 
     @classmethod
     def of_identify(cls, *, config: str, data: dict, plant: Any, friction: Any, model: Any, designs: list,

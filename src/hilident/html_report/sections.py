@@ -232,6 +232,8 @@ CAPTIONS = {
     "notch.png": "The notches as designed and as the device stores them (read back after the upload), in dB.",
     "model.png": "The grey-box or fitted model simulated against the measurement (fit %), and its residual tests "
                  "(autocorrelation and cross-correlation with their 99 % band).",
+    "map.png": "The mode over the workspace: the frequency identified at each mapped position with its 95 % "
+               "interval.",
 }
 
 
@@ -496,6 +498,23 @@ _STREAM_NAMES = {"samples": "samples", "lost_frames": "lost frames", "lost_block
                  "board_dropped_blocks": "blocks the board dropped"}
 
 
+def workspace(inputs: ReportInputs) -> str:
+    """``[map]``: the mode at each mapped position."""
+    points = _list(inputs.summary.get("map"))
+    if not points:
+        return section("workspace", "Workspace map", note("No [map] in this command: the resonance was identified "
+                                                          "at one position."))
+    rows = [[num(p.get("position_m"), "m"), num(p.get("target_m"), "m"),
+             pm(p.get("frequency_hz"), p.get("frequency_ci95_hz"), "Hz"), num(p.get("damping_ratio")),
+             num(p.get("coherence"), "", 3), _text(p.get("recording"))] for p in points]
+    found = [p["frequency_hz"] for p in points if isinstance(p.get("frequency_hz"), (int, float))]
+    spread = (note(f"The mode moves over {min(found):.4g} .. {max(found):.4g} Hz "
+                   f"({100 * (max(found) - min(found)) / min(found):.1f} % of its lowest).") if found else "")
+    body = table(["position", "asked", "mode frequency (95 %)", "damping ratio", "coherence", "recording"], rows,
+                 "The mode identified at each position") + spread
+    return section("workspace", "Workspace map", body)
+
+
 def stream_section(inputs: ReportInputs) -> str:
     st = _dict(inputs.summary.get("stream"))
     if not st:
@@ -535,6 +554,7 @@ SECTIONS: tuple[tuple[str, str, Callable[[ReportInputs], str]], ...] = (
     ("friction", "Friction fit", friction),
     ("model", "Model, uncertainty and validation", model_section),
     ("notches", "Notches: designed and achieved", notches),
+    ("workspace", "Workspace map", workspace),
     ("stream", "Stream statistics", stream_section),
     ("recordings", "Recordings", recordings),
 )
