@@ -900,6 +900,31 @@ def design_notches(resonances, cfg: NotchConfig, filter_rate_hz: float, slots: l
     return designs
 
 
+def covering_design(map_entries, cfg: NotchConfig, filter_rate_hz: float, realise=None):
+    """One notch for the mapped mode over the whole workspace, or a position-scheduled set.
+
+    :func:`hilident.filters.covering.covering_notch` with the run's ``[notch]``
+    keys: ``target_attenuation_db`` everywhere in ``[min(f - ci), max(f +
+    ci)]`` over the map, a width of at most ``max_width_ratio`` of the centre.
+
+    Parameters
+    ----------
+    map_entries : iterable
+        The ``map`` records (``position_m``, ``frequency_hz``, ``frequency_ci95_hz``).
+    cfg : NotchConfig
+        The ``[notch]`` table.
+    filter_rate_hz : float
+        The drive's filter rate, Hz.
+    realise : callable, optional
+        ``realise(spec) -> Biquad``, the section the device stores for a notch;
+        default the exact design.
+    """
+    from hilident.filters.covering import covering_notch
+
+    return covering_notch(map_entries, filter_rate_hz, cfg.target_attenuation_db, cfg.max_width_ratio,
+                          realise=realise)
+
+
 def peak_reductions(before: FrequencyResponse, after: FrequencyResponse, resonances, band_bandwidths: float = 2.0):
     """Measured reduction of each resonance between two runs with the same excitation.
 
