@@ -322,8 +322,9 @@ def _schedule(designer: _Designer, modes: list[MappedMode]) -> list[NotchGroup]:
     """Fewest consecutive groups (in frequency order) whose notches each meet the target.
 
     Greedy: a group grows by the next mode while its notch still meets the
-    target. A subset of a range that can be covered can be covered, so greedy
-    growth gives the fewest groups of consecutive modes.
+    target. For the exact design a sub-range of a range one notch covers is
+    covered too, so greedy growth gives the fewest groups of consecutive modes
+    (a device's rounding can break that monotony by a fraction of a dB).
     """
     ordered = sorted(modes, key=lambda m: (m.frequency_hz, m.frequency_ci95_hz))
     groups: list[NotchGroup] = []
