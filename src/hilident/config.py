@@ -254,6 +254,8 @@ class NotchConfig:
                                           "this many half-power bandwidths either side of the mode, before vs after")
     max_width_ratio: float = _spec(1.0, gt=0, lt=2, doc="widest notch the width search may choose, as a fraction "
                                    "of its centre frequency")
+    target_attenuation_db: float = _spec(20.0, gt=0, doc="least attenuation of the designed notch at both ends of "
+                                         "the 95 % interval of the resonance frequency; the notch is made wide enough")
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ import numpy as np
 from hilident.config import IdentificationConfig, ModelConfig, NotchConfig
 from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad
-from hilident.filters.notch import NotchSpec, design_notch, notch_from_resonance
+from hilident.filters.notch import NotchSpec, design_notch, interval_width_hz, notch_from_resonance
 from hilident.filters.parametric import attenuation_db
 from hilident.ident import friction as fr
 from hilident.ident import greybox
@@ -761,6 +761,12 @@ class NotchDesign:
         resonance's local model, worst case over its 95 % frequency interval.
     warning : str
         Set when the width search could not reach the target.
+    width_reason : str
+        What set ``spec.width_hz`` (:data:`WIDTH_REASONS`); "" when unknown
+        (a notch taken over from a file).
+    attenuation_at_ci95_db : float
+        Attenuation of ``biquad`` at the worse end of the resonance's 95 %
+        frequency interval ``f -+ frequency_ci95_hz``, dB (NaN without an interval).
     """
 
     spec: NotchSpec
@@ -770,6 +776,14 @@ class NotchDesign:
     resonance: Resonance
     predicted_band_reduction_db: float = float("nan")
     warning: str = ""
+    width_reason: str = ""
+    attenuation_at_ci95_db: float = float("nan")
+
+
+#: Why a designed notch is as wide as it is: today's rule (``width_factor`` half-power bandwidths, at least
+#: ``min_width_ratio`` of the centre), the 95 % interval of the frequency (``target_attenuation_db`` at both of its
+#: ends), or the width search for the predicted band figure (``min_reduction_db``).
+WIDTH_REASONS = ("resonance bandwidth", "minimum width ratio", "frequency uncertainty", "band figure")
 
 
 def band_of(frequency_hz: float, damping_ratio: float, bandwidths: float) -> tuple[float, float]:
@@ -836,15 +850,33 @@ def design_notches(resonances, cfg: NotchConfig, filter_rate_hz: float, slots: l
     widest notch still falls short, the design keeps it and says so in
     ``warning`` with the figure it achieves. With `response` (the measured
     loop the verification repeats) the prediction uses it.
+
+    Before the search the width is made at least what the resonance's 95 %
+    frequency interval needs: the designed (discrete) notch attenuates at
+    least ``target_attenuation_db`` at ``f -+ frequency_ci95_hz``
+    (:func:`~hilident.filters.notch.interval_width_hz`, closed form). Each
+    design says which rule set its width (``width_reason``) and what it
+    attenuates at the ends of the interval.
     """
     ordered = sorted(resonances, key=lambda r: -r.peak_magnitude_db)[: len(slots)]
     designs = []
     target = cfg.min_reduction_db
-    depth = max(cfg.depth_db, target + 6.0)
+    depth = max(cfg.depth_db, target + 6.0, cfg.target_attenuation_db + 6.0)
     for slot, res in zip(slots, sorted(ordered, key=lambda r: r.frequency_hz), strict=False):
         zeta = res.damping_ratio if np.isfinite(res.damping_ratio) else 0.05
         spec = notch_from_resonance(res.frequency_hz, zeta, depth_db=depth, width_factor=cfg.width_factor,
                                     min_relative_width=cfg.min_width_ratio)
+        reason = ("resonance bandwidth" if cfg.width_factor * 2.0 * zeta >= cfg.min_width_ratio
+                  else "minimum width ratio")
+        ci = res.frequency_ci95_hz
+        has_interval = bool(np.isfinite(ci) and 0.0 < ci < res.frequency_hz
+                            and res.frequency_hz + ci < 0.5 * filter_rate_hz)
+        needed = (interval_width_hz(res.frequency_hz, ci, cfg.target_attenuation_db, depth, filter_rate_hz)
+                  if has_interval else 0.0)
+        if needed > spec.width_hz:
+            spec = NotchSpec(spec.center_hz, needed, spec.depth_db)
+            reason = "frequency uncertainty"
+        start_width = spec.width_hz
         widest = max(cfg.max_width_ratio * res.frequency_hz, spec.width_hz)
         while True:
             biquad = design_notch(spec, filter_rate_hz)
@@ -859,8 +891,38 @@ def design_notches(resonances, cfg: NotchConfig, filter_rate_hz: float, slots: l
                        f"(notch.min_reduction_db = {target:g}): the response beside the mode stays above the notched "
                        "peak; a finer frequency resolution (identification.segment_s, excitation.period_s) sharpens "
                        "the measured peak")
-        designs.append(NotchDesign(spec, biquad, slot, filter_rate_hz, res, predicted, warning))
+        if spec.width_hz > start_width:
+            reason = "band figure"
+        at_ci = float("nan")
+        if has_interval:
+            at_ci = min(attenuation_db(biquad, res.frequency_hz + side * ci, filter_rate_hz) for side in (-1.0, 1.0))
+        designs.append(NotchDesign(spec, biquad, slot, filter_rate_hz, res, predicted, warning, reason, at_ci))
     return designs
+
+
+def covering_design(map_entries, cfg: NotchConfig, filter_rate_hz: float, realise=None):
+    """One notch for the mapped mode over the whole workspace, or a position-scheduled set.
+
+    :func:`hilident.filters.covering.covering_notch` with the run's ``[notch]``
+    keys: ``target_attenuation_db`` everywhere in ``[min(f - ci), max(f +
+    ci)]`` over the map, a width of at most ``max_width_ratio`` of the centre.
+
+    Parameters
+    ----------
+    map_entries : iterable
+        The ``map`` records (``position_m``, ``frequency_hz``, ``frequency_ci95_hz``).
+    cfg : NotchConfig
+        The ``[notch]`` table.
+    filter_rate_hz : float
+        The drive's filter rate, Hz.
+    realise : callable, optional
+        ``realise(spec) -> Biquad``, the section the device stores for a notch;
+        default the exact design.
+    """
+    from hilident.filters.covering import covering_notch
+
+    return covering_notch(map_entries, filter_rate_hz, cfg.target_attenuation_db, cfg.max_width_ratio,
+                          realise=realise)
 
 
 def peak_reductions(before: FrequencyResponse, after: FrequencyResponse, resonances, band_bandwidths: float = 2.0):
@@ -1000,7 +1062,9 @@ def notch_records(designs: list[NotchDesign]) -> list[dict]:
     return [
         {"center_hz": d.spec.center_hz, "width_hz": d.spec.width_hz, "depth_db": d.spec.depth_db,
          "sample_rate_hz": d.sample_rate_hz, "slot": d.slot, "b": list(d.biquad.b), "a": list(d.biquad.a),
-         "predicted_band_reduction_db": d.predicted_band_reduction_db}
+         "predicted_band_reduction_db": d.predicted_band_reduction_db,
+         **({"width_reason": d.width_reason, "attenuation_at_ci95_db": d.attenuation_at_ci95_db}
+            if d.width_reason else {})}
         for d in designs
     ]
 

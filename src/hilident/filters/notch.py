@@ -47,10 +47,12 @@ __all__ = [
     "chain_response",
     "design_notch",
     "float32_biquad",
+    "interval_width_hz",
     "notch_analog",
     "notch_from_resonance",
     "quantize_biquad",
     "tustin_prewarped",
+    "width_for_attenuation_hz",
 ]
 
 
@@ -145,6 +147,106 @@ def notch_from_resonance(
     floor = _number("min_relative_width", min_relative_width)
     width = max(factor * 2.0 * zeta * f, floor * f)
     return NotchSpec(center_hz=f, width_hz=width, depth_db=depth_db)
+
+
+def width_for_attenuation_hz(center_hz, frequencies_hz, attenuation_db, depth_db, sample_rate_hz=None) -> float:
+    """Smallest notch width that attenuates at least ``attenuation_db`` at each of ``frequencies_hz``.
+
+    Closed form.  With ``r = w / w0`` and ``u = (1 - r^2) / (2 r)`` the
+    notch of the module docstring has ``|H|^2 = (u^2 + zeta_z^2) / (u^2 +
+    zeta_p^2)``; with ``A = 10**(-attenuation_db / 20)`` and ``g =
+    10**(-depth_db / 20)``, ``|H| <= A`` holds exactly when
+    ``zeta_p >= |u| sqrt((1 - A^2) / (A^2 - g^2))``.  For the digital notch of
+    :func:`design_notch` (pre-warped at the centre) the digital response at
+    ``f`` is the analog one at the warped ratio
+    ``r = tan(pi f / fs) / tan(pi f0 / fs)``, so with ``sample_rate_hz`` the
+    result is exact for the designed biquad, not only for its prototype.
+
+    Parameters
+    ----------
+    center_hz : float
+        Notch centre, Hz.
+    frequencies_hz : array_like
+        Frequencies that must be attenuated, Hz (below ``sample_rate_hz / 2``).
+    attenuation_db : float
+        Least attenuation wanted at each of them, dB (positive).
+    depth_db : float
+        Depth of the notch at its centre, dB; must exceed ``attenuation_db``.
+    sample_rate_hz : float, optional
+        Rate the notch runs at; ``None``: the analog prototype.
+
+    Returns
+    -------
+    float
+        ``width_hz`` (as :class:`NotchSpec` means it), Hz; 0 when every
+        frequency is the centre.
+
+    Raises
+    ------
+    ConfigError
+        ``attenuation_db`` not below ``depth_db`` (a notch is never deeper
+        than its centre), or a frequency at or above Nyquist.
+
+    Example
+    -------
+    >>> w = width_for_attenuation_hz(100.0, [99.0, 101.0], 20.0, 40.0, 4000.0)
+    >>> bq = design_notch(NotchSpec(100.0, w, 40.0), 4000.0)
+    >>> round(float(-20 * np.log10(abs(bq.response(99.0, 4000.0)))), 6)
+    20.0
+    """
+    f0 = _number("center_hz", center_hz)
+    target = _number("attenuation_db", attenuation_db)
+    depth = _number("depth_db", depth_db, allow_inf=True)
+    if not target < depth:
+        raise ConfigError("attenuation_db", f"must be below the notch depth {depth:g} dB, got {target:g}")
+    f = np.atleast_1d(np.asarray(frequencies_hz, dtype=float))
+    if f.size == 0 or not np.all(np.isfinite(f)) or np.any(f <= 0.0):
+        raise ConfigError("frequencies_hz", f"must be positive finite frequencies, got {f!r}")
+    if sample_rate_hz is None:
+        r = f / f0
+    else:
+        fs = _number("sample_rate_hz", sample_rate_hz)
+        if np.any(f >= 0.5 * fs) or f0 >= 0.5 * fs:
+            raise ConfigError("frequencies_hz", f"must lie below the Nyquist frequency {0.5 * fs:g} Hz")
+        r = np.tan(np.pi * f / fs) / math.tan(math.pi * f0 / fs)
+    u = float(np.max(np.abs(1.0 - r * r) / (2.0 * r)))
+    a2, g2 = 10.0 ** (-target / 10.0), 10.0 ** (-depth / 10.0)
+    zeta_p = u * math.sqrt((1.0 - a2) / (a2 - g2))
+    return 2.0 * zeta_p * f0
+
+
+def interval_width_hz(frequency_hz, frequency_ci95_hz, attenuation_db, depth_db, sample_rate_hz=None) -> float:
+    """Width a notch centred on ``frequency_hz`` needs to attenuate ``attenuation_db`` over its 95 % interval.
+
+    The uncertainty-aware width rule: the identified frequency is only known
+    to ``+- frequency_ci95_hz``, so the notch must reach the target at both
+    ``frequency_hz - frequency_ci95_hz`` and ``frequency_hz + frequency_ci95_hz``
+    (:func:`width_for_attenuation_hz`, exact for the designed biquad when
+    ``sample_rate_hz`` is given).  A NaN or zero interval needs no width (0).
+
+    Parameters
+    ----------
+    frequency_hz : float
+        Identified frequency, the notch centre, Hz.
+    frequency_ci95_hz : float
+        Half-width of its 95 % confidence interval, Hz (NaN: unknown).
+    attenuation_db : float
+        Least attenuation wanted at both ends of the interval, dB.
+    depth_db : float
+        Depth of the notch, dB (above ``attenuation_db``).
+    sample_rate_hz : float, optional
+        Filter rate the notch runs at, Hz; ``None``: the analog prototype.
+    """
+    f = _number("frequency_hz", frequency_hz)
+    try:
+        ci = float(frequency_ci95_hz)
+    except (TypeError, ValueError):
+        raise ConfigError("frequency_ci95_hz", f"must be a number, got {frequency_ci95_hz!r}") from None
+    if math.isnan(ci) or ci == 0.0:
+        return 0.0
+    if not 0.0 < ci < f:
+        raise ConfigError("frequency_ci95_hz", f"must lie in [0, {f:g}) Hz, got {ci!r}")
+    return width_for_attenuation_hz(f, [f - ci, f + ci], attenuation_db, depth_db, sample_rate_hz)
 
 
 def tustin_prewarped(b_s, a_s, sample_rate_hz, prewarp_hz) -> Biquad:
