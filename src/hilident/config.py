@@ -280,6 +280,35 @@ class MapConfig:
 
 
 @dataclass(frozen=True)
+class MoveConfig:
+    """``[verification] move``: a point-to-point move done without and with the notch, its ringing compared."""
+
+    distance_m: float = _spec(doc="signed length of the move, m (out and back again from where the axis is)")
+    max_velocity_mps: float = _spec(gt=0, doc="velocity limit of the move, m/s (below [limits] velocity_mps)")
+    max_accel_mps2: float = _spec(gt=0, le=1000, doc="acceleration limit of the move, m/s^2")
+    profile: str = _spec("trapezoid", choices=("trapezoid", "s-curve"))
+    max_jerk_mps3: float = _spec(0.0, ge=0, doc="s-curve: jerk limit, m/s^3 (0: 50 times max_accel_mps2 per "
+                                 "second)")
+    dwell_s: float = _spec(1.0, gt=0, le=60, doc="held at the end of the move while its ringing is measured, s")
+    notch: str = _spec("auto", choices=("auto", "drive", "host"), doc="where the notch acts in the move with it: "
+                       "the drive's filter slots, the host's set-point (the move shaped), auto: the slots when "
+                       "the notch was uploaded there, else the host")
+    settle_band_m: float = _spec(0.0, ge=0, doc="settling band of the residual vibration, m (0: 5 % of the first "
+                                 "peak of the move without the notch)")
+
+    @property
+    def jerk_mps3(self) -> float:
+        return self.max_jerk_mps3 or 50.0 * self.max_accel_mps2
+
+
+@dataclass(frozen=True)
+class VerificationConfig:
+    """``[verification]``: proofs that the notch works besides the repeated excitation (``[notch] verify``)."""
+
+    move: MoveConfig | None = _spec(None)
+
+
+@dataclass(frozen=True)
 class DataConfig:
     format: str = _spec("auto", choices=("auto", "hilident", "csv", "mat"),
                         doc="file format; auto: by extension (.h5/.hdf5 hilident, .csv/.txt/.dat/.tsv csv, .mat)")
@@ -474,6 +503,7 @@ class Config:
     identification: IdentificationConfig = _spec(IdentificationConfig())
     notch: NotchConfig = _spec(NotchConfig())
     map: MapConfig = _spec(MapConfig())
+    verification: VerificationConfig = _spec(VerificationConfig())
     emulator: EmulatorConfig = _spec(EmulatorConfig())
     source: str = field(default="", metadata={"internal": True})
     text: str = field(default="", repr=False, metadata={"internal": True})
@@ -707,6 +737,16 @@ def _check_limits(cfg: Config, lim: LimitsConfig) -> None:
         raise ConfigError("friction_test.settle_s", "must be shorter than friction_test.hold_s", src)
     if cfg.map.enabled:
         map_positions(cfg)
+    move = cfg.verification.move
+    if move is not None:
+        if move.distance_m == 0 or 2 * abs(move.distance_m) >= lim.position_max_m - lim.position_min_m:
+            raise ConfigError("verification.move.distance_m", f"{move.distance_m:g} m: a move must be non-zero and "
+                                                              "shorter than half the position window "
+                                                              f"[{lim.position_min_m:g}, {lim.position_max_m:g}] m",
+                              src)
+        if move.max_velocity_mps >= lim.velocity_mps:
+            raise ConfigError("verification.move.max_velocity_mps", f"{move.max_velocity_mps:g} m/s reaches "
+                                                                    f"limits.velocity_mps = {lim.velocity_mps:g}", src)
     if cfg.friction_test.enabled:
         _, travel = _friction_extent(cfg)
         half = (lim.position_max_m - lim.position_min_m) / 2

@@ -1,0 +1,167 @@
+"""The move test (``[verification] move``): the same point-to-point move without and with the notch.
+
+The thesis's last proof was a move done twice, with and without the notch, compared by eye on an
+accelerometer. This step does it on any device that holds position: it moves out by ``distance_m`` (in
+position mode, a trapezoid or an S-curve), dwells, moves back, first with the notch out of the way and then
+with it, records both, and measures the ringing over each dwell
+(:func:`hilident.motion.residual.compare_moves`).
+
+Where the notch acts in the second move:
+
+* **the drive's filter slots** (the notch was uploaded there): for the first move the slots holding the
+  notch are disabled, then put back as they were;
+* **the host's set-point** (a device without filter slots, or ``notch = "host"``): the move's set-point goes
+  through the notch chain on the host (:func:`hilident.motion.shaping.shape_move`), as the thesis did for its
+  robot; it still ends exactly where asked, a little later.
+
+What is measured: the load's deflection from the cart (``load_position_m - position_m``) when the device
+records a load sensor, else the cart's following error (set-point minus position): the ringing of the
+flexible mode, not the position loop's slower settling.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from hilident.config import Config, MoveConfig
+from hilident.errors import DataError
+
+LOAD = "load_position_m"
+
+
+@dataclass(frozen=True)
+class MoveTestResult:
+    """One move test, without and with the notch, at one place of the workspace.
+
+    Attributes
+    ----------
+    start_m : float
+        Where the moves started, m (the encoder's axis).
+    comparison : MoveComparison
+        Residual vibration of each move over its dwell and the reduction, dB.
+    notch_in : str
+        ``"drive"`` (the drive's filter slots) or ``"host"`` (the set-point shaped on the host).
+    signal : str
+        What was measured: ``"load deflection"`` or ``"following error"``.
+    added_delay_s : float
+        How much later the move with the notch reached its end (host shaping; 0 in the drive), s.
+    recordings : tuple of str
+        The recordings of the two measured moves.
+    traces : dict
+        ``{"without": (time_s, signal), "with_notch": (time_s, signal)}`` of the measured moves, for the plot.
+    """
+
+    start_m: float
+    comparison: object
+    notch_in: str
+    signal: str
+    added_delay_s: float
+    recordings: tuple[str, str]
+    traces: dict
+
+    def to_dict(self) -> dict:
+        return {"start_m": self.start_m, "notch_in": self.notch_in, "signal": self.signal,
+                "added_delay_s": self.added_delay_s, "recordings": list(self.recordings),
+                **self.comparison.as_dict()}  # type: ignore[attr-defined]
+
+
+def move_profile(move: MoveConfig, distance_m: float, sample_rate_hz: float):
+    """The configured move over ``distance_m`` (signed), sampled at ``sample_rate_hz``, with its dwell."""
+    from hilident.motion.profiles import s_curve, trapezoid
+
+    prefix = "verification.move."
+    if move.profile == "s-curve":
+        return s_curve(distance_m, move.max_velocity_mps, move.max_accel_mps2, move.jerk_mps3, sample_rate_hz,
+                       move.dwell_s, key_prefix=prefix)
+    return trapezoid(distance_m, move.max_velocity_mps, move.max_accel_mps2, sample_rate_hz, move.dwell_s,
+                     key_prefix=prefix)
+
+
+def measured_signal(samples: dict[str, np.ndarray]) -> tuple[str, np.ndarray]:
+    """The ringing a move left: the load's deflection when a load sensor was recorded and read all along,
+    else the following error (the position set-point, relative to the start, minus the cart's travel)."""
+    position = samples["position_m"]
+    if LOAD in samples and np.all(np.isfinite(samples[LOAD])):
+        return "load deflection", samples[LOAD] - position
+    return "following error", samples["excitation"] - (position - position[0])
+
+
+class MoveTest:
+    """The ``[verification] move`` step.
+
+    Parameters
+    ----------
+    cfg : Config
+        The run's configuration (``[verification] move``, ``[run] sample_rate_hz``).
+    record : callable
+        ``record(name, mode, samples) -> Experiment``: the session's recorder.
+    progress : Progress
+    """
+
+    def __init__(self, cfg: Config, record: Callable, progress):
+        if cfg.verification.move is None:
+            raise DataError("the move test needs [verification] move")
+        self.cfg, self.move, self.record, self.progress = cfg, cfg.verification.move, record, progress
+
+    def run(self, tag: str, start_m: float, host_sections: list | None, drive_slots: DriveNotch | None
+            ) -> MoveTestResult:
+        """Move out and back without the notch, then with it (``drive_slots`` enabled, or the set-point shaped
+        by ``host_sections``, biquads at the set-point rate); ``tag`` names the recordings."""
+        from hilident.motion.residual import compare_moves
+        from hilident.motion.shaping import shape_move
+
+        rate = self.cfg.run.sample_rate_hz
+        out, back = (move_profile(self.move, d, rate) for d in (self.move.distance_m, -self.move.distance_m))
+        names = (f"move{tag}_without", f"move{tag}_with")
+        self.progress.step(f"move test{tag}: {self.move.distance_m:+.3f} m from {start_m:+.3f} m, without the notch")
+        if drive_slots is not None:
+            with drive_slots.disabled():
+                without = self.record(names[0], "position", out.position_m)
+                self.record(f"{names[0]}_back", "position", back.position_m)
+            notch_in, delay, with_out, with_back = "drive", 0.0, out, back
+        else:
+            if not host_sections:
+                raise DataError("move test: no notch to shape the move with")
+            shaped_out, shaped_back = (shape_move(p, host_sections) for p in (out, back))
+            without = self.record(names[0], "position", out.position_m)
+            self.record(f"{names[0]}_back", "position", back.position_m)
+            notch_in, delay = "host", shaped_out.added_delay_s
+            with_out, with_back = shaped_out.profile, shaped_back.profile
+        self.progress.step(f"move test{tag}: with the notch ({'drive filter' if notch_in == 'drive' else 'host'})")
+        with_notch = self.record(names[1], "position", with_out.position_m)
+        self.record(f"{names[1]}_back", "position", with_back.position_m)
+        what, signal_without = measured_signal(without.samples)
+        _, signal_with = measured_signal(with_notch.samples)
+        t_without, t_with = (exp.samples["sample_index"] / rate for exp in (without, with_notch))
+        band = self.move.settle_band_m or None
+        comparison = compare_moves((t_without, signal_without, out.move_end_s),
+                                   (t_with, signal_with, with_out.move_end_s), self.move.dwell_s, band=band,
+                                   detrend="linear")
+        if comparison.without.rms <= 0:
+            raise DataError(f"move test{tag}: the move without the notch left no measurable vibration")
+        return MoveTestResult(start_m, comparison, notch_in, what, float(delay),
+                              (f"{names[0]}.h5", f"{names[1]}.h5"),
+                              {"without": (t_without - out.move_end_s, signal_without),
+                               "with_notch": (t_with - with_out.move_end_s, signal_with)})
+
+
+class DriveNotch:
+    """The filter slots holding the uploaded notch, disabled for the move without it and put back after."""
+
+    def __init__(self, adapter, slots: list[int]):
+        self.adapter, self.slots = adapter, slots
+
+    @contextlib.contextmanager
+    def disabled(self) -> Iterator[None]:
+        saved = {slot: self.adapter.save_filter(slot) for slot in self.slots}
+        for slot in self.slots:
+            self.adapter.disable_filter(slot)
+        try:
+            yield
+        finally:
+            for slot, contents in saved.items():
+                self.adapter.restore_filter(slot, contents)
