@@ -107,17 +107,17 @@ class MoveTest:
             raise DataError("the move test needs [verification] move")
         self.cfg, self.move, self.record, self.progress = cfg, cfg.verification.move, record, progress
 
-    def run(self, tag: str, start_m: float, host_sections: list | None, drive_slots: DriveNotch | None
-            ) -> MoveTestResult:
-        """Move out and back without the notch, then with it (``drive_slots`` enabled, or the set-point shaped
-        by ``host_sections``, biquads at the set-point rate); ``tag`` names the recordings."""
+    def run(self, tag: str, start_m: float, distance_m: float, host_sections: list | None,
+            drive_slots: DriveNotch | None) -> MoveTestResult:
+        """Move ``distance_m`` out and back without the notch, then with it (``drive_slots`` enabled, or the
+        set-point shaped by ``host_sections``, biquads at the set-point rate); ``tag`` names the recordings."""
         from hilident.motion.residual import compare_moves
         from hilident.motion.shaping import shape_move
 
         rate = self.cfg.run.sample_rate_hz
-        out, back = (move_profile(self.move, d, rate) for d in (self.move.distance_m, -self.move.distance_m))
+        out, back = (move_profile(self.move, d, rate) for d in (distance_m, -distance_m))
         names = (f"move{tag}_without", f"move{tag}_with")
-        self.progress.step(f"move test{tag}: {self.move.distance_m:+.3f} m from {start_m:+.3f} m, without the notch")
+        self.progress.step(f"move test{tag}: {distance_m:+.3f} m from {start_m:+.3f} m, without the notch")
         if drive_slots is not None:
             with drive_slots.disabled():
                 without = self.record(names[0], "position", out.position_m)
@@ -165,3 +165,13 @@ class DriveNotch:
         finally:
             for slot, contents in saved.items():
                 self.adapter.restore_filter(slot, contents)
+
+
+def move_distance(move: MoveConfig, start_m: float, low_m: float, high_m: float) -> float:
+    """``move.distance_m``, or the same move the other way when it would leave ``[low_m, high_m]`` from
+    ``start_m`` (a move test at the end of the travel goes back towards the middle)."""
+    for distance in (move.distance_m, -move.distance_m):
+        if low_m <= start_m + distance <= high_m:
+            return distance
+    raise DataError(f"[verification.move] distance_m = {move.distance_m:g} m does not fit either way from "
+                    f"{start_m:+.3f} m within [{low_m:g}, {high_m:g}] m")

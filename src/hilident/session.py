@@ -63,6 +63,7 @@ from hilident.experiment import (  # noqa: F401 (kept importable)
 )
 from hilident.filter_slots import BypassedSlots
 from hilident.lazy import lazy_module
+from hilident.move_test import DriveNotch, MoveTest, MoveTestResult, move_distance
 from hilident.plan import RunPlan, excitation_travel_m, make_plan
 from hilident.progress import Progress
 from hilident.run_excitation import Excitation, build_excitation, excitation_recipe  # noqa: F401 (kept importable)
@@ -76,7 +77,7 @@ from hilident.summary import (
     UploadOutcome,
     VerificationPart,
 )
-from hilident.workspace_map import MAP_MODE, MapPoint, WorkspaceMap
+from hilident.workspace_map import MAP_MODE, MapPoint, WorkspaceMap, move_axis
 
 if TYPE_CHECKING:
     from hilident.adapters.base import DeviceAdapter
@@ -304,6 +305,8 @@ class Session(DeviceConnection):
         self._auto: dict | None = None  # the automatic amplitude's choice, trials and reason
         self.map_points: list[MapPoint] | None = None  # [map]: the mode at each mapped position
         self.map_results: dict[str, Any] = {}  # [map]: each mapped position's identification, by recording
+        self.move_results: list[MoveTestResult] | None = None  # [verification] move, at each place it ran
+        self.position_m: float | None = None  # the cart's position at the end of the last recording, m
 
     # --- connection -----------------------------------------------------------------------
 
@@ -345,7 +348,10 @@ class Session(DeviceConnection):
         (:meth:`hilident.experiment.ExperimentRecorder.record`, with the session's configuration)."""
         if self.recorder is None:
             raise UsageError(f"{name}: the session records only once connected (Session.connect)")
-        return self.recorder.record(self.cfg, name, mode, excitation, tables, period_samples, recipe)
+        exp = self.recorder.record(self.cfg, name, mode, excitation, tables, period_samples, recipe)
+        if "position_m" in exp.samples and len(exp.samples["position_m"]):
+            self.position_m = float(exp.samples["position_m"][-1])
+        return exp
 
     @property
     def totals(self) -> StreamStats:
@@ -391,6 +397,9 @@ class Session(DeviceConnection):
             designs, upload = self._notch_step(plant)
             step = "verification"
             verification = self._verify(excitation, plant, designs)
+            if self.cfg.verification.move is not None:
+                step = "move test"
+                self.move_results = self._move_step(designs, upload)
             step = "save"
             self._save_step(upload, verification)
         except BaseException as exc:
@@ -571,6 +580,37 @@ class Session(DeviceConnection):
         self.map_results = mapper.results
         return points
 
+    def _move_step(self, designs: list, upload: UploadOutcome) -> list[MoveTestResult]:
+        """``[verification] move``: the move test where the run identified (and at every mapped position),
+        without and with the notch; the axis ends where it started."""
+        move = self.cfg.verification.move
+        if not designs or move is None:
+            self.warnings.append("move test: no notch was designed, so there is nothing to compare")
+            return []
+        in_drive = move.notch == "drive" or (move.notch == "auto" and upload.written and upload.verified_readback)
+        if in_drive and not (upload.written and upload.verified_readback):
+            raise DataError("[verification.move] notch = \"drive\": the notch is not in the drive's filter slots "
+                            "(not uploaded, or not read back as written)")
+        drive = DriveNotch(self.adapter, [d.slot for d in designs]) if in_drive else None
+        from hilident.filters.notch import design_notch
+
+        rate = self.cfg.run.sample_rate_hz
+        host = None if in_drive else [design_notch(d.spec, rate) for d in designs]
+        tester = MoveTest(self.cfg, self.record, self.progress)
+        lim, margin = self.cfg.bench_limits, self.cfg.map.margin_m
+        start = self.position_m if self.position_m is not None else 0.0
+        places = [(p.target_m, f"_{i}") for i, p in enumerate(self.map_points or [])] or [(start, "")]
+        results, here = [], start
+        for target, tag in places:
+            if tag:
+                here = move_axis(self.cfg, self.record, f"move{tag}_approach", here, target)
+            distance = move_distance(move, here, lim.position_min_m + margin, lim.position_max_m - margin)
+            results.append(tester.run(tag, here, distance, host, drive))
+            here = self.position_m if self.position_m is not None else here
+        if places[0][1]:
+            move_axis(self.cfg, self.record, "move_return", here, start)
+        return results
+
     def _notch_step(self, plant):
         nc = self.cfg.notch
         upload = UploadOutcome()
@@ -672,7 +712,7 @@ class Session(DeviceConnection):
             plant=plant, friction=friction, designs=designs, upload=upload, verification=verification,
             stream=self.totals, connect=connect, filters_found=self.filters_found,
             recordings=sorted(p.name for p in self.out.glob("*.h5")), elapsed_s=elapsed_s, warnings=self.warnings,
-            model=model, workspace_map=self.map_points)
+            model=model, workspace_map=self.map_points, move_test=self.move_results)
 
     def _plots(self, friction, plant, designs, verification, excitation_band_hz, model=None) -> None:
         report.plot_run(self.out, friction, plant, designs, verification.loop_after if verification else None,

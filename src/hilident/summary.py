@@ -31,7 +31,7 @@ __all__ = ["DevicePart", "ExcitationPart", "Failure", "PlantPart", "Summary", "U
 LAYOUTS: dict[str, tuple[str, ...]] = {
     "run": ("hilident_version", "config", "device", "sample_rate_hz", "excitation", "resonances", "rejected_peaks",
             "plant_model", "measurement", "friction", "notch_filters", "upload", "verification", "stream", "connect",
-            "filters_found", "recordings", "elapsed_s", "warnings", "model", "map"),
+            "filters_found", "recordings", "elapsed_s", "warnings", "model", "map", "move_test"),
     "identify": ("hilident_version", "config", "data", "resonances", "rejected_peaks", "friction", "model",
                  "plant_model", "measurement", "notch_filters", "notch_skipped_reason", "upload", "verification",
                  "stream", "elapsed_s", "warnings"),
@@ -193,6 +193,16 @@ def friction_summary(friction: Any) -> dict | None:
             "points": len(friction.points.v_mean)}
 
 
+def move_test_summary(results: list) -> dict:
+    """``summary.json["move_test"]``: each place's moves and the worst reduction over them (the figure that
+    must hold everywhere)."""
+    moves = [r.to_dict() for r in results]
+    reductions = [m["rms_reduction_db"] for m in moves if m["rms_reduction_db"] is not None]
+    worst = min(range(len(moves)), key=lambda i: moves[i]["rms_reduction_db"] or float("inf")) if moves else None
+    return {"moves": moves, "worst_rms_reduction_db": min(reductions) if reductions else None,
+            "worst_start_m": moves[worst]["start_m"] if worst is not None else None}
+
+
 def _notch_filters(designs: list) -> list[dict]:
     from hilident import pipeline
 
@@ -228,14 +238,17 @@ class Summary:
                plant: Any, friction: Any, designs: list, upload: UploadOutcome,
                verification: VerificationPart | None, stream: StreamStats, connect: dict | None,
                filters_found: list[dict], recordings: list[str], elapsed_s: float, warnings: list[str],
-               model: Any = NOT_REACHED, workspace_map: list | None = None) -> Summary:
+               model: Any = NOT_REACHED, workspace_map: list | None = None,
+               move_test: list | None = None) -> Summary:
         """``hilident run``'s summary (``model``: the grey-box fit, None when not asked for; left out when the
-        run failed before it; ``workspace_map``: the ``[map]`` points, left out of a run without ``[map]``)."""
+        run failed before it; ``workspace_map``: the ``[map]`` points, left out of a run without ``[map]``;
+        ``move_test``: each ``[verification] move`` result, left out of a run without one)."""
         return cls("run", config, elapsed_s, warnings, upload, designs, PlantPart.of(plant), friction_summary(friction),
                    model, verification or VerificationPart(), stream, device, excitation,
                    {"sample_rate_hz": sample_rate_hz, "connect": connect, "filters_found": filters_found,
                     "recordings": recordings,
-                    "map": NOT_REACHED if workspace_map is None else [p.to_dict() for p in workspace_map]})
+                    "map": NOT_REACHED if workspace_map is None else [p.to_dict() for p in workspace_map],
+                    "move_test": NOT_REACHED if move_test is None else move_test_summary(move_test)})
 
     @classmethod
     def of_identify(cls, *, config: str, data: dict, plant: Any, friction: Any, model: Any, designs: list,

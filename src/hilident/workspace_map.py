@@ -61,6 +61,21 @@ class MapPoint:
                 "coherence": self.coherence, "recording": self.recording}
 
 
+def move_axis(cfg: Config, record: Callable, name: str, from_m: float, to_m: float) -> float:
+    """Move the cart from ``from_m`` to ``to_m``: a trapezoid within ``[map] max_velocity_mps`` and
+    ``max_accel_mps2`` in position mode, then ``[map] settle_s`` held, recorded as ``name``; returns the
+    position reached, m (the same position when they are equal: nothing is recorded)."""
+    from hilident.motion.profiles import trapezoid
+
+    if to_m == from_m:
+        return from_m
+    m = cfg.map
+    profile = trapezoid(to_m - from_m, m.max_velocity_mps, m.max_accel_mps2, cfg.run.sample_rate_hz, m.settle_s,
+                        key_prefix="map.")
+    exp = record(name, "position", profile.position_m)
+    return float(exp.samples["position_m"][-1])
+
+
 def nearest_resonance(resonances: list, reference_hz: float | None):
     """The resonance of ``resonances`` nearest ``reference_hz`` (the first when there is no reference)."""
     if not resonances:
@@ -108,15 +123,8 @@ class WorkspaceMap:
         return points
 
     def move(self, name: str, from_m: float, to_m: float) -> float:
-        """Move the cart from ``from_m`` to ``to_m`` (a trapezoid in position mode, then ``settle_s`` held);
-        returns the position reached, m."""
-        from hilident.motion.profiles import trapezoid
-
-        m = self.cfg.map
-        profile = trapezoid(to_m - from_m, m.max_velocity_mps, m.max_accel_mps2, self.cfg.run.sample_rate_hz,
-                            m.settle_s)
-        exp = self.record(name, "position", profile.position_m)
-        return float(exp.samples["position_m"][-1])
+        """:func:`move_axis` with this map's configuration and recorder."""
+        return move_axis(self.cfg, self.record, name, from_m, to_m)
 
     @staticmethod
     def _point(target: float, exp, result, reference_hz: float | None, name: str) -> MapPoint:
