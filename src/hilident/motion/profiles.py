@@ -96,7 +96,7 @@ class MovePlan:
         return sign * p, sign * v, sign * a
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class MoveProfile:
     """A sampled point-to-point move followed by a dwell at the end position.
 

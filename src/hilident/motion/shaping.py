@@ -16,6 +16,10 @@ set-point rate:
   where asked, later by :attr:`ShapedMove.added_delay_s`;
 * the dwell of the original move follows the new end.
 
+The shaped velocity and acceleration are the profile's through the same
+chain; a notch's small overshoot can take them a little (about 1 %) beyond the
+profile's limits.
+
 Example
 -------
 >>> from hilident.filters.notch import NotchSpec, design_notch
@@ -47,7 +51,7 @@ __all__ = ["ShapedMove", "chain_dc_gain", "filter_setpoint", "shape_move"]
 RELATIVE_TOLERANCE = 1e-5
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ShapedMove:
     """A move whose set-point went through a notch chain on the host.
 
