@@ -291,8 +291,9 @@ class MoveConfig:
                                  "second)")
     dwell_s: float = _spec(1.0, gt=0, le=60, doc="held at the end of the move while its ringing is measured, s")
     notch: str = _spec("auto", choices=("auto", "drive", "host"), doc="where the notch acts in the move with it: "
-                       "the drive's filter slots, the host's set-point (the move shaped), auto: the slots when "
-                       "the notch was uploaded there, else the host")
+                       "host: the move's set-point shaped on the host (the drive's slots bypassed in both moves); "
+                       "drive: the drive's filter slots (bypassed for the move without); auto: host, since every "
+                       "transport streams the move as set-points")
     settle_band_m: float = _spec(0.0, ge=0, doc="settling band of the residual vibration, m (0: 5 % of the first "
                                  "peak of the move without the notch)")
 
@@ -392,6 +393,11 @@ class DriveConfig:
                                           "unset: the preset's (bench 1000 Hz, clean ideal)")
     delay_s: float | None = _spec(None, ge=0, le=0.1, doc="computation and transport delay before the current "
                                   "loop, rounded to whole loop ticks; unset: the preset's (bench one tick, clean 0)")
+    velocity_feedforward: float = _spec(0.0, ge=0, le=1.5, doc="position mode: fraction of the set-point's "
+                                        "velocity fed forward to the velocity loop (0: none)")
+    accel_feedforward_nm_per_mps2: float = _spec(0.0, ge=0, doc="position mode: torque fed forward per m/s^2 of "
+                                                 "the set-point's acceleration, N*m/(m/s^2) (0: none; (m1+m2)/c "
+                                                 "cancels the axis's inertia)")
 
 
 @dataclass(frozen=True)

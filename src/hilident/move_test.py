@@ -6,13 +6,16 @@ position mode, a trapezoid or an S-curve), dwells, moves back, first with the no
 with it, records both, and measures the ringing over each dwell
 (:func:`hilident.motion.residual.compare_moves`).
 
-Where the notch acts in the second move:
+Where the notch acts in the second move (``notch``):
 
-* **the drive's filter slots** (the notch was uploaded there): for the first move the slots holding the
-  notch are disabled, then put back as they were;
-* **the host's set-point** (a device without filter slots, or ``notch = "host"``): the move's set-point goes
-  through the notch chain on the host (:func:`hilident.motion.shaping.shape_move`), as the thesis did for its
-  robot; it still ends exactly where asked, a little later.
+* **the host's set-point** (``"host"``, and ``"auto"``: every transport streams the move as position
+  set-points): the move's set-point goes through the notch chain on the host
+  (:func:`hilident.motion.shaping.shape_move`), as the thesis did for its robot; it still ends exactly where
+  asked, a little later. The drive's filter slots are bypassed for both moves, so only the shaping differs;
+* **the drive's filter slots** (``"drive"``, the notch uploaded there): for the first move the slots holding
+  the notch are disabled, then put back as they were. The notch then filters the loop's torque, the
+  feedback's too, which takes away some of the damping the loop gave the mode: expect less than from
+  shaping.
 
 What is measured: the load's deflection from the cart (``load_position_m - position_m``) when the device
 records a load sensor, else the cart's following error (set-point minus position): the ringing of the
@@ -107,33 +110,41 @@ class MoveTest:
             raise DataError("the move test needs [verification] move")
         self.cfg, self.move, self.record, self.progress = cfg, cfg.verification.move, record, progress
 
-    def run(self, tag: str, start_m: float, distance_m: float, host_sections: list | None,
-            drive_slots: DriveNotch | None) -> MoveTestResult:
-        """Move ``distance_m`` out and back without the notch, then with it (``drive_slots`` enabled, or the
-        set-point shaped by ``host_sections``, biquads at the set-point rate); ``tag`` names the recordings."""
+    def run(self, tag: str, start_m: float, distance_m: float, notch_in: str, host_sections: list | None,
+            slots: DriveNotch | None) -> MoveTestResult:
+        """Move ``distance_m`` out and back without the notch, then with it; ``tag`` names the recordings.
+
+        ``notch_in = "drive"``: the difference is the drive's filter ``slots`` (disabled for the first move);
+        ``"host"``: the set-point of the second move is shaped by ``host_sections`` (biquads at the set-point
+        rate), and the drive's ``slots`` (if any) stay disabled for both moves, so only the shaping differs.
+        """
         from hilident.motion.residual import compare_moves
         from hilident.motion.shaping import shape_move
 
         rate = self.cfg.run.sample_rate_hz
         out, back = (move_profile(self.move, d, rate) for d in (distance_m, -distance_m))
-        names = (f"move{tag}_without", f"move{tag}_with")
-        self.progress.step(f"move test{tag}: {distance_m:+.3f} m from {start_m:+.3f} m, without the notch")
-        if drive_slots is not None:
-            with drive_slots.disabled():
-                without = self.record(names[0], "position", out.position_m)
-                self.record(f"{names[0]}_back", "position", back.position_m)
-            notch_in, delay, with_out, with_back = "drive", 0.0, out, back
-        else:
+        with_out, with_back, delay = out, back, 0.0
+        if notch_in == "host":
             if not host_sections:
                 raise DataError("move test: no notch to shape the move with")
             shaped_out, shaped_back = (shape_move(p, host_sections) for p in (out, back))
-            without = self.record(names[0], "position", out.position_m)
-            self.record(f"{names[0]}_back", "position", back.position_m)
-            notch_in, delay = "host", shaped_out.added_delay_s
-            with_out, with_back = shaped_out.profile, shaped_back.profile
-        self.progress.step(f"move test{tag}: with the notch ({'drive filter' if notch_in == 'drive' else 'host'})")
-        with_notch = self.record(names[1], "position", with_out.position_m)
-        self.record(f"{names[1]}_back", "position", with_back.position_m)
+            with_out, with_back, delay = shaped_out.profile, shaped_back.profile, shaped_out.added_delay_s
+        names = (f"move{tag}_without", f"move{tag}_with")
+
+        def out_and_back(name: str, there, home):
+            exp = self.record(name, "position", there.position_m)
+            self.record(f"{name}_back", "position", home.position_m)
+            return exp
+
+        self.progress.step(f"move test{tag}: {distance_m:+.3f} m from {start_m:+.3f} m, without the notch")
+        with slots.disabled() if slots is not None else contextlib.nullcontext():
+            without = out_and_back(names[0], out, back)
+            if notch_in == "host":
+                self.progress.step(f"move test{tag}: with the notch shaping the set-point")
+                with_notch = out_and_back(names[1], with_out, with_back)
+        if notch_in == "drive":
+            self.progress.step(f"move test{tag}: with the notch in the drive's filter slots")
+            with_notch = out_and_back(names[1], with_out, with_back)
         what, signal_without = measured_signal(without.samples)
         _, signal_with = measured_signal(with_notch.samples)
         t_without, t_with = (exp.samples["sample_index"] / rate for exp in (without, with_notch))

@@ -587,15 +587,17 @@ class Session(DeviceConnection):
         if not designs or move is None:
             self.warnings.append("move test: no notch was designed, so there is nothing to compare")
             return []
-        in_drive = move.notch == "drive" or (move.notch == "auto" and upload.written and upload.verified_readback)
-        if in_drive and not (upload.written and upload.verified_readback):
+        in_slots = upload.written and upload.verified_readback
+        # The moves are streamed as position set-points by the host on every transport, so by default the
+        # notch shapes that set-point; "drive" compares the drive's filter slots instead.
+        notch_in = "drive" if move.notch == "drive" else "host"
+        if notch_in == "drive" and not in_slots:
             raise DataError("[verification.move] notch = \"drive\": the notch is not in the drive's filter slots "
                             "(not uploaded, or not read back as written)")
-        drive = DriveNotch(self.adapter, [d.slot for d in designs]) if in_drive else None
+        slots = DriveNotch(self.adapter, [d.slot for d in designs]) if in_slots else None
         from hilident.filters.notch import design_notch
 
-        rate = self.cfg.run.sample_rate_hz
-        host = None if in_drive else [design_notch(d.spec, rate) for d in designs]
+        host = [design_notch(d.spec, self.cfg.run.sample_rate_hz) for d in designs] if notch_in == "host" else None
         tester = MoveTest(self.cfg, self.record, self.progress)
         lim, margin = self.cfg.bench_limits, self.cfg.map.margin_m
         start = self.position_m if self.position_m is not None else 0.0
@@ -605,7 +607,7 @@ class Session(DeviceConnection):
             if tag:
                 here = move_axis(self.cfg, self.record, f"move{tag}_approach", here, target)
             distance = move_distance(move, here, lim.position_min_m + margin, lim.position_max_m - margin)
-            results.append(tester.run(tag, here, distance, host, drive))
+            results.append(tester.run(tag, here, distance, notch_in, host, slots))
             here = self.position_m if self.position_m is not None else here
         if places[0][1]:
             move_axis(self.cfg, self.record, "move_return", here, start)

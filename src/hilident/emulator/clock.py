@@ -242,6 +242,7 @@ class TablePlayer:
     def play(self, values: np.ndarray, first: int) -> Played:
         """Play ``values`` (one per sample, run index ``first`` on) and return what the run keeps."""
         d = self.divider
+        self.drive.setpoint_ticks = d
         rows = self.drive.run(np.repeat(np.asarray(values, dtype=float), d))[::d]
         kept = len(rows)
         fault = self.fault_sample()

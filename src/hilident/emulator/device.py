@@ -82,7 +82,8 @@ def build_drive(cfg: EmulatorConfig, driver: DriverDescription) -> DriveLoop:
     tuning = DriveTuning(
         loop_rate_hz=driver.loop_rate_hz, kp_pos_per_s=d.kp_pos_per_s, kv_nm_per_mps=d.kv_nm_per_mps,
         ti_s=d.ti_s, velocity_filter_hz=d.velocity_filter_hz, torque_max_nm=d.torque_max_nm,
-        current_loop_hz=r.current_loop_hz, delay_ticks=r.delay_ticks,
+        current_loop_hz=r.current_loop_hz, delay_ticks=r.delay_ticks, velocity_feedforward=d.velocity_feedforward,
+        accel_feedforward_nm_per_mps2=d.accel_feedforward_nm_per_mps2,
     )
     # The sensors' noise streams are children 0-2 of the seed; the disturbance is child 3.
     disturbance = ProcessDisturbance(

@@ -66,6 +66,14 @@ class DriveTuning:
     delay_ticks : int
         Computation and transport delay between the controller's command and the
         current loop, in loop ticks (0: none).
+    velocity_feedforward : float
+        Position mode: fraction of the set-point's velocity added to the velocity
+        set-point (0: none, 1: full), as servo drives do in cyclic position mode.
+    accel_feedforward_nm_per_mps2 : float
+        Position mode: torque added per m/s^2 of the set-point's acceleration, N·m/(m/s^2)
+        (the axis's inertia over ``c`` cancels the lag of the loops; 0: none).
+        Both derivatives are backward differences over the set-point period
+        (:attr:`DriveLoop.setpoint_ticks`).
     """
 
     loop_rate_hz: float = 4000.0
@@ -76,6 +84,8 @@ class DriveTuning:
     torque_max_nm: float = 50.0
     current_loop_hz: float = math.inf
     delay_ticks: int = 0
+    velocity_feedforward: float = 0.0
+    accel_feedforward_nm_per_mps2: float = 0.0
 
     def __post_init__(self):
         for f in fields(self):
@@ -89,8 +99,11 @@ class DriveTuning:
             except (TypeError, ValueError):
                 raise ConfigError(f.name, f"must be a number, got {value!r}") from None
             finite_ok = f.name in ("ti_s", "current_loop_hz")
-            if isinstance(value, bool) or not x > 0.0 or (not finite_ok and not math.isfinite(x)):
-                raise ConfigError(f.name, f"must be > 0{'' if finite_ok else ' and finite'}, got {value!r}")
+            zero_ok = f.name in ("velocity_feedforward", "accel_feedforward_nm_per_mps2")
+            low_ok = x >= 0.0 if zero_ok else x > 0.0
+            if isinstance(value, bool) or not low_ok or (not finite_ok and not math.isfinite(x)):
+                bound = (">= 0" if zero_ok else "> 0") + ("" if finite_ok else " and finite")
+                raise ConfigError(f.name, f"must be {bound}, got {value!r}")
             object.__setattr__(self, f.name, x)
 
 
@@ -201,6 +214,11 @@ class DriveLoop:
         self.position_max_m = math.inf
         self.hold_position_m = sensors.encoder(plant.p1)
         self.torque_offset_nm = 0.0  # added to the torque command in every mode (a CiA 402 drive's 0x60B2)
+        #: Loop ticks per set-point (the host's sample period over the loop's): the feed-forward's differences
+        #: are taken over it. Set by what plays the set-points (:class:`hilident.emulator.clock.TablePlayer`,
+        #: the CANopen twin's SYNC handler).
+        self.setpoint_ticks = 1
+        self._setpoint = (0.0, 0.0, 0.0, 0)  # position mode: last set-point, its velocity and acceleration, tick
         self._last_position = self.hold_position_m
         self._velocity = 0.0
         self._integral = 0.0
@@ -277,6 +295,7 @@ class DriveLoop:
             raise DeviceError(f"drive fault {self.fault!r} at tick {self.fault_tick}; "
                               "clear_fault() before enable()")
         self.hold_position_m = self.sensors.encoder(self.plant.p1)
+        self._setpoint = (0.0, 0.0, 0.0, 0)
         self._integral = 0.0
         self.filters.reset()
         self.enabled = True
@@ -349,9 +368,25 @@ class DriveLoop:
         integ = self._integral
         motor = self._motor_torque
 
+        tn = self.tuning
+        kvff, kaff = tn.velocity_feedforward, tn.accel_feedforward_nm_per_mps2
+        feedforward = self.mode == "position" and (kvff or kaff)
+        sp_ticks = max(1, int(self.setpoint_ticks))
+        inv_Tsp = inv_T / sp_ticks
+        sp, sp_v, sp_a, sp_n = self._setpoint
+        ff_v = kvff * sp_v
+        ff_a = kaff * sp_a
+
         rows: list[tuple[float, float, float, float, float, float, float]] = []
         append = rows.append
         for e in x.tolist():
+            if feedforward:
+                if sp_n == 0:  # a new set-point: its velocity and acceleration by backward differences
+                    v_new = (e - sp) * inv_Tsp
+                    sp_a = (v_new - sp_v) * inv_Tsp
+                    sp, sp_v = e, v_new
+                    ff_v, ff_a = kvff * sp_v, kaff * sp_a
+                sp_n = (sp_n + 1) % sp_ticks
             p1 = plant.p1
             pm = encoder(p1)
             vf += alpha * ((pm - last) * inv_T - vf)
@@ -360,7 +395,7 @@ class DriveLoop:
             cmd = 0.0
             applied = 0.0
             if enabled:
-                cmd, applied, integ, trip = law_tick(e, pm, vf, integ)
+                cmd, applied, integ, trip = law_tick(e, pm, vf, integ, ff_v, ff_a)
                 if trip is not None:
                     enabled = False
                     self.fault, self.fault_value = trip
@@ -389,11 +424,13 @@ class DriveLoop:
         self._velocity = vf
         self._integral = integ
         self._motor_torque = motor
+        self._setpoint = (sp, sp_v, sp_a, sp_n)
         return np.array(rows, dtype=float)
 
 
 def _control_law(loop: DriveLoop):
-    """The enabled tick of ``loop`` as it stands: ``tick(e, pm, vf, integ) -> (cmd, applied, integ, trip)``.
+    """The enabled tick of ``loop`` as it stands: ``tick(e, pm, vf, integ, ff_v, ff_a) -> (cmd, applied, integ,
+    trip)`` (``ff_v``, ``ff_a``: position mode's velocity and torque feed-forward, m/s and N·m).
 
     ``cmd`` is the torque command before the filter slots, ``applied`` the
     torque the power stage is asked for (N·m), ``integ`` the new integrator
@@ -410,7 +447,7 @@ def _control_law(loop: DriveLoop):
     hold, offset = loop.hold_position_m, loop.torque_offset_nm
     filt = loop.filters.step
 
-    def tick(e: float, pm: float, vf: float, integ: float):
+    def tick(e: float, pm: float, vf: float, integ: float, ff_v: float = 0.0, ff_a: float = 0.0):
         if vf > vlim or vf < -vlim:
             return 0.0, 0.0, integ, ("velocity_limit", vf)
         if pm < pmin or pm > pmax:
@@ -423,14 +460,14 @@ def _control_law(loop: DriveLoop):
             elif mode == 2:
                 verr = e - vf
             else:
-                verr = kp * (hold + e - pm) - vf
+                verr = kp * (hold + e - pm) + ff_v - vf
             integ += ki_T * verr
             # Clamp so the integrator cannot wind up beyond the power stage.
             if integ > tmax:
                 integ = tmax
             elif integ < -tmax:
                 integ = -tmax
-            cmd = kv * verr + integ + offset
+            cmd = kv * verr + integ + offset + ff_a
             if mode == 1:
                 cmd += e
         tf = filt(cmd)

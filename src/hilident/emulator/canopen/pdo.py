@@ -275,6 +275,7 @@ class PdoExchange:
         set-points are held.
         """
         n = self.fw.divider()
+        self.fw.drive.setpoint_ticks = n
         if self.fw.drive.mode != "position":
             return np.full(n, target)
         start = target if self.position_setpoint_m is None else self.position_setpoint_m
