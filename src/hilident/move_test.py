@@ -32,6 +32,7 @@ import numpy as np
 
 from hilident.config import Config, MoveConfig
 from hilident.errors import DataError
+from hilident.motion.residual import MoveComparison
 
 LOAD = "load_position_m"
 
@@ -55,11 +56,12 @@ class MoveTestResult:
     recordings : tuple of str
         The recordings of the two measured moves.
     traces : dict
-        ``{"without": (time_s, signal), "with_notch": (time_s, signal)}`` of the measured moves, for the plot.
+        ``{"without": (time_s, signal), "with_notch": (time_s, signal)}`` of the measured moves (time on each
+        recording's axis, as the comparison's ``move_end_s``), for the plot.
     """
 
     start_m: float
-    comparison: object
+    comparison: MoveComparison
     notch_in: str
     signal: str
     added_delay_s: float
@@ -69,7 +71,7 @@ class MoveTestResult:
     def to_dict(self) -> dict:
         return {"start_m": self.start_m, "notch_in": self.notch_in, "signal": self.signal,
                 "added_delay_s": self.added_delay_s, "recordings": list(self.recordings),
-                **self.comparison.as_dict()}  # type: ignore[attr-defined]
+                **self.comparison.as_dict()}
 
 
 def move_profile(move: MoveConfig, distance_m: float, sample_rate_hz: float):
@@ -156,8 +158,7 @@ class MoveTest:
             raise DataError(f"move test{tag}: the move without the notch left no measurable vibration")
         return MoveTestResult(start_m, comparison, notch_in, what, float(delay),
                               (f"{names[0]}.h5", f"{names[1]}.h5"),
-                              {"without": (t_without - out.move_end_s, signal_without),
-                               "with_notch": (t_with - with_out.move_end_s, signal_with)})
+                              {"without": (t_without, signal_without), "with_notch": (t_with, signal_with)})
 
 
 class DriveNotch:

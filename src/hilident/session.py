@@ -418,6 +418,8 @@ class Session(DeviceConnection):
         model = self._greybox()
         if self.plots and self.map_points:
             self._map_plot()  # before the summary: a plot that cannot be drawn is one of its warnings
+        if self.plots and self.move_results:
+            self._moves_plot()
         self.result = self._summary(friction, plant, designs, upload, verification, time.monotonic() - started,
                                     model=model)
         self.summary = self.result.to_dict()
@@ -741,3 +743,16 @@ class Session(DeviceConnection):
                      title=report.plot_title(Path(self.cfg.source).name, what="Mode over the workspace"))
         except (DataError, ValueError) as exc:
             self.warnings.append(f"map.png could not be drawn: {exc}")
+
+    def _moves_plot(self) -> None:
+        """``moves.png``: the move without and with the notch where the reduction was least."""
+        from hilident.plots.moves import plot_moves
+
+        worst = min(self.move_results or [], key=lambda r: r.comparison.rms_reduction_db)
+        (t0, y0), (t1, y1) = worst.traces["without"], worst.traces["with_notch"]
+        try:
+            plot_moves(self.out / "moves.png", worst.comparison, t0, y0, t1, y1, signal_name=worst.signal,
+                       subject=f"{Path(self.cfg.source).name}, from {worst.start_m:+.3f} m",
+                       added_delay_s=worst.added_delay_s or None)
+        except (DataError, ValueError) as exc:
+            self.warnings.append(f"moves.png could not be drawn: {exc}")

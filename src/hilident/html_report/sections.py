@@ -232,6 +232,8 @@ CAPTIONS = {
     "notch.png": "The notches as designed and as the device stores them (read back after the upload), in dB.",
     "model.png": "The grey-box or fitted model simulated against the measurement (fit %), and its residual tests "
                  "(autocorrelation and cross-correlation with their 99 % band).",
+    "moves.png": "The same move without and with the notch: the load's ringing after the move (the place where "
+                 "the notch helped least), the dwell shaded, the settling band drawn.",
     "map.png": "The mode over the workspace: the frequency identified at each mapped position with its 95 % "
                "interval.",
 }
@@ -515,6 +517,27 @@ def workspace(inputs: ReportInputs) -> str:
     return section("workspace", "Workspace map", body)
 
 
+def moves(inputs: ReportInputs) -> str:
+    """``[verification] move``: the ringing after the same move without and with the notch."""
+    test = _dict(inputs.summary.get("move_test"))
+    results = _list(test.get("moves"))
+    if not results:
+        return section("moves", "Move test", note("No [verification] move in this command."))
+    rows = []
+    for r in results:
+        without, with_notch = _dict(r.get("without")), _dict(r.get("with_notch"))
+        rows.append([num(r.get("start_m"), "m"), _text(r.get("notch_in")), _text(r.get("signal")),
+                     num(without.get("rms_m"), "m", 3), num(with_notch.get("rms_m"), "m", 3),
+                     num(r.get("rms_reduction_db"), "dB", 3), num(r.get("peak_to_peak_reduction_db"), "dB", 3),
+                     num(without.get("settling_time_s"), "s", 3), num(with_notch.get("settling_time_s"), "s", 3)])
+    body = (key_values([("worst RMS reduction", num(test.get("worst_rms_reduction_db"), "dB", 3)),
+                        ("where", num(test.get("worst_start_m"), "m"))])
+            + table(["from", "notch in", "measured", "RMS without", "RMS with", "RMS reduction",
+                     "peak-to-peak reduction", "settling without", "settling with"], rows,
+                    "Residual vibration over the dwell after each move"))
+    return section("moves", "Move test", body)
+
+
 def stream_section(inputs: ReportInputs) -> str:
     st = _dict(inputs.summary.get("stream"))
     if not st:
@@ -555,6 +578,7 @@ SECTIONS: tuple[tuple[str, str, Callable[[ReportInputs], str]], ...] = (
     ("model", "Model, uncertainty and validation", model_section),
     ("notches", "Notches: designed and achieved", notches),
     ("workspace", "Workspace map", workspace),
+    ("moves", "Move test", moves),
     ("stream", "Stream statistics", stream_section),
     ("recordings", "Recordings", recordings),
 )
