@@ -73,7 +73,8 @@ _START_DAMPING_RATIO = 0.02
 
 
 def two_mass_velocity_response(frequency_hz: ArrayLike, *, m1: float, m2: float, k: float, d: float,
-                               torque_constant: float, b: float = 0.0, delay_s: float = 0.0) -> np.ndarray:
+                               torque_constant: float, b: float = 0.0, delay_s: float = 0.0,
+                               sample_rate_hz: float | None = None) -> np.ndarray:
     """Cart velocity per motor torque of the two-mass model with a viscous term on the cart.
 
     Parameters
@@ -91,18 +92,32 @@ def two_mass_velocity_response(frequency_hz: ArrayLike, *, m1: float, m2: float,
     b : float
         Viscous damping of the cart to ground, N·s/m.
     delay_s : float
-        A pure delay, s (e.g. half a sample for a zero-order hold).
+        A pure delay, s, as ``exp(-j 2 pi f delay_s)``.
+    sample_rate_hz : float, optional
+        When given, the response of the sampled system: the torque held over each sample
+        (zero-order hold) and the velocity sampled, as a drive's recording sees it
+        (``(1 - z^-1) Z{H(s) / s}`` at ``z = exp(j 2 pi f / sample_rate_hz)``). Without it the
+        continuous ``H(j 2 pi f)``.
 
     Returns
     -------
     ndarray of complex
         ``H = v1 / tau``, (m/s)/(N·m).
+
+    Examples
+    --------
+    >>> h = two_mass_velocity_response([1.0, 100.0], m1=8.0, m2=2.0, k=8e4, d=20.0, torque_constant=10.0)
+    >>> [round(float(abs(x)), 5) for x in h]
+    [0.15912, 0.00205]
+    >>> hd = two_mass_velocity_response([1.0, 100.0], m1=8.0, m2=2.0, k=8e4, d=20.0, torque_constant=10.0,
+    ...                                 sample_rate_hz=1000.0)
+    >>> [round(float(abs(x)), 5) for x in hd]
+    [0.15912, 0.00208]
     """
-    s = 2j * np.pi * np.asarray(frequency_hz, dtype=float)
-    z = d * s + k
-    num = m2 * s * s + z
-    den = m1 * m2 * s**3 + (m1 + m2) * s * z + b * num
-    return torque_constant * np.exp(-s * delay_s) * num / den
+    f = np.asarray(frequency_hz, dtype=float)
+    core = _Core(f.ravel(), np.zeros(f.size), float(torque_constant), _check_rate(sample_rate_hz), float(delay_s))
+    h = core.response(m1, m2, b, np.array([float(k)]), np.array([float(d)]))
+    return h.reshape(f.shape)
 
 
 class WorkspaceMode(NamedTuple):
@@ -183,6 +198,8 @@ class WorkspaceFit:
         and the model explains the data).
     delay_s : float
         The pure delay assumed in the model, s.
+    sample_rate_hz : float or None
+        Sample rate of the sampled model, Hz; None for the continuous one.
     warnings : tuple of str
     """
 
@@ -201,6 +218,7 @@ class WorkspaceFit:
     evaluations: int
     residual_rms: float
     delay_s: float = 0.0
+    sample_rate_hz: float | None = None
     warnings: tuple[str, ...] = field(default_factory=tuple)
 
     # -- parameters -------------------------------------------------------------------------
@@ -267,7 +285,8 @@ class WorkspaceFit:
         """The model's cart velocity per torque at `position_m`, (m/s)/(N·m)."""
         return two_mass_velocity_response(frequency_hz, m1=self.m1, m2=self.m2, k=float(self.k_of(position_m)),
                                           d=float(self.d_of(position_m)), b=self.b,
-                                          torque_constant=self.torque_constant, delay_s=self.delay_s)
+                                          torque_constant=self.torque_constant, delay_s=self.delay_s,
+                                          sample_rate_hz=self.sample_rate_hz)
 
     def inside_range(self, position_m: float) -> bool:
         """True when `position_m` lies within the measured positions (the model is not extrapolated)."""
@@ -310,6 +329,7 @@ class WorkspaceFit:
             "correlation": self.correlation.tolist(),
             "position_range_m": list(self.position_range_m),
             "delay_s": self.delay_s,
+            "sample_rate_hz": self.sample_rate_hz,
             "positions": [],
             "converged": self.converged, "message": self.message, "evaluations": self.evaluations,
             "residual_rms": self.residual_rms,
@@ -356,7 +376,7 @@ def _mode(m1: float, m2: float, b: float, kc: np.ndarray, dc: np.ndarray, p: flo
 class _Data:
     """The bins used, stacked over the positions."""
 
-    s: np.ndarray  # 2j pi f
+    frequency_hz: np.ndarray
     h: np.ndarray  # measured response
     weight: np.ndarray  # sqrt(coh / (1 - coh))
     x: np.ndarray  # scaled position of each bin's position
@@ -395,6 +415,26 @@ def _checked_inputs(positions_m, frequency_hz, frf, coherence, band_hz) -> tuple
                             f"coherence > 0 within {lo:g}..{hi:g} Hz)")
         used.append((f[keep], h[keep], np.clip(c[keep], _COH_MIN, _COH_MAX)))
     return positions, used
+
+
+#: Neighbouring bins over which the noise-to-signal ratio of the coherence is averaged for the weights.
+_WEIGHT_BINS = 7
+
+
+def _weights(coh: np.ndarray) -> np.ndarray:
+    """``sqrt(coh / (1 - coh))`` with ``(1 - coh) / coh`` averaged over neighbouring bins.
+
+    A coherence estimated from the same data as ``H`` is high where noise happened to raise
+    ``|H|``; weighting each bin by its own coherence pulls the fit towards such bins. Averaged
+    over a few neighbours the weight keeps its trend over frequency and loses most of that
+    correlation.
+    """
+    ratio = (1.0 - coh) / coh
+    n = min(_WEIGHT_BINS, ratio.size)
+    if n > 1:
+        kernel = np.ones(n)
+        ratio = np.convolve(ratio, kernel, mode="same") / np.convolve(np.ones(ratio.size), kernel, mode="same")
+    return 1.0 / np.sqrt(ratio)
 
 
 def _position_scale(positions: np.ndarray) -> tuple[float, float]:
@@ -480,6 +520,85 @@ def _start_values(positions, data: _Data, c: float, resonance_hz, k_degree: int,
             "resonance_hz": fr}
 
 
+#: Aliases either side of each frequency summed for the sampled response (the remainder after the
+#: rigid-body asymptote falls off as 1 / k^3; 8 leaves an error below 1e-6 relative on a gantry's response).
+_ALIASES = 8
+
+
+def _check_rate(sample_rate_hz: float | None) -> float | None:
+    if sample_rate_hz is None:
+        return None
+    fs = float(sample_rate_hz)
+    if not (math.isfinite(fs) and fs > 0.0):
+        raise ConfigError("sample_rate_hz", f"must be a positive number, Hz, got {sample_rate_hz!r}")
+    return fs
+
+
+class _Core:
+    """The model's response and its derivatives at a set of bins, continuous or sampled.
+
+    Parameters: frequency of each bin (Hz), the scaled position ``x`` of each bin, ``c``, the sample rate
+    (None: continuous) and the delay.
+    """
+
+    def __init__(self, frequency_hz: np.ndarray, x: np.ndarray, c: float, sample_rate_hz: float | None,
+                 delay_s: float):
+        self.c, self.x = c, x
+        w = 2.0 * np.pi * frequency_hz
+        self.shift = np.exp(-1j * w * delay_s)
+        self.fs = sample_rate_hz
+        if sample_rate_hz is None:
+            self.s = (1j * w)[:, None]
+            return
+        T = 1.0 / sample_rate_hz
+        k = np.arange(-_ALIASES, _ALIASES + 1)
+        self.s = 1j * (w[:, None] + k[None, :] * 2.0 * np.pi * sample_rate_hz)
+        # H_d = sum_k H(s_k) (1 - exp(-s_k T)) / (s_k T); the asymptote c / (m1 s) is summed in closed form
+        # (c T / (m1 (z - 1))) and only the remainder aliased, which converges fast.
+        self.hold = (1.0 - np.exp(-1j * w * T))[:, None] / (self.s * T)
+        self.integrator = T / (np.exp(1j * w * T) - 1.0)
+
+    def _parts(self, m1, m2, b, k, d):
+        s = self.s
+        z = d[:, None] * s + k[:, None]
+        num = m2 * s * s + z
+        den = m1 * m2 * s**3 + (m1 + m2) * s * z + b * num
+        return s, z, num, den
+
+    def response(self, m1: float, m2: float, b: float, k_at: np.ndarray, d_at: np.ndarray) -> np.ndarray:
+        """``H`` at each bin with ``k``, ``d`` given per bin (or one value for all)."""
+        n = self.s.shape[0]
+        k = np.broadcast_to(k_at, (n,))
+        d = np.broadcast_to(d_at, (n,))
+        s, z, num, den = self._parts(m1, m2, b, k, d)
+        h = self.c * num / den
+        if self.fs is None:
+            return h[:, 0] * self.shift
+        a = self.c / m1
+        return (((h - a / s) * self.hold).sum(axis=1) + a * self.integrator) * self.shift
+
+    def response_and_gradient(self, m1, m2, b, k, d):
+        """``H`` and ``dH / d(m1, m2, b, k, d)`` per bin (the last axis of the gradient)."""
+        s, z, num, den = self._parts(m1, m2, b, k, d)
+        h = self.c * num / den
+        total = m1 + m2
+        dlog = np.stack([-(m2 * s**3 + s * z) / den,
+                         s * s / num - (m1 * s**3 + s * z + b * s * s) / den,
+                         -num / den,
+                         1.0 / num - (total * s + b) / den], axis=-1)
+        dlog = np.concatenate((dlog, (dlog[..., 3] * s)[..., None]), axis=-1)  # d(H)/dd = s dH/dk
+        grad = h[..., None] * dlog
+        if self.fs is None:
+            return h[:, 0] * self.shift, grad[:, 0, :] * self.shift[:, None]
+        a = self.c / m1
+        hd = ((h - a / s) * self.hold).sum(axis=1) + a * self.integrator
+        grad = (grad * self.hold[..., None]).sum(axis=1)
+        # the asymptote depends on m1: d(a)/d(m1) = -a / m1, added back in both its aliased and closed forms
+        da = -a / m1
+        grad[:, 0] += -(da / s * self.hold).sum(axis=1) + da * self.integrator
+        return hd * self.shift, grad * self.shift[:, None]
+
+
 class _Model:
     """Residuals and their Jacobian in the scaled parameters ``theta``.
 
@@ -487,11 +606,10 @@ class _Model:
     ``k`` and ``d`` in the scaled position ``x``.
     """
 
-    def __init__(self, data: _Data, c: float, nk: int, nd: int, fit_b: bool, refs: tuple[float, float, float],
-                 delay_s: float):
-        self.data, self.c, self.nk, self.nd, self.fit_b = data, c, nk, nd, fit_b
+    def __init__(self, data: _Data, core: _Core, nk: int, nd: int, fit_b: bool,
+                 refs: tuple[float, float, float]):
+        self.data, self.core, self.nk, self.nd, self.fit_b = data, core, nk, nd, fit_b
         self.k_ref, self.d_ref, self.b_ref = refs
-        self.delay_s = delay_s
         self.vk = np.vander(data.x, nk, increasing=True)
         self.vd = np.vander(data.x, nd, increasing=True)
 
@@ -506,33 +624,24 @@ class _Model:
         a_d = theta[i + self.nk:] * self.d_ref
         return m1, m2, b, a_k, a_d
 
-    def _parts(self, theta):
+    def _at_bins(self, theta):
         m1, m2, b, a_k, a_d = self.unpack(theta)
-        s = self.data.s
-        z = (self.vd @ a_d) * s + self.vk @ a_k
-        num = m2 * s * s + z
-        den = m1 * m2 * s**3 + (m1 + m2) * s * z + b * num
-        return m1, m2, b, s, z, num, den
-
-    def log_error(self, theta) -> np.ndarray:
-        m1, m2, b, s, z, num, den = self._parts(theta)
-        model = self.c * np.exp(-s * self.delay_s) * num / den
-        return np.log(model / self.data.h)
+        return m1, m2, b, self.vk @ a_k, self.vd @ a_d
 
     def residuals(self, theta) -> np.ndarray:
-        e = self.data.weight * self.log_error(theta)
+        h = self.core.response(*self._at_bins(theta))
+        e = self.data.weight * np.log(h / self.data.h)
         return np.concatenate((e.real, e.imag))
 
     def jacobian(self, theta) -> np.ndarray:
-        m1, m2, b, s, z, num, den = self._parts(theta)
-        total = m1 + m2
-        cols = [m1 * (-(m2 * s**3 + s * z) / den),
-                m2 * (s * s / num - (m1 * s**3 + s * z + b * s * s) / den)]
+        m1, m2, b, k, d = self._at_bins(theta)
+        h, g = self.core.response_and_gradient(m1, m2, b, k, d)
+        dlog = g / h[:, None]  # d log H / d(m1, m2, b, k, d)
+        cols = [m1 * dlog[:, 0], m2 * dlog[:, 1]]
         if self.fit_b:
-            cols.append(self.b_ref * (-num / den))
-        dz = 1.0 / num - (total * s + b) / den
-        cols += [self.k_ref * dz * self.vk[:, j] for j in range(self.nk)]
-        cols += [self.d_ref * dz * s * self.vd[:, j] for j in range(self.nd)]
+            cols.append(self.b_ref * dlog[:, 2])
+        cols += [self.k_ref * dlog[:, 3] * self.vk[:, j] for j in range(self.nk)]
+        cols += [self.d_ref * dlog[:, 4] * self.vd[:, j] for j in range(self.nd)]
         J = np.stack(cols, axis=1) * self.data.weight[:, None]
         return np.concatenate((J.real, J.imag), axis=0)
 
@@ -564,6 +673,7 @@ def fit_workspace_two_mass(
     d_degree: int = 0,
     band_hz: tuple[float, float] | None = None,
     estimate_cart_damping: bool = True,
+    sample_rate_hz: float | None = None,
     delay_s: float = 0.0,
     resonance_hz: ArrayLike | None = None,
     max_evaluations: int = 400,
@@ -594,9 +704,15 @@ def fit_workspace_two_mass(
         not hold). Default: every frequency above 0 Hz.
     estimate_cart_damping : bool
         Estimate ``b`` (default); False holds ``b = 0``.
+    sample_rate_hz : float, optional
+        Sample rate of the records the responses were estimated from, Hz. Given, the model is the
+        sampled one (torque held over each sample, velocity sampled: see
+        :func:`two_mass_velocity_response`), which a continuous model misses by half a sample of
+        delay and by aliasing, a bias of order ``(f / sample_rate_hz)^2`` on the masses and
+        ``k(p)``. Omitted, the continuous ``H(j 2 pi f)``.
     delay_s : float
-        A known pure delay in the measured response, s: half a sample for a zero-order hold,
-        plus a drive's transport delay.
+        A known pure delay in the measured response beyond the hold, s (a drive's transport
+        delay; exact for whole samples).
     resonance_hz : array_like, optional
         Resonance frequency at each position (e.g. from a per-position analysis) for the start
         values; by default picked as the peak of ``|H f|`` over the bins with coherence >= 0.5.
@@ -637,6 +753,7 @@ def fit_workspace_two_mass(
     delay = float(delay_s)
     if not (math.isfinite(delay) and delay >= 0.0):
         raise ConfigError("delay_s", f"must be >= 0 s, got {delay_s!r}")
+    fs = _check_rate(sample_rate_hz)
     positions, used = _checked_inputs(positions_m, frequency_hz, frf, coherence, band_hz)
     need = max(k_degree, d_degree) + 1
     if positions.size < need:
@@ -647,14 +764,18 @@ def fit_workspace_two_mass(
     x_pos = (positions - centre) / half
     sizes = [f.size for f, _, _ in used]
     owner = np.repeat(np.arange(positions.size), sizes)
-    data = _Data(s=2j * np.pi * np.concatenate([f for f, _, _ in used]),
+    if fs is not None and any(f.max() > fs / 2.0 for f, _, _ in used):
+        raise DataError(f"frequencies above the Nyquist frequency {fs / 2.0:g} Hz of sample_rate_hz = {fs:g} Hz; "
+                        "give the rate the responses were estimated at, or a band_hz below it")
+    data = _Data(frequency_hz=np.concatenate([f for f, _, _ in used]),
                  h=np.concatenate([h for _, h, _ in used]),
-                 weight=np.sqrt(np.concatenate([c_ / (1.0 - c_) for _, _, c_ in used])),
+                 weight=np.concatenate([_weights(c_) for _, _, c_ in used]),
                  x=x_pos[owner], owner=owner, per_position=used)
     nk, nd = k_degree + 1, d_degree + 1
     n_par = 2 + int(bool(estimate_cart_damping)) + nk + nd
-    if 2 * data.s.size <= n_par:
-        raise DataError(f"{data.s.size} usable frequencies over all positions cannot determine {n_par} parameters")
+    if 2 * data.frequency_hz.size <= n_par:
+        raise DataError(f"{data.frequency_hz.size} usable frequencies over all positions cannot determine "
+                        f"{n_par} parameters")
     lo, hi = float(positions.min()), float(positions.max())
 
     start = _start_values(positions, data, c, resonance_hz, k_degree, d_degree, bool(estimate_cart_damping),
@@ -663,8 +784,8 @@ def fit_workspace_two_mass(
     T_d = _to_power_basis(nd, centre, half)
     _check_k_positive(T_k @ start["a_k"], lo, hi, "at the start values (a polynomial through each position's "
                       "resonance)")
-    model = _Model(data, c, nk, nd, bool(estimate_cart_damping), (start["k_ref"], start["d_ref"], start["b_ref"]),
-                   delay)
+    core = _Core(data.frequency_hz, data.x, c, fs, delay)
+    model = _Model(data, core, nk, nd, bool(estimate_cart_damping), (start["k_ref"], start["d_ref"], start["b_ref"]))
     theta0 = np.concatenate(([math.log(start["m1"]), math.log(start["m2"])],
                              [0.0] if estimate_cart_damping else [],
                              start["a_k"] / start["k_ref"], start["a_d"] / start["d_ref"]))
@@ -697,7 +818,7 @@ def fit_workspace_two_mass(
     per_position = []
     for p, (f, h, _) in zip(positions, used, strict=True):
         h_model = two_mass_velocity_response(
-            f, m1=m1, m2=m2, b=b, torque_constant=c, delay_s=delay,
+            f, m1=m1, m2=m2, b=b, torque_constant=c, delay_s=delay, sample_rate_hz=fs,
             k=float(np.polynomial.polynomial.polyval(p, k_coef)), d=float(np.polynomial.polynomial.polyval(p, d_coef)))
         spread = np.linalg.norm(h - h.mean())
         fit_pct = 100.0 * (1.0 - np.linalg.norm(h - h_model) / spread) if spread > 0 else math.nan
@@ -719,7 +840,7 @@ def fit_workspace_two_mass(
         torque_constant=c, m1=m1, m2=m2, b=b, k_coefficients=k_coef, d_coefficients=d_coef,
         parameter_names=names, covariance=covariance, position_range_m=(lo, hi), positions=tuple(per_position),
         converged=converged, message=str(result.message), evaluations=int(result.nfev),
-        residual_rms=float(np.sqrt(np.mean(result.fun**2))), delay_s=delay, warnings=tuple(warnings))
+        residual_rms=float(np.sqrt(np.mean(result.fun**2))), delay_s=delay, sample_rate_hz=fs, warnings=tuple(warnings))
 
 
 # --------------------------------------------------------------------------- comparison
