@@ -21,7 +21,9 @@ position's response at once by nonlinear least squares on the complex
 logarithm of ``H`` (log-magnitude and phase errors), each bin weighted by
 ``sqrt(coh / (1 - coh))``, the inverse of the standard deviation of an H1
 estimate's logarithm that its coherence implies (up to a common factor, which
-the residual variance supplies). :func:`compare_modes` sets the joint model's
+the residual variance supplies). Given the sample rate, the model is the
+sampled one a recording sees (torque held over each sample), not the
+continuous one. :func:`compare_modes` sets the joint model's
 mode at each position beside a per-position estimate.
 
 Example
@@ -690,6 +692,7 @@ def fit_workspace_two_mass(
         Cart velocity per motor torque at each position, (m/s)/(N·m).
     coherence : sequence of array_like
         Coherence of each response, in [0, 1]. Each bin is weighted by ``sqrt(coh / (1 - coh))``
+        with the noise-to-signal ratio ``(1 - coh) / coh`` averaged over 7 neighbouring bins
         (coherence clipped to 0.001..0.9999); bins with coherence 0 or NaN are left out.
     torque_constant : float
         ``c``, N/(N·m): the force on the cart is ``c * tau``. It must be given: with ``c`` free the
