@@ -14,6 +14,7 @@ from hilident.ident.resonance import find_resonances
 from hilident.ident.workspace import (
     WorkspaceMode,
     compare_modes,
+    fit_workspace_responses,
     fit_workspace_two_mass,
     two_mass_velocity_response,
 )
@@ -128,6 +129,14 @@ def test_as_dict_is_json_with_unit_suffixed_keys():
     assert doc["position_range_m"] == pytest.approx([0.1, 0.9]) and doc["converged"] is True
 
 
+def test_frequencies_in_any_order_give_the_same_fit():
+    grids, frf, coh = exact_responses(POSITIONS)
+    ordered = fit_workspace_two_mass(POSITIONS, grids, frf, coh, torque_constant=C)
+    flipped = fit_workspace_two_mass(POSITIONS, [g[::-1] for g in grids], [h[::-1] for h in frf], coh,
+                                     torque_constant=C)
+    np.testing.assert_allclose(flipped.k_coefficients, ordered.k_coefficients, rtol=1e-9)
+
+
 def test_the_solver_reports_when_it_stops_short():
     fit = fit_workspace_two_mass(POSITIONS, *exact_responses(POSITIONS), torque_constant=C, max_evaluations=1)
     assert not fit.converged
@@ -159,8 +168,7 @@ def simulated_response(p, seed, noise_mps=5e-4):
 @pytest.fixture(scope="module")
 def simulated():
     frfs = [simulated_response(p, seed) for seed, p in enumerate(POSITIONS)]
-    fit = fit_workspace_two_mass(POSITIONS, [r.frequency_hz for r in frfs], [r.response for r in frfs],
-                                 [r.coherence for r in frfs], torque_constant=C, sample_rate_hz=FS)
+    fit = fit_workspace_responses(POSITIONS, frfs, torque_constant=C, sample_rate_hz=FS)
     return frfs, fit
 
 

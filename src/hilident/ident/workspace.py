@@ -60,6 +60,7 @@ __all__ = [
     "WorkspaceFit",
     "ModeComparison",
     "fit_workspace_two_mass",
+    "fit_workspace_responses",
     "compare_modes",
     "two_mass_velocity_response",
 ]
@@ -380,9 +381,8 @@ class _Data:
 
     frequency_hz: np.ndarray
     h: np.ndarray  # measured response
-    weight: np.ndarray  # sqrt(coh / (1 - coh))
+    weight: np.ndarray  # see _weights
     x: np.ndarray  # scaled position of each bin's position
-    owner: np.ndarray  # index of the position of each bin
     per_position: list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # (f, h, coh) used at each position
 
 
@@ -415,7 +415,8 @@ def _checked_inputs(positions_m, frequency_hz, frf, coherence, band_hz) -> tuple
         if not keep.any():
             raise DataError(f"position {positions[i]:g} m: no usable frequency (finite, non-zero response with "
                             f"coherence > 0 within {lo:g}..{hi:g} Hz)")
-        used.append((f[keep], h[keep], np.clip(c[keep], _COH_MIN, _COH_MAX)))
+        order = np.argsort(f[keep], kind="stable")  # ascending: the weights average neighbouring bins
+        used.append((f[keep][order], h[keep][order], np.clip(c[keep][order], _COH_MIN, _COH_MAX)))
     return positions, used
 
 
@@ -773,7 +774,7 @@ def fit_workspace_two_mass(
     data = _Data(frequency_hz=np.concatenate([f for f, _, _ in used]),
                  h=np.concatenate([h for _, h, _ in used]),
                  weight=np.concatenate([_weights(c_) for _, _, c_ in used]),
-                 x=x_pos[owner], owner=owner, per_position=used)
+                 x=x_pos[owner], per_position=used)
     nk, nd = k_degree + 1, d_degree + 1
     n_par = 2 + int(bool(estimate_cart_damping)) + nk + nd
     if 2 * data.frequency_hz.size <= n_par:
@@ -844,6 +845,23 @@ def fit_workspace_two_mass(
         parameter_names=names, covariance=covariance, position_range_m=(lo, hi), positions=tuple(per_position),
         converged=converged, message=str(result.message), evaluations=int(result.nfev),
         residual_rms=float(np.sqrt(np.mean(result.fun**2))), delay_s=delay, sample_rate_hz=fs, warnings=tuple(warnings))
+
+
+def fit_workspace_responses(positions_m: ArrayLike, responses: Sequence[Any], **options: Any) -> WorkspaceFit:
+    """:func:`fit_workspace_two_mass` on one measured response per position.
+
+    Parameters
+    ----------
+    positions_m : array_like
+        Cart position of each response, m.
+    responses : sequence of FrequencyResponse
+        Anything with ``frequency_hz``, ``response`` and ``coherence`` arrays (as
+        :class:`~hilident.ident.frequency.FrequencyResponse`), cart velocity per motor torque.
+    **options
+        The keyword arguments of :func:`fit_workspace_two_mass` (``torque_constant`` is required).
+    """
+    return fit_workspace_two_mass(positions_m, [r.frequency_hz for r in responses], [r.response for r in responses],
+                                  [r.coherence for r in responses], **options)
 
 
 # --------------------------------------------------------------------------- comparison
