@@ -56,7 +56,8 @@ def exact_responses(positions, b=B, d=D, sample_rate_hz=None):
     for i, p in enumerate(positions):
         f = np.linspace(2.0 + 0.3 * i, 140.0, 250 + 10 * i)  # each position on its own grid
         grids.append(f)
-        frf.append(two_mass_velocity_response(f, m1=M1, m2=M2, k=k_true(p), d=d, b=b, torque_constant=C,
+        frf.append(two_mass_velocity_response(f, m1=M1, m2=M2, k=k_true(p), d=d(p) if callable(d) else d, b=b,
+                                              torque_constant=C,
                                               sample_rate_hz=sample_rate_hz))
         coh.append(np.ones(f.size))
     return grids, frf, coh
@@ -74,6 +75,14 @@ def test_noise_free_responses_give_the_coefficients_to_1e_6():
     assert fit.k_of(0.5) == pytest.approx(k_true(0.5), rel=1e-6)
     assert fit.d_of(0.2) == pytest.approx(D, rel=1e-6)
     np.testing.assert_allclose(fit.k_of(positions), [k_true(p) for p in positions], rtol=1e-6)
+
+
+def test_a_position_dependent_damping_is_recovered():
+    grids, frf, coh = exact_responses(POSITIONS, d=lambda p: 20.0 + 15.0 * p)
+    fit = fit_workspace_two_mass(POSITIONS, grids, frf, coh, torque_constant=C, d_degree=1)
+    np.testing.assert_allclose(fit.d_coefficients, [20.0, 15.0], rtol=1e-6)
+    assert fit.parameter_names[-2:] == ("d0", "d1")
+    assert fit.as_dict()["d_ns_per_m"]["units"] == ["N*s/m", "N*s/m^2"]
 
 
 def test_noise_free_sampled_responses_need_the_sampled_model():

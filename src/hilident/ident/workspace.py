@@ -118,7 +118,7 @@ def two_mass_velocity_response(frequency_hz: ArrayLike, *, m1: float, m2: float,
     [0.15912, 0.00208]
     """
     f = np.asarray(frequency_hz, dtype=float)
-    core = _Core(f.ravel(), np.zeros(f.size), float(torque_constant), _check_rate(sample_rate_hz), float(delay_s))
+    core = _Core(f.ravel(), float(torque_constant), _check_rate(sample_rate_hz), float(delay_s))
     h = core.response(m1, m2, b, np.array([float(k)]), np.array([float(d)]))
     return h.reshape(f.shape)
 
@@ -475,7 +475,7 @@ def _pick_mode(f: np.ndarray, h: np.ndarray, coh: np.ndarray) -> tuple[float, fl
 
 
 def _start_values(positions, data: _Data, c: float, resonance_hz, k_degree: int, d_degree: int,
-                  fit_b: bool, centre: float, half: float) -> dict[str, Any]:
+                  centre: float, half: float) -> dict[str, Any]:
     """Masses, ``k`` and ``d`` polynomials to start from, from each position's resonance and anti-resonance."""
     n = positions.size
     picked = [_pick_mode(*fhc) for fhc in data.per_position]
@@ -519,8 +519,7 @@ def _start_values(positions, data: _Data, c: float, resonance_hz, k_degree: int,
     a_d[0] = float(np.mean(d_at))
     f_low = float(min(f.min() for f, _, _ in data.per_position))
     return {"m1": m1, "m2": m2, "a_k": a_k, "a_d": a_d, "k_ref": float(np.mean(k_at)),
-            "d_ref": float(np.mean(d_at)), "b_ref": total * 2.0 * np.pi * f_low, "fit_b": fit_b,
-            "resonance_hz": fr}
+            "d_ref": float(np.mean(d_at)), "b_ref": total * 2.0 * np.pi * f_low}
 
 
 #: Aliases either side of each frequency summed for the sampled response (the remainder after the
@@ -540,13 +539,11 @@ def _check_rate(sample_rate_hz: float | None) -> float | None:
 class _Core:
     """The model's response and its derivatives at a set of bins, continuous or sampled.
 
-    Parameters: frequency of each bin (Hz), the scaled position ``x`` of each bin, ``c``, the sample rate
-    (None: continuous) and the delay.
+    Parameters: frequency of each bin (Hz), ``c``, the sample rate (None: continuous) and the delay.
     """
 
-    def __init__(self, frequency_hz: np.ndarray, x: np.ndarray, c: float, sample_rate_hz: float | None,
-                 delay_s: float):
-        self.c, self.x = c, x
+    def __init__(self, frequency_hz: np.ndarray, c: float, sample_rate_hz: float | None, delay_s: float):
+        self.c = c
         w = 2.0 * np.pi * frequency_hz
         self.shift = np.exp(-1j * w * delay_s)
         self.fs = sample_rate_hz
@@ -782,13 +779,12 @@ def fit_workspace_two_mass(
                         f"{n_par} parameters")
     lo, hi = float(positions.min()), float(positions.max())
 
-    start = _start_values(positions, data, c, resonance_hz, k_degree, d_degree, bool(estimate_cart_damping),
-                          centre, half)
+    start = _start_values(positions, data, c, resonance_hz, k_degree, d_degree, centre, half)
     T_k = _to_power_basis(nk, centre, half)
     T_d = _to_power_basis(nd, centre, half)
     _check_k_positive(T_k @ start["a_k"], lo, hi, "at the start values (a polynomial through each position's "
                       "resonance)")
-    core = _Core(data.frequency_hz, data.x, c, fs, delay)
+    core = _Core(data.frequency_hz, c, fs, delay)
     model = _Model(data, core, nk, nd, bool(estimate_cart_damping), (start["k_ref"], start["d_ref"], start["b_ref"]))
     theta0 = np.concatenate(([math.log(start["m1"]), math.log(start["m2"])],
                              [0.0] if estimate_cart_damping else [],
