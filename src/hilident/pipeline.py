@@ -782,8 +782,10 @@ class NotchDesign:
 
 #: Why a designed notch is as wide as it is: today's rule (``width_factor`` half-power bandwidths, at least
 #: ``min_width_ratio`` of the centre), the 95 % interval of the frequency (``target_attenuation_db`` at both of its
-#: ends), or the width search for the predicted band figure (``min_reduction_db``).
-WIDTH_REASONS = ("resonance bandwidth", "minimum width ratio", "frequency uncertainty", "band figure")
+#: ends), the width search for the predicted band figure (``min_reduction_db``), or the range a mapped mode moves
+#: through (``[map]``: the covering notch; its ``attenuation_at_ci95_db`` is the worst case over that range).
+WIDTH_REASONS = ("resonance bandwidth", "minimum width ratio", "frequency uncertainty", "band figure",
+                 "workspace range")
 
 
 def band_of(frequency_hz: float, damping_ratio: float, bandwidths: float) -> tuple[float, float]:

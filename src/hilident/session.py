@@ -306,6 +306,8 @@ class Session(DeviceConnection):
         self.map_points: list[MapPoint] | None = None  # [map]: the mode at each mapped position
         self.map_results: dict[str, Any] = {}  # [map]: each mapped position's identification, by recording
         self.move_results: list[MoveTestResult] | None = None  # [verification] move, at each place it ran
+        self.workspace: dict[str, Any] = {}  # [map]: the joint fit, its comparison and the covering notch
+        self.joint_fit: Any = None  # [map]: the WorkspaceFit behind workspace["joint_fit"]
         self.position_m: float | None = None  # the cart's position at the end of the last recording, m
 
     # --- connection -----------------------------------------------------------------------
@@ -393,6 +395,7 @@ class Session(DeviceConnection):
             if self.cfg.map.enabled:
                 step = "map"
                 self.map_points = self._map_step(ident, excitation, friction, plant)
+                self.workspace["joint_fit"] = self._joint_fit(excitation)
             step = "notch upload"
             designs, upload = self._notch_step(plant)
             step = "verification"
@@ -582,6 +585,63 @@ class Session(DeviceConnection):
         self.map_results = mapper.results
         return points
 
+    def _joint_fit(self, excitation: Excitation) -> dict | None:
+        """``[map]``: one two-mass model with ``k(p)``, ``d(p)`` from every mapped position's plant response
+        (:func:`hilident.ident.workspace.fit_workspace_responses`), and its mode beside each position's own.
+        A fit that fails is a warning: the map and the per-position modes stand without it."""
+        from hilident.ident.workspace import compare_modes, fit_workspace_responses
+
+        m = self.cfg.map
+        found = [p for p in self.map_points or [] if p.frequency_hz is not None]
+        try:
+            fit = fit_workspace_responses(
+                [p.position_m for p in found], [self.map_results[p.recording.removesuffix(".h5")].plant for p in found],
+                torque_constant=self.cfg.model.c, k_degree=m.k_degree, d_degree=m.d_degree,
+                band_hz=pipeline.analysis_band(self.cfg.identification, excitation.band_hz),
+                sample_rate_hz=self.cfg.run.sample_rate_hz, resonance_hz=[p.frequency_hz for p in found])
+        except (DataError, ConfigError) as exc:
+            self.warnings.append(f"map: the joint fit of k(p) and d(p) failed: {exc}")
+            return None
+        self.warnings += [f"map: joint fit: {w}" for w in fit.warnings]
+        comparison = compare_modes(fit, [p.position_m for p in found], [float(p.frequency_hz or 0.0) for p in found],
+                                   [np.nan if p.frequency_ci95_hz is None else p.frequency_ci95_hz for p in found])
+        self.joint_fit = fit
+        return {**fit.as_dict(), "comparison": [c.as_dict() for c in comparison]}
+
+    def _covering_designs(self, resonances: list, slots: list[int], plant) -> list:
+        """``[map]``: notches that hold the mapped mode down over the whole workspace
+        (:func:`hilident.pipeline.covering_design`, worst case on what the device stores): one notch, or when
+        one would be wider than ``[notch] max_width_ratio`` a staggered set enabled together in as many slots;
+        the run's other resonances get their own notches in the slots left."""
+        from hilident.filters.notch import design_notch
+
+        ad, nc = self.adapter, self.cfg.notch
+        rate = ad.identity.loop_rate_hz
+        points = [p.to_dict() for p in self.map_points or [] if p.frequency_hz is not None]
+        covering = pipeline.covering_design(points, nc, rate,
+                                            realise=lambda spec: ad.stored_form(design_notch(spec, rate), spec))
+        groups = list(covering.groups)
+        how = "one notch" if covering.kind == "single" else f"{len(groups)} staggered notches, enabled together"
+        if len(groups) > len(slots):
+            groups = [covering.single]
+            how = "one notch (the widest max_width_ratio allows: too few slots for the staggered set)"
+            self.warnings.append(f"map: {covering.message}; the device has {len(slots)} filter slot(s), so the "
+                                 f"one notch is used and gives {covering.single.worst_attenuation_db:.1f} dB at "
+                                 f"worst")
+        elif not covering.meets_target:
+            self.warnings.append(f"map: {covering.message}")
+        self.workspace["covering_notch"] = {**covering.as_dict(), "used": how}
+        lo, hi = covering.range_hz
+        mapped = min(resonances, key=lambda r: abs(r.frequency_hz - (lo + hi) / 2))
+        designs = [pipeline.NotchDesign(g.spec, design_notch(g.spec, rate), slot, rate, mapped,
+                                        width_reason="workspace range",
+                                        attenuation_at_ci95_db=g.worst_attenuation_db)
+                   for slot, g in zip(slots, groups, strict=False)]
+        others = [r for r in resonances if r is not mapped and not lo <= r.frequency_hz <= hi]
+        if others:
+            designs += pipeline.design_notches(others, nc, rate, slots[len(designs):], plant.loop)
+        return designs
+
     def _move_step(self, designs: list, upload: UploadOutcome) -> list[MoveTestResult]:
         """``[verification] move``: the move test where the run identified (and at every mapped position),
         without and with the notch; the axis ends where it started."""
@@ -632,7 +692,10 @@ class Session(DeviceConnection):
             self.warnings.append(upload.not_uploaded)
             return designs, upload
         slots = list(range(ad.identity.filter_slots))
-        designs = pipeline.design_notches(resonances, nc, ad.identity.loop_rate_hz, slots, plant.loop)
+        if self.map_points and any(p.frequency_hz is not None for p in self.map_points):
+            designs = self._covering_designs(resonances, slots, plant)
+        else:
+            designs = pipeline.design_notches(resonances, nc, ad.identity.loop_rate_hz, slots, plant.loop)
         self.warnings += [d.warning for d in designs if d.warning]
         self.progress.step(f"notch: uploading {len(designs)} filter(s)")
         # written disabled, read back, compared; enabled only as written, else the old contents put back
@@ -716,7 +779,8 @@ class Session(DeviceConnection):
             plant=plant, friction=friction, designs=designs, upload=upload, verification=verification,
             stream=self.totals, connect=connect, filters_found=self.filters_found,
             recordings=sorted(p.name for p in self.out.glob("*.h5")), elapsed_s=elapsed_s, warnings=self.warnings,
-            model=model, workspace_map=self.map_points, move_test=self.move_results)
+            model=model, workspace_map=self.map_points, move_test=self.move_results,
+            workspace=self.workspace if self.map_points is not None else None)
 
     def _plots(self, friction, plant, designs, verification, excitation_band_hz, model=None) -> None:
         report.plot_run(self.out, friction, plant, designs, verification.loop_after if verification else None,

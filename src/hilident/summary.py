@@ -31,7 +31,7 @@ __all__ = ["DevicePart", "ExcitationPart", "Failure", "PlantPart", "Summary", "U
 LAYOUTS: dict[str, tuple[str, ...]] = {
     "run": ("hilident_version", "config", "device", "sample_rate_hz", "excitation", "resonances", "rejected_peaks",
             "plant_model", "measurement", "friction", "notch_filters", "upload", "verification", "stream", "connect",
-            "filters_found", "recordings", "elapsed_s", "warnings", "model", "map", "move_test"),
+            "filters_found", "recordings", "elapsed_s", "warnings", "model", "map", "workspace", "move_test"),
     "identify": ("hilident_version", "config", "data", "resonances", "rejected_peaks", "friction", "model",
                  "plant_model", "measurement", "notch_filters", "notch_skipped_reason", "upload", "verification",
                  "stream", "elapsed_s", "warnings"),
@@ -239,15 +239,17 @@ class Summary:
                verification: VerificationPart | None, stream: StreamStats, connect: dict | None,
                filters_found: list[dict], recordings: list[str], elapsed_s: float, warnings: list[str],
                model: Any = NOT_REACHED, workspace_map: list | None = None,
-               move_test: list | None = None) -> Summary:
+               move_test: list | None = None, workspace: dict | None = None) -> Summary:
         """``hilident run``'s summary (``model``: the grey-box fit, None when not asked for; left out when the
         run failed before it; ``workspace_map``: the ``[map]`` points, left out of a run without ``[map]``;
-        ``move_test``: each ``[verification] move`` result, left out of a run without one)."""
+        ``move_test``: each ``[verification] move`` result, left out of a run without one; ``workspace``: the
+        ``[map]``'s joint fit and covering notch)."""
         return cls("run", config, elapsed_s, warnings, upload, designs, PlantPart.of(plant), friction_summary(friction),
                    model, verification or VerificationPart(), stream, device, excitation,
                    {"sample_rate_hz": sample_rate_hz, "connect": connect, "filters_found": filters_found,
                     "recordings": recordings,
                     "map": NOT_REACHED if workspace_map is None else [p.to_dict() for p in workspace_map],
+                    "workspace": NOT_REACHED if workspace is None else workspace,
                     "move_test": NOT_REACHED if move_test is None else move_test_summary(move_test)})
 
     @classmethod
