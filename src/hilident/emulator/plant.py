@@ -27,12 +27,14 @@ exponential, zero-order hold on the input) over each substep. :func:`modes` and
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, fields
 
 import numpy as np
 from scipy.linalg import expm
 
+from hilident.emulator.coupling import PositionCurve
 from hilident.errors import ConfigError
 
 __all__ = [
@@ -41,6 +43,7 @@ __all__ = [
     "MassSpringDamper",
     "StribeckFriction",
     "Plant",
+    "COUPLING_TOLERANCE",
     "modes",
     "frf",
     "state_matrices",
@@ -413,9 +416,24 @@ def frf(model: Model, frequency_hz, output: str = "velocity") -> np.ndarray:
     return model.c * h
 
 
+def _snap(x: float, anchor: float, log_ratio: float) -> float:
+    """``x`` > 0 rounded to the nearest ``anchor * exp(n * log_ratio)`` (``anchor`` itself at ``n == 0``); 0 stays 0."""
+    if x == anchor or x <= 0.0:
+        return anchor if x == anchor else 0.0
+    n = round(math.log(x / anchor) / log_ratio)
+    return anchor if n == 0 else anchor * math.exp(n * log_ratio)
+
+
 # Substep coefficient caches are keyed by dt; more distinct dts than this is a caller
 # sweeping dt, and the cache starts over rather than growing without bound.
 _CACHE_LIMIT = 64
+
+#: Relative step of the grids a position-dependent coupling's ``k`` and ``d`` are snapped to
+#: before the step matrices are built (see :class:`Plant`).
+COUPLING_TOLERANCE = 1e-4
+# Couplings whose step matrices are kept; a cart crossing the shipped map gantry's travel
+# passes about 6000 of them at COUPLING_TOLERANCE.
+_COUPLING_CACHE_LIMIT = 16384
 
 
 class Plant:
@@ -433,6 +451,13 @@ class Plant:
         Total play in the first coupling (cart to load), m: inside it the spring and
         damper carry no force. :func:`modes` and :func:`frf` describe the coupling
         in contact.
+    stiffness, damping : PositionCurve, optional
+        The first coupling's ``k`` (N/m) and ``d`` (N·s/m) as functions of the cart
+        position ``p1`` (thesis eqs. 2.3-2.4), for a two- or three-mass model; None
+        keeps the model's number. ``model.k`` and ``model.d`` are then only the
+        nominal values.
+    coupling_tolerance : float
+        Relative resolution of position-dependent ``k`` and ``d``, see Notes.
 
     Attributes
     ----------
@@ -459,6 +484,16 @@ class Plant:
       within breakaway, so it never chatters around zero. The stop position is the
       end of that substep (error of order ``h**2`` times the deceleration).
 
+    With a position-dependent coupling, :meth:`step` takes ``k`` and ``d`` at ``p1``
+    at the start of the step, snapped to geometric grids of ratio
+    ``1 + coupling_tolerance`` anchored at their values at ``p1 = 0`` (so a constant
+    curve gives its value exactly), and keeps the step matrices of each grid point
+    it has met. It looks again only once ``p1`` has moved far enough for ``k`` or
+    ``d`` to change by half the tolerance (:meth:`PositionCurve.still_radius_m`), so
+    a cart held at one position costs what a constant coupling costs. The
+    coupling in use is then within ``coupling_tolerance`` of ``k(p1)`` and
+    ``d(p1)``: a mode frequency within half of it.
+
     Examples
     --------
     >>> p = Plant(TwoMass(m1=8.0, m2=2.0, k=8e4, d=20.0, c=10.0))
@@ -468,7 +503,9 @@ class Plant:
     """
 
     def __init__(self, model: Model, friction: StribeckFriction | None = None,
-                 max_substep_s: float = 1.0 / 20000.0, backlash_m: float = 0.0):
+                 max_substep_s: float = 1.0 / 20000.0, backlash_m: float = 0.0,
+                 stiffness: PositionCurve | None = None, damping: PositionCurve | None = None,
+                 coupling_tolerance: float = COUPLING_TOLERANCE):
         if not isinstance(model, (TwoMass, ThreeMass, MassSpringDamper)):
             raise TypeError(f"model must be TwoMass, ThreeMass or MassSpringDamper, got {type(model).__name__}")
         if friction is not None and not isinstance(friction, StribeckFriction):
@@ -525,7 +562,80 @@ class Plant:
             self._fr = (friction.Fc, friction.Fs, friction.Fv, friction.vs,
                         friction.delta_v, friction.delta_s)
         self._cache: dict[float, tuple] = {}
+        self._laws = self._position_laws(stiffness, damping, coupling_tolerance)
         self.reset()
+
+    # -- position-dependent coupling ---------------------------------------------
+
+    def _position_laws(self, stiffness, damping, tolerance) -> tuple | None:
+        """``(k curve, d curve, k anchor, d anchor, log grid ratio)``, or None for a constant coupling."""
+        if stiffness is None and damping is None:
+            return None
+        for name, curve in (("stiffness", stiffness), ("damping", damping)):
+            if curve is not None and not isinstance(curve, PositionCurve):
+                raise TypeError(f"{name} must be a PositionCurve or None, got {type(curve).__name__}")
+        model = self._coupling
+        if model is None:
+            raise ConfigError("k", "a function of the cart position needs a coupling between two masses "
+                                   "(two_mass or three_mass)")
+        try:
+            tol = float(tolerance)
+        except (TypeError, ValueError):
+            raise ConfigError("coupling_tolerance", f"must be a number, got {tolerance!r}") from None
+        if not (math.isfinite(tol) and 0.0 < tol < 0.1):
+            raise ConfigError("coupling_tolerance", f"must lie in (0, 0.1), got {tolerance!r}")
+        k_of = stiffness if stiffness is not None else PositionCurve.constant(model.k)
+        d_of = damping if damping is not None else PositionCurve.constant(model.d)
+        k_ref, d_ref = k_of(0.0), d_of(0.0)
+        if not (k_ref > 0.0 and d_ref >= 0.0):
+            raise ConfigError("k", f"the coupling at p1 = 0 must have k > 0 and d >= 0, got k = {k_ref!r}, "
+                                   f"d = {d_ref!r}")
+        self._coupling_radius_m = min(k_of.still_radius_m(tol), d_of.still_radius_m(tol))
+        self._couplings: dict[tuple[float, float], tuple] = {}
+        self._coupling_key: tuple[float, float] | None = None
+        self._coupling_at_m = math.nan
+        return (k_of, d_of, k_ref, d_ref if d_ref > 0.0 else 1.0, math.log1p(tol))
+
+    def coupling_at(self, position_m: float) -> tuple[float, float]:
+        """The first coupling's exact ``(k, d)`` (N/m, N·s/m) with the cart at ``position_m``."""
+        if self._laws is None:
+            m = self._coupling
+            if m is None:
+                raise ValueError("a mass-spring-damper has no coupling")
+            return m.k, m.d
+        return self._laws[0](float(position_m)), self._laws[1](float(position_m))
+
+    def modes_at(self, position_m: float) -> list[tuple[float, float]]:
+        """:func:`modes` of the frictionless plant with the cart held at ``position_m`` (m): the truth."""
+        if self._laws is None:
+            return modes(self.model)
+        k, d = self.coupling_at(position_m)
+        return modes(dataclasses.replace(self.model, k=k, d=d))  # type: ignore[arg-type]  # never a single mass
+
+    @property
+    def coupling(self) -> tuple[float, float] | None:
+        """The ``(k, d)`` the step matrices use now (snapped to the grid), None for a single mass."""
+        m = self._coupling
+        return None if m is None else (m.k, m.d)
+
+    def _follow_position(self, p1: float) -> None:
+        """Take the coupling at ``p1``, snapped to its grids; switch step matrices if that changed it."""
+        k_of, d_of, k_ref, d_ref, log_ratio = self._laws  # type: ignore[misc]
+        self._coupling_at_m = p1
+        key = (_snap(k_of(p1), k_ref, log_ratio), _snap(d_of(p1), d_ref, log_ratio))
+        if key == self._coupling_key:
+            return
+        self._coupling_key = key
+        found = self._couplings.get(key)
+        if found is None:
+            if len(self._couplings) >= _COUPLING_CACHE_LIMIT:
+                self._couplings.clear()
+            coupling = dataclasses.replace(self.model, k=key[0], d=key[1])  # type: ignore[arg-type]
+            A, _ = state_matrices(coupling)
+            mass = self._driven_mass
+            found = (coupling, A, (mass * A[1, 0], mass * A[1, 2], mass * A[1, 3]), {})
+            self._couplings[key] = found
+        self._coupling, self._A, self._fstick, self._cache = found
 
     # -- state ------------------------------------------------------------------
 
@@ -543,6 +653,8 @@ class Plant:
         if self._mirror:
             self.p2, self.v2 = self.p1, self.v1
         self._x3 = np.array([self.p2, self.v2])  # a third mass starts undeflected from the load
+        if self._laws is not None:
+            self._follow_position(self.p1)
 
     @property
     def state(self) -> tuple[float, float, float, float]:
@@ -704,6 +816,9 @@ class Plant:
         dt_s : float
             Time to advance, s; split into ``substeps(dt_s)`` equal substeps.
         """
+        if self._laws is not None and not -self._coupling_radius_m <= self.p1 - self._coupling_at_m \
+                <= self._coupling_radius_m:
+            self._follow_position(self.p1)
         if self._general:
             self._step_general(float(torque_nm), dt_s)
             return
