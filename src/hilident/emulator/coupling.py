@@ -169,7 +169,7 @@ def modes_at(model, position_m: float, stiffness: PositionCurve | None = None,
     >>> from hilident.emulator.plant import TwoMass
     >>> k = PositionCurve(poly=[1.0e5, 0.0, 2.0e5], span_m=(-0.5, 0.5))
     >>> [round(f, 3) for f, _ in modes_at(TwoMass(40.0, 10.0, 1.0e5, 0.0), 0.5, k)]
-    [21.788]
+    [21.793]
     """
     from hilident.emulator.plant import modes
 
