@@ -17,9 +17,9 @@ import pytest
 import hilident.emulator.plant as plant_module
 from hilident.config import PositionFunction, load_config, parse_config
 from hilident.drivers import find_driver
-from hilident.emulator.coupling import PositionCurve, modes_at
+from hilident.emulator.coupling import PositionCurve
 from hilident.emulator.factory import build_drive, coupling_curves, plant_model, true_modes
-from hilident.emulator.plant import COUPLING_TOLERANCE, Plant, ThreeMass, TwoMass, modes
+from hilident.emulator.plant import COUPLING_TOLERANCE, Plant, ThreeMass, TwoMass, modes, modes_at
 from hilident.errors import ConfigError
 
 MAP_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "emulated-gantry-map.toml"

@@ -4,9 +4,9 @@ The thesis's gantry carries its load on a bearing beam that bends more the
 further the cart is from the beam's supports, so the cart-to-load stiffness
 ``k`` and damping ``d`` are functions of the cart position ``p1``.
 :class:`PositionCurve` is one such function, a polynomial or a table;
-:func:`model_at` substitutes both into a two- or three-mass model and
-:func:`modes_at` gives the coupled modes there: the truth a map of the
-resonance over the workspace is compared with.
+:func:`model_at` substitutes both into a two- or three-mass model, whose
+:func:`~hilident.emulator.plant.modes` (:func:`~hilident.emulator.plant.modes_at`)
+are the truth a map of the resonance over the workspace is compared with.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import numpy as np
 
 from hilident.errors import ConfigError
 
-__all__ = ["PositionCurve", "model_at", "modes_at"]
+__all__ = ["PositionCurve", "model_at"]
 
 
 def _floats(name: str, values) -> tuple[float, ...]:
@@ -156,21 +156,3 @@ def model_at(model, position_m: float, stiffness: PositionCurve | None = None,
     if damping is not None:
         changes["d"] = damping(float(position_m))
     return dataclasses.replace(model, **changes) if changes else model
-
-
-def modes_at(model, position_m: float, stiffness: PositionCurve | None = None,
-             damping: PositionCurve | None = None) -> list[tuple[float, float]]:
-    """(frequency_hz, damping_ratio) of the frictionless plant with the cart held at ``position_m`` (m).
-
-    :func:`~hilident.emulator.plant.modes` of :func:`model_at`.
-
-    Examples
-    --------
-    >>> from hilident.emulator.plant import TwoMass
-    >>> k = PositionCurve(poly=[1.0e5, 0.0, 2.0e5], span_m=(-0.5, 0.5))
-    >>> [round(f, 3) for f, _ in modes_at(TwoMass(40.0, 10.0, 1.0e5, 0.0), 0.5, k)]
-    [21.793]
-    """
-    from hilident.emulator.plant import modes
-
-    return modes(model_at(model, position_m, stiffness, damping))

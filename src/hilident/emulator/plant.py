@@ -23,6 +23,11 @@ Two linear plants and one friction law, integrated on a simulated clock:
 :class:`Plant` holds the state ``(p1, v1, p2, v2)`` and advances it exactly (matrix
 exponential, zero-order hold on the input) over each substep. :func:`modes` and
 :func:`frf` give the frictionless truth that tests and examples compare against.
+
+The cart-to-load coupling's ``k`` and ``d`` may vary with the cart position ``p1``
+(thesis eqs. 2.3-2.4, a :class:`~hilident.emulator.coupling.PositionCurve` each):
+:class:`Plant` then steps with them taken at ``p1``, and :func:`modes_at` gives the
+truth at a position.
 """
 
 from __future__ import annotations
@@ -34,7 +39,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 from scipy.linalg import expm
 
-from hilident.emulator.coupling import PositionCurve
+from hilident.emulator.coupling import PositionCurve, model_at
 from hilident.errors import ConfigError
 
 __all__ = [
@@ -45,6 +50,7 @@ __all__ = [
     "Plant",
     "COUPLING_TOLERANCE",
     "modes",
+    "modes_at",
     "frf",
     "state_matrices",
 ]
@@ -362,6 +368,21 @@ def modes(model: Model) -> list[tuple[float, float]]:
         return []
     zeta = -float(np.real(lam[0] + lam[1])) / (2.0 * omega) + 0.0  # no -0.0
     return [(omega / (2.0 * math.pi), zeta)]
+
+
+def modes_at(model, position_m: float, stiffness: PositionCurve | None = None,
+             damping: PositionCurve | None = None) -> list[tuple[float, float]]:
+    """(frequency_hz, damping_ratio) of the frictionless plant with the cart held at ``position_m`` (m).
+
+    :func:`~hilident.emulator.plant.modes` of :func:`model_at`.
+
+    Examples
+    --------
+    >>> k = PositionCurve(poly=[1.0e5, 0.0, 2.0e5], span_m=(-0.5, 0.5))
+    >>> [round(f, 3) for f, _ in modes_at(TwoMass(40.0, 10.0, 1.0e5, 0.0), 0.5, k)]
+    [21.793]
+    """
+    return modes(model_at(model, position_m, stiffness, damping))
 
 
 _OUTPUTS = ("velocity", "position", "load_position")
