@@ -49,6 +49,7 @@ __all__ = [
     "StribeckFriction",
     "Plant",
     "COUPLING_TOLERANCE",
+    "DAMPING_TOLERANCE",
     "modes",
     "modes_at",
     "frf",
@@ -437,6 +438,16 @@ def frf(model: Model, frequency_hz, output: str = "velocity") -> np.ndarray:
     return model.c * h
 
 
+def _tolerance(name: str, value) -> float:
+    try:
+        tol = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(name, f"must be a number, got {value!r}") from None
+    if not (math.isfinite(tol) and 0.0 < tol < 0.1):
+        raise ConfigError(name, f"must lie in (0, 0.1), got {value!r}")
+    return tol
+
+
 def _snap(x: float, anchor: float, log_ratio: float) -> float:
     """``x`` > 0 rounded to the nearest ``anchor * exp(n * log_ratio)`` (``anchor`` itself at ``n == 0``); 0 stays 0."""
     if x == anchor or x <= 0.0:
@@ -449,11 +460,14 @@ def _snap(x: float, anchor: float, log_ratio: float) -> float:
 # sweeping dt, and the cache starts over rather than growing without bound.
 _CACHE_LIMIT = 64
 
-#: Relative step of the grids a position-dependent coupling's ``k`` and ``d`` are snapped to
-#: before the step matrices are built (see :class:`Plant`).
+#: Relative step of the grid a position-dependent coupling's ``k`` is snapped to before the
+#: step matrices are built (see :class:`Plant`): a mode frequency within 5e-5 of itself.
 COUPLING_TOLERANCE = 1e-4
+#: The same for ``d``: it moves a mode's frequency only through ``zeta**2``, and a damping
+#: ratio by this share of itself (0.018 by 1.8e-5).
+DAMPING_TOLERANCE = 1e-3
 # Couplings whose step matrices are kept; a cart crossing the shipped map gantry's travel
-# passes about 6000 of them at COUPLING_TOLERANCE.
+# passes about 5000 of them.
 _COUPLING_CACHE_LIMIT = 16384
 
 
@@ -477,7 +491,7 @@ class Plant:
         position ``p1`` (thesis eqs. 2.3-2.4), for a two- or three-mass model; None
         keeps the model's number. ``model.k`` and ``model.d`` are then only the
         nominal values.
-    coupling_tolerance : float
+    coupling_tolerance, damping_tolerance : float
         Relative resolution of position-dependent ``k`` and ``d``, see Notes.
 
     Attributes
@@ -507,13 +521,14 @@ class Plant:
 
     With a position-dependent coupling, :meth:`step` takes ``k`` and ``d`` at ``p1``
     at the start of the step, snapped to geometric grids of ratio
-    ``1 + coupling_tolerance`` anchored at their values at ``p1 = 0`` (so a constant
-    curve gives its value exactly), and keeps the step matrices of each grid point
-    it has met. It looks again only once ``p1`` has moved far enough for ``k`` or
-    ``d`` to change by half the tolerance (:meth:`PositionCurve.still_radius_m`), so
-    a cart held at one position costs what a constant coupling costs. The
-    coupling in use is then within ``coupling_tolerance`` of ``k(p1)`` and
-    ``d(p1)``: a mode frequency within half of it.
+    ``1 + coupling_tolerance`` (``1 + damping_tolerance``) anchored at their values
+    at ``p1 = 0`` (so a constant curve gives its value exactly), and keeps the step
+    matrices of each grid point it has met. It looks again only once ``p1`` has
+    moved far enough for ``k`` or ``d`` to change by half its tolerance
+    (:meth:`PositionCurve.still_radius_m`), so a cart held at one position costs
+    what a constant coupling costs. The ``k`` in use is then within
+    ``coupling_tolerance`` of ``k(p1)`` (a mode frequency within half of it), the
+    ``d`` within ``damping_tolerance`` of ``d(p1)``.
 
     Examples
     --------
@@ -526,7 +541,7 @@ class Plant:
     def __init__(self, model: Model, friction: StribeckFriction | None = None,
                  max_substep_s: float = 1.0 / 20000.0, backlash_m: float = 0.0,
                  stiffness: PositionCurve | None = None, damping: PositionCurve | None = None,
-                 coupling_tolerance: float = COUPLING_TOLERANCE):
+                 coupling_tolerance: float = COUPLING_TOLERANCE, damping_tolerance: float = DAMPING_TOLERANCE):
         if not isinstance(model, (TwoMass, ThreeMass, MassSpringDamper)):
             raise TypeError(f"model must be TwoMass, ThreeMass or MassSpringDamper, got {type(model).__name__}")
         if friction is not None and not isinstance(friction, StribeckFriction):
@@ -583,13 +598,14 @@ class Plant:
             self._fr = (friction.Fc, friction.Fs, friction.Fv, friction.vs,
                         friction.delta_v, friction.delta_s)
         self._cache: dict[float, tuple] = {}
-        self._laws = self._position_laws(stiffness, damping, coupling_tolerance)
+        self._laws = self._position_laws(stiffness, damping, coupling_tolerance, damping_tolerance)
         self.reset()
 
     # -- position-dependent coupling ---------------------------------------------
 
-    def _position_laws(self, stiffness, damping, tolerance) -> tuple | None:
-        """``(k curve, d curve, k anchor, d anchor, log grid ratio)``, or None for a constant coupling."""
+    def _position_laws(self, stiffness, damping, k_tolerance, d_tolerance) -> tuple | None:
+        """``(k curve, d curve, k anchor, d anchor, k log grid ratio, d log grid ratio)``, or None for a
+        constant coupling."""
         if stiffness is None and damping is None:
             return None
         for name, curve in (("stiffness", stiffness), ("damping", damping)):
@@ -599,23 +615,19 @@ class Plant:
         if model is None:
             raise ConfigError("k", "a function of the cart position needs a coupling between two masses "
                                    "(two_mass or three_mass)")
-        try:
-            tol = float(tolerance)
-        except (TypeError, ValueError):
-            raise ConfigError("coupling_tolerance", f"must be a number, got {tolerance!r}") from None
-        if not (math.isfinite(tol) and 0.0 < tol < 0.1):
-            raise ConfigError("coupling_tolerance", f"must lie in (0, 0.1), got {tolerance!r}")
+        k_tol = _tolerance("coupling_tolerance", k_tolerance)
+        d_tol = _tolerance("damping_tolerance", d_tolerance)
         k_of = stiffness if stiffness is not None else PositionCurve.constant(model.k)
         d_of = damping if damping is not None else PositionCurve.constant(model.d)
         k_ref, d_ref = k_of(0.0), d_of(0.0)
         if not (k_ref > 0.0 and d_ref >= 0.0):
             raise ConfigError("k", f"the coupling at p1 = 0 must have k > 0 and d >= 0, got k = {k_ref!r}, "
                                    f"d = {d_ref!r}")
-        self._coupling_radius_m = min(k_of.still_radius_m(tol), d_of.still_radius_m(tol))
+        self._coupling_radius_m = min(k_of.still_radius_m(k_tol), d_of.still_radius_m(d_tol))
         self._couplings: dict[tuple[float, float], tuple] = {}
         self._coupling_key: tuple[float, float] | None = None
         self._coupling_at_m = math.nan
-        return (k_of, d_of, k_ref, d_ref if d_ref > 0.0 else 1.0, math.log1p(tol))
+        return (k_of, d_of, k_ref, d_ref if d_ref > 0.0 else 1.0, math.log1p(k_tol), math.log1p(d_tol))
 
     def coupling_at(self, position_m: float) -> tuple[float, float]:
         """The first coupling's exact ``(k, d)`` (N/m, N·s/m) with the cart at ``position_m``."""
@@ -641,9 +653,9 @@ class Plant:
 
     def _follow_position(self, p1: float) -> None:
         """Take the coupling at ``p1``, snapped to its grids; switch step matrices if that changed it."""
-        k_of, d_of, k_ref, d_ref, log_ratio = self._laws  # type: ignore[misc]
+        k_of, d_of, k_ref, d_ref, k_ratio, d_ratio = self._laws  # type: ignore[misc]
         self._coupling_at_m = p1
-        key = (_snap(k_of(p1), k_ref, log_ratio), _snap(d_of(p1), d_ref, log_ratio))
+        key = (_snap(k_of(p1), k_ref, k_ratio), _snap(d_of(p1), d_ref, d_ratio))
         if key == self._coupling_key:
             return
         self._coupling_key = key
