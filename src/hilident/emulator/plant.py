@@ -467,8 +467,8 @@ COUPLING_TOLERANCE = 1e-4
 #: ratio by this share of itself (0.018 by 1.8e-5).
 DAMPING_TOLERANCE = 1e-3
 # Couplings whose step matrices are kept; a cart crossing the shipped map gantry's travel
-# passes about 5000 of them.
-_COUPLING_CACHE_LIMIT = 16384
+# passes about 5000 of them; each costs about 1.5 kB.
+_COUPLING_CACHE_LIMIT = 8192
 
 
 class Plant:
