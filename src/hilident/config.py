@@ -355,6 +355,61 @@ class ModelConfig:
 
 
 @dataclass(frozen=True)
+class PositionFunction:
+    """A plant coefficient as a function of the cart position ``p1`` (m, the encoder's ``position_m`` axis).
+
+    ``{ poly = [c0, c1, c2, ...] }`` is ``c0 + c1 p + c2 p**2 + ...``; ``{ positions_m = [...], values = [...] }``
+    a table, interpolated linearly and held at its end values beyond its ends. A polynomial is checked over
+    the ``[limits]`` position window and held at its values at the window's ends beyond it (``span_m``, set
+    when the configuration is loaded; None: evaluated everywhere).
+    """
+
+    poly: list[float] = _spec([], max_items=8, doc="polynomial coefficients, constant term first (unit of the key "
+                              "per m**i)")
+    positions_m: list[float] = _spec([], max_items=256, doc="table: cart positions, m, strictly increasing")
+    values: list[float] = _spec([], max_items=256, doc="table: the coefficient at each of positions_m")
+    span_m: tuple[float, float] | None = field(default=None, metadata={"internal": True})
+
+    @property
+    def is_table(self) -> bool:
+        """Whether this is the table form (else the polynomial)."""
+        return not self.poly
+
+
+def _position_function_check(positive: bool):
+    """``check`` of a plant coefficient given as a number or a :class:`PositionFunction`: its form, and its sign
+    over a table's span (a polynomial's sign over the position window is checked with ``[limits]``)."""
+    bound = "> 0" if positive else ">= 0"
+
+    def check(value, key: str, source: str) -> None:
+        if not isinstance(value, PositionFunction):
+            return  # a number: its bounds are the field's
+        table = bool(value.positions_m or value.values)
+        if value.poly and table:
+            raise ConfigError(key, "give either poly or positions_m and values, not both", source)
+        if not value.poly and not table:
+            raise ConfigError(key, "a table needs poly = [c0, c1, ...] or positions_m = [...] and values = [...]; "
+                                   "all of its lists are empty", source)
+        if not table:
+            return
+        p, v = value.positions_m, value.values
+        if not p or not v:
+            raise ConfigError(key, f"positions_m and values must both be non-empty, got {len(p)} positions and "
+                                   f"{len(v)} values", source)
+        if len(p) != len(v):
+            raise ConfigError(key, f"positions_m and values differ in length: {len(p)} positions, {len(v)} values",
+                              source)
+        for a, b in zip(p, p[1:], strict=False):
+            if not b > a:
+                raise ConfigError(key, f"positions_m must increase strictly, got {show(a)} then {show(b)}", source)
+        for x, y in zip(p, v, strict=True):
+            if not (y > 0 if positive else y >= 0):
+                raise ConfigError(key, f"must be {bound} everywhere, got {show(y)} at {show(x)} m", source)
+
+    return check
+
+
+@dataclass(frozen=True)
 class PlantConfig:
     model: str = _spec("two_mass", choices=("two_mass", "three_mass", "mass_spring_damper"))
     m1: float = _spec(40.0, gt=0, doc="two_mass: cart mass, kg")
@@ -364,8 +419,12 @@ class PlantConfig:
     d2: float = _spec(10.0, ge=0, doc="three_mass: damping between the load and the third mass, N*s/m")
     backlash_m: float = _spec(0.0, ge=0, le=0.1, doc="two_mass, three_mass: total play in the cart-to-load "
                               "coupling, m (inside it the coupling carries no force)")
-    k: float = _spec(1.5e5, gt=0, doc="spring stiffness, N/m")
-    d: float = _spec(40.0, ge=0, doc="two_mass: coupling damping, N*s/m")
+    k: float | PositionFunction = _spec(1.5e5, gt=0, check=_position_function_check(positive=True),
+                                        doc="spring stiffness, N/m; two_mass, three_mass: or a function of the cart "
+                                            "position, { poly = [...] } or { positions_m = [...], values = [...] }")
+    d: float | PositionFunction = _spec(40.0, ge=0, check=_position_function_check(positive=False),
+                                        doc="two_mass, three_mass: coupling damping, N*s/m; or a function of the "
+                                            "cart position like k")
     c: float = _spec(1.0, gt=0, doc="torque-to-force constant, N/(N*m)")
     m: float = _spec(5.0, gt=0, doc="mass_spring_damper: mass, kg")
     b: float = _spec(1.0, ge=0, doc="mass_spring_damper: damping, N*s/m")
@@ -640,7 +699,7 @@ def parse_config(text: str, source: str = "<string>") -> Config:
     cfg = build_table(Config, parse_toml(text, source), "", source)
     cfg = dataclasses.replace(cfg, source=source, text=text)
     _cross_check(cfg)
-    return cfg
+    return _bind_position_spans(cfg)
 
 
 # --- checks across keys, before anything moves ------------------------------------------------
@@ -679,6 +738,82 @@ def _cross_check(cfg: Config) -> None:
     excitation_samples(cfg)
     if cfg.friction_test.enabled:
         _friction_extent(cfg)
+    _check_position_functions(cfg)
+
+
+def _check_position_functions(cfg: Config) -> None:
+    """``[emulator.plant]`` k and d given as functions of the cart position: the models they apply to, and a
+    polynomial's sign over the ``[limits]`` position window (a table's was checked with the table)."""
+    plant, src = cfg.emulator.plant, cfg.source
+    for name, positive in (("k", True), ("d", False)):
+        value = getattr(plant, name)
+        if not isinstance(value, PositionFunction):
+            continue
+        key = f"emulator.plant.{name}"
+        if plant.model == "mass_spring_damper":
+            raise ConfigError(key, "a function of the cart position applies to the cart-to-load coupling of "
+                                   "two_mass and three_mass; mass_spring_damper takes a number", src)
+        if value.is_table:
+            continue
+        if cfg.limits is None:
+            raise ConfigError(key, "a polynomial needs [limits] position_min_m and position_max_m: it is checked "
+                                   "over that window and held at its ends beyond it", src)
+        lo, hi = cfg.limits.position_min_m, cfg.limits.position_max_m
+        at, least = polynomial_minimum(value.poly, lo, hi)
+        if not (least > 0 if positive else least >= 0):
+            raise ConfigError(key, f"must be {'> 0' if positive else '>= 0'} over the position window "
+                                   f"[{lo:g}, {hi:g}] m of [limits]; the polynomial is {least:.6g} at {at:.6g} m",
+                              src)
+
+
+def polynomial_minimum(coefficients, lo: float, hi: float) -> tuple[float, float]:
+    """Where on ``[lo, hi]`` the polynomial ``c0 + c1 p + ...`` is smallest, and its value there.
+
+    Parameters
+    ----------
+    coefficients : sequence of float
+        Constant term first.
+    lo, hi : float
+        The interval, ``lo <= hi``.
+
+    Returns
+    -------
+    (position, value) : tuple of float
+
+    Examples
+    --------
+    >>> polynomial_minimum([1.0, 0.0, -1.0], -2.0, 1.0)
+    (-2.0, -3.0)
+    """
+    import numpy as np
+    from numpy.polynomial import polynomial as P
+
+    c = np.asarray(coefficients, dtype=float)
+    candidates = [np.linspace(lo, hi, 513)]
+    if c.size > 2:
+        roots = P.polyroots(P.polyder(c))
+        real = roots.real[np.abs(roots.imag) <= 1e-9 * (1.0 + np.abs(roots.real))]
+        candidates.append(real[(real >= lo) & (real <= hi)])
+    p = np.concatenate(candidates)
+    v = P.polyval(p, c)
+    i = int(np.argmin(v))
+    return float(p[i]), float(v[i])
+
+
+def _bind_position_spans(cfg: Config) -> Config:
+    """``cfg`` with each polynomial k or d of ``[emulator.plant]`` held beyond the ``[limits]`` window it was
+    checked over (:attr:`PositionFunction.span_m`)."""
+    plant, lim = cfg.emulator.plant, cfg.limits
+    if lim is None:
+        return cfg
+    bound: dict[str, typing.Any] = {
+        name: dataclasses.replace(value, span_m=(lim.position_min_m, lim.position_max_m))
+        for name, value in (("k", plant.k), ("d", plant.d))
+        if isinstance(value, PositionFunction) and not value.is_table}
+    if not bound:
+        return cfg
+    return dataclasses.replace(cfg, emulator=dataclasses.replace(cfg.emulator,
+                                                                 plant=dataclasses.replace(plant, **bound)))
 
 
 def check_auto_amplitude(cfg: Config) -> None:

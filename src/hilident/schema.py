@@ -5,7 +5,8 @@ A table is a frozen dataclass whose fields are declared with :func:`spec`
 :func:`build_table` validates a parsed TOML table into it. Unknown keys, wrong
 types and out-of-range values raise :class:`~hilident.errors.ConfigError`
 naming the dotted ``[table.key]`` and the file. A nested dataclass field is a
-sub-table, a ``list[Dataclass]`` field an array of tables.
+sub-table, a ``list[Dataclass]`` field an array of tables, a ``float |
+Dataclass`` field either a number or a (usually inline) table.
 
 Why this and not msgspec or pydantic: it already gives typed, declarative
 tables with errors naming ``[table.key]`` and the file, numbers and strings
@@ -179,13 +180,36 @@ def _moved_values(cls, table: dict, prefix: str, source: str) -> dict:
 
 
 def _convert(hint, value, meta, key: str, source: str):
-    if isinstance(hint, types.UnionType):  # "X | None": the table, when given
-        hint = next(h for h in typing.get_args(hint) if h is not type(None))
+    if isinstance(hint, types.UnionType):
+        options = [h for h in typing.get_args(hint) if h is not type(None)]
+        tables = [h for h in options if dataclasses.is_dataclass(h)]
+        if tables and len(options) > 1:  # "float | Table": a number, or an inline table ("k = { poly = [...] }")
+            return _number_or_table(options, tables[0], value, meta, key, source)
+        hint = options[0]  # "X | None": the table, when given
     if dataclasses.is_dataclass(hint):
         return _build(hint, value, key + ".", source)
     if typing.get_origin(hint) is list:
         return _list(typing.get_args(hint)[0], value, meta, key, source)
     return _scalar(hint, value, meta, key, source)
+
+
+def _number_or_table(options, table_cls, value, meta, key: str, source: str):
+    """A field declared ``float | Table``: a dict is built as the table, anything else as the scalar.
+
+    The field's bounds and choices apply to the scalar; its ``check`` sees whichever was given (the
+    number, or the built table) and may refuse either.
+    """
+    if isinstance(value, dict):
+        table = _build(table_cls, value, key + ".", source)
+        if meta.get("check"):
+            meta["check"](table, key, source)
+        return table
+    scalar = next(h for h in options if not dataclasses.is_dataclass(h))
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if scalar in (int, float) and not number or scalar not in (int, float) and not isinstance(value, scalar):
+        what = "a number" if scalar in (int, float) else scalar.__name__
+        raise ConfigError(key, f"must be {what} or a table, got {show(value)}", source)
+    return _scalar(scalar, value, meta, key, source)
 
 
 def _list(item, value, meta, key: str, source: str) -> list:

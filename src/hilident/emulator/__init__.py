@@ -7,6 +7,7 @@ layout is the same for the three transports::
     emulator/
       plant.py, sensors.py,     shared physics: plant and friction, sensors, process disturbances,
       disturbance.py, drive.py  and the drive loop (DriveLoop) every firmware wraps
+      coupling.py               k and d of the cart-to-load coupling as functions of the cart position
       preset.py, checks.py      bench realism presets; argument checks of the physics
       clock.py                  the one simulated clock (SimClock: pacing without bursts, coasting)
                                 and the one table player (TablePlayer) every twin runs on

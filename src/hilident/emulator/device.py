@@ -15,8 +15,9 @@ from typing import Protocol
 
 import numpy as np
 
-from hilident.config import DeviceConfig, EmulatorConfig
+from hilident.config import DeviceConfig, EmulatorConfig, PositionFunction
 from hilident.drivers import DriverDescription
+from hilident.emulator.coupling import PositionCurve
 from hilident.emulator.disturbance import ProcessDisturbance
 from hilident.emulator.drive import DriveLoop, DriveTuning
 from hilident.emulator.plant import (
@@ -31,7 +32,8 @@ from hilident.emulator.preset import realism
 from hilident.emulator.sensors import SensorModel
 from hilident.links import PipeEnd
 
-__all__ = ["EmulatedDevice", "EmulatorServer", "build_drive", "friction_model", "plant_model", "true_modes"]
+__all__ = ["EmulatedDevice", "EmulatorServer", "build_drive", "coupling_curves", "friction_model", "plant_model",
+           "true_modes"]
 
 
 class EmulatorServer(Protocol):
@@ -47,14 +49,27 @@ class EmulatorServer(Protocol):
         ...
 
 
-def plant_model(cfg: EmulatorConfig) -> TwoMass | ThreeMass | MassSpringDamper:
-    """The configured plant as an emulator model (TwoMass, ThreeMass or MassSpringDamper)."""
+def coupling_curves(cfg: EmulatorConfig) -> tuple[PositionCurve | None, PositionCurve | None]:
+    """``[emulator.plant]`` k and d as functions of the cart position (m), each None where it is a number."""
     p = cfg.plant
+    return tuple(PositionCurve.from_table(v) if isinstance(v, PositionFunction) else None  # type: ignore[return-value]
+                 for v in (p.k, p.d))
+
+
+def plant_model(cfg: EmulatorConfig, position_m: float = 0.0) -> TwoMass | ThreeMass | MassSpringDamper:
+    """The configured plant as an emulator model (TwoMass, ThreeMass or MassSpringDamper).
+
+    A ``k`` or ``d`` that is a function of the cart position is taken at ``position_m`` (m).
+    """
+    p = cfg.plant
+    k_of, d_of = coupling_curves(cfg)
+    k = k_of(position_m) if k_of is not None else float(p.k)  # type: ignore[arg-type]
+    d = d_of(position_m) if d_of is not None else float(p.d)  # type: ignore[arg-type]
     if p.model == "two_mass":
-        return TwoMass(m1=p.m1, m2=p.m2, k=p.k, d=p.d, c=p.c)
+        return TwoMass(m1=p.m1, m2=p.m2, k=k, d=d, c=p.c)
     if p.model == "three_mass":
-        return ThreeMass(m1=p.m1, m2=p.m2, m3=p.m3, k=p.k, d=p.d, k2=p.k2, d2=p.d2, c=p.c)
-    return MassSpringDamper(m=p.m, b=p.b, k=p.k, c=p.c)
+        return ThreeMass(m1=p.m1, m2=p.m2, m3=p.m3, k=k, d=d, k2=p.k2, d2=p.d2, c=p.c)
+    return MassSpringDamper(m=p.m, b=p.b, k=k, c=p.c)
 
 
 def friction_model(cfg: EmulatorConfig) -> StribeckFriction | None:
@@ -64,9 +79,25 @@ def friction_model(cfg: EmulatorConfig) -> StribeckFriction | None:
     return StribeckFriction(Fc=f.Fc, Fs=f.Fs, Fv=f.Fv, vs=f.vs, delta_v=f.delta_v, delta_s=f.delta_s)
 
 
-def true_modes(cfg: EmulatorConfig) -> list[tuple[float, float]]:
-    """(frequency_hz, damping_ratio) of the configured frictionless plant: the truth tests compare with."""
-    return modes(plant_model(cfg))
+def true_modes(cfg: EmulatorConfig, position_m: float = 0.0) -> list[tuple[float, float]]:
+    """(frequency_hz, damping_ratio) of the configured frictionless plant: the truth tests compare with.
+
+    Parameters
+    ----------
+    cfg : EmulatorConfig
+    position_m : float
+        Cart position, m (the encoder's ``position_m`` axis), where ``k`` and ``d`` depend on it.
+    """
+    return modes(plant_model(cfg, position_m))
+
+
+def _fastest_mode_hz(cfg: EmulatorConfig) -> float:
+    """The highest mode frequency of the plant anywhere its coupling curves vary (Hz; 0 without a mode)."""
+    positions = [0.0]
+    for curve in coupling_curves(cfg):
+        if curve is not None and curve.span_m is not None:
+            positions += np.linspace(curve.span_m[0], curve.span_m[1], 65).tolist()
+    return max((f for p in positions for f, _ in true_modes(cfg, p)), default=0.0)
 
 
 def build_drive(cfg: EmulatorConfig, driver: DriverDescription) -> DriveLoop:
@@ -93,10 +124,12 @@ def build_drive(cfg: EmulatorConfig, driver: DriverDescription) -> DriveLoop:
         seed=np.random.SeedSequence(cfg.seed, spawn_key=(3,)),
     )
     # Integrate at least 4x the loop rate, and at least 40 steps per period of the fastest mode.
-    fastest = max((f for f, _ in true_modes(cfg)), default=0.0)
+    fastest = _fastest_mode_hz(cfg)
     substep = min(1.0 / (4 * driver.loop_rate_hz), 1.0 / (40 * fastest) if fastest else math.inf)
     backlash = cfg.plant.backlash_m if cfg.plant.model != "mass_spring_damper" else 0.0
-    plant = Plant(plant_model(cfg), friction_model(cfg), max_substep_s=substep, backlash_m=backlash)
+    k_of, d_of = coupling_curves(cfg)
+    plant = Plant(plant_model(cfg), friction_model(cfg), max_substep_s=substep, backlash_m=backlash,
+                  stiffness=k_of, damping=d_of)
     return DriveLoop(plant, tuning, sensors, n_filter_slots=driver.filter_slots, disturbance=disturbance)
 
 

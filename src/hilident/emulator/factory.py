@@ -21,6 +21,7 @@ from hilident.emulator.canopen.server import start_socketcand
 from hilident.emulator.device import (
     EmulatedDevice,
     build_drive,
+    coupling_curves,
     plant_model,
     true_modes,
 )
@@ -29,8 +30,8 @@ from hilident.emulator.serial.server import start as start_serial
 from hilident.emulator.serial.server import start_serial_board
 from hilident.errors import ConfigError
 
-__all__ = ["EmulatedDevice", "STANDALONE_LINKS", "build_drive", "host_device_table", "plant_model",
-           "start_emulator", "start_standalone", "true_modes"]
+__all__ = ["EmulatedDevice", "STANDALONE_LINKS", "build_drive", "coupling_curves", "host_device_table",
+           "plant_model", "start_emulator", "start_standalone", "true_modes"]
 
 #: Each transport's twin: ``start(cfg, driver, device) -> EmulatedDevice``.
 _STARTERS: dict[str, Callable[..., EmulatedDevice]] = {

@@ -23,16 +23,23 @@ Two linear plants and one friction law, integrated on a simulated clock:
 :class:`Plant` holds the state ``(p1, v1, p2, v2)`` and advances it exactly (matrix
 exponential, zero-order hold on the input) over each substep. :func:`modes` and
 :func:`frf` give the frictionless truth that tests and examples compare against.
+
+The cart-to-load coupling's ``k`` and ``d`` may vary with the cart position ``p1``
+(thesis eqs. 2.3-2.4, a :class:`~hilident.emulator.coupling.PositionCurve` each):
+:class:`Plant` then steps with them taken at ``p1``, and :func:`modes_at` gives the
+truth at a position.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, fields
 
 import numpy as np
 from scipy.linalg import expm
 
+from hilident.emulator.coupling import PositionCurve, model_at
 from hilident.errors import ConfigError
 
 __all__ = [
@@ -41,7 +48,10 @@ __all__ = [
     "MassSpringDamper",
     "StribeckFriction",
     "Plant",
+    "COUPLING_TOLERANCE",
+    "DAMPING_TOLERANCE",
     "modes",
+    "modes_at",
     "frf",
     "state_matrices",
 ]
@@ -361,6 +371,21 @@ def modes(model: Model) -> list[tuple[float, float]]:
     return [(omega / (2.0 * math.pi), zeta)]
 
 
+def modes_at(model, position_m: float, stiffness: PositionCurve | None = None,
+             damping: PositionCurve | None = None) -> list[tuple[float, float]]:
+    """(frequency_hz, damping_ratio) of the frictionless plant with the cart held at ``position_m`` (m).
+
+    :func:`~hilident.emulator.plant.modes` of :func:`model_at`.
+
+    Examples
+    --------
+    >>> k = PositionCurve(poly=[1.0e5, 0.0, 2.0e5], span_m=(-0.5, 0.5))
+    >>> [round(f, 3) for f, _ in modes_at(TwoMass(40.0, 10.0, 1.0e5, 0.0), 0.5, k)]
+    [21.793]
+    """
+    return modes(model_at(model, position_m, stiffness, damping))
+
+
 _OUTPUTS = ("velocity", "position", "load_position")
 
 
@@ -413,9 +438,37 @@ def frf(model: Model, frequency_hz, output: str = "velocity") -> np.ndarray:
     return model.c * h
 
 
+def _tolerance(name: str, value) -> float:
+    try:
+        tol = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(name, f"must be a number, got {value!r}") from None
+    if not (math.isfinite(tol) and 0.0 < tol < 0.1):
+        raise ConfigError(name, f"must lie in (0, 0.1), got {value!r}")
+    return tol
+
+
+def _snap(x: float, anchor: float, log_ratio: float) -> float:
+    """``x`` > 0 rounded to the nearest ``anchor * exp(n * log_ratio)`` (``anchor`` itself at ``n == 0``); 0 stays 0."""
+    if x == anchor or x <= 0.0:
+        return anchor if x == anchor else 0.0
+    n = round(math.log(x / anchor) / log_ratio)
+    return anchor if n == 0 else anchor * math.exp(n * log_ratio)
+
+
 # Substep coefficient caches are keyed by dt; more distinct dts than this is a caller
 # sweeping dt, and the cache starts over rather than growing without bound.
 _CACHE_LIMIT = 64
+
+#: Relative step of the grid a position-dependent coupling's ``k`` is snapped to before the
+#: step matrices are built (see :class:`Plant`): a mode frequency within 5e-5 of itself.
+COUPLING_TOLERANCE = 1e-4
+#: The same for ``d``: it moves a mode's frequency only through ``zeta**2``, and a damping
+#: ratio by this share of itself (0.018 by 1.8e-5).
+DAMPING_TOLERANCE = 1e-3
+# Couplings whose step matrices are kept; a cart crossing the shipped map gantry's travel
+# passes about 5000 of them; each costs about 1.5 kB.
+_COUPLING_CACHE_LIMIT = 8192
 
 
 class Plant:
@@ -433,6 +486,13 @@ class Plant:
         Total play in the first coupling (cart to load), m: inside it the spring and
         damper carry no force. :func:`modes` and :func:`frf` describe the coupling
         in contact.
+    stiffness, damping : PositionCurve, optional
+        The first coupling's ``k`` (N/m) and ``d`` (N·s/m) as functions of the cart
+        position ``p1`` (thesis eqs. 2.3-2.4), for a two- or three-mass model; None
+        keeps the model's number. ``model.k`` and ``model.d`` are then only the
+        nominal values.
+    coupling_tolerance, damping_tolerance : float
+        Relative resolution of position-dependent ``k`` and ``d``, see Notes.
 
     Attributes
     ----------
@@ -459,6 +519,17 @@ class Plant:
       within breakaway, so it never chatters around zero. The stop position is the
       end of that substep (error of order ``h**2`` times the deceleration).
 
+    With a position-dependent coupling, :meth:`step` takes ``k`` and ``d`` at ``p1``
+    at the start of the step, snapped to geometric grids of ratio
+    ``1 + coupling_tolerance`` (``1 + damping_tolerance``) anchored at their values
+    at ``p1 = 0`` (so a constant curve gives its value exactly), and keeps the step
+    matrices of each grid point it has met. It looks again only once ``p1`` has
+    moved far enough for ``k`` or ``d`` to change by half its tolerance
+    (:meth:`PositionCurve.still_radius_m`), so a cart held at one position costs
+    what a constant coupling costs. The ``k`` in use is then within
+    ``coupling_tolerance`` of ``k(p1)`` (a mode frequency within half of it), the
+    ``d`` within ``damping_tolerance`` of ``d(p1)``.
+
     Examples
     --------
     >>> p = Plant(TwoMass(m1=8.0, m2=2.0, k=8e4, d=20.0, c=10.0))
@@ -468,7 +539,9 @@ class Plant:
     """
 
     def __init__(self, model: Model, friction: StribeckFriction | None = None,
-                 max_substep_s: float = 1.0 / 20000.0, backlash_m: float = 0.0):
+                 max_substep_s: float = 1.0 / 20000.0, backlash_m: float = 0.0,
+                 stiffness: PositionCurve | None = None, damping: PositionCurve | None = None,
+                 coupling_tolerance: float = COUPLING_TOLERANCE, damping_tolerance: float = DAMPING_TOLERANCE):
         if not isinstance(model, (TwoMass, ThreeMass, MassSpringDamper)):
             raise TypeError(f"model must be TwoMass, ThreeMass or MassSpringDamper, got {type(model).__name__}")
         if friction is not None and not isinstance(friction, StribeckFriction):
@@ -525,7 +598,77 @@ class Plant:
             self._fr = (friction.Fc, friction.Fs, friction.Fv, friction.vs,
                         friction.delta_v, friction.delta_s)
         self._cache: dict[float, tuple] = {}
+        self._laws = self._position_laws(stiffness, damping, coupling_tolerance, damping_tolerance)
         self.reset()
+
+    # -- position-dependent coupling ---------------------------------------------
+
+    def _position_laws(self, stiffness, damping, k_tolerance, d_tolerance) -> tuple | None:
+        """``(k curve, d curve, k anchor, d anchor, k log grid ratio, d log grid ratio)``, or None for a
+        constant coupling."""
+        if stiffness is None and damping is None:
+            return None
+        for name, curve in (("stiffness", stiffness), ("damping", damping)):
+            if curve is not None and not isinstance(curve, PositionCurve):
+                raise TypeError(f"{name} must be a PositionCurve or None, got {type(curve).__name__}")
+        model = self._coupling
+        if model is None:
+            raise ConfigError("k", "a function of the cart position needs a coupling between two masses "
+                                   "(two_mass or three_mass)")
+        k_tol = _tolerance("coupling_tolerance", k_tolerance)
+        d_tol = _tolerance("damping_tolerance", d_tolerance)
+        k_of = stiffness if stiffness is not None else PositionCurve.constant(model.k)
+        d_of = damping if damping is not None else PositionCurve.constant(model.d)
+        k_ref, d_ref = k_of(0.0), d_of(0.0)
+        if not (k_ref > 0.0 and d_ref >= 0.0):
+            raise ConfigError("k", f"the coupling at p1 = 0 must have k > 0 and d >= 0, got k = {k_ref!r}, "
+                                   f"d = {d_ref!r}")
+        self._coupling_radius_m = min(k_of.still_radius_m(k_tol), d_of.still_radius_m(d_tol))
+        self._couplings: dict[tuple[float, float], tuple] = {}
+        self._coupling_key: tuple[float, float] | None = None
+        self._coupling_at_m = math.nan
+        return (k_of, d_of, k_ref, d_ref if d_ref > 0.0 else 1.0, math.log1p(k_tol), math.log1p(d_tol))
+
+    def coupling_at(self, position_m: float) -> tuple[float, float]:
+        """The first coupling's exact ``(k, d)`` (N/m, N·s/m) with the cart at ``position_m``."""
+        if self._laws is None:
+            m = self._coupling
+            if m is None:
+                raise ValueError("a mass-spring-damper has no coupling")
+            return m.k, m.d
+        return self._laws[0](float(position_m)), self._laws[1](float(position_m))
+
+    def modes_at(self, position_m: float) -> list[tuple[float, float]]:
+        """:func:`modes` of the frictionless plant with the cart held at ``position_m`` (m): the truth."""
+        if self._laws is None:
+            return modes(self.model)
+        k, d = self.coupling_at(position_m)
+        return modes(dataclasses.replace(self.model, k=k, d=d))  # type: ignore[arg-type]  # never a single mass
+
+    @property
+    def coupling(self) -> tuple[float, float] | None:
+        """The ``(k, d)`` the step matrices use now (snapped to the grid), None for a single mass."""
+        m = self._coupling
+        return None if m is None else (m.k, m.d)
+
+    def _follow_position(self, p1: float) -> None:
+        """Take the coupling at ``p1``, snapped to its grids; switch step matrices if that changed it."""
+        k_of, d_of, k_ref, d_ref, k_ratio, d_ratio = self._laws  # type: ignore[misc]
+        self._coupling_at_m = p1
+        key = (_snap(k_of(p1), k_ref, k_ratio), _snap(d_of(p1), d_ref, d_ratio))
+        if key == self._coupling_key:
+            return
+        self._coupling_key = key
+        found = self._couplings.get(key)
+        if found is None:
+            if len(self._couplings) >= _COUPLING_CACHE_LIMIT:
+                self._couplings.clear()
+            coupling = dataclasses.replace(self.model, k=key[0], d=key[1])  # type: ignore[arg-type]
+            A, _ = state_matrices(coupling)
+            mass = self._driven_mass
+            found = (coupling, A, (mass * A[1, 0], mass * A[1, 2], mass * A[1, 3]), {})
+            self._couplings[key] = found
+        self._coupling, self._A, self._fstick, self._cache = found
 
     # -- state ------------------------------------------------------------------
 
@@ -543,6 +686,8 @@ class Plant:
         if self._mirror:
             self.p2, self.v2 = self.p1, self.v1
         self._x3 = np.array([self.p2, self.v2])  # a third mass starts undeflected from the load
+        if self._laws is not None:
+            self._follow_position(self.p1)
 
     @property
     def state(self) -> tuple[float, float, float, float]:
@@ -704,6 +849,9 @@ class Plant:
         dt_s : float
             Time to advance, s; split into ``substeps(dt_s)`` equal substeps.
         """
+        if self._laws is not None and not -self._coupling_radius_m <= self.p1 - self._coupling_at_m \
+                <= self._coupling_radius_m:
+            self._follow_position(self.p1)
         if self._general:
             self._step_general(float(torque_nm), dt_s)
             return
