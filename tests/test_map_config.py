@@ -45,3 +45,9 @@ def test_a_bad_map_names_its_key_and_file(table, key, words):
         config_with(**table)
     assert info.value.key == key and info.value.file == "bench.toml"
     assert words in str(info.value)
+
+
+def test_a_map_excitation_shorter_than_a_period_is_refused():
+    with pytest.raises(ConfigError) as info:
+        config_with(count=3, duration_s=1.0)  # the gantry's multisine period is 4 s
+    assert info.value.key == "map.duration_s" and "excitation.period_s = 4" in str(info.value)

@@ -271,6 +271,10 @@ class MapConfig:
     max_velocity_mps: float = _spec(0.1, gt=0, doc="moves between positions: velocity limit, m/s (below "
                                     "[limits] velocity_mps)")
     max_accel_mps2: float = _spec(0.5, gt=0, le=1000, doc="moves between positions: acceleration limit, m/s^2")
+    amplitude_nm: float = _spec(0.0, ge=0, doc="torque injected at each position, N*m; 0: half the run's amplitude "
+                                "(the drive's loops add their own torque while they hold the position)")
+    duration_s: float = _spec(0.0, ge=0, doc="excitation at each position, s (whole periods, one lead-in more, as "
+                              "the run's); 0: the run's [excitation] duration_s")
     k_degree: int = _spec(2, ge=0, le=4, doc="joint fit: degree of the stiffness k(p) polynomial in position")
     d_degree: int = _spec(0, ge=0, le=4, doc="joint fit: degree of the damping d(p) polynomial in position")
 
@@ -923,6 +927,13 @@ def map_positions(cfg: Config) -> list[float]:
     if outside:
         raise ConfigError("map.positions_m", f"{outside[0]:g} m is outside the position window less map.margin_m, "
                                              f"[{lo:g}, {hi:g}] m", src)
+    e = cfg.excitation
+    if m.amplitude_nm >= lim.torque_nm:
+        raise ConfigError("map.amplitude_nm", f"{m.amplitude_nm:g} N*m reaches limits.torque_nm = {lim.torque_nm:g}",
+                          src)
+    if m.duration_s and e.kind == "multisine" and m.duration_s < e.period_s:
+        raise ConfigError("map.duration_s", f"{m.duration_s:g} s is shorter than one excitation period "
+                                            f"(excitation.period_s = {e.period_s:g} s)", src)
     if m.max_velocity_mps >= lim.velocity_mps:
         raise ConfigError("map.max_velocity_mps", f"{m.max_velocity_mps:g} m/s reaches limits.velocity_mps = "
                                                   f"{lim.velocity_mps:g}", src)

@@ -32,7 +32,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -574,11 +574,20 @@ class Session(DeviceConnection):
     def _map_step(self, ident: Experiment, excitation: Excitation, friction, plant) -> list[MapPoint]:
         """``[map]``: the mode at every mapped position (:class:`~hilident.workspace_map.WorkspaceMap`), the
         axis back where the identification ran."""
+        cfg, e = self.cfg, self.cfg.excitation
+        # the drive's loops add their own torque while they hold the position: half the run's amplitude by default
+        amplitude = cfg.map.amplitude_nm or (0.5 * e.amplitude_value if e.mode in ("torque", MAP_MODE) else 0.0)
+        if not amplitude:
+            raise ConfigError("map.amplitude_nm", f"is needed: the run's excitation (mode = {e.mode!r}) is no torque",
+                              cfg.source)
+        cfg = replace(cfg, excitation=replace(e, mode=MAP_MODE, amplitude_nm=amplitude,
+                                              duration_s=cfg.map.duration_s or e.duration_s))
+        excitation = build_excitation(cfg)
         mapper = WorkspaceMap(self.cfg, self.record,
                               lambda exp, name: self._identify(exp, excitation, friction, for_model=False),
                               self.progress)
         reference = plant.resonances[0].frequency_hz if plant.resonances else None
-        points = mapper.run(excitation, float(ident.samples["position_m"][-1]), reference, excitation_recipe(self.cfg))
+        points = mapper.run(excitation, float(ident.samples["position_m"][-1]), reference, excitation_recipe(cfg))
         missing = [p.target_m for p in points if p.frequency_hz is None]
         if missing:
             self.warnings.append("map: no resonance found at " + ", ".join(f"{p:+.3f} m" for p in missing))
