@@ -33,9 +33,15 @@ def _runs_experiments(path: Path) -> bool:
     return adapter_class(driver.transport).run_refusal(driver) is None
 
 
+def _maps(path: Path) -> bool:
+    """A [map] run (minutes of moves and mapped positions): tests/test_workspace_session.py runs it quick."""
+    return "map" in tomllib.loads(path.read_text())
+
+
 EMULATOR_CONFIGS = sorted(
     p for p in CONFIGS.glob("*.toml")
     if tomllib.loads(p.read_text()).get("device", {}).get("port", "emulator") == "emulator" and _runs_experiments(p)
+    and not _maps(p)
 )
 
 

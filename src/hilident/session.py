@@ -63,7 +63,7 @@ from hilident.experiment import (  # noqa: F401 (kept importable)
 )
 from hilident.filter_slots import BypassedSlots
 from hilident.lazy import lazy_module
-from hilident.move_test import DriveNotch, MoveTest, MoveTestResult, move_distance
+from hilident.move_test import LOAD, DriveNotch, MoveTest, MoveTestResult, move_distance
 from hilident.plan import RunPlan, excitation_travel_m, make_plan
 from hilident.progress import Progress
 from hilident.run_excitation import Excitation, build_excitation, excitation_recipe  # noqa: F401 (kept importable)
@@ -606,7 +606,7 @@ class Session(DeviceConnection):
             fit = fit_workspace_responses(
                 [p.position_m for p in found], [self.map_results[p.recording.removesuffix(".h5")].plant for p in found],
                 torque_constant=self.cfg.model.c, k_degree=m.k_degree, d_degree=m.d_degree,
-                band_hz=pipeline.analysis_band(self.cfg.identification, excitation.band_hz),
+                band_hz=self._joint_fit_band(excitation, [float(p.frequency_hz or 0.0) for p in found]),
                 sample_rate_hz=self.cfg.run.sample_rate_hz, resonance_hz=[p.frequency_hz for p in found])
         except (DataError, ConfigError) as exc:
             self.warnings.append(f"map: the joint fit of k(p) and d(p) failed: {exc}")
@@ -616,6 +616,25 @@ class Session(DeviceConnection):
                                    [np.nan if p.frequency_ci95_hz is None else p.frequency_ci95_hz for p in found])
         self.joint_fit = fit
         return {**fit.as_dict(), "comparison": [c.as_dict() for c in comparison]}
+
+    def _modes_between(self, points: list[dict], count: int = 50) -> list[dict]:
+        """The joint model's mode (with its 95 % interval) at ``count`` positions spanning the mapped ones:
+        the mode moves continuously with the position, and its extreme may lie between two mapped positions
+        (the beam's midspan). None without a joint fit."""
+        if self.joint_fit is None or len(points) < 2:
+            return []
+        span = np.linspace(min(p["position_m"] for p in points), max(p["position_m"] for p in points), count)
+        modes = [self.joint_fit.mode_at(float(p)) for p in span]
+        return [{"position_m": float(p), "frequency_hz": m.frequency_hz, "frequency_ci95_hz": m.frequency_ci95_hz}
+                for p, m in zip(span, modes, strict=True) if np.isfinite(m.frequency_ci95_hz)]
+
+    def _joint_fit_band(self, excitation: Excitation, modes_hz: list[float]) -> tuple[float, float]:
+        """The band the joint fit explains, Hz: a quarter of the lowest mapped mode to 2.5 times the highest,
+        within the analysis band. Lower, the Coulomb friction and the loop holding the position shape the
+        response, which a two-mass model with viscous friction does not describe (they bias m1 and k(p) by
+        percents); higher, the next mode and the sensors' dynamics."""
+        lo, hi = pipeline.analysis_band(self.cfg.identification, excitation.band_hz)
+        return max(lo, 0.25 * min(modes_hz)), min(hi, 2.5 * max(modes_hz))
 
     def _covering_designs(self, resonances: list, slots: list[int], plant) -> list:
         """``[map]``: notches that hold the mapped mode down over the whole workspace
@@ -627,11 +646,13 @@ class Session(DeviceConnection):
         ad, nc = self.adapter, self.cfg.notch
         rate = ad.identity.loop_rate_hz
         points = [p.to_dict() for p in self.map_points or [] if p.frequency_hz is not None]
+        points += self._modes_between(points)
         covering = pipeline.covering_design(points, nc, rate,
                                             realise=lambda spec: ad.stored_form(design_notch(spec, rate), spec))
-        groups = list(covering.groups)
+        # the mode moves continuously with the position: notches enabled together must tile the whole range
+        groups = list(covering.groups if covering.kind == "single" else covering.staggered)
         how = "one notch" if covering.kind == "single" else f"{len(groups)} staggered notches, enabled together"
-        if len(groups) > len(slots):
+        if not groups or len(groups) > len(slots):
             groups = [covering.single]
             how = "one notch (the widest max_width_ratio allows: too few slots for the staggered set)"
             self.warnings.append(f"map: {covering.message}; the device has {len(slots)} filter slot(s), so the "
@@ -669,6 +690,11 @@ class Session(DeviceConnection):
         from hilident.filters.notch import design_notch
 
         host = [design_notch(d.spec, self.cfg.run.sample_rate_hz) for d in designs] if notch_in == "host" else None
+        driver = self.found_driver
+        streamed = self.cfg.run.channels or [c.name for c in driver.streamed_channels]
+        if LOAD in [c.name for c in driver.channels] and LOAD not in streamed:
+            self.warnings.append(f"move test: {driver.name} has a load sensor ({LOAD}) that is not streamed; add it "
+                                 "to [run] channels to measure the load's ringing rather than the following error")
         tester = MoveTest(self.cfg, self.record, self.progress)
         lim, margin = self.cfg.bench_limits, self.cfg.map.margin_m
         start = self.position_m if self.position_m is not None else 0.0
@@ -811,9 +837,17 @@ class Session(DeviceConnection):
         """``map.png``: the mode over the mapped positions (a plot that cannot be drawn is a warning)."""
         from hilident.plots.workspace import plot_map
 
+        fit, covering = self.joint_fit, self.workspace.get("covering_notch")
+
+        def joint_model(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            modes = [fit.mode_at(float(p)) for p in positions]
+            return np.array([m.frequency_hz for m in modes]), np.array([m.frequency_ci95_hz for m in modes])
+
         try:
             plot_map(self.out / "map.png", [p.to_dict() for p in self.map_points or []],
-                     title=report.plot_title(Path(self.cfg.source).name, what="Mode over the workspace"))
+                     title=report.plot_title(Path(self.cfg.source).name, what="Mode over the workspace"),
+                     model=joint_model if fit is not None else None, model_label="joint model, k(p) and d(p)",
+                     covered_hz=tuple(covering["range_hz"]) if covering else None)
         except (DataError, ValueError) as exc:
             self.warnings.append(f"map.png could not be drawn: {exc}")
 

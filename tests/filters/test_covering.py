@@ -135,8 +135,8 @@ def test_as_dict_has_unit_suffixed_keys_and_is_plain_json():
     json.dumps(record, allow_nan=False)
     assert record["kind"] == "scheduled" and record["range_hz"] == list(result.range_hz)
     assert record["worst_attenuation_db"] == min(g["worst_attenuation_db"] for g in record["groups"])
-    unitless = {"kind", "message", "meets_target", "single", "groups", "modes", "b", "a", "max_width_ratio",
-                "width_ratio"}
+    unitless = {"kind", "message", "meets_target", "single", "groups", "staggered", "modes", "b", "a",
+                "max_width_ratio", "width_ratio"}
     units = ("_hz", "_db", "_m")
 
     def keys(obj):
@@ -195,3 +195,20 @@ def test_modes_may_be_objects_and_positions_optional():
     assert m.position_m is None and m.low_hz == m.high_hz == 30.0
     result = covering_notch([Mode()], FS)
     assert result.kind == "single" and result.groups[0].mode_attenuation_db[0] >= 39.99
+
+
+def test_staggered_notches_tile_the_whole_range_and_the_chain_holds_it():
+    # between two mapped positions the mode lies between their groups' ranges: notches enabled together must
+    # leave no gap, so the chain holds the target everywhere from the lowest to the highest mapped mode
+    result = covering_notch(gantry_map(), FS, max_width_ratio=0.5)
+    assert result.kind == "scheduled" and len(result.staggered) >= 2
+    pieces = [g.range_hz for g in result.staggered]
+    assert pieces[0][0] == pytest.approx(result.range_hz[0]) and pieces[-1][1] == pytest.approx(result.range_hz[1])
+    assert all(a[1] == pytest.approx(b[0]) for a, b in zip(pieces[:-1], pieces[1:], strict=True))
+    grid = np.linspace(*result.range_hz, 3000)
+    chain = np.ones(grid.size, dtype=complex)
+    for g in result.staggered:
+        _, h = scipy.signal.freqz(g.biquad.b, g.biquad.a, worN=grid, fs=FS)
+        chain *= h
+    assert -20 * np.log10(np.abs(chain).max()) >= 20.0
+    assert all(g.spec.width_hz <= 0.5 * g.spec.center_hz * (1 + 1e-9) for g in result.staggered)

@@ -204,7 +204,12 @@ class CoveringResult:
         target, or, when none within ``max_width_ratio`` does, the widest
         allowed, with its (short) worst case.
     groups : tuple of NotchGroup
-        The notch(es) to use.
+        The notch(es) to use: the one notch, or the position-scheduled set (each switched in where its
+        modes were mapped).
+    staggered : tuple of NotchGroup
+        ``"scheduled"`` only: notches for a device that enables several at once instead of switching, their
+        ranges tiling the whole range without gaps (a mode between two mapped positions lies between their
+        groups' ranges), each meeting the target over its piece (:func:`staggered_notches`).
     range_hz : tuple of float
         The whole range, ``(min(f - ci), max(f + ci))``, Hz.
     target_attenuation_db, max_width_ratio, sample_rate_hz : float
@@ -221,6 +226,7 @@ class CoveringResult:
     max_width_ratio: float
     sample_rate_hz: float
     message: str
+    staggered: tuple[NotchGroup, ...] = ()
 
     @property
     def meets_target(self) -> bool:
@@ -242,6 +248,7 @@ class CoveringResult:
             "worst_attenuation_db": worst.worst_attenuation_db, "worst_frequency_hz": worst.worst_frequency_hz,
             "single": self.single.as_dict(),
             "groups": [g.as_dict() for g in self.groups],
+            "staggered": [g.as_dict() for g in self.staggered],
         }
 
 
@@ -418,4 +425,21 @@ def covering_notch(
     if short:
         message += (f", and {len(short)} of them still fall short (worst "
                     f"{min(g.worst_attenuation_db for g in short):.1f} dB): a mode's own 95 % interval is too wide")
-    return CoveringResult("scheduled", single, tuple(groups), (lo, hi), target, ratio, fs, message)
+    return CoveringResult("scheduled", single, tuple(groups), (lo, hi), target, ratio, fs, message,
+                          staggered_notches(designer, lo, hi))
+
+
+def staggered_notches(designer: _Designer, lo: float, hi: float, max_notches: int = 8) -> tuple[NotchGroup, ...]:
+    """The fewest notches whose ranges tile ``[lo, hi]`` Hz, each meeting the target over its piece.
+
+    The range is cut into ``n`` pieces of equal frequency ratio (``n`` = 2, 3, ...) until every piece's notch
+    meets the target; enabled together, the chain attenuates at least as much as any one of them. Empty when
+    ``max_notches`` are not enough (a device's rounding that no width overcomes).
+    """
+    for n in range(2, max_notches + 1):
+        edges = lo * (hi / lo) ** (np.arange(n + 1) / n)
+        pieces = tuple(designer.design((MappedMode(float(a), 0.0), MappedMode(float(b), 0.0)))
+                       for a, b in zip(edges[:-1], edges[1:], strict=True))
+        if all(p.meets_target for p in pieces):
+            return pieces
+    return ()

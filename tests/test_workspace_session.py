@@ -1,0 +1,144 @@
+"""The resonance over the workspace, end to end on the position-dependent gantry twin: the map against the
+twin's truth at every position, the joint fit against its k(p), the covering notch on what the drive stores,
+and the move test without and with the notch on every transport whose drive holds position."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tomli_w
+from scipy import signal
+
+from hilident.config import parse_config
+from hilident.drivers import find_driver
+from hilident.emulator.factory import true_modes
+from hilident.session import Session
+from report_page import check_report
+from schema_check import schema_errors
+from twins import quick
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+MAP_CONFIG = CONFIGS / "emulated-gantry-map.toml"
+
+
+def quick_map(move: bool) -> dict:
+    """The shipped map config on the clean twin, without the friction test, at a fixed amplitude; with or
+    without its move test."""
+    raw = tomllib.loads(MAP_CONFIG.read_text())
+    raw["friction_test"] = {"enabled": False}
+    raw["excitation"]["amplitude_nm"] = 10.0
+    raw["emulator"].update(preset="clean", time_scale=8.0)
+    if not move:
+        del raw["verification"]
+    return raw
+
+
+@pytest.fixture(scope="module")
+def mapped(tmp_path_factory):
+    out = tmp_path_factory.mktemp("map")
+    cfg = parse_config(tomli_w.dumps(quick_map(move=False)), str(MAP_CONFIG))
+    session = Session(cfg, out)
+    summary = session.run()
+    return cfg, summary, out
+
+
+def test_the_map_finds_the_mode_at_every_position_within_half_a_percent(mapped):
+    cfg, summary, _ = mapped
+    points = summary["map"]
+    assert [round(p["target_m"], 6) for p in points] == [-0.5, -0.25, 0.0, 0.25, 0.5]
+    for p in points:
+        assert abs(p["position_m"] - p["target_m"]) < 0.01  # held where it was moved
+        truth_hz, _ = true_modes(cfg.emulator, p["position_m"])[0]
+        assert abs(p["frequency_hz"] - truth_hz) / truth_hz < 0.005, (p, truth_hz)
+        assert 0 < p["frequency_ci95_hz"] < 0.01 * truth_hz
+    spread = max(p["frequency_hz"] for p in points) / min(p["frequency_hz"] for p in points)
+    assert spread > 1.12  # the twin's mode moves by about +-8 % over the travel: the map sees it move
+
+
+def test_the_joint_fit_recovers_the_stiffness_polynomial_within_two_percent(mapped):
+    cfg, summary, _ = mapped
+    fit = summary["workspace"]["joint_fit"]
+    configured = cfg.emulator.plant.k.poly
+    found = fit["k_n_per_m"]["coefficients"]
+    assert len(found) == len(configured) == 3
+    for got, want in zip(found, configured, strict=True):
+        assert abs(got - want) / abs(want) < 0.02, (found, configured)
+    # the masses to 5 %: the cart's Coulomb friction and the loop holding it bias m1 by a few percent
+    assert fit["m1_kg"] == pytest.approx(cfg.emulator.plant.m1, rel=0.05)
+    assert fit["m2_kg"] == pytest.approx(cfg.emulator.plant.m2, rel=0.05)
+    # the joint model's mode beside each position's own estimate
+    comparison = fit["comparison"]
+    assert len(comparison) == len(summary["map"])
+    assert all(abs(c["difference_percent"]) < 0.5 for c in comparison)
+
+
+def test_the_covering_notch_holds_twenty_db_over_the_mapped_range_as_stored(mapped):
+    _, summary, _ = mapped
+    covering = summary["workspace"]["covering_notch"]
+    lo, hi = covering["range_hz"]
+    upload = summary["upload"]
+    assert upload["written"] and upload["verified_readback"]
+    # independently of the design code: the chain the drive read back, evaluated with scipy
+    rate = covering["sample_rate_hz"]
+    grid = np.linspace(lo, hi, 2000)
+    gain = np.ones(grid.size, dtype=complex)
+    for slot in upload["slots"]:
+        _, h = signal.freqz(slot["readback_b"], slot["readback_a"], worN=grid, fs=rate)
+        gain *= h
+    worst_db = -20 * np.log10(np.abs(gain).max())
+    assert worst_db >= 20.0, (worst_db, covering["message"])
+    assert covering["worst_attenuation_db"] >= 20.0
+    truth = [true_modes(parse_config(MAP_CONFIG.read_text(), str(MAP_CONFIG)).emulator, p)[0][0]
+             for p in (-0.5, 0.1, 0.5)]
+    assert lo <= min(truth) * 1.002 and hi >= max(truth) * 0.998  # the range spans the twin's whole spread
+
+
+def test_the_map_run_writes_its_plot_its_report_and_a_valid_summary(mapped):
+    _, summary, out = mapped
+    assert schema_errors(summary) == []
+    assert (out / "map.png").is_file()
+    page = check_report(out)
+    assert "The mode identified at each position" in page.sections["workspace"]
+    assert sum(f"map_{i}.h5" in page.sections["workspace"] for i in range(5)) == 5
+    assert all((out / p["recording"]).is_file() for p in summary["map"])
+
+
+def move_config(config: str, tmp_path: Path) -> Path:
+    """A shipped gantry config made quick, with the map config's stiff servo (feed-forward), a fine laser
+    and its move test; Coulomb friction off, because a cart that sticks when it stops rings the mode with a
+    force step no set-point shaping can remove (the shipped map config keeps it and reports what is left)."""
+    transport = {"emulated-gantry.toml": "serial", "emulated-canopen-gantry.toml": "canopen",
+                 "emulated-modbus-gantry.toml": "modbus"}[config]
+    raw = quick(tomllib.loads((CONFIGS / config).read_text()), transport)
+    mapped_raw = tomllib.loads(MAP_CONFIG.read_text())
+    raw["verification"] = mapped_raw["verification"]
+    raw["emulator"]["drive"].update(velocity_feedforward=1.0, accel_feedforward_nm_per_mps2=5.0)
+    raw["emulator"]["sensors"]["laser_resolution_m"] = 2e-6
+    raw["emulator"]["friction"].update(Fc=0.0, Fs=0.0)
+    driver = find_driver(raw["device"]["driver"])
+    raw["run"]["channels"] = [c.name for c in driver.streamed_channels if c.name != "load_position_m"] + [
+        "load_position_m"]  # the CANopen and Modbus drives stream their load sensor only when asked
+    path = tmp_path / "move.toml"
+    path.write_text(tomli_w.dumps(json.loads(json.dumps(raw))))
+    return path
+
+
+@pytest.mark.parametrize("config", ["emulated-gantry.toml", "emulated-canopen-gantry.toml",
+                                    "emulated-modbus-gantry.toml"])
+def test_a_move_rings_ten_db_less_with_the_notch_on_every_transport(config, tmp_path):
+    path = move_config(config, tmp_path)
+    cfg = parse_config(path.read_text(), str(path))
+    summary = Session(cfg, tmp_path / "out").run()
+    test = summary["move_test"]
+    (move,) = test["moves"]
+    assert move["notch_in"] == "host" and move["signal"] == "load deflection"
+    assert move["rms_reduction_db"] >= 10.0 and move["peak_to_peak_reduction_db"] >= 10.0, move
+    assert test["worst_rms_reduction_db"] == move["rms_reduction_db"]
+    assert move["added_delay_s"] > 0  # the shaped move ends later, exactly where asked
+    assert schema_errors(summary) == []
+    assert (tmp_path / "out" / "moves.png").is_file()
+    assert "move_without.h5" in move["recordings"] and (tmp_path / "out" / "move_with.h5").is_file()
