@@ -139,6 +139,7 @@ def test_a_move_rings_ten_db_less_with_the_notch_on_every_transport(config, tmp_
     assert move["rms_reduction_db"] >= 10.0 and move["peak_to_peak_reduction_db"] >= 10.0, move
     assert test["worst_rms_reduction_db"] == move["rms_reduction_db"]
     assert move["added_delay_s"] > 0  # the shaped move ends later, exactly where asked
+    assert 0 <= move["standstill_rms_m"] < move["without"]["rms_m"] / 10  # the clean twin at rest barely moves
     assert schema_errors(summary) == []
     assert (tmp_path / "out" / "moves.png").is_file()
     assert "move_without.h5" in move["recordings"] and (tmp_path / "out" / "move_with.h5").is_file()

@@ -35,6 +35,29 @@ from hilident.errors import DataError
 from hilident.motion.residual import MoveComparison
 
 LOAD = "load_position_m"
+#: Held still before each measured move, s: the vibration the axis has at rest (the floor no notch removes).
+STANDSTILL_S = 0.6
+#: The start of the standstill left out of the floor, s (the drive settling after it is enabled).
+_SETTLING_S = 0.1
+
+
+def standstill_rms(time_s: np.ndarray, signal: np.ndarray) -> float:
+    """RMS of ``signal`` about a fitted line over the standstill before the move (its first ``_SETTLING_S``
+    left out), in the signal's unit."""
+    keep = (time_s >= _SETTLING_S) & (time_s < STANDSTILL_S)
+    t, y = time_s[keep], signal[keep]
+    if t.size < 3:
+        return float("nan")
+    return float(np.std(y - np.polyval(np.polyfit(t, y, 1), t)))
+
+
+def above_floor_db(without_rms: float, with_rms: float, floor_rms: float) -> float | None:
+    """The reduction of the vibration the move left above the standstill's, dB: ``20 log10`` of the ratio of
+    ``sqrt(rms^2 - floor^2)``; None when the move with the notch left none above the floor (or no floor)."""
+    a, b = (r * r - floor_rms * floor_rms for r in (without_rms, with_rms))
+    if not np.isfinite(floor_rms) or a <= 0 or b <= 0:
+        return None
+    return float(10.0 * np.log10(a / b))
 
 
 @dataclass(frozen=True)
@@ -58,6 +81,9 @@ class MoveTestResult:
     traces : dict
         ``{"without": (time_s, signal), "with_notch": (time_s, signal)}`` of the measured moves (time on each
         recording's axis, as the comparison's ``move_end_s``), for the plot.
+    floor_rms : float
+        RMS of the signal at rest before the moves (:data:`STANDSTILL_S`), in its unit: what process noise
+        and disturbances keep the mode doing, which no notch in the set-point removes.
     """
 
     start_m: float
@@ -67,11 +93,16 @@ class MoveTestResult:
     added_delay_s: float
     recordings: tuple[str, str]
     traces: dict
+    floor_rms: float = float("nan")
 
     def to_dict(self) -> dict:
+        c = self.comparison
         return {"start_m": self.start_m, "notch_in": self.notch_in, "signal": self.signal,
                 "added_delay_s": self.added_delay_s, "recordings": list(self.recordings),
-                **self.comparison.as_dict()}
+                "standstill_rms_m": self.floor_rms if np.isfinite(self.floor_rms) else None,
+                "rms_reduction_above_standstill_db": above_floor_db(c.without.rms, c.with_notch.rms,
+                                                                    self.floor_rms),
+                **c.as_dict()}
 
 
 def move_profile(move: MoveConfig, distance_m: float, sample_rate_hz: float):
@@ -133,8 +164,10 @@ class MoveTest:
             with_out, with_back, delay = shaped_out.profile, shaped_back.profile, shaped_out.added_delay_s
         names = (f"move{tag}_without", f"move{tag}_with")
 
+        still = np.zeros(int(round(STANDSTILL_S * rate)))  # the vibration the axis has at rest, before it moves
+
         def out_and_back(name: str, there, home):
-            exp = self.record(name, "position", there.position_m)
+            exp = self.record(name, "position", np.concatenate([still, there.position_m]))
             self.record(f"{name}_back", "position", home.position_m)
             return exp
 
@@ -151,14 +184,17 @@ class MoveTest:
         _, signal_with = measured_signal(with_notch.samples)
         t_without, t_with = (exp.samples["sample_index"] / rate for exp in (without, with_notch))
         band = self.move.settle_band_m or None
-        comparison = compare_moves((t_without, signal_without, out.move_end_s),
-                                   (t_with, signal_with, with_out.move_end_s), self.move.dwell_s, band=band,
-                                   detrend="linear")
+        ends = (STANDSTILL_S + out.move_end_s, STANDSTILL_S + with_out.move_end_s)
+        comparison = compare_moves((t_without, signal_without, ends[0]), (t_with, signal_with, ends[1]),
+                                   self.move.dwell_s, band=band, detrend="linear")
         if comparison.without.rms <= 0:
             raise DataError(f"move test{tag}: the move without the notch left no measurable vibration")
+        floor = float(np.sqrt(np.mean([standstill_rms(t, y) ** 2 for t, y in ((t_without, signal_without),
+                                                                              (t_with, signal_with))])))
         return MoveTestResult(start_m, comparison, notch_in, what, float(delay),
                               (f"{names[0]}.h5", f"{names[1]}.h5"),
-                              {"without": (t_without, signal_without), "with_notch": (t_with, signal_with)})
+                              {"without": (t_without, signal_without), "with_notch": (t_with, signal_with)},
+                              floor)
 
 
 class DriveNotch:

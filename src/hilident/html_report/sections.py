@@ -529,11 +529,13 @@ def moves(inputs: ReportInputs) -> str:
         rows.append([num(r.get("start_m"), "m"), _text(r.get("notch_in")), _text(r.get("signal")),
                      num(without.get("rms_m"), "m", 3), num(with_notch.get("rms_m"), "m", 3),
                      num(r.get("rms_reduction_db"), "dB", 3), num(r.get("peak_to_peak_reduction_db"), "dB", 3),
+                     num(r.get("standstill_rms_m"), "m", 3), num(r.get("rms_reduction_above_standstill_db"), "dB", 3),
                      num(without.get("settling_time_s"), "s", 3), num(with_notch.get("settling_time_s"), "s", 3)])
     body = (key_values([("worst RMS reduction", num(test.get("worst_rms_reduction_db"), "dB", 3)),
                         ("where", num(test.get("worst_start_m"), "m"))])
             + table(["from", "notch in", "measured", "RMS without", "RMS with", "RMS reduction",
-                     "peak-to-peak reduction", "settling without", "settling with"], rows,
+                     "peak-to-peak reduction", "RMS at rest", "reduction above rest", "settling without",
+                     "settling with"], rows,
                     "Residual vibration over the dwell after each move"))
     return section("moves", "Move test", body)
 
