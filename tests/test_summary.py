@@ -22,6 +22,10 @@ class _Excitation:
     kind, mode, amplitude, closed_loop = "multisine", "torque", 2.0, False
 
 
+#: Keys only a [map] or [verification] move run has.
+WORKSPACE_KEYS = ("map", "workspace", "move_test")
+
+
 def _run(**extra) -> Summary:
     return Summary.of_run(config="a.toml", device=DevicePart("myrio-board", "emulator", True), sample_rate_hz=1000.0,
                           excitation=ExcitationPart.of(_Excitation(), None), plant=None, friction=None, designs=[],
@@ -31,7 +35,7 @@ def _run(**extra) -> Summary:
 
 def test_a_run_that_failed_before_its_model_has_no_model_key_and_names_the_step_last():
     out = _run().failed("identification", "boom").to_dict()
-    assert list(out) == [k for k in LAYOUTS["run"] if k != "model"] + ["failed_step", "error"]
+    assert list(out) == [k for k in LAYOUTS["run"] if k not in ("model", *WORKSPACE_KEYS)] + ["failed_step", "error"]
     assert out["upload"] == {"written": False, "verified_readback": False, "slots": []}
     assert out["verification"] == {"band_reduction_db": None, "peak_reduction_db": None, "resonances": []}
     assert out["excitation"] == {"kind": "multisine", "mode": "torque", "amplitude": 2.0, "unit": "N*m",
@@ -44,7 +48,7 @@ def test_a_finished_run_ends_with_its_model_and_a_verification_in_its_documented
     s = _run(model=None)
     s.verification = verification
     out = s.to_dict()
-    assert list(out) == list(LAYOUTS["run"]) and out["model"] is None
+    assert list(out) == [k for k in LAYOUTS["run"] if k not in WORKSPACE_KEYS] and out["model"] is None
     assert list(out["verification"]) == ["band_reduction_db", "peak_reduction_db", "band_bandwidths", "resonances"]
 
 
@@ -75,3 +79,13 @@ def test_the_recording_logs_typed_events_with_their_fields_in_the_data_column(tm
     (trip, underrun) = read_run(path).events
     assert (trip["kind"], trip["sample_index"], trip["data"]) == ("limit_trip", 5, {"value": 1.5, "host_check": True})
     assert (underrun["kind"], underrun["sample_index"], underrun["data"]) == ("underrun", 0, {"value": 3.0})
+
+
+def test_a_map_run_carries_its_map_workspace_and_move_test_last():
+    from hilident.workspace_map import MapPoint
+
+    point = MapPoint(0.1, 0.1004, 21.3, 0.018, 0.03, 0.99, "map_0.h5")
+    out = _run(model=None, workspace_map=[point], workspace={"joint_fit": None}, move_test=[]).to_dict()
+    assert list(out)[-3:] == list(WORKSPACE_KEYS)
+    assert out["map"] == [point.to_dict()] and out["workspace"] == {"joint_fit": None}
+    assert out["move_test"] == {"moves": [], "worst_rms_reduction_db": None, "worst_start_m": None}
