@@ -104,6 +104,9 @@ def test_the_map_run_writes_its_plot_its_report_and_a_valid_summary(mapped):
     page = check_report(out)
     assert "The mode identified at each position" in page.sections["workspace"]
     assert sum(f"map_{i}.h5" in page.sections["workspace"] for i in range(5)) == 5
+    assert "stiffness k(p), N/m" in page.sections["workspace"]
+    assert summary["workspace"]["covering_notch"]["used"] in page.sections["workspace"]
+    assert "No [verification] move" in page.sections["moves"]
     assert all((out / p["recording"]).is_file() for p in summary["map"])
 
 
@@ -142,4 +145,6 @@ def test_a_move_rings_ten_db_less_with_the_notch_on_every_transport(config, tmp_
     assert 0 <= move["standstill_rms_m"] < move["without"]["rms_m"] / 10  # the clean twin at rest barely moves
     assert schema_errors(summary) == []
     assert (tmp_path / "out" / "moves.png").is_file()
+    moves = check_report(tmp_path / "out").sections["moves"]
+    assert "load deflection" in moves and f"{move['rms_reduction_db']:.3g} dB" in moves
     assert "move_without.h5" in move["recordings"] and (tmp_path / "out" / "move_with.h5").is_file()

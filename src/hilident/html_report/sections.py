@@ -514,7 +514,50 @@ def workspace(inputs: ReportInputs) -> str:
                    f"({100 * (max(found) - min(found)) / min(found):.1f} % of its lowest).") if found else "")
     body = table(["position", "asked", "mode frequency (95 %)", "damping ratio", "coherence", "recording"], rows,
                  "The mode identified at each position") + spread
-    return section("workspace", "Workspace map", body)
+    ws = _dict(inputs.summary.get("workspace"))
+    return section("workspace", "Workspace map", body + _joint_fit(_dict(ws.get("joint_fit")))
+                   + _covering(_dict(ws.get("covering_notch"))))
+
+
+def _polynomial(poly: dict) -> str:
+    """``c0 ± s0 + c1 ± s1 p + ...`` of a joint-fit polynomial (its units per power of p in m)."""
+    terms = [f"({pm(c, s, '', 5)}){'' if j == 0 else ' p' if j == 1 else f' p^{j}'}"
+             for j, (c, s) in enumerate(zip(poly.get("coefficients") or [], poly.get("std") or [], strict=False))]
+    return " + ".join(terms) if terms else MISSING
+
+
+def _joint_fit(fit: dict) -> str:
+    if not fit:
+        return note("No joint fit (see the warnings).")
+    return key_values([
+        ("stiffness k(p), N/m (p in m)", _polynomial(_dict(fit.get("k_n_per_m")))),
+        ("damping d(p), N*s/m", _polynomial(_dict(fit.get("d_ns_per_m")))),
+        ("cart mass m1", pm(fit.get("m1_kg"), fit.get("m1_std_kg"), "kg")),
+        ("load mass m2", pm(fit.get("m2_kg"), fit.get("m2_std_kg"), "kg")),
+        ("cart viscous friction b", pm(fit.get("b_ns_per_m"), fit.get("b_std_ns_per_m"), "N*s/m")),
+        ("torque-to-force constant c", num(fit.get("torque_constant_n_per_nm"), "N/(N*m)")),
+    ])
+
+
+def _covering(cover: dict) -> str:
+    if not cover:
+        return note("No covering notch (no notch was designed, see the warnings).")
+    lo_hi = cover.get("range_hz") or [None, None]
+    return key_values([
+        ("range the mode moves through", f"{num(lo_hi[0], 'Hz')} .. {num(lo_hi[1], 'Hz')}"),
+        ("what the device got", _text(cover.get("used"))),
+        ("worst attenuation over that range", f"{num(cover.get('worst_attenuation_db'), 'dB', 3)} at "
+                                              f"{num(cover.get('worst_frequency_hz'), 'Hz')}"),
+        ("target", num(cover.get("target_attenuation_db"), "dB", 3)),
+        ("design", _text(cover.get("message"))),
+    ])
+
+
+def _above_rest(move: dict) -> str:
+    """The reduction above the vibration at rest, or that the move with the notch left none above it."""
+    if move.get("rms_reduction_above_standstill_db") is None and move.get("standstill_rms_m") is not None:
+        return esc("none left above rest")
+    return num(move.get("rms_reduction_above_standstill_db"), "dB", 3)
 
 
 def moves(inputs: ReportInputs) -> str:
@@ -529,7 +572,7 @@ def moves(inputs: ReportInputs) -> str:
         rows.append([num(r.get("start_m"), "m"), _text(r.get("notch_in")), _text(r.get("signal")),
                      num(without.get("rms_m"), "m", 3), num(with_notch.get("rms_m"), "m", 3),
                      num(r.get("rms_reduction_db"), "dB", 3), num(r.get("peak_to_peak_reduction_db"), "dB", 3),
-                     num(r.get("standstill_rms_m"), "m", 3), num(r.get("rms_reduction_above_standstill_db"), "dB", 3),
+                     num(r.get("standstill_rms_m"), "m", 3), _above_rest(r),
                      num(without.get("settling_time_s"), "s", 3), num(with_notch.get("settling_time_s"), "s", 3)])
     body = (key_values([("worst RMS reduction", num(test.get("worst_rms_reduction_db"), "dB", 3)),
                         ("where", num(test.get("worst_start_m"), "m"))])
