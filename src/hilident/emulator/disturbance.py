@@ -28,8 +28,8 @@ import math
 
 import numpy as np
 
-from hilident.emulator.checks import number
 from hilident.errors import ConfigError
+from hilident.numbers import number
 
 __all__ = ["ProcessDisturbance"]
 

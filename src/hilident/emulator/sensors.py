@@ -19,8 +19,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from hilident.emulator.checks import number
 from hilident.errors import ConfigError
+from hilident.numbers import number
 
 __all__ = ["SensorModel"]
 

@@ -47,6 +47,7 @@ import numpy as np
 from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec, design_notch, width_for_attenuation_hz
+from hilident.numbers import number
 
 __all__ = ["CoveringResult", "MappedMode", "NotchGroup", "covering_notch", "mapped_modes"]
 
@@ -253,13 +254,7 @@ class CoveringResult:
 
 
 def _parameter(key: str, value: Any, *, minimum: float = 0.0) -> float:
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(key, f"must be a number, got {value!r}") from None
-    if not math.isfinite(x) or x <= minimum:
-        raise ConfigError(key, f"must be a finite number above {minimum:g}, got {value!r}")
-    return x
+    return number(key, value, minimum=minimum, strict=True)
 
 
 class _Designer:

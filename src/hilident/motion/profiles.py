@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hilident.errors import ConfigError
+from hilident.numbers import number
 
 __all__ = ["MAX_SAMPLES", "MovePlan", "MoveProfile", "s_curve", "trapezoid"]
 
@@ -147,34 +148,13 @@ class MoveProfile:
 
 
 def _value(key: str, value, prefix: str, *, positive: bool) -> float:
-    name = f"{prefix}{key}"
-    if isinstance(value, bool):
-        raise ConfigError(name, f"must be a number, got {value!r}")
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(name, f"must be a number, got {value!r}") from None
-    if not math.isfinite(x):
-        raise ConfigError(name, f"must be finite, got {value!r}")
-    if positive and not x > 0.0:
-        raise ConfigError(name, f"must be > 0, got {value!r}")
-    if not positive and x < 0.0:
-        raise ConfigError(name, f"must be >= 0, got {value!r}")
-    return x
+    return number(f"{prefix}{key}", value, strict=positive)
 
 
 def _distance(value, prefix: str) -> float:
-    name = f"{prefix}distance_m"
-    if isinstance(value, bool):
-        raise ConfigError(name, f"must be a number, got {value!r}")
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(name, f"must be a number, got {value!r}") from None
-    if not math.isfinite(x):
-        raise ConfigError(name, f"must be finite, got {value!r}")
+    x = number(f"{prefix}distance_m", value, minimum=-math.inf)
     if x == 0.0:
-        raise ConfigError(name, "must not be 0 (a move needs a distance)")
+        raise ConfigError(f"{prefix}distance_m", "must not be 0 (a move needs a distance)")
     return x
 
 

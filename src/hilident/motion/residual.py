@@ -43,6 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hilident.errors import ConfigError, DataError
+from hilident.numbers import number
 
 __all__ = ["FINAL_FRACTION", "MoveComparison", "ResidualVibration", "compare_moves", "reduction_db",
            "residual_vibration"]
@@ -142,17 +143,7 @@ class MoveComparison:
 
 
 def _number(key: str, value, *, positive: bool = False) -> float:
-    if isinstance(value, bool):
-        raise ConfigError(key, f"must be a number, got {value!r}")
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(key, f"must be a number, got {value!r}") from None
-    if not math.isfinite(x):
-        raise ConfigError(key, f"must be finite, got {value!r}")
-    if positive and not x > 0.0:
-        raise ConfigError(key, f"must be > 0, got {value!r}")
-    return x
+    return number(key, value, minimum=0.0 if positive else -math.inf, strict=positive)
 
 
 def residual_vibration(time_s, signal, move_end_s: float, dwell_s: float, *, unit: str = "m",

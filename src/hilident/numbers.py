@@ -1,4 +1,4 @@
-"""Checks of the numbers an emulator part is built from, with errors that name the key."""
+"""Checks of the numbers a configuration or a pure function is built from, with errors that name the key."""
 
 from __future__ import annotations
 
