@@ -95,6 +95,12 @@ def test_the_covering_notch_holds_twenty_db_over_the_mapped_range_as_stored(mapp
     truth = [true_modes(parse_config(MAP_CONFIG.read_text(), str(MAP_CONFIG)).emulator, p)[0][0]
              for p in (-0.5, 0.1, 0.5)]
     assert lo <= min(truth) * 1.002 and hi >= max(truth) * 0.998  # the range spans the twin's whole spread
+    # measured at every mapped position, the notches enabled, against the map's own record (closed loop: the
+    # band figure there falls below the notches' 20 dB design, see the README; it is reported, worst first)
+    verified = summary["workspace"]["verification"]
+    assert len(verified["positions"]) == 5
+    assert all(r["reduction_db"] >= 15.0 for r in verified["positions"]), verified
+    assert verified["worst_band_reduction_db"] == min(r["band_reduction_db"] for r in verified["positions"]) >= 10.0
 
 
 def test_the_map_run_writes_its_plot_its_report_and_a_valid_summary(mapped):

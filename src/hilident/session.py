@@ -77,7 +77,7 @@ from hilident.summary import (
     UploadOutcome,
     VerificationPart,
 )
-from hilident.workspace_map import MAP_MODE, MapPoint, WorkspaceMap, move_axis
+from hilident.workspace_map import MAP_MODE, MapPoint, WorkspaceMap, move_axis, nearest_resonance
 
 if TYPE_CHECKING:
     from hilident.adapters.base import DeviceAdapter
@@ -308,6 +308,7 @@ class Session(DeviceConnection):
         self.move_results: list[MoveTestResult] | None = None  # [verification] move, at each place it ran
         self.workspace: dict[str, Any] = {}  # [map]: the joint fit, its comparison and the covering notch
         self.joint_fit: Any = None  # [map]: the WorkspaceFit behind workspace["joint_fit"]
+        self._map_excitation: Excitation | None = None  # [map]: what each mapped position is excited with
         self.position_m: float | None = None  # the cart's position at the end of the last recording, m
 
     # --- connection -----------------------------------------------------------------------
@@ -400,6 +401,9 @@ class Session(DeviceConnection):
             designs, upload = self._notch_step(plant)
             step = "verification"
             verification = self._verify(excitation, plant, designs)
+            if self.map_points and verification is not None:
+                step = "map verification"
+                self.workspace["verification"] = self._verify_map(designs)
             if self.cfg.verification.move is not None:
                 step = "move test"
                 self.move_results = self._move_step(designs, upload)
@@ -582,7 +586,7 @@ class Session(DeviceConnection):
                               cfg.source)
         cfg = replace(cfg, excitation=replace(e, mode=MAP_MODE, amplitude_nm=amplitude,
                                               duration_s=cfg.map.duration_s or e.duration_s))
-        excitation = build_excitation(cfg)
+        excitation = self._map_excitation = build_excitation(cfg)
         mapper = WorkspaceMap(self.cfg, self.record,
                               lambda exp, name: self._identify(exp, excitation, friction, for_model=False),
                               self.progress)
@@ -593,6 +597,42 @@ class Session(DeviceConnection):
             self.warnings.append("map: no resonance found at " + ", ".join(f"{p:+.3f} m" for p in missing))
         self.map_results = mapper.results
         return points
+
+    def _verify_map(self, designs: list) -> dict:
+        """``[map]`` with ``[notch] verify``: the map's excitation again at every mapped position, the notches
+        enabled, and the band figure there (:func:`hilident.pipeline.peak_reductions`, before = the map's own
+        record); the worst over the positions is the figure the notches must hold everywhere. The axis ends where
+        the verification began."""
+        excitation, nc, ic = self._map_excitation, self.cfg.notch, self.cfg.identification
+        if excitation is None:
+            raise UsageError("the map is verified only after it ran (Session._map_step)")
+        start = here = self.position_m if self.position_m is not None else 0.0
+        rows = []
+        for i, point in enumerate(self.map_points or []):
+            before = self.map_results[point.recording.removesuffix(".h5")]
+            mode = nearest_resonance(list(before.resonances), point.frequency_hz)
+            if mode is None:
+                continue
+            here = move_axis(self.cfg, self.record, f"map_verify_move_{i}", here, point.target_m)
+            exp = self.record(f"map_verify_{i}", MAP_MODE, excitation.samples,
+                              period_samples=excitation.period_samples, recipe=excitation_recipe(self.cfg))
+            here = self.position_m if self.position_m is not None else here
+            s = self._analysis_samples(exp, excitation)
+            after, warnings = pipeline.loop_response(s["excitation"], s[ic.output], self.cfg.run.sample_rate_hz, ic,
+                                                     excitation.period_samples, excitation.excited_bins)
+            self.warnings += warnings
+            (r,) = pipeline.peak_reductions(before.loop, after, [mode], nc.verify_band_bandwidths)
+            rows.append({"position_m": point.position_m, "frequency_hz": r["frequency_hz"],
+                         "band_reduction_db": r["band_reduction_db"], "reduction_db": r["reduction_db"],
+                         "recording": f"map_verify_{i}.h5"})
+        move_axis(self.cfg, self.record, "map_verify_return", here, start)
+        worst = min(rows, key=lambda r: r["band_reduction_db"]) if rows else None
+        if worst is not None and worst["band_reduction_db"] < nc.min_reduction_db:
+            self.warnings.append(
+                f"map verification: at {worst['position_m']:+.3f} m the largest response near the mode dropped by only "
+                f"{worst['band_reduction_db']:.1f} dB (notch.min_reduction_db = {nc.min_reduction_db:g})")
+        return {"positions": rows, "worst_band_reduction_db": worst["band_reduction_db"] if worst else None,
+                "worst_position_m": worst["position_m"] if worst else None}
 
     def _joint_fit(self, excitation: Excitation) -> dict | None:
         """``[map]``: one two-mass model with ``k(p)``, ``d(p)`` from every mapped position's plant response

@@ -515,8 +515,12 @@ def workspace(inputs: ReportInputs) -> str:
     body = table(["position", "asked", "mode frequency (95 %)", "damping ratio", "coherence", "recording"], rows,
                  "The mode identified at each position") + spread
     ws = _dict(inputs.summary.get("workspace"))
+    verified = _dict(ws.get("verification"))
+    measured = key_values([("band figure at every mapped position, worst",
+                            f"{num(verified.get('worst_band_reduction_db'), 'dB', 3)} at "
+                            f"{num(verified.get('worst_position_m'), 'm')}")]) if verified else ""
     return section("workspace", "Workspace map", body + _joint_fit(_dict(ws.get("joint_fit")))
-                   + _covering(_dict(ws.get("covering_notch"))))
+                   + _covering(_dict(ws.get("covering_notch"))) + measured)
 
 
 def _polynomial(poly: dict) -> str:
