@@ -275,6 +275,9 @@ class MapConfig:
                                 "(the drive's loops add their own torque while they hold the position)")
     duration_s: float = _spec(0.0, ge=0, doc="excitation at each position, s (whole periods, one lead-in more, as "
                               "the run's); 0: the run's [excitation] duration_s")
+    verify: bool = _spec(False, doc="after the verification, excite every mapped position again with the notches "
+                         "enabled and measure the reduction there (the approach moves run with the notches in the "
+                         "loop)")
     k_degree: int = _spec(2, ge=0, le=4, doc="joint fit: degree of the stiffness k(p) polynomial in position")
     d_degree: int = _spec(0, ge=0, le=4, doc="joint fit: degree of the damping d(p) polynomial in position")
 

@@ -401,7 +401,7 @@ class Session(DeviceConnection):
             designs, upload = self._notch_step(plant)
             step = "verification"
             verification = self._verify(excitation, plant, designs)
-            if self.map_points and verification is not None:
+            if self.map_points and verification is not None and self.cfg.map.verify:
                 step = "map verification"
                 self.workspace["verification"] = self._verify_map(designs)
             if self.cfg.verification.move is not None:

@@ -69,11 +69,37 @@ def move_axis(cfg: Config, record: Callable, name: str, from_m: float, to_m: flo
 
     if to_m == from_m:
         return from_m
-    m = cfg.map
-    profile = trapezoid(to_m - from_m, m.max_velocity_mps, m.max_accel_mps2, cfg.run.sample_rate_hz, m.settle_s,
-                        key_prefix="map.")
-    exp = record(name, "position", profile.position_m)
+    m, rate = cfg.map, cfg.run.sample_rate_hz
+
+    def trapezoid_to(target: float, here: float) -> np.ndarray:
+        return trapezoid(target - here, m.max_velocity_mps, m.max_accel_mps2, rate, m.settle_s,
+                         key_prefix="map.").position_m
+
+    exp = record(name, "position", trapezoid_to(to_m, from_m))
+    # Each experiment enables the drive afresh where the cart then is, and the loops may still be settling when
+    # a profile ends: move the rest of the way until the cart is still at the target, so the next experiment
+    # does not start by braking it (a torque peak on top of its excitation).
+    for attempt in range(1, MAX_SETTLES + 1):
+        here = float(exp.samples["position_m"][-1])
+        off = to_m - here
+        if _still(exp.samples["velocity_mps"], rate) and abs(off) <= STILL_DISTANCE_M:
+            break
+        exp = record(f"{name}_settle_{attempt}", "position",
+                     trapezoid_to(to_m, here) if off else np.zeros(int(round(max(m.settle_s, 0.2) * rate))))
     return float(exp.samples["position_m"][-1])
+
+
+#: How often a move holds its target again, settle_s each time, waiting for the cart to be still.
+MAX_SETTLES = 5
+#: Still: the mean velocity over the last 0.1 s below this, m/s ...
+STILL_MPS = 1e-3
+#: ... and the cart within this of the target, m.
+STILL_DISTANCE_M = 1e-3
+
+
+def _still(velocity_mps: np.ndarray, rate_hz: float) -> bool:
+    tail = velocity_mps[-max(int(0.1 * rate_hz), 1):]
+    return bool(tail.size and abs(float(np.mean(tail))) < STILL_MPS)
 
 
 def nearest_resonance(resonances: list, reference_hz: float | None):

@@ -218,7 +218,8 @@ class DriveLoop:
         #: are taken over it. Set by what plays the set-points (:class:`hilident.emulator.clock.TablePlayer`,
         #: the CANopen twin's SYNC handler).
         self.setpoint_ticks = 1
-        self._setpoint = (0.0, 0.0, 0.0, 0)  # position mode: last set-point, its velocity and acceleration, tick
+        # position mode: last set-point, its velocity and acceleration, tick in its period (None: none yet)
+        self._setpoint: tuple[float, float, float, int] | None = None
         self._last_position = self.hold_position_m
         self._velocity = 0.0
         self._integral = 0.0
@@ -295,7 +296,7 @@ class DriveLoop:
             raise DeviceError(f"drive fault {self.fault!r} at tick {self.fault_tick}; "
                               "clear_fault() before enable()")
         self.hold_position_m = self.sensors.encoder(self.plant.p1)
-        self._setpoint = (0.0, 0.0, 0.0, 0)
+        self._setpoint = None  # the first set-point after enabling starts the feed-forward's differences
         self._integral = 0.0
         self.filters.reset()
         self.enabled = True
@@ -373,7 +374,8 @@ class DriveLoop:
         feedforward = self.mode == "position" and (kvff or kaff)
         sp_ticks = max(1, int(self.setpoint_ticks))
         inv_Tsp = inv_T / sp_ticks
-        sp, sp_v, sp_a, sp_n = self._setpoint
+        fresh = self._setpoint is None
+        sp, sp_v, sp_a, sp_n = self._setpoint or (0.0, 0.0, 0.0, 0)
         ff_v = kvff * sp_v
         ff_a = kaff * sp_a
 
@@ -381,6 +383,8 @@ class DriveLoop:
         append = rows.append
         for e in x.tolist():
             if feedforward:
+                if fresh:  # no difference to the set-point before enabling: it starts at rest
+                    sp, fresh = e, False
                 if sp_n == 0:  # a new set-point: its velocity and acceleration by backward differences
                     v_new = (e - sp) * inv_Tsp
                     sp_a = (v_new - sp_v) * inv_Tsp
@@ -424,7 +428,8 @@ class DriveLoop:
         self._velocity = vf
         self._integral = integ
         self._motor_torque = motor
-        self._setpoint = (sp, sp_v, sp_a, sp_n)
+        if not fresh:
+            self._setpoint = (sp, sp_v, sp_a, sp_n)
         return np.array(rows, dtype=float)
 
 
