@@ -27,12 +27,14 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from hilident.config import Config, MoveConfig
 from hilident.errors import DataError
 from hilident.motion.residual import MoveComparison
+from hilident.workspace_map import move_axis
 
 LOAD = "load_position_m"
 #: Held still before each measured move, s: the vibration the axis has at rest (the floor no notch removes).
@@ -223,3 +225,80 @@ def move_distance(move: MoveConfig, start_m: float, low_m: float, high_m: float)
             return distance
     raise DataError(f"[verification.move] distance_m = {move.distance_m:g} m does not fit either way from "
                     f"{start_m:+.3f} m within [{low_m:g}, {high_m:g}] m")
+
+
+def run_move_tests(cfg: Config, record: Callable, progress, warnings: list[str], driver, adapter, designs: list,
+                   in_slots: bool, start_m: float, places_m: list[float],
+                   position: Callable[[], float | None]) -> list[MoveTestResult]:
+    """The move test from ``start_m`` (or, with a map, from each of ``places_m``, then back to ``start_m``).
+
+    Parameters
+    ----------
+    cfg : Config
+        ``[verification] move``, ``[map]`` (its margin and the moves between places), ``[limits]``.
+    record : callable
+        ``record(name, mode, samples) -> Experiment``: the session's recorder.
+    progress : Progress
+    warnings : list of str
+        The run's warnings, appended to.
+    driver : DriverDescription
+        Its channels say whether a load sensor could be streamed.
+    adapter : DeviceAdapter
+        Its filter slots, for ``notch = "drive"`` and to bypass them while the host shapes the move.
+    designs : list of NotchDesign
+        The run's notches.
+    in_slots : bool
+        Whether they were uploaded and read back as written.
+    start_m : float
+        Where the axis is, m.
+    places_m : list of float
+        The mapped positions, m (empty: the move test from ``start_m`` only).
+    position : callable
+        ``position() -> float or None``: the cart's position at the end of the last recording, m.
+    """
+    from hilident.filters.notch import design_notch
+
+    move = cfg.verification.move
+    if not designs or move is None:
+        warnings.append("move test: no notch was designed, so there is nothing to compare")
+        return []
+    # every transport streams the move as position set-points, so by default the notch shapes that set-point;
+    # "drive" compares the drive's filter slots instead
+    notch_in = "drive" if move.notch == "drive" else "host"
+    if notch_in == "drive" and not in_slots:
+        raise DataError("[verification.move] notch = \"drive\": the notch is not in the drive's filter slots "
+                        "(not uploaded, or not read back as written)")
+    slots = DriveNotch(adapter, [d.slot for d in designs]) if in_slots else None
+    host = [design_notch(d.spec, cfg.run.sample_rate_hz) for d in designs] if notch_in == "host" else None
+    streamed = cfg.run.channels or [c.name for c in driver.streamed_channels]
+    if LOAD in [c.name for c in driver.channels] and LOAD not in streamed:
+        warnings.append(f"move test: {driver.name} has a load sensor ({LOAD}) that is not streamed; add it to "
+                        "[run] channels to measure the load's ringing rather than the following error")
+    tester = MoveTest(cfg, record, progress)
+    lim, margin = cfg.bench_limits, cfg.map.margin_m
+    places = [(p, f"_{i}") for i, p in enumerate(places_m)] or [(start_m, "")]
+    results, here = [], start_m
+    for target, tag in places:
+        if tag:
+            here = move_axis(cfg, record, f"move{tag}_approach", here, target)
+        distance = move_distance(move, here, lim.position_min_m + margin, lim.position_max_m - margin)
+        results.append(tester.run(tag, here, distance, notch_in, host, slots))
+        last = position()
+        here = here if last is None else last
+    if places_m:
+        move_axis(cfg, record, "move_return", here, start_m)
+    return results
+
+
+def plot_worst_move(results: list[MoveTestResult], path: Path, config_name: str, warnings: list[str]) -> None:
+    """``moves.png``: the move without and with the notch where the reduction was least (a plot that cannot be
+    drawn is a warning)."""
+    from hilident.plots.moves import plot_moves
+
+    worst = min(results, key=lambda r: r.comparison.rms_reduction_db)
+    (t0, y0), (t1, y1) = worst.traces["without"], worst.traces["with_notch"]
+    try:
+        plot_moves(path, worst.comparison, t0, y0, t1, y1, signal_name=worst.signal,
+                   subject=f"{config_name}, from {worst.start_m:+.3f} m", added_delay_s=worst.added_delay_s or None)
+    except (DataError, ValueError) as exc:
+        warnings.append(f"moves.png could not be drawn: {exc}")

@@ -32,7 +32,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -63,7 +63,7 @@ from hilident.experiment import (  # noqa: F401 (kept importable)
 )
 from hilident.filter_slots import BypassedSlots
 from hilident.lazy import lazy_module
-from hilident.move_test import LOAD, DriveNotch, MoveTest, MoveTestResult, move_distance
+from hilident.move_test import MoveTestResult, plot_worst_move, run_move_tests
 from hilident.plan import RunPlan, excitation_travel_m, make_plan
 from hilident.progress import Progress
 from hilident.run_excitation import Excitation, build_excitation, excitation_recipe  # noqa: F401 (kept importable)
@@ -77,7 +77,8 @@ from hilident.summary import (
     UploadOutcome,
     VerificationPart,
 )
-from hilident.workspace_map import MAP_MODE, MapPoint, WorkspaceMap, move_axis, nearest_resonance
+from hilident.workspace_map import MAP_MODE
+from hilident.workspace_run import WorkspaceRun
 
 if TYPE_CHECKING:
     from hilident.adapters.base import DeviceAdapter
@@ -303,12 +304,8 @@ class Session(DeviceConnection):
         self.friction_mode = "velocity"  # or "position" on a drive without a velocity mode (set by prepare)
         self._uploaded = False
         self._auto: dict | None = None  # the automatic amplitude's choice, trials and reason
-        self.map_points: list[MapPoint] | None = None  # [map]: the mode at each mapped position
-        self.map_results: dict[str, Any] = {}  # [map]: each mapped position's identification, by recording
+        self.workspace: WorkspaceRun | None = None  # [map]: the map, the joint fit, the covering notches
         self.move_results: list[MoveTestResult] | None = None  # [verification] move, at each place it ran
-        self.workspace: dict[str, Any] = {}  # [map]: the joint fit, its comparison and the covering notch
-        self.joint_fit: Any = None  # [map]: the WorkspaceFit behind workspace["joint_fit"]
-        self._map_excitation: Excitation | None = None  # [map]: what each mapped position is excited with
         self.position_m: float | None = None  # the cart's position at the end of the last recording, m
 
     # --- connection -----------------------------------------------------------------------
@@ -395,15 +392,14 @@ class Session(DeviceConnection):
             plant = self._identify(ident, excitation, friction)
             if self.cfg.map.enabled:
                 step = "map"
-                self.map_points = self._map_step(ident, excitation, friction, plant)
-                self.workspace["joint_fit"] = self._joint_fit(excitation)
+                self._map_step(ident, excitation, friction, plant)
             step = "notch upload"
             designs, upload = self._notch_step(plant)
             step = "verification"
             verification = self._verify(excitation, plant, designs)
-            if self.map_points and verification is not None and self.cfg.map.verify:
+            if self.workspace is not None and verification is not None and self.cfg.map.verify:
                 step = "map verification"
-                self.workspace["verification"] = self._verify_map(designs)
+                self.workspace.verify()
             if self.cfg.verification.move is not None:
                 step = "move test"
                 self.move_results = self._move_step(designs, upload)
@@ -423,10 +419,11 @@ class Session(DeviceConnection):
                 self.close()
         endings.raise_pending()
         model = self._greybox()
-        if self.plots and self.map_points:
-            self._map_plot()  # before the summary: a plot that cannot be drawn is one of its warnings
+        if self.plots and self.workspace is not None:  # before the summary: a failed plot is one of its warnings
+            self.workspace.plot(self.out / "map.png",
+                                report.plot_title(Path(self.cfg.source).name, what="Mode over the workspace"))
         if self.plots and self.move_results:
-            self._moves_plot()
+            plot_worst_move(self.move_results, self.out / "moves.png", Path(self.cfg.source).name, self.warnings)
         self.result = self._summary(friction, plant, designs, upload, verification, time.monotonic() - started,
                                     model=model)
         self.summary = self.result.to_dict()
@@ -575,180 +572,23 @@ class Session(DeviceConnection):
         self.warnings += result.warnings
         return result
 
-    def _map_step(self, ident: Experiment, excitation: Excitation, friction, plant) -> list[MapPoint]:
-        """``[map]``: the mode at every mapped position (:class:`~hilident.workspace_map.WorkspaceMap`), the
-        axis back where the identification ran."""
-        cfg, e = self.cfg, self.cfg.excitation
-        # the drive's loops add their own torque while they hold the position: half the run's amplitude by default
-        amplitude = cfg.map.amplitude_nm or (0.5 * e.amplitude_value if e.mode in ("torque", MAP_MODE) else 0.0)
-        if not amplitude:
-            raise ConfigError("map.amplitude_nm", f"is needed: the run's excitation (mode = {e.mode!r}) is no torque",
-                              cfg.source)
-        cfg = replace(cfg, excitation=replace(e, mode=MAP_MODE, amplitude_nm=amplitude,
-                                              duration_s=cfg.map.duration_s or e.duration_s))
-        excitation = self._map_excitation = build_excitation(cfg)
-        mapper = WorkspaceMap(self.cfg, self.record,
-                              lambda exp, name: self._identify(exp, excitation, friction, for_model=False),
-                              self.progress)
+    def _map_step(self, ident: Experiment, excitation: Excitation, friction, plant) -> None:
+        """``[map]`` (:class:`~hilident.workspace_run.WorkspaceRun`): the mode at every mapped position and the
+        joint fit, the axis back where the identification ran."""
+        self.workspace = WorkspaceRun(self.cfg, self.record,
+                                      lambda exp, exc: self._identify(exp, exc, friction, for_model=False),
+                                      self._analysis_samples, lambda: self.position_m, self.progress, self.warnings)
         reference = plant.resonances[0].frequency_hz if plant.resonances else None
-        points = mapper.run(excitation, float(ident.samples["position_m"][-1]), reference, excitation_recipe(cfg))
-        missing = [p.target_m for p in points if p.frequency_hz is None]
-        if missing:
-            self.warnings.append("map: no resonance found at " + ", ".join(f"{p:+.3f} m" for p in missing))
-        self.map_results = mapper.results
-        return points
-
-    def _verify_map(self, designs: list) -> dict:
-        """``[map]`` with ``[notch] verify``: the map's excitation again at every mapped position, the notches
-        enabled, and the band figure there (:func:`hilident.pipeline.peak_reductions`, before = the map's own
-        record); the worst over the positions is the figure the notches must hold everywhere. The axis ends where
-        the verification began."""
-        excitation, nc, ic = self._map_excitation, self.cfg.notch, self.cfg.identification
-        if excitation is None:
-            raise UsageError("the map is verified only after it ran (Session._map_step)")
-        start = here = self.position_m if self.position_m is not None else 0.0
-        rows = []
-        for i, point in enumerate(self.map_points or []):
-            before = self.map_results[point.recording.removesuffix(".h5")]
-            mode = nearest_resonance(list(before.resonances), point.frequency_hz)
-            if mode is None:
-                continue
-            here = move_axis(self.cfg, self.record, f"map_verify_move_{i}", here, point.target_m)
-            exp = self.record(f"map_verify_{i}", MAP_MODE, excitation.samples,
-                              period_samples=excitation.period_samples, recipe=excitation_recipe(self.cfg))
-            here = self.position_m if self.position_m is not None else here
-            s = self._analysis_samples(exp, excitation)
-            after, warnings = pipeline.loop_response(s["excitation"], s[ic.output], self.cfg.run.sample_rate_hz, ic,
-                                                     excitation.period_samples, excitation.excited_bins)
-            self.warnings += warnings
-            (r,) = pipeline.peak_reductions(before.loop, after, [mode], nc.verify_band_bandwidths)
-            rows.append({"position_m": point.position_m, "frequency_hz": r["frequency_hz"],
-                         "band_reduction_db": r["band_reduction_db"], "reduction_db": r["reduction_db"],
-                         "recording": f"map_verify_{i}.h5"})
-        move_axis(self.cfg, self.record, "map_verify_return", here, start)
-        worst = min(rows, key=lambda r: r["band_reduction_db"]) if rows else None
-        if worst is not None and worst["band_reduction_db"] < nc.min_reduction_db:
-            self.warnings.append(
-                f"map verification: at {worst['position_m']:+.3f} m the largest response near the mode dropped by only "
-                f"{worst['band_reduction_db']:.1f} dB (notch.min_reduction_db = {nc.min_reduction_db:g})")
-        return {"positions": rows, "worst_band_reduction_db": worst["band_reduction_db"] if worst else None,
-                "worst_position_m": worst["position_m"] if worst else None}
-
-    def _joint_fit(self, excitation: Excitation) -> dict | None:
-        """``[map]``: one two-mass model with ``k(p)``, ``d(p)`` from every mapped position's plant response
-        (:func:`hilident.ident.workspace.fit_workspace_responses`), and its mode beside each position's own.
-        A fit that fails is a warning: the map and the per-position modes stand without it."""
-        from hilident.ident.workspace import compare_modes, fit_workspace_responses
-
-        m = self.cfg.map
-        found = [p for p in self.map_points or [] if p.frequency_hz is not None]
-        try:
-            fit = fit_workspace_responses(
-                [p.position_m for p in found], [self.map_results[p.recording.removesuffix(".h5")].plant for p in found],
-                torque_constant=self.cfg.model.c, k_degree=m.k_degree, d_degree=m.d_degree,
-                band_hz=self._joint_fit_band(excitation, [float(p.frequency_hz or 0.0) for p in found]),
-                sample_rate_hz=self.cfg.run.sample_rate_hz, resonance_hz=[p.frequency_hz for p in found])
-        except (DataError, ConfigError) as exc:
-            self.warnings.append(f"map: the joint fit of k(p) and d(p) failed: {exc}")
-            return None
-        self.warnings += [f"map: joint fit: {w}" for w in fit.warnings]
-        comparison = compare_modes(fit, [p.position_m for p in found], [float(p.frequency_hz or 0.0) for p in found],
-                                   [np.nan if p.frequency_ci95_hz is None else p.frequency_ci95_hz for p in found])
-        self.joint_fit = fit
-        return {**fit.as_dict(), "comparison": [c.as_dict() for c in comparison]}
-
-    def _modes_between(self, points: list[dict], count: int = 50) -> list[dict]:
-        """The joint model's mode (with its 95 % interval) at ``count`` positions spanning the mapped ones:
-        the mode moves continuously with the position, and its extreme may lie between two mapped positions
-        (the beam's midspan). None without a joint fit."""
-        if self.joint_fit is None or len(points) < 2:
-            return []
-        span = np.linspace(min(p["position_m"] for p in points), max(p["position_m"] for p in points), count)
-        modes = [self.joint_fit.mode_at(float(p)) for p in span]
-        return [{"position_m": float(p), "frequency_hz": m.frequency_hz, "frequency_ci95_hz": m.frequency_ci95_hz}
-                for p, m in zip(span, modes, strict=True) if np.isfinite(m.frequency_ci95_hz)]
-
-    def _joint_fit_band(self, excitation: Excitation, modes_hz: list[float]) -> tuple[float, float]:
-        """The band the joint fit explains, Hz: a quarter of the lowest mapped mode to 2.5 times the highest,
-        within the analysis band. Lower, the Coulomb friction and the loop holding the position shape the
-        response, which a two-mass model with viscous friction does not describe (they bias m1 and k(p) by
-        percents); higher, the next mode and the sensors' dynamics."""
-        lo, hi = pipeline.analysis_band(self.cfg.identification, excitation.band_hz)
-        return max(lo, 0.25 * min(modes_hz)), min(hi, 2.5 * max(modes_hz))
-
-    def _covering_designs(self, resonances: list, slots: list[int], plant) -> list:
-        """``[map]``: notches that hold the mapped mode down over the whole workspace
-        (:func:`hilident.pipeline.covering_design`, worst case on what the device stores): one notch, or when
-        one would be wider than ``[notch] max_width_ratio`` a staggered set enabled together in as many slots;
-        the run's other resonances get their own notches in the slots left."""
-        from hilident.filters.notch import design_notch
-
-        ad, nc = self.adapter, self.cfg.notch
-        rate = ad.identity.loop_rate_hz
-        points = [p.to_dict() for p in self.map_points or [] if p.frequency_hz is not None]
-        points += self._modes_between(points)
-        covering = pipeline.covering_design(points, nc, rate,
-                                            realise=lambda spec: ad.stored_form(design_notch(spec, rate), spec))
-        # the mode moves continuously with the position: notches enabled together must tile the whole range
-        groups = list(covering.groups if covering.kind == "single" else covering.staggered)
-        how = "one notch" if covering.kind == "single" else f"{len(groups)} staggered notches, enabled together"
-        if not groups or len(groups) > len(slots):
-            groups = [covering.single]
-            how = "one notch (the widest max_width_ratio allows: too few slots for the staggered set)"
-            self.warnings.append(f"map: {covering.message}; the device has {len(slots)} filter slot(s), so the "
-                                 f"one notch is used and gives {covering.single.worst_attenuation_db:.1f} dB at "
-                                 f"worst")
-        elif not covering.meets_target:
-            self.warnings.append(f"map: {covering.message}")
-        self.workspace["covering_notch"] = {**covering.as_dict(), "used": how}
-        lo, hi = covering.range_hz
-        mapped = min(resonances, key=lambda r: abs(r.frequency_hz - (lo + hi) / 2))
-        designs = [pipeline.NotchDesign(g.spec, design_notch(g.spec, rate), slot, rate, mapped,
-                                        width_reason="workspace range",
-                                        attenuation_at_ci95_db=g.worst_attenuation_db)
-                   for slot, g in zip(slots, groups, strict=False)]
-        others = [r for r in resonances if r is not mapped and not lo <= r.frequency_hz <= hi]
-        if others:
-            designs += pipeline.design_notches(others, nc, rate, slots[len(designs):], plant.loop)
-        return designs
+        self.workspace.map(float(ident.samples["position_m"][-1]), reference)
 
     def _move_step(self, designs: list, upload: UploadOutcome) -> list[MoveTestResult]:
-        """``[verification] move``: the move test where the run identified (and at every mapped position),
-        without and with the notch; the axis ends where it started."""
-        move = self.cfg.verification.move
-        if not designs or move is None:
-            self.warnings.append("move test: no notch was designed, so there is nothing to compare")
-            return []
-        in_slots = upload.written and upload.verified_readback
-        # The moves are streamed as position set-points by the host on every transport, so by default the
-        # notch shapes that set-point; "drive" compares the drive's filter slots instead.
-        notch_in = "drive" if move.notch == "drive" else "host"
-        if notch_in == "drive" and not in_slots:
-            raise DataError("[verification.move] notch = \"drive\": the notch is not in the drive's filter slots "
-                            "(not uploaded, or not read back as written)")
-        slots = DriveNotch(self.adapter, [d.slot for d in designs]) if in_slots else None
-        from hilident.filters.notch import design_notch
-
-        host = [design_notch(d.spec, self.cfg.run.sample_rate_hz) for d in designs] if notch_in == "host" else None
-        driver = self.found_driver
-        streamed = self.cfg.run.channels or [c.name for c in driver.streamed_channels]
-        if LOAD in [c.name for c in driver.channels] and LOAD not in streamed:
-            self.warnings.append(f"move test: {driver.name} has a load sensor ({LOAD}) that is not streamed; add it "
-                                 "to [run] channels to measure the load's ringing rather than the following error")
-        tester = MoveTest(self.cfg, self.record, self.progress)
-        lim, margin = self.cfg.bench_limits, self.cfg.map.margin_m
+        """``[verification] move`` (:func:`hilident.move_test.run_move_tests`): from where the run identified and
+        from every mapped position; the axis ends where it started."""
         start = self.position_m if self.position_m is not None else 0.0
-        places = [(p.target_m, f"_{i}") for i, p in enumerate(self.map_points or [])] or [(start, "")]
-        results, here = [], start
-        for target, tag in places:
-            if tag:
-                here = move_axis(self.cfg, self.record, f"move{tag}_approach", here, target)
-            distance = move_distance(move, here, lim.position_min_m + margin, lim.position_max_m - margin)
-            results.append(tester.run(tag, here, distance, notch_in, host, slots))
-            here = self.position_m if self.position_m is not None else here
-        if places[0][1]:
-            move_axis(self.cfg, self.record, "move_return", here, start)
-        return results
+        places = [p.target_m for p in self.workspace.points] if self.workspace else []
+        return run_move_tests(self.cfg, self.record, self.progress, self.warnings, self.found_driver, self.adapter,
+                              designs, upload.written and upload.verified_readback, start, places,
+                              lambda: self.position_m)
 
     def _notch_step(self, plant):
         nc = self.cfg.notch
@@ -767,8 +607,8 @@ class Session(DeviceConnection):
             self.warnings.append(upload.not_uploaded)
             return designs, upload
         slots = list(range(ad.identity.filter_slots))
-        if self.map_points and any(p.frequency_hz is not None for p in self.map_points):
-            designs = self._covering_designs(resonances, slots, plant)
+        if self.workspace is not None and self.workspace.found:
+            designs = self.workspace.notch_designs(ad, resonances, slots, plant)
         else:
             designs = pipeline.design_notches(resonances, nc, ad.identity.loop_rate_hz, slots, plant.loop)
         self.warnings += [d.warning for d in designs if d.warning]
@@ -854,8 +694,8 @@ class Session(DeviceConnection):
             plant=plant, friction=friction, designs=designs, upload=upload, verification=verification,
             stream=self.totals, connect=connect, filters_found=self.filters_found,
             recordings=sorted(p.name for p in self.out.glob("*.h5")), elapsed_s=elapsed_s, warnings=self.warnings,
-            model=model, workspace_map=self.map_points, move_test=self.move_results,
-            workspace=self.workspace if self.map_points is not None else None)
+            model=model, workspace_map=self.workspace.points if self.workspace else None,
+            move_test=self.move_results, workspace=self.workspace.summary if self.workspace else None)
 
     def _plots(self, friction, plant, designs, verification, excitation_band_hz, model=None) -> None:
         report.plot_run(self.out, friction, plant, designs, verification.loop_after if verification else None,
@@ -872,34 +712,3 @@ class Session(DeviceConnection):
                                                                       s["identification"]["position_m"]), others)
             report.plot_model(self.out / "model.png", model_for_mode(self.cfg, self.cfg.excitation.mode), model,
                               records, self.cfg.run.sample_rate_hz, report.plot_title(Path(self.cfg.source).name))
-
-    def _map_plot(self) -> None:
-        """``map.png``: the mode over the mapped positions (a plot that cannot be drawn is a warning)."""
-        from hilident.plots.workspace import plot_map
-
-        fit, covering = self.joint_fit, self.workspace.get("covering_notch")
-
-        def joint_model(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            modes = [fit.mode_at(float(p)) for p in positions]
-            return np.array([m.frequency_hz for m in modes]), np.array([m.frequency_ci95_hz for m in modes])
-
-        try:
-            plot_map(self.out / "map.png", [p.to_dict() for p in self.map_points or []],
-                     title=report.plot_title(Path(self.cfg.source).name, what="Mode over the workspace"),
-                     model=joint_model if fit is not None else None, model_label="joint model, k(p) and d(p)",
-                     covered_hz=tuple(covering["range_hz"]) if covering else None)
-        except (DataError, ValueError) as exc:
-            self.warnings.append(f"map.png could not be drawn: {exc}")
-
-    def _moves_plot(self) -> None:
-        """``moves.png``: the move without and with the notch where the reduction was least."""
-        from hilident.plots.moves import plot_moves
-
-        worst = min(self.move_results or [], key=lambda r: r.comparison.rms_reduction_db)
-        (t0, y0), (t1, y1) = worst.traces["without"], worst.traces["with_notch"]
-        try:
-            plot_moves(self.out / "moves.png", worst.comparison, t0, y0, t1, y1, signal_name=worst.signal,
-                       subject=f"{Path(self.cfg.source).name}, from {worst.start_m:+.3f} m",
-                       added_delay_s=worst.added_delay_s or None)
-        except (DataError, ValueError) as exc:
-            self.warnings.append(f"moves.png could not be drawn: {exc}")

@@ -1,0 +1,238 @@
+"""The ``[map]`` part of a run: the map, one model from all positions, the notches for the whole workspace.
+
+:class:`WorkspaceRun` is what :class:`hilident.session.Session` delegates to when the configuration has a
+``[map]``:
+
+1. :meth:`WorkspaceRun.map`: the mode at every mapped position (:class:`~hilident.workspace_map.WorkspaceMap`);
+2. :meth:`WorkspaceRun.fit`: the joint two-mass fit with ``k(p)``, ``d(p)`` over all positions
+   (:mod:`hilident.ident.workspace`) and its mode beside each position's own;
+3. :meth:`WorkspaceRun.notch_designs`: the notches that hold the mode down over the whole range it moves
+   through (:mod:`hilident.filters.covering`, on what the device stores);
+4. :meth:`WorkspaceRun.verify` (``[map] verify``): the reduction measured again at every mapped position;
+5. :meth:`WorkspaceRun.plot`: ``map.png``.
+
+``summary`` collects what goes to ``summary.json["workspace"]``. The session passes what the steps need
+(its recorder, its identification of one record, its gap-free selection, the cart's last position); this
+module reaches no device.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hilident import pipeline
+from hilident.config import Config
+from hilident.errors import ConfigError, DataError, UsageError
+from hilident.run_excitation import Excitation, build_excitation, excitation_recipe
+from hilident.workspace_map import MAP_MODE, MapPoint, WorkspaceMap, move_axis, nearest_resonance
+
+
+class WorkspaceRun:
+    """The ``[map]`` steps of one run.
+
+    Parameters
+    ----------
+    cfg : Config
+        The run's configuration, its amplitude chosen (``[map]``, ``[notch]``, ``[model] c``).
+    record : callable
+        ``record(name, mode, samples, period_samples=..., recipe=...) -> Experiment``.
+    identify : callable
+        ``identify(experiment, excitation) -> identification result`` (``.resonances``, ``.plant``, ``.loop``),
+        not feeding the grey-box model.
+    analysis_samples : callable
+        ``analysis_samples(experiment, excitation) -> samples``: the whole gap-free periods of a record.
+    position : callable
+        ``position() -> float or None``: the cart's position at the end of the last recording, m.
+    progress : Progress
+    warnings : list of str
+        The run's warnings, appended to.
+    """
+
+    def __init__(self, cfg: Config, record: Callable, identify: Callable, analysis_samples: Callable,
+                 position: Callable[[], float | None], progress, warnings: list[str]):
+        self.cfg, self.record, self.identify = cfg, record, identify
+        self.analysis_samples, self.position, self.progress, self.warnings = (analysis_samples, position, progress,
+                                                                              warnings)
+        self.points: list[MapPoint] = []
+        self.results: dict[str, Any] = {}  # each mapped position's identification, by recording name
+        self.joint: Any = None  # the WorkspaceFit, None until fitted (or when the fit failed)
+        self.excitation: Excitation | None = None  # what each mapped position is excited with
+        self.summary: dict[str, Any] = {}  # summary.json["workspace"]
+
+    @property
+    def found(self) -> list[MapPoint]:
+        """The mapped positions where a mode was found."""
+        return [p for p in self.points if p.frequency_hz is not None]
+
+    # --- 1. the map --------------------------------------------------------------------------------------
+
+    def map(self, start_m: float, reference_hz: float | None) -> list[MapPoint]:
+        """The mode at every mapped position, the axis back at ``start_m``; the joint fit follows."""
+        cfg, e = self.cfg, self.cfg.excitation
+        # the drive's loops add their own torque while they hold the position: half the run's amplitude by default
+        amplitude = cfg.map.amplitude_nm or (0.5 * e.amplitude_value if e.mode in ("torque", MAP_MODE) else 0.0)
+        if not amplitude:
+            raise ConfigError("map.amplitude_nm", f"is needed: the run's excitation (mode = {e.mode!r}) is no torque",
+                              cfg.source)
+        mapped_cfg = replace(cfg, excitation=replace(e, mode=MAP_MODE, amplitude_nm=amplitude,
+                                                     duration_s=cfg.map.duration_s or e.duration_s))
+        excitation = self.excitation = build_excitation(mapped_cfg)
+        mapper = WorkspaceMap(cfg, self.record, lambda exp, name: self.identify(exp, excitation), self.progress)
+        self.points = mapper.run(excitation, start_m, reference_hz, excitation_recipe(mapped_cfg))
+        self.results = mapper.results
+        missing = [p.target_m for p in self.points if p.frequency_hz is None]
+        if missing:
+            self.warnings.append("map: no resonance found at " + ", ".join(f"{p:+.3f} m" for p in missing))
+        self.summary["joint_fit"] = self.fit()
+        return self.points
+
+    # --- 2. one model from all positions ----------------------------------------------------------------
+
+    def fit(self) -> dict | None:
+        """One two-mass model with ``k(p)``, ``d(p)`` from every mapped position's plant response
+        (:func:`hilident.ident.workspace.fit_workspace_responses`), and its mode beside each position's own.
+        A fit that fails is a warning: the map and the per-position modes stand without it."""
+        from hilident.ident.workspace import compare_modes, fit_workspace_responses
+
+        m, found = self.cfg.map, self.found
+        modes_hz = [float(p.frequency_hz or 0.0) for p in found]
+        try:
+            fit = fit_workspace_responses(
+                [p.position_m for p in found], [self._result(p).plant for p in found],
+                torque_constant=self.cfg.model.c, k_degree=m.k_degree, d_degree=m.d_degree,
+                band_hz=self._fit_band(modes_hz), sample_rate_hz=self.cfg.run.sample_rate_hz, resonance_hz=modes_hz)
+        except (DataError, ConfigError) as exc:
+            self.warnings.append(f"map: the joint fit of k(p) and d(p) failed: {exc}")
+            return None
+        self.warnings += [f"map: joint fit: {w}" for w in fit.warnings]
+        comparison = compare_modes(fit, [p.position_m for p in found], modes_hz,
+                                   [np.nan if p.frequency_ci95_hz is None else p.frequency_ci95_hz for p in found])
+        self.joint = fit
+        return {**fit.as_dict(), "comparison": [c.as_dict() for c in comparison]}
+
+    def _result(self, point: MapPoint):
+        return self.results[point.recording.removesuffix(".h5")]
+
+    def _fit_band(self, modes_hz: list[float]) -> tuple[float, float]:
+        """The band the joint fit explains, Hz: a quarter of the lowest mapped mode to 2.5 times the highest,
+        within the analysis band. Lower, the Coulomb friction and the loop holding the position shape the
+        response, which a two-mass model with viscous friction does not describe (they bias m1 and k(p) by
+        percents); higher, the next mode and the sensors' dynamics."""
+        assert self.excitation is not None  # set by map() before it fits
+        lo, hi = pipeline.analysis_band(self.cfg.identification, self.excitation.band_hz)
+        return max(lo, 0.25 * min(modes_hz)), min(hi, 2.5 * max(modes_hz))
+
+    def modes_between(self, count: int = 50) -> list[dict]:
+        """The joint model's mode (with its 95 % interval) at ``count`` positions spanning the mapped ones: the
+        mode moves continuously with the position, and its extreme may lie between two mapped positions (the
+        beam's midspan). Empty without a joint fit."""
+        positions = [p.position_m for p in self.found]
+        if self.joint is None or len(positions) < 2:
+            return []
+        span = np.linspace(min(positions), max(positions), count)
+        modes = [self.joint.mode_at(float(p)) for p in span]
+        return [{"position_m": float(p), "frequency_hz": m.frequency_hz, "frequency_ci95_hz": m.frequency_ci95_hz}
+                for p, m in zip(span, modes, strict=True) if np.isfinite(m.frequency_ci95_hz)]
+
+    # --- 3. the notches for the whole workspace ----------------------------------------------------------
+
+    def notch_designs(self, adapter, resonances: list, slots: list[int], plant) -> list:
+        """Notches that hold the mapped mode down over the whole workspace
+        (:func:`hilident.pipeline.covering_design`, worst case on what ``adapter``'s device stores): one notch,
+        or when one would be wider than ``[notch] max_width_ratio`` a staggered set enabled together in as many
+        ``slots``; the run's other ``resonances`` get their own notches in the slots left."""
+        from hilident.filters.notch import design_notch
+
+        nc, rate = self.cfg.notch, adapter.identity.loop_rate_hz
+        points = [p.to_dict() for p in self.found] + self.modes_between()
+        covering = pipeline.covering_design(points, nc, rate,
+                                            realise=lambda spec: adapter.stored_form(design_notch(spec, rate), spec))
+        # the mode moves continuously with the position: notches enabled together must tile the whole range
+        groups = list(covering.groups if covering.kind == "single" else covering.staggered)
+        how = "one notch" if covering.kind == "single" else f"{len(groups)} staggered notches, enabled together"
+        if not groups or len(groups) > len(slots):
+            groups = [covering.single]
+            how = "one notch (the widest max_width_ratio allows: too few slots for the staggered set)"
+            self.warnings.append(f"map: {covering.message}; the device has {len(slots)} filter slot(s), so the "
+                                 f"one notch is used and gives {covering.single.worst_attenuation_db:.1f} dB at "
+                                 f"worst")
+        elif not covering.meets_target:
+            self.warnings.append(f"map: {covering.message}")
+        self.summary["covering_notch"] = {**covering.as_dict(), "used": how}
+        lo, hi = covering.range_hz
+        mapped = min(resonances, key=lambda r: abs(r.frequency_hz - (lo + hi) / 2))
+        designs = [pipeline.NotchDesign(g.spec, design_notch(g.spec, rate), slot, rate, mapped,
+                                        width_reason="workspace range", attenuation_at_ci95_db=g.worst_attenuation_db)
+                   for slot, g in zip(slots, groups, strict=False)]
+        others = [r for r in resonances if r is not mapped and not lo <= r.frequency_hz <= hi]
+        if others:
+            designs += pipeline.design_notches(others, nc, rate, slots[len(designs):], plant.loop)
+        return designs
+
+    # --- 4. the reduction at every mapped position -------------------------------------------------------
+
+    def verify(self) -> dict:
+        """The map's excitation again at every mapped position with the notches enabled, and the reduction there
+        (:func:`hilident.pipeline.peak_reductions`, before = the map's own record), worst first; the axis ends
+        where the verification began."""
+        excitation, nc, ic = self.excitation, self.cfg.notch, self.cfg.identification
+        if excitation is None:
+            raise UsageError("the map is verified only after it ran (WorkspaceRun.map)")
+        start = here = self._here()
+        rows = []
+        for i, point in enumerate(self.points):
+            before = self._result(point)
+            mode = nearest_resonance(list(before.resonances), point.frequency_hz)
+            if mode is None:
+                continue
+            here = move_axis(self.cfg, self.record, f"map_verify_move_{i}", here, point.target_m)
+            exp = self.record(f"map_verify_{i}", MAP_MODE, excitation.samples,
+                              period_samples=excitation.period_samples, recipe=excitation_recipe(self.cfg))
+            here = self._here()
+            s = self.analysis_samples(exp, excitation)
+            after, warnings = pipeline.loop_response(s["excitation"], s[ic.output], self.cfg.run.sample_rate_hz, ic,
+                                                     excitation.period_samples, excitation.excited_bins)
+            self.warnings += warnings
+            (r,) = pipeline.peak_reductions(before.loop, after, [mode], nc.verify_band_bandwidths)
+            rows.append({"position_m": point.position_m, "frequency_hz": r["frequency_hz"],
+                         "band_reduction_db": r["band_reduction_db"], "reduction_db": r["reduction_db"],
+                         "recording": f"map_verify_{i}.h5"})
+        move_axis(self.cfg, self.record, "map_verify_return", here, start)
+        worst = min(rows, key=lambda r: r["band_reduction_db"]) if rows else None
+        if worst is not None and worst["band_reduction_db"] < nc.min_reduction_db:
+            self.warnings.append(
+                f"map verification: at {worst['position_m']:+.3f} m the largest response near the mode dropped by only "
+                f"{worst['band_reduction_db']:.1f} dB (notch.min_reduction_db = {nc.min_reduction_db:g})")
+        self.summary["verification"] = {"positions": rows,
+                                        "worst_band_reduction_db": worst["band_reduction_db"] if worst else None,
+                                        "worst_position_m": worst["position_m"] if worst else None}
+        return self.summary["verification"]
+
+    def _here(self) -> float:
+        here = self.position()
+        return 0.0 if here is None else here
+
+    # --- 5. the plot -------------------------------------------------------------------------------------
+
+    def plot(self, path: Path, title: str) -> None:
+        """``map.png``: the mode over the mapped positions, the joint model and the covered range (a plot that
+        cannot be drawn is a warning)."""
+        from hilident.plots.workspace import plot_map
+
+        fit, covering = self.joint, self.summary.get("covering_notch")
+
+        def joint_model(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            modes = [fit.mode_at(float(p)) for p in positions]
+            return np.array([m.frequency_hz for m in modes]), np.array([m.frequency_ci95_hz for m in modes])
+
+        try:
+            plot_map(path, [p.to_dict() for p in self.points], title=title,
+                     model=joint_model if fit is not None else None, model_label="joint model, k(p) and d(p)",
+                     covered_hz=tuple(covering["range_hz"]) if covering else None)
+        except (DataError, ValueError) as exc:
+            self.warnings.append(f"map.png could not be drawn: {exc}")
