@@ -63,8 +63,10 @@ class MapPoint:
 
 def move_axis(cfg: Config, record: Callable, name: str, from_m: float, to_m: float) -> float:
     """Move the cart from ``from_m`` to ``to_m``: a trapezoid within ``[map] max_velocity_mps`` and
-    ``max_accel_mps2`` in position mode, then ``[map] settle_s`` held, recorded as ``name``; returns the
-    position reached, m (the same position when they are equal: nothing is recorded)."""
+    ``max_accel_mps2`` in position mode, then ``[map] settle_s`` held, recorded as ``name``; then, until the
+    cart is still at the target (:data:`STILL_MPS`, :data:`STILL_DISTANCE_M`), short moves over what is left
+    (``name_settle_<n>``, at most :data:`MAX_SETTLES`). Returns the position reached, m (``from_m`` when the
+    two are equal: nothing is recorded)."""
     from hilident.motion.profiles import trapezoid
 
     if to_m == from_m:
@@ -89,7 +91,7 @@ def move_axis(cfg: Config, record: Callable, name: str, from_m: float, to_m: flo
     return float(exp.samples["position_m"][-1])
 
 
-#: How often a move holds its target again, settle_s each time, waiting for the cart to be still.
+#: How many short moves over what is left (each with its settle_s) a move may add before it gives up waiting.
 MAX_SETTLES = 5
 #: Still: the mean velocity over the last 0.1 s below this, m/s ...
 STILL_MPS = 1e-3
@@ -121,8 +123,8 @@ class WorkspaceMap:
     record : callable
         ``record(name, mode, samples, period_samples=..., recipe=...) -> Experiment``: the session's recorder.
     identify : callable
-        ``identify(experiment, name) -> identification result`` (``.resonances``, ``.frf``): the session's
-        identification of one record.
+        ``identify(experiment, name) -> identification result`` (``.resonances``, ``.plant``, ``.loop``): the
+        session's identification of one record.
     progress : Progress
         Where the steps are shown.
     """
