@@ -89,3 +89,15 @@ def test_a_map_run_carries_its_map_workspace_and_move_test_last():
     assert list(out)[-3:] == list(WORKSPACE_KEYS)
     assert out["map"] == [point.to_dict()] and out["workspace"] == {"joint_fit": None}
     assert out["move_test"] == {"moves": [], "worst_rms_reduction_db": None, "worst_start_m": None}
+
+
+def test_a_move_test_whose_worst_place_gained_nothing_reports_zero_not_the_best_place():
+    from types import SimpleNamespace
+
+    from hilident.summary import move_test_summary
+
+    def result(start_m, reduction_db):
+        return SimpleNamespace(to_dict=lambda: {"start_m": start_m, "rms_reduction_db": reduction_db})
+
+    summary = move_test_summary([result(-0.5, None), result(0.0, 0.0), result(0.5, 12.0)])
+    assert summary["worst_rms_reduction_db"] == 0.0 and summary["worst_start_m"] == 0.0

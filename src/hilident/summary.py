@@ -197,10 +197,11 @@ def move_test_summary(results: list) -> dict:
     """``summary.json["move_test"]``: each place's moves and the worst reduction over them (the figure that
     must hold everywhere)."""
     moves = [r.to_dict() for r in results]
-    reductions = [m["rms_reduction_db"] for m in moves if m["rms_reduction_db"] is not None]
-    worst = min(range(len(moves)), key=lambda i: moves[i]["rms_reduction_db"] or float("inf")) if moves else None
-    return {"moves": moves, "worst_rms_reduction_db": min(reductions) if reductions else None,
-            "worst_start_m": moves[worst]["start_m"] if worst is not None else None}
+    if not moves:
+        return {"moves": [], "worst_rms_reduction_db": None, "worst_start_m": None}
+    # None: the move with the notch left no vibration at all, an infinite reduction
+    worst = min(moves, key=lambda m: float("inf") if m["rms_reduction_db"] is None else m["rms_reduction_db"])
+    return {"moves": moves, "worst_rms_reduction_db": worst["rms_reduction_db"], "worst_start_m": worst["start_m"]}
 
 
 def _notch_filters(designs: list) -> list[dict]:
