@@ -62,6 +62,7 @@ class WorkspaceRun:
         self.results: dict[str, Any] = {}  # each mapped position's identification, by recording name
         self.joint: Any = None  # the WorkspaceFit, None until fitted (or when the fit failed)
         self.excitation: Excitation | None = None  # what each mapped position is excited with
+        self.recipe: dict | None = None  # and its recipe, for drives that play it themselves
         self.summary: dict[str, Any] = {}  # summary.json["workspace"]
 
     @property
@@ -82,8 +83,9 @@ class WorkspaceRun:
         mapped_cfg = replace(cfg, excitation=replace(e, mode=MAP_MODE, amplitude_nm=amplitude,
                                                      duration_s=cfg.map.duration_s or e.duration_s))
         excitation = self.excitation = build_excitation(mapped_cfg)
+        self.recipe = excitation_recipe(mapped_cfg)
         mapper = WorkspaceMap(cfg, self.record, lambda exp, name: self.identify(exp, excitation), self.progress)
-        self.points = mapper.run(excitation, start_m, reference_hz, excitation_recipe(mapped_cfg))
+        self.points = mapper.run(excitation, start_m, reference_hz, self.recipe)
         self.results = mapper.results
         missing = [p.target_m for p in self.points if p.frequency_hz is None]
         if missing:
@@ -192,7 +194,7 @@ class WorkspaceRun:
                 continue
             here = move_axis(self.cfg, self.record, f"map_verify_move_{i}", here, point.target_m)
             exp = self.record(f"map_verify_{i}", MAP_MODE, excitation.samples,
-                              period_samples=excitation.period_samples, recipe=excitation_recipe(self.cfg))
+                              period_samples=excitation.period_samples, recipe=self.recipe)
             here = self._here()
             s = self.analysis_samples(exp, excitation)
             after, warnings = pipeline.loop_response(s["excitation"], s[ic.output], self.cfg.run.sample_rate_hz, ic,
