@@ -3,8 +3,11 @@
 :mod:`~hilident.plots.bode` (frequency responses with units, the analysis band,
 coherence, the model and the designed and stored notch),
 :mod:`~hilident.plots.friction` (friction points and the fitted curve with its
-parameters) and :mod:`~hilident.plots.greybox` (a grey-box model simulated
-against the measurement, and its residual tests). :mod:`hilident.report`
+parameters), :mod:`~hilident.plots.greybox` (a grey-box model simulated
+against the measurement, and its residual tests), :mod:`~hilident.plots.notches`
+(the notch chain as designed and as stored), :mod:`~hilident.plots.workspace`
+(the mode over the mapped positions) and :mod:`~hilident.plots.moves` (a move
+without and with the notch). :mod:`hilident.report`
 re-exports the plot functions under their old names. matplotlib is imported
 only inside the functions that draw.
 """
