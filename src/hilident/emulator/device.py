@@ -49,11 +49,17 @@ class EmulatorServer(Protocol):
         ...
 
 
+def _curve(value: float | PositionFunction) -> PositionCurve | None:
+    return PositionCurve.from_table(value) if isinstance(value, PositionFunction) else None
+
+
+def _at(value: float | PositionFunction, position_m: float) -> float:
+    return PositionCurve.from_table(value)(position_m) if isinstance(value, PositionFunction) else float(value)
+
+
 def coupling_curves(cfg: EmulatorConfig) -> tuple[PositionCurve | None, PositionCurve | None]:
     """``[emulator.plant]`` k and d as functions of the cart position (m), each None where it is a number."""
-    p = cfg.plant
-    return tuple(PositionCurve.from_table(v) if isinstance(v, PositionFunction) else None  # type: ignore[return-value]
-                 for v in (p.k, p.d))
+    return _curve(cfg.plant.k), _curve(cfg.plant.d)
 
 
 def plant_model(cfg: EmulatorConfig, position_m: float = 0.0) -> TwoMass | ThreeMass | MassSpringDamper:
@@ -62,9 +68,7 @@ def plant_model(cfg: EmulatorConfig, position_m: float = 0.0) -> TwoMass | Three
     A ``k`` or ``d`` that is a function of the cart position is taken at ``position_m`` (m).
     """
     p = cfg.plant
-    k_of, d_of = coupling_curves(cfg)
-    k = k_of(position_m) if k_of is not None else float(p.k)  # type: ignore[arg-type]
-    d = d_of(position_m) if d_of is not None else float(p.d)  # type: ignore[arg-type]
+    k, d = _at(p.k, position_m), _at(p.d, position_m)
     if p.model == "two_mass":
         return TwoMass(m1=p.m1, m2=p.m2, k=k, d=d, c=p.c)
     if p.model == "three_mass":
