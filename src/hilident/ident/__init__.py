@@ -18,6 +18,7 @@ Pure functions; no files, devices or clocks.
 - ``kalman``: steady-state and time-varying Kalman filters, pole-placement observers
 - ``resonance``: resonances of a frequency response by local rational fits
 - ``decay``: poles from a free-vibration record
+- ``drift``: a fleet axis's resonance trend over days, its uncertainty and drift verdict
 - ``validation``: fit %, residual analysis, overfitting warning
 """
 
@@ -39,6 +40,7 @@ from hilident.ident.derivatives import (
     state_variable_filter,
     svf_sections,
 )
+from hilident.ident.drift import DriftTrend, SeriesTrend, axis_drifts, drift_trend
 from hilident.ident.discretize import (
     DiscreteStateSpace,
     StateSpace,
@@ -128,6 +130,7 @@ __all__ = [
     "DampedMode",
     "DecayFit",
     "DiscreteStateSpace",
+    "DriftTrend",
     "FrequencyResponse",
     "FrictionFit",
     "KalmanFilter",
@@ -138,6 +141,7 @@ __all__ = [
     "OrderSearch",
     "ResidualAnalysis",
     "Resonance",
+    "SeriesTrend",
     "StateSpace",
     "SteadyStatePoints",
     "StribeckParams",
@@ -145,6 +149,7 @@ __all__ = [
     "TfOrderCandidate",
     "arx_order_search",
     "arx_to_ba",
+    "axis_drifts",
     "bandpass",
     "c2d_tf",
     "central_difference",
@@ -160,6 +165,7 @@ __all__ = [
     "decimate",
     "decimation_filter",
     "detrend",
+    "drift_trend",
     "etfe",
     "find_resonances",
     "finite_difference_derivatives",
