@@ -40,7 +40,6 @@ from hilident.ident.derivatives import (
     state_variable_filter,
     svf_sections,
 )
-from hilident.ident.drift import DriftTrend, SeriesTrend, axis_drifts, drift_trend
 from hilident.ident.discretize import (
     DiscreteStateSpace,
     StateSpace,
@@ -58,6 +57,7 @@ from hilident.ident.discretize import (
     tustin,
     zoh,
 )
+from hilident.ident.drift import DriftTrend, SeriesTrend, axis_drifts, drift_trend
 from hilident.ident.filtering import (
     decimate,
     decimation_filter,

@@ -310,7 +310,7 @@ def drift_trend(days: Any, values: Any, *, drift_percent_per_day: float = math.i
     d, v, c = d[keep][order], v[keep][order], c[keep][order]
     n = int(d.size)
     nan = math.nan
-    base = dict(n=n, days=tuple(map(float, d)), values=tuple(map(float, v)), ci95=tuple(map(float, c)),
+    base: dict[str, Any] = dict(n=n, days=tuple(map(float, d)), values=tuple(map(float, v)), ci95=tuple(map(float, c)),
                 confidence=float(confidence), threshold_percent_per_day=float(drift_percent_per_day), flagged=False)
     sxx = float(np.sum((d - d.mean()) ** 2)) if n else 0.0
     if n < 3 or sxx <= 0.0:
@@ -375,6 +375,13 @@ def _float(value: Any) -> float:
         return math.nan
 
 
+def _named_outliers(quantity: str, trend: SeriesTrend,
+                    items: Sequence[tuple[dt.datetime, Mapping[str, Any]]]) -> list[DriftOutlier]:
+    """The outliers of ``trend`` named by their rows (``items`` in the fit's time order)."""
+    return [DriftOutlier(quantity, str(items[i][1].get("time_utc")), str(items[i][1].get("path", "")),
+                         float(trend.values[i]), z) for i, z in zip(trend.outliers, trend.outlier_sigmas, strict=True)]
+
+
 def _axis_trend(axis: str, rows: Sequence[Mapping[str, Any]], drift_percent_per_day: float, min_recordings: int,
                 confidence: float) -> DriftTrend:
     ok = [r for r in rows if r.get("status") == "ok"]
@@ -394,10 +401,7 @@ def _axis_trend(axis: str, rows: Sequence[Mapping[str, Any]], drift_percent_per_
     # the damping's days keep the axis's origin: its first point need not be the first recording
     damp = drift_trend(days(damped), column(damped, "damping_ratio"), min_recordings=min_recordings,
                        confidence=confidence, ci95=column(damped, "damping_ci95"))
-    outliers = [DriftOutlier("frequency", str(used[i][1].get("time_utc")), str(used[i][1].get("path", "")),
-                             float(freq.values[i]), z) for i, z in zip(freq.outliers, freq.outlier_sigmas)]
-    outliers += [DriftOutlier("damping", str(damped[i][1].get("time_utc")), str(damped[i][1].get("path", "")),
-                              float(damp.values[i]), z) for i, z in zip(damp.outliers, damp.outlier_sigmas)]
+    outliers = _named_outliers("frequency", freq, used) + _named_outliers("damping", damp, damped)
     return DriftTrend(
         axis=axis, n=freq.n, n_failed=len(rows) - len(ok), n_unusable=len(ok) - len(used),
         first_utc=str(used[0][1].get("time_utc")) if used else "",
