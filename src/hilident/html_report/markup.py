@@ -14,12 +14,13 @@ Example
 
 from __future__ import annotations
 
+import base64
 import html
 import math
 from collections.abc import Iterable, Sequence
 from typing import Any
 
-__all__ = ["esc", "num", "pm", "table", "key_values", "note", "section", "MISSING"]
+__all__ = ["esc", "num", "pm", "table", "key_values", "note", "section", "figure", "MISSING"]
 
 #: What a figure the summary does not hold shows as.
 MISSING = "—"
@@ -87,3 +88,10 @@ def note(text: str) -> str:
 def section(anchor: str, title: str, body: str) -> str:
     """One report section: an ``<h2>`` heading and its body (HTML)."""
     return f"<section id=\"{esc(anchor)}\">\n<h2>{esc(title)}</h2>\n{body}\n</section>\n"
+
+
+def figure(name: str, png: bytes, caption: str) -> str:
+    """A PNG embedded as a ``data:`` URI with its caption (plain text) and file name."""
+    uri = "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+    return (f"<figure><img src=\"{uri}\" alt=\"{esc(name)}\"><figcaption>{esc(caption)} "
+            f"<span class=\"file\">({esc(name)})</span></figcaption></figure>")

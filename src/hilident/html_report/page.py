@@ -6,11 +6,13 @@ style is inline, links are relative to the folder.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from hilident.html_report.gather import ReportInputs
 from hilident.html_report.markup import esc
 from hilident.html_report.sections import SECTIONS, title_of
 
-__all__ = ["CSS", "render"]
+__all__ = ["CSS", "page", "render"]
 
 CSS = """
 :root { color-scheme: light; }
@@ -34,6 +36,7 @@ figure img { max-width: 100%; height: auto; border: 1px solid #dde3ea; }
 figcaption { color: #444; font-size: .92em; }
 .file { color: #777; }
 .note { color: #555; font-style: italic; }
+strong.flagged { color: #c62828; }
 .failed { background: #fdecea; border-left: 4px solid #c62828; padding: .6em .8em; }
 ul.warnings li { margin-bottom: .55em; }
 .todo { color: #1f5130; }
@@ -56,18 +59,33 @@ footer { margin-top: 2em; color: #777; font-size: .85em; }
 """
 
 
-def render(inputs: ReportInputs) -> str:
-    """``report.html`` of ``inputs`` as text."""
-    title = title_of(inputs)
-    contents = "".join(f"<li><a href=\"#{anchor}\">{esc(heading)}</a></li>" for anchor, heading, _ in SECTIONS)
-    body = "".join(write(inputs) for _, _, write in SECTIONS)
+def page(title: str, subtitle: str, sections: Sequence[tuple[str, str, str]], footer: str) -> str:
+    """A whole self-contained page: ``<head>`` with :data:`CSS`, a contents list, the sections.
+
+    Parameters
+    ----------
+    title, subtitle : str
+        Plain text (escaped here).
+    footer : str
+        HTML.
+    sections : sequence of (anchor, heading, html)
+        In page order; ``html`` is the section as :func:`~hilident.html_report.markup.section` wrote it.
+    """
+    contents = "".join(f"<li><a href=\"#{esc(anchor)}\">{esc(heading)}</a></li>" for anchor, heading, _ in sections)
+    body = "".join(html for _, _, html in sections)
     return (
         "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
         "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
         f"<title>{esc(title)}</title>\n<style>{CSS}</style>\n</head>\n<body>\n"
-        f"<header><h1>{esc(title)}</h1><p class=\"subtitle\">{esc(inputs.folder.name)}, "
-        f"summary written {esc(inputs.summary_time_utc)}</p></header>\n"
+        f"<header><h1>{esc(title)}</h1><p class=\"subtitle\">{esc(subtitle)}</p></header>\n"
         f"<nav><ol>{contents}</ol></nav>\n<main>\n{body}</main>\n"
-        "<footer>Written by hilident from summary.json and the files beside it; "
-        "<code>hilident report DIR</code> writes it again.</footer>\n</body>\n</html>\n"
+        f"<footer>{footer}</footer>\n</body>\n</html>\n"
     )
+
+
+def render(inputs: ReportInputs) -> str:
+    """``report.html`` of ``inputs`` as text."""
+    return page(title_of(inputs), f"{inputs.folder.name}, summary written {inputs.summary_time_utc}",
+                [(anchor, heading, write(inputs)) for anchor, heading, write in SECTIONS],
+                "Written by hilident from summary.json and the files beside it; "
+                "<code>hilident report DIR</code> writes it again.")

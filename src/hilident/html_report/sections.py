@@ -8,14 +8,13 @@ that is missing or of an unexpected type leaves its figure as "—".
 
 from __future__ import annotations
 
-import base64
 from collections.abc import Callable
 from typing import Any
 from urllib.parse import quote
 
 from hilident.html_report.advice import group_warnings
 from hilident.html_report.gather import ReportInputs
-from hilident.html_report.markup import MISSING, esc, key_values, note, num, pm, section, table
+from hilident.html_report.markup import MISSING, esc, figure, key_values, note, num, pm, section, table
 
 __all__ = ["SECTIONS", "title_of"]
 
@@ -245,12 +244,7 @@ def plots(inputs: ReportInputs) -> str:
     if not inputs.images:
         return section("plots", "Plots", note("No plots of this command in this folder (an upload draws none; a run "
                                               "with --no-plots neither).") + stale)
-    figures = []
-    for name, data in inputs.images:
-        uri = "data:image/png;base64," + base64.b64encode(data).decode("ascii")
-        caption = CAPTIONS.get(name, name)
-        figures.append(f"<figure><img src=\"{uri}\" alt=\"{esc(name)}\"><figcaption>{esc(caption)} "
-                       f"<span class=\"file\">({esc(name)})</span></figcaption></figure>")
+    figures = [figure(name, data, CAPTIONS.get(name, name)) for name, data in inputs.images]
     return section("plots", "Plots", "".join(figures) + stale)
 
 
