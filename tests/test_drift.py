@@ -302,3 +302,11 @@ def test_drift_json_holds_every_axis_and_the_flagged_ones(fleet, tmp_path):
     assert set(doc["axes"]) == set(drifts)
     assert doc["axes"]["axis03"]["n_failed"] == 1
     assert doc["axes"]["axis01"]["rate_percent_per_day"] == pytest.approx(drifts["axis01"].rate_percent_per_day)
+
+
+def test_the_python_example_of_docs_drift_md_runs_and_flags(capsys):
+    from doc_blocks import ROOT, fenced_blocks
+
+    (snippet,) = [b.text for b in fenced_blocks(ROOT / "docs" / "drift.md") if b.lang == "python"]
+    exec(compile(snippet, "docs/drift.md", "exec"), {})
+    assert capsys.readouterr().out.startswith("flagged: -1 ± ")
