@@ -166,9 +166,16 @@ def test_settings_out_of_range_are_refused(kwargs):
         axis_drifts([row("x", 0, 40.0)], **kwargs)
 
 
-def test_a_row_without_an_axis_is_refused_naming_its_file():
+def test_an_identified_row_without_an_axis_is_refused_naming_its_file():
     with pytest.raises(DataError, match="/fleet/lost.h5"):
         axis_drifts([{**row("x", 0, 40.0), "axis": "", "path": "/fleet/lost.h5"}], drift_percent_per_day=0.2)
+
+
+@pytest.mark.parametrize("axis", [None, "", math.nan])
+def test_a_failed_row_without_an_axis_belongs_to_no_axis(axis):
+    rows = [row("x", d, 40.0) for d in range(5)] + [{**row("x", 0, math.nan, status="failed"), "axis": axis}]
+    drifts = axis_drifts(rows, drift_percent_per_day=0.2)
+    assert list(drifts) == ["x"] and drifts["x"].n_failed == 0
 
 
 # --------------------------------------------------------------------------- the fleet, its view and report
@@ -284,6 +291,18 @@ def test_batch_report_lists_flagged_axes_first_and_every_failure(fleet, tmp_path
     assert len(recordings) == len(rows)
     assert [a["alt"] for a in page.all("img")] == ["drift.png", "drift_2.png"]
     assert (tmp_path / "drift.png").exists() and (tmp_path / "drift_2.png").exists()
+
+
+def test_batch_report_shows_a_failure_without_an_axis_and_its_error_as_text(tmp_path):
+    rows = [row("x", d, 40.0) for d in range(5)]
+    rows.append({**row("x", 0, math.nan, status="failed", path="/fleet/<junk>.csv",
+                       error="<script>alert(1)</script> not a recording"), "axis": None})
+    path = write_batch_report(tmp_path, rows, axis_drifts(rows, 0.2), {"config": "<b>fleet</b>"}, plots=False)
+    page = Page(path.read_text())
+    check_self_contained(page)
+    assert not page.all("script") and not page.all("b")
+    _, *failures = Tables(path.read_text()).rows["failures"]
+    assert failures == [["/fleet/<junk>.csv", "—", "<script>alert(1)</script> not a recording"]]
 
 
 def test_batch_report_without_plots_or_failures_says_so(tmp_path):

@@ -147,8 +147,10 @@ def _recordings(rows: Sequence[Mapping[str, Any]]) -> str:
               pm(_float(r.get("frequency_hz")), _float(r.get("frequency_ci95_hz")), "Hz"),
               pm(_float(r.get("damping_ratio")), _float(r.get("damping_ci95")), "", 3),
               esc(Path(str(r.get("path", ""))).name or MISSING)] for r in ordered_rows]
+    body = table(["axis", "time (UTC)", "status", "resonance (95 %)", "damping ratio (95 %)", "file"], cells)
+    # a year of nightly recordings of fifty axes is a long table: folded on screen until asked for
     return section("recordings", "Recordings",
-                   table(["axis", "time (UTC)", "status", "resonance (95 %)", "damping ratio (95 %)", "file"], cells))
+                   f"<details><summary>{esc(len(rows))} recordings, by axis and time</summary>{body}</details>")
 
 
 def render_batch(rows: Sequence[Mapping[str, Any]], drifts: Mapping[str, DriftTrend], meta: Mapping[str, Any],

@@ -424,7 +424,8 @@ def axis_drifts(rows: Iterable[Mapping[str, Any]], drift_percent_per_day: float,
         One per recording, with at least ``axis`` (str), ``time_utc`` (ISO 8601, UTC), ``status``
         (``"ok"`` or ``"failed"``), ``frequency_hz``, ``frequency_ci95_hz`` (Hz), ``damping_ratio``,
         ``damping_ci95`` (NaN or None when unknown), ``path``, ``error``. Rows that failed, or have no
-        finite frequency or readable time, are counted per axis and left out of the fits.
+        finite frequency or readable time, are counted per axis and left out of the fits; a failed row
+        without an axis (a file too damaged to say) belongs to no axis.
     drift_percent_per_day : float
         ``[batch] drift_percent_per_day``: a significant trend steeper than this (either sign) is flagged, %/day.
     min_recordings : int
@@ -440,7 +441,7 @@ def axis_drifts(rows: Iterable[Mapping[str, Any]], drift_percent_per_day: float,
     Raises
     ------
     DataError
-        A row without an ``axis``, or settings out of range.
+        An ok row without an ``axis``, or settings out of range.
 
     Examples
     --------
@@ -455,8 +456,10 @@ def axis_drifts(rows: Iterable[Mapping[str, Any]], drift_percent_per_day: float,
     by_axis: dict[str, list[Mapping[str, Any]]] = {}
     for i, row in enumerate(rows):
         axis = row.get("axis")
-        if axis in (None, ""):
-            raise DataError(f"batch row {i} ({row.get('path', 'no path')}): no axis")
+        if axis is None or axis == "" or (isinstance(axis, float) and math.isnan(axis)):
+            if row.get("status") != "ok":
+                continue  # a file too damaged to name its axis: the batch's failures list it
+            raise DataError(f"batch row {i} ({row.get('path', 'no path')}): identified, but no axis")
         by_axis.setdefault(str(axis), []).append(row)
     return {axis: _axis_trend(axis, by_axis[axis], drift_percent_per_day, min_recordings, confidence)
             for axis in sorted(by_axis)}
