@@ -15,7 +15,9 @@ never a failed command. ``hilident report DIR`` calls :func:`write_report`.
 Modules: :mod:`~hilident.html_report.gather` (reads the folder),
 :mod:`~hilident.html_report.sections` and :mod:`~hilident.html_report.page`
 (pure HTML), :mod:`~hilident.html_report.advice` (warnings by topic),
-:mod:`~hilident.html_report.markup` (escaping, tables, numbers with units).
+:mod:`~hilident.html_report.markup` (escaping, tables, figures, numbers with units);
+:mod:`~hilident.html_report.batch` writes a batch's report (drift verdicts, drift plots, failures) on the
+same page and pieces.
 """
 
 from __future__ import annotations
