@@ -289,6 +289,8 @@ def test_batch_report_lists_flagged_axes_first_and_every_failure(fleet, tmp_path
     assert failures == [["/fleet/axis03/broken.h5", "axis03", error]]
     _, *recordings = tables.rows["recordings"]
     assert len(recordings) == len(rows)
+    (details,) = page.all("details")
+    assert "open" not in details  # 281 rows: folded until asked for
     assert [a["alt"] for a in page.all("img")] == ["drift.png", "drift_2.png"]
     assert (tmp_path / "drift.png").exists() and (tmp_path / "drift_2.png").exists()
 
@@ -309,6 +311,7 @@ def test_batch_report_without_plots_or_failures_says_so(tmp_path):
     rows = [row("x", d, 40.0 + 0.01 * d) for d in range(6)]
     page = Page(write_batch_report(tmp_path, rows, axis_drifts(rows, 0.2), {}, plots=False).read_text())
     assert "No recording failed" in page.sections["failures"]
+    assert "open" in page.all("details")[0]  # six rows: shown unfolded
     assert "not drawn" in page.sections["drift-plots"]
     assert "<script>" not in page.text
 

@@ -47,6 +47,10 @@ _META_LABELS = {
 }
 
 
+#: Recordings up to which the per-recording table is shown unfolded.
+_OPEN_UP_TO = 200
+
+
 def _float(value: Any) -> float | None:
     """A finite number, or None (shown as the missing mark)."""
     try:
@@ -148,9 +152,10 @@ def _recordings(rows: Sequence[Mapping[str, Any]]) -> str:
               pm(_float(r.get("damping_ratio")), _float(r.get("damping_ci95")), "", 3),
               esc(Path(str(r.get("path", ""))).name or MISSING)] for r in ordered_rows]
     body = table(["axis", "time (UTC)", "status", "resonance (95 %)", "damping ratio (95 %)", "file"], cells)
-    # a year of nightly recordings of fifty axes is a long table: folded on screen until asked for
+    # a year of nightly recordings of fifty axes is a long table: folded until asked for (a short one is open)
+    state = " open" if len(rows) <= _OPEN_UP_TO else ""
     return section("recordings", "Recordings",
-                   f"<details><summary>{esc(len(rows))} recordings, by axis and time</summary>{body}</details>")
+                   f"<details{state}><summary>{esc(len(rows))} recordings, by axis and time</summary>{body}</details>")
 
 
 def render_batch(rows: Sequence[Mapping[str, Any]], drifts: Mapping[str, DriftTrend], meta: Mapping[str, Any],
