@@ -225,10 +225,12 @@ def plan_fleet(base: Config, axes: int, days: int, seed: int, start: _dt.date = 
     choose_ss, *axis_ss = root.spawn(axes + 1)
     drifting = set(np.random.default_rng(choose_ss).choice(axes, drifting_count(axes, drifting_share),
                                                              replace=False).tolist())
+    if not isinstance(p.k, float):
+        raise ConfigError("emulator.plant.k", "a fleet needs k as a number, not a function of position", base.source)
     plans = []
     for i, (name, ss) in enumerate(zip(axis_ids(axes), axis_ss, strict=True)):
         rng = np.random.default_rng(ss)
-        m1, m2, k0 = (float(v) * (1.0 + rng.uniform(-PARAMETER_SPREAD, PARAMETER_SPREAD))
+        m1, m2, k0 = (v * (1.0 + float(rng.uniform(-PARAMETER_SPREAD, PARAMETER_SPREAD)))
                       for v in (p.m1, p.m2, p.k))
         rate = float(rng.uniform(*DRIFT_PERCENT_PER_DAY)) if i in drifting else 0.0
         serial = f"HX{int(rng.integers(0, 16**6)):06X}-{i + 1:03d}"
@@ -387,7 +389,7 @@ def simulate(cfg: Config, amplitude_nm: float) -> Recorded:
     from scipy.signal import lfilter
 
     from hilident.emulator.device import friction_model, plant_model
-    from hilident.emulator.plant import state_matrices
+    from hilident.emulator.plant import TwoMass, state_matrices
     from hilident.emulator.preset import realism
     from hilident.run_excitation import build_excitation
 
@@ -405,6 +407,8 @@ def simulate(cfg: Config, amplitude_nm: float) -> Recorded:
         process = lfilter([math.sqrt(1.0 - a * a)], [1.0, -a], process_rng.standard_normal(n)) * r.torque_noise_nm
 
     model = plant_model(cfg.emulator)
+    if not isinstance(model, TwoMass):  # check_base refused it already
+        raise ConfigError("emulator.plant.model", "a fleet simulates a two_mass plant", cfg.source)
     A, B = state_matrices(model)
     friction = friction_model(cfg.emulator)
     if friction is not None:  # viscous only (check_base): a force c Fv v1 against the cart's motion
