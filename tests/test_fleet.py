@@ -132,9 +132,11 @@ def test_the_same_seed_gives_the_same_fleet_and_another_seed_another(fleet, tmp_
     assert main([*ARGS, "--out", str(again)]) == 0
     assert truth(again) == truth(fleet)
     a, day = intact(truth(fleet))[0]
-    first, second = read_run(fleet / a["files"][day]), read_run(again / a["files"][day])
-    for name in first.samples:
-        np.testing.assert_array_equal(first.samples[name], second.samples[name])
+    for rel in a["files"]:  # byte for byte, damaged files included
+        assert (fleet / rel).read_bytes() == (again / rel).read_bytes(), rel
+    first = read_run(fleet / a["files"][day])
+    span = dt.datetime.fromisoformat(first.attrs["closed_utc"]) - dt.datetime.fromisoformat(first.attrs["created_utc"])
+    assert span.total_seconds() == pytest.approx(first.n_samples / first.sample_rate_hz, abs=1e-3)
     other = tmp_path / "other"
     assert main([*ARGS[:-4], "12", "--damaged", "0", "-q", "--out", str(other)]) == 0
     assert truth(other)["axes"][0]["serial"] != truth(fleet)["axes"][0]["serial"]
@@ -210,9 +212,12 @@ def test_a_base_config_and_bad_arguments(tmp_path, capsys):
 
 def test_the_writer_stores_a_given_creation_time(tmp_path):
     when = dt.datetime(2026, 1, 2, 3, 4, 5, 678000, tzinfo=dt.timezone(dt.timedelta(hours=1)))
-    with RunWriter(tmp_path / "r.h5", ["x"], ["m"], 10.0, created_utc=when) as w:
-        w.append(np.zeros((3, 1)))
-    assert read_run(tmp_path / "r.h5").attrs["created_utc"] == "2026-01-02T02:04:05.678+00:00"
+    w = RunWriter(tmp_path / "r.h5", ["x"], ["m"], 10.0, created_utc=when)
+    w.append(np.zeros((3, 1)))
+    w.close(closed_utc=when + dt.timedelta(seconds=0.3))
+    attrs = read_run(tmp_path / "r.h5").attrs
+    assert (attrs["created_utc"], attrs["closed_utc"]) == ("2026-01-02T02:04:05.678+00:00",
+                                                          "2026-01-02T02:04:05.978+00:00")
     with pytest.raises(DataError, match="timezone-aware"):
         RunWriter(tmp_path / "naive.h5", ["x"], ["m"], 10.0, created_utc=dt.datetime(2026, 1, 1))
 
@@ -222,3 +227,18 @@ def test_write_fleet_refuses_a_fleet_whose_stiffness_would_vanish(tmp_path):
 
     with pytest.raises(UsageError, match="fall to zero"):
         write_fleet(tmp_path / "f", 2, 400, seed=1, drifting_share=1.0, duration_s=4.0)
+
+
+def test_an_occupied_folder_is_refused_and_overwrite_replaces_only_the_earlier_fleet(tmp_path, capsys):
+    out = tmp_path / "f"
+    args = ["emulate", "fleet", "--axes", "2", "--days", "3", "--out", str(out), "--duration-s", "4", "-q"]
+    assert main(args) == 0
+    mine = out / "notes.txt"
+    mine.write_text("kept")
+    assert main([*args[:5], "2", *args[6:]]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert main([*args[:5], "2", *args[6:], "--overwrite"]) == 0
+    assert sorted(p.name for p in (out / "axis-01").iterdir()) == sorted(
+        Path(f).name for f in truth(out)["axes"][0]["files"])
+    assert len(truth(out)["axes"][0]["files"]) == 2 and mine.read_text() == "kept"
+    assert main([*args[:7], str(mine), *args[8:]]) == 2

@@ -338,7 +338,7 @@ def _emulate_fleet(args) -> int:
     progress.step(f"writing a fleet of {args.axes} axes x {args.days} days into {args.out}")
     result = write_fleet(args.out, args.axes, args.days, seed=args.seed, base=base, start=start,
                          duration_s=args.duration_s, drifting_share=args.drifting_share, damaged=args.damaged,
-                         viscous=args.viscous, progress=progress.fraction("recordings"))
+                         viscous=args.viscous, overwrite=args.overwrite, progress=progress.fraction("recordings"))
     print(f"wrote {result.recordings} recordings of {args.axes} axes ({result.drifting} drifting, {result.damaged} "
           f"damaged on purpose), {result.total_bytes / 1e6:.1f} MB, and the truth in {result.out / 'fleet.json'}")
     return 0
@@ -548,6 +548,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "and static parts are always dropped (default: no friction)")
     flt.add_argument("--damaged", type=int, help="number of recordings damaged on purpose (default: about 2 %%, "
                      "at least 2 from 20 recordings on)")
+    flt.add_argument("--overwrite", action="store_true", help="write into --out even when it holds files (an earlier "
+                     "fleet's recordings and fleet.json there are removed first)")
     flt.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     flt.set_defaults(func=_emulate_fleet)
 

@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from hilident.config import Config, parse_config, parse_toml
-from hilident.errors import ConfigError, UsageError
+from hilident.errors import ConfigError, DataError, UsageError
 
 __all__ = ["AXIS_PREFIX", "BASE_TOML", "DAMAGE_KINDS", "DEFAULT_START", "FLEET_FORMAT", "FleetResult",
            "SAMPLE_RATES_HZ", "AxisPlan", "plan_fleet", "truth_rate_percent_per_day", "write_fleet"]
@@ -477,10 +477,17 @@ def _write_recording(path: Path, rec: Recorded, cfg_text: str, base_source: str,
         "period_samples": rec.period_samples, "axis": plan.axis,
     }
     data = rec.rows if rows is None else rec.rows[:rows]
-    with RunWriter(path, list(CHANNELS), list(UNITS), plan.sample_rate_hz, attrs, overwrite=True,
-                   created_utc=plan.times[day]) as writer:
-        writer.event("finished", "fleet recording complete", sample_index=len(data))
+    started = plan.times[day]
+    writer = RunWriter(path, list(CHANNELS), list(UNITS), plan.sample_rate_hz, attrs, overwrite=True,
+                       created_utc=started)
+    try:
         writer.append(data)
+        writer.event("finished", "fleet recording complete", sample_index=len(data))
+    except BaseException as exc:
+        writer.close("aborted", str(exc) or type(exc).__name__)
+        raise
+    # the simulated end, so that the same arguments write the same bytes
+    writer.close(closed_utc=started + _dt.timedelta(seconds=len(data) / plan.sample_rate_hz))
 
 
 def damage_file(path: Path, kind: str, rng: np.random.Generator) -> None:
@@ -537,9 +544,30 @@ def _amplitude(cfg: Config) -> float:
     return float(e.amplitude)
 
 
+def _fleet_folder(out: Path, overwrite: bool) -> Path:
+    """``out`` created, or emptied of an earlier fleet's files with ``overwrite``; refused when it holds files."""
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {out}: is a file, not a folder")
+    if out.is_dir() and any(out.iterdir()):
+        if not overwrite:
+            raise UsageError(f"--out {out}: holds files already; pass --overwrite to replace an earlier fleet there")
+        # only what a fleet writes: its recordings, fleet.json, and axis folders left empty
+        for old in out.glob(f"{AXIS_PREFIX}*/{AXIS_PREFIX}*_*Z.h5"):
+            old.unlink()
+        for folder in out.glob(f"{AXIS_PREFIX}*"):
+            if folder.is_dir() and not any(folder.iterdir()):
+                folder.rmdir()
+        (out / "fleet.json").unlink(missing_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DataError(f"--out {out}: cannot create the folder: {exc}") from None
+    return out
+
+
 def write_fleet(out: str | os.PathLike, axes: int, days: int, *, seed: int = 1, base: Config | None = None,
                 start: _dt.date = DEFAULT_START, duration_s: float | None = None, drifting_share: float = 0.3,
-                damaged: int | None = None, viscous: bool = False,
+                damaged: int | None = None, viscous: bool = False, overwrite: bool = False,
                 progress: Callable[[float], None] | None = None) -> FleetResult:
     """Write a fleet's recordings and ``fleet.json`` into ``out``.
 
@@ -550,7 +578,7 @@ def write_fleet(out: str | os.PathLike, axes: int, days: int, *, seed: int = 1, 
     axes, days : int
         Axes, and days of one nightly recording each.
     seed : int
-        Seed of everything random; the same arguments give the same files (but their ``closed_utc``).
+        Seed of everything random; the same arguments write the same bytes.
     base : Config, optional
         The base configuration (default :data:`BASE_TOML`).
     start : datetime.date
@@ -564,6 +592,9 @@ def write_fleet(out: str | os.PathLike, axes: int, days: int, *, seed: int = 1, 
         Number of damaged recordings (default :func:`damaged_count`).
     viscous : bool
         Keep the base's viscous friction ``Fv`` (its Coulomb and static parts are dropped); default no friction.
+    overwrite : bool
+        Write into an ``out`` that holds files: an earlier fleet's recordings and ``fleet.json`` are removed
+        first (nothing else is). Without it such a folder is refused.
     progress : callable, optional
         Called with the fraction done.
     """
@@ -594,8 +625,7 @@ def write_fleet(out: str | os.PathLike, axes: int, days: int, *, seed: int = 1, 
     offset = int(damage_rng.integers(len(DAMAGE_KINDS)))
     damage_of = {r: DAMAGE_KINDS[(offset + j) % len(DAMAGE_KINDS)] for j, r in enumerate(picked)}
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = _fleet_folder(Path(out), overwrite)
     versions = package_versions()
     truth_axes, damaged_list = [], []
     done, total_bytes = 0, 0

@@ -521,7 +521,7 @@ class RunWriter:
 
     # ------------------------------------------------------------------ closing
 
-    def close(self, status: str = "complete", reason: str = "") -> None:
+    def close(self, status: str = "complete", reason: str = "", *, closed_utc: _dt.datetime | None = None) -> None:
         """Write ``status``, ``reason`` and ``n_samples`` and close the file.
 
         Parameters
@@ -529,6 +529,9 @@ class RunWriter:
         status : {"complete", "aborted"}
         reason : str
             Why the run was aborted (empty for a complete run).
+        closed_utc : datetime.datetime, optional
+            The time the recording ended (timezone-aware), as ``created_utc``
+            at creation; default: now.
 
         Closing twice does nothing the second time.
         """
@@ -537,13 +540,14 @@ class RunWriter:
         f = self._file
         if f is None:
             return
+        closed = _utc_now() if closed_utc is None else _utc_text(closed_utc, self._path)
         if self._failure is not None:
             status, reason = "aborted", reason or self._failure
         try:
             f.attrs["status"] = status
             f.attrs["reason"] = str(reason)
             f.attrs["n_samples"] = np.int64(self._n_samples)
-            f.attrs["closed_utc"] = _utc_now()
+            f.attrs["closed_utc"] = closed
             f.flush()
         except (OSError, RuntimeError) as exc:
             if self._failure is None:
