@@ -204,7 +204,8 @@ def test_a_base_config_and_bad_arguments(tmp_path, capsys):
     assert stored.excitation.duration_s == 4.0 and not stored.friction_test.enabled
     assert "wrote 4 recordings of 2 axes (1 drifting, 0 damaged on purpose)" in capsys.readouterr().out
     for bad in (["--axes", "0"], ["--start", "2026-13-01"], ["--drifting-share", "1.5"],
-                ["--config", str(CONFIGS / "emulated-msd.toml")], ["--damaged", "9"]):
+                ["--config", str(CONFIGS / "emulated-msd.toml")], ["--damaged", "9"], ["--seed", "-1"],
+                ["--duration-s", "nan"]):
         assert main([*args, *bad]) == 2, bad
         err = capsys.readouterr().err.strip()
         assert err.startswith("hilident: error:") and "\n" not in err, err

@@ -335,10 +335,10 @@ def _emulate_fleet(args) -> int:
     from hilident.progress import Progress
 
     progress = Progress(enabled=not args.quiet)
-    progress.step(f"writing a fleet of {args.axes} axes x {args.days} days into {args.out}")
     result = write_fleet(args.out, args.axes, args.days, seed=args.seed, base=base, start=start,
                          duration_s=args.duration_s, drifting_share=args.drifting_share, damaged=args.damaged,
-                         viscous=args.viscous, overwrite=args.overwrite, progress=progress.fraction("recordings"))
+                         viscous=args.viscous, overwrite=args.overwrite, progress=progress.fraction("recordings"),
+                         say=progress.step)
     print(f"wrote {result.recordings} recordings of {args.axes} axes ({result.drifting} drifting, {result.damaged} "
           f"damaged on purpose), {result.total_bytes / 1e6:.1f} MB, and the truth in {result.out / 'fleet.json'}")
     return 0
@@ -537,7 +537,8 @@ def build_parser() -> argparse.ArgumentParser:
     flt.add_argument("--out", required=True, help="the fleet folder (fleet.json and one folder per axis)")
     flt.add_argument("--seed", type=int, default=1, help="seed of everything random in the fleet (default 1)")
     flt.add_argument("--duration-s", type=float, help="analysed length of each recording, s, whole excitation "
-                     "periods (default: the base's [excitation] duration_s; one lead-in period more is recorded)")
+                     "periods, at most 600 (default: the base's [excitation] duration_s; one lead-in period more is "
+                     "recorded)")
     flt.add_argument("--drifting-share", type=float, default=0.3, help="share of the axes whose stiffness drifts "
                      "(default 0.3; at least one axis when there are two or more)")
     flt.add_argument("--start", default="2026-01-01", help="the first day, YYYY-MM-DD (default 2026-01-01)")

@@ -77,6 +77,8 @@ CRASHED_ROWS = 32
 #: A session's identification channels (the myrio-board's, without the command and load channels).
 CHANNELS = ("sample_index", "time_s", "excitation", "torque_nm", "position_m", "velocity_mps")
 UNITS = ("1", "s", "N*m", "N*m", "m", "m/s")
+#: Longest recording a fleet simulates (in memory, whole), s.
+MAX_DURATION_S = 600.0
 #: The excitation's peak when the base configuration says ``amplitude_nm = "auto"``: this share of its ceiling.
 AUTO_AMPLITUDE_SHARE = 0.5
 
@@ -366,7 +368,7 @@ def check_base(cfg: Config) -> None:
 
 @dataclass(frozen=True)
 class Recorded:
-    """The channels of one simulated recording (columns in :data:`CHANNELS` order) and the truth."""
+    """One simulated recording: its rows (columns in :data:`CHANNELS` order) and the excitation's period, samples."""
 
     rows: np.ndarray
     period_samples: int
@@ -383,7 +385,9 @@ def simulate(cfg: Config, amplitude_nm: float) -> Recorded:
     sampled at each sample's start; the encoder position (with its
     interpolation noise) is floored to counts and the velocity is the drive's
     estimate: the backward difference of encoder positions through a
-    first-order low-pass at ``[emulator.drive] velocity_filter_hz``.
+    first-order low-pass at ``[emulator.drive] velocity_filter_hz``. The
+    drive's computation delay and current loop are left out: the motor torque
+    is the command (a delay would only add phase, never move the mode).
     """
     from scipy.linalg import expm
     from scipy.signal import lfilter
@@ -568,7 +572,8 @@ def _fleet_folder(out: Path, overwrite: bool) -> Path:
 def write_fleet(out: str | os.PathLike, axes: int, days: int, *, seed: int = 1, base: Config | None = None,
                 start: _dt.date = DEFAULT_START, duration_s: float | None = None, drifting_share: float = 0.3,
                 damaged: int | None = None, viscous: bool = False, overwrite: bool = False,
-                progress: Callable[[float], None] | None = None) -> FleetResult:
+                progress: Callable[[float], None] | None = None,
+                say: Callable[[str], None] | None = None) -> FleetResult:
     """Write a fleet's recordings and ``fleet.json`` into ``out``.
 
     Parameters
@@ -597,6 +602,8 @@ def write_fleet(out: str | os.PathLike, axes: int, days: int, *, seed: int = 1, 
         first (nothing else is). Without it such a folder is refused.
     progress : callable, optional
         Called with the fraction done.
+    say : callable, optional
+        Called with a line saying what is written, once the arguments are checked.
     """
     from hilident.emulator.device import true_modes
     from hilident.experiment import package_versions
@@ -605,12 +612,15 @@ def write_fleet(out: str | os.PathLike, axes: int, days: int, *, seed: int = 1, 
     check_base(base)
     if axes < 1 or days < 1:
         raise UsageError(f"--axes {axes} --days {days}: both must be at least 1")
+    if not 0 <= seed < 2**63:
+        raise UsageError(f"--seed {seed}: must be a non-negative integer")
     if not 0.0 <= drifting_share <= 1.0:
         raise UsageError(f"--drifting-share {drifting_share:g}: must be between 0 and 1")
     period = base.excitation.period_s
     duration = base.excitation.duration_s if duration_s is None else duration_s
-    if not (math.isfinite(duration) and duration >= period * 0.5):
-        raise UsageError(f"--duration-s {duration:g}: must be at least one excitation period ({period:g} s)")
+    if not (math.isfinite(duration) and period * 0.5 <= duration <= MAX_DURATION_S):
+        raise UsageError(f"--duration-s {duration:g}: must be at least one excitation period ({period:g} s) and at "
+                         f"most {MAX_DURATION_S:g} s")
     base_raw = parse_toml(base.text, base.source) if base.text else {}
     base_raw.pop("data", None)
     amplitude = _amplitude(base)
@@ -626,6 +636,9 @@ def write_fleet(out: str | os.PathLike, axes: int, days: int, *, seed: int = 1, 
     damage_of = {r: DAMAGE_KINDS[(offset + j) % len(DAMAGE_KINDS)] for j, r in enumerate(picked)}
 
     out = _fleet_folder(Path(out), overwrite)
+    if say is not None:
+        say(f"writing a fleet of {axes} axes x {days} days ({total} recordings, "
+            f"{sum(p.drifting for p in plans)} drifting axes, {n_damaged} damaged files) into {out}")
     versions = package_versions()
     truth_axes, damaged_list = [], []
     done, total_bytes = 0, 0
