@@ -283,6 +283,11 @@ def damaged_count(recordings: int) -> int:
 # ---------------------------------------------------------------------- configuration text
 
 
+def _toml_key(key: str) -> str:
+    """A bare TOML key where it may be one, else a quoted one."""
+    return key if key and all(c.isascii() and (c.isalnum() or c in "_-") for c in key) else json.dumps(key)
+
+
 def _toml_value(value: Any) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
@@ -299,7 +304,7 @@ def _toml_value(value: Any) -> str:
     if isinstance(value, list):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"
     if isinstance(value, dict):
-        return "{ " + ", ".join(f"{json.dumps(k)} = {_toml_value(v)}" for k, v in value.items()) + " }"
+        return "{ " + ", ".join(f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items()) + " }"
     raise TypeError(f"cannot write {type(value).__name__} as TOML")
 
 
@@ -316,11 +321,11 @@ def toml_text(tables: dict[str, Any]) -> str:
         if prefix and (scalars or not subtables):
             lines.append(f"[{prefix}]")
         for k, v in scalars.items():
-            lines.append(f"{json.dumps(k)} = {_toml_value(v)}")
+            lines.append(f"{_toml_key(k)} = {_toml_value(v)}")
         if scalars:
             lines.append("")
         for k, v in subtables.items():
-            emit(f"{prefix}.{json.dumps(k)}" if prefix else json.dumps(k), v)
+            emit(f"{prefix}.{_toml_key(k)}" if prefix else _toml_key(k), v)
 
     emit("", tables)
     return "\n".join(lines).rstrip() + "\n"
@@ -341,7 +346,8 @@ def recording_config(base: dict[str, Any], plan: AxisPlan, day: int, amplitude_n
         emu["friction"] = {"model": "none"}
     else:  # Stribeck without its Coulomb and static parts: viscous only
         emu["friction"] = {"model": "stribeck", "Fc": 0.0, "Fs": 0.0, "Fv": viscous_nm_per_mps, "delta_v": 1.0}
-    return toml_text(raw)
+    when = plan.times[day].strftime("%Y-%m-%dT%H:%M:%SZ")
+    return f"# hilident emulate fleet: {plan.axis} ({plan.serial}), the recording of {when}\n\n" + toml_text(raw)
 
 
 def check_base(cfg: Config) -> None:
