@@ -1,5 +1,5 @@
 """Command line: ``hilident run``, ``identify``, ``upload``, ``report``, ``show``, ``export``,
-``emulate serial|modbus|canopen``, ``drivers``, ``init``, ``ports``.
+``emulate serial|modbus|canopen|fleet``, ``drivers``, ``init``, ``ports``.
 
 Thin on purpose: it parses arguments and calls the session, the emulator
 factory or the driver loader. Every :class:`~hilident.errors.HilidentError`
@@ -320,6 +320,30 @@ def _emulate_canopen(args) -> int:
     return _serve_until_stopped(device)
 
 
+def _emulate_fleet(args) -> int:
+    import datetime as dt
+
+    from hilident.config import load_config
+    from hilident.errors import UsageError
+
+    base = load_config(args.config) if args.config else None
+    try:
+        start = dt.date.fromisoformat(args.start)
+    except ValueError:
+        raise UsageError(f"--start {args.start!r}: must be a date, YYYY-MM-DD") from None
+    from hilident.fleet import write_fleet
+    from hilident.progress import Progress
+
+    progress = Progress(enabled=not args.quiet)
+    result = write_fleet(args.out, args.axes, args.days, seed=args.seed, base=base, start=start,
+                         duration_s=args.duration_s, drifting_share=args.drifting_share, damaged=args.damaged,
+                         viscous=args.viscous, overwrite=args.overwrite, progress=progress.fraction("recordings"),
+                         say=progress.step)
+    print(f"wrote {result.recordings} recordings of {args.axes} axes ({result.drifting} drifting, {result.damaged} "
+          f"damaged on purpose), {result.total_bytes / 1e6:.1f} MB, and the truth in {result.out / 'fleet.json'}")
+    return 0
+
+
 def _drivers(args) -> int:
     from hilident.drivers import available_drivers, find_driver, search_path
 
@@ -505,6 +529,30 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--time-scale", type=float, default=0.0, help="simulated seconds per second (default 1)")
     co.add_argument("--port", type=int, default=0, help="TCP port (default: any free one)")
     co.set_defaults(func=_emulate_canopen)
+    flt = emu_sub.add_parser("fleet", help="write nightly identification recordings of N emulated axes over D days "
+                             "(some drifting, a few damaged) and their truth, fleet.json: test data for many "
+                             "recordings at once")
+    flt.add_argument("--axes", type=int, required=True, help="number of axes")
+    flt.add_argument("--days", type=int, required=True, help="number of days, one recording per axis per night")
+    flt.add_argument("--out", required=True, help="the fleet folder (fleet.json and one folder per axis)")
+    flt.add_argument("--seed", type=int, default=1, help="seed of everything random in the fleet (default 1)")
+    flt.add_argument("--duration-s", type=float, help="analysed length of each recording, s, whole excitation "
+                     "periods, at most 600 (default: the base's [excitation] duration_s; one lead-in period more is "
+                     "recorded)")
+    flt.add_argument("--drifting-share", type=float, default=0.3, help="share of the axes whose stiffness drifts "
+                     "(default 0.3; at least one axis when there are two or more)")
+    flt.add_argument("--start", default="2026-01-01", help="the first day, YYYY-MM-DD (default 2026-01-01)")
+    flt.add_argument("--config", help="base configuration: its [emulator.plant] (two_mass), [excitation] "
+                     "(a multisine in torque) and [identification] (default: the gantry axis of "
+                     "configs/emulated-gantry.toml without friction)")
+    flt.add_argument("--viscous", action="store_true", help="keep the base's viscous friction (Fv); its Coulomb "
+                     "and static parts are always dropped (default: no friction)")
+    flt.add_argument("--damaged", type=int, help="number of recordings damaged on purpose (default: about 2 %%, "
+                     "at least 2 from 20 recordings on)")
+    flt.add_argument("--overwrite", action="store_true", help="write into --out even when it holds files (an earlier "
+                     "fleet's recordings and fleet.json there are removed first)")
+    flt.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    flt.set_defaults(func=_emulate_fleet)
 
     drv = sub.add_parser("drivers", help="list the driver descriptions found; write or check a CANopen driver "
                          "folder from a vendor EDS")

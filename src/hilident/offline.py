@@ -78,10 +78,12 @@ def resolve_config(cfg: Config | None, data_path: str | Path) -> tuple[Config, R
     UsageError
         No configuration and none in the file.
     DataError
-        No such file.
+        No such file, or an empty one.
     """
     if not Path(data_path).is_file():
         raise DataError(f"{data_path}: no such file")
+    if Path(data_path).stat().st_size == 0:  # before guessing its format: an empty file is no format at all
+        raise DataError(f"{data_path}: empty file (0 bytes): nothing was recorded")
     fmt = cfg.data.format if cfg is not None else "auto"
     info = read_run_info(data_path, fmt)
     if info is None or not info.config_toml.strip():

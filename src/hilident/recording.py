@@ -67,6 +67,13 @@ def _utc_now() -> str:
     return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
 
 
+def _utc_text(when: _dt.datetime, path: Path) -> str:
+    """``when`` as :func:`_utc_now` writes a time; a naive datetime is refused (its zone is unknown)."""
+    if not isinstance(when, _dt.datetime) or when.utcoffset() is None:
+        raise DataError(f"{path}: created_utc must be a timezone-aware datetime, got {when!r}")
+    return when.astimezone(_dt.UTC).isoformat(timespec="milliseconds")
+
+
 def _to_json_text(value: Any, what: str) -> str:
     try:
         return json.dumps(to_jsonable(value), allow_nan=False, ensure_ascii=False)
@@ -136,6 +143,11 @@ class RunWriter:
         25 % smaller files on noisy sensor data (see ``docs/recording.md``).
     overwrite : bool
         Replace an existing file instead of raising :class:`DataError`.
+    created_utc : datetime.datetime, optional
+        The time the recording was made, stored as ``created_utc`` in the
+        writer's own format (ISO 8601, milliseconds, ``+00:00``); it must be
+        timezone-aware. Default: now. For recordings made earlier or
+        simulated (``hilident emulate fleet``).
 
     Notes
     -----
@@ -165,8 +177,10 @@ class RunWriter:
         *,
         compression: str | None = None,
         overwrite: bool = False,
+        created_utc: _dt.datetime | None = None,
     ):
         self._path = Path(path)
+        created = _utc_now() if created_utc is None else _utc_text(created_utc, self._path)
         self._file: h5py.File | None = None
         channels, units, rate = self._checked_layout(channels, units, sample_rate_hz, chunk_rows, compression)
         if self._path.exists() and not overwrite:
@@ -192,7 +206,7 @@ class RunWriter:
         try:
             f.attrs["format"] = FORMAT
             f.attrs["format_version"] = np.int64(FORMAT_VERSION)
-            f.attrs["created_utc"] = _utc_now()
+            f.attrs["created_utc"] = created
             f.attrs["sample_rate_hz"] = np.float64(rate)
             f.attrs.create("channel_names", np.array(channels, dtype=object), dtype=_STR)
             f.attrs.create("channel_units", np.array(units, dtype=object), dtype=_STR)
@@ -507,7 +521,7 @@ class RunWriter:
 
     # ------------------------------------------------------------------ closing
 
-    def close(self, status: str = "complete", reason: str = "") -> None:
+    def close(self, status: str = "complete", reason: str = "", *, closed_utc: _dt.datetime | None = None) -> None:
         """Write ``status``, ``reason`` and ``n_samples`` and close the file.
 
         Parameters
@@ -515,6 +529,9 @@ class RunWriter:
         status : {"complete", "aborted"}
         reason : str
             Why the run was aborted (empty for a complete run).
+        closed_utc : datetime.datetime, optional
+            The time the recording ended (timezone-aware), as ``created_utc``
+            at creation; default: now.
 
         Closing twice does nothing the second time.
         """
@@ -523,13 +540,14 @@ class RunWriter:
         f = self._file
         if f is None:
             return
+        closed = _utc_now() if closed_utc is None else _utc_text(closed_utc, self._path)
         if self._failure is not None:
             status, reason = "aborted", reason or self._failure
         try:
             f.attrs["status"] = status
             f.attrs["reason"] = str(reason)
             f.attrs["n_samples"] = np.int64(self._n_samples)
-            f.attrs["closed_utc"] = _utc_now()
+            f.attrs["closed_utc"] = closed
             f.flush()
         except (OSError, RuntimeError) as exc:
             if self._failure is None:
