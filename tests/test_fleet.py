@@ -15,7 +15,7 @@ import pytest
 
 from hilident.cli import main
 from hilident.config import load_config, parse_config
-from hilident.errors import DataError
+from hilident.errors import DataError, UsageError
 from hilident.fleet import (
     BASE_TOML,
     DAMAGE_KINDS,
@@ -243,3 +243,11 @@ def test_an_occupied_folder_is_refused_and_overwrite_replaces_only_the_earlier_f
         Path(f).name for f in truth(out)["axes"][0]["files"])
     assert len(truth(out)["axes"][0]["files"]) == 2 and mine.read_text() == "kept"
     assert main([*args[:7], str(mine), *args[8:]]) == 2
+
+
+def test_sample_rates_given_are_taken_in_turn_and_a_rate_without_whole_periods_is_refused(tmp_path):
+    write_fleet(tmp_path / "f", 3, 1, duration_s=4.0, damaged=0, sample_rates_hz=(1000.0, 250.0))
+    t = json.loads((tmp_path / "f" / "fleet.json").read_text())
+    assert [a["sample_rate_hz"] for a in t["axes"]] == [1000.0, 250.0, 1000.0]
+    with pytest.raises(UsageError, match="--sample-rate-hz 333.3"):
+        write_fleet(tmp_path / "g", 1, 1, duration_s=4.0, sample_rates_hz=(333.3,))

@@ -331,12 +331,13 @@ def _emulate_fleet(args) -> int:
         start = dt.date.fromisoformat(args.start)
     except ValueError:
         raise UsageError(f"--start {args.start!r}: must be a date, YYYY-MM-DD") from None
-    from hilident.fleet import write_fleet
+    from hilident.fleet import SAMPLE_RATES_HZ, write_fleet
     from hilident.progress import Progress
 
     progress = Progress(enabled=not args.quiet)
     result = write_fleet(args.out, args.axes, args.days, seed=args.seed, base=base, start=start,
                          duration_s=args.duration_s, drifting_share=args.drifting_share, damaged=args.damaged,
+                         sample_rates_hz=tuple(args.sample_rate_hz) if args.sample_rate_hz else SAMPLE_RATES_HZ,
                          viscous=args.viscous, overwrite=args.overwrite, progress=progress.fraction("recordings"),
                          say=progress.step)
     print(f"wrote {result.recordings} recordings of {args.axes} axes ({result.drifting} drifting, {result.damaged} "
@@ -541,6 +542,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "recorded)")
     flt.add_argument("--drifting-share", type=float, default=0.3, help="share of the axes whose stiffness drifts "
                      "(default 0.3; at least one axis when there are two or more)")
+    flt.add_argument("--sample-rate-hz", type=float, nargs="+", metavar="HZ", help="sample rates given to the axes "
+                     "in turn (default: 500 1000 2000)")
     flt.add_argument("--start", default="2026-01-01", help="the first day, YYYY-MM-DD (default 2026-01-01)")
     flt.add_argument("--config", help="base configuration: its [emulator.plant] (two_mass), [excitation] "
                      "(a multisine in torque) and [identification] (default: the gantry axis of "

@@ -206,7 +206,7 @@ def days_since(start: _dt.date, when: _dt.datetime) -> float:
 
 
 def plan_fleet(base: Config, axes: int, days: int, seed: int, start: _dt.date = DEFAULT_START,
-               drifting_share: float = 0.3) -> list[AxisPlan]:
+               drifting_share: float = 0.3, sample_rates_hz: tuple[float, ...] = SAMPLE_RATES_HZ) -> list[AxisPlan]:
     """Every axis of a fleet, deterministic given ``seed``.
 
     Parameters
@@ -221,6 +221,8 @@ def plan_fleet(base: Config, axes: int, days: int, seed: int, start: _dt.date = 
         The first day; day ``i`` is ``start + i`` days.
     drifting_share : float
         Share of the axes whose stiffness drifts (:func:`drifting_count`).
+    sample_rates_hz : tuple of float
+        Sample rates, Hz, given to the axes in turn.
     """
     p = base.emulator.plant
     root = np.random.SeedSequence(seed)
@@ -249,7 +251,7 @@ def plan_fleet(base: Config, axes: int, days: int, seed: int, start: _dt.date = 
         if min(stiffness) <= 0.0:
             raise UsageError(f"--days {days}: {name}'s stiffness would fall to zero at {rate:.2f} %/day; "
                              "simulate fewer days")
-        plans.append(AxisPlan(name, serial, SAMPLE_RATES_HZ[i % len(SAMPLE_RATES_HZ)], m1, m2, k0, i in drifting,
+        plans.append(AxisPlan(name, serial, sample_rates_hz[i % len(sample_rates_hz)], m1, m2, k0, i in drifting,
                               rate, times, stiffness, seeds))
     return plans
 
@@ -350,8 +352,8 @@ def recording_config(base: dict[str, Any], plan: AxisPlan, day: int, amplitude_n
     return f"# hilident emulate fleet: {plan.axis} ({plan.serial}), the recording of {when}\n\n" + toml_text(raw)
 
 
-def check_base(cfg: Config) -> None:
-    """Refuse a base configuration the fleet cannot simulate, naming the key."""
+def check_base(cfg: Config, sample_rates_hz: tuple[float, ...] = SAMPLE_RATES_HZ) -> None:
+    """Refuse a base configuration the fleet cannot simulate at ``sample_rates_hz`` (Hz), naming the key."""
     p, e = cfg.emulator.plant, cfg.excitation
     if p.model != "two_mass":
         raise ConfigError("emulator.plant.model", f"a fleet simulates a two_mass plant, got {p.model!r}", cfg.source)
@@ -363,7 +365,7 @@ def check_base(cfg: Config) -> None:
     if e.kind != "multisine" or e.mode != "torque":
         raise ConfigError("excitation", f"a fleet plays a multisine in open-loop torque (kind = \"multisine\", "
                           f"mode = \"torque\"), got kind {e.kind!r}, mode {e.mode!r}", cfg.source)
-    top = min(SAMPLE_RATES_HZ)
+    top = min(sample_rates_hz)
     if e.f_max_hz >= 0.4 * top:
         raise ConfigError("excitation.f_max_hz", f"{e.f_max_hz:g} Hz: a fleet records at {top:g} Hz too, so it must "
                           f"stay below {0.4 * top:g} Hz", cfg.source)
@@ -577,6 +579,7 @@ def _fleet_folder(out: Path, overwrite: bool) -> Path:
 
 def write_fleet(out: str | os.PathLike, axes: int, days: int, *, seed: int = 1, base: Config | None = None,
                 start: _dt.date = DEFAULT_START, duration_s: float | None = None, drifting_share: float = 0.3,
+                sample_rates_hz: tuple[float, ...] = SAMPLE_RATES_HZ,
                 damaged: int | None = None, viscous: bool = False, overwrite: bool = False,
                 progress: Callable[[float], None] | None = None,
                 say: Callable[[str], None] | None = None) -> FleetResult:
@@ -599,6 +602,9 @@ def write_fleet(out: str | os.PathLike, axes: int, days: int, *, seed: int = 1, 
         (default: the base's ``[excitation] duration_s``); one lead-in period more is recorded.
     drifting_share : float
         Share of drifting axes (0..1).
+    sample_rates_hz : tuple of float
+        Sample rates, Hz, given to the axes in turn (default :data:`SAMPLE_RATES_HZ`); each must divide
+        into whole excitation periods as the base's own rate does.
     damaged : int, optional
         Number of damaged recordings (default :func:`damaged_count`).
     viscous : bool
@@ -615,7 +621,7 @@ def write_fleet(out: str | os.PathLike, axes: int, days: int, *, seed: int = 1, 
     from hilident.experiment import package_versions
 
     base = base if base is not None else parse_config(BASE_TOML, "hilident.fleet.BASE_TOML")
-    check_base(base)
+    check_base(base, tuple(sample_rates_hz))
     if axes < 1 or days < 1:
         raise UsageError(f"--axes {axes} --days {days}: both must be at least 1")
     if not 0 <= seed < 2**63:
@@ -631,7 +637,11 @@ def write_fleet(out: str | os.PathLike, axes: int, days: int, *, seed: int = 1, 
     base_raw.pop("data", None)
     amplitude = _amplitude(base)
     viscous_fv = base.emulator.friction.Fv if viscous and base.emulator.friction.model != "none" else None
-    plans = plan_fleet(base, axes, days, seed, start, drifting_share)
+    for rate in sample_rates_hz:
+        if not (math.isfinite(rate) and rate > 0 and float(base.excitation.period_s * rate).is_integer()):
+            raise UsageError(f"--sample-rate-hz {rate:g}: must be positive and give whole excitation periods "
+                             f"({base.excitation.period_s:g} s)")
+    plans = plan_fleet(base, axes, days, seed, start, drifting_share, tuple(sample_rates_hz))
     total = axes * days
     n_damaged = damaged_count(total) if damaged is None else damaged
     if not 0 <= n_damaged <= total:
