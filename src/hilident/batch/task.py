@@ -48,14 +48,14 @@ def _number(value: Any) -> float:
 def summary_figures(summary: dict) -> dict[str, Any]:
     """The row's figures from an ``identify`` summary (complete, or up to a failed step).
 
-    The resonance columns are those of the lowest resonance found (NaN: none);
+    ``duration_s`` is the whole recording's (its rows over the rate). The resonance columns are those of the lowest resonance found (NaN: none);
     ``resonances_json`` holds all of them as ``summary.json`` does;
     ``model_fit_percent`` is the ``[model]`` grey-box fit on the estimation
     data (NaN without one).
     """
     data = summary.get("data") or {}
     rate = _number(data.get("sample_rate_hz"))
-    samples = _number(data.get("samples"))
+    samples = _number(data.get("rows", data.get("samples")))  # the whole recording, not only the part analysed
     resonances = sorted(summary.get("resonances") or [], key=lambda r: _number(r.get("frequency_hz")))
     lowest = resonances[0] if resonances else {}
     friction = summary.get("friction") or {}
