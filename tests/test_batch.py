@@ -9,7 +9,7 @@ import datetime as dt
 import json
 import math
 import os
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 import h5py
@@ -56,7 +56,7 @@ CONTRACT = ["path", "content_sha256", "status", "error", "error_type", "axis", "
             "hilident_version", "config_sha256", "elapsed_s"]
 
 
-@lru_cache(maxsize=None)
+@cache
 def simulated(k: float) -> tuple[np.ndarray, float]:
     """Three periods of a multisine through the frictionless gantry twin of stiffness ``k``; its table and mode."""
     cfg = parse_config(GANTRY.replace("k = 1.5e5", f"k = {k!r}"))
@@ -379,10 +379,10 @@ def test_workers_with_a_scheduler_or_below_one_is_a_usage_error(tmp_path, fleet,
 
 
 def test_a_config_error_comes_before_dask_and_the_analysis_are_imported(tmp_path):
-    from test_startup import PROBE, SRC
-
     import subprocess
     import sys
+
+    from test_startup import PROBE, SRC
 
     bad = tmp_path / "bad.toml"
     bad.write_text("[batch]\nmin_recordings = 1\n")

@@ -221,14 +221,14 @@ def _batch(args) -> int:
         outcome = run_batch(args.inputs, cfg, args.out, scheduler=args.scheduler, workers=args.workers,
                             retry_failed=args.retry_failed, progress=Progress(enabled=not args.quiet))
     except KeyboardInterrupt as exc:
-        outcome = getattr(exc, "outcome", None)
-        if outcome is None:
+        finished = getattr(exc, "outcome", None)
+        if finished is None:
             raise
         from hilident import endings
 
         endings.ignore_further_signals()
-        _say(f"hilident: {exc or 'interrupted'}; the cluster is closed; {outcome.done} recordings finished are "
-             f"in {outcome.table}")
+        _say(f"hilident: {exc or 'interrupted'}; the cluster is closed; {finished.done} recordings finished are "
+             f"in {finished.table}")
         return getattr(exc, "exit_code", 130)
     for row in outcome.failures:
         print(f"failed: {row['path']}: {row['error']}")
@@ -236,7 +236,8 @@ def _batch(args) -> int:
           f"failed, {outcome.skipped} skipped (already in the table)")
     if outcome.done:
         print(f"wall time {outcome.wall_s:.1f} s, {outcome.per_recording_s:.3g} s per recording "
-              f"({outcome.workers} worker{'s' * (outcome.workers != 1)})")
+              f"({outcome.workers} worker{'s' * (outcome.workers != 1)}; one task took {outcome.mean_task_s:.3g} s "
+              "on average)")
     print(f"wrote {outcome.table} and {outcome.csv}")
     return 0
 
@@ -466,7 +467,8 @@ def build_parser() -> argparse.ArgumentParser:
     ide.set_defaults(func=_identify)
 
     bat = sub.add_parser("batch", help="identify many recordings in parallel on Dask into one table "
-                         "(batch.parquet, batch.csv); a re-run skips those already in it", formatter_class=raw)
+                         "(batch.parquet, batch.csv); a re-run skips those already in it", formatter_class=raw,
+                         epilog=cli_help.BATCH)
     bat.add_argument("inputs", nargs="+", metavar="INPUT", help="recordings, folders (searched at any depth for "
                      ".h5, .hdf5, .csv, .mat) or globs")
     bat.add_argument("--config", help="TOML configuration as for identify (not needed for hilident recordings); "

@@ -66,7 +66,8 @@ def name_time(name: str) -> str:
     """
     for match in reversed(list(_NAME_STAMP.finditer(name))):
         try:
-            return iso_utc(_dt.datetime(*map(int, match.groups()), tzinfo=_dt.UTC))
+            year, month, day, hour, minute, second = map(int, match.groups())
+            return iso_utc(_dt.datetime(year, month, day, hour, minute, second, tzinfo=_dt.UTC))
         except ValueError:  # not a date after all (month 13)
             continue
     return ""

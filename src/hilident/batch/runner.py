@@ -18,9 +18,10 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator
 from contextlib import closing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -50,12 +51,18 @@ class BatchOutcome:
     wall_s: float = 0.0
     workers: int = 0
     interrupted: bool = False
+    task_s: float = 0.0
     failures: list[dict] = field(default_factory=list)
 
     @property
     def per_recording_s(self) -> float:
-        """Wall time per recording identified in this batch, s (NaN when none was)."""
+        """Wall time per recording identified in this batch (the cluster's start included), s; NaN: none."""
         return self.wall_s / self.done if self.done else float("nan")
+
+    @property
+    def mean_task_s(self) -> float:
+        """Mean time one task took in its worker, s (NaN when none ran)."""
+        return self.task_s / self.done if self.done else float("nan")
 
 
 def config_key(cfg) -> str:
@@ -97,8 +104,9 @@ class _Tally:
 def _local_cluster(workers: int):
     from distributed import Client, LocalCluster
 
+    # silence_logs: the workers' notes (a task cancelled by Ctrl-C) are not the user's concern
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                           dashboard_address=None, scheduler_kwargs={"dashboard": False})
+                           dashboard_address=None, scheduler_kwargs={"dashboard": False}, silence_logs=logging.ERROR)
     return cluster, Client(cluster)
 
 
@@ -116,7 +124,7 @@ def _client_at(address: str):
 
 
 def _run_tasks(jobs: list[tuple[str, str]], args: tuple, scheduler: str | None, workers: int | None,
-               on_cluster: Callable[[int], None]) -> Iterator[dict]:
+               on_cluster: Callable[[int], None]) -> Generator[dict, None, None]:
     """Rows of ``jobs`` ((path, hash) each) as they finish; the cluster is closed whatever ends the iteration."""
     if scheduler == SYNCHRONOUS:
         on_cluster(1)
@@ -208,21 +216,23 @@ def run_batch(inputs: list[str], cfg, out: str | Path, *, scheduler: str | None 
         jobs.append((str(path), sha))
     if progress and outcome.skipped:
         progress.step(f"{outcome.skipped} of {len(paths)} recordings already in {out / TABLE_NAME}: skipped")
-    tally = _Tally(progress, len(jobs), outcome.skipped)
     args = (cfg.text if cfg is not None else None, cfg.source if cfg is not None else "", cfg_key)
+    tally: list[_Tally] = []
 
     def on_cluster(n: int) -> None:
         outcome.workers = n
         if progress and jobs:
-            where = "this process" if scheduler == SYNCHRONOUS else scheduler or "a local cluster on 127.0.0.1"
-            progress.step(f"identifying {len(jobs)} recordings on {where} ({n} worker{'s' * (n != 1)})")
+            where = ("in this process" if scheduler == SYNCHRONOUS
+                     else f"on {scheduler or 'a local cluster on 127.0.0.1'}")
+            progress.step(f"identifying {len(jobs)} recordings {where} ({n} worker{'s' * (n != 1)})")
+        tally.append(_Tally(progress, len(jobs), outcome.skipped))  # timed from here: the cluster is up
 
     try:
         if jobs:
             with closing(_run_tasks(jobs, args, scheduler, workers, on_cluster)) as results:
                 for row in results:
                     rows.append(row)
-                    tally.add(row)
+                    tally[0].add(row)
     except KeyboardInterrupt as exc:
         outcome.interrupted = True
         _finish(outcome, kept, rows, started)
@@ -238,5 +248,6 @@ def _finish(outcome: BatchOutcome, kept: list[dict], rows: list[dict], started: 
     outcome.done = len(rows)
     outcome.failures = [r for r in rows if r["status"] != "ok"]
     outcome.failed = len(outcome.failures)
+    outcome.task_s = sum(r["elapsed_s"] for r in rows if r["elapsed_s"] == r["elapsed_s"])  # NaN: no task ran
     outcome.wall_s = time.monotonic() - started
     return outcome

@@ -48,7 +48,8 @@ def _number(value: Any) -> float:
 def summary_figures(summary: dict) -> dict[str, Any]:
     """The row's figures from an ``identify`` summary (complete, or up to a failed step).
 
-    ``duration_s`` is the whole recording's (its rows over the rate). The resonance columns are those of the lowest resonance found (NaN: none);
+    ``duration_s`` is the whole recording's (its rows over the rate). The
+    resonance columns are those of the lowest resonance found (NaN: none);
     ``resonances_json`` holds all of them as ``summary.json`` does;
     ``model_fit_percent`` is the ``[model]`` grey-box fit on the estimation
     data (NaN without one).
