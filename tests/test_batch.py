@@ -20,7 +20,7 @@ import pytest
 from hilident.batch import runner, table
 from hilident.batch.identity import name_time, recording_identity
 from hilident.batch.inputs import content_sha256, expand_inputs
-from hilident.batch.task import identify_row, summary_figures
+from hilident.batch.task import identify_row, identify_task, summary_figures
 from hilident.cli import main
 from hilident.config import parse_config
 from hilident.drivers import find_driver
@@ -250,6 +250,11 @@ def test_a_batch_identifies_every_recording_and_damaged_files_become_failure_row
         assert f"failed: {root / name}: {r['error']}" in stdout
     truncated = by_name["ax2/truncated_20261103T000000Z.h5"]
     assert truncated["error_type"] == "DataError" and truncated["time_source"] == "name"
+    # each analysis's summary.json is kept beside the table, by its keys; none for data never read
+    for r in (one, two):
+        kept = json.loads(runner.summary_path(out, r).read_text())
+        assert kept["resonances"][0]["frequency_hz"] == r["frequency_hz"]
+    assert len(list((out / "summaries").iterdir())) == 2
 
 
 def test_a_rerun_skips_by_content_hash_and_a_changed_file_is_done_again(tmp_path, fleet, capsys):
@@ -316,9 +321,9 @@ def test_ctrl_c_keeps_the_rows_finished_so_far(tmp_path, fleet, monkeypatch, cap
         calls.append(path)
         if len(calls) == 2:
             raise KeyboardInterrupt
-        return identify_row(path, *args)
+        return identify_task(path, *args)
 
-    monkeypatch.setattr(runner, "identify_row", interrupted_second)
+    monkeypatch.setattr(runner, "identify_task", interrupted_second)
     out = tmp_path / "out"
     assert batch(str(root), "--out", str(out), "--scheduler", "synchronous") == 130
     assert "1 recordings finished are in" in capsys.readouterr().err

@@ -47,7 +47,7 @@ def test_a_local_cluster_of_two_workers_gives_the_rows_of_the_plain_loop(tmp_pat
 
     monkeypatch.setattr(runner, "_local_cluster", spied)
     assert main_quiet(str(root), "--out", str(tmp_path), "--workers", "2") == 0
-    assert "(2 workers)" in capsys.readouterr().out
+    assert "(2 workers; one task took" in capsys.readouterr().out
     pd.testing.assert_frame_equal(pd.read_parquet(tmp_path / "batch.parquet").drop(columns=TIMINGS), reference)
     assert seen["scheduler"].startswith("tcp://127.0.0.1:")
     assert len(seen["workers"]) == 2 and all(w.startswith("tcp://127.0.0.1:") for w in seen["workers"])

@@ -29,11 +29,13 @@ from typing import Any
 
 from hilident.batch.inputs import content_sha256, expand_inputs
 from hilident.batch.table import CSV_NAME, TABLE_NAME, read_rows, write_rows
-from hilident.batch.task import blank_row, fail, identify_row
-from hilident.errors import UsageError
+from hilident.batch.task import blank_row, fail, identify_task
+from hilident.errors import DataError, HilidentError, UsageError
 
 #: ``--scheduler`` value that runs the tasks in this process, one after the other.
 SYNCHRONOUS = "synchronous"
+#: Folder of the table's folder holding each recording's ``summary.json``.
+SUMMARIES = "summaries"
 #: Seconds to wait for a scheduler given by address before giving up.
 CONNECT_TIMEOUT_S = 10.0
 
@@ -123,13 +125,19 @@ def _client_at(address: str):
                          f"{SYNCHRONOUS}") from None
 
 
+def summary_path(folder: Path, row: dict) -> Path:
+    """Where the ``summary.json`` of ``row``'s analysis is kept: ``summaries/<content hash>-<config hash>.json``."""
+    return folder / SUMMARIES / f"{row['content_sha256']}-{row['config_sha256'][:12]}.json"
+
+
 def _run_tasks(jobs: list[tuple[str, str]], args: tuple, scheduler: str | None, workers: int | None,
-               on_cluster: Callable[[int], None]) -> Generator[dict, None, None]:
-    """Rows of ``jobs`` ((path, hash) each) as they finish; the cluster is closed whatever ends the iteration."""
+               on_cluster: Callable[[int], None]) -> Generator[tuple[dict, dict | None], None, None]:
+    """(row, summary) of ``jobs`` ((path, hash) each) as they finish; the cluster is closed whatever ends the
+    iteration."""
     if scheduler == SYNCHRONOUS:
         on_cluster(1)
         for path, sha in jobs:
-            yield identify_row(path, sha, *args)
+            yield identify_task(path, sha, *args)
         return
     from distributed import as_completed
 
@@ -140,15 +148,15 @@ def _run_tasks(jobs: list[tuple[str, str]], args: tuple, scheduler: str | None, 
         cluster, client = _local_cluster(workers or os.cpu_count() or 1)
     try:
         on_cluster(len(client.scheduler_info().get("workers", {})))
-        futures = {client.submit(identify_row, path, sha, *args, key=f"hilident-batch-{i}-{sha[:16]}", pure=False):
-                   (path, sha) for i, (path, sha) in enumerate(jobs)}
+        futures = {client.submit(identify_task, path, sha, *args, key=f"hilident-batch-{i}-{sha[:16]}",
+                                 pure=False): (path, sha) for i, (path, sha) in enumerate(jobs)}
         try:
             for future in as_completed(futures):
                 try:
                     yield future.result()
                 except Exception as exc:  # a worker lost (killed, out of memory): that recording's row says so
                     path, sha = futures[future]
-                    yield fail(blank_row(path, sha, args[2]), exc)
+                    yield fail(blank_row(path, sha, args[2]), exc), None
         finally:
             client.cancel(list(futures))
     finally:
@@ -160,6 +168,8 @@ def _run_tasks(jobs: list[tuple[str, str]], args: tuple, scheduler: str | None, 
 def run_batch(inputs: list[str], cfg, out: str | Path, *, scheduler: str | None = None, workers: int | None = None,
               retry_failed: bool = False, progress=None) -> BatchOutcome:
     """Identify the recordings ``inputs`` name into ``out/batch.parquet`` (and ``batch.csv``), incrementally.
+
+    Each analysis's ``summary.json`` is kept as :func:`summary_path` names it.
 
     Recordings whose (content hash, configuration hash) the table holds are
     skipped (failed ones too, unless ``retry_failed``); so is a second file of
@@ -230,15 +240,29 @@ def run_batch(inputs: list[str], cfg, out: str | Path, *, scheduler: str | None 
     try:
         if jobs:
             with closing(_run_tasks(jobs, args, scheduler, workers, on_cluster)) as results:
-                for row in results:
+                for row, summary in results:
                     rows.append(row)
+                    if summary is not None:
+                        _keep_summary(summary_path(out, row), summary)
                     tally[0].add(row)
     except KeyboardInterrupt as exc:
         outcome.interrupted = True
         _finish(outcome, kept, rows, started)
         exc.outcome = outcome  # type: ignore[attr-defined]
         raise
+    except HilidentError:
+        _finish(outcome, kept, rows, started)  # what was finished stays
+        raise
     return _finish(outcome, kept, rows, started)
+
+
+def _keep_summary(path: Path, summary: dict) -> None:
+    from hilident.serialise import write_json
+
+    try:
+        write_json(path, summary)
+    except OSError as exc:
+        raise DataError(f"{path}: cannot write the recording's summary ({exc})") from None
 
 
 def _finish(outcome: BatchOutcome, kept: list[dict], rows: list[dict], started: float) -> BatchOutcome:

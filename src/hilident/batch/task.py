@@ -87,9 +87,9 @@ def fail(row: dict[str, Any], exc: BaseException) -> dict[str, Any]:
     return row
 
 
-def identify_row(path: str, content_sha256: str, config_text: str | None, config_source: str,
-                 config_sha256: str) -> dict[str, Any]:
-    """Identify the recording at ``path`` as ``hilident identify`` does (no plots, no files) into one row.
+def identify_task(path: str, content_sha256: str, config_text: str | None, config_source: str,
+                  config_sha256: str) -> tuple[dict[str, Any], dict | None]:
+    """Identify the recording at ``path`` as ``hilident identify`` does (no plots, no files): its row and summary.
 
     Parameters
     ----------
@@ -102,12 +102,14 @@ def identify_row(path: str, content_sha256: str, config_text: str | None, config
 
     Returns
     -------
-    dict
-        The row; ``status`` ``"ok"``, or ``"failed"`` with ``error`` and ``error_type`` (and the figures
-        of the steps that succeeded). It never raises.
+    (dict, dict or None)
+        The row, ``status`` ``"ok"``, or ``"failed"`` with ``error`` and ``error_type`` (and the figures
+        of the steps that succeeded); and the ``identify`` summary (None when the data could not be
+        read). It never raises.
     """
     started = time.monotonic()
     row = blank_row(path, content_sha256, config_sha256)
+    summary = None
     try:
         row.update(recording_identity(path))
         from hilident.config import parse_config
@@ -115,7 +117,8 @@ def identify_row(path: str, content_sha256: str, config_text: str | None, config
 
         cfg = parse_config(config_text, config_source) if config_text is not None else None
         analysis = analyse_recording(cfg, path)
-        row.update(summary_figures(analysis.summary))
+        summary = analysis.summary
+        row.update(summary_figures(summary))
         if analysis.error is not None:
             fail(row, analysis.error)
         else:
@@ -123,4 +126,10 @@ def identify_row(path: str, content_sha256: str, config_text: str | None, config
     except Exception as exc:  # one recording must never stop the batch: whatever went wrong becomes its row
         fail(row, exc)
     row["elapsed_s"] = time.monotonic() - started
-    return row
+    return row, summary
+
+
+def identify_row(path: str, content_sha256: str, config_text: str | None, config_source: str,
+                 config_sha256: str) -> dict[str, Any]:
+    """The row of :func:`identify_task` alone."""
+    return identify_task(path, content_sha256, config_text, config_source, config_sha256)[0]
