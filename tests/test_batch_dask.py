@@ -11,6 +11,7 @@ from hilident.batch import runner
 from test_batch import batch, fleet  # noqa: F401  (the fixture, shared)
 
 distributed = pytest.importorskip("distributed")
+psutil = pytest.importorskip("psutil")
 
 #: columns that differ between two runs of the same recordings: the time each task took
 TIMINGS = ["elapsed_s"]
@@ -20,7 +21,7 @@ TIMINGS = ["elapsed_s"]
 def cluster():
     """One cluster of two worker processes on 127.0.0.1 for the module (a start costs seconds)."""
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                  dashboard_address=None) as c:
+                                  dashboard_address="127.0.0.1:0") as c:
         yield c
 
 
@@ -42,7 +43,10 @@ def test_a_local_cluster_of_two_workers_gives_the_rows_of_the_plain_loop(tmp_pat
     def spied(workers):
         cluster, client = local(workers)
         info = client.scheduler_info()
-        seen.update(scheduler=cluster.scheduler_address, workers=list(info["workers"]))
+        me = psutil.Process()
+        listening = [c.laddr for p in (me, *me.children(recursive=True))
+                     for c in p.net_connections("inet") if c.status == psutil.CONN_LISTEN]
+        seen.update(scheduler=cluster.scheduler_address, workers=list(info["workers"]), listening=listening)
         return cluster, client
 
     monkeypatch.setattr(runner, "_local_cluster", spied)
@@ -51,6 +55,9 @@ def test_a_local_cluster_of_two_workers_gives_the_rows_of_the_plain_loop(tmp_pat
     pd.testing.assert_frame_equal(pd.read_parquet(tmp_path / "batch.parquet").drop(columns=TIMINGS), reference)
     assert seen["scheduler"].startswith("tcp://127.0.0.1:")
     assert len(seen["workers"]) == 2 and all(w.startswith("tcp://127.0.0.1:") for w in seen["workers"])
+    # scheduler, workers and their HTTP endpoints: nothing listens beyond loopback, on no fixed port
+    assert len(seen["listening"]) >= 3 and {a.ip for a in seen["listening"]} == {"127.0.0.1"}
+    assert 8787 not in {a.port for a in seen["listening"]}
 
 
 def test_a_scheduler_by_address_gives_the_same_rows_and_a_rerun_skips_them(tmp_path, fleet, reference,  # noqa: F811
@@ -77,6 +84,16 @@ def test_a_scheduler_that_does_not_answer_is_a_usage_error(tmp_path, fleet, monk
     assert main_quiet(str(root), "--out", str(tmp_path), "--scheduler", "tcp://127.0.0.1:9") == 2
     stderr = capsys.readouterr().err
     assert "--scheduler tcp://127.0.0.1:9: no Dask scheduler answers there" in stderr and "Traceback" not in stderr
+
+
+def test_a_scheduler_without_workers_is_a_usage_error(tmp_path, fleet, monkeypatch, capsys):  # noqa: F811
+    root, _ = fleet
+    monkeypatch.setattr(runner, "CONNECT_TIMEOUT_S", 1.0)
+    with distributed.LocalCluster(n_workers=0, host="127.0.0.1", dashboard_address="127.0.0.1:0") as empty:
+        assert main_quiet(str(root), "--out", str(tmp_path), "--scheduler", empty.scheduler_address) == 2
+    stderr = capsys.readouterr().err
+    assert "the scheduler has no worker" in stderr and "Traceback" not in stderr
+    assert not (tmp_path / "batch.parquet").exists()
 
 
 def main_quiet(*args: str) -> int:

@@ -108,7 +108,8 @@ def _local_cluster(workers: int):
 
     # silence_logs: the workers' notes (a task cancelled by Ctrl-C) are not the user's concern
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                           dashboard_address=None, scheduler_kwargs={"dashboard": False}, silence_logs=logging.ERROR)
+                           dashboard_address="127.0.0.1:0", scheduler_kwargs={"dashboard": False},
+                           silence_logs=logging.ERROR)
     return cluster, Client(cluster)
 
 
@@ -116,13 +117,20 @@ def _client_at(address: str):
     from distributed import Client
 
     try:
-        return Client(address, timeout=CONNECT_TIMEOUT_S)
+        client = Client(address, timeout=CONNECT_TIMEOUT_S)
     except (OSError, TimeoutError) as exc:
         raise UsageError(f"--scheduler {address}: no Dask scheduler answers there ({exc}); start one with "
                          "`dask scheduler` and workers with `dask worker ADDRESS`") from None
     except ValueError as exc:
         raise UsageError(f"--scheduler {address}: not a scheduler address ({exc}); give tcp://HOST:PORT or "
                          f"{SYNCHRONOUS}") from None
+    try:
+        client.wait_for_workers(1, timeout=CONNECT_TIMEOUT_S)
+    except TimeoutError:
+        client.close()
+        raise UsageError(f"--scheduler {address}: the scheduler has no worker (none joined within "
+                         f"{CONNECT_TIMEOUT_S:g} s); start them with `dask worker {address}`") from None
+    return client
 
 
 def summary_path(folder: Path, row: dict) -> Path:
@@ -176,7 +184,7 @@ def run_batch(inputs: list[str], cfg, out: str | Path, *, scheduler: str | None 
     the same content. The rows of the others are appended. A Ctrl-C (or any
     ``KeyboardInterrupt``) stops the batch: the cluster is closed, the rows
     finished so far are written, and the interrupt is raised again with
-    :attr:`BatchOutcome` as its ``outcome`` attribute.
+    the :class:`BatchOutcome` as its ``outcome`` attribute.
 
     Parameters
     ----------
@@ -194,7 +202,8 @@ def run_batch(inputs: list[str], cfg, out: str | Path, *, scheduler: str | None 
     Raises
     ------
     UsageError
-        An input that names no recording, ``--workers`` with a scheduler, no scheduler at the address.
+        An input that names no recording, ``--workers`` with a scheduler, no scheduler at the address or
+        no worker on it.
     DataError
         The table in ``out`` is there but cannot be read.
     """
@@ -251,7 +260,8 @@ def run_batch(inputs: list[str], cfg, out: str | Path, *, scheduler: str | None 
         exc.outcome = outcome  # type: ignore[attr-defined]
         raise
     except HilidentError:
-        _finish(outcome, kept, rows, started)  # what was finished stays
+        if rows:  # what was finished stays
+            _finish(outcome, kept, rows, started)
         raise
     return _finish(outcome, kept, rows, started)
 
