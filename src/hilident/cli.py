@@ -221,14 +221,12 @@ def _batch(args) -> int:
         outcome = run_batch(args.inputs, cfg, args.out, scheduler=args.scheduler, workers=args.workers,
                             retry_failed=args.retry_failed, progress=Progress(enabled=not args.quiet))
     except KeyboardInterrupt as exc:
-        finished = getattr(exc, "outcome", None)
-        if finished is None:
-            raise
         from hilident import endings
 
         endings.ignore_further_signals()
-        _say(f"hilident: {exc or 'interrupted'}; the cluster is closed; {finished.done} recordings finished are "
-             f"in {finished.table}")
+        finished = getattr(exc, "outcome", None)
+        _say(f"hilident: {exc or 'interrupted'}; " + ("nothing was identified yet" if finished is None else
+             f"the cluster is closed; {finished.done} recordings finished are in {finished.table}"))
         return getattr(exc, "exit_code", 130)
     for row in outcome.failures:
         print(f"failed: {row['path']}: {row['error']}")
