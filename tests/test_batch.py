@@ -9,6 +9,7 @@ import datetime as dt
 import json
 import math
 import os
+import shutil
 from functools import cache
 from pathlib import Path
 
@@ -260,8 +261,6 @@ def test_a_batch_identifies_every_recording_and_damaged_files_become_failure_row
 def test_a_rerun_skips_by_content_hash_and_a_changed_file_is_done_again(tmp_path, fleet, capsys):
     root, _ = fleet
     folder = tmp_path / "fleet"
-    import shutil
-
     shutil.copytree(root, folder)
     out = tmp_path / "out"
     assert batch(str(folder), "--out", str(out), "--scheduler", "synchronous") == 0
@@ -286,6 +285,17 @@ def test_a_rerun_skips_by_content_hash_and_a_changed_file_is_done_again(tmp_path
     assert "0 identified, 3 failed, 3 skipped" in capsys.readouterr().out
     again = pd.read_parquet(out / "batch.parquet")
     assert len(again) == 6 and (again["status"] == "failed").sum() == 3
+
+
+def test_a_table_inside_an_input_folder_is_not_taken_for_a_recording(tmp_path, fleet, capsys):
+    root, _ = fleet
+    folder = tmp_path / "fleet"
+    shutil.copytree(root / "ax2", folder)
+    (folder / "b.h5").unlink()  # the failures only: quick
+    for _ in range(2):
+        assert batch(str(folder), "--out", str(folder / "table"), "--scheduler", "synchronous") == 0
+    assert "batch: 3 recordings: 0 identified, 0 failed, 3 skipped" in capsys.readouterr().out
+    assert len(pd.read_parquet(folder / "table" / "batch.parquet")) == 3
 
 
 def test_a_config_change_redoes_the_rows_but_batch_keys_do_not(tmp_path):

@@ -211,10 +211,11 @@ def run_batch(inputs: list[str], cfg, out: str | Path, *, scheduler: str | None 
         raise UsageError("--workers: " + ("must be at least 1" if workers < 1 else
                                           "sizes the local cluster; a --scheduler's workers are its own"))
     started = time.monotonic()
-    paths = expand_inputs(inputs)
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {out}: is a file; give a folder for {TABLE_NAME} and {CSV_NAME}")
+    own = out.resolve()
+    paths = [p for p in expand_inputs(inputs) if not p.is_relative_to(own)]  # batch.csv is no recording
     old = read_rows(out)
     cfg_key = config_key(cfg)
     kept = [r for r in old if not (retry_failed and r["status"] != "ok" and r["config_sha256"] == cfg_key)]
