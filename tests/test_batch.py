@@ -10,6 +10,8 @@ import json
 import math
 import os
 import shutil
+import subprocess
+import sys
 from functools import cache
 from pathlib import Path
 
@@ -394,9 +396,6 @@ def test_workers_with_a_scheduler_or_below_one_is_a_usage_error(tmp_path, fleet,
 
 
 def test_a_config_error_comes_before_dask_and_the_analysis_are_imported(tmp_path):
-    import subprocess
-    import sys
-
     from test_startup import PROBE, SRC
 
     bad = tmp_path / "bad.toml"
