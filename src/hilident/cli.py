@@ -1,4 +1,4 @@
-"""Command line: ``hilident run``, ``identify``, ``upload``, ``report``, ``show``, ``export``,
+"""Command line: ``hilident run``, ``identify``, ``batch``, ``upload``, ``report``, ``show``, ``export``,
 ``emulate serial|modbus|canopen|fleet``, ``drivers``, ``init``, ``ports``.
 
 Thin on purpose: it parses arguments and calls the session, the emulator
@@ -207,6 +207,36 @@ def _identify(args) -> int:
         print(f"warning: {w}")
     print(f"wrote {out / 'summary.json'}")
     _print_report(out)
+    return 0
+
+
+def _batch(args) -> int:
+    from hilident.config import load_config
+
+    cfg = load_config(args.config) if args.config else None
+    from hilident.batch.runner import run_batch  # after the config, as in _run
+    from hilident.progress import Progress
+
+    try:
+        outcome = run_batch(args.inputs, cfg, args.out, scheduler=args.scheduler, workers=args.workers,
+                            retry_failed=args.retry_failed, progress=Progress(enabled=not args.quiet))
+    except KeyboardInterrupt as exc:
+        from hilident import endings
+
+        endings.ignore_further_signals()
+        finished = getattr(exc, "outcome", None)
+        _say(f"hilident: {exc or 'interrupted'}; " + ("nothing was identified yet" if finished is None else
+             f"the cluster is closed; {finished.done} recordings finished are in {finished.table}"))
+        return getattr(exc, "exit_code", 130)
+    for row in outcome.failures:
+        print(f"failed: {row['path']}: {row['error']}")
+    print(f"batch: {outcome.recordings} recordings: {outcome.done - outcome.failed} identified, {outcome.failed} "
+          f"failed, {outcome.skipped} skipped (already in the table)")
+    if outcome.done:
+        print(f"wall time {outcome.wall_s:.1f} s, {outcome.per_recording_s:.3g} s per recording "
+              f"({outcome.workers} worker{'s' * (outcome.workers != 1)}; one task took {outcome.mean_task_s:.3g} s "
+              "on average)")
+    print(f"wrote {outcome.table} and {outcome.csv}")
     return 0
 
 
@@ -459,6 +489,24 @@ def build_parser() -> argparse.ArgumentParser:
     ide.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     ide.set_defaults(func=_identify)
 
+    bat = sub.add_parser("batch", help="identify many recordings in parallel on Dask into one table "
+                         "(batch.parquet, batch.csv); a re-run skips those already in it", formatter_class=raw,
+                         epilog=cli_help.BATCH)
+    bat.add_argument("inputs", nargs="+", metavar="INPUT", help="recordings, folders (searched at any depth for "
+                     ".h5, .hdf5, .csv, .mat) or globs")
+    bat.add_argument("--config", help="TOML configuration as for identify (not needed for hilident recordings); "
+                     "its [batch] table sets the drift verdict")
+    bat.add_argument("--out", required=True, metavar="DIR", help="folder of the table: batch.parquet and batch.csv "
+                     "(an earlier table there is extended)")
+    bat.add_argument("--scheduler", metavar="ADDRESS", help="a Dask scheduler to run on (tcp://HOST:8786), or "
+                     "'synchronous' for a plain loop in this process (default: a local cluster on 127.0.0.1)")
+    bat.add_argument("--workers", type=int, metavar="N", help="worker processes of the local cluster (default: "
+                     "one per core)")
+    bat.add_argument("--retry-failed", action="store_true", help="identify again the recordings whose earlier "
+                     "row is a failure (default: skipped like the others)")
+    bat.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    bat.set_defaults(func=_batch)
+
     upl = sub.add_parser("upload", help="upload the notches of an earlier run or identify to a device, with "
                          "read-back, enable-after-match and rollback", formatter_class=raw, epilog=cli_help.UPLOAD)
     upl.add_argument("--from", required=True, metavar="RUN_DIR|SUMMARY", help="a run or identify folder, or its "
@@ -596,7 +644,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.log_level:
         _configure_logging(args.log_level)
     try:
-        if args.command in ("run", "upload"):
+        if args.command in ("run", "upload", "batch"):
             with endings.signals_end_the_session():
                 return args.func(args)
         return args.func(args)

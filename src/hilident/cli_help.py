@@ -1,4 +1,4 @@
-"""The examples and the exit-code list ``hilident --help`` (and ``run``/``identify``/``upload --help``) end with.
+"""The examples and the exit-code list ``hilident --help`` and the commands' ``--help`` end with.
 
 Kept apart from :mod:`hilident.cli` so the parser stays readable; plain text,
 printed as written (``argparse.RawDescriptionHelpFormatter``).
@@ -41,6 +41,15 @@ examples:
   hilident identify runs/gantry/identification.h5              a hilident recording (its config is stored in it)
   hilident identify scope.csv --config axis.toml --out runs/axis
   hilident identify a.h5 --validation b.h5                     validate the [model] fit on a second record
+
+""" + EXIT_CODES
+
+BATCH = """\
+examples:
+  hilident batch fleet/ --out fleet-table                    every recording under fleet/, on a local cluster
+  hilident batch 'scopes/*.csv' --config axis.toml --out t   CSV exports: the config names their columns
+  hilident batch fleet/ --out t --scheduler tcp://host:8786  on a running Dask cluster (see README "Fleets on Dask")
+  hilident batch a.h5 --out t --scheduler synchronous        a plain loop in this process (debugging)
 
 """ + EXIT_CODES
 

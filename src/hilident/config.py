@@ -287,6 +287,16 @@ class MapConfig:
 
 
 @dataclass(frozen=True)
+class BatchConfig:
+    """``[batch]``: ``hilident batch``'s drift verdict per axis over many recordings."""
+
+    drift_percent_per_day: float = _spec(0.1, gt=0, doc="rate of change of the resonance frequency, % per day, "
+                                         "above which a significant trend is flagged")
+    min_recordings: int = _spec(5, ge=3, doc="recordings an axis needs for a verdict (fewer: no verdict)")
+    confidence: float = _spec(0.95, gt=0, lt=1, doc="confidence level of the trend's interval and significance")
+
+
+@dataclass(frozen=True)
 class MoveConfig:
     """``[verification] move``: a point-to-point move done without and with the notch, its ringing compared."""
 
@@ -575,6 +585,7 @@ class Config:
     identification: IdentificationConfig = _spec(IdentificationConfig())
     notch: NotchConfig = _spec(NotchConfig())
     map: MapConfig = _spec(MapConfig())
+    batch: BatchConfig = _spec(BatchConfig())
     verification: VerificationConfig = _spec(VerificationConfig())
     emulator: EmulatorConfig = _spec(EmulatorConfig())
     source: str = field(default="", metadata={"internal": True})

@@ -392,20 +392,43 @@ def _check_validation_rate(ds: Dataset, validation: Dataset) -> float:
     return spread
 
 
-def identify_recording(cfg: Config | None, data_path: str | Path, out_dir: str | Path, progress=None,
-                       validation_path: str | Path | None = None) -> dict:
-    """Identify the plant in ``data_path``; writes ``summary.json`` and plots into ``out_dir``.
+@dataclasses.dataclass
+class Analysis:
+    """What :func:`analyse_recording` found: ``summary.json`` and what the plots are drawn from.
 
-    ``cfg`` may be None for a hilident recording (its stored configuration is
-    used). ``validation_path`` is a second recording of the same axis (same
-    ``[data]`` mapping) on which the grey-box model is validated. Once the
-    data are read, ``summary.json`` is written whatever step fails after;
-    it then names the step (``failed_step``) and the error, and the error is
-    raised.
+    Attributes
+    ----------
+    summary : dict
+        ``summary.json`` of ``identify``; with ``failed_step`` and ``error`` when a step failed.
+    error : HilidentError or None
+        The error of the step that failed after the data were read (None: every step succeeded).
+    cfg : Config
+        The configuration the recording was analysed with (``[data]`` and ``[model]`` resolved).
+    data, validation : Dataset
+        The records read (``validation``: None without one).
+    state : dict
+        The steps' results: ``plant``, ``designs``, ``model``, ``friction``, ``band_hz``.
+    """
+
+    summary: dict
+    error: HilidentError | None
+    cfg: Config
+    data: Dataset
+    validation: Dataset | None
+    state: dict
+
+
+def analyse_recording(cfg: Config | None, data_path: str | Path, progress=None,
+                      validation_path: str | Path | None = None) -> Analysis:
+    """The identification of ``data_path`` as ``hilident identify`` does it, writing nothing.
+
+    Errors before the data are read (no such file, no configuration, a
+    damaged file) are raised; an error of a later step is returned in
+    :attr:`Analysis.error`, with the summary of the steps that succeeded.
+    :func:`identify_recording` writes its result; ``hilident batch`` keeps
+    its figures.
     """
     started = time.monotonic()
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     say = progress.step if progress else (lambda message: None)
     cfg, info = resolve_config(cfg, data_path)
     data_cfg = data_mapping(cfg, info)
@@ -434,17 +457,37 @@ def identify_recording(cfg: Config | None, data_path: str | Path, out_dir: str |
         f"{ds.sample_rate_hz:g} Hz" + (f" in {ds.info['segments']} gap-free segment(s)"
                                        if ds.info.get("segments", 1) > 1 else ""))
     state: dict = {"plant": None, "designs": [], "model": None, "friction": None, "data_path": data_path}
-    summary = _summary(cfg, data_info, state, warnings, started)
+    error: HilidentError | None = None
     try:
         _steps(cfg, ds, validation, info, state, warnings)
     except HilidentError as exc:
-        summary = _summary(cfg, data_info, state, warnings, started)
-        summary.update(failed_step=state["step"], error=str(exc))
-        report.write_summary(out / "summary.json", summary)
-        html_report.write_report_quietly(out)
-        raise
+        error = exc
     summary = _summary(cfg, data_info, state, warnings, started)
+    if error is not None:
+        summary.update(failed_step=state["step"], error=str(error))
+    return Analysis(summary, error, cfg, ds, validation, state)
+
+
+def identify_recording(cfg: Config | None, data_path: str | Path, out_dir: str | Path, progress=None,
+                       validation_path: str | Path | None = None) -> dict:
+    """Identify the plant in ``data_path``; writes ``summary.json`` and plots into ``out_dir``.
+
+    ``cfg`` may be None for a hilident recording (its stored configuration is
+    used). ``validation_path`` is a second recording of the same axis (same
+    ``[data]`` mapping) on which the grey-box model is validated. Once the
+    data are read, ``summary.json`` is written whatever step fails after;
+    it then names the step (``failed_step``) and the error, and the error is
+    raised.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    a = analyse_recording(cfg, data_path, progress, validation_path)
+    summary = a.summary
     report.write_summary(out / "summary.json", summary)
+    if a.error is not None:
+        html_report.write_report_quietly(out)
+        raise a.error
+    cfg, ds, validation, state = a.cfg, a.data, a.validation, a.state
     plant, designs = state["plant"], state["designs"]
     model = state["model"]
     report.plot_identify(out, summary, plant, designs, band_hz=state.get("band_hz"),
