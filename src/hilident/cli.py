@@ -232,11 +232,17 @@ def _batch(args) -> int:
         print(f"failed: {row['path']}: {row['error']}")
     print(f"batch: {outcome.recordings} recordings: {outcome.done - outcome.failed} identified, {outcome.failed} "
           f"failed, {outcome.skipped} skipped (already in the table)")
+    from hilident.batch.verdicts import verdict_lines
+
+    for line in verdict_lines(outcome.drifts):
+        print(line)
     if outcome.done:
         print(f"wall time {outcome.wall_s:.1f} s, {outcome.per_recording_s:.3g} s per recording "
               f"({outcome.workers} worker{'s' * (outcome.workers != 1)}; one task took {outcome.mean_task_s:.3g} s "
               "on average)")
     print(f"wrote {outcome.table} and {outcome.csv}")
+    if outcome.report is not None:
+        print(f"wrote {outcome.report} (open it in a browser) and {outcome.report.with_name('drift.json')}")
     return 0
 
 

@@ -16,6 +16,7 @@ Only paths are submitted, never data: a worker reads one recording at a time.
 
 from __future__ import annotations
 
+import datetime as _dt
 import hashlib
 import json
 import logging
@@ -30,12 +31,16 @@ from typing import Any
 from hilident.batch.inputs import content_sha256, expand_inputs
 from hilident.batch.table import CSV_NAME, TABLE_NAME, read_rows, write_rows
 from hilident.batch.task import blank_row, fail, identify_task
+from hilident.batch.verdicts import judge_fleet
+from hilident.config import BatchConfig
 from hilident.errors import DataError, HilidentError, UsageError
 
 #: ``--scheduler`` value that runs the tasks in this process, one after the other.
 SYNCHRONOUS = "synchronous"
 #: Folder of the table's folder holding each recording's ``summary.json``.
 SUMMARIES = "summaries"
+#: SHA-256 of no bytes: an empty file's content hash.
+EMPTY_SHA256 = hashlib.sha256(b"").hexdigest()
 #: Seconds to wait for a scheduler given by address before giving up.
 CONNECT_TIMEOUT_S = 10.0
 
@@ -55,6 +60,9 @@ class BatchOutcome:
     interrupted: bool = False
     task_s: float = 0.0
     failures: list[dict] = field(default_factory=list)
+    #: The drift verdict of every axis in the table (:func:`hilident.batch.verdicts.judge_fleet`).
+    drifts: dict = field(default_factory=dict)
+    report: Path | None = None
 
     @property
     def per_recording_s(self) -> float:
@@ -181,7 +189,7 @@ def run_batch(inputs: list[str], cfg, out: str | Path, *, scheduler: str | None 
 
     Recordings whose (content hash, configuration hash) the table holds are
     skipped (failed ones too, unless ``retry_failed``); so is a second file of
-    the same content. The rows of the others are appended. A Ctrl-C (or any
+    the same content, except an empty one (:func:`_row_key`). The rows of the others are appended. A Ctrl-C (or any
     ``KeyboardInterrupt``) stops the batch: the cluster is closed, the rows
     finished so far are written, and the interrupt is raised again with
     the :class:`BatchOutcome` as its ``outcome`` attribute.
@@ -211,6 +219,7 @@ def run_batch(inputs: list[str], cfg, out: str | Path, *, scheduler: str | None 
         raise UsageError("--workers: " + ("must be at least 1" if workers < 1 else
                                           "sizes the local cluster; a --scheduler's workers are its own"))
     started = time.monotonic()
+    started_utc = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {out}: is a file; give a folder for {TABLE_NAME} and {CSV_NAME}")
@@ -219,7 +228,7 @@ def run_batch(inputs: list[str], cfg, out: str | Path, *, scheduler: str | None 
     old = read_rows(out)
     cfg_key = config_key(cfg)
     kept = [r for r in old if not (retry_failed and r["status"] != "ok" and r["config_sha256"] == cfg_key)]
-    known = {(r["content_sha256"], r["config_sha256"]) for r in kept}
+    known = {_row_key(r["path"], r["content_sha256"], r["config_sha256"]) for r in kept}
     outcome = BatchOutcome(out / TABLE_NAME, out / CSV_NAME, len(paths))
     rows: list[dict[str, Any]] = []
     jobs: list[tuple[str, str]] = []
@@ -229,10 +238,11 @@ def run_batch(inputs: list[str], cfg, out: str | Path, *, scheduler: str | None 
         except OSError as exc:
             rows.append(fail(blank_row(str(path), "", cfg_key), exc))
             continue
-        if (sha, cfg_key) in known:
+        key = _row_key(str(path), sha, cfg_key)
+        if key in known:
             outcome.skipped += 1
             continue
-        known.add((sha, cfg_key))
+        known.add(key)
         jobs.append((str(path), sha))
     if progress and outcome.skipped:
         progress.step(f"{outcome.skipped} of {len(paths)} recordings already in {out / TABLE_NAME}: skipped")
@@ -264,7 +274,26 @@ def run_batch(inputs: list[str], cfg, out: str | Path, *, scheduler: str | None 
         if rows:  # what was finished stays
             _finish(outcome, kept, rows, started)
         raise
-    return _finish(outcome, kept, rows, started)
+    _finish(outcome, kept, rows, started)
+    meta = {"inputs": list(inputs), "config": cfg.source if cfg is not None else "each recording's own",
+            "out": str(out), "scheduler": scheduler or "local cluster", "workers": outcome.workers,
+            "started_utc": started_utc, "wall_time_s": outcome.wall_s, "identified": outcome.done - outcome.failed,
+            "failed": outcome.failed, "skipped": outcome.skipped}
+    settings = cfg.batch if cfg is not None else BatchConfig()
+    outcome.drifts = judge_fleet(out, kept + rows, settings, meta)
+    outcome.report = out / "report.html"
+    return outcome
+
+
+def _row_key(path: str, content_sha256: str, config_sha256: str) -> tuple[str, ...]:
+    """What makes a recording done: its content and the configuration; an empty file's is its path too.
+
+    Two files of the same content are one recording (a copy, a renamed file), but every empty file is a
+    failure of its own: a night whose recorder wrote nothing must show in the table, however many did.
+    """
+    if content_sha256 == EMPTY_SHA256:
+        return (content_sha256, config_sha256, path)
+    return (content_sha256, config_sha256)
 
 
 def _keep_summary(path: Path, summary: dict) -> None:

@@ -20,6 +20,7 @@ COLUMNS: dict[str, str] = {
     "damping_ci95": "float64", "resonances_json": "string", "friction_model": "string",
     **dict.fromkeys(FRICTION_COLUMNS, "float64"), "model_fit_percent": "float64",
     "warnings": "string", "n_warnings": "int64", "hilident_version": "string", "elapsed_s": "float64",
+    "worker": "string", "worker_peak_rss_mib": "float64",
 }
 TABLE_NAME = "batch.parquet"
 CSV_NAME = "batch.csv"

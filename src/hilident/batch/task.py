@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import socket
+import sys
 import time
 from typing import Any
 
@@ -33,8 +36,18 @@ def blank_row(path: str, content_sha256: str, config_sha256: str) -> dict[str, A
         "frequency_hz": NAN, "frequency_ci95_hz": NAN, "damping_ratio": NAN, "damping_ci95": NAN,
         "resonances_json": "[]", "friction_model": "", **dict.fromkeys(FRICTION_COLUMNS, NAN),
         "model_fit_percent": NAN, "warnings": "[]", "n_warnings": 0,
-        "hilident_version": __version__, "elapsed_s": NAN,
+        "hilident_version": __version__, "elapsed_s": NAN, "worker": "", "worker_peak_rss_mib": NAN,
     }
+
+
+def peak_rss_mib() -> float:
+    """The peak resident memory of this process so far, MiB (NaN where the system does not say)."""
+    try:
+        import resource
+    except ImportError:  # not on Windows
+        return NAN
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 2**20 if sys.platform == "darwin" else peak / 1024.0  # bytes on macOS, KiB on Linux
 
 
 def _number(value: Any) -> float:
@@ -126,6 +139,8 @@ def identify_task(path: str, content_sha256: str, config_text: str | None, confi
     except Exception as exc:  # one recording must never stop the batch: whatever went wrong becomes its row
         fail(row, exc)
     row["elapsed_s"] = time.monotonic() - started
+    row["worker"] = f"{socket.gethostname()}:{os.getpid()}"
+    row["worker_peak_rss_mib"] = peak_rss_mib()
     return row, summary
 
 
