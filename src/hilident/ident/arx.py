@@ -492,8 +492,7 @@ def arx_order_search(
     grid = [(na, nb, nk) for na, nb, nk in product(nas, nbs, nks) if na + nb != 0]
     if not grid:
         raise ConfigError("na_range", "the grid holds only na=0, nb=0")
-    shared = _SharedFactor.of(u, y, grid)
-    fits = [_candidate_fit(shared, na, nb, nk) for na, nb, nk in grid]
+    shared, fits = _fit_grid(u, y, grid)
     rows = [_order_candidate(shared, orders, fit, validation)
             for orders, fit in zip(grid, fits, strict=True)]
     if all(np.isinf(r.aic) for r in rows):
@@ -615,6 +614,13 @@ def _streamed_factor(u: np.ndarray, y: np.ndarray, max_na: int, u_lags: tuple[in
     out = np.zeros((n_cols, n_cols))
     out[:k] = r[:k]
     return out
+
+
+def _fit_grid(u: np.ndarray, y: np.ndarray, grid: list[tuple[int, int, int]]
+              ) -> tuple[_SharedFactor, list[ArxModel | None]]:
+    """Every ``(na, nb, nk)`` of `grid` fitted on the common rows (None: undetermined), and their factor."""
+    shared = _SharedFactor.of(u, y, grid)
+    return shared, [_candidate_fit(shared, na, nb, nk) for na, nb, nk in grid]
 
 
 def _candidate_fit(shared: _SharedFactor, na: int, nb: int, nk: int) -> ArxModel | None:
