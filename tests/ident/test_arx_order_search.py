@@ -154,10 +154,10 @@ def test_validation_fits_are_free_run_simulations_of_the_reference_parameters():
     assert search.model.na == 2
 
 
-@pytest.mark.parametrize("block_rows", [1, 7, 64])
-def test_factor_streamed_in_small_blocks_is_the_same(monkeypatch, block_rows):
+@pytest.mark.parametrize("block_elements", [1, 50, 640])  # 1, 7 and 91 rows of 7 columns
+def test_factor_streamed_in_small_blocks_is_the_same(monkeypatch, block_elements):
     u, y = zoh_data(300, 0.05, seed=6)
-    monkeypatch.setattr(arx, "_BLOCK_ROWS", block_rows)
+    monkeypatch.setattr(arx, "_BLOCK_ELEMENTS", block_elements)
     assert_matches_reference(u, y, range(0, 3), range(0, 3), (0, 2))
 
 

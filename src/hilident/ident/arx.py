@@ -262,7 +262,13 @@ def _triangular_solution(r: np.ndarray, scale: np.ndarray, m: int, na: int, nb: 
             f"is not exciting enough for nb={nb} or the orders are too high for the data"
         )
     theta = linalg.solve_triangular(r11, r[:p, p] * scale[p]) / scale[:p]
-    return theta, linalg.solve_triangular(r11, np.eye(p))
+    # LAPACK trtri rather than a solve against the identity: the latter is a
+    # level-3 call that OpenBLAS may hand to its worker threads (see _BLOCK_ELEMENTS)
+    (trtri,) = linalg.get_lapack_funcs(("trtri",), (r11,))
+    r_inv, info = trtri(r11)
+    if info != 0:  # an exactly zero diagonal, which the rank test already excludes
+        raise DataError(f"R factor of ARX(na={na}, nb={nb}, nk={nk}) is singular (LAPACK trtri info={info})")
+    return theta, np.triu(r_inv)
 
 
 def _model(na: int, nb: int, nk: int, theta: np.ndarray, r_inv: np.ndarray, scale: np.ndarray,
@@ -506,9 +512,11 @@ def arx_order_search(
     )
 
 
-# Rows per block when the shared factor is built: about 1.4 MB of regressors for
-# ten columns, which stays in cache and bounds the memory whatever the record length.
-_BLOCK_ROWS = 4096
+# Elements per block of rows when the shared factor is built. Below about 8192
+# elements OpenBLAS runs the level-2 kernels of a QR on the calling thread: on a
+# busy machine, waking (and then spinning) its worker threads costs far more than
+# the work. The block also bounds the memory, whatever the record length.
+_BLOCK_ELEMENTS = 8000
 
 
 @dataclass(frozen=True, eq=False)
@@ -555,8 +563,8 @@ class _SharedFactor:
             u_lags=u_lags,
             first_row=first_row,
             n_rows=y_rows.size,
-            energy=float(y_rows @ y_rows),
-            spread=float(np.linalg.norm(y_rows - y_rows.mean())) if y_rows.size else 0.0,
+            energy=_sum_of_squares(y_rows),
+            spread=np.sqrt(_sum_of_squares(y_rows - y_rows.mean())) if y_rows.size else 0.0,
         )
 
     def columns(self, na: int, nb: int, nk: int) -> list[int]:
@@ -581,7 +589,7 @@ def _streamed_factor(u: np.ndarray, y: np.ndarray, max_na: int, u_lags: tuple[in
                      first_row: int) -> np.ndarray:
     """R factor of ``[y(k-1) .. y(k-max_na), u(k-j) for j in u_lags, y(k)]``, rows k >= `first_row`.
 
-    The rows are built and reduced :data:`_BLOCK_ROWS` at a time: each block is
+    The rows are built and reduced about :data:`_BLOCK_ELEMENTS` values at a time: each block is
     stacked under the factor so far and reduced by one Householder QR (LAPACK
     ``geqrf``), so memory is one block, never the whole regressor, and every
     step is an orthogonal transformation of the data (no normal equations).
@@ -593,12 +601,13 @@ def _streamed_factor(u: np.ndarray, y: np.ndarray, max_na: int, u_lags: tuple[in
     """
     n_cols = max_na + len(u_lags) + 1
     n = y.size
-    buf = np.zeros((_BLOCK_ROWS + n_cols, n_cols), order="F")
+    block_rows = max(1, _BLOCK_ELEMENTS // n_cols)
+    buf = np.zeros((block_rows + n_cols, n_cols), order="F")
     (geqrf,) = linalg.get_lapack_funcs(("geqrf",), (buf,))
     r = np.zeros((n_cols, n_cols))
     k = 0  # rows of the factor so far, on top of the block
-    for start in range(first_row, n, _BLOCK_ROWS):
-        stop = min(n, start + _BLOCK_ROWS)
+    for start in range(first_row, n, block_rows):
+        stop = min(n, start + block_rows)
         m = stop - start
         buf[:k] = r[:k]
         for col in range(max_na):
@@ -646,8 +655,13 @@ def _own_record_fit(shared: _SharedFactor, u: np.ndarray, y: np.ndarray, na: int
     r = typing.cast(np.ndarray, np.linalg.qr(
         np.vstack([shared.candidate_factor(na, nb, nk), head]), mode="r"))
     y_rows = y[first:]
-    return _model_from_factor(r, y_rows.size, float(np.linalg.norm(y_rows - y_rows.mean())),
+    return _model_from_factor(r, y_rows.size, np.sqrt(_sum_of_squares(y_rows - y_rows.mean())),
                               na, nb, nk)
+
+
+def _sum_of_squares(x: np.ndarray) -> float:
+    """``sum(x**2)`` without BLAS, whose threaded ``ddot`` would wake worker threads (see :data:`_BLOCK_ELEMENTS`)."""
+    return float(np.einsum("i,i->", x, x))
 
 
 def _checked_tolerance(tolerance: float | None, criterion: str) -> float:
