@@ -471,7 +471,11 @@ def arx_order_search(
 
     Candidates whose regressors are linearly dependent (more parameters than
     the data determine, e.g. over-parametrised models on noise-free data) get
-    infinite AIC/BIC, NaN loss and are never chosen.
+    infinite AIC/BIC, NaN loss and are never chosen. Dependent means: the
+    smallest singular value of the candidate's column-normalised regressor
+    matrix is at most ``max(N, p) * eps`` times its largest (``N`` common rows,
+    ``p`` parameters, ``eps`` the float64 machine epsilon), decided from the
+    candidate's small triangular factor, as :func:`fit_arx` decides it.
 
     ARX assumes the noise enters as white equation error. Under white
     measurement noise on `y` the estimates are biased and higher orders
@@ -512,10 +516,11 @@ def arx_order_search(
     )
 
 
-# Elements per block of rows when the shared factor is built. Below about 8192
-# elements OpenBLAS runs the level-2 kernels of a QR on the calling thread: on a
-# busy machine, waking (and then spinning) its worker threads costs far more than
-# the work. The block also bounds the memory, whatever the record length.
+# Elements per block of rows when the shared factor is built. OpenBLAS hands the
+# level-2 kernels of a QR to its worker threads above about 8192 elements; on a
+# busy machine, waking (and then spinning) them costs far more than the work
+# (measured: 0.2-0.9 s instead of 0.08 s for the whole search on 10^6 samples).
+# The block also bounds the memory, whatever the record length.
 _BLOCK_ELEMENTS = 8000
 
 
@@ -589,10 +594,11 @@ def _streamed_factor(u: np.ndarray, y: np.ndarray, max_na: int, u_lags: tuple[in
                      first_row: int) -> np.ndarray:
     """R factor of ``[y(k-1) .. y(k-max_na), u(k-j) for j in u_lags, y(k)]``, rows k >= `first_row`.
 
-    The rows are built and reduced about :data:`_BLOCK_ELEMENTS` values at a time: each block is
-    stacked under the factor so far and reduced by one Householder QR (LAPACK
-    ``geqrf``), so memory is one block, never the whole regressor, and every
-    step is an orthogonal transformation of the data (no normal equations).
+    The rows are built and reduced about :data:`_BLOCK_ELEMENTS` values at a
+    time: each block is stacked under the factor so far and reduced by one
+    Householder QR (LAPACK ``geqrf``), so memory is one block, never the whole
+    regressor, and every step is an orthogonal transformation of the data (no
+    normal equations).
 
     Returns
     -------
@@ -660,7 +666,7 @@ def _own_record_fit(shared: _SharedFactor, u: np.ndarray, y: np.ndarray, na: int
 
 
 def _sum_of_squares(x: np.ndarray) -> float:
-    """``sum(x**2)`` without BLAS, whose threaded ``ddot`` would wake worker threads (see :data:`_BLOCK_ELEMENTS`)."""
+    """``sum(x**2)``; not ``x @ x``, whose BLAS ``ddot`` wakes worker threads (see :data:`_BLOCK_ELEMENTS`)."""
     return float(np.einsum("i,i->", x, x))
 
 
