@@ -229,7 +229,8 @@ def _batch(args) -> int:
              f"the cluster is closed; {finished.done} recordings finished are in {finished.table}"))
         return getattr(exc, "exit_code", 130)
     for row in outcome.failures:
-        print(f"failed: {row['path']}: {row['error']}")
+        error = row["error"]  # a DataError names its file already
+        print(f"failed: {error}" if error.startswith(row["path"]) else f"failed: {row['path']}: {error}")
     print(f"batch: {outcome.recordings} recordings: {outcome.done - outcome.failed} identified, {outcome.failed} "
           f"failed, {outcome.skipped} skipped (already in the table)")
     from hilident.batch.verdicts import verdict_lines
