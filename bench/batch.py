@@ -7,8 +7,9 @@ then identifies all of them three times, each time into a fresh table:
 1. a plain loop in this one process (``--scheduler synchronous``): the reference;
 2. a local cluster of ``--workers`` worker processes (the default of ``hilident batch``);
 3. a Dask scheduler started as a separate process (``dask scheduler``) on
-   127.0.0.1 with ``--workers`` workers of its own (``dask worker``), given to
-   the batch by address, as a cluster on other machines would be.
+   127.0.0.1 with ``--workers`` workers of its own (``dask worker``, configured
+   by the YAML file of the README's cluster recipe), given to the batch by
+   address, as a cluster on other machines would be.
 
 It prints for each the wall time, the cost per recording (wall time / recordings
 and the mean time one task took in its worker), the speed-up against the loop
@@ -76,8 +77,24 @@ def run(label: str, inputs: list[str], out: Path, scheduler: str | None, workers
     return wall, outcome, rows
 
 
-def start_scheduler(workers: int) -> tuple[str, list[subprocess.Popen]]:
-    """A ``dask scheduler`` process and a ``dask worker`` process of ``workers`` workers, all on 127.0.0.1."""
+#: The worker settings hilident's local cluster uses (hilident.batch.runner.WORKER_SETTINGS), as the YAML file
+#: the README's cluster recipe puts in a worker machine's Dask configuration folder.
+WORKER_YAML = """\
+distributed:
+  nanny:
+    pre-spawn-environ:
+      MALLOC_TRIM_THRESHOLD_: null
+  worker:
+    profile:
+      enabled: false
+"""
+
+
+def start_scheduler(workers: int, config_dir: Path) -> tuple[str, list[subprocess.Popen]]:
+    """A ``dask scheduler`` process and a ``dask worker`` process of ``workers`` workers, all on 127.0.0.1,
+    the workers configured from ``config_dir`` (:data:`WORKER_YAML`)."""
+    config_dir.mkdir(parents=True, exist_ok=True)
+    (config_dir / "hilident-workers.yaml").write_text(WORKER_YAML)
     port = free_port()
     address = f"tcp://127.0.0.1:{port}"
     bindir = Path(sys.executable).parent
@@ -87,7 +104,8 @@ def start_scheduler(workers: int) -> tuple[str, list[subprocess.Popen]]:
                                "--dashboard-address", "127.0.0.1:0"], **quiet)]
     time.sleep(1.0)
     procs.append(subprocess.Popen([dask, "worker", address, "--nworkers", str(workers), "--nthreads", "1",
-                                   "--host", "127.0.0.1", "--dashboard-address", "127.0.0.1:0"], **quiet))
+                                   "--host", "127.0.0.1", "--dashboard-address", "127.0.0.1:0"],
+                                  env={**os.environ, "DASK_CONFIG": str(config_dir)}, **quiet))
     return address, procs
 
 
@@ -110,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
         results = {}
         results["loop"] = run("loop", inputs, root / "loop", "synchronous", None)
         results["local"] = run("local", inputs, root / "local", None, args.workers)
-        address, procs = start_scheduler(args.workers)
+        address, procs = start_scheduler(args.workers, root / "dask-config")
         try:
             results["scheduler"] = run("scheduler", inputs, root / "scheduler", address, None)
         finally:

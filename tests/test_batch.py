@@ -171,6 +171,12 @@ def test_identity_comes_from_the_file_then_its_name_then_its_folder(tmp_path):
     ident = recording_identity(by_serial)
     assert (ident["axis"], ident["time_utc"], ident["time_source"]) == ("SN9", "2020-01-01T00:00:00.000+00:00",
                                                                         "name")
+    # a device model alone is no axis (two axes may run the same drive); with the port it is connected on it is
+    by_port = tmp_path / "belt" / "p.h5"
+    write_recording(by_port, device={"name": "servo", "port": "/dev/ttyUSB1"}, created=None)
+    assert recording_identity(by_port)["axis"] == "servo@/dev/ttyUSB1"
+    write_recording(by_port, device={"name": "servo"}, created=None)
+    assert recording_identity(by_port)["axis"] == "belt"
     plain = tmp_path / "belt" / "plain.csv"
     plain.write_text("t,tau\n")
     os.utime(plain, (0, 86400.0))
@@ -250,7 +256,9 @@ def test_a_batch_identifies_every_recording_and_damaged_files_become_failure_row
         assert r["status"] == "failed" and r["error_type"] in ("DataError", "UsageError")
         assert name.split("/")[1] in r["error"]
         assert r["axis"] == "ax2" and math.isnan(r["frequency_hz"])
-        assert f"failed: {root / name}: {r['error']}" in stdout
+        error = r["error"]  # one line per failure, naming the file once
+        assert (f"failed: {error}" if error.startswith(str(root / name)) else f"failed: {root / name}: {error}") \
+            in stdout.splitlines()
     truncated = by_name["ax2/truncated_20261103T000000Z.h5"]
     assert truncated["error_type"] == "DataError" and truncated["time_source"] == "name"
     # each analysis's summary.json is kept beside the table, by its keys; none for data never read

@@ -13,8 +13,16 @@ from test_batch import batch, fleet  # noqa: F401  (the fixture, shared)
 distributed = pytest.importorskip("distributed")
 psutil = pytest.importorskip("psutil")
 
-#: columns that differ between two runs of the same recordings: the time each task took
-TIMINGS = ["elapsed_s"]
+#: columns that differ between two runs of the same recordings: the time each task took, where, and its memory
+TIMINGS = ["elapsed_s", "worker", "worker_peak_rss_mib"]
+
+
+def _worker_settings():
+    import os
+
+    import dask
+
+    return os.environ.get("MALLOC_TRIM_THRESHOLD_"), dask.config.get("distributed.worker.profile.enabled")
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +54,8 @@ def test_a_local_cluster_of_two_workers_gives_the_rows_of_the_plain_loop(tmp_pat
         me = psutil.Process()
         listening = [c.laddr for p in (me, *me.children(recursive=True))
                      for c in p.net_connections("inet") if c.status == psutil.CONN_LISTEN]
-        seen.update(scheduler=cluster.scheduler_address, workers=list(info["workers"]), listening=listening)
+        seen.update(scheduler=cluster.scheduler_address, workers=list(info["workers"]), listening=listening,
+                    settings=client.run(_worker_settings))
         return cluster, client
 
     monkeypatch.setattr(runner, "_local_cluster", spied)
@@ -58,6 +67,8 @@ def test_a_local_cluster_of_two_workers_gives_the_rows_of_the_plain_loop(tmp_pat
     # scheduler, workers and their HTTP endpoints: nothing listens beyond loopback, on no fixed port
     assert len(seen["listening"]) >= 3 and {a.ip for a in seen["listening"]} == {"127.0.0.1"}
     assert 8787 not in {a.port for a in seen["listening"]}
+    # the workers run with glibc's own malloc thresholds and without Dask's stack sampler
+    assert list(seen["settings"].values()) == [(None, False)] * 2
 
 
 def test_a_scheduler_by_address_gives_the_same_rows_and_a_rerun_skips_them(tmp_path, fleet, reference,  # noqa: F811

@@ -77,8 +77,8 @@ def recording_identity(path: str | Path) -> dict[str, str]:
     """``axis``, ``device_name``, ``device_serial``, ``time_utc`` and ``time_source`` of a recording.
 
     The axis is the file's ``axis`` attribute, else its device's serial
-    number or name (``device_json`` attribute), else the name of the folder
-    holding it. The time is the file's ``created_utc`` (``time_source``
+    number, else its device's name and port as ``NAME@PORT`` (``device_json``
+    attribute), else the name of the folder holding it. The time is the file's ``created_utc`` (``time_source``
     ``"file"``), else a stamp in its name (``"name"``), else its modification
     time (``"mtime"``; ``""`` when even that cannot be read).
     """
@@ -86,7 +86,10 @@ def recording_identity(path: str | Path) -> dict[str, str]:
     attrs = _file_attrs(path)
     device = _device(attrs)
     name, serial = _text(device.get("name")), _text(device.get("serial"))
-    axis = _text(attrs.get("axis")) or serial or name or path.parent.name
+    port = _text(device.get("port"))
+    # a device model alone names no axis (two axes may run the same drive): with its port it does
+    connection = f"{name}@{port}" if name and port else ""
+    axis = _text(attrs.get("axis")) or serial or connection or path.parent.name
     time_utc, source = _file_time(attrs), "file"
     if not time_utc:
         time_utc, source = name_time(path.name), "name"
