@@ -6,5 +6,6 @@ recording is of and when it was made; :mod:`~hilident.batch.task` identifies one
 one row (never raising); :mod:`~hilident.batch.table` reads and writes the
 table (``batch.parquet`` and ``batch.csv``); :mod:`~hilident.batch.runner`
 runs the tasks on a Dask cluster or in a plain loop, skipping what the table
-already holds.
+already holds; :mod:`~hilident.batch.verdicts` judges every axis's drift from
+the whole table and writes ``drift.json`` and ``report.html``.
 """

@@ -59,6 +59,8 @@ class BatchOutcome:
     workers: int = 0
     interrupted: bool = False
     task_s: float = 0.0
+    #: Wall time from the cluster being up to the last recording identified, s: the part the workers share.
+    identify_wall_s: float = 0.0
     failures: list[dict] = field(default_factory=list)
     #: The drift verdict of every axis in the table (:func:`hilident.batch.verdicts.judge_fleet`).
     drifts: dict = field(default_factory=dict)
@@ -278,6 +280,7 @@ def run_batch(inputs: list[str], cfg, out: str | Path, *, scheduler: str | None 
                     if summary is not None:
                         _keep_summary(summary_path(out, row), summary)
                     tally[0].add(row)
+            outcome.identify_wall_s = time.monotonic() - tally[0].started
     except KeyboardInterrupt as exc:
         outcome.interrupted = True
         _finish(outcome, kept, rows, started)
