@@ -8,6 +8,8 @@ main thread, where the session's ``finally`` blocks command the device safe
 and close the recordings. Inside :func:`shielded` (the stopping itself) a
 signal is noted but not raised, so a second Ctrl-C cannot cut the stop or the
 file's closing short; :func:`raise_pending` raises it at the next safe point.
+Inside :func:`uninterruptible` (a bus transaction whose library holds locks
+its own threads need) a signal is raised when the transaction returns.
 
 The exit code of an interrupted session is ``128 + signal`` (SIGHUP 129,
 SIGINT 130, SIGTERM 143), as a shell reports a process killed by it.
@@ -94,6 +96,24 @@ def shielded():
         yield
     finally:
         _state.shield_depth -= 1
+
+
+@contextlib.contextmanager
+def uninterruptible():
+    """A library call that must not be cut in the middle, with a signal that came during it raised at its end.
+
+    A signal's exception can land between a lock's acquire and the ``try``
+    that releases it, in code not written for that (CPython cannot make a
+    ``with lock:`` safe against it). canopen's SDO client then keeps its
+    response queue locked, and its receiving thread blocks on it for good:
+    the Disable Voltage of the stop that follows would wait for an answer
+    that is never handed over. Such calls run in this block: a signal is
+    noted while they run and raised as soon as they return (or by
+    :func:`raise_pending` later, when the call itself raised).
+    """
+    with shielded():
+        yield
+    raise_pending()
 
 
 def raise_pending() -> None:

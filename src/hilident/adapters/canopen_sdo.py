@@ -25,6 +25,7 @@ from hilident.adapters.canopen_common import (
     ObjectValue,
     _transfer_error,
 )
+from hilident.endings import uninterruptible
 from hilident.errors import DataError, DeviceError
 from hilident.protocol.canopen_objects import (
     ObjectAddress,
@@ -79,7 +80,9 @@ class SdoAccess(CanopenState):
         var = self.eds_variable(addr)
         self.beat_if_due()
         try:
-            return var.decode_raw(self.node.sdo.upload(addr.index, addr.subindex))
+            with uninterruptible():
+                raw = self.node.sdo.upload(addr.index, addr.subindex)
+            return var.decode_raw(raw)
         except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
             raise self._sdo_error(exc, addr, "reading") from None
 
@@ -92,7 +95,8 @@ class SdoAccess(CanopenState):
             raise DataError(f"{self.port}: value {value!r} does not fit {self.describe(addr)}: {exc}") from None
         self.beat_if_due()
         try:
-            self.node.sdo.download(addr.index, addr.subindex, data)
+            with uninterruptible():
+                self.node.sdo.download(addr.index, addr.subindex, data)
         except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
             raise self._sdo_error(exc, addr, "writing") from None
 
@@ -107,7 +111,8 @@ class SdoAccess(CanopenState):
         description's ``block_transfer`` does)."""
         if not (self.desc.block_transfer if block_transfer is None else block_transfer):
             try:
-                return bytes(self.node.sdo.upload(addr.index, addr.subindex))
+                with uninterruptible():
+                    return bytes(self.node.sdo.upload(addr.index, addr.subindex))
             except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
                 raise self._sdo_error(exc, addr, "reading") from None
 
@@ -120,7 +125,8 @@ class SdoAccess(CanopenState):
         """Download a DOMAIN object (block transfer when the description says so)."""
         if not self.desc.block_transfer:
             try:
-                self.node.sdo.download(addr.index, addr.subindex, data, force_segment=True)
+                with uninterruptible():
+                    self.node.sdo.download(addr.index, addr.subindex, data, force_segment=True)
             except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
                 raise self._sdo_error(exc, addr, "writing") from None
             return
