@@ -89,7 +89,7 @@ def recording_identity(path: str | Path) -> dict[str, str]:
     port = _text(device.get("port"))
     # a device model alone names no axis (two axes may run the same drive): with its port it does
     connection = f"{name}@{port}" if name and port else ""
-    axis = _text(attrs.get("axis")) or serial or connection or path.parent.name
+    axis = _text(attrs.get("axis")) or serial or connection or path.parent.name or str(path.parent)
     time_utc, source = _file_time(attrs), "file"
     if not time_utc:
         time_utc, source = name_time(path.name), "name"

@@ -291,7 +291,7 @@ def run_batch(inputs: list[str], cfg, out: str | Path, *, scheduler: str | None 
             _finish(outcome, kept, rows, started)
         raise
     _finish(outcome, kept, rows, started)
-    meta = {"inputs": list(inputs), "config": cfg.source if cfg is not None else "each recording's own",
+    meta = {"inputs": list(inputs), **({"config": cfg.source} if cfg is not None else {}),
             "out": str(out), "scheduler": scheduler or "local cluster", "workers": outcome.workers,
             "started_utc": started_utc, "wall_time_s": outcome.wall_s, "identified": outcome.done - outcome.failed,
             "failed": outcome.failed, "skipped": outcome.skipped}
