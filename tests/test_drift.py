@@ -113,8 +113,10 @@ def test_a_rising_resonance_is_flagged_too():
 def test_too_few_recordings_is_insufficient_data_not_a_flag():
     rows = [row("x", d, 40.0 - 2.0 * d) for d in range(4)]
     x = axis_drifts(rows, drift_percent_per_day=0.2, min_recordings=5)["x"]
-    assert not x.flagged and x.verdict == "insufficient data: 4 recordings, 5 needed"
-    assert axis_drifts(rows[:2], drift_percent_per_day=0.2)["x"].verdict.startswith("insufficient data")
+    assert not x.flagged and x.verdict == "insufficient data: 4 recordings, 5 needed" and x.insufficient
+    two = axis_drifts(rows[:2], drift_percent_per_day=0.2)["x"]
+    assert two.verdict.startswith("insufficient data") and two.insufficient
+    assert not axis_drifts(rows, drift_percent_per_day=0.2, min_recordings=4)["x"].insufficient
     same_time = [row("y", 0.0, 40.0 + i) for i in range(6)]
     assert "same time" in axis_drifts(same_time, drift_percent_per_day=0.2)["y"].verdict
 

@@ -55,7 +55,7 @@ def verdict_lines(drifts: Mapping[str, DriftTrend]) -> list[str]:
     """One line per flagged axis, then one counting the others: what the command prints."""
     flagged = [d for d in drifts.values() if d.flagged]
     lines = [f"drift: {d.axis}: {d.verdict}" for d in flagged]
-    short = sum(1 for d in drifts.values() if not d.flagged and d.verdict.startswith("insufficient"))
+    short = sum(1 for d in drifts.values() if d.insufficient)
     lines.append(f"drift: {len(flagged)} of {len(drifts)} axes flagged"
                  + (f", {short} with too few recordings for a verdict" if short else ""))
     return lines

@@ -109,6 +109,8 @@ class SeriesTrend:
         Indices into ``days``/``values`` whose residual exceeds :data:`OUTLIER_SIGMAS` robust sigmas.
     outlier_sigmas : tuple of float
         Their residuals in robust sigmas (signed).
+    insufficient : bool
+        Too few points (or all at one time) for a verdict: the verdict says ``"insufficient data"``.
     """
 
     n: int
@@ -128,6 +130,7 @@ class SeriesTrend:
     verdict: str
     outliers: tuple[int, ...] = ()
     outlier_sigmas: tuple[float, ...] = ()
+    insufficient: bool = False
 
     @property
     def has_line(self) -> bool:
@@ -234,6 +237,11 @@ class DriftTrend:
     frequency: SeriesTrend
     damping: SeriesTrend
 
+    @property
+    def insufficient(self) -> bool:
+        """Too few usable recordings for a verdict on the resonance."""
+        return self.frequency.insufficient
+
 
 def _check_settings(drift_percent_per_day: float, min_recordings: int, confidence: float) -> None:
     if not (isinstance(drift_percent_per_day, (int, float)) and drift_percent_per_day >= 0):
@@ -318,7 +326,7 @@ def drift_trend(days: Any, values: Any, *, drift_percent_per_day: float = math.i
                else "every recording at the same time")
         return SeriesTrend(**base, reference=nan, slope_per_day=nan, slope_stderr_per_day=nan, residual_std=nan,
                            rate_percent_per_day=nan, rate_ci95_percent_per_day=nan, p_value=nan,
-                           verdict=f"insufficient data: {why}")
+                           verdict=f"insufficient data: {why}", insufficient=True)
     slope = float(np.sum((d - d.mean()) * (v - v.mean())) / sxx)
     intercept = float(v.mean() - slope * d.mean())
     residuals = v - (intercept + slope * d)
@@ -347,7 +355,7 @@ def drift_trend(days: Any, values: Any, *, drift_percent_per_day: float = math.i
     base["flagged"] = flagged
     return SeriesTrend(**base, reference=intercept, slope_per_day=slope, slope_stderr_per_day=se, residual_std=s,
                        rate_percent_per_day=rate, rate_ci95_percent_per_day=rate_ci, p_value=p, verdict=verdict,
-                       outliers=far, outlier_sigmas=sigmas)
+                       outliers=far, outlier_sigmas=sigmas, insufficient=n < min_recordings)
 
 
 def parse_time_utc(text: Any) -> dt.datetime | None:

@@ -46,7 +46,7 @@ def panel_title(trend: DriftTrend) -> tuple[str, str]:
     rate = f"{_pm(trend.rate_percent_per_day, trend.rate_ci95_percent_per_day)} %/day"
     if trend.flagged:
         return f"{trend.axis}: FLAGGED {rate}", FLAGGED_COLOUR
-    if trend.verdict.startswith("insufficient"):
+    if trend.insufficient:
         return f"{trend.axis}: insufficient data (n = {trend.n})", "0.45"
     return f"{trend.axis}: {rate}", "black"
 
