@@ -13,6 +13,7 @@ from hilident.drivers import (
     check_run_against_driver,
     declared_modes,
     find_driver,
+    load_driver,
     search_path,
     valid_sample_rates,
 )
@@ -25,6 +26,15 @@ def test_builtin_board_is_found_wherever_hilident_is_installed():
     assert (d.folder / "PROTOCOL.md").is_file() or (d.folder / "driver.toml").is_file()
     assert "velocity_mps" in [c.name for c in d.channels]
     assert d.text.startswith("#")  # the file verbatim, for the recordings
+
+
+def test_a_channel_says_how_it_is_sampled_and_a_wrong_word_names_its_key(tmp_path):
+    assert find_driver("myrio-board").averaged_channels == ("torque_cmd_nm", "torque_nm")
+    assert find_driver("modbus-servo").averaged_channels == ()  # instant unless the description says otherwise
+    folder = _user_copy(tmp_path, edit=lambda t: t.replace('sampling = "mean"', 'sampling = "median"', 1))
+    with pytest.raises(ConfigError, match=r"channels.*sampling") as exc:
+        load_driver(folder)
+    assert str(folder / "driver.toml") in str(exc.value)
 
 
 def _user_copy(tmp_path, name="my-board", edit=None):

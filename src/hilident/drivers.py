@@ -37,13 +37,19 @@ TRANSPORTS = ("serial", "canopen", "modbus")
 
 @dataclass(frozen=True)
 class ChannelSpec:
-    """One channel of a device: name, unit and default on-wire encoding."""
+    """One channel of a device: name, unit, default on-wire encoding and how a sample is taken.
+
+    ``sampling`` is ``"instant"`` (the value at the sample instant, the first loop tick of the
+    sample period) or ``"mean"`` (the mean over the period's loop ticks: the device averages
+    before it decimates, so what changes within a period does not alias).
+    """
 
     name: str
     unit: str
     format: str = "f32"
     scale: float = 1.0
     stream: bool = True
+    sampling: str = "instant"
 
 
 @dataclass(frozen=True)
@@ -106,6 +112,11 @@ class DriverDescription:
         """Channels streamed by default."""
         return tuple(c for c in self.channels if c.stream)
 
+    @property
+    def averaged_channels(self) -> tuple[str, ...]:
+        """Names of the channels the device averages over each sample period (``sampling = "mean"``)."""
+        return tuple(c.name for c in self.channels if c.sampling == "mean")
+
 
 @dataclass(frozen=True, kw_only=True)
 class _DriverTable:
@@ -141,6 +152,9 @@ class _ChannelTable:
     format: str = spec("f32", choices=_FORMATS)
     scale: float = spec(1.0, doc="SI units per LSB (i16/i32); non-zero, negative for a reversed sign")
     stream: bool = spec(True)
+    sampling: str = spec("instant", choices=("instant", "mean"),
+                         doc="instant: the value at the sample instant; mean: the mean over the sample period's "
+                             "loop ticks (the device averages before it decimates)")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -271,7 +285,7 @@ def load_driver(folder: str | os.PathLike) -> DriverDescription:
     if board.max_sample_rate_hz > board.loop_rate_hz:
         raise ConfigError("board.max_sample_rate_hz", f"{board.max_sample_rate_hz:g} Hz exceeds board.loop_rate_hz "
                                                       f"= {board.loop_rate_hz:g} Hz", source)
-    channels = tuple(ChannelSpec(c.name, c.unit, c.format, c.scale, c.stream) for c in parsed.channels)
+    channels = tuple(ChannelSpec(c.name, c.unit, c.format, c.scale, c.stream, c.sampling) for c in parsed.channels)
     if not channels and d.transport == "canopen":
         channels = _canopen_channels(folder, data, source)
     if not channels:

@@ -98,6 +98,27 @@ def test_the_player_holds_each_sample_for_the_divider_and_rows_start_each_period
     assert player.sample_rate_hz == drive.tuning.loop_rate_hz / 4
 
 
+def test_the_player_records_the_averaged_channels_as_the_mean_of_their_period():
+    """The myrio-board averages its torques over each sample period (PROTOCOL.md section 7); everything else is the
+    period's first tick."""
+    board = find_driver("myrio-board")
+    assert board.averaged_channels == ("torque_cmd_nm", "torque_nm")
+    drive, twin = _drive(), _drive()
+    for d in (drive, twin):
+        d.set_limits(5.0, 1.0, -0.5, 0.5)
+        d.enable()
+    player = TablePlayer(drive, 4, drive.tuning.loop_rate_hz, board.averaged_channels)
+    values = np.array([0.1, -0.2, 0.3, 0.0])
+    played = player.play(values, 0)
+    ticks = twin.run(np.repeat(values, 4))
+    mean = drive.columns_of(board.averaged_channels, "averaged")
+    first = [i for i in range(ticks.shape[1]) if i not in mean]
+    np.testing.assert_array_equal(played.rows[:, first], ticks[::4, first])
+    np.testing.assert_allclose(played.rows[:, mean], ticks[:, mean].reshape(4, 4, len(mean)).mean(axis=1))
+    # the loop changes the torque within a period: the mean is not the first tick's value
+    assert np.abs(played.rows[:, mean] - ticks[::4, mean]).max() > 1e-3
+
+
 def test_the_player_keeps_the_samples_up_to_the_one_in_which_the_drive_faulted():
     drive = _drive()
     drive.set_limits(0.05, 1.0, -0.5, 0.5)  # a torque limit the first big sample trips

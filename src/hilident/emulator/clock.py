@@ -202,6 +202,9 @@ class TablePlayer:
     divider : int
         Loop ticks per sample.
     loop_rate_hz : float
+    averaged : iterable of str
+        Columns of ``drive.CHANNELS`` recorded as the mean over each sample period's ticks (the
+        driver's ``sampling = "mean"`` channels); the others at the period's first tick.
 
     Attributes
     ----------
@@ -209,11 +212,12 @@ class TablePlayer:
         The drive's tick when the run started (:meth:`restart`).
     """
 
-    def __init__(self, drive: DriveLoop, divider: int, loop_rate_hz: float):
+    def __init__(self, drive: DriveLoop, divider: int, loop_rate_hz: float, averaged: Iterable[str] = ()):
         self.drive = drive
         self.divider = int(divider)
         self.loop_rate_hz = float(loop_rate_hz)
         self.start_tick = drive.tick
+        self.averaged = drive.columns_of([n for n in averaged if n in drive.CHANNELS], "averaged channel")
 
     @property
     def sample_rate_hz(self) -> float:
@@ -243,7 +247,11 @@ class TablePlayer:
         """Play ``values`` (one per sample, run index ``first`` on) and return what the run keeps."""
         d = self.divider
         self.drive.setpoint_ticks = d
-        rows = self.drive.run(np.repeat(np.asarray(values, dtype=float), d))[::d]
+        ticks = self.drive.run(np.repeat(np.asarray(values, dtype=float), d))
+        rows = ticks[::d]
+        if self.averaged and d > 1:
+            cols = self.averaged
+            rows[:, cols] = ticks[:, cols].reshape(len(rows), d, len(cols)).mean(axis=1)
         kept = len(rows)
         fault = self.fault_sample()
         if fault is not None:

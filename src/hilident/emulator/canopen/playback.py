@@ -77,7 +77,7 @@ class TablePlayback:
         self.count = 0
         self.offset = 0
         self.stopped = False
-        self.player = TablePlayer(firmware.drive, self.divider, firmware.loop_rate)
+        self.player = TablePlayer(firmware.drive, self.divider, firmware.loop_rate, firmware.driver.averaged_channels)
 
     # --- the clock's view (hilident.emulator.clock.PacedFirmware) ----------------------------------
 

@@ -151,7 +151,7 @@ class ModbusDriveFirmware:
         self._crc: int | None = None
         self._values = np.zeros(0)
         self._run_mask = 0
-        self._player = TablePlayer(drive, 1, self.loop_rate_hz)
+        self._player = TablePlayer(drive, 1, self.loop_rate_hz, driver.averaged_channels)
         self._set("device_type", regmap.device_type)
         self._set("map_version", regmap.map_version)
         self._set("loop_rate_hz", driver.loop_rate_hz)

@@ -8,6 +8,7 @@ limits. :mod:`hilident.emulator.serial.server` gives it a clock and a line.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,9 +52,12 @@ class BoardFirmware:
     identity : hilident.protocol.serial_board.Identity
         What the board answers to IDENTIFY; its channel names must be columns of
         ``drive.CHANNELS``.
+    averaged : iterable of str
+        Channels the board records as the mean over each sample period's loop ticks
+        (PROTOCOL.md section 7; the driver's ``sampling = "mean"``).
     """
 
-    def __init__(self, drive: DriveLoop, identity: sb.Identity):
+    def __init__(self, drive: DriveLoop, identity: sb.Identity, averaged: Iterable[str] = ()):
         self.drive = drive
         self.identity = identity
         self._column = drive.columns_of([c.name for c in identity.channels], "board channel")
@@ -77,7 +81,7 @@ class BoardFirmware:
         self.outbox: list[bytes] = []  # encoded payloads waiting for the line
         self.limits_loaded = False  # a board never moves the axis before it was told its limits
         self.line_corrupt = 0  # frames the line layer rejected (set by the server)
-        self._player = TablePlayer(drive, 1, identity.loop_rate_hz)
+        self._player = TablePlayer(drive, 1, identity.loop_rate_hz, averaged)
         self.sample_blocks_out = 0
 
     # --- messages ---------------------------------------------------------------

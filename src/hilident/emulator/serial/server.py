@@ -250,7 +250,7 @@ def start_serial_board(cfg: EmulatorConfig, driver: DriverDescription, baudrate:
         (``socket://`` for pyserial), or an in-memory pipe.
     """
     kind = link or cfg.link
-    firmware = BoardFirmware(build_drive(cfg, driver), identity_from_driver(driver))
+    firmware = BoardFirmware(build_drive(cfg, driver), identity_from_driver(driver), driver.averaged_channels)
     line = cfg.faults.serial
     faults = LineFaults(line.corrupt_frame_rate, line.drop_frame_rate, seed=cfg.seed + 1)
     device_link: BoardLink
