@@ -55,5 +55,6 @@ def test_an_axis_too_weakly_excited_to_move_keeps_the_friction_test_and_names_wh
     assert schema_errors(written) == []  # a partial summary is still a summary.json of its kind
     assert written["friction"]["params"]["Fc"] > 0  # what the friction test found is kept
     assert written["resonances"] == [] and written["notch_filters"] == []
-    fs = written["friction"]["params"]["Fs"]
-    assert f"{3 * fs:.3g} N*m" in str(err.value)  # a value computed from the measurement
+    params = written["friction"]["params"]
+    breakaway = max(params["Fs"], params["Fc"])  # a fitted curve may dip below its Coulomb level near standstill
+    assert f"{3 * breakaway:.3g} N*m" in str(err.value)  # a value computed from the measurement

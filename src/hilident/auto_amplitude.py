@@ -146,6 +146,7 @@ class AutoAmplitude:
         self._analysis_samples = analysis_samples
         self.warnings = warnings
         self.progress = progress
+        self._friction_slowest_mps = 0.0  # set by choose() from its friction result
 
     def choose(self, friction) -> tuple[Config, dict]:
         """Choose the torque amplitude by short trials; returns the config playing it and the choice's record.
@@ -171,6 +172,7 @@ class AutoAmplitude:
             lines = bins
         run_periods = len(probe.samples) // period - 1
         fit = friction.fit.params if friction is not None else None
+        self._friction_slowest_mps = friction.slowest_mps if friction is not None else 0.0
         ceiling, target = amplitude_ceiling_nm(cfg), auto_coherence_target(cfg)
         # a trial's peak stays off the trip level
         highest = min(ceiling, AUTO_TORQUE_MARGIN * cfg.bench_limits.torque_nm)
@@ -278,7 +280,8 @@ class AutoAmplitude:
             return s["torque_nm"]
         from hilident.ident.friction import compensate
 
-        return compensate(s["torque_nm"], s["velocity_mps"], fit, self.cfg.friction_test.velocity_deadband_mps)
+        return compensate(s["torque_nm"], s["velocity_mps"], fit, self.cfg.friction_test.velocity_deadband_mps,
+                          self._friction_slowest_mps)
 
     def _auto_noise(self, period: int, lines: np.ndarray, fit) -> dict:
         """Noise power per excited line and period, output and torque, from a record with zero excitation."""

@@ -349,6 +349,7 @@ def _identify(cfg: Config, ds: Dataset, band, excited_bins, friction=None) -> pi
     return pipeline.identify_plant(r, s["torque"], s["output"], velocity, ds.sample_rate_hz, cfg.identification, band,
                                    friction=friction.fit.params if friction is not None else None,
                                    velocity_deadband_mps=cfg.friction_test.velocity_deadband_mps,
+                                   friction_slowest_mps=friction.slowest_mps if friction is not None else 0.0,
                                    period_samples=period, excited_bins=excited_bins)
 
 

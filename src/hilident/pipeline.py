@@ -36,6 +36,13 @@ class FrictionResult:
     model: str
     warnings: list[str] = field(default_factory=list)
 
+    @property
+    def slowest_mps(self) -> float:
+        """The slowest steady speed the friction was measured at, m/s: the curve is not extrapolated below it."""
+        speeds = np.abs(np.asarray(self.points.v_mean, dtype=float))
+        speeds = speeds[speeds > 0.0]
+        return float(speeds.min()) if speeds.size else 0.0
+
 
 def identify_friction(velocity, torque, windows, model: str = "stribeck") -> FrictionResult:
     """Steady-state friction points and the fitted friction curve.
@@ -552,6 +559,7 @@ def identify_plant(
     band_hz: tuple[float, float],
     friction: fr.StribeckParams | None = None,
     velocity_deadband_mps: float = 0.0,
+    friction_slowest_mps: float = 0.0,
     period_samples: int | None = None,
     excited_bins=None,
 ) -> PlantResult:
@@ -573,6 +581,9 @@ def identify_plant(
         Band searched for resonances.
     friction : StribeckParams, optional
         Friction to remove from the torque first.
+    velocity_deadband_mps, friction_slowest_mps : float
+        No compensation up to the first speed; the friction curve not extrapolated below the second, the
+        slowest speed it was measured at (m/s; :func:`hilident.ident.friction.compensate`).
     period_samples : int, optional
         Period of a periodic excitation: whole periods are averaged (no leakage).
         The record must start on a period boundary, transient already removed.
@@ -585,7 +596,7 @@ def identify_plant(
     warnings: list[str] = []
     u = s["torque"]
     if friction is not None:
-        u = fr.compensate(u, s["velocity"], friction, velocity_deadband_mps)
+        u = fr.compensate(u, s["velocity"], friction, velocity_deadband_mps, friction_slowest_mps)
     u, y = (_condition(x, cfg, sample_rate_hz, period_samples) for x in (u, s["output"]))
     # a recording without an excitation column gives the torque as excitation: condition it once
     r = (u if s["excitation"] is s["torque"] and friction is None

@@ -567,6 +567,7 @@ class Session(DeviceConnection):
             s["excitation"], s["torque_nm"], s[ic.output], s["velocity_mps"], cfg.run.sample_rate_hz, ic, band,
             friction=friction.fit.params if friction else None,
             velocity_deadband_mps=cfg.friction_test.velocity_deadband_mps,
+            friction_slowest_mps=friction.slowest_mps if friction else 0.0,
             period_samples=period, excited_bins=excitation.excited_bins,
         )
         self.warnings += result.warnings

@@ -236,6 +236,23 @@ def test_compensate_removes_friction_outside_deadband():
         compensate(measured[:-1], v, GANTRY)
 
 
+def test_compensate_does_not_extrapolate_the_curve_below_the_slowest_measured_speed():
+    """A hump fitted to points above its peak (Fs 7 N*m, seen on a twin whose true Fs is 0.35) stays out of the
+    torque near standstill: below the slowest measured speed the friction is the curve's value there."""
+    hump = StribeckParams(Fc=0.2, Fs=7.0, Fv=2.0, vs=0.0067, delta_v=1.0, delta_s=5.0)
+    slowest = 0.01
+    v = np.linspace(-0.05, 0.05, 2001)
+    out = compensate(np.zeros_like(v), v, hump, slowest_mps=slowest)
+    fast = np.abs(v) >= slowest
+    assert np.array_equal(out[fast], -stribeck(v[fast], hump))
+    slow = ~fast & (v != 0.0)
+    np.testing.assert_allclose(out[slow], -np.sign(v[slow]) * stribeck(np.array([slowest]), hump)[0])
+    assert np.abs(out[slow]).max() < 0.25  # the extrapolated curve would subtract up to 7 N*m
+    assert np.abs(compensate(np.zeros_like(v), v, hump)).max() > 5.0
+    with pytest.raises(ConfigError, match="slowest_mps"):
+        compensate(np.zeros_like(v), v, hump, slowest_mps=float("nan"))
+
+
 @settings(max_examples=40, deadline=None)
 @given(
     v=st.floats(-1.0, 1.0, allow_nan=False),
