@@ -102,12 +102,16 @@ class WorkspaceRun:
         from hilident.ident.workspace import compare_modes, fit_workspace_responses
 
         m, found = self.cfg.map, self.found
+        if not found:
+            self.warnings.append("map: no joint fit of k(p) and d(p): no mapped position showed the mode")
+            return None
         modes_hz = [float(p.frequency_hz or 0.0) for p in found]
         try:
             fit = fit_workspace_responses(
                 [p.position_m for p in found], [self._result(p).plant for p in found],
                 torque_constant=self.cfg.model.c, k_degree=m.k_degree, d_degree=m.d_degree,
-                band_hz=self._fit_band(modes_hz), sample_rate_hz=self.cfg.run.sample_rate_hz, resonance_hz=modes_hz)
+                band_hz=self._fit_band(modes_hz), sample_rate_hz=self.cfg.run.sample_rate_hz, resonance_hz=modes_hz,
+                estimate_lag=True)
         except (DataError, ConfigError) as exc:
             self.warnings.append(f"map: the joint fit of k(p) and d(p) failed: {exc}")
             return None

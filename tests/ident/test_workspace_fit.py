@@ -283,3 +283,42 @@ def test_mismatched_inputs_are_refused():
         fit_workspace_two_mass(POSITIONS, grids, frf, coh, torque_constant=C)
     with pytest.raises(DataError, match="distinct"):
         fit_workspace_two_mass([0.1, 0.1, 0.5, 0.6, 0.7, 0.8], *exact_responses(POSITIONS), torque_constant=C)
+
+
+# -- the measured velocity's lag ----------------------------------------------------------------
+
+
+def lagged(frf, grids, lag_s):
+    """Each response through a first-order lag of time constant ``lag_s``: a drive's filtered velocity estimate."""
+    return [h / (1.0 + 2j * np.pi * f * lag_s) for f, h in zip(grids, frf, strict=True)]
+
+
+def test_a_lag_of_the_velocity_estimate_is_estimated_and_leaves_k_exact():
+    positions = np.linspace(0.1, 0.9, 7)
+    grids, frf, coh = exact_responses(positions, sample_rate_hz=1000.0)
+    lag = 1.0 / (2.0 * np.pi * 400.0)  # a 400 Hz velocity filter
+    fit = fit_workspace_two_mass(positions, grids, lagged(frf, grids, lag), coh, torque_constant=C,
+                                 sample_rate_hz=1000.0, estimate_lag=True)
+    assert fit.converged, fit.message
+    assert fit.lag_estimated and fit.parameter_names[-1] == "lag"
+    assert fit.lag_s == pytest.approx(lag, rel=1e-6)
+    np.testing.assert_allclose(fit.k_coefficients, K, rtol=1e-6)
+    np.testing.assert_allclose([fit.m1, fit.m2, fit.b], [M1, M2, B], rtol=1e-6)
+    # the response the fit reports is the measured one, lag included
+    np.testing.assert_allclose(fit.response(positions[2], grids[2]), lagged(frf, grids, lag)[2], rtol=1e-6)
+    out = fit.as_dict()
+    assert out["lag_estimated"] and out["velocity_lag_s"] == pytest.approx(lag, rel=1e-6)
+    assert out["velocity_lag_std_s"] >= 0.0
+    assert fit.mode_at(0.5).frequency_hz == pytest.approx(true_mode_hz(0.5), rel=1e-6)
+
+
+def test_without_the_lag_the_same_data_bias_the_cart_and_its_damping():
+    """Why the map estimates it: left out, the filter's phase reads as cart damping (negative here) and its droop
+    as mass; both move well beyond the exact fit's 1e-6."""
+    positions = np.linspace(0.1, 0.9, 7)
+    grids, frf, coh = exact_responses(positions, sample_rate_hz=1000.0)
+    fit = fit_workspace_two_mass(positions, grids, lagged(frf, grids, 1.0 / (2.0 * np.pi * 400.0)), coh,
+                                 torque_constant=C, sample_rate_hz=1000.0)
+    assert not fit.lag_estimated and fit.lag_s == 0.0
+    assert fit.b < 0.9 * B
+    assert abs(fit.m1 / M1 - 1.0) > 0.002

@@ -201,6 +201,9 @@ class WorkspaceFit:
         and the model explains the data).
     delay_s : float
         The pure delay assumed in the model, s.
+    lag_s : float
+        Time constant of the measured velocity's first-order lag, s: estimated when ``"lag"`` is
+        among `parameter_names`, else 0.
     sample_rate_hz : float or None
         Sample rate of the sampled model, Hz; None for the continuous one.
     warnings : tuple of str
@@ -221,6 +224,7 @@ class WorkspaceFit:
     evaluations: int
     residual_rms: float
     delay_s: float = 0.0
+    lag_s: float = 0.0
     sample_rate_hz: float | None = None
     warnings: tuple[str, ...] = field(default_factory=tuple)
 
@@ -230,6 +234,11 @@ class WorkspaceFit:
     def b_estimated(self) -> bool:
         """True when ``b`` was a free parameter of the fit."""
         return "b" in self.parameter_names
+
+    @property
+    def lag_estimated(self) -> bool:
+        """True when the velocity's lag was a free parameter of the fit (its standard deviation: ``std["lag"]``)."""
+        return "lag" in self.parameter_names
 
     @property
     def std(self) -> dict[str, float]:
@@ -264,13 +273,15 @@ class WorkspaceFit:
 
     def _vector(self) -> np.ndarray:
         head = [self.m1, self.m2] + ([self.b] if self.b_estimated else [])
-        return np.concatenate((head, self.k_coefficients, self.d_coefficients))
+        tail = [self.lag_s] if self.lag_estimated else []
+        return np.concatenate((head, self.k_coefficients, self.d_coefficients, tail))
 
     def _with_vector(self, v: np.ndarray) -> tuple[float, float, float, np.ndarray, np.ndarray]:
+        """(m1, m2, b, k coefficients, d coefficients) from a parameter vector; the lag does not move the mode."""
         i = 3 if self.b_estimated else 2
-        nk = self.k_coefficients.size
+        nk, nd = self.k_coefficients.size, self.d_coefficients.size
         return (float(v[0]), float(v[1]), float(v[2]) if self.b_estimated else self.b,
-                v[i:i + nk], v[i + nk:])
+                v[i:i + nk], v[i + nk:i + nk + nd])
 
     # -- the model over the workspace ------------------------------------------------------
 
@@ -285,11 +296,12 @@ class WorkspaceFit:
         return float(out) if np.ndim(out) == 0 else out
 
     def response(self, position_m: float, frequency_hz: ArrayLike) -> np.ndarray:
-        """The model's cart velocity per torque at `position_m`, (m/s)/(N·m)."""
-        return two_mass_velocity_response(frequency_hz, m1=self.m1, m2=self.m2, k=float(self.k_of(position_m)),
-                                          d=float(self.d_of(position_m)), b=self.b,
-                                          torque_constant=self.torque_constant, delay_s=self.delay_s,
-                                          sample_rate_hz=self.sample_rate_hz)
+        """The model's cart velocity per torque at `position_m`, (m/s)/(N·m), as measured (with the lag)."""
+        h = two_mass_velocity_response(frequency_hz, m1=self.m1, m2=self.m2, k=float(self.k_of(position_m)),
+                                       d=float(self.d_of(position_m)), b=self.b,
+                                       torque_constant=self.torque_constant, delay_s=self.delay_s,
+                                       sample_rate_hz=self.sample_rate_hz)
+        return h / (1.0 + 2j * np.pi * np.asarray(frequency_hz, dtype=float) * self.lag_s)
 
     def inside_range(self, position_m: float) -> bool:
         """True when `position_m` lies within the measured positions (the model is not extrapolated)."""
@@ -332,6 +344,7 @@ class WorkspaceFit:
             "correlation": self.correlation.tolist(),
             "position_range_m": list(self.position_range_m),
             "delay_s": self.delay_s,
+            "velocity_lag_s": self.lag_s, "velocity_lag_std_s": sd.get("lag"), "lag_estimated": self.lag_estimated,
             "sample_rate_hz": self.sample_rate_hz,
             "positions": [],
             "converged": self.converged, "message": self.message, "evaluations": self.evaluations,
@@ -607,11 +620,13 @@ class _Model:
     """
 
     def __init__(self, data: _Data, core: _Core, nk: int, nd: int, fit_b: bool,
-                 refs: tuple[float, float, float]):
+                 refs: tuple[float, float, float], lag_ref: float | None = None):
         self.data, self.core, self.nk, self.nd, self.fit_b = data, core, nk, nd, fit_b
         self.k_ref, self.d_ref, self.b_ref = refs
+        self.lag_ref = lag_ref  # None: no lag is estimated
         self.vk = np.vander(data.x, nk, increasing=True)
         self.vd = np.vander(data.x, nd, increasing=True)
+        self.jw = 2j * np.pi * data.frequency_hz
 
     def unpack(self, theta: np.ndarray):
         m1, m2 = math.exp(theta[0]), math.exp(theta[1])
@@ -621,8 +636,12 @@ class _Model:
             b = theta[2] * self.b_ref
             i = 3
         a_k = theta[i:i + self.nk] * self.k_ref
-        a_d = theta[i + self.nk:] * self.d_ref
+        a_d = theta[i + self.nk:i + self.nk + self.nd] * self.d_ref
         return m1, m2, b, a_k, a_d
+
+    def lag(self, theta) -> float:
+        """The estimated lag's time constant, s (0 when none is estimated)."""
+        return 0.0 if self.lag_ref is None else float(theta[-1]) * self.lag_ref
 
     def _at_bins(self, theta):
         m1, m2, b, a_k, a_d = self.unpack(theta)
@@ -630,7 +649,7 @@ class _Model:
 
     def residuals(self, theta) -> np.ndarray:
         h = self.core.response(*self._at_bins(theta))
-        e = self.data.weight * np.log(h / self.data.h)
+        e = self.data.weight * (np.log(h / self.data.h) - np.log1p(self.jw * self.lag(theta)))
         return np.concatenate((e.real, e.imag))
 
     def jacobian(self, theta) -> np.ndarray:
@@ -642,6 +661,8 @@ class _Model:
             cols.append(self.b_ref * dlog[:, 2])
         cols += [self.k_ref * dlog[:, 3] * self.vk[:, j] for j in range(self.nk)]
         cols += [self.d_ref * dlog[:, 4] * self.vd[:, j] for j in range(self.nd)]
+        if self.lag_ref is not None:
+            cols.append(-self.lag_ref * self.jw / (1.0 + self.jw * self.lag(theta)))
         J = np.stack(cols, axis=1) * self.data.weight[:, None]
         return np.concatenate((J.real, J.imag), axis=0)
 
@@ -675,6 +696,7 @@ def fit_workspace_two_mass(
     estimate_cart_damping: bool = True,
     sample_rate_hz: float | None = None,
     delay_s: float = 0.0,
+    estimate_lag: bool = False,
     resonance_hz: ArrayLike | None = None,
     max_evaluations: int = 400,
 ) -> WorkspaceFit:
@@ -714,6 +736,14 @@ def fit_workspace_two_mass(
     delay_s : float
         A known pure delay in the measured response beyond the hold, s (a drive's transport
         delay; exact for whole samples).
+    estimate_lag : bool
+        Also estimate a first-order lag ``1 / (1 + j 2 pi f lag_s)`` of the measured velocity
+        (``"lag"`` among the parameters, s). A drive's velocity is an estimate: a difference of
+        encoder counts, low-pass filtered and computed a tick late. To a model without it, the
+        filter's phase reads as negative cart damping and its droop in magnitude as a heavier
+        cart, which shift the masses and ``k(p)`` by percents. Well below the filter's corner a
+        pure delay of a tick looks the same as a lag of that time constant, so one parameter
+        holds both.
     resonance_hz : array_like, optional
         Resonance frequency at each position (e.g. from a per-position analysis) for the start
         values; by default picked as the peak of ``|H f|`` over the bins with coherence >= 0.5.
@@ -773,7 +803,7 @@ def fit_workspace_two_mass(
                  weight=np.concatenate([_weights(c_) for _, _, c_ in used]),
                  x=x_pos[owner], per_position=used)
     nk, nd = k_degree + 1, d_degree + 1
-    n_par = 2 + int(bool(estimate_cart_damping)) + nk + nd
+    n_par = 2 + int(bool(estimate_cart_damping)) + nk + nd + int(bool(estimate_lag))
     if 2 * data.frequency_hz.size <= n_par:
         raise DataError(f"{data.frequency_hz.size} usable frequencies over all positions cannot determine "
                         f"{n_par} parameters")
@@ -785,14 +815,19 @@ def fit_workspace_two_mass(
     _check_k_positive(T_k @ start["a_k"], lo, hi, "at the start values (a polynomial through each position's "
                       "resonance)")
     core = _Core(data.frequency_hz, c, fs, delay)
-    model = _Model(data, core, nk, nd, bool(estimate_cart_damping), (start["k_ref"], start["d_ref"], start["b_ref"]))
+    # the lag in units of a tenth of the period of the highest frequency used: order 1 where it matters
+    lag_ref = 0.1 / float(data.frequency_hz.max()) if estimate_lag else None
+    model = _Model(data, core, nk, nd, bool(estimate_cart_damping), (start["k_ref"], start["d_ref"], start["b_ref"]),
+                   lag_ref)
     theta0 = np.concatenate(([math.log(start["m1"]), math.log(start["m2"])],
                              [0.0] if estimate_cart_damping else [],
-                             start["a_k"] / start["k_ref"], start["a_d"] / start["d_ref"]))
+                             start["a_k"] / start["k_ref"], start["a_d"] / start["d_ref"],
+                             [0.0] if estimate_lag else []))
     result = least_squares(model.residuals, theta0, jac=model.jacobian, method="lm", x_scale="jac",
                            max_nfev=int(max_evaluations), xtol=1e-12, ftol=1e-12, gtol=1e-12)
     theta = result.x
     m1, m2, b, a_k, a_d = model.unpack(theta)
+    lag = model.lag(theta)
     k_coef = T_k @ a_k
     d_coef = T_d @ a_d
     _check_k_positive(k_coef, lo, hi, "at the solution")
@@ -810,16 +845,19 @@ def fit_workspace_two_mass(
         G[2, 2] = start["b_ref"]
         i = 3
     G[i:i + nk, i:i + nk] = T_k * start["k_ref"]
-    G[i + nk:, i + nk:] = T_d * start["d_ref"]
+    G[i + nk:i + nk + nd, i + nk:i + nk + nd] = T_d * start["d_ref"]
+    if lag_ref is not None:
+        G[-1, -1] = lag_ref
     covariance = G @ cov_theta @ G.T
     names = ("m1", "m2") + (("b",) if estimate_cart_damping else ()) + tuple(f"k{j}" for j in range(nk)) \
-        + tuple(f"d{j}" for j in range(nd))
+        + tuple(f"d{j}" for j in range(nd)) + (("lag",) if estimate_lag else ())
 
     per_position = []
     for p, (f, h, _) in zip(positions, used, strict=True):
         h_model = two_mass_velocity_response(
             f, m1=m1, m2=m2, b=b, torque_constant=c, delay_s=delay, sample_rate_hz=fs,
-            k=float(np.polynomial.polynomial.polyval(p, k_coef)), d=float(np.polynomial.polynomial.polyval(p, d_coef)))
+            k=float(np.polynomial.polynomial.polyval(p, k_coef)), d=float(np.polynomial.polynomial.polyval(p, d_coef))
+        ) / (1.0 + 2j * np.pi * f * lag)
         spread = np.linalg.norm(h - h.mean())
         fit_pct = 100.0 * (1.0 - np.linalg.norm(h - h_model) / spread) if spread > 0 else math.nan
         rel = float(np.sqrt(np.mean(np.abs(h_model / h - 1.0) ** 2)))
@@ -840,7 +878,7 @@ def fit_workspace_two_mass(
         torque_constant=c, m1=m1, m2=m2, b=b, k_coefficients=k_coef, d_coefficients=d_coef,
         parameter_names=names, covariance=covariance, position_range_m=(lo, hi), positions=tuple(per_position),
         converged=converged, message=str(result.message), evaluations=int(result.nfev),
-        residual_rms=float(np.sqrt(np.mean(result.fun**2))), delay_s=delay, sample_rate_hz=fs, warnings=tuple(warnings))
+        residual_rms=float(np.sqrt(np.mean(result.fun**2))), delay_s=delay, lag_s=lag, sample_rate_hz=fs, warnings=tuple(warnings))
 
 
 def fit_workspace_responses(positions_m: ArrayLike, responses: Sequence[Any], **options: Any) -> WorkspaceFit:
