@@ -32,9 +32,9 @@ def quick_map(move: bool) -> dict:
     raw = tomllib.loads(MAP_CONFIG.read_text())
     raw["excitation"]["amplitude_nm"] = 10.0
     raw["emulator"].update(preset="clean", time_scale=8.0)
+    raw["map"]["verify"] = not move  # without the moves, the band figure measured again at every mapped position
     if not move:
         del raw["verification"]
-        raw["map"]["verify"] = True  # the band figure measured again at every mapped position
     return raw
 
 
@@ -102,12 +102,73 @@ def test_the_covering_notch_holds_twenty_db_over_the_mapped_range_as_stored(mapp
     truth = [true_modes(parse_config(MAP_CONFIG.read_text(), str(MAP_CONFIG)).emulator, p)[0][0]
              for p in (-0.5, 0.1, 0.5)]
     assert lo <= min(truth) * 1.002 and hi >= max(truth) * 0.998  # the range spans the twin's whole spread
-    # measured at every mapped position, the notches enabled, against the map's own record (closed loop: the
-    # band figure there falls below the notches' 20 dB design, see the README; it is reported, worst first)
+    # measured at every mapped position, the notches enabled, against the map's own record. Closed loop: the
+    # loop's own damping of the mode is what the notch takes away with it, so the band figure can fall a few dB
+    # below the 20 dB design (19.1-26.0 dB seen); reported worst first.
     verified = summary["workspace"]["verification"]
     assert len(verified["positions"]) == 5
-    assert all(r["reduction_db"] >= 15.0 for r in verified["positions"]), verified
-    assert verified["worst_band_reduction_db"] == min(r["band_reduction_db"] for r in verified["positions"]) >= 10.0
+    assert all(r["reduction_db"] >= 20.0 for r in verified["positions"]), verified
+    assert verified["worst_band_reduction_db"] == min(r["band_reduction_db"] for r in verified["positions"]) >= 15.0
+
+
+def loop_margins(out: Path, summary: dict) -> tuple[float, float]:
+    """The holding loop's modulus margin min |1 + L| over the mapped positions, without and with the chain the
+    drive read back, computed from the map's recordings alone: period-averaged spectra at the excited lines,
+    ``G`` = torque to velocity, ``T`` = excitation to velocity, ``L = G / T - 1``."""
+    import h5py
+
+    rate = summary["workspace"]["covering_notch"]["sample_rate_hz"]
+    without, with_chain = np.inf, np.inf
+    for point in summary["map"]:
+        with h5py.File(out / point["recording"]) as f:
+            names = [str(n) for n in f.attrs["channel_names"]]
+            rows, period = f["samples"][()], int(f.attrs["period_samples"])
+        channel = {n: rows[:, i] for i, n in enumerate(names)}
+        whole = len(rows) // period - 1  # the first period is the transient
+        spectra = {n: np.fft.rfft(channel[n][len(rows) - whole * period:].reshape(whole, period), axis=1).mean(0)
+                   for n in ("excitation", "torque_nm", "velocity_mps")}
+        lines = np.flatnonzero(np.abs(spectra["excitation"]) > 1e-3 * np.abs(spectra["excitation"]).max())
+        f_hz = lines * summary["sample_rate_hz"] / period
+        v = spectra["velocity_mps"][lines]
+        gain = (v / spectra["torque_nm"][lines]) / (v / spectra["excitation"][lines]) - 1.0
+        chain = np.ones(lines.size, dtype=complex)
+        for slot in summary["upload"]["slots"]:
+            chain *= signal.freqz(slot["readback_b"], slot["readback_a"], worN=f_hz, fs=rate)[1]
+        without = min(without, float(np.abs(1 + gain).min()))
+        with_chain = min(with_chain, float(np.abs(1 + chain * gain).min()))
+    return without, with_chain
+
+
+def test_the_notches_keep_half_the_holding_loops_margin(mapped):
+    """Every 20 dB over a few hertz costs phase far below them, where the loop that holds the cart crosses over:
+    the notches chosen for the workspace must leave it stable with room to spare."""
+    _, summary, out = mapped
+    margin = summary["workspace"]["covering_notch"]["loop_margin"]
+    without, with_chain = loop_margins(out, summary)
+    assert without == pytest.approx(margin["without_notches"], rel=0.1)
+    assert with_chain == pytest.approx(margin["with_notches"], rel=0.1)
+    assert with_chain >= 0.5 * without > 0.25
+
+
+def test_a_loop_with_little_margin_gets_a_narrower_notch_and_says_why(tmp_path):
+    """The same map with the velocity loop's integral corner at its crossover (ti 0.05 s: a modulus margin of
+    0.4): the staggered set would leave about 0.06, so one narrower notch holds the mode down less and the loop
+    keeps half its margin."""
+    raw = quick_map(move=False)
+    raw["map"]["verify"] = False
+    raw["emulator"]["drive"]["ti_s"] = 0.05
+    cfg = parse_config(tomli_w.dumps(raw), str(MAP_CONFIG))
+    summary = Session(cfg, tmp_path, plots=False).run()
+    covering = summary["workspace"]["covering_notch"]
+    margin = covering["loop_margin"]
+    first, used = margin["tried"][0], margin["tried"][-1]
+    assert first["used"].endswith("staggered notches, enabled together") and first["worst_attenuation_db"] >= 20.0
+    assert first["modulus_margin"] < 0.5 * margin["without_notches"] <= used["modulus_margin"]
+    assert covering["used"] == used["used"] and "keep the holding loop" in used["used"]
+    assert len(summary["upload"]["slots"]) == 1
+    without, with_chain = loop_margins(tmp_path, summary)
+    assert with_chain >= 0.5 * without and with_chain == pytest.approx(used["modulus_margin"], rel=0.1)
+    assert any("nearly unstable" in w and "modulus margin" in w for w in summary["warnings"])
 
 
 def test_the_map_run_writes_its_plot_its_report_and_a_valid_summary(mapped):

@@ -256,6 +256,10 @@ class NotchConfig:
                                    "of its centre frequency")
     target_attenuation_db: float = _spec(20.0, gt=0, doc="least attenuation of the designed notch at both ends of "
                                          "the 95 % interval of the resonance frequency; the notch is made wide enough")
+    keep_modulus_margin: float = _spec(0.5, ge=0, le=1, doc="[map]: the notches for the workspace must keep this "
+                                       "fraction of the holding loop's modulus margin min|1 + L| (measured at the "
+                                       "mapped positions); a design that costs more gives way to a narrower one. "
+                                       "0: no check")
 
 
 @dataclass(frozen=True)

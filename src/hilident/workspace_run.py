@@ -18,6 +18,7 @@ module reaches no device.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -156,8 +157,11 @@ class WorkspaceRun:
 
         nc, rate = self.cfg.notch, adapter.identity.loop_rate_hz
         points = [p.to_dict() for p in self.found] + self.modes_between()
-        covering = pipeline.covering_design(points, nc, rate,
-                                            realise=lambda spec: adapter.stored_form(design_notch(spec, rate), spec))
+
+        def realise(spec):
+            return adapter.stored_form(design_notch(spec, rate), spec)
+
+        covering = pipeline.covering_design(points, nc, rate, realise=realise)
         # the mode moves continuously with the position: notches enabled together must tile the whole range
         groups = list(covering.groups if covering.kind == "single" else covering.staggered)
         how = "one notch" if covering.kind == "single" else f"{len(groups)} staggered notches, enabled together"
@@ -169,7 +173,8 @@ class WorkspaceRun:
                                  f"worst")
         elif not covering.meets_target:
             self.warnings.append(f"map: {covering.message}")
-        self.summary["covering_notch"] = {**covering.as_dict(), "used": how}
+        groups, how, margin = self._keep_loop_margin(points, groups, how, realise, rate)
+        self.summary["covering_notch"] = {**covering.as_dict(), "used": how, "loop_margin": margin}
         lo, hi = covering.range_hz
         mapped = min(resonances, key=lambda r: abs(r.frequency_hz - (lo + hi) / 2))
         designs = [pipeline.NotchDesign(g.spec, design_notch(g.spec, rate), slot, rate, mapped,
@@ -179,6 +184,82 @@ class WorkspaceRun:
         if others:
             designs += pipeline.design_notches(others, nc, rate, slots[len(designs):], plant.loop)
         return designs
+
+    def _loop_gains(self) -> list[tuple[float, np.ndarray, np.ndarray]]:
+        """The holding loop's gain ``L = C G`` at every mapped position, ``(position_m, frequency_hz, L)``.
+
+        At a mapped position the drive's loop holds the cart while the excitation enters ahead of the filter
+        slots (the map's torque injection), so the loop response is ``T = G / (1 + C G)`` with ``G`` the plant
+        response, and ``L = G / T - 1`` on the lines both measure well (coherence at least 0.5).
+        """
+        gains = []
+        for point in self.found:
+            result = self._result(point)
+            plant, loop = result.plant, result.loop
+            if plant.frequency_hz.shape != loop.frequency_hz.shape or not np.allclose(plant.frequency_hz,
+                                                                                      loop.frequency_hz):
+                continue
+            good = (plant.coherence >= 0.5) & (loop.coherence >= 0.5) & (np.abs(loop.response) > 0)
+            if good.any():
+                f = plant.frequency_hz[good]
+                gains.append((point.position_m, f, plant.response[good] / loop.response[good] - 1.0))
+        return gains
+
+    @staticmethod
+    def _modulus_margin(gains, sections, rate: float) -> tuple[float, float, float]:
+        """``min |1 + N L|`` over every position and line with the chain ``sections`` (``N``; none: the loop as
+        it was measured), and the frequency (Hz) and position (m) where it lies."""
+        worst = (math.inf, math.nan, math.nan)
+        for position, f, gain in gains:
+            chain = np.ones(f.size, dtype=complex)
+            for section in sections:
+                chain *= section.response(f, rate)
+            distance = np.abs(1.0 + chain * gain)
+            i = int(np.argmin(distance))
+            if distance[i] < worst[0]:
+                worst = (float(distance[i]), float(f[i]), float(position))
+        return worst
+
+    def _keep_loop_margin(self, points, groups, how: str, realise, rate: float):
+        """The notches to use, given that they sit inside the loop that holds the axis: ``groups`` when they keep
+        ``[notch] keep_modulus_margin`` of its modulus margin, else one notch narrowed until it does (the
+        narrowest tried when none does, with a warning). Every 20 dB over a band a few hertz wide costs phase
+        far below it, where the loop crosses over: a set that holds the mode down everywhere can leave the
+        loop nearly unstable. Returns ``(groups, how, margin record for summary.json)``."""
+        keep, nc = self.cfg.notch.keep_modulus_margin, self.cfg.notch
+        gains = self._loop_gains()
+        if not keep or not gains:
+            return groups, how, None
+        own, _, _ = self._modulus_margin(gains, [], rate)
+        candidates = [(groups, how)]
+        for k in (2, 4, 8):
+            ratio = nc.max_width_ratio / k
+            narrower = pipeline.covering_design(points, replace(nc, max_width_ratio=ratio), rate, realise=realise)
+            candidates.append(([narrower.single], f"one notch at most {ratio:.3g} of its centre wide, to keep the "
+                                                  "holding loop's margin"))
+        tried = []
+        for chosen, chosen_how in candidates:
+            sections = [realise(g.spec) for g in chosen]
+            margin, at_hz, at_m = self._modulus_margin(gains, sections, rate)
+            tried.append({"used": chosen_how, "worst_attenuation_db": min(g.worst_attenuation_db for g in chosen),
+                          "modulus_margin": margin, "frequency_hz": at_hz, "position_m": at_m})
+            if margin >= keep * own:
+                break
+        record = {"without_notches": own, "with_notches": tried[-1]["modulus_margin"],
+                  "frequency_hz": tried[-1]["frequency_hz"], "position_m": tried[-1]["position_m"],
+                  "keep_fraction": keep, "tried": tried}
+        if len(tried) > 1:
+            first = tried[0]
+            self.warnings.append(
+                f"map: {first['used']} ({first['worst_attenuation_db']:.1f} dB at worst over the range) would lower "
+                f"the holding loop's modulus margin min|1 + L| from {own:.2f} to {first['modulus_margin']:.2f} (at "
+                f"{first['frequency_hz']:.3g} Hz, {first['position_m']:+.3f} m): nearly unstable; used instead: "
+                f"{chosen_how}, {tried[-1]['worst_attenuation_db']:.1f} dB at worst, margin "
+                f"{tried[-1]['modulus_margin']:.2f}. A loop with a lower bandwidth leaves room for a deeper notch")
+        if record["with_notches"] < keep * own:
+            self.warnings.append(f"map: even the narrowest notch tried keeps only {record['with_notches']:.2f} of the "
+                                 f"holding loop's modulus margin {own:.2f} ([notch] keep_modulus_margin = {keep:g})")
+        return chosen, chosen_how, record
 
     # --- 4. the reduction at every mapped position -------------------------------------------------------
 

@@ -878,7 +878,8 @@ def fit_workspace_two_mass(
         torque_constant=c, m1=m1, m2=m2, b=b, k_coefficients=k_coef, d_coefficients=d_coef,
         parameter_names=names, covariance=covariance, position_range_m=(lo, hi), positions=tuple(per_position),
         converged=converged, message=str(result.message), evaluations=int(result.nfev),
-        residual_rms=float(np.sqrt(np.mean(result.fun**2))), delay_s=delay, lag_s=lag, sample_rate_hz=fs, warnings=tuple(warnings))
+        residual_rms=float(np.sqrt(np.mean(result.fun**2))), delay_s=delay, lag_s=lag, sample_rate_hz=fs,
+        warnings=tuple(warnings))
 
 
 def fit_workspace_responses(positions_m: ArrayLike, responses: Sequence[Any], **options: Any) -> WorkspaceFit:
