@@ -98,7 +98,7 @@ def test_the_covering_notch_holds_twenty_db_over_the_mapped_range_as_stored(mapp
         gain *= h
     worst_db = -20 * np.log10(np.abs(gain).max())
     assert worst_db >= 20.0, (worst_db, covering["message"])
-    assert covering["worst_attenuation_db"] >= 20.0
+    assert covering["worst_attenuation_db"] >= 20.0 and covering["used_worst_attenuation_db"] >= 20.0
     truth = [true_modes(parse_config(MAP_CONFIG.read_text(), str(MAP_CONFIG)).emulator, p)[0][0]
              for p in (-0.5, 0.1, 0.5)]
     assert lo <= min(truth) * 1.002 and hi >= max(truth) * 0.998  # the range spans the twin's whole spread
@@ -168,7 +168,9 @@ def test_a_loop_with_little_margin_gets_a_narrower_notch_and_says_why(tmp_path):
     assert len(summary["upload"]["slots"]) == 1
     without, with_chain = loop_margins(tmp_path, summary)
     assert with_chain >= 0.5 * without and with_chain == pytest.approx(used["modulus_margin"], rel=0.1)
-    assert any("nearly unstable" in w and "modulus margin" in w for w in summary["warnings"])
+    assert any("keep_modulus_margin = 0.5 asks for" in w and "modulus margin" in w for w in summary["warnings"])
+    assert covering["used_worst_attenuation_db"] == pytest.approx(used["worst_attenuation_db"])
+    assert covering["used_worst_attenuation_db"] < 20.0 <= covering["worst_attenuation_db"]
 
 
 def test_the_map_run_writes_its_plot_its_report_and_a_valid_summary(mapped):

@@ -174,7 +174,8 @@ class WorkspaceRun:
         elif not covering.meets_target:
             self.warnings.append(f"map: {covering.message}")
         groups, how, margin = self._keep_loop_margin(points, groups, how, realise, rate)
-        self.summary["covering_notch"] = {**covering.as_dict(), "used": how, "loop_margin": margin}
+        self.summary["covering_notch"] = {**covering.as_dict(), "used": how, "loop_margin": margin,
+                                          "used_worst_attenuation_db": min(g.worst_attenuation_db for g in groups)}
         lo, hi = covering.range_hz
         mapped = min(resonances, key=lambda r: abs(r.frequency_hz - (lo + hi) / 2))
         designs = [pipeline.NotchDesign(g.spec, design_notch(g.spec, rate), slot, rate, mapped,
@@ -253,7 +254,8 @@ class WorkspaceRun:
             self.warnings.append(
                 f"map: {first['used']} ({first['worst_attenuation_db']:.1f} dB at worst over the range) would lower "
                 f"the holding loop's modulus margin min|1 + L| from {own:.2f} to {first['modulus_margin']:.2f} (at "
-                f"{first['frequency_hz']:.3g} Hz, {first['position_m']:+.3f} m): nearly unstable; used instead: "
+                f"{first['frequency_hz']:.3g} Hz, {first['position_m']:+.3f} m), below the {keep * own:.2f} that "
+                f"[notch] keep_modulus_margin = {keep:g} asks for; used instead: "
                 f"{chosen_how}, {tried[-1]['worst_attenuation_db']:.1f} dB at worst, margin "
                 f"{tried[-1]['modulus_margin']:.2f}. A loop with a lower bandwidth leaves room for a deeper notch")
         if record["with_notches"] < keep * own:
