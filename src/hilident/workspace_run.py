@@ -210,12 +210,11 @@ class WorkspaceRun:
     def _modulus_margin(gains, sections, rate: float) -> tuple[float, float, float]:
         """``min |1 + N L|`` over every position and line with the chain ``sections`` (``N``; none: the loop as
         it was measured), and the frequency (Hz) and position (m) where it lies."""
+        from hilident.filters.notch import chain_response
+
         worst = (math.inf, math.nan, math.nan)
         for position, f, gain in gains:
-            chain = np.ones(f.size, dtype=complex)
-            for section in sections:
-                chain *= section.response(f, rate)
-            distance = np.abs(1.0 + chain * gain)
+            distance = np.abs(1.0 + chain_response(sections, f, rate) * gain)
             i = int(np.argmin(distance))
             if distance[i] < worst[0]:
                 worst = (float(distance[i]), float(f[i]), float(position))
@@ -232,14 +231,18 @@ class WorkspaceRun:
         if not keep or not gains:
             return groups, how, None
         own, _, _ = self._modulus_margin(gains, [], rate)
-        candidates = [(groups, how)]
-        for k in (2, 4, 8):
-            ratio = nc.max_width_ratio / k
-            narrower = pipeline.covering_design(points, replace(nc, max_width_ratio=ratio), rate, realise=realise)
-            candidates.append(([narrower.single], f"one notch at most {ratio:.3g} of its centre wide, to keep the "
-                                                  "holding loop's margin"))
+
+        def candidates():
+            """``groups``, then one notch ever narrower: each designed only when the one before fell short."""
+            yield groups, how
+            for k in (2, 4, 8):
+                ratio = nc.max_width_ratio / k
+                narrower = pipeline.covering_design(points, replace(nc, max_width_ratio=ratio), rate, realise=realise)
+                yield [narrower.single], f"one notch at most {ratio:.3g} of its centre wide, to keep the holding " \
+                                         "loop's margin"
+
         tried = []
-        for chosen, chosen_how in candidates:
+        for chosen, chosen_how in candidates():
             sections = [realise(g.spec) for g in chosen]
             margin, at_hz, at_m = self._modulus_margin(gains, sections, rate)
             tried.append({"used": chosen_how, "worst_attenuation_db": min(g.worst_attenuation_db for g in chosen),
