@@ -8,7 +8,10 @@ cause winning, and a bus that vanishes mid-run.
 
 from __future__ import annotations
 
+import os
 import shutil
+import signal
+import threading
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -17,12 +20,13 @@ import numpy as np
 import pytest
 from canopen.sdo import SdoCommunicationError
 
+from hilident import endings
 from hilident.adapters.canopen_drive import CanopenDriveAdapter
 from hilident.config import load_config
 from hilident.drivers import find_driver, load_driver
 from hilident.emulator.canopen.roles import EMCY_HEARTBEAT
 from hilident.emulator.canopen.server import start, start_socketcand
-from hilident.errors import ConfigError, DeviceError, LimitTrip
+from hilident.errors import ConfigError, DeviceError, Interrupted, LimitTrip
 from hilident.protocol import cia402
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -397,6 +401,45 @@ def test_a_signal_in_the_middle_of_a_block_transfer_still_stops_the_drive(twin, 
         ad.stream(np.zeros(3000), lambda i, rows: None)
     assert t.fw.state is cia402.State.SWITCH_ON_DISABLED and not t.emulated.drive.enabled
     assert not [r for r in caplog.records if r.levelname in ("WARNING", "ERROR")]  # the interruption says it all
+    ad.node.sdo.open = real_open
+    result = ad.stream(np.zeros(1000), lambda i, rows: None)
+    assert result.completed and result.stats.samples == 1000
+
+
+@pytest.mark.skipif(threading.current_thread() is not threading.main_thread(),
+                    reason="signal handlers need the main thread")
+@pytest.mark.parametrize("direction", ["wb", "rb"])
+def test_a_signal_during_a_segment_is_raised_between_segments(twin, direction):
+    # canopen's SDO client holds its response queue's lock while a segment is exchanged; a signal's exception
+    # landing there left the lock taken, and the stop's Disable Voltage waited on it for good (a CI run hung)
+    t = twin()
+    ad = t.open()
+    ad.configure(FS, "torque")
+    real_open = ad.node.sdo.open
+    steps = []
+
+    def open_signalled(index, subindex=0, mode="rb", **options):
+        stream = real_open(index, subindex, mode, **options)
+        if mode == direction and options.get("block_transfer"):  # the table or the capture, not the stop's write
+            name = "write" if mode == "wb" else "read"
+            real = getattr(stream, name)
+
+            def segment(*args):
+                steps.append("segment")
+                if len(steps) == 20:
+                    os.kill(os.getpid(), signal.SIGINT)
+                    steps.append("segment ended")  # what the library does after the signal, under its lock
+                return real(*args)
+
+            setattr(stream, name, segment)
+        return stream
+
+    ad.node.sdo.open = open_signalled
+    with endings.signals_end_the_session(), pytest.raises(Interrupted):
+        ad.stream(np.zeros(3000), lambda i, rows: None)
+    assert steps[19:21] == ["segment", "segment ended"] and len(steps) == 21  # raised after it, before the next
+    assert t.fw.state is cia402.State.SWITCH_ON_DISABLED and not t.emulated.drive.enabled
+    assert not ad.node.sdo.responses.mutex.locked()
     ad.node.sdo.open = real_open
     result = ad.stream(np.zeros(1000), lambda i, rows: None)
     assert result.completed and result.stats.samples == 1000

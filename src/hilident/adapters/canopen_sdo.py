@@ -25,7 +25,7 @@ from hilident.adapters.canopen_common import (
     ObjectValue,
     _transfer_error,
 )
-from hilident.endings import uninterruptible
+from hilident.endings import raise_pending, shielded, uninterruptible
 from hilident.errors import DataError, DeviceError
 from hilident.protocol.canopen_objects import (
     ObjectAddress,
@@ -117,7 +117,13 @@ class SdoAccess(CanopenState):
                 raise self._sdo_error(exc, addr, "reading") from None
 
         def upload(f: BlockUploadStream) -> bytes:
-            return bytes(f.readall())
+            chunks = []
+            while True:
+                with uninterruptible():
+                    chunk = f.read(io.DEFAULT_BUFFER_SIZE)
+                if not chunk:
+                    return b"".join(chunks)
+                chunks.append(bytes(chunk))
 
         return self._block_transfer(addr, "rb", upload, {})
 
@@ -135,7 +141,8 @@ class SdoAccess(CanopenState):
             view = memoryview(data)
             pos = 0
             while pos < len(data):
-                pos += f.write(view[pos:pos + 7])
+                with uninterruptible():
+                    pos += f.write(view[pos:pos + 7])
 
         self._block_transfer(addr, "wb", download, {"size": len(data)})
 
@@ -149,15 +156,23 @@ class SdoAccess(CanopenState):
         request (the Disable Voltage of ``safe_stop``) would be swallowed. So
         the transfer is ended with an SDO abort, never with canopen's normal
         close, which would send the end-of-transfer request and wait for it.
+
+        A signal is raised between the segments ``body`` exchanges, never
+        within one (each runs :func:`~hilident.endings.uninterruptible`):
+        canopen's SDO client holds its response queue's lock while it waits,
+        and an exception landing there would leave it locked for the Disable
+        Voltage that follows.
         """
         action = "reading" if mode == "rb" else "writing"
         try:
-            stream = self.node.sdo.open(addr.index, addr.subindex, mode, block_transfer=True, buffering=0,
-                                        **options)
+            with shielded():  # a signal during the initiation is raised below, once the abort would be sent
+                stream = self.node.sdo.open(addr.index, addr.subindex, mode, block_transfer=True, buffering=0,
+                                            **options)
         except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
             raise self._sdo_error(exc, addr, action) from None
         self._in_block_transfer = True
         try:
+            raise_pending()
             result = body(stream)
         except BaseException as exc:
             self._in_block_transfer = False
@@ -171,7 +186,8 @@ class SdoAccess(CanopenState):
             raise
         self._in_block_transfer = False
         try:
-            stream.close()
+            with uninterruptible():
+                stream.close()
         except Exception as exc:
             cause = _transfer_error(exc)
             if cause is None:
