@@ -90,7 +90,7 @@ def _vendor_session(tmp_path, drive: VendorDrive, mode: str, amplitude: dict, fr
     cfg = replace(cfg, device=replace(cfg.device, driver=str(folder), acquisition="streamed"),
                   run=replace(cfg.run, sample_rate_hz=500.0),
                   emulator=replace(cfg.emulator, time_scale=20.0), friction_test=ft,
-                  excitation=replace(cfg.excitation, mode=mode, period_s=1.0, duration_s=2.0, **amplitude))
+                  excitation=replace(cfg.excitation, mode=mode, period_s=2.0, duration_s=4.0, **amplitude))
     session = Session(cfg, tmp_path / "out", plots=False)
     return cfg, session, session.run()
 
