@@ -117,7 +117,7 @@ class SdoAccess(CanopenState):
                 raise self._sdo_error(exc, addr, "reading") from None
 
         def upload(f: BlockUploadStream) -> bytes:
-            chunks = []
+            chunks: list[bytes] = []
             while True:
                 with uninterruptible():
                     chunk = f.read(io.DEFAULT_BUFFER_SIZE)
