@@ -37,6 +37,17 @@ def test_a_channel_says_how_it_is_sampled_and_a_wrong_word_names_its_key(tmp_pat
     assert str(folder / "driver.toml") in str(exc.value)
 
 
+def test_one_channel_at_most_enters_the_filter_slots(tmp_path):
+    assert find_driver("myrio-board").filter_input_channel == "torque_cmd_nm"  # PROTOCOL.md: before the slots
+    assert find_driver("canopen-servo").filter_input_channel == "torque_cmd_nm"  # 0x6074, before the slots
+    assert find_driver("modbus-servo").filter_input_channel is None  # its command is not recorded
+    folder = _user_copy(tmp_path, edit=lambda t: t.replace('name = "torque_nm"\n',
+                                                           'name = "torque_nm"\nfilter_input = true\n', 1))
+    with pytest.raises(ConfigError, match=r"channels\[3\]\.filter_input.*'torque_cmd_nm' already does") as exc:
+        load_driver(folder)
+    assert str(folder / "driver.toml") in str(exc.value)
+
+
 def _user_copy(tmp_path, name="my-board", edit=None):
     folder = tmp_path / "mydrivers" / name
     shutil.copytree(find_driver("myrio-board").folder, folder)

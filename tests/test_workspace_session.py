@@ -5,6 +5,8 @@ and the move test without and with the notch on every transport whose drive hold
 from __future__ import annotations
 
 import json
+import os
+import time
 import tomllib
 from pathlib import Path
 
@@ -40,11 +42,29 @@ def quick_map(move: bool) -> dict:
 
 @pytest.fixture(scope="module")
 def mapped(tmp_path_factory):
-    out = tmp_path_factory.mktemp("map")
+    """One map session for the whole test run, whichever pytest-xdist workers run these tests: the first to get
+    here runs it, the others wait for its summary (two board twins at time scale 8 starve each other on two
+    cores)."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # shared by the workers of this test run
+    out, claim, done = root / "workspace-map", root / "workspace-map.claim", root / "workspace-map.done"
     cfg = parse_config(tomli_w.dumps(quick_map(move=False)), str(MAP_CONFIG))
-    session = Session(cfg, out)
-    summary = session.run()
-    return cfg, summary, out
+    try:
+        os.close(os.open(claim, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+    except FileExistsError:
+        deadline = time.monotonic() + 900
+        while not done.exists():
+            assert time.monotonic() < deadline, "the map session on another worker did not finish in 900 s"
+            time.sleep(0.5)
+    else:
+        try:
+            Session(cfg, out).run()
+        finally:
+            done.touch()
+    summary_file = out / "summary.json"
+    assert summary_file.is_file(), "the map session failed (see the worker that ran it)"
+    return cfg, json.loads(summary_file.read_text()), out
 
 
 def test_the_map_finds_the_mode_at_every_position_within_half_a_percent(mapped):
@@ -102,36 +122,64 @@ def test_the_covering_notch_holds_twenty_db_over_the_mapped_range_as_stored(mapp
     truth = [true_modes(parse_config(MAP_CONFIG.read_text(), str(MAP_CONFIG)).emulator, p)[0][0]
              for p in (-0.5, 0.1, 0.5)]
     assert lo <= min(truth) * 1.002 and hi >= max(truth) * 0.998  # the range spans the twin's whole spread
-    # measured at every mapped position, the notches enabled, against the map's own record. Closed loop: the
-    # loop's own damping of the mode is what the notch takes away with it, so the band figure can fall a few dB
-    # below the 20 dB design (19.1-26.0 dB seen); reported worst first.
+
+    # measured at every mapped position, the notches enabled, against the map's own record: the command entering
+    # the filter slots to the velocity, as a single-position run measures it in open-loop torque
     verified = summary["workspace"]["verification"]
-    assert len(verified["positions"]) == 5
+    assert verified["measured_on"] == "filtered_plant" and len(verified["positions"]) == 5
     assert all(r["reduction_db"] >= 20.0 for r in verified["positions"]), verified
-    assert verified["worst_band_reduction_db"] == min(r["band_reduction_db"] for r in verified["positions"]) >= 15.0
+    assert verified["worst_band_reduction_db"] == min(r["band_reduction_db"] for r in verified["positions"]) >= 20.0
+    # the loop's figure (excitation to velocity) is reported beside it: the notch also takes away the damping the
+    # holding loop gave the mode, so a torque disturbance sees less of the 20 dB
+    loop_worst = verified["worst_loop_band_reduction_db"]
+    assert loop_worst == min(r["loop_band_reduction_db"] for r in verified["positions"])
+    assert 10.0 < loop_worst < verified["worst_band_reduction_db"]
+
+
+def test_the_verification_figure_is_recomputed_from_the_recordings(mapped):
+    """The verification's reduction at each mode's line, from the two recordings alone (command to velocity,
+    period-averaged spectra with plain numpy), against the summary's."""
+    _, summary, out = mapped
+    rate = summary["sample_rate_hz"]
+    for point, row in zip(summary["map"], summary["workspace"]["verification"]["positions"], strict=True):
+        f_hz, before = line_spectra(out / point["recording"], rate)
+        f_after, after = line_spectra(out / row["recording"], rate)
+        assert np.allclose(f_hz, f_after)
+        line = int(np.argmin(np.abs(f_hz - row["frequency_hz"])))
+        plant = [s["velocity_mps"][line] / s["torque_cmd_nm"][line] for s in (before, after)]
+        measured_db = 20 * np.log10(abs(plant[0]) / abs(plant[1]))
+        assert measured_db == pytest.approx(row["reduction_db"], abs=1.0)
+        # and the loop's figure, excitation to velocity, is the smaller one at the line
+        loop = [s["velocity_mps"][line] / s["excitation"][line] for s in (before, after)]
+        assert 20 * np.log10(abs(loop[0]) / abs(loop[1])) == pytest.approx(row["loop_reduction_db"], abs=1.0)
+
+
+def line_spectra(path: Path, rate_hz: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """A periodic record's spectra at its excited lines, averaged over its whole periods but the first (the
+    transient), with plain numpy: ``(frequency_hz, {channel: spectrum})``."""
+    import h5py
+
+    with h5py.File(path) as f:
+        names = [str(n) for n in f.attrs["channel_names"]]
+        rows, period = f["samples"][()], int(f.attrs["period_samples"])
+    whole = len(rows) // period - 1
+    spectra = {n: np.fft.rfft(rows[len(rows) - whole * period:, i].reshape(whole, period), axis=1).mean(0)
+               for i, n in enumerate(names)}
+    lines = np.flatnonzero(np.abs(spectra["excitation"]) > 1e-3 * np.abs(spectra["excitation"]).max())
+    return lines * rate_hz / period, {n: x[lines] for n, x in spectra.items()}
 
 
 def loop_margins(out: Path, summary: dict) -> tuple[float, float]:
     """The holding loop's modulus margin min |1 + L| over the mapped positions, without and with the chain the
     drive read back, computed from the map's recordings alone: period-averaged spectra at the excited lines,
     ``G`` = torque to velocity, ``T`` = excitation to velocity, ``L = G / T - 1``."""
-    import h5py
-
     rate = summary["workspace"]["covering_notch"]["sample_rate_hz"]
     without, with_chain = np.inf, np.inf
     for point in summary["map"]:
-        with h5py.File(out / point["recording"]) as f:
-            names = [str(n) for n in f.attrs["channel_names"]]
-            rows, period = f["samples"][()], int(f.attrs["period_samples"])
-        channel = {n: rows[:, i] for i, n in enumerate(names)}
-        whole = len(rows) // period - 1  # the first period is the transient
-        spectra = {n: np.fft.rfft(channel[n][len(rows) - whole * period:].reshape(whole, period), axis=1).mean(0)
-                   for n in ("excitation", "torque_nm", "velocity_mps")}
-        lines = np.flatnonzero(np.abs(spectra["excitation"]) > 1e-3 * np.abs(spectra["excitation"]).max())
-        f_hz = lines * summary["sample_rate_hz"] / period
-        v = spectra["velocity_mps"][lines]
-        gain = (v / spectra["torque_nm"][lines]) / (v / spectra["excitation"][lines]) - 1.0
-        chain = np.ones(lines.size, dtype=complex)
+        f_hz, spectra = line_spectra(out / point["recording"], summary["sample_rate_hz"])
+        v = spectra["velocity_mps"]
+        gain = (v / spectra["torque_nm"]) / (v / spectra["excitation"]) - 1.0
+        chain = np.ones(f_hz.size, dtype=complex)
         for slot in summary["upload"]["slots"]:
             chain *= signal.freqz(slot["readback_b"], slot["readback_a"], worN=f_hz, fs=rate)[1]
         without = min(without, float(np.abs(1 + gain).min()))

@@ -58,6 +58,12 @@ def _run(args) -> int:
         band = ver.get("band_reduction_db")
         head = "" if band is None else f"largest response near the resonance reduced by {band:.1f} dB, "
         print(f"verification: {head}{ver['peak_reduction_db']:.1f} dB at the resonance line")
+    mapped = (summary.get("workspace") or {}).get("verification")
+    if mapped and mapped.get("worst_band_reduction_db") is not None:
+        on = "command to velocity" if mapped["measured_on"] == "filtered_plant" else "excitation to velocity"
+        print(f"map verification: band figure {mapped['worst_band_reduction_db']:.1f} dB at worst "
+              f"({mapped['worst_position_m']:+.3f} m, {on}); the holding loop's "
+              f"{mapped['worst_loop_band_reduction_db']:.1f} dB at worst")
     if summary["upload"].get("saved"):
         print("saved: the device stored its parameters in non-volatile memory")
     s = summary["stream"]

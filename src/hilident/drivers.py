@@ -42,6 +42,9 @@ class ChannelSpec:
     ``sampling`` is ``"instant"`` (the value at the sample instant, the first loop tick of the
     sample period) or ``"mean"`` (the mean over the period's loop ticks: the device averages
     before it decimates, so what changes within a period does not alias).
+
+    ``filter_input`` marks the signal entering the filter slots (the torque command before the
+    notches): with it recorded, a run in closed loop measures what the notches do to the plant.
     """
 
     name: str
@@ -50,6 +53,7 @@ class ChannelSpec:
     scale: float = 1.0
     stream: bool = True
     sampling: str = "instant"
+    filter_input: bool = False
 
 
 @dataclass(frozen=True)
@@ -113,6 +117,11 @@ class DriverDescription:
         return tuple(c for c in self.channels if c.stream)
 
     @property
+    def filter_input_channel(self) -> str | None:
+        """The channel that records the filter slots' input (``filter_input = true``), or None."""
+        return next((c.name for c in self.channels if c.filter_input), None)
+
+    @property
     def averaged_channels(self) -> tuple[str, ...]:
         """Names of the channels the device averages over each sample period (``sampling = "mean"``)."""
         return tuple(c.name for c in self.channels if c.sampling == "mean")
@@ -155,6 +164,8 @@ class _ChannelTable:
     sampling: str = spec("instant", choices=("instant", "mean"),
                          doc="instant: the value at the sample instant; mean: the mean over the sample period's "
                              "loop ticks (the device averages before it decimates)")
+    filter_input: bool = spec(False, doc="the signal entering the filter slots (the torque command before the "
+                                         "notches); one channel at most")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -285,7 +296,8 @@ def load_driver(folder: str | os.PathLike) -> DriverDescription:
     if board.max_sample_rate_hz > board.loop_rate_hz:
         raise ConfigError("board.max_sample_rate_hz", f"{board.max_sample_rate_hz:g} Hz exceeds board.loop_rate_hz "
                                                       f"= {board.loop_rate_hz:g} Hz", source)
-    channels = tuple(ChannelSpec(c.name, c.unit, c.format, c.scale, c.stream, c.sampling) for c in parsed.channels)
+    channels = tuple(ChannelSpec(c.name, c.unit, c.format, c.scale, c.stream, c.sampling, c.filter_input)
+                     for c in parsed.channels)
     if not channels and d.transport == "canopen":
         channels = _canopen_channels(folder, data, source)
     if not channels:
@@ -297,6 +309,10 @@ def load_driver(folder: str | os.PathLike) -> DriverDescription:
     duplicate = next((n for n in names if names.count(n) > 1), None)
     if duplicate is not None or "" in names:
         raise ConfigError("channels", f"channel names must be distinct and non-empty, got {show(names)}", source)
+    inputs = [i for i, c in enumerate(channels) if c.filter_input]
+    if len(inputs) > 1:
+        raise ConfigError(f"channels[{inputs[1]}].filter_input", f"only one channel enters the filter slots; "
+                                                                 f"{names[inputs[0]]!r} already does", source)
     serial = d.transport == "serial"
     return DriverDescription(
         name=d.name,

@@ -524,9 +524,10 @@ class Session(DeviceConnection):
         return build_excitation(self.cfg)
 
     def _analysis_samples(self, exp: Experiment, excitation: Excitation) -> dict[str, np.ndarray]:
-        """Whole gap-free periods of a periodic excitation, else the longest gap-free stretch (never spliced)."""
+        """Whole gap-free periods of a periodic excitation, else the longest gap-free stretch (never spliced).
+        A record selected twice warns of its gaps once."""
         selection = pipeline.select_gap_free(exp.samples["sample_index"], excitation.period_samples, exp.name)
-        self.warnings += selection.warnings
+        self.warnings += [w for w in selection.warnings if w not in self.warnings]
         return {k: v[selection.keep] for k, v in exp.samples.items()}
 
     def _greybox(self):
@@ -578,7 +579,8 @@ class Session(DeviceConnection):
         joint fit, the axis back where the identification ran."""
         self.workspace = WorkspaceRun(self.cfg, self.record,
                                       lambda exp, exc: self._identify(exp, exc, friction, for_model=False),
-                                      self._analysis_samples, lambda: self.position_m, self.progress, self.warnings)
+                                      self._analysis_samples, lambda: self.position_m, self.progress, self.warnings,
+                                      filter_input=self.found_driver.filter_input_channel)
         reference = plant.resonances[0].frequency_hz if plant.resonances else None
         self.workspace.map(float(ident.samples["position_m"][-1]), reference)
 

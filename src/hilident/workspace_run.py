@@ -52,13 +52,18 @@ class WorkspaceRun:
     progress : Progress
     warnings : list of str
         The run's warnings, appended to.
+    filter_input : str or None
+        The channel that records the command entering the filter slots (the driver's ``filter_input``):
+        with it, :meth:`verify` measures what the notches do to the plant, not only to the loop.
     """
 
     def __init__(self, cfg: Config, record: Callable, identify: Callable, analysis_samples: Callable,
-                 position: Callable[[], float | None], progress, warnings: list[str]):
+                 position: Callable[[], float | None], progress, warnings: list[str], filter_input: str | None = None):
         self.cfg, self.record, self.identify = cfg, record, identify
         self.analysis_samples, self.position, self.progress, self.warnings = (analysis_samples, position, progress,
                                                                               warnings)
+        self.filter_input = filter_input
+        self.filtered_plants: dict[str, Any] = {}  # each mapped position's command-to-output response, by name
         self.points: list[MapPoint] = []
         self.results: dict[str, Any] = {}  # each mapped position's identification, by recording name
         self.joint: Any = None  # the WorkspaceFit, None until fitted (or when the fit failed)
@@ -85,7 +90,12 @@ class WorkspaceRun:
                                                      duration_s=cfg.map.duration_s or e.duration_s))
         excitation = self.excitation = build_excitation(mapped_cfg)
         self.recipe = excitation_recipe(mapped_cfg)
-        mapper = WorkspaceMap(cfg, self.record, lambda exp, name: self.identify(exp, excitation), self.progress)
+
+        def identify(exp, name: str):
+            self.filtered_plants[name] = self._filtered_plant(exp, excitation)
+            return self.identify(exp, excitation)
+
+        mapper = WorkspaceMap(cfg, self.record, identify, self.progress)
         self.points = mapper.run(excitation, start_m, reference_hz, self.recipe)
         self.results = mapper.results
         missing = [p.target_m for p in self.points if p.frequency_hz is None]
@@ -270,13 +280,21 @@ class WorkspaceRun:
 
     def verify(self) -> dict:
         """The map's excitation again at every mapped position with the notches enabled, and the reduction there
-        (:func:`hilident.pipeline.peak_reductions`, before = the map's own record), worst first; the axis ends
-        where the verification began."""
+        (:func:`hilident.pipeline.peak_reductions`, before = the map's own record); the axis ends where the
+        verification began.
+
+        Two figures per position. The headline (``band_reduction_db``, ``reduction_db``) is on the filter slots
+        and the plant together, command to output (:func:`hilident.pipeline.filtered_plant_response`), as a
+        single-position run in open-loop torque measures it; it falls back to the loop's figure when the device
+        records no filter input (``measured_on`` says which). The loop's figure (``loop_band_reduction_db``) is
+        what a torque disturbance at the held cart sees: the notch also takes away the damping the loop gave
+        the mode, so it is the smaller of the two.
+        """
         excitation, nc, ic = self.excitation, self.cfg.notch, self.cfg.identification
         if excitation is None:
             raise UsageError("the map is verified only after it ran (WorkspaceRun.map)")
         start = here = self._here()
-        rows = []
+        rows, measured_on = [], None
         for i, point in enumerate(self.points):
             before = self._result(point)
             mode = nearest_resonance(list(before.resonances), point.frequency_hz)
@@ -289,21 +307,41 @@ class WorkspaceRun:
             s = self.analysis_samples(exp, excitation)
             after, warnings = pipeline.loop_response(s["excitation"], s[ic.output], self.cfg.run.sample_rate_hz, ic,
                                                      excitation.period_samples, excitation.excited_bins)
-            self.warnings += warnings
-            (r,) = pipeline.peak_reductions(before.loop, after, [mode], nc.verify_band_bandwidths)
+            self.warnings += [w for w in warnings if w not in self.warnings]
+            (loop,) = pipeline.peak_reductions(before.loop, after, [mode], nc.verify_band_bandwidths)
+            plant_before = self.filtered_plants.get(point.recording.removesuffix(".h5"))
+            plant_after = self._filtered_plant(exp, excitation) if plant_before is not None else None
+            (r,) = (pipeline.peak_reductions(plant_before, plant_after, [mode], nc.verify_band_bandwidths)
+                    if plant_before is not None and plant_after is not None else (loop,))
             rows.append({"position_m": point.position_m, "frequency_hz": r["frequency_hz"],
                          "band_reduction_db": r["band_reduction_db"], "reduction_db": r["reduction_db"],
+                         "loop_band_reduction_db": loop["band_reduction_db"], "loop_reduction_db": loop["reduction_db"],
                          "recording": f"map_verify_{i}.h5"})
+            measured_on = "filtered_plant" if plant_after is not None else "loop"
         move_axis(self.cfg, self.record, "map_verify_return", here, start)
         worst = min(rows, key=lambda r: r["band_reduction_db"]) if rows else None
         if worst is not None and worst["band_reduction_db"] < nc.min_reduction_db:
             self.warnings.append(
                 f"map verification: at {worst['position_m']:+.3f} m the largest response near the mode dropped by only "
                 f"{worst['band_reduction_db']:.1f} dB (notch.min_reduction_db = {nc.min_reduction_db:g})")
-        self.summary["verification"] = {"positions": rows,
-                                        "worst_band_reduction_db": worst["band_reduction_db"] if worst else None,
-                                        "worst_position_m": worst["position_m"] if worst else None}
+        self.summary["verification"] = {
+            "measured_on": measured_on, "positions": rows,
+            "worst_band_reduction_db": worst["band_reduction_db"] if worst else None,
+            "worst_position_m": worst["position_m"] if worst else None,
+            "worst_loop_band_reduction_db": min(r["loop_band_reduction_db"] for r in rows) if rows else None}
         return self.summary["verification"]
+
+    def _filtered_plant(self, exp, excitation: Excitation):
+        """The filter slots and the plant together at one position (:func:`hilident.pipeline.filtered_plant_response`),
+        None when the device records no filter input."""
+        if self.filter_input is None or self.filter_input not in exp.samples:
+            return None
+        s, ic = self.analysis_samples(exp, excitation), self.cfg.identification
+        response, warnings = pipeline.filtered_plant_response(
+            s["excitation"], s[self.filter_input], s[ic.output], self.cfg.run.sample_rate_hz, ic,
+            excitation.period_samples, excitation.excited_bins)
+        self.warnings += [w for w in warnings if w not in self.warnings]
+        return response
 
     def _here(self) -> float:
         here = self.position()

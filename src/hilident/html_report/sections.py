@@ -510,11 +510,29 @@ def workspace(inputs: ReportInputs) -> str:
                  "The mode identified at each position") + spread
     ws = _dict(inputs.summary.get("workspace"))
     verified = _dict(ws.get("verification"))
-    measured = key_values([("band figure at every mapped position, worst",
-                            f"{num(verified.get('worst_band_reduction_db'), 'dB', 3)} at "
-                            f"{num(verified.get('worst_position_m'), 'm')}")]) if verified else ""
+    measured = _map_verification(verified) if verified else ""
     return section("workspace", "Workspace map", body + _joint_fit(_dict(ws.get("joint_fit")))
                    + _covering(_dict(ws.get("covering_notch"))) + measured)
+
+
+def _map_verification(verified: dict) -> str:
+    """The reduction measured again at every mapped position: on what the notches do to the plant (command to
+    output) and on the loop (excitation to output)."""
+    on_plant = verified.get("measured_on") == "filtered_plant"
+    rows = [[num(r.get("position_m"), "m"), num(r.get("frequency_hz"), "Hz"), num(r.get("band_reduction_db"), "dB", 3),
+             num(r.get("reduction_db"), "dB", 3), num(r.get("loop_band_reduction_db"), "dB", 3),
+             _text(r.get("recording"))] for r in verified.get("positions") or [] if isinstance(r, dict)]
+    head = ("band figure, command to output" if on_plant else "band figure, excitation to output", "at the line",
+            "band figure of the loop", "recording")
+    why = note("The first two figures are on the filter slots and the plant together, as an open-loop torque run "
+               "measures them; the loop's figure is what a torque disturbance at the held cart sees, smaller because "
+               "the notch also takes away the damping the holding loop gave the mode." if on_plant else
+               "The device records no filter input (driver channel filter_input): the figures are the loop's, "
+               "excitation to output.")
+    worst = key_values([("band figure at every mapped position, worst",
+                         f"{num(verified.get('worst_band_reduction_db'), 'dB', 3)} at "
+                         f"{num(verified.get('worst_position_m'), 'm')}")])
+    return worst + table(["position", "mode", *head], rows, "Measured again with the notches enabled") + why
 
 
 def _polynomial(poly: dict) -> str:
