@@ -311,13 +311,15 @@ class WorkspaceRun:
             (loop,) = pipeline.peak_reductions(before.loop, after, [mode], nc.verify_band_bandwidths)
             plant_before = self.filtered_plants.get(point.recording.removesuffix(".h5"))
             plant_after = self._filtered_plant(exp, excitation) if plant_before is not None else None
-            (r,) = (pipeline.peak_reductions(plant_before, plant_after, [mode], nc.verify_band_bandwidths)
-                    if plant_before is not None and plant_after is not None else (loop,))
+            if plant_before is not None and plant_after is not None:
+                (r,) = pipeline.peak_reductions(plant_before, plant_after, [mode], nc.verify_band_bandwidths)
+                measured_on = "filtered_plant"
+            else:
+                r, measured_on = loop, "loop"
             rows.append({"position_m": point.position_m, "frequency_hz": r["frequency_hz"],
                          "band_reduction_db": r["band_reduction_db"], "reduction_db": r["reduction_db"],
                          "loop_band_reduction_db": loop["band_reduction_db"], "loop_reduction_db": loop["reduction_db"],
                          "recording": f"map_verify_{i}.h5"})
-            measured_on = "filtered_plant" if plant_after is not None else "loop"
         move_axis(self.cfg, self.record, "map_verify_return", here, start)
         worst = min(rows, key=lambda r: r["band_reduction_db"]) if rows else None
         if worst is not None and worst["band_reduction_db"] < nc.min_reduction_db:
