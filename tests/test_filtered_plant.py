@@ -64,8 +64,9 @@ def test_the_ratio_of_the_two_responses_is_the_filtered_plant_where_the_loop_res
     period = 2000
     r, u, y, (b_true, a_true) = _closed_loop(period, 8)
     cfg = load_config(CONFIG).identification
-    plant, warnings = pipeline.filtered_plant_response(r, u, y, FS, cfg, period_samples=period)
     loop, _ = pipeline.loop_response(r, y, FS, cfg, period_samples=period)
+    command, _ = pipeline.loop_response(r, u, FS, cfg, period_samples=period)
+    plant = pipeline.filtered_plant_response(loop, command)
     f = plant.frequency_hz
     lines = (f >= 2.0) & (f <= 90.0) & (plant.coherence > 0.9)
     assert lines.sum() > 150

@@ -761,25 +761,20 @@ def loop_response(
     return h1_estimate(r, y, sample_rate_hz, _segment(len(r), cfg, sample_rate_hz, period_samples, warnings)), warnings
 
 
-def filtered_plant_response(
-    excitation, command, output, sample_rate_hz: float, cfg: IdentificationConfig,
-    period_samples: int | None = None, excited_bins=None,
-) -> tuple[FrequencyResponse, list[str]]:
+def filtered_plant_response(to_output: FrequencyResponse, to_command: FrequencyResponse) -> FrequencyResponse:
     """The filter slots and the plant together, ``N G``, measured in closed loop: command to output.
 
     The excitation enters ahead of the filter slots while a loop holds the axis, so the command
     entering the slots (controller output plus injection) and the output both respond to it:
-    ``y/r = N G S`` and ``u/r = S``, and their ratio is ``N G`` whatever the loop adds (the
-    indirect method of :func:`hilident.ident.frequency.frf_from_reference`). It is what an open-loop
-    torque run measures, so a band figure on it compares with one of a single-position run.
-    The coherence is the product of the two responses' coherences.
+    ``to_output = y/r = N G S`` and ``to_command = u/r = S`` (both :func:`loop_response` of one
+    record), and their ratio is ``N G`` whatever the loop adds (the indirect method of
+    :func:`hilident.ident.frequency.frf_from_reference`). It is what an open-loop torque run
+    measures, so a band figure on it compares with one of a single-position run. The coherence is
+    the product of the two responses' coherences.
     """
-    to_output, warnings = loop_response(excitation, output, sample_rate_hz, cfg, period_samples, excited_bins)
-    to_command, more = loop_response(excitation, command, sample_rate_hz, cfg, period_samples, excited_bins)
     # u/r is never zero on an excited line: the excitation itself is part of the command
-    plant = replace(to_output, response=to_output.response / to_command.response,
-                    coherence=to_output.coherence * to_command.coherence)
-    return plant, warnings + [w for w in more if w not in warnings]
+    return replace(to_output, response=to_output.response / to_command.response,
+                   coherence=to_output.coherence * to_command.coherence)
 
 
 @dataclass

@@ -63,7 +63,7 @@ class WorkspaceRun:
         self.analysis_samples, self.position, self.progress, self.warnings = (analysis_samples, position, progress,
                                                                               warnings)
         self.filter_input = filter_input
-        self.filtered_plants: dict[str, Any] = {}  # each mapped position's command-to-output response, by name
+        self.command_responses: dict[str, Any] = {}  # each mapped position's excitation-to-command response, by name
         self.points: list[MapPoint] = []
         self.results: dict[str, Any] = {}  # each mapped position's identification, by recording name
         self.joint: Any = None  # the WorkspaceFit, None until fitted (or when the fit failed)
@@ -92,7 +92,7 @@ class WorkspaceRun:
         self.recipe = excitation_recipe(mapped_cfg)
 
         def identify(exp, name: str):
-            self.filtered_plants[name] = self._filtered_plant(exp, excitation)
+            self.command_responses[name] = self._command_response(exp, excitation)
             return self.identify(exp, excitation)
 
         mapper = WorkspaceMap(cfg, self.record, identify, self.progress)
@@ -309,10 +309,12 @@ class WorkspaceRun:
                                                      excitation.period_samples, excitation.excited_bins)
             self.warnings += [w for w in warnings if w not in self.warnings]
             (loop,) = pipeline.peak_reductions(before.loop, after, [mode], nc.verify_band_bandwidths)
-            plant_before = self.filtered_plants.get(point.recording.removesuffix(".h5"))
-            plant_after = self._filtered_plant(exp, excitation) if plant_before is not None else None
-            if plant_before is not None and plant_after is not None:
-                (r,) = pipeline.peak_reductions(plant_before, plant_after, [mode], nc.verify_band_bandwidths)
+            command_before = self.command_responses.get(point.recording.removesuffix(".h5"))
+            command_after = self._command_response(exp, excitation, s) if command_before is not None else None
+            if command_before is not None and command_after is not None:
+                (r,) = pipeline.peak_reductions(pipeline.filtered_plant_response(before.loop, command_before),
+                                                pipeline.filtered_plant_response(after, command_after), [mode],
+                                                nc.verify_band_bandwidths)
                 measured_on = "filtered_plant"
             else:
                 r, measured_on = loop, "loop"
@@ -333,15 +335,16 @@ class WorkspaceRun:
             "worst_loop_band_reduction_db": min(r["loop_band_reduction_db"] for r in rows) if rows else None}
         return self.summary["verification"]
 
-    def _filtered_plant(self, exp, excitation: Excitation):
-        """The filter slots and the plant together at one position (:func:`hilident.pipeline.filtered_plant_response`),
-        None when the device records no filter input."""
+    def _command_response(self, exp, excitation: Excitation, samples: dict | None = None):
+        """The excitation to the command entering the filter slots at one position (``u/r``, the denominator of
+        :func:`hilident.pipeline.filtered_plant_response`), from ``samples`` when the record's analysed samples
+        are at hand; None when the device records no filter input."""
         if self.filter_input is None or self.filter_input not in exp.samples:
             return None
-        s, ic = self.analysis_samples(exp, excitation), self.cfg.identification
-        response, warnings = pipeline.filtered_plant_response(
-            s["excitation"], s[self.filter_input], s[ic.output], self.cfg.run.sample_rate_hz, ic,
-            excitation.period_samples, excitation.excited_bins)
+        s = samples if samples is not None else self.analysis_samples(exp, excitation)
+        response, warnings = pipeline.loop_response(s["excitation"], s[self.filter_input], self.cfg.run.sample_rate_hz,
+                                                    self.cfg.identification, excitation.period_samples,
+                                                    excitation.excited_bins)
         self.warnings += [w for w in warnings if w not in self.warnings]
         return response
 
