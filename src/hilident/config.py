@@ -282,6 +282,10 @@ class MapConfig:
     verify: bool = _spec(False, doc="after the verification, excite every mapped position again with the notches "
                          "enabled and measure the reduction there (the approach moves run with the notches in the "
                          "loop)")
+    verify_max_duration_s: float = _spec(0.0, ge=0, doc="longest the verification may excite one position, s, its "
+                                         "lead-ins included: a record whose noise floor hides the target "
+                                         "(notch.min_reduction_db) is followed by a longer one, their periods "
+                                         "averaged together; 0: four times the map's own record at each position")
     k_degree: int = _spec(2, ge=0, le=4, doc="joint fit: degree of the stiffness k(p) polynomial in position")
     d_degree: int = _spec(0, ge=0, le=4, doc="joint fit: degree of the damping d(p) polynomial in position")
 

@@ -20,7 +20,7 @@ from hilident.ident import friction as fr
 from hilident.ident import greybox
 from hilident.ident.discretize import sampling_advice
 from hilident.ident.frequency import FrequencyResponse, frf_from_reference, h1_estimate, periodic_frf
-from hilident.ident.frfquality import check_resolution, frf_uncertainty, input_spectrum
+from hilident.ident.frfquality import check_resolution, estimate_error_std, frf_uncertainty, input_spectrum
 from hilident.ident.preprocess import check_signals, lowpass, remove_drift
 from hilident.ident.resonance import RejectedPeak, Resonance, screen_resonances
 from hilident.ident.tffit import ModalModel, RootReport, TfFit, classify_roots, modal_form, select_structure
@@ -761,6 +761,26 @@ def loop_response(
     return h1_estimate(r, y, sample_rate_hz, _segment(len(r), cfg, sample_rate_hz, period_samples, warnings)), warnings
 
 
+def pooled_loop_response(excitations, outputs, sample_rate_hz: float, cfg: IdentificationConfig,
+                         period_samples: int, excited_bins=None) -> FrequencyResponse:
+    """:func:`loop_response` over several records of one periodic excitation, their periods averaged together.
+
+    Each record (whole steady-state periods, its lead-in dropped: :func:`select_gap_free`) is conditioned
+    on its own, since its drift is its own, and then every period of every record is one average of
+    :func:`~hilident.ident.frequency.periodic_frf`. A record whose length is no whole number of periods is
+    an error, because splicing it would leak.
+    """
+    pairs = list(zip(excitations, outputs, strict=True))
+    if not pairs:
+        raise DataError("no records to pool")
+    for r, _ in pairs:
+        if len(r) % period_samples or len(r) < period_samples:
+            raise DataError(f"a record of {len(r)} samples holds no whole number of {period_samples}-sample periods")
+    r = np.concatenate([_condition(np.asarray(x, dtype=float), cfg, sample_rate_hz, period_samples) for x, _ in pairs])
+    y = np.concatenate([_condition(np.asarray(x, dtype=float), cfg, sample_rate_hz, period_samples) for _, x in pairs])
+    return periodic_frf(r, y, period_samples, sample_rate_hz, skip_periods=0, bins=excited_bins)
+
+
 def filtered_plant_response(to_output: FrequencyResponse, to_command: FrequencyResponse) -> FrequencyResponse:
     """The filter slots and the plant together, ``N G``, measured in closed loop: command to output.
 
@@ -862,7 +882,7 @@ def predicted_band_reduction_db(res: Resonance, biquad: Biquad, sample_rate_hz: 
 
 
 #: Margin over ``min_reduction_db`` the width search aims for: the verification repeats a noisy measurement.
-_PREDICTION_MARGIN_DB = 2.0
+PREDICTION_MARGIN_DB = 2.0
 
 
 def design_notches(resonances, cfg: NotchConfig, filter_rate_hz: float, slots: list[int],
@@ -910,7 +930,7 @@ def design_notches(resonances, cfg: NotchConfig, filter_rate_hz: float, slots: l
         while True:
             biquad = design_notch(spec, filter_rate_hz)
             predicted = predicted_band_reduction_db(res, biquad, filter_rate_hz, cfg.verify_band_bandwidths, response)
-            if predicted >= target + _PREDICTION_MARGIN_DB or spec.width_hz >= widest:
+            if predicted >= target + PREDICTION_MARGIN_DB or spec.width_hz >= widest:
                 break
             spec = NotchSpec(spec.center_hz, min(1.25 * spec.width_hz, widest), spec.depth_db)
         warning = ""
@@ -1007,6 +1027,46 @@ def peak_reductions(before: FrequencyResponse, after: FrequencyResponse, resonan
 
 #: Attenuation reported for an exact zero of a stored section (-20 log10 1e-300), dB
 _DEEPEST_DB = 6000.0
+
+
+#: Euler's constant: ``sqrt(ln K + gamma)`` approximates the largest of ``K`` complex Gaussian errors over their rms.
+_EULER_GAMMA = 0.5772156649015329
+
+
+def band_floor_db(before: FrequencyResponse, after: FrequencyResponse, resonance,
+                  band_bandwidths: float = 2.0) -> float:
+    """The largest band figure (:func:`peak_reductions`) the `after` measurement's own noise lets it show, dB.
+
+    A notch takes the response near the mode down, but not what the output
+    does that the excitation does not explain: noise, and forces that enter
+    behind the filter slots (on the load, say) and drive the mode, which the
+    notch may even leave less damped than before. `after` is measured through
+    it. Its error per line (:func:`~hilident.ident.frfquality.estimate_error_std`)
+    is pooled over the band (rms), and the largest of the band's ``K`` lines'
+    errors is expected near ``rms * sqrt(ln K + 0.577)``; the floor is the
+    largest ``|before|`` in the band over that. A measured band figure within a
+    few dB of its floor says more about the measurement than about the notch:
+    longer records lower the floor by 10 dB per tenfold the averages.
+
+    Returns
+    -------
+    float
+        dB; inf when `after` has no noise, NaN when its estimator gives no
+        coherence or no line falls in the band.
+    """
+    lo, hi = band_of(resonance.frequency_hz, resonance.damping_ratio, band_bandwidths)
+    in_band = (after.frequency_hz >= lo) & (after.frequency_hz <= hi)
+    in_before = (before.frequency_hz >= lo) & (before.frequency_hz <= hi)
+    if not in_band.any() or not in_before.any():
+        return float("nan")
+    errors = estimate_error_std(after)[in_band]
+    if not np.all(np.isfinite(errors)):
+        return float("nan") if np.isnan(errors).any() else float("-inf")
+    rms = float(np.sqrt(np.mean(errors ** 2)))
+    if rms == 0.0:
+        return float("inf")
+    expected_max = rms * np.sqrt(np.log(in_band.sum()) + _EULER_GAMMA)
+    return float(20.0 * np.log10(np.abs(before.response[in_before]).max() / expected_max))
 
 
 def achieved_notch(design: NotchDesign, stored: Biquad, planned: Biquad | None = None) -> dict:

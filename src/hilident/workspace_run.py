@@ -32,6 +32,9 @@ from hilident.errors import ConfigError, DataError, UsageError
 from hilident.run_excitation import Excitation, build_excitation, excitation_recipe
 from hilident.workspace_map import MAP_MODE, MapPoint, WorkspaceMap, move_axis, nearest_resonance
 
+#: A band figure within this of its record's noise floor is the floor's, not the notch's, dB.
+_FLOOR_HEADROOM_DB = 6.0
+
 
 class WorkspaceRun:
     """The ``[map]`` steps of one run.
@@ -69,6 +72,9 @@ class WorkspaceRun:
         self.joint: Any = None  # the WorkspaceFit, None until fitted (or when the fit failed)
         self.excitation: Excitation | None = None  # what each mapped position is excited with
         self.recipe: dict | None = None  # and its recipe, for drives that play it themselves
+        self.mapped_cfg: Config | None = None  # the run's configuration with that excitation
+        self.chain: list = []  # the sections the notches are stored as, for the verification's prediction
+        self.chain_rate_hz = 0.0  # and the rate they run at, Hz
         self.summary: dict[str, Any] = {}  # summary.json["workspace"]
 
     @property
@@ -89,6 +95,7 @@ class WorkspaceRun:
         mapped_cfg = replace(cfg, excitation=replace(e, mode=MAP_MODE, amplitude_nm=amplitude,
                                                      duration_s=cfg.map.duration_s or e.duration_s))
         excitation = self.excitation = build_excitation(mapped_cfg)
+        self.mapped_cfg = mapped_cfg
         self.recipe = excitation_recipe(mapped_cfg)
 
         def identify(exp, name: str):
@@ -194,6 +201,7 @@ class WorkspaceRun:
         others = [r for r in resonances if r is not mapped and not lo <= r.frequency_hz <= hi]
         if others:
             designs += pipeline.design_notches(others, nc, rate, slots[len(designs):], plant.loop)
+        self.chain, self.chain_rate_hz = [adapter.stored_form(d.biquad, d.spec) for d in designs], rate
         return designs
 
     def _loop_gains(self) -> list[tuple[float, np.ndarray, np.ndarray]]:
@@ -289,8 +297,13 @@ class WorkspaceRun:
         records no filter input (``measured_on`` says which). The loop's figure (``loop_band_reduction_db``) is
         what a torque disturbance at the held cart sees: the notch also takes away the damping the loop gave
         the mode, so it is the smaller of the two.
+
+        Beside each: the figure the stored sections predict on the map's own response
+        (``predicted_band_reduction_db``) and the largest the record's noise lets it show (``floor_db``,
+        :func:`hilident.pipeline.band_floor_db`). A record whose floor hides the target is followed by a longer
+        one at the same position (:meth:`_extend`), and the figures are measured on all their periods.
         """
-        excitation, nc, ic = self.excitation, self.cfg.notch, self.cfg.identification
+        excitation, nc = self.excitation, self.cfg.notch
         if excitation is None:
             raise UsageError("the map is verified only after it ran (WorkspaceRun.map)")
         start = here = self._here()
@@ -301,39 +314,113 @@ class WorkspaceRun:
             if mode is None:
                 continue
             here = move_axis(self.cfg, self.record, f"map_verify_move_{i}", here, point.target_m)
-            exp = self.record(f"map_verify_{i}", MAP_MODE, excitation.samples,
-                              period_samples=excitation.period_samples, recipe=self.recipe)
+            records = [self._verification_record(f"map_verify_{i}", excitation, self.recipe)]
+            row = self._reduction_at(point, mode, records)
+            longer = self._extend(row)
+            if longer is not None:
+                records.append(self._verification_record(f"map_verify_{i}_more", build_excitation(longer),
+                                                         excitation_recipe(longer)))
+                row = self._reduction_at(point, mode, records)
             here = self._here()
-            s = self.analysis_samples(exp, excitation)
-            after, warnings = pipeline.loop_response(s["excitation"], s[ic.output], self.cfg.run.sample_rate_hz, ic,
-                                                     excitation.period_samples, excitation.excited_bins)
-            self.warnings += [w for w in warnings if w not in self.warnings]
-            (loop,) = pipeline.peak_reductions(before.loop, after, [mode], nc.verify_band_bandwidths)
-            command_before = self.command_responses.get(point.recording.removesuffix(".h5"))
-            command_after = self._command_response(exp, excitation, s) if command_before is not None else None
-            if command_before is not None and command_after is not None:
-                (r,) = pipeline.peak_reductions(pipeline.filtered_plant_response(before.loop, command_before),
-                                                pipeline.filtered_plant_response(after, command_after), [mode],
-                                                nc.verify_band_bandwidths)
-                measured_on = "filtered_plant"
-            else:
-                r, measured_on = loop, "loop"
-            rows.append({"position_m": point.position_m, "frequency_hz": r["frequency_hz"],
-                         "band_reduction_db": r["band_reduction_db"], "reduction_db": r["reduction_db"],
-                         "loop_band_reduction_db": loop["band_reduction_db"], "loop_reduction_db": loop["reduction_db"],
-                         "recording": f"map_verify_{i}.h5"})
+            rows.append(row)
         move_axis(self.cfg, self.record, "map_verify_return", here, start)
         worst = min(rows, key=lambda r: r["band_reduction_db"]) if rows else None
         if worst is not None and worst["band_reduction_db"] < nc.min_reduction_db:
+            floor = worst["floor_db"]
+            hidden = (f"; the record's noise floor is {floor:.1f} dB (a longer verification, "
+                      "[map] verify_max_duration_s, lowers it)" if worst["floor_limited"] else "")
             self.warnings.append(
                 f"map verification: at {worst['position_m']:+.3f} m the largest response near the mode dropped by only "
-                f"{worst['band_reduction_db']:.1f} dB (notch.min_reduction_db = {nc.min_reduction_db:g})")
+                f"{worst['band_reduction_db']:.1f} dB (notch.min_reduction_db = {nc.min_reduction_db:g}){hidden}")
+        measured_on = rows[0]["measured_on"] if rows else None
         self.summary["verification"] = {
-            "measured_on": measured_on, "positions": rows,
+            "measured_on": measured_on, "positions": [{k: v for k, v in r.items() if k != "measured_on"} for r in rows],
             "worst_band_reduction_db": worst["band_reduction_db"] if worst else None,
             "worst_position_m": worst["position_m"] if worst else None,
             "worst_loop_band_reduction_db": min(r["loop_band_reduction_db"] for r in rows) if rows else None}
         return self.summary["verification"]
+
+    def _verification_record(self, name: str, excitation: Excitation, recipe: dict | None):
+        """Excite the held position with ``excitation`` (``recipe`` for a drive that plays it itself):
+        ``(recording name, analysed samples, excitation)``."""
+        exp = self.record(name, MAP_MODE, excitation.samples, period_samples=excitation.period_samples, recipe=recipe)
+        return f"{name}.h5", self.analysis_samples(exp, excitation), excitation
+
+    def _reduction_at(self, point: MapPoint, mode, records: list) -> dict:
+        """The figures at one mapped position from its verification ``records`` (:meth:`_verification_record`),
+        their periods averaged together."""
+        nc, ic, rate = self.cfg.notch, self.cfg.identification, self.cfg.run.sample_rate_hz
+        excitation = records[0][2]
+        period, bins = excitation.period_samples, excitation.excited_bins
+
+        def response(channel: str):
+            if period and all(len(s["excitation"]) >= 2 * period for _, s, _ in records):
+                return pipeline.pooled_loop_response([s["excitation"] for _, s, _ in records],
+                                                     [s[channel] for _, s, _ in records], rate, ic, period, bins)
+            response, warnings = pipeline.loop_response(records[-1][1]["excitation"], records[-1][1][channel], rate,
+                                                        ic, period, bins)
+            self.warnings += [w for w in warnings if w not in self.warnings]
+            return response
+
+        before_loop = self._result(point).loop
+        after = response(ic.output)
+        (loop,) = pipeline.peak_reductions(before_loop, after, [mode], nc.verify_band_bandwidths)
+        before, after_measured = before_loop, after
+        command_before = self.command_responses.get(point.recording.removesuffix(".h5"))
+        measured_on, predicted = "loop", None
+        if command_before is not None and self.filter_input is not None and all(
+                self.filter_input in s for _, s, _ in records):
+            before = pipeline.filtered_plant_response(before_loop, command_before)
+            after_measured = pipeline.filtered_plant_response(after, response(self.filter_input))
+            measured_on, predicted = "filtered_plant", self._predicted(before, mode)
+        (r,) = pipeline.peak_reductions(before, after_measured, [mode], nc.verify_band_bandwidths)
+        floor = pipeline.band_floor_db(before, after_measured, mode, nc.verify_band_bandwidths)
+        return {"position_m": point.position_m, "frequency_hz": r["frequency_hz"],
+                "band_reduction_db": r["band_reduction_db"], "reduction_db": r["reduction_db"],
+                "predicted_band_reduction_db": predicted,
+                "floor_db": floor, "floor_limited": bool(floor < r["band_reduction_db"] + _FLOOR_HEADROOM_DB),
+                "loop_band_reduction_db": loop["band_reduction_db"], "loop_reduction_db": loop["reduction_db"],
+                "periods": after.n_averages, "recording": records[0][0],
+                "recordings": [name for name, _, _ in records], "measured_on": measured_on}
+
+    def _predicted(self, before, mode) -> float | None:
+        """The band figure the stored sections give on ``before``, the map's own filtered-plant response (its
+        noise in both), dB; None without sections."""
+        if not self.chain:
+            return None
+        from hilident.filters.notch import chain_response
+
+        after = replace(before, response=before.response * chain_response(self.chain, before.frequency_hz,
+                                                                           self.chain_rate_hz))
+        (r,) = pipeline.peak_reductions(before, after, [mode], self.cfg.notch.verify_band_bandwidths)
+        return r["band_reduction_db"]
+
+    def _extend(self, row: dict) -> Config | None:
+        """The configuration (its excitation) of a second, longer record at a position whose first one cannot
+        show the target: its band figure short of ``notch.min_reduction_db`` plus 2 dB and within 6 dB of its
+        noise floor. It has
+        enough periods for all of them together to lower the floor to the target plus 6 dB (the averages grow
+        as the square of the noise's amplitude ratio), within ``[map] verify_max_duration_s``; None when no
+        second record is needed, none can help, or the excitation is not periodic."""
+        nc, m, excitation = self.cfg.notch, self.cfg.map, self.excitation
+        floor, periods = row["floor_db"], row["periods"]
+        if (excitation is None or not excitation.period_samples or periods < 2 or not row["floor_limited"]
+                or row["band_reduction_db"] >= nc.min_reduction_db + pipeline.PREDICTION_MARGIN_DB
+                or not math.isfinite(floor)):
+            return None
+        period_s = excitation.period_samples / self.cfg.run.sample_rate_hz
+        first_s = len(excitation.samples) / self.cfg.run.sample_rate_hz
+        cap_s = m.verify_max_duration_s or 4.0 * first_s
+        needed = math.ceil(periods * 10.0 ** ((nc.min_reduction_db + _FLOOR_HEADROOM_DB - floor) / 10.0)) - periods
+        room = int(round((cap_s - first_s) / period_s)) - 1  # the second record plays its own lead-in
+        extra = min(needed, room)
+        if extra < 2:
+            if needed >= 2:
+                self.warnings.append(f"map verification: [map] verify_max_duration_s = {m.verify_max_duration_s:g} "
+                                     f"leaves no room for the {needed} more periods the noise floor needs")
+            return None
+        assert self.mapped_cfg is not None
+        return replace(self.mapped_cfg, excitation=replace(self.mapped_cfg.excitation, duration_s=extra * period_s))
 
     def _command_response(self, exp, excitation: Excitation, samples: dict | None = None):
         """The excitation to the command entering the filter slots at one position (``u/r``, the denominator of

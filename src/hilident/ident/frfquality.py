@@ -150,6 +150,29 @@ class ResolutionCheck:
     warnings: list
 
 
+def estimate_error_std(frf: FrequencyResponse) -> np.ndarray:
+    """Standard deviation of the random error of each line's complex estimate, in the unit of the response.
+
+    The output noise the excitation does not explain, seen through the
+    estimate: ``|H| sqrt((1 - g) / (g d))`` with ``g`` the coherence and ``d``
+    the degrees of freedom. A periodic estimate's coherence uses the spread of
+    its ``M`` periods around their mean (divided by ``M``), so ``d = M - 1``;
+    an averaged (H1, reference) estimate has ``d = n_averages`` (Bendat &
+    Piersol). Unlike :func:`frf_uncertainty` it is absolute, not relative: a
+    response a notch took down is still measured through the same noise.
+
+    Returns
+    -------
+    ndarray
+        One value per line; NaN where the estimator has no coherence, inf
+        where the coherence is 0 or there is a single average.
+    """
+    dof = frf.n_averages - 1 if frf.method == "periodic" else frf.n_averages
+    g = np.clip(frf.coherence, 0.0, 1.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.abs(frf.response) * np.sqrt((1.0 - g) / (g * dof)) if dof >= 1 else np.full(g.shape, np.inf)
+
+
 def check_resolution(
     frf: FrequencyResponse,
     resonances: ArrayLike,
