@@ -104,7 +104,7 @@ def test_the_joint_fit_recovers_the_stiffness_polynomial(mapped):
 
 
 def test_the_covering_notch_holds_twenty_db_over_the_mapped_range_as_stored(mapped):
-    _, summary, _ = mapped
+    _, summary, out = mapped
     covering = summary["workspace"]["covering_notch"]
     lo, hi = covering["range_hz"]
     upload = summary["upload"]
@@ -134,6 +134,12 @@ def test_the_covering_notch_holds_twenty_db_over_the_mapped_range_as_stored(mapp
     loop_worst = verified["worst_loop_band_reduction_db"]
     assert loop_worst == min(r["loop_band_reduction_db"] for r in verified["positions"])
     assert 10.0 < loop_worst < verified["worst_band_reduction_db"]
+    # beside each figure: what the stored sections predict on the map's own response, and the record's floor
+    for row in verified["positions"]:
+        assert row["predicted_band_reduction_db"] >= 20.0
+        assert row["floor_limited"] == (row["floor_db"] < row["band_reduction_db"] + 6.0)
+        assert row["recordings"][0] == row["recording"] and row["periods"] >= 2
+        assert all((out / name).is_file() for name in row["recordings"])
 
 
 def test_the_verification_figure_is_recomputed_from_the_recordings(mapped):
@@ -143,7 +149,7 @@ def test_the_verification_figure_is_recomputed_from_the_recordings(mapped):
     rate = summary["sample_rate_hz"]
     for point, row in zip(summary["map"], summary["workspace"]["verification"]["positions"], strict=True):
         f_hz, before = line_spectra(out / point["recording"], rate)
-        f_after, after = line_spectra(out / row["recording"], rate)
+        f_after, after = line_spectra([out / name for name in row["recordings"]], rate)
         assert np.allclose(f_hz, f_after)
         line = int(np.argmin(np.abs(f_hz - row["frequency_hz"])))
         plant = [s["velocity_mps"][line] / s["torque_cmd_nm"][line] for s in (before, after)]
@@ -154,17 +160,22 @@ def test_the_verification_figure_is_recomputed_from_the_recordings(mapped):
         assert 20 * np.log10(abs(loop[0]) / abs(loop[1])) == pytest.approx(row["loop_reduction_db"], abs=1.0)
 
 
-def line_spectra(path: Path, rate_hz: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """A periodic record's spectra at its excited lines, averaged over its whole periods but the first (the
-    transient), with plain numpy: ``(frequency_hz, {channel: spectrum})``."""
+def line_spectra(paths, rate_hz: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Periodic records' spectra at their excited lines, averaged over every record's whole periods but its first
+    (the transient), with plain numpy: ``(frequency_hz, {channel: spectrum})``. ``paths``: one record or the
+    records of one excitation (a verification and its longer second record)."""
     import h5py
 
-    with h5py.File(path) as f:
-        names = [str(n) for n in f.attrs["channel_names"]]
-        rows, period = f["samples"][()], int(f.attrs["period_samples"])
-    whole = len(rows) // period - 1
-    spectra = {n: np.fft.rfft(rows[len(rows) - whole * period:, i].reshape(whole, period), axis=1).mean(0)
-               for i, n in enumerate(names)}
+    periods: dict[str, list[np.ndarray]] = {}
+    for path in [paths] if isinstance(paths, Path) else paths:
+        with h5py.File(path) as f:
+            names = [str(n) for n in f.attrs["channel_names"]]
+            rows, period = f["samples"][()], int(f.attrs["period_samples"])
+        whole = len(rows) // period - 1
+        for i, n in enumerate(names):
+            periods.setdefault(n, []).append(np.fft.rfft(rows[len(rows) - whole * period:, i].reshape(whole, period),
+                                                         axis=1))
+    spectra = {n: np.concatenate(x).mean(0) for n, x in periods.items()}
     lines = np.flatnonzero(np.abs(spectra["excitation"]) > 1e-3 * np.abs(spectra["excitation"]).max())
     return lines * rate_hz / period, {n: x[lines] for n, x in spectra.items()}
 

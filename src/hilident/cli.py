@@ -61,8 +61,10 @@ def _run(args) -> int:
     mapped = (summary.get("workspace") or {}).get("verification")
     if mapped and mapped.get("worst_band_reduction_db") is not None:
         on = "command to velocity" if mapped["measured_on"] == "filtered_plant" else "excitation to velocity"
+        worst = min(mapped["positions"], key=lambda r: r["band_reduction_db"])
+        floor = (f", at its record's noise floor {worst['floor_db']:.1f} dB" if worst.get("floor_limited") else "")
         print(f"map verification: band figure {mapped['worst_band_reduction_db']:.1f} dB at worst "
-              f"({mapped['worst_position_m']:+.3f} m, {on}); the holding loop's "
+              f"({mapped['worst_position_m']:+.3f} m, {on}{floor}); the holding loop's "
               f"{mapped['worst_loop_band_reduction_db']:.1f} dB at worst")
     if summary["upload"].get("saved"):
         print("saved: the device stored its parameters in non-volatile memory")

@@ -398,10 +398,10 @@ class WorkspaceRun:
     def _extend(self, row: dict) -> Config | None:
         """The configuration (its excitation) of a second, longer record at a position whose first one cannot
         show the target: its band figure short of ``notch.min_reduction_db`` plus 2 dB and within 6 dB of its
-        noise floor. It has
-        enough periods for all of them together to lower the floor to the target plus 6 dB (the averages grow
-        as the square of the noise's amplitude ratio), within ``[map] verify_max_duration_s``; None when no
-        second record is needed, none can help, or the excitation is not periodic."""
+        noise floor. It has enough periods for all of them together to lower the floor to the target plus 6 dB
+        (the averages grow as the square of the noise's amplitude ratio), and at least as many as the first,
+        within ``[map] verify_max_duration_s``; None when no second record is needed, none can help, or the
+        excitation is not periodic."""
         nc, m, excitation = self.cfg.notch, self.cfg.map, self.excitation
         floor, periods = row["floor_db"], row["periods"]
         if (excitation is None or not excitation.period_samples or periods < 2 or not row["floor_limited"]
@@ -411,7 +411,9 @@ class WorkspaceRun:
         period_s = excitation.period_samples / self.cfg.run.sample_rate_hz
         first_s = len(excitation.samples) / self.cfg.run.sample_rate_hz
         cap_s = m.verify_max_duration_s or 4.0 * first_s
-        needed = math.ceil(periods * 10.0 ** ((nc.min_reduction_db + _FLOOR_HEADROOM_DB - floor) / 10.0)) - periods
+        # at least as many again: a floor estimated from a few periods is itself uncertain by a few dB
+        lower_by_db = nc.min_reduction_db + _FLOOR_HEADROOM_DB - floor
+        needed = max(math.ceil(periods * 10.0 ** (lower_by_db / 10.0)) - periods, periods)
         room = int(round((cap_s - first_s) / period_s)) - 1  # the second record plays its own lead-in
         extra = min(needed, room)
         if extra < 2:

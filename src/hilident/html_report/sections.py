@@ -520,19 +520,30 @@ def _map_verification(verified: dict) -> str:
     output) and on the loop (excitation to output)."""
     on_plant = verified.get("measured_on") == "filtered_plant"
     rows = [[num(r.get("position_m"), "m"), num(r.get("frequency_hz"), "Hz"), num(r.get("band_reduction_db"), "dB", 3),
-             num(r.get("reduction_db"), "dB", 3), num(r.get("loop_band_reduction_db"), "dB", 3),
-             _text(r.get("recording"))] for r in verified.get("positions") or [] if isinstance(r, dict)]
+             num(r.get("reduction_db"), "dB", 3), num(r.get("predicted_band_reduction_db"), "dB", 3),
+             _floor(r), num(r.get("loop_band_reduction_db"), "dB", 3), num(r.get("periods")),
+             _text(", ".join(str(n) for n in r.get("recordings") or [r.get("recording")]))]
+            for r in verified.get("positions") or [] if isinstance(r, dict)]
     head = ("band figure, command to output" if on_plant else "band figure, excitation to output", "at the line",
-            "band figure of the loop", "recording")
+            "predicted on the map's response", "noise floor", "band figure of the loop", "periods", "recordings")
     why = note("The first two figures are on the filter slots and the plant together, as an open-loop torque run "
                "measures them; the loop's figure is what a torque disturbance at the held cart sees, smaller because "
                "the notch also takes away the damping the holding loop gave the mode." if on_plant else
                "The device records no filter input (driver channel filter_input): the figures are the loop's, "
-               "excitation to output.")
+               "excitation to output.") + note(
+        "The noise floor is the largest band figure the record's own noise lets it show (marked where the figure "
+        "lies within 6 dB of it: there it measures the floor more than the notch). Where the floor hid the target, "
+        "a second, longer record was made at the position and the figures are over all its periods.")
     worst = key_values([("band figure at every mapped position, worst",
                          f"{num(verified.get('worst_band_reduction_db'), 'dB', 3)} at "
                          f"{num(verified.get('worst_position_m'), 'm')}")])
     return worst + table(["position", "mode", *head], rows, "Measured again with the notches enabled") + why
+
+
+def _floor(row: dict) -> str:
+    """A verification record's noise floor, marked where the band figure lies within 6 dB of it."""
+    floor = num(row.get("floor_db"), "dB", 3)
+    return floor + esc(" (figure at the floor)") if row.get("floor_limited") else floor
 
 
 def _polynomial(poly: dict) -> str:
