@@ -354,7 +354,8 @@ class WorkspaceRun:
         period, bins = excitation.period_samples, excitation.excited_bins
 
         def response(channel: str):
-            if period and all(len(s["excitation"]) >= 2 * period for _, s, _ in records):
+            if period and all(len(s["excitation"]) >= 2 * period and not len(s["excitation"]) % period
+                              for _, s, _ in records):
                 return pipeline.pooled_loop_response([s["excitation"] for _, s, _ in records],
                                                      [s[channel] for _, s, _ in records], rate, ic, period, bins)
             response, warnings = pipeline.loop_response(records[-1][1]["excitation"], records[-1][1][channel], rate,
@@ -418,19 +419,20 @@ class WorkspaceRun:
         extra = min(needed, room)
         if extra < 2:
             if needed >= 2:
-                self.warnings.append(f"map verification: [map] verify_max_duration_s = {m.verify_max_duration_s:g} "
-                                     f"leaves no room for the {needed} more periods the noise floor needs")
+                self.warnings.append(f"map verification: the longest verification at a position, {cap_s:g} s "
+                                     f"([map] verify_max_duration_s), leaves no room for the {needed} more periods "
+                                     "its noise floor needs")
             return None
         assert self.mapped_cfg is not None
         return replace(self.mapped_cfg, excitation=replace(self.mapped_cfg.excitation, duration_s=extra * period_s))
 
-    def _command_response(self, exp, excitation: Excitation, samples: dict | None = None):
-        """The excitation to the command entering the filter slots at one position (``u/r``, the denominator of
-        :func:`hilident.pipeline.filtered_plant_response`), from ``samples`` when the record's analysed samples
-        are at hand; None when the device records no filter input."""
+    def _command_response(self, exp, excitation: Excitation):
+        """The excitation to the command entering the filter slots at one mapped position (``u/r``, the
+        denominator of :func:`hilident.pipeline.filtered_plant_response`); None when the device records no
+        filter input."""
         if self.filter_input is None or self.filter_input not in exp.samples:
             return None
-        s = samples if samples is not None else self.analysis_samples(exp, excitation)
+        s = self.analysis_samples(exp, excitation)
         response, warnings = pipeline.loop_response(s["excitation"], s[self.filter_input], self.cfg.run.sample_rate_hz,
                                                     self.cfg.identification, excitation.period_samples,
                                                     excitation.excited_bins)
