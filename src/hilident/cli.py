@@ -62,7 +62,9 @@ def _run(args) -> int:
     if mapped and mapped.get("worst_band_reduction_db") is not None:
         on = "command to velocity" if mapped["measured_on"] == "filtered_plant" else "excitation to velocity"
         worst = min(mapped["positions"], key=lambda r: r["band_reduction_db"])
-        floor = (f", at its record's noise floor {worst['floor_db']:.1f} dB" if worst.get("floor_limited") else "")
+        # a floor of no finite value (a record without coherence) is null in summary.json
+        floor = (f", at its record's noise floor {worst['floor_db']:.1f} dB"
+                 if worst.get("floor_limited") and worst.get("floor_db") is not None else "")
         print(f"map verification: band figure {mapped['worst_band_reduction_db']:.1f} dB at worst "
               f"({mapped['worst_position_m']:+.3f} m, {on}{floor}); the holding loop's "
               f"{mapped['worst_loop_band_reduction_db']:.1f} dB at worst")
