@@ -278,6 +278,14 @@ def test_a_move_rings_ten_db_less_with_the_notch_on_every_transport(config, tmp_
     assert test["worst_rms_reduction_db"] == move["rms_reduction_db"]
     assert move["added_delay_s"] > 0  # the shaped move ends later, exactly where asked
     assert 0 <= move["standstill_rms_m"] < move["without"]["rms_m"] / 10  # the clean twin at rest barely moves
+    assert move["rest_limit_db"] == pytest.approx(20 * np.log10(move["without"]["rms_m"] / move["standstill_rms_m"]))
+    (mode,) = move["modes"]  # the run's resonance, where the move ends
+    assert mode["frequency_hz"] == pytest.approx(summary["resonances"][0]["frequency_hz"])
+    assert mode["excitation"] >= 1.0  # the shipped move excites the mode: nothing to warn about
+    assert not [w for w in summary["warnings"] if "excites the mode less" in w]
+    # the shaped set-point excites the mode far less, and the ringing falls by no more than that allows
+    assert mode["predicted_reduction_db"] >= 20.0
+    assert move["rms_reduction_db"] <= mode["predicted_reduction_db"] + 6.0
     assert schema_errors(summary) == []
     assert (tmp_path / "out" / "moves.png").is_file()
     moves = check_report(tmp_path / "out").sections["moves"]

@@ -26,13 +26,15 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from hilident.config import Config, MoveConfig
 from hilident.errors import DataError
+from hilident.motion.mode_excitation import WEAK_EXCITATION, mode_excitation, peak_acceleration
+from hilident.motion.profiles import MoveProfile
 from hilident.motion.residual import MoveComparison
 from hilident.workspace_map import move_axis
 
@@ -63,6 +65,40 @@ def above_floor_db(without_rms: float, with_rms: float, floor_rms: float) -> flo
 
 
 @dataclass(frozen=True)
+class ModeExcitation:
+    """How strongly the two moves' set-points excite one mode where they end
+    (:func:`hilident.motion.mode_excitation.mode_excitation`).
+
+    Attributes
+    ----------
+    frequency_hz, damping_ratio : float
+        The mode at the move's end (the map's, interpolated over position, or the run's resonance).
+    excitation : float
+        ``V`` of the move without the notch: 1 is one step of its peak acceleration, a trapezoid gives 0..4.
+    excitation_with_notch : float or None
+        ``V`` of the set-point of the move with the notch, against the same step (None: the notch acts in the
+        drive, not on the set-point).
+    """
+
+    frequency_hz: float
+    damping_ratio: float
+    excitation: float
+    excitation_with_notch: float | None
+
+    @property
+    def predicted_reduction_db(self) -> float | None:
+        """What the notch takes off the ringing the set-point causes, dB (None: not on the set-point)."""
+        if self.excitation_with_notch is None or self.excitation <= 0:
+            return None
+        return float(20.0 * np.log10(self.excitation / max(self.excitation_with_notch, 1e-12)))
+
+    def to_dict(self) -> dict:
+        return {"frequency_hz": self.frequency_hz, "damping_ratio": self.damping_ratio,
+                "excitation": self.excitation, "excitation_with_notch": self.excitation_with_notch,
+                "predicted_reduction_db": self.predicted_reduction_db}
+
+
+@dataclass(frozen=True)
 class MoveTestResult:
     """One move test, without and with the notch, at one place of the workspace.
 
@@ -86,6 +122,10 @@ class MoveTestResult:
     floor_rms : float
         RMS of the signal at rest before the moves (:data:`STANDSTILL_S`), in its unit: what process noise
         and disturbances keep the mode doing, which no notch in the set-point removes.
+    distance_m : float
+        The move out, signed, m (the measured dwell is at ``start_m + distance_m``).
+    modes : tuple of ModeExcitation
+        How strongly each move's set-point excites the modes where it ends (empty: no mode known there).
     """
 
     start_m: float
@@ -96,15 +136,36 @@ class MoveTestResult:
     recordings: tuple[str, str]
     traces: dict
     floor_rms: float = float("nan")
+    distance_m: float = float("nan")
+    modes: tuple[ModeExcitation, ...] = ()
+
+    @property
+    def rest_limit_db(self) -> float | None:
+        """The largest RMS reduction the vibration at rest lets this move show, dB: ``20 log10`` of the move
+        without the notch's RMS over the RMS at rest (None without a rest record)."""
+        rest, without = self.floor_rms, self.comparison.without.rms
+        if not (np.isfinite(rest) and rest > 0 and without > 0):
+            return None
+        return float(20.0 * np.log10(without / rest))
+
+    @property
+    def weakly_excited(self) -> list[ModeExcitation]:
+        """The modes the move without the notch excites less than one step of its acceleration would."""
+        return [m for m in self.modes if m.excitation < WEAK_EXCITATION]
 
     def to_dict(self) -> dict:
         c = self.comparison
-        return {"start_m": self.start_m, "notch_in": self.notch_in, "signal": self.signal,
-                "added_delay_s": self.added_delay_s, "recordings": list(self.recordings),
-                "standstill_rms_m": self.floor_rms if np.isfinite(self.floor_rms) else None,
+        return {"start_m": self.start_m, "distance_m": _finite(self.distance_m), "notch_in": self.notch_in,
+                "signal": self.signal, "added_delay_s": self.added_delay_s, "recordings": list(self.recordings),
+                "standstill_rms_m": _finite(self.floor_rms),
                 "rms_reduction_above_standstill_db": above_floor_db(c.without.rms, c.with_notch.rms,
                                                                     self.floor_rms),
+                "rest_limit_db": self.rest_limit_db, "modes": [m.to_dict() for m in self.modes],
                 **c.as_dict()}
+
+
+def _finite(value: float) -> float | None:
+    return float(value) if np.isfinite(value) else None
 
 
 def move_profile(move: MoveConfig, distance_m: float, sample_rate_hz: float):
@@ -146,12 +207,14 @@ class MoveTest:
         self.cfg, self.move, self.record, self.progress = cfg, cfg.verification.move, record, progress
 
     def run(self, tag: str, start_m: float, distance_m: float, notch_in: str, host_sections: list | None,
-            slots: DriveNotch | None) -> MoveTestResult:
+            slots: DriveNotch | None, modes: list[tuple[float, float]] | None = None) -> MoveTestResult:
         """Move ``distance_m`` out and back without the notch, then with it; ``tag`` names the recordings.
 
         ``notch_in = "drive"``: the difference is the drive's filter ``slots`` (disabled for the first move);
         ``"host"``: the set-point of the second move is shaped by ``host_sections`` (biquads at the set-point
         rate), and the drive's ``slots`` (if any) stay disabled for both moves, so only the shaping differs.
+        ``modes``: ``(frequency_hz, damping_ratio)`` of the modes where the move ends, for how strongly each
+        move's set-point excites them (:class:`ModeExcitation`).
         """
         from hilident.motion.residual import compare_moves
         from hilident.motion.shaping import shape_move
@@ -196,7 +259,24 @@ class MoveTest:
         return MoveTestResult(start_m, comparison, notch_in, what, float(delay),
                               (f"{names[0]}.h5", f"{names[1]}.h5"),
                               {"without": (t_without, signal_without), "with_notch": (t_with, signal_with)},
-                              floor)
+                              floor, distance_m, excitations(out, with_out if notch_in == "host" else None,
+                                                             modes or []))
+
+
+def excitations(move: MoveProfile, shaped: MoveProfile | None,
+                modes: list[tuple[float, float]]) -> tuple[ModeExcitation, ...]:
+    """How strongly ``move`` (and ``shaped``, its set-point with the notch; None: the notch is in the drive)
+    excites each of ``modes`` ``(frequency_hz, damping_ratio)``, against a step of ``move``'s peak
+    acceleration."""
+    rate = move.sample_rate_hz
+    peak = peak_acceleration(move.position_m, rate)
+    found = []
+    for f, zeta in modes:
+        v = mode_excitation(move.position_m, rate, move.move_end_index, f, zeta)
+        v_shaped = None if shaped is None else mode_excitation(shaped.position_m, rate, shaped.move_end_index, f,
+                                                                zeta, reference_accel_mps2=peak)
+        found.append(ModeExcitation(float(f), float(zeta), v, v_shaped))
+    return tuple(found)
 
 
 class DriveNotch:
@@ -229,7 +309,8 @@ def move_distance(move: MoveConfig, start_m: float, low_m: float, high_m: float)
 
 def run_move_tests(cfg: Config, record: Callable, progress, warnings: list[str], driver, adapter, designs: list,
                    in_slots: bool, start_m: float, places_m: list[float],
-                   position: Callable[[], float | None]) -> list[MoveTestResult]:
+                   position: Callable[[], float | None],
+                   modes_at: Callable[[float], list[tuple[float, float]]] | None = None) -> list[MoveTestResult]:
     """The move test from ``start_m`` (or, with a map, from each of ``places_m``, then back to ``start_m``).
 
     Parameters
@@ -255,6 +336,10 @@ def run_move_tests(cfg: Config, record: Callable, progress, warnings: list[str],
         The mapped positions, m (empty: the move test from ``start_m`` only).
     position : callable
         ``position() -> float or None``: the cart's position at the end of the last recording, m.
+    modes_at : callable, optional
+        ``modes_at(position_m) -> [(frequency_hz, damping_ratio), ...]``: the modes at a position, for how
+        strongly each move excites them; a move that excites them weakly gets a warning
+        (:func:`weak_excitation_warning`).
     """
     from hilident.filters.notch import design_notch
 
@@ -282,12 +367,51 @@ def run_move_tests(cfg: Config, record: Callable, progress, warnings: list[str],
         if tag:
             here = move_axis(cfg, record, f"move{tag}_approach", here, target)
         distance = move_distance(move, here, lim.position_min_m + margin, lim.position_max_m - margin)
-        results.append(tester.run(tag, here, distance, notch_in, host, slots))
+        modes = modes_at(here + distance) if modes_at is not None else []
+        results.append(tester.run(tag, here, distance, notch_in, host, slots, modes))
         last = position()
         here = here if last is None else last
     if places_m:
         move_axis(cfg, record, "move_return", here, start_m)
+    weak = weak_excitation_warning(move, results, cfg.run.sample_rate_hz)
+    if weak:
+        warnings.append(weak)
     return results
+
+
+def weak_excitation_warning(move: MoveConfig, results: list[MoveTestResult], sample_rate_hz: float) -> str | None:
+    """A warning naming the moves that excite their mode less than one step of their acceleration, with the
+    velocity and acceleration nearest the configured ones that would excite every mode of the test (None: every
+    move excites its modes). Only accelerations at or above the configured one are suggested: a gentler move
+    rings less, and what it has to ring above, the vibration at rest, stays the same."""
+    from hilident.motion.mode_excitation import exciting_move
+
+    weak = [(r, m) for r in results for m in r.weakly_excited]
+    if not weak:
+        return None
+    where = "; ".join(f"ending at {r.start_m + r.distance_m:+.3f} m, {m.frequency_hz:.2f} Hz: V = {m.excitation:.2f}"
+                      for r, m in weak)
+    text = (f"move test: the move excites the mode less than one step of its acceleration would ({where}). "
+            "Its ringing there is little above the axis's at rest, so the reduction measures the vibration at rest "
+            "and at the stop more than the notch.")
+
+    def profile(distance: float, v: float, a: float) -> tuple[np.ndarray, int]:
+        p = move_profile(replace(move, max_velocity_mps=v, max_accel_mps2=a), distance, sample_rate_hz)
+        return p.position_m, p.move_end_index
+
+    tested = [r for r in results if r.modes and np.isfinite(r.distance_m)]
+    best = exciting_move(profile, [r.distance_m for r in tested],
+                         [[(m.frequency_hz, m.damping_ratio) for m in r.modes] for r in tested], sample_rate_hz,
+                         np.linspace(0.5, 1.0, 11) * move.max_velocity_mps,
+                         np.linspace(1.0, 1.5, 11) * move.max_accel_mps2,
+                         (move.max_velocity_mps, move.max_accel_mps2))
+    if best is None or best.min_excitation <= min(m.excitation for _, m in weak):
+        return text + (" No velocity of 0.5-1 times max_velocity_mps with an acceleration of 1-1.5 times "
+                       "max_accel_mps2 excites every mode of this test better.")
+    return text + (f" [verification] move with max_velocity_mps = {best.max_velocity_mps:.3g} and max_accel_mps2 = "
+                   f"{best.max_accel_mps2:.3g} excites every mode of this test at V >= {best.min_excitation:.2f}"
+                   f" (mind the torque {best.max_accel_mps2 / move.max_accel_mps2:.2g} times the acceleration "
+                   "needs).")
 
 
 def plot_worst_move(results: list[MoveTestResult], path: Path, config_name: str, warnings: list[str]) -> None:

@@ -402,7 +402,7 @@ class Session(DeviceConnection):
                 self.workspace.verify()
             if self.cfg.verification.move is not None:
                 step = "move test"
-                self.move_results = self._move_step(designs, upload)
+                self.move_results = self._move_step(designs, upload, plant)
             step = "save"
             self._save_step(upload, verification)
         except BaseException as exc:
@@ -584,14 +584,23 @@ class Session(DeviceConnection):
         reference = plant.resonances[0].frequency_hz if plant.resonances else None
         self.workspace.map(float(ident.samples["position_m"][-1]), reference)
 
-    def _move_step(self, designs: list, upload: UploadOutcome) -> list[MoveTestResult]:
+    def _move_step(self, designs: list, upload: UploadOutcome, plant) -> list[MoveTestResult]:
         """``[verification] move`` (:func:`hilident.move_test.run_move_tests`): from where the run identified and
-        from every mapped position; the axis ends where it started."""
+        from every mapped position; the axis ends where it started. The mode where each move ends is the map's
+        there, else the run's resonances."""
         start = self.position_m if self.position_m is not None else 0.0
         places = [p.target_m for p in self.workspace.points] if self.workspace else []
+        workspace = self.workspace
+        resonances = [(r.frequency_hz, r.damping_ratio) for r in plant.resonances
+                      if np.isfinite(r.frequency_hz) and np.isfinite(r.damping_ratio) and 0 <= r.damping_ratio < 1]
+
+        def modes_at(position_m: float) -> list[tuple[float, float]]:
+            mapped = workspace.mode_at(position_m) if workspace is not None else None
+            return [mapped] if mapped is not None else resonances
+
         return run_move_tests(self.cfg, self.record, self.progress, self.warnings, self.found_driver, self.adapter,
                               designs, upload.written and upload.verified_readback, start, places,
-                              lambda: self.position_m)
+                              lambda: self.position_m, modes_at)
 
     def _notch_step(self, plant):
         nc = self.cfg.notch

@@ -82,6 +82,16 @@ class WorkspaceRun:
         """The mapped positions where a mode was found."""
         return [p for p in self.points if p.frequency_hz is not None]
 
+    def mode_at(self, position_m: float) -> tuple[float, float] | None:
+        """The mapped mode ``(frequency_hz, damping_ratio)`` at ``position_m``: linear between the mapped
+        positions, held beyond the outermost (None: no mode was mapped)."""
+        found = sorted((p for p in self.found if p.damping_ratio is not None), key=lambda p: p.position_m)
+        if not found:
+            return None
+        at = [p.position_m for p in found]
+        return (float(np.interp(position_m, at, [p.frequency_hz for p in found])),
+                float(np.interp(position_m, at, [p.damping_ratio for p in found])))
+
     # --- 1. the map --------------------------------------------------------------------------------------
 
     def map(self, start_m: float, reference_hz: float | None) -> list[MapPoint]:
