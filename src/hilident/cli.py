@@ -68,6 +68,7 @@ def _run(args) -> int:
         print(f"map verification: band figure {mapped['worst_band_reduction_db']:.1f} dB at worst "
               f"({mapped['worst_position_m']:+.3f} m, {on}{floor}); the holding loop's "
               f"{mapped['worst_loop_band_reduction_db']:.1f} dB at worst")
+    _print_moves(summary.get("move_test"))
     if summary["upload"].get("saved"):
         print("saved: the device stored its parameters in non-volatile memory")
     s = summary["stream"]
@@ -78,6 +79,22 @@ def _run(args) -> int:
     print(f"wrote {out / 'summary.json'}")
     _print_report(out)
     return 0
+
+
+def _print_moves(test: dict | None) -> None:
+    """The move test's line: the worst RMS reduction, and at how many places the move with the notch rang no
+    more than the axis does at rest."""
+    moves = (test or {}).get("moves") or []
+    worst = [m for m in moves if m.get("rms_reduction_db") is not None]
+    if not worst:
+        return
+    w = min(worst, key=lambda m: m["rms_reduction_db"])
+    at_rest = sum(1 for m in moves if m.get("standstill_rms_m") is not None
+                  and m.get("rms_reduction_above_standstill_db") is None)
+    p2p = "" if w.get("peak_to_peak_reduction_db") is None else f", {w['peak_to_peak_reduction_db']:.1f} dB peak to peak"
+    print(f"move test: ringing after the move reduced by {w['rms_reduction_db']:.1f} dB RMS at worst (from "
+          f"{w['start_m']:+.3f} m{p2p}); with the notch, {at_rest} of {len(moves)} move(s) rang no more than the "
+          "axis at rest")
 
 
 def _out_folder(given: str | None, stem: str, overwrite: bool) -> Path:
