@@ -18,8 +18,7 @@ from hilident.emulator.plant import Plant, TwoMass
 from hilident.emulator.sensors import SensorModel
 from hilident.errors import DataError
 from hilident.filters.notch import NotchSpec, design_notch
-from hilident.motion.mode_excitation import (GOOD_EXCITATION, exciting_move, mode_excitation,
-                                             peak_acceleration)
+from hilident.motion.mode_excitation import GOOD_EXCITATION, exciting_move, mode_excitation, peak_acceleration
 from hilident.motion.profiles import trapezoid
 from hilident.motion.shaping import shape_move
 from hilident.move_test import excitations, move_profile, weak_excitation_warning
@@ -130,8 +129,8 @@ MOVE = MoveConfig(distance_m=0.2, max_velocity_mps=0.3, max_accel_mps2=2.0)
 class MoveDone:
     """What the warning reads of a move test's result."""
 
-    def __init__(self, start_m: float, distance_m: float, frequency_hz: float):
-        self.start_m, self.distance_m = start_m, distance_m
+    def __init__(self, start_m: float, distance_m: float, frequency_hz: float, rest_limit_db: float | None = 6.0):
+        self.start_m, self.distance_m, self.rest_limit_db = start_m, distance_m, rest_limit_db
         self.modes = excitations(move_profile(MOVE, distance_m, 1000.0), None, [(frequency_hz, 0.018)])
 
     @property
@@ -143,6 +142,7 @@ def test_a_move_test_whose_moves_hardly_excite_their_modes_is_told_which_move_wo
     results = [MoveDone(0.5, -0.2, 20.45), MoveDone(0.0, 0.2, 20.13), MoveDone(-0.5, 0.2, 21.7)]
     warning = weak_excitation_warning(MOVE, results, 1000.0)
     assert "+0.300 m, 20.45 Hz" in warning and "+0.200 m, 20.13 Hz" in warning and "-0.300" not in warning
+    assert "rang 6.0 dB above rest" in warning and "[limits] torque_nm" in warning
     suggested = {k: float(v) for k, v in
                  (part.split(" = ") for part in warning.split("move with ")[1].split(" excites")[0].split(" and "))}
     better = MoveConfig(0.2, suggested["max_velocity_mps"], suggested["max_accel_mps2"])
@@ -171,6 +171,6 @@ def test_the_suggested_move_is_the_nearest_that_reaches_the_target():
         for a in accels:
             if nearness(v, a) < nearness(best.max_velocity_mps, best.max_accel_mps2) - 1e-12:
                 worst = min(mode_excitation(p, 1000.0, end, f, z)
-                            for (p, end), ((f, z),) in zip((profile(d, v, a) for d in (0.2, -0.2)), modes))
+                            for (p, end), ((f, z),) in zip((profile(d, v, a) for d in (0.2, -0.2)), modes, strict=True))
                 assert worst < GOOD_EXCITATION
     assert exciting_move(profile, [0.2], [[]], 1000.0, velocities, accels, (0.3, 2.0)) is None

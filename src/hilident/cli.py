@@ -91,7 +91,8 @@ def _print_moves(test: dict | None) -> None:
     w = min(worst, key=lambda m: m["rms_reduction_db"])
     at_rest = sum(1 for m in moves if m.get("standstill_rms_m") is not None
                   and m.get("rms_reduction_above_standstill_db") is None)
-    p2p = "" if w.get("peak_to_peak_reduction_db") is None else f", {w['peak_to_peak_reduction_db']:.1f} dB peak to peak"
+    p2p = w.get("peak_to_peak_reduction_db")
+    p2p = "" if p2p is None else f", {p2p:.1f} dB peak to peak"
     print(f"move test: ringing after the move reduced by {w['rms_reduction_db']:.1f} dB RMS at worst (from "
           f"{w['start_m']:+.3f} m{p2p}); with the notch, {at_rest} of {len(moves)} move(s) rang no more than the "
           "axis at rest")

@@ -389,11 +389,15 @@ def weak_excitation_warning(move: MoveConfig, results: list[MoveTestResult], sam
     weak = [(r, m) for r in results for m in r.weakly_excited]
     if not weak:
         return None
+    def rang(r: MoveTestResult) -> str:
+        limit = r.rest_limit_db
+        return "" if limit is None else f", rang {limit:.1f} dB above rest"
+
     where = "; ".join(f"ending at {r.start_m + r.distance_m:+.3f} m, {m.frequency_hz:.2f} Hz: V = {m.excitation:.2f}"
-                      for r, m in weak)
+                      f"{rang(r)}" for r, m in weak)
     text = (f"move test: the move excites the mode less than one step of its acceleration would ({where}). "
-            "Its ringing there is little above the axis's at rest, so the reduction measures the vibration at rest "
-            "and at the stop more than the notch.")
+            "A move that rings little above the axis at rest shows the vibration at rest and at the stop more "
+            "than the notch.")
 
     def profile(distance: float, v: float, a: float) -> tuple[np.ndarray, int]:
         p = move_profile(replace(move, max_velocity_mps=v, max_accel_mps2=a), distance, sample_rate_hz)
@@ -410,8 +414,8 @@ def weak_excitation_warning(move: MoveConfig, results: list[MoveTestResult], sam
                        "max_accel_mps2 excites every mode of this test better.")
     return text + (f" [verification] move with max_velocity_mps = {best.max_velocity_mps:.3g} and max_accel_mps2 = "
                    f"{best.max_accel_mps2:.3g} excites every mode of this test at V >= {best.min_excitation:.2f}"
-                   f" (mind the torque {best.max_accel_mps2 / move.max_accel_mps2:.2g} times the acceleration "
-                   "needs).")
+                   f" ({best.max_accel_mps2 / move.max_accel_mps2:.3g} times the acceleration: check the torque it "
+                   "needs against [limits] torque_nm).")
 
 
 def plot_worst_move(results: list[MoveTestResult], path: Path, config_name: str, warnings: list[str]) -> None:

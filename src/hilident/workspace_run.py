@@ -85,12 +85,12 @@ class WorkspaceRun:
     def mode_at(self, position_m: float) -> tuple[float, float] | None:
         """The mapped mode ``(frequency_hz, damping_ratio)`` at ``position_m``: linear between the mapped
         positions, held beyond the outermost (None: no mode was mapped)."""
-        found = sorted((p for p in self.found if p.damping_ratio is not None), key=lambda p: p.position_m)
+        found = sorted((p.position_m, p.frequency_hz, p.damping_ratio) for p in self.found
+                        if p.frequency_hz is not None and p.damping_ratio is not None)
         if not found:
             return None
-        at = [p.position_m for p in found]
-        return (float(np.interp(position_m, at, [p.frequency_hz for p in found])),
-                float(np.interp(position_m, at, [p.damping_ratio for p in found])))
+        at, frequency, damping = (np.array(column, dtype=float) for column in zip(*found, strict=True))
+        return float(np.interp(position_m, at, frequency)), float(np.interp(position_m, at, damping))
 
     # --- 1. the map --------------------------------------------------------------------------------------
 

@@ -34,14 +34,15 @@ Example
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from hilident.errors import DataError
 
-__all__ = ["GOOD_EXCITATION", "WEAK_EXCITATION", "ExcitingMove", "exciting_move", "mode_excitation", "peak_acceleration"]
+__all__ = ["GOOD_EXCITATION", "WEAK_EXCITATION", "ExcitingMove", "exciting_move", "mode_excitation",
+           "peak_acceleration"]
 
 #: Below this ``V`` a move excites the mode less than one step of its acceleration would: weakly.
 WEAK_EXCITATION = 1.0
@@ -131,7 +132,7 @@ class ExcitingMove:
 
 def exciting_move(profile: Callable[[float, float, float], tuple[np.ndarray, int]],
                   distances_m: Sequence[float], modes: Sequence[Sequence[tuple[float, float]]],
-                  sample_rate_hz: float, velocities_mps: Sequence[float], accels_mps2: Sequence[float],
+                  sample_rate_hz: float, velocities_mps: Iterable[float], accels_mps2: Iterable[float],
                   configured: tuple[float, float], target: float = GOOD_EXCITATION) -> ExcitingMove | None:
     """Of the candidate velocity and acceleration limits, the nearest to the configured ones whose moves
     excite every mode at ``V >= target``; else those that excite the least excited mode most.
