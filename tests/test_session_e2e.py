@@ -62,6 +62,9 @@ def check_against_truth(cfg, summary, min_reduction_db=20.0, zeta_tolerance=0.15
     if min_reduction_db is not None:
         # the band figure (largest response within two half-power bandwidths) is what the Bode plot shows a person
         assert summary["verification"]["band_reduction_db"] >= min_reduction_db
+    for row in summary["verification"]["resonances"]:  # the record's own noise floor beside each band figure
+        floor = row["floor_db"]
+        assert floor is None or row["floor_limited"] == (floor < row["band_reduction_db"] + 6.0), row
 
 
 def check_auto_amplitude(cfg, summary):

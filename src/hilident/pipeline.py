@@ -1033,6 +1033,10 @@ _DEEPEST_DB = 6000.0
 _EULER_GAMMA = 0.5772156649015329
 
 
+#: A band figure within this of its record's noise floor (:func:`band_floor_db`) is floor-limited, dB.
+FLOOR_HEADROOM_DB = 6.0
+
+
 def band_floor_db(before: FrequencyResponse, after: FrequencyResponse, resonance,
                   band_bandwidths: float = 2.0) -> float:
     """The largest band figure (:func:`peak_reductions`) the `after` measurement's own noise lets it show, dB.

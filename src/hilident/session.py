@@ -672,15 +672,22 @@ class Session(DeviceConnection):
         )
         self.warnings += warnings
         nc = self.cfg.notch
-        reductions = pipeline.peak_reductions(plant.loop, loop_after, [d.resonance for d in designs],
-                                              nc.verify_band_bandwidths)
+        resonances = [d.resonance for d in designs]
+        reductions = pipeline.peak_reductions(plant.loop, loop_after, resonances, nc.verify_band_bandwidths)
+        for row, resonance in zip(reductions, resonances, strict=True):
+            floor = pipeline.band_floor_db(plant.loop, loop_after, resonance, nc.verify_band_bandwidths)
+            row["floor_db"] = floor
+            row["floor_limited"] = bool(floor < row["band_reduction_db"] + pipeline.FLOOR_HEADROOM_DB)
         band = min(reductions, key=lambda r: r["band_reduction_db"])
         at_peak = min(r["reduction_db"] for r in reductions)
         if band["band_reduction_db"] < nc.min_reduction_db:
+            floor = (f"; it is within {pipeline.FLOOR_HEADROOM_DB:g} dB of the {band['floor_db']:.1f} dB its record's "
+                     "noise lets it show: a verification of more periods ([excitation] duration_s) lowers that floor"
+                     if band["floor_limited"] and np.isfinite(band["floor_db"]) else "")
             self.warnings.append(
                 f"verification: the largest response within +-{nc.verify_band_bandwidths:g} half-power bandwidths of "
                 f"{band['frequency_hz']:.4g} Hz dropped by only {band['band_reduction_db']:.1f} dB (at the resonance "
-                f"line: {band['reduction_db']:.1f} dB; notch.min_reduction_db = {nc.min_reduction_db:g})"
+                f"line: {band['reduction_db']:.1f} dB; notch.min_reduction_db = {nc.min_reduction_db:g}){floor}"
             )
         return VerificationPart(band["band_reduction_db"], at_peak, nc.verify_band_bandwidths, reductions, loop_after)
 

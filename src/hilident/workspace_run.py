@@ -32,9 +32,6 @@ from hilident.errors import ConfigError, DataError, UsageError
 from hilident.run_excitation import Excitation, build_excitation, excitation_recipe
 from hilident.workspace_map import MAP_MODE, MapPoint, WorkspaceMap, move_axis, nearest_resonance
 
-#: A band figure within this of its record's noise floor is the floor's, not the notch's, dB.
-_FLOOR_HEADROOM_DB = 6.0
-
 
 class WorkspaceRun:
     """The ``[map]`` steps of one run.
@@ -389,7 +386,7 @@ class WorkspaceRun:
         return {"position_m": point.position_m, "frequency_hz": r["frequency_hz"],
                 "band_reduction_db": r["band_reduction_db"], "reduction_db": r["reduction_db"],
                 "predicted_band_reduction_db": predicted,
-                "floor_db": floor, "floor_limited": bool(floor < r["band_reduction_db"] + _FLOOR_HEADROOM_DB),
+                "floor_db": floor, "floor_limited": bool(floor < r["band_reduction_db"] + pipeline.FLOOR_HEADROOM_DB),
                 "loop_band_reduction_db": loop["band_reduction_db"], "loop_reduction_db": loop["reduction_db"],
                 "periods": after.n_averages, "recording": records[0][0],
                 "recordings": [name for name, _, _ in records], "measured_on": measured_on}
@@ -423,7 +420,7 @@ class WorkspaceRun:
         first_s = len(excitation.samples) / self.cfg.run.sample_rate_hz
         cap_s = m.verify_max_duration_s or 4.0 * first_s
         # at least as many again: a floor estimated from a few periods is itself uncertain by a few dB
-        lower_by_db = nc.min_reduction_db + _FLOOR_HEADROOM_DB - floor
+        lower_by_db = nc.min_reduction_db + pipeline.FLOOR_HEADROOM_DB - floor
         needed = max(math.ceil(periods * 10.0 ** (lower_by_db / 10.0)) - periods, periods)
         room = int(round((cap_s - first_s) / period_s)) - 1  # the second record plays its own lead-in
         extra = min(needed, room)

@@ -472,10 +472,12 @@ def notches(inputs: ReportInputs) -> str:
     vres = _list(ver.get("resonances"))
     ref = _magnitude_reference(inputs)
     if vres:
-        body += table(["resonance", "before", "after", "reduction at the line", "band", "band reduction"],
+        body += table(["resonance", "before", "after", "reduction at the line", "band", "band reduction",
+                       "noise floor"],
                       [[num(r.get("frequency_hz"), "Hz"), num(r.get("before_db"), ref, 3),
                         num(r.get("after_db"), ref, 3), num(r.get("reduction_db"), "dB", 3),
-                        esc(_band(r.get("band_hz"))), num(r.get("band_reduction_db"), "dB", 3)] for r in vres],
+                        esc(_band(r.get("band_hz"))), num(r.get("band_reduction_db"), "dB", 3), _floor(r)]
+                       for r in vres],
                       "Verification: the same excitation before and after the notch")
     return section("notches", "Notches: designed and achieved", body)
 
