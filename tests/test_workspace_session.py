@@ -247,8 +247,8 @@ def test_the_map_run_writes_its_plot_its_report_and_a_valid_summary(mapped):
 
 def move_config(config: str, tmp_path: Path) -> Path:
     """A shipped gantry config made quick, with the map config's stiff servo (feed-forward), a fine laser
-    and its move test; Coulomb friction off, because a cart that sticks when it stops rings the mode with a
-    force step no set-point shaping can remove (the shipped map config keeps it and reports what is left)."""
+    and its move test. The cart keeps its friction: its stick at the stop rings the mode with a force step no
+    set-point shaping removes, and the move, which excites the mode (V about 1.8), rings well above that."""
     transport = {"emulated-gantry.toml": "serial", "emulated-canopen-gantry.toml": "canopen",
                  "emulated-modbus-gantry.toml": "modbus"}[config]
     raw = quick(tomllib.loads((CONFIGS / config).read_text()), transport)
@@ -256,7 +256,6 @@ def move_config(config: str, tmp_path: Path) -> Path:
     raw["verification"] = mapped_raw["verification"]
     raw["emulator"]["drive"].update(velocity_feedforward=1.0, accel_feedforward_nm_per_mps2=5.0)
     raw["emulator"]["sensors"]["laser_resolution_m"] = 2e-6
-    raw["emulator"]["friction"].update(Fc=0.0, Fs=0.0)
     driver = find_driver(raw["device"]["driver"])
     raw["run"]["channels"] = [c.name for c in driver.streamed_channels if c.name != "load_position_m"] + [
         "load_position_m"]  # the CANopen and Modbus drives stream their load sensor only when asked
@@ -291,3 +290,23 @@ def test_a_move_rings_ten_db_less_with_the_notch_on_every_transport(config, tmp_
     moves = check_report(tmp_path / "out").sections["moves"]
     assert "load deflection" in moves and f"{move['rms_reduction_db']:.3g} dB" in moves
     assert "move_without.h5" in move["recordings"] and (tmp_path / "out" / "move_with.h5").is_file()
+
+
+def test_the_map_run_moves_at_every_mapped_position_with_the_mapped_mode_where_each_move_ends(tmp_path):
+    """The shipped map config's move test on the clean twin (its friction kept): a move from every mapped
+    position, each knowing the mode where it ends from the map, each ringing at least 10 dB less with the notch."""
+    cfg = parse_config(tomli_w.dumps(quick_map(move=True)), str(MAP_CONFIG))
+    summary = Session(cfg, tmp_path / "out").run()
+    assert schema_errors(summary) == []
+    moves = summary["move_test"]["moves"]
+    assert [round(m["start_m"], 2) for m in moves] == [round(p["target_m"], 2) for p in summary["map"]]
+    for m in moves:
+        end = m["start_m"] + m["distance_m"]
+        assert -0.5 - 1e-3 <= end <= 0.5 + 1e-3  # within the window less the map's margin
+        (mode,) = m["modes"]
+        truth_hz, _ = true_modes(cfg.emulator, end)[0]
+        assert abs(mode["frequency_hz"] - truth_hz) / truth_hz < 0.01, (end, mode, truth_hz)
+        assert mode["excitation"] >= 1.0 and mode["predicted_reduction_db"] >= 20.0
+        assert m["rms_reduction_db"] >= 10.0, m
+    assert summary["move_test"]["worst_rms_reduction_db"] == min(m["rms_reduction_db"] for m in moves)
+    assert not [w for w in summary["warnings"] if "excites the mode less" in w]
