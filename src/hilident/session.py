@@ -402,7 +402,7 @@ class Session(DeviceConnection):
                 self.workspace.verify()
             if self.cfg.verification.move is not None:
                 step = "move test"
-                self.move_results = self._move_step(designs, upload, plant)
+                self.move_results = self._move_step(designs, upload)
             step = "save"
             self._save_step(upload, verification)
         except BaseException as exc:
@@ -584,15 +584,15 @@ class Session(DeviceConnection):
         reference = plant.resonances[0].frequency_hz if plant.resonances else None
         self.workspace.map(float(ident.samples["position_m"][-1]), reference)
 
-    def _move_step(self, designs: list, upload: UploadOutcome, plant) -> list[MoveTestResult]:
+    def _move_step(self, designs: list, upload: UploadOutcome) -> list[MoveTestResult]:
         """``[verification] move`` (:func:`hilident.move_test.run_move_tests`): from where the run identified and
         from every mapped position; the axis ends where it started. The mode where each move ends is the map's
-        there, else the run's resonances."""
+        there, else the resonances the notches were designed for."""
         start = self.position_m if self.position_m is not None else 0.0
         places = [p.target_m for p in self.workspace.points] if self.workspace else []
         workspace = self.workspace
-        resonances = [(r.frequency_hz, r.damping_ratio) for r in plant.resonances
-                      if np.isfinite(r.frequency_hz) and np.isfinite(r.damping_ratio) and 0 <= r.damping_ratio < 1]
+        notched = {(d.resonance.frequency_hz, d.resonance.damping_ratio) for d in designs}
+        resonances = sorted((f, zeta) for f, zeta in notched if np.isfinite(f) and f > 0 and 0 <= zeta < 1)
 
         def modes_at(position_m: float) -> list[tuple[float, float]]:
             mapped = workspace.mode_at(position_m) if workspace is not None else None
