@@ -672,7 +672,9 @@ class Session(DeviceConnection):
         )
         self.warnings += warnings
         nc = self.cfg.notch
-        resonances = [d.resonance for d in designs]
+        # one row per resonance: the staggered notches of a covering design share theirs
+        resonances = list({(d.resonance.frequency_hz, d.resonance.damping_ratio): d.resonance
+                           for d in designs}.values())
         reductions = pipeline.peak_reductions(plant.loop, loop_after, resonances, nc.verify_band_bandwidths)
         for row, resonance in zip(reductions, resonances, strict=True):
             floor = pipeline.band_floor_db(plant.loop, loop_after, resonance, nc.verify_band_bandwidths)
