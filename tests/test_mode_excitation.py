@@ -174,3 +174,6 @@ def test_the_suggested_move_is_the_nearest_that_reaches_the_target():
                             for (p, end), ((f, z),) in zip((profile(d, v, a) for d in (0.2, -0.2)), modes, strict=True))
                 assert worst < GOOD_EXCITATION
     assert exciting_move(profile, [0.2], [[]], 1000.0, velocities, accels, (0.3, 2.0)) is None
+    # candidates given as generators are tried in every combination all the same
+    again = exciting_move(profile, [0.2, -0.2], modes, 1000.0, iter(velocities), (a for a in accels), (0.3, 2.0))
+    assert again == best

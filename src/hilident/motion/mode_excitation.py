@@ -147,7 +147,7 @@ def exciting_move(profile: Callable[[float, float, float], tuple[np.ndarray, int
     modes : sequence of sequences of (frequency_hz, damping_ratio)
         The modes at each move's end, aligned with ``distances_m``.
     sample_rate_hz : float
-    velocities_mps, accels_mps2 : sequence of float
+    velocities_mps, accels_mps2 : iterable of float
         The candidates, m/s and m/s^2, tried in every combination.
     configured : (float, float)
         The configured velocity and acceleration limits; nearness is the larger of the two ratios to them.
@@ -160,9 +160,10 @@ def exciting_move(profile: Callable[[float, float, float], tuple[np.ndarray, int
         None without candidates or modes.
     """
     v0, a0 = configured
+    accels = [float(a) for a in accels_mps2]  # walked once per velocity
     found = []
     for v in velocities_mps:
-        for a in accels_mps2:
+        for a in accels:
             worst = math.inf
             for distance, here in zip(distances_m, modes, strict=True):
                 position, end = profile(distance, v, a)
