@@ -1037,6 +1037,12 @@ _EULER_GAMMA = 0.5772156649015329
 FLOOR_HEADROOM_DB = 6.0
 
 
+def floor_limited(band_reduction_db: float, floor_db: float) -> bool:
+    """Whether a band figure lies within :data:`FLOOR_HEADROOM_DB` of its record's noise floor: it then says more
+    about the record than about the notch (a floor of -inf, a record without coherence, always is)."""
+    return bool(floor_db < band_reduction_db + FLOOR_HEADROOM_DB)
+
+
 def band_floor_db(before: FrequencyResponse, after: FrequencyResponse, resonance,
                   band_bandwidths: float = 2.0) -> float:
     """The largest band figure (:func:`peak_reductions`) the `after` measurement's own noise lets it show, dB.

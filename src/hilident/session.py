@@ -679,7 +679,7 @@ class Session(DeviceConnection):
         for row, resonance in zip(reductions, resonances, strict=True):
             floor = pipeline.band_floor_db(plant.loop, loop_after, resonance, nc.verify_band_bandwidths)
             row["floor_db"] = floor
-            row["floor_limited"] = bool(floor < row["band_reduction_db"] + pipeline.FLOOR_HEADROOM_DB)
+            row["floor_limited"] = pipeline.floor_limited(row["band_reduction_db"], floor)
         band = min(reductions, key=lambda r: r["band_reduction_db"])
         at_peak = min(r["reduction_db"] for r in reductions)
         if band["band_reduction_db"] < nc.min_reduction_db:

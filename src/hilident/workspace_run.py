@@ -386,7 +386,7 @@ class WorkspaceRun:
         return {"position_m": point.position_m, "frequency_hz": r["frequency_hz"],
                 "band_reduction_db": r["band_reduction_db"], "reduction_db": r["reduction_db"],
                 "predicted_band_reduction_db": predicted,
-                "floor_db": floor, "floor_limited": bool(floor < r["band_reduction_db"] + pipeline.FLOOR_HEADROOM_DB),
+                "floor_db": floor, "floor_limited": pipeline.floor_limited(r["band_reduction_db"], floor),
                 "loop_band_reduction_db": loop["band_reduction_db"], "loop_reduction_db": loop["reduction_db"],
                 "periods": after.n_averages, "recording": records[0][0],
                 "recordings": [name for name, _, _ in records], "measured_on": measured_on}
