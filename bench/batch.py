@@ -55,7 +55,7 @@ def free_port() -> int:
 
 def write_recordings(folder: Path, recordings: int, duration_s: float) -> list[Path]:
     """A fleet of ``recordings`` recordings, 1 kHz, none damaged: 25 axes (or fewer) over enough days."""
-    from hilident.fleet import write_fleet
+    from hilident.batch.fleet import write_fleet
 
     axes = min(25, recordings)
     days = math.ceil(recordings / axes)

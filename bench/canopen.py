@@ -63,9 +63,9 @@ from pathlib import Path
 import numpy as np
 
 import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
-from hilident.adapters.canopen_drive import CanopenDriveAdapter
-from hilident.config import load_config
-from hilident.drivers import find_driver
+from hilident.adapters.canopen.drive import CanopenDriveAdapter
+from hilident.config.tables import load_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.canopen.server import start
 from hilident.errors import HilidentError
 

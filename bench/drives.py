@@ -16,7 +16,7 @@ friction errors against the twin's truth, the notch (uploaded and achieved, or
 why not), and the time taken.
 
 Also run, with ``--project-drives``: the project's own test drives
-(``tests/vendor_drives.py``) that describe a filter capability, to show the
+(``tests/support/vendor_drives.py``) that describe a filter capability, to show the
 notch uploaded, read back and verified on each encoding, and one whose own
 PRBS generator and data recorder play and record the run
 (``acquisition = "recorder"``).
@@ -44,8 +44,8 @@ SETPOINT_AMPLITUDES = {"velocity": ("amplitude_mps", 0.05), "position": ("amplit
 
 
 def _session_config(folder: Path, mode: str, friction: bool, duration_s: float, acquisition: str = "streamed"):
-    from hilident.config import load_config
-    from hilident.drivers import declared_modes, load_driver
+    from hilident.config.tables import load_config
+    from hilident.drivers.description import declared_modes, load_driver
 
     cfg = load_config(CONFIG)
     excitation = replace(cfg.excitation, mode=mode, duration_s=duration_s)
@@ -72,9 +72,9 @@ def _truth(cfg):
 
 def run_drive(folder: Path, out: Path, duration_s: float, acquisition: str = "streamed") -> dict:
     """The session on the twin of ``folder``; a row of the table."""
-    from hilident.drivers import declared_modes, load_driver
+    from hilident.drivers.description import declared_modes, load_driver
     from hilident.protocol.canopen_profile import mode_name_of_code
-    from hilident.session import Session
+    from hilident.session.run import Session
 
     driver = load_driver(folder)
     modes = declared_modes(driver)
@@ -138,7 +138,7 @@ def main(argv=None) -> int:
                    help="also run the project's test drives that describe a filter capability")
     args = p.parse_args(argv)
     sys.path.insert(0, str(ROOT / "tests"))
-    from hilident.driver_tools import check_driver_folder, new_driver_folder
+    from hilident.drivers.tools import check_driver_folder, new_driver_folder
 
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="hilident-drives-"))
     files = (sorted(f for f in Path(args.folder).iterdir() if f.suffix.lower() in (".eds", ".dcf"))
@@ -170,7 +170,7 @@ def main(argv=None) -> int:
 
 
 def _project_drives(out: Path, duration_s: float) -> list[dict]:
-    from vendor_drives import FILTER_DRIVES, VendorDrive, write_vendor_drive
+    from support.vendor_drives import FILTER_DRIVES, VendorDrive, write_vendor_drive
 
     rows = []
     runs = [(drive, "streamed") for drive in FILTER_DRIVES]

@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 
 import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
-from hilident.driver_tools import check_driver_folder, new_driver_folder
+from hilident.drivers.tools import check_driver_folder, new_driver_folder
 from hilident.errors import HilidentError
 
 COLUMNS = ("file", "warnings", "cyclic", "PDOs", "period", "torque ref", "placeholders", "vendor F/R/G", "check")

@@ -12,7 +12,7 @@ The two-mass gantry (m1 = 40 kg, m2 = 10 kg, k = 1.5e5 N/m, d = 40 N·s/m,
 c = 10 N/(N·m)) with Stribeck friction (Fc = 0.2, Fs = 0.35 N·m, Fv = 2
 N·m/(m/s), vs = 0.005 m/s) is simulated with the emulator's physics:
 :func:`hilident.emulator.factory.build_drive` on a configuration parsed with
-:func:`hilident.config.parse_config`, the drive loop at the record's sample rate,
+:func:`hilident.config.tables.parse_config`, the drive loop at the record's sample rate,
 in ``torque`` mode (loops open). The plant is integrated exactly between
 samples (matrix exponential, zero-order hold, four substeps per sample) with
 Karnopp stiction; the drive reports the measured torque (white noise of
@@ -70,8 +70,8 @@ import scipy
 from scipy import signal
 
 import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
-from hilident.config import IdentificationConfig, NotchConfig, parse_config
-from hilident.drivers import find_driver
+from hilident.config.tables import IdentificationConfig, NotchConfig, parse_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.drive import DriveLoop
 from hilident.emulator.factory import build_drive, true_modes
 from hilident.errors import DataError

@@ -89,7 +89,7 @@ def main() -> None:
     config = folder / "identify.toml"
     config.write_text('[data]\ntime = "t"\ntorque = "tau"\nvelocity = "v"\nposition = "x"\n'
                       "[identification]\nmax_resonances = 1\nsegment_s = 4.0\n")
-    load = ("import sys; from hilident.config import load_config; from hilident.datafile import load_dataset; "
+    load = ("import sys; from hilident.config.tables import load_config; from hilident.datafile import load_dataset; "
             "c = load_config(sys.argv[1]); d = load_dataset(sys.argv[2], c.data); print(len(d), 'rows used')")
     children = {
         "read only": [sys.executable, "-c", load, str(config), str(data)],

@@ -20,8 +20,8 @@ import time
 import serial
 
 import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
-from hilident.config import DeviceConfig, parse_config
-from hilident.drivers import find_driver
+from hilident.config.tables import DeviceConfig, parse_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.modbus.server import start
 from hilident.protocol.modbus_registers import rtu_crc
 

@@ -1,7 +1,7 @@
 """Wall time from starting ``hilident`` to its answer, for commands that end early.
 
 Each command runs ``--repeats`` times, every time in a fresh interpreter started
-as the ``hilident`` console script starts it (``from hilident.cli import main``),
+as the ``hilident`` console script starts it (``from hilident.cli.main import main``),
 with this checkout's ``src`` first on ``PYTHONPATH``:
 
 - ``run CONFIG`` on a shipped config with one value wrong that only the
@@ -39,7 +39,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGET_S = 0.3
-CLI = "import sys; from hilident.cli import main; sys.exit(main(sys.argv[1:]))"
+CLI = "import sys; from hilident.cli.main import main; sys.exit(main(sys.argv[1:]))"
 
 
 def cases(folder: Path) -> list[tuple[str, list[str], int]]:

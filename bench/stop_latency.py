@@ -35,8 +35,8 @@ from pathlib import Path
 import tomli_w
 
 import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
-from hilident.config import parse_config
-from hilident.drivers import find_driver
+from hilident.config.tables import parse_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.factory import host_device_table, start_standalone
 
 ROOT = Path(__file__).resolve().parents[1]

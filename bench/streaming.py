@@ -13,7 +13,7 @@ Method
 ------
 The board runs in its own process (as a real board is separate hardware) and
 opens a pseudo-terminal; the host opens it with
-:meth:`hilident.adapters.serial_board.SerialBoardAdapter.open`, exactly as a
+:meth:`hilident.adapters.serial.board.SerialBoardAdapter.open`, exactly as a
 USB serial board. The board paces its output at ``baud / 10`` bytes per second
 and drops sample blocks when its transmit buffer is full.
 
@@ -42,9 +42,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
-from hilident.adapters.serial_board import SerialBoardAdapter
-from hilident.config import parse_config
-from hilident.drivers import ChannelSpec, DriverDescription, find_driver
+from hilident.adapters.serial.board import SerialBoardAdapter
+from hilident.config.tables import parse_config
+from hilident.drivers.description import ChannelSpec, DriverDescription, find_driver
 from hilident.errors import HilidentError
 from hilident.protocol import serial_board as sb
 from hilident.protocol.framing import encode_frame

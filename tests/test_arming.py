@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from hilident.devicelock import DeviceLock, device_key
 from hilident.errors import DeviceError
-from twins import Twin, host, wait_until
+from hilident.session.devicelock import DeviceLock, device_key
+from support.twins import Twin, host, wait_until
 
 
 @pytest.fixture
@@ -97,7 +97,8 @@ def test_a_second_session_on_the_same_device_is_refused_naming_the_holder(serial
 def test_a_lock_left_by_a_killed_session_is_recovered(tmp_path):
     key = device_key("serial", "/dev/ttyUSB-test")
     holder = subprocess.Popen([sys.executable, "-c",
-                               "import sys, time; from pathlib import Path; from hilident.devicelock import DeviceLock;"
+                               "import sys, time; from pathlib import Path;"
+                               "from hilident.session.devicelock import DeviceLock;"
                                f"DeviceLock({key!r}, Path({str(tmp_path)!r})).acquire(); print('held', flush=True);"
                                "time.sleep(60)"], stdout=subprocess.PIPE, text=True)
     assert holder.stdout.readline().strip() == "held"

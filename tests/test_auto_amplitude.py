@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hilident.config import load_config, parse_config
+from hilident.config.tables import load_config, parse_config
 from hilident.emulator.factory import true_modes
 from hilident.errors import ConfigError
 from hilident.ident.frequency import periodic_frf
 from hilident.ident.friction import StribeckParams
-from hilident.recording import read_run
-from hilident.session import (
+from hilident.io.recording import read_run
+from hilident.session.run import (
     Session,
     band_coherence,
     coherence_factor,

@@ -24,12 +24,12 @@ from hilident.batch import runner, table
 from hilident.batch.identity import name_time, recording_identity
 from hilident.batch.inputs import content_sha256, expand_inputs
 from hilident.batch.task import identify_row, identify_task, summary_figures
-from hilident.cli import main
-from hilident.config import parse_config
-from hilident.drivers import find_driver
+from hilident.cli.main import main
+from hilident.config.tables import parse_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.factory import build_drive, true_modes
 from hilident.errors import UsageError
-from hilident.recording import RunWriter
+from hilident.io.recording import RunWriter
 from hilident.signals import multisine
 from test_identify_offline import GANTRY, write_csv
 
@@ -208,12 +208,12 @@ def test_the_row_takes_the_lowest_resonance_and_nan_where_nothing_is_known():
 
 
 def test_an_unexpected_exception_becomes_a_failure_row_with_its_type(tmp_path, monkeypatch):
-    import hilident.offline
+    import hilident.session.offline
 
     def broken(*args, **kwargs):
         raise ZeroDivisionError("float division by zero")
 
-    monkeypatch.setattr(hilident.offline, "analyse_recording", broken)
+    monkeypatch.setattr(hilident.session.offline, "analyse_recording", broken)
     path = tmp_path / "ax" / "r.h5"
     path.parent.mkdir()
     write_recording(path, axis="A1")

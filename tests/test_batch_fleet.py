@@ -11,8 +11,8 @@ import json
 import pandas as pd
 import pytest
 
-from hilident.cli import main
-from hilident.fleet import write_fleet
+from hilident.batch.fleet import write_fleet
+from hilident.cli.main import main
 
 
 @pytest.fixture(scope="module")

@@ -21,9 +21,9 @@ import pytest
 from canopen.sdo import SdoCommunicationError
 
 from hilident import endings
-from hilident.adapters.canopen_drive import CanopenDriveAdapter
-from hilident.config import load_config
-from hilident.drivers import find_driver, load_driver
+from hilident.adapters.canopen.drive import CanopenDriveAdapter
+from hilident.config.tables import load_config
+from hilident.drivers.description import find_driver, load_driver
 from hilident.emulator.canopen.roles import EMCY_HEARTBEAT
 from hilident.emulator.canopen.server import start, start_socketcand
 from hilident.errors import ConfigError, DeviceError, Interrupted, LimitTrip

@@ -16,14 +16,15 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from hilident.adapters.canopen_drive import CanopenDriveAdapter
-from hilident.cli import main
-from hilident.config import load_config
-from hilident.driver_tools import check_driver_folder
-from hilident.drivers import load_driver, load_object_dictionary
+from hilident.adapters.canopen.drive import CanopenDriveAdapter
+from hilident.cli.main import main
+from hilident.config.tables import load_config
+from hilident.drivers.description import load_driver, load_object_dictionary
+from hilident.drivers.tools import check_driver_folder
 from hilident.emulator.canopen.server import start
 from hilident.emulator.factory import true_modes
 from hilident.errors import ConfigError, DeviceError
+from hilident.io.recording import read_run
 from hilident.protocol.canopen_objects import ObjectAddress
 from hilident.protocol.canopen_recorder import (
     MAX_LEN_SEQ_TAPS,
@@ -32,10 +33,9 @@ from hilident.protocol.canopen_recorder import (
     parse_recorder,
     prbs_bits,
 )
-from hilident.recording import read_run
-from hilident.session import build_excitation, excitation_recipe
+from hilident.session.run import build_excitation, excitation_recipe
 from hilident.signals import generators as sig
-from vendor_drives import VendorDrive, write_vendor_drive
+from support.vendor_drives import VendorDrive, write_vendor_drive
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "emulated-canopen-gantry.toml"
 FS = 1000.0

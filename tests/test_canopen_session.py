@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
-from hilident.config import load_config
+from hilident.config.tables import load_config
 from hilident.emulator.factory import true_modes
-from hilident.recording import read_run
-from hilident.session import Session
+from hilident.io.recording import read_run
+from hilident.session.run import Session
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 CONFIG = CONFIGS / "emulated-canopen-gantry.toml"

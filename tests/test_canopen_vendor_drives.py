@@ -15,16 +15,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hilident.adapters.canopen_drive import CanopenDriveAdapter
-from hilident.config import load_config
-from hilident.drivers import check_run_against_driver, load_driver
+from hilident.adapters.canopen.drive import CanopenDriveAdapter
+from hilident.config.tables import load_config
+from hilident.drivers.description import check_run_against_driver, load_driver
 from hilident.emulator.canopen.server import start
 from hilident.emulator.factory import true_modes
 from hilident.errors import ConfigError, DeviceError, LimitTrip
-from hilident.recording import read_run
-from hilident.session import Session
-from twins import wait_until
-from vendor_drives import FILTER_DRIVES, VendorDrive, write_vendor_drive
+from hilident.io.recording import read_run
+from hilident.session.run import Session
+from support.twins import wait_until
+from support.vendor_drives import FILTER_DRIVES, VendorDrive, write_vendor_drive
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "emulated-canopen-gantry.toml"
 FS = 1000.0

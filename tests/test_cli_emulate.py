@@ -49,7 +49,7 @@ def test_ctrl_c_mid_run_stops_and_keeps_the_recording(tmp_path):
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 130
-    from hilident.recording import read_run
+    from hilident.io.recording import read_run
 
     run = read_run(tmp_path / "o" / "friction.h5")
     assert run.status == "aborted" and run.n_samples > 0
@@ -91,6 +91,6 @@ def test_a_closed_output_pipe_does_not_end_the_run(tmp_path):
         os.close(write_end)
     assert proc.returncode == 0
     assert (tmp_path / "o" / "summary.json").is_file()
-    from hilident.recording import read_run
+    from hilident.io.recording import read_run
 
     assert read_run(tmp_path / "o" / "identification.h5").status == "complete"

@@ -12,12 +12,12 @@ from types import SimpleNamespace
 
 import pytest
 
-from hilident import cli
-from hilident.cli import build_parser, main
-from hilident.config import load_config
-from hilident.drivers import check_run_against_driver, find_driver
-from hilident.experiment import length_line
-from hilident.starter_config import DEFAULT_DRIVERS
+from hilident.cli import main as cli
+from hilident.cli.main import build_parser, main
+from hilident.config.starter import DEFAULT_DRIVERS
+from hilident.config.tables import load_config
+from hilident.drivers.description import check_run_against_driver, find_driver
+from hilident.session.experiment import length_line
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -114,7 +114,7 @@ def test_ports_lists_serial_ports_and_can_channels(monkeypatch, capsys):
 def test_ports_with_nothing_found_and_a_can_search_that_hangs(monkeypatch, capsys):
     import threading
 
-    from hilident import ports
+    from hilident.adapters import ports
 
     release = threading.Event()
     _fake_listings(monkeypatch, [], [])
@@ -138,7 +138,7 @@ def test_ports_with_nothing_found_and_a_can_search_that_hangs(monkeypatch, capsy
 def test_serial_open_failure_names_the_key_and_the_cause(monkeypatch, code, hint):
     import serial
 
-    from hilident.adapters.serial_board import SerialBoardAdapter
+    from hilident.adapters.serial.board import SerialBoardAdapter
     from hilident.errors import DeviceError
 
     def refuse(port, **kw):
@@ -155,9 +155,9 @@ def test_serial_open_failure_names_the_key_and_the_cause(monkeypatch, code, hint
 def test_modbus_rtu_open_failure_names_the_key_and_the_cause(monkeypatch):
     import serial
 
-    from hilident.adapters import modbus_common
-    from hilident.adapters.modbus_drive import ModbusDriveAdapter
-    from hilident.config import parse_config
+    from hilident.adapters.modbus import common as modbus_common
+    from hilident.adapters.modbus.drive import ModbusDriveAdapter
+    from hilident.config.tables import parse_config
     from hilident.errors import DeviceError
 
     monkeypatch.setattr(modbus_common._SerialClient, "connect", lambda self: False)
@@ -175,8 +175,8 @@ def test_modbus_rtu_open_failure_names_the_key_and_the_cause(monkeypatch):
 
 
 def test_can_open_failure_names_the_key_and_the_cause(monkeypatch):
-    from hilident.adapters import canopen_link
-    from hilident.config import parse_config
+    from hilident.adapters.canopen import link as canopen_link
+    from hilident.config.tables import parse_config
     from hilident.errors import DeviceError
 
     def refuse(self, **kwargs):
@@ -193,8 +193,8 @@ def test_can_open_failure_names_the_key_and_the_cause(monkeypatch):
 
 
 def test_a_port_held_by_another_session_names_the_key(tmp_path):
-    from hilident.devicelock import DeviceLock, device_key
     from hilident.errors import DeviceError
+    from hilident.session.devicelock import DeviceLock, device_key
 
     key = device_key("serial", "/dev/ttyUSB-held")
     with DeviceLock(key, tmp_path), pytest.raises(DeviceError) as info:
@@ -251,9 +251,9 @@ def test_log_level_reaches_the_library_loggers(tmp_path):
     before = root.level
     try:
         assert main(["--log-level", "DEBUG", "init", "--out", str(tmp_path / "a.toml")]) == 0
-        assert logging.getLogger("hilident.session").getEffectiveLevel() == logging.DEBUG
+        assert logging.getLogger("hilident.session.run").getEffectiveLevel() == logging.DEBUG
         assert main(["--log-level", "error", "init", "--out", str(tmp_path / "b.toml")]) == 0
-        assert logging.getLogger("hilident.adapters.canopen_link").getEffectiveLevel() == logging.ERROR
+        assert logging.getLogger("hilident.adapters.canopen.link").getEffectiveLevel() == logging.ERROR
     finally:
         root.setLevel(before)
     with pytest.raises(SystemExit) as done:
@@ -313,7 +313,7 @@ def test_length_line_says_asked_and_played():
 # --- drivers -v --------------------------------------------------------------------------------------------------
 
 def test_drivers_verbose_describes_every_shipped_driver(capsys):
-    from hilident.drivers import available_drivers
+    from hilident.drivers.description import available_drivers
 
     assert main(["drivers", "-v"]) == 0
     out = capsys.readouterr().out

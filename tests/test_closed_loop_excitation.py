@@ -16,16 +16,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hilident.config import load_config
-from hilident.drivers import load_driver
+from hilident.config.tables import load_config
+from hilident.drivers.description import load_driver
 from hilident.emulator.factory import true_modes
 from hilident.errors import ConfigError
+from hilident.io.recording import read_run
 from hilident.protocol.canopen_objects import CanopenDescription
 from hilident.protocol.eds import inspect_eds, load_eds
-from hilident.recording import read_run
-from hilident.session import Session, build_excitation
-from twins import assert_friction_matches
-from vendor_drives import VendorDrive, write_vendor_drive
+from hilident.session.run import Session, build_excitation
+from support.twins import assert_friction_matches
+from support.vendor_drives import VendorDrive, write_vendor_drive
 
 ROOT = Path(__file__).resolve().parents[1]
 CANOPEN = ROOT / "configs" / "emulated-canopen-gantry.toml"
@@ -151,7 +151,7 @@ def test_a_vendor_torque_stands_in_only_where_the_eds_has_no_standard_torque(tmp
 
 
 def test_drivers_new_writes_the_vendor_torque_as_a_placeholder_and_the_folder_runs(tmp_path):
-    from hilident.driver_tools import check_driver_folder, new_driver_folder
+    from hilident.drivers.tools import check_driver_folder, new_driver_folder
 
     eds = write_vendor_drive(tmp_path / "vendor", IP_EFFORT) / f"{IP_EFFORT.name}.eds"
     report = new_driver_folder(eds, tmp_path / "acme")
@@ -166,7 +166,7 @@ def test_drivers_new_writes_the_vendor_torque_as_a_placeholder_and_the_folder_ru
 
 
 def test_many_late_syncs_are_a_warning_few_are_not():
-    from hilident.session import late_sampling_warnings
+    from hilident.session.run import late_sampling_warnings
 
     late = [{"kind": "sync_late", "message": "", "sample_index": 0, "value": 300.0, "worst_s": 0.054}]
     (warning,) = late_sampling_warnings("identification", late, 12000)
@@ -179,7 +179,7 @@ def test_a_reading_at_its_integer_limit_is_counted_clipped_with_one_event():
     from types import SimpleNamespace
 
     from hilident.adapters.base import RunResult, StreamStats
-    from hilident.adapters.canopen_drive import CanopenDriveAdapter, ChannelCodec
+    from hilident.adapters.canopen.drive import CanopenDriveAdapter, ChannelCodec
     from hilident.protocol.canopen_objects import ObjectAddress
 
     events = []

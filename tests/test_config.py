@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from hilident.config import load_config, parse_config
+from hilident.config.tables import load_config, parse_config
 from hilident.errors import ConfigError
 
 LIMITS = "[limits]\ntorque_nm = 10\nvelocity_mps = 1\nposition_min_m = -1\nposition_max_m = 1\n"
@@ -53,7 +53,7 @@ def test_missing_file_is_a_config_error(tmp_path):
 
 
 def test_a_bench_run_needs_limits():
-    from hilident.session import Session
+    from hilident.session.run import Session
 
     cfg = parse_config("[emulator.plant]\nm1 = 30.0\n", "bench.toml")
     assert cfg.limits is None  # fine for `hilident identify`, which moves nothing
@@ -98,7 +98,7 @@ def test_the_deprecation_is_a_line_on_stderr(tmp_path):
 
     path = tmp_path / "old.toml"
     path.write_text(LIMITS + "[device]\nnode_id = 5\n")
-    code = "import sys; from hilident.config import load_config; print(load_config(sys.argv[1]).device.node_id)"
+    code = "import sys; from hilident.config.tables import load_config; print(load_config(sys.argv[1]).device.node_id)"
     run = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, check=True)
     assert run.stdout.strip() == "5"
     assert "DeprecationWarning" in run.stderr and "[device.node_id]" in run.stderr and str(path) in run.stderr
@@ -127,7 +127,7 @@ def test_sub_table_errors_name_the_key_as_written(text, key):
 def test_moved_attributes_replace_into_their_sub_table():
     from dataclasses import replace
 
-    from hilident.config import DeviceConfig, FaultsConfig
+    from hilident.config.tables import DeviceConfig, FaultsConfig
 
     device = replace(DeviceConfig(node_id=3, parity="O"), can_interface="virtual", port="x")
     assert device.canopen.node_id == 3 and device.canopen.can_interface == "virtual" and device.modbus.parity == "O"

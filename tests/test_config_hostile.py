@@ -1,6 +1,6 @@
 """Hostile configurations: whatever a config file holds, loading it ends in a
 :class:`~hilident.errors.ConfigError` naming the file and a key, or in a valid
-:class:`~hilident.config.Config`; never another exception, never a large
+:class:`~hilident.config.tables.Config`; never another exception, never a large
 allocation. And a config that loads builds its signals without surprises.
 """
 
@@ -14,11 +14,11 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from hilident.config import Config, excitation_samples, load_config, parse_config
+from hilident.config.tables import Config, excitation_samples, load_config, parse_config
 from hilident.errors import ConfigError
 from hilident.signals import ramp_extent, velocity_ramps
 from hilident.signals._checks import MAX_SAMPLES
-from hostile_toml import toml_string, toml_value
+from support.hostile_toml import toml_string, toml_value
 
 LIMITS = {"torque_nm": 10, "velocity_mps": 1, "position_min_m": -1, "position_max_m": 1}
 
@@ -145,7 +145,7 @@ excitation_tables = st.fixed_dictionaries({
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(excitation_tables, st.sampled_from([250.0, 1000.0, 4000.0]))
 def test_an_excitation_that_loads_is_built_with_the_length_computed_at_load(excitation, fs):
-    from hilident.session import build_excitation
+    from hilident.session.run import build_excitation
 
     cfg = _outcome(toml_text({("limits",): LIMITS, ("run",): {"sample_rate_hz": fs}, ("excitation",): excitation,
                               ("friction_test",): {"enabled": False}}))
@@ -240,7 +240,7 @@ def test_deep_nesting_is_a_syntax_error():
 @given(st.floats(0.0, 0.02), st.integers(1, 60))
 def test_fades_that_load_fit_the_excitation(fade_s, n):
     """The load-time check and signals.fade agree at the edge (round(fade_s * fs) samples per fade)."""
-    from hilident.session import build_excitation
+    from hilident.session.run import build_excitation
 
     cfg = _outcome(toml_text({("limits",): LIMITS, ("excitation",): {"kind": "step", "duration_s": n / 1000.0,
                                                                         "fade_s": fade_s}}))

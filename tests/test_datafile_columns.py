@@ -6,7 +6,7 @@ import h5py
 import numpy as np
 import pytest
 
-from hilident.config import DataConfig
+from hilident.config.tables import DataConfig
 from hilident.datafile import load_dataset, read_columns, read_run_info
 from hilident.errors import ConfigError, DataError
 

@@ -14,11 +14,11 @@ from hypothesis import strategies as st
 from scipy.io import savemat
 
 from hilident import datafile
-from hilident.cli import main
-from hilident.config import DataConfig
+from hilident.cli.main import main
+from hilident.config.tables import DataConfig
 from hilident.datafile import load_dataset
 from hilident.errors import ConfigError, DataError, HilidentError
-from hilident.recording import RunWriter
+from hilident.io.recording import RunWriter
 
 RATE = 1000.0
 N = 400

@@ -15,9 +15,9 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from hilident.config import DataConfig
+from hilident.config.tables import DataConfig
 from hilident.datafile import load_dataset, read_columns, read_run_info
-from hilident.recording import RunWriter
+from hilident.io.recording import RunWriter
 from ident.pinned import assert_same, flatten, load_expected, store_expected
 
 EXPECTED = Path(__file__).with_suffix(".json")

@@ -6,11 +6,11 @@ import tomllib
 
 import pytest
 
-from doc_blocks import ROOT, fenced_blocks
-from hilident.config import parse_config
-from hilident.drivers import load_driver
+from hilident.config.tables import parse_config
+from hilident.drivers.description import load_driver
 from hilident.errors import ConfigError
-from vendor_drives import RECORDERS, VendorDrive, eds_text
+from support.doc_blocks import ROOT, fenced_blocks
+from support.vendor_drives import RECORDERS, VendorDrive, eds_text
 
 DOCS = ROOT / "docs"
 
@@ -22,7 +22,7 @@ def blocks(name: str, lang: str) -> list[str]:
 
 
 def test_the_acquisition_table_in_adapters_md_is_the_codes():
-    from hilident.adapters import canopen_drive
+    from hilident.adapters.canopen import drive as canopen_drive
 
     (snippet,) = blocks("adapters.md", "python")
     namespace = dict(vars(canopen_drive))

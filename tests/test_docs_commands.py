@@ -13,7 +13,8 @@ import tomllib
 import pytest
 import tomli_w
 
-from doc_blocks import (
+from hilident.cli.main import build_parser, main
+from support.doc_blocks import (
     DOCUMENTS,
     ROOT,
     fenced_blocks,
@@ -24,7 +25,6 @@ from doc_blocks import (
     split_synopsis,
     subcommand_parsers,
 )
-from hilident.cli import build_parser, main
 
 PARSER = build_parser()
 COMMANDS = subcommand_parsers(PARSER)
@@ -190,7 +190,7 @@ def test_the_readme_flow_for_a_scope_export_runs_as_written(scratch, capsys):
     """``identify scope_export.csv --config axis.toml``, then ``upload --dry-run`` and ``upload --yes --save``
     into ``drive.toml``: the export is a recording of the gantry twin written as a scope would (time, torque,
     velocity columns), ``axis.toml`` maps it, ``drive.toml`` is the DSY-RS twin."""
-    from hilident.recording import read_run
+    from hilident.io.recording import read_run
 
     commands = block_after("Modbus drive with a parameter map only) is:")
     assert [c[0] for c in commands] == ["identify", "upload", "upload"]

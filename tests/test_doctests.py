@@ -19,7 +19,8 @@ MIN_IDENT_EXAMPLES = 137
 def _module_names() -> list[str]:
     names = [hilident.__name__]
     for info in pkgutil.walk_packages(hilident.__path__, prefix=f"{hilident.__name__}."):
-        names.append(info.name)
+        if not info.name.endswith(".__main__"):  # running it is the command itself
+            names.append(info.name)
     return sorted(names)
 
 

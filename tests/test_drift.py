@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 from matplotlib.colors import to_hex
 
-from hilident.drift_json import write_drift_json
 from hilident.errors import DataError
 from hilident.html_report.batch import BATCH_SECTIONS, write_batch_report
 from hilident.ident.drift import axis_drifts, drift_trend
+from hilident.io.drift_json import write_drift_json
 from hilident.plots.drift import FLAGGED_COLOUR, PANELS_PER_FIGURE, drift_figures
-from report_page import Page, check_self_contained
+from support.report_page import Page, check_self_contained
 
 T0 = dt.datetime(2026, 10, 1, 2, 0, tzinfo=dt.UTC)
 
@@ -329,7 +329,7 @@ def test_drift_json_holds_every_axis_and_the_flagged_ones(fleet, tmp_path):
 
 
 def test_the_python_example_of_docs_drift_md_runs_and_flags(capsys):
-    from doc_blocks import ROOT, fenced_blocks
+    from support.doc_blocks import ROOT, fenced_blocks
 
     (snippet,) = [b.text for b in fenced_blocks(ROOT / "docs" / "drift.md") if b.lang == "python"]
     exec(compile(snippet, "docs/drift.md", "exec"), {})

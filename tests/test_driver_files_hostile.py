@@ -17,12 +17,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from hilident.drivers import find_driver, load_driver, load_object_dictionary
+from hilident.drivers.description import find_driver, load_driver, load_object_dictionary
 from hilident.errors import ConfigError
 from hilident.protocol.canopen_objects import CanopenDescription
 from hilident.protocol.filter_encoding import FilterEncoding
 from hilident.protocol.modbus_registers import RegisterMap
-from hostile_toml import toml_string, toml_value
+from support.hostile_toml import toml_string, toml_value
 
 SHIPPED = ("myrio-board", "canopen-servo", "canopen-servo-fixed", "modbus-servo")
 ORIGINALS = {name: tomllib.loads(find_driver(name).text) for name in SHIPPED}

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from hilident.cli import main
-from hilident.driver_tools import check_driver_folder, describe_driver, new_driver_folder
+from hilident.cli.main import main
+from hilident.drivers.tools import check_driver_folder, describe_driver, new_driver_folder
 from hilident.errors import ConfigError, UsageError
 
 FIXTURES = Path(__file__).resolve().parent / "fixtures" / "eds"

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from hilident.drivers import (
+from hilident.drivers.description import (
     available_drivers,
     check_run_against_driver,
     declared_modes,
@@ -112,7 +112,7 @@ def test_a_description_file_read_as_a_path(tmp_path):
 def _gantry(**tables):
     import dataclasses
 
-    from hilident.config import load_config
+    from hilident.config.tables import load_config
 
     cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "emulated-gantry.toml")
     for table, values in tables.items():

@@ -11,17 +11,17 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from hilident.adapters.modbus_drive import ModbusDriveAdapter
-from hilident.config import load_config
-from hilident.drivers import find_driver
+from hilident.adapters.modbus.drive import ModbusDriveAdapter
+from hilident.config.tables import load_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.drive import DriveLoop
 from hilident.emulator.factory import build_drive, start_emulator
 from hilident.emulator.modbus.parameter_firmware import ParameterDriveFirmware
 from hilident.errors import ConfigError, DeviceError
 from hilident.filters.notch import NotchSpec, design_notch
+from hilident.io.summary import UploadOutcome
 from hilident.protocol.modbus_registers import RegisterMap
-from hilident.session import ConnectedDevice, Session
-from hilident.summary import UploadOutcome
+from hilident.session.run import ConnectedDevice, Session
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "emulated-dsy-rs.toml"
 DRIVER = find_driver("dsy-rs")
@@ -272,7 +272,7 @@ def test_a_parameter_twin_with_input_registers_and_an_enable_register():
 
 
 def test_drivers_v_says_what_the_parameter_drive_offers():
-    from hilident.driver_tools import describe_driver
+    from hilident.drivers.tools import describe_driver
 
     caps = next(line for line in describe_driver(DRIVER.folder).splitlines() if "capabilities:" in line)
     assert "parameters PXX.YY at group * 0x100 + index" in caps

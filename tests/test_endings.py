@@ -25,8 +25,8 @@ from pathlib import Path
 
 import pytest
 
-from hilident.recording import read_run
-from twins import HOST_TIMEOUT_S, TRANSPORTS, Twin, finish, host, wait_until
+from hilident.io.recording import read_run
+from support.twins import HOST_TIMEOUT_S, TRANSPORTS, Twin, finish, host, wait_until
 
 #: Exit codes the README documents.
 EXIT = {"sigterm": 143, "sighup": 129, "sigint_twice": 130, "sigkill": -signal.SIGKILL,
@@ -168,7 +168,7 @@ def test_a_second_ctrl_c_after_the_stop_keeps_the_exit_code(tmp_path):
 
     script = textwrap.dedent("""
         import os, signal, sys
-        from hilident import cli
+        from hilident.cli import main as cli
 
         def run(args):  # a session that a Ctrl-C ends
             os.kill(os.getpid(), signal.SIGINT)
@@ -191,7 +191,7 @@ def test_nohup_keeps_sighup_ignored(tmp_path):
 
     script = textwrap.dedent("""
         import os, signal, sys, time
-        from hilident import cli
+        from hilident.cli import main as cli
 
         def run(args):  # a session that gets a SIGHUP, then a SIGTERM
             os.kill(os.getpid(), signal.SIGHUP)

@@ -16,9 +16,9 @@ import pytest
 from scipy import signal
 from scipy.io import loadmat
 
-from exported_summaries import load, summaries
-from hilident import export
-from hilident.cli import main
+from hilident.cli.main import main
+from hilident.io import export
+from support.exported_summaries import load, summaries
 
 RTOL = 1e-9
 MATLAB_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,62}$")

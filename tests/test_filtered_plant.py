@@ -14,7 +14,7 @@ import numpy as np
 from scipy import signal
 
 from hilident import pipeline
-from hilident.config import load_config
+from hilident.config.tables import load_config
 
 FS = 1000.0
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "emulated-gantry.toml"

@@ -13,10 +13,7 @@ import h5py
 import numpy as np
 import pytest
 
-from hilident.cli import main
-from hilident.config import load_config, parse_config
-from hilident.errors import DataError, UsageError
-from hilident.fleet import (
+from hilident.batch.fleet import (
     BASE_TOML,
     DAMAGE_KINDS,
     FLEET_FORMAT,
@@ -28,8 +25,11 @@ from hilident.fleet import (
     truth_rate_percent_per_day,
     write_fleet,
 )
-from hilident.offline import identify_recording
-from hilident.recording import RunWriter, read_run
+from hilident.cli.main import main
+from hilident.config.tables import load_config, parse_config
+from hilident.errors import DataError, UsageError
+from hilident.io.recording import RunWriter, read_run
+from hilident.session.offline import identify_recording
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 AXES, DAYS = 3, 4

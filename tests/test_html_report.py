@@ -21,11 +21,11 @@ from pathlib import Path
 
 import pytest
 
-from hilident.cli import main
+from hilident.cli.main import main
 from hilident.html_report import REPORT_NAME, write_report, write_report_quietly
 from hilident.html_report.advice import group_warnings, split_advice
 from hilident.html_report.sections import SECTIONS
-from report_page import SECTION_IDS, Page, check_report, check_self_contained
+from support.report_page import SECTION_IDS, Page, check_report, check_self_contained
 
 DATA = Path(__file__).resolve().parent / "data" / "html_report"
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -190,7 +190,7 @@ def test_partial_and_odd_summaries_still_give_every_section(tmp_path):
 
 
 def test_recordings_are_linked_and_their_config_is_shown(tmp_path):
-    from hilident.recording import RunWriter
+    from hilident.io.recording import RunWriter
 
     folder = folder_with(tmp_path, "run")
     attrs = {"experiment": "identification", "mode": "torque", "config_toml": "[run]\nseed = 7 # <ok>\n",
@@ -250,8 +250,8 @@ def test_split_advice_keeps_the_remedy_of_a_warning():
 
 def test_run_identify_and_upload_write_their_report(tmp_path, capsys):
     """A real session on the gantry twin, an identify on its recording and an upload of its notch."""
-    from hilident.config import load_config
-    from hilident.session import Session
+    from hilident.config.tables import load_config
+    from hilident.session.run import Session
 
     cfg = load_config(CONFIGS / "emulated-gantry.toml")
     cfg = replace(cfg, emulator=replace(cfg.emulator, link="pipe", time_scale=8.0),

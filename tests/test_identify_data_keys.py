@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from hilident.cli import main
-from schema_check import schema_errors
+from hilident.cli.main import main
+from support.schema_check import schema_errors
 
 FS = 256.0
 PERIOD = 1024

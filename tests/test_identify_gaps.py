@@ -11,12 +11,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hilident import pipeline
-from hilident.cli import main
-from hilident.config import parse_config
-from hilident.drivers import find_driver
+from hilident.cli.main import main
+from hilident.config.tables import parse_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.factory import build_drive, true_modes
 from hilident.errors import DataError
-from hilident.recording import RunWriter
+from hilident.io.recording import RunWriter
 from hilident.signals import multisine
 from test_identify_offline import GANTRY  # the same frictionless gantry
 
@@ -160,7 +160,7 @@ def test_velocity_from_position_is_never_differentiated_across_a_gap(tmp_path, b
     summary = identify(tmp_path, tmp_path / "identification.h5",
                        'torque = "torque_nm"\nposition = "position_m"\nexcitation = "excitation"\n')
     assert summary["data"]["used_rows"] == 3 * PERIOD and summary["data"]["segments"] == 2
-    from hilident.config import DataConfig
+    from hilident.config.tables import DataConfig
     from hilident.datafile import load_dataset
 
     ds = load_dataset(tmp_path / "identification.h5", DataConfig(torque="torque_nm", position="position_m"))
@@ -229,7 +229,7 @@ def test_select_gap_free_segments_break_where_the_clock_jumps():
     'kind = "noise"\nduration_s = 1.0',
 ])
 def test_the_period_identify_assumes_is_the_one_a_bench_run_plays(excitation):
-    from hilident.session import build_excitation
+    from hilident.session.run import build_excitation
 
     cfg = parse_config(f"[run]\nsample_rate_hz = {RATE}\n[excitation]\n{excitation}\n")
     assert pipeline.excitation_period_samples(cfg.excitation, RATE) == build_excitation(cfg).period_samples
@@ -275,7 +275,7 @@ def test_a_grey_box_fit_never_runs_across_a_lost_block(tmp_path, bench_run):
 
 
 def test_the_period_comes_from_an_attribute_or_the_stored_configuration(tmp_path, bench_run):
-    from hilident.config import DataConfig
+    from hilident.config.tables import DataConfig
     from hilident.datafile import load_dataset
 
     table, _ = bench_run
@@ -323,7 +323,7 @@ def test_select_gap_free_keeps_only_whole_gap_free_periods_once(period, n, edits
 
 
 def test_a_stored_configuration_that_does_not_match_the_played_excitation_is_not_trusted(tmp_path, bench_run):
-    from hilident.config import DataConfig
+    from hilident.config.tables import DataConfig
     from hilident.datafile import load_dataset
 
     table, _ = bench_run
@@ -338,7 +338,7 @@ def test_a_stored_configuration_that_does_not_match_the_played_excitation_is_not
 
 
 def test_too_few_whole_periods_fall_back_to_the_longest_stretch(tmp_path, bench_run):
-    from hilident.config import DataConfig
+    from hilident.config.tables import DataConfig
     from hilident.datafile import load_dataset
 
     table, _ = bench_run
@@ -353,7 +353,7 @@ def test_too_few_whole_periods_fall_back_to_the_longest_stretch(tmp_path, bench_
 def test_identify_on_a_bench_recording_finds_what_the_run_found(tmp_path):
     from pathlib import Path
 
-    from hilident.session import Session
+    from hilident.session.run import Session
 
     text = (Path(__file__).resolve().parents[1] / "configs" / "emulated-gantry.toml").read_text()
     text = text.replace('link = "pty"', 'link = "pipe"').replace("time_scale = 4.0", "time_scale = 8.0")

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from hilident.cli import main
-from hilident.config import parse_config
+from hilident.cli.main import main
+from hilident.config.tables import parse_config
 from hilident.errors import ConfigError
 
 RATE = 1000.0

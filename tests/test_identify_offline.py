@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from scipy.io import savemat
 
-from hilident.cli import main
-from hilident.config import parse_config
-from hilident.drivers import find_driver
+from hilident.cli.main import main
+from hilident.config.tables import parse_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.factory import build_drive, true_modes
-from hilident.recording import RunWriter
+from hilident.io.recording import RunWriter
 from hilident.signals import multisine
 
 GANTRY = """

@@ -10,10 +10,10 @@ from pathlib import Path
 import h5py
 import pytest
 
-from hilident.cli import main
-from hilident.config import load_config
-from hilident.session import Session
-from summary_keys import assert_layout
+from hilident.cli.main import main
+from hilident.config.tables import load_config
+from hilident.session.run import Session
+from support.summary_keys import assert_layout
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import tomli_w
 
-from hilident.config import map_positions, parse_config
+from hilident.config.tables import map_positions, parse_config
 from hilident.errors import ConfigError
 
 GANTRY = Path(__file__).resolve().parents[1] / "configs" / "emulated-gantry.toml"

@@ -18,9 +18,9 @@ from dataclasses import replace
 import pytest
 import serial
 
-from hilident.adapters.modbus_drive import ModbusDriveAdapter, NoResponse
-from hilident.config import DeviceConfig, ModbusDeviceConfig, parse_config
-from hilident.drivers import find_driver
+from hilident.adapters.modbus.drive import ModbusDriveAdapter, NoResponse
+from hilident.config.tables import DeviceConfig, ModbusDeviceConfig, parse_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.modbus.pdu import handle, request_length
 from hilident.emulator.modbus.server import start
 from hilident.errors import DeviceError

@@ -12,13 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hilident.adapters.modbus_drive import ModbusDriveAdapter
-from hilident.config import DeviceConfig, load_config
-from hilident.drivers import find_driver
+from hilident.adapters.modbus.drive import ModbusDriveAdapter
+from hilident.config.tables import DeviceConfig, load_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.modbus import server as modbus_server
 from hilident.errors import DataError, DeviceError
-from hilident.recording import read_run
-from hilident.session import Session
+from hilident.io.recording import read_run
+from hilident.session.run import Session
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 CONFIG = CONFIGS / "emulated-modbus-gantry.toml"

@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import signal
 
-from hilident.config import MoveConfig
+from hilident.config.tables import MoveConfig
 from hilident.emulator.drive import DriveLoop, DriveTuning
 from hilident.emulator.plant import Plant, TwoMass
 from hilident.emulator.sensors import SensorModel
@@ -21,7 +21,7 @@ from hilident.filters.notch import NotchSpec, design_notch
 from hilident.motion.mode_excitation import GOOD_EXCITATION, exciting_move, mode_excitation, peak_acceleration
 from hilident.motion.profiles import trapezoid
 from hilident.motion.shaping import shape_move
-from hilident.move_test import excitations, move_profile, weak_excitation_warning
+from hilident.session.move_test import excitations, move_profile, weak_excitation_warning
 
 RATE = 10_000.0  # fine sampling: the closed form is for the continuous move
 

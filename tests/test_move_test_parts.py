@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from hilident.config import MoveConfig
+from hilident.config.tables import MoveConfig
 from hilident.errors import DataError
 from hilident.filters.biquad import Biquad
-from hilident.move_test import DriveNotch, above_floor_db, measured_signal, move_distance, standstill_rms
+from hilident.session.move_test import DriveNotch, above_floor_db, measured_signal, move_distance, standstill_rms
 
 MOVE = MoveConfig(distance_m=0.2, max_velocity_mps=0.3, max_accel_mps2=2.0)
 
@@ -70,7 +70,7 @@ def test_the_drive_notch_is_off_for_the_move_without_it_and_back_after_even_on_a
 
 
 def test_the_cli_line_gives_the_worst_move_and_how_many_rang_no_more_than_at_rest(capsys):
-    from hilident.cli import _print_moves
+    from hilident.cli.main import _print_moves
 
     moves = [{"start_m": -0.5, "rms_reduction_db": 16.0, "peak_to_peak_reduction_db": 21.0,
               "standstill_rms_m": 1e-5, "rms_reduction_above_standstill_db": None},

@@ -5,7 +5,7 @@ the excited band, now and then a mass-spring-damper), random friction and a
 random excitation amplitude from far too weak to ample go through the
 emulator's own physics (:func:`hilident.emulator.factory.build_drive`, the
 board's sample divider, no wire protocol) and the session's own analysis
-(:func:`hilident.session.build_excitation`, :func:`pipeline.select_gap_free`,
+(:func:`hilident.session.run.build_excitation`, :func:`pipeline.select_gap_free`,
 :func:`pipeline.identify_plant`, :func:`pipeline.notch_decision`). Every
 resonance a notch would be designed for must lie within 0.5 % of a true
 mode (:func:`hilident.emulator.factory.true_modes`); when none is, the
@@ -28,13 +28,13 @@ from hypothesis import HealthCheck, Phase, event, example, given, settings
 from hypothesis import strategies as st
 
 from hilident import pipeline
-from hilident.config import parse_config
-from hilident.drivers import find_driver
+from hilident.config.tables import parse_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.clock import TablePlayer
 from hilident.emulator.factory import build_drive, true_modes
 from hilident.errors import DataError
 from hilident.ident.friction import StribeckParams
-from hilident.session import build_excitation
+from hilident.session.run import build_excitation
 
 #: Largest relative error of a notched resonance against the true mode.
 TOLERANCE = 0.005

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hilident.offline import excitation_lines, line_coherence
+from hilident.session.offline import excitation_lines, line_coherence
 
 N = 1024
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from hilident import report
 from hilident.errors import DataError
 from hilident.filters.biquad import Biquad
+from hilident.plots import figures as report
 from hilident.plots.bode import PER_CURVE, bode_figure, branch_phase_deg
 from hilident.plots.common import channel_unit, config_name, plot_title, ratio_unit
 from hilident.plots.friction import friction_figure, friction_parameter_lines
@@ -321,7 +321,7 @@ def test_plot_run_passes_units_band_title_and_the_stored_notch(tmp_path, monkeyp
 
 
 def test_identify_writes_bode_and_model_plots(tmp_path):
-    from hilident.cli import main
+    from hilident.cli.main import main
     from test_identify_offline import STIFF_MSD, identify_config, simulate, write_csv
 
     _, cols = simulate(STIFF_MSD, f_min=1.0, f_max=40.0, amplitude=50.0, periods=2)
@@ -334,8 +334,8 @@ def test_identify_writes_bode_and_model_plots(tmp_path):
 
 
 def test_run_prints_the_friction_parameters_with_their_units(tmp_path, monkeypatch, capsys):
-    import hilident.session
-    from hilident.cli import main
+    import hilident.session.run
+    from hilident.cli.main import main
 
     summary = {"resonances": [], "excitation": {}, "model": None, "verification": {"peak_reduction_db": None},
                "upload": {}, "warnings": [],
@@ -351,7 +351,7 @@ def test_run_prints_the_friction_parameters_with_their_units(tmp_path, monkeypat
         def run(self):
             return summary
 
-    monkeypatch.setattr(hilident.session, "Session", FakeSession)
+    monkeypatch.setattr(hilident.session.run, "Session", FakeSession)
     config = Path(__file__).resolve().parents[1] / "configs" / "emulated-gantry.toml"
     assert main(["run", str(config), "--out", str(tmp_path), "-q"]) == 0
     out = capsys.readouterr().out
@@ -371,7 +371,7 @@ def test_greybox_records_split_as_the_fit_does():
 def test_a_bench_run_with_a_grey_box_model_draws_it(tmp_path):
     from dataclasses import replace
 
-    from hilident.session import Session
+    from hilident.session.run import Session
     from test_session_e2e import gantry_variant
 
     cfg = gantry_variant()

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from hilident.cli import main
+from hilident.cli.main import main
 
 DATA = Path(__file__).parent / "data" / "daisy_robot_arm.csv"
 PERIOD = 1024

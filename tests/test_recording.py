@@ -1,4 +1,4 @@
-"""Tests of hilident.recording: HDF5 run files written while streaming."""
+"""Tests of hilident.io.recording: HDF5 run files written while streaming."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from hilident.errors import DataError
-from hilident.recording import FORMAT, RunData, RunWriter, read_run
+from hilident.io.recording import FORMAT, RunData, RunWriter, read_run
 
 CHANNELS = ["position", "velocity", "torque"]
 UNITS = ["m", "m/s", "N*m"]
@@ -168,7 +168,7 @@ def test_crash_mid_run_leaves_readable_file(tmp_path):
     path = tmp_path / "crash.h5"
     script = textwrap.dedent(f"""
         import os, numpy as np
-        from hilident.recording import RunWriter
+        from hilident.io.recording import RunWriter
         rec = RunWriter({str(path)!r}, {CHANNELS!r}, {UNITS!r}, {RATE_HZ!r}, attrs={{"seed": 5}})
         rng = np.random.default_rng(0)
         for i in range(5):
@@ -375,7 +375,7 @@ def test_a_really_full_disk_keeps_the_good_rows_and_never_crashes(small_filesyst
     script = textwrap.dedent(f"""
         import numpy as np
         from hilident.errors import DataError
-        from hilident.recording import RunWriter, read_run
+        from hilident.io.recording import RunWriter, read_run
         if not {margin}:
             RunWriter._check_space = lambda self, nbytes: None
         rec = RunWriter({str(small_filesystem / "run.h5")!r}, ["a", "b", "c"], ["1", "1", "1"], 1000.0)
@@ -399,7 +399,7 @@ def test_a_crashed_writer_leaves_the_flushed_rows_and_says_running(tmp_path):
     path = tmp_path / "run.h5"
     script = textwrap.dedent(f"""
         import os, signal, numpy as np
-        from hilident.recording import RunWriter
+        from hilident.io.recording import RunWriter
         rec = RunWriter({str(path)!r}, ["a"], ["1"], 1000.0)
         for i in range(5):
             rec.append(np.full((1000, 1), 1.0 + i))

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fresh_recording import TRANSPORT_CONFIGS, record
-from hilident.recording import read_run
+from hilident.io.recording import read_run
+from support.fresh_recording import TRANSPORT_CONFIGS, record
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "recording.md"
 SNIPPETS = re.findall(r"^```python\n(.*?)^```", DOC.read_text(encoding="utf-8"), flags=re.S | re.M)

@@ -1,4 +1,4 @@
-"""Tests of hilident.report: plots and summary.json."""
+"""Tests of hilident.plots.figures: plots and summary.json."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ import pytest
 from scipy import signal
 
 from hilident.errors import DataError
-from hilident.report import plot_bode, plot_friction, plot_timeseries, to_jsonable, write_summary
+from hilident.plots.figures import plot_bode, plot_friction, plot_timeseries, to_jsonable, write_summary
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

@@ -25,12 +25,12 @@ import numpy as np
 import pytest
 import tomli_w
 
-from hilident.cli import main
-from hilident.config import load_config
+from hilident.cli.main import main
+from hilident.config.tables import load_config
 from hilident.emulator.factory import true_modes
 from hilident.errors import DeviceError
-from hilident.recording import read_run
-from hilident.session import Session
+from hilident.io.recording import read_run
+from hilident.session.run import Session
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 

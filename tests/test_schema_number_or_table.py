@@ -6,8 +6,8 @@ from dataclasses import dataclass
 
 import pytest
 
+from hilident.config.schema import build_table, spec
 from hilident.errors import ConfigError
-from hilident.schema import build_table, spec
 
 
 @dataclass(frozen=True)

@@ -11,16 +11,16 @@ import numpy as np
 import pytest
 
 from hilident.adapters.base import adapter_class
-from hilident.cli import main
-from hilident.config import load_config
-from hilident.drivers import find_driver
+from hilident.cli.main import main
+from hilident.config.tables import load_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.factory import true_modes
-from hilident.recording import read_run
-from hilident.session import Session
-from report_page import check_report
-from schema_check import schema_errors
-from summary_keys import assert_layout
-from twins import assert_friction_matches
+from hilident.io.recording import read_run
+from hilident.session.run import Session
+from support.report_page import check_report
+from support.schema_check import schema_errors
+from support.summary_keys import assert_layout
+from support.twins import assert_friction_matches
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 from matplotlib.colors import to_rgba
 
-from fresh_recording import TRANSPORT_CONFIGS, record
-from hilident import show
-from hilident.cli import main
+from hilident.cli.main import main
 from hilident.errors import UsageError
 from hilident.events import Kind, RunEvent
-from hilident.recording import RunWriter, read_run
+from hilident.io.recording import RunWriter, read_run
+from hilident.plots import show
+from support.fresh_recording import TRANSPORT_CONFIGS, record
 
 RATE_HZ = 1000.0
 NAMES = ["sample_index", "time_s", "excitation", "torque_nm", "velocity_mps", "position_m", "load_position_m"]

@@ -28,7 +28,7 @@ PROBE = textwrap.dedent(
     argv = json.loads(sys.argv[1])
     code = None
     if argv is not None:
-        from hilident.cli import main
+        from hilident.cli.main import main
         try:
             code = main(argv)
         except SystemExit as exc:
@@ -52,7 +52,7 @@ def probe(argv: list[str] | None, statement: str = "", cwd: Path | None = None) 
 
 
 def test_importing_the_cli_imports_no_analysis_or_plotting():
-    report, _ = probe(None, "import hilident.cli")
+    report, _ = probe(None, "import hilident.cli.main")
     assert report["heavy"] == []
 
 
@@ -133,11 +133,11 @@ def test_every_public_name_resolves():
 
 
 def test_public_names_are_the_objects_of_their_modules():
-    from hilident.config import load_config
+    from hilident.config.tables import load_config
     from hilident.errors import ConfigError
-    from hilident.offline import identify_recording
-    from hilident.recording import RunData, read_run
-    from hilident.session import Session
+    from hilident.io.recording import RunData, read_run
+    from hilident.session.offline import identify_recording
+    from hilident.session.run import Session
 
     assert hilident.load_config is load_config
     assert hilident.Session is Session

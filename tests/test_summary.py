@@ -6,9 +6,9 @@ import json
 
 from hilident.adapters.base import StreamStats
 from hilident.events import Kind, RunEvent
-from hilident.recording import RunWriter, read_run
-from hilident.serialise import write_json
-from hilident.summary import (
+from hilident.io.recording import RunWriter, read_run
+from hilident.io.serialise import write_json
+from hilident.io.summary import (
     LAYOUTS,
     DevicePart,
     ExcitationPart,
@@ -82,7 +82,7 @@ def test_the_recording_logs_typed_events_with_their_fields_in_the_data_column(tm
 
 
 def test_a_map_run_carries_its_map_workspace_and_move_test_last():
-    from hilident.workspace_map import MapPoint
+    from hilident.session.map_positions import MapPoint
 
     point = MapPoint(0.1, 0.1004, 21.3, 0.018, 0.03, 0.99, "map_0.h5")
     out = _run(model=None, workspace_map=[point], workspace={"joint_fit": None}, move_test=[]).to_dict()
@@ -94,7 +94,7 @@ def test_a_map_run_carries_its_map_workspace_and_move_test_last():
 def test_a_move_test_whose_worst_place_gained_nothing_reports_zero_not_the_best_place():
     from types import SimpleNamespace
 
-    from hilident.summary import move_test_summary
+    from hilident.io.summary import move_test_summary
 
     def result(start_m, reduction_db):
         return SimpleNamespace(to_dict=lambda: {"start_m": start_m, "rms_reduction_db": reduction_db})

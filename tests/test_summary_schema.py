@@ -8,9 +8,9 @@ import pytest
 
 jsonschema = pytest.importorskip("jsonschema")
 
-from exported_summaries import load, summaries  # noqa: E402
+from hilident.io.summary import LAYOUTS  # noqa: E402
 from hilident.schemas import summary_schema  # noqa: E402
-from hilident.summary import LAYOUTS  # noqa: E402
+from support.exported_summaries import load, summaries  # noqa: E402
 
 
 @pytest.fixture(scope="module")

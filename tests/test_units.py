@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from fresh_recording import TRANSPORT_CONFIGS, record, twin_device
-from hilident.recording import RunWriter, read_run
+from hilident.io.recording import RunWriter, read_run
 from hilident.units import EXCITATION_UNIT_OF_MODE, display_unit, recorded_units, units_in_mode
+from support.fresh_recording import TRANSPORT_CONFIGS, record, twin_device
 
 #: Units of the channels whose unit never depends on the mode.
 FIXED_UNITS = {"sample_index": "1", "time_s": "s", "torque_nm": "N*m", "torque_cmd_nm": "N*m", "position_m": "m",

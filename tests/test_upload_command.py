@@ -11,18 +11,18 @@ from pathlib import Path
 import pytest
 
 from hilident import pipeline
-from hilident.adapters.serial_board import SerialBoardAdapter
-from hilident.cli import main
-from hilident.config import load_config
+from hilident.adapters.serial.board import SerialBoardAdapter
+from hilident.cli.main import main
+from hilident.config.tables import load_config
 from hilident.errors import DataError, DeviceError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec, design_notch
 from hilident.ident.resonance import Resonance
-from hilident.upload import UploadCommand
-from schema_check import schema_errors
-from summary_keys import assert_layout
-from twins import Twin
-from vendor_drives import VendorDrive, write_vendor_drive
+from hilident.session.upload import UploadCommand
+from support.schema_check import schema_errors
+from support.summary_keys import assert_layout
+from support.twins import Twin
+from support.vendor_drives import VendorDrive, write_vendor_drive
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 ZETA = 0.018
@@ -151,7 +151,7 @@ def faulty(base, bad_slot: int):
 
 def test_a_failing_read_back_rolls_every_slot_back_and_exits_with_a_partial_summary(tmp_path, locks, capsys,
                                                                                     monkeypatch, serial_twin):
-    from hilident import session
+    from hilident.session import run as session
 
     old = SerialBoardAdapter.stored_form(design_notch(NotchSpec(50.0, 10.0, 20.0), 4000.0))  # as the board holds it
     serial_twin.emu.drive.filters.write(0, old, True)  # an older notch the drive runs now
@@ -179,7 +179,7 @@ def test_a_signal_during_the_upload_puts_every_slot_back_and_exits_143(tmp_path,
     import os
     import signal
 
-    from hilident import session
+    from hilident.session import run as session
 
     old = SerialBoardAdapter.stored_form(design_notch(NotchSpec(50.0, 10.0, 20.0), 4000.0))
     serial_twin.emu.drive.filters.write(0, old, True)
@@ -214,7 +214,7 @@ def vendor_config(tmp_path: Path):
 
 
 def test_save_stores_only_after_every_slot_read_back(tmp_path, monkeypatch):
-    from hilident import session
+    from hilident.session import run as session
 
     cfg = vendor_config(tmp_path)
     source = write_source(tmp_path / "run", 21.79, 4000.0)
@@ -321,7 +321,7 @@ def test_identify_a_recording_then_upload_its_notch_to_the_modbus_twin(tmp_path)
 
     import tomli_w
 
-    from twins import quick
+    from support.twins import quick
 
     raw = quick(tomllib.loads((CONFIGS / "emulated-gantry.toml").read_text()), "serial")
     raw["excitation"]["duration_s"] = 6.0

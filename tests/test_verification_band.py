@@ -8,7 +8,7 @@ import pytest
 from scipy import signal
 
 from hilident import pipeline
-from hilident.config import IdentificationConfig, NotchConfig
+from hilident.config.tables import IdentificationConfig, NotchConfig
 from hilident.filters.notch import NotchSpec, design_notch
 from hilident.ident.frequency import FrequencyResponse
 from hilident.ident.resonance import RejectedPeak, Resonance
@@ -199,7 +199,7 @@ def test_a_misfitting_model_confirms_nothing_and_says_so():
 
 
 def test_a_count_key_takes_a_number_or_its_text(tmp_path):
-    from hilident.config import load_config
+    from hilident.config.tables import load_config
     from hilident.errors import ConfigError
 
     base = (Path(__file__).resolve().parents[1] / "configs" / "emulated-gantry.toml").read_text()

@@ -2,8 +2,8 @@
 
 from pathlib import Path
 
-import hilident.session
-from hilident.cli import main
+import hilident.session.run
+from hilident.cli.main import main
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "emulated-gantry.toml"
 
@@ -23,7 +23,7 @@ class _FakeSession:
 
 
 def test_verification_line_leads_with_the_band_figure(tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr(hilident.session, "Session", _FakeSession)
+    monkeypatch.setattr(hilident.session.run, "Session", _FakeSession)
     assert main(["run", str(CONFIG), "--out", str(tmp_path), "-q", "--no-plots"]) == 0
     (line,) = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("verification:")]
     assert line.index("21.4 dB") < line.index("32.5 dB")

@@ -17,7 +17,7 @@ import pytest
 from scipy import signal
 
 from hilident import pipeline
-from hilident.config import IdentificationConfig
+from hilident.config.tables import IdentificationConfig
 from hilident.errors import DataError
 from hilident.ident.frequency import periodic_frf
 from hilident.ident.frfquality import estimate_error_std
@@ -174,11 +174,11 @@ class _Bench:
 def _verified_run(noise: float, verify_max_duration_s: float = 0.0):
     """A one-position map, measured before on ``_Bench``, then verified with two staggered notches enabled
     (about 35 dB over the band figure's band): ``(verification summary, the bench, the run's warnings)``."""
-    from hilident.config import load_config
+    from hilident.config.tables import load_config
     from hilident.filters.notch import NotchSpec, design_notch
-    from hilident.run_excitation import build_excitation
-    from hilident.workspace_map import MAP_MODE, MapPoint
-    from hilident.workspace_run import WorkspaceRun
+    from hilident.session.excitation import build_excitation
+    from hilident.session.map_positions import MAP_MODE, MapPoint
+    from hilident.session.map_run import WorkspaceRun
 
     cfg = load_config(MAP_CONFIG)
     cfg = replace(cfg, run=replace(cfg.run, sample_rate_hz=FS),

@@ -4,7 +4,7 @@ import numpy as np
 from scipy import signal
 
 from hilident import pipeline
-from hilident.config import ModelConfig
+from hilident.config.tables import ModelConfig
 
 
 def test_residual_warnings_name_the_failed_test():

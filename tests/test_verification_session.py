@@ -8,11 +8,11 @@ from pathlib import Path
 
 import pytest
 
-from hilident.config import load_config
+from hilident.config.tables import load_config
 from hilident.emulator.factory import true_modes
 from hilident.errors import DataError
-from hilident.session import Session
-from schema_check import schema_errors
+from hilident.session.run import Session
+from support.schema_check import schema_errors
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 

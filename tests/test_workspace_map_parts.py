@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import tomli_w
 
-from hilident.config import parse_config
-from hilident.workspace_map import MAX_SETTLES, move_axis, nearest_resonance
+from hilident.config.tables import parse_config
+from hilident.session.map_positions import MAX_SETTLES, move_axis, nearest_resonance
 
 MAP_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "emulated-gantry-map.toml"
 CFG = parse_config(MAP_CONFIG.read_text(), str(MAP_CONFIG))

@@ -15,13 +15,13 @@ import pytest
 import tomli_w
 from scipy import signal
 
-from hilident.config import parse_config
-from hilident.drivers import find_driver
+from hilident.config.tables import parse_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.factory import true_modes
-from hilident.session import Session
-from report_page import check_report
-from schema_check import schema_errors
-from twins import quick
+from hilident.session.run import Session
+from support.report_page import check_report
+from support.schema_check import schema_errors
+from support.twins import quick
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 MAP_CONFIG = CONFIGS / "emulated-gantry-map.toml"

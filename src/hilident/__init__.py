@@ -23,27 +23,27 @@ TYPE_CHECKING = False  # as typing.TYPE_CHECKING (type checkers take it so) with
 if TYPE_CHECKING:
     from typing import Any
 
-    from hilident.config import Config, load_config, parse_config
+    from hilident.config.tables import Config, load_config, parse_config
     from hilident.datafile import Dataset, load_dataset
     from hilident.errors import ConfigError, DataError, DeviceError, HilidentError, UsageError
-    from hilident.offline import identify_recording
-    from hilident.offline import identify_recording as identify
+    from hilident.io.recording import RunData, RunWriter, read_run
     from hilident.progress import Progress
-    from hilident.recording import RunData, RunWriter, read_run
-    from hilident.session import Session
+    from hilident.session.offline import identify_recording
+    from hilident.session.offline import identify_recording as identify
+    from hilident.session.run import Session
 
 #: Public name -> (module, attribute) it is loaded from.
 _PUBLIC: dict[str, tuple[str, str]] = {
-    "Config": ("hilident.config", "Config"),
-    "load_config": ("hilident.config", "load_config"),
-    "parse_config": ("hilident.config", "parse_config"),
-    "Session": ("hilident.session", "Session"),
+    "Config": ("hilident.config.tables", "Config"),
+    "load_config": ("hilident.config.tables", "load_config"),
+    "parse_config": ("hilident.config.tables", "parse_config"),
+    "Session": ("hilident.session.run", "Session"),
     "Progress": ("hilident.progress", "Progress"),
-    "identify": ("hilident.offline", "identify_recording"),
-    "identify_recording": ("hilident.offline", "identify_recording"),
-    "read_run": ("hilident.recording", "read_run"),
-    "RunData": ("hilident.recording", "RunData"),
-    "RunWriter": ("hilident.recording", "RunWriter"),
+    "identify": ("hilident.session.offline", "identify_recording"),
+    "identify_recording": ("hilident.session.offline", "identify_recording"),
+    "read_run": ("hilident.io.recording", "read_run"),
+    "RunData": ("hilident.io.recording", "RunData"),
+    "RunWriter": ("hilident.io.recording", "RunWriter"),
     "load_dataset": ("hilident.datafile", "load_dataset"),
     "Dataset": ("hilident.datafile", "Dataset"),
     "HilidentError": ("hilident.errors", "HilidentError"),

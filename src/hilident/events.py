@@ -3,7 +3,7 @@
 Every adapter makes its run events as :class:`RunEvent` and logs them with
 :meth:`~hilident.adapters.base.AdapterBase.log_event`, which appends
 :meth:`RunEvent.to_dict` to ``adapter.events``. The recording's event log
-takes the same typed events (:meth:`hilident.recording.RunWriter.log`):
+takes the same typed events (:meth:`hilident.io.recording.RunWriter.log`):
 ``kind``, ``message`` and ``sample_index`` go to their columns of the
 ``/events`` table, every other field to the ``data`` column.
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from hilident.config import IdentificationConfig, ModelConfig, NotchConfig
+from hilident.config.tables import IdentificationConfig, ModelConfig, NotchConfig
 from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec, design_notch, interval_width_hz, notch_from_resonance

@@ -68,7 +68,7 @@ def recorded_units(units: Mapping[str, str], attrs: Mapping[str, Any]) -> dict[s
     Parameters
     ----------
     units : mapping of str to str
-        Channel name to the unit stored in the file (:attr:`hilident.recording.RunData.units`).
+        Channel name to the unit stored in the file (:attr:`hilident.io.recording.RunData.units`).
     attrs : mapping
         The recording's root attributes; ``mode`` says what the excitation was played into.
 

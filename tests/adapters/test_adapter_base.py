@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from hilident.adapters.base import AdapterBase, RunStrategy
-from hilident.adapters.events import Kind, RunEvent
 from hilident.errors import DataError, DeviceError, LimitTrip
+from hilident.events import Kind, RunEvent
 from hilident.filters.biquad import Biquad
 from hilident.protocol import serial_board as sb
 
@@ -213,8 +213,8 @@ def test_fault_kinds_end_a_run():
 
 
 def test_canopen_acquisitions_are_one_table():
-    from hilident.adapters.canopen_buffered import BufferedRun
-    from hilident.adapters.canopen_drive import ACQUISITIONS
-    from hilident.adapters.canopen_streamed import StreamedRun
+    from hilident.adapters.canopen.buffered import BufferedRun
+    from hilident.adapters.canopen.drive import ACQUISITIONS
+    from hilident.adapters.canopen.streamed import StreamedRun
 
     assert ACQUISITIONS["streamed"] == StreamedRun.play and ACQUISITIONS["buffered"] == BufferedRun.play

@@ -14,7 +14,7 @@ import can
 import numpy as np
 import pytest
 
-from hilident.adapters.canopen_trace import TRACE_CHANNEL, FrameTrace, TraceClock, TracingNetwork
+from hilident.adapters.canopen.trace import TRACE_CHANNEL, FrameTrace, TraceClock, TracingNetwork
 
 FORMATS = ("asc", "blf")
 READERS = {"asc": can.ASCReader, "blf": can.BLFReader}
@@ -285,9 +285,9 @@ CONFIG = Path(__file__).resolve().parents[2] / "configs" / "emulated-canopen-gan
 
 @pytest.mark.parametrize("fmt", FORMATS)
 def test_an_emulated_run_writes_a_clean_trace(tmp_path, fmt):
-    from hilident.adapters.canopen_drive import CanopenDriveAdapter
-    from hilident.config import load_config
-    from hilident.drivers import find_driver
+    from hilident.adapters.canopen.drive import CanopenDriveAdapter
+    from hilident.config.tables import load_config
+    from hilident.drivers.description import find_driver
     from hilident.emulator.canopen.server import start
 
     cfg = load_config(CONFIG)

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from hilident.adapters.base import adapter_class
-from hilident.adapters.canopen_drive import CanopenDriveAdapter
-from hilident.adapters.canopen_link import bus_arguments, parse_socketcand_port
-from hilident.config import CanopenDeviceConfig, DeviceConfig, load_config
-from hilident.drivers import find_driver, load_driver
+from hilident.adapters.canopen.drive import CanopenDriveAdapter
+from hilident.adapters.canopen.link import bus_arguments, parse_socketcand_port
+from hilident.config.tables import CanopenDeviceConfig, DeviceConfig, load_config
+from hilident.drivers.description import find_driver, load_driver
 from hilident.emulator.canopen.server import start
 from hilident.errors import ConfigError, DeviceError, LimitTrip
 from hilident.filters.notch import NotchSpec, design_notch
@@ -301,7 +301,7 @@ def test_the_parts_state_class_declares_for_the_type_checker_only():
     # A method defined on CanopenState at run time would come before AdapterBase's in the adapter's MRO and
     # silently replace it (log_event, note_fault): the class holds annotations and TYPE_CHECKING stubs only.
     from hilident.adapters.base import AdapterBase
-    from hilident.adapters.canopen_common import CanopenState
+    from hilident.adapters.canopen.common import CanopenState
 
     assert {name for name in vars(CanopenState) if not name.startswith("__")} == set()
     assert "node" in CanopenState.__annotations__ and "desc" in CanopenState.__annotations__

@@ -15,9 +15,9 @@ import pytest
 import serial
 from pymodbus.exceptions import ModbusIOException
 
-from hilident.adapters.modbus_drive import ModbusDriveAdapter
-from hilident.config import DeviceConfig, parse_config
-from hilident.drivers import find_driver, load_driver
+from hilident.adapters.modbus.drive import ModbusDriveAdapter
+from hilident.config.tables import DeviceConfig, parse_config
+from hilident.drivers.description import find_driver, load_driver
 from hilident.emulator.factory import build_drive
 from hilident.emulator.modbus.server import start
 from hilident.errors import ConfigError, DeviceError, LimitTrip
@@ -200,7 +200,7 @@ def test_an_adapter_that_never_identified_the_drive_says_so_before_asking_it_any
 
 
 def test_a_gateway_exception_names_the_device_id_key_where_it_now_lives():
-    from hilident.adapters.modbus_common import _exception_text
+    from hilident.adapters.modbus.common import _exception_text
 
     assert "check [device.modbus] device_id" in _exception_text(10, 3, 7)
     assert "with id 7" in _exception_text(11, 3, 7) and "[device.modbus] device_id" in _exception_text(11, 3, 7)

@@ -1,7 +1,7 @@
-"""Each adapter against its recorded wire transcript, with no twin (``tests/exchanges.py``).
+"""Each adapter against its recorded wire transcript, with no twin (``tests/support/exchanges.py``).
 
 The transcripts in ``tests/data/transcripts/`` were recorded from the twins by
-``tests/record_transcripts.py``: connect and identify, a notch written and read
+``tests/support/record_transcripts.py``: connect and identify, a notch written and read
 back, the stop, the close. A request the transcript does not expect fails the
 test; so does an exchange left unused.
 """
@@ -12,9 +12,9 @@ from dataclasses import replace
 
 import pytest
 
-from exchanges import Exchange, Transcript, UnexpectedExchange, expected_exchanges
 from hilident.adapters.backends import adapter_class
-from record_transcripts import conversation, fixed_serial_sequence, sample_rate_hz, settings
+from support.exchanges import Exchange, Transcript, UnexpectedExchange, expected_exchanges
+from support.record_transcripts import conversation, fixed_serial_sequence, sample_rate_hz, settings
 
 #: Every transcript (``tests/data/transcripts/NAME.json``); Modbus RTU reaches its fake line over ``socket://``.
 TRANSCRIPTS = ["serial", "modbus", "modbus-rtu", "canopen"]

@@ -12,9 +12,9 @@ import pytest
 from cobs import cobs
 from scipy.signal import iirnotch
 
-from hilident.adapters.serial_board import SerialBoardAdapter
-from hilident.config import parse_config
-from hilident.drivers import find_driver
+from hilident.adapters.serial.board import SerialBoardAdapter
+from hilident.config.tables import parse_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.serial.server import start_serial_board
 from hilident.errors import DeviceError, LimitTrip
 from hilident.filters.biquad import Biquad
@@ -446,7 +446,7 @@ def test_a_tcp_line_is_read_in_whole_chunks_and_without_nagle():
 
     import serial as pyserial
 
-    from hilident.adapters.serial_board import _bytes_waiting, _no_nagle
+    from hilident.adapters.serial.board import _bytes_waiting, _no_nagle
 
     server = socketlib.create_server(("127.0.0.1", 0))
     link = pyserial.serial_for_url(f"socket://127.0.0.1:{server.getsockname()[1]}", timeout=0.02)

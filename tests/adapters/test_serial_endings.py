@@ -34,8 +34,8 @@ from test_serial_adapter import (
     wait_until,
 )
 
-from hilident.adapters.serial_board import WATCHDOG_NET, SerialBoardAdapter
-from hilident.config import DeviceConfig
+from hilident.adapters.serial.board import WATCHDOG_NET, SerialBoardAdapter
+from hilident.config.tables import DeviceConfig
 from hilident.emulator.serial.server import start_serial_board
 from hilident.errors import DeviceError, LimitTrip
 from hilident.filters.biquad import Biquad

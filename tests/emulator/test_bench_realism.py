@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from hilident.config import parse_config
-from hilident.drivers import find_driver
+from hilident.config.tables import parse_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.disturbance import ProcessDisturbance
 from hilident.emulator.drive import DriveLoop, DriveTuning
 from hilident.emulator.factory import build_drive

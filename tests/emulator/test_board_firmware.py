@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.signal import iirnotch, lfilter
 
-from hilident.config import parse_config
-from hilident.drivers import find_driver
+from hilident.config.tables import parse_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.device import build_drive
 from hilident.emulator.serial.firmware import BoardFirmware
 from hilident.emulator.serial.server import identity_from_driver

@@ -6,8 +6,8 @@ import math
 
 import pytest
 
-from hilident.config import parse_config
-from hilident.drivers import find_driver
+from hilident.config.tables import parse_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.device import build_drive
 from hilident.emulator.serial.firmware import BoardFirmware
 from hilident.emulator.serial.links import PipeLink

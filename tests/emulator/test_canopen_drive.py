@@ -14,8 +14,8 @@ import pytest
 from canopen.sdo import SdoAbortedError
 
 import canopen
-from hilident.config import CanopenDeviceConfig, DeviceConfig, load_config
-from hilident.drivers import find_driver
+from hilident.config.tables import CanopenDeviceConfig, DeviceConfig, load_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.canopen.server import start, start_socketcand
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec, design_notch

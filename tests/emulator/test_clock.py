@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hilident.config import parse_config
-from hilident.drivers import find_driver
+from hilident.config.tables import parse_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.clock import SimClock, TablePlayer, cut_at
 from hilident.emulator.device import build_drive
 

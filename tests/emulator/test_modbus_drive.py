@@ -10,8 +10,8 @@ import pytest
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
-from hilident.config import DeviceConfig, ModbusDeviceConfig, parse_config
-from hilident.drivers import find_driver
+from hilident.config.tables import DeviceConfig, ModbusDeviceConfig, parse_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.factory import build_drive
 from hilident.emulator.modbus.firmware import ModbusDriveFirmware
 from hilident.emulator.modbus.server import start

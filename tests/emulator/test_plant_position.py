@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 import hilident.emulator.plant as plant_module
-from hilident.config import PositionFunction, load_config, parse_config
-from hilident.drivers import find_driver
+from hilident.config.tables import PositionFunction, load_config, parse_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.coupling import PositionCurve
 from hilident.emulator.factory import build_drive, coupling_curves, plant_model, true_modes
 from hilident.emulator.plant import (

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from hilident.config import NotchConfig
+from hilident.config.tables import NotchConfig
 from hilident.errors import ConfigError, DataError
 from hilident.filters.covering import covering_notch, mapped_modes
 from hilident.filters.notch import width_for_attenuation_hz

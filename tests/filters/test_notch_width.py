@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from hilident.config import NotchConfig, parse_config
+from hilident.config.tables import NotchConfig, parse_config
 from hilident.errors import ConfigError
 from hilident.filters.notch import (
     NotchSpec,

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hilident.config import parse_config
-from hilident.drivers import find_driver
+from hilident.config.tables import parse_config
+from hilident.drivers.description import find_driver
 from hilident.emulator.drive import DriveLoop
 from hilident.emulator.factory import build_drive
 from hilident.emulator.plant import TwoMass, modes, state_matrices

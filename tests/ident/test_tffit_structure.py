@@ -122,7 +122,7 @@ def test_mode_narrower_than_the_line_spacing_is_flagged():
 
 def test_identification_keys_fix_the_structure_of_the_plant_model():
     from hilident import pipeline
-    from hilident.config import parse_config
+    from hilident.config.tables import parse_config
 
     limits = "[limits]\ntorque_nm = 10\nvelocity_mps = 1\nposition_min_m = -1\nposition_max_m = 1\n"
     cfg = parse_config(limits + '[identification]\nmodel_order = "4"\nmodel_integrators = "1"\n'

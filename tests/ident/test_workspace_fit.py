@@ -10,15 +10,15 @@ from scipy import signal
 from hilident.emulator.plant import Plant, StribeckFriction, TwoMass, modes
 from hilident.errors import ConfigError, DataError
 from hilident.ident.frequency import periodic_frf
-from hilident.ident.resonance import find_resonances
-from hilident.ident.workspace import (
+from hilident.ident.map_fit import (
     WorkspaceMode,
     compare_modes,
     fit_workspace_responses,
     fit_workspace_two_mass,
     two_mass_velocity_response,
 )
-from hilident.serialise import to_jsonable
+from hilident.ident.resonance import find_resonances
+from hilident.io.serialise import to_jsonable
 from hilident.signals.generators import multisine
 
 M1, M2, C, B, D = 8.0, 2.0, 10.0, 20.0, 25.0

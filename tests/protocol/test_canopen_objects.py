@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hilident.drivers import find_driver, load_object_dictionary
+from hilident.drivers.description import find_driver, load_object_dictionary
 from hilident.errors import ConfigError, DataError
 from hilident.protocol import canopen_objects as co
 

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from hilident.drivers import find_driver
+from hilident.drivers.description import find_driver
 from hilident.errors import ConfigError, DataError
 from hilident.filters.notch import NotchSpec, design_notch
 from hilident.protocol.modbus_registers import (

@@ -21,9 +21,9 @@ if TYPE_CHECKING:
 ENTRY_POINT_GROUP = "hilident.adapters"
 
 BACKENDS: dict[str, str] = {
-    "serial": "hilident.adapters.serial_board:SerialBoardAdapter",
-    "canopen": "hilident.adapters.canopen_drive:CanopenDriveAdapter",
-    "modbus": "hilident.adapters.modbus_drive:ModbusDriveAdapter",
+    "serial": "hilident.adapters.serial.board:SerialBoardAdapter",
+    "canopen": "hilident.adapters.canopen.drive:CanopenDriveAdapter",
+    "modbus": "hilident.adapters.modbus.drive:ModbusDriveAdapter",
 }
 
 

@@ -24,8 +24,8 @@ from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
 
 if TYPE_CHECKING:
-    from hilident.config import DeviceConfig
-    from hilident.drivers import DriverDescription
+    from hilident.config.tables import DeviceConfig
+    from hilident.drivers.description import DriverDescription
 
 _PROGRESS_S = 0.1  # progress is reported at most this often, and at the end
 

@@ -32,7 +32,7 @@ from hilident.batch.inputs import content_sha256, expand_inputs
 from hilident.batch.table import CSV_NAME, TABLE_NAME, read_rows, write_rows
 from hilident.batch.task import blank_row, fail, identify_task
 from hilident.batch.verdicts import judge_fleet
-from hilident.config import BatchConfig
+from hilident.config.tables import BatchConfig
 from hilident.errors import DataError, HilidentError, UsageError
 
 #: ``--scheduler`` value that runs the tasks in this process, one after the other.
@@ -85,7 +85,7 @@ def config_key(cfg) -> str:
     """
     if cfg is None:
         return hashlib.sha256(b"").hexdigest()
-    from hilident.config import parse_toml
+    from hilident.config.tables import parse_toml
 
     tables = {k: v for k, v in parse_toml(cfg.text, cfg.source).items() if k != "batch"}
     return hashlib.sha256(json.dumps(tables, sort_keys=True, default=str).encode()).hexdigest()
@@ -313,7 +313,7 @@ def _row_key(path: str, content_sha256: str, config_sha256: str) -> tuple[str, .
 
 
 def _keep_summary(path: Path, summary: dict) -> None:
-    from hilident.serialise import write_json
+    from hilident.io.serialise import write_json
 
     try:
         write_json(path, summary)

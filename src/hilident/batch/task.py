@@ -125,8 +125,8 @@ def identify_task(path: str, content_sha256: str, config_text: str | None, confi
     summary = None
     try:
         row.update(recording_identity(path))
-        from hilident.config import parse_config
-        from hilident.offline import analyse_recording
+        from hilident.config.tables import parse_config
+        from hilident.session.offline import analyse_recording
 
         cfg = parse_config(config_text, config_source) if config_text is not None else None
         analysis = analyse_recording(cfg, path)

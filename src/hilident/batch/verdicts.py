@@ -2,7 +2,7 @@
 
 After a batch, the whole table (this batch's rows and those of earlier runs)
 goes through :func:`hilident.ident.drift.axis_drifts` with the ``[batch]``
-settings; ``drift.json`` (:mod:`hilident.drift_json`) and ``report.html``
+settings; ``drift.json`` (:mod:`hilident.io.drift_json`) and ``report.html``
 with the drift view (:mod:`hilident.html_report.batch`) are written beside the
 table, so a nightly run keeps one up-to-date picture of the fleet.
 """
@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from hilident.config import BatchConfig
+    from hilident.config.tables import BatchConfig
     from hilident.ident.drift import DriftTrend
 
 
@@ -41,9 +41,9 @@ def judge_fleet(out: str | Path, rows: Sequence[Mapping[str, Any]], settings: Ba
     dict of str to DriftTrend
         The verdicts, by axis.
     """
-    from hilident.drift_json import write_drift_json
     from hilident.html_report.batch import write_batch_report
     from hilident.ident.drift import axis_drifts
+    from hilident.io.drift_json import write_drift_json
 
     drifts = axis_drifts(rows, settings.drift_percent_per_day, settings.min_recordings, settings.confidence)
     write_drift_json(out, drifts)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hilident.config import DataConfig
+from hilident.config.tables import DataConfig
 from hilident.datafile.columns import read_columns
 from hilident.datafile.raw import RawColumns, listed_names
 from hilident.errors import ConfigError, DataError

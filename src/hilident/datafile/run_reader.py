@@ -30,7 +30,7 @@ def _attr_text(value) -> str:
 def read_hilident(path: Path, names, check=lambda available: None) -> RawColumns:
     import h5py
 
-    from hilident.recording import FORMAT, FORMAT_VERSION
+    from hilident.io.recording import FORMAT, FORMAT_VERSION
 
     if not h5py.is_hdf5(path):
         raise DataError(f"{path}: not an HDF5 file, so not a hilident run file")
@@ -140,7 +140,7 @@ def _recorded_period(attrs, rate: float) -> tuple[int | None, str]:
     text = _attr_text(attrs.get("config_toml", ""))
     if not text.strip():
         return None, "no stored configuration: the excitation period is unknown"
-    from hilident.config import parse_config
+    from hilident.config.tables import parse_config
     from hilident.pipeline import excitation_period_samples
 
     try:
@@ -195,7 +195,7 @@ def read_run_info(path: str | Path, fmt: str = "auto") -> RunInfo | None:
     kind = fmt if fmt != "auto" else FORMAT_OF_SUFFIX.get(path.suffix.lower())
     if kind != "hilident" or not path.is_file() or not h5py.is_hdf5(path):
         return None
-    from hilident.recording import FORMAT
+    from hilident.io.recording import FORMAT
 
     with open_h5(path) as f:
         try:

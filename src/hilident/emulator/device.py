@@ -15,8 +15,8 @@ from typing import Protocol
 
 import numpy as np
 
-from hilident.config import DeviceConfig, EmulatorConfig, PositionFunction
-from hilident.drivers import DriverDescription
+from hilident.config.tables import DeviceConfig, EmulatorConfig, PositionFunction
+from hilident.drivers.description import DriverDescription
 from hilident.emulator.coupling import PositionCurve
 from hilident.emulator.disturbance import ProcessDisturbance
 from hilident.emulator.drive import DriveLoop, DriveTuning

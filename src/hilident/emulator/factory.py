@@ -14,8 +14,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from hilident.config import DeviceConfig, EmulatorConfig, device_table
-from hilident.drivers import DriverDescription
+from hilident.config.tables import DeviceConfig, EmulatorConfig, device_table
+from hilident.drivers.description import DriverDescription
 from hilident.emulator.canopen.server import start as start_canopen
 from hilident.emulator.canopen.server import start_socketcand
 from hilident.emulator.device import (

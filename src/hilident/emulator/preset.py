@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from hilident.config import EmulatorConfig
+from hilident.config.tables import EmulatorConfig
 
 __all__ = ["Realism", "BENCH", "realism"]
 
@@ -89,7 +89,7 @@ def realism(cfg: EmulatorConfig, loop_rate_hz: float) -> Realism:
 
     Examples
     --------
-    >>> from hilident.config import parse_config
+    >>> from hilident.config.tables import parse_config
     >>> r = realism(parse_config("[emulator.drive]\\ntorque_max_nm = 20.0\\n").emulator, 4000.0)
     >>> r.preset, round(r.torque_noise_nm, 6), r.current_loop_hz, r.delay_ticks
     ('bench', 0.06, 1000.0, 1)

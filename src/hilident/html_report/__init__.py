@@ -27,7 +27,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from hilident.serialise import atomic_write
+from hilident.io.serialise import atomic_write
 
 __all__ = ["REPORT_NAME", "write_report", "write_report_quietly"]
 

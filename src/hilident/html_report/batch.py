@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 from hilident.html_report import REPORT_NAME
 from hilident.html_report.markup import MISSING, esc, figure, key_values, note, num, pm, section, table
-from hilident.serialise import atomic_write
+from hilident.io.serialise import atomic_write
 
 if TYPE_CHECKING:
     from hilident.ident.drift import DriftTrend

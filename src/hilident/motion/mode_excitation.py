@@ -13,7 +13,7 @@ acceleration would hold the load at), is the **mode excitation** ``V``:
 * a notch on the set-point lowers ``V``; ``20 log10`` of the ratio is what it takes off the ringing the
   set-point causes.
 
-The move test (:mod:`hilident.move_test`) reports ``V`` with and without the notch at the mode where each
+The move test (:mod:`hilident.session.move_test`) reports ``V`` with and without the notch at the mode where each
 move ends: a move with ``V`` well below 1 rings little more than the axis does at rest, and its "reduction"
 then measures the rest vibration and the friction at the stop, not the notch. :func:`exciting_move` finds
 the velocity and acceleration nearest the configured ones that excite every mode of a set of moves.

@@ -5,10 +5,10 @@ coherence, the model and the designed and stored notch),
 :mod:`~hilident.plots.friction` (friction points and the fitted curve with its
 parameters), :mod:`~hilident.plots.greybox` (a grey-box model simulated
 against the measurement, and its residual tests), :mod:`~hilident.plots.notches`
-(the notch chain as designed and as stored), :mod:`~hilident.plots.workspace`
+(the notch chain as designed and as stored), :mod:`~hilident.plots.map`
 (the mode over the mapped positions), :mod:`~hilident.plots.moves` (a move
 without and with the notch) and :mod:`~hilident.plots.drift` (a batch's resonance
-and damping per axis over the days, the trend and its verdict). :mod:`hilident.report`
+and damping per axis over the days, the trend and its verdict). :mod:`hilident.plots.figures`
 re-exports the plot functions under their old names. matplotlib is imported
 only inside the functions that draw.
 """

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from hilident.errors import DataError
-from hilident.serialise import atomic_write
+from hilident.io.serialise import atomic_write
 
 #: Unit of a channel from its name's suffix (hilident's channel names carry their unit).
 _SUFFIX_UNITS = {"_mps": "m/s", "_m": "m", "_nm": "N·m", "_rad": "rad", "_rads": "rad/s", "_a": "A", "_v": "V"}

@@ -30,9 +30,9 @@ from typing import ClassVar
 
 import numpy as np
 
+from hilident.config.schema import build_table, spec
 from hilident.errors import ConfigError, DataError
 from hilident.protocol.canopen_recorder import RecorderCapability, parse_recorder
-from hilident.schema import build_table, spec
 
 __all__ = [
     "ObjectAddress", "ModeSpec", "FilterObjects", "CanopenDescription", "BOOLEAN", "INTEGER8", "INTEGER16",
@@ -277,7 +277,7 @@ class CanopenDescription:
         """Validate the ``[canopen]`` and ``[filters]`` tables of a parsed driver description.
 
         The scalar keys of ``[canopen]`` and ``[canopen.scaling]`` are typed
-        tables of :mod:`hilident.schema`; objects, modes and channels are checked
+        tables of :mod:`hilident.config.schema`; objects, modes and channels are checked
         against the EDS.
 
         Parameters

@@ -9,7 +9,7 @@ channel-selection objects, a sample period in loop cycles, a trigger, a state,
 and the samples read back by SDO). This module parses and validates the
 vocabulary of ``driver.toml`` that describes them (see ``docs/canopen_drives.md``,
 "Drive generator and recorder"), its keys declared as tables of
-:mod:`hilident.schema` like every other table hilident reads, maps an excitation *recipe* onto the
+:mod:`hilident.config.schema` like every other table hilident reads, maps an excitation *recipe* onto the
 generator's parameters, and computes the signal the generator plays from the
 parameter values it stores, for the host (to compare with what it meant) and
 the emulated twin (which plays it).
@@ -33,8 +33,8 @@ from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
+from hilident.config.schema import build_table, spec
 from hilident.errors import ConfigError
-from hilident.schema import build_table, spec
 
 if TYPE_CHECKING:  # canopen_objects imports this module
     from hilident.protocol.canopen_objects import ObjectAddress
@@ -197,7 +197,7 @@ class RecorderCapability:
 
 # --- parsing ------------------------------------------------------------------------------------
 #
-# The keys are declared as tables of :mod:`hilident.schema` below; what a table cannot say (either ``buffer`` or
+# The keys are declared as tables of :mod:`hilident.config.schema` below; what a table cannot say (either ``buffer`` or
 # ``buffers``, one buffer per channel, the parameter tables each kind needs, PRBS taps and seed, the set-point roles,
 # the objects in the EDS) is checked by the small functions after them.
 

@@ -28,7 +28,7 @@ write outside is refused before it is sent, naming the register).
 The map language
 ----------------
 Each ``[modbus.registers]`` entry goes through the typed schema of
-:mod:`hilident.config` (:class:`_RegisterSpec`): ``address`` or ``parameter``
+:mod:`hilident.config.tables` (:class:`_RegisterSpec`): ``address`` or ``parameter``
 (a vendor code such as ``"P08.02"`` resolved by the rule of
 ``[modbus.parameters]``, :class:`ParameterRule`), ``type``, ``access``,
 ``table`` (holding or input), ``scale``, ``offset``, ``unit``, ``min``,
@@ -76,10 +76,10 @@ from typing import ClassVar, NoReturn
 
 import numpy as np
 
+from hilident.config.schema import build_table
+from hilident.config.schema import spec as _spec
 from hilident.errors import ConfigError, DataError
 from hilident.protocol.filter_encoding import FilterEncoding
-from hilident.schema import build_table
-from hilident.schema import spec as _spec
 
 __all__ = [
     "EXCEPTION_MEANINGS", "TYPES", "CaptureChannel", "Chunk", "FilterSlots", "Register", "RegisterMap", "Window",
@@ -520,7 +520,7 @@ class Register:
 
 @dataclass(frozen=True, kw_only=True)
 class _RegisterSpec:
-    """One ``[modbus.registers]`` entry, validated by the typed schema of :mod:`hilident.config`."""
+    """One ``[modbus.registers]`` entry, validated by the typed schema of :mod:`hilident.config.tables`."""
 
     address: int = _spec(-1, ge=-1, le=65535, doc="0-based protocol address; -1: from `parameter` and the rule")
     parameter: str = _spec("", doc='vendor parameter code resolved by [modbus.parameters] (e.g. "P08.02")')
@@ -1201,7 +1201,7 @@ class RegisterMap:
 
     @classmethod
     def from_driver(cls, driver) -> RegisterMap:
-        """The map of a :class:`~hilident.drivers.DriverDescription` (its ``sections``)."""
+        """The map of a :class:`~hilident.drivers.description.DriverDescription` (its ``sections``)."""
         return cls.parse(driver.sections, driver.filter_slots, str(driver.folder / "driver.toml"))
 
     @classmethod

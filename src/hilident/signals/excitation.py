@@ -1,7 +1,7 @@
 """The identification excitation described by an ``[excitation]`` table, as played.
 
 Pure: the table's fields in (any object with them, e.g.
-:class:`hilident.config.ExcitationConfig`), samples out. The amplitude is
+:class:`hilident.config.tables.ExcitationConfig`), samples out. The amplitude is
 given by the caller (a configured number, or what ``amplitude_nm = "auto"``
 chose).
 

@@ -48,8 +48,8 @@ import numpy as np
 from canopen.sdo import SdoAbortedError
 
 import canopen
-from hilident.config import FaultsConfig
-from hilident.drivers import DriverDescription, load_object_dictionary
+from hilident.config.tables import FaultsConfig
+from hilident.drivers.description import DriverDescription, load_object_dictionary
 from hilident.emulator.canopen.guarding import HostWatch
 from hilident.emulator.canopen.objects import ObjectStore
 from hilident.emulator.canopen.parameters import DriveParameters

@@ -17,8 +17,8 @@ from typing import Protocol
 import numpy as np
 
 import canopen
-from hilident.config import FaultsConfig
-from hilident.drivers import DriverDescription
+from hilident.config.tables import FaultsConfig
+from hilident.drivers.description import DriverDescription
 from hilident.emulator.canopen.setpoints import SetPoints
 from hilident.emulator.clock import SimClock
 from hilident.emulator.drive import DriveLoop

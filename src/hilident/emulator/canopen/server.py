@@ -14,8 +14,8 @@ import time
 from dataclasses import replace
 
 import canopen
-from hilident.config import DeviceConfig, EmulatorConfig
-from hilident.drivers import DriverDescription
+from hilident.config.tables import DeviceConfig, EmulatorConfig
+from hilident.drivers.description import DriverDescription
 from hilident.emulator.canopen.firmware import CanopenDriveFirmware
 from hilident.emulator.canopen.socketcand import SocketcandServer
 from hilident.emulator.device import EmulatedDevice, build_drive

@@ -44,7 +44,7 @@ import math
 
 import numpy as np
 
-from hilident.drivers import DriverDescription
+from hilident.drivers.description import DriverDescription
 from hilident.emulator.clock import Played, TablePlayer
 from hilident.emulator.drive import DriveLoop
 from hilident.errors import ConfigError, DataError

@@ -38,7 +38,7 @@ import math
 
 import numpy as np
 
-from hilident.drivers import DriverDescription
+from hilident.drivers.description import DriverDescription
 from hilident.emulator.drive import DriveLoop
 from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad

@@ -62,8 +62,8 @@ from typing import Protocol
 
 import numpy as np
 
-from hilident.config import DeviceConfig, EmulatorConfig, FaultsConfig
-from hilident.drivers import DriverDescription
+from hilident.config.tables import DeviceConfig, EmulatorConfig, FaultsConfig
+from hilident.drivers.description import DriverDescription
 from hilident.emulator.clock import PacedFirmware, SimClock
 from hilident.emulator.device import EmulatedDevice, build_drive
 from hilident.emulator.drive import DriveLoop

@@ -20,8 +20,8 @@ import time
 from collections import deque
 from dataclasses import replace
 
-from hilident.config import DeviceConfig, EmulatorConfig
-from hilident.drivers import DriverDescription
+from hilident.config.tables import DeviceConfig, EmulatorConfig
+from hilident.drivers.description import DriverDescription
 from hilident.emulator.clock import SimClock
 from hilident.emulator.device import EmulatedDevice, build_drive
 from hilident.emulator.serial.firmware import BoardFirmware

@@ -13,6 +13,7 @@ import numbers
 from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
+from hilident.config.schema import build_table, spec
 from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec, design_notch, quantize_biquad
@@ -35,14 +36,14 @@ from hilident.protocol.filter_encoding.vocabulary import (
     positive,
     stored_coefficients,
 )
-from hilident.schema import build_table, spec
 
 __all__ = ["FilterEncoding"]
 
 
 @dataclass(frozen=True, kw_only=True)
 class _FiltersTable:
-    """The keys of ``[filters]`` that choose and shape the encoding, as :func:`~hilident.schema.build_table` reads them.
+    """The keys of ``[filters]`` that choose and shape the encoding, as
+    :func:`~hilident.config.schema.build_table` reads them.
 
     The table is open: it also holds a word block's keys (:meth:`BlockLayout.from_table`) and where the
     transport keeps the slots. Lists and tables are checked entry by entry by :class:`FilterEncoding`
@@ -211,7 +212,7 @@ class FilterEncoding:
         """Build from a driver description's ``[filters]`` table (keys of other layers are ignored).
 
         The keys go through the typed schema (:class:`_FiltersTable`,
-        :func:`hilident.schema.build_table`), then through the checks of the
+        :func:`hilident.config.schema.build_table`), then through the checks of the
         encoding itself; a word block's keys through :meth:`BlockLayout.from_table`.
 
         Raises

@@ -1,0 +1,160 @@
+"""Filter slots of a CANopen drive: notch coefficients written, read back, saved and restored by SDO.
+
+One part of :class:`~hilident.adapters.canopen.drive.CanopenDriveAdapter`, which composes the parts
+(see that module); a part uses only the attributes and methods
+:class:`~hilident.adapters.canopen.common.CanopenState` declares.
+"""
+
+from __future__ import annotations
+
+from hilident.adapters.canopen.common import (
+    STORE_SIGNATURE,
+    CanopenState,
+)
+from hilident.errors import DataError, DeviceError
+from hilident.filters.biquad import Biquad
+from hilident.filters.notch import NotchSpec
+from hilident.protocol.canopen_objects import (
+    FilterObjects,
+    parse_address,
+)
+from hilident.protocol.filter_encoding import FilterEncoding, Realisation
+
+
+class FilterSlots(CanopenState):
+    """The filter-slot part of :class:`~hilident.adapters.canopen.drive.CanopenDriveAdapter`.
+
+    Slots are described by the driver's filter encoding; ``save_parameters`` stores
+    them in non-volatile memory where the drive has 0x1010.
+    """
+
+    # --- filter slots -----------------------------------------------------------------------------
+
+    def _slot_objects(self) -> tuple[FilterObjects, FilterEncoding]:
+        """The driver's filter objects and their encoding; DeviceError when it describes none."""
+        fo, encoding = self.desc.filters, self.encoding
+        if fo is None or encoding is None:
+            raise DeviceError(f"{self.port}: driver {self.driver.name!r} describes no filter objects")
+        return fo, encoding
+
+    def _filter_slot(self, slot: int) -> tuple[FilterObjects, FilterEncoding]:
+        """The filter objects and encoding of ``slot``; DeviceError for a slot the drive does not have."""
+        fo, encoding = self._slot_objects()
+        slots = self.drive_identity().filter_slots
+        if not 0 <= slot < len(fo.indices) or slot >= slots:
+            raise DeviceError(f"{self.port}: filter slot {slot} (the drive has {slots})")
+        return fo, encoding
+
+    def write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None = None, *, enabled: bool) -> None:
+        """Store a notch in a slot, fitted to what the drive's encoding can hold; it takes effect when enabled.
+
+        With ``spec`` the notch is realised in the encoding (the stored values
+        closest to it, :meth:`FilterEncoding.realise`); without, ``biquad`` is
+        rounded to the encoding.
+        """
+        fo, encoding = self._filter_slot(slot)
+        values = self._realise(spec).fields if spec is not None else encoding.encode(biquad, spec)
+        self._write_slot(fo, encoding, slot, values, enabled)
+
+    def _realise(self, spec: NotchSpec) -> Realisation:
+        """``spec`` realised in the drive's encoding at its filter rate; DeviceError when the slots cannot hold it."""
+        _, encoding = self._slot_objects()
+        try:
+            return encoding.realise(spec, self.drive_identity().loop_rate_hz)
+        except DataError as exc:
+            raise DeviceError(f"{self.port}: the drive's {encoding.kind} filter slots cannot hold the "
+                              f"{spec.center_hz:.4g} Hz notch: {exc}") from None
+
+    def filter_notes(self, spec: NotchSpec) -> tuple[str, ...]:
+        """Why the drive's encoding cannot meet ``spec`` exactly (depth or width out of reach), if it cannot."""
+        return self._realise(spec).notes
+
+    def _write_slot(self, fo: FilterObjects, encoding: FilterEncoding, slot: int, values: dict,
+                    enabled: bool) -> None:
+        if fo.enable_subindex is None:  # the enable lives inside the one block
+            block = values if enabled else encoding.disabled(values)
+            self.write_object(fo.address(slot, "block"), block["block"])
+            return
+        for name, value in values.items():
+            self.write_object(fo.address(slot, name), value)
+        self.write_object(fo.address(slot, "enabled"), int(bool(enabled)))
+
+    def _read_slot(self, fo: FilterObjects, encoding: FilterEncoding, slot: int) -> tuple[dict, bool]:
+        values = {name: self.read_object(fo.address(slot, name)) for name in encoding.fields}
+        if fo.enable_subindex is None:
+            try:
+                return values, bool(encoding.slot_enabled(values))
+            except DataError as exc:
+                raise DeviceError(f"{self.port}: filter slot {slot} (object 0x{fo.indices[slot]:04X}): {exc}") from None
+        return values, bool(self.read_object(fo.address(slot, "enabled")))
+
+    def read_filter(self, slot: int) -> tuple[Biquad, bool]:
+        """The biquad the slot applies, rebuilt from the values read from the drive."""
+        fo, encoding = self._filter_slot(slot)
+        values, enabled = self._read_slot(fo, encoding, slot)
+        try:
+            if fo.enable_subindex is None:  # a block read back disabled: what it holds, as it would run
+                values = encoding.enabled(values)
+            return encoding.applied(values, self.drive_identity().loop_rate_hz), enabled
+        except DataError as exc:
+            raise DeviceError(f"{self.port}: filter slot {slot} (object 0x{fo.indices[slot]:04X}): {exc}") from None
+
+    def stored_form(self, biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
+        """What the drive will run once :meth:`write_filter` stored ``biquad``/``spec``."""
+        if spec is not None:
+            return self._realise(spec).section
+        _, encoding = self._slot_objects()
+        return encoding.stored_form(biquad, spec, self.drive_identity().loop_rate_hz)
+
+    def save_filter(self, slot: int) -> tuple[dict, bool]:
+        """The slot's raw field values and enable flag."""
+        fo, encoding = self._filter_slot(slot)
+        return self._read_slot(fo, encoding, slot)
+
+    def disable_filter(self, slot: int) -> None:
+        """Bypass a slot: its enable to 0 (or its block's state word to bypass); the coefficients stay stored."""
+        fo, encoding = self._filter_slot(slot)
+        if fo.enable_subindex is None:
+            values, _ = self._read_slot(fo, encoding, slot)
+            self._write_slot(fo, encoding, slot, values, False)
+            return
+        self.write_object(fo.address(slot, "enabled"), 0)
+
+    def save_parameters(self) -> str:
+        """Have the drive store its parameters in non-volatile memory (CiA 301 0x1010:1, signature "save").
+
+        ``[canopen.save]`` in the driver description may name another object
+        and value (``object = "0x2F00"``, ``value = 1``) for drives that store
+        by a vendor command.
+
+        Returns
+        -------
+        str
+            What was written, e.g. ``"0x1010:1 (Save all parameters) = 0x65766173"``.
+
+        Raises
+        ------
+        DeviceError
+            The drive has no store object, or refuses the command.
+        """
+        table = self.driver.sections.get("canopen", {}).get("save")
+        if isinstance(table, dict) and "object" in table:
+            addr = parse_address(table["object"], "canopen.save.object", str(self.driver.folder / "driver.toml"))
+            value = table.get("value", STORE_SIGNATURE)
+        elif self.desc.has("store_parameters"):
+            addr, value = self.desc.address("store_parameters"), STORE_SIGNATURE
+        else:
+            raise DeviceError(f"{self.port}: the EDS {self.desc.eds} has no store parameters object (0x1010) and the "
+                              "driver names none ([canopen.save] object): the drive cannot be asked to save")
+        self.write_object(addr, value)
+        return f"{self.describe(addr)} = 0x{int(value):08X}"
+
+    def restore_filter(self, slot: int, saved: tuple[dict, bool]) -> None:
+        values, enabled = saved
+        fo, encoding = self._filter_slot(slot)
+        if fo.enable_subindex is None:
+            self.write_object(fo.address(slot, "block"), values["block"])  # the block as found, enable and all
+            return
+        self._write_slot(fo, encoding, slot, values, False)
+        if enabled:
+            self.write_object(fo.address(slot, "enabled"), 1)

@@ -1,0 +1,432 @@
+"""The move test (``[verification] move``): the same point-to-point move without and with the notch.
+
+The thesis's last proof was a move done twice, with and without the notch, compared by eye on an
+accelerometer. This step does it on any device that holds position: it moves out by ``distance_m`` (in
+position mode, a trapezoid or an S-curve), dwells, moves back, first with the notch out of the way and then
+with it, records both, and measures the ringing over each dwell
+(:func:`hilident.motion.residual.compare_moves`).
+
+Where the notch acts in the second move (``notch``):
+
+* **the host's set-point** (``"host"``, and ``"auto"``: every transport streams the move as position
+  set-points): the move's set-point goes through the notch chain on the host
+  (:func:`hilident.motion.shaping.shape_move`), as the thesis did for its robot; it still ends exactly where
+  asked, a little later. The drive's filter slots are bypassed for both moves, so only the shaping differs;
+* **the drive's filter slots** (``"drive"``, the notch uploaded there): for the first move the slots holding
+  the notch are disabled, then put back as they were. The notch then filters the loop's torque, the
+  feedback's too, which takes away some of the damping the loop gave the mode: expect less than from
+  shaping.
+
+What is measured: the load's deflection from the cart (``load_position_m - position_m``) when the device
+records a load sensor, else the cart's following error (set-point minus position): the ringing of the
+flexible mode, not the position loop's slower settling.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from hilident.config.tables import Config, MoveConfig
+from hilident.errors import DataError
+from hilident.motion.mode_excitation import WEAK_EXCITATION, mode_excitation, peak_acceleration
+from hilident.motion.profiles import MoveProfile
+from hilident.motion.residual import MoveComparison
+from hilident.session.map_positions import move_axis
+
+LOAD = "load_position_m"
+#: Held still before each measured move, s: the vibration the axis has at rest (the floor no notch removes).
+STANDSTILL_S = 0.6
+#: The start of the standstill left out of the floor, s (the drive settling after it is enabled).
+_SETTLING_S = 0.1
+
+
+def standstill_rms(time_s: np.ndarray, signal: np.ndarray) -> float:
+    """RMS of ``signal`` about a fitted line over the standstill before the move (its first ``_SETTLING_S``
+    left out), in the signal's unit."""
+    keep = (time_s >= _SETTLING_S) & (time_s < STANDSTILL_S)
+    t, y = time_s[keep], signal[keep]
+    if t.size < 3:
+        return float("nan")
+    return float(np.std(y - np.polyval(np.polyfit(t, y, 1), t)))
+
+
+def above_floor_db(without_rms: float, with_rms: float, floor_rms: float) -> float | None:
+    """The reduction of the vibration the move left above the standstill's, dB: ``20 log10`` of the ratio of
+    ``sqrt(rms^2 - floor^2)``; None when the move with the notch left none above the floor (or no floor)."""
+    a, b = (r * r - floor_rms * floor_rms for r in (without_rms, with_rms))
+    if not np.isfinite(floor_rms) or a <= 0 or b <= 0:
+        return None
+    return float(10.0 * np.log10(a / b))
+
+
+@dataclass(frozen=True)
+class ModeExcitation:
+    """How strongly the two moves' set-points excite one mode where they end
+    (:func:`hilident.motion.mode_excitation.mode_excitation`).
+
+    Attributes
+    ----------
+    frequency_hz, damping_ratio : float
+        The mode at the move's end (the map's, interpolated over position, or the run's resonance).
+    excitation : float
+        ``V`` of the move without the notch: 1 is one step of its peak acceleration, a trapezoid gives 0..4.
+    excitation_with_notch : float or None
+        ``V`` of the set-point of the move with the notch, against the same step (None: the notch acts in the
+        drive, not on the set-point).
+    """
+
+    frequency_hz: float
+    damping_ratio: float
+    excitation: float
+    excitation_with_notch: float | None
+
+    @property
+    def predicted_reduction_db(self) -> float | None:
+        """What the notch takes off the ringing the set-point causes, dB (None: not on the set-point)."""
+        if self.excitation_with_notch is None or self.excitation <= 0:
+            return None
+        return float(20.0 * np.log10(self.excitation / max(self.excitation_with_notch, 1e-12)))
+
+    def to_dict(self) -> dict:
+        return {"frequency_hz": self.frequency_hz, "damping_ratio": self.damping_ratio,
+                "excitation": self.excitation, "excitation_with_notch": self.excitation_with_notch,
+                "predicted_reduction_db": self.predicted_reduction_db}
+
+
+@dataclass(frozen=True)
+class MoveTestResult:
+    """One move test, without and with the notch, at one place of the workspace.
+
+    Attributes
+    ----------
+    start_m : float
+        Where the moves started, m (the encoder's axis).
+    comparison : MoveComparison
+        Residual vibration of each move over its dwell and the reduction, dB.
+    notch_in : str
+        ``"drive"`` (the drive's filter slots) or ``"host"`` (the set-point shaped on the host).
+    signal : str
+        What was measured: ``"load deflection"`` or ``"following error"``.
+    added_delay_s : float
+        How much later the move with the notch reached its end (host shaping; 0 in the drive), s.
+    recordings : tuple of str
+        The recordings of the two measured moves.
+    traces : dict
+        ``{"without": (time_s, signal), "with_notch": (time_s, signal)}`` of the measured moves (time on each
+        recording's axis, as the comparison's ``move_end_s``), for the plot.
+    floor_rms : float
+        RMS of the signal at rest before the moves (:data:`STANDSTILL_S`), in its unit: what process noise
+        and disturbances keep the mode doing, which no notch in the set-point removes.
+    distance_m : float
+        The move out, signed, m (the measured dwell is at ``start_m + distance_m``).
+    modes : tuple of ModeExcitation
+        How strongly each move's set-point excites the modes where it ends (empty: no mode known there).
+    """
+
+    start_m: float
+    comparison: MoveComparison
+    notch_in: str
+    signal: str
+    added_delay_s: float
+    recordings: tuple[str, str]
+    traces: dict
+    floor_rms: float = float("nan")
+    distance_m: float = float("nan")
+    modes: tuple[ModeExcitation, ...] = ()
+
+    @property
+    def rest_limit_db(self) -> float | None:
+        """The largest RMS reduction the vibration at rest lets this move show, dB: ``20 log10`` of the move
+        without the notch's RMS over the RMS at rest (None without a rest record)."""
+        rest, without = self.floor_rms, self.comparison.without.rms
+        if not (np.isfinite(rest) and rest > 0 and without > 0):
+            return None
+        return float(20.0 * np.log10(without / rest))
+
+    @property
+    def weakly_excited(self) -> list[ModeExcitation]:
+        """The modes the move without the notch excites less than one step of its acceleration would."""
+        return [m for m in self.modes if m.excitation < WEAK_EXCITATION]
+
+    def to_dict(self) -> dict:
+        c = self.comparison
+        return {"start_m": self.start_m, "distance_m": _finite(self.distance_m), "notch_in": self.notch_in,
+                "signal": self.signal, "added_delay_s": self.added_delay_s, "recordings": list(self.recordings),
+                "standstill_rms_m": _finite(self.floor_rms),
+                "rms_reduction_above_standstill_db": above_floor_db(c.without.rms, c.with_notch.rms,
+                                                                    self.floor_rms),
+                "rest_limit_db": self.rest_limit_db, "modes": [m.to_dict() for m in self.modes],
+                **c.as_dict()}
+
+
+def _finite(value: float) -> float | None:
+    return float(value) if np.isfinite(value) else None
+
+
+def move_profile(move: MoveConfig, distance_m: float, sample_rate_hz: float):
+    """The configured move over ``distance_m`` (signed), sampled at ``sample_rate_hz``, with its dwell."""
+    from hilident.motion.profiles import s_curve, trapezoid
+
+    prefix = "verification.move."
+    if move.profile == "s-curve":
+        return s_curve(distance_m, move.max_velocity_mps, move.max_accel_mps2, move.jerk_mps3, sample_rate_hz,
+                       move.dwell_s, key_prefix=prefix)
+    return trapezoid(distance_m, move.max_velocity_mps, move.max_accel_mps2, sample_rate_hz, move.dwell_s,
+                     key_prefix=prefix)
+
+
+def measured_signal(samples: dict[str, np.ndarray]) -> tuple[str, np.ndarray]:
+    """The ringing a move left: the load's deflection when a load sensor was recorded and read all along,
+    else the following error (the position set-point, relative to the start, minus the cart's travel)."""
+    position = samples["position_m"]
+    if LOAD in samples and np.all(np.isfinite(samples[LOAD])):
+        return "load deflection", samples[LOAD] - position
+    return "following error", samples["excitation"] - (position - position[0])
+
+
+class MoveTest:
+    """The ``[verification] move`` step.
+
+    Parameters
+    ----------
+    cfg : Config
+        The run's configuration (``[verification] move``, ``[run] sample_rate_hz``).
+    record : callable
+        ``record(name, mode, samples) -> Experiment``: the session's recorder.
+    progress : Progress
+    """
+
+    def __init__(self, cfg: Config, record: Callable, progress):
+        if cfg.verification.move is None:
+            raise DataError("the move test needs [verification] move")
+        self.cfg, self.move, self.record, self.progress = cfg, cfg.verification.move, record, progress
+
+    def run(self, tag: str, start_m: float, distance_m: float, notch_in: str, host_sections: list | None,
+            slots: DriveNotch | None, modes: list[tuple[float, float]] | None = None) -> MoveTestResult:
+        """Move ``distance_m`` out and back without the notch, then with it; ``tag`` names the recordings.
+
+        ``notch_in = "drive"``: the difference is the drive's filter ``slots`` (disabled for the first move);
+        ``"host"``: the set-point of the second move is shaped by ``host_sections`` (biquads at the set-point
+        rate), and the drive's ``slots`` (if any) stay disabled for both moves, so only the shaping differs.
+        ``modes``: ``(frequency_hz, damping_ratio)`` of the modes where the move ends, for how strongly each
+        move's set-point excites them (:class:`ModeExcitation`).
+        """
+        from hilident.motion.residual import compare_moves
+        from hilident.motion.shaping import shape_move
+
+        rate = self.cfg.run.sample_rate_hz
+        out, back = (move_profile(self.move, d, rate) for d in (distance_m, -distance_m))
+        with_out, with_back, delay = out, back, 0.0
+        if notch_in == "host":
+            if not host_sections:
+                raise DataError("move test: no notch to shape the move with")
+            shaped_out, shaped_back = (shape_move(p, host_sections) for p in (out, back))
+            with_out, with_back, delay = shaped_out.profile, shaped_back.profile, shaped_out.added_delay_s
+        names = (f"move{tag}_without", f"move{tag}_with")
+
+        still = np.zeros(int(round(STANDSTILL_S * rate)))  # the vibration the axis has at rest, before it moves
+
+        def out_and_back(name: str, there, home):
+            exp = self.record(name, "position", np.concatenate([still, there.position_m]))
+            self.record(f"{name}_back", "position", home.position_m)
+            return exp
+
+        self.progress.step(f"move test{tag}: {distance_m:+.3f} m from {start_m:+.3f} m, without the notch")
+        with slots.disabled() if slots is not None else contextlib.nullcontext():
+            without = out_and_back(names[0], out, back)
+            if notch_in == "host":
+                self.progress.step(f"move test{tag}: with the notch shaping the set-point")
+                with_notch = out_and_back(names[1], with_out, with_back)
+        if notch_in == "drive":
+            self.progress.step(f"move test{tag}: with the notch in the drive's filter slots")
+            with_notch = out_and_back(names[1], with_out, with_back)
+        what, signal_without = measured_signal(without.samples)
+        _, signal_with = measured_signal(with_notch.samples)
+        t_without, t_with = (exp.samples["sample_index"] / rate for exp in (without, with_notch))
+        band = self.move.settle_band_m or None
+        ends = (STANDSTILL_S + out.move_end_s, STANDSTILL_S + with_out.move_end_s)
+        comparison = compare_moves((t_without, signal_without, ends[0]), (t_with, signal_with, ends[1]),
+                                   self.move.dwell_s, band=band, detrend="linear")
+        if comparison.without.rms <= 0:
+            raise DataError(f"move test{tag}: the move without the notch left no measurable vibration")
+        floor = float(np.sqrt(np.mean([standstill_rms(t, y) ** 2 for t, y in ((t_without, signal_without),
+                                                                              (t_with, signal_with))])))
+        return MoveTestResult(start_m, comparison, notch_in, what, float(delay),
+                              (f"{names[0]}.h5", f"{names[1]}.h5"),
+                              {"without": (t_without, signal_without), "with_notch": (t_with, signal_with)},
+                              floor, distance_m, excitations(out, with_out if notch_in == "host" else None,
+                                                             modes or []))
+
+
+def excitations(move: MoveProfile, shaped: MoveProfile | None,
+                modes: list[tuple[float, float]]) -> tuple[ModeExcitation, ...]:
+    """How strongly ``move`` (and ``shaped``, its set-point with the notch; None: the notch is in the drive)
+    excites each of ``modes`` ``(frequency_hz, damping_ratio)``, against a step of ``move``'s peak
+    acceleration."""
+    rate = move.sample_rate_hz
+    peak = peak_acceleration(move.position_m, rate)
+    found = []
+    for f, zeta in modes:
+        v = mode_excitation(move.position_m, rate, move.move_end_index, f, zeta)
+        v_shaped = None if shaped is None else mode_excitation(shaped.position_m, rate, shaped.move_end_index, f,
+                                                                zeta, reference_accel_mps2=peak)
+        found.append(ModeExcitation(float(f), float(zeta), v, v_shaped))
+    return tuple(found)
+
+
+class DriveNotch:
+    """The filter slots holding the uploaded notch, disabled for the move without it and put back after."""
+
+    def __init__(self, adapter, slots: list[int]):
+        self.adapter, self.slots = adapter, slots
+
+    @contextlib.contextmanager
+    def disabled(self) -> Iterator[None]:
+        saved = {slot: self.adapter.save_filter(slot) for slot in self.slots}
+        for slot in self.slots:
+            self.adapter.disable_filter(slot)
+        try:
+            yield
+        finally:
+            for slot, contents in saved.items():
+                self.adapter.restore_filter(slot, contents)
+
+
+def move_distance(move: MoveConfig, start_m: float, low_m: float, high_m: float) -> float:
+    """``move.distance_m``, or the same move the other way when it would leave ``[low_m, high_m]`` from
+    ``start_m`` (a move test at the end of the travel goes back towards the middle)."""
+    for distance in (move.distance_m, -move.distance_m):
+        if low_m <= start_m + distance <= high_m:
+            return distance
+    raise DataError(f"[verification.move] distance_m = {move.distance_m:g} m does not fit either way from "
+                    f"{start_m:+.3f} m within [{low_m:g}, {high_m:g}] m")
+
+
+def run_move_tests(cfg: Config, record: Callable, progress, warnings: list[str], driver, adapter, designs: list,
+                   in_slots: bool, start_m: float, places_m: list[float],
+                   position: Callable[[], float | None],
+                   modes_at: Callable[[float], list[tuple[float, float]]] | None = None) -> list[MoveTestResult]:
+    """The move test from ``start_m`` (or, with a map, from each of ``places_m``, then back to ``start_m``).
+
+    Parameters
+    ----------
+    cfg : Config
+        ``[verification] move``, ``[map]`` (its margin and the moves between places), ``[limits]``.
+    record : callable
+        ``record(name, mode, samples) -> Experiment``: the session's recorder.
+    progress : Progress
+    warnings : list of str
+        The run's warnings, appended to.
+    driver : DriverDescription
+        Its channels say whether a load sensor could be streamed.
+    adapter : DeviceAdapter
+        Its filter slots, for ``notch = "drive"`` and to bypass them while the host shapes the move.
+    designs : list of NotchDesign
+        The run's notches.
+    in_slots : bool
+        Whether they were uploaded and read back as written.
+    start_m : float
+        Where the axis is, m.
+    places_m : list of float
+        The mapped positions, m (empty: the move test from ``start_m`` only).
+    position : callable
+        ``position() -> float or None``: the cart's position at the end of the last recording, m.
+    modes_at : callable, optional
+        ``modes_at(position_m) -> [(frequency_hz, damping_ratio), ...]``: the modes at a position, for how
+        strongly each move excites them; a move that excites them weakly gets a warning
+        (:func:`weak_excitation_warning`).
+    """
+    from hilident.filters.notch import design_notch
+
+    move = cfg.verification.move
+    if not designs or move is None:
+        warnings.append("move test: no notch was designed, so there is nothing to compare")
+        return []
+    # every transport streams the move as position set-points, so by default the notch shapes that set-point;
+    # "drive" compares the drive's filter slots instead
+    notch_in = "drive" if move.notch == "drive" else "host"
+    if notch_in == "drive" and not in_slots:
+        raise DataError("[verification.move] notch = \"drive\": the notch is not in the drive's filter slots "
+                        "(not uploaded, or not read back as written)")
+    slots = DriveNotch(adapter, [d.slot for d in designs]) if in_slots else None
+    host = [design_notch(d.spec, cfg.run.sample_rate_hz) for d in designs] if notch_in == "host" else None
+    streamed = cfg.run.channels or [c.name for c in driver.streamed_channels]
+    if LOAD in [c.name for c in driver.channels] and LOAD not in streamed:
+        warnings.append(f"move test: {driver.name} has a load sensor ({LOAD}) that is not streamed; add it to "
+                        "[run] channels to measure the load's ringing rather than the following error")
+    tester = MoveTest(cfg, record, progress)
+    lim, margin = cfg.bench_limits, cfg.map.margin_m
+    places = [(p, f"_{i}") for i, p in enumerate(places_m)] or [(start_m, "")]
+    results, here = [], start_m
+    for target, tag in places:
+        if tag:
+            here = move_axis(cfg, record, f"move{tag}_approach", here, target)
+        distance = move_distance(move, here, lim.position_min_m + margin, lim.position_max_m - margin)
+        modes = modes_at(here + distance) if modes_at is not None else []
+        results.append(tester.run(tag, here, distance, notch_in, host, slots, modes))
+        last = position()
+        here = here if last is None else last
+    if places_m:
+        move_axis(cfg, record, "move_return", here, start_m)
+    weak = weak_excitation_warning(move, results, cfg.run.sample_rate_hz)
+    if weak:
+        warnings.append(weak)
+    return results
+
+
+def weak_excitation_warning(move: MoveConfig, results: list[MoveTestResult], sample_rate_hz: float) -> str | None:
+    """A warning naming the moves that excite their mode less than one step of their acceleration, with the
+    velocity and acceleration nearest the configured ones that would excite every mode of the test (None: every
+    move excites its modes). Only accelerations at or above the configured one are suggested: a gentler move
+    rings less, and what it has to ring above, the vibration at rest, stays the same."""
+    from hilident.motion.mode_excitation import exciting_move
+
+    weak = [(r, m) for r in results for m in r.weakly_excited]
+    if not weak:
+        return None
+    def rang(r: MoveTestResult) -> str:
+        limit = r.rest_limit_db
+        return "" if limit is None else f", rang {limit:.1f} dB above rest"
+
+    where = "; ".join(f"ending at {r.start_m + r.distance_m:+.3f} m, {m.frequency_hz:.2f} Hz: V = {m.excitation:.2f}"
+                      f"{rang(r)}" for r, m in weak)
+    text = (f"move test: the move excites the mode less than one step of its acceleration would ({where}). "
+            "A move that rings little above the axis at rest shows the vibration at rest and at the stop more "
+            "than the notch.")
+
+    def profile(distance: float, v: float, a: float) -> tuple[np.ndarray, int]:
+        p = move_profile(replace(move, max_velocity_mps=v, max_accel_mps2=a), distance, sample_rate_hz)
+        return p.position_m, p.move_end_index
+
+    tested = [r for r in results if r.modes and np.isfinite(r.distance_m)]
+    best = exciting_move(profile, [r.distance_m for r in tested],
+                         [[(m.frequency_hz, m.damping_ratio) for m in r.modes] for r in tested], sample_rate_hz,
+                         np.linspace(0.5, 1.0, 11) * move.max_velocity_mps,
+                         np.linspace(1.0, 1.5, 11) * move.max_accel_mps2,
+                         (move.max_velocity_mps, move.max_accel_mps2))
+    if best is None or best.min_excitation <= min(m.excitation for _, m in weak):
+        return text + (" No velocity of 0.5-1 times max_velocity_mps with an acceleration of 1-1.5 times "
+                       "max_accel_mps2 excites every mode of this test better.")
+    return text + (f" [verification] move with max_velocity_mps = {best.max_velocity_mps:.3g} and max_accel_mps2 = "
+                   f"{best.max_accel_mps2:.3g} excites every mode of this test at V >= {best.min_excitation:.2f}"
+                   f" ({best.max_accel_mps2 / move.max_accel_mps2:.3g} times the acceleration: check the torque it "
+                   "needs against [limits] torque_nm).")
+
+
+def plot_worst_move(results: list[MoveTestResult], path: Path, config_name: str, warnings: list[str]) -> None:
+    """``moves.png``: the move without and with the notch where the reduction was least (a plot that cannot be
+    drawn is a warning)."""
+    from hilident.plots.moves import plot_moves
+
+    worst = min(results, key=lambda r: r.comparison.rms_reduction_db)
+    (t0, y0), (t1, y1) = worst.traces["without"], worst.traces["with_notch"]
+    try:
+        plot_moves(path, worst.comparison, t0, y0, t1, y1, signal_name=worst.signal,
+                   subject=f"{config_name}, from {worst.start_m:+.3f} m", added_delay_s=worst.added_delay_s or None)
+    except (DataError, ValueError) as exc:
+        warnings.append(f"moves.png could not be drawn: {exc}")

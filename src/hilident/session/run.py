@@ -1,0 +1,736 @@
+"""One bench run: connect, guard limits, excite, record, identify, upload, verify, report.
+
+The order of a session is fixed and every step leaves something on disk:
+
+1. connect to the device (or start the embedded emulator) and load the limits;
+2. friction test: constant-velocity legs both ways -> ``friction.h5``;
+3. identification run with the configured excitation -> ``identification.h5``;
+4. friction removal, FRF with coherence, resonances, notch design;
+5. upload the notches, read them back, compare, enable;
+6. verification run with the same excitation -> ``verification.h5``;
+7. ``summary.json`` and plots.
+
+Before step 1 the whole plan is built and checked (sizes, rates, travel,
+channels) so nothing that can be known in advance fails after the axis moved;
+on a real port the plan is shown and the user's go-ahead is asked for before
+anything moves. Identification measures the bare plant: filter slots holding
+filters are bypassed first and put back if the session ends before its upload.
+
+On every ending (normal, error, signal, full disk) the device is commanded
+safe first, then the filter slots are restored when needed, then every
+recording is closed with its status and cause, then the device is released.
+
+The session keeps the order; its parts live beside it (``docs/results.md``):
+:func:`connect_device` (a complete :class:`ConnectedDevice`),
+:mod:`hilident.session.experiment` (recording), :mod:`hilident.session.auto_amplitude`,
+:mod:`hilident.session.slot_bypass`, :mod:`hilident.session.excitation`,
+:mod:`hilident.io.summary` (the typed ``summary.json``).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from hilident import endings, html_report
+from hilident.adapters.base import StreamStats, adapter_class
+from hilident.config.tables import Config, check_auto_amplitude
+from hilident.drivers.description import DriverDescription, check_run_against_driver, find_driver
+from hilident.errors import ArmingRefused, ConfigError, DataError, HilidentError, UsageError
+from hilident.io.serialise import write_json
+from hilident.io.summary import (
+    NOT_REACHED,
+    DevicePart,
+    ExcitationPart,
+    Summary,
+    UploadOutcome,
+    VerificationPart,
+)
+from hilident.lazy import lazy_module
+from hilident.plots import figures as report
+from hilident.progress import Progress
+from hilident.session.auto_amplitude import (  # noqa: F401 (kept importable)
+    AutoAmplitude,
+    band_coherence,
+    coherence_factor,
+    friction_share,
+    period_spectra,
+    predicted_coherence,
+    response_change,
+    smooth_lines,
+)
+from hilident.session.devicelock import DeviceLock, device_key
+from hilident.session.excitation import Excitation, build_excitation, excitation_recipe  # noqa: F401 (kept importable)
+from hilident.session.experiment import (  # noqa: F401 (kept importable)
+    FLUSH_INTERVAL_S,
+    Experiment,
+    ExperimentRecorder,
+    late_sampling_warnings,
+    package_versions,
+)
+from hilident.session.map_positions import MAP_MODE
+from hilident.session.map_run import WorkspaceRun
+from hilident.session.move_test import MoveTestResult, plot_worst_move, run_move_tests
+from hilident.session.plan import RunPlan, excitation_travel_m, make_plan
+from hilident.session.slot_bypass import BypassedSlots
+from hilident.signals import generators as sig
+
+if TYPE_CHECKING:
+    from hilident.adapters.base import DeviceAdapter
+
+#: The analysis, imported once an experiment needs it (a run ended before that starts and stops faster).
+pipeline = lazy_module("hilident.pipeline")
+#: The upload step, shared with ``hilident upload``.
+uploading = lazy_module("hilident.session.upload")
+
+def check_excitation_travel(cfg: Config, excitation: Excitation) -> None:
+    """A set-point perturbation must keep the axis within half the position window (it starts anywhere in it)."""
+    e, lim = cfg.excitation, cfg.bench_limits
+    if not e.closed_loop:
+        return  # a torque excitation's travel depends on the plant; the limits guard it
+    travel = excitation_travel_m(e.mode, excitation.samples, cfg.run.sample_rate_hz)
+    half = (lim.position_max_m - lim.position_min_m) / 2
+    if travel >= half:
+        raise ConfigError(
+            f"excitation.{e.amplitude_key}",
+            f"the {e.mode} set-point perturbation travels up to {travel:.4g} m from where the axis holds, more "
+            f"than half the position window [{lim.position_min_m:g}, {lim.position_max_m:g}] m (a smaller "
+            f"amplitude or a higher f_min_hz)", cfg.source,
+        )
+
+
+def check_it_moved(cfg: Config, output: np.ndarray, friction) -> None:
+    """A DataError that says what to change when the axis did not move at all during the identification."""
+    finite = output[np.isfinite(output)]
+    if finite.size and np.ptp(finite) > 0.0:
+        return
+    e = cfg.excitation
+    held = ""
+    if friction is not None and e.mode in ("torque", "torque_injection"):
+        fs = max(friction.fit.params.Fs, friction.fit.params.Fc)
+        held = (f"; the friction test measured a breakaway of {fs:.3g} N*m, so an amplitude of at least "
+                f"{3 * fs:.3g} N*m is needed to move it over most of each period")
+    raise DataError(f"identification: the axis did not move ({cfg.identification.output} constant at "
+                    f"{finite[0] if finite.size else float('nan'):g}): the excitation ({e.amplitude:g} "
+                    f"{ {'velocity': 'm/s', 'position': 'm'}.get(e.mode, 'N*m') }) is too weak"
+                    f"{held}; raise excitation.{e.amplitude_key}"
+                    + (' or set it to "auto"' if e.amplitude_key == "amplitude_nm" else ""))
+
+
+@dataclass(frozen=True)
+class ConnectedDevice:
+    """An open device, complete: its driver, the adapter talking to it, and what was started or taken to reach
+    it (the embedded emulator, the device lock). Made by :func:`connect_device`."""
+
+    driver: DriverDescription
+    adapter: DeviceAdapter
+    emulator: Any = None
+    lock: DeviceLock | None = None
+
+    def safe_stop(self) -> None:
+        """Command the axis safe now (first thing on every ending). Never raises."""
+        try:
+            self.adapter.safe_stop()
+        except Exception:
+            pass
+
+    def close(self) -> None:
+        """Stop the axis and release the device (and the emulator, and the device lock)."""
+        try:
+            self.adapter.close()
+        finally:
+            try:
+                if self.emulator is not None:
+                    self.emulator.close()
+            finally:
+                if self.lock is not None:
+                    self.lock.release()
+
+
+def connect_device(cfg: Config, driver: DriverDescription, progress: Progress) -> ConnectedDevice:
+    """Open the device of ``[device]`` (taking its lock), or start the embedded emulator and open it like one.
+
+    The adapter brings the device to a known state as it opens (stale frames
+    discarded, axis stopped, latched faults reported and cleared only when
+    allowed). The lock and the emulator are released again when opening fails.
+    """
+    cls = adapter_class(driver.transport)
+    device, link, emulator, lock = cfg.device, None, None, None
+    if cfg.uses_emulator:
+        from hilident.emulator.factory import start_emulator
+
+        emulator = start_emulator(cfg.emulator, driver, cfg.device)
+        device, link = emulator.device, emulator.link
+    else:
+        d = cfg.device
+        lock = DeviceLock(device_key(driver.transport, d.port, node_id=d.canopen.node_id,
+                                     device_id=d.modbus.device_id, can_interface=d.canopen.can_interface)).acquire()
+        if lock.recovered_from:
+            progress.step(f"device lock of pid {lock.recovered_from} recovered (that session died)")
+    try:
+        adapter = cls.open_device(device, driver, link=link)
+    except BaseException:
+        with endings.shielded():
+            _release(emulator, lock)
+        raise
+    return ConnectedDevice(driver, adapter, emulator, lock)
+
+
+def _release(emulator, lock: DeviceLock | None) -> None:
+    """Stop an emulator and release a lock of a device that did not open."""
+    try:
+        if emulator is not None:
+            emulator.close()
+    finally:
+        if lock is not None:
+            lock.release()
+
+
+def connect_warnings(report_) -> list[str]:
+    """What :attr:`AdapterBase.connect_report` found, as the session's warnings."""
+    out = []
+    if report_.discarded_frames:
+        out.append(f"connect: {report_.discarded_frames} frame(s) left over from an earlier session were discarded")
+    if report_.faults:
+        out.append(f"connect: the device had latched fault(s): {'; '.join(report_.faults)}"
+                   + ("; cleared (allow_fault_reset)" if report_.faults_cleared else ""))
+    return out + [f"connect: {w}" for w in report_.warnings]
+
+
+class DeviceConnection:
+    """A device opened as ``[device]`` says (or the embedded emulator), one session per device.
+
+    What ``hilident run`` and ``hilident upload`` share: the subclass sets
+    ``cfg``, ``progress`` and ``warnings`` and may set ``driver``;
+    :meth:`open_device` makes :attr:`device` (a :class:`ConnectedDevice`);
+    ``adapter``, ``emulator`` and ``lock`` are its parts (None until then).
+    """
+
+    cfg: Config
+    progress: Progress
+    warnings: list[str]
+    driver: DriverDescription | None = None
+    device: ConnectedDevice | None = None
+
+    @property
+    def found_driver(self) -> DriverDescription:
+        """The driver description, once :meth:`open_device` (or :meth:`Session.prepare`) found it.
+
+        Raises
+        ------
+        RuntimeError
+            Asked before the driver was looked up (a caller's mistake).
+        """
+        if self.driver is None:
+            raise RuntimeError("the driver is looked up by open_device() or prepare() first")
+        return self.driver
+
+    @property
+    def adapter(self):
+        """The open device's adapter (None before :meth:`open_device`)."""
+        return self.device.adapter if self.device is not None else None
+
+    @property
+    def emulator(self):
+        """The embedded emulator (None on a real port, or before :meth:`open_device`)."""
+        return self.device.emulator if self.device is not None else None
+
+    @property
+    def lock(self) -> DeviceLock | None:
+        """The device lock (None for the emulator, or before :meth:`open_device`)."""
+        return self.device.lock if self.device is not None else None
+
+    def open_device(self) -> ConnectedDevice:
+        """Open the device (taking its lock), or start the embedded emulator and open it like a device.
+
+        What the adapter found as it brought the device to a known state goes to ``warnings``.
+        """
+        driver = self.driver = self.driver or find_driver(self.cfg.device.driver, self.cfg.device.driver_paths)
+        self.device = connect_device(self.cfg, driver, self.progress)
+        where = "emulated" if self.cfg.uses_emulator else "connected to"
+        self.progress.step(f"{where} {self.adapter.identity.name} on {self.adapter.port}")
+        report_ = getattr(self.adapter, "connect_report", None)
+        if report_ is not None:
+            self.warnings += connect_warnings(report_)
+        return self.device
+
+    def safe_stop(self) -> None:
+        """Command the axis safe now (first thing on every ending). Never raises."""
+        if self.device is not None:
+            self.device.safe_stop()
+
+    def close(self) -> None:
+        """Stop the axis and release the device (and the emulator, and the device lock)."""
+        if self.device is not None:
+            self.device.close()
+
+
+class Session(DeviceConnection):
+    """A whole bench run as described by one configuration.
+
+    Parameters
+    ----------
+    cfg : Config
+    out_dir : path
+        Where recordings, plots and ``summary.json`` go.
+    progress : Progress, optional
+    """
+
+    def __init__(self, cfg: Config, out_dir: str | Path, progress: Progress | None = None,
+                 confirm: Callable[[RunPlan], bool] | None = None, dry_run: bool = False, plots: bool = True,
+                 save: bool = False):
+        cfg.bench_limits  # noqa: B018 - raises the ConfigError of a config without [limits] before anything starts
+        self.cfg = cfg
+        self.out = Path(out_dir)
+        self.progress = progress or Progress(enabled=False)
+        self.driver: DriverDescription | None = None
+        self.device: ConnectedDevice | None = None
+        self.recorder: ExperimentRecorder | None = None  # made once the device is connected
+        self.warnings: list[str] = []
+        self.summary: dict = {}
+        self.result: Summary | None = None  # the typed summary behind ``summary`` once the run has ended
+        self._analysed: dict[str, dict[str, np.ndarray]] = {}  # gap-free samples of each analysed run
+        self.confirm = confirm
+        self.dry_run = dry_run
+        self.plots = plots
+        self.save = save  # store the device's parameters once the new notches are verified
+        self.plan: RunPlan | None = None
+        self.slots = BypassedSlots()  # what the filter slots held, and what is bypassed until the upload
+        self.friction_mode = "velocity"  # or "position" on a drive without a velocity mode (set by prepare)
+        self._uploaded = False
+        self._auto: dict | None = None  # the automatic amplitude's choice, trials and reason
+        self.workspace: WorkspaceRun | None = None  # [map]: the map, the joint fit, the covering notches
+        self.move_results: list[MoveTestResult] | None = None  # [verification] move, at each place it ran
+        self.position_m: float | None = None  # the cart's position at the end of the last recording, m
+
+    # --- connection -----------------------------------------------------------------------
+
+    def connect(self) -> None:
+        """Open the device (one session per device), or start the embedded emulator and open it like a device.
+
+        The adapter brings the device to a known state as it opens (stale
+        frames discarded, axis stopped, latched faults reported and cleared
+        only when allowed); the limits the device enforces are loaded.
+        """
+        device = self.open_device()
+        self.recorder = ExperimentRecorder(device, self.out, self.progress, self.warnings)
+        lim = self.cfg.bench_limits
+        self.adapter.set_limits(lim.torque_nm, lim.velocity_mps, lim.position_min_m, lim.position_max_m)
+
+    # --- filter slots: identify the bare plant ---------------------------------------------
+
+    @property
+    def filters_found(self) -> list[dict]:
+        """What every filter slot held when the session began (for the plan and summary.json)."""
+        return self.slots.found
+
+    def _read_filter_slots(self) -> None:
+        self.slots.read(self.adapter)
+
+    def _bypass_filters(self) -> None:
+        self.slots.bypass(self.adapter, self.progress)
+
+    def _restore_filters(self) -> None:
+        """Put back what the slots held when the session ends before its upload. Never raises."""
+        if not self._uploaded and self.adapter is not None:
+            self.slots.restore(self.adapter, self.warnings)
+
+    # --- experiments ----------------------------------------------------------------------
+
+    def record(self, name: str, mode: str, excitation: np.ndarray, tables: dict | None = None,
+               period_samples: int | None = None, recipe: dict | None = None) -> Experiment:
+        """Stream ``excitation`` in ``mode`` and record it to ``<out>/<name>.h5``
+        (:meth:`hilident.session.experiment.ExperimentRecorder.record`, with the session's configuration)."""
+        if self.recorder is None:
+            raise UsageError(f"{name}: the session records only once connected (Session.connect)")
+        exp = self.recorder.record(self.cfg, name, mode, excitation, tables, period_samples, recipe)
+        if "position_m" in exp.samples and len(exp.samples["position_m"]):
+            self.position_m = float(exp.samples["position_m"][-1])
+        return exp
+
+    @property
+    def totals(self) -> StreamStats:
+        """The stream counters of every run recorded so far, added."""
+        return self.recorder.totals if self.recorder is not None else StreamStats()
+
+
+    # --- the whole run ----------------------------------------------------------------------
+
+    def run(self) -> dict:
+        """Run every step; returns the summary (also written to ``summary.json``).
+
+        With ``dry_run`` it connects, checks and plans, and returns
+        ``{"dry_run": True, "plan": ...}`` without moving anything.
+        """
+        excitation, profile = self.prepare()
+        started = time.monotonic()
+        friction = plant = verification = None
+        designs, upload = [], UploadOutcome()
+        step = "connect"
+        try:
+            self.connect()
+            self._read_filter_slots()
+            plan = self.plan = make_plan(self.cfg, excitation, profile, self.adapter, self.filters_found,
+                                         self.friction_mode)
+            self._arm(plan)
+            if self.dry_run:
+                return {"dry_run": True, "plan": plan.to_dict()}
+            self._bypass_filters()
+            step = "friction test"
+            friction = self._friction_step(profile)
+            if self.cfg.excitation.amplitude_auto:
+                step = "auto amplitude"
+                excitation = self._auto_amplitude(friction)  # the run then plays the chosen amplitude
+            step = "identification"
+            ident = self.record("identification", self.cfg.excitation.mode, excitation.samples,
+                                period_samples=excitation.period_samples, recipe=excitation_recipe(self.cfg))
+            plant = self._identify(ident, excitation, friction)
+            if self.cfg.map.enabled:
+                step = "map"
+                self._map_step(ident, excitation, friction, plant)
+            step = "notch upload"
+            designs, upload = self._notch_step(plant)
+            step = "verification"
+            verification = self._verify(excitation, plant, designs)
+            if self.workspace is not None and verification is not None and self.cfg.map.verify:
+                step = "map verification"
+                self.workspace.verify()
+            if self.cfg.verification.move is not None:
+                step = "move test"
+                self.move_results = self._move_step(designs, upload)
+            step = "save"
+            self._save_step(upload, verification)
+        except BaseException as exc:
+            with endings.shielded():
+                self.safe_stop()
+            if isinstance(exc, HilidentError) and (friction is not None or plant is not None):
+                with endings.shielded():  # what the steps before found is kept, and the step that failed named
+                    self._write_partial_summary(step, exc, friction, plant, designs, upload, verification,
+                                                time.monotonic() - started)
+            raise
+        finally:
+            with endings.shielded():
+                self._restore_filters()  # nothing to do once the new notches are uploaded
+                self.close()
+        endings.raise_pending()
+        model = self._greybox()
+        if self.plots and self.workspace is not None:  # before the summary: a failed plot is one of its warnings
+            self.workspace.plot(self.out / "map.png",
+                                report.plot_title(Path(self.cfg.source).name, what="Mode over the workspace"))
+        if self.plots and self.move_results:
+            plot_worst_move(self.move_results, self.out / "moves.png", Path(self.cfg.source).name, self.warnings)
+        self.result = self._summary(friction, plant, designs, upload, verification, time.monotonic() - started,
+                                    model=model)
+        self.summary = self.result.to_dict()
+        write_json(self.out / "summary.json", self.summary)
+        if self.plots:
+            self._plots(friction, plant, designs, verification, excitation.band_hz, model)
+        html_report.write_report_quietly(self.out)
+        return self.summary
+
+    def prepare(self):
+        """Everything that can be checked without the device, before it is opened.
+
+        The output folder must be writable; the driver is found; the
+        excitation and the friction test's profile are built (their sizes were
+        bounded when the config was loaded); the friction test's travel must
+        fit the position window. Returns ``(excitation, friction_profile)``.
+        """
+        self._prepare_out()
+        cfg = self.cfg
+        driver = self.driver = find_driver(cfg.device.driver, cfg.device.driver_paths)
+        if (error := adapter_class(driver.transport).run_refusal(driver)) is not None:  # cannot play
+            raise ConfigError(error.key, error.message, cfg.source)
+        modes = check_run_against_driver(cfg, driver)
+        if cfg.map.enabled and not {"position", MAP_MODE} <= set(modes):
+            raise ConfigError("map", f"driver {driver.name!r} offers the modes {', '.join(modes) or 'none'}: a map "
+                                     f"needs position (to move) and {MAP_MODE} (to hold while exciting)", cfg.source)
+        check_auto_amplitude(cfg)  # again: a config changed in code after loading
+        excitation = build_excitation(cfg)
+        check_excitation_travel(cfg, excitation)
+        # a drive without a velocity mode runs the friction test's legs as a position profile
+        self.friction_mode = "velocity" if "velocity" in modes else "position"
+        profile = None
+        ft = cfg.friction_test
+        if ft.enabled:
+            profile = sig.velocity_ramps(ft.speeds_mps, ft.hold_s, ft.accel_mps2, cfg.run.sample_rate_hz, ft.settle_s)
+            lim = cfg.bench_limits
+            if profile.max_excursion_m >= (lim.position_max_m - lim.position_min_m) / 2:
+                raise ConfigError(
+                    "friction_test.speeds_mps",
+                    f"the friction test travels up to {profile.max_excursion_m:.3f} m, more than half the "
+                    f"position window [{lim.position_min_m:g}, {lim.position_max_m:g}] m (shorter hold_s or lower "
+                    "speeds)", cfg.source,
+                )
+        return excitation, profile
+
+    def _prepare_out(self) -> None:
+        """The output folder exists and takes files, or a one-line error before anything moves."""
+        try:
+            self.out.mkdir(parents=True, exist_ok=True)
+            probe = self.out / f".hilident-write-test-{os.getpid()}"
+            probe.write_bytes(b"")
+            probe.unlink()
+        except OSError as exc:
+            raise UsageError(f"--out {self.out}: cannot write there: {exc.strerror or exc}") from None
+
+    def _arm(self, plan: RunPlan) -> None:
+        """On a real port, move only with the user's go-ahead: ``confirm(plan)`` shows the plan and asks."""
+        if self.dry_run or self.cfg.uses_emulator:
+            return
+        if self.confirm is None or not self.confirm(plan):
+            raise ArmingRefused("the run was not confirmed; nothing moved")
+
+    def _friction_step(self, profile):
+        if profile is None:
+            return None
+        windows = np.array(profile.windows, dtype=float).reshape(-1, 3)
+        setpoints = profile.setpoint_mps
+        if self.friction_mode == "position":
+            setpoints = sig.position_of(setpoints, self.cfg.run.sample_rate_hz)
+        exp = self.record("friction", self.friction_mode, setpoints,
+                          tables={"windows": {"start": windows[:, 0], "stop": windows[:, 1],
+                                              "velocity_mps": windows[:, 2]}})
+        rows = self._rows_by_index(exp)
+        kept = [(rows[a], rows[b - 1] + 1, v) for a, b, v in profile.windows if a in rows and b - 1 in rows
+                and rows[b - 1] - rows[a] == b - 1 - a]
+        self.progress.step("friction: fitting the friction curve")
+        result = pipeline.identify_friction(exp.samples["velocity_mps"], exp.samples["torque_nm"], kept,
+                                            self.cfg.friction_test.model)
+        self.warnings += result.warnings
+        return result
+
+    @staticmethod
+    def _rows_by_index(exp: Experiment) -> dict[int, int]:
+        idx = exp.samples["sample_index"].astype(np.int64)
+        return {int(i): r for r, i in enumerate(idx)}
+
+    # --- automatic excitation amplitude ---------------------------------------------------------
+
+    def _auto_amplitude(self, friction) -> Excitation:
+        """Choose the torque amplitude by short trials (``amplitude_nm = "auto"``) and build the run's excitation.
+
+        :class:`~hilident.session.auto_amplitude.AutoAmplitude` plays the trials
+        through :meth:`record`; the choice and its reason go to
+        ``summary.json["excitation"]["auto"]``.
+        """
+        chooser = AutoAmplitude(self.cfg, self.record, self._analysis_samples, self.warnings, self.progress)
+        self.cfg, self._auto = chooser.choose(friction)
+        return build_excitation(self.cfg)
+
+    def _analysis_samples(self, exp: Experiment, excitation: Excitation) -> dict[str, np.ndarray]:
+        """Whole gap-free periods of a periodic excitation, else the longest gap-free stretch (never spliced).
+        A record selected twice warns of its gaps once."""
+        selection = pipeline.select_gap_free(exp.samples["sample_index"], excitation.period_samples, exp.name)
+        self.warnings += [w for w in selection.warnings if w not in self.warnings]
+        return {k: v[selection.keep] for k, v in exp.samples.items()}
+
+    def _greybox(self):
+        """``[model]`` fitted to the identification run, validated on the verification run (or a hold-out)."""
+        if self.cfg.model.kind == "none" or "identification" not in self._analysed:
+            return None
+        s = self._analysed["identification"]
+        others = {name: (v["torque_nm"], v["position_m"]) for name, v in self._analysed.items()
+                  if name != "identification" and "position_m" in v}
+        if "position_m" not in s:
+            self.warnings.append(f"[model] {self.cfg.model.kind}: position_m was not recorded")
+            return None
+        self.progress.step(f"model: {self.cfg.model.kind} grey-box fit")
+        try:
+            from hilident.session.offline import model_for_mode
+
+            model = model_for_mode(self.cfg, self.cfg.excitation.mode)  # a held torque command in open loop
+            result = pipeline.fit_greybox(model, s["torque_nm"], s["position_m"], self.cfg.run.sample_rate_hz,
+                                          others or None)
+        except DataError as exc:
+            self.warnings.append(f"[model] {self.cfg.model.kind}: {exc}")
+            return None
+        self.warnings += result.warnings
+        return result
+
+    def _identify(self, exp: Experiment, excitation: Excitation, friction, for_model: bool = True):
+        """The plant identified from ``exp`` (``for_model``: its samples also feed the grey-box fit)."""
+        cfg = self.cfg
+        period = excitation.period_samples
+        s = self._analysis_samples(exp, excitation)
+        if for_model:
+            self._analysed[exp.name] = s
+        ic = cfg.identification
+        band = pipeline.analysis_band(ic, excitation.band_hz)
+        check_it_moved(cfg, s[ic.output], friction)
+        self.progress.step(f"{exp.name}: frequency response and resonances")
+        result = pipeline.identify_plant(
+            s["excitation"], s["torque_nm"], s[ic.output], s["velocity_mps"], cfg.run.sample_rate_hz, ic, band,
+            friction=friction.fit.params if friction else None,
+            velocity_deadband_mps=cfg.friction_test.velocity_deadband_mps,
+            friction_slowest_mps=friction.slowest_mps if friction else 0.0,
+            period_samples=period, excited_bins=excitation.excited_bins,
+        )
+        self.warnings += result.warnings
+        return result
+
+    def _map_step(self, ident: Experiment, excitation: Excitation, friction, plant) -> None:
+        """``[map]`` (:class:`~hilident.session.map_run.WorkspaceRun`): the mode at every mapped position and the
+        joint fit, the axis back where the identification ran."""
+        self.workspace = WorkspaceRun(self.cfg, self.record,
+                                      lambda exp, exc: self._identify(exp, exc, friction, for_model=False),
+                                      self._analysis_samples, lambda: self.position_m, self.progress, self.warnings,
+                                      filter_input=self.found_driver.filter_input_channel)
+        reference = plant.resonances[0].frequency_hz if plant.resonances else None
+        self.workspace.map(float(ident.samples["position_m"][-1]), reference)
+
+    def _move_step(self, designs: list, upload: UploadOutcome) -> list[MoveTestResult]:
+        """``[verification] move`` (:func:`hilident.session.move_test.run_move_tests`): from where the run
+        identified and from every mapped position; the axis ends where it started. The mode where each move ends
+        is the map's there, else the resonances the notches were designed for."""
+        start = self.position_m if self.position_m is not None else 0.0
+        places = [p.target_m for p in self.workspace.points] if self.workspace else []
+        workspace = self.workspace
+        notched = {(d.resonance.frequency_hz, d.resonance.damping_ratio) for d in designs}
+        resonances = sorted((f, zeta) for f, zeta in notched if np.isfinite(f) and f > 0 and 0 <= zeta < 1)
+
+        def modes_at(position_m: float) -> list[tuple[float, float]]:
+            mapped = workspace.mode_at(position_m) if workspace is not None else None
+            return [mapped] if mapped is not None else resonances
+
+        return run_move_tests(self.cfg, self.record, self.progress, self.warnings, self.found_driver, self.adapter,
+                              designs, upload.written and upload.verified_readback, start, places,
+                              lambda: self.position_m, modes_at)
+
+    def _notch_step(self, plant):
+        nc = self.cfg.notch
+        upload = UploadOutcome()
+        if not nc.enabled:
+            return [], upload
+        resonances = self._notchable(plant, upload)
+        if not resonances:
+            return [], upload
+        ad = self.adapter
+        if ad.identity.filter_slots < 1:
+            # designed all the same, for the user to enter by hand or to describe the drive's filter objects
+            designs = pipeline.design_notches(resonances, nc, ad.identity.loop_rate_hz, [0], plant.loop)
+            upload.not_uploaded = (f"driver {self.found_driver.name!r} describes no filter capability (no [filters] "
+                                   "table in its driver.toml): the designed notch was not uploaded")
+            self.warnings.append(upload.not_uploaded)
+            return designs, upload
+        slots = list(range(ad.identity.filter_slots))
+        if self.workspace is not None and self.workspace.found:
+            designs = self.workspace.notch_designs(ad, resonances, slots, plant)
+        else:
+            designs = pipeline.design_notches(resonances, nc, ad.identity.loop_rate_hz, slots, plant.loop)
+        self.warnings += [d.warning for d in designs if d.warning]
+        self.progress.step(f"notch: uploading {len(designs)} filter(s)")
+        # written disabled, read back, compared; enabled only as written, else the old contents put back
+        uploading.upload_designs(ad, designs, self.warnings, upload)
+        self._uploaded = True  # from here the device holds the new notches; other bypassed slots stay bypassed
+        return designs, upload
+
+    def _notchable(self, plant, upload: UploadOutcome) -> list:
+        """The resonances the evidence supports a notch for; why the others get none goes to warnings and upload."""
+        e = self.cfg.excitation
+        amplitude = e.amplitude if isinstance(e.amplitude, (int, float)) else None
+        decision = pipeline.notch_decision(plant, self.cfg.identification.coherence_threshold, e.amplitude_key,
+                                           amplitude)
+        self.warnings += decision.warnings
+        if decision.skipped_reason is not None:
+            upload.skipped_reason = decision.skipped_reason
+        return decision.resonances
+
+    def _save_step(self, upload: UploadOutcome, verification) -> None:
+        """With ``save``: the device stores its parameters, only after an upload read back and verified."""
+        upload.saved = False
+        if not self.save:
+            return
+        if not (upload.written and upload.verified_readback and verification is not None):
+            upload.not_saved = "nothing was saved: the notches were not uploaded, read back and verified"
+            self.warnings.append(upload.not_saved)
+            return
+        saved_with, reason = uploading.store_parameters(self.adapter, self.found_driver.transport, self.progress)
+        if saved_with is None:
+            upload.not_saved = reason
+            self.warnings.append(upload.not_saved)
+            return
+        upload.saved_with = saved_with
+        upload.saved = True
+
+    def _verify(self, excitation: Excitation, plant, designs):
+        if not designs or not self.cfg.notch.verify or not self._uploaded:
+            return None
+        exp = self.record("verification", self.cfg.excitation.mode, excitation.samples,
+                          period_samples=excitation.period_samples, recipe=excitation_recipe(self.cfg))
+        s = self._analysis_samples(exp, excitation)
+        self._analysed["verification"] = s
+        self.progress.step("verification: frequency response")
+        loop_after, warnings = pipeline.loop_response(
+            s["excitation"], s[self.cfg.identification.output], self.cfg.run.sample_rate_hz,
+            self.cfg.identification, excitation.period_samples, excitation.excited_bins,
+        )
+        self.warnings += warnings
+        nc = self.cfg.notch
+        # one row per resonance: the staggered notches of a covering design share theirs
+        resonances = list({(d.resonance.frequency_hz, d.resonance.damping_ratio): d.resonance
+                           for d in designs}.values())
+        reductions = pipeline.peak_reductions(plant.loop, loop_after, resonances, nc.verify_band_bandwidths)
+        for row, resonance in zip(reductions, resonances, strict=True):
+            floor = pipeline.band_floor_db(plant.loop, loop_after, resonance, nc.verify_band_bandwidths)
+            row["floor_db"] = floor
+            row["floor_limited"] = pipeline.floor_limited(row["band_reduction_db"], floor)
+        band = min(reductions, key=lambda r: r["band_reduction_db"])
+        at_peak = min(r["reduction_db"] for r in reductions)
+        if band["band_reduction_db"] < nc.min_reduction_db:
+            floor = (f"; it is within {pipeline.FLOOR_HEADROOM_DB:g} dB of the {band['floor_db']:.1f} dB its record's "
+                     "noise lets it show: a verification of more periods ([excitation] duration_s) lowers that floor"
+                     if band["floor_limited"] and np.isfinite(band["floor_db"]) else "")
+            self.warnings.append(
+                f"verification: the largest response within +-{nc.verify_band_bandwidths:g} half-power bandwidths of "
+                f"{band['frequency_hz']:.4g} Hz dropped by only {band['band_reduction_db']:.1f} dB (at the resonance "
+                f"line: {band['reduction_db']:.1f} dB; notch.min_reduction_db = {nc.min_reduction_db:g}){floor}"
+            )
+        return VerificationPart(band["band_reduction_db"], at_peak, nc.verify_band_bandwidths, reductions, loop_after)
+
+    # --- outputs ----------------------------------------------------------------------------
+
+    def _write_partial_summary(self, step: str, exc: BaseException, friction, plant, designs, upload,
+                               verification, elapsed_s: float) -> None:
+        """``summary.json`` of a session a step of which failed after others succeeded: their results, the
+        failed step's name (``failed_step``) and its error."""
+        summary = self._summary(friction, plant, designs, upload, verification, elapsed_s).failed(step, str(exc))
+        write_json(self.out / "summary.json", summary.to_dict())
+        html_report.write_report_quietly(self.out)
+        self.progress.step(f"wrote {self.out / 'summary.json'} up to the failed step ({step})")
+
+    def _summary(self, friction, plant, designs, upload: UploadOutcome, verification: VerificationPart | None,
+                 elapsed_s: float, model=NOT_REACHED) -> Summary:
+        """The run's :class:`~hilident.io.summary.Summary` (``model`` left out when the run failed before it)."""
+        cfg, ad = self.cfg, self.adapter
+        connect = ad.connect_report.to_dict() if ad is not None and hasattr(ad, "connect_report") else None
+        return Summary.of_run(
+            config=cfg.source, device=DevicePart(self.found_driver.name, ad.port if ad else None, cfg.uses_emulator),
+            sample_rate_hz=cfg.run.sample_rate_hz, excitation=ExcitationPart.of(cfg.excitation, self._auto),
+            plant=plant, friction=friction, designs=designs, upload=upload, verification=verification,
+            stream=self.totals, connect=connect, filters_found=self.filters_found,
+            recordings=sorted(p.name for p in self.out.glob("*.h5")), elapsed_s=elapsed_s, warnings=self.warnings,
+            model=model, workspace_map=self.workspace.points if self.workspace else None,
+            move_test=self.move_results, workspace=self.workspace.summary if self.workspace else None)
+
+    def _plots(self, friction, plant, designs, verification, excitation_band_hz, model=None) -> None:
+        report.plot_run(self.out, friction, plant, designs, verification.loop_after if verification else None,
+                        self.cfg.identification.coherence_threshold, summary=self.summary,
+                        band_hz=pipeline.analysis_band(self.cfg.identification, excitation_band_hz),
+                        output=self.cfg.identification.output)
+        if model is not None:  # model.png: the fit of _greybox on the records it used
+            from hilident.session.offline import model_for_mode
+
+            s = self._analysed
+            others = {name: (v["torque_nm"], v["position_m"]) for name, v in s.items()
+                      if name != "identification" and "position_m" in v}
+            records = report.greybox_records(self.cfg.model.holdout, (s["identification"]["torque_nm"],
+                                                                      s["identification"]["position_m"]), others)
+            report.plot_model(self.out / "model.png", model_for_mode(self.cfg, self.cfg.excitation.mode), model,
+                              records, self.cfg.run.sample_rate_hz, report.plot_title(Path(self.cfg.source).name))
