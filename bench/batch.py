@@ -102,12 +102,32 @@ def start_scheduler(workers: int, config_dir: Path) -> tuple[str, list[subproces
     bindir = Path(sys.executable).parent
     dask = str(bindir / "dask") if (bindir / "dask").exists() else "dask"
     quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
-    procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port),
-                               "--dashboard-address", "127.0.0.1:0"], **quiet)]
+    procs = [
+        subprocess.Popen(
+            [dask, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--dashboard-address", "127.0.0.1:0"],
+            **quiet,
+        )
+    ]
     time.sleep(1.0)
-    procs.append(subprocess.Popen([dask, "worker", address, "--nworkers", str(workers), "--nthreads", "1",
-                                   "--host", "127.0.0.1", "--dashboard-address", "127.0.0.1:0"],
-                                  env={**os.environ, "DASK_CONFIG": str(config_dir)}, **quiet))
+    procs.append(
+        subprocess.Popen(
+            [
+                dask,
+                "worker",
+                address,
+                "--nworkers",
+                str(workers),
+                "--nthreads",
+                "1",
+                "--host",
+                "127.0.0.1",
+                "--dashboard-address",
+                "127.0.0.1:0",
+            ],
+            env={**os.environ, "DASK_CONFIG": str(config_dir)},
+            **quiet,
+        )
+    )
     return address, procs
 
 
@@ -124,8 +144,10 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         files = write_recordings(root / "fleet", args.recordings, args.duration_s)
         size = files[0].stat().st_size
-        print(f"{len(files)} recordings of {args.duration_s:g} s at {SAMPLE_RATE_HZ:g} Hz, {size / 1e6:.2f} MB each, "
-              f"written in {time.perf_counter() - t0:.1f} s; {os.cpu_count()} cores")
+        print(
+            f"{len(files)} recordings of {args.duration_s:g} s at {SAMPLE_RATE_HZ:g} Hz, {size / 1e6:.2f} MB each, "
+            f"written in {time.perf_counter() - t0:.1f} s; {os.cpu_count()} cores"
+        )
         inputs = [str(root / "fleet")]
         results = {}
         results["loop"] = run("loop", inputs, root / "loop", "synchronous", None)
@@ -148,32 +170,46 @@ def main(argv: list[str] | None = None) -> int:
 def report(results: dict, n: int, size: int, workers: int) -> None:
     loop_wall, loop_identify = results["loop"][0], results["loop"][1].identify_wall_s
     print()
-    print(f"{'run':<34} {'wall s':>8} {'s/rec':>7} {'task s':>7} {'speed-up':>9} {'identify s':>11} "
-          f"{'speed-up':>9} {'peak RSS/worker MiB':>20}")
-    names = {"loop": "plain loop, one process", "local": f"local cluster, {workers} workers",
-             "scheduler": f"dask scheduler process, {workers} workers"}
+    print(
+        f"{'run':<34} {'wall s':>8} {'s/rec':>7} {'task s':>7} {'speed-up':>9} {'identify s':>11} "
+        f"{'speed-up':>9} {'peak RSS/worker MiB':>20}"
+    )
+    names = {
+        "loop": "plain loop, one process",
+        "local": f"local cluster, {workers} workers",
+        "scheduler": f"dask scheduler process, {workers} workers",
+    }
     for key, (wall, outcome, rows) in results.items():
         by_worker: dict[str, float] = {}
         for r in rows:
             w = str(r.get("worker", ""))
             by_worker[w] = max(by_worker.get(w, 0.0), float(r.get("worker_peak_rss_mib", float("nan"))))
         peaks = ", ".join(f"{v:.0f}" for _, v in sorted(by_worker.items()))
-        print(f"{names[key]:<34} {wall:8.1f} {wall / n:7.3f} {outcome.mean_task_s:7.3f} "
-              f"{loop_wall / wall:9.2f} {outcome.identify_wall_s:11.1f} "
-              f"{loop_identify / outcome.identify_wall_s:9.2f} {peaks:>20}")
-    print("\nwall: the whole batch (hashing, cluster start, identification, table, drift report);"
-          "\nidentify: from the cluster being up to the last recording identified (the part the workers share)")
-    for what, loop_s, local_s in (("whole batch", loop_wall, results["local"][0]),
-                                  ("identification", loop_identify, results["local"][1].identify_wall_s)):
+        print(
+            f"{names[key]:<34} {wall:8.1f} {wall / n:7.3f} {outcome.mean_task_s:7.3f} "
+            f"{loop_wall / wall:9.2f} {outcome.identify_wall_s:11.1f} "
+            f"{loop_identify / outcome.identify_wall_s:9.2f} {peaks:>20}"
+        )
+    print(
+        "\nwall: the whole batch (hashing, cluster start, identification, table, drift report);"
+        "\nidentify: from the cluster being up to the last recording identified (the part the workers share)"
+    )
+    for what, loop_s, local_s in (
+        ("whole batch", loop_wall, results["local"][0]),
+        ("identification", loop_identify, results["local"][1].identify_wall_s),
+    ):
         speedup = loop_s / local_s
-        print(f"speed-up of the local cluster, {what}: {speedup:.2f} (target {TARGET_SPEEDUP}, "
-              f"ratio {speedup / TARGET_SPEEDUP:.2f})")
+        print(
+            f"speed-up of the local cluster, {what}: {speedup:.2f} (target {TARGET_SPEEDUP}, "
+            f"ratio {speedup / TARGET_SPEEDUP:.2f})"
+        )
     print(f"one recording is {size / 2**20:.1f} MiB")
     ref = {r["content_sha256"]: r["frequency_hz"] for r in results["loop"][2]}
     for key in ("local", "scheduler"):
         other = {r["content_sha256"]: r["frequency_hz"] for r in results[key][2]}
-        same = other.keys() == ref.keys() and all(other[k] == ref[k] or (math.isnan(other[k]) and math.isnan(ref[k]))
-                                                  for k in ref)
+        same = other.keys() == ref.keys() and all(
+            other[k] == ref[k] or (math.isnan(other[k]) and math.isnan(ref[k])) for k in ref
+        )
         print(f"{names[key]}: resonances identical to the plain loop's: {'yes' if same else 'NO'}")
 
 

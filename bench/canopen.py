@@ -121,14 +121,29 @@ class Setup:
             device = self.emulated.device
         else:
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", "hilident.cli", "emulate", "canopen", "--config", str(CONFIG),
-                 "--driver", driver_name, "--time-scale", "1"],
-                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+                [
+                    sys.executable,
+                    "-m",
+                    "hilident.cli",
+                    "emulate",
+                    "canopen",
+                    "--config",
+                    str(CONFIG),
+                    "--driver",
+                    driver_name,
+                    "--time-scale",
+                    "1",
+                ],
+                stdout=subprocess.PIPE,
+                stderr=subprocess.DEVNULL,
+                text=True,
+            )
             port = self.proc.stdout.readline().strip()
             if not port:
                 self.proc.wait(timeout=10)
-                raise HilidentError(f"hilident emulate canopen --driver {driver_name} exited "
-                                    f"({self.proc.returncode}) without serving")
+                raise HilidentError(
+                    f"hilident emulate canopen --driver {driver_name} exited ({self.proc.returncode}) without serving"
+                )
             device = replace(device, can_interface="socketcand", port=port)
         self.device = device
         try:
@@ -214,11 +229,35 @@ def streaming_trial(setup: Setup, rate: float | None, duration: float, sample_ra
     sync_errors = _event_value(ev, "sync_errors")
     unanswered = _event_value(ev, "sync_unanswered")
     achieved = count[0] / wall  # samples that arrived per second (all of them in a clean trial)
-    clean = (not note and s.lost_frames == 0 and s.lost_samples == 0 and s.out_of_order == 0
-             and s.corrupt_frames == 0 and s.underruns == 0 and sync_errors == 0 and unanswered == 0
-             and count[0] == n and achieved >= 0.98 * rate)
-    return Trial(rate, achieved, n, count[0], s.lost_frames, s.lost_samples, s.out_of_order, s.corrupt_frames,
-                 s.underruns, sync_errors, _event_value(ev, "sync_late"), _worst_late_ms(ev), unanswered, clean, note)
+    clean = (
+        not note
+        and s.lost_frames == 0
+        and s.lost_samples == 0
+        and s.out_of_order == 0
+        and s.corrupt_frames == 0
+        and s.underruns == 0
+        and sync_errors == 0
+        and unanswered == 0
+        and count[0] == n
+        and achieved >= 0.98 * rate
+    )
+    return Trial(
+        rate,
+        achieved,
+        n,
+        count[0],
+        s.lost_frames,
+        s.lost_samples,
+        s.out_of_order,
+        s.corrupt_frames,
+        s.underruns,
+        sync_errors,
+        _event_value(ev, "sync_late"),
+        _worst_late_ms(ev),
+        unanswered,
+        clean,
+        note,
+    )
 
 
 def find_sync_rate(setup: Setup, duration: float, sample_rate: float, resolution: float) -> tuple[float, list[Trial]]:
@@ -230,10 +269,13 @@ def find_sync_rate(setup: Setup, duration: float, sample_rate: float, resolution
         t = streaming_trial(setup, rate, duration, sample_rate)
         trials.append(t)
         verdict = "clean" if t.clean else "LOSS"
-        print(f"  {name:16s} {setup.kind:10s} {rate:8.0f}/s asked {t.achieved:8.0f}/s received  "
-              f"lost frames {t.lost_frames:5d}  lost samples {t.lost_samples:5d}  late {t.late:4d}  "
-              f"unanswered {t.unanswered:4d}  underruns {t.underruns:4d}  late SYNCs {t.late_syncs:5d} "
-              f"(worst {t.worst_late_ms:.1f} ms)  {verdict} {t.note[:80]}", flush=True)
+        print(
+            f"  {name:16s} {setup.kind:10s} {rate:8.0f}/s asked {t.achieved:8.0f}/s received  "
+            f"lost frames {t.lost_frames:5d}  lost samples {t.lost_samples:5d}  late {t.late:4d}  "
+            f"unanswered {t.unanswered:4d}  underruns {t.underruns:4d}  late SYNCs {t.late_syncs:5d} "
+            f"(worst {t.worst_late_ms:.1f} ms)  {verdict} {t.note[:80]}",
+            flush=True,
+        )
         return t.clean
 
     good, bad = 0.0, None
@@ -276,12 +318,15 @@ def passed(t: Trial) -> bool:
 
 def print_fixed(driver: str, t: Trial, duration: float) -> None:
     verdict = "PASS" if passed(t) else "FAIL"
-    print(f"{driver}, socketcand, {t.rate:g} SYNC/s for {duration:g} s (real time, drive in its own process):\n"
-          f"  samples {t.samples} of {t.asked}, lost samples {t.lost_samples}, lost frames {t.lost_frames}, "
-          f"late frames {t.late}, corrupt frames {t.corrupt}\n"
-          f"  SYNCs more than one period late {t.late_syncs} (worst {t.worst_late_ms:.2f} ms), "
-          f"SYNCs unanswered {t.unanswered}, received {t.achieved:.1f} samples/s\n"
-          f"  {verdict}{': ' + t.note if t.note else ''}", flush=True)
+    print(
+        f"{driver}, socketcand, {t.rate:g} SYNC/s for {duration:g} s (real time, drive in its own process):\n"
+        f"  samples {t.samples} of {t.asked}, lost samples {t.lost_samples}, lost frames {t.lost_frames}, "
+        f"late frames {t.late}, corrupt frames {t.corrupt}\n"
+        f"  SYNCs more than one period late {t.late_syncs} (worst {t.worst_late_ms:.2f} ms), "
+        f"SYNCs unanswered {t.unanswered}, received {t.achieved:.1f} samples/s\n"
+        f"  {verdict}{': ' + t.note if t.note else ''}",
+        flush=True,
+    )
 
 
 def sdo_throughput(setup: Setup, block_bytes: int, segmented_bytes: int) -> dict:
@@ -333,9 +378,13 @@ def buffered_capture(setup: Setup, seconds: float, sample_rate: float) -> dict:
     finally:
         del ad.write
     total = time.perf_counter() - t0
-    return {"samples": result.stats.samples, "record_bytes": sum(c.bits for c in ad.channels) // 8,
-            "download_s": marks["started"] - t0, "total_s": total,
-            "lag_s": last[0] - marks["started"] - seconds}
+    return {
+        "samples": result.stats.samples,
+        "record_bytes": sum(c.bits for c in ad.channels) // 8,
+        "download_s": marks["started"] - t0,
+        "total_s": total,
+        "lag_s": last[0] - marks["started"] - seconds,
+    }
 
 
 def table_parts(setup: Setup, args) -> tuple[str, str]:
@@ -347,14 +396,21 @@ def table_parts(setup: Setup, args) -> tuple[str, str]:
         return "no table", "no table"
     sdo = sdo_throughput(setup, 256_000, 64_000)
     for label, (down, up, size) in sdo.items():
-        print(f"SDO {label:9s} transfer of {size / 1e3:.0f} kB: download {down:7.1f} kB/s, "
-              f"upload {up:7.1f} kB/s", flush=True)
+        print(
+            f"SDO {label:9s} transfer of {size / 1e3:.0f} kB: download {down:7.1f} kB/s, upload {up:7.1f} kB/s",
+            flush=True,
+        )
     cap = buffered_capture(setup, args.capture_s, args.sample_rate)
-    print(f"buffered: {cap['samples']} samples ({args.capture_s:g} s at {args.sample_rate:g} Hz, "
-          f"{cap['record_bytes']} B a sample): table download {cap['download_s']:.2f} s, whole run "
-          f"{cap['total_s']:.2f} s, last sample home {cap['lag_s']:.2f} s after the table ended", flush=True)
-    return (f"{sdo['block'][0]:.1f}/{sdo['block'][1]:.1f} seg {sdo['segmented'][0]:.1f}/{sdo['segmented'][1]:.1f}",
-            f"{cap['total_s']:.2f} s, lag {cap['lag_s']:.2f} s")
+    print(
+        f"buffered: {cap['samples']} samples ({args.capture_s:g} s at {args.sample_rate:g} Hz, "
+        f"{cap['record_bytes']} B a sample): table download {cap['download_s']:.2f} s, whole run "
+        f"{cap['total_s']:.2f} s, last sample home {cap['lag_s']:.2f} s after the table ended",
+        flush=True,
+    )
+    return (
+        f"{sdo['block'][0]:.1f}/{sdo['block'][1]:.1f} seg {sdo['segmented'][0]:.1f}/{sdo['segmented'][1]:.1f}",
+        f"{cap['total_s']:.2f} s, lag {cap['lag_s']:.2f} s",
+    )
 
 
 def _names(text: str) -> list[str]:
@@ -363,13 +419,22 @@ def _names(text: str) -> list[str]:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--driver", default="cia402-standard",
-                   help="driver of the fixed-rate trial, the SDO and the buffered parts (default cia402-standard)")
-    p.add_argument("--search-drivers", default="canopen-servo",
-                   help="drivers of the SYNC-rate search besides --driver (default canopen-servo)")
-    p.add_argument("--parts", default="fixed,search,table",
-                   help="what to run: fixed (the fixed-rate trial), search (the SYNC-rate search), "
-                        "table (SDO throughput and buffered capture); default all")
+    p.add_argument(
+        "--driver",
+        default="cia402-standard",
+        help="driver of the fixed-rate trial, the SDO and the buffered parts (default cia402-standard)",
+    )
+    p.add_argument(
+        "--search-drivers",
+        default="canopen-servo",
+        help="drivers of the SYNC-rate search besides --driver (default canopen-servo)",
+    )
+    p.add_argument(
+        "--parts",
+        default="fixed,search,table",
+        help="what to run: fixed (the fixed-rate trial), search (the SYNC-rate search), "
+        "table (SDO throughput and buffered capture); default all",
+    )
     p.add_argument("--fixed-rate", type=float, default=1000.0, help="SYNC/s of the fixed-rate trial (default 1000)")
     p.add_argument("--fixed-duration", type=float, default=60.0, help="seconds of the fixed-rate trial (default 60)")
     p.add_argument("--duration", type=float, default=60.0, help="seconds per search trial (default 60)")
@@ -404,8 +469,11 @@ def main(argv=None) -> int:
             row[4] = "counter" if setup.adapter.desc.counted else "order"
             try:
                 if "search" in parts:
-                    print(f"host-streamed, {args.duration:g} s per trial, {args.sample_rate:g} Hz samples, "
-                          "RPDO + SYNC out, TPDOs back per sample:", flush=True)
+                    print(
+                        f"host-streamed, {args.duration:g} s per trial, {args.sample_rate:g} Hz samples, "
+                        "RPDO + SYNC out, TPDOs back per sample:",
+                        flush=True,
+                    )
                     best, trials = find_sync_rate(setup, args.duration, args.sample_rate, args.resolution)
                     print(f"  highest lossless SYNC rate: {best:.0f}/s", flush=True)
                     row[0], row[1] = f"{best:.0f}", str(len(trials))
@@ -416,13 +484,17 @@ def main(argv=None) -> int:
     print("\n== summary ==")
     if fixed is not None:
         verdict = "PASS" if passed(fixed) else "FAIL"
-        print(f"fixed rate, {args.driver}, socketcand, {fixed.rate:g} SYNC/s x {args.fixed_duration:g} s: "
-              f"{fixed.samples}/{fixed.asked} samples, lost {fixed.lost_samples} samples / {fixed.lost_frames} frames, "
-              f"sync_late {fixed.late_syncs} (worst {fixed.worst_late_ms:.2f} ms), "
-              f"sync_unanswered {fixed.unanswered}: {verdict}")
+        print(
+            f"fixed rate, {args.driver}, socketcand, {fixed.rate:g} SYNC/s x {args.fixed_duration:g} s: "
+            f"{fixed.samples}/{fixed.asked} samples, lost {fixed.lost_samples} samples / {fixed.lost_frames} frames, "
+            f"sync_late {fixed.late_syncs} (worst {fixed.worst_late_ms:.2f} ms), "
+            f"sync_unanswered {fixed.unanswered}: {verdict}"
+        )
     if rows:
-        print(f"{'driver':16s} {'matching':8s} {'setup':10s} {'SYNC/s held':>11s} {'trials':>6s}   "
-              f"{'SDO block down/up, segmented down/up kB/s':42s} buffered {args.capture_s:g} s: run, lag")
+        print(
+            f"{'driver':16s} {'matching':8s} {'setup':10s} {'SYNC/s held':>11s} {'trials':>6s}   "
+            f"{'SDO block down/up, segmented down/up kB/s':42s} buffered {args.capture_s:g} s: run, lag"
+        )
         for (driver, kind), (best, n, sdo, cap, matching) in rows.items():
             print(f"{driver:16s} {matching:8s} {kind:10s} {best:>11s} {n:>6s}   {sdo:42s} {cap}")
     return 1 if fixed is not None and not passed(fixed) else 0

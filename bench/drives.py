@@ -53,20 +53,30 @@ def _session_config(folder: Path, mode: str, friction: bool, duration_s: float, 
         key, value = SETPOINT_AMPLITUDES[mode]
         excitation = replace(excitation, **{key: value})
     if acquisition == "recorder":  # the drive's own generator plays a PRBS: four periods of a 10-bit register
-        excitation = replace(excitation, kind="prbs", register_length=10, clock_divider=1,
-                             duration_s=3 * 1023 / cfg.run.sample_rate_hz, f_max_hz=200.0)
+        excitation = replace(
+            excitation,
+            kind="prbs",
+            register_length=10,
+            clock_divider=1,
+            duration_s=3 * 1023 / cfg.run.sample_rate_hz,
+            f_max_hz=200.0,
+        )
     friction_test = replace(cfg.friction_test, enabled=friction)
     if "velocity" not in declared_modes(load_driver(folder)):
         # the legs run as a position profile: the position loop needs longer to settle after each ramp
         friction_test = replace(friction_test, hold_s=friction_test.hold_s + 0.5, settle_s=friction_test.settle_s + 0.5)
-    return replace(cfg, device=replace(cfg.device, driver=str(folder), acquisition=acquisition),
-                   friction_test=friction_test, excitation=excitation)
+    return replace(
+        cfg,
+        device=replace(cfg.device, driver=str(folder), acquisition=acquisition),
+        friction_test=friction_test,
+        excitation=excitation,
+    )
 
 
 def _truth(cfg):
     from hilident.emulator.factory import true_modes
 
-    (f, _), = true_modes(cfg.emulator)
+    ((f, _),) = true_modes(cfg.emulator)
     return f, cfg.emulator.friction
 
 
@@ -104,11 +114,15 @@ def run_drive(folder: Path, out: Path, duration_s: float, acquisition: str = "st
     found = summary["resonances"]
     row["resonance"] = (
         f"{100 * (min(found, key=lambda r: abs(r['frequency_hz'] - true_f))['frequency_hz'] - true_f) / true_f:+.2f} %"
-        if found else "none found")
+        if found
+        else "none found"
+    )
     if friction and summary.get("friction"):
         got = summary["friction"]["params"]
-        row["friction"] = (f"Fc {100 * (got['Fc'] - true_friction.Fc) / true_friction.Fc:+.1f} %, "
-                           f"Fv {100 * (got['Fv'] - true_friction.Fv) / true_friction.Fv:+.1f} %")
+        row["friction"] = (
+            f"Fc {100 * (got['Fc'] - true_friction.Fc) / true_friction.Fc:+.1f} %, "
+            f"Fv {100 * (got['Fv'] - true_friction.Fv) / true_friction.Fv:+.1f} %"
+        )
     else:
         why = "no torque channel" if acquisition == "streamed" else "its legs are host-streamed"
         row["friction"] = f"{why}: not measured" if not friction else "-"
@@ -116,15 +130,21 @@ def run_drive(folder: Path, out: Path, duration_s: float, acquisition: str = "st
     if upload.get("written"):
         v = summary["verification"]
         band, line = v.get("band_reduction_db"), v.get("peak_reduction_db")
-        row["notch"] = (f"uploaded, read back {'ok' if upload['verified_readback'] else 'DIFFERS'}, "
-                        f"{band:.1f} dB in the band ({line:.1f} dB at the resonance)"
-                        if band is not None else "uploaded")
+        row["notch"] = (
+            f"uploaded, read back {'ok' if upload['verified_readback'] else 'DIFFERS'}, "
+            f"{band:.1f} dB in the band ({line:.1f} dB at the resonance)"
+            if band is not None
+            else "uploaded"
+        )
     else:
         notches = summary.get("notch_filters") or []
         designed = f"designed {notches[0]['center_hz']:.2f} Hz; " if notches else ""
         row["notch"] = designed + (upload.get("not_uploaded") or "no notch")
-    row["pdos"] = (f"{len(ad.tpdo_layout)} TPDO ({'+'.join(str(len(idx)) for _, idx in ad.tpdo_layout)} objects)"
-                   if acquisition == "streamed" else f"none: the drive's {acquisition}")
+    row["pdos"] = (
+        f"{len(ad.tpdo_layout)} TPDO ({'+'.join(str(len(idx)) for _, idx in ad.tpdo_layout)} objects)"
+        if acquisition == "streamed"
+        else f"none: the drive's {acquisition}"
+    )
     row["result"] = "ok"
     return row
 
@@ -134,15 +154,19 @@ def main(argv=None) -> int:
     p.add_argument("folder", nargs="?", help="folder of vendor EDS/DCF files")
     p.add_argument("--out", help="where the driver folders and sessions go (default: a temporary folder)")
     p.add_argument("--duration", type=float, default=16.0, help="identification run length, s (default 16)")
-    p.add_argument("--project-drives", action="store_true",
-                   help="also run the project's test drives that describe a filter capability")
+    p.add_argument(
+        "--project-drives",
+        action="store_true",
+        help="also run the project's test drives that describe a filter capability",
+    )
     args = p.parse_args(argv)
     sys.path.insert(0, str(ROOT / "tests"))
     from hilident.drivers.tools import check_driver_folder, new_driver_folder
 
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="hilident-drives-"))
-    files = (sorted(f for f in Path(args.folder).iterdir() if f.suffix.lower() in (".eds", ".dcf"))
-             if args.folder else [])
+    files = (
+        sorted(f for f in Path(args.folder).iterdir() if f.suffix.lower() in (".eds", ".dcf")) if args.folder else []
+    )
     rows = []
     for eds in files:
         started = time.monotonic()
@@ -190,8 +214,20 @@ def _project_drives(out: Path, duration_s: float) -> list[dict]:
     return rows
 
 
-COLUMNS = ("drive", "check", "placeholders", "warnings", "modes", "pdos", "lost", "resonance", "friction", "notch",
-           "result", "time")
+COLUMNS = (
+    "drive",
+    "check",
+    "placeholders",
+    "warnings",
+    "modes",
+    "pdos",
+    "lost",
+    "resonance",
+    "friction",
+    "notch",
+    "result",
+    "time",
+)
 
 
 def _line(row: dict) -> str:

@@ -48,23 +48,28 @@ def row(eds: Path, out: Path) -> tuple[list[str], list[str]]:
     if s.period.seconds:
         period += f" {s.period.seconds * 1e3:g} ms"
     cells = [
-        eds.name, str(len(new.warnings)), ",".join(s.cyclic_modes) or "none",
-        f"{len(s.rpdo_entries)}x{s.rpdo_max_entries} / {len(s.tpdo_entries)}x{s.tpdo_max_entries}", period,
-        s.torque_reference, str(len(new.placeholders)),
+        eds.name,
+        str(len(new.warnings)),
+        ",".join(s.cyclic_modes) or "none",
+        f"{len(s.rpdo_entries)}x{s.rpdo_max_entries} / {len(s.tpdo_entries)}x{s.tpdo_max_entries}",
+        period,
+        s.torque_reference,
+        str(len(new.placeholders)),
         f"{len(s.vendor_filters)}/{len(s.vendor_recorders)}/{len(s.vendor_generators)}",
         "ok" if check.ok else f"{len(check.errors)} errors",
     ]
     details = [f"warning: {w}" for w in new.warnings] + [f"placeholder: {p}" for p in new.placeholders]
-    details += [f"vendor object: 0x{i:04X} {n}" for i, n in s.vendor_filters + s.vendor_recorders
-                + s.vendor_generators]
+    details += [f"vendor object: 0x{i:04X} {n}" for i, n in s.vendor_filters + s.vendor_recorders + s.vendor_generators]
     details += [f"check error: {e}" for e in check.errors]
     return cells, details
 
 
 def table(rows: list[list[str]]) -> str:
     widths = [max(len(r[i]) for r in [list(COLUMNS)] + rows) for i in range(len(COLUMNS))]
-    lines = ["| " + " | ".join(c.ljust(w) for c, w in zip(COLUMNS, widths, strict=True)) + " |",
-             "|" + "|".join("-" * (w + 2) for w in widths) + "|"]
+    lines = [
+        "| " + " | ".join(c.ljust(w) for c, w in zip(COLUMNS, widths, strict=True)) + " |",
+        "|" + "|".join("-" * (w + 2) for w in widths) + "|",
+    ]
     lines += ["| " + " | ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) + " |" for r in rows]
     return "\n".join(lines)
 
@@ -73,8 +78,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("dir", type=Path, help="folder of vendor .eds/.dcf files")
     ap.add_argument("--out", type=Path, help="write the driver folders here (default: a temporary folder)")
-    ap.add_argument("-v", "--verbose", action="store_true", help="print each file's warnings, placeholders and "
-                                                                  "vendor objects")
+    ap.add_argument(
+        "-v", "--verbose", action="store_true", help="print each file's warnings, placeholders and vendor objects"
+    )
     args = ap.parse_args(argv)
     files = sorted(p for p in args.dir.iterdir() if p.suffix.lower() in (".eds", ".dcf"))
     if not files:

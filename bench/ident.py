@@ -197,15 +197,26 @@ def make_record(cfg, n: int, sample_rate_hz: float, seed: int) -> Record:
     if drive.fault:
         raise RuntimeError(f"the emulated drive tripped: {drive.fault}")
     col = DriveLoop.CHANNELS.index
-    return Record(sample_rate_hz, np.ascontiguousarray(rows[:, col("excitation")]),
-                  np.ascontiguousarray(rows[:, col("torque_nm")]),
-                  np.ascontiguousarray(rows[:, col("velocity_mps")]))
+    return Record(
+        sample_rate_hz,
+        np.ascontiguousarray(rows[:, col("excitation")]),
+        np.ascontiguousarray(rows[:, col("torque_nm")]),
+        np.ascontiguousarray(rows[:, col("velocity_mps")]),
+    )
 
 
 # --- the pipeline ---------------------------------------------------------------------------------
 
-STAGES = ("check_signals", "friction compensation", "low-pass (zero-phase)", "detrend",
-          "H1 + coherence", "resonances", "transfer-function fit", "notch design")
+STAGES = (
+    "check_signals",
+    "friction compensation",
+    "low-pass (zero-phase)",
+    "detrend",
+    "H1 + coherence",
+    "resonances",
+    "transfer-function fit",
+    "notch design",
+)
 
 
 @dataclass
@@ -246,14 +257,19 @@ def run_pipeline(rec: Record, s: Setup, on_stage=None) -> tuple[PipelineResult, 
     lap(STAGES[3])
     frf = h1_estimate(u, y, fs, int(round(cfg.segment_s * fs)))
     lap(STAGES[4])
-    resonances = find_resonances(frf, coherence_threshold=cfg.coherence_threshold,
-                                 min_prominence_db=cfg.min_prominence_db,
-                                 max_count=cfg.max_resonances, band_hz=s.band_hz)
+    resonances = find_resonances(
+        frf,
+        coherence_threshold=cfg.coherence_threshold,
+        min_prominence_db=cfg.min_prominence_db,
+        max_count=cfg.max_resonances,
+        band_hz=s.band_hz,
+    )
     lap(STAGES[5])
     # Rigid-body pole fixed at 0; the velocity estimate lags the applied torque by about
     # one sample (zero-order hold plus backward difference), taken as a known delay.
-    tf = fit_transfer_function(frf, *s.tf_orders, weights="coherence", integrators=1,
-                               delay_s=1.0 / fs, band_hz=s.band_hz)
+    tf = fit_transfer_function(
+        frf, *s.tf_orders, weights="coherence", integrators=1, delay_s=1.0 / fs, band_hz=s.band_hz
+    )
     lap(STAGES[6])
     notches = design_notches(resonances, s.notch, s.filter_rate_hz, _SLOTS)
     lap(STAGES[7])
@@ -261,8 +277,16 @@ def run_pipeline(rec: Record, s: Setup, on_stage=None) -> tuple[PipelineResult, 
 
 
 def run_identify_plant(rec: Record, s: Setup):
-    return identify_plant(rec.excitation, rec.torque, rec.velocity, rec.velocity, s.sample_rate_hz,
-                          s.ident, s.band_hz, friction=s.friction)
+    return identify_plant(
+        rec.excitation,
+        rec.torque,
+        rec.velocity,
+        rec.velocity,
+        s.sample_rate_hz,
+        s.ident,
+        s.band_hz,
+        friction=s.friction,
+    )
 
 
 # --- helpers ------------------------------------------------------------------------------------
@@ -294,16 +318,20 @@ def _machine() -> str:
             model = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
     except (OSError, StopIteration):
         pass
-    return (f"{model}, {os.cpu_count()} cores; Python {platform.python_version()}, numpy {np.__version__}, "
-            f"scipy {scipy.__version__}")
+    return (
+        f"{model}, {os.cpu_count()} cores; Python {platform.python_version()}, numpy {np.__version__}, "
+        f"scipy {scipy.__version__}"
+    )
 
 
 # --- 1. pipeline time -------------------------------------------------------------------------
 
 
 def bench_pipeline(rec: Record, s: Setup, repeats: int, cfg) -> PipelineResult:
-    print(f"\n1. pipeline on {rec.n:,} samples ({rec.n / rec.sample_rate_hz:g} s at "
-          f"{rec.sample_rate_hz:g} Hz); best and mean of {repeats} runs after one warm-up")
+    print(
+        f"\n1. pipeline on {rec.n:,} samples ({rec.n / rec.sample_rate_hz:g} s at "
+        f"{rec.sample_rate_hz:g} Hz); best and mean of {repeats} runs after one warm-up"
+    )
     result, _ = run_pipeline(rec, s)
     per_stage: dict[str, list[float]] = {name: [] for name in STAGES}
     totals = []
@@ -332,24 +360,33 @@ def bench_pipeline(rec: Record, s: Setup, repeats: int, cfg) -> PipelineResult:
 
 def _print_outcome(result: PipelineResult, s: Setup, cfg) -> None:
     """What the pipeline found, next to the emulator's true plant."""
-    (f_true, z_true), = true_modes(cfg.emulator)
+    ((f_true, z_true),) = true_modes(cfg.emulator)
     frf = result.frf
     print(f"   FRF: {len(frf)} lines at {frf.frequency_hz[1]:g} Hz, {frf.n_averages} averages")
     for r in result.resonances:
-        print(f"   resonance {r.frequency_hz:.3f} Hz, zeta {r.damping_ratio:.4f} ({r.method}); "
-              f"true {f_true:.3f} Hz, zeta {z_true:.4f}")
+        print(
+            f"   resonance {r.frequency_hz:.3f} Hz, zeta {r.damping_ratio:.4f} ({r.method}); "
+            f"true {f_true:.3f} Hz, zeta {z_true:.4f}"
+        )
     model = modal_form(result.tf)
     p = cfg.emulator.plant
-    print(f"   transfer function {result.tf.n_num}/{result.tf.n_den} + integrator, delay "
-          f"{1e3 * result.tf.delay_s:g} ms, {result.tf.n_bins} bins {s.band_hz[0]:g}-{s.band_hz[1]:g} Hz: "
-          f"{result.tf.fit_db_rms:.2f} dB rms, {result.tf.phase_rms_deg:.1f} deg rms")
-    print(f"     gain {model.gain:.4f} (true c/(m1+m2) = {p.c / (p.m1 + p.m2):.4f}), resonances "
-          + ", ".join(f"{f:.3f} Hz/{z:.4f}" for f, z in model.resonances)
-          + ", antiresonances " + ", ".join(f"{f:.3f} Hz/{z:.4f}" for f, z in model.antiresonances)
-          + f" (true {np.sqrt(p.k / p.m2) / (2 * np.pi):.3f} Hz/{p.d / (2 * np.sqrt(p.k * p.m2)):.4f})")
+    print(
+        f"   transfer function {result.tf.n_num}/{result.tf.n_den} + integrator, delay "
+        f"{1e3 * result.tf.delay_s:g} ms, {result.tf.n_bins} bins {s.band_hz[0]:g}-{s.band_hz[1]:g} Hz: "
+        f"{result.tf.fit_db_rms:.2f} dB rms, {result.tf.phase_rms_deg:.1f} deg rms"
+    )
+    print(
+        f"     gain {model.gain:.4f} (true c/(m1+m2) = {p.c / (p.m1 + p.m2):.4f}), resonances "
+        + ", ".join(f"{f:.3f} Hz/{z:.4f}" for f, z in model.resonances)
+        + ", antiresonances "
+        + ", ".join(f"{f:.3f} Hz/{z:.4f}" for f, z in model.antiresonances)
+        + f" (true {np.sqrt(p.k / p.m2) / (2 * np.pi):.3f} Hz/{p.d / (2 * np.sqrt(p.k * p.m2)):.4f})"
+    )
     for d in result.notches:
-        print(f"   notch slot {d.slot}: {d.spec.center_hz:.3f} Hz, width {d.spec.width_hz:.3f} Hz, "
-              f"depth {d.spec.depth_db:g} dB at {d.sample_rate_hz:g} Hz")
+        print(
+            f"   notch slot {d.slot}: {d.spec.center_hz:.3f} Hz, width {d.spec.width_hz:.3f} Hz, "
+            f"depth {d.spec.depth_db:g} dB at {d.sample_rate_hz:g} Hz"
+        )
 
 
 # --- 2. H1 against scipy --------------------------------------------------------------------------
@@ -372,16 +409,22 @@ def bench_h1(result: PipelineResult, s: Setup, repeats: int) -> None:
         _, puy = signal.csd(u, y, **kw)
         return f, puy / puu, np.abs(puy) ** 2 / (puu * pyy)
 
-    print(f"\n2. H1 + coherence of the preprocessed torque and velocity ({u.size:,} samples, segments of "
-          f"{seg}, 50 % overlap, Hann), best of {repeats}")
+    print(
+        f"\n2. H1 + coherence of the preprocessed torque and velocity ({u.size:,} samples, segments of "
+        f"{seg}, 50 % overlap, Hann), best of {repeats}"
+    )
     t_h = min(_timeit(lambda: h1_estimate(u, y, fs, seg), repeats))
     t_u = min(_timeit(usual, repeats))
     t_l = min(_timeit(lean, repeats))
     print(f"   hilident h1_estimate                              {1e3 * t_h:8.1f} ms")
-    print(f"   scipy welch + csd + coherence (5 Welch passes)    {1e3 * t_u:8.1f} ms   "
-          f"ratio scipy/hilident {t_u / t_h:.2f}")
-    print(f"   scipy welch(u) + welch(y) + csd (3 Welch passes)  {1e3 * t_l:8.1f} ms   "
-          f"ratio scipy/hilident {t_l / t_h:.2f}")
+    print(
+        f"   scipy welch + csd + coherence (5 Welch passes)    {1e3 * t_u:8.1f} ms   "
+        f"ratio scipy/hilident {t_u / t_h:.2f}"
+    )
+    print(
+        f"   scipy welch(u) + welch(y) + csd (3 Welch passes)  {1e3 * t_l:8.1f} ms   "
+        f"ratio scipy/hilident {t_l / t_h:.2f}"
+    )
     ours = h1_estimate(u, y, fs, seg)
     f, h, coh = usual()
     if not np.allclose(f, ours.frequency_hz):
@@ -391,9 +434,11 @@ def bench_h1(result: PipelineResult, s: Setup, repeats: int) -> None:
     with np.errstate(divide="ignore"):
         d_db = np.abs(20 * np.log10(np.abs(ours.response[mask]) / np.abs(h[mask])))
     d_deg = np.abs(np.degrees(np.angle(ours.response[mask] / h[mask])))
-    print(f"   where coherence > {COHERENCE_GATE:g} ({mask.sum()} of {mask.size} lines): max |H| difference "
-          f"{d_db.max():.2e} dB, max phase difference {d_deg.max():.2e} deg, max coherence difference "
-          f"{np.abs(ours.coherence - coh)[mask].max():.2e}")
+    print(
+        f"   where coherence > {COHERENCE_GATE:g} ({mask.sum()} of {mask.size} lines): max |H| difference "
+        f"{d_db.max():.2e} dB, max phase difference {d_deg.max():.2e} deg, max coherence difference "
+        f"{np.abs(ours.coherence - coh)[mask].max():.2e}"
+    )
 
 
 # --- 3. ARX order search ---------------------------------------------------------------------------
@@ -434,8 +479,11 @@ def _search_per_candidate(u: np.ndarray, y: np.ndarray, nas, nbs, nks):
             continue
         rss = max(2.0 * model.V, arx._RSS_FLOOR * energy, np.finfo(float).tiny)
         base = n_rows * np.log(rss / n_rows)
-        rows.append(arx.OrderCandidate(na, nb, nk, p, model.V, float(base + 2 * p), float(base + p * np.log(n_rows)),
-                                       model.fit_percent, np.nan))
+        rows.append(
+            arx.OrderCandidate(
+                na, nb, nk, p, model.V, float(base + 2 * p), float(base + p * np.log(n_rows)), model.fit_percent, np.nan
+            )
+        )
         params.append(model.params)
     c = rows[arx._smallest_adequate(rows, "aic", 2.0)]
     return rows, params, fit_arx(u, y, c.na, c.nb, c.nk)
@@ -453,36 +501,47 @@ def _compare_searches(uu, yy, nas, nbs, nks, search, old_rows, old_params, old_m
     grid = [(c.na, c.nb, c.nk) for c in old_rows]
     _, fits = arx._fit_grid(np.asarray(uu, float), np.asarray(yy, float), grid)
     marks_same = all((f is None) == (q is None) for f, q in zip(fits, old_params, strict=True))
-    d_params = max((_largest_relative(f.params, q) for f, q in zip(fits, old_params, strict=True)
-                    if f is not None and q is not None), default=0.0)
+    d_params = max(
+        (
+            _largest_relative(f.params, q)
+            for f, q in zip(fits, old_params, strict=True)
+            if f is not None and q is not None
+        ),
+        default=0.0,
+    )
     d_chosen = _largest_relative(search.model.params, old_model.params)
-    d_table = {name: _largest_relative([getattr(c, name) for c in search.candidates],
-                                       [getattr(c, name) for c in old_rows])
-               for name in ("V", "aic", "bic", "fit_percent")}
+    d_table = {
+        name: _largest_relative([getattr(c, name) for c in search.candidates], [getattr(c, name) for c in old_rows])
+        for name in ("V", "aic", "bic", "fit_percent")
+    }
     same_choice = (search.model.na, search.model.nb, search.model.nk) == (old_model.na, old_model.nb, old_model.nk)
     ok = marks_same and max(d_params, d_chosen) <= 1e-10 and same_choice
-    print(f"     check: candidates' parameters agree to 1e-10 relative and the choice is the same: "
-          f"{'yes' if ok else 'NO'} (largest relative difference: candidates {d_params:.1e}, chosen model "
-          f"{d_chosen:.1e}; undetermined candidates {'the same' if marks_same else 'DIFFER'}; same choice "
-          f"{'yes' if same_choice else 'NO'})")
-    print("     table, largest relative difference: "
-          + ", ".join(f"{name} {d:.1e}" for name, d in d_table.items()))
+    print(
+        f"     check: candidates' parameters agree to 1e-10 relative and the choice is the same: "
+        f"{'yes' if ok else 'NO'} (largest relative difference: candidates {d_params:.1e}, chosen model "
+        f"{d_chosen:.1e}; undetermined candidates {'the same' if marks_same else 'DIFFER'}; same choice "
+        f"{'yes' if same_choice else 'NO'})"
+    )
+    print("     table, largest relative difference: " + ", ".join(f"{name} {d:.1e}" for name, d in d_table.items()))
 
 
 def bench_arx(result: PipelineResult, s: Setup, repeats: int, sippy_samples: int) -> None:
     u, y = result.u, result.y
     nas, nbs, nks = range(1, 5), range(1, 5), (1, 2)
-    print(f"\n3. ARX order search on the preprocessed torque -> velocity: na 1..4, nb 1..4, nk 1..2 "
-          f"({len(nas) * len(nbs) * len(nks)} candidates), AIC; median of {repeats} runs after one warm-up "
-          f"(the per-candidate reference: median of {min(repeats, 3)})")
-    print("   hilident nk = input delay in samples (nk = 0: u(k) acts on y(k)); sippy's delay d means "
-          "u(k-1-d), so nk 1..2 is sippy's delays 0..1")
+    print(
+        f"\n3. ARX order search on the preprocessed torque -> velocity: na 1..4, nb 1..4, nk 1..2 "
+        f"({len(nas) * len(nbs) * len(nks)} candidates), AIC; median of {repeats} runs after one warm-up "
+        f"(the per-candidate reference: median of {min(repeats, 3)})"
+    )
+    print(
+        "   hilident nk = input delay in samples (nk = 0: u(k) acts on y(k)); sippy's delay d means "
+        "u(k-1-d), so nk 1..2 is sippy's delays 0..1"
+    )
     try:
         from sippy_unipi import system_identification
     except ImportError as exc:
         system_identification = None
-        print(f"   sippy-unipi is not installed ({exc}); `pip install sippy-unipi` to compare. "
-              "Only hilident is timed.")
+        print(f"   sippy-unipi is not installed ({exc}); `pip install sippy-unipi` to compare. Only hilident is timed.")
     n_sippy = u.size if sippy_samples <= 0 else min(sippy_samples, u.size)
     runs = [(u.size, "full record")]
     if n_sippy < u.size:
@@ -494,12 +553,19 @@ def bench_arx(result: PipelineResult, s: Setup, repeats: int, sippy_samples: int
         strict = min(search.candidates, key=lambda c: c.aic)
         m = search.model
         print(f"   {n:,} samples, {label}:")
-        print(f"     hilident arx_order_search   {t_h:8.3f} s; chooses na={m.na} nb={m.nb} "
-              f"nk={m.nk} (fewest parameters within 2 of the best AIC); lowest AIC: na={strict.na} "
-              f"nb={strict.nb} nk={strict.nk}; target <= {ARX_TARGET_S:g} s: "
-              f"{'met' if t_h <= ARX_TARGET_S else 'NOT met'}")
-        t_old = float(np.median(_timeit(lambda uu=uu, yy=yy: _search_per_candidate(uu, yy, nas, nbs, nks),
-                                        min(repeats, 3), warmup=False)))
+        print(
+            f"     hilident arx_order_search   {t_h:8.3f} s; chooses na={m.na} nb={m.nb} "
+            f"nk={m.nk} (fewest parameters within 2 of the best AIC); lowest AIC: na={strict.na} "
+            f"nb={strict.nb} nk={strict.nk}; target <= {ARX_TARGET_S:g} s: "
+            f"{'met' if t_h <= ARX_TARGET_S else 'NOT met'}"
+        )
+        t_old = float(
+            np.median(
+                _timeit(
+                    lambda uu=uu, yy=yy: _search_per_candidate(uu, yy, nas, nbs, nks), min(repeats, 3), warmup=False
+                )
+            )
+        )
         old_rows, old_params, old_model = _search_per_candidate(uu, yy, nas, nbs, nks)
         print(f"     one QR per candidate (before) {t_old:8.3f} s; time ratio before/now {t_old / t_h:.1f}")
         _compare_searches(uu, yy, nas, nbs, nks, search, old_rows, old_params, old_model)
@@ -508,24 +574,31 @@ def bench_arx(result: PipelineResult, s: Setup, repeats: int, sippy_samples: int
         buf = io.StringIO()
         t0 = time.perf_counter()
         with contextlib.redirect_stdout(buf):
-            sm = system_identification(yy, uu, "ARX", IC="AIC", na_ord=[1, 4], nb_ord=[1, 4], delays=[0, 1],
-                                       tsample=1.0 / s.sample_rate_hz)
+            sm = system_identification(
+                yy, uu, "ARX", IC="AIC", na_ord=[1, 4], nb_ord=[1, 4], delays=[0, 1], tsample=1.0 / s.sample_rate_hz
+            )
         t_s = time.perf_counter() - t0
         na, nb, nk = int(sm.na), int(sm.nb), int(sm.theta) + 1
-        print(f"     sippy-unipi (ARX, IC='AIC') {t_s:8.2f} s (one run); chooses na={na} nb={nb} nk={nk} "
-              f"(lowest AIC); time ratio sippy/hilident {t_s / t_h:.1f}")
+        print(
+            f"     sippy-unipi (ARX, IC='AIC') {t_s:8.2f} s (one run); chooses na={na} nb={nb} nk={nk} "
+            f"(lowest AIC); time ratio sippy/hilident {t_s / t_h:.1f}"
+        )
         same = (na, nb, nk) == (strict.na, strict.nb, strict.nk)
-        print(f"     same order as hilident's lowest AIC: {'yes' if same else 'no'}; "
-              f"as hilident's choice: {'yes' if (na, nb, nk) == (m.na, m.nb, m.nk) else 'no'}")
+        print(
+            f"     same order as hilident's lowest AIC: {'yes' if same else 'no'}; "
+            f"as hilident's choice: {'yes' if (na, nb, nk) == (m.na, m.nb, m.nk) else 'no'}"
+        )
         ours = fit_arx(uu, yy, na, nb, nk)
         den = np.ravel(sm.DENOMINATOR)
         num = np.ravel(sm.NUMERATOR)
-        a_sippy = -den[1: na + 1]  # sippy's denominator is 1 + a z^-1 ...; hilident's a has the opposite sign
-        b_sippy = num[nk - 1: nk - 1 + nb]
+        a_sippy = -den[1 : na + 1]  # sippy's denominator is 1 + a z^-1 ...; hilident's a has the opposite sign
+        b_sippy = num[nk - 1 : nk - 1 + nb]
         da = np.max(np.abs(ours.a - a_sippy))
         db = np.max(np.abs(ours.b - b_sippy) / np.max(np.abs(ours.b)))
-        print(f"     parameters at na={na} nb={nb} nk={nk}: max |a difference| {da:.2e}, "
-              f"max |b difference| / max|b| {db:.2e}")
+        print(
+            f"     parameters at na={na} nb={nb} nk={nk}: max |a difference| {da:.2e}, "
+            f"max |b difference| / max|b| {db:.2e}"
+        )
         a_txt = ", ".join(f"{x:.5f}" for x in ours.a)
         b_txt = ", ".join(f"{x:.4e}" for x in ours.b)
         print(f"       hilident a = ({a_txt}), b = ({b_txt})")
@@ -574,8 +647,10 @@ def _memory_child(path: str, setup: Setup, conn) -> None:
     short = Record(rec.sample_rate_hz, *(x[:50_000].copy() for x in (rec.excitation, rec.torque, rec.velocity)))
     run_pipeline(short, setup)  # lazy imports and caches, not the record's memory
     run_identify_plant(short, setup)
-    out = {"rss_base": _proc_status_bytes("VmRSS"),
-           "maxrss_base": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024}
+    out = {
+        "rss_base": _proc_status_bytes("VmRSS"),
+        "maxrss_base": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+    }
     out["rss_growth"], out["maxrss_growth"] = _rss_growth(lambda: run_pipeline(rec, setup))
     out["rss_growth_lib"], _ = _rss_growth(lambda: run_identify_plant(rec, setup))
 
@@ -612,30 +687,44 @@ def bench_memory(rec: Record, s: Setup) -> None:
         proc.join()
     channel = rec.torque.nbytes
     inputs = 2 * channel  # torque and velocity (the velocity is also the output)
-    print(f"   input: torque and velocity, {rec.n:,} float64 samples each = {_mb(channel).strip()} per channel, "
-          f"{_mb(inputs).strip()} together; tracemalloc counts numpy's arrays, not library-internal buffers")
+    print(
+        f"   input: torque and velocity, {rec.n:,} float64 samples each = {_mb(channel).strip()} per channel, "
+        f"{_mb(inputs).strip()} together; tracemalloc counts numpy's arrays, not library-internal buffers"
+    )
     print(f"   {'stage':<24} {'traced peak':>12} {'held after':>12}   (both include the input)")
     for name in STAGES:
         peak, current = out["stages"][name]
         print(f"   {name:<24} {_mb(peak):>12} {_mb(current):>12}")
     peak = out["traced_peak"]
     verdict = "met" if peak < MEMORY_TARGET * inputs else "NOT met"
-    print(f"   tracemalloc peak {_mb(peak).strip()} = {peak / inputs:.1f}x the input "
-          f"({peak / channel:.1f}x one channel); target < {MEMORY_TARGET:g}x the input: {verdict}")
+    print(
+        f"   tracemalloc peak {_mb(peak).strip()} = {peak / inputs:.1f}x the input "
+        f"({peak / channel:.1f}x one channel); target < {MEMORY_TARGET:g}x the input: {verdict}"
+    )
     growth = out["rss_growth"]
     if growth is not None:
-        print(f"   peak RSS growth {_mb(growth).strip()} = {growth / inputs:.1f}x the input "
-              f"({growth / channel:.1f}x one channel): VmHWM after the run minus VmRSS before it "
-              f"({_mb(out['rss_base']).strip()}), the high-water mark reset first")
-    print(f"   ru_maxrss growth {_mb(out['maxrss_growth']).strip()}"
-          + (f": ru_maxrss was {_mb(out['maxrss_base']).strip()} before the run, the parent's peak carried over "
-             "exec into the spawned process, so a smaller peak does not show in it" if growth is not None else ""))
+        print(
+            f"   peak RSS growth {_mb(growth).strip()} = {growth / inputs:.1f}x the input "
+            f"({growth / channel:.1f}x one channel): VmHWM after the run minus VmRSS before it "
+            f"({_mb(out['rss_base']).strip()}), the high-water mark reset first"
+        )
+    print(
+        f"   ru_maxrss growth {_mb(out['maxrss_growth']).strip()}"
+        + (
+            f": ru_maxrss was {_mb(out['maxrss_base']).strip()} before the run, the parent's peak carried over "
+            "exec into the spawned process, so a smaller peak does not show in it"
+            if growth is not None
+            else ""
+        )
+    )
     n_lib = 3 * channel
     lib = out["traced_peak_lib"]
     lib_rss = out["rss_growth_lib"]
-    print(f"   reference: identify_plant (3 distinct signals in, {_mb(n_lib).strip()}): tracemalloc peak "
-          f"{_mb(lib).strip()} = {lib / n_lib:.1f}x its input"
-          + (f", peak RSS growth {_mb(lib_rss).strip()} = {lib_rss / n_lib:.1f}x" if lib_rss is not None else ""))
+    print(
+        f"   reference: identify_plant (3 distinct signals in, {_mb(n_lib).strip()}): tracemalloc peak "
+        f"{_mb(lib).strip()} = {lib / n_lib:.1f}x its input"
+        + (f", peak RSS growth {_mb(lib_rss).strip()} = {lib_rss / n_lib:.1f}x" if lib_rss is not None else "")
+    )
 
 
 # --- profile --------------------------------------------------------------------------------------
@@ -658,13 +747,18 @@ def profile_pipeline(rec: Record, s: Setup, top: int = 15) -> None:
 
 
 def _parse_args(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("--samples", type=int, default=1_000_000, help="record length (default 10^6)")
     p.add_argument("--rate", type=float, default=1000.0, help="sample rate, Hz (default 1000)")
     p.add_argument("--repeats", type=int, default=5, help="timed runs per measurement (default 5)")
-    p.add_argument("--sippy-samples", type=int, default=0,
-                   help="run sippy-unipi on the first N samples only (default 0: the full record, about a minute)")
+    p.add_argument(
+        "--sippy-samples",
+        type=int,
+        default=0,
+        help="run sippy-unipi on the first N samples only (default 0: the full record, about a minute)",
+    )
     p.add_argument("--skip", default="", help="comma-separated parts to skip: h1, arx, memory")
     p.add_argument("--profile", action="store_true", help="print a cProfile of one pipeline run")
     p.add_argument("--seed", type=int, default=1)
@@ -691,11 +785,15 @@ def main(argv=None) -> int:
     fit = friction_test(cfg, args.rate)
     rec = make_record(cfg, args.samples, args.rate, args.seed)
     fp, tp = fit.params, cfg.emulator.friction
-    print(f"data: emulated two-mass gantry (build_drive, torque mode, open loop), {args.samples:,} samples at "
-          f"{args.rate:g} Hz, noise torque {_EXCITATION_RMS_NM:g} N·m rms in {_EXCITATION_BAND_HZ[0]:g}-"
-          f"{_EXCITATION_BAND_HZ[1]:g} Hz; generated in {time.perf_counter() - t0:.1f} s (not timed below)")
-    print(f"friction fit from an emulated constant-speed test ({fit.n_points} points): Fc {fp.Fc:.4f}, "
-          f"Fs {fp.Fs:.4f}, Fv {fp.Fv:.4f}, vs {fp.vs:.5f} (true {tp.Fc:g}, {tp.Fs:g}, {tp.Fv:g}, {tp.vs:g})")
+    print(
+        f"data: emulated two-mass gantry (build_drive, torque mode, open loop), {args.samples:,} samples at "
+        f"{args.rate:g} Hz, noise torque {_EXCITATION_RMS_NM:g} N·m rms in {_EXCITATION_BAND_HZ[0]:g}-"
+        f"{_EXCITATION_BAND_HZ[1]:g} Hz; generated in {time.perf_counter() - t0:.1f} s (not timed below)"
+    )
+    print(
+        f"friction fit from an emulated constant-speed test ({fit.n_points} points): Fc {fp.Fc:.4f}, "
+        f"Fs {fp.Fs:.4f}, Fv {fp.Fv:.4f}, vs {fp.vs:.5f} (true {tp.Fc:g}, {tp.Fs:g}, {tp.Fv:g}, {tp.vs:g})"
+    )
     setup = Setup(args.rate, cfg.identification, cfg.notch, fp)
     result = bench_pipeline(rec, setup, args.repeats, cfg)
     if "h1" not in args.skip:

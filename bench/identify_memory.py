@@ -87,21 +87,36 @@ def main() -> None:
     write_csv(data, args.rows)
     print(f"wrote {args.rows} rows, {data.stat().st_size / 1e6:.0f} MB in {time.monotonic() - t0:.0f} s")
     config = folder / "identify.toml"
-    config.write_text('[data]\ntime = "t"\ntorque = "tau"\nvelocity = "v"\nposition = "x"\n'
-                      "[identification]\nmax_resonances = 1\nsegment_s = 4.0\n")
-    load = ("import sys; from hilident.config.tables import load_config; from hilident.datafile import load_dataset; "
-            "c = load_config(sys.argv[1]); d = load_dataset(sys.argv[2], c.data); print(len(d), 'rows used')")
+    config.write_text(
+        '[data]\ntime = "t"\ntorque = "tau"\nvelocity = "v"\nposition = "x"\n'
+        "[identification]\nmax_resonances = 1\nsegment_s = 4.0\n"
+    )
+    load = (
+        "import sys; from hilident.config.tables import load_config; from hilident.datafile import load_dataset; "
+        "c = load_config(sys.argv[1]); d = load_dataset(sys.argv[2], c.data); print(len(d), 'rows used')"
+    )
     children = {
         "read only": [sys.executable, "-c", load, str(config), str(data)],
-        "hilident identify": [sys.executable, "-m", "hilident.cli", "identify", str(data), "--config", str(config),
-                              "--out", str(folder / "out"), "-q"],
+        "hilident identify": [
+            sys.executable,
+            "-m",
+            "hilident.cli",
+            "identify",
+            str(data),
+            "--config",
+            str(config),
+            "--out",
+            str(folder / "out"),
+            "-q",
+        ],
     }
     samples = 4 * args.rows * 8
     print(f"{samples / 1e9:.2f} GB of float64 samples")
     for name, argv in children.items():
         code, peak, elapsed, output = measure(argv)
-        print(f"{name}: exit {code}; {elapsed:.0f} s; peak RSS {peak / 1e9:.2f} GB "
-              f"({peak / args.rows:.0f} bytes a row)")
+        print(
+            f"{name}: exit {code}; {elapsed:.0f} s; peak RSS {peak / 1e9:.2f} GB ({peak / args.rows:.0f} bytes a row)"
+        )
         print("  " + "\n  ".join(output.strip().splitlines()[-3:]))
     if not args.keep:
         for f in sorted(folder.rglob("*"), reverse=True):

@@ -78,10 +78,18 @@ def measure(link: str, args, driver) -> dict:
         read_s = time.perf_counter() - t0
         return {
             "link": "TCP" if link == "tcp" else f"RTU {args.baud}",
-            "port": emu.port, "samples": n, "record": width,
-            "table_regs_s": n * rps / table_s, "table_samples_s": n / table_s, "table_s": table_s,
-            "read_regs_s": n * width / read_s, "read_samples_s": n / read_s, "read_s": read_s,
-            "run_s": run_s, "delivered": got[0], "lost": result.stats.lost_samples + stats.lost_samples,
+            "port": emu.port,
+            "samples": n,
+            "record": width,
+            "table_regs_s": n * rps / table_s,
+            "table_samples_s": n / table_s,
+            "table_s": table_s,
+            "read_regs_s": n * width / read_s,
+            "read_samples_s": n / read_s,
+            "read_s": read_s,
+            "run_s": run_s,
+            "delivered": got[0],
+            "lost": result.stats.lost_samples + stats.lost_samples,
             "missing": result.stats.lost_frames,
         }
     finally:
@@ -106,13 +114,19 @@ def main(argv=None) -> int:
         rows.append(r)
         print(f"{r['link']:>11}  ({r['port']}): {r['samples']} samples, {r['record']} registers a record", flush=True)
     print()
-    print(f"{'link':>11} | {'table write':>28} | {'capture read':>28} | "
-          f"{'whole ' + format(args.duration, 'g') + ' s experiment':>26}")
-    print(f"{'':>11} | {'registers/s':>13} {'samples/s':>14} | {'registers/s':>13} {'samples/s':>14} | "
-          f"{'wall s':>8} {'lost':>6} {'no answer':>10}")
+    print(
+        f"{'link':>11} | {'table write':>28} | {'capture read':>28} | "
+        f"{'whole ' + format(args.duration, 'g') + ' s experiment':>26}"
+    )
+    print(
+        f"{'':>11} | {'registers/s':>13} {'samples/s':>14} | {'registers/s':>13} {'samples/s':>14} | "
+        f"{'wall s':>8} {'lost':>6} {'no answer':>10}"
+    )
     for r in rows:
-        print(f"{r['link']:>11} | {r['table_regs_s']:13.0f} {r['table_samples_s']:14.0f} | {r['read_regs_s']:13.0f} "
-              f"{r['read_samples_s']:14.0f} | {r['run_s']:8.2f} {r['lost']:6d} {r['missing']:10d}")
+        print(
+            f"{r['link']:>11} | {r['table_regs_s']:13.0f} {r['table_samples_s']:14.0f} | {r['read_regs_s']:13.0f} "
+            f"{r['read_samples_s']:14.0f} | {r['run_s']:8.2f} {r['lost']:6d} {r['missing']:10d}"
+        )
     return 0 if all(r["lost"] == 0 and r["delivered"] == r["samples"] for r in rows) else 1
 
 

@@ -74,20 +74,31 @@ def main() -> int:
     rows = []
     tcp = start(cfg, driver, DeviceConfig(device_id=1), link="tcp")
     try:
-        host, port = tcp.port[len("tcp://"):].rsplit(":", 1)
+        host, port = tcp.port[len("tcp://") :].rsplit(":", 1)
         with socket.create_connection((host, int(port)), timeout=2.0) as sock:
             for what, unit, body, want in [
                 ("TCP read 126 registers", 1, pdu(3, 1024, 126), "01|83 03"),
                 ("TCP read 0 registers", 1, pdu(3, 1024, 0), "01|83 03"),
                 ("TCP write 124 registers", 1, pdu(16, 1024, 124, tail=bytes([248]) + bytes(248)), "01|90 03"),
-                ("TCP write, byte count != 2 x quantity", 1, pdu(16, 111, 1, tail=b"\x04\x00\x01\x00\x01"),
-                 "01|90 03"),
+                ("TCP write, byte count != 2 x quantity", 1, pdu(16, 111, 1, tail=b"\x04\x00\x01\x00\x01"), "01|90 03"),
                 ("TCP read unmapped register 7", 1, pdu(3, 7, 1), "01|83 02"),
-                *[(f"TCP function {fc}", 1, body, f"01|{0x80 | fc:02x} 01") for fc, body in [
-                    (1, pdu(1, 0, 8)), (2, pdu(2, 0, 8)), (4, pdu(4, 0, 1)), (7, bytes([7])),
-                    (8, pdu(8, 0, 0x1234)), (11, bytes([11])), (15, pdu(15, 100, 2, tail=b"\x01\x03")),
-                    (17, bytes([17])), (22, pdu(22, 111, 0xFFFF, 0)), (23, pdu(23, 0, 1, 111, 1, tail=b"\x02\x00\x01")),
-                    (24, pdu(24, 0)), (43, bytes([43, 14, 1, 0]))]],
+                *[
+                    (f"TCP function {fc}", 1, body, f"01|{0x80 | fc:02x} 01")
+                    for fc, body in [
+                        (1, pdu(1, 0, 8)),
+                        (2, pdu(2, 0, 8)),
+                        (4, pdu(4, 0, 1)),
+                        (7, bytes([7])),
+                        (8, pdu(8, 0, 0x1234)),
+                        (11, bytes([11])),
+                        (15, pdu(15, 100, 2, tail=b"\x01\x03")),
+                        (17, bytes([17])),
+                        (22, pdu(22, 111, 0xFFFF, 0)),
+                        (23, pdu(23, 0, 1, 111, 1, tail=b"\x02\x00\x01")),
+                        (24, pdu(24, 0)),
+                        (43, bytes([43, 14, 1, 0])),
+                    ]
+                ],
                 ("TCP write single coil 100 ON (control word)", 1, pdu(5, 100, 0xFF00), "01|85 01"),
                 ("TCP write single coil 111 ON (divider)", 1, pdu(5, 111, 0xFF00), "01|85 01"),
                 ("TCP control word after the coil writes", 1, pdu(3, 100, 1), "01|03 02 00 00"),

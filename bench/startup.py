@@ -79,8 +79,9 @@ def time_once(args: list[str], expected: int, cwd: Path, env: dict[str, str]) ->
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     if done.returncode != expected:
-        raise SystemExit(f"{' '.join(args[2:]) or args[-1]}: exit {done.returncode}, expected {expected}\n"
-                         f"{done.stderr}")
+        raise SystemExit(
+            f"{' '.join(args[2:]) or args[-1]}: exit {done.returncode}, expected {expected}\n{done.stderr}"
+        )
     return elapsed, cpu
 
 
@@ -102,18 +103,31 @@ def main(argv: list[str] | None = None) -> int:
             runs = [time_once(command, expected, folder, env) for _ in range(args.repeats)]
             times = [wall for wall, _ in runs]
             median = statistics.median(times)
-            results.append({"command": name, "repeats": args.repeats, "median_s": median, "min_s": min(times),
-                            "max_s": max(times), "cpu_median_s": statistics.median(cpu for _, cpu in runs),
-                            "target_s": TARGET_S, "ratio": median / TARGET_S})
+            results.append(
+                {
+                    "command": name,
+                    "repeats": args.repeats,
+                    "median_s": median,
+                    "min_s": min(times),
+                    "max_s": max(times),
+                    "cpu_median_s": statistics.median(cpu for _, cpu in runs),
+                    "target_s": TARGET_S,
+                    "ratio": median / TARGET_S,
+                }
+            )
     if args.json:
         print(json.dumps(results, indent=2))
         return 0
     print(f"{'command':40s} {'median':>8s} {'min':>7s} {'max':>7s} {'cpu':>7s} {'target':>7s} {'ratio':>6s}")
     for r in results:
-        print(f"{r['command']:40s} {r['median_s']:7.3f}s {r['min_s']:6.3f}s {r['max_s']:6.3f}s "
-              f"{r['cpu_median_s']:6.3f}s {r['target_s']:6.2f}s {r['ratio']:6.2f}")
-    print(f"{args.repeats} fresh processes per command; wall times; cpu = median user + system time of the process; "
-          f"ratio = median wall / target")
+        print(
+            f"{r['command']:40s} {r['median_s']:7.3f}s {r['min_s']:6.3f}s {r['max_s']:6.3f}s "
+            f"{r['cpu_median_s']:6.3f}s {r['target_s']:6.2f}s {r['ratio']:6.2f}"
+        )
+    print(
+        f"{args.repeats} fresh processes per command; wall times; cpu = median user + system time of the process; "
+        f"ratio = median wall / target"
+    )
     return 0
 
 

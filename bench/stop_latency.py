@@ -79,9 +79,23 @@ def one_ending(name: str, how: int, folder: Path) -> tuple[float | None, float]:
         path = folder / f"{name}.toml"
         path.write_text(tomli_w.dumps(raw))
         env = dict(os.environ, HILIDENT_LOCK_DIR=str(folder / "locks"))
-        host = subprocess.Popen([sys.executable, "-m", "hilident.cli", "run", str(path), "--yes", "-q",
-                                 "--out", str(folder / name), "--clear-fault"],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+        host = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "hilident.cli",
+                "run",
+                str(path),
+                "--yes",
+                "-q",
+                "--out",
+                str(folder / name),
+                "--clear-fault",
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            env=env,
+        )
         if _until(lambda: emu.drive.enabled, 60, 0.001) is None:
             host.kill()
             raise RuntimeError(f"{name}: the host never enabled the drive: {host.communicate()[1][-500:]}")
@@ -108,8 +122,10 @@ def main() -> None:
             term = [one_ending(name, signal.SIGTERM, Path(tmp))[0] for _ in range(args.repeats)]
             kills = [one_ending(name, signal.SIGKILL, Path(tmp)) for _ in range(args.repeats)]
             rows.append((name, term, [k for k, _ in kills], kills[0][1]))
-    print(f"{'setup':<20} {'SIGTERM -> stopped, ms (median / max)':>38} {'SIGKILL -> device stops itself, ms':>36}"
-          f" {'net timeout, ms':>16}")
+    print(
+        f"{'setup':<20} {'SIGTERM -> stopped, ms (median / max)':>38} {'SIGKILL -> device stops itself, ms':>36}"
+        f" {'net timeout, ms':>16}"
+    )
     for name, term, kill, net in rows:
         ok_t = [t for t in term if t is not None]
         ok_k = [t for t in kill if t is not None]

@@ -131,13 +131,18 @@ def _serve_board(conn, config_toml: str, driver_name: str, baudrate: int) -> Non
                 monitor.reset()
             elif command != "stats":
                 break
-            conn.send({
-                "cpu_s": time.process_time(), "wall_s": time.perf_counter(),
-                "bytes_sent": server.bytes_sent, "dropped_blocks": server.firmware.counters.dropped_blocks,
-                "tx_peak": monitor.peak, "produced_hz": monitor.produced_hz,
-                "tx_capacity": server.tx_buffer_bytes,
-                "error": repr(server.error) if server.error else None,
-            })
+            conn.send(
+                {
+                    "cpu_s": time.process_time(),
+                    "wall_s": time.perf_counter(),
+                    "bytes_sent": server.bytes_sent,
+                    "dropped_blocks": server.firmware.counters.dropped_blocks,
+                    "tx_peak": monitor.peak,
+                    "produced_hz": monitor.produced_hz,
+                    "tx_capacity": server.tx_buffer_bytes,
+                    "error": repr(server.error) if server.error else None,
+                }
+            )
     except EOFError:
         pass
     finally:
@@ -200,13 +205,18 @@ class Trial:
 
     @property
     def losses(self) -> int:
-        return (self.lost_frames + self.lost_blocks + self.corrupt_frames + self.out_of_order
-                + self.board_dropped_blocks + self.underruns)
+        return (
+            self.lost_frames
+            + self.lost_blocks
+            + self.corrupt_frames
+            + self.out_of_order
+            + self.board_dropped_blocks
+            + self.underruns
+        )
 
     @property
     def clean(self) -> bool:
-        return (self.error is None and self.losses == 0 and self.samples == self.requested_samples
-                and self.kept_rate)
+        return self.error is None and self.losses == 0 and self.samples == self.requested_samples and self.kept_rate
 
     def verdict(self) -> str:
         if self.error:
@@ -224,8 +234,15 @@ def _board_config(time_scale: float, seed: int) -> str:
     return _LIMITS + f'[emulator]\nlink = "pty"\ntime_scale = {float(time_scale)!r}\nseed = {seed}\n'
 
 
-def run_trial(driver: DriverDescription, specs: tuple[ChannelSpec, ...], baudrate: int, divider: int,
-              time_scale: float, duration_s: float, seed: int) -> Trial:
+def run_trial(
+    driver: DriverDescription,
+    specs: tuple[ChannelSpec, ...],
+    baudrate: int,
+    divider: int,
+    time_scale: float,
+    duration_s: float,
+    seed: int,
+) -> Trial:
     """Stream ``duration_s`` wall seconds at nominal rate ``loop_rate / divider`` times ``time_scale``."""
     nominal = driver.loop_rate_hz / divider
     row_bytes = sum(_BYTES[c.format] for c in specs)
@@ -340,11 +357,15 @@ class BaudResult:
 
 
 def _print_trial_header() -> None:
-    print(f"  {'nominal':>8} {'s':>7} {'eff.':>8} {'asked':>6} {'got':>6} {'wire':>6} {'lost':>5} "
-          f"{'crpt':>4} {'drop':>4} {'undr':>5} {'host':>6} {'host':>5} {'board':>5} {'other':>5} "
-          f"{'steal':>5} {'TX buf peak':>13}  result")
-    print(f"  {'Hz':>8} {'':>7} {'Hz':>8} {'frac':>6} {'frac':>6} {'frac':>6} {'blk':>5} "
-          f"{'':>4} {'blk':>4} {'':>5} {'us/blk':>6} {'cpu':>5} {'cpu':>5} {'cpu':>5} {'':>5} {'/size, kB':>13}")
+    print(
+        f"  {'nominal':>8} {'s':>7} {'eff.':>8} {'asked':>6} {'got':>6} {'wire':>6} {'lost':>5} "
+        f"{'crpt':>4} {'drop':>4} {'undr':>5} {'host':>6} {'host':>5} {'board':>5} {'other':>5} "
+        f"{'steal':>5} {'TX buf peak':>13}  result"
+    )
+    print(
+        f"  {'Hz':>8} {'':>7} {'Hz':>8} {'frac':>6} {'frac':>6} {'frac':>6} {'blk':>5} "
+        f"{'':>4} {'blk':>4} {'':>5} {'us/blk':>6} {'cpu':>5} {'cpu':>5} {'cpu':>5} {'':>5} {'/size, kB':>13}"
+    )
 
 
 def _opt(x: float | None) -> str:
@@ -361,15 +382,25 @@ def _print_trial(t: Trial) -> None:
         extra += f", {t.out_of_order} out of order"
     if t.notes:
         extra += "; " + "; ".join(t.notes)
-    print(f"  {t.nominal_hz:8.1f} {t.time_scale:7.4f} {t.requested_hz:8.1f} {t.requested_fraction:6.3f} "
-          f"{t.payload_fraction:6.3f} {wire:6.3f} {t.lost_blocks:5d} {t.corrupt_frames:4d} "
-          f"{t.board_dropped_blocks:4d} {t.underruns:5d} {t.host_us_per_block:6.0f} {t.host_cpu_fraction:5.2f} "
-          f"{t.board_cpu_fraction:5.2f} {_opt(t.other_cpu)} {_opt(t.steal)} {tx:>13}  {t.verdict()}{extra}",
-          flush=True)
+    print(
+        f"  {t.nominal_hz:8.1f} {t.time_scale:7.4f} {t.requested_hz:8.1f} {t.requested_fraction:6.3f} "
+        f"{t.payload_fraction:6.3f} {wire:6.3f} {t.lost_blocks:5d} {t.corrupt_frames:4d} "
+        f"{t.board_dropped_blocks:4d} {t.underruns:5d} {t.host_us_per_block:6.0f} {t.host_cpu_fraction:5.2f} "
+        f"{t.board_cpu_fraction:5.2f} {_opt(t.other_cpu)} {_opt(t.steal)} {tx:>13}  {t.verdict()}{extra}",
+        flush=True,
+    )
 
 
-def probe_baud(driver: DriverDescription, specs, baudrate: int, duration_s: float, resolution: float,
-               seed: int, divider: int | None = None, retries: int = 1) -> BaudResult:
+def probe_baud(
+    driver: DriverDescription,
+    specs,
+    baudrate: int,
+    duration_s: float,
+    resolution: float,
+    seed: int,
+    divider: int | None = None,
+    retries: int = 1,
+) -> BaudResult:
     """Bisect the effective rate at ``baudrate``, then confirm the best board-supported rate in real time."""
     row_bytes = sum(_BYTES[c.format] for c in specs)
     capacity = baudrate / BITS_PER_BYTE
@@ -382,8 +413,10 @@ def probe_baud(driver: DriverDescription, specs, baudrate: int, duration_s: floa
     payload, wire = frame_efficiency(specs, block)
     efficiency = payload / wire
     print(f"\n{baudrate} baud: capacity C = {capacity:,.0f} B/s = {capacity_rows:,.1f} rows/s of {row_bytes} B")
-    print(f"  frame layout: nominal {nominal:g} Hz (divider {divider}), {block} rows/block: "
-          f"{payload} B of samples in a {wire} B frame -> at most {efficiency:.3f} of C is payload")
+    print(
+        f"  frame layout: nominal {nominal:g} Hz (divider {divider}), {block} rows/block: "
+        f"{payload} B of samples in a {wire} B frame -> at most {efficiency:.3f} of C is payload"
+    )
     _print_trial_header()
     trials: list[Trial] = []
 
@@ -433,9 +466,11 @@ def probe_baud(driver: DriverDescription, specs, baudrate: int, duration_s: floa
         d = 1
         while loop / d * row_bytes / capacity > best.requested_fraction:
             d += 1
-        above = (f"; the next one up, {loop / (d - 1):g} Hz, would need "
-                 f"{loop / (d - 1) * row_bytes / capacity:.3f} of C"
-                 if d > 1 else "; it is the board's maximum")
+        above = (
+            f"; the next one up, {loop / (d - 1):g} Hz, would need {loop / (d - 1) * row_bytes / capacity:.3f} of C"
+            if d > 1
+            else "; it is the board's maximum"
+        )
         print(f"  real time (s = 1): highest supported rate within the clean load is {loop / d:g} Hz{above}")
         d_start = d
         for d in range(d_start, d_start + 4):  # step down the ladder a few rates if needed
@@ -456,8 +491,11 @@ def _print_preamble(driver: DriverDescription, specs, duration_s: float, resolut
     print("hilident serial streaming benchmark: emulated board (own process) on a pseudo-terminal,")
     print("host through SerialBoardAdapter.open, as with a USB serial board")
     print(f"driver {driver.name}: loop rate {loop:g} Hz, supported sample rates {loop:g}/d Hz = {ladder}, ...")
-    print(f"channels ({len(specs)}): " + ", ".join(f"{c.name} {c.format}" for c in specs)
-          + f" -> {row_bytes} bytes per row")
+    print(
+        f"channels ({len(specs)}): "
+        + ", ".join(f"{c.name} {c.format}" for c in specs)
+        + f" -> {row_bytes} bytes per row"
+    )
     print("definitions:")
     print(f"  capacity C     = baud / {BITS_PER_BYTE} bytes/s (8N1: start bit + 8 data bits + stop bit)")
     print("  payload        = sample bytes per second = rows/s x bytes per row (block headers, message")
@@ -478,14 +516,18 @@ def _print_preamble(driver: DriverDescription, specs, duration_s: float, resolut
     print("                   host us/blk: host CPU per received block; cpu: CPU seconds per wall second of")
     print("                   the host, the board process and all other processes; steal: cores taken by")
     print("                   the hypervisor; TX buf: peak fill of the board's transmit buffer and its size")
-    print(f"search: bisection of the payload fraction on a {resolution:g} grid, starting at the target "
-          f"{TARGET_FRACTION:g}")
+    print(
+        f"search: bisection of the payload fraction on a {resolution:g} grid, starting at the target "
+        f"{TARGET_FRACTION:g}"
+    )
 
 
 def _print_summary(results: list[BaudResult], row_bytes: int) -> None:
     print("\nsummary (target: payload >= 0.9 of C at every baud rate)")
-    print(f"  {'baud':>8} {'C B/s':>8} {'best effective rate':>30} {'payload B/s':>11} {'frac':>6} "
-          f"{'wire B/s':>9} {'wire frac':>9} {'max frac':>8} {'target':>6} {'real time (s=1)':>22}")
+    print(
+        f"  {'baud':>8} {'C B/s':>8} {'best effective rate':>30} {'payload B/s':>11} {'frac':>6} "
+        f"{'wire B/s':>9} {'wire frac':>9} {'max frac':>8} {'target':>6} {'real time (s=1)':>22}"
+    )
     for r in results:
         cap = r.baudrate / BITS_PER_BYTE
         if r.best:
@@ -506,20 +548,33 @@ def _print_summary(results: list[BaudResult], row_bytes: int) -> None:
 
 
 def _parse_args(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("--duration", type=float, default=60.0, help="wall seconds per trial (default 60)")
-    p.add_argument("--baud", default=",".join(map(str, DEFAULT_BAUDS)),
-                   help="comma-separated baud rates (default 921600,3000000)")
+    p.add_argument(
+        "--baud", default=",".join(map(str, DEFAULT_BAUDS)), help="comma-separated baud rates (default 921600,3000000)"
+    )
     group = p.add_mutually_exclusive_group()
     group.add_argument("--channels", default="", help="comma-separated channel names (default: all streamed)")
-    group.add_argument("--compact", action="store_true",
-                       help=f"stream only {', '.join(COMPACT_CHANNELS)} (the excitation is known to the host)")
+    group.add_argument(
+        "--compact",
+        action="store_true",
+        help=f"stream only {', '.join(COMPACT_CHANNELS)} (the excitation is known to the host)",
+    )
     p.add_argument("--resolution", type=float, default=0.01, help="payload fraction grid step (default 0.01)")
-    p.add_argument("--divider", type=int, default=0,
-                   help="nominal sample-rate divider for the search (default: chosen per baud rate)")
-    p.add_argument("--retries", type=int, default=1,
-                   help="repeat a failed trial this many times before taking it as failed (default 1)")
+    p.add_argument(
+        "--divider",
+        type=int,
+        default=0,
+        help="nominal sample-rate divider for the search (default: chosen per baud rate)",
+    )
+    p.add_argument(
+        "--retries",
+        type=int,
+        default=1,
+        help="repeat a failed trial this many times before taking it as failed (default 1)",
+    )
     p.add_argument("--driver", default="myrio-board")
     p.add_argument("--seed", type=int, default=1)
     args = p.parse_args(argv)
@@ -545,15 +600,16 @@ def main(argv=None) -> int:
     try:
         driver = find_driver(args.driver)
         names = COMPACT_CHANNELS if args.compact else [n.strip() for n in args.channels.split(",") if n.strip()]
-        specs = (tuple(driver.channels[driver.channel_index(n)] for n in names) if names
-                 else driver.streamed_channels)
+        specs = tuple(driver.channels[driver.channel_index(n)] for n in names) if names else driver.streamed_channels
     except HilidentError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     _print_preamble(driver, specs, args.duration, args.resolution)
     started = time.monotonic()
-    results = [probe_baud(driver, specs, b, args.duration, args.resolution, args.seed, args.divider or None,
-                          args.retries) for b in args.bauds]
+    results = [
+        probe_baud(driver, specs, b, args.duration, args.resolution, args.seed, args.divider or None, args.retries)
+        for b in args.bauds
+    ]
     _print_summary(results, sum(_BYTES[c.format] for c in specs))
     print(f"\n{sum(len(r.trials) for r in results)} trials in {time.monotonic() - started:.0f} s")
     return 0 if all(r.best and r.best.payload_fraction >= TARGET_FRACTION for r in results) else 1

@@ -52,9 +52,10 @@ def generate(folder: Path) -> str:
         "PRODUCT_CODE": f"0x{canopen['product_code']:08X}",
         "PRODUCT_NAME": PRODUCT_NAME + coefficient["product_suffix"],
         "DESCRIPTION": f"{PRODUCT_NAME}{coefficient['product_suffix']}: {FEATURES}, {coefficient['label']} "
-                       "notch filter slots",
-        "FILTER_SLOTS": "".join(_slot_record(slot, int(index, 16), filters, coefficient)
-                                  for slot, index in enumerate(filters["objects"])).rstrip("\n"),
+        "notch filter slots",
+        "FILTER_SLOTS": "".join(
+            _slot_record(slot, int(index, 16), filters, coefficient) for slot, index in enumerate(filters["objects"])
+        ).rstrip("\n"),
     }
     text = TEMPLATE.read_text(encoding="utf-8")
     for name, value in values.items():
@@ -69,8 +70,13 @@ def _coefficient_type(filters: dict) -> dict:
         return {"type": REAL32, "one": "1.0", "zero": "0.0", "label": "REAL32", "product_suffix": ""}
     if filters["encoding"] == "fixed":
         bits, fraction = filters["total_bits"], filters["fractional_bits"]
-        return {"type": INTEGER_TYPES[bits], "one": f"0x{1 << fraction:08X}", "zero": "0",
-                "label": f"INTEGER{bits} Q{bits - fraction - 1}.{fraction}", "product_suffix": " (fixed-point filters)"}
+        return {
+            "type": INTEGER_TYPES[bits],
+            "one": f"0x{1 << fraction:08X}",
+            "zero": "0",
+            "label": f"INTEGER{bits} Q{bits - fraction - 1}.{fraction}",
+            "product_suffix": " (fixed-point filters)",
+        }
     raise SystemExit(f"[filters] encoding = {filters['encoding']!r}: no EDS coefficient type for it")
 
 
@@ -80,16 +86,26 @@ def _slot_record(slot: int, index: int, filters: dict, coefficient: dict) -> str
     for name, sub in filters["fields"].items():
         subs[sub] = (name, coefficient["type"], coefficient["one"] if name == "b0" else coefficient["zero"])
     highest = max(subs)
-    sections = [_section(f"{index:04X}", ParameterName=f"Notch filter slot {slot}", ObjectType="0x9",
-                         SubNumber=str(highest + 1)),
-                _sub(index, 0, "Highest sub-index supported", UNSIGNED8, "ro", str(highest))]
+    sections = [
+        _section(
+            f"{index:04X}", ParameterName=f"Notch filter slot {slot}", ObjectType="0x9", SubNumber=str(highest + 1)
+        ),
+        _sub(index, 0, "Highest sub-index supported", UNSIGNED8, "ro", str(highest)),
+    ]
     sections += [_sub(index, sub, *subs[sub][:2], "rw", subs[sub][2]) for sub in sorted(subs)]
     return "".join(sections)
 
 
 def _sub(index: int, sub: int, name: str, data_type: int, access: str, default: str) -> str:
-    return _section(f"{index:04X}sub{sub}", ParameterName=name, ObjectType="0x7", DataType=f"0x{data_type:04X}",
-                    AccessType=access, DefaultValue=default, PDOMapping="0")
+    return _section(
+        f"{index:04X}sub{sub}",
+        ParameterName=name,
+        ObjectType="0x7",
+        DataType=f"0x{data_type:04X}",
+        AccessType=access,
+        DefaultValue=default,
+        PDOMapping="0",
+    )
 
 
 def _section(name: str, **entries: str) -> str:
@@ -101,8 +117,10 @@ def _check_listed(text: str, objects: list[str], folder: Path) -> None:
     listed = text.split("[ManufacturerObjects]", 1)[1].split("\n\n", 1)[0].upper()
     missing = [o for o in objects if f"={o.upper()}\n" not in listed + "\n"]
     if missing:
-        raise SystemExit(f"{folder / 'driver.toml'}: [filters] objects {missing} are not in the template's "
-                         f"[ManufacturerObjects] ({TEMPLATE})")
+        raise SystemExit(
+            f"{folder / 'driver.toml'}: [filters] objects {missing} are not in the template's "
+            f"[ManufacturerObjects] ({TEMPLATE})"
+        )
 
 
 def shipped_path(folder: Path) -> Path:

@@ -22,7 +22,9 @@ def standalone_emulator():
     def start(transport: str, config, *extra: str) -> str:
         proc = subprocess.Popen(
             [sys.executable, "-m", "hilident.cli", "emulate", transport, "--config", str(config), *extra],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
         )
         procs.append(proc)
         port = proc.stdout.readline().strip()

@@ -25,9 +25,14 @@ def serial_twin(tmp_path):
 
 def _run(config: Path, out: Path, *extra: str, stdin=subprocess.DEVNULL, timeout=120):
     env = dict(os.environ, HILIDENT_LOCK_DIR=str(out.parent / "locks"))
-    return subprocess.run([sys.executable, "-m", "hilident.cli", "run", str(config), "--out", str(out), "--no-plots",
-                           *extra],
-                          capture_output=True, text=True, stdin=stdin, env=env, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "hilident.cli", "run", str(config), "--out", str(out), "--no-plots", *extra],
+        capture_output=True,
+        text=True,
+        stdin=stdin,
+        env=env,
+        timeout=timeout,
+    )
 
 
 def _watch_enabled(twin: Twin) -> list[bool]:
@@ -69,8 +74,11 @@ def test_dry_run_connects_checks_and_prints_the_plan_without_moving(serial_twin,
 
 
 def test_a_config_error_found_before_motion_names_the_key(serial_twin, tmp_path):
-    config = serial_twin.host_config("bench", excitation={"period_s": 4.0, "duration_s": 8.0},
-                                     friction_test={"enabled": True, "speeds_mps": [0.3], "hold_s": 3.0})
+    config = serial_twin.host_config(
+        "bench",
+        excitation={"period_s": 4.0, "duration_s": 8.0},
+        friction_test={"enabled": True, "speeds_mps": [0.3], "hold_s": 3.0},
+    )
     result = _run(config, tmp_path / "o", "--yes")
     assert result.returncode == 2
     assert "[friction_test.speeds_mps]" in result.stderr
@@ -96,11 +104,18 @@ def test_a_second_session_on_the_same_device_is_refused_naming_the_holder(serial
 
 def test_a_lock_left_by_a_killed_session_is_recovered(tmp_path):
     key = device_key("serial", "/dev/ttyUSB-test")
-    holder = subprocess.Popen([sys.executable, "-c",
-                               "import sys, time; from pathlib import Path;"
-                               "from hilident.session.devicelock import DeviceLock;"
-                               f"DeviceLock({key!r}, Path({str(tmp_path)!r})).acquire(); print('held', flush=True);"
-                               "time.sleep(60)"], stdout=subprocess.PIPE, text=True)
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys, time; from pathlib import Path;"
+            "from hilident.session.devicelock import DeviceLock;"
+            f"DeviceLock({key!r}, Path({str(tmp_path)!r})).acquire(); print('held', flush=True);"
+            "time.sleep(60)",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     assert holder.stdout.readline().strip() == "held"
     with pytest.raises(DeviceError, match=f"pid {holder.pid}"):
         DeviceLock(key, tmp_path).acquire()

@@ -44,12 +44,17 @@ def quick(path: Path = GANTRY, friction_test: bool = False, **excitation):
     assert cfg.excitation.amplitude_auto
     exc = replace(cfg.excitation, **{"period_s": 2.0, "duration_s": 4.0, **excitation})
     emu = replace(cfg.emulator, time_scale=16.0, **({"link": "pipe"} if cfg.emulator.link == "pty" else {}))
-    return replace(cfg, excitation=exc, emulator=emu, notch=replace(cfg.notch, verify=False),
-                   friction_test=replace(cfg.friction_test, enabled=friction_test))
+    return replace(
+        cfg,
+        excitation=exc,
+        emulator=emu,
+        notch=replace(cfg.notch, verify=False),
+        friction_test=replace(cfg.friction_test, enabled=friction_test),
+    )
 
 
 def assert_mode_found(cfg, summary, tolerance=0.005):
-    (true_f, _), = true_modes(cfg.emulator)
+    ((true_f, _),) = true_modes(cfg.emulator)
     found = summary["resonances"]
     assert found, summary["warnings"]
     best = min(found, key=lambda r: abs(r["frequency_hz"] - true_f))
@@ -102,14 +107,17 @@ def test_friction_share_counts_a_stuck_axis_as_all_friction():
 # --- configuration and plan ----------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("change, key", [
-    (('amplitude_nm = "auto"', 'amplitude_nm = "loud"'), "excitation.amplitude_nm"),
-    (('amplitude_nm = "auto"', 'amplitude_nm = "auto"\nauto_max_nm = 25.0'), "excitation.auto_max_nm"),
-    (('amplitude_nm = "auto"', 'amplitude_nm = "auto"\nauto_start_nm = 20.0'), "excitation.auto_start_nm"),
-    (('amplitude_nm = "auto"', 'amplitude_nm = "auto"\nauto_trial_periods = 1'), "excitation.auto_trial_periods"),
-    (('kind = "multisine"', 'kind = "chirp"'), "excitation.amplitude_nm"),
-    (('mode = "torque"', 'mode = "velocity"\namplitude_mps = "auto"'), "excitation.amplitude_mps"),
-])
+@pytest.mark.parametrize(
+    "change, key",
+    [
+        (('amplitude_nm = "auto"', 'amplitude_nm = "loud"'), "excitation.amplitude_nm"),
+        (('amplitude_nm = "auto"', 'amplitude_nm = "auto"\nauto_max_nm = 25.0'), "excitation.auto_max_nm"),
+        (('amplitude_nm = "auto"', 'amplitude_nm = "auto"\nauto_start_nm = 20.0'), "excitation.auto_start_nm"),
+        (('amplitude_nm = "auto"', 'amplitude_nm = "auto"\nauto_trial_periods = 1'), "excitation.auto_trial_periods"),
+        (('kind = "multisine"', 'kind = "chirp"'), "excitation.amplitude_nm"),
+        (('mode = "torque"', 'mode = "velocity"\namplitude_mps = "auto"'), "excitation.amplitude_mps"),
+    ],
+)
 def test_bad_auto_settings_name_the_key_and_file(tmp_path, change, key):
     path = tmp_path / "bad.toml"
     path.write_text(AUTO_GANTRY.replace(*change))

@@ -52,11 +52,35 @@ max_resonances = 1
 model_max_order = 0
 """
 #: every key the drift statistics rely on (the row contract)
-CONTRACT = ["path", "content_sha256", "status", "error", "error_type", "axis", "device_name", "device_serial",
-            "time_utc", "time_source", "sample_rate_hz", "duration_s", "frequency_hz", "frequency_ci95_hz",
-            "damping_ratio", "damping_ci95", "resonances_json", "friction_fc_nm", "friction_fs_nm",
-            "friction_fv_nm_per_mps", "friction_vs_mps", "model_fit_percent", "warnings", "n_warnings",
-            "hilident_version", "config_sha256", "elapsed_s"]
+CONTRACT = [
+    "path",
+    "content_sha256",
+    "status",
+    "error",
+    "error_type",
+    "axis",
+    "device_name",
+    "device_serial",
+    "time_utc",
+    "time_source",
+    "sample_rate_hz",
+    "duration_s",
+    "frequency_hz",
+    "frequency_ci95_hz",
+    "damping_ratio",
+    "damping_ci95",
+    "resonances_json",
+    "friction_fc_nm",
+    "friction_fs_nm",
+    "friction_fv_nm_per_mps",
+    "friction_vs_mps",
+    "model_fit_percent",
+    "warnings",
+    "n_warnings",
+    "hilident_version",
+    "config_sha256",
+    "elapsed_s",
+]
 
 
 @cache
@@ -71,14 +95,20 @@ def simulated(k: float) -> tuple[np.ndarray, float]:
     rows = drive.run(np.repeat(ms.samples, 4))[::4]
     col = {name: rows[:, i] for i, name in enumerate(drive.CHANNELS)}
     n = len(rows)
-    data = np.column_stack([np.arange(n), np.arange(n) / RATE, ms.samples, col["torque_nm"], col["velocity_mps"],
-                            col["position_m"]])
-    (true_f, _), = true_modes(cfg.emulator)
+    data = np.column_stack(
+        [np.arange(n), np.arange(n) / RATE, ms.samples, col["torque_nm"], col["velocity_mps"], col["position_m"]]
+    )
+    ((true_f, _),) = true_modes(cfg.emulator)
     return data, true_f
 
 
-def write_recording(path: Path, k: float = 1.5e5, axis: str | None = None, device: dict | None = None,
-                    created: str | None = "2026-11-01T00:00:00.000+00:00") -> float:
+def write_recording(
+    path: Path,
+    k: float = 1.5e5,
+    axis: str | None = None,
+    device: dict | None = None,
+    created: str | None = "2026-11-01T00:00:00.000+00:00",
+) -> float:
     """A hilident identification recording of the twin of stiffness ``k`` at ``path``; the true mode, Hz."""
     data, true_f = simulated(k)
     attrs: dict = {"experiment": "identification", "mode": "torque", "config_toml": RUN_CONFIG}
@@ -107,9 +137,12 @@ def fleet(tmp_path_factory):
     (root / "ax1").mkdir()
     (root / "ax2").mkdir()
     truth = {
-        "ax1/ax1_20261101T000000Z.h5": write_recording(root / "ax1" / "ax1_20261101T000000Z.h5", 1.5e5, axis="ax1",
-                                                       device={"name": "twin", "serial": "SN1", "port": "emulator",
-                                                               "firmware": "1"}),
+        "ax1/ax1_20261101T000000Z.h5": write_recording(
+            root / "ax1" / "ax1_20261101T000000Z.h5",
+            1.5e5,
+            axis="ax1",
+            device={"name": "twin", "serial": "SN1", "port": "emulator", "firmware": "1"},
+        ),
         "ax2/b.h5": write_recording(root / "ax2" / "b.h5", 1.2e5, created="2026-11-02T06:00:00+00:00"),
     }
     whole = (root / "ax1" / "ax1_20261101T000000Z.h5").read_bytes()
@@ -126,16 +159,28 @@ def test_inputs_are_files_folders_and_globs_sorted_and_each_once(tmp_path):
     for name in ("a/x.h5", "a/deep/y.hdf5", "a/deep/z.csv", "a/w.mat", "a/readme.txt", "b/v.h5", "c.dat"):
         (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / name).write_text("")
-    got = expand_inputs([str(tmp_path / "a"), str(tmp_path / "b" / "*.h5"), str(tmp_path / "a" / "x.h5"),
-                         str(tmp_path / "c.dat"), str(tmp_path / "**" / "*.csv")])
+    got = expand_inputs(
+        [
+            str(tmp_path / "a"),
+            str(tmp_path / "b" / "*.h5"),
+            str(tmp_path / "a" / "x.h5"),
+            str(tmp_path / "c.dat"),
+            str(tmp_path / "**" / "*.csv"),
+        ]
+    )
     expect = ["a/deep/y.hdf5", "a/deep/z.csv", "a/w.mat", "a/x.h5", "b/v.h5", "c.dat"]
     assert got == sorted((tmp_path / n).resolve() for n in expect)
     assert len(set(got)) == len(got)
 
 
-@pytest.mark.parametrize("given, says", [("missing.h5", "no file, folder or glob"),
-                                         ("nothing*.h5", "no file, folder or glob"),
-                                         ("empty", "a folder holding no recording")])
+@pytest.mark.parametrize(
+    "given, says",
+    [
+        ("missing.h5", "no file, folder or glob"),
+        ("nothing*.h5", "no file, folder or glob"),
+        ("empty", "a folder holding no recording"),
+    ],
+)
 def test_an_input_naming_no_recording_is_a_usage_error_naming_it(tmp_path, given, says, capsys):
     (tmp_path / "empty").mkdir()
     (tmp_path / "empty" / "notes.txt").write_text("")
@@ -162,15 +207,18 @@ def test_name_stamps_are_read_in_their_iso_like_forms():
 def test_identity_comes_from_the_file_then_its_name_then_its_folder(tmp_path):
     (tmp_path / "belt").mkdir()
     tagged = tmp_path / "belt" / "r_20200101T000000Z.h5"
-    write_recording(tagged, axis="X7", device={"name": "servo", "serial": "SN9"},
-                    created="2026-11-24T02:00:00+01:00")
-    assert recording_identity(tagged) == {"axis": "X7", "device_name": "servo", "device_serial": "SN9",
-                                          "time_utc": "2026-11-24T01:00:00.000+00:00", "time_source": "file"}
+    write_recording(tagged, axis="X7", device={"name": "servo", "serial": "SN9"}, created="2026-11-24T02:00:00+01:00")
+    assert recording_identity(tagged) == {
+        "axis": "X7",
+        "device_name": "servo",
+        "device_serial": "SN9",
+        "time_utc": "2026-11-24T01:00:00.000+00:00",
+        "time_source": "file",
+    }
     by_serial = tmp_path / "belt" / "s_20200101T000000Z.h5"
     write_recording(by_serial, device={"name": "servo", "serial": "SN9"}, created=None)
     ident = recording_identity(by_serial)
-    assert (ident["axis"], ident["time_utc"], ident["time_source"]) == ("SN9", "2020-01-01T00:00:00.000+00:00",
-                                                                        "name")
+    assert (ident["axis"], ident["time_utc"], ident["time_source"]) == ("SN9", "2020-01-01T00:00:00.000+00:00", "name")
     # a device model alone is no axis (two axes may run the same drive); with the port it is connected on it is
     by_port = tmp_path / "belt" / "p.h5"
     write_recording(by_port, device={"name": "servo", "port": "/dev/ttyUSB1"}, created=None)
@@ -180,21 +228,29 @@ def test_identity_comes_from_the_file_then_its_name_then_its_folder(tmp_path):
     plain = tmp_path / "belt" / "plain.csv"
     plain.write_text("t,tau\n")
     os.utime(plain, (0, 86400.0))
-    assert recording_identity(plain) == {"axis": "belt", "device_name": "", "device_serial": "",
-                                         "time_utc": "1970-01-02T00:00:00.000+00:00", "time_source": "mtime"}
+    assert recording_identity(plain) == {
+        "axis": "belt",
+        "device_name": "",
+        "device_serial": "",
+        "time_utc": "1970-01-02T00:00:00.000+00:00",
+        "time_source": "mtime",
+    }
 
 
 # --- rows ---------------------------------------------------------------------------------------------------------
 
 
 def test_the_row_takes_the_lowest_resonance_and_nan_where_nothing_is_known():
-    summary = {"data": {"sample_rate_hz": 500.0, "rows": 1500, "samples": 1000},
-               "resonances": [{"frequency_hz": 80.0, "damping_ratio": 0.05, "frequency_ci95_hz": 0.2,
-                               "damping_ci95": 0.01},
-                              {"frequency_hz": 20.0, "damping_ratio": 0.02, "frequency_ci95_hz": 0.1,
-                               "damping_ci95": None}],
-               "friction": {"model": "stribeck", "params": {"Fc": 1.0, "Fs": 1.5, "Fv": 3.0, "vs": 0.01}},
-               "model": {"estimation": {"fit_percent": 91.5}}, "warnings": ["a", "b"]}
+    summary = {
+        "data": {"sample_rate_hz": 500.0, "rows": 1500, "samples": 1000},
+        "resonances": [
+            {"frequency_hz": 80.0, "damping_ratio": 0.05, "frequency_ci95_hz": 0.2, "damping_ci95": 0.01},
+            {"frequency_hz": 20.0, "damping_ratio": 0.02, "frequency_ci95_hz": 0.1, "damping_ci95": None},
+        ],
+        "friction": {"model": "stribeck", "params": {"Fc": 1.0, "Fs": 1.5, "Fv": 3.0, "vs": 0.01}},
+        "model": {"estimation": {"fit_percent": 91.5}},
+        "warnings": ["a", "b"],
+    }
     row = summary_figures(summary)
     assert row["duration_s"] == 3.0 and row["n_resonances"] == 2
     assert (row["frequency_hz"], row["damping_ratio"], row["frequency_ci95_hz"]) == (20.0, 0.02, 0.1)
@@ -203,8 +259,7 @@ def test_the_row_takes_the_lowest_resonance_and_nan_where_nothing_is_known():
     assert (row["friction_fc_nm"], row["friction_vs_mps"], row["model_fit_percent"]) == (1.0, 0.01, 91.5)
     assert json.loads(row["warnings"]) == ["a", "b"] and row["n_warnings"] == 2
     empty = summary_figures({"data": {}, "resonances": [], "friction": None, "model": None, "warnings": []})
-    assert all(math.isnan(empty[k]) for k in ("frequency_hz", "friction_fc_nm", "model_fit_percent",
-                                              "duration_s"))
+    assert all(math.isnan(empty[k]) for k in ("frequency_hz", "friction_fc_nm", "model_fit_percent", "duration_s"))
 
 
 def test_an_unexpected_exception_becomes_a_failure_row_with_its_type(tmp_path, monkeypatch):
@@ -238,8 +293,9 @@ def test_a_batch_identifies_every_recording_and_damaged_files_become_failure_row
     assert list(rows.columns) == list(table.COLUMNS) and set(CONTRACT) <= set(rows.columns)
     assert list(from_csv.columns) == list(rows.columns) and len(from_csv) == len(rows) == 5
     assert rows["path"].tolist() == sorted(rows["path"])
-    by_name = {Path(p).relative_to(root).as_posix(): r for p, r in zip(rows["path"], rows.to_dict("records"),
-                                                                       strict=True)}
+    by_name = {
+        Path(p).relative_to(root).as_posix(): r for p, r in zip(rows["path"], rows.to_dict("records"), strict=True)
+    }
     for name, true_f in truth.items():
         r = by_name[name]
         assert r["status"] == "ok" and r["error"] == "" and r["error_type"] == ""
@@ -257,8 +313,9 @@ def test_a_batch_identifies_every_recording_and_damaged_files_become_failure_row
         assert name.split("/")[1] in r["error"]
         assert r["axis"] == "ax2" and math.isnan(r["frequency_hz"])
         error = r["error"]  # one line per failure, naming the file once
-        assert (f"failed: {error}" if error.startswith(str(root / name)) else f"failed: {root / name}: {error}") \
-            in stdout.splitlines()
+        assert (
+            f"failed: {error}" if error.startswith(str(root / name)) else f"failed: {root / name}: {error}"
+        ) in stdout.splitlines()
     truncated = by_name["ax2/truncated_20261103T000000Z.h5"]
     assert truncated["error_type"] == "DataError" and truncated["time_source"] == "name"
     # each analysis's summary.json is kept beside the table, by its keys; none for data never read
@@ -322,10 +379,13 @@ def test_a_csv_recording_with_a_config_gets_its_axis_from_its_folder_and_time_fr
     folder.mkdir()
     write_csv(folder / "scope_2026-10-01T12-00-00.csv", {"t": data[:, 1], "tau": data[:, 3], "v": data[:, 4]})
     config = tmp_path / "csv.toml"
-    config.write_text('[data]\ntime = "t"\ntorque = "tau"\nvelocity = "v"\n[identification]\nmax_resonances = 1\n'
-                      "model_max_order = 0\n")
-    assert batch(str(folder), "--config", str(config), "--out", str(tmp_path / "out"), "--scheduler",
-                 "synchronous") == 0
+    config.write_text(
+        '[data]\ntime = "t"\ntorque = "tau"\nvelocity = "v"\n[identification]\nmax_resonances = 1\n'
+        "model_max_order = 0\n"
+    )
+    assert (
+        batch(str(folder), "--config", str(config), "--out", str(tmp_path / "out"), "--scheduler", "synchronous") == 0
+    )
     (row,) = pd.read_parquet(tmp_path / "out" / "batch.parquet").to_dict("records")
     assert (row["status"], row["axis"], row["time_source"]) == ("ok", "spindle", "name")
     assert row["time_utc"] == "2026-10-01T12:00:00.000+00:00"
@@ -386,10 +446,12 @@ def test_the_batch_table_has_its_defaults_and_checked_keys(tmp_path, capsys):
     cfg = parse_config("")
     assert (cfg.batch.drift_percent_per_day, cfg.batch.min_recordings, cfg.batch.confidence) == (0.1, 5, 0.95)
     bad = tmp_path / "bad.toml"
-    for text, key in (("[batch]\nmin_recordings = 2\n", "batch.min_recordings"),
-                      ("[batch]\ndrift_percent_per_day = 0\n", "batch.drift_percent_per_day"),
-                      ("[batch]\nconfidence = 1.0\n", "batch.confidence"),
-                      ("[batch]\nwindow_days = 3\n", "batch.window_days")):
+    for text, key in (
+        ("[batch]\nmin_recordings = 2\n", "batch.min_recordings"),
+        ("[batch]\ndrift_percent_per_day = 0\n", "batch.drift_percent_per_day"),
+        ("[batch]\nconfidence = 1.0\n", "batch.confidence"),
+        ("[batch]\nwindow_days = 3\n", "batch.window_days"),
+    ):
         bad.write_text(text)
         assert batch(str(bad), "--config", str(bad), "--out", str(tmp_path / "o")) == 2
         stderr = capsys.readouterr().err
@@ -409,9 +471,20 @@ def test_a_config_error_comes_before_dask_and_the_analysis_are_imported(tmp_path
     bad = tmp_path / "bad.toml"
     bad.write_text("[batch]\nmin_recordings = 1\n")
     heavy = ["dask", "distributed", "pyarrow", "numpy", "scipy", "h5py", "matplotlib"]
-    done = subprocess.run([sys.executable, "-c", PROBE, json.dumps(["batch", "x.h5", "--config", str(bad), "--out",
-                                                                    str(tmp_path / "o")]), "", json.dumps(heavy)],
-                          capture_output=True, text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(SRC)})
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            PROBE,
+            json.dumps(["batch", "x.h5", "--config", str(bad), "--out", str(tmp_path / "o")]),
+            "",
+            json.dumps(heavy),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "PYTHONPATH": str(SRC)},
+    )
     report = json.loads(done.stdout.strip().splitlines()[-1])
     assert report["code"] == 2 and report["heavy"] == []
     assert "batch.min_recordings" in done.stderr

@@ -28,8 +28,9 @@ def _worker_settings():
 @pytest.fixture(scope="module")
 def cluster():
     """One cluster of two worker processes on 127.0.0.1 for the module (a start costs seconds)."""
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                  dashboard_address="127.0.0.1:0") as c:
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0"
+    ) as c:
         yield c
 
 
@@ -42,8 +43,13 @@ def reference(tmp_path_factory, fleet):  # noqa: F811
     return pd.read_parquet(out / "batch.parquet").drop(columns=TIMINGS)
 
 
-def test_a_local_cluster_of_two_workers_gives_the_rows_of_the_plain_loop(tmp_path, fleet, reference,  # noqa: F811
-                                                                         monkeypatch, capsys):
+def test_a_local_cluster_of_two_workers_gives_the_rows_of_the_plain_loop(
+    tmp_path,
+    fleet,  # noqa: F811
+    reference,  # noqa: F811
+    monkeypatch,
+    capsys,
+):
     root, _ = fleet
     seen = {}
     local = runner._local_cluster
@@ -52,10 +58,18 @@ def test_a_local_cluster_of_two_workers_gives_the_rows_of_the_plain_loop(tmp_pat
         cluster, client = local(workers)
         info = client.scheduler_info()
         me = psutil.Process()
-        listening = [c.laddr for p in (me, *me.children(recursive=True))
-                     for c in p.net_connections("inet") if c.status == psutil.CONN_LISTEN]
-        seen.update(scheduler=cluster.scheduler_address, workers=list(info["workers"]), listening=listening,
-                    settings=client.run(_worker_settings))
+        listening = [
+            c.laddr
+            for p in (me, *me.children(recursive=True))
+            for c in p.net_connections("inet")
+            if c.status == psutil.CONN_LISTEN
+        ]
+        seen.update(
+            scheduler=cluster.scheduler_address,
+            workers=list(info["workers"]),
+            listening=listening,
+            settings=client.run(_worker_settings),
+        )
         return cluster, client
 
     monkeypatch.setattr(runner, "_local_cluster", spied)
@@ -71,8 +85,13 @@ def test_a_local_cluster_of_two_workers_gives_the_rows_of_the_plain_loop(tmp_pat
     assert list(seen["settings"].values()) == [(None, False)] * 2
 
 
-def test_a_scheduler_by_address_gives_the_same_rows_and_a_rerun_skips_them(tmp_path, fleet, reference,  # noqa: F811
-                                                                           cluster, capsys):
+def test_a_scheduler_by_address_gives_the_same_rows_and_a_rerun_skips_them(
+    tmp_path,
+    fleet,  # noqa: F811
+    reference,  # noqa: F811
+    cluster,
+    capsys,
+):
     root, _ = fleet
     folder = tmp_path / "fleet"
     shutil.copytree(root, folder)

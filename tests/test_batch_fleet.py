@@ -54,7 +54,6 @@ def test_every_damaged_file_is_a_failure_row_with_its_error_and_the_table_reads_
     page = (root / "table" / "report.html").read_text()
     assert "Drift verdicts" in page and "FLAGGED" in page.upper()
     # a second night with nothing new identifies nothing again, the empty files included
-    assert main(["batch", str(root / "fleet"), "--out", str(root / "table"), "--scheduler", "synchronous",
-                 "-q"]) == 0
+    assert main(["batch", str(root / "fleet"), "--out", str(root / "table"), "--scheduler", "synchronous", "-q"]) == 0
     assert "0 identified, 0 failed, 50 skipped" in capsys.readouterr().out
     assert len(pd.read_parquet(root / "table" / "batch.parquet")) == 50

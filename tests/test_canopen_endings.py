@@ -49,8 +49,9 @@ class Twin:
         self.adapters: list[CanopenDriveAdapter] = []
 
     def open(self, acquisition="buffered", **device) -> CanopenDriveAdapter:
-        dev = replace(self.emulated.device, acquisition=acquisition, timeout_s=0.5, host_timeout_s=HOST_TIMEOUT_S,
-                      **device)
+        dev = replace(
+            self.emulated.device, acquisition=acquisition, timeout_s=0.5, host_timeout_s=HOST_TIMEOUT_S, **device
+        )
         ad = CanopenDriveAdapter.open_device(dev, self.driver)
         self.adapters.append(ad)
         lim = self.cfg.limits
@@ -112,7 +113,7 @@ def driver_copy(tmp_path, name="canopen-servo", toml=(), eds=None):
 def without_consumer(eds: str) -> str:
     """The EDS with the heartbeat consumer object (0x1016) taken out."""
     start = eds.index("[1016]")
-    return eds[:start] + eds[eds.index("[1017]"):].replace("=0x1016\n", "=0x1000\n")
+    return eds[:start] + eds[eds.index("[1017]") :].replace("=0x1016\n", "=0x1000\n")
 
 
 # --- the device-side net ----------------------------------------------------------------------------
@@ -121,8 +122,9 @@ def without_consumer(eds: str) -> str:
 def test_the_drive_watches_the_host_heartbeat_once_connected(twin):
     t = twin()
     ad = t.open()
-    assert ad.connect_report.device_net == ("heartbeat consumer 0x1016:1: host node 127, 300 ms (host heartbeat "
-                                            "every 100 ms); 0x6007 = 2 (disable voltage)")
+    assert ad.connect_report.device_net == (
+        "heartbeat consumer 0x1016:1: host node 127, 300 ms (host heartbeat every 100 ms); 0x6007 = 2 (disable voltage)"
+    )
     assert t.fw.consumers == {1: (127, 300)}
     assert wait_until(lambda: 127 in t.fw.heard, 1.0) < 1.0  # the host's heartbeat reaches the drive
     time.sleep(3 * HOST_TIMEOUT_S)  # a host alive: no heartbeat event
@@ -174,8 +176,11 @@ def test_abort_option_fault_latches_and_the_next_session_needs_the_reset(twin, t
     die_hard(ad)
     assert wait_until(lambda: t.fw.state is cia402.State.FAULT, HOST_TIMEOUT_S + 1.0) <= HOST_TIMEOUT_S + TOLERANCE_S
     assert not t.emulated.drive.enabled
-    with pytest.raises(DeviceError, match=r"latched fault: Fault, error code 0x8130: life guard or heartbeat error"
-                                          r".*allow_fault_reset = true or hilident run --clear-fault"):
+    with pytest.raises(
+        DeviceError,
+        match=r"latched fault: Fault, error code 0x8130: life guard or heartbeat error"
+        r".*allow_fault_reset = true or hilident run --clear-fault",
+    ):
         t.open()
     ad3 = t.open(allow_fault_reset=True)
     assert ad3.connect_report.faults == ["Fault, error code 0x8130: life guard or heartbeat error"]
@@ -249,8 +254,10 @@ def test_pdos_and_emergencies_from_before_the_configuration_are_counted_and_drop
 
     t = twin()
     other = can.Bus(interface="virtual", channel=t.emulated.device.port, receive_own_messages=False)
-    stale = [can.Message(arbitration_id=0x181, data=bytes(8), is_extended_id=False),
-             can.Message(arbitration_id=0x81, data=bytes.fromhex("1183110000000000"), is_extended_id=False)]
+    stale = [
+        can.Message(arbitration_id=0x181, data=bytes(8), is_extended_id=False),
+        can.Message(arbitration_id=0x81, data=bytes.fromhex("1183110000000000"), is_extended_id=False),
+    ]
     try:
         tasks = [other.send_periodic(msg, 0.002) for msg in stale]
         ad = t.open()
@@ -315,8 +322,7 @@ def test_events_reach_the_adapter_while_the_run_goes_on(twin):
     ad.enable = refused
     with pytest.raises(DeviceError, match="refused"):
         ad.stream(np.zeros(100), lambda i, rows: None)
-    assert ad.events == [] and len(result.events) == len(lost) + sum(e["kind"] != "lost_blocks"
-                                                                    for e in result.events)
+    assert ad.events == [] and len(result.events) == len(lost) + sum(e["kind"] != "lost_blocks" for e in result.events)
 
 
 def test_a_limit_trip_stays_the_cause_whatever_fails_after_it(twin):
@@ -406,8 +412,9 @@ def test_a_signal_in_the_middle_of_a_block_transfer_still_stops_the_drive(twin, 
     assert result.completed and result.stats.samples == 1000
 
 
-@pytest.mark.skipif(threading.current_thread() is not threading.main_thread(),
-                    reason="signal handlers need the main thread")
+@pytest.mark.skipif(
+    threading.current_thread() is not threading.main_thread(), reason="signal handlers need the main thread"
+)
 @pytest.mark.parametrize("direction", ["wb", "rb"])
 def test_a_signal_during_a_segment_is_raised_between_segments(twin, direction):
     # canopen's SDO client holds its response queue's lock while a segment is exchanged; a signal's exception

@@ -65,8 +65,9 @@ def _session_config(tmp_path: Path, drive: VendorDrive, excitation: str) -> Path
     folder = write_vendor_drive(tmp_path / "drivers", drive)
     text = CONFIG.read_text()
     text = text.replace('driver = "canopen-servo"', f'driver = "{folder.as_posix()}"')
-    text = text.replace('acquisition = "auto"', 'acquisition = "recorder"').replace("time_scale = 6.0",
-                                                                                     "time_scale = 20.0")
+    text = text.replace('acquisition = "auto"', 'acquisition = "recorder"').replace(
+        "time_scale = 6.0", "time_scale = 20.0"
+    )
     text = re.sub(r"\[excitation\][^\[]*", excitation, text)
     text = text.replace("[friction_test]", "[friction_test]\nenabled = false")
     # the torque follows the PRBS tick for tick
@@ -77,12 +78,16 @@ def _session_config(tmp_path: Path, drive: VendorDrive, excitation: str) -> Path
 
 
 def test_a_whole_session_plays_the_drives_prbs_and_finds_the_resonance(tmp_path):
-    path = _session_config(tmp_path, PRBS, '[excitation]\nkind = "prbs"\nmode = "torque"\namplitude_nm = 8.0\n'
-                                           'register_length = 10\nduration_s = 3.1\nf_max_hz = 200.0\n\n')
+    path = _session_config(
+        tmp_path,
+        PRBS,
+        '[excitation]\nkind = "prbs"\nmode = "torque"\namplitude_nm = 8.0\n'
+        "register_length = 10\nduration_s = 3.1\nf_max_hz = 200.0\n\n",
+    )
     assert main(["run", str(path), "--out", str(tmp_path / "out"), "-q", "--no-plots"]) == 0
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     cfg = load_config(path)
-    (true_f, _), = true_modes(cfg.emulator)
+    ((true_f, _),) = true_modes(cfg.emulator)
     (res,) = summary["resonances"]
     assert abs(res["frequency_hz"] - true_f) / true_f < 0.005
     run = read_run(tmp_path / "out" / "identification.h5")
@@ -134,9 +139,10 @@ def _play(ad, cfg, **excitation):
 
 def test_a_sine_sweep_is_recorded_channel_by_channel_and_its_excitation_computed(twin):
     ad, emu, cfg = twin(SWEEP)
-    result, seen, x = _play(ad, cfg, kind="chirp", chirp_method="logarithmic", f_min_hz=2.0, f_max_hz=80.0,
-                            duration_s=2.0, amplitude_nm=4.0)
-    (index, rows), = seen
+    result, seen, x = _play(
+        ad, cfg, kind="chirp", chirp_method="logarithmic", f_min_hz=2.0, f_max_hz=80.0, duration_s=2.0, amplitude_nm=4.0
+    )
+    ((index, rows),) = seen
     assert result.completed and result.stats.lost_samples == 0 and np.array_equal(index, np.arange(2000))
     excitation = rows[:, ad.channel_names.index("excitation")]
     # computed from what the drive stores: the sweep without the host's fade in and out
@@ -156,8 +162,12 @@ def test_the_generator_feeds_the_torque_offset_while_the_drive_holds_its_positio
     ad, emu, cfg = twin(PRBS)
     assert ad.desc.modes["torque_injection"].setpoint == "torque_offset"
     ad.configure(FS, "torque_injection")
-    full = replace(cfg, excitation=replace(cfg.excitation, kind="prbs", mode="torque_injection", amplitude_nm=2.0,
-                                           register_length=9, duration_s=1.5))
+    full = replace(
+        cfg,
+        excitation=replace(
+            cfg.excitation, kind="prbs", mode="torque_injection", amplitude_nm=2.0, register_length=9, duration_s=1.5
+        ),
+    )
     x = build_excitation(full).samples
     ad.set_excitation_recipe(excitation_recipe(full))
     seen = []
@@ -172,16 +182,22 @@ def test_the_generator_feeds_the_torque_offset_while_the_drive_holds_its_positio
     assert abs(emu.drive.torque_offset_nm) < 1e-12  # nothing of the generator left in the loop after the run
 
 
-@pytest.mark.parametrize("drive, excitation, key", [
-    (PRBS, {"kind": "multisine", "duration_s": 2.0}, "excitation.kind"),
-    (PRBS, {"kind": "prbs", "amplitude_nm": 25.0, "duration_s": 2.0}, "excitation.amplitude_nm"),
-    (PRBS, {"kind": "prbs", "register_length": 6, "duration_s": 0.5}, "excitation.register_length"),
-    (PRBS, {"kind": "prbs", "register_length": 10, "duration_s": 9.0}, "excitation.duration_s"),
-    (SWEEP, {"kind": "chirp", "f_max_hz": 300.0, "chirp_method": "logarithmic", "duration_s": 1.0},
-     "excitation.f_max_hz"),
-    (SWEEP, {"kind": "chirp", "chirp_method": "linear", "duration_s": 1.0}, "excitation.chirp_method"),
-    (SWEEP, {"kind": "prbs", "duration_s": 1.0}, "excitation.kind"),
-])
+@pytest.mark.parametrize(
+    "drive, excitation, key",
+    [
+        (PRBS, {"kind": "multisine", "duration_s": 2.0}, "excitation.kind"),
+        (PRBS, {"kind": "prbs", "amplitude_nm": 25.0, "duration_s": 2.0}, "excitation.amplitude_nm"),
+        (PRBS, {"kind": "prbs", "register_length": 6, "duration_s": 0.5}, "excitation.register_length"),
+        (PRBS, {"kind": "prbs", "register_length": 10, "duration_s": 9.0}, "excitation.duration_s"),
+        (
+            SWEEP,
+            {"kind": "chirp", "f_max_hz": 300.0, "chirp_method": "logarithmic", "duration_s": 1.0},
+            "excitation.f_max_hz",
+        ),
+        (SWEEP, {"kind": "chirp", "chirp_method": "linear", "duration_s": 1.0}, "excitation.chirp_method"),
+        (SWEEP, {"kind": "prbs", "duration_s": 1.0}, "excitation.kind"),
+    ],
+)
 def test_a_recipe_the_generator_cannot_play_is_refused_before_anything_moves(twin, drive, excitation, key):
     ad, emu, cfg = twin(drive)
     ad.configure(FS, "torque")
@@ -257,35 +273,42 @@ def _sections(drive: VendorDrive, tmp_path: Path):
     return folder, tomllib.loads((folder / "driver.toml").read_text())
 
 
-@pytest.mark.parametrize("edit, key", [
-    (lambda r, g: r.pop("recorded"), "canopen.recorder.recorded"),
-    (lambda r, g: r.update(max_samples=0), "canopen.recorder.max_samples"),
-    (lambda r, g: r.update(sample_periods=[0, 2]), "canopen.recorder.sample_periods"),
-    (lambda r, g: r.update(buffers=["0x2502"]), "canopen.recorder.buffer"),
-    (lambda r, g: r.update(channel_encoding="index_subindex"), "canopen.recorder.channel_encoding"),
-    (lambda r, g: r.update(states={"idle": 0, "done": 3}), "canopen.recorder.states.waiting"),
-    (lambda r, g: g["kinds"].update(noise={"code": 4}), "canopen.generator.kinds.noise"),
-    (lambda r, g: g["kinds"]["prbs"].pop("clock_divider"), "canopen.generator.kinds.prbs.clock_divider"),
-    (lambda r, g: g["kinds"]["prbs"]["amplitude"].update(scale="newton"),
-     "canopen.generator.kinds.prbs.amplitude.scale"),
-    (lambda r, g: g["kinds"]["prbs"].update(taps={"10": [12]}), "canopen.generator.kinds.prbs.taps.10"),
-    (lambda r, g: g.update(targets={"target_position": 1}), "canopen.generator.targets"),
-    (lambda r, g: g.update(output="0x2502"), "canopen.generator.output"),  # a DOMAIN, not a number
-    (lambda r, g: r.update(state="0x2500:1"), None),  # rw is readable: accepted
-    (lambda r, g: r.update(control="0x2500:7"), "canopen.recorder.control"),  # const: the host cannot write it
-    (lambda r, g: r.update(buffer="0x2500:6"), "canopen.recorder.buffer[0]"),  # a number, not a DOMAIN
-    # keys a table does not know are refused, as in every table of a driver file (a typo is not ignored)
-    (lambda r, g: r.update(block_transfers=False), "canopen.recorder.block_transfers"),
-    (lambda r, g: g.update(output_scales="torque"), "canopen.generator.output_scales"),
-    (lambda r, g: g["kinds"]["prbs"]["amplitude"].update(mx=3.0), "canopen.generator.kinds.prbs.amplitude.mx"),
-    (lambda r, g: g.update(output_scale=float("inf")), "canopen.generator.output_scale"),  # a finite scale
-    (lambda r, g: g.update(output_scale=True), "canopen.generator.output_scale"),  # a bool is no number
-    (lambda r, g: g["targets"].update(target_torque=70000), "canopen.generator.targets.target_torque"),
-    (lambda r, g: r["triggers"].update(generator=-1) if "triggers" in r else r.update(triggers={"immediate": 0}),
-     "canopen.recorder.triggers.generator"),
-    (lambda r, g: g["kinds"]["prbs"].update(seed="0x35"), None),  # integer text: a register state
-    (lambda r, g: g["kinds"]["prbs"].update(seed=0), "canopen.generator.kinds.prbs.seed"),
-])
+@pytest.mark.parametrize(
+    "edit, key",
+    [
+        (lambda r, g: r.pop("recorded"), "canopen.recorder.recorded"),
+        (lambda r, g: r.update(max_samples=0), "canopen.recorder.max_samples"),
+        (lambda r, g: r.update(sample_periods=[0, 2]), "canopen.recorder.sample_periods"),
+        (lambda r, g: r.update(buffers=["0x2502"]), "canopen.recorder.buffer"),
+        (lambda r, g: r.update(channel_encoding="index_subindex"), "canopen.recorder.channel_encoding"),
+        (lambda r, g: r.update(states={"idle": 0, "done": 3}), "canopen.recorder.states.waiting"),
+        (lambda r, g: g["kinds"].update(noise={"code": 4}), "canopen.generator.kinds.noise"),
+        (lambda r, g: g["kinds"]["prbs"].pop("clock_divider"), "canopen.generator.kinds.prbs.clock_divider"),
+        (
+            lambda r, g: g["kinds"]["prbs"]["amplitude"].update(scale="newton"),
+            "canopen.generator.kinds.prbs.amplitude.scale",
+        ),
+        (lambda r, g: g["kinds"]["prbs"].update(taps={"10": [12]}), "canopen.generator.kinds.prbs.taps.10"),
+        (lambda r, g: g.update(targets={"target_position": 1}), "canopen.generator.targets"),
+        (lambda r, g: g.update(output="0x2502"), "canopen.generator.output"),  # a DOMAIN, not a number
+        (lambda r, g: r.update(state="0x2500:1"), None),  # rw is readable: accepted
+        (lambda r, g: r.update(control="0x2500:7"), "canopen.recorder.control"),  # const: the host cannot write it
+        (lambda r, g: r.update(buffer="0x2500:6"), "canopen.recorder.buffer[0]"),  # a number, not a DOMAIN
+        # keys a table does not know are refused, as in every table of a driver file (a typo is not ignored)
+        (lambda r, g: r.update(block_transfers=False), "canopen.recorder.block_transfers"),
+        (lambda r, g: g.update(output_scales="torque"), "canopen.generator.output_scales"),
+        (lambda r, g: g["kinds"]["prbs"]["amplitude"].update(mx=3.0), "canopen.generator.kinds.prbs.amplitude.mx"),
+        (lambda r, g: g.update(output_scale=float("inf")), "canopen.generator.output_scale"),  # a finite scale
+        (lambda r, g: g.update(output_scale=True), "canopen.generator.output_scale"),  # a bool is no number
+        (lambda r, g: g["targets"].update(target_torque=70000), "canopen.generator.targets.target_torque"),
+        (
+            lambda r, g: r["triggers"].update(generator=-1) if "triggers" in r else r.update(triggers={"immediate": 0}),
+            "canopen.recorder.triggers.generator",
+        ),
+        (lambda r, g: g["kinds"]["prbs"].update(seed="0x35"), None),  # integer text: a register state
+        (lambda r, g: g["kinds"]["prbs"].update(seed=0), "canopen.generator.kinds.prbs.seed"),
+    ],
+)
 def test_vocabulary_errors_name_the_key_and_the_driver_file(tmp_path, edit, key):
     folder, sections = _sections(PRBS, tmp_path)
     edit(sections["canopen"]["recorder"], sections["canopen"]["generator"])
@@ -306,8 +329,9 @@ def test_drivers_check_finds_a_recorder_object_missing_from_the_eds(tmp_path):
     toml.write_text(toml.read_text().replace('buffer = "0x2502"', 'buffer = "0x2590"'))
     report = check_driver_folder(folder)
     assert not report.ok
-    assert any("[canopen.recorder.buffer[0]] object 0x2590:0 is not in the EDS" in e and str(toml) in e
-               for e in report.errors)
+    assert any(
+        "[canopen.recorder.buffer[0]] object 0x2590:0 is not in the EDS" in e and str(toml) in e for e in report.errors
+    )
     with pytest.raises(ConfigError, match=r"canopen.recorder.buffer\[0\]"):  # and the driver does not load
         load_driver(folder)
 

@@ -24,9 +24,13 @@ def short_config(acquisition="buffered", time_scale=20.0, period_s=1.0, duration
     """The shipped CANopen gantry without the friction test and with a short multisine."""
     cfg = load_config(CONFIG)
     emu = replace(cfg.emulator, time_scale=time_scale, faults=replace(cfg.emulator.faults, **faults))
-    return replace(cfg, device=replace(cfg.device, acquisition=acquisition), emulator=emu,
-                   friction_test=replace(cfg.friction_test, enabled=False),
-                   excitation=replace(cfg.excitation, period_s=period_s, duration_s=duration_s, amplitude_nm=8.0))
+    return replace(
+        cfg,
+        device=replace(cfg.device, acquisition=acquisition),
+        emulator=emu,
+        friction_test=replace(cfg.friction_test, enabled=False),
+        excitation=replace(cfg.excitation, period_s=period_s, duration_s=duration_s, amplitude_nm=8.0),
+    )
 
 
 def test_streamed_session_on_the_fixed_point_drive(tmp_path):
@@ -35,7 +39,7 @@ def test_streamed_session_on_the_fixed_point_drive(tmp_path):
     cfg = replace(cfg, device=replace(cfg.device, driver="canopen-servo-fixed"))
     session = Session(cfg, tmp_path)
     summary = session.run()
-    (true_f, true_zeta), = true_modes(cfg.emulator)
+    ((true_f, true_zeta),) = true_modes(cfg.emulator)
     (res,) = summary["resonances"]
     assert abs(res["frequency_hz"] - true_f) / true_f < 0.01
     assert abs(res["damping_ratio"] - true_zeta) / true_zeta < 0.3
@@ -52,20 +56,6 @@ def test_streamed_session_on_the_fixed_point_drive(tmp_path):
         assert run.complete and np.array_equal(run.samples["sample_index"], np.arange(n))
 
 
-
-
-
-
-
-
-
-
-
-
-
-
-
-
 def _bench_config(tmp_path, port, **replacements) -> Path:
     text = CONFIG.read_text().replace('port = "emulator"', f'port = "{port}"')
     text = text.replace('can_interface = "socketcan"', 'can_interface = "socketcand"')
@@ -80,10 +70,17 @@ def _bench_config(tmp_path, port, **replacements) -> Path:
 def test_standalone_drive_over_socketcand_runs_a_session_like_hardware(tmp_path, standalone_emulator):
     port = standalone_emulator("canopen", CONFIG, "--time-scale", "10")
     assert port.startswith("127.0.0.1:") and port.endswith("/can0")
-    cfg = _bench_config(tmp_path, port, **{"[friction_test]": "[friction_test]\nenabled = false",
-                                           "duration_s = 16.0": "duration_s = 8.0"})
-    out = subprocess.run([sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o"),
-                          "-q", "--yes"], capture_output=True, text=True, timeout=120)
+    cfg = _bench_config(
+        tmp_path,
+        port,
+        **{"[friction_test]": "[friction_test]\nenabled = false", "duration_s = 16.0": "duration_s = 8.0"},
+    )
+    out = subprocess.run(
+        [sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o"), "-q", "--yes"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert out.returncode == 0, out.stderr
     assert "resonances: 21." in out.stdout and "0 lost blocks" in out.stdout
     assert (tmp_path / "o" / "summary.json").is_file()

@@ -33,22 +33,39 @@ DRIVES = {
     "plain": VendorDrive("acme-plain"),  # CSP/CSV/CST, 4+4 PDOs of 8 entries, 0x60C2, 0x6076 = 1000 mN*m
     # 4 entries per PDO, 2 RPDOs, the period in 0x1006 only, 0x6076 = 0 (the rated torque from driver.toml),
     # 0x6060 as UNSIGNED8, only a max-torque limit object, SYNC counter
-    "narrow": VendorDrive("acme-narrow", entries=4, rpdos=2, period="1006", torque="rated_zero", mode_type=0x5,
-                          limits=("max_torque",), sync_counter=True),
+    "narrow": VendorDrive(
+        "acme-narrow",
+        entries=4,
+        rpdos=2,
+        period="1006",
+        torque="rated_zero",
+        mode_type=0x5,
+        limits=("max_torque",),
+        sync_counter=True,
+    ),
     # no 0x6502 default, current instead of torque, IP as the only cyclic mode
     # no heartbeat producer (0x1017), no heartbeat consumer: node guarding and life guarding instead
     "guarded": VendorDrive("acme-guarded", heartbeat=False),
-    "ip-current": VendorDrive("acme-ip", modes=("pp", "pv", "hm", "ip"), declare_modes=False, torque="current",
-                              limits=("max_velocity", "position_limits")),
+    "ip-current": VendorDrive(
+        "acme-ip",
+        modes=("pp", "pv", "hm", "ip"),
+        declare_modes=False,
+        torque="current",
+        limits=("max_velocity", "position_limits"),
+    ),
 }
 
 
 def session_config(folder: Path, period_s=1.0, duration_s=2.0):
     cfg = load_config(CONFIG)
     emu = replace(cfg.emulator, time_scale=20.0)
-    return replace(cfg, device=replace(cfg.device, driver=str(folder), acquisition="streamed"), emulator=emu,
-                   friction_test=replace(cfg.friction_test, enabled=False),
-                   excitation=replace(cfg.excitation, period_s=period_s, duration_s=duration_s, amplitude_nm=8.0))
+    return replace(
+        cfg,
+        device=replace(cfg.device, driver=str(folder), acquisition="streamed"),
+        emulator=emu,
+        friction_test=replace(cfg.friction_test, enabled=False),
+        excitation=replace(cfg.excitation, period_s=period_s, duration_s=duration_s, amplitude_nm=8.0),
+    )
 
 
 @pytest.mark.parametrize("name", ["narrow"])
@@ -57,7 +74,7 @@ def test_a_whole_session_on_a_vendor_drive(tmp_path, name):
     cfg = session_config(folder)
     session = Session(cfg, tmp_path / "out", plots=False)
     summary = session.run()
-    (true_f, _), = true_modes(cfg.emulator)
+    ((true_f, _),) = true_modes(cfg.emulator)
     (res,) = summary["resonances"]
     assert abs(res["frequency_hz"] - true_f) / true_f < 0.005
     stream = summary["stream"]
@@ -82,8 +99,9 @@ def twin(tmp_path):
         driver = load_driver(folder)
         cfg = load_config(CONFIG)
         emu = start(replace(cfg.emulator, time_scale=20.0), driver, replace(cfg.device, driver=str(folder)))
-        ad = CanopenDriveAdapter.open_device(replace(emu.device, acquisition="streamed", timeout_s=0.5, **device),
-                                             driver)
+        ad = CanopenDriveAdapter.open_device(
+            replace(emu.device, acquisition="streamed", timeout_s=0.5, **device), driver
+        )
         opened.append((ad, emu))
         lim = cfg.limits
         ad.set_limits(lim.torque_nm, lim.velocity_mps, lim.position_min_m, lim.position_max_m)
@@ -134,8 +152,11 @@ def test_lost_tpdos_are_counted_at_their_sample_never_filled(tmp_path):
     folder = write_vendor_drive(tmp_path, drive)
     driver = load_driver(folder)
     cfg = load_config(CONFIG)
-    emu = start(replace(cfg.emulator, time_scale=20.0, faults=replace(cfg.emulator.faults, drop_pdo_rate=0.01)),
-                driver, replace(cfg.device, driver=str(folder)))
+    emu = start(
+        replace(cfg.emulator, time_scale=20.0, faults=replace(cfg.emulator.faults, drop_pdo_rate=0.01)),
+        driver,
+        replace(cfg.device, driver=str(folder)),
+    )
     ad = CanopenDriveAdapter.open_device(replace(emu.device, acquisition="streamed", timeout_s=0.5), driver)
     try:
         ad.set_limits(19.0, 0.4, -0.6, 0.6)
@@ -186,8 +207,14 @@ def test_the_host_checks_limits_the_drive_does_not_hold(twin):
 def test_placeholders_run_on_the_emulator_and_are_refused_on_a_real_port(tmp_path):
     drive = VendorDrive("acme-guessed", extra_toml="")
     folder = write_vendor_drive(tmp_path, drive)
-    text = (folder / "driver.toml").read_text().replace(
-        'default_baudrate = 1000000', 'default_baudrate = 1000000\nplaceholders = ["canopen.scaling.position_unit_m"]')
+    text = (
+        (folder / "driver.toml")
+        .read_text()
+        .replace(
+            "default_baudrate = 1000000",
+            'default_baudrate = 1000000\nplaceholders = ["canopen.scaling.position_unit_m"]',
+        )
+    )
     (folder / "driver.toml").write_text(text)
     driver = load_driver(folder)
     assert driver.placeholders == ("canopen.scaling.position_unit_m",)

@@ -24,7 +24,9 @@ def test_standalone_emulator_runs_a_session_like_hardware(tmp_path, extra, stand
     cfg.write_text(text)
     out = subprocess.run(
         [sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o"), "-q", "--yes"],
-        capture_output=True, text=True, timeout=240,
+        capture_output=True,
+        text=True,
+        timeout=240,
     )
     assert out.returncode == 0, out.stderr
     assert "resonances: 21." in out.stdout
@@ -36,7 +38,9 @@ def test_ctrl_c_mid_run_stops_and_keeps_the_recording(tmp_path):
     cfg.write_text((CONFIGS / "emulated-gantry.toml").read_text().replace("time_scale = 4.0", "time_scale = 1.0"))
     proc = subprocess.Popen(
         [sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o")],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as at a terminal, also in a background job
     )
     try:
@@ -55,18 +59,26 @@ def test_ctrl_c_mid_run_stops_and_keeps_the_recording(tmp_path):
     assert run.status == "aborted" and run.n_samples > 0
 
 
-@pytest.mark.parametrize("flags", [("--time-scale", "nan"), ("--time-scale", "-1"), ("--time-scale", "inf"),
-                                   ("--baudrate", "-5")], ids=["nan", "negative", "inf", "baud"])
+@pytest.mark.parametrize(
+    "flags",
+    [("--time-scale", "nan"), ("--time-scale", "-1"), ("--time-scale", "inf"), ("--baudrate", "-5")],
+    ids=["nan", "negative", "inf", "baud"],
+)
 def test_emulate_flags_are_checked(flags):
-    done = subprocess.run([sys.executable, "-m", "hilident.cli", "emulate", "serial", *flags],
-                          capture_output=True, text=True, timeout=60)
+    done = subprocess.run(
+        [sys.executable, "-m", "hilident.cli", "emulate", "serial", *flags], capture_output=True, text=True, timeout=60
+    )
     assert done.returncode == 2
     assert done.stderr.startswith(f"hilident: error: {flags[0]}") and "Traceback" not in done.stderr
 
 
 def test_emulate_canopen_port_out_of_range():
-    done = subprocess.run([sys.executable, "-m", "hilident.cli", "emulate", "canopen", "--port", "70000"],
-                          capture_output=True, text=True, timeout=60)
+    done = subprocess.run(
+        [sys.executable, "-m", "hilident.cli", "emulate", "canopen", "--port", "70000"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert done.returncode == 2 and "--port 70000" in done.stderr and "Traceback" not in done.stderr
 
 
@@ -85,8 +97,12 @@ def test_a_closed_output_pipe_does_not_end_the_run(tmp_path):
     read_end, write_end = os.pipe()
     os.close(read_end)  # nobody will ever read the output
     try:
-        proc = subprocess.run([sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o")],
-                              stdout=write_end, stderr=write_end, timeout=240)
+        proc = subprocess.run(
+            [sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o")],
+            stdout=write_end,
+            stderr=write_end,
+            timeout=240,
+        )
     finally:
         os.close(write_end)
     assert proc.returncode == 0

@@ -24,6 +24,7 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 # --- init --------------------------------------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("transport", ["serial", "canopen", "modbus"])
 def test_init_writes_a_config_that_loads_and_fits_its_driver(tmp_path, capsys, transport):
     out = tmp_path / f"{transport}.toml"
@@ -80,6 +81,7 @@ def test_init_keeps_an_existing_file_unless_overwrite(tmp_path, capsys):
 
 # --- ports -------------------------------------------------------------------------------------------------------
 
+
 def _fake_listings(monkeypatch, serial_ports, can_configs):
     import can
     from serial.tools import list_ports
@@ -96,11 +98,15 @@ def _fake_listings(monkeypatch, serial_ports, can_configs):
 
 
 def test_ports_lists_serial_ports_and_can_channels(monkeypatch, capsys):
-    usb = SimpleNamespace(device="/dev/ttyUSB0", description="FT232R USB UART",
-                          hwid="USB VID:PID=0403:6001 SER=A50285BI")
+    usb = SimpleNamespace(
+        device="/dev/ttyUSB0", description="FT232R USB UART", hwid="USB VID:PID=0403:6001 SER=A50285BI"
+    )
     acm = SimpleNamespace(device="/dev/ttyACM0", description="myRIO", hwid="USB VID:PID=3923:762F")
-    _fake_listings(monkeypatch, [usb, acm], [{"interface": "socketcan", "channel": "can0"},
-                                             {"interface": "pcan", "channel": "PCAN_USBBUS1"}])
+    _fake_listings(
+        monkeypatch,
+        [usb, acm],
+        [{"interface": "socketcan", "channel": "can0"}, {"interface": "pcan", "channel": "PCAN_USBBUS1"}],
+    )
     assert main(["ports"]) == 0
     out = capsys.readouterr().out
     lines = out.splitlines()
@@ -133,8 +139,12 @@ def test_ports_with_nothing_found_and_a_can_search_that_hangs(monkeypatch, capsy
 
 # --- a port that does not open -----------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("code, hint", [(2, "no such device"), (13, "dialout"), (16, "in use by another program")],
-                         ids=["missing", "permission", "busy"])
+
+@pytest.mark.parametrize(
+    "code, hint",
+    [(2, "no such device"), (13, "dialout"), (16, "in use by another program")],
+    ids=["missing", "permission", "busy"],
+)
 def test_serial_open_failure_names_the_key_and_the_cause(monkeypatch, code, hint):
     import serial
 
@@ -204,14 +214,18 @@ def test_a_port_held_by_another_session_names_the_key(tmp_path):
 
 def test_a_missing_port_is_one_line_naming_the_key(tmp_path, capsys):
     cfg = tmp_path / "real.toml"
-    cfg.write_text((CONFIGS / "emulated-gantry.toml").read_text()
-                   .replace('port = "emulator"', f'port = "{tmp_path / "ttyUSB-gone"}"'))
+    cfg.write_text(
+        (CONFIGS / "emulated-gantry.toml")
+        .read_text()
+        .replace('port = "emulator"', f'port = "{tmp_path / "ttyUSB-gone"}"')
+    )
     assert main(["run", str(cfg), "--out", str(tmp_path / "o"), "--yes"]) == 4
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "[device.port]" in err[0] and "no such device" in err[0]
 
 
 # --- help, options, logging --------------------------------------------------------------------------------------
+
 
 def _parsers(parser: argparse.ArgumentParser, path=("hilident",)):
     yield path, parser
@@ -240,7 +254,7 @@ def test_help_has_examples_and_exit_codes(command, capsys):
     out = capsys.readouterr().out
     assert re.search(r"^examples:|^first hour:", out, re.M)
     assert re.search(r"^\s+hilident \w+", out, re.M)  # at least one example command line
-    codes = out[out.index("exit codes:"):]
+    codes = out[out.index("exit codes:") :]
     for code in ("0", "2", "3", "4", "5", "130"):
         assert re.search(rf"(^|\s|/){code}(\s|/)", codes), code
     assert "  hilident run configs/emulated-gantry.toml" in out or command != ["run"]
@@ -263,6 +277,7 @@ def test_log_level_reaches_the_library_loggers(tmp_path):
 
 # --- output folders ----------------------------------------------------------------------------------------------
 
+
 def test_default_out_is_a_new_timestamped_folder(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     first = cli._out_folder(None, "bench", overwrite=False)
@@ -276,8 +291,10 @@ def test_run_identify_and_upload_refuse_an_out_holding_results(tmp_path, capsys)
     out = tmp_path / "o"
     out.mkdir()
     (out / "summary.json").write_text("{}")
-    for argv in (["run", str(CONFIGS / "emulated-gantry.toml"), "--out", str(out)],
-                 ["identify", str(tmp_path / "data.h5"), "--out", str(out)]):
+    for argv in (
+        ["run", str(CONFIGS / "emulated-gantry.toml"), "--out", str(out)],
+        ["identify", str(tmp_path / "data.h5"), "--out", str(out)],
+    ):
         assert main(argv) == 2
         err = capsys.readouterr().err
         assert f"--out {out}" in err and "--overwrite" in err
@@ -288,8 +305,21 @@ def test_run_identify_and_upload_refuse_an_out_holding_results(tmp_path, capsys)
     from test_upload_command import write_source
 
     source = write_source(tmp_path / "src", 21.79, 4000.0)
-    assert main(["upload", "--from", str(source), "--config", str(CONFIGS / "emulated-gantry.toml"),
-                 "--out", str(out), "-q"]) == 2
+    assert (
+        main(
+            [
+                "upload",
+                "--from",
+                str(source),
+                "--config",
+                str(CONFIGS / "emulated-gantry.toml"),
+                "--out",
+                str(out),
+                "-q",
+            ]
+        )
+        == 2
+    )
     assert f"--out {out}" in capsys.readouterr().err and (out / "summary.json").read_text() == "{}"
     empty = tmp_path / "empty"
     empty.mkdir()
@@ -299,10 +329,12 @@ def test_run_identify_and_upload_refuse_an_out_holding_results(tmp_path, capsys)
 
 # --- the length played -------------------------------------------------------------------------------------------
 
+
 def test_length_line_says_asked_and_played():
     recipe = {"kind": "multisine", "duration_s": 16.0, "period_s": 4.0}
     assert length_line("identification", "torque", 20.0, recipe) == (
-        "identification: 16.0 s of torque excitation asked, 20.0 s played: one lead-in period (4.0 s, not analysed)")
+        "identification: 16.0 s of torque excitation asked, 20.0 s played: one lead-in period (4.0 s, not analysed)"
+    )
     odd = length_line("identification", "torque", 20.0, {**recipe, "duration_s": 15.0})
     assert "15.0 s of torque excitation asked, 20.0 s played: 4 whole periods of 4.0 s and one lead-in" in odd
     assert length_line("friction", "velocity", 20.5) == "friction: 20.5 s of velocity excitation"
@@ -311,6 +343,7 @@ def test_length_line_says_asked_and_played():
 
 
 # --- drivers -v --------------------------------------------------------------------------------------------------
+
 
 def test_drivers_verbose_describes_every_shipped_driver(capsys):
     from hilident.drivers.description import available_drivers
@@ -322,8 +355,15 @@ def test_drivers_verbose_describes_every_shipped_driver(capsys):
     for name in ("myrio-board", "canopen-servo", "modbus-servo", "dsy-rs"):
         assert name in available_drivers()
         block = described[name]
-        for label in ("rates: loop ", "filter slots: ", "channels: ", "channel units: ", "sample rates: ", "modes: ",
-                      "capabilities: "):
+        for label in (
+            "rates: loop ",
+            "filter slots: ",
+            "channels: ",
+            "channel units: ",
+            "sample rates: ",
+            "modes: ",
+            "capabilities: ",
+        ):
             assert label in block, (name, label)
     assert "velocity_mps [m/s]" in described["myrio-board"] and "torque_nm [N*m]" in described["canopen-servo"]
     assert re.search(r"sample rates: 8000, 4000, ", described["dsy-rs"])

@@ -34,8 +34,13 @@ SERIAL = ROOT / "configs" / "emulated-gantry.toml"
 #: maxon EPOS2-like: CSP and CSV only, current instead of torque, no torque offset
 CURRENT_CSV = VendorDrive("acme-csv-current", modes=("pp", "pv", "hm", "csp", "csv"), torque="current")
 #: Technosoft-like: IP only, no standard torque or current object, a vendor "Control effort"
-IP_EFFORT = VendorDrive("acme-ip-effort", modes=("pp", "hm", "ip"), torque="effort", torque_offset=False,
-                        limits=("max_velocity", "position_limits"))
+IP_EFFORT = VendorDrive(
+    "acme-ip-effort",
+    modes=("pp", "hm", "ip"),
+    torque="effort",
+    torque_offset=False,
+    limits=("max_velocity", "position_limits"),
+)
 
 
 def _config(path: Path, toml: str) -> Path:
@@ -48,12 +53,15 @@ def _excitation_toml(mode: str, amplitude: str) -> str:
     return re.sub(r"^amplitude_nm = .*$", amplitude, text, flags=re.M)
 
 
-@pytest.mark.parametrize("mode, amplitude, key", [
-    ("velocity", "", "excitation.amplitude_mps"),  # not set: a set-point perturbation has no default size
-    ("velocity", "amplitude_mps = 0.4", "excitation.amplitude_mps"),  # reaches limits.velocity_mps = 0.4
-    ("position", "amplitude_m = 0.6", "excitation.amplitude_m"),  # does not fit the window [-0.6, 0.6]
-    ("position", "amplitude_mps = 0.05", "excitation.amplitude_m"),  # the other mode's key
-])
+@pytest.mark.parametrize(
+    "mode, amplitude, key",
+    [
+        ("velocity", "", "excitation.amplitude_mps"),  # not set: a set-point perturbation has no default size
+        ("velocity", "amplitude_mps = 0.4", "excitation.amplitude_mps"),  # reaches limits.velocity_mps = 0.4
+        ("position", "amplitude_m = 0.6", "excitation.amplitude_m"),  # does not fit the window [-0.6, 0.6]
+        ("position", "amplitude_mps = 0.05", "excitation.amplitude_m"),  # the other mode's key
+    ],
+)
 def test_a_set_point_perturbation_needs_its_own_amplitude_within_the_limits(tmp_path, mode, amplitude, key):
     with pytest.raises(ConfigError) as err:
         load_config(_config(tmp_path / "c.toml", _excitation_toml(mode, amplitude)))
@@ -84,26 +92,35 @@ def _vendor_session(tmp_path, drive: VendorDrive, mode: str, amplitude: dict, fr
     cfg = load_config(CANOPEN)
     # speeds above the Stribeck range: a Coulomb-viscous fit of few legs recovers Fc and Fv; as a position
     # profile the legs need a settle long enough for the position loop's transient after each ramp
-    ft = replace(cfg.friction_test, enabled=friction, speeds_mps=[0.03, 0.1, 0.2], hold_s=1.2, settle_s=0.8,
-                 model="coulomb_viscous")
+    ft = replace(
+        cfg.friction_test,
+        enabled=friction,
+        speeds_mps=[0.03, 0.1, 0.2],
+        hold_s=1.2,
+        settle_s=0.8,
+        model="coulomb_viscous",
+    )
     # SYNC at 500 Hz: a host-streamed run is paced in real time, and this keeps it light on a busy machine
-    cfg = replace(cfg, device=replace(cfg.device, driver=str(folder), acquisition="streamed"),
-                  run=replace(cfg.run, sample_rate_hz=500.0),
-                  emulator=replace(cfg.emulator, time_scale=20.0), friction_test=ft,
-                  excitation=replace(cfg.excitation, mode=mode, period_s=2.0, duration_s=4.0, **amplitude))
+    cfg = replace(
+        cfg,
+        device=replace(cfg.device, driver=str(folder), acquisition="streamed"),
+        run=replace(cfg.run, sample_rate_hz=500.0),
+        emulator=replace(cfg.emulator, time_scale=20.0),
+        friction_test=ft,
+        excitation=replace(cfg.excitation, mode=mode, period_s=2.0, duration_s=4.0, **amplitude),
+    )
     session = Session(cfg, tmp_path / "out", plots=False)
     return cfg, session, session.run()
 
 
 def _resonance_error(cfg, summary) -> float:
-    (true_f, _), = true_modes(cfg.emulator)
+    ((true_f, _),) = true_modes(cfg.emulator)
     (res,) = summary["resonances"]
     return abs(res["frequency_hz"] - true_f) / true_f
 
 
 def test_a_current_only_csv_drive_is_identified_through_its_velocity_set_point(tmp_path):
-    cfg, session, summary = _vendor_session(tmp_path, CURRENT_CSV, "velocity", {"amplitude_mps": 0.05},
-                                            friction=False)
+    cfg, session, summary = _vendor_session(tmp_path, CURRENT_CSV, "velocity", {"amplitude_mps": 0.05}, friction=False)
     assert _resonance_error(cfg, summary) < 0.005
     assert summary["stream"]["lost_samples"] == 0
     assert summary["excitation"]["closed_loop"] is True and summary["excitation"]["unit"] == "m/s"
@@ -117,8 +134,7 @@ def test_a_current_only_csv_drive_is_identified_through_its_velocity_set_point(t
 
 
 def test_an_ip_only_drive_runs_friction_as_a_position_profile_and_is_excited_through_its_position(tmp_path):
-    cfg, session, summary = _vendor_session(tmp_path, IP_EFFORT, "position", {"amplitude_m": 0.002},
-                                            friction=True)
+    cfg, session, summary = _vendor_session(tmp_path, IP_EFFORT, "position", {"amplitude_m": 0.002}, friction=True)
     assert session.friction_mode == "position"
     assert [e.mode for e in session.plan.experiments[:2]] == ["position", "position"]
     assert _resonance_error(cfg, summary) < 0.005
@@ -134,8 +150,9 @@ def test_a_mode_whose_set_point_the_eds_will_not_map_is_not_streamed(tmp_path):
     # CSP's 0x607A not PDO-mappable (as on one real file): position runs in IP, CSP may still hold the axis
     drive = VendorDrive("acme-csp-fixed", modes=("csp", "ip"), unmappable=(0x607A,))
     folder = write_vendor_drive(tmp_path, drive)
-    desc = CanopenDescription.from_sections(load_driver(folder).sections, str(folder / "driver.toml"),
-                                            load_eds(folder / f"{drive.name}.eds")[0])
+    desc = CanopenDescription.from_sections(
+        load_driver(folder).sections, str(folder / "driver.toml"), load_eds(folder / f"{drive.name}.eds")[0]
+    )
     assert desc.modes["position"].setpoint == "interpolation_data"
     assert desc.modes["torque_injection"].hold == "target_position"
     assert "target_position" in desc.unmappable
@@ -159,8 +176,9 @@ def test_drivers_new_writes_the_vendor_torque_as_a_placeholder_and_the_folder_ru
     assert "canopen.scaling.rated_torque_nm" in report.placeholders
     check = check_driver_folder(tmp_path / "acme")
     assert check.ok, check.errors
-    desc = CanopenDescription.from_sections(load_driver(tmp_path / "acme").sections, "driver.toml",
-                                            load_eds(tmp_path / "acme" / eds.name)[0])
+    desc = CanopenDescription.from_sections(
+        load_driver(tmp_path / "acme").sections, "driver.toml", load_eds(tmp_path / "acme" / eds.name)[0]
+    )
     assert desc.channels["torque_nm"] == "torque_demand" and "torque_cmd_nm" not in desc.channels
     assert desc.objects["torque_demand"].index == 0x2022
 
@@ -184,9 +202,14 @@ def test_a_reading_at_its_integer_limit_is_counted_clipped_with_one_event():
 
     events = []
     stub = SimpleNamespace(
-        channels=[ChannelCodec("excitation", "m/s", None, None, 0x8, 1.0),  # the host's own set-point: never
-                  ChannelCodec("torque_nm", "N*m", "current_actual", ObjectAddress(0x6078), 0x3, 5e-5)],  # INTEGER16
-        last_result=RunResult(10, StreamStats()), log_event=events.append, describe=str)
+        channels=[
+            ChannelCodec("excitation", "m/s", None, None, 0x8, 1.0),  # the host's own set-point: never
+            ChannelCodec("torque_nm", "N*m", "current_actual", ObjectAddress(0x6078), 0x3, 5e-5),
+        ],  # INTEGER16
+        last_result=RunResult(10, StreamStats()),
+        log_event=events.append,
+        describe=str,
+    )
     raw = np.zeros((10, 2))
     raw[:, 0] = 40000.0  # beyond any INTEGER16, but recorded by the host
     raw[[3, 4, 7], 1] = [32767, -32768, 32767]

@@ -85,10 +85,13 @@ def test_flat_keys_of_the_last_release_are_read_with_a_deprecation_warning():
     assert cfg.device.canopen.node_id == 5 and cfg.device.node_id == 5 and cfg.device.can_interface == "virtual"
     assert cfg.device.modbus.parity == "N" and cfg.emulator.faults.modbus.exception_register == 117
     assert cfg.emulator.faults.serial.close_after_s == 0.8 and cfg.emulator.faults.drive_fault_after_s == 1.0
-    new_style = parse_config(LIMITS + '[device]\ndriver = "canopen-servo"\n[device.canopen]\nnode_id = 5\n'
-                             'can_interface = "virtual"\n[device.modbus]\nparity = "N"\n[emulator.faults]\n'
-                             "drive_fault_after_s = 1.0\n[emulator.faults.modbus]\nexception_register = 117\n"
-                             "[emulator.faults.serial]\nclose_after_s = 0.8\n", "old.toml")
+    new_style = parse_config(
+        LIMITS + '[device]\ndriver = "canopen-servo"\n[device.canopen]\nnode_id = 5\n'
+        'can_interface = "virtual"\n[device.modbus]\nparity = "N"\n[emulator.faults]\n'
+        "drive_fault_after_s = 1.0\n[emulator.faults.modbus]\nexception_register = 117\n"
+        "[emulator.faults.serial]\nclose_after_s = 0.8\n",
+        "old.toml",
+    )
     assert new_style.device == cfg.device and new_style.emulator == cfg.emulator
 
 
@@ -109,12 +112,15 @@ def test_a_key_given_flat_and_in_its_sub_table_is_refused():
     assert err.key == "device.node_id" and "device.canopen.node_id" in err.message
 
 
-@pytest.mark.parametrize("text, key", [
-    ("[device]\nnode_id = 0\n", "device.node_id"),
-    ("[device.canopen]\nnode_id = 0\n", "device.canopen.node_id"),
-    ("[emulator.faults.canopen]\nabort_object = 'zz'\n", "emulator.faults.canopen.abort_object"),
-    ("[emulator.faults.modbus]\nunknown_unit_id = 'x'\n", "emulator.faults.modbus.unknown_unit_id"),
-])
+@pytest.mark.parametrize(
+    "text, key",
+    [
+        ("[device]\nnode_id = 0\n", "device.node_id"),
+        ("[device.canopen]\nnode_id = 0\n", "device.canopen.node_id"),
+        ("[emulator.faults.canopen]\nabort_object = 'zz'\n", "emulator.faults.canopen.abort_object"),
+        ("[emulator.faults.modbus]\nunknown_unit_id = 'x'\n", "emulator.faults.modbus.unknown_unit_id"),
+    ],
+)
 def test_sub_table_errors_name_the_key_as_written(text, key):
     import warnings
 

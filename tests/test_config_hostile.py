@@ -73,8 +73,12 @@ def typed(hint):
     if hint is float:
         return st.one_of(st.floats(-10, 1e4), st.floats(allow_nan=True, allow_infinity=True))
     if hint is str:
-        return st.one_of(st.text(max_size=10), st.sampled_from(["spy:///dev/pts/1?file=/tmp/x", "velocity_mps",
-                                                                "prbs", "multisine", "torque", "x" * 5000]))
+        return st.one_of(
+            st.text(max_size=10),
+            st.sampled_from(
+                ["spy:///dev/pts/1?file=/tmp/x", "velocity_mps", "prbs", "multisine", "torque", "x" * 5000]
+            ),
+        )
     (item,) = typing.get_args(hint)
     return st.one_of(st.lists(typed(item), max_size=6), st.lists(typed(item), min_size=60, max_size=70))
 
@@ -129,17 +133,19 @@ def test_any_bytes_are_valid_or_a_config_error(tmp_path_factory, garbage, at):
         assert str(path) in str(exc) and exc.key
 
 
-excitation_tables = st.fixed_dictionaries({
-    "kind": st.sampled_from(["sine", "square", "chirp", "noise", "prbs", "multisine", "step"]),
-    "duration_s": st.one_of(st.floats(0.01, 30.0), st.sampled_from([1e9, 1e-6, 5e4])),
-    "period_s": st.one_of(st.floats(0.005, 8.0), st.sampled_from([1e6, 40.0])),
-    "register_length": st.integers(2, 32),
-    "clock_divider": st.one_of(st.integers(1, 8), st.integers(1, 2**31 - 1)),
-    "fade_s": st.floats(0.0, 20.0),
-    "frequency_hz": st.floats(0.5, 700.0),
-    "f_min_hz": st.floats(0.1, 5.0),
-    "f_max_hz": st.floats(10.0, 200.0),
-})
+excitation_tables = st.fixed_dictionaries(
+    {
+        "kind": st.sampled_from(["sine", "square", "chirp", "noise", "prbs", "multisine", "step"]),
+        "duration_s": st.one_of(st.floats(0.01, 30.0), st.sampled_from([1e9, 1e-6, 5e4])),
+        "period_s": st.one_of(st.floats(0.005, 8.0), st.sampled_from([1e6, 40.0])),
+        "register_length": st.integers(2, 32),
+        "clock_divider": st.one_of(st.integers(1, 8), st.integers(1, 2**31 - 1)),
+        "fade_s": st.floats(0.0, 20.0),
+        "frequency_hz": st.floats(0.5, 700.0),
+        "f_min_hz": st.floats(0.1, 5.0),
+        "f_max_hz": st.floats(10.0, 200.0),
+    }
+)
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -147,8 +153,16 @@ excitation_tables = st.fixed_dictionaries({
 def test_an_excitation_that_loads_is_built_with_the_length_computed_at_load(excitation, fs):
     from hilident.session.run import build_excitation
 
-    cfg = _outcome(toml_text({("limits",): LIMITS, ("run",): {"sample_rate_hz": fs}, ("excitation",): excitation,
-                              ("friction_test",): {"enabled": False}}))
+    cfg = _outcome(
+        toml_text(
+            {
+                ("limits",): LIMITS,
+                ("run",): {"sample_rate_hz": fs},
+                ("excitation",): excitation,
+                ("friction_test",): {"enabled": False},
+            }
+        )
+    )
     if isinstance(cfg, ConfigError):
         return
     n = excitation_samples(cfg)
@@ -157,13 +171,16 @@ def test_an_excitation_that_loads_is_built_with_the_length_computed_at_load(exci
     assert build_excitation(cfg).samples.size == n
 
 
-friction_tables = st.fixed_dictionaries({
-    "speeds_mps": st.lists(st.one_of(st.floats(0.001, 0.3), st.sampled_from([1e-12, 0.0, -0.1])), min_size=1,
-                           max_size=6),
-    "hold_s": st.one_of(st.floats(0.01, 2.0), st.sampled_from([1e9, 1e-9])),
-    "settle_s": st.floats(0.0, 0.5),
-    "accel_mps2": st.one_of(st.floats(0.05, 10.0), st.sampled_from([1e-9, 1e-300, 1e30])),
-})
+friction_tables = st.fixed_dictionaries(
+    {
+        "speeds_mps": st.lists(
+            st.one_of(st.floats(0.001, 0.3), st.sampled_from([1e-12, 0.0, -0.1])), min_size=1, max_size=6
+        ),
+        "hold_s": st.one_of(st.floats(0.01, 2.0), st.sampled_from([1e9, 1e-9])),
+        "settle_s": st.floats(0.0, 0.5),
+        "accel_mps2": st.one_of(st.floats(0.05, 10.0), st.sampled_from([1e-9, 1e-300, 1e30])),
+    }
+)
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -186,26 +203,29 @@ def _error(text: str) -> ConfigError:
     return err
 
 
-@pytest.mark.parametrize("extra, key, says", [
-    ({("limits",): dict(LIMITS, torque_nm=1e308)}, "limits.torque_nm", "1e+308"),
-    ({("limits",): dict(LIMITS, torque_nm=float("inf"))}, "limits.torque_nm", "finite"),
-    ({("limits",): dict(LIMITS, velocity_mps=float("nan"))}, "limits.velocity_mps", "got nan"),
-    ({("friction_test",): {"accel_mps2": 1e-9}}, "friction_test.accel_mps2", "samples"),
-    ({("excitation",): {"duration_s": 1e9}}, "excitation.duration_s", "1e+12 samples"),
-    ({("excitation",): {"kind": "prbs", "register_length": 32}}, "excitation.register_length", "samples"),
-    ({("excitation",): {"kind": "prbs", "clock_divider": 2**40}}, "excitation.clock_divider", "2147483647"),
-    ({("friction_test",): {"speeds_mps": [0.01] * 300_000}}, "friction_test.speeds_mps", "300000"),
-    ({("excitation",): {"period_s": 30.0}}, "excitation.period_s", "longer than excitation.duration_s"),
-    ({("excitation",): {"kind": "sine", "fade_s": 11.0}}, "excitation.fade_s", "fades"),
-    ({("excitation",): {"kind": "sine", "frequency_hz": 600.0}}, "excitation.frequency_hz", "Nyquist"),
-    ({("run",): {"seed": 2**64}}, "run.seed", "4294967295"),
-    ({("device",): {"port": "spy:///dev/pts/3?file=/home/me/.bashrc"}}, "device.port", "overwrite"),
-    ({("device",): {"port": "SPY://COM3?raw&file"}}, "device.port", "file="),
-    ({("device",): {"port": "a\u0000b"}}, "device.port", "control characters"),
-    ({("device",): {"driver": "x" * 5000}}, "device.driver", "4096"),
-    ({("emulator", "faults"): {"abort_object": "zz"}}, "emulator.faults.abort_object", "object address"),
-    ({("friction_test",): {"speeds_mps": [0.2], "hold_s": 5.0}}, "friction_test.speeds_mps", "position window"),
-])
+@pytest.mark.parametrize(
+    "extra, key, says",
+    [
+        ({("limits",): dict(LIMITS, torque_nm=1e308)}, "limits.torque_nm", "1e+308"),
+        ({("limits",): dict(LIMITS, torque_nm=float("inf"))}, "limits.torque_nm", "finite"),
+        ({("limits",): dict(LIMITS, velocity_mps=float("nan"))}, "limits.velocity_mps", "got nan"),
+        ({("friction_test",): {"accel_mps2": 1e-9}}, "friction_test.accel_mps2", "samples"),
+        ({("excitation",): {"duration_s": 1e9}}, "excitation.duration_s", "1e+12 samples"),
+        ({("excitation",): {"kind": "prbs", "register_length": 32}}, "excitation.register_length", "samples"),
+        ({("excitation",): {"kind": "prbs", "clock_divider": 2**40}}, "excitation.clock_divider", "2147483647"),
+        ({("friction_test",): {"speeds_mps": [0.01] * 300_000}}, "friction_test.speeds_mps", "300000"),
+        ({("excitation",): {"period_s": 30.0}}, "excitation.period_s", "longer than excitation.duration_s"),
+        ({("excitation",): {"kind": "sine", "fade_s": 11.0}}, "excitation.fade_s", "fades"),
+        ({("excitation",): {"kind": "sine", "frequency_hz": 600.0}}, "excitation.frequency_hz", "Nyquist"),
+        ({("run",): {"seed": 2**64}}, "run.seed", "4294967295"),
+        ({("device",): {"port": "spy:///dev/pts/3?file=/home/me/.bashrc"}}, "device.port", "overwrite"),
+        ({("device",): {"port": "SPY://COM3?raw&file"}}, "device.port", "file="),
+        ({("device",): {"port": "a\u0000b"}}, "device.port", "control characters"),
+        ({("device",): {"driver": "x" * 5000}}, "device.driver", "4096"),
+        ({("emulator", "faults"): {"abort_object": "zz"}}, "emulator.faults.abort_object", "object address"),
+        ({("friction_test",): {"speeds_mps": [0.2], "hold_s": 5.0}}, "friction_test.speeds_mps", "position window"),
+    ],
+)
 def test_hostile_values_name_their_key(extra, key, says):
     tables = {("limits",): LIMITS}
     tables.update(extra)
@@ -242,21 +262,25 @@ def test_fades_that_load_fit_the_excitation(fade_s, n):
     """The load-time check and signals.fade agree at the edge (round(fade_s * fs) samples per fade)."""
     from hilident.session.run import build_excitation
 
-    cfg = _outcome(toml_text({("limits",): LIMITS, ("excitation",): {"kind": "step", "duration_s": n / 1000.0,
-                                                                        "fade_s": fade_s}}))
+    cfg = _outcome(
+        toml_text({("limits",): LIMITS, ("excitation",): {"kind": "step", "duration_s": n / 1000.0, "fade_s": fade_s}})
+    )
     if isinstance(cfg, ConfigError):
         assert cfg.key == "excitation.fade_s" and 2 * round(fade_s * 1000.0) > n
     else:
         assert build_excitation(cfg).samples.size == n
 
 
-@pytest.mark.parametrize("table, values", [
-    (("friction_test",), {"accel_mps2": 1e-9}),
-    (("excitation",), {"duration_s": 1e9}),
-    (("excitation",), {"kind": "prbs", "register_length": 32}),
-    (("excitation",), {"kind": "prbs", "register_length": 20, "clock_divider": 2**30}),
-    (("excitation",), {"kind": "multisine", "duration_s": 33554.0, "period_s": 4.0}),  # the lead-in tips it over
-])
+@pytest.mark.parametrize(
+    "table, values",
+    [
+        (("friction_test",), {"accel_mps2": 1e-9}),
+        (("excitation",), {"duration_s": 1e9}),
+        (("excitation",), {"kind": "prbs", "register_length": 32}),
+        (("excitation",), {"kind": "prbs", "register_length": 20, "clock_divider": 2**30}),
+        (("excitation",), {"kind": "multisine", "duration_s": 33554.0, "period_s": 4.0}),  # the lead-in tips it over
+    ],
+)
 def test_oversized_experiments_are_refused_without_allocating_them(table, values):
     text = toml_text({("limits",): LIMITS, table: values})
     tracemalloc.start()

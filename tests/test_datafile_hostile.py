@@ -235,8 +235,9 @@ def test_hostile_files_are_one_line_on_the_command_line(tmp_path, capsys):
     (tmp_path / "bin.csv").write_bytes(bytes(range(256)) * 10)
     (tmp_path / "x.h5").write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(600))
     for name in ("cut.mat", "bin.csv", "x.h5"):
-        assert main(["identify", str(tmp_path / name), "--config", str(config), "--out", str(tmp_path / "o"),
-                     "-q"]) == 3
+        assert (
+            main(["identify", str(tmp_path / name), "--config", str(config), "--out", str(tmp_path / "o"), "-q"]) == 3
+        )
         (line,) = capsys.readouterr().err.strip().splitlines()
         assert name in line
 
@@ -267,7 +268,7 @@ def outcome(path, cfg=MAPPING, limit=40_000_000):
 
 cell = st.one_of(
     st.floats(allow_nan=True, allow_infinity=True).map(repr),
-    st.integers(-10**30, 10**30).map(str),
+    st.integers(-(10**30), 10**30).map(str),
     st.sampled_from(["", " ", "nan", "-", "1e400", "1,5", "0x10", "1_0", '"2.5"', "µ", "\x00", "é"]),
     st.text(max_size=6),
 )
@@ -275,16 +276,17 @@ cell = st.one_of(
 
 @FAST
 @given(
-    names=st.one_of(st.permutations(["t", "tau", "v", "x"]),
-                    st.lists(st.sampled_from(["t", "tau", "v", "τ", "x", "", " t", "Tau", "\ufefft"]), max_size=5)),
+    names=st.one_of(
+        st.permutations(["t", "tau", "v", "x"]),
+        st.lists(st.sampled_from(["t", "tau", "v", "τ", "x", "", " t", "Tau", "\ufefft"]), max_size=5),
+    ),
     body=st.one_of(st.just([]), st.lists(st.lists(cell, min_size=0, max_size=5), max_size=30)),
     good_rows=st.integers(0, 150),
     delimiter=st.sampled_from([",", ";", "\t", " "]),
     encoding=st.sampled_from(["utf-8", "utf-8-sig", "latin-1", "utf-16", "cp1252"]),
     newline=st.sampled_from(["\n", "\r\n", "\r"]),
 )
-def test_any_csv_is_read_or_refused_with_a_typed_error(tmp_path, names, body, good_rows, delimiter, encoding,
-                                                        newline):
+def test_any_csv_is_read_or_refused_with_a_typed_error(tmp_path, names, body, good_rows, delimiter, encoding, newline):
     good = {"t": T, "tau": TAU, "v": V, "x": V}
     rows = [[f"{good[n][i]:.6g}" if n in good else "1" for n in names] for i in range(good_rows)] + body
     text = newline.join(delimiter.join(r) for r in [names, *rows]) + newline
@@ -313,9 +315,11 @@ def good_files(tmp_path_factory):
 
 
 @FAST
-@given(name=st.sampled_from(["v4.mat", "v5.mat", "v5z.mat", "v73.mat", "run.h5"]),
-       cut=st.one_of(st.just(1.0), st.floats(0, 1)),
-       flips=st.lists(st.tuples(st.floats(0, 1), st.integers(1, 255)), max_size=4))
+@given(
+    name=st.sampled_from(["v4.mat", "v5.mat", "v5z.mat", "v73.mat", "run.h5"]),
+    cut=st.one_of(st.just(1.0), st.floats(0, 1)),
+    flips=st.lists(st.tuples(st.floats(0, 1), st.integers(1, 255)), max_size=4),
+)
 def test_truncated_or_corrupted_mat_and_h5_are_read_or_refused(tmp_path, good_files, name, cut, flips):
     raw = bytearray(good_files[name])
     for where, xor in flips:
@@ -335,10 +339,14 @@ def test_h5_with_absurd_declared_shapes_is_refused_without_reading(tmp_path, row
         f.attrs["format"] = "hilident-run"
         f.attrs["format_version"] = np.int64(1)
         f.attrs["sample_rate_hz"] = RATE
-        f.attrs.create("channel_names", np.array(["torque_nm", "velocity_mps", "a", "b"][:cols], dtype=object),
-                       dtype=h5py.string_dtype())
-        f.create_dataset("samples", shape=(rows, cols), maxshape=(None, cols), chunks=(min(chunk, 2**20), cols),
-                         dtype="<f8")
+        f.attrs.create(
+            "channel_names",
+            np.array(["torque_nm", "velocity_mps", "a", "b"][:cols], dtype=object),
+            dtype=h5py.string_dtype(),
+        )
+        f.create_dataset(
+            "samples", shape=(rows, cols), maxshape=(None, cols), chunks=(min(chunk, 2**20), cols), dtype="<f8"
+        )
     result = outcome(path, DataConfig(torque="torque_nm", sample_rate_hz=RATE, velocity="torque_nm"), 5_000_000)
     assert isinstance(result, DataError)
 
@@ -346,8 +354,14 @@ def test_h5_with_absurd_declared_shapes_is_refused_without_reading(tmp_path, row
 def test_csv_larger_than_the_bound_is_refused_before_parsing(tmp_path, monkeypatch):
     rows = 400_000  # 9.6 MB as three float64 columns
     t = np.arange(rows) / RATE
-    np.savetxt(tmp_path / "d.csv", np.column_stack([t, np.sin(t), np.cos(t)]), delimiter=",", header="t,tau,v",
-               comments="", fmt="%.4f")
+    np.savetxt(
+        tmp_path / "d.csv",
+        np.column_stack([t, np.sin(t), np.cos(t)]),
+        delimiter=",",
+        header="t,tau,v",
+        comments="",
+        fmt="%.4f",
+    )
     monkeypatch.setattr(datafile.raw, "MAX_DATA_BYTES", 1_000_000)
     tracemalloc.start()
     try:

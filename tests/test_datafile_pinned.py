@@ -39,8 +39,10 @@ duration_s = {N / RATE}
 
 def _signals():
     k = np.arange(N)
-    excitation = np.tile(np.sin(2 * np.pi * 7 * np.arange(PERIOD) / PERIOD)
-                         + 0.3 * np.sin(2 * np.pi * 19 * np.arange(PERIOD) / PERIOD), N // PERIOD)
+    excitation = np.tile(
+        np.sin(2 * np.pi * 7 * np.arange(PERIOD) / PERIOD) + 0.3 * np.sin(2 * np.pi * 19 * np.arange(PERIOD) / PERIOD),
+        N // PERIOD,
+    )
     torque = excitation + 0.01 * np.cos(0.37 * k)
     velocity = np.cumsum(torque) / RATE - 0.2 * np.sin(0.011 * k)
     position = np.cumsum(velocity) / RATE
@@ -51,8 +53,14 @@ def _summary(value):
     """Long arrays as a few sums and ends (enough to see a changed, shifted or reordered value)."""
     if isinstance(value, np.ndarray) and value.size > 12:
         ramp = np.linspace(-1.0, 2.0, value.size)
-        return {"len": value.size, "sum": float(value.sum()), "abs": float(np.abs(value).sum()),
-                "ramp": float(value @ ramp), "head": value[:3], "tail": value[-3:]}
+        return {
+            "len": value.size,
+            "sum": float(value.sum()),
+            "abs": float(np.abs(value).sum()),
+            "ramp": float(value @ ramp),
+            "head": value[:3],
+            "tail": value[-3:],
+        }
     if isinstance(value, dict):
         return {k: _summary(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
@@ -77,8 +85,8 @@ def _write_csv(path: Path, gap_at: int | None = None, header: bool = True) -> No
     k, excitation, torque, velocity, position = _signals()
     t = k / RATE
     if gap_at is not None:
-        t = np.r_[t[:gap_at], t[gap_at + 3:] ]
-        rows = np.column_stack([t, torque[:t.size] * 1000.0, position[:t.size], excitation[:t.size]])
+        t = np.r_[t[:gap_at], t[gap_at + 3 :]]
+        rows = np.column_stack([t, torque[: t.size] * 1000.0, position[: t.size], excitation[: t.size]])
     else:
         rows = np.column_stack([t, torque * 1000.0, position, excitation])
     lines = ["time_s,torque_mnm,position_m,excitation"] if header else []
@@ -86,15 +94,20 @@ def _write_csv(path: Path, gap_at: int | None = None, header: bool = True) -> No
     path.write_text("\n".join(lines) + "\n")
 
 
-def _write_run(path: Path, lost: tuple[int, int] | None = None, flushed: int | None = None,
-               status: str = "complete") -> None:
+def _write_run(
+    path: Path, lost: tuple[int, int] | None = None, flushed: int | None = None, status: str = "complete"
+) -> None:
     k, excitation, torque, velocity, position = _signals()
     table = np.column_stack([k, k / RATE, excitation, torque, velocity, position])
     if lost is not None:
-        table = np.r_[table[:lost[0]], table[lost[1]:]]
-    with RunWriter(path, ["sample_index", "time_s", "excitation", "torque_nm", "velocity_mps", "position_m"],
-                   ["1", "s", "N*m", "N*m", "m/s", "m"], RATE,
-                   {"experiment": "identification", "config_toml": RUN_CONFIG}) as w:
+        table = np.r_[table[: lost[0]], table[lost[1] :]]
+    with RunWriter(
+        path,
+        ["sample_index", "time_s", "excitation", "torque_nm", "velocity_mps", "position_m"],
+        ["1", "s", "N*m", "N*m", "m/s", "m"],
+        RATE,
+        {"experiment": "identification", "config_toml": RUN_CONFIG},
+    ) as w:
         w.append(table)
     with h5py.File(path, "a") as f:
         if status != "complete":
@@ -108,8 +121,9 @@ def _cases(folder: Path) -> dict:
     out = {}
     csv = folder / "bench.csv"
     _write_csv(csv)
-    cfg = DataConfig(time="time_s", torque="torque_mnm", torque_scale=1e-3, position="position_m",
-                     excitation="excitation")
+    cfg = DataConfig(
+        time="time_s", torque="torque_mnm", torque_scale=1e-3, position="position_m", excitation="excitation"
+    )
     out["csv_time"] = load_dataset(csv, cfg)
     out["csv_periods"] = load_dataset(csv, dataclasses.replace(cfg, period_samples=PERIOD))
     gap = folder / "gap.csv"
@@ -117,8 +131,10 @@ def _cases(folder: Path) -> dict:
     out["csv_gap"] = load_dataset(gap, cfg)
     bare = folder / "bare.dat"
     _write_csv(bare, header=False)
-    out["csv_headerless"] = load_dataset(bare, DataConfig(sample_rate_hz=RATE, column_names=["t", "tau", "x", "e"],
-                                                          torque="tau", position="x", output="x"))
+    out["csv_headerless"] = load_dataset(
+        bare,
+        DataConfig(sample_rate_hz=RATE, column_names=["t", "tau", "x", "e"], torque="tau", position="x", output="x"),
+    )
     run = folder / "run.h5"
     _write_run(run)
     mapping = DataConfig(torque="torque_nm", velocity="velocity_mps", excitation="excitation")

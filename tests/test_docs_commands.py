@@ -53,15 +53,18 @@ def named_options(synopses: list[str]) -> dict[str, set[str]]:
 
 def test_the_command_reference_lists_every_subcommand_and_option():
     named = named_options(reference_synopses())
-    assert set(named) - {""} >= {path for path, sub in COMMANDS.items() if not subcommand_parsers(sub)}, \
+    assert set(named) - {""} >= {path for path, sub in COMMANDS.items() if not subcommand_parsers(sub)}, (
         "a sub-command missing from README 'Commands'"
+    )
     for path, options in named.items():
         parser = COMMANDS[path] if path else PARSER
         assert options <= option_strings(parser), f"README 'Commands' names options `hilident {path}` lacks"
         if path:
-            missing = [action.option_strings[-1] for action in parser._actions
-                       if action.option_strings and action.dest != "help"
-                       and not set(action.option_strings) & options]
+            missing = [
+                action.option_strings[-1]
+                for action in parser._actions
+                if action.option_strings and action.dest != "help" and not set(action.option_strings) & options
+            ]
             assert missing == [], f"`hilident {path}` options missing from README 'Commands'"
     assert named[""] >= {"--log-level"}
 
@@ -85,14 +88,18 @@ def test_every_command_the_documents_show_names_real_subcommands_and_options():
         parser = COMMANDS.get(path, PARSER) if path else PARSER
         if words and not words[0].startswith("-"):
             assert path, f"{where}: `hilident {' '.join(words)}` is no sub-command"
-        assert set(options) <= option_strings(parser) | option_strings(PARSER), \
+        assert set(options) <= option_strings(parser) | option_strings(PARSER), (
             f"{where}: `hilident {' '.join(words)}` names an option hilident does not have"
+        )
 
 
 def test_every_concrete_command_of_a_shell_block_parses():
     # placeholders in capitals (CONFIG, DIR) are fine as arguments; brackets are synopses, not commands
-    concrete = [(w, words) for w, words in every_shown_command() if w.count(":") and not any(
-        c in " ".join(words) for c in "[]|")]
+    concrete = [
+        (w, words)
+        for w, words in every_shown_command()
+        if w.count(":") and not any(c in " ".join(words) for c in "[]|")
+    ]
     assert len(concrete) >= 10
     for where, words in concrete:
         try:
@@ -110,11 +117,15 @@ def test_ci_runs_the_readme_test_command_verbatim():
 
 def test_the_readme_layout_names_every_module_and_every_name_exists():
     (block,) = [b for b in fenced_blocks(README) if b.text.startswith("src/hilident/")]
-    words = set(re.findall(r"\b\w+\.py\b", block.text)) | set(re.findall(r"(?:(?<=\s)|^)([\w/]+/)(?=\s|$)", block.text,
-                                                                            re.M))
+    words = set(re.findall(r"\b\w+\.py\b", block.text)) | set(
+        re.findall(r"(?:(?<=\s)|^)([\w/]+/)(?=\s|$)", block.text, re.M)
+    )
     package = ROOT / "src" / "hilident"
-    present = {p.name + ("/" if p.is_dir() else "") for p in package.iterdir()
-               if (p.suffix == ".py" or (p.is_dir() and (p / "__init__.py").exists())) and p.name != "__init__.py"}
+    present = {
+        p.name + ("/" if p.is_dir() else "")
+        for p in package.iterdir()
+        if (p.suffix == ".py" or (p.is_dir() and (p / "__init__.py").exists())) and p.name != "__init__.py"
+    }
     assert present - words == set(), "modules of src/hilident missing from README 'Layout'"
     for word in words:
         if word.endswith(".py") or word.endswith("/"):
@@ -200,9 +211,11 @@ def test_the_readme_flow_for_a_scope_export_runs_as_written(scratch, capsys):
         writer = csv.writer(f)
         writer.writerow(["t", "tq", "vel"])
         writer.writerows(zip(run.time_s, run.channel("torque_nm"), run.channel("velocity_mps"), strict=True))
-    axis = {"data": {"time": "t", "torque": "tq", "velocity": "vel", "period_s": 2.0},
-            "identification": {"output": "velocity", "coherence_threshold": 0.8, "max_resonances": 1},
-            "model": {"filter_rate_hz": 8000.0}}
+    axis = {
+        "data": {"time": "t", "torque": "tq", "velocity": "vel", "period_s": 2.0},
+        "identification": {"output": "velocity", "coherence_threshold": 0.8, "max_resonances": 1},
+        "model": {"filter_rate_hz": 8000.0},
+    }
     (scratch / "axis.toml").write_text(tomli_w.dumps(axis))
     shutil.copy(scratch / "configs" / "emulated-dsy-rs.toml", scratch / "drive.toml")
     for words in commands:

@@ -24,9 +24,17 @@ T0 = dt.datetime(2026, 10, 1, 2, 0, tzinfo=dt.UTC)
 
 def row(axis, day, f_hz, *, status="ok", ci95=0.05, zeta=0.02, path=None, error=""):
     when = T0 + dt.timedelta(days=float(day))
-    return {"axis": axis, "time_utc": when.isoformat().replace("+00:00", "Z"), "status": status,
-            "frequency_hz": f_hz, "frequency_ci95_hz": ci95, "damping_ratio": zeta, "damping_ci95": 0.002,
-            "path": path or f"/fleet/{axis}/{when:%Y%m%d}.h5", "error": error}
+    return {
+        "axis": axis,
+        "time_utc": when.isoformat().replace("+00:00", "Z"),
+        "status": status,
+        "frequency_hz": f_hz,
+        "frequency_ci95_hz": ci95,
+        "damping_ratio": zeta,
+        "damping_ci95": 0.002,
+        "path": path or f"/fleet/{axis}/{when:%Y%m%d}.h5",
+        "error": error,
+    }
 
 
 def series(rng, rate_percent_per_day, days, f0=40.0, noise_hz=0.1):
@@ -77,12 +85,16 @@ def test_the_rate_recovers_the_truth_within_its_interval_about_95_percent_of_the
 def test_healthy_axes_are_rarely_flagged_over_many_seeds():
     days = np.arange(30.0)
     # threshold 0: significance alone decides, the worst case for false flags
-    flags = [drift_trend(days, series(np.random.default_rng(seed), 0.0, days), drift_percent_per_day=0.0).flagged
-             for seed in range(200)]
+    flags = [
+        drift_trend(days, series(np.random.default_rng(seed), 0.0, days), drift_percent_per_day=0.0).flagged
+        for seed in range(200)
+    ]
     assert np.mean(flags) < 0.10
     # with a lab's threshold none of them is
-    assert not any(drift_trend(days, series(np.random.default_rng(s), 0.0, days), drift_percent_per_day=0.1).flagged
-                   for s in range(200))
+    assert not any(
+        drift_trend(days, series(np.random.default_rng(s), 0.0, days), drift_percent_per_day=0.1).flagged
+        for s in range(200)
+    )
 
 
 def test_tiny_reported_intervals_do_not_make_a_trend_significant():
@@ -126,10 +138,12 @@ def test_failed_and_unusable_rows_are_counted_and_left_out_of_the_fit():
     days = np.arange(10.0)
     f = series(rng, -1.0, days)
     rows = [row("x", d, v) for d, v in zip(days, f, strict=True)]
-    rows += [row("x", 3.5, math.nan, status="failed", error="truncated file"),
-             row("x", 4.5, math.nan),                                   # ok, but no resonance found
-             {**row("x", 5.5, 99.0), "time_utc": "not a time"},         # ok, but no readable time
-             row("z", 1.0, math.nan, status="failed", error="unreadable")]
+    rows += [
+        row("x", 3.5, math.nan, status="failed", error="truncated file"),
+        row("x", 4.5, math.nan),  # ok, but no resonance found
+        {**row("x", 5.5, 99.0), "time_utc": "not a time"},  # ok, but no readable time
+        row("z", 1.0, math.nan, status="failed", error="unreadable"),
+    ]
     drifts = axis_drifts(rows, drift_percent_per_day=0.2)
     assert list(drifts) == ["x", "z"]
     x, z = drifts["x"], drifts["z"]
@@ -161,8 +175,14 @@ def test_damping_trend_is_reported_and_never_flags():
     assert x.damping_p_value < 1e-6 and not x.flagged
 
 
-@pytest.mark.parametrize("kwargs", [dict(drift_percent_per_day=-1.0), dict(drift_percent_per_day=0.2, confidence=1.0),
-                                    dict(drift_percent_per_day=0.2, min_recordings=2)])
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        dict(drift_percent_per_day=-1.0),
+        dict(drift_percent_per_day=0.2, confidence=1.0),
+        dict(drift_percent_per_day=0.2, min_recordings=2),
+    ],
+)
 def test_settings_out_of_range_are_refused(kwargs):
     with pytest.raises(DataError):
         axis_drifts([row("x", 0, 40.0)], **kwargs)
@@ -191,8 +211,16 @@ def fleet_rows(axes=14, days=20, drifting=(1, 6, 11)):
         d = np.arange(float(days))
         for day, f in zip(d, series(rng, rate, d), strict=True):
             rows.append(row(f"axis{a:02d}", day, f))
-    rows.append(row("axis03", 2.5, math.nan, status="failed", path="/fleet/axis03/broken.h5",
-                    error="DataError: /fleet/axis03/broken.h5: truncated HDF5 file"))
+    rows.append(
+        row(
+            "axis03",
+            2.5,
+            math.nan,
+            status="failed",
+            path="/fleet/axis03/broken.h5",
+            error="DataError: /fleet/axis03/broken.h5: truncated HDF5 file",
+        )
+    )
     return rows
 
 
@@ -270,8 +298,13 @@ class Tables(HTMLParser):
 
 def test_batch_report_lists_flagged_axes_first_and_every_failure(fleet, tmp_path):
     rows, drifts = fleet
-    meta = {"inputs": ["/fleet/**/*.h5"], "config": "configs/fleet.toml", "scheduler": "local", "workers": 2,
-            "wall_time_s": 42.0}
+    meta = {
+        "inputs": ["/fleet/**/*.h5"],
+        "config": "configs/fleet.toml",
+        "scheduler": "local",
+        "workers": 2,
+        "wall_time_s": 42.0,
+    }
     path = write_batch_report(tmp_path, rows, drifts, meta)
     text = path.read_text(encoding="utf-8")
     page = Page(text)
@@ -299,8 +332,19 @@ def test_batch_report_lists_flagged_axes_first_and_every_failure(fleet, tmp_path
 
 def test_batch_report_shows_a_failure_without_an_axis_and_its_error_as_text(tmp_path):
     rows = [row("x", d, 40.0) for d in range(5)]
-    rows.append({**row("x", 0, math.nan, status="failed", path="/fleet/<junk>.csv",
-                       error="<script>alert(1)</script> not a recording"), "axis": None})
+    rows.append(
+        {
+            **row(
+                "x",
+                0,
+                math.nan,
+                status="failed",
+                path="/fleet/<junk>.csv",
+                error="<script>alert(1)</script> not a recording",
+            ),
+            "axis": None,
+        }
+    )
     path = write_batch_report(tmp_path, rows, axis_drifts(rows, 0.2), {"config": "<b>fleet</b>"}, plots=False)
     page = Page(path.read_text())
     check_self_contained(page)

@@ -138,9 +138,11 @@ def test_corrupted_bytes_are_valid_or_a_config_error(name, at, garbage):
 def test_transport_parsers_take_any_sections(case):
     """The parsers alone, fed the mutated tables directly (as an adapter or a twin would)."""
     _, data = case
-    for parse in (lambda: CanopenDescription.from_sections(data, "d.toml"),
-                  lambda: RegisterMap.parse(data, 4, "d.toml"),
-                  lambda: FilterEncoding.from_table(data.get("filters", {}), "d.toml")):
+    for parse in (
+        lambda: CanopenDescription.from_sections(data, "d.toml"),
+        lambda: RegisterMap.parse(data, 4, "d.toml"),
+        lambda: FilterEncoding.from_table(data.get("filters", {}), "d.toml"),
+    ):
         try:
             parse()
         except ConfigError as exc:
@@ -153,19 +155,22 @@ def test_a_non_utf8_description_names_file_and_offset(tmp_path):
         load_driver(tmp_path)
 
 
-@pytest.mark.parametrize("edit, key", [
-    (lambda d: d["board"].pop("loop_rate_hz"), "board.loop_rate_hz"),
-    (lambda d: d["board"].update(loop_rate_hz=float("nan")), "board.loop_rate_hz"),
-    (lambda d: d["board"].update(filter_slots=10**12), "board.filter_slots"),
-    (lambda d: d["channels"][1].update(name=3), "channels[1].name"),
-    (lambda d: d["channels"][1].update(colour="red"), "channels[1].colour"),
-    (lambda d: d["channels"][4].update(scale=0.0), "channels[4].scale"),
-    (lambda d: d["channels"][4].update(scale=float("inf")), "channels[4].scale"),
-    (lambda d: d.update(channels=[{"name": "x"}] * 65), "channels"),
-    (lambda d: d.update(board="fast"), "board"),
-    (lambda d: d["driver"].pop("block_samples", None) or d["board"].pop("block_samples"), "board.block_samples"),
-    (lambda d: d["channels"].append(dict(d["channels"][1])), "channels"),
-])
+@pytest.mark.parametrize(
+    "edit, key",
+    [
+        (lambda d: d["board"].pop("loop_rate_hz"), "board.loop_rate_hz"),
+        (lambda d: d["board"].update(loop_rate_hz=float("nan")), "board.loop_rate_hz"),
+        (lambda d: d["board"].update(filter_slots=10**12), "board.filter_slots"),
+        (lambda d: d["channels"][1].update(name=3), "channels[1].name"),
+        (lambda d: d["channels"][1].update(colour="red"), "channels[1].colour"),
+        (lambda d: d["channels"][4].update(scale=0.0), "channels[4].scale"),
+        (lambda d: d["channels"][4].update(scale=float("inf")), "channels[4].scale"),
+        (lambda d: d.update(channels=[{"name": "x"}] * 65), "channels"),
+        (lambda d: d.update(board="fast"), "board"),
+        (lambda d: d["driver"].pop("block_samples", None) or d["board"].pop("block_samples"), "board.block_samples"),
+        (lambda d: d["channels"].append(dict(d["channels"][1])), "channels"),
+    ],
+)
 def test_broken_serial_description_names_the_key(edit, key):
     data = copy.deepcopy(ORIGINALS["myrio-board"])
     edit(data)
@@ -174,9 +179,14 @@ def test_broken_serial_description_names_the_key(edit, key):
 
 
 @settings(max_examples=150, deadline=None)
-@given(st.one_of(st.text(max_size=20), st.text(min_size=250, max_size=600), st.sampled_from(
-    ["a\x00b", "~nosuchuser/x", "./" + "x" * 300, "..", ".", "~", "myrio-board", "/", "drivers/"])),
-    st.lists(st.sampled_from(["~nosuchuser", "y" * 300, "", "/nonexistent"]), max_size=2))
+@given(
+    st.one_of(
+        st.text(max_size=20),
+        st.text(min_size=250, max_size=600),
+        st.sampled_from(["a\x00b", "~nosuchuser/x", "./" + "x" * 300, "..", ".", "~", "myrio-board", "/", "drivers/"]),
+    ),
+    st.lists(st.sampled_from(["~nosuchuser", "y" * 300, "", "/nonexistent"]), max_size=2),
+)
 def test_any_driver_value_finds_a_driver_or_is_a_config_error(value, paths):
     try:
         driver = find_driver(value, paths)

@@ -133,33 +133,53 @@ def test_new_refuses_an_existing_driver_a_bad_name_and_an_unreadable_eds(tmp_pat
 
 # --- check finds what is wrong ------------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("old, new_text, words", [
-    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nobjects = { sample_counter = "0x2100" }',
-     ("0x2100 is not in the EDS",)),
-    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nobjects = { statusword = "0x6071" }', ()),  # rww is readable
-    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nobjects = { target_torque = "0x6041" }', ("'ro'", "must write")),
-    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nobjects = { device_name = "0x6041" }', ("needs a bytes",)),
-    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nobjects = { controlword = "60x40" }', ("object address",)),
-    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nmodes = { position = { code = 7, setpoint = "target_position" } }',
-     ("mode 7 (IP)", "not in 0x6502")),
-    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nmodes = { velocity = { code = 9, setpoint = "velocity_offset" } }',
-     ("0x60B1 is not in the EDS",)),
-    ('cyclic_modes = ["cst", "csv", "csp"]', 'cyclic_modes = ["ip"]', ("none of ip",)),
-    ('cyclic_modes = ["cst", "csv", "csp"]', 'cyclic_modes = ["turbo"]', ("must be a list of",)),
-    ("position_unit_m = ", "position_unit_m = -", ("position_unit_m", "positive")),
-    ('object = "0x1010:1"', 'object = "0x1010:3"', ("0x1010:3 is not in the EDS",)),
-    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nchannels = { a = "position_actual", b = "velocity_actual", '
-                           'c = "torque_actual", d = "torque_demand", e = "error_code", f = "statusword", '
-                           'g = "target_position", h = "target_velocity", i = "target_torque", '
-                           'j = "controlword", k = "modes_display", l = "position_actual", '
-                           'm = "position_actual" }', ("do not fit", "4 TPDOs of up to 4 entries")),
-    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nchannels = { x = "current_actual" }', ("0x6078",)),
-    ('heartbeat_ms = 100', 'heartbeat_ms = 100\nobjects = { vendor_setpoint = "0x6041" }\n'
-                           'modes = { velocity = { code = 9, setpoint = "vendor_setpoint" } }',
-     ("[canopen.modes.velocity.setpoint] 0x6041 (vendor_setpoint) is 'ro'",)),
-    ('heartbeat_ms = 100', 'heartbeat_ms = 70000', ("heartbeat_ms", "UNSIGNED16")),
-    ('host_node_id = 127', 'host_node_id = 0', ("host_node_id", "1..127")),
-])
+
+@pytest.mark.parametrize(
+    "old, new_text, words",
+    [
+        (
+            "heartbeat_ms = 100",
+            'heartbeat_ms = 100\nobjects = { sample_counter = "0x2100" }',
+            ("0x2100 is not in the EDS",),
+        ),
+        ("heartbeat_ms = 100", 'heartbeat_ms = 100\nobjects = { statusword = "0x6071" }', ()),  # rww is readable
+        ("heartbeat_ms = 100", 'heartbeat_ms = 100\nobjects = { target_torque = "0x6041" }', ("'ro'", "must write")),
+        ("heartbeat_ms = 100", 'heartbeat_ms = 100\nobjects = { device_name = "0x6041" }', ("needs a bytes",)),
+        ("heartbeat_ms = 100", 'heartbeat_ms = 100\nobjects = { controlword = "60x40" }', ("object address",)),
+        (
+            "heartbeat_ms = 100",
+            'heartbeat_ms = 100\nmodes = { position = { code = 7, setpoint = "target_position" } }',
+            ("mode 7 (IP)", "not in 0x6502"),
+        ),
+        (
+            "heartbeat_ms = 100",
+            'heartbeat_ms = 100\nmodes = { velocity = { code = 9, setpoint = "velocity_offset" } }',
+            ("0x60B1 is not in the EDS",),
+        ),
+        ('cyclic_modes = ["cst", "csv", "csp"]', 'cyclic_modes = ["ip"]', ("none of ip",)),
+        ('cyclic_modes = ["cst", "csv", "csp"]', 'cyclic_modes = ["turbo"]', ("must be a list of",)),
+        ("position_unit_m = ", "position_unit_m = -", ("position_unit_m", "positive")),
+        ('object = "0x1010:1"', 'object = "0x1010:3"', ("0x1010:3 is not in the EDS",)),
+        (
+            "heartbeat_ms = 100",
+            'heartbeat_ms = 100\nchannels = { a = "position_actual", b = "velocity_actual", '
+            'c = "torque_actual", d = "torque_demand", e = "error_code", f = "statusword", '
+            'g = "target_position", h = "target_velocity", i = "target_torque", '
+            'j = "controlword", k = "modes_display", l = "position_actual", '
+            'm = "position_actual" }',
+            ("do not fit", "4 TPDOs of up to 4 entries"),
+        ),
+        ("heartbeat_ms = 100", 'heartbeat_ms = 100\nchannels = { x = "current_actual" }', ("0x6078",)),
+        (
+            "heartbeat_ms = 100",
+            'heartbeat_ms = 100\nobjects = { vendor_setpoint = "0x6041" }\n'
+            'modes = { velocity = { code = 9, setpoint = "vendor_setpoint" } }',
+            ("[canopen.modes.velocity.setpoint] 0x6041 (vendor_setpoint) is 'ro'",),
+        ),
+        ("heartbeat_ms = 100", "heartbeat_ms = 70000", ("heartbeat_ms", "UNSIGNED16")),
+        ("host_node_id = 127", "host_node_id = 0", ("host_node_id", "1..127")),
+    ],
+)
 def test_check_reports_each_problem_as_an_error_naming_the_key(tmp_path, old, new_text, words):
     report, _, _ = new(tmp_path, "pdo4_rpdo2.eds")
     edit(report.folder, old, new_text)
@@ -174,8 +194,11 @@ def test_check_reports_each_problem_as_an_error_naming_the_key(tmp_path, old, ne
 
 def test_check_warns_of_a_negative_mode_on_an_unsigned8_mode_object(tmp_path):
     report, _, _ = new(tmp_path, "mode_u8_wo.eds")
-    edit(report.folder, "heartbeat_ms = 100", 'heartbeat_ms = 100\nmodes = { torque_injection = { code = -3, '
-                                              'setpoint = "torque_offset" } }')
+    edit(
+        report.folder,
+        "heartbeat_ms = 100",
+        'heartbeat_ms = 100\nmodes = { torque_injection = { code = -3, setpoint = "torque_offset" } }',
+    )
     check = check_driver_folder(report.folder)
     assert check.ok
     assert any("negative mode -3, but 0x6060 is UNSIGNED8: written as 253" in w for w in check.warnings)
@@ -184,8 +207,10 @@ def test_check_warns_of_a_negative_mode_on_an_unsigned8_mode_object(tmp_path):
 def test_check_validates_filter_objects_fields_and_encoding(tmp_path):
     report, _, _ = new(tmp_path, "quirks_dup_lower_crlf.eds")
     path = report.folder / "driver.toml"
-    good = '\n[filters]\nencoding = "notch_parameters"\nobjects = ["0x2300"]\nenable_subindex = 1\n' \
-           'fields = { center = 1, width = 2, depth = 3 }\n'
+    good = (
+        '\n[filters]\nencoding = "notch_parameters"\nobjects = ["0x2300"]\nenable_subindex = 1\n'
+        "fields = { center = 1, width = 2, depth = 3 }\n"
+    )
     path.write_text(path.read_text(encoding="utf-8") + good, encoding="utf-8")
     assert check_driver_folder(report.folder).ok
     edit(report.folder, 'encoding = "notch_parameters"', 'encoding = "real32"')
@@ -213,6 +238,7 @@ def test_check_of_a_folder_without_its_eds_or_toml_is_an_error_not_a_traceback(t
 
 
 # --- command line -------------------------------------------------------------------------------------------------
+
 
 def test_cli_new_check_and_verbose_listing(tmp_path, capsys, monkeypatch):
     out = tmp_path / "acme"

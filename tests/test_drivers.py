@@ -41,8 +41,9 @@ def test_one_channel_at_most_enters_the_filter_slots(tmp_path):
     assert find_driver("myrio-board").filter_input_channel == "torque_cmd_nm"  # PROTOCOL.md: before the slots
     assert find_driver("canopen-servo").filter_input_channel == "torque_cmd_nm"  # 0x6074, before the slots
     assert find_driver("modbus-servo").filter_input_channel is None  # its command is not recorded
-    folder = _user_copy(tmp_path, edit=lambda t: t.replace('name = "torque_nm"\n',
-                                                           'name = "torque_nm"\nfilter_input = true\n', 1))
+    folder = _user_copy(
+        tmp_path, edit=lambda t: t.replace('name = "torque_nm"\n', 'name = "torque_nm"\nfilter_input = true\n', 1)
+    )
     with pytest.raises(ConfigError, match=r"channels\[3\]\.filter_input.*'torque_cmd_nm' already does") as exc:
         load_driver(folder)
     assert str(folder / "driver.toml") in str(exc.value)
@@ -142,12 +143,19 @@ def test_rates_above_the_maximum_are_not_offered(tmp_path):
         check_run_against_driver(_gantry(run={"sample_rate_hz": 2000.0}), driver)
 
 
-@pytest.mark.parametrize("driver, tables, key", [
-    ("myrio-board", {"identification": {"output": "load_velocity"}}, "identification.output"),
-    ("modbus-servo", {"identification": {"output": "load_position_m"}}, "identification.output"),
-    ("myrio-board", {"run": {"channels": ["excitation", "torque_nm", "velocity_mps", "speed"]}}, "run.channels[3]"),
-    ("canopen-servo", {"run": {"channels": ["excitation", "torque_nm", "velocity_mps", "time_s"]}}, "run.channels[3]"),
-])
+@pytest.mark.parametrize(
+    "driver, tables, key",
+    [
+        ("myrio-board", {"identification": {"output": "load_velocity"}}, "identification.output"),
+        ("modbus-servo", {"identification": {"output": "load_position_m"}}, "identification.output"),
+        ("myrio-board", {"run": {"channels": ["excitation", "torque_nm", "velocity_mps", "speed"]}}, "run.channels[3]"),
+        (
+            "canopen-servo",
+            {"run": {"channels": ["excitation", "torque_nm", "velocity_mps", "time_s"]}},
+            "run.channels[3]",
+        ),
+    ],
+)
 def test_channels_the_driver_does_not_record_are_refused(driver, tables, key):
     with pytest.raises(ConfigError) as err:
         check_run_against_driver(_gantry(**tables), find_driver(driver))

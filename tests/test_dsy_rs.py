@@ -85,7 +85,8 @@ def test_the_twin_answers_as_the_map_says():
     section, enabled = drive.filters.read(0)
     assert enabled
     assert -20 * math.log10(abs(section.response(np.array([22.0]), 8000.0)[0])) == pytest.approx(
-        panasonic_attenuation_db(22, 8, 50, 22.0, 8000.0), abs=0.01)
+        panasonic_attenuation_db(22, 8, 50, 22.0, 8000.0), abs=0.01
+    )
 
 
 @pytest.fixture
@@ -120,8 +121,12 @@ def test_a_notch_is_written_read_back_and_attenuates_on_the_twin(dsy):
     assert achieved >= min(spec.depth_db, realised.attenuation_db) - 1.0
     assert achieved > 20.0
     report = adapter.filter_parameters(0)
-    assert report["enabled"] and report["fields"]["center"] == {"register": "notch1_center_hz", "parameter": "P08.02",
-                                                                "address": 0x0802, "value": center}
+    assert report["enabled"] and report["fields"]["center"] == {
+        "register": "notch1_center_hz",
+        "parameter": "P08.02",
+        "address": 0x0802,
+        "value": center,
+    }
     assert report["notch"]["center_hz"] == center
     assert report["notch"]["width_hz"] == pytest.approx(WIDTH_RATIO[width] * center)
     # the twin's physics: a torque sine at the resonance through the drive's filter chain
@@ -226,8 +231,9 @@ def test_the_notch_goes_over_modbus_rtu_too():
         try:
             spec = NotchSpec(RESONANCE_HZ, 6.5, 30.0)
             assert adapter.upload_filter(0, design_notch(spec, DRIVER.loop_rate_hz), spec).matches
-            assert adapter.read(0x0802, 3) == list(MAP.filter_encoding.realise(spec, DRIVER.loop_rate_hz)
-                                                   .fields.values())
+            assert adapter.read(0x0802, 3) == list(
+                MAP.filter_encoding.realise(spec, DRIVER.loop_rate_hz).fields.values()
+            )
         finally:
             adapter.close()
     finally:
@@ -250,8 +256,12 @@ def test_a_parameter_twin_with_input_registers_and_an_enable_register():
             "identity": {"registers": ["model"]},
             "filters": {"slots": [{"center": "c", "width": "q", "depth": "d", "enable": "on"}]},
         },
-        "filters": {"encoding": "notch_parameters", "width_unit": "q", "depth_unit": "percent",
-                    "scales": {"center": 0.1, "width": 0.01, "depth": 1.0}},
+        "filters": {
+            "encoding": "notch_parameters",
+            "width_unit": "q",
+            "depth_unit": "percent",
+            "scales": {"center": 0.1, "width": 0.01, "depth": 1.0},
+        },
     }
     regmap = RegisterMap.parse(sections, 1, "synthetic")
     driver = replace(DRIVER, filter_slots=1, sections=sections)

@@ -29,8 +29,15 @@ from hilident.io.recording import read_run
 from support.twins import HOST_TIMEOUT_S, TRANSPORTS, Twin, finish, host, wait_until
 
 #: Exit codes the README documents.
-EXIT = {"sigterm": 143, "sighup": 129, "sigint_twice": 130, "sigkill": -signal.SIGKILL,
-        "device_vanishes": 4, "disk_full": 3, "limit_trip": 5}
+EXIT = {
+    "sigterm": 143,
+    "sighup": 129,
+    "sigint_twice": 130,
+    "sigkill": -signal.SIGKILL,
+    "device_vanishes": 4,
+    "disk_full": 3,
+    "limit_trip": 5,
+}
 
 #: How long the twin may keep the axis enabled after the host is gone, s: the device-side net
 #: (serial: the board's 1 s watchdog; CANopen and Modbus: host_timeout_s) plus the twin's clock.
@@ -178,8 +185,14 @@ def test_a_second_ctrl_c_after_the_stop_keeps_the_exit_code(tmp_path):
         os.kill(os.getpid(), signal.SIGINT)  # the second one, after the session's handlers are gone
         sys.exit(code)
     """)
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60,
-                          env=dict(os.environ), preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    done = subprocess.run(
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=dict(os.environ),
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     assert done.returncode == 130, done.stderr
 
 
@@ -205,7 +218,8 @@ def test_nohup_keeps_sighup_ignored(tmp_path):
         cli._run = run
         sys.exit(cli.main(["run", "any.toml"]))
     """)
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60,
-                          env=dict(os.environ))
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=60, env=dict(os.environ)
+    )
     assert "still running after SIGHUP" in done.stdout
     assert done.returncode == 143, done.stderr

@@ -12,8 +12,9 @@ import pytest
 from hilident import endings
 from hilident.errors import Interrupted
 
-pytestmark = pytest.mark.skipif(threading.current_thread() is not threading.main_thread(),
-                                reason="signal handlers need the main thread")
+pytestmark = pytest.mark.skipif(
+    threading.current_thread() is not threading.main_thread(), reason="signal handlers need the main thread"
+)
 
 
 def test_a_signal_within_a_transaction_is_raised_when_it_returns_not_in_it():

@@ -173,17 +173,27 @@ def test_mat_loads_with_scipy_as_matlab_structs_that_reproduce_the_response(made
     assert np.array_equal(np.atleast_2d(designed.b)[0], summary["notch_filters"][0]["b"])
     assert np.array_equal(np.atleast_2d(mat["notches_stored"].a)[0], summary["upload"]["slots"][0]["readback_a"])
     assert mat["greybox"].units.M == "kg"
-    names = [n for var in ("plant", "greybox", "notches_designed", "notches_stored", "info")
-             for n in walk_struct(mat[var], var)]
+    names = [
+        n
+        for var in ("plant", "greybox", "notches_designed", "notches_stored", "info")
+        for n in walk_struct(mat[var], var)
+    ]
     assert len(names) > 30
-    assert all(MATLAB_NAME.match(n.rsplit(".", 1)[-1]) for n in names), [n for n in names
-                                                                       if not MATLAB_NAME.match(n.rsplit(".")[-1])]
+    assert all(MATLAB_NAME.match(n.rsplit(".", 1)[-1]) for n in names), [
+        n for n in names if not MATLAB_NAME.match(n.rsplit(".")[-1])
+    ]
 
 
 def test_mat_renames_parameters_that_are_not_matlab_names(tmp_path):
-    summary = {"notch_filters": [], "upload": {"slots": []},
-               "model": {"kind": "rigid_axis", "params": {"M": 2.0, "Fv+": 3.0, "Fv-": 5.0, "Fc+": 1.0, "Fc-": 1.5},
-                         "stderr": {"M": 0.1, "Fv+": 0.2, "Fv-": 0.3, "Fc+": 0.1, "Fc-": 0.1}}}
+    summary = {
+        "notch_filters": [],
+        "upload": {"slots": []},
+        "model": {
+            "kind": "rigid_axis",
+            "params": {"M": 2.0, "Fv+": 3.0, "Fv-": 5.0, "Fc+": 1.0, "Fc-": 1.5},
+            "stderr": {"M": 0.1, "Fv+": 0.2, "Fv-": 0.3, "Fc+": 0.1, "Fc-": 0.1},
+        },
+    }
     export.write_mat(export.export_document(summary), tmp_path / "m.mat")
     greybox = loadmat(tmp_path / "m.mat", squeeze_me=True, struct_as_record=False)["greybox"]
     assert greybox.params.Fv_pos == 3.0 and greybox.params.Fc_neg == 1.5 and greybox.stderr.Fv_neg == 0.3
@@ -202,10 +212,18 @@ def test_python_control_objects_round_trip(made):
     assert rel_error(np.ravel(models["ss"](s)), want) < RTOL
     assert models["ss_discrete"].dt == 1 / 4000.0 and models["tf_discrete"].dt == 1 / 4000.0
     z = np.exp(s / 4000.0)
-    assert rel_error(np.ravel(models["ss_discrete"](z)),
-                     ss_response(*signal.cont2discrete(signal.tf2ss(summary["plant_model"]["num"],
-                                                                    summary["plant_model"]["den"]),
-                                                       1 / 4000.0, "zoh")[:4], z)) < RTOL
+    assert (
+        rel_error(
+            np.ravel(models["ss_discrete"](z)),
+            ss_response(
+                *signal.cont2discrete(
+                    signal.tf2ss(summary["plant_model"]["num"], summary["plant_model"]["den"]), 1 / 4000.0, "zoh"
+                )[:4],
+                z,
+            ),
+        )
+        < RTOL
+    )
 
 
 def test_python_control_script_rebuilds_the_same_objects(made, tmp_path):

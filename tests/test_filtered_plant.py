@@ -27,8 +27,8 @@ def _conv(*polys):
 def _add(p, q):
     """Sum of two polynomials in z^-1 (aligned at their first coefficient)."""
     out = np.zeros(max(len(p), len(q)))
-    out[:len(p)] += p
-    out[:len(q)] += q
+    out[: len(p)] += p
+    out[: len(q)] += q
     return out
 
 

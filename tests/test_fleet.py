@@ -61,8 +61,16 @@ def test_layout_and_fleet_json(fleet, capsys):
     assert [a["sample_rate_hz"] for a in t["axes"]] == list(SAMPLE_RATES_HZ)
     assert len({a["serial"] for a in t["axes"]}) == AXES
     for a in t["axes"]:
-        assert set(a) >= {"axis", "serial", "sample_rate_hz", "drifting", "stiffness_percent_per_day",
-                          "frequency_percent_per_day", "frequencies_hz", "files"}
+        assert set(a) >= {
+            "axis",
+            "serial",
+            "sample_rate_hz",
+            "drifting",
+            "stiffness_percent_per_day",
+            "frequency_percent_per_day",
+            "frequencies_hz",
+            "files",
+        }
         assert len(a["files"]) == len(a["frequencies_hz"]) == DAYS
         for day, rel in enumerate(a["files"]):
             folder, name = rel.split("/")
@@ -84,8 +92,12 @@ def test_a_recording_is_a_sessions_identification_recording(fleet):
     assert run.attrs["created_utc"] == stamp.isoformat(timespec="milliseconds")
     assert run.attrs["created_utc"].endswith("+00:00")
     assert run.attrs["axis"] == a["axis"]
-    assert run.attrs["device"] == {"name": "myrio-board", "firmware": "hilident-board 1.0 (fleet twin)",
-                                   "port": "emulator", "serial": a["serial"]}
+    assert run.attrs["device"] == {
+        "name": "myrio-board",
+        "firmware": "hilident-board 1.0 (fleet twin)",
+        "port": "emulator",
+        "serial": a["serial"],
+    }
     assert (run.attrs["experiment"], run.attrs["mode"]) == ("identification", "torque")
     assert {"seed", "config_source", "versions"} <= set(run.attrs)
     assert run.channel_names == ["sample_index", "time_s", "excitation", "torque_nm", "position_m", "velocity_mps"]
@@ -99,7 +111,7 @@ def test_a_recording_is_a_sessions_identification_recording(fleet):
     # one lead-in period, then the periods of duration_s, each the same samples
     assert run.n_samples == period * (1 + round(cfg.excitation.duration_s / cfg.excitation.period_s))
     u = run.channel("excitation")
-    np.testing.assert_array_equal(u[:period], u[period:2 * period])
+    np.testing.assert_array_equal(u[:period], u[period : 2 * period])
     np.testing.assert_array_equal(run.channel("time_s"), run.channel("sample_index") / run.sample_rate_hz)
 
 
@@ -176,8 +188,12 @@ def test_a_clean_recording_identifies_to_the_twins_mode(fleet, tmp_path, rate_hz
 def test_counts_ids_and_the_rate_definition():
     assert axis_ids(3) == ["axis-01", "axis-02", "axis-03"]
     assert axis_ids(120)[0] == "axis-001" and axis_ids(120)[-1] == "axis-120"
-    assert (drifting_count(20, 0.3), drifting_count(2, 0.1), drifting_count(5, 0.0), drifting_count(1, 0.3)) \
-        == (6, 1, 0, 0)
+    assert (drifting_count(20, 0.3), drifting_count(2, 0.1), drifting_count(5, 0.0), drifting_count(1, 0.3)) == (
+        6,
+        1,
+        0,
+        0,
+    )
     assert (damaged_count(600), damaged_count(20), damaged_count(19)) == (12, 2, 0)
     # a line through the first point: 20 Hz falling 0.2 Hz a day is -1 %/day of its first value
     assert truth_rate_percent_per_day([0.5, 1.5, 2.5], [20.0, 19.8, 19.6]) == pytest.approx(-1.0)
@@ -193,8 +209,7 @@ def test_configuration_text_round_trips():
 def test_a_base_config_and_bad_arguments(tmp_path, capsys):
     out = tmp_path / "gantry"
     args = ["emulate", "fleet", "--axes", "2", "--days", "2", "--out", str(out), "--duration-s", "4", "-q"]
-    assert main([*args, "--config", str(CONFIGS / "emulated-gantry.toml"), "--start", "2026-03-01",
-                 "--viscous"]) == 0
+    assert main([*args, "--config", str(CONFIGS / "emulated-gantry.toml"), "--start", "2026-03-01", "--viscous"]) == 0
     t = truth(out)
     assert t["start"] == "2026-03-01" and t["friction"] == "viscous" and t["damaged"] == []
     assert sum(a["drifting"] for a in t["axes"]) == 1
@@ -203,9 +218,15 @@ def test_a_base_config_and_bad_arguments(tmp_path, capsys):
     assert (stored.emulator.friction.Fc, stored.emulator.friction.Fv) == (0.0, gantry.emulator.friction.Fv)
     assert stored.excitation.duration_s == 4.0 and not stored.friction_test.enabled
     assert "wrote 4 recordings of 2 axes (1 drifting, 0 damaged on purpose)" in capsys.readouterr().out
-    for bad in (["--axes", "0"], ["--start", "2026-13-01"], ["--drifting-share", "1.5"],
-                ["--config", str(CONFIGS / "emulated-msd.toml")], ["--damaged", "9"], ["--seed", "-1"],
-                ["--duration-s", "nan"]):
+    for bad in (
+        ["--axes", "0"],
+        ["--start", "2026-13-01"],
+        ["--drifting-share", "1.5"],
+        ["--config", str(CONFIGS / "emulated-msd.toml")],
+        ["--damaged", "9"],
+        ["--seed", "-1"],
+        ["--duration-s", "nan"],
+    ):
         assert main([*args, *bad]) == 2, bad
         err = capsys.readouterr().err.strip()
         assert err.startswith("hilident: error:") and "\n" not in err, err
@@ -217,8 +238,10 @@ def test_the_writer_stores_a_given_creation_time(tmp_path):
     w.append(np.zeros((3, 1)))
     w.close(closed_utc=when + dt.timedelta(seconds=0.3))
     attrs = read_run(tmp_path / "r.h5").attrs
-    assert (attrs["created_utc"], attrs["closed_utc"]) == ("2026-01-02T02:04:05.678+00:00",
-                                                          "2026-01-02T02:04:05.978+00:00")
+    assert (attrs["created_utc"], attrs["closed_utc"]) == (
+        "2026-01-02T02:04:05.678+00:00",
+        "2026-01-02T02:04:05.978+00:00",
+    )
     with pytest.raises(DataError, match="timezone-aware"):
         RunWriter(tmp_path / "naive.h5", ["x"], ["m"], 10.0, created_utc=dt.datetime(2026, 1, 1))
 
@@ -240,7 +263,8 @@ def test_an_occupied_folder_is_refused_and_overwrite_replaces_only_the_earlier_f
     assert "--overwrite" in capsys.readouterr().err
     assert main([*args[:5], "2", *args[6:], "--overwrite"]) == 0
     assert sorted(p.name for p in (out / "axis-01").iterdir()) == sorted(
-        Path(f).name for f in truth(out)["axes"][0]["files"])
+        Path(f).name for f in truth(out)["axes"][0]["files"]
+    )
     assert len(truth(out)["axes"][0]["files"]) == 2 and mine.read_text() == "kept"
     assert main([*args[:7], str(mine), *args[8:]]) == 2
 

@@ -34,12 +34,17 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 def tiny_png(width: int = 3, height: int = 2) -> bytes:
     """A valid grey PNG made with the standard library (the report embeds bytes, it does not draw)."""
+
     def chunk(kind: bytes, data: bytes) -> bytes:
         return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
 
     rows = b"".join(b"\x00" + bytes([128] * width) for _ in range(height))
-    return (PNG_SIGNATURE + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
-            + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b""))
+    return (
+        PNG_SIGNATURE
+        + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+        + chunk(b"IDAT", zlib.compress(rows))
+        + chunk(b"IEND", b"")
+    )
 
 
 def folder_with(tmp_path: Path, name: str, summary: dict | None = None, pngs=("bode.png",)) -> Path:
@@ -173,16 +178,29 @@ def test_text_from_the_summary_is_escaped(tmp_path):
 
 
 def test_partial_and_odd_summaries_still_give_every_section(tmp_path):
-    failed = {"hilident_version": "0.1.0", "config": "gone.toml", "device": {"driver": "myrio-board"},
-              "friction": json.loads((DATA / "run.json").read_text())["friction"], "warnings": [],
-              "failed_step": "identification", "error": "lost the line"}
+    failed = {
+        "hilident_version": "0.1.0",
+        "config": "gone.toml",
+        "device": {"driver": "myrio-board"},
+        "friction": json.loads((DATA / "run.json").read_text())["friction"],
+        "warnings": [],
+        "failed_step": "identification",
+        "error": "lost the line",
+    }
     page = report_of(folder_with(tmp_path, "failed", failed, pngs=()))
     assert list(page.sections) == SECTION_IDS
     assert "identification" in page.sections["headline"] and "lost the line" in page.sections["headline"]
     assert "configuration text was not found" in page.sections["run"]
     # keys of unexpected types leave their figures empty instead of failing the report
-    odd = {"resonances": "none", "stream": None, "friction": {"params": [1, 2]}, "upload": {"slots": [1]},
-           "notch_filters": [{"center_hz": "x"}], "model": {"params": {"M": None}}, "warnings": "one"}
+    odd = {
+        "resonances": "none",
+        "stream": None,
+        "friction": {"params": [1, 2]},
+        "upload": {"slots": [1]},
+        "notch_filters": [{"center_hz": "x"}],
+        "model": {"params": {"M": None}},
+        "warnings": "one",
+    }
     page = report_of(folder_with(tmp_path, "odd", odd, pngs=()))
     assert list(page.sections) == SECTION_IDS
     page = report_of(folder_with(tmp_path, "empty", {}, pngs=()))
@@ -193,9 +211,13 @@ def test_recordings_are_linked_and_their_config_is_shown(tmp_path):
     from hilident.io.recording import RunWriter
 
     folder = folder_with(tmp_path, "run")
-    attrs = {"experiment": "identification", "mode": "torque", "config_toml": "[run]\nseed = 7 # <ok>\n",
-             "device": {"name": "board", "firmware": "fw 9.9", "port": "/dev/pts/3"},
-             "versions": {"hilident": "0.1.0", "numpy": "9.8.7", "scipy": "6.5.4"}}
+    attrs = {
+        "experiment": "identification",
+        "mode": "torque",
+        "config_toml": "[run]\nseed = 7 # <ok>\n",
+        "device": {"name": "board", "firmware": "fw 9.9", "port": "/dev/pts/3"},
+        "versions": {"hilident": "0.1.0", "numpy": "9.8.7", "scipy": "6.5.4"},
+    }
     with RunWriter(folder / "identification run.h5", ["x"], ["m"], 100.0, attrs) as rec:
         import numpy as np
 
@@ -241,8 +263,10 @@ def test_a_report_that_cannot_be_written_is_a_warning_line(tmp_path):
 
 
 def test_split_advice_keeps_the_remedy_of_a_warning():
-    finding, remedy = split_advice("closed-loop data without an excitation column: the estimate is biased "
-                                   "(give [data].excitation to use the excitation as reference)")
+    finding, remedy = split_advice(
+        "closed-loop data without an excitation column: the estimate is biased "
+        "(give [data].excitation to use the excitation as reference)"
+    )
     assert finding.endswith("the estimate is biased")
     assert remedy == "give [data].excitation to use the excitation as reference"
     assert split_advice("parameter 'Fc' = 0.1 is not significant") == ("parameter 'Fc' = 0.1 is not significant", "")
@@ -254,8 +278,11 @@ def test_run_identify_and_upload_write_their_report(tmp_path, capsys):
     from hilident.session.run import Session
 
     cfg = load_config(CONFIGS / "emulated-gantry.toml")
-    cfg = replace(cfg, emulator=replace(cfg.emulator, link="pipe", time_scale=8.0),
-                  excitation=replace(cfg.excitation, amplitude_nm=8.0))
+    cfg = replace(
+        cfg,
+        emulator=replace(cfg.emulator, link="pipe", time_scale=8.0),
+        excitation=replace(cfg.excitation, amplitude_nm=8.0),
+    )
     run = tmp_path / "run"
     Session(cfg, run).run()
     page = check_report(run)
@@ -273,8 +300,21 @@ def test_run_identify_and_upload_write_their_report(tmp_path, capsys):
     assert "the data file, outside this folder" in page.sections["recordings"]
 
     upload = tmp_path / "upload"
-    assert main(["upload", "--from", str(run), "--config", str(CONFIGS / "emulated-gantry.toml"), "--out",
-                 str(upload), "-q"]) == 0
+    assert (
+        main(
+            [
+                "upload",
+                "--from",
+                str(run),
+                "--config",
+                str(CONFIGS / "emulated-gantry.toml"),
+                "--out",
+                str(upload),
+                "-q",
+            ]
+        )
+        == 0
+    )
     page = check_report(upload)
     assert "read back" in page.sections["notches"]
     assert [i["alt"] for i in page.all("img")] == ["notch.png"]  # designed vs stored, drawn by the upload
@@ -285,11 +325,13 @@ def test_identify_that_fails_at_a_step_reports_what_it_found(tmp_path, capsys):
 
     rec = msd_record(1000.0, 4000, 4)
     write_csv(tmp_path / "d.csv", {"t": rec["t"], "f": rec["f"], "x": rec["x"]})
-    (tmp_path / "c.toml").write_text('[data]\ntime = "t"\ntorque = "f"\noutput = "x"\n'
-                                     '[model]\nkind = "mass_spring_damper"\n')
+    (tmp_path / "c.toml").write_text(
+        '[data]\ntime = "t"\ntorque = "f"\noutput = "x"\n[model]\nkind = "mass_spring_damper"\n'
+    )
     out = tmp_path / "out"
-    assert main(["identify", str(tmp_path / "d.csv"), "--config", str(tmp_path / "c.toml"), "--out", str(out),
-                 "-q"]) == 2
+    assert (
+        main(["identify", str(tmp_path / "d.csv"), "--config", str(tmp_path / "c.toml"), "--out", str(out), "-q"]) == 2
+    )
     assert "not written" not in capsys.readouterr().err
     page = check_report(out)
     assert "The step “model” failed" in page.sections["headline"] and "data.position" in page.sections["headline"]

@@ -39,8 +39,9 @@ def flexible_mechanism(noise: float = 1e-4, seed: int = 1):
 def identify(tmp_path, data, config: str, *extra) -> tuple[int, dict | None]:
     cfg = tmp_path / "c.toml"
     cfg.write_text(config)
-    code = main(["identify", str(data), "--config", str(cfg), "--out", str(tmp_path / "o"), "--overwrite", "-q",
-                 *extra])
+    code = main(
+        ["identify", str(data), "--config", str(cfg), "--out", str(tmp_path / "o"), "--overwrite", "-q", *extra]
+    )
     path = tmp_path / "o" / "summary.json"
     return code, json.loads(path.read_text()) if path.exists() else None
 
@@ -72,8 +73,11 @@ def test_the_same_record_without_its_period_is_not_analysed_leakage_free(tmp_pat
     u, y = flexible_mechanism()
     data = tmp_path / "mechanism.csv"
     np.savetxt(data, np.column_stack([u, y]), delimiter=",")
-    code, summary = identify(tmp_path, data, '[data]\ntorque = "0"\noutput = "1"\nsample_rate_hz = 256.0\n'
-                                             "[identification]\nmax_resonances = 2\n")
+    code, summary = identify(
+        tmp_path,
+        data,
+        '[data]\ntorque = "0"\noutput = "1"\nsample_rate_hz = 256.0\n[identification]\nmax_resonances = 2\n',
+    )
     assert code == 0 and summary["data"]["period_samples"] is None
     assert summary["measurement"]["n_averages"] > 1  # Welch segments: what the period key avoids
 
@@ -82,9 +86,13 @@ def test_headerless_columns_named_in_the_config_and_two_periods_averaged(tmp_pat
     u, y = flexible_mechanism()
     data = tmp_path / "mechanism.dat"
     np.savetxt(data, np.column_stack([np.tile(u, 2), np.tile(y, 2)]), delimiter=";")
-    code, summary = identify(tmp_path, data, '[data]\ncolumn_names = ["force", "accel"]\ntorque = "force"\n'
-                                             'output = "accel"\nsample_rate_hz = 256.0\nperiod_samples = 1024\n'
-                                             "[identification]\nmax_resonances = 2\n")
+    code, summary = identify(
+        tmp_path,
+        data,
+        '[data]\ncolumn_names = ["force", "accel"]\ntorque = "force"\n'
+        'output = "accel"\nsample_rate_hz = 256.0\nperiod_samples = 1024\n'
+        "[identification]\nmax_resonances = 2\n",
+    )
     assert code == 0
     check_modes(summary)
     assert summary["measurement"]["n_averages"] == 2
@@ -93,8 +101,9 @@ def test_headerless_columns_named_in_the_config_and_two_periods_averaged(tmp_pat
 def test_column_names_on_a_file_with_a_header_is_refused_naming_the_key(tmp_path, capsys):
     data = tmp_path / "h.csv"
     data.write_text("a,b\n" + "".join(f"{i % 9},{i % 4}\n" for i in range(100)))
-    code, _ = identify(tmp_path, data, '[data]\ncolumn_names = ["x", "y"]\ntorque = "x"\noutput = "y"\n'
-                                       "sample_rate_hz = 100.0\n")
+    code, _ = identify(
+        tmp_path, data, '[data]\ncolumn_names = ["x", "y"]\ntorque = "x"\noutput = "y"\nsample_rate_hz = 100.0\n'
+    )
     err = capsys.readouterr().err
     assert code == 2 and "data.column_names" in err and "header" in err
 
@@ -115,8 +124,7 @@ def msd_record(rate: float, n: int, seed: int, rate_error: float = 0.0):
 
 def write_csv(path, columns):
     names = list(columns)
-    np.savetxt(path, np.column_stack([columns[c] for c in names]), delimiter=",", header=",".join(names),
-               comments="")
+    np.savetxt(path, np.column_stack([columns[c] for c in names]), delimiter=",", header=",".join(names), comments="")
 
 
 MSD_KEYS = '[data]\ntime = "t"\ntorque = "f"\nposition = "x"\n[model]\nkind = "mass_spring_damper"\ncutoff_hz = 80.0\n'
@@ -159,8 +167,10 @@ def test_rates_that_disagree_name_only_keys_that_were_set(tmp_path, capsys):
 def test_identification_output_is_honoured_and_no_velocity_is_needed(tmp_path):
     rec = msd_record(1000.0, 8000, 3)
     write_csv(tmp_path / "d.csv", {"t": rec["t"], "f": rec["f"], "x": rec["x"], "junk": np.cos(rec["t"])})
-    keys = ('[data]\ntime = "t"\ntorque = "f"\nposition = "x"\n'
-            '[identification]\noutput = "position"\nmax_resonances = 1\nsegment_s = 4.0\n')
+    keys = (
+        '[data]\ntime = "t"\ntorque = "f"\nposition = "x"\n'
+        '[identification]\noutput = "position"\nmax_resonances = 1\nsegment_s = 4.0\n'
+    )
     code, summary = identify(tmp_path, tmp_path / "d.csv", keys)
     assert code == 0 and summary["data"]["mapping"]["output"] == "x"
     # msd: sqrt(k/m)/2pi = 10.07 Hz; torque to position has its peak there
@@ -172,8 +182,11 @@ def test_identification_output_is_honoured_and_no_velocity_is_needed(tmp_path):
 def test_a_failing_step_still_writes_the_summary_naming_it(tmp_path, capsys):
     rec = msd_record(1000.0, 4000, 4)
     write_csv(tmp_path / "d.csv", {"t": rec["t"], "f": rec["f"], "x": rec["x"]})
-    code, summary = identify(tmp_path, tmp_path / "d.csv", '[data]\ntime = "t"\ntorque = "f"\noutput = "x"\n'
-                                                           '[model]\nkind = "mass_spring_damper"\n')
+    code, summary = identify(
+        tmp_path,
+        tmp_path / "d.csv",
+        '[data]\ntime = "t"\ntorque = "f"\noutput = "x"\n[model]\nkind = "mass_spring_damper"\n',
+    )
     err = capsys.readouterr().err
     assert code == 2 and "data.position" in err and "up to the failed step" in err
     assert summary["failed_step"] == "model" and "data.position" in summary["error"]

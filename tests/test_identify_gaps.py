@@ -51,9 +51,10 @@ def bench_run():
     rows = drive.run(np.repeat(ms.samples, 4))[::4]
     col = {name: rows[:, i] for i, name in enumerate(drive.CHANNELS)}
     n = len(rows)
-    table = np.column_stack([np.arange(n), np.arange(n) / RATE, ms.samples, col["torque_nm"], col["velocity_mps"],
-                             col["position_m"]])
-    (true_f, _), = true_modes(cfg.emulator)
+    table = np.column_stack(
+        [np.arange(n), np.arange(n) / RATE, ms.samples, col["torque_nm"], col["velocity_mps"], col["position_m"]]
+    )
+    ((true_f, _),) = true_modes(cfg.emulator)
     return table, true_f
 
 
@@ -67,8 +68,9 @@ def write_run(path, table, status="complete", flushed=None):
             f.attrs["flushed_samples"] = np.int64(flushed)
 
 
-def identify(tmp_path, data, mapping='torque = "torque_nm"\nvelocity = "velocity_mps"\nexcitation = "excitation"\n',
-             name="o"):
+def identify(
+    tmp_path, data, mapping='torque = "torque_nm"\nvelocity = "velocity_mps"\nexcitation = "excitation"\n', name="o"
+):
     config = tmp_path / "identify.toml"
     config.write_text("[data]\n" + mapping + "\n[identification]\nmax_resonances = 1\nmodel_max_order = 0\n")
     out = tmp_path / name
@@ -79,7 +81,7 @@ def identify(tmp_path, data, mapping='torque = "torque_nm"\nvelocity = "velocity
 def test_lost_blocks_cost_only_their_periods(tmp_path, bench_run):
     table, true_f = bench_run
     # two blocks lost, both inside period 2; one block lost in the lead-in
-    lost = np.r_[300:420, 2 * PERIOD + 1000:2 * PERIOD + 1137, 2 * PERIOD + 3000:2 * PERIOD + 3050]
+    lost = np.r_[300:420, 2 * PERIOD + 1000 : 2 * PERIOD + 1137, 2 * PERIOD + 3000 : 2 * PERIOD + 3050]
     write_run(tmp_path / "identification.h5", np.delete(table, lost, axis=0))
     summary = identify(tmp_path, tmp_path / "identification.h5")
     data = summary["data"]
@@ -155,16 +157,19 @@ def test_irregular_time_stamps_stay_an_error(tmp_path, bench_run, capsys):
 
 def test_velocity_from_position_is_never_differentiated_across_a_gap(tmp_path, bench_run):
     table, _ = bench_run
-    cut = np.delete(table, np.r_[2 * PERIOD + 100:2 * PERIOD + 400], axis=0)
+    cut = np.delete(table, np.r_[2 * PERIOD + 100 : 2 * PERIOD + 400], axis=0)
     write_run(tmp_path / "identification.h5", cut)
-    summary = identify(tmp_path, tmp_path / "identification.h5",
-                       'torque = "torque_nm"\nposition = "position_m"\nexcitation = "excitation"\n')
+    summary = identify(
+        tmp_path,
+        tmp_path / "identification.h5",
+        'torque = "torque_nm"\nposition = "position_m"\nexcitation = "excitation"\n',
+    )
     assert summary["data"]["used_rows"] == 3 * PERIOD and summary["data"]["segments"] == 2
     from hilident.config.tables import DataConfig
     from hilident.datafile import load_dataset
 
     ds = load_dataset(tmp_path / "identification.h5", DataConfig(torque="torque_nm", position="position_m"))
-    true_v = np.concatenate([table[PERIOD:2 * PERIOD, 4], table[3 * PERIOD:5 * PERIOD, 4]])
+    true_v = np.concatenate([table[PERIOD : 2 * PERIOD, 4], table[3 * PERIOD : 5 * PERIOD, 4]])
     # the derivative of the encoder position follows the true velocity everywhere, joins included
     assert np.max(np.abs(ds.signals["velocity"] - true_v)) < 0.05 * np.max(np.abs(true_v))
 
@@ -220,14 +225,17 @@ def test_select_gap_free_segments_break_where_the_clock_jumps():
     assert sel.warnings == ["recording: 1 of 5 excitation periods had lost samples and were left out"]
 
 
-@pytest.mark.parametrize("excitation", [
-    'kind = "multisine"\nperiod_s = 0.5\nduration_s = 2.0\nf_min_hz = 4.0\nf_max_hz = 80.0',
-    'kind = "multisine"\nperiod_s = 0.2503\nduration_s = 1.0\nf_min_hz = 8.0\nf_max_hz = 80.0',
-    'kind = "prbs"\nregister_length = 6\nclock_divider = 3\nduration_s = 0.6',
-    'kind = "prbs"\nregister_length = 8\nclock_divider = 1\nduration_s = 0.6',
-    'kind = "chirp"\nduration_s = 1.0',
-    'kind = "noise"\nduration_s = 1.0',
-])
+@pytest.mark.parametrize(
+    "excitation",
+    [
+        'kind = "multisine"\nperiod_s = 0.5\nduration_s = 2.0\nf_min_hz = 4.0\nf_max_hz = 80.0',
+        'kind = "multisine"\nperiod_s = 0.2503\nduration_s = 1.0\nf_min_hz = 8.0\nf_max_hz = 80.0',
+        'kind = "prbs"\nregister_length = 6\nclock_divider = 3\nduration_s = 0.6',
+        'kind = "prbs"\nregister_length = 8\nclock_divider = 1\nduration_s = 0.6',
+        'kind = "chirp"\nduration_s = 1.0',
+        'kind = "noise"\nduration_s = 1.0',
+    ],
+)
 def test_the_period_identify_assumes_is_the_one_a_bench_run_plays(excitation):
     from hilident.session.run import build_excitation
 
@@ -262,10 +270,13 @@ T_UNIFORM = np.arange(50) / RATE
 
 def test_a_grey_box_fit_never_runs_across_a_lost_block(tmp_path, bench_run):
     table, _ = bench_run
-    write_run(tmp_path / "identification.h5", np.delete(table, np.r_[2 * PERIOD + 10:2 * PERIOD + 20], axis=0))
-    summary = identify(tmp_path, tmp_path / "identification.h5",
-                       'torque = "torque_nm"\nvelocity = "velocity_mps"\nposition = "position_m"\n'
-                       '[model]\nkind = "rigid_axis"\nc = 10.0\ncutoff_hz = 8.0\n')
+    write_run(tmp_path / "identification.h5", np.delete(table, np.r_[2 * PERIOD + 10 : 2 * PERIOD + 20], axis=0))
+    summary = identify(
+        tmp_path,
+        tmp_path / "identification.h5",
+        'torque = "torque_nm"\nvelocity = "velocity_mps"\nposition = "position_m"\n'
+        '[model]\nkind = "rigid_axis"\nc = 10.0\ncutoff_hz = 8.0\n',
+    )
     assert summary["data"]["segments"] == 2 and summary["data"]["used_rows"] == 3 * PERIOD
     model = summary["model"]
     # periods 3 and 4 are the longest stretch (the fit trims its filters' start-up from both parts)
@@ -279,7 +290,7 @@ def test_the_period_comes_from_an_attribute_or_the_stored_configuration(tmp_path
     from hilident.datafile import load_dataset
 
     table, _ = bench_run
-    cut = np.delete(table, np.r_[2 * PERIOD + 10:2 * PERIOD + 20], axis=0)
+    cut = np.delete(table, np.r_[2 * PERIOD + 10 : 2 * PERIOD + 20], axis=0)
     mapping = DataConfig(torque="torque_nm", velocity="velocity_mps")
     path = tmp_path / "identification.h5"
     write_run(path, cut)
@@ -295,19 +306,23 @@ def test_the_period_comes_from_an_attribute_or_the_stored_configuration(tmp_path
 
 
 @settings(max_examples=200, deadline=None)
-@given(period=st.integers(2, 12), n=st.integers(0, 150),
-       edits=st.lists(st.tuples(st.sampled_from(["drop", "repeat", "swap"]), st.integers(0, 149), st.integers(1, 9)),
-                      max_size=5))
+@given(
+    period=st.integers(2, 12),
+    n=st.integers(0, 150),
+    edits=st.lists(
+        st.tuples(st.sampled_from(["drop", "repeat", "swap"]), st.integers(0, 149), st.integers(1, 9)), max_size=5
+    ),
+)
 def test_select_gap_free_keeps_only_whole_gap_free_periods_once(period, n, edits):
     index = list(range(n))
     for kind, at, length in edits:
         at = min(at, len(index))
         if kind == "drop":
-            del index[at:at + length]
+            del index[at : at + length]
         elif kind == "repeat":
-            index[at:at] = index[at:at + length]
-        elif index[at:at + 2]:
-            index[at:at + 2] = index[at:at + 2][::-1]
+            index[at:at] = index[at : at + length]
+        elif index[at : at + 2]:
+            index[at : at + 2] = index[at : at + 2][::-1]
     index = np.array(index, dtype=np.int64)
     try:
         sel = pipeline.select_gap_free(index, period)
@@ -328,10 +343,14 @@ def test_a_stored_configuration_that_does_not_match_the_played_excitation_is_not
 
     table, _ = bench_run
     path = tmp_path / "identification.h5"
-    with RunWriter(path, CHANNELS, UNITS, RATE,
-                   {"experiment": "identification",
-                    "config_toml": RUN_CONFIG.replace("period_s = 4.0", "period_s = 3.0")}) as w:
-        w.append(np.delete(table, np.r_[2 * PERIOD + 10:2 * PERIOD + 20], axis=0))
+    with RunWriter(
+        path,
+        CHANNELS,
+        UNITS,
+        RATE,
+        {"experiment": "identification", "config_toml": RUN_CONFIG.replace("period_s = 4.0", "period_s = 3.0")},
+    ) as w:
+        w.append(np.delete(table, np.r_[2 * PERIOD + 10 : 2 * PERIOD + 20], axis=0))
     ds = load_dataset(path, DataConfig(torque="torque_nm", velocity="velocity_mps"))
     assert ds.period_samples is None and len(ds) == 3 * PERIOD - 20  # the longest stretch, not 3 s "periods"
     assert any("does not repeat every 3000 samples" in n for n in ds.notes)
@@ -357,8 +376,9 @@ def test_identify_on_a_bench_recording_finds_what_the_run_found(tmp_path):
 
     text = (Path(__file__).resolve().parents[1] / "configs" / "emulated-gantry.toml").read_text()
     text = text.replace('link = "pty"', 'link = "pipe"').replace("time_scale = 4.0", "time_scale = 8.0")
-    text = text.replace("[friction_test]", "[friction_test]\nenabled = false").replace("duration_s = 16.0",
-                                                                                       "duration_s = 8.0")
+    text = text.replace("[friction_test]", "[friction_test]\nenabled = false").replace(
+        "duration_s = 16.0", "duration_s = 8.0"
+    )
     text = text.replace('amplitude_nm = "auto"', "amplitude_nm = 8.0")
     run = Session(parse_config(text, "gantry"), tmp_path / "run").run()
     summary = identify(tmp_path, tmp_path / "run" / "identification.h5")

@@ -50,8 +50,10 @@ def axis_csv(tmp_path_factory):
 
 def run(tmp_path, data, model: str):
     cfg = tmp_path / "c.toml"
-    cfg.write_text('[data]\nsample_rate_hz = 1000.0\ntorque = "F"\nposition = "q"\n[identification]\n'
-                   'model_max_order = 0\n[model]\nkind = "rigid_axis"\ncutoff_hz = 20.0\n' + model)
+    cfg.write_text(
+        '[data]\nsample_rate_hz = 1000.0\ntorque = "F"\nposition = "q"\n[identification]\n'
+        'model_max_order = 0\n[model]\nkind = "rigid_axis"\ncutoff_hz = 20.0\n' + model
+    )
     assert main(["identify", str(data), "--config", str(cfg), "--out", str(tmp_path / "o"), "--overwrite", "-q"]) == 0
     return json.loads((tmp_path / "o" / "summary.json").read_text())
 
@@ -79,14 +81,17 @@ def test_a_higher_threshold_leaves_more_rows_out_and_decimation_fewer_in(tmp_pat
     assert abs(every4["params"]["M"] - TRUTH["M"]) / TRUTH["M"] < 0.1
 
 
-@pytest.mark.parametrize("text, key", [
-    ('[model]\nkind = "mass_spring_damper"\nasymmetric = true\n', "model.asymmetric"),
-    ('[model]\nkind = "mass_spring_damper"\nmin_speed = 0.1\n', "model.min_speed"),
-    ("[model]\ndecimate = 0\n", "model.decimate"),
-    ("[data]\nperiod_s = 1.0\nperiod_samples = 1000\n", "data.period_samples"),
-    ("[data]\nperiod_s = 0.0101\nsample_rate_hz = 1000.0\n", "data.period_s"),
-    ('[data]\ncolumn_names = ["a", "a"]\n', "data.column_names"),
-])
+@pytest.mark.parametrize(
+    "text, key",
+    [
+        ('[model]\nkind = "mass_spring_damper"\nasymmetric = true\n', "model.asymmetric"),
+        ('[model]\nkind = "mass_spring_damper"\nmin_speed = 0.1\n', "model.min_speed"),
+        ("[model]\ndecimate = 0\n", "model.decimate"),
+        ("[data]\nperiod_s = 1.0\nperiod_samples = 1000\n", "data.period_samples"),
+        ("[data]\nperiod_s = 0.0101\nsample_rate_hz = 1000.0\n", "data.period_s"),
+        ('[data]\ncolumn_names = ["a", "a"]\n', "data.column_names"),
+    ],
+)
 def test_keys_that_do_not_fit_together_are_refused_by_name(text, key):
     with pytest.raises(ConfigError) as err:
         parse_config(text, "x.toml")

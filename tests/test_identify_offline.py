@@ -58,8 +58,12 @@ def simulate(plant_toml: str, f_min=2.0, f_max=80.0, amplitude=4.0, periods=4):
     ms = multisine(amplitude, f_min, f_max, 4.0, periods, RATE)
     rows = drive.run(np.repeat(ms.samples, 4))[::4]  # as the board samples: at the start of each period
     col = {name: rows[:, i] for i, name in enumerate(drive.CHANNELS)}
-    return cfg, {"t": np.arange(len(rows)) / RATE, "tau": col["torque_nm"], "v": col["velocity_mps"],
-                 "x": col["position_m"]}
+    return cfg, {
+        "t": np.arange(len(rows)) / RATE,
+        "tau": col["torque_nm"],
+        "v": col["velocity_mps"],
+        "x": col["position_m"],
+    }
 
 
 @pytest.fixture(scope="module")
@@ -75,8 +79,10 @@ def write_csv(path, columns):
 def identify_config(tmp_path, extra="", identification=""):
     path = tmp_path / "identify.toml"
     path.write_text(
-        '[data]\ntime = "t"\ntorque = "tau"\nvelocity = "v"\nposition = "x"\n' + extra
-        + "\n[identification]\nmax_resonances = 1\n" + identification
+        '[data]\ntime = "t"\ntorque = "tau"\nvelocity = "v"\nposition = "x"\n'
+        + extra
+        + "\n[identification]\nmax_resonances = 1\n"
+        + identification
     )
     return path
 
@@ -95,7 +101,7 @@ def test_identify_finds_the_resonance_in_every_format(tmp_path, gantry_data, fmt
             w.append(np.column_stack(list(cols.values())))
     assert main(["identify", str(data), "--config", str(config), "--out", str(tmp_path / "o"), "-q"]) == 0
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
-    (true_f, true_zeta), = true_modes(cfg.emulator)
+    ((true_f, true_zeta),) = true_modes(cfg.emulator)
     (res,) = summary["resonances"]
     assert abs(res["frequency_hz"] - true_f) / true_f < 0.01
     assert abs(res["damping_ratio"] - true_zeta) / true_zeta < 0.3
@@ -118,7 +124,7 @@ def test_identify_finds_the_resonance_in_every_format(tmp_path, gantry_data, fmt
 
 def test_resolution_check_explains_an_over_estimated_damping(tmp_path, gantry_data):
     cfg, cols = gantry_data
-    (true_f, true_zeta), = true_modes(cfg.emulator)
+    ((true_f, true_zeta),) = true_modes(cfg.emulator)
     write_csv(tmp_path / "rec.csv", cols)
 
     def identify(segment_s):
@@ -167,8 +173,22 @@ def test_grey_box_validated_on_a_separate_record(tmp_path, capsys):
 
     def identify(validation):
         out = tmp_path / ("out-" + validation)
-        assert main(["identify", str(tmp_path / "estimation.csv"), "--config", str(config), "--out", str(out),
-                     "--validation", str(tmp_path / validation), "-q"]) == 0
+        assert (
+            main(
+                [
+                    "identify",
+                    str(tmp_path / "estimation.csv"),
+                    "--config",
+                    str(config),
+                    "--out",
+                    str(out),
+                    "--validation",
+                    str(tmp_path / validation),
+                    "-q",
+                ]
+            )
+            == 0
+        )
         return json.loads((out / "summary.json").read_text())
 
     good = identify("same-axis.csv")
@@ -211,12 +231,14 @@ def test_bad_recordings_are_one_clear_line(tmp_path, gantry_data, capsys):
 
     short = {k: v[:20] for k, v in cols.items()}
     write_csv(tmp_path / "short.csv", short)
-    assert "at least" in one_line_error(capsys, ["identify", str(tmp_path / "short.csv"), "--config", str(config),
-                                                 *out], 3)
+    assert "at least" in one_line_error(
+        capsys, ["identify", str(tmp_path / "short.csv"), "--config", str(config), *out], 3
+    )
 
     savemat(tmp_path / "ragged.mat", dict(cols, v=cols["v"][:-5]))
     assert "different lengths" in one_line_error(
-        capsys, ["identify", str(tmp_path / "ragged.mat"), "--config", str(config), *out], 3)
+        capsys, ["identify", str(tmp_path / "ragged.mat"), "--config", str(config), *out], 3
+    )
 
     flat = dict(cols, tau=np.full_like(cols["tau"], 2.0))
     write_csv(tmp_path / "flat.csv", flat)

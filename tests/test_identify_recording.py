@@ -18,8 +18,9 @@ from support.summary_keys import assert_layout
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
 
-def quick_run(tmp_path: Path, name: str, time_scale: float, period_s: float, periods: int,
-              friction_test: bool = False) -> Path:
+def quick_run(
+    tmp_path: Path, name: str, time_scale: float, period_s: float, periods: int, friction_test: bool = False
+) -> Path:
     """A short emulated session of a shipped config (a serial twin on an in-memory line, no verification run).
 
     Without ``friction_test`` the friction test is disabled; with it, the test runs four speeds each way.
@@ -43,8 +44,12 @@ def quick_run(tmp_path: Path, name: str, time_scale: float, period_s: float, per
     path = tmp_path / name
     path.write_text(text)
     quick = load_config(path)
-    assert (quick.emulator.time_scale, quick.excitation.period_s, quick.friction_test.enabled,
-            quick.notch.verify) == (time_scale, period_s, friction_test, False)
+    assert (quick.emulator.time_scale, quick.excitation.period_s, quick.friction_test.enabled, quick.notch.verify) == (
+        time_scale,
+        period_s,
+        friction_test,
+        False,
+    )
     if friction_test:
         assert (quick.friction_test.speeds_mps, quick.friction_test.hold_s) == ([0.01, 0.04, 0.1, 0.2], 0.6)
     out = tmp_path / "run"
@@ -75,14 +80,18 @@ def runs(tmp_path_factory):
     return get
 
 
-@pytest.mark.parametrize("name, time_scale, period_s, periods", [
-    ("emulated-gantry.toml", 8.0, 2.0, 3),
-    ("emulated-msd.toml", 25.0, 40.0, 2),
-    ("emulated-modbus-gantry.toml", 8.0, 2.0, 3),
-    ("emulated-canopen-gantry.toml", 8.0, 2.0, 3),
-])
-def test_identify_on_a_run_recording_needs_no_config_and_matches_the_run(tmp_path, capsys, runs, name, time_scale,
-                                                                          period_s, periods):
+@pytest.mark.parametrize(
+    "name, time_scale, period_s, periods",
+    [
+        ("emulated-gantry.toml", 8.0, 2.0, 3),
+        ("emulated-msd.toml", 25.0, 40.0, 2),
+        ("emulated-modbus-gantry.toml", 8.0, 2.0, 3),
+        ("emulated-canopen-gantry.toml", 8.0, 2.0, 3),
+    ],
+)
+def test_identify_on_a_run_recording_needs_no_config_and_matches_the_run(
+    tmp_path, capsys, runs, name, time_scale, period_s, periods
+):
     run = runs(name, time_scale, period_s, periods)
     ran = json.loads((run / "summary.json").read_text())
     comparable(ran)
@@ -113,8 +122,10 @@ def test_a_config_given_with_a_recording_overrides_its_tables(tmp_path, runs):
     run = runs("emulated-gantry.toml", 8.0, 2.0, 3)
     cfg = tmp_path / "override.toml"
     cfg.write_text('[identification]\noutput = "position_m"\nmax_resonances = 1\n')
-    assert main(["identify", str(run / "identification.h5"), "--config", str(cfg), "--out",
-                 str(tmp_path / "o"), "-q"]) == 0
+    assert (
+        main(["identify", str(run / "identification.h5"), "--config", str(cfg), "--out", str(tmp_path / "o"), "-q"])
+        == 0
+    )
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
     # [data] left out: the recorded channels; [identification] from the file given: position is the output
     assert summary["data"]["mapping"]["output"] == "position_m"
@@ -165,9 +176,9 @@ def test_a_run_whose_device_underran_is_not_averaged_as_periods_and_the_warning_
         col = [str(c) for c in f.attrs["channel_names"]].index("excitation")
         samples = f["samples"]
         for p in (1, 3):  # the device played zeros for a while in two periods: no two neighbours repeat
-            block = samples[p * period:p * period + 300, :]
+            block = samples[p * period : p * period + 300, :]
             block[:, col] = 0.0
-            samples[p * period:p * period + 300, :] = block
+            samples[p * period : p * period + 300, :] = block
         f.attrs["stream_json"] = json.dumps({"underruns": 600})
     assert main(["identify", str(copy), "--out", str(tmp_path / "o"), "-q"]) == 0
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())

@@ -30,16 +30,19 @@ def test_positions_are_taken_as_given():
     assert map_positions(config_with(positions_m=[0.3, -0.2, 0.0])) == [0.3, -0.2, 0.0]
 
 
-@pytest.mark.parametrize("table, key, words", [
-    ({"positions_m": [0.0, 0.58]}, "map.positions_m", "outside the position window"),
-    ({"positions_m": [0.1]}, "map.positions_m", "at least two"),
-    ({"count": 1}, "map.count", "at least two"),
-    ({"count": 3, "positions_m": [0.0, 0.1]}, "map.count", "not both"),
-    ({"count": 3, "margin_m": 0.6}, "map.margin_m", "leaves nothing"),
-    ({"count": 3, "max_velocity_mps": 0.4}, "map.max_velocity_mps", "limits.velocity_mps"),
-    ({"count": 3, "max_accel_mps2": 0.0}, "map.max_accel_mps2", ""),
-    ({"count": 3, "settle": 1.0}, "map.settle", ""),
-])
+@pytest.mark.parametrize(
+    "table, key, words",
+    [
+        ({"positions_m": [0.0, 0.58]}, "map.positions_m", "outside the position window"),
+        ({"positions_m": [0.1]}, "map.positions_m", "at least two"),
+        ({"count": 1}, "map.count", "at least two"),
+        ({"count": 3, "positions_m": [0.0, 0.1]}, "map.count", "not both"),
+        ({"count": 3, "margin_m": 0.6}, "map.margin_m", "leaves nothing"),
+        ({"count": 3, "max_velocity_mps": 0.4}, "map.max_velocity_mps", "limits.velocity_mps"),
+        ({"count": 3, "max_accel_mps2": 0.0}, "map.max_accel_mps2", ""),
+        ({"count": 3, "settle": 1.0}, "map.settle", ""),
+    ],
+)
 def test_a_bad_map_names_its_key_and_file(table, key, words):
     with pytest.raises(ConfigError) as info:
         config_with(**table)

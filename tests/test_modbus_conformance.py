@@ -78,7 +78,7 @@ class Tcp:
     """A raw socket speaking MBAP."""
 
     def __init__(self, port: str):
-        host, number = port[len("tcp://"):].rsplit(":", 1)
+        host, number = port[len("tcp://") :].rsplit(":", 1)
         self.sock = socket.create_connection((host, int(number)), timeout=2.0)
         self.tid = 0x1200
 
@@ -137,8 +137,9 @@ def test_a_read_is_answered_with_the_transaction_id_on_several_connections(tcp, 
         other.tid = 0xBEEF
         first = tcp.send(pdu(3, 0, 1))
         second = other.send(pdu(3, 0, 2))
-        assert other.receive() == struct.pack(">HHHB", second, 0, 7, UNIT) + bytes([3, 4]) + DEVICE_TYPE + \
-            struct.pack(">H", MAP.map_version)
+        assert other.receive() == struct.pack(">HHHB", second, 0, 7, UNIT) + bytes([3, 4]) + DEVICE_TYPE + struct.pack(
+            ">H", MAP.map_version
+        )
         assert tcp.receive() == struct.pack(">HHHB", first, 0, 5, UNIT) + bytes([3, 2]) + DEVICE_TYPE
     finally:
         other.close()
@@ -146,9 +147,18 @@ def test_a_read_is_answered_with_the_transaction_id_on_several_connections(tcp, 
 
 # request PDUs of the functions the drive does not declare, each well formed
 UNDECLARED = {
-    1: pdu(1, 0, 8), 2: pdu(2, 0, 8), 4: pdu(4, 0, 1), 5: pdu(5, CONTROL, 0xFF00), 7: bytes([7]),
-    8: pdu(8, 0, 0x1234), 11: bytes([11]), 15: pdu(15, CONTROL, 2, tail=b"\x01\x03"), 17: bytes([17]),
-    22: pdu(22, DIVIDER, 0xFFFF, 0x0000), 23: pdu(23, 0, 1, DIVIDER, 1, tail=b"\x02\x00\x01"), 24: pdu(24, 0),
+    1: pdu(1, 0, 8),
+    2: pdu(2, 0, 8),
+    4: pdu(4, 0, 1),
+    5: pdu(5, CONTROL, 0xFF00),
+    7: bytes([7]),
+    8: pdu(8, 0, 0x1234),
+    11: bytes([11]),
+    15: pdu(15, CONTROL, 2, tail=b"\x01\x03"),
+    17: bytes([17]),
+    22: pdu(22, DIVIDER, 0xFFFF, 0x0000),
+    23: pdu(23, 0, 1, DIVIDER, 1, tail=b"\x02\x00\x01"),
+    24: pdu(24, 0),
     43: bytes([43, 14, 1, 0]),
 }
 
@@ -166,16 +176,20 @@ def test_write_single_coil_does_not_reach_the_registers(tcp):
     assert tcp.ask(pdu(3, DIVIDER, 1)) == b"\x03\x02\x00\x03"
 
 
-@pytest.mark.parametrize("request_pdu,answer", [
-    (pdu(3, MAP.table.base, 0), b"\x83\x03"),
-    (pdu(3, MAP.table.base, 126), b"\x83\x03"),
-    (pdu(3, MAP.table.base, 0x7D, tail=b"\x00"), b"\x83\x03"),  # one byte too many
-    (pdu(16, MAP.table.base, 0, tail=b"\x00"), b"\x90\x03"),
-    (pdu(16, MAP.table.base, 124, tail=bytes([248]) + bytes(248)), b"\x90\x03"),
-    (pdu(16, DIVIDER, 1, tail=b"\x04\x00\x02\x00\x00"), b"\x90\x03"),  # byte count 4 for 1 register
-    (pdu(16, DIVIDER, 2, tail=b"\x04\x00\x02"), b"\x90\x03"),  # fewer bytes than the byte count
-    (pdu(6, DIVIDER, tail=b"\x00"), b"\x86\x03"),  # value cut short
-], ids=["read-0", "read-126", "read-long-pdu", "write-0", "write-124", "byte-count", "short-data", "fc6-short"])
+@pytest.mark.parametrize(
+    "request_pdu,answer",
+    [
+        (pdu(3, MAP.table.base, 0), b"\x83\x03"),
+        (pdu(3, MAP.table.base, 126), b"\x83\x03"),
+        (pdu(3, MAP.table.base, 0x7D, tail=b"\x00"), b"\x83\x03"),  # one byte too many
+        (pdu(16, MAP.table.base, 0, tail=b"\x00"), b"\x90\x03"),
+        (pdu(16, MAP.table.base, 124, tail=bytes([248]) + bytes(248)), b"\x90\x03"),
+        (pdu(16, DIVIDER, 1, tail=b"\x04\x00\x02\x00\x00"), b"\x90\x03"),  # byte count 4 for 1 register
+        (pdu(16, DIVIDER, 2, tail=b"\x04\x00\x02"), b"\x90\x03"),  # fewer bytes than the byte count
+        (pdu(6, DIVIDER, tail=b"\x00"), b"\x86\x03"),  # value cut short
+    ],
+    ids=["read-0", "read-126", "read-long-pdu", "write-0", "write-124", "byte-count", "short-data", "fc6-short"],
+)
 def test_quantities_and_lengths_out_of_range_get_exception_03(tcp, request_pdu, answer):
     assert tcp.ask(request_pdu) == answer
 
@@ -184,19 +198,24 @@ def test_the_largest_quantities_are_served(tcp):
     answer = tcp.ask(pdu(3, MAP.table.base, 125))
     assert answer[:2] == bytes([3, 250]) and len(answer) == 252
     values = list(range(123))
-    assert tcp.ask(pdu(16, MAP.table.base, 123, tail=bytes([246]) + struct.pack(">123H", *values))) == \
-        pdu(16, MAP.table.base, 123)
+    assert tcp.ask(pdu(16, MAP.table.base, 123, tail=bytes([246]) + struct.pack(">123H", *values))) == pdu(
+        16, MAP.table.base, 123
+    )
     assert struct.unpack(">123H", tcp.ask(pdu(3, MAP.table.base, 123))[2:]) == tuple(values)
 
 
-@pytest.mark.parametrize("request_pdu,answer", [
-    (pdu(3, 5, 4), b"\x83\x02"),  # crosses the gap after filter_slots
-    (pdu(3, 7, 1), b"\x83\x02"),
-    (pdu(3, 0xFFFF, 2), b"\x83\x02"),  # beyond the last address
-    (pdu(6, 7, 1), b"\x86\x02"),
-    (pdu(6, MAP.register("status_word").address, 1), b"\x86\x02"),  # read-only
-    (pdu(16, 129, 2, tail=b"\x04\x00\x01\x00\x01"), b"\x90\x02"),
-], ids=["read-gap", "read-unmapped", "read-wraps", "write-unmapped", "write-read-only", "write-multiple-unmapped"])
+@pytest.mark.parametrize(
+    "request_pdu,answer",
+    [
+        (pdu(3, 5, 4), b"\x83\x02"),  # crosses the gap after filter_slots
+        (pdu(3, 7, 1), b"\x83\x02"),
+        (pdu(3, 0xFFFF, 2), b"\x83\x02"),  # beyond the last address
+        (pdu(6, 7, 1), b"\x86\x02"),
+        (pdu(6, MAP.register("status_word").address, 1), b"\x86\x02"),  # read-only
+        (pdu(16, 129, 2, tail=b"\x04\x00\x01\x00\x01"), b"\x90\x02"),
+    ],
+    ids=["read-gap", "read-unmapped", "read-wraps", "write-unmapped", "write-read-only", "write-multiple-unmapped"],
+)
 def test_unmapped_addresses_get_exception_02(tcp, request_pdu, answer):
     assert tcp.ask(request_pdu) == answer
 
@@ -368,8 +387,11 @@ class CoilDrive:
     def read_bits(self, address, count, discrete=False):
         if address + count > 32:
             return 2
-        return ([not b for b in self.coils[address : address + count]] if discrete
-                else self.coils[address : address + count])
+        return (
+            [not b for b in self.coils[address : address + count]]
+            if discrete
+            else self.coils[address : address + count]
+        )
 
     def write_bits(self, address, values):
         if address + len(values) > 32:
@@ -378,17 +400,20 @@ class CoilDrive:
         return None
 
 
-@pytest.mark.parametrize("request_pdu,answer,coils", [
-    (pdu(5, 3, 0xFF00), pdu(5, 3, 0xFF00), {3}),  # the echo, FF 00 for ON
-    (pdu(5, 3, 0x0000), pdu(5, 3, 0x0000), set()),
-    (pdu(5, 3, 0x1234), b"\x85\x03", set()),
-    (pdu(5, 40, 0xFF00), b"\x85\x02", set()),
-    (pdu(15, 1, 10, tail=b"\x02\xcd\x01"), pdu(15, 1, 10), {1, 3, 4, 7, 8, 9}),  # address and quantity
-    (pdu(15, 1, 10, tail=b"\x01\xcd"), b"\x8f\x03", set()),  # 10 coils take 2 bytes
-    (pdu(15, 1, 0, tail=b"\x00"), b"\x8f\x03", set()),
-    (pdu(6, 1, 1), b"\x86\x01", set()),  # declared no FC 6
-    (pdu(16, 1, 1, tail=b"\x02\x00\x01"), b"\x90\x01", set()),
-])
+@pytest.mark.parametrize(
+    "request_pdu,answer,coils",
+    [
+        (pdu(5, 3, 0xFF00), pdu(5, 3, 0xFF00), {3}),  # the echo, FF 00 for ON
+        (pdu(5, 3, 0x0000), pdu(5, 3, 0x0000), set()),
+        (pdu(5, 3, 0x1234), b"\x85\x03", set()),
+        (pdu(5, 40, 0xFF00), b"\x85\x02", set()),
+        (pdu(15, 1, 10, tail=b"\x02\xcd\x01"), pdu(15, 1, 10), {1, 3, 4, 7, 8, 9}),  # address and quantity
+        (pdu(15, 1, 10, tail=b"\x01\xcd"), b"\x8f\x03", set()),  # 10 coils take 2 bytes
+        (pdu(15, 1, 0, tail=b"\x00"), b"\x8f\x03", set()),
+        (pdu(6, 1, 1), b"\x86\x01", set()),  # declared no FC 6
+        (pdu(16, 1, 1, tail=b"\x02\x00\x01"), b"\x90\x01", set()),
+    ],
+)
 def test_coil_writes_answer_as_the_specification_says(request_pdu, answer, coils):
     drive = CoilDrive()
     assert handle(drive, request_pdu) == answer
@@ -406,10 +431,16 @@ def test_coil_reads_pack_the_first_coil_into_the_lowest_bit():
     assert handle(drive, b"") is None
 
 
-@pytest.mark.parametrize("frame,length", [
-    (rtu(1, pdu(3, 0, 1)), 8), (rtu(1, pdu(16, 0, 2, tail=b"\x04\x00\x01\x00\x02")), 13),
-    (rtu(1, bytes([7])), 4), (rtu(1, pdu(15, 1, 10, tail=b"\x02\xcd\x01")), 11), (rtu(1, bytes([43, 14, 1, 0])), None),
-])
+@pytest.mark.parametrize(
+    "frame,length",
+    [
+        (rtu(1, pdu(3, 0, 1)), 8),
+        (rtu(1, pdu(16, 0, 2, tail=b"\x04\x00\x01\x00\x02")), 13),
+        (rtu(1, bytes([7])), 4),
+        (rtu(1, pdu(15, 1, 10, tail=b"\x02\xcd\x01")), 11),
+        (rtu(1, bytes([43, 14, 1, 0])), None),
+    ],
+)
 def test_rtu_frame_lengths_come_from_the_function_code(frame, length):
     assert request_length(frame) == length
     if length is not None:
@@ -433,8 +464,13 @@ def late_answers(rtu_twin):
 
 
 def rtu_adapter(emu, timeout_s: float) -> ModbusDriveAdapter:
-    device = DeviceConfig(driver="modbus-servo", port=emu.port, baudrate=RTU_BAUD, timeout_s=timeout_s,
-                          modbus=ModbusDeviceConfig(parity="N"))
+    device = DeviceConfig(
+        driver="modbus-servo",
+        port=emu.port,
+        baudrate=RTU_BAUD,
+        timeout_s=timeout_s,
+        modbus=ModbusDeviceConfig(parity="N"),
+    )
     return ModbusDriveAdapter.open_device(device, DRIVER)
 
 
@@ -442,12 +478,17 @@ def discarded(ad: ModbusDriveAdapter) -> int:
     return ad.client.stale_frames + ad.dropped_frames + ad.bad_responses
 
 
-@pytest.mark.parametrize("delay_s,timeout_s,first_count", [
-    (0.3, 0.2, 1),  # the late answer comes while the adapter waits for it after the timeout
-    (0.4, 0.15, 2),  # it comes while the next request waits: another length, dropped there
-], ids=["after-timeout", "during-next-request"])
-def test_a_late_rtu_answer_is_dropped_and_the_next_request_gets_its_own(rtu_twin, late_answers, delay_s, timeout_s,
-                                                                        first_count):
+@pytest.mark.parametrize(
+    "delay_s,timeout_s,first_count",
+    [
+        (0.3, 0.2, 1),  # the late answer comes while the adapter waits for it after the timeout
+        (0.4, 0.15, 2),  # it comes while the next request waits: another length, dropped there
+    ],
+    ids=["after-timeout", "during-next-request"],
+)
+def test_a_late_rtu_answer_is_dropped_and_the_next_request_gets_its_own(
+    rtu_twin, late_answers, delay_s, timeout_s, first_count
+):
     ad = rtu_adapter(rtu_twin, timeout_s)
     try:
         assert ad.read(DIVIDER, 1) == [1]
@@ -468,14 +509,26 @@ def test_an_exception_answer_names_the_register_and_what_the_code_means(tcp_twin
     device = DeviceConfig(driver="modbus-servo", port=tcp_twin.port, timeout_s=1.0)
     ad = ModbusDriveAdapter.open_device(device, DRIVER)
     try:
-        with pytest.raises(DeviceError, match=r"register 7 \(not in the driver map\): Modbus exception 2 "
-                                              r"\(illegal data address.*not in the drive's map"):
+        with pytest.raises(
+            DeviceError,
+            match=r"register 7 \(not in the driver map\): Modbus exception 2 "
+            r"\(illegal data address.*not in the drive's map",
+        ):
             ad.read(7, 1)
-        with pytest.raises(DeviceError, match=r"register 110 \(mode\): Modbus exception 3 \(illegal data value.*"
-                                              r"refused the value or the quantity"):
+        with pytest.raises(
+            DeviceError,
+            match=r"register 110 \(mode\): Modbus exception 3 \(illegal data value.*"
+            r"refused the value or the quantity",
+        ):
             ad.write(MAP.register("mode").address, [77])
         with pytest.raises(DeviceError, match=r"Modbus exception 1 \(illegal function.*does not support function 4"):
-            ad._request("reading input registers", 0, 1,
-                        lambda: ad.client.read_input_registers(0, count=1, device_id=UNIT), lambda r: True, retry=False)
+            ad._request(
+                "reading input registers",
+                0,
+                1,
+                lambda: ad.client.read_input_registers(0, count=1, device_id=UNIT),
+                lambda r: True,
+                retry=False,
+            )
     finally:
         ad.close()

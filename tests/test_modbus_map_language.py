@@ -42,8 +42,12 @@ def integers(type_: str):
 
 
 @settings(max_examples=150, deadline=None)
-@given(st.data(), st.sampled_from(["u16", "i16", "u32", "i32", "u64", "i64"]),
-       st.sampled_from(["big", "little"]), st.sampled_from(["big", "little"]))
+@given(
+    st.data(),
+    st.sampled_from(["u16", "i16", "u32", "i32", "u64", "i64"]),
+    st.sampled_from(["big", "little"]),
+    st.sampled_from(["big", "little"]),
+)
 def test_integer_types_are_laid_out_as_struct_lays_them(data, type_, word_order, byte_order):
     value = data.draw(integers(type_))
     regs = encode_values([value], type_, word_order=word_order, byte_order=byte_order)
@@ -54,8 +58,12 @@ def test_integer_types_are_laid_out_as_struct_lays_them(data, type_, word_order,
 
 
 @settings(max_examples=100, deadline=None)
-@given(st.floats(allow_nan=False, allow_infinity=False, width=32), st.sampled_from(["f32", "f64"]),
-       st.sampled_from(["big", "little"]), st.sampled_from(["big", "little"]))
+@given(
+    st.floats(allow_nan=False, allow_infinity=False, width=32),
+    st.sampled_from(["f32", "f64"]),
+    st.sampled_from(["big", "little"]),
+    st.sampled_from(["big", "little"]),
+)
 def test_float_types_round_trip(value, type_, word_order, byte_order):
     regs = encode_values([value], type_, word_order=word_order, byte_order=byte_order)
     assert regs.tolist() == reference_words(type_, value, word_order, byte_order)
@@ -74,8 +82,12 @@ def test_scale_and_offset_round_trip_on_the_grid(raw, scale, offset):
 def base_sections(registers: dict, **modbus) -> dict:
     """A parameter drive's map: the given registers, a rule, an identity table."""
     regs = {"model": {"parameter": "P01.00", "type": "u16"}, **registers}
-    mb = {"parameters": {"address": "group * 0x100 + index"}, "registers": regs,
-          "identity": {"registers": ["model"]}, **modbus}
+    mb = {
+        "parameters": {"address": "group * 0x100 + index"},
+        "registers": regs,
+        "identity": {"registers": ["model"]},
+        **modbus,
+    }
     return {"modbus": mb}
 
 
@@ -84,11 +96,15 @@ def parameter_map(registers: dict, filter_slots: int = 0, **modbus) -> RegisterM
 
 
 def test_register_attributes_come_from_the_table_and_the_defaults():
-    m = parameter_map({
-        "speed": {"parameter": "P18.01", "type": "i16", "unit": "rpm"},
-        "temp": {"address": 0x2000, "type": "u16", "table": "input", "scale": 0.1, "offset": -40.0, "unit": "degC"},
-        "pos": {"parameter": "P18.07", "type": "i32", "word_order": "little"},
-    }, word_order="big", byte_order="little")
+    m = parameter_map(
+        {
+            "speed": {"parameter": "P18.01", "type": "i16", "unit": "rpm"},
+            "temp": {"address": 0x2000, "type": "u16", "table": "input", "scale": 0.1, "offset": -40.0, "unit": "degC"},
+            "pos": {"parameter": "P18.07", "type": "i32", "word_order": "little"},
+        },
+        word_order="big",
+        byte_order="little",
+    )
     speed, temp, pos = m.register("speed"), m.register("temp"), m.register("pos")
     assert (speed.address, speed.type, speed.access, speed.byte_order) == (0x1201, "i16", "r", "little")
     assert (temp.table, temp.writable) == ("input", False)
@@ -99,8 +115,9 @@ def test_register_attributes_come_from_the_table_and_the_defaults():
 
 
 def test_writes_outside_the_range_are_refused_naming_the_register():
-    m = parameter_map({"notch": {"parameter": "P08.02", "type": "u16", "access": "rw", "unit": "Hz",
-                                 "min": 10, "max": 4000}})
+    m = parameter_map(
+        {"notch": {"parameter": "P08.02", "type": "u16", "access": "rw", "unit": "Hz", "min": 10, "max": 4000}}
+    )
     assert m.encode("notch", 4000) == [4000]
     with pytest.raises(DataError, match=r"0x0802 \(notch, P08.02\): 4001 Hz is outside its range 10\.\.4000 Hz"):
         m.encode("notch", 4001)
@@ -116,12 +133,15 @@ def test_bit_fields_are_read_shifted_down():
     assert r.bit_field("ready", [0x0020]) == 0
 
 
-@pytest.mark.parametrize("text,group,index,base", [
-    ("group * 0x100 + index", 256, 1, 0),
-    ("group*256 + 2*index", 256, 2, 0),
-    ("0x100 * group + index * 2 + 0x4000", 256, 2, 0x4000),
-    ("index + group * 100", 100, 1, 0),
-])
+@pytest.mark.parametrize(
+    "text,group,index,base",
+    [
+        ("group * 0x100 + index", 256, 1, 0),
+        ("group*256 + 2*index", 256, 2, 0),
+        ("0x100 * group + index * 2 + 0x4000", 256, 2, 0x4000),
+        ("index + group * 100", 100, 1, 0),
+    ],
+)
 def test_addressing_rules_are_parsed_not_evaluated(text, group, index, base):
     rule = ParameterRule.parse(text)
     assert (rule.group_factor, rule.index_factor, rule.base) == (group, index, base)
@@ -129,8 +149,17 @@ def test_addressing_rules_are_parsed_not_evaluated(text, group, index, base):
     assert rule.code(rule.address_of("P08.02")) == "P08.02"
 
 
-@pytest.mark.parametrize("text", ["group * index", "__import__('os').system('true')", "group + 1",
-                                  "group * 0x100 - index", "", "group ** 2 + index"])
+@pytest.mark.parametrize(
+    "text",
+    [
+        "group * index",
+        "__import__('os').system('true')",
+        "group + 1",
+        "group * 0x100 - index",
+        "",
+        "group ** 2 + index",
+    ],
+)
 def test_a_rule_that_is_not_a_sum_of_terms_names_the_key(text):
     sections = base_sections({})
     sections["modbus"]["parameters"]["address"] = text
@@ -154,31 +183,55 @@ def test_undeclared_parameters_resolve_through_the_rule():
     assert "parameter P03.03" in m.describe(0x0303)
 
 
-@pytest.mark.parametrize("change,key", [
-    (lambda s: s["modbus"]["registers"].update(x={"parameter": "P01.01", "type": "u16", "colour": 1}),
-     "modbus.registers.x.colour"),
-    (lambda s: s["modbus"]["registers"].update(x={"parameter": "P01.01", "type": "u24"}), "modbus.registers.x.type"),
-    (lambda s: s["modbus"]["registers"].update(x={"type": "u16"}) or s["modbus"].pop("parameters"),
-     "modbus.registers.model.address"),
-    (lambda s: s["modbus"]["registers"].update(x={"address": 5, "type": "u16", "table": "input", "access": "rw"}),
-     "modbus.registers.x.access"),
-    (lambda s: s["modbus"]["registers"].update(x={"address": 5, "type": "u16", "min": 9, "max": 1}),
-     "modbus.registers.x.min"),
-    (lambda s: s["modbus"]["registers"].update(x={"address": 5, "type": "u16", "max": 10, "default": 11}),
-     "modbus.registers.x.default"),
-    (lambda s: s["modbus"]["registers"].update(x={"address": 5, "type": "u16", "bits": {"a": 0x10000}}),
-     "modbus.registers.x.bits.a"),
-    (lambda s: s["modbus"]["registers"].update(x={"address": 5, "type": "f32", "bits": {"a": 1}}),
-     "modbus.registers.x.bits"),
-    (lambda s: s["modbus"]["registers"].update(x={"address": 0x0100, "type": "u16"}), "modbus.registers.x"),
-    (lambda s: s["modbus"]["registers"].update(x={"address": 0x0200, "parameter": "P02.01", "type": "u16"}),
-     "modbus.registers.x.address"),
-    (lambda s: s["modbus"].pop("identity"), "modbus.identity"),
-    (lambda s: s["modbus"]["identity"].update(registers=["nope"]), "modbus.identity.registers"),
-    (lambda s: s["modbus"].update(save={"register": "model", "value": 1}), "modbus.save.register"),
-    (lambda s: s["modbus"].update(stop={"model": 0}), "modbus.stop.model"),
-    (lambda s: s["modbus"]["parameters"].update(prefix="P-"), "modbus.parameters.prefix"),
-])
+@pytest.mark.parametrize(
+    "change,key",
+    [
+        (
+            lambda s: s["modbus"]["registers"].update(x={"parameter": "P01.01", "type": "u16", "colour": 1}),
+            "modbus.registers.x.colour",
+        ),
+        (
+            lambda s: s["modbus"]["registers"].update(x={"parameter": "P01.01", "type": "u24"}),
+            "modbus.registers.x.type",
+        ),
+        (
+            lambda s: s["modbus"]["registers"].update(x={"type": "u16"}) or s["modbus"].pop("parameters"),
+            "modbus.registers.model.address",
+        ),
+        (
+            lambda s: s["modbus"]["registers"].update(
+                x={"address": 5, "type": "u16", "table": "input", "access": "rw"}
+            ),
+            "modbus.registers.x.access",
+        ),
+        (
+            lambda s: s["modbus"]["registers"].update(x={"address": 5, "type": "u16", "min": 9, "max": 1}),
+            "modbus.registers.x.min",
+        ),
+        (
+            lambda s: s["modbus"]["registers"].update(x={"address": 5, "type": "u16", "max": 10, "default": 11}),
+            "modbus.registers.x.default",
+        ),
+        (
+            lambda s: s["modbus"]["registers"].update(x={"address": 5, "type": "u16", "bits": {"a": 0x10000}}),
+            "modbus.registers.x.bits.a",
+        ),
+        (
+            lambda s: s["modbus"]["registers"].update(x={"address": 5, "type": "f32", "bits": {"a": 1}}),
+            "modbus.registers.x.bits",
+        ),
+        (lambda s: s["modbus"]["registers"].update(x={"address": 0x0100, "type": "u16"}), "modbus.registers.x"),
+        (
+            lambda s: s["modbus"]["registers"].update(x={"address": 0x0200, "parameter": "P02.01", "type": "u16"}),
+            "modbus.registers.x.address",
+        ),
+        (lambda s: s["modbus"].pop("identity"), "modbus.identity"),
+        (lambda s: s["modbus"]["identity"].update(registers=["nope"]), "modbus.identity.registers"),
+        (lambda s: s["modbus"].update(save={"register": "model", "value": 1}), "modbus.save.register"),
+        (lambda s: s["modbus"].update(stop={"model": 0}), "modbus.stop.model"),
+        (lambda s: s["modbus"]["parameters"].update(prefix="P-"), "modbus.parameters.prefix"),
+    ],
+)
 def test_invalid_parameter_maps_name_the_key_and_the_file(change, key):
     sections = base_sections({})
     change(sections)
@@ -189,15 +242,25 @@ def test_invalid_parameter_maps_name_the_key_and_the_file(change, key):
 
 
 def notch_sections() -> dict:
-    sections = base_sections({
-        "c": {"parameter": "P08.02", "type": "u16", "access": "rw", "min": 10, "max": 4000},
-        "w": {"parameter": "P08.03", "type": "u16", "access": "rw"},
-        "d": {"parameter": "P08.04", "type": "u16", "access": "rw"},
-    })
-    sections["modbus"]["filters"] = {"off": {"center": 4000},
-                                     "slots": [{"center": "c", "width": "w", "depth": "P08.04"}]}
-    sections["filters"] = {"encoding": "notch_parameters", "center_scale": 1.0, "depth_scale": 1.0,
-                           "width_unit": "index", "depth_unit": "percent", "width_table": [0.5, 1.0, 2.0]}
+    sections = base_sections(
+        {
+            "c": {"parameter": "P08.02", "type": "u16", "access": "rw", "min": 10, "max": 4000},
+            "w": {"parameter": "P08.03", "type": "u16", "access": "rw"},
+            "d": {"parameter": "P08.04", "type": "u16", "access": "rw"},
+        }
+    )
+    sections["modbus"]["filters"] = {
+        "off": {"center": 4000},
+        "slots": [{"center": "c", "width": "w", "depth": "P08.04"}],
+    }
+    sections["filters"] = {
+        "encoding": "notch_parameters",
+        "center_scale": 1.0,
+        "depth_scale": 1.0,
+        "width_unit": "index",
+        "depth_unit": "percent",
+        "width_table": [0.5, 1.0, 2.0],
+    }
     return sections
 
 
@@ -209,14 +272,19 @@ def test_filter_slots_of_named_registers_and_parameter_codes():
     assert "filter slot 0" in m.describe(0x802, 3)
 
 
-@pytest.mark.parametrize("change,key", [
-    (lambda s: s["modbus"]["filters"].pop("off"), "modbus.filters.off"),
-    (lambda s: s["modbus"]["filters"]["slots"][0].pop("width"), "modbus.filters.slots[0]"),
-    (lambda s: s["modbus"]["filters"]["slots"][0].update(width="model"), "modbus.filters.slots[0].width"),
-    (lambda s: s["modbus"]["filters"]["slots"].append(dict(s["modbus"]["filters"]["slots"][0])),
-     "modbus.filters.slots"),
-    (lambda s: s["filters"].update(width_table=[]), "filters.width_table"),
-])
+@pytest.mark.parametrize(
+    "change,key",
+    [
+        (lambda s: s["modbus"]["filters"].pop("off"), "modbus.filters.off"),
+        (lambda s: s["modbus"]["filters"]["slots"][0].pop("width"), "modbus.filters.slots[0]"),
+        (lambda s: s["modbus"]["filters"]["slots"][0].update(width="model"), "modbus.filters.slots[0].width"),
+        (
+            lambda s: s["modbus"]["filters"]["slots"].append(dict(s["modbus"]["filters"]["slots"][0])),
+            "modbus.filters.slots",
+        ),
+        (lambda s: s["filters"].update(width_table=[]), "filters.width_table"),
+    ],
+)
 def test_invalid_filter_slots_name_the_key(change, key):
     sections = notch_sections()
     change(sections)
@@ -233,11 +301,14 @@ def test_the_table_and_capture_map_loads_unchanged_with_its_capability():
 
 
 def test_requests_never_mix_holding_and_input_registers():
-    m = parameter_map({
-        "a": {"address": 0x10, "type": "u16"}, "b": {"address": 0x11, "type": "u16"},
-        "c": {"address": 0x12, "type": "u16", "table": "input"},
-        "d": {"address": 0x13, "type": "u16", "table": "input"},
-    })
+    m = parameter_map(
+        {
+            "a": {"address": 0x10, "type": "u16"},
+            "b": {"address": 0x11, "type": "u16"},
+            "c": {"address": 0x12, "type": "u16", "table": "input"},
+            "d": {"address": 0x13, "type": "u16", "table": "input"},
+        }
+    )
     assert m.request_groups(["a", "b", "c", "d"]) == [("holding", 0x10, 2), ("input", 0x12, 2)]
     assert "input register" in m.describe(0x12, table="input")
 

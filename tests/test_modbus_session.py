@@ -29,9 +29,13 @@ def short_config(duration_s: float = 8.0, friction: bool = False, timeout_s: flo
     cfg = load_config(CONFIG)
     emu = replace(cfg.emulator, time_scale=10.0, faults=replace(cfg.emulator.faults, **faults))
     # a loaded test machine can stall a host for half a second: the drive's communication timeout is 2 s here
-    return replace(cfg, emulator=emu, device=replace(cfg.device, timeout_s=timeout_s, host_timeout_s=2.0),
-                   friction_test=replace(cfg.friction_test, enabled=friction),
-                   excitation=replace(cfg.excitation, duration_s=duration_s, amplitude_nm=8.0))
+    return replace(
+        cfg,
+        emulator=emu,
+        device=replace(cfg.device, timeout_s=timeout_s, host_timeout_s=2.0),
+        friction_test=replace(cfg.friction_test, enabled=friction),
+        excitation=replace(cfg.excitation, duration_s=duration_s, amplitude_nm=8.0),
+    )
 
 
 @pytest.fixture
@@ -49,12 +53,13 @@ def drive_at_shutdown(monkeypatch):
     return seen
 
 
-
-
-@pytest.mark.parametrize("register,named", [
-    (100, "register 100 (control_word)"),
-    (4096 + 400, "capture window, page 0"),
-])
+@pytest.mark.parametrize(
+    "register,named",
+    [
+        (100, "register 100 (control_word)"),
+        (4096 + 400, "capture window, page 0"),
+    ],
+)
 def test_an_exception_stops_the_run_cleanly_and_names_the_register(tmp_path, drive_at_shutdown, register, named):
     cfg = short_config(exception_register=register, exception_code=4)
     session = Session(cfg, tmp_path)
@@ -73,14 +78,11 @@ def test_an_exception_stops_the_run_cleanly_and_names_the_register(tmp_path, dri
 
 def test_slow_answers_beyond_the_timeout_name_the_register(tmp_path, drive_at_shutdown):
     cfg = short_config(timeout_s=0.05, response_delay_s=0.15)
-    with pytest.raises(DeviceError,
-                       match=r"reading registers 0\.\.6 \(device_type.*no answer within 0\.05 s \(4 attempts\)"):
+    with pytest.raises(
+        DeviceError, match=r"reading registers 0\.\.6 \(device_type.*no answer within 0\.05 s \(4 attempts\)"
+    ):
         Session(cfg, tmp_path).run()
     assert drive_at_shutdown["enabled"] is False
-
-
-
-
 
 
 def test_a_capture_too_short_for_the_analysis_is_a_data_error(tmp_path):
@@ -88,10 +90,6 @@ def test_a_capture_too_short_for_the_analysis_is_a_data_error(tmp_path):
     with pytest.raises(DataError, match="only 1 complete excitation period"):
         Session(cfg, tmp_path).run()
     assert read_run(tmp_path / "identification.h5").n_samples == 9000
-
-
-
-
 
 
 # --- standalone --------------------------------------------------------------------------
@@ -107,7 +105,9 @@ def test_standalone_modbus_tcp_emulator_runs_a_session_like_hardware(tmp_path, s
     cfg.write_text(text)
     out = subprocess.run(
         [sys.executable, "-m", "hilident.cli", "run", str(cfg), "--out", str(tmp_path / "o"), "-q", "--yes"],
-        capture_output=True, text=True, timeout=120,
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert out.returncode == 0, out.stderr
     assert "resonances: 21." in out.stdout and "0 lost blocks" in out.stdout

@@ -35,8 +35,7 @@ def test_an_undamped_trapezoid_gives_the_closed_form(accel_time_s, cruise_time_s
     move = trapezoid(distance, v, accel, RATE, dwell_s=0.05)
     ta, t = accel_time_s, 2 * accel_time_s + cruise_time_s
     closed = 4 * abs(math.sin(math.pi * frequency_hz * ta) * math.sin(math.pi * frequency_hz * (t - ta)))
-    assert mode_excitation(move.position_m, RATE, move.move_end_index, frequency_hz) == pytest.approx(
-        closed, abs=0.05)
+    assert mode_excitation(move.position_m, RATE, move.move_end_index, frequency_hz) == pytest.approx(closed, abs=0.05)
 
 
 def test_a_damped_mode_rings_as_the_simulated_oscillator():
@@ -67,8 +66,15 @@ def test_a_notch_on_the_set_point_takes_the_excitation_off_at_its_mode_and_not_e
     assert abs(away.predicted_reduction_db) < 3.0
     # against the same step: the shaped set-point's own peak does not rescale it
     assert at_notch.excitation_with_notch == pytest.approx(
-        mode_excitation(shaped.position_m, rate, shaped.move_end_index, 21.0, 0.02,
-                        reference_accel_mps2=peak_acceleration(move.position_m, rate)))
+        mode_excitation(
+            shaped.position_m,
+            rate,
+            shaped.move_end_index,
+            21.0,
+            0.02,
+            reference_accel_mps2=peak_acceleration(move.position_m, rate),
+        )
+    )
     (in_drive,) = excitations(move, None, [(21.0, 0.02)])
     assert in_drive.excitation_with_notch is None and in_drive.predicted_reduction_db is None
 
@@ -90,13 +96,22 @@ def twin_deflection(frequency_hz: float, move) -> np.ndarray:
     m1, m2, c = 40.0, 10.0, 10.0
     k = (2 * math.pi * frequency_hz) ** 2 * m1 * m2 / (m1 + m2)
     d = 2 * 0.018 * math.sqrt(k * m1 * m2 / (m1 + m2))
-    loop = DriveLoop(Plant(TwoMass(m1, m2, k, d, c=c)),
-                     DriveTuning(loop_rate_hz=4000.0, kp_pos_per_s=20.0, kv_nm_per_mps=100.0, ti_s=0.2,
-                                 torque_max_nm=40.0, velocity_feedforward=1.0, accel_feedforward_nm_per_mps2=5.0),
-                     SensorModel(seed=0))
+    loop = DriveLoop(
+        Plant(TwoMass(m1, m2, k, d, c=c)),
+        DriveTuning(
+            loop_rate_hz=4000.0,
+            kp_pos_per_s=20.0,
+            kv_nm_per_mps=100.0,
+            ti_s=0.2,
+            torque_max_nm=40.0,
+            velocity_feedforward=1.0,
+            accel_feedforward_nm_per_mps2=5.0,
+        ),
+        SensorModel(seed=0),
+    )
     loop.set_mode("position")
     loop.enable()
-    rows = loop.run(move.position_m)[move.move_end_index:]
+    rows = loop.run(move.position_m)[move.move_end_index :]
     return rows[:, DriveLoop.CHANNELS.index("load_position_m")] - rows[:, DriveLoop.CHANNELS.index("position_m")]
 
 
@@ -108,7 +123,7 @@ def test_on_the_twin_a_move_rings_as_its_excitation_says():
     move = trapezoid(0.2, 0.3, accel, rate, dwell_s=1.0)
     ringing = twin_deflection(23.0, move)
     window = int(0.1 * rate)
-    rms = [np.std(ringing[i * window:(i + 1) * window]) for i in range(8)]
+    rms = [np.std(ringing[i * window : (i + 1) * window]) for i in range(8)]
     decay_per_s = -np.polyfit(np.arange(8) * 0.1, np.log(rms), 1)[0]
     zeta = decay_per_s / (2 * math.pi * 23.0)
     assert 0.018 < zeta < 0.08  # the loop holding the cart adds to the plant's own 0.018
@@ -143,13 +158,16 @@ def test_a_move_test_whose_moves_hardly_excite_their_modes_is_told_which_move_wo
     warning = weak_excitation_warning(MOVE, results, 1000.0)
     assert "+0.300 m, 20.45 Hz" in warning and "+0.200 m, 20.13 Hz" in warning and "-0.300" not in warning
     assert "rang 6.0 dB above rest" in warning and "[limits] torque_nm" in warning
-    suggested = {k: float(v) for k, v in
-                 (part.split(" = ") for part in warning.split("move with ")[1].split(" excites")[0].split(" and "))}
+    suggested = {
+        k: float(v)
+        for k, v in (part.split(" = ") for part in warning.split("move with ")[1].split(" excites")[0].split(" and "))
+    }
     better = MoveConfig(0.2, suggested["max_velocity_mps"], suggested["max_accel_mps2"])
     for r in results:
         p = move_profile(better, r.distance_m, 1000.0)
-        assert mode_excitation(p.position_m, 1000.0, p.move_end_index, r.modes[0].frequency_hz,
-                               0.018) >= GOOD_EXCITATION
+        assert (
+            mode_excitation(p.position_m, 1000.0, p.move_end_index, r.modes[0].frequency_hz, 0.018) >= GOOD_EXCITATION
+        )
     assert better.max_accel_mps2 >= MOVE.max_accel_mps2  # a gentler move would ring less above the same rest
     assert weak_excitation_warning(MOVE, [MoveDone(-0.5, 0.2, 21.7)], 1000.0) is None
 
@@ -170,8 +188,10 @@ def test_the_suggested_move_is_the_nearest_that_reaches_the_target():
     for v in velocities:
         for a in accels:
             if nearness(v, a) < nearness(best.max_velocity_mps, best.max_accel_mps2) - 1e-12:
-                worst = min(mode_excitation(p, 1000.0, end, f, z)
-                            for (p, end), ((f, z),) in zip((profile(d, v, a) for d in (0.2, -0.2)), modes, strict=True))
+                worst = min(
+                    mode_excitation(p, 1000.0, end, f, z)
+                    for (p, end), ((f, z),) in zip((profile(d, v, a) for d in (0.2, -0.2)), modes, strict=True)
+                )
                 assert worst < GOOD_EXCITATION
     assert exciting_move(profile, [0.2], [[]], 1000.0, velocities, accels, (0.3, 2.0)) is None
     # candidates given as generators are tried in every combination all the same

@@ -72,10 +72,22 @@ def test_the_drive_notch_is_off_for_the_move_without_it_and_back_after_even_on_a
 def test_the_cli_line_gives_the_worst_move_and_how_many_rang_no_more_than_at_rest(capsys):
     from hilident.cli.main import _print_moves
 
-    moves = [{"start_m": -0.5, "rms_reduction_db": 16.0, "peak_to_peak_reduction_db": 21.0,
-              "standstill_rms_m": 1e-5, "rms_reduction_above_standstill_db": None},
-             {"start_m": 0.25, "rms_reduction_db": 9.5, "peak_to_peak_reduction_db": None,
-              "standstill_rms_m": 1e-5, "rms_reduction_above_standstill_db": 12.0}]
+    moves = [
+        {
+            "start_m": -0.5,
+            "rms_reduction_db": 16.0,
+            "peak_to_peak_reduction_db": 21.0,
+            "standstill_rms_m": 1e-5,
+            "rms_reduction_above_standstill_db": None,
+        },
+        {
+            "start_m": 0.25,
+            "rms_reduction_db": 9.5,
+            "peak_to_peak_reduction_db": None,
+            "standstill_rms_m": 1e-5,
+            "rms_reduction_above_standstill_db": 12.0,
+        },
+    ]
     _print_moves({"moves": moves})
     line = capsys.readouterr().out
     assert "reduced by 9.5 dB RMS at worst (from +0.250 m)" in line and "1 of 2 move(s)" in line

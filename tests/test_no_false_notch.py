@@ -44,13 +44,18 @@ F_MIN_HZ, F_MAX_HZ = 2.0, 80.0
 DRIVER = find_driver("myrio-board")
 
 
-def bench_toml(plant: dict, friction: dict | None, mode: str, amplitude_nm: float, seed: int,
-               sample_rate_hz: float = DRIVER.loop_rate_hz) -> str:
+def bench_toml(
+    plant: dict,
+    friction: dict | None,
+    mode: str,
+    amplitude_nm: float,
+    seed: int,
+    sample_rate_hz: float = DRIVER.loop_rate_hz,
+) -> str:
     """A session config for the embedded board: short multisine (3 periods of 2 s after the lead-in), recorded at
     the drive's loop rate."""
     plant_lines = "\n".join(f"{k} = {v!r}" for k, v in plant.items())
-    friction_lines = ('model = "none"' if friction is None
-                      else "\n".join(f"{k} = {v!r}" for k, v in friction.items()))
+    friction_lines = 'model = "none"' if friction is None else "\n".join(f"{k} = {v!r}" for k, v in friction.items())
     return f"""
 [device]
 driver = "myrio-board"
@@ -124,13 +129,26 @@ def run_and_analyse(cfg, friction_error: float = 1.0):
     f = cfg.emulator.friction
     friction = None
     if cfg.friction_test.enabled and f.model != "none":
-        friction = StribeckParams(Fc=f.Fc * friction_error, Fs=f.Fs * friction_error, Fv=f.Fv * friction_error,
-                                  vs=f.vs, delta_v=f.delta_v, delta_s=f.delta_s)
+        friction = StribeckParams(
+            Fc=f.Fc * friction_error,
+            Fs=f.Fs * friction_error,
+            Fv=f.Fv * friction_error,
+            vs=f.vs,
+            delta_v=f.delta_v,
+            delta_s=f.delta_s,
+        )
     plant = pipeline.identify_plant(
-        s["excitation"], s["torque_nm"], s[ic.output], s["velocity_mps"], cfg.run.sample_rate_hz, ic,
-        pipeline.analysis_band(ic, excitation.band_hz), friction=friction,
+        s["excitation"],
+        s["torque_nm"],
+        s[ic.output],
+        s["velocity_mps"],
+        cfg.run.sample_rate_hz,
+        ic,
+        pipeline.analysis_band(ic, excitation.band_hz),
+        friction=friction,
         velocity_deadband_mps=cfg.friction_test.velocity_deadband_mps,
-        period_samples=excitation.period_samples, excited_bins=excitation.excited_bins,
+        period_samples=excitation.period_samples,
+        excited_bins=excitation.excited_bins,
     )
     e = cfg.excitation
     return plant, pipeline.notch_decision(plant, ic.coherence_threshold, e.amplitude_key, e.amplitude)
@@ -143,8 +161,10 @@ def false_notches(cfg, decision) -> list[str]:
     for r in decision.resonances:
         errors = [abs(r.frequency_hz - fm) / fm for fm, _ in modes]
         if not errors or min(errors) > TOLERANCE:
-            out.append(f"notch at {r.frequency_hz:.4g} Hz (+-{r.frequency_ci95_hz:.3g} Hz, zeta {r.damping_ratio:.4f}, "
-                       f"local fit ratio {r.local_fit_ratio:.2f}); true modes {modes}")
+            out.append(
+                f"notch at {r.frequency_hz:.4g} Hz (+-{r.frequency_ci95_hz:.3g} Hz, zeta {r.damping_ratio:.4f}, "
+                f"local fit ratio {r.local_fit_ratio:.2f}); true modes {modes}"
+            )
     return out
 
 
@@ -161,6 +181,7 @@ def check_no_false_notch(cfg, plant, decision) -> None:
 
 # --- plants ------------------------------------------------------------------------------------
 
+
 def log_uniform(lo: float, hi: float):
     """Floats from `lo` to `hi`, uniform in their logarithm."""
     return st.floats(math.log(lo), math.log(hi)).map(math.exp)
@@ -169,9 +190,14 @@ def log_uniform(lo: float, hi: float):
 @st.composite
 def plants(draw) -> dict:
     """``[emulator.plant]`` with its mode anywhere from 1 to 250 Hz (the band is 2-80 Hz) and zeta 0.005-0.1."""
-    f_mode = draw(st.one_of(log_uniform(4.0, 70.0),  # well inside the band
-                            log_uniform(1.0, 4.0), log_uniform(70.0, 120.0),  # near or across its edges
-                            log_uniform(120.0, 250.0)))  # no mode in the band
+    f_mode = draw(
+        st.one_of(
+            log_uniform(4.0, 70.0),  # well inside the band
+            log_uniform(1.0, 4.0),
+            log_uniform(70.0, 120.0),  # near or across its edges
+            log_uniform(120.0, 250.0),
+        )
+    )  # no mode in the band
     zeta = draw(log_uniform(0.005, 0.1))
     c = draw(st.floats(5.0, 20.0))
     w = 2 * math.pi * f_mode
@@ -191,28 +217,80 @@ def frictions(draw) -> dict | None:
     if draw(st.integers(0, 3)) == 0:
         return None
     fc = draw(st.floats(0.0, 1.0))
-    return {"model": "stribeck", "Fc": fc, "Fs": fc * draw(st.floats(1.0, 2.0)), "Fv": draw(st.floats(0.0, 5.0)),
-            "vs": draw(log_uniform(0.001, 0.02))}
+    return {
+        "model": "stribeck",
+        "Fc": fc,
+        "Fs": fc * draw(st.floats(1.0, 2.0)),
+        "Fv": draw(st.floats(0.0, 5.0)),
+        "vs": draw(log_uniform(0.001, 0.02)),
+    }
 
 
-@settings(max_examples=8, deadline=None, derandomize=True, database=None, phases=[Phase.explicit, Phase.generate],
-          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-@given(plant=plants(), friction=frictions(), amplitude=log_uniform(0.02, 16.0),
-       mode=st.sampled_from(["torque", "torque_injection"]), friction_error=st.floats(0.9, 1.1),
-       seed=st.integers(0, 2**16))
+@settings(
+    max_examples=8,
+    deadline=None,
+    derandomize=True,
+    database=None,
+    phases=[Phase.explicit, Phase.generate],
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
+@given(
+    plant=plants(),
+    friction=frictions(),
+    amplitude=log_uniform(0.02, 16.0),
+    mode=st.sampled_from(["torque", "torque_injection"]),
+    friction_error=st.floats(0.9, 1.1),
+    seed=st.integers(0, 2**16),
+)
 # Cases the property found before the gate asked for NOTCH_FREQUENCY_TOLERANCE: a heavily damped mode under weak
 # excitation (notch 1.1 % off, +-1.3 %), a lightly damped one between the lines in closed loop (2.2 % off, +-0.51 %).
-@example(plant={"model": "two_mass", "m1": 16.584586346107294, "m2": 6.472067601753561, "k": 2622.887400677285,
-                "d": 15.978717455409285, "c": 15.423058455324016},
-         friction=None, amplitude=0.033550700061503805, mode="torque", friction_error=1.0, seed=45050)
-@example(plant={"model": "two_mass", "m1": 7.65624638186981, "m2": 11.084504455507926, "k": 3859.5140598654,
-                "d": 1.716193900659687, "c": 19.581793703077178},
-         friction=None, amplitude=11.79085159430692, mode="torque_injection", friction_error=1.0, seed=2770)
+@example(
+    plant={
+        "model": "two_mass",
+        "m1": 16.584586346107294,
+        "m2": 6.472067601753561,
+        "k": 2622.887400677285,
+        "d": 15.978717455409285,
+        "c": 15.423058455324016,
+    },
+    friction=None,
+    amplitude=0.033550700061503805,
+    mode="torque",
+    friction_error=1.0,
+    seed=45050,
+)
+@example(
+    plant={
+        "model": "two_mass",
+        "m1": 7.65624638186981,
+        "m2": 11.084504455507926,
+        "k": 3859.5140598654,
+        "d": 1.716193900659687,
+        "c": 19.581793703077178,
+    },
+    friction=None,
+    amplitude=11.79085159430692,
+    mode="torque_injection",
+    friction_error=1.0,
+    seed=2770,
+)
 # A weak excitation of a plant whose mode (94 Hz) lies above the band: a "mode" narrower than a line at 68.7 Hz,
 # which the misfitting model could not confirm, was notched on its local fit alone.
-@example(plant={"model": "two_mass", "m1": 44.12461889398282, "m2": 14.50830506154086, "k": 3811723.2488279645,
-                "d": 646.8424834239443, "c": 13.171398691866969},
-         friction=None, amplitude=0.1655080838371778, mode="torque", friction_error=1.0, seed=22487)
+@example(
+    plant={
+        "model": "two_mass",
+        "m1": 44.12461889398282,
+        "m2": 14.50830506154086,
+        "k": 3811723.2488279645,
+        "d": 646.8424834239443,
+        "c": 13.171398691866969,
+    },
+    friction=None,
+    amplitude=0.1655080838371778,
+    mode="torque",
+    friction_error=1.0,
+    seed=22487,
+)
 def test_a_notch_only_at_a_true_mode(plant, friction, amplitude, mode, friction_error, seed):
     cfg = parse_config(bench_toml(plant, friction, mode, amplitude, seed))
     try:
@@ -232,12 +310,24 @@ GANTRY = {"model": "two_mass", "m1": 40.0, "m2": 10.0, "k": 1.5e5, "d": 40.0, "c
 GANTRY_FRICTION = {"model": "stribeck", "Fc": 0.2, "Fs": 0.35, "Fv": 2.0, "vs": 0.005}
 
 
-@pytest.mark.parametrize("plant, friction, mode", [
-    (GANTRY, GANTRY_FRICTION, "torque"),
-    (GANTRY, GANTRY_FRICTION, "torque_injection"),
-    ({"model": "mass_spring_damper", "m": 5.0, "k": 5.0 * (2 * math.pi * 35.0) ** 2, "b": 2 * 0.03 * math.sqrt(
-        5.0 * 5.0 * (2 * math.pi * 35.0) ** 2), "c": 10.0}, None, "torque"),
-])
+@pytest.mark.parametrize(
+    "plant, friction, mode",
+    [
+        (GANTRY, GANTRY_FRICTION, "torque"),
+        (GANTRY, GANTRY_FRICTION, "torque_injection"),
+        (
+            {
+                "model": "mass_spring_damper",
+                "m": 5.0,
+                "k": 5.0 * (2 * math.pi * 35.0) ** 2,
+                "b": 2 * 0.03 * math.sqrt(5.0 * 5.0 * (2 * math.pi * 35.0) ** 2),
+                "c": 10.0,
+            },
+            None,
+            "torque",
+        ),
+    ],
+)
 def test_ample_excitation_finds_the_mode(plant, friction, mode):
     cfg = parse_config(bench_toml(plant, friction, mode, 8.0, 11))
     plant_result, decision = run_and_analyse(cfg)
@@ -261,8 +351,9 @@ def test_a_damped_mode_known_only_to_its_bandwidth_gets_no_notch():
     verdict = pipeline.notch_eligibility(res)
     assert not verdict["notchable"] and "0.5 %" in verdict["reason"]
     assert verdict["amplitude_factor"] == pytest.approx(2 * 0.05 / (0.005 * 3.8))
-    assert pipeline.notch_eligibility(Resonance(3.8, 0.07, -40.0, 0.99, "fit", 0.005, 0.01, 0.2, 0.3, 10.0,
-                                                0.8))["notchable"]
+    assert pipeline.notch_eligibility(Resonance(3.8, 0.07, -40.0, 0.99, "fit", 0.005, 0.01, 0.2, 0.3, 10.0, 0.8))[
+        "notchable"
+    ]
 
 
 def test_torque_injection_recorded_below_the_loop_rate():
@@ -270,10 +361,21 @@ def test_torque_injection_recorded_below_the_loop_rate():
     a sample (it answers the encoder's noise at 4 kHz). A torque taken at the first tick aliased that: the mode came
     out 0.9 % high with a 0.14 % interval, which no evidence gate on the response can see. The board records the
     mean of the period's ticks (PROTOCOL.md section 7), and the mode is found where it is."""
-    plant = {"model": "two_mass", "m1": 29.549252086336438, "m2": 23.590332053218063, "k": 859430.3254396777,
-             "d": 298.73864306532914, "c": 19.87751421345008}
-    friction = {"model": "stribeck", "Fc": 0.21602178927464633, "Fs": 0.23674914099719024, "Fv": 4.494669509273522,
-                "vs": 0.0010489481686790185}
+    plant = {
+        "model": "two_mass",
+        "m1": 29.549252086336438,
+        "m2": 23.590332053218063,
+        "k": 859430.3254396777,
+        "d": 298.73864306532914,
+        "c": 19.87751421345008,
+    }
+    friction = {
+        "model": "stribeck",
+        "Fc": 0.21602178927464633,
+        "Fs": 0.23674914099719024,
+        "Fv": 4.494669509273522,
+        "vs": 0.0010489481686790185,
+    }
     cfg = parse_config(bench_toml(plant, friction, "torque_injection", 7.8741680998615315, 59953, 1000.0))
     plant_result, decision = run_and_analyse(cfg, 0.7993662423956174)
     # passes once the mode is found and notched where it is (refusing it would not be the fix either)

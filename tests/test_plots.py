@@ -54,11 +54,14 @@ def msd_bode():
     fig = bode_figure(
         [("plant (net torque to output)", _frf(f, h, coh)), ("excitation to output", _frf(f, 1.05 * h, coh))],
         resonances=[SimpleNamespace(frequency_hz=10.07)],
-        notch_response=(fine, designed.response(fine, FS)), coherence_threshold=0.8,
+        notch_response=(fine, designed.response(fine, FS)),
+        coherence_threshold=0.8,
         model=("fitted TF, 1 zero / 2 poles, MDL", fine, _msd_velocity(fine)),
         bounds_db=(np.full(f.size, -0.5), np.full(f.size, 0.5)),
         title=plot_title("emulated-msd.toml", dt.datetime(2026, 11, 23, 19, 40, tzinfo=dt.UTC), "Bode"),
-        magnitude_unit=ratio_unit("m/s", "N"), band_hz=(2.0, 200.0), stored_notch=(fine, stored.response(fine, FS)),
+        magnitude_unit=ratio_unit("m/s", "N"),
+        band_hz=(2.0, 200.0),
+        stored_notch=(fine, stored.response(fine, FS)),
     )
     return _drawn(fig), f
 
@@ -100,8 +103,9 @@ def test_bode_phase_is_on_the_branch_of_the_band(msd_bode):
     assert np.nanmax(y) < 100.0 and np.nanmin(y) > -100.0
     assert fig.axes[1].get_ylim()[1] - fig.axes[1].get_ylim()[0] < 360.0  # not thousands of degrees
     model = _lines(fig.axes[1], "fitted TF, 1 zero / 2 poles, MDL")[0]
-    assert np.allclose(np.interp(20.0, model.get_xdata(), model.get_ydata()),
-                       np.degrees(np.angle(_msd_velocity(20.0))), atol=1.0)
+    assert np.allclose(
+        np.interp(20.0, model.get_xdata(), model.get_ydata()), np.degrees(np.angle(_msd_velocity(20.0))), atol=1.0
+    )
 
 
 def test_bode_notches_model_confidence_and_legend_placement(msd_bode):
@@ -117,12 +121,18 @@ def test_bode_notches_model_confidence_and_legend_placement(msd_bode):
     assert "±0.5 dB" in band[0].get_label()
     legend = ax_mag.get_legend()
     labels = [t.get_text() for t in legend.get_texts()]
-    assert {"plant (net torque to output)", "excitation to output", "resonance", "outside analysis band",
-            "stored notch, read back [dB re 1]"} <= set(labels)
+    assert {
+        "plant (net torque to output)",
+        "excitation to output",
+        "resonance",
+        "outside analysis band",
+        "stored notch, read back [dB re 1]",
+    } <= set(labels)
     for ax in (ax_mag, ax_coh):  # beside the data, not on it
         assert ax.get_legend().get_window_extent().x0 >= ax.get_window_extent().x1
-    coherence = [ln for ln in ax_coh.get_lines() if not ln.get_label().startswith("_")
-                 and ln.get_label() != "threshold 0.8"]
+    coherence = [
+        ln for ln in ax_coh.get_lines() if not ln.get_label().startswith("_") and ln.get_label() != "threshold 0.8"
+    ]
     assert len(coherence) == 2
     styles = {(ln.get_color(), ln.get_linestyle(), ln.get_marker()) for ln in coherence}
     assert len(styles) == 2 and len({s[1] for s in styles}) == 2 and len({s[2] for s in styles}) == 2
@@ -162,7 +172,7 @@ def test_branch_phase_starts_in_the_principal_interval_and_keeps_outside_lines_n
     noisy = h * np.exp(1j * np.where(f > 50, np.random.default_rng(0).uniform(-3, 3, f.size), 0) * 4)
     out = branch_phase_deg(noisy, in_band)
     last = np.flatnonzero(in_band)[-1]
-    assert np.all(np.abs(out[last + 1:] - out[last]) <= 180.0 + 1e-9)
+    assert np.all(np.abs(out[last + 1 :] - out[last]) <= 180.0 + 1e-9)
 
 
 def test_units_and_titles():
@@ -177,8 +187,10 @@ def test_units_and_titles():
 
 def test_stored_notch_from_the_summary_read_back():
     b, a = signal.iirnotch(20.0, 4.0, fs=FS)
-    summary = {"notch_filters": [{"slot": 1, "sample_rate_hz": FS}],
-               "upload": {"slots": [{"slot": 1, "readback_b": list(b), "readback_a": list(a)}]}}
+    summary = {
+        "notch_filters": [{"slot": 1, "sample_rate_hz": FS}],
+        "upload": {"slots": [{"slot": 1, "readback_b": list(b), "readback_a": list(a)}]},
+    }
     f = np.linspace(10, 30, 2001)
     got = report.stored_notch_response(summary, f)
     assert got is not None
@@ -199,8 +211,16 @@ def test_friction_names_the_model_and_its_parameters_with_units():
     v = np.concatenate([-np.geomspace(1e-3, 0.3, 10), np.geomspace(1e-3, 0.3, 10)])
     tau = np.sign(v) * (0.2 + 2.0 * np.abs(v))
     params = {"Fc": 0.2, "Fs": 0.35, "Fv": 2.01, "vs": 0.01, "delta_v": 1.0, "delta_s": 2.0}
-    fig = friction_figure(v, tau, v, tau, "emulated-gantry.toml, 2026-11-23 19:40 UTC", structure="stribeck",
-                          params=params, stderr={"Fv": 0.03})
+    fig = friction_figure(
+        v,
+        tau,
+        v,
+        tau,
+        "emulated-gantry.toml, 2026-11-23 19:40 UTC",
+        structure="stribeck",
+        params=params,
+        stderr={"Fv": 0.03},
+    )
     ax = fig.axes[0]
     assert ax.get_title() == "Stribeck friction — emulated-gantry.toml, 2026-11-23 19:40 UTC"
     assert ax.get_xlabel() == "velocity [m/s]" and ax.get_ylabel() == "friction torque [N·m]"
@@ -265,10 +285,14 @@ def test_greybox_figure_shows_compare_and_residual_tests():
     sim = simulate_greybox("mass_spring_damper", {"m": 5.0, "b": 20.0, "k": 2.0e4}, force, x, 1000.0, 40.0)
     fit = SimpleNamespace(params={"m": 5.0, "b": 20.0, "k": 2.0e4}, names=("m", "b", "k"))
     rng = np.random.default_rng(1)
-    fig = greybox_figure("mass_spring_damper", fit, {"estimation data": sim, "holdout": sim},
-                         {"estimation data": (rng.standard_normal(3000), rng.standard_normal(3000))},
-                         title="identify msd.csv, 2026-11-23 19:40 UTC",
-                         regression_fit_percent={"estimation data": 97.5})
+    fig = greybox_figure(
+        "mass_spring_damper",
+        fit,
+        {"estimation data": sim, "holdout": sim},
+        {"estimation data": (rng.standard_normal(3000), rng.standard_normal(3000))},
+        title="identify msd.csv, 2026-11-23 19:40 UTC",
+        regression_fit_percent={"estimation data": 97.5},
+    )
     axes = np.asarray(fig.axes).reshape(2, 3)
     compare, auto, cross = axes[0]
     assert compare.get_ylabel() == "position [m]" and compare.get_xlabel() == "time [s]"
@@ -286,8 +310,12 @@ def test_greybox_figure_shows_compare_and_residual_tests():
     with pytest.raises(DataError, match="no record"):
         greybox_figure("mass_spring_damper", fit, {}, {})
     # a record that could not be simulated, or has too few residuals, says why instead of failing the command
-    fig = greybox_figure("mass_spring_damper", fit, {"short.csv": "no simulation: 3 samples are too few"},
-                         {"short.csv": (np.arange(2.0), np.arange(2.0))})
+    fig = greybox_figure(
+        "mass_spring_damper",
+        fit,
+        {"short.csv": "no simulation: 3 samples are too few"},
+        {"short.csv": (np.arange(2.0), np.arange(2.0))},
+    )
     assert fig.axes[0].texts[0].get_text() == "no simulation: 3 samples are too few"
     assert fig.axes[1].texts[0].get_text().startswith("no residual test:")
     assert fig.get_suptitle() == "mass_spring_damper: m = 5, b = 20, k = 2e+04"
@@ -301,11 +329,15 @@ def test_plot_run_passes_units_band_title_and_the_stored_notch(tmp_path, monkeyp
     frf = SimpleNamespace(frequency_hz=f, response=_msd_velocity(f), coherence=np.ones_like(f), n_averages=1)
     plant = SimpleNamespace(plant=frf, loop=frf, resonances=[], model=None)
     b, a = signal.iirnotch(10.0, 3.0, fs=FS)
-    design = SimpleNamespace(spec=SimpleNamespace(center_hz=10.0, width_hz=3.3), biquad=Biquad(tuple(b), tuple(a)),
-                             sample_rate_hz=FS, slot=0)
-    summary = {"config": "configs/emulated-msd.toml", "excitation": {"unit": "m/s"},
-               "notch_filters": [{"slot": 0, "sample_rate_hz": FS}],
-               "upload": {"slots": [{"slot": 0, "readback_b": list(b), "readback_a": list(a)}]}}
+    design = SimpleNamespace(
+        spec=SimpleNamespace(center_hz=10.0, width_hz=3.3), biquad=Biquad(tuple(b), tuple(a)), sample_rate_hz=FS, slot=0
+    )
+    summary = {
+        "config": "configs/emulated-msd.toml",
+        "excitation": {"unit": "m/s"},
+        "notch_filters": [{"slot": 0, "sample_rate_hz": FS}],
+        "upload": {"slots": [{"slot": 0, "readback_b": list(b), "readback_a": list(a)}]},
+    }
     seen = {}
     monkeypatch.setattr(report, "plot_bode", lambda path, responses, **kw: seen.update(kw, responses=responses))
     report.plot_run(tmp_path, None, plant, [design], summary=summary, band_hz=(1.0, 50.0), output="velocity_mps")
@@ -313,8 +345,10 @@ def test_plot_run_passes_units_band_title_and_the_stored_notch(tmp_path, monkeyp
     assert seen["band_hz"] == (1.0, 50.0)
     # the plant is over torque, the loop over a velocity set-point: each curve says its unit
     assert seen["magnitude_unit"] == PER_CURVE
-    assert [r[0] for r in seen["responses"]] == ["plant (net torque to output) [(m/s)/(N·m)]",
-                                                 "excitation to output, before notch [(m/s)/(m/s)]"]
+    assert [r[0] for r in seen["responses"]] == [
+        "plant (net torque to output) [(m/s)/(N·m)]",
+        "excitation to output, before notch [(m/s)/(m/s)]",
+    ]
     fs_, hs = seen["stored_notch"]
     assert np.min(np.abs(hs)) < 0.01 and fs_[np.argmin(np.abs(hs))] == pytest.approx(10.0, rel=1e-3)
     assert seen["notch_label"] == "designed notch [dB re 1]"
@@ -327,8 +361,9 @@ def test_identify_writes_bode_and_model_plots(tmp_path):
     _, cols = simulate(STIFF_MSD, f_min=1.0, f_max=40.0, amplitude=50.0, periods=2)
     write_csv(tmp_path / "msd.csv", cols)
     config = identify_config(tmp_path, '\n[model]\nkind = "mass_spring_damper"\ncutoff_hz = 40.0\n')
-    assert main(["identify", str(tmp_path / "msd.csv"), "--config", str(config), "--out", str(tmp_path / "o"),
-                 "-q"]) == 0
+    assert (
+        main(["identify", str(tmp_path / "msd.csv"), "--config", str(config), "--out", str(tmp_path / "o"), "-q"]) == 0
+    )
     for name in ("bode.png", "model.png"):
         assert (tmp_path / "o" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
@@ -337,10 +372,16 @@ def test_run_prints_the_friction_parameters_with_their_units(tmp_path, monkeypat
     import hilident.session.run
     from hilident.cli.main import main
 
-    summary = {"resonances": [], "excitation": {}, "model": None, "verification": {"peak_reduction_db": None},
-               "upload": {}, "warnings": [],
-               "stream": {"samples": 1, "lost_blocks": 0, "corrupt_frames": 0, "underruns": 0},
-               "friction": {"structure": "stribeck", "params": {"Fc": 0.2, "Fs": 0.35, "Fv": 2.01, "vs": 0.01}}}
+    summary = {
+        "resonances": [],
+        "excitation": {},
+        "model": None,
+        "verification": {"peak_reduction_db": None},
+        "upload": {},
+        "warnings": [],
+        "stream": {"samples": 1, "lost_blocks": 0, "corrupt_frames": 0, "underruns": 0},
+        "friction": {"structure": "stribeck", "params": {"Fc": 0.2, "Fs": 0.35, "Fv": 2.01, "vs": 0.01}},
+    }
 
     class FakeSession:
         plan = None
@@ -375,8 +416,11 @@ def test_a_bench_run_with_a_grey_box_model_draws_it(tmp_path):
     from test_session_e2e import gantry_variant
 
     cfg = gantry_variant()
-    cfg = replace(cfg, model=replace(cfg.model, kind="rigid_axis", c=10.0, cutoff_hz=8.0),
-                  friction_test=replace(cfg.friction_test, enabled=False))
+    cfg = replace(
+        cfg,
+        model=replace(cfg.model, kind="rigid_axis", c=10.0, cutoff_hz=8.0),
+        friction_test=replace(cfg.friction_test, enabled=False),
+    )
     summary = Session(cfg, tmp_path).run()
     assert "verification" in summary["model"]["validation"]
     assert (tmp_path / "model.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -386,8 +430,13 @@ def test_a_bench_run_with_a_grey_box_model_draws_it(tmp_path):
 def test_bode_draws_a_response_whose_coherence_is_undefined():
     # one period, no averages: the coherence is NaN on every line
     f = np.geomspace(1, 100, 60)
-    fig = _drawn(bode_figure([("plant", _frf(f, _msd_velocity(f), np.full(f.size, np.nan)))], band_hz=(2.0, 50.0),
-                             coherence_threshold=0.8))
+    fig = _drawn(
+        bode_figure(
+            [("plant", _frf(f, _msd_velocity(f), np.full(f.size, np.nan)))],
+            band_hz=(2.0, 50.0),
+            coherence_threshold=0.8,
+        )
+    )
     plant = _lines(fig.axes[0], "plant")[0]
     x, y = plant.get_xdata(), np.asarray(plant.get_ydata())
     # unknown is not low: the band stays in colour, only the lines outside it are greyed

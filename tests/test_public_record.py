@@ -64,7 +64,7 @@ def line_variance(X: np.ndarray, k: np.ndarray) -> np.ndarray:
 
 def _one_mode(p, x):
     kn, zeta, a_re, a_im, c_re, c_im = p
-    return (a_re + 1j * a_im) * -x**2 / (kn**2 - x**2 + 2j * zeta * kn * x) + (c_re + 1j * c_im)
+    return (a_re + 1j * a_im) * -(x**2) / (kn**2 - x**2 + 2j * zeta * kn * x) + (c_re + 1j * c_im)
 
 
 def fit_mode(k: np.ndarray, H: np.ndarray, sigma: np.ndarray, peak: int) -> tuple[float, float, float, float]:
@@ -85,8 +85,9 @@ def fit_mode(k: np.ndarray, H: np.ndarray, sigma: np.ndarray, peak: int) -> tupl
         return np.concatenate([e.real, e.imag])
 
     starts = [(kn, z) for kn in np.linspace(peak - 1.0, peak + 2.0, 13) for z in (0.002, 0.005, 0.02)]
-    best = min((least_squares(residual, [kn, z, 0.1, 0.0, 0.0, 0.0], x_scale="jac") for kn, z in starts),
-               key=lambda r: r.cost)
+    best = min(
+        (least_squares(residual, [kn, z, 0.1, 0.0, 0.0, 0.0], x_scale="jac") for kn, z in starts), key=lambda r: r.cost
+    )
     cov = np.linalg.inv(best.jac.T @ best.jac)
     return best.x[0], best.x[1], float(np.sqrt(cov[0, 0])), float(np.sqrt(cov[1, 1]))
 
@@ -100,8 +101,9 @@ def independent_modes() -> list[dict]:
     var_h = (line_variance(Y, k) + np.abs(H) ** 2 * line_variance(U, k)) / np.abs(U[k]) ** 2
     sigma = np.sqrt(var_h / 2.0)
     mag = np.abs(H)
-    peaks = [i for i in range(1, len(k) - 1)
-             if mag[i] > mag[i - 1] and mag[i] > mag[i + 1] and mag[i] > 5 * np.median(mag)]
+    peaks = [
+        i for i in range(1, len(k) - 1) if mag[i] > mag[i - 1] and mag[i] > mag[i + 1] and mag[i] > 5 * np.median(mag)
+    ]
     modes = []
     for i in peaks:
         kn, zeta, s_kn, s_zeta = fit_mode(k, H, sigma, int(k[i]))
@@ -151,8 +153,10 @@ def _agrees(found: list[tuple[float, float]], reference: list[dict]) -> None:
 @pytest.mark.parametrize("rate_hz", [1024.0, 1.0])
 def test_identify_reports_the_two_modes_and_nothing_else(tmp_path, reference, rate_hz):
     config = tmp_path / "arm.toml"
-    config.write_text(f'[data]\ntorque = "0"\noutput = "1"\nsample_rate_hz = {rate_hz}\nperiod_samples = {PERIOD}\n'
-                      f"[model]\nfilter_rate_hz = {4 * rate_hz}\n")  # notches for a drive at 4x the data's rate
+    config.write_text(
+        f'[data]\ntorque = "0"\noutput = "1"\nsample_rate_hz = {rate_hz}\nperiod_samples = {PERIOD}\n'
+        f"[model]\nfilter_rate_hz = {4 * rate_hz}\n"
+    )  # notches for a drive at 4x the data's rate
     out = tmp_path / "o"
     assert main(["identify", str(DATA), "--config", str(config), "--out", str(out), "-q"]) == 0
     summary = json.loads((out / "summary.json").read_text())
@@ -167,8 +171,11 @@ def test_identify_reports_the_two_modes_and_nothing_else(tmp_path, reference, ra
     u, _ = load_record()
     power = np.abs(np.fft.rfft(u)) ** 2
     odd_above_floor = np.count_nonzero(power[1::2] > 1e-4 * power.max())  # the 40 dB floor, on the odd lines
-    assert summary["measurement"]["one_period"] == {"excited_lines": odd_above_floor, "line_step": 2,
-                                                    "noise_from_non_excited_lines": True}
+    assert summary["measurement"]["one_period"] == {
+        "excited_lines": odd_above_floor,
+        "line_step": 2,
+        "noise_from_non_excited_lines": True,
+    }
     centres = [n["center_hz"] / rate_hz for n in summary["notch_filters"]]
     assert len(centres) == 2 and summary["notch_skipped_reason"] is None
     for c, mode in zip(sorted(centres), reference, strict=False):
@@ -177,8 +184,10 @@ def test_identify_reports_the_two_modes_and_nothing_else(tmp_path, reference, ra
 
 def test_identify_says_why_no_notch_when_the_evidence_is_short(tmp_path):
     config = tmp_path / "arm.toml"
-    config.write_text(f'[data]\ntorque = "0"\noutput = "1"\nsample_rate_hz = 1024.0\nperiod_samples = {PERIOD}\n'
-                      "[identification]\ncoherence_threshold = 0.999\n")  # more than one period's noise allows
+    config.write_text(
+        f'[data]\ntorque = "0"\noutput = "1"\nsample_rate_hz = 1024.0\nperiod_samples = {PERIOD}\n'
+        "[identification]\ncoherence_threshold = 0.999\n"
+    )  # more than one period's noise allows
     out = tmp_path / "o"
     assert main(["identify", str(DATA), "--config", str(config), "--out", str(out), "-q"]) == 0
     summary = json.loads((out / "summary.json").read_text())

@@ -33,9 +33,19 @@ def test_round_trip_samples_units_attrs(tmp_path):
     versions = {"numpy": np.__version__, "h5py": h5py.__version__}
     config_toml = 'name = "gantry"\n[emulator.plant]\nm1 = 3.2\n' + "# " + "x" * 100_000  # > 64 KiB
     path = tmp_path / "run.h5"
-    with RunWriter(path, CHANNELS, UNITS, RATE_HZ,
-                   attrs={"experiment": "chirp", "seed": 7, "config_toml": config_toml,
-                          "versions": versions, "gain": np.float32(0.5)}) as rec:
+    with RunWriter(
+        path,
+        CHANNELS,
+        UNITS,
+        RATE_HZ,
+        attrs={
+            "experiment": "chirp",
+            "seed": 7,
+            "config_toml": config_toml,
+            "versions": versions,
+            "gain": np.float32(0.5),
+        },
+    ) as rec:
         for b in blocks:
             rec.append(b)
         rec.set_attrs(device={"vendor": "emu", "serial": 12}, notch_hz=[41.5, 118.0])
@@ -121,17 +131,29 @@ def test_event_log_round_trip(tmp_path):
     with RunWriter(path, CHANNELS, UNITS, RATE_HZ) as rec:
         rec.event("connected", "link up")  # before any sample: index 0
         rec.append(np.zeros((300, 3)))
-        rec.event("excitation_start", "chirp 1-200 Hz", sample_index=100,
-                  f0_hz=1.0, f1_hz=np.float64(200.0), amplitude=np.array([0.1, 0.2]),
-                  pole=1 - 2j, bad=math.nan)
+        rec.event(
+            "excitation_start",
+            "chirp 1-200 Hz",
+            sample_index=100,
+            f0_hz=1.0,
+            f1_hz=np.float64(200.0),
+            amplitude=np.array([0.1, 0.2]),
+            pole=1 - 2j,
+            bad=math.nan,
+        )
         rec.event("limit_trip", "torque above 2 N·m – stopped")  # "now": after 300 rows
     events = read_run(path).events
     assert [e["kind"] for e in events] == ["connected", "excitation_start", "limit_trip"]
     assert [e["sample_index"] for e in events] == [0, 100, 300]
     assert [e["time_s"] for e in events] == pytest.approx([0.0, 100 / RATE_HZ, 300 / RATE_HZ])
     assert events[1]["message"] == "chirp 1-200 Hz"
-    assert events[1]["data"] == {"f0_hz": 1.0, "f1_hz": 200.0, "amplitude": [0.1, 0.2],
-                                 "pole": {"re": 1.0, "im": -2.0}, "bad": None}
+    assert events[1]["data"] == {
+        "f0_hz": 1.0,
+        "f1_hz": 200.0,
+        "amplitude": [0.1, 0.2],
+        "pole": {"re": 1.0, "im": -2.0},
+        "bad": None,
+    }
     assert events[2]["message"] == "torque above 2 N·m – stopped" and events[2]["data"] == {}
 
 
@@ -218,14 +240,17 @@ def test_status_is_running_while_streaming(tmp_path):
     assert (run.status, run.reason) == ("aborted", "operator stop")
 
 
-@pytest.mark.parametrize("block", [
-    np.zeros((4, 2)),
-    np.zeros((4, 4)),
-    np.zeros(3),
-    np.zeros((2, 3, 1)),
-    np.array([["a", "b", "c"]]),
-    np.zeros((2, 3), dtype=complex),
-])
+@pytest.mark.parametrize(
+    "block",
+    [
+        np.zeros((4, 2)),
+        np.zeros((4, 4)),
+        np.zeros(3),
+        np.zeros((2, 3, 1)),
+        np.array([["a", "b", "c"]]),
+        np.zeros((2, 3), dtype=complex),
+    ],
+)
 def test_bad_block_shapes_raise(tmp_path, block):
     with RunWriter(tmp_path / "bad.h5", CHANNELS, UNITS, RATE_HZ) as rec:
         with pytest.raises(DataError, match="block must"):
@@ -233,17 +258,20 @@ def test_bad_block_shapes_raise(tmp_path, block):
         assert rec.n_samples == 0
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    (dict(channels=[], units=[]), "channels"),
-    (dict(channels=["a", "a"], units=["m", "m"]), "unique"),
-    (dict(units=["m"]), "units must be 3"),
-    (dict(sample_rate_hz=0.0), "sample_rate_hz"),
-    (dict(sample_rate_hz=math.inf), "sample_rate_hz"),
-    (dict(chunk_rows=0), "chunk_rows"),
-    (dict(compression="gzip"), "compression"),
-    (dict(attrs={"status": "x"}), "'status' is set by the writer"),
-    (dict(attrs={"versions_json": "{}"}), "_json"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(channels=[], units=[]), "channels"),
+        (dict(channels=["a", "a"], units=["m", "m"]), "unique"),
+        (dict(units=["m"]), "units must be 3"),
+        (dict(sample_rate_hz=0.0), "sample_rate_hz"),
+        (dict(sample_rate_hz=math.inf), "sample_rate_hz"),
+        (dict(chunk_rows=0), "chunk_rows"),
+        (dict(compression="gzip"), "compression"),
+        (dict(attrs={"status": "x"}), "'status' is set by the writer"),
+        (dict(attrs={"versions_json": "{}"}), "_json"),
+    ],
+)
 def test_bad_writer_arguments(tmp_path, kwargs, match):
     args = dict(channels=CHANNELS, units=UNITS, sample_rate_hz=RATE_HZ)
     args.update(kwargs)
@@ -266,8 +294,12 @@ def test_existing_file_needs_overwrite(tmp_path):
 def test_writes_after_close_raise(tmp_path):
     rec = RunWriter(tmp_path / "c.h5", CHANNELS, UNITS, RATE_HZ)
     rec.close()
-    for call in (lambda: rec.append(np.ones((1, 3))), lambda: rec.event("k", "m"),
-                 lambda: rec.set_attrs(a=1), lambda: rec.write_table("t", a=[1])):
+    for call in (
+        lambda: rec.append(np.ones((1, 3))),
+        lambda: rec.event("k", "m"),
+        lambda: rec.set_attrs(a=1),
+        lambda: rec.write_table("t", a=[1]),
+    ):
         with pytest.raises(DataError, match="closed"):
             call()
     with pytest.raises(DataError, match="status"):
@@ -310,8 +342,12 @@ def test_read_errors_name_the_file(tmp_path):
 
 
 def test_unknown_channel_lists_available(tmp_path):
-    run = RunData(path=tmp_path / "x.h5", samples={"a": np.zeros(2), "b": np.ones(2)},
-                  units={"a": "m", "b": "m"}, sample_rate_hz=10.0)
+    run = RunData(
+        path=tmp_path / "x.h5",
+        samples={"a": np.zeros(2), "b": np.ones(2)},
+        units={"a": "m", "b": "m"},
+        sample_rate_hz=10.0,
+    )
     with pytest.raises(DataError, match=r"'torque'.*available channels: a, b"):
         run.channel("torque")
 
@@ -362,8 +398,10 @@ def small_filesystem(tmp_path):
     """A 4 MiB tmpfs, where the kernel allows mounting one (root in a container); skipped elsewhere."""
     mount = tmp_path / "small"
     mount.mkdir()
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=4m", "tmpfs", str(mount)],
-                      capture_output=True).returncode != 0:
+    if (
+        subprocess.run(["mount", "-t", "tmpfs", "-o", "size=4m", "tmpfs", str(mount)], capture_output=True).returncode
+        != 0
+    ):
         pytest.skip("cannot mount a small tmpfs here")
     yield mount
     subprocess.run(["umount", str(mount)], capture_output=True)

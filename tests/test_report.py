@@ -40,14 +40,21 @@ def _two_mass_frf(f_hz: np.ndarray, f_res_hz: float, zeta: float) -> np.ndarray:
 
 def test_plot_bode_writes_png(tmp_path):
     f = np.linspace(0.0, 500.0, 2001)  # includes the DC bin, dropped on the log axis
-    before = SimpleNamespace(frequency_hz=f, response=_two_mass_frf(np.maximum(f, 1e-3), 80.0, 0.02),
-                             coherence=np.clip(1 - np.exp(-f / 20), 0, 1))
+    before = SimpleNamespace(
+        frequency_hz=f,
+        response=_two_mass_frf(np.maximum(f, 1e-3), 80.0, 0.02),
+        coherence=np.clip(1 - np.exp(-f / 20), 0, 1),
+    )
     b, a = signal.iirnotch(80.0, 5.0, fs=4000.0)
     _, notch = signal.freqz(b, a, worN=f[1:], fs=4000.0)
     after = SimpleNamespace(frequency_hz=f[1:], response=before.response[1:] * notch, coherence=None)
-    out = plot_bode(tmp_path / "plots" / "bode.png", [("before notch", before), ("after notch", after)],
-                    resonances=[SimpleNamespace(frequency_hz=80.0)], notch_response=(f[1:], notch),
-                    coherence_threshold=0.8)
+    out = plot_bode(
+        tmp_path / "plots" / "bode.png",
+        [("before notch", before), ("after notch", after)],
+        resonances=[SimpleNamespace(frequency_hz=80.0)],
+        notch_response=(f[1:], notch),
+        coherence_threshold=0.8,
+    )
     assert out == tmp_path / "plots" / "bode.png"
     _assert_png(out)
 
@@ -58,14 +65,20 @@ def test_plot_bode_without_coherence_or_extras(tmp_path):
     _assert_png(plot_bode(tmp_path / "b.png", [("plant", frf)]))
 
 
-@pytest.mark.parametrize("frf, match", [
-    (SimpleNamespace(frequency_hz=np.arange(1, 11.0), response=np.ones(9, complex), coherence=None),
-     "response"),
-    (SimpleNamespace(frequency_hz=np.arange(1, 11.0), response=np.ones(10, complex), coherence=np.ones(3)),
-     "coherence"),
-    (SimpleNamespace(frequency_hz=np.zeros(4), response=np.ones(4, complex), coherence=None),
-     "no positive frequency"),
-])
+@pytest.mark.parametrize(
+    "frf, match",
+    [
+        (SimpleNamespace(frequency_hz=np.arange(1, 11.0), response=np.ones(9, complex), coherence=None), "response"),
+        (
+            SimpleNamespace(frequency_hz=np.arange(1, 11.0), response=np.ones(10, complex), coherence=np.ones(3)),
+            "coherence",
+        ),
+        (
+            SimpleNamespace(frequency_hz=np.zeros(4), response=np.ones(4, complex), coherence=None),
+            "no positive frequency",
+        ),
+    ],
+)
 def test_plot_bode_rejects_bad_frf(tmp_path, frf, match):
     with pytest.raises(DataError, match=match):
         plot_bode(tmp_path / "x.png", [("plant", frf)])
@@ -82,7 +95,7 @@ def test_plot_bode_rejects_mismatched_notch_and_empty(tmp_path):
 
 def _stribeck(v, Fc=0.2, Fs=0.35, vs=0.01, delta_s=2.0, Fv=1.5, delta_v=1.0):
     # Thesis eq. 2.13 shape, odd in v.
-    return np.sign(v) * (Fc + (Fs - Fc) * np.exp(-np.abs(v / vs) ** delta_s) + Fv * np.abs(v) ** delta_v)
+    return np.sign(v) * (Fc + (Fs - Fc) * np.exp(-(np.abs(v / vs) ** delta_s)) + Fv * np.abs(v) ** delta_v)
 
 
 def test_plot_friction_writes_png(tmp_path):

@@ -45,8 +45,12 @@ def _serial_config(**faults):
     """The shipped gantry over the in-memory line, quick, at a fixed amplitude."""
     cfg = load_config(CONFIGS / "emulated-gantry.toml")
     emu = replace(cfg.emulator, link="pipe", time_scale=8.0, faults=replace(cfg.emulator.faults, **faults))
-    return replace(cfg, emulator=emu, friction_test=replace(cfg.friction_test, enabled=False),
-                   excitation=replace(cfg.excitation, amplitude_nm=8.0))
+    return replace(
+        cfg,
+        emulator=emu,
+        friction_test=replace(cfg.friction_test, enabled=False),
+        excitation=replace(cfg.excitation, amplitude_nm=8.0),
+    )
 
 
 def _modbus_config(duration_s: float = 8.0, timeout_s: float = 0.5, **faults):
@@ -54,18 +58,26 @@ def _modbus_config(duration_s: float = 8.0, timeout_s: float = 0.5, **faults):
     cfg = load_config(CONFIGS / "emulated-modbus-gantry.toml")
     emu = replace(cfg.emulator, time_scale=10.0, faults=replace(cfg.emulator.faults, **faults))
     # a loaded test machine can stall a host for half a second: the drive's communication timeout is 2 s here
-    return replace(cfg, emulator=emu, device=replace(cfg.device, timeout_s=timeout_s, host_timeout_s=2.0),
-                   friction_test=replace(cfg.friction_test, enabled=False),
-                   excitation=replace(cfg.excitation, duration_s=duration_s, amplitude_nm=8.0))
+    return replace(
+        cfg,
+        emulator=emu,
+        device=replace(cfg.device, timeout_s=timeout_s, host_timeout_s=2.0),
+        friction_test=replace(cfg.friction_test, enabled=False),
+        excitation=replace(cfg.excitation, duration_s=duration_s, amplitude_nm=8.0),
+    )
 
 
 def _canopen_config(acquisition="buffered", time_scale=20.0, period_s=1.0, duration_s=2.0, **faults):
     """The shipped CANopen gantry with a short multisine."""
     cfg = load_config(CONFIGS / "emulated-canopen-gantry.toml")
     emu = replace(cfg.emulator, time_scale=time_scale, faults=replace(cfg.emulator.faults, **faults))
-    return replace(cfg, device=replace(cfg.device, acquisition=acquisition), emulator=emu,
-                   friction_test=replace(cfg.friction_test, enabled=False),
-                   excitation=replace(cfg.excitation, period_s=period_s, duration_s=duration_s, amplitude_nm=8.0))
+    return replace(
+        cfg,
+        device=replace(cfg.device, acquisition=acquisition),
+        emulator=emu,
+        friction_test=replace(cfg.friction_test, enabled=False),
+        excitation=replace(cfg.excitation, period_s=period_s, duration_s=duration_s, amplitude_nm=8.0),
+    )
 
 
 def _serial_line_closing_config():
@@ -81,8 +93,12 @@ def _serial_lost_config():
 
 def _canopen_lost_config():
     cfg = _canopen_config("streamed", drop_pdo_rate=0.002)
-    return replace(cfg, excitation=replace(cfg.excitation, kind="noise", duration_s=3.0, amplitude_nm=4.0),
-                   identification=replace(cfg.identification, segment_s=0.5), notch=replace(cfg.notch, enabled=False))
+    return replace(
+        cfg,
+        excitation=replace(cfg.excitation, kind="noise", duration_s=3.0, amplitude_nm=4.0),
+        identification=replace(cfg.identification, segment_s=0.5),
+        notch=replace(cfg.notch, enabled=False),
+    )
 
 
 def _serial_lost_extra(cfg, summary, run):
@@ -101,7 +117,7 @@ def _modbus_lost_extra(cfg, summary, run):
     # a request without an answer is asked again: frames are lost, samples never
     s = summary["stream"]
     assert s["lost_frames"] > 20 and s["lost_blocks"] == 0
-    (true_f, _), = true_modes(cfg.emulator)
+    ((true_f, _),) = true_modes(cfg.emulator)
     assert min(abs(r["frequency_hz"] - true_f) / true_f for r in summary["resonances"]) < 0.01
     assert summary["upload"]["verified_readback"] and summary["verification"]["peak_reduction_db"] >= 20.0
     assert run.complete
@@ -156,54 +172,83 @@ class Transport:
 
 
 SERIAL = Transport(
-    name="serial", config_file="emulated-gantry.toml",
+    name="serial",
+    config_file="emulated-gantry.toml",
     trip_overrides={"emulator": {"link": "pipe", "time_scale": 8.0}},
-    lost_config=_serial_lost_config, lost_extra=_serial_lost_extra,
+    lost_config=_serial_lost_config,
+    lost_extra=_serial_lost_extra,
     trip_ends_the_recording=False,  # the board's blocks already on the line after the trip are recorded too
     falls_silent=Fault(_serial_line_closing_config, match="line lost|write failed|no data from the board"),
     skip={
         "drive_fault": "the board's firmware has no drive-fault switch (drive_fault_after_s is a CANopen/Modbus "
-                       "drive's); its latched faults come from limit trips and the watchdog, tested by "
-                       "test_limit_trip and test_endings.py",
+        "drive's); its latched faults come from limit trips and the watchdog, tested by "
+        "test_limit_trip and test_endings.py",
         "refused_access": "the board has no objects or registers to refuse; a refused frame (NAK) is injected at "
-                          "the adapter in tests/adapters/test_serial_endings.py",
+        "the adapter in tests/adapters/test_serial_endings.py",
         "short_capture": "the board streams every sample as it is measured: there is no drive-side capture to stop",
     },
 )
 
 MODBUS = Transport(
-    name="modbus", config_file="emulated-modbus-gantry.toml",
+    name="modbus",
+    config_file="emulated-modbus-gantry.toml",
     running=lambda emulated: emulated.drive.enabled or emulated.server.firmware.running,
     trip_overrides={"emulator": {"time_scale": 10.0}},
-    lost_config=lambda: _modbus_config(timeout_s=0.03, missing_response_rate=0.03), lost_extra=_modbus_lost_extra,
-    drive_fault=Fault(lambda: _modbus_config(drive_fault_after_s=2.0),
-                      match=r"drive_fault: axis stopped.*register 102 \(fault_code\) = 4, at sample 2000",
-                      n_samples=2000, events=("fault",), ),
-    refused_access=Fault(lambda: _modbus_config(exception_register=117, exception_code=4),
-                         match=re.escape("register 117 (table_crc)"),
-                         also=("Modbus exception 4 (server device failure",), ),
-    short_capture=ShortCapture(lambda: _modbus_config(duration_s=16.0, capture_stops_after_s=13.0),
-                               # 16 s of multisine after a 4 s lead-in; the capture ends at 13 s: periods 1 and 2
-                               # remain whole and are analysed, the rest is counted lost
-                               n_samples=13000, event="capture_stopped", lost_samples=2 * 7000, event_index=13000),
+    lost_config=lambda: _modbus_config(timeout_s=0.03, missing_response_rate=0.03),
+    lost_extra=_modbus_lost_extra,
+    drive_fault=Fault(
+        lambda: _modbus_config(drive_fault_after_s=2.0),
+        match=r"drive_fault: axis stopped.*register 102 \(fault_code\) = 4, at sample 2000",
+        n_samples=2000,
+        events=("fault",),
+    ),
+    refused_access=Fault(
+        lambda: _modbus_config(exception_register=117, exception_code=4),
+        match=re.escape("register 117 (table_crc)"),
+        also=("Modbus exception 4 (server device failure",),
+    ),
+    short_capture=ShortCapture(
+        lambda: _modbus_config(duration_s=16.0, capture_stops_after_s=13.0),
+        # 16 s of multisine after a 4 s lead-in; the capture ends at 13 s: periods 1 and 2
+        # remain whole and are analysed, the rest is counted lost
+        n_samples=13000,
+        event="capture_stopped",
+        lost_samples=2 * 7000,
+        event_index=13000,
+    ),
     skip={
         "falls_silent": "the Modbus twin has no switch that silences it mid-run (its server answers every "
-                        "request it gets); a twin closed mid-run is test_endings.py's test_device_vanishes",
+        "request it gets); a twin closed mid-run is test_endings.py's test_device_vanishes",
     },
 )
 
 CANOPEN = Transport(
-    name="canopen", config_file="emulated-canopen-gantry.toml",
+    name="canopen",
+    config_file="emulated-canopen-gantry.toml",
     trip_overrides={"emulator": {"time_scale": 20.0}},
-    lost_config=_canopen_lost_config, lost_extra=_canopen_lost_extra,
-    drive_fault=Fault(lambda: _canopen_config(drive_fault_after_s=1.5), match="EMCY 0x4310",
-                      also=("temperature",), n_samples=1500, events=("emergency",)),
+    lost_config=_canopen_lost_config,
+    lost_extra=_canopen_lost_extra,
+    drive_fault=Fault(
+        lambda: _canopen_config(drive_fault_after_s=1.5),
+        match="EMCY 0x4310",
+        also=("temperature",),
+        n_samples=1500,
+        events=("emergency",),
+    ),
     # the heartbeat is watched in wall time: 3 s of table at time scale 2 outlast the 0.5 s consumer timeout
     falls_silent=Fault(lambda: _canopen_config(time_scale=2.0, heartbeat_stops_after_s=0.5), match="heartbeat lost"),
-    refused_access=Fault(lambda: _canopen_config(abort_object="0x2201:3"), match="0x2201:3",
-                         also=("Command", "hardware error"), n_samples=0),
-    short_capture=ShortCapture(lambda: _canopen_config(capture_stops_after_s=2.0), n_samples=2000,
-                               event="capture_short", error=(DeviceError, "captured only 2000 of 3000")),
+    refused_access=Fault(
+        lambda: _canopen_config(abort_object="0x2201:3"),
+        match="0x2201:3",
+        also=("Command", "hardware error"),
+        n_samples=0,
+    ),
+    short_capture=ShortCapture(
+        lambda: _canopen_config(capture_stops_after_s=2.0),
+        n_samples=2000,
+        event="capture_short",
+        error=(DeviceError, "captured only 2000 of 3000"),
+    ),
 )
 
 TRANSPORTS = [SERIAL, MODBUS, CANOPEN]
@@ -289,7 +334,7 @@ class TestScenarios:
             summary = session.run()
             assert summary["stream"]["lost_samples"] == short.lost_samples
             assert any("periods had lost samples" in w for w in summary["warnings"])
-            (true_f, _), = true_modes(cfg.emulator)
+            ((true_f, _),) = true_modes(cfg.emulator)
             assert min(abs(r["frequency_hz"] - true_f) / true_f for r in summary["resonances"]) < 0.01
         assert not transport.running(session.emulator)
         run = read_run(tmp_path / "identification.h5")

@@ -41,16 +41,19 @@ def test_a_number_or_a_table_is_read_and_the_check_sees_either():
     assert seen[-1] == Curve(poly=[1.0, 2.0]) and 3.0 in seen
 
 
-@pytest.mark.parametrize("value, key, says", [
-    (-1.0, "axis.k", "must be > 0"),  # the field's bounds apply to the number
-    ("3", "axis.k", "must be a number or a table"),
-    (True, "axis.k", "must be a number or a table"),
-    ([1.0], "axis.k", "must be a number or a table"),
-    (float("inf"), "axis.k", "finite"),
-    ({"poly": [1.0, 2.0, 3.0]}, "axis.k", "at most two coefficients"),  # the check refuses the table
-    ({"poly": ["x"]}, "axis.k.poly[0]", "must be float"),
-    ({"slope": 1.0}, "axis.k.slope", "unknown key"),
-])
+@pytest.mark.parametrize(
+    "value, key, says",
+    [
+        (-1.0, "axis.k", "must be > 0"),  # the field's bounds apply to the number
+        ("3", "axis.k", "must be a number or a table"),
+        (True, "axis.k", "must be a number or a table"),
+        ([1.0], "axis.k", "must be a number or a table"),
+        (float("inf"), "axis.k", "finite"),
+        ({"poly": [1.0, 2.0, 3.0]}, "axis.k", "at most two coefficients"),  # the check refuses the table
+        ({"poly": ["x"]}, "axis.k.poly[0]", "must be float"),
+        ({"slope": 1.0}, "axis.k.slope", "unknown key"),
+    ],
+)
 def test_bad_values_name_the_key_and_the_file(value, key, says):
     with pytest.raises(ConfigError) as err:
         build({"k": value})

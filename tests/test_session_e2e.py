@@ -39,15 +39,17 @@ def _maps(path: Path) -> bool:
 
 
 EMULATOR_CONFIGS = sorted(
-    p for p in CONFIGS.glob("*.toml")
-    if tomllib.loads(p.read_text()).get("device", {}).get("port", "emulator") == "emulator" and _runs_experiments(p)
+    p
+    for p in CONFIGS.glob("*.toml")
+    if tomllib.loads(p.read_text()).get("device", {}).get("port", "emulator") == "emulator"
+    and _runs_experiments(p)
     and not _maps(p)
 )
 
 
 def check_against_truth(cfg, summary, min_reduction_db=20.0, zeta_tolerance=0.15):
     """The acceptance figures of a session, compared with the configured plant."""
-    (true_f, true_zeta), = true_modes(cfg.emulator)
+    ((true_f, true_zeta),) = true_modes(cfg.emulator)
     found = summary["resonances"]
     assert found, summary["warnings"]
     best = min(found, key=lambda r: abs(r["frequency_hz"] - true_f))
@@ -87,8 +89,11 @@ def test_every_shipped_emulator_config_runs(path, tmp_path):
     cfg = load_config(path)
     zeta_tolerance = 0.15
     if cfg.device.acquisition == "streamed":  # played in real time: three excitation periods, no friction legs
-        cfg = replace(cfg, excitation=replace(cfg.excitation, duration_s=3 * cfg.excitation.period_s),
-                      friction_test=replace(cfg.friction_test, enabled=False))
+        cfg = replace(
+            cfg,
+            excitation=replace(cfg.excitation, duration_s=3 * cfg.excitation.period_s),
+            friction_test=replace(cfg.friction_test, enabled=False),
+        )
         # Without its friction test the Coulomb friction stays in the torque and adds apparent damping (about
         # 15 % here, 20 % with the bench's disturbances); the shipped run, friction test included, meets 15 %.
         zeta_tolerance = 0.3
@@ -105,8 +110,9 @@ def test_every_shipped_emulator_config_runs(path, tmp_path):
         run = read_run(tmp_path / name)
         assert run.complete and run.n_samples > 0
         assert np.all(np.diff(run.samples["sample_index"]) == 1)
-    assert (json.loads((tmp_path / "summary.json").read_text())["resonances"]
-            == json.loads(json.dumps(summary["resonances"])))
+    assert json.loads((tmp_path / "summary.json").read_text())["resonances"] == json.loads(
+        json.dumps(summary["resonances"])
+    )
     assert (tmp_path / "bode.png").stat().st_size > 10_000
     check_report(tmp_path)  # report.html: every section, self-contained
     written = json.loads((tmp_path / "summary.json").read_text())
@@ -122,22 +128,28 @@ def gantry_variant(**changes) -> object:
     plant = replace(emu.plant, **{k: v for k, v in changes.items() if k in ("m1", "m2", "k", "d")})
     friction = replace(emu.friction, **{k: v for k, v in changes.items() if k in ("Fc", "Fs", "Fv", "vs")})
     # a fixed amplitude: these variants test other plants and faults, and their runs start with the identification
-    return replace(cfg, emulator=replace(emu, plant=plant, friction=friction, link="pipe", time_scale=8.0),
-                   excitation=replace(cfg.excitation, amplitude_nm=8.0))
+    return replace(
+        cfg,
+        emulator=replace(emu, plant=plant, friction=friction, link="pipe", time_scale=8.0),
+        excitation=replace(cfg.excitation, amplitude_nm=8.0),
+    )
 
 
 def test_other_gantry_plant_meets_the_same_figures(tmp_path):
     # a stiffer, lighter load: coupled mode at 33.5 Hz, other friction
     cfg = gantry_variant(m1=35.0, m2=6.0, k=2.3e5, d=30.0, Fc=0.25, Fs=0.4, Fv=3.0, vs=0.008)
-    (true_f, _), = true_modes(cfg.emulator)
+    ((true_f, _),) = true_modes(cfg.emulator)
     assert 30 < true_f < 40
     check_against_truth(cfg, Session(cfg, tmp_path).run())
 
 
 def test_grey_box_model_in_a_bench_run_is_validated_on_the_verification_run(tmp_path):
     cfg = gantry_variant()
-    cfg = replace(cfg, model=replace(cfg.model, kind="rigid_axis", c=10.0, cutoff_hz=8.0),
-                  friction_test=replace(cfg.friction_test, enabled=False))
+    cfg = replace(
+        cfg,
+        model=replace(cfg.model, kind="rigid_axis", c=10.0, cutoff_hz=8.0),
+        friction_test=replace(cfg.friction_test, enabled=False),
+    )
     summary = Session(cfg, tmp_path).run()
     model = summary["model"]
     # below the 21.8 Hz mode cart and load move as one: M = m1 + m2 = 50 kg (force = c * torque)
@@ -150,12 +162,6 @@ def test_grey_box_model_in_a_bench_run_is_validated_on_the_verification_run(tmp_
     anti = summary["plant_model"]["antiresonances"][0]["frequency_hz"]
     assert abs(anti - np.sqrt(1.5e5 / 10.0) / (2 * np.pi)) / anti < 0.01
     assert summary["measurement"]["resolution"]["lowest_antiresonance"]["bins"] > 5
-
-
-
-
-
-
 
 
 def test_malformed_config_names_the_key_and_file(tmp_path, capsys):
@@ -171,8 +177,9 @@ def test_malformed_config_names_the_key_and_file(tmp_path, capsys):
 
 def test_unknown_port_is_one_line(tmp_path, capsys):
     cfg = tmp_path / "real.toml"
-    cfg.write_text((CONFIGS / "emulated-gantry.toml").read_text()
-                   .replace('port = "emulator"', 'port = "/dev/does-not-exist"'))
+    cfg.write_text(
+        (CONFIGS / "emulated-gantry.toml").read_text().replace('port = "emulator"', 'port = "/dev/does-not-exist"')
+    )
     assert main(["run", str(cfg), "--out", str(tmp_path / "o")]) == 4
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "/dev/does-not-exist" in err[0]

@@ -25,11 +25,24 @@ def _write(path, n=1000, units=OLD_UNITS, lost=LOST, mode="torque", events=True,
     """A session-like recording: lost samples, a lost-block, an underrun and a limit-trip event, aborted."""
     index = np.array([i for i in range(n) if i not in lost], dtype=float)
     t = index / RATE_HZ
-    rows = np.column_stack([index, t, 2.0 * np.sin(2 * np.pi * 5 * t), 1.5 * np.sin(2 * np.pi * 5 * t + 0.3),
-                            0.1 * np.cos(2 * np.pi * 5 * t), 0.01 * t, 0.011 * t])
-    attrs = {"experiment": "identification", "mode": mode, "config_source": "configs/bench-axis.toml",
-             "device": {"name": "myrio-board", "firmware": "hilident-board 1.0", "port": "/dev/ttyUSB0"},
-             "versions": {"hilident": "9.9.9"}}
+    rows = np.column_stack(
+        [
+            index,
+            t,
+            2.0 * np.sin(2 * np.pi * 5 * t),
+            1.5 * np.sin(2 * np.pi * 5 * t + 0.3),
+            0.1 * np.cos(2 * np.pi * 5 * t),
+            0.01 * t,
+            0.011 * t,
+        ]
+    )
+    attrs = {
+        "experiment": "identification",
+        "mode": mode,
+        "config_source": "configs/bench-axis.toml",
+        "device": {"name": "myrio-board", "firmware": "hilident-board 1.0", "port": "/dev/ttyUSB0"},
+        "versions": {"hilident": "9.9.9"},
+    }
     w = RunWriter(path, NAMES, list(units), RATE_HZ, attrs)
     w.append(rows)
     if events:
@@ -96,12 +109,19 @@ def test_events_are_marked_on_every_axis_by_kind(recording):
 
 def test_the_title_names_the_run(recording):
     title = _figure(recording).get_suptitle()
-    for part in ("identification.h5: identification, mode torque", "config configs/bench-axis.toml",
-                 "device myrio-board hilident-board 1.0 on /dev/ttyUSB0", "hilident 9.9.9", "1000 Hz",
-                 "950 samples over 1 s (50 not recorded)", "recorded 20", " UTC",
-                 "status aborted: limit trip: velocity limit 1 m/s crossed",
-                 "events: lost_blocks × 1, underrun × 1, limit_trip × 1",
-                 "limit_trip at 0.9 s: velocity limit 1 m/s crossed: 1.2 m/s"):
+    for part in (
+        "identification.h5: identification, mode torque",
+        "config configs/bench-axis.toml",
+        "device myrio-board hilident-board 1.0 on /dev/ttyUSB0",
+        "hilident 9.9.9",
+        "1000 Hz",
+        "950 samples over 1 s (50 not recorded)",
+        "recorded 20",
+        " UTC",
+        "status aborted: limit trip: velocity limit 1 m/s crossed",
+        "events: lost_blocks × 1, underrun × 1, limit_trip × 1",
+        "limit_trip at 0.9 s: velocity limit 1 m/s crossed: 1.2 m/s",
+    ):
         assert part in title, part
 
 
@@ -120,7 +140,7 @@ def test_lost_samples_leave_a_gap_in_the_trace(recording):
     gap = np.flatnonzero(np.isnan(y))
     assert gap.size == 1  # one break, where the 50 lost samples are
     assert t[gap[0] - 1] == pytest.approx(0.399) and t[gap[0] + 1] == pytest.approx(0.450)
-    assert np.all(np.isfinite(y[: gap[0]])) and np.all(np.isfinite(y[gap[0] + 1:]))
+    assert np.all(np.isfinite(y[: gap[0]])) and np.all(np.isfinite(y[gap[0] + 1 :]))
 
 
 def test_a_long_recording_is_drawn_as_an_envelope_that_keeps_its_peaks(tmp_path):
@@ -186,12 +206,18 @@ def _hdf5_not_a_recording(path):
     return path
 
 
-@pytest.mark.parametrize("make, message", [
-    (lambda tmp: tmp / "missing.h5", "missing.h5: no such file"),
-    (lambda tmp: (tmp / "notes.txt").write_text("x") and tmp / "notes.txt", "not a hilident recording (not an HDF5"),
-    (lambda tmp: _hdf5_not_a_recording(tmp / "other.h5"), "not a hilident recording (an HDF5 file without format"),
-    (lambda tmp: tmp, "is a folder, not a recording"),
-])
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (lambda tmp: tmp / "missing.h5", "missing.h5: no such file"),
+        (
+            lambda tmp: (tmp / "notes.txt").write_text("x") and tmp / "notes.txt",
+            "not a hilident recording (not an HDF5",
+        ),
+        (lambda tmp: _hdf5_not_a_recording(tmp / "other.h5"), "not a hilident recording (an HDF5 file without format"),
+        (lambda tmp: tmp, "is a folder, not a recording"),
+    ],
+)
 def test_cli_refuses_what_is_not_a_recording_with_exit_2(tmp_path, capsys, make, message):
     assert main(["show", str(make(tmp_path))]) == 2
     err = capsys.readouterr().err

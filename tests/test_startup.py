@@ -44,8 +44,14 @@ PROBE = textwrap.dedent(
 def probe(argv: list[str] | None, statement: str = "", cwd: Path | None = None) -> tuple[dict, str]:
     """Run ``hilident argv`` (or ``statement``) in a fresh interpreter; its report and its stderr."""
     env = {**os.environ, "PYTHONPATH": str(SRC)}
-    done = subprocess.run([sys.executable, "-c", PROBE, json.dumps(argv), statement, json.dumps(HEAVY)],
-                          capture_output=True, text=True, timeout=120, env=env, cwd=cwd)
+    done = subprocess.run(
+        [sys.executable, "-c", PROBE, json.dumps(argv), statement, json.dumps(HEAVY)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
+        cwd=cwd,
+    )
     last = done.stdout.strip().splitlines()[-1] if done.stdout.strip() else ""
     assert last.startswith("{"), f"probe printed no report: stdout {done.stdout!r}, stderr {done.stderr!r}"
     return json.loads(last), done.stderr
@@ -61,11 +67,15 @@ def test_importing_the_package_is_light():
     assert report["heavy"] == []
 
 
-@pytest.mark.parametrize("text, key", [
-    ('[device]\ntransport = "serial"\nbogus = 1\n', "device.bogus"),
-    ('[run]\nsample_rate_hz = -5\n', "run.sample_rate_hz"),
-    ("[device\n", "bad.toml"),
-], ids=["unknown-key", "bad-value", "not-toml"])
+@pytest.mark.parametrize(
+    "text, key",
+    [
+        ('[device]\ntransport = "serial"\nbogus = 1\n', "device.bogus"),
+        ("[run]\nsample_rate_hz = -5\n", "run.sample_rate_hz"),
+        ("[device\n", "bad.toml"),
+    ],
+    ids=["unknown-key", "bad-value", "not-toml"],
+)
 def test_a_config_error_comes_before_the_heavy_imports(tmp_path, text, key):
     bad = tmp_path / "bad.toml"
     bad.write_text(text)
@@ -91,17 +101,22 @@ def test_loading_configs_from_python_imports_nothing_heavy(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text('[device]\nport = "emulator"\nbaudrate = "fast"\n')
     good = CONFIGS / "emulated-gantry.toml"
-    statement = (f"from hilident import load_config, ConfigError\n"
-                 f"load_config({str(good)!r})\n"
-                 f"try:\n    load_config({str(bad)!r})\nexcept ConfigError as exc:\n    print(exc, file=sys.stderr)\n"
-                 f"else:\n    raise SystemExit('no ConfigError')")
+    statement = (
+        f"from hilident import load_config, ConfigError\n"
+        f"load_config({str(good)!r})\n"
+        f"try:\n    load_config({str(bad)!r})\nexcept ConfigError as exc:\n    print(exc, file=sys.stderr)\n"
+        f"else:\n    raise SystemExit('no ConfigError')"
+    )
     report, stderr = probe(None, statement)
     assert "device.baudrate" in stderr
     assert report["heavy"] == []
 
 
-@pytest.mark.parametrize("command", [["identify", "data.h5", "--config"], ["upload", "--from", "old", "--config"]],
-                         ids=["identify", "upload"])
+@pytest.mark.parametrize(
+    "command",
+    [["identify", "data.h5", "--config"], ["upload", "--from", "old", "--config"]],
+    ids=["identify", "upload"],
+)
 def test_other_commands_report_a_config_error_before_the_heavy_imports(tmp_path, command):
     bad = tmp_path / "bad.toml"
     bad.write_text('[device]\nport = "emulator"\nbogus = 1\n')
@@ -166,12 +181,17 @@ def test_the_signals_package_still_offers_its_generators():
 def test_the_startup_bench_runs_and_reports_every_command():
     """``bench/startup.py`` still runs (its broken config, its exit codes); its figures are not judged here."""
     bench = Path(__file__).resolve().parents[1] / "bench" / "startup.py"
-    done = subprocess.run([sys.executable, str(bench), "--repeats", "1", "--json"], capture_output=True, text=True,
-                          timeout=300)
+    done = subprocess.run(
+        [sys.executable, str(bench), "--repeats", "1", "--json"], capture_output=True, text=True, timeout=300
+    )
     assert done.returncode == 0, done.stderr
     results = json.loads(done.stdout)
     assert [r["command"].split(" (")[0] for r in results] == [
-        "hilident run BAD.toml", "hilident --help", "hilident identify MISSING.h5", "python -c pass"]
+        "hilident run BAD.toml",
+        "hilident --help",
+        "hilident identify MISSING.h5",
+        "python -c pass",
+    ]
     for r in results:
         assert r["target_s"] == 0.3 and r["repeats"] == 1
         assert 0 < r["min_s"] <= r["median_s"] <= r["max_s"]

@@ -27,10 +27,24 @@ WORKSPACE_KEYS = ("map", "workspace", "move_test")
 
 
 def _run(**extra) -> Summary:
-    return Summary.of_run(config="a.toml", device=DevicePart("myrio-board", "emulator", True), sample_rate_hz=1000.0,
-                          excitation=ExcitationPart.of(_Excitation(), None), plant=None, friction=None, designs=[],
-                          upload=UploadOutcome(), verification=None, stream=StreamStats(),
-                          connect=None, filters_found=[], recordings=[], elapsed_s=1.0, warnings=["w"], **extra)
+    return Summary.of_run(
+        config="a.toml",
+        device=DevicePart("myrio-board", "emulator", True),
+        sample_rate_hz=1000.0,
+        excitation=ExcitationPart.of(_Excitation(), None),
+        plant=None,
+        friction=None,
+        designs=[],
+        upload=UploadOutcome(),
+        verification=None,
+        stream=StreamStats(),
+        connect=None,
+        filters_found=[],
+        recordings=[],
+        elapsed_s=1.0,
+        warnings=["w"],
+        **extra,
+    )
 
 
 def test_a_run_that_failed_before_its_model_has_no_model_key_and_names_the_step_last():
@@ -38,8 +52,13 @@ def test_a_run_that_failed_before_its_model_has_no_model_key_and_names_the_step_
     assert list(out) == [k for k in LAYOUTS["run"] if k not in ("model", *WORKSPACE_KEYS)] + ["failed_step", "error"]
     assert out["upload"] == {"written": False, "verified_readback": False, "slots": []}
     assert out["verification"] == {"band_reduction_db": None, "peak_reduction_db": None, "resonances": []}
-    assert out["excitation"] == {"kind": "multisine", "mode": "torque", "amplitude": 2.0, "unit": "N*m",
-                                 "closed_loop": False}
+    assert out["excitation"] == {
+        "kind": "multisine",
+        "mode": "torque",
+        "amplitude": 2.0,
+        "unit": "N*m",
+        "closed_loop": False,
+    }
     assert out["measurement"] is None and out["friction"] is None
 
 
@@ -53,22 +72,45 @@ def test_a_finished_run_ends_with_its_model_and_a_verification_in_its_documented
 
 
 def test_an_identify_has_an_empty_measurement_and_the_data_rows_as_its_stream():
-    out = Summary.of_identify(config="c", data={"samples": 10, "missing_samples": 2}, plant=None, friction=None,
-                              model=None, designs=[], notch_skipped_reason=None, elapsed_s=0.1, warnings=[]).to_dict()
+    out = Summary.of_identify(
+        config="c",
+        data={"samples": 10, "missing_samples": 2},
+        plant=None,
+        friction=None,
+        model=None,
+        designs=[],
+        notch_skipped_reason=None,
+        elapsed_s=0.1,
+        warnings=[],
+    ).to_dict()
     assert list(out) == list(LAYOUTS["identify"])
     assert out["measurement"] == {} and out["stream"]["samples"] == 10 and out["stream"]["lost_samples"] == 2
 
 
 def test_an_upload_keeps_the_optional_upload_keys_in_their_order(tmp_path):
     upload = UploadOutcome(True, True, [], rolled_back=[], saved=True, saved_with="0x1010:1")
-    s = Summary.of_upload(config="c", source={"summary": "s", "kind": "run", "notch_filters": []},
-                          device=DevicePart.reported("d", "p", False, None), filters_before=[], designs=[],
-                          upload=upload, elapsed_s=0.2, warnings=[])
+    s = Summary.of_upload(
+        config="c",
+        source={"summary": "s", "kind": "run", "notch_filters": []},
+        device=DevicePart.reported("d", "p", False, None),
+        filters_before=[],
+        designs=[],
+        upload=upload,
+        elapsed_s=0.2,
+        warnings=[],
+    )
     out = json.loads(write_json(tmp_path / "summary.json", s.to_dict()).read_text())
     assert list(out) == list(LAYOUTS["upload"])
     assert list(out["upload"]) == ["written", "verified_readback", "slots", "rolled_back", "saved", "saved_with"]
-    assert out["device"] == {"driver": "d", "port": "p", "emulated": False, "name": None, "firmware": None,
-                             "loop_rate_hz": None, "filter_slots": None}
+    assert out["device"] == {
+        "driver": "d",
+        "port": "p",
+        "emulated": False,
+        "name": None,
+        "firmware": None,
+        "loop_rate_hz": None,
+        "filter_slots": None,
+    }
 
 
 def test_the_recording_logs_typed_events_with_their_fields_in_the_data_column(tmp_path):

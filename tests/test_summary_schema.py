@@ -33,8 +33,11 @@ def errors(validator, summary) -> list[str]:
 def test_real_summaries_validate_as_their_own_kind(made, validator, kind):
     summary = made[kind]
     assert errors(validator, summary) == []
-    (branch,) = [b for b in validator.schema["oneOf"]
-                 if jsonschema.Draft202012Validator({**b, "$defs": validator.schema["$defs"]}).is_valid(summary)]
+    (branch,) = [
+        b
+        for b in validator.schema["oneOf"]
+        if jsonschema.Draft202012Validator({**b, "$defs": validator.schema["$defs"]}).is_valid(summary)
+    ]
     assert branch["title"] == kind
     # the run had a friction test, a grey-box model, an upload and a verification: every section was checked
     if kind == "run":

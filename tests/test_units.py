@@ -9,8 +9,15 @@ from hilident.units import EXCITATION_UNIT_OF_MODE, display_unit, recorded_units
 from support.fresh_recording import TRANSPORT_CONFIGS, record, twin_device
 
 #: Units of the channels whose unit never depends on the mode.
-FIXED_UNITS = {"sample_index": "1", "time_s": "s", "torque_nm": "N*m", "torque_cmd_nm": "N*m", "position_m": "m",
-               "load_position_m": "m", "velocity_mps": "m/s"}
+FIXED_UNITS = {
+    "sample_index": "1",
+    "time_s": "s",
+    "torque_nm": "N*m",
+    "torque_cmd_nm": "N*m",
+    "position_m": "m",
+    "load_position_m": "m",
+    "velocity_mps": "m/s",
+}
 
 
 def test_units_in_mode_replaces_only_the_excitation():
@@ -23,8 +30,9 @@ def test_units_in_mode_replaces_only_the_excitation():
 
 def test_an_older_recordings_dimensionless_excitation_reads_as_its_modes_unit(tmp_path):
     path = tmp_path / "old.h5"
-    with RunWriter(path, ["sample_index", "excitation", "torque_nm"], ["1", "1", "N*m"], 1000.0,
-                   attrs={"mode": "velocity"}) as w:
+    with RunWriter(
+        path, ["sample_index", "excitation", "torque_nm"], ["1", "1", "N*m"], 1000.0, attrs={"mode": "velocity"}
+    ) as w:
         w.append([[0.0, 0.1, 0.2], [1.0, 0.1, 0.3]])
     run = read_run(path)  # an older file is read as it is stored
     assert run.units["excitation"] == "1"
@@ -47,7 +55,8 @@ def test_every_adapter_reports_the_excitation_in_the_unit_of_its_mode(transport)
             units = dict(zip(names, ad.channel_units, strict=True))
             assert units["excitation"] == unit, mode
             assert {n: u for n, u in units.items() if n != "excitation"} == {
-                n: FIXED_UNITS[n] for n in names if n != "excitation"}
+                n: FIXED_UNITS[n] for n in names if n != "excitation"
+            }
 
 
 @pytest.mark.parametrize("transport", sorted(TRANSPORT_CONFIGS))

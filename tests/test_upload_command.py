@@ -34,8 +34,12 @@ def write_source(folder: Path, truth_hz: float, rate_hz: float, extra_hz: tuple[
     resonances = [Resonance(f, ZETA, 30.0, 0.99, frequency_ci95_hz=0.01 * f) for f in (truth_hz, *extra_hz)]
     designs = pipeline.design_notches(resonances, cfg.notch, rate_hz, list(range(len(resonances))))
     folder.mkdir(parents=True)
-    summary = {"resonances": pipeline.resonance_records(resonances), "notch_filters": pipeline.notch_records(designs),
-               "upload": {"written": False, "verified_readback": False, "slots": []}, "warnings": []}
+    summary = {
+        "resonances": pipeline.resonance_records(resonances),
+        "notch_filters": pipeline.notch_records(designs),
+        "upload": {"written": False, "verified_readback": False, "slots": []},
+        "warnings": [],
+    }
     (folder / "summary.json").write_text(json.dumps(summary))
     (folder / "identification.h5").write_bytes(b"recording")  # stands for the run's other files
     return folder
@@ -59,11 +63,15 @@ def upload(*args: str) -> int:
     return main(["upload", *args])
 
 
-@pytest.mark.parametrize("transport,link,config", [
-    ("serial", "pty", "emulated-gantry.toml"),
-    ("modbus", "tcp", "emulated-modbus-gantry.toml"),
-    ("canopen", "socketcand", "emulated-canopen-gantry.toml"),
-], ids=["serial", "modbus", "canopen"])
+@pytest.mark.parametrize(
+    "transport,link,config",
+    [
+        ("serial", "pty", "emulated-gantry.toml"),
+        ("modbus", "tcp", "emulated-modbus-gantry.toml"),
+        ("canopen", "socketcand", "emulated-canopen-gantry.toml"),
+    ],
+    ids=["serial", "modbus", "canopen"],
+)
 def test_upload_writes_reads_back_and_enables_on_every_transport(tmp_path, locks, capsys, transport, link, config):
     twin = Twin(transport, link, config, tmp_path)
     try:
@@ -86,8 +94,7 @@ def test_upload_writes_reads_back_and_enables_on_every_transport(tmp_path, locks
         assert slot["achieved"]["attenuation_at_design_center_db"] == pytest.approx(at_centre, abs=1e-6)
         assert abs(slot["achieved"]["depth_error_db"]) < 1.0
         # what was there before is recorded, slot by slot
-        assert [(b["enabled"], tuple(b["b"])) for b in summary["filters_before"]] == \
-            [(e, q.b) for q, e in before]
+        assert [(b["enabled"], tuple(b["b"])) for b in summary["filters_before"]] == [(e, q.b) for q, e in before]
         assert summary["device"]["driver"] == twin.cfg.device.driver and not summary["device"]["emulated"]
         assert summary["source"]["summary"] == str(source / "summary.json")
         assert fingerprint(source) == before_files  # the source run is not touched
@@ -149,8 +156,9 @@ def faulty(base, bad_slot: int):
     return Faulty
 
 
-def test_a_failing_read_back_rolls_every_slot_back_and_exits_with_a_partial_summary(tmp_path, locks, capsys,
-                                                                                    monkeypatch, serial_twin):
+def test_a_failing_read_back_rolls_every_slot_back_and_exits_with_a_partial_summary(
+    tmp_path, locks, capsys, monkeypatch, serial_twin
+):
     from hilident.session import run as session
 
     old = SerialBoardAdapter.stored_form(design_notch(NotchSpec(50.0, 10.0, 20.0), 4000.0))  # as the board holds it
@@ -174,8 +182,9 @@ def test_a_failing_read_back_rolls_every_slot_back_and_exits_with_a_partial_summ
     assert summary["filters_before"][0]["enabled"] and summary["filters_before"][0]["b"] == list(old.b)
 
 
-def test_a_signal_during_the_upload_puts_every_slot_back_and_exits_143(tmp_path, locks, capsys, monkeypatch,
-                                                                       serial_twin):
+def test_a_signal_during_the_upload_puts_every_slot_back_and_exits_143(
+    tmp_path, locks, capsys, monkeypatch, serial_twin
+):
     import os
     import signal
 
@@ -194,6 +203,7 @@ def test_a_signal_during_the_upload_puts_every_slot_back_and_exits_143(tmp_path,
                 if slot == 1:  # slot 1 written and enabled when SIGTERM arrives
                     os.kill(os.getpid(), signal.SIGTERM)
                 return done
+
         return Terminated
 
     monkeypatch.setattr(session, "adapter_class", terminated_at_slot_1)
@@ -240,8 +250,9 @@ def test_save_stores_only_after_every_slot_read_back(tmp_path, monkeypatch):
 def test_save_on_a_device_without_a_store_command_is_refused_before_writing(tmp_path, locks, capsys, serial_twin):
     source = write_source(tmp_path / "run", serial_twin.truth_hz, 4000.0)
     before = slots(serial_twin)
-    assert upload("--from", str(source), "--config", str(serial_twin.host_config("bench")), "--yes", "--save",
-                  "-q") == 2
+    assert (
+        upload("--from", str(source), "--config", str(serial_twin.host_config("bench")), "--yes", "--save", "-q") == 2
+    )
     assert "--save: a serial device has no store-parameters command" in capsys.readouterr().err
     assert slots(serial_twin) == before
 
@@ -253,8 +264,9 @@ def test_a_notch_for_another_filter_rate_is_designed_again_at_the_devices(tmp_pa
     (design,) = summary["notch_filters"]
     assert design["sample_rate_hz"] == 4000.0
     assert any("designed for a 1000 Hz filter rate" in w and "4000 Hz" in w for w in summary["warnings"])
-    expected = pipeline.design_notches([Resonance(21.79, ZETA, 30.0, 0.99, frequency_ci95_hz=0.2179)], cfg.notch,
-                                       4000.0, [0])[0]
+    expected = pipeline.design_notches(
+        [Resonance(21.79, ZETA, 30.0, 0.99, frequency_ci95_hz=0.2179)], cfg.notch, 4000.0, [0]
+    )[0]
     assert design["b"] == list(expected.biquad.b)
     assert summary["upload"]["verified_readback"]
 
@@ -271,12 +283,28 @@ def test_a_source_without_notches_is_a_data_error_quoting_its_reason(tmp_path, c
     assert not (tmp_path / "ident-upload").exists()
 
 
-@pytest.mark.parametrize("broken,key", [
-    ({"notch_filters": [{"center_hz": 20.0}]}, "notch_filters[0].width_hz"),
-    ({"notch_filters": [{"center_hz": 20.0, "width_hz": 2.0, "depth_db": 30.0, "sample_rate_hz": 4000.0,
-                         "b": [1, 0, 0], "a": [2, 0, 0]}]}, "notch_filters[0].a"),
-    ({"resonances": []}, "no key notch_filters"),
-])
+@pytest.mark.parametrize(
+    "broken,key",
+    [
+        ({"notch_filters": [{"center_hz": 20.0}]}, "notch_filters[0].width_hz"),
+        (
+            {
+                "notch_filters": [
+                    {
+                        "center_hz": 20.0,
+                        "width_hz": 2.0,
+                        "depth_db": 30.0,
+                        "sample_rate_hz": 4000.0,
+                        "b": [1, 0, 0],
+                        "a": [2, 0, 0],
+                    }
+                ]
+            },
+            "notch_filters[0].a",
+        ),
+        ({"resonances": []}, "no key notch_filters"),
+    ],
+)
 def test_a_broken_source_names_the_file_and_key(tmp_path, broken, key):
     (tmp_path / "summary.json").write_text(json.dumps(broken))
     cfg = load_config(CONFIGS / "emulated-gantry.toml")
@@ -287,16 +315,25 @@ def test_a_broken_source_names_the_file_and_key(tmp_path, broken, key):
 def test_out_may_not_be_the_source_folder(tmp_path, capsys):
     source = write_source(tmp_path / "run", 21.79, 4000.0)
     before = fingerprint(source)
-    assert upload("--from", str(source / "summary.json"), "--config", str(CONFIGS / "emulated-gantry.toml"),
-                  "--out", str(source), "-q") == 2
+    assert (
+        upload(
+            "--from",
+            str(source / "summary.json"),
+            "--config",
+            str(CONFIGS / "emulated-gantry.toml"),
+            "--out",
+            str(source),
+            "-q",
+        )
+        == 2
+    )
     assert "never overwritten" in capsys.readouterr().err
     assert fingerprint(source) == before
 
 
 def test_slot_beyond_the_devices_slots_is_a_usage_error(tmp_path, capsys):
     source = write_source(tmp_path / "run", 21.79, 4000.0)
-    assert upload("--from", str(source), "--config", str(CONFIGS / "emulated-gantry.toml"), "--slot", "4",
-                  "-q") == 2
+    assert upload("--from", str(source), "--config", str(CONFIGS / "emulated-gantry.toml"), "--slot", "4", "-q") == 2
     assert "--slot 4" in capsys.readouterr().err and not (tmp_path / "run-upload").exists()
 
 
@@ -327,8 +364,7 @@ def test_identify_a_recording_then_upload_its_notch_to_the_modbus_twin(tmp_path)
     raw["excitation"]["duration_s"] = 6.0
     (tmp_path / "run.toml").write_text(tomli_w.dumps(raw))
     assert main(["run", str(tmp_path / "run.toml"), "--out", str(tmp_path / "run"), "-q", "--no-plots"]) == 0
-    assert main(["identify", str(tmp_path / "run" / "identification.h5"), "--out", str(tmp_path / "ident"),
-                 "-q"]) == 0
+    assert main(["identify", str(tmp_path / "run" / "identification.h5"), "--out", str(tmp_path / "ident"), "-q"]) == 0
     ident = json.loads((tmp_path / "ident" / "summary.json").read_text())
     assert len(ident["notch_filters"]) == 1, (ident["notch_skipped_reason"], ident["warnings"])
     (notch,) = ident["notch_filters"]
@@ -356,8 +392,11 @@ def check_upload_to_a_parameter_drive(source: Path, out: Path, center_hz: float)
     assert before["parameters"]["center"]["value"] == 4000 and not before["enabled"]  # the drive's "off"
     firmware = command.device.emulator.server.firmware
     written = {field: p["value"] for field, p in slot["parameters"].items()}
-    assert written == {"center": firmware.value("notch1_center_hz"), "width": firmware.value("notch1_width"),
-                       "depth": firmware.value("notch1_depth")}
+    assert written == {
+        "center": firmware.value("notch1_center_hz"),
+        "width": firmware.value("notch1_width"),
+        "depth": firmware.value("notch1_depth"),
+    }
     assert written["center"] == round(center_hz)  # the nearest 1 Hz step of the drive
     assert slot["parameters"]["center"]["parameter"] == "P08.02"
     assert firmware.saves == 1 and firmware.eeprom[0x0802] == written["center"]
@@ -369,8 +408,9 @@ def check_upload_to_a_parameter_drive(source: Path, out: Path, center_hz: float)
     assert abs(achieved["beyond_quantisation_db"]) < 1.0 and achieved["realisable_db"] > 20.0
 
 
-def test_the_upload_draws_its_notches_and_a_failing_plot_is_only_a_warning(tmp_path, locks, capsys, serial_twin,
-                                                                          monkeypatch):
+def test_the_upload_draws_its_notches_and_a_failing_plot_is_only_a_warning(
+    tmp_path, locks, capsys, serial_twin, monkeypatch
+):
     source = write_source(tmp_path / "run", serial_twin.truth_hz, 4000.0)
     config = str(serial_twin.host_config("bench"))
     assert upload("--from", str(source), "--config", config, "--yes", "-q", "--out", str(tmp_path / "a")) == 0

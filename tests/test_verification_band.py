@@ -31,8 +31,13 @@ def resonance(f0=22.0, zeta=0.018, ci=0.01, fit_db=0.1, noise_db=0.3, ratio=0.5)
 
 
 def notched(frf, biquad):
-    return FrequencyResponse(frf.frequency_hz, frf.response * biquad.response(frf.frequency_hz, FILTER_RATE),
-                             frf.coherence, frf.n_averages, frf.method)
+    return FrequencyResponse(
+        frf.frequency_hz,
+        frf.response * biquad.response(frf.frequency_hz, FILTER_RATE),
+        frf.coherence,
+        frf.n_averages,
+        frf.method,
+    )
 
 
 # --- the band figure ------------------------------------------------------------------------
@@ -96,8 +101,9 @@ def test_notch_eligibility_reasons():
     # without coherence the dB error alone decides
     blind = pipeline.notch_eligibility(resonance(fit_db=4.0, ratio=float("nan")))
     assert not blind["notchable"] and "without a coherence" in blind["reason"]
-    grid = pipeline.notch_eligibility(dataclasses.replace(resonance(), method="half_power",
-                                                          frequency_ci95_hz=float("nan")))
+    grid = pipeline.notch_eligibility(
+        dataclasses.replace(resonance(), method="half_power", frequency_ci95_hz=float("nan"))
+    )
     assert not grid["notchable"] and "no local fit" in grid["reason"]
     records = pipeline.resonance_records([resonance(), resonance(ci=0.6)])
     assert [r["notchable"] for r in records] == [True, False] and "not_notchable" in records[1]
@@ -152,7 +158,8 @@ def test_peak_without_a_model_mode_is_rejected_with_the_reason():
     assert not warnings
     # with every pole the order limit allows already used, the peak stays and a warning says why
     found, rejected, warnings = pipeline.reconcile_resonances(
-        [resonance(), peak], [], model, model.fit.n_den + model.fit.integrators, 0.5)
+        [resonance(), peak], [], model, model.fit.n_den + model.fit.integrators, 0.5
+    )
     assert len(found) == 2 and "model_max_order" in warnings[0]
 
 
@@ -176,8 +183,9 @@ def test_weak_excitation_reports_no_resonance_and_says_why():
 
 def test_sampling_rule_violation_is_a_warning_that_says_what_to_change():
     frf = mode_frf()
-    quality, warnings = pipeline.measurement_quality(frf, [resonance()], np.random.default_rng(0).standard_normal(4000),
-                                                     FS, (1.0, 79.0), None)
+    quality, warnings = pipeline.measurement_quality(
+        frf, [resonance()], np.random.default_rng(0).standard_normal(4000), FS, (1.0, 79.0), None
+    )
     assert quality["sampling"]["resonances"][0]["within_rule"] is False
     (w,) = [w for w in warnings if w.startswith("sampling")]
     assert "decimate by 2" in w and "within_rule" in w

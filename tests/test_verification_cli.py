@@ -13,13 +13,23 @@ class _FakeSession:
 
     def __init__(self, cfg, out, *args, **kwargs):
         self.out = out
-        self.verification = {"band_reduction_db": 21.43, "peak_reduction_db": 32.51, "band_bandwidths": 2.0,
-                             "resonances": []}
+        self.verification = {
+            "band_reduction_db": 21.43,
+            "peak_reduction_db": 32.51,
+            "band_bandwidths": 2.0,
+            "resonances": [],
+        }
 
     def run(self):
-        return {"resonances": [{"frequency_hz": 21.8, "damping_ratio": 0.018}], "friction": None, "model": None,
-                "verification": self.verification, "upload": {"written": True},
-                "stream": {"samples": 1, "lost_blocks": 0, "corrupt_frames": 0, "underruns": 0}, "warnings": []}
+        return {
+            "resonances": [{"frequency_hz": 21.8, "damping_ratio": 0.018}],
+            "friction": None,
+            "model": None,
+            "verification": self.verification,
+            "upload": {"written": True},
+            "stream": {"samples": 1, "lost_blocks": 0, "corrupt_frames": 0, "underruns": 0},
+            "warnings": [],
+        }
 
 
 def test_verification_line_leads_with_the_band_figure(tmp_path, monkeypatch, capsys):

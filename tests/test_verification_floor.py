@@ -181,27 +181,41 @@ def _verified_run(noise: float, verify_max_duration_s: float = 0.0):
     from hilident.session.map_run import WorkspaceRun
 
     cfg = load_config(MAP_CONFIG)
-    cfg = replace(cfg, run=replace(cfg.run, sample_rate_hz=FS),
-                  map=replace(cfg.map, positions_m=[0.0], count=0, verify_max_duration_s=verify_max_duration_s))
-    mapped = replace(cfg, excitation=replace(cfg.excitation, mode=MAP_MODE, amplitude_nm=1.0,
-                                             duration_s=cfg.map.duration_s))
+    cfg = replace(
+        cfg,
+        run=replace(cfg.run, sample_rate_hz=FS),
+        map=replace(cfg.map, positions_m=[0.0], count=0, verify_max_duration_s=verify_max_duration_s),
+    )
+    mapped = replace(
+        cfg, excitation=replace(cfg.excitation, mode=MAP_MODE, amplitude_nm=1.0, duration_s=cfg.map.duration_s)
+    )
     chain = [design_notch(NotchSpec(MODE_HZ, 16.0, 60.0), FS)] * 2
     bench, warnings = _Bench(noise, chain), []
 
     def analysis_samples(exp, excitation):  # the whole periods after the lead-in
-        return {k: v[excitation.period_samples:] for k, v in exp.samples.items()}
+        return {k: v[excitation.period_samples :] for k, v in exp.samples.items()}
 
-    run = WorkspaceRun(cfg, bench.record, identify=None, analysis_samples=analysis_samples,
-                       position=lambda: bench.here, progress=None, warnings=warnings, filter_input="torque_cmd_nm")
+    run = WorkspaceRun(
+        cfg,
+        bench.record,
+        identify=None,
+        analysis_samples=analysis_samples,
+        position=lambda: bench.here,
+        progress=None,
+        warnings=warnings,
+        filter_input="torque_cmd_nm",
+    )
     run.excitation, run.mapped_cfg, run.recipe = build_excitation(mapped), mapped, None
     exp = bench.record("map_0", MAP_MODE, run.excitation.samples)
     s = analysis_samples(exp, run.excitation)
     period, bins = run.excitation.period_samples, run.excitation.excited_bins
-    loop = pipeline.pooled_loop_response([s["excitation"]], [s["velocity_mps"]], FS, cfg.identification, period,
-                                         bins)
+    loop = pipeline.pooled_loop_response([s["excitation"]], [s["velocity_mps"]], FS, cfg.identification, period, bins)
     run.results = {"map_0": SimpleNamespace(loop=loop, resonances=[_mode_record()])}
-    run.command_responses = {"map_0": pipeline.pooled_loop_response([s["excitation"]], [s["torque_cmd_nm"]], FS,
-                                                                     cfg.identification, period, bins)}
+    run.command_responses = {
+        "map_0": pipeline.pooled_loop_response(
+            [s["excitation"]], [s["torque_cmd_nm"]], FS, cfg.identification, period, bins
+        )
+    }
     run.points = [MapPoint(0.0, 0.0, MODE_HZ, ZETA, 0.01, 0.99, "map_0.h5")]
     run.chain, run.chain_rate_hz = chain, FS
     bench.notched = True

@@ -19,10 +19,13 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 def test_weak_excitation_never_notches_where_there_is_no_mode(tmp_path):
     cfg = load_config(CONFIGS / "emulated-gantry.toml")
-    cfg = replace(cfg, excitation=replace(cfg.excitation, amplitude_nm=0.5),
-                  friction_test=replace(cfg.friction_test, enabled=False),
-                  emulator=replace(cfg.emulator, link="pipe", time_scale=6.0))
-    (true_f, _), = true_modes(cfg.emulator)
+    cfg = replace(
+        cfg,
+        excitation=replace(cfg.excitation, amplitude_nm=0.5),
+        friction_test=replace(cfg.friction_test, enabled=False),
+        emulator=replace(cfg.emulator, link="pipe", time_scale=6.0),
+    )
+    ((true_f, _),) = true_modes(cfg.emulator)
     summary = Session(cfg, tmp_path, plots=False).run()
     written = json.loads((tmp_path / "summary.json").read_text())
     assert "rejected_peaks" in written and all(p["reason"] for p in written["rejected_peaks"])
@@ -46,8 +49,12 @@ def test_weak_excitation_never_notches_where_there_is_no_mode(tmp_path):
 def test_an_axis_too_weakly_excited_to_move_keeps_the_friction_test_and_names_what_to_change(tmp_path):
     cfg = load_config(CONFIGS / "emulated-gantry.toml")
     ft = replace(cfg.friction_test, speeds_mps=[0.01, 0.04, 0.1, 0.2], hold_s=0.6)
-    cfg = replace(cfg, excitation=replace(cfg.excitation, amplitude_nm=0.05, period_s=2.0, duration_s=4.0),
-                  friction_test=ft, emulator=replace(cfg.emulator, preset="clean", link="pipe", time_scale=8.0))
+    cfg = replace(
+        cfg,
+        excitation=replace(cfg.excitation, amplitude_nm=0.05, period_s=2.0, duration_s=4.0),
+        friction_test=ft,
+        emulator=replace(cfg.emulator, preset="clean", link="pipe", time_scale=8.0),
+    )
     with pytest.raises(DataError, match=r"did not move.*excitation\.amplitude_nm") as err:
         Session(cfg, tmp_path, plots=False).run()
     written = json.loads((tmp_path / "summary.json").read_text())

@@ -119,8 +119,9 @@ def test_the_covering_notch_holds_twenty_db_over_the_mapped_range_as_stored(mapp
     worst_db = -20 * np.log10(np.abs(gain).max())
     assert worst_db >= 20.0, (worst_db, covering["message"])
     assert covering["worst_attenuation_db"] >= 20.0 and covering["used_worst_attenuation_db"] >= 20.0
-    truth = [true_modes(parse_config(MAP_CONFIG.read_text(), str(MAP_CONFIG)).emulator, p)[0][0]
-             for p in (-0.5, 0.1, 0.5)]
+    truth = [
+        true_modes(parse_config(MAP_CONFIG.read_text(), str(MAP_CONFIG)).emulator, p)[0][0] for p in (-0.5, 0.1, 0.5)
+    ]
     assert lo <= min(truth) * 1.002 and hi >= max(truth) * 0.998  # the range spans the twin's whole spread
 
     # measured at every mapped position, the notches enabled, against the map's own record: the command entering
@@ -173,8 +174,9 @@ def line_spectra(paths, rate_hz: float) -> tuple[np.ndarray, dict[str, np.ndarra
             rows, period = f["samples"][()], int(f.attrs["period_samples"])
         whole = len(rows) // period - 1
         for i, n in enumerate(names):
-            periods.setdefault(n, []).append(np.fft.rfft(rows[len(rows) - whole * period:, i].reshape(whole, period),
-                                                         axis=1))
+            periods.setdefault(n, []).append(
+                np.fft.rfft(rows[len(rows) - whole * period :, i].reshape(whole, period), axis=1)
+            )
     spectra = {n: np.concatenate(x).mean(0) for n, x in periods.items()}
     lines = np.flatnonzero(np.abs(spectra["excitation"]) > 1e-3 * np.abs(spectra["excitation"]).max())
     return lines * rate_hz / period, {n: x[lines] for n, x in spectra.items()}
@@ -252,8 +254,11 @@ def move_config(config: str, tmp_path: Path) -> Path:
     """A shipped gantry config made quick, with the map config's stiff servo (feed-forward), a fine laser
     and its move test. The cart keeps its friction: its stick at the stop rings the mode with a force step no
     set-point shaping removes, and the move, which excites the mode (V about 1.8), rings well above that."""
-    transport = {"emulated-gantry.toml": "serial", "emulated-canopen-gantry.toml": "canopen",
-                 "emulated-modbus-gantry.toml": "modbus"}[config]
+    transport = {
+        "emulated-gantry.toml": "serial",
+        "emulated-canopen-gantry.toml": "canopen",
+        "emulated-modbus-gantry.toml": "modbus",
+    }[config]
     raw = quick(tomllib.loads((CONFIGS / config).read_text()), transport)
     mapped_raw = tomllib.loads(MAP_CONFIG.read_text())
     raw["verification"] = mapped_raw["verification"]
@@ -261,14 +266,16 @@ def move_config(config: str, tmp_path: Path) -> Path:
     raw["emulator"]["sensors"]["laser_resolution_m"] = 2e-6
     driver = find_driver(raw["device"]["driver"])
     raw["run"]["channels"] = [c.name for c in driver.streamed_channels if c.name != "load_position_m"] + [
-        "load_position_m"]  # the CANopen and Modbus drives stream their load sensor only when asked
+        "load_position_m"
+    ]  # the CANopen and Modbus drives stream their load sensor only when asked
     path = tmp_path / "move.toml"
     path.write_text(tomli_w.dumps(json.loads(json.dumps(raw))))
     return path
 
 
-@pytest.mark.parametrize("config", ["emulated-gantry.toml", "emulated-canopen-gantry.toml",
-                                    "emulated-modbus-gantry.toml"])
+@pytest.mark.parametrize(
+    "config", ["emulated-gantry.toml", "emulated-canopen-gantry.toml", "emulated-modbus-gantry.toml"]
+)
 def test_a_move_rings_ten_db_less_with_the_notch_on_every_transport(config, tmp_path):
     path = move_config(config, tmp_path)
     cfg = parse_config(path.read_text(), str(path))

@@ -125,8 +125,11 @@ host_check=False, code=None, register=None, data=None)
     def to_dict(self) -> dict:
         """The event as the recording and the session take it: ``kind``, ``message``, ``sample_index``,
         then the fields that are set, in declaration order."""
-        out: dict[str, Any] = {"kind": Kind(self.kind).value, "message": self.message,
-                               "sample_index": int(self.sample_index)}
+        out: dict[str, Any] = {
+            "kind": Kind(self.kind).value,
+            "message": self.message,
+            "sample_index": int(self.sample_index),
+        }
         if self.value is not None:
             out["value"] = float(self.value)
         if self.worst_s is not None:

@@ -64,16 +64,20 @@ def identify_friction(velocity, torque, windows, model: str = "stribeck") -> Fri
             f"only {len(points.v_mean)} steady constant-velocity windows; a friction fit needs at least 4 "
             "(longer friction_test.hold_s, or slower accelerations)"
         )
-    fit = fr.fit_friction(points.v_mean, points.tau_mean) if model == "stribeck" else fr.fit_coulomb_viscous(
-        points.v_mean, points.tau_mean
+    fit = (
+        fr.fit_friction(points.v_mean, points.tau_mean)
+        if model == "stribeck"
+        else fr.fit_coulomb_viscous(points.v_mean, points.tau_mean)
     )
     loose = fr.undetermined(fit)
     warnings = []
     if loose:
         se = ", ".join(f"{n} {getattr(fit.params, n):.3g} +- {fit.stderr[n]:.2g}" for n in loose)
-        warnings.append(f"friction: {se}: not determined by the {fit.n_points} points (standard error above the "
-                        "value); measure more speeds around where the torque bends (friction_test.speeds_mps) or "
-                        "hold each longer (friction_test.hold_s) before trusting them")
+        warnings.append(
+            f"friction: {se}: not determined by the {fit.n_points} points (standard error above the "
+            "value); measure more speeds around where the torque bends (friction_test.speeds_mps) or "
+            "hold each longer (friction_test.hold_s) before trusting them"
+        )
     return FrictionResult(fit=fit, points=points, model=model, warnings=warnings)
 
 
@@ -135,13 +139,22 @@ class PlantModel:
         f, m = self.fit, self.modal
         roots = self.roots or classify_roots(f)
         out = {
-            "n_num": f.n_num, "n_den": f.n_den, "integrators": f.integrators,
-            "relative_degree": f.n_den + f.integrators - f.n_num, "criterion": self.criterion,
-            "band_hz": list(f.band_hz), "fit_db_rms": f.fit_db_rms, "phase_rms_deg": f.phase_rms_deg,
-            "weighted_cost": f.weighted_cost, "gain": m.gain,
+            "n_num": f.n_num,
+            "n_den": f.n_den,
+            "integrators": f.integrators,
+            "relative_degree": f.n_den + f.integrators - f.n_num,
+            "criterion": self.criterion,
+            "band_hz": list(f.band_hz),
+            "fit_db_rms": f.fit_db_rms,
+            "phase_rms_deg": f.phase_rms_deg,
+            "weighted_cost": f.weighted_cost,
+            "gain": m.gain,
             **roots.to_dict(),
-            "poles_rad_s": [[p.real, p.imag] for p in f.poles], "zeros_rad_s": [[z.real, z.imag] for z in f.zeros],
-            "num": list(f.num), "den": list(f.den), "candidates": self.candidates,
+            "poles_rad_s": [[p.real, p.imag] for p in f.poles],
+            "zeros_rad_s": [[z.real, z.imag] for z in f.zeros],
+            "num": list(f.num),
+            "den": list(f.den),
+            "candidates": self.candidates,
         }
         if self.mode_notes:
             out["resonances"] = self.mode_notes
@@ -153,9 +166,16 @@ def _auto(value) -> int | None:
     return None if value in (None, "auto") else int(value)
 
 
-def fit_plant_model(frf: FrequencyResponse, band_hz: tuple[float, float], max_order: int,
-                    coherence_threshold: float = 0.0, order=None, relative_degree=None, integrators=None,
-                    criterion: str = "mdl") -> PlantModel:
+def fit_plant_model(
+    frf: FrequencyResponse,
+    band_hz: tuple[float, float],
+    max_order: int,
+    coherence_threshold: float = 0.0,
+    order=None,
+    relative_degree=None,
+    integrators=None,
+    criterion: str = "mdl",
+) -> PlantModel:
     """Transfer function and modal form of a measured plant response.
 
     Numerator and denominator degrees, integrators (rigid-body modes) and
@@ -191,28 +211,45 @@ def fit_plant_model(frf: FrequencyResponse, band_hz: tuple[float, float], max_or
     if keep.sum() < 8:
         raise DataError(f"only {int(keep.sum())} bins with coherence >= {coherence_threshold:g} to fit a model to")
     resolution = float(np.median(np.diff(frf.frequency_hz))) if len(frf) > 1 else None
-    frf = FrequencyResponse(frf.frequency_hz[keep], frf.response[keep], frf.coherence[keep], frf.n_averages,
-                            frf.method)
+    frf = FrequencyResponse(frf.frequency_hz[keep], frf.response[keep], frf.coherence[keep], frf.n_averages, frf.method)
     weights = "coherence" if np.all(np.isfinite(frf.coherence)) and frf.n_averages > 1 else None
     if weights == "coherence":
         # a bin with coherence 1 (noise-free) would get infinite weight
-        frf = FrequencyResponse(frf.frequency_hz, frf.response, np.minimum(frf.coherence, 0.9999), frf.n_averages,
-                                frf.method)
+        frf = FrequencyResponse(
+            frf.frequency_hz, frf.response, np.minimum(frf.coherence, 0.9999), frf.n_averages, frf.method
+        )
     order, relative_degree, integrators = _auto(order), _auto(relative_degree), _auto(integrators)
     top = max(max_order, order or 1, 1)
-    fit, table = select_structure(frf, max_order=top, order=order, relative_degree=relative_degree,
-                                  integrators=integrators, criterion=criterion, weights=weights)
-    candidates = [{"n_num": r.n_num, "n_den": r.n_den, "integrators": r.integrators, "selected": r.selected,
-                   "weighted_cost": None if r.fit is None else r.fit.weighted_cost,
-                   "mdl": None if r.fit is None else r.bic, "aic": None if r.fit is None else r.aic}
-                  for r in table]
-    roots = classify_roots(fit, band_hz=(float(frf.frequency_hz.min()), float(frf.frequency_hz.max())),
-                           resolution_hz=resolution)
+    fit, table = select_structure(
+        frf,
+        max_order=top,
+        order=order,
+        relative_degree=relative_degree,
+        integrators=integrators,
+        criterion=criterion,
+        weights=weights,
+    )
+    candidates = [
+        {
+            "n_num": r.n_num,
+            "n_den": r.n_den,
+            "integrators": r.integrators,
+            "selected": r.selected,
+            "weighted_cost": None if r.fit is None else r.fit.weighted_cost,
+            "mdl": None if r.fit is None else r.bic,
+            "aic": None if r.fit is None else r.aic,
+        }
+        for r in table
+    ]
+    roots = classify_roots(
+        fit, band_hz=(float(frf.frequency_hz.min()), float(frf.frequency_hz.max())), resolution_hz=resolution
+    )
     return PlantModel(fit=fit, modal=modal_form(fit), candidates=candidates, roots=roots, criterion=criterion)
 
 
-def reconcile_resonances(found: list[Resonance], rejected: list[RejectedPeak], model: PlantModel | None,
-                         max_order: int, resolution_hz: float) -> tuple[list[Resonance], list[RejectedPeak], list[str]]:
+def reconcile_resonances(
+    found: list[Resonance], rejected: list[RejectedPeak], model: PlantModel | None, max_order: int, resolution_hz: float
+) -> tuple[list[Resonance], list[RejectedPeak], list[str]]:
     """One list of resonances: measured peaks that the fitted model confirms.
 
     A peak is confirmed by a mode of the model (``model.roots.modes``) within
@@ -249,8 +286,11 @@ def reconcile_resonances(found: list[Resonance], rejected: list[RejectedPeak], m
     kept, rejected, warnings = [], list(rejected), []
     matched: dict[int, float] = {}
     for r in found:
-        reach = max(r.bandwidth_hz if np.isfinite(r.bandwidth_hz) else 0.0,
-                    r.frequency_ci95_hz if np.isfinite(r.frequency_ci95_hz) else 0.0, 2.0 * resolution_hz)
+        reach = max(
+            r.bandwidth_hz if np.isfinite(r.bandwidth_hz) else 0.0,
+            r.frequency_ci95_hz if np.isfinite(r.frequency_ci95_hz) else 0.0,
+            2.0 * resolution_hz,
+        )
         near = [j for j, (fm, _) in enumerate(modes) if abs(fm - r.frequency_hz) <= reach]
         if misfit:
             # the model cannot confirm anything; a peak stands on its own local evidence only
@@ -258,16 +298,27 @@ def reconcile_resonances(found: list[Resonance], rejected: list[RejectedPeak], m
             if ok["notchable"] and not r.bandwidth_hz >= resolution_hz:
                 # a fitted mode narrower than a line rests on the skirts of one or two bins: one noisy line
                 # fits that as well as a mode does (a weak excitation showed a 68.7 Hz "mode" of a 94 Hz plant)
-                ok = {"notchable": False, "reason": f"its half-power bandwidth ({r.bandwidth_hz:.3g} Hz) is narrower "
-                      f"than the line spacing ({resolution_hz:.3g} Hz): one line's error may make the peak"}
+                ok = {
+                    "notchable": False,
+                    "reason": f"its half-power bandwidth ({r.bandwidth_hz:.3g} Hz) is narrower "
+                    f"than the line spacing ({resolution_hz:.3g} Hz): one line's error may make the peak",
+                }
             if ok["notchable"]:
                 kept.append(r)
-                warnings.append(f"the resonance at {r.frequency_hz:.4g} Hz rests on its local fit alone: the fitted "
-                                "model misses the measured response as a whole")
+                warnings.append(
+                    f"the resonance at {r.frequency_hz:.4g} Hz rests on its local fit alone: the fitted "
+                    "model misses the measured response as a whole"
+                )
             else:
-                rejected.append(RejectedPeak(r.frequency_hz, r.peak_magnitude_db, r.coherence,
-                                             "not confirmed: the fitted model misses the measured response as a whole "
-                                             f"({model.fit.fit_db_rms:.1f} dB rms) and {ok['reason']}"))
+                rejected.append(
+                    RejectedPeak(
+                        r.frequency_hz,
+                        r.peak_magnitude_db,
+                        r.coherence,
+                        "not confirmed: the fitted model misses the measured response as a whole "
+                        f"({model.fit.fit_db_rms:.1f} dB rms) and {ok['reason']}",
+                    )
+                )
         elif near:
             j = min(near, key=lambda j: abs(modes[j][0] - r.frequency_hz))
             matched[j] = r.frequency_hz
@@ -276,12 +327,19 @@ def reconcile_resonances(found: list[Resonance], rejected: list[RejectedPeak], m
             kept.append(r)
             warnings.append(
                 f"the resonance at {r.frequency_hz:.4g} Hz has no mode in the fitted model, which uses all "
-                f"identification.model_max_order = {max_order} poles: raise it to let the model hold this mode")
+                f"identification.model_max_order = {max_order} poles: raise it to let the model hold this mode"
+            )
         else:
-            rejected.append(RejectedPeak(r.frequency_hz, r.peak_magnitude_db, r.coherence,
-                                         f"not confirmed by the fitted model (no pole pair within {reach:.3g} Hz; "
-                                         f"the model's structure {model.fit.n_num}/"
-                                         f"{model.fit.n_den + model.fit.integrators} was chosen by {model.criterion})"))
+            rejected.append(
+                RejectedPeak(
+                    r.frequency_hz,
+                    r.peak_magnitude_db,
+                    r.coherence,
+                    f"not confirmed by the fitted model (no pole pair within {reach:.3g} Hz; "
+                    f"the model's structure {model.fit.n_num}/"
+                    f"{model.fit.n_den + model.fit.integrators} was chosen by {model.criterion})",
+                )
+            )
     notes = []
     for j, (fm, zm) in enumerate(modes):
         if j in matched:
@@ -342,34 +400,44 @@ def notch_eligibility(res: Resonance) -> dict:
     """
     out = {"frequency_hz": res.frequency_hz, "notchable": False, "reason": "", "amplitude_factor": float("nan")}
     if res.method != "fit" or not np.isfinite(res.frequency_ci95_hz):
-        out["reason"] = (f"no local fit of the peak at {res.frequency_hz:.4g} Hz (method {res.method!r}): "
-                         "its frequency and damping are read off the frequency grid")
+        out["reason"] = (
+            f"no local fit of the peak at {res.frequency_hz:.4g} Hz (method {res.method!r}): "
+            "its frequency and damping are read off the frequency grid"
+        )
         return out
     interval, bandwidth = 2.0 * res.frequency_ci95_hz, res.bandwidth_hz
     tolerance_hz = NOTCH_FREQUENCY_TOLERANCE * res.frequency_hz
     factor = float(max(1.0, 2.0 * interval / bandwidth))
     out["amplitude_factor"] = factor
     if not interval < bandwidth:
-        out["reason"] = (f"the 95 % interval of its frequency ({res.frequency_hz:.4g} +- "
-                         f"{res.frequency_ci95_hz:.3g} Hz) is not narrower than its half-power bandwidth "
-                         f"({bandwidth:.3g} Hz): a notch could miss it")
+        out["reason"] = (
+            f"the 95 % interval of its frequency ({res.frequency_hz:.4g} +- "
+            f"{res.frequency_ci95_hz:.3g} Hz) is not narrower than its half-power bandwidth "
+            f"({bandwidth:.3g} Hz): a notch could miss it"
+        )
         return out
     if not res.frequency_ci95_hz <= tolerance_hz:
         out["amplitude_factor"] = float(max(factor, 2.0 * res.frequency_ci95_hz / tolerance_hz))
-        out["reason"] = (f"the 95 % interval of its frequency ({res.frequency_hz:.4g} +- "
-                         f"{res.frequency_ci95_hz:.3g} Hz) is wider than +-{100 * NOTCH_FREQUENCY_TOLERANCE:g} % "
-                         "of it: the notch could sit off the mode by more than that")
+        out["reason"] = (
+            f"the 95 % interval of its frequency ({res.frequency_hz:.4g} +- "
+            f"{res.frequency_ci95_hz:.3g} Hz) is wider than +-{100 * NOTCH_FREQUENCY_TOLERANCE:g} % "
+            "of it: the notch could sit off the mode by more than that"
+        )
         return out
     if np.isfinite(res.local_fit_ratio):
         if not res.local_fit_ratio <= NOTCH_FIT_NOISE_RATIO:
-            out["reason"] = (f"the local fit misses the measured peak by {res.local_fit_ratio:.1f} times the "
-                             f"scatter of the estimate ({res.local_fit_db_rms:.2f} dB rms; allowed "
-                             f"{NOTCH_FIT_NOISE_RATIO:g} times): the peak is not one clean mode")
+            out["reason"] = (
+                f"the local fit misses the measured peak by {res.local_fit_ratio:.1f} times the "
+                f"scatter of the estimate ({res.local_fit_db_rms:.2f} dB rms; allowed "
+                f"{NOTCH_FIT_NOISE_RATIO:g} times): the peak is not one clean mode"
+            )
             return out
     elif not res.local_fit_db_rms <= NOTCH_FIT_FLOOR_DB:
-        out["reason"] = (f"the local fit misses the measured peak by {res.local_fit_db_rms:.2f} dB rms (allowed "
-                         f"{NOTCH_FIT_FLOOR_DB:g} dB without a coherence to judge it by): the peak is not one "
-                         "clean mode")
+        out["reason"] = (
+            f"the local fit misses the measured peak by {res.local_fit_db_rms:.2f} dB rms (allowed "
+            f"{NOTCH_FIT_FLOOR_DB:g} dB without a coherence to judge it by): the peak is not one "
+            "clean mode"
+        )
         return out
     out["notchable"] = True
     return out
@@ -396,8 +464,9 @@ class NotchDecision:
     skipped_reason: str | None = None
 
 
-def notch_decision(plant: PlantResult, coherence_threshold: float, amplitude_key: str,
-                   amplitude: float | None = None) -> NotchDecision:
+def notch_decision(
+    plant: PlantResult, coherence_threshold: float, amplitude_key: str, amplitude: float | None = None
+) -> NotchDecision:
     """The resonances of an identification run that may be notched, with the reasons for the others.
 
     This is the whole decision between identification and upload: a
@@ -428,11 +497,15 @@ def notch_decision(plant: PlantResult, coherence_threshold: float, amplitude_key
             # no figure from the measurement (a misfit, a peak without a fit): friction and noise
             # weigh less at a higher amplitude, so try twice the amplitude
             value = f" to {2 * amplitude:.3g}" if amplitude else ""
-            return (f"; try excitation.{amplitude_key}{value} (x2): friction and noise distort a peak less "
-                    "at a higher amplitude")
+            return (
+                f"; try excitation.{amplitude_key}{value} (x2): friction and noise distort a peak less "
+                "at a higher amplitude"
+            )
         value = f" to {amplitude * factor:.3g}" if amplitude else ""
-        return (f"; raise excitation.{amplitude_key}{value} (x{factor:.2g}) or record {factor ** 2:.2g} times "
-                "as many periods (excitation.duration_s)")
+        return (
+            f"; raise excitation.{amplitude_key}{value} (x{factor:.2g}) or record {factor**2:.2g} times "
+            "as many periods (excitation.duration_s)"
+        )
 
     if not plant.resonances:
         low = [p for p in plant.rejected if p.coherence < coherence_threshold]
@@ -440,8 +513,10 @@ def notch_decision(plant: PlantResult, coherence_threshold: float, amplitude_key
         if low:
             peak = max(low, key=lambda p: p.peak_magnitude_db)
             target = min(coherence_threshold + 0.1, 0.95)
-            hint = (f"; the strongest peak ({peak.frequency_hz:.4g} Hz) has coherence {peak.coherence:.2f} "
-                    f"(target {target:.2f})" + raise_to(coherence_amplitude_factor(peak.coherence, target)))
+            hint = (
+                f"; the strongest peak ({peak.frequency_hz:.4g} Hz) has coherence {peak.coherence:.2f} "
+                f"(target {target:.2f})" + raise_to(coherence_amplitude_factor(peak.coherence, target))
+            )
         elif plant.rejected:
             hint = raise_to(float("nan"))
         reason = "no resonance was identified, so no notch was designed (see rejected_peaks)" + hint
@@ -463,29 +538,46 @@ def bode_extras(plant: PlantResult) -> dict:
         f = plant.plant.frequency_hz
         fine = np.geomspace(max(f[f > 0].min(), 1e-3), f.max(), 2000) if np.any(f > 0) else f
         fit = plant.model.fit
-        extras["model"] = (f"fitted model ({fit.n_num}/{fit.n_den + fit.integrators}, {plant.model.criterion})", fine,
-                           fit.response(fine))
+        extras["model"] = (
+            f"fitted model ({fit.n_num}/{fit.n_den + fit.integrators}, {plant.model.criterion})",
+            fine,
+            fit.response(fine),
+        )
     if plant.plant.n_averages >= 2 and np.all(np.isfinite(plant.plant.coherence)):
         unc = frf_uncertainty(plant.plant)
         extras["bounds_db"] = (unc.lower_db, unc.upper_db)
     return extras
 
 
-def measurement_quality(plant: FrequencyResponse, resonances: list[Resonance], excitation, sample_rate_hz: float,
-                        band_hz: tuple[float, float], period_samples: int | None,
-                        antiresonances_hz=()) -> tuple[dict, list[str]]:
+def measurement_quality(
+    plant: FrequencyResponse,
+    resonances: list[Resonance],
+    excitation,
+    sample_rate_hz: float,
+    band_hz: tuple[float, float],
+    period_samples: int | None,
+    antiresonances_hz=(),
+) -> tuple[dict, list[str]]:
     """Uncertainty at the resonances, resolution, input spectrum and sampling advice of one run."""
     warnings: list[str] = []
-    out: dict = {"frequency_resolution_hz": float(np.median(np.diff(plant.frequency_hz))) if len(plant) > 1 else None,
-                 "n_averages": plant.n_averages}
+    out: dict = {
+        "frequency_resolution_hz": float(np.median(np.diff(plant.frequency_hz))) if len(plant) > 1 else None,
+        "n_averages": plant.n_averages,
+    }
     if plant.n_averages >= 2:
         unc = frf_uncertainty(plant)
         rows = []
         for r in resonances:
             i = int(np.argmin(np.abs(plant.frequency_hz - r.frequency_hz)))
-            rows.append({"frequency_hz": r.frequency_hz, "magnitude_rel_std": float(unc.magnitude_rel_std[i]),
-                         "magnitude_bounds_db": [float(unc.lower_db[i]), float(unc.upper_db[i])],
-                         "phase_bound_deg": float(unc.phase_bound_deg[i]), "confidence": unc.confidence})
+            rows.append(
+                {
+                    "frequency_hz": r.frequency_hz,
+                    "magnitude_rel_std": float(unc.magnitude_rel_std[i]),
+                    "magnitude_bounds_db": [float(unc.lower_db[i]), float(unc.upper_db[i])],
+                    "phase_bound_deg": float(unc.phase_bound_deg[i]),
+                    "confidence": unc.confidence,
+                }
+            )
         in_band = (plant.frequency_hz >= band_hz[0]) & (plant.frequency_hz <= band_hz[1])
         out["uncertainty"] = {
             "at_resonances": rows,
@@ -493,13 +585,17 @@ def measurement_quality(plant: FrequencyResponse, resonances: list[Resonance], e
         }
     if len(plant) > 1:
         check = check_resolution(plant, [(r.frequency_hz, r.damping_ratio) for r in resonances], antiresonances_hz)
-        out["resolution"] = {"resolution_hz": check.resolution_hz, "resonances": check.bins_per_bandwidth,
-                             "lowest_antiresonance": check.antiresonance,
-                             "required_record_s": check.required_record_s}
+        out["resolution"] = {
+            "resolution_hz": check.resolution_hz,
+            "resonances": check.bins_per_bandwidth,
+            "lowest_antiresonance": check.antiresonance,
+            "required_record_s": check.required_record_s,
+        }
         warnings += check.warnings
     try:
-        spec = input_spectrum(excitation, sample_rate_hz, band_hz, segment_length=period_samples,
-                              periodic=bool(period_samples))
+        spec = input_spectrum(
+            excitation, sample_rate_hz, band_hz, segment_length=period_samples, periodic=bool(period_samples)
+        )
         out["input_spectrum"] = spec.to_dict()
         if spec.coverage < 0.5:
             warnings.append(
@@ -511,16 +607,26 @@ def measurement_quality(plant: FrequencyResponse, resonances: list[Resonance], e
     advice = []
     for r in resonances:
         a = sampling_advice(2 * np.pi * r.frequency_hz)
-        advice.append({"frequency_hz": r.frequency_hz, "sample_rate_min_hz": a["sample_rate_min_hz"],
-                       "sample_rate_max_hz": a["sample_rate_max_hz"],
-                       "nyquist_sample_rate_min_hz": a["nyquist_sample_rate_min_hz"],
-                       "within_rule": bool(a["sample_rate_min_hz"] <= sample_rate_hz <= a["sample_rate_max_hz"])})
-    out["sampling"] = {"sample_rate_hz": sample_rate_hz, "rule": "omega0 * h = 0.2 .. 0.6 (for discrete-time models)",
-                       "resonances": advice}
+        advice.append(
+            {
+                "frequency_hz": r.frequency_hz,
+                "sample_rate_min_hz": a["sample_rate_min_hz"],
+                "sample_rate_max_hz": a["sample_rate_max_hz"],
+                "nyquist_sample_rate_min_hz": a["nyquist_sample_rate_min_hz"],
+                "within_rule": bool(a["sample_rate_min_hz"] <= sample_rate_hz <= a["sample_rate_max_hz"]),
+            }
+        )
+    out["sampling"] = {
+        "sample_rate_hz": sample_rate_hz,
+        "rule": "omega0 * h = 0.2 .. 0.6 (for discrete-time models)",
+        "resonances": advice,
+    }
     warnings += _sampling_warnings(advice, sample_rate_hz)
     if band_hz[1] > 0.4 * sample_rate_hz:
-        warnings.append(f"the band reaches {band_hz[1]:g} Hz, above 40 % of the {sample_rate_hz:g} Hz sample rate: "
-                        "anti-aliasing and hold effects distort the top of the band")
+        warnings.append(
+            f"the band reaches {band_hz[1]:g} Hz, above 40 % of the {sample_rate_hz:g} Hz sample rate: "
+            "anti-aliasing and hold effects distort the top of the band"
+        )
     return out, warnings
 
 
@@ -533,13 +639,17 @@ def _sampling_warnings(advice: list[dict], sample_rate_hz: float) -> list[str]:
         f0, lo, hi = a["frequency_hz"], a["sample_rate_min_hz"], a["sample_rate_max_hz"]
         if sample_rate_hz > hi:
             factor = int(np.ceil(sample_rate_hz / hi))
-            change = (f"decimate by {factor} (to {sample_rate_hz / factor:.4g} Hz) before fitting a discrete-time "
-                      "model (ARX, discretised grey-box)")
+            change = (
+                f"decimate by {factor} (to {sample_rate_hz / factor:.4g} Hz) before fitting a discrete-time "
+                "model (ARX, discretised grey-box)"
+            )
         else:
             change = f"sample at {lo:.4g} Hz or faster (run.sample_rate_hz)"
-        out.append(f"sampling: {sample_rate_hz:g} Hz is outside {lo:.4g}-{hi:.4g} Hz, the omega0 * h = 0.2 .. 0.6 "
-                   f"rule for the {f0:.4g} Hz resonance (sampling.within_rule: false): {change}; the frequency "
-                   "response and the notch do not depend on it")
+        out.append(
+            f"sampling: {sample_rate_hz:g} Hz is outside {lo:.4g}-{hi:.4g} Hz, the omega0 * h = 0.2 .. 0.6 "
+            f"rule for the {f0:.4g} Hz resonance (sampling.within_rule: false): {change}; the frequency "
+            "response and the notch do not depend on it"
+        )
     return out
 
 
@@ -591,16 +701,18 @@ def identify_plant(
         DFT bins of one period that carry excitation (default: found from the data).
     """
     # only read here, never written: no copies of a long record
-    s = check_signals({"excitation": excitation, "torque": torque, "output": output, "velocity": velocity},
-                      copy=False)
+    s = check_signals({"excitation": excitation, "torque": torque, "output": output, "velocity": velocity}, copy=False)
     warnings: list[str] = []
     u = s["torque"]
     if friction is not None:
         u = fr.compensate(u, s["velocity"], friction, velocity_deadband_mps, friction_slowest_mps)
     u, y = (_condition(x, cfg, sample_rate_hz, period_samples) for x in (u, s["output"]))
     # a recording without an excitation column gives the torque as excitation: condition it once
-    r = (u if s["excitation"] is s["torque"] and friction is None
-         else _condition(s["excitation"], cfg, sample_rate_hz, period_samples))
+    r = (
+        u
+        if s["excitation"] is s["torque"] and friction is None
+        else _condition(s["excitation"], cfg, sample_rate_hz, period_samples)
+    )
     del s
     averaged = _averaged_period(len(r), period_samples)
     if averaged is not None:
@@ -614,10 +726,16 @@ def identify_plant(
     warnings += more
     model = more.model
     antires = [hz for hz, _ in model.roots.antiresonances] if model else []
-    quality, more = measurement_quality(plant, resonances, r, sample_rate_hz, band_hz,
-                                        averaged, antires)
-    return PlantResult(plant=plant, loop=loop, resonances=resonances, warnings=warnings + more, model=model,
-                       quality=quality, rejected=rejected)
+    quality, more = measurement_quality(plant, resonances, r, sample_rate_hz, band_hz, averaged, antires)
+    return PlantResult(
+        plant=plant,
+        loop=loop,
+        resonances=resonances,
+        warnings=warnings + more,
+        model=model,
+        quality=quality,
+        rejected=rejected,
+    )
 
 
 class _Notes(list):
@@ -631,14 +749,24 @@ def _resonances_and_model(plant: FrequencyResponse, cfg: IdentificationConfig, b
     notes = _Notes()
     # every candidate first: the count limit applies to the peaks the model confirms
     found, rejected = screen_resonances(
-        plant, coherence_threshold=cfg.coherence_threshold, min_prominence_db=cfg.min_prominence_db,
-        max_count=_MAX_CANDIDATES, band_hz=band_hz,
+        plant,
+        coherence_threshold=cfg.coherence_threshold,
+        min_prominence_db=cfg.min_prominence_db,
+        max_count=_MAX_CANDIDATES,
+        band_hz=band_hz,
     )
     if cfg.model_max_order:
         try:
-            notes.model = fit_plant_model(plant, band_hz, cfg.model_max_order, cfg.coherence_threshold,
-                                          cfg.model_order, cfg.model_relative_degree, cfg.model_integrators,
-                                          cfg.model_criterion)
+            notes.model = fit_plant_model(
+                plant,
+                band_hz,
+                cfg.model_max_order,
+                cfg.coherence_threshold,
+                cfg.model_order,
+                cfg.model_relative_degree,
+                cfg.model_integrators,
+                cfg.model_criterion,
+            )
         except (DataError, ConfigError) as exc:
             notes.append(f"transfer-function fit: {exc}")
     if notes.model is not None:
@@ -653,8 +781,11 @@ def _resonances_and_model(plant: FrequencyResponse, cfg: IdentificationConfig, b
         kept = {r.frequency_hz for r in found}
         for note in notes.model.mode_notes:
             if note["reported"] and note["resonance_hz"] not in kept:
-                note.update(reported=False, reason="beyond identification.max_resonances = "
-                            f"{cfg.max_resonances} (the most prominent are reported)")
+                note.update(
+                    reported=False,
+                    reason="beyond identification.max_resonances = "
+                    f"{cfg.max_resonances} (the most prominent are reported)",
+                )
                 del note["resonance_hz"]
     if not found:
         notes.append(
@@ -673,10 +804,16 @@ def _most_prominent(found: list[Resonance], rejected: list[RejectedPeak], max_co
     """The `max_count` most prominent resonances; the others join the rejected peaks with the reason."""
     ranked = sorted(found, key=lambda r: -np.nan_to_num(r.prominence_db, nan=-np.inf))
     kept, dropped = ranked[:max_count], ranked[max_count:]
-    rejected = rejected + [RejectedPeak(r.frequency_hz, r.peak_magnitude_db, r.coherence,
-                                        f"beyond identification.max_resonances = {max_count} (prominence "
-                                        f"{r.prominence_db:.1f} dB; the most prominent are reported)")
-                           for r in dropped]
+    rejected = rejected + [
+        RejectedPeak(
+            r.frequency_hz,
+            r.peak_magnitude_db,
+            r.coherence,
+            f"beyond identification.max_resonances = {max_count} (prominence "
+            f"{r.prominence_db:.1f} dB; the most prominent are reported)",
+        )
+        for r in dropped
+    ]
     return sorted(kept, key=lambda r: r.frequency_hz), sorted(rejected, key=lambda r: r.frequency_hz)
 
 
@@ -684,24 +821,38 @@ def _model_warnings(model: PlantModel) -> list[str]:
     roots = model.roots
     out = []
     if roots.flagged_poles:
-        out.append("transfer-function fit: " + "; ".join(
-            f"pole at {p['frequency_hz']:.4g} Hz not reported as a mode ({p['reason']})" for p in roots.flagged_poles))
+        out.append(
+            "transfer-function fit: "
+            + "; ".join(
+                f"pole at {p['frequency_hz']:.4g} Hz not reported as a mode ({p['reason']})"
+                for p in roots.flagged_poles
+            )
+        )
     if roots.rhp_zeros:
-        out.append("transfer-function fit: right-half-plane zero(s) at "
-                   + ", ".join(f"{z['frequency_hz']:.4g} Hz"
-                               + (f" (the phase of a {1e3 * z['equivalent_delay_s']:.3g} ms delay)"
-                                  if "equivalent_delay_s" in z else "")
-                               for z in roots.rhp_zeros)
-                   + " (non-minimum phase, usually a delay or a non-collocated sensor; not anti-resonances)")
+        out.append(
+            "transfer-function fit: right-half-plane zero(s) at "
+            + ", ".join(
+                f"{z['frequency_hz']:.4g} Hz"
+                + (
+                    f" (the phase of a {1e3 * z['equivalent_delay_s']:.3g} ms delay)"
+                    if "equivalent_delay_s" in z
+                    else ""
+                )
+                for z in roots.rhp_zeros
+            )
+            + " (non-minimum phase, usually a delay or a non-collocated sensor; not anti-resonances)"
+        )
     if not roots.stable:
         out.append(f"transfer-function fit: the model is not stable ({roots.stability})")
     fit = model.fit
     if _misfits(fit):
-        out.append(f"transfer-function fit: the best structure misses the measured response by "
-                   f"{fit.fit_db_rms:.1f} dB rms, {np.sqrt(fit.weighted_cost):.1f} times the scatter the coherence "
-                   "implies: the response is not that of a linear plant at this amplitude (friction sticking, "
-                   "backlash) or the excitation is too weak for its coherence to mean much (raise the excitation "
-                   "amplitude)")
+        out.append(
+            f"transfer-function fit: the best structure misses the measured response by "
+            f"{fit.fit_db_rms:.1f} dB rms, {np.sqrt(fit.weighted_cost):.1f} times the scatter the coherence "
+            "implies: the response is not that of a linear plant at this amplitude (friction sticking, "
+            "backlash) or the excitation is too weak for its coherence to mean much (raise the excitation "
+            "amplitude)"
+        )
     return out
 
 
@@ -716,8 +867,9 @@ def _misfits(fit: TfFit) -> bool:
     return fit.weighting == "coherence" and fit.weighted_cost > _MISFIT_RATIO and fit.fit_db_rms > _MISFIT_DB
 
 
-def _condition(x: np.ndarray, cfg: IdentificationConfig, sample_rate_hz: float,
-               period_samples: int | None) -> np.ndarray:
+def _condition(
+    x: np.ndarray, cfg: IdentificationConfig, sample_rate_hz: float, period_samples: int | None
+) -> np.ndarray:
     """Optional zero-phase low-pass, then the mean and a slow drift removed (:func:`remove_drift`).
 
     The same filter on every signal of a ratio leaves the ratio intact.
@@ -732,8 +884,9 @@ def _averaged_period(n: int, period_samples: int | None) -> int | None:
     return period_samples if period_samples and n >= 2 * period_samples else None
 
 
-def _segment(n: int, cfg: IdentificationConfig, sample_rate_hz: float, period_samples: int | None,
-             warnings: list[str]) -> int:
+def _segment(
+    n: int, cfg: IdentificationConfig, sample_rate_hz: float, period_samples: int | None, warnings: list[str]
+) -> int:
     """Welch segment length for a record of ``n`` samples that does not hold two whole periods."""
     if period_samples:
         warnings.append("fewer than two whole excitation periods recorded: Welch averaging used instead")
@@ -745,8 +898,12 @@ def _segment(n: int, cfg: IdentificationConfig, sample_rate_hz: float, period_sa
 
 
 def loop_response(
-    excitation, output, sample_rate_hz: float, cfg: IdentificationConfig,
-    period_samples: int | None = None, excited_bins=None,
+    excitation,
+    output,
+    sample_rate_hz: float,
+    cfg: IdentificationConfig,
+    period_samples: int | None = None,
+    excited_bins=None,
 ) -> tuple[FrequencyResponse, list[str]]:
     """Excitation-to-output response through the drive, as :func:`identify_plant` computes its ``loop``.
 
@@ -761,8 +918,9 @@ def loop_response(
     return h1_estimate(r, y, sample_rate_hz, _segment(len(r), cfg, sample_rate_hz, period_samples, warnings)), warnings
 
 
-def pooled_loop_response(excitations, outputs, sample_rate_hz: float, cfg: IdentificationConfig,
-                         period_samples: int, excited_bins=None) -> FrequencyResponse:
+def pooled_loop_response(
+    excitations, outputs, sample_rate_hz: float, cfg: IdentificationConfig, period_samples: int, excited_bins=None
+) -> FrequencyResponse:
     """:func:`loop_response` over several records of one periodic excitation, their periods averaged together.
 
     Each record (whole steady-state periods, its lead-in dropped: :func:`select_gap_free`) is conditioned
@@ -793,8 +951,11 @@ def filtered_plant_response(to_output: FrequencyResponse, to_command: FrequencyR
     the product of the two responses' coherences.
     """
     # u/r is never zero on an excited line: the excitation itself is part of the command
-    return replace(to_output, response=to_output.response / to_command.response,
-                   coherence=to_output.coherence * to_command.coherence)
+    return replace(
+        to_output,
+        response=to_output.response / to_command.response,
+        coherence=to_output.coherence * to_command.coherence,
+    )
 
 
 @dataclass
@@ -831,8 +992,13 @@ class NotchDesign:
 #: ``min_width_ratio`` of the centre), the 95 % interval of the frequency (``target_attenuation_db`` at both of its
 #: ends), the width search for the predicted band figure (``min_reduction_db``), or the range a mapped mode moves
 #: through (``[map]``: the covering notch; its ``attenuation_at_ci95_db`` is the worst case over that range).
-WIDTH_REASONS = ("resonance bandwidth", "minimum width ratio", "frequency uncertainty", "band figure",
-                 "workspace range")
+WIDTH_REASONS = (
+    "resonance bandwidth",
+    "minimum width ratio",
+    "frequency uncertainty",
+    "band figure",
+    "workspace range",
+)
 
 
 def band_of(frequency_hz: float, damping_ratio: float, bandwidths: float) -> tuple[float, float]:
@@ -842,8 +1008,9 @@ def band_of(frequency_hz: float, damping_ratio: float, bandwidths: float) -> tup
     return max(frequency_hz - half, 0.0), frequency_hz + half
 
 
-def predicted_band_reduction_db(res: Resonance, biquad: Biquad, sample_rate_hz: float, bandwidths: float,
-                                response: FrequencyResponse | None = None) -> float:
+def predicted_band_reduction_db(
+    res: Resonance, biquad: Biquad, sample_rate_hz: float, bandwidths: float, response: FrequencyResponse | None = None
+) -> float:
     """Band figure (:func:`peak_reductions`) a notch is predicted to give on a resonance, dB.
 
     With the measured `response` (the loop the verification will measure
@@ -885,8 +1052,9 @@ def predicted_band_reduction_db(res: Resonance, biquad: Biquad, sample_rate_hz: 
 PREDICTION_MARGIN_DB = 2.0
 
 
-def design_notches(resonances, cfg: NotchConfig, filter_rate_hz: float, slots: list[int],
-                   response: FrequencyResponse | None = None) -> list[NotchDesign]:
+def design_notches(
+    resonances, cfg: NotchConfig, filter_rate_hz: float, slots: list[int], response: FrequencyResponse | None = None
+) -> list[NotchDesign]:
     """A notch per resonance (most prominent first), as many as there are free slots.
 
     The width starts at ``width_factor`` times the half-power bandwidth
@@ -913,15 +1081,25 @@ def design_notches(resonances, cfg: NotchConfig, filter_rate_hz: float, slots: l
     depth = max(cfg.depth_db, target + 6.0, cfg.target_attenuation_db + 6.0)
     for slot, res in zip(slots, sorted(ordered, key=lambda r: r.frequency_hz), strict=False):
         zeta = res.damping_ratio if np.isfinite(res.damping_ratio) else 0.05
-        spec = notch_from_resonance(res.frequency_hz, zeta, depth_db=depth, width_factor=cfg.width_factor,
-                                    min_relative_width=cfg.min_width_ratio)
-        reason = ("resonance bandwidth" if cfg.width_factor * 2.0 * zeta >= cfg.min_width_ratio
-                  else "minimum width ratio")
+        spec = notch_from_resonance(
+            res.frequency_hz,
+            zeta,
+            depth_db=depth,
+            width_factor=cfg.width_factor,
+            min_relative_width=cfg.min_width_ratio,
+        )
+        reason = (
+            "resonance bandwidth" if cfg.width_factor * 2.0 * zeta >= cfg.min_width_ratio else "minimum width ratio"
+        )
         ci = res.frequency_ci95_hz
-        has_interval = bool(np.isfinite(ci) and 0.0 < ci < res.frequency_hz
-                            and res.frequency_hz + ci < 0.5 * filter_rate_hz)
-        needed = (interval_width_hz(res.frequency_hz, ci, cfg.target_attenuation_db, depth, filter_rate_hz)
-                  if has_interval else 0.0)
+        has_interval = bool(
+            np.isfinite(ci) and 0.0 < ci < res.frequency_hz and res.frequency_hz + ci < 0.5 * filter_rate_hz
+        )
+        needed = (
+            interval_width_hz(res.frequency_hz, ci, cfg.target_attenuation_db, depth, filter_rate_hz)
+            if has_interval
+            else 0.0
+        )
         if needed > spec.width_hz:
             spec = NotchSpec(spec.center_hz, needed, spec.depth_db)
             reason = "frequency uncertainty"
@@ -935,11 +1113,13 @@ def design_notches(resonances, cfg: NotchConfig, filter_rate_hz: float, slots: l
             spec = NotchSpec(spec.center_hz, min(1.25 * spec.width_hz, widest), spec.depth_db)
         warning = ""
         if predicted < target:
-            warning = (f"notch at {res.frequency_hz:.4g} Hz: even {spec.width_hz:.3g} Hz wide (notch.max_width_ratio = "
-                       f"{cfg.max_width_ratio:g}) it is predicted to reduce the band figure by only {predicted:.1f} dB "
-                       f"(notch.min_reduction_db = {target:g}): the response beside the mode stays above the notched "
-                       "peak; a finer frequency resolution (identification.segment_s, excitation.period_s) sharpens "
-                       "the measured peak")
+            warning = (
+                f"notch at {res.frequency_hz:.4g} Hz: even {spec.width_hz:.3g} Hz wide (notch.max_width_ratio = "
+                f"{cfg.max_width_ratio:g}) it is predicted to reduce the band figure by only {predicted:.1f} dB "
+                f"(notch.min_reduction_db = {target:g}): the response beside the mode stays above the notched "
+                "peak; a finer frequency resolution (identification.segment_s, excitation.period_s) sharpens "
+                "the measured peak"
+            )
         if spec.width_hz > start_width:
             reason = "band figure"
         at_ci = float("nan")
@@ -970,8 +1150,7 @@ def covering_design(map_entries, cfg: NotchConfig, filter_rate_hz: float, realis
     """
     from hilident.filters.covering import covering_notch
 
-    return covering_notch(map_entries, filter_rate_hz, cfg.target_attenuation_db, cfg.max_width_ratio,
-                          realise=realise)
+    return covering_notch(map_entries, filter_rate_hz, cfg.target_attenuation_db, cfg.max_width_ratio, realise=realise)
 
 
 def peak_reductions(before: FrequencyResponse, after: FrequencyResponse, resonances, band_bandwidths: float = 2.0):
@@ -1012,16 +1191,18 @@ def peak_reductions(before: FrequencyResponse, after: FrequencyResponse, resonan
         band = band if len(band) else np.array([i])
         b_db, a_db = 20 * np.log10(mag_before[i]), 20 * np.log10(mag_after[i])
         band_b, band_a = 20 * np.log10(mag_before[band].max()), 20 * np.log10(mag_after[band].max())
-        out.append({
-            "frequency_hz": float(f[i]),
-            "before_db": float(b_db),
-            "after_db": float(a_db),
-            "reduction_db": float(b_db - a_db),
-            "band_hz": [float(lo), float(hi)],
-            "band_before_db": float(band_b),
-            "band_after_db": float(band_a),
-            "band_reduction_db": float(band_b - band_a),
-        })
+        out.append(
+            {
+                "frequency_hz": float(f[i]),
+                "before_db": float(b_db),
+                "after_db": float(a_db),
+                "reduction_db": float(b_db - a_db),
+                "band_hz": [float(lo), float(hi)],
+                "band_before_db": float(band_b),
+                "band_after_db": float(band_a),
+                "band_reduction_db": float(band_b - band_a),
+            }
+        )
     return out
 
 
@@ -1043,8 +1224,9 @@ def floor_limited(band_reduction_db: float, floor_db: float) -> bool:
     return bool(floor_db < band_reduction_db + FLOOR_HEADROOM_DB)
 
 
-def band_floor_db(before: FrequencyResponse, after: FrequencyResponse, resonance,
-                  band_bandwidths: float = 2.0) -> float:
+def band_floor_db(
+    before: FrequencyResponse, after: FrequencyResponse, resonance, band_bandwidths: float = 2.0
+) -> float:
     """The largest band figure (:func:`peak_reductions`) the `after` measurement's own noise lets it show, dB.
 
     A notch takes the response near the mode down, but not what the output
@@ -1072,7 +1254,7 @@ def band_floor_db(before: FrequencyResponse, after: FrequencyResponse, resonance
     errors = estimate_error_std(after)[in_band]
     if not np.all(np.isfinite(errors)):
         return float("nan") if np.isnan(errors).any() else float("-inf")
-    rms = float(np.sqrt(np.mean(errors ** 2)))
+    rms = float(np.sqrt(np.mean(errors**2)))
     if rms == 0.0:
         return float("inf")
     expected_max = rms * np.sqrt(np.log(in_band.sum()) + _EULER_GAMMA)
@@ -1130,8 +1312,11 @@ def achieved_notch(design: NotchDesign, stored: Biquad, planned: Biquad | None =
     }
     if planned is not None:
         realisable = attenuation(planned)
-        out.update(realisable_db=realisable, quantisation_loss_db=float(design.spec.depth_db) - realisable,
-                   beyond_quantisation_db=realisable - at_center)
+        out.update(
+            realisable_db=realisable,
+            quantisation_loss_db=float(design.spec.depth_db) - realisable,
+            beyond_quantisation_db=realisable - at_center,
+        )
     return out
 
 
@@ -1140,14 +1325,23 @@ def resonance_records(resonances) -> list[dict]:
     out = []
     for r in resonances:
         ok = notch_eligibility(r)
-        out.append({
-            "frequency_hz": r.frequency_hz, "damping_ratio": r.damping_ratio, "peak_magnitude_db": r.peak_magnitude_db,
-            "coherence": r.coherence, "method": r.method, "frequency_ci95_hz": r.frequency_ci95_hz,
-            "damping_ci95": r.damping_ci95, "half_power_bandwidth_hz": r.bandwidth_hz,
-            "local_fit_db_rms": r.local_fit_db_rms, "local_noise_db_rms": r.local_noise_db_rms,
-            "local_fit_ratio": r.local_fit_ratio,
-            "notchable": ok["notchable"], **({"not_notchable": ok["reason"]} if not ok["notchable"] else {}),
-        })
+        out.append(
+            {
+                "frequency_hz": r.frequency_hz,
+                "damping_ratio": r.damping_ratio,
+                "peak_magnitude_db": r.peak_magnitude_db,
+                "coherence": r.coherence,
+                "method": r.method,
+                "frequency_ci95_hz": r.frequency_ci95_hz,
+                "damping_ci95": r.damping_ci95,
+                "half_power_bandwidth_hz": r.bandwidth_hz,
+                "local_fit_db_rms": r.local_fit_db_rms,
+                "local_noise_db_rms": r.local_noise_db_rms,
+                "local_fit_ratio": r.local_fit_ratio,
+                "notchable": ok["notchable"],
+                **({"not_notchable": ok["reason"]} if not ok["notchable"] else {}),
+            }
+        )
     return out
 
 
@@ -1159,11 +1353,21 @@ def rejected_peak_records(rejected) -> list[dict]:
 def notch_records(designs: list[NotchDesign]) -> list[dict]:
     """Designed notches as plain records for ``summary.json`` (biquad ``b``, ``a`` in scipy convention)."""
     return [
-        {"center_hz": d.spec.center_hz, "width_hz": d.spec.width_hz, "depth_db": d.spec.depth_db,
-         "sample_rate_hz": d.sample_rate_hz, "slot": d.slot, "b": list(d.biquad.b), "a": list(d.biquad.a),
-         "predicted_band_reduction_db": d.predicted_band_reduction_db,
-         **({"width_reason": d.width_reason, "attenuation_at_ci95_db": d.attenuation_at_ci95_db}
-            if d.width_reason else {})}
+        {
+            "center_hz": d.spec.center_hz,
+            "width_hz": d.spec.width_hz,
+            "depth_db": d.spec.depth_db,
+            "sample_rate_hz": d.sample_rate_hz,
+            "slot": d.slot,
+            "b": list(d.biquad.b),
+            "a": list(d.biquad.a),
+            "predicted_band_reduction_db": d.predicted_band_reduction_db,
+            **(
+                {"width_reason": d.width_reason, "attenuation_at_ci95_db": d.attenuation_at_ci95_db}
+                if d.width_reason
+                else {}
+            ),
+        }
         for d in designs
     ]
 
@@ -1186,11 +1390,19 @@ def greybox_regression(cfg: ModelConfig, torque, position, sample_rate_hz: float
     force = cfg.c * np.asarray(torque, dtype=float)
     cutoff = cfg.cutoff_hz or sample_rate_hz / 10.0
     if cfg.kind == "mass_spring_damper":
-        return greybox.mass_spring_damper_regression(force, position, sample_rate_hz, cutoff, decimate=cfg.decimate,
-                                                     input_hold=cfg.input_hold)
-    return greybox.rigid_axis_regression(position, force, sample_rate_hz, cutoff, asymmetric=cfg.asymmetric,
-                                         decimate=cfg.decimate, min_speed=cfg.min_speed or None,
-                                         input_hold=cfg.input_hold)
+        return greybox.mass_spring_damper_regression(
+            force, position, sample_rate_hz, cutoff, decimate=cfg.decimate, input_hold=cfg.input_hold
+        )
+    return greybox.rigid_axis_regression(
+        position,
+        force,
+        sample_rate_hz,
+        cutoff,
+        asymmetric=cfg.asymmetric,
+        decimate=cfg.decimate,
+        min_speed=cfg.min_speed or None,
+        input_hold=cfg.input_hold,
+    )
 
 
 @dataclass
@@ -1231,16 +1443,19 @@ def residual_warnings(kind: str, name: str, check: dict) -> list[str]:
             f"[model] {kind} on {name}: the residuals are not white (Ljung-Box p = "
             f"{'n/a' if p is None else format(p, '.3g')}): "
             "the model leaves dynamics unexplained; try the other input_hold, a lower cutoff_hz, or a model with "
-            "more physics (a second mass, friction) before trusting its parameters' standard deviations")
+            "more physics (a second mass, friction) before trusting its parameters' standard deviations"
+        )
     if check.get("independent_of_input") is False:
         out.append(
             f"[model] {kind} on {name}: the residuals are correlated with the input: part of the input's effect is "
-            "missing from the model (a delay, an unmodelled force such as friction, or a wrong kind)")
+            "missing from the model (a delay, an unmodelled force such as friction, or a wrong kind)"
+        )
     return out
 
 
-def fit_greybox(cfg: ModelConfig, torque, position, sample_rate_hz: float,
-                validation_records: dict | None = None) -> GreyBoxResult:
+def fit_greybox(
+    cfg: ModelConfig, torque, position, sample_rate_hz: float, validation_records: dict | None = None
+) -> GreyBoxResult:
     """Fit ``[model]`` to torque and position and validate it.
 
     With no separate validation record, the last ``cfg.holdout`` of the data is
@@ -1268,8 +1483,10 @@ def fit_greybox(cfg: ModelConfig, torque, position, sample_rate_hz: float,
     estimation = greybox.validate_fit(fit, est)
     if est.low_speed_rows:
         why = "model.min_speed" if cfg.min_speed else "2 % of the RMS speed; model.min_speed sets it"
-        warnings.append(f"{cfg.kind}: {est.low_speed_rows} of {est.low_speed_rows + estimation['samples']} rows "
-                        f"slower than {est.min_speed:.3g} ({why}) left out of the fit")
+        warnings.append(
+            f"{cfg.kind}: {est.low_speed_rows} of {est.low_speed_rows + estimation['samples']} rows "
+            f"slower than {est.min_speed:.3g} ({why}) left out of the fit"
+        )
     checked = {}
     warnings += residual_warnings(cfg.kind, "the estimation data", estimation)
     for name, (tq, pos) in records.items():
@@ -1339,9 +1556,15 @@ class GapFreeSelection:
         return int(self.keep.sum())
 
     def to_dict(self) -> dict:
-        return {"rows": int(len(self.keep)), "used_rows": self.used_rows, "segments": len(self.segments),
-                "gaps": self.gaps, "n_gaps": self.n_gaps, "missing_samples": self.missing_samples,
-                "period_samples": self.period_samples}
+        return {
+            "rows": int(len(self.keep)),
+            "used_rows": self.used_rows,
+            "segments": len(self.segments),
+            "gaps": self.gaps,
+            "n_gaps": self.n_gaps,
+            "missing_samples": self.missing_samples,
+            "period_samples": self.period_samples,
+        }
 
 
 def select_gap_free(sample_index, period_samples: int | None = None, name: str = "recording") -> GapFreeSelection:
@@ -1374,16 +1597,19 @@ def select_gap_free(sample_index, period_samples: int | None = None, name: str =
         raise DataError(f"{name}: no samples were recorded")
     step = np.diff(index)
     breaks = np.flatnonzero(step != 1)
-    gaps = [{"row": int(b + 1), "sample_index": int(index[b + 1]), "missing_samples": int(step[b] - 1)}
-            for b in breaks[:MAX_LISTED_GAPS]]
+    gaps = [
+        {"row": int(b + 1), "sample_index": int(index[b + 1]), "missing_samples": int(step[b] - 1)}
+        for b in breaks[:MAX_LISTED_GAPS]
+    ]
     missing = int(np.clip(step[breaks] - 1, 0, None).sum()) if len(breaks) else 0
     if period_samples:
         keep, warnings = _whole_periods(index, runs, int(period_samples), name)
     else:
         keep, warnings = _longest_run(len(index), runs, name)
     segments = _kept_segments(keep, step)
-    return GapFreeSelection(keep, segments, gaps, len(breaks), missing, int(period_samples) if period_samples else None,
-                            warnings)
+    return GapFreeSelection(
+        keep, segments, gaps, len(breaks), missing, int(period_samples) if period_samples else None, warnings
+    )
 
 
 def _kept_segments(keep: np.ndarray, step: np.ndarray) -> list[tuple[int, int]]:
@@ -1400,8 +1626,10 @@ def _longest_run(n: int, runs, name: str) -> tuple[np.ndarray, list[str]]:
     keep[a:b] = True
     warnings = []
     if len(runs) > 1:
-        warnings.append(f"{name}: recording has {len(runs) - 1} gap(s); the longest contiguous stretch "
-                        f"({b - a} samples) was analysed")
+        warnings.append(
+            f"{name}: recording has {len(runs) - 1} gap(s); the longest contiguous stretch "
+            f"({b - a} samples) was analysed"
+        )
     return keep, warnings
 
 
@@ -1416,16 +1644,19 @@ def _whole_periods(index: np.ndarray, runs, period: int, name: str) -> tuple[np.
                 continue
             taken.add(p)
             start = a + p * period - int(index[a])
-            keep[start:start + period] = True
+            keep[start : start + period] = True
     n_complete = len(taken)
     total = max(int(index.max()) // period, 0)
     warnings = []
     if n_complete < total:
         warnings.append(
-            f"{name}: {total - n_complete} of {total} excitation periods had lost samples and were left out")
+            f"{name}: {total - n_complete} of {total} excitation periods had lost samples and were left out"
+        )
     if n_complete < 2:
-        raise DataError(f"{name}: only {n_complete} complete excitation period(s) recorded; at least 2 are needed "
-                        "(check the line: lost or corrupt frames)")
+        raise DataError(
+            f"{name}: only {n_complete} complete excitation period(s) recorded; at least 2 are needed "
+            "(check the line: lost or corrupt frames)"
+        )
     return keep, warnings
 
 

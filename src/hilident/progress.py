@@ -88,8 +88,14 @@ class Progress:
                 return
             try:
                 if bar is None:
-                    bar = tqdm(total=100, desc=f"  {label}", file=self.stream, leave=True, dynamic_ncols=True,
-                               bar_format="{desc}: {percentage:3.0f} %|{bar}| {elapsed} elapsed, {remaining} left")
+                    bar = tqdm(
+                        total=100,
+                        desc=f"  {label}",
+                        file=self.stream,
+                        leave=True,
+                        dynamic_ncols=True,
+                        bar_format="{desc}: {percentage:3.0f} %|{bar}| {elapsed} elapsed, {remaining} left",
+                    )
                 bar.update(max(0, int(100 * x) - bar.n))
                 if x >= 1.0:
                     bar.close()

@@ -23,8 +23,15 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-__all__ = ["DIMENSIONLESS", "EXCITATION_CHANNEL", "EXCITATION_UNIT_OF_MODE", "display_unit", "excitation_unit",
-           "recorded_units", "units_in_mode"]
+__all__ = [
+    "DIMENSIONLESS",
+    "EXCITATION_CHANNEL",
+    "EXCITATION_UNIT_OF_MODE",
+    "display_unit",
+    "excitation_unit",
+    "recorded_units",
+    "units_in_mode",
+]
 
 #: The channel that holds the set-point the excitation was played into.
 EXCITATION_CHANNEL = "excitation"

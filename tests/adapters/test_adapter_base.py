@@ -29,7 +29,7 @@ class _Transport(AdapterBase):
         self.calls.append("play")
         for k in range(0, len(x), 10):
             self.script(self, k)
-            deliver(np.arange(k, min(k + 10, len(x))), x[k:k + 10, None])
+            deliver(np.arange(k, min(k + 10, len(x))), x[k : k + 10, None])
             result.stats.samples += min(10, len(x) - k)
         result.completed = self.run_fault is None
 
@@ -112,8 +112,9 @@ def test_the_first_cause_wins_a_limit_trip_then_a_device_error():
     with pytest.raises(LimitTrip, match=r"^fake:0: torque_limit: axis stopped \(then: fake:0: line lost\)$"):
         ad.stream(np.zeros(50), _Rows())
     assert ad.last_result.fault == "torque_limit: axis stopped"
-    assert ad.last_result.events == [{"kind": "limit_trip", "message": "torque_limit: axis stopped",
-                                      "sample_index": 12, "value": 3.0}]
+    assert ad.last_result.events == [
+        {"kind": "limit_trip", "message": "torque_limit: axis stopped", "sample_index": 12, "value": 3.0}
+    ]
 
 
 def test_a_fault_noted_during_a_run_that_returns_ends_it_with_a_device_error():
@@ -191,10 +192,21 @@ def test_a_strategy_owns_its_run():
 
 def test_run_events_give_the_dicts_the_recordings_hold():
     assert RunEvent(Kind.SYNC_LATE, "3 SYNC(s) late", 0, value=3, worst_s=0.0021).to_dict() == {
-        "kind": "sync_late", "message": "3 SYNC(s) late", "sample_index": 0, "value": 3.0, "worst_s": 0.0021}
+        "kind": "sync_late",
+        "message": "3 SYNC(s) late",
+        "sample_index": 0,
+        "value": 3.0,
+        "worst_s": 0.0021,
+    }
     emcy = RunEvent(Kind.EMERGENCY, "EMCY 0x4310", 7, code=0x4310, register=0x09, data="0100000000").to_dict()
-    assert emcy == {"kind": "emergency", "message": "EMCY 0x4310", "sample_index": 7, "code": 0x4310,
-                    "register": 9, "data": "0100000000"}
+    assert emcy == {
+        "kind": "emergency",
+        "message": "EMCY 0x4310",
+        "sample_index": 7,
+        "code": 0x4310,
+        "register": 9,
+        "data": "0100000000",
+    }
     assert list(emcy)[3:] == ["code", "register", "data"]  # the recording's data column keeps this order
     assert "value" not in emcy and "host_check" not in emcy
     trip = RunEvent(Kind.LIMIT_TRIP, "x", np.int64(4), value=np.float32(1.5), host_check=True).to_dict()

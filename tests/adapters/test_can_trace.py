@@ -52,16 +52,20 @@ def _unique_channel() -> str:
 
 def _received(i: int, channel: str, rng: random.Random) -> can.Message:
     extended = i % 7 == 3
-    return can.Message(timestamp=time.time() - rng.uniform(0.0, LAG_S), channel=channel, is_rx=True,
-                       arbitration_id=(0x1ABC000 + i) if extended else 0x181 + i % 4,
-                       is_extended_id=extended, data=i.to_bytes(4, "little") + bytes([i % 256] * (i % 5)))
+    return can.Message(
+        timestamp=time.time() - rng.uniform(0.0, LAG_S),
+        channel=channel,
+        is_rx=True,
+        arbitration_id=(0x1ABC000 + i) if extended else 0x181 + i % 4,
+        is_extended_id=extended,
+        data=i.to_bytes(4, "little") + bytes([i % 256] * (i % 5)),
+    )
 
 
 def _sent(i: int) -> can.Message:
     if i % 11 == 5:  # a remote request
         return can.Message(arbitration_id=0x701, is_remote_frame=True, dlc=1, is_rx=False)
-    return can.Message(arbitration_id=0x80 if i % 3 == 0 else 0x601, data=(1000 + i).to_bytes(4, "little"),
-                       is_rx=False)
+    return can.Message(arbitration_id=0x80 if i % 3 == 0 else 0x601, data=(1000 + i).to_bytes(4, "little"), is_rx=False)
 
 
 @pytest.mark.parametrize("channel", ["can0", "vcan1"])
@@ -142,8 +146,7 @@ class Peer:
     """
 
     def __init__(self, channel: str, rng: random.Random):
-        self.bus = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True,
-                           receive_own_messages=False)
+        self.bus = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True, receive_own_messages=False)
         self.rng = rng
         self.sent: list[can.Message] = []
         self.received: list[can.Message] = []
@@ -152,8 +155,12 @@ class Peer:
         self.thread.start()
 
     def _send(self, arbitration_id: int, data: bytes) -> None:
-        msg = can.Message(timestamp=time.time() - self.rng.uniform(0.0, LAG_S), arbitration_id=arbitration_id,
-                          is_extended_id=False, data=data)
+        msg = can.Message(
+            timestamp=time.time() - self.rng.uniform(0.0, LAG_S),
+            arbitration_id=arbitration_id,
+            is_extended_id=False,
+            data=data,
+        )
         self.bus.send(msg)
         self.sent.append(msg)
 

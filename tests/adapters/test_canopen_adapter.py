@@ -292,8 +292,9 @@ def test_identity_mismatch_and_silent_node(rig, tmp_path):
         CanopenDriveAdapter.open_device(r.device, load_driver(folder))
     assert "0x00040299" in str(err.value)
     with pytest.raises(DeviceError, match="no valid SDO answer") as err:
-        CanopenDriveAdapter.open_device(replace(r.device, canopen=replace(r.device.canopen, node_id=9), timeout_s=0.1),
-                                        r.driver)
+        CanopenDriveAdapter.open_device(
+            replace(r.device, canopen=replace(r.device.canopen, node_id=9), timeout_s=0.1), r.driver
+        )
     assert "node 9" in str(err.value)
 
 
@@ -313,14 +314,25 @@ def test_bus_arguments_from_the_device_table():
     assert parse_socketcand_port("127.0.0.1:29536/can0") == ("127.0.0.1", 29536, "can0")
     with pytest.raises(ConfigError, match="device.port"):
         parse_socketcand_port("127.0.0.1/can0")
-    args = bus_arguments(DeviceConfig(canopen=CanopenDeviceConfig(can_interface="socketcand"),
-                                      port="10.0.0.2:29536/vcan1"), 500000)
-    assert args == {"interface": "socketcand", "bitrate": 500000, "channel": "vcan1", "host": "10.0.0.2",
-                    "port": 29536, "tcp_tune": True}
-    args = bus_arguments(DeviceConfig(canopen=CanopenDeviceConfig(can_interface="pcan"), port="PCAN_USBBUS1",
-                                      baudrate=250000), 1000000)
+    args = bus_arguments(
+        DeviceConfig(canopen=CanopenDeviceConfig(can_interface="socketcand"), port="10.0.0.2:29536/vcan1"), 500000
+    )
+    assert args == {
+        "interface": "socketcand",
+        "bitrate": 500000,
+        "channel": "vcan1",
+        "host": "10.0.0.2",
+        "port": 29536,
+        "tcp_tune": True,
+    }
+    args = bus_arguments(
+        DeviceConfig(canopen=CanopenDeviceConfig(can_interface="pcan"), port="PCAN_USBBUS1", baudrate=250000), 1000000
+    )
     assert args == {"interface": "pcan", "bitrate": 250000, "channel": "PCAN_USBBUS1"}
     with pytest.raises(DeviceError, match="no-such-interface"):
-        CanopenDriveAdapter.open_device(DeviceConfig(driver="canopen-servo", port="x",
-                                                     canopen=CanopenDeviceConfig(can_interface="no-such-interface")),
-                                        find_driver("canopen-servo"))
+        CanopenDriveAdapter.open_device(
+            DeviceConfig(
+                driver="canopen-servo", port="x", canopen=CanopenDeviceConfig(can_interface="no-such-interface")
+            ),
+            find_driver("canopen-servo"),
+        )

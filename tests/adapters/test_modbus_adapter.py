@@ -120,8 +120,14 @@ def test_every_sample_arrives_as_the_drive_loop_produced_it(link):
         index, rows = rec.arrays()
         assert np.array_equal(index, np.arange(n))
         s = result.stats
-        assert ((s.samples, s.lost_blocks, s.lost_samples, s.lost_frames, s.corrupt_frames, s.out_of_order)
-                == (n, 0, 0, 0, 0, 0))
+        assert (s.samples, s.lost_blocks, s.lost_samples, s.lost_frames, s.corrupt_frames, s.out_of_order) == (
+            n,
+            0,
+            0,
+            0,
+            0,
+            0,
+        )
         assert result.completed and result.events[-1]["kind"] == "finished"
         assert not emu.drive.enabled
         twin, want = truth(cfg, x, 4)
@@ -381,8 +387,9 @@ def test_a_limit_trip_left_latched_refuses_the_next_session_until_reset():
         ad.configure(1000.0, "torque")
         with pytest.raises(LimitTrip):
             ad.stream(np.linspace(0.0, 8.0, 1500), Recorder())
-        with pytest.raises(DeviceError,
-                           match=r"torque_limit \(register 102 \(fault_code\) = 1, at sample \d+, value 5\.0"):
+        with pytest.raises(
+            DeviceError, match=r"torque_limit \(register 102 \(fault_code\) = 1, at sample \d+, value 5\.0"
+        ):
             ModbusDriveAdapter.open_device(host(emu), DRIVER)
         clean = ModbusDriveAdapter.open_device(host(emu, allow_fault_reset=True), DRIVER)
         clean.close()
@@ -532,8 +539,9 @@ def hostile_server(reset: bool):
 @pytest.mark.parametrize("reset", [False, True])
 def test_a_server_that_accepts_and_closes_is_a_device_error_naming_the_port(reset):
     with hostile_server(reset) as port:
-        with pytest.raises(DeviceError, match=f"{port}: reading registers 0\\.\\.6 \\(device_type.*"
-                                              "connection to the drive was lost"):
+        with pytest.raises(
+            DeviceError, match=f"{port}: reading registers 0\\.\\.6 \\(device_type.*connection to the drive was lost"
+        ):
             ModbusDriveAdapter.open_device(DeviceConfig(port=port, timeout_s=0.3), DRIVER)
 
 

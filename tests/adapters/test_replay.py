@@ -58,8 +58,11 @@ def test_the_adapter_holds_the_recorded_conversation(name, fixed_sequence):
 def test_a_request_the_transcript_does_not_expect_fails(name, fixed_sequence):
     transcript = Transcript.load(name)
     first = transcript.exchanges[0]
-    wrong = bytes([first.send[0] ^ 0xFF]) + first.send[1:] if transcript.wire == "stream" else \
-        (first.send[0], bytes([first.send[1][0] ^ 0xFF]) + first.send[1][1:])
+    wrong = (
+        bytes([first.send[0] ^ 0xFF]) + first.send[1:]
+        if transcript.wire == "stream"
+        else (first.send[0], bytes([first.send[1][0] ^ 0xFF]) + first.send[1][1:])
+    )
     transcript.exchanges[0] = Exchange(wrong, first.receive)
     with pytest.raises(UnexpectedExchange, match="exchange 0: expected the host to send"):
         _converse(name, transcript)

@@ -36,7 +36,6 @@ class OneFrameReads:
     extreme, several frames (an answer and sample blocks) in one read.
     """
 
-
     def __init__(self, link):
         self.link = link
         self._buffer = bytearray()
@@ -147,8 +146,16 @@ def excitation(n: int, amplitude: float = 0.8) -> np.ndarray:
 
 def assert_clean(stats, n):
     assert stats.samples == n
-    for field in ("lost_frames", "lost_blocks", "lost_samples", "corrupt_frames", "out_of_order",
-                  "underruns", "board_dropped_blocks", "clipped_blocks"):
+    for field in (
+        "lost_frames",
+        "lost_blocks",
+        "lost_samples",
+        "corrupt_frames",
+        "out_of_order",
+        "underruns",
+        "board_dropped_blocks",
+        "clipped_blocks",
+    ):
         assert getattr(stats, field) == 0, field
 
 

@@ -52,8 +52,7 @@ def device_config(port: str, allow_fault_reset: bool = False, timeout_s: float =
 
 @contextlib.contextmanager
 def pty_board(time_scale: float = 10.0):
-    device = start_serial_board(make_config(time_scale).emulator, DRIVER, baudrate=DRIVER.default_baudrate,
-                                link="pty")
+    device = start_serial_board(make_config(time_scale).emulator, DRIVER, baudrate=DRIVER.default_baudrate, link="pty")
     try:
         yield device
     finally:
@@ -147,8 +146,16 @@ class IndependentBoard:
 
     def _serve(self) -> None:
         decoder = FrameDecoder()
-        ident = sb.Identity(1, DRIVER.name, "independent 0.1", 4000.0, 4000.0, 4, 4096,
-                            tuple(sb.ChannelInfo(c.name, c.unit) for c in DRIVER.channels))
+        ident = sb.Identity(
+            1,
+            DRIVER.name,
+            "independent 0.1",
+            4000.0,
+            4000.0,
+            4,
+            4096,
+            tuple(sb.ChannelInfo(c.name, c.unit) for c in DRIVER.channels),
+        )
         try:
             while True:
                 for payload in decoder.feed(self.link.read(max(1, self.link.in_waiting))):
@@ -177,15 +184,22 @@ class IndependentBoard:
 def test_connecting_uses_only_protocol_messages_and_stops_before_clearing():
     host_end, board_end = pipe_pair("pipe://independent", timeout=0.02)
     board = IndependentBoard(board_end).start()
-    adapter = SerialBoardAdapter.open_device(device_config("pipe://independent", allow_fault_reset=True),
-                                             DRIVER, link=host_end)
+    adapter = SerialBoardAdapter.open_device(
+        device_config("pipe://independent", allow_fault_reset=True), DRIVER, link=host_end
+    )
     try:
         report = adapter.connect_report
         assert report.discarded_frames == board.stale_blocks
         assert report.faults_cleared and "WATCHDOG" in report.faults[0]
         # STOP goes out before anything is cleared; the fault is cleared only after it was read
-        assert board.received == ["IDENTIFY", "STATUS_REQUEST", "STOP", "STATUS_REQUEST", "CLEAR_FAULT",
-                                  "STATUS_REQUEST"]
+        assert board.received == [
+            "IDENTIFY",
+            "STATUS_REQUEST",
+            "STOP",
+            "STATUS_REQUEST",
+            "CLEAR_FAULT",
+            "STATUS_REQUEST",
+        ]
         assert board.state == sb.State.IDLE
     finally:
         adapter.close()
@@ -197,7 +211,8 @@ def test_an_answer_queued_behind_a_long_drain_is_waited_for():
     host_end, board_end = pipe_pair("pipe://independent", timeout=0.02)
     _board = IndependentBoard(board_end, stale_blocks=20, stale_spacing_s=0.03).start()
     adapter = SerialBoardAdapter.open_device(
-        device_config("pipe://independent", allow_fault_reset=True, timeout_s=0.25), DRIVER, link=host_end)
+        device_config("pipe://independent", allow_fault_reset=True, timeout_s=0.25), DRIVER, link=host_end
+    )
     try:
         assert adapter.connect_report.discarded_frames == 20
         assert adapter.identity.firmware == "independent 0.1"
@@ -208,8 +223,9 @@ def test_an_answer_queued_behind_a_long_drain_is_waited_for():
 def test_without_permission_the_independent_board_is_refused_and_the_line_closed():
     host_end, board_end = pipe_pair("pipe://independent", timeout=0.02)
     board = IndependentBoard(board_end).start()
-    with pytest.raises(DeviceError,
-                       match="pipe://independent: the device has a latched fault: board in FAULT WATCHDOG"):
+    with pytest.raises(
+        DeviceError, match="pipe://independent: the device has a latched fault: board in FAULT WATCHDOG"
+    ):
         SerialBoardAdapter.open_device(device_config("pipe://independent"), DRIVER, link=host_end)
     assert "CLEAR_FAULT" not in board.received and board.state == sb.State.FAULT
     assert not host_end.is_open
@@ -335,8 +351,9 @@ class InjectNak(RoutedFrames):
             return frame
         self.injected = True
         # same seq as the frame it travels with: the host's frame numbering sees no gap
-        nak = encode_frame(sb.encode(sb.Nak(0, sb.MsgType.EXCITATION, self.error, "excitation while FAULT"),
-                                     header.seq))
+        nak = encode_frame(
+            sb.encode(sb.Nak(0, sb.MsgType.EXCITATION, self.error, "excitation while FAULT"), header.seq)
+        )
         return nak + frame if self.before else frame + nak
 
 
@@ -362,8 +379,11 @@ def test_a_limit_trip_stays_the_cause_when_an_in_flight_frame_is_refused(before)
 def test_a_refused_in_flight_frame_after_a_finished_run_is_no_error():
     with pipe_board(make_config()) as (device, adapter):
         # the refusal of a frame that reached the board after its run ended (its stream index reset)
-        adapter.link = InjectNak(adapter.link, lambda m: isinstance(m, sb.Samples) and m.flags & sb.FLAG_LAST,
-                                 error=sb.ErrorCode.BAD_ARGUMENT)
+        adapter.link = InjectNak(
+            adapter.link,
+            lambda m: isinstance(m, sb.Samples) and m.flags & sb.FLAG_LAST,
+            error=sb.ErrorCode.BAD_ARGUMENT,
+        )
         adapter.configure(RATE_HZ, "torque", CHANNELS)
         adapter.link.channels = adapter.channels
         n = 1500
@@ -374,8 +394,9 @@ def test_a_refused_in_flight_frame_after_a_finished_run_is_no_error():
 
 def test_a_refusal_while_the_board_runs_the_hosts_run_is_a_device_error():
     with pipe_board(make_config()) as (device, adapter):
-        adapter.link = InjectNak(adapter.link, lambda m: isinstance(m, sb.Samples) and m.block_index >= 5,
-                                 error=sb.ErrorCode.BUFFER_OVERFLOW)
+        adapter.link = InjectNak(
+            adapter.link, lambda m: isinstance(m, sb.Samples) and m.block_index >= 5, error=sb.ErrorCode.BUFFER_OVERFLOW
+        )
         adapter.configure(RATE_HZ, "torque", CHANNELS)
         adapter.link.channels = adapter.channels
         with pytest.raises(DeviceError, match=f"{device.port}: board refused a frame during the run: BUFFER_OVERFLOW"):
@@ -425,8 +446,18 @@ def test_stop_after_an_interrupted_frame_still_reaches_the_board():
 
 @pytest.mark.parametrize("tcp", [False, True], ids=["pty", "tcp"])
 def test_a_board_process_that_dies_mid_run_is_a_device_error_naming_the_port(tcp):
-    cmd = [sys.executable, "-m", "hilident.cli", "emulate", "serial", "--config",
-           str(REPO / "configs" / "emulated-gantry.toml"), "--time-scale", "5", *(["--tcp"] if tcp else [])]
+    cmd = [
+        sys.executable,
+        "-m",
+        "hilident.cli",
+        "emulate",
+        "serial",
+        "--config",
+        str(REPO / "configs" / "emulated-gantry.toml"),
+        "--time-scale",
+        "5",
+        *(["--tcp"] if tcp else []),
+    ]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         port = proc.stdout.readline().strip()
@@ -489,21 +520,38 @@ def test_a_sigkilled_session_is_stopped_by_the_board_watchdog_and_the_next_host_
     """(tests/test_endings.py runs the same ending over the TCP line too.)"""
     config = (REPO / "configs" / "emulated-gantry.toml").read_text()
     emulator = subprocess.Popen(
-        [sys.executable, "-m", "hilident.cli", "emulate", "serial",
-         "--config", str(REPO / "configs" / "emulated-gantry.toml"), "--time-scale", "2", *(["--tcp"] if tcp else [])],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        [
+            sys.executable,
+            "-m",
+            "hilident.cli",
+            "emulate",
+            "serial",
+            "--config",
+            str(REPO / "configs" / "emulated-gantry.toml"),
+            "--time-scale",
+            "2",
+            *(["--tcp"] if tcp else []),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     host = None
     try:
         port = emulator.stdout.readline().strip()
         assert port, emulator.stderr.read()
         bench = tmp_path / "bench.toml"
-        bench.write_text(config.replace('port = "emulator"', f'port = "{port}"')
-                         .replace("[friction_test]", "[friction_test]\nenabled = false")
-                         .replace('amplitude_nm = "auto"', "amplitude_nm = 8.0"))
+        bench.write_text(
+            config.replace('port = "emulator"', f'port = "{port}"')
+            .replace("[friction_test]", "[friction_test]\nenabled = false")
+            .replace('amplitude_nm = "auto"', "amplitude_nm = 8.0")
+        )
         out = tmp_path / "out"
-        host = subprocess.Popen([sys.executable, "-m", "hilident.cli", "run", str(bench), "--out", str(out), "-q",
-                                 "--yes", "--no-plots"],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        host = subprocess.Popen(
+            [sys.executable, "-m", "hilident.cli", "run", str(bench), "--out", str(out), "-q", "--yes", "--no-plots"],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         assert wait_until(lambda: (out / "identification.h5").exists(), 30.0)
         time.sleep(0.5)  # streaming now
         host.kill()

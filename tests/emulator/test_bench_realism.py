@@ -83,8 +83,14 @@ def test_bench_preset_scales_with_the_drive_and_a_set_key_wins():
     r2 = realism(set_keys, 4000.0)
     assert (r2.cogging_nm, r2.delay_ticks) == (0.7, 4)
     clean = realism(parse_config("[emulator]\npreset = 'clean'\n" + GANTRY).emulator, 4000.0)
-    assert (clean.torque_noise_nm, clean.cogging_nm, clean.load_step_nm, clean.load_noise_n,
-            clean.encoder_noise_m, clean.delay_ticks) == (0, 0, 0, 0, 0, 0)
+    assert (
+        clean.torque_noise_nm,
+        clean.cogging_nm,
+        clean.load_step_nm,
+        clean.load_noise_n,
+        clean.encoder_noise_m,
+        clean.delay_ticks,
+    ) == (0, 0, 0, 0, 0, 0)
     assert math.isinf(clean.current_loop_hz)
     with pytest.raises(ConfigError, match="emulator.preset"):
         parse_config("[emulator]\npreset = 'messy'\n")
@@ -92,8 +98,9 @@ def test_bench_preset_scales_with_the_drive_and_a_set_key_wins():
 
 def test_current_loop_lags_and_the_delay_shifts_the_torque_by_whole_ticks():
     tuning = DriveTuning(loop_rate_hz=4000.0, current_loop_hz=500.0, delay_ticks=3)
-    drive = DriveLoop(Plant(TwoMass(40.0, 10.0, 1.5e5, 40.0, c=10.0)), tuning,
-                      SensorModel(encoder_resolution_m=0.0, seed=0))
+    drive = DriveLoop(
+        Plant(TwoMass(40.0, 10.0, 1.5e5, 40.0, c=10.0)), tuning, SensorModel(encoder_resolution_m=0.0, seed=0)
+    )
     drive.set_mode("torque")
     drive.enable()
     torque = column(drive.run(np.ones(400)), "torque_nm")
@@ -109,12 +116,18 @@ def test_clean_preset_is_the_exact_physics():
     driver = find_driver("myrio-board")
     built = build_drive(cfg, driver)
     assert built.disturbance is None
-    bare = DriveLoop(Plant(TwoMass(40.0, 10.0, 1.5e5, 40.0, c=10.0), max_substep_s=built.plant.max_substep_s),
-                     DriveTuning(loop_rate_hz=driver.loop_rate_hz, torque_max_nm=20.0),
-                     SensorModel(encoder_resolution_m=1e-6, torque_noise_nm=0.01,
-                                 laser_range_m=tuple(cfg.sensors.laser_range_m),
-                                 laser_resolution_m=cfg.sensors.laser_resolution_m, seed=cfg.seed),
-                     n_filter_slots=driver.filter_slots)
+    bare = DriveLoop(
+        Plant(TwoMass(40.0, 10.0, 1.5e5, 40.0, c=10.0), max_substep_s=built.plant.max_substep_s),
+        DriveTuning(loop_rate_hz=driver.loop_rate_hz, torque_max_nm=20.0),
+        SensorModel(
+            encoder_resolution_m=1e-6,
+            torque_noise_nm=0.01,
+            laser_range_m=tuple(cfg.sensors.laser_range_m),
+            laser_resolution_m=cfg.sensors.laser_resolution_m,
+            seed=cfg.seed,
+        ),
+        n_filter_slots=driver.filter_slots,
+    )
     x = np.random.default_rng(0).standard_normal(4000)
     for d in (built, bare):
         d.set_mode("torque")
@@ -137,9 +150,10 @@ def _coherence(preset: str) -> tuple[np.ndarray, np.ndarray]:
     phases = np.random.default_rng(5).uniform(0, 2 * np.pi, 199)
     period = sum(np.cos(2 * np.pi * (k / 2) * t + ph) for k, ph in zip(range(2, 201), phases, strict=True))
     x = np.tile(3.0 * period / np.std(period), 11)
-    rows = drive.run(x)[int(2 * rate):: int(rate // 1000)]  # the first period is the transient
-    return signal.coherence(column(rows, "torque_nm"), column(rows, "velocity_mps"), fs=1000.0,
-                            window="boxcar", nperseg=2000, noverlap=0)
+    rows = drive.run(x)[int(2 * rate) :: int(rate // 1000)]  # the first period is the transient
+    return signal.coherence(
+        column(rows, "torque_nm"), column(rows, "velocity_mps"), fs=1000.0, window="boxcar", nperseg=2000, noverlap=0
+    )
 
 
 def test_bench_coherence_drops_at_the_anti_resonance_where_the_clean_twin_stays_at_one():

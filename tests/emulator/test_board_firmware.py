@@ -30,7 +30,7 @@ preset = "clean"
 [emulator.sensors]
 torque_noise_nm = 0.0
 """
-FRICTIONLESS = CONFIG + "\n[emulator.friction]\nmodel = \"none\"\n"
+FRICTIONLESS = CONFIG + '\n[emulator.friction]\nmodel = "none"\n'
 
 DRIVER = find_driver("myrio-board")
 NAMES = [c.name for c in DRIVER.channels]
@@ -43,8 +43,9 @@ DEFAULT_LIMITS = sb.Limits(5.0, 1.0, -1.0, 1.0)
 class Bench:
     """A firmware instance, a host-side sequence counter and the decoded answers."""
 
-    def __init__(self, config: str = CONFIG, identity: sb.Identity | None = None,
-                 limits: sb.Limits | None = DEFAULT_LIMITS):
+    def __init__(
+        self, config: str = CONFIG, identity: sb.Identity | None = None, limits: sb.Limits | None = DEFAULT_LIMITS
+    ):
         self.drive = build_drive(parse_config(config).emulator, DRIVER)
         self.fw = BoardFirmware(self.drive, identity or identity_from_driver(DRIVER))
         self.seq = 0
@@ -124,8 +125,10 @@ def test_identify_answers_what_the_driver_description_says():
     assert ident.protocol_version == 1 == DRIVER.protocol_version
     assert (ident.name, ident.firmware) == (DRIVER.name, DRIVER.firmware)
     assert (ident.loop_rate_hz, ident.max_sample_rate_hz) == (DRIVER.loop_rate_hz, DRIVER.max_sample_rate_hz)
-    assert ((ident.filter_slots, ident.excitation_buffer_samples)
-            == (DRIVER.filter_slots, DRIVER.excitation_buffer_samples))
+    assert (ident.filter_slots, ident.excitation_buffer_samples) == (
+        DRIVER.filter_slots,
+        DRIVER.excitation_buffer_samples,
+    )
     assert [(c.name, c.unit) for c in ident.channels] == [(c.name, c.unit) for c in DRIVER.channels]
     assert bench.fw.state == sb.State.IDLE
 
@@ -199,10 +202,15 @@ def test_configure_start_and_clear_fault_are_refused_while_running():
     bench.refused(sb.ClearFault(), sb.ErrorCode.BAD_STATE)
 
 
-@pytest.mark.parametrize("limits", [
-    sb.Limits(0.0, 1.0, -1.0, 1.0), sb.Limits(1.0, -1.0, -1.0, 1.0), sb.Limits(1.0, 1.0, 1.0, 1.0),
-    sb.Limits(float("nan"), 1.0, -1.0, 1.0),
-])
+@pytest.mark.parametrize(
+    "limits",
+    [
+        sb.Limits(0.0, 1.0, -1.0, 1.0),
+        sb.Limits(1.0, -1.0, -1.0, 1.0),
+        sb.Limits(1.0, 1.0, 1.0, 1.0),
+        sb.Limits(float("nan"), 1.0, -1.0, 1.0),
+    ],
+)
 def test_set_limits_refuses_non_positive_limits_and_empty_windows(limits):
     bench = Bench(limits=None)
     bench.refused(limits, sb.ErrorCode.BAD_ARGUMENT)
@@ -364,8 +372,9 @@ def test_unstable_enabled_coefficients_are_refused(a):
 def test_filter_slot_out_of_range_is_refused():
     bench = Bench()
     slot = DRIVER.filter_slots
-    bench.refused(sb.WriteFilter(sb.FilterCoefficients(slot, True, (1.0, 0.0, 0.0), (1.0, 0.0, 0.0))),
-                  sb.ErrorCode.BAD_ARGUMENT)
+    bench.refused(
+        sb.WriteFilter(sb.FilterCoefficients(slot, True, (1.0, 0.0, 0.0), (1.0, 0.0, 0.0))), sb.ErrorCode.BAD_ARGUMENT
+    )
     bench.refused(sb.ReadFilter(slot), sb.ErrorCode.BAD_ARGUMENT)
 
 

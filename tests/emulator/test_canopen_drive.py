@@ -50,15 +50,19 @@ class Host:
         return self.node.sdo[index] if sub is None else self.node.sdo[index][sub] if sub else self.node.sdo[index]
 
     def write(self, index, sub, value):
-        var = self.node.sdo[index][sub] if isinstance(self.node.sdo[index],
-                                                      (canopen.sdo.SdoRecord, canopen.sdo.SdoArray)) \
+        var = (
+            self.node.sdo[index][sub]
+            if isinstance(self.node.sdo[index], (canopen.sdo.SdoRecord, canopen.sdo.SdoArray))
             else self.node.sdo[index]
+        )
         var.raw = value
 
     def read(self, index, sub=0):
-        var = self.node.sdo[index][sub] if isinstance(self.node.sdo[index],
-                                                      (canopen.sdo.SdoRecord, canopen.sdo.SdoArray)) \
+        var = (
+            self.node.sdo[index][sub]
+            if isinstance(self.node.sdo[index], (canopen.sdo.SdoRecord, canopen.sdo.SdoArray))
             else self.node.sdo[index]
+        )
         return var.raw
 
     def state(self):
@@ -140,7 +144,7 @@ def test_block_and_segmented_transfer_of_the_table(drive_host):
     with sdo.open(0x2200, 0, "wb", size=len(table), block_transfer=True, buffering=0) as f:
         pos = 0
         while pos < len(table):
-            pos += f.write(table[pos:pos + 7])
+            pos += f.write(table[pos : pos + 7])
     assert host.read(0x2201, 1) == 3001
     with sdo.open(0x2200, 0, "rb", block_transfer=True, buffering=0) as f:
         assert f.readall() == table
@@ -170,10 +174,20 @@ def _map(host, comm, mapping, cob, entries):
 def test_one_sync_is_one_sample_period_with_the_latest_setpoint(drive_host):
     host, emulated, _ = drive_host()
     counter, demand, excitation = ObjectAddress(0x2100), ObjectAddress(0x6074), ObjectAddress(0x2102)
-    _map(host, 0x1800, 0x1A00, 0x180 + NODE,
-         [mapping_entry(counter, 16), mapping_entry(excitation, 32), mapping_entry(demand, 16)])
-    _map(host, 0x1400, 0x1600, 0x200 + NODE,
-         [mapping_entry(ObjectAddress(0x2101), 16), mapping_entry(ObjectAddress(0x6071), 16)])
+    _map(
+        host,
+        0x1800,
+        0x1A00,
+        0x180 + NODE,
+        [mapping_entry(counter, 16), mapping_entry(excitation, 32), mapping_entry(demand, 16)],
+    )
+    _map(
+        host,
+        0x1400,
+        0x1600,
+        0x200 + NODE,
+        [mapping_entry(ObjectAddress(0x2101), 16), mapping_entry(ObjectAddress(0x6071), 16)],
+    )
     with pytest.raises(SdoAbortedError):  # the mapping of a valid PDO is locked
         host.write(0x1A00, 1, 0)
     host.write(0x1006, 0, 1000)  # 1 ms SYNC: 4 loop ticks at 4 kHz
@@ -260,8 +274,13 @@ def test_filter_slot_is_what_the_plant_sees(drive_host, driver_name):
 
 def test_limit_trip_sends_emcy_with_the_sample_and_faults(drive_host):
     host, emulated, _ = drive_host()
-    _map(host, 0x1400, 0x1600, 0x200 + NODE,
-         [mapping_entry(ObjectAddress(0x2101), 16), mapping_entry(ObjectAddress(0x6071), 16)])
+    _map(
+        host,
+        0x1400,
+        0x1600,
+        0x200 + NODE,
+        [mapping_entry(ObjectAddress(0x2101), 16), mapping_entry(ObjectAddress(0x6071), 16)],
+    )
     host.write(0x1006, 0, 1000)
     host.node.nmt.state = "OPERATIONAL"
     host.limits(torque=2.0)
@@ -312,7 +331,7 @@ def test_socketcand_bridge_serves_the_bus(tmp_path):
             with node.sdo.open(0x2200, 0, "wb", size=len(table), block_transfer=True, buffering=0) as f:
                 pos = 0
                 while pos < len(table):
-                    pos += f.write(table[pos:pos + 7])
+                    pos += f.write(table[pos : pos + 7])
             assert node.sdo[0x2201][1].raw == 700
         finally:
             network.disconnect()
@@ -327,10 +346,15 @@ def _beat(host, node, period_s):
     return host.network.send_periodic(0x700 + node, b"\x05", period_s)
 
 
-@pytest.mark.parametrize("option, after", [(0, cia402.State.OPERATION_ENABLED),
-                                           (1, cia402.State.FAULT),
-                                           (2, cia402.State.SWITCH_ON_DISABLED),
-                                           (3, cia402.State.SWITCH_ON_DISABLED)])
+@pytest.mark.parametrize(
+    "option, after",
+    [
+        (0, cia402.State.OPERATION_ENABLED),
+        (1, cia402.State.FAULT),
+        (2, cia402.State.SWITCH_ON_DISABLED),
+        (3, cia402.State.SWITCH_ON_DISABLED),
+    ],
+)
 def test_heartbeat_consumer_fires_emcy_8130_and_the_abort_option(drive_host, option, after):
     host, emulated, _ = drive_host()
     host.limits()

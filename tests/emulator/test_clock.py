@@ -79,8 +79,10 @@ def test_playback_is_cut_where_an_injected_fault_is_due():
 
 
 def _drive():
-    cfg = parse_config('[limits]\ntorque_nm = 5.0\nvelocity_mps = 1.0\nposition_min_m = -0.5\nposition_max_m = 0.5\n'
-                       '[emulator]\npreset = "clean"\n')
+    cfg = parse_config(
+        "[limits]\ntorque_nm = 5.0\nvelocity_mps = 1.0\nposition_min_m = -0.5\nposition_max_m = 0.5\n"
+        '[emulator]\npreset = "clean"\n'
+    )
     return build_drive(cfg.emulator, find_driver("myrio-board"))
 
 

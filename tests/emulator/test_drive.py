@@ -90,7 +90,7 @@ def test_velocity_mode_torque_traces_stribeck_curve(setpoint):
     drive.set_mode("velocity")
     drive.enable()
     rows = drive.run(np.full(int(2.5 * RATE), setpoint))
-    steady = rows[int(1.0 * RATE):]
+    steady = rows[int(1.0 * RATE) :]
     assert steady[:, COL["velocity_mps"]].mean() == pytest.approx(setpoint, rel=1e-3)
     assert steady[:, COL["torque_nm"]].mean() == pytest.approx(float(FRICTION(setpoint)), rel=0.02)
 
@@ -202,8 +202,7 @@ def test_set_limits_validates():
 
 
 def noisy_run(seed, split=None):
-    drive = make_drive(FRICTION, seed=seed, torque_noise_nm=0.05, laser_noise_m=2e-5,
-                       laser_resolution_m=1.2e-4)
+    drive = make_drive(FRICTION, seed=seed, torque_noise_nm=0.05, laser_noise_m=2e-5, laser_resolution_m=1.2e-4)
     drive.set_mode("velocity")
     drive.enable()
     x = 0.05 * np.sin(2 * np.pi * 2.0 * np.arange(4000) / RATE)

@@ -78,8 +78,10 @@ class Drive:
         assert self.set(table_length=len(x)) is None
         for c in plan_chunks(0, len(x), 2, MAP.table.page_samples, MAP.max_write):
             assert self.set(table_page=c.page) is None
-            assert self.fw.write(MAP.table.base + c.offset,
-                                 regs[2 * c.first_sample : 2 * (c.first_sample + c.samples)]) is None
+            assert (
+                self.fw.write(MAP.table.base + c.offset, regs[2 * c.first_sample : 2 * (c.first_sample + c.samples)])
+                is None
+            )
         return regs
 
     def capture(self, n, mask):
@@ -93,10 +95,19 @@ class Drive:
         return np.concatenate(stamps), np.concatenate(rows)
 
     def limits(self, torque=5.0, velocity=1.0, lo=-1.0, hi=1.0):
-        return self.fw.write(REG["torque_limit_nm"].address,
-                             [r for name, v in (("torque_limit_nm", torque), ("velocity_limit_mps", velocity),
-                                                ("position_min_m", lo), ("position_max_m", hi))
-                              for r in MAP.encode(name, v)])
+        return self.fw.write(
+            REG["torque_limit_nm"].address,
+            [
+                r
+                for name, v in (
+                    ("torque_limit_nm", torque),
+                    ("velocity_limit_mps", velocity),
+                    ("position_min_m", lo),
+                    ("position_max_m", hi),
+                )
+                for r in MAP.encode(name, v)
+            ],
+        )
 
 
 def test_identity_registers_follow_the_driver():
@@ -240,7 +251,7 @@ def test_capture_that_stops_early_and_a_drive_fault():
 
 
 def tcp_client(port: str, timeout: float = 1.0) -> ModbusTcpClient:
-    host, number = port[len("tcp://"):].rsplit(":", 1)
+    host, number = port[len("tcp://") :].rsplit(":", 1)
     client = ModbusTcpClient(host, port=int(number), timeout=timeout, retries=0)
     assert client.connect()
     return client
@@ -283,19 +294,31 @@ def test_a_buffered_run_takes_its_duration_over_the_time_scale():
     emu = start(emulator_config(time_scale=5.0), DRIVER, DeviceConfig(), link="tcp")
     client = tcp_client(emu.port)
     try:
+
         def write(name, value):
             assert not client.write_registers(REG[name].address, MAP.encode(name, value), device_id=1).isError()
 
-        limits = [r for name, v in (("torque_limit_nm", 5.0), ("velocity_limit_mps", 1.0), ("position_min_m", -1.0),
-                                    ("position_max_m", 1.0)) for r in MAP.encode(name, v)]
+        limits = [
+            r
+            for name, v in (
+                ("torque_limit_nm", 5.0),
+                ("velocity_limit_mps", 1.0),
+                ("position_min_m", -1.0),
+                ("position_max_m", 1.0),
+            )
+            for r in MAP.encode(name, v)
+        ]
         assert not client.write_registers(REG["torque_limit_nm"].address, limits, device_id=1).isError()
         for name, value in (("mode", MAP.modes["torque"]), ("sample_divider", 4), ("table_length", 2000)):
             write(name, value)
         regs = MAP.encode_table(np.zeros(2000))
         for c in plan_chunks(0, 2000, 2, MAP.table.page_samples, MAP.max_write):
             write("table_page", c.page)
-            client.write_registers(MAP.table.base + c.offset,
-                                   regs[2 * c.first_sample : 2 * (c.first_sample + c.samples)].tolist(), device_id=1)
+            client.write_registers(
+                MAP.table.base + c.offset,
+                regs[2 * c.first_sample : 2 * (c.first_sample + c.samples)].tolist(),
+                device_id=1,
+            )
         t = time.monotonic()
         write("control_word", MAP.control["run"])
         status = REG["status_word"].address
@@ -309,8 +332,10 @@ def test_a_buffered_run_takes_its_duration_over_the_time_scale():
 
 
 def test_fault_switches_of_the_server():
-    faults = ("[emulator.faults.modbus]\nexception_register = 117\nexception_code = 4\nresponse_delay_s = 0.05\n"
-              "missing_response_rate = 0.3")
+    faults = (
+        "[emulator.faults.modbus]\nexception_register = 117\nexception_code = 4\nresponse_delay_s = 0.05\n"
+        "missing_response_rate = 0.3"
+    )
     emu = start(emulator_config(faults), DRIVER, DeviceConfig(), link="tcp")
     client = tcp_client(emu.port, timeout=0.2)
     try:
@@ -359,8 +384,12 @@ def test_a_parameter_drive_with_register_block_slots_is_a_config_error_naming_th
             "identity": {"registers": ["model"]},
             "filters": {"base": 0x100, "stride": 4, "center": 0, "width": 1, "depth": 2, "enable": 3},
         },
-        "filters": {"encoding": "notch_parameters", "width_unit": "q", "depth_unit": "percent",
-                    "scales": {"center": 0.1, "width": 0.01, "depth": 1.0}},
+        "filters": {
+            "encoding": "notch_parameters",
+            "width_unit": "q",
+            "depth_unit": "percent",
+            "scales": {"center": 0.1, "width": 0.01, "depth": 1.0},
+        },
     }
     driver = replace(find_driver("dsy-rs"), filter_slots=1, sections=sections)
     assert not RegisterMap.from_driver(driver).excitation  # a parameter drive's map, slots and all, parses
@@ -378,8 +407,9 @@ def test_a_table_drive_with_named_parameter_slots_is_a_config_error_naming_the_t
     from hilident.errors import ConfigError
 
     sections = copy.deepcopy(DRIVER.sections)
-    sections["modbus"]["registers"].update({name: {"address": 900 + i, "type": "u16", "access": "rw"}
-                                            for i, name in enumerate(("c", "w", "d", "on"))})
+    sections["modbus"]["registers"].update(
+        {name: {"address": 900 + i, "type": "u16", "access": "rw"} for i, name in enumerate(("c", "w", "d", "on"))}
+    )
     sections["modbus"]["filters"] = {"slots": [{"center": "c", "width": "w", "depth": "d", "enable": "on"}]}
     driver = replace(DRIVER, filter_slots=1, sections=sections)
     assert RegisterMap.from_driver(driver).excitation  # the map itself is valid
@@ -436,8 +466,11 @@ def test_communication_timeout_zero_is_off():
 @pytest.mark.parametrize("link", ["tcp", "pty"])
 def test_the_served_drive_stops_itself_when_the_host_goes_silent(link):
     emu = start(emulator_config(time_scale=1.0), DRIVER, DeviceConfig(baudrate=921600), link=link)
-    client = (tcp_client(emu.port, timeout=0.5) if link == "tcp"
-              else ModbusSerialClient(emu.port, baudrate=921600, parity="N", timeout=0.5, retries=0))
+    client = (
+        tcp_client(emu.port, timeout=0.5)
+        if link == "tcp"
+        else ModbusSerialClient(emu.port, baudrate=921600, parity="N", timeout=0.5, retries=0)
+    )
     assert client.connect()
     fw = emu.server.firmware
 
@@ -445,8 +478,16 @@ def test_the_served_drive_stops_itself_when_the_host_goes_silent(link):
         assert not client.write_registers(REG[name].address, MAP.encode(name, value), device_id=1).isError()
 
     try:
-        limits = [r for name, v in (("torque_limit_nm", 5.0), ("velocity_limit_mps", 1.0), ("position_min_m", -1.0),
-                                    ("position_max_m", 1.0)) for r in MAP.encode(name, v)]
+        limits = [
+            r
+            for name, v in (
+                ("torque_limit_nm", 5.0),
+                ("velocity_limit_mps", 1.0),
+                ("position_min_m", -1.0),
+                ("position_max_m", 1.0),
+            )
+            for r in MAP.encode(name, v)
+        ]
         assert not client.write_registers(REG["torque_limit_nm"].address, limits, device_id=1).isError()
         write("comm_timeout_ms", 200)
         write("table_length", 20000)  # a 5 s table of zeros: only the timeout can end this run early

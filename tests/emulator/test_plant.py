@@ -78,9 +78,7 @@ def test_frf_equals_state_space_response(model, output):
     n = A.shape[0]
     row = {"velocity": 1, "position": 0, "load_position": 2 if n == 4 else 0}[output]
     f = np.array([0.3, 5.0, 35.0, 36.0, 400.0])
-    expected = [
-        model.c * np.linalg.solve(2j * np.pi * fi * np.eye(n) - A, B)[row] for fi in f
-    ]
+    expected = [model.c * np.linalg.solve(2j * np.pi * fi * np.eye(n) - A, B)[row] for fi in f]
     assert np.allclose(frf(model, f, output), expected, rtol=1e-9, atol=0)
 
 
@@ -274,8 +272,8 @@ def test_three_mass_modes_are_the_state_matrix_eigenvalues_and_the_frf_peaks():
 
 def test_three_mass_with_a_vanishing_third_mass_is_the_two_mass_axis():
     tiny = ThreeMass(m1=40.0, m2=10.0, m3=1e-6, k=1.5e5, d=40.0, k2=1e3, d2=0.0, c=10.0)  # its own mode: 5 kHz
-    (f, zeta), = [m for m in modes(tiny) if m[0] < 100.0]
-    (f2, zeta2), = modes(TwoMass(m1=40.0, m2=10.0, k=1.5e5, d=40.0, c=10.0))
+    ((f, zeta),) = [m for m in modes(tiny) if m[0] < 100.0]
+    ((f2, zeta2),) = modes(TwoMass(m1=40.0, m2=10.0, k=1.5e5, d=40.0, c=10.0))
     assert f == pytest.approx(f2, rel=1e-6) and zeta == pytest.approx(zeta2, rel=1e-5)
 
 
@@ -294,8 +292,7 @@ def test_three_mass_step_matches_lsim_and_friction_holds_it_below_breakaway():
     dt, n = 1e-3, 500
     x = simulate(plant, 1.0, dt, n)
     t = np.arange(n + 1) * dt
-    _, y, _ = signal.lsim((A, (CHAIN.c * B)[:, None], np.eye(6), np.zeros((6, 1))), np.ones(n + 1), t,
-                          interp=False)
+    _, y, _ = signal.lsim((A, (CHAIN.c * B)[:, None], np.eye(6), np.zeros((6, 1))), np.ones(n + 1), t, interp=False)
     assert np.max(np.abs(x[:, :4] - y[:, :4])) <= 1e-9 * np.max(np.abs(y[:, :4]))
     held = Plant(CHAIN, FRICTION)
     x = simulate(held, 0.79, dt, 300)

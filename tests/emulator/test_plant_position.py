@@ -49,12 +49,14 @@ def zero_crossings(t, y):
 
 
 def test_both_forms_are_read_and_a_polynomial_holds_over_the_position_window():
-    plant = plant_config(f"k = {{ poly = {K_POLY} }}\n"
-                         "d = { positions_m = [-0.5, 0.0, 0.5], values = [30.0, 40, 50.0] }").emulator.plant
+    plant = plant_config(
+        f"k = {{ poly = {K_POLY} }}\nd = {{ positions_m = [-0.5, 0.0, 0.5], values = [30.0, 40, 50.0] }}"
+    ).emulator.plant
     assert isinstance(plant.k, PositionFunction) and plant.k.poly == K_POLY and plant.k.span_m == (-0.6, 0.6)
     assert isinstance(plant.d, PositionFunction) and plant.d.is_table and plant.d.values == [30.0, 40.0, 50.0]
-    k_of, d_of = coupling_curves(plant_config(f"k = {{ poly = {K_POLY} }}\n"
-                                              "d = { positions_m = [-0.5, 0.5], values = [30.0, 50.0] }").emulator)
+    k_of, d_of = coupling_curves(
+        plant_config(f"k = {{ poly = {K_POLY} }}\nd = {{ positions_m = [-0.5, 0.5], values = [30.0, 50.0] }}").emulator
+    )
     assert k_of is not None and d_of is not None
     assert k_of.poly == tuple(K_POLY) and d_of.positions_m == (-0.5, 0.5) and d_of.values == (30.0, 50.0)
     assert k_of(0.2) == pytest.approx(1.28e5 - 2.7e4 * 0.2 + 1.35e5 * 0.04, rel=1e-15)
@@ -68,26 +70,29 @@ def test_a_number_is_read_as_before():
     assert coupling_curves(plant_config("k = 2e5").emulator) == (None, None)
 
 
-@pytest.mark.parametrize("lines, key, says", [
-    ("k = { positions_m = [0.0, 0.0], values = [1e5, 2e5] }", "emulator.plant.k", "increase strictly"),
-    ("k = { positions_m = [0.1, -0.1], values = [1e5, 2e5] }", "emulator.plant.k", "increase strictly"),
-    ("d = { positions_m = [0.0, 0.1, 0.2], values = [1.0, 2.0] }", "emulator.plant.d", "differ in length"),
-    ("k = { poly = [1e5, 0.0, -5e5] }", "emulator.plant.k", "> 0 over the position window [-0.6, 0.6]"),
-    ("k = { positions_m = [0.0, 0.1], values = [1e5, 0.0] }", "emulator.plant.k", "> 0 everywhere"),
-    ("d = { positions_m = [0.0, 0.1], values = [1.0, -0.5] }", "emulator.plant.d", ">= 0 everywhere"),
-    ("d = { poly = [10.0, 40.0] }", "emulator.plant.d", ">= 0 over the position window"),
-    ("k = { poly = [] }", "emulator.plant.k", "all of its lists are empty"),
-    ("k = {}", "emulator.plant.k", "all of its lists are empty"),
-    ("k = { positions_m = [], values = [1e5] }", "emulator.plant.k", "non-empty"),
-    ("k = { poly = [1e5], values = [1e5] }", "emulator.plant.k", "not both"),
-    ("k = { poly = ['1e5'] }", "emulator.plant.k.poly[0]", "must be float"),
-    ("k = { positions_m = [0.0, 1.0], values = [1e5, true] }", "emulator.plant.k.values[1]", "must be float"),
-    ("k = 'stiff'", "emulator.plant.k", "a number or a table"),
-    ("k = [1e5]", "emulator.plant.k", "a number or a table"),
-    ("k = { poly = [1e5], slope = 2 }", "emulator.plant.k.slope", "unknown key"),
-    ("k = -1.0", "emulator.plant.k", "> 0"),
-    ("k = { poly = [1e5, 1e4] }\nmodel = 'mass_spring_damper'", "emulator.plant.k", "two_mass and three_mass"),
-])
+@pytest.mark.parametrize(
+    "lines, key, says",
+    [
+        ("k = { positions_m = [0.0, 0.0], values = [1e5, 2e5] }", "emulator.plant.k", "increase strictly"),
+        ("k = { positions_m = [0.1, -0.1], values = [1e5, 2e5] }", "emulator.plant.k", "increase strictly"),
+        ("d = { positions_m = [0.0, 0.1, 0.2], values = [1.0, 2.0] }", "emulator.plant.d", "differ in length"),
+        ("k = { poly = [1e5, 0.0, -5e5] }", "emulator.plant.k", "> 0 over the position window [-0.6, 0.6]"),
+        ("k = { positions_m = [0.0, 0.1], values = [1e5, 0.0] }", "emulator.plant.k", "> 0 everywhere"),
+        ("d = { positions_m = [0.0, 0.1], values = [1.0, -0.5] }", "emulator.plant.d", ">= 0 everywhere"),
+        ("d = { poly = [10.0, 40.0] }", "emulator.plant.d", ">= 0 over the position window"),
+        ("k = { poly = [] }", "emulator.plant.k", "all of its lists are empty"),
+        ("k = {}", "emulator.plant.k", "all of its lists are empty"),
+        ("k = { positions_m = [], values = [1e5] }", "emulator.plant.k", "non-empty"),
+        ("k = { poly = [1e5], values = [1e5] }", "emulator.plant.k", "not both"),
+        ("k = { poly = ['1e5'] }", "emulator.plant.k.poly[0]", "must be float"),
+        ("k = { positions_m = [0.0, 1.0], values = [1e5, true] }", "emulator.plant.k.values[1]", "must be float"),
+        ("k = 'stiff'", "emulator.plant.k", "a number or a table"),
+        ("k = [1e5]", "emulator.plant.k", "a number or a table"),
+        ("k = { poly = [1e5], slope = 2 }", "emulator.plant.k.slope", "unknown key"),
+        ("k = -1.0", "emulator.plant.k", "> 0"),
+        ("k = { poly = [1e5, 1e4] }\nmodel = 'mass_spring_damper'", "emulator.plant.k", "two_mass and three_mass"),
+    ],
+)
 def test_bad_functions_are_config_errors_naming_key_and_file(lines, key, says):
     with pytest.raises(ConfigError) as err:
         plant_config(lines)
@@ -138,7 +143,9 @@ def test_a_constant_function_gives_bit_identical_trajectories_to_the_number():
     gantry = MAP_CONFIG.read_text()
     number = gantry.replace("k = { poly = [1.28e5, -2.7e4, 1.35e5] }", "k = 1.5e5").replace(
         "d = { positions_m = [-0.6, -0.4, -0.2, 0.0, 0.2, 0.4, 0.6], "
-        "values = [45.3, 41.4, 38.5, 37.0, 37.0, 38.5, 41.4] }", "d = 40.0")
+        "values = [45.3, 41.4, 38.5, 37.0, 37.0, 38.5, 41.4] }",
+        "d = 40.0",
+    )
     poly = number.replace("k = 1.5e5", "k = { poly = [1.5e5] }").replace("d = 40.0", "d = { poly = [40.0, 0.0] }")
     table = number.replace("k = 1.5e5", "k = { positions_m = [-0.5, 0.5], values = [1.5e5, 1.5e5] }")
     reference = _bench_drive(parse_config(number))
@@ -151,8 +158,13 @@ def test_a_constant_function_gives_bit_identical_trajectories_to_the_number():
 
 
 def _frictionless(stiffness, damping, **model):
-    return Plant(TwoMass(**{"m1": 40.0, "m2": 10.0, "k": 1.5e5, "d": 40.0, "c": 10.0, **model}), None,
-                 max_substep_s=1 / 16000, stiffness=stiffness, damping=damping)
+    return Plant(
+        TwoMass(**{"m1": 40.0, "m2": 10.0, "k": 1.5e5, "d": 40.0, "c": 10.0, **model}),
+        None,
+        max_substep_s=1 / 16000,
+        stiffness=stiffness,
+        damping=damping,
+    )
 
 
 def _ringing(plant, p, v=0.0, seconds=2.0, dt=1 / 4000):
@@ -178,7 +190,7 @@ def test_held_at_a_position_the_plant_rings_at_the_true_frequency(position_m):
     assert np.ptp(p1) < 1e-5  # held: the cart barely moves
     crossings = zero_crossings(t, e)
     measured_hz = (len(crossings) - 1) / (crossings[-1] - crossings[0])
-    (f_n, zeta), = true_modes(cfg, position_m)
+    ((f_n, zeta),) = true_modes(cfg, position_m)
     assert measured_hz == pytest.approx(f_n * math.sqrt(1 - zeta**2), rel=0.002)
     assert abs(measured_hz - true_modes(cfg, -position_m)[0][0]) > 0.2  # the two positions differ well beyond that
     # and the decay is the true damping ratio's: amplitude per period falls by exp(-2 pi zeta / sqrt(1 - zeta^2))
@@ -216,8 +228,11 @@ def test_the_coupling_in_use_stays_within_the_tolerance_and_a_held_cart_builds_n
     assert plant.p1 > 0.49 and worst_k <= COUPLING_TOLERANCE and worst_d <= DAMPING_TOLERANCE
     assert worst_k > COUPLING_TOLERANCE / 10 and worst_d > DAMPING_TOLERANCE / 10  # snapped, not exact
     built = []
-    monkeypatch.setattr(plant_module, "state_matrices", lambda *a: built.append(a) or (_ for _ in ()).throw(
-        AssertionError("matrices rebuilt")))
+    monkeypatch.setattr(
+        plant_module,
+        "state_matrices",
+        lambda *a: built.append(a) or (_ for _ in ()).throw(AssertionError("matrices rebuilt")),
+    )
     plant.reset(0.2, 0.0, 0.2 + 1e-6, 0.0)
     held = plant.coupling
     for _ in range(4000):

@@ -26,13 +26,17 @@ def gantry_map(spread=0.08, ci_ratio=0.003, count=7):
     """A mode moving +-spread around 21.8 Hz over the travel (stiffest at the supports)."""
     positions = np.linspace(0.0, 1.2, count)
     freqs = F_MID * (1.0 + spread * np.cos(np.pi * positions / 1.2))
-    return [{"position_m": float(p), "frequency_hz": float(f), "frequency_ci95_hz": float(ci_ratio * f)}
-            for p, f in zip(positions, freqs, strict=True)]
+    return [
+        {"position_m": float(p), "frequency_hz": float(f), "frequency_ci95_hz": float(ci_ratio * f)}
+        for p, f in zip(positions, freqs, strict=True)
+    ]
 
 
 def span(entries):
-    return (min(e["frequency_hz"] - e["frequency_ci95_hz"] for e in entries),
-            max(e["frequency_hz"] + e["frequency_ci95_hz"] for e in entries))
+    return (
+        min(e["frequency_hz"] - e["frequency_ci95_hz"] for e in entries),
+        max(e["frequency_hz"] + e["frequency_ci95_hz"] for e in entries),
+    )
 
 
 def worst_freqz(biquad, lo, hi, points=5001):
@@ -135,8 +139,19 @@ def test_as_dict_has_unit_suffixed_keys_and_is_plain_json():
     json.dumps(record, allow_nan=False)
     assert record["kind"] == "scheduled" and record["range_hz"] == list(result.range_hz)
     assert record["worst_attenuation_db"] == min(g["worst_attenuation_db"] for g in record["groups"])
-    unitless = {"kind", "message", "meets_target", "single", "groups", "staggered", "modes", "b", "a",
-                "max_width_ratio", "width_ratio"}
+    unitless = {
+        "kind",
+        "message",
+        "meets_target",
+        "single",
+        "groups",
+        "staggered",
+        "modes",
+        "b",
+        "a",
+        "max_width_ratio",
+        "width_ratio",
+    }
     units = ("_hz", "_db", "_m")
 
     def keys(obj):
@@ -151,8 +166,17 @@ def test_as_dict_has_unit_suffixed_keys_and_is_plain_json():
     for key in keys(record):
         assert key in unitless or key.endswith(units), key
     group = record["groups"][0]
-    assert {"center_hz", "width_hz", "depth_db", "b", "a", "worst_attenuation_db", "worst_frequency_hz",
-            "positions_m", "modes"} <= set(group)
+    assert {
+        "center_hz",
+        "width_hz",
+        "depth_db",
+        "b",
+        "a",
+        "worst_attenuation_db",
+        "worst_frequency_hz",
+        "positions_m",
+        "modes",
+    } <= set(group)
     assert {"position_m", "frequency_hz", "frequency_ci95_hz", "attenuation_db"} == set(group["modes"][0])
 
 
@@ -162,9 +186,13 @@ def test_as_dict_has_unit_suffixed_keys_and_is_plain_json():
         ([], "empty"),
         ([{"position_m": 0.1, "frequency_hz": 0.0, "frequency_ci95_hz": 0.1}], r"map\[0\].*frequency_hz"),
         ([{"position_m": 0.1, "frequency_hz": -21.0, "frequency_ci95_hz": 0.1}], r"frequency_hz must be positive"),
-        ([{"position_m": 0.1, "frequency_hz": 21.0, "frequency_ci95_hz": 0.1},
-          {"position_m": 0.5, "frequency_hz": 22.0, "frequency_ci95_hz": float("nan")}],
-         r"map\[1\] \(position_m = 0.5\)\.frequency_ci95_hz must be finite"),
+        (
+            [
+                {"position_m": 0.1, "frequency_hz": 21.0, "frequency_ci95_hz": 0.1},
+                {"position_m": 0.5, "frequency_hz": 22.0, "frequency_ci95_hz": float("nan")},
+            ],
+            r"map\[1\] \(position_m = 0.5\)\.frequency_ci95_hz must be finite",
+        ),
         ([{"position_m": 0.1, "frequency_hz": 21.0, "frequency_ci95_hz": -0.1}], "frequency_ci95_hz must lie"),
         ([{"position_m": 0.1, "frequency_hz": 21.0}], "has no frequency_ci95_hz"),
         ([{"frequency_hz": "fast", "frequency_ci95_hz": 0.1}], "must be a number"),
@@ -176,11 +204,14 @@ def test_a_bad_map_is_a_data_error_naming_the_entry(entries, match):
         covering_notch(entries, FS)
 
 
-@pytest.mark.parametrize("kwargs, key", [
-    ({"target_attenuation_db": 0.0}, "target_attenuation_db"),
-    ({"max_width_ratio": float("nan")}, "max_width_ratio"),
-    ({"grid_points": 1}, "grid_points"),
-])
+@pytest.mark.parametrize(
+    "kwargs, key",
+    [
+        ({"target_attenuation_db": 0.0}, "target_attenuation_db"),
+        ({"max_width_ratio": float("nan")}, "max_width_ratio"),
+        ({"grid_points": 1}, "grid_points"),
+    ],
+)
 def test_bad_parameters_are_config_errors(kwargs, key):
     with pytest.raises(ConfigError, match=key):
         covering_notch(gantry_map(), FS, **kwargs)

@@ -58,8 +58,7 @@ def test_interval_width_needs_nothing_without_an_interval_and_refuses_an_unreach
 
 
 def resonance(f, zeta, ci):
-    return Resonance(frequency_hz=f, damping_ratio=zeta, peak_magnitude_db=20.0, coherence=0.99,
-                     frequency_ci95_hz=ci)
+    return Resonance(frequency_hz=f, damping_ratio=zeta, peak_magnitude_db=20.0, coherence=0.99, frequency_ci95_hz=ci)
 
 
 def test_a_narrow_resonance_with_a_wide_interval_gets_the_wider_notch():

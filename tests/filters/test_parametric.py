@@ -67,8 +67,13 @@ def vendor_rejection_band(x, center_hz, band_hz, rate):
     a0, a1, a2, b1, b2 = k, -2 * k * c, k, 2 * r * c, -r * r
     y = np.zeros_like(x)
     for n in range(len(x)):
-        y[n] = a0 * x[n] + (a1 * x[n - 1] if n >= 1 else 0) + (a2 * x[n - 2] if n >= 2 else 0) \
-            + (b1 * y[n - 1] if n >= 1 else 0) + (b2 * y[n - 2] if n >= 2 else 0)
+        y[n] = (
+            a0 * x[n]
+            + (a1 * x[n - 1] if n >= 1 else 0)
+            + (a2 * x[n - 2] if n >= 2 else 0)
+            + (b1 * y[n - 1] if n >= 1 else 0)
+            + (b2 * y[n - 2] if n >= 2 else 0)
+        )
     return y
 
 

@@ -181,9 +181,7 @@ def test_order_search_aic_picks_na_2(seed):
 def test_order_search_validation_picks_na_2(seed):
     u, y = second_order_data(seed, noise=0.005, kind="output")
     uv, yv = second_order_data(seed + 100, noise=0.005, kind="output")
-    res = arx_order_search(
-        u, y, range(1, 5), range(1, 4), range(0, 3), criterion="validation", u_val=uv, y_val=yv
-    )
+    res = arx_order_search(u, y, range(1, 5), range(1, 4), range(0, 3), criterion="validation", u_val=uv, y_val=yv)
     assert res.model.na == 2
     chosen = [c for c in res.candidates if (c.na, c.nb, c.nk) == (2, 2, 1)][0]
     assert chosen.fit_validation_percent > 95.0

@@ -33,8 +33,9 @@ def reference_grid(u, y, nas, nbs, nks):
     ks = np.arange(n0, y.size)
     out = []
     for na, nb, nk in grid:
-        phi = np.array([[y[k - i] for i in range(1, na + 1)] + [u[k - j] for j in range(nk, nk + nb)]
-                        for k in ks]).reshape(ks.size, na + nb)
+        phi = np.array(
+            [[y[k - i] for i in range(1, na + 1)] + [u[k - j] for j in range(nk, nk + nb)] for k in ks]
+        ).reshape(ks.size, na + nb)
         target = y[ks]
         m, p = phi.shape
         norms = np.linalg.norm(phi, axis=0)
@@ -102,7 +103,7 @@ def test_noisy_candidates_match_lstsq_and_the_choice_is_the_same():
     search, ref = assert_matches_reference(u, y, range(1, 5), range(1, 4), range(0, 3))
     assert all(r[1] is not None for r in ref)  # noise: every candidate determined
     # the choice by the documented rule, from the reference's own scores
-    y_rows = y[max(4, 2 + 3 - 1):]
+    y_rows = y[max(4, 2 + 3 - 1) :]
     aic = np.array([reference_scores(r[2], sum(r[0][:2]), y_rows)[0] for r in ref])
     adequate = [i for i in range(len(ref)) if aic[i] <= aic.min() + 2.0]
     best = min(adequate, key=lambda i: (sum(ref[i][0][:2]), aic[i]))

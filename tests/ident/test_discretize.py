@@ -53,9 +53,7 @@ SYSTEMS = {"two_mass": two_mass(), "msd": msd()}
 
 @pytest.mark.parametrize("name", sorted(SYSTEMS))
 @pytest.mark.parametrize("dt", [1e-3, 2e-3, 0.01])
-@pytest.mark.parametrize(
-    "ours, scipy_method", [(zoh, "zoh"), (forward_euler, "euler"), (tustin, "bilinear")]
-)
+@pytest.mark.parametrize("ours, scipy_method", [(zoh, "zoh"), (forward_euler, "euler"), (tustin, "bilinear")])
 def test_state_space_matches_scipy(name, dt, ours, scipy_method):
     A, B, C, D = SYSTEMS[name]
     got = ours(A, B, C, D, dt)
@@ -82,9 +80,7 @@ def test_euler_and_tustin_approximate_phi_as_in_eqs_2_28_and_2_30():
         tustin(A, B, C, D, h).Phi, (eye + A * h / 2) @ np.linalg.inv(eye - A * h / 2), rtol=1e-12
     )
     exact = zoh(A, B, C, D, h).Phi
-    assert np.max(np.abs(tustin(A, B, C, D, h).Phi - exact)) < np.max(
-        np.abs(forward_euler(A, B, C, D, h).Phi - exact)
-    )
+    assert np.max(np.abs(tustin(A, B, C, D, h).Phi - exact)) < np.max(np.abs(forward_euler(A, B, C, D, h).Phi - exact))
 
 
 @pytest.mark.parametrize("method, scipy_method", [("zoh", "zoh"), ("euler", "euler"), ("tustin", "bilinear")])

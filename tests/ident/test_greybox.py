@@ -75,9 +75,7 @@ def test_fit_linear_cost_and_fit_percent_definitions():
     e = y - fit.params["g"] * x
     assert fit.cost_V == pytest.approx(0.5 * np.sum(e**2))
     assert fit.residual_rms == pytest.approx(np.sqrt(np.mean(e**2)))
-    assert fit.fit_percent == pytest.approx(
-        100 * (1 - np.linalg.norm(e) / np.linalg.norm(y - y.mean()))
-    )
+    assert fit.fit_percent == pytest.approx(100 * (1 - np.linalg.norm(e) / np.linalg.norm(y - y.mean())))
     # contribution of the single term: rms(g x) / rms(y)
     assert fit.contribution["g"] == pytest.approx(np.std(fit.params["g"] * x) / np.sqrt(np.mean(y**2)), rel=0.02)
 

@@ -80,8 +80,13 @@ def test_two_mass_discrete_is_zero_order_hold():
 
 @pytest.mark.parametrize(
     "kwargs, key",
-    [({"m1": 0.0}, "m1"), ({"d": -1.0}, "d"), ({"Fv": float("nan")}, "Fv"), ({"outputs": ("p3",)}, "outputs"),
-     ({"outputs": ()}, "outputs")],
+    [
+        ({"m1": 0.0}, "m1"),
+        ({"d": -1.0}, "d"),
+        ({"Fv": float("nan")}, "Fv"),
+        ({"outputs": ("p3",)}, "outputs"),
+        ({"outputs": ()}, "outputs"),
+    ],
 )
 def test_two_mass_model_rejects_bad_parameters(kwargs, key):
     args = dict(m1=M1, m2=M2, k=K, d=D, c=C)
@@ -508,7 +513,7 @@ def test_laser_where_in_range_corrects_a_wrong_model(gantry_run):
 def test_viscous_friction_in_the_model():
     text = CONFIG.replace(
         '[emulator.friction]\nmodel = "none"',
-        "[emulator.friction]\nmodel = \"stribeck\"\nFc = 0.0\nFs = 0.0\nFv = 20.0\nvs = 0.01",
+        '[emulator.friction]\nmodel = "stribeck"\nFc = 0.0\nFs = 0.0\nFv = 20.0\nvs = 0.01',
     )
     rows, truth = record(text, seconds=1.0)
     R = ENCODER_M**2 / 12

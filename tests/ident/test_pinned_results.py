@@ -35,8 +35,9 @@ def _two_mode_frf(seed: int = 3, coherence: float = 0.95, n_averages: int = 8) -
     rng = np.random.default_rng(seed)
     f = np.arange(1.0, 120.0, 0.5)
     num = [1.0]
-    den = np.polymul([1.0, 2 * 0.03 * TWO_PI * 12.0, (TWO_PI * 12.0) ** 2],
-                     [1.0, 2 * 0.05 * TWO_PI * 47.0, (TWO_PI * 47.0) ** 2])
+    den = np.polymul(
+        [1.0, 2 * 0.03 * TWO_PI * 12.0, (TWO_PI * 12.0) ** 2], [1.0, 2 * 0.05 * TWO_PI * 47.0, (TWO_PI * 47.0) ** 2]
+    )
     h = signal.freqs(np.array(num) * (TWO_PI * 12.0) ** 2 * (TWO_PI * 47.0) ** 2, den, TWO_PI * f)[1]
     eps = np.sqrt((1 - coherence) / (2 * n_averages * coherence))
     h = h + eps * np.abs(h) * (rng.standard_normal(f.size) + 1j * rng.standard_normal(f.size))
@@ -48,8 +49,9 @@ def _select_order_cases() -> dict:
     frf = _two_mode_frf()
     out = {}
     for criterion in ("threshold", "aic", "bic"):
-        fit, table = select_order(frf, orders=[(0, 2), (1, 2), (0, 4), (1, 4), (2, 4)], criterion=criterion,
-                                  weights="coherence")
+        fit, table = select_order(
+            frf, orders=[(0, 2), (1, 2), (0, 4), (1, 4), (2, 4)], criterion=criterion, weights="coherence"
+        )
         out[criterion] = {"fit": fit, "table": table}
     fit, table = select_order(frf, max_order=4, relative_degree=4, weights="coherence", refine=False)
     out["max_order"] = {"fit": fit, "table": table}
@@ -59,10 +61,28 @@ def _select_order_cases() -> dict:
 def _hand_made_fit(poles, zeros, band_hz=(2.0, 200.0), integrators=0) -> TfFit:
     poles = np.r_[np.asarray(poles, dtype=complex), np.zeros(integrators, dtype=complex)]
     zeros = np.asarray(zeros, dtype=complex)
-    return TfFit(num=np.array([1.0]), den=np.array([1.0]), poles=poles, zeros=zeros, gain=1.0, n_num=len(zeros),
-                 n_den=len(poles) - integrators, integrators=integrators, delay_s=0.0, cost=0.0, weighted_cost=0.0,
-                 fit_db_rms=0.0, phase_rms_deg=0.0, reflected_poles=0, stable=True, sk_iterations=0,
-                 reference_hz=20.0, band_hz=band_hz, n_bins=100, weighting="none")
+    return TfFit(
+        num=np.array([1.0]),
+        den=np.array([1.0]),
+        poles=poles,
+        zeros=zeros,
+        gain=1.0,
+        n_num=len(zeros),
+        n_den=len(poles) - integrators,
+        integrators=integrators,
+        delay_s=0.0,
+        cost=0.0,
+        weighted_cost=0.0,
+        fit_db_rms=0.0,
+        phase_rms_deg=0.0,
+        reflected_poles=0,
+        stable=True,
+        sk_iterations=0,
+        reference_hz=20.0,
+        band_hz=band_hz,
+        n_bins=100,
+        weighting="none",
+    )
 
 
 def _pair(f_hz: float, zeta: float) -> list[complex]:
@@ -72,17 +92,28 @@ def _pair(f_hz: float, zeta: float) -> list[complex]:
 
 
 def _classify_roots_cases() -> dict:
-    poles = (_pair(20.0, 0.02) + _pair(60.0, 1e-8) + _pair(3000.0, 0.1) + _pair(1.0, 0.3) + _pair(250.0, 0.05)
-             + _pair(80.0, 0.0001) + [-TWO_PI * 5.0, -TWO_PI * 0.01, 3.0])
-    zeros = ([complex(-TWO_PI * 30.0 * 0.01, TWO_PI * 30.0), complex(-TWO_PI * 30.0 * 0.01, -TWO_PI * 30.0)]
-             + [TWO_PI * 40.0, TWO_PI * 5000.0, -TWO_PI * 0.05, -TWO_PI * 7.0]
-             + [complex(TWO_PI * 10.0, TWO_PI * 50.0), complex(TWO_PI * 10.0, -TWO_PI * 50.0)]
-             + [complex(-TWO_PI * 1.0, TWO_PI * 400.0), complex(-TWO_PI * 1.0, -TWO_PI * 400.0)])
+    poles = (
+        _pair(20.0, 0.02)
+        + _pair(60.0, 1e-8)
+        + _pair(3000.0, 0.1)
+        + _pair(1.0, 0.3)
+        + _pair(250.0, 0.05)
+        + _pair(80.0, 0.0001)
+        + [-TWO_PI * 5.0, -TWO_PI * 0.01, 3.0]
+    )
+    zeros = (
+        [complex(-TWO_PI * 30.0 * 0.01, TWO_PI * 30.0), complex(-TWO_PI * 30.0 * 0.01, -TWO_PI * 30.0)]
+        + [TWO_PI * 40.0, TWO_PI * 5000.0, -TWO_PI * 0.05, -TWO_PI * 7.0]
+        + [complex(TWO_PI * 10.0, TWO_PI * 50.0), complex(TWO_PI * 10.0, -TWO_PI * 50.0)]
+        + [complex(-TWO_PI * 1.0, TWO_PI * 400.0), complex(-TWO_PI * 1.0, -TWO_PI * 400.0)]
+    )
     fit = _hand_made_fit(poles, zeros, integrators=1)
-    out = {"default": classify_roots(fit).to_dict(),
-           "resolution": classify_roots(fit, resolution_hz=0.5).to_dict(),
-           "band": classify_roots(fit, band_hz=(0.5, 400.0), outside_factor=3.0, axis_tol=1e-3).to_dict(),
-           "stable": classify_roots(_hand_made_fit(_pair(20.0, 0.05), [-TWO_PI * 7.0])).to_dict()}
+    out = {
+        "default": classify_roots(fit).to_dict(),
+        "resolution": classify_roots(fit, resolution_hz=0.5).to_dict(),
+        "band": classify_roots(fit, band_hz=(0.5, 400.0), outside_factor=3.0, axis_tol=1e-3).to_dict(),
+        "stable": classify_roots(_hand_made_fit(_pair(20.0, 0.05), [-TWO_PI * 7.0])).to_dict(),
+    }
     real = fit_transfer_function(_two_mode_frf(), 0, 4, weights="coherence")
     out["fitted"] = classify_roots(real, resolution_hz=0.5).to_dict()
     return out
@@ -103,8 +134,9 @@ def _arx_order_search_cases() -> dict:
     out = {}
     for criterion in ("aic", "bic"):
         out[criterion] = arx_order_search(u, y, range(0, 4), range(0, 4), (0, 1), criterion=criterion)
-    out["validation"] = arx_order_search(u, y, [1, 2, 3], [1, 2, 3], 1, criterion="validation", u_val=u_val,
-                                         y_val=y_val)
+    out["validation"] = arx_order_search(
+        u, y, [1, 2, 3], [1, 2, 3], 1, criterion="validation", u_val=u_val, y_val=y_val
+    )
     out["tolerance"] = arx_order_search(u, y, [1, 2, 3], [1, 2], [0, 1], tolerance=0.0, u_val=u_val, y_val=y_val)
     exact = arx_order_search(u, np.r_[0.0, 0.5 * u[:-1]], [0, 1, 2], [1, 2], 1, criterion="bic")
     out["exact"] = exact
@@ -117,9 +149,11 @@ def _fit_stribeck_cases() -> dict:
     truth = StribeckParams(Fc=0.8, Fs=1.3, Fv=2.0, vs=0.01, delta_v=1.0, delta_s=2.0)
     tau = stribeck(v, truth) + 0.01 * rng.standard_normal(v.size)
     sigma = 0.01 + 0.002 * np.abs(np.sin(np.arange(v.size)))
-    return {"free": fit_stribeck(v, tau),
-            "fixed": fit_stribeck(v, tau, fix_delta_v=1.0, fix_delta_s=2.0),
-            "sigma": fit_stribeck(v, tau, sigma=sigma, fix_delta_s=1.5)}
+    return {
+        "free": fit_stribeck(v, tau),
+        "fixed": fit_stribeck(v, tau, fix_delta_v=1.0, fix_delta_s=2.0),
+        "sigma": fit_stribeck(v, tau, sigma=sigma, fix_delta_s=1.5),
+    }
 
 
 def _fit_linear_cases() -> dict:
@@ -138,10 +172,13 @@ def _fit_linear_cases() -> dict:
 def _screen_resonances_cases() -> dict:
     frf = _two_mode_frf(seed=9, coherence=0.9)
     out = {}
-    for name, kwargs in {"default": {}, "no_coherence": {"coherence_threshold": None},
-                         "one": {"max_count": 1, "min_prominence_db": 0.5},
-                         "band": {"band_hz": (20.0, 100.0), "coherence_threshold": 0.85, "max_rejected": 3},
-                         "strict": {"coherence_threshold": 0.99}}.items():
+    for name, kwargs in {
+        "default": {},
+        "no_coherence": {"coherence_threshold": None},
+        "one": {"max_count": 1, "min_prominence_db": 0.5},
+        "band": {"band_hz": (20.0, 100.0), "coherence_threshold": 0.85, "max_rejected": 3},
+        "strict": {"coherence_threshold": 0.99},
+    }.items():
         found, rejected = screen_resonances(frf, **kwargs)
         out[name] = {"found": found, "rejected": rejected}
     return out
@@ -162,7 +199,8 @@ CASES = {
 # solutions differ in (the order search takes them from a QR factor, fit_arx from the
 # residual). They are compared against that scale, not to 1e-12 of themselves.
 _ROUNDING_NOISE = re.compile(
-    r"\.exact\.(candidates\[\d+\]\.V|model\.(V|noise_variance|covariance\[0\]\[0\]|stderr\[0\]))$")
+    r"\.exact\.(candidates\[\d+\]\.V|model\.(V|noise_variance|covariance\[0\]\[0\]|stderr\[0\]))$"
+)
 _VARIANCE_BOUND = 1e-24
 _STDERR_BOUND = 1e-12  # its square root
 

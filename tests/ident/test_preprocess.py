@@ -195,8 +195,7 @@ def test_central_difference_exact_for_quadratic_inside(a, b, c):
 
 
 @settings(max_examples=30, deadline=None)
-@given(coefs=st.lists(st.floats(-5.0, 5.0), min_size=4, max_size=4),
-       periods=st.integers(2, 9), tail=st.integers(0, 99))
+@given(coefs=st.lists(st.floats(-5.0, 5.0), min_size=4, max_size=4), periods=st.integers(2, 9), tail=st.integers(0, 99))
 def test_remove_drift_takes_a_cubic_and_leaves_any_periodic_signal(coefs, periods, tail):
     rng = np.random.default_rng(periods * 100 + tail)
     period = 100

@@ -12,8 +12,11 @@ import hilident.ident.tffit
 
 @pytest.mark.parametrize("package", [hilident.ident, hilident.ident.tffit, hilident.filters, hilident.datafile])
 def test_all_lists_every_public_name_and_nothing_else(package):
-    public = {name for name, value in vars(package).items()
-              if not name.startswith("_") and not isinstance(value, types.ModuleType)}
+    public = {
+        name
+        for name, value in vars(package).items()
+        if not name.startswith("_") and not isinstance(value, types.ModuleType)
+    }
     assert sorted(package.__all__) == sorted(public)
     assert len(set(package.__all__)) == len(package.__all__)
 

@@ -165,8 +165,11 @@ def test_argument_checks_and_dict():
         find_resonances(frf, band_hz=(40.0, 10.0))
     d = Resonance(20.0, 0.02, -60.0, 0.99).to_dict()
     assert {k: d[k] for k in ("frequency_hz", "damping_ratio", "peak_magnitude_db", "coherence", "method")} == {
-        "frequency_hz": 20.0, "damping_ratio": 0.02, "peak_magnitude_db": -60.0,
-        "coherence": 0.99, "method": "fit",
+        "frequency_hz": 20.0,
+        "damping_ratio": 0.02,
+        "peak_magnitude_db": -60.0,
+        "coherence": 0.99,
+        "method": "fit",
     }
     # without a fit the uncertainty is unknown, never 0
     assert all(np.isnan(d[k]) for k in ("frequency_ci95_hz", "damping_ci95", "local_fit_db_rms"))

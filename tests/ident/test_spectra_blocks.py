@@ -30,12 +30,15 @@ def random_signals(n, seed):
     return {"r": u, "u": u + 0.1 * rng.standard_normal(n), "y": signal.lfilter([0.3, 0.1], [1.0, -0.7], u)}
 
 
-@pytest.mark.parametrize("nperseg, noverlap, detrend, block_samples", [
-    (64, 32, "constant", 64 * 7),  # 7 segments a block, the last block partial
-    (100, 37, "linear", 333),  # block not a multiple of the segment
-    (50, 0, False, 1),  # one segment a block (the block is smaller than a segment)
-    (256, 128, "constant", 10**9),  # one block holds everything
-])
+@pytest.mark.parametrize(
+    "nperseg, noverlap, detrend, block_samples",
+    [
+        (64, 32, "constant", 64 * 7),  # 7 segments a block, the last block partial
+        (100, 37, "linear", 333),  # block not a multiple of the segment
+        (50, 0, False, 1),  # one segment a block (the block is smaller than a segment)
+        (256, 128, "constant", 10**9),  # one block holds everything
+    ],
+)
 def test_blockwise_cross_spectra_equal_all_at_once(nperseg, noverlap, detrend, block_samples):
     sig = random_signals(10_007, seed=nperseg)
     pairs = [("r", "r"), ("u", "u"), ("y", "y"), ("r", "u"), ("r", "y"), ("u", "y")]
@@ -56,23 +59,30 @@ def test_blockwise_period_sums_equal_all_at_once():
     sl = slice(skip * period, (skip + n_periods) * period)
     U = np.fft.rfft(u[sl].reshape(n_periods, period), axis=-1)
     Y = np.fft.rfft(y[sl].reshape(n_periods, period), axis=-1)
-    want = {"u": U.sum(axis=0), "y": Y.sum(axis=0), "uy": np.sum(np.conj(U) * Y, axis=0),
-            "uu": np.sum(np.abs(U) ** 2, axis=0), "yy": np.sum(np.abs(Y) ** 2, axis=0)}
+    want = {
+        "u": U.sum(axis=0),
+        "y": Y.sum(axis=0),
+        "uy": np.sum(np.conj(U) * Y, axis=0),
+        "uu": np.sum(np.abs(U) ** 2, axis=0),
+        "yy": np.sum(np.abs(Y) ** 2, axis=0),
+    }
     for name, value in want.items():
         np.testing.assert_allclose(got[name], value, rtol=1e-11, atol=1e-12 * np.max(np.abs(value)), err_msg=name)
 
 
-@pytest.mark.parametrize("nperseg, noverlap, window, detrend, subtract", [
-    (512, None, "hann", "constant", 0.0),  # scipy.signal.welch's defaults
-    (301, None, "hann", "constant", 0.0),  # odd segment: no Nyquist bin
-    (400, 0, "boxcar", False, 0.0),  # whole periods, as input_spectrum reads a multisine
-    (256, None, "hann", False, 0.7),  # an offset taken off without detrending: DC and its leakage change
-])
+@pytest.mark.parametrize(
+    "nperseg, noverlap, window, detrend, subtract",
+    [
+        (512, None, "hann", "constant", 0.0),  # scipy.signal.welch's defaults
+        (301, None, "hann", "constant", 0.0),  # odd segment: no Nyquist bin
+        (400, 0, "boxcar", False, 0.0),  # whole periods, as input_spectrum reads a multisine
+        (256, None, "hann", False, 0.7),  # an offset taken off without detrending: DC and its leakage change
+    ],
+)
 def test_welch_psd_equals_scipy_welch(nperseg, noverlap, window, detrend, subtract):
     x = random_signals(20_011, seed=7)["y"]
     f, p = welch_psd(x, FS, nperseg, noverlap=noverlap, window=window, detrend=detrend, subtract=subtract)
-    f_ref, p_ref = signal.welch(x - subtract, fs=FS, window=window, nperseg=nperseg, noverlap=noverlap,
-                                detrend=detrend)
+    f_ref, p_ref = signal.welch(x - subtract, fs=FS, window=window, nperseg=nperseg, noverlap=noverlap, detrend=detrend)
     np.testing.assert_array_equal(f, f_ref)
     np.testing.assert_allclose(p, p_ref, rtol=1e-10, atol=1e-14 * p_ref.max())
 

@@ -194,9 +194,7 @@ def test_two_mass_from_simulated_h1_with_zoh_delay():
     y += 0.02 * np.std(y) * rng.standard_normal(y.size)
     frf = h1_estimate(u, y, fs, segment_length=4096)
     # A zero-order hold looks like half a sample of delay.
-    fit = fit_transfer_function(
-        frf, 2, 2, weights="coherence", integrators=1, delay_s=0.5 / fs, band_hz=(2.0, 100.0)
-    )
+    fit = fit_transfer_function(frf, 2, 2, weights="coherence", integrators=1, delay_s=0.5 / fs, band_hz=(2.0, 100.0))
     ((f_res, z_res),) = modal_form(fit).resonances
     assert f_res == pytest.approx(20.0, rel=0.005) and z_res == pytest.approx(0.02, rel=0.2)
     assert fit.band_hz[0] >= 2.0 and fit.band_hz[1] <= 100.0
@@ -212,9 +210,7 @@ def test_select_order_two_mass_max_order():
     num, den, _ = two_mass()
     f = np.geomspace(1.0, 200.0, 300)
     frf = noisy_frf(f, signal.freqs(num, den, 2 * np.pi * f)[1], 0.02, seed=8)
-    best, table = select_order(
-        frf, max_order=4, relative_degree=0, weights="coherence", integrators=1
-    )
+    best, table = select_order(frf, max_order=4, relative_degree=0, weights="coherence", integrators=1)
     assert [(r.n_num, r.n_den) for r in table] == [(1, 1), (2, 2), (3, 3), (4, 4)]
     assert (best.n_num, best.n_den) == (2, 2) and best.integrators == 1
 

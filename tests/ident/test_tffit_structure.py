@@ -125,11 +125,21 @@ def test_identification_keys_fix_the_structure_of_the_plant_model():
     from hilident.config.tables import parse_config
 
     limits = "[limits]\ntorque_nm = 10\nvelocity_mps = 1\nposition_min_m = -1\nposition_max_m = 1\n"
-    cfg = parse_config(limits + '[identification]\nmodel_order = "4"\nmodel_integrators = "1"\n'
-                       'model_relative_degree = "1"\nmodel_criterion = "validation"\n').identification
+    cfg = parse_config(
+        limits + '[identification]\nmodel_order = "4"\nmodel_integrators = "1"\n'
+        'model_relative_degree = "1"\nmodel_criterion = "validation"\n'
+    ).identification
     frf = noisy_frf(*two_mass_velocity(), F, 0.9, seed=2)
-    model = pipeline.fit_plant_model(frf, (0.5, 99.0), cfg.model_max_order, 0.0, cfg.model_order,
-                                     cfg.model_relative_degree, cfg.model_integrators, cfg.model_criterion)
+    model = pipeline.fit_plant_model(
+        frf,
+        (0.5, 99.0),
+        cfg.model_max_order,
+        0.0,
+        cfg.model_order,
+        cfg.model_relative_degree,
+        cfg.model_integrators,
+        cfg.model_criterion,
+    )
     d = model.to_dict()
     assert (d["n_den"] + d["integrators"], d["integrators"], d["relative_degree"]) == (4, 1, 1)
     assert d["criterion"] == "validation"

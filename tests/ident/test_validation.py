@@ -45,9 +45,7 @@ def test_fit_percent_is_invariant_to_units_and_offset(scale, offset, seed):
     rng = np.random.default_rng(seed)
     y = rng.standard_normal(50)
     yhat = y + 0.3 * rng.standard_normal(50)
-    assert fit_percent(scale * y + offset, scale * yhat + offset) == pytest.approx(
-        fit_percent(y, yhat), abs=1e-6
-    )
+    assert fit_percent(scale * y + offset, scale * yhat + offset) == pytest.approx(fit_percent(y, yhat), abs=1e-6)
 
 
 def test_fit_percent_rows_and_errors():

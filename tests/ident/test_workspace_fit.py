@@ -34,10 +34,14 @@ def k_true(p):
 def true_mode_hz(p, b=B):
     """Undamped frequency of the complex pair of the 4-state model with the cart's viscous term."""
     k = k_true(p)
-    A = np.array([[0.0, 1.0, 0.0, 0.0],
-                  [-k / M1, -(D + b) / M1, k / M1, D / M1],
-                  [0.0, 0.0, 0.0, 1.0],
-                  [k / M2, D / M2, -k / M2, -D / M2]])
+    A = np.array(
+        [
+            [0.0, 1.0, 0.0, 0.0],
+            [-k / M1, -(D + b) / M1, k / M1, D / M1],
+            [0.0, 0.0, 0.0, 1.0],
+            [k / M2, D / M2, -k / M2, -D / M2],
+        ]
+    )
     lam = np.linalg.eigvals(A)
     return abs(lam[np.imag(lam) > 0][0]) / (2.0 * np.pi)
 
@@ -56,9 +60,18 @@ def exact_responses(positions, b=B, d=D, sample_rate_hz=None):
     for i, p in enumerate(positions):
         f = np.linspace(2.0 + 0.3 * i, 140.0, 250 + 10 * i)  # each position on its own grid
         grids.append(f)
-        frf.append(two_mass_velocity_response(f, m1=M1, m2=M2, k=k_true(p), d=d(p) if callable(d) else d, b=b,
-                                              torque_constant=C,
-                                              sample_rate_hz=sample_rate_hz))
+        frf.append(
+            two_mass_velocity_response(
+                f,
+                m1=M1,
+                m2=M2,
+                k=k_true(p),
+                d=d(p) if callable(d) else d,
+                b=b,
+                torque_constant=C,
+                sample_rate_hz=sample_rate_hz,
+            )
+        )
         coh.append(np.ones(f.size))
     return grids, frf, coh
 
@@ -98,8 +111,14 @@ def test_noise_free_sampled_responses_need_the_sampled_model():
 
 def test_the_sampled_response_is_scipys_zero_order_hold_discretisation():
     fs, k = 1000.0, k_true(0.4)
-    A = np.array([[0.0, 1.0, 0.0, 0.0], [-k / M1, -(D + B) / M1, k / M1, D / M1],
-                  [0.0, 0.0, 0.0, 1.0], [k / M2, D / M2, -k / M2, -D / M2]])
+    A = np.array(
+        [
+            [0.0, 1.0, 0.0, 0.0],
+            [-k / M1, -(D + B) / M1, k / M1, D / M1],
+            [0.0, 0.0, 0.0, 1.0],
+            [k / M2, D / M2, -k / M2, -D / M2],
+        ]
+    )
     Bm = np.array([[0.0], [C / M1], [0.0], [0.0]])
     Cm = np.array([[0.0, 1.0, 0.0, 0.0]])
     Ad, Bd, Cd, _, _ = signal.cont2discrete((A, Bm, Cm, np.zeros((1, 1))), 1.0 / fs, method="zoh")
@@ -114,8 +133,12 @@ def test_the_mode_is_the_emulators_mode_without_cart_damping():
     fit = fit_workspace_two_mass(POSITIONS, grids, frf, coh, torque_constant=C, estimate_cart_damping=False)
     assert "b" not in fit.parameter_names and fit.b == 0.0
     for p in (0.1, 0.35, 0.9):
-        f_hz, zeta, ci, = fit.mode_at(p)[1:]
-        (f_true, z_true), = modes(TwoMass(M1, M2, k_true(p), D, C))
+        (
+            f_hz,
+            zeta,
+            ci,
+        ) = fit.mode_at(p)[1:]
+        ((f_true, z_true),) = modes(TwoMass(M1, M2, k_true(p), D, C))
         assert f_hz == pytest.approx(f_true, rel=1e-6)
         assert zeta == pytest.approx(z_true, rel=1e-5)
         assert 0.0 <= ci < 1e-3
@@ -141,8 +164,9 @@ def test_as_dict_is_json_with_unit_suffixed_keys():
 def test_frequencies_in_any_order_give_the_same_fit():
     grids, frf, coh = exact_responses(POSITIONS)
     ordered = fit_workspace_two_mass(POSITIONS, grids, frf, coh, torque_constant=C)
-    flipped = fit_workspace_two_mass(POSITIONS, [g[::-1] for g in grids], [h[::-1] for h in frf], coh,
-                                     torque_constant=C)
+    flipped = fit_workspace_two_mass(
+        POSITIONS, [g[::-1] for g in grids], [h[::-1] for h in frf], coh, torque_constant=C
+    )
     np.testing.assert_allclose(flipped.k_coefficients, ordered.k_coefficients, rtol=1e-9)
 
 
@@ -160,8 +184,9 @@ FS = 1000.0
 def simulated_response(p, seed, noise_mps=5e-4):
     """A multisine torque on the plant at a fixed k(p); velocity with noise; periodic FRF as the pipeline."""
     # Viscous friction as the cart's b; 8 substeps per sample keep its explicit hold from acting as a mass.
-    plant = Plant(TwoMass(M1, M2, k_true(p), D, C), StribeckFriction(Fc=0.0, Fs=0.0, Fv=B / C, vs=1.0),
-                  max_substep_s=1.0 / FS / 8)
+    plant = Plant(
+        TwoMass(M1, M2, k_true(p), D, C), StribeckFriction(Fc=0.0, Fs=0.0, Fv=B / C, vs=1.0), max_substep_s=1.0 / FS / 8
+    )
     excitation = multisine(2.0, 2.0, 150.0, 1.0, 11, FS)
     torque = np.asarray(excitation.samples)
     velocity = np.empty(torque.size)
@@ -170,8 +195,7 @@ def simulated_response(p, seed, noise_mps=5e-4):
         plant.step(tau, 1.0 / FS)
     velocity += noise_mps * np.random.default_rng(seed).standard_normal(velocity.size)
     # three periods let the rigid-body transient (M / b = 0.5 s) die out
-    return periodic_frf(torque, velocity, excitation.period_samples, FS, skip_periods=3,
-                        bins=excitation.excited_bins)
+    return periodic_frf(torque, velocity, excitation.period_samples, FS, skip_periods=3, bins=excitation.excited_bins)
 
 
 @pytest.fixture(scope="module")
@@ -217,14 +241,19 @@ def test_simulated_modes_beside_the_per_position_estimates(simulated):
 def test_compare_modes_difference_and_interval():
     fit = fit_workspace_two_mass(POSITIONS, *exact_responses(POSITIONS), torque_constant=C)
     f0 = fit.mode_at(0.5).frequency_hz
-    inside, outside, unknown = compare_modes(fit, [0.5, 0.5, 0.5], [f0 * 1.01, f0 * 1.01, f0 * 0.98],
-                                             [0.05 * f0, 0.001 * f0, math.nan])
+    inside, outside, unknown = compare_modes(
+        fit, [0.5, 0.5, 0.5], [f0 * 1.01, f0 * 1.01, f0 * 0.98], [0.05 * f0, 0.001 * f0, math.nan]
+    )
     assert inside.difference_percent == pytest.approx(100.0 * (1.0 / 1.01 - 1.0))
     assert inside.within_interval and not outside.within_interval
     assert unknown.difference_percent == pytest.approx(100.0 * (1.0 / 0.98 - 1.0))
     assert not unknown.within_interval  # an exact model's interval is ~0 wide; unknown local interval counts 0
-    assert set(inside.as_dict()) >= {"joint_frequency_hz", "local_frequency_ci95_hz", "difference_percent",
-                                     "within_interval"}
+    assert set(inside.as_dict()) >= {
+        "joint_frequency_hz",
+        "local_frequency_ci95_hz",
+        "difference_percent",
+        "within_interval",
+    }
     with pytest.raises(DataError, match="differ in length"):
         compare_modes(fit, [0.5, 0.6], [f0])
 
@@ -244,8 +273,11 @@ def test_fewer_positions_than_coefficients_is_refused():
 def test_non_positive_stiffness_in_the_mapped_range_is_refused():
     positions = [0.0, 0.3, 0.7, 1.0]
     grids, frf, coh = exact_responses(positions)
-    with pytest.raises(DataError, match=r"at the start values.*k\(p\) is not positive everywhere in the mapped "
-                                        r"range 0\.\.1 m"):
+    with pytest.raises(
+        DataError,
+        match=r"at the start values.*k\(p\) is not positive everywhere in the mapped "
+        r"range 0\.\.1 m",
+    ):
         fit_workspace_two_mass(positions, grids, frf, coh, torque_constant=C, resonance_hz=[60, 10, 10, 60])
 
 
@@ -258,16 +290,19 @@ def test_no_usable_frequencies_is_refused():
         fit_workspace_two_mass(POSITIONS, grids, frf, coh, torque_constant=C)
 
 
-@pytest.mark.parametrize(("change", "error", "match"), [
-    ({"torque_constant": 0.0}, ConfigError, "torque_constant"),
-    ({"torque_constant": -3.0}, ConfigError, "torque_constant"),
-    ({"k_degree": -1}, ConfigError, "k_degree"),
-    ({"d_degree": 1.5}, ConfigError, "d_degree"),
-    ({"band_hz": (50.0, 10.0)}, ConfigError, "band_hz"),
-    ({"sample_rate_hz": 200.0}, DataError, "Nyquist"),
-    ({"delay_s": -1e-3}, ConfigError, "delay_s"),
-    ({"resonance_hz": [40.0]}, DataError, "resonance_hz"),
-])
+@pytest.mark.parametrize(
+    ("change", "error", "match"),
+    [
+        ({"torque_constant": 0.0}, ConfigError, "torque_constant"),
+        ({"torque_constant": -3.0}, ConfigError, "torque_constant"),
+        ({"k_degree": -1}, ConfigError, "k_degree"),
+        ({"d_degree": 1.5}, ConfigError, "d_degree"),
+        ({"band_hz": (50.0, 10.0)}, ConfigError, "band_hz"),
+        ({"sample_rate_hz": 200.0}, DataError, "Nyquist"),
+        ({"delay_s": -1e-3}, ConfigError, "delay_s"),
+        ({"resonance_hz": [40.0]}, DataError, "resonance_hz"),
+    ],
+)
 def test_bad_arguments_are_typed_errors(change, error, match):
     kwargs = {"torque_constant": C, **change}
     with pytest.raises(error, match=match):
@@ -297,8 +332,9 @@ def test_a_lag_of_the_velocity_estimate_is_estimated_and_leaves_k_exact():
     positions = np.linspace(0.1, 0.9, 7)
     grids, frf, coh = exact_responses(positions, sample_rate_hz=1000.0)
     lag = 1.0 / (2.0 * np.pi * 400.0)  # a 400 Hz velocity filter
-    fit = fit_workspace_two_mass(positions, grids, lagged(frf, grids, lag), coh, torque_constant=C,
-                                 sample_rate_hz=1000.0, estimate_lag=True)
+    fit = fit_workspace_two_mass(
+        positions, grids, lagged(frf, grids, lag), coh, torque_constant=C, sample_rate_hz=1000.0, estimate_lag=True
+    )
     assert fit.converged, fit.message
     assert fit.lag_estimated and fit.parameter_names[-1] == "lag"
     assert fit.lag_s == pytest.approx(lag, rel=1e-6)
@@ -317,8 +353,9 @@ def test_without_the_lag_the_same_data_bias_the_cart_and_its_damping():
     as mass; both move well beyond the exact fit's 1e-6."""
     positions = np.linspace(0.1, 0.9, 7)
     grids, frf, coh = exact_responses(positions, sample_rate_hz=1000.0)
-    fit = fit_workspace_two_mass(positions, grids, lagged(frf, grids, 1.0 / (2.0 * np.pi * 400.0)), coh,
-                                 torque_constant=C, sample_rate_hz=1000.0)
+    fit = fit_workspace_two_mass(
+        positions, grids, lagged(frf, grids, 1.0 / (2.0 * np.pi * 400.0)), coh, torque_constant=C, sample_rate_hz=1000.0
+    )
     assert not fit.lag_estimated and fit.lag_s == 0.0
     assert fit.b < 0.9 * B
     assert abs(fit.m1 / M1 - 1.0) > 0.002

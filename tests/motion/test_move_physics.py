@@ -36,8 +36,9 @@ def follow(move: MoveProfile) -> tuple[np.ndarray, np.ndarray]:
     plant = Plant(GANTRY, max_substep_s=1.0 / 8000.0)
     integral = 0.0
     cart, load = [], []
-    for p_ref, v_ref, a_ref in zip(move.position_m.tolist(), move.velocity_mps.tolist(), move.accel_mps2.tolist(),
-                                   strict=True):
+    for p_ref, v_ref, a_ref in zip(
+        move.position_m.tolist(), move.velocity_mps.tolist(), move.accel_mps2.tolist(), strict=True
+    ):
         p1, v1, p2, _ = plant.state
         cart.append(p1)
         load.append(p2)
@@ -56,8 +57,9 @@ def notch():
 
 @pytest.mark.parametrize("profile", ["trapezoid", "s-curve"])
 def test_a_host_shaped_notch_cuts_the_loads_residual_vibration_by_10_db(profile, notch):
-    move = (trapezoid(0.2, 0.3, 2.0, FS, DWELL_S) if profile == "trapezoid"
-            else s_curve(0.2, 0.3, 2.0, 200.0, FS, DWELL_S))
+    move = (
+        trapezoid(0.2, 0.3, 2.0, FS, DWELL_S) if profile == "trapezoid" else s_curve(0.2, 0.3, 2.0, 200.0, FS, DWELL_S)
+    )
     shaped = shape_move(move, [notch])
     cart_a, load_a = follow(move)
     cart_b, load_b = follow(shaped.profile)
@@ -66,11 +68,14 @@ def test_a_host_shaped_notch_cuts_the_loads_residual_vibration_by_10_db(profile,
 
     # without the notch the load rings at the coupled mode after the move
     end = move.move_end_index
-    peaks, _ = find_peaks(deflection_a[end:end + int(0.3 * FS)])
+    peaks, _ = find_peaks(deflection_a[end : end + int(0.3 * FS)])
     assert FS / np.median(np.diff(peaks)) == pytest.approx(21.8, rel=0.05)
 
-    c = compare_moves((move.time_s, deflection_a, move.move_end_s),
-                      (shaped.profile.time_s, deflection_b, shaped.profile.move_end_s), DWELL_S)
+    c = compare_moves(
+        (move.time_s, deflection_a, move.move_end_s),
+        (shaped.profile.time_s, deflection_b, shaped.profile.move_end_s),
+        DWELL_S,
+    )
     assert c.rms_reduction_db >= 10.0, c.as_dict()
     assert c.peak_to_peak_reduction_db >= 10.0, c.as_dict()
     assert c.with_notch.settling_time_s is not None and c.without.settling_time_s is not None

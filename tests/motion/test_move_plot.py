@@ -28,8 +28,17 @@ def figure():
     ta, ya = _move(40e-6, 0.8)
     tb, yb = _move(4e-6, 1.05)
     c = compare_moves((ta, ya, 0.8), (tb, yb, 1.05), 1.0)
-    fig = moves_figure(c, ta, ya, tb, yb, signal_name="load deflection (laser)", subject="configs/gantry.toml",
-                       when=WHEN, added_delay_s=0.25)
+    fig = moves_figure(
+        c,
+        ta,
+        ya,
+        tb,
+        yb,
+        signal_name="load deflection (laser)",
+        subject="configs/gantry.toml",
+        when=WHEN,
+        added_delay_s=0.25,
+    )
     fig.canvas.draw()
     return fig, c
 

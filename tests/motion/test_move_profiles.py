@@ -64,8 +64,7 @@ def test_trapezoid_ends_exactly_keeps_its_limits_and_is_symmetric(distance, vmax
 
 @settings(max_examples=150, deadline=None)
 @given(distances, velocities, accels, jerks, rates, dwells)
-def test_s_curve_ends_exactly_keeps_its_limits_jerk_included_and_is_symmetric(distance, vmax, amax, jmax, fs,
-                                                                             dwell):
+def test_s_curve_ends_exactly_keeps_its_limits_jerk_included_and_is_symmetric(distance, vmax, amax, jmax, fs, dwell):
     move = s_curve(distance, vmax, amax, jmax, fs, dwell)
     _check_common(move, distance, vmax, amax, dwell, fs)
     _check_symmetric(move, distance)
@@ -92,12 +91,15 @@ def test_triangular_trapezoid_never_reaches_the_velocity_limit():
     assert np.abs(move.velocity_mps).max() < 0.1415
 
 
-@pytest.mark.parametrize(("distance", "vmax", "amax", "jmax", "phases"), [
-    (0.2, 0.3, 2.0, 200.0, "jerk, constant accel, cruise"),
-    (0.2, 0.3, 2.0, 10.0, "the acceleration limit is not reached"),
-    (0.005, 0.3, 2.0, 200.0, "no cruise"),
-    (1e-5, 0.3, 2.0, 200.0, "neither cruise nor constant acceleration"),
-])
+@pytest.mark.parametrize(
+    ("distance", "vmax", "amax", "jmax", "phases"),
+    [
+        (0.2, 0.3, 2.0, 200.0, "jerk, constant accel, cruise"),
+        (0.2, 0.3, 2.0, 10.0, "the acceleration limit is not reached"),
+        (0.005, 0.3, 2.0, 200.0, "no cruise"),
+        (1e-5, 0.3, 2.0, 200.0, "neither cruise nor constant acceleration"),
+    ],
+)
 def test_s_curve_lowers_its_peaks_only_as_far_as_the_distance_needs(distance, vmax, amax, jmax, phases):
     move = s_curve(distance, vmax, amax, jmax, 20000.0)
     durations = move.plan.durations_s
@@ -107,10 +109,12 @@ def test_s_curve_lowers_its_peaks_only_as_far_as_the_distance_needs(distance, vm
     _, v, a = move.plan.evaluate(t)
     reaches_v = math.isclose(np.abs(v).max(), vmax, rel_tol=1e-6)
     reaches_a = math.isclose(np.abs(a).max(), amax, rel_tol=1e-6)
-    expected = {"jerk, constant accel, cruise": (True, True),
-                "the acceleration limit is not reached": (True, False),
-                "no cruise": (False, True),
-                "neither cruise nor constant acceleration": (False, False)}[phases]
+    expected = {
+        "jerk, constant accel, cruise": (True, True),
+        "the acceleration limit is not reached": (True, False),
+        "no cruise": (False, True),
+        "neither cruise nor constant acceleration": (False, False),
+    }[phases]
     assert (reaches_v, reaches_a) == expected, phases
     assert (tv > 0) == expected[0] and (tc > 0) == expected[1]
 
@@ -123,23 +127,32 @@ def test_negative_distance_mirrors_the_positive_move():
     assert down.move_end_index == up.move_end_index and down.distance_m == -0.3
 
 
-@pytest.mark.parametrize(("kwargs", "key"), [
-    (dict(distance_m=0.0), "move.distance_m"),
-    (dict(distance_m=math.nan), "move.distance_m"),
-    (dict(distance_m=math.inf), "move.distance_m"),
-    (dict(max_velocity_mps=0.0), "move.max_velocity_mps"),
-    (dict(max_velocity_mps=-1.0), "move.max_velocity_mps"),
-    (dict(max_accel_mps2=math.nan), "move.max_accel_mps2"),
-    (dict(max_jerk_mps3=-5.0), "move.max_jerk_mps3"),
-    (dict(max_jerk_mps3=True), "move.max_jerk_mps3"),
-    (dict(sample_rate_hz=0.0), "move.sample_rate_hz"),
-    (dict(sample_rate_hz=1e12), "move.sample_rate_hz"),  # too many samples
-    (dict(dwell_s=-0.1), "move.dwell_s"),
-    (dict(dwell_s="long"), "move.dwell_s"),
-])
+@pytest.mark.parametrize(
+    ("kwargs", "key"),
+    [
+        (dict(distance_m=0.0), "move.distance_m"),
+        (dict(distance_m=math.nan), "move.distance_m"),
+        (dict(distance_m=math.inf), "move.distance_m"),
+        (dict(max_velocity_mps=0.0), "move.max_velocity_mps"),
+        (dict(max_velocity_mps=-1.0), "move.max_velocity_mps"),
+        (dict(max_accel_mps2=math.nan), "move.max_accel_mps2"),
+        (dict(max_jerk_mps3=-5.0), "move.max_jerk_mps3"),
+        (dict(max_jerk_mps3=True), "move.max_jerk_mps3"),
+        (dict(sample_rate_hz=0.0), "move.sample_rate_hz"),
+        (dict(sample_rate_hz=1e12), "move.sample_rate_hz"),  # too many samples
+        (dict(dwell_s=-0.1), "move.dwell_s"),
+        (dict(dwell_s="long"), "move.dwell_s"),
+    ],
+)
 def test_bad_limits_are_config_errors_naming_the_key(kwargs, key):
-    args = dict(distance_m=0.2, max_velocity_mps=0.3, max_accel_mps2=2.0, max_jerk_mps3=100.0,
-                sample_rate_hz=1000.0, dwell_s=0.1)
+    args = dict(
+        distance_m=0.2,
+        max_velocity_mps=0.3,
+        max_accel_mps2=2.0,
+        max_jerk_mps3=100.0,
+        sample_rate_hz=1000.0,
+        dwell_s=0.1,
+    )
     args.update(kwargs)
     with pytest.raises(ConfigError) as err:
         s_curve(**args, key_prefix="move.")

@@ -92,8 +92,7 @@ def test_reduction_between_two_moves_in_db_with_one_band():
     assert c.peak_to_peak_reduction_db == pytest.approx(20.0, abs=1e-6)
     assert c.with_notch.band == c.without.band == pytest.approx(5e-5)
     # the same band: the quieter move settles ln(10)/sigma sooner
-    assert c.without.settling_time_s - c.with_notch.settling_time_s == pytest.approx(math.log(10) / SIGMA,
-                                                                                     abs=1 / F_HZ)
+    assert c.without.settling_time_s - c.with_notch.settling_time_s == pytest.approx(math.log(10) / SIGMA, abs=1 / F_HZ)
     # a louder second move is a negative reduction
     assert compare_moves((t, quiet, END_S), (t, loud, END_S), DWELL_S).rms_reduction_db == pytest.approx(-20.0)
 
@@ -131,10 +130,17 @@ def test_bad_data_is_a_data_error():
         residual_vibration(t[::-1], y, END_S, DWELL_S)
 
 
-@pytest.mark.parametrize(("kwargs", "key"), [(dict(dwell_s=0.0), "dwell_s"), (dict(band=-1.0), "band"),
-                                             (dict(band_fraction=float("inf")), "band_fraction"),
-                                             (dict(detrend="quadratic"), "detrend"), (dict(unit="m/s"), "unit"),
-                                             (dict(move_end_s=float("nan")), "move_end_s")])
+@pytest.mark.parametrize(
+    ("kwargs", "key"),
+    [
+        (dict(dwell_s=0.0), "dwell_s"),
+        (dict(band=-1.0), "band"),
+        (dict(band_fraction=float("inf")), "band_fraction"),
+        (dict(detrend="quadratic"), "detrend"),
+        (dict(unit="m/s"), "unit"),
+        (dict(move_end_s=float("nan")), "move_end_s"),
+    ],
+)
 def test_bad_settings_are_config_errors_naming_the_key(kwargs, key):
     t, y = ringing()
     args = dict(move_end_s=END_S, dwell_s=DWELL_S)

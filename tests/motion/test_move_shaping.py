@@ -43,11 +43,9 @@ def test_filter_is_causal_and_starts_without_a_transient():
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.floats(-1.0, 1.0).filter(lambda d: abs(d) > 1e-3), st.floats(5.0, 200.0), st.floats(1.0, 30.0),
-       st.booleans())
+@given(st.floats(-1.0, 1.0).filter(lambda d: abs(d) > 1e-3), st.floats(5.0, 200.0), st.floats(1.0, 30.0), st.booleans())
 def test_shaped_move_ends_exactly_where_asked_and_keeps_its_dwell(distance, center_hz, width_hz, curved):
-    move = (s_curve(distance, 0.4, 3.0, 300.0, FS, 0.3) if curved
-            else trapezoid(distance, 0.4, 3.0, FS, 0.3))
+    move = s_curve(distance, 0.4, 3.0, 300.0, FS, 0.3) if curved else trapezoid(distance, 0.4, 3.0, FS, 0.3)
     chain = [notch(center_hz, min(width_hz, center_hz), 30.0)]
     shaped = shape_move(move, chain)
     p = shaped.profile
@@ -111,9 +109,14 @@ def test_a_set_point_that_cannot_settle_in_time_is_refused():
         shape_move(trapezoid(0.2, 0.3, 2.0, FS), [slow], max_extension_s=0.05)
 
 
-@pytest.mark.parametrize(("kwargs", "key"), [(dict(tolerance_m=0.0), "tolerance_m"),
-                                             (dict(tolerance_m=float("nan")), "tolerance_m"),
-                                             (dict(max_extension_s=-1.0), "max_extension_s")])
+@pytest.mark.parametrize(
+    ("kwargs", "key"),
+    [
+        (dict(tolerance_m=0.0), "tolerance_m"),
+        (dict(tolerance_m=float("nan")), "tolerance_m"),
+        (dict(max_extension_s=-1.0), "max_extension_s"),
+    ],
+)
 def test_bad_tolerances_are_config_errors(kwargs, key):
     with pytest.raises(ConfigError) as err:
         shape_move(trapezoid(0.2, 0.3, 2.0, FS), [notch()], **kwargs)

@@ -129,9 +129,13 @@ def test_device_net_keys_of_the_description():
     sections = find_driver("canopen-servo").sections
     desc = co.CanopenDescription.from_sections(sections, "", SERVO_OD)
     assert (desc.host_node_id, desc.abort_connection_option) == (127, 2)
-    for key, value, match in [("host_node_id", 0, "1..127"), ("host_node_id", 200, "1..127"),
-                              ("abort_connection_option", 0, r"\[1, 2, 3\]"),
-                              ("abort_connection_option", -1, "quick stop"), ("host_node_id", "x", "must be int")]:
+    for key, value, match in [
+        ("host_node_id", 0, "1..127"),
+        ("host_node_id", 200, "1..127"),
+        ("abort_connection_option", 0, r"\[1, 2, 3\]"),
+        ("abort_connection_option", -1, "quick stop"),
+        ("host_node_id", "x", "must be int"),
+    ]:
         broken = copy.deepcopy(sections)
         broken["canopen"][key] = value
         with pytest.raises(ConfigError, match=rf"canopen\.{key}.*{match}"):

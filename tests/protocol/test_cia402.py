@@ -49,34 +49,45 @@ def test_unknown_statusword_is_refused():
 
 
 # CiA 402-2 "command coding": controlword bits 7, 3, 2, 1, 0 (x = don't care)
-@pytest.mark.parametrize("cw, command", [
-    (0x0006, "shutdown"), (0x000E, "shutdown"),  # 0 x 1 1 0
-    (0x0007, "switch_on"),  # 0 0 1 1 1 (also disable operation)
-    (0x000F, "enable_operation"),  # 0 1 1 1 1
-    (0x0000, "disable_voltage"), (0x0001, "disable_voltage"), (0x000D, "disable_voltage"),  # 0 x x 0 x
-    (0x0002, "quick_stop"), (0x000B, "quick_stop"),  # 0 x 0 1 x
-    (0x0080, "fault_reset"), (0x008F, "fault_reset"),
-])
+@pytest.mark.parametrize(
+    "cw, command",
+    [
+        (0x0006, "shutdown"),
+        (0x000E, "shutdown"),  # 0 x 1 1 0
+        (0x0007, "switch_on"),  # 0 0 1 1 1 (also disable operation)
+        (0x000F, "enable_operation"),  # 0 1 1 1 1
+        (0x0000, "disable_voltage"),
+        (0x0001, "disable_voltage"),
+        (0x000D, "disable_voltage"),  # 0 x x 0 x
+        (0x0002, "quick_stop"),
+        (0x000B, "quick_stop"),  # 0 x 0 1 x
+        (0x0080, "fault_reset"),
+        (0x008F, "fault_reset"),
+    ],
+)
 def test_controlword_command_coding(cw, command):
     assert cia402.command_of(cw) == command
 
 
 # transitions numbered as in CiA 402-2 figure "state machine"
-@pytest.mark.parametrize("state, cw, new, number", [
-    (S.SWITCH_ON_DISABLED, 0x06, S.READY_TO_SWITCH_ON, 2),
-    (S.READY_TO_SWITCH_ON, 0x07, S.SWITCHED_ON, 3),
-    (S.SWITCHED_ON, 0x0F, S.OPERATION_ENABLED, 4),
-    (S.OPERATION_ENABLED, 0x07, S.SWITCHED_ON, 5),
-    (S.SWITCHED_ON, 0x06, S.READY_TO_SWITCH_ON, 6),
-    (S.READY_TO_SWITCH_ON, 0x00, S.SWITCH_ON_DISABLED, 7),
-    (S.READY_TO_SWITCH_ON, 0x02, S.SWITCH_ON_DISABLED, 7),
-    (S.OPERATION_ENABLED, 0x06, S.READY_TO_SWITCH_ON, 8),
-    (S.OPERATION_ENABLED, 0x00, S.SWITCH_ON_DISABLED, 9),
-    (S.SWITCHED_ON, 0x00, S.SWITCH_ON_DISABLED, 10),
-    (S.OPERATION_ENABLED, 0x02, S.QUICK_STOP_ACTIVE, 11),
-    (S.QUICK_STOP_ACTIVE, 0x00, S.SWITCH_ON_DISABLED, 12),
-    (S.QUICK_STOP_ACTIVE, 0x0F, S.OPERATION_ENABLED, 16),
-])
+@pytest.mark.parametrize(
+    "state, cw, new, number",
+    [
+        (S.SWITCH_ON_DISABLED, 0x06, S.READY_TO_SWITCH_ON, 2),
+        (S.READY_TO_SWITCH_ON, 0x07, S.SWITCHED_ON, 3),
+        (S.SWITCHED_ON, 0x0F, S.OPERATION_ENABLED, 4),
+        (S.OPERATION_ENABLED, 0x07, S.SWITCHED_ON, 5),
+        (S.SWITCHED_ON, 0x06, S.READY_TO_SWITCH_ON, 6),
+        (S.READY_TO_SWITCH_ON, 0x00, S.SWITCH_ON_DISABLED, 7),
+        (S.READY_TO_SWITCH_ON, 0x02, S.SWITCH_ON_DISABLED, 7),
+        (S.OPERATION_ENABLED, 0x06, S.READY_TO_SWITCH_ON, 8),
+        (S.OPERATION_ENABLED, 0x00, S.SWITCH_ON_DISABLED, 9),
+        (S.SWITCHED_ON, 0x00, S.SWITCH_ON_DISABLED, 10),
+        (S.OPERATION_ENABLED, 0x02, S.QUICK_STOP_ACTIVE, 11),
+        (S.QUICK_STOP_ACTIVE, 0x00, S.SWITCH_ON_DISABLED, 12),
+        (S.QUICK_STOP_ACTIVE, 0x0F, S.OPERATION_ENABLED, 16),
+    ],
+)
 def test_numbered_transitions(state, cw, new, number):
     assert transition(state, cw, 0) == (new, number)
 
@@ -131,9 +142,17 @@ def test_mode_codes_and_names():
     assert "manufacturer" in cia402.mode_name(-3)
 
 
-@pytest.mark.parametrize("code, text", [
-    (0x8311, "excess torque"), (0x8612, "reference limit"), (0x4310, "temperature"),
-    (0x2311, "current"), (0x3222, "voltage"), (0xFF42, "device specific"), (0x8130, "heartbeat"),
-])
+@pytest.mark.parametrize(
+    "code, text",
+    [
+        (0x8311, "excess torque"),
+        (0x8612, "reference limit"),
+        (0x4310, "temperature"),
+        (0x2311, "current"),
+        (0x3222, "voltage"),
+        (0xFF42, "device specific"),
+        (0x8130, "heartbeat"),
+    ],
+)
 def test_emcy_meanings(code, text):
     assert text in cia402.emcy_meaning(code)

@@ -28,6 +28,7 @@ def one(warnings, *words):
 
 # --- quirks repaired and reported -----------------------------------------------------------------------------------
 
+
 def test_duplicate_keys_lower_case_crlf_and_latin1_are_read_and_each_reported_once():
     od, warnings, s = load("quirks_dup_lower_crlf.eds")
     name = str(FIXTURES / "quirks_dup_lower_crlf.eds")
@@ -84,19 +85,22 @@ def test_missing_sync_object_is_reported():
 HEAD = "[DeviceInfo]\nVendorName=X\nVendorNumber=1\n[1000]\nParameterName=Device type\nDataType=0x0007\nAccessType=ro\n"
 
 
-@pytest.mark.parametrize("text, words", [
-    ("[2000]\nParameterName=No type\nAccessType=rw\n", ("[2000]", "DataType", "skipped")),
-    ("[2000]\nDataType=0x0006\nAccessType=rw\n", ("[2000]", "no ParameterName")),
-    ("[2000]\nParameterName=A\nDataType=0x0006\nAccessType=read\n", ("[2000]", "AccessType='read'", "'ro'")),
-    ("[2000]\nParameterName=A\nDataType=0x0006\nAccessType=rw\nPDOMapping=yes\n", ("PDOMapping='yes'",)),
-    ("[2000]\nParameterName=A\nDataType=0x0006\nAccessType=rw\nDefaultValue=007\n", ("leading zeros",)),
-    ("[2000]\nParameterName=A\nDataType=0x0006\nAccessType=rw\nDefaultValue=abc\n", ("not a value", "'abc'")),
-    ("[2000]\nParameterName=A\nDataType=0x0006\nAccessType=rw\nDefaultValue=$NODEID*2\n", ("$NODEID*2", "dropped")),
-    ("[3000sub1]\nParameterName=Orphan\nDataType=0x0006\nAccessType=rw\n", ("[3000sub1]", "does not declare")),
-    ("[Comments]\nLines=3\nLine1=only one\n", ("Lines=3", "read 1")),
-    ("[2000]\nParameterName=A\nno equals sign here\nDataType=0x0006\nAccessType=rw\n", ("not a key=value line",)),
-    ("[1000]\nParameterName=Again\n", ("[1000] appears again",)),
-])
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        ("[2000]\nParameterName=No type\nAccessType=rw\n", ("[2000]", "DataType", "skipped")),
+        ("[2000]\nDataType=0x0006\nAccessType=rw\n", ("[2000]", "no ParameterName")),
+        ("[2000]\nParameterName=A\nDataType=0x0006\nAccessType=read\n", ("[2000]", "AccessType='read'", "'ro'")),
+        ("[2000]\nParameterName=A\nDataType=0x0006\nAccessType=rw\nPDOMapping=yes\n", ("PDOMapping='yes'",)),
+        ("[2000]\nParameterName=A\nDataType=0x0006\nAccessType=rw\nDefaultValue=007\n", ("leading zeros",)),
+        ("[2000]\nParameterName=A\nDataType=0x0006\nAccessType=rw\nDefaultValue=abc\n", ("not a value", "'abc'")),
+        ("[2000]\nParameterName=A\nDataType=0x0006\nAccessType=rw\nDefaultValue=$NODEID*2\n", ("$NODEID*2", "dropped")),
+        ("[3000sub1]\nParameterName=Orphan\nDataType=0x0006\nAccessType=rw\n", ("[3000sub1]", "does not declare")),
+        ("[Comments]\nLines=3\nLine1=only one\n", ("Lines=3", "read 1")),
+        ("[2000]\nParameterName=A\nno equals sign here\nDataType=0x0006\nAccessType=rw\n", ("not a key=value line",)),
+        ("[1000]\nParameterName=Again\n", ("[1000] appears again",)),
+    ],
+)
 def test_each_repair_is_one_warning_naming_what_was_done(text, words):
     od, warnings = load_eds_text(HEAD + text, "t.eds")
     one(warnings, "t.eds", *words)
@@ -135,6 +139,7 @@ def test_a_path_the_system_refuses_is_a_config_error_saying_why(tmp_path):
 
 # --- the summary ------------------------------------------------------------------------------------------------------
 
+
 def test_four_entry_pdos_and_two_rpdos():
     _, _, s = load("pdo4_rpdo2.eds")
     assert s.rpdo_entries == (4, 4) and s.tpdo_entries == (4, 4, 4, 4)
@@ -145,9 +150,11 @@ def test_four_entry_pdos_and_two_rpdos():
 
 def test_pdo_limit_is_the_declared_entries_and_sub0_highlimit_only_when_none_is_declared():
     # one entry declared, sub-index 0 accepting 64: the undeclared entries cannot be written by name
-    text = (HEAD + "[1400]\nParameterName=R\nObjectType=0x9\n[1400sub0]\nParameterName=n\nDataType=0x0005\n"
-            "AccessType=ro\n[1600]\nParameterName=M\nObjectType=0x9\n[1600sub0]\nParameterName=n\nDataType=0x0005\n"
-            "AccessType=rw\nHighLimit=64\n[1600sub1]\nParameterName=e\nDataType=0x0007\nAccessType=rw\n")
+    text = (
+        HEAD + "[1400]\nParameterName=R\nObjectType=0x9\n[1400sub0]\nParameterName=n\nDataType=0x0005\n"
+        "AccessType=ro\n[1600]\nParameterName=M\nObjectType=0x9\n[1600sub0]\nParameterName=n\nDataType=0x0005\n"
+        "AccessType=rw\nHighLimit=64\n[1600sub1]\nParameterName=e\nDataType=0x0007\nAccessType=rw\n"
+    )
     s = inspect_eds(load_eds_text(text, "t.eds")[0])
     assert s.rpdo_entries == (1,) and s.tpdo_entries == ()
     bare = text.replace("[1600sub1]\nParameterName=e\nDataType=0x0007\nAccessType=rw\n", "").replace("=64", "=6")
@@ -176,8 +183,14 @@ def test_current_only_drive_and_its_factor_group():
     assert s.torque_objects == () and s.current_objects == ("0x6075", "0x6078")
     assert s.torque_reference == "current"
     assert s.roles["rated_current"].default == 5000
-    assert s.factor_group == {"encoder_increments": 4096, "motor_revolutions": 1, "gear_motor_revs": 1,
-                              "gear_shaft_revs": 1, "feed": 10000, "feed_shaft_revs": 1}
+    assert s.factor_group == {
+        "encoder_increments": 4096,
+        "motor_revolutions": 1,
+        "gear_motor_revs": 1,
+        "gear_shaft_revs": 1,
+        "feed": 10000,
+        "feed_shaft_revs": 1,
+    }
     assert s.cyclic_modes == ("csv", "csp")  # 0x6502 lists CSP and CSV, no CST
 
 
@@ -198,9 +211,16 @@ def test_roles_carry_type_access_mapping_and_default():
 
 
 def test_vendor_objects_are_found_by_whole_words_of_their_names():
-    names = {0x2010: "Internal DataRecorder Control", 0x2011: "Acceptance Filter 00", 0x2012: "Velocity Unfiltered",
-             0x2013: "CurrFilt", 0x2014: "Sine sweep generator", 0x2015: "Anti-resonance zero Q",
-             0x6010: "Notch filter (not a vendor index)", 0x2016: "Upload Recording Data"}
+    names = {
+        0x2010: "Internal DataRecorder Control",
+        0x2011: "Acceptance Filter 00",
+        0x2012: "Velocity Unfiltered",
+        0x2013: "CurrFilt",
+        0x2014: "Sine sweep generator",
+        0x2015: "Anti-resonance zero Q",
+        0x6010: "Notch filter (not a vendor index)",
+        0x2016: "Upload Recording Data",
+    }
     text = HEAD + "".join(f"[{i:04X}]\nParameterName={n}\nDataType=0x0007\nAccessType=rw\n" for i, n in names.items())
     s = inspect_eds(load_eds_text(text, "t.eds")[0])
     assert [i for i, _ in s.vendor_filters] == [0x2013, 0x2015]
@@ -210,20 +230,50 @@ def test_vendor_objects_are_found_by_whole_words_of_their_names():
 
 # --- never another exception --------------------------------------------------------------------------------------
 
-SMALL = (HEAD + "[DummyUsage]\nDummy0002=1\n[Comments]\nLines=1\nLine1=x\n"
-         "[1018]\nParameterName=Identity\nObjectType=0x9\nSubNumber=2\n"
-         "[1018sub0]\nParameterName=n\nDataType=0x0005\nAccessType=ro\nDefaultValue=1\n"
-         "[1018sub1]\nParameterName=Vendor\nDataType=0x0007\nAccessType=ro\nDefaultValue=0x12\n"
-         "[1016]\nParameterName=HB\nObjectType=0x8\nDataType=0x0007\nAccessType=rw\nCompactSubObj=2\n"
-         "[1016Name]\nNrOfEntries=2\n1=a\n2=b\n"
-         "[1800sub1]\nParameterName=COB\nDataType=0x0007\nAccessType=rw\nDefaultValue=$NODEID+0x180\n"
-         "[6060]\nParameterName=Mode\nDataType=0x0002\nAccessType=rw\nLowLimit=-3\nHighLimit=10\nPDOMapping=1\n"
-         "[6502]\nParameterName=Modes\nDataType=0x0007\nAccessType=ro\nDefaultValue=0x380\n"
-         "[2000]\nParameterName=Notch filter\nDataType=0x0008\nAccessType=rw\nDefaultValue=1.5\n"
-         "[DeviceComissioning]\nNodeID=3\n")
-TOKENS = ["[", "]", "=", "\n", "\r\n", ";", "$NODEID", "sub", "0x", "-", "+", "Name", "DataType", "ObjectType=0x8",
-          "CompactSubObj", "DEFAULT", "\x00", "é", "\ufeff", " ", "[1018sub", "Lines=", "NrOfEntries=9",
-          "DataType=-4\n", "ObjectType=0x5\n", "07", "DataType=0x0040\n", "[0040sub1]\n", "Name]\n"]
+SMALL = (
+    HEAD + "[DummyUsage]\nDummy0002=1\n[Comments]\nLines=1\nLine1=x\n"
+    "[1018]\nParameterName=Identity\nObjectType=0x9\nSubNumber=2\n"
+    "[1018sub0]\nParameterName=n\nDataType=0x0005\nAccessType=ro\nDefaultValue=1\n"
+    "[1018sub1]\nParameterName=Vendor\nDataType=0x0007\nAccessType=ro\nDefaultValue=0x12\n"
+    "[1016]\nParameterName=HB\nObjectType=0x8\nDataType=0x0007\nAccessType=rw\nCompactSubObj=2\n"
+    "[1016Name]\nNrOfEntries=2\n1=a\n2=b\n"
+    "[1800sub1]\nParameterName=COB\nDataType=0x0007\nAccessType=rw\nDefaultValue=$NODEID+0x180\n"
+    "[6060]\nParameterName=Mode\nDataType=0x0002\nAccessType=rw\nLowLimit=-3\nHighLimit=10\nPDOMapping=1\n"
+    "[6502]\nParameterName=Modes\nDataType=0x0007\nAccessType=ro\nDefaultValue=0x380\n"
+    "[2000]\nParameterName=Notch filter\nDataType=0x0008\nAccessType=rw\nDefaultValue=1.5\n"
+    "[DeviceComissioning]\nNodeID=3\n"
+)
+TOKENS = [
+    "[",
+    "]",
+    "=",
+    "\n",
+    "\r\n",
+    ";",
+    "$NODEID",
+    "sub",
+    "0x",
+    "-",
+    "+",
+    "Name",
+    "DataType",
+    "ObjectType=0x8",
+    "CompactSubObj",
+    "DEFAULT",
+    "\x00",
+    "é",
+    "\ufeff",
+    " ",
+    "[1018sub",
+    "Lines=",
+    "NrOfEntries=9",
+    "DataType=-4\n",
+    "ObjectType=0x5\n",
+    "07",
+    "DataType=0x0040\n",
+    "[0040sub1]\n",
+    "Name]\n",
+]
 
 
 @st.composite
@@ -235,9 +285,9 @@ def mutated(draw):
         if action == "insert":
             text = text[:pos] + draw(st.sampled_from(TOKENS) | st.text(max_size=4)) + text[pos:]
         elif action == "delete":
-            text = text[:pos] + text[pos + draw(st.integers(1, 40)):]
+            text = text[:pos] + text[pos + draw(st.integers(1, 40)) :]
         elif action == "swapcase":
-            text = text[:pos] + text[pos:pos + 30].swapcase() + text[pos + 30:]
+            text = text[:pos] + text[pos : pos + 30].swapcase() + text[pos + 30 :]
         else:
             line_end = text.find("\n", pos) + 1 or len(text)
             line_start = text.rfind("\n", 0, pos) + 1

@@ -106,9 +106,30 @@ def test_from_table_names_bad_keys():
 def test_every_public_name_is_imported_from_the_package_as_before_the_split():
     import hilident.protocol.filter_encoding as package
 
-    before = {"COEFFICIENT_FIELDS", "COPLEY", "COPLEY_PLUS", "DEEPER", "DEPTH_MARGINS_DB", "DEPTH_TOLERANCE_DB",
-              "DEPTH_UNITS", "ENCODINGS", "FLOAT32_MAX", "FULL_DEPTH_DB", "MIN_ATTENUATION_DB", "PARAMETER_FIELDS",
-              "PARAMETRIC", "PRESETS", "REFINE_STEPS", "SAME_FREQUENCY", "SCALER_CHOICES", "WIDTH_TOLERANCE",
-              "WIDTH_UNITS", "BlockLayout", "FilterEncoding", "Realisation", "float32"}
+    before = {
+        "COEFFICIENT_FIELDS",
+        "COPLEY",
+        "COPLEY_PLUS",
+        "DEEPER",
+        "DEPTH_MARGINS_DB",
+        "DEPTH_TOLERANCE_DB",
+        "DEPTH_UNITS",
+        "ENCODINGS",
+        "FLOAT32_MAX",
+        "FULL_DEPTH_DB",
+        "MIN_ATTENUATION_DB",
+        "PARAMETER_FIELDS",
+        "PARAMETRIC",
+        "PRESETS",
+        "REFINE_STEPS",
+        "SAME_FREQUENCY",
+        "SCALER_CHOICES",
+        "WIDTH_TOLERANCE",
+        "WIDTH_UNITS",
+        "BlockLayout",
+        "FilterEncoding",
+        "Realisation",
+        "float32",
+    }
     assert set(package.__all__) == before
     assert all(getattr(package, name) is not None for name in before)

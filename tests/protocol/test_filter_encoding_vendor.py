@@ -21,27 +21,80 @@ from hilident.protocol.filter_encoding import FilterEncoding, float32
 
 RATE = 4000.0
 # Panasonic-style tables (bandwidth/centre per width setting; dB per depth setting), as the vendor lists them
-WIDTHS = (0.50, 0.59, 0.71, 0.84, 1.00, 1.19, 1.41, 1.68, 2.00, 2.38, 2.83, 3.36, 4.00, 4.76, 5.66, 6.73, 8.00,
-          9.51, 11.31, 13.45, 16.00)
+WIDTHS = (
+    0.50,
+    0.59,
+    0.71,
+    0.84,
+    1.00,
+    1.19,
+    1.41,
+    1.68,
+    2.00,
+    2.38,
+    2.83,
+    3.36,
+    4.00,
+    4.76,
+    5.66,
+    6.73,
+    8.00,
+    9.51,
+    11.31,
+    13.45,
+    16.00,
+)
 DEPTH_VALUES = (0, 1, 2, 3, 4, 5, 10, 15, 20, 25, 30, 35, 40, 45, 50, 60, 70, 80, 90, 100)
-DEPTHS = (math.inf, 40.0, 34.0, 30.5, 28.0, 26.0, 20.0, 16.5, 14.0, 12.0, 10.5, 9.1, 8.0, 6.9, 6.0, 4.4, 3.1, 1.9,
-          0.9, 0.0)
+DEPTHS = (
+    math.inf,
+    40.0,
+    34.0,
+    30.5,
+    28.0,
+    26.0,
+    20.0,
+    16.5,
+    14.0,
+    12.0,
+    10.5,
+    9.1,
+    8.0,
+    6.9,
+    6.0,
+    4.4,
+    3.1,
+    1.9,
+    0.9,
+    0.0,
+)
 
 
 def panasonic():
-    return FilterEncoding.from_table({"encoding": "index_table", "width_table": list(WIDTHS),
-                                      "depth_table": list(DEPTHS), "depth_values": list(DEPTH_VALUES),
-                                      "ranges": {"center": [50, 5000]}})
+    return FilterEncoding.from_table(
+        {
+            "encoding": "index_table",
+            "width_table": list(WIDTHS),
+            "depth_table": list(DEPTHS),
+            "depth_values": list(DEPTH_VALUES),
+            "ranges": {"center": [50, 5000]},
+        }
+    )
 
 
 def yaskawa_style():
-    return FilterEncoding.from_table({"encoding": "notch_parameters", "width_unit": "q", "depth_unit": "ratio",
-                                      "scales": {"center": 1, "width": 0.01, "depth": 0.001},
-                                      "ranges": {"center": [50, 5000], "width": [0.5, 10], "depth": [0, 1]}})
+    return FilterEncoding.from_table(
+        {
+            "encoding": "notch_parameters",
+            "width_unit": "q",
+            "depth_unit": "ratio",
+            "scales": {"center": 1, "width": 0.01, "depth": 0.001},
+            "ranges": {"center": [50, 5000], "width": [0.5, 10], "depth": [0, 1]},
+        }
+    )
 
 
 def words_of(block):
-    return [int.from_bytes(block[i:i + 2], "little") for i in range(0, len(block), 2)]
+    return [int.from_bytes(block[i : i + 2], "little") for i in range(0, len(block), 2)]
 
 
 def db_at(section, f):
@@ -54,8 +107,9 @@ def db_at(section, f):
 def test_real32_field_order_and_plus_sign_store_the_negated_feedback_terms():
     spec = NotchSpec(300.0, 60.0, 30.0)
     bq = design_notch(spec, RATE)
-    enc = FilterEncoding.from_table({"encoding": "real32", "order": ["a1", "a2", "b0", "b1", "b2"],
-                                     "feedback_sign": "plus"})
+    enc = FilterEncoding.from_table(
+        {"encoding": "real32", "order": ["a1", "a2", "b0", "b1", "b2"], "feedback_sign": "plus"}
+    )
     values = enc.encode(bq, spec)
     assert list(values) == ["a1", "a2", "b0", "b1", "b2"] == list(enc.fields)
     assert values["a1"] == float32(-bq.a[1]) and values["a2"] == float32(-bq.a[2])
@@ -89,7 +143,7 @@ def test_order_must_name_every_field_once():
 # --------------------------------------------------------------------------- word blocks (Copley)
 
 # 9 words [info, info, info, b2, b1, b0, a2, a1, K], each little-endian: K = 8192 makes a step 2**-14
-COPLEY_HAND = bytes.fromhex("0000" "0000" "0000" "0010" "00e0" "0040" "00f8" "0010" "0020")
+COPLEY_HAND = bytes.fromhex("000000000000001000e0004000f800100020")
 
 
 def test_copley_block_decodes_a_hand_computed_example():
@@ -106,7 +160,7 @@ def test_copley_plus_block_decodes_a_hand_computed_example():
     enc = FilterEncoding.from_table({"encoding": "word_block", "preset": "copley_plus"})
     # word 1 = 0x6110 (band reject, two poles, designed), f1 = 100, f2 = 200, Rp/Rs = 0,
     # then a1 = 1.5, a2 = -0.5625, b0 = 1, b1 = -1.5, b2 = 0.5 as float32, upper word first
-    block = bytes.fromhex("1061" "6400" "c800" "0000" "c03f0000" "10bf0000" "803f0000" "c0bf0000" "003f0000")
+    block = bytes.fromhex("10616400c8000000c03f000010bf0000803f0000c0bf0000003f0000")
     section = enc.applied({"block": block}, RATE)
     assert section.b == (1.0, -1.5, 0.5)
     assert section.a == (1.0, -1.5, 0.5625)
@@ -174,15 +228,24 @@ def test_block_errors_are_typed():
         FilterEncoding.from_table({"encoding": "word_block", "preset": "copley", "scaler_word": 3})
     with pytest.raises(ConfigError, match="filters.coefficient_words"):
         FilterEncoding.from_table({"encoding": "word_block", "words": 9, "coefficient_words": {"b0": 1}})
-    unstable = bytes.fromhex("0000" "0000" "0000" "0000" "0000" "0040" "0040" "0000" "0020")
+    unstable = bytes.fromhex("000000000000000000000040004000000020")
     with pytest.raises(DataError, match="unstable"):
         enc.applied({"block": unstable}, RATE)
 
 
 def test_generic_word_block_big_endian_low_word_first():
-    table = {"encoding": "word_block", "words": 11, "coefficient_format": "float32", "word_order": "low_first",
-             "byte_order": "big", "coefficient_words": {"b0": 1, "b1": 3, "b2": 5, "a1": 7, "a2": 9},
-             "state_word": 0, "state_mask": 1, "disabled_value": 0, "enabled_value": 1}
+    table = {
+        "encoding": "word_block",
+        "words": 11,
+        "coefficient_format": "float32",
+        "word_order": "low_first",
+        "byte_order": "big",
+        "coefficient_words": {"b0": 1, "b1": 3, "b2": 5, "a1": 7, "a2": 9},
+        "state_word": 0,
+        "state_mask": 1,
+        "disabled_value": 0,
+        "enabled_value": 1,
+    }
     enc = FilterEncoding.from_table(table)
     spec = NotchSpec(50.0, 10.0, 30.0)
     bq = design_notch(spec, RATE)
@@ -255,8 +318,10 @@ def test_parameter_tables_are_checked():
     with pytest.raises(ConfigError, match="filters.width_table"):
         FilterEncoding.from_table({"encoding": "index_table", "depth_table": [10]})
     with pytest.raises(ConfigError, match="filters.depth_values") as info:
-        FilterEncoding.from_table({"encoding": "index_table", "width_table": [1], "depth_table": [10, 20],
-                                   "depth_values": [1]}, "x/driver.toml")
+        FilterEncoding.from_table(
+            {"encoding": "index_table", "width_table": [1], "depth_table": [10, 20], "depth_values": [1]},
+            "x/driver.toml",
+        )
     assert info.value.file == "x/driver.toml"
 
 
@@ -282,8 +347,9 @@ def test_realise_meets_the_depth_where_nearest_rounding_misses_it():
 
 def test_realise_notes_what_the_ranges_cannot_reach():
     spec = NotchSpec(300.0, 60.0, 30.0)
-    akd = FilterEncoding("pole_zero_q", ranges={"pole_hz": [5, 5000], "zero_hz": [5, 5000], "pole_q": [0.2, 20],
-                                                "zero_q": [0.1, 5]})
+    akd = FilterEncoding(
+        "pole_zero_q", ranges={"pole_hz": [5, 5000], "zero_hz": [5, 5000], "pole_q": [0.2, 20], "zero_q": [0.1, 5]}
+    )
     r = akd.realise(spec, RATE)
     # Q_Z <= 5 caps the depth at 20 log10(5 / Q_P): the notch is widened to Q_P = 0.2, and still short
     assert r.fields["zero_q"] == 5.0 and r.fields["pole_q"] == pytest.approx(0.2)
@@ -315,8 +381,11 @@ REALISABLE = {
     # 16-bit coefficients with one scaler cannot hold a narrow notch below about rate / 200
     "copley": (FilterEncoding.from_table({"encoding": "word_block", "preset": "copley"}), RATE / 200, 0),
     "notch_parameters": (FilterEncoding("notch_parameters"), 5.0, 0.1),
-    "pole_zero_q 1000:1": (FilterEncoding("pole_zero_q", scales={"pole_hz": 0.001, "zero_hz": 0.001,
-                                                                   "pole_q": 0.001, "zero_q": 0.001}), 5.0, 0.001),
+    "pole_zero_q 1000:1": (
+        FilterEncoding("pole_zero_q", scales={"pole_hz": 0.001, "zero_hz": 0.001, "pole_q": 0.001, "zero_q": 0.001}),
+        5.0,
+        0.001,
+    ),
     "pole_zero_damping": (FilterEncoding("pole_zero_damping"), 5.0, 0),
     "index_table": (panasonic(), 50.0, 1),
     "center_band": (FilterEncoding("center_band", ranges={"center": [10, 2000], "band": [1, 4000]}), 10.0, 1),
@@ -362,34 +431,54 @@ def test_every_documented_example_builds_and_realises_a_notch():
         r = enc.realise(NotchSpec(300.0, 60.0, 20.0), RATE)
         assert r.section == enc.applied(r.fields, RATE)
         assert r.attenuation_db >= 20.0 or r.notes
-    assert kinds == {"real32", "fixed", "word_block", "notch_parameters", "pole_zero_q", "pole_zero_damping",
-                     "index_table", "center_band"}
+    assert kinds == {
+        "real32",
+        "fixed",
+        "word_block",
+        "notch_parameters",
+        "pole_zero_q",
+        "pole_zero_damping",
+        "index_table",
+        "center_band",
+    }
     copley = [t for t in tables if t.get("encoding") == "word_block" and "words" in t]
-    assert FilterEncoding.from_table(copley[0]) == FilterEncoding.from_table({"encoding": "word_block",
-                                                                              "preset": "copley"})
+    assert FilterEncoding.from_table(copley[0]) == FilterEncoding.from_table(
+        {"encoding": "word_block", "preset": "copley"}
+    )
 
 
-@pytest.mark.parametrize("table, key", [
-    ({"encoding": "word_block", "preset": ["copley"]}, "filters.preset"),
-    ({"encoding": "word_block", "preset": "copley", "byte_order": "middle"}, "filters.byte_order"),
-    ({"encoding": "word_block", "preset": "copley_plus", "coefficient_words": {"b0": 13, "b1": 10, "b2": 12,
-                                                                             "a1": 4, "a2": 6}},
-     "filters.coefficient_words.b0"),
-    ({"encoding": "index_table", "width_table": [1.0, "wide"], "depth_table": [10.0]}, "filters.width_table"),
-    ({"encoding": "index_table", "width_table": [1.0], "depth_table": [-math.inf]}, "filters.depth_table"),
-    ({"encoding": "center_band", "ranges": {"band": "narrow"}}, "filters.ranges.band"),
-])
+@pytest.mark.parametrize(
+    "table, key",
+    [
+        ({"encoding": "word_block", "preset": ["copley"]}, "filters.preset"),
+        ({"encoding": "word_block", "preset": "copley", "byte_order": "middle"}, "filters.byte_order"),
+        (
+            {
+                "encoding": "word_block",
+                "preset": "copley_plus",
+                "coefficient_words": {"b0": 13, "b1": 10, "b2": 12, "a1": 4, "a2": 6},
+            },
+            "filters.coefficient_words.b0",
+        ),
+        ({"encoding": "index_table", "width_table": [1.0, "wide"], "depth_table": [10.0]}, "filters.width_table"),
+        ({"encoding": "index_table", "width_table": [1.0], "depth_table": [-math.inf]}, "filters.depth_table"),
+        ({"encoding": "center_band", "ranges": {"band": "narrow"}}, "filters.ranges.band"),
+    ],
+)
 def test_hostile_tables_name_the_key_and_file(table, key):
     with pytest.raises(ConfigError) as info:
         FilterEncoding.from_table(table, "drv/driver.toml")
     assert info.value.key == key and info.value.file == "drv/driver.toml"
 
 
-@pytest.mark.parametrize("table, key", [
-    ({"encoding": "notch_parameters", "center_scale": 10**400}, "filters.center_scale"),
-    ({"encoding": "pole_zero_q", "ranges": {"pole_hz": [0, 10**400]}}, "filters.ranges.pole_hz"),
-    ({"encoding": "index_table", "width_table": [1.0], "depth_table": [10**400]}, "filters.depth_table"),
-])
+@pytest.mark.parametrize(
+    "table, key",
+    [
+        ({"encoding": "notch_parameters", "center_scale": 10**400}, "filters.center_scale"),
+        ({"encoding": "pole_zero_q", "ranges": {"pole_hz": [0, 10**400]}}, "filters.ranges.pole_hz"),
+        ({"encoding": "index_table", "width_table": [1.0], "depth_table": [10**400]}, "filters.depth_table"),
+    ],
+)
 def test_an_integer_beyond_any_float_is_a_config_error(table, key):
     # TOML integers may be arbitrarily long; float() of one overflows
     with pytest.raises(ConfigError) as info:
@@ -397,15 +486,24 @@ def test_an_integer_beyond_any_float_is_a_config_error(table, key):
     assert info.value.key == key and info.value.file == "drv/driver.toml"
 
 
-@pytest.mark.parametrize("enc, values", [
-    (FilterEncoding("pole_zero_q"), {"pole_hz": 300.0, "pole_q": 0.0, "zero_hz": 300.0, "zero_q": 5.0}),
-    (FilterEncoding("pole_zero_damping"), {"num_hz": "300", "num_damping": 0.0, "den_hz": 300.0, "den_damping": 0.1}),
-    (FilterEncoding("pole_zero_damping"), {"num_hz": 1e300, "num_damping": 0.0, "den_hz": 300.0, "den_damping": 0.1}),
-    (FilterEncoding("center_band"), {"center": None, "band": 10}),
-    (FilterEncoding("fixed"), {"b0": 1.5, "b1": 0, "b2": 0, "a1": 0, "a2": 0}),
-    (FilterEncoding("real32"), {"b0": math.nan, "b1": 0, "b2": 0, "a1": 0, "a2": 0}),
-    (FilterEncoding.from_table({"encoding": "word_block", "preset": "copley_plus"}), {"block": 28}),
-])
+@pytest.mark.parametrize(
+    "enc, values",
+    [
+        (FilterEncoding("pole_zero_q"), {"pole_hz": 300.0, "pole_q": 0.0, "zero_hz": 300.0, "zero_q": 5.0}),
+        (
+            FilterEncoding("pole_zero_damping"),
+            {"num_hz": "300", "num_damping": 0.0, "den_hz": 300.0, "den_damping": 0.1},
+        ),
+        (
+            FilterEncoding("pole_zero_damping"),
+            {"num_hz": 1e300, "num_damping": 0.0, "den_hz": 300.0, "den_damping": 0.1},
+        ),
+        (FilterEncoding("center_band"), {"center": None, "band": 10}),
+        (FilterEncoding("fixed"), {"b0": 1.5, "b1": 0, "b2": 0, "a1": 0, "a2": 0}),
+        (FilterEncoding("real32"), {"b0": math.nan, "b1": 0, "b2": 0, "a1": 0, "a2": 0}),
+        (FilterEncoding.from_table({"encoding": "word_block", "preset": "copley_plus"}), {"block": 28}),
+    ],
+)
 def test_values_from_the_wire_that_are_no_filter_are_data_errors(enc, values):
     with pytest.raises(DataError):
         enc.applied(values, RATE)
@@ -414,8 +512,11 @@ def test_values_from_the_wire_that_are_no_filter_are_data_errors(enc, values):
 # --------------------------------------------------------------------------- encode -> applied round trips
 
 
-@pytest.mark.parametrize("enc", [FilterEncoding("pole_zero_q"), FilterEncoding("pole_zero_damping")],
-                         ids=["pole_zero_q", "pole_zero_damping"])
+@pytest.mark.parametrize(
+    "enc",
+    [FilterEncoding("pole_zero_q"), FilterEncoding("pole_zero_damping")],
+    ids=["pole_zero_q", "pole_zero_damping"],
+)
 @settings(max_examples=25, deadline=None)
 @given(center=st.floats(5.0, 1600.0), rel_width=st.floats(0.05, 1.0), depth=st.floats(3.0, 50.0))
 def test_real32_parameter_encodings_round_trip(enc, center, rel_width, depth):
@@ -423,13 +524,18 @@ def test_real32_parameter_encodings_round_trip(enc, center, rel_width, depth):
     values = enc.encode(design_notch(spec, RATE), spec)
     got = enc.parameters(values)
     assert (got.center_hz, got.width_hz, got.depth_db) == pytest.approx(
-        (spec.center_hz, spec.width_hz, spec.depth_db), rel=1e-6, abs=1e-4)
+        (spec.center_hz, spec.width_hz, spec.depth_db), rel=1e-6, abs=1e-4
+    )
     section = enc.applied(values, RATE)
     p = [float(values[f]) for f in enc.fields]
-    exact = (two_frequency_section(p[2], 0.5 / p[3], p[0], 0.5 / p[1], RATE) if enc.kind == "pole_zero_q"
-             else two_frequency_section(p[0], p[1], p[2], p[3], RATE))
-    assert section == FilterEncoding("real32").applied(dict(zip(("b0", "b1", "b2", "a1", "a2"),
-                                                                (*exact.b, *exact.a[1:]), strict=False)), RATE)
+    exact = (
+        two_frequency_section(p[2], 0.5 / p[3], p[0], 0.5 / p[1], RATE)
+        if enc.kind == "pole_zero_q"
+        else two_frequency_section(p[0], p[1], p[2], p[3], RATE)
+    )
+    assert section == FilterEncoding("real32").applied(
+        dict(zip(("b0", "b1", "b2", "a1", "a2"), (*exact.b, *exact.a[1:]), strict=False)), RATE
+    )
     # pre-warped at the centre: the analog depth there (the drive's REAL32 section then rounds it,
     # which costs a fraction of a dB for narrow deep notches far below the rate)
     assert db_at(exact, center) == pytest.approx(depth, abs=1e-3)
@@ -502,8 +608,7 @@ def test_value_kinds_for_checking_against_an_eds():
     assert FilterEncoding("fixed").value_kind("b0") == "integer"
     assert FilterEncoding.from_table({"encoding": "word_block", "preset": "copley"}).value_kind("block") == "octets"
     akd = FilterEncoding("pole_zero_q")
-    akd2g = FilterEncoding("pole_zero_q", scales={"pole_hz": 0.001, "pole_q": 0.001, "zero_hz": 0.001,
-                                                  "zero_q": 0.001})
+    akd2g = FilterEncoding("pole_zero_q", scales={"pole_hz": 0.001, "pole_q": 0.001, "zero_hz": 0.001, "zero_q": 0.001})
     assert {akd.value_kind(f) for f in akd.fields} == {"float32"}
     assert {akd2g.value_kind(f) for f in akd2g.fields} == {"integer"}
     assert {panasonic().value_kind(f) for f in ("center", "width", "depth")} == {"integer"}

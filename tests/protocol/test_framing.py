@@ -58,26 +58,32 @@ def test_crc_is_ieee_crc32_little_endian_behind_the_payload():
     assert frame == reference_cobs(payload + bytes([0x26, 0x39, 0xF4, 0xCB])) + b"\x00"
 
 
-@pytest.mark.parametrize("payload, frame", [
-    # PROTOCOL.md section 12: START n_samples=4000, host seq 7, and the board's ACK.
-    ("01 04 07 00 A0 0F 00 00", "04 01 04 07 03 A0 0F 01 05 64 95 F5 06 00"),
-    ("01 82 03 00 07 00 04", "04 01 82 03 02 07 06 04 55 C9 E1 2D 00"),
-])
+@pytest.mark.parametrize(
+    "payload, frame",
+    [
+        # PROTOCOL.md section 12: START n_samples=4000, host seq 7, and the board's ACK.
+        ("01 04 07 00 A0 0F 00 00", "04 01 04 07 03 A0 0F 01 05 64 95 F5 06 00"),
+        ("01 82 03 00 07 00 04", "04 01 82 03 02 07 06 04 55 C9 E1 2D 00"),
+    ],
+)
 def test_worked_examples_of_the_specification(payload, frame):
     payload, frame = bytes.fromhex(payload), bytes.fromhex(frame)
     assert encode_frame(payload) == frame
     assert FrameDecoder().feed(frame) == [payload]
 
 
-@pytest.mark.parametrize("data, encoded", [
-    # the textbook examples of COBS (Cheshire and Baker)
-    (b"\x00", b"\x01\x01"),
-    (b"\x00\x00", b"\x01\x01\x01"),
-    (b"\x11\x22\x00\x33", b"\x03\x11\x22\x02\x33"),
-    (bytes(range(1, 255)), b"\xff" + bytes(range(1, 255))),
-    (bytes(range(0, 255)), b"\x01\xff" + bytes(range(1, 255))),
-    (bytes(range(1, 256)), b"\xff" + bytes(range(1, 255)) + b"\x02\xff"),
-])
+@pytest.mark.parametrize(
+    "data, encoded",
+    [
+        # the textbook examples of COBS (Cheshire and Baker)
+        (b"\x00", b"\x01\x01"),
+        (b"\x00\x00", b"\x01\x01\x01"),
+        (b"\x11\x22\x00\x33", b"\x03\x11\x22\x02\x33"),
+        (bytes(range(1, 255)), b"\xff" + bytes(range(1, 255))),
+        (bytes(range(0, 255)), b"\x01\xff" + bytes(range(1, 255))),
+        (bytes(range(1, 256)), b"\xff" + bytes(range(1, 255)) + b"\x02\xff"),
+    ],
+)
 def test_reference_cobs_matches_the_textbook(data, encoded):
     assert reference_cobs(data) == encoded
 

@@ -39,10 +39,17 @@ def struct_registers(fmt: str, value, word_order: str) -> list[int]:
 
 
 @pytest.mark.parametrize("word_order", ["big", "little"])
-@pytest.mark.parametrize("type_,fmt,value", [
-    ("u16", "H", 0xBEEF), ("i16", "h", -2), ("u32", "I", 70000), ("i32", "i", -123456789), ("f32", "f", 1.5),
-    ("f32", "f", -0.1),
-])
+@pytest.mark.parametrize(
+    "type_,fmt,value",
+    [
+        ("u16", "H", 0xBEEF),
+        ("i16", "h", -2),
+        ("u32", "I", 70000),
+        ("i32", "i", -123456789),
+        ("f32", "f", 1.5),
+        ("f32", "f", -0.1),
+    ],
+)
 def test_values_are_packed_as_struct_packs_them(type_, fmt, value, word_order):
     regs = encode_values([value], type_, word_order=word_order)
     assert regs.tolist() == struct_registers(fmt, value, word_order)
@@ -142,23 +149,38 @@ def test_shipped_map():
     assert MAP.filter_encoding.kind == "notch_parameters"
     # the status block is one request, the identity block needs one per gap
     assert MAP.read_groups(["status_word", "fault_code", "sample_count", "fault_sample", "fault_value"]) == [(101, 8)]
-    assert MAP.read_groups(["device_type", "map_version", "loop_rate_hz", "max_sample_rate_hz", "filter_slots",
-                            "table_capacity", "capture_capacity", "device_name", "firmware"]) == [(0, 7), (8, 4),
-                                                                                                 (16, 32)]
+    assert MAP.read_groups(
+        [
+            "device_type",
+            "map_version",
+            "loop_rate_hz",
+            "max_sample_rate_hz",
+            "filter_slots",
+            "table_capacity",
+            "capture_capacity",
+            "device_name",
+            "firmware",
+        ]
+    ) == [(0, 7), (8, 4), (16, 32)]
 
 
 def test_describe_names_registers_windows_and_slots():
     assert MAP.describe(100) == "register 100 (control_word)"
-    assert MAP.describe(120, 8) == ("registers 120..127 (torque_limit_nm, velocity_limit_mps, position_min_m, "
-                                    "position_max_m)")
+    assert MAP.describe(120, 8) == (
+        "registers 120..127 (torque_limit_nm, velocity_limit_mps, position_min_m, position_max_m)"
+    )
     assert MAP.describe(4096 + 9, 117, page=2) == "registers 4105..4221 (capture window, page 2)"
     assert MAP.describe(204, 4) == "registers 204..207 (filter slot 1)"
     assert "not in the driver map" in MAP.describe(7)
 
 
 def test_named_values_round_trip():
-    for name, value in (("loop_rate_hz", 4000), ("torque_limit_nm", 19.0), ("device_name", "modbus-servo"),
-                        ("table_length", 100000)):
+    for name, value in (
+        ("loop_rate_hz", 4000),
+        ("torque_limit_nm", 19.0),
+        ("device_name", "modbus-servo"),
+        ("table_length", 100000),
+    ):
         assert MAP.decode(name, MAP.encode(name, value)) == value
     with pytest.raises(DataError, match="register 102 \\(fault_code\\)"):
         MAP.encode("fault_code", 70000)
@@ -171,7 +193,7 @@ def test_capture_records_carry_stamps_and_selected_channels():
     assert [c.name for c in MAP.selected(mask)] == ["excitation", "torque_nm", "position_m"]  # record order
     assert MAP.record_registers(mask) == 1 + 2 + 2 + 2
     rng = np.random.default_rng(1)
-    rows = np.column_stack([rng.normal(size=5), rng.normal(size=5), rng.integers(-10**6, 10**6, 5) * 1e-7])
+    rows = np.column_stack([rng.normal(size=5), rng.normal(size=5), rng.integers(-(10**6), 10**6, 5) * 1e-7])
     stamps = np.arange(65534, 65539)
     regs = MAP.encode_records(stamps, rows, mask)
     assert len(regs) == 5 * 7
@@ -214,26 +236,34 @@ def sections() -> dict:
     return copy.deepcopy(tomllib.loads(DRIVER.text))
 
 
-@pytest.mark.parametrize("change,key", [
-    (lambda s: s["modbus"]["registers"].pop("status_word"), "modbus.registers.status_word"),
-    (lambda s: s["modbus"]["registers"]["mode"].update(address=101), "modbus.registers.status_word"),
-    (lambda s: s["modbus"]["registers"]["sample_count"].update(type="f32"), "modbus.registers.sample_count.type"),
-    (lambda s: s["modbus"]["registers"]["mode"].update(access="r"), "modbus.registers.mode.access"),
-    (lambda s: s["modbus"].update(word_order="middle"), "modbus.word_order"),
-    (lambda s: s["modbus"].update(max_read_registers=200), "modbus.max_read_registers"),
-    (lambda s: s["modbus"]["status"].update(done=0x0006), "modbus.status.done"),
-    (lambda s: s["modbus"]["capture"].update(base=60000), "modbus.capture.base"),
-    (lambda s: s["modbus"]["table"].update(base=4000), "modbus.capture"),
-    (lambda s: s["modbus"]["filters"].update(enable=1), "modbus.filters"),
-    (lambda s: s["filters"].update(encoding="real32"), "filters.encoding"),
-    (lambda s: s["modbus"]["capture"]["channels"][0].update(type="f64"), "modbus.capture.channels[0].type"),
-    (lambda s: s["modbus"]["fault_codes"].pop("comm_timeout"), "modbus.fault_codes.comm_timeout"),
-    (lambda s: s["modbus"]["fault_codes"].update(comm_timeout=4), "modbus.fault_codes"),
-    (lambda s: s["modbus"]["fault_codes"].update(comm_timeout=0), "modbus.fault_codes.comm_timeout"),
-    (lambda s: s["modbus"]["registers"]["comm_timeout_ms"].update(access="r"),
-     "modbus.registers.comm_timeout_ms.access"),
-    (lambda s: s["modbus"]["registers"]["comm_timeout_ms"].update(type="f32"), "modbus.registers.comm_timeout_ms.type"),
-])
+@pytest.mark.parametrize(
+    "change,key",
+    [
+        (lambda s: s["modbus"]["registers"].pop("status_word"), "modbus.registers.status_word"),
+        (lambda s: s["modbus"]["registers"]["mode"].update(address=101), "modbus.registers.status_word"),
+        (lambda s: s["modbus"]["registers"]["sample_count"].update(type="f32"), "modbus.registers.sample_count.type"),
+        (lambda s: s["modbus"]["registers"]["mode"].update(access="r"), "modbus.registers.mode.access"),
+        (lambda s: s["modbus"].update(word_order="middle"), "modbus.word_order"),
+        (lambda s: s["modbus"].update(max_read_registers=200), "modbus.max_read_registers"),
+        (lambda s: s["modbus"]["status"].update(done=0x0006), "modbus.status.done"),
+        (lambda s: s["modbus"]["capture"].update(base=60000), "modbus.capture.base"),
+        (lambda s: s["modbus"]["table"].update(base=4000), "modbus.capture"),
+        (lambda s: s["modbus"]["filters"].update(enable=1), "modbus.filters"),
+        (lambda s: s["filters"].update(encoding="real32"), "filters.encoding"),
+        (lambda s: s["modbus"]["capture"]["channels"][0].update(type="f64"), "modbus.capture.channels[0].type"),
+        (lambda s: s["modbus"]["fault_codes"].pop("comm_timeout"), "modbus.fault_codes.comm_timeout"),
+        (lambda s: s["modbus"]["fault_codes"].update(comm_timeout=4), "modbus.fault_codes"),
+        (lambda s: s["modbus"]["fault_codes"].update(comm_timeout=0), "modbus.fault_codes.comm_timeout"),
+        (
+            lambda s: s["modbus"]["registers"]["comm_timeout_ms"].update(access="r"),
+            "modbus.registers.comm_timeout_ms.access",
+        ),
+        (
+            lambda s: s["modbus"]["registers"]["comm_timeout_ms"].update(type="f32"),
+            "modbus.registers.comm_timeout_ms.type",
+        ),
+    ],
+)
 def test_invalid_maps_name_the_key(change, key):
     s = sections()
     change(s)

@@ -72,14 +72,29 @@ def filter_coefficients():
 def answer_messages():
     return st.one_of(
         st.builds(
-            sb.Identity, u8, short_text, short_text, f32, f32, u8, u32,
+            sb.Identity,
+            u8,
+            short_text,
+            short_text,
+            f32,
+            f32,
+            u8,
+            u32,
             st.lists(st.builds(sb.ChannelInfo, short_text, short_text), max_size=8).map(tuple),
         ),
         st.builds(sb.Ack, u16, u8),
         st.builds(sb.Nak, u16, u8, st.sampled_from(list(sb.ErrorCode)), short_text),
         st.builds(
-            sb.Status, st.sampled_from(list(sb.State)), st.sampled_from(list(sb.FaultCode)),
-            u32, u32, u32, u32, u32, u32, u32,
+            sb.Status,
+            st.sampled_from(list(sb.State)),
+            st.sampled_from(list(sb.FaultCode)),
+            u32,
+            u32,
+            u32,
+            u32,
+            u32,
+            u32,
+            u32,
         ),
         filter_coefficients(),
         st.builds(sb.Event, st.sampled_from(list(sb.EventCode)), u32, f32, short_text),
@@ -133,9 +148,19 @@ def test_excitation_round_trips_in_scaled_i16(counts, scale):
 
 
 def test_message_types_split_by_direction():
-    requests = {sb.MsgType.IDENTIFY, sb.MsgType.CONFIGURE, sb.MsgType.SET_LIMITS, sb.MsgType.START,
-                sb.MsgType.STOP, sb.MsgType.EXCITATION, sb.MsgType.STATUS_REQUEST, sb.MsgType.WRITE_FILTER,
-                sb.MsgType.READ_FILTER, sb.MsgType.CLEAR_FAULT, sb.MsgType.PING}
+    requests = {
+        sb.MsgType.IDENTIFY,
+        sb.MsgType.CONFIGURE,
+        sb.MsgType.SET_LIMITS,
+        sb.MsgType.START,
+        sb.MsgType.STOP,
+        sb.MsgType.EXCITATION,
+        sb.MsgType.STATUS_REQUEST,
+        sb.MsgType.WRITE_FILTER,
+        sb.MsgType.READ_FILTER,
+        sb.MsgType.CLEAR_FAULT,
+        sb.MsgType.PING,
+    }
     for t in sb.MsgType:
         assert (t < 0x80) == (t in requests), t.name
 
@@ -148,8 +173,9 @@ def test_start_payload_layout():
 
 
 def test_configure_layout_by_offsets():
-    msg = sb.Configure(4, sb.Mode.TORQUE_INJECTION, 40,
-                       (sb.ChannelSelection(1), sb.ChannelSelection(4, sb.Format.I32, 1e-7)))
+    msg = sb.Configure(
+        4, sb.Mode.TORQUE_INJECTION, 40, (sb.ChannelSelection(1), sb.ChannelSelection(4, sb.Format.I32, 1e-7))
+    )
     p = sb.encode(msg, 0x1234)
     assert p[:4] == bytes([1, 0x02, 0x34, 0x12])
     body = p[4:]
@@ -290,14 +316,21 @@ def test_payload_shorter_than_the_header_raises():
         sb.decode(b"\x01\x04\x00")
 
 
-@pytest.mark.parametrize("msg", [
-    sb.Start(5), sb.Stop(1), sb.ReadFilter(0), sb.Limits(1.0, 1.0, -1.0, 1.0), sb.Ack(1, 2),
-    sb.Configure(4, sb.Mode.TORQUE, 40, (sb.ChannelSelection(1),)),
-    sb.Status(sb.State.IDLE, sb.FaultCode.NONE, 0, 0, 0, 0, 0, 0, 0),
-    sb.WriteFilter(sb.FilterCoefficients(0, True, (1.0, 0.0, 0.0), (1.0, 0.0, 0.0))),
-    sb.Event(sb.EventCode.FINISHED, 0, 0.0, "done"),
-    sb.Identity(1, "b", "f", 1.0, 1.0, 1, 1, (sb.ChannelInfo("x", "m"),)),
-])
+@pytest.mark.parametrize(
+    "msg",
+    [
+        sb.Start(5),
+        sb.Stop(1),
+        sb.ReadFilter(0),
+        sb.Limits(1.0, 1.0, -1.0, 1.0),
+        sb.Ack(1, 2),
+        sb.Configure(4, sb.Mode.TORQUE, 40, (sb.ChannelSelection(1),)),
+        sb.Status(sb.State.IDLE, sb.FaultCode.NONE, 0, 0, 0, 0, 0, 0, 0),
+        sb.WriteFilter(sb.FilterCoefficients(0, True, (1.0, 0.0, 0.0), (1.0, 0.0, 0.0))),
+        sb.Event(sb.EventCode.FINISHED, 0, 0.0, "done"),
+        sb.Identity(1, "b", "f", 1.0, 1.0, 1, 1, (sb.ChannelInfo("x", "m"),)),
+    ],
+)
 def test_every_truncation_of_a_body_raises(msg):
     payload = sb.encode(msg, 3)
     for cut in range(4, len(payload)):

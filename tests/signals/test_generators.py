@@ -248,13 +248,16 @@ def test_nyquist_message_names_the_limit():
         band_limited_noise(1.0, 10.0, 600.0, 1.0, 1000.0, seed=0)
 
 
-@pytest.mark.parametrize("build, key", [
-    (lambda: prbs(1.0, 32, 1, 1000.0), "register_length"),
-    (lambda: prbs(1.0, 10, 2**40, 1000.0), "clock_divider"),
-    (lambda: prbs(1.0, 20, 1, 1000.0, periods=10**6), "periods"),
-    (lambda: sine(1.0, 10.0, 1e9, 1000.0), "duration_s"),
-    (lambda: band_limited_noise(1.0, 1.0, 10.0, 1e300, 1000.0, seed=1), "duration_s"),
-])
+@pytest.mark.parametrize(
+    "build, key",
+    [
+        (lambda: prbs(1.0, 32, 1, 1000.0), "register_length"),
+        (lambda: prbs(1.0, 10, 2**40, 1000.0), "clock_divider"),
+        (lambda: prbs(1.0, 20, 1, 1000.0, periods=10**6), "periods"),
+        (lambda: sine(1.0, 10.0, 1e9, 1000.0), "duration_s"),
+        (lambda: band_limited_noise(1.0, 1.0, 10.0, 1e300, 1000.0, seed=1), "duration_s"),
+    ],
+)
 def test_signals_beyond_the_size_bound_are_refused_before_allocating(build, key):
     import tracemalloc
 

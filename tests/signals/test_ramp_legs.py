@@ -12,21 +12,27 @@ from hilident.signals.ramp_legs import ramp_extent
 ARGS = dict(hold_s=1.0, accel_mps2=0.5, sample_rate_hz=1000.0, settle_s=0.2)
 
 
-@pytest.mark.parametrize("speeds", [0.05, np.float64(0.05), np.array(0.05), [0.05], (0.05,), np.array([0.05])],
-                         ids=["float", "np-float", "0-d array", "list", "tuple", "1-d array"])
+@pytest.mark.parametrize(
+    "speeds",
+    [0.05, np.float64(0.05), np.array(0.05), [0.05], (0.05,), np.array([0.05])],
+    ids=["float", "np-float", "0-d array", "list", "tuple", "1-d array"],
+)
 def test_one_speed_in_any_form_gives_the_same_profile(speeds):
     n, travel = ramp_extent(speeds, **ARGS)
     assert (n, travel) == ramp_extent([0.05], **ARGS)
     assert velocity_ramps(speeds, **ARGS).setpoint_mps.size == n
 
 
-@pytest.mark.parametrize("speeds, message", [
-    ([], "at least one speed"),
-    ([0.01, 0.0], "non-zero"),
-    ("fast", "must be a number, got 'fast'"),
-    ({"a": 1}, "must be a number, got a table of 1 keys"),
-    ([0.01, float("nan")], "must be finite"),
-])
+@pytest.mark.parametrize(
+    "speeds, message",
+    [
+        ([], "at least one speed"),
+        ([0.01, 0.0], "non-zero"),
+        ("fast", "must be a number, got 'fast'"),
+        ({"a": 1}, "must be a number, got a table of 1 keys"),
+        ([0.01, float("nan")], "must be finite"),
+    ],
+)
 def test_bad_speeds_are_config_errors_keyed_speeds_mps(speeds, message):
     with pytest.raises(ConfigError, match=message) as err:
         ramp_extent(speeds, **ARGS)

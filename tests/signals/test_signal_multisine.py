@@ -54,8 +54,7 @@ def test_schroeder_crest_factor_beats_random_phases():
     fs = 1000.0
     schroeder = multisine(1.0, 1.0, 200.0, 1.0, 1, fs).samples
     random_cf = [
-        crest_factor(multisine(1.0, 1.0, 200.0, 1.0, 1, fs, phases="random", seed=s).samples)
-        for s in range(10)
+        crest_factor(multisine(1.0, 1.0, 200.0, 1.0, 1, fs, phases="random", seed=s).samples) for s in range(10)
     ]
     assert crest_factor(schroeder) < 1.8
     assert crest_factor(schroeder) < 0.7 * min(random_cf)

@@ -121,11 +121,14 @@ def test_extent_is_the_length_and_travel_of_the_profile_without_building_it(spee
     assert travel == pytest.approx(p.max_excursion_m, rel=1e-9, abs=1e-12)
 
 
-@pytest.mark.parametrize("kwargs, key", [
-    (dict(accel_mps2=1e-9), "accel_mps2"),
-    (dict(hold_s=1e5), "hold_s"),
-    (dict(speeds_mps=[0.01] * 2000, hold_s=10.0), "hold_s"),
-])
+@pytest.mark.parametrize(
+    "kwargs, key",
+    [
+        (dict(accel_mps2=1e-9), "accel_mps2"),
+        (dict(hold_s=1e5), "hold_s"),
+        (dict(speeds_mps=[0.01] * 2000, hold_s=10.0), "hold_s"),
+    ],
+)
 def test_a_profile_beyond_the_size_bound_is_refused_before_it_is_built(kwargs, key):
     import tracemalloc
 

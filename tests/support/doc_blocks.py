@@ -10,8 +10,15 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 #: Every markdown file a user reads: the README, docs/, the driver folders' and the benches' READMEs.
-DOCUMENTS = sorted([ROOT / "README.md", ROOT / "CONTRIBUTING.md", *(ROOT / "docs").glob("*.md"),
-                    *(ROOT / "drivers").glob("*/README.md"), ROOT / "bench" / "README.md"])
+DOCUMENTS = sorted(
+    [
+        ROOT / "README.md",
+        ROOT / "CONTRIBUTING.md",
+        *(ROOT / "docs").glob("*.md"),
+        *(ROOT / "drivers").glob("*/README.md"),
+        ROOT / "bench" / "README.md",
+    ]
+)
 
 
 @dataclass(frozen=True)
@@ -37,7 +44,7 @@ def fenced_blocks(path: Path) -> list[Block]:
             if start is None:
                 start, lang = number, line.strip()[3:].strip()
             else:
-                blocks.append(Block(path, start, lang, "\n".join(lines[start:number - 1])))
+                blocks.append(Block(path, start, lang, "\n".join(lines[start : number - 1])))
                 start = None
     assert start is None, f"{path.name}:{start}: a fence that is never closed"
     return blocks
@@ -98,7 +105,7 @@ def split_synopsis(words: list[str], commands: dict[str, argparse.ArgumentParser
         else:
             break
     options = []
-    for word in words[len(path.split()):]:
+    for word in words[len(path.split()) :]:
         for piece in word.strip("[]").split("|"):
             piece = piece.strip("[]").split("=", 1)[0]
             if re.fullmatch(r"--?[a-zA-Z][\w-]*", piece):

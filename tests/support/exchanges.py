@@ -71,10 +71,13 @@ class Transcript:
 
     def save(self, name: str) -> Path:
         encode = _encode_stream if self.wire == "stream" else _encode_can
-        raw = {"transport": self.transport, "wire": self.wire, "settings": self.settings,
-               "periodic": self.periodic,
-               "exchanges": [{"send": encode(e.send), "receive": [encode(r) for r in e.receive]}
-                             for e in self.exchanges]}
+        raw = {
+            "transport": self.transport,
+            "wire": self.wire,
+            "settings": self.settings,
+            "periodic": self.periodic,
+            "exchanges": [{"send": encode(e.send), "receive": [encode(r) for r in e.receive]} for e in self.exchanges],
+        }
         path = TRANSCRIPTS / f"{name}.json"
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(raw, indent=1) + "\n")
@@ -121,8 +124,10 @@ class _Replay:
             raise UnexpectedExchange(self.failure)
         if self.pending:
             nxt = self.pending[0].send
-            raise AssertionError(f"{len(self.pending)} of {self.used + len(self.pending)} exchanges were never "
-                                 f"used; the next one expected the host to send {_show(nxt)}")
+            raise AssertionError(
+                f"{len(self.pending)} of {self.used + len(self.pending)} exchanges were never "
+                f"used; the next one expected the host to send {_show(nxt)}"
+            )
 
 
 def _show(item) -> str:
@@ -187,7 +192,7 @@ class StreamDevice(_Replay):
             if buffer.startswith(want):
                 exchange = self.pending.pop(0)
                 self.used += 1
-                buffer = buffer[len(want):]
+                buffer = buffer[len(want) :]
                 for answer in exchange.receive:
                     conn.sendall(answer)
             elif want.startswith(buffer):

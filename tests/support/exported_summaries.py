@@ -35,8 +35,10 @@ def summaries(folder: Path) -> dict[str, Path]:
     dirs = {"run": folder / "run", "identify": folder / "identify", "upload": folder / "upload"}
     assert main(["run", str(config), "--out", str(dirs["run"]), "-q", "--no-plots"]) == 0
     assert main(["identify", str(dirs["run"] / "identification.h5"), "--out", str(dirs["identify"]), "-q"]) == 0
-    assert main(["upload", "--from", str(dirs["identify"]), "--config", str(config), "--out", str(dirs["upload"]),
-                 "-q"]) == 0
+    assert (
+        main(["upload", "--from", str(dirs["identify"]), "--config", str(config), "--out", str(dirs["upload"]), "-q"])
+        == 0
+    )
     _made.update(dirs)
     return _made
 

@@ -16,8 +16,11 @@ from hilident.session.run import ConnectedDevice, Progress, connect_device
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
 #: The shipped config of each transport's embedded twin.
-TRANSPORT_CONFIGS = {"serial": "emulated-gantry.toml", "modbus": "emulated-modbus-gantry.toml",
-                     "canopen": "emulated-canopen-gantry.toml"}
+TRANSPORT_CONFIGS = {
+    "serial": "emulated-gantry.toml",
+    "modbus": "emulated-modbus-gantry.toml",
+    "canopen": "emulated-canopen-gantry.toml",
+}
 
 
 @contextmanager

@@ -8,8 +8,10 @@ import math
 
 def toml_string(text: str) -> str:
     """``text`` as a TOML basic string (control characters escaped, as TOML requires)."""
+
     def char(c):
         return "\\" + c if c in '"\\' else f"\\u{ord(c):04x}" if ord(c) < 32 or ord(c) == 127 else c
+
     return '"' + "".join(map(char, text)) + '"'
 
 

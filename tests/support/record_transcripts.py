@@ -166,7 +166,7 @@ def record_stream(transport: str, link: str = "tcp") -> Transcript:
             reach = replace(emu.device, port=f"socket://127.0.0.1:{tap.port}")
         else:
             prefix = "socket://" if transport == "serial" else "tcp://"
-            host, _, port = emu.device.port[len(prefix):].rpartition(":")
+            host, _, port = emu.device.port[len(prefix) :].rpartition(":")
             tap = StreamTap((host, int(port)))
             reach = replace(emu.device, port=f"{prefix}127.0.0.1:{tap.port}")
         conversation(adapter_class(transport), reach, driver, sample_rate_hz(transport))
@@ -183,8 +183,11 @@ def record_stream(transport: str, link: str = "tcp") -> Transcript:
 def _from_host(cob_id: int, node: int) -> bool:
     """Frames the host sends: NMT, SYNC, RPDOs and SDO requests to ``node``, and its own heartbeat."""
     function = cob_id & ~0x7F
-    return cob_id in (0x000, 0x080) or (cob_id & 0x7F == node and function in (0x200, 0x300, 0x400, 0x500, 0x600)) \
+    return (
+        cob_id in (0x000, 0x080)
+        or (cob_id & 0x7F == node and function in (0x200, 0x300, 0x400, 0x500, 0x600))
         or (function == 0x700 and cob_id & 0x7F != node)
+    )
 
 
 def record_can() -> Transcript:
@@ -233,11 +236,14 @@ def sample_rate_hz(transport: str) -> float:
 
 
 def _settings_note(transport: str, driver) -> dict:
-    return {"config": SOURCES[transport], "driver": driver.name, "notch": [NOTCH.center_hz, NOTCH.width_hz,
-                                                                          NOTCH.depth_db],
-            "serial_seq_start": SERIAL_SEQ_START if transport == "serial" else None,
-            "conversation": "open_device (connect, identify, known state), upload_filter(0) "
-                            "(save, write disabled, read back, write enabled, read back), safe_stop, close"}
+    return {
+        "config": SOURCES[transport],
+        "driver": driver.name,
+        "notch": [NOTCH.center_hz, NOTCH.width_hz, NOTCH.depth_db],
+        "serial_seq_start": SERIAL_SEQ_START if transport == "serial" else None,
+        "conversation": "open_device (connect, identify, known state), upload_filter(0) "
+        "(save, write disabled, read back, write enabled, read back), safe_stop, close",
+    }
 
 
 #: transcript name -> how it is recorded

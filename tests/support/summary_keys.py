@@ -17,8 +17,18 @@ from pathlib import Path
 LAYOUTS = Path(__file__).resolve().parents[1] / "data" / "summary_keys"
 
 #: Sections whose own keys are fixed by the command (fitted models and measurements vary with the data).
-FIXED_SECTIONS = ("device", "excitation", "upload", "verification", "stream", "connect", "source", "data",
-                  "friction", "command")
+FIXED_SECTIONS = (
+    "device",
+    "excitation",
+    "upload",
+    "verification",
+    "stream",
+    "connect",
+    "source",
+    "data",
+    "friction",
+    "command",
+)
 
 
 def layout(summary: dict) -> dict:

@@ -93,9 +93,26 @@ def host(config: Path, out: Path, *extra: str, fsize_limit: int | None = None) -
             signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails (EFBIG) as on a full disk
             resource.setrlimit(resource.RLIMIT_FSIZE, (fsize_limit, fsize_limit))
 
-    return subprocess.Popen([sys.executable, "-m", "hilident.cli", "run", str(config), "--out", str(out), "--yes",
-                             "-q", "--no-plots", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=env, preexec_fn=limit_file_size)
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "hilident.cli",
+            "run",
+            str(config),
+            "--out",
+            str(out),
+            "--yes",
+            "-q",
+            "--no-plots",
+            *extra,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        preexec_fn=limit_file_size,
+    )
 
 
 def finish(proc: subprocess.Popen, timeout: float = 60) -> tuple[int, str]:
@@ -128,8 +145,6 @@ def wait_until(condition, timeout_s: float, proc: subprocess.Popen | None = None
             raise AssertionError(f"host ended early (rc {proc.returncode}): {err[-2000:]}")
         time.sleep(0.001)
     raise AssertionError("timed out")
-
-
 
 
 def assert_friction_matches(friction: dict, truth) -> None:

@@ -73,11 +73,15 @@ def _objects(d: VendorDrive) -> list[tuple]:
     if d.heartbeat:
         objs.append((0x1017, None, "Producer heartbeat time", _UINT16, "rw", False, 0))
     else:  # node guarding instead (CiA 301)
-        objs += [(0x100C, None, "Guard time", _UINT16, "rw", False, 0),
-                 (0x100D, None, "Life time factor", _UINT8, "rw", False, 0)]
+        objs += [
+            (0x100C, None, "Guard time", _UINT16, "rw", False, 0),
+            (0x100D, None, "Life time factor", _UINT8, "rw", False, 0),
+        ]
     if d.store:
-        objs += [(0x1010, 0, "Highest sub-index supported", _UINT8, "ro", False, 1),
-                 (0x1010, 1, "Save all parameters", _UINT32, "rw", False, 1)]
+        objs += [
+            (0x1010, 0, "Highest sub-index supported", _UINT8, "ro", False, 1),
+            (0x1010, 1, "Save all parameters", _UINT32, "rw", False, 1),
+        ]
     if d.period in ("1006", "both"):
         objs.append((0x1006, None, "Communication cycle period", _UINT32, "rw", False, 0))
     if d.sync_counter:
@@ -85,8 +89,9 @@ def _objects(d: VendorDrive) -> list[tuple]:
     for _kind, base, count, cob in (("Receive", 0x1400, d.rpdos, 0x200), ("Transmit", 0x1800, d.tpdos, 0x180)):
         for n in range(count):
             objs.append((base + n, 0, "Highest sub-index supported", _UINT8, "ro", False, 2))
-            objs.append((base + n, 1, "COB-ID", _UINT32, "rw", False,
-                         f"$NODEID+0x{cob + 0x100 * n:X}" if n < 4 else 0x80000000))
+            objs.append(
+                (base + n, 1, "COB-ID", _UINT32, "rw", False, f"$NODEID+0x{cob + 0x100 * n:X}" if n < 4 else 0x80000000)
+            )
             objs.append((base + n, 2, "Transmission type", _UINT8, "rw", False, 255))
         for n in range(count):
             objs.append((base + 0x200 + n, 0, "Number of mapped objects", _UINT8, "rw", False, 0))
@@ -104,70 +109,115 @@ def _objects(d: VendorDrive) -> list[tuple]:
         (0x606C, None, "Velocity actual value", _INT32, "ro", True, 0),
     ]
     if d.torque == "current":
-        objs += [(0x6075, None, "Motor rated current", _UINT32, "rw", False, 4000),
-                 (0x6078, None, "Current actual value", _INT16, "ro", True, 0)]
+        objs += [
+            (0x6075, None, "Motor rated current", _UINT32, "rw", False, 4000),
+            (0x6078, None, "Current actual value", _INT16, "ro", True, 0),
+        ]
     elif d.torque == "effort":
         objs.append((0x2022, None, "Control effort", _INT16, "ro", True, 0))
     else:
-        objs += [(0x6071, None, "Target torque", _INT16, "rww", True, 0),
-                 (0x6074, None, "Torque demand", _INT16, "ro", True, 0),
-                 (0x6077, None, "Torque actual value", _INT16, "ro", True, 0)]
+        objs += [
+            (0x6071, None, "Target torque", _INT16, "rww", True, 0),
+            (0x6074, None, "Torque demand", _INT16, "ro", True, 0),
+            (0x6077, None, "Torque actual value", _INT16, "ro", True, 0),
+        ]
         if d.torque != "absent":
-            objs.append((0x6076, None, "Motor rated torque", _UINT32, "rw", False,
-                         1000 if d.torque == "rated" else 0))
+            objs.append((0x6076, None, "Motor rated torque", _UINT32, "rw", False, 1000 if d.torque == "rated" else 0))
         if "max_torque" in d.limits:
             objs.append((0x6072, None, "Max torque", _UINT16, "rww", True, 1000))
     objs.append((0x607A, None, "Target position", _INT32, "rww", True, 0))
     if "position_limits" in d.limits:
-        objs += [(0x607D, 0, "Number of entries", _UINT8, "ro", False, 2),
-                 (0x607D, 1, "Min position limit", _INT32, "rw", False, -2**31),
-                 (0x607D, 2, "Max position limit", _INT32, "rw", False, 2**31 - 1)]
+        objs += [
+            (0x607D, 0, "Number of entries", _UINT8, "ro", False, 2),
+            (0x607D, 1, "Min position limit", _INT32, "rw", False, -(2**31)),
+            (0x607D, 2, "Max position limit", _INT32, "rw", False, 2**31 - 1),
+        ]
     if "max_velocity" in d.limits:
         objs.append((0x6080, None, "Max motor speed", _UINT32, "rw", False, 2**31))
     if d.torque_offset and d.torque != "current":
         objs.append((0x60B2, None, "Torque offset", _INT16, "rww", True, 0))
     if "ip" in d.modes:
-        objs += [(0x60C1, 0, "Highest sub-index supported", _UINT8, "ro", False, 1),
-                 (0x60C1, 1, "Interpolation data record 1", _INT32, "rww", True, 0)]
+        objs += [
+            (0x60C1, 0, "Highest sub-index supported", _UINT8, "ro", False, 1),
+            (0x60C1, 1, "Interpolation data record 1", _INT32, "rww", True, 0),
+        ]
     if d.period in ("60C2", "both"):
-        objs += [(0x60C2, 0, "Highest sub-index supported", _UINT8, "ro", False, 2),
-                 (0x60C2, 1, "Interpolation time period value", _UINT8, "rw", False, 1),
-                 (0x60C2, 2, "Interpolation time index", _INT8, "rw", False, -3)]
+        objs += [
+            (0x60C2, 0, "Highest sub-index supported", _UINT8, "ro", False, 2),
+            (0x60C2, 1, "Interpolation time period value", _UINT8, "rw", False, 1),
+            (0x60C2, 2, "Interpolation time index", _INT8, "rw", False, -3),
+        ]
     objs += _filter_objects(d.filters)
     objs += _recorder_objects(d)
     objs.append((0x60FF, None, "Target velocity", _INT32, "rww", True, 0))
-    objs.append((0x6502, None, "Supported drive modes", _UINT32, "ro", False,
-                 encode_supported_modes(d.modes) if d.declare_modes else None))
+    objs.append(
+        (
+            0x6502,
+            None,
+            "Supported drive modes",
+            _UINT32,
+            "ro",
+            False,
+            encode_supported_modes(d.modes) if d.declare_modes else None,
+        )
+    )
     return [o[:5] + (False,) + o[6:] if o[0] in d.unmappable else o for o in objs]
 
 
 _REAL32, _OCTETS = 0x8, 0xA
 #: Filter capabilities of the project's test drives: EDS objects of two slots, and the [filters] table.
 FILTERS = {
-    "biquad": ([(0x2300 + n, [(1, "Enable", _UINT8, 0)] + [(2 + i, f, _REAL32, 0.0) for i, f in
-                                                          enumerate(("a1", "a2", "b0", "b1", "b2"))])
-                for n in range(2)],
-               '[filters]\nencoding = "real32"\norder = ["a1", "a2", "b0", "b1", "b2"]\nfeedback_sign = "minus"\n'
-               'objects = ["0x2300", "0x2301"]\nenable_subindex = 1\n'
-               'fields = { a1 = 2, a2 = 3, b0 = 4, b1 = 5, b2 = 6 }\n'),
-    "copley": ([(0x2106, None), (0x2108, None)],
-               '[filters]\nencoding = "word_block"\npreset = "copley"\nobjects = ["0x2106", "0x2108"]\n'),
-    "pole_zero": ([(0x2400 + n, [(1, "Enable", _UINT8, 0)]
-                    + [(2 + i, f, _REAL32, 100.0 if "hz" in f else 0.5)
-                       for i, f in enumerate(("pole_hz", "pole_q", "zero_hz", "zero_q"))])
-                   for n in range(2)],
-                  '[filters]\nencoding = "pole_zero_q"\nranges = { pole_hz = [5, 5000], zero_hz = [5, 5000], '
-                  'pole_q = [0.2, 20], zero_q = [0.1, 5] }\nobjects = ["0x2400", "0x2401"]\nenable_subindex = 1\n'
-                  'fields = { pole_hz = 2, pole_q = 3, zero_hz = 4, zero_q = 5 }\n'),
+    "biquad": (
+        [
+            (
+                0x2300 + n,
+                [(1, "Enable", _UINT8, 0)]
+                + [(2 + i, f, _REAL32, 0.0) for i, f in enumerate(("a1", "a2", "b0", "b1", "b2"))],
+            )
+            for n in range(2)
+        ],
+        '[filters]\nencoding = "real32"\norder = ["a1", "a2", "b0", "b1", "b2"]\nfeedback_sign = "minus"\n'
+        'objects = ["0x2300", "0x2301"]\nenable_subindex = 1\n'
+        "fields = { a1 = 2, a2 = 3, b0 = 4, b1 = 5, b2 = 6 }\n",
+    ),
+    "copley": (
+        [(0x2106, None), (0x2108, None)],
+        '[filters]\nencoding = "word_block"\npreset = "copley"\nobjects = ["0x2106", "0x2108"]\n',
+    ),
+    "pole_zero": (
+        [
+            (
+                0x2400 + n,
+                [(1, "Enable", _UINT8, 0)]
+                + [
+                    (2 + i, f, _REAL32, 100.0 if "hz" in f else 0.5)
+                    for i, f in enumerate(("pole_hz", "pole_q", "zero_hz", "zero_q"))
+                ],
+            )
+            for n in range(2)
+        ],
+        '[filters]\nencoding = "pole_zero_q"\nranges = { pole_hz = [5, 5000], zero_hz = [5, 5000], '
+        'pole_q = [0.2, 20], zero_q = [0.1, 5] }\nobjects = ["0x2400", "0x2401"]\nenable_subindex = 1\n'
+        "fields = { pole_hz = 2, pole_q = 3, zero_hz = 4, zero_q = 5 }\n",
+    ),
 }
 
 
 def _filter_objects(kind: str) -> list[tuple]:
     objs = []
-    for index, members in (FILTERS[kind][0] if kind else []):
+    for index, members in FILTERS[kind][0] if kind else []:
         if members is None:  # a Copley-style block: 9 words, word 0 = 0xFFFF: disabled
-            objs.append((index, None, f"Filter coefficients 0x{index:04X}", _OCTETS, "rw", False,
-                         bytes.fromhex("FFFF") + bytes(16)))
+            objs.append(
+                (
+                    index,
+                    None,
+                    f"Filter coefficients 0x{index:04X}",
+                    _OCTETS,
+                    "rw",
+                    False,
+                    bytes.fromhex("FFFF") + bytes(16),
+                )
+            )
             continue
         objs.append((index, 0, "Highest sub-index supported", _UINT8, "ro", False, len(members)))
         objs += [(index, sub, name, dtype, "rw", False, default) for sub, name, dtype, default in members]
@@ -178,42 +228,50 @@ def _recorder_objects(d: VendorDrive) -> list[tuple]:
     """A data recorder (0x2500-0x2503) and a signal generator (0x2510-0x2512), in a vendor's style."""
     if not d.recorder:
         return []
-    objs = [(0x2500, 0, "Highest sub-index supported", _UINT8, "ro", False, 7),
-            (0x2500, 1, "Recorder control", _UINT8, "rw", False, 0),
-            (0x2500, 2, "Recorder status", _UINT8, "ro", False, 0),
-            (0x2500, 3, "Trigger source", _UINT8, "rw", False, 0),
-            (0x2500, 4, "Sampling period", _UINT16, "rw", False, 1),
-            (0x2500, 5, "Number of samples", _UINT32, "rw", False, 1000),
-            (0x2500, 6, "Recorded samples", _UINT32, "ro", False, 0),
-            (0x2500, 7, "Maximum samples", _UINT32, "const", False, d.recorder_max_samples),
-            (0x2501, 0, "Number of channels", _UINT8, "ro", False, 6)]
+    objs = [
+        (0x2500, 0, "Highest sub-index supported", _UINT8, "ro", False, 7),
+        (0x2500, 1, "Recorder control", _UINT8, "rw", False, 0),
+        (0x2500, 2, "Recorder status", _UINT8, "ro", False, 0),
+        (0x2500, 3, "Trigger source", _UINT8, "rw", False, 0),
+        (0x2500, 4, "Sampling period", _UINT16, "rw", False, 1),
+        (0x2500, 5, "Number of samples", _UINT32, "rw", False, 1000),
+        (0x2500, 6, "Recorded samples", _UINT32, "ro", False, 0),
+        (0x2500, 7, "Maximum samples", _UINT32, "const", False, d.recorder_max_samples),
+        (0x2501, 0, "Number of channels", _UINT8, "ro", False, 6),
+    ]
     objs += [(0x2501, sub, f"Channel {sub} object", _UINT32, "rw", False, 0) for sub in range(1, 7)]
     if d.recorder == "prbs":
         objs.append((0x2502, None, "Recorder data buffer", _DOMAIN, "ro", False, None))
     else:
         objs.append((0x2503, 0, "Highest sub-index supported", _UINT8, "ro", False, 6))
         objs += [(0x2503, sub, f"Channel {sub} data", _DOMAIN, "ro", False, None) for sub in range(1, 7)]
-    objs += [(0x2510, 0, "Highest sub-index supported", _UINT8, "ro", False, 5 if d.recorder == "prbs" else 4),
-             (0x2510, 1, "Generator control", _UINT8, "rw", False, 0),
-             (0x2510, 2, "Generator status", _UINT8, "ro", False, 0),
-             (0x2510, 3, "Signal type", _UINT8, "rw", False, 0),
-             (0x2510, 4, "Signal target", _UINT8, "rw", False, 0)]
+    objs += [
+        (0x2510, 0, "Highest sub-index supported", _UINT8, "ro", False, 5 if d.recorder == "prbs" else 4),
+        (0x2510, 1, "Generator control", _UINT8, "rw", False, 0),
+        (0x2510, 2, "Generator status", _UINT8, "ro", False, 0),
+        (0x2510, 3, "Signal type", _UINT8, "rw", False, 0),
+        (0x2510, 4, "Signal target", _UINT8, "rw", False, 0),
+    ]
     if d.recorder == "prbs":
         objs.append((0x2510, 5, "Generator output", _INT16, "ro", True, 0))
-        objs += [(0x2511, 0, "Highest sub-index supported", _UINT8, "ro", False, 4),
-                 (0x2511, 1, "PRBS amplitude", _UINT16, "rw", False, 0),
-                 (0x2511, 2, "PRBS register length", _UINT8, "rw", False, 10),
-                 (0x2511, 3, "PRBS clock divider", _UINT16, "rw", False, 1),
-                 (0x2511, 4, "PRBS duration", _UINT32, "rw", False, 0)]
+        objs += [
+            (0x2511, 0, "Highest sub-index supported", _UINT8, "ro", False, 4),
+            (0x2511, 1, "PRBS amplitude", _UINT16, "rw", False, 0),
+            (0x2511, 2, "PRBS register length", _UINT8, "rw", False, 10),
+            (0x2511, 3, "PRBS clock divider", _UINT16, "rw", False, 1),
+            (0x2511, 4, "PRBS duration", _UINT32, "rw", False, 0),
+        ]
     else:
-        objs += [(0x2512, 0, "Highest sub-index supported", _UINT8, "ro", False, 4),
-                 (0x2512, 1, "Sweep amplitude", _UINT16, "rw", False, 0),
-                 (0x2512, 2, "Sweep start frequency", _UINT32, "rw", False, 100),
-                 (0x2512, 3, "Sweep end frequency", _UINT32, "rw", False, 10000),
-                 (0x2512, 4, "Sweep duration", _UINT32, "rw", False, 1000),
-                 (0x2513, 0, "Highest sub-index supported", _UINT8, "ro", False, 2),
-                 (0x2513, 1, "Sine amplitude", _UINT16, "rw", False, 0),
-                 (0x2513, 2, "Sine frequency", _UINT32, "rw", False, 1000)]
+        objs += [
+            (0x2512, 0, "Highest sub-index supported", _UINT8, "ro", False, 4),
+            (0x2512, 1, "Sweep amplitude", _UINT16, "rw", False, 0),
+            (0x2512, 2, "Sweep start frequency", _UINT32, "rw", False, 100),
+            (0x2512, 3, "Sweep end frequency", _UINT32, "rw", False, 10000),
+            (0x2512, 4, "Sweep duration", _UINT32, "rw", False, 1000),
+            (0x2513, 0, "Highest sub-index supported", _UINT8, "ro", False, 2),
+            (0x2513, 1, "Sine amplitude", _UINT16, "rw", False, 0),
+            (0x2513, 2, "Sine frequency", _UINT32, "rw", False, 1000),
+        ]
     return objs
 
 
@@ -231,8 +289,10 @@ channels = ["0x2501:1", "0x2501:2", "0x2501:3", "0x2501:4", "0x2501:5", "0x2501:
 #: Recorder and generator capabilities of the project's test drives: the [canopen.recorder] and
 #: [canopen.generator] tables (the EDS objects are written by _recorder_objects).
 RECORDERS = {
-    "prbs": ("recorder + PRBS generator, one interleaved buffer, a generator output object",
-             _RECORDER_TOML + """buffer = "0x2502"
+    "prbs": (
+        "recorder + PRBS generator, one interleaved buffer, a generator output object",
+        _RECORDER_TOML
+        + """buffer = "0x2502"
 
 [canopen.generator]
 control = "0x2510:1"
@@ -250,9 +310,12 @@ amplitude = { object = "0x2511:1", scale = "torque", min = 0.0, max = 20.0 }
 register_length = { object = "0x2511:2", min = 7, max = 14 }
 clock_divider = { object = "0x2511:3", min = 1, max = 1000 }
 duration_s = { object = "0x2511:4", scale = 0.001 }
-"""),
-    "sweep": ("recorder with one buffer per channel + sine-sweep and sine generator, no output object",
-              _RECORDER_TOML + """buffers = ["0x2503:1", "0x2503:2", "0x2503:3", "0x2503:4", "0x2503:5", "0x2503:6"]
+""",
+    ),
+    "sweep": (
+        "recorder with one buffer per channel + sine-sweep and sine generator, no output object",
+        _RECORDER_TOML
+        + """buffers = ["0x2503:1", "0x2503:2", "0x2503:3", "0x2503:4", "0x2503:5", "0x2503:6"]
 block_transfer = false
 
 [canopen.generator]
@@ -274,7 +337,8 @@ duration_s = { object = "0x2512:4", scale = 0.001, max = 60.0 }
 code = 3
 amplitude = { object = "0x2513:1", scale = "torque", min = 0.0, max = 10.0 }
 frequency_hz = { object = "0x2513:2", scale = 0.01, min = 0.1, max = 200.0 }
-"""),
+""",
+    ),
 }
 
 
@@ -282,10 +346,24 @@ def eds_text(d: VendorDrive) -> str:
     """The EDS of drive ``d``, as a vendor tool writes one (CiA 306)."""
     objs = _objects(d)
     indices = sorted({o[0] for o in objs})
-    lines = ["[FileInfo]", f"FileName={d.name}.eds", "FileVersion=1", "EDSVersion=4.0", "",
-             "[DeviceInfo]", f"VendorName={d.vendor}", "VendorNumber=0x0000ACE1", f"ProductName={d.name}",
-             "ProductNumber=0x00001234", "BaudRate_1000=1", "SimpleBootUpSlave=1", "Granularity=8",
-             f"NrOfRXPDO={d.rpdos}", f"NrOfTXPDO={d.tpdos}", ""]
+    lines = [
+        "[FileInfo]",
+        f"FileName={d.name}.eds",
+        "FileVersion=1",
+        "EDSVersion=4.0",
+        "",
+        "[DeviceInfo]",
+        f"VendorName={d.vendor}",
+        "VendorNumber=0x0000ACE1",
+        f"ProductName={d.name}",
+        "ProductNumber=0x00001234",
+        "BaudRate_1000=1",
+        "SimpleBootUpSlave=1",
+        "Granularity=8",
+        f"NrOfRXPDO={d.rpdos}",
+        f"NrOfTXPDO={d.tpdos}",
+        "",
+    ]
     mandatory = [i for i in indices if i in (0x1000, 0x1001, 0x1018)]
     optional = [i for i in indices if i < 0x2000 and i not in mandatory]
     optional += [i for i in indices if i >= 0x6000]
@@ -302,8 +380,13 @@ def eds_text(d: VendorDrive) -> str:
         if members[0][1] is None:
             lines += [f"[{index:04X}]"] + _variable_lines(members[0]) + [""]
             continue
-        lines += [f"[{index:04X}]", f"ParameterName={_record_name(index)}", "ObjectType=0x9",
-                  f"SubNumber={len(members)}", ""]
+        lines += [
+            f"[{index:04X}]",
+            f"ParameterName={_record_name(index)}",
+            "ObjectType=0x9",
+            f"SubNumber={len(members)}",
+            "",
+        ]
         for member in members:
             lines += [f"[{index:04X}sub{member[1]:X}]"] + _variable_lines(member) + [""]
     return "\r\n".join(lines)
@@ -318,14 +401,24 @@ def _record_name(index: int) -> str:
         return f"TPDO communication parameter {index - 0x1800 + 1}"
     if 0x1A00 <= index < 0x1C00:
         return f"TPDO mapping parameter {index - 0x1A00 + 1}"
-    return {0x1016: "Consumer heartbeat time", 0x1018: "Identity object", 0x607D: "Software position limit",
-            0x60C1: "Interpolation data record", 0x60C2: "Interpolation time period"}.get(index, f"Object {index:04X}")
+    return {
+        0x1016: "Consumer heartbeat time",
+        0x1018: "Identity object",
+        0x607D: "Software position limit",
+        0x60C1: "Interpolation data record",
+        0x60C2: "Interpolation time period",
+    }.get(index, f"Object {index:04X}")
 
 
 def _variable_lines(obj: tuple) -> list[str]:
     _, _, name, dtype, access, mappable, default = obj
-    lines = [f"ParameterName={name}", "ObjectType=0x7", f"DataType=0x{dtype:04X}", f"AccessType={access}",
-             f"PDOMapping={int(mappable)}"]
+    lines = [
+        f"ParameterName={name}",
+        "ObjectType=0x7",
+        f"DataType=0x{dtype:04X}",
+        f"AccessType={access}",
+        f"PDOMapping={int(mappable)}",
+    ]
     if default is not None:
         if isinstance(default, bytes):
             value = default.hex().upper()

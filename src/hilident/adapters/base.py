@@ -89,9 +89,14 @@ class ConnectReport:
     warnings: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
-        return {"discarded_frames": self.discarded_frames, "found_state": self.found_state,
-                "faults": list(self.faults), "faults_cleared": self.faults_cleared, "device_net": self.device_net,
-                "warnings": list(self.warnings)}
+        return {
+            "discarded_frames": self.discarded_frames,
+            "found_state": self.found_state,
+            "faults": list(self.faults),
+            "faults_cleared": self.faults_cleared,
+            "device_net": self.device_net,
+            "warnings": list(self.warnings),
+        }
 
 
 def refuse_latched_faults(port: str, faults: list[str]) -> DeviceError:
@@ -171,8 +176,12 @@ class DeviceAdapter(Protocol):
     def configure(self, sample_rate_hz: float, mode: str, channels: list[str] | None = None) -> list[str]:
         """Choose the recorded rate, the excitation mode and channels; returns the channel names."""
 
-    def stream(self, excitation: np.ndarray, sink: Callable[[np.ndarray, np.ndarray], None],
-               progress: Callable[[float], None] | None = None) -> RunResult:
+    def stream(
+        self,
+        excitation: np.ndarray,
+        sink: Callable[[np.ndarray, np.ndarray], None],
+        progress: Callable[[float], None] | None = None,
+    ) -> RunResult:
         """Play ``excitation`` and pass ``(sample_index, rows)`` blocks to ``sink``; lost ones are counted.
 
         The first cause wins: once the device reported a limit trip,
@@ -335,8 +344,12 @@ class AdapterBase:
 
     # --- the run template -------------------------------------------------------------------
 
-    def stream(self, excitation: np.ndarray, sink: Callable[[np.ndarray, np.ndarray], None],
-               progress: Callable[[float], None] | None = None) -> RunResult:
+    def stream(
+        self,
+        excitation: np.ndarray,
+        sink: Callable[[np.ndarray, np.ndarray], None],
+        progress: Callable[[float], None] | None = None,
+    ) -> RunResult:
         """Play ``excitation`` and pass ``(sample_index, rows)`` blocks to ``sink``; see :class:`DeviceAdapter`.
 
         ``progress(fraction)`` is called as samples arrive. The axis is
@@ -374,7 +387,7 @@ class AdapterBase:
                 return  # nothing after the sample the host stopped the axis at
             tripped = self._host_limit_trip(index, rows)
             if tripped is not None:
-                index, rows = index[:tripped + 1], rows[:tripped + 1]
+                index, rows = index[: tripped + 1], rows[: tripped + 1]
             try:
                 sink(index, rows)
             except BaseException as exc:
@@ -504,10 +517,16 @@ class AdapterBase:
             return None
         row, j, name, low, high = first
         value = float(rows[row, j])
-        event = self.log_event(RunEvent(
-            Kind.LIMIT_TRIP, f"{name}: {self.channel_names[j]} = {value:.4g} outside [{low:.4g}, {high:.4g}] "
-                             "(checked by the host): axis stopped, torque zero",
-            int(index[row]), value=value, host_check=True))
+        event = self.log_event(
+            RunEvent(
+                Kind.LIMIT_TRIP,
+                f"{name}: {self.channel_names[j]} = {value:.4g} outside [{low:.4g}, {high:.4g}] "
+                "(checked by the host): axis stopped, torque zero",
+                int(index[row]),
+                value=value,
+                host_check=True,
+            )
+        )
         self.note_fault(event)
         self.safe_stop()
         return row

@@ -52,8 +52,9 @@ def serial_ports() -> list[SerialPort]:
     return sorted(found, key=lambda p: p.device)
 
 
-def can_interfaces(interfaces=FAST_CAN_INTERFACES, timeout_s: float = CAN_DETECT_TIMEOUT_S) -> tuple[list[CanChannel],
-                                                                                                     list[str]]:
+def can_interfaces(
+    interfaces=FAST_CAN_INTERFACES, timeout_s: float = CAN_DETECT_TIMEOUT_S
+) -> tuple[list[CanChannel], list[str]]:
     """The CAN channels python-can detects on ``interfaces`` (``can.detect_available_configs``).
 
     Each interface is asked on its own: one that raises (a vendor library
@@ -98,8 +99,7 @@ def can_interfaces(interfaces=FAST_CAN_INTERFACES, timeout_s: float = CAN_DETECT
                     notes.append(f"{name}: not asked ({type(exc).__name__}: {exc})")
                 continue
             with lock:
-                channels.extend(CanChannel(str(c.get("interface", name)), str(c.get("channel", "")))
-                                for c in configs)
+                channels.extend(CanChannel(str(c.get("interface", name)), str(c.get("channel", ""))) for c in configs)
                 asked.append(name)
 
     asked: list[str] = []
@@ -132,12 +132,18 @@ def describe_ports(serial_list: list[SerialPort], can_list: list[CanChannel], no
 
 # --- a port that does not open -------------------------------------------------------------------------------
 
-_GROUP_HINT = ("permission denied: add yourself to the group that owns the port (usually dialout: "
-               "sudo usermod -aG dialout $USER, then log out and in again)")
-_MISSING_HINT = ("no such device: check the name (hilident ports lists the serial ports and CAN channels found) "
-                 "and that the device is plugged in and powered")
-_BUSY_HINT = ("the port is in use by another program (a serial terminal, ModemManager, another hilident session): "
-              "close it and try again")
+_GROUP_HINT = (
+    "permission denied: add yourself to the group that owns the port (usually dialout: "
+    "sudo usermod -aG dialout $USER, then log out and in again)"
+)
+_MISSING_HINT = (
+    "no such device: check the name (hilident ports lists the serial ports and CAN channels found) "
+    "and that the device is plugged in and powered"
+)
+_BUSY_HINT = (
+    "the port is in use by another program (a serial terminal, ModemManager, another hilident session): "
+    "close it and try again"
+)
 
 
 def _errno_of(exc: BaseException) -> int | None:
@@ -158,8 +164,13 @@ def open_hint(exc: BaseException) -> str:
         return _GROUP_HINT if sys.platform != "win32" else "access denied: the port is in use by another program"
     if code == errno.EBUSY or "busy" in text or "in use" in text or "lock" in text:
         return _BUSY_HINT
-    if code in (errno.ENOENT, errno.ENXIO, errno.ENODEV) or "no such" in text or "cannot find" in text \
-            or "filenotfound" in text or "could not find" in text:
+    if (
+        code in (errno.ENOENT, errno.ENXIO, errno.ENODEV)
+        or "no such" in text
+        or "cannot find" in text
+        or "filenotfound" in text
+        or "could not find" in text
+    ):
         return _MISSING_HINT
     return ""
 

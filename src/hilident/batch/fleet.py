@@ -49,8 +49,19 @@ import numpy as np
 from hilident.config.tables import Config, parse_config, parse_toml
 from hilident.errors import ConfigError, DataError, UsageError
 
-__all__ = ["AXIS_PREFIX", "BASE_TOML", "DAMAGE_KINDS", "DEFAULT_START", "FLEET_FORMAT", "FleetResult",
-           "SAMPLE_RATES_HZ", "AxisPlan", "plan_fleet", "truth_rate_percent_per_day", "write_fleet"]
+__all__ = [
+    "AXIS_PREFIX",
+    "BASE_TOML",
+    "DAMAGE_KINDS",
+    "DEFAULT_START",
+    "FLEET_FORMAT",
+    "FleetResult",
+    "SAMPLE_RATES_HZ",
+    "AxisPlan",
+    "plan_fleet",
+    "truth_rate_percent_per_day",
+    "write_fleet",
+]
 
 FLEET_FORMAT = "hilident-fleet"
 FLEET_VERSION = 1
@@ -205,8 +216,15 @@ def days_since(start: _dt.date, when: _dt.datetime) -> float:
     return (when - origin).total_seconds() / 86400.0
 
 
-def plan_fleet(base: Config, axes: int, days: int, seed: int, start: _dt.date = DEFAULT_START,
-               drifting_share: float = 0.3, sample_rates_hz: tuple[float, ...] = SAMPLE_RATES_HZ) -> list[AxisPlan]:
+def plan_fleet(
+    base: Config,
+    axes: int,
+    days: int,
+    seed: int,
+    start: _dt.date = DEFAULT_START,
+    drifting_share: float = 0.3,
+    sample_rates_hz: tuple[float, ...] = SAMPLE_RATES_HZ,
+) -> list[AxisPlan]:
     """Every axis of a fleet, deterministic given ``seed``.
 
     Parameters
@@ -227,15 +245,15 @@ def plan_fleet(base: Config, axes: int, days: int, seed: int, start: _dt.date = 
     p = base.emulator.plant
     root = np.random.SeedSequence(seed)
     choose_ss, *axis_ss = root.spawn(axes + 1)
-    drifting = set(np.random.default_rng(choose_ss).choice(axes, drifting_count(axes, drifting_share),
-                                                             replace=False).tolist())
+    drifting = set(
+        np.random.default_rng(choose_ss).choice(axes, drifting_count(axes, drifting_share), replace=False).tolist()
+    )
     if not isinstance(p.k, float):
         raise ConfigError("emulator.plant.k", "a fleet needs k as a number, not a function of position", base.source)
     plans = []
     for i, (name, ss) in enumerate(zip(axis_ids(axes), axis_ss, strict=True)):
         rng = np.random.default_rng(ss)
-        m1, m2, k0 = (v * (1.0 + float(rng.uniform(-PARAMETER_SPREAD, PARAMETER_SPREAD)))
-                      for v in (p.m1, p.m2, p.k))
+        m1, m2, k0 = (v * (1.0 + float(rng.uniform(-PARAMETER_SPREAD, PARAMETER_SPREAD))) for v in (p.m1, p.m2, p.k))
         rate = float(rng.uniform(*DRIFT_PERCENT_PER_DAY)) if i in drifting else 0.0
         serial = f"HX{int(rng.integers(0, 16**6)):06X}-{i + 1:03d}"
         times, stiffness, seeds = [], [], []
@@ -249,10 +267,24 @@ def plan_fleet(base: Config, axes: int, days: int, seed: int, start: _dt.date = 
             stiffness.append(k)
             seeds.append(int(rng.integers(0, 2**32 - 1)))
         if min(stiffness) <= 0.0:
-            raise UsageError(f"--days {days}: {name}'s stiffness would fall to zero at {rate:.2f} %/day; "
-                             "simulate fewer days")
-        plans.append(AxisPlan(name, serial, sample_rates_hz[i % len(sample_rates_hz)], m1, m2, k0, i in drifting,
-                              rate, times, stiffness, seeds))
+            raise UsageError(
+                f"--days {days}: {name}'s stiffness would fall to zero at {rate:.2f} %/day; simulate fewer days"
+            )
+        plans.append(
+            AxisPlan(
+                name,
+                serial,
+                sample_rates_hz[i % len(sample_rates_hz)],
+                m1,
+                m2,
+                k0,
+                i in drifting,
+                rate,
+                times,
+                stiffness,
+                seeds,
+            )
+        )
     return plans
 
 
@@ -333,8 +365,14 @@ def toml_text(tables: dict[str, Any]) -> str:
     return "\n".join(lines).rstrip() + "\n"
 
 
-def recording_config(base: dict[str, Any], plan: AxisPlan, day: int, amplitude_nm: float,
-                     duration_s: float, viscous_nm_per_mps: float | None) -> str:
+def recording_config(
+    base: dict[str, Any],
+    plan: AxisPlan,
+    day: int,
+    amplitude_nm: float,
+    duration_s: float,
+    viscous_nm_per_mps: float | None,
+) -> str:
     """The configuration stored in one recording: the base with this axis's rate, plant and noise seed that day."""
     raw = json.loads(json.dumps(base))  # a deep copy of plain data
     raw.setdefault("run", {})["sample_rate_hz"] = plan.sample_rate_hz
@@ -358,17 +396,23 @@ def check_base(cfg: Config, sample_rates_hz: tuple[float, ...] = SAMPLE_RATES_HZ
     if p.model != "two_mass":
         raise ConfigError("emulator.plant.model", f"a fleet simulates a two_mass plant, got {p.model!r}", cfg.source)
     if not isinstance(p.k, float) or not isinstance(p.d, float):
-        raise ConfigError("emulator.plant.k", "a fleet needs k and d as numbers, not functions of position",
-                          cfg.source)
+        raise ConfigError("emulator.plant.k", "a fleet needs k and d as numbers, not functions of position", cfg.source)
     if p.backlash_m:
         raise ConfigError("emulator.plant.backlash_m", "a fleet simulates a linear plant: set it to 0", cfg.source)
     if e.kind != "multisine" or e.mode != "torque":
-        raise ConfigError("excitation", f"a fleet plays a multisine in open-loop torque (kind = \"multisine\", "
-                          f"mode = \"torque\"), got kind {e.kind!r}, mode {e.mode!r}", cfg.source)
+        raise ConfigError(
+            "excitation",
+            f'a fleet plays a multisine in open-loop torque (kind = "multisine", '
+            f'mode = "torque"), got kind {e.kind!r}, mode {e.mode!r}',
+            cfg.source,
+        )
     top = min(sample_rates_hz)
     if e.f_max_hz >= 0.4 * top:
-        raise ConfigError("excitation.f_max_hz", f"{e.f_max_hz:g} Hz: a fleet records at {top:g} Hz too, so it must "
-                          f"stay below {0.4 * top:g} Hz", cfg.source)
+        raise ConfigError(
+            "excitation.f_max_hz",
+            f"{e.f_max_hz:g} Hz: a fleet records at {top:g} Hz too, so it must stay below {0.4 * top:g} Hz",
+            cfg.source,
+        )
 
 
 # ---------------------------------------------------------------------- physics
@@ -477,21 +521,40 @@ def _state_response(Ad: np.ndarray, Bd: np.ndarray, u: np.ndarray) -> np.ndarray
 # ---------------------------------------------------------------------- files
 
 
-def _write_recording(path: Path, rec: Recorded, cfg_text: str, base_source: str, plan: AxisPlan, day: int,
-                     seed: int, versions: dict, rows: int | None = None) -> None:
+def _write_recording(
+    path: Path,
+    rec: Recorded,
+    cfg_text: str,
+    base_source: str,
+    plan: AxisPlan,
+    day: int,
+    seed: int,
+    versions: dict,
+    rows: int | None = None,
+) -> None:
     from hilident.io.recording import RunWriter
 
     attrs = {
-        "experiment": "identification", "mode": "torque", "seed": seed, "config_toml": cfg_text,
-        "config_source": f"{base_source} (hilident emulate fleet, {plan.axis})", "versions": versions,
-        "device": {"name": "myrio-board", "firmware": "hilident-board 1.0 (fleet twin)", "port": "emulator",
-                   "serial": plan.serial},
-        "period_samples": rec.period_samples, "axis": plan.axis,
+        "experiment": "identification",
+        "mode": "torque",
+        "seed": seed,
+        "config_toml": cfg_text,
+        "config_source": f"{base_source} (hilident emulate fleet, {plan.axis})",
+        "versions": versions,
+        "device": {
+            "name": "myrio-board",
+            "firmware": "hilident-board 1.0 (fleet twin)",
+            "port": "emulator",
+            "serial": plan.serial,
+        },
+        "period_samples": rec.period_samples,
+        "axis": plan.axis,
     }
     data = rec.rows if rows is None else rec.rows[:rows]
     started = plan.times[day]
-    writer = RunWriter(path, list(CHANNELS), list(UNITS), plan.sample_rate_hz, attrs, overwrite=True,
-                       created_utc=started)
+    writer = RunWriter(
+        path, list(CHANNELS), list(UNITS), plan.sample_rate_hz, attrs, overwrite=True, created_utc=started
+    )
     try:
         writer.append(data)
         writer.event("finished", "fleet recording complete", sample_index=len(data))
@@ -577,12 +640,23 @@ def _fleet_folder(out: Path, overwrite: bool) -> Path:
     return out
 
 
-def write_fleet(out: str | os.PathLike, axes: int, days: int, *, seed: int = 1, base: Config | None = None,
-                start: _dt.date = DEFAULT_START, duration_s: float | None = None, drifting_share: float = 0.3,
-                sample_rates_hz: tuple[float, ...] = SAMPLE_RATES_HZ,
-                damaged: int | None = None, viscous: bool = False, overwrite: bool = False,
-                progress: Callable[[float], None] | None = None,
-                say: Callable[[str], None] | None = None) -> FleetResult:
+def write_fleet(
+    out: str | os.PathLike,
+    axes: int,
+    days: int,
+    *,
+    seed: int = 1,
+    base: Config | None = None,
+    start: _dt.date = DEFAULT_START,
+    duration_s: float | None = None,
+    drifting_share: float = 0.3,
+    sample_rates_hz: tuple[float, ...] = SAMPLE_RATES_HZ,
+    damaged: int | None = None,
+    viscous: bool = False,
+    overwrite: bool = False,
+    progress: Callable[[float], None] | None = None,
+    say: Callable[[str], None] | None = None,
+) -> FleetResult:
     """Write a fleet's recordings and ``fleet.json`` into ``out``.
 
     Parameters
@@ -631,16 +705,20 @@ def write_fleet(out: str | os.PathLike, axes: int, days: int, *, seed: int = 1, 
     period = base.excitation.period_s
     duration = base.excitation.duration_s if duration_s is None else duration_s
     if not (math.isfinite(duration) and period * 0.5 <= duration <= MAX_DURATION_S):
-        raise UsageError(f"--duration-s {duration:g}: must be at least one excitation period ({period:g} s) and at "
-                         f"most {MAX_DURATION_S:g} s")
+        raise UsageError(
+            f"--duration-s {duration:g}: must be at least one excitation period ({period:g} s) and at "
+            f"most {MAX_DURATION_S:g} s"
+        )
     base_raw = parse_toml(base.text, base.source) if base.text else {}
     base_raw.pop("data", None)
     amplitude = _amplitude(base)
     viscous_fv = base.emulator.friction.Fv if viscous and base.emulator.friction.model != "none" else None
     for rate in sample_rates_hz:
         if not (math.isfinite(rate) and rate > 0 and float(base.excitation.period_s * rate).is_integer()):
-            raise UsageError(f"--sample-rate-hz {rate:g}: must be positive and give whole excitation periods "
-                             f"({base.excitation.period_s:g} s)")
+            raise UsageError(
+                f"--sample-rate-hz {rate:g}: must be positive and give whole excitation periods "
+                f"({base.excitation.period_s:g} s)"
+            )
     plans = plan_fleet(base, axes, days, seed, start, drifting_share, tuple(sample_rates_hz))
     total = axes * days
     n_damaged = damaged_count(total) if damaged is None else damaged
@@ -653,8 +731,10 @@ def write_fleet(out: str | os.PathLike, axes: int, days: int, *, seed: int = 1, 
 
     out = _fleet_folder(Path(out), overwrite)
     if say is not None:
-        say(f"writing a fleet of {axes} axes x {days} days ({total} recordings, "
-            f"{sum(p.drifting for p in plans)} drifting axes, {n_damaged} damaged files) into {out}")
+        say(
+            f"writing a fleet of {axes} axes x {days} days ({total} recordings, "
+            f"{sum(p.drifting for p in plans)} drifting axes, {n_damaged} damaged files) into {out}"
+        )
     versions = package_versions()
     truth_axes, damaged_list = [], []
     done, total_bytes = 0, 0
@@ -672,8 +752,17 @@ def write_fleet(out: str | os.PathLike, axes: int, days: int, *, seed: int = 1, 
             kind = damage_of.get(a * days + day)
             # a crashed writer's file: fewer rows than identify accepts at all (and far fewer than a period)
             rows = CRASHED_ROWS if kind == "running" else None
-            _write_recording(path, rec, text, base.source or "hilident.batch.fleet.BASE_TOML", plan, day,
-                             base.run.seed, versions, rows)
+            _write_recording(
+                path,
+                rec,
+                text,
+                base.source or "hilident.batch.fleet.BASE_TOML",
+                plan,
+                day,
+                base.run.seed,
+                versions,
+                rows,
+            )
             rel = f"{plan.axis}/{name}"
             if kind is not None:
                 damage_file(path, kind, damage_rng)
@@ -689,19 +778,37 @@ def write_fleet(out: str | os.PathLike, axes: int, days: int, *, seed: int = 1, 
                 progress(done / total)
         t = [days_since(start, plan.times[d]) for d in intact]
         f_rate = truth_rate_percent_per_day(t, [frequencies[d] for d in intact])
-        truth_axes.append({
-            "axis": plan.axis, "serial": plan.serial, "sample_rate_hz": plan.sample_rate_hz,
-            "drifting": plan.drifting, "stiffness_percent_per_day": plan.stiffness_percent_per_day,
-            "frequency_percent_per_day": None if math.isnan(f_rate) else f_rate,
-            "m1": plan.m1, "m2": plan.m2, "k0": plan.k0,
-            "times_utc": [w.isoformat() for w in plan.times], "days": [days_since(start, w) for w in plan.times],
-            "stiffness": plan.stiffness, "frequencies_hz": frequencies, "damping_ratios": damping, "files": files,
-        })
-    truth = {"format": FLEET_FORMAT, "version": FLEET_VERSION, "start": start.isoformat(), "days": days,
-             "seed": seed, "base_config": base.source or "hilident.batch.fleet.BASE_TOML",
-             "duration_s": duration, "amplitude_nm": amplitude,
-             "friction": "viscous" if viscous_fv is not None else "none",
-             "axes": truth_axes, "damaged": damaged_list}
+        truth_axes.append(
+            {
+                "axis": plan.axis,
+                "serial": plan.serial,
+                "sample_rate_hz": plan.sample_rate_hz,
+                "drifting": plan.drifting,
+                "stiffness_percent_per_day": plan.stiffness_percent_per_day,
+                "frequency_percent_per_day": None if math.isnan(f_rate) else f_rate,
+                "m1": plan.m1,
+                "m2": plan.m2,
+                "k0": plan.k0,
+                "times_utc": [w.isoformat() for w in plan.times],
+                "days": [days_since(start, w) for w in plan.times],
+                "stiffness": plan.stiffness,
+                "frequencies_hz": frequencies,
+                "damping_ratios": damping,
+                "files": files,
+            }
+        )
+    truth = {
+        "format": FLEET_FORMAT,
+        "version": FLEET_VERSION,
+        "start": start.isoformat(),
+        "days": days,
+        "seed": seed,
+        "base_config": base.source or "hilident.batch.fleet.BASE_TOML",
+        "duration_s": duration,
+        "amplitude_nm": amplitude,
+        "friction": "viscous" if viscous_fv is not None else "none",
+        "axes": truth_axes,
+        "damaged": damaged_list,
+    }
     (out / "fleet.json").write_text(json.dumps(truth, indent=1) + "\n")
     return FleetResult(out, total, len(damaged_list), sum(p.drifting for p in plans), total_bytes, truth)
-

@@ -29,8 +29,11 @@ def _expand_one(given: str) -> list[Path]:
     if any(c in given for c in _GLOB_CHARS):
         found: list[Path] = []
         for match in map(Path, glob.glob(given, recursive=True)):
-            found += [p for p in match.rglob("*") if _is_recording(p)] if match.is_dir() else (
-                [match] if _is_recording(match) else [])
+            found += (
+                [p for p in match.rglob("*") if _is_recording(p)]
+                if match.is_dir()
+                else ([match] if _is_recording(match) else [])
+            )
         return found
     return []
 
@@ -56,8 +59,11 @@ def expand_inputs(inputs: list[str]) -> list[Path]:
     for given in inputs:
         paths = _expand_one(given)
         if not paths:
-            what = "a folder holding no recording (.h5, .hdf5, .csv, .mat)" if Path(given).is_dir() else \
-                "no file, folder or glob matching a recording"
+            what = (
+                "a folder holding no recording (.h5, .hdf5, .csv, .mat)"
+                if Path(given).is_dir()
+                else "no file, folder or glob matching a recording"
+            )
             raise UsageError(f"batch input {given}: {what}")
         for p in paths:
             found[p.resolve()] = None

@@ -109,8 +109,10 @@ class _Tally:
         if self.progress and not self.progress.tty and (now - self.last >= 10.0 or self.done == self.total):
             self.last = now
             rate = self.done / max(now - self.started, 1e-9)
-            self.progress.step(f"  {self.done}/{self.total} done ({self.failed} failed, {self.skipped} skipped), "
-                               f"{rate:.2f} recordings/s")
+            self.progress.step(
+                f"  {self.done}/{self.total} done ({self.failed} failed, {self.skipped} skipped), "
+                f"{rate:.2f} recordings/s"
+            )
 
 
 #: Dask settings of the local cluster's workers (see :func:`_local_cluster`); ``dask worker`` takes the same
@@ -130,9 +132,15 @@ def _local_cluster(workers: int):
 
     # silence_logs: the workers' notes (a task cancelled by Ctrl-C) are not the user's concern
     with dask.config.set(WORKER_SETTINGS):  # read when the nannies are made: they hand it to their workers
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address="127.0.0.1:0", scheduler_kwargs={"dashboard": False},
-                               silence_logs=logging.ERROR)
+        cluster = LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address="127.0.0.1:0",
+            scheduler_kwargs={"dashboard": False},
+            silence_logs=logging.ERROR,
+        )
     return cluster, Client(cluster)
 
 
@@ -142,17 +150,22 @@ def _client_at(address: str):
     try:
         client = Client(address, timeout=CONNECT_TIMEOUT_S)
     except (OSError, TimeoutError) as exc:
-        raise UsageError(f"--scheduler {address}: no Dask scheduler answers there ({exc}); start one with "
-                         "`dask scheduler` and workers with `dask worker ADDRESS`") from None
+        raise UsageError(
+            f"--scheduler {address}: no Dask scheduler answers there ({exc}); start one with "
+            "`dask scheduler` and workers with `dask worker ADDRESS`"
+        ) from None
     except ValueError as exc:
-        raise UsageError(f"--scheduler {address}: not a scheduler address ({exc}); give tcp://HOST:PORT or "
-                         f"{SYNCHRONOUS}") from None
+        raise UsageError(
+            f"--scheduler {address}: not a scheduler address ({exc}); give tcp://HOST:PORT or {SYNCHRONOUS}"
+        ) from None
     try:
         client.wait_for_workers(1, timeout=CONNECT_TIMEOUT_S)
     except TimeoutError:
         client.close()
-        raise UsageError(f"--scheduler {address}: the scheduler has no worker (none joined within "
-                         f"{CONNECT_TIMEOUT_S:g} s); start them with `dask worker {address}`") from None
+        raise UsageError(
+            f"--scheduler {address}: the scheduler has no worker (none joined within "
+            f"{CONNECT_TIMEOUT_S:g} s); start them with `dask worker {address}`"
+        ) from None
     return client
 
 
@@ -161,8 +174,13 @@ def summary_path(folder: Path, row: dict) -> Path:
     return folder / SUMMARIES / f"{row['content_sha256']}-{row['config_sha256'][:12]}.json"
 
 
-def _run_tasks(jobs: list[tuple[str, str]], args: tuple, scheduler: str | None, workers: int | None,
-               on_cluster: Callable[[int], None]) -> Generator[tuple[dict, dict | None], None, None]:
+def _run_tasks(
+    jobs: list[tuple[str, str]],
+    args: tuple,
+    scheduler: str | None,
+    workers: int | None,
+    on_cluster: Callable[[int], None],
+) -> Generator[tuple[dict, dict | None], None, None]:
     """(row, summary) of ``jobs`` ((path, hash) each) as they finish; the cluster is closed whatever ends the
     iteration."""
     if scheduler == SYNCHRONOUS:
@@ -179,8 +197,13 @@ def _run_tasks(jobs: list[tuple[str, str]], args: tuple, scheduler: str | None, 
         cluster, client = _local_cluster(workers or os.cpu_count() or 1)
     try:
         on_cluster(len(client.scheduler_info().get("workers", {})))
-        futures = {client.submit(identify_task, path, sha, *args, key=f"hilident-batch-{i}-{sha[:16]}",
-                                 pure=False): (path, sha) for i, (path, sha) in enumerate(jobs)}
+        futures = {
+            client.submit(identify_task, path, sha, *args, key=f"hilident-batch-{i}-{sha[:16]}", pure=False): (
+                path,
+                sha,
+            )
+            for i, (path, sha) in enumerate(jobs)
+        }
         try:
             for future in as_completed(futures):
                 try:
@@ -196,8 +219,16 @@ def _run_tasks(jobs: list[tuple[str, str]], args: tuple, scheduler: str | None, 
             cluster.close()
 
 
-def run_batch(inputs: list[str], cfg, out: str | Path, *, scheduler: str | None = None, workers: int | None = None,
-              retry_failed: bool = False, progress=None) -> BatchOutcome:
+def run_batch(
+    inputs: list[str],
+    cfg,
+    out: str | Path,
+    *,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    retry_failed: bool = False,
+    progress=None,
+) -> BatchOutcome:
     """Identify the recordings ``inputs`` name into ``out/batch.parquet`` (and ``batch.csv``), incrementally.
 
     Each analysis's ``summary.json`` is kept as :func:`summary_path` names it.
@@ -231,8 +262,10 @@ def run_batch(inputs: list[str], cfg, out: str | Path, *, scheduler: str | None 
         The table in ``out`` is there but cannot be read.
     """
     if workers is not None and (workers < 1 or scheduler):
-        raise UsageError("--workers: " + ("must be at least 1" if workers < 1 else
-                                          "sizes the local cluster; a --scheduler's workers are its own"))
+        raise UsageError(
+            "--workers: "
+            + ("must be at least 1" if workers < 1 else "sizes the local cluster; a --scheduler's workers are its own")
+        )
     started = time.monotonic()
     started_utc = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
     out = Path(out)
@@ -267,8 +300,9 @@ def run_batch(inputs: list[str], cfg, out: str | Path, *, scheduler: str | None 
     def on_cluster(n: int) -> None:
         outcome.workers = n
         if progress and jobs:
-            where = ("in this process" if scheduler == SYNCHRONOUS
-                     else f"on {scheduler or 'a local cluster on 127.0.0.1'}")
+            where = (
+                "in this process" if scheduler == SYNCHRONOUS else f"on {scheduler or 'a local cluster on 127.0.0.1'}"
+            )
             progress.step(f"identifying {len(jobs)} recordings {where} ({n} worker{'s' * (n != 1)})")
         tally.append(_Tally(progress, len(jobs), outcome.skipped))  # timed from here: the cluster is up
 
@@ -291,10 +325,18 @@ def run_batch(inputs: list[str], cfg, out: str | Path, *, scheduler: str | None 
             _finish(outcome, kept, rows, started)
         raise
     _finish(outcome, kept, rows, started)
-    meta = {"inputs": list(inputs), **({"config": cfg.source} if cfg is not None else {}),
-            "out": str(out), "scheduler": scheduler or "local cluster", "workers": outcome.workers,
-            "started_utc": started_utc, "wall_time_s": outcome.wall_s, "identified": outcome.done - outcome.failed,
-            "failed": outcome.failed, "skipped": outcome.skipped}
+    meta = {
+        "inputs": list(inputs),
+        **({"config": cfg.source} if cfg is not None else {}),
+        "out": str(out),
+        "scheduler": scheduler or "local cluster",
+        "workers": outcome.workers,
+        "started_utc": started_utc,
+        "wall_time_s": outcome.wall_s,
+        "identified": outcome.done - outcome.failed,
+        "failed": outcome.failed,
+        "skipped": outcome.skipped,
+    }
     settings = cfg.batch if cfg is not None else BatchConfig()
     outcome.drifts = judge_fleet(out, kept + rows, settings, meta)
     outcome.report = out / "report.html"

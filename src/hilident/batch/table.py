@@ -12,15 +12,35 @@ from hilident.errors import DataError
 
 #: Every column of the table, in order, with its Arrow type (``string``, ``float64``, ``int64``).
 COLUMNS: dict[str, str] = {
-    "path": "string", "content_sha256": "string", "config_sha256": "string", "status": "string",
-    "error": "string", "error_type": "string", "failed_step": "string",
-    "axis": "string", "device_name": "string", "device_serial": "string", "time_utc": "string",
-    "time_source": "string", "sample_rate_hz": "float64", "duration_s": "float64", "n_resonances": "int64",
-    "frequency_hz": "float64", "frequency_ci95_hz": "float64", "damping_ratio": "float64",
-    "damping_ci95": "float64", "resonances_json": "string", "friction_model": "string",
-    **dict.fromkeys(FRICTION_COLUMNS, "float64"), "model_fit_percent": "float64",
-    "warnings": "string", "n_warnings": "int64", "hilident_version": "string", "elapsed_s": "float64",
-    "worker": "string", "worker_peak_rss_mib": "float64",
+    "path": "string",
+    "content_sha256": "string",
+    "config_sha256": "string",
+    "status": "string",
+    "error": "string",
+    "error_type": "string",
+    "failed_step": "string",
+    "axis": "string",
+    "device_name": "string",
+    "device_serial": "string",
+    "time_utc": "string",
+    "time_source": "string",
+    "sample_rate_hz": "float64",
+    "duration_s": "float64",
+    "n_resonances": "int64",
+    "frequency_hz": "float64",
+    "frequency_ci95_hz": "float64",
+    "damping_ratio": "float64",
+    "damping_ci95": "float64",
+    "resonances_json": "string",
+    "friction_model": "string",
+    **dict.fromkeys(FRICTION_COLUMNS, "float64"),
+    "model_fit_percent": "float64",
+    "warnings": "string",
+    "n_warnings": "int64",
+    "hilident_version": "string",
+    "elapsed_s": "float64",
+    "worker": "string",
+    "worker_peak_rss_mib": "float64",
 }
 TABLE_NAME = "batch.parquet"
 CSV_NAME = "batch.csv"
@@ -58,8 +78,10 @@ def read_rows(folder: str | Path) -> list[dict[str, Any]]:
     try:
         return [_complete(r) for r in pq.read_table(path).to_pylist()]
     except Exception as exc:  # Arrow reports a damaged file as several types
-        raise DataError(f"{path}: the earlier batch table cannot be read ({type(exc).__name__}: {exc}); move it "
-                        "away to start a new table") from None
+        raise DataError(
+            f"{path}: the earlier batch table cannot be read ({type(exc).__name__}: {exc}); move it "
+            "away to start a new table"
+        ) from None
 
 
 def _replace(path: Path, write) -> None:

@@ -22,21 +22,46 @@ from hilident.batch.identity import recording_identity
 NAN = math.nan
 
 #: Friction columns: column -> the parameter of ``summary.json["friction"]["params"]``.
-FRICTION_COLUMNS = {"friction_fc_nm": "Fc", "friction_fs_nm": "Fs", "friction_fv_nm_per_mps": "Fv",
-                    "friction_vs_mps": "vs"}
+FRICTION_COLUMNS = {
+    "friction_fc_nm": "Fc",
+    "friction_fs_nm": "Fs",
+    "friction_fv_nm_per_mps": "Fv",
+    "friction_vs_mps": "vs",
+}
 
 
 def blank_row(path: str, content_sha256: str, config_sha256: str) -> dict[str, Any]:
     """The row of a recording nothing is known of yet: NaN figures, empty texts, status ``"failed"``."""
     return {
-        "path": str(path), "content_sha256": content_sha256, "config_sha256": config_sha256,
-        "status": "failed", "error": "", "error_type": "", "failed_step": "",
-        "axis": "", "device_name": "", "device_serial": "", "time_utc": "", "time_source": "",
-        "sample_rate_hz": NAN, "duration_s": NAN, "n_resonances": 0,
-        "frequency_hz": NAN, "frequency_ci95_hz": NAN, "damping_ratio": NAN, "damping_ci95": NAN,
-        "resonances_json": "[]", "friction_model": "", **dict.fromkeys(FRICTION_COLUMNS, NAN),
-        "model_fit_percent": NAN, "warnings": "[]", "n_warnings": 0,
-        "hilident_version": __version__, "elapsed_s": NAN, "worker": "", "worker_peak_rss_mib": NAN,
+        "path": str(path),
+        "content_sha256": content_sha256,
+        "config_sha256": config_sha256,
+        "status": "failed",
+        "error": "",
+        "error_type": "",
+        "failed_step": "",
+        "axis": "",
+        "device_name": "",
+        "device_serial": "",
+        "time_utc": "",
+        "time_source": "",
+        "sample_rate_hz": NAN,
+        "duration_s": NAN,
+        "n_resonances": 0,
+        "frequency_hz": NAN,
+        "frequency_ci95_hz": NAN,
+        "damping_ratio": NAN,
+        "damping_ci95": NAN,
+        "resonances_json": "[]",
+        "friction_model": "",
+        **dict.fromkeys(FRICTION_COLUMNS, NAN),
+        "model_fit_percent": NAN,
+        "warnings": "[]",
+        "n_warnings": 0,
+        "hilident_version": __version__,
+        "elapsed_s": NAN,
+        "worker": "",
+        "worker_peak_rss_mib": NAN,
     }
 
 
@@ -77,15 +102,19 @@ def summary_figures(summary: dict) -> dict[str, Any]:
     model = summary.get("model") or {}
     warnings = [str(w) for w in summary.get("warnings") or []]
     return {
-        "sample_rate_hz": rate, "duration_s": samples / rate if rate > 0 else NAN,
+        "sample_rate_hz": rate,
+        "duration_s": samples / rate if rate > 0 else NAN,
         "n_resonances": len(resonances),
-        **{key: _number(lowest.get(key)) for key in ("frequency_hz", "frequency_ci95_hz", "damping_ratio",
-                                                     "damping_ci95")},
+        **{
+            key: _number(lowest.get(key))
+            for key in ("frequency_hz", "frequency_ci95_hz", "damping_ratio", "damping_ci95")
+        },
         "resonances_json": json.dumps(resonances, allow_nan=True, default=str),
         "friction_model": str(friction.get("model") or ""),
         **{column: _number(params.get(name)) for column, name in FRICTION_COLUMNS.items()},
         "model_fit_percent": _number((model.get("estimation") or {}).get("fit_percent")),
-        "warnings": json.dumps(warnings), "n_warnings": len(warnings),
+        "warnings": json.dumps(warnings),
+        "n_warnings": len(warnings),
         "failed_step": str(summary.get("failed_step") or ""),
     }
 
@@ -95,13 +124,15 @@ def fail(row: dict[str, Any], exc: BaseException) -> dict[str, Any]:
     from hilident.errors import HilidentError
 
     typed = isinstance(exc, HilidentError)
-    row.update(status="failed", error_type=type(exc).__name__,
-               error=str(exc) if typed else f"{type(exc).__name__}: {exc}")
+    row.update(
+        status="failed", error_type=type(exc).__name__, error=str(exc) if typed else f"{type(exc).__name__}: {exc}"
+    )
     return row
 
 
-def identify_task(path: str, content_sha256: str, config_text: str | None, config_source: str,
-                  config_sha256: str) -> tuple[dict[str, Any], dict | None]:
+def identify_task(
+    path: str, content_sha256: str, config_text: str | None, config_source: str, config_sha256: str
+) -> tuple[dict[str, Any], dict | None]:
     """Identify the recording at ``path`` as ``hilident identify`` does (no plots, no files): its row and summary.
 
     Parameters
@@ -144,7 +175,8 @@ def identify_task(path: str, content_sha256: str, config_text: str | None, confi
     return row, summary
 
 
-def identify_row(path: str, content_sha256: str, config_text: str | None, config_source: str,
-                 config_sha256: str) -> dict[str, Any]:
+def identify_row(
+    path: str, content_sha256: str, config_text: str | None, config_source: str, config_sha256: str
+) -> dict[str, Any]:
     """The row of :func:`identify_task` alone."""
     return identify_task(path, content_sha256, config_text, config_source, config_sha256)[0]

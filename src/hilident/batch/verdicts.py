@@ -18,8 +18,14 @@ if TYPE_CHECKING:
     from hilident.ident.drift import DriftTrend
 
 
-def judge_fleet(out: str | Path, rows: Sequence[Mapping[str, Any]], settings: BatchConfig,
-                meta: Mapping[str, Any], *, plots: bool = True) -> dict[str, DriftTrend]:
+def judge_fleet(
+    out: str | Path,
+    rows: Sequence[Mapping[str, Any]],
+    settings: BatchConfig,
+    meta: Mapping[str, Any],
+    *,
+    plots: bool = True,
+) -> dict[str, DriftTrend]:
     """Each axis's drift verdict from ``rows``; ``drift.json`` and ``report.html`` written into ``out``.
 
     Parameters
@@ -56,6 +62,8 @@ def verdict_lines(drifts: Mapping[str, DriftTrend]) -> list[str]:
     flagged = [d for d in drifts.values() if d.flagged]
     lines = [f"drift: {d.axis}: {d.verdict}" for d in flagged]
     short = sum(1 for d in drifts.values() if d.insufficient)
-    lines.append(f"drift: {len(flagged)} of {len(drifts)} axes flagged"
-                 + (f", {short} with too few recordings for a verdict" if short else ""))
+    lines.append(
+        f"drift: {len(flagged)} of {len(drifts)} axes flagged"
+        + (f", {short} with too few recordings for a verdict" if short else "")
+    )
     return lines

@@ -34,8 +34,15 @@ def _run(args) -> int:
     if args.clear_fault:
         cfg = replace(cfg, device=replace(cfg.device, allow_fault_reset=True))
     out = _out_folder(args.out, Path(args.config).stem, args.overwrite or args.dry_run)  # a dry run writes nothing
-    session = Session(cfg, out, Progress(enabled=not args.quiet), confirm=_go_ahead(args.yes), dry_run=args.dry_run,
-                      plots=not args.no_plots, save=args.save)
+    session = Session(
+        cfg,
+        out,
+        Progress(enabled=not args.quiet),
+        confirm=_go_ahead(args.yes),
+        dry_run=args.dry_run,
+        plots=not args.no_plots,
+        save=args.save,
+    )
     summary = session.run()
     if args.dry_run:
         if session.plan is not None:  # made before the dry run returns
@@ -53,8 +60,10 @@ def _run(args) -> int:
         if f.get("structure") == "coulomb_viscous":
             print(f"friction: Coulomb + viscous: Fc {p['Fc']:.3g} N*m, Fv {p['Fv']:.3g} N*m/(m/s)")
         else:
-            print(f"friction: Stribeck: Fc {p['Fc']:.3g} N*m, Fs {p['Fs']:.3g} N*m, Fv {p['Fv']:.3g} N*m/(m/s), "
-                  f"vs {p['vs']:.3g} m/s")
+            print(
+                f"friction: Stribeck: Fc {p['Fc']:.3g} N*m, Fs {p['Fs']:.3g} N*m, Fv {p['Fv']:.3g} N*m/(m/s), "
+                f"vs {p['vs']:.3g} m/s"
+            )
     _print_model(summary.get("model"))
     ver = summary["verification"]
     if ver["peak_reduction_db"] is not None:
@@ -66,17 +75,24 @@ def _run(args) -> int:
         on = "command to velocity" if mapped["measured_on"] == "filtered_plant" else "excitation to velocity"
         worst = min(mapped["positions"], key=lambda r: r["band_reduction_db"])
         # a floor of no finite value (a record without coherence) is null in summary.json
-        floor = (f", at its record's noise floor {worst['floor_db']:.1f} dB"
-                 if worst.get("floor_limited") and worst.get("floor_db") is not None else "")
-        print(f"map verification: band figure {mapped['worst_band_reduction_db']:.1f} dB at worst "
-              f"({mapped['worst_position_m']:+.3f} m, {on}{floor}); the holding loop's "
-              f"{mapped['worst_loop_band_reduction_db']:.1f} dB at worst")
+        floor = (
+            f", at its record's noise floor {worst['floor_db']:.1f} dB"
+            if worst.get("floor_limited") and worst.get("floor_db") is not None
+            else ""
+        )
+        print(
+            f"map verification: band figure {mapped['worst_band_reduction_db']:.1f} dB at worst "
+            f"({mapped['worst_position_m']:+.3f} m, {on}{floor}); the holding loop's "
+            f"{mapped['worst_loop_band_reduction_db']:.1f} dB at worst"
+        )
     _print_moves(summary.get("move_test"))
     if summary["upload"].get("saved"):
         print("saved: the device stored its parameters in non-volatile memory")
     s = summary["stream"]
-    print(f"stream: {s['samples']} samples, {s['lost_blocks']} lost blocks, {s['corrupt_frames']} corrupt frames, "
-          f"{s['underruns']} underruns")
+    print(
+        f"stream: {s['samples']} samples, {s['lost_blocks']} lost blocks, {s['corrupt_frames']} corrupt frames, "
+        f"{s['underruns']} underruns"
+    )
     for w in summary["warnings"]:
         print(f"warning: {w}")
     print(f"wrote {out / 'summary.json'}")
@@ -92,13 +108,16 @@ def _print_moves(test: dict | None) -> None:
     if not worst:
         return
     w = min(worst, key=lambda m: m["rms_reduction_db"])
-    at_rest = sum(1 for m in moves if m.get("standstill_rms_m") is not None
-                  and m.get("rms_reduction_above_standstill_db") is None)
+    at_rest = sum(
+        1 for m in moves if m.get("standstill_rms_m") is not None and m.get("rms_reduction_above_standstill_db") is None
+    )
     p2p = w.get("peak_to_peak_reduction_db")
     p2p = "" if p2p is None else f", {p2p:.1f} dB peak to peak"
-    print(f"move test: ringing after the move reduced by {w['rms_reduction_db']:.1f} dB RMS at worst (from "
-          f"{w['start_m']:+.3f} m{p2p}); with the notch, {at_rest} of {len(moves)} move(s) rang no more than the "
-          "axis at rest")
+    print(
+        f"move test: ringing after the move reduced by {w['rms_reduction_db']:.1f} dB RMS at worst (from "
+        f"{w['start_m']:+.3f} m{p2p}); with the notch, {at_rest} of {len(moves)} move(s) rang no more than the "
+        "axis at rest"
+    )
 
 
 def _out_folder(given: str | None, stem: str, overwrite: bool) -> Path:
@@ -120,14 +139,19 @@ def _out_folder(given: str | None, stem: str, overwrite: bool) -> Path:
         return out
     out = Path(given)
     if not overwrite and out.is_dir() and any(out.iterdir()):
-        raise UsageError(f"--out {out}: holds earlier results; pass --overwrite to write over them, or leave --out "
-                         "out for a new folder runs/<name>-<date>-<time>")
+        raise UsageError(
+            f"--out {out}: holds earlier results; pass --overwrite to write over them, or leave --out "
+            "out for a new folder runs/<name>-<date>-<time>"
+        )
     return out
 
 
-def _go_ahead(yes: bool, question: str = "Move the axis as planned?",
-              refusal: str = "this run moves a real axis: confirm at a terminal, or pass --yes "
-                             "(hilident run --dry-run shows the plan without moving)"):
+def _go_ahead(
+    yes: bool,
+    question: str = "Move the axis as planned?",
+    refusal: str = "this run moves a real axis: confirm at a terminal, or pass --yes "
+    "(hilident run --dry-run shows the plan without moving)",
+):
     """How a run (or an upload) on a real port gets its go-ahead: ``--yes``, or the user at a terminal."""
 
     def confirm(plan) -> bool:
@@ -151,19 +175,32 @@ def _upload(args) -> int:
     from hilident.progress import Progress
     from hilident.session.upload import UploadCommand
 
-    confirm = _go_ahead(args.yes, "Write these filters to the device?",
-                        "this upload changes the filters of a real drive: confirm at a terminal, or pass --yes "
-                        "(hilident upload --dry-run shows what would be written)")
-    command = UploadCommand(cfg, getattr(args, "from"), args.out, Progress(enabled=not args.quiet), confirm=confirm,
-                            slot=args.slot, save=args.save, dry_run=args.dry_run)
+    confirm = _go_ahead(
+        args.yes,
+        "Write these filters to the device?",
+        "this upload changes the filters of a real drive: confirm at a terminal, or pass --yes "
+        "(hilident upload --dry-run shows what would be written)",
+    )
+    command = UploadCommand(
+        cfg,
+        getattr(args, "from"),
+        args.out,
+        Progress(enabled=not args.quiet),
+        confirm=confirm,
+        slot=args.slot,
+        save=args.save,
+        dry_run=args.dry_run,
+    )
     if args.out and not args.dry_run:  # the default is always a new folder; a dry run writes nothing
         _out_folder(args.out, "", args.overwrite)
     try:
         summary = command.run()
     except HilidentError:
         if command.summary:
-            _say(f"hilident: wrote {command.out / 'summary.json'} up to the failed step; every slot written "
-                 "was put back as it was")
+            _say(
+                f"hilident: wrote {command.out / 'summary.json'} up to the failed step; every slot written "
+                "was put back as it was"
+            )
         raise
     if args.dry_run:
         if command.plan is not None:  # made before the dry run returns
@@ -174,9 +211,11 @@ def _upload(args) -> int:
         return 0
     for s in summary["upload"]["slots"]:
         a = s["achieved"]
-        print(f"slot {s['slot']}: read back as written, enabled; {a['attenuation_at_design_center_db']:.1f} dB at "
-              f"the designed centre (designed {a['attenuation_at_design_center_db'] - a['depth_error_db']:.1f} dB, "
-              f"realisable on the device {a['realisable_db']:.1f} dB), deepest at {a['center_hz']:.5g} Hz")
+        print(
+            f"slot {s['slot']}: read back as written, enabled; {a['attenuation_at_design_center_db']:.1f} dB at "
+            f"the designed centre (designed {a['attenuation_at_design_center_db'] - a['depth_error_db']:.1f} dB, "
+            f"realisable on the device {a['realisable_db']:.1f} dB), deepest at {a['center_hz']:.5g} Hz"
+        )
     if summary["upload"]["saved"]:
         print("saved: the device stored its parameters in non-volatile memory")
     for w in summary["warnings"]:
@@ -201,15 +240,18 @@ def _print_model(m: dict | None) -> None:
     params = ", ".join(
         f"{k} {v:.5g} ± {m['stderr'][k]:.2g} ({m['relative_stderr_percent'][k]:.2g} %)" for k, v in m["params"].items()
     )
+
     def figures(v: dict) -> str:
         rel = v.get("relative_error")
         return f"{v['fit_percent']:.1f} %" + (f" (relative error {rel:.3g})" if rel is not None else "")
 
     checks = ", ".join(f"{figures(v)} on {name}" for name, v in m["validation"].items())
     excluded = m["estimation"].get("low_speed_rows_excluded")
-    print(f"{m['kind']}: {params}; fit {figures(m['estimation'])} on the estimation data"
-          + (f", {checks}" if checks else "")
-          + (f"; {excluded} low-speed rows left out" if excluded else ""))
+    print(
+        f"{m['kind']}: {params}; fit {figures(m['estimation'])} on the estimation data"
+        + (f", {checks}" if checks else "")
+        + (f"; {excluded} low-speed rows left out" if excluded else "")
+    )
 
 
 def _identify(args) -> int:
@@ -249,29 +291,46 @@ def _batch(args) -> int:
     from hilident.progress import Progress
 
     try:
-        outcome = run_batch(args.inputs, cfg, args.out, scheduler=args.scheduler, workers=args.workers,
-                            retry_failed=args.retry_failed, progress=Progress(enabled=not args.quiet))
+        outcome = run_batch(
+            args.inputs,
+            cfg,
+            args.out,
+            scheduler=args.scheduler,
+            workers=args.workers,
+            retry_failed=args.retry_failed,
+            progress=Progress(enabled=not args.quiet),
+        )
     except KeyboardInterrupt as exc:
         from hilident import endings
 
         endings.ignore_further_signals()
         finished = getattr(exc, "outcome", None)
-        _say(f"hilident: {exc or 'interrupted'}; " + ("nothing was identified yet" if finished is None else
-             f"the cluster is closed; {finished.done} recordings finished are in {finished.table}"))
+        _say(
+            f"hilident: {exc or 'interrupted'}; "
+            + (
+                "nothing was identified yet"
+                if finished is None
+                else f"the cluster is closed; {finished.done} recordings finished are in {finished.table}"
+            )
+        )
         return getattr(exc, "exit_code", 130)
     for row in outcome.failures:
         error = row["error"]  # a DataError names its file already
         print(f"failed: {error}" if error.startswith(row["path"]) else f"failed: {row['path']}: {error}")
-    print(f"batch: {outcome.recordings} recordings: {outcome.done - outcome.failed} identified, {outcome.failed} "
-          f"failed, {outcome.skipped} skipped (already in the table)")
+    print(
+        f"batch: {outcome.recordings} recordings: {outcome.done - outcome.failed} identified, {outcome.failed} "
+        f"failed, {outcome.skipped} skipped (already in the table)"
+    )
     from hilident.batch.verdicts import verdict_lines
 
     for line in verdict_lines(outcome.drifts):
         print(line)
     if outcome.done:
-        print(f"wall time {outcome.wall_s:.1f} s, {outcome.per_recording_s:.3g} s per recording "
-              f"({outcome.workers} worker{'s' * (outcome.workers != 1)}; one task took {outcome.mean_task_s:.3g} s "
-              "on average)")
+        print(
+            f"wall time {outcome.wall_s:.1f} s, {outcome.per_recording_s:.3g} s per recording "
+            f"({outcome.workers} worker{'s' * (outcome.workers != 1)}; one task took {outcome.mean_task_s:.3g} s "
+            "on average)"
+        )
     print(f"wrote {outcome.table} and {outcome.csv}")
     if outcome.report is not None:
         print(f"wrote {outcome.report} (open it in a browser) and {outcome.report.with_name('drift.json')}")
@@ -348,8 +407,9 @@ def _emulator_setup(args, transport: str, default_driver: str):
     from hilident.errors import ConfigError, UsageError
 
     if args.time_scale and not (math.isfinite(args.time_scale) and 0 < args.time_scale <= 1000):
-        raise UsageError(f"--time-scale {args.time_scale:g}: must be a number of simulated seconds per second "
-                         "in (0, 1000]")
+        raise UsageError(
+            f"--time-scale {args.time_scale:g}: must be a number of simulated seconds per second in (0, 1000]"
+        )
     if getattr(args, "port", 0) and not 0 < args.port < 65536:
         raise UsageError(f"--port {args.port}: must be a TCP port, 1..65535 (0: any free one)")
     if getattr(args, "baudrate", 0) and not 0 < args.baudrate <= 100_000_000:
@@ -360,8 +420,10 @@ def _emulator_setup(args, transport: str, default_driver: str):
     emu_cfg = replace(cfg.emulator, time_scale=args.time_scale) if args.time_scale else cfg.emulator
     driver = find_driver(args.driver or (cfg.device.driver if args.config else default_driver), cfg.device.driver_paths)
     if driver.transport != transport:
-        raise ConfigError("device.driver", f"{driver.name!r} is a {driver.transport} driver, not a {transport} one "
-                          f"(--driver {default_driver})")
+        raise ConfigError(
+            "device.driver",
+            f"{driver.name!r} is a {driver.transport} driver, not a {transport} one (--driver {default_driver})",
+        )
     return cfg, emu_cfg, driver
 
 
@@ -372,8 +434,11 @@ def _emulate_modbus(args) -> int:
     device = start(emu_cfg, driver, cfg.device, link="pty" if args.rtu else "tcp")
     print(device.port, flush=True)
     line = f"Modbus RTU at {device.device.baudrate} baud, parity N" if args.rtu else "Modbus TCP"
-    print(f"emulated {driver.name} ({line}, device id {device.device.modbus.device_id}); Ctrl-C to stop",
-          file=sys.stderr, flush=True)
+    print(
+        f"emulated {driver.name} ({line}, device id {device.device.modbus.device_id}); Ctrl-C to stop",
+        file=sys.stderr,
+        flush=True,
+    )
     return _serve_until_stopped(device)
 
 
@@ -383,8 +448,12 @@ def _emulate_canopen(args) -> int:
     cfg, emu_cfg, driver = _emulator_setup(args, "canopen", "canopen-servo")
     device = start_socketcand(emu_cfg, driver, cfg.device, port=args.port)
     print(device.port, flush=True)
-    print(f'emulated {driver.name}, node {device.device.canopen.node_id}, on socketcand: [device.canopen] '
-          f'can_interface = "socketcand", [device] port = "{device.port}"; Ctrl-C to stop', file=sys.stderr, flush=True)
+    print(
+        f"emulated {driver.name}, node {device.device.canopen.node_id}, on socketcand: [device.canopen] "
+        f'can_interface = "socketcand", [device] port = "{device.port}"; Ctrl-C to stop',
+        file=sys.stderr,
+        flush=True,
+    )
     return _serve_until_stopped(device)
 
 
@@ -403,13 +472,26 @@ def _emulate_fleet(args) -> int:
     from hilident.progress import Progress
 
     progress = Progress(enabled=not args.quiet)
-    result = write_fleet(args.out, args.axes, args.days, seed=args.seed, base=base, start=start,
-                         duration_s=args.duration_s, drifting_share=args.drifting_share, damaged=args.damaged,
-                         sample_rates_hz=tuple(args.sample_rate_hz) if args.sample_rate_hz else SAMPLE_RATES_HZ,
-                         viscous=args.viscous, overwrite=args.overwrite, progress=progress.fraction("recordings"),
-                         say=progress.step)
-    print(f"wrote {result.recordings} recordings of {args.axes} axes ({result.drifting} drifting, {result.damaged} "
-          f"damaged on purpose), {result.total_bytes / 1e6:.1f} MB, and the truth in {result.out / 'fleet.json'}")
+    result = write_fleet(
+        args.out,
+        args.axes,
+        args.days,
+        seed=args.seed,
+        base=base,
+        start=start,
+        duration_s=args.duration_s,
+        drifting_share=args.drifting_share,
+        damaged=args.damaged,
+        sample_rates_hz=tuple(args.sample_rate_hz) if args.sample_rate_hz else SAMPLE_RATES_HZ,
+        viscous=args.viscous,
+        overwrite=args.overwrite,
+        progress=progress.fraction("recordings"),
+        say=progress.step,
+    )
+    print(
+        f"wrote {result.recordings} recordings of {args.axes} axes ({result.drifting} drifting, {result.damaged} "
+        f"damaged on purpose), {result.total_bytes / 1e6:.1f} MB, and the truth in {result.out / 'fleet.json'}"
+    )
     return 0
 
 
@@ -488,107 +570,211 @@ def build_parser() -> argparse.ArgumentParser:
     from hilident.cli import help_text as cli_help
 
     raw = argparse.RawDescriptionHelpFormatter
-    p = argparse.ArgumentParser(prog="hilident", formatter_class=raw, epilog=cli_help.TOP,
-                                description="Hardware-in-the-loop excitation, identification and notch tuning.")
+    p = argparse.ArgumentParser(
+        prog="hilident",
+        formatter_class=raw,
+        epilog=cli_help.TOP,
+        description="Hardware-in-the-loop excitation, identification and notch tuning.",
+    )
     p.add_argument("--version", action="version", version=f"hilident {__version__}")
-    p.add_argument("--log-level", type=str.lower, choices=("debug", "info", "warning", "error"),
-                   help="send the log of hilident and the libraries it drives (python-can, canopen, pymodbus) at "
-                        "this level and above to stderr (default: none configured, only the one-line messages)")
+    p.add_argument(
+        "--log-level",
+        type=str.lower,
+        choices=("debug", "info", "warning", "error"),
+        help="send the log of hilident and the libraries it drives (python-can, canopen, pymodbus) at "
+        "this level and above to stderr (default: none configured, only the one-line messages)",
+    )
     sub = p.add_subparsers(dest="command", required=True)
 
-    run = sub.add_parser("run", help="run a whole bench session from a config file", formatter_class=raw,
-                         epilog=cli_help.RUN)
+    run = sub.add_parser(
+        "run", help="run a whole bench session from a config file", formatter_class=raw, epilog=cli_help.RUN
+    )
     run.add_argument("config", help="TOML configuration")
     run.add_argument("--out", help="output folder (default: a new folder runs/<config name>-<YYYYmmdd-HHMMSS>)")
     run.add_argument("--overwrite", action="store_true", help="write into --out even when it holds earlier results")
     run.add_argument("-q", "--quiet", action="store_true", help="no progress output")
-    run.add_argument("--yes", action="store_true", help="go ahead without asking (on a real port the plan is "
-                     "still printed; without --yes a terminal is needed to confirm)")
-    run.add_argument("--dry-run", action="store_true", help="connect, identify the device, check every "
-                     "capability and rate, print the plan, and move nothing")
-    run.add_argument("--no-plots", action="store_true", help="write summary.json and the recordings, no PNGs "
-                     "(scripted and nightly runs)")
-    run.add_argument("--clear-fault", action="store_true", help="clear a fault the device has latched "
-                     "(a limit trip, a watchdog) when connecting, as [device] allow_fault_reset = true")
-    run.add_argument("--save", action="store_true", help="once the notches are uploaded, read back and verified, "
-                     "have the device store its parameters in non-volatile memory (they survive a power cycle)")
+    run.add_argument(
+        "--yes",
+        action="store_true",
+        help="go ahead without asking (on a real port the plan is "
+        "still printed; without --yes a terminal is needed to confirm)",
+    )
+    run.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="connect, identify the device, check every capability and rate, print the plan, and move nothing",
+    )
+    run.add_argument(
+        "--no-plots",
+        action="store_true",
+        help="write summary.json and the recordings, no PNGs (scripted and nightly runs)",
+    )
+    run.add_argument(
+        "--clear-fault",
+        action="store_true",
+        help="clear a fault the device has latched "
+        "(a limit trip, a watchdog) when connecting, as [device] allow_fault_reset = true",
+    )
+    run.add_argument(
+        "--save",
+        action="store_true",
+        help="once the notches are uploaded, read back and verified, "
+        "have the device store its parameters in non-volatile memory (they survive a power cycle)",
+    )
     run.set_defaults(func=_run)
 
-    ide = sub.add_parser("identify", help="identify the plant in a recording (hilident HDF5, CSV or .mat)",
-                         formatter_class=raw, epilog=cli_help.IDENTIFY)
+    ide = sub.add_parser(
+        "identify",
+        help="identify the plant in a recording (hilident HDF5, CSV or .mat)",
+        formatter_class=raw,
+        epilog=cli_help.IDENTIFY,
+    )
     ide.add_argument("data", help="recording file")
-    ide.add_argument("--config", help="TOML configuration with [data] (column mapping) and [model]; not needed "
-                     "for a hilident recording, which holds its run's configuration (a config given overrides it "
-                     "table by table)")
+    ide.add_argument(
+        "--config",
+        help="TOML configuration with [data] (column mapping) and [model]; not needed "
+        "for a hilident recording, which holds its run's configuration (a config given overrides it "
+        "table by table)",
+    )
     ide.add_argument("--out", help="output folder (default: a new folder runs/<data name>-<YYYYmmdd-HHMMSS>)")
     ide.add_argument("--overwrite", action="store_true", help="write into --out even when it holds earlier results")
-    ide.add_argument("--validation", help="a second recording of the same axis to validate the [model] fit on "
-                                          "(default: the last [model].holdout of the data)")
+    ide.add_argument(
+        "--validation",
+        help="a second recording of the same axis to validate the [model] fit on "
+        "(default: the last [model].holdout of the data)",
+    )
     ide.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     ide.set_defaults(func=_identify)
 
-    bat = sub.add_parser("batch", help="identify many recordings in parallel on Dask into one table "
-                         "(batch.parquet, batch.csv); a re-run skips those already in it", formatter_class=raw,
-                         epilog=cli_help.BATCH)
-    bat.add_argument("inputs", nargs="+", metavar="INPUT", help="recordings, folders (searched at any depth for "
-                     ".h5, .hdf5, .csv, .mat) or globs")
-    bat.add_argument("--config", help="TOML configuration as for identify (not needed for hilident recordings); "
-                     "its [batch] table sets the drift verdict")
-    bat.add_argument("--out", required=True, metavar="DIR", help="folder of the table: batch.parquet and batch.csv "
-                     "(an earlier table there is extended)")
-    bat.add_argument("--scheduler", metavar="ADDRESS", help="a Dask scheduler to run on (tcp://HOST:8786), or "
-                     "'synchronous' for a plain loop in this process (default: a local cluster on 127.0.0.1)")
-    bat.add_argument("--workers", type=int, metavar="N", help="worker processes of the local cluster (default: "
-                     "one per core)")
-    bat.add_argument("--retry-failed", action="store_true", help="identify again the recordings whose earlier "
-                     "row is a failure (default: skipped like the others)")
+    bat = sub.add_parser(
+        "batch",
+        help="identify many recordings in parallel on Dask into one table "
+        "(batch.parquet, batch.csv); a re-run skips those already in it",
+        formatter_class=raw,
+        epilog=cli_help.BATCH,
+    )
+    bat.add_argument(
+        "inputs",
+        nargs="+",
+        metavar="INPUT",
+        help="recordings, folders (searched at any depth for .h5, .hdf5, .csv, .mat) or globs",
+    )
+    bat.add_argument(
+        "--config",
+        help="TOML configuration as for identify (not needed for hilident recordings); "
+        "its [batch] table sets the drift verdict",
+    )
+    bat.add_argument(
+        "--out",
+        required=True,
+        metavar="DIR",
+        help="folder of the table: batch.parquet and batch.csv (an earlier table there is extended)",
+    )
+    bat.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="a Dask scheduler to run on (tcp://HOST:8786), or "
+        "'synchronous' for a plain loop in this process (default: a local cluster on 127.0.0.1)",
+    )
+    bat.add_argument(
+        "--workers", type=int, metavar="N", help="worker processes of the local cluster (default: one per core)"
+    )
+    bat.add_argument(
+        "--retry-failed",
+        action="store_true",
+        help="identify again the recordings whose earlier row is a failure (default: skipped like the others)",
+    )
     bat.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     bat.set_defaults(func=_batch)
 
-    upl = sub.add_parser("upload", help="upload the notches of an earlier run or identify to a device, with "
-                         "read-back, enable-after-match and rollback", formatter_class=raw, epilog=cli_help.UPLOAD)
-    upl.add_argument("--from", required=True, metavar="RUN_DIR|SUMMARY", help="a run or identify folder, or its "
-                     "summary.json")
-    upl.add_argument("--config", required=True, help="TOML configuration of the device ([device], [emulator] for "
-                     "the twin, [notch] for a notch designed at another filter rate)")
-    upl.add_argument("--slot", type=int, help="first filter slot (the notches go to it and the ones after it; "
-                     "default: the slots they were designed for)")
-    upl.add_argument("--save", action="store_true", help="once every slot read back as written, have the device "
-                     "store its parameters in non-volatile memory")
-    upl.add_argument("--dry-run", action="store_true", help="connect, read the slots, print what would be written "
-                     "(the stored form and its attenuation); write nothing")
-    upl.add_argument("--yes", action="store_true", help="go ahead on a real port without asking (the plan is still "
-                     "printed)")
+    upl = sub.add_parser(
+        "upload",
+        help="upload the notches of an earlier run or identify to a device, with "
+        "read-back, enable-after-match and rollback",
+        formatter_class=raw,
+        epilog=cli_help.UPLOAD,
+    )
+    upl.add_argument(
+        "--from", required=True, metavar="RUN_DIR|SUMMARY", help="a run or identify folder, or its summary.json"
+    )
+    upl.add_argument(
+        "--config",
+        required=True,
+        help="TOML configuration of the device ([device], [emulator] for "
+        "the twin, [notch] for a notch designed at another filter rate)",
+    )
+    upl.add_argument(
+        "--slot",
+        type=int,
+        help="first filter slot (the notches go to it and the ones after it; "
+        "default: the slots they were designed for)",
+    )
+    upl.add_argument(
+        "--save",
+        action="store_true",
+        help="once every slot read back as written, have the device store its parameters in non-volatile memory",
+    )
+    upl.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="connect, read the slots, print what would be written "
+        "(the stored form and its attenuation); write nothing",
+    )
+    upl.add_argument(
+        "--yes", action="store_true", help="go ahead on a real port without asking (the plan is still printed)"
+    )
     upl.add_argument("--out", help="output folder (default: a new folder beside the source, <source>-upload)")
     upl.add_argument("--overwrite", action="store_true", help="write into --out even when it holds earlier results")
     upl.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     upl.set_defaults(func=_upload)
 
-    shw = sub.add_parser("show", help="plot a recording: its channels over time with units, its events and the "
-                         "run's metadata")
+    shw = sub.add_parser(
+        "show", help="plot a recording: its channels over time with units, its events and the run's metadata"
+    )
     shw.add_argument("recording", help="a recording (.h5) written by hilident run")
-    shw.add_argument("--channels", metavar="A,B,...", help="channels to draw, separated by commas (default: all "
-                     "but sample_index and time_s)")
-    shw.add_argument("--out", metavar="PNG", help="write the figure to this PNG instead of opening a window "
-                     "(without a display it goes to <recording>.png beside the recording)")
+    shw.add_argument(
+        "--channels",
+        metavar="A,B,...",
+        help="channels to draw, separated by commas (default: all but sample_index and time_s)",
+    )
+    shw.add_argument(
+        "--out",
+        metavar="PNG",
+        help="write the figure to this PNG instead of opening a window "
+        "(without a display it goes to <recording>.png beside the recording)",
+    )
     shw.set_defaults(func=_show)
 
-    exp = sub.add_parser("export", help="write the plant model (transfer function and state space, continuous "
-                         "and at the drive's loop rate), grey-box parameters and notches for MATLAB, JSON or "
-                         "python-control")
+    exp = sub.add_parser(
+        "export",
+        help="write the plant model (transfer function and state space, continuous "
+        "and at the drive's loop rate), grey-box parameters and notches for MATLAB, JSON or "
+        "python-control",
+    )
     exp.add_argument("dir", metavar="DIR", help="a run, identify or upload output folder (or its summary.json)")
-    exp.add_argument("--format", required=True, choices=["mat", "json", "python-control"],
-                     help="mat: MATLAB structs (scipy.io.savemat); json: one documented file; python-control: a small "
-                     "script that rebuilds control.TransferFunction / StateSpace objects (needs pip install "
-                     "'hilident[control]'; in Python, hilident.io.export.to_control gives them directly)")
-    exp.add_argument("--out", metavar="FILE",
-                     help="file to write (default: model.mat, model.json or model_control.py in DIR)")
-    exp.add_argument("--rate-hz", type=float, metavar="HZ",
-                     help="discretise at this rate, Hz (default: the drive's loop rate the summary names)")
+    exp.add_argument(
+        "--format",
+        required=True,
+        choices=["mat", "json", "python-control"],
+        help="mat: MATLAB structs (scipy.io.savemat); json: one documented file; python-control: a small "
+        "script that rebuilds control.TransferFunction / StateSpace objects (needs pip install "
+        "'hilident[control]'; in Python, hilident.io.export.to_control gives them directly)",
+    )
+    exp.add_argument(
+        "--out", metavar="FILE", help="file to write (default: model.mat, model.json or model_control.py in DIR)"
+    )
+    exp.add_argument(
+        "--rate-hz",
+        type=float,
+        metavar="HZ",
+        help="discretise at this rate, Hz (default: the drive's loop rate the summary names)",
+    )
     exp.set_defaults(func=_export)
 
-    rep = sub.add_parser("report", help="write report.html again from the summary.json, plots and recordings of a "
-                         "run, identify or upload folder")
+    rep = sub.add_parser(
+        "report",
+        help="write report.html again from the summary.json, plots and recordings of a run, identify or upload folder",
+    )
     rep.add_argument("dir", metavar="DIR", help="the output folder (it must hold summary.json), or its summary.json")
     rep.set_defaults(func=_report)
 
@@ -597,11 +783,13 @@ def build_parser() -> argparse.ArgumentParser:
     ser = emu_sub.add_parser("serial", help="emulated serial board on a pseudo-terminal; prints its device path or URL")
     ser.add_argument("--config", help="take [emulator] (plant, friction, drive) from this config")
     ser.add_argument("--driver", help="driver name or folder (default: the config's, or myrio-board)")
-    ser.add_argument("--baudrate", type=int, default=0, help="line rate in baud (default: the config's, else the "
-                     "driver's)")
+    ser.add_argument(
+        "--baudrate", type=int, default=0, help="line rate in baud (default: the config's, else the driver's)"
+    )
     ser.add_argument("--time-scale", type=float, default=0.0, help="simulated seconds per second (default 1)")
-    ser.add_argument("--tcp", action="store_true",
-                     help="serve a raw TCP line on 127.0.0.1 (socket://) instead of a pty")
+    ser.add_argument(
+        "--tcp", action="store_true", help="serve a raw TCP line on 127.0.0.1 (socket://) instead of a pty"
+    )
     ser.set_defaults(func=_emulate_serial)
     mb = emu_sub.add_parser("modbus", help="emulated Modbus drive (TCP on 127.0.0.1, or RTU on a pty); prints its port")
     mb.add_argument("--config", help="take [emulator] and [device] (device_id, baudrate) from this config")
@@ -609,44 +797,80 @@ def build_parser() -> argparse.ArgumentParser:
     mb.add_argument("--time-scale", type=float, default=0.0, help="simulated seconds per second (default 1)")
     mb.add_argument("--rtu", action="store_true", help="Modbus RTU on a pseudo-terminal instead of Modbus TCP")
     mb.set_defaults(func=_emulate_modbus)
-    co = emu_sub.add_parser("canopen", help="emulated CiA 402 drive on a socketcand server on 127.0.0.1; "
-                            "prints HOST:PORT/CHANNEL")
+    co = emu_sub.add_parser(
+        "canopen", help="emulated CiA 402 drive on a socketcand server on 127.0.0.1; prints HOST:PORT/CHANNEL"
+    )
     co.add_argument("--config", help="take [emulator] and [device] (node_id) from this config")
     co.add_argument("--driver", help="driver name or folder (default: the config's, or canopen-servo)")
     co.add_argument("--time-scale", type=float, default=0.0, help="simulated seconds per second (default 1)")
     co.add_argument("--port", type=int, default=0, help="TCP port (default: any free one)")
     co.set_defaults(func=_emulate_canopen)
-    flt = emu_sub.add_parser("fleet", help="write nightly identification recordings of N emulated axes over D days "
-                             "(some drifting, a few damaged) and their truth, fleet.json: test data for many "
-                             "recordings at once")
+    flt = emu_sub.add_parser(
+        "fleet",
+        help="write nightly identification recordings of N emulated axes over D days "
+        "(some drifting, a few damaged) and their truth, fleet.json: test data for many "
+        "recordings at once",
+    )
     flt.add_argument("--axes", type=int, required=True, help="number of axes")
     flt.add_argument("--days", type=int, required=True, help="number of days, one recording per axis per night")
     flt.add_argument("--out", required=True, help="the fleet folder (fleet.json and one folder per axis)")
     flt.add_argument("--seed", type=int, default=1, help="seed of everything random in the fleet (default 1)")
-    flt.add_argument("--duration-s", type=float, help="analysed length of each recording, s, whole excitation "
-                     "periods, at most 600 (default: the base's [excitation] duration_s; one lead-in period more is "
-                     "recorded)")
-    flt.add_argument("--drifting-share", type=float, default=0.3, help="share of the axes whose stiffness drifts "
-                     "(default 0.3; at least one axis when there are two or more)")
-    flt.add_argument("--sample-rate-hz", type=float, nargs="+", metavar="HZ", help="sample rates given to the axes "
-                     "in turn (default: 500 1000 2000)")
+    flt.add_argument(
+        "--duration-s",
+        type=float,
+        help="analysed length of each recording, s, whole excitation "
+        "periods, at most 600 (default: the base's [excitation] duration_s; one lead-in period more is "
+        "recorded)",
+    )
+    flt.add_argument(
+        "--drifting-share",
+        type=float,
+        default=0.3,
+        help="share of the axes whose stiffness drifts (default 0.3; at least one axis when there are two or more)",
+    )
+    flt.add_argument(
+        "--sample-rate-hz",
+        type=float,
+        nargs="+",
+        metavar="HZ",
+        help="sample rates given to the axes in turn (default: 500 1000 2000)",
+    )
     flt.add_argument("--start", default="2026-01-01", help="the first day, YYYY-MM-DD (default 2026-01-01)")
-    flt.add_argument("--config", help="base configuration: its [emulator.plant] (two_mass), [excitation] "
-                     "(a multisine in torque) and [identification] (default: the gantry axis of "
-                     "configs/emulated-gantry.toml without friction)")
-    flt.add_argument("--viscous", action="store_true", help="keep the base's viscous friction (Fv); its Coulomb "
-                     "and static parts are always dropped (default: no friction)")
-    flt.add_argument("--damaged", type=int, help="number of recordings damaged on purpose (default: about 2 %%, "
-                     "at least 2 from 20 recordings on)")
-    flt.add_argument("--overwrite", action="store_true", help="write into --out even when it holds files (an earlier "
-                     "fleet's recordings and fleet.json there are removed first)")
+    flt.add_argument(
+        "--config",
+        help="base configuration: its [emulator.plant] (two_mass), [excitation] "
+        "(a multisine in torque) and [identification] (default: the gantry axis of "
+        "configs/emulated-gantry.toml without friction)",
+    )
+    flt.add_argument(
+        "--viscous",
+        action="store_true",
+        help="keep the base's viscous friction (Fv); its Coulomb "
+        "and static parts are always dropped (default: no friction)",
+    )
+    flt.add_argument(
+        "--damaged",
+        type=int,
+        help="number of recordings damaged on purpose (default: about 2 %%, at least 2 from 20 recordings on)",
+    )
+    flt.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into --out even when it holds files (an earlier "
+        "fleet's recordings and fleet.json there are removed first)",
+    )
     flt.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     flt.set_defaults(func=_emulate_fleet)
 
-    drv = sub.add_parser("drivers", help="list the driver descriptions found; write or check a CANopen driver "
-                         "folder from a vendor EDS")
-    drv.add_argument("-v", "--verbose", action="store_true", help="each driver's channels, rates, modes, filter "
-                     "slots and capabilities")
+    drv = sub.add_parser(
+        "drivers", help="list the driver descriptions found; write or check a CANopen driver folder from a vendor EDS"
+    )
+    drv.add_argument(
+        "-v",
+        "--verbose",
+        action="store_true",
+        help="each driver's channels, rates, modes, filter slots and capabilities",
+    )
     drv.set_defaults(func=_drivers)
     drv_sub = drv.add_subparsers(dest="action")
     dnew = drv_sub.add_parser("new", help="write a driver folder from a vendor EDS/DCF (assumed values marked)")
@@ -656,12 +880,21 @@ def build_parser() -> argparse.ArgumentParser:
     dchk = drv_sub.add_parser("check", help="validate a driver folder against its EDS; exit 2 on errors")
     dchk.add_argument("folder", help="the driver folder")
 
-    ini = sub.add_parser("init", help="write a commented configuration to start from (runs on the emulated twin "
-                         "as written; keys to check before a real port are marked CHECK)")
-    ini.add_argument("--transport", choices=("serial", "canopen", "modbus"),
-                     help="serial board, CANopen CiA 402 drive or Modbus drive (default: the driver's, else serial)")
-    ini.add_argument("--driver", help="driver name or folder (default: myrio-board, canopen-servo or modbus-servo "
-                     "for the transport; hilident drivers lists them)")
+    ini = sub.add_parser(
+        "init",
+        help="write a commented configuration to start from (runs on the emulated twin "
+        "as written; keys to check before a real port are marked CHECK)",
+    )
+    ini.add_argument(
+        "--transport",
+        choices=("serial", "canopen", "modbus"),
+        help="serial board, CANopen CiA 402 drive or Modbus drive (default: the driver's, else serial)",
+    )
+    ini.add_argument(
+        "--driver",
+        help="driver name or folder (default: myrio-board, canopen-servo or modbus-servo "
+        "for the transport; hilident drivers lists them)",
+    )
     ini.add_argument("--out", default="hilident.toml", help="the file to write (default: hilident.toml)")
     ini.add_argument("--overwrite", action="store_true", help="replace --out when it exists")
     ini.set_defaults(func=_init)
@@ -714,4 +947,3 @@ def _say(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
     except (OSError, ValueError):
         pass
-

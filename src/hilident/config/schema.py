@@ -51,9 +51,19 @@ INT_RANGE = (-(2**31), 2**31 - 1)
 FLOAT_MAX = 1e30
 
 
-
-def spec(default=dataclasses.MISSING, *, gt=None, ge=None, le=None, lt=None, choices=None, max_items=None, doc="",
-          auto=None, check=None):
+def spec(
+    default=dataclasses.MISSING,
+    *,
+    gt=None,
+    ge=None,
+    le=None,
+    lt=None,
+    choices=None,
+    max_items=None,
+    doc="",
+    auto=None,
+    check=None,
+):
     """A dataclass field with validation metadata (bounds, choices, list length).
 
     ``auto``: the string ``"auto"`` is accepted besides a number (``True``), or
@@ -62,8 +72,17 @@ def spec(default=dataclasses.MISSING, *, gt=None, ge=None, le=None, lt=None, cho
     list) that passed the other checks; it raises :class:`ConfigError` naming
     ``key``.
     """
-    meta = {"gt": gt, "ge": ge, "le": le, "lt": lt, "choices": choices, "max_items": max_items, "doc": doc,
-            "auto": auto, "check": check}
+    meta = {
+        "gt": gt,
+        "ge": ge,
+        "le": le,
+        "lt": lt,
+        "choices": choices,
+        "max_items": max_items,
+        "doc": doc,
+        "auto": auto,
+        "check": check,
+    }
     if isinstance(default, (list, dict)):  # each instance gets its own copy of a mutable default
         return field(default_factory=functools.partial(type(default), default), metadata=meta)
     return field(default=default, metadata=meta)
@@ -110,7 +129,6 @@ def _moved_alias(name: str, sub: str) -> property:
     return property(read, doc=f"Deprecated alias of ``{sub}.{name}``.")
 
 
-
 def build_table(cls: type[_Table], table: object, prefix: str, source: str) -> _Table:
     """Validate TOML ``table`` into the dataclass ``cls`` (fields declared with ``_spec``).
 
@@ -139,9 +157,7 @@ def _build(cls, table, prefix: str, source: str):
     moved = _moved_values(cls, table, prefix, source)
     unknown = sorted(set(table) - set(fields) - set(moved))
     if unknown and not getattr(cls, "open_table", False):
-        raise ConfigError(
-            prefix + _name(unknown[0]), f"unknown key (known here: {', '.join(sorted(fields))})", source
-        )
+        raise ConfigError(prefix + _name(unknown[0]), f"unknown key (known here: {', '.join(sorted(fields))})", source)
     values = {}
     for name, f in fields.items():
         key = prefix + name
@@ -170,13 +186,18 @@ def _moved_values(cls, table: dict, prefix: str, source: str) -> dict:
             raise ConfigError(prefix + name, f"is given twice: here and as [{new_key}]; keep the latter", source)
         sub_cls = typing.get_type_hints(cls)[sub]
         sub_field = next(f for f in dataclasses.fields(sub_cls) if f.name == name)
-        values[name] = _convert(typing.get_type_hints(sub_cls)[name], table[name], sub_field.metadata,
-                                prefix + name, source)
+        values[name] = _convert(
+            typing.get_type_hints(sub_cls)[name], table[name], sub_field.metadata, prefix + name, source
+        )
         # explicit: the place worth naming is the file and key, not this line of hilident
-        warnings.warn_explicit(f"{source}: [{prefix}{name}] is deprecated: write it as {name} in "
-                               f"[{prefix}{sub}] ([{new_key}]); the flat key is read until the next release",
-                               ConfigKeyDeprecationWarning, "hilident.config.tables", 0,
-                               module="hilident.config.tables")
+        warnings.warn_explicit(
+            f"{source}: [{prefix}{name}] is deprecated: write it as {name} in "
+            f"[{prefix}{sub}] ([{new_key}]); the flat key is read until the next release",
+            ConfigKeyDeprecationWarning,
+            "hilident.config.tables",
+            0,
+            module="hilident.config.tables",
+        )
     return values
 
 
@@ -229,8 +250,12 @@ def _list(item, value, meta, key: str, source: str) -> list:
     return items
 
 
-_BOUNDS = (("gt", lambda v, b: v > b, ">"), ("ge", lambda v, b: v >= b, ">="),
-           ("le", lambda v, b: v <= b, "<="), ("lt", lambda v, b: v < b, "<"))
+_BOUNDS = (
+    ("gt", lambda v, b: v > b, ">"),
+    ("ge", lambda v, b: v >= b, ">="),
+    ("le", lambda v, b: v <= b, "<="),
+    ("lt", lambda v, b: v < b, "<"),
+)
 
 
 def _scalar(hint, value, meta, key, source):
@@ -293,5 +318,3 @@ def _check_string(value: str, key: str, source: str) -> None:
         raise ConfigError(key, f"may be at most {MAX_STRING_CHARS} characters long, got {len(value)}", source)
     if not value.isprintable() and any(ord(c) < 32 or ord(c) == 127 for c in value):
         raise ConfigError(key, f"must not contain control characters, got {show(value)}", source)
-
-

@@ -18,12 +18,18 @@ DEFAULT_DRIVERS = {"serial": "myrio-board", "canopen": "canopen-servo", "modbus"
 TRANSPORTS = tuple(DEFAULT_DRIVERS)
 
 _PORT_NOTE = {
-    "serial": ('"emulator", or the board\'s port: /dev/ttyUSB0, /dev/ttyACM0, COM3,',
-               "or a pyserial URL (socket://HOST:PORT, rfc2217://HOST:PORT); hilident ports lists the ports found"),
-    "canopen": ('"emulator", or the python-can channel: can0 (socketcan), PCAN_USBBUS1 (pcan),',
-                "0 (kvaser), HOST:PORT/CHANNEL (socketcand); hilident ports lists the CAN channels found"),
-    "modbus": ('"emulator", or tcp://HOST:PORT for Modbus TCP (usually port 502),',
-               "else the RTU serial port (/dev/ttyUSB0, COM3); hilident ports lists the serial ports found"),
+    "serial": (
+        '"emulator", or the board\'s port: /dev/ttyUSB0, /dev/ttyACM0, COM3,',
+        "or a pyserial URL (socket://HOST:PORT, rfc2217://HOST:PORT); hilident ports lists the ports found",
+    ),
+    "canopen": (
+        '"emulator", or the python-can channel: can0 (socketcan), PCAN_USBBUS1 (pcan),',
+        "0 (kvaser), HOST:PORT/CHANNEL (socketcand); hilident ports lists the CAN channels found",
+    ),
+    "modbus": (
+        '"emulator", or tcp://HOST:PORT for Modbus TCP (usually port 502),',
+        "else the RTU serial port (/dev/ttyUSB0, COM3); hilident ports lists the serial ports found",
+    ),
 }
 
 _TRANSPORT_TABLES = {
@@ -46,11 +52,15 @@ stopbits = 1                     # RTU only: 1 or 2
 }
 
 
-_EMULATOR_LINK = {"serial": 'link = "pty"                     # the twin on a pseudo-terminal, as a USB board\n',
-                  "modbus": 'link = "tcp"                     # the twin as Modbus TCP on 127.0.0.1 ("pty": RTU)\n',
-                  "canopen": ""}
-_FRICTION_NOTE = {True: "constant-speed legs both ways, then a Stribeck friction fit",
-                  False: "off: the driver has no velocity or position mode for the legs"}
+_EMULATOR_LINK = {
+    "serial": 'link = "pty"                     # the twin on a pseudo-terminal, as a USB board\n',
+    "modbus": 'link = "tcp"                     # the twin as Modbus TCP on 127.0.0.1 ("pty": RTU)\n',
+    "canopen": "",
+}
+_FRICTION_NOTE = {
+    True: "constant-speed legs both ways, then a Stribeck friction fit",
+    False: "off: the driver has no velocity or position mode for the legs",
+}
 
 
 def starter_config(transport: str | None = None, driver_name: str | None = None) -> str:
@@ -78,8 +88,10 @@ def starter_config(transport: str | None = None, driver_name: str | None = None)
     name = driver_name or DEFAULT_DRIVERS[transport or "serial"]
     driver = find_driver(name)
     if transport is not None and driver.transport != transport:
-        raise UsageError(f"--driver {name}: {driver.name!r} is a {driver.transport} driver, not a {transport} one "
-                         f"(the {transport} driver shipped: {DEFAULT_DRIVERS[transport]})")
+        raise UsageError(
+            f"--driver {name}: {driver.name!r} is a {driver.transport} driver, not a {transport} one "
+            f"(the {transport} driver shipped: {DEFAULT_DRIVERS[transport]})"
+        )
     transport = driver.transport
     rates = [r for r in valid_sample_rates(driver) if r <= 1000.0 + 1e-9] or valid_sample_rates(driver, 1)
     sample_rate = rates[0]
@@ -91,12 +103,21 @@ def starter_config(transport: str | None = None, driver_name: str | None = None)
     friction = "velocity" in modes or "position" in modes
     channels = [c.name for c in driver.channels]
     output = "velocity_mps" if "velocity_mps" in channels or not channels else channels[-1]
-    return _render(transport, driver.name, sample_rate, mode, friction, output, driver.filter_slots,
-                   no_excitation=not modes)
+    return _render(
+        transport, driver.name, sample_rate, mode, friction, output, driver.filter_slots, no_excitation=not modes
+    )
 
 
-def _render(transport: str, driver: str, sample_rate: float, mode: str, friction: bool, output: str,
-            filter_slots: int, no_excitation: bool) -> str:
+def _render(
+    transport: str,
+    driver: str,
+    sample_rate: float,
+    mode: str,
+    friction: bool,
+    output: str,
+    filter_slots: int,
+    no_excitation: bool,
+) -> str:
     amplitude = _amplitude_lines(mode)
     head = [
         f"# hilident configuration: {transport} transport, driver {driver!r} (written by hilident init).",
@@ -105,11 +126,15 @@ def _render(transport: str, driver: str, sample_rate: float, mode: str, friction
         "# hilident run THIS_FILE --dry-run: it connects, checks and prints the plan, and moves nothing.",
     ]
     if no_excitation:
-        head.append("# This driver declares no excitation mode: identify a recording of the drive (hilident identify)"
-                    "\n# and upload the notches with hilident upload --config THIS_FILE.")
+        head.append(
+            "# This driver declares no excitation mode: identify a recording of the drive (hilident identify)"
+            "\n# and upload the notches with hilident upload --config THIS_FILE."
+        )
     if not filter_slots:
         head.append("# This driver has no filter slots: the notches are designed and reported, not uploaded.")
-    return "\n".join(head) + f"""
+    return (
+        "\n".join(head)
+        + f"""
 
 [device]
 {_pad(f'driver = "{driver}"')}# driver name (hilident drivers -v lists them) or a folder
@@ -193,6 +218,7 @@ torque_noise_nm = 0.01
 laser_range_m = [-0.005, 0.005]
 laser_resolution_m = 1.2e-4
 """
+    )
 
 
 def _pad(assignment: str) -> str:
@@ -202,8 +228,10 @@ def _pad(assignment: str) -> str:
 
 def _amplitude_lines(mode: str) -> str:
     if mode in ("torque", "torque_injection"):
-        return ('amplitude_nm = "auto"            # CHECK: peak torque, N*m; "auto": chosen by short trials before '
-                "the run,\n                                 #        at most limits.torque_nm (or a number, N*m)")
+        return (
+            'amplitude_nm = "auto"            # CHECK: peak torque, N*m; "auto": chosen by short trials before '
+            "the run,\n                                 #        at most limits.torque_nm (or a number, N*m)"
+        )
     if mode == "velocity":
         return "amplitude_mps = 0.01             # CHECK: peak velocity set-point perturbation, m/s"
     return "amplitude_m = 0.0005             # CHECK: peak position set-point perturbation, m"

@@ -62,11 +62,13 @@ def _check_object_address(value: str, key: str, source: str) -> None:
 class CanopenDeviceConfig:
     """``[device.canopen]``: how the host reaches a CANopen drive."""
 
-    can_interface: str = _spec("socketcan", doc="python-can interface (socketcan, pcan, kvaser, socketcand, virtual, "
-                                                "...)")
+    can_interface: str = _spec(
+        "socketcan", doc="python-can interface (socketcan, pcan, kvaser, socketcand, virtual, ...)"
+    )
     node_id: int = _spec(1, ge=1, le=127, doc="node id of the drive")
-    trace: str = _spec("", choices=("", "asc", "blf"), doc='write a CAN trace of each run next to its recording: "", '
-                                                           '"asc" or "blf"')
+    trace: str = _spec(
+        "", choices=("", "asc", "blf"), doc='write a CAN trace of each run next to its recording: "", "asc" or "blf"'
+    )
 
 
 @dataclass(frozen=True)
@@ -83,27 +85,46 @@ class ModbusDeviceConfig:
 class DeviceConfig:
     #: Flat keys of earlier releases and the sub-table each moved to (read with a DeprecationWarning).
     moved_keys: typing.ClassVar[dict[str, str]] = {
-        "can_interface": "canopen", "node_id": "canopen", "trace": "canopen",
-        "device_id": "modbus", "parity": "modbus", "stopbits": "modbus"}
+        "can_interface": "canopen",
+        "node_id": "canopen",
+        "trace": "canopen",
+        "device_id": "modbus",
+        "parity": "modbus",
+        "stopbits": "modbus",
+    }
 
     driver: str = _spec("myrio-board", doc="driver name (folder in drivers/) or path to a driver folder")
-    port: str = _spec("emulator", doc='"emulator"; serial board: a device path, COMx or pyserial URL (socket://, '
-                      'rfc2217://); CANopen: the python-can channel (can0, PCAN_USBBUS1, ...); '
-                      'Modbus: "tcp://HOST:PORT" for Modbus TCP, else the RTU serial port or pyserial URL')
+    port: str = _spec(
+        "emulator",
+        doc='"emulator"; serial board: a device path, COMx or pyserial URL (socket://, '
+        "rfc2217://); CANopen: the python-can channel (can0, PCAN_USBBUS1, ...); "
+        'Modbus: "tcp://HOST:PORT" for Modbus TCP, else the RTU serial port or pyserial URL',
+    )
     baudrate: int = _spec(0, ge=0, doc="serial or RTU line rate in baud, or CAN bit rate; 0 uses the driver's default")
     timeout_s: float = _spec(2.0, gt=0, doc="how long to wait for an answer from the device")
     driver_paths: list[str] = _spec([], max_items=32, doc="extra folders searched for driver descriptions")
-    acquisition: str = _spec("auto", choices=("auto", "streamed", "buffered", "recorder"),
-                             doc="streamed: the host sends set-points each cycle; buffered: the drive plays a "
-                                 "stored table and captures into its buffer; recorder: the drive's own generator "
-                                 "plays and its recorder records; auto: the driver's choice")
-    allow_fault_reset: bool = _spec(False, doc="clear a fault the device has latched (a limit trip, a watchdog, "
-                                    "a drive fault) when connecting; without it such a device is refused "
-                                    "(hilident run --clear-fault sets it for one run)")
-    host_timeout_s: float = _spec(0.5, gt=0, le=60, doc="how long the device may go without hearing from the host "
-                                  "before it stops the axis on its own: CANopen heartbeat consumer (0x1016), Modbus "
-                                  "the driver's communication-timeout parameter; the serial board's watchdog is "
-                                  "fixed by the board (PROTOCOL.md section 8)")
+    acquisition: str = _spec(
+        "auto",
+        choices=("auto", "streamed", "buffered", "recorder"),
+        doc="streamed: the host sends set-points each cycle; buffered: the drive plays a "
+        "stored table and captures into its buffer; recorder: the drive's own generator "
+        "plays and its recorder records; auto: the driver's choice",
+    )
+    allow_fault_reset: bool = _spec(
+        False,
+        doc="clear a fault the device has latched (a limit trip, a watchdog, "
+        "a drive fault) when connecting; without it such a device is refused "
+        "(hilident run --clear-fault sets it for one run)",
+    )
+    host_timeout_s: float = _spec(
+        0.5,
+        gt=0,
+        le=60,
+        doc="how long the device may go without hearing from the host "
+        "before it stops the axis on its own: CANopen heartbeat consumer (0x1016), Modbus "
+        "the driver's communication-timeout parameter; the serial board's watchdog is "
+        "fixed by the board (PROTOCOL.md section 8)",
+    )
     canopen: CanopenDeviceConfig = _spec(CanopenDeviceConfig(), doc="CANopen drives")
     modbus: ModbusDeviceConfig = _spec(ModbusDeviceConfig(), doc="Modbus drives")
 
@@ -126,8 +147,9 @@ class LimitsConfig:
 @dataclass(frozen=True)
 class FrictionTestConfig:
     enabled: bool = _spec(True)
-    speeds_mps: list[float] = _spec([0.005, 0.01, 0.02, 0.05, 0.1, 0.2], max_items=64,
-                                    doc="constant test speeds, each run both ways")
+    speeds_mps: list[float] = _spec(
+        [0.005, 0.01, 0.02, 0.05, 0.1, 0.2], max_items=64, doc="constant test speeds, each run both ways"
+    )
     hold_s: float = _spec(1.0, gt=0, doc="time at each constant speed")
     settle_s: float = _spec(0.4, ge=0, doc="part of the hold not used for averaging")
     accel_mps2: float = _spec(2.0, gt=0, doc="acceleration between speeds")
@@ -136,14 +158,20 @@ class FrictionTestConfig:
 
 
 #: Where an excitation can enter, and the key of its amplitude (N·m, m/s, m).
-AMPLITUDE_KEY_OF_MODE = {"torque_injection": "amplitude_nm", "torque": "amplitude_nm",
-                         "velocity": "amplitude_mps", "position": "amplitude_m"}
+AMPLITUDE_KEY_OF_MODE = {
+    "torque_injection": "amplitude_nm",
+    "torque": "amplitude_nm",
+    "velocity": "amplitude_mps",
+    "position": "amplitude_m",
+}
 EXCITATION_MODES = tuple(AMPLITUDE_KEY_OF_MODE)
 #: Modes whose excitation is a set-point perturbation of a loop the drive closes.
 SETPOINT_MODES = ("velocity", "position")
 #: Why amplitude_mps / amplitude_m refuse "auto".
-AUTO_SETPOINT_REFUSED = ('"auto" chooses a torque amplitude (excitation.amplitude_nm, modes torque and '
-                         "torque_injection); a set-point perturbation's size must be given as a number")
+AUTO_SETPOINT_REFUSED = (
+    '"auto" chooses a torque amplitude (excitation.amplitude_nm, modes torque and '
+    "torque_injection); a set-point perturbation's size must be given as a number"
+)
 #: amplitude_nm = "auto": share of the band's excited lines that must reach the coherence target.
 AUTO_BAND_SHARE = 0.9
 #: amplitude_nm = "auto" without a friction test or auto_start_nm: the first trial's share of the ceiling.
@@ -153,16 +181,25 @@ AUTO_START_SHARE = 0.05
 @dataclass(frozen=True)
 class ExcitationConfig:
     kind: str = _spec("multisine", choices=("sine", "square", "chirp", "noise", "prbs", "multisine", "step"))
-    mode: str = _spec("torque_injection", choices=EXCITATION_MODES,
-                      doc="where the excitation enters: torque_injection (added to the torque of a loop holding the "
-                          "axis), torque (open loop), velocity or position (a set-point perturbation in closed loop)")
-    amplitude_nm: float | str = _spec(1.0, gt=0, auto=True,
-                                      doc='peak torque of the excitation (noise: rms), modes torque and '
-                                          'torque_injection; "auto": chosen by short trials before the run (multisine)')
-    amplitude_mps: float = _spec(0.0, ge=0, auto=AUTO_SETPOINT_REFUSED,
-                                 doc="peak velocity set-point perturbation (noise: rms), mode velocity")
-    amplitude_m: float = _spec(0.0, ge=0, auto=AUTO_SETPOINT_REFUSED,
-                               doc="peak position set-point perturbation (noise: rms), mode position")
+    mode: str = _spec(
+        "torque_injection",
+        choices=EXCITATION_MODES,
+        doc="where the excitation enters: torque_injection (added to the torque of a loop holding the "
+        "axis), torque (open loop), velocity or position (a set-point perturbation in closed loop)",
+    )
+    amplitude_nm: float | str = _spec(
+        1.0,
+        gt=0,
+        auto=True,
+        doc="peak torque of the excitation (noise: rms), modes torque and "
+        'torque_injection; "auto": chosen by short trials before the run (multisine)',
+    )
+    amplitude_mps: float = _spec(
+        0.0, ge=0, auto=AUTO_SETPOINT_REFUSED, doc="peak velocity set-point perturbation (noise: rms), mode velocity"
+    )
+    amplitude_m: float = _spec(
+        0.0, ge=0, auto=AUTO_SETPOINT_REFUSED, doc="peak position set-point perturbation (noise: rms), mode position"
+    )
     f_min_hz: float = _spec(1.0, gt=0)
     f_max_hz: float = _spec(100.0, gt=0)
     frequency_hz: float = _spec(10.0, gt=0, doc="sine and square")
@@ -172,21 +209,35 @@ class ExcitationConfig:
     register_length: int = _spec(10, ge=2, le=32, doc="PRBS shift-register length")
     clock_divider: int = _spec(1, ge=1, doc="PRBS samples per bit")
     fade_s: float = _spec(0.1, ge=0, doc="raised-cosine fade in and out")
-    auto_coherence: float = _spec(0.0, ge=0, lt=1, doc='amplitude_nm = "auto": coherence the run must reach at '
-                                  "AUTO_BAND_SHARE of the excited lines of the band; 0: "
-                                  "identification.coherence_threshold + 0.15, at most 0.95")
+    auto_coherence: float = _spec(
+        0.0,
+        ge=0,
+        lt=1,
+        doc='amplitude_nm = "auto": coherence the run must reach at '
+        "AUTO_BAND_SHARE of the excited lines of the band; 0: "
+        "identification.coherence_threshold + 0.15, at most 0.95",
+    )
     auto_trial_periods: int = _spec(2, ge=2, le=16, doc="auto: multisine periods of each trial (plus one lead-in)")
     auto_max_trials: int = _spec(4, ge=1, le=16, doc="auto: most trials before the run")
-    auto_start_nm: float = _spec(0.0, ge=0, doc="auto: first trial's amplitude, N*m; 0: the multisine whose rms is "
-                                 "the friction test's Fs / auto_nonlinear_share, without one AUTO_START_SHARE of the "
-                                 "ceiling")
+    auto_start_nm: float = _spec(
+        0.0,
+        ge=0,
+        doc="auto: first trial's amplitude, N*m; 0: the multisine whose rms is "
+        "the friction test's Fs / auto_nonlinear_share, without one AUTO_START_SHARE of the "
+        "ceiling",
+    )
     auto_max_nm: float = _spec(0.0, ge=0, doc="auto: largest amplitude auto may choose, N*m; 0: limits.torque_nm")
     auto_safety: float = _spec(1.5, ge=1, le=10, doc="auto: factor on the amplitude the trials predict is needed")
-    auto_nonlinear_share: float = _spec(0.1, gt=0, le=1, doc="auto: largest share of nonlinear distortion the run "
-                                        "may carry: the fitted friction's nonlinear part (Coulomb and Stribeck) over "
-                                        "the excitation (rms), or without a friction test the change of the measured "
-                                        "response between two trials, scaled to the higher amplitude; stick-slip "
-                                        "repeats every period, so coherence does not see the distortion it causes")
+    auto_nonlinear_share: float = _spec(
+        0.1,
+        gt=0,
+        le=1,
+        doc="auto: largest share of nonlinear distortion the run "
+        "may carry: the fitted friction's nonlinear part (Coulomb and Stribeck) over "
+        "the excitation (rms), or without a friction test the change of the measured "
+        "response between two trials, scaled to the higher amplitude; stick-slip "
+        "repeats every period, so coherence does not see the distortion it causes",
+    )
 
     @property
     def amplitude_auto(self) -> bool:
@@ -225,20 +276,35 @@ class IdentificationConfig:
     f_max_hz: float = _spec(0.0, ge=0)
     max_resonances: int = _spec(2, ge=0, le=16)
     min_prominence_db: float = _spec(6.0, ge=0)
-    model_max_order: int = _spec(4, ge=0, le=12, doc="highest denominator order of the transfer function fitted "
-                                 "to the plant response (modal form in summary.json); 0: no fit")
-    model_order: str = _spec("auto", choices=("auto",) + tuple(str(n) for n in range(1, 13)),
-                             doc='denominator degree of the fitted transfer function, integrators included, as a '
-                                 'string ("3"); auto: chosen by model_criterion up to model_max_order')
-    model_relative_degree: str = _spec("auto", choices=("auto",) + tuple(str(n) for n in range(0, 7)),
-                                       doc='denominator minus numerator degree, as a string ("1"); auto: chosen by '
-                                           "model_criterion (0 to 3)")
-    model_integrators: str = _spec("auto", choices=("auto", "0", "1", "2"),
-                                   doc='poles at s = 0 (rigid-body modes), as a string ("1"); auto: chosen by '
-                                       "model_criterion")
-    model_criterion: str = _spec("mdl", choices=("mdl", "aic", "validation"),
-                                 doc="what picks the structure: mdl (minimum description length on the coherence-"
-                                     "weighted complex error), aic, or validation (error on held-out frequency lines)")
+    model_max_order: int = _spec(
+        4,
+        ge=0,
+        le=12,
+        doc="highest denominator order of the transfer function fitted "
+        "to the plant response (modal form in summary.json); 0: no fit",
+    )
+    model_order: str = _spec(
+        "auto",
+        choices=("auto",) + tuple(str(n) for n in range(1, 13)),
+        doc="denominator degree of the fitted transfer function, integrators included, as a "
+        'string ("3"); auto: chosen by model_criterion up to model_max_order',
+    )
+    model_relative_degree: str = _spec(
+        "auto",
+        choices=("auto",) + tuple(str(n) for n in range(0, 7)),
+        doc='denominator minus numerator degree, as a string ("1"); auto: chosen by model_criterion (0 to 3)',
+    )
+    model_integrators: str = _spec(
+        "auto",
+        choices=("auto", "0", "1", "2"),
+        doc='poles at s = 0 (rigid-body modes), as a string ("1"); auto: chosen by model_criterion',
+    )
+    model_criterion: str = _spec(
+        "mdl",
+        choices=("mdl", "aic", "validation"),
+        doc="what picks the structure: mdl (minimum description length on the coherence-"
+        "weighted complex error), aic, or validation (error on held-out frequency lines)",
+    )
 
 
 @dataclass(frozen=True)
@@ -248,44 +314,87 @@ class NotchConfig:
     width_factor: float = _spec(1.0, gt=0, doc="notch width relative to the resonance's half-power bandwidth")
     min_width_ratio: float = _spec(0.15, ge=0, lt=1, doc="smallest notch width as a fraction of its centre frequency")
     verify: bool = _spec(True, doc="run the excitation again with the notches enabled")
-    min_reduction_db: float = _spec(20.0, ge=0, doc="warn when the verification shows less reduction (band figure); "
-                                    "the notch width is chosen to reach it where the plant allows")
-    verify_band_bandwidths: float = _spec(2.0, gt=0, le=50, doc="verification band figure: largest response within "
-                                          "this many half-power bandwidths either side of the mode, before vs after")
-    max_width_ratio: float = _spec(1.0, gt=0, lt=2, doc="widest notch the width search may choose, as a fraction "
-                                   "of its centre frequency")
-    target_attenuation_db: float = _spec(20.0, gt=0, doc="least attenuation of the designed notch at both ends of "
-                                         "the 95 % interval of the resonance frequency; the notch is made wide enough")
-    keep_modulus_margin: float = _spec(0.5, ge=0, le=1, doc="[map]: the notches for the workspace must keep this "
-                                       "fraction of the holding loop's modulus margin min|1 + L| (measured at the "
-                                       "mapped positions); a design that costs more gives way to a narrower one. "
-                                       "0: no check")
+    min_reduction_db: float = _spec(
+        20.0,
+        ge=0,
+        doc="warn when the verification shows less reduction (band figure); "
+        "the notch width is chosen to reach it where the plant allows",
+    )
+    verify_band_bandwidths: float = _spec(
+        2.0,
+        gt=0,
+        le=50,
+        doc="verification band figure: largest response within "
+        "this many half-power bandwidths either side of the mode, before vs after",
+    )
+    max_width_ratio: float = _spec(
+        1.0, gt=0, lt=2, doc="widest notch the width search may choose, as a fraction of its centre frequency"
+    )
+    target_attenuation_db: float = _spec(
+        20.0,
+        gt=0,
+        doc="least attenuation of the designed notch at both ends of "
+        "the 95 % interval of the resonance frequency; the notch is made wide enough",
+    )
+    keep_modulus_margin: float = _spec(
+        0.5,
+        ge=0,
+        le=1,
+        doc="[map]: the notches for the workspace must keep this "
+        "fraction of the holding loop's modulus margin min|1 + L| (measured at the "
+        "mapped positions); a design that costs more gives way to a narrower one. "
+        "0: no check",
+    )
 
 
 @dataclass(frozen=True)
 class MapConfig:
     """``[map]``: the resonance over the workspace: move to each position, hold it, excite, identify."""
 
-    positions_m: list[float] = _spec([], max_items=64, doc="cart positions to identify at, m (the encoder's axis, "
-                                     "within [limits] position_min_m .. position_max_m less margin_m)")
-    count: int = _spec(0, ge=0, le=64, doc="or: this many positions spread evenly over the position window less "
-                       "margin_m (0: positions_m)")
+    positions_m: list[float] = _spec(
+        [],
+        max_items=64,
+        doc="cart positions to identify at, m (the encoder's axis, "
+        "within [limits] position_min_m .. position_max_m less margin_m)",
+    )
+    count: int = _spec(
+        0,
+        ge=0,
+        le=64,
+        doc="or: this many positions spread evenly over the position window less margin_m (0: positions_m)",
+    )
     margin_m: float = _spec(0.05, ge=0, doc="distance every mapped position keeps from the position limits, m")
     settle_s: float = _spec(0.5, ge=0, le=60, doc="hold at each position before the excitation starts, s")
-    max_velocity_mps: float = _spec(0.1, gt=0, doc="moves between positions: velocity limit, m/s (below "
-                                    "[limits] velocity_mps)")
+    max_velocity_mps: float = _spec(
+        0.1, gt=0, doc="moves between positions: velocity limit, m/s (below [limits] velocity_mps)"
+    )
     max_accel_mps2: float = _spec(0.5, gt=0, le=1000, doc="moves between positions: acceleration limit, m/s^2")
-    amplitude_nm: float = _spec(0.0, ge=0, doc="torque injected at each position, N*m; 0: half the run's amplitude "
-                                "(the drive's loops add their own torque while they hold the position)")
-    duration_s: float = _spec(0.0, ge=0, doc="excitation at each position, s (whole periods, one lead-in more, as "
-                              "the run's); 0: the run's [excitation] duration_s")
-    verify: bool = _spec(False, doc="after the verification, excite every mapped position again with the notches "
-                         "enabled and measure the reduction there (the approach moves run with the notches in the "
-                         "loop)")
-    verify_max_duration_s: float = _spec(0.0, ge=0, doc="longest the verification may excite one position, s, its "
-                                         "lead-ins included: a record whose noise floor hides the target "
-                                         "(notch.min_reduction_db) is followed by a longer one, their periods "
-                                         "averaged together; 0: four times the map's own record at each position")
+    amplitude_nm: float = _spec(
+        0.0,
+        ge=0,
+        doc="torque injected at each position, N*m; 0: half the run's amplitude "
+        "(the drive's loops add their own torque while they hold the position)",
+    )
+    duration_s: float = _spec(
+        0.0,
+        ge=0,
+        doc="excitation at each position, s (whole periods, one lead-in more, as "
+        "the run's); 0: the run's [excitation] duration_s",
+    )
+    verify: bool = _spec(
+        False,
+        doc="after the verification, excite every mapped position again with the notches "
+        "enabled and measure the reduction there (the approach moves run with the notches in the "
+        "loop)",
+    )
+    verify_max_duration_s: float = _spec(
+        0.0,
+        ge=0,
+        doc="longest the verification may excite one position, s, its "
+        "lead-ins included: a record whose noise floor hides the target "
+        "(notch.min_reduction_db) is followed by a longer one, their periods "
+        "averaged together; 0: four times the map's own record at each position",
+    )
     k_degree: int = _spec(2, ge=0, le=4, doc="joint fit: degree of the stiffness k(p) polynomial in position")
     d_degree: int = _spec(0, ge=0, le=4, doc="joint fit: degree of the damping d(p) polynomial in position")
 
@@ -298,8 +407,11 @@ class MapConfig:
 class BatchConfig:
     """``[batch]``: ``hilident batch``'s drift verdict per axis over many recordings."""
 
-    drift_percent_per_day: float = _spec(0.1, gt=0, doc="rate of change of the resonance frequency, % per day, "
-                                         "above which a significant trend is flagged")
+    drift_percent_per_day: float = _spec(
+        0.1,
+        gt=0,
+        doc="rate of change of the resonance frequency, % per day, above which a significant trend is flagged",
+    )
     min_recordings: int = _spec(5, ge=3, doc="recordings an axis needs for a verdict (fewer: no verdict)")
     confidence: float = _spec(0.95, gt=0, lt=1, doc="confidence level of the trend's interval and significance")
 
@@ -312,15 +424,21 @@ class MoveConfig:
     max_velocity_mps: float = _spec(gt=0, doc="velocity limit of the move, m/s (below [limits] velocity_mps)")
     max_accel_mps2: float = _spec(gt=0, le=1000, doc="acceleration limit of the move, m/s^2")
     profile: str = _spec("trapezoid", choices=("trapezoid", "s-curve"))
-    max_jerk_mps3: float = _spec(0.0, ge=0, doc="s-curve: jerk limit, m/s^3 (0: 50 times max_accel_mps2 per "
-                                 "second)")
+    max_jerk_mps3: float = _spec(0.0, ge=0, doc="s-curve: jerk limit, m/s^3 (0: 50 times max_accel_mps2 per second)")
     dwell_s: float = _spec(1.0, gt=0, le=60, doc="held at the end of the move while its ringing is measured, s")
-    notch: str = _spec("auto", choices=("auto", "drive", "host"), doc="where the notch acts in the move with it: "
-                       "host: the move's set-point shaped on the host (the drive's slots bypassed in both moves); "
-                       "drive: the drive's filter slots (bypassed for the move without); auto: host, since every "
-                       "transport streams the move as set-points")
-    settle_band_m: float = _spec(0.0, ge=0, doc="settling band of the residual vibration, m (0: 5 % of the first "
-                                 "peak of the move without the notch)")
+    notch: str = _spec(
+        "auto",
+        choices=("auto", "drive", "host"),
+        doc="where the notch acts in the move with it: "
+        "host: the move's set-point shaped on the host (the drive's slots bypassed in both moves); "
+        "drive: the drive's filter slots (bypassed for the move without); auto: host, since every "
+        "transport streams the move as set-points",
+    )
+    settle_band_m: float = _spec(
+        0.0,
+        ge=0,
+        doc="settling band of the residual vibration, m (0: 5 % of the first peak of the move without the notch)",
+    )
 
     @property
     def jerk_mps3(self) -> float:
@@ -336,12 +454,16 @@ class VerificationConfig:
 
 @dataclass(frozen=True)
 class DataConfig:
-    format: str = _spec("auto", choices=("auto", "hilident", "csv", "mat"),
-                        doc="file format; auto: by extension (.h5/.hdf5 hilident, .csv/.txt/.dat/.tsv csv, .mat)")
+    format: str = _spec(
+        "auto",
+        choices=("auto", "hilident", "csv", "mat"),
+        doc="file format; auto: by extension (.h5/.hdf5 hilident, .csv/.txt/.dat/.tsv csv, .mat)",
+    )
     sample_rate_hz: float = _spec(0.0, ge=0, doc="0: from the time column (or the hilident file)")
     time: str = _spec("", doc="column of time stamps in s; must be uniform")
-    column_names: list[str] = _spec([], doc="names of the columns of a headerless numeric file, in order (default: "
-                                            "their positions \"0\", \"1\", ...)")
+    column_names: list[str] = _spec(
+        [], doc='names of the columns of a headerless numeric file, in order (default: their positions "0", "1", ...)'
+    )
     excitation: str = _spec("", doc="column of the external excitation (closed-loop data); empty: none")
     torque: str = _spec("torque_nm", doc="column of the input torque (or force for a linear axis)")
     velocity: str = _spec("", doc="column of the velocity; empty: derived from position")
@@ -353,26 +475,43 @@ class DataConfig:
     output_scale: float = _spec(1.0, gt=0)
     excitation_scale: float = _spec(1.0, gt=0)
     closed_loop: bool = _spec(False, doc="the data were recorded with a controller closed around the axis")
-    period_s: float = _spec(0.0, ge=0, doc="period of a periodic excitation, s: whole periods are averaged "
-                                           "(leakage-free at the excited lines); 0: not periodic")
+    period_s: float = _spec(
+        0.0,
+        ge=0,
+        doc="period of a periodic excitation, s: whole periods are averaged "
+        "(leakage-free at the excited lines); 0: not periodic",
+    )
     period_samples: int = _spec(0, ge=0, doc="the same period in samples (exact); 0: not periodic")
 
 
 @dataclass(frozen=True)
 class ModelConfig:
-    kind: str = _spec("none", choices=("none", "mass_spring_damper", "rigid_axis"),
-                      doc="grey-box model fitted to the data")
+    kind: str = _spec(
+        "none", choices=("none", "mass_spring_damper", "rigid_axis"), doc="grey-box model fitted to the data"
+    )
     c: float = _spec(1.0, gt=0, doc="torque-to-force constant: force = c * torque")
     cutoff_hz: float = _spec(0.0, ge=0, doc="state-variable filter cut-off; 0: a tenth of the sample rate")
-    input_hold: str = _spec("sample", choices=("zoh", "sample"),
-                            doc="sample: the torque column holds point samples (a measured torque or current, the "
-                                "usual case); zoh: it holds a command the drive kept constant over each sample period")
+    input_hold: str = _spec(
+        "sample",
+        choices=("zoh", "sample"),
+        doc="sample: the torque column holds point samples (a measured torque or current, the "
+        "usual case); zoh: it holds a command the drive kept constant over each sample period",
+    )
     filter_rate_hz: float = _spec(4000.0, gt=0, doc="rate the notch biquads are designed for (no device to ask)")
-    holdout: float = _spec(0.3, ge=0, lt=1, doc="fraction at the end of the data kept out of the fit to validate it "
-                                                "when there is no separate validation record")
+    holdout: float = _spec(
+        0.3,
+        ge=0,
+        lt=1,
+        doc="fraction at the end of the data kept out of the fit to validate it "
+        "when there is no separate validation record",
+    )
     asymmetric: bool = _spec(False, doc="rigid_axis: Coulomb and viscous friction per direction (Fc+, Fc-, Fv+, Fv-)")
-    min_speed: float = _spec(0.0, ge=0, doc="rigid_axis: rows slower than this (m/s or rad/s, filtered) are left out "
-                                            "of the fit; 0: 2 % of the RMS filtered speed")
+    min_speed: float = _spec(
+        0.0,
+        ge=0,
+        doc="rigid_axis: rows slower than this (m/s or rad/s, filtered) are left out "
+        "of the fit; 0: 2 % of the RMS filtered speed",
+    )
     decimate: int = _spec(1, ge=1, le=1_000_000, doc="use every decimate-th filtered sample in the regression")
 
 
@@ -389,8 +528,9 @@ class PositionFunction:
     when the configuration is loaded; None: evaluated everywhere).
     """
 
-    poly: list[float] = _spec([], max_items=8, doc="polynomial coefficients, constant term first (unit of the key "
-                              "per m**i)")
+    poly: list[float] = _spec(
+        [], max_items=8, doc="polynomial coefficients, constant term first (unit of the key per m**i)"
+    )
     positions_m: list[float] = _spec([], max_items=256, doc="table: cart positions, m, strictly increasing")
     values: list[float] = _spec([], max_items=256, doc="table: the coefficient at each of positions_m")
     span_m: tuple[float, float] | None = field(default=None, metadata={"internal": True})
@@ -413,17 +553,25 @@ def _position_function_check(positive: bool):
         if value.poly and table:
             raise ConfigError(key, "give either poly or positions_m and values, not both", source)
         if not value.poly and not table:
-            raise ConfigError(key, "a table needs poly = [c0, c1, ...] or positions_m = [...] and values = [...]; "
-                                   "all of its lists are empty", source)
+            raise ConfigError(
+                key,
+                "a table needs poly = [c0, c1, ...] or positions_m = [...] and values = [...]; "
+                "all of its lists are empty",
+                source,
+            )
         if not table:
             return
         p, v = value.positions_m, value.values
         if not p or not v:
-            raise ConfigError(key, f"positions_m and values must both be non-empty, got {len(p)} positions and "
-                                   f"{len(v)} values", source)
+            raise ConfigError(
+                key,
+                f"positions_m and values must both be non-empty, got {len(p)} positions and {len(v)} values",
+                source,
+            )
         if len(p) != len(v):
-            raise ConfigError(key, f"positions_m and values differ in length: {len(p)} positions, {len(v)} values",
-                              source)
+            raise ConfigError(
+                key, f"positions_m and values differ in length: {len(p)} positions, {len(v)} values", source
+            )
         for a, b in zip(p, p[1:], strict=False):
             if not b > a:
                 raise ConfigError(key, f"positions_m must increase strictly, got {show(a)} then {show(b)}", source)
@@ -442,14 +590,26 @@ class PlantConfig:
     m3: float = _spec(2.0, gt=0, doc="three_mass: a third mass hung from the load, kg")
     k2: float = _spec(2.0e5, gt=0, doc="three_mass: stiffness between the load and the third mass, N/m")
     d2: float = _spec(10.0, ge=0, doc="three_mass: damping between the load and the third mass, N*s/m")
-    backlash_m: float = _spec(0.0, ge=0, le=0.1, doc="two_mass, three_mass: total play in the cart-to-load "
-                              "coupling, m (inside it the coupling carries no force)")
-    k: float | PositionFunction = _spec(1.5e5, gt=0, check=_position_function_check(positive=True),
-                                        doc="spring stiffness, N/m; two_mass, three_mass: or a function of the cart "
-                                            "position, { poly = [...] } or { positions_m = [...], values = [...] }")
-    d: float | PositionFunction = _spec(40.0, ge=0, check=_position_function_check(positive=False),
-                                        doc="two_mass, three_mass: coupling damping, N*s/m; or a function of the "
-                                            "cart position like k")
+    backlash_m: float = _spec(
+        0.0,
+        ge=0,
+        le=0.1,
+        doc="two_mass, three_mass: total play in the cart-to-load "
+        "coupling, m (inside it the coupling carries no force)",
+    )
+    k: float | PositionFunction = _spec(
+        1.5e5,
+        gt=0,
+        check=_position_function_check(positive=True),
+        doc="spring stiffness, N/m; two_mass, three_mass: or a function of the cart "
+        "position, { poly = [...] } or { positions_m = [...], values = [...] }",
+    )
+    d: float | PositionFunction = _spec(
+        40.0,
+        ge=0,
+        check=_position_function_check(positive=False),
+        doc="two_mass, three_mass: coupling damping, N*s/m; or a function of the cart position like k",
+    )
     c: float = _spec(1.0, gt=0, doc="torque-to-force constant, N/(N*m)")
     m: float = _spec(5.0, gt=0, doc="mass_spring_damper: mass, kg")
     b: float = _spec(1.0, ge=0, doc="mass_spring_damper: damping, N*s/m")
@@ -473,37 +633,72 @@ class DriveConfig:
     ti_s: float = _spec(0.05, gt=0, doc="velocity loop integral time")
     velocity_filter_hz: float = _spec(500.0, gt=0, doc="low-pass of the drive's velocity estimate")
     torque_max_nm: float = _spec(50.0, gt=0, doc="drive torque saturation")
-    current_loop_hz: float | None = _spec(None, gt=0, doc="bandwidth of the current loop (first order), Hz; "
-                                          "unset: the preset's (bench 1000 Hz, clean ideal)")
-    delay_s: float | None = _spec(None, ge=0, le=0.1, doc="computation and transport delay before the current "
-                                  "loop, rounded to whole loop ticks; unset: the preset's (bench one tick, clean 0)")
-    velocity_feedforward: float = _spec(0.0, ge=0, le=1.5, doc="position mode: fraction of the set-point's "
-                                        "velocity fed forward to the velocity loop (0: none)")
-    accel_feedforward_nm_per_mps2: float = _spec(0.0, ge=0, doc="position mode: torque fed forward per m/s^2 of "
-                                                 "the set-point's acceleration, N*m/(m/s^2) (0: none; (m1+m2)/c "
-                                                 "cancels the axis's inertia)")
+    current_loop_hz: float | None = _spec(
+        None,
+        gt=0,
+        doc="bandwidth of the current loop (first order), Hz; unset: the preset's (bench 1000 Hz, clean ideal)",
+    )
+    delay_s: float | None = _spec(
+        None,
+        ge=0,
+        le=0.1,
+        doc="computation and transport delay before the current "
+        "loop, rounded to whole loop ticks; unset: the preset's (bench one tick, clean 0)",
+    )
+    velocity_feedforward: float = _spec(
+        0.0,
+        ge=0,
+        le=1.5,
+        doc="position mode: fraction of the set-point's velocity fed forward to the velocity loop (0: none)",
+    )
+    accel_feedforward_nm_per_mps2: float = _spec(
+        0.0,
+        ge=0,
+        doc="position mode: torque fed forward per m/s^2 of "
+        "the set-point's acceleration, N*m/(m/s^2) (0: none; (m1+m2)/c "
+        "cancels the axis's inertia)",
+    )
 
 
 @dataclass(frozen=True)
 class DisturbanceConfig:
-    torque_noise_nm: float | None = _spec(None, ge=0, doc="rms of the coloured process torque noise on the axis "
-                                          "(not measured), N*m; unset: the preset's (bench 0.3 % of torque_max_nm)")
+    torque_noise_nm: float | None = _spec(
+        None,
+        ge=0,
+        doc="rms of the coloured process torque noise on the axis "
+        "(not measured), N*m; unset: the preset's (bench 0.3 % of torque_max_nm)",
+    )
     torque_noise_corner_hz: float = _spec(10.0, gt=0, doc="corner of the first-order low-pass colouring it, Hz")
-    cogging_nm: float | None = _spec(None, ge=0, doc="amplitude of the torque ripple periodic in position, N*m; "
-                                     "unset: the preset's (bench 0.5 % of torque_max_nm)")
+    cogging_nm: float | None = _spec(
+        None,
+        ge=0,
+        doc="amplitude of the torque ripple periodic in position, N*m; "
+        "unset: the preset's (bench 0.5 % of torque_max_nm)",
+    )
     cogging_period_m: float = _spec(0.01, gt=0, doc="period of the ripple in cart position, m")
-    load_step_nm: float | None = _spec(None, ge=0, doc="largest level of random load-torque steps, N*m; unset: the "
-                                       "preset's (bench 0.2 % of torque_max_nm)")
+    load_step_nm: float | None = _spec(
+        None,
+        ge=0,
+        doc="largest level of random load-torque steps, N*m; unset: the preset's (bench 0.2 % of torque_max_nm)",
+    )
     load_step_rate_hz: float = _spec(0.2, ge=0, doc="mean number of load steps per second")
-    load_noise_n: float | None = _spec(None, ge=0, doc="rms of the coloured force noise on the load (floor, "
-                                       "process), N; unset: the preset's (bench 0.3 % of c * torque_max_nm)")
+    load_noise_n: float | None = _spec(
+        None,
+        ge=0,
+        doc="rms of the coloured force noise on the load (floor, "
+        "process), N; unset: the preset's (bench 0.3 % of c * torque_max_nm)",
+    )
 
 
 @dataclass(frozen=True)
 class SensorsConfig:
     encoder_resolution_m: float = _spec(1e-6, ge=0)
-    encoder_noise_m: float | None = _spec(None, ge=0, doc="rms of the encoder's interpolation noise before "
-                                          "quantisation, m; unset: the preset's (bench half a count, clean 0)")
+    encoder_noise_m: float | None = _spec(
+        None,
+        ge=0,
+        doc="rms of the encoder's interpolation noise before "
+        "quantisation, m; unset: the preset's (bench half a count, clean 0)",
+    )
     torque_noise_nm: float = _spec(0.02, ge=0, doc="rms noise of the measured torque")
     laser_range_m: list[float] = _spec([-0.005, 0.005], max_items=2, doc="load deflection window the load sensor sees")
     laser_noise_m: float = _spec(0.0, ge=0)
@@ -524,8 +719,9 @@ class CanopenFaultsConfig:
     """``[emulator.faults.canopen]``: faults of an emulated CANopen drive."""
 
     heartbeat_stops_after_s: float = _spec(0.0, ge=0, doc="the heartbeat stops this long after a run starts")
-    abort_object: str = _spec("", check=_check_object_address,
-                              doc='every SDO access to this object aborts, "0x3100" or "0x3100:2"')
+    abort_object: str = _spec(
+        "", check=_check_object_address, doc='every SDO access to this object aborts, "0x3100" or "0x3100:2"'
+    )
     drop_pdo_rate: float = _spec(0.0, ge=0, le=1, doc="probability that a TPDO is not sent")
 
 
@@ -533,15 +729,19 @@ class CanopenFaultsConfig:
 class ModbusFaultsConfig:
     """``[emulator.faults.modbus]``: faults of an emulated Modbus drive."""
 
-    exception_register: int = _spec(-1, ge=-1, le=65535, doc="requests touching this register get an exception; "
-                                    "-1: none")
+    exception_register: int = _spec(
+        -1, ge=-1, le=65535, doc="requests touching this register get an exception; -1: none"
+    )
     exception_code: int = _spec(4, ge=1, le=11, doc="the exception code answered (4: server device failure)")
     response_delay_s: float = _spec(0.0, ge=0, doc="every response is delayed this long")
     missing_response_rate: float = _spec(0.0, ge=0, le=1, doc="probability that a request gets no response")
-    unknown_unit_id: str = _spec("ignore", choices=("ignore", "gateway_exception"),
-                                 doc="Modbus TCP: a request to a unit id other than [device.modbus].device_id and 255 "
-                                     "is ignored, or answered with exception 11 (gateway target device failed to "
-                                     "respond)")
+    unknown_unit_id: str = _spec(
+        "ignore",
+        choices=("ignore", "gateway_exception"),
+        doc="Modbus TCP: a request to a unit id other than [device.modbus].device_id and 255 "
+        "is ignored, or answered with exception 11 (gateway target device failed to "
+        "respond)",
+    )
 
 
 @moved_keys_readable
@@ -549,15 +749,31 @@ class ModbusFaultsConfig:
 class FaultsConfig:
     #: Flat keys of earlier releases and the sub-table each moved to (read with a DeprecationWarning).
     moved_keys: typing.ClassVar[dict[str, str]] = {
-        "corrupt_frame_rate": "serial", "drop_frame_rate": "serial", "close_after_s": "serial",
-        "heartbeat_stops_after_s": "canopen", "abort_object": "canopen", "drop_pdo_rate": "canopen",
-        "exception_register": "modbus", "exception_code": "modbus", "response_delay_s": "modbus",
-        "missing_response_rate": "modbus", "unknown_unit_id": "modbus"}
+        "corrupt_frame_rate": "serial",
+        "drop_frame_rate": "serial",
+        "close_after_s": "serial",
+        "heartbeat_stops_after_s": "canopen",
+        "abort_object": "canopen",
+        "drop_pdo_rate": "canopen",
+        "exception_register": "modbus",
+        "exception_code": "modbus",
+        "response_delay_s": "modbus",
+        "missing_response_rate": "modbus",
+        "unknown_unit_id": "modbus",
+    }
 
-    drive_fault_after_s: float = _spec(0.0, ge=0, doc="CANopen/Modbus: the drive faults this long (simulated time) "
-                                       "after a run starts (CANopen: EMCY and Fault state); 0: never")
-    capture_stops_after_s: float = _spec(0.0, ge=0, doc="CANopen/Modbus buffered and recorder runs: the capture stops "
-                                         "this long (simulated time) after the start; 0: never")
+    drive_fault_after_s: float = _spec(
+        0.0,
+        ge=0,
+        doc="CANopen/Modbus: the drive faults this long (simulated time) "
+        "after a run starts (CANopen: EMCY and Fault state); 0: never",
+    )
+    capture_stops_after_s: float = _spec(
+        0.0,
+        ge=0,
+        doc="CANopen/Modbus buffered and recorder runs: the capture stops "
+        "this long (simulated time) after the start; 0: never",
+    )
     serial: SerialFaultsConfig = _spec(SerialFaultsConfig(), doc="the serial board's line")
     canopen: CanopenFaultsConfig = _spec(CanopenFaultsConfig(), doc="CANopen drives")
     modbus: ModbusFaultsConfig = _spec(ModbusFaultsConfig(), doc="Modbus drives")
@@ -565,14 +781,20 @@ class FaultsConfig:
 
 @dataclass(frozen=True)
 class EmulatorConfig:
-    link: str = _spec("pty", choices=("pty", "tcp", "pipe"),
-                      doc="pseudo-terminal (real serial path), raw TCP on 127.0.0.1 (socket://), or in-memory pipe")
+    link: str = _spec(
+        "pty",
+        choices=("pty", "tcp", "pipe"),
+        doc="pseudo-terminal (real serial path), raw TCP on 127.0.0.1 (socket://), or in-memory pipe",
+    )
     time_scale: float = _spec(1.0, gt=0, le=100, doc="simulated seconds per wall-clock second")
     seed: int = _spec(1, ge=0, le=2**32 - 1, doc="seed of the sensor noise and the disturbances")
-    preset: str = _spec("bench", choices=("bench", "clean"),
-                        doc="defaults of the keys left unset in [emulator.disturbance], [emulator.drive] "
-                            "(current_loop_hz, delay_s) and [emulator.sensors] (encoder_noise_m): 'bench' as messy as "
-                            "a real axis, 'clean' none of it (exact physics for tests)")
+    preset: str = _spec(
+        "bench",
+        choices=("bench", "clean"),
+        doc="defaults of the keys left unset in [emulator.disturbance], [emulator.drive] "
+        "(current_loop_hz, delay_s) and [emulator.sensors] (encoder_noise_m): 'bench' as messy as "
+        "a real axis, 'clean' none of it (exact physics for tests)",
+    )
     plant: PlantConfig = _spec(PlantConfig())
     friction: FrictionConfig = _spec(FrictionConfig())
     drive: DriveConfig = _spec(DriveConfig())
@@ -614,7 +836,8 @@ class Config:
         """
         if self.limits is None:
             raise ConfigError(
-                "limits", "is required for a bench run: torque_nm, velocity_mps, position_min_m, position_max_m",
+                "limits",
+                "is required for a bench run: torque_nm, velocity_mps, position_min_m, position_max_m",
                 self.source,
             )
         return self.limits
@@ -689,13 +912,15 @@ def read_toml_text(path: str | Path, what: str) -> str:
     except (OSError, ValueError) as exc:  # ValueError: a NUL byte in the path
         raise ConfigError("(file)", f"cannot read {what}: {getattr(exc, 'strerror', None) or exc}", str(path)) from None
     if len(raw) > MAX_FILE_BYTES:
-        raise ConfigError("(file)", f"a {what} must be under {MAX_FILE_BYTES // 1024} KiB; this file is larger",
-                          str(path))
+        raise ConfigError(
+            "(file)", f"a {what} must be under {MAX_FILE_BYTES // 1024} KiB; this file is larger", str(path)
+        )
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise ConfigError("(file)", f"is not UTF-8 text (TOML must be): byte 0x{raw[exc.start]:02x} at offset "
-                                    f"{exc.start}", str(path)) from None
+        raise ConfigError(
+            "(file)", f"is not UTF-8 text (TOML must be): byte 0x{raw[exc.start]:02x} at offset {exc.start}", str(path)
+        ) from None
 
 
 def parse_toml(text: str, source: str) -> dict:
@@ -746,8 +971,11 @@ def _cross_check(cfg: Config) -> None:
     check_auto_amplitude(cfg)
     if not exc.amplitude_auto and not exc.amplitude_value > 0:
         unit = {"amplitude_mps": "m/s", "amplitude_m": "m"}.get(exc.amplitude_key, "N*m")
-        raise ConfigError(f"excitation.{exc.amplitude_key}", f"must be set (> 0, in {unit}) for mode = "
-                                                             f"{exc.mode!r}: the set-point perturbation's size", src)
+        raise ConfigError(
+            f"excitation.{exc.amplitude_key}",
+            f"must be set (> 0, in {unit}) for mode = {exc.mode!r}: the set-point perturbation's size",
+            src,
+        )
     _check_data_and_model(cfg)
     ic = cfg.identification
     if ic.f_min_hz and ic.f_max_hz and ic.f_min_hz >= ic.f_max_hz:
@@ -777,19 +1005,30 @@ def _check_position_functions(cfg: Config) -> None:
             continue
         key = f"emulator.plant.{name}"
         if plant.model == "mass_spring_damper":
-            raise ConfigError(key, "a function of the cart position applies to the cart-to-load coupling of "
-                                   "two_mass and three_mass; mass_spring_damper takes a number", src)
+            raise ConfigError(
+                key,
+                "a function of the cart position applies to the cart-to-load coupling of "
+                "two_mass and three_mass; mass_spring_damper takes a number",
+                src,
+            )
         if value.is_table:
             continue
         if cfg.limits is None:
-            raise ConfigError(key, "a polynomial needs [limits] position_min_m and position_max_m: it is checked "
-                                   "over that window and held at its ends beyond it", src)
+            raise ConfigError(
+                key,
+                "a polynomial needs [limits] position_min_m and position_max_m: it is checked "
+                "over that window and held at its ends beyond it",
+                src,
+            )
         lo, hi = cfg.limits.position_min_m, cfg.limits.position_max_m
         at, least = polynomial_minimum(value.poly, lo, hi)
         if not (least > 0 if positive else least >= 0):
-            raise ConfigError(key, f"must be {'> 0' if positive else '>= 0'} over the position window "
-                                   f"[{lo:g}, {hi:g}] m of [limits]; the polynomial is {least:.6g} at {at:.6g} m",
-                              src)
+            raise ConfigError(
+                key,
+                f"must be {'> 0' if positive else '>= 0'} over the position window "
+                f"[{lo:g}, {hi:g}] m of [limits]; the polynomial is {least:.6g} at {at:.6g} m",
+                src,
+            )
 
 
 def polynomial_minimum(coefficients, lo: float, hi: float) -> tuple[float, float]:
@@ -835,11 +1074,13 @@ def _bind_position_spans(cfg: Config) -> Config:
     bound: dict[str, typing.Any] = {
         name: dataclasses.replace(value, span_m=(lim.position_min_m, lim.position_max_m))
         for name, value in (("k", plant.k), ("d", plant.d))
-        if isinstance(value, PositionFunction) and not value.is_table}
+        if isinstance(value, PositionFunction) and not value.is_table
+    }
     if not bound:
         return cfg
-    return dataclasses.replace(cfg, emulator=dataclasses.replace(cfg.emulator,
-                                                                 plant=dataclasses.replace(plant, **bound)))
+    return dataclasses.replace(
+        cfg, emulator=dataclasses.replace(cfg.emulator, plant=dataclasses.replace(plant, **bound))
+    )
 
 
 def check_auto_amplitude(cfg: Config) -> None:
@@ -848,16 +1089,25 @@ def check_auto_amplitude(cfg: Config) -> None:
     if not e.amplitude_auto:
         return
     if e.kind != "multisine":
-        raise ConfigError("excitation.amplitude_nm", f'"auto" needs kind = "multisine" (the trials are whole '
-                                                     f"periods of it), got kind = {e.kind!r}; give a number", src)
+        raise ConfigError(
+            "excitation.amplitude_nm",
+            f'"auto" needs kind = "multisine" (the trials are whole '
+            f"periods of it), got kind = {e.kind!r}; give a number",
+            src,
+        )
     ceiling = amplitude_ceiling_nm(cfg)
     if cfg.limits is not None and e.auto_max_nm > cfg.limits.torque_nm:
-        raise ConfigError("excitation.auto_max_nm", f"{e.auto_max_nm:g} N*m exceeds limits.torque_nm = "
-                                                    f"{cfg.limits.torque_nm:g}", src)
+        raise ConfigError(
+            "excitation.auto_max_nm", f"{e.auto_max_nm:g} N*m exceeds limits.torque_nm = {cfg.limits.torque_nm:g}", src
+        )
     if ceiling and e.auto_start_nm > ceiling:
-        raise ConfigError("excitation.auto_start_nm", f"{e.auto_start_nm:g} N*m is above the largest amplitude auto "
-                                                      f"may choose ({ceiling:g} N*m: excitation.auto_max_nm, else "
-                                                      "limits.torque_nm)", src)
+        raise ConfigError(
+            "excitation.auto_start_nm",
+            f"{e.auto_start_nm:g} N*m is above the largest amplitude auto "
+            f"may choose ({ceiling:g} N*m: excitation.auto_max_nm, else "
+            "limits.torque_nm)",
+            src,
+        )
 
 
 def _check_data_and_model(cfg: Config) -> None:
@@ -868,9 +1118,13 @@ def _check_data_and_model(cfg: Config) -> None:
     if d.period_s and d.sample_rate_hz:
         exact = d.period_s * d.sample_rate_hz
         if abs(exact - round(exact)) > 1e-6 * max(exact, 1.0) or round(exact) < 4:
-            raise ConfigError("data.period_s", f"{d.period_s:g} s is {exact:.6g} samples at data.sample_rate_hz = "
-                                               f"{d.sample_rate_hz:g} Hz: a period must be a whole number (>= 4) of "
-                                               "samples (or give data.period_samples)", src)
+            raise ConfigError(
+                "data.period_s",
+                f"{d.period_s:g} s is {exact:.6g} samples at data.sample_rate_hz = "
+                f"{d.sample_rate_hz:g} Hz: a period must be a whole number (>= 4) of "
+                "samples (or give data.period_samples)",
+                src,
+            )
     if 0 < d.period_samples < 4:
         raise ConfigError("data.period_samples", f"must be >= 4 samples, got {d.period_samples}", src)
     if len(set(d.column_names)) != len(d.column_names):
@@ -878,7 +1132,7 @@ def _check_data_and_model(cfg: Config) -> None:
     if m.kind != "rigid_axis":
         for key, default in (("asymmetric", False), ("min_speed", 0.0)):
             if getattr(m, key) != default:
-                raise ConfigError(f"model.{key}", f"applies to kind = \"rigid_axis\" only (kind is {m.kind!r})", src)
+                raise ConfigError(f"model.{key}", f'applies to kind = "rigid_axis" only (kind is {m.kind!r})', src)
 
 
 def _check_limits(cfg: Config, lim: LimitsConfig) -> None:
@@ -890,16 +1144,24 @@ def _check_limits(cfg: Config, lim: LimitsConfig) -> None:
             "excitation.amplitude_nm", f"{exc.amplitude_value:g} N*m exceeds limits.torque_nm = {lim.torque_nm:g}", src
         )
     if exc.mode == "velocity" and exc.amplitude_mps >= lim.velocity_mps:
-        raise ConfigError("excitation.amplitude_mps",
-                          f"{exc.amplitude_mps:g} m/s reaches limits.velocity_mps = {lim.velocity_mps:g}", src)
+        raise ConfigError(
+            "excitation.amplitude_mps",
+            f"{exc.amplitude_mps:g} m/s reaches limits.velocity_mps = {lim.velocity_mps:g}",
+            src,
+        )
     if exc.mode == "position" and 2 * exc.amplitude_m >= lim.position_max_m - lim.position_min_m:
-        raise ConfigError("excitation.amplitude_m", f"{exc.amplitude_m:g} m each way does not fit the position "
-                                                    f"window [{lim.position_min_m:g}, {lim.position_max_m:g}] m", src)
+        raise ConfigError(
+            "excitation.amplitude_m",
+            f"{exc.amplitude_m:g} m each way does not fit the position "
+            f"window [{lim.position_min_m:g}, {lim.position_max_m:g}] m",
+            src,
+        )
     if any(v <= 0 for v in cfg.friction_test.speeds_mps):
         raise ConfigError("friction_test.speeds_mps", "speeds must be positive (each is run both ways)", src)
     if cfg.friction_test.enabled and max(cfg.friction_test.speeds_mps, default=0) >= lim.velocity_mps:
-        raise ConfigError("friction_test.speeds_mps",
-                          f"a speed reaches limits.velocity_mps = {lim.velocity_mps:g}", src)
+        raise ConfigError(
+            "friction_test.speeds_mps", f"a speed reaches limits.velocity_mps = {lim.velocity_mps:g}", src
+        )
     if cfg.friction_test.settle_s >= cfg.friction_test.hold_s:
         raise ConfigError("friction_test.settle_s", "must be shorter than friction_test.hold_s", src)
     if cfg.map.enabled:
@@ -907,13 +1169,19 @@ def _check_limits(cfg: Config, lim: LimitsConfig) -> None:
     move = cfg.verification.move
     if move is not None:
         if move.distance_m == 0 or 2 * abs(move.distance_m) >= lim.position_max_m - lim.position_min_m:
-            raise ConfigError("verification.move.distance_m", f"{move.distance_m:g} m: a move must be non-zero and "
-                                                              "shorter than half the position window "
-                                                              f"[{lim.position_min_m:g}, {lim.position_max_m:g}] m",
-                              src)
+            raise ConfigError(
+                "verification.move.distance_m",
+                f"{move.distance_m:g} m: a move must be non-zero and "
+                "shorter than half the position window "
+                f"[{lim.position_min_m:g}, {lim.position_max_m:g}] m",
+                src,
+            )
         if move.max_velocity_mps >= lim.velocity_mps:
-            raise ConfigError("verification.move.max_velocity_mps", f"{move.max_velocity_mps:g} m/s reaches "
-                                                                    f"limits.velocity_mps = {lim.velocity_mps:g}", src)
+            raise ConfigError(
+                "verification.move.max_velocity_mps",
+                f"{move.max_velocity_mps:g} m/s reaches limits.velocity_mps = {lim.velocity_mps:g}",
+                src,
+            )
     if cfg.friction_test.enabled:
         _, travel = _friction_extent(cfg)
         half = (lim.position_max_m - lim.position_min_m) / 2
@@ -921,7 +1189,9 @@ def _check_limits(cfg: Config, lim: LimitsConfig) -> None:
             raise ConfigError(
                 "friction_test.speeds_mps",
                 f"the friction test travels up to {travel:.3f} m, more than half the position window "
-                f"[{lim.position_min_m:g}, {lim.position_max_m:g}] m (shorter hold_s or lower speeds)", src)
+                f"[{lim.position_min_m:g}, {lim.position_max_m:g}] m (shorter hold_s or lower speeds)",
+                src,
+            )
 
 
 def map_positions(cfg: Config) -> list[float]:
@@ -939,26 +1209,41 @@ def map_positions(cfg: Config) -> list[float]:
         raise ConfigError("map.count", "give either map.positions_m or map.count, not both", src)
     lo, hi = lim.position_min_m + m.margin_m, lim.position_max_m - m.margin_m
     if lo >= hi:
-        raise ConfigError("map.margin_m", f"{m.margin_m:g} m leaves nothing of the position window "
-                                          f"[{lim.position_min_m:g}, {lim.position_max_m:g}] m", src)
+        raise ConfigError(
+            "map.margin_m",
+            f"{m.margin_m:g} m leaves nothing of the position window "
+            f"[{lim.position_min_m:g}, {lim.position_max_m:g}] m",
+            src,
+        )
     positions = [float(p) for p in m.positions_m] or [lo + (hi - lo) * i / max(m.count - 1, 1) for i in range(m.count)]
     if len(positions) < 2:
-        raise ConfigError("map.positions_m" if m.positions_m else "map.count",
-                          "a map needs at least two positions", src)
+        raise ConfigError(
+            "map.positions_m" if m.positions_m else "map.count", "a map needs at least two positions", src
+        )
     outside = [p for p in positions if not lo <= p <= hi]
     if outside:
-        raise ConfigError("map.positions_m", f"{outside[0]:g} m is outside the position window less map.margin_m, "
-                                             f"[{lo:g}, {hi:g}] m", src)
+        raise ConfigError(
+            "map.positions_m",
+            f"{outside[0]:g} m is outside the position window less map.margin_m, [{lo:g}, {hi:g}] m",
+            src,
+        )
     e = cfg.excitation
     if m.amplitude_nm >= lim.torque_nm:
-        raise ConfigError("map.amplitude_nm", f"{m.amplitude_nm:g} N*m reaches limits.torque_nm = {lim.torque_nm:g}",
-                          src)
+        raise ConfigError(
+            "map.amplitude_nm", f"{m.amplitude_nm:g} N*m reaches limits.torque_nm = {lim.torque_nm:g}", src
+        )
     if m.duration_s and e.kind == "multisine" and m.duration_s < e.period_s:
-        raise ConfigError("map.duration_s", f"{m.duration_s:g} s is shorter than one excitation period "
-                                            f"(excitation.period_s = {e.period_s:g} s)", src)
+        raise ConfigError(
+            "map.duration_s",
+            f"{m.duration_s:g} s is shorter than one excitation period (excitation.period_s = {e.period_s:g} s)",
+            src,
+        )
     if m.max_velocity_mps >= lim.velocity_mps:
-        raise ConfigError("map.max_velocity_mps", f"{m.max_velocity_mps:g} m/s reaches limits.velocity_mps = "
-                                                  f"{lim.velocity_mps:g}", src)
+        raise ConfigError(
+            "map.max_velocity_mps",
+            f"{m.max_velocity_mps:g} m/s reaches limits.velocity_mps = {lim.velocity_mps:g}",
+            src,
+        )
     return positions
 
 
@@ -977,8 +1262,11 @@ def _check_port(port: str, source: str) -> None:
     given = {name.strip().lower() for name in urllib.parse.parse_qs(query, keep_blank_values=True)}
     if given.intersection(options):
         raise ConfigError(
-            "device.port", f"{show(port)}: a {scheme}:// port with a file= option would create or overwrite that "
-            f"file outside --out; leave file= out ({scheme}:// then logs the traffic to stderr)", source)
+            "device.port",
+            f"{show(port)}: a {scheme}:// port with a file= option would create or overwrite that "
+            f"file outside --out; leave file= out ({scheme}:// then logs the traffic to stderr)",
+            source,
+        )
 
 
 def excitation_samples(cfg: Config) -> int:
@@ -997,8 +1285,12 @@ def excitation_samples(cfg: Config) -> int:
     e, fs, src = cfg.excitation, cfg.run.sample_rate_hz, cfg.source
 
     def refuse(key, exact, what):
-        raise ConfigError(key, f"{what} would take {exact:.4g} samples at {fs:g} Hz, more than the {MAX_SAMPLES} "
-                               f"(2**25) one experiment may hold", src)
+        raise ConfigError(
+            key,
+            f"{what} would take {exact:.4g} samples at {fs:g} Hz, more than the {MAX_SAMPLES} "
+            f"(2**25) one experiment may hold",
+            src,
+        )
 
     exact = e.duration_s * fs
     if not exact <= MAX_SAMPLES:
@@ -1015,28 +1307,39 @@ def excitation_samples(cfg: Config) -> int:
         total = (periods + 1) * length
         if total > MAX_SAMPLES:
             key = "excitation.clock_divider" if e.clock_divider > 1 else "excitation.register_length"
-            refuse(key, total,
-                   f"{periods + 1} PRBS periods of (2**{e.register_length} - 1) * {e.clock_divider} samples")
+            refuse(
+                key, total, f"{periods + 1} PRBS periods of (2**{e.register_length} - 1) * {e.clock_divider} samples"
+            )
         fade_applies = periods < 3
     else:
         total = int(round(exact))
         if e.kind == "noise" and math.floor(e.f_max_hz * total / fs) < math.ceil(e.f_min_hz * total / fs):
-            raise ConfigError("excitation.duration_s", f"{e.duration_s:g} s is too short: no frequency line "
-                                                       f"(spacing {fs / total:g} Hz) lies in the band", src)
+            raise ConfigError(
+                "excitation.duration_s",
+                f"{e.duration_s:g} s is too short: no frequency line (spacing {fs / total:g} Hz) lies in the band",
+                src,
+            )
         if e.kind in ("sine", "square") and e.frequency_hz >= fs / 2:
-            raise ConfigError("excitation.frequency_hz", f"must be below the Nyquist frequency {fs / 2:g} Hz, "
-                                                         f"got {e.frequency_hz:g}", src)
+            raise ConfigError(
+                "excitation.frequency_hz",
+                f"must be below the Nyquist frequency {fs / 2:g} Hz, got {e.frequency_hz:g}",
+                src,
+            )
     if fade_applies and 2 * round(e.fade_s * fs) > total:  # as signals.fade counts its ramps
-        raise ConfigError("excitation.fade_s", f"two fades of {e.fade_s:g} s do not fit into the "
-                                               f"{total / fs:g} s excitation", src)
+        raise ConfigError(
+            "excitation.fade_s", f"two fades of {e.fade_s:g} s do not fit into the {total / fs:g} s excitation", src
+        )
     return total
 
 
 def _multisine_samples(cfg: Config) -> int:
     e, fs, src = cfg.excitation, cfg.run.sample_rate_hz, cfg.source
     if e.period_s > e.duration_s:
-        raise ConfigError("excitation.period_s", f"{e.period_s:g} s is longer than excitation.duration_s = "
-                                                 f"{e.duration_s:g} s; whole periods are played", src)
+        raise ConfigError(
+            "excitation.period_s",
+            f"{e.period_s:g} s is longer than excitation.duration_s = {e.duration_s:g} s; whole periods are played",
+            src,
+        )
     period = int(round(e.period_s * fs))
     if period < 2:
         raise ConfigError("excitation.period_s", f"{e.period_s:g} s is shorter than two samples at {fs:g} Hz", src)
@@ -1044,12 +1347,18 @@ def _multisine_samples(cfg: Config) -> int:
     k_min = max(1, math.ceil(e.f_min_hz / df - 1e-9))
     k_max = min((period - 1) // 2, math.floor(e.f_max_hz / df + 1e-9))
     if k_max < k_min:
-        raise ConfigError("excitation.period_s", f"no frequency line (spacing {df:g} Hz) lies in "
-                                                 f"[{e.f_min_hz:g}, {e.f_max_hz:g}] Hz; lengthen the period", src)
+        raise ConfigError(
+            "excitation.period_s",
+            f"no frequency line (spacing {df:g} Hz) lies in [{e.f_min_hz:g}, {e.f_max_hz:g}] Hz; lengthen the period",
+            src,
+        )
     total = (max(1, int(round(e.duration_s / e.period_s))) + 1) * period  # one lead-in period
     if total > MAX_SAMPLES:
-        raise ConfigError("excitation.duration_s", f"the multisine would take {total} samples, more than the "
-                                                   f"{MAX_SAMPLES} (2**25) one experiment may hold", src)
+        raise ConfigError(
+            "excitation.duration_s",
+            f"the multisine would take {total} samples, more than the {MAX_SAMPLES} (2**25) one experiment may hold",
+            src,
+        )
     return total
 
 

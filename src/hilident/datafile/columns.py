@@ -51,9 +51,13 @@ def read_columns(path: str | Path, fmt: str = "auto", names=None, column_names=(
         raise DataError(f"{path}: no such file")
     kind = fmt if fmt != "auto" else FORMAT_OF_SUFFIX.get(path.suffix.lower())
     if kind is None:
-        raise ConfigError("data.format", f"cannot tell the format of {path.name} from its extension; set "
-                                         "[data] format = \"csv\" (numeric text, with or without a header row), "
-                                         "\"mat\" or \"hilident\"", str(path))
+        raise ConfigError(
+            "data.format",
+            f"cannot tell the format of {path.name} from its extension; set "
+            '[data] format = "csv" (numeric text, with or without a header row), '
+            '"mat" or "hilident"',
+            str(path),
+        )
     labels = names if isinstance(names, dict) else {}
     wanted = None if names is None else list(dict.fromkeys(names))
 
@@ -87,8 +91,9 @@ def read_friction_test(path: str | Path) -> tuple[np.ndarray, np.ndarray, list[t
         Not a friction-test recording, or a damaged one.
     """
     path = Path(path)
-    raw = read_columns(path, "hilident", {"sample_index": "sample_index", "velocity_mps": "velocity_mps",
-                                          "torque_nm": "torque_nm"})
+    raw = read_columns(
+        path, "hilident", {"sample_index": "sample_index", "velocity_mps": "velocity_mps", "torque_nm": "torque_nm"}
+    )
     with open_h5(path) as f:
         try:
             table = f["tables/windows"]

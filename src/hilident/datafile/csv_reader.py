@@ -27,8 +27,13 @@ _MAX_HEADER_CHARS = 1 << 20
 
 def _detect_encoding(head: bytes) -> tuple[str, int]:
     """Text encoding of a file that starts with ``head``, and the length of its byte-order mark."""
-    for bom, name in ((b"\xff\xfe\x00\x00", "utf-32"), (b"\x00\x00\xfe\xff", "utf-32"),
-                      (b"\xef\xbb\xbf", "utf-8"), (b"\xff\xfe", "utf-16"), (b"\xfe\xff", "utf-16")):
+    for bom, name in (
+        (b"\xff\xfe\x00\x00", "utf-32"),
+        (b"\x00\x00\xfe\xff", "utf-32"),
+        (b"\xef\xbb\xbf", "utf-8"),
+        (b"\xff\xfe", "utf-16"),
+        (b"\xfe\xff", "utf-16"),
+    ):
         if head.startswith(bom):
             return name, (len(bom) if name == "utf-8" else 0)  # the utf-16/32 codecs consume their own mark
     return "", 0
@@ -59,8 +64,9 @@ def _open_text(path: Path) -> tuple[io.TextIOWrapper, str]:
         return io.TextIOWrapper(raw, encoding=encoding, errors="strict", newline=None), encoding
     if b"\x00" in raw.read(1 << 16):
         raw.close()
-        raise DataError(f"{path}: holds NUL bytes: not a text CSV (UTF-16 without byte-order mark, or binary); "
-                        "save it as UTF-8 CSV")
+        raise DataError(
+            f"{path}: holds NUL bytes: not a text CSV (UTF-16 without byte-order mark, or binary); save it as UTF-8 CSV"
+        )
     raw.seek(skip)
     return io.TextIOWrapper(raw, encoding="latin-1", newline=None), "latin-1"
 
@@ -84,8 +90,9 @@ def _read_header(path: Path) -> tuple[list[str], int, str, str | None, list[str]
         while line := text.readline(_MAX_HEADER_CHARS + 1):
             line_no += 1
             if len(line) > _MAX_HEADER_CHARS:
-                raise DataError(f"{path}: line {line_no} is longer than {_MAX_HEADER_CHARS} characters: "
-                                "not a CSV header")
+                raise DataError(
+                    f"{path}: line {line_no} is longer than {_MAX_HEADER_CHARS} characters: not a CSV header"
+                )
             if line.strip():
                 header = line
                 break
@@ -112,12 +119,17 @@ def _is_number(cell: str) -> bool:
 def _headerless(path: Path, cells: list[str], column_names: tuple[str, ...], notes: list[str]) -> list[str]:
     """Column names of a file whose first line is data: ``column_names``, else the positions."""
     if not column_names:
-        notes.append(f"{path.name}: no header row (the first line is numbers): columns are named by position, "
-                     f"0 to {len(cells) - 1}")
+        notes.append(
+            f"{path.name}: no header row (the first line is numbers): columns are named by position, "
+            f"0 to {len(cells) - 1}"
+        )
         return [str(i) for i in range(len(cells))]
     if len(column_names) != len(cells):
-        raise ConfigError("data.column_names", f"names {len(column_names)} column(s); {path.name} has "
-                                               f"{len(cells)} per line", str(path))
+        raise ConfigError(
+            "data.column_names",
+            f"names {len(column_names)} column(s); {path.name} has {len(cells)} per line",
+            str(path),
+        )
     return list(column_names)
 
 
@@ -134,8 +146,11 @@ def read_csv(path: Path, names, check=lambda available: None, column_names: tupl
             columns = _headerless(path, columns, column_names, notes)
             header_lines -= 1  # the first line is data
         elif column_names:
-            raise ConfigError("data.column_names", f"is for files without a header row; {path.name} has one: "
-                                                   "map its names, or remove data.column_names", str(path))
+            raise ConfigError(
+                "data.column_names",
+                f"is for files without a header row; {path.name} has one: map its names, or remove data.column_names",
+                str(path),
+            )
         aliases = _by_position(names, columns)
         check(list(columns) + list(aliases))
         wanted = columns if names is None else [n for n in names if n in columns or n in aliases]
@@ -152,8 +167,9 @@ def read_csv(path: Path, names, check=lambda available: None, column_names: tupl
                 text.readline()
             data = _parse_body(path, text, header_lines, bound, usecols, wanted, delimiter)
     except UnicodeError as exc:
-        raise DataError(f"{path}: not valid {encoding.upper()} text ({exception_text(exc)}); "
-                        "save it as UTF-8 CSV") from None
+        raise DataError(
+            f"{path}: not valid {encoding.upper()} text ({exception_text(exc)}); save it as UTF-8 CSV"
+        ) from None
     except csv.Error as exc:
         raise DataError(f"{path}: not a readable CSV file: {exception_text(exc)}") from None
     return RawColumns(dict(zip(wanted, data, strict=False)), columns, notes=notes)
@@ -179,8 +195,9 @@ def _sniff(lines: list[str]) -> str | None:
     return None if len(lines[0].split()) > 1 else ","
 
 
-def _parse_body(path: Path, text, header_lines: int, bound: int, usecols: list[int], names: list[str],
-                delimiter) -> list[np.ndarray]:
+def _parse_body(
+    path: Path, text, header_lines: int, bound: int, usecols: list[int], names: list[str], delimiter
+) -> list[np.ndarray]:
     """Data rows of the mapped columns, one preallocated float64 array per column.
 
     A chunk goes through :func:`numpy.loadtxt` (fast); a chunk it refuses
@@ -203,7 +220,7 @@ def _parse_body(path: Path, text, header_lines: int, bound: int, usecols: list[i
             grown = np.empty((len(usecols), 2 * out.shape[1]))
             grown[:, :filled] = out[:, :filled]
             out = grown
-        out[:, filled:filled + len(block)] = block.T
+        out[:, filled : filled + len(block)] = block.T
         filled += len(block)
         line_no += len(lines)
     if filled < 0.9 * out.shape[1]:
@@ -215,15 +232,17 @@ def _fast_chunk(lines: list[str], usecols: list[int], delimiter) -> np.ndarray |
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)  # a chunk of blank lines holds no data: not news
-            block = np.loadtxt(lines, delimiter=delimiter, usecols=usecols, ndmin=2, dtype=np.float64, comments=None,
-                               quotechar='"')
+            block = np.loadtxt(
+                lines, delimiter=delimiter, usecols=usecols, ndmin=2, dtype=np.float64, comments=None, quotechar='"'
+            )
     except ValueError:
         return None
     return block.reshape(-1, len(usecols))
 
 
-def _slow_chunk(path: Path, lines: list[str], first_line: int, usecols: list[int], names: list[str],
-                delimiter) -> np.ndarray:
+def _slow_chunk(
+    path: Path, lines: list[str], first_line: int, usecols: list[int], names: list[str], delimiter
+) -> np.ndarray:
     rows = []
     reader = (line.split() for line in lines) if delimiter is None else csv.reader(lines, delimiter=delimiter)
     for k, cells in enumerate(reader):

@@ -67,8 +67,15 @@ class Dataset:
         if len(self.segments) <= 1:
             return self
         a, b = max(self.segments, key=lambda r: r[1] - r[0])
-        return Dataset({k: v[a:b] for k, v in self.signals.items()}, self.sample_rate_hz, self.source,
-                       list(self.notes), dict(self.info), None, [(0, b - a)])
+        return Dataset(
+            {k: v[a:b] for k, v in self.signals.items()},
+            self.sample_rate_hz,
+            self.source,
+            list(self.notes),
+            dict(self.info),
+            None,
+            [(0, b - a)],
+        )
 
     def __len__(self) -> int:
         return len(next(iter(self.signals.values())))
@@ -121,14 +128,17 @@ def load_dataset(path: str | Path, cfg: DataConfig, config_source: str = "") -> 
     return Dataset(used, rate, str(path), notes, info, info["period_samples"], segments)
 
 
-def _recorded_period_checked(path: Path, raw: RawColumns, index: np.ndarray, period: int,
-                             notes: list[str]) -> int | None:
+def _recorded_period_checked(
+    path: Path, raw: RawColumns, index: np.ndarray, period: int, notes: list[str]
+) -> int | None:
     """The period a hilident recording states, if its excitation confirms it (else None and a note)."""
     confirmed, why = _confirmed_period(index, raw.columns.get("excitation"), period)
     if why and raw.underruns:
-        why = (f"the run had {raw.underruns} underrun samples (the device ran out of excitation and played "
-               f"zeros), so the recorded excitation does not repeat every {period} samples: whole periods are "
-               "not used, and the run's own result, which averaged them, is not to be trusted")
+        why = (
+            f"the run had {raw.underruns} underrun samples (the device ran out of excitation and played "
+            f"zeros), so the recorded excitation does not repeat every {period} samples: whole periods are "
+            "not used, and the run's own result, which averaged them, is not to be trusted"
+        )
     notes += [f"{path.name}: {why}"] if why else []
     return confirmed
 
@@ -142,17 +152,20 @@ def _check_varying(path: Path, used: dict[str, np.ndarray], wanted: dict) -> Non
             )
 
 
-def _complete_motion(used: dict[str, np.ndarray], segments, rate: float, notes: list[str],
-                     config_source: str) -> None:
+def _complete_motion(used: dict[str, np.ndarray], segments, rate: float, notes: list[str], config_source: str) -> None:
     """Velocity from position when only position is mapped; the output is the velocity when not mapped."""
     if "velocity" not in used and "position" in used:
         used["velocity"] = _derivative(used["position"], segments, rate)
         notes.append("velocity derived from position by central differences (within each gap-free segment)")
     if "output" not in used:
         if "velocity" not in used:
-            raise ConfigError("data.output", "names no column, and neither data.velocity nor data.position does: "
-                                             "give the response column (a torque-to-output response needs no "
-                                             "velocity)", config_source)
+            raise ConfigError(
+                "data.output",
+                "names no column, and neither data.velocity nor data.position does: "
+                "give the response column (a torque-to-output response needs no "
+                "velocity)",
+                config_source,
+            )
         used["output"] = used["velocity"]
 
 
@@ -164,8 +177,16 @@ def _gap_free(path: Path, signals: dict[str, np.ndarray], index: np.ndarray | No
     """
     n = len(next(iter(signals.values())))
     if index is None:
-        info = {"rows": n, "used_rows": n, "segments": 1, "gaps": [], "n_gaps": 0, "missing_samples": 0,
-                "period_samples": None, "warnings": []}
+        info = {
+            "rows": n,
+            "used_rows": n,
+            "segments": 1,
+            "gaps": [],
+            "n_gaps": 0,
+            "missing_samples": 0,
+            "period_samples": None,
+            "warnings": [],
+        }
         return signals, [(0, n)], info
     from hilident.pipeline import select_gap_free
 
@@ -177,8 +198,10 @@ def _gap_free(path: Path, signals: dict[str, np.ndarray], index: np.ndarray | No
             raise
         # too few whole periods: a stretch without a break can still be analysed (Welch averaging)
         selection = select_gap_free(index, None, path.name)
-        notes = [f"{path.name}: fewer than two whole gap-free excitation periods of {period} samples; "
-                 "the longest gap-free stretch is analysed instead"]
+        notes = [
+            f"{path.name}: fewer than two whole gap-free excitation periods of {period} samples; "
+            "the longest gap-free stretch is analysed instead"
+        ]
     info = dict(selection.to_dict(), warnings=notes + selection.warnings)
     if selection.used_rows == n:
         return signals, selection.segments, info
@@ -206,7 +229,7 @@ def _confirmed_period(index: np.ndarray, excitation: np.ndarray | None, period: 
         first = -(-int(index[a]) // period)
         start = a + first * period - int(index[a])
         while start + 2 * period <= b and pairs < 3:
-            one, two = excitation[start:start + period], excitation[start + period:start + 2 * period]
+            one, two = excitation[start : start + period], excitation[start + period : start + 2 * period]
             scale = float(np.max(np.abs(one))) or 1.0
             if np.max(np.abs(one - two)) <= 1e-6 * scale:
                 return period, ""
@@ -216,8 +239,10 @@ def _confirmed_period(index: np.ndarray, excitation: np.ndarray | None, period: 
             break
     if not pairs:
         return period, ""
-    return None, (f"the recorded excitation does not repeat every {period} samples as the stored configuration "
-                  "says: whole periods are not used")
+    return None, (
+        f"the recorded excitation does not repeat every {period} samples as the stored configuration "
+        "says: whole periods are not used"
+    )
 
 
 def _check_config_rate(cfg: DataConfig, source: str) -> None:
@@ -299,15 +324,17 @@ def _time_index(path: Path, name: str, raw: RawColumns, n: int) -> tuple[np.ndar
     t = np.asarray(raw.columns[name], dtype=float)
     if len(t) != n or not np.isfinite(t).all():
         raise DataError(f"{path}: time column {name!r} is not finite or not as long as the data")
-    step = float(np.median(np.diff(t[:_TIME_CHUNK + 1])))
+    step = float(np.median(np.diff(t[: _TIME_CHUNK + 1])))
     rows, lengths = [], []
     for a in range(0, n - 1, _TIME_CHUNK):
-        dt = np.diff(t[a:a + _TIME_CHUNK + 1])
+        dt = np.diff(t[a : a + _TIME_CHUNK + 1])
         back = np.flatnonzero(dt <= 0)
         if len(back):
             i = a + int(back[0])
-            raise DataError(f"{path}: time column {name!r} does not increase at row {i + 1} "
-                            f"(step {dt[i - a]:.6g} s); sort the data first")
+            raise DataError(
+                f"{path}: time column {name!r} does not increase at row {i + 1} "
+                f"(step {dt[i - a]:.6g} s); sort the data first"
+            )
         steps = dt / step
         whole = np.rint(steps)
         off = np.flatnonzero(np.abs(steps - whole) > 1e-3)
@@ -346,18 +373,24 @@ def _sample_rate(path, cfg: DataConfig, from_time, file_rate, source) -> tuple[f
     if from_time:
         rates[f"time column {cfg.time!r} (data.time)"] = float(from_time)
     if not rates:
-        raise ConfigError("data.sample_rate_hz", "is needed: the data have no time column (data.time) and no "
-                                                 "recorded rate", source)
+        raise ConfigError(
+            "data.sample_rate_hz", "is needed: the data have no time column (data.time) and no recorded rate", source
+        )
     if any(not math.isfinite(r) or r <= 0 for r in rates.values()):
         raise DataError(f"{path}: sample rate {list(rates.values())} is not a positive finite number")
     (first, rate), *others = rates.items()
     for what, r in others:
         spread = abs(r - rate) / rate
         if spread > RATE_TOLERANCE:
-            fix = ("correct data.sample_rate_hz or leave it out" if first == "data.sample_rate_hz" else
-                   "check the time unit of data.time (seconds), or leave data.time out")
-            raise DataError(f"{path}: {first} gives {rate:.9g} Hz, the {what} {r:.9g} Hz: they differ by "
-                            f"{spread:.2g} (relative; {RATE_TOLERANCE:g} is accepted): {fix}")
+            fix = (
+                "correct data.sample_rate_hz or leave it out"
+                if first == "data.sample_rate_hz"
+                else "check the time unit of data.time (seconds), or leave data.time out"
+            )
+            raise DataError(
+                f"{path}: {first} gives {rate:.9g} Hz, the {what} {r:.9g} Hz: they differ by "
+                f"{spread:.2g} (relative; {RATE_TOLERANCE:g} is accepted): {fix}"
+            )
     return float(rate), rates
 
 
@@ -370,8 +403,12 @@ def _configured_period(cfg: DataConfig, rate: float, source: str) -> int | None:
     exact = cfg.period_s * rate
     period = int(round(exact))
     if period < 4 or abs(exact - period) > 1e-3:
-        raise ConfigError("data.period_s", f"{cfg.period_s:g} s is {exact:.6g} samples at {rate:.9g} Hz, not a whole "
-                                           "number (>= 4): give data.period_samples", source)
+        raise ConfigError(
+            "data.period_s",
+            f"{cfg.period_s:g} s is {exact:.6g} samples at {rate:.9g} Hz, not a whole "
+            "number (>= 4): give data.period_samples",
+            source,
+        )
     return period
 
 
@@ -380,13 +417,17 @@ def _whole_periods_of(path: Path, used: dict, segments, period: int, info: dict,
     a, b = max(segments, key=lambda r: r[1] - r[0])
     count = (b - a) // period
     if count < 1:
-        raise DataError(f"{path}: {b - a} gap-free samples are less than one excitation period of {period} "
-                        "samples (data.period_s / data.period_samples)")
+        raise DataError(
+            f"{path}: {b - a} gap-free samples are less than one excitation period of {period} "
+            "samples (data.period_s / data.period_samples)"
+        )
     stop = a + count * period
     if (a, stop) != (0, len(next(iter(used.values())))):
         used = {k: v[a:stop] for k, v in used.items()}
-        notes.append(f"{path.name}: {count} whole period(s) of {period} samples analysed"
-                     + (f"; {b - stop} samples after the last whole period left out" if b > stop else ""))
+        notes.append(
+            f"{path.name}: {count} whole period(s) of {period} samples analysed"
+            + (f"; {b - stop} samples after the last whole period left out" if b > stop else "")
+        )
     info.update(used_rows=count * period, segments=1, period_samples=period)
     return used, [(0, count * period)]
 

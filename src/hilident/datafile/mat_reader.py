@@ -36,9 +36,25 @@ class _MatVariable:
     stop: int
 
 
-_MAT_CLASSES = {1: "cell", 2: "struct", 3: "object", 4: "char", 5: "sparse", 6: "double", 7: "single", 8: "int8",
-                9: "uint8", 10: "int16", 11: "uint16", 12: "int32", 13: "uint32", 14: "int64", 15: "uint64",
-                16: "function", 17: "opaque"}
+_MAT_CLASSES = {
+    1: "cell",
+    2: "struct",
+    3: "object",
+    4: "char",
+    5: "sparse",
+    6: "double",
+    7: "single",
+    8: "int8",
+    9: "uint8",
+    10: "int16",
+    11: "uint16",
+    12: "int32",
+    13: "uint32",
+    14: "int64",
+    15: "uint64",
+    16: "function",
+    17: "opaque",
+}
 _MI_MATRIX, _MI_COMPRESSED = 14, 15
 _MAT_HEADER_BYTES = 8192  # enough for flags, up to 32 dimensions, a long name and the data tag
 
@@ -73,8 +89,10 @@ def read_mat(path: Path, names, check=lambda available: None) -> RawColumns:
             raise DataError(f"{path}: variable {name!r} is {kind}, not a real numeric vector")
         n = _vector_length(path, name, var.shape)
         if var.data_bytes > 8 * n + 8:
-            raise DataError(f"{path}: variable {name!r} declares {var.data_bytes} bytes of data for shape "
-                            f"{var.shape}: damaged or hostile file")
+            raise DataError(
+                f"{path}: variable {name!r} declares {var.data_bytes} bytes of data for shape "
+                f"{var.shape}: damaged or hostile file"
+            )
         total += n
         check_fits(path, n, 1, f"variable {name!r}")
         check_fits(path, total, 1, "the mapped variables together")
@@ -124,8 +142,10 @@ def _mat4_listing(path: Path) -> list[_MatVariable]:
             data = rows * cols * item
             stop = pos + 20 + namelen + data * (2 if imag else 1)
             if stop > size:
-                raise DataError(f"{path}: truncated MATLAB v4 file: the variable at byte {pos} declares "
-                                f"{stop - pos} bytes, the file ends {size - pos} bytes later")
+                raise DataError(
+                    f"{path}: truncated MATLAB v4 file: the variable at byte {pos} declares "
+                    f"{stop - pos} bytes, the file ends {size - pos} bytes later"
+                )
             name = fh.read(namelen).split(b"\0")[0].decode("latin-1")
             cls = ("double" if item == 8 else "single") if kind == 0 else ("char" if kind == 1 else "sparse")
             out.append(_MatVariable(name, (rows, cols), cls, bool(imag), data, pos, stop))
@@ -159,14 +179,17 @@ def _mat5_listing(path: Path) -> tuple[list[_MatVariable], bytes]:
                 continue
             stop = pos + 8 + nbytes
             if stop > size:
-                raise DataError(f"{path}: truncated MATLAB file: the variable at byte {pos} declares {nbytes} bytes, "
-                                f"the file ends {size - pos - 8} bytes later")
+                raise DataError(
+                    f"{path}: truncated MATLAB file: the variable at byte {pos} declares {nbytes} bytes, "
+                    f"the file ends {size - pos - 8} bytes later"
+                )
             if mdtype == _MI_COMPRESSED:
                 try:
                     head = zlib.decompressobj().decompress(fh.read(min(nbytes, 1 << 16)), _MAT_HEADER_BYTES)
                 except zlib.error as exc:
-                    raise DataError(f"{path}: damaged compressed variable at byte {pos} "
-                                    f"({exception_text(exc)})") from None
+                    raise DataError(
+                        f"{path}: damaged compressed variable at byte {pos} ({exception_text(exc)})"
+                    ) from None
             elif mdtype == _MI_MATRIX:
                 head = struct.pack(order + "II", mdtype, nbytes) + fh.read(min(nbytes, _MAT_HEADER_BYTES))
             else:
@@ -184,10 +207,10 @@ def _mat5_matrix_header(path: Path, head: bytes, order: str, start: int, stop: i
     def element(p: int) -> tuple[int, bytes, int]:
         if p + 8 > len(head):
             raise DataError(f"{path}: damaged variable header at byte {start}")
-        mdtype, nbytes = struct.unpack(order + "II", head[p:p + 8])
+        mdtype, nbytes = struct.unpack(order + "II", head[p : p + 8])
         if mdtype >> 16:  # small element: up to 4 bytes of data inside the tag
-            return mdtype & 0xFFFF, head[p + 4:p + 4 + (mdtype >> 16)], p + 8
-        body = head[p + 8:p + 8 + nbytes]
+            return mdtype & 0xFFFF, head[p + 4 : p + 4 + (mdtype >> 16)], p + 8
+        body = head[p + 8 : p + 8 + nbytes]
         return mdtype, body, p + 8 + nbytes + (-nbytes % 8)
 
     try:
@@ -206,7 +229,7 @@ def _mat5_matrix_header(path: Path, head: bytes, order: str, start: int, stop: i
         if cls in _NUMERIC_MAT_CLASSES and math.prod(max(d, 0) for d in shape):
             if p + 8 > len(head):
                 raise DataError(f"{path}: damaged variable header at byte {start}")
-            mdtype, nbytes = struct.unpack(order + "II", head[p:p + 8])
+            mdtype, nbytes = struct.unpack(order + "II", head[p : p + 8])
             data_bytes = mdtype >> 16 if mdtype >> 16 else nbytes
     except struct.error:
         raise DataError(f"{path}: damaged variable header at byte {start}") from None
@@ -225,8 +248,9 @@ def _vector_length(path: Path, name: str, shape: tuple[int, ...]) -> int:
 def _as_vector(path: Path, name: str, value) -> np.ndarray:
     arr = np.asarray(value)
     if arr.dtype.kind not in "fiub" or arr.squeeze().ndim > 1:
-        raise DataError(f"{path}: variable {name!r} is not a real numeric vector (dtype {arr.dtype}, "
-                        f"shape {arr.shape})")
+        raise DataError(
+            f"{path}: variable {name!r} is not a real numeric vector (dtype {arr.dtype}, shape {arr.shape})"
+        )
     return arr.astype(np.float64, copy=False).ravel()
 
 
@@ -235,8 +259,11 @@ def _read_mat73(path: Path, names, check=lambda available: None) -> RawColumns:
 
     with open_h5(path) as f:
         try:
-            available = [k for k in f if isinstance(f.get(k, getclass=True), type) and
-                         issubclass(f.get(k, getclass=True), h5py.Dataset)]
+            available = [
+                k
+                for k in f
+                if isinstance(f.get(k, getclass=True), type) and issubclass(f.get(k, getclass=True), h5py.Dataset)
+            ]
             check(available)
             wanted = [n for n in (names if names is not None else available) if n in available]
             columns = {}

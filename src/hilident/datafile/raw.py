@@ -26,8 +26,15 @@ MAX_COMPRESSION_RATIO = 1000
 _LISTED_NAMES = 20
 
 #: Formats ``[data] format = "auto"`` tells from the extension.
-FORMAT_OF_SUFFIX = {".h5": "hilident", ".hdf5": "hilident", ".csv": "csv", ".txt": "csv", ".dat": "csv",
-                     ".tsv": "csv", ".mat": "mat"}
+FORMAT_OF_SUFFIX = {
+    ".h5": "hilident",
+    ".hdf5": "hilident",
+    ".csv": "csv",
+    ".txt": "csv",
+    ".dat": "csv",
+    ".tsv": "csv",
+    ".mat": "mat",
+}
 
 
 @dataclass
@@ -83,8 +90,10 @@ def check_fits(path: Path, rows: int, columns: int, what: str, verb: str = "decl
     need = int(rows) * int(columns) * 8
     limit = memory_limit_bytes()
     if need > limit:
-        raise DataError(f"{path}: {what} {verb} {rows} rows of {columns} column(s) ({_gib(need)} as float64), "
-                        f"more than the {_gib(limit)} hilident reads into memory")
+        raise DataError(
+            f"{path}: {what} {verb} {rows} rows of {columns} column(s) ({_gib(need)} as float64), "
+            f"more than the {_gib(limit)} hilident reads into memory"
+        )
 
 
 def listed_names(names) -> str:
@@ -131,8 +140,11 @@ def check_stored(path: Path, ds, rows: int, what: str) -> None:
     stored = ds.id.get_storage_size()
     size = path.stat().st_size
     if ds.compression is None and (need > stored or need > size):
-        raise DataError(f"{path}: {what} declares {rows} rows ({need} bytes) but the file holds only "
-                        f"{min(stored, size)} bytes of them: damaged or truncated")
+        raise DataError(
+            f"{path}: {what} declares {rows} rows ({need} bytes) but the file holds only "
+            f"{min(stored, size)} bytes of them: damaged or truncated"
+        )
     if ds.compression is not None and need > MAX_COMPRESSION_RATIO * max(stored, 1):
-        raise DataError(f"{path}: {what} declares {rows} rows ({need} bytes) from {stored} stored bytes: "
-                        "damaged or hostile file")
+        raise DataError(
+            f"{path}: {what} declares {rows} rows ({need} bytes) from {stored} stored bytes: damaged or hostile file"
+        )

@@ -66,8 +66,17 @@ def _read_hilident_open(path: Path, f, names, fmt: str, version: int, check) -> 
     period, why = _recorded_period(attrs, rate)
     if why:
         notes.append(f"{path.name}: {why}")
-    return RawColumns(dict(zip(wanted, columns, strict=False)), channels, rate, status, reason, period, flushed, notes,
-                      _recorded_underruns(attrs))
+    return RawColumns(
+        dict(zip(wanted, columns, strict=False)),
+        channels,
+        rate,
+        status,
+        reason,
+        period,
+        flushed,
+        notes,
+        _recorded_underruns(attrs),
+    )
 
 
 def _check_format(path: Path, attrs, fmt: str, version: int) -> None:
@@ -75,8 +84,10 @@ def _check_format(path: Path, attrs, fmt: str, version: int) -> None:
     if _attr_text(attrs.get("format", "")) != fmt:
         raise DataError(f"{path}: not a hilident run file (root attribute format != {fmt!r})")
     if _attr_text(attrs.get("format_version", "")) != str(version):
-        raise DataError(f"{path}: unsupported hilident run format_version "
-                        f"{_attr_text(attrs.get('format_version', ''))!r} (this reader: {version})")
+        raise DataError(
+            f"{path}: unsupported hilident run format_version "
+            f"{_attr_text(attrs.get('format_version', ''))!r} (this reader: {version})"
+        )
 
 
 def _samples(path: Path, f, channels: list[str]):
@@ -97,8 +108,9 @@ def _counted_rows(path: Path, attrs, rows: int, notes: list[str]) -> tuple[int, 
     if flushed < 0:
         raise DataError(f"{path}: damaged run file: flushed_samples = {flushed}")
     if flushed < rows:
-        notes.append(f"{path.name}: {rows - flushed} rows after the last flushed sample ({flushed}) "
-                     "were not counted as recorded")
+        notes.append(
+            f"{path.name}: {rows - flushed} rows after the last flushed sample ({flushed}) were not counted as recorded"
+        )
     return min(rows, flushed), flushed
 
 
@@ -146,8 +158,9 @@ def _recorded_period(attrs, rate: float) -> tuple[int | None, str]:
     try:
         return excitation_period_samples(parse_config(text, "config_toml attribute").excitation, rate), ""
     except HilidentError as exc:
-        return None, (f"the stored configuration cannot be read ({exception_text(exc)}); "
-                      "the excitation period is unknown")
+        return None, (
+            f"the stored configuration cannot be read ({exception_text(exc)}); the excitation period is unknown"
+        )
 
 
 @dataclass
@@ -205,8 +218,15 @@ def read_run_info(path: str | Path, fmt: str = "auto") -> RunInfo | None:
             channels = [_attr_text(c) for c in np.atleast_1d(a.get("channel_names", []))]
             units = [_attr_text(c) for c in np.atleast_1d(a.get("channel_units", []))]
             period = int(a["period_samples"]) if "period_samples" in a else None
-            return RunInfo(_attr_text(a.get("config_toml", "")), _attr_text(a.get("config_source", "")),
-                           _attr_text(a.get("experiment", "")), _attr_text(a.get("mode", "")), channels, units,
-                           period if period and period > 0 else None, float(a.get("sample_rate_hz", math.nan)))
+            return RunInfo(
+                _attr_text(a.get("config_toml", "")),
+                _attr_text(a.get("config_source", "")),
+                _attr_text(a.get("experiment", "")),
+                _attr_text(a.get("mode", "")),
+                channels,
+                units,
+                period if period and period > 0 else None,
+                float(a.get("sample_rate_hz", math.nan)),
+            )
         except Exception as exc:  # HDF5 reports damaged structures as many types
             raise DataError(f"{path}: damaged hilident run file ({exception_text(exc)})") from None

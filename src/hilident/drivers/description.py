@@ -161,11 +161,15 @@ class _ChannelTable:
     format: str = spec("f32", choices=_FORMATS)
     scale: float = spec(1.0, doc="SI units per LSB (i16/i32); non-zero, negative for a reversed sign")
     stream: bool = spec(True)
-    sampling: str = spec("instant", choices=("instant", "mean"),
-                         doc="instant: the value at the sample instant; mean: the mean over the sample period's "
-                             "loop ticks (the device averages before it decimates)")
-    filter_input: bool = spec(False, doc="the signal entering the filter slots (the torque command before the "
-                                         "notches); one channel at most")
+    sampling: str = spec(
+        "instant",
+        choices=("instant", "mean"),
+        doc="instant: the value at the sample instant; mean: the mean over the sample period's "
+        "loop ticks (the device averages before it decimates)",
+    )
+    filter_input: bool = spec(
+        False, doc="the signal entering the filter slots (the torque command before the notches); one channel at most"
+    )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -179,8 +183,12 @@ class _DriverFile:
 
 
 #: Keys a serial driver must give (they are the serial protocol's own figures).
-_SERIAL_REQUIRED = (("driver", "protocol_version"), ("driver", "default_baudrate"),
-                    ("board", "excitation_buffer_samples"), ("board", "block_samples"))
+_SERIAL_REQUIRED = (
+    ("driver", "protocol_version"),
+    ("driver", "default_baudrate"),
+    ("board", "excitation_buffer_samples"),
+    ("board", "block_samples"),
+)
 
 
 def _looks_like_path(value: str) -> bool:
@@ -259,8 +267,10 @@ def find_driver(name_or_path: str, extra=()) -> DriverDescription:
             return load_driver(candidate)
         if candidate.name == DESCRIPTION_FILE and _is_file(candidate):
             return load_driver(candidate.parent)
-        raise ConfigError("device.driver", f"{show(name_or_path)} is taken as a path (it looks like one) but holds no "
-                                           f"{DESCRIPTION_FILE}")
+        raise ConfigError(
+            "device.driver",
+            f"{show(name_or_path)} is taken as a path (it looks like one) but holds no {DESCRIPTION_FILE}",
+        )
     for folder in search_path(extra):
         if _is_file(folder / name_or_path / DESCRIPTION_FILE):
             return load_driver(folder / name_or_path)
@@ -294,10 +304,14 @@ def load_driver(folder: str | os.PathLike) -> DriverDescription:
             if key not in data[table]:
                 raise ConfigError(f"{table}.{key}", "is required for a serial driver", source)
     if board.max_sample_rate_hz > board.loop_rate_hz:
-        raise ConfigError("board.max_sample_rate_hz", f"{board.max_sample_rate_hz:g} Hz exceeds board.loop_rate_hz "
-                                                      f"= {board.loop_rate_hz:g} Hz", source)
-    channels = tuple(ChannelSpec(c.name, c.unit, c.format, c.scale, c.stream, c.sampling, c.filter_input)
-                     for c in parsed.channels)
+        raise ConfigError(
+            "board.max_sample_rate_hz",
+            f"{board.max_sample_rate_hz:g} Hz exceeds board.loop_rate_hz = {board.loop_rate_hz:g} Hz",
+            source,
+        )
+    channels = tuple(
+        ChannelSpec(c.name, c.unit, c.format, c.scale, c.stream, c.sampling, c.filter_input) for c in parsed.channels
+    )
     if not channels and d.transport == "canopen":
         channels = _canopen_channels(folder, data, source)
     if not channels:
@@ -311,8 +325,11 @@ def load_driver(folder: str | os.PathLike) -> DriverDescription:
         raise ConfigError("channels", f"channel names must be distinct and non-empty, got {show(names)}", source)
     inputs = [i for i, c in enumerate(channels) if c.filter_input]
     if len(inputs) > 1:
-        raise ConfigError(f"channels[{inputs[1]}].filter_input", f"only one channel enters the filter slots; "
-                                                                 f"{names[inputs[0]]!r} already does", source)
+        raise ConfigError(
+            f"channels[{inputs[1]}].filter_input",
+            f"only one channel enters the filter slots; {names[inputs[0]]!r} already does",
+            source,
+        )
     serial = d.transport == "serial"
     return DriverDescription(
         name=d.name,
@@ -334,8 +351,9 @@ def load_driver(folder: str | os.PathLike) -> DriverDescription:
     )
 
 
-def load_object_dictionary(driver: DriverDescription | Path, node_id: int | None = None,
-                           warnings: list[str] | None = None):
+def load_object_dictionary(
+    driver: DriverDescription | Path, node_id: int | None = None, warnings: list[str] | None = None
+):
     """The object dictionary of a CANopen driver folder's EDS (``[canopen] eds``), read as vendors write them.
 
     Parameters
@@ -357,8 +375,11 @@ def load_object_dictionary(driver: DriverDescription | Path, node_id: int | None
 
     folder = driver.folder if isinstance(driver, DriverDescription) else Path(driver)
     source = str(folder / DESCRIPTION_FILE)
-    sections = driver.sections if isinstance(driver, DriverDescription) else parse_toml(
-        read_toml_text(folder / DESCRIPTION_FILE, "driver description"), source)
+    sections = (
+        driver.sections
+        if isinstance(driver, DriverDescription)
+        else parse_toml(read_toml_text(folder / DESCRIPTION_FILE, "driver description"), source)
+    )
     co = sections.get("canopen")
     name = co.get("eds") if isinstance(co, dict) else None
     if not isinstance(name, str) or not name:
@@ -397,8 +418,9 @@ def declared_modes(driver: DriverDescription) -> tuple[str, ...]:
     if driver.transport == "canopen":
         from hilident.protocol.canopen_objects import CanopenDescription
 
-        desc = CanopenDescription.from_sections(driver.sections, str(driver.folder / DESCRIPTION_FILE),
-                                                load_object_dictionary(driver))
+        desc = CanopenDescription.from_sections(
+            driver.sections, str(driver.folder / DESCRIPTION_FILE), load_object_dictionary(driver)
+        )
         return tuple(desc.modes)
     table = driver.sections.get(driver.transport, {})
     modes = table.get("modes", {}) if isinstance(table, dict) else {}
@@ -444,32 +466,48 @@ def check_run_against_driver(cfg, driver: DriverDescription) -> tuple[str, ...]:
     """
     src, what = cfg.source, f"driver {driver.name!r} ({driver.folder / DESCRIPTION_FILE})"
     if driver.placeholders and cfg.device.port != "emulator":
-        raise ConfigError("driver.placeholders", f"{what} still has guessed values for "
-                                                 f"{', '.join(driver.placeholders)}: set them to the drive's real "
-                                                 "values (and remove them from the list) before a real port",
-                          str(driver.folder / DESCRIPTION_FILE))
+        raise ConfigError(
+            "driver.placeholders",
+            f"{what} still has guessed values for "
+            f"{', '.join(driver.placeholders)}: set them to the drive's real "
+            "values (and remove them from the list) before a real port",
+            str(driver.folder / DESCRIPTION_FILE),
+        )
     _check_sample_rate(cfg, driver, what)
     names = [c.name for c in driver.channels]
     for i, name in enumerate(cfg.run.channels):
         if name not in names:
-            raise ConfigError(f"run.channels[{i}]", f"{what} has no channel {show(name)} (it has: {', '.join(names)})",
-                              src)
+            raise ConfigError(
+                f"run.channels[{i}]", f"{what} has no channel {show(name)} (it has: {', '.join(names)})", src
+            )
     recorded = cfg.run.channels or [c.name for c in driver.streamed_channels]
-    needed = (("identification.output", cfg.identification.output), ("run.channels", "excitation"),
-              ("run.channels", "torque_nm"), ("run.channels", "velocity_mps"))
+    needed = (
+        ("identification.output", cfg.identification.output),
+        ("run.channels", "excitation"),
+        ("run.channels", "torque_nm"),
+        ("run.channels", "velocity_mps"),
+    )
     for key, name in needed:
         if name not in names:
             raise ConfigError(key, f"{what} has no channel {show(name)} (it has: {', '.join(names)})", src)
         if name not in recorded:
-            raise ConfigError(key, f"channel {name!r} is not recorded by default by {what}; list it in run.channels",
-                              src)
+            raise ConfigError(
+                key, f"channel {name!r} is not recorded by default by {what}; list it in run.channels", src
+            )
     modes = declared_modes(driver)
     if cfg.excitation.mode not in modes:
-        raise ConfigError("excitation.mode", f"{what} runs no {cfg.excitation.mode!r} mode (it has: "
-                                             f"{', '.join(modes) or 'none'})", src)
+        raise ConfigError(
+            "excitation.mode",
+            f"{what} runs no {cfg.excitation.mode!r} mode (it has: {', '.join(modes) or 'none'})",
+            src,
+        )
     if cfg.friction_test.enabled and not {"velocity", "position"} & set(modes):
-        raise ConfigError("friction_test.enabled", f"the friction test runs in velocity (or position) mode, which "
-                                                   f"{what} does not have (it has: {', '.join(modes) or 'none'})", src)
+        raise ConfigError(
+            "friction_test.enabled",
+            f"the friction test runs in velocity (or position) mode, which "
+            f"{what} does not have (it has: {', '.join(modes) or 'none'})",
+            src,
+        )
     # a device without filter slots is no error: the session designs the notch, reports it and says why it was
     # not uploaded
     return modes
@@ -479,11 +517,17 @@ def _check_sample_rate(cfg, driver: DriverDescription, what: str) -> None:
     fs = cfg.run.sample_rate_hz
     divider = driver.loop_rate_hz / fs
     rate = driver.loop_rate_hz / round(divider) if round(divider) >= 1 else math.inf
-    if abs(divider - round(divider)) <= 1e-9 * divider and 1 <= round(divider) <= MAX_DIVIDER \
-            and rate <= driver.max_sample_rate_hz * (1 + 1e-9):
+    if (
+        abs(divider - round(divider)) <= 1e-9 * divider
+        and 1 <= round(divider) <= MAX_DIVIDER
+        and rate <= driver.max_sample_rate_hz * (1 + 1e-9)
+    ):
         return
     valid = ", ".join(f"{r:g}" for r in valid_sample_rates(driver, 8))
-    raise ConfigError("run.sample_rate_hz", f"{fs:g} Hz is not a rate {what} records; valid: {valid}, ... Hz "
-                                            f"(the loop rate {driver.loop_rate_hz:g} Hz divided by a whole number "
-                                            f"up to {MAX_DIVIDER}, at most {driver.max_sample_rate_hz:g} Hz)",
-                      cfg.source)
+    raise ConfigError(
+        "run.sample_rate_hz",
+        f"{fs:g} Hz is not a rate {what} records; valid: {valid}, ... Hz "
+        f"(the loop rate {driver.loop_rate_hz:g} Hz divided by a whole number "
+        f"up to {MAX_DIVIDER}, at most {driver.max_sample_rate_hz:g} Hz)",
+        cfg.source,
+    )

@@ -87,6 +87,7 @@ class CheckReport:
 
 # --- drivers new --------------------------------------------------------------------------------------------------
 
+
 def new_driver_folder(eds_path, out_dir, name: str | None = None) -> NewDriverReport:
     """Write a driver folder for the drive an EDS/DCF describes.
 
@@ -190,8 +191,9 @@ def render_driver_toml(s: E.EdsSummary, eds_file: str, name: str, warnings=()) -
     _extras(body, s)
     head = _Toml()
     product = " ".join(x for x in (s.vendor_name, s.product_name) if x) or eds_file
-    head.add(f"# Driver description of {_comment(product)}, written by `hilident drivers new` from "
-             f"{_comment(eds_file)}.")
+    head.add(
+        f"# Driver description of {_comment(product)}, written by `hilident drivers new` from {_comment(eds_file)}."
+    )
     head.add("# Values marked PLACEHOLDER were assumed: check each against the drive's manual, then remove its key")
     head.add("# from [driver] placeholders. Placeholders are accepted on the emulator and refused on a real port.")
     head.add("# `hilident drivers check <this folder>` validates the folder against its EDS.")
@@ -206,8 +208,9 @@ def render_driver_toml(s: E.EdsSummary, eds_file: str, name: str, warnings=()) -
     head.key("transport", '"canopen"')
     rate, note = _baudrate(s)
     head.key("default_baudrate", str(rate), f"CAN bit rate when the config gives none; {note}")
-    head.add("# keys whose values were guessed by `hilident drivers new`: accepted on the emulator, refused on a "
-             "real port")
+    head.add(
+        "# keys whose values were guessed by `hilident drivers new`: accepted on the emulator, refused on a real port"
+    )
     placeholders = body.placeholders
     head.key("placeholders", "[" + ", ".join(_toml_str(p) for p in placeholders) + "]")
     text = "\n".join(head.lines + body.lines) + "\n"
@@ -229,8 +232,11 @@ def _rate_hz(s: E.EdsSummary) -> tuple[float, str]:
     """
     p = s.period
     if p.seconds and 1e-5 <= p.seconds < 1.0 / _DEFAULT_RATE_HZ:
-        return 1.0 / p.seconds, f"from the default period of {p.object} ({p.seconds * 1e3:g} ms); the drive's " \
-                                "filter rate and fastest SYNC rate may differ"
+        return (
+            1.0 / p.seconds,
+            f"from the default period of {p.object} ({p.seconds * 1e3:g} ms); the drive's "
+            "filter rate and fastest SYNC rate may differ",
+        )
     known = f"the default period of {p.object} is {p.seconds * 1e3:g} ms; " if p.seconds else ""
     return _DEFAULT_RATE_HZ, f"{known}the EDS does not tell the drive's loop rate; 1 kHz assumed"
 
@@ -246,30 +252,49 @@ def _board(t: _Toml, s: E.EdsSummary) -> None:
 def _canopen(t: _Toml, s: E.EdsSummary, eds_file: str) -> None:
     t.start("canopen")
     t.key("eds", _toml_str(eds_file))
-    t.add(f"# identity from the EDS [DeviceInfo]: vendor {_hex(s.vendor_number)}, product {_hex(s.product_number)},"
-          f" revision {_hex(s.revision_number)}")
+    t.add(
+        f"# identity from the EDS [DeviceInfo]: vendor {_hex(s.vendor_number)}, product {_hex(s.product_number)},"
+        f" revision {_hex(s.revision_number)}"
+    )
     t.key("default_acquisition", '"streamed"', "host-streamed on standard objects")
     modes = ", ".join(_toml_str(m) for m in s.cyclic_modes)
     if s.cyclic_modes:
-        known = ("0x6502 default" if s.supported_modes is not None
-                 else "set-point objects present (0x6502 has no default)")
+        known = (
+            "0x6502 default" if s.supported_modes is not None else "set-point objects present (0x6502 has no default)"
+        )
         t.key("cyclic_modes", f"[{modes}]", f"preference order; from the {known}")
     else:  # the key is left out: an empty preference is refused, and there is nothing to prefer
-        t.add("# cyclic_modes: the drive has no cyclic mode (CST/CSV/CSP/IP) with its set-point object: it cannot "
-              "run a host-streamed session")
-    t.key("heartbeat_ms", "100", "producer heartbeat asked of the drive (0x1017)" if "heartbeat_time" in s.roles
-          else "the EDS has no 0x1017: not used")
-    t.key("host_node_id", "127", "the host's heartbeat node id, watched by the drive's 0x1016"
-          if s.heartbeat_consumers else "the EDS has no heartbeat consumer 0x1016: no device-side net")
+        t.add(
+            "# cyclic_modes: the drive has no cyclic mode (CST/CSV/CSP/IP) with its set-point object: it cannot "
+            "run a host-streamed session"
+        )
+    t.key(
+        "heartbeat_ms",
+        "100",
+        "producer heartbeat asked of the drive (0x1017)"
+        if "heartbeat_time" in s.roles
+        else "the EDS has no 0x1017: not used",
+    )
+    t.key(
+        "host_node_id",
+        "127",
+        "the host's heartbeat node id, watched by the drive's 0x1016"
+        if s.heartbeat_consumers
+        else "the EDS has no heartbeat consumer 0x1016: no device-side net",
+    )
     supported = "unknown (no 0x6502 default)" if s.supported_modes is None else ", ".join(s.supported_modes) or "none"
     t.add(f"# modes 0x6502 lists: {supported}")
-    t.add(f"# PDO limits from the EDS: {len(s.rpdo_entries)} RPDOs x up to {s.rpdo_max_entries} entries, "
-          f"{len(s.tpdo_entries)} TPDOs x up to {s.tpdo_max_entries} entries (64 bits per PDO); mapping "
-          + ("writable" if s.pdo_mapping_writable else "NOT writable: the host cannot map its own objects"))
+    t.add(
+        f"# PDO limits from the EDS: {len(s.rpdo_entries)} RPDOs x up to {s.rpdo_max_entries} entries, "
+        f"{len(s.tpdo_entries)} TPDOs x up to {s.tpdo_max_entries} entries (64 bits per PDO); mapping "
+        + ("writable" if s.pdo_mapping_writable else "NOT writable: the host cannot map its own objects")
+    )
     p = s.period
     if p.object == "0x60C2":
-        t.add(f"# cyclic period written to 0x60C2 (value {p.value}, exponent {p.exponent}"
-              + (f": {p.seconds * 1e3:g} ms by default)" if p.seconds else ": no default)"))
+        t.add(
+            f"# cyclic period written to 0x60C2 (value {p.value}, exponent {p.exponent}"
+            + (f": {p.seconds * 1e3:g} ms by default)" if p.seconds else ": no default)")
+        )
     elif p.object == "0x1006":
         t.add(f"# cyclic period written to 0x1006 in us (default {p.value})")
     else:
@@ -284,37 +309,57 @@ def _scaling(t: _Toml, s: E.EdsSummary) -> None:
     t.start("canopen.scaling")
     unit, why = _position_unit(s)
     t.key("position_unit_m", f"{unit:.6g}", placeholder=why)
-    t.key("velocity_unit_mps", f"{unit:.6g}", placeholder="taken as one position unit per second; many drives use "
-                                                          "rpm or increments per second: check the manual")
+    t.key(
+        "velocity_unit_mps",
+        f"{unit:.6g}",
+        placeholder="taken as one position unit per second; many drives use "
+        "rpm or increments per second: check the manual",
+    )
     ref = s.torque_reference
     rated = s.roles.get("rated_torque")
     if ref in ("rated_torque", "torque"):
         if rated is not None:
-            t.key("rated_torque_unit_nm", "1e-3", placeholder="unit of 0x6076 taken as mN*m (CiA 402); some drives "
-                                                              "use uN*m")
+            t.key(
+                "rated_torque_unit_nm",
+                "1e-3",
+                placeholder="unit of 0x6076 taken as mN*m (CiA 402); some drives use uN*m",
+            )
         if rated is None or not (isinstance(rated.default, int) and rated.default > 0):
             why = "the EDS has no 0x6076" if rated is None else "0x6076 has no non-zero default"
-            t.key("rated_torque_nm", "1.0", placeholder=f"{why}: torque objects are per mille of the motor's rated "
-                                                        "torque, N*m")
+            t.key(
+                "rated_torque_nm",
+                "1.0",
+                placeholder=f"{why}: torque objects are per mille of the motor's rated torque, N*m",
+            )
     elif ref == "current":
         t.add("# current only (no 0x6071/0x6077): torque = current * kt; current objects are per mille of 0x6075 (mA)")
         t.key("torque_constant_nm_per_a", "0.05", placeholder="the motor's torque constant kt, N*m/A")
         current = s.roles.get("rated_current")
         if current is None or not (isinstance(current.default, int) and current.default > 0):
             why = "the EDS has no 0x6075" if current is None else "0x6075 has no non-zero default"
-            t.key("rated_current_a", "10.0",
-                  placeholder=f"{why}: the motor's rated current, A (10 A assumed: current objects are "
-                              "per mille of it, so it also sets their range)")
+            t.key(
+                "rated_current_a",
+                "10.0",
+                placeholder=f"{why}: the motor's rated current, A (10 A assumed: current objects are "
+                "per mille of it, so it also sets their range)",
+            )
     elif s.vendor_torque:
         index, name, role = s.vendor_torque[0]
         t.add("# the EDS has neither torque nor current objects; a vendor object named like a torque stands in:")
         t.add(f"# torque_nm is 0x{index:04X} ({_comment(name)}), read as per mille of rated_torque_nm")
-        t.key("rated_torque_nm", "1.0", placeholder=f"the scaling of 0x{index:04X} {_comment(name)!r} is not in "
-                                                    "the EDS: per mille of 1 N*m assumed")
+        t.key(
+            "rated_torque_nm",
+            "1.0",
+            placeholder=f"the scaling of 0x{index:04X} {_comment(name)!r} is not in "
+            "the EDS: per mille of 1 N*m assumed",
+        )
         t.start("canopen.objects")
         what = "what the drive commands" if role == "torque_demand" else "what the drive measures"
-        t.key(role, _toml_str(f"0x{index:04X}"),
-              placeholder=f"vendor object {_comment(name)!r} taken as the torque ({what}); check the manual")
+        t.key(
+            role,
+            _toml_str(f"0x{index:04X}"),
+            placeholder=f"vendor object {_comment(name)!r} taken as the torque ({what}); check the manual",
+        )
     else:
         t.add("# the EDS has neither torque nor current objects: no torque can be measured or commanded")
 
@@ -328,31 +373,46 @@ def _position_unit(s: E.EdsSummary) -> tuple[float, str]:
 
     if ok("feed", "feed_shaft_revs") and ok("encoder_increments", "motor_revolutions") and f["feed"] > 1:
         unit = 2 * math.pi * f["feed_shaft_revs"] / f["feed"]
-        return unit, (f"suggested from 0x6092 (feed {f['feed']} per {f['feed_shaft_revs']} shaft rev): rad of the "
-                      f"driving shaft per position unit; a linear axis needs m per unit")
+        return unit, (
+            f"suggested from 0x6092 (feed {f['feed']} per {f['feed_shaft_revs']} shaft rev): rad of the "
+            f"driving shaft per position unit; a linear axis needs m per unit"
+        )
     if ok("encoder_increments", "motor_revolutions") and f["encoder_increments"] > 1:
         unit = 2 * math.pi * f["motor_revolutions"] / f["encoder_increments"]
-        return unit, (f"suggested from 0x608F ({f['encoder_increments']} increments per {f['motor_revolutions']} motor "
-                      f"rev): rad of the motor shaft per increment; a linear axis needs m per increment")
+        return unit, (
+            f"suggested from 0x608F ({f['encoder_increments']} increments per {f['motor_revolutions']} motor "
+            f"rev): rad of the motor shaft per increment; a linear axis needs m per increment"
+        )
     return 1e-6, "the EDS does not tell the position unit; 1 um per increment assumed"
 
 
 def _extras(t: _Toml, s: E.EdsSummary) -> None:
     if s.store_parameters:
         t.start("canopen.save")
-        t.key("object", '"0x1010:1"', "store parameters (\"save\"), written only with --save")
+        t.key("object", '"0x1010:1"', 'store parameters ("save"), written only with --save')
     if s.supported_modes is None and s.cyclic_modes:
         t.start("emulator")
         modes = ", ".join(_toml_str(m) for m in s.cyclic_modes)
-        t.key("supported_modes", f"[{modes}]", placeholder="0x6502 has no default: the twin runs the cyclic modes "
-                                                           "whose set-point objects the EDS has")
-    for title, items in (("filters", s.vendor_filters), ("recorders", s.vendor_recorders),
-                         ("generators", s.vendor_generators)):
+        t.key(
+            "supported_modes",
+            f"[{modes}]",
+            placeholder="0x6502 has no default: the twin runs the cyclic modes whose set-point objects the EDS has",
+        )
+    for title, items in (
+        ("filters", s.vendor_filters),
+        ("recorders", s.vendor_recorders),
+        ("generators", s.vendor_generators),
+    ):
         if items:
             t.add()
-            t.add(f"# Vendor objects that look like {title}: describe them here to use them "
-                  + ("([filters], encodings in protocol/filter_encoding/)" if title == "filters" else
-                     "(a vendor capability)"))
+            t.add(
+                f"# Vendor objects that look like {title}: describe them here to use them "
+                + (
+                    "([filters], encodings in protocol/filter_encoding/)"
+                    if title == "filters"
+                    else "(a vendor capability)"
+                )
+            )
             for index, name in items:
                 t.add(f"#   0x{index:04X} {_comment(name)}")
 
@@ -361,12 +421,18 @@ def _extras(t: _Toml, s: E.EdsSummary) -> None:
 
 #: Roles the host writes (the object must be writable); every other role is read.
 _WRITTEN_ROLES = frozenset(r for r, (_, _, _, use) in E.ROLES.items() if "w" in use) | {
-    "table", "table_divider", "table_command", "capture_mapping", "capture_offset",
-    "setpoint_counter"}
+    "table",
+    "table_divider",
+    "table_command",
+    "capture_mapping",
+    "capture_offset",
+    "setpoint_counter",
+}
 _READ_ROLES = frozenset(r for r, (_, _, _, use) in E.ROLES.items() if "r" in use)
 _MODE_BIT = {code: bit for bit, name in E.MODE_BITS.items() for n, code in E.MODE_CODES.items() if n == name}
-_INTEGER_TYPES = frozenset({0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x10, 0x12, 0x13, 0x14, 0x15, 0x16, 0x18,
-                            0x19, 0x1A, 0x1B})
+_INTEGER_TYPES = frozenset(
+    {0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x10, 0x12, 0x13, 0x14, 0x15, 0x16, 0x18, 0x19, 0x1A, 0x1B}
+)
 _FLOAT_TYPES = frozenset({0x08, 0x11})
 
 
@@ -417,8 +483,12 @@ class _Checker:
             index, sub, _, _ = E.ROLES[role]
             info = E.object_info(self.od, index, sub)
             if info is None:
-                self.error(key, f"role {role!r}: its standard object 0x{index:04X}" + (f":{sub}" if sub else "")
-                           + " is not in the EDS, and [canopen.objects] does not name another")
+                self.error(
+                    key,
+                    f"role {role!r}: its standard object 0x{index:04X}"
+                    + (f":{sub}" if sub else "")
+                    + " is not in the EDS, and [canopen.objects] does not name another",
+                )
             return info
         self.error(key, f"role {role!r} is neither a standard role nor named in [canopen.objects]")
         return None
@@ -435,8 +505,11 @@ class _Checker:
             return
         want = E.ROLES[role][2]
         if _family(want) != _family(info.data_type):
-            self.error(key, f"{info.address} ({role}) is {E.type_name(info.data_type)} in the EDS; the role needs "
-                            f"a {_family(want)} like {E.type_name(want)}")
+            self.error(
+                key,
+                f"{info.address} ({role}) is {E.type_name(info.data_type)} in the EDS; the role needs "
+                f"a {_family(want)} like {E.type_name(want)}",
+            )
 
 
 def _parse_int(text):
@@ -472,15 +545,23 @@ def check_driver_folder(folder) -> CheckReport:
     placeholders = driver.get("placeholders", [])
     placeholders = tuple(str(p) for p in placeholders) if isinstance(placeholders, list) else ()
     if driver.get("transport") != "canopen":
-        return CheckReport(folder, errors=(f"{source}: [driver.transport] is {driver.get('transport')!r}; "
-                                           f"`drivers check` validates CANopen drivers against their EDS",),
-                           placeholders=placeholders)
+        return CheckReport(
+            folder,
+            errors=(
+                f"{source}: [driver.transport] is {driver.get('transport')!r}; "
+                f"`drivers check` validates CANopen drivers against their EDS",
+            ),
+            placeholders=placeholders,
+        )
     table = data.get("canopen")
     co = table if isinstance(table, dict) else {}
     eds_name = co.get("eds")
     if not isinstance(eds_name, str) or not eds_name:
-        return CheckReport(folder, errors=(f"{source}: [canopen.eds] must name the EDS/DCF file in the folder",),
-                           placeholders=placeholders)
+        return CheckReport(
+            folder,
+            errors=(f"{source}: [canopen.eds] must name the EDS/DCF file in the folder",),
+            placeholders=placeholders,
+        )
     try:
         od, eds_warnings = E.load_eds(folder / eds_name)
     except ConfigError as exc:
@@ -516,7 +597,7 @@ def _check_modes(c: _Checker) -> None:
     """``[canopen.modes]`` against the EDS, then ``cyclic_modes``."""
     modes = c.co.get("modes", {})
     if not isinstance(modes, dict):
-        c.error("canopen.modes", "must be a table of mode = { code = <int>, setpoint = \"<role>\" }")
+        c.error("canopen.modes", 'must be a table of mode = { code = <int>, setpoint = "<role>" }')
         modes = {}
     for name, spec in modes.items():
         key = f"canopen.modes.{name}"
@@ -546,12 +627,16 @@ def _check_mode_code(c: _Checker, key: str, code: int) -> None:
     s = c.s
     mode_object = s.roles.get("modes_of_operation")
     if code < 0 and mode_object is not None and mode_object.data_type != E.INTEGER8:
-        c.warn(f"{key}.code", f"negative mode {code}, but 0x6060 is "
-                              f"{E.type_name(mode_object.data_type)}: written as {code & 0xFF}")
+        c.warn(
+            f"{key}.code",
+            f"negative mode {code}, but 0x6060 is {E.type_name(mode_object.data_type)}: written as {code & 0xFF}",
+        )
     bit = _MODE_BIT.get(code)
     if s.supported_modes is not None and bit is not None and E.MODE_BITS[bit] not in s.supported_modes:
-        c.error(f"{key}.code", f"mode {code} ({E.MODE_BITS[bit].upper()}) is not in 0x6502 "
-                               f"({', '.join(s.supported_modes) or 'none'})")
+        c.error(
+            f"{key}.code",
+            f"mode {code} ({E.MODE_BITS[bit].upper()}) is not in 0x6502 ({', '.join(s.supported_modes) or 'none'})",
+        )
     elif bit is None:
         c.warn(f"{key}.code", f"mode {code} is not a CiA 402 mode 0x6502 lists; not checked")
 
@@ -577,14 +662,17 @@ def _check_cyclic_modes(c: _Checker) -> None:
     if preferred and s.supported_modes is None:
         emulator = c.data.get("emulator")
         emu = emulator.get("supported_modes") if isinstance(emulator, dict) else None
-        c.warn("canopen.cyclic_modes", "0x6502 has no default: the modes are read from the drive at connect"
-               + ("" if emu else "; the twin needs [emulator] supported_modes"))
+        c.warn(
+            "canopen.cyclic_modes",
+            "0x6502 has no default: the modes are read from the drive at connect"
+            + ("" if emu else "; the twin needs [emulator] supported_modes"),
+        )
 
 
 def _check_channels(c: _Checker) -> None:
     channels = c.co.get("channels", {})
     if not isinstance(channels, dict):
-        c.error("canopen.channels", "must be a table of channel = \"<role>\"")
+        c.error("canopen.channels", 'must be a table of channel = "<role>"')
         return
     bits = []
     for name, role in channels.items():
@@ -599,13 +687,17 @@ def _check_channels(c: _Checker) -> None:
             bits.append(_bits(info.data_type))
     capacity = len(c.s.tpdo_entries)
     if bits and c.s.tpdo_entries and _pdos_needed(bits, c.s.tpdo_max_entries) > capacity:
-        c.error("canopen.channels", f"{len(bits)} streamed channels ({sum(bits)} bits) do not fit the drive's "
-                                    f"{capacity} TPDOs of up to {c.s.tpdo_max_entries} entries (64 bits each)")
+        c.error(
+            "canopen.channels",
+            f"{len(bits)} streamed channels ({sum(bits)} bits) do not fit the drive's "
+            f"{capacity} TPDOs of up to {c.s.tpdo_max_entries} entries (64 bits each)",
+        )
 
 
 def _bits(data_type: int) -> int:
-    return {0x01: 8, 0x02: 8, 0x05: 8, 0x03: 16, 0x06: 16, 0x10: 24, 0x16: 24, 0x11: 64, 0x15: 64,
-            0x1B: 64}.get(data_type, 32)
+    return {0x01: 8, 0x02: 8, 0x05: 8, 0x03: 16, 0x06: 16, 0x10: 24, 0x16: 24, 0x11: 64, 0x15: 64, 0x1B: 64}.get(
+        data_type, 32
+    )
 
 
 def _pdos_needed(bits: list[int], max_entries: int) -> int:
@@ -652,8 +744,10 @@ def _check_filters(c: _Checker) -> None:
             if not E.writable(info.access):
                 c.error(f"filters.{key}", f"{info.address} is {info.access!r}; the host writes it")
             if family and key != "enable_subindex" and _family(info.data_type) != family:
-                c.error(f"filters.{key}", f"{info.address} is {E.type_name(info.data_type)}; encoding {encoding!r} "
-                                          f"writes a {family}")
+                c.error(
+                    f"filters.{key}",
+                    f"{info.address} is {E.type_name(info.data_type)}; encoding {encoding!r} writes a {family}",
+                )
 
 
 def _check_save(c: _Checker) -> None:
@@ -710,8 +804,12 @@ def _check_identity(c: _Checker) -> None:
     for key, value in (("vendor_id", c.s.vendor_number), ("product_code", c.s.product_number)):
         given = c.co.get(key)
         if given is not None and value is not None and given != value:
-            c.warn(f"canopen.{key}", f"0x{given:08X} differs from the EDS [DeviceInfo] (0x{value:08X})"
-                   if isinstance(given, int) else f"must be an integer, got {given!r}")
+            c.warn(
+                f"canopen.{key}",
+                f"0x{given:08X} differs from the EDS [DeviceInfo] (0x{value:08X})"
+                if isinstance(given, int)
+                else f"must be an integer, got {given!r}",
+            )
 
 
 def _check_placeholders(c: _Checker, placeholders: tuple[str, ...], path: Path) -> None:
@@ -736,6 +834,7 @@ def _check_placeholders(c: _Checker, placeholders: tuple[str, ...], path: Path) 
 
 
 # --- drivers -v ---------------------------------------------------------------------------------------------------
+
 
 def _describe_modbus(mb: dict) -> list[str]:
     """A Modbus map's capabilities for ``drivers -v``: parameter rule, excitation, save."""
@@ -762,8 +861,10 @@ def describe_driver(folder) -> str:
         return f"  unreadable {DESCRIPTION_FILE}: {exc}"
     board, driver = _table_of(data, "board"), _table_of(data, "driver")
     out = [f"  {driver['description']}"] if driver.get("description") else []
-    out.append(f"  rates: loop {board.get('loop_rate_hz', '?')} Hz, samples up to "
-               f"{board.get('max_sample_rate_hz', '?')} Hz; filter slots: {board.get('filter_slots', 0)}")
+    out.append(
+        f"  rates: loop {board.get('loop_rate_hz', '?')} Hz, samples up to "
+        f"{board.get('max_sample_rate_hz', '?')} Hz; filter slots: {board.get('filter_slots', 0)}"
+    )
     channels, modes, caps = _transport_features(folder, data, driver.get("transport", "?"))
     out.append(f"  channels: {', '.join(channels) or 'none'}")
     out += _loaded_figures(folder)
@@ -785,8 +886,10 @@ def _loaded_figures(folder: Path) -> list[str]:
     except (ConfigError, ValueError, ZeroDivisionError):  # a broken description is described, not refused
         return []
     units = ", ".join(f"{c.name} [{c.unit}]" for c in d.channels)
-    return [f"  channel units: {units or 'none'}",
-            f"  sample rates: {', '.join(f'{r:g}' for r in rates)}, ... Hz (the loop rate over a whole number)"]
+    return [
+        f"  channel units: {units or 'none'}",
+        f"  sample rates: {', '.join(f'{r:g}' for r in rates)}, ... Hz (the loop rate over a whole number)",
+    ]
 
 
 def _table_of(data: dict, key: str) -> dict:
@@ -825,8 +928,13 @@ def _describe_canopen(folder: Path, data: dict, co: dict):
     except ConfigError as exc:
         return [f"EDS unreadable ({exc})"], modes, channels
     s = E.inspect_eds(od)
-    standard = (("position_m", "position_actual"), ("velocity_mps", "velocity_actual"),
-                ("torque_nm", "torque_actual"), ("torque_cmd_nm", "torque_demand"), ("current_a", "current_actual"))
+    standard = (
+        ("position_m", "position_actual"),
+        ("velocity_mps", "velocity_actual"),
+        ("torque_nm", "torque_actual"),
+        ("torque_cmd_nm", "torque_demand"),
+        ("current_a", "current_actual"),
+    )
     channels = [name for name, role in standard if role in s.roles]
     if s.supported_modes is not None:
         caps.append(f"0x6502: {', '.join(s.supported_modes) or 'none'}")

@@ -76,8 +76,9 @@ class SimClock:
         Simulated time, s, the axis coasts after :meth:`start_coast`.
     """
 
-    def __init__(self, loop_rate_hz: float, time_scale: float = 1.0, max_catch_up_s: float = 0.05,
-                 coast_s: float = COAST_S):
+    def __init__(
+        self, loop_rate_hz: float, time_scale: float = 1.0, max_catch_up_s: float = 0.05, coast_s: float = COAST_S
+    ):
         self.loop_rate_hz = float(loop_rate_hz)
         self.time_scale = float(time_scale)
         self.max_catch_up_s = float(max_catch_up_s)

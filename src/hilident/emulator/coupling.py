@@ -144,8 +144,7 @@ class PositionCurve:
         return 0.4 * tolerance * smallest / steepest
 
 
-def model_at(model, position_m: float, stiffness: PositionCurve | None = None,
-             damping: PositionCurve | None = None):
+def model_at(model, position_m: float, stiffness: PositionCurve | None = None, damping: PositionCurve | None = None):
     """``model`` (a TwoMass or ThreeMass) with its first coupling's ``k``, ``d`` taken at ``position_m``.
 
     A curve that is None leaves that coefficient as it is.

@@ -32,8 +32,15 @@ from hilident.emulator.preset import realism
 from hilident.emulator.sensors import SensorModel
 from hilident.links import PipeEnd
 
-__all__ = ["EmulatedDevice", "EmulatorServer", "build_drive", "coupling_curves", "friction_model", "plant_model",
-           "true_modes"]
+__all__ = [
+    "EmulatedDevice",
+    "EmulatorServer",
+    "build_drive",
+    "coupling_curves",
+    "friction_model",
+    "plant_model",
+    "true_modes",
+]
 
 
 class EmulatorServer(Protocol):
@@ -110,21 +117,36 @@ def build_drive(cfg: EmulatorConfig, driver: DriverDescription) -> DriveLoop:
     d = cfg.drive
     r = realism(cfg, driver.loop_rate_hz)
     sensors = SensorModel(
-        encoder_resolution_m=s.encoder_resolution_m, torque_noise_nm=s.torque_noise_nm,
-        laser_range_m=tuple(s.laser_range_m), laser_noise_m=s.laser_noise_m,
-        laser_resolution_m=s.laser_resolution_m, encoder_noise_m=r.encoder_noise_m, seed=cfg.seed,
+        encoder_resolution_m=s.encoder_resolution_m,
+        torque_noise_nm=s.torque_noise_nm,
+        laser_range_m=tuple(s.laser_range_m),
+        laser_noise_m=s.laser_noise_m,
+        laser_resolution_m=s.laser_resolution_m,
+        encoder_noise_m=r.encoder_noise_m,
+        seed=cfg.seed,
     )
     tuning = DriveTuning(
-        loop_rate_hz=driver.loop_rate_hz, kp_pos_per_s=d.kp_pos_per_s, kv_nm_per_mps=d.kv_nm_per_mps,
-        ti_s=d.ti_s, velocity_filter_hz=d.velocity_filter_hz, torque_max_nm=d.torque_max_nm,
-        current_loop_hz=r.current_loop_hz, delay_ticks=r.delay_ticks, velocity_feedforward=d.velocity_feedforward,
+        loop_rate_hz=driver.loop_rate_hz,
+        kp_pos_per_s=d.kp_pos_per_s,
+        kv_nm_per_mps=d.kv_nm_per_mps,
+        ti_s=d.ti_s,
+        velocity_filter_hz=d.velocity_filter_hz,
+        torque_max_nm=d.torque_max_nm,
+        current_loop_hz=r.current_loop_hz,
+        delay_ticks=r.delay_ticks,
+        velocity_feedforward=d.velocity_feedforward,
         accel_feedforward_nm_per_mps2=d.accel_feedforward_nm_per_mps2,
     )
     # The sensors' noise streams are children 0-2 of the seed; the disturbance is child 3.
     disturbance = ProcessDisturbance(
-        period_s=1.0 / driver.loop_rate_hz, noise_nm=r.torque_noise_nm, noise_corner_hz=r.torque_noise_corner_hz,
-        cogging_nm=r.cogging_nm, cogging_period_m=r.cogging_period_m, load_step_nm=r.load_step_nm,
-        load_step_rate_hz=r.load_step_rate_hz, load_noise_n=r.load_noise_n,
+        period_s=1.0 / driver.loop_rate_hz,
+        noise_nm=r.torque_noise_nm,
+        noise_corner_hz=r.torque_noise_corner_hz,
+        cogging_nm=r.cogging_nm,
+        cogging_period_m=r.cogging_period_m,
+        load_step_nm=r.load_step_nm,
+        load_step_rate_hz=r.load_step_rate_hz,
+        load_noise_n=r.load_noise_n,
         seed=np.random.SeedSequence(cfg.seed, spawn_key=(3,)),
     )
     # Integrate at least 4x the loop rate, and at least 40 steps per period of the fastest mode.
@@ -132,8 +154,9 @@ def build_drive(cfg: EmulatorConfig, driver: DriverDescription) -> DriveLoop:
     substep = min(1.0 / (4 * driver.loop_rate_hz), 1.0 / (40 * fastest) if fastest else math.inf)
     backlash = cfg.plant.backlash_m if cfg.plant.model != "mass_spring_damper" else 0.0
     k_of, d_of = coupling_curves(cfg)
-    plant = Plant(plant_model(cfg), friction_model(cfg), max_substep_s=substep, backlash_m=backlash,
-                  stiffness=k_of, damping=d_of)
+    plant = Plant(
+        plant_model(cfg), friction_model(cfg), max_substep_s=substep, backlash_m=backlash, stiffness=k_of, damping=d_of
+    )
     return DriveLoop(plant, tuning, sensors, n_filter_slots=driver.filter_slots, disturbance=disturbance)
 
 

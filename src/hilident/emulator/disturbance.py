@@ -70,9 +70,19 @@ class ProcessDisturbance:
     0.5
     """
 
-    def __init__(self, *, period_s: float, noise_nm: float = 0.0, noise_corner_hz: float = 20.0,
-                 cogging_nm: float = 0.0, cogging_period_m: float = 0.01, load_step_nm: float = 0.0,
-                 load_step_rate_hz: float = 0.0, load_noise_n: float = 0.0, seed):
+    def __init__(
+        self,
+        *,
+        period_s: float,
+        noise_nm: float = 0.0,
+        noise_corner_hz: float = 20.0,
+        cogging_nm: float = 0.0,
+        cogging_period_m: float = 0.01,
+        load_step_nm: float = 0.0,
+        load_step_rate_hz: float = 0.0,
+        load_noise_n: float = 0.0,
+        seed,
+    ):
         self.period_s = number("period_s", period_s)
         if self.period_s == 0.0:
             raise ConfigError("period_s", "must be > 0")
@@ -105,8 +115,9 @@ class ProcessDisturbance:
     @property
     def active(self) -> bool:
         """True when any part of the disturbance is non-zero."""
-        return bool(self.noise_nm or self.cogging_nm or (self.load_step_nm and self.load_step_rate_hz)
-                    or self.load_noise_n)
+        return bool(
+            self.noise_nm or self.cogging_nm or (self.load_step_nm and self.load_step_rate_hz) or self.load_noise_n
+        )
 
     def _next_white(self) -> float:
         i = self._white_i

@@ -162,13 +162,11 @@ class DriveLoop:
     True
     """
 
-    CHANNELS = ("time_s", "excitation", "torque_cmd_nm", "torque_nm", "position_m",
-                "velocity_mps", "load_position_m")
+    CHANNELS = ("time_s", "excitation", "torque_cmd_nm", "torque_nm", "position_m", "velocity_mps", "load_position_m")
     #: Units aligned with :attr:`CHANNELS`; the excitation's unit depends on the mode
     #: (:attr:`EXCITATION_UNITS`, or :attr:`units` for the current mode).
     UNITS = ("s", "", "N·m", "N·m", "m", "m/s", "m")
-    EXCITATION_UNITS = {"torque": "N·m", "torque_injection": "N·m", "velocity": "m/s",
-                        "position": "m"}
+    EXCITATION_UNITS = {"torque": "N·m", "torque_injection": "N·m", "velocity": "m/s", "position": "m"}
 
     @classmethod
     def columns_of(cls, names, what: str) -> list[int]:
@@ -184,8 +182,14 @@ class DriveLoop:
         except ValueError as exc:
             raise ValueError(f"{what} not produced by the drive loop: {exc}") from None
 
-    def __init__(self, plant: Plant, tuning: DriveTuning, sensors: SensorModel,
-                 n_filter_slots: int = 4, disturbance: ProcessDisturbance | None = None):
+    def __init__(
+        self,
+        plant: Plant,
+        tuning: DriveTuning,
+        sensors: SensorModel,
+        n_filter_slots: int = 4,
+        disturbance: ProcessDisturbance | None = None,
+    ):
         if not isinstance(plant, Plant):
             raise TypeError(f"plant must be a Plant, got {type(plant).__name__}")
         if not isinstance(tuning, DriveTuning):
@@ -241,8 +245,13 @@ class DriveLoop:
         self.mode = mode
         self._integral = 0.0
 
-    def set_limits(self, torque_nm: float | None = None, velocity_mps: float | None = None,
-                   position_min_m: float | None = None, position_max_m: float | None = None) -> None:
+    def set_limits(
+        self,
+        torque_nm: float | None = None,
+        velocity_mps: float | None = None,
+        position_min_m: float | None = None,
+        position_max_m: float | None = None,
+    ) -> None:
         """Set the trip limits; None removes a limit.
 
         Parameters
@@ -255,6 +264,7 @@ class DriveLoop:
             Absolute window of the encoder position, m (the same axis as
             ``position_m``, not relative to the enable position).
         """
+
         def positive(key, v):
             if v is None:
                 return math.inf
@@ -293,8 +303,7 @@ class DriveLoop:
             While a fault is set; call :meth:`clear_fault` first.
         """
         if self.fault is not None:
-            raise DeviceError(f"drive fault {self.fault!r} at tick {self.fault_tick}; "
-                              "clear_fault() before enable()")
+            raise DeviceError(f"drive fault {self.fault!r} at tick {self.fault_tick}; clear_fault() before enable()")
         self.hold_position_m = self.sensors.encoder(self.plant.p1)
         self._setpoint = None  # the first set-point after enabling starts the feed-forward's differences
         self._integral = 0.0

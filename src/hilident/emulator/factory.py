@@ -30,12 +30,23 @@ from hilident.emulator.serial.server import start as start_serial
 from hilident.emulator.serial.server import start_serial_board
 from hilident.errors import ConfigError
 
-__all__ = ["EmulatedDevice", "STANDALONE_LINKS", "build_drive", "coupling_curves", "host_device_table",
-           "plant_model", "start_emulator", "start_standalone", "true_modes"]
+__all__ = [
+    "EmulatedDevice",
+    "STANDALONE_LINKS",
+    "build_drive",
+    "coupling_curves",
+    "host_device_table",
+    "plant_model",
+    "start_emulator",
+    "start_standalone",
+    "true_modes",
+]
 
 #: Each transport's twin: ``start(cfg, driver, device) -> EmulatedDevice``.
 _STARTERS: dict[str, Callable[..., EmulatedDevice]] = {
-    "serial": start_serial, "modbus": start_modbus, "canopen": start_canopen,
+    "serial": start_serial,
+    "modbus": start_modbus,
+    "canopen": start_canopen,
 }
 
 
@@ -52,8 +63,9 @@ def start_emulator(cfg: EmulatorConfig, driver: DriverDescription, device: Devic
 STANDALONE_LINKS = {"serial": ("pty", "tcp"), "modbus": ("tcp", "rtu"), "canopen": ("socketcand",)}
 
 
-def start_standalone(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig,
-                     link: str, port: int = 0) -> EmulatedDevice:
+def start_standalone(
+    cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig, link: str, port: int = 0
+) -> EmulatedDevice:
     """Serve the twin of ``driver`` on a real transport for a host in another process.
 
     Parameters
@@ -77,8 +89,9 @@ def start_standalone(cfg: EmulatorConfig, driver: DriverDescription, device: Dev
     """
     links = STANDALONE_LINKS.get(driver.transport, ())
     if link not in links:
-        raise ConfigError("emulator.link", f"a standalone {driver.transport} twin is served on {list(links)}, "
-                          f"not {link!r}")
+        raise ConfigError(
+            "emulator.link", f"a standalone {driver.transport} twin is served on {list(links)}, not {link!r}"
+        )
     if driver.transport == "serial":
         return start_serial_board(cfg, driver, device.baudrate or driver.default_baudrate, link=link)
     if driver.transport == "modbus":
@@ -89,6 +102,18 @@ def start_standalone(cfg: EmulatorConfig, driver: DriverDescription, device: Dev
 def host_device_table(device: DeviceConfig) -> dict:
     """The ``[device]`` table (as a dict, ready for a TOML writer) a host in another process uses to reach a
     standalone twin."""
-    keys = ("driver", "port", "baudrate", "timeout_s", "can_interface", "node_id", "device_id", "parity",
-            "stopbits", "acquisition", "allow_fault_reset", "host_timeout_s")
+    keys = (
+        "driver",
+        "port",
+        "baudrate",
+        "timeout_s",
+        "can_interface",
+        "node_id",
+        "device_id",
+        "parity",
+        "stopbits",
+        "acquisition",
+        "allow_fault_reset",
+        "host_timeout_s",
+    )
     return device_table(device, keys)

@@ -223,11 +223,7 @@ class StribeckFriction:
         """Kinetic friction torque (N·m) at ``velocity_mps``; array in, array out."""
         v = np.asarray(velocity_mps, dtype=float)
         a = np.abs(v)
-        mag = (
-            self.Fc
-            + (self.Fs - self.Fc) * np.exp(-((a / self.vs) ** self.delta_s))
-            + self.Fv * a**self.delta_v
-        )
+        mag = self.Fc + (self.Fs - self.Fc) * np.exp(-((a / self.vs) ** self.delta_s)) + self.Fv * a**self.delta_v
         return np.sign(v) * mag
 
     torque = __call__
@@ -328,9 +324,11 @@ def _pairs(lam: np.ndarray) -> list[tuple[float, float]]:
     complex_ = sorted(lam[np.imag(lam) > 0], key=abs)
     real = sorted(np.real(lam[np.imag(lam) == 0]), key=abs)
     out = [(abs(z), -z.real / abs(z)) for z in complex_]
-    out += [(math.sqrt(a * b), -(a + b) / (2.0 * math.sqrt(a * b)))
-            for a, b in zip(real[0::2], real[1::2], strict=False)
-            if a * b > 0]
+    out += [
+        (math.sqrt(a * b), -(a + b) / (2.0 * math.sqrt(a * b)))
+        for a, b in zip(real[0::2], real[1::2], strict=False)
+        if a * b > 0
+    ]
     return sorted(((float(w) / (2.0 * math.pi), float(z) + 0.0) for w, z in out if w > 0.0), key=lambda m: m[0])
 
 
@@ -371,8 +369,9 @@ def modes(model: Model) -> list[tuple[float, float]]:
     return [(omega / (2.0 * math.pi), zeta)]
 
 
-def modes_at(model, position_m: float, stiffness: PositionCurve | None = None,
-             damping: PositionCurve | None = None) -> list[tuple[float, float]]:
+def modes_at(
+    model, position_m: float, stiffness: PositionCurve | None = None, damping: PositionCurve | None = None
+) -> list[tuple[float, float]]:
     """(frequency_hz, damping_ratio) of the frictionless plant with the cart held at ``position_m`` (m).
 
     :func:`~hilident.emulator.plant.modes` of :func:`model_at`.
@@ -538,10 +537,17 @@ class Plant:
     True
     """
 
-    def __init__(self, model: Model, friction: StribeckFriction | None = None,
-                 max_substep_s: float = 1.0 / 20000.0, backlash_m: float = 0.0,
-                 stiffness: PositionCurve | None = None, damping: PositionCurve | None = None,
-                 coupling_tolerance: float = COUPLING_TOLERANCE, damping_tolerance: float = DAMPING_TOLERANCE):
+    def __init__(
+        self,
+        model: Model,
+        friction: StribeckFriction | None = None,
+        max_substep_s: float = 1.0 / 20000.0,
+        backlash_m: float = 0.0,
+        stiffness: PositionCurve | None = None,
+        damping: PositionCurve | None = None,
+        coupling_tolerance: float = COUPLING_TOLERANCE,
+        damping_tolerance: float = DAMPING_TOLERANCE,
+    ):
         if not isinstance(model, (TwoMass, ThreeMass, MassSpringDamper)):
             raise TypeError(f"model must be TwoMass, ThreeMass or MassSpringDamper, got {type(model).__name__}")
         if friction is not None and not isinstance(friction, StribeckFriction):
@@ -595,8 +601,7 @@ class Plant:
         if friction is None:
             self._fr = None
         else:
-            self._fr = (friction.Fc, friction.Fs, friction.Fv, friction.vs,
-                        friction.delta_v, friction.delta_s)
+            self._fr = (friction.Fc, friction.Fs, friction.Fv, friction.vs, friction.delta_v, friction.delta_s)
         self._cache: dict[float, tuple] = {}
         self._laws = self._position_laws(stiffness, damping, coupling_tolerance, damping_tolerance)
         self.reset()
@@ -613,16 +618,18 @@ class Plant:
                 raise TypeError(f"{name} must be a PositionCurve or None, got {type(curve).__name__}")
         model = self._coupling
         if model is None:
-            raise ConfigError("k", "a function of the cart position needs a coupling between two masses "
-                                   "(two_mass or three_mass)")
+            raise ConfigError(
+                "k", "a function of the cart position needs a coupling between two masses (two_mass or three_mass)"
+            )
         k_tol = _tolerance("coupling_tolerance", k_tolerance)
         d_tol = _tolerance("damping_tolerance", d_tolerance)
         k_of = stiffness if stiffness is not None else PositionCurve.constant(model.k)
         d_of = damping if damping is not None else PositionCurve.constant(model.d)
         k_ref, d_ref = k_of(0.0), d_of(0.0)
         if not (k_ref > 0.0 and d_ref >= 0.0):
-            raise ConfigError("k", f"the coupling at p1 = 0 must have k > 0 and d >= 0, got k = {k_ref!r}, "
-                                   f"d = {d_ref!r}")
+            raise ConfigError(
+                "k", f"the coupling at p1 = 0 must have k > 0 and d >= 0, got k = {k_ref!r}, d = {d_ref!r}"
+            )
         self._coupling_radius_m = min(k_of.still_radius_m(k_tol), d_of.still_radius_m(d_tol))
         self._couplings: dict[tuple[float, float], tuple] = {}
         self._coupling_key: tuple[float, float] | None = None
@@ -672,8 +679,7 @@ class Plant:
 
     # -- state ------------------------------------------------------------------
 
-    def reset(self, p1: float = 0.0, v1: float = 0.0, p2: float | None = None,
-              v2: float | None = None) -> None:
+    def reset(self, p1: float = 0.0, v1: float = 0.0, p2: float | None = None, v2: float | None = None) -> None:
         """Set the state; ``p2``/``v2`` default to ``p1``/``v1`` (undeflected coupling).
 
         For a mass-spring-damper ``p2``/``v2`` are ignored and mirror ``p1``/``v1``.
@@ -734,8 +740,7 @@ class Plant:
         M3[:2, :2] = self._A[2:, 2:]
         M3[:2, 2] = self._A[2:, 0]
         E3 = expm(M3 * h)
-        entry = (n, *phi.ravel().tolist(), *gam.tolist(), *E3[:2, :2].ravel().tolist(),
-                 *E3[:2, 2].tolist())
+        entry = (n, *phi.ravel().tolist(), *gam.tolist(), *E3[:2, :2].ravel().tolist(), *E3[:2, 2].tolist())
         if len(self._cache) >= _CACHE_LIMIT:
             self._cache.clear()
         self._cache[dt_s] = entry
@@ -779,12 +784,22 @@ class Plant:
             E = expm(M * h)
             # States 2.. with p1 fixed and v1 = 0: x_r' = A_rr x_r + A[2:, 0] p1 + w[2:].
             Ms = np.zeros((nx, nx))
-            Ms[:nx - 2, :nx - 2] = A[2:, 2:]
-            Ms[:nx - 2, nx - 2] = A[2:, 0]
-            Ms[:nx - 2, nx - 1] = w[2:]
+            Ms[: nx - 2, : nx - 2] = A[2:, 2:]
+            Ms[: nx - 2, nx - 2] = A[2:, 0]
+            Ms[: nx - 2, nx - 1] = w[2:]
             Es = expm(Ms * h)
-            regimes.append((E[:nx, :nx], E[:nx, nx], E[:nx, nx + 1], Es[:nx - 2, :nx - 2], Es[:nx - 2, nx - 2],
-                            Es[:nx - 2, nx - 1], mass * A[1], mass * w[1]))
+            regimes.append(
+                (
+                    E[:nx, :nx],
+                    E[:nx, nx],
+                    E[:nx, nx + 1],
+                    Es[: nx - 2, : nx - 2],
+                    Es[: nx - 2, nx - 2],
+                    Es[: nx - 2, nx - 1],
+                    mass * A[1],
+                    mass * w[1],
+                )
+            )
         entry = (n, regimes)
         if len(self._cache) >= _CACHE_LIMIT:
             self._cache.clear()
@@ -849,8 +864,10 @@ class Plant:
         dt_s : float
             Time to advance, s; split into ``substeps(dt_s)`` equal substeps.
         """
-        if self._laws is not None and not -self._coupling_radius_m <= self.p1 - self._coupling_at_m \
-                <= self._coupling_radius_m:
+        if (
+            self._laws is not None
+            and not -self._coupling_radius_m <= self.p1 - self._coupling_at_m <= self._coupling_radius_m
+        ):
             self._follow_position(self.p1)
         if self._general:
             self._step_general(float(torque_nm), dt_s)
@@ -858,10 +875,35 @@ class Plant:
         entry = self._cache.get(dt_s)
         if entry is None:
             entry = self._prepare(dt_s)
-        (n,
-         a00, a01, a02, a03, a10, a11, a12, a13,
-         a20, a21, a22, a23, a30, a31, a32, a33,
-         g0, g1, g2, g3, s00, s01, s10, s11, sg0, sg1) = entry
+        (
+            n,
+            a00,
+            a01,
+            a02,
+            a03,
+            a10,
+            a11,
+            a12,
+            a13,
+            a20,
+            a21,
+            a22,
+            a23,
+            a30,
+            a31,
+            a32,
+            a33,
+            g0,
+            g1,
+            g2,
+            g3,
+            s00,
+            s01,
+            s10,
+            s11,
+            sg0,
+            sg1,
+        ) = entry
         tau = float(torque_nm)
         if not math.isfinite(tau):
             raise ValueError(f"torque_nm must be finite, got {torque_nm!r}")
@@ -891,8 +933,7 @@ class Plant:
                     fnet = ctau + f0 * p1 + f2 * p2 + f3 * v2
                     if -brk <= fnet <= brk:
                         # Stuck: friction balances fnet exactly; only the load moves.
-                        p2, v2 = (s00 * p2 + s01 * v2 + sg0 * p1,
-                                  s10 * p2 + s11 * v2 + sg1 * p1)
+                        p2, v2 = (s00 * p2 + s01 * v2 + sg0 * p1, s10 * p2 + s11 * v2 + sg1 * p1)
                         continue
                     u = ctau - brk if fnet > 0.0 else ctau + brk
                     q1 = a00 * p1 + a02 * p2 + a03 * v2 + g0 * u

@@ -114,6 +114,7 @@ def realism(cfg: EmulatorConfig, loop_rate_hz: float) -> Realism:
         load_noise_n=_given(d.load_noise_n, BENCH["load_noise_of_max"] * cfg.plant.c * tmax, 0.0, preset),
         current_loop_hz=_given(drive.current_loop_hz, BENCH["current_loop_hz"], math.inf, preset),
         delay_ticks=delay_ticks,
-        encoder_noise_m=_given(sensors.encoder_noise_m,
-                               BENCH["encoder_noise_counts"] * sensors.encoder_resolution_m, 0.0, preset),
+        encoder_noise_m=_given(
+            sensors.encoder_noise_m, BENCH["encoder_noise_counts"] * sensors.encoder_resolution_m, 0.0, preset
+        ),
     )

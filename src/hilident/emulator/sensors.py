@@ -59,10 +59,17 @@ class SensorModel:
     nan
     """
 
-    def __init__(self, *, encoder_resolution_m: float = 1e-6, torque_noise_nm: float = 0.0,
-                 laser_range_m: Sequence[float] = (-0.052, 0.052),
-                 laser_noise_m: float = 0.0, laser_resolution_m: float = 0.0, encoder_noise_m: float = 0.0,
-                 seed):
+    def __init__(
+        self,
+        *,
+        encoder_resolution_m: float = 1e-6,
+        torque_noise_nm: float = 0.0,
+        laser_range_m: Sequence[float] = (-0.052, 0.052),
+        laser_noise_m: float = 0.0,
+        laser_resolution_m: float = 0.0,
+        encoder_noise_m: float = 0.0,
+        seed,
+    ):
         self.encoder_resolution_m = number("encoder_resolution_m", encoder_resolution_m)
         self.encoder_noise_m = number("encoder_noise_m", encoder_noise_m)
         self.torque_noise_nm = number("torque_noise_nm", torque_noise_nm)

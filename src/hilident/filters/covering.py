@@ -177,16 +177,26 @@ class NotchGroup:
     def as_dict(self) -> dict:
         """Plain record, unit-suffixed keys (biquad ``b``, ``a`` in scipy convention, dimensionless)."""
         return {
-            "center_hz": self.spec.center_hz, "width_hz": self.spec.width_hz, "depth_db": self.spec.depth_db,
+            "center_hz": self.spec.center_hz,
+            "width_hz": self.spec.width_hz,
+            "depth_db": self.spec.depth_db,
             "width_ratio": self.spec.width_hz / self.spec.center_hz,
-            "b": list(self.biquad.b), "a": list(self.biquad.a),
+            "b": list(self.biquad.b),
+            "a": list(self.biquad.a),
             "range_hz": list(self.range_hz),
-            "worst_attenuation_db": self.worst_attenuation_db, "worst_frequency_hz": self.worst_frequency_hz,
+            "worst_attenuation_db": self.worst_attenuation_db,
+            "worst_frequency_hz": self.worst_frequency_hz,
             "meets_target": self.meets_target,
             "positions_m": [m.position_m for m in self.modes],
-            "modes": [{"position_m": m.position_m, "frequency_hz": m.frequency_hz,
-                       "frequency_ci95_hz": m.frequency_ci95_hz, "attenuation_db": a}
-                      for m, a in zip(self.modes, self.mode_attenuation_db, strict=True)],
+            "modes": [
+                {
+                    "position_m": m.position_m,
+                    "frequency_hz": m.frequency_hz,
+                    "frequency_ci95_hz": m.frequency_ci95_hz,
+                    "attenuation_db": a,
+                }
+                for m, a in zip(self.modes, self.mode_attenuation_db, strict=True)
+            ],
         }
 
 
@@ -243,10 +253,15 @@ class CoveringResult:
         """Plain record for ``summary.json``: unit-suffixed keys, the one-notch attempt and the notches to use."""
         worst = min(self.groups, key=lambda g: g.worst_attenuation_db)
         return {
-            "kind": self.kind, "meets_target": self.meets_target, "message": self.message,
-            "range_hz": list(self.range_hz), "target_attenuation_db": self.target_attenuation_db,
-            "max_width_ratio": self.max_width_ratio, "sample_rate_hz": self.sample_rate_hz,
-            "worst_attenuation_db": worst.worst_attenuation_db, "worst_frequency_hz": worst.worst_frequency_hz,
+            "kind": self.kind,
+            "meets_target": self.meets_target,
+            "message": self.message,
+            "range_hz": list(self.range_hz),
+            "target_attenuation_db": self.target_attenuation_db,
+            "max_width_ratio": self.max_width_ratio,
+            "sample_rate_hz": self.sample_rate_hz,
+            "worst_attenuation_db": worst.worst_attenuation_db,
+            "worst_frequency_hz": worst.worst_frequency_hz,
             "single": self.single.as_dict(),
             "groups": [g.as_dict() for g in self.groups],
             "staggered": [g.as_dict() for g in self.staggered],
@@ -260,8 +275,15 @@ def _parameter(key: str, value: Any, *, minimum: float = 0.0) -> float:
 class _Designer:
     """Designs and evaluates the notch for one frequency range."""
 
-    def __init__(self, sample_rate_hz: float, target_db: float, depth_db: float, max_width_ratio: float,
-                 grid_points: int, realise: Callable[[NotchSpec], Biquad]):
+    def __init__(
+        self,
+        sample_rate_hz: float,
+        target_db: float,
+        depth_db: float,
+        max_width_ratio: float,
+        grid_points: int,
+        realise: Callable[[NotchSpec], Biquad],
+    ):
         self.fs, self.target, self.depth = sample_rate_hz, target_db, depth_db
         self.max_ratio, self.points, self.realise = max_width_ratio, grid_points, realise
 
@@ -279,8 +301,16 @@ class _Designer:
         with np.errstate(divide="ignore"):
             at_modes = -20.0 * np.log10(np.abs(section.response(np.array([m.frequency_hz for m in modes]), self.fs)))
         worst = float(att[i])
-        return NotchGroup(spec, section, modes, (lo, hi), worst, float(grid[i]),
-                          tuple(float(a) for a in at_modes), bool(worst >= self.target))
+        return NotchGroup(
+            spec,
+            section,
+            modes,
+            (lo, hi),
+            worst,
+            float(grid[i]),
+            tuple(float(a) for a in at_modes),
+            bool(worst >= self.target),
+        )
 
     def design(self, modes: tuple[MappedMode, ...]) -> NotchGroup:
         """The narrowest notch meeting the target over the modes' range, else the widest allowed."""
@@ -402,26 +432,39 @@ def covering_notch(
     if isinstance(grid_points, bool) or not isinstance(grid_points, int | np.integer) or grid_points < 2:
         raise ConfigError("grid_points", f"must be an integer of at least 2, got {grid_points!r}")
     checked = mapped_modes(modes)
-    designer = _Designer(fs, target, target + margin, ratio, int(grid_points),
-                         realise if realise is not None else (lambda spec: design_notch(spec, fs)))
+    designer = _Designer(
+        fs,
+        target,
+        target + margin,
+        ratio,
+        int(grid_points),
+        realise if realise is not None else (lambda spec: design_notch(spec, fs)),
+    )
     single = designer.design(tuple(checked))
     lo, hi = single.range_hz
     span = f"{lo:.4g}-{hi:.4g} Hz"
     if single.meets_target:
-        message = (f"one notch at {single.spec.center_hz:.4g} Hz, {single.spec.width_hz:.3g} Hz wide "
-                   f"({single.spec.width_hz / single.spec.center_hz:.2f} of its centre), attenuates at least "
-                   f"{single.worst_attenuation_db:.1f} dB over {span} (target {target:g} dB)")
+        message = (
+            f"one notch at {single.spec.center_hz:.4g} Hz, {single.spec.width_hz:.3g} Hz wide "
+            f"({single.spec.width_hz / single.spec.center_hz:.2f} of its centre), attenuates at least "
+            f"{single.worst_attenuation_db:.1f} dB over {span} (target {target:g} dB)"
+        )
         return CoveringResult("single", single, (single,), (lo, hi), target, ratio, fs, message)
     groups = _schedule(designer, checked)
     short = [g for g in groups if not g.meets_target]
-    message = (f"no single notch within max_width_ratio = {ratio:g} reaches {target:g} dB over {span}: the widest "
-               f"gives {single.worst_attenuation_db:.1f} dB at {single.worst_frequency_hz:.4g} Hz; a "
-               f"position-scheduled set needs {len(groups)} notches")
+    message = (
+        f"no single notch within max_width_ratio = {ratio:g} reaches {target:g} dB over {span}: the widest "
+        f"gives {single.worst_attenuation_db:.1f} dB at {single.worst_frequency_hz:.4g} Hz; a "
+        f"position-scheduled set needs {len(groups)} notches"
+    )
     if short:
-        message += (f", and {len(short)} of them still fall short (worst "
-                    f"{min(g.worst_attenuation_db for g in short):.1f} dB): a mode's own 95 % interval is too wide")
-    return CoveringResult("scheduled", single, tuple(groups), (lo, hi), target, ratio, fs, message,
-                          staggered_notches(designer, lo, hi))
+        message += (
+            f", and {len(short)} of them still fall short (worst "
+            f"{min(g.worst_attenuation_db for g in short):.1f} dB): a mode's own 95 % interval is too wide"
+        )
+    return CoveringResult(
+        "scheduled", single, tuple(groups), (lo, hi), target, ratio, fs, message, staggered_notches(designer, lo, hi)
+    )
 
 
 def staggered_notches(designer: _Designer, lo: float, hi: float, max_notches: int = 8) -> tuple[NotchGroup, ...]:
@@ -433,8 +476,10 @@ def staggered_notches(designer: _Designer, lo: float, hi: float, max_notches: in
     """
     for n in range(2, max_notches + 1):
         edges = lo * (hi / lo) ** (np.arange(n + 1) / n)
-        pieces = tuple(designer.design((MappedMode(float(a), 0.0), MappedMode(float(b), 0.0)))
-                       for a, b in zip(edges[:-1], edges[1:], strict=True))
+        pieces = tuple(
+            designer.design((MappedMode(float(a), 0.0), MappedMode(float(b), 0.0)))
+            for a, b in zip(edges[:-1], edges[1:], strict=True)
+        )
         if all(p.meets_target for p in pieces):
             return pieces
     return ()

@@ -275,9 +275,7 @@ def tustin_prewarped(b_s, a_s, sample_rate_hz, prewarp_hz) -> Biquad:
     fs = _number("sample_rate_hz", sample_rate_hz)
     fp = _number("prewarp_hz", prewarp_hz)
     if fp >= 0.5 * fs:
-        raise ConfigError(
-            "prewarp_hz", f"must be below the Nyquist frequency {0.5 * fs:g} Hz, got {fp:g}"
-        )
+        raise ConfigError("prewarp_hz", f"must be below the Nyquist frequency {0.5 * fs:g} Hz, got {fp:g}")
     b = _second_order("b_s", b_s)
     a = _second_order("a_s", a_s)
     if not np.any(a):
@@ -377,14 +375,8 @@ def quantize_biquad(biquad: Biquad, fractional_bits, total_bits=32, preserve_dc=
     if isinstance(total_bits, bool) or int(total_bits) != total_bits or not 2 <= total_bits <= 64:
         raise ConfigError("total_bits", f"must be an integer in 2..64, got {total_bits!r}")
     total = int(total_bits)
-    if (
-        isinstance(fractional_bits, bool)
-        or int(fractional_bits) != fractional_bits
-        or not 0 <= fractional_bits < total
-    ):
-        raise ConfigError(
-            "fractional_bits", f"must be an integer in 0..{total - 1}, got {fractional_bits!r}"
-        )
+    if isinstance(fractional_bits, bool) or int(fractional_bits) != fractional_bits or not 0 <= fractional_bits < total:
+        raise ConfigError("fractional_bits", f"must be an integer in 0..{total - 1}, got {fractional_bits!r}")
     frac = int(fractional_bits)
     scale = 2.0**frac
     lo, hi = -(2 ** (total - 1)), 2 ** (total - 1) - 1
@@ -400,8 +392,7 @@ def quantize_biquad(biquad: Biquad, fractional_bits, total_bits=32, preserve_dc=
     for name, c in zip(names, values, strict=False):
         if not lo <= ints[name] <= hi:
             raise DataError(
-                f"coefficient {name} = {c!r} overflows Q{total - frac}.{frac} "
-                f"(range {lo / scale:g} .. {hi / scale:g})"
+                f"coefficient {name} = {c!r} overflows Q{total - frac}.{frac} (range {lo / scale:g} .. {hi / scale:g})"
             )
     rounded = [ints[name] / scale for name in names]
     section = Biquad((rounded[0], rounded[1], rounded[2]), (1.0, rounded[3], rounded[4]))

@@ -41,8 +41,9 @@ __all__ = ["achieved_notch", "attenuation_db", "notch_width_hz", "rejection_band
 def _warp_gain(frequency_hz: float, sample_rate_hz: float) -> float:
     """``K = w / tan(w T / 2)``: the bilinear constant that keeps ``frequency_hz`` in place."""
     if not 0.0 < frequency_hz < 0.5 * sample_rate_hz:
-        raise DataError(f"frequency {frequency_hz:g} Hz is not between 0 and half the "
-                        f"{sample_rate_hz:g} Hz filter rate")
+        raise DataError(
+            f"frequency {frequency_hz:g} Hz is not between 0 and half the {sample_rate_hz:g} Hz filter rate"
+        )
     w = 2.0 * math.pi * frequency_hz
     return w / math.tan(w / (2.0 * sample_rate_hz))
 
@@ -81,14 +82,16 @@ def two_frequency_section(zero_hz, zero_damping, pole_hz, pole_damping, sample_r
         unstable section.
     """
     if not (zero_damping >= 0.0 and pole_damping > 0.0) or not all(map(math.isfinite, (zero_damping, pole_damping))):
-        raise DataError("damping ratios must be finite, zero >= 0 and pole > 0, "
-                        f"got {zero_damping!r}, {pole_damping!r}")
+        raise DataError(
+            f"damping ratios must be finite, zero >= 0 and pole > 0, got {zero_damping!r}, {pole_damping!r}"
+        )
     num = _bilinear_quadratic(zero_hz, zero_damping, _warp_gain(zero_hz, sample_rate_hz))
     den = _bilinear_quadratic(pole_hz, pole_damping, _warp_gain(pole_hz, sample_rate_hz))
     section = Biquad((num[0] / den[0], num[1] / den[0], num[2] / den[0]), (1.0, den[1] / den[0], den[2] / den[0]))
     if not section.is_stable():
-        raise DataError(f"section with poles at {pole_hz:g} Hz (damping {pole_damping:g}) is unstable "
-                        f"at {sample_rate_hz:g} Hz")
+        raise DataError(
+            f"section with poles at {pole_hz:g} Hz (damping {pole_damping:g}) is unstable at {sample_rate_hz:g} Hz"
+        )
     return section
 
 
@@ -112,12 +115,14 @@ def rejection_band_section(center_hz, band_hz, sample_rate_hz) -> Biquad:
         the pole radius is not in ``(0, 1)``.
     """
     if not 0.0 < center_hz < 0.5 * sample_rate_hz:
-        raise DataError(f"notch centre {center_hz:g} Hz is not between 0 and half the "
-                        f"{sample_rate_hz:g} Hz filter rate")
+        raise DataError(
+            f"notch centre {center_hz:g} Hz is not between 0 and half the {sample_rate_hz:g} Hz filter rate"
+        )
     r = 1.0 - 3.0 * band_hz / sample_rate_hz
     if not 0.0 < r < 1.0:
-        raise DataError(f"rejection band {band_hz:g} Hz gives pole radius {r:g} at {sample_rate_hz:g} Hz "
-                        "(must be between 0 and 1)")
+        raise DataError(
+            f"rejection band {band_hz:g} Hz gives pole radius {r:g} at {sample_rate_hz:g} Hz (must be between 0 and 1)"
+        )
     c = math.cos(2.0 * math.pi * center_hz / sample_rate_hz)
     k = (1.0 - 2.0 * r * c + r * r) / (2.0 - 2.0 * c)
     return Biquad((k, -2.0 * k * c, k), (1.0, -2.0 * r * c, r * r))
@@ -151,8 +156,12 @@ def achieved_notch(section: Biquad, sample_rate_hz: float, near_hz: float) -> No
     a, b = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
     import scipy.optimize  # here: an adapter that never realises a parametric notch starts without it
 
-    res = scipy.optimize.minimize_scalar(lambda f: abs(section.response(f, sample_rate_hz)), bounds=(a, b),
-                                         method="bounded", options={"xatol": 1e-9 * near_hz})
+    res = scipy.optimize.minimize_scalar(
+        lambda f: abs(section.response(f, sample_rate_hz)),
+        bounds=(a, b),
+        method="bounded",
+        options={"xatol": 1e-9 * near_hz},
+    )
     center = float(res.x) if res.fun <= mag[i] else float(grid[i])
     depth = attenuation_db(section, center, sample_rate_hz)
     if not depth > 0.0:

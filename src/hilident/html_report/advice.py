@@ -22,20 +22,33 @@ __all__ = ["WarningGroup", "group_warnings", "split_advice"]
 
 #: Topics in the order they are shown: (title, words that put a warning in it, general advice).
 TOPICS: tuple[tuple[str, tuple[str, ...], str], ...] = (
-    ("Connection and stream", ("connect:", "lost block", "underrun", "sync", "corrupt", "out of order", "stream"),
-     "Check the link (cable, bus load, baud rate) and the stream statistics below; lost data is counted, "
-     "never filled."),
-    ("Model fit", ("[model]", "parameter '", "rigid_axis", "mass_spring_damper", "residual", "transfer-function",
-                   "validation:"),
-     "Read each parameter with its standard deviation; a richer excitation, a longer record or a model with "
-     "more physics narrows it."),
-    ("Friction", ("friction",),
-     "Repeat the friction test with more speeds or longer legs when the friction parameters matter."),
-    ("Notch and upload", ("notch", "filter slot", "slot ", "upload", "quantis", "save"),
-     "Compare the designed and the achieved notch below before relying on it."),
-    ("Measurement and excitation", ("coherence", "excitation", "amplitude", "sampling", "record", "resolution",
-                                    "period", "closed-loop", "band"),
-     "A larger excitation amplitude or a longer record improves coherence and resolution."),
+    (
+        "Connection and stream",
+        ("connect:", "lost block", "underrun", "sync", "corrupt", "out of order", "stream"),
+        "Check the link (cable, bus load, baud rate) and the stream statistics below; lost data is counted, "
+        "never filled.",
+    ),
+    (
+        "Model fit",
+        ("[model]", "parameter '", "rigid_axis", "mass_spring_damper", "residual", "transfer-function", "validation:"),
+        "Read each parameter with its standard deviation; a richer excitation, a longer record or a model with "
+        "more physics narrows it.",
+    ),
+    (
+        "Friction",
+        ("friction",),
+        "Repeat the friction test with more speeds or longer legs when the friction parameters matter.",
+    ),
+    (
+        "Notch and upload",
+        ("notch", "filter slot", "slot ", "upload", "quantis", "save"),
+        "Compare the designed and the achieved notch below before relying on it.",
+    ),
+    (
+        "Measurement and excitation",
+        ("coherence", "excitation", "amplitude", "sampling", "record", "resolution", "period", "closed-loop", "band"),
+        "A larger excitation amplitude or a longer record improves coherence and resolution.",
+    ),
     ("Other", (), "See the README section the message names."),
 )
 

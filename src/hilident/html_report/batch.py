@@ -80,8 +80,12 @@ def _run(rows: Sequence[Mapping[str, Any]], drifts: Mapping[str, DriftTrend], me
     settings = next(iter(drifts.values()), None)
     if settings is not None:
         freq = settings.frequency
-        pairs.append(("drift flagged above", esc(f"{freq.threshold_percent_per_day:g} %/day, trend significant at "
-                                                 f"{100 * freq.confidence:g} %")))
+        pairs.append(
+            (
+                "drift flagged above",
+                esc(f"{freq.threshold_percent_per_day:g} %/day, trend significant at {100 * freq.confidence:g} %"),
+            )
+        )
     return section("run", "What was run", key_values(pairs))
 
 
@@ -91,7 +95,7 @@ def _when(text: str) -> str:
 
 def _verdict_cell(trend: DriftTrend) -> str:
     text = esc(trend.verdict)
-    return f"<strong class=\"flagged\">{text}</strong>" if trend.flagged else text
+    return f'<strong class="flagged">{text}</strong>' if trend.flagged else text
 
 
 def _drift(drifts: Mapping[str, DriftTrend]) -> str:
@@ -102,35 +106,65 @@ def _drift(drifts: Mapping[str, DriftTrend]) -> str:
     rows = []
     for t in ordered(drifts):
         left_out = t.n_failed + t.n_unusable
-        rows.append([esc(t.axis), esc(f"{t.n} / {left_out}"), f"{_when(t.first_utc)} .. {_when(t.last_utc)}",
-                     num(_float(t.reference_hz), "Hz"),
-                     pm(_float(t.rate_percent_per_day), _float(t.rate_ci95_percent_per_day), "%/day", 3),
-                     num(_float(t.p_value), "", 2),
-                     pm(_float(t.damping_rate_percent_per_day), _float(t.damping_rate_ci95_percent_per_day), "%/day",
-                        3),
-                     _verdict_cell(t)])
-    body = table(["axis", "recordings ok / left out", "first .. last (UTC)", "resonance at first", "drift rate (95 %)",
-                  "p", "damping drift (95 %)", "verdict"], rows)
-    explain = ("The drift rate is the slope of a least-squares line through each axis's resonance over the days, "
-               "as a percentage of the line's value at the first recording per day; its interval comes from the "
-               "scatter of the recordings around the line (Student t), not from each recording's own interval. "
-               "An axis is flagged when the trend is significant and steeper than the threshold; with too few "
-               "recordings it is not judged. Left out: recordings that failed or gave no resonance.")
+        rows.append(
+            [
+                esc(t.axis),
+                esc(f"{t.n} / {left_out}"),
+                f"{_when(t.first_utc)} .. {_when(t.last_utc)}",
+                num(_float(t.reference_hz), "Hz"),
+                pm(_float(t.rate_percent_per_day), _float(t.rate_ci95_percent_per_day), "%/day", 3),
+                num(_float(t.p_value), "", 2),
+                pm(_float(t.damping_rate_percent_per_day), _float(t.damping_rate_ci95_percent_per_day), "%/day", 3),
+                _verdict_cell(t),
+            ]
+        )
+    body = table(
+        [
+            "axis",
+            "recordings ok / left out",
+            "first .. last (UTC)",
+            "resonance at first",
+            "drift rate (95 %)",
+            "p",
+            "damping drift (95 %)",
+            "verdict",
+        ],
+        rows,
+    )
+    explain = (
+        "The drift rate is the slope of a least-squares line through each axis's resonance over the days, "
+        "as a percentage of the line's value at the first recording per day; its interval comes from the "
+        "scatter of the recordings around the line (Student t), not from each recording's own interval. "
+        "An axis is flagged when the trend is significant and steeper than the threshold; with too few "
+        "recordings it is not judged. Left out: recordings that failed or gave no resonance."
+    )
     outliers = [(t.axis, o) for t in ordered(drifts) for o in t.outliers]
     if outliers:
-        body += table(["axis", "quantity", "time (UTC)", "value", "residual", "file"],
-                      [[esc(axis), esc(o.quantity), _when(o.time_utc),
-                        num(o.value, "Hz" if o.quantity == "frequency" else ""),
-                        esc(f"{o.robust_sigmas:+.1f} robust σ"), esc(o.path)] for axis, o in outliers],
-                      caption="Recordings far from their axis's line (kept in the fit; worth a look)")
+        body += table(
+            ["axis", "quantity", "time (UTC)", "value", "residual", "file"],
+            [
+                [
+                    esc(axis),
+                    esc(o.quantity),
+                    _when(o.time_utc),
+                    num(o.value, "Hz" if o.quantity == "frequency" else ""),
+                    esc(f"{o.robust_sigmas:+.1f} robust σ"),
+                    esc(o.path),
+                ]
+                for axis, o in outliers
+            ],
+            caption="Recordings far from their axis's line (kept in the fit; worth a look)",
+        )
     return section("drift", "Drift verdicts", body + note(explain))
 
 
 def _plots(images: Sequence[tuple[str, bytes]]) -> str:
     if not images:
         return section("drift-plots", "Drift plots", note("No drift plots (no axis, or plots were not drawn)."))
-    caption = ("Resonance of each recording over the days with its 95 % interval, the fitted trend and its 95 % "
-               "band, the damping ratio on the right axis; flagged axes first, titled in red.")
+    caption = (
+        "Resonance of each recording over the days with its 95 % interval, the fitted trend and its 95 % "
+        "band, the damping ratio on the right axis; flagged axes first, titled in red."
+    )
     return section("drift-plots", "Drift plots", "".join(figure(name, png, caption) for name, png in images))
 
 
@@ -138,8 +172,10 @@ def _failures(rows: Sequence[Mapping[str, Any]]) -> str:
     failed = [r for r in rows if r.get("status") != "ok"]
     if not failed:
         return section("failures", "Failures", note("No recording failed."))
-    body = table(["file", "axis", "error"], [[esc(r.get("path", MISSING)), esc(r.get("axis") or MISSING),
-                                              esc(r.get("error") or MISSING)] for r in failed])
+    body = table(
+        ["file", "axis", "error"],
+        [[esc(r.get("path", MISSING)), esc(r.get("axis") or MISSING), esc(r.get("error") or MISSING)] for r in failed],
+    )
     return section("failures", "Failures", body)
 
 
@@ -147,31 +183,62 @@ def _recordings(rows: Sequence[Mapping[str, Any]]) -> str:
     if not rows:
         return section("recordings", "Recordings", note("No recording."))
     ordered_rows = sorted(rows, key=lambda r: (str(r.get("axis") or ""), str(r.get("time_utc") or "")))
-    cells = [[esc(r.get("axis") or MISSING), _when(str(r.get("time_utc") or "")), esc(r.get("status", MISSING)),
-              pm(_float(r.get("frequency_hz")), _float(r.get("frequency_ci95_hz")), "Hz"),
-              pm(_float(r.get("damping_ratio")), _float(r.get("damping_ci95")), "", 3),
-              esc(Path(str(r.get("path", ""))).name or MISSING)] for r in ordered_rows]
+    cells = [
+        [
+            esc(r.get("axis") or MISSING),
+            _when(str(r.get("time_utc") or "")),
+            esc(r.get("status", MISSING)),
+            pm(_float(r.get("frequency_hz")), _float(r.get("frequency_ci95_hz")), "Hz"),
+            pm(_float(r.get("damping_ratio")), _float(r.get("damping_ci95")), "", 3),
+            esc(Path(str(r.get("path", ""))).name or MISSING),
+        ]
+        for r in ordered_rows
+    ]
     body = table(["axis", "time (UTC)", "status", "resonance (95 %)", "damping ratio (95 %)", "file"], cells)
     # a year of nightly recordings of fifty axes is a long table: folded until asked for (a short one is open)
     state = " open" if len(rows) <= _OPEN_UP_TO else ""
-    return section("recordings", "Recordings",
-                   f"<details{state}><summary>{esc(len(rows))} recordings, by axis and time</summary>{body}</details>")
+    return section(
+        "recordings",
+        "Recordings",
+        f"<details{state}><summary>{esc(len(rows))} recordings, by axis and time</summary>{body}</details>",
+    )
 
 
-def render_batch(rows: Sequence[Mapping[str, Any]], drifts: Mapping[str, DriftTrend], meta: Mapping[str, Any],
-                 images: Sequence[tuple[str, bytes]] = (), *, subtitle: str = "") -> str:
+def render_batch(
+    rows: Sequence[Mapping[str, Any]],
+    drifts: Mapping[str, DriftTrend],
+    meta: Mapping[str, Any],
+    images: Sequence[tuple[str, bytes]] = (),
+    *,
+    subtitle: str = "",
+) -> str:
     """The batch report's HTML (pure): see :func:`write_batch_report`; ``images`` are ``(file name, PNG bytes)``."""
     from hilident.html_report.page import page
 
     subject = meta.get("config") or meta.get("out") or "fleet"
-    parts = {"run": _run(rows, drifts, meta), "drift": _drift(drifts), "drift-plots": _plots(images),
-             "failures": _failures(rows), "recordings": _recordings(rows)}
-    return page(f"hilident batch: {subject}", subtitle, [(a, h, parts[a]) for a, h in BATCH_SECTIONS],
-                "Written by hilident batch from the table of its recordings.")
+    parts = {
+        "run": _run(rows, drifts, meta),
+        "drift": _drift(drifts),
+        "drift-plots": _plots(images),
+        "failures": _failures(rows),
+        "recordings": _recordings(rows),
+    }
+    return page(
+        f"hilident batch: {subject}",
+        subtitle,
+        [(a, h, parts[a]) for a, h in BATCH_SECTIONS],
+        "Written by hilident batch from the table of its recordings.",
+    )
 
 
-def write_batch_report(out_dir: str | os.PathLike, rows: Iterable[Mapping[str, Any]],
-                       drifts: Mapping[str, DriftTrend], meta: Mapping[str, Any], *, plots: bool = True) -> Path:
+def write_batch_report(
+    out_dir: str | os.PathLike,
+    rows: Iterable[Mapping[str, Any]],
+    drifts: Mapping[str, DriftTrend],
+    meta: Mapping[str, Any],
+    *,
+    plots: bool = True,
+) -> Path:
     """Write ``out_dir/report.html`` of a batch (and its drift figures, ``drift.png``, ... beside it).
 
     Parameters

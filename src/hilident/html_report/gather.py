@@ -22,8 +22,23 @@ from hilident.errors import DataError, UsageError
 __all__ = ["Recording", "ReportInputs", "gather"]
 
 #: Root attributes of a hilident recording the report uses (JSON ones under their plain name).
-_ATTRS = ("experiment", "mode", "created_utc", "closed_utc", "status", "reason", "n_samples", "flushed_samples",
-          "sample_rate_hz", "config_toml", "config_source", "versions", "device", "channel_names", "channel_units")
+_ATTRS = (
+    "experiment",
+    "mode",
+    "created_utc",
+    "closed_utc",
+    "status",
+    "reason",
+    "n_samples",
+    "flushed_samples",
+    "sample_rate_hz",
+    "config_toml",
+    "config_source",
+    "versions",
+    "device",
+    "channel_names",
+    "channel_units",
+)
 
 #: A plot older than summary.json by more than this is an earlier command's (plots are drawn after the summary), s.
 STALE_PLOT_S = 10.0
@@ -207,8 +222,9 @@ def _response_units(summary: dict[str, Any], config_text: str, recordings: list[
         return None
     for rec in recordings:
         if rec.in_folder and rec.attrs.get("experiment") == "identification":
-            channels = dict(zip(rec.attrs.get("channel_names") or [], rec.attrs.get("channel_units") or [],
-                                strict=False))
+            channels = dict(
+                zip(rec.attrs.get("channel_names") or [], rec.attrs.get("channel_units") or [], strict=False)
+            )
             if channels.get(output) and channels.get("torque_nm"):
                 return str(channels[output]), str(channels["torque_nm"])
     return None
@@ -248,5 +264,15 @@ def gather(folder: str | os.PathLike) -> ReportInputs:
     stale = [p.name for p in pngs if p.stat().st_mtime < mtime - STALE_PLOT_S]
     images = [(p.name, p.read_bytes()) for p in pngs if p.name not in stale]
     text, origin = _config(summary, folder, recordings)
-    return ReportInputs(folder, summary, when, text, origin, images, stale, recordings, _versions(),
-                        _response_units(summary, text, recordings))
+    return ReportInputs(
+        folder,
+        summary,
+        when,
+        text,
+        origin,
+        images,
+        stale,
+        recordings,
+        _versions(),
+        _response_units(summary, text, recordings),
+    )

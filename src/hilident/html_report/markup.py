@@ -76,22 +76,24 @@ def table(header: Sequence[str], rows: Iterable[Sequence[str]], caption: str = "
 
 def key_values(pairs: Iterable[tuple[str, str]]) -> str:
     """A two-column table of ``(plain-text name, HTML value)`` pairs."""
-    rows = "".join(f"<tr><th scope=\"row\">{esc(k)}</th><td>{v}</td></tr>" for k, v in pairs)
-    return f"<table class=\"kv\"><tbody>{rows}</tbody></table>"
+    rows = "".join(f'<tr><th scope="row">{esc(k)}</th><td>{v}</td></tr>' for k, v in pairs)
+    return f'<table class="kv"><tbody>{rows}</tbody></table>'
 
 
 def note(text: str) -> str:
     """A paragraph saying why something is not shown (plain text, escaped here)."""
-    return f"<p class=\"note\">{esc(text)}</p>"
+    return f'<p class="note">{esc(text)}</p>'
 
 
 def section(anchor: str, title: str, body: str) -> str:
     """One report section: an ``<h2>`` heading and its body (HTML)."""
-    return f"<section id=\"{esc(anchor)}\">\n<h2>{esc(title)}</h2>\n{body}\n</section>\n"
+    return f'<section id="{esc(anchor)}">\n<h2>{esc(title)}</h2>\n{body}\n</section>\n'
 
 
 def figure(name: str, png: bytes, caption: str) -> str:
     """A PNG embedded as a ``data:`` URI with its caption (plain text) and file name."""
     uri = "data:image/png;base64," + base64.b64encode(png).decode("ascii")
-    return (f"<figure><img src=\"{uri}\" alt=\"{esc(name)}\"><figcaption>{esc(caption)} "
-            f"<span class=\"file\">({esc(name)})</span></figcaption></figure>")
+    return (
+        f'<figure><img src="{uri}" alt="{esc(name)}"><figcaption>{esc(caption)} '
+        f'<span class="file">({esc(name)})</span></figcaption></figure>'
+    )

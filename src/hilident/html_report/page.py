@@ -71,13 +71,13 @@ def page(title: str, subtitle: str, sections: Sequence[tuple[str, str, str]], fo
     sections : sequence of (anchor, heading, html)
         In page order; ``html`` is the section as :func:`~hilident.html_report.markup.section` wrote it.
     """
-    contents = "".join(f"<li><a href=\"#{esc(anchor)}\">{esc(heading)}</a></li>" for anchor, heading, _ in sections)
+    contents = "".join(f'<li><a href="#{esc(anchor)}">{esc(heading)}</a></li>' for anchor, heading, _ in sections)
     body = "".join(html for _, _, html in sections)
     return (
-        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
-        "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
+        '<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
+        '<meta name="viewport" content="width=device-width, initial-scale=1">\n'
         f"<title>{esc(title)}</title>\n<style>{CSS}</style>\n</head>\n<body>\n"
-        f"<header><h1>{esc(title)}</h1><p class=\"subtitle\">{esc(subtitle)}</p></header>\n"
+        f'<header><h1>{esc(title)}</h1><p class="subtitle">{esc(subtitle)}</p></header>\n'
         f"<nav><ol>{contents}</ol></nav>\n<main>\n{body}</main>\n"
         f"<footer>{footer}</footer>\n</body>\n</html>\n"
     )
@@ -85,7 +85,10 @@ def page(title: str, subtitle: str, sections: Sequence[tuple[str, str, str]], fo
 
 def render(inputs: ReportInputs) -> str:
     """``report.html`` of ``inputs`` as text."""
-    return page(title_of(inputs), f"{inputs.folder.name}, summary written {inputs.summary_time_utc}",
-                [(anchor, heading, write(inputs)) for anchor, heading, write in SECTIONS],
-                "Written by hilident from summary.json and the files beside it; "
-                "<code>hilident report DIR</code> writes it again.")
+    return page(
+        title_of(inputs),
+        f"{inputs.folder.name}, summary written {inputs.summary_time_utc}",
+        [(anchor, heading, write(inputs)) for anchor, heading, write in SECTIONS],
+        "Written by hilident from summary.json and the files beside it; "
+        "<code>hilident report DIR</code> writes it again.",
+    )

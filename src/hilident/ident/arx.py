@@ -206,8 +206,7 @@ def _solve(z: np.ndarray, na: int, nb: int, nk: int) -> ArxModel:
     resid = z[:, p] - z[:, :p] @ theta
     rss = float(resid @ resid)
     y_rows = z[:, p]
-    return _model(na, nb, nk, theta, r_inv, scale, rss, m,
-                  float(fit_percent(y_rows, y_rows - resid)))
+    return _model(na, nb, nk, theta, r_inv, scale, rss, m, float(fit_percent(y_rows, y_rows - resid)))
 
 
 def _check_determined(m: int, scale: np.ndarray, na: int, nb: int, nk: int) -> None:
@@ -222,15 +221,14 @@ def _check_determined(m: int, scale: np.ndarray, na: int, nb: int, nk: int) -> N
     """
     p = na + nb
     if m <= p:
-        raise DataError(
-            f"ARX(na={na}, nb={nb}, nk={nk}) needs more than {p} regression rows, got {m}"
-        )
+        raise DataError(f"ARX(na={na}, nb={nb}, nk={nk}) needs more than {p} regression rows, got {m}")
     if np.any(scale[:p] == 0.0):
         raise DataError(f"a regressor column of ARX(na={na}, nb={nb}, nk={nk}) is all zero")
 
 
-def _triangular_solution(r: np.ndarray, scale: np.ndarray, m: int, na: int, nb: int,
-                         nk: int) -> tuple[np.ndarray, np.ndarray]:
+def _triangular_solution(
+    r: np.ndarray, scale: np.ndarray, m: int, na: int, nb: int, nk: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Parameters and ``R11^-1`` from the R factor of the column-scaled ``[Phi, y]``.
 
     The regressors count as linearly dependent when the smallest singular value
@@ -271,8 +269,9 @@ def _triangular_solution(r: np.ndarray, scale: np.ndarray, m: int, na: int, nb: 
     return theta, np.triu(r_inv)
 
 
-def _model(na: int, nb: int, nk: int, theta: np.ndarray, r_inv: np.ndarray, scale: np.ndarray,
-           rss: float, m: int, fit: float) -> ArxModel:
+def _model(
+    na: int, nb: int, nk: int, theta: np.ndarray, r_inv: np.ndarray, scale: np.ndarray, rss: float, m: int, fit: float
+) -> ArxModel:
     """The :class:`ArxModel` of a solved least-squares problem (`rss` is the residual sum of squares)."""
     p = na + nb
     sigma2 = rss / (m - p)
@@ -291,8 +290,7 @@ def _model(na: int, nb: int, nk: int, theta: np.ndarray, r_inv: np.ndarray, scal
     )
 
 
-def _model_from_factor(r: np.ndarray, m: int, spread: float, na: int, nb: int,
-                       nk: int) -> ArxModel:
+def _model_from_factor(r: np.ndarray, m: int, spread: float, na: int, nb: int, nk: int) -> ArxModel:
     """Least squares from the R factor of the unscaled ``[Phi, y]`` alone, never the data.
 
     ``R^T R = [Phi, y]^T [Phi, y]``, so the column norms of `r` are those of the
@@ -320,8 +318,7 @@ def _model_from_factor(r: np.ndarray, m: int, spread: float, na: int, nb: int,
         raise DataError("y is constant; a fit percentage is undefined")
     theta, r_inv = _triangular_solution(r / scale, scale, m, na, nb, nk)
     rss = float(r[-1, -1] ** 2)
-    return _model(na, nb, nk, theta, r_inv, scale, rss, m,
-                  float(100.0 * (1.0 - np.sqrt(rss) / spread)))
+    return _model(na, nb, nk, theta, r_inv, scale, rss, m, float(100.0 * (1.0 - np.sqrt(rss) / spread)))
 
 
 def fit_arx(u: ArrayLike, y: ArrayLike, na: int, nb: int, nk: int = 0) -> ArxModel:
@@ -489,9 +486,7 @@ def arx_order_search(
         ``model`` (refitted on its own full record) and the ``criterion``.
     """
     if criterion not in ("aic", "bic", "validation"):
-        raise ConfigError(
-            "criterion", f"must be 'aic', 'bic' or 'validation', got {criterion!r}"
-        )
+        raise ConfigError("criterion", f"must be 'aic', 'bic' or 'validation', got {criterion!r}")
     nas = _as_range("na_range", na_range)
     nbs = _as_range("nb_range", nb_range)
     nks = _as_range("nk_range", nk_range)
@@ -503,8 +498,7 @@ def arx_order_search(
     if not grid:
         raise ConfigError("na_range", "the grid holds only na=0, nb=0")
     shared, fits = _fit_grid(u, y, grid)
-    rows = [_order_candidate(shared, orders, fit, validation)
-            for orders, fit in zip(grid, fits, strict=True)]
+    rows = [_order_candidate(shared, orders, fit, validation) for orders, fit in zip(grid, fits, strict=True)]
     if all(np.isinf(r.aic) for r in rows):
         raise DataError("no candidate of the order grid can be determined from the data")
 
@@ -575,8 +569,7 @@ class _SharedFactor:
     def columns(self, na: int, nb: int, nk: int) -> list[int]:
         """Columns of `r` that hold ``[Phi, y]`` of ``ARX(na, nb, nk)``, in that order."""
         u_col = {lag: self.max_na + i for i, lag in enumerate(self.u_lags)}
-        return (list(range(na)) + [u_col[j] for j in range(nk, nk + nb)]
-                + [self.r.shape[1] - 1])
+        return list(range(na)) + [u_col[j] for j in range(nk, nk + nb)] + [self.r.shape[1] - 1]
 
     def candidate_factor(self, na: int, nb: int, nk: int) -> np.ndarray:
         """R factor of the candidate's own ``[Phi, y]`` over the common rows.
@@ -590,8 +583,7 @@ class _SharedFactor:
         return typing.cast(np.ndarray, np.linalg.qr(block, mode="r"))
 
 
-def _streamed_factor(u: np.ndarray, y: np.ndarray, max_na: int, u_lags: tuple[int, ...],
-                     first_row: int) -> np.ndarray:
+def _streamed_factor(u: np.ndarray, y: np.ndarray, max_na: int, u_lags: tuple[int, ...], first_row: int) -> np.ndarray:
     """R factor of ``[y(k-1) .. y(k-max_na), u(k-j) for j in u_lags, y(k)]``, rows k >= `first_row`.
 
     The rows are built and reduced about :data:`_BLOCK_ELEMENTS` values at a
@@ -631,8 +623,9 @@ def _streamed_factor(u: np.ndarray, y: np.ndarray, max_na: int, u_lags: tuple[in
     return out
 
 
-def _fit_grid(u: np.ndarray, y: np.ndarray, grid: list[tuple[int, int, int]]
-              ) -> tuple[_SharedFactor, list[ArxModel | None]]:
+def _fit_grid(
+    u: np.ndarray, y: np.ndarray, grid: list[tuple[int, int, int]]
+) -> tuple[_SharedFactor, list[ArxModel | None]]:
     """Every ``(na, nb, nk)`` of `grid` fitted on the common rows (None: undetermined), and their factor."""
     shared = _SharedFactor.of(u, y, grid)
     return shared, [_candidate_fit(shared, na, nb, nk) for na, nb, nk in grid]
@@ -641,14 +634,12 @@ def _fit_grid(u: np.ndarray, y: np.ndarray, grid: list[tuple[int, int, int]]
 def _candidate_fit(shared: _SharedFactor, na: int, nb: int, nk: int) -> ArxModel | None:
     """The candidate fitted on the common rows from the shared factor; None when undetermined."""
     try:
-        return _model_from_factor(shared.candidate_factor(na, nb, nk), shared.n_rows,
-                                  shared.spread, na, nb, nk)
+        return _model_from_factor(shared.candidate_factor(na, nb, nk), shared.n_rows, shared.spread, na, nb, nk)
     except DataError:  # rank deficient: the data cannot determine p parameters
         return None
 
 
-def _own_record_fit(shared: _SharedFactor, u: np.ndarray, y: np.ndarray, na: int, nb: int,
-                    nk: int) -> ArxModel:
+def _own_record_fit(shared: _SharedFactor, u: np.ndarray, y: np.ndarray, na: int, nb: int, nk: int) -> ArxModel:
     """``fit_arx(u, y, na, nb, nk)`` from the shared factor and the rows before the common ones.
 
     A candidate's own record starts at ``max(na, nk + nb - 1)``, at most a few
@@ -656,13 +647,10 @@ def _own_record_fit(shared: _SharedFactor, u: np.ndarray, y: np.ndarray, na: int
     candidate's factor and reduced once more.
     """
     first = max(na, nk + nb - 1, 0)
-    head = _regressors(u[: shared.first_row], y[: shared.first_row], range(1, na + 1),
-                       range(nk, nk + nb), first)
-    r = typing.cast(np.ndarray, np.linalg.qr(
-        np.vstack([shared.candidate_factor(na, nb, nk), head]), mode="r"))
+    head = _regressors(u[: shared.first_row], y[: shared.first_row], range(1, na + 1), range(nk, nk + nb), first)
+    r = typing.cast(np.ndarray, np.linalg.qr(np.vstack([shared.candidate_factor(na, nb, nk), head]), mode="r"))
     y_rows = y[first:]
-    return _model_from_factor(r, y_rows.size, np.sqrt(_sum_of_squares(y_rows - y_rows.mean())),
-                              na, nb, nk)
+    return _model_from_factor(r, y_rows.size, np.sqrt(_sum_of_squares(y_rows - y_rows.mean())), na, nb, nk)
 
 
 def _sum_of_squares(x: np.ndarray) -> float:
@@ -690,8 +678,12 @@ def _validation_data(u_val, y_val, criterion: str) -> tuple[np.ndarray, np.ndarr
     return _signals(u_val, y_val, tag="_val")
 
 
-def _order_candidate(shared: _SharedFactor, orders: tuple[int, int, int], fit: ArxModel | None,
-                     validation: tuple[np.ndarray, np.ndarray] | None) -> OrderCandidate:
+def _order_candidate(
+    shared: _SharedFactor,
+    orders: tuple[int, int, int],
+    fit: ArxModel | None,
+    validation: tuple[np.ndarray, np.ndarray] | None,
+) -> OrderCandidate:
     """One row of :func:`arx_order_search` from the candidate's fit on the common rows (None: undetermined)."""
     na, nb, nk = orders
     p = na + nb

@@ -224,7 +224,7 @@ def _log_decrement_sigma(x: np.ndarray, fs: float, omega: float) -> float | None
     # Noise floor from the second difference (the mode itself barely shows
     # in it when sampled well above its frequency); drop peaks near it.
     noise = np.median(np.abs(np.diff(x, 2))) / 0.6745 / np.sqrt(6.0)
-    good = (amp > max(5.0 * noise, 0.02 * amp.max()))
+    good = amp > max(5.0 * noise, 0.02 * amp.max())
     if good.sum() < 3:
         return None
     tc = 0.5 * (peaks[good] + tr[good]) / fs
@@ -343,10 +343,7 @@ def decay_poles(
         err = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     except np.linalg.LinAlgError:
         err = np.full(2 * k, np.nan)
-    modes = [
-        _mode_from(coef[2 * i : 2 * i + 2], sigmas[i], omegas[i], err[i], err[k + i])
-        for i in range(k)
-    ]
+    modes = [_mode_from(coef[2 * i : 2 * i + 2], sigmas[i], omegas[i], err[i], err[k + i]) for i in range(k)]
     modes.sort(key=lambda m: -m.amplitude)
     if modes[0].sigma <= 0.0:
         raise DataError(

@@ -80,9 +80,7 @@ def _check_rate(sample_rate_hz: float) -> float:
 def _check_cutoff(cutoff_hz: float, fs: float) -> float:
     fc = float(cutoff_hz)
     if not np.isfinite(fc) or fc <= 0.0 or fc >= fs / 2.0:
-        raise ConfigError(
-            "cutoff_hz", f"must lie in (0, {fs / 2.0:g}) Hz (below Nyquist), got {cutoff_hz!r}"
-        )
+        raise ConfigError("cutoff_hz", f"must lie in (0, {fs / 2.0:g}) Hz (below Nyquist), got {cutoff_hz!r}")
     return fc
 
 
@@ -245,9 +243,7 @@ def state_variable_filter(
 
     pad = min(settling_samples(fs, cutoff_hz, n, kind=kind), N - 1)
     # odd extension keeps value and slope continuous at the ends
-    ext = np.concatenate(
-        [2.0 * x[0] - x[pad:0:-1], x, 2.0 * x[-1] - x[-2 : -pad - 2 : -1]]
-    )
+    ext = np.concatenate([2.0 * x[0] - x[pad:0:-1], x, 2.0 * x[-1] - x[-2 : -pad - 2 : -1]])
     forward = np.empty((n_derivatives + 1, ext.size))
     for k, sos in enumerate(sections):
         forward[k], _ = signal.sosfilt(sos, ext, zi=signal.sosfilt_zi(sos) * ext[0])
@@ -257,9 +253,7 @@ def state_variable_filter(
     return np.ascontiguousarray(rev[:, ::-1][:, pad : pad + N])
 
 
-def finite_difference_derivatives(
-    x: ArrayLike, sample_rate_hz: float, n: int
-) -> np.ndarray:
+def finite_difference_derivatives(x: ArrayLike, sample_rate_hz: float, n: int) -> np.ndarray:
     """Unfiltered derivatives by repeated central differences, for comparison.
 
     Row ``k`` is :func:`hilident.ident.preprocess.central_difference` applied

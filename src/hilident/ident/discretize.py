@@ -108,9 +108,7 @@ def _tustin_step(dt: float, prewarp_hz: float | None) -> float:
     fp = float(prewarp_hz)
     nyquist = 0.5 / dt
     if not np.isfinite(fp) or fp <= 0.0 or fp >= nyquist:
-        raise ConfigError(
-            "prewarp_hz", f"must lie in (0, {nyquist:g}) Hz (below Nyquist), got {prewarp_hz!r}"
-        )
+        raise ConfigError("prewarp_hz", f"must lie in (0, {nyquist:g}) Hz (below Nyquist), got {prewarp_hz!r}")
     wp = 2.0 * np.pi * fp
     return 2.0 * np.tan(wp * dt / 2.0) / wp
 
@@ -139,9 +137,7 @@ def zoh(A: ArrayLike, B: ArrayLike, C: ArrayLike, D: ArrayLike, dt: float) -> Di
     return DiscreteStateSpace(e[:n, :n], e[:n, n:], c, d, h)
 
 
-def forward_euler(
-    A: ArrayLike, B: ArrayLike, C: ArrayLike, D: ArrayLike, dt: float
-) -> DiscreteStateSpace:
+def forward_euler(A: ArrayLike, B: ArrayLike, C: ArrayLike, D: ArrayLike, dt: float) -> DiscreteStateSpace:
     """Forward Euler, ``Phi = I + A dt``, ``Gamma = B dt`` (thesis eq. 2.29).
 
     Only accurate for ``|lambda(A)| dt << 1``; a lightly damped mode becomes
@@ -199,9 +195,7 @@ def _has_negative_real_eigenvalue(phi: np.ndarray) -> np.ndarray:
     return lam[(np.abs(lam.imag) <= tol) & (lam.real <= tol)]
 
 
-def d2c_zoh(
-    Phi: ArrayLike, Gamma: ArrayLike, C: ArrayLike, D: ArrayLike, dt: float
-) -> StateSpace:
+def d2c_zoh(Phi: ArrayLike, Gamma: ArrayLike, C: ArrayLike, D: ArrayLike, dt: float) -> StateSpace:
     """Inverse of :func:`zoh` by the matrix logarithm.
 
     ``logm([[Phi, Gamma], [0, I]]) / dt = [[A, B], [0, 0]]``.
@@ -464,9 +458,7 @@ def sampling_advice(omega0_rad_s: float) -> dict[str, float]:
     """
     w0 = float(omega0_rad_s)
     if not np.isfinite(w0) or w0 <= 0.0:
-        raise ConfigError(
-            "omega0_rad_s", f"must be a positive frequency in rad/s, got {omega0_rad_s!r}"
-        )
+        raise ConfigError("omega0_rad_s", f"must be a positive frequency in rad/s, got {omega0_rad_s!r}")
     h_min, h_max = 0.2 / w0, 0.6 / w0
     return {
         "h_min_s": h_min,

@@ -56,8 +56,15 @@ import numpy as np
 
 from hilident.errors import DataError
 
-__all__ = ["OUTLIER_SIGMAS", "DriftOutlier", "SeriesTrend", "DriftTrend", "drift_trend", "axis_drifts",
-           "parse_time_utc"]
+__all__ = [
+    "OUTLIER_SIGMAS",
+    "DriftOutlier",
+    "SeriesTrend",
+    "DriftTrend",
+    "drift_trend",
+    "axis_drifts",
+    "parse_time_utc",
+]
 
 #: A residual beyond this many robust standard deviations makes a recording an outlier (listed, kept).
 OUTLIER_SIGMAS = 4.0
@@ -268,8 +275,15 @@ def _outliers(residuals: np.ndarray, scale: float) -> tuple[tuple[int, ...], tup
     return tuple(int(i) for i in far), tuple(float(z[i]) for i in far)
 
 
-def drift_trend(days: Any, values: Any, *, drift_percent_per_day: float = math.inf, min_recordings: int = 5,
-                confidence: float = 0.95, ci95: Any = None) -> SeriesTrend:
+def drift_trend(
+    days: Any,
+    values: Any,
+    *,
+    drift_percent_per_day: float = math.inf,
+    min_recordings: int = 5,
+    confidence: float = 0.95,
+    ci95: Any = None,
+) -> SeriesTrend:
     """The ordinary least-squares trend of one series and its verdict (see the module docstring).
 
     Parameters
@@ -318,15 +332,34 @@ def drift_trend(days: Any, values: Any, *, drift_percent_per_day: float = math.i
     d, v, c = d[keep][order], v[keep][order], c[keep][order]
     n = int(d.size)
     nan = math.nan
-    base: dict[str, Any] = dict(n=n, days=tuple(map(float, d)), values=tuple(map(float, v)), ci95=tuple(map(float, c)),
-                confidence=float(confidence), threshold_percent_per_day=float(drift_percent_per_day), flagged=False)
+    base: dict[str, Any] = dict(
+        n=n,
+        days=tuple(map(float, d)),
+        values=tuple(map(float, v)),
+        ci95=tuple(map(float, c)),
+        confidence=float(confidence),
+        threshold_percent_per_day=float(drift_percent_per_day),
+        flagged=False,
+    )
     sxx = float(np.sum((d - d.mean()) ** 2)) if n else 0.0
     if n < 3 or sxx <= 0.0:
-        why = (f"{n} recording{'s' if n != 1 else ''}, {min_recordings} needed" if n < 3
-               else "every recording at the same time")
-        return SeriesTrend(**base, reference=nan, slope_per_day=nan, slope_stderr_per_day=nan, residual_std=nan,
-                           rate_percent_per_day=nan, rate_ci95_percent_per_day=nan, p_value=nan,
-                           verdict=f"insufficient data: {why}", insufficient=True)
+        why = (
+            f"{n} recording{'s' if n != 1 else ''}, {min_recordings} needed"
+            if n < 3
+            else "every recording at the same time"
+        )
+        return SeriesTrend(
+            **base,
+            reference=nan,
+            slope_per_day=nan,
+            slope_stderr_per_day=nan,
+            residual_std=nan,
+            rate_percent_per_day=nan,
+            rate_ci95_percent_per_day=nan,
+            p_value=nan,
+            verdict=f"insufficient data: {why}",
+            insufficient=True,
+        )
     slope = float(np.sum((d - d.mean()) * (v - v.mean())) / sxx)
     intercept = float(v.mean() - slope * d.mean())
     residuals = v - (intercept + slope * d)
@@ -353,9 +386,20 @@ def drift_trend(days: Any, values: Any, *, drift_percent_per_day: float = math.i
         verdict, flagged = f"no significant trend: {figures}", False
     far, sigmas = _outliers(residuals, float(np.max(np.abs(v))))
     base["flagged"] = flagged
-    return SeriesTrend(**base, reference=intercept, slope_per_day=slope, slope_stderr_per_day=se, residual_std=s,
-                       rate_percent_per_day=rate, rate_ci95_percent_per_day=rate_ci, p_value=p, verdict=verdict,
-                       outliers=far, outlier_sigmas=sigmas, insufficient=n < min_recordings)
+    return SeriesTrend(
+        **base,
+        reference=intercept,
+        slope_per_day=slope,
+        slope_stderr_per_day=se,
+        residual_std=s,
+        rate_percent_per_day=rate,
+        rate_ci95_percent_per_day=rate_ci,
+        p_value=p,
+        verdict=verdict,
+        outliers=far,
+        outlier_sigmas=sigmas,
+        insufficient=n < min_recordings,
+    )
 
 
 def parse_time_utc(text: Any) -> dt.datetime | None:
@@ -383,15 +427,21 @@ def _float(value: Any) -> float:
         return math.nan
 
 
-def _named_outliers(quantity: str, trend: SeriesTrend,
-                    items: Sequence[tuple[dt.datetime, Mapping[str, Any]]]) -> list[DriftOutlier]:
+def _named_outliers(
+    quantity: str, trend: SeriesTrend, items: Sequence[tuple[dt.datetime, Mapping[str, Any]]]
+) -> list[DriftOutlier]:
     """The outliers of ``trend`` named by their rows (``items`` in the fit's time order)."""
-    return [DriftOutlier(quantity, str(items[i][1].get("time_utc")), str(items[i][1].get("path", "")),
-                         float(trend.values[i]), z) for i, z in zip(trend.outliers, trend.outlier_sigmas, strict=True)]
+    return [
+        DriftOutlier(
+            quantity, str(items[i][1].get("time_utc")), str(items[i][1].get("path", "")), float(trend.values[i]), z
+        )
+        for i, z in zip(trend.outliers, trend.outlier_sigmas, strict=True)
+    ]
 
 
-def _axis_trend(axis: str, rows: Sequence[Mapping[str, Any]], drift_percent_per_day: float, min_recordings: int,
-                confidence: float) -> DriftTrend:
+def _axis_trend(
+    axis: str, rows: Sequence[Mapping[str, Any]], drift_percent_per_day: float, min_recordings: int, confidence: float
+) -> DriftTrend:
     ok = [r for r in rows if r.get("status") == "ok"]
     timed = [(when, r) for r in ok if (when := parse_time_utc(r.get("time_utc"))) is not None]
     used = sorted(((w, r) for w, r in timed if math.isfinite(_float(r.get("frequency_hz")))), key=lambda x: x[0])
@@ -403,27 +453,50 @@ def _axis_trend(axis: str, rows: Sequence[Mapping[str, Any]], drift_percent_per_
     def column(items: Sequence[tuple[dt.datetime, Mapping[str, Any]]], key: str) -> np.ndarray:
         return np.array([_float(r.get(key)) for _, r in items])
 
-    freq = drift_trend(days(used), column(used, "frequency_hz"), drift_percent_per_day=drift_percent_per_day,
-                       min_recordings=min_recordings, confidence=confidence, ci95=column(used, "frequency_ci95_hz"))
+    freq = drift_trend(
+        days(used),
+        column(used, "frequency_hz"),
+        drift_percent_per_day=drift_percent_per_day,
+        min_recordings=min_recordings,
+        confidence=confidence,
+        ci95=column(used, "frequency_ci95_hz"),
+    )
     damped = [(w, r) for w, r in used if math.isfinite(_float(r.get("damping_ratio")))]
     # the damping's days keep the axis's origin: its first point need not be the first recording
-    damp = drift_trend(days(damped), column(damped, "damping_ratio"), min_recordings=min_recordings,
-                       confidence=confidence, ci95=column(damped, "damping_ci95"))
+    damp = drift_trend(
+        days(damped),
+        column(damped, "damping_ratio"),
+        min_recordings=min_recordings,
+        confidence=confidence,
+        ci95=column(damped, "damping_ci95"),
+    )
     outliers = _named_outliers("frequency", freq, used) + _named_outliers("damping", damp, damped)
     return DriftTrend(
-        axis=axis, n=freq.n, n_failed=len(rows) - len(ok), n_unusable=len(ok) - len(used),
+        axis=axis,
+        n=freq.n,
+        n_failed=len(rows) - len(ok),
+        n_unusable=len(ok) - len(used),
         first_utc=str(used[0][1].get("time_utc")) if used else "",
         last_utc=str(used[-1][1].get("time_utc")) if used else "",
         span_days=float(freq.days[-1]) if freq.days else 0.0,
-        reference_hz=freq.reference, rate_percent_per_day=freq.rate_percent_per_day,
-        rate_ci95_percent_per_day=freq.rate_ci95_percent_per_day, p_value=freq.p_value, flagged=freq.flagged,
-        verdict=freq.verdict, damping_rate_percent_per_day=damp.rate_percent_per_day,
-        damping_rate_ci95_percent_per_day=damp.rate_ci95_percent_per_day, damping_p_value=damp.p_value,
-        outliers=tuple(outliers), frequency=freq, damping=damp)
+        reference_hz=freq.reference,
+        rate_percent_per_day=freq.rate_percent_per_day,
+        rate_ci95_percent_per_day=freq.rate_ci95_percent_per_day,
+        p_value=freq.p_value,
+        flagged=freq.flagged,
+        verdict=freq.verdict,
+        damping_rate_percent_per_day=damp.rate_percent_per_day,
+        damping_rate_ci95_percent_per_day=damp.rate_ci95_percent_per_day,
+        damping_p_value=damp.p_value,
+        outliers=tuple(outliers),
+        frequency=freq,
+        damping=damp,
+    )
 
 
-def axis_drifts(rows: Iterable[Mapping[str, Any]], drift_percent_per_day: float, min_recordings: int = 5,
-                confidence: float = 0.95) -> dict[str, DriftTrend]:
+def axis_drifts(
+    rows: Iterable[Mapping[str, Any]], drift_percent_per_day: float, min_recordings: int = 5, confidence: float = 0.95
+) -> dict[str, DriftTrend]:
     """The drift verdict of every axis in a batch's rows, sorted by axis.
 
     Parameters
@@ -469,5 +542,7 @@ def axis_drifts(rows: Iterable[Mapping[str, Any]], drift_percent_per_day: float,
                 continue  # a file too damaged to name its axis: the batch's failures list it
             raise DataError(f"batch row {i} ({row.get('path', 'no path')}): identified, but no axis")
         by_axis.setdefault(str(axis), []).append(row)
-    return {axis: _axis_trend(axis, by_axis[axis], drift_percent_per_day, min_recordings, confidence)
-            for axis in sorted(by_axis)}
+    return {
+        axis: _axis_trend(axis, by_axis[axis], drift_percent_per_day, min_recordings, confidence)
+        for axis in sorted(by_axis)
+    }

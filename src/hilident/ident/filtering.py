@@ -116,9 +116,7 @@ def rc_alpha(cutoff_hz: float, sample_rate_hz: float) -> float:
     return dt / (rc + dt)
 
 
-def rc_lowpass(
-    x: ArrayLike, cutoff_hz: float, sample_rate_hz: float, initial: str = "first"
-) -> np.ndarray:
+def rc_lowpass(x: ArrayLike, cutoff_hz: float, sample_rate_hz: float, initial: str = "first") -> np.ndarray:
     """First-order RC low-pass, ``y[i] = alpha x[i] + (1 - alpha) y[i-1]`` (thesis eq. 2.66).
 
     The continuous filter ``RC v_out' = v_in - v_out`` (eq. 2.64,
@@ -195,9 +193,7 @@ def moving_average(x: ArrayLike, n_taps: int, initial: str = "first") -> np.ndar
     return _run(np.full(n, 1.0 / n), np.array([1.0]), a, init)
 
 
-def decimation_filter(
-    factor: int, attenuation_db: float = 80.0, passband_fraction: float = 0.8
-) -> np.ndarray:
+def decimation_filter(factor: int, attenuation_db: float = 80.0, passband_fraction: float = 0.8) -> np.ndarray:
     """Anti-aliasing FIR for :func:`decimate` (Kaiser window, odd length, linear phase).
 
     The passband ends at ``passband_fraction`` of the new Nyquist frequency

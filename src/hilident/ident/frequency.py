@@ -87,8 +87,7 @@ class FrequencyResponse:
         c = np.asarray(self.coherence, dtype=np.float64)
         if not (f.ndim == h.ndim == c.ndim == 1 and f.size == h.size == c.size):
             raise DataError(
-                "frequency_hz, response and coherence must be 1-D of equal length, got "
-                f"{f.shape}, {h.shape}, {c.shape}"
+                f"frequency_hz, response and coherence must be 1-D of equal length, got {f.shape}, {h.shape}, {c.shape}"
             )
         object.__setattr__(self, "frequency_hz", f)
         object.__setattr__(self, "response", h)
@@ -136,9 +135,7 @@ def _welch_setup(n: int, segment_length: int, overlap: float) -> tuple[int, int,
         raise ConfigError("segment_length", f"must be an integer >= 8, got {segment_length!r}")
     nperseg = int(segment_length)
     if nperseg > n:
-        raise ConfigError(
-            "segment_length", f"{nperseg} exceeds the record length of {n} samples"
-        )
+        raise ConfigError("segment_length", f"{nperseg} exceeds the record length of {n} samples")
     if not 0.0 <= overlap < 1.0:
         raise ConfigError("overlap", f"must lie in [0, 1), got {overlap!r}")
     noverlap = int(round(overlap * nperseg))
@@ -152,8 +149,15 @@ def _welch_setup(n: int, segment_length: int, overlap: float) -> tuple[int, int,
 BLOCK_SAMPLES = 1 << 18
 
 
-def _segment_blocks(signals: dict[str, np.ndarray], nperseg, noverlap, window, detrend, block_samples=None,
-                    offsets: dict[str, float] | None = None):
+def _segment_blocks(
+    signals: dict[str, np.ndarray],
+    nperseg,
+    noverlap,
+    window,
+    detrend,
+    block_samples=None,
+    offsets: dict[str, float] | None = None,
+):
     """Windowed FFTs of the Welch segments, a block of segments at a time.
 
     Yields ``(count, ffts)`` with ``ffts[name]`` of shape ``(count, nperseg // 2 + 1)``.
@@ -169,7 +173,7 @@ def _segment_blocks(signals: dict[str, np.ndarray], nperseg, noverlap, window, d
     for start in range(0, n_seg, per_block):
         ffts = {}
         for name, view in views.items():
-            seg = view[start:start + per_block]
+            seg = view[start : start + per_block]
             if offsets and name in offsets:
                 seg = seg - offsets[name]
             if detrend:
@@ -182,8 +186,16 @@ def _segment_blocks(signals: dict[str, np.ndarray], nperseg, noverlap, window, d
         yield len(seg), ffts
 
 
-def _cross_spectra(signals: dict[str, np.ndarray], pairs, nperseg, noverlap, window, detrend, block_samples=None,
-                   offsets: dict[str, float] | None = None):
+def _cross_spectra(
+    signals: dict[str, np.ndarray],
+    pairs,
+    nperseg,
+    noverlap,
+    window,
+    detrend,
+    block_samples=None,
+    offsets: dict[str, float] | None = None,
+):
     """Welch cross spectra ``S_ab = E[conj(A) B]`` for the requested pairs.
 
     Each signal is segmented, windowed and transformed once; every spectrum is
@@ -210,9 +222,15 @@ def _cross_spectra(signals: dict[str, np.ndarray], pairs, nperseg, noverlap, win
     return {pair: s / total for pair, s in sums.items()}
 
 
-def welch_psd(x: np.ndarray, sample_rate_hz: float, nperseg: int, noverlap: int | None = None,
-              window: str = "hann", detrend: str | bool = "constant", subtract: float = 0.0,
-              ) -> tuple[np.ndarray, np.ndarray]:
+def welch_psd(
+    x: np.ndarray,
+    sample_rate_hz: float,
+    nperseg: int,
+    noverlap: int | None = None,
+    window: str = "hann",
+    detrend: str | bool = "constant",
+    subtract: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
     """One-sided power spectral density by Welch's method, as ``scipy.signal.welch`` with its defaults.
 
     The same estimate (density scaling, unit^2/Hz, mean over segments) with
@@ -247,7 +265,7 @@ def welch_psd(x: np.ndarray, sample_rate_hz: float, nperseg: int, noverlap: int 
     offsets = {"x": float(subtract)} if subtract else None
     p = _cross_spectra({"x": x}, [("x", "x")], nperseg, noverlap, window, detrend, offsets=offsets)["x", "x"]
     p = p / (sample_rate_hz * (win * win).sum())
-    p[1:None if nperseg % 2 else -1] *= 2.0  # one-sided: every bin but DC and Nyquist counts twice
+    p[1 : None if nperseg % 2 else -1] *= 2.0  # one-sided: every bin but DC and Nyquist counts twice
     return np.fft.rfftfreq(nperseg, 1.0 / sample_rate_hz), p
 
 
@@ -361,9 +379,7 @@ def frf_from_reference(
     nperseg, noverlap, n_avg = _welch_setup(sig["r"].size, segment_length, overlap)
     pairs = [("r", "r"), ("u", "u"), ("y", "y"), ("r", "u"), ("r", "y")]
     S = _cross_spectra(sig, pairs, nperseg, noverlap, window, detrend)
-    coh = _coherence(S["r", "y"], S["r", "r"], S["y", "y"]) * _coherence(
-        S["r", "u"], S["r", "r"], S["u", "u"]
-    )
+    coh = _coherence(S["r", "y"], S["r", "r"], S["y", "y"]) * _coherence(S["r", "u"], S["r", "r"], S["u", "u"])
     return FrequencyResponse(
         frequency_hz=np.fft.rfftfreq(nperseg, 1.0 / fs),
         response=_ratio(S["r", "y"], S["r", "u"]),
@@ -373,8 +389,9 @@ def frf_from_reference(
     )
 
 
-def _period_sums(u: np.ndarray, y: np.ndarray, period: int, skip: int, n_periods: int,
-                 block_samples: int | None = None) -> dict[str, np.ndarray]:
+def _period_sums(
+    u: np.ndarray, y: np.ndarray, period: int, skip: int, n_periods: int, block_samples: int | None = None
+) -> dict[str, np.ndarray]:
     """Sums over whole periods of the DFTs ``U_m``, ``Y_m`` and of ``conj(U_m) Y_m``, ``|U_m|^2``, ``|Y_m|^2``.
 
     Every bin of one period, periods ``skip .. skip + n_periods - 1``,
@@ -386,10 +403,15 @@ def _period_sums(u: np.ndarray, y: np.ndarray, period: int, skip: int, n_periods
     sums: dict[str, np.ndarray] = {}
     for first in range(skip, skip + n_periods, per_block):
         last = min(first + per_block, skip + n_periods)
-        U = np.fft.rfft(u[first * period:last * period].reshape(last - first, period), axis=-1)
-        Y = np.fft.rfft(y[first * period:last * period].reshape(last - first, period), axis=-1)
-        parts = {"u": U, "y": Y, "uy": np.conj(U) * Y, "uu": U.real * U.real + U.imag * U.imag,
-                 "yy": Y.real * Y.real + Y.imag * Y.imag}
+        U = np.fft.rfft(u[first * period : last * period].reshape(last - first, period), axis=-1)
+        Y = np.fft.rfft(y[first * period : last * period].reshape(last - first, period), axis=-1)
+        parts = {
+            "u": U,
+            "y": Y,
+            "uy": np.conj(U) * Y,
+            "uu": U.real * U.real + U.imag * U.imag,
+            "yy": Y.real * Y.real + Y.imag * Y.imag,
+        }
         for name, part in parts.items():
             total = np.add.reduce(part, axis=0)
             if name in sums:

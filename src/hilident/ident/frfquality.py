@@ -117,9 +117,14 @@ def frf_uncertainty(frf: FrequencyResponse, confidence: float = 0.95) -> FrfUnce
     phase_std = np.degrees(np.arcsin(np.clip(eps, 0.0, 1.0)))
     phase_std = np.where(np.isnan(eps), np.nan, phase_std)
     return FrfUncertainty(
-        frequency_hz=frf.frequency_hz.copy(), magnitude_rel_std=eps, phase_std_deg=phase_std,
-        lower_db=lower, upper_db=upper, phase_bound_deg=np.minimum(z * phase_std, 180.0),
-        confidence=float(confidence), n_averages=n,
+        frequency_hz=frf.frequency_hz.copy(),
+        magnitude_rel_std=eps,
+        phase_std_deg=phase_std,
+        lower_db=lower,
+        upper_db=upper,
+        phase_bound_deg=np.minimum(z * phase_std, 180.0),
+        confidence=float(confidence),
+        n_averages=n,
     )
 
 
@@ -212,8 +217,14 @@ def check_resolution(
     for f0, zeta in res:
         bandwidth = 2.0 * zeta * f0 if np.isfinite(zeta) and zeta > 0 else np.nan
         bins = bandwidth / df
-        per_mode.append({"frequency_hz": float(f0), "damping_ratio": float(zeta),
-                         "bandwidth_hz": float(bandwidth), "bins": float(bins)})
+        per_mode.append(
+            {
+                "frequency_hz": float(f0),
+                "damping_ratio": float(zeta),
+                "bandwidth_hz": float(bandwidth),
+                "bins": float(bins),
+            }
+        )
         if np.isfinite(bins):
             needed_df = min(needed_df, bandwidth / min_bins_per_bandwidth)
             if bins < min_bins_per_bandwidth:
@@ -274,14 +285,24 @@ class InputSpectrum:
     psd: np.ndarray
 
     def to_dict(self) -> dict:
-        return {"band_hz": list(self.band_hz), "rms": self.rms, "crest_factor": self.crest_factor,
-                "level_min_db": self.level_min_db, "level_max_db": self.level_max_db,
-                "spread_db": self.spread_db, "coverage": self.coverage}
+        return {
+            "band_hz": list(self.band_hz),
+            "rms": self.rms,
+            "crest_factor": self.crest_factor,
+            "level_min_db": self.level_min_db,
+            "level_max_db": self.level_max_db,
+            "spread_db": self.spread_db,
+            "coverage": self.coverage,
+        }
 
 
 def input_spectrum(
-    u: ArrayLike, sample_rate_hz: float, band_hz: tuple[float, float], segment_length: int | None = None,
-    floor_db: float = 20.0, periodic: bool = False,
+    u: ArrayLike,
+    sample_rate_hz: float,
+    band_hz: tuple[float, float],
+    segment_length: int | None = None,
+    floor_db: float = 20.0,
+    periodic: bool = False,
 ) -> InputSpectrum:
     """Power spectral density of the excitation over ``band_hz`` (Welch, Hann).
 
@@ -311,8 +332,9 @@ def input_spectrum(
     nper = int(min(segment_length or min(max(x.size // 8, 256), 2**14), x.size))
     window = "boxcar" if periodic and segment_length else "hann"
     mean = x.mean()
-    f, p = welch_psd(x, sample_rate_hz, nper, noverlap=0 if periodic else None, window=window, detrend=False,
-                     subtract=mean)
+    f, p = welch_psd(
+        x, sample_rate_hz, nper, noverlap=0 if periodic else None, window=window, detrend=False, subtract=mean
+    )
     keep = (f >= lo) & (f <= hi)
     if not np.any(keep):
         raise DataError(f"no spectrum bin between {lo:g} and {hi:g} Hz; record too short")
@@ -322,9 +344,15 @@ def input_spectrum(
     top = float(np.max(level))
     rms, peak = _rms_and_peak(x, mean)
     return InputSpectrum(
-        band_hz=(lo, hi), rms=rms, crest_factor=peak / rms if rms else np.inf,
-        level_min_db=float(np.min(level)), level_max_db=top, spread_db=float(top - np.min(level)),
-        coverage=float(np.mean(level >= top - floor_db)), frequency_hz=fb, psd=pb,
+        band_hz=(lo, hi),
+        rms=rms,
+        crest_factor=peak / rms if rms else np.inf,
+        level_min_db=float(np.min(level)),
+        level_max_db=top,
+        spread_db=float(top - np.min(level)),
+        coverage=float(np.mean(level >= top - floor_db)),
+        frequency_hz=fb,
+        psd=pb,
     )
 
 
@@ -333,14 +361,15 @@ def _rms_and_peak(x: np.ndarray, mean: float, block: int = 1 << 18) -> tuple[flo
     squares = 0.0
     peak = 0.0
     for start in range(0, x.size, block):
-        d = x[start:start + block] - mean
+        d = x[start : start + block] - mean
         squares += float(d @ d)
         peak = max(peak, float(np.max(np.abs(d))))
     return float(np.sqrt(squares / x.size)), peak
 
 
-def excited_band(u: ArrayLike, sample_rate_hz: float, segment_length: int,
-                 floor_db: float = 20.0) -> tuple[float, float]:
+def excited_band(
+    u: ArrayLike, sample_rate_hz: float, segment_length: int, floor_db: float = 20.0
+) -> tuple[float, float]:
     """Lowest and highest frequency where the input's spectrum is within ``floor_db`` of its peak, Hz.
 
     For records from elsewhere, whose excitation band nobody wrote down. The

@@ -98,11 +98,7 @@ class StribeckParams:
 
 def _magnitude(a: np.ndarray, p: StribeckParams) -> np.ndarray:
     """Friction magnitude for speeds ``a = |v| >= 0``."""
-    return (
-        p.Fc
-        + (p.Fs - p.Fc) * np.exp(-((a / p.vs) ** p.delta_s))
-        + p.Fv * a**p.delta_v
-    )
+    return p.Fc + (p.Fs - p.Fc) * np.exp(-((a / p.vs) ** p.delta_s)) + p.Fv * a**p.delta_v
 
 
 def stribeck(v: ArrayLike, params: StribeckParams) -> np.ndarray:
@@ -174,9 +170,7 @@ def steady_state_points(
     v = np.asarray(velocity, dtype=np.float64)
     tau = np.asarray(torque, dtype=np.float64)
     if v.ndim != 1 or tau.ndim != 1 or v.size != tau.size:
-        raise DataError(
-            f"velocity and torque must be 1-D of equal length, got shapes {v.shape} and {tau.shape}"
-        )
+        raise DataError(f"velocity and torque must be 1-D of equal length, got shapes {v.shape} and {tau.shape}")
     rows = []
     worst = []
     for i, window in enumerate(windows):
@@ -418,8 +412,7 @@ def fit_stribeck(
     names = [n for n in _NAMES if n not in fixed]
     if a.size < len(names) + 1:
         raise DataError(
-            f"{a.size} friction points with v != 0; at least {len(names) + 1} needed "
-            f"to fit {len(names)} parameters"
+            f"{a.size} friction points with v != 0; at least {len(names) + 1} needed to fit {len(names)} parameters"
         )
     if np.unique(a).size < 3:
         raise DataError("friction points need at least 3 distinct speeds |v|")
@@ -430,8 +423,12 @@ def fit_stribeck(
 
     p = unpack(best.x)
     params = StribeckParams(
-        Fc=p["Fc"], Fs=p["Fs"], Fv=p["Fv"], vs=float(np.exp(p["vs"])),
-        delta_v=p["delta_v"], delta_s=p["delta_s"],
+        Fc=p["Fc"],
+        Fs=p["Fs"],
+        Fv=p["Fv"],
+        vs=float(np.exp(p["vs"])),
+        delta_v=p["delta_v"],
+        delta_s=p["delta_s"],
     )
     stderr = _stderr(best.jac, best.fun, names, params)
     for n in fixed:
@@ -476,8 +473,7 @@ def _bounds(a: np.ndarray, t: np.ndarray, names: list[str]) -> tuple[np.ndarray,
     return lower, upper
 
 
-def _starts(a, t, names: list[str], fixed: dict[str, float], lower: np.ndarray,
-            upper: np.ndarray) -> list[np.ndarray]:
+def _starts(a, t, names: list[str], fixed: dict[str, float], lower: np.ndarray, upper: np.ndarray) -> list[np.ndarray]:
     """Starting points: the initial guess with ``vs`` times 0.1, 1, 10 and a few exponents."""
     guess = _initial_guess(a, t)
     # starts strictly inside the box, as the trust-region method requires
@@ -508,8 +504,13 @@ def _best_fit(fun, jac, starts: list[np.ndarray], lower: np.ndarray, upper: np.n
     for x0 in starts:
         try:
             res = optimize.least_squares(
-                fun, x0, jac=jac, bounds=(lower, upper), method="trf",
-                x_scale="jac", max_nfev=400,
+                fun,
+                x0,
+                jac=jac,
+                bounds=(lower, upper),
+                method="trf",
+                x_scale="jac",
+                max_nfev=400,
             )
         except (ValueError, np.linalg.LinAlgError):
             continue
@@ -669,9 +670,7 @@ def compensate(
     if tau.shape != v.shape:
         raise DataError(f"torque and velocity shapes differ: {tau.shape} vs {v.shape}")
     if not velocity_deadband_mps >= 0.0:
-        raise ConfigError(
-            "velocity_deadband_mps", f"must be >= 0 m/s, got {velocity_deadband_mps!r}"
-        )
+        raise ConfigError("velocity_deadband_mps", f"must be >= 0 m/s, got {velocity_deadband_mps!r}")
     if not slowest_mps >= 0.0:
         raise ConfigError("slowest_mps", f"must be >= 0 m/s, got {slowest_mps!r}")
     speed = np.abs(v)

@@ -127,8 +127,7 @@ class LinearFit:
         return tuple(
             n
             for n in self.names
-            if abs(self.params[n]) < n_sigma * self.stderr[n]
-            or self.contribution[n] < min_contribution
+            if abs(self.params[n]) < n_sigma * self.stderr[n] or self.contribution[n] < min_contribution
         )
 
     def predict(self, regressors: Mapping[str, ArrayLike]) -> np.ndarray:
@@ -186,11 +185,7 @@ def _excitation_report(norms, s, Vt, names, max_condition, warn_condition) -> li
         # the same dependency between the unscaled columns, for the message
         w = v / norms
         w = w / np.abs(w[[names.index(n) for n in involved]]).max()
-        relation = (
-            "columns "
-            + " ".join(f"{w[names.index(n)]:+.3g}*{n}" for n in involved)
-            + " ~ 0"
-        )
+        relation = "columns " + " ".join(f"{w[names.index(n)]:+.3g}*{n}" for n in involved) + " ~ 0"
         if cond > max_condition:
             bad.extend(n for n in involved if n not in bad)
             detail.append(f"{relation} (condition {cond:.3g})")
@@ -250,9 +245,7 @@ def check_excitation(
     if A.ndim != 2 or A.shape[1] != len(names):
         raise DataError(f"A must have shape (N, {len(names)}) for names {names}, got {A.shape}")
     if not (0.0 < warn_condition <= max_condition):
-        raise ConfigError(
-            "warn_condition", f"must lie in (0, max_condition={max_condition!r}], got {warn_condition!r}"
-        )
+        raise ConfigError("warn_condition", f"must lie in (0, max_condition={max_condition!r}], got {warn_condition!r}")
     if not np.all(np.isfinite(A)):
         raise DataError("regressor matrix contains NaN or inf")
     if A.shape[0] < A.shape[1]:
@@ -377,34 +370,28 @@ def _effective_rows(n_effective: float | None, N: int, p: int) -> float:
     n_eff = float(n_effective)
     if not np.isfinite(n_eff) or n_eff <= p:
         raise DataError(
-            f"n_effective={n_effective!r} must exceed the number of parameters {p}: "
-            "record longer or raise the cutoff"
+            f"n_effective={n_effective!r} must exceed the number of parameters {p}: record longer or raise the cutoff"
         )
     return min(n_eff, float(N))
 
 
 def _relative_stderr(params: dict[str, float], stderr: dict[str, float]) -> dict[str, float]:
     """Standard error in % of each value (inf for a value of 0)."""
-    return {
-        n: (100.0 * stderr[n] / abs(params[n]) if params[n] != 0.0 else float("inf"))
-        for n in params
-    }
+    return {n: (100.0 * stderr[n] / abs(params[n]) if params[n] != 0.0 else float("inf")) for n in params}
 
 
 def _contributions(A: np.ndarray, theta: np.ndarray, y: np.ndarray, names: tuple[str, ...]) -> dict[str, float]:
     """RMS of each term ``theta_i A[:, i]`` relative to the RMS of the target (0 for a zero target)."""
     y_rms = float(np.sqrt(np.mean(y**2)))
     return {
-        n: float(np.sqrt(np.mean((A[:, i] * theta[i]) ** 2)) / y_rms) if y_rms > 0 else 0.0
-        for i, n in enumerate(names)
+        n: float(np.sqrt(np.mean((A[:, i] * theta[i]) ** 2)) / y_rms) if y_rms > 0 else 0.0 for i, n in enumerate(names)
     }
 
 
 def _insignificant(params: dict[str, float], stderr: dict[str, float]) -> list[str]:
     """A warning per parameter smaller than twice its standard error."""
     return [
-        f"parameter {n!r} = {params[n]:.4g} is not significant "
-        f"(stderr {stderr[n]:.3g}, |value| < 2 stderr)"
+        f"parameter {n!r} = {params[n]:.4g} is not significant (stderr {stderr[n]:.3g}, |value| < 2 stderr)"
         for n in params
         if abs(params[n]) < 2.0 * stderr[n]
     ]
@@ -511,8 +498,9 @@ def _second_order_regression(
 
 def fit_regression(regression: Regression) -> LinearFit:
     """:func:`fit_linear` on a prepared :class:`Regression` (every column a parameter)."""
-    return fit_linear(regression.regressors, regression.target, tuple(regression.regressors),
-                      n_effective=regression.n_effective)
+    return fit_linear(
+        regression.regressors, regression.target, tuple(regression.regressors), n_effective=regression.n_effective
+    )
 
 
 def _second_order_fit(*args) -> LinearFit:
@@ -520,12 +508,31 @@ def _second_order_fit(*args) -> LinearFit:
 
 
 def mass_spring_damper_regression(
-    force: ArrayLike, position: ArrayLike, sample_rate_hz: float, cutoff_hz: float | None = None,
-    method: str = "svf", order: int = 3, kind: str = "butterworth", decimate: int = 1, input_hold: str = "sample",
+    force: ArrayLike,
+    position: ArrayLike,
+    sample_rate_hz: float,
+    cutoff_hz: float | None = None,
+    method: str = "svf",
+    order: int = 3,
+    kind: str = "butterworth",
+    decimate: int = 1,
+    input_hold: str = "sample",
 ) -> Regression:
     """The regressors :func:`fit_mass_spring_damper` fits, e.g. to validate a fit on another record."""
-    return _second_order_regression("force", "position", force, position, sample_rate_hz, cutoff_hz, method,
-                                    order, kind, decimate, input_hold, ("m", "b", "k"))
+    return _second_order_regression(
+        "force",
+        "position",
+        force,
+        position,
+        sample_rate_hz,
+        cutoff_hz,
+        method,
+        order,
+        kind,
+        decimate,
+        input_hold,
+        ("m", "b", "k"),
+    )
 
 
 def validate_fit(fit: LinearFit, regression: Regression, max_lag: int = 25) -> dict:
@@ -547,10 +554,13 @@ def validate_fit(fit: LinearFit, regression: Regression, max_lag: int = 25) -> d
     target = np.asarray(regression.target, dtype=float)
     residuals = target - predicted
     norm = float(np.linalg.norm(target))
-    out: dict[str, Any] = {"fit_percent": float(fit_percent(target, predicted)),
-           "relative_error": float(np.linalg.norm(residuals) / norm) if norm > 0 else float("inf"),
-           "residual_rms": float(np.sqrt(np.mean(residuals**2))), "samples": int(target.size),
-           "low_speed_rows_excluded": int(regression.low_speed_rows)}
+    out: dict[str, Any] = {
+        "fit_percent": float(fit_percent(target, predicted)),
+        "relative_error": float(np.linalg.norm(residuals) / norm) if norm > 0 else float("inf"),
+        "residual_rms": float(np.sqrt(np.mean(residuals**2))),
+        "samples": int(target.size),
+        "low_speed_rows_excluded": int(regression.low_speed_rows),
+    }
     if regression.min_speed is not None:
         out["min_speed"] = regression.min_speed
     lag = int(min(max_lag, max(1, target.size // 4 - 1)))
@@ -610,9 +620,19 @@ def fit_mass_spring_damper(
         Parameters ``m`` (kg), ``b`` (N·s/m), ``k`` (N/m); target is the
         (filtered) force.
     """
-    return fit_regression(mass_spring_damper_regression(
-        force, position, sample_rate_hz, cutoff_hz, method, order, kind, decimate, input_hold,
-    ))
+    return fit_regression(
+        mass_spring_damper_regression(
+            force,
+            position,
+            sample_rate_hz,
+            cutoff_hz,
+            method,
+            order,
+            kind,
+            decimate,
+            input_hold,
+        )
+    )
 
 
 def fit_dc_motor_speed(
@@ -640,8 +660,18 @@ def fit_dc_motor_speed(
         and ``"(bR+kt*ke)/kt"`` (V·s/rad), as in :data:`DC_MOTOR_NAMES`.
     """
     return _second_order_fit(
-        "voltage", "speed", voltage, speed, sample_rate_hz, cutoff_hz, method,
-        order, kind, decimate, input_hold, DC_MOTOR_NAMES,
+        "voltage",
+        "speed",
+        voltage,
+        speed,
+        sample_rate_hz,
+        cutoff_hz,
+        method,
+        order,
+        kind,
+        decimate,
+        input_hold,
+        DC_MOTOR_NAMES,
     )
 
 
@@ -715,8 +745,11 @@ def fit_rigid_axis(
         A parameter is not identifiable, e.g. ``Fc`` and ``offset`` when the
         axis only moved one way, or ``Fc-`` when it never moved backwards.
     """
-    return fit_regression(rigid_axis_regression(position, force, sample_rate_hz, cutoff_hz, asymmetric, decimate,
-                                                min_speed, order, kind, input_hold))
+    return fit_regression(
+        rigid_axis_regression(
+            position, force, sample_rate_hz, cutoff_hz, asymmetric, decimate, min_speed, order, kind, input_hold
+        )
+    )
 
 
 def rigid_axis_regression(
@@ -767,8 +800,9 @@ def rigid_axis_regression(
             f"min_speed={min_speed:g}; record longer or move faster"
         )
     n_eff = _bandwidth_samples(rows.size, decimate, cutoff_hz, fs)
-    return Regression({k: c[rows] for k, c in reg.items()}, F[rows], n_eff, int(candidates - rows.size),
-                      float(min_speed))
+    return Regression(
+        {k: c[rows] for k, c in reg.items()}, F[rows], n_eff, int(candidates - rows.size), float(min_speed)
+    )
 
 
 def fit_torque_constant(

@@ -151,9 +151,7 @@ def two_mass_model(
     outputs = tuple(outputs)
     unknown = [o for o in outputs if o not in TWO_MASS_STATES]
     if not outputs or unknown:
-        raise ConfigError(
-            "outputs", f"must name one or more of {TWO_MASS_STATES}, got {outputs!r}"
-        )
+        raise ConfigError("outputs", f"must name one or more of {TWO_MASS_STATES}, got {outputs!r}")
     A = np.array(
         [
             [0.0, 1.0, 0.0, 0.0],
@@ -318,9 +316,7 @@ class SteadyStateGain(NamedTuple):
     P: np.ndarray
 
 
-def steady_state_kalman(
-    A: ArrayLike, B: ArrayLike, C: ArrayLike, Q: ArrayLike, R: ArrayLike
-) -> SteadyStateGain:
+def steady_state_kalman(A: ArrayLike, B: ArrayLike, C: ArrayLike, Q: ArrayLike, R: ArrayLike) -> SteadyStateGain:
     """Steady-state Kalman gain of ``x(k+1) = A x + B u + w``, ``y = C x + v``.
 
     ``P`` solves the filter Riccati equation

@@ -75,9 +75,18 @@ _RANGE_POINTS = 201
 _START_DAMPING_RATIO = 0.02
 
 
-def two_mass_velocity_response(frequency_hz: ArrayLike, *, m1: float, m2: float, k: float, d: float,
-                               torque_constant: float, b: float = 0.0, delay_s: float = 0.0,
-                               sample_rate_hz: float | None = None) -> np.ndarray:
+def two_mass_velocity_response(
+    frequency_hz: ArrayLike,
+    *,
+    m1: float,
+    m2: float,
+    k: float,
+    d: float,
+    torque_constant: float,
+    b: float = 0.0,
+    delay_s: float = 0.0,
+    sample_rate_hz: float | None = None,
+) -> np.ndarray:
     """Cart velocity per motor torque of the two-mass model with a viscous term on the cart.
 
     Parameters
@@ -243,8 +252,10 @@ class WorkspaceFit:
     @property
     def std(self) -> dict[str, float]:
         """Standard deviation of each estimated parameter, by name (SI units)."""
-        return {n: float(math.sqrt(max(v, 0.0))) for n, v in
-                zip(self.parameter_names, np.diag(self.covariance), strict=True)}
+        return {
+            n: float(math.sqrt(max(v, 0.0)))
+            for n, v in zip(self.parameter_names, np.diag(self.covariance), strict=True)
+        }
 
     @property
     def values(self) -> dict[str, float]:
@@ -280,8 +291,13 @@ class WorkspaceFit:
         """(m1, m2, b, k coefficients, d coefficients) from a parameter vector; the lag does not move the mode."""
         i = 3 if self.b_estimated else 2
         nk, nd = self.k_coefficients.size, self.d_coefficients.size
-        return (float(v[0]), float(v[1]), float(v[2]) if self.b_estimated else self.b,
-                v[i:i + nk], v[i + nk:i + nk + nd])
+        return (
+            float(v[0]),
+            float(v[1]),
+            float(v[2]) if self.b_estimated else self.b,
+            v[i : i + nk],
+            v[i + nk : i + nk + nd],
+        )
 
     # -- the model over the workspace ------------------------------------------------------
 
@@ -297,10 +313,17 @@ class WorkspaceFit:
 
     def response(self, position_m: float, frequency_hz: ArrayLike) -> np.ndarray:
         """The model's cart velocity per torque at `position_m`, (m/s)/(N·m), as measured (with the lag)."""
-        h = two_mass_velocity_response(frequency_hz, m1=self.m1, m2=self.m2, k=float(self.k_of(position_m)),
-                                       d=float(self.d_of(position_m)), b=self.b,
-                                       torque_constant=self.torque_constant, delay_s=self.delay_s,
-                                       sample_rate_hz=self.sample_rate_hz)
+        h = two_mass_velocity_response(
+            frequency_hz,
+            m1=self.m1,
+            m2=self.m2,
+            k=float(self.k_of(position_m)),
+            d=float(self.d_of(position_m)),
+            b=self.b,
+            torque_constant=self.torque_constant,
+            delay_s=self.delay_s,
+            sample_rate_hz=self.sample_rate_hz,
+        )
         return h / (1.0 + 2j * np.pi * np.asarray(frequency_hz, dtype=float) * self.lag_s)
 
     def inside_range(self, position_m: float) -> bool:
@@ -335,37 +358,57 @@ class WorkspaceFit:
         out: dict[str, Any] = {
             "model": "two_mass_workspace",
             "torque_constant_n_per_nm": self.torque_constant,
-            "m1_kg": self.m1, "m1_std_kg": sd["m1"],
-            "m2_kg": self.m2, "m2_std_kg": sd["m2"],
-            "b_ns_per_m": self.b, "b_std_ns_per_m": sd.get("b"), "b_estimated": self.b_estimated,
+            "m1_kg": self.m1,
+            "m1_std_kg": sd["m1"],
+            "m2_kg": self.m2,
+            "m2_std_kg": sd["m2"],
+            "b_ns_per_m": self.b,
+            "b_std_ns_per_m": sd.get("b"),
+            "b_estimated": self.b_estimated,
             "k_n_per_m": _polynomial_dict(self.k_coefficients, self.k_std, "N/m"),
             "d_ns_per_m": _polynomial_dict(self.d_coefficients, self.d_std, "N*s/m"),
             "parameter_names": list(self.parameter_names),
             "correlation": self.correlation.tolist(),
             "position_range_m": list(self.position_range_m),
             "delay_s": self.delay_s,
-            "velocity_lag_s": self.lag_s, "velocity_lag_std_s": sd.get("lag"), "lag_estimated": self.lag_estimated,
+            "velocity_lag_s": self.lag_s,
+            "velocity_lag_std_s": sd.get("lag"),
+            "lag_estimated": self.lag_estimated,
             "sample_rate_hz": self.sample_rate_hz,
             "positions": [],
-            "converged": self.converged, "message": self.message, "evaluations": self.evaluations,
+            "converged": self.converged,
+            "message": self.message,
+            "evaluations": self.evaluations,
             "residual_rms": self.residual_rms,
             "warnings": list(self.warnings),
         }
         for pos in self.positions:
             mode = self.mode_at(pos.position_m)
-            out["positions"].append({
-                "position_m": pos.position_m, "frequency_hz": mode.frequency_hz,
-                "frequency_ci95_hz": mode.frequency_ci95_hz, "damping_ratio": mode.damping_ratio,
-                "k_n_per_m": self.k_of(pos.position_m), "d_ns_per_m": self.d_of(pos.position_m),
-                "bins": pos.bins, "fit_percent": pos.fit_percent, "relative_error_rms": pos.relative_error_rms,
-            })
+            out["positions"].append(
+                {
+                    "position_m": pos.position_m,
+                    "frequency_hz": mode.frequency_hz,
+                    "frequency_ci95_hz": mode.frequency_ci95_hz,
+                    "damping_ratio": mode.damping_ratio,
+                    "k_n_per_m": self.k_of(pos.position_m),
+                    "d_ns_per_m": self.d_of(pos.position_m),
+                    "bins": pos.bins,
+                    "fit_percent": pos.fit_percent,
+                    "relative_error_rms": pos.relative_error_rms,
+                }
+            )
         return out
 
 
 def _polynomial_dict(coefficients: np.ndarray, std: np.ndarray, unit: str) -> dict[str, Any]:
     units = [unit if j == 0 else f"{unit}^{j + 1}" for j in range(coefficients.size)]
-    return {"coefficients": coefficients.tolist(), "std": std.tolist(), "units": units,
-            "variable": "position_m", "form": "sum_j c_j * position_m**j"}
+    return {
+        "coefficients": coefficients.tolist(),
+        "std": std.tolist(),
+        "units": units,
+        "variable": "position_m",
+        "form": "sum_j c_j * position_m**j",
+    }
 
 
 def _mode(m1: float, m2: float, b: float, kc: np.ndarray, dc: np.ndarray, p: float) -> tuple[float, float]:
@@ -408,8 +451,10 @@ def _checked_inputs(positions_m, frequency_hz, frf, coherence, band_hz) -> tuple
         raise DataError(f"positions_m must be finite, got {positions.tolist()}")
     n = positions.size
     if not (len(frequency_hz) == len(frf) == len(coherence) == n):
-        raise DataError(f"one frequency grid, response and coherence per position: {n} positions, "
-                        f"{len(frequency_hz)} grids, {len(frf)} responses, {len(coherence)} coherences")
+        raise DataError(
+            f"one frequency grid, response and coherence per position: {n} positions, "
+            f"{len(frequency_hz)} grids, {len(frf)} responses, {len(coherence)} coherences"
+        )
     if np.unique(positions).size != n:
         raise DataError(f"positions_m must be distinct, got {positions.tolist()}")
     lo, hi = (0.0, math.inf) if band_hz is None else (float(band_hz[0]), float(band_hz[1]))
@@ -421,13 +466,25 @@ def _checked_inputs(positions_m, frequency_hz, frf, coherence, band_hz) -> tuple
         h = np.asarray(h, dtype=complex).ravel()
         c = np.asarray(c, dtype=float).ravel()
         if not f.size == h.size == c.size:
-            raise DataError(f"position {positions[i]:g} m: frequency_hz, frf and coherence differ in length "
-                            f"({f.size}, {h.size}, {c.size})")
-        keep = (np.isfinite(f) & (f > 0.0) & (f >= lo) & (f <= hi) & np.isfinite(h) & (h != 0.0)
-                & np.isfinite(c) & (c > 0.0))
+            raise DataError(
+                f"position {positions[i]:g} m: frequency_hz, frf and coherence differ in length "
+                f"({f.size}, {h.size}, {c.size})"
+            )
+        keep = (
+            np.isfinite(f)
+            & (f > 0.0)
+            & (f >= lo)
+            & (f <= hi)
+            & np.isfinite(h)
+            & (h != 0.0)
+            & np.isfinite(c)
+            & (c > 0.0)
+        )
         if not keep.any():
-            raise DataError(f"position {positions[i]:g} m: no usable frequency (finite, non-zero response with "
-                            f"coherence > 0 within {lo:g}..{hi:g} Hz)")
+            raise DataError(
+                f"position {positions[i]:g} m: no usable frequency (finite, non-zero response with "
+                f"coherence > 0 within {lo:g}..{hi:g} Hz)"
+            )
         order = np.argsort(f[keep], kind="stable")  # ascending: the weights average neighbouring bins
         used.append((f[keep][order], h[keep][order], np.clip(c[keep][order], _COH_MIN, _COH_MAX)))
     return positions, used
@@ -469,7 +526,7 @@ def _to_power_basis(n: int, centre: float, half: float) -> np.ndarray:
         e = np.zeros(n)
         e[j] = 1.0
         coef = P(e)(x_of_p).coef
-        T[:coef.size, j] = coef
+        T[: coef.size, j] = coef
     return T
 
 
@@ -487,8 +544,9 @@ def _pick_mode(f: np.ndarray, h: np.ndarray, coh: np.ndarray) -> tuple[float, fl
     return float(f[i]), float(f[j])
 
 
-def _start_values(positions, data: _Data, c: float, resonance_hz, k_degree: int, d_degree: int,
-                  centre: float, half: float) -> dict[str, Any]:
+def _start_values(
+    positions, data: _Data, c: float, resonance_hz, k_degree: int, d_degree: int, centre: float, half: float
+) -> dict[str, Any]:
     """Masses, ``k`` and ``d`` polynomials to start from, from each position's resonance and anti-resonance."""
     n = positions.size
     picked = [_pick_mode(*fhc) for fhc in data.per_position]
@@ -531,8 +589,15 @@ def _start_values(positions, data: _Data, c: float, resonance_hz, k_degree: int,
     a_d = np.zeros(d_degree + 1)
     a_d[0] = float(np.mean(d_at))
     f_low = float(min(f.min() for f, _, _ in data.per_position))
-    return {"m1": m1, "m2": m2, "a_k": a_k, "a_d": a_d, "k_ref": float(np.mean(k_at)),
-            "d_ref": float(np.mean(d_at)), "b_ref": total * 2.0 * np.pi * f_low}
+    return {
+        "m1": m1,
+        "m2": m2,
+        "a_k": a_k,
+        "a_d": a_d,
+        "k_ref": float(np.mean(k_at)),
+        "d_ref": float(np.mean(d_at)),
+        "b_ref": total * 2.0 * np.pi * f_low,
+    }
 
 
 #: Aliases either side of each frequency summed for the sampled response (the remainder after the
@@ -595,10 +660,15 @@ class _Core:
         s, z, num, den = self._parts(m1, m2, b, k, d)
         h = self.c * num / den
         total = m1 + m2
-        dlog = np.stack([-(m2 * s**3 + s * z) / den,
-                         s * s / num - (m1 * s**3 + s * z + b * s * s) / den,
-                         -num / den,
-                         1.0 / num - (total * s + b) / den], axis=-1)
+        dlog = np.stack(
+            [
+                -(m2 * s**3 + s * z) / den,
+                s * s / num - (m1 * s**3 + s * z + b * s * s) / den,
+                -num / den,
+                1.0 / num - (total * s + b) / den,
+            ],
+            axis=-1,
+        )
         dlog = np.concatenate((dlog, (dlog[..., 3] * s)[..., None]), axis=-1)  # d(H)/dd = s dH/dk
         grad = h[..., None] * dlog
         if self.fs is None:
@@ -619,8 +689,16 @@ class _Model:
     ``k`` and ``d`` in the scaled position ``x``.
     """
 
-    def __init__(self, data: _Data, core: _Core, nk: int, nd: int, fit_b: bool,
-                 refs: tuple[float, float, float], lag_ref: float | None = None):
+    def __init__(
+        self,
+        data: _Data,
+        core: _Core,
+        nk: int,
+        nd: int,
+        fit_b: bool,
+        refs: tuple[float, float, float],
+        lag_ref: float | None = None,
+    ):
         self.data, self.core, self.nk, self.nd, self.fit_b = data, core, nk, nd, fit_b
         self.k_ref, self.d_ref, self.b_ref = refs
         self.lag_ref = lag_ref  # None: no lag is estimated
@@ -635,8 +713,8 @@ class _Model:
         if self.fit_b:
             b = theta[2] * self.b_ref
             i = 3
-        a_k = theta[i:i + self.nk] * self.k_ref
-        a_d = theta[i + self.nk:i + self.nk + self.nd] * self.d_ref
+        a_k = theta[i : i + self.nk] * self.k_ref
+        a_d = theta[i + self.nk : i + self.nk + self.nd] * self.d_ref
         return m1, m2, b, a_k, a_d
 
     def lag(self, theta) -> float:
@@ -678,9 +756,11 @@ def _check_k_positive(kc: np.ndarray, lo: float, hi: float, when: str) -> None:
     k = np.polynomial.polynomial.polyval(grid, kc)
     if np.any(k <= 0.0):
         worst = int(np.argmin(k))
-        raise DataError(f"{when}, k(p) is not positive everywhere in the mapped range {lo:g}..{hi:g} m "
-                        f"(k({grid[worst]:.4g} m) = {k[worst]:.4g} N/m): the data do not support a stiffness "
-                        f"polynomial of this degree; lower k_degree or measure at more positions")
+        raise DataError(
+            f"{when}, k(p) is not positive everywhere in the mapped range {lo:g}..{hi:g} m "
+            f"(k({grid[worst]:.4g} m) = {k[worst]:.4g} N/m): the data do not support a stiffness "
+            f"polynomial of this degree; lower k_degree or measure at more positions"
+        )
 
 
 def fit_workspace_two_mass(
@@ -788,43 +868,67 @@ def fit_workspace_two_mass(
     positions, used = _checked_inputs(positions_m, frequency_hz, frf, coherence, band_hz)
     need = max(k_degree, d_degree) + 1
     if positions.size < need:
-        raise DataError(f"{positions.size} positions cannot determine the {need} coefficients of "
-                        f"{'k(p)' if k_degree >= d_degree else 'd(p)'} (k_degree={k_degree}, d_degree={d_degree}): "
-                        f"measure at {need} or more positions or lower the degree")
+        raise DataError(
+            f"{positions.size} positions cannot determine the {need} coefficients of "
+            f"{'k(p)' if k_degree >= d_degree else 'd(p)'} (k_degree={k_degree}, d_degree={d_degree}): "
+            f"measure at {need} or more positions or lower the degree"
+        )
     centre, half = _position_scale(positions)
     x_pos = (positions - centre) / half
     sizes = [f.size for f, _, _ in used]
     owner = np.repeat(np.arange(positions.size), sizes)
     if fs is not None and any(f.max() > fs / 2.0 for f, _, _ in used):
-        raise DataError(f"frequencies above the Nyquist frequency {fs / 2.0:g} Hz of sample_rate_hz = {fs:g} Hz; "
-                        "give the rate the responses were estimated at, or a band_hz below it")
-    data = _Data(frequency_hz=np.concatenate([f for f, _, _ in used]),
-                 h=np.concatenate([h for _, h, _ in used]),
-                 weight=np.concatenate([_weights(c_) for _, _, c_ in used]),
-                 x=x_pos[owner], per_position=used)
+        raise DataError(
+            f"frequencies above the Nyquist frequency {fs / 2.0:g} Hz of sample_rate_hz = {fs:g} Hz; "
+            "give the rate the responses were estimated at, or a band_hz below it"
+        )
+    data = _Data(
+        frequency_hz=np.concatenate([f for f, _, _ in used]),
+        h=np.concatenate([h for _, h, _ in used]),
+        weight=np.concatenate([_weights(c_) for _, _, c_ in used]),
+        x=x_pos[owner],
+        per_position=used,
+    )
     nk, nd = k_degree + 1, d_degree + 1
     n_par = 2 + int(bool(estimate_cart_damping)) + nk + nd + int(bool(estimate_lag))
     if 2 * data.frequency_hz.size <= n_par:
-        raise DataError(f"{data.frequency_hz.size} usable frequencies over all positions cannot determine "
-                        f"{n_par} parameters")
+        raise DataError(
+            f"{data.frequency_hz.size} usable frequencies over all positions cannot determine {n_par} parameters"
+        )
     lo, hi = float(positions.min()), float(positions.max())
 
     start = _start_values(positions, data, c, resonance_hz, k_degree, d_degree, centre, half)
     T_k = _to_power_basis(nk, centre, half)
     T_d = _to_power_basis(nd, centre, half)
-    _check_k_positive(T_k @ start["a_k"], lo, hi, "at the start values (a polynomial through each position's "
-                      "resonance)")
+    _check_k_positive(
+        T_k @ start["a_k"], lo, hi, "at the start values (a polynomial through each position's resonance)"
+    )
     core = _Core(data.frequency_hz, c, fs, delay)
     # the lag in units of a tenth of the period of the highest frequency used: order 1 where it matters
     lag_ref = 0.1 / float(data.frequency_hz.max()) if estimate_lag else None
-    model = _Model(data, core, nk, nd, bool(estimate_cart_damping), (start["k_ref"], start["d_ref"], start["b_ref"]),
-                   lag_ref)
-    theta0 = np.concatenate(([math.log(start["m1"]), math.log(start["m2"])],
-                             [0.0] if estimate_cart_damping else [],
-                             start["a_k"] / start["k_ref"], start["a_d"] / start["d_ref"],
-                             [0.0] if estimate_lag else []))
-    result = least_squares(model.residuals, theta0, jac=model.jacobian, method="lm", x_scale="jac",
-                           max_nfev=int(max_evaluations), xtol=1e-12, ftol=1e-12, gtol=1e-12)
+    model = _Model(
+        data, core, nk, nd, bool(estimate_cart_damping), (start["k_ref"], start["d_ref"], start["b_ref"]), lag_ref
+    )
+    theta0 = np.concatenate(
+        (
+            [math.log(start["m1"]), math.log(start["m2"])],
+            [0.0] if estimate_cart_damping else [],
+            start["a_k"] / start["k_ref"],
+            start["a_d"] / start["d_ref"],
+            [0.0] if estimate_lag else [],
+        )
+    )
+    result = least_squares(
+        model.residuals,
+        theta0,
+        jac=model.jacobian,
+        method="lm",
+        x_scale="jac",
+        max_nfev=int(max_evaluations),
+        xtol=1e-12,
+        ftol=1e-12,
+        gtol=1e-12,
+    )
     theta = result.x
     m1, m2, b, a_k, a_d = model.unpack(theta)
     lag = model.lag(theta)
@@ -844,19 +948,31 @@ def fit_workspace_two_mass(
     if estimate_cart_damping:
         G[2, 2] = start["b_ref"]
         i = 3
-    G[i:i + nk, i:i + nk] = T_k * start["k_ref"]
-    G[i + nk:i + nk + nd, i + nk:i + nk + nd] = T_d * start["d_ref"]
+    G[i : i + nk, i : i + nk] = T_k * start["k_ref"]
+    G[i + nk : i + nk + nd, i + nk : i + nk + nd] = T_d * start["d_ref"]
     if lag_ref is not None:
         G[-1, -1] = lag_ref
     covariance = G @ cov_theta @ G.T
-    names = ("m1", "m2") + (("b",) if estimate_cart_damping else ()) + tuple(f"k{j}" for j in range(nk)) \
-        + tuple(f"d{j}" for j in range(nd)) + (("lag",) if estimate_lag else ())
+    names = (
+        ("m1", "m2")
+        + (("b",) if estimate_cart_damping else ())
+        + tuple(f"k{j}" for j in range(nk))
+        + tuple(f"d{j}" for j in range(nd))
+        + (("lag",) if estimate_lag else ())
+    )
 
     per_position = []
     for p, (f, h, _) in zip(positions, used, strict=True):
         h_model = two_mass_velocity_response(
-            f, m1=m1, m2=m2, b=b, torque_constant=c, delay_s=delay, sample_rate_hz=fs,
-            k=float(np.polynomial.polynomial.polyval(p, k_coef)), d=float(np.polynomial.polynomial.polyval(p, d_coef))
+            f,
+            m1=m1,
+            m2=m2,
+            b=b,
+            torque_constant=c,
+            delay_s=delay,
+            sample_rate_hz=fs,
+            k=float(np.polynomial.polynomial.polyval(p, k_coef)),
+            d=float(np.polynomial.polynomial.polyval(p, d_coef)),
         ) / (1.0 + 2j * np.pi * f * lag)
         spread = np.linalg.norm(h - h.mean())
         fit_pct = 100.0 * (1.0 - np.linalg.norm(h - h_model) / spread) if spread > 0 else math.nan
@@ -866,20 +982,38 @@ def fit_workspace_two_mass(
     warnings = []
     converged = bool(result.status > 0)
     if not converged:
-        warnings.append(f"the joint fit stopped before converging after {result.nfev} evaluations "
-                        f"({result.message}); its parameters are the last iterate")
+        warnings.append(
+            f"the joint fit stopped before converging after {result.nfev} evaluations "
+            f"({result.message}); its parameters are the last iterate"
+        )
     d_grid = np.polynomial.polynomial.polyval(np.linspace(lo, hi, _RANGE_POINTS), d_coef)
     if np.any(d_grid < 0.0):
-        warnings.append(f"d(p) is negative somewhere in {lo:g}..{hi:g} m (min {d_grid.min():.4g} N*s/m): the damping "
-                        "is poorly determined; lower d_degree")
+        warnings.append(
+            f"d(p) is negative somewhere in {lo:g}..{hi:g} m (min {d_grid.min():.4g} N*s/m): the damping "
+            "is poorly determined; lower d_degree"
+        )
     if m1 <= 0.0 or m2 <= 0.0:  # pragma: no cover - exp() keeps them positive
         raise DataError("the joint fit gave a non-positive mass")
     return WorkspaceFit(
-        torque_constant=c, m1=m1, m2=m2, b=b, k_coefficients=k_coef, d_coefficients=d_coef,
-        parameter_names=names, covariance=covariance, position_range_m=(lo, hi), positions=tuple(per_position),
-        converged=converged, message=str(result.message), evaluations=int(result.nfev),
-        residual_rms=float(np.sqrt(np.mean(result.fun**2))), delay_s=delay, lag_s=lag, sample_rate_hz=fs,
-        warnings=tuple(warnings))
+        torque_constant=c,
+        m1=m1,
+        m2=m2,
+        b=b,
+        k_coefficients=k_coef,
+        d_coefficients=d_coef,
+        parameter_names=names,
+        covariance=covariance,
+        position_range_m=(lo, hi),
+        positions=tuple(per_position),
+        converged=converged,
+        message=str(result.message),
+        evaluations=int(result.nfev),
+        residual_rms=float(np.sqrt(np.mean(result.fun**2))),
+        delay_s=delay,
+        lag_s=lag,
+        sample_rate_hz=fs,
+        warnings=tuple(warnings),
+    )
 
 
 def fit_workspace_responses(positions_m: ArrayLike, responses: Sequence[Any], **options: Any) -> WorkspaceFit:
@@ -895,8 +1029,13 @@ def fit_workspace_responses(positions_m: ArrayLike, responses: Sequence[Any], **
     **options
         The keyword arguments of :func:`fit_workspace_two_mass` (``torque_constant`` is required).
     """
-    return fit_workspace_two_mass(positions_m, [r.frequency_hz for r in responses], [r.response for r in responses],
-                                  [r.coherence for r in responses], **options)
+    return fit_workspace_two_mass(
+        positions_m,
+        [r.frequency_hz for r in responses],
+        [r.response for r in responses],
+        [r.coherence for r in responses],
+        **options,
+    )
 
 
 # --------------------------------------------------------------------------- comparison
@@ -932,14 +1071,21 @@ class ModeComparison:
     within_interval: bool
 
     def as_dict(self) -> dict[str, Any]:
-        return {"position_m": self.position_m, "joint_frequency_hz": self.joint_frequency_hz,
-                "joint_frequency_ci95_hz": self.joint_ci95_hz, "local_frequency_hz": self.local_frequency_hz,
-                "local_frequency_ci95_hz": self.local_ci95_hz, "difference_percent": self.difference_percent,
-                "combined_ci95_hz": self.combined_ci95_hz, "within_interval": self.within_interval}
+        return {
+            "position_m": self.position_m,
+            "joint_frequency_hz": self.joint_frequency_hz,
+            "joint_frequency_ci95_hz": self.joint_ci95_hz,
+            "local_frequency_hz": self.local_frequency_hz,
+            "local_frequency_ci95_hz": self.local_ci95_hz,
+            "difference_percent": self.difference_percent,
+            "combined_ci95_hz": self.combined_ci95_hz,
+            "within_interval": self.within_interval,
+        }
 
 
-def compare_modes(fit: WorkspaceFit, positions_m: ArrayLike, frequency_hz: ArrayLike,
-                  frequency_ci95_hz: ArrayLike | None = None) -> list[ModeComparison]:
+def compare_modes(
+    fit: WorkspaceFit, positions_m: ArrayLike, frequency_hz: ArrayLike, frequency_ci95_hz: ArrayLike | None = None
+) -> list[ModeComparison]:
     """The joint model's mode against per-position estimates of the mode frequency.
 
     Parameters
@@ -960,11 +1106,11 @@ def compare_modes(fit: WorkspaceFit, positions_m: ArrayLike, frequency_hz: Array
     """
     p = np.asarray(positions_m, dtype=float).ravel()
     f = np.asarray(frequency_hz, dtype=float).ravel()
-    ci = np.full(p.size, math.nan) if frequency_ci95_hz is None else np.asarray(frequency_ci95_hz,
-                                                                                  dtype=float).ravel()
+    ci = np.full(p.size, math.nan) if frequency_ci95_hz is None else np.asarray(frequency_ci95_hz, dtype=float).ravel()
     if not p.size == f.size == ci.size:
-        raise DataError(f"positions_m, frequency_hz and frequency_ci95_hz differ in length ({p.size}, {f.size}, "
-                        f"{ci.size})")
+        raise DataError(
+            f"positions_m, frequency_hz and frequency_ci95_hz differ in length ({p.size}, {f.size}, {ci.size})"
+        )
     if not np.all(np.isfinite(f) & (f > 0.0)):
         raise DataError(f"frequency_hz must be positive and finite, got {f.tolist()}")
     out = []
@@ -972,6 +1118,16 @@ def compare_modes(fit: WorkspaceFit, positions_m: ArrayLike, frequency_hz: Array
         mode = fit.mode_at(float(pos))
         combined = math.hypot(mode.frequency_ci95_hz, 0.0 if not math.isfinite(ci_local) else float(ci_local))
         diff = mode.frequency_hz - float(f_local)
-        out.append(ModeComparison(float(pos), mode.frequency_hz, mode.frequency_ci95_hz, float(f_local),
-                                  float(ci_local), 100.0 * diff / float(f_local), combined, abs(diff) <= combined))
+        out.append(
+            ModeComparison(
+                float(pos),
+                mode.frequency_hz,
+                mode.frequency_ci95_hz,
+                float(f_local),
+                float(ci_local),
+                100.0 * diff / float(f_local),
+                combined,
+                abs(diff) <= combined,
+            )
+        )
     return out

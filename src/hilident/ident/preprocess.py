@@ -76,23 +76,15 @@ def check_signals(
         if x.ndim != 1:
             raise DataError(f"signal {name!r} must be 1-D, got shape {x.shape}")
         if x.size < min_samples:
-            raise DataError(
-                f"signal {name!r} has {x.size} samples, at least {min_samples} needed"
-            )
+            raise DataError(f"signal {name!r} has {x.size} samples, at least {min_samples} needed")
         bad = ~np.isfinite(x)
         if bad.any():
             idx = int(np.flatnonzero(bad)[0])
-            raise DataError(
-                f"signal {name!r} has {int(bad.sum())} non-finite samples "
-                f"(first at index {idx}: {x[idx]})"
-            )
+            raise DataError(f"signal {name!r} has {int(bad.sum())} non-finite samples (first at index {idx}: {x[idx]})")
         if first_name is None:
             first_name = name
         elif x.size != out[first_name].size:
-            raise DataError(
-                f"signal {name!r} has {x.size} samples but {first_name!r} has "
-                f"{out[first_name].size}"
-            )
+            raise DataError(f"signal {name!r} has {x.size} samples but {first_name!r} has {out[first_name].size}")
         if np.ptp(x) == 0.0:
             raise DataError(f"signal {name!r} is constant ({x[0]}); it carries no information")
         out[name] = x
@@ -196,12 +188,12 @@ def _remove_line(x: np.ndarray) -> np.ndarray:
         return t
 
     # sum of t^2 over the centred axis: n (n^2 - 1) / 12
-    slope = sum(float(x[a:a + _LINE_BLOCK] @ time_axis(a)) for a in starts) / (n * (n * n - 1.0) / 12.0)
+    slope = sum(float(x[a : a + _LINE_BLOCK] @ time_axis(a)) for a in starts) / (n * (n * n - 1.0) / 12.0)
     out = x - x.mean()
     for a in starts:
         line = time_axis(a)
         line *= slope
-        out[a:a + _LINE_BLOCK] -= line
+        out[a : a + _LINE_BLOCK] -= line
         del line  # one block at a time
     return out
 
@@ -217,9 +209,7 @@ def _check_cutoff(key: str, cutoff_hz: float, fs: float) -> float:
     fc = float(cutoff_hz)
     nyquist = fs / 2.0
     if not np.isfinite(fc) or fc <= 0.0 or fc >= nyquist:
-        raise ConfigError(
-            key, f"must lie in (0, {nyquist:g}) Hz (below Nyquist), got {cutoff_hz!r}"
-        )
+        raise ConfigError(key, f"must lie in (0, {nyquist:g}) Hz (below Nyquist), got {cutoff_hz!r}")
     return fc
 
 
@@ -237,9 +227,7 @@ def _zero_phase(sos: np.ndarray, x: ArrayLike) -> np.ndarray:
         raise DataError(f"signal of {x.shape[-1]} samples is too short to filter: {exc}") from None
 
 
-def lowpass(
-    x: ArrayLike, cutoff_hz: float, sample_rate_hz: float, order: int = 4
-) -> np.ndarray:
+def lowpass(x: ArrayLike, cutoff_hz: float, sample_rate_hz: float, order: int = 4) -> np.ndarray:
     """Zero-phase Butterworth low-pass.
 
     The filter runs forward and backward (``sosfiltfilt``), so the phase is zero
@@ -263,9 +251,7 @@ def lowpass(
     return _zero_phase(sos, x)
 
 
-def highpass(
-    x: ArrayLike, cutoff_hz: float, sample_rate_hz: float, order: int = 4
-) -> np.ndarray:
+def highpass(x: ArrayLike, cutoff_hz: float, sample_rate_hz: float, order: int = 4) -> np.ndarray:
     """Zero-phase Butterworth high-pass; see :func:`lowpass` for the arguments."""
     fs = _check_rate(sample_rate_hz)
     fc = _check_cutoff("cutoff_hz", cutoff_hz, fs)

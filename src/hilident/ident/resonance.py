@@ -330,8 +330,18 @@ def _refine(f, H, coh, i, df, n_averages=1):
                 # each bin against its own scatter: the low-coherence bins of a nearby
                 # anti-resonance count little; the floor stands for model error
                 ratio = float(np.sqrt(np.mean((err_db / np.maximum(sigma, _MODEL_FLOOR_DB)) ** 2)))
-            return Resonance(fn, zeta, peak_db, float(coh[i]), "fit", _Z95 * fit.frequency_std_hz,
-                             _Z95 * fit.damping_std, fit_db, noise_db, local_fit_ratio=ratio)
+            return Resonance(
+                fn,
+                zeta,
+                peak_db,
+                float(coh[i]),
+                "fit",
+                _Z95 * fit.frequency_std_hz,
+                _Z95 * fit.damping_std,
+                fit_db,
+                noise_db,
+                local_fit_ratio=ratio,
+            )
     peak_db = float(10.0 * np.log10(mag2[i]))
     if half_width is not None:
         return Resonance(float(fp), float(half_width / fp), peak_db, float(coh[i]), "half_power")
@@ -349,11 +359,11 @@ def _stands_out(mag_db: np.ndarray, i: int, coh: float, n_averages: int) -> tupl
     scatter forms local maxima a few deviations high, resonances far more.
     """
     below = np.flatnonzero(mag_db[:i] <= mag_db[i] - 3.0)
-    above = np.flatnonzero(mag_db[i + 1:] <= mag_db[i] - 3.0)
+    above = np.flatnonzero(mag_db[i + 1 :] <= mag_db[i] - 3.0)
     left = i - below[-1] if below.size else i
     right = above[0] + 1 if above.size else mag_db.size - 1 - i
     reach = max(10, 2 * (left + right))
-    window = mag_db[max(0, i - reach): i + reach + 1]
+    window = mag_db[max(0, i - reach) : i + reach + 1]
     background = np.median(window[np.isfinite(window)])
     sigma_db = float(_noise_db(np.array([coh]), n_averages)[0])
     return float(mag_db[i] - background), _NOISE_SIGMAS * sigma_db
@@ -479,9 +489,7 @@ def screen_resonances(
 
 def _check_screen_limits(coherence_threshold: float | None, min_prominence_db: float, max_count: int) -> None:
     if coherence_threshold is not None and not 0.0 <= coherence_threshold <= 1.0:
-        raise ConfigError(
-            "coherence_threshold", f"must lie in [0, 1] or be None, got {coherence_threshold!r}"
-        )
+        raise ConfigError("coherence_threshold", f"must lie in [0, 1] or be None, got {coherence_threshold!r}")
     if not min_prominence_db >= 0.0:
         raise ConfigError("min_prominence_db", f"must be >= 0 dB, got {min_prominence_db!r}")
     if int(max_count) != max_count or max_count < 1:
@@ -505,13 +513,16 @@ def _doubt(mag_db: np.ndarray, i: int, c: float, coherence_threshold: float | No
     if coherence_threshold is None:
         return ""
     if c < coherence_threshold:
-        return (f"coherence {c:.3f} around the peak is under identification.coherence_threshold "
-                f"= {coherence_threshold:g}")
+        return (
+            f"coherence {c:.3f} around the peak is under identification.coherence_threshold = {coherence_threshold:g}"
+        )
     height, needed = _stands_out(mag_db, i, c, n_averages)
     if height < needed:
-        return (f"rises {height:.1f} dB over its surroundings, within the scatter of the estimate "
-                f"(needs {needed:.1f} dB: {_NOISE_SIGMAS:g} standard deviations at coherence {c:.3f} "
-                f"over {n_averages} averages)")
+        return (
+            f"rises {height:.1f} dB over its surroundings, within the scatter of the estimate "
+            f"(needs {needed:.1f} dB: {_NOISE_SIGMAS:g} standard deviations at coherence {c:.3f} "
+            f"over {n_averages} averages)"
+        )
     return ""
 
 

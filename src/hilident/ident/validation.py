@@ -160,9 +160,7 @@ def residual_analysis(
     else:
         uu = np.asarray(u, dtype=np.float64)
         if uu.shape != e.shape or not np.all(np.isfinite(uu)):
-            raise DataError(
-                f"u must be finite with the residuals' shape {e.shape}, got {uu.shape}"
-            )
+            raise DataError(f"u must be finite with the residuals' shape {e.shape}, got {uu.shape}")
         uu = uu - uu.mean()
         if not np.any(uu):
             raise DataError("input u is constant; cross-correlation undefined")
@@ -180,9 +178,7 @@ def residual_analysis(
     )
 
 
-def overfitting_warning(
-    fit_estimation: float, fit_validation: float, drop_percent: float = 10.0
-) -> str | None:
+def overfitting_warning(fit_estimation: float, fit_validation: float, drop_percent: float = 10.0) -> str | None:
     """A warning when the validation fit is much worse than the estimation fit.
 
     Parameters

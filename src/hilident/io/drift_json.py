@@ -34,21 +34,43 @@ DRIFT_JSON = "drift.json"
 
 
 def _line(trend: SeriesTrend) -> dict[str, Any]:
-    return {"n": trend.n, "reference": trend.reference, "slope_per_day": trend.slope_per_day,
-            "slope_stderr_per_day": trend.slope_stderr_per_day, "residual_std": trend.residual_std,
-            "rate_percent_per_day": trend.rate_percent_per_day,
-            "rate_ci95_percent_per_day": trend.rate_ci95_percent_per_day, "p_value": trend.p_value}
+    return {
+        "n": trend.n,
+        "reference": trend.reference,
+        "slope_per_day": trend.slope_per_day,
+        "slope_stderr_per_day": trend.slope_stderr_per_day,
+        "residual_std": trend.residual_std,
+        "rate_percent_per_day": trend.rate_percent_per_day,
+        "rate_ci95_percent_per_day": trend.rate_ci95_percent_per_day,
+        "p_value": trend.p_value,
+    }
 
 
 def _axis(t: DriftTrend) -> dict[str, Any]:
     return {
-        "n": t.n, "n_failed": t.n_failed, "n_unusable": t.n_unusable, "first_utc": t.first_utc,
-        "last_utc": t.last_utc, "span_days": t.span_days, "reference_hz": t.reference_hz,
-        "rate_percent_per_day": t.rate_percent_per_day, "rate_ci95_percent_per_day": t.rate_ci95_percent_per_day,
-        "p_value": t.p_value, "flagged": t.flagged, "verdict": t.verdict,
+        "n": t.n,
+        "n_failed": t.n_failed,
+        "n_unusable": t.n_unusable,
+        "first_utc": t.first_utc,
+        "last_utc": t.last_utc,
+        "span_days": t.span_days,
+        "reference_hz": t.reference_hz,
+        "rate_percent_per_day": t.rate_percent_per_day,
+        "rate_ci95_percent_per_day": t.rate_ci95_percent_per_day,
+        "p_value": t.p_value,
+        "flagged": t.flagged,
+        "verdict": t.verdict,
         "damping": _line(t.damping),
-        "outliers": [{"quantity": o.quantity, "time_utc": o.time_utc, "path": o.path, "value": o.value,
-                      "robust_sigmas": o.robust_sigmas} for o in t.outliers],
+        "outliers": [
+            {
+                "quantity": o.quantity,
+                "time_utc": o.time_utc,
+                "path": o.path,
+                "value": o.value,
+                "robust_sigmas": o.robust_sigmas,
+            }
+            for o in t.outliers
+        ],
     }
 
 

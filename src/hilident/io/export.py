@@ -44,8 +44,19 @@ import numpy as np
 
 from hilident.errors import DataError, HilidentError, UsageError
 
-__all__ = ["FORMATS", "export_document", "load_summary", "model_response", "run_export", "to_control",
-           "to_mat_layout", "control_script", "write_control", "write_json", "write_mat"]
+__all__ = [
+    "FORMATS",
+    "export_document",
+    "load_summary",
+    "model_response",
+    "run_export",
+    "to_control",
+    "to_mat_layout",
+    "control_script",
+    "write_control",
+    "write_json",
+    "write_mat",
+]
 
 #: ``--format`` choices and the file each writes by default in the exported folder.
 FORMATS = {"json": "model.json", "mat": "model.mat", "python-control": "model_control.py"}
@@ -54,12 +65,31 @@ FORMATS = {"json": "model.json", "mat": "model.mat", "python-control": "model_co
 FORMAT_VERSION = 1
 
 #: Units of a recording channel by the suffix of its name.
-_CHANNEL_UNITS = {"_mps2": "m/s^2", "_mps": "m/s", "_m": "m", "_nm": "N*m", "_rad_s": "rad/s", "_rad": "rad",
-                  "_n": "N", "_a": "A"}
+_CHANNEL_UNITS = {
+    "_mps2": "m/s^2",
+    "_mps": "m/s",
+    "_m": "m",
+    "_nm": "N*m",
+    "_rad_s": "rad/s",
+    "_rad": "rad",
+    "_n": "N",
+    "_a": "A",
+}
 
 #: Units of the grey-box parameters; the force in the regression is ``c * torque``, N.
-_GREYBOX_UNITS = {"M": "kg", "m": "kg", "b": "N*s/m", "k": "N/m", "Fv": "N/(m/s)", "Fv+": "N/(m/s)",
-                  "Fv-": "N/(m/s)", "Fc": "N", "Fc+": "N", "Fc-": "N", "offset": "N"}
+_GREYBOX_UNITS = {
+    "M": "kg",
+    "m": "kg",
+    "b": "N*s/m",
+    "k": "N/m",
+    "Fv": "N/(m/s)",
+    "Fv+": "N/(m/s)",
+    "Fv-": "N/(m/s)",
+    "Fc": "N",
+    "Fc+": "N",
+    "Fc-": "N",
+    "offset": "N",
+}
 
 _MATLAB_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,62}$")
 
@@ -82,8 +112,10 @@ def load_summary(source: str | Path) -> tuple[dict, Path]:
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise DataError(f"{path}: cannot be read as a summary.json: {exc}") from None
     if not isinstance(summary, dict) or not ({"plant_model", "notch_filters", "upload"} & set(summary)):
-        raise DataError(f"{path}: not the summary.json of a hilident run, identify or upload "
-                        "(none of plant_model, notch_filters, upload)")
+        raise DataError(
+            f"{path}: not the summary.json of a hilident run, identify or upload "
+            "(none of plant_model, notch_filters, upload)"
+        )
     return summary, path
 
 
@@ -112,8 +144,10 @@ def _polynomials(plant_model: dict, where: str) -> tuple[np.ndarray, np.ndarray]
     if not (num.size and den.size and np.all(np.isfinite(num)) and np.all(np.isfinite(den)) and den[0] != 0):
         raise DataError(f"{where}: plant_model.num / plant_model.den are empty, not finite or den[0] is 0")
     if num.size > den.size:
-        raise DataError(f"{where}: plant_model is improper (degree of num {num.size - 1} > den {den.size - 1}); "
-                        "no state space exists")
+        raise DataError(
+            f"{where}: plant_model is improper (degree of num {num.size - 1} > den {den.size - 1}); "
+            "no state space exists"
+        )
     return num, den
 
 
@@ -164,8 +198,10 @@ def _output_channel(summary: dict) -> tuple[str | None, str | None]:
         except (HilidentError, OSError):  # a moved or changed config loses the output's name, not the export
             channel = None
     if channel and unit is None:
-        unit = next((u for suffix, u in sorted(_CHANNEL_UNITS.items(), key=lambda kv: -len(kv[0]))
-                     if channel.endswith(suffix)), None)
+        unit = next(
+            (u for suffix, u in sorted(_CHANNEL_UNITS.items(), key=lambda kv: -len(kv[0])) if channel.endswith(suffix)),
+            None,
+        )
     return channel, unit
 
 
@@ -188,17 +224,36 @@ def _plant_part(summary: dict, plant_summary: dict, rate_hz: float | None) -> di
     out_unit = out_unit or "unknown"
     ss = signal.tf2ss(num, den)
     part: dict[str, Any] = {
-        "input": "torque", "input_unit": "N*m", "output": channel, "output_unit": out_unit,
-        "band_hz": pm.get("band_hz"), "fit_db_rms": pm.get("fit_db_rms"), "phase_rms_deg": pm.get("phase_rms_deg"),
-        "n_num": pm.get("n_num"), "n_den": pm.get("n_den"), "integrators": pm.get("integrators"),
-        "continuous": {"tf": {"num": num.tolist(), "den": den.tolist()}, "ss": _matrices(ss),
-                       "zpk": {"zeros_rad_s": pm.get("zeros_rad_s"), "poles_rad_s": pm.get("poles_rad_s"),
-                               "gain": _leading(num) / float(den[0])}},
-        "units": {"response": f"({out_unit})/(N*m)", "s": "rad/s", "tf": "num, den: polynomials in s (rad/s), "
-                  "highest power first", "ss": "x' = A x + B u, y = C x + D u; u torque N*m, y output, t in s",
-                  "zpk": "zeros, poles: rows [re, im], rad/s; gain: leading coefficient of num over that of den",
-                  "discrete": "x[k+1] = A x[k] + B u[k]; num, den polynomials in z^-1 order (scipy), dt_s s",
-                  "band_hz": "Hz", "fit_db_rms": "dB", "phase_rms_deg": "degree"},
+        "input": "torque",
+        "input_unit": "N*m",
+        "output": channel,
+        "output_unit": out_unit,
+        "band_hz": pm.get("band_hz"),
+        "fit_db_rms": pm.get("fit_db_rms"),
+        "phase_rms_deg": pm.get("phase_rms_deg"),
+        "n_num": pm.get("n_num"),
+        "n_den": pm.get("n_den"),
+        "integrators": pm.get("integrators"),
+        "continuous": {
+            "tf": {"num": num.tolist(), "den": den.tolist()},
+            "ss": _matrices(ss),
+            "zpk": {
+                "zeros_rad_s": pm.get("zeros_rad_s"),
+                "poles_rad_s": pm.get("poles_rad_s"),
+                "gain": _leading(num) / float(den[0]),
+            },
+        },
+        "units": {
+            "response": f"({out_unit})/(N*m)",
+            "s": "rad/s",
+            "tf": "num, den: polynomials in s (rad/s), highest power first",
+            "ss": "x' = A x + B u, y = C x + D u; u torque N*m, y output, t in s",
+            "zpk": "zeros, poles: rows [re, im], rad/s; gain: leading coefficient of num over that of den",
+            "discrete": "x[k+1] = A x[k] + B u[k]; num, den polynomials in z^-1 order (scipy), dt_s s",
+            "band_hz": "Hz",
+            "fit_db_rms": "dB",
+            "phase_rms_deg": "degree",
+        },
     }
     rate, rate_source = _loop_rate(summary, plant_summary, rate_hz)
     if rate is None:
@@ -208,9 +263,14 @@ def _plant_part(summary: dict, plant_summary: dict, rate_hz: float | None) -> di
     dt = 1.0 / rate
     num_d, den_d, _ = signal.cont2discrete((num, den), dt, method="zoh")
     a, b, c, d, _ = signal.cont2discrete(ss, dt, method="zoh")
-    part["discrete"] = {"sample_rate_hz": rate, "dt_s": dt, "method": "zoh", "rate_source": rate_source,
-                        "tf": {"num": np.ravel(num_d).tolist(), "den": np.ravel(den_d).tolist()},
-                        "ss": _matrices((a, b, c, d))}
+    part["discrete"] = {
+        "sample_rate_hz": rate,
+        "dt_s": dt,
+        "method": "zoh",
+        "rate_source": rate_source,
+        "tf": {"num": np.ravel(num_d).tolist(), "den": np.ravel(den_d).tolist()},
+        "ss": _matrices((a, b, c, d)),
+    }
     return part
 
 
@@ -219,26 +279,60 @@ def _greybox_part(summary: dict) -> dict | None:
     if not isinstance(model, dict) or not model.get("params"):
         return None
     params = model["params"]
-    return {"kind": model.get("kind"), "params": params, "stderr": model.get("stderr", {}),
-            "relative_stderr_percent": model.get("relative_stderr_percent", {}),
-            "fit_percent": model.get("fit_percent"),
-            "units": {**{name: _GREYBOX_UNITS.get(name, "unknown") for name in params},
-                      "stderr": "as the parameter", "relative_stderr_percent": "%", "fit_percent": "%"}}
+    return {
+        "kind": model.get("kind"),
+        "params": params,
+        "stderr": model.get("stderr", {}),
+        "relative_stderr_percent": model.get("relative_stderr_percent", {}),
+        "fit_percent": model.get("fit_percent"),
+        "units": {
+            **{name: _GREYBOX_UNITS.get(name, "unknown") for name in params},
+            "stderr": "as the parameter",
+            "relative_stderr_percent": "%",
+            "fit_percent": "%",
+        },
+    }
 
 
 def _notch_parts(summary: dict) -> dict:
-    designed = [{"slot": n.get("slot"), "center_hz": n.get("center_hz"), "width_hz": n.get("width_hz"),
-                 "depth_db": n.get("depth_db"), "sample_rate_hz": n.get("sample_rate_hz"), "b": n.get("b"),
-                 "a": n.get("a")} for n in summary.get("notch_filters") or []]
+    designed = [
+        {
+            "slot": n.get("slot"),
+            "center_hz": n.get("center_hz"),
+            "width_hz": n.get("width_hz"),
+            "depth_db": n.get("depth_db"),
+            "sample_rate_hz": n.get("sample_rate_hz"),
+            "b": n.get("b"),
+            "a": n.get("a"),
+        }
+        for n in summary.get("notch_filters") or []
+    ]
     rate_of_slot = {n["slot"]: n["sample_rate_hz"] for n in designed}
     device_rate = (summary.get("device") or {}).get("loop_rate_hz")
-    stored = [{"slot": s.get("slot"), "sample_rate_hz": rate_of_slot.get(s.get("slot"), device_rate),
-               "b": s.get("readback_b"), "a": s.get("readback_a"), "matches": s.get("matches")}
-              for s in (summary.get("upload") or {}).get("slots") or [] if s.get("readback_b") is not None]
-    return {"designed": designed, "stored": stored,
-            "units": {"b": "numerator (b0, b1, b2) in z^-1, scipy convention, dimensionless",
-                      "a": "denominator (1, a1, a2) in z^-1", "sample_rate_hz": "Hz", "center_hz": "Hz",
-                      "width_hz": "Hz", "depth_db": "dB", "slot": "filter slot index"}}
+    stored = [
+        {
+            "slot": s.get("slot"),
+            "sample_rate_hz": rate_of_slot.get(s.get("slot"), device_rate),
+            "b": s.get("readback_b"),
+            "a": s.get("readback_a"),
+            "matches": s.get("matches"),
+        }
+        for s in (summary.get("upload") or {}).get("slots") or []
+        if s.get("readback_b") is not None
+    ]
+    return {
+        "designed": designed,
+        "stored": stored,
+        "units": {
+            "b": "numerator (b0, b1, b2) in z^-1, scipy convention, dimensionless",
+            "a": "denominator (1, a1, a2) in z^-1",
+            "sample_rate_hz": "Hz",
+            "center_hz": "Hz",
+            "width_hz": "Hz",
+            "depth_db": "dB",
+            "slot": "filter slot index",
+        },
+    }
 
 
 def export_document(summary: dict, rate_hz: float | None = None, path: Path | None = None) -> dict:
@@ -262,8 +356,10 @@ def export_document(summary: dict, rate_hz: float | None = None, path: Path | No
     kind = summary.get("command") or ("identify" if "data" in summary else "run")
     plant_summary = _plant_source(summary, path)
     return {
-        "format": "hilident-model-export", "format_version": FORMAT_VERSION,
-        "hilident_version": summary.get("hilident_version"), "source": str(path) if path else None,
+        "format": "hilident-model-export",
+        "format_version": FORMAT_VERSION,
+        "hilident_version": summary.get("hilident_version"),
+        "source": str(path) if path else None,
         "source_kind": kind,
         "plant": _plant_part(summary, plant_summary, rate_hz) if plant_summary else None,
         "greybox": _greybox_part(summary) or (_greybox_part(plant_summary) if plant_summary else None),
@@ -312,8 +408,9 @@ def _records_struct(records: list[dict], vector_keys: tuple[str, ...], scalar_ke
     for key in vector_keys:
         out[key] = np.array([r[key] for r in records], dtype=float).reshape(len(records), 3)
     for key in scalar_keys:
-        out[key] = np.array([np.nan if r.get(key) is None else float(r[key]) for r in records],
-                            dtype=float).reshape(len(records), 1)
+        out[key] = np.array([np.nan if r.get(key) is None else float(r[key]) for r in records], dtype=float).reshape(
+            len(records), 1
+        )
     return out
 
 
@@ -326,13 +423,19 @@ def to_mat_layout(doc: dict) -> dict[str, Any]:
     """
     notches = doc["notches"]
     out: dict[str, Any] = {
-        "info": _mat_value({k: doc[k] for k in ("format", "format_version", "hilident_version", "source",
-                                                 "source_kind")}),
-        "notches_designed": {**_records_struct(notches["designed"], ("b", "a"),
-                                               ("slot", "center_hz", "width_hz", "depth_db", "sample_rate_hz")),
-                             "units": _mat_value(notches["units"])},
-        "notches_stored": {**_records_struct(notches["stored"], ("b", "a"), ("slot", "sample_rate_hz", "matches")),
-                           "units": _mat_value(notches["units"])},
+        "info": _mat_value(
+            {k: doc[k] for k in ("format", "format_version", "hilident_version", "source", "source_kind")}
+        ),
+        "notches_designed": {
+            **_records_struct(
+                notches["designed"], ("b", "a"), ("slot", "center_hz", "width_hz", "depth_db", "sample_rate_hz")
+            ),
+            "units": _mat_value(notches["units"]),
+        },
+        "notches_stored": {
+            **_records_struct(notches["stored"], ("b", "a"), ("slot", "sample_rate_hz", "matches")),
+            "units": _mat_value(notches["units"]),
+        },
     }
     if doc["plant"] is not None:
         out["plant"] = _mat_value(doc["plant"])
@@ -355,8 +458,7 @@ def _control():
     try:
         import control
     except ImportError:
-        raise UsageError("the python-control form needs the optional extra: pip install 'hilident[control]'") \
-            from None
+        raise UsageError("the python-control form needs the optional extra: pip install 'hilident[control]'") from None
     return control
 
 
@@ -400,18 +502,25 @@ def control_script(doc: dict) -> str:
     if plant is None:
         raise DataError("the summary has no plant_model to export (and no source summary with one)")
     cont, disc = plant["continuous"], plant["discrete"]
-    lines = ['"""The plant model hilident identified, as python-control objects (written by hilident export).',
-             "",
-             f"Source: {doc['source']}",
-             f"Input: torque, N*m; output: {plant['output'] or 'the plant output'}, {plant['output_unit']}; "
-             "s in rad/s; dt in s.",
-             '"""', "", "import control", "",
-             f"tf = control.tf({cont['tf']['num']!r}, {cont['tf']['den']!r})",
-             "ss = control.ss({A!r}, {B!r}, {C!r}, {D!r})".format(**cont["ss"])]
+    lines = [
+        '"""The plant model hilident identified, as python-control objects (written by hilident export).',
+        "",
+        f"Source: {doc['source']}",
+        f"Input: torque, N*m; output: {plant['output'] or 'the plant output'}, {plant['output_unit']}; "
+        "s in rad/s; dt in s.",
+        '"""',
+        "",
+        "import control",
+        "",
+        f"tf = control.tf({cont['tf']['num']!r}, {cont['tf']['den']!r})",
+        "ss = control.ss({A!r}, {B!r}, {C!r}, {D!r})".format(**cont["ss"]),
+    ]
     if disc is not None:
-        lines += [f"dt = {disc['dt_s']!r}  # s: {disc['sample_rate_hz']!r} Hz, {disc['rate_source']}",
-                  f"tf_discrete = control.tf({disc['tf']['num']!r}, {disc['tf']['den']!r}, dt)",
-                  "ss_discrete = control.ss({A!r}, {B!r}, {C!r}, {D!r}, dt)".format(**disc["ss"])]
+        lines += [
+            f"dt = {disc['dt_s']!r}  # s: {disc['sample_rate_hz']!r} Hz, {disc['rate_source']}",
+            f"tf_discrete = control.tf({disc['tf']['num']!r}, {disc['tf']['den']!r}, dt)",
+            "ss_discrete = control.ss({A!r}, {B!r}, {C!r}, {D!r}, dt)".format(**disc["ss"]),
+        ]
     return "\n".join(lines) + "\n"
 
 

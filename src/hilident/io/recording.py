@@ -51,16 +51,25 @@ FORMAT_VERSION = 1
 
 #: Root attributes owned by the writer; callers cannot set these through ``attrs``.
 RESERVED_ATTRS = frozenset(
-    {"format", "format_version", "created_utc", "closed_utc", "sample_rate_hz",
-     "channel_names", "channel_units", "status", "reason", "n_samples", "flushed_samples"}
+    {
+        "format",
+        "format_version",
+        "created_utc",
+        "closed_utc",
+        "sample_rate_hz",
+        "channel_names",
+        "channel_units",
+        "status",
+        "reason",
+        "n_samples",
+        "flushed_samples",
+    }
 )
 _JSON_SUFFIX = "_json"
 _STATUSES = ("running", "complete", "aborted")
 
 _STR = h5py.string_dtype("utf-8")
-_EVENT_DTYPE = np.dtype(
-    [("sample_index", "<i8"), ("time_s", "<f8"), ("kind", _STR), ("message", _STR), ("data", _STR)]
-)
+_EVENT_DTYPE = np.dtype([("sample_index", "<i8"), ("time_s", "<f8"), ("kind", _STR), ("message", _STR), ("data", _STR)])
 
 
 def _utc_now() -> str:
@@ -221,9 +230,7 @@ class RunWriter:
                 dtype="<f8",
                 compression=compression,
             )
-            self._events = f.create_dataset(
-                "events", shape=(0,), maxshape=(None,), chunks=(256,), dtype=_EVENT_DTYPE
-            )
+            self._events = f.create_dataset("events", shape=(0,), maxshape=(None,), chunks=(256,), dtype=_EVENT_DTYPE)
             if attrs:
                 self.set_attrs(**attrs)
             f.flush()
@@ -233,8 +240,9 @@ class RunWriter:
             raise
         self._n_samples = 0
 
-    def _checked_layout(self, channels, units, sample_rate_hz, chunk_rows, compression
-                        ) -> tuple[list[str], list[str], float]:
+    def _checked_layout(
+        self, channels, units, sample_rate_hz, chunk_rows, compression
+    ) -> tuple[list[str], list[str], float]:
         """Channels, units and rate as lists and a float, or a :class:`DataError` naming the file and the value."""
         channels = list(channels)
         units = list(units)
@@ -243,9 +251,7 @@ class RunWriter:
         if len(set(channels)) != len(channels):
             raise DataError(f"{self._path}: channel names must be unique, got {channels!r}")
         if len(units) != len(channels) or not all(isinstance(u, str) for u in units):
-            raise DataError(
-                f"{self._path}: units must be {len(channels)} strings (one per channel), got {units!r}"
-            )
+            raise DataError(f"{self._path}: units must be {len(channels)} strings (one per channel), got {units!r}")
         try:
             rate = float(sample_rate_hz)
         except (TypeError, ValueError):
@@ -306,8 +312,10 @@ class RunWriter:
         """A write to the file failed (full disk, I/O error): keep what is good, raise :class:`DataError`."""
         self._failure = str(exc).split("\n")[0]
         self._discard_unwritten()
-        raise DiskFull(f"{self._path}: cannot write the recording ({self._failure}); the file holds the first "
-                       f"{self._n_samples} samples") from None
+        raise DiskFull(
+            f"{self._path}: cannot write the recording ({self._failure}); the file holds the first "
+            f"{self._n_samples} samples"
+        ) from None
 
     def _discard_unwritten(self) -> None:
         """Shrink /samples back to the rows known good, so no unwritten row is ever read as zeros.
@@ -358,8 +366,7 @@ class RunWriter:
                 f"{self._path}: block must have shape (n_rows, {self._n_channels}) for channels "
                 f"{self._channels}, got shape {arr.shape}"
             )
-        if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)
-                or arr.dtype == np.bool_):
+        if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer) or arr.dtype == np.bool_):
             raise DataError(f"{self._path}: block must hold real numbers, got dtype {arr.dtype}")
         n = arr.shape[0]
         if n == 0:
@@ -368,7 +375,7 @@ class RunWriter:
         start = self._n_samples
         try:
             self._samples.resize(start + n, axis=0)
-            self._samples[start:start + n] = arr.astype("<f8", copy=False)
+            self._samples[start : start + n] = arr.astype("<f8", copy=False)
             f.attrs["flushed_samples"] = np.int64(start + n)
             f.flush()
         except (OSError, RuntimeError) as exc:
@@ -410,7 +417,7 @@ class RunWriter:
         n = self._events.shape[0]
         try:
             self._events.resize(n + 1, axis=0)
-            self._events[n:n + 1] = row
+            self._events[n : n + 1] = row
             f.flush()
         except (OSError, RuntimeError) as exc:
             self._write_failed(exc)
@@ -692,14 +699,18 @@ def _check_declared_size(dataset: h5py.Dataset, rows: int, path: Path) -> None:
     """Refuse a /samples whose declared size the file cannot hold or memory cannot take."""
     values = rows * max(1, dataset.shape[1])
     if values > MAX_READ_VALUES:
-        raise DataError(f"{path}: /samples declares {rows} rows x {dataset.shape[1]} channels, more than this "
-                        f"reader loads ({MAX_READ_VALUES} values); split the recording")
+        raise DataError(
+            f"{path}: /samples declares {rows} rows x {dataset.shape[1]} channels, more than this "
+            f"reader loads ({MAX_READ_VALUES} values); split the recording"
+        )
     if dataset.compression is None:
         stored = dataset.id.get_storage_size()
         slack = dataset.chunks[0] * dataset.shape[1] * 8 if dataset.chunks else 0
         if values * 8 > stored + slack:
-            raise DataError(f"{path}: damaged run file: /samples declares {rows} rows but the file stores "
-                            f"only {stored} bytes of them")
+            raise DataError(
+                f"{path}: damaged run file: /samples declares {rows} rows but the file stores "
+                f"only {stored} bytes of them"
+            )
 
 
 def _read_open_file(f: h5py.File, path: Path) -> RunData:
@@ -726,13 +737,15 @@ def _read_open_file(f: h5py.File, path: Path) -> RunData:
     if "events" in f:
         for row in f["events"][()]:
             text = _plain(row["data"])
-            events.append({
-                "sample_index": int(row["sample_index"]),
-                "time_s": float(row["time_s"]),
-                "kind": _plain(row["kind"]),
-                "message": _plain(row["message"]),
-                "data": json.loads(text) if text else {},
-            })
+            events.append(
+                {
+                    "sample_index": int(row["sample_index"]),
+                    "time_s": float(row["time_s"]),
+                    "kind": _plain(row["kind"]),
+                    "message": _plain(row["message"]),
+                    "data": json.loads(text) if text else {},
+                }
+            )
     tables: dict[str, dict[str, np.ndarray]] = {}
     if "tables" in f:
         for tname, group in f["tables"].items():

@@ -24,19 +24,74 @@ from typing import Any
 from hilident import __version__
 from hilident.events import StreamStats
 
-__all__ = ["DevicePart", "ExcitationPart", "Failure", "PlantPart", "Summary", "UploadOutcome",
-           "VerificationPart", "friction_summary"]
+__all__ = [
+    "DevicePart",
+    "ExcitationPart",
+    "Failure",
+    "PlantPart",
+    "Summary",
+    "UploadOutcome",
+    "VerificationPart",
+    "friction_summary",
+]
 
 #: The top-level keys of each command's summary.json, in their documented order.
 LAYOUTS: dict[str, tuple[str, ...]] = {
-    "run": ("hilident_version", "config", "device", "sample_rate_hz", "excitation", "resonances", "rejected_peaks",
-            "plant_model", "measurement", "friction", "notch_filters", "upload", "verification", "stream", "connect",
-            "filters_found", "recordings", "elapsed_s", "warnings", "model", "map", "workspace", "move_test"),
-    "identify": ("hilident_version", "config", "data", "resonances", "rejected_peaks", "friction", "model",
-                 "plant_model", "measurement", "notch_filters", "notch_skipped_reason", "upload", "verification",
-                 "stream", "elapsed_s", "warnings"),
-    "upload": ("hilident_version", "command", "config", "source", "device", "filters_before", "notch_filters",
-               "upload", "elapsed_s", "warnings"),
+    "run": (
+        "hilident_version",
+        "config",
+        "device",
+        "sample_rate_hz",
+        "excitation",
+        "resonances",
+        "rejected_peaks",
+        "plant_model",
+        "measurement",
+        "friction",
+        "notch_filters",
+        "upload",
+        "verification",
+        "stream",
+        "connect",
+        "filters_found",
+        "recordings",
+        "elapsed_s",
+        "warnings",
+        "model",
+        "map",
+        "workspace",
+        "move_test",
+    ),
+    "identify": (
+        "hilident_version",
+        "config",
+        "data",
+        "resonances",
+        "rejected_peaks",
+        "friction",
+        "model",
+        "plant_model",
+        "measurement",
+        "notch_filters",
+        "notch_skipped_reason",
+        "upload",
+        "verification",
+        "stream",
+        "elapsed_s",
+        "warnings",
+    ),
+    "upload": (
+        "hilident_version",
+        "command",
+        "config",
+        "source",
+        "device",
+        "filters_before",
+        "notch_filters",
+        "upload",
+        "elapsed_s",
+        "warnings",
+    ),
 }
 
 
@@ -78,10 +133,14 @@ class UploadOutcome:
     not_saved: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"written": self.written, "verified_readback": self.verified_readback,
-                               "slots": self.slots}
-        out.update(_set_fields(self, ("skipped_reason", "not_uploaded", "rolled_back", "saved", "saved_with",
-                                      "not_saved")))
+        out: dict[str, Any] = {
+            "written": self.written,
+            "verified_readback": self.verified_readback,
+            "slots": self.slots,
+        }
+        out.update(
+            _set_fields(self, ("skipped_reason", "not_uploaded", "rolled_back", "saved", "saved_with", "not_saved"))
+        )
         return out
 
 
@@ -96,8 +155,7 @@ class VerificationPart:
     loop_after: Any = None  # the response after the notch (plots only, not in summary.json)
 
     def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"band_reduction_db": self.band_reduction_db,
-                               "peak_reduction_db": self.peak_reduction_db}
+        out: dict[str, Any] = {"band_reduction_db": self.band_reduction_db, "peak_reduction_db": self.peak_reduction_db}
         if self.band_bandwidths is not None:
             out["band_bandwidths"] = self.band_bandwidths
         out["resonances"] = self.resonances
@@ -122,14 +180,29 @@ class ExcitationPart:
         """From ``[excitation]`` and the automatic amplitude's record (None: the amplitude was given)."""
         reference = None
         if e.closed_loop:
-            reference = (f"the {e.mode} set-point perturbation: the plant (torque to output) is estimated "
-                         "against it, so noise the drive's loop feeds back does not bias it")
-        return cls(e.kind, e.mode, e.amplitude, {"velocity": "m/s", "position": "m"}.get(e.mode, "N*m"),
-                   e.closed_loop, "auto" if auto is not None else None, auto, reference)
+            reference = (
+                f"the {e.mode} set-point perturbation: the plant (torque to output) is estimated "
+                "against it, so noise the drive's loop feeds back does not bias it"
+            )
+        return cls(
+            e.kind,
+            e.mode,
+            e.amplitude,
+            {"velocity": "m/s", "position": "m"}.get(e.mode, "N*m"),
+            e.closed_loop,
+            "auto" if auto is not None else None,
+            auto,
+            reference,
+        )
 
     def to_dict(self) -> dict[str, Any]:
-        out = {"kind": self.kind, "mode": self.mode, "amplitude": self.amplitude, "unit": self.unit,
-               "closed_loop": self.closed_loop}
+        out = {
+            "kind": self.kind,
+            "mode": self.mode,
+            "amplitude": self.amplitude,
+            "unit": self.unit,
+            "closed_loop": self.closed_loop,
+        }
         out.update(_set_fields(self, ("amplitude_setting", "auto", "reference")))
         return out
 
@@ -146,8 +219,12 @@ class DevicePart:
     @classmethod
     def reported(cls, driver: str | None, port: str | None, emulated: bool, identity: Any) -> DevicePart:
         """With the device's ``name``, ``firmware``, ``loop_rate_hz`` and ``filter_slots`` (None: not opened)."""
-        return cls(driver, port, emulated, {key: getattr(identity, key, None)
-                                            for key in ("name", "firmware", "loop_rate_hz", "filter_slots")})
+        return cls(
+            driver,
+            port,
+            emulated,
+            {key: getattr(identity, key, None) for key in ("name", "firmware", "loop_rate_hz", "filter_slots")},
+        )
 
     def to_dict(self) -> dict[str, Any]:
         return {"driver": self.driver, "port": self.port, "emulated": self.emulated, **(self.identity or {})}
@@ -169,8 +246,12 @@ class PlantPart:
             return cls(measurement=no_measurement)
         from hilident import pipeline
 
-        return cls(pipeline.resonance_records(plant.resonances), pipeline.rejected_peak_records(plant.rejected),
-                   plant.model.to_dict() if plant.model else None, plant.quality)
+        return cls(
+            pipeline.resonance_records(plant.resonances),
+            pipeline.rejected_peak_records(plant.rejected),
+            plant.model.to_dict() if plant.model else None,
+            plant.quality,
+        )
 
 
 @dataclass(frozen=True)
@@ -186,11 +267,15 @@ def friction_summary(friction: Any) -> dict | None:
     if friction is None:
         return None
     p = friction.fit.params
-    return {"model": friction.model,
-            "params": {"Fc": p.Fc, "Fs": p.Fs, "Fv": p.Fv, "vs": p.vs, "delta_v": p.delta_v, "delta_s": p.delta_s},
-            "structure": friction.fit.structure or friction.model, "aicc": friction.fit.criterion,
-            "stderr": friction.fit.stderr, "rms_residual_nm": friction.fit.rms_residual,
-            "points": len(friction.points.v_mean)}
+    return {
+        "model": friction.model,
+        "params": {"Fc": p.Fc, "Fs": p.Fs, "Fv": p.Fv, "vs": p.vs, "delta_v": p.delta_v, "delta_s": p.delta_s},
+        "structure": friction.fit.structure or friction.model,
+        "aicc": friction.fit.criterion,
+        "stderr": friction.fit.stderr,
+        "rms_residual_nm": friction.fit.rms_residual,
+        "points": len(friction.points.v_mean),
+    }
 
 
 def move_test_summary(results: list) -> dict:
@@ -235,39 +320,112 @@ class Summary:
     failure: Failure | None = None
 
     @classmethod
-    def of_run(cls, *, config: str, device: DevicePart, sample_rate_hz: float, excitation: ExcitationPart,
-               plant: Any, friction: Any, designs: list, upload: UploadOutcome,
-               verification: VerificationPart | None, stream: StreamStats, connect: dict | None,
-               filters_found: list[dict], recordings: list[str], elapsed_s: float, warnings: list[str],
-               model: Any = NOT_REACHED, workspace_map: list | None = None,
-               move_test: list | None = None, workspace: dict | None = None) -> Summary:
+    def of_run(
+        cls,
+        *,
+        config: str,
+        device: DevicePart,
+        sample_rate_hz: float,
+        excitation: ExcitationPart,
+        plant: Any,
+        friction: Any,
+        designs: list,
+        upload: UploadOutcome,
+        verification: VerificationPart | None,
+        stream: StreamStats,
+        connect: dict | None,
+        filters_found: list[dict],
+        recordings: list[str],
+        elapsed_s: float,
+        warnings: list[str],
+        model: Any = NOT_REACHED,
+        workspace_map: list | None = None,
+        move_test: list | None = None,
+        workspace: dict | None = None,
+    ) -> Summary:
         """``hilident run``'s summary (``model``: the grey-box fit, None when not asked for; left out when the
         run failed before it; ``workspace_map``: the ``[map]`` points, left out of a run without ``[map]``;
         ``move_test``: each ``[verification] move`` result, left out of a run without one; ``workspace``: the
         ``[map]``'s joint fit and covering notch)."""
-        return cls("run", config, elapsed_s, warnings, upload, designs, PlantPart.of(plant), friction_summary(friction),
-                   model, verification or VerificationPart(), stream, device, excitation,
-                   {"sample_rate_hz": sample_rate_hz, "connect": connect, "filters_found": filters_found,
-                    "recordings": recordings,
-                    "map": NOT_REACHED if workspace_map is None else [p.to_dict() for p in workspace_map],
-                    "workspace": NOT_REACHED if workspace is None else workspace,
-                    "move_test": NOT_REACHED if move_test is None else move_test_summary(move_test)})
+        return cls(
+            "run",
+            config,
+            elapsed_s,
+            warnings,
+            upload,
+            designs,
+            PlantPart.of(plant),
+            friction_summary(friction),
+            model,
+            verification or VerificationPart(),
+            stream,
+            device,
+            excitation,
+            {
+                "sample_rate_hz": sample_rate_hz,
+                "connect": connect,
+                "filters_found": filters_found,
+                "recordings": recordings,
+                "map": NOT_REACHED if workspace_map is None else [p.to_dict() for p in workspace_map],
+                "workspace": NOT_REACHED if workspace is None else workspace,
+                "move_test": NOT_REACHED if move_test is None else move_test_summary(move_test),
+            },
+        )
 
     @classmethod
-    def of_identify(cls, *, config: str, data: dict, plant: Any, friction: Any, model: Any, designs: list,
-                    notch_skipped_reason: str | None, elapsed_s: float, warnings: list[str]) -> Summary:
+    def of_identify(
+        cls,
+        *,
+        config: str,
+        data: dict,
+        plant: Any,
+        friction: Any,
+        model: Any,
+        designs: list,
+        notch_skipped_reason: str | None,
+        elapsed_s: float,
+        warnings: list[str],
+    ) -> Summary:
         """``hilident identify``'s summary: no upload or verification, the stream is the data file's rows."""
         stream = StreamStats(samples=data["samples"], lost_samples=data.get("missing_samples", 0))
-        return cls("identify", config, elapsed_s, list(warnings), UploadOutcome(), designs,
-                   PlantPart.of(plant, no_measurement={}), friction_summary(friction), model, stream=stream,
-                   extra={"data": data, "notch_skipped_reason": notch_skipped_reason})
+        return cls(
+            "identify",
+            config,
+            elapsed_s,
+            list(warnings),
+            UploadOutcome(),
+            designs,
+            PlantPart.of(plant, no_measurement={}),
+            friction_summary(friction),
+            model,
+            stream=stream,
+            extra={"data": data, "notch_skipped_reason": notch_skipped_reason},
+        )
 
     @classmethod
-    def of_upload(cls, *, config: str, source: dict, device: DevicePart, filters_before: list[dict], designs: list,
-                  upload: UploadOutcome, elapsed_s: float, warnings: list[str]) -> Summary:
+    def of_upload(
+        cls,
+        *,
+        config: str,
+        source: dict,
+        device: DevicePart,
+        filters_before: list[dict],
+        designs: list,
+        upload: UploadOutcome,
+        elapsed_s: float,
+        warnings: list[str],
+    ) -> Summary:
         """``hilident upload``'s summary: the source, the device and what its slots held before and after."""
-        return cls("upload", config, elapsed_s, warnings, upload, designs, device=device,
-                   extra={"command": "upload", "source": source, "filters_before": filters_before})
+        return cls(
+            "upload",
+            config,
+            elapsed_s,
+            warnings,
+            upload,
+            designs,
+            device=device,
+            extra={"command": "upload", "source": source, "filters_before": filters_before},
+        )
 
     def failed(self, step: str, error: str) -> Summary:
         """This summary, naming the step that failed and its error."""
@@ -278,14 +436,22 @@ class Summary:
         """Every part by its summary.json key (a command uses those of its layout)."""
         model = self.model.to_dict() if self.model not in (None, NOT_REACHED) else self.model
         return {
-            "hilident_version": __version__, "config": self.config,
+            "hilident_version": __version__,
+            "config": self.config,
             "device": self.device.to_dict() if self.device else None,
             "excitation": self.excitation.to_dict() if self.excitation else None,
-            "resonances": self.plant.resonances, "rejected_peaks": self.plant.rejected_peaks,
-            "plant_model": self.plant.plant_model, "measurement": self.plant.measurement,
-            "friction": self.friction, "model": model, "notch_filters": _notch_filters(self.designs),
-            "upload": self.upload.to_dict(), "verification": self.verification.to_dict(),
-            "stream": self.stream.to_summary(), "elapsed_s": self.elapsed_s, "warnings": self.warnings,
+            "resonances": self.plant.resonances,
+            "rejected_peaks": self.plant.rejected_peaks,
+            "plant_model": self.plant.plant_model,
+            "measurement": self.plant.measurement,
+            "friction": self.friction,
+            "model": model,
+            "notch_filters": _notch_filters(self.designs),
+            "upload": self.upload.to_dict(),
+            "verification": self.verification.to_dict(),
+            "stream": self.stream.to_summary(),
+            "elapsed_s": self.elapsed_s,
+            "warnings": self.warnings,
             **self.extra,
         }
 

@@ -41,8 +41,14 @@ import numpy as np
 
 from hilident.errors import DataError
 
-__all__ = ["GOOD_EXCITATION", "WEAK_EXCITATION", "ExcitingMove", "exciting_move", "mode_excitation",
-           "peak_acceleration"]
+__all__ = [
+    "GOOD_EXCITATION",
+    "WEAK_EXCITATION",
+    "ExcitingMove",
+    "exciting_move",
+    "mode_excitation",
+    "peak_acceleration",
+]
 
 #: Below this ``V`` a move excites the mode less than one step of its acceleration would: weakly.
 WEAK_EXCITATION = 1.0
@@ -65,8 +71,15 @@ def peak_acceleration(position_m, sample_rate_hz: float) -> float:
     return float(np.max(np.abs(_acceleration(position_m, sample_rate_hz))))
 
 
-def mode_excitation(position_m, sample_rate_hz: float, end_index: int, frequency_hz: float,
-                    damping_ratio: float = 0.0, *, reference_accel_mps2: float | None = None) -> float:
+def mode_excitation(
+    position_m,
+    sample_rate_hz: float,
+    end_index: int,
+    frequency_hz: float,
+    damping_ratio: float = 0.0,
+    *,
+    reference_accel_mps2: float | None = None,
+) -> float:
     """The mode excitation ``V`` of a sampled set-point: the free vibration it leaves at ``end_index``.
 
     Parameters
@@ -130,10 +143,16 @@ class ExcitingMove:
     min_excitation: float
 
 
-def exciting_move(profile: Callable[[float, float, float], tuple[np.ndarray, int]],
-                  distances_m: Sequence[float], modes: Sequence[Sequence[tuple[float, float]]],
-                  sample_rate_hz: float, velocities_mps: Iterable[float], accels_mps2: Iterable[float],
-                  configured: tuple[float, float], target: float = GOOD_EXCITATION) -> ExcitingMove | None:
+def exciting_move(
+    profile: Callable[[float, float, float], tuple[np.ndarray, int]],
+    distances_m: Sequence[float],
+    modes: Sequence[Sequence[tuple[float, float]]],
+    sample_rate_hz: float,
+    velocities_mps: Iterable[float],
+    accels_mps2: Iterable[float],
+    configured: tuple[float, float],
+    target: float = GOOD_EXCITATION,
+) -> ExcitingMove | None:
     """Of the candidate velocity and acceleration limits, the nearest to the configured ones whose moves
     excite every mode at ``V >= target``; else those that excite the least excited mode most.
 
@@ -176,5 +195,10 @@ def exciting_move(profile: Callable[[float, float, float], tuple[np.ndarray, int
     reaching = [m for m in found if m.min_excitation >= target]
     if not reaching:
         return max(found, key=lambda m: m.min_excitation)
-    return min(reaching, key=lambda m: (max(abs(math.log(m.max_velocity_mps / v0)),
-                                            abs(math.log(m.max_accel_mps2 / a0))), -m.min_excitation))
+    return min(
+        reaching,
+        key=lambda m: (
+            max(abs(math.log(m.max_velocity_mps / v0)), abs(math.log(m.max_accel_mps2 / a0))),
+            -m.min_excitation,
+        ),
+    )

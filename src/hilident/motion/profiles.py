@@ -164,17 +164,26 @@ def _sample(plan: MovePlan, sample_rate_hz: float, dwell_s: float, prefix: str) 
     end = max(1, math.ceil(plan.duration_s * fs - 1e-9))
     n = end + 1 + round(dwell_s * fs)
     if n > MAX_SAMPLES:
-        raise ConfigError(f"{prefix}sample_rate_hz",
-                          f"the move and dwell would take {n} samples (more than {MAX_SAMPLES}); "
-                          "check the rate, the dwell and the limits' units")
+        raise ConfigError(
+            f"{prefix}sample_rate_hz",
+            f"the move and dwell would take {n} samples (more than {MAX_SAMPLES}); "
+            "check the rate, the dwell and the limits' units",
+        )
     t = np.arange(n) / fs
     p, v, a = plan.evaluate(t)
     p[end:], v[end:], a[end:] = plan.distance_m, 0.0, 0.0
     return MoveProfile(t, p, v, a, end, fs, plan.distance_m, plan)
 
 
-def trapezoid(distance_m: float, max_velocity_mps: float, max_accel_mps2: float, sample_rate_hz: float,
-              dwell_s: float = 0.0, *, key_prefix: str = "") -> MoveProfile:
+def trapezoid(
+    distance_m: float,
+    max_velocity_mps: float,
+    max_accel_mps2: float,
+    sample_rate_hz: float,
+    dwell_s: float = 0.0,
+    *,
+    key_prefix: str = "",
+) -> MoveProfile:
     """A trapezoidal-velocity move (triangular when the velocity limit is not reached).
 
     Parameters
@@ -253,8 +262,16 @@ def _s_curve_plan(d: float, vmax: float, amax: float, jmax: float) -> MovePlan:
     return MovePlan(durations, jerks, accels, d)
 
 
-def s_curve(distance_m: float, max_velocity_mps: float, max_accel_mps2: float, max_jerk_mps3: float,
-            sample_rate_hz: float, dwell_s: float = 0.0, *, key_prefix: str = "") -> MoveProfile:
+def s_curve(
+    distance_m: float,
+    max_velocity_mps: float,
+    max_accel_mps2: float,
+    max_jerk_mps3: float,
+    sample_rate_hz: float,
+    dwell_s: float = 0.0,
+    *,
+    key_prefix: str = "",
+) -> MoveProfile:
     """A jerk-limited (seven-segment, S-curve) move.
 
     The acceleration ramps at ``max_jerk_mps3`` to at most ``max_accel_mps2``
@@ -304,4 +321,3 @@ def s_curve(distance_m: float, max_velocity_mps: float, max_accel_mps2: float, m
     fs = _value("sample_rate_hz", sample_rate_hz, key_prefix, positive=True)
     dwell = _value("dwell_s", dwell_s, key_prefix, positive=False)
     return _sample(_s_curve_plan(d, vmax, amax, jmax), fs, dwell, key_prefix)
-

@@ -45,8 +45,14 @@ import numpy as np
 from hilident.errors import ConfigError, DataError
 from hilident.numbers import number
 
-__all__ = ["FINAL_FRACTION", "MoveComparison", "ResidualVibration", "compare_moves", "reduction_db",
-           "residual_vibration"]
+__all__ = [
+    "FINAL_FRACTION",
+    "MoveComparison",
+    "ResidualVibration",
+    "compare_moves",
+    "reduction_db",
+    "residual_vibration",
+]
 
 #: Part of the dwell, at its end, averaged for the final value.
 FINAL_FRACTION = 0.1
@@ -131,6 +137,7 @@ class MoveComparison:
     def as_dict(self) -> dict:
         """``{"without": {...}, "with_notch": {...}, "rms_reduction_db", "peak_to_peak_reduction_db"}``; an
         infinite reduction is None."""
+
         def finite(x: float) -> float | None:
             return x if math.isfinite(x) else None
 
@@ -146,9 +153,17 @@ def _number(key: str, value, *, positive: bool = False) -> float:
     return number(key, value, minimum=0.0 if positive else -math.inf, strict=positive)
 
 
-def residual_vibration(time_s, signal, move_end_s: float, dwell_s: float, *, unit: str = "m",
-                       band: float | None = None, band_fraction: float = 0.05,
-                       detrend: str = "final") -> ResidualVibration:
+def residual_vibration(
+    time_s,
+    signal,
+    move_end_s: float,
+    dwell_s: float,
+    *,
+    unit: str = "m",
+    band: float | None = None,
+    band_fraction: float = 0.05,
+    detrend: str = "final",
+) -> ResidualVibration:
     """Peak-to-peak, RMS and settling time of ``signal`` over the dwell after a move.
 
     Parameters
@@ -202,12 +217,14 @@ def residual_vibration(time_s, signal, move_end_s: float, dwell_s: float, *, uni
     inside = (t >= t0 - slack) & (t <= t0 + dwell + slack)
     tw, yw = t[inside], y[inside]
     if tw.size < MIN_SAMPLES:
-        raise DataError(f"the dwell from {t0:g} s for {dwell:g} s holds {tw.size} samples; "
-                        f"at least {MIN_SAMPLES} are needed")
+        raise DataError(
+            f"the dwell from {t0:g} s for {dwell:g} s holds {tw.size} samples; at least {MIN_SAMPLES} are needed"
+        )
     bad = int(np.count_nonzero(~np.isfinite(yw)))
     if bad:
-        raise DataError(f"the signal has {bad} NaN or infinite samples in the dwell from {t0:g} s "
-                        "(a laser out of range?)")
+        raise DataError(
+            f"the signal has {bad} NaN or infinite samples in the dwell from {t0:g} s (a laser out of range?)"
+        )
     if detrend == "final":
         tail = tw >= tw[-1] - FINAL_FRACTION * (tw[-1] - tw[0])
         final = float(np.mean(yw[tail]))
@@ -260,9 +277,16 @@ def reduction_db(without: float, with_notch: float) -> float:
     return math.inf if b == 0.0 else 20.0 * math.log10(a / b)
 
 
-def compare_moves(without: tuple, with_notch: tuple, dwell_s: float, *, unit: str = "m",
-                  band: float | None = None, band_fraction: float = 0.05,
-                  detrend: str = "final") -> MoveComparison:
+def compare_moves(
+    without: tuple,
+    with_notch: tuple,
+    dwell_s: float,
+    *,
+    unit: str = "m",
+    band: float | None = None,
+    band_fraction: float = 0.05,
+    detrend: str = "final",
+) -> MoveComparison:
     """Residual vibration of the same move without and with the notch, and the reduction in dB.
 
     Parameters
@@ -287,8 +311,10 @@ def compare_moves(without: tuple, with_notch: tuple, dwell_s: float, *, unit: st
     """
     t_a, y_a, end_a = without
     t_b, y_b, end_b = with_notch
-    first = residual_vibration(t_a, y_a, end_a, dwell_s, unit=unit, band=band, band_fraction=band_fraction,
-                               detrend=detrend)
+    first = residual_vibration(
+        t_a, y_a, end_a, dwell_s, unit=unit, band=band, band_fraction=band_fraction, detrend=detrend
+    )
     second = residual_vibration(t_b, y_b, end_b, dwell_s, unit=unit, band=first.band, detrend=detrend)
-    return MoveComparison(first, second, reduction_db(first.rms, second.rms),
-                          reduction_db(first.peak_to_peak, second.peak_to_peak))
+    return MoveComparison(
+        first, second, reduction_db(first.rms, second.rms), reduction_db(first.peak_to_peak, second.peak_to_peak)
+    )

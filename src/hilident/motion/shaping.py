@@ -86,8 +86,10 @@ def _checked_sections(sections: Sequence[Biquad]) -> list[Biquad]:
         if not all(math.isfinite(x) for x in (*section.b, *section.a)):
             raise DataError(f"notch chain section {i}: coefficients must be finite, got b={section.b}, a={section.a}")
         if not section.is_stable():
-            raise DataError(f"notch chain section {i}: unstable (poles {np.round(section.poles(), 6).tolist()}); "
-                            "a set-point filter needs every pole inside the unit circle")
+            raise DataError(
+                f"notch chain section {i}: unstable (poles {np.round(section.poles(), 6).tolist()}); "
+                "a set-point filter needs every pole inside the unit circle"
+            )
         checked.append(section)
     return checked
 
@@ -143,8 +145,14 @@ def _decay_samples(sections: Sequence[Biquad]) -> int:
     return max(1, math.ceil(math.log(0.1) / math.log(radius)))
 
 
-def shape_move(profile: MoveProfile, sections: Sequence[Biquad], *, tolerance_m: float | None = None,
-               dc_gain_tolerance: float = 1e-6, max_extension_s: float = 10.0) -> ShapedMove:
+def shape_move(
+    profile: MoveProfile,
+    sections: Sequence[Biquad],
+    *,
+    tolerance_m: float | None = None,
+    dc_gain_tolerance: float = 1e-6,
+    max_extension_s: float = 10.0,
+) -> ShapedMove:
     """Apply a notch chain to a move's set-point on the host; the shaped move ends exactly at the same place.
 
     Parameters
@@ -179,8 +187,10 @@ def shape_move(profile: MoveProfile, sections: Sequence[Biquad], *, tolerance_m:
     chain = _checked_sections(sections)
     dc = chain_dc_gain(chain)
     if not abs(dc - 1.0) <= dc_gain_tolerance:
-        raise DataError(f"notch chain has DC gain {dc:.9g}, not 1 (within {dc_gain_tolerance:g}); "
-                        "a shaped move would end at the wrong position")
+        raise DataError(
+            f"notch chain has DC gain {dc:.9g}, not 1 (within {dc_gain_tolerance:g}); "
+            "a shaped move would end at the wrong position"
+        )
     end = float(profile.position_m[profile.move_end_index])
     start = float(profile.position_m[0])
     tol = RELATIVE_TOLERANCE * abs(end - start) if tolerance_m is None else tolerance_m
@@ -202,8 +212,10 @@ def shape_move(profile: MoveProfile, sections: Sequence[Biquad], *, tolerance_m:
         if n - settle >= guard:
             break
         if n >= limit:
-            raise DataError(f"the shaped set-point did not settle within {tol:g} m of the end position "
-                            f"in {max_extension_s:g} s; widen the tolerance or check the notch chain")
+            raise DataError(
+                f"the shaped set-point did not settle within {tol:g} m of the end position "
+                f"in {max_extension_s:g} s; widen the tolerance or check the notch chain"
+            )
         n = min(limit, 2 * n)
     settle = max(settle, i_end)
     size = settle + 1 + dwell_samples

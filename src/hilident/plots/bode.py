@@ -171,22 +171,47 @@ def bode_figure(
             phase = _phase_near(f, phase, reference)
             if reference is None and np.any(in_band):
                 reference = (f[in_band], phase[in_band])
-            grey_label = ("outside band" + (f" or coherence < {threshold:g}" if threshold is not None else "")
-                          if i == 0 else None)
+            grey_label = (
+                "outside band" + (f" or coherence < {threshold:g}" if threshold is not None else "") if i == 0 else None
+            )
             ax_mag.semilogx(f, mag_db, color=_GREY, lw=0.7, zorder=1, label=grey_label)
             ax_phase.semilogx(f, phase, color=_GREY, lw=0.7, zorder=1)
-            ax_mag.semilogx(f, np.where(trusted, mag_db, np.nan), color=color, ls=ls, lw=1.8 if i == 0 else 1.3,
-                            zorder=z, label=label)
-            ax_phase.semilogx(f, np.where(trusted, phase, np.nan), color=color, ls=ls, lw=1.8 if i == 0 else 1.3,
-                              zorder=z, label=label)
+            ax_mag.semilogx(
+                f,
+                np.where(trusted, mag_db, np.nan),
+                color=color,
+                ls=ls,
+                lw=1.8 if i == 0 else 1.3,
+                zorder=z,
+                label=label,
+            )
+            ax_phase.semilogx(
+                f,
+                np.where(trusted, phase, np.nan),
+                color=color,
+                ls=ls,
+                lw=1.8 if i == 0 else 1.3,
+                zorder=z,
+                label=label,
+            )
             mags.append(mag_db[in_band] if np.any(in_band) else mag_db)
             phases.append(phase[trusted])
             if coh is not None:
                 ax_coh.semilogx(f, np.where(in_band, np.nan, coh), color=_GREY, lw=0.7, zorder=1)
                 inside = np.flatnonzero(in_band)
                 marks = slice(int(inside[0]), int(inside[-1]) + 1, max(1, inside.size // 10)) if inside.size else None
-                ax_coh.semilogx(f, np.where(in_band, coh, np.nan), color=color, ls=ls, lw=1.5, zorder=z,
-                                marker="os^v"[i % 4], markevery=marks, ms=4, label=f"{label}")
+                ax_coh.semilogx(
+                    f,
+                    np.where(in_band, coh, np.nan),
+                    color=color,
+                    ls=ls,
+                    lw=1.5,
+                    zorder=z,
+                    marker="os^v"[i % 4],
+                    markevery=marks,
+                    ms=4,
+                    label=f"{label}",
+                )
             if i == 0 and bounds_db is not None:
                 _confidence_band(ax_mag, f, mag_db, in_band, responses[0][1], bounds_db, color)
         if model is not None:
@@ -198,9 +223,10 @@ def bode_figure(
             ax_mag.semilogx(mf[m_in], 20 * np.log10(np.abs(mh[m_in])), **style)
             ax_phase.semilogx(mf[m_in], m_phase[m_in], **style)
         # the designed notch dashed over the stored one: both visible where the device holds the design
-        for curve, style, label in ((notch, dict(color="tab:brown", ls=(0, (5, 2)), lw=1.3, zorder=9), notch_label),
-                                    (stored, dict(color="tab:red", ls="-", lw=2.0, alpha=0.8, zorder=8),
-                                     "stored notch, read back [dB re 1]")):
+        for curve, style, label in (
+            (notch, dict(color="tab:brown", ls=(0, (5, 2)), lw=1.3, zorder=9), notch_label),
+            (stored, dict(color="tab:red", ls="-", lw=2.0, alpha=0.8, zorder=8), "stored notch, read back [dB re 1]"),
+        ):
             if curve is not None and curve[0].size:
                 n_db = 20 * np.log10(np.abs(curve[1]))
                 ax_mag.semilogx(curve[0], n_db, label=label, **style)
@@ -215,8 +241,14 @@ def bode_figure(
     for ax in axes:
         for lo, hi in ((view[0], band[0]), (band[1], view[1])):
             if hi > lo:
-                ax.axvspan(lo, hi, color="0.9", zorder=0, lw=0,
-                           label="outside analysis band" if ax is ax_mag and lo == view[0] else None)
+                ax.axvspan(
+                    lo,
+                    hi,
+                    color="0.9",
+                    zorder=0,
+                    lw=0,
+                    label="outside analysis band" if ax is ax_mag and lo == view[0] else None,
+                )
     if threshold is not None:
         ax_coh.axhline(threshold, color="0.3", ls="--", lw=1.0, label=f"threshold {threshold:g}")
     if not any(c[3] is not None for c in curves):
@@ -284,8 +316,9 @@ def plot_bode(
         No response, a response's arrays of different lengths, no positive
         frequency, a malformed notch, model or band.
     """
-    return save(bode_figure(responses, resonances, notch_response, coherence_threshold, model, bounds_db, **kwargs),
-                path)
+    return save(
+        bode_figure(responses, resonances, notch_response, coherence_threshold, model, bounds_db, **kwargs), path
+    )
 
 
 def _confidence_band(ax_mag, f: np.ndarray, mag_db: np.ndarray, in_band: np.ndarray, frf, bounds_db, color) -> None:
@@ -301,9 +334,17 @@ def _confidence_band(ax_mag, f: np.ndarray, mag_db: np.ndarray, in_band: np.ndar
         return
     lo_db = np.maximum(mag_db + lo, mag_db - 40.0)  # a line with no coherence: cap the band
     width = np.nanmedian((hi - np.maximum(lo, -40.0))[in_band]) / 2.0
-    ax_mag.fill_between(f, np.where(in_band, lo_db, np.nan), np.where(in_band, mag_db + hi, np.nan), color=color,
-                        alpha=0.3, lw=0.6, edgecolor=color, zorder=2,
-                        label=f"95 % confidence (median ±{width:.2g} dB)")
+    ax_mag.fill_between(
+        f,
+        np.where(in_band, lo_db, np.nan),
+        np.where(in_band, mag_db + hi, np.nan),
+        color=color,
+        alpha=0.3,
+        lw=0.6,
+        edgecolor=color,
+        zorder=2,
+        label=f"95 % confidence (median ±{width:.2g} dB)",
+    )
 
 
 def _phase_axis(ax_phase, phases: list[np.ndarray]) -> None:
@@ -325,9 +366,17 @@ def _mark_resonances(axes, resonances: Iterable[Any]) -> None:
         f_res = float(res.frequency_hz)
         for ax in axes:
             ax.axvline(f_res, color="tab:red", ls=":", lw=1.0, label="resonance" if (i == 0 and ax is ax_mag) else None)
-        ax_mag.annotate(f"{f_res:.4g} Hz", xy=(f_res, 1.0), xycoords=("data", "axes fraction"),
-                        xytext=(3, -3), textcoords="offset points", ha="left", va="top",
-                        fontsize=8, color="tab:red")
+        ax_mag.annotate(
+            f"{f_res:.4g} Hz",
+            xy=(f_res, 1.0),
+            xycoords=("data", "axes fraction"),
+            xytext=(3, -3),
+            textcoords="offset points",
+            ha="left",
+            va="top",
+            fontsize=8,
+            color="tab:red",
+        )
 
 
 def _axes_labels(axes, magnitude_unit: str | None) -> None:
@@ -338,8 +387,9 @@ def _axes_labels(axes, magnitude_unit: str | None) -> None:
     if magnitude_unit == PER_CURVE:
         ax_mag.set_ylabel("magnitude [dB re 1, units in legend]")
     else:
-        ax_mag.set_ylabel(f"magnitude [dB re 1 {magnitude_unit}]" if magnitude_unit
-                          else "magnitude [dB re 1, unit not recorded]")
+        ax_mag.set_ylabel(
+            f"magnitude [dB re 1 {magnitude_unit}]" if magnitude_unit else "magnitude [dB re 1, unit not recorded]"
+        )
     ax_phase.set_ylabel("phase [deg]")
     ax_coh.set_ylabel("coherence [-]")
     ax_coh.set_ylim(0.0, 1.05)

@@ -24,8 +24,16 @@ from hilident.plots.common import save
 if TYPE_CHECKING:
     from hilident.ident.drift import DriftTrend
 
-__all__ = ["PANELS_PER_FIGURE", "COLUMNS", "FLAGGED_COLOUR", "panel_title", "ordered", "drift_figures",
-           "plot_drift", "drift_file_names"]
+__all__ = [
+    "PANELS_PER_FIGURE",
+    "COLUMNS",
+    "FLAGGED_COLOUR",
+    "panel_title",
+    "ordered",
+    "drift_figures",
+    "plot_drift",
+    "drift_file_names",
+]
 
 #: Axes drawn in one figure (rows of :data:`COLUMNS`).
 PANELS_PER_FIGURE = 12
@@ -68,18 +76,35 @@ def _panel(ax, trend: DriftTrend):
     """Draw one axis's panel on ``ax``; returns the damping's twin axes (None without damping)."""
     freq, damp = trend.frequency, trend.damping
     days = np.asarray(freq.days)
-    ax.errorbar(days, freq.values, yerr=_errors(freq.ci95), fmt="o", ms=3.5, color="tab:blue", ecolor="0.55",
-                elinewidth=0.8, capsize=2, label="resonance (95 % interval)")
+    ax.errorbar(
+        days,
+        freq.values,
+        yerr=_errors(freq.ci95),
+        fmt="o",
+        ms=3.5,
+        color="tab:blue",
+        ecolor="0.55",
+        elinewidth=0.8,
+        capsize=2,
+        label="resonance (95 % interval)",
+    )
     if freq.has_line and days.size:
         grid = np.linspace(0.0, float(days.max()), 100)
         line, band = freq.line(grid), freq.band(grid)
-        ax.fill_between(grid, line - band, line + band, color="tab:blue", alpha=0.18,
-                        label="trend's 95 % band")
+        ax.fill_between(grid, line - band, line + band, color="tab:blue", alpha=0.18, label="trend's 95 % band")
         ax.plot(grid, line, "-", color="tab:blue", lw=1.5, label="trend (least squares)")
     if freq.outliers:
         idx = list(freq.outliers)
-        ax.plot(days[idx], np.asarray(freq.values)[idx], "o", ms=9, mfc="none", mec=FLAGGED_COLOUR, mew=1.3,
-                label="outlier (listed, kept)")
+        ax.plot(
+            days[idx],
+            np.asarray(freq.values)[idx],
+            "o",
+            ms=9,
+            mfc="none",
+            mec=FLAGGED_COLOUR,
+            mew=1.3,
+            label="outlier (listed, kept)",
+        )
     ax.set_xlabel("days since first recording [d]")
     ax.set_ylabel("resonance [Hz]", color="tab:blue")
     ax.grid(True, alpha=0.3)
@@ -89,21 +114,41 @@ def _panel(ax, trend: DriftTrend):
     if damp.n:
         twin = ax.twinx()
         dd = np.asarray(damp.days)
-        twin.errorbar(dd, damp.values, yerr=_errors(damp.ci95), fmt="s", ms=3, color="tab:orange",
-                      ecolor="tab:orange", elinewidth=0.6, alpha=0.8, capsize=0, label="damping ratio (95 % interval)")
+        twin.errorbar(
+            dd,
+            damp.values,
+            yerr=_errors(damp.ci95),
+            fmt="s",
+            ms=3,
+            color="tab:orange",
+            ecolor="tab:orange",
+            elinewidth=0.6,
+            alpha=0.8,
+            capsize=0,
+            label="damping ratio (95 % interval)",
+        )
         if damp.has_line:
             grid = np.linspace(0.0, float(dd.max()), 50)
             twin.plot(grid, damp.line(grid), "--", color="tab:orange", lw=1.2, label="damping trend")
         if damp.outliers:
             idx = list(damp.outliers)
-            twin.plot(dd[idx], np.asarray(damp.values)[idx], "s", ms=9, mfc="none", mec=FLAGGED_COLOUR, mew=1.3,
-                      label="outlier (listed, kept)")
+            twin.plot(
+                dd[idx],
+                np.asarray(damp.values)[idx],
+                "s",
+                ms=9,
+                mfc="none",
+                mec=FLAGGED_COLOUR,
+                mew=1.3,
+                label="outlier (listed, kept)",
+            )
         twin.set_ylabel("damping ratio [1]", color="tab:orange")
     return twin
 
 
-def drift_figures(drifts: Mapping[str, DriftTrend] | Iterable[DriftTrend], *, title: str = "",
-                  per_figure: int = PANELS_PER_FIGURE) -> list:
+def drift_figures(
+    drifts: Mapping[str, DriftTrend] | Iterable[DriftTrend], *, title: str = "", per_figure: int = PANELS_PER_FIGURE
+) -> list:
     """The drift view as matplotlib figures (not saved), :data:`PANELS_PER_FIGURE` axes each.
 
     Parameters
@@ -124,7 +169,7 @@ def drift_figures(drifts: Mapping[str, DriftTrend] | Iterable[DriftTrend], *, ti
 
     trends = ordered(drifts)
     per_figure = max(1, int(per_figure))
-    pages = [trends[i:i + per_figure] for i in range(0, len(trends), per_figure)]
+    pages = [trends[i : i + per_figure] for i in range(0, len(trends), per_figure)]
     figures = []
     for number, page in enumerate(pages, start=1):
         rows = math.ceil(len(page) / COLUMNS)
@@ -132,18 +177,19 @@ def drift_figures(drifts: Mapping[str, DriftTrend] | Iterable[DriftTrend], *, ti
         fig = Figure(figsize=(4.6 * columns + 0.6, 3.3 * rows + 0.9), dpi=90, layout="constrained")
         axes = np.atleast_1d(fig.subplots(rows, columns, squeeze=False)).ravel()
         twins = [_panel(ax, trend) for ax, trend in zip(axes, page, strict=False)]
-        for ax in axes[len(page):]:
+        for ax in axes[len(page) :]:
             ax.set_visible(False)
         flagged = sum(t.flagged for t in trends)
         head = f"Resonance drift per axis ({flagged} of {len(trends)} flagged)"
         more = f", figure {number} of {len(pages)}" if len(pages) > 1 else ""
         fig.suptitle(f"{head}{more}" + (f" — {title}" if title else ""), fontsize=11)
         handles: dict[str, Any] = {}
-        for ax in [*axes[:len(page)], *(t for t in twins if t is not None)]:
+        for ax in [*axes[: len(page)], *(t for t in twins if t is not None)]:
             for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
                 handles.setdefault(label, handle)
-        fig.legend(list(handles.values()), list(handles), loc="outside lower center", ncols=min(len(handles), 4),
-                   fontsize=8)
+        fig.legend(
+            list(handles.values()), list(handles), loc="outside lower center", ncols=min(len(handles), 4), fontsize=8
+        )
         figures.append(fig)
     return figures
 
@@ -153,8 +199,9 @@ def drift_file_names(count: int) -> list[str]:
     return ["drift.png" if i == 1 else f"drift_{i}.png" for i in range(1, count + 1)]
 
 
-def plot_drift(out_dir: str | os.PathLike, drifts: Mapping[str, DriftTrend] | Iterable[DriftTrend],
-               **kwargs: Any) -> list[Path]:
+def plot_drift(
+    out_dir: str | os.PathLike, drifts: Mapping[str, DriftTrend] | Iterable[DriftTrend], **kwargs: Any
+) -> list[Path]:
     """Write the drift view as ``drift.png`` (and ``drift_2.png``, ... for more than one figure) in ``out_dir``.
 
     Parameters
@@ -172,5 +219,4 @@ def plot_drift(out_dir: str | os.PathLike, drifts: Mapping[str, DriftTrend] | It
         The PNGs written, in order (none without axes).
     """
     figures = drift_figures(drifts, **kwargs)
-    return [save(fig, Path(out_dir) / name) for fig, name in zip(figures, drift_file_names(len(figures)),
-                                                                  strict=True)]
+    return [save(fig, Path(out_dir) / name) for fig, name in zip(figures, drift_file_names(len(figures)), strict=True)]

@@ -149,9 +149,18 @@ def plot_timeseries(
             ax.axvline(t_ev, color="tab:red", lw=0.8, ls="--", alpha=0.8)
     for t_ev, kind in marks:
         if kind:
-            axes[0].annotate(kind, xy=(t_ev, 1.0), xycoords=("data", "axes fraction"), xytext=(2, -2),
-                             textcoords="offset points", ha="left", va="top", fontsize=7,
-                             color="tab:red", rotation=90)
+            axes[0].annotate(
+                kind,
+                xy=(t_ev, 1.0),
+                xycoords=("data", "axes fraction"),
+                xytext=(2, -2),
+                textcoords="offset points",
+                ha="left",
+                va="top",
+                fontsize=7,
+                color="tab:red",
+                rotation=90,
+            )
     axes[-1].set_xlabel("time [s]")
     return _save(fig, path)
 
@@ -168,8 +177,10 @@ def model_label(model) -> str:
     fit = model.fit
     poles = fit.n_den + fit.integrators
     integ = f" ({fit.integrators} integrator{'s' if fit.integrators != 1 else ''})" if fit.integrators else ""
-    return (f"fitted TF, {fit.n_num} zero{'s' if fit.n_num != 1 else ''} / {poles} pole{'s' if poles != 1 else ''}"
-            f"{integ}, {str(model.criterion).upper()}")
+    return (
+        f"fitted TF, {fit.n_num} zero{'s' if fit.n_num != 1 else ''} / {poles} pole{'s' if poles != 1 else ''}"
+        f"{integ}, {str(model.criterion).upper()}"
+    )
 
 
 def _fine_grid(f: np.ndarray, band_hz: tuple[float, float] | None, designs: list) -> np.ndarray:
@@ -211,10 +222,15 @@ def _bode_args(plant, designs: list, summary, band_hz, coherence_threshold) -> d
         extras["model"] = (model_label(plant.model), *extras["model"][1:])
     stored = stored_notch_response(summary, fine)
     uploaded = bool(((summary or {}).get("upload") or {}).get("slots"))
-    return dict(resonances=plant.resonances, notch_response=pipeline.notch_chain_response(designs, fine),
-                coherence_threshold=coherence_threshold, band_hz=band_hz, stored_notch=stored,
-                notch_label="designed notch [dB re 1]" + ("" if uploaded or not designs else ", not uploaded"),
-                **extras)
+    return dict(
+        resonances=plant.resonances,
+        notch_response=pipeline.notch_chain_response(designs, fine),
+        coherence_threshold=coherence_threshold,
+        band_hz=band_hz,
+        stored_notch=stored,
+        notch_label="designed notch [dB re 1]" + ("" if uploaded or not designs else ", not uploaded"),
+        **extras,
+    )
 
 
 def _friction_png(path: Path, friction, title: str) -> None:
@@ -225,13 +241,31 @@ def _friction_png(path: Path, friction, title: str) -> None:
     v = np.linspace(-vmax, vmax, 801)
     p = friction.fit.params
     params = {n: getattr(p, n) for n in ("Fc", "Fs", "Fv", "vs", "delta_v", "delta_s")}
-    plot_friction(path, pts.v_mean, pts.tau_mean, v, stribeck(v, p), label=title,
-                  structure=friction.fit.structure or friction.model, params=params, stderr=friction.fit.stderr)
+    plot_friction(
+        path,
+        pts.v_mean,
+        pts.tau_mean,
+        v,
+        stribeck(v, p),
+        label=title,
+        structure=friction.fit.structure or friction.model,
+        params=params,
+        stderr=friction.fit.stderr,
+    )
 
 
-def plot_run(out: str | os.PathLike, friction, plant, designs: list, loop_after=None,
-             coherence_threshold: float | None = None, *, summary: Mapping[str, Any] | None = None,
-             band_hz: tuple[float, float] | None = None, output: str | None = None) -> None:
+def plot_run(
+    out: str | os.PathLike,
+    friction,
+    plant,
+    designs: list,
+    loop_after=None,
+    coherence_threshold: float | None = None,
+    *,
+    summary: Mapping[str, Any] | None = None,
+    band_hz: tuple[float, float] | None = None,
+    output: str | None = None,
+) -> None:
     """``friction.png`` (with a friction test) and ``bode.png`` of a run into the folder ``out``.
 
     Parameters
@@ -261,20 +295,28 @@ def plot_run(out: str | os.PathLike, friction, plant, designs: list, loop_after=
     plant_unit = ratio_unit(out_unit, "N*m")
     loop_unit = ratio_unit(out_unit, (summary.get("excitation") or {}).get("unit"))
     same = plant_unit == loop_unit or not loop_unit
-    responses = [("plant (net torque to output)" + ("" if same else f" [{plant_unit}]"), plant.plant),
-                 ("excitation to output, before notch" + ("" if same else f" [{loop_unit}]"), plant.loop)]
+    responses = [
+        ("plant (net torque to output)" + ("" if same else f" [{plant_unit}]"), plant.plant),
+        ("excitation to output, before notch" + ("" if same else f" [{loop_unit}]"), plant.loop),
+    ]
     if loop_after is not None:
         responses.append(("excitation to output, after notch" + ("" if same else f" [{loop_unit}]"), loop_after))
     unit = plant_unit if same else PER_CURVE
-    plot_bode(out / "bode.png", responses, title=plot_title(config, what="Bode"),
-              magnitude_unit=unit or None, **_bode_args(plant, designs, summary, band_hz, coherence_threshold))
+    plot_bode(
+        out / "bode.png",
+        responses,
+        title=plot_title(config, what="Bode"),
+        magnitude_unit=unit or None,
+        **_bode_args(plant, designs, summary, band_hz, coherence_threshold),
+    )
 
 
 # --------------------------------------------------------------------------- identify's plots
 
 
-def greybox_records(holdout: float, estimation: tuple[Any, Any], validation: Mapping[str, tuple[Any, Any]] | None = None
-                    ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+def greybox_records(
+    holdout: float, estimation: tuple[Any, Any], validation: Mapping[str, tuple[Any, Any]] | None = None
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """``(torque, position)`` of the records a grey-box fit was estimated and validated on, by name.
 
     As :func:`hilident.pipeline.fit_greybox` splits them: the validation
@@ -282,8 +324,9 @@ def greybox_records(holdout: float, estimation: tuple[Any, Any], validation: Map
     ``holdout`` of the estimation data (``"holdout"``).
     """
     torque, position = (np.asarray(x, dtype=float) for x in estimation)
-    others = {name: (np.asarray(t, dtype=float), np.asarray(q, dtype=float))
-              for name, (t, q) in (validation or {}).items()}
+    others = {
+        name: (np.asarray(t, dtype=float), np.asarray(q, dtype=float)) for name, (t, q) in (validation or {}).items()
+    }
     if others:
         return {"estimation data": (torque, position), **others}
     if holdout > 0:
@@ -292,8 +335,14 @@ def greybox_records(holdout: float, estimation: tuple[Any, Any], validation: Map
     return {"estimation data": (torque, position)}
 
 
-def plot_model(path: str | os.PathLike, model_cfg, result, records: Mapping[str, tuple[Any, Any]],
-               sample_rate_hz: float, title: str | None = None) -> Path:
+def plot_model(
+    path: str | os.PathLike,
+    model_cfg,
+    result,
+    records: Mapping[str, tuple[Any, Any]],
+    sample_rate_hz: float,
+    title: str | None = None,
+) -> Path:
     """``model.png``: the grey-box ``result`` simulated against each record, with its residual tests.
 
     ``records`` are ``(torque N·m, position m)`` by name (:func:`greybox_records`);
@@ -308,26 +357,44 @@ def plot_model(path: str | os.PathLike, model_cfg, result, records: Mapping[str,
     fits: dict[str, float] = {}
     for name, (torque, position) in records.items():
         try:
-            sims[name] = simulate_greybox(model_cfg.kind, result.fit.params,
-                                          model_cfg.c * np.asarray(torque, dtype=float), position, sample_rate_hz,
-                                          cutoff)
+            sims[name] = simulate_greybox(
+                model_cfg.kind,
+                result.fit.params,
+                model_cfg.c * np.asarray(torque, dtype=float),
+                position,
+                sample_rate_hz,
+                cutoff,
+            )
         except DataError as exc:  # the figure says why, the command goes on
             sims[name] = f"no simulation: {exc}"
         try:
             reg = pipeline.greybox_regression(model_cfg, torque, position, sample_rate_hz)
         except DataError:
             continue
-        residuals[name] = (np.asarray(reg.target) - result.fit.predict(reg.regressors),
-                           reg.regressors[result.fit.names[0]])
+        residuals[name] = (
+            np.asarray(reg.target) - result.fit.predict(reg.regressors),
+            reg.regressors[result.fit.names[0]],
+        )
         check = result.estimation if name == "estimation data" else result.validation.get(name, {})
         if check.get("fit_percent") is not None:
             fits[name] = check["fit_percent"]
     return plot_greybox(path, model_cfg.kind, result.fit, sims, residuals, title=title, regression_fit_percent=fits)
 
 
-def plot_identify(out: str | os.PathLike, summary: Mapping[str, Any], plant, designs: list, *,
-                  band_hz: tuple[float, float] | None = None, coherence_threshold: float | None = None,
-                  friction=None, model=None, model_cfg=None, data=None, validation=None) -> list[Path]:
+def plot_identify(
+    out: str | os.PathLike,
+    summary: Mapping[str, Any],
+    plant,
+    designs: list,
+    *,
+    band_hz: tuple[float, float] | None = None,
+    coherence_threshold: float | None = None,
+    friction=None,
+    model=None,
+    model_cfg=None,
+    data=None,
+    validation=None,
+) -> list[Path]:
     """``bode.png``, and ``friction.png`` and ``model.png`` when there is one, of ``hilident identify``.
 
     Parameters
@@ -364,15 +431,24 @@ def plot_identify(out: str | os.PathLike, summary: Mapping[str, Any], plant, des
         return units.get(key) or channel_unit(mapping.get(key))
 
     unit = ratio_unit(unit_of("output") or unit_of("velocity"), unit_of("torque") or unit_of("excitation"))
-    written = [plot_bode(out / "bode.png", [("plant (input to output)", plant.plant)],
-                         title=title.replace("identify", "Bode: identify", 1), magnitude_unit=unit or None,
-                         **_bode_args(plant, designs, summary, band_hz, coherence_threshold))]
+    written = [
+        plot_bode(
+            out / "bode.png",
+            [("plant (input to output)", plant.plant)],
+            title=title.replace("identify", "Bode: identify", 1),
+            magnitude_unit=unit or None,
+            **_bode_args(plant, designs, summary, band_hz, coherence_threshold),
+        )
+    ]
     if friction is not None:
         _friction_png(out / "friction.png", friction, title)
         written.append(out / "friction.png")
     if model is not None and model_cfg is not None and data is not None:
-        others = None if validation is None else {
-            Path(validation.source).name: (validation.signals["torque"], validation.signals["position"])}
+        others = (
+            None
+            if validation is None
+            else {Path(validation.source).name: (validation.signals["torque"], validation.signals["position"])}
+        )
         records = greybox_records(model_cfg.holdout, (data.signals["torque"], data.signals["position"]), others)
         written.append(plot_model(out / "model.png", model_cfg, model, records, data.sample_rate_hz, title))
     return written

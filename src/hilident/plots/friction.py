@@ -30,8 +30,9 @@ def friction_title(structure: str) -> str:
     return _STRUCTURES.get(structure, (f"{structure} friction", ()))[0]
 
 
-def friction_parameter_lines(structure: str, params: Mapping[str, float],
-                             stderr: Mapping[str, float] | None = None) -> list[str]:
+def friction_parameter_lines(
+    structure: str, params: Mapping[str, float], stderr: Mapping[str, float] | None = None
+) -> list[str]:
     """One ``"Fv = 2.01 ± 0.03 N·m/(m/s)"`` line per parameter the structure fits (all given ones if unknown)."""
     names = _STRUCTURES.get(structure, ("", tuple(params)))[1]
     lines = []
@@ -83,8 +84,14 @@ def friction_figure(
         first = True
         for branch in (fv < 0, fv > 0):  # the step at v = 0 is not bridged by a sloped segment
             if np.any(branch):
-                ax.plot(fv[branch], ft[branch], "-", color="tab:orange", lw=1.6,
-                        label=(f"fit: {name}" if name else "fit") if first else None)
+                ax.plot(
+                    fv[branch],
+                    ft[branch],
+                    "-",
+                    color="tab:orange",
+                    lw=1.6,
+                    label=(f"fit: {name}" if name else "fit") if first else None,
+                )
                 first = False
     ax.set_xlabel("velocity [m/s]")
     ax.set_ylabel("friction torque [N·m]")
@@ -94,8 +101,16 @@ def friction_figure(
     if params:
         text = "\n".join(friction_parameter_lines(structure or "", params, stderr))
         if text:
-            ax.annotate(text, xy=(1.01, 0.0), xycoords="axes fraction", ha="left", va="bottom", fontsize=8,
-                        family="monospace", bbox=dict(boxstyle="round", fc="white", ec="0.7"))
+            ax.annotate(
+                text,
+                xy=(1.01, 0.0),
+                xycoords="axes fraction",
+                ha="left",
+                va="bottom",
+                fontsize=8,
+                family="monospace",
+                bbox=dict(boxstyle="round", fc="white", ec="0.7"),
+            )
     return fig
 
 

@@ -65,8 +65,9 @@ class Simulation:
     note: str = ""
 
 
-def simulate_greybox(kind: str, params: Mapping[str, float], force_n: Any, position_m: Any, sample_rate_hz: float,
-                     cutoff_hz: float) -> Simulation:
+def simulate_greybox(
+    kind: str, params: Mapping[str, float], force_n: Any, position_m: Any, sample_rate_hz: float, cutoff_hz: float
+) -> Simulation:
     """Simulate a fitted grey-box model from the measured force and compare it with the measured output.
 
     Parameters
@@ -131,8 +132,9 @@ def _simulate_msd(params: Mapping[str, float], u: np.ndarray, y: np.ndarray, fs:
     return forced + basis @ x0
 
 
-def _simulate_rigid(params: Mapping[str, float], u: np.ndarray, q: np.ndarray, fs: float,
-                    cutoff_hz: float) -> tuple[np.ndarray, np.ndarray, int]:
+def _simulate_rigid(
+    params: Mapping[str, float], u: np.ndarray, q: np.ndarray, fs: float, cutoff_hz: float
+) -> tuple[np.ndarray, np.ndarray, int]:
     """Velocity of ``M v' = F - friction(v) - offset`` stepped from the measured start, and the measured velocity."""
     from hilident.ident.derivatives import settling_samples, state_variable_filter
 
@@ -162,14 +164,21 @@ def _simulate_rigid(params: Mapping[str, float], u: np.ndarray, q: np.ndarray, f
             fr = (fv_pos * v + fc_pos) if v > 0 else (fv_neg * v - fc_neg) if v < 0 else 0.0
             v += dt * (f - fr - offset) / M
         if not np.isfinite(v) or abs(v) > 1e6:
-            sim[i + 1:] = np.nan
+            sim[i + 1 :] = np.nan
             break
     return v_meas, sim, edge
 
 
-def greybox_figure(kind: str, fit: Any, simulations: Mapping[str, Simulation | str],
-                   residuals: Mapping[str, tuple[Any, Any]], *, title: str | None = None,
-                   regression_fit_percent: Mapping[str, float] | None = None, max_lag: int = 25):
+def greybox_figure(
+    kind: str,
+    fit: Any,
+    simulations: Mapping[str, Simulation | str],
+    residuals: Mapping[str, tuple[Any, Any]],
+    *,
+    title: str | None = None,
+    regression_fit_percent: Mapping[str, float] | None = None,
+    max_lag: int = 25,
+):
     """The figure of :func:`plot_greybox`, not saved.
 
     One row per record: simulated against measured, the residuals'
@@ -205,15 +214,35 @@ def greybox_figure(kind: str, fit: Any, simulations: Mapping[str, Simulation | s
         try:
             ra = residual_analysis(e, regressor, max_lag=lag)
         except (DataError, ConfigError) as exc:
-            ax_auto.text(0.5, 0.5, f"no residual test:\n{exc}", transform=ax_auto.transAxes, ha="center",
-                         va="center", color="0.4", fontsize=8, wrap=True)
+            ax_auto.text(
+                0.5,
+                0.5,
+                f"no residual test:\n{exc}",
+                transform=ax_auto.transAxes,
+                ha="center",
+                va="center",
+                color="0.4",
+                fontsize=8,
+                wrap=True,
+            )
             continue
-        _correlation_axis(ax_auto, ra.lags, ra.autocorr, ra.bound, "autocorrelation of residuals",
-                          f"white: {'yes' if ra.white else 'no'}, Ljung-Box p = {ra.ljung_box_p:.2g}")
+        _correlation_axis(
+            ax_auto,
+            ra.lags,
+            ra.autocorr,
+            ra.bound,
+            "autocorrelation of residuals",
+            f"white: {'yes' if ra.white else 'no'}, Ljung-Box p = {ra.ljung_box_p:.2g}",
+        )
         if ra.cross_lags.size:
-            _correlation_axis(ax_cross, ra.cross_lags, ra.crosscorr, ra.bound,
-                              f"cross-corr. residual / {fit.names[0]} regressor",
-                              f"independent: {'yes' if ra.independent else 'no'}")
+            _correlation_axis(
+                ax_cross,
+                ra.cross_lags,
+                ra.crosscorr,
+                ra.bound,
+                f"cross-corr. residual / {fit.names[0]} regressor",
+                f"independent: {'yes' if ra.independent else 'no'}",
+            )
     fig.suptitle(f"{title}\n{kind}: {params}" if title else f"{kind}: {params}", fontsize=10)
     return fig
 
@@ -222,8 +251,14 @@ def _compare_axis(ax, kind: str, name: str, sim: Simulation, regression_fit_perc
     """Measured and simulated output of one record, the simulation's fit % in the legend."""
     stride = max(1, sim.time_s.size // 20_000)
     ax.plot(sim.time_s[::stride], sim.measured[::stride], color="0.35", lw=0.8, label="measured")
-    ax.plot(sim.time_s[::stride], sim.simulated[::stride], color="tab:blue", lw=1.0, ls="--",
-            label=f"simulated {kind} (fit {sim.fit_percent:.1f} %)")
+    ax.plot(
+        sim.time_s[::stride],
+        sim.simulated[::stride],
+        color="tab:blue",
+        lw=1.0,
+        ls="--",
+        label=f"simulated {kind} (fit {sim.fit_percent:.1f} %)",
+    )
     ax.set_ylim(*_padded(sim.measured))
     ax.set_xlabel("time [s]")
     ax.set_ylabel(f"{sim.name} [{sim.unit}]")
@@ -232,8 +267,7 @@ def _compare_axis(ax, kind: str, name: str, sim: Simulation, regression_fit_perc
         extra.append(f"equation fit {regression_fit_percent[name]:.1f} %")
     if sim.note:
         extra.append(sim.note)
-    ax.set_title(f"{name}: simulated vs measured {sim.name}" + (f" ({'; '.join(extra)})" if extra else ""),
-                 fontsize=9)
+    ax.set_title(f"{name}: simulated vs measured {sim.name}" + (f" ({'; '.join(extra)})" if extra else ""), fontsize=9)
     ax.grid(True, alpha=0.3)
     ax.legend(loc="upper right", fontsize=8, framealpha=0.9)
 
@@ -261,8 +295,14 @@ def _correlation_axis(ax, lags: np.ndarray, values: np.ndarray, bound: float, wh
     ax.legend(loc="best", fontsize=7, framealpha=0.9)
 
 
-def plot_greybox(path: str | os.PathLike, kind: str, fit: Any, simulations: Mapping[str, Simulation | str],
-                 residuals: Mapping[str, tuple[Any, Any]], **kwargs: Any) -> Path:
+def plot_greybox(
+    path: str | os.PathLike,
+    kind: str,
+    fit: Any,
+    simulations: Mapping[str, Simulation | str],
+    residuals: Mapping[str, tuple[Any, Any]],
+    **kwargs: Any,
+) -> Path:
     """The grey-box model against each record, written as PNG.
 
     Parameters

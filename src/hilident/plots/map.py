@@ -15,8 +15,14 @@ from hilident.plots.common import outside_legend, save
 __all__ = ["map_figure", "plot_map"]
 
 
-def map_figure(points: Sequence[dict], *, title: str = "", model: Callable[[np.ndarray], tuple] | None = None,
-               model_label: str = "joint model", covered_hz: tuple[float, float] | None = None):
+def map_figure(
+    points: Sequence[dict],
+    *,
+    title: str = "",
+    model: Callable[[np.ndarray], tuple] | None = None,
+    model_label: str = "joint model",
+    covered_hz: tuple[float, float] | None = None,
+):
     """The figure of :func:`plot_map`, not saved.
 
     Parameters
@@ -44,16 +50,23 @@ def map_figure(points: Sequence[dict], *, title: str = "", model: Callable[[np.n
     fig = Figure(figsize=(8.5, 4.8), dpi=110, layout="constrained")
     ax = fig.subplots()
     if covered_hz is not None:
-        ax.axhspan(covered_hz[0], covered_hz[1], color="tab:green", alpha=0.12,
-                   label=f"notch covers {covered_hz[0]:.2f}-{covered_hz[1]:.2f} Hz")
-    ax.errorbar(x, f, yerr=ci, fmt="o", ms=5, capsize=4, color="tab:blue",
-                label="identified at each position (95 % interval)")
+        ax.axhspan(
+            covered_hz[0],
+            covered_hz[1],
+            color="tab:green",
+            alpha=0.12,
+            label=f"notch covers {covered_hz[0]:.2f}-{covered_hz[1]:.2f} Hz",
+        )
+    ax.errorbar(
+        x, f, yerr=ci, fmt="o", ms=5, capsize=4, color="tab:blue", label="identified at each position (95 % interval)"
+    )
     if model is not None:
         grid = np.linspace(x.min(), x.max(), 200) if x.size > 1 else x
         fm, fm_ci = (np.asarray(v, dtype=float) for v in model(grid))
         ax.plot(grid, fm, color="tab:orange", lw=1.6, label=model_label)
-        ax.fill_between(grid, fm - fm_ci, fm + fm_ci, color="tab:orange", alpha=0.2,
-                        label=f"{model_label}, 95 % interval")
+        ax.fill_between(
+            grid, fm - fm_ci, fm + fm_ci, color="tab:orange", alpha=0.2, label=f"{model_label}, 95 % interval"
+        )
     missing = [p["position_m"] for p in points if p.get("frequency_hz") is None]
     for i, position in enumerate(missing):
         ax.axvline(position, color="0.5", ls=":", lw=1.0, label="no mode found" if i == 0 else None)

@@ -52,16 +52,29 @@ def _number(x: float, unit: str) -> str:
 
 
 def _entry(name: str, r: ResidualVibration, unit: str, scale: float, delay_s: float | None) -> str:
-    settles = ("settles in " + _number(r.settling_time_s, "s") if r.settling_time_s is not None
-               else "not settled in the dwell")
+    settles = (
+        "settles in " + _number(r.settling_time_s, "s") if r.settling_time_s is not None else "not settled in the dwell"
+    )
     delay = f"\nends {delay_s:.3g} s later" if delay_s else ""
-    return (f"{name}:\nRMS {_number(r.rms / scale, unit)}, peak-to-peak {_number(r.peak_to_peak / scale, unit)}"
-            f"\n{settles}{delay}")
+    return (
+        f"{name}:\nRMS {_number(r.rms / scale, unit)}, peak-to-peak {_number(r.peak_to_peak / scale, unit)}"
+        f"\n{settles}{delay}"
+    )
 
 
-def moves_figure(comparison: MoveComparison, without_time_s: Any, without_signal: Any, with_time_s: Any,
-                 with_signal: Any, *, signal_name: str = "load", subject: str | None = None,
-                 when: dt.datetime | None = None, added_delay_s: float | None = None, before_s: float = 0.25):
+def moves_figure(
+    comparison: MoveComparison,
+    without_time_s: Any,
+    without_signal: Any,
+    with_time_s: Any,
+    with_signal: Any,
+    *,
+    signal_name: str = "load",
+    subject: str | None = None,
+    when: dt.datetime | None = None,
+    added_delay_s: float | None = None,
+    before_s: float = 0.25,
+):
     """The figure of :func:`plot_moves`, unsaved (what the tests inspect).
 
     Raises
@@ -72,8 +85,10 @@ def moves_figure(comparison: MoveComparison, without_time_s: Any, without_signal
     from matplotlib.figure import Figure
 
     curves = []
-    for name, t, y, r in (("without notch", without_time_s, without_signal, comparison.without),
-                          ("with notch", with_time_s, with_signal, comparison.with_notch)):
+    for name, t, y, r in (
+        ("without notch", without_time_s, without_signal, comparison.without),
+        ("with notch", with_time_s, with_signal, comparison.with_notch),
+    ):
         tv = vector(t, f"{name} time_s")
         yv = vector(y, f"{name} signal")
         same_length(tv, f"{name} time_s", yv, f"{name} signal")
@@ -101,15 +116,24 @@ def moves_figure(comparison: MoveComparison, without_time_s: Any, without_signal
     ax.set_xlabel("time after the set-point's end [s]")
     ax.set_ylabel(f"{signal_name}, deviation from its final value [{unit}]")
     ax.grid(True, alpha=0.3)
-    reduction = (f"residual vibration reduced by {comparison.rms_reduction_db:.1f} dB (RMS), "
-                 f"{comparison.peak_to_peak_reduction_db:.1f} dB (peak-to-peak)")
+    reduction = (
+        f"residual vibration reduced by {comparison.rms_reduction_db:.1f} dB (RMS), "
+        f"{comparison.peak_to_peak_reduction_db:.1f} dB (peak-to-peak)"
+    )
     ax.set_title(f"{plot_title(config_name(subject), when, 'Move')}\n{reduction}", fontsize=10)
     outside_legend(ax)
     return fig
 
 
-def plot_moves(path: str | os.PathLike, comparison: MoveComparison, without_time_s: Any, without_signal: Any,
-               with_time_s: Any, with_signal: Any, **kwargs: Any) -> Path:
+def plot_moves(
+    path: str | os.PathLike,
+    comparison: MoveComparison,
+    without_time_s: Any,
+    without_signal: Any,
+    with_time_s: Any,
+    with_signal: Any,
+    **kwargs: Any,
+) -> Path:
     """Both moves' load signal after the move, overlaid, with the dwell, the settling band and the figures.
 
     Parameters

@@ -18,8 +18,9 @@ __all__ = ["notch_figure", "plot_notches", "records_chain"]
 GRID_POINTS = 4000
 
 
-def records_chain(records: Iterable[Mapping[str, Any]], b_key: str, a_key: str, rates: Mapping[Any, float],
-                  f: np.ndarray) -> np.ndarray | None:
+def records_chain(
+    records: Iterable[Mapping[str, Any]], b_key: str, a_key: str, rates: Mapping[Any, float], f: np.ndarray
+) -> np.ndarray | None:
     """The biquads ``(record[b_key], record[a_key])`` in series at ``f`` (Hz); None when no record has both.
 
     A record's rate is ``rates[record["slot"]]``, else its own ``sample_rate_hz``; a record without one is left out.
@@ -69,16 +70,33 @@ def notch_figure(summary: Mapping[str, Any]):
     ax = fig.add_subplot()
     designed = records_chain(designs, "b", "a", rates, f)
     if designed is not None:
-        ax.semilogx(f, 20 * np.log10(np.abs(designed)), color="tab:blue", lw=1.5, ls="--",
-                    label=f"designed ({len(designs)} notch{'es' if len(designs) != 1 else ''})")
+        ax.semilogx(
+            f,
+            20 * np.log10(np.abs(designed)),
+            color="tab:blue",
+            lw=1.5,
+            ls="--",
+            label=f"designed ({len(designs)} notch{'es' if len(designs) != 1 else ''})",
+        )
     stored = records_chain(slots, "readback_b", "readback_a", rates, f)
     if stored is not None:
-        ax.semilogx(f, 20 * np.log10(np.abs(stored)), color="tab:red", lw=1.2,
-                    label=f"stored in the device (read back, {len(slots)} slot{'s' if len(slots) != 1 else ''})")
+        ax.semilogx(
+            f,
+            20 * np.log10(np.abs(stored)),
+            color="tab:red",
+            lw=1.2,
+            label=f"stored in the device (read back, {len(slots)} slot{'s' if len(slots) != 1 else ''})",
+        )
     for n in designs:
-        ax.axvline(float(n["center_hz"]), color="0.5", lw=0.8, ls=":",
-                   label=f"slot {n.get('slot')}: {float(n['center_hz']):.4g} Hz, {float(n['depth_db']):.3g} dB asked"
-                   if n.get("depth_db") is not None else f"slot {n.get('slot')}: {float(n['center_hz']):.4g} Hz")
+        ax.axvline(
+            float(n["center_hz"]),
+            color="0.5",
+            lw=0.8,
+            ls=":",
+            label=f"slot {n.get('slot')}: {float(n['center_hz']):.4g} Hz, {float(n['depth_db']):.3g} dB asked"
+            if n.get("depth_db") is not None
+            else f"slot {n.get('slot')}: {float(n['center_hz']):.4g} Hz",
+        )
     ax.set_xlabel("frequency [Hz]")
     ax.set_ylabel("magnitude [dB re 1]")
     ax.xaxis.set_major_formatter(plain_number)

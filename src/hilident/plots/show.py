@@ -39,8 +39,18 @@ if TYPE_CHECKING:
 
     from hilident.io.recording import RunData
 
-__all__ = ["TIME_COLUMNS", "ShowResult", "axis_label", "draw_recording", "load_recording", "parse_channel_list",
-           "recording_figure", "select_channels", "show_recording", "title_lines"]
+__all__ = [
+    "TIME_COLUMNS",
+    "ShowResult",
+    "axis_label",
+    "draw_recording",
+    "load_recording",
+    "parse_channel_list",
+    "recording_figure",
+    "select_channels",
+    "show_recording",
+    "title_lines",
+]
 
 #: Columns that give each row's place in time; drawn as the time axis, not as channels.
 TIME_COLUMNS = ("sample_index", "time_s")
@@ -49,13 +59,37 @@ TIME_COLUMNS = ("sample_index", "time_s")
 MAX_PLOT_POINTS = 20_000
 
 #: What the quantity of a unit is called on an axis shared by several channels.
-QUANTITY_OF_UNIT = {"N*m": "torque", "N": "force", "m": "position", "m/s": "velocity", "m/s^2": "acceleration",
-                    "rad": "angle", "rad/s": "angular velocity", "A": "current", "V": "voltage", "s": "time"}
+QUANTITY_OF_UNIT = {
+    "N*m": "torque",
+    "N": "force",
+    "m": "position",
+    "m/s": "velocity",
+    "m/s^2": "acceleration",
+    "rad": "angle",
+    "rad/s": "angular velocity",
+    "A": "current",
+    "V": "voltage",
+    "s": "time",
+}
 
 #: Event kinds that mean data were lost, mangled or not measured.
-LOSS_KINDS = frozenset({Kind.LOST_BLOCKS, Kind.OUT_OF_ORDER, Kind.PROTOCOL_ERROR, Kind.REFUSED, Kind.MISSING_RESPONSE,
-                        Kind.UNDERRUN, Kind.CLIPPED, Kind.SYNC_LATE, Kind.SYNC_UNANSWERED, Kind.SYNC_ERRORS,
-                        Kind.CAPTURE_SHORT, Kind.CAPTURE_STOPPED, Kind.EXCITATION_DIFFERS})
+LOSS_KINDS = frozenset(
+    {
+        Kind.LOST_BLOCKS,
+        Kind.OUT_OF_ORDER,
+        Kind.PROTOCOL_ERROR,
+        Kind.REFUSED,
+        Kind.MISSING_RESPONSE,
+        Kind.UNDERRUN,
+        Kind.CLIPPED,
+        Kind.SYNC_LATE,
+        Kind.SYNC_UNANSWERED,
+        Kind.SYNC_ERRORS,
+        Kind.CAPTURE_SHORT,
+        Kind.CAPTURE_STOPPED,
+        Kind.EXCITATION_DIFFERS,
+    }
+)
 
 #: (colour, line width) of an event line by what the event means; kinds of one meaning differ in line style.
 _FAULT_STYLE = ("tab:red", 1.4)
@@ -106,8 +140,10 @@ def load_recording(path: str | os.PathLike) -> RunData:
     if not p.is_file():
         raise UsageError(f"{p}: no such file; hilident show takes a recording (.h5) written by hilident run")
     if not h5py.is_hdf5(p):
-        raise UsageError(f"{p}: not a hilident recording (not an HDF5 file); hilident show takes the .h5 files "
-                         "hilident run writes (CSV and .mat files go to hilident identify)")
+        raise UsageError(
+            f"{p}: not a hilident recording (not an HDF5 file); hilident show takes the .h5 files "
+            "hilident run writes (CSV and .mat files go to hilident identify)"
+        )
     try:
         with h5py.File(p, "r", locking=False) as f:
             found = f.attrs.get("format")
@@ -116,8 +152,10 @@ def load_recording(path: str | os.PathLike) -> RunData:
     if isinstance(found, bytes):
         found = found.decode("utf-8", errors="replace")
     if found != FORMAT:
-        raise UsageError(f"{p}: not a hilident recording (an HDF5 file without format = {FORMAT!r}); hilident show "
-                         "takes the .h5 files hilident run writes")
+        raise UsageError(
+            f"{p}: not a hilident recording (an HDF5 file without format = {FORMAT!r}); hilident show "
+            "takes the .h5 files hilident run writes"
+        )
     return read_run(p)
 
 
@@ -139,8 +177,10 @@ def select_channels(run: RunData, names: Sequence[str] | None = None) -> list[st
         return picked or list(run.channel_names)
     unknown = [n for n in names if n not in run.samples]
     if unknown:
-        raise UsageError(f"--channels: {run.path} has no channel {', '.join(map(repr, unknown))}; its channels: "
-                         f"{', '.join(run.channel_names)}")
+        raise UsageError(
+            f"--channels: {run.path} has no channel {', '.join(map(repr, unknown))}; its channels: "
+            f"{', '.join(run.channel_names)}"
+        )
     return list(dict.fromkeys(names))
 
 
@@ -251,8 +291,10 @@ def title_lines(run: RunData) -> list[str]:
         lines.append("events: " + ", ".join(f"{kind} × {len(times)}" for kind, times in counts.items()))
         first_fault = next((ev for ev in run.events if ev.get("kind") in FAULT_KINDS), None)
         if first_fault is not None:
-            lines.append(f"{first_fault['kind']} at {first_fault['time_s']:.4g} s: "
-                         f"{_shorten(str(first_fault.get('message', '')), 100)}")
+            lines.append(
+                f"{first_fault['kind']} at {first_fault['time_s']:.4g} s: "
+                f"{_shorten(str(first_fault.get('message', '')), 100)}"
+            )
     return [line for line in lines if line]
 
 
@@ -311,14 +353,30 @@ def _draw_events(fig: Figure, axes, events: Sequence[Mapping[str, Any]]) -> None
         n = kinds_of_style[color, width] = kinds_of_style.get((color, width), -1) + 1
         style = _LINE_STYLES[n % len(_LINE_STYLES)]
         for i, ax in enumerate(axes):
-            lines = ax.vlines(times, 0.0, 1.0, transform=ax.get_xaxis_transform(), colors=color,
-                              linestyles=style, linewidths=width, alpha=0.85, zorder=3,
-                              label=f"{kind} ({len(times)})" if i == 0 else None)
+            lines = ax.vlines(
+                times,
+                0.0,
+                1.0,
+                transform=ax.get_xaxis_transform(),
+                colors=color,
+                linestyles=style,
+                linewidths=width,
+                alpha=0.85,
+                zorder=3,
+                label=f"{kind} ({len(times)})" if i == 0 else None,
+            )
             if i == 0:
                 handles.append(lines)
     if handles:
-        fig.legend(handles=handles, loc="outside lower center", ncols=min(4, len(handles)), fontsize=8,
-                   frameon=False, title="events", title_fontsize=8)
+        fig.legend(
+            handles=handles,
+            loc="outside lower center",
+            ncols=min(4, len(handles)),
+            fontsize=8,
+            frameon=False,
+            title="events",
+            title_fontsize=8,
+        )
 
 
 def recording_figure(run: RunData, channels: Sequence[str] | None = None) -> Figure:
@@ -386,8 +444,13 @@ def save_png(fig: Figure, path: Path) -> Path:
     return path
 
 
-def show_recording(path: str | os.PathLike, channels: Sequence[str] | None = None,
-                   out: str | os.PathLike | None = None, *, window: bool | None = None) -> ShowResult:
+def show_recording(
+    path: str | os.PathLike,
+    channels: Sequence[str] | None = None,
+    out: str | os.PathLike | None = None,
+    *,
+    window: bool | None = None,
+) -> ShowResult:
     """Draw a recording: into ``out``, else in a window when a display exists, else into ``<recording>.png``.
 
     Parameters

@@ -35,12 +35,41 @@ from hilident.errors import ConfigError, DataError
 from hilident.protocol.canopen_recorder import RecorderCapability, parse_recorder
 
 __all__ = [
-    "ObjectAddress", "ModeSpec", "FilterObjects", "CanopenDescription", "BOOLEAN", "INTEGER8", "INTEGER16",
-    "INTEGER32", "UNSIGNED8", "UNSIGNED16", "UNSIGNED32", "REAL32", "DOMAIN", "NUMERIC_TYPES", "type_bits",
-    "numpy_type", "record_dtype", "encode_si", "decode_raw", "mapping_entry", "parse_mapping_entry",
-    "pack_frames", "TableState", "TABLE_START", "TABLE_STOP", "ROLE_SCALING", "parse_address",
-    "ABORT_CONNECTION_OPTIONS", "HEARTBEAT_CONSUMER_INDEX", "ABORT_CONNECTION_INDEX", "consumer_entry",
-    "parse_consumer_entry", "COUNTER_ROLES", "REQUIRED_ROLES", "default_supported_modes",
+    "ObjectAddress",
+    "ModeSpec",
+    "FilterObjects",
+    "CanopenDescription",
+    "BOOLEAN",
+    "INTEGER8",
+    "INTEGER16",
+    "INTEGER32",
+    "UNSIGNED8",
+    "UNSIGNED16",
+    "UNSIGNED32",
+    "REAL32",
+    "DOMAIN",
+    "NUMERIC_TYPES",
+    "type_bits",
+    "numpy_type",
+    "record_dtype",
+    "encode_si",
+    "decode_raw",
+    "mapping_entry",
+    "parse_mapping_entry",
+    "pack_frames",
+    "TableState",
+    "TABLE_START",
+    "TABLE_STOP",
+    "ROLE_SCALING",
+    "parse_address",
+    "ABORT_CONNECTION_OPTIONS",
+    "HEARTBEAT_CONSUMER_INDEX",
+    "ABORT_CONNECTION_INDEX",
+    "consumer_entry",
+    "parse_consumer_entry",
+    "COUNTER_ROLES",
+    "REQUIRED_ROLES",
+    "default_supported_modes",
 ]
 
 # CiA 301 data type codes
@@ -49,10 +78,20 @@ UNSIGNED8, UNSIGNED16, UNSIGNED32, REAL32 = 0x05, 0x06, 0x07, 0x08
 DOMAIN, REAL64, INTEGER64, UNSIGNED64 = 0x0F, 0x11, 0x15, 0x1B
 
 _NUMPY = {
-    BOOLEAN: "u1", INTEGER8: "i1", INTEGER16: "<i2", INTEGER32: "<i4", UNSIGNED8: "u1", UNSIGNED16: "<u2",
-    UNSIGNED32: "<u4", REAL32: "<f4", REAL64: "<f8", INTEGER64: "<i8", UNSIGNED64: "<u8",
+    BOOLEAN: "u1",
+    INTEGER8: "i1",
+    INTEGER16: "<i2",
+    INTEGER32: "<i4",
+    UNSIGNED8: "u1",
+    UNSIGNED16: "<u2",
+    UNSIGNED32: "<u4",
+    REAL32: "<f4",
+    REAL64: "<f8",
+    INTEGER64: "<i8",
+    UNSIGNED64: "<u8",
 }
 NUMERIC_TYPES = frozenset(_NUMPY)
+
 
 #: Table/capture states reported in the table-state object.
 class TableState:
@@ -72,12 +111,23 @@ TABLE_START = 1
 #: rated torque), "current" (per mille of the rated current, as torque through the
 #: torque constant), "si" (REAL32 already in SI units).
 ROLE_SCALING = {
-    "position_actual": "position", "target_position": "position", "position_limit_min": "position",
-    "position_limit_max": "position", "interpolation_data": "position", "velocity_actual": "velocity",
-    "target_velocity": "velocity", "max_velocity": "velocity", "velocity_offset": "velocity",
-    "target_torque": "torque", "torque_offset": "torque", "torque_demand": "torque",
-    "torque_actual": "torque", "max_torque": "torque", "current_actual": "current",
-    "applied_excitation": "si", "load_position": "si",
+    "position_actual": "position",
+    "target_position": "position",
+    "position_limit_min": "position",
+    "position_limit_max": "position",
+    "interpolation_data": "position",
+    "velocity_actual": "velocity",
+    "target_velocity": "velocity",
+    "max_velocity": "velocity",
+    "velocity_offset": "velocity",
+    "target_torque": "torque",
+    "torque_offset": "torque",
+    "torque_demand": "torque",
+    "torque_actual": "torque",
+    "max_torque": "torque",
+    "current_actual": "current",
+    "applied_excitation": "si",
+    "load_position": "si",
 }
 
 #: Roles every CANopen drive must have (in its EDS, or named by its driver description).
@@ -85,8 +135,18 @@ REQUIRED_ROLES = ("controlword", "statusword", "modes_of_operation")
 #: The hilident counters: a drive that has them numbers its TPDOs and RPDOs, so a streamed run is matched
 #: sample by sample; without them the host matches TPDOs to SYNCs by their order on the bus.
 COUNTER_ROLES = ("sample_counter", "setpoint_counter", "setpoint_underruns", "sync_errors")
-BUFFERED_ROLES = ("table", "table_length", "table_divider", "table_command", "table_state", "capture_count",
-                  "table_capacity", "capture_offset", "capture_mapping", "capture_data")
+BUFFERED_ROLES = (
+    "table",
+    "table_length",
+    "table_divider",
+    "table_command",
+    "table_state",
+    "capture_count",
+    "table_capacity",
+    "capture_offset",
+    "capture_mapping",
+    "capture_data",
+)
 ACQUISITIONS = ("streamed", "buffered", "recorder")
 #: CiA 402 abort connection option codes (0x6007) hilident arms: what the drive does when it loses the host.
 ABORT_CONNECTION_OPTIONS = {1: "fault", 2: "disable voltage", 3: "quick stop"}
@@ -117,15 +177,17 @@ def parse_address(text, key: str = "", source: str = "") -> ObjectAddress:
     if isinstance(text, ObjectAddress):
         return text
     if not isinstance(text, str):
-        raise ConfigError(key or "address", f'must be an object address like "0x6064" or "0x607D:2", got {text!r}',
-                          source)
+        raise ConfigError(
+            key or "address", f'must be an object address like "0x6064" or "0x607D:2", got {text!r}', source
+        )
     try:
         head, _, tail = str(text).strip().partition(":")
         index = int(head, 16)
         sub = int(tail, 0) if tail else 0
     except ValueError:
-        raise ConfigError(key or "address", f'must be an object address like "0x6064" or "0x607D:2", got {text!r}',
-                          source) from None
+        raise ConfigError(
+            key or "address", f'must be an object address like "0x6064" or "0x607D:2", got {text!r}', source
+        ) from None
     if not (0 <= index <= 0xFFFF and 0 <= sub <= 0xFF):
         raise ConfigError(key or "address", f"index or sub-index out of range in {text!r}", source)
     return ObjectAddress(index, sub)
@@ -305,17 +367,29 @@ class CanopenDescription:
         units = build_table(_ScalingTable, _table(co, "scaling", source), "canopen.scaling.", source)
         channels = _channels(co, objects, units.torque_constant_nm_per_a > 0, source)
         desc = cls(
-            eds=keys.eds, vendor_id=keys.vendor_id, product_code=keys.product_code,
-            default_acquisition=keys.default_acquisition, heartbeat_ms=keys.heartbeat_ms,
+            eds=keys.eds,
+            vendor_id=keys.vendor_id,
+            product_code=keys.product_code,
+            default_acquisition=keys.default_acquisition,
+            heartbeat_ms=keys.heartbeat_ms,
             heartbeat_timeout_ms=keys.heartbeat_timeout(source),
-            block_transfer=keys.block_transfer, emcy_sample_index=keys.emcy_sample_index,
-            position_unit_m=units.position_unit_m, velocity_unit_mps=units.velocity_unit_mps,
-            objects=objects, modes=modes, channels=channels,
+            block_transfer=keys.block_transfer,
+            emcy_sample_index=keys.emcy_sample_index,
+            position_unit_m=units.position_unit_m,
+            velocity_unit_mps=units.velocity_unit_mps,
+            objects=objects,
+            modes=modes,
+            channels=channels,
             filters=_filter_objects(sections.get("filters"), source),
-            host_node_id=keys.host_node_id, abort_connection_option=keys.abort_connection_option,
-            rated_torque_unit_nm=units.rated_torque_unit_nm, rated_torque_nm=units.rated_torque_nm,
-            torque_constant_nm_per_a=units.torque_constant_nm_per_a, rated_current_a=units.rated_current_a,
-            cyclic_modes=tuple(keys.cyclic_modes), explicit_modes=explicit, unmappable=unmappable,
+            host_node_id=keys.host_node_id,
+            abort_connection_option=keys.abort_connection_option,
+            rated_torque_unit_nm=units.rated_torque_unit_nm,
+            rated_torque_nm=units.rated_torque_nm,
+            torque_constant_nm_per_a=units.torque_constant_nm_per_a,
+            rated_current_a=units.rated_current_a,
+            cyclic_modes=tuple(keys.cyclic_modes),
+            explicit_modes=explicit,
+            unmappable=unmappable,
             recorder=parse_recorder(sections, source, od),
         )
         desc._check_default_acquisition(source)
@@ -326,16 +400,17 @@ class CanopenDescription:
         if self.default_acquisition == "buffered":
             self.require_buffered(source)
         if self.default_acquisition == "recorder" and self.recorder is None:
-            raise ConfigError("canopen.default_acquisition", "is \"recorder\" but there is no [canopen.recorder]",
-                              source)
+            raise ConfigError("canopen.default_acquisition", 'is "recorder" but there is no [canopen.recorder]', source)
 
     def address(self, role: str) -> ObjectAddress:
         """The object of ``role``; ConfigError when the drive does not have it."""
         try:
             return self.objects[role]
         except KeyError:
-            raise ConfigError(f"canopen.objects.{role}", "is not an object of this drive (not in its EDS, not named "
-                                                         "by its driver description)") from None
+            raise ConfigError(
+                f"canopen.objects.{role}",
+                "is not an object of this drive (not in its EDS, not named by its driver description)",
+            ) from None
 
     def has(self, role: str) -> bool:
         return role in self.objects
@@ -354,8 +429,7 @@ class CanopenDescription:
             return self
         from hilident.protocol import canopen_profile as profile
 
-        return replace(self, modes=profile.standard_modes(self.objects, supported, self.cyclic_modes,
-                                                          self.unmappable))
+        return replace(self, modes=profile.standard_modes(self.objects, supported, self.cyclic_modes, self.unmappable))
 
     def require_buffered(self, source: str = "") -> None:
         """Raise ConfigError unless every object of the drive-buffered protocol is named."""
@@ -376,8 +450,10 @@ class CanopenDescription:
         if self.rated_torque_nm > 0:
             return self.rated_torque_nm
         said = "is absent" if raw is None else f"reads {raw:g}"
-        raise DataError(f"the rated torque 0x6076 {said} and [canopen.scaling] rated_torque_nm is not given: "
-                        "torque objects (per mille of it) cannot be scaled")
+        raise DataError(
+            f"the rated torque 0x6076 {said} and [canopen.scaling] rated_torque_nm is not given: "
+            "torque objects (per mille of it) cannot be scaled"
+        )
 
     def rated_current(self, raw: float | None) -> float:
         """The rated current in A: 0x6075 (mA) read as ``raw`` (None: absent), else ``rated_current_a`` (0: none)."""
@@ -402,8 +478,10 @@ class CanopenDescription:
             return rated_torque_nm / 1000.0
         if kind == "current":
             if not (rated_current_a > 0 and self.torque_constant_nm_per_a > 0):
-                raise DataError(f"rated current {rated_current_a!r} A, torque constant "
-                                f"{self.torque_constant_nm_per_a!r} N*m/A: current objects cannot be read as torque")
+                raise DataError(
+                    f"rated current {rated_current_a!r} A, torque constant "
+                    f"{self.torque_constant_nm_per_a!r} N*m/A: current objects cannot be read as torque"
+                )
             return rated_current_a / 1000.0 * self.torque_constant_nm_per_a
         return 1.0
 
@@ -434,17 +512,23 @@ def default_supported_modes(od, objects: dict) -> tuple[str, ...] | None:
 
 def _within(lo: int, hi: int, what: str):
     """A schema ``check``: an integer in ``lo..hi``, the message saying ``what`` it is."""
+
     def check(value, key, source):
         if not lo <= value <= hi:
             raise ConfigError(key, f"must be {what}{lo}..{hi}, got {value}", source)
+
     return check
 
 
 def _abort_option(value, key, source):
     if value not in ABORT_CONNECTION_OPTIONS:
-        raise ConfigError(key, f"must be one of {sorted(ABORT_CONNECTION_OPTIONS)} "
-                               f"({', '.join(f'{k} {v}' for k, v in ABORT_CONNECTION_OPTIONS.items())}), "
-                               f"got {value}", source)
+        raise ConfigError(
+            key,
+            f"must be one of {sorted(ABORT_CONNECTION_OPTIONS)} "
+            f"({', '.join(f'{k} {v}' for k, v in ABORT_CONNECTION_OPTIONS.items())}), "
+            f"got {value}",
+            source,
+        )
 
 
 def _cyclic_modes(value, key, source):
@@ -480,8 +564,9 @@ class _CanopenTable:
         """``heartbeat_timeout_ms``, or four heartbeats; it must exceed one."""
         timeout = 4 * self.heartbeat_ms if self.heartbeat_timeout_ms is None else self.heartbeat_timeout_ms
         if timeout <= self.heartbeat_ms:
-            raise ConfigError("canopen.heartbeat_timeout_ms", f"must exceed heartbeat_ms = {self.heartbeat_ms}, got "
-                                                              f"{timeout}", source)
+            raise ConfigError(
+                "canopen.heartbeat_timeout_ms", f"must exceed heartbeat_ms = {self.heartbeat_ms}, got {timeout}", source
+            )
         return timeout
 
 
@@ -508,7 +593,7 @@ def _objects(co: dict, od, source: str) -> dict[str, ObjectAddress]:
     objects = profile.standard_objects(present)
     table = co.get("objects", {})
     if not isinstance(table, dict):
-        raise ConfigError("canopen.objects", "must be a table of role = \"0xIIII[:sub]\"", source)
+        raise ConfigError("canopen.objects", 'must be a table of role = "0xIIII[:sub]"', source)
     for role, text in table.items():
         objects[role] = parse_address(text, f"canopen.objects.{role}", source)
         if od is not None and not present(objects[role]):
@@ -530,17 +615,21 @@ def _modes(co: dict, objects: dict, preference: list[str], od, source: str):
     unmappable = tuple(role for role, addr in objects.items() if not _pdo_mappable(od, addr))
     if modes:
         return modes, True, unmappable
-    return profile.standard_modes(objects, default_supported_modes(od, objects), preference, unmappable), False, \
-        unmappable
+    return (
+        profile.standard_modes(objects, default_supported_modes(od, objects), preference, unmappable),
+        False,
+        unmappable,
+    )
 
 
 def _mode(name: str, spec_, objects: dict, source: str) -> ModeSpec:
     """One ``[canopen.modes]`` entry: ``{ code = <int>, setpoint = "<role>" }``."""
     if not isinstance(spec_, dict) or not _is_int(spec_.get("code")) or not isinstance(spec_.get("setpoint"), str):
-        raise ConfigError(f"canopen.modes.{name}", "must be { code = <int>, setpoint = \"<role>\" }", source)
+        raise ConfigError(f"canopen.modes.{name}", 'must be { code = <int>, setpoint = "<role>" }', source)
     if spec_["setpoint"] not in objects:
-        raise ConfigError(f"canopen.modes.{name}.setpoint",
-                          f"role {spec_['setpoint']!r} is not an object of this drive", source)
+        raise ConfigError(
+            f"canopen.modes.{name}.setpoint", f"role {spec_['setpoint']!r} is not an object of this drive", source
+        )
     if not -128 <= spec_["code"] <= 127:
         raise ConfigError(f"canopen.modes.{name}.code", f"must fit INTEGER8, got {spec_['code']}", source)
     return ModeSpec(name, spec_["code"], spec_["setpoint"], str(spec_.get("hold", "")))
@@ -661,8 +750,13 @@ def parse_mapping_entry(value: int) -> tuple[ObjectAddress, int]:
     return ObjectAddress((value >> 16) & 0xFFFF, (value >> 8) & 0xFF), value & 0xFF
 
 
-def pack_frames(items: list[tuple[str, int]], header_bits: int = 16, frame_bits: int = 64,
-                max_frames: int = 4, max_entries: int = 64) -> list[list[str]]:
+def pack_frames(
+    items: list[tuple[str, int]],
+    header_bits: int = 16,
+    frame_bits: int = 64,
+    max_frames: int = 4,
+    max_entries: int = 64,
+) -> list[list[str]]:
     """Put mapped objects into PDO frames, each headed by a ``header_bits`` counter (0: none).
 
     First fit in the given order: an object goes into the first frame with room

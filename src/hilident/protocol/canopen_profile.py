@@ -31,35 +31,67 @@ from collections.abc import Callable, Iterable, Sequence
 from hilident.protocol.canopen_objects import ModeSpec, ObjectAddress
 
 __all__ = [
-    "STANDARD_OBJECTS", "MODE_CODES", "MODE_BITS", "CYCLIC_MODES", "SETPOINT_OF_MODE", "CHANNEL_UNITS",
-    "decode_supported_modes", "encode_supported_modes", "mapping_capacity", "standard_objects", "standard_modes",
-    "standard_channels", "period_fields", "period_from_fields", "mode_name_of_code",
+    "STANDARD_OBJECTS",
+    "MODE_CODES",
+    "MODE_BITS",
+    "CYCLIC_MODES",
+    "SETPOINT_OF_MODE",
+    "CHANNEL_UNITS",
+    "decode_supported_modes",
+    "encode_supported_modes",
+    "mapping_capacity",
+    "standard_objects",
+    "standard_modes",
+    "standard_channels",
+    "period_fields",
+    "period_from_fields",
+    "mode_name_of_code",
 ]
 
 #: Standard objects by role (CiA 301 communication profile, CiA 402 drive profile).
 STANDARD_OBJECTS: dict[str, ObjectAddress] = {
-    "error_register": ObjectAddress(0x1001), "error_history": ObjectAddress(0x1003),
+    "error_register": ObjectAddress(0x1001),
+    "error_history": ObjectAddress(0x1003),
     "cycle_period": ObjectAddress(0x1006),  # communication cycle period, us
-    "device_name": ObjectAddress(0x1008), "hardware_version": ObjectAddress(0x1009),
-    "software_version": ObjectAddress(0x100A), "store_parameters": ObjectAddress(0x1010, 1),
-    "heartbeat_time": ObjectAddress(0x1017), "vendor_id": ObjectAddress(0x1018, 1),
-    "product_code": ObjectAddress(0x1018, 2), "sync_overflow": ObjectAddress(0x1019),
-    "abort_connection": ObjectAddress(0x6007), "error_code": ObjectAddress(0x603F),
-    "controlword": ObjectAddress(0x6040), "statusword": ObjectAddress(0x6041),
-    "modes_of_operation": ObjectAddress(0x6060), "modes_display": ObjectAddress(0x6061),
-    "position_actual": ObjectAddress(0x6064), "velocity_actual": ObjectAddress(0x606C),
-    "target_torque": ObjectAddress(0x6071), "max_torque": ObjectAddress(0x6072),
-    "torque_demand": ObjectAddress(0x6074), "rated_current": ObjectAddress(0x6075),
-    "rated_torque": ObjectAddress(0x6076), "torque_actual": ObjectAddress(0x6077),
-    "current_actual": ObjectAddress(0x6078), "target_position": ObjectAddress(0x607A),
-    "position_limit_min": ObjectAddress(0x607D, 1), "position_limit_max": ObjectAddress(0x607D, 2),
+    "device_name": ObjectAddress(0x1008),
+    "hardware_version": ObjectAddress(0x1009),
+    "software_version": ObjectAddress(0x100A),
+    "store_parameters": ObjectAddress(0x1010, 1),
+    "heartbeat_time": ObjectAddress(0x1017),
+    "vendor_id": ObjectAddress(0x1018, 1),
+    "product_code": ObjectAddress(0x1018, 2),
+    "sync_overflow": ObjectAddress(0x1019),
+    "abort_connection": ObjectAddress(0x6007),
+    "error_code": ObjectAddress(0x603F),
+    "controlword": ObjectAddress(0x6040),
+    "statusword": ObjectAddress(0x6041),
+    "modes_of_operation": ObjectAddress(0x6060),
+    "modes_display": ObjectAddress(0x6061),
+    "position_actual": ObjectAddress(0x6064),
+    "velocity_actual": ObjectAddress(0x606C),
+    "target_torque": ObjectAddress(0x6071),
+    "max_torque": ObjectAddress(0x6072),
+    "torque_demand": ObjectAddress(0x6074),
+    "rated_current": ObjectAddress(0x6075),
+    "rated_torque": ObjectAddress(0x6076),
+    "torque_actual": ObjectAddress(0x6077),
+    "current_actual": ObjectAddress(0x6078),
+    "target_position": ObjectAddress(0x607A),
+    "position_limit_min": ObjectAddress(0x607D, 1),
+    "position_limit_max": ObjectAddress(0x607D, 2),
     "max_velocity": ObjectAddress(0x6080),
-    "encoder_increments": ObjectAddress(0x608F, 1), "motor_revolutions": ObjectAddress(0x608F, 2),
-    "gear_motor_revs": ObjectAddress(0x6091, 1), "gear_shaft_revs": ObjectAddress(0x6091, 2),
-    "feed": ObjectAddress(0x6092, 1), "feed_shaft_revs": ObjectAddress(0x6092, 2),
-    "velocity_offset": ObjectAddress(0x60B1), "torque_offset": ObjectAddress(0x60B2),
-    "interpolation_data": ObjectAddress(0x60C1, 1), "interpolation_period": ObjectAddress(0x60C2, 1),
-    "interpolation_exponent": ObjectAddress(0x60C2, 2), "target_velocity": ObjectAddress(0x60FF),
+    "encoder_increments": ObjectAddress(0x608F, 1),
+    "motor_revolutions": ObjectAddress(0x608F, 2),
+    "gear_motor_revs": ObjectAddress(0x6091, 1),
+    "gear_shaft_revs": ObjectAddress(0x6091, 2),
+    "feed": ObjectAddress(0x6092, 1),
+    "feed_shaft_revs": ObjectAddress(0x6092, 2),
+    "velocity_offset": ObjectAddress(0x60B1),
+    "torque_offset": ObjectAddress(0x60B2),
+    "interpolation_data": ObjectAddress(0x60C1, 1),
+    "interpolation_period": ObjectAddress(0x60C2, 1),
+    "interpolation_exponent": ObjectAddress(0x60C2, 2),
+    "target_velocity": ObjectAddress(0x60FF),
     "supported_modes": ObjectAddress(0x6502),
 }
 
@@ -70,11 +102,21 @@ MODE_BITS = {"pp": 0, "vl": 1, "pv": 2, "tq": 3, "hm": 5, "ip": 6, "csp": 7, "cs
 #: Modes in which the drive takes a new set-point every SYNC: the ones a host-streamed run uses.
 CYCLIC_MODES = ("cst", "csv", "csp", "ip")
 #: The set-point object of each cyclic mode.
-SETPOINT_OF_MODE = {"cst": "target_torque", "csv": "target_velocity", "csp": "target_position",
-                    "ip": "interpolation_data"}
+SETPOINT_OF_MODE = {
+    "cst": "target_torque",
+    "csv": "target_velocity",
+    "csp": "target_position",
+    "ip": "interpolation_data",
+}
 #: Units of the channels hilident records from a CiA 402 drive.
-CHANNEL_UNITS = {"excitation": "1", "torque_cmd_nm": "N*m", "torque_nm": "N*m", "position_m": "m",
-                 "velocity_mps": "m/s", "load_position_m": "m"}
+CHANNEL_UNITS = {
+    "excitation": "1",
+    "torque_cmd_nm": "N*m",
+    "torque_nm": "N*m",
+    "position_m": "m",
+    "velocity_mps": "m/s",
+    "load_position_m": "m",
+}
 
 
 def decode_supported_modes(value: int) -> tuple[str, ...]:
@@ -97,8 +139,12 @@ def standard_objects(present: Callable[[ObjectAddress], bool]) -> dict[str, Obje
     return {role: addr for role, addr in STANDARD_OBJECTS.items() if present(addr)}
 
 
-def standard_modes(objects: dict[str, ObjectAddress], supported: Iterable[str] | None,
-                   preference: Sequence[str] = CYCLIC_MODES, unmappable: Iterable[str] = ()) -> dict[str, ModeSpec]:
+def standard_modes(
+    objects: dict[str, ObjectAddress],
+    supported: Iterable[str] | None,
+    preference: Sequence[str] = CYCLIC_MODES,
+    unmappable: Iterable[str] = (),
+) -> dict[str, ModeSpec]:
     """hilident mode -> CiA 402 mode and set-point object, from what the drive has.
 
     Parameters
@@ -139,8 +185,9 @@ def standard_modes(objects: dict[str, ObjectAddress], supported: Iterable[str] |
         # a position hold (CSP, else IP) is stiffer than a velocity hold (CSV)
         hold = next((m for m in ("csp", "ip", "csv") if m in usable), None)
         if hold is not None:
-            modes["torque_injection"] = ModeSpec("torque_injection", MODE_CODES[hold], "torque_offset",
-                                                 hold=setpoint_of[hold])
+            modes["torque_injection"] = ModeSpec(
+                "torque_injection", MODE_CODES[hold], "torque_offset", hold=setpoint_of[hold]
+            )
     return modes
 
 
@@ -192,7 +239,7 @@ def period_fields(period_s: float) -> tuple[int, int]:
     an UNSIGNED8 value.
     """
     for exponent in (-3, -4, -5, -6):
-        value = period_s / 10.0 ** exponent
+        value = period_s / 10.0**exponent
         if abs(value - round(value)) < 1e-6 and 1 <= round(value) <= 255:
             return int(round(value)), exponent
     raise ValueError(f"a period of {period_s:g} s has no 0x60C2 form (value 1..255 times 1e-3..1e-6 s)")

@@ -59,10 +59,37 @@ __all__ = [
 #: Feedback taps of :func:`scipy.signal.max_len_seq` per register length: the sequence of
 #: :func:`hilident.signals.generators.prbs`. ``taps = "max_len_seq"`` in a driver description names them.
 MAX_LEN_SEQ_TAPS = {
-    2: (1,), 3: (2,), 4: (3,), 5: (3,), 6: (5,), 7: (6,), 8: (7, 6, 1), 9: (5,), 10: (7,), 11: (9,),
-    12: (11, 10, 4), 13: (12, 11, 8), 14: (13, 12, 2), 15: (14,), 16: (15, 13, 4), 17: (14,), 18: (11,),
-    19: (18, 17, 14), 20: (17,), 21: (19,), 22: (21,), 23: (18,), 24: (23, 22, 17), 25: (22,), 26: (25, 24, 20),
-    27: (26, 25, 22), 28: (25,), 29: (27,), 30: (29, 28, 7), 31: (28,), 32: (31, 30, 10),
+    2: (1,),
+    3: (2,),
+    4: (3,),
+    5: (3,),
+    6: (5,),
+    7: (6,),
+    8: (7, 6, 1),
+    9: (5,),
+    10: (7,),
+    11: (9,),
+    12: (11, 10, 4),
+    13: (12, 11, 8),
+    14: (13, 12, 2),
+    15: (14,),
+    16: (15, 13, 4),
+    17: (14,),
+    18: (11,),
+    19: (18, 17, 14),
+    20: (17,),
+    21: (19,),
+    22: (21,),
+    23: (18,),
+    24: (23, 22, 17),
+    25: (22,),
+    26: (25, 24, 20),
+    27: (26, 25, 22),
+    28: (25,),
+    29: (27,),
+    30: (29, 28, 7),
+    31: (28,),
+    32: (31, 30, 10),
 }
 #: Set-points a generator can feed, by the role of the object they stand for.
 TARGET_ROLES = ("target_torque", "torque_offset", "target_velocity")
@@ -75,7 +102,12 @@ KIND_PARAMETERS = {
     "sine": ("amplitude", "frequency_hz"),
 }
 _RECORDER_OBJECTS = {  # key -> the host writes it
-    "control": True, "state": False, "trigger": True, "sample_period": True, "samples": True, "recorded": False,
+    "control": True,
+    "state": False,
+    "trigger": True,
+    "sample_period": True,
+    "samples": True,
+    "recorded": False,
 }
 _GENERATOR_OBJECTS = {"control": True, "state": False, "kind": True, "target": True}
 _DOMAIN, _OCTET_STRING = 0x0F, 0x0A
@@ -226,8 +258,9 @@ def parse_recorder(sections: dict, source: str = "", od=None) -> RecorderCapabil
     rec, gen = co.get("recorder"), co.get("generator")
     if rec is None:
         if gen is not None:
-            raise ConfigError("canopen.generator", "a generator needs a [canopen.recorder] to record what it plays",
-                              source)
+            raise ConfigError(
+                "canopen.generator", "a generator needs a [canopen.recorder] to record what it plays", source
+            )
         return None
     recorder = _recorder(rec, source)
     generator = _generator(gen, source) if gen is not None else None
@@ -260,8 +293,7 @@ def _sample_periods(values: list[int], key: str, source: str) -> None:
 
 def _scale(value: builtins.object, key: str, source: str) -> None:
     """A schema ``check``: a positive finite number, or one of :data:`SCALE_KINDS`."""
-    positive = (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-                and value > 0)
+    positive = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0
     if value not in SCALE_KINDS and not positive:
         raise ConfigError(key, f"must be a positive number or one of {SCALE_KINDS}, got {value!r}", source)
 
@@ -329,14 +361,19 @@ class _RecorderTable:
     sample_period: str = _object("object taking the sample period in loop cycles")
     samples: str = _object("object taking the number of samples to record")
     recorded: str = _object("object reporting the number of samples recorded")
-    channels: list[str] = spec(check=_addresses, max_items=64,
-                               doc="channel-selection objects (UNSIGNED32 mapping entries): the most channels a run "
-                                   "records")
+    channels: list[str] = spec(
+        check=_addresses,
+        max_items=64,
+        doc="channel-selection objects (UNSIGNED32 mapping entries): the most channels a run records",
+    )
     buffer: str | None = spec(None, check=_address, doc="one interleaved DOMAIN (or give buffers)")
     buffers: list[str] | None = spec(None, check=_addresses, max_items=64, doc="one DOMAIN per channel")
     sample_periods: list[int] = spec([1], check=_sample_periods, doc="allowed sample periods, loop cycles")
-    channel_encoding: str = spec("mapping_entry", choices=("mapping_entry",),
-                                 doc="a channel is chosen by its mapping entry index << 16 | sub << 8 | bits")
+    channel_encoding: str = spec(
+        "mapping_entry",
+        choices=("mapping_entry",),
+        doc="a channel is chosen by its mapping entry index << 16 | sub << 8 | bits",
+    )
     block_transfer: bool = spec(True, doc="read the buffers by SDO block upload, else segmented")
     commands: _StartStop = spec(_StartStop(stop=0, start=1))
     states: _RecorderStates = spec(_RecorderStates(idle=0, waiting=1, recording=2, done=3))
@@ -370,13 +407,12 @@ class _GeneratorTable:
     state: str = _object("object reporting states.idle, running, done")
     target: str = _object("object taking the code of targets for the set-point the signal feeds")
     kinds: dict = spec(doc="kind name (prbs, chirp, sine) -> its table: code, parameters, ...")
-    kind: str | None = spec(None, check=_address,
-                            doc="object taking the kind's code; required with more than one kind")
+    kind: str | None = spec(None, check=_address, doc="object taking the kind's code; required with more than one kind")
     targets: _TargetCodes = spec(doc="set-point role -> code written to the target object")
     output: str | None = spec(None, check=_address, doc="object reporting the present output, recordable")
-    output_scale: builtins.object = spec(1.0, check=_scale,
-                                         doc='SI per raw unit of output: a number, or "torque", "velocity", '
-                                             '"position"')
+    output_scale: builtins.object = spec(
+        1.0, check=_scale, doc='SI per raw unit of output: a number, or "torque", "velocity", "position"'
+    )
     commands: _StartStop = spec(_StartStop(stop=0, start=1))
     states: _GeneratorStates = spec(_GeneratorStates(idle=0, running=1, done=2))
 
@@ -386,9 +422,11 @@ class _ParameterTable:
     """One generator parameter: ``{ object = "0x2511:1", scale = .., min = .., max = .. }``."""
 
     object: str = _object("object the host writes the raw value to")
-    scale: builtins.object = spec(1.0, check=_scale,
-                                  doc='SI per raw unit: a number, or "torque", "velocity", "position" (the '
-                                      "drive's scaling of such objects)")
+    scale: builtins.object = spec(
+        1.0,
+        check=_scale,
+        doc='SI per raw unit: a number, or "torque", "velocity", "position" (the drive\'s scaling of such objects)',
+    )
     min: float | None = spec(None, doc="lowest SI value the drive accepts")
     max: float | None = spec(None, doc="highest SI value the drive accepts")
 
@@ -417,27 +455,41 @@ def _recorder(raw: builtins.object, source: str) -> RecorderSpec:
     k = "canopen.recorder"
     t = build_table(_RecorderTable, raw, f"{k}.", source)
     if (t.buffer is None) == (t.buffers is None):
-        raise ConfigError(f"{k}.buffer", "give either buffer (one interleaved DOMAIN) or buffers (one DOMAIN per "
-                                         "channel)", source)
+        raise ConfigError(
+            f"{k}.buffer", "give either buffer (one interleaved DOMAIN) or buffers (one DOMAIN per channel)", source
+        )
     if t.buffers is not None and len(t.buffers) != len(t.channels):
         raise ConfigError(f"{k}.buffers", f"must list one DOMAIN per channel ({len(t.channels)})", source)
     buffers = [t.buffer] if t.buffer is not None else t.buffers or []
     return RecorderSpec(
-        control=_to_address(t.control), state=_to_address(t.state), trigger=_to_address(t.trigger),
-        sample_period=_to_address(t.sample_period), samples=_to_address(t.samples),
-        recorded=_to_address(t.recorded), commands=dataclasses.asdict(t.commands),
-        states=dataclasses.asdict(t.states), triggers=dataclasses.asdict(t.triggers),
-        sample_periods=tuple(sorted(set(t.sample_periods))), max_samples=t.max_samples,
-        channels=tuple(map(_to_address, t.channels)), buffers=tuple(map(_to_address, buffers)),
-        interleaved=t.buffer is not None, block_transfer=t.block_transfer)
+        control=_to_address(t.control),
+        state=_to_address(t.state),
+        trigger=_to_address(t.trigger),
+        sample_period=_to_address(t.sample_period),
+        samples=_to_address(t.samples),
+        recorded=_to_address(t.recorded),
+        commands=dataclasses.asdict(t.commands),
+        states=dataclasses.asdict(t.states),
+        triggers=dataclasses.asdict(t.triggers),
+        sample_periods=tuple(sorted(set(t.sample_periods))),
+        max_samples=t.max_samples,
+        channels=tuple(map(_to_address, t.channels)),
+        buffers=tuple(map(_to_address, buffers)),
+        interleaved=t.buffer is not None,
+        block_transfer=t.block_transfer,
+    )
 
 
 def _check_target_roles(raw: builtins.object, source: str) -> None:
     """``targets`` names at least one set-point role and no other key (the schema would name the key itself)."""
     targets = raw.get("targets") if isinstance(raw, dict) else None
     if isinstance(targets, dict) and (not targets or any(r not in TARGET_ROLES for r in targets)):
-        raise ConfigError("canopen.generator.targets", f"must map set-point roles ({', '.join(TARGET_ROLES)}) to the "
-                                                       f"code written to the target object, got {targets!r}", source)
+        raise ConfigError(
+            "canopen.generator.targets",
+            f"must map set-point roles ({', '.join(TARGET_ROLES)}) to the "
+            f"code written to the target object, got {targets!r}",
+            source,
+        )
 
 
 def _generator(raw: builtins.object, source: str) -> GeneratorSpec:
@@ -453,10 +505,17 @@ def _generator(raw: builtins.object, source: str) -> GeneratorSpec:
         raise ConfigError(f"{k}.kind", "is required when the generator has more than one kind", source)
     targets = {role: code for role, code in dataclasses.asdict(t.targets).items() if code is not None}
     return GeneratorSpec(
-        control=_to_address(t.control), state=_to_address(t.state), target=_to_address(t.target),
-        kind=None if t.kind is None else _to_address(t.kind), commands=dataclasses.asdict(t.commands),
-        states=dataclasses.asdict(t.states), targets=targets, kinds=kinds,
-        output=None if t.output is None else _to_address(t.output), output_scale=_scale_value(t.output_scale))
+        control=_to_address(t.control),
+        state=_to_address(t.state),
+        target=_to_address(t.target),
+        kind=None if t.kind is None else _to_address(t.kind),
+        commands=dataclasses.asdict(t.commands),
+        states=dataclasses.asdict(t.states),
+        targets=targets,
+        kinds=kinds,
+        output=None if t.output is None else _to_address(t.output),
+        output_scale=_scale_value(t.output_scale),
+    )
 
 
 def _kind(name: str, raw: builtins.object, key: str, source: str) -> GeneratorKind:
@@ -477,8 +536,14 @@ def _kind(name: str, raw: builtins.object, key: str, source: str) -> GeneratorKi
         raise ConfigError(f"{key}.{min(extra)}", f"is not a key of a {name} generator", source)
     if name != "prbs":
         return GeneratorKind(name, t.code, params, t.method if name == "chirp" else "")
-    return GeneratorKind(name, t.code, params, "", _taps(raw.get("taps"), f"{key}.taps", source),
-                         _seed(raw.get("seed", -1), f"{key}.seed", source))
+    return GeneratorKind(
+        name,
+        t.code,
+        params,
+        "",
+        _taps(raw.get("taps"), f"{key}.taps", source),
+        _seed(raw.get("seed", -1), f"{key}.seed", source),
+    )
 
 
 def _parameter(name: str, raw: builtins.object, key: str, source: str) -> Parameter:
@@ -501,10 +566,15 @@ def _taps(value: builtins.object, key: str, source: str) -> dict[int, tuple[int,
     out = {}
     for length, taps in value.items():
         n = int(length) if str(length).isdigit() else 0
-        if not 2 <= n <= 32 or not isinstance(taps, list) or not taps or any(
-                isinstance(x, bool) or not isinstance(x, int) or not 0 < x < n for x in taps):
-            raise ConfigError(f"{key}.{length}", f"must map a register length 2..32 to taps 1..length-1, got {taps!r}",
-                              source)
+        if (
+            not 2 <= n <= 32
+            or not isinstance(taps, list)
+            or not taps
+            or any(isinstance(x, bool) or not isinstance(x, int) or not 0 < x < n for x in taps)
+        ):
+            raise ConfigError(
+                f"{key}.{length}", f"must map a register length 2..32 to taps 1..length-1, got {taps!r}", source
+            )
         out[n] = tuple(taps)
     return out
 
@@ -544,13 +614,20 @@ def _check_data_type(key: str, addr: ObjectAddress, data_type: int, source: str)
     """A buffer is a DOMAIN (or OCTET_STRING), a channel-selection object UNSIGNED32, any other object a number."""
     buffer = key.startswith("canopen.recorder.buffer")
     if buffer and data_type not in (_DOMAIN, _OCTET_STRING):
-        raise ConfigError(key, f"object {addr} must be a DOMAIN (or OCTET_STRING) to hold samples, the EDS says "
-                               f"data type 0x{data_type:04X}", source)
+        raise ConfigError(
+            key,
+            f"object {addr} must be a DOMAIN (or OCTET_STRING) to hold samples, the EDS says "
+            f"data type 0x{data_type:04X}",
+            source,
+        )
     if not buffer and data_type in (_DOMAIN, _OCTET_STRING, 0x09):
         raise ConfigError(key, f"object {addr} must be a number, the EDS says data type 0x{data_type:04X}", source)
     if key.startswith("canopen.recorder.channels") and data_type != _UNSIGNED32:
-        raise ConfigError(key, f"object {addr} takes a mapping entry: it must be UNSIGNED32, the EDS says "
-                               f"data type 0x{data_type:04X}", source)
+        raise ConfigError(
+            key,
+            f"object {addr} takes a mapping entry: it must be UNSIGNED32, the EDS says data type 0x{data_type:04X}",
+            source,
+        )
 
 
 # --- signals ------------------------------------------------------------------------------------
@@ -652,8 +729,15 @@ class GeneratorSettings:
     values: dict
 
 
-def plan_generator(cap: RecorderCapability, recipe: dict, target: str, samples: int, sample_period: int,
-                   loop_rate_hz: float, scales: dict) -> GeneratorSettings:
+def plan_generator(
+    cap: RecorderCapability,
+    recipe: dict,
+    target: str,
+    samples: int,
+    sample_period: int,
+    loop_rate_hz: float,
+    scales: dict,
+) -> GeneratorSettings:
     """Map an excitation recipe onto the generator's parameters, or refuse it before anything moves.
 
     Parameters
@@ -698,27 +782,34 @@ def _playable_kind(cap: RecorderCapability, recipe: dict, target: str, samples: 
     where = f"the drive's generator ([canopen.generator] of {cap.source})"
     kind_name = recipe.get("kind")
     if g is None:
-        raise ConfigError("excitation.kind", f"{kind_name!r}: the driver describes no generator ([canopen.generator] "
-                                             f"of {cap.source}); a recorder run needs one")
+        raise ConfigError(
+            "excitation.kind",
+            f"{kind_name!r}: the driver describes no generator ([canopen.generator] "
+            f"of {cap.source}); a recorder run needs one",
+        )
     if kind_name not in g.kinds:
-        raise ConfigError("excitation.kind", f"{kind_name!r} cannot be played by {where}: it plays "
-                                             f"{', '.join(g.kinds)}")
+        raise ConfigError(
+            "excitation.kind", f"{kind_name!r} cannot be played by {where}: it plays {', '.join(g.kinds)}"
+        )
     kind = g.kinds[kind_name]
     if target not in g.targets:
-        raise ConfigError("excitation.mode", f"{recipe.get('mode')!r} excites {target}; {where} feeds "
-                                             f"{', '.join(g.targets)}")
+        raise ConfigError(
+            "excitation.mode", f"{recipe.get('mode')!r} excites {target}; {where} feeds {', '.join(g.targets)}"
+        )
     if samples > cap.recorder.max_samples:
-        raise ConfigError("excitation.duration_s",
-                          f"{samples} samples at a sample period of {sample_period} loop cycles exceed the "
-                          f"recorder's {cap.recorder.max_samples} ([canopen.recorder] max_samples of {cap.source})")
+        raise ConfigError(
+            "excitation.duration_s",
+            f"{samples} samples at a sample period of {sample_period} loop cycles exceed the "
+            f"recorder's {cap.recorder.max_samples} ([canopen.recorder] max_samples of {cap.source})",
+        )
     if kind.name == "chirp" and recipe.get("chirp_method", "linear") != kind.method:
-        raise ConfigError("excitation.chirp_method", f"{recipe.get('chirp_method')!r}: {where} sweeps "
-                                                     f"{kind.method}ly")
+        raise ConfigError("excitation.chirp_method", f"{recipe.get('chirp_method')!r}: {where} sweeps {kind.method}ly")
     return kind
 
 
-def _wanted_parameters(kind, recipe: dict, samples: int, sample_period: int, loop_rate_hz: float,
-                       where: str) -> dict[str, tuple[str, float]]:
+def _wanted_parameters(
+    kind, recipe: dict, samples: int, sample_period: int, loop_rate_hz: float, where: str
+) -> dict[str, tuple[str, float]]:
     """Generator parameter -> (the ``[excitation]`` key it comes from, its SI value)."""
     amplitude_key = recipe.get("amplitude_key", "excitation.amplitude_nm")  # the mode's key: amplitude_mps, ...
     wanted = {"amplitude": (amplitude_key, float(recipe.get("amplitude", 0.0)))}
@@ -726,8 +817,11 @@ def _wanted_parameters(kind, recipe: dict, samples: int, sample_period: int, loo
         wanted["register_length"] = ("excitation.register_length", int(recipe.get("register_length", 0)))
         wanted["clock_divider"] = ("excitation.clock_divider", int(recipe.get("clock_divider", 1)) * sample_period)
         if kind.taps and wanted["register_length"][1] not in kind.taps:
-            raise ConfigError("excitation.register_length", f"{wanted['register_length'][1]}: {where} describes its "
-                                                            f"sequence for register lengths {sorted(kind.taps)}")
+            raise ConfigError(
+                "excitation.register_length",
+                f"{wanted['register_length'][1]}: {where} describes its "
+                f"sequence for register lengths {sorted(kind.taps)}",
+            )
     elif kind.name == "chirp":
         wanted["f_start_hz"] = ("excitation.f_min_hz", float(recipe.get("f_min_hz", 0.0)))
         wanted["f_end_hz"] = ("excitation.f_max_hz", float(recipe.get("f_max_hz", 0.0)))
@@ -744,9 +838,13 @@ def _raw_parameter(kind, name: str, key: str, si: float, scales: dict, where: st
     p = kind.parameters[name]
     scale = scales[p.scale] if isinstance(p.scale, str) else p.scale
     if (p.minimum is not None and si < p.minimum - 1e-12 * abs(si)) or (
-            p.maximum is not None and si > p.maximum + 1e-12 * abs(si)):
-        raise ConfigError(key, f"{si:g} is outside the range [{_show(p.minimum)}, {_show(p.maximum)}] of {where} "
-                               f"({kind.name} {name}, object {p.address})")
+        p.maximum is not None and si > p.maximum + 1e-12 * abs(si)
+    ):
+        raise ConfigError(
+            key,
+            f"{si:g} is outside the range [{_show(p.minimum)}, {_show(p.maximum)}] of {where} "
+            f"({kind.name} {name}, object {p.address})",
+        )
     if name in ("register_length", "clock_divider"):
         return int(si)
     if name == "duration_s":  # never a cycle short of the last sample

@@ -33,9 +33,20 @@ from enum import Enum, IntEnum
 from hilident.protocol.emcy_codes import CODES, emcy_name
 
 __all__ = [
-    "State", "Command", "ModeCode", "decode_statusword", "statusword", "command_of", "transition",
-    "path_to_operation_enabled", "path_to_safe_state", "SAFE_STATES", "mode_name", "emcy_meaning",
-    "EMCY_CODES", "FAULT_RESET_BIT",
+    "State",
+    "Command",
+    "ModeCode",
+    "decode_statusword",
+    "statusword",
+    "command_of",
+    "transition",
+    "path_to_operation_enabled",
+    "path_to_safe_state",
+    "SAFE_STATES",
+    "mode_name",
+    "emcy_meaning",
+    "EMCY_CODES",
+    "FAULT_RESET_BIT",
 ]
 
 
@@ -58,8 +69,13 @@ class State(Enum):
 
 
 #: States in which the power stage is off: where every exit path leaves the drive.
-SAFE_STATES = (State.SWITCH_ON_DISABLED, State.READY_TO_SWITCH_ON, State.SWITCHED_ON,
-               State.NOT_READY_TO_SWITCH_ON, State.FAULT)
+SAFE_STATES = (
+    State.SWITCH_ON_DISABLED,
+    State.READY_TO_SWITCH_ON,
+    State.SWITCHED_ON,
+    State.NOT_READY_TO_SWITCH_ON,
+    State.FAULT,
+)
 
 # statusword bits 0-3, 5, 6: (mask, value) per state, CiA 402-2 table "state coding"
 _STATE_CODING = (
@@ -96,14 +112,25 @@ def decode_statusword(sw: int) -> State:
     raise ValueError(f"statusword 0x{sw:04X} codes no CiA 402 state")
 
 
-def statusword(state: State, *, voltage_enabled: bool = True, warning: bool = False, remote: bool = True,
-               target_reached: bool = False, internal_limit: bool = False) -> int:
+def statusword(
+    state: State,
+    *,
+    voltage_enabled: bool = True,
+    warning: bool = False,
+    remote: bool = True,
+    target_reached: bool = False,
+    internal_limit: bool = False,
+) -> int:
     """The statusword a drive reports in ``state`` (drive side)."""
     sw = _STATE_BITS[state]
     if state is State.QUICK_STOP_ACTIVE:
         sw &= ~0x20  # bit 5 (quick stop) is active-low: cleared while quick stop is active
-    elif state not in (State.NOT_READY_TO_SWITCH_ON, State.SWITCH_ON_DISABLED, State.FAULT,
-                       State.FAULT_REACTION_ACTIVE):
+    elif state not in (
+        State.NOT_READY_TO_SWITCH_ON,
+        State.SWITCH_ON_DISABLED,
+        State.FAULT,
+        State.FAULT_REACTION_ACTIVE,
+    ):
         sw |= 0x20
     if voltage_enabled:
         sw |= SW_VOLTAGE_ENABLED
@@ -230,8 +257,7 @@ def path_to_safe_state(state: State) -> list[int]:
     once: zero torque, whatever the state. A drive in Fault stays there (its
     power stage is already off).
     """
-    if state in (State.FAULT, State.FAULT_REACTION_ACTIVE, State.NOT_READY_TO_SWITCH_ON,
-                 State.SWITCH_ON_DISABLED):
+    if state in (State.FAULT, State.FAULT_REACTION_ACTIVE, State.NOT_READY_TO_SWITCH_ON, State.SWITCH_ON_DISABLED):
         return []
     return [int(Command.DISABLE_VOLTAGE)]
 
@@ -253,10 +279,14 @@ class ModeCode(IntEnum):
 def mode_name(code: int) -> str:
     """Readable name of a mode-of-operation code; negative codes are manufacturer specific."""
     names: dict[int, str] = {
-        ModeCode.NO_MODE: "no mode", ModeCode.PROFILE_POSITION: "profile position",
-        ModeCode.PROFILE_VELOCITY: "profile velocity", ModeCode.PROFILE_TORQUE: "profile torque",
-        ModeCode.HOMING: "homing", ModeCode.INTERPOLATED_POSITION: "interpolated position",
-        ModeCode.CSP: "cyclic synchronous position (CSP)", ModeCode.CSV: "cyclic synchronous velocity (CSV)",
+        ModeCode.NO_MODE: "no mode",
+        ModeCode.PROFILE_POSITION: "profile position",
+        ModeCode.PROFILE_VELOCITY: "profile velocity",
+        ModeCode.PROFILE_TORQUE: "profile torque",
+        ModeCode.HOMING: "homing",
+        ModeCode.INTERPOLATED_POSITION: "interpolated position",
+        ModeCode.CSP: "cyclic synchronous position (CSP)",
+        ModeCode.CSV: "cyclic synchronous velocity (CSV)",
         ModeCode.CST: "cyclic synchronous torque (CST)",
     }
     if code < 0:

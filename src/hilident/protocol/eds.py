@@ -38,8 +38,21 @@ from hilident.errors import ConfigError
 from hilident.protocol import canopen_profile as profile
 
 __all__ = [
-    "load_eds", "load_eds_text", "inspect_eds", "EdsSummary", "ObjectInfo", "PeriodInfo", "ROLES", "MODE_BITS",
-    "CYCLIC_MODES", "MODE_CODES", "MODE_SETPOINTS", "object_info", "type_name", "readable", "writable",
+    "load_eds",
+    "load_eds_text",
+    "inspect_eds",
+    "EdsSummary",
+    "ObjectInfo",
+    "PeriodInfo",
+    "ROLES",
+    "MODE_BITS",
+    "CYCLIC_MODES",
+    "MODE_CODES",
+    "MODE_SETPOINTS",
+    "object_info",
+    "type_name",
+    "readable",
+    "writable",
 ]
 
 # CiA 301 data types (the subset a drive's profile uses)
@@ -47,41 +60,94 @@ BOOLEAN, INTEGER8, INTEGER16, INTEGER32 = 0x01, 0x02, 0x03, 0x04
 UNSIGNED8, UNSIGNED16, UNSIGNED32, REAL32 = 0x05, 0x06, 0x07, 0x08
 VISIBLE_STRING, OCTET_STRING, DOMAIN = 0x09, 0x0A, 0x0F
 _TYPE_NAMES = {
-    0x01: "BOOLEAN", 0x02: "INTEGER8", 0x03: "INTEGER16", 0x04: "INTEGER32", 0x05: "UNSIGNED8", 0x06: "UNSIGNED16",
-    0x07: "UNSIGNED32", 0x08: "REAL32", 0x09: "VISIBLE_STRING", 0x0A: "OCTET_STRING", 0x0B: "UNICODE_STRING",
-    0x0C: "TIME_OF_DAY", 0x0D: "TIME_DIFFERENCE", 0x0F: "DOMAIN", 0x10: "INTEGER24", 0x11: "REAL64",
-    0x12: "INTEGER40", 0x13: "INTEGER48", 0x14: "INTEGER56", 0x15: "INTEGER64", 0x16: "UNSIGNED24",
-    0x18: "UNSIGNED40", 0x19: "UNSIGNED48", 0x1A: "UNSIGNED56", 0x1B: "UNSIGNED64",
+    0x01: "BOOLEAN",
+    0x02: "INTEGER8",
+    0x03: "INTEGER16",
+    0x04: "INTEGER32",
+    0x05: "UNSIGNED8",
+    0x06: "UNSIGNED16",
+    0x07: "UNSIGNED32",
+    0x08: "REAL32",
+    0x09: "VISIBLE_STRING",
+    0x0A: "OCTET_STRING",
+    0x0B: "UNICODE_STRING",
+    0x0C: "TIME_OF_DAY",
+    0x0D: "TIME_DIFFERENCE",
+    0x0F: "DOMAIN",
+    0x10: "INTEGER24",
+    0x11: "REAL64",
+    0x12: "INTEGER40",
+    0x13: "INTEGER48",
+    0x14: "INTEGER56",
+    0x15: "INTEGER64",
+    0x16: "UNSIGNED24",
+    0x18: "UNSIGNED40",
+    0x19: "UNSIGNED48",
+    0x1A: "UNSIGNED56",
+    0x1B: "UNSIGNED64",
 }
 
 #: Standard roles (canopen_schema): role -> (index, sub-index, CiA data type, how the host uses it: "r"/"w"/"rw").
 ROLES: dict[str, tuple[int, int, int, str]] = {
-    "device_name": (0x1008, 0, VISIBLE_STRING, "r"), "hardware_version": (0x1009, 0, VISIBLE_STRING, "r"),
-    "software_version": (0x100A, 0, VISIBLE_STRING, "r"), "vendor_id": (0x1018, 1, UNSIGNED32, "r"),
-    "product_code": (0x1018, 2, UNSIGNED32, "r"), "error_register": (0x1001, 0, UNSIGNED8, "r"),
-    "error_history": (0x1003, 0, UNSIGNED8, "r"), "cycle_period": (0x1006, 0, UNSIGNED32, "rw"),
-    "sync_overflow": (0x1019, 0, UNSIGNED8, "rw"), "heartbeat_time": (0x1017, 0, UNSIGNED16, "rw"),
-    "store_parameters": (0x1010, 1, UNSIGNED32, "w"), "abort_connection": (0x6007, 0, INTEGER16, "rw"),
-    "error_code": (0x603F, 0, UNSIGNED16, "r"), "controlword": (0x6040, 0, UNSIGNED16, "w"),
-    "statusword": (0x6041, 0, UNSIGNED16, "r"), "modes_of_operation": (0x6060, 0, INTEGER8, "w"),
-    "modes_display": (0x6061, 0, INTEGER8, "r"), "supported_modes": (0x6502, 0, UNSIGNED32, "r"),
-    "position_actual": (0x6064, 0, INTEGER32, "r"), "velocity_actual": (0x606C, 0, INTEGER32, "r"),
-    "target_torque": (0x6071, 0, INTEGER16, "w"), "max_torque": (0x6072, 0, UNSIGNED16, "rw"),
-    "rated_current": (0x6075, 0, UNSIGNED32, "r"), "rated_torque": (0x6076, 0, UNSIGNED32, "r"),
-    "torque_demand": (0x6074, 0, INTEGER16, "r"), "torque_actual": (0x6077, 0, INTEGER16, "r"),
-    "current_actual": (0x6078, 0, INTEGER16, "r"), "target_position": (0x607A, 0, INTEGER32, "w"),
-    "position_limit_min": (0x607D, 1, INTEGER32, "rw"), "position_limit_max": (0x607D, 2, INTEGER32, "rw"),
-    "max_velocity": (0x6080, 0, UNSIGNED32, "rw"), "velocity_offset": (0x60B1, 0, INTEGER32, "w"),
-    "torque_offset": (0x60B2, 0, INTEGER16, "w"), "interpolation_data": (0x60C1, 1, INTEGER32, "w"),
-    "interpolation_period": (0x60C2, 1, UNSIGNED8, "rw"), "target_velocity": (0x60FF, 0, INTEGER32, "w"),
-    "encoder_increments": (0x608F, 1, UNSIGNED32, "r"), "motor_revolutions": (0x608F, 2, UNSIGNED32, "r"),
-    "gear_motor_revs": (0x6091, 1, UNSIGNED32, "r"), "gear_shaft_revs": (0x6091, 2, UNSIGNED32, "r"),
-    "feed": (0x6092, 1, UNSIGNED32, "r"), "feed_shaft_revs": (0x6092, 2, UNSIGNED32, "r"),
+    "device_name": (0x1008, 0, VISIBLE_STRING, "r"),
+    "hardware_version": (0x1009, 0, VISIBLE_STRING, "r"),
+    "software_version": (0x100A, 0, VISIBLE_STRING, "r"),
+    "vendor_id": (0x1018, 1, UNSIGNED32, "r"),
+    "product_code": (0x1018, 2, UNSIGNED32, "r"),
+    "error_register": (0x1001, 0, UNSIGNED8, "r"),
+    "error_history": (0x1003, 0, UNSIGNED8, "r"),
+    "cycle_period": (0x1006, 0, UNSIGNED32, "rw"),
+    "sync_overflow": (0x1019, 0, UNSIGNED8, "rw"),
+    "heartbeat_time": (0x1017, 0, UNSIGNED16, "rw"),
+    "store_parameters": (0x1010, 1, UNSIGNED32, "w"),
+    "abort_connection": (0x6007, 0, INTEGER16, "rw"),
+    "error_code": (0x603F, 0, UNSIGNED16, "r"),
+    "controlword": (0x6040, 0, UNSIGNED16, "w"),
+    "statusword": (0x6041, 0, UNSIGNED16, "r"),
+    "modes_of_operation": (0x6060, 0, INTEGER8, "w"),
+    "modes_display": (0x6061, 0, INTEGER8, "r"),
+    "supported_modes": (0x6502, 0, UNSIGNED32, "r"),
+    "position_actual": (0x6064, 0, INTEGER32, "r"),
+    "velocity_actual": (0x606C, 0, INTEGER32, "r"),
+    "target_torque": (0x6071, 0, INTEGER16, "w"),
+    "max_torque": (0x6072, 0, UNSIGNED16, "rw"),
+    "rated_current": (0x6075, 0, UNSIGNED32, "r"),
+    "rated_torque": (0x6076, 0, UNSIGNED32, "r"),
+    "torque_demand": (0x6074, 0, INTEGER16, "r"),
+    "torque_actual": (0x6077, 0, INTEGER16, "r"),
+    "current_actual": (0x6078, 0, INTEGER16, "r"),
+    "target_position": (0x607A, 0, INTEGER32, "w"),
+    "position_limit_min": (0x607D, 1, INTEGER32, "rw"),
+    "position_limit_max": (0x607D, 2, INTEGER32, "rw"),
+    "max_velocity": (0x6080, 0, UNSIGNED32, "rw"),
+    "velocity_offset": (0x60B1, 0, INTEGER32, "w"),
+    "torque_offset": (0x60B2, 0, INTEGER16, "w"),
+    "interpolation_data": (0x60C1, 1, INTEGER32, "w"),
+    "interpolation_period": (0x60C2, 1, UNSIGNED8, "rw"),
+    "target_velocity": (0x60FF, 0, INTEGER32, "w"),
+    "encoder_increments": (0x608F, 1, UNSIGNED32, "r"),
+    "motor_revolutions": (0x608F, 2, UNSIGNED32, "r"),
+    "gear_motor_revs": (0x6091, 1, UNSIGNED32, "r"),
+    "gear_shaft_revs": (0x6091, 2, UNSIGNED32, "r"),
+    "feed": (0x6092, 1, UNSIGNED32, "r"),
+    "feed_shaft_revs": (0x6092, 2, UNSIGNED32, "r"),
 }
 #: CiA 402 objects whose declared data type or access is checked against the profile at load time.
-_PROFILE_CHECKED = ("modes_of_operation", "modes_display", "controlword", "statusword", "target_torque",
-                    "max_torque", "rated_torque", "target_position", "target_velocity", "position_actual",
-                    "velocity_actual", "torque_actual", "torque_offset")
+_PROFILE_CHECKED = (
+    "modes_of_operation",
+    "modes_display",
+    "controlword",
+    "statusword",
+    "target_torque",
+    "max_torque",
+    "rated_torque",
+    "target_position",
+    "target_velocity",
+    "position_actual",
+    "velocity_actual",
+    "torque_actual",
+    "torque_offset",
+)
 _PROFILE_EXTRA = {0x6073: ("max_current", UNSIGNED16)}  # checked, but not a role the host uses
 
 #: 0x6502 bits (CiA 402) -> mode name (the profile's table, by bit).
@@ -98,15 +164,21 @@ _RECORDER_WORDS = ("recorder", "recording", "trace", "scope", "capture", "loggin
 _GENERATOR_WORDS = ("generator", "excitation", "prbs", "sweep", "function gen")
 #: Names of manufacturer objects that carry a torque (or current) where the standard objects are missing, and the
 #: standard role each stands in for: what the drive commands, or what it measures.
-_TORQUE_NAMES = (("control effort", "torque_demand"), ("torque demand", "torque_demand"),
-                 ("current demand", "torque_demand"), ("torque actual", "torque_actual"),
-                 ("actual torque", "torque_actual"), ("current actual", "torque_actual"),
-                 ("actual current", "torque_actual"))
+_TORQUE_NAMES = (
+    ("control effort", "torque_demand"),
+    ("torque demand", "torque_demand"),
+    ("current demand", "torque_demand"),
+    ("torque actual", "torque_actual"),
+    ("actual torque", "torque_actual"),
+    ("current actual", "torque_actual"),
+    ("actual current", "torque_actual"),
+)
 #: Words that make such a name a setting, not a signal ("Actual Current Limit").
 _NOT_A_TORQUE = ("limit", "threshold", "max", "maximum", "offset", "protection", "setting", "parameter", "mode")
 
 
 # --- reading ---------------------------------------------------------------------------------------------------
+
 
 def load_eds(path, node_id: int | None = None):
     """Read a vendor EDS or DCF file as it is.
@@ -148,7 +220,7 @@ def load_eds_bytes(data: bytes, name: str, node_id: int | None = None, source: s
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        line = data[:exc.start].count(b"\n") + 1
+        line = data[: exc.start].count(b"\n") + 1
         text = data.decode("latin-1")
         warnings.append(f"{source}: line {line}: bytes that are not UTF-8; the file is read as latin-1")
     od, more = load_eds_text(text, name, node_id, source)
@@ -181,20 +253,79 @@ _SECTION = re.compile(r"^\[([^\]]*)\]\s*(?:;.*)?$")
 _HEX_SECTION = re.compile(r"^([0-9A-Fa-f]{4})$")
 _SUB_SECTION = re.compile(r"^([0-9A-Fa-f]{4})sub([0-9A-Fa-f]{1,2})$", re.IGNORECASE)
 _NAME_SECTION = re.compile(r"^([0-9A-Fa-f]{4})name$", re.IGNORECASE)
-_KNOWN_SECTIONS = ("FileInfo", "DeviceInfo", "DummyUsage", "Comments", "MandatoryObjects", "OptionalObjects",
-                   "ManufacturerObjects", "DeviceComissioning", "DynamicChannels", "Tools", "SupportedModules")
+_KNOWN_SECTIONS = (
+    "FileInfo",
+    "DeviceInfo",
+    "DummyUsage",
+    "Comments",
+    "MandatoryObjects",
+    "OptionalObjects",
+    "ManufacturerObjects",
+    "DeviceComissioning",
+    "DynamicChannels",
+    "Tools",
+    "SupportedModules",
+)
 _KNOWN_KEYS = (
-    "ParameterName", "ObjectType", "DataType", "AccessType", "DefaultValue", "ParameterValue", "PDOMapping",
-    "LowLimit", "HighLimit", "SubNumber", "CompactSubObj", "StorageLocation", "Factor", "Description", "Unit",
-    "ObjFlags", "Denotation", "UploadFile", "DownloadFile", "NrOfEntries", "SupportedObjects", "Lines",
-    "VendorName", "VendorNumber", "ProductName", "ProductNumber", "RevisionNumber", "OrderCode",
-    "SimpleBootUpMaster", "SimpleBootUpSlave", "Granularity", "DynamicChannelsSupported", "GroupMessaging",
-    "NrOfRXPDO", "NrOfTXPDO", "LSS_Supported", "CompactPDO", "FileName", "FileVersion", "FileRevision",
-    "EDSVersion", "CreationTime", "CreationDate", "CreatedBy", "ModificationTime", "ModificationDate",
-    "ModifiedBy", "NodeID", "NodeName", "Baudrate", "NetNumber", "NetworkName", "CANopenManager",
-    "LSS_SerialNumber",
-) + tuple(f"BaudRate_{r}" for r in (10, 20, 50, 125, 250, 500, 800, 1000)) + tuple(
-    f"Dummy{i:04d}" for i in range(1, 8))
+    (
+        "ParameterName",
+        "ObjectType",
+        "DataType",
+        "AccessType",
+        "DefaultValue",
+        "ParameterValue",
+        "PDOMapping",
+        "LowLimit",
+        "HighLimit",
+        "SubNumber",
+        "CompactSubObj",
+        "StorageLocation",
+        "Factor",
+        "Description",
+        "Unit",
+        "ObjFlags",
+        "Denotation",
+        "UploadFile",
+        "DownloadFile",
+        "NrOfEntries",
+        "SupportedObjects",
+        "Lines",
+        "VendorName",
+        "VendorNumber",
+        "ProductName",
+        "ProductNumber",
+        "RevisionNumber",
+        "OrderCode",
+        "SimpleBootUpMaster",
+        "SimpleBootUpSlave",
+        "Granularity",
+        "DynamicChannelsSupported",
+        "GroupMessaging",
+        "NrOfRXPDO",
+        "NrOfTXPDO",
+        "LSS_Supported",
+        "CompactPDO",
+        "FileName",
+        "FileVersion",
+        "FileRevision",
+        "EDSVersion",
+        "CreationTime",
+        "CreationDate",
+        "CreatedBy",
+        "ModificationTime",
+        "ModificationDate",
+        "ModifiedBy",
+        "NodeID",
+        "NodeName",
+        "Baudrate",
+        "NetNumber",
+        "NetworkName",
+        "CANopenManager",
+        "LSS_SerialNumber",
+    )
+    + tuple(f"BaudRate_{r}" for r in (10, 20, 50, 125, 250, 500, 800, 1000))
+    + tuple(f"Dummy{i:04d}" for i in range(1, 8))
+)
 _CANONICAL_KEYS = {k.lower(): k for k in _KNOWN_KEYS}
 _CANONICAL_SECTIONS = {s.lower(): s for s in _KNOWN_SECTIONS}
 
@@ -273,15 +404,20 @@ class _SectionReader:
     def header(self, no: int, given: str) -> None:
         """A ``[section]`` line: the sections that follow go into it, unless it is unreadable or repeated."""
         name = self.name = _canonical_section(given)
-        if name != given and name.lower() == given.lower() and not _SUB_SECTION.match(given) \
-                and not _HEX_SECTION.match(given):
+        if (
+            name != given
+            and name.lower() == given.lower()
+            and not _SUB_SECTION.match(given)
+            and not _HEX_SECTION.match(given)
+        ):
             self.case.add(f"line {no} [{given}]")
         self.current = None
         if not name or name.upper() == "DEFAULT" or any(c in name for c in "[]\n"):
             self.warnings.append(f"{self.source}: line {no}: section [{given}] cannot be read; skipped with its keys")
         elif name in self.sections:
-            self.warnings.append(f"{self.source}: line {no}: section [{given}] appears again; the first one is "
-                                 f"kept, this one skipped")
+            self.warnings.append(
+                f"{self.source}: line {no}: section [{given}] appears again; the first one is kept, this one skipped"
+            )
         else:
             self.current = self.sections[name] = {}
 
@@ -291,15 +427,18 @@ class _SectionReader:
         key = key.strip()
         value = re.split(r"\s;", value, maxsplit=1)[0].strip()
         if not eq or not key or any(c in key for c in ":[]") or key.upper() == "DEFAULT":
-            self.warnings.append(f"{self.source}: line {no} [{self.name}]: {line[:60]!r} is not a key=value line; "
-                                 "skipped")
+            self.warnings.append(
+                f"{self.source}: line {no} [{self.name}]: {line[:60]!r} is not a key=value line; skipped"
+            )
             return
         canon = _canonical_key(key)
         if canon != key:
             self.case.add(f"line {no} [{self.name}] {key!r}")
         if canon in section:
-            self.warnings.append(f"{self.source}: line {no} [{self.name}]: duplicate key {key!r}; the first (line "
-                                 f"{section[canon][1]}) is kept")
+            self.warnings.append(
+                f"{self.source}: line {no} [{self.name}]: duplicate key {key!r}; the first (line "
+                f"{section[canon][1]}) is kept"
+            )
             return
         section[canon] = (value, no)
 
@@ -352,15 +491,17 @@ def _keep_section(name: str, sections: dict, source: str, warnings: list[str]) -
     sec = sections[name]
     m_obj, m_sub = _HEX_SECTION.match(name), _SUB_SECTION.match(name)
     if m_sub and m_sub.group(1) not in sections:
-        warnings.append(f"{source}: [{name}] (line {_first_line(sec)}): sub-index of an object the file does "
-                        f"not declare; skipped")
+        warnings.append(
+            f"{source}: [{name}] (line {_first_line(sec)}): sub-index of an object the file does not declare; skipped"
+        )
         del sections[name]
         return False
     if _NAME_SECTION.match(name):
         return False  # after the objects: see _repair_names
     if not (m_obj or m_sub or name in _KNOWN_SECTIONS) and re.match(r"[0-9A-Fa-f]{4}", name):
-        warnings.append(f"{source}: [{name}] (line {_first_line(sec)}): neither an object, a sub-index nor a "
-                        f"names section; skipped")
+        warnings.append(
+            f"{source}: [{name}] (line {_first_line(sec)}): neither an object, a sub-index nor a names section; skipped"
+        )
         del sections[name]
         return False
     if not (m_obj or m_sub):
@@ -384,8 +525,9 @@ def _repair_values(name: str, sec: dict, zeros: _Tally, nodeid: _Tally, source: 
         if "$" in value:
             canon = _nodeid_expression(value)
             if canon is None:
-                warnings.append(f"{source}: line {no} [{name}]: {key}={value!r} is not a $NODEID+offset "
-                                f"expression; dropped")
+                warnings.append(
+                    f"{source}: line {no} [{name}]: {key}={value!r} is not a $NODEID+offset expression; dropped"
+                )
                 del sec[key]
             elif canon != value:
                 nodeid.add(f"line {no} [{name}] {value!r}")
@@ -400,8 +542,10 @@ def _drop_orphan_subs(sections: dict, source: str, warnings: list[str]) -> None:
     for name in [n for n in sections if _SUB_SECTION.match(n)]:
         parent = sections.get(name[:4])
         if parent is None or _int(parent.get("ObjectType", ("7", 0))[0]) not in (0x8, 0x9):
-            warnings.append(f"{source}: [{name}] (line {_first_line(sections[name])}): sub-index of an object that is "
-                            f"not an array or record; skipped")
+            warnings.append(
+                f"{source}: [{name}] (line {_first_line(sections[name])}): sub-index of an object that is "
+                f"not an array or record; skipped"
+            )
             del sections[name]
 
 
@@ -412,8 +556,9 @@ def _repair_custom_type(name: str, sec: dict, sections: dict, source: str, warni
         return
     definition = sections.get(f"{dtype:X}sub1")
     if definition is not None and _int(definition.get("DefaultValue", ("", 0))[0]) is None:
-        warnings.append(f"{source}: [{name}]: DataType=0x{dtype:04X} has no readable definition in [{dtype:X}sub1]; "
-                        f"read as DOMAIN")
+        warnings.append(
+            f"{source}: [{name}]: DataType=0x{dtype:04X} has no readable definition in [{dtype:X}sub1]; read as DOMAIN"
+        )
         sec["DataType"] = ("0x000F", sec["DataType"][1])
 
 
@@ -422,18 +567,26 @@ def _repair_names(sections: dict, source: str, warnings: list[str]) -> None:
     for name in [n for n in sections if _NAME_SECTION.match(n)]:
         sec, index = sections[name], name[:4]
         count = _int(sec.get("NrOfEntries", ("", 0))[0])
-        if index not in sections or "CompactSubObj" not in sections[index] or count is None \
-                or _int(sections[index].get("ObjectType", ("7", 0))[0]) != 0x8:
-            warnings.append(f"{source}: [{name}] (line {_first_line(sec)}): names of a compact array that the file "
-                            f"does not declare as one (or without NrOfEntries); skipped")
+        if (
+            index not in sections
+            or "CompactSubObj" not in sections[index]
+            or count is None
+            or _int(sections[index].get("ObjectType", ("7", 0))[0]) != 0x8
+        ):
+            warnings.append(
+                f"{source}: [{name}] (line {_first_line(sec)}): names of a compact array that the file "
+                f"does not declare as one (or without NrOfEntries); skipped"
+            )
             del sections[name]
             continue
         present = 0
         while str(present + 1) in sec and present < 255:
             present += 1
         if present != count:
-            warnings.append(f"{source}: [{name}] (line {_first_line(sec)}): NrOfEntries={count} but {present} names "
-                            f"follow in order; read {present}")
+            warnings.append(
+                f"{source}: [{name}] (line {_first_line(sec)}): NrOfEntries={count} but {present} names "
+                f"follow in order; read {present}"
+            )
         sec["NrOfEntries"] = (str(present), 0)
 
 
@@ -457,8 +610,9 @@ def _repair_object(name: str, sec: dict, source: str, warnings: list[str], is_su
         return True
     dtype = _int(sec.get("DataType", ("", 0))[0])
     if dtype is None or not 0 < dtype <= 0xFFFF:
-        warnings.append(f"{source}: {where}: DataType={sec.get('DataType', ('(missing)', 0))[0]!r} unreadable; "
-                        f"object skipped")
+        warnings.append(
+            f"{source}: {where}: DataType={sec.get('DataType', ('(missing)', 0))[0]!r} unreadable; object skipped"
+        )
         return False
     sec["DataType"] = (f"0x{dtype:04X}", sec.get("DataType", ("", 0))[1])
     _repair_access(sec, where, source, warnings)
@@ -501,9 +655,19 @@ def _repair_access(sec: dict, where: str, source: str, warnings: list[str]) -> N
         sec["PDOMapping"] = ("0", sec["PDOMapping"][1])
 
 
-_DEVICE_INFO_NUMBERS = ("VendorNumber", "ProductNumber", "RevisionNumber", "SimpleBootUpMaster", "SimpleBootUpSlave",
-                        "Granularity", "DynamicChannelsSupported", "GroupMessaging", "NrOfRXPDO", "NrOfTXPDO",
-                        "LSS_Supported") + tuple(k for k in _KNOWN_KEYS if k.startswith("BaudRate_"))
+_DEVICE_INFO_NUMBERS = (
+    "VendorNumber",
+    "ProductNumber",
+    "RevisionNumber",
+    "SimpleBootUpMaster",
+    "SimpleBootUpSlave",
+    "Granularity",
+    "DynamicChannelsSupported",
+    "GroupMessaging",
+    "NrOfRXPDO",
+    "NrOfTXPDO",
+    "LSS_Supported",
+) + tuple(k for k in _KNOWN_KEYS if k.startswith("BaudRate_"))
 
 
 def _repair_info(sections: dict, source: str, warnings: list[str]) -> None:
@@ -543,8 +707,10 @@ def _repair_comments(comments: dict, source: str, warnings: list[str]) -> None:
     while count + 1 in present:
         count += 1
     if lines != count:
-        warnings.append(f"{source}: [Comments]: Lines={comments.get('Lines', ('(missing)', 0))[0]} but "
-                        f"{count} comment lines follow in order; read {count}")
+        warnings.append(
+            f"{source}: [Comments]: Lines={comments.get('Lines', ('(missing)', 0))[0]} but "
+            f"{count} comment lines follow in order; read {count}"
+        )
     comments["Lines"] = (str(count), comments.get("Lines", ("", 0))[1])
 
 
@@ -574,8 +740,9 @@ def _import(sections: dict, name: str, node_id, source: str, warnings: list[str]
     try:
         od = canopen.import_od(out, node_id)
     except Exception as exc:  # a file python-canopen still cannot read: say which, never a traceback
-        raise ConfigError("canopen.eds", f"cannot be read as an EDS/DCF ({type(exc).__name__}: {exc})"[:300],
-                          source) from None
+        raise ConfigError(
+            "canopen.eds", f"cannot be read as an EDS/DCF ({type(exc).__name__}: {exc})"[:300], source
+        ) from None
     finally:
         log.removeHandler(handler)
     warnings += [f"{source}: {m}" for m in handler.messages]
@@ -633,14 +800,20 @@ def _check_profile(od, source: str, warnings: list[str]) -> None:
             continue
         where = f"0x{index:04X}" + (f":{sub}" if sub else "")
         if var.data_type != dtype:
-            warnings.append(f"{source}: [{index:04X}]: {where} ({role}) is declared {type_name(var.data_type)} where "
-                            f"CiA 402 says {type_name(dtype)}; kept as declared")
+            warnings.append(
+                f"{source}: [{index:04X}]: {where} ({role}) is declared {type_name(var.data_type)} where "
+                f"CiA 402 says {type_name(dtype)}; kept as declared"
+            )
         if "w" in use and not writable(var.access):
-            warnings.append(f"{source}: [{index:04X}]: {where} ({role}) is declared {var.access!r}, the host must "
-                            f"write it; kept as declared")
+            warnings.append(
+                f"{source}: [{index:04X}]: {where} ({role}) is declared {var.access!r}, the host must "
+                f"write it; kept as declared"
+            )
         if "r" in use and not readable(var.access):
-            warnings.append(f"{source}: [{index:04X}]: {where} ({role}) is declared write-only; kept as declared"
-                            + (" (the mode in effect is read from 0x6061)" if index == 0x6060 else ""))
+            warnings.append(
+                f"{source}: [{index:04X}]: {where} ({role}) is declared write-only; kept as declared"
+                + (" (the mode in effect is read from 0x6061)" if index == 0x6060 else "")
+            )
 
 
 def _variables(od):
@@ -654,6 +827,7 @@ def _variables(od):
 
 
 # --- what the drive offers ---------------------------------------------------------------------------------------
+
 
 def type_name(data_type: int) -> str:
     """CiA 301 name of a data type code (``0x0007`` -> ``"UNSIGNED32"``)."""
@@ -715,8 +889,16 @@ def object_info(od, index: int, subindex: int = 0) -> ObjectInfo | None:
     if var is None:
         return None
     value = getattr(var, "value", None)
-    return ObjectInfo(index, subindex, var.name, int(var.data_type or 0), var.access_type or "ro",
-                      bool(var.pdo_mappable), value if value is not None else var.default, var.max)
+    return ObjectInfo(
+        index,
+        subindex,
+        var.name,
+        int(var.data_type or 0),
+        var.access_type or "ro",
+        bool(var.pdo_mappable),
+        value if value is not None else var.default,
+        var.max,
+    )
 
 
 @dataclass(frozen=True)
@@ -832,14 +1014,23 @@ def inspect_eds(od) -> EdsSummary:
     tpdo, tpdo_w = _pdo_entries(od, 0x1800, 0x1A00)
     filters, recorders, generators = _vendor_objects(od)
     return EdsSummary(
-        **_identity(od.device_information), roles=roles, supported_modes=supported, cyclic_modes=cyclic,
-        rpdo_entries=rpdo, tpdo_entries=tpdo, pdo_mapping_writable=bool(rpdo or tpdo) and rpdo_w and tpdo_w,
+        **_identity(od.device_information),
+        roles=roles,
+        supported_modes=supported,
+        cyclic_modes=cyclic,
+        rpdo_entries=rpdo,
+        tpdo_entries=tpdo,
+        pdo_mapping_writable=bool(rpdo or tpdo) and rpdo_w and tpdo_w,
         period=_period(od, roles),
         torque_objects=tuple(f"0x{i:04X}" for i in (0x6071, 0x6072, 0x6074, 0x6076, 0x6077) if i in od.indices),
         current_objects=tuple(f"0x{i:04X}" for i in (0x6075, 0x6078) if i in od.indices),
-        factor_group=_factor_group(roles), heartbeat_consumers=_heartbeat_consumers(od),
-        abort_connection=0x6007 in od.indices, store_parameters="store_parameters" in roles,
-        vendor_filters=filters, vendor_recorders=recorders, vendor_generators=generators,
+        factor_group=_factor_group(roles),
+        heartbeat_consumers=_heartbeat_consumers(od),
+        abort_connection=0x6007 in od.indices,
+        store_parameters="store_parameters" in roles,
+        vendor_filters=filters,
+        vendor_recorders=recorders,
+        vendor_generators=generators,
         vendor_torque=_vendor_torque(od),
         baudrates=tuple(sorted(od.device_information.allowed_baudrates, reverse=True)),
     )
@@ -847,15 +1038,29 @@ def inspect_eds(od) -> EdsSummary:
 
 def _identity(info) -> dict:
     """Vendor and product of ``[DeviceInfo]``."""
-    return {"vendor_name": str(info.vendor_name or ""), "vendor_number": info.vendor_number,
-            "product_name": str(info.product_name or ""), "product_number": info.product_number,
-            "revision_number": info.revision_number}
+    return {
+        "vendor_name": str(info.vendor_name or ""),
+        "vendor_number": info.vendor_number,
+        "product_name": str(info.product_name or ""),
+        "product_number": info.product_number,
+        "revision_number": info.revision_number,
+    }
 
 
 def _factor_group(roles: dict) -> dict:
     """Default values of the CiA 402 factor group objects the EDS has."""
-    return {r: roles[r].default for r in ("encoder_increments", "motor_revolutions", "gear_motor_revs",
-                                          "gear_shaft_revs", "feed", "feed_shaft_revs") if r in roles}
+    return {
+        r: roles[r].default
+        for r in (
+            "encoder_increments",
+            "motor_revolutions",
+            "gear_motor_revs",
+            "gear_shaft_revs",
+            "feed",
+            "feed_shaft_revs",
+        )
+        if r in roles
+    }
 
 
 def _heartbeat_consumers(od) -> int:
@@ -892,9 +1097,13 @@ def _period(od, roles: dict) -> PeriodInfo:
         exponent = exp_var.default if exp_var is not None else None
         if isinstance(exponent, int) and exponent > 127:  # declared UNSIGNED8 by some: -3 reads as 253
             exponent -= 256
-        seconds = value * 10.0 ** exponent if isinstance(value, int) and isinstance(exponent, int) else None
-        return PeriodInfo("0x60C2", seconds, value if isinstance(value, int) else None,
-                          exponent if isinstance(exponent, int) else None)
+        seconds = value * 10.0**exponent if isinstance(value, int) and isinstance(exponent, int) else None
+        return PeriodInfo(
+            "0x60C2",
+            seconds,
+            value if isinstance(value, int) else None,
+            exponent if isinstance(exponent, int) else None,
+        )
     if "cycle_period" in roles:
         value = roles["cycle_period"].default
         ok = isinstance(value, int) and value > 0

@@ -35,8 +35,15 @@ Example
 
 from __future__ import annotations
 
-__all__ = ["CLASSES", "CODES", "ERROR_REGISTER_BITS", "MANUFACTURER_SPECIFIC", "emcy_class", "emcy_name",
-           "error_register_names"]
+__all__ = [
+    "CLASSES",
+    "CODES",
+    "ERROR_REGISTER_BITS",
+    "MANUFACTURER_SPECIFIC",
+    "emcy_class",
+    "emcy_name",
+    "error_register_names",
+]
 
 #: Start of the manufacturer-specific (CiA 301: "device specific") codes, 0xFF00-0xFFFF.
 MANUFACTURER_SPECIFIC = 0xFF00
@@ -272,8 +279,14 @@ CODES.update({0x6300 + n: f"data record No. {n}" for n in range(1, 16)})
 
 #: Bits of the error register (0x1001, byte 2 of an EMCY frame), CiA 301.
 ERROR_REGISTER_BITS: dict[int, str] = {
-    0: "generic error", 1: "current", 2: "voltage", 3: "temperature", 4: "communication error",
-    5: "device profile specific", 6: "reserved", 7: "manufacturer-specific",
+    0: "generic error",
+    1: "current",
+    2: "voltage",
+    3: "temperature",
+    4: "communication error",
+    5: "device profile specific",
+    6: "reserved",
+    7: "manufacturer-specific",
 }
 
 #: Groups below a class, most specific first: (mask, shift, wildcard) for 0x231x and 0x23xx.

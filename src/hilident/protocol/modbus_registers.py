@@ -82,14 +82,36 @@ from hilident.errors import ConfigError, DataError
 from hilident.protocol.filter_encoding import FilterEncoding
 
 __all__ = [
-    "EXCEPTION_MEANINGS", "TYPES", "CaptureChannel", "Chunk", "FilterSlots", "Register", "RegisterMap", "Window",
-    "count_rtu_frames", "decode_string", "decode_values", "encode_string", "encode_values", "exception_meaning",
-    "plan_chunks", "rtu_crc", "table_crc",
+    "EXCEPTION_MEANINGS",
+    "TYPES",
+    "CaptureChannel",
+    "Chunk",
+    "FilterSlots",
+    "Register",
+    "RegisterMap",
+    "Window",
+    "count_rtu_frames",
+    "decode_string",
+    "decode_values",
+    "encode_string",
+    "encode_values",
+    "exception_meaning",
+    "plan_chunks",
+    "rtu_crc",
+    "table_crc",
 ]
 
 #: Registers per value and numpy type code of the numeric types.
-TYPES: dict[str, tuple[int, str]] = {"u16": (1, "u2"), "i16": (1, "i2"), "u32": (2, "u4"), "i32": (2, "i4"),
-                                     "f32": (2, "f4"), "u64": (4, "u8"), "i64": (4, "i8"), "f64": (4, "f8")}
+TYPES: dict[str, tuple[int, str]] = {
+    "u16": (1, "u2"),
+    "i16": (1, "i2"),
+    "u32": (2, "u4"),
+    "i32": (2, "i4"),
+    "f32": (2, "f4"),
+    "u64": (4, "u8"),
+    "i64": (4, "i8"),
+    "f64": (4, "f8"),
+}
 WORD_ORDERS = ("big", "little")
 BYTE_ORDERS = ("big", "little")
 REGISTER_TABLES = ("holding", "input")
@@ -113,17 +135,46 @@ EXCEPTION_MEANINGS: dict[int, str] = {
 
 #: Registers every Modbus drive map must name, with the types allowed for each.
 REQUIRED_REGISTERS: dict[str, tuple[str, ...]] = {
-    "device_type": ("u16",), "map_version": ("u16",), "loop_rate_hz": ("u16", "u32", "f32"),
-    "max_sample_rate_hz": ("u16", "u32", "f32"), "filter_slots": ("u16",), "table_capacity": ("u16", "u32"),
-    "capture_capacity": ("u16", "u32"), "device_name": ("str",), "firmware": ("str",),
-    "control_word": ("u16",), "status_word": ("u16",), "fault_code": ("u16",), "sample_count": ("u16", "u32"),
-    "fault_sample": ("u16", "u32"), "fault_value": ("f32",), "mode": ("u16",), "sample_divider": ("u16",),
-    "capture_mask": ("u16",), "table_length": ("u16", "u32"), "table_page": ("u16",), "capture_page": ("u16",),
-    "table_crc": ("u16",), "torque_limit_nm": ("f32",), "velocity_limit_mps": ("f32",),
-    "position_min_m": ("f32",), "position_max_m": ("f32",),
+    "device_type": ("u16",),
+    "map_version": ("u16",),
+    "loop_rate_hz": ("u16", "u32", "f32"),
+    "max_sample_rate_hz": ("u16", "u32", "f32"),
+    "filter_slots": ("u16",),
+    "table_capacity": ("u16", "u32"),
+    "capture_capacity": ("u16", "u32"),
+    "device_name": ("str",),
+    "firmware": ("str",),
+    "control_word": ("u16",),
+    "status_word": ("u16",),
+    "fault_code": ("u16",),
+    "sample_count": ("u16", "u32"),
+    "fault_sample": ("u16", "u32"),
+    "fault_value": ("f32",),
+    "mode": ("u16",),
+    "sample_divider": ("u16",),
+    "capture_mask": ("u16",),
+    "table_length": ("u16", "u32"),
+    "table_page": ("u16",),
+    "capture_page": ("u16",),
+    "table_crc": ("u16",),
+    "torque_limit_nm": ("f32",),
+    "velocity_limit_mps": ("f32",),
+    "position_min_m": ("f32",),
+    "position_max_m": ("f32",),
 }
-WRITABLE = ("control_word", "mode", "sample_divider", "capture_mask", "table_length", "table_page", "capture_page",
-            "torque_limit_nm", "velocity_limit_mps", "position_min_m", "position_max_m")
+WRITABLE = (
+    "control_word",
+    "mode",
+    "sample_divider",
+    "capture_mask",
+    "table_length",
+    "table_page",
+    "capture_page",
+    "torque_limit_nm",
+    "velocity_limit_mps",
+    "position_min_m",
+    "position_max_m",
+)
 CONTROL_BITS = ("run", "fault_reset")
 STATUS_BITS = ("enabled", "running", "done", "fault", "capture_stopped", "limits_loaded")
 FAULT_NAMES = ("torque_limit", "velocity_limit", "position_limit", "drive_fault")
@@ -143,6 +194,7 @@ _Fail = Callable[[str, str], NoReturn]
 def _fail_in(source: str) -> _Fail:
     def fail(key: str, message: str) -> NoReturn:
         raise ConfigError(key, message, source or None)
+
     return fail
 
 
@@ -171,8 +223,15 @@ def exception_meaning(code: int) -> str:
 # --- value encodings ---------------------------------------------------------------------
 
 
-def encode_values(values, type_: str, scale: float = 1.0, word_order: str = "big",
-                  saturate: bool = False, byte_order: str = "big", offset: float = 0.0) -> np.ndarray:
+def encode_values(
+    values,
+    type_: str,
+    scale: float = 1.0,
+    word_order: str = "big",
+    saturate: bool = False,
+    byte_order: str = "big",
+    offset: float = 0.0,
+) -> np.ndarray:
     """Registers holding ``values`` (physical units) as ``type_``.
 
     Parameters
@@ -244,8 +303,12 @@ def encode_values(values, type_: str, scale: float = 1.0, word_order: str = "big
 
 def _exact_integers(values, code: str, scale: float, offset: float) -> list[int] | None:
     """``values`` as Python ints when they are all integers going into an unscaled integer type, else None."""
-    if code.startswith("f") or scale != 1.0 or offset != 0.0 or (isinstance(values, np.ndarray)
-                                                                  and values.dtype.kind not in "iuO"):
+    if (
+        code.startswith("f")
+        or scale != 1.0
+        or offset != 0.0
+        or (isinstance(values, np.ndarray) and values.dtype.kind not in "iuO")
+    ):
         return None
     items = list(np.asarray(values, dtype=object).ravel())
     if not all(isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_)) for v in items):
@@ -264,8 +327,9 @@ def _order_words(words: np.ndarray, word_order: str, byte_order: str) -> np.ndar
     return words.astype(np.uint16).ravel()
 
 
-def decode_values(registers, type_: str, scale: float = 1.0, word_order: str = "big", byte_order: str = "big",
-                  offset: float = 0.0) -> np.ndarray:
+def decode_values(
+    registers, type_: str, scale: float = 1.0, word_order: str = "big", byte_order: str = "big", offset: float = 0.0
+) -> np.ndarray:
     """Physical values held in ``registers`` as ``type_`` (inverse of :func:`encode_values`).
 
     Raises
@@ -379,8 +443,9 @@ class Chunk:
     count: int
 
 
-def plan_chunks(first_sample: int, n_samples: int, registers_per_sample: int, page_samples: int,
-                max_registers: int) -> list[Chunk]:
+def plan_chunks(
+    first_sample: int, n_samples: int, registers_per_sample: int, page_samples: int, max_registers: int
+) -> list[Chunk]:
     """Requests that move samples ``first_sample .. first_sample + n_samples - 1`` through a paged window.
 
     Each request carries whole samples, at most ``max_registers`` registers,
@@ -393,8 +458,10 @@ def plan_chunks(first_sample: int, n_samples: int, registers_per_sample: int, pa
     """
     per_request = max_registers // registers_per_sample
     if per_request < 1:
-        raise ConfigError("modbus.max_registers",
-                          f"a sample of {registers_per_sample} registers does not fit a request of {max_registers}")
+        raise ConfigError(
+            "modbus.max_registers",
+            f"a sample of {registers_per_sample} registers does not fit a request of {max_registers}",
+        )
     chunks = []
     k, end = int(first_sample), int(first_sample) + int(n_samples)
     while k < end:
@@ -484,8 +551,9 @@ class Register:
         high = math.inf if self.maximum is None else self.maximum
         if not low <= x <= high:
             unit = f" {self.unit}" if self.unit else ""
-            raise DataError(f"register {self.address:#06x} ({self.label}): {x:g}{unit} is outside its range "
-                            f"{low:g}..{high:g}{unit}")
+            raise DataError(
+                f"register {self.address:#06x} ({self.label}): {x:g}{unit} is outside its range {low:g}..{high:g}{unit}"
+            )
 
     def encode(self, value) -> list[int]:
         """The registers holding the physical ``value`` (DataError naming the register when it does not fit)."""
@@ -493,8 +561,9 @@ class Register:
             return encode_string(str(value), self.count).tolist()
         self.check_range(value)
         try:
-            return encode_values([value], self.type, self.scale, self.word_order, byte_order=self.byte_order,
-                                 offset=self.offset).tolist()
+            return encode_values(
+                [value], self.type, self.scale, self.word_order, byte_order=self.byte_order, offset=self.offset
+            ).tolist()
         except DataError as exc:
             raise DataError(f"register {self.address} ({self.label}): {exc}") from None
 
@@ -502,12 +571,14 @@ class Register:
         """The physical value ``registers`` hold (an int for unscaled integer types)."""
         if self.type == "str":
             return decode_string(registers)
-        value = float(decode_values(registers, self.type, self.scale, self.word_order, self.byte_order,
-                                    self.offset)[0])
+        value = float(decode_values(registers, self.type, self.scale, self.word_order, self.byte_order, self.offset)[0])
         exact = not self.type.startswith("f") and self.scale == 1.0 and self.offset == 0.0
         if exact and self.type in ("u64", "i64"):  # beyond float64's 53 bits: from the words themselves
-            data = _order_words(np.asarray(registers, dtype=np.int64).reshape(1, -1), self.word_order,
-                                self.byte_order).astype(">u2").tobytes()
+            data = (
+                _order_words(np.asarray(registers, dtype=np.int64).reshape(1, -1), self.word_order, self.byte_order)
+                .astype(">u2")
+                .tobytes()
+            )
             return int.from_bytes(data, "big", signed=self.type == "i64")
         return int(value) if exact else value
 
@@ -564,16 +635,23 @@ class ParameterRule:
     @classmethod
     def parse(cls, text, prefix: str = "P", key: str = "modbus.parameters.address", source: str = "") -> ParameterRule:
         """Read a rule; ConfigError naming ``key`` when it is not a sum of the allowed terms."""
+
         def bad(why: str) -> NoReturn:
-            raise ConfigError(key, f"{why} in {text!r}; write it as a sum of terms such as "
-                                   '"group * 0x100 + index" or "group * 256 + 2 * index"', source or None)
+            raise ConfigError(
+                key,
+                f"{why} in {text!r}; write it as a sum of terms such as "
+                '"group * 0x100 + index" or "group * 256 + 2 * index"',
+                source or None,
+            )
 
         if not isinstance(text, str) or not text.strip() or len(text) > 200:
             bad("a rule must be a short string")
         factors = {"group": 0, "index": 0, "": 0}
         number = r"(?:0[xX][0-9a-fA-F]+|\d+)"
-        term = re.compile(rf"^(?:({number})\s*\*\s*(group|index)|(group|index)\s*\*\s*({number})|"
-                          rf"(group|index)|({number}))$")
+        term = re.compile(
+            rf"^(?:({number})\s*\*\s*(group|index)|(group|index)\s*\*\s*({number})|"
+            rf"(group|index)|({number}))$"
+        )
         for raw in text.split("+"):
             m = term.match(raw.strip())
             if not m:
@@ -750,21 +828,22 @@ def _parse_rule(mb: dict, source: str) -> ParameterRule:
     return ParameterRule.parse(table["address"], prefix, "modbus.parameters.address", source)
 
 
-def _parse_registers(table: dict, rule: ParameterRule | None, word_order: str, byte_order: str,
-                     source: str) -> dict[str, Register]:
+def _parse_registers(
+    table: dict, rule: ParameterRule | None, word_order: str, byte_order: str, source: str
+) -> dict[str, Register]:
     """``[modbus.registers]``: each entry through the typed schema, plus ``bits`` and ``default``."""
     return {name: _parse_register(name, raw, rule, word_order, byte_order, source) for name, raw in table.items()}
 
 
-def _parse_register(name: str, raw, rule: ParameterRule | None, word_order: str, byte_order: str,
-                    source: str) -> Register:
+def _parse_register(
+    name: str, raw, rule: ParameterRule | None, word_order: str, byte_order: str, source: str
+) -> Register:
     """One ``[modbus.registers]`` entry; ``word_order`` and ``byte_order`` are the map's defaults."""
     fail = _fail_in(source)
     key = f"modbus.registers.{name}"
     if not isinstance(raw, dict):
         fail(key, "must be a table {address, type, access}")
-    spec = build_table(_RegisterSpec, {k: v for k, v in raw.items() if k not in ("bits", "default")},
-                       key + ".", source)
+    spec = build_table(_RegisterSpec, {k: v for k, v in raw.items() if k not in ("bits", "default")}, key + ".", source)
     if spec.scale == 0:
         fail(f"{key}.scale", "must be a non-zero finite number, got 0")
     count = spec.length if spec.type == "str" else TYPES[spec.type][0]
@@ -776,17 +855,33 @@ def _parse_register(name: str, raw, rule: ParameterRule | None, word_order: str,
     if spec.min is not None and spec.max is not None and spec.min > spec.max:
         fail(f"{key}.min", f"{spec.min:g} is above max {spec.max:g}")
     register = Register(
-        name, address, spec.type, spec.access, spec.scale, count, spec.word_order or word_order,
-        spec.byte_order or byte_order, spec.table, spec.offset, spec.unit, spec.min, spec.max,
-        _parse_bits(raw.get("bits", {}), spec.type, count, f"{key}.bits", fail), code, spec.channel,
-        spec.channel_scale, None)
+        name,
+        address,
+        spec.type,
+        spec.access,
+        spec.scale,
+        count,
+        spec.word_order or word_order,
+        spec.byte_order or byte_order,
+        spec.table,
+        spec.offset,
+        spec.unit,
+        spec.min,
+        spec.max,
+        _parse_bits(raw.get("bits", {}), spec.type, count, f"{key}.bits", fail),
+        code,
+        spec.channel,
+        spec.channel_scale,
+        None,
+    )
     if "default" in raw:
         register = replace(register, default=_register_default(register, raw["default"], key, fail))
     return register
 
 
-def _register_address(name: str, spec: _RegisterSpec, rule: ParameterRule | None, key: str,
-                      fail: _Fail) -> tuple[str, int]:
+def _register_address(
+    name: str, spec: _RegisterSpec, rule: ParameterRule | None, key: str, fail: _Fail
+) -> tuple[str, int]:
     """The parameter code and address of a register: ``address``, else its code through the rule (they must agree)."""
     code, address = spec.parameter, spec.address
     if address < 0:
@@ -850,8 +945,9 @@ def _check_required(registers: dict[str, Register], fail: _Fail) -> None:
             fail(f"modbus.registers.{name}.access", 'must be "rw": the host writes it')
 
 
-def _named_register(value, registers: dict[str, Register], rule: ParameterRule | None, key: str,
-                    fail: _Fail) -> Register:
+def _named_register(
+    value, registers: dict[str, Register], rule: ParameterRule | None, key: str, fail: _Fail
+) -> Register:
     """A register of the map by name, or by parameter code through the rule (a ``u16`` holding register)."""
     if not isinstance(value, str):
         fail(key, f"must name a register or a parameter code, got {value!r}")
@@ -868,34 +964,53 @@ def _named_register(value, registers: dict[str, Register], rule: ParameterRule |
         fail(key, f"{value!r} is no register of [modbus.registers], nor a parameter: {exc}")
 
 
-def _parse_field_slots(ft: dict, encoding: FilterEncoding, registers: dict[str, Register],
-                       rule: ParameterRule | None, filter_slots: int, fail: _Fail) -> FieldSlots:
+def _parse_field_slots(
+    ft: dict,
+    encoding: FilterEncoding,
+    registers: dict[str, Register],
+    rule: ParameterRule | None,
+    filter_slots: int,
+    fail: _Fail,
+) -> FieldSlots:
     """``[modbus.filters]`` with ``slots = [{center = ..., width = ..., depth = ...}]`` and ``off`` or ``enable``."""
-    if encoding.kind == "word_block" or encoding.kind not in ("notch_parameters", "index_table", "pole_zero_q",
-                                                                "pole_zero_damping", "center_band"):
+    if encoding.kind == "word_block" or encoding.kind not in (
+        "notch_parameters",
+        "index_table",
+        "pole_zero_q",
+        "pole_zero_damping",
+        "center_band",
+    ):
         fail("filters.encoding", f"filter slots of named registers hold notch parameters, not {encoding.kind!r}")
     unknown = set(ft) - {"slots", "off"}
     if unknown:
         fail(f"modbus.filters.{sorted(unknown)[0]}", "unknown key (known with slots: slots, off)")
     raw = ft["slots"]
     if not isinstance(raw, list) or len(raw) != filter_slots:
-        fail("modbus.filters.slots", f"must list board.filter_slots = {filter_slots} slot(s), got "
-                                     f"{len(raw) if isinstance(raw, list) else raw!r}")
-    slots = [_field_slot(f"modbus.filters.slots[{i}]", entry, encoding, registers, rule, fail)
-             for i, entry in enumerate(raw)]
+        fail(
+            "modbus.filters.slots",
+            f"must list board.filter_slots = {filter_slots} slot(s), got "
+            f"{len(raw) if isinstance(raw, list) else raw!r}",
+        )
+    slots = [
+        _field_slot(f"modbus.filters.slots[{i}]", entry, encoding, registers, rule, fail) for i, entry in enumerate(raw)
+    ]
     off = ft.get("off", {})
     has_enable = bool(slots) and "enable" in slots[0]
     if not isinstance(off, dict) or (not has_enable and len(off) != 1) or set(off) - set(encoding.fields):
-        fail("modbus.filters.off", "slots without an enable register need off = {field = stored value} "
-                                   f"for one of {', '.join(encoding.fields)}: the value that bypasses the slot")
+        fail(
+            "modbus.filters.off",
+            "slots without an enable register need off = {field = stored value} "
+            f"for one of {', '.join(encoding.fields)}: the value that bypasses the slot",
+        )
     for name, value in off.items():
         if isinstance(value, bool) or not isinstance(value, int):
             fail(f"modbus.filters.off.{name}", f"must be the stored integer, got {value!r}")
     return FieldSlots(tuple(slots), dict(off))
 
 
-def _field_slot(key: str, entry, encoding: FilterEncoding, registers: dict[str, Register],
-                rule: ParameterRule | None, fail: _Fail) -> dict[str, Register]:
+def _field_slot(
+    key: str, entry, encoding: FilterEncoding, registers: dict[str, Register], rule: ParameterRule | None, fail: _Fail
+) -> dict[str, Register]:
     """One slot: the numeric read-write holding register of each field of the encoding (and optionally enable)."""
     names = (*encoding.fields, "enable")
     if not isinstance(entry, dict) or set(entry) - set(names) or not set(encoding.fields) <= set(entry):
@@ -914,8 +1029,11 @@ def _parse_identity(mb: dict, registers: dict, excitation: bool, fail: _Fail) ->
     table = mb.get("identity")
     if table is None:
         if not excitation:
-            fail("modbus.identity", "table is required: the registers that identify the drive "
-                                    '(registers = ["motor_model", "software_version"])')
+            fail(
+                "modbus.identity",
+                "table is required: the registers that identify the drive "
+                '(registers = ["motor_model", "software_version"])',
+            )
         return (), {}
     if not isinstance(table, dict) or set(table) - {"registers", "expect"}:
         fail("modbus.identity", "must be a table {registers, expect}")
@@ -933,8 +1051,9 @@ def _parse_identity(mb: dict, registers: dict, excitation: bool, fail: _Fail) ->
     return tuple(names), dict(expect)
 
 
-def _parse_save(mb: dict, registers: dict[str, Register], rule: ParameterRule | None,
-                fail: _Fail) -> tuple[str, float] | None:
+def _parse_save(
+    mb: dict, registers: dict[str, Register], rule: ParameterRule | None, fail: _Fail
+) -> tuple[str, float] | None:
     """``[modbus.save]``: the register (or parameter) written to store the parameters, and the value."""
     table = mb.get("save")
     if table is None:
@@ -1074,8 +1193,14 @@ def _parse_excitation(mb: dict, registers: dict[str, Register], source: str) -> 
     tb = _subtable(mb, "table", "modbus", fail)
     kind = build_table(_TableType, tb, "modbus.table.", source)
     window = build_table(_WindowTable, tb, "modbus.table.", source)
-    table = Window("table", window.base, window.page_samples, window.capacity_samples,
-                   window.page_samples * TYPES[kind.type][0], "table_page")
+    table = Window(
+        "table",
+        window.base,
+        window.page_samples,
+        window.capacity_samples,
+        window.page_samples * TYPES[kind.type][0],
+        "table_page",
+    )
     capture, channels = _parse_capture(_subtable(mb, "capture", "modbus", fail), source)
     for w in (table, capture):
         if w.end > 65536:
@@ -1103,14 +1228,26 @@ def _parse_capture(cp: dict, source: str) -> tuple[Window, tuple[CaptureChannel,
         fail("modbus.capture.channels", "channel names must be distinct")
     window = build_table(_WindowTable, cp, "modbus.capture.", source)
     record_max = 1 + sum(c.count for c in channels)
-    capture = Window("capture", window.base, window.page_samples, window.capacity_samples,
-                     window.page_samples * record_max, "capture_page")
+    capture = Window(
+        "capture",
+        window.base,
+        window.page_samples,
+        window.capacity_samples,
+        window.page_samples * record_max,
+        "capture_page",
+    )
     return capture, tuple(channels)
 
 
-def _parse_filters(sections: dict, mb: dict, registers: dict[str, Register], rule: ParameterRule | None,
-                   filter_slots: int, excitation: bool,
-                   source: str) -> tuple[FilterSlots | FieldSlots | None, FilterEncoding | None]:
+def _parse_filters(
+    sections: dict,
+    mb: dict,
+    registers: dict[str, Register],
+    rule: ParameterRule | None,
+    filter_slots: int,
+    excitation: bool,
+    source: str,
+) -> tuple[FilterSlots | FieldSlots | None, FilterEncoding | None]:
     """``[modbus.filters]`` with the ``[filters]`` encoding: hilident's slots or the drive's named registers."""
     fail = _fail_in(source)
     if not (excitation or "filters" in mb):
@@ -1146,14 +1283,27 @@ class _FilterSlotsTable:
     enable: int = _spec(ge=0, le=3)
 
 
-def _check_overlaps(registers: dict[str, Register], table: Window | None, capture: Window | None,
-                    filters: FilterSlots | FieldSlots | None, filter_slots: int, fail: _Fail) -> None:
+def _check_overlaps(
+    registers: dict[str, Register],
+    table: Window | None,
+    capture: Window | None,
+    filters: FilterSlots | FieldSlots | None,
+    filter_slots: int,
+    fail: _Fail,
+) -> None:
     """Nothing may overlap: registers (holding and input apart), windows, filter slots."""
     spans = [(r.table, r.address, r.end, f"modbus.registers.{r.name}") for r in registers.values()]
     spans += [("holding", w.base, w.end, f"modbus.{w.name}") for w in (table, capture) if w is not None]
     if isinstance(filters, FilterSlots):
-        spans += [("holding", filters.base + i * filters.stride, filters.base + i * filters.stride + filters.span,
-                   f"modbus.filters (slot {i})") for i in range(filter_slots)]
+        spans += [
+            (
+                "holding",
+                filters.base + i * filters.stride,
+                filters.base + i * filters.stride + filters.span,
+                f"modbus.filters (slot {i})",
+            )
+            for i in range(filter_slots)
+        ]
     spans.sort()
     for (t0, a0, a1, k0), (t1, b0, b1, k1) in zip(spans, spans[1:], strict=False):
         if t0 == t1 and b0 < a1:
@@ -1166,13 +1316,33 @@ class RegisterMap:
     Build it with :meth:`from_driver` or :meth:`parse`.
     """
 
-    def __init__(self, *, map_version: int, device_type: int, word_order: str, max_read: int, max_write: int,
-                 registers: dict[str, Register], control: dict[str, int], status: dict[str, int],
-                 fault_codes: dict[str, int], modes: dict[str, int], table: Window | None, table_type: str,
-                 table_scale: float, capture: Window | None, capture_channels: tuple[CaptureChannel, ...],
-                 filters: FilterSlots | FieldSlots | None, filter_encoding: FilterEncoding | None,
-                 byte_order: str = "big", rule: ParameterRule | None = None, identity: tuple[str, ...] = (),
-                 expect: dict | None = None, save: tuple[str, float] | None = None, stop: dict | None = None):
+    def __init__(
+        self,
+        *,
+        map_version: int,
+        device_type: int,
+        word_order: str,
+        max_read: int,
+        max_write: int,
+        registers: dict[str, Register],
+        control: dict[str, int],
+        status: dict[str, int],
+        fault_codes: dict[str, int],
+        modes: dict[str, int],
+        table: Window | None,
+        table_type: str,
+        table_scale: float,
+        capture: Window | None,
+        capture_channels: tuple[CaptureChannel, ...],
+        filters: FilterSlots | FieldSlots | None,
+        filter_encoding: FilterEncoding | None,
+        byte_order: str = "big",
+        rule: ParameterRule | None = None,
+        identity: tuple[str, ...] = (),
+        expect: dict | None = None,
+        save: tuple[str, float] | None = None,
+        stop: dict | None = None,
+    ):
         self.byte_order = byte_order
         self.rule = rule
         self.identity = identity
@@ -1218,8 +1388,9 @@ class RegisterMap:
         mb = _subtable(sections, "modbus", "", fail)
         keys = build_table(_ModbusTable, mb, "modbus.", source)
         rule = _parse_rule(mb, source) if "parameters" in mb else None
-        registers = _parse_registers(_subtable(mb, "registers", "modbus", fail), rule, keys.word_order,
-                                     keys.byte_order, source)
+        registers = _parse_registers(
+            _subtable(mb, "registers", "modbus", fail), rule, keys.word_order, keys.byte_order, source
+        )
         excitation = "table" in mb or "capture" in mb
         protocol = _parse_excitation(mb, registers, source) if excitation else _ExcitationProtocol()
         filters, encoding = _parse_filters(sections, mb, registers, rule, filter_slots, excitation, source)
@@ -1230,12 +1401,27 @@ class RegisterMap:
         return cls(
             map_version=keys.identity_code("map_version", excitation, source),
             device_type=keys.identity_code("device_type", excitation, source),
-            word_order=keys.word_order, max_read=keys.max_read_registers, max_write=keys.max_write_registers,
-            registers=registers, control=protocol.control, status=protocol.status,
-            fault_codes=protocol.fault_codes, modes=protocol.modes, table=protocol.table,
-            table_type=protocol.table_type, table_scale=protocol.table_scale, capture=protocol.capture,
-            capture_channels=protocol.capture_channels, filters=filters, filter_encoding=encoding,
-            byte_order=keys.byte_order, rule=rule, identity=identity, expect=expect, save=save, stop=stop,
+            word_order=keys.word_order,
+            max_read=keys.max_read_registers,
+            max_write=keys.max_write_registers,
+            registers=registers,
+            control=protocol.control,
+            status=protocol.status,
+            fault_codes=protocol.fault_codes,
+            modes=protocol.modes,
+            table=protocol.table,
+            table_type=protocol.table_type,
+            table_scale=protocol.table_scale,
+            capture=protocol.capture,
+            capture_channels=protocol.capture_channels,
+            filters=filters,
+            filter_encoding=encoding,
+            byte_order=keys.byte_order,
+            rule=rule,
+            identity=identity,
+            expect=expect,
+            save=save,
+            stop=stop,
         )
 
     @property
@@ -1294,8 +1480,12 @@ class RegisterMap:
         regs = sorted((self.registers[n] for n in names), key=lambda r: (r.table, r.address))
         groups: list[list] = []
         for r in regs:
-            if groups and r.table == groups[-1][0] and r.address == groups[-1][2] \
-                    and r.end - groups[-1][1] <= self.max_read:
+            if (
+                groups
+                and r.table == groups[-1][0]
+                and r.address == groups[-1][2]
+                and r.end - groups[-1][1] <= self.max_read
+            ):
                 groups[-1][2] = r.end
             else:
                 groups.append([r.table, r.address, r.end])
@@ -1314,8 +1504,11 @@ class RegisterMap:
         last = address + max(count, 1) - 1
         fmt = "#06x" if self.rule is not None else "d"
         where = f"register {address:{fmt}}" if last == address else f"registers {address:{fmt}}..{last:{fmt}}"
-        names = [r.label for r in sorted(self.registers.values(), key=lambda r: r.address)
-                 if r.address <= last and r.end > address and r.table == table]
+        names = [
+            r.label
+            for r in sorted(self.registers.values(), key=lambda r: r.address)
+            if r.address <= last and r.end > address and r.table == table
+        ]
         if table == "holding":
             names += self._holding_names(address, last, page, bool(names))
         if table == "input":
@@ -1324,9 +1517,11 @@ class RegisterMap:
 
     def _holding_names(self, address: int, last: int, page: int | None, named: bool) -> list[str]:
         """What else holding registers ``address..last`` are: windows, filter slots, else a parameter code."""
-        names = [label + (f", page {page}" if page is not None else "")
-                 for w, label in ((self.table, "excitation table window"), (self.capture, "capture window"))
-                 if w is not None and w.base <= last and w.end > address]
+        names = [
+            label + (f", page {page}" if page is not None else "")
+            for w, label in ((self.table, "excitation table window"), (self.capture, "capture window"))
+            if w is not None and w.base <= last and w.end > address
+        ]
         if self.filters is not None:
             slots = sorted({s for a in range(address, last + 1) if (s := self.filters.slot_at(a)) is not None})
             names += [f"filter slot {s}" for s in slots]

@@ -375,9 +375,7 @@ def unpack_rows(raw: bytes, channels: tuple[ChannelSelection, ...]) -> np.ndarra
         raise ProtocolError("sample data cannot be decoded without a channel selection")
     dtype = sample_dtype(channels)
     if len(raw) % dtype.itemsize:
-        raise ProtocolError(
-            f"sample data of {len(raw)} bytes is not a whole number of {dtype.itemsize}-byte rows"
-        )
+        raise ProtocolError(f"sample data of {len(raw)} bytes is not a whole number of {dtype.itemsize}-byte rows")
     records = np.frombuffer(raw, dtype=dtype)
     rows = np.empty((len(records), len(channels)))
     for i, c in enumerate(channels):
@@ -415,8 +413,13 @@ def _encode_host_body(msg, excitation) -> tuple[int, bytes] | None:
         return MsgType.PING, b""
     if isinstance(msg, Configure):
         body = struct.pack(
-            "<HBHBfB", msg.sample_divider, msg.mode, msg.block_samples,
-            msg.excitation_format, msg.excitation_scale, len(msg.channels),
+            "<HBHBfB",
+            msg.sample_divider,
+            msg.mode,
+            msg.block_samples,
+            msg.excitation_format,
+            msg.excitation_scale,
+            len(msg.channels),
         )
         body += b"".join(struct.pack("<BBf", c.channel, c.format, c.scale) for c in msg.channels)
         return MsgType.CONFIGURE, body
@@ -442,8 +445,12 @@ def _encode_board_body(msg, sample_channels) -> tuple[int, bytes] | None:
     """Type and body of a board -> host message; None for any other."""
     if isinstance(msg, Identity):
         body = struct.pack(
-            "<BffBI", msg.protocol_version, msg.loop_rate_hz, msg.max_sample_rate_hz,
-            msg.filter_slots, msg.excitation_buffer_samples,
+            "<BffBI",
+            msg.protocol_version,
+            msg.loop_rate_hz,
+            msg.max_sample_rate_hz,
+            msg.filter_slots,
+            msg.excitation_buffer_samples,
         )
         body += _string(msg.name) + _string(msg.firmware) + bytes([len(msg.channels)])
         body += b"".join(_string(c.name) + _string(c.unit) for c in msg.channels)
@@ -455,14 +462,28 @@ def _encode_board_body(msg, sample_channels) -> tuple[int, bytes] | None:
     if isinstance(msg, Samples):
         raw, _ = pack_rows(msg.data, sample_channels)
         head = struct.pack(
-            "<IIHHIII", msg.block_index, msg.first_sample, len(msg.data), msg.flags,
-            msg.excitation_consumed, msg.excitation_level, msg.underruns,
+            "<IIHHIII",
+            msg.block_index,
+            msg.first_sample,
+            len(msg.data),
+            msg.flags,
+            msg.excitation_consumed,
+            msg.excitation_level,
+            msg.underruns,
         )
         return MsgType.SAMPLES, head + raw
     if isinstance(msg, Status):
         return MsgType.STATUS, struct.pack(
-            "<BHIIIIIII", msg.state, msg.fault, msg.excitation_level, msg.excitation_capacity,
-            msg.underruns, msg.dropped_blocks, msg.samples_produced, msg.limit_trips, msg.rx_corrupt,
+            "<BHIIIIIII",
+            msg.state,
+            msg.fault,
+            msg.excitation_level,
+            msg.excitation_capacity,
+            msg.underruns,
+            msg.dropped_blocks,
+            msg.samples_produced,
+            msg.limit_trips,
+            msg.rx_corrupt,
         )
     if isinstance(msg, FilterCoefficients):
         return MsgType.FILTER, _filter_body(msg)
@@ -524,8 +545,10 @@ def _decode_body(mtype: MsgType, r: _Reader, sample_channels, excitation):
 def _decode_host_body(mtype: MsgType, r: _Reader, excitation):
     """A host -> board message of type ``mtype``; None for a board -> host type."""
     simple = {
-        MsgType.IDENTIFY: Identify, MsgType.STATUS_REQUEST: StatusRequest,
-        MsgType.CLEAR_FAULT: ClearFault, MsgType.PING: Ping,
+        MsgType.IDENTIFY: Identify,
+        MsgType.STATUS_REQUEST: StatusRequest,
+        MsgType.CLEAR_FAULT: ClearFault,
+        MsgType.PING: Ping,
     }
     if mtype in simple:
         return simple[mtype]()
@@ -535,8 +558,9 @@ def _decode_host_body(mtype: MsgType, r: _Reader, excitation):
             ChannelSelection(ch, _enum(Format, fmt, "format"), scale)
             for ch, fmt, scale in (r.take("BBf") for _ in range(n))
         )
-        return Configure(divider, _enum(Mode, mode, "mode"), block, channels, _enum(Format, exc_fmt, "format"),
-                         exc_scale)
+        return Configure(
+            divider, _enum(Mode, mode, "mode"), block, channels, _enum(Format, exc_fmt, "format"), exc_scale
+        )
     if mtype == MsgType.SET_LIMITS:
         return Limits(*r.take("ffff"))
     if mtype == MsgType.START:

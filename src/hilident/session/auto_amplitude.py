@@ -24,8 +24,16 @@ from hilident.config.tables import (
 from hilident.errors import DataError
 from hilident.session.excitation import Excitation, build_excitation, excitation_recipe
 
-__all__ = ["AutoAmplitude", "band_coherence", "coherence_factor", "friction_share", "period_spectra",
-           "predicted_coherence", "response_change", "smooth_lines"]
+__all__ = [
+    "AutoAmplitude",
+    "band_coherence",
+    "coherence_factor",
+    "friction_share",
+    "period_spectra",
+    "predicted_coherence",
+    "response_change",
+    "smooth_lines",
+]
 
 #: Share of the speed limit and of the room to the position window a trial's prediction may use.
 AUTO_LIMIT_MARGIN = 0.8
@@ -182,21 +190,26 @@ class AutoAmplitude:
         ceiling, target = amplitude_ceiling_nm(cfg), auto_coherence_target(cfg)
         # a trial's peak stays off the trip level
         highest = min(ceiling, AUTO_TORQUE_MARGIN * cfg.bench_limits.torque_nm)
-        self.progress.step(f"excitation: choosing the amplitude (coherence target {target:.2f} over "
-                           f"{band[0]:g}-{band[1]:g} Hz, ceiling {ceiling:g} N*m)")
+        self.progress.step(
+            f"excitation: choosing the amplitude (coherence target {target:.2f} over "
+            f"{band[0]:g}-{band[1]:g} Hz, ceiling {ceiling:g} N*m)"
+        )
         noise = self._auto_noise(period, lines, fit)
         amplitude = min(e.auto_start_nm or self._auto_start(probe, fit, ceiling), highest)
         trials: list[dict] = []
         chosen: float | None = None
         reason, needed = "", None
         for i in range(e.auto_max_trials):
-            t = self._auto_trial(i + 1, amplitude, period, lines, run_periods, noise, fit, target,
-                                 trials[-1] if trials else None)
+            t = self._auto_trial(
+                i + 1, amplitude, period, lines, run_periods, noise, fit, target, trials[-1] if trials else None
+            )
             if t is None:
                 continue
             trials.append(t)
-            cap, cap_by = min((highest, "the ceiling" if highest == ceiling else "limits.torque_nm (with its margin)"),
-                              (t["cap_nm"], t["cap_by"]))
+            cap, cap_by = min(
+                (highest, "the ceiling" if highest == ceiling else "limits.torque_nm (with its margin)"),
+                (t["cap_nm"], t["cap_by"]),
+            )
             needed = t["needed_nm"]
             enough = needed <= amplitude * (1 + 1e-9)
             close = amplitude * AUTO_MIN_STEP >= cap  # no room left for a trial that would tell more
@@ -211,18 +224,27 @@ class AutoAmplitude:
             amplitude = min(cap, max(needed * e.auto_safety, 1.5 * amplitude))
         else:
             chosen, reason = self._auto_out_of_trials(trials, amplitude, needed)
-        auto = {"chosen_nm": float(chosen), "reason": reason, "target_coherence": target,
-                      "band_share": AUTO_BAND_SHARE, "band_hz": [float(band[0]), float(band[1])],
-                      "ceiling_nm": float(ceiling), "safety": e.auto_safety, "run_periods": run_periods,
-                      "noise_floor": noise["report"], "trials": [t["report"] for t in trials]}
+        auto = {
+            "chosen_nm": float(chosen),
+            "reason": reason,
+            "target_coherence": target,
+            "band_share": AUTO_BAND_SHARE,
+            "band_hz": [float(band[0]), float(band[1])],
+            "ceiling_nm": float(ceiling),
+            "safety": e.auto_safety,
+            "run_periods": run_periods,
+            "noise_floor": noise["report"],
+            "trials": [t["report"] for t in trials],
+        }
         if reason.startswith("target met"):
             why = f"coherence >= {target:.2f} over {band[0]:g}-{band[1]:g} Hz predicted"
         elif reason.startswith("capped"):
             why = reason.split(":")[0] + f" (coherence {target:.2f}): the notch decision rests on the evidence gates"
         else:
             why = f"target not reached in excitation.auto_max_trials = {e.auto_max_trials}"
-        auto["line"] = (f"excitation: auto amplitude {chosen:.3g} N*m ({why}; "
-                              f"{len(trials)} trial{'s' if len(trials) != 1 else ''})")
+        auto["line"] = (
+            f"excitation: auto amplitude {chosen:.3g} N*m ({why}; {len(trials)} trial{'s' if len(trials) != 1 else ''})"
+        )
         self.progress.step(auto["line"])
         return dataclasses.replace(cfg, excitation=dataclasses.replace(e, amplitude_nm=float(chosen))), auto
 
@@ -231,25 +253,33 @@ class AutoAmplitude:
         e = self.cfg.excitation
         how = "target met" if tried else "target met as predicted (the cap leaves no room for another trial)"
         source = "friction" if fit is not None else "response change between trials"
-        return (f"{how}: {trial['needed_nm']:.3g} N*m needed (set by {trial['report']['needed_by']}) times "
-                f"excitation.auto_safety = {e.auto_safety:g}, at least the trial's, at most {cap:.3g} N*m; "
-                f"coherence >= {auto_coherence_target(self.cfg):.2f} at {AUTO_BAND_SHARE:.0%} of the excited lines "
-                f"over {band[0]:g}-{band[1]:g} Hz predicted for the run's {run_periods} periods; nonlinear "
-                f"distortion ({source}) within excitation.auto_nonlinear_share = {e.auto_nonlinear_share:g}")
+        return (
+            f"{how}: {trial['needed_nm']:.3g} N*m needed (set by {trial['report']['needed_by']}) times "
+            f"excitation.auto_safety = {e.auto_safety:g}, at least the trial's, at most {cap:.3g} N*m; "
+            f"coherence >= {auto_coherence_target(self.cfg):.2f} at {AUTO_BAND_SHARE:.0%} of the excited lines "
+            f"over {band[0]:g}-{band[1]:g} Hz predicted for the run's {run_periods} periods; nonlinear "
+            f"distortion ({source}) within excitation.auto_nonlinear_share = {e.auto_nonlinear_share:g}"
+        )
 
     def _auto_out_of_trials(self, trials: list, amplitude: float, needed: float | None) -> tuple[float, str]:
         """``auto_max_trials`` made before the target: the last prediction (not tried), or an error without any."""
         e = self.cfg.excitation
         if not trials:
-            raise DataError(f"excitation.amplitude_nm = \"auto\": none of the {e.auto_max_trials} trials could be "
-                            "analysed (lost samples, see the warnings); check the line, or give the amplitude as "
-                            "a number")
-        reason = (f"excitation.auto_max_trials = {e.auto_max_trials} trials made before the target was met: the run "
-                  f"uses the amplitude the last trial predicts ({amplitude:.3g} N*m, within its caps)")
+            raise DataError(
+                f'excitation.amplitude_nm = "auto": none of the {e.auto_max_trials} trials could be '
+                "analysed (lost samples, see the warnings); check the line, or give the amplitude as "
+                "a number"
+            )
+        reason = (
+            f"excitation.auto_max_trials = {e.auto_max_trials} trials made before the target was met: the run "
+            f"uses the amplitude the last trial predicts ({amplitude:.3g} N*m, within its caps)"
+        )
         if needed is not None and needed > amplitude:
-            self.warnings.append(f"excitation: auto amplitude {amplitude:.3g} N*m is below the {needed:.3g} N*m the "
-                                 "last trial predicts the target needs; the notch decision will rest on the evidence "
-                                 "gates")
+            self.warnings.append(
+                f"excitation: auto amplitude {amplitude:.3g} N*m is below the {needed:.3g} N*m the "
+                "last trial predicts the target needs; the notch decision will rest on the evidence "
+                "gates"
+            )
         return amplitude, reason
 
     def _auto_start(self, probe: Excitation, fit, ceiling: float) -> float:
@@ -261,18 +291,21 @@ class AutoAmplitude:
         """
         if fit is None or not fit.Fs > 0:
             return AUTO_START_SHARE * ceiling
-        x = probe.samples[probe.period:]  # amplitude 1: peak over rms is the crest factor
+        x = probe.samples[probe.period :]  # amplitude 1: peak over rms is the crest factor
         crest = float(np.max(np.abs(x)) / np.sqrt(np.mean(np.square(x))))
         return crest * fit.Fs / self.cfg.excitation.auto_nonlinear_share
 
     def _auto_capped(self, trial: dict, cap: float, cap_by: str, target: float) -> str:
         """The reason (and a warning) when the cap stops the amplitude before the target."""
         band = trial["report"]["predicted_coherence_band"]
-        reason = (f"capped at {cap:.3g} N*m by {cap_by} before the target: coherence {band:.2f} "
-                  f"predicted at {AUTO_BAND_SHARE:.0%} of the lines (target {target:.2f}), "
-                  f"{trial['needed_nm']:.3g} N*m would be needed (set by {trial['report']['needed_by']})")
-        self.warnings.append(f"excitation: auto amplitude {reason}; the notch decision will then rest on the "
-                             "evidence gates")
+        reason = (
+            f"capped at {cap:.3g} N*m by {cap_by} before the target: coherence {band:.2f} "
+            f"predicted at {AUTO_BAND_SHARE:.0%} of the lines (target {target:.2f}), "
+            f"{trial['needed_nm']:.3g} N*m would be needed (set by {trial['report']['needed_by']})"
+        )
+        self.warnings.append(
+            f"excitation: auto amplitude {reason}; the notch decision will then rest on the evidence gates"
+        )
         return reason
 
     def _band(self, excitation: Excitation) -> tuple[float, float]:
@@ -286,8 +319,13 @@ class AutoAmplitude:
             return s["torque_nm"]
         from hilident.ident.friction import compensate
 
-        return compensate(s["torque_nm"], s["velocity_mps"], fit, self.cfg.friction_test.velocity_deadband_mps,
-                          self._friction_slowest_mps)
+        return compensate(
+            s["torque_nm"],
+            s["velocity_mps"],
+            fit,
+            self.cfg.friction_test.velocity_deadband_mps,
+            self._friction_slowest_mps,
+        )
 
     def _auto_noise(self, period: int, lines: np.ndarray, fit) -> dict:
         """Noise power per excited line and period, output and torque, from a record with zero excitation."""
@@ -298,36 +336,58 @@ class AutoAmplitude:
         index = s["sample_index"]
         out: dict[str, Any] = {"output": np.zeros(len(lines)), "torque": np.zeros(len(lines))}
         if len(index) < period or index[-1] - index[-period] != period - 1:
-            self.warnings.append("excitation: the standstill record lost samples; the noise floor comes from the "
-                                 "trials' period-to-period scatter alone")
+            self.warnings.append(
+                "excitation: the standstill record lost samples; the noise floor comes from the "
+                "trials' period-to-period scatter alone"
+            )
             out["report"] = None
             return out
         last = {k: v[-period:] for k, v in s.items()}
         for key, x in (("output", last[self.cfg.identification.output]), ("torque", self._plant_input(last, fit))):
             out[key] = smooth_lines(np.abs(period_spectra(x, period, lines)[0]) ** 2)
         # as the amplitude of a sine on one line (peak), the unit of the channel
-        out["report"] = {"output_median": float(np.median(2 * np.sqrt(out["output"]) / period)),
-                         "torque_nm_median": float(np.median(2 * np.sqrt(out["torque"]) / period)),
-                         "output_channel": self.cfg.identification.output, "per": "excited line, peak"}
+        out["report"] = {
+            "output_median": float(np.median(2 * np.sqrt(out["output"]) / period)),
+            "torque_nm_median": float(np.median(2 * np.sqrt(out["torque"]) / period)),
+            "output_channel": self.cfg.identification.output,
+            "per": "excited line, peak",
+        }
         return out
 
-    def _auto_trial(self, number: int, amplitude: float, period: int, lines: np.ndarray, run_periods: int,
-                    noise: dict, fit, target: float, previous: dict | None) -> dict | None:
+    def _auto_trial(
+        self,
+        number: int,
+        amplitude: float,
+        period: int,
+        lines: np.ndarray,
+        run_periods: int,
+        noise: dict,
+        fit,
+        target: float,
+        previous: dict | None,
+    ) -> dict | None:
         """One trial: the multisine at ``amplitude`` for a few periods, and what it predicts for the run."""
         cfg = self.cfg
         e = cfg.excitation
         duration = e.auto_trial_periods * e.period_s
         trial_cfg = dataclasses.replace(cfg, excitation=dataclasses.replace(e, duration_s=duration))
         x = build_excitation(trial_cfg, amplitude=amplitude)
-        exp = self.record(f"auto_trial_{number}", e.mode, x.samples, period_samples=period,
-                          recipe=excitation_recipe(cfg, amplitude=amplitude, duration_s=duration))
+        exp = self.record(
+            f"auto_trial_{number}",
+            e.mode,
+            x.samples,
+            period_samples=period,
+            recipe=excitation_recipe(cfg, amplitude=amplitude, duration_s=duration),
+        )
         try:
             s = self._analysis_samples(exp, x)
         except DataError as exc:  # lost samples: nothing to predict from, the next trial repeats it
             self.warnings.append(f"excitation: auto trial {number} at {amplitude:.3g} N*m could not be analysed: {exc}")
             return None
-        spectra = {"output": period_spectra(s[cfg.identification.output], period, lines),
-                   "torque": period_spectra(self._plant_input(s, fit), period, lines)}
+        spectra = {
+            "output": period_spectra(s[cfg.identification.output], period, lines),
+            "torque": period_spectra(self._plant_input(s, fit), period, lines),
+        }
         m = len(s["sample_index"]) // period
         signal, scatter = {}, {}
         for key, spec in spectra.items():
@@ -341,8 +401,11 @@ class AutoAmplitude:
         factor = coherence_factor(signal, scatter, run_periods, target)
         means = {key: spec.mean(axis=0) for key, spec in spectra.items()}
         torque_mean = np.where(means["torque"] == 0, 1e-300, means["torque"])
-        this = {"amplitude_nm": amplitude, "frf": means["output"] / torque_mean,
-                "relative_variance": sum(scatter[k] / np.maximum(signal[k], 1e-300) for k in spectra) / m}
+        this = {
+            "amplitude_nm": amplitude,
+            "frf": means["output"] / torque_mean,
+            "relative_variance": sum(scatter[k] / np.maximum(signal[k], 1e-300) for k in spectra) / m,
+        }
         share, share_by = None, "nonlinear distortion unknown until a second trial"
         if fit is not None:
             stuck = max(cfg.friction_test.velocity_deadband_mps, AUTO_STUCK_SHARE * fit.vs)
@@ -357,21 +420,38 @@ class AutoAmplitude:
         if not moved:  # nothing above the noise: the prediction is weak, step at least this far
             factor, nonlinear = max(min(factor, 1e3), AUTO_NO_RESPONSE_STEP / e.auto_safety), 0.0
         needed = amplitude * max(factor, nonlinear)
-        needed_by = ("no response above the noise" if not moved else share_by if nonlinear > factor else "coherence")
+        needed_by = "no response above the noise" if not moved else share_by if nonlinear > factor else "coherence"
         limits = self._auto_caps(exp.samples, amplitude, period, run_periods)
         speed, torque, travel, cap, cap_by = (limits[k] for k in ("speed", "torque", "travel", "cap", "cap_by"))
-        report_ = {"amplitude_nm": float(amplitude), "predicted_coherence_min": float(np.min(coh)),
-                   "predicted_coherence_median": float(np.median(coh)), "predicted_coherence_band": band_coherence(coh),
-                   "coherence_factor": float(factor), "nonlinear_share": float(share) if share is not None else None,
-                   "nonlinear_share_from": "friction fit" if fit is not None else "response change between trials",
-                   "responded": bool(moved),
-                   "needed_nm": float(needed), "needed_by": needed_by, "peak_speed_mps": speed,
-                   "peak_torque_nm": torque,
-                   "travel_m": float(travel) if travel is not None else None, "cap_nm": float(cap), "cap_by": cap_by}
-        self.progress.step(f"  trial {number}: {amplitude:.3g} N*m -> coherence "
-                           f"{report_['predicted_coherence_band']:.2f} predicted, {needed:.3g} N*m needed")
-        return {"report": report_, "needed_nm": float(needed), "cap_nm": float(cap), "cap_by": cap_by, "frf": this,
-                "share": share}
+        report_ = {
+            "amplitude_nm": float(amplitude),
+            "predicted_coherence_min": float(np.min(coh)),
+            "predicted_coherence_median": float(np.median(coh)),
+            "predicted_coherence_band": band_coherence(coh),
+            "coherence_factor": float(factor),
+            "nonlinear_share": float(share) if share is not None else None,
+            "nonlinear_share_from": "friction fit" if fit is not None else "response change between trials",
+            "responded": bool(moved),
+            "needed_nm": float(needed),
+            "needed_by": needed_by,
+            "peak_speed_mps": speed,
+            "peak_torque_nm": torque,
+            "travel_m": float(travel) if travel is not None else None,
+            "cap_nm": float(cap),
+            "cap_by": cap_by,
+        }
+        self.progress.step(
+            f"  trial {number}: {amplitude:.3g} N*m -> coherence "
+            f"{report_['predicted_coherence_band']:.2f} predicted, {needed:.3g} N*m needed"
+        )
+        return {
+            "report": report_,
+            "needed_nm": float(needed),
+            "cap_nm": float(cap),
+            "cap_by": cap_by,
+            "frf": this,
+            "share": share,
+        }
 
     def _auto_caps(self, full: dict, amplitude: float, period: int, run_periods: int) -> dict:
         """What a trial's measurements allow: the run's peak torque, speed and travel, scaled linearly, in ``[limits]``.
@@ -383,10 +463,16 @@ class AutoAmplitude:
         e, lim = self.cfg.excitation, self.cfg.bench_limits
         speed = float(np.max(np.abs(full["velocity_mps"])))
         torque = float(np.max(np.abs(full["torque_nm"])))
-        caps = [(amplitude * AUTO_TORQUE_MARGIN * lim.torque_nm / torque if torque > 0 else np.inf,
-                 "limits.torque_nm (the trial's measured peak torque, scaled)"),
-                (amplitude * AUTO_LIMIT_MARGIN * lim.velocity_mps / speed if speed > 0 else np.inf,
-                 "limits.velocity_mps (the trial's measured peak speed, scaled)")]
+        caps = [
+            (
+                amplitude * AUTO_TORQUE_MARGIN * lim.torque_nm / torque if torque > 0 else np.inf,
+                "limits.torque_nm (the trial's measured peak torque, scaled)",
+            ),
+            (
+                amplitude * AUTO_LIMIT_MARGIN * lim.velocity_mps / speed if speed > 0 else np.inf,
+                "limits.velocity_mps (the trial's measured peak speed, scaled)",
+            ),
+        ]
         travel = None
         if "position_m" in full:
             pos = full["position_m"]
@@ -395,7 +481,11 @@ class AutoAmplitude:
             drift = abs(end - float(pos[min(period, len(pos) - 1)])) / e.auto_trial_periods
             travel = excursion + drift * max(run_periods - e.auto_trial_periods, 0)
             room = min(lim.position_max_m - max(start, end), min(start, end) - lim.position_min_m)
-            caps.append((amplitude * AUTO_LIMIT_MARGIN * max(room, 0.0) / travel if travel > 0 else np.inf,
-                         "the position window (the trial's travel and drift, scaled)"))
+            caps.append(
+                (
+                    amplitude * AUTO_LIMIT_MARGIN * max(room, 0.0) / travel if travel > 0 else np.inf,
+                    "the position window (the trial's travel and drift, scaled)",
+                )
+            )
         cap, cap_by = min(caps)
         return {"speed": speed, "torque": torque, "travel": travel, "cap": float(cap), "cap_by": cap_by}

@@ -40,8 +40,9 @@ def _resolve_host(host: str) -> str:
         return host.lower()
 
 
-def device_key(transport: str, port: str, *, node_id: int | None = None, device_id: int | None = None,
-               can_interface: str = "") -> str:
+def device_key(
+    transport: str, port: str, *, node_id: int | None = None, device_id: int | None = None, can_interface: str = ""
+) -> str:
     """A name for the device that two configs reaching the same device share.
 
     Parameters

@@ -36,9 +36,18 @@ def excitation_recipe(cfg: Config, amplitude: float | None = None, duration_s: f
     ``amplitude`` and ``duration_s`` override the configured ones (the trials of an automatic amplitude).
     """
     e = cfg.excitation
-    return {"kind": e.kind, "mode": e.mode, "amplitude": e.amplitude if amplitude is None else amplitude,
-            "amplitude_key": f"excitation.{e.amplitude_key}", "f_min_hz": e.f_min_hz,
-            "f_max_hz": e.f_max_hz, "frequency_hz": e.frequency_hz,
-            "duration_s": e.duration_s if duration_s is None else duration_s,
-            "period_s": e.period_s, "register_length": e.register_length, "clock_divider": e.clock_divider,
-            "chirp_method": e.chirp_method, "sample_rate_hz": cfg.run.sample_rate_hz}
+    return {
+        "kind": e.kind,
+        "mode": e.mode,
+        "amplitude": e.amplitude if amplitude is None else amplitude,
+        "amplitude_key": f"excitation.{e.amplitude_key}",
+        "f_min_hz": e.f_min_hz,
+        "f_max_hz": e.f_max_hz,
+        "frequency_hz": e.frequency_hz,
+        "duration_s": e.duration_s if duration_s is None else duration_s,
+        "period_s": e.period_s,
+        "register_length": e.register_length,
+        "clock_divider": e.clock_divider,
+        "chirp_method": e.chirp_method,
+        "sample_rate_hz": cfg.run.sample_rate_hz,
+    }

@@ -26,8 +26,14 @@ from hilident.io.recording import RunWriter, read_run
 if TYPE_CHECKING:
     from hilident.session.run import ConnectedDevice, Progress
 
-__all__ = ["Experiment", "ExperimentRecorder", "FLUSH_INTERVAL_S", "late_sampling_warnings", "length_line",
-           "package_versions"]
+__all__ = [
+    "Experiment",
+    "ExperimentRecorder",
+    "FLUSH_INTERVAL_S",
+    "late_sampling_warnings",
+    "length_line",
+    "package_versions",
+]
 
 #: Longest stretch of data (and wall-clock time) held in memory before it is written to the recording, s.
 FLUSH_INTERVAL_S = 0.5
@@ -97,10 +103,13 @@ def late_sampling_warnings(name: str, events: list[dict], samples: int) -> list[
         late = int(ev.get("value", 0))
         if late > LATE_SYNC_SHARE * samples:
             worst = ev.get("worst_s")
-            out.append(f"{name}: {late} of {samples} SYNCs ({100 * late / samples:.1f} %) were sent more than one "
-                       "period late" + (f" (worst {1e3 * worst:.1f} ms)" if worst is not None else "")
-                       + ": the drive sampled at uneven instants and the frequency response is distorted; run on a "
-                         "machine with less load, or at a lower run.sample_rate_hz")
+            out.append(
+                f"{name}: {late} of {samples} SYNCs ({100 * late / samples:.1f} %) were sent more than one "
+                "period late"
+                + (f" (worst {1e3 * worst:.1f} ms)" if worst is not None else "")
+                + ": the drive sampled at uneven instants and the frequency response is distorted; run on a "
+                "machine with less load, or at a lower run.sample_rate_hz"
+            )
     return out
 
 
@@ -140,8 +149,16 @@ class ExperimentRecorder:
         self.warnings = warnings
         self.totals = StreamStats()
 
-    def record(self, cfg: Config, name: str, mode: str, excitation: np.ndarray, tables: dict | None = None,
-               period_samples: int | None = None, recipe: dict | None = None) -> Experiment:
+    def record(
+        self,
+        cfg: Config,
+        name: str,
+        mode: str,
+        excitation: np.ndarray,
+        tables: dict | None = None,
+        period_samples: int | None = None,
+        recipe: dict | None = None,
+    ) -> Experiment:
         """Stream ``excitation`` in ``mode`` and record every sample to ``<out>/<name>.h5`` (``cfg``: the run's).
 
         ``period_samples`` (a periodic excitation's period) is stored with the
@@ -155,14 +172,20 @@ class ExperimentRecorder:
         fs = ad.sample_rate_hz
         path = self.out / f"{name}.h5"
         attrs = {
-            "experiment": name, "mode": mode, "seed": cfg.run.seed, "config_toml": cfg.text,
-            "config_source": cfg.source, "driver_toml": self.device.driver.text, "versions": package_versions(),
+            "experiment": name,
+            "mode": mode,
+            "seed": cfg.run.seed,
+            "config_toml": cfg.text,
+            "config_source": cfg.source,
+            "driver_toml": self.device.driver.text,
+            "versions": package_versions(),
             "device": {"name": ad.identity.name, "firmware": ad.identity.firmware, "port": ad.port},
         }
         if period_samples:
             attrs["period_samples"] = int(period_samples)
-        writer = RunWriter(path, ["sample_index", "time_s", *channels], ["1", "s", *ad.channel_units], fs, attrs,
-                           overwrite=True)
+        writer = RunWriter(
+            path, ["sample_index", "time_s", *channels], ["1", "s", *ad.channel_units], fs, attrs, overwrite=True
+        )
         for table, columns in (tables or {}).items():
             writer.write_table(table, **columns)
 
@@ -224,9 +247,11 @@ class ExperimentRecorder:
                 f"{stats.corrupt_frames} corrupt frames, {stats.underruns} underrun samples"
             )
         if stats.clipped_blocks:
-            self.warnings.append(f"{name}: {stats.clipped_blocks} samples hold a value at the limit of its format "
-                                 "(saturated, not measured; see the recording's events): the response there is not "
-                                 "the plant's")
+            self.warnings.append(
+                f"{name}: {stats.clipped_blocks} samples hold a value at the limit of its format "
+                "(saturated, not measured; see the recording's events): the response there is not "
+                "the plant's"
+            )
         self.warnings += late_sampling_warnings(name, result.events, stats.samples)
         return Experiment(name, path, run.samples, stats, result.events)
 

@@ -56,9 +56,15 @@ class MapPoint:
     recording: str
 
     def to_dict(self) -> dict:
-        return {"position_m": self.position_m, "target_m": self.target_m, "frequency_hz": self.frequency_hz,
-                "damping_ratio": self.damping_ratio, "frequency_ci95_hz": self.frequency_ci95_hz,
-                "coherence": self.coherence, "recording": self.recording}
+        return {
+            "position_m": self.position_m,
+            "target_m": self.target_m,
+            "frequency_hz": self.frequency_hz,
+            "damping_ratio": self.damping_ratio,
+            "frequency_ci95_hz": self.frequency_ci95_hz,
+            "coherence": self.coherence,
+            "recording": self.recording,
+        }
 
 
 def move_axis(cfg: Config, record: Callable, name: str, from_m: float, to_m: float) -> float:
@@ -74,8 +80,9 @@ def move_axis(cfg: Config, record: Callable, name: str, from_m: float, to_m: flo
     m, rate = cfg.map, cfg.run.sample_rate_hz
 
     def trapezoid_to(target: float, here: float) -> np.ndarray:
-        return trapezoid(target - here, m.max_velocity_mps, m.max_accel_mps2, rate, m.settle_s,
-                         key_prefix="map.").position_m
+        return trapezoid(
+            target - here, m.max_velocity_mps, m.max_accel_mps2, rate, m.settle_s, key_prefix="map."
+        ).position_m
 
     exp = record(name, "position", trapezoid_to(to_m, from_m))
     # Each experiment enables the drive afresh where the cart then is, and the loops may still be settling when
@@ -86,8 +93,11 @@ def move_axis(cfg: Config, record: Callable, name: str, from_m: float, to_m: flo
         off = to_m - here
         if _still(exp.samples["velocity_mps"], rate) and abs(off) <= STILL_DISTANCE_M:
             break
-        exp = record(f"{name}_settle_{attempt}", "position",
-                     trapezoid_to(to_m, here) if off else np.zeros(int(round(max(m.settle_s, 0.2) * rate))))
+        exp = record(
+            f"{name}_settle_{attempt}",
+            "position",
+            trapezoid_to(to_m, here) if off else np.zeros(int(round(max(m.settle_s, 0.2) * rate))),
+        )
     return float(exp.samples["position_m"][-1])
 
 
@@ -100,7 +110,7 @@ STILL_DISTANCE_M = 1e-3
 
 
 def _still(velocity_mps: np.ndarray, rate_hz: float) -> bool:
-    tail = velocity_mps[-max(int(0.1 * rate_hz), 1):]
+    tail = velocity_mps[-max(int(0.1 * rate_hz), 1) :]
     return bool(tail.size and abs(float(np.mean(tail))) < STILL_MPS)
 
 
@@ -141,8 +151,9 @@ class WorkspaceMap:
             self.progress.step(f"map: position {i + 1} of {len(positions)}, {target:+.3f} m")
             here = self.move(f"map_move_{i}", here, target)
             name = f"map_{i}"
-            exp = self.record(name, MAP_MODE, excitation.samples, period_samples=excitation.period_samples,
-                              recipe=recipe)
+            exp = self.record(
+                name, MAP_MODE, excitation.samples, period_samples=excitation.period_samples, recipe=recipe
+            )
             result = self.identify(exp, name)
             self.results[name] = result
             here = float(exp.samples["position_m"][-1])
@@ -160,8 +171,15 @@ class WorkspaceMap:
         position = float(np.mean(exp.samples["position_m"]))
         if mode is None:
             return MapPoint(target, position, None, None, None, None, f"{name}.h5")
-        return MapPoint(target, position, float(mode.frequency_hz), _finite(mode.damping_ratio),
-                        _finite(mode.frequency_ci95_hz), _finite(mode.coherence), f"{name}.h5")
+        return MapPoint(
+            target,
+            position,
+            float(mode.frequency_hz),
+            _finite(mode.damping_ratio),
+            _finite(mode.frequency_ci95_hz),
+            _finite(mode.coherence),
+            f"{name}.h5",
+        )
 
 
 def _finite(value) -> float | None:

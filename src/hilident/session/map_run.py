@@ -57,11 +57,24 @@ class WorkspaceRun:
         with it, :meth:`verify` measures what the notches do to the plant, not only to the loop.
     """
 
-    def __init__(self, cfg: Config, record: Callable, identify: Callable, analysis_samples: Callable,
-                 position: Callable[[], float | None], progress, warnings: list[str], filter_input: str | None = None):
+    def __init__(
+        self,
+        cfg: Config,
+        record: Callable,
+        identify: Callable,
+        analysis_samples: Callable,
+        position: Callable[[], float | None],
+        progress,
+        warnings: list[str],
+        filter_input: str | None = None,
+    ):
         self.cfg, self.record, self.identify = cfg, record, identify
-        self.analysis_samples, self.position, self.progress, self.warnings = (analysis_samples, position, progress,
-                                                                              warnings)
+        self.analysis_samples, self.position, self.progress, self.warnings = (
+            analysis_samples,
+            position,
+            progress,
+            warnings,
+        )
         self.filter_input = filter_input
         self.command_responses: dict[str, Any] = {}  # each mapped position's excitation-to-command response, by name
         self.points: list[MapPoint] = []
@@ -82,8 +95,11 @@ class WorkspaceRun:
     def mode_at(self, position_m: float) -> tuple[float, float] | None:
         """The mapped mode ``(frequency_hz, damping_ratio)`` at ``position_m``: linear between the mapped
         positions, held beyond the outermost (None: no mode was mapped)."""
-        found = sorted((p.position_m, p.frequency_hz, p.damping_ratio) for p in self.found
-                        if p.frequency_hz is not None and p.damping_ratio is not None)
+        found = sorted(
+            (p.position_m, p.frequency_hz, p.damping_ratio)
+            for p in self.found
+            if p.frequency_hz is not None and p.damping_ratio is not None
+        )
         if not found:
             return None
         at, frequency, damping = (np.array(column, dtype=float) for column in zip(*found, strict=True))
@@ -97,10 +113,13 @@ class WorkspaceRun:
         # the drive's loops add their own torque while they hold the position: half the run's amplitude by default
         amplitude = cfg.map.amplitude_nm or (0.5 * e.amplitude_value if e.mode in ("torque", MAP_MODE) else 0.0)
         if not amplitude:
-            raise ConfigError("map.amplitude_nm", f"is needed: the run's excitation (mode = {e.mode!r}) is no torque",
-                              cfg.source)
-        mapped_cfg = replace(cfg, excitation=replace(e, mode=MAP_MODE, amplitude_nm=amplitude,
-                                                     duration_s=cfg.map.duration_s or e.duration_s))
+            raise ConfigError(
+                "map.amplitude_nm", f"is needed: the run's excitation (mode = {e.mode!r}) is no torque", cfg.source
+            )
+        mapped_cfg = replace(
+            cfg,
+            excitation=replace(e, mode=MAP_MODE, amplitude_nm=amplitude, duration_s=cfg.map.duration_s or e.duration_s),
+        )
         excitation = self.excitation = build_excitation(mapped_cfg)
         self.mapped_cfg = mapped_cfg
         self.recipe = excitation_recipe(mapped_cfg)
@@ -133,16 +152,26 @@ class WorkspaceRun:
         modes_hz = [float(p.frequency_hz or 0.0) for p in found]
         try:
             fit = fit_workspace_responses(
-                [p.position_m for p in found], [self._result(p).plant for p in found],
-                torque_constant=self.cfg.model.c, k_degree=m.k_degree, d_degree=m.d_degree,
-                band_hz=self._fit_band(modes_hz), sample_rate_hz=self.cfg.run.sample_rate_hz, resonance_hz=modes_hz,
-                estimate_lag=True)
+                [p.position_m for p in found],
+                [self._result(p).plant for p in found],
+                torque_constant=self.cfg.model.c,
+                k_degree=m.k_degree,
+                d_degree=m.d_degree,
+                band_hz=self._fit_band(modes_hz),
+                sample_rate_hz=self.cfg.run.sample_rate_hz,
+                resonance_hz=modes_hz,
+                estimate_lag=True,
+            )
         except (DataError, ConfigError) as exc:
             self.warnings.append(f"map: the joint fit of k(p) and d(p) failed: {exc}")
             return None
         self.warnings += [f"map: joint fit: {w}" for w in fit.warnings]
-        comparison = compare_modes(fit, [p.position_m for p in found], modes_hz,
-                                   [np.nan if p.frequency_ci95_hz is None else p.frequency_ci95_hz for p in found])
+        comparison = compare_modes(
+            fit,
+            [p.position_m for p in found],
+            modes_hz,
+            [np.nan if p.frequency_ci95_hz is None else p.frequency_ci95_hz for p in found],
+        )
         self.joint = fit
         return {**fit.as_dict(), "comparison": [c.as_dict() for c in comparison]}
 
@@ -167,8 +196,11 @@ class WorkspaceRun:
             return []
         span = np.linspace(min(positions), max(positions), count)
         modes = [self.joint.mode_at(float(p)) for p in span]
-        return [{"position_m": float(p), "frequency_hz": m.frequency_hz, "frequency_ci95_hz": m.frequency_ci95_hz}
-                for p, m in zip(span, modes, strict=True) if np.isfinite(m.frequency_ci95_hz)]
+        return [
+            {"position_m": float(p), "frequency_hz": m.frequency_hz, "frequency_ci95_hz": m.frequency_ci95_hz}
+            for p, m in zip(span, modes, strict=True)
+            if np.isfinite(m.frequency_ci95_hz)
+        ]
 
     # --- 3. the notches for the whole workspace ----------------------------------------------------------
 
@@ -192,22 +224,37 @@ class WorkspaceRun:
         if not groups or len(groups) > len(slots):
             groups = [covering.single]
             how = "one notch (the widest max_width_ratio allows: too few slots for the staggered set)"
-            self.warnings.append(f"map: {covering.message}; the device has {len(slots)} filter slot(s), so the "
-                                 f"one notch is used and gives {covering.single.worst_attenuation_db:.1f} dB at "
-                                 f"worst")
+            self.warnings.append(
+                f"map: {covering.message}; the device has {len(slots)} filter slot(s), so the "
+                f"one notch is used and gives {covering.single.worst_attenuation_db:.1f} dB at "
+                f"worst"
+            )
         elif not covering.meets_target:
             self.warnings.append(f"map: {covering.message}")
         groups, how, margin = self._keep_loop_margin(points, groups, how, realise, rate)
-        self.summary["covering_notch"] = {**covering.as_dict(), "used": how, "loop_margin": margin,
-                                          "used_worst_attenuation_db": min(g.worst_attenuation_db for g in groups)}
+        self.summary["covering_notch"] = {
+            **covering.as_dict(),
+            "used": how,
+            "loop_margin": margin,
+            "used_worst_attenuation_db": min(g.worst_attenuation_db for g in groups),
+        }
         lo, hi = covering.range_hz
         mapped = min(resonances, key=lambda r: abs(r.frequency_hz - (lo + hi) / 2))
-        designs = [pipeline.NotchDesign(g.spec, design_notch(g.spec, rate), slot, rate, mapped,
-                                        width_reason="workspace range", attenuation_at_ci95_db=g.worst_attenuation_db)
-                   for slot, g in zip(slots, groups, strict=False)]
+        designs = [
+            pipeline.NotchDesign(
+                g.spec,
+                design_notch(g.spec, rate),
+                slot,
+                rate,
+                mapped,
+                width_reason="workspace range",
+                attenuation_at_ci95_db=g.worst_attenuation_db,
+            )
+            for slot, g in zip(slots, groups, strict=False)
+        ]
         others = [r for r in resonances if r is not mapped and not lo <= r.frequency_hz <= hi]
         if others:
-            designs += pipeline.design_notches(others, nc, rate, slots[len(designs):], plant.loop)
+            designs += pipeline.design_notches(others, nc, rate, slots[len(designs) :], plant.loop)
         self.chain, self.chain_rate_hz = [adapter.stored_form(d.biquad, d.spec) for d in designs], rate
         return designs
 
@@ -222,8 +269,9 @@ class WorkspaceRun:
         for point in self.found:
             result = self._result(point)
             plant, loop = result.plant, result.loop
-            if plant.frequency_hz.shape != loop.frequency_hz.shape or not np.allclose(plant.frequency_hz,
-                                                                                      loop.frequency_hz):
+            if plant.frequency_hz.shape != loop.frequency_hz.shape or not np.allclose(
+                plant.frequency_hz, loop.frequency_hz
+            ):
                 continue
             good = (plant.coherence >= 0.5) & (loop.coherence >= 0.5) & (np.abs(loop.response) > 0)
             if good.any():
@@ -263,20 +311,34 @@ class WorkspaceRun:
             for k in (2, 4, 8):
                 ratio = nc.max_width_ratio / k
                 narrower = pipeline.covering_design(points, replace(nc, max_width_ratio=ratio), rate, realise=realise)
-                yield [narrower.single], f"one notch at most {ratio:.3g} of its centre wide, to keep the holding " \
-                                         "loop's margin"
+                yield (
+                    [narrower.single],
+                    f"one notch at most {ratio:.3g} of its centre wide, to keep the holding loop's margin",
+                )
 
         tried = []
         for chosen, chosen_how in candidates():
             sections = [realise(g.spec) for g in chosen]
             margin, at_hz, at_m = self._modulus_margin(gains, sections, rate)
-            tried.append({"used": chosen_how, "worst_attenuation_db": min(g.worst_attenuation_db for g in chosen),
-                          "modulus_margin": margin, "frequency_hz": at_hz, "position_m": at_m})
+            tried.append(
+                {
+                    "used": chosen_how,
+                    "worst_attenuation_db": min(g.worst_attenuation_db for g in chosen),
+                    "modulus_margin": margin,
+                    "frequency_hz": at_hz,
+                    "position_m": at_m,
+                }
+            )
             if margin >= keep * own:
                 break
-        record = {"without_notches": own, "with_notches": tried[-1]["modulus_margin"],
-                  "frequency_hz": tried[-1]["frequency_hz"], "position_m": tried[-1]["position_m"],
-                  "keep_fraction": keep, "tried": tried}
+        record = {
+            "without_notches": own,
+            "with_notches": tried[-1]["modulus_margin"],
+            "frequency_hz": tried[-1]["frequency_hz"],
+            "position_m": tried[-1]["position_m"],
+            "keep_fraction": keep,
+            "tried": tried,
+        }
         if len(tried) > 1:
             first = tried[0]
             self.warnings.append(
@@ -285,10 +347,13 @@ class WorkspaceRun:
                 f"{first['frequency_hz']:.3g} Hz, {first['position_m']:+.3f} m), below the {keep * own:.2f} that "
                 f"[notch] keep_modulus_margin = {keep:g} asks for; used instead: "
                 f"{chosen_how}, {tried[-1]['worst_attenuation_db']:.1f} dB at worst, margin "
-                f"{tried[-1]['modulus_margin']:.2f}. A loop with a lower bandwidth leaves room for a deeper notch")
+                f"{tried[-1]['modulus_margin']:.2f}. A loop with a lower bandwidth leaves room for a deeper notch"
+            )
         if record["with_notches"] < keep * own:
-            self.warnings.append(f"map: even the narrowest notch tried keeps only {record['with_notches']:.2f} of the "
-                                 f"holding loop's modulus margin {own:.2f} ([notch] keep_modulus_margin = {keep:g})")
+            self.warnings.append(
+                f"map: even the narrowest notch tried keeps only {record['with_notches']:.2f} of the "
+                f"holding loop's modulus margin {own:.2f} ([notch] keep_modulus_margin = {keep:g})"
+            )
         return chosen, chosen_how, record
 
     # --- 4. the reduction at every mapped position -------------------------------------------------------
@@ -325,8 +390,11 @@ class WorkspaceRun:
             row = self._reduction_at(point, mode, records)
             longer = self._extend(row)
             if longer is not None:
-                records.append(self._verification_record(f"map_verify_{i}_more", build_excitation(longer),
-                                                         excitation_recipe(longer)))
+                records.append(
+                    self._verification_record(
+                        f"map_verify_{i}_more", build_excitation(longer), excitation_recipe(longer)
+                    )
+                )
                 row = self._reduction_at(point, mode, records)
             here = self._here()
             rows.append(row)
@@ -334,17 +402,24 @@ class WorkspaceRun:
         worst = min(rows, key=lambda r: r["band_reduction_db"]) if rows else None
         if worst is not None and worst["band_reduction_db"] < nc.min_reduction_db:
             floor = worst["floor_db"]
-            hidden = (f"; the record's noise floor is {floor:.1f} dB (a longer verification, "
-                      "[map] verify_max_duration_s, lowers it)" if worst["floor_limited"] else "")
+            hidden = (
+                f"; the record's noise floor is {floor:.1f} dB (a longer verification, "
+                "[map] verify_max_duration_s, lowers it)"
+                if worst["floor_limited"]
+                else ""
+            )
             self.warnings.append(
                 f"map verification: at {worst['position_m']:+.3f} m the largest response near the mode dropped by only "
-                f"{worst['band_reduction_db']:.1f} dB (notch.min_reduction_db = {nc.min_reduction_db:g}){hidden}")
+                f"{worst['band_reduction_db']:.1f} dB (notch.min_reduction_db = {nc.min_reduction_db:g}){hidden}"
+            )
         measured_on = rows[0]["measured_on"] if rows else None
         self.summary["verification"] = {
-            "measured_on": measured_on, "positions": [{k: v for k, v in r.items() if k != "measured_on"} for r in rows],
+            "measured_on": measured_on,
+            "positions": [{k: v for k, v in r.items() if k != "measured_on"} for r in rows],
             "worst_band_reduction_db": worst["band_reduction_db"] if worst else None,
             "worst_position_m": worst["position_m"] if worst else None,
-            "worst_loop_band_reduction_db": min(r["loop_band_reduction_db"] for r in rows) if rows else None}
+            "worst_loop_band_reduction_db": min(r["loop_band_reduction_db"] for r in rows) if rows else None,
+        }
         return self.summary["verification"]
 
     def _verification_record(self, name: str, excitation: Excitation, recipe: dict | None):
@@ -361,12 +436,20 @@ class WorkspaceRun:
         period, bins = excitation.period_samples, excitation.excited_bins
 
         def response(channel: str):
-            if period and all(len(s["excitation"]) >= 2 * period and not len(s["excitation"]) % period
-                              for _, s, _ in records):
-                return pipeline.pooled_loop_response([s["excitation"] for _, s, _ in records],
-                                                     [s[channel] for _, s, _ in records], rate, ic, period, bins)
-            response, warnings = pipeline.loop_response(records[-1][1]["excitation"], records[-1][1][channel], rate,
-                                                        ic, period, bins)
+            if period and all(
+                len(s["excitation"]) >= 2 * period and not len(s["excitation"]) % period for _, s, _ in records
+            ):
+                return pipeline.pooled_loop_response(
+                    [s["excitation"] for _, s, _ in records],
+                    [s[channel] for _, s, _ in records],
+                    rate,
+                    ic,
+                    period,
+                    bins,
+                )
+            response, warnings = pipeline.loop_response(
+                records[-1][1]["excitation"], records[-1][1][channel], rate, ic, period, bins
+            )
             self.warnings += [w for w in warnings if w not in self.warnings]
             return response
 
@@ -376,20 +459,31 @@ class WorkspaceRun:
         before, after_measured = before_loop, after
         command_before = self.command_responses.get(point.recording.removesuffix(".h5"))
         measured_on, predicted = "loop", None
-        if command_before is not None and self.filter_input is not None and all(
-                self.filter_input in s for _, s, _ in records):
+        if (
+            command_before is not None
+            and self.filter_input is not None
+            and all(self.filter_input in s for _, s, _ in records)
+        ):
             before = pipeline.filtered_plant_response(before_loop, command_before)
             after_measured = pipeline.filtered_plant_response(after, response(self.filter_input))
             measured_on, predicted = "filtered_plant", self._predicted(before, mode)
         (r,) = pipeline.peak_reductions(before, after_measured, [mode], nc.verify_band_bandwidths)
         floor = pipeline.band_floor_db(before, after_measured, mode, nc.verify_band_bandwidths)
-        return {"position_m": point.position_m, "frequency_hz": r["frequency_hz"],
-                "band_reduction_db": r["band_reduction_db"], "reduction_db": r["reduction_db"],
-                "predicted_band_reduction_db": predicted,
-                "floor_db": floor, "floor_limited": pipeline.floor_limited(r["band_reduction_db"], floor),
-                "loop_band_reduction_db": loop["band_reduction_db"], "loop_reduction_db": loop["reduction_db"],
-                "periods": after.n_averages, "recording": records[0][0],
-                "recordings": [name for name, _, _ in records], "measured_on": measured_on}
+        return {
+            "position_m": point.position_m,
+            "frequency_hz": r["frequency_hz"],
+            "band_reduction_db": r["band_reduction_db"],
+            "reduction_db": r["reduction_db"],
+            "predicted_band_reduction_db": predicted,
+            "floor_db": floor,
+            "floor_limited": pipeline.floor_limited(r["band_reduction_db"], floor),
+            "loop_band_reduction_db": loop["band_reduction_db"],
+            "loop_reduction_db": loop["reduction_db"],
+            "periods": after.n_averages,
+            "recording": records[0][0],
+            "recordings": [name for name, _, _ in records],
+            "measured_on": measured_on,
+        }
 
     def _predicted(self, before, mode) -> float | None:
         """The band figure the stored sections give on ``before``, the map's own filtered-plant response (its
@@ -398,8 +492,9 @@ class WorkspaceRun:
             return None
         from hilident.filters.notch import chain_response
 
-        after = replace(before, response=before.response * chain_response(self.chain, before.frequency_hz,
-                                                                           self.chain_rate_hz))
+        after = replace(
+            before, response=before.response * chain_response(self.chain, before.frequency_hz, self.chain_rate_hz)
+        )
         (r,) = pipeline.peak_reductions(before, after, [mode], self.cfg.notch.verify_band_bandwidths)
         return r["band_reduction_db"]
 
@@ -412,9 +507,14 @@ class WorkspaceRun:
         excitation is not periodic."""
         nc, m, excitation = self.cfg.notch, self.cfg.map, self.excitation
         floor, periods = row["floor_db"], row["periods"]
-        if (excitation is None or not excitation.period_samples or periods < 2 or not row["floor_limited"]
-                or row["band_reduction_db"] >= nc.min_reduction_db + pipeline.PREDICTION_MARGIN_DB
-                or not math.isfinite(floor)):
+        if (
+            excitation is None
+            or not excitation.period_samples
+            or periods < 2
+            or not row["floor_limited"]
+            or row["band_reduction_db"] >= nc.min_reduction_db + pipeline.PREDICTION_MARGIN_DB
+            or not math.isfinite(floor)
+        ):
             return None
         period_s = excitation.period_samples / self.cfg.run.sample_rate_hz
         first_s = len(excitation.samples) / self.cfg.run.sample_rate_hz
@@ -426,9 +526,11 @@ class WorkspaceRun:
         extra = min(needed, room)
         if extra < 2:
             if needed >= 2:
-                self.warnings.append(f"map verification: the longest verification at a position, {cap_s:g} s "
-                                     f"([map] verify_max_duration_s), leaves no room for the {needed} more periods "
-                                     "its noise floor needs")
+                self.warnings.append(
+                    f"map verification: the longest verification at a position, {cap_s:g} s "
+                    f"([map] verify_max_duration_s), leaves no room for the {needed} more periods "
+                    "its noise floor needs"
+                )
             return None
         assert self.mapped_cfg is not None
         return replace(self.mapped_cfg, excitation=replace(self.mapped_cfg.excitation, duration_s=extra * period_s))
@@ -440,9 +542,14 @@ class WorkspaceRun:
         if self.filter_input is None or self.filter_input not in exp.samples:
             return None
         s = self.analysis_samples(exp, excitation)
-        response, warnings = pipeline.loop_response(s["excitation"], s[self.filter_input], self.cfg.run.sample_rate_hz,
-                                                    self.cfg.identification, excitation.period_samples,
-                                                    excitation.excited_bins)
+        response, warnings = pipeline.loop_response(
+            s["excitation"],
+            s[self.filter_input],
+            self.cfg.run.sample_rate_hz,
+            self.cfg.identification,
+            excitation.period_samples,
+            excitation.excited_bins,
+        )
         self.warnings += [w for w in warnings if w not in self.warnings]
         return response
 
@@ -464,8 +571,13 @@ class WorkspaceRun:
             return np.array([m.frequency_hz for m in modes]), np.array([m.frequency_ci95_hz for m in modes])
 
         try:
-            plot_map(path, [p.to_dict() for p in self.points], title=title,
-                     model=joint_model if fit is not None else None, model_label="joint model, k(p) and d(p)",
-                     covered_hz=tuple(covering["range_hz"]) if covering else None)
+            plot_map(
+                path,
+                [p.to_dict() for p in self.points],
+                title=title,
+                model=joint_model if fit is not None else None,
+                model_label="joint model, k(p) and d(p)",
+                covered_hz=tuple(covering["range_hz"]) if covering else None,
+            )
         except (DataError, ValueError) as exc:
             self.warnings.append(f"map.png could not be drawn: {exc}")

@@ -93,9 +93,13 @@ class ModeExcitation:
         return float(20.0 * np.log10(self.excitation / max(self.excitation_with_notch, 1e-12)))
 
     def to_dict(self) -> dict:
-        return {"frequency_hz": self.frequency_hz, "damping_ratio": self.damping_ratio,
-                "excitation": self.excitation, "excitation_with_notch": self.excitation_with_notch,
-                "predicted_reduction_db": self.predicted_reduction_db}
+        return {
+            "frequency_hz": self.frequency_hz,
+            "damping_ratio": self.damping_ratio,
+            "excitation": self.excitation,
+            "excitation_with_notch": self.excitation_with_notch,
+            "predicted_reduction_db": self.predicted_reduction_db,
+        }
 
 
 @dataclass(frozen=True)
@@ -155,13 +159,19 @@ class MoveTestResult:
 
     def to_dict(self) -> dict:
         c = self.comparison
-        return {"start_m": self.start_m, "distance_m": _finite(self.distance_m), "notch_in": self.notch_in,
-                "signal": self.signal, "added_delay_s": self.added_delay_s, "recordings": list(self.recordings),
-                "standstill_rms_m": _finite(self.floor_rms),
-                "rms_reduction_above_standstill_db": above_floor_db(c.without.rms, c.with_notch.rms,
-                                                                    self.floor_rms),
-                "rest_limit_db": self.rest_limit_db, "modes": [m.to_dict() for m in self.modes],
-                **c.as_dict()}
+        return {
+            "start_m": self.start_m,
+            "distance_m": _finite(self.distance_m),
+            "notch_in": self.notch_in,
+            "signal": self.signal,
+            "added_delay_s": self.added_delay_s,
+            "recordings": list(self.recordings),
+            "standstill_rms_m": _finite(self.floor_rms),
+            "rms_reduction_above_standstill_db": above_floor_db(c.without.rms, c.with_notch.rms, self.floor_rms),
+            "rest_limit_db": self.rest_limit_db,
+            "modes": [m.to_dict() for m in self.modes],
+            **c.as_dict(),
+        }
 
 
 def _finite(value: float) -> float | None:
@@ -174,10 +184,18 @@ def move_profile(move: MoveConfig, distance_m: float, sample_rate_hz: float):
 
     prefix = "verification.move."
     if move.profile == "s-curve":
-        return s_curve(distance_m, move.max_velocity_mps, move.max_accel_mps2, move.jerk_mps3, sample_rate_hz,
-                       move.dwell_s, key_prefix=prefix)
-    return trapezoid(distance_m, move.max_velocity_mps, move.max_accel_mps2, sample_rate_hz, move.dwell_s,
-                     key_prefix=prefix)
+        return s_curve(
+            distance_m,
+            move.max_velocity_mps,
+            move.max_accel_mps2,
+            move.jerk_mps3,
+            sample_rate_hz,
+            move.dwell_s,
+            key_prefix=prefix,
+        )
+    return trapezoid(
+        distance_m, move.max_velocity_mps, move.max_accel_mps2, sample_rate_hz, move.dwell_s, key_prefix=prefix
+    )
 
 
 def measured_signal(samples: dict[str, np.ndarray]) -> tuple[str, np.ndarray]:
@@ -206,8 +224,16 @@ class MoveTest:
             raise DataError("the move test needs [verification] move")
         self.cfg, self.move, self.record, self.progress = cfg, cfg.verification.move, record, progress
 
-    def run(self, tag: str, start_m: float, distance_m: float, notch_in: str, host_sections: list | None,
-            slots: DriveNotch | None, modes: list[tuple[float, float]] | None = None) -> MoveTestResult:
+    def run(
+        self,
+        tag: str,
+        start_m: float,
+        distance_m: float,
+        notch_in: str,
+        host_sections: list | None,
+        slots: DriveNotch | None,
+        modes: list[tuple[float, float]] | None = None,
+    ) -> MoveTestResult:
         """Move ``distance_m`` out and back without the notch, then with it; ``tag`` names the recordings.
 
         ``notch_in = "drive"``: the difference is the drive's filter ``slots`` (disabled for the first move);
@@ -250,21 +276,37 @@ class MoveTest:
         t_without, t_with = (exp.samples["sample_index"] / rate for exp in (without, with_notch))
         band = self.move.settle_band_m or None
         ends = (STANDSTILL_S + out.move_end_s, STANDSTILL_S + with_out.move_end_s)
-        comparison = compare_moves((t_without, signal_without, ends[0]), (t_with, signal_with, ends[1]),
-                                   self.move.dwell_s, band=band, detrend="linear")
+        comparison = compare_moves(
+            (t_without, signal_without, ends[0]),
+            (t_with, signal_with, ends[1]),
+            self.move.dwell_s,
+            band=band,
+            detrend="linear",
+        )
         if comparison.without.rms <= 0:
             raise DataError(f"move test{tag}: the move without the notch left no measurable vibration")
-        floor = float(np.sqrt(np.mean([standstill_rms(t, y) ** 2 for t, y in ((t_without, signal_without),
-                                                                              (t_with, signal_with))])))
-        return MoveTestResult(start_m, comparison, notch_in, what, float(delay),
-                              (f"{names[0]}.h5", f"{names[1]}.h5"),
-                              {"without": (t_without, signal_without), "with_notch": (t_with, signal_with)},
-                              floor, distance_m, excitations(out, with_out if notch_in == "host" else None,
-                                                             modes or []))
+        floor = float(
+            np.sqrt(
+                np.mean([standstill_rms(t, y) ** 2 for t, y in ((t_without, signal_without), (t_with, signal_with))])
+            )
+        )
+        return MoveTestResult(
+            start_m,
+            comparison,
+            notch_in,
+            what,
+            float(delay),
+            (f"{names[0]}.h5", f"{names[1]}.h5"),
+            {"without": (t_without, signal_without), "with_notch": (t_with, signal_with)},
+            floor,
+            distance_m,
+            excitations(out, with_out if notch_in == "host" else None, modes or []),
+        )
 
 
-def excitations(move: MoveProfile, shaped: MoveProfile | None,
-                modes: list[tuple[float, float]]) -> tuple[ModeExcitation, ...]:
+def excitations(
+    move: MoveProfile, shaped: MoveProfile | None, modes: list[tuple[float, float]]
+) -> tuple[ModeExcitation, ...]:
     """How strongly ``move`` (and ``shaped``, its set-point with the notch; None: the notch is in the drive)
     excites each of ``modes`` ``(frequency_hz, damping_ratio)``, against a step of ``move``'s peak
     acceleration."""
@@ -273,8 +315,11 @@ def excitations(move: MoveProfile, shaped: MoveProfile | None,
     found = []
     for f, zeta in modes:
         v = mode_excitation(move.position_m, rate, move.move_end_index, f, zeta)
-        v_shaped = None if shaped is None else mode_excitation(shaped.position_m, rate, shaped.move_end_index, f,
-                                                                zeta, reference_accel_mps2=peak)
+        v_shaped = (
+            None
+            if shaped is None
+            else mode_excitation(shaped.position_m, rate, shaped.move_end_index, f, zeta, reference_accel_mps2=peak)
+        )
         found.append(ModeExcitation(float(f), float(zeta), v, v_shaped))
     return tuple(found)
 
@@ -303,14 +348,26 @@ def move_distance(move: MoveConfig, start_m: float, low_m: float, high_m: float)
     for distance in (move.distance_m, -move.distance_m):
         if low_m <= start_m + distance <= high_m:
             return distance
-    raise DataError(f"[verification.move] distance_m = {move.distance_m:g} m does not fit either way from "
-                    f"{start_m:+.3f} m within [{low_m:g}, {high_m:g}] m")
+    raise DataError(
+        f"[verification.move] distance_m = {move.distance_m:g} m does not fit either way from "
+        f"{start_m:+.3f} m within [{low_m:g}, {high_m:g}] m"
+    )
 
 
-def run_move_tests(cfg: Config, record: Callable, progress, warnings: list[str], driver, adapter, designs: list,
-                   in_slots: bool, start_m: float, places_m: list[float],
-                   position: Callable[[], float | None],
-                   modes_at: Callable[[float], list[tuple[float, float]]] | None = None) -> list[MoveTestResult]:
+def run_move_tests(
+    cfg: Config,
+    record: Callable,
+    progress,
+    warnings: list[str],
+    driver,
+    adapter,
+    designs: list,
+    in_slots: bool,
+    start_m: float,
+    places_m: list[float],
+    position: Callable[[], float | None],
+    modes_at: Callable[[float], list[tuple[float, float]]] | None = None,
+) -> list[MoveTestResult]:
     """The move test from ``start_m`` (or, with a map, from each of ``places_m``, then back to ``start_m``).
 
     Parameters
@@ -351,14 +408,18 @@ def run_move_tests(cfg: Config, record: Callable, progress, warnings: list[str],
     # "drive" compares the drive's filter slots instead
     notch_in = "drive" if move.notch == "drive" else "host"
     if notch_in == "drive" and not in_slots:
-        raise DataError("[verification.move] notch = \"drive\": the notch is not in the drive's filter slots "
-                        "(not uploaded, or not read back as written)")
+        raise DataError(
+            '[verification.move] notch = "drive": the notch is not in the drive\'s filter slots '
+            "(not uploaded, or not read back as written)"
+        )
     slots = DriveNotch(adapter, [d.slot for d in designs]) if in_slots else None
     host = [design_notch(d.spec, cfg.run.sample_rate_hz) for d in designs] if notch_in == "host" else None
     streamed = cfg.run.channels or [c.name for c in driver.streamed_channels]
     if LOAD in [c.name for c in driver.channels] and LOAD not in streamed:
-        warnings.append(f"move test: {driver.name} has a load sensor ({LOAD}) that is not streamed; add it to "
-                        "[run] channels to measure the load's ringing rather than the following error")
+        warnings.append(
+            f"move test: {driver.name} has a load sensor ({LOAD}) that is not streamed; add it to "
+            "[run] channels to measure the load's ringing rather than the following error"
+        )
     tester = MoveTest(cfg, record, progress)
     lim, margin = cfg.bench_limits, cfg.map.margin_m
     places = [(p, f"_{i}") for i, p in enumerate(places_m)] or [(start_m, "")]
@@ -389,33 +450,46 @@ def weak_excitation_warning(move: MoveConfig, results: list[MoveTestResult], sam
     weak = [(r, m) for r in results for m in r.weakly_excited]
     if not weak:
         return None
+
     def rang(r: MoveTestResult) -> str:
         limit = r.rest_limit_db
         return "" if limit is None else f", rang {limit:.1f} dB above rest"
 
-    where = "; ".join(f"ending at {r.start_m + r.distance_m:+.3f} m, {m.frequency_hz:.2f} Hz: V = {m.excitation:.2f}"
-                      f"{rang(r)}" for r, m in weak)
-    text = (f"move test: the move excites the mode less than one step of its acceleration would ({where}). "
-            "A move that rings little above the axis at rest shows the vibration at rest and at the stop more "
-            "than the notch.")
+    where = "; ".join(
+        f"ending at {r.start_m + r.distance_m:+.3f} m, {m.frequency_hz:.2f} Hz: V = {m.excitation:.2f}{rang(r)}"
+        for r, m in weak
+    )
+    text = (
+        f"move test: the move excites the mode less than one step of its acceleration would ({where}). "
+        "A move that rings little above the axis at rest shows the vibration at rest and at the stop more "
+        "than the notch."
+    )
 
     def profile(distance: float, v: float, a: float) -> tuple[np.ndarray, int]:
         p = move_profile(replace(move, max_velocity_mps=v, max_accel_mps2=a), distance, sample_rate_hz)
         return p.position_m, p.move_end_index
 
     tested = [r for r in results if r.modes and np.isfinite(r.distance_m)]
-    best = exciting_move(profile, [r.distance_m for r in tested],
-                         [[(m.frequency_hz, m.damping_ratio) for m in r.modes] for r in tested], sample_rate_hz,
-                         np.linspace(0.5, 1.0, 11) * move.max_velocity_mps,
-                         np.linspace(1.0, 1.5, 11) * move.max_accel_mps2,
-                         (move.max_velocity_mps, move.max_accel_mps2))
+    best = exciting_move(
+        profile,
+        [r.distance_m for r in tested],
+        [[(m.frequency_hz, m.damping_ratio) for m in r.modes] for r in tested],
+        sample_rate_hz,
+        np.linspace(0.5, 1.0, 11) * move.max_velocity_mps,
+        np.linspace(1.0, 1.5, 11) * move.max_accel_mps2,
+        (move.max_velocity_mps, move.max_accel_mps2),
+    )
     if best is None or best.min_excitation <= min(m.excitation for _, m in weak):
-        return text + (" No velocity of 0.5-1 times max_velocity_mps with an acceleration of 1-1.5 times "
-                       "max_accel_mps2 excites every mode of this test better.")
-    return text + (f" [verification] move with max_velocity_mps = {best.max_velocity_mps:.3g} and max_accel_mps2 = "
-                   f"{best.max_accel_mps2:.3g} excites every mode of this test at V >= {best.min_excitation:.2f}"
-                   f" ({best.max_accel_mps2 / move.max_accel_mps2:.3g} times the acceleration: check the torque it "
-                   "needs against [limits] torque_nm).")
+        return text + (
+            " No velocity of 0.5-1 times max_velocity_mps with an acceleration of 1-1.5 times "
+            "max_accel_mps2 excites every mode of this test better."
+        )
+    return text + (
+        f" [verification] move with max_velocity_mps = {best.max_velocity_mps:.3g} and max_accel_mps2 = "
+        f"{best.max_accel_mps2:.3g} excites every mode of this test at V >= {best.min_excitation:.2f}"
+        f" ({best.max_accel_mps2 / move.max_accel_mps2:.3g} times the acceleration: check the torque it "
+        "needs against [limits] torque_nm)."
+    )
 
 
 def plot_worst_move(results: list[MoveTestResult], path: Path, config_name: str, warnings: list[str]) -> None:
@@ -426,7 +500,16 @@ def plot_worst_move(results: list[MoveTestResult], path: Path, config_name: str,
     worst = min(results, key=lambda r: r.comparison.rms_reduction_db)
     (t0, y0), (t1, y1) = worst.traces["without"], worst.traces["with_notch"]
     try:
-        plot_moves(path, worst.comparison, t0, y0, t1, y1, signal_name=worst.signal,
-                   subject=f"{config_name}, from {worst.start_m:+.3f} m", added_delay_s=worst.added_delay_s or None)
+        plot_moves(
+            path,
+            worst.comparison,
+            t0,
+            y0,
+            t1,
+            y1,
+            signal_name=worst.signal,
+            subject=f"{config_name}, from {worst.start_m:+.3f} m",
+            added_delay_s=worst.added_delay_s or None,
+        )
     except (DataError, ValueError) as exc:
         warnings.append(f"moves.png could not be drawn: {exc}")

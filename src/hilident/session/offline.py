@@ -131,8 +131,9 @@ def data_mapping(cfg: Config, info: RunInfo | None) -> DataConfig:
     data = cfg.data
     channels = set(info.channels) if info is not None else None
     if info is not None and channels is not None:
-        fill: dict[str, Any] = {key: (ch if ch in channels else "") for key, ch in RUN_CHANNELS.items()
-                                if key not in explicit}
+        fill: dict[str, Any] = {
+            key: (ch if ch in channels else "") for key, ch in RUN_CHANNELS.items() if key not in explicit
+        }
         defaults = {"format": "hilident", "closed_loop": info.mode not in ("", "torque")}  # a loop held the axis
         fill.update({key: value for key, value in defaults.items() if key not in explicit})
         data = dataclasses.replace(data, **fill)
@@ -201,8 +202,10 @@ def run_friction(cfg: Config, info: RunInfo | None, data_path: str | Path, warni
     test = read_run_info(path) if path.is_file() else None
     if test is None or test.experiment != "friction":
         if cfg.friction_test.enabled:
-            warnings.append(f"no friction test recorded beside {Path(data_path).name} (friction.h5): the torque "
-                            "is used as recorded, with friction in it (the run removed its friction fit)")
+            warnings.append(
+                f"no friction test recorded beside {Path(data_path).name} (friction.h5): the torque "
+                "is used as recorded, with friction in it (the run removed its friction fit)"
+            )
         return None
     try:
         velocity, torque, windows = read_friction_test(path)
@@ -304,37 +307,66 @@ def _one_period_plant(r, u, y, sample_rate_hz: float, period: int, cfg, band_hz)
         plant = FrequencyResponse(f, Y[k] / U[k], coherence, 1, "periodic")
         loop = FrequencyResponse(f, Y[k] / R[k], loop_coherence, 1, "periodic")
     grid = f" (one line in {step})" if step > 1 else ""
-    head = (f"one excitation period ({period} samples) recorded: its DFT at the {k.size} excited lines{grid} is "
-            "leakage-free but has no average")
+    head = (
+        f"one excitation period ({period} samples) recorded: its DFT at the {k.size} excited lines{grid} is "
+        "leakage-free but has no average"
+    )
     if np.isfinite(coherence).all():
-        warnings = [head + "; the noise of each line is taken from the non-excited lines beside it (coherence "
-                    "from that, a lower bound where they hold transients or distortion too)"]
+        warnings = [
+            head + "; the noise of each line is taken from the non-excited lines beside it (coherence "
+            "from that, a lower bound where they hold transients or distortion too)"
+        ]
         resonances, rejected, notes = pipeline._resonances_and_model(plant, cfg, band_hz)
         warnings += notes
         model = notes.model
     else:
-        warnings = [head + ", so no coherence; resonances are judged on prominence alone (record two or more "
-                    "periods to judge the noise)"]
+        warnings = [
+            head + ", so no coherence; resonances are judged on prominence alone (record two or more "
+            "periods to judge the noise)"
+        ]
         resonances, rejected, model = _prominent_resonances(plant, cfg, band_hz, warnings)
     antires = [hz for hz, _ in model.roots.antiresonances] if model else []
     quality, more = pipeline.measurement_quality(plant, resonances, r, sample_rate_hz, band_hz, period, antires)
-    quality["one_period"] = {"excited_lines": int(k.size), "line_step": step,
-                             "noise_from_non_excited_lines": bool(np.isfinite(coherence).all())}
-    return pipeline.PlantResult(plant=plant, loop=loop, resonances=resonances, warnings=warnings + more, model=model,
-                                quality=quality, rejected=rejected)
+    quality["one_period"] = {
+        "excited_lines": int(k.size),
+        "line_step": step,
+        "noise_from_non_excited_lines": bool(np.isfinite(coherence).all()),
+    }
+    return pipeline.PlantResult(
+        plant=plant,
+        loop=loop,
+        resonances=resonances,
+        warnings=warnings + more,
+        model=model,
+        quality=quality,
+        rejected=rejected,
+    )
 
 
 def _prominent_resonances(plant: FrequencyResponse, cfg, band_hz, warnings: list[str]):
     """Resonances on prominence alone and the transfer-function fit, for a response without coherence."""
     from hilident.ident.resonance import find_resonances
 
-    resonances = find_resonances(plant, coherence_threshold=None, min_prominence_db=cfg.min_prominence_db,
-                                 max_count=max(cfg.max_resonances, 1), band_hz=band_hz)
+    resonances = find_resonances(
+        plant,
+        coherence_threshold=None,
+        min_prominence_db=cfg.min_prominence_db,
+        max_count=max(cfg.max_resonances, 1),
+        band_hz=band_hz,
+    )
     model = None
     if cfg.model_max_order:
         try:
-            model = pipeline.fit_plant_model(plant, band_hz, cfg.model_max_order, 0.0, cfg.model_order,
-                                             cfg.model_relative_degree, cfg.model_integrators, cfg.model_criterion)
+            model = pipeline.fit_plant_model(
+                plant,
+                band_hz,
+                cfg.model_max_order,
+                0.0,
+                cfg.model_order,
+                cfg.model_relative_degree,
+                cfg.model_integrators,
+                cfg.model_criterion,
+            )
         except (DataError, ConfigError) as exc:
             warnings.append(f"transfer-function fit: {exc}")
     return resonances, [], model
@@ -347,11 +379,20 @@ def _identify(cfg: Config, ds: Dataset, band, excited_bins, friction=None) -> pi
     period = ds.period_samples
     if period and period <= len(ds) < 2 * period:
         return _one_period_plant(r, s["torque"], s["output"], ds.sample_rate_hz, period, cfg.identification, band)
-    return pipeline.identify_plant(r, s["torque"], s["output"], velocity, ds.sample_rate_hz, cfg.identification, band,
-                                   friction=friction.fit.params if friction is not None else None,
-                                   velocity_deadband_mps=cfg.friction_test.velocity_deadband_mps,
-                                   friction_slowest_mps=friction.slowest_mps if friction is not None else 0.0,
-                                   period_samples=period, excited_bins=excited_bins)
+    return pipeline.identify_plant(
+        r,
+        s["torque"],
+        s["output"],
+        velocity,
+        ds.sample_rate_hz,
+        cfg.identification,
+        band,
+        friction=friction.fit.params if friction is not None else None,
+        velocity_deadband_mps=cfg.friction_test.velocity_deadband_mps,
+        friction_slowest_mps=friction.slowest_mps if friction is not None else 0.0,
+        period_samples=period,
+        excited_bins=excited_bins,
+    )
 
 
 # ---------------------------------------------------------------------- grey box
@@ -367,8 +408,9 @@ def fit_model(cfg: Config, ds: Dataset, validation: Dataset | None = None):
         return None
     for d in (ds, validation):
         if d is not None and "position" not in d.signals:
-            raise ConfigError("data.position", f"a {cfg.model.kind} fit needs the position column ({d.source})",
-                              cfg.source)
+            raise ConfigError(
+                "data.position", f"a {cfg.model.kind} fit needs the position column ({d.source})", cfg.source
+            )
     # a time-domain fit runs its filters along the record: it must not cross a lost block
     ds = ds.longest_segment()
     records = None
@@ -385,12 +427,16 @@ def _check_validation_rate(ds: Dataset, validation: Dataset) -> float:
     """Relative difference of the two records' rates; refused above :data:`RATE_TOLERANCE`."""
     spread = abs(validation.sample_rate_hz - ds.sample_rate_hz) / ds.sample_rate_hz
     if spread > RATE_TOLERANCE:
+
         def where(d):
             return ", ".join(d.info.get("sample_rates_hz", {})) or "the file"
-        raise DataError(f"{validation.source} runs at {validation.sample_rate_hz:.9g} Hz (from {where(validation)}), "
-                        f"{ds.source} at {ds.sample_rate_hz:.9g} Hz (from {where(ds)}): they differ by {spread:.2g} "
-                        f"(relative; {RATE_TOLERANCE:g} is accepted as one clock); if both were sampled at one "
-                        "nominal rate, set [data] sample_rate_hz to it")
+
+        raise DataError(
+            f"{validation.source} runs at {validation.sample_rate_hz:.9g} Hz (from {where(validation)}), "
+            f"{ds.source} at {ds.sample_rate_hz:.9g} Hz (from {where(ds)}): they differ by {spread:.2g} "
+            f"(relative; {RATE_TOLERANCE:g} is accepted as one clock); if both were sampled at one "
+            "nominal rate, set [data] sample_rate_hz to it"
+        )
     return spread
 
 
@@ -420,8 +466,9 @@ class Analysis:
     state: dict
 
 
-def analyse_recording(cfg: Config | None, data_path: str | Path, progress=None,
-                      validation_path: str | Path | None = None) -> Analysis:
+def analyse_recording(
+    cfg: Config | None, data_path: str | Path, progress=None, validation_path: str | Path | None = None
+) -> Analysis:
     """The identification of ``data_path`` as ``hilident identify`` does it, writing nothing.
 
     Errors before the data are read (no such file, no configuration, a
@@ -436,18 +483,31 @@ def analyse_recording(cfg: Config | None, data_path: str | Path, progress=None,
     data_cfg = data_mapping(cfg, info)
     cfg = dataclasses.replace(cfg, data=data_cfg, model=model_for(cfg, info))
     ds = load_dataset(data_path, data_cfg, cfg.source)
-    validation = load_dataset(validation_path, data_mapping(cfg, read_run_info(validation_path, data_cfg.format)),
-                              cfg.source) if validation_path else None
+    validation = (
+        load_dataset(validation_path, data_mapping(cfg, read_run_info(validation_path, data_cfg.format)), cfg.source)
+        if validation_path
+        else None
+    )
     warnings = list(ds.notes) + ([f"validation: {n}" for n in validation.notes] if validation is not None else [])
-    data_info = {"file": ds.source, "samples": len(ds), "sample_rate_hz": ds.sample_rate_hz, **ds.info,
-                 "mapping": {k: getattr(data_cfg, k) for k in ("torque", "velocity", "position", "output",
-                                                               "excitation") if getattr(data_cfg, k)}}
+    data_info = {
+        "file": ds.source,
+        "samples": len(ds),
+        "sample_rate_hz": ds.sample_rate_hz,
+        **ds.info,
+        "mapping": {
+            k: getattr(data_cfg, k)
+            for k in ("torque", "velocity", "position", "output", "excitation")
+            if getattr(data_cfg, k)
+        },
+    }
     if info is not None:
         unit = recorded_units(dict(zip(info.channels, info.units, strict=False)), {"mode": info.mode})
         data_info["units"] = {key: unit[col] for key, col in data_info["mapping"].items() if unit.get(col)}
-        data_info.update(recorded_mode=info.mode, recorded_experiment=info.experiment,
-                         configuration="stored in the recording" if cfg.source.endswith("(config_toml attribute)")
-                         else cfg.source)
+        data_info.update(
+            recorded_mode=info.mode,
+            recorded_experiment=info.experiment,
+            configuration="stored in the recording" if cfg.source.endswith("(config_toml attribute)") else cfg.source,
+        )
     if validation is not None:
         data_info["validation_rate_difference"] = _check_validation_rate(ds, validation)
     if data_cfg.closed_loop and "excitation" not in ds.signals:
@@ -455,9 +515,11 @@ def analyse_recording(cfg: Config | None, data_path: str | Path, progress=None,
             "closed-loop data without an excitation column: the torque-to-output estimate is biased where "
             "the controller feeds noise back (give [data].excitation to use the excitation as reference)"
         )
-    say(f"{ds.source}: {ds.info.get('used_rows', len(ds))} of {ds.info.get('rows', len(ds))} samples at "
-        f"{ds.sample_rate_hz:g} Hz" + (f" in {ds.info['segments']} gap-free segment(s)"
-                                       if ds.info.get("segments", 1) > 1 else ""))
+    say(
+        f"{ds.source}: {ds.info.get('used_rows', len(ds))} of {ds.info.get('rows', len(ds))} samples at "
+        f"{ds.sample_rate_hz:g} Hz"
+        + (f" in {ds.info['segments']} gap-free segment(s)" if ds.info.get("segments", 1) > 1 else "")
+    )
     state: dict = {"plant": None, "designs": [], "model": None, "friction": None, "data_path": data_path}
     error: HilidentError | None = None
     try:
@@ -470,8 +532,13 @@ def analyse_recording(cfg: Config | None, data_path: str | Path, progress=None,
     return Analysis(summary, error, cfg, ds, validation, state)
 
 
-def identify_recording(cfg: Config | None, data_path: str | Path, out_dir: str | Path, progress=None,
-                       validation_path: str | Path | None = None) -> dict:
+def identify_recording(
+    cfg: Config | None,
+    data_path: str | Path,
+    out_dir: str | Path,
+    progress=None,
+    validation_path: str | Path | None = None,
+) -> dict:
     """Identify the plant in ``data_path``; writes ``summary.json`` and plots into ``out_dir``.
 
     ``cfg`` may be None for a hilident recording (its stored configuration is
@@ -492,10 +559,19 @@ def identify_recording(cfg: Config | None, data_path: str | Path, out_dir: str |
     cfg, ds, validation, state = a.cfg, a.data, a.validation, a.state
     plant, designs = state["plant"], state["designs"]
     model = state["model"]
-    report.plot_identify(out, summary, plant, designs, band_hz=state.get("band_hz"),
-                         coherence_threshold=cfg.identification.coherence_threshold, friction=state["friction"],
-                         model=model, model_cfg=cfg.model, data=ds.longest_segment() if model else None,
-                         validation=validation.longest_segment() if model and validation is not None else None)
+    report.plot_identify(
+        out,
+        summary,
+        plant,
+        designs,
+        band_hz=state.get("band_hz"),
+        coherence_threshold=cfg.identification.coherence_threshold,
+        friction=state["friction"],
+        model=model,
+        model_cfg=cfg.model,
+        data=ds.longest_segment() if model else None,
+        validation=validation.longest_segment() if model and validation is not None else None,
+    )
     html_report.write_report_quietly(out)
     return summary
 
@@ -521,24 +597,36 @@ def _steps(cfg: Config, ds: Dataset, validation: Dataset | None, info, state: di
         decision = pipeline.notch_decision(plant, ic.coherence_threshold, e.amplitude_key, amplitude)
         warnings += decision.warnings
         state["notch_skipped_reason"] = decision.skipped_reason
-        state["designs"] = pipeline.design_notches(decision.resonances, cfg.notch, cfg.model.filter_rate_hz, slots,
-                                                   response=plant.loop)
+        state["designs"] = pipeline.design_notches(
+            decision.resonances, cfg.notch, cfg.model.filter_rate_hz, slots, response=plant.loop
+        )
     state["step"] = "model"
     model = fit_model(cfg, ds, validation)
     if model is not None:
         if len(ds.segments) > 1:
             longest = max(b - a for a, b in ds.segments)
-            warnings.append(f"{cfg.model.kind} fitted to the longest gap-free stretch ({longest} samples): "
-                            "a time-domain fit must not run across a lost block")
+            warnings.append(
+                f"{cfg.model.kind} fitted to the longest gap-free stretch ({longest} samples): "
+                "a time-domain fit must not run across a lost block"
+            )
         warnings += list(model.warnings)
         if cfg.data.closed_loop:
-            warnings.append(f"{cfg.model.kind} fitted to closed-loop data: noise fed back through the controller "
-                            "biases least squares; compare with an open-loop record")
+            warnings.append(
+                f"{cfg.model.kind} fitted to closed-loop data: noise fed back through the controller "
+                "biases least squares; compare with an open-loop record"
+            )
         state["model"] = model
 
 
 def _summary(cfg: Config, data_info: dict, state: dict, warnings: list[str], started: float) -> dict:
     return Summary.of_identify(
-        config=cfg.source, data=data_info, plant=state["plant"], friction=state["friction"], model=state["model"],
-        designs=state["designs"], notch_skipped_reason=state.get("notch_skipped_reason"),
-        elapsed_s=time.monotonic() - started, warnings=warnings).to_dict()
+        config=cfg.source,
+        data=data_info,
+        plant=state["plant"],
+        friction=state["friction"],
+        model=state["model"],
+        designs=state["designs"],
+        notch_skipped_reason=state.get("notch_skipped_reason"),
+        elapsed_s=time.monotonic() - started,
+        warnings=warnings,
+    ).to_dict()

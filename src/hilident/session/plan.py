@@ -82,20 +82,28 @@ class RunPlan:
                 peaks.append(f"travel up to {e.travel_m:.3g} m each way")
             if e.amplitude:
                 peaks.insert(0, f"amplitude {e.amplitude}")
-            lines.append(f"  {i}. {e.name}: {e.description}, {e.mode} mode, "
-                         + ("up to " if e.name == "auto amplitude" else "") + f"{e.duration_s:.1f} s"
-                         + (", " + ", ".join(peaks) if peaks else ""))
+            lines.append(
+                f"  {i}. {e.name}: {e.description}, {e.mode} mode, "
+                + ("up to " if e.name == "auto amplitude" else "")
+                + f"{e.duration_s:.1f} s"
+                + (", " + ", ".join(peaks) if peaks else "")
+            )
         if self.filters_enabled:
-            lines.append(f"  filter slots {self.filters_enabled} hold filters: bypassed while the plant is measured, "
-                         "put back if the session ends before its upload")
+            lines.append(
+                f"  filter slots {self.filters_enabled} hold filters: bypassed while the plant is measured, "
+                "put back if the session ends before its upload"
+            )
         if self.notch_slots:
-            lines.append(f"  filter slots 0..{self.notch_slots - 1} (of {self.filter_slots}) may be rewritten with "
-                         "the new notches")
+            lines.append(
+                f"  filter slots 0..{self.notch_slots - 1} (of {self.filter_slots}) may be rewritten with "
+                "the new notches"
+            )
         return "\n".join(lines)
 
 
-def make_plan(cfg: Config, excitation, friction_profile, adapter, filters_found: list[dict],
-              friction_mode: str = "velocity") -> RunPlan:
+def make_plan(
+    cfg: Config, excitation, friction_profile, adapter, filters_found: list[dict], friction_mode: str = "velocity"
+) -> RunPlan:
     """The plan of a session from its config, its built signals and the device it reached.
 
     Parameters
@@ -117,22 +125,36 @@ def make_plan(cfg: Config, excitation, friction_profile, adapter, filters_found:
     plan = RunPlan(
         device=f"{adapter.identity.name} (firmware {adapter.identity.firmware})",
         port=adapter.port,
-        limits={"torque_nm": lim.torque_nm, "velocity_mps": lim.velocity_mps,
-                "position_min_m": lim.position_min_m, "position_max_m": lim.position_max_m},
+        limits={
+            "torque_nm": lim.torque_nm,
+            "velocity_mps": lim.velocity_mps,
+            "position_min_m": lim.position_min_m,
+            "position_max_m": lim.position_max_m,
+        },
         filters_enabled=[f["slot"] for f in filters_found if f["enabled"]],
         filter_slots=adapter.identity.filter_slots,
     )
     if friction_profile is not None:
         sp = np.asarray(friction_profile.setpoint_mps)
         speeds = cfg.friction_test.speeds_mps
-        plan.experiments.append(PlannedExperiment(
-            "friction", f"constant-velocity legs both ways at {min(speeds):g}..{max(speeds):g} m/s", friction_mode,
-            len(sp) / fs, len(sp), peak_speed_mps=float(np.max(np.abs(sp))) if len(sp) else 0.0,
-            travel_m=float(friction_profile.max_excursion_m)))
+        plan.experiments.append(
+            PlannedExperiment(
+                "friction",
+                f"constant-velocity legs both ways at {min(speeds):g}..{max(speeds):g} m/s",
+                friction_mode,
+                len(sp) / fs,
+                len(sp),
+                peak_speed_mps=float(np.max(np.abs(sp))) if len(sp) else 0.0,
+                travel_m=float(friction_profile.max_excursion_m),
+            )
+        )
     e = cfg.excitation
     x = np.asarray(excitation.samples)
-    what = (e.kind if e.kind in ("sine", "square", "step")
-            else f"{e.kind} {excitation.band_hz[0]:g}-{excitation.band_hz[1]:g} Hz")
+    what = (
+        e.kind
+        if e.kind in ("sine", "square", "step")
+        else f"{e.kind} {excitation.band_hz[0]:g}-{excitation.band_hz[1]:g} Hz"
+    )
     if e.closed_loop:
         what += f" {e.mode} set-point perturbation, closed loop"
     peaks = _excitation_peaks(e.mode, x, fs)
@@ -144,8 +166,11 @@ def make_plan(cfg: Config, excitation, friction_profile, adapter, filters_found:
     if cfg.notch.enabled and cfg.identification.max_resonances:
         plan.notch_slots = min(cfg.identification.max_resonances, adapter.identity.filter_slots)
         if cfg.notch.verify and plan.notch_slots:
-            plan.experiments.append(PlannedExperiment("verification", "the same excitation with the new notches",
-                                                      e.mode, len(x) / fs, len(x), **peaks))
+            plan.experiments.append(
+                PlannedExperiment(
+                    "verification", "the same excitation with the new notches", e.mode, len(x) / fs, len(x), **peaks
+                )
+            )
     return plan
 
 
@@ -155,9 +180,15 @@ def _auto_trials(cfg: Config, excitation, ceiling_nm: float) -> PlannedExperimen
     period = excitation.period_samples
     n = period + period // 4 + e.auto_max_trials * (e.auto_trial_periods + 1) * period
     return PlannedExperiment(
-        "auto amplitude", f"standstill noise record, then up to {e.auto_max_trials} trials of "
+        "auto amplitude",
+        f"standstill noise record, then up to {e.auto_max_trials} trials of "
         f"{e.auto_trial_periods} multisine periods (+1 lead-in) until coherence "
-        f"{auto_coherence_target(cfg):.2f} is predicted", e.mode, n / fs, n, peak_torque_nm=ceiling_nm)
+        f"{auto_coherence_target(cfg):.2f} is predicted",
+        e.mode,
+        n / fs,
+        n,
+        peak_torque_nm=ceiling_nm,
+    )
 
 
 def _excitation_peaks(mode: str, x: np.ndarray, sample_rate_hz: float) -> dict:

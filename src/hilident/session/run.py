@@ -89,6 +89,7 @@ pipeline = lazy_module("hilident.pipeline")
 #: The upload step, shared with ``hilident upload``.
 uploading = lazy_module("hilident.session.upload")
 
+
 def check_excitation_travel(cfg: Config, excitation: Excitation) -> None:
     """A set-point perturbation must keep the axis within half the position window (it starts anywhere in it)."""
     e, lim = cfg.excitation, cfg.bench_limits
@@ -101,7 +102,8 @@ def check_excitation_travel(cfg: Config, excitation: Excitation) -> None:
             f"excitation.{e.amplitude_key}",
             f"the {e.mode} set-point perturbation travels up to {travel:.4g} m from where the axis holds, more "
             f"than half the position window [{lim.position_min_m:g}, {lim.position_max_m:g}] m (a smaller "
-            f"amplitude or a higher f_min_hz)", cfg.source,
+            f"amplitude or a higher f_min_hz)",
+            cfg.source,
         )
 
 
@@ -114,13 +116,17 @@ def check_it_moved(cfg: Config, output: np.ndarray, friction) -> None:
     held = ""
     if friction is not None and e.mode in ("torque", "torque_injection"):
         fs = max(friction.fit.params.Fs, friction.fit.params.Fc)
-        held = (f"; the friction test measured a breakaway of {fs:.3g} N*m, so an amplitude of at least "
-                f"{3 * fs:.3g} N*m is needed to move it over most of each period")
-    raise DataError(f"identification: the axis did not move ({cfg.identification.output} constant at "
-                    f"{finite[0] if finite.size else float('nan'):g}): the excitation ({e.amplitude:g} "
-                    f"{ {'velocity': 'm/s', 'position': 'm'}.get(e.mode, 'N*m') }) is too weak"
-                    f"{held}; raise excitation.{e.amplitude_key}"
-                    + (' or set it to "auto"' if e.amplitude_key == "amplitude_nm" else ""))
+        held = (
+            f"; the friction test measured a breakaway of {fs:.3g} N*m, so an amplitude of at least "
+            f"{3 * fs:.3g} N*m is needed to move it over most of each period"
+        )
+    raise DataError(
+        f"identification: the axis did not move ({cfg.identification.output} constant at "
+        f"{finite[0] if finite.size else float('nan'):g}): the excitation ({e.amplitude:g} "
+        f"{ {'velocity': 'm/s', 'position': 'm'}.get(e.mode, 'N*m') }) is too weak"
+        f"{held}; raise excitation.{e.amplitude_key}"
+        + (' or set it to "auto"' if e.amplitude_key == "amplitude_nm" else "")
+    )
 
 
 @dataclass(frozen=True)
@@ -169,8 +175,15 @@ def connect_device(cfg: Config, driver: DriverDescription, progress: Progress) -
         device, link = emulator.device, emulator.link
     else:
         d = cfg.device
-        lock = DeviceLock(device_key(driver.transport, d.port, node_id=d.canopen.node_id,
-                                     device_id=d.modbus.device_id, can_interface=d.canopen.can_interface)).acquire()
+        lock = DeviceLock(
+            device_key(
+                driver.transport,
+                d.port,
+                node_id=d.canopen.node_id,
+                device_id=d.modbus.device_id,
+                can_interface=d.canopen.can_interface,
+            )
+        ).acquire()
         if lock.recovered_from:
             progress.step(f"device lock of pid {lock.recovered_from} recovered (that session died)")
     try:
@@ -198,8 +211,10 @@ def connect_warnings(report_) -> list[str]:
     if report_.discarded_frames:
         out.append(f"connect: {report_.discarded_frames} frame(s) left over from an earlier session were discarded")
     if report_.faults:
-        out.append(f"connect: the device had latched fault(s): {'; '.join(report_.faults)}"
-                   + ("; cleared (allow_fault_reset)" if report_.faults_cleared else ""))
+        out.append(
+            f"connect: the device had latched fault(s): {'; '.join(report_.faults)}"
+            + ("; cleared (allow_fault_reset)" if report_.faults_cleared else "")
+        )
     return out + [f"connect: {w}" for w in report_.warnings]
 
 
@@ -282,9 +297,16 @@ class Session(DeviceConnection):
     progress : Progress, optional
     """
 
-    def __init__(self, cfg: Config, out_dir: str | Path, progress: Progress | None = None,
-                 confirm: Callable[[RunPlan], bool] | None = None, dry_run: bool = False, plots: bool = True,
-                 save: bool = False):
+    def __init__(
+        self,
+        cfg: Config,
+        out_dir: str | Path,
+        progress: Progress | None = None,
+        confirm: Callable[[RunPlan], bool] | None = None,
+        dry_run: bool = False,
+        plots: bool = True,
+        save: bool = False,
+    ):
         cfg.bench_limits  # noqa: B018 - raises the ConfigError of a config without [limits] before anything starts
         self.cfg = cfg
         self.out = Path(out_dir)
@@ -343,8 +365,15 @@ class Session(DeviceConnection):
 
     # --- experiments ----------------------------------------------------------------------
 
-    def record(self, name: str, mode: str, excitation: np.ndarray, tables: dict | None = None,
-               period_samples: int | None = None, recipe: dict | None = None) -> Experiment:
+    def record(
+        self,
+        name: str,
+        mode: str,
+        excitation: np.ndarray,
+        tables: dict | None = None,
+        period_samples: int | None = None,
+        recipe: dict | None = None,
+    ) -> Experiment:
         """Stream ``excitation`` in ``mode`` and record it to ``<out>/<name>.h5``
         (:meth:`hilident.session.experiment.ExperimentRecorder.record`, with the session's configuration)."""
         if self.recorder is None:
@@ -358,7 +387,6 @@ class Session(DeviceConnection):
     def totals(self) -> StreamStats:
         """The stream counters of every run recorded so far, added."""
         return self.recorder.totals if self.recorder is not None else StreamStats()
-
 
     # --- the whole run ----------------------------------------------------------------------
 
@@ -376,8 +404,9 @@ class Session(DeviceConnection):
         try:
             self.connect()
             self._read_filter_slots()
-            plan = self.plan = make_plan(self.cfg, excitation, profile, self.adapter, self.filters_found,
-                                         self.friction_mode)
+            plan = self.plan = make_plan(
+                self.cfg, excitation, profile, self.adapter, self.filters_found, self.friction_mode
+            )
             self._arm(plan)
             if self.dry_run:
                 return {"dry_run": True, "plan": plan.to_dict()}
@@ -388,8 +417,13 @@ class Session(DeviceConnection):
                 step = "auto amplitude"
                 excitation = self._auto_amplitude(friction)  # the run then plays the chosen amplitude
             step = "identification"
-            ident = self.record("identification", self.cfg.excitation.mode, excitation.samples,
-                                period_samples=excitation.period_samples, recipe=excitation_recipe(self.cfg))
+            ident = self.record(
+                "identification",
+                self.cfg.excitation.mode,
+                excitation.samples,
+                period_samples=excitation.period_samples,
+                recipe=excitation_recipe(self.cfg),
+            )
             plant = self._identify(ident, excitation, friction)
             if self.cfg.map.enabled:
                 step = "map"
@@ -411,8 +445,9 @@ class Session(DeviceConnection):
                 self.safe_stop()
             if isinstance(exc, HilidentError) and (friction is not None or plant is not None):
                 with endings.shielded():  # what the steps before found is kept, and the step that failed named
-                    self._write_partial_summary(step, exc, friction, plant, designs, upload, verification,
-                                                time.monotonic() - started)
+                    self._write_partial_summary(
+                        step, exc, friction, plant, designs, upload, verification, time.monotonic() - started
+                    )
             raise
         finally:
             with endings.shielded():
@@ -421,12 +456,14 @@ class Session(DeviceConnection):
         endings.raise_pending()
         model = self._greybox()
         if self.plots and self.workspace is not None:  # before the summary: a failed plot is one of its warnings
-            self.workspace.plot(self.out / "map.png",
-                                report.plot_title(Path(self.cfg.source).name, what="Mode over the workspace"))
+            self.workspace.plot(
+                self.out / "map.png", report.plot_title(Path(self.cfg.source).name, what="Mode over the workspace")
+            )
         if self.plots and self.move_results:
             plot_worst_move(self.move_results, self.out / "moves.png", Path(self.cfg.source).name, self.warnings)
-        self.result = self._summary(friction, plant, designs, upload, verification, time.monotonic() - started,
-                                    model=model)
+        self.result = self._summary(
+            friction, plant, designs, upload, verification, time.monotonic() - started, model=model
+        )
         self.summary = self.result.to_dict()
         write_json(self.out / "summary.json", self.summary)
         if self.plots:
@@ -449,8 +486,12 @@ class Session(DeviceConnection):
             raise ConfigError(error.key, error.message, cfg.source)
         modes = check_run_against_driver(cfg, driver)
         if cfg.map.enabled and not {"position", MAP_MODE} <= set(modes):
-            raise ConfigError("map", f"driver {driver.name!r} offers the modes {', '.join(modes) or 'none'}: a map "
-                                     f"needs position (to move) and {MAP_MODE} (to hold while exciting)", cfg.source)
+            raise ConfigError(
+                "map",
+                f"driver {driver.name!r} offers the modes {', '.join(modes) or 'none'}: a map "
+                f"needs position (to move) and {MAP_MODE} (to hold while exciting)",
+                cfg.source,
+            )
         check_auto_amplitude(cfg)  # again: a config changed in code after loading
         excitation = build_excitation(cfg)
         check_excitation_travel(cfg, excitation)
@@ -466,7 +507,8 @@ class Session(DeviceConnection):
                     "friction_test.speeds_mps",
                     f"the friction test travels up to {profile.max_excursion_m:.3f} m, more than half the "
                     f"position window [{lim.position_min_m:g}, {lim.position_max_m:g}] m (shorter hold_s or lower "
-                    "speeds)", cfg.source,
+                    "speeds)",
+                    cfg.source,
                 )
         return excitation, profile
 
@@ -494,15 +536,22 @@ class Session(DeviceConnection):
         setpoints = profile.setpoint_mps
         if self.friction_mode == "position":
             setpoints = sig.position_of(setpoints, self.cfg.run.sample_rate_hz)
-        exp = self.record("friction", self.friction_mode, setpoints,
-                          tables={"windows": {"start": windows[:, 0], "stop": windows[:, 1],
-                                              "velocity_mps": windows[:, 2]}})
+        exp = self.record(
+            "friction",
+            self.friction_mode,
+            setpoints,
+            tables={"windows": {"start": windows[:, 0], "stop": windows[:, 1], "velocity_mps": windows[:, 2]}},
+        )
         rows = self._rows_by_index(exp)
-        kept = [(rows[a], rows[b - 1] + 1, v) for a, b, v in profile.windows if a in rows and b - 1 in rows
-                and rows[b - 1] - rows[a] == b - 1 - a]
+        kept = [
+            (rows[a], rows[b - 1] + 1, v)
+            for a, b, v in profile.windows
+            if a in rows and b - 1 in rows and rows[b - 1] - rows[a] == b - 1 - a
+        ]
         self.progress.step("friction: fitting the friction curve")
-        result = pipeline.identify_friction(exp.samples["velocity_mps"], exp.samples["torque_nm"], kept,
-                                            self.cfg.friction_test.model)
+        result = pipeline.identify_friction(
+            exp.samples["velocity_mps"], exp.samples["torque_nm"], kept, self.cfg.friction_test.model
+        )
         self.warnings += result.warnings
         return result
 
@@ -536,8 +585,11 @@ class Session(DeviceConnection):
         if self.cfg.model.kind == "none" or "identification" not in self._analysed:
             return None
         s = self._analysed["identification"]
-        others = {name: (v["torque_nm"], v["position_m"]) for name, v in self._analysed.items()
-                  if name != "identification" and "position_m" in v}
+        others = {
+            name: (v["torque_nm"], v["position_m"])
+            for name, v in self._analysed.items()
+            if name != "identification" and "position_m" in v
+        }
         if "position_m" not in s:
             self.warnings.append(f"[model] {self.cfg.model.kind}: position_m was not recorded")
             return None
@@ -546,8 +598,9 @@ class Session(DeviceConnection):
             from hilident.session.offline import model_for_mode
 
             model = model_for_mode(self.cfg, self.cfg.excitation.mode)  # a held torque command in open loop
-            result = pipeline.fit_greybox(model, s["torque_nm"], s["position_m"], self.cfg.run.sample_rate_hz,
-                                          others or None)
+            result = pipeline.fit_greybox(
+                model, s["torque_nm"], s["position_m"], self.cfg.run.sample_rate_hz, others or None
+            )
         except DataError as exc:
             self.warnings.append(f"[model] {self.cfg.model.kind}: {exc}")
             return None
@@ -566,11 +619,18 @@ class Session(DeviceConnection):
         check_it_moved(cfg, s[ic.output], friction)
         self.progress.step(f"{exp.name}: frequency response and resonances")
         result = pipeline.identify_plant(
-            s["excitation"], s["torque_nm"], s[ic.output], s["velocity_mps"], cfg.run.sample_rate_hz, ic, band,
+            s["excitation"],
+            s["torque_nm"],
+            s[ic.output],
+            s["velocity_mps"],
+            cfg.run.sample_rate_hz,
+            ic,
+            band,
             friction=friction.fit.params if friction else None,
             velocity_deadband_mps=cfg.friction_test.velocity_deadband_mps,
             friction_slowest_mps=friction.slowest_mps if friction else 0.0,
-            period_samples=period, excited_bins=excitation.excited_bins,
+            period_samples=period,
+            excited_bins=excitation.excited_bins,
         )
         self.warnings += result.warnings
         return result
@@ -578,10 +638,16 @@ class Session(DeviceConnection):
     def _map_step(self, ident: Experiment, excitation: Excitation, friction, plant) -> None:
         """``[map]`` (:class:`~hilident.session.map_run.WorkspaceRun`): the mode at every mapped position and the
         joint fit, the axis back where the identification ran."""
-        self.workspace = WorkspaceRun(self.cfg, self.record,
-                                      lambda exp, exc: self._identify(exp, exc, friction, for_model=False),
-                                      self._analysis_samples, lambda: self.position_m, self.progress, self.warnings,
-                                      filter_input=self.found_driver.filter_input_channel)
+        self.workspace = WorkspaceRun(
+            self.cfg,
+            self.record,
+            lambda exp, exc: self._identify(exp, exc, friction, for_model=False),
+            self._analysis_samples,
+            lambda: self.position_m,
+            self.progress,
+            self.warnings,
+            filter_input=self.found_driver.filter_input_channel,
+        )
         reference = plant.resonances[0].frequency_hz if plant.resonances else None
         self.workspace.map(float(ident.samples["position_m"][-1]), reference)
 
@@ -599,9 +665,20 @@ class Session(DeviceConnection):
             mapped = workspace.mode_at(position_m) if workspace is not None else None
             return [mapped] if mapped is not None else resonances
 
-        return run_move_tests(self.cfg, self.record, self.progress, self.warnings, self.found_driver, self.adapter,
-                              designs, upload.written and upload.verified_readback, start, places,
-                              lambda: self.position_m, modes_at)
+        return run_move_tests(
+            self.cfg,
+            self.record,
+            self.progress,
+            self.warnings,
+            self.found_driver,
+            self.adapter,
+            designs,
+            upload.written and upload.verified_readback,
+            start,
+            places,
+            lambda: self.position_m,
+            modes_at,
+        )
 
     def _notch_step(self, plant):
         nc = self.cfg.notch
@@ -615,8 +692,10 @@ class Session(DeviceConnection):
         if ad.identity.filter_slots < 1:
             # designed all the same, for the user to enter by hand or to describe the drive's filter objects
             designs = pipeline.design_notches(resonances, nc, ad.identity.loop_rate_hz, [0], plant.loop)
-            upload.not_uploaded = (f"driver {self.found_driver.name!r} describes no filter capability (no [filters] "
-                                   "table in its driver.toml): the designed notch was not uploaded")
+            upload.not_uploaded = (
+                f"driver {self.found_driver.name!r} describes no filter capability (no [filters] "
+                "table in its driver.toml): the designed notch was not uploaded"
+            )
             self.warnings.append(upload.not_uploaded)
             return designs, upload
         slots = list(range(ad.identity.filter_slots))
@@ -635,8 +714,9 @@ class Session(DeviceConnection):
         """The resonances the evidence supports a notch for; why the others get none goes to warnings and upload."""
         e = self.cfg.excitation
         amplitude = e.amplitude if isinstance(e.amplitude, (int, float)) else None
-        decision = pipeline.notch_decision(plant, self.cfg.identification.coherence_threshold, e.amplitude_key,
-                                           amplitude)
+        decision = pipeline.notch_decision(
+            plant, self.cfg.identification.coherence_threshold, e.amplitude_key, amplitude
+        )
         self.warnings += decision.warnings
         if decision.skipped_reason is not None:
             upload.skipped_reason = decision.skipped_reason
@@ -662,20 +742,30 @@ class Session(DeviceConnection):
     def _verify(self, excitation: Excitation, plant, designs):
         if not designs or not self.cfg.notch.verify or not self._uploaded:
             return None
-        exp = self.record("verification", self.cfg.excitation.mode, excitation.samples,
-                          period_samples=excitation.period_samples, recipe=excitation_recipe(self.cfg))
+        exp = self.record(
+            "verification",
+            self.cfg.excitation.mode,
+            excitation.samples,
+            period_samples=excitation.period_samples,
+            recipe=excitation_recipe(self.cfg),
+        )
         s = self._analysis_samples(exp, excitation)
         self._analysed["verification"] = s
         self.progress.step("verification: frequency response")
         loop_after, warnings = pipeline.loop_response(
-            s["excitation"], s[self.cfg.identification.output], self.cfg.run.sample_rate_hz,
-            self.cfg.identification, excitation.period_samples, excitation.excited_bins,
+            s["excitation"],
+            s[self.cfg.identification.output],
+            self.cfg.run.sample_rate_hz,
+            self.cfg.identification,
+            excitation.period_samples,
+            excitation.excited_bins,
         )
         self.warnings += warnings
         nc = self.cfg.notch
         # one row per resonance: the staggered notches of a covering design share theirs
-        resonances = list({(d.resonance.frequency_hz, d.resonance.damping_ratio): d.resonance
-                           for d in designs}.values())
+        resonances = list(
+            {(d.resonance.frequency_hz, d.resonance.damping_ratio): d.resonance for d in designs}.values()
+        )
         reductions = pipeline.peak_reductions(plant.loop, loop_after, resonances, nc.verify_band_bandwidths)
         for row, resonance in zip(reductions, resonances, strict=True):
             floor = pipeline.band_floor_db(plant.loop, loop_after, resonance, nc.verify_band_bandwidths)
@@ -684,9 +774,12 @@ class Session(DeviceConnection):
         band = min(reductions, key=lambda r: r["band_reduction_db"])
         at_peak = min(r["reduction_db"] for r in reductions)
         if band["band_reduction_db"] < nc.min_reduction_db:
-            floor = (f"; it is within {pipeline.FLOOR_HEADROOM_DB:g} dB of the {band['floor_db']:.1f} dB its record's "
-                     "noise lets it show: a verification of more periods ([excitation] duration_s) lowers that floor"
-                     if band["floor_limited"] and np.isfinite(band["floor_db"]) else "")
+            floor = (
+                f"; it is within {pipeline.FLOOR_HEADROOM_DB:g} dB of the {band['floor_db']:.1f} dB its record's "
+                "noise lets it show: a verification of more periods ([excitation] duration_s) lowers that floor"
+                if band["floor_limited"] and np.isfinite(band["floor_db"])
+                else ""
+            )
             self.warnings.append(
                 f"verification: the largest response within +-{nc.verify_band_bandwidths:g} half-power bandwidths of "
                 f"{band['frequency_hz']:.4g} Hz dropped by only {band['band_reduction_db']:.1f} dB (at the resonance "
@@ -696,8 +789,9 @@ class Session(DeviceConnection):
 
     # --- outputs ----------------------------------------------------------------------------
 
-    def _write_partial_summary(self, step: str, exc: BaseException, friction, plant, designs, upload,
-                               verification, elapsed_s: float) -> None:
+    def _write_partial_summary(
+        self, step: str, exc: BaseException, friction, plant, designs, upload, verification, elapsed_s: float
+    ) -> None:
         """``summary.json`` of a session a step of which failed after others succeeded: their results, the
         failed step's name (``failed_step``) and its error."""
         summary = self._summary(friction, plant, designs, upload, verification, elapsed_s).failed(step, str(exc))
@@ -705,32 +799,70 @@ class Session(DeviceConnection):
         html_report.write_report_quietly(self.out)
         self.progress.step(f"wrote {self.out / 'summary.json'} up to the failed step ({step})")
 
-    def _summary(self, friction, plant, designs, upload: UploadOutcome, verification: VerificationPart | None,
-                 elapsed_s: float, model=NOT_REACHED) -> Summary:
+    def _summary(
+        self,
+        friction,
+        plant,
+        designs,
+        upload: UploadOutcome,
+        verification: VerificationPart | None,
+        elapsed_s: float,
+        model=NOT_REACHED,
+    ) -> Summary:
         """The run's :class:`~hilident.io.summary.Summary` (``model`` left out when the run failed before it)."""
         cfg, ad = self.cfg, self.adapter
         connect = ad.connect_report.to_dict() if ad is not None and hasattr(ad, "connect_report") else None
         return Summary.of_run(
-            config=cfg.source, device=DevicePart(self.found_driver.name, ad.port if ad else None, cfg.uses_emulator),
-            sample_rate_hz=cfg.run.sample_rate_hz, excitation=ExcitationPart.of(cfg.excitation, self._auto),
-            plant=plant, friction=friction, designs=designs, upload=upload, verification=verification,
-            stream=self.totals, connect=connect, filters_found=self.filters_found,
-            recordings=sorted(p.name for p in self.out.glob("*.h5")), elapsed_s=elapsed_s, warnings=self.warnings,
-            model=model, workspace_map=self.workspace.points if self.workspace else None,
-            move_test=self.move_results, workspace=self.workspace.summary if self.workspace else None)
+            config=cfg.source,
+            device=DevicePart(self.found_driver.name, ad.port if ad else None, cfg.uses_emulator),
+            sample_rate_hz=cfg.run.sample_rate_hz,
+            excitation=ExcitationPart.of(cfg.excitation, self._auto),
+            plant=plant,
+            friction=friction,
+            designs=designs,
+            upload=upload,
+            verification=verification,
+            stream=self.totals,
+            connect=connect,
+            filters_found=self.filters_found,
+            recordings=sorted(p.name for p in self.out.glob("*.h5")),
+            elapsed_s=elapsed_s,
+            warnings=self.warnings,
+            model=model,
+            workspace_map=self.workspace.points if self.workspace else None,
+            move_test=self.move_results,
+            workspace=self.workspace.summary if self.workspace else None,
+        )
 
     def _plots(self, friction, plant, designs, verification, excitation_band_hz, model=None) -> None:
-        report.plot_run(self.out, friction, plant, designs, verification.loop_after if verification else None,
-                        self.cfg.identification.coherence_threshold, summary=self.summary,
-                        band_hz=pipeline.analysis_band(self.cfg.identification, excitation_band_hz),
-                        output=self.cfg.identification.output)
+        report.plot_run(
+            self.out,
+            friction,
+            plant,
+            designs,
+            verification.loop_after if verification else None,
+            self.cfg.identification.coherence_threshold,
+            summary=self.summary,
+            band_hz=pipeline.analysis_band(self.cfg.identification, excitation_band_hz),
+            output=self.cfg.identification.output,
+        )
         if model is not None:  # model.png: the fit of _greybox on the records it used
             from hilident.session.offline import model_for_mode
 
             s = self._analysed
-            others = {name: (v["torque_nm"], v["position_m"]) for name, v in s.items()
-                      if name != "identification" and "position_m" in v}
-            records = report.greybox_records(self.cfg.model.holdout, (s["identification"]["torque_nm"],
-                                                                      s["identification"]["position_m"]), others)
-            report.plot_model(self.out / "model.png", model_for_mode(self.cfg, self.cfg.excitation.mode), model,
-                              records, self.cfg.run.sample_rate_hz, report.plot_title(Path(self.cfg.source).name))
+            others = {
+                name: (v["torque_nm"], v["position_m"])
+                for name, v in s.items()
+                if name != "identification" and "position_m" in v
+            }
+            records = report.greybox_records(
+                self.cfg.model.holdout, (s["identification"]["torque_nm"], s["identification"]["position_m"]), others
+            )
+            report.plot_model(
+                self.out / "model.png",
+                model_for_mode(self.cfg, self.cfg.excitation.mode),
+                model,
+                records,
+                self.cfg.run.sample_rate_hz,
+                report.plot_title(Path(self.cfg.source).name),
+            )

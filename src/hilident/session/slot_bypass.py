@@ -33,8 +33,14 @@ class BypassedSlots:
         self.found = []
         for slot in range(adapter.identity.filter_slots):
             biquad, enabled = adapter.read_filter(slot)
-            self.found.append({"slot": slot, "enabled": bool(enabled), "b": [float(x) for x in biquad.b],
-                               "a": [float(x) for x in biquad.a]})
+            self.found.append(
+                {
+                    "slot": slot,
+                    "enabled": bool(enabled),
+                    "b": [float(x) for x in biquad.b],
+                    "a": [float(x) for x in biquad.a],
+                }
+            )
 
     def bypass(self, adapter, progress) -> None:
         """Bypass every slot that filters now, so identification measures the bare plant."""

@@ -93,8 +93,14 @@ def upload_design(adapter, design, warnings: list[str]) -> dict:
             f"{achieved['realisable_db']:.1f} dB at the resonance "
             f"(designed {d.spec.depth_db:g} dB; notches far below the {d.sample_rate_hz:g} Hz filter rate suffer)"
         )
-    return {"slot": d.slot, "readback_b": list(stored.b), "readback_a": list(stored.a), "matches": same,
-            "achieved": achieved, "_expected": expected}
+    return {
+        "slot": d.slot,
+        "readback_b": list(stored.b),
+        "readback_a": list(stored.a),
+        "matches": same,
+        "achieved": achieved,
+        "_expected": expected,
+    }
 
 
 def upload_designs(adapter, designs: list, warnings: list[str], upload: UploadOutcome) -> UploadOutcome:
@@ -199,22 +205,29 @@ def notch_records(src: Source) -> list[dict]:
     if not isinstance(records, list):
         raise DataError(f"{src.path}: notch_filters must be a list")
     if not records:
-        raise DataError(f"{src.path}: notch_filters is empty, the {src.kind} designed no notch to upload"
-                        + _no_notch_reason(src.summary))
+        raise DataError(
+            f"{src.path}: notch_filters is empty, the {src.kind} designed no notch to upload"
+            + _no_notch_reason(src.summary)
+        )
     for i, rec in enumerate(records):
         if not isinstance(rec, dict):
             raise DataError(f"{src.path}: notch_filters[{i}] is not a record")
         for key in _NOTCH_KEYS:
             value = rec.get(key)
             values = value if key in ("b", "a") else [value]
-            ok = isinstance(values, list) and len(values) == (3 if key in ("b", "a") else 1) and all(
-                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values)
+            ok = (
+                isinstance(values, list)
+                and len(values) == (3 if key in ("b", "a") else 1)
+                and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values)
+            )
             if key == "depth_db" and isinstance(value, (int, float)) and value == math.inf:
                 ok = True
             if not ok:
-                raise DataError(f"{src.path}: notch_filters[{i}].{key} is missing or not "
-                                + ("three finite numbers" if key in ("b", "a") else "a finite number")
-                                + f" (got {value!r})")
+                raise DataError(
+                    f"{src.path}: notch_filters[{i}].{key} is missing or not "
+                    + ("three finite numbers" if key in ("b", "a") else "a finite number")
+                    + f" (got {value!r})"
+                )
     return records
 
 
@@ -222,22 +235,36 @@ def _resonance_for(src: Source, rec: dict, index: int):
     """The resonance of ``summary["resonances"]`` a notch was designed for (its centre is the resonance's frequency)."""
     from hilident.ident.resonance import Resonance
 
-    found = [r for r in src.summary.get("resonances") or [] if isinstance(r, dict)
-             and isinstance(r.get("frequency_hz"), (int, float)) and isinstance(r.get("damping_ratio"), (int, float))]
+    found = [
+        r
+        for r in src.summary.get("resonances") or []
+        if isinstance(r, dict)
+        and isinstance(r.get("frequency_hz"), (int, float))
+        and isinstance(r.get("damping_ratio"), (int, float))
+    ]
     if not found:
-        raise DataError(f"{src.path}: notch_filters[{index}] must be redesigned for the device's filter rate, but "
-                        "resonances holds no frequency_hz and damping_ratio to design it from")
+        raise DataError(
+            f"{src.path}: notch_filters[{index}] must be redesigned for the device's filter rate, but "
+            "resonances holds no frequency_hz and damping_ratio to design it from"
+        )
     r = min(found, key=lambda r: abs(r["frequency_hz"] - rec["center_hz"]))
     if abs(r["frequency_hz"] - rec["center_hz"]) > 1e-6 * rec["center_hz"]:
-        raise DataError(f"{src.path}: notch_filters[{index}] ({rec['center_hz']:.6g} Hz) matches no entry of "
-                        "resonances, so it cannot be redesigned for the device's filter rate")
+        raise DataError(
+            f"{src.path}: notch_filters[{index}] ({rec['center_hz']:.6g} Hz) matches no entry of "
+            "resonances, so it cannot be redesigned for the device's filter rate"
+        )
 
     def number(key: str) -> float:
         return float(r[key]) if isinstance(r.get(key), (int, float)) else float("nan")
 
-    return Resonance(float(r["frequency_hz"]), float(r["damping_ratio"]), number("peak_magnitude_db"),
-                     number("coherence"), frequency_ci95_hz=number("frequency_ci95_hz"),
-                     damping_ci95=number("damping_ci95"))
+    return Resonance(
+        float(r["frequency_hz"]),
+        float(r["damping_ratio"]),
+        number("peak_magnitude_db"),
+        number("coherence"),
+        frequency_ci95_hz=number("frequency_ci95_hz"),
+        damping_ci95=number("damping_ci95"),
+    )
 
 
 def designs_for_device(src: Source, cfg, loop_rate_hz: float, slots: list[int], warnings: list[str]) -> list:
@@ -265,15 +292,20 @@ def designs_for_device(src: Source, cfg, loop_rate_hz: float, slots: list[int], 
                 res = _resonance_for(src, rec, i)
             except DataError:
                 res = None  # not needed: the coefficients are taken as designed
-            designs.append(pipeline.NotchDesign(spec, biquad, slot, loop_rate_hz, res,
-                                                float(rec.get("predicted_band_reduction_db", float("nan")))))
+            designs.append(
+                pipeline.NotchDesign(
+                    spec, biquad, slot, loop_rate_hz, res, float(rec.get("predicted_band_reduction_db", float("nan")))
+                )
+            )
             continue
         res = _resonance_for(src, rec, i)
         (d,) = pipeline.design_notches([res], cfg.notch, loop_rate_hz, [slot])
-        warnings.append(f"notch at {rec['center_hz']:.4g} Hz: designed for a {rate:g} Hz filter rate in {src.path}, "
-                        f"the device filters at {loop_rate_hz:g} Hz: designed again from its resonance "
-                        f"({res.frequency_hz:.4g} Hz, zeta {res.damping_ratio:.3g}) with [notch] of the configuration: "
-                        f"{d.spec.width_hz:.3g} Hz wide, {d.spec.depth_db:g} dB deep")
+        warnings.append(
+            f"notch at {rec['center_hz']:.4g} Hz: designed for a {rate:g} Hz filter rate in {src.path}, "
+            f"the device filters at {loop_rate_hz:g} Hz: designed again from its resonance "
+            f"({res.frequency_hz:.4g} Hz, zeta {res.damping_ratio:.3g}) with [notch] of the configuration: "
+            f"{d.spec.width_hz:.3g} Hz wide, {d.spec.depth_db:g} dB deep"
+        )
         if d.warning:
             warnings.append(d.warning)
         designs.append(d)
@@ -300,15 +332,19 @@ def slots_for(count: int, first: int | None, designed: list[object], filter_slot
     """
     if first is not None:
         if first < 0 or first + count > filter_slots:
-            raise UsageError(f"--slot {first}: {count} notch(es) from slot {first} do not fit the "
-                             f"{filter_slots} filter slot(s) of {driver_name} (slots 0 to {filter_slots - 1})")
+            raise UsageError(
+                f"--slot {first}: {count} notch(es) from slot {first} do not fit the "
+                f"{filter_slots} filter slot(s) of {driver_name} (slots 0 to {filter_slots - 1})"
+            )
         return list(range(first, first + count))
     whole = [s for s in designed if isinstance(s, int) and not isinstance(s, bool)]
     if len(whole) == len(designed) and len(set(whole)) == count and all(0 <= s < filter_slots for s in whole):
         return whole
     if count > filter_slots:
-        raise UsageError(f"the source has {count} notches but {driver_name} has {filter_slots} filter slot(s): "
-                         "upload them one by one with --slot")
+        raise UsageError(
+            f"the source has {count} notches but {driver_name} has {filter_slots} filter slot(s): "
+            "upload them one by one with --slot"
+        )
     return list(range(count))
 
 
@@ -326,23 +362,35 @@ class UploadPlan:
         lines = [f"upload plan for {self.driver} on {self.port} (notches of {self.source}); nothing moves:"]
         for r in self.rows:
             now = "enabled" if r["before"]["enabled"] else "disabled"
-            lines.append(f"  slot {r['slot']} (now {now}): notch {r['center_hz']:.5g} Hz, {r['width_hz']:.4g} Hz wide, "
-                         f"{r['depth_db']:.4g} dB deep")
+            lines.append(
+                f"  slot {r['slot']} (now {now}): notch {r['center_hz']:.5g} Hz, {r['width_hz']:.4g} Hz wide, "
+                f"{r['depth_db']:.4g} dB deep"
+            )
             if r.get("parameters"):
-                lines.append("    the drive's parameters will be " + ", ".join(
-                    f"{p['parameter'] or p['register']} = {p['value']}" for p in r["parameters"].values()))
-            lines.append(f"    the device will hold b = {_coeffs(r['expected_b'])}, a = {_coeffs(r['expected_a'])}: "
-                         f"{r['achieved']['attenuation_at_design_center_db']:.1f} dB at {r['center_hz']:.5g} Hz "
-                         f"({r['achieved']['depth_error_db']:+.2f} dB from the design: its quantisation), deepest at "
-                         f"{r['achieved']['center_hz']:.5g} Hz")
-        lines.append("  each slot written disabled, read back, enabled only when equal; any failure puts every slot "
-                     "back as it was" + ("; then the parameters are stored in non-volatile memory (--save)"
-                                         if self.save else ""))
+                lines.append(
+                    "    the drive's parameters will be "
+                    + ", ".join(f"{p['parameter'] or p['register']} = {p['value']}" for p in r["parameters"].values())
+                )
+            lines.append(
+                f"    the device will hold b = {_coeffs(r['expected_b'])}, a = {_coeffs(r['expected_a'])}: "
+                f"{r['achieved']['attenuation_at_design_center_db']:.1f} dB at {r['center_hz']:.5g} Hz "
+                f"({r['achieved']['depth_error_db']:+.2f} dB from the design: its quantisation), deepest at "
+                f"{r['achieved']['center_hz']:.5g} Hz"
+            )
+        lines.append(
+            "  each slot written disabled, read back, enabled only when equal; any failure puts every slot "
+            "back as it was" + ("; then the parameters are stored in non-volatile memory (--save)" if self.save else "")
+        )
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
-        return {"driver": self.driver, "port": self.port, "source": str(self.source), "slots": self.rows,
-                "save": self.save}
+        return {
+            "driver": self.driver,
+            "port": self.port,
+            "source": str(self.source),
+            "slots": self.rows,
+            "save": self.save,
+        }
 
 
 def _coeffs(values) -> str:
@@ -386,9 +434,17 @@ class UploadCommand:
         Connect, read the slots, show the plan; write nothing to the device or the disk.
     """
 
-    def __init__(self, cfg, source: str | Path, out_dir: str | Path | None = None, progress=None,
-                 confirm: Callable | None = None, slot: int | None = None, save: bool = False,
-                 dry_run: bool = False):
+    def __init__(
+        self,
+        cfg,
+        source: str | Path,
+        out_dir: str | Path | None = None,
+        progress=None,
+        confirm: Callable | None = None,
+        slot: int | None = None,
+        save: bool = False,
+        dry_run: bool = False,
+    ):
         self.cfg = cfg
         self.source = read_source(source)
         notch_records(self.source)  # no notch: refused before anything is opened
@@ -422,8 +478,15 @@ class UploadCommand:
         if not self.dry_run:
             self._prepare_out()
         dev = self.device
-        state: dict[str, Any] = {"before": [], "designs": [], "slots": [], "rolled_back": [], "saved": False,
-                                 "step": "connect", "touched": []}
+        state: dict[str, Any] = {
+            "before": [],
+            "designs": [],
+            "slots": [],
+            "rolled_back": [],
+            "saved": False,
+            "step": "connect",
+            "touched": [],
+        }
         failed = False
         try:
             dev.find_driver()
@@ -455,8 +518,7 @@ class UploadCommand:
         finally:
             with endings.shielded():
                 dev.close()
-                if failed and self._created_out and not self.summary \
-                        and not any(self.out.iterdir()):
+                if failed and self._created_out and not self.summary and not any(self.out.iterdir()):
                     self.out.rmdir()  # refused before anything was written: no empty folder left behind
         endings.raise_pending()
         return self._write(state, started)
@@ -479,14 +541,21 @@ class UploadCommand:
         ident, driver = dev.adapter.identity, dev.found_driver
         driver_toml = driver.folder / "driver.toml"
         if ident.filter_slots < 1:
-            raise ConfigError("filters", f"driver {driver.name!r} describes no filter capability (no [filters] "
-                                         "table): there is no slot to upload a notch to", str(driver_toml))
+            raise ConfigError(
+                "filters",
+                f"driver {driver.name!r} describes no filter capability (no [filters] "
+                "table): there is no slot to upload a notch to",
+                str(driver_toml),
+            )
         if self.save and getattr(dev.adapter, "save_parameters", None) is None:
-            raise UsageError(f"--save: a {driver.transport} device has no store-parameters command in hilident "
-                             "(upload without --save)")
+            raise UsageError(
+                f"--save: a {driver.transport} device has no store-parameters command in hilident "
+                "(upload without --save)"
+            )
         records = notch_records(self.source)
-        slots = slots_for(len(records), self.first_slot, [r.get("slot") for r in records], ident.filter_slots,
-                          dev.found_driver.name)
+        slots = slots_for(
+            len(records), self.first_slot, [r.get("slot") for r in records], ident.filter_slots, dev.found_driver.name
+        )
         return designs_for_device(self.source, self.cfg, float(ident.loop_rate_hz), slots, self.warnings)
 
     def _read_slots(self) -> list[dict]:
@@ -495,9 +564,16 @@ class UploadCommand:
         out = []
         for slot in range(ad.identity.filter_slots):
             biquad, enabled = ad.read_filter(slot)
-            out.append({"slot": slot, "enabled": bool(enabled), "b": [float(x) for x in biquad.b],
-                        "a": [float(x) for x in biquad.a], "_saved": ad.save_filter(slot),
-                        **_parameters_of(ad, slot)})
+            out.append(
+                {
+                    "slot": slot,
+                    "enabled": bool(enabled),
+                    "b": [float(x) for x in biquad.b],
+                    "a": [float(x) for x in biquad.a],
+                    "_saved": ad.save_filter(slot),
+                    **_parameters_of(ad, slot),
+                }
+            )
         return out
 
     def _plan(self, designs: list, before: list[dict]) -> UploadPlan:
@@ -508,12 +584,19 @@ class UploadCommand:
         for d in designs:
             expected = ad.stored_form(d.biquad, d.spec)
             was = before[d.slot]
-            plan.rows.append({"slot": d.slot, "center_hz": d.spec.center_hz, "width_hz": d.spec.width_hz,
-                              "depth_db": d.spec.depth_db, "expected_b": list(expected.b),
-                              "expected_a": list(expected.a),
-                              "achieved": pipeline.achieved_notch(d, expected, planned=expected),
-                              "before": {"enabled": was["enabled"], "b": was["b"], "a": was["a"]},
-                              **_planned_parameters_of(ad, d.slot, d.spec)})
+            plan.rows.append(
+                {
+                    "slot": d.slot,
+                    "center_hz": d.spec.center_hz,
+                    "width_hz": d.spec.width_hz,
+                    "depth_db": d.spec.depth_db,
+                    "expected_b": list(expected.b),
+                    "expected_a": list(expected.a),
+                    "achieved": pipeline.achieved_notch(d, expected, planned=expected),
+                    "before": {"enabled": was["enabled"], "b": was["b"], "a": was["a"]},
+                    **_planned_parameters_of(ad, d.slot, d.spec),
+                }
+            )
         return plan
 
     def _arm(self, plan: UploadPlan) -> None:
@@ -530,14 +613,17 @@ class UploadCommand:
             state["touched"].append(d.slot)  # from here a failure puts this slot back too
             record = upload_design(self.device.adapter, d, self.warnings)
             expected = record.pop("_expected")
-            record.update(expected_b=list(expected.b), expected_a=list(expected.a),
-                          **_parameters_of(self.device.adapter, d.slot))
+            record.update(
+                expected_b=list(expected.b), expected_a=list(expected.a), **_parameters_of(self.device.adapter, d.slot)
+            )
             state["slots"].append(record)
             if not record["matches"]:
-                raise DeviceError(f"{self.device.adapter.port}: filter slot {d.slot} read back "
-                                  f"b = {_coeffs(record['readback_b'])}, a = {_coeffs(record['readback_a'])}, not "
-                                  f"the b = {_coeffs(record['expected_b'])}, a = {_coeffs(record['expected_a'])} "
-                                  "written: every slot was put back as it was")
+                raise DeviceError(
+                    f"{self.device.adapter.port}: filter slot {d.slot} read back "
+                    f"b = {_coeffs(record['readback_b'])}, a = {_coeffs(record['readback_a'])}, not "
+                    f"the b = {_coeffs(record['expected_b'])}, a = {_coeffs(record['expected_a'])} "
+                    "written: every slot was put back as it was"
+                )
             self.progress.step(f"  slot {d.slot}: read back as written, enabled")
 
     def _roll_back(self, state: dict) -> None:
@@ -563,17 +649,33 @@ class UploadCommand:
         slots = state["slots"]
         written = bool(slots)
         verified = written and all(s["matches"] for s in slots) and len(slots) == len(state["designs"])
-        upload = UploadOutcome(written and not state["rolled_back"], verified, slots,
-                               rolled_back=state["rolled_back"], saved=state["saved"],
-                               saved_with=state.get("saved_with"))
+        upload = UploadOutcome(
+            written and not state["rolled_back"],
+            verified,
+            slots,
+            rolled_back=state["rolled_back"],
+            saved=state["saved"],
+            saved_with=state.get("saved_with"),
+        )
         result = Summary.of_upload(
             config=self.cfg.source,
-            source={"summary": str(self.source.path), "kind": self.source.kind,
-                    "notch_filters": self.source.summary.get("notch_filters")},
-            device=DevicePart.reported(dev.found_driver.name if dev.driver else None, ad.port if ad else None,
-                                       self.cfg.uses_emulator, ad.identity if ad is not None else None),
+            source={
+                "summary": str(self.source.path),
+                "kind": self.source.kind,
+                "notch_filters": self.source.summary.get("notch_filters"),
+            },
+            device=DevicePart.reported(
+                dev.found_driver.name if dev.driver else None,
+                ad.port if ad else None,
+                self.cfg.uses_emulator,
+                ad.identity if ad is not None else None,
+            ),
             filters_before=[{k: v for k, v in b.items() if k != "_saved"} for b in state["before"]],
-            designs=state["designs"], upload=upload, elapsed_s=time.monotonic() - started, warnings=self.warnings)
+            designs=state["designs"],
+            upload=upload,
+            elapsed_s=time.monotonic() - started,
+            warnings=self.warnings,
+        )
         if failure:
             result.failed(failure["failed_step"], failure["error"])
         summary = result.to_dict()
@@ -608,7 +710,11 @@ class _Device(DeviceConnection):
 
         d = find_driver(self.cfg.device.driver, self.cfg.device.driver_paths)
         if d.placeholders and not self.cfg.uses_emulator:
-            raise ConfigError("driver.placeholders", f"driver {d.name!r} still has guessed values for "
-                              f"{', '.join(d.placeholders)}: set them to the drive's real values (and remove "
-                              "them from the list) before a real port", str(d.folder / DESCRIPTION_FILE))
+            raise ConfigError(
+                "driver.placeholders",
+                f"driver {d.name!r} still has guessed values for "
+                f"{', '.join(d.placeholders)}: set them to the drive's real values (and remove "
+                "them from the list) before a real port",
+                str(d.folder / DESCRIPTION_FILE),
+            )
         self.driver = d

@@ -99,9 +99,7 @@ def n_samples(key: str, duration_s: float, sample_rate_hz: float) -> int:
         raise ConfigError(key, f"{duration_s:g} s at {sample_rate_hz:g} Hz {too_many(exact)}")
     n = int(round(exact))
     if n < 1:
-        raise ConfigError(
-            key, f"{duration_s:g} s is shorter than one sample at {sample_rate_hz:g} Hz"
-        )
+        raise ConfigError(key, f"{duration_s:g} s is shorter than one sample at {sample_rate_hz:g} Hz")
     return n
 
 

@@ -105,6 +105,7 @@ def _aperiodic(e: Any, fs: float, amplitude: float, seed: int | None) -> tuple[n
     if e.kind == "chirp":
         return sig.chirp(amplitude, e.f_min_hz, e.f_max_hz, e.duration_s, fs, method=e.chirp_method), band
     if e.kind == "noise":
-        return sig.band_limited_noise(amplitude / 3.0, e.f_min_hz, e.f_max_hz, e.duration_s, fs, seed=seed,
-                                      peak=amplitude), band
+        return sig.band_limited_noise(
+            amplitude / 3.0, e.f_min_hz, e.f_max_hz, e.duration_s, fs, seed=seed, peak=amplitude
+        ), band
     return sig.step(amplitude, e.duration_s, fs, step_time_s=0.1 * e.duration_s), band

@@ -125,9 +125,7 @@ def step(amplitude, duration_s, sample_rate_hz, step_time_s=0.0) -> np.ndarray:
     a = chk.finite("amplitude", amplitude)
     t_step = chk.non_negative("step_time_s", step_time_s)
     if t_step >= float(duration_s):
-        raise ConfigError(
-            "step_time_s", f"must be before the end {float(duration_s):g} s, got {t_step:g}"
-        )
+        raise ConfigError("step_time_s", f"must be before the end {float(duration_s):g} s, got {t_step:g}")
     i = int(math.ceil(t_step * float(sample_rate_hz) - 1e-9))
     x = np.zeros_like(t)
     x[i:] = a
@@ -152,9 +150,7 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(x))))
 
 
-def band_limited_noise(
-    rms, f_min_hz, f_max_hz, duration_s, sample_rate_hz, seed, peak=None
-) -> np.ndarray:
+def band_limited_noise(rms, f_min_hz, f_max_hz, duration_s, sample_rate_hz, seed, peak=None) -> np.ndarray:
     """Gaussian noise whose spectrum is flat in ``[f_min_hz, f_max_hz]`` and zero outside.
 
     White noise from ``numpy.random.default_rng(seed)`` is band-limited by zeroing
@@ -199,8 +195,7 @@ def band_limited_noise(
     if not mask.any():
         raise ConfigError(
             "duration_s",
-            f"too short: no FFT bin (spacing {fs / t.size:g} Hz) lies in "
-            f"[{f_min:g}, {f_max:g}] Hz",
+            f"too short: no FFT bin (spacing {fs / t.size:g} Hz) lies in [{f_min:g}, {f_max:g}] Hz",
         )
     rng = np.random.default_rng(seed)
     x = _band_limit(rng.standard_normal(t.size), mask)
@@ -374,15 +369,11 @@ def multisine(
                 raise ConfigError("seed", "phases='random' needs an explicit seed")
             phi = np.random.default_rng(seed).uniform(0.0, 2.0 * np.pi, bins.size)
         else:
-            raise ConfigError(
-                "phases", f"must be 'schroeder', 'random' or an array, got {chk.show(phases)}"
-            )
+            raise ConfigError("phases", f"must be 'schroeder', 'random' or an array, got {chk.show(phases)}")
     else:
         phi = np.asarray(phases, dtype=float).ravel()
         if phi.size != bins.size or not np.all(np.isfinite(phi)):
-            raise ConfigError(
-                "phases", f"needs {bins.size} finite phases (one per line), got {phi.size}"
-            )
+            raise ConfigError("phases", f"needs {bins.size} finite phases (one per line), got {phi.size}")
 
     spectrum = np.zeros(period // 2 + 1, dtype=complex)
     spectrum[bins] = np.exp(1j * phi)
@@ -430,9 +421,7 @@ class RampProfile:
         return max(abs(self.excursion_m[0]), abs(self.excursion_m[1]))
 
 
-def velocity_ramps(
-    speeds_mps, hold_s, accel_mps2, sample_rate_hz, settle_s, alternate=True
-) -> RampProfile:
+def velocity_ramps(speeds_mps, hold_s, accel_mps2, sample_rate_hz, settle_s, alternate=True) -> RampProfile:
     """Trapezoidal velocity legs, one per speed, for steady-state friction tests.
 
     Each leg starts at rest, ramps to ``v`` at (at most) ``accel_mps2``, holds
@@ -464,8 +453,7 @@ def velocity_ramps(
     >>> [w[2] for w in p.windows]
     [0.01, -0.01, 0.05, -0.05]
     """
-    fs, legs, ramps, n_hold, n_settle = _ramp_legs(speeds_mps, hold_s, accel_mps2, sample_rate_hz, settle_s,
-                                                   alternate)
+    fs, legs, ramps, n_hold, n_settle = _ramp_legs(speeds_mps, hold_s, accel_mps2, sample_rate_hz, settle_s, alternate)
     speeds = tuple(legs[::2] if alternate else legs)
     pieces: list[np.ndarray] = []
     windows: list[tuple[int, int, float]] = []
@@ -518,9 +506,7 @@ def fade(x, ramp_s, sample_rate_hz) -> np.ndarray:
     fs = chk.positive("sample_rate_hz", sample_rate_hz)
     n_ramp = int(round(chk.non_negative("ramp_s", ramp_s) * fs))
     if 2 * n_ramp > y.size:
-        raise ConfigError(
-            "ramp_s", f"two ramps of {n_ramp} samples do not fit into {y.size} samples"
-        )
+        raise ConfigError("ramp_s", f"two ramps of {n_ramp} samples do not fit into {y.size} samples")
     if n_ramp:
         w = 0.5 - 0.5 * np.cos(np.pi * np.arange(n_ramp) / n_ramp)
         y[:n_ramp] *= w

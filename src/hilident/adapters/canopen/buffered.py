@@ -56,14 +56,17 @@ class BufferedRun(RunStrategy):
         ad, n = self.ad, self.n
         capacity = int(ad.read("table_capacity"))
         if n > capacity:
-            raise DeviceError(f"{ad.port}: the excitation has {n} samples; the drive's table holds {capacity} "
-                              f"({self.where('table_capacity')}); use device.acquisition = \"streamed\" "
-                              "or a shorter run")
+            raise DeviceError(
+                f"{ad.port}: the excitation has {n} samples; the drive's table holds {capacity} "
+                f'({self.where("table_capacity")}); use device.acquisition = "streamed" '
+                "or a shorter run"
+            )
         ad.write_domain(ad.desc.address("table"), np.asarray(self.x, dtype="<f4").tobytes())
         length = int(ad.read("table_length"))
         if length != n:
-            raise DeviceError(f"{ad.port}: wrote {n} table samples, the drive holds {length} "
-                              f"({self.where('table_length')})")
+            raise DeviceError(
+                f"{ad.port}: wrote {n} table samples, the drive holds {length} ({self.where('table_length')})"
+            )
 
     def read_capture(self, count: int) -> None:
         """Upload and deliver the records from :attr:`captured` up to ``count``."""
@@ -73,8 +76,10 @@ class BufferedRun(RunStrategy):
             data = ad.read_domain(ad.desc.address("capture_data"))
             m = len(data) // size
             if m == 0 or len(data) % size:
-                raise DeviceError(f"{ad.port}: a capture chunk of {len(data)} bytes from "
-                                  f"{self.where('capture_data')} is not whole {size}-byte records")
+                raise DeviceError(
+                    f"{ad.port}: a capture chunk of {len(data)} bytes from "
+                    f"{self.where('capture_data')} is not whole {size}-byte records"
+                )
             records = np.frombuffer(data, dtype=self.dtype)
             rows = ad.decode_rows([records[f"f{i}"] for i in range(len(ad.channels))], self.captured)
             self.deliver(np.arange(self.captured, self.captured + m, dtype=np.int64), rows)
@@ -105,8 +110,10 @@ class BufferedRun(RunStrategy):
             if self.state != TableState.PLAYING:
                 break
             if time.monotonic() - last_change > stall_limit:
-                raise DeviceError(f"{ad.port}: the capture stalled at {self.captured} of {n} samples for "
-                                  f"{stall_limit:g} s ({self.where('capture_count')})")
+                raise DeviceError(
+                    f"{ad.port}: the capture stalled at {self.captured} of {n} samples for "
+                    f"{stall_limit:g} s ({self.where('capture_count')})"
+                )
             time.sleep(_POLL_S)
         if self.state == TableState.STOPPED and ad.run_fault is None:
             deadline = time.monotonic() + _EMCY_WAIT_S
@@ -123,9 +130,12 @@ class BufferedRun(RunStrategy):
         if self.state == TableState.STOPPED:
             self.result.fault = f"the drive stopped the table at sample {captured} without an emergency"
             raise DeviceError(f"{ad.port}: {self.result.fault} ({self.where('table_state')})")
-        self.finish_capture(captured, f"the drive captured only {captured} of {n} samples "
-                                      f"({self.where('capture_count')}): its capture ended early",
-                            f"table played and {n} samples captured")
+        self.finish_capture(
+            captured,
+            f"the drive captured only {captured} of {n} samples "
+            f"({self.where('capture_count')}): its capture ended early",
+            f"table played and {n} samples captured",
+        )
 
     def stop_table(self) -> None:
         try:

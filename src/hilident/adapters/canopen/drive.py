@@ -133,7 +133,6 @@ ACQUISITIONS: dict[str, Callable[[DriveHost, np.ndarray, Deliver, RunResult], No
 }
 
 
-
 #: What canopen says when an SDO request got no answer within the timeout
 _NO_ANSWER = "No SDO response received"
 
@@ -155,8 +154,15 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
 
     transport = "canopen"
 
-    def __init__(self, network: TracingNetwork, node: canopen.RemoteNode, driver: DriverDescription,
-                 desc: CanopenDescription, device: DeviceConfig, label: str):
+    def __init__(
+        self,
+        network: TracingNetwork,
+        node: canopen.RemoteNode,
+        driver: DriverDescription,
+        desc: CanopenDescription,
+        device: DeviceConfig,
+        label: str,
+    ):
         self.network = network
         self.node = node
         self.driver = driver
@@ -165,8 +171,11 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
         self.port = label
         self.node_id = device.canopen.node_id
         self.timeout_s = device.timeout_s
-        self.encoding = FilterEncoding.from_table(driver.sections["filters"], str(driver.folder)) \
-            if desc.filters is not None else None
+        self.encoding = (
+            FilterEncoding.from_table(driver.sections["filters"], str(driver.folder))
+            if desc.filters is not None
+            else None
+        )
         self.acquisition = desc.default_acquisition if device.acquisition == "auto" else device.acquisition
         self.identity = None
         self.sample_rate_hz = 0.0
@@ -233,14 +242,18 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
         eds_warnings: list[str] = []
         od = load_object_dictionary(driver, node_id, eds_warnings)
         desc = CanopenDescription.from_sections(driver.sections, source, od)
-        if device.acquisition == "buffered" or (device.acquisition == "auto"
-                                                and desc.default_acquisition == "buffered"):
+        if device.acquisition == "buffered" or (
+            device.acquisition == "auto" and desc.default_acquisition == "buffered"
+        ):
             desc.require_buffered(source)
         label = f"{device.canopen.can_interface}:{device.port} node {node_id}"
         if desc.host_node_id == node_id:
-            raise ConfigError("canopen.host_node_id",
-                              f"{desc.host_node_id} is also the drive's node id (device.canopen.node_id): the "
-                              "host's heartbeat needs a node id of its own", source)
+            raise ConfigError(
+                "canopen.host_node_id",
+                f"{desc.host_node_id} is also the drive's node id (device.canopen.node_id): the "
+                "host's heartbeat needs a node id of its own",
+                source,
+            )
         network = open_network(device, driver.default_baudrate, label)
         adapter = None
         try:
@@ -300,8 +313,9 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
         self._check_identity(vendor, product)
         name = str(self.read("device_name")) if d.has("device_name") else self.driver.name
         version = str(self.read("software_version")) if d.has("software_version") else ""
-        self.identity = DriveIdentity(name, version, float(self.driver.loop_rate_hz), int(self.driver.filter_slots),
-                                      vendor, product)
+        self.identity = DriveIdentity(
+            name, version, float(self.driver.loop_rate_hz), int(self.driver.filter_slots), vendor, product
+        )
         self._read_ratings()
         if d.has("supported_modes"):
             self.supported_modes = decode_supported_modes(int(self.read("supported_modes")))
@@ -323,13 +337,16 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
             if expected is not None and got != expected:
                 raise DeviceError(
                     f"{self.port}: the node reports {key.replace('_', ' ')} 0x{got:08X} "
-                    f"({self.describe(d.address(key))}); driver {self.driver.name!r} expects 0x{expected:08X}")
+                    f"({self.describe(d.address(key))}); driver {self.driver.name!r} expects 0x{expected:08X}"
+                )
         if d.has("loop_rate"):
             rate = float(self.read("loop_rate"))
             if abs(rate - self.driver.loop_rate_hz) > 1e-6 * self.driver.loop_rate_hz:
-                raise DeviceError(f"{self.port}: the drive's loop runs at {rate:g} Hz "
-                                  f"({self.describe(d.address('loop_rate'))}); driver {self.driver.name!r} says "
-                                  f"{self.driver.loop_rate_hz:g} Hz")
+                raise DeviceError(
+                    f"{self.port}: the drive's loop runs at {rate:g} Hz "
+                    f"({self.describe(d.address('loop_rate'))}); driver {self.driver.name!r} says "
+                    f"{self.driver.loop_rate_hz:g} Hz"
+                )
 
     def _read_ratings(self) -> None:
         """Rated torque (N·m; 0 with the reason kept when it cannot be scaled) and rated current (A)."""
@@ -352,8 +369,10 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
             self._start_node_guarding()
             how = f"starting node guarding every {d.heartbeat_ms} ms (the EDS has no 0x1017)"
         else:
-            raise DeviceError(f"{self.port}: the EDS {d.eds} has neither a producer heartbeat time (0x1017) nor "
-                              "node guarding (0x100C, 0x100D): hilident watches the drive by one of them")
+            raise DeviceError(
+                f"{self.port}: the EDS {d.eds} has neither a producer heartbeat time (0x1017) nor "
+                "node guarding (0x100C, 0x100D): hilident watches the drive by one of them"
+            )
         deadline = time.monotonic() + max(self.timeout_s, 3 * d.heartbeat_ms / 1000.0)
         while self.heartbeat_s is None and time.monotonic() < deadline:
             time.sleep(0.005)
@@ -404,12 +423,16 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
         try:
             path = cia402.path_to_operation_enabled(state, self.device.allow_fault_reset)
         except ValueError:
-            raise DeviceError(f"{self.port}: the drive is in {state.value} ({self.last_error_text()}); set "
-                              "device.allow_fault_reset = true to let hilident reset it") from None
+            raise DeviceError(
+                f"{self.port}: the drive is in {state.value} ({self.last_error_text()}); set "
+                "device.allow_fault_reset = true to let hilident reset it"
+            ) from None
         state = self._follow(state, path)
         if state is not cia402.State.OPERATION_ENABLED:
-            raise DeviceError(f"{self.port}: the drive did not reach Operation Enabled: it is in {state.value} "
-                              f"({self.last_error_text()})")
+            raise DeviceError(
+                f"{self.port}: the drive did not reach Operation Enabled: it is in {state.value} "
+                f"({self.last_error_text()})"
+            )
 
     def last_error_text(self) -> str:
         if not self.desc.has("error_code"):
@@ -509,8 +532,7 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
         if self._limits is None:
             return []
         torque, velocity, pmin, pmax = self._limits
-        bounds = {"velocity_mps": (-velocity, velocity, "velocity_limit"),
-                  "position_m": (pmin, pmax, "position_limit")}
+        bounds = {"velocity_mps": (-velocity, velocity, "velocity_limit"), "position_m": (pmin, pmax, "position_limit")}
         if "max_torque" not in self.device_limits:
             bounds["torque_nm"] = (-torque, torque, "torque_limit")
         return [(j, *bounds[c.name]) for j, c in enumerate(self.channels) if c.name in bounds]
@@ -546,10 +568,15 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
         stats = self.last_result.stats
         if first is not None and not stats.clipped_blocks:
             c, address, row = first
-            self.log_event(RunEvent(
-                Kind.CLIPPED, f"{c.name} reached the range of {self.describe(address)} ({numpy_type(c.datatype)}): "
-                f"the drive's value is saturated there; its scaling ([canopen.scaling]) or the excitation is too large",
-                first_index + row))
+            self.log_event(
+                RunEvent(
+                    Kind.CLIPPED,
+                    f"{c.name} reached the range of {self.describe(address)} ({numpy_type(c.datatype)}): "
+                    "the drive's value is saturated there; its scaling ([canopen.scaling]) or the excitation is "
+                    "too large",
+                    first_index + row,
+                )
+            )
         stats.clipped_blocks += int(hit.sum())
 
     def encode_setpoints(self, x: np.ndarray, datatype: int, role: str, origin_raw: int = 0) -> np.ndarray:

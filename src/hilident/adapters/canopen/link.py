@@ -37,8 +37,9 @@ def parse_socketcand_port(port: str) -> tuple[str, int, str]:
     address, slash, channel = port.partition("/")
     host, colon, number = address.rpartition(":")
     if not (slash and colon and host and channel and number.isdigit() and 0 < int(number) < 65536):
-        raise ConfigError("device.port", f'socketcand needs "HOST:PORT/CHANNEL" (e.g. "127.0.0.1:29536/can0"), '
-                                         f"got {port!r}")
+        raise ConfigError(
+            "device.port", f'socketcand needs "HOST:PORT/CHANNEL" (e.g. "127.0.0.1:29536/can0"), got {port!r}'
+        )
     return host, int(number), channel
 
 
@@ -111,6 +112,7 @@ def open_network(device: DeviceConfig, default_bitrate: int, label: str) -> Trac
     try:
         network.connect(**kwargs)
     except (can.CanError, OSError, ValueError, TypeError, ImportError, NotImplementedError, TimeoutError) as exc:
-        raise open_failure(device.port, exc, f"{label}: cannot open CAN interface "
-                           f"{device.canopen.can_interface!r}") from None
+        raise open_failure(
+            device.port, exc, f"{label}: cannot open CAN interface {device.canopen.can_interface!r}"
+        ) from None
     return network

@@ -70,14 +70,16 @@ class ChannelMapping(CanopenState):
             values[role] = compute()
             info = np.iinfo(numpy_type(self.data_type(d.address(role))))
             if not info.min <= values[role] <= info.max:
-                raise ConfigError(f"limits ({role})",
-                                  f"{values[role]} units do not fit {self.describe(d.address(role))}")
+                raise ConfigError(
+                    f"limits ({role})", f"{values[role]} units do not fit {self.describe(d.address(role))}"
+                )
         for role, raw in values.items():
             self.write(role, raw)
             back = int(self.read(role))
             if back != raw:
-                raise DeviceError(f"{self.port}: wrote {raw} to {self.describe(d.address(role))}, "
-                                  f"the drive holds {back}")
+                raise DeviceError(
+                    f"{self.port}: wrote {raw} to {self.describe(d.address(role))}, the drive holds {back}"
+                )
         self.device_limits = tuple(values)
         self._limits = (torque_nm, velocity_mps, position_min_m, position_max_m)
 
@@ -86,8 +88,9 @@ class ChannelMapping(CanopenState):
         try:
             return self.desc.scale(role, self.rated_torque_nm, self.rated_current_a)
         except DataError as exc:
-            raise DeviceError(f"{self.port}: {self.describe(self.desc.address(role))}: "
-                              f"{self.torque_problem or exc}") from None
+            raise DeviceError(
+                f"{self.port}: {self.describe(self.desc.address(role))}: {self.torque_problem or exc}"
+            ) from None
 
     def configure(self, sample_rate_hz: float, mode: str, channels: list[str] | None = None) -> list[str]:
         """Mode of operation, sample period and the PDO (or capture) mapping of the channels.
@@ -101,8 +104,10 @@ class ChannelMapping(CanopenState):
         if self.acquisition == "recorder":
             configure_recorder(self, codecs)
         elif self.acquisition == "buffered" and any(c.on_host for c in codecs):
-            raise DeviceError(f"{self.port}: a drive-buffered run records only drive objects; channel "
-                              f"{next(c.name for c in codecs if c.on_host)!r} has none")
+            raise DeviceError(
+                f"{self.port}: a drive-buffered run records only drive objects; channel "
+                f"{next(c.name for c in codecs if c.on_host)!r} has none"
+            )
         spec = self.desc.modes[mode]
         for role in (spec.setpoint, spec.hold):
             if role:
@@ -126,22 +131,30 @@ class ChannelMapping(CanopenState):
         ident = self.drive_identity()
         divider = ident.loop_rate_hz / sample_rate_hz
         if abs(divider - round(divider)) > 1e-9 or round(divider) < 1:
-            raise DeviceError(f"{self.port}: sample rate {sample_rate_hz:g} Hz does not divide the drive's loop rate "
-                              f"{ident.loop_rate_hz:g} Hz")
+            raise DeviceError(
+                f"{self.port}: sample rate {sample_rate_hz:g} Hz does not divide the drive's loop rate "
+                f"{ident.loop_rate_hz:g} Hz"
+            )
         divider = int(round(divider))
         rate = ident.loop_rate_hz / divider
         if rate > self.driver.max_sample_rate_hz * (1 + 1e-9):
-            raise DeviceError(f"{self.port}: sample rate {rate:g} Hz exceeds the drive's "
-                              f"{self.driver.max_sample_rate_hz:g} Hz")
+            raise DeviceError(
+                f"{self.port}: sample rate {rate:g} Hz exceeds the drive's {self.driver.max_sample_rate_hz:g} Hz"
+            )
         return divider, rate
 
     def _check_mode(self, mode: str) -> None:
         """DeviceError naming the modes the driver has (and 0x6502's) when it has none for ``mode``."""
         if mode not in self.desc.modes:
-            supported = f"; 0x6502 says it supports {', '.join(self.supported_modes) or 'no mode'}" \
-                if self.supported_modes is not None else ""
-            raise DeviceError(f"{self.port}: driver {self.driver.name!r} has no mode for {mode!r} "
-                              f"(it has {', '.join(self.desc.modes) or 'none'}{supported})")
+            supported = (
+                f"; 0x6502 says it supports {', '.join(self.supported_modes) or 'no mode'}"
+                if self.supported_modes is not None
+                else ""
+            )
+            raise DeviceError(
+                f"{self.port}: driver {self.driver.name!r} has no mode for {mode!r} "
+                f"(it has {', '.join(self.desc.modes) or 'none'}{supported})"
+            )
 
     def _channel_codecs(self, channels: list[str] | None) -> list[ChannelCodec]:
         """The codec of each channel (the driver's streamed channels by default); DeviceError for an unknown one."""
@@ -150,8 +163,10 @@ class ChannelMapping(CanopenState):
         codecs = []
         for name in names:
             if name not in self.desc.channels or name not in units:
-                raise DeviceError(f"{self.port}: driver {self.driver.name!r} has no channel {name!r} "
-                                  f"(it has {', '.join(self.desc.channels)})")
+                raise DeviceError(
+                    f"{self.port}: driver {self.driver.name!r} has no channel {name!r} "
+                    f"(it has {', '.join(self.desc.channels)})"
+                )
             role = self.desc.channels[name]
             if role is None:
                 codecs.append(ChannelCodec(name, units[name], None, None, REAL32, 1.0))
@@ -169,8 +184,9 @@ class ChannelMapping(CanopenState):
             try:
                 value, exponent = period_fields(period_s)
             except ValueError as exc:
-                raise DeviceError(f"{self.port}: {self.describe(self.desc.address('interpolation_period'))}: "
-                                  f"{exc}") from None
+                raise DeviceError(
+                    f"{self.port}: {self.describe(self.desc.address('interpolation_period'))}: {exc}"
+                ) from None
             self.write("interpolation_period", value)
             if self.desc.has("interpolation_exponent"):
                 self.write("interpolation_exponent", exponent)
@@ -233,18 +249,30 @@ class ChannelMapping(CanopenState):
             header = [(counter, type_bits(self.data_type(counter)))]
         per_frame = min((s.max_entries for s in tpdos[:4]), default=0) - len(header)
         try:
-            frames = pack_frames([(c.name, c.bits) for c in mapped], header_bits=sum(b for _, b in header),
-                                 max_frames=len(tpdos), max_entries=per_frame)
+            frames = pack_frames(
+                [(c.name, c.bits) for c in mapped],
+                header_bits=sum(b for _, b in header),
+                max_frames=len(tpdos),
+                max_entries=per_frame,
+            )
         except DataError as exc:
-            raise DeviceError(f"{self.port}: {exc} ({self.desc.eds}: {len(tpdos)} TPDOs of "
-                              f"{', '.join(str(s.max_entries) for s in tpdos)} entries)") from None
+            raise DeviceError(
+                f"{self.port}: {exc} ({self.desc.eds}: {len(tpdos)} TPDOs of "
+                f"{', '.join(str(s.max_entries) for s in tpdos)} entries)"
+            ) from None
         self.nmt("PRE-OPERATIONAL")
         layout = []
         for i, slot in enumerate(tpdos):
             members = frames[i] if i < len(frames) else []
             idx = [self.channel_index(codecs, m) for m in members]
-            entries = ([mapping_entry(a, b) for a, b in header] +
-                       [mapping_entry(self._drive_object(codecs[j]), codecs[j].bits) for j in idx]) if members else []
+            entries = (
+                (
+                    [mapping_entry(a, b) for a, b in header]
+                    + [mapping_entry(self._drive_object(codecs[j]), codecs[j].bits) for j in idx]
+                )
+                if members
+                else []
+            )
             self._write_mapping((0x1800 + slot.number, slot.cob_id), 0x1A00 + slot.number, entries)
             if members:
                 layout.append((slot.cob_id, idx))
@@ -274,8 +302,9 @@ class ChannelMapping(CanopenState):
     def _drive_object(self, codec: ChannelCodec) -> ObjectAddress:
         """The object carrying ``codec``'s channel; DeviceError for a channel the host records itself."""
         if codec.address is None:
-            raise DeviceError(f"{self.port}: channel {codec.name!r} is recorded by the host: no drive object "
-                              "carries it")
+            raise DeviceError(
+                f"{self.port}: channel {codec.name!r} is recorded by the host: no drive object carries it"
+            )
         return codec.address
 
     def _map_capture(self, codecs: list[ChannelCodec]) -> None:

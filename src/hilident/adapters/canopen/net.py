@@ -77,9 +77,11 @@ class NetWatch(CanopenState):
             self.safe_stop()  # left switched on by someone else: off before anything moves
             state = self.drive_state()
             if state is not cia402.State.SWITCH_ON_DISABLED:
-                raise DeviceError(f"{self.port}: the drive does not switch its power stage off: it stays in "
-                                  f"{state.value} after Disable Voltage "
-                                  f"({self.describe(self.desc.address('controlword'))})")
+                raise DeviceError(
+                    f"{self.port}: the drive does not switch its power stage off: it stays in "
+                    f"{state.value} after Disable Voltage "
+                    f"({self.describe(self.desc.address('controlword'))})"
+                )
         self.connect_report.discarded_frames += len(self.emergencies)
         self.emergencies.clear()  # emergencies of an earlier session: their fault is handled above
 
@@ -87,8 +89,9 @@ class NetWatch(CanopenState):
         """Fault reset (a rising edge of controlword bit 7) to Switch On Disabled."""
         state = self._follow(state, (int(cia402.Command.DISABLE_VOLTAGE), int(cia402.Command.FAULT_RESET)))
         if state is not cia402.State.SWITCH_ON_DISABLED:
-            raise DeviceError(f"{self.port}: the fault did not clear: the drive is in {state.value} "
-                              f"({self.last_error_text()})")
+            raise DeviceError(
+                f"{self.port}: the fault did not clear: the drive is in {state.value} ({self.last_error_text()})"
+            )
 
     def _arm_device_net(self) -> None:
         """Produce the host's heartbeat and have the drive watch it (0x1016, 0x6007 when the EDS has them)."""
@@ -107,8 +110,10 @@ class NetWatch(CanopenState):
             self.connect_report.device_net = net
             return
         if HEARTBEAT_CONSUMER_INDEX not in od:
-            self.connect_report.device_net = (f"none: {self.desc.eds} has no heartbeat consumer (0x1016); the drive "
-                                              "does not stop on its own when the host dies")
+            self.connect_report.device_net = (
+                f"none: {self.desc.eds} has no heartbeat consumer (0x1016); the drive "
+                "does not stop on its own when the host dies"
+            )
             return
         host = self.desc.host_node_id
         time_ms = max(1, min(0xFFFF, round(self.device.host_timeout_s * 1000)))
@@ -119,8 +124,10 @@ class NetWatch(CanopenState):
         # after the entry: the task's first frame goes out at once and starts the drive's monitoring
         # (CiA 301: a consumer watches from the first heartbeat it receives)
         self._start_host_heartbeat(host, period_s)
-        net = (f"{guarding}heartbeat consumer {entry}: host node {host}, {time_ms} ms "
-               f"(host heartbeat every {period_s * 1e3:.0f} ms)")
+        net = (
+            f"{guarding}heartbeat consumer {entry}: host node {host}, {time_ms} ms "
+            f"(host heartbeat every {period_s * 1e3:.0f} ms)"
+        )
         if ABORT_CONNECTION_INDEX in od:
             option = self.desc.abort_connection_option
             self.write_object(ObjectAddress(ABORT_CONNECTION_INDEX, 0), option)
@@ -147,8 +154,10 @@ class NetWatch(CanopenState):
             else:
                 others.append(f"{addr}: node {node}")
         if free is None:
-            raise DeviceError(f"{self.port}: every heartbeat consumer entry of 0x1016 watches another node "
-                              f"({', '.join(others)}); free one for the host (node {host}, [canopen] host_node_id)")
+            raise DeviceError(
+                f"{self.port}: every heartbeat consumer entry of 0x1016 watches another node "
+                f"({', '.join(others)}); free one for the host (node {host}, [canopen] host_node_id)"
+            )
         return free
 
     def _start_host_heartbeat(self, host: int, period_s: float) -> None:
@@ -160,8 +169,8 @@ class NetWatch(CanopenState):
         self._beat = (msg.arbitration_id, period_s)
         self._beat_s = time.monotonic()
         self._host_heartbeat = can.broadcastmanager.ThreadBasedCyclicSendTask(
-            bus, self.network.send_lock, msg, period_s, on_error=lambda exc: False,
-            modifier_callback=self._on_beat)
+            bus, self.network.send_lock, msg, period_s, on_error=lambda exc: False, modifier_callback=self._on_beat
+        )
 
     def _on_beat(self, msg: can.Message) -> None:
         self._beat_s = time.monotonic()
@@ -195,7 +204,6 @@ class NetWatch(CanopenState):
         if self._guarding:  # life time factor 0: the drive stops life guarding before the requests stop
             self.write_object(ObjectAddress(_LIFE_TIME_FACTOR, 0), 0)
 
-
     # --- drive heartbeat, node guarding, emergencies ----------------------------------------------
 
     def _start_node_guarding(self) -> None:
@@ -221,10 +229,15 @@ class NetWatch(CanopenState):
         gap = time.monotonic() - (self.heartbeat_s or 0.0)
         limit = self.desc.heartbeat_timeout_ms / 1000.0
         if gap > limit:
-            raise DeviceError(f"{self.port}: heartbeat lost: nothing for {gap:.2f} s "
-                              f"(limit {limit:g} s, producer {self.desc.heartbeat_ms} ms)")
-        if (self.heartbeat_state is not None and self.heartbeat_state != _NMT_OPERATIONAL
-                and time.monotonic() > self._nmt_settled_s):
+            raise DeviceError(
+                f"{self.port}: heartbeat lost: nothing for {gap:.2f} s "
+                f"(limit {limit:g} s, producer {self.desc.heartbeat_ms} ms)"
+            )
+        if (
+            self.heartbeat_state is not None
+            and self.heartbeat_state != _NMT_OPERATIONAL
+            and time.monotonic() > self._nmt_settled_s
+        ):
             state = canopen.nmt.NMT_STATES.get(self.heartbeat_state, str(self.heartbeat_state))
             raise DeviceError(f"{self.port}: the drive left NMT Operational (heartbeat says {state})")
 

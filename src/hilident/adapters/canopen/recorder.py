@@ -65,8 +65,11 @@ _POSITION_SETPOINTS = ("target_position", "interpolation_data")
 def _capability(desc: CanopenDescription, driver: DriverDescription) -> RecorderCapability:
     """The drive's recorder (and generator); ConfigError naming the driver file when it describes none."""
     if desc.recorder is None:
-        raise ConfigError("device.acquisition", f'"recorder": driver {driver.name!r} describes no '
-                                                "[canopen.recorder]", str(driver.folder / "driver.toml"))
+        raise ConfigError(
+            "device.acquisition",
+            f'"recorder": driver {driver.name!r} describes no [canopen.recorder]',
+            str(driver.folder / "driver.toml"),
+        )
     return desc.recorder
 
 
@@ -79,8 +82,12 @@ def configure_recorder(ad: CanopenState, codecs: list[ChannelCodec]) -> None:
     if any(c.on_host for c in codecs) and output is not None:
         wanted.append(None)  # the generator's output object records the excitation
     if len(wanted) > len(cap.recorder.channels):
-        raise ConfigError("run.channels", f"{len(wanted)} recorded channels; the drive's recorder has "
-                                          f"{len(cap.recorder.channels)} ([canopen.recorder] channels)", source)
+        raise ConfigError(
+            "run.channels",
+            f"{len(wanted)} recorded channels; the drive's recorder has "
+            f"{len(cap.recorder.channels)} ([canopen.recorder] channels)",
+            source,
+        )
     ad.nmt("OPERATIONAL")  # for the heartbeat's NMT check; no PDOs are mapped
     for slot in ad.pdo_slots("tpdo"):  # no stale TPDOs beside the recorder
         ad.write_object(ObjectAddress(0x1800 + slot.number, 1), slot.cob_id | 0x80000000)
@@ -104,11 +111,14 @@ class RecorderRun(RunStrategy):
         self.rec = self.cap.recorder
         self.source = str(ad.driver.folder / "driver.toml")
         if ad.excitation_recipe is None:
-            raise ConfigError("device.acquisition", '"recorder" plays only what the drive\'s generator plays, '
-                                                    "and this run has no excitation recipe (the friction test's "
-                                                    "ramps are host-streamed: set friction_test.enabled = false, or "
-                                                    'run the friction test with device.acquisition = "streamed")',
-                              self.source)
+            raise ConfigError(
+                "device.acquisition",
+                '"recorder" plays only what the drive\'s generator plays, '
+                "and this run has no excitation recipe (the friction test's "
+                "ramps are host-streamed: set friction_test.enabled = false, or "
+                'run the friction test with device.acquisition = "streamed")',
+                self.source,
+            )
         self.recipe: dict = ad.excitation_recipe
         self.period = ad.divider
         self.settings: GeneratorSettings | None = None  # what plan() chose
@@ -121,22 +131,31 @@ class RecorderRun(RunStrategy):
         """The generator's settings for ``n`` samples; ConfigError when the drive cannot play the recipe."""
         ad = self.ad
         if self.period not in self.rec.sample_periods:
-            raise ConfigError("run.sample_rate_hz", f"{ad.sample_rate_hz:g} Hz is a sample period of {self.period} "
-                                                    f"loop cycles; the drive's recorder takes "
-                                                    f"{list(self.rec.sample_periods)} ([canopen.recorder] "
-                                                    "sample_periods)", self.source)
+            raise ConfigError(
+                "run.sample_rate_hz",
+                f"{ad.sample_rate_hz:g} Hz is a sample period of {self.period} "
+                f"loop cycles; the drive's recorder takes "
+                f"{list(self.rec.sample_periods)} ([canopen.recorder] "
+                "sample_periods)",
+                self.source,
+            )
         target = ad.desc.modes[ad.mode].setpoint
         scales: dict[str, float] = {}
-        for kind, role in (("torque", "target_torque"), ("velocity", "target_velocity"),
-                           ("position", "target_position")):
+        for kind, role in (
+            ("torque", "target_torque"),
+            ("velocity", "target_velocity"),
+            ("position", "target_position"),
+        ):
             with contextlib.suppress(Exception):
                 scales[kind] = ad.desc.scale(role, ad.rated_torque_nm, ad.rated_current_a)
         try:
-            self.settings = plan_generator(self.cap, self.recipe, target, n, self.period,
-                                           ad.drive_identity().loop_rate_hz, scales)
+            self.settings = plan_generator(
+                self.cap, self.recipe, target, n, self.period, ad.drive_identity().loop_rate_hz, scales
+            )
         except KeyError as exc:  # a parameter scaled like torque on a drive whose torque cannot be scaled
-            raise DeviceError(f"{ad.port}: the generator's {exc.args[0]} parameters cannot be scaled: "
-                              f"{ad.torque_problem}") from None
+            raise DeviceError(
+                f"{ad.port}: the generator's {exc.args[0]} parameters cannot be scaled: {ad.torque_problem}"
+            ) from None
         return self.settings
 
     def planned(self) -> GeneratorSettings:
@@ -148,8 +167,11 @@ class RecorderRun(RunStrategy):
     def generator(self) -> GeneratorSpec:
         """The drive's generator; ConfigError when the driver describes none (:meth:`plan` refuses that first)."""
         if self.cap.generator is None:
-            raise ConfigError("device.acquisition", '"recorder" plays what the drive\'s generator plays, and the '
-                                                    "driver describes no [canopen.generator]", self.source)
+            raise ConfigError(
+                "device.acquisition",
+                '"recorder" plays what the drive\'s generator plays, and the driver describes no [canopen.generator]',
+                self.source,
+            )
         return self.cap.generator
 
     def expected(self, n: int) -> np.ndarray:
@@ -179,27 +201,42 @@ class RecorderRun(RunStrategy):
                 self._upload(min(n, int(ad.read_object(self.rec.recorded))))
             return
         self._upload(recorded)
-        self.finish_capture(recorded, f"the drive's recorder holds only {recorded} of {n} samples "
-                                      f"({ad.describe(self.rec.recorded)}): its recording ended early",
-                            f"the drive's {settings.kind.name} generator played and its recorder took {n} samples")
+        self.finish_capture(
+            recorded,
+            f"the drive's recorder holds only {recorded} of {n} samples "
+            f"({ad.describe(self.rec.recorded)}): its recording ended early",
+            f"the drive's {settings.kind.name} generator played and its recorder took {n} samples",
+        )
 
     def _compare(self, x: np.ndarray, n: int, settings: GeneratorSettings) -> None:
         """A warning event when the generator will not play what the host meant (its samples ``x``)."""
         kind = settings.kind
         if kind.name == "prbs" and not kind.taps:
-            self.ad.log_event(RunEvent(Kind.EXCITATION_DIFFERS, "the drive's PRBS sequence is not described "
-                                       "([canopen.generator.kinds.prbs] taps): what it plays cannot be compared",
-                                       0, value=float("nan")))
+            self.ad.log_event(
+                RunEvent(
+                    Kind.EXCITATION_DIFFERS,
+                    "the drive's PRBS sequence is not described "
+                    "([canopen.generator.kinds.prbs] taps): what it plays cannot be compared",
+                    0,
+                    value=float("nan"),
+                )
+            )
             return
         expected = self.expected(n)
         step = abs(settings.values["amplitude"] - float(self.recipe.get("amplitude", 0.0)))
         diff = np.abs(expected - x)
         worst = int(np.argmax(diff)) if n else 0
         if n and diff[worst] > step + 1e-6 * max(1.0, abs(settings.values["amplitude"])):
-            self.ad.log_event(RunEvent(
-                Kind.EXCITATION_DIFFERS, f"the drive's {kind.name} generator plays another signal than the host's "
-                f"excitation (largest difference {diff[worst]:.4g} at sample {worst}); the recording holds what the "
-                "drive played", worst, value=float(diff[worst])))
+            self.ad.log_event(
+                RunEvent(
+                    Kind.EXCITATION_DIFFERS,
+                    f"the drive's {kind.name} generator plays another signal than the host's "
+                    f"excitation (largest difference {diff[worst]:.4g} at sample {worst}); the recording holds "
+                    "what the drive played",
+                    worst,
+                    value=float(diff[worst]),
+                )
+            )
 
     def _set_up(self, n: int, settings: GeneratorSettings, gen: GeneratorSpec) -> None:
         """Recorder channels, period, count and trigger; the generator's kind, target and parameters (read back)."""
@@ -213,9 +250,15 @@ class RecorderRun(RunStrategy):
                 objects.append((c.address, c.datatype, c.scale))
             elif gen.output is not None:
                 self.excitation_column = len(objects)
-                scale = gen.output_scale if not isinstance(gen.output_scale, str) else ad.scale(
-                    {"torque": "target_torque", "velocity": "target_velocity",
-                     "position": "target_position"}[gen.output_scale])
+                scale = (
+                    gen.output_scale
+                    if not isinstance(gen.output_scale, str)
+                    else ad.scale(
+                        {"torque": "target_torque", "velocity": "target_velocity", "position": "target_position"}[
+                            gen.output_scale
+                        ]
+                    )
+                )
                 objects.append((gen.output, ad.data_type(gen.output), scale))
         self.channels = objects
         for i, addr in enumerate(rec.channels):
@@ -233,12 +276,20 @@ class RecorderRun(RunStrategy):
             ad.write_object(addr, raw)
             back = int(ad.read_object(addr))
             if back != raw:
-                raise DeviceError(f"{ad.port}: wrote {raw} to {ad.describe(addr)} (generator {name}), the drive "
-                                  f"holds {back}")
+                raise DeviceError(
+                    f"{ad.port}: wrote {raw} to {ad.describe(addr)} (generator {name}), the drive holds {back}"
+                )
         if any(c.on_host for c in ad.channels) and self.excitation_column is None:
-            ad.log_event(RunEvent(Kind.EXCITATION_COMPUTED, f"the drive has no generator output object: the "
-                                                             f"excitation column is its {s.kind.name} computed "
-                                                             "from the parameters it stores", 0, value=0.0))
+            ad.log_event(
+                RunEvent(
+                    Kind.EXCITATION_COMPUTED,
+                    f"the drive has no generator output object: the "
+                    f"excitation column is its {s.kind.name} computed "
+                    "from the parameters it stores",
+                    0,
+                    value=0.0,
+                )
+            )
 
     def _hold_axis(self) -> None:
         """A harmless set-point before enabling: zero torque/speed, the present position in CSP/IP."""
@@ -265,8 +316,10 @@ class RecorderRun(RunStrategy):
             if state == rec.states["done"] or state == rec.states["idle"]:
                 return recorded
             if time.monotonic() - last_change > stall_limit:
-                raise DeviceError(f"{ad.port}: the recorder stalled at {recorded} of {n} samples for "
-                                  f"{stall_limit:g} s ({ad.describe(rec.recorded)})")
+                raise DeviceError(
+                    f"{ad.port}: the recorder stalled at {recorded} of {n} samples for "
+                    f"{stall_limit:g} s ({ad.describe(rec.recorded)})"
+                )
             time.sleep(_POLL_S)
 
     def _stop(self) -> None:
@@ -291,9 +344,11 @@ class RecorderRun(RunStrategy):
             dtype = record_dtype(types)
             data = self._read(rec.buffers[0])
             if len(data) < recorded * dtype.itemsize:
-                raise DeviceError(f"{ad.port}: the recorder's buffer {ad.describe(rec.buffers[0])} holds "
-                                  f"{len(data)} bytes; {recorded} samples of {dtype.itemsize} bytes were recorded")
-            records = np.frombuffer(data[:recorded * dtype.itemsize], dtype=dtype)
+                raise DeviceError(
+                    f"{ad.port}: the recorder's buffer {ad.describe(rec.buffers[0])} holds "
+                    f"{len(data)} bytes; {recorded} samples of {dtype.itemsize} bytes were recorded"
+                )
+            records = np.frombuffer(data[: recorded * dtype.itemsize], dtype=dtype)
             columns = [records[f"f{i}"] for i in range(len(types))]
         else:
             columns = []
@@ -301,9 +356,11 @@ class RecorderRun(RunStrategy):
                 size = numpy_type(t).itemsize
                 data = self._read(rec.buffers[i])
                 if len(data) < recorded * size:
-                    raise DeviceError(f"{ad.port}: the recorder's buffer {ad.describe(rec.buffers[i])} holds "
-                                      f"{len(data) // size} samples; {recorded} were recorded")
-                columns.append(np.frombuffer(data[:recorded * size], dtype=numpy_type(t)))
+                    raise DeviceError(
+                        f"{ad.port}: the recorder's buffer {ad.describe(rec.buffers[i])} holds "
+                        f"{len(data) // size} samples; {recorded} were recorded"
+                    )
+                columns.append(np.frombuffer(data[: recorded * size], dtype=numpy_type(t)))
         si = [col.astype(float) * scale for col, (_, _, scale) in zip(columns, self.channels, strict=False)]
         rows, k = [], 0
         for c in ad.channels:

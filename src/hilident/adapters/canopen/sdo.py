@@ -71,8 +71,10 @@ class SdoAccess(CanopenState):
             meaning = SdoAbortedError.CODES.get(exc.code, "unknown abort code")
             return DeviceError(f"{self.port}: SDO abort {action} {self.describe(addr)}: 0x{exc.code:08X} {meaning}")
         if isinstance(exc, SdoCommunicationError):
-            return DeviceError(f"{self.port}: no valid SDO answer {action} {self.describe(addr)}: {exc} "
-                               "(is the drive powered, on this bus, with this node id?)")
+            return DeviceError(
+                f"{self.port}: no valid SDO answer {action} {self.describe(addr)}: {exc} "
+                "(is the drive powered, on this bus, with this node id?)"
+            )
         return DeviceError(f"{self.port}: bus failure {action} {self.describe(addr)}: {exc}")
 
     def read_object(self, addr: ObjectAddress) -> ObjectValue:
@@ -142,12 +144,13 @@ class SdoAccess(CanopenState):
             pos = 0
             while pos < len(data):
                 with uninterruptible():
-                    pos += f.write(view[pos:pos + 7])
+                    pos += f.write(view[pos : pos + 7])
 
         self._block_transfer(addr, "wb", download, {"size": len(data)})
 
-    def _block_transfer(self, addr: ObjectAddress, mode: str, body: Callable[[_Stream], _Result],
-                        options: dict[str, int]) -> _Result:
+    def _block_transfer(
+        self, addr: ObjectAddress, mode: str, body: Callable[[_Stream], _Result], options: dict[str, int]
+    ) -> _Result:
         """Run ``body(stream)`` on an SDO block transfer stream; an interrupted transfer is aborted.
 
         A signal (or any exception not from the transfer itself) in the middle
@@ -166,8 +169,9 @@ class SdoAccess(CanopenState):
         action = "reading" if mode == "rb" else "writing"
         try:
             with shielded():  # a signal during the initiation is raised below, once the abort would be sent
-                stream = self.node.sdo.open(addr.index, addr.subindex, mode, block_transfer=True, buffering=0,
-                                            **options)
+                stream = self.node.sdo.open(
+                    addr.index, addr.subindex, mode, block_transfer=True, buffering=0, **options
+                )
         except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
             raise self._sdo_error(exc, addr, action) from None
         self._in_block_transfer = True

@@ -62,15 +62,16 @@ class FilterSlots(CanopenState):
         try:
             return encoding.realise(spec, self.drive_identity().loop_rate_hz)
         except DataError as exc:
-            raise DeviceError(f"{self.port}: the drive's {encoding.kind} filter slots cannot hold the "
-                              f"{spec.center_hz:.4g} Hz notch: {exc}") from None
+            raise DeviceError(
+                f"{self.port}: the drive's {encoding.kind} filter slots cannot hold the "
+                f"{spec.center_hz:.4g} Hz notch: {exc}"
+            ) from None
 
     def filter_notes(self, spec: NotchSpec) -> tuple[str, ...]:
         """Why the drive's encoding cannot meet ``spec`` exactly (depth or width out of reach), if it cannot."""
         return self._realise(spec).notes
 
-    def _write_slot(self, fo: FilterObjects, encoding: FilterEncoding, slot: int, values: dict,
-                    enabled: bool) -> None:
+    def _write_slot(self, fo: FilterObjects, encoding: FilterEncoding, slot: int, values: dict, enabled: bool) -> None:
         if fo.enable_subindex is None:  # the enable lives inside the one block
             block = values if enabled else encoding.disabled(values)
             self.write_object(fo.address(slot, "block"), block["block"])
@@ -144,8 +145,10 @@ class FilterSlots(CanopenState):
         elif self.desc.has("store_parameters"):
             addr, value = self.desc.address("store_parameters"), STORE_SIGNATURE
         else:
-            raise DeviceError(f"{self.port}: the EDS {self.desc.eds} has no store parameters object (0x1010) and the "
-                              "driver names none ([canopen.save] object): the drive cannot be asked to save")
+            raise DeviceError(
+                f"{self.port}: the EDS {self.desc.eds} has no store parameters object (0x1010) and the "
+                "driver names none ([canopen.save] object): the drive cannot be asked to save"
+            )
         self.write_object(addr, value)
         return f"{self.describe(addr)} = 0x{int(value):08X}"
 

@@ -217,9 +217,14 @@ class StreamedRun(RunStrategy):
             stats.lost_frames += int(sum(bin(self.full & ~int(m)).count("1") for m in mask[missing]))
             breaks = np.flatnonzero(np.diff(missing) != 1) + 1
             for run in np.split(missing, breaks):
-                self.ad.log_event(RunEvent(Kind.LOST_BLOCKS, f"{len(run)} sample(s) lost on the bus: samples "
-                                                             f"{run[0]}..{run[-1]}",
-                                           int(run[0]), value=float(len(run))))
+                self.ad.log_event(
+                    RunEvent(
+                        Kind.LOST_BLOCKS,
+                        f"{len(run)} sample(s) lost on the bus: samples {run[0]}..{run[-1]}",
+                        int(run[0]),
+                        value=float(len(run)),
+                    )
+                )
         self.final = limit
 
     def drain(self) -> int:
@@ -259,26 +264,37 @@ class StreamedRun(RunStrategy):
 
     def complete_from_final(self, end: int | None = None) -> bool:
         """Whether every sample from the final index to ``end`` has all its TPDOs."""
-        return self.mask[self.final:end].min(initial=self.full) == self.full
+        return self.mask[self.final : end].min(initial=self.full) == self.full
 
     # --- events --------------------------------------------------------------------------------------
 
     def note_late_syncs(self) -> None:
         """The ``sync_late`` event (once): how many SYNCs went out more than a period late, the worst in s."""
         if self.late_syncs and not any(e["kind"] == Kind.SYNC_LATE.value for e in self.ad.events):
-            self.ad.log_event(RunEvent(Kind.SYNC_LATE, f"{self.late_syncs} SYNC(s) sent more than one period late "
-                                                       f"(worst {self.worst_late * 1e3:.2f} ms)",
-                                       0, value=float(self.late_syncs), worst_s=float(self.worst_late)))
+            self.ad.log_event(
+                RunEvent(
+                    Kind.SYNC_LATE,
+                    f"{self.late_syncs} SYNC(s) sent more than one period late (worst {self.worst_late * 1e3:.2f} ms)",
+                    0,
+                    value=float(self.late_syncs),
+                    worst_s=float(self.worst_late),
+                )
+            )
 
     def note_unanswered(self) -> None:
         """Ordered matching: SYNCs no TPDO answered show only in the count of answer sets."""
         unanswered = self.sent - 1 - self.answered_set
         if unanswered > 0:
-            self.ad.log_event(RunEvent(
-                Kind.SYNC_UNANSWERED, f"{unanswered} SYNC(s) got no TPDO at all: the drive skipped them or their "
-                                      "answers were lost; matched by order, the samples after such a SYNC are shifted, "
-                                      "so the run's last samples are counted lost",
-                int(self.answered_set + 1), value=float(unanswered)))
+            self.ad.log_event(
+                RunEvent(
+                    Kind.SYNC_UNANSWERED,
+                    f"{unanswered} SYNC(s) got no TPDO at all: the drive skipped them or their "
+                    "answers were lost; matched by order, the samples after such a SYNC are shifted, "
+                    "so the run's last samples are counted lost",
+                    int(self.answered_set + 1),
+                    value=float(unanswered),
+                )
+            )
 
     def read_drive_counters(self) -> None:
         """The hilident counters at the end of a counted run: underruns and SYNC counter jumps."""
@@ -286,8 +302,11 @@ class StreamedRun(RunStrategy):
         self.stats.underruns = int(ad.read("setpoint_underruns"))
         sync_errors = int(ad.read("sync_errors"))
         if sync_errors:
-            ad.log_event(RunEvent(Kind.SYNC_ERRORS, f"the drive saw {sync_errors} SYNC counter jump(s)", 0,
-                                  value=float(sync_errors)))
+            ad.log_event(
+                RunEvent(
+                    Kind.SYNC_ERRORS, f"the drive saw {sync_errors} SYNC counter jump(s)", 0, value=float(sync_errors)
+                )
+            )
 
     # --- the run -----------------------------------------------------------------------------------
 
@@ -390,9 +409,11 @@ class StreamedRun(RunStrategy):
             else:
                 ad.check_link()
                 if self.sent - 1 - top > lag_limit:
-                    raise DeviceError(f"{ad.port}: the drive's TPDOs lag {self.sent - 1 - top} samples behind the "
-                                      f"SYNCs (more than {lag_limit * period:.2g} s): it does not keep up with "
-                                      f"{1 / period:g} SYNC/s")
+                    raise DeviceError(
+                        f"{ad.port}: the drive's TPDOs lag {self.sent - 1 - top} samples behind the "
+                        f"SYNCs (more than {lag_limit * period:.2g} s): it does not keep up with "
+                        f"{1 / period:g} SYNC/s"
+                    )
                 if self.sent == n:
                     ended = ended or now
                     # the grace runs from the last SYNC or the last new sample, whichever is later: a drive

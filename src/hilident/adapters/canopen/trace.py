@@ -124,10 +124,20 @@ class FrameTrace(can.Listener):
     def _stamped(self, msg: can.Message, is_rx: bool) -> can.Message:
         """A copy of ``msg`` on the trace's channel and clock (the original keeps its bus timestamp)."""
         return can.Message(
-            timestamp=self.clock.now(), arbitration_id=msg.arbitration_id, is_extended_id=msg.is_extended_id,
-            is_remote_frame=msg.is_remote_frame, is_error_frame=msg.is_error_frame, channel=None, dlc=msg.dlc,
-            data=msg.data, is_fd=msg.is_fd, is_rx=is_rx, bitrate_switch=msg.bitrate_switch,
-            error_state_indicator=msg.error_state_indicator, check=False)
+            timestamp=self.clock.now(),
+            arbitration_id=msg.arbitration_id,
+            is_extended_id=msg.is_extended_id,
+            is_remote_frame=msg.is_remote_frame,
+            is_error_frame=msg.is_error_frame,
+            channel=None,
+            dlc=msg.dlc,
+            data=msg.data,
+            is_fd=msg.is_fd,
+            is_rx=is_rx,
+            bitrate_switch=msg.bitrate_switch,
+            error_state_indicator=msg.error_state_indicator,
+            check=False,
+        )
 
     def _flush(self) -> None:
         """Push what the writer has written so far to the file (a crashed run keeps most of its trace)."""
@@ -163,8 +173,15 @@ class TracingNetwork(canopen.Network):
         # The trace lock is held across the send so that no answer to this frame can be written before it.
         with trace.lock:
             super().send_message(can_id, data, remote)
-            trace.write_sent(can.Message(arbitration_id=can_id, data=bytes(data), is_extended_id=can_id > 0x7FF,
-                                         is_remote_frame=remote, check=False))
+            trace.write_sent(
+                can.Message(
+                    arbitration_id=can_id,
+                    data=bytes(data),
+                    is_extended_id=can_id > 0x7FF,
+                    is_remote_frame=remote,
+                    check=False,
+                )
+            )
 
     def start_trace(self, path: str | Path, clock: TraceClock | None = None) -> FrameTrace:
         """Start writing every frame to ``path`` (see :class:`FrameTrace` for what it raises)."""

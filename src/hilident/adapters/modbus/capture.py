@@ -61,8 +61,12 @@ class TableCapture(RegisterAccess):
         for c in plan_chunks(0, n, rps, w.page_samples, self.map.max_write):
             self._select_page(w, c.page)
             try:
-                self.write(w.base + c.offset, registers[c.first_sample * rps : (c.first_sample + c.samples) * rps],
-                           f"writing excitation samples {c.first_sample}..{c.first_sample + c.samples - 1}", c.page)
+                self.write(
+                    w.base + c.offset,
+                    registers[c.first_sample * rps : (c.first_sample + c.samples) * rps],
+                    f"writing excitation samples {c.first_sample}..{c.first_sample + c.samples - 1}",
+                    c.page,
+                )
             except DeviceError:
                 self._pages["table"] = None
                 raise
@@ -74,9 +78,13 @@ class TableCapture(RegisterAccess):
         for _ in range(1 + _RETRIES):
             try:
                 self._select_page(w, c.page)
-                regs = self.read(w.base + c.offset, c.count,
-                                 f"reading capture samples {c.first_sample}..{c.first_sample + c.samples - 1}",
-                                 retry=False, page=c.page)
+                regs = self.read(
+                    w.base + c.offset,
+                    c.count,
+                    f"reading capture samples {c.first_sample}..{c.first_sample + c.samples - 1}",
+                    retry=False,
+                    page=c.page,
+                )
             except NoResponse:
                 self._pages["capture"] = None
                 continue
@@ -93,26 +101,44 @@ class TableCapture(RegisterAccess):
             self._pages["capture"] = None
         stats.lost_blocks += 1
         stats.lost_samples += c.samples
-        self.log_event(RunEvent(Kind.LOST_BLOCKS, f"capture samples {c.first_sample}..{c.first_sample + c.samples - 1} "
-                                                  f"could not be read ({1 + _RETRIES} attempts); not filled",
-                                c.first_sample, value=1.0))
+        self.log_event(
+            RunEvent(
+                Kind.LOST_BLOCKS,
+                f"capture samples {c.first_sample}..{c.first_sample + c.samples - 1} "
+                f"could not be read ({1 + _RETRIES} attempts); not filled",
+                c.first_sample,
+                value=1.0,
+            )
+        )
 
     def _trigger(self) -> None:
         """Start the run: one write of the run bit, never repeated."""
         r = self.map.register("control_word")
         run = self.map.control["run"]
         try:
-            self._request("starting the run", r.address, 1,
-                          lambda: self.client.write_register(r.address, run, device_id=self.device_id),
-                          lambda resp: resp.address == r.address, retry=False)
+            self._request(
+                "starting the run",
+                r.address,
+                1,
+                lambda: self.client.write_register(r.address, run, device_id=self.device_id),
+                lambda resp: resp.address == r.address,
+                retry=False,
+            )
         except NoResponse as exc:
             # the command may have arrived: ask the drive instead of sending it again
             after = self.status()
             if not after.flags & {"running", "done"}:
-                raise DeviceError(f"{exc}; the drive is not running "
-                                  "(not repeated: a start is never sent twice)") from None
-            self.log_event(RunEvent(Kind.MISSING_RESPONSE, "the answer to the start command was lost; the drive "
-                                                           "reports the run started", 0, value=0.0))
+                raise DeviceError(
+                    f"{exc}; the drive is not running (not repeated: a start is never sent twice)"
+                ) from None
+            self.log_event(
+                RunEvent(
+                    Kind.MISSING_RESPONSE,
+                    "the answer to the start command was lost; the drive reports the run started",
+                    0,
+                    value=0.0,
+                )
+            )
 
     def load_table(self, excitation: np.ndarray) -> np.ndarray:
         """Stop the drive, arm a run of ``len(excitation)`` samples and write the table; returns its registers.
@@ -134,27 +160,33 @@ class TableCapture(RegisterAccess):
         ident = self._known_identity()
         for cap, name in ((ident.table_capacity, "table_capacity"), (ident.capture_capacity, "capture_capacity")):
             if n > cap:
-                raise DeviceError(f"{self.port}: {n} samples exceed the drive's {cap} "
-                                  f"({self.map.describe(self.map.register(name).address)}); shorten the excitation "
-                                  "or lower run.sample_rate_hz")
+                raise DeviceError(
+                    f"{self.port}: {n} samples exceed the drive's {cap} "
+                    f"({self.map.describe(self.map.register(name).address)}); shorten the excitation "
+                    "or lower run.sample_rate_hz"
+                )
         table = self.map.encode_table(x)
         self.write_names(control_word=0)  # stopped, and ready for a fresh 0 -> 1 edge
         before = self.status()
         if "fault" in before.flags:
             raise DeviceError(
                 f"{self.port}: the drive reports {self.map.fault_name(before.fault_code)} in "
-                f"{self.map.describe(self.map.register('fault_code').address)}; clear the fault before a run")
+                f"{self.map.describe(self.map.register('fault_code').address)}; clear the fault before a run"
+            )
         self.write_names(table_length=n)
         self._upload(table, n)
         crc = self.read_names("table_crc")["table_crc"]
         if crc != table_crc(table):
-            raise DeviceError(f"{self.port}: {self.map.describe(self.map.register('table_crc').address)} is "
-                              f"{crc:#06x}, the table sent has {table_crc(table):#06x}: the excitation table did "
-                              "not arrive intact")
+            raise DeviceError(
+                f"{self.port}: {self.map.describe(self.map.register('table_crc').address)} is "
+                f"{crc:#06x}, the table sent has {table_crc(table):#06x}: the excitation table did "
+                "not arrive intact"
+            )
         return table
 
-    def read_capture(self, first: int, count: int, sink: Deliver, stats: StreamStats,
-                     max_chunks: int | None = None) -> int:
+    def read_capture(
+        self, first: int, count: int, sink: Deliver, stats: StreamStats, max_chunks: int | None = None
+    ) -> int:
         """Read capture records ``first .. first + count - 1`` (or the first ``max_chunks`` requests of them).
 
         Each chunk is delivered to ``sink(sample_index, rows)`` or counted lost
@@ -216,22 +248,32 @@ class TableCapture(RegisterAccess):
             if ended and read_to >= available:
                 break
             if ended and not st.flags & {"done", "fault"}:
-                raise DeviceError(f"{self.port}: the run ended without the drive reporting it done "
-                                  f"({self.map.describe(self.map.register('status_word').address)} = {st.word:#06x})")
+                raise DeviceError(
+                    f"{self.port}: the run ended without the drive reporting it done "
+                    f"({self.map.describe(self.map.register('status_word').address)} = {st.word:#06x})"
+                )
             if read_to == before:
                 if time.monotonic() > deadline:
-                    raise DeviceError(f"{self.port}: the run did not end within {deadline - started:.1f} s "
-                                      f"({self.map.describe(self.map.register('status_word').address)} still shows "
-                                      "running); stopped")
+                    raise DeviceError(
+                        f"{self.port}: the run did not end within {deadline - started:.1f} s "
+                        f"({self.map.describe(self.map.register('status_word').address)} still shows "
+                        "running); stopped"
+                    )
                 time.sleep(_POLL_S)
         if self.run_fault is not None:
             return
         if available < n:
             stats.lost_samples += n - available
-            self.log_event(RunEvent(Kind.CAPTURE_STOPPED, f"the drive's capture stopped at sample {available} of {n}; "
-                                                          f"samples {available}..{n - 1} were not recorded "
-                                                          "(not filled)",
-                                    available, value=float(n - available)))
+            self.log_event(
+                RunEvent(
+                    Kind.CAPTURE_STOPPED,
+                    f"the drive's capture stopped at sample {available} of {n}; "
+                    f"samples {available}..{n - 1} were not recorded "
+                    "(not filled)",
+                    available,
+                    value=float(n - available),
+                )
+            )
         else:
             self.log_event(RunEvent(Kind.FINISHED, "run complete", n, value=0.0))
 
@@ -240,8 +282,10 @@ class TableCapture(RegisterAccess):
         name = self.map.fault_name(st.fault_code)
         where = self.map.describe(self.map.register("fault_code").address)
         if name == "comm_timeout":
-            return (f"comm_timeout: the drive heard nothing from the host for {st.fault_value:.3g} s and stopped "
-                    f"on its own ({where} = {st.fault_code}, at sample {st.fault_sample})")
+            return (
+                f"comm_timeout: the drive heard nothing from the host for {st.fault_value:.3g} s and stopped "
+                f"on its own ({where} = {st.fault_code}, at sample {st.fault_sample})"
+            )
         return f"{name} ({where} = {st.fault_code}, at sample {st.fault_sample}, value {st.fault_value:g})"
 
     def _note_fault(self, st: DriveStatus) -> None:

@@ -34,8 +34,17 @@ _RETRY_LATER = (5, 6)  # acknowledge, busy: the drive asks to be asked again
 _POLL_S = 0.01  # pause between status reads while the drive has nothing new
 _CHUNKS_PER_POLL = 16  # capture chunks read between two status reads
 _LIMIT_FAULTS = ("torque_limit", "velocity_limit", "position_limit")
-_IDENTITY = ("device_type", "map_version", "loop_rate_hz", "max_sample_rate_hz", "filter_slots", "table_capacity",
-             "capture_capacity", "device_name", "firmware")
+_IDENTITY = (
+    "device_type",
+    "map_version",
+    "loop_rate_hz",
+    "max_sample_rate_hz",
+    "filter_slots",
+    "table_capacity",
+    "capture_capacity",
+    "device_name",
+    "firmware",
+)
 _STATUS = ("status_word", "fault_code", "sample_count", "fault_sample", "fault_value")
 _STOP_WAIT_S = 0.05  # longest wait for the answer to a safe stop (it is sent twice at most)
 _ENABLED_WAIT = 0.4  # while enabled, wait at most this fraction of the communication timeout for an answer
@@ -201,7 +210,7 @@ def _exception_text(code: int, function: int, device_id: int) -> str:
         6: "the drive is busy with an earlier request; try again later",
         10: f"the gateway has no path to device id {device_id} (check [device.modbus] device_id)",
         11: f"no device with id {device_id} answered behind the gateway (check [device.modbus] device_id and "
-            "the line behind the gateway)",
+        "the line behind the gateway)",
     }.get(code)
     return f"{head}: {why}" if why else head
 
@@ -209,8 +218,9 @@ def _exception_text(code: int, function: int, device_id: int) -> str:
 def _serial_error(port: str, baudrate: int, device: DeviceConfig) -> Exception:
     """Why pyserial cannot open ``port`` (pymodbus only says that it could not), as the error it raises."""
     try:
-        serial.serial_for_url(port, baudrate=baudrate, parity=device.modbus.parity, stopbits=device.modbus.stopbits,
-                              timeout=0).close()
+        serial.serial_for_url(
+            port, baudrate=baudrate, parity=device.modbus.parity, stopbits=device.modbus.stopbits, timeout=0
+        ).close()
     except Exception as exc:
         return exc
     return OSError(errno.EBUSY, "the port opened on a second try; check it is not in use")

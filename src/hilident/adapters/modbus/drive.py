@@ -115,8 +115,15 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
 
     transport = "modbus"
 
-    def __init__(self, client: ModbusTcpClient | ModbusSerialClient, driver: DriverDescription, regmap: RegisterMap,
-                 port: str, device_id: int = 1, timeout_s: float = 2.0):
+    def __init__(
+        self,
+        client: ModbusTcpClient | ModbusSerialClient,
+        driver: DriverDescription,
+        regmap: RegisterMap,
+        port: str,
+        device_id: int = 1,
+        timeout_s: float = 2.0,
+    ):
         self.client = client
         self.driver = driver
         self.map = regmap
@@ -165,21 +172,29 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
             or it refuses a request at connect (the message names the register).
         """
         if device.acquisition == "streamed":
-            raise ConfigError("device.acquisition", "a Modbus drive runs drive-buffered experiments only "
-                              '(use "buffered" or "auto")')
+            raise ConfigError(
+                "device.acquisition", 'a Modbus drive runs drive-buffered experiments only (use "buffered" or "auto")'
+            )
         regmap = RegisterMap.from_driver(driver)
-        shown = regmap.capture_channel_names() if regmap.excitation else \
-            [r.channel for r in regmap.registers.values() if r.channel]
+        shown = (
+            regmap.capture_channel_names()
+            if regmap.excitation
+            else [r.channel for r in regmap.registers.values() if r.channel]
+        )
         missing = [c.name for c in driver.channels if c.name not in shown]
         if missing:
-            where = ("[[modbus.capture.channels]]" if regmap.excitation
-                     else "registers (key channel) of [modbus.registers]")
-            raise ConfigError("channels", f"driver {driver.name!r} lists channels {missing} that its "
-                              f"{where} do not hold", str(driver.folder / "driver.toml"))
+            where = (
+                "[[modbus.capture.channels]]" if regmap.excitation else "registers (key channel) of [modbus.registers]"
+            )
+            raise ConfigError(
+                "channels",
+                f"driver {driver.name!r} lists channels {missing} that its {where} do not hold",
+                str(driver.folder / "driver.toml"),
+            )
         port = device.port
         client: ModbusTcpClient | ModbusSerialClient
         if port.startswith("tcp://"):
-            host, _, number = port[len("tcp://"):].rpartition(":")
+            host, _, number = port[len("tcp://") :].rpartition(":")
             if not host or not number.isdigit():
                 raise ConfigError("device.port", f"{port!r} is not tcp://HOST:PORT")
             client = ModbusTcpClient(host, port=int(number), timeout=device.timeout_s, retries=0)
@@ -188,16 +203,21 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
         else:
             baudrate = device.baudrate or driver.default_baudrate
             line = device.modbus
-            client = _SerialClient(port, baudrate=baudrate, parity=line.parity, stopbits=line.stopbits,
-                                   timeout=device.timeout_s, retries=0)
+            client = _SerialClient(
+                port, baudrate=baudrate, parity=line.parity, stopbits=line.stopbits, timeout=device.timeout_s, retries=0
+            )
             if not client.connect():
-                raise open_failure(port, _serial_error(port, baudrate, device), f"cannot open at {baudrate} baud, "
-                                   f"parity {line.parity}, {line.stopbits} stop bit(s)")
+                raise open_failure(
+                    port,
+                    _serial_error(port, baudrate, device),
+                    f"cannot open at {baudrate} baud, parity {line.parity}, {line.stopbits} stop bit(s)",
+                )
         adapter = cls(client, driver, regmap, port, device.modbus.device_id, device.timeout_s)
         adapter._drain_line()
         adapter = cls._identified(adapter)
-        return cls._or_closed(adapter, lambda: adapter._bring_to_known_state(device.allow_fault_reset,
-                                                                             device.host_timeout_s))
+        return cls._or_closed(
+            adapter, lambda: adapter._bring_to_known_state(device.allow_fault_reset, device.host_timeout_s)
+        )
 
     def _drain_line(self) -> None:
         """RTU: drop the answers still on their way to an earlier host, until the line is quiet (counted)."""
@@ -233,19 +253,23 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
             if self.map.stop:
                 self.write_names(**self.map.stop)  # no speed, no torque asked of the drive
             self._arm_comm_timeout(host_timeout_s)
-            report.discarded_frames += (getattr(self.client, "stale_frames", 0) + self.dropped_frames
-                                        + self.bad_responses)
+            report.discarded_frames += (
+                getattr(self.client, "stale_frames", 0) + self.dropped_frames + self.bad_responses
+            )
             return
         self.write_names(control_word=0)  # stopped, disabled, zero torque, ready for a fresh 0 -> 1 edge
         st = self.status()
         if "fault" in st.flags:
+
             def clear() -> None:
                 self.clear_fault()
                 after = self.status()
                 if "fault" in after.flags:
-                    raise DeviceError(f"{self.port}: {self.map.describe(self.map.register('fault_code').address)} "
-                                      f"still holds {self.map.fault_name(after.fault_code)} after a fault reset; the "
-                                      "cause is still there (check the drive's display)")
+                    raise DeviceError(
+                        f"{self.port}: {self.map.describe(self.map.register('fault_code').address)} "
+                        f"still holds {self.map.fault_name(after.fault_code)} after a fault reset; the "
+                        "cause is still there (check the drive's display)"
+                    )
 
             self._clear_latched_fault(self._describe_fault(st), allow_fault_reset, clear)
         self._arm_comm_timeout(host_timeout_s)
@@ -262,12 +286,15 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
         try:
             self.write_names(comm_timeout_ms=ms)
         except DataError as exc:
-            raise ConfigError("device.host_timeout_s", f"{host_timeout_s:g} s does not fit "
-                              f"{self.map.describe(r.address)}: {exc}") from None
+            raise ConfigError(
+                "device.host_timeout_s", f"{host_timeout_s:g} s does not fit {self.map.describe(r.address)}: {exc}"
+            ) from None
         back = float(self.read_names("comm_timeout_ms")["comm_timeout_ms"])
         if not back or abs(back - ms) > max(r.scale, 1.0):
-            raise DeviceError(f"{self.port}: {self.map.describe(r.address)} reads {back:g} ms after "
-                              f"{ms} ms was written: the drive's communication timeout is not armed")
+            raise DeviceError(
+                f"{self.port}: {self.map.describe(r.address)} reads {back:g} ms after "
+                f"{ms} ms was written: the drive's communication timeout is not armed"
+            )
         self.comm_timeout_s = back / 1000.0
         self.connect_report.device_net = f"communication timeout {self.map.describe(r.address)}: {back:g} ms"
 
@@ -296,12 +323,18 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
         m, d = self.map, self.driver
 
         def mismatch(name: str, got: object, want: object, hint: str = "") -> NoReturn:
-            raise DeviceError(f"{self.port}: {m.describe(m.register(name).address)} holds {got}; driver "
-                              f"{d.name!r} expects {want}{hint}")
+            raise DeviceError(
+                f"{self.port}: {m.describe(m.register(name).address)} holds {got}; driver "
+                f"{d.name!r} expects {want}{hint}"
+            )
 
         if v["device_type"] != m.device_type:
-            mismatch("device_type", f"{v['device_type']:#06x}", f"{m.device_type:#06x}",
-                     f" (is device id {self.device_id} the drive?)")
+            mismatch(
+                "device_type",
+                f"{v['device_type']:#06x}",
+                f"{m.device_type:#06x}",
+                f" (is device id {self.device_id} the drive?)",
+            )
         if v["map_version"] != m.map_version:
             mismatch("map_version", v["map_version"], m.map_version)
         if abs(float(v["loop_rate_hz"]) - d.loop_rate_hz) > 1e-6 * d.loop_rate_hz:
@@ -309,10 +342,15 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
         if v["filter_slots"] != d.filter_slots:
             mismatch("filter_slots", v["filter_slots"], d.filter_slots)
         self.identity = ModbusIdentity(
-            name=str(v["device_name"] or d.name), firmware=str(v["firmware"]), loop_rate_hz=float(v["loop_rate_hz"]),
-            max_sample_rate_hz=float(v["max_sample_rate_hz"]), filter_slots=int(v["filter_slots"]),
-            table_capacity=int(v["table_capacity"]), capture_capacity=int(v["capture_capacity"]),
-            device_type=int(v["device_type"]), map_version=int(v["map_version"]),
+            name=str(v["device_name"] or d.name),
+            firmware=str(v["firmware"]),
+            loop_rate_hz=float(v["loop_rate_hz"]),
+            max_sample_rate_hz=float(v["max_sample_rate_hz"]),
+            filter_slots=int(v["filter_slots"]),
+            table_capacity=int(v["table_capacity"]),
+            capture_capacity=int(v["capture_capacity"]),
+            device_type=int(v["device_type"]),
+            map_version=int(v["map_version"]),
         )
         return self.identity
 
@@ -323,14 +361,24 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
         for name, want in m.expect.items():
             if v[name] != want:
                 r = m.register(name)
-                raise DeviceError(f"{self.port}: {m.describe(r.address, r.count, table=r.table)} holds {v[name]}; "
-                                  f"driver {d.name!r} expects {want} (is device id {self.device_id} the drive?)")
+                raise DeviceError(
+                    f"{self.port}: {m.describe(r.address, r.count, table=r.table)} holds {v[name]}; "
+                    f"driver {d.name!r} expects {want} (is device id {self.device_id} the drive?)"
+                )
         slots = m.filters.slots if m.filters is not None else 0
         firmware = ", ".join(f"{n} {v[n]}" for n in m.identity)
         self.identity = ModbusIdentity(
-            name=d.name, firmware=firmware, loop_rate_hz=float(d.loop_rate_hz),
-            max_sample_rate_hz=float(d.max_sample_rate_hz), filter_slots=slots, table_capacity=0,
-            capture_capacity=0, device_type=int(m.device_type), map_version=int(m.map_version), registers=dict(v))
+            name=d.name,
+            firmware=firmware,
+            loop_rate_hz=float(d.loop_rate_hz),
+            max_sample_rate_hz=float(d.max_sample_rate_hz),
+            filter_slots=slots,
+            table_capacity=0,
+            capture_capacity=0,
+            device_type=int(m.device_type),
+            map_version=int(m.map_version),
+            registers=dict(v),
+        )
         return self.identity
 
     # --- a parameter drive ---------------------------------------------------------------------
@@ -348,7 +396,8 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
             "Record the axis "
             "another way (the drive vendor's scope exported to CSV, or a serial board on the same axis), run "
             "`hilident identify RECORDING`, then `hilident upload --from RUN_DIR --config CONFIG` to write the notch",
-            str(driver.folder / "driver.toml"))
+            str(driver.folder / "driver.toml"),
+        )
 
     def _refuse_run(self) -> None:
         refusal = self.run_refusal(self.driver)
@@ -375,8 +424,9 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
         except DataError as exc:
             raise DeviceError(f"{self.port}: parameter {code} not written: {exc}") from None
         if not r.writable:
-            raise DeviceError(f"{self.port}: parameter {code} ({self.map.describe(r.address, table=r.table)}) is "
-                              "read-only")
+            raise DeviceError(
+                f"{self.port}: parameter {code} ({self.map.describe(r.address, table=r.table)}) is read-only"
+            )
         self.write(r.address, words, f"writing parameter {code}")
 
     def read_feedback(self) -> dict[str, float]:
@@ -394,8 +444,10 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
             The map describes no save parameter, or the drive refuses it.
         """
         if self.map.save is None:
-            raise DeviceError(f"{self.port}: driver {self.driver.name!r} describes no save parameter "
-                              "([modbus.save] in its driver.toml)")
+            raise DeviceError(
+                f"{self.port}: driver {self.driver.name!r} describes no save parameter "
+                "([modbus.save] in its driver.toml)"
+            )
         name, value = self.map.save
         r = self.map.register(name)
         self.write(r.address, self.map.encode(name, value), "saving the parameters to non-volatile memory")
@@ -409,11 +461,17 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
         """
         if not self.map.excitation:
             return
-        self.write_names(torque_limit_nm=torque_nm, velocity_limit_mps=velocity_mps,
-                         position_min_m=position_min_m, position_max_m=position_max_m)
+        self.write_names(
+            torque_limit_nm=torque_nm,
+            velocity_limit_mps=velocity_mps,
+            position_min_m=position_min_m,
+            position_max_m=position_max_m,
+        )
         if "limits_loaded" not in self.status().flags:
-            raise DeviceError(f"{self.port}: the drive does not report its limits loaded "
-                              f"({self.map.describe(self.map.register('status_word').address)})")
+            raise DeviceError(
+                f"{self.port}: the drive does not report its limits loaded "
+                f"({self.map.describe(self.map.register('status_word').address)})"
+            )
 
     def configure(self, sample_rate_hz: float, mode: str, channels: list[str] | None = None) -> list[str]:
         """Choose the capture rate, excitation mode and captured channels; returns the channel names."""
@@ -421,11 +479,14 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
         ident = self._known_identity()
         divider = ident.loop_rate_hz / sample_rate_hz
         if abs(divider - round(divider)) > 1e-9 or round(divider) < 1:
-            raise DeviceError(f"{self.port}: sample rate {sample_rate_hz:g} Hz does not divide the drive's loop "
-                              f"rate {ident.loop_rate_hz:g} Hz")
+            raise DeviceError(
+                f"{self.port}: sample rate {sample_rate_hz:g} Hz does not divide the drive's loop "
+                f"rate {ident.loop_rate_hz:g} Hz"
+            )
         if sample_rate_hz > ident.max_sample_rate_hz * (1 + 1e-9):
-            raise DeviceError(f"{self.port}: sample rate {sample_rate_hz:g} Hz exceeds the drive's "
-                              f"{ident.max_sample_rate_hz:g} Hz")
+            raise DeviceError(
+                f"{self.port}: sample rate {sample_rate_hz:g} Hz exceeds the drive's {ident.max_sample_rate_hz:g} Hz"
+            )
         if mode not in self.map.modes:
             raise ConfigError("excitation.mode", f"the drive offers modes {sorted(self.map.modes)}, got {mode!r}")
         names = list(channels) if channels else [c.name for c in self.driver.streamed_channels]
@@ -451,9 +512,15 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
         r = self.map.register("control_word")
         try:
             with self._answers_within(wait_s):
-                self._request("stopping the drive", r.address, 1,
-                              lambda: self.client.write_registers(r.address, [0], device_id=self.device_id),
-                              lambda resp: resp.address == r.address, retry=True, tries=tries)
+                self._request(
+                    "stopping the drive",
+                    r.address,
+                    1,
+                    lambda: self.client.write_registers(r.address, [0], device_id=self.device_id),
+                    lambda resp: resp.address == r.address,
+                    retry=True,
+                    tries=tries,
+                )
         except Exception:
             pass  # the drive's communication timeout stops it when the host cannot
 

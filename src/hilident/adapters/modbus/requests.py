@@ -43,9 +43,17 @@ class RegisterAccess(ModbusAdapterState):
 
     # --- requests -------------------------------------------------------------------------
 
-    def _request(self, what: str, address: int, count: int, call: Callable[[], ModbusPDU],
-                 check: Callable[[ModbusPDU], bool], retry: bool, page: int | None = None,
-                 tries: int | None = None) -> ModbusPDU:
+    def _request(
+        self,
+        what: str,
+        address: int,
+        count: int,
+        call: Callable[[], ModbusPDU],
+        check: Callable[[ModbusPDU], bool],
+        retry: bool,
+        page: int | None = None,
+        tries: int | None = None,
+    ) -> ModbusPDU:
         """Run one request; retried after a lost answer only when ``retry`` (safe to repeat).
 
         ``tries`` overrides the number of attempts. A lost connection is a
@@ -62,9 +70,11 @@ class RegisterAccess(ModbusAdapterState):
                 self.missing_responses += 1
                 with contextlib.suppress(Exception):
                     self.client.close()  # a fresh connection next time, never half of this one
-                raise DeviceError(f"{self.port}: {what} {where}: the connection to the drive was lost "
-                                  f"({_reason(exc)}); was it switched off, or its cable or gateway "
-                                  "disconnected?") from None
+                raise DeviceError(
+                    f"{self.port}: {what} {where}: the connection to the drive was lost "
+                    f"({_reason(exc)}); was it switched off, or its cable or gateway "
+                    "disconnected?"
+                ) from None
             except _StaleAnswer:
                 self.bad_responses += 1
                 self._resync()
@@ -84,8 +94,7 @@ class RegisterAccess(ModbusAdapterState):
                     error = f"exception {code}"
                     continue
                 function = int(getattr(response, "function_code", 0x80)) & 0x7F
-                raise DeviceError(f"{self.port}: {what} {where}: "
-                                  f"{_exception_text(code, function, self.device_id)}")
+                raise DeviceError(f"{self.port}: {what} {where}: {_exception_text(code, function, self.device_id)}")
             if not check(response):
                 self.bad_responses += 1
                 self._resync()
@@ -141,25 +150,41 @@ class RegisterAccess(ModbusAdapterState):
         """Longest wait for one answer while the drive is enabled: lost answers are asked again in time."""
         return _ENABLED_WAIT * self.comm_timeout_s if self.comm_timeout_s else self.timeout_s
 
-    def read(self, address: int, count: int, what: str = "reading", retry: bool = True,
-             page: int | None = None, input_registers: bool = False) -> list[int]:
+    def read(
+        self,
+        address: int,
+        count: int,
+        what: str = "reading",
+        retry: bool = True,
+        page: int | None = None,
+        input_registers: bool = False,
+    ) -> list[int]:
         """Registers ``address .. address + count - 1`` (read holding registers, or input registers)."""
         reader = self.client.read_input_registers if input_registers else self.client.read_holding_registers
         response = self._request(
-            what, address, count,
+            what,
+            address,
+            count,
             lambda: reader(address, count=count, device_id=self.device_id),
-            lambda r: len(r.registers) == count, retry, page,
+            lambda r: len(r.registers) == count,
+            retry,
+            page,
         )
         return list(response.registers)
 
-    def write(self, address: int, values: Sequence[int] | np.ndarray, what: str = "writing",
-              page: int | None = None) -> None:
+    def write(
+        self, address: int, values: Sequence[int] | np.ndarray, what: str = "writing", page: int | None = None
+    ) -> None:
         """Write registers from ``address`` (write multiple registers); repeated after a lost answer."""
         words = [int(v) for v in values]
         self._request(
-            what, address, len(words),
+            what,
+            address,
+            len(words),
             lambda: self.client.write_registers(address, words, device_id=self.device_id),
-            lambda r: r.address == address and r.count == len(words), True, page,
+            lambda r: r.address == address and r.count == len(words),
+            True,
+            page,
         )
 
     def read_names(self, *names: str) -> dict[str, float | int | str]:
@@ -167,9 +192,18 @@ class RegisterAccess(ModbusAdapterState):
         out: dict[str, float | int | str] = {}
         for table, address, count in self.map.request_groups(names):
             regs = self.read(address, count, input_registers=table == "input")
-            out.update(self.map.decode_span([n for n in names if self.map.register(n).table == table and
-                                             address <= self.map.register(n).address < address + count],
-                                            address, regs))
+            out.update(
+                self.map.decode_span(
+                    [
+                        n
+                        for n in names
+                        if self.map.register(n).table == table
+                        and address <= self.map.register(n).address < address + count
+                    ],
+                    address,
+                    regs,
+                )
+            )
         return out
 
     def write_names(self, **values: float | int | str) -> None:
@@ -178,8 +212,10 @@ class RegisterAccess(ModbusAdapterState):
         for name, value in values.items():
             r = self.map.register(name)
             if not r.writable:
-                raise DeviceError(f"{self.port}: {self.map.describe(r.address, r.count, table=r.table)} is read-only "
-                                  f"in driver {self.driver.name!r}")
+                raise DeviceError(
+                    f"{self.port}: {self.map.describe(r.address, r.count, table=r.table)} is read-only "
+                    f"in driver {self.driver.name!r}"
+                )
             try:
                 words = self.map.encode(name, value)
             except DataError as exc:
@@ -199,5 +235,11 @@ class RegisterAccess(ModbusAdapterState):
         """The status registers, in one request."""
         v = self.read_names(*_STATUS)
         word = int(v["status_word"])
-        return DriveStatus(word, self.map.status_flags(word), int(v["fault_code"]), int(v["sample_count"]),
-                           int(v["fault_sample"]), float(v["fault_value"]))
+        return DriveStatus(
+            word,
+            self.map.status_flags(word),
+            int(v["fault_code"]),
+            int(v["sample_count"]),
+            int(v["fault_sample"]),
+            float(v["fault_value"]),
+        )

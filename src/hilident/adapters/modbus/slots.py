@@ -84,8 +84,10 @@ class FilterSlots(RegisterAccess):
         """The slots as named registers; DeviceError when the map describes them otherwise, or none."""
         fs = self._field_slots()
         if fs is None:
-            raise DeviceError(f"{self.port}: driver {self.driver.name!r} describes no filter slots of named "
-                              "registers (notch parameters)")
+            raise DeviceError(
+                f"{self.port}: driver {self.driver.name!r} describes no filter slots of named "
+                "registers (notch parameters)"
+            )
         return fs
 
     def _fields(self, slot: int) -> dict[str, Register]:
@@ -106,8 +108,10 @@ class FilterSlots(RegisterAccess):
         physical = {}
         for name, value in stored.items():
             if isinstance(value, bytes):  # a word block's raw words: no register of a named slot holds one
-                raise DataError(f"{self.port}: filter slot {slot} field {name!r} is raw words; a parameter "
-                                "drive's slot holds numbers")
+                raise DataError(
+                    f"{self.port}: filter slot {slot} field {name!r} is raw words; a parameter "
+                    "drive's slot holds numbers"
+                )
             physical[regs[name].name] = value * regs[name].scale + regs[name].offset
         self.write_names(**physical)
 
@@ -125,8 +129,10 @@ class FilterSlots(RegisterAccess):
         try:
             return encoding.realise(spec, self._known_identity().loop_rate_hz)
         except DataError as exc:
-            raise DeviceError(f"{self.port}: the drive's {encoding.kind} filter parameters cannot "
-                              f"hold the {spec.center_hz:.4g} Hz notch: {exc}") from None
+            raise DeviceError(
+                f"{self.port}: the drive's {encoding.kind} filter parameters cannot "
+                f"hold the {spec.center_hz:.4g} Hz notch: {exc}"
+            ) from None
 
     def filter_parameters(self, slot: int) -> dict:
         """What a parameter drive's slot holds, for a report: each field's register, parameter code and stored
@@ -134,9 +140,14 @@ class FilterSlots(RegisterAccess):
         regs = self._fields(slot)
         stored = self._read_fields(slot)
         values, enabled = self._slot_state(stored)
-        out: dict[str, object] = {"slot": slot, "enabled": enabled,
-               "fields": {f: {"register": regs[f].name, "parameter": regs[f].parameter, "address": regs[f].address,
-                              "value": v} for f, v in stored.items()}}
+        out: dict[str, object] = {
+            "slot": slot,
+            "enabled": enabled,
+            "fields": {
+                f: {"register": regs[f].name, "parameter": regs[f].parameter, "address": regs[f].address, "value": v}
+                for f, v in stored.items()
+            },
+        }
         if enabled:
             try:
                 spec = self._encoding().parameters(values)
@@ -149,8 +160,10 @@ class FilterSlots(RegisterAccess):
         """What a parameter drive's ``slot`` will hold for ``spec``: each field's register, parameter code and
         the integer the drive's steps give (what ``hilident upload --dry-run`` shows)."""
         regs = self._fields(slot)
-        return {f: {"register": regs[f].name, "parameter": regs[f].parameter, "value": v}
-                for f, v in self._realise(spec).fields.items()}
+        return {
+            f: {"register": regs[f].name, "parameter": regs[f].parameter, "value": v}
+            for f, v in self._realise(spec).fields.items()
+        }
 
     def filter_notes(self, spec: NotchSpec) -> tuple[str, ...]:
         """Why a parameter drive's notch parameters cannot meet ``spec`` exactly, if they cannot."""
@@ -212,8 +225,10 @@ class FilterSlots(RegisterAccess):
                 return self._encoding().applied(values, self._known_identity().loop_rate_hz), enabled
             except DataError as exc:
                 regs = self._fields(slot)
-                raise DeviceError(f"{self.port}: filter slot {slot} ({', '.join(r.label for r in regs.values())}) "
-                                  f"holds {values}: {exc}") from None
+                raise DeviceError(
+                    f"{self.port}: filter slot {slot} ({', '.join(r.label for r in regs.values())}) "
+                    f"holds {values}: {exc}"
+                ) from None
         address = self._slot(slot)
         span = self._register_slots().span
         words, enabled = self.map.decode_filter(self.read(address, span, f"reading filter slot {slot}"))
@@ -222,8 +237,9 @@ class FilterSlots(RegisterAccess):
         try:
             return self._encoding().applied(words, self._known_identity().loop_rate_hz), enabled
         except DataError as exc:
-            raise DeviceError(f"{self.port}: filter slot {slot} "
-                              f"({self.map.describe(address, span)}) holds {words}: {exc}") from None
+            raise DeviceError(
+                f"{self.port}: filter slot {slot} ({self.map.describe(address, span)}) holds {words}: {exc}"
+            ) from None
 
     def stored_form(self, biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
         """The biquad the drive runs after its own rounding of ``spec`` (0.1 Hz, 0.1 dB steps), or what a

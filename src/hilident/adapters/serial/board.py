@@ -152,8 +152,14 @@ class SerialBoardAdapter(AdapterBase):
 
     transport = "serial"
 
-    def __init__(self, link: ByteLink, driver: DriverDescription, port: str, timeout_s: float = 2.0,
-                 allow_fault_reset: bool = False):
+    def __init__(
+        self,
+        link: ByteLink,
+        driver: DriverDescription,
+        port: str,
+        timeout_s: float = 2.0,
+        allow_fault_reset: bool = False,
+    ):
         self.link = link
         self.driver = driver
         self.port = port
@@ -185,21 +191,30 @@ class SerialBoardAdapter(AdapterBase):
     # --- opening --------------------------------------------------------------------
 
     @classmethod
-    def open_device(cls, device: DeviceConfig, driver: DriverDescription,
-                    link: ByteLink | None = None) -> SerialBoardAdapter:
+    def open_device(
+        cls, device: DeviceConfig, driver: DriverDescription, link: ByteLink | None = None
+    ) -> SerialBoardAdapter:
         """Connect as ``[device]`` says, or over an already open ``link``, and bring the board to a known state.
 
         See :meth:`connect`; ``device.allow_fault_reset`` decides whether a latched fault is cleared.
         """
         if link is None:
-            return cls.open(device.port, driver, device.baudrate, device.timeout_s,
-                            allow_fault_reset=device.allow_fault_reset)
-        return cls._connected(cls(link, driver, device.port, device.timeout_s,
-                                  allow_fault_reset=device.allow_fault_reset))
+            return cls.open(
+                device.port, driver, device.baudrate, device.timeout_s, allow_fault_reset=device.allow_fault_reset
+            )
+        return cls._connected(
+            cls(link, driver, device.port, device.timeout_s, allow_fault_reset=device.allow_fault_reset)
+        )
 
     @classmethod
-    def open(cls, port: str, driver: DriverDescription, baudrate: int = 0, timeout_s: float = 2.0,
-             allow_fault_reset: bool = False):
+    def open(
+        cls,
+        port: str,
+        driver: DriverDescription,
+        baudrate: int = 0,
+        timeout_s: float = 2.0,
+        allow_fault_reset: bool = False,
+    ):
         """Open ``port`` (device path, ``COMx`` or pyserial URL) and connect (:meth:`connect`)."""
         log.debug("opening %s at %d baud", port, baudrate or driver.default_baudrate)
         try:
@@ -241,15 +256,18 @@ class SerialBoardAdapter(AdapterBase):
             self.found_state = report.found_state = found.state.name
             status = self.status()
             if status.state == sb.State.FAULT:
+
                 def clear() -> None:
                     self.clear_fault()
                     if self.status().state == sb.State.FAULT:
-                        raise DeviceError(f"{self.port}: the board stays in FAULT {status.fault.name} after "
-                                          "CLEAR_FAULT")
+                        raise DeviceError(
+                            f"{self.port}: the board stays in FAULT {status.fault.name} after CLEAR_FAULT"
+                        )
 
                 meaning = _FAULT_MEANING.get(status.fault, "unknown fault")
-                self._clear_latched_fault(f"board in FAULT {status.fault.name} ({meaning})", self.allow_fault_reset,
-                                          clear)
+                self._clear_latched_fault(
+                    f"board in FAULT {status.fault.name} ({meaning})", self.allow_fault_reset, clear
+                )
         finally:
             self._connecting = False
             report.discarded_frames += self.decoder.stats.corrupt - corrupt_before
@@ -382,10 +400,11 @@ class SerialBoardAdapter(AdapterBase):
                         if isinstance(reply, sb.Nak) and (reply.acked_seq, reply.acked_type) == (seq, kind):
                             refusal = reply
                             continue
-                        if (answer_type is None and isinstance(reply, sb.Ack)
-                                and (reply.acked_seq, reply.acked_type) == (seq, kind)) or (
-                            answer_type is not None and isinstance(reply, answer_type)
-                        ):
+                        if (
+                            answer_type is None
+                            and isinstance(reply, sb.Ack)
+                            and (reply.acked_seq, reply.acked_type) == (seq, kind)
+                        ) or (answer_type is not None and isinstance(reply, answer_type)):
                             answer = reply
                             continue
                     if self._connecting:
@@ -425,8 +444,9 @@ class SerialBoardAdapter(AdapterBase):
         offered = [c.name for c in ident.channels]
         missing = [c.name for c in self.driver.channels if c.name not in offered]
         if missing:
-            raise DeviceError(f"{self.port}: board {ident.name!r} lacks channels {missing} "
-                              f"of driver {self.driver.name!r}")
+            raise DeviceError(
+                f"{self.port}: board {ident.name!r} lacks channels {missing} of driver {self.driver.name!r}"
+            )
         self.identity = ident
         return ident
 
@@ -445,13 +465,13 @@ class SerialBoardAdapter(AdapterBase):
                 f"{self.port}: sample rate {sample_rate_hz:g} Hz does not divide the board's loop rate "
                 f"{ident.loop_rate_hz:g} Hz"
             )
-        specs = self.driver.streamed_channels if not channels else [
-            self.driver.channels[self.driver.channel_index(n)] for n in channels
-        ]
-        offered = [c.name for c in ident.channels]
-        selection = tuple(
-            sb.ChannelSelection(offered.index(c.name), _FORMATS[c.format], c.scale) for c in specs
+        specs = (
+            self.driver.streamed_channels
+            if not channels
+            else [self.driver.channels[self.driver.channel_index(n)] for n in channels]
         )
+        offered = [c.name for c in ident.channels]
+        selection = tuple(sb.ChannelSelection(offered.index(c.name), _FORMATS[c.format], c.scale) for c in specs)
         # block_samples is given per 1 kHz; slower rates keep at least 32 samples per frame
         block = max(32, int(round(self.driver.block_samples * sample_rate_hz / 1000.0)))
         self._request(sb.Configure(int(round(divider)), _MODES[mode], min(block, 4096), selection))
@@ -521,8 +541,9 @@ class SerialBoardAdapter(AdapterBase):
     def stored_form(biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
         """The coefficients as this board stores them (REAL32), for read-back comparison."""
         b0, b1, b2 = biquad.b
-        return Biquad((sb.float32(b0), sb.float32(b1), sb.float32(b2)),
-                      (1.0, sb.float32(biquad.a[1]), sb.float32(biquad.a[2])))
+        return Biquad(
+            (sb.float32(b0), sb.float32(b1), sb.float32(b2)), (1.0, sb.float32(biquad.a[1]), sb.float32(biquad.a[2]))
+        )
 
     # --- streaming ----------------------------------------------------------------------------
 
@@ -576,12 +597,16 @@ class SerialBoardAdapter(AdapterBase):
         end = max(run.expected_sample, 0)
         if self.run_fault is None and status.state == sb.State.FAULT:
             kind = Kind.LIMIT_TRIP if status.fault in _LIMIT_FAULTS else Kind.FAULT
-            self.note_fault(RunEvent(kind, f"board in FAULT {status.fault.name} after the run (its event was lost "
-                                           "on the line)", end).to_dict())  # the run's cause; no event was logged
+            self.note_fault(
+                RunEvent(
+                    kind, f"board in FAULT {status.fault.name} after the run (its event was lost on the line)", end
+                ).to_dict()
+            )  # the run's cause; no event was logged
         if self.run_fault is None and end < n:
             stats.lost_samples += n - end
-            self.log_event(RunEvent(Kind.LOST_BLOCKS, f"end of run lost on the line: samples {end}..{n - 1}", end,
-                                    value=0.0))
+            self.log_event(
+                RunEvent(Kind.LOST_BLOCKS, f"end of run lost on the line: samples {end}..{n - 1}", end, value=0.0)
+            )
         stats.underruns = status.underruns
         stats.board_dropped_blocks = status.dropped_blocks
         result.completed = self.run_fault is None
@@ -637,8 +662,12 @@ class _Run(RunStrategy[SerialBoardAdapter]):
                 break  # the run's last block was lost on the line
             for msg in messages:
                 self.take(msg, now)
-            if self.refusal is not None and self.end_seen is None and not self.done \
-                    and now - self.refused_at > _END_GRACE_S:
+            if (
+                self.refusal is not None
+                and self.end_seen is None
+                and not self.done
+                and now - self.refused_at > _END_GRACE_S
+            ):
                 nak = self.refusal
                 raise DeviceError(f"{ad.port}: board refused a frame during the run: {nak.error.name} ({nak.detail})")
 
@@ -666,8 +695,14 @@ class _Run(RunStrategy[SerialBoardAdapter]):
             what = sb.MsgType(nak.acked_type).name
         except ValueError:
             what = f"type 0x{nak.acked_type:02x}"
-        self.ad.log_event(RunEvent(Kind.REFUSED, f"board refused a frame ({what}): {nak.error.name} ({nak.detail})",
-                                   self.expected_sample, value=float(nak.error)))
+        self.ad.log_event(
+            RunEvent(
+                Kind.REFUSED,
+                f"board refused a frame ({what}): {nak.error.name} ({nak.detail})",
+                self.expected_sample,
+                value=float(nak.error),
+            )
+        )
         if self.done or self.end_seen is not None or self.refusal is not None:
             return
         self.refusal, self.refused_at = nak, now
@@ -683,9 +718,14 @@ class _Run(RunStrategy[SerialBoardAdapter]):
             stats.lost_samples += msg.first_sample - self.expected_sample
             if gap <= _MAX_TRACKED_GAPS:
                 self.lost.update(dict.fromkeys(range(self.expected_block, msg.block_index)))
-            ad.log_event(RunEvent(
-                Kind.LOST_BLOCKS, f"{gap} sample block(s) lost: samples {self.expected_sample}..{msg.first_sample - 1}",
-                self.expected_sample, value=float(gap)))
+            ad.log_event(
+                RunEvent(
+                    Kind.LOST_BLOCKS,
+                    f"{gap} sample block(s) lost: samples {self.expected_sample}..{msg.first_sample - 1}",
+                    self.expected_sample,
+                    value=float(gap),
+                )
+            )
         self.expected_block = msg.block_index + 1
         self.expected_sample = msg.first_sample + len(msg.data)
         self.consumed = max(self.consumed, msg.excitation_consumed)
@@ -713,6 +753,12 @@ class _Run(RunStrategy[SerialBoardAdapter]):
             del self.lost[msg.block_index]
             stats.lost_blocks -= 1
             stats.lost_samples -= rows
-        self.ad.log_event(RunEvent(
-            Kind.OUT_OF_ORDER, f"sample block {msg.block_index} arrived after a later one and was discarded: "
-                               f"{span} are missing from the recording", msg.first_sample, value=float(rows)))
+        self.ad.log_event(
+            RunEvent(
+                Kind.OUT_OF_ORDER,
+                f"sample block {msg.block_index} arrived after a later one and was discarded: "
+                f"{span} are missing from the recording",
+                msg.first_sample,
+                value=float(rows),
+            )
+        )

@@ -109,8 +109,12 @@ _LIVE_VALUES = {
     "error_register": lambda fw, k: error_register(fw.error_code) if fw.error_code else 0,
 }
 #: Abort connection options (0x6007) that end in Switch On Disabled, and the states they leave.
-_SWITCHED_OFF_BY_ABORT = (cia402.State.OPERATION_ENABLED, cia402.State.SWITCHED_ON,
-                          cia402.State.READY_TO_SWITCH_ON, cia402.State.QUICK_STOP_ACTIVE)
+_SWITCHED_OFF_BY_ABORT = (
+    cia402.State.OPERATION_ENABLED,
+    cia402.State.SWITCHED_ON,
+    cia402.State.READY_TO_SWITCH_ON,
+    cia402.State.QUICK_STOP_ACTIVE,
+)
 
 
 def _supported_modes(desc: CanopenDescription, od, emulator: dict) -> tuple[str, ...]:
@@ -168,8 +172,15 @@ class CanopenDriveFirmware:
     heartbeat_events = _part("watch", "heartbeat_events")
     heartbeat_event_wall = _part("watch", "heartbeat_event_wall")
 
-    def __init__(self, drive: DriveLoop, driver: DriverDescription, node_id: int, faults: FaultsConfig | None = None,
-                 time_scale: float = 1.0, seed: int = 0):
+    def __init__(
+        self,
+        drive: DriveLoop,
+        driver: DriverDescription,
+        node_id: int,
+        faults: FaultsConfig | None = None,
+        time_scale: float = 1.0,
+        seed: int = 0,
+    ):
         self.drive = drive
         self.driver = driver
         self.faults = faults or FaultsConfig()
@@ -196,11 +207,13 @@ class CanopenDriveFirmware:
         desc = CanopenDescription.from_sections(driver.sections, source, od)
         self.supported = _supported_modes(desc, od, driver.sections.get("emulator", {}))
         self.desc = desc = desc.with_supported_modes(self.supported)
-        self.encoding = (FilterEncoding.from_table(driver.sections["filters"], source)
-                         if desc.filters is not None else None)
+        self.encoding = (
+            FilterEncoding.from_table(driver.sections["filters"], source) if desc.filters is not None else None
+        )
         node = canopen.LocalNode(node_id, od)
-        node.sdo = BlockSdoServer(0x600 + node_id, 0x580 + node_id, node,
-                                  parse_fault_object(self.faults.canopen.abort_object))
+        node.sdo = BlockSdoServer(
+            0x600 + node_id, 0x580 + node_id, node, parse_fault_object(self.faults.canopen.abort_object)
+        )
         node.add_read_callback(self._on_read)
         node.add_write_callback(self._on_write)
         self.node = node
@@ -219,8 +232,9 @@ class CanopenDriveFirmware:
         desc = self.desc
         self.state = cia402.State.SWITCH_ON_DISABLED
         self.cw = 0
-        self.setpoints = SetPoints(desc, self.scales, self.supported,
-                                   int(self.default(desc.address("modes_of_operation"))), self.drive)
+        self.setpoints = SetPoints(
+            desc, self.scales, self.supported, int(self.default(desc.address("modes_of_operation"))), self.drive
+        )
         self.sample_index = 0
         self.run_start_tick = self.drive.tick
         self.injected: set[str] = set()
@@ -250,6 +264,7 @@ class CanopenDriveFirmware:
 
     def guarded(self, callback):
         """``callback`` as a bus handler: a failure in it faults the drive and is kept for the owner."""
+
         def guarded(can_id, data, timestamp):
             try:
                 callback(can_id, data, timestamp)
@@ -260,6 +275,7 @@ class CanopenDriveFirmware:
                         self.fault(EMCY_INTERNAL, self.sample_index)
                 except Exception:
                     self.drive.disable()
+
         guarded.__name__ = callback.__name__
         return guarded
 
@@ -277,8 +293,9 @@ class CanopenDriveFirmware:
 
     def statusword(self) -> int:
         internal_limit = self.drive.fault is not None
-        return cia402.statusword(self.state, target_reached=self.playback.state == TableState.DONE,
-                                 internal_limit=internal_limit)
+        return cia402.statusword(
+            self.state, target_reached=self.playback.state == TableState.DONE, internal_limit=internal_limit
+        )
 
     def apply_controlword(self, cw: int) -> None:
         new, number = cia402.transition(self.state, cw, self.cw)
@@ -340,8 +357,12 @@ class CanopenDriveFirmware:
             self.fault(EMCY_OF_TRIP.get(drive.fault, 0x8311), index)
         elapsed = (drive.tick - self.run_start_tick) / self.loop_rate
         f, bus = self.faults, self.faults.canopen
-        if (f.drive_fault_after_s and elapsed >= f.drive_fault_after_s and "drive" not in self.injected
-                and self.state is cia402.State.OPERATION_ENABLED):
+        if (
+            f.drive_fault_after_s
+            and elapsed >= f.drive_fault_after_s
+            and "drive" not in self.injected
+            and self.state is cia402.State.OPERATION_ENABLED
+        ):
             self.injected.add("drive")
             self.fault(EMCY_DRIVE_FAULT, (drive.tick - self.run_start_tick) // divider)
         if bus.heartbeat_stops_after_s and elapsed >= bus.heartbeat_stops_after_s and not self.heartbeat_stopped:
@@ -401,8 +422,11 @@ class CanopenDriveFirmware:
         addr = ObjectAddress(index, subindex)
         role = self.role_of.get(addr)
         with self.lock:
-            if (self.recorder is not None and self.recorder.owns(addr)
-                    and (live := self.recorder.on_read(addr)) is not None):
+            if (
+                self.recorder is not None
+                and self.recorder.owns(addr)
+                and (live := self.recorder.on_read(addr)) is not None
+            ):
                 return live
             value = self._read_live(role, addr)
             if value is not None:
@@ -419,8 +443,11 @@ class CanopenDriveFirmware:
                 row = row.copy()
                 row[self.columns["position_m"]] = self.drive.sensors.encoder(self.drive.plant.p1)
             return self.live(role, addr, row, self.sample_index)
-        counters = {"supported_modes": lambda: encode_supported_modes(self.supported),
-                    "setpoint_underruns": lambda: self.pdo.underruns, "sync_errors": lambda: self.pdo.sync_errors}
+        counters = {
+            "supported_modes": lambda: encode_supported_modes(self.supported),
+            "setpoint_underruns": lambda: self.pdo.underruns,
+            "sync_errors": lambda: self.pdo.sync_errors,
+        }
         if role in counters:
             return counters[role]()
         played = self.playback.read(role)

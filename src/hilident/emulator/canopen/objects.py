@@ -100,7 +100,8 @@ class ObjectStore:
         """
         string = od.data_type in _STRING_TYPES
         if subindex in self.node.data_store.get(index, {}) or (
-                (od.default is not None or od.value is not None) and not (string and not (od.value or od.default))):
+            (od.default is not None or od.value is not None) and not (string and not (od.value or od.default))
+        ):
             return None
         info = self.od.device_information
         identity = {(0x1018, 1): info.vendor_number, (0x1018, 2): info.product_number}.get((index, subindex))

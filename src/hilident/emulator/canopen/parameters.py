@@ -54,8 +54,9 @@ class DriveParameters:
         """0x1010:1: with the signature "save" the drive keeps its parameters (here: the filter slots) as stored."""
         if value != _STORE_SIGNATURE:
             raise SdoAbortedError(_ABORT_NOT_STORED)
-        self.stored_parameters = {slot: self.fw.drive.filters.read(slot)
-                                  for slot in range(len(self.fw.drive.filters.enabled))}
+        self.stored_parameters = {
+            slot: self.fw.drive.filters.read(slot) for slot in range(len(self.fw.drive.filters.enabled))
+        }
         self.saves += 1
 
     def write_limit(self, role: str, raw: int) -> None:
@@ -66,13 +67,17 @@ class DriveParameters:
         if not all(r in self.limits_raw for r in held):
             return
         si = {r: self.limits_raw[r] * self.fw.scales[r] if r in held else None for r in LIMIT_ROLES}
-        if (si["position_limit_min"] is not None and si["position_limit_max"] is not None
-                and si["position_limit_min"] >= si["position_limit_max"]):
+        if (
+            si["position_limit_min"] is not None
+            and si["position_limit_max"] is not None
+            and si["position_limit_min"] >= si["position_limit_max"]
+        ):
             self.limits_loaded = False  # one end written, the other still to come
             return
         try:
-            self.fw.drive.set_limits(si["max_torque"], si["max_velocity"], si["position_limit_min"],
-                                  si["position_limit_max"])
+            self.fw.drive.set_limits(
+                si["max_torque"], si["max_velocity"], si["position_limit_min"], si["position_limit_max"]
+            )
         except (ConfigError, ValueError):
             raise SdoAbortedError(ABORT_VALUE) from None
         self.limits_loaded = True

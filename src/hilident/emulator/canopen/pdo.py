@@ -88,15 +88,17 @@ class PdoExchange:
         self.rng = np.random.default_rng(seed + 2)
         self.interpolation_period = [0, -3]  # 0x60C2 value and exponent as last written
         self.sync_divider = 0
-        self.sync_overflow = (int(firmware.default(firmware.desc.address("sync_overflow")))
-                              if firmware.desc.has("sync_overflow") else 0)
+        self.sync_overflow = (
+            int(firmware.default(firmware.desc.address("sync_overflow"))) if firmware.desc.has("sync_overflow") else 0
+        )
         self.last_sync_wall: float | None = None
         self.tpdos_dropped = 0
         self.dropped: list[tuple[int, int]] = []
         self.restart()
         self.pdos = {("tpdo", n): self._load("tpdo", n) for n in range(512) if 0x1800 + n in od and 0x1A00 + n in od}
-        self.pdos.update({("rpdo", n): self._load("rpdo", n) for n in range(512)
-                          if 0x1400 + n in od and 0x1600 + n in od})
+        self.pdos.update(
+            {("rpdo", n): self._load("rpdo", n) for n in range(512) if 0x1400 + n in od and 0x1600 + n in od}
+        )
 
     def restart(self) -> None:
         """A run starts: counters cleared, not yet driven by SYNC."""
@@ -214,6 +216,7 @@ class PdoExchange:
                     return  # CiA 301: a too-short PDO is not processed
                 for (addr, _), value in zip(cfg.entries, cfg.packer.unpack_from(bytes(data)), strict=False):
                     fw.receive_setpoint(fw.role_of.get(addr), value)
+
         on_rpdo.__name__ = f"on_rpdo{n + 1}"
         return on_rpdo
 

@@ -108,10 +108,17 @@ class TablePlayback:
 
     def read(self, role: str | None):
         """Live value of a playback object (None: not one of them)."""
-        return {
-            "table_length": len(self.table), "table_state": self.state, "capture_count": self.count,
-            "capture_offset": self.offset, "table_divider": self.divider,
-        }.get(role) if role is not None else None
+        return (
+            {
+                "table_length": len(self.table),
+                "table_state": self.state,
+                "capture_count": self.count,
+                "capture_offset": self.offset,
+                "table_divider": self.divider,
+            }.get(role)
+            if role is not None
+            else None
+        )
 
     def write_table(self, data: bytes) -> None:
         if self.playing:
@@ -146,8 +153,13 @@ class TablePlayback:
             addr, width = parse_mapping_entry(int(fw.stored(index, s)))
             obj = fw.od.get_variable(addr.index, addr.subindex)
             role = fw.role_of.get(addr)
-            if (obj is None or role is None or obj.data_type not in NUMERIC_TYPES or width != type_bits(obj.data_type)
-                    or not (role in COLUMN_OF_ROLE or role in _CAPTURED_STATES)):
+            if (
+                obj is None
+                or role is None
+                or obj.data_type not in NUMERIC_TYPES
+                or width != type_bits(obj.data_type)
+                or not (role in COLUMN_OF_ROLE or role in _CAPTURED_STATES)
+            ):
                 raise SdoAbortedError(ABORT_NOT_MAPPABLE)  # only sampled signals can be captured
             layout.append((role, obj.data_type))
             size += width // 8
@@ -167,8 +179,7 @@ class TablePlayback:
         if command != TABLE_START:
             raise SdoAbortedError(ABORT_VALUE)
         fw = self.fw
-        if (fw.state is not cia402.State.OPERATION_ENABLED or self.playing
-                or not len(self.table) or not self.layout):
+        if fw.state is not cia402.State.OPERATION_ENABLED or self.playing or not len(self.table) or not self.layout:
             raise SdoAbortedError(ABORT_STATE)
         fw.start_run()
         self.player.restart(self.divider)
@@ -187,7 +198,7 @@ class TablePlayback:
         if stop <= start:
             raise SdoAbortedError(ABORT_NO_DATA)
         size = self.record_size
-        return bytes(self.capture[start * size:stop * size])
+        return bytes(self.capture[start * size : stop * size])
 
     # --- playing ------------------------------------------------------------------------------------
 
@@ -198,7 +209,7 @@ class TablePlayback:
         n = self.player.cut_at(first, n, fw.pending_fault_times())  # stop exactly where an injected fault is due
         if n <= 0:
             return
-        played = self.player.play(self.table[first:first + n], first)
+        played = self.player.play(self.table[first : first + n], first)
         self.produced = fw.sample_index = first + n
         fw.last_row = played.rows[-1]
         self._capture(played)

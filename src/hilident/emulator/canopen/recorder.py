@@ -120,9 +120,11 @@ class DriveRecorder:
                 raise SdoAbortedError(ABORT_STATE)  # the set-up is fixed while it records
             if addr in r.channels and int(value):
                 self._channel(int(value))
-            bad = {r.trigger: lambda v: v not in r.triggers.values(),
-                   r.sample_period: lambda v: v not in r.sample_periods,
-                   r.samples: lambda v: not 1 <= v <= r.max_samples}.get(addr)
+            bad = {
+                r.trigger: lambda v: v not in r.triggers.values(),
+                r.sample_period: lambda v: v not in r.sample_periods,
+                r.samples: lambda v: not 1 <= v <= r.max_samples,
+            }.get(addr)
             if bad is not None and bad(int(value)):
                 raise SdoAbortedError(ABORT_VALUE)
         elif g is not None and addr == g.control:

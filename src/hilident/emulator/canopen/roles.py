@@ -7,8 +7,17 @@ the EMCY codes (CiA 301/402) the drive sends.
 
 from __future__ import annotations
 
-__all__ = ["COLUMN_OF_ROLE", "EMCY_DRIVE_FAULT", "EMCY_HEARTBEAT", "EMCY_INTERNAL", "EMCY_OF_TRIP",
-           "EMCY_SYNC_TIMEOUT", "LIMIT_ROLES", "TARGET_ROLES", "error_register"]
+__all__ = [
+    "COLUMN_OF_ROLE",
+    "EMCY_DRIVE_FAULT",
+    "EMCY_HEARTBEAT",
+    "EMCY_INTERNAL",
+    "EMCY_OF_TRIP",
+    "EMCY_SYNC_TIMEOUT",
+    "LIMIT_ROLES",
+    "TARGET_ROLES",
+    "error_register",
+]
 
 EMCY_OF_TRIP = {"torque_limit": 0x8311, "velocity_limit": 0x8400, "position_limit": 0x8612}
 EMCY_DRIVE_FAULT = 0x4310  # excess temperature, drive (the injected fault)
@@ -18,9 +27,13 @@ EMCY_HEARTBEAT = 0x8130  # life guard or heartbeat error (the host's heartbeat s
 
 #: Sampled objects: the drive loop column (``DriveLoop.CHANNELS``) each role reads.
 COLUMN_OF_ROLE = {
-    "position_actual": "position_m", "velocity_actual": "velocity_mps", "torque_actual": "torque_nm",
+    "position_actual": "position_m",
+    "velocity_actual": "velocity_mps",
+    "torque_actual": "torque_nm",
     "current_actual": "torque_nm",
-    "torque_demand": "torque_cmd_nm", "applied_excitation": "excitation", "load_position": "load_position_m",
+    "torque_demand": "torque_cmd_nm",
+    "applied_excitation": "excitation",
+    "load_position": "load_position_m",
 }
 TARGET_ROLES = ("target_torque", "torque_offset", "target_velocity", "target_position", "interpolation_data")
 LIMIT_ROLES = ("max_torque", "max_velocity", "position_limit_min", "position_limit_max")

@@ -190,9 +190,11 @@ class BlockSdoServer(SdoServer):
         a byte is sent.
         """
         ccs = data[0] & 0xE0
-        initiate = (ccs in (REQUEST_UPLOAD, REQUEST_DOWNLOAD)
-                    or (ccs == REQUEST_BLOCK_UPLOAD and data[0] & 0x03 == 0)
-                    or (ccs == REQUEST_BLOCK_DOWNLOAD and data[0] & 0x01 == 0))
+        initiate = (
+            ccs in (REQUEST_UPLOAD, REQUEST_DOWNLOAD)
+            or (ccs == REQUEST_BLOCK_UPLOAD and data[0] & 0x03 == 0)
+            or (ccs == REQUEST_BLOCK_DOWNLOAD and data[0] & 0x01 == 0)
+        )
         if not initiate:
             return None
         _, index, sub = SDO_STRUCT.unpack_from(data)
@@ -201,7 +203,8 @@ class BlockSdoServer(SdoServer):
             self.aborted_by_fault += 1
             return ABORT_HARDWARE
         sized = (ccs == REQUEST_DOWNLOAD and data[0] & 0x03 == 0x01) or (
-            ccs == REQUEST_BLOCK_DOWNLOAD and data[0] & _SIZE)  # segmented / block download with a size
+            ccs == REQUEST_BLOCK_DOWNLOAD and data[0] & _SIZE
+        )  # segmented / block download with a size
         if not sized:
             return None
         size = struct.unpack_from("<L", data, 4)[0]  # announced size of a segmented or block download
@@ -282,13 +285,13 @@ class BlockSdoServer(SdoServer):
         seq = 0
         last = False
         while seq < block.blksize and not last:
-            chunk = payload[pos:pos + 7]
+            chunk = payload[pos : pos + 7]
             seq += 1
             pos += 7
             last = pos >= len(payload)
             frame = bytearray(8)
             frame[0] = seq | (_NO_MORE if last else 0)
-            frame[1:1 + len(chunk)] = chunk
+            frame[1 : 1 + len(chunk)] = chunk
             self.send_response(frame)
         block.sent = seq
         block.last_sent = last
@@ -314,7 +317,7 @@ class BlockSdoServer(SdoServer):
             n_unused = (data[0] >> 2) & 0x07
             buffer = block.buffer
             if n_unused:
-                del buffer[len(buffer) - n_unused:]
+                del buffer[len(buffer) - n_unused :]
             if block.crc and struct.unpack_from("<H", data, 1)[0] != crc16(buffer):
                 raise SdoAbortedError(ABORT_CRC_ERROR)
             self._block = None

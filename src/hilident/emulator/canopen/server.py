@@ -108,10 +108,12 @@ class CanopenDriveServer:
 
 def _firmware(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig) -> CanopenDriveFirmware:
     if driver.transport != "canopen":
-        raise ConfigError("device.driver", f"driver {driver.name!r} is not a CANopen drive (transport "
-                                           f"{driver.transport!r})")
-    return CanopenDriveFirmware(build_drive(cfg, driver), driver, device.canopen.node_id, cfg.faults, cfg.time_scale,
-                                cfg.seed)
+        raise ConfigError(
+            "device.driver", f"driver {driver.name!r} is not a CANopen drive (transport {driver.transport!r})"
+        )
+    return CanopenDriveFirmware(
+        build_drive(cfg, driver), driver, device.canopen.node_id, cfg.faults, cfg.time_scale, cfg.seed
+    )
 
 
 def start(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig) -> EmulatedDevice:
@@ -126,8 +128,9 @@ def start(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig) 
     return EmulatedDevice(server=server, device=reach, drive=firmware.drive)
 
 
-def start_socketcand(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig, port: int = 0,
-                     bus_name: str = "can0") -> EmulatedDevice:
+def start_socketcand(
+    cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig, port: int = 0, bus_name: str = "can0"
+) -> EmulatedDevice:
     """Start the emulated drive and serve its bus over socketcand on 127.0.0.1.
 
     The host reaches it with ``can_interface = "socketcand"`` and ``port =

@@ -43,8 +43,9 @@ class SetPoints:
         The set-point counter as last written (a fresh set-point for each sample).
     """
 
-    def __init__(self, desc: CanopenDescription, scales: dict, supported: tuple[str, ...], mode_code: int,
-                 drive: DriveLoop):
+    def __init__(
+        self, desc: CanopenDescription, scales: dict, supported: tuple[str, ...], mode_code: int, drive: DriveLoop
+    ):
         self.desc = desc
         self.scales = scales
         self.supported = supported

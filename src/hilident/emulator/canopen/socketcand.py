@@ -112,8 +112,8 @@ class SocketcandServer:
                     end = buffer.find(b">", start + 1)
                     if start < 0 or end < 0:
                         break
-                    words = parse_command(buffer[start:end + 1].decode("ascii", "replace"))
-                    buffer = buffer[end + 1:]
+                    words = parse_command(buffer[start : end + 1].decode("ascii", "replace"))
+                    buffer = buffer[end + 1 :]
                     if not words:
                         continue
                     if bus is None:
@@ -133,9 +133,8 @@ class SocketcandServer:
                     elif words[0] == "send" and len(words) >= 3:
                         can_id = int(words[1], 16)
                         dlc = int(words[2], 16)
-                        payload = bytes(int(b, 16) for b in words[3:3 + dlc])
-                        bus.send(can.Message(arbitration_id=can_id, is_extended_id=len(words[1]) > 3,
-                                             data=payload))
+                        payload = bytes(int(b, 16) for b in words[3 : 3 + dlc])
+                        bus.send(can.Message(arbitration_id=can_id, is_extended_id=len(words[1]) > 3, data=payload))
         except (OSError, ValueError):
             return
         finally:

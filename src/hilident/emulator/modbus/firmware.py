@@ -111,15 +111,24 @@ class ModbusDriveFirmware:
         beside an excitation table this twin runs hilident's four-register slots only.
     """
 
-    def __init__(self, drive: DriveLoop, regmap: RegisterMap, driver: DriverDescription,
-                 drive_fault_after_s: float = 0.0, capture_stops_after_s: float = 0.0):
-        if (regmap.table is None or regmap.capture is None or regmap.filters is None
-                or regmap.filter_encoding is None):
+    def __init__(
+        self,
+        drive: DriveLoop,
+        regmap: RegisterMap,
+        driver: DriverDescription,
+        drive_fault_after_s: float = 0.0,
+        capture_stops_after_s: float = 0.0,
+    ):
+        if regmap.table is None or regmap.capture is None or regmap.filters is None or regmap.filter_encoding is None:
             raise ValueError("a map without the excitation capability is served by ParameterDriveFirmware")
         if not isinstance(regmap.filters, FilterSlots):
-            raise ConfigError("modbus.filters", "the twin of a drive with an excitation table runs hilident's "
-                              "four-register filter slots (base, stride), not named parameters "
-                              "([[modbus.filters.slots]])", str(driver.folder / "driver.toml"))
+            raise ConfigError(
+                "modbus.filters",
+                "the twin of a drive with an excitation table runs hilident's "
+                "four-register filter slots (base, stride), not named parameters "
+                "([[modbus.filters.slots]])",
+                str(driver.folder / "driver.toml"),
+            )
         self.drive = drive
         self.map = regmap
         self._table_window: Window = regmap.table
@@ -191,15 +200,21 @@ class ModbusDriveFirmware:
     def status_word(self) -> int:
         s = self.map.status
         word = 0
-        for on, name in ((self.drive.enabled, "enabled"), (self.running, "running"), (self.done, "done"),
-                         (self.fault_code != 0, "fault"), (self.capture_stopped, "capture_stopped"),
-                         (self.limits_loaded, "limits_loaded")):
+        for on, name in (
+            (self.drive.enabled, "enabled"),
+            (self.running, "running"),
+            (self.done, "done"),
+            (self.fault_code != 0, "fault"),
+            (self.capture_stopped, "capture_stopped"),
+            (self.limits_loaded, "limits_loaded"),
+        ):
             if on:
                 word |= s[name]
         return word
 
     def _refresh(self, first: int, end: int) -> None:
         """Bring the computed registers in ``first .. end - 1`` up to date."""
+
         def touched(name):
             r = self.map.register(name)
             return r.address < end and r.end > first
@@ -292,13 +307,21 @@ class ModbusDriveFirmware:
             self.image[max(address, w.base) : min(end, w.end)] = 0  # the window is not image memory
         touched = [r.name for r in self.map.registers.values() if r.address < end and r.end > address]
         slots = sorted({s for a in range(address, end) if (s := self._slots.slot_at(a)) is not None})
-        error = self._check(touched, slots, old_control=int(old[self.map.register("control_word").address - address])
-                            if "control_word" in touched else None)
+        error = self._check(
+            touched,
+            slots,
+            old_control=int(old[self.map.register("control_word").address - address])
+            if "control_word" in touched
+            else None,
+        )
         if error:
             self.image[address:end] = old
             return error
-        self._apply(touched, slots, int(old[self.map.register("control_word").address - address])
-                    if "control_word" in touched else 0)
+        self._apply(
+            touched,
+            slots,
+            int(old[self.map.register("control_word").address - address]) if "control_word" in touched else 0,
+        )
         return None
 
     def _check(self, touched: list[str], slots: list[int], old_control: int | None) -> int | None:
@@ -324,8 +347,9 @@ class ModbusDriveFirmware:
             "mode": lambda: int(self._get("mode")) in m.modes.values(),
             "sample_divider": lambda: self._divider_valid(int(self._get("sample_divider"))),
             "capture_mask": lambda: self._mask_valid(int(self._get("capture_mask"))),
-            "table_length": lambda: self.table_length <= min(self._table_window.capacity_samples,
-                                                             self._capture_window.capacity_samples),
+            "table_length": lambda: (
+                self.table_length <= min(self._table_window.capacity_samples, self._capture_window.capacity_samples)
+            ),
             "table_page": lambda: int(self._get("table_page")) < self._table_window.pages,
             "capture_page": lambda: int(self._get("capture_page")) < self._capture_window.pages,
         }

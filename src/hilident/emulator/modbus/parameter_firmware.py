@@ -86,9 +86,12 @@ class ParameterDriveFirmware:
         if regmap.excitation:
             raise ValueError("a map with the excitation capability is served by ModbusDriveFirmware")
         if regmap.filters is not None and not isinstance(regmap.filters, FieldSlots):
-            raise ConfigError("modbus.filters", "the twin of a drive without an excitation table runs filter slots "
-                              "of named parameters ([[modbus.filters.slots]]), not register blocks (base, stride)",
-                              str(driver.folder / "driver.toml"))
+            raise ConfigError(
+                "modbus.filters",
+                "the twin of a drive without an excitation table runs filter slots "
+                "of named parameters ([[modbus.filters.slots]]), not register blocks (base, stride)",
+                str(driver.folder / "driver.toml"),
+            )
         self.drive = drive
         self.map = regmap
         self.loop_rate_hz = float(driver.loop_rate_hz)
@@ -175,8 +178,10 @@ class ParameterDriveFirmware:
             return ILLEGAL_ADDRESS
         if np.any((values < 0) | (values > 0xFFFF)):
             return ILLEGAL_VALUE
-        touched = sorted({id(r): r for a in range(address, address + count)
-                          for r in [self._owner["holding"][a]]}.values(), key=lambda r: r.address)
+        touched = sorted(
+            {id(r): r for a in range(address, address + count) for r in [self._owner["holding"][a]]}.values(),
+            key=lambda r: r.address,
+        )
         if any(not r.writable for r in touched):
             return ILLEGAL_ADDRESS
         for r in touched:
@@ -191,8 +196,11 @@ class ParameterDriveFirmware:
         return None
 
     def _apply(self, r: Register) -> None:
-        if self.map.save is not None and r.name == self.map.save[0] and r.decode(
-                self.images["holding"][r.address : r.end]) == self.map.save[1]:
+        if (
+            self.map.save is not None
+            and r.name == self.map.save[0]
+            and r.decode(self.images["holding"][r.address : r.end]) == self.map.save[1]
+        ):
             self.eeprom = {a: int(v) for a, v in enumerate(self.images["holding"]) if a in self._owner["holding"]}
             self.saves += 1
             self._store(r, 0)
@@ -220,8 +228,7 @@ class ParameterDriveFirmware:
         slots, _ = self._filter_parameters()
         regs = slots.fields(slot)
         raw = {name: int(r.decode(self.images["holding"][r.address : r.end])) for name, r in regs.items()}
-        enabled = bool(raw.pop("enable")) if "enable" in raw else \
-            not all(raw[k] == v for k, v in slots.off.items())
+        enabled = bool(raw.pop("enable")) if "enable" in raw else not all(raw[k] == v for k, v in slots.off.items())
         return raw, enabled
 
     def _apply_slot(self, slot: int) -> None:
@@ -271,5 +278,6 @@ def _saturated(r: Register, x: float) -> list[int]:
         x = max(x, r.minimum)
     if r.maximum is not None:
         x = min(x, r.maximum)
-    return encode_values([x], r.type, r.scale, r.word_order, saturate=True, byte_order=r.byte_order,
-                         offset=r.offset).tolist()
+    return encode_values(
+        [x], r.type, r.scale, r.word_order, saturate=True, byte_order=r.byte_order, offset=r.offset
+    ).tolist()

@@ -95,7 +95,7 @@ class PtyBridge:
             try:
                 _, ready, _ = select.select([], [fd], [], 0.05)
                 if ready:
-                    view = view[os.write(fd, view):]
+                    view = view[os.write(fd, view) :]
             except OSError:
                 return  # nobody at the other end: the bytes are lost, as on an open line
 
@@ -202,7 +202,7 @@ class RtuLine:
         deadline = time.monotonic() + 0.5
         while view and time.monotonic() < deadline:
             try:
-                view = view[os.write(fd, view):]
+                view = view[os.write(fd, view) :]
             except (BlockingIOError, InterruptedError):
                 select.select([], [fd], [], 0.05)
             except OSError:

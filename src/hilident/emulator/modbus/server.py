@@ -127,6 +127,7 @@ class ServedDrive(PacedFirmware, Protocol):
 
     def watch_host(self, now: float) -> bool: ...
 
+
 def _address_tables(regmap: RegisterMap | None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Which addresses read as holding registers, take writes, and read as input registers.
 
@@ -184,8 +185,9 @@ class _ServedFirmware:
     def _bits(self) -> BitFirmware:
         """The firmware's coils and discrete inputs (asked only for the function codes it declares)."""
         if not isinstance(self.firmware, BitFirmware):
-            raise NotImplementedError(f"the drive declares functions {sorted(self.functions)} but has no coils "
-                                      "or discrete inputs")
+            raise NotImplementedError(
+                f"the drive declares functions {sorted(self.functions)} but has no coils or discrete inputs"
+            )
         return self.firmware
 
     def read_bits(self, address: int, count: int, discrete: bool = False) -> list[bool] | int:
@@ -234,9 +236,19 @@ class ModbusDriveServer:
         (``last_failure`` holds the latest cause).
     """
 
-    def __init__(self, firmware: ServedDrive, *, device_id: int = 1, rtu: bool = False,
-                 baudrate: int = 115200, parity: str = "E", stopbits: int = 1, time_scale: float = 1.0,
-                 faults: FaultsConfig | None = None, seed: int = 0):
+    def __init__(
+        self,
+        firmware: ServedDrive,
+        *,
+        device_id: int = 1,
+        rtu: bool = False,
+        baudrate: int = 115200,
+        parity: str = "E",
+        stopbits: int = 1,
+        time_scale: float = 1.0,
+        faults: FaultsConfig | None = None,
+        seed: int = 0,
+    ):
         self.firmware = firmware
         self.device_id = device_id
         self.rtu = rtu
@@ -247,9 +259,11 @@ class ModbusDriveServer:
         self.faults = faults or FaultsConfig()
         wire = self.faults.modbus
         if wire.exception_register >= 0 and wire.exception_code not in EXCEPTION_MEANINGS:
-            raise ConfigError("emulator.faults.modbus.exception_code",
-                              f"{wire.exception_code} is not a Modbus exception code "
-                              f"({', '.join(str(c) for c in EXCEPTION_MEANINGS)})")
+            raise ConfigError(
+                "emulator.faults.modbus.exception_code",
+                f"{wire.exception_code} is not a Modbus exception code "
+                f"({', '.join(str(c) for c in EXCEPTION_MEANINGS)})",
+            )
         self._rng = np.random.default_rng(seed)
         self.lock = threading.Lock()
         self.error: BaseException | None = None
@@ -456,8 +470,9 @@ class ModbusDriveServer:
                 fw.drive.disable()
 
 
-def start(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig,
-          link: str | None = None) -> EmulatedDevice:
+def start(
+    cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig, link: str | None = None
+) -> EmulatedDevice:
     """Start an emulated Modbus drive for a session configured with ``device``.
 
     Parameters
@@ -482,18 +497,29 @@ def start(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig,
     drive = build_drive(cfg, driver)
     firmware: ServedDrive
     if regmap.excitation:
-        firmware = ModbusDriveFirmware(drive, regmap, driver, cfg.faults.drive_fault_after_s,
-                                       cfg.faults.capture_stops_after_s)
+        firmware = ModbusDriveFirmware(
+            drive, regmap, driver, cfg.faults.drive_fault_after_s, cfg.faults.capture_stops_after_s
+        )
     else:  # a real drive's parameter list: no table, no capture
         firmware = ParameterDriveFirmware(drive, regmap, driver)
     baudrate = device.baudrate or driver.default_baudrate
     line = device.modbus
     server = ModbusDriveServer(
-        firmware, device_id=line.device_id, rtu=rtu, baudrate=baudrate, parity=line.parity,
-        stopbits=line.stopbits, time_scale=cfg.time_scale, faults=cfg.faults, seed=cfg.seed + 1,
+        firmware,
+        device_id=line.device_id,
+        rtu=rtu,
+        baudrate=baudrate,
+        parity=line.parity,
+        stopbits=line.stopbits,
+        time_scale=cfg.time_scale,
+        faults=cfg.faults,
+        seed=cfg.seed + 1,
     ).start()
     # a pseudo-terminal carries no parity bit (some kernels refuse the setting): both ends open it
     # without one, while the bridge still times each character with the configured parity bit
-    host = (replace(device, port=server.port, baudrate=baudrate, modbus=replace(line, parity="N")) if rtu
-            else replace(device, port=server.port))
+    host = (
+        replace(device, port=server.port, baudrate=baudrate, modbus=replace(line, parity="N"))
+        if rtu
+        else replace(device, port=server.port)
+    )
     return EmulatedDevice(server=server, device=host, drive=drive)

@@ -97,8 +97,9 @@ class BoardFirmware:
 
     def receive(self, payload: bytes) -> None:
         """Handle one request payload from the host (answers go to :attr:`outbox`)."""
-        excitation = ((self.config.excitation_format, self.config.excitation_scale) if self.config
-                      else (sb.Format.F32, 1.0))
+        excitation = (
+            (self.config.excitation_format, self.config.excitation_scale) if self.config else (sb.Format.F32, 1.0)
+        )
         try:
             header, msg = sb.decode(payload, excitation=excitation)
         except ProtocolError as exc:
@@ -139,8 +140,15 @@ class BoardFirmware:
     def status(self) -> sb.Status:
         c = self.counters
         return sb.Status(
-            self.state, self.fault, self._fifo_written - self._fifo_read, len(self._fifo),
-            c.underruns, c.dropped_blocks, self._produced, c.limit_trips, c.rx_corrupt + self.line_corrupt,
+            self.state,
+            self.fault,
+            self._fifo_written - self._fifo_read,
+            len(self._fifo),
+            c.underruns,
+            c.dropped_blocks,
+            self._produced,
+            c.limit_trips,
+            c.rx_corrupt + self.line_corrupt,
         )
 
     def _on_configure(self, msg: sb.Configure):
@@ -232,8 +240,7 @@ class BoardFirmware:
             return sb.ErrorCode.BAD_ARGUMENT, f"slot {c.slot}: coefficients must be finite"
         # The board stores REAL32 coefficients: what the host reads back is what runs.
         b0, b1, b2 = c.b
-        stored = Biquad((sb.float32(b0), sb.float32(b1), sb.float32(b2)),
-                        (1.0, sb.float32(c.a[1]), sb.float32(c.a[2])))
+        stored = Biquad((sb.float32(b0), sb.float32(b1), sb.float32(b2)), (1.0, sb.float32(c.a[1]), sb.float32(c.a[2])))
         if c.enabled and not stored.is_stable():
             return sb.ErrorCode.BAD_ARGUMENT, f"slot {c.slot}: unstable coefficients refused"
         self.drive.filters.write(c.slot, stored, c.enabled)
@@ -294,8 +301,11 @@ class BoardFirmware:
             self.counters.underruns += n_samples - k
             self._pending_flags |= sb.FLAG_UNDERRUN
             if not self._in_underrun:
-                self.send(sb.Event(sb.EventCode.UNDERRUN, self._produced + k, held,
-                                   f"excitation buffer empty: holding {held:g}"))
+                self.send(
+                    sb.Event(
+                        sb.EventCode.UNDERRUN, self._produced + k, held, f"excitation buffer empty: holding {held:g}"
+                    )
+                )
             self._in_underrun = True
         elif k:
             self._in_underrun = False
@@ -351,8 +361,13 @@ class BoardFirmware:
             flags |= sb.FLAG_CLIPPED
         self.send(
             sb.Samples(
-                self._block_index, first, flags, self._fifo_read,
-                self._fifo_written - self._fifo_read, self.counters.underruns, data,
+                self._block_index,
+                first,
+                flags,
+                self._fifo_read,
+                self._fifo_written - self._fifo_read,
+                self.counters.underruns,
+                data,
             )
         )
         self._block_index += 1

@@ -59,9 +59,17 @@ class BoardServer:
         Close the line this long (wall time) after a run starts; 0 never.
     """
 
-    def __init__(self, firmware: BoardFirmware, link: BoardLink, baudrate: int, time_scale: float = 1.0,
-                 tx_buffer_bytes: int = 65536, watchdog_s: float = 1.0,
-                 faults: LineFaults | None = None, close_after_s: float = 0.0):
+    def __init__(
+        self,
+        firmware: BoardFirmware,
+        link: BoardLink,
+        baudrate: int,
+        time_scale: float = 1.0,
+        tx_buffer_bytes: int = 65536,
+        watchdog_s: float = 1.0,
+        faults: LineFaults | None = None,
+        close_after_s: float = 0.0,
+    ):
         if not (math.isfinite(time_scale) and time_scale > 0):
             raise ConfigError("emulator.time_scale", f"must be a finite number > 0, got {time_scale!r}")
         if not (isinstance(baudrate, int) and baudrate >= 0):
@@ -233,8 +241,9 @@ def start(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig) 
     return start_serial_board(cfg, driver, device.baudrate or driver.default_baudrate)
 
 
-def start_serial_board(cfg: EmulatorConfig, driver: DriverDescription, baudrate: int,
-                       link: str | None = None) -> EmulatedDevice:
+def start_serial_board(
+    cfg: EmulatorConfig, driver: DriverDescription, baudrate: int, link: str | None = None
+) -> EmulatedDevice:
     """Start an emulated serial board on a pseudo-terminal or an in-memory pipe.
 
     Parameters
@@ -262,8 +271,12 @@ def start_serial_board(cfg: EmulatorConfig, driver: DriverDescription, baudrate:
         host_link, device_end = pipe_pair()
         device_link = PipeLink(device_end)
     server = BoardServer(
-        firmware, device_link, baudrate=baudrate, time_scale=cfg.time_scale,
-        faults=faults, close_after_s=line.close_after_s,
+        firmware,
+        device_link,
+        baudrate=baudrate,
+        time_scale=cfg.time_scale,
+        faults=faults,
+        close_after_s=line.close_after_s,
     ).start()
     device = replace(DeviceConfig(), driver=str(driver.folder), port=device_link.path, baudrate=baudrate)
     return EmulatedDevice(server=server, device=device, drive=firmware.drive, link=host_link)

@@ -178,7 +178,7 @@ def _levy_sk(data: _Normalised, iterations: int, tol: float):
     """
     x, H, w, n_den = data.x, data.H, data.w, data.n_den
     # H (x^n + a_{n-1} x^{n-1} + ... + a0) - N(x) = 0.
-    A = np.hstack([H[:, None] * x[:, None] ** np.arange(n_den), -x[:, None] ** np.arange(data.n_num + 1)])
+    A = np.hstack([H[:, None] * x[:, None] ** np.arange(n_den), -(x[:, None] ** np.arange(data.n_num + 1))])
     b = -H * x**n_den
     sk = np.ones(x.size)
     best = first = last = None
@@ -206,9 +206,7 @@ def _levy_sk(data: _Normalised, iterations: int, tol: float):
             break
         den_prev = den
     if best is None:
-        raise DataError(
-            "the Levy start failed (non-finite denominator); check the data for NaN/Inf"
-        )
+        raise DataError("the Levy start failed (non-finite denominator); check the data for NaN/Inf")
     return best, first, last, its, reflected
 
 
@@ -243,7 +241,7 @@ def _projected_problem(data: _Normalised):
             Q, _ = np.linalg.qr(Ar / np.maximum(np.linalg.norm(Ar, axis=0), np.finfo(float).tiny))
             r = yr - Q @ (Q.T @ yr)
             model = yr - r  # w N / D, real-stacked
-            G = np.array(dlog).T * (model[: x.size] + 1j * model[x.size:])[:, None]
+            G = np.array(dlog).T * (model[: x.size] + 1j * model[x.size :])[:, None]
             Gr = np.vstack([G.real, G.imag])
             memo[key] = (r, Gr - Q @ (Q.T @ Gr))
         return memo[key]
@@ -350,9 +348,7 @@ def fit_transfer_function(
     if band_hz is not None:
         f_lo, f_hi = band_hz
         if not 0.0 <= f_lo < f_hi:
-            raise ConfigError(
-                "band_hz", f"must be (f_lo, f_hi) with 0 <= f_lo < f_hi, got {band_hz!r}"
-            )
+            raise ConfigError("band_hz", f"must be (f_lo, f_hi) with 0 <= f_lo < f_hi, got {band_hz!r}")
         keep &= (f >= f_lo) & (f <= f_hi)
     f, H, w = f[keep], H[keep], w_all[keep]
     n_params = n_num + 1 + n_den
@@ -366,9 +362,7 @@ def fit_transfer_function(
     else:
         ref = float(reference_hz)
         if not (np.isfinite(ref) and ref > 0.0):
-            raise ConfigError(
-                "reference_hz", f"must be a positive frequency in Hz, got {reference_hz!r}"
-            )
+            raise ConfigError("reference_hz", f"must be a positive frequency in Hz, got {reference_hz!r}")
 
     # Fit s^k G e^{s tau} with weights w / |x|^k: the same error in G.
     x = 1j * f / ref
@@ -380,14 +374,12 @@ def fit_transfer_function(
     wk = wk / scale
     if max_nfev is None:
         max_nfev = 50 * (n_den + 1)
-    num_x, poles_x, sk_its, reflected = _fit_normalised(
-        x, Hk, wk, n_num, n_den, iterations, tol, refine, max_nfev
-    )
+    num_x, poles_x, sk_its, reflected = _fit_normalised(x, Hk, wk, n_num, n_den, iterations, tol, refine, max_nfev)
 
     # Normalised zpk -> s domain.
     w_ref = TWO_PI * ref
     lead = np.flatnonzero(num_x != 0.0)
-    num_x = num_x[lead[0]:] if lead.size else np.array([0.0])
+    num_x = num_x[lead[0] :] if lead.size else np.array([0.0])
     zeros_x = np.roots(num_x) if num_x.size > 1 else np.array([], dtype=np.complex128)
     poles_x, n_bad = _reflect(poles_x)
     reflected += n_bad

@@ -23,7 +23,6 @@ TWO_PI = 2.0 * np.pi
 REAL_TOL = 1e-9
 
 
-
 @dataclass(frozen=True, eq=False)
 class TfFit:
     """A continuous-time transfer function fitted to a frequency response.
@@ -106,9 +105,7 @@ class TfFit:
         Evaluated from poles and zeros in normalised frequency, so it stays
         accurate where the ``num``/``den`` coefficients would not.
         """
-        return zpk_response(
-            frequency_hz, self.gain, self.zeros, self.poles, self.reference_hz, self.delay_s
-        )
+        return zpk_response(frequency_hz, self.gain, self.zeros, self.poles, self.reference_hz, self.delay_s)
 
 
 @dataclass(frozen=True, eq=False)
@@ -173,21 +170,15 @@ class ModalModel:
                 try:
                     f_hz, zeta = (float(v) for v in item)
                 except (TypeError, ValueError):
-                    raise ConfigError(
-                        key, f"entries must be (frequency_hz, damping_ratio), got {item!r}"
-                    ) from None
+                    raise ConfigError(key, f"entries must be (frequency_hz, damping_ratio), got {item!r}") from None
                 if not (np.isfinite(f_hz) and f_hz > 0.0 and np.isfinite(zeta)):
-                    raise ConfigError(
-                        key, f"needs frequency_hz > 0 and a finite damping ratio, got {item!r}"
-                    )
+                    raise ConfigError(key, f"needs frequency_hz > 0 and a finite damping ratio, got {item!r}")
                 pairs.append((f_hz, zeta))
             object.__setattr__(self, key, tuple(sorted(pairs)))
         for key in ("real_poles_hz", "real_zeros_hz"):
             corners = tuple(sorted(float(v) for v in getattr(self, key)))
             if not all(np.isfinite(c) and c != 0.0 for c in corners):
-                raise ConfigError(
-                    key, f"corner frequencies must be finite and non-zero, got {corners!r}"
-                )
+                raise ConfigError(key, f"corner frequencies must be finite and non-zero, got {corners!r}")
             object.__setattr__(self, key, corners)
         if int(self.integrators) != self.integrators or self.integrators < 0:
             raise ConfigError("integrators", f"must be an integer >= 0, got {self.integrators!r}")
@@ -313,6 +304,7 @@ def _zpk_eval(x: np.ndarray, zeros: np.ndarray, poles: np.ndarray) -> np.ndarray
         if i < npl:
             h = h / (x - poles[i])
     return h
+
 
 def _factor(roots: np.ndarray) -> tuple[list[tuple[float, float]], list[float]]:
     """Quadratic factors ``(frequency_hz, zeta)`` and real corners (Hz) of `roots` (rad/s)."""

@@ -78,9 +78,7 @@ def select_order(
     if not (np.isfinite(threshold) and threshold > 0.0):
         raise ConfigError("threshold", f"must be a positive number, got {threshold!r}")
     if (orders is None) == (max_order is None):
-        raise ConfigError(
-            "orders", "give exactly one of orders=[(n_num, n_den), ...] and max_order"
-        )
+        raise ConfigError("orders", "give exactly one of orders=[(n_num, n_den), ...] and max_order")
     if orders is None:
         orders = _orders_up_to(max_order, relative_degree)
     else:
@@ -97,9 +95,7 @@ def select_order(
         chosen = _smallest_adequate(ok, threshold)
     else:
         chosen = min(ok, key=lambda r: (getattr(r, criterion), r.n_params))
-    table = [
-        TfOrderCandidate(r.n_num, r.n_den, r.fit, r.aic, r.bic, r is chosen, r.error) for r in rows
-    ]
+    table = [TfOrderCandidate(r.n_num, r.n_den, r.fit, r.aic, r.bic, r is chosen, r.error) for r in rows]
     assert chosen.fit is not None  # ok holds the candidates with a fit
     return chosen.fit, table
 
@@ -113,9 +109,7 @@ def _orders_up_to(max_order, relative_degree) -> list[tuple[int, int]]:
         rd = check_order("relative_degree", relative_degree, 0)
         orders = [(n - rd, n) for n in range(max(1, rd), max_order + 1)]
     if not orders:
-        raise ConfigError(
-            "max_order", f"{max_order} leaves no order with relative_degree={relative_degree}"
-        )
+        raise ConfigError("max_order", f"{max_order} leaves no order with relative_degree={relative_degree}")
     return orders
 
 
@@ -126,9 +120,7 @@ def _checked_orders(orders) -> list[tuple[int, int]]:
         try:
             m, n = item
         except (TypeError, ValueError):
-            raise ConfigError(
-                "orders", f"entries must be (n_num, n_den), got {item!r}"
-            ) from None
+            raise ConfigError("orders", f"entries must be (n_num, n_den), got {item!r}") from None
         checked.append((check_order("orders.n_num", m, 0), check_order("orders.n_den", n, 0)))
     if not checked:
         raise ConfigError("orders", "must not be empty")
@@ -144,9 +136,7 @@ def _order_candidate(frf: FrequencyResponse, m: int, n: int, fit_options: dict) 
     N = 2 * fit.n_bins
     v = max(fit.weighted_cost * N / 2.0, np.finfo(float).tiny)  # sum of squares
     p = fit.n_params
-    return TfOrderCandidate(
-        m, n, fit, N * np.log(v / N) + 2 * p, N * np.log(v / N) + p * np.log(N)
-    )
+    return TfOrderCandidate(m, n, fit, N * np.log(v / N) + 2 * p, N * np.log(v / N) + p * np.log(N))
 
 
 def _smallest_adequate(ok: list[TfOrderCandidate], threshold: float) -> TfOrderCandidate:
@@ -155,7 +145,7 @@ def _smallest_adequate(ok: list[TfOrderCandidate], threshold: float) -> TfOrderC
     # force the largest model.
     slack = 1e-12 * max(r.weighted_cost for r in ok)
     for i, r in enumerate(ok):
-        larger = [q for q in ok[i + 1:] if q.n_params > r.n_params]
+        larger = [q for q in ok[i + 1 :] if q.n_params > r.n_params]
         limit = [(1.0 + threshold) * q.weighted_cost + slack for q in larger]
         if all(r.weighted_cost <= lim for lim in limit):
             return r
@@ -270,7 +260,7 @@ def select_structure(
     hold = np.zeros(len(frf), dtype=bool)
     if criterion == "validation":
         usable = np.flatnonzero((frf.frequency_hz > 0.0) & np.isfinite(frf.response) & (w_all > 0.0))
-        hold[usable[holdout_every // 2::holdout_every]] = True
+        hold[usable[holdout_every // 2 :: holdout_every]] = True
         train_w = np.where(hold, 0.0, w_all)
 
     # The screening fits use at most _SCREEN_BINS lines (every k-th): their ranking
@@ -285,9 +275,16 @@ def select_structure(
 
     def score(m, n, k, refine):
         try:
-            fit = fit_transfer_function(frf, m, n, weights=train_w if refine else screen_w, integrators=k,
-                                        refine=refine, iterations=iterations if refine else min(iterations, 15),
-                                        **fit_options)
+            fit = fit_transfer_function(
+                frf,
+                m,
+                n,
+                weights=train_w if refine else screen_w,
+                integrators=k,
+                refine=refine,
+                iterations=iterations if refine else min(iterations, 15),
+                **fit_options,
+            )
         except DataError as exc:
             return TfOrderCandidate(m, n, None, np.inf, np.inf, error=str(exc), integrators=k)
         N = 2 * fit.n_bins
@@ -297,8 +294,9 @@ def select_structure(
         if criterion == "validation":
             e = w_all[hold] * (frf.response[hold] - fit.response(frf.frequency_hz[hold]))
             val = float(np.mean(np.abs(e) ** 2))
-        return TfOrderCandidate(m, n, fit, N * np.log(v / N) + 2 * p, N * np.log(v / N) + p * np.log(N),
-                                integrators=k, validation=val)
+        return TfOrderCandidate(
+            m, n, fit, N * np.log(v / N) + 2 * p, N * np.log(v / N) + p * np.log(N), integrators=k, validation=val
+        )
 
     def slow(r):
         # A free pole or zero more than a decade outside the band is not a feature the
@@ -311,8 +309,9 @@ def select_structure(
         zeros = r.fit.zeros
         lo, hi = r.fit.band_hz
         low = TWO_PI * lo / 10.0
-        below = integrators is None and (np.any(np.abs(poles) < low)
-                                         or (r.integrators > 0 and np.any(np.abs(zeros) < low)))
+        below = integrators is None and (
+            np.any(np.abs(poles) < low) or (r.integrators > 0 and np.any(np.abs(zeros) < low))
+        )
         roots = np.r_[poles, zeros]
         # a complex pair outside the band is a resonance or anti-resonance the data do not show
         pair = np.abs(roots.imag) > REAL_TOL * np.abs(roots)
@@ -346,7 +345,8 @@ def select_structure(
         chosen = rank(rows)[0]
     fit = chosen.fit
     if criterion == "validation":
-        fit = fit_transfer_function(frf, chosen.n_num, chosen.n_den, weights=w_all,
-                                    integrators=chosen.integrators, refine=refine, **fit_options)
+        fit = fit_transfer_function(
+            frf, chosen.n_num, chosen.n_den, weights=w_all, integrators=chosen.integrators, refine=refine, **fit_options
+        )
     table = [dataclasses.replace(r, selected=r is chosen) for r in rows]
     return dataclasses.replace(fit, weighting=weighting), table

@@ -128,8 +128,14 @@ def classify_roots(
         if not zeta > axis_tol:
             marginal.append(f_hz)
         if reason:
-            flagged.append({"frequency_hz": float(f_hz), "damping_ratio": float(zeta) if is_complex else float("nan"),
-                            "real_part_rad_s": float(p.real), "reason": reason})
+            flagged.append(
+                {
+                    "frequency_hz": float(f_hz),
+                    "damping_ratio": float(zeta) if is_complex else float("nan"),
+                    "real_part_rad_s": float(p.real),
+                    "reason": reason,
+                }
+            )
         elif is_complex:
             modes.append((float(f_hz), float(zeta)))
         else:
@@ -142,16 +148,28 @@ def classify_roots(
         elif z.real > axis_tol * abs(z):
             rhp.append(_rhp_zero(z, f_hz, is_complex))
         elif is_complex and not lo <= f_hz <= hi:
-            flagged_z.append({"frequency_hz": float(f_hz),
-                              "reason": f"outside the fitted band {lo:.4g}-{hi:.4g} Hz: "
-                                        "not an anti-resonance the data show"})
+            flagged_z.append(
+                {
+                    "frequency_hz": float(f_hz),
+                    "reason": f"outside the fitted band {lo:.4g}-{hi:.4g} Hz: not an anti-resonance the data show",
+                }
+            )
         elif is_complex:
             anti.append((float(f_hz), float(-z.real / abs(z))))
         else:
             real_z.append(float(f_hz))
     stable = not marginal and bool(np.all(poles.real < 0.0))
-    return RootReport(sorted(modes), flagged, sorted(anti), rhp, flagged_z, sorted(real_p), sorted(real_z),
-                      stable, _stability(stable, marginal))
+    return RootReport(
+        sorted(modes),
+        flagged,
+        sorted(anti),
+        rhp,
+        flagged_z,
+        sorted(real_p),
+        sorted(real_z),
+        stable,
+        _stability(stable, marginal),
+    )
 
 
 def _upper_half(roots: np.ndarray) -> list[complex]:
@@ -185,30 +203,43 @@ class _Band:
         """Why a pole is not reported as a mode ("" when it is)."""
         lo, hi = self.lo, self.hi
         if not zeta > self.axis_tol:
-            return (f"on the imaginary axis within numerical noise (zeta {zeta:.2g}): an undamped pole the "
-                    "data cannot support")
+            return (
+                f"on the imaginary axis within numerical noise (zeta {zeta:.2g}): an undamped pole the "
+                "data cannot support"
+            )
         if self.far_outside(f_hz):
-            return (f"far outside the fitted band {lo:.4g}-{hi:.4g} Hz: the fit uses it to bend the response "
-                    "at the band edge")
+            return (
+                f"far outside the fitted band {lo:.4g}-{hi:.4g} Hz: the fit uses it to bend the response "
+                "at the band edge"
+            )
         if is_complex and not lo <= f_hz <= hi:
             return f"outside the fitted band {lo:.4g}-{hi:.4g} Hz: the data show at most its skirt"
         if is_complex and self.resolution_hz and 2.0 * zeta * f_hz < 0.1 * self.resolution_hz:
-            return (f"half-power bandwidth {2 * zeta * f_hz:.3g} Hz is under a tenth of the "
-                    f"{self.resolution_hz:.3g} Hz line spacing: the measurement cannot resolve it")
+            return (
+                f"half-power bandwidth {2 * zeta * f_hz:.3g} Hz is under a tenth of the "
+                f"{self.resolution_hz:.3g} Hz line spacing: the measurement cannot resolve it"
+            )
         return ""
 
     def far_zero(self, z: complex, f_hz: float) -> dict:
         """The flag of a zero far outside the band, either half plane."""
         side = "right" if z.real > self.axis_tol * abs(z) else "left"
         acts = "a differentiator s" if f_hz < self.lo else "a constant"
-        return {"frequency_hz": float(f_hz), "real_part_rad_s": float(z.real),
-                "reason": f"{side}-half-plane zero far outside the fitted band {self.lo:.4g}-{self.hi:.4g} Hz: "
-                          f"in the band it acts as {acts}"}
+        return {
+            "frequency_hz": float(f_hz),
+            "real_part_rad_s": float(z.real),
+            "reason": f"{side}-half-plane zero far outside the fitted band {self.lo:.4g}-{self.hi:.4g} Hz: "
+            f"in the band it acts as {acts}",
+        }
 
 
 def _rhp_zero(z: complex, f_hz: float, is_complex: bool) -> dict:
-    entry = {"frequency_hz": float(f_hz), "real_part_rad_s": float(z.real),
-             "kind": "complex pair" if is_complex else "real", "explanation": _RHP_EXPLANATION}
+    entry = {
+        "frequency_hz": float(f_hz),
+        "real_part_rad_s": float(z.real),
+        "kind": "complex pair" if is_complex else "real",
+        "explanation": _RHP_EXPLANATION,
+    }
     if not is_complex:
         # below it, 1 - s/z has the phase of a delay 1/z (and no effect on |G|)
         entry["equivalent_delay_s"] = float(1.0 / z.real)

@@ -21,15 +21,35 @@ from hilident.protocol.filter_encoding.vocabulary import COEFFICIENT_FIELDS, fai
 __all__ = ["COPLEY", "COPLEY_PLUS", "PRESETS", "BlockLayout", "block_section", "encode_block", "scaled_int16"]
 
 #: Copley first generation: 9 INT16 words [info, info, info, b2, b1, b0, a2, a1, K], word 1 = 0xFFFF disabled
-COPLEY = {"words": 9, "coefficient_format": "int16", "coefficient_words": {"b2": 3, "b1": 4, "b0": 5, "a2": 6, "a1": 7},
-          "scaler_word": 8, "scaler_bits": 27, "feedback_sign": "plus", "state_word": 0, "state_mask": 0xFFFF,
-          "disabled_value": 0xFFFF, "enabled_value": 0x0000, "frequency_words": [], "byte_order": "little"}
+COPLEY = {
+    "words": 9,
+    "coefficient_format": "int16",
+    "coefficient_words": {"b2": 3, "b1": 4, "b0": 5, "a2": 6, "a1": 7},
+    "scaler_word": 8,
+    "scaler_bits": 27,
+    "feedback_sign": "plus",
+    "state_word": 0,
+    "state_mask": 0xFFFF,
+    "disabled_value": 0xFFFF,
+    "enabled_value": 0x0000,
+    "frequency_words": [],
+    "byte_order": "little",
+}
 #: Copley plus family: 14 words, word 1 type bits 13-15 (3 band reject, 7 disabled), bit 8 two poles, bit 4
 #: designed; words 2/3 first/second frequency (Hz); words 5-14 a1, a2, b0, b1, b2 as float32, upper word first
-COPLEY_PLUS = {"words": 14, "coefficient_format": "float32",
-               "coefficient_words": {"a1": 4, "a2": 6, "b0": 8, "b1": 10, "b2": 12}, "word_order": "high_first",
-               "feedback_sign": "plus", "state_word": 0, "state_mask": 0xE000, "disabled_value": 0xE000,
-               "enabled_value": 0x6110, "frequency_words": [1, 2], "byte_order": "little"}
+COPLEY_PLUS = {
+    "words": 14,
+    "coefficient_format": "float32",
+    "coefficient_words": {"a1": 4, "a2": 6, "b0": 8, "b1": 10, "b2": 12},
+    "word_order": "high_first",
+    "feedback_sign": "plus",
+    "state_word": 0,
+    "state_mask": 0xE000,
+    "disabled_value": 0xE000,
+    "enabled_value": 0x6110,
+    "frequency_words": [1, 2],
+    "byte_order": "little",
+}
 PRESETS = {"copley": COPLEY, "copley_plus": COPLEY_PLUS}
 
 
@@ -74,8 +94,17 @@ class BlockLayout:
     frequency_words: tuple[int, ...] = ()
 
     def __hash__(self):
-        return hash((self.words, tuple(sorted(self.coefficient_words.items())), self.coefficient_format,
-                     self.scaler_word, self.state_word, self.disabled_value, self.enabled_value))
+        return hash(
+            (
+                self.words,
+                tuple(sorted(self.coefficient_words.items())),
+                self.coefficient_format,
+                self.scaler_word,
+                self.state_word,
+                self.disabled_value,
+                self.enabled_value,
+            )
+        )
 
     @classmethod
     def from_table(cls, table: dict) -> BlockLayout:
@@ -100,11 +129,20 @@ class BlockLayout:
         for key, allowed in (("word_order", ("high_first", "low_first")), ("byte_order", ("little", "big"))):
             if merged.get(key, allowed[0]) not in allowed:
                 fail(key, f"must be one of {allowed}, got {merged[key]!r}")
-        return cls(words, dict(cw), fmt, scaler, int_in("scaler_bits", merged.get("scaler_bits", 27), 0, 48),
-                   merged.get("word_order", "high_first"), merged.get("byte_order", "little"), state,
-                   int_in("state_mask", merged.get("state_mask", 0xFFFF), 1, 0xFFFF),
-                   int_in("disabled_value", merged.get("disabled_value", 0xFFFF), 0, 0xFFFF),
-                   int_in("enabled_value", merged.get("enabled_value", 0), 0, 0xFFFF), freq)
+        return cls(
+            words,
+            dict(cw),
+            fmt,
+            scaler,
+            int_in("scaler_bits", merged.get("scaler_bits", 27), 0, 48),
+            merged.get("word_order", "high_first"),
+            merged.get("byte_order", "little"),
+            state,
+            int_in("state_mask", merged.get("state_mask", 0xFFFF), 1, 0xFFFF),
+            int_in("disabled_value", merged.get("disabled_value", 0xFFFF), 0, 0xFFFF),
+            int_in("enabled_value", merged.get("enabled_value", 0), 0, 0xFFFF),
+            freq,
+        )
 
     # --- words <-> bytes ---------------------------------------------------------------
 
@@ -123,7 +161,7 @@ class BlockLayout:
         if not isinstance(block, (bytes, bytearray)) or len(block) != 2 * self.words:
             size = len(block) if isinstance(block, (bytes, bytearray)) else type(block).__name__
             raise DataError(f"filter block must be {2 * self.words} bytes ({self.words} words), got {size}")
-        return [int.from_bytes(block[i:i + 2], self.byte_order) for i in range(0, len(block), 2)]
+        return [int.from_bytes(block[i : i + 2], self.byte_order) for i in range(0, len(block), 2)]
 
     def is_enabled(self, words: list[int]) -> bool:
         """Whether the block's state word runs the filter (anything but ``disabled_value`` under the mask)."""
@@ -166,12 +204,29 @@ def block_words(merged: dict, words: int, fmt: str, width: int) -> tuple[int, tu
     return state, freq
 
 
-BLOCK_KEYS = ("words", "coefficient_words", "coefficient_format", "scaler_word", "scaler_bits", "word_order",
-              "byte_order", "state_word", "state_mask", "disabled_value", "enabled_value", "frequency_words")
+BLOCK_KEYS = (
+    "words",
+    "coefficient_words",
+    "coefficient_format",
+    "scaler_word",
+    "scaler_bits",
+    "word_order",
+    "byte_order",
+    "state_word",
+    "state_mask",
+    "disabled_value",
+    "enabled_value",
+    "frequency_words",
+)
 
 
-def encode_block(lay: BlockLayout, biquad: Biquad, spec: NotchSpec | None, feedback_sign: str,
-                 scaling: tuple[list[int], int] | None = None) -> bytes:
+def encode_block(
+    lay: BlockLayout,
+    biquad: Biquad,
+    spec: NotchSpec | None,
+    feedback_sign: str,
+    scaling: tuple[list[int], int] | None = None,
+) -> bytes:
     """The block for ``biquad`` (``spec`` fills the frequency words); ``scaling`` = (INT16 coefficients, K)
     overrides the best one (see :meth:`~hilident.protocol.filter_encoding.FilterEncoding.realise`)."""
     words = [0] * lay.words
@@ -188,7 +243,7 @@ def encode_block(lay: BlockLayout, biquad: Biquad, spec: NotchSpec | None, feedb
             bits = struct.unpack("<I", struct.pack("<f", value))[0]
             pair = (bits >> 16, bits & 0xFFFF) if lay.word_order == "high_first" else (bits & 0xFFFF, bits >> 16)
             w = lay.coefficient_words[name]
-            words[w:w + 2] = pair
+            words[w : w + 2] = pair
     else:
         ints, k = scaling or scaled_int16(biquad, lay.scaler_bits, feedback_sign)[0]
         for name, n in zip(COEFFICIENT_FIELDS, ints, strict=False):

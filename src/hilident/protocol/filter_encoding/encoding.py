@@ -59,8 +59,9 @@ class _FiltersTable:
     depth_scale: float = spec(0.1, gt=0.0, doc='"notch_parameters": dB per stored step of the depth')
     max_value: int = spec(65535, ge=1, le=2**32 - 1, doc='"notch_parameters": largest integer a field holds')
     order: list | None = spec(None, doc="the fields in the order the slot holds them")
-    feedback_sign: str = spec("", choices=("", "minus", "plus"),
-                              doc='sign of the stored feedback terms; "": the preset\'s, else "minus"')
+    feedback_sign: str = spec(
+        "", choices=("", "minus", "plus"), doc='sign of the stored feedback terms; "": the preset\'s, else "minus"'
+    )
     scales: dict = spec({}, doc="physical units per stored step of each field (0: REAL32)")
     ranges: dict = spec({}, doc="[low, high] of each field, physical units")
     resolution: dict = spec({}, doc="step a REAL32 field is rounded to by the drive")
@@ -150,8 +151,13 @@ class FilterEncoding:
         if self.kind == "word_block" and self.block is None:
             object.__setattr__(self, "block", BlockLayout.from_table({"preset": "copley"}))
         default = ("block",) if self.kind == "word_block" else PARAMETRIC.get(self.kind, COEFFICIENT_FIELDS)
-        order = tuple(self.order) if isinstance(self.order, (list, tuple)) else default if self.order is None \
+        order = (
+            tuple(self.order)
+            if isinstance(self.order, (list, tuple))
+            else default
+            if self.order is None
             else (self.order,)
+        )
         if not all(isinstance(x, str) for x in order) or sorted(order) != sorted(default):
             fail("order", f"must list each of {default} once, got {list(order)}")
         object.__setattr__(self, "order", order)
@@ -159,9 +165,20 @@ class FilterEncoding:
             self._check_parameters()
 
     def __hash__(self):
-        return hash((self.kind, self.order, self.feedback_sign, self.fractional_bits, self.total_bits,
-                     self.width_unit, self.depth_unit,
-                     tuple(sorted(self.scales.items())), tuple(sorted(self.ranges.items())), self.block))
+        return hash(
+            (
+                self.kind,
+                self.order,
+                self.feedback_sign,
+                self.fractional_bits,
+                self.total_bits,
+                self.width_unit,
+                self.depth_unit,
+                tuple(sorted(self.scales.items())),
+                tuple(sorted(self.ranges.items())),
+                self.block,
+            )
+        )
 
     def _check_parameters(self) -> None:
         """Validate and complete ``scales``, ``ranges``, ``resolution`` and the index tables of a parametric kind."""
@@ -172,8 +189,7 @@ class FilterEncoding:
                 fail(table_name, f"must be a table with keys among {names}, got {table!r}")
         object.__setattr__(self, "scales", self._checked_scales(names))
         object.__setattr__(self, "ranges", {name: checked_range(name, r) for name, r in self.ranges.items()})
-        object.__setattr__(self, "resolution", {k: positive(f"resolution.{k}", v)
-                                                for k, v in self.resolution.items()})
+        object.__setattr__(self, "resolution", {k: positive(f"resolution.{k}", v) for k, v in self.resolution.items()})
         for name in ("width", "depth"):
             if grid.is_index(self, name):
                 self._check_index_table(name)
@@ -194,8 +210,12 @@ class FilterEncoding:
         table = getattr(self, f"{name}_table")
         if not isinstance(table, (list, tuple)) or not table:
             fail(f"{name}_table", "must be a non-empty list of numbers")
-        values = tuple(positive(f"{name}_table", v, zero_ok=name == "depth") if not
-                       (name == "depth" and v == math.inf) else math.inf for v in table)
+        values = tuple(
+            positive(f"{name}_table", v, zero_ok=name == "depth")
+            if not (name == "depth" and v == math.inf)
+            else math.inf
+            for v in table
+        )
         object.__setattr__(self, f"{name}_table", values)
         stored = getattr(self, f"{name}_values")
         if stored is None:
@@ -223,19 +243,31 @@ class FilterEncoding:
         keys = build_table(_FiltersTable, table, "filters.", source)
         try:
             block = BlockLayout.from_table(table) if keys.encoding == "word_block" else None
-            preset = PRESETS.get(table["preset"], {}) if block is not None and isinstance(table.get("preset"), str) \
-                else {}
+            preset = (
+                PRESETS.get(table["preset"], {}) if block is not None and isinstance(table.get("preset"), str) else {}
+            )
             preset_sign = preset.get("feedback_sign")
             return cls(
-                keys.encoding, fractional_bits=keys.fractional_bits, total_bits=keys.total_bits,
-                center_scale=keys.center_scale, width_scale=keys.width_scale, depth_scale=keys.depth_scale,
-                max_value=keys.max_value, order=None if keys.order is None else tuple(keys.order),
+                keys.encoding,
+                fractional_bits=keys.fractional_bits,
+                total_bits=keys.total_bits,
+                center_scale=keys.center_scale,
+                width_scale=keys.width_scale,
+                depth_scale=keys.depth_scale,
+                max_value=keys.max_value,
+                order=None if keys.order is None else tuple(keys.order),
                 feedback_sign=keys.feedback_sign or (preset_sign if isinstance(preset_sign, str) else "minus"),
-                scales=keys.scales, ranges=keys.ranges, resolution=keys.resolution,
-                width_table=tuple(keys.width_table), depth_table=tuple(keys.depth_table),
+                scales=keys.scales,
+                ranges=keys.ranges,
+                resolution=keys.resolution,
+                width_table=tuple(keys.width_table),
+                depth_table=tuple(keys.depth_table),
                 width_values=None if keys.width_values is None else tuple(keys.width_values),
                 depth_values=None if keys.depth_values is None else tuple(keys.depth_values),
-                block=block, width_unit=keys.width_unit, depth_unit=keys.depth_unit)
+                block=block,
+                width_unit=keys.width_unit,
+                depth_unit=keys.depth_unit,
+            )
         except ConfigError as exc:
             raise ConfigError(exc.key, exc.message, source) from None
 
@@ -266,8 +298,9 @@ class FilterEncoding:
             raise DataError(f'"{name}" is no field of the {self.kind} encoding (fields: {", ".join(self.fields)})')
         if self.kind == "word_block":
             return "octets"
-        if self.kind == "real32" or (self.kind in PARAMETRIC and not grid.is_index(self, name)
-                                     and self.scales[name] == 0.0):
+        if self.kind == "real32" or (
+            self.kind in PARAMETRIC and not grid.is_index(self, name) and self.scales[name] == 0.0
+        ):
             return "float32"
         return "integer"
 
@@ -291,7 +324,7 @@ class FilterEncoding:
         if self.kind == "word_block":
             return {"block": encode_block(self.layout, biquad, spec, self.feedback_sign)}
         if spec is None:
-            raise DataError(f'this drive takes notch parameters ({", ".join(self.fields)}); no NotchSpec was given')
+            raise DataError(f"this drive takes notch parameters ({', '.join(self.fields)}); no NotchSpec was given")
         if self.kind == "notch_parameters" and grid.legacy_units(self):
             return self._encode_notch_parameters(spec)
         ideal = grid.ideal(self, spec)
@@ -318,8 +351,9 @@ class FilterEncoding:
                 raise DataError(f"notch {name} {value!r} cannot be encoded as an integer")
             n = int(round(value / scale))
             if not 1 <= n <= self.max_value:
-                raise DataError(f"notch {name} {value:g} is {n} steps of {scale:g}; "
-                                f"the drive takes 1..{self.max_value}")
+                raise DataError(
+                    f"notch {name} {value:g} is {n} steps of {scale:g}; the drive takes 1..{self.max_value}"
+                )
             out[name] = n
         return {name: out[name] for name in self.fields}
 
@@ -371,8 +405,11 @@ class FilterEncoding:
         """
         missing = [f for f in self.fields if f not in values]
         if missing or self.kind not in PARAMETRIC:
-            raise DataError(f"filter slot values lack {', '.join(missing)}" if missing
-                            else f'the "{self.kind}" encoding stores coefficients, not notch parameters')
+            raise DataError(
+                f"filter slot values lack {', '.join(missing)}"
+                if missing
+                else f'the "{self.kind}" encoding stores coefficients, not notch parameters'
+            )
         center, width, depth = grid.notch_triplet(self, grid.physical_values(self, values))
         try:
             return NotchSpec(center, width, depth)
@@ -420,8 +457,9 @@ class FilterEncoding:
             return
         for name in self.fields:
             v = values[name]
-            integral = self.kind == "fixed" or (self.kind in PARAMETRIC and
-                                               (grid.is_index(self, name) or self.scales[name] != 0.0))
+            integral = self.kind == "fixed" or (
+                self.kind in PARAMETRIC and (grid.is_index(self, name) or self.scales[name] != 0.0)
+            )
             kind = "an integer" if integral else "a finite REAL32 number"
             if isinstance(v, bool) or not isinstance(v, numbers.Real):
                 raise DataError(f"filter field {name} must be {kind}, got {v!r}")

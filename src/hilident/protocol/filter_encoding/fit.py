@@ -86,8 +86,9 @@ def realisation(enc: FilterEncoding, spec: NotchSpec, filter_rate_hz: float) -> 
     except (DataError, ConfigError):
         achieved = None
     if att < spec.depth_db - DEPTH_TOLERANCE_DB:
-        notes.append(f"the {enc.kind} encoding reaches {att:.1f} dB at {spec.center_hz:g} Hz, "
-                     f"not the {spec.depth_db:g} dB asked")
+        notes.append(
+            f"the {enc.kind} encoding reaches {att:.1f} dB at {spec.center_hz:g} Hz, not the {spec.depth_db:g} dB asked"
+        )
     return Realisation(fields, section, achieved, att, tuple(notes))
 
 
@@ -99,8 +100,7 @@ def fit_coefficients(enc: FilterEncoding, spec: NotchSpec, rate: float) -> tuple
         designed = design_notch(NotchSpec(spec.center_hz, spec.width_hz, spec.depth_db + margin), rate)
         if enc.kind == "word_block" and enc.layout.coefficient_format == "int16":
             scalings = scaled_int16(designed, enc.layout.scaler_bits, enc.feedback_sign)[:SCALER_CHOICES]
-            candidates = [{"block": encode_block(enc.layout, designed, spec, enc.feedback_sign, sc)}
-                          for sc in scalings]
+            candidates = [{"block": encode_block(enc.layout, designed, spec, enc.feedback_sign, sc)} for sc in scalings]
         else:
             candidates = [enc.encode(designed, spec)]
         for fields in candidates:
@@ -112,9 +112,15 @@ def fit_coefficients(enc: FilterEncoding, spec: NotchSpec, rate: float) -> tuple
     return best[1], best[2]
 
 
-def better(enc: FilterEncoding, best: _Candidate | None, values: dict, spec: NotchSpec, rate: float,
-            max_width_error: float = math.inf,
-            seen: dict[tuple, tuple[_Key, Biquad] | None] | None = None) -> _Candidate | None:
+def better(
+    enc: FilterEncoding,
+    best: _Candidate | None,
+    values: dict,
+    spec: NotchSpec,
+    rate: float,
+    max_width_error: float = math.inf,
+    seen: dict[tuple, tuple[_Key, Biquad] | None] | None = None,
+) -> _Candidate | None:
     """``best`` or the candidate ``values``, whichever meets ``spec`` better (see :meth:`FilterEncoding.realise`);
     a candidate whose width is further than ``max_width_error`` (log ratio) from the asked one is not
     taken.  ``seen`` caches the evaluation of parameter candidates."""
@@ -154,8 +160,10 @@ def fit_parameters(enc: FilterEncoding, spec: NotchSpec, rate: float, notes: lis
         x = grid.clamp(enc, name, ideal[name])
         if x != ideal[name] and name not in DEEPER:
             unit = grid.unit(enc, name)
-            notes.append(f"{name} {ideal[name]:g}{unit} is outside the drive's range "
-                         f"{enc.ranges[name][0]:g}..{enc.ranges[name][1]:g}{unit}; using {x:g}{unit}")
+            notes.append(
+                f"{name} {ideal[name]:g}{unit} is outside the drive's range "
+                f"{enc.ranges[name][0]:g}..{enc.ranges[name][1]:g}{unit}; using {x:g}{unit}"
+            )
         per_field.append(grid.candidates(enc, name, x))
     wider = widened(enc, ideal, spec)
     if wider is not None:
@@ -165,8 +173,10 @@ def fit_parameters(enc: FilterEncoding, spec: NotchSpec, rate: float, notes: lis
     if grid.is_index(enc, "width"):
         table, ratio = enc.width_table, ideal["width"]
         if not min(table) <= ratio <= max(table):
-            notes.append(f"width {spec.width_hz:g} Hz ({ratio:.3g} of the centre) is outside the drive's "
-                         f"table {min(table):g}..{max(table):g}")
+            notes.append(
+                f"width {spec.width_hz:g} Hz ({ratio:.3g} of the centre) is outside the drive's "
+                f"table {min(table):g}..{max(table):g}"
+            )
     best: _Candidate | None = None
     seen: dict[tuple, tuple[_Key, Biquad] | None] = {}
     for combo in itertools.product(*per_field):
@@ -175,8 +185,10 @@ def fit_parameters(enc: FilterEncoding, spec: NotchSpec, rate: float, notes: lis
             best = better(enc, best, values, spec, rate, seen=seen)
     if best is None:
         why = "".join(f"; {n}" for n in notes)
-        raise DataError(f"no value the {enc.kind} encoding can store attenuates {spec.center_hz:g} Hz "
-                        f"with a notch {spec.width_hz:g} Hz wide at {rate:g} Hz{why}")
+        raise DataError(
+            f"no value the {enc.kind} encoding can store attenuates {spec.center_hz:g} Hz "
+            f"with a notch {spec.width_hz:g} Hz wide at {rate:g} Hz{why}"
+        )
     refined = refine(enc, best, spec, rate, seen)
     width = notch_width_hz(refined[2], rate, spec.center_hz)
     if abs(math.log(width / spec.width_hz)) > math.log(WIDTH_TOLERANCE):
@@ -184,8 +196,9 @@ def fit_parameters(enc: FilterEncoding, spec: NotchSpec, rate: float, notes: lis
     return refined[1], refined[2]
 
 
-def refine(enc: FilterEncoding, best: _Candidate, spec: NotchSpec, rate: float,
-            seen: dict[tuple, tuple[_Key, Biquad] | None]) -> _Candidate:
+def refine(
+    enc: FilterEncoding, best: _Candidate, spec: NotchSpec, rate: float, seen: dict[tuple, tuple[_Key, Biquad] | None]
+) -> _Candidate:
     """Move from ``best`` to a neighbour (one grid step or table entry in any fields) while that
     meets ``spec`` better, keeping the width within :data:`WIDTH_TOLERANCE` of the asked one
     (or as close as ``best`` already is)."""
@@ -212,8 +225,11 @@ def widened(enc: FilterEncoding, ideal: dict, spec: NotchSpec) -> tuple[str, flo
     notch) that reaches the asked depth with the zero at its limit, or ``None``."""
     if enc.kind == "pole_zero_q" and "zero_q" in enc.ranges and ideal["zero_q"] > enc.ranges["zero_q"][1]:
         return "pole_q", grid.clamp(enc, "pole_q", enc.ranges["zero_q"][1] * 10.0 ** (-spec.depth_db / 20.0))
-    if enc.kind == "pole_zero_damping" and "num_damping" in enc.ranges \
-            and ideal["num_damping"] < enc.ranges["num_damping"][0]:
+    if (
+        enc.kind == "pole_zero_damping"
+        and "num_damping" in enc.ranges
+        and ideal["num_damping"] < enc.ranges["num_damping"][0]
+    ):
         low = enc.ranges["num_damping"][0]
         return "den_damping", grid.clamp(enc, "den_damping", low * 10.0 ** (spec.depth_db / 20.0))
     return None

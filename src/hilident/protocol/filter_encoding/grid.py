@@ -77,8 +77,9 @@ def is_index(enc: FilterEncoding, name: str) -> bool:
     """Whether field ``name`` stores an index into ``width_table`` / ``depth_table``."""
     if enc.kind == "index_table":
         return name in ("width", "depth")
-    return enc.kind == "notch_parameters" and ((name == "width" and enc.width_unit == "index")
-                                                or (name == "depth" and enc.depth_unit == "index"))
+    return enc.kind == "notch_parameters" and (
+        (name == "width" and enc.width_unit == "index") or (name == "depth" and enc.depth_unit == "index")
+    )
 
 
 def candidates(enc: FilterEncoding, name: str, x: float) -> list:
@@ -173,8 +174,7 @@ def nearest(enc: FilterEncoding, name: str, x: float):
     cands = candidates(enc, name, x)
     if not cands:
         raise DataError(f"notch {name} {x!r} cannot be stored")
-    return min(cands, key=lambda c: abs(physical(enc, name, c) - x)
-               if not is_index(enc, name) else abs(cands.index(c)))
+    return min(cands, key=lambda c: abs(physical(enc, name, c) - x) if not is_index(enc, name) else abs(cands.index(c)))
 
 
 def physical(enc: FilterEncoding, name: str, stored) -> float:
@@ -199,8 +199,7 @@ def physical_values(enc: FilterEncoding, values: dict) -> dict[str, float]:
     out = {}
     for name in enc.fields:
         x = physical(enc, name, values[name])
-        if math.isnan(x) or (math.isinf(x) and name != "depth") or \
-                (name in enc.ranges and not in_range(enc, name, x)):
+        if math.isnan(x) or (math.isinf(x) and name != "depth") or (name in enc.ranges and not in_range(enc, name, x)):
             low, high = enc.ranges.get(name, (0, math.inf))
             raise DataError(f"notch {name} {x:g} is outside the drive's range {low:g}..{high:g}")
         out[name] = x
