@@ -34,11 +34,11 @@ from pathlib import Path
 import numpy as np
 
 import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
-from hilident.adapters.base import StreamStats
 from hilident.adapters.modbus.drive import ModbusDriveAdapter
 from hilident.config.tables import DeviceConfig, load_config
 from hilident.drivers.description import find_driver
 from hilident.emulator.modbus.server import start
+from hilident.events import StreamStats
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "emulated-modbus-gantry.toml"
 

@@ -15,14 +15,14 @@ from hilident.errors import ConfigError
 from hilident.ident.frequency import periodic_frf
 from hilident.ident.friction import StribeckParams
 from hilident.io.recording import read_run
-from hilident.session.run import (
-    Session,
+from hilident.session.auto_amplitude import (
     band_coherence,
     coherence_factor,
     friction_share,
     predicted_coherence,
     response_change,
 )
+from hilident.session.run import Session
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 GANTRY = CONFIGS / "emulated-gantry.toml"

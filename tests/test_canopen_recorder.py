@@ -33,7 +33,7 @@ from hilident.protocol.canopen_recorder import (
     parse_recorder,
     prbs_bits,
 )
-from hilident.session.run import build_excitation, excitation_recipe
+from hilident.session.excitation import build_excitation, excitation_recipe
 from hilident.signals import generators as sig
 from support.vendor_drives import VendorDrive, write_vendor_drive
 

@@ -23,7 +23,8 @@ from hilident.errors import ConfigError
 from hilident.io.recording import read_run
 from hilident.protocol.canopen_objects import CanopenDescription
 from hilident.protocol.eds import inspect_eds, load_eds
-from hilident.session.run import Session, build_excitation
+from hilident.session.excitation import build_excitation
+from hilident.session.run import Session
 from support.twins import assert_friction_matches
 from support.vendor_drives import VendorDrive, write_vendor_drive
 
@@ -184,7 +185,7 @@ def test_drivers_new_writes_the_vendor_torque_as_a_placeholder_and_the_folder_ru
 
 
 def test_many_late_syncs_are_a_warning_few_are_not():
-    from hilident.session.run import late_sampling_warnings
+    from hilident.session.experiment import late_sampling_warnings
 
     late = [{"kind": "sync_late", "message": "", "sample_index": 0, "value": 300.0, "worst_s": 0.054}]
     (warning,) = late_sampling_warnings("identification", late, 12000)
@@ -196,8 +197,9 @@ def test_many_late_syncs_are_a_warning_few_are_not():
 def test_a_reading_at_its_integer_limit_is_counted_clipped_with_one_event():
     from types import SimpleNamespace
 
-    from hilident.adapters.base import RunResult, StreamStats
+    from hilident.adapters.base import RunResult
     from hilident.adapters.canopen.drive import CanopenDriveAdapter, ChannelCodec
+    from hilident.events import StreamStats
     from hilident.protocol.canopen_objects import ObjectAddress
 
     events = []

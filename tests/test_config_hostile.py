@@ -151,7 +151,7 @@ excitation_tables = st.fixed_dictionaries(
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(excitation_tables, st.sampled_from([250.0, 1000.0, 4000.0]))
 def test_an_excitation_that_loads_is_built_with_the_length_computed_at_load(excitation, fs):
-    from hilident.session.run import build_excitation
+    from hilident.session.excitation import build_excitation
 
     cfg = _outcome(
         toml_text(
@@ -260,7 +260,7 @@ def test_deep_nesting_is_a_syntax_error():
 @given(st.floats(0.0, 0.02), st.integers(1, 60))
 def test_fades_that_load_fit_the_excitation(fade_s, n):
     """The load-time check and signals.fade agree at the edge (round(fade_s * fs) samples per fade)."""
-    from hilident.session.run import build_excitation
+    from hilident.session.excitation import build_excitation
 
     cfg = _outcome(
         toml_text({("limits",): LIMITS, ("excitation",): {"kind": "step", "duration_s": n / 1000.0, "fade_s": fade_s}})

@@ -21,7 +21,8 @@ from hilident.errors import ConfigError, DeviceError
 from hilident.filters.notch import NotchSpec, design_notch
 from hilident.io.summary import UploadOutcome
 from hilident.protocol.modbus_registers import RegisterMap
-from hilident.session.run import ConnectedDevice, Session
+from hilident.session.connection import ConnectedDevice
+from hilident.session.run import Session
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "emulated-dsy-rs.toml"
 DRIVER = find_driver("dsy-rs")

@@ -10,13 +10,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hilident import pipeline
 from hilident.cli.main import main
 from hilident.config.tables import parse_config
 from hilident.drivers.description import find_driver
 from hilident.emulator.factory import build_drive, true_modes
 from hilident.errors import DataError
 from hilident.io.recording import RunWriter
+from hilident.pipeline.selection import excitation_period_samples, select_gap_free
 from hilident.signals import multisine
 from test_identify_offline import GANTRY  # the same frictionless gantry
 
@@ -179,7 +179,7 @@ def test_velocity_from_position_is_never_differentiated_across_a_gap(tmp_path, b
 
 def test_select_gap_free_keeps_whole_periods_after_the_lead_in():
     index = np.delete(np.arange(50), [13, 14, 41])  # lost in period 1 and period 4 (period 10)
-    sel = pipeline.select_gap_free(index, 10, "r")
+    sel = select_gap_free(index, 10, "r")
     kept = index[sel.keep]
     assert list(kept) == list(range(20, 40))
     assert sel.n_gaps == 2 and sel.missing_samples == 3 and sel.segments == [(18, 38)]
@@ -188,39 +188,39 @@ def test_select_gap_free_keeps_whole_periods_after_the_lead_in():
 
 def test_select_gap_free_never_counts_a_repeated_period_twice():
     index = np.concatenate([np.arange(0, 40), np.arange(20, 30), np.arange(40, 50)])  # period 2 replayed
-    sel = pipeline.select_gap_free(index, 10)
+    sel = select_gap_free(index, 10)
     assert sorted(index[sel.keep]) == list(range(10, 50))
     assert sel.gaps[0] == {"row": 40, "sample_index": 20, "missing_samples": -20}
 
 
 def test_select_gap_free_needs_two_whole_periods():
     with pytest.raises(DataError, match="only 1 complete excitation period"):
-        pipeline.select_gap_free(np.delete(np.arange(30), [25]), 10, "r")
+        select_gap_free(np.delete(np.arange(30), [25]), 10, "r")
 
 
 def test_select_gap_free_without_period_keeps_the_longest_stretch():
     index = np.r_[0:10, 12:40, 41:45]
-    sel = pipeline.select_gap_free(index)
+    sel = select_gap_free(index)
     assert list(index[sel.keep]) == list(range(12, 40)) and sel.period_samples is None
     assert "2 gap(s)" in sel.warnings[0]
     with pytest.raises(DataError, match="no samples"):
-        pipeline.select_gap_free(np.array([], dtype=np.int64))
+        select_gap_free(np.array([], dtype=np.int64))
 
 
 def test_period_of_the_configured_excitation():
     cfg = parse_config(RUN_CONFIG)
-    assert pipeline.excitation_period_samples(cfg.excitation, RATE) == PERIOD
+    assert excitation_period_samples(cfg.excitation, RATE) == PERIOD
     prbs = parse_config('[excitation]\nkind = "prbs"\nregister_length = 7\nclock_divider = 2\nduration_s = 1.0\n')
-    assert pipeline.excitation_period_samples(prbs.excitation, RATE) == 254  # 1 s holds 4 sequences of 254
+    assert excitation_period_samples(prbs.excitation, RATE) == 254  # 1 s holds 4 sequences of 254
     short = parse_config('[excitation]\nkind = "prbs"\nregister_length = 9\nclock_divider = 1\nduration_s = 1.0\n')
-    assert pipeline.excitation_period_samples(short.excitation, RATE) is None  # 2 sequences: not averaged
+    assert excitation_period_samples(short.excitation, RATE) is None  # 2 sequences: not averaged
     chirp = parse_config('[excitation]\nkind = "chirp"\n')
-    assert pipeline.excitation_period_samples(chirp.excitation, RATE) is None
+    assert excitation_period_samples(chirp.excitation, RATE) is None
 
 
 def test_select_gap_free_segments_break_where_the_clock_jumps():
     index = np.r_[0:30, 40:60]  # periods 1, 2 from the first run and 4, 5 from the second sit on adjacent rows
-    sel = pipeline.select_gap_free(index, 10)
+    sel = select_gap_free(index, 10)
     assert sel.segments == [(10, 30), (30, 50)]
     assert sel.warnings == ["recording: 1 of 5 excitation periods had lost samples and were left out"]
 
@@ -237,10 +237,10 @@ def test_select_gap_free_segments_break_where_the_clock_jumps():
     ],
 )
 def test_the_period_identify_assumes_is_the_one_a_bench_run_plays(excitation):
-    from hilident.session.run import build_excitation
+    from hilident.session.excitation import build_excitation
 
     cfg = parse_config(f"[run]\nsample_rate_hz = {RATE}\n[excitation]\n{excitation}\n")
-    assert pipeline.excitation_period_samples(cfg.excitation, RATE) == build_excitation(cfg).period_samples
+    assert excitation_period_samples(cfg.excitation, RATE) == build_excitation(cfg).period_samples
 
 
 def test_time_stamps_are_checked_chunk_by_chunk_with_the_right_rows(tmp_path, monkeypatch):
@@ -325,7 +325,7 @@ def test_select_gap_free_keeps_only_whole_gap_free_periods_once(period, n, edits
             index[at : at + 2] = index[at : at + 2][::-1]
     index = np.array(index, dtype=np.int64)
     try:
-        sel = pipeline.select_gap_free(index, period)
+        sel = select_gap_free(index, period)
     except DataError:
         return
     kept = index[sel.keep]
@@ -333,7 +333,7 @@ def test_select_gap_free_keeps_only_whole_gap_free_periods_once(period, n, edits
     assert kept.min() >= period  # never the lead-in
     for a, b in sel.segments:
         assert np.all(np.diff(index[a:b]) == 1) and index[a] % period == 0 and (b - a) % period == 0
-    longest = pipeline.select_gap_free(index) if len(index) else None
+    longest = select_gap_free(index) if len(index) else None
     assert longest is None or np.all(np.diff(index[longest.keep]) == 1)
 
 

@@ -5,8 +5,8 @@ the excited band, now and then a mass-spring-damper), random friction and a
 random excitation amplitude from far too weak to ample go through the
 emulator's own physics (:func:`hilident.emulator.factory.build_drive`, the
 board's sample divider, no wire protocol) and the session's own analysis
-(:func:`hilident.session.run.build_excitation`, :func:`pipeline.select_gap_free`,
-:func:`pipeline.identify_plant`, :func:`pipeline.notch_decision`). Every
+(:func:`hilident.session.excitation.build_excitation`, :func:`pipeline.selection.select_gap_free`,
+:func:`pipeline.plant.identify_plant`, :func:`pipeline.notches.notch_decision`). Every
 resonance a notch would be designed for must lie within 0.5 % of a true
 mode (:func:`hilident.emulator.factory.true_modes`); when none is, the
 upload's ``skipped_reason`` says why.
@@ -27,14 +27,17 @@ import pytest
 from hypothesis import HealthCheck, Phase, event, example, given, settings
 from hypothesis import strategies as st
 
-from hilident import pipeline
 from hilident.config.tables import parse_config
 from hilident.drivers.description import find_driver
 from hilident.emulator.clock import TablePlayer
 from hilident.emulator.factory import build_drive, true_modes
 from hilident.errors import DataError
 from hilident.ident.friction import StribeckParams
-from hilident.session.run import build_excitation
+from hilident.pipeline.eligibility import notch_eligibility
+from hilident.pipeline.notches import notch_decision
+from hilident.pipeline.plant import analysis_band, identify_plant
+from hilident.pipeline.selection import select_gap_free
+from hilident.session.excitation import build_excitation
 
 #: Largest relative error of a notched resonance against the true mode.
 TOLERANCE = 0.005
@@ -123,7 +126,7 @@ def run_and_analyse(cfg, friction_error: float = 1.0):
     assert drive.fault is None
     recorded = {name: rows[:, i] for i, name in enumerate(drive.CHANNELS)}
     recorded["sample_index"] = np.arange(len(rows))
-    selection = pipeline.select_gap_free(recorded["sample_index"], excitation.period_samples, "identification")
+    selection = select_gap_free(recorded["sample_index"], excitation.period_samples, "identification")
     s = {k: v[selection.keep] for k, v in recorded.items()}
     ic = cfg.identification
     f = cfg.emulator.friction
@@ -137,21 +140,21 @@ def run_and_analyse(cfg, friction_error: float = 1.0):
             delta_v=f.delta_v,
             delta_s=f.delta_s,
         )
-    plant = pipeline.identify_plant(
+    plant = identify_plant(
         s["excitation"],
         s["torque_nm"],
         s[ic.output],
         s["velocity_mps"],
         cfg.run.sample_rate_hz,
         ic,
-        pipeline.analysis_band(ic, excitation.band_hz),
+        analysis_band(ic, excitation.band_hz),
         friction=friction,
         velocity_deadband_mps=cfg.friction_test.velocity_deadband_mps,
         period_samples=excitation.period_samples,
         excited_bins=excitation.excited_bins,
     )
     e = cfg.excitation
-    return plant, pipeline.notch_decision(plant, ic.coherence_threshold, e.amplitude_key, e.amplitude)
+    return plant, notch_decision(plant, ic.coherence_threshold, e.amplitude_key, e.amplitude)
 
 
 def false_notches(cfg, decision) -> list[str]:
@@ -348,12 +351,10 @@ def test_a_damped_mode_known_only_to_its_bandwidth_gets_no_notch():
 
     # zeta 0.07 at 3.8 Hz: a 0.53 Hz bandwidth, so a +-0.05 Hz (1.3 %) interval passes the bandwidth rule
     res = Resonance(3.8, 0.07, -40.0, 0.99, "fit", 0.05, 0.01, 0.2, 0.3, 10.0, 0.8)
-    verdict = pipeline.notch_eligibility(res)
+    verdict = notch_eligibility(res)
     assert not verdict["notchable"] and "0.5 %" in verdict["reason"]
     assert verdict["amplitude_factor"] == pytest.approx(2 * 0.05 / (0.005 * 3.8))
-    assert pipeline.notch_eligibility(Resonance(3.8, 0.07, -40.0, 0.99, "fit", 0.005, 0.01, 0.2, 0.3, 10.0, 0.8))[
-        "notchable"
-    ]
+    assert notch_eligibility(Resonance(3.8, 0.07, -40.0, 0.99, "fit", 0.005, 0.01, 0.2, 0.3, 10.0, 0.8))["notchable"]
 
 
 def test_torque_injection_recorded_below_the_loop_rate():

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import json
 
-from hilident.adapters.base import StreamStats
-from hilident.events import Kind, RunEvent
+from hilident.events import Kind, RunEvent, StreamStats
 from hilident.io.recording import RunWriter, read_run
 from hilident.io.serialise import write_json
 from hilident.io.summary import (

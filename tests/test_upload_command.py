@@ -10,7 +10,6 @@ from pathlib import Path
 
 import pytest
 
-from hilident import pipeline
 from hilident.adapters.serial.board import SerialBoardAdapter
 from hilident.cli.main import main
 from hilident.config.tables import load_config
@@ -18,6 +17,8 @@ from hilident.errors import DataError, DeviceError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec, design_notch
 from hilident.ident.resonance import Resonance
+from hilident.pipeline.notches import design_notches
+from hilident.pipeline.records import notch_records, resonance_records
 from hilident.session.upload import UploadCommand
 from support.schema_check import schema_errors
 from support.summary_keys import assert_layout
@@ -32,11 +33,11 @@ def write_source(folder: Path, truth_hz: float, rate_hz: float, extra_hz: tuple[
     """A run folder whose summary.json holds notches designed for ``truth_hz`` (and ``extra_hz``) at ``rate_hz``."""
     cfg = load_config(CONFIGS / "emulated-gantry.toml")
     resonances = [Resonance(f, ZETA, 30.0, 0.99, frequency_ci95_hz=0.01 * f) for f in (truth_hz, *extra_hz)]
-    designs = pipeline.design_notches(resonances, cfg.notch, rate_hz, list(range(len(resonances))))
+    designs = design_notches(resonances, cfg.notch, rate_hz, list(range(len(resonances))))
     folder.mkdir(parents=True)
     summary = {
-        "resonances": pipeline.resonance_records(resonances),
-        "notch_filters": pipeline.notch_records(designs),
+        "resonances": resonance_records(resonances),
+        "notch_filters": notch_records(designs),
         "upload": {"written": False, "verified_readback": False, "slots": []},
         "warnings": [],
     }
@@ -159,7 +160,7 @@ def faulty(base, bad_slot: int):
 def test_a_failing_read_back_rolls_every_slot_back_and_exits_with_a_partial_summary(
     tmp_path, locks, capsys, monkeypatch, serial_twin
 ):
-    from hilident.session import run as session
+    from hilident.session import connection as session
 
     old = SerialBoardAdapter.stored_form(design_notch(NotchSpec(50.0, 10.0, 20.0), 4000.0))  # as the board holds it
     serial_twin.emu.drive.filters.write(0, old, True)  # an older notch the drive runs now
@@ -188,7 +189,7 @@ def test_a_signal_during_the_upload_puts_every_slot_back_and_exits_143(
     import os
     import signal
 
-    from hilident.session import run as session
+    from hilident.session import connection as session
 
     old = SerialBoardAdapter.stored_form(design_notch(NotchSpec(50.0, 10.0, 20.0), 4000.0))
     serial_twin.emu.drive.filters.write(0, old, True)
@@ -224,7 +225,7 @@ def vendor_config(tmp_path: Path):
 
 
 def test_save_stores_only_after_every_slot_read_back(tmp_path, monkeypatch):
-    from hilident.session import run as session
+    from hilident.session import connection as session
 
     cfg = vendor_config(tmp_path)
     source = write_source(tmp_path / "run", 21.79, 4000.0)
@@ -264,9 +265,7 @@ def test_a_notch_for_another_filter_rate_is_designed_again_at_the_devices(tmp_pa
     (design,) = summary["notch_filters"]
     assert design["sample_rate_hz"] == 4000.0
     assert any("designed for a 1000 Hz filter rate" in w and "4000 Hz" in w for w in summary["warnings"])
-    expected = pipeline.design_notches(
-        [Resonance(21.79, ZETA, 30.0, 0.99, frequency_ci95_hz=0.2179)], cfg.notch, 4000.0, [0]
-    )[0]
+    expected = design_notches([Resonance(21.79, ZETA, 30.0, 0.99, frequency_ci95_hz=0.2179)], cfg.notch, 4000.0, [0])[0]
     assert design["b"] == list(expected.biquad.b)
     assert summary["upload"]["verified_readback"]
 

@@ -26,10 +26,8 @@ def _run(args) -> int:
     from hilident.config.tables import load_config
 
     cfg = load_config(args.config)
-    from hilident.session.run import (  # after the config: its error comes without the session's imports
-        Progress,
-        Session,
-    )
+    from hilident.progress import Progress  # after the config: its error comes without the session's imports
+    from hilident.session.run import Session
 
     if args.clear_fault:
         cfg = replace(cfg, device=replace(cfg.device, allow_fault_reset=True))

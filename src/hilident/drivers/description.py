@@ -10,7 +10,7 @@ like a path (``./x``, ``../x``, ``/x``, ``~/x``, or holding a path separator) is
 the driver's folder itself.
 
 ``[driver]``, ``[board]`` and ``[[channels]]`` are validated by the same typed
-schema as the run configuration (:func:`hilident.config.tables.build_table`); the
+schema as the run configuration (:func:`hilident.config.schema.build_table`); the
 transport tables (``[canopen]``, ``[modbus]``, ``[filters]``) by their parsers in
 :mod:`hilident.protocol`. Every error is a :class:`~hilident.errors.ConfigError`
 naming the ``driver.toml`` and the ``[table.key]``.

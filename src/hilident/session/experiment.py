@@ -17,14 +17,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hilident import __version__, endings
-from hilident.adapters.base import StreamStats
 from hilident.config.tables import Config
 from hilident.errors import HilidentError
-from hilident.events import RunEvent
+from hilident.events import RunEvent, StreamStats
 from hilident.io.recording import RunWriter, read_run
 
 if TYPE_CHECKING:
-    from hilident.session.run import ConnectedDevice, Progress
+    from hilident.progress import Progress
+    from hilident.session.connection import ConnectedDevice
 
 __all__ = [
     "Experiment",

@@ -29,7 +29,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from hilident import html_report
-from hilident.config.tables import Config, DataConfig, ModelConfig, build_table, parse_config, parse_toml
+from hilident.config.schema import build_table
+from hilident.config.tables import Config, DataConfig, ModelConfig, parse_config, parse_toml
 from hilident.datafile import RATE_TOLERANCE, Dataset, RunInfo, load_dataset, read_friction_test, read_run_info
 from hilident.errors import ConfigError, DataError, HilidentError, UsageError
 from hilident.io.summary import Summary, friction_summary
@@ -176,7 +177,7 @@ def _run_excitation(cfg: Config, info: RunInfo | None, ds: Dataset):
         return None
     if abs(cfg.run.sample_rate_hz - ds.sample_rate_hz) > RATE_TOLERANCE * ds.sample_rate_hz:
         return None
-    from hilident.session.run import build_excitation
+    from hilident.session.excitation import build_excitation
 
     try:
         exc = build_excitation(cfg)

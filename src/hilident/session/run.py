@@ -21,7 +21,7 @@ safe first, then the filter slots are restored when needed, then every
 recording is closed with its status and cause, then the device is released.
 
 The session keeps the order; its parts live beside it (``docs/results.md``):
-:func:`connect_device` (a complete :class:`ConnectedDevice`),
+:mod:`hilident.session.connection` (the device, a complete :class:`ConnectedDevice`),
 :mod:`hilident.session.experiment` (recording), :mod:`hilident.session.auto_amplitude`,
 :mod:`hilident.session.slot_bypass`, :mod:`hilident.session.excitation`,
 :mod:`hilident.io.summary` (the typed ``summary.json``).
@@ -32,17 +32,16 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from hilident import endings, html_report
-from hilident.adapters.base import StreamStats, adapter_class
+from hilident.adapters.backends import adapter_class
 from hilident.config.tables import Config, check_auto_amplitude
 from hilident.drivers.description import DriverDescription, check_run_against_driver, find_driver
 from hilident.errors import ArmingRefused, ConfigError, DataError, HilidentError, UsageError
+from hilident.events import StreamStats
 from hilident.io.serialise import write_json
 from hilident.io.summary import (
     NOT_REACHED,
@@ -54,35 +53,18 @@ from hilident.io.summary import (
 )
 from hilident.lazy import lazy_module
 from hilident.plots import figures as report
+from hilident.plots.common import plot_title
 from hilident.progress import Progress
-from hilident.session.auto_amplitude import (  # noqa: F401 (kept importable)
-    AutoAmplitude,
-    band_coherence,
-    coherence_factor,
-    friction_share,
-    period_spectra,
-    predicted_coherence,
-    response_change,
-    smooth_lines,
-)
-from hilident.session.devicelock import DeviceLock, device_key
-from hilident.session.excitation import Excitation, build_excitation, excitation_recipe  # noqa: F401 (kept importable)
-from hilident.session.experiment import (  # noqa: F401 (kept importable)
-    FLUSH_INTERVAL_S,
-    Experiment,
-    ExperimentRecorder,
-    late_sampling_warnings,
-    package_versions,
-)
+from hilident.session.auto_amplitude import AutoAmplitude
+from hilident.session.connection import ConnectedDevice, DeviceConnection
+from hilident.session.excitation import Excitation, build_excitation, excitation_recipe
+from hilident.session.experiment import Experiment, ExperimentRecorder
 from hilident.session.map_positions import MAP_MODE
 from hilident.session.map_run import WorkspaceRun
 from hilident.session.move_test import MoveTestResult, plot_worst_move, run_move_tests
 from hilident.session.plan import RunPlan, excitation_travel_m, make_plan
 from hilident.session.slot_bypass import BypassedSlots
 from hilident.signals import generators as sig
-
-if TYPE_CHECKING:
-    from hilident.adapters.base import DeviceAdapter
 
 #: The analysis, imported once an experiment needs it (a run ended before that starts and stops faster).
 pipeline = lazy_module("hilident.pipeline")
@@ -127,163 +109,6 @@ def check_it_moved(cfg: Config, output: np.ndarray, friction) -> None:
         f"{held}; raise excitation.{e.amplitude_key}"
         + (' or set it to "auto"' if e.amplitude_key == "amplitude_nm" else "")
     )
-
-
-@dataclass(frozen=True)
-class ConnectedDevice:
-    """An open device, complete: its driver, the adapter talking to it, and what was started or taken to reach
-    it (the embedded emulator, the device lock). Made by :func:`connect_device`."""
-
-    driver: DriverDescription
-    adapter: DeviceAdapter
-    emulator: Any = None
-    lock: DeviceLock | None = None
-
-    def safe_stop(self) -> None:
-        """Command the axis safe now (first thing on every ending). Never raises."""
-        try:
-            self.adapter.safe_stop()
-        except Exception:
-            pass
-
-    def close(self) -> None:
-        """Stop the axis and release the device (and the emulator, and the device lock)."""
-        try:
-            self.adapter.close()
-        finally:
-            try:
-                if self.emulator is not None:
-                    self.emulator.close()
-            finally:
-                if self.lock is not None:
-                    self.lock.release()
-
-
-def connect_device(cfg: Config, driver: DriverDescription, progress: Progress) -> ConnectedDevice:
-    """Open the device of ``[device]`` (taking its lock), or start the embedded emulator and open it like one.
-
-    The adapter brings the device to a known state as it opens (stale frames
-    discarded, axis stopped, latched faults reported and cleared only when
-    allowed). The lock and the emulator are released again when opening fails.
-    """
-    cls = adapter_class(driver.transport)
-    device, link, emulator, lock = cfg.device, None, None, None
-    if cfg.uses_emulator:
-        from hilident.emulator.factory import start_emulator
-
-        emulator = start_emulator(cfg.emulator, driver, cfg.device)
-        device, link = emulator.device, emulator.link
-    else:
-        d = cfg.device
-        lock = DeviceLock(
-            device_key(
-                driver.transport,
-                d.port,
-                node_id=d.canopen.node_id,
-                device_id=d.modbus.device_id,
-                can_interface=d.canopen.can_interface,
-            )
-        ).acquire()
-        if lock.recovered_from:
-            progress.step(f"device lock of pid {lock.recovered_from} recovered (that session died)")
-    try:
-        adapter = cls.open_device(device, driver, link=link)
-    except BaseException:
-        with endings.shielded():
-            _release(emulator, lock)
-        raise
-    return ConnectedDevice(driver, adapter, emulator, lock)
-
-
-def _release(emulator, lock: DeviceLock | None) -> None:
-    """Stop an emulator and release a lock of a device that did not open."""
-    try:
-        if emulator is not None:
-            emulator.close()
-    finally:
-        if lock is not None:
-            lock.release()
-
-
-def connect_warnings(report_) -> list[str]:
-    """What :attr:`AdapterBase.connect_report` found, as the session's warnings."""
-    out = []
-    if report_.discarded_frames:
-        out.append(f"connect: {report_.discarded_frames} frame(s) left over from an earlier session were discarded")
-    if report_.faults:
-        out.append(
-            f"connect: the device had latched fault(s): {'; '.join(report_.faults)}"
-            + ("; cleared (allow_fault_reset)" if report_.faults_cleared else "")
-        )
-    return out + [f"connect: {w}" for w in report_.warnings]
-
-
-class DeviceConnection:
-    """A device opened as ``[device]`` says (or the embedded emulator), one session per device.
-
-    What ``hilident run`` and ``hilident upload`` share: the subclass sets
-    ``cfg``, ``progress`` and ``warnings`` and may set ``driver``;
-    :meth:`open_device` makes :attr:`device` (a :class:`ConnectedDevice`);
-    ``adapter``, ``emulator`` and ``lock`` are its parts (None until then).
-    """
-
-    cfg: Config
-    progress: Progress
-    warnings: list[str]
-    driver: DriverDescription | None = None
-    device: ConnectedDevice | None = None
-
-    @property
-    def found_driver(self) -> DriverDescription:
-        """The driver description, once :meth:`open_device` (or :meth:`Session.prepare`) found it.
-
-        Raises
-        ------
-        RuntimeError
-            Asked before the driver was looked up (a caller's mistake).
-        """
-        if self.driver is None:
-            raise RuntimeError("the driver is looked up by open_device() or prepare() first")
-        return self.driver
-
-    @property
-    def adapter(self):
-        """The open device's adapter (None before :meth:`open_device`)."""
-        return self.device.adapter if self.device is not None else None
-
-    @property
-    def emulator(self):
-        """The embedded emulator (None on a real port, or before :meth:`open_device`)."""
-        return self.device.emulator if self.device is not None else None
-
-    @property
-    def lock(self) -> DeviceLock | None:
-        """The device lock (None for the emulator, or before :meth:`open_device`)."""
-        return self.device.lock if self.device is not None else None
-
-    def open_device(self) -> ConnectedDevice:
-        """Open the device (taking its lock), or start the embedded emulator and open it like a device.
-
-        What the adapter found as it brought the device to a known state goes to ``warnings``.
-        """
-        driver = self.driver = self.driver or find_driver(self.cfg.device.driver, self.cfg.device.driver_paths)
-        self.device = connect_device(self.cfg, driver, self.progress)
-        where = "emulated" if self.cfg.uses_emulator else "connected to"
-        self.progress.step(f"{where} {self.adapter.identity.name} on {self.adapter.port}")
-        report_ = getattr(self.adapter, "connect_report", None)
-        if report_ is not None:
-            self.warnings += connect_warnings(report_)
-        return self.device
-
-    def safe_stop(self) -> None:
-        """Command the axis safe now (first thing on every ending). Never raises."""
-        if self.device is not None:
-            self.device.safe_stop()
-
-    def close(self) -> None:
-        """Stop the axis and release the device (and the emulator, and the device lock)."""
-        if self.device is not None:
-            self.device.close()
 
 
 class Session(DeviceConnection):
@@ -457,7 +282,7 @@ class Session(DeviceConnection):
         model = self._greybox()
         if self.plots and self.workspace is not None:  # before the summary: a failed plot is one of its warnings
             self.workspace.plot(
-                self.out / "map.png", report.plot_title(Path(self.cfg.source).name, what="Mode over the workspace")
+                self.out / "map.png", plot_title(Path(self.cfg.source).name, what="Mode over the workspace")
             )
         if self.plots and self.move_results:
             plot_worst_move(self.move_results, self.out / "moves.png", Path(self.cfg.source).name, self.warnings)
@@ -864,5 +689,5 @@ class Session(DeviceConnection):
                 model,
                 records,
                 self.cfg.run.sample_rate_hz,
-                report.plot_title(Path(self.cfg.source).name),
+                plot_title(Path(self.cfg.source).name),
             )

@@ -40,7 +40,8 @@ from hilident.errors import (
 )
 from hilident.io.serialise import write_json
 from hilident.io.summary import DevicePart, Summary, UploadOutcome
-from hilident.session.run import DeviceConnection, Progress
+from hilident.progress import Progress
+from hilident.session.connection import DeviceConnection
 
 #: Attenuation lost to the device's rounding (design minus achieved at the centre) above which the run warns, dB.
 ROUNDING_WARNING_DB = 3.0

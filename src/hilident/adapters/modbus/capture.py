@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from hilident.adapters.base import Deliver, RunResult, StreamStats
+from hilident.adapters.base import Deliver, RunResult
 from hilident.adapters.modbus.common import (
     _CHUNKS_PER_POLL,
     _LIMIT_FAULTS,
@@ -22,7 +22,7 @@ from hilident.adapters.modbus.common import (
 )
 from hilident.adapters.modbus.requests import RegisterAccess
 from hilident.errors import DataError, DeviceError
-from hilident.events import Kind, RunEvent
+from hilident.events import Kind, RunEvent, StreamStats
 from hilident.protocol.modbus_registers import (
     STAMP_MODULUS,
     Chunk,
