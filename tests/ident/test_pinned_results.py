@@ -202,10 +202,20 @@ _ROUNDING_NOISE = re.compile(
     r"\.exact\.(candidates\[\d+\]\.V|model\.(V|noise_variance|covariance\[0\]\[0\]|stderr\[0\]))$"
 )
 _VARIANCE_BOUND = 1e-24
+
+# fit_linear's cases are ill-conditioned on purpose (a condition number of 4e12, a regressor at 1e-3 of the
+# others, a 1e-9 signal): the least-squares solution of such a matrix differs from one LAPACK build or CPU to
+# another in its last four digits (seen: 2e-12 relative on the collinear covariance, 1e-11 on the tiny
+# regressor's parameter). They are pinned to 1e-9; a restructuring error changes them by far more.
+_RTOL = {"fit_linear": 1e-9}
+# ... and the fit of the 1e-9 signal is 100 % less a rounding residue of about 1e-10 %.
+_FIT_RESIDUE_PERCENT = 1e-8
 _STDERR_BOUND = 1e-12  # its square root
 
 
 def _split_rounding_noise(name: str, flat: dict) -> dict:
+    if name == "fit_linear":
+        return {".one.fit_percent": flat.pop(".one.fit_percent")}
     if name != "arx_order_search":
         return {}
     return {key: flat.pop(key) for key in [k for k in flat if _ROUNDING_NOISE.match(k)]}
@@ -215,10 +225,13 @@ def _split_rounding_noise(name: str, flat: dict) -> dict:
 def test_results_are_those_recorded_before_the_restructuring(name):
     actual, expected = flatten(CASES[name]()), dict(load_expected(EXPECTED)[name])
     noise_actual, noise_expected = _split_rounding_noise(name, actual), _split_rounding_noise(name, expected)
-    assert_same(actual, expected)
+    assert_same(actual, expected, rtol=_RTOL.get(name, 1e-12))
     assert sorted(noise_actual) == sorted(noise_expected)
     for key, got in noise_actual.items():
         want = noise_expected[key]
+        if key == ".one.fit_percent":
+            assert abs(got) <= _FIT_RESIDUE_PERCENT and abs(want) <= _FIT_RESIDUE_PERCENT, f"{key}: {got!r} vs {want!r}"
+            continue
         if math.isnan(want):
             assert math.isnan(got), key
             continue
