@@ -16,7 +16,11 @@ import pytest
 from scipy import signal
 
 from hilident.errors import DataError
-from hilident.plots.figures import plot_bode, plot_friction, plot_timeseries, to_jsonable, write_summary
+from hilident.io.serialise import to_jsonable
+from hilident.io.serialise import write_json as write_summary
+from hilident.plots.bode import plot_bode
+from hilident.plots.figures import plot_timeseries
+from hilident.plots.friction import plot_friction
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

@@ -1,23 +1,15 @@
-"""Plots of a run and of ``identify`` (and ``summary.json`` by its old name: :func:`write_summary`).
+"""The figures of a run and of ``identify``, drawn as a set.
 
 Pure output helpers: arrays in, files out. The figures themselves live in
-:mod:`hilident.plots` (Bode, friction, grey-box); this module re-exports them
-and draws a run's and an identification's set (:func:`plot_run`,
-:func:`plot_identify`). Plots are drawn with matplotlib's
+:mod:`hilident.plots` (Bode, friction, grey-box); this module draws a run's
+and an identification's set (:func:`plot_run`, :func:`plot_identify`). Plots are drawn with matplotlib's
 object API (:class:`matplotlib.figure.Figure`, rendered by Agg), so nothing
 here touches pyplot's global state or the process-wide backend, and
 matplotlib is only imported when a plot is drawn.
 
 Every writer creates the parent folder if needed and writes atomically (a
 temporary file in the same folder, then :func:`os.replace`), so a reader never
-sees half a PNG or half a JSON file. JSON is :mod:`hilident.io.serialise`'s job;
-``to_jsonable`` is re-exported here for older imports.
-
-Example
--------
->>> import numpy as np
->>> to_jsonable({"gain": np.float64(2.0), "pole": 1 + 2j, "bad": float("nan")})
-{'gain': 2.0, 'pole': {'re': 1.0, 'im': 2.0}, 'bad': None}
+sees half a PNG. JSON is :mod:`hilident.io.serialise`'s job.
 """
 
 from __future__ import annotations
@@ -30,7 +22,6 @@ from typing import Any
 import numpy as np
 
 from hilident.errors import DataError
-from hilident.io.serialise import to_jsonable, write_json
 from hilident.plots.bode import PER_CURVE, plot_bode
 from hilident.plots.common import channel_unit, config_name, plot_title, ratio_unit
 from hilident.plots.common import same_length as _same_length
@@ -39,17 +30,7 @@ from hilident.plots.common import vector as _vector
 from hilident.plots.friction import plot_friction
 from hilident.plots.greybox import Simulation, plot_greybox, simulate_greybox
 
-__all__ = [
-    "plot_run",
-    "plot_identify",
-    "plot_model",
-    "plot_bode",
-    "plot_friction",
-    "plot_greybox",
-    "plot_timeseries",
-    "to_jsonable",
-    "write_summary",
-]
+__all__ = ["plot_run", "plot_identify", "plot_model", "plot_timeseries"]
 
 # Above this many samples a time-series trace is reduced to a min/max envelope
 # (peaks survive, the PNG renders in well under a second for hour-long runs).
@@ -57,11 +38,6 @@ _MAX_PLOT_POINTS = 20_000
 
 
 # --------------------------------------------------------------------------- JSON
-
-
-def write_summary(path: str | os.PathLike, summary: Mapping[str, Any]) -> Path:
-    """Write ``summary`` as ``summary.json`` (:func:`hilident.io.serialise.write_json`, kept here by name)."""
-    return write_json(path, summary)
 
 
 # --------------------------------------------------------------------------- time series
@@ -214,17 +190,18 @@ def stored_notch_response(summary: Mapping[str, Any] | None, frequency_hz) -> tu
 
 def _bode_args(plant, designs: list, summary, band_hz, coherence_threshold) -> dict:
     """The keyword arguments of :func:`plot_bode` shared by a run and ``identify``."""
-    from hilident import pipeline
+    from hilident.pipeline.plant import bode_extras
+    from hilident.pipeline.records import notch_chain_response
 
     fine = _fine_grid(plant.plant.frequency_hz, band_hz, designs)
-    extras = pipeline.bode_extras(plant)
+    extras = bode_extras(plant)
     if "model" in extras and plant.model is not None:
         extras["model"] = (model_label(plant.model), *extras["model"][1:])
     stored = stored_notch_response(summary, fine)
     uploaded = bool(((summary or {}).get("upload") or {}).get("slots"))
     return dict(
         resonances=plant.resonances,
-        notch_response=pipeline.notch_chain_response(designs, fine),
+        notch_response=notch_chain_response(designs, fine),
         coherence_threshold=coherence_threshold,
         band_hz=band_hz,
         stored_notch=stored,
@@ -274,7 +251,7 @@ def plot_run(
         The run's folder.
     friction, plant, designs, loop_after
         The friction test's result (or None), the identification's
-        :class:`~hilident.pipeline.PlantResult`, the notch designs, the
+        :class:`~hilident.pipeline.plant.PlantResult`, the notch designs, the
         verification run's response (None without one).
     coherence_threshold : float, optional
     summary : mapping, optional
@@ -319,7 +296,7 @@ def greybox_records(
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """``(torque, position)`` of the records a grey-box fit was estimated and validated on, by name.
 
-    As :func:`hilident.pipeline.fit_greybox` splits them: the validation
+    As :func:`hilident.pipeline.greybox.fit_greybox` splits them: the validation
     records by their names when there are any; without, the last
     ``holdout`` of the estimation data (``"holdout"``).
     """
@@ -349,7 +326,7 @@ def plot_model(
     the force is ``model_cfg.c`` times the torque, the residuals are those of
     the fitted equation on each record's regression.
     """
-    from hilident import pipeline
+    from hilident.pipeline.greybox import greybox_regression
 
     cutoff = model_cfg.cutoff_hz or sample_rate_hz / 10.0
     sims: dict[str, Simulation | str] = {}
@@ -368,7 +345,7 @@ def plot_model(
         except DataError as exc:  # the figure says why, the command goes on
             sims[name] = f"no simulation: {exc}"
         try:
-            reg = pipeline.greybox_regression(model_cfg, torque, position, sample_rate_hz)
+            reg = greybox_regression(model_cfg, torque, position, sample_rate_hz)
         except DataError:
             continue
         residuals[name] = (
@@ -405,7 +382,7 @@ def plot_identify(
         ``identify``'s ``summary.json``: ``config``, ``data.file``,
         ``data.units`` and ``data.mapping`` (units of the responses).
     plant, designs
-        The :class:`~hilident.pipeline.PlantResult` and the notch designs.
+        The :class:`~hilident.pipeline.plant.PlantResult` and the notch designs.
     band_hz, coherence_threshold
         The analysis band (Hz) and the coherence threshold.
     friction : FrictionResult, optional

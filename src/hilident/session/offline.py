@@ -33,17 +33,28 @@ from hilident.config.schema import build_table
 from hilident.config.tables import Config, DataConfig, ModelConfig, parse_config, parse_toml
 from hilident.datafile import RATE_TOLERANCE, Dataset, RunInfo, load_dataset, read_friction_test, read_run_info
 from hilident.errors import ConfigError, DataError, HilidentError, UsageError
+from hilident.io.serialise import write_json
 from hilident.io.summary import Summary, friction_summary
 from hilident.lazy import lazy_module
 from hilident.plots import figures as report
 from hilident.units import recorded_units
 
 if TYPE_CHECKING:
-    from hilident import pipeline
     from hilident.ident.frequency import FrequencyResponse
+    from hilident.pipeline import friction as pipeline_friction
+    from hilident.pipeline import greybox as pipeline_greybox
+    from hilident.pipeline import measurement as pipeline_measurement
+    from hilident.pipeline import notches as pipeline_notches
+    from hilident.pipeline import plant as pipeline_plant
+    from hilident.pipeline import plant_model as pipeline_plant_model
 else:
     #: The analysis (scipy), imported once a recording has been read: a missing file is reported without it.
-    pipeline = lazy_module("hilident.pipeline")
+    pipeline_friction = lazy_module("hilident.pipeline.friction")
+    pipeline_greybox = lazy_module("hilident.pipeline.greybox")
+    pipeline_measurement = lazy_module("hilident.pipeline.measurement")
+    pipeline_notches = lazy_module("hilident.pipeline.notches")
+    pipeline_plant = lazy_module("hilident.pipeline.plant")
+    pipeline_plant_model = lazy_module("hilident.pipeline.plant_model")
 
 #: Channel a hilident recording holds for each ``[data]`` signal.
 RUN_CHANNELS = {"torque": "torque_nm", "velocity": "velocity_mps", "position": "position_m", "excitation": "excitation"}
@@ -210,7 +221,7 @@ def run_friction(cfg: Config, info: RunInfo | None, data_path: str | Path, warni
         return None
     try:
         velocity, torque, windows = read_friction_test(path)
-        result = pipeline.identify_friction(velocity, torque, windows, cfg.friction_test.model)
+        result = pipeline_friction.identify_friction(velocity, torque, windows, cfg.friction_test.model)
         warnings += result.warnings
         return result
     except HilidentError as exc:
@@ -287,7 +298,7 @@ def line_coherence(U: np.ndarray, Y: np.ndarray, k: np.ndarray) -> np.ndarray:
         return np.nan_to_num(signal / (signal + noise_y + h2 * noise_u), nan=0.0)
 
 
-def _one_period_plant(r, u, y, sample_rate_hz: float, period: int, cfg, band_hz) -> pipeline.PlantResult:
+def _one_period_plant(r, u, y, sample_rate_hz: float, period: int, cfg, band_hz) -> pipeline_plant.PlantResult:
     """A record of exactly one excitation period: the full-record DFT at the excited lines.
 
     A periodic excitation in steady state does not leak, so the DFT of one
@@ -317,7 +328,7 @@ def _one_period_plant(r, u, y, sample_rate_hz: float, period: int, cfg, band_hz)
             head + "; the noise of each line is taken from the non-excited lines beside it (coherence "
             "from that, a lower bound where they hold transients or distortion too)"
         ]
-        resonances, rejected, notes = pipeline._resonances_and_model(plant, cfg, band_hz)
+        resonances, rejected, notes = pipeline_plant.resonances_and_model(plant, cfg, band_hz)
         warnings += notes
         model = notes.model
     else:
@@ -327,13 +338,15 @@ def _one_period_plant(r, u, y, sample_rate_hz: float, period: int, cfg, band_hz)
         ]
         resonances, rejected, model = _prominent_resonances(plant, cfg, band_hz, warnings)
     antires = [hz for hz, _ in model.roots.antiresonances] if model else []
-    quality, more = pipeline.measurement_quality(plant, resonances, r, sample_rate_hz, band_hz, period, antires)
+    quality, more = pipeline_measurement.measurement_quality(
+        plant, resonances, r, sample_rate_hz, band_hz, period, antires
+    )
     quality["one_period"] = {
         "excited_lines": int(k.size),
         "line_step": step,
         "noise_from_non_excited_lines": bool(np.isfinite(coherence).all()),
     }
-    return pipeline.PlantResult(
+    return pipeline_plant.PlantResult(
         plant=plant,
         loop=loop,
         resonances=resonances,
@@ -358,7 +371,7 @@ def _prominent_resonances(plant: FrequencyResponse, cfg, band_hz, warnings: list
     model = None
     if cfg.model_max_order:
         try:
-            model = pipeline.fit_plant_model(
+            model = pipeline_plant_model.fit_plant_model(
                 plant,
                 band_hz,
                 cfg.model_max_order,
@@ -373,14 +386,14 @@ def _prominent_resonances(plant: FrequencyResponse, cfg, band_hz, warnings: list
     return resonances, [], model
 
 
-def _identify(cfg: Config, ds: Dataset, band, excited_bins, friction=None) -> pipeline.PlantResult:
+def _identify(cfg: Config, ds: Dataset, band, excited_bins, friction=None) -> pipeline_plant.PlantResult:
     s = ds.signals
     r = s.get("excitation", s["torque"])
     velocity = s.get("velocity", s["output"])
     period = ds.period_samples
     if period and period <= len(ds) < 2 * period:
         return _one_period_plant(r, s["torque"], s["output"], ds.sample_rate_hz, period, cfg.identification, band)
-    return pipeline.identify_plant(
+    return pipeline_plant.identify_plant(
         r,
         s["torque"],
         s["output"],
@@ -418,7 +431,9 @@ def fit_model(cfg: Config, ds: Dataset, validation: Dataset | None = None):
     if validation is not None:
         validation = validation.longest_segment()
         records = {Path(validation.source).name: (validation.signals["torque"], validation.signals["position"])}
-    return pipeline.fit_greybox(cfg.model, ds.signals["torque"], ds.signals["position"], ds.sample_rate_hz, records)
+    return pipeline_greybox.fit_greybox(
+        cfg.model, ds.signals["torque"], ds.signals["position"], ds.sample_rate_hz, records
+    )
 
 
 # ---------------------------------------------------------------------- the command
@@ -553,7 +568,7 @@ def identify_recording(
     out.mkdir(parents=True, exist_ok=True)
     a = analyse_recording(cfg, data_path, progress, validation_path)
     summary = a.summary
-    report.write_summary(out / "summary.json", summary)
+    write_json(out / "summary.json", summary)
     if a.error is not None:
         html_report.write_report_quietly(out)
         raise a.error
@@ -595,10 +610,10 @@ def _steps(cfg: Config, ds: Dataset, validation: Dataset | None, info, state: di
         # the same decision as a run's upload; the amplitude advice only for a run's own recording
         e = cfg.excitation
         amplitude = e.amplitude if info is not None and isinstance(e.amplitude, (int, float)) else None
-        decision = pipeline.notch_decision(plant, ic.coherence_threshold, e.amplitude_key, amplitude)
+        decision = pipeline_notches.notch_decision(plant, ic.coherence_threshold, e.amplitude_key, amplitude)
         warnings += decision.warnings
         state["notch_skipped_reason"] = decision.skipped_reason
-        state["designs"] = pipeline.design_notches(
+        state["designs"] = pipeline_notches.design_notches(
             decision.resonances, cfg.notch, cfg.model.filter_rate_hz, slots, response=plant.loop
         )
     state["step"] = "model"
