@@ -11,10 +11,10 @@ documents every key; the dataclass field comments here are the reference.
 
 Whatever a file holds, loading it gives a Config or a ConfigError, before
 anything is allocated or moved: files are at most :data:`MAX_FILE_BYTES` of
-UTF-8; numbers are finite and within :data:`FLOAT_MAX`; integers fit
-:data:`INT_RANGE` unless their key says otherwise; lists hold at most
-:data:`MAX_LIST_ITEMS` (or their key's ``max_items``); strings at most
-:data:`MAX_STRING_CHARS` printable characters. Across keys, every experiment
+UTF-8; numbers are finite and within :data:`~hilident.config.schema.FLOAT_MAX`; integers fit
+:data:`~hilident.config.schema.INT_RANGE` unless their key says otherwise; lists hold at most
+:data:`~hilident.config.schema.MAX_LIST_ITEMS` (or their key's ``max_items``); strings at most
+:data:`~hilident.config.schema.MAX_STRING_CHARS` printable characters. Across keys, every experiment
 (excitation, friction ramps) is sized without building it and refused above
 ``MAX_SAMPLES`` (2**25 samples), a multisine period must fit the run, fades must
 fit the excitation, the friction test must stay inside half the position window,
@@ -31,13 +31,8 @@ import urllib.parse
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from hilident.config.schema import (  # noqa: F401  (re-exported: the mechanism's names as they were)
-    FLOAT_MAX,
-    INT_RANGE,
+from hilident.config.schema import (
     MAX_FILE_BYTES,
-    MAX_LIST_ITEMS,
-    MAX_STRING_CHARS,
-    ConfigKeyDeprecationWarning,
     build_table,
     moved_keys_readable,
 )
@@ -50,7 +45,7 @@ from hilident.signals.ramp_legs import ramp_extent
 def _check_object_address(value: str, key: str, source: str) -> None:
     """An object address ``"0x3100"`` or ``"0x3100:2"`` (or empty: none)."""
     if value.strip():
-        from hilident.protocol.canopen_objects import parse_address
+        from hilident.protocol.canopen_types import parse_address
 
         parse_address(value, key, source)
 
