@@ -640,6 +640,55 @@ def _fleet_folder(out: Path, overwrite: bool) -> Path:
     return out
 
 
+@dataclass(frozen=True)
+class _RecordingRecipe:
+    """What every recording of a fleet shares.
+
+    Attributes
+    ----------
+    base_raw : dict
+        The base configuration's tables, without ``[data]``.
+    base_source : str
+        Where the base configuration came from.
+    run_seed : int
+        The base's ``[run] seed``, stored in each recording.
+    amplitude_nm : float
+        Peak of the excitation, N·m.
+    duration_s : float
+        Analysed length of each recording, s.
+    viscous_fv : float or None
+        The cart's viscous friction ``Fv`` kept from the base; None: no friction.
+    versions : dict
+        Package versions stored in each recording.
+    """
+
+    base_raw: dict[str, Any]
+    base_source: str
+    run_seed: int
+    amplitude_nm: float
+    duration_s: float
+    viscous_fv: float | None
+    versions: dict
+
+
+@dataclass
+class _FleetTally:
+    """What has been written so far: recordings done of ``total``, their bytes, and the damaged files."""
+
+    total: int
+    progress: Callable[[float], None] | None
+    done: int = 0
+    total_bytes: int = 0
+    damaged: list[dict[str, str]] = field(default_factory=list)
+
+    def count(self, path: Path) -> None:
+        """One more recording written at ``path``: its bytes counted, the progress told."""
+        self.total_bytes += path.stat().st_size
+        self.done += 1
+        if self.progress is not None:
+            self.progress(self.done / self.total)
+
+
 def write_fleet(
     out: str | os.PathLike,
     axes: int,
@@ -691,17 +740,77 @@ def write_fleet(
     say : callable, optional
         Called with a line saying what is written, once the arguments are checked.
     """
-    from hilident.emulator.device import true_modes
     from hilident.session.experiment import package_versions
 
     base = base if base is not None else parse_config(BASE_TOML, "hilident.batch.fleet.BASE_TOML")
     check_base(base, tuple(sample_rates_hz))
+    _check_fleet_arguments(axes, days, seed, drifting_share)
+    duration = _checked_duration(base, duration_s)
+    base_raw = _base_tables(base)
+    amplitude = _amplitude(base)
+    viscous_fv = _viscous_fv(base, viscous)
+    _check_sample_rates(base, sample_rates_hz)
+    plans = plan_fleet(base, axes, days, seed, start, drifting_share, tuple(sample_rates_hz))
+    total = axes * days
+    n_damaged = _checked_damaged_count(damaged, total)
+    damage_rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1 << 20,)))
+    damage_of = _damage_plan(damage_rng, total, n_damaged)
+
+    drifting = sum(p.drifting for p in plans)
+    out = _fleet_folder(Path(out), overwrite)
+    if say is not None:
+        say(
+            f"writing a fleet of {axes} axes x {days} days ({total} recordings, "
+            f"{drifting} drifting axes, {n_damaged} damaged files) into {out}"
+        )
+    source = base.source or "hilident.batch.fleet.BASE_TOML"
+    recipe = _RecordingRecipe(base_raw, source, base.run.seed, amplitude, duration, viscous_fv, package_versions())
+    tally = _FleetTally(total, progress)
+    truth_axes = []
+    for a, plan in enumerate(plans):
+        kinds = [damage_of.get(a * days + day) for day in range(days)]
+        truth_axes.append(_write_axis(out, plan, kinds, recipe, damage_rng, tally, start))
+    truth = {
+        "format": FLEET_FORMAT,
+        "version": FLEET_VERSION,
+        "start": start.isoformat(),
+        "days": days,
+        "seed": seed,
+        "base_config": source,
+        "duration_s": duration,
+        "amplitude_nm": amplitude,
+        "friction": "viscous" if viscous_fv is not None else "none",
+        "axes": truth_axes,
+        "damaged": tally.damaged,
+    }
+    (out / "fleet.json").write_text(json.dumps(truth, indent=1) + "\n")
+    return FleetResult(out, total, len(tally.damaged), drifting, tally.total_bytes, truth)
+
+
+def _check_fleet_arguments(axes: int, days: int, seed: int, drifting_share: float) -> None:
+    """Refuse a fleet of no axis or no day, a seed out of range or a drifting share outside 0..1."""
     if axes < 1 or days < 1:
         raise UsageError(f"--axes {axes} --days {days}: both must be at least 1")
     if not 0 <= seed < 2**63:
         raise UsageError(f"--seed {seed}: must be a non-negative integer")
     if not 0.0 <= drifting_share <= 1.0:
         raise UsageError(f"--drifting-share {drifting_share:g}: must be between 0 and 1")
+
+
+def _base_tables(base: Config) -> dict[str, Any]:
+    """The base configuration's tables as parsed from its text (none without text), its ``[data]`` dropped."""
+    base_raw = parse_toml(base.text, base.source) if base.text else {}
+    base_raw.pop("data", None)
+    return base_raw
+
+
+def _viscous_fv(base: Config, viscous: bool) -> float | None:
+    """The base's viscous friction ``Fv`` when kept (``viscous`` and the base has friction), else None."""
+    return base.emulator.friction.Fv if viscous and base.emulator.friction.model != "none" else None
+
+
+def _checked_duration(base: Config, duration_s: float | None) -> float:
+    """Analysed length of each recording, s (None: the base's); refused under half a period or over the limit."""
     period = base.excitation.period_s
     duration = base.excitation.duration_s if duration_s is None else duration_s
     if not (math.isfinite(duration) and period * 0.5 <= duration <= MAX_DURATION_S):
@@ -709,106 +818,109 @@ def write_fleet(
             f"--duration-s {duration:g}: must be at least one excitation period ({period:g} s) and at "
             f"most {MAX_DURATION_S:g} s"
         )
-    base_raw = parse_toml(base.text, base.source) if base.text else {}
-    base_raw.pop("data", None)
-    amplitude = _amplitude(base)
-    viscous_fv = base.emulator.friction.Fv if viscous and base.emulator.friction.model != "none" else None
+    return duration
+
+
+def _check_sample_rates(base: Config, sample_rates_hz: tuple[float, ...]) -> None:
+    """Refuse a sample rate, Hz, that is not positive or does not give whole excitation periods."""
     for rate in sample_rates_hz:
         if not (math.isfinite(rate) and rate > 0 and float(base.excitation.period_s * rate).is_integer()):
             raise UsageError(
                 f"--sample-rate-hz {rate:g}: must be positive and give whole excitation periods "
                 f"({base.excitation.period_s:g} s)"
             )
-    plans = plan_fleet(base, axes, days, seed, start, drifting_share, tuple(sample_rates_hz))
-    total = axes * days
+
+
+def _checked_damaged_count(damaged: int | None, total: int) -> int:
+    """Number of damaged recordings among ``total`` (None: :func:`damaged_count`), refused outside 0..total."""
     n_damaged = damaged_count(total) if damaged is None else damaged
     if not 0 <= n_damaged <= total:
         raise UsageError(f"--damaged {n_damaged}: must be between 0 and the {total} recordings")
-    damage_rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1 << 20,)))
+    return n_damaged
+
+
+def _damage_plan(damage_rng: np.random.Generator, total: int, n_damaged: int) -> dict[int, str]:
+    """The damage of each damaged recording by its index (axis by axis, day by day): the kinds taken in turn."""
     picked = sorted(damage_rng.choice(total, n_damaged, replace=False).tolist())
     offset = int(damage_rng.integers(len(DAMAGE_KINDS)))
-    damage_of = {r: DAMAGE_KINDS[(offset + j) % len(DAMAGE_KINDS)] for j, r in enumerate(picked)}
+    return {r: DAMAGE_KINDS[(offset + j) % len(DAMAGE_KINDS)] for j, r in enumerate(picked)}
 
-    out = _fleet_folder(Path(out), overwrite)
-    if say is not None:
-        say(
-            f"writing a fleet of {axes} axes x {days} days ({total} recordings, "
-            f"{sum(p.drifting for p in plans)} drifting axes, {n_damaged} damaged files) into {out}"
-        )
-    versions = package_versions()
-    truth_axes, damaged_list = [], []
-    done, total_bytes = 0, 0
-    for a, plan in enumerate(plans):
-        folder = out / plan.axis
-        folder.mkdir(exist_ok=True)
-        files, frequencies, damping, intact = [], [], [], []
-        for day in range(days):
-            text = recording_config(base_raw, plan, day, amplitude, duration, viscous_fv)
-            cfg = parse_config(text, f"{plan.axis} day {day + 1}")
-            rec = simulate(cfg, amplitude)
-            f_hz, zeta = true_modes(cfg.emulator)[0]
-            name = f"{plan.axis}_{plan.times[day].strftime('%Y%m%dT%H%M%SZ')}.h5"
-            path = folder / name
-            kind = damage_of.get(a * days + day)
-            # a crashed writer's file: fewer rows than identify accepts at all (and far fewer than a period)
-            rows = CRASHED_ROWS if kind == "running" else None
-            _write_recording(
-                path,
-                rec,
-                text,
-                base.source or "hilident.batch.fleet.BASE_TOML",
-                plan,
-                day,
-                base.run.seed,
-                versions,
-                rows,
-            )
-            rel = f"{plan.axis}/{name}"
-            if kind is not None:
-                damage_file(path, kind, damage_rng)
-                damaged_list.append({"path": rel, "damage": kind})
-            else:
-                intact.append(day)
-            total_bytes += path.stat().st_size
-            files.append(rel)
-            frequencies.append(f_hz)
-            damping.append(zeta)
-            done += 1
-            if progress is not None:
-                progress(done / total)
-        t = [days_since(start, plan.times[d]) for d in intact]
-        f_rate = truth_rate_percent_per_day(t, [frequencies[d] for d in intact])
-        truth_axes.append(
-            {
-                "axis": plan.axis,
-                "serial": plan.serial,
-                "sample_rate_hz": plan.sample_rate_hz,
-                "drifting": plan.drifting,
-                "stiffness_percent_per_day": plan.stiffness_percent_per_day,
-                "frequency_percent_per_day": None if math.isnan(f_rate) else f_rate,
-                "m1": plan.m1,
-                "m2": plan.m2,
-                "k0": plan.k0,
-                "times_utc": [w.isoformat() for w in plan.times],
-                "days": [days_since(start, w) for w in plan.times],
-                "stiffness": plan.stiffness,
-                "frequencies_hz": frequencies,
-                "damping_ratios": damping,
-                "files": files,
-            }
-        )
-    truth = {
-        "format": FLEET_FORMAT,
-        "version": FLEET_VERSION,
-        "start": start.isoformat(),
-        "days": days,
-        "seed": seed,
-        "base_config": base.source or "hilident.batch.fleet.BASE_TOML",
-        "duration_s": duration,
-        "amplitude_nm": amplitude,
-        "friction": "viscous" if viscous_fv is not None else "none",
-        "axes": truth_axes,
-        "damaged": damaged_list,
+
+def _write_axis(
+    out: Path,
+    plan: AxisPlan,
+    kinds: list[str | None],
+    recipe: _RecordingRecipe,
+    damage_rng: np.random.Generator,
+    tally: _FleetTally,
+    start: _dt.date,
+) -> dict[str, Any]:
+    """Write one axis's recordings into its folder, damaging those ``kinds`` names; return its truth.
+
+    ``kinds`` holds the damage of each day's recording (None: intact).
+    """
+    folder = out / plan.axis
+    folder.mkdir(exist_ok=True)
+    files, frequencies, damping, intact = [], [], [], []
+    for day, kind in enumerate(kinds):
+        path, f_hz, zeta = _write_day(folder, plan, day, recipe, kind, damage_rng)
+        rel = f"{plan.axis}/{path.name}"
+        if kind is not None:
+            tally.damaged.append({"path": rel, "damage": kind})
+        else:
+            intact.append(day)
+        tally.count(path)
+        files.append(rel)
+        frequencies.append(f_hz)
+        damping.append(zeta)
+    t = [days_since(start, plan.times[d]) for d in intact]
+    f_rate = truth_rate_percent_per_day(t, [frequencies[d] for d in intact])
+    return {
+        "axis": plan.axis,
+        "serial": plan.serial,
+        "sample_rate_hz": plan.sample_rate_hz,
+        "drifting": plan.drifting,
+        "stiffness_percent_per_day": plan.stiffness_percent_per_day,
+        "frequency_percent_per_day": None if math.isnan(f_rate) else f_rate,
+        "m1": plan.m1,
+        "m2": plan.m2,
+        "k0": plan.k0,
+        "times_utc": [w.isoformat() for w in plan.times],
+        "days": [days_since(start, w) for w in plan.times],
+        "stiffness": plan.stiffness,
+        "frequencies_hz": frequencies,
+        "damping_ratios": damping,
+        "files": files,
     }
-    (out / "fleet.json").write_text(json.dumps(truth, indent=1) + "\n")
-    return FleetResult(out, total, len(damaged_list), sum(p.drifting for p in plans), total_bytes, truth)
+
+
+def _write_day(
+    folder: Path,
+    plan: AxisPlan,
+    day: int,
+    recipe: _RecordingRecipe,
+    kind: str | None,
+    damage_rng: np.random.Generator,
+) -> tuple[Path, float, float]:
+    """Simulate and write one axis's recording of ``day``, damaged as ``kind`` (None: intact).
+
+    Returns
+    -------
+    path : pathlib.Path
+        The recording written.
+    frequency_hz, damping_ratio : float
+        The twin's true first mode that day, Hz and 1.
+    """
+    from hilident.emulator.device import true_modes
+
+    text = recording_config(recipe.base_raw, plan, day, recipe.amplitude_nm, recipe.duration_s, recipe.viscous_fv)
+    cfg = parse_config(text, f"{plan.axis} day {day + 1}")
+    rec = simulate(cfg, recipe.amplitude_nm)
+    f_hz, zeta = true_modes(cfg.emulator)[0]
+    path = folder / f"{plan.axis}_{plan.times[day].strftime('%Y%m%dT%H%M%SZ')}.h5"
+    # a crashed writer's file: fewer rows than identify accepts at all (and far fewer than a period)
+    rows = CRASHED_ROWS if kind == "running" else None
+    _write_recording(path, rec, text, recipe.base_source, plan, day, recipe.run_seed, recipe.versions, rows)
+    if kind is not None:
+        damage_file(path, kind, damage_rng)
+    return path, f_hz, zeta

@@ -261,60 +261,22 @@ def run_batch(
     DataError
         The table in ``out`` is there but cannot be read.
     """
-    if workers is not None and (workers < 1 or scheduler):
-        raise UsageError(
-            "--workers: "
-            + ("must be at least 1" if workers < 1 else "sizes the local cluster; a --scheduler's workers are its own")
-        )
+    _check_workers(workers, scheduler)
     started = time.monotonic()
     started_utc = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {out}: is a file; give a folder for {TABLE_NAME} and {CSV_NAME}")
-    own = out.resolve()
-    paths = [p for p in expand_inputs(inputs) if not p.is_relative_to(own)]  # batch.csv is no recording
+    out = _table_folder(Path(out))
+    paths = _input_recordings(inputs, out)
     old = read_rows(out)
     cfg_key = config_key(cfg)
-    kept = [r for r in old if not (retry_failed and r["status"] != "ok" and r["config_sha256"] == cfg_key)]
-    known = {_row_key(r["path"], r["content_sha256"], r["config_sha256"]) for r in kept}
-    outcome = BatchOutcome(out / TABLE_NAME, out / CSV_NAME, len(paths))
-    rows: list[dict[str, Any]] = []
-    jobs: list[tuple[str, str]] = []
-    for path in paths:
-        try:
-            sha = content_sha256(path)
-        except OSError as exc:
-            rows.append(fail(blank_row(str(path), "", cfg_key), exc))
-            continue
-        key = _row_key(str(path), sha, cfg_key)
-        if key in known:
-            outcome.skipped += 1
-            continue
-        known.add(key)
-        jobs.append((str(path), sha))
+    kept = _kept_rows(old, cfg_key, retry_failed)
+    rows, jobs, skipped = _sort_inputs(paths, kept, cfg_key)
+    outcome = BatchOutcome(out / TABLE_NAME, out / CSV_NAME, len(paths), skipped=skipped)
     if progress and outcome.skipped:
         progress.step(f"{outcome.skipped} of {len(paths)} recordings already in {out / TABLE_NAME}: skipped")
-    args = (cfg.text if cfg is not None else None, cfg.source if cfg is not None else "", cfg_key)
-    tally: list[_Tally] = []
-
-    def on_cluster(n: int) -> None:
-        outcome.workers = n
-        if progress and jobs:
-            where = (
-                "in this process" if scheduler == SYNCHRONOUS else f"on {scheduler or 'a local cluster on 127.0.0.1'}"
-            )
-            progress.step(f"identifying {len(jobs)} recordings {where} ({n} worker{'s' * (n != 1)})")
-        tally.append(_Tally(progress, len(jobs), outcome.skipped))  # timed from here: the cluster is up
-
+    args = _task_args(cfg, cfg_key)
     try:
         if jobs:
-            with closing(_run_tasks(jobs, args, scheduler, workers, on_cluster)) as results:
-                for row, summary in results:
-                    rows.append(row)
-                    if summary is not None:
-                        _keep_summary(summary_path(out, row), summary)
-                    tally[0].add(row)
-            outcome.identify_wall_s = time.monotonic() - tally[0].started
+            _identify_jobs(jobs, args, scheduler, workers, outcome, rows, progress)
     except KeyboardInterrupt as exc:
         outcome.interrupted = True
         _finish(outcome, kept, rows, started)
@@ -325,7 +287,117 @@ def run_batch(
             _finish(outcome, kept, rows, started)
         raise
     _finish(outcome, kept, rows, started)
-    meta = {
+    meta = _table_meta(inputs, cfg, out, scheduler, started_utc, outcome)
+    settings = cfg.batch if cfg is not None else BatchConfig()
+    outcome.drifts = judge_fleet(out, kept + rows, settings, meta)
+    outcome.report = out / "report.html"
+    return outcome
+
+
+def _check_workers(workers: int | None, scheduler: str | None) -> None:
+    """Refuse ``--workers`` under 1, or given with a ``--scheduler`` (whose workers are its own)."""
+    if workers is not None and (workers < 1 or scheduler):
+        raise UsageError(
+            "--workers: "
+            + ("must be at least 1" if workers < 1 else "sizes the local cluster; a --scheduler's workers are its own")
+        )
+
+
+def _table_folder(out: Path) -> Path:
+    """``out``, refused when it is a file: the table's folder."""
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {out}: is a file; give a folder for {TABLE_NAME} and {CSV_NAME}")
+    return out
+
+
+def _input_recordings(inputs: list[str], out: Path) -> list[Path]:
+    """The recordings ``inputs`` name, but for the files in the table's folder ``out``."""
+    own = out.resolve()
+    return [p for p in expand_inputs(inputs) if not p.is_relative_to(own)]  # batch.csv is no recording
+
+
+def _kept_rows(old: list[dict], cfg_key: str, retry_failed: bool) -> list[dict]:
+    """The table's rows kept: all but, with ``retry_failed``, the failed ones of this configuration."""
+    return [r for r in old if not (retry_failed and r["status"] != "ok" and r["config_sha256"] == cfg_key)]
+
+
+def _sort_inputs(paths: list[Path], kept: list[dict], cfg_key: str) -> tuple[list[dict], list[tuple[str, str]], int]:
+    """The recordings to identify, apart from those done already.
+
+    Returns
+    -------
+    rows : list of dict
+        A failed row for each file that cannot be read.
+    jobs : list of (str, str)
+        Path and content hash of each recording to identify.
+    skipped : int
+        Recordings the kept rows (or an earlier file of the same content) hold already.
+    """
+    known = {_row_key(r["path"], r["content_sha256"], r["config_sha256"]) for r in kept}
+    rows: list[dict[str, Any]] = []
+    jobs: list[tuple[str, str]] = []
+    skipped = 0
+    for path in paths:
+        try:
+            sha = content_sha256(path)
+        except OSError as exc:
+            rows.append(fail(blank_row(str(path), "", cfg_key), exc))
+            continue
+        key = _row_key(str(path), sha, cfg_key)
+        if key in known:
+            skipped += 1
+            continue
+        known.add(key)
+        jobs.append((str(path), sha))
+    return rows, jobs, skipped
+
+
+def _task_args(cfg, cfg_key: str) -> tuple[str | None, str, str]:
+    """What every task is given besides its recording: the configuration's text and source, and its hash."""
+    return (cfg.text if cfg is not None else None, cfg.source if cfg is not None else "", cfg_key)
+
+
+def _identify_jobs(
+    jobs: list[tuple[str, str]],
+    args: tuple,
+    scheduler: str | None,
+    workers: int | None,
+    outcome: BatchOutcome,
+    rows: list[dict],
+    progress,
+) -> None:
+    """Identify ``jobs`` (path and content hash each), each row appended to ``rows`` as it finishes.
+
+    ``scheduler`` and ``workers`` are :func:`run_batch`'s. Each summary is kept beside the table; ``outcome``
+    gets the workers and the wall time from the cluster being up.
+    """
+    tally: list[_Tally] = []
+
+    def on_cluster(n: int) -> None:
+        outcome.workers = n
+        if progress and jobs:
+            progress.step(f"identifying {len(jobs)} recordings {_where(scheduler)} ({n} worker{'s' * (n != 1)})")
+        tally.append(_Tally(progress, len(jobs), outcome.skipped))  # timed from here: the cluster is up
+
+    with closing(_run_tasks(jobs, args, scheduler, workers, on_cluster)) as results:
+        for row, summary in results:
+            rows.append(row)
+            if summary is not None:
+                _keep_summary(summary_path(outcome.table.parent, row), summary)
+            tally[0].add(row)
+    outcome.identify_wall_s = time.monotonic() - tally[0].started
+
+
+def _where(scheduler: str | None) -> str:
+    """Where the tasks run, as the progress line says it."""
+    return "in this process" if scheduler == SYNCHRONOUS else f"on {scheduler or 'a local cluster on 127.0.0.1'}"
+
+
+def _table_meta(
+    inputs: list[str], cfg, out: Path, scheduler: str | None, started_utc: str, outcome: BatchOutcome
+) -> dict:
+    """What the batch was and did, for the drift report beside the table."""
+    return {
         "inputs": list(inputs),
         **({"config": cfg.source} if cfg is not None else {}),
         "out": str(out),
@@ -337,10 +409,6 @@ def run_batch(
         "failed": outcome.failed,
         "skipped": outcome.skipped,
     }
-    settings = cfg.batch if cfg is not None else BatchConfig()
-    outcome.drifts = judge_fleet(out, kept + rows, settings, meta)
-    outcome.report = out / "report.html"
-    return outcome
 
 
 def _row_key(path: str, content_sha256: str, config_sha256: str) -> tuple[str, ...]:

@@ -248,9 +248,14 @@ def headline(inputs: ReportInputs) -> str:
 
 
 def warnings_section(inputs: ReportInputs) -> str:
-    warnings = inputs.summary.get("warnings")
+    """The warnings by topic, each with what to do; below them, apart, the notes (nothing to act on)."""
+    summary = inputs.summary
+    return section("warnings", "Warnings", _warning_groups(summary.get("warnings")) + _notes(summary.get("notes")))
+
+
+def _warning_groups(warnings: Any) -> str:
     if not isinstance(warnings, list) or not warnings:
-        return section("warnings", "Warnings", note("No warnings."))
+        return note("No warnings.")
     parts = []
     for g in group_warnings(warnings):
         items = []
@@ -261,7 +266,15 @@ def warnings_section(inputs: ReportInputs) -> str:
         if any(not remedy for _, remedy in g.items):  # the warnings that name no remedy of their own
             general = f'<p class="todo general">What to do about these in general: {esc(g.advice)}</p>'
         parts.append(f'<h3>{esc(g.topic)} ({len(g.items)})</h3>{general}<ul class="warnings">{"".join(items)}</ul>')
-    return section("warnings", "Warnings", "".join(parts))
+    return "".join(parts)
+
+
+def _notes(notes: Any) -> str:
+    """``summary.json["notes"]``: worth knowing, nothing to change (an older summary has none)."""
+    if not isinstance(notes, list) or not notes:
+        return ""
+    items = "".join(f"<li>{esc(str(n))}</li>" for n in notes)
+    return f'<h3 class="notes">Notes ({len(notes)}): nothing to change</h3><ul class="notes">{items}</ul>'
 
 
 # --------------------------------------------------------------------------- plots
@@ -578,30 +591,47 @@ def _coefficients(values: Any) -> str:
 
 
 def notches(inputs: ReportInputs) -> str:
+    """The notches: designed and achieved, their biquads, the upload, the slots before, the verification."""
     s = inputs.summary
     pairs = _designed_and_stored(s)
     upload = _dict(s.get("upload"))
-    why = [upload.get(k) or s.get(k) for k in ("skipped_reason", "not_uploaded", "notch_skipped_reason")]
-    body = "".join(f"<p>{esc(w)}</p>" for w in why if w)
+    body = _skip_reasons(s, upload)
     if not pairs:
         return section("notches", "Notches: designed and achieved", body + note("No notch was designed."))
-    rows = []
-    for d, slot in pairs:
-        a = _dict(slot.get("achieved"))
-        rows.append(
-            [
-                num(d.get("slot")),
-                num(d.get("center_hz"), "Hz"),
-                num(d.get("width_hz"), "Hz", 3),
-                num(d.get("depth_db"), "dB", 3),
-                num(d.get("predicted_band_reduction_db"), "dB", 3),
-                num(a.get("center_hz"), "Hz") if a else MISSING,
-                num(a.get("attenuation_at_design_center_db"), "dB", 3) if a else MISSING,
-                num(a.get("realisable_db"), "dB", 3) if a else MISSING,
-                (_yes_no(slot.get("matches")) if slot else esc("not uploaded")),
-            ]
-        )
-    body += table(
+    body += _designed_and_achieved_table(pairs)
+    body += _coefficients_table(pairs)
+    extras = _upload_pairs(upload, inputs.kind)
+    body += key_values(extras) if extras else ""
+    body += _filters_before_table(s)
+    body += _verification_table(s, _magnitude_reference(inputs))
+    return section("notches", "Notches: designed and achieved", body)
+
+
+def _skip_reasons(s: dict, upload: dict) -> str:
+    """Each reason the summary gives for a notch not designed or not uploaded, a paragraph each."""
+    why = [upload.get(k) or s.get(k) for k in ("skipped_reason", "not_uploaded", "notch_skipped_reason")]
+    return "".join(f"<p>{esc(w)}</p>" for w in why if w)
+
+
+def _designed_and_achieved_row(d: dict, slot: dict) -> list[str]:
+    """A designed notch beside what its slot achieved on the device (— where it was not uploaded)."""
+    a = _dict(slot.get("achieved"))
+    return [
+        num(d.get("slot")),
+        num(d.get("center_hz"), "Hz"),
+        num(d.get("width_hz"), "Hz", 3),
+        num(d.get("depth_db"), "dB", 3),
+        num(d.get("predicted_band_reduction_db"), "dB", 3),
+        num(a.get("center_hz"), "Hz") if a else MISSING,
+        num(a.get("attenuation_at_design_center_db"), "dB", 3) if a else MISSING,
+        num(a.get("realisable_db"), "dB", 3) if a else MISSING,
+        (_yes_no(slot.get("matches")) if slot else esc("not uploaded")),
+    ]
+
+
+def _designed_and_achieved_table(pairs: list[tuple[dict, dict]]) -> str:
+    """One row per designed notch: its design, what the device achieved, whether it read back as written."""
+    return table(
         [
             "slot",
             "centre",
@@ -613,81 +643,102 @@ def notches(inputs: ReportInputs) -> str:
             "realisable on the device",
             "read back as written",
         ],
-        rows,
+        [_designed_and_achieved_row(d, slot) for d, slot in pairs],
     )
-    coeff_rows = []
-    for d, slot in pairs:
-        coeff_rows.append(
+
+
+def _coefficient_rows(d: dict, slot: dict) -> list[list[str]]:
+    """A designed notch's biquad coefficients, and those read back from its slot when it was uploaded."""
+    rows = [
+        [
+            num(d.get("slot")),
+            esc("designed"),
+            _coefficients(d.get("b")),
+            _coefficients(d.get("a")),
+            num(d.get("sample_rate_hz"), "Hz"),
+        ]
+    ]
+    if slot:
+        rows.append(
             [
                 num(d.get("slot")),
-                esc("designed"),
-                _coefficients(d.get("b")),
-                _coefficients(d.get("a")),
-                num(d.get("sample_rate_hz"), "Hz"),
+                esc("read back"),
+                _coefficients(slot.get("readback_b")),
+                _coefficients(slot.get("readback_a")),
+                "",
             ]
         )
-        if slot:
-            coeff_rows.append(
-                [
-                    num(d.get("slot")),
-                    esc("read back"),
-                    _coefficients(slot.get("readback_b")),
-                    _coefficients(slot.get("readback_a")),
-                    "",
-                ]
-            )
-    body += table(["slot", "", "b (b0, b1, b2)", "a (1, a1, a2)", "filter rate"], coeff_rows, "Biquad coefficients")
-    extras = []
-    if upload and inputs.kind == "identify":
-        extras.append(("uploaded", esc("no: identify uploads nothing (hilident upload --from this folder does)")))
-    elif upload:
-        extras.append(("written and enabled", _yes_no(upload.get("written"))))
-        extras.append(("every slot read back as written", _yes_no(upload.get("verified_readback"))))
-        if upload.get("saved") is not None:
-            extras.append(("stored in non-volatile memory", _yes_no(upload.get("saved"))))
-        if upload.get("not_saved"):
-            extras.append(("not stored", _text(upload["not_saved"])))
-        for rb in _list(upload.get("rolled_back")):
-            extras.append((f"slot {rb.get('slot')} put back", _yes_no(rb.get("restored"))))
-    body += key_values(extras) if extras else ""
+    return rows
+
+
+def _coefficients_table(pairs: list[tuple[dict, dict]]) -> str:
+    """The biquad coefficients of every designed notch, each followed by its slot's read-back."""
+    rows = [row for d, slot in pairs for row in _coefficient_rows(d, slot)]
+    return table(["slot", "", "b (b0, b1, b2)", "a (1, a1, a2)", "filter rate"], rows, "Biquad coefficients")
+
+
+def _upload_pairs(upload: dict, kind: str) -> list[tuple[str, str]]:
+    """What the upload did: written, read back, stored, slots put back (identify uploads nothing)."""
+    if not upload:
+        return []
+    if kind == "identify":
+        return [("uploaded", esc("no: identify uploads nothing (hilident upload --from this folder does)"))]
+    pairs = [
+        ("written and enabled", _yes_no(upload.get("written"))),
+        ("every slot read back as written", _yes_no(upload.get("verified_readback"))),
+    ]
+    if upload.get("saved") is not None:
+        pairs.append(("stored in non-volatile memory", _yes_no(upload.get("saved"))))
+    if upload.get("not_saved"):
+        pairs.append(("not stored", _text(upload["not_saved"])))
+    for rb in _list(upload.get("rolled_back")):
+        pairs.append((f"slot {rb.get('slot')} put back", _yes_no(rb.get("restored"))))
+    return pairs
+
+
+def _filters_before_table(s: dict) -> str:
+    """What the device's filter slots held before the command, and whether each was put back ("" when unknown)."""
     before = _list(s.get("filters_found")) or _list(s.get("filters_before"))
-    if before:
-        body += table(
-            ["slot", "enabled", "b", "a", "bypassed for the measurement", "put back"],
+    if not before:
+        return ""
+    return table(
+        ["slot", "enabled", "b", "a", "bypassed for the measurement", "put back"],
+        [
             [
-                [
-                    num(f.get("slot")),
-                    _yes_no(f.get("enabled")),
-                    _coefficients(f.get("b")),
-                    _coefficients(f.get("a")),
-                    _yes_no(bool(f.get("bypassed"))),
-                    _yes_no(f.get("restored")),
-                ]
-                for f in before
-            ],
-            "What the filter slots held before",
-        )
-    ver = _dict(s.get("verification"))
-    vres = _list(ver.get("resonances"))
-    ref = _magnitude_reference(inputs)
-    if vres:
-        body += table(
-            ["resonance", "before", "after", "reduction at the line", "band", "band reduction", "noise floor"],
+                num(f.get("slot")),
+                _yes_no(f.get("enabled")),
+                _coefficients(f.get("b")),
+                _coefficients(f.get("a")),
+                _yes_no(bool(f.get("bypassed"))),
+                _yes_no(f.get("restored")),
+            ]
+            for f in before
+        ],
+        "What the filter slots held before",
+    )
+
+
+def _verification_table(s: dict, ref: str) -> str:
+    """Each resonance before and after the notch, levels in ``ref`` ("" when nothing was verified)."""
+    vres = _list(_dict(s.get("verification")).get("resonances"))
+    if not vres:
+        return ""
+    return table(
+        ["resonance", "before", "after", "reduction at the line", "band", "band reduction", "noise floor"],
+        [
             [
-                [
-                    num(r.get("frequency_hz"), "Hz"),
-                    num(r.get("before_db"), ref, 3),
-                    num(r.get("after_db"), ref, 3),
-                    num(r.get("reduction_db"), "dB", 3),
-                    esc(_band(r.get("band_hz"))),
-                    num(r.get("band_reduction_db"), "dB", 3),
-                    _floor(r),
-                ]
-                for r in vres
-            ],
-            "Verification: the same excitation before and after the notch",
-        )
-    return section("notches", "Notches: designed and achieved", body)
+                num(r.get("frequency_hz"), "Hz"),
+                num(r.get("before_db"), ref, 3),
+                num(r.get("after_db"), ref, 3),
+                num(r.get("reduction_db"), "dB", 3),
+                esc(_band(r.get("band_hz"))),
+                num(r.get("band_reduction_db"), "dB", 3),
+                _floor(r),
+            ]
+            for r in vres
+        ],
+        "Verification: the same excitation before and after the notch",
+    )
 
 
 def _band(value: Any) -> str:

@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -854,47 +854,20 @@ def fit_workspace_two_mass(
     residual variance, so they hold when the bins' errors are independent (true of a
     periodic excitation's bins; Welch estimates correlate neighbouring bins and understate them).
     """
-    from scipy.optimize import least_squares
-
     k_degree = _check_degree("k_degree", k_degree)
     d_degree = _check_degree("d_degree", d_degree)
-    c = float(torque_constant)
-    if not (math.isfinite(c) and c > 0.0):
-        raise ConfigError("torque_constant", f"must be a positive number, N/(N*m), got {torque_constant!r}")
-    delay = float(delay_s)
-    if not (math.isfinite(delay) and delay >= 0.0):
-        raise ConfigError("delay_s", f"must be >= 0 s, got {delay_s!r}")
+    c = _check_torque_constant(torque_constant)
+    delay = _check_delay(delay_s)
     fs = _check_rate(sample_rate_hz)
     positions, used = _checked_inputs(positions_m, frequency_hz, frf, coherence, band_hz)
-    need = max(k_degree, d_degree) + 1
-    if positions.size < need:
-        raise DataError(
-            f"{positions.size} positions cannot determine the {need} coefficients of "
-            f"{'k(p)' if k_degree >= d_degree else 'd(p)'} (k_degree={k_degree}, d_degree={d_degree}): "
-            f"measure at {need} or more positions or lower the degree"
-        )
+    _check_enough_positions(positions.size, k_degree, d_degree)
+    _check_below_nyquist(used, fs)
     centre, half = _position_scale(positions)
-    x_pos = (positions - centre) / half
-    sizes = [f.size for f, _, _ in used]
-    owner = np.repeat(np.arange(positions.size), sizes)
-    if fs is not None and any(f.max() > fs / 2.0 for f, _, _ in used):
-        raise DataError(
-            f"frequencies above the Nyquist frequency {fs / 2.0:g} Hz of sample_rate_hz = {fs:g} Hz; "
-            "give the rate the responses were estimated at, or a band_hz below it"
-        )
-    data = _Data(
-        frequency_hz=np.concatenate([f for f, _, _ in used]),
-        h=np.concatenate([h for _, h, _ in used]),
-        weight=np.concatenate([_weights(c_) for _, _, c_ in used]),
-        x=x_pos[owner],
-        per_position=used,
-    )
+    data = _stacked_data(positions, used, centre, half)
     nk, nd = k_degree + 1, d_degree + 1
-    n_par = 2 + int(bool(estimate_cart_damping)) + nk + nd + int(bool(estimate_lag))
-    if 2 * data.frequency_hz.size <= n_par:
-        raise DataError(
-            f"{data.frequency_hz.size} usable frequencies over all positions cannot determine {n_par} parameters"
-        )
+    fit_b, fit_lag = bool(estimate_cart_damping), bool(estimate_lag)
+    names = _parameter_names(nk, nd, fit_b, fit_lag)
+    _check_enough_bins(data.frequency_hz.size, len(names))
     lo, hi = float(positions.min()), float(positions.max())
 
     start = _start_values(positions, data, c, resonance_hz, k_degree, d_degree, centre, half)
@@ -905,20 +878,125 @@ def fit_workspace_two_mass(
     )
     core = _Core(data.frequency_hz, c, fs, delay)
     # the lag in units of a tenth of the period of the highest frequency used: order 1 where it matters
-    lag_ref = 0.1 / float(data.frequency_hz.max()) if estimate_lag else None
-    model = _Model(
-        data, core, nk, nd, bool(estimate_cart_damping), (start["k_ref"], start["d_ref"], start["b_ref"]), lag_ref
+    lag_ref = 0.1 / float(data.frequency_hz.max()) if fit_lag else None
+    model = _Model(data, core, nk, nd, fit_b, (start["k_ref"], start["d_ref"], start["b_ref"]), lag_ref)
+    result = _solve(model, _start_theta(start, fit_b, fit_lag), max_evaluations)
+    m1, m2, b, a_k, a_d = model.unpack(result.x)
+    k_coef = T_k @ a_k
+    d_coef = T_d @ a_d
+    _check_k_positive(k_coef, lo, hi, "at the solution")
+    if m1 <= 0.0 or m2 <= 0.0:  # pragma: no cover - exp() keeps them positive
+        raise DataError("the joint fit gave a non-positive mass")
+    fit = WorkspaceFit(
+        torque_constant=c,
+        m1=m1,
+        m2=m2,
+        b=b,
+        k_coefficients=k_coef,
+        d_coefficients=d_coef,
+        parameter_names=names,
+        covariance=_parameter_covariance(result, _si_jacobian(model, result.x, T_k, T_d)),
+        position_range_m=(lo, hi),
+        positions=(),
+        converged=bool(result.status > 0),
+        message=str(result.message),
+        evaluations=int(result.nfev),
+        residual_rms=float(np.sqrt(np.mean(result.fun**2))),
+        delay_s=delay,
+        lag_s=model.lag(result.x),
+        sample_rate_hz=fs,
+        warnings=_fit_warnings(result, d_coef, lo, hi),
     )
-    theta0 = np.concatenate(
+    return replace(fit, positions=_position_fits(fit, positions, used))
+
+
+def _check_torque_constant(torque_constant: float) -> float:
+    """``torque_constant`` (N/(N·m)) as a float, refused unless positive and finite."""
+    c = float(torque_constant)
+    if not (math.isfinite(c) and c > 0.0):
+        raise ConfigError("torque_constant", f"must be a positive number, N/(N*m), got {torque_constant!r}")
+    return c
+
+
+def _check_delay(delay_s: float) -> float:
+    """``delay_s`` (s) as a float, refused unless finite and not negative."""
+    delay = float(delay_s)
+    if not (math.isfinite(delay) and delay >= 0.0):
+        raise ConfigError("delay_s", f"must be >= 0 s, got {delay_s!r}")
+    return delay
+
+
+def _check_enough_positions(n_positions: int, k_degree: int, d_degree: int) -> None:
+    """Refuse fewer positions than the coefficients of the higher-degree polynomial, naming it."""
+    need = max(k_degree, d_degree) + 1
+    if n_positions < need:
+        raise DataError(
+            f"{n_positions} positions cannot determine the {need} coefficients of "
+            f"{'k(p)' if k_degree >= d_degree else 'd(p)'} (k_degree={k_degree}, d_degree={d_degree}): "
+            f"measure at {need} or more positions or lower the degree"
+        )
+
+
+def _check_below_nyquist(used: list, fs: float | None) -> None:
+    """Refuse a frequency used above half the sample rate ``fs`` (Hz; None: the continuous model, no limit)."""
+    if fs is not None and any(f.max() > fs / 2.0 for f, _, _ in used):
+        raise DataError(
+            f"frequencies above the Nyquist frequency {fs / 2.0:g} Hz of sample_rate_hz = {fs:g} Hz; "
+            "give the rate the responses were estimated at, or a band_hz below it"
+        )
+
+
+def _check_enough_bins(n_bins: int, n_par: int) -> None:
+    """Refuse fewer residuals (two per bin: log-magnitude and phase) than one more than the parameters."""
+    if 2 * n_bins <= n_par:
+        raise DataError(f"{n_bins} usable frequencies over all positions cannot determine {n_par} parameters")
+
+
+def _stacked_data(positions: np.ndarray, used: list, centre: float, half: float) -> _Data:
+    """The bins used at every position stacked into one set, each with its weight and scaled position.
+
+    ``centre`` and ``half`` (m) scale the positions as :func:`_position_scale` gives them.
+    """
+    x_pos = (positions - centre) / half
+    owner = np.repeat(np.arange(positions.size), [f.size for f, _, _ in used])
+    return _Data(
+        frequency_hz=np.concatenate([f for f, _, _ in used]),
+        h=np.concatenate([h for _, h, _ in used]),
+        weight=np.concatenate([_weights(c_) for _, _, c_ in used]),
+        x=x_pos[owner],
+        per_position=used,
+    )
+
+
+def _parameter_names(nk: int, nd: int, fit_b: bool, fit_lag: bool) -> tuple[str, ...]:
+    """Names of the estimated parameters in the order of ``theta``: masses, ``b``, ``k_j``, ``d_j``, lag."""
+    return (
+        ("m1", "m2")
+        + (("b",) if fit_b else ())
+        + tuple(f"k{j}" for j in range(nk))
+        + tuple(f"d{j}" for j in range(nd))
+        + (("lag",) if fit_lag else ())
+    )
+
+
+def _start_theta(start: dict[str, Any], fit_b: bool, fit_lag: bool) -> np.ndarray:
+    """The scaled parameters ``theta`` of :class:`_Model` at the start values (``b`` and the lag start at 0)."""
+    return np.concatenate(
         (
             [math.log(start["m1"]), math.log(start["m2"])],
-            [0.0] if estimate_cart_damping else [],
+            [0.0] if fit_b else [],
             start["a_k"] / start["k_ref"],
             start["a_d"] / start["d_ref"],
-            [0.0] if estimate_lag else [],
+            [0.0] if fit_lag else [],
         )
     )
-    result = least_squares(
+
+
+def _solve(model: _Model, theta0: np.ndarray, max_evaluations: int):
+    """Levenberg-Marquardt on the model's residuals from ``theta0``: :func:`scipy.optimize.least_squares`'s result."""
+    from scipy.optimize import least_squares
+
+    return least_squares(
         model.residuals,
         theta0,
         jac=model.jacobian,
@@ -929,59 +1007,47 @@ def fit_workspace_two_mass(
         ftol=1e-12,
         gtol=1e-12,
     )
-    theta = result.x
-    m1, m2, b, a_k, a_d = model.unpack(theta)
-    lag = model.lag(theta)
-    k_coef = T_k @ a_k
-    d_coef = T_d @ a_d
-    _check_k_positive(k_coef, lo, hi, "at the solution")
 
-    # covariance in theta, then through the (linear but for the masses) map to SI parameters
-    J = result.jac
-    n_res = J.shape[0]
-    dof = max(n_res - n_par, 1)
-    s2 = float(result.fun @ result.fun) / dof
-    cov_theta = s2 * np.linalg.pinv(J.T @ J)
+
+def _si_jacobian(model: _Model, theta: np.ndarray, T_k: np.ndarray, T_d: np.ndarray) -> np.ndarray:
+    """Derivative of the SI parameters (order of :func:`_parameter_names`) by the scaled ``theta``.
+
+    Diagonal but for the polynomial coefficients, which ``T_k``, ``T_d`` take from the scaled position to metres;
+    ``d m / d ln m = m`` for the masses.
+    """
+    n_par = theta.size
+    m1, m2 = model.unpack(theta)[:2]
+    nk, nd = model.nk, model.nd
     G = np.zeros((n_par, n_par))
     G[0, 0], G[1, 1] = m1, m2
     i = 2
-    if estimate_cart_damping:
-        G[2, 2] = start["b_ref"]
+    if model.fit_b:
+        G[2, 2] = model.b_ref
         i = 3
-    G[i : i + nk, i : i + nk] = T_k * start["k_ref"]
-    G[i + nk : i + nk + nd, i + nk : i + nk + nd] = T_d * start["d_ref"]
-    if lag_ref is not None:
-        G[-1, -1] = lag_ref
-    covariance = G @ cov_theta @ G.T
-    names = (
-        ("m1", "m2")
-        + (("b",) if estimate_cart_damping else ())
-        + tuple(f"k{j}" for j in range(nk))
-        + tuple(f"d{j}" for j in range(nd))
-        + (("lag",) if estimate_lag else ())
-    )
+    G[i : i + nk, i : i + nk] = T_k * model.k_ref
+    G[i + nk : i + nk + nd, i + nk : i + nk + nd] = T_d * model.d_ref
+    if model.lag_ref is not None:
+        G[-1, -1] = model.lag_ref
+    return G
 
-    per_position = []
-    for p, (f, h, _) in zip(positions, used, strict=True):
-        h_model = two_mass_velocity_response(
-            f,
-            m1=m1,
-            m2=m2,
-            b=b,
-            torque_constant=c,
-            delay_s=delay,
-            sample_rate_hz=fs,
-            k=float(np.polynomial.polynomial.polyval(p, k_coef)),
-            d=float(np.polynomial.polynomial.polyval(p, d_coef)),
-        ) / (1.0 + 2j * np.pi * f * lag)
-        spread = np.linalg.norm(h - h.mean())
-        fit_pct = 100.0 * (1.0 - np.linalg.norm(h - h_model) / spread) if spread > 0 else math.nan
-        rel = float(np.sqrt(np.mean(np.abs(h_model / h - 1.0) ** 2)))
-        per_position.append(PositionFit(float(p), int(f.size), float(fit_pct), rel))
 
+def _parameter_covariance(result, si_jacobian: np.ndarray) -> np.ndarray:
+    """Covariance of the SI parameters: ``s^2 (J^T J)^-1`` in ``theta``, carried through ``si_jacobian``.
+
+    ``s^2`` is the residual variance, the residuals' sum of squares over their degrees of freedom.
+    """
+    J = result.jac
+    n_par = si_jacobian.shape[0]
+    dof = max(J.shape[0] - n_par, 1)
+    s2 = float(result.fun @ result.fun) / dof
+    cov_theta = s2 * np.linalg.pinv(J.T @ J)
+    return si_jacobian @ cov_theta @ si_jacobian.T
+
+
+def _fit_warnings(result, d_coef: np.ndarray, lo: float, hi: float) -> tuple[str, ...]:
+    """What a reader should know about a fit: the solver stopped short, ``d(p)`` negative within ``lo..hi`` m."""
     warnings = []
-    converged = bool(result.status > 0)
-    if not converged:
+    if not result.status > 0:
         warnings.append(
             f"the joint fit stopped before converging after {result.nfev} evaluations "
             f"({result.message}); its parameters are the last iterate"
@@ -992,28 +1058,21 @@ def fit_workspace_two_mass(
             f"d(p) is negative somewhere in {lo:g}..{hi:g} m (min {d_grid.min():.4g} N*s/m): the damping "
             "is poorly determined; lower d_degree"
         )
-    if m1 <= 0.0 or m2 <= 0.0:  # pragma: no cover - exp() keeps them positive
-        raise DataError("the joint fit gave a non-positive mass")
-    return WorkspaceFit(
-        torque_constant=c,
-        m1=m1,
-        m2=m2,
-        b=b,
-        k_coefficients=k_coef,
-        d_coefficients=d_coef,
-        parameter_names=names,
-        covariance=covariance,
-        position_range_m=(lo, hi),
-        positions=tuple(per_position),
-        converged=converged,
-        message=str(result.message),
-        evaluations=int(result.nfev),
-        residual_rms=float(np.sqrt(np.mean(result.fun**2))),
-        delay_s=delay,
-        lag_s=lag,
-        sample_rate_hz=fs,
-        warnings=tuple(warnings),
-    )
+    return tuple(warnings)
+
+
+def _position_fits(fit: WorkspaceFit, positions: np.ndarray, used: list) -> tuple[PositionFit, ...]:
+    """How well ``fit`` explains each position's bins used: scored against the fit's own response, lag included."""
+    return tuple(_position_fit(fit, p, f, h) for p, (f, h, _) in zip(positions, used, strict=True))
+
+
+def _position_fit(fit: WorkspaceFit, position_m: float, f: np.ndarray, h: np.ndarray) -> PositionFit:
+    """How well ``fit`` explains the response ``h`` measured at ``position_m`` (m) on the bins ``f`` (Hz)."""
+    h_model = fit.response(position_m, f)
+    spread = np.linalg.norm(h - h.mean())
+    fit_pct = 100.0 * (1.0 - np.linalg.norm(h - h_model) / spread) if spread > 0 else math.nan
+    rel = float(np.sqrt(np.mean(np.abs(h_model / h - 1.0) ** 2)))
+    return PositionFit(float(position_m), int(f.size), float(fit_pct), rel)
 
 
 def fit_workspace_responses(positions_m: ArrayLike, responses: Sequence[Any], **options: Any) -> WorkspaceFit:

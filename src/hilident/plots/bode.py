@@ -140,104 +140,206 @@ def bode_figure(
     curves = _bode_curves(responses)
     notch = None if notch_response is None else _positive_curve(*notch_response, "notch_response")
     stored = None if stored_notch is None else _positive_curve(*stored_notch, "stored_notch")
-    f_lo = min(float(c[1][0]) for c in curves)
-    f_hi = max(float(c[1][-1]) for c in curves)
-    if band_hz is not None:
-        lo, hi = float(band_hz[0]), float(band_hz[1])
-        if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
-            raise DataError(f"plot_bode: band_hz must be (low, high) with 0 <= low < high, got {band_hz!r}")
-        band = (max(lo, f_lo), min(hi, f_hi)) if lo < f_hi and hi > f_lo else (f_lo, f_hi)
-    else:
-        band = (f_lo, f_hi)
+    span = _frequency_span(curves)
+    band = _analysis_band(band_hz, span)
     threshold = None if coherence_threshold is None else float(coherence_threshold)
 
     fig = Figure(figsize=(10.0, 9.0), dpi=110, layout="constrained")
     axes = fig.subplots(3, 1, sharex=True)
     ax_mag, ax_phase, ax_coh = axes
+    with np.errstate(divide="ignore", invalid="ignore"):
+        first_bounds = None if bounds_db is None else (responses[0][1], bounds_db)
+        mags, phases, reference = _draw_responses(axes, curves, band, threshold, first_bounds)
+        if model is not None:
+            _draw_model(ax_mag, ax_phase, model, band, reference)
+        mags += _draw_notches(ax_mag, notch, stored, notch_label, band)
+    _magnitude_limits(ax_mag, mags)
+    _phase_axis(ax_phase, phases)
+    view = _view(band, span)
+    if view[1] > view[0]:
+        ax_mag.set_xlim(*view)
+    _shade_outside_band(axes, view, band)
+    _coherence_notes(ax_coh, threshold, curves)
+    _mark_resonances(axes, resonances)
+    _axes_labels(axes, magnitude_unit)
+    if title:
+        fig.suptitle(title, fontsize=11)
+    outside_legend(ax_mag)
+    outside_legend(ax_coh)
+    return fig
+
+
+def _frequency_span(curves: list[tuple[str, np.ndarray, np.ndarray, Any]]) -> tuple[float, float]:
+    """Lowest and highest positive frequency of all the curves, Hz."""
+    return min(float(c[1][0]) for c in curves), max(float(c[1][-1]) for c in curves)
+
+
+def _analysis_band(band_hz: tuple[float, float] | None, span: tuple[float, float]) -> tuple[float, float]:
+    """The analysis band, Hz: ``band_hz`` clipped to the measured ``span``; the whole span when none or disjoint.
+
+    Raises
+    ------
+    DataError
+        ``band_hz`` is not ``(low, high)`` with ``0 <= low < high``, both finite.
+    """
+    f_lo, f_hi = span
+    if band_hz is None:
+        return span
+    lo, hi = float(band_hz[0]), float(band_hz[1])
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
+        raise DataError(f"plot_bode: band_hz must be (low, high) with 0 <= low < high, got {band_hz!r}")
+    return (max(lo, f_lo), min(hi, f_hi)) if lo < f_hi and hi > f_lo else span
+
+
+def _view(band: tuple[float, float], span: tuple[float, float]) -> tuple[float, float]:
+    """Frequency view, Hz: :data:`_VIEW_MARGIN` beyond the band on either side, within the measured ``span``."""
+    return max(band[0] / _VIEW_MARGIN, span[0]), min(band[1] * _VIEW_MARGIN, span[1])
+
+
+def _in_band(f: np.ndarray, band: tuple[float, float]) -> np.ndarray:
+    """Lines of ``f`` (Hz) inside the analysis ``band`` (Hz), its edges included."""
+    return (f >= band[0]) & (f <= band[1])
+
+
+def _trusted_lines(in_band: np.ndarray, coh: np.ndarray | None, threshold: float | None) -> np.ndarray:
+    """Lines drawn in colour: inside the band and not under the coherence threshold."""
+    trusted = in_band.copy()
+    if coh is not None and threshold is not None:
+        # an undefined coherence (NaN: one period, no averages) is unknown, not low: not greyed
+        trusted &= ~(coh < threshold)
+    return trusted
+
+
+def _grey_label(threshold: float | None) -> str:
+    """Legend entry of the greyed lines."""
+    return "outside band" + (f" or coherence < {threshold:g}" if threshold is not None else "")
+
+
+def _draw_responses(
+    axes,
+    curves: list[tuple[str, np.ndarray, np.ndarray, Any]],
+    band: tuple[float, float],
+    threshold: float | None,
+    first_bounds: tuple[Any, tuple[Any, Any]] | None,
+) -> tuple[list[np.ndarray], list[np.ndarray], tuple[np.ndarray, np.ndarray] | None]:
+    """Draw each measured response on the three axes, the first on top with its 95 % band.
+
+    ``first_bounds`` is ``(frf, bounds_db)`` of the first response (None: no band drawn).
+
+    Returns
+    -------
+    mags : list of ndarray
+        Each response's magnitude inside the band, dB (all of it when no line is in the band).
+    phases : list of ndarray
+        Each response's phase on its trusted lines, deg.
+    reference : (ndarray, ndarray) or None
+        Frequency (Hz) and phase (deg) in band of the first response with a line in band: the branch the
+        others are put on.
+    """
     mags: list[np.ndarray] = []
     phases: list[np.ndarray] = []
     reference = None
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for i, (label, f, h, coh) in enumerate(curves):
-            in_band = (f >= band[0]) & (f <= band[1])
-            # an undefined coherence (NaN: one period, no averages) is unknown, not low: not greyed
-            trusted = in_band.copy()
-            if coh is not None and threshold is not None:
-                trusted &= ~(coh < threshold)
-            color, ls = _STYLES[i % len(_STYLES)]
-            z = 3 + len(curves) - i  # the first response (the plant) on top
-            mag_db = 20 * np.log10(np.abs(h))
-            phase = branch_phase_deg(h, in_band)
-            phase = _phase_near(f, phase, reference)
-            if reference is None and np.any(in_band):
-                reference = (f[in_band], phase[in_band])
-            grey_label = (
-                "outside band" + (f" or coherence < {threshold:g}" if threshold is not None else "") if i == 0 else None
-            )
-            ax_mag.semilogx(f, mag_db, color=_GREY, lw=0.7, zorder=1, label=grey_label)
-            ax_phase.semilogx(f, phase, color=_GREY, lw=0.7, zorder=1)
-            ax_mag.semilogx(
-                f,
-                np.where(trusted, mag_db, np.nan),
-                color=color,
-                ls=ls,
-                lw=1.8 if i == 0 else 1.3,
-                zorder=z,
-                label=label,
-            )
-            ax_phase.semilogx(
-                f,
-                np.where(trusted, phase, np.nan),
-                color=color,
-                ls=ls,
-                lw=1.8 if i == 0 else 1.3,
-                zorder=z,
-                label=label,
-            )
-            mags.append(mag_db[in_band] if np.any(in_band) else mag_db)
-            phases.append(phase[trusted])
-            if coh is not None:
-                ax_coh.semilogx(f, np.where(in_band, np.nan, coh), color=_GREY, lw=0.7, zorder=1)
-                inside = np.flatnonzero(in_band)
-                marks = slice(int(inside[0]), int(inside[-1]) + 1, max(1, inside.size // 10)) if inside.size else None
-                ax_coh.semilogx(
-                    f,
-                    np.where(in_band, coh, np.nan),
-                    color=color,
-                    ls=ls,
-                    lw=1.5,
-                    zorder=z,
-                    marker="os^v"[i % 4],
-                    markevery=marks,
-                    ms=4,
-                    label=f"{label}",
-                )
-            if i == 0 and bounds_db is not None:
-                _confidence_band(ax_mag, f, mag_db, in_band, responses[0][1], bounds_db, color)
-        if model is not None:
-            mf, mh = _positive_curve(model[1], model[2], "model")
-            m_in = (mf >= band[0]) & (mf <= band[1])
-            m_phase = _phase_near(mf, branch_phase_deg(mh, m_in), reference)
-            # dashed: the measured curve under it stays visible
-            style = dict(color="k", lw=0.9, ls=(0, (4, 2)), zorder=10, label=str(model[0]))
-            ax_mag.semilogx(mf[m_in], 20 * np.log10(np.abs(mh[m_in])), **style)
-            ax_phase.semilogx(mf[m_in], m_phase[m_in], **style)
-        # the designed notch dashed over the stored one: both visible where the device holds the design
-        for curve, style, label in (
-            (notch, dict(color="tab:brown", ls=(0, (5, 2)), lw=1.3, zorder=9), notch_label),
-            (stored, dict(color="tab:red", ls="-", lw=2.0, alpha=0.8, zorder=8), "stored notch, read back [dB re 1]"),
-        ):
-            if curve is not None and curve[0].size:
-                n_db = 20 * np.log10(np.abs(curve[1]))
-                ax_mag.semilogx(curve[0], n_db, label=label, **style)
-                mags.append(n_db[(curve[0] >= band[0]) & (curve[0] <= band[1])])
+    for i, (label, f, h, coh) in enumerate(curves):
+        in_band = _in_band(f, band)
+        trusted = _trusted_lines(in_band, coh, threshold)
+        color, ls = _STYLES[i % len(_STYLES)]
+        # the first response (the plant) on top, and thicker
+        style = dict(color=color, ls=ls, lw=1.8 if i == 0 else 1.3, zorder=3 + len(curves) - i)
+        mag_db = 20 * np.log10(np.abs(h))
+        phase = _phase_near(f, branch_phase_deg(h, in_band), reference)
+        if reference is None and np.any(in_band):
+            reference = (f[in_band], phase[in_band])
+        grey_label = _grey_label(threshold) if i == 0 else None
+        _draw_magnitude_and_phase(axes, f, mag_db, phase, trusted, label, style, grey_label)
+        mags.append(mag_db[in_band] if np.any(in_band) else mag_db)
+        phases.append(phase[trusted])
+        if coh is not None:
+            _draw_coherence(axes[2], f, coh, in_band, label, style, "os^v"[i % 4])
+        if i == 0 and first_bounds is not None:
+            _confidence_band(axes[0], f, mag_db, in_band, *first_bounds, color)
+    return mags, phases, reference
+
+
+def _draw_magnitude_and_phase(
+    axes,
+    f: np.ndarray,
+    mag_db: np.ndarray,
+    phase: np.ndarray,
+    trusted: np.ndarray,
+    label: str,
+    style: dict,
+    grey_label: str | None,
+) -> None:
+    """One response's magnitude (dB) and phase (deg): every line grey underneath, the trusted ones in colour."""
+    ax_mag, ax_phase = axes[0], axes[1]
+    ax_mag.semilogx(f, mag_db, color=_GREY, lw=0.7, zorder=1, label=grey_label)
+    ax_phase.semilogx(f, phase, color=_GREY, lw=0.7, zorder=1)
+    ax_mag.semilogx(f, np.where(trusted, mag_db, np.nan), label=label, **style)
+    ax_phase.semilogx(f, np.where(trusted, phase, np.nan), label=label, **style)
+
+
+def _draw_coherence(
+    ax_coh, f: np.ndarray, coh: np.ndarray, in_band: np.ndarray, label: str, style: dict, marker: str
+) -> None:
+    """One response's coherence: grey outside the band, in colour with about ten markers inside.
+
+    ``style`` is the response's magnitude line style; its width is replaced by one for every coherence.
+    """
+    ax_coh.semilogx(f, np.where(in_band, np.nan, coh), color=_GREY, lw=0.7, zorder=1)
+    inside = np.flatnonzero(in_band)
+    marks = slice(int(inside[0]), int(inside[-1]) + 1, max(1, inside.size // 10)) if inside.size else None
+    line = {**style, "lw": 1.5}
+    ax_coh.semilogx(f, np.where(in_band, coh, np.nan), marker=marker, markevery=marks, ms=4, label=f"{label}", **line)
+
+
+def _draw_model(
+    ax_mag,
+    ax_phase,
+    model: tuple[str, Any, Any],
+    band: tuple[float, float],
+    reference: tuple[np.ndarray, np.ndarray] | None,
+) -> None:
+    """The fitted model's magnitude (dB) and phase (deg) inside the band, on the first response's phase branch."""
+    mf, mh = _positive_curve(model[1], model[2], "model")
+    m_in = _in_band(mf, band)
+    m_phase = _phase_near(mf, branch_phase_deg(mh, m_in), reference)
+    # dashed: the measured curve under it stays visible
+    style = dict(color="k", lw=0.9, ls=(0, (4, 2)), zorder=10, label=str(model[0]))
+    ax_mag.semilogx(mf[m_in], 20 * np.log10(np.abs(mh[m_in])), **style)
+    ax_phase.semilogx(mf[m_in], m_phase[m_in], **style)
+
+
+def _draw_notches(
+    ax_mag,
+    notch: tuple[np.ndarray, np.ndarray] | None,
+    stored: tuple[np.ndarray, np.ndarray] | None,
+    notch_label: str,
+    band: tuple[float, float],
+) -> list[np.ndarray]:
+    """The designed and the stored notch chain's magnitude (dB); returns each drawn one's magnitude in band, dB."""
+    mags = []
+    # the designed notch dashed over the stored one: both visible where the device holds the design
+    for curve, style, label in (
+        (notch, dict(color="tab:brown", ls=(0, (5, 2)), lw=1.3, zorder=9), notch_label),
+        (stored, dict(color="tab:red", ls="-", lw=2.0, alpha=0.8, zorder=8), "stored notch, read back [dB re 1]"),
+    ):
+        if curve is not None and curve[0].size:
+            n_db = 20 * np.log10(np.abs(curve[1]))
+            ax_mag.semilogx(curve[0], n_db, label=label, **style)
+            mags.append(n_db[_in_band(curve[0], band)])
+    return mags
+
+
+def _magnitude_limits(ax_mag, mags: list[np.ndarray]) -> None:
+    """Limits around the magnitudes (dB) in band, when any is finite."""
     mag_limits = _limits(mags, 1.0)
     if mag_limits:
         ax_mag.set_ylim(*mag_limits)
-    _phase_axis(ax_phase, phases)
-    view = (max(band[0] / _VIEW_MARGIN, f_lo), min(band[1] * _VIEW_MARGIN, f_hi))
-    if view[1] > view[0]:
-        ax_mag.set_xlim(*view)
+
+
+def _shade_outside_band(axes, view: tuple[float, float], band: tuple[float, float]) -> None:
+    """Light grey on every axis between the view's edges and the band's, Hz."""
+    ax_mag = axes[0]
     for ax in axes:
         for lo, hi in ((view[0], band[0]), (band[1], view[1])):
             if hi > lo:
@@ -249,17 +351,14 @@ def bode_figure(
                     lw=0,
                     label="outside analysis band" if ax is ax_mag and lo == view[0] else None,
                 )
+
+
+def _coherence_notes(ax_coh, threshold: float | None, curves: list[tuple[str, np.ndarray, np.ndarray, Any]]) -> None:
+    """The coherence threshold as a dashed line, or a note that no response has a coherence."""
     if threshold is not None:
         ax_coh.axhline(threshold, color="0.3", ls="--", lw=1.0, label=f"threshold {threshold:g}")
     if not any(c[3] is not None for c in curves):
         ax_coh.text(0.5, 0.5, "no coherence", transform=ax_coh.transAxes, ha="center", va="center", color="0.4")
-    _mark_resonances(axes, resonances)
-    _axes_labels(axes, magnitude_unit)
-    if title:
-        fig.suptitle(title, fontsize=11)
-    outside_legend(ax_mag)
-    outside_legend(ax_coh)
-    return fig
 
 
 def plot_bode(
