@@ -47,42 +47,24 @@ def _run(args) -> int:
             print(session.plan.describe())
         print("dry run: device reached and checked; nothing moved")
         return 0
+    _print_run_summary(summary, args.quiet)
+    print(f"wrote {out / 'summary.json'}")
+    _print_report(out)
+    return 0
+
+
+def _print_run_summary(summary: dict, quiet: bool) -> None:
+    """What a run found and did, a line each: resonances, friction, model, verification, move test, upload,
+    stream and warnings (with ``quiet``, also the automatic excitation amplitude, which the progress did not show)."""
     res = ", ".join(f"{r['frequency_hz']:.2f} Hz (zeta {r['damping_ratio']:.3f})" for r in summary["resonances"])
     print(f"resonances: {res or 'none found'}")
     auto = (summary.get("excitation") or {}).get("auto")
-    if auto and args.quiet:  # otherwise the progress already showed it
+    if auto and quiet:  # otherwise the progress already showed it
         print(auto["line"])
-    if summary["friction"]:
-        f = summary["friction"]
-        p = f["params"]
-        if f.get("structure") == "coulomb_viscous":
-            print(f"friction: Coulomb + viscous: Fc {p['Fc']:.3g} N*m, Fv {p['Fv']:.3g} N*m/(m/s)")
-        else:
-            print(
-                f"friction: Stribeck: Fc {p['Fc']:.3g} N*m, Fs {p['Fs']:.3g} N*m, Fv {p['Fv']:.3g} N*m/(m/s), "
-                f"vs {p['vs']:.3g} m/s"
-            )
+    _print_friction(summary["friction"])
     _print_model(summary.get("model"))
-    ver = summary["verification"]
-    if ver["peak_reduction_db"] is not None:
-        band = ver.get("band_reduction_db")
-        head = "" if band is None else f"largest response near the resonance reduced by {band:.1f} dB, "
-        print(f"verification: {head}{ver['peak_reduction_db']:.1f} dB at the resonance line")
-    mapped = (summary.get("workspace") or {}).get("verification")
-    if mapped and mapped.get("worst_band_reduction_db") is not None:
-        on = "command to velocity" if mapped["measured_on"] == "filtered_plant" else "excitation to velocity"
-        worst = min(mapped["positions"], key=lambda r: r["band_reduction_db"])
-        # a floor of no finite value (a record without coherence) is null in summary.json
-        floor = (
-            f", at its record's noise floor {worst['floor_db']:.1f} dB"
-            if worst.get("floor_limited") and worst.get("floor_db") is not None
-            else ""
-        )
-        print(
-            f"map verification: band figure {mapped['worst_band_reduction_db']:.1f} dB at worst "
-            f"({mapped['worst_position_m']:+.3f} m, {on}{floor}); the holding loop's "
-            f"{mapped['worst_loop_band_reduction_db']:.1f} dB at worst"
-        )
+    _print_verification(summary["verification"])
+    _print_map_verification((summary.get("workspace") or {}).get("verification"))
     _print_moves(summary.get("move_test"))
     if summary["upload"].get("saved"):
         print("saved: the device stored its parameters in non-volatile memory")
@@ -93,9 +75,49 @@ def _run(args) -> int:
     )
     for w in summary["warnings"]:
         print(f"warning: {w}")
-    print(f"wrote {out / 'summary.json'}")
-    _print_report(out)
-    return 0
+
+
+def _print_friction(f: dict | None) -> None:
+    """The friction line: the fitted Coulomb + viscous or Stribeck parameters (N*m, N*m/(m/s), m/s)."""
+    if not f:
+        return
+    p = f["params"]
+    if f.get("structure") == "coulomb_viscous":
+        print(f"friction: Coulomb + viscous: Fc {p['Fc']:.3g} N*m, Fv {p['Fv']:.3g} N*m/(m/s)")
+    else:
+        print(
+            f"friction: Stribeck: Fc {p['Fc']:.3g} N*m, Fs {p['Fs']:.3g} N*m, Fv {p['Fv']:.3g} N*m/(m/s), "
+            f"vs {p['vs']:.3g} m/s"
+        )
+
+
+def _print_verification(ver: dict) -> None:
+    """The verification line: the reduction (dB) at the resonance line, and near the resonance when measured."""
+    if ver["peak_reduction_db"] is None:
+        return
+    band = ver.get("band_reduction_db")
+    head = "" if band is None else f"largest response near the resonance reduced by {band:.1f} dB, "
+    print(f"verification: {head}{ver['peak_reduction_db']:.1f} dB at the resonance line")
+
+
+def _print_map_verification(mapped: dict | None) -> None:
+    """The map verification line: the worst band reduction (dB) over the mapped positions, where (m) and on
+    what, and the holding loop's worst."""
+    if not mapped or mapped.get("worst_band_reduction_db") is None:
+        return
+    on = "command to velocity" if mapped["measured_on"] == "filtered_plant" else "excitation to velocity"
+    worst = min(mapped["positions"], key=lambda r: r["band_reduction_db"])
+    # a floor of no finite value (a record without coherence) is null in summary.json
+    floor = (
+        f", at its record's noise floor {worst['floor_db']:.1f} dB"
+        if worst.get("floor_limited") and worst.get("floor_db") is not None
+        else ""
+    )
+    print(
+        f"map verification: band figure {mapped['worst_band_reduction_db']:.1f} dB at worst "
+        f"({mapped['worst_position_m']:+.3f} m, {on}{floor}); the holding loop's "
+        f"{mapped['worst_loop_band_reduction_db']:.1f} dB at worst"
+    )
 
 
 def _print_moves(test: dict | None) -> None:

@@ -298,38 +298,83 @@ def load_driver(folder: str | os.PathLike) -> DriverDescription:
     text = read_toml_text(path, "driver description")
     data = parse_toml(text, source)
     parsed = build_table(_DriverFile, data, "", source)
-    d, board = parsed.driver, parsed.board
-    if d.transport == "serial":
-        for table, key in _SERIAL_REQUIRED:
-            if key not in data[table]:
-                raise ConfigError(f"{table}.{key}", "is required for a serial driver", source)
+    if parsed.driver.transport == "serial":
+        _check_serial_keys(data, source)
+    _check_board_rates(parsed.board, source)
+    channels = _described_channels(parsed, folder, data, source)
+    _check_channel_scales(channels, source)
+    _check_channel_names(channels, source)
+    _check_filter_input(channels, source)
+    return _driver_description(parsed, folder, channels, data, text)
+
+
+def _check_serial_keys(data: dict, source: str) -> None:
+    """Refuse a serial driver that leaves out one of the serial protocol's own figures (:data:`_SERIAL_REQUIRED`)."""
+    for table, key in _SERIAL_REQUIRED:
+        if key not in data[table]:
+            raise ConfigError(f"{table}.{key}", "is required for a serial driver", source)
+
+
+def _check_board_rates(board: _BoardTable, source: str) -> None:
+    """Refuse a board whose highest sample rate (Hz) exceeds its loop rate (Hz)."""
     if board.max_sample_rate_hz > board.loop_rate_hz:
         raise ConfigError(
             "board.max_sample_rate_hz",
             f"{board.max_sample_rate_hz:g} Hz exceeds board.loop_rate_hz = {board.loop_rate_hz:g} Hz",
             source,
         )
+
+
+def _described_channels(parsed: _DriverFile, folder: Path, data: dict, source: str) -> tuple[ChannelSpec, ...]:
+    """The ``[[channels]]`` of the file; for a CANopen drive that lists none, those its EDS has.
+
+    Raises
+    ------
+    ConfigError
+        The driver ends up with no channel.
+    """
     channels = tuple(
         ChannelSpec(c.name, c.unit, c.format, c.scale, c.stream, c.sampling, c.filter_input) for c in parsed.channels
     )
-    if not channels and d.transport == "canopen":
+    if not channels and parsed.driver.transport == "canopen":
         channels = _canopen_channels(folder, data, source)
     if not channels:
         raise ConfigError("channels", "a driver needs at least one [[channels]] entry", source)
+    return channels
+
+
+def _check_channel_scales(channels: tuple[ChannelSpec, ...], source: str) -> None:
+    """Refuse a channel whose scale (SI units per LSB) is zero."""
     zero = next((i for i, c in enumerate(channels) if c.scale == 0), None)
     if zero is not None:
         raise ConfigError(f"channels[{zero}].scale", "must not be zero", source)
+
+
+def _check_channel_names(channels: tuple[ChannelSpec, ...], source: str) -> None:
+    """Refuse channel names that repeat or are empty."""
     names = [c.name for c in channels]
     duplicate = next((n for n in names if names.count(n) > 1), None)
     if duplicate is not None or "" in names:
         raise ConfigError("channels", f"channel names must be distinct and non-empty, got {show(names)}", source)
+
+
+def _check_filter_input(channels: tuple[ChannelSpec, ...], source: str) -> None:
+    """Refuse more than one channel marked as the signal entering the filter slots."""
     inputs = [i for i, c in enumerate(channels) if c.filter_input]
     if len(inputs) > 1:
         raise ConfigError(
             f"channels[{inputs[1]}].filter_input",
-            f"only one channel enters the filter slots; {names[inputs[0]]!r} already does",
+            f"only one channel enters the filter slots; {channels[inputs[0]].name!r} already does",
             source,
         )
+
+
+def _driver_description(
+    parsed: _DriverFile, folder: Path, channels: tuple[ChannelSpec, ...], data: dict, text: str
+) -> DriverDescription:
+    """The checked tables of a ``driver.toml`` as a :class:`DriverDescription` (the serial-only figures 0 for
+    other transports)."""
+    d, board = parsed.driver, parsed.board
     serial = d.transport == "serial"
     return DriverDescription(
         name=d.name,

@@ -344,25 +344,18 @@ class DriveLoop:
             encoder position, the velocity estimate and the laser's load position
             (NaN out of range). Simulated time continues across calls.
         """
-        x = np.asarray(excitation, dtype=float)
-        if x.ndim != 1:
-            raise DataError(f"excitation must be one-dimensional, got shape {x.shape}")
-        if not np.all(np.isfinite(x)):
-            raise DataError("excitation contains NaN or infinite values")
+        x = _excitation_samples(excitation)
         if x.size == 0:
             return np.empty((0, len(self.CHANNELS)))
 
+        # Everything the tick loop reads is bound to a local once per call: the loop runs per simulated tick.
         T = self.period_s
         inv_T = 1.0 / T
         alpha = -math.expm1(-2.0 * math.pi * self.tuning.velocity_filter_hz * T)
         law_tick = _control_law(self)
-        # Current loop: motor torque += beta * (command - motor torque) per tick (beta 1: ideal).
-        cl_hz = self.tuning.current_loop_hz
-        beta = -math.expm1(-2.0 * math.pi * cl_hz * T) if math.isfinite(cl_hz) else 1.0
+        beta = self._current_loop_gain()
         pending = self._pending  # commands on their way to the current loop, oldest first
-        disturbance = self.disturbance
-        disturb = disturbance.torque if disturbance is not None else None
-        load_force = disturbance.load_force if disturbance is not None and disturbance.load_noise_n else None
+        disturb, load_force = self._disturbance_hooks()
         push_load = self.plant.push_load
 
         plant = self.plant
@@ -372,19 +365,19 @@ class DriveLoop:
         laser = self.sensors.laser
 
         enabled = self.enabled
+        if not enabled:
+            self._drop_pending_commands()
         tick = self.tick
         last = self._last_position
         vf = self._velocity
         integ = self._integral
         motor = self._motor_torque
 
-        tn = self.tuning
-        kvff, kaff = tn.velocity_feedforward, tn.accel_feedforward_nm_per_mps2
-        feedforward = self.mode == "position" and (kvff or kaff)
+        kvff, kaff = self.tuning.velocity_feedforward, self.tuning.accel_feedforward_nm_per_mps2
+        feedforward = self._feedforward_active()
         sp_ticks = max(1, int(self.setpoint_ticks))
         inv_Tsp = inv_T / sp_ticks
-        fresh = self._setpoint is None
-        sp, sp_v, sp_a, sp_n = self._setpoint or (0.0, 0.0, 0.0, 0)
+        sp, sp_v, sp_a, sp_n = self._setpoint_at_start(feedforward, float(x[0]))
         ff_v = kvff * sp_v
         ff_a = kaff * sp_a
 
@@ -392,8 +385,6 @@ class DriveLoop:
         append = rows.append
         for e in x.tolist():
             if feedforward:
-                if fresh:  # no difference to the set-point before enabling: it starts at rest
-                    sp, fresh = e, False
                 if sp_n == 0:  # a new set-point: its velocity and acceleration by backward differences
                     v_new = (e - sp) * inv_Tsp
                     sp_a = (v_new - sp_v) * inv_Tsp
@@ -405,26 +396,19 @@ class DriveLoop:
             vf += alpha * ((pm - last) * inv_T - vf)
             last = pm
             lm = laser(p1, plant.p2)
-            cmd = 0.0
-            applied = 0.0
             if enabled:
                 cmd, applied, integ, trip = law_tick(e, pm, vf, integ, ff_v, ff_a)
-                if trip is not None:
-                    enabled = False
-                    self.fault, self.fault_value = trip
-                    self.fault_tick = tick
-                    integ = 0.0
-                    applied = 0.0
-            if enabled:
-                if pending:
-                    pending.append(applied)
-                    applied = pending.pop(0)
-                motor = applied if beta == 1.0 else motor + beta * (applied - motor)
+                if trip is None:
+                    if pending:
+                        pending.append(applied)
+                        applied = pending.pop(0)
+                    motor = applied if beta == 1.0 else motor + beta * (applied - motor)
+                else:
+                    enabled, integ, motor = False, 0.0, 0.0
+                    self._trip(trip, tick)
             else:
                 # A disabled power stage carries no current: the torque is 0 at once.
-                motor = 0.0
-                if pending:
-                    pending[:] = [0.0] * len(pending)
+                cmd = motor = 0.0
             append((tick * T, e, cmd, measure_torque(motor), pm, vf, lm))
             if load_force is not None:
                 push_load(load_force(), T)
@@ -437,9 +421,73 @@ class DriveLoop:
         self._velocity = vf
         self._integral = integ
         self._motor_torque = motor
-        if not fresh:
-            self._setpoint = (sp, sp_v, sp_a, sp_n)
+        self._keep_setpoint(feedforward, (sp, sp_v, sp_a, sp_n))
         return np.array(rows, dtype=float)
+
+    # -- what one run binds before its tick loop --------------------------------
+
+    def _current_loop_gain(self) -> float:
+        """Fraction of the way from the motor torque to the command that the current loop moves per tick.
+
+        The first-order lag of bandwidth ``current_loop_hz`` sampled at the loop period; 1 for an ideal
+        (infinitely fast) current loop.
+        """
+        cl_hz = self.tuning.current_loop_hz
+        return -math.expm1(-2.0 * math.pi * cl_hz * self.period_s) if math.isfinite(cl_hz) else 1.0
+
+    def _disturbance_hooks(self):
+        """``(torque(p1) -> N·m, load_force() -> N)`` of the process disturbance; each None when it adds nothing."""
+        disturbance = self.disturbance
+        if disturbance is None:
+            return None, None
+        return disturbance.torque, (disturbance.load_force if disturbance.load_noise_n else None)
+
+    def _feedforward_active(self) -> bool:
+        """Whether the position mode adds the set-point's velocity or acceleration (a feed-forward gain is set)."""
+        tn = self.tuning
+        return self.mode == "position" and bool(tn.velocity_feedforward or tn.accel_feedforward_nm_per_mps2)
+
+    def _setpoint_at_start(self, feedforward: bool, first: float) -> tuple[float, float, float, int]:
+        """The set-point state a run starts from: ``(set-point, its velocity in unit/s, its acceleration in
+        unit/s^2, tick in its period)``.
+
+        With none kept yet (none since :meth:`enable`), the feed-forward's first set-point is ``first`` at rest:
+        no difference is taken to what came before enabling.
+        """
+        if self._setpoint is not None:
+            return self._setpoint
+        return (first if feedforward else 0.0, 0.0, 0.0, 0)
+
+    def _keep_setpoint(self, feedforward: bool, state: tuple[float, float, float, int]) -> None:
+        """Keep the set-point state a run ended with, once the feed-forward has taken a set-point."""
+        if feedforward or self._setpoint is not None:
+            self._setpoint = state
+
+    def _drop_pending_commands(self) -> None:
+        """Zero the commands on their way to the current loop (a power stage without current drops them)."""
+        self._pending[:] = [0.0] * len(self._pending)
+
+    def _trip(self, fault: tuple[str, float], tick: int) -> None:
+        """Record the trip ``(fault name, offending value)`` at ``tick``; the power stage stops at once."""
+        self.fault, self.fault_value = fault
+        self.fault_tick = tick
+        self._drop_pending_commands()
+
+
+def _excitation_samples(excitation) -> np.ndarray:
+    """``excitation`` as a one-dimensional float array of finite samples.
+
+    Raises
+    ------
+    DataError
+        It is not one-dimensional, or holds NaN or infinite values.
+    """
+    x = np.asarray(excitation, dtype=float)
+    if x.ndim != 1:
+        raise DataError(f"excitation must be one-dimensional, got shape {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise DataError("excitation contains NaN or infinite values")
+    return x
 
 
 def _control_law(loop: DriveLoop):

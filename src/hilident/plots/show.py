@@ -261,41 +261,75 @@ def _events_by_kind(events: Iterable[Mapping[str, Any]]) -> dict[str, list[float
 
 def title_lines(run: RunData) -> list[str]:
     """The run's metadata as the figure's title says it: what, where, when, how it ended, what happened."""
+    lines = [_what_line(run), _where_line(run.attrs), f"{_when_text(run)} · {_status_text(run)}"]
+    lines += _event_lines(run.events)
+    return [line for line in lines if line]
+
+
+def _what_line(run: RunData) -> str:
+    """The file, the experiment and the mode."""
     a = run.attrs
-    device = a.get("device") if isinstance(a.get("device"), Mapping) else {}
     what = f"{run.path.name}: {a.get('experiment', 'run')}"
     if a.get("mode"):
         what += f", mode {a['mode']}"
-    where = [f"config {a['config_source']}"] if a.get("config_source") else []
+    return what
+
+
+def _where_line(attrs: Mapping[str, Any]) -> str:
+    """The configuration, the device and the hilident version that made the recording (each when known)."""
+    device = attrs.get("device") if isinstance(attrs.get("device"), Mapping) else {}
+    where = [f"config {attrs['config_source']}"] if attrs.get("config_source") else []
     if device:
-        name = " ".join(str(device[k]) for k in ("name", "firmware") if device.get(k))
-        where.append(f"device {name}" + (f" on {device['port']}" if device.get("port") else ""))
-    version = (a.get("versions") or {}).get("hilident") if isinstance(a.get("versions"), Mapping) else None
+        where.append(_device_text(device))
+    versions = attrs.get("versions")
+    version = (versions or {}).get("hilident") if isinstance(versions, Mapping) else None
     if version:
         where.append(f"hilident {version}")
+    return " · ".join(where)
+
+
+def _device_text(device: Mapping[str, Any]) -> str:
+    """The device's name and firmware, and the port it was on."""
+    name = " ".join(str(device[k]) for k in ("name", "firmware") if device.get(k))
+    return f"device {name}" + (f" on {device['port']}" if device.get("port") else "")
+
+
+def _when_text(run: RunData) -> str:
+    """The sample rate (Hz), the samples over the span they cover (s), those not recorded, and the date (UTC)."""
     t = sample_times_s(run)
     span = int(round((float(t[-1]) - float(t[0])) * run.sample_rate_hz)) + 1 if t.size else 0
     when = f"{run.sample_rate_hz:g} Hz, {run.n_samples} samples over {span / run.sample_rate_hz:.4g} s"
     if span > run.n_samples:
         when += f" ({span - run.n_samples} not recorded)"
-    if a.get("created_utc"):
-        when += f", recorded {str(a['created_utc'])[:19].replace('T', ' ')} UTC"
+    created = run.attrs.get("created_utc")
+    if created:
+        when += f", recorded {str(created)[:19].replace('T', ' ')} UTC"
+    return when
+
+
+def _status_text(run: RunData) -> str:
+    """How the recording ended: its status, and why (or that it was never closed)."""
     status = f"status {run.status}"
     if run.status == "running":
         status += " (the recording process ended without closing the file, or is still writing)"
     elif run.reason:
         status += f": {_shorten(run.reason, 90)}"
-    lines = [what, " · ".join(where), f"{when} · {status}"]
-    counts = _events_by_kind(run.events)
-    if counts:
-        lines.append("events: " + ", ".join(f"{kind} × {len(times)}" for kind, times in counts.items()))
-        first_fault = next((ev for ev in run.events if ev.get("kind") in FAULT_KINDS), None)
-        if first_fault is not None:
-            lines.append(
-                f"{first_fault['kind']} at {first_fault['time_s']:.4g} s: "
-                f"{_shorten(str(first_fault.get('message', '')), 100)}"
-            )
-    return [line for line in lines if line]
+    return status
+
+
+def _event_lines(events: Sequence[Mapping[str, Any]]) -> list[str]:
+    """How many events of each kind the recording holds, and the first fault with its time (s) and message."""
+    counts = _events_by_kind(events)
+    if not counts:
+        return []
+    lines = ["events: " + ", ".join(f"{kind} × {len(times)}" for kind, times in counts.items())]
+    first_fault = next((ev for ev in events if ev.get("kind") in FAULT_KINDS), None)
+    if first_fault is not None:
+        lines.append(
+            f"{first_fault['kind']} at {first_fault['time_s']:.4g} s: "
+            f"{_shorten(str(first_fault.get('message', '')), 100)}"
+        )
+    return lines
 
 
 def _shorten(text: str, length: int) -> str:

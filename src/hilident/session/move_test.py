@@ -398,33 +398,17 @@ def run_move_tests(
         strongly each move excites them; a move that excites them weakly gets a warning
         (:func:`weak_excitation_warning`).
     """
-    from hilident.filters.notch import design_notch
-
     move = cfg.verification.move
     if not designs or move is None:
         warnings.append("move test: no notch was designed, so there is nothing to compare")
         return []
-    # every transport streams the move as position set-points, so by default the notch shapes that set-point;
-    # "drive" compares the drive's filter slots instead
-    notch_in = "drive" if move.notch == "drive" else "host"
-    if notch_in == "drive" and not in_slots:
-        raise DataError(
-            '[verification.move] notch = "drive": the notch is not in the drive\'s filter slots '
-            "(not uploaded, or not read back as written)"
-        )
-    slots = DriveNotch(adapter, [d.slot for d in designs]) if in_slots else None
-    host = [design_notch(d.spec, cfg.run.sample_rate_hz) for d in designs] if notch_in == "host" else None
-    streamed = cfg.run.channels or [c.name for c in driver.streamed_channels]
-    if LOAD in [c.name for c in driver.channels] and LOAD not in streamed:
-        warnings.append(
-            f"move test: {driver.name} has a load sensor ({LOAD}) that is not streamed; add it to "
-            "[run] channels to measure the load's ringing rather than the following error"
-        )
+    notch_in = _notch_place(move, in_slots)
+    slots, host = _notch_means(adapter, designs, in_slots, notch_in, cfg.run.sample_rate_hz)
+    _warn_unstreamed_load(cfg, driver, warnings)
     tester = MoveTest(cfg, record, progress)
     lim, margin = cfg.bench_limits, cfg.map.margin_m
-    places = [(p, f"_{i}") for i, p in enumerate(places_m)] or [(start_m, "")]
     results, here = [], start_m
-    for target, tag in places:
+    for target, tag in _move_places(start_m, places_m):
         if tag:
             here = move_axis(cfg, record, f"move{tag}_approach", here, target)
         distance = move_distance(move, here, lim.position_min_m + margin, lim.position_max_m - margin)
@@ -438,6 +422,55 @@ def run_move_tests(
     if weak:
         warnings.append(weak)
     return results
+
+
+def _notch_place(move: MoveConfig, in_slots: bool) -> str:
+    """Where the notch acts in the second move: ``"drive"`` (its filter slots) or ``"host"`` (the set-point).
+
+    Every transport streams the move as position set-points, so by default the notch shapes that set-point;
+    ``notch = "drive"`` compares the drive's filter slots instead.
+
+    Raises
+    ------
+    DataError
+        ``notch = "drive"`` while the notch is not in the drive's filter slots (``in_slots`` false).
+    """
+    notch_in = "drive" if move.notch == "drive" else "host"
+    if notch_in == "drive" and not in_slots:
+        raise DataError(
+            '[verification.move] notch = "drive": the notch is not in the drive\'s filter slots '
+            "(not uploaded, or not read back as written)"
+        )
+    return notch_in
+
+
+def _notch_means(
+    adapter, designs: list, in_slots: bool, notch_in: str, sample_rate_hz: float
+) -> tuple[DriveNotch | None, list | None]:
+    """The drive's filter slots holding the notch (None: it is not in them) and, when the host shapes the move
+    (``notch_in = "host"``), the notch's sections at the set-point rate ``sample_rate_hz`` in Hz (else None)."""
+    from hilident.filters.notch import design_notch
+
+    slots = DriveNotch(adapter, [d.slot for d in designs]) if in_slots else None
+    host = [design_notch(d.spec, sample_rate_hz) for d in designs] if notch_in == "host" else None
+    return slots, host
+
+
+def _warn_unstreamed_load(cfg: Config, driver, warnings: list[str]) -> None:
+    """Warn when the device has a load sensor that the run does not stream (the ringing is then measured on the
+    following error)."""
+    streamed = cfg.run.channels or [c.name for c in driver.streamed_channels]
+    if LOAD in [c.name for c in driver.channels] and LOAD not in streamed:
+        warnings.append(
+            f"move test: {driver.name} has a load sensor ({LOAD}) that is not streamed; add it to "
+            "[run] channels to measure the load's ringing rather than the following error"
+        )
+
+
+def _move_places(start_m: float, places_m: list[float]) -> list[tuple[float, str]]:
+    """``(position in m, recording tag)`` of each place the move test starts from: each mapped place, tagged by
+    its index, or ``start_m`` alone, untagged."""
+    return [(p, f"_{i}") for i, p in enumerate(places_m)] or [(start_m, "")]
 
 
 def weak_excitation_warning(move: MoveConfig, results: list[MoveTestResult], sample_rate_hz: float) -> str | None:
