@@ -23,7 +23,7 @@ import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
 from hilident.config.tables import DeviceConfig, parse_config
 from hilident.drivers.description import find_driver
 from hilident.emulator.modbus.server import start
-from hilident.protocol.modbus_registers import rtu_crc
+from hilident.protocol.modbus.rtu import rtu_crc
 
 BAUD = 115200
 CONFIG = """

@@ -25,7 +25,6 @@ from hilident.emulator.canopen.server import start
 from hilident.emulator.factory import true_modes
 from hilident.errors import ConfigError, DeviceError
 from hilident.io.recording import read_run
-from hilident.protocol.canopen_objects import ObjectAddress
 from hilident.protocol.canopen_recorder import (
     MAX_LEN_SEQ_TAPS,
     GeneratorKind,
@@ -33,6 +32,7 @@ from hilident.protocol.canopen_recorder import (
     parse_recorder,
     prbs_bits,
 )
+from hilident.protocol.canopen_types import ObjectAddress
 from hilident.session.excitation import build_excitation, excitation_recipe
 from hilident.signals import generators as sig
 from support.vendor_drives import VendorDrive, write_vendor_drive
@@ -236,13 +236,13 @@ def test_a_recording_that_ends_early_is_delivered_counted_and_named(twin):
 
 def test_a_drive_silent_during_the_upload_is_named(twin):
     ad, emu, cfg = twin(PRBS)
-    transfer = ad._block_transfer
+    transfer = ad.sdo._block_transfer
 
     def gone(addr, *args):  # the drive is unplugged just before its buffer is read
         emu.close()
         return transfer(addr, *args)
 
-    ad._block_transfer = gone
+    ad.sdo._block_transfer = gone
     with pytest.raises(DeviceError, match=r"0x2502:0 \(Recorder data buffer\)"):
         _play(ad, cfg, kind="prbs", register_length=10, duration_s=1.0)
 
@@ -356,15 +356,15 @@ def test_the_twins_generator_refuses_what_its_description_refuses(twin):
     # written past the host's checks, straight by SDO: the drive answers as a drive does
     ad, _, _ = twin(PRBS)
     with pytest.raises(DeviceError, match=r"0x2511:1 .*PRBS amplitude.*0x06090031"):
-        ad.write_object(ObjectAddress(0x2511, 1), 25000)  # 25 N*m in per mille of 1 N*m: above its 20 N*m
+        ad.sdo.write_object(ObjectAddress(0x2511, 1), 25000)  # 25 N*m in per mille of 1 N*m: above its 20 N*m
     with pytest.raises(DeviceError, match=r"0x2510:3 .*Signal type.*0x06090030"):
-        ad.write_object(ObjectAddress(0x2510, 3), 7)  # no such signal
+        ad.sdo.write_object(ObjectAddress(0x2510, 3), 7)  # no such signal
     with pytest.raises(DeviceError, match=r"0x2500:4 .*Sampling period.*0x06090030"):
-        ad.write_object(ObjectAddress(0x2500, 4), 3)  # not an allowed sample period
+        ad.sdo.write_object(ObjectAddress(0x2500, 4), 3)  # not an allowed sample period
     with pytest.raises(DeviceError, match=r"0x2501:1 .*0x06040041"):
-        ad.write_object(ObjectAddress(0x2501, 1), 0x60400010)  # the controlword is not a sampled signal
+        ad.sdo.write_object(ObjectAddress(0x2501, 1), 0x60400010)  # the controlword is not a sampled signal
     with pytest.raises(DeviceError, match=r"0x2510:1 .*0x08000022"):
-        ad.write_object(ObjectAddress(0x2510, 1), 1)  # start while the power stage is off
+        ad.sdo.write_object(ObjectAddress(0x2510, 1), 1)  # start while the power stage is off
 
 
 def test_the_driver_can_make_the_recorder_its_default(tmp_path):
@@ -393,8 +393,8 @@ def test_the_twins_generator_feeds_the_torque_set_point_only_in_cst(twin):
     ad, _, _ = twin(PRBS)
     ad.configure(FS, "torque_injection")  # CSP: the torque set-point is not the loop's input
     ad.enable()
-    ad.write_object(ObjectAddress(0x2510, 3), 1)  # PRBS
-    ad.write_object(ObjectAddress(0x2510, 4), 1)  # target: the torque set-point
+    ad.sdo.write_object(ObjectAddress(0x2510, 3), 1)  # PRBS
+    ad.sdo.write_object(ObjectAddress(0x2510, 4), 1)  # target: the torque set-point
     with pytest.raises(DeviceError, match=r"0x2510:1 .*0x08000022"):
-        ad.write_object(ObjectAddress(0x2510, 1), 1)
+        ad.sdo.write_object(ObjectAddress(0x2510, 1), 1)
     ad.safe_stop()

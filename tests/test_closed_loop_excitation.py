@@ -198,19 +198,22 @@ def test_a_reading_at_its_integer_limit_is_counted_clipped_with_one_event():
     from types import SimpleNamespace
 
     from hilident.adapters.base import RunResult
-    from hilident.adapters.canopen.drive import CanopenDriveAdapter, ChannelCodec
+    from hilident.adapters.canopen.common import ChannelCodec
+    from hilident.adapters.canopen.drive import CanopenDriveAdapter
     from hilident.events import StreamStats
-    from hilident.protocol.canopen_objects import ObjectAddress
+    from hilident.protocol.canopen_types import ObjectAddress
 
     events = []
     stub = SimpleNamespace(
-        channels=[
-            ChannelCodec("excitation", "m/s", None, None, 0x8, 1.0),  # the host's own set-point: never
-            ChannelCodec("torque_nm", "N*m", "current_actual", ObjectAddress(0x6078), 0x3, 5e-5),
-        ],  # INTEGER16
+        layout=SimpleNamespace(
+            channels=[
+                ChannelCodec("excitation", "m/s", None, None, 0x8, 1.0),  # the host's own set-point: never
+                ChannelCodec("torque_nm", "N*m", "current_actual", ObjectAddress(0x6078), 0x3, 5e-5),
+            ]  # INTEGER16
+        ),
         last_result=RunResult(10, StreamStats()),
         log_event=events.append,
-        describe=str,
+        sdo=SimpleNamespace(describe=str),
     )
     raw = np.zeros((10, 2))
     raw[:, 0] = 40000.0  # beyond any INTEGER16, but recorded by the host

@@ -21,7 +21,7 @@ from hilident.drivers.description import find_driver, load_driver, load_object_d
 from hilident.errors import ConfigError
 from hilident.protocol.canopen_objects import CanopenDescription
 from hilident.protocol.filter_encoding import FilterEncoding
-from hilident.protocol.modbus_registers import RegisterMap
+from hilident.protocol.modbus.register_map import RegisterMap
 from support.hostile_toml import toml_string, toml_value
 
 SHIPPED = ("myrio-board", "canopen-servo", "canopen-servo-fixed", "modbus-servo")

@@ -20,7 +20,7 @@ from hilident.emulator.modbus.parameter_firmware import ParameterDriveFirmware
 from hilident.errors import ConfigError, DeviceError
 from hilident.filters.notch import NotchSpec, design_notch
 from hilident.io.summary import UploadOutcome
-from hilident.protocol.modbus_registers import RegisterMap
+from hilident.protocol.modbus.register_map import RegisterMap
 from hilident.session.connection import ConnectedDevice
 from hilident.session.run import Session
 
@@ -113,7 +113,7 @@ def test_a_notch_is_written_read_back_and_attenuates_on_the_twin(dsy):
     up = adapter.upload_filter(0, design_notch(spec, DRIVER.loop_rate_hz), spec)
     assert up.matches and up.stored == up.expected
     # the integers on the wire, read with a plain request: what was realised
-    center, width, depth = adapter.read(0x0802, 3)
+    center, width, depth = adapter.registers.read(0x0802, 3)
     assert {"center": center, "width": width, "depth": depth} == realised.fields
     assert 10 <= center <= 3999 and 0 <= width <= 8 and 0 <= depth <= 100
     # the attenuation at the resonance from the stored integers, by the vendor family's equation
@@ -170,7 +170,7 @@ def test_save_is_written_only_after_a_verified_upload(dsy, tmp_path):
     verified = UploadOutcome(written=True, verified_readback=True)
     session._save_step(verified, verification={"band_reduction_db": 25.0})
     assert fw.saves == 1 and verified.saved and "P10.04" in verified.saved_with
-    assert fw.eeprom[0x0802] == adapter.read(0x0802, 1)[0] != 4000  # the notch is what was stored
+    assert fw.eeprom[0x0802] == adapter.registers.read(0x0802, 1)[0] != 4000  # the notch is what was stored
     assert adapter.read_parameter("P10.04") == 0  # the drive acknowledges the store
 
 
@@ -219,7 +219,7 @@ def test_a_notch_that_does_not_read_back_is_never_enabled_and_the_slot_is_put_ba
     up = adapter.upload_filter(0, design_notch(spec, DRIVER.loop_rate_hz), spec)
     fw.write = honest
     assert not up.matches
-    assert adapter.read(0x0802, 3) == [4000, 8, 50]  # never enabled, and the previous values put back
+    assert adapter.registers.read(0x0802, 3) == [4000, 8, 50]  # never enabled, and the previous values put back
     assert emu.drive.filters.read(0)[1] is False
 
 
@@ -232,7 +232,7 @@ def test_the_notch_goes_over_modbus_rtu_too():
         try:
             spec = NotchSpec(RESONANCE_HZ, 6.5, 30.0)
             assert adapter.upload_filter(0, design_notch(spec, DRIVER.loop_rate_hz), spec).matches
-            assert adapter.read(0x0802, 3) == list(
+            assert adapter.registers.read(0x0802, 3) == list(
                 MAP.filter_encoding.realise(spec, DRIVER.loop_rate_hz).fields.values()
             )
         finally:

@@ -18,13 +18,14 @@ from dataclasses import replace
 import pytest
 import serial
 
-from hilident.adapters.modbus.drive import ModbusDriveAdapter, NoResponse
+from hilident.adapters.modbus.common import NoResponse
+from hilident.adapters.modbus.drive import ModbusDriveAdapter
 from hilident.config.tables import DeviceConfig, ModbusDeviceConfig, parse_config
 from hilident.drivers.description import find_driver
 from hilident.emulator.modbus.pdu import handle, request_length
 from hilident.emulator.modbus.server import start
 from hilident.errors import DeviceError
-from hilident.protocol.modbus_registers import RegisterMap
+from hilident.protocol.modbus.register_map import RegisterMap
 
 DRIVER = find_driver("modbus-servo")
 MAP = RegisterMap.from_driver(DRIVER)
@@ -475,7 +476,7 @@ def rtu_adapter(emu, timeout_s: float) -> ModbusDriveAdapter:
 
 
 def discarded(ad: ModbusDriveAdapter) -> int:
-    return ad.client.stale_frames + ad.dropped_frames + ad.bad_responses
+    return ad.client.stale_frames + ad.registers.dropped_frames + ad.registers.bad_responses
 
 
 @pytest.mark.parametrize(
@@ -491,16 +492,16 @@ def test_a_late_rtu_answer_is_dropped_and_the_next_request_gets_its_own(
 ):
     ad = rtu_adapter(rtu_twin, timeout_s)
     try:
-        assert ad.read(DIVIDER, 1) == [1]
-        assert ad.read(0, 1) == [MAP.device_type]
+        assert ad.registers.read(DIVIDER, 1) == [1]
+        assert ad.registers.read(0, 1) == [MAP.device_type]
         before = discarded(ad)
         late_answers(delay_s)
         with pytest.raises(NoResponse, match="no answer within"):
-            ad.read(0, first_count, retry=False)  # device_type (and map_version): its answer comes late
+            ad.registers.read(0, first_count, retry=False)  # device_type (and map_version): its answer comes late
         late_answers(0.0)
-        assert ad.read(DIVIDER, 1) == [1]  # the same length as the late answer, another value
+        assert ad.registers.read(DIVIDER, 1) == [1]  # the same length as the late answer, another value
         assert discarded(ad) > before
-        assert ad.read(0, 1) == [MAP.device_type]
+        assert ad.registers.read(0, 1) == [MAP.device_type]
     finally:
         ad.close()
 
@@ -514,15 +515,15 @@ def test_an_exception_answer_names_the_register_and_what_the_code_means(tcp_twin
             match=r"register 7 \(not in the driver map\): Modbus exception 2 "
             r"\(illegal data address.*not in the drive's map",
         ):
-            ad.read(7, 1)
+            ad.registers.read(7, 1)
         with pytest.raises(
             DeviceError,
             match=r"register 110 \(mode\): Modbus exception 3 \(illegal data value.*"
             r"refused the value or the quantity",
         ):
-            ad.write(MAP.register("mode").address, [77])
+            ad.registers.write(MAP.register("mode").address, [77])
         with pytest.raises(DeviceError, match=r"Modbus exception 1 \(illegal function.*does not support function 4"):
-            ad._request(
+            ad.registers.request(
                 "reading input registers",
                 0,
                 1,

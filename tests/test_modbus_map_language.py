@@ -13,13 +13,10 @@ from hypothesis import strategies as st
 
 from hilident.drivers.description import find_driver
 from hilident.errors import ConfigError, DataError
-from hilident.protocol.modbus_registers import (
-    FieldSlots,
-    ParameterRule,
-    RegisterMap,
-    decode_values,
-    encode_values,
-)
+from hilident.protocol.modbus.codecs import decode_values, encode_values
+from hilident.protocol.modbus.filter_slots import FieldSlots
+from hilident.protocol.modbus.register_map import RegisterMap
+from hilident.protocol.modbus.registers import ParameterRule
 
 STRUCT = {"u16": "H", "i16": "h", "u32": "I", "i32": "i", "f32": "f", "u64": "Q", "i64": "q", "f64": "d"}
 SOURCE = "/drives/x/driver.toml"

@@ -20,7 +20,8 @@ from hilident.emulator.canopen.server import start, start_socketcand
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec, design_notch
 from hilident.protocol import cia402
-from hilident.protocol.canopen_objects import ObjectAddress, TableState, mapping_entry
+from hilident.protocol.canopen_objects import TableState, mapping_entry
+from hilident.protocol.canopen_types import ObjectAddress
 from hilident.protocol.filter_encoding import FilterEncoding
 
 CONFIG = Path(__file__).resolve().parents[2] / "configs" / "emulated-canopen-gantry.toml"

@@ -16,7 +16,8 @@ from hilident.emulator.factory import build_drive
 from hilident.emulator.modbus.firmware import ModbusDriveFirmware
 from hilident.emulator.modbus.server import start
 from hilident.filters.biquad import Biquad
-from hilident.protocol.modbus_registers import RegisterMap, plan_chunks, table_crc
+from hilident.protocol.modbus.paging import plan_chunks, table_crc
+from hilident.protocol.modbus.register_map import RegisterMap
 
 DRIVER = find_driver("modbus-servo")
 MAP = RegisterMap.from_driver(DRIVER)

@@ -12,29 +12,30 @@ from hypothesis import strategies as st
 from hilident.drivers.description import find_driver, load_object_dictionary
 from hilident.errors import ConfigError, DataError
 from hilident.protocol import canopen_objects as co
+from hilident.protocol import canopen_types as ct
 
 
 def test_addresses_parse_and_print():
-    assert co.parse_address("0x6064") == co.ObjectAddress(0x6064, 0)
-    assert co.parse_address("0x607D:2") == co.ObjectAddress(0x607D, 2)
-    assert co.parse_address("607d:0x2") == co.ObjectAddress(0x607D, 2)
-    assert str(co.ObjectAddress(0x2201, 7)) == "0x2201:7"
+    assert ct.parse_address("0x6064") == ct.ObjectAddress(0x6064, 0)
+    assert ct.parse_address("0x607D:2") == ct.ObjectAddress(0x607D, 2)
+    assert ct.parse_address("607d:0x2") == ct.ObjectAddress(0x607D, 2)
+    assert str(ct.ObjectAddress(0x2201, 7)) == "0x2201:7"
     with pytest.raises(ConfigError, match="canopen.objects.x"):
-        co.parse_address("sixty", "canopen.objects.x")
+        ct.parse_address("sixty", "canopen.objects.x")
     with pytest.raises(ConfigError):
-        co.parse_address("0x12345")
+        ct.parse_address("0x12345")
 
 
 @given(st.integers(0, 0xFFFF), st.integers(0, 0xFF), st.sampled_from([8, 16, 32, 64]))
 def test_mapping_entries_round_trip(index, sub, bits):
-    addr = co.ObjectAddress(index, sub)
+    addr = ct.ObjectAddress(index, sub)
     entry = co.mapping_entry(addr, bits)
     assert 0 <= entry < 2**32 and co.parse_mapping_entry(entry) == (addr, bits)
 
 
 def test_mapping_entry_is_the_cia301_layout():
-    assert co.mapping_entry(co.ObjectAddress(0x6041, 0), 16) == 0x60410010  # statusword, 16 bits
-    assert co.mapping_entry(co.ObjectAddress(0x607D, 2), 32) == 0x607D0220
+    assert co.mapping_entry(ct.ObjectAddress(0x6041, 0), 16) == 0x60410010  # statusword, 16 bits
+    assert co.mapping_entry(ct.ObjectAddress(0x607D, 2), 32) == 0x607D0220
 
 
 @given(st.lists(st.floats(-3.0, 3.0), min_size=1, max_size=50))
@@ -84,7 +85,7 @@ def test_shipped_descriptions_are_complete(name):
     assert set(c.name for c in driver.channels) == set(desc.channels)
     assert desc.scale("torque_actual", 1.0) == pytest.approx(1e-3)  # per mille of 1 N*m
     assert desc.scale("position_actual", 1.0) == 1e-7
-    assert desc.filters.address(2, "a1") == co.ObjectAddress(0x2302, 5)
+    assert desc.filters.address(2, "a1") == ct.ObjectAddress(0x2302, 5)
     desc.require_buffered()
 
 

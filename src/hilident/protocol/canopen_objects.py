@@ -10,7 +10,9 @@ by sharing state.
 
 Also here: the PDO/capture mapping entry format of CiA 301
 (``index << 16 | subindex << 8 | bits``), the packing of several mapped objects
-into one record, and SI <-> raw conversion with rounding and clipping.
+into one record, and SI <-> raw conversion with rounding and clipping. The
+object addresses and mode specs it is built of are in
+:mod:`~hilident.protocol.canopen_types`.
 
 All pure: dicts and arrays in, dataclasses and arrays out.
 
@@ -32,11 +34,11 @@ import numpy as np
 
 from hilident.config.schema import build_table, spec
 from hilident.errors import ConfigError, DataError
+from hilident.protocol import canopen_profile as profile
 from hilident.protocol.canopen_recorder import RecorderCapability, parse_recorder
+from hilident.protocol.canopen_types import ModeSpec, ObjectAddress, parse_address
 
 __all__ = [
-    "ObjectAddress",
-    "ModeSpec",
     "FilterObjects",
     "CanopenDescription",
     "BOOLEAN",
@@ -61,7 +63,6 @@ __all__ = [
     "TABLE_START",
     "TABLE_STOP",
     "ROLE_SCALING",
-    "parse_address",
     "ABORT_CONNECTION_OPTIONS",
     "HEARTBEAT_CONSUMER_INDEX",
     "ABORT_CONNECTION_INDEX",
@@ -153,69 +154,6 @@ ABORT_CONNECTION_OPTIONS = {1: "fault", 2: "disable voltage", 3: "quick stop"}
 #: Standard objects of the device-side net (CiA 301 heartbeat consumer, CiA 402 abort connection option).
 HEARTBEAT_CONSUMER_INDEX = 0x1016
 ABORT_CONNECTION_INDEX = 0x6007
-
-
-@dataclass(frozen=True, order=True)
-class ObjectAddress:
-    """Index and sub-index of one object dictionary entry."""
-
-    index: int
-    subindex: int = 0
-
-    def __str__(self) -> str:
-        return f"0x{self.index:04X}:{self.subindex}"
-
-
-def parse_address(text, key: str = "", source: str = "") -> ObjectAddress:
-    """``"0x6064"`` or ``"0x607D:2"`` (hex index, decimal or hex sub-index) -> ObjectAddress.
-
-    Raises
-    ------
-    ConfigError
-        The text is not an address; the message names ``key``.
-    """
-    if isinstance(text, ObjectAddress):
-        return text
-    if not isinstance(text, str):
-        raise ConfigError(
-            key or "address", f'must be an object address like "0x6064" or "0x607D:2", got {text!r}', source
-        )
-    try:
-        head, _, tail = str(text).strip().partition(":")
-        index = int(head, 16)
-        sub = int(tail, 0) if tail else 0
-    except ValueError:
-        raise ConfigError(
-            key or "address", f'must be an object address like "0x6064" or "0x607D:2", got {text!r}', source
-        ) from None
-    if not (0 <= index <= 0xFFFF and 0 <= sub <= 0xFF):
-        raise ConfigError(key or "address", f"index or sub-index out of range in {text!r}", source)
-    return ObjectAddress(index, sub)
-
-
-@dataclass(frozen=True)
-class ModeSpec:
-    """How one hilident mode runs on the drive.
-
-    Attributes
-    ----------
-    name : str
-        hilident mode (``"torque"``, ``"torque_injection"``, ``"velocity"``, ``"position"``).
-    code : int
-        Mode of operation written to 0x6060 (CST 10, CSV 9, CSP 8; negative: manufacturer mode).
-    setpoint : str
-        Role of the object the excitation is written to each cycle.
-    hold : str
-        Role of the set-point that holds the axis while the excitation goes to
-        ``setpoint`` (a torque offset injected in CSP or CSV: "target_position",
-        written with the present position, or "target_velocity", written 0);
-        empty when nothing needs holding.
-    """
-
-    name: str
-    code: int
-    setpoint: str
-    hold: str = ""
 
 
 @dataclass(frozen=True)
@@ -427,8 +365,6 @@ class CanopenDescription:
         """
         if self.explicit_modes:
             return self
-        from hilident.protocol import canopen_profile as profile
-
         return replace(self, modes=profile.standard_modes(self.objects, supported, self.cyclic_modes, self.unmappable))
 
     def require_buffered(self, source: str = "") -> None:
@@ -495,8 +431,6 @@ class CanopenDescription:
 
 def default_supported_modes(od, objects: dict) -> tuple[str, ...] | None:
     """Mode names of 0x6502's EDS default, or None when the EDS gives none (the drive is asked at connect)."""
-    from hilident.protocol.canopen_profile import decode_supported_modes
-
     addr = objects.get("supported_modes")
     if od is None or addr is None:
         return None
@@ -504,7 +438,7 @@ def default_supported_modes(od, objects: dict) -> tuple[str, ...] | None:
     value = var.default if var is not None else None
     if not isinstance(value, int) or value <= 0:
         return None
-    return decode_supported_modes(value)
+    return profile.decode_supported_modes(value)
 
 
 # --- the [canopen] tables ---------------------------------------------------------------------
@@ -532,10 +466,8 @@ def _abort_option(value, key, source):
 
 
 def _cyclic_modes(value, key, source):
-    from hilident.protocol.canopen_profile import CYCLIC_MODES
-
-    if not value or any(m not in CYCLIC_MODES for m in value):
-        raise ConfigError(key, f"must be a list of {CYCLIC_MODES}, got {value!r}", source)
+    if not value or any(m not in profile.CYCLIC_MODES for m in value):
+        raise ConfigError(key, f"must be a list of {profile.CYCLIC_MODES}, got {value!r}", source)
 
 
 def _unsigned32(value, key, source):
@@ -585,7 +517,6 @@ class _ScalingTable:
 
 def _objects(co: dict, od, source: str) -> dict[str, ObjectAddress]:
     """The standard objects the EDS has, and the vendor objects ``[canopen.objects]`` names."""
-    from hilident.protocol import canopen_profile as profile
 
     def present(addr: ObjectAddress) -> bool:
         return od is not None and od.get_variable(addr.index, addr.subindex) is not None
@@ -607,8 +538,6 @@ def _objects(co: dict, od, source: str) -> dict[str, ObjectAddress]:
 
 def _modes(co: dict, objects: dict, preference: list[str], od, source: str):
     """``[canopen.modes]`` (explicit), else the standard modes of the drive; and the roles no PDO can map."""
-    from hilident.protocol import canopen_profile as profile
-
     modes = {}
     for name, spec_ in _table(co, "modes", source).items():
         modes[name] = _mode(name, spec_, objects, source)
@@ -637,8 +566,6 @@ def _mode(name: str, spec_, objects: dict, source: str) -> ModeSpec:
 
 def _channels(co: dict, objects: dict, current_as_torque: bool, source: str) -> dict[str, str | None]:
     """``[canopen.channels]``: channel -> role; without the table the standard channels of the objects."""
-    from hilident.protocol import canopen_profile as profile
-
     channels: dict[str, str | None] = {}
     if "channels" not in co:
         channels = profile.standard_channels(objects, current_as_torque)

@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Sequence
 
-from hilident.protocol.canopen_objects import ModeSpec, ObjectAddress
+from hilident.protocol.canopen_types import ModeSpec, ObjectAddress
 
 __all__ = [
     "STANDARD_OBJECTS",

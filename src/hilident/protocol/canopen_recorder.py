@@ -29,15 +29,13 @@ import builtins  # `object` is also a key of a generator parameter table: its ty
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
 from hilident.config.schema import build_table, spec
 from hilident.errors import ConfigError
-
-if TYPE_CHECKING:  # canopen_objects imports this module
-    from hilident.protocol.canopen_objects import ObjectAddress
+from hilident.protocol.canopen_types import ObjectAddress, parse_address
 
 __all__ = [
     "KIND_PARAMETERS",
@@ -272,8 +270,6 @@ def parse_recorder(sections: dict, source: str = "", od=None) -> RecorderCapabil
 
 def _address(value: str, key: str, source: str) -> None:
     """A schema ``check``: ``value`` is an object address like ``"0x2500:1"``."""
-    from hilident.protocol.canopen_objects import parse_address
-
     parse_address(value, key, source)
 
 
@@ -445,8 +441,6 @@ _KIND_KEYS = ("code", "method", "taps", "seed")
 
 def _to_address(text: str) -> ObjectAddress:
     """An address a schema ``check`` accepted."""
-    from hilident.protocol.canopen_objects import parse_address
-
     return parse_address(text)
 
 

@@ -81,7 +81,6 @@ from hilident.protocol.canopen_objects import (
     HEARTBEAT_CONSUMER_INDEX,
     NUMERIC_TYPES,
     CanopenDescription,
-    ObjectAddress,
     TableState,
     default_supported_modes,
 )
@@ -91,6 +90,7 @@ from hilident.protocol.canopen_profile import (
     SETPOINT_OF_MODE,
     encode_supported_modes,
 )
+from hilident.protocol.canopen_types import ObjectAddress
 from hilident.protocol.filter_encoding import FilterEncoding
 
 __all__ = ["CAPTURE_CHUNK_RECORDS", "EMCY_HEARTBEAT", "SYNC_WATCHDOG_S", "CanopenDriveFirmware"]

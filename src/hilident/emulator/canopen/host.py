@@ -23,7 +23,8 @@ from hilident.emulator.canopen.setpoints import SetPoints
 from hilident.emulator.clock import SimClock
 from hilident.emulator.drive import DriveLoop
 from hilident.protocol import cia402
-from hilident.protocol.canopen_objects import CanopenDescription, ObjectAddress
+from hilident.protocol.canopen_objects import CanopenDescription
+from hilident.protocol.canopen_types import ObjectAddress
 from hilident.protocol.filter_encoding import FilterEncoding
 
 __all__ = ["FirmwareHost", "FrameHandler"]

@@ -19,9 +19,9 @@ from hilident.protocol.canopen_objects import (
     DOMAIN,
     REAL32,
     CanopenDescription,
-    ObjectAddress,
     numpy_type,
 )
+from hilident.protocol.canopen_types import ObjectAddress
 
 __all__ = ["ObjectStore"]
 

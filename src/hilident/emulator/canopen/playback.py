@@ -31,13 +31,13 @@ from hilident.protocol.canopen_objects import (
     NUMERIC_TYPES,
     TABLE_START,
     TABLE_STOP,
-    ObjectAddress,
     TableState,
     encode_si,
     parse_mapping_entry,
     record_dtype,
     type_bits,
 )
+from hilident.protocol.canopen_types import ObjectAddress
 
 __all__ = ["CAPTURE_CHUNK_RECORDS", "TablePlayback"]
 

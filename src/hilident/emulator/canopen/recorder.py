@@ -45,7 +45,6 @@ from hilident.emulator.clock import SimClock, cut_at
 from hilident.protocol import cia402
 from hilident.protocol.canopen_objects import (
     NUMERIC_TYPES,
-    ObjectAddress,
     encode_si,
     parse_mapping_entry,
     record_dtype,
@@ -57,6 +56,7 @@ from hilident.protocol.canopen_recorder import (
     RecorderCapability,
     generator_output,
 )
+from hilident.protocol.canopen_types import ObjectAddress
 
 __all__ = ["DriveRecorder"]
 

@@ -2,7 +2,7 @@
 
 :class:`ModbusDriveFirmware` is the drive minus the clock and the wire. It
 holds the register image described by the driver's map
-(:class:`~hilident.protocol.modbus_registers.RegisterMap`), the excitation
+(:class:`~hilident.protocol.modbus.register_map.RegisterMap`), the excitation
 table and the capture buffer behind their paged windows, and the drive loop.
 :mod:`hilident.emulator.modbus.server` serves it on a Modbus wire and advances
 it in (scaled) real time; ``functions`` says which Modbus function codes it
@@ -50,13 +50,9 @@ from hilident.emulator.drive import DriveLoop
 from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad
 from hilident.protocol.filter_encoding import FilterEncoding
-from hilident.protocol.modbus_registers import (
-    STAMP_MODULUS,
-    FilterSlots,
-    RegisterMap,
-    Window,
-    table_crc,
-)
+from hilident.protocol.modbus.filter_slots import FourRegisterSlots
+from hilident.protocol.modbus.paging import STAMP_MODULUS, Window, table_crc
+from hilident.protocol.modbus.register_map import RegisterMap
 
 ILLEGAL_ADDRESS = 2
 ILLEGAL_VALUE = 3
@@ -121,7 +117,7 @@ class ModbusDriveFirmware:
     ):
         if regmap.table is None or regmap.capture is None or regmap.filters is None or regmap.filter_encoding is None:
             raise ValueError("a map without the excitation capability is served by ParameterDriveFirmware")
-        if not isinstance(regmap.filters, FilterSlots):
+        if not isinstance(regmap.filters, FourRegisterSlots):
             raise ConfigError(
                 "modbus.filters",
                 "the twin of a drive with an excitation table runs hilident's "
@@ -133,7 +129,7 @@ class ModbusDriveFirmware:
         self.map = regmap
         self._table_window: Window = regmap.table
         self._capture_window: Window = regmap.capture
-        self._slots: FilterSlots = regmap.filters
+        self._slots: FourRegisterSlots = regmap.filters
         self._encoding: FilterEncoding = regmap.filter_encoding
         self.loop_rate_hz = float(driver.loop_rate_hz)
         self.max_sample_rate_hz = float(driver.max_sample_rate_hz)

@@ -5,7 +5,7 @@ at ``group * 0x100 + index`` on the DSY-RS): identification, commands,
 feedback, filter parameters and a save-to-EEPROM parameter, and no excitation
 table. :class:`ParameterDriveFirmware` is such a drive minus the clock and the
 wire, built from the driver's register map
-(:class:`~hilident.protocol.modbus_registers.RegisterMap` without the
+(:class:`~hilident.protocol.modbus.register_map.RegisterMap` without the
 excitation capability) around the same
 :class:`~hilident.emulator.drive.DriveLoop` as every other twin:
 
@@ -43,12 +43,10 @@ from hilident.emulator.drive import DriveLoop
 from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad
 from hilident.protocol.filter_encoding import FilterEncoding
-from hilident.protocol.modbus_registers import (
-    FieldSlots,
-    Register,
-    RegisterMap,
-    encode_values,
-)
+from hilident.protocol.modbus.codecs import encode_values
+from hilident.protocol.modbus.filter_slots import FieldSlots
+from hilident.protocol.modbus.register_map import RegisterMap
+from hilident.protocol.modbus.registers import Register
 
 ILLEGAL_ADDRESS = 2
 ILLEGAL_VALUE = 3

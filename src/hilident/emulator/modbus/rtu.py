@@ -18,7 +18,7 @@ import tty
 from typing import Protocol
 
 from hilident.emulator.modbus.pdu import request_length
-from hilident.protocol.modbus_registers import rtu_crc
+from hilident.protocol.modbus.rtu import rtu_crc
 
 __all__ = ["PtyBridge", "RtuLine", "crc_ok"]
 

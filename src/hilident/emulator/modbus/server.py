@@ -80,12 +80,10 @@ from hilident.emulator.modbus.pdu import (
 )
 from hilident.emulator.modbus.rtu import PtyBridge, RtuLine
 from hilident.errors import ConfigError
-from hilident.protocol.modbus_registers import (
-    EXCEPTION_MEANINGS,
-    FilterSlots,
-    RegisterMap,
-    rtu_crc,
-)
+from hilident.protocol.modbus.exception_codes import EXCEPTION_MEANINGS
+from hilident.protocol.modbus.filter_slots import FourRegisterSlots
+from hilident.protocol.modbus.register_map import RegisterMap
+from hilident.protocol.modbus.rtu import rtu_crc
 
 log = logging.getLogger(__name__)
 
@@ -148,7 +146,7 @@ def _address_tables(regmap: RegisterMap | None) -> tuple[np.ndarray, np.ndarray,
         if (w := getattr(regmap, name, None)) is not None:
             readable[w.base : w.end] = True
             writable[w.base : w.end] = writes
-    if isinstance(f := getattr(regmap, "filters", None), FilterSlots):  # FieldSlots are map registers
+    if isinstance(f := getattr(regmap, "filters", None), FourRegisterSlots):  # FieldSlots are map registers
         for i in range(f.slots):
             readable[f.address(i) : f.address(i) + f.span] = True
             writable[f.address(i) : f.address(i) + f.span] = True

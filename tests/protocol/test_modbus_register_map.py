@@ -14,18 +14,11 @@ from hypothesis import strategies as st
 from hilident.drivers.description import find_driver
 from hilident.errors import ConfigError, DataError
 from hilident.filters.notch import NotchSpec, design_notch
-from hilident.protocol.modbus_registers import (
-    RegisterMap,
-    count_rtu_frames,
-    decode_string,
-    decode_values,
-    encode_string,
-    encode_values,
-    exception_meaning,
-    plan_chunks,
-    rtu_crc,
-    table_crc,
-)
+from hilident.protocol.modbus.codecs import decode_string, decode_values, encode_string, encode_values
+from hilident.protocol.modbus.exception_codes import exception_meaning
+from hilident.protocol.modbus.paging import plan_chunks, table_crc
+from hilident.protocol.modbus.register_map import RegisterMap
+from hilident.protocol.modbus.rtu import count_rtu_frames, rtu_crc
 
 DRIVER = find_driver("modbus-servo")
 MAP = RegisterMap.from_driver(DRIVER)
