@@ -1,10 +1,11 @@
-"""Every command the README and the docs show is one hilident accepts, the command reference lists every
-sub-command and option there is, and the README's worked flows run as written (on quick copies of the
-configs they name, in a scratch folder)."""
+"""Every command the README and the docs show is one hilident accepts, the generated command reference lists
+every sub-command and option there is, the development page's layout names every package, and the worked flows
+of the README and the docs run as written (on quick copies of the configs they name, in a scratch folder)."""
 
 from __future__ import annotations
 
 import csv
+import html
 import json
 import re
 import shutil
@@ -15,10 +16,13 @@ import tomli_w
 
 from hilident.cli.main import build_parser, main
 from support.doc_blocks import (
+    DOCS,
     DOCUMENTS,
     ROOT,
+    block_after,
     fenced_blocks,
     hilident_commands,
+    hook_module,
     inline_commands,
     option_strings,
     section,
@@ -31,42 +35,60 @@ COMMANDS = subcommand_parsers(PARSER)
 README = ROOT / "README.md"
 
 
-def reference_synopses() -> list[str]:
-    """The synopsis lines of the README's "Commands" block (continuation lines joined)."""
-    (block,) = [b for b in fenced_blocks(README) if b.text.startswith("hilident init [")]
-    synopses: list[str] = []
-    for line in block.text.splitlines():
-        if line.startswith("hilident "):
-            synopses.append(line)
-        elif line.strip().startswith("[") and synopses:
-            synopses[-1] += " " + line.strip()
-    return synopses
+# --- the generated command reference --------------------------------------------------------------------------
 
 
-def named_options(synopses: list[str]) -> dict[str, set[str]]:
-    named: dict[str, set[str]] = {}
-    for line in synopses:
-        path, options = split_synopsis(line.split()[1:], COMMANDS)
-        named.setdefault(path, set()).update(options)
-    return named
+def reference_sections() -> dict[str, str]:
+    """The generated command-line reference page, by command path (``""`` for ``hilident`` itself)."""
+    page = hook_module("cli_page").cli_reference(build_parser())
+    parts = re.split(r"^## `hilident ?(.*?)`\n", page, flags=re.M)
+    return dict(zip(parts[1::2], parts[2::2], strict=True))
 
 
-def test_the_command_reference_lists_every_subcommand_and_option():
-    named = named_options(reference_synopses())
-    assert set(named) - {""} >= {path for path, sub in COMMANDS.items() if not subcommand_parsers(sub)}, (
-        "a sub-command missing from README 'Commands'"
-    )
-    for path, options in named.items():
+def documented_options(text: str) -> dict[str, str]:
+    """Option string -> help of every row of a command's argument table (``-q, --quiet`` gives both)."""
+    rows = re.findall(r"^\| (`.+?`) \| (.*) \|$", text, re.M)
+    options = {}
+    for names, help_text in rows:
+        for name in re.findall(r"`(-[^` ]+)", names):
+            options[name] = help_text
+    return options
+
+
+def synopsis(text: str) -> str:
+    """The synopsis line of a command's section."""
+    return text.split("```text\n", 1)[1].split("\n", 1)[0]
+
+
+def test_the_generated_command_reference_lists_every_subcommand_and_option():
+    sections = reference_sections()
+    assert set(sections) == {""} | set(COMMANDS), "a sub-command missing from the generated reference"
+    for path, text in sections.items():
         parser = COMMANDS[path] if path else PARSER
-        assert options <= option_strings(parser), f"README 'Commands' names options `hilident {path}` lacks"
+        listed, (named_path, named) = documented_options(text), split_synopsis(synopsis(text).split()[1:], COMMANDS)
+        assert set(listed) <= option_strings(parser), f"the reference names options `hilident {path}` lacks"
+        for action in parser._actions:
+            if action.option_strings and action.dest != "help":
+                assert set(action.option_strings) <= set(listed), f"`hilident {path}` {action.option_strings}"
+                assert all(listed[o] for o in action.option_strings), f"`hilident {path}` {action.option_strings}"
         if path:
-            missing = [
-                action.option_strings[-1]
-                for action in parser._actions
-                if action.option_strings and action.dest != "help" and not set(action.option_strings) & options
-            ]
-            assert missing == [], f"`hilident {path}` options missing from README 'Commands'"
-    assert named[""] >= {"--log-level"}
+            assert named_path == path and set(named) <= option_strings(parser), synopsis(text)
+            assert {a.option_strings[-1] for a in parser._actions if a.option_strings and a.dest != "help"} <= set(
+                named
+            ), f"`hilident {path}`: its synopsis misses an option"
+    assert "--log-level" in documented_options(sections[""])
+
+
+def test_the_generated_command_reference_shows_each_positional_with_its_help():
+    sections = reference_sections()
+    for path, sub in COMMANDS.items():
+        shown = html.unescape(re.sub(r"\\(.)", r"\1", sections[path]))  # as the page reads, markup escapes undone
+        for action in sub._actions:
+            if not action.option_strings and action.help:
+                assert " ".join(action.help.split()) in shown, f"`hilident {path}`: {action.dest}"
+
+
+# --- the commands the documents show -------------------------------------------------------------------------
 
 
 def every_shown_command() -> list[tuple[str, list[str]]]:
@@ -74,7 +96,7 @@ def every_shown_command() -> list[tuple[str, list[str]]]:
     shown = []
     for path in DOCUMENTS:
         for block in fenced_blocks(path):
-            if block.lang in ("sh", "bash", "console", "") and "hilident init [" not in block.text:
+            if block.lang in ("sh", "bash", "console", ""):
                 shown += [(block.where, words) for words in hilident_commands(block.text)]
         shown += [(str(path.relative_to(ROOT)), text.split()[1:]) for text in inline_commands(path)]
     return shown
@@ -115,8 +137,23 @@ def test_ci_runs_the_readme_test_command_verbatim():
     assert test_line in ci
 
 
-def test_the_readme_layout_names_every_module_and_every_name_exists():
-    (block,) = [b for b in fenced_blocks(README) if b.text.startswith("src/hilident/")]
+def test_every_page_of_docs_is_read_by_these_tests():
+    assert {p for p in DOCS.rglob("*.md")} <= set(DOCUMENTS)
+    assert {"index.md", "getting-started.md", "development.md"} <= {p.name for p in DOCUMENTS}
+
+
+def test_the_getting_started_page_shows_the_readme_quick_start():
+    def quick_start(path):
+        return section(path, "Quick start" if path == README else "Install and run a first session")
+
+    def commands(path):
+        return [b.text for b in fenced_blocks(path) if b.lang == "sh" and b.text in quick_start(path)]
+
+    assert commands(DOCS / "getting-started.md") == commands(README) != []
+
+
+def test_the_development_layout_names_every_package_and_every_name_exists():
+    (block,) = [b for b in fenced_blocks(DOCS / "development.md") if b.text.startswith("src/hilident/")]
     words = set(re.findall(r"\b\w+\.py\b", block.text)) | set(
         re.findall(r"(?:(?<=\s)|^)([\w/]+/)(?=\s|$)", block.text, re.M)
     )
@@ -126,12 +163,12 @@ def test_the_readme_layout_names_every_module_and_every_name_exists():
         for p in package.iterdir()
         if (p.suffix == ".py" or (p.is_dir() and (p / "__init__.py").exists())) and p.name != "__init__.py"
     }
-    assert present - words == set(), "modules of src/hilident missing from README 'Layout'"
+    assert present - words == set(), "modules or packages of src/hilident missing from docs/development.md 'Layout'"
     for word in words:
         if word.endswith(".py") or word.endswith("/"):
             candidates = [folder / word for folder in (package, ROOT, ROOT / "src", ROOT / "scripts")]
             candidates += [*package.glob(f"*/{word}"), *package.glob(f"*/*/{word}")]
-            assert any(c.exists() for c in candidates), f"README 'Layout' names {word}, which does not exist"
+            assert any(c.exists() for c in candidates), f"docs/development.md 'Layout' names {word}: no such file"
 
 
 # --- the worked flows ------------------------------------------------------------------------------------
@@ -162,13 +199,9 @@ def scratch(tmp_path):
         yield folder
 
 
-def block_after(text_before: str) -> list[list[str]]:
-    """The hilident commands of the first shell block after ``text_before`` in the README."""
-    readme = README.read_text()
-    offset = readme.index(text_before)
-    line = readme[:offset].count("\n") + 1
-    block = next(b for b in fenced_blocks(README) if b.line > line)
-    return hilident_commands(block.text)
+def commands_after(path, text_before: str) -> list[list[str]]:
+    """The hilident commands of the first shell block after ``text_before`` in the document ``path``."""
+    return hilident_commands(block_after(path, text_before).text)
 
 
 def test_the_quick_start_runs_and_prints_what_the_readme_shows(scratch, capsys):
@@ -187,8 +220,8 @@ def test_the_quick_start_runs_and_prints_what_the_readme_shows(scratch, capsys):
         assert (out / name).is_file(), f"README Quick start lists {name}; the run did not write it"
 
 
-def test_the_readme_flow_for_a_parameter_drive_runs_as_written(scratch, capsys):
-    commands = block_after("The\nflow for such a drive, on the twins:")
+def test_the_flow_for_a_parameter_drive_runs_as_written(scratch, capsys):
+    commands = commands_after(DOCS / "drivers.md", "The\nflow for such a drive, on the twins:")
     assert [c[0] for c in commands] == ["run", "identify", "upload"]
     for words in commands:
         assert main(words) == 0, words
@@ -197,13 +230,13 @@ def test_the_readme_flow_for_a_parameter_drive_runs_as_written(scratch, capsys):
     assert summary["upload"]["verified_readback"] and summary["upload"]["saved"]
 
 
-def test_the_readme_flow_for_a_scope_export_runs_as_written(scratch, capsys):
+def test_the_flow_for_a_scope_export_runs_as_written(scratch, capsys):
     """``identify scope_export.csv --config axis.toml``, then ``upload --dry-run`` and ``upload --yes --save``
     into ``drive.toml``: the export is a recording of the gantry twin written as a scope would (time, torque,
     velocity columns), ``axis.toml`` maps it, ``drive.toml`` is the DSY-RS twin."""
     from hilident.io.recording import read_run
 
-    commands = block_after("Modbus drive with a parameter map only) is:")
+    commands = commands_after(DOCS / "upload.md", "Modbus drive with a parameter map only) is:")
     assert [c[0] for c in commands] == ["identify", "upload", "upload"]
     assert main(["run", "configs/emulated-gantry.toml", "--out", "runs/scope"]) == 0
     run = read_run(scratch / "runs" / "scope" / "identification.h5")

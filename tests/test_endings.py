@@ -28,7 +28,7 @@ import pytest
 from hilident.io.recording import read_run
 from support.twins import HOST_TIMEOUT_S, TRANSPORTS, Twin, finish, host, wait_until
 
-#: Exit codes the README documents.
+#: Exit codes the bench guide documents (docs/bench-guide.md).
 EXIT = {
     "sigterm": 143,
     "sighup": 129,

@@ -270,12 +270,12 @@ def test_bad_sources_are_one_clear_line(tmp_path, capsys, made):
     assert "is a folder" in capsys.readouterr().err
 
 
-def test_the_readme_export_commands_run(made, tmp_path, monkeypatch):
+def test_the_documented_export_commands_run(made, tmp_path, monkeypatch):
     import shlex
     from pathlib import Path
 
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    block = readme.split("### Export", 1)[1].split("```sh", 1)[1].split("```", 1)[0]
+    page = (Path(__file__).resolve().parents[1] / "docs" / "export.md").read_text()
+    block = page.split("```sh", 1)[1].split("```", 1)[0]
     commands = [shlex.split(line, comments=True) for line in block.splitlines() if line.startswith("hilident export")]
     assert [c[4] for c in commands] == ["mat", "json", "python-control"]
     monkeypatch.chdir(tmp_path)  # runs/gantry and plant.json relative to here

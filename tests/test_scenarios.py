@@ -2,7 +2,7 @@
 
 One test class, parametrised over the transports (python-can's back-to-back
 style): each scenario states once what any transport must do (the exit code
-of the README's table, a stopped drive, a recording marked aborted whose
+of the bench guide's table, a stopped drive, a recording marked aborted whose
 sample indices never invent a sample) and takes what differs per transport
 (the shipped config, the fault switch that provokes the scenario, the words
 the error names) from one small :class:`Transport` record. A transport that
@@ -34,7 +34,7 @@ from hilident.session.run import Session
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
-#: The README's exit-code table ("Safety, endings and exit codes").
+#: The exit-code table of docs/bench-guide.md ("Safety, endings and exit codes").
 EXIT_LIMIT_TRIP = 5
 
 

@@ -1,20 +1,27 @@
-"""Reading the README and the docs as a test reads them: fenced blocks, inline commands, CLI synopses."""
+"""Reading the README and the docs as a test reads them: fenced blocks, inline commands, CLI synopses, and the
+generators of the site's reference pages."""
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import re
 import shlex
+import sys
 from dataclasses import dataclass
 from pathlib import Path
+from types import ModuleType
 
 ROOT = Path(__file__).resolve().parents[2]
-#: Every markdown file a user reads: the README, docs/, the driver folders' and the benches' READMEs.
+DOCS = ROOT / "docs"
+#: The site's build hooks: the generators of the reference pages.
+HOOKS = DOCS / "hooks"
+#: Every markdown file a user reads: the README, every page of docs/, the driver folders' and the benches' READMEs.
 DOCUMENTS = sorted(
     [
         ROOT / "README.md",
         ROOT / "CONTRIBUTING.md",
-        *(ROOT / "docs").glob("*.md"),
+        *DOCS.rglob("*.md"),
         *(ROOT / "drivers").glob("*/README.md"),
         ROOT / "bench" / "README.md",
     ]
@@ -55,6 +62,23 @@ def section(path: Path, heading: str) -> str:
     match = re.search(rf"^#+ {re.escape(heading)}\n(.*?)(?=^#+ |\Z)", path.read_text(), re.S | re.M)
     assert match, f"{path.name} has no heading {heading!r}"
     return match.group(1)
+
+
+def block_after(path: Path, text_before: str) -> Block:
+    """The first fenced block of ``path`` after the text ``text_before``."""
+    text = path.read_text()
+    line = text[: text.index(text_before)].count("\n") + 1
+    return next(b for b in fenced_blocks(path) if b.line > line)
+
+
+def hook_module(name: str) -> ModuleType:
+    """A module of the site's build hooks (``docs/hooks/name.py``), imported as the build imports it: the hooks
+    import each other by their bare names."""
+    sys.path.insert(0, str(HOOKS))
+    try:
+        return importlib.import_module(name)
+    finally:
+        sys.path.remove(str(HOOKS))
 
 
 def inline_commands(path: Path) -> list[str]:
