@@ -8,7 +8,7 @@ then identifies all of them three times, each time into a fresh table:
 2. a local cluster of ``--workers`` worker processes (the default of ``hilident batch``);
 3. a Dask scheduler started as a separate process (``dask scheduler``) on
    127.0.0.1 with ``--workers`` workers of its own (``dask worker``, configured
-   by the YAML file of the README's cluster recipe), given to the batch by
+   by the YAML file of the cluster recipe in docs/batch.md), given to the batch by
    address, as a cluster on other machines would be.
 
 It prints for each the wall time, the cost per recording (wall time / recordings
@@ -80,7 +80,7 @@ def run(label: str, inputs: list[str], out: Path, scheduler: str | None, workers
 
 
 #: The worker settings hilident's local cluster uses (hilident.batch.runner.WORKER_SETTINGS), as the YAML file
-#: the README's cluster recipe puts in a worker machine's Dask configuration folder.
+#: the cluster recipe of docs/batch.md puts in a worker machine's Dask configuration folder.
 WORKER_YAML = """\
 distributed:
   nanny:

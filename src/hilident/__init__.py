@@ -10,7 +10,7 @@ The names a script or a notebook needs are here, each loaded on first use
     run = hilident.read_run("runs/gantry/identification.h5")
     again = hilident.identify(None, "runs/gantry/identification.h5", "runs/gantry-offline")
 
-See the README's "Python API" section.
+See the documentation's Python API page (docs/api/index.md).
 """
 
 from __future__ import annotations

@@ -1,9 +1,10 @@
-"""The keys of ``summary.json`` (a documented interface, README tables) checked against a recorded layout.
+"""The keys of ``summary.json`` (a documented interface, docs/results.md) checked against a recorded layout.
 
 The layouts in ``tests/data/summary_keys/`` were recorded from the summaries
 ``hilident run``, ``hilident identify`` and ``hilident upload`` wrote before
 the summary became typed: the top-level keys in their order, and the keys of
-each section whose layout does not depend on the data. Set
+each section whose layout does not depend on the data; ``notes`` (beside
+``warnings`` in a run's and an identify's) was added since, a documented change. Set
 ``HILIDENT_RECORD_SUMMARY_KEYS=1`` to record a layout again (after a
 documented change of the interface only).
 """

@@ -116,7 +116,7 @@ class _Tally:
 
 
 #: Dask settings of the local cluster's workers (see :func:`_local_cluster`); ``dask worker`` takes the same
-#: from a YAML file in its configuration folder (the README's cluster recipe).
+#: from a YAML file in its configuration folder (the cluster recipe of docs/batch.md).
 WORKER_SETTINGS = {
     # Dask's default sets glibc's trim threshold, which also pins its mmap threshold: every array of a
     # recording is then mapped and unmapped afresh, and one identification took 0.30 s instead of 0.22 s

@@ -58,7 +58,7 @@ BATCH = (
 examples:
   hilident batch fleet/ --out fleet-table                    every recording under fleet/, on a local cluster
   hilident batch 'scopes/*.csv' --config axis.toml --out t   CSV exports: the config names their columns
-  hilident batch fleet/ --out t --scheduler tcp://host:8786  on a running Dask cluster (see README "Fleets on Dask")
+  hilident batch fleet/ --out t --scheduler tcp://host:8786  on a running Dask cluster (docs/batch.md)
   hilident batch a.h5 --out t --scheduler synchronous        a plain loop in this process (debugging)
 
 """

@@ -6,8 +6,8 @@ dotted key and the file (the mechanism is :mod:`hilident.config.schema`, shared 
 the driver files). Transport settings live in sub-tables: ``[device.canopen]``,
 ``[device.modbus]``, ``[emulator.faults.serial]``,
 ``[emulator.faults.canopen]``, ``[emulator.faults.modbus]``; their flat keys of
-earlier releases are still read, with a deprecation warning. The README
-documents every key; the dataclass field comments here are the reference.
+earlier releases are still read, with a deprecation warning. The
+configuration reference of the documentation (docs/, generated from these specs) lists every key.
 
 Whatever a file holds, loading it gives a Config or a ConfigError, before
 anything is allocated or moved: files are at most :data:`MAX_FILE_BYTES` of

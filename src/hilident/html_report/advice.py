@@ -49,7 +49,7 @@ TOPICS: tuple[tuple[str, tuple[str, ...], str], ...] = (
         ("coherence", "excitation", "amplitude", "sampling", "record", "resolution", "period", "closed-loop", "band"),
         "A larger excitation amplitude or a longer record improves coherence and resolution.",
     ),
-    ("Other", (), "See the README section the message names."),
+    ("Other", (), "See the documentation page of the key or command the message names (docs/)."),
 )
 
 #: Verbs that start a remedy ("decimate by 2", "set [data] sample_rate_hz", "give [data].excitation").

@@ -368,7 +368,7 @@ def export_document(summary: dict, rate_hz: float | None = None, path: Path | No
 
 
 def write_json(doc: dict, out: Path) -> None:
-    """The export as one JSON file (layout: README "Export")."""
+    """The export as one JSON file (layout: docs/export.md)."""
     from hilident.io.serialise import write_json as _write
 
     try:
