@@ -22,35 +22,6 @@ from dataclasses import dataclass
 
 from markdown_text import cell, rst_to_markdown, sentence
 
-#: Help of the run-configuration keys whose spec carries none yet (dotted key -> help). A key that has neither
-#: its own ``doc`` nor an entry here fails the documentation tests; a ``doc`` in the code wins over this.
-HELP_NOT_IN_THE_CODE = {
-    "data.output_scale": "multiplies the output column to give SI units",
-    "data.excitation_scale": "multiplies the excitation column to give the unit of the excitation's mode",
-    "friction_test.enabled": "run the constant-velocity friction test before the identification",
-    "friction_test.model": "friction model fitted to the test: stribeck (the structure the points support: "
-    "Coulomb + viscous, Stribeck with fixed exponents, or all six parameters) or coulomb_viscous",
-    "excitation.kind": "the signal played: multisine, chirp, noise, prbs, sine, square or step",
-    "excitation.f_min_hz": "lower end of the excited band (multisine, chirp, noise)",
-    "excitation.f_max_hz": "upper end of the excited band; below the Nyquist frequency of run.sample_rate_hz",
-    "excitation.chirp_method": "chirp: how its frequency sweeps",
-    "identification.coherence_threshold": "lowest coherence accepted around a peak; lines below it are not trusted",
-    "identification.f_max_hz": "upper end of the band searched for resonances; 0: the excitation band",
-    "identification.max_resonances": "most resonances reported (further peaks are listed in rejected_peaks)",
-    "identification.min_prominence_db": "least prominence of a peak over its surroundings",
-    "notch.enabled": "design notch filters at the resonances and upload them",
-    "notch.depth_db": "depth of each notch at its centre",
-    "verification.move.profile": "trapezoid, or s-curve (jerk-limited by max_jerk_mps3)",
-    "emulator.plant.model": "two_mass (the thesis's gantry), three_mass (a third mass hung from the load) or "
-    "mass_spring_damper (the lecture's)",
-    "emulator.friction.model": "stribeck (thesis eq. 2.13, torque at the motor versus cart velocity) or none",
-    "emulator.friction.delta_v": "exponent of the cart velocity in the viscous term",
-    "emulator.friction.delta_s": "exponent of the Stribeck term",
-    "emulator.sensors.encoder_resolution_m": "one encoder count; the position is floored to counts",
-    "emulator.sensors.laser_noise_m": "rms noise of the load sensor (channel load_position_m)",
-    "emulator.sensors.laser_resolution_m": "resolution of the load sensor",
-}
-
 #: Unit of a key by the end of its name (DESIGN.md: names carry the unit), longest ending first.
 UNIT_OF_SUFFIX = (
     ("_nm_per_mps2", "N·m/(m/s²)"),
@@ -110,11 +81,11 @@ def run_config_tables() -> list[Table]:
     hints = typing.get_type_hints(Config)
     for field in public_fields(Config):
         for table_class, title in nested_tables(hints[field.name], field.name):
-            walk_table(table_class, field.name, title, tables, HELP_NOT_IN_THE_CODE)
+            walk_table(table_class, field.name, title, tables)
     return tables
 
 
-def walk_table(cls: type, path: str, title: str, tables: list[Table], extra_help: dict[str, str]) -> None:
+def walk_table(cls: type, path: str, title: str, tables: list[Table]) -> None:
     """Append the table ``cls`` (at dotted ``path``) and, after it, every table nested in it."""
     hints = typing.get_type_hints(cls)
     fields = public_fields(cls)
@@ -122,11 +93,11 @@ def walk_table(cls: type, path: str, title: str, tables: list[Table], extra_help
     for field in fields:
         hint, key = hints[field.name], dotted(path, field.name)
         see = [child_title for _, child_title in nested_tables(hint, key)]
-        keys.append(key_row(field, hint, extra_help.get(key, ""), see))
+        keys.append(key_row(field, hint, see))
     tables.append(Table(title, class_summary(cls), qualified_name(cls), tuple(keys), moved_key_notes(cls, title)))
     for field in fields:
         for table_class, child_title in nested_tables(hints[field.name], dotted(path, field.name)):
-            walk_table(table_class, dotted(path, field.name), child_title, tables, extra_help)
+            walk_table(table_class, dotted(path, field.name), child_title, tables)
 
 
 def dotted(path: str, name: str) -> str:
@@ -169,7 +140,7 @@ def driver_file_tables() -> list[Table]:
     for cls in classes:
         if cls not in nested:
             path, title = root_title(cls)
-            walk_table(cls, path, title, tables, {})
+            walk_table(cls, path, title, tables)
     return tables
 
 
@@ -230,10 +201,10 @@ def qualified_name(cls: type) -> str:
     return f"{cls.__module__}.{cls.__qualname__}"
 
 
-def key_row(field: dataclasses.Field, hint: object, extra_help: str, see: list[str]) -> Key:
+def key_row(field: dataclasses.Field, hint: object, see: list[str]) -> Key:
     """The reference row of one field: type, default, unit, allowed values, help (and the tables it holds)."""
     meta = field.metadata
-    help_text = sentence(meta.get("doc") or extra_help)
+    help_text = sentence(meta.get("doc", ""))
     if see:
         keys_in = "its keys: " + " and ".join(see)
         help_text = f"{help_text}; {keys_in}" if help_text else keys_in

@@ -141,14 +141,19 @@ class LimitsConfig:
 
 @dataclass(frozen=True)
 class FrictionTestConfig:
-    enabled: bool = _spec(True)
+    enabled: bool = _spec(True, doc="run the constant-velocity friction test before the identification")
     speeds_mps: list[float] = _spec(
         [0.005, 0.01, 0.02, 0.05, 0.1, 0.2], max_items=64, doc="constant test speeds, each run both ways"
     )
     hold_s: float = _spec(1.0, gt=0, doc="time at each constant speed")
     settle_s: float = _spec(0.4, ge=0, doc="part of the hold not used for averaging")
     accel_mps2: float = _spec(2.0, gt=0, doc="acceleration between speeds")
-    model: str = _spec("stribeck", choices=("stribeck", "coulomb_viscous"))
+    model: str = _spec(
+        "stribeck",
+        choices=("stribeck", "coulomb_viscous"),
+        doc="friction model fitted to the test: stribeck (the structure the points support: Coulomb + viscous, "
+        "Stribeck with fixed exponents, or all six parameters) or coulomb_viscous",
+    )
     velocity_deadband_mps: float = _spec(0.0, ge=0, doc="no friction compensation below this speed")
 
 
@@ -175,7 +180,11 @@ AUTO_START_SHARE = 0.05
 
 @dataclass(frozen=True)
 class ExcitationConfig:
-    kind: str = _spec("multisine", choices=("sine", "square", "chirp", "noise", "prbs", "multisine", "step"))
+    kind: str = _spec(
+        "multisine",
+        choices=("sine", "square", "chirp", "noise", "prbs", "multisine", "step"),
+        doc="the signal played: multisine, chirp, noise, prbs, sine, square or step",
+    )
     mode: str = _spec(
         "torque_injection",
         choices=EXCITATION_MODES,
@@ -195,12 +204,14 @@ class ExcitationConfig:
     amplitude_m: float = _spec(
         0.0, ge=0, auto=AUTO_SETPOINT_REFUSED, doc="peak position set-point perturbation (noise: rms), mode position"
     )
-    f_min_hz: float = _spec(1.0, gt=0)
-    f_max_hz: float = _spec(100.0, gt=0)
+    f_min_hz: float = _spec(1.0, gt=0, doc="lower end of the excited band (multisine, chirp, noise)")
+    f_max_hz: float = _spec(
+        100.0, gt=0, doc="upper end of the excited band; below the Nyquist frequency of run.sample_rate_hz"
+    )
     frequency_hz: float = _spec(10.0, gt=0, doc="sine and square")
     duration_s: float = _spec(20.0, gt=0, doc="length of one identification run")
     period_s: float = _spec(2.0, gt=0, doc="multisine period (whole periods are played)")
-    chirp_method: str = _spec("logarithmic", choices=("linear", "logarithmic"))
+    chirp_method: str = _spec("logarithmic", choices=("linear", "logarithmic"), doc="chirp: how its frequency sweeps")
     register_length: int = _spec(10, ge=2, le=32, doc="PRBS shift-register length")
     clock_divider: int = _spec(1, ge=1, doc="PRBS samples per bit")
     fade_s: float = _spec(0.1, ge=0, doc="raised-cosine fade in and out")
@@ -264,13 +275,17 @@ class ExcitationConfig:
 @dataclass(frozen=True)
 class IdentificationConfig:
     output: str = _spec("velocity_mps", doc="output channel of the measured frequency response")
-    coherence_threshold: float = _spec(0.8, ge=0, le=1)
+    coherence_threshold: float = _spec(
+        0.8, ge=0, le=1, doc="lowest coherence accepted around a peak; lines below it are not trusted"
+    )
     segment_s: float = _spec(2.0, gt=0, doc="Welch segment length (frequency resolution 1/segment_s)")
     lowpass_hz: float = _spec(0.0, ge=0, doc="zero-phase low-pass before the FRF; 0 disables")
     f_min_hz: float = _spec(0.0, ge=0, doc="band searched for resonances; 0: the excitation band")
-    f_max_hz: float = _spec(0.0, ge=0)
-    max_resonances: int = _spec(2, ge=0, le=16)
-    min_prominence_db: float = _spec(6.0, ge=0)
+    f_max_hz: float = _spec(0.0, ge=0, doc="upper end of the band searched for resonances; 0: the excitation band")
+    max_resonances: int = _spec(
+        2, ge=0, le=16, doc="most resonances reported (further peaks are listed in rejected_peaks)"
+    )
+    min_prominence_db: float = _spec(6.0, ge=0, doc="least prominence of a peak over its surroundings")
     model_max_order: int = _spec(
         4,
         ge=0,
@@ -304,8 +319,8 @@ class IdentificationConfig:
 
 @dataclass(frozen=True)
 class NotchConfig:
-    enabled: bool = _spec(True)
-    depth_db: float = _spec(30.0, gt=0)
+    enabled: bool = _spec(True, doc="design notch filters at the resonances and upload them")
+    depth_db: float = _spec(30.0, gt=0, doc="depth of each notch at its centre")
     width_factor: float = _spec(1.0, gt=0, doc="notch width relative to the resonance's half-power bandwidth")
     min_width_ratio: float = _spec(0.15, ge=0, lt=1, doc="smallest notch width as a fraction of its centre frequency")
     verify: bool = _spec(True, doc="run the excitation again with the notches enabled")
@@ -418,7 +433,9 @@ class MoveConfig:
     distance_m: float = _spec(doc="signed length of the move, m (out and back again from where the axis is)")
     max_velocity_mps: float = _spec(gt=0, doc="velocity limit of the move, m/s (below [limits] velocity_mps)")
     max_accel_mps2: float = _spec(gt=0, le=1000, doc="acceleration limit of the move, m/s^2")
-    profile: str = _spec("trapezoid", choices=("trapezoid", "s-curve"))
+    profile: str = _spec(
+        "trapezoid", choices=("trapezoid", "s-curve"), doc="trapezoid, or s-curve (jerk-limited by max_jerk_mps3)"
+    )
     max_jerk_mps3: float = _spec(0.0, ge=0, doc="s-curve: jerk limit, m/s^3 (0: 50 times max_accel_mps2 per second)")
     dwell_s: float = _spec(1.0, gt=0, le=60, doc="held at the end of the move while its ringing is measured, s")
     notch: str = _spec(
@@ -467,8 +484,10 @@ class DataConfig:
     torque_scale: float = _spec(1.0, gt=0, doc="multiplies the torque column to give N*m (rotary) or N (linear axis)")
     velocity_scale: float = _spec(1.0, gt=0, doc="multiplies the velocity column to give m/s (or rad/s)")
     position_scale: float = _spec(1.0, gt=0, doc="multiplies the position column to give m (or rad)")
-    output_scale: float = _spec(1.0, gt=0)
-    excitation_scale: float = _spec(1.0, gt=0)
+    output_scale: float = _spec(1.0, gt=0, doc="multiplies the output column to give SI units")
+    excitation_scale: float = _spec(
+        1.0, gt=0, doc="multiplies the excitation column to give the unit of the excitation's mode"
+    )
     closed_loop: bool = _spec(False, doc="the data were recorded with a controller closed around the axis")
     period_s: float = _spec(
         0.0,
@@ -579,7 +598,12 @@ def _position_function_check(positive: bool):
 
 @dataclass(frozen=True)
 class PlantConfig:
-    model: str = _spec("two_mass", choices=("two_mass", "three_mass", "mass_spring_damper"))
+    model: str = _spec(
+        "two_mass",
+        choices=("two_mass", "three_mass", "mass_spring_damper"),
+        doc="two_mass (the thesis's gantry), three_mass (a third mass hung from the load) or mass_spring_damper "
+        "(the lecture's)",
+    )
     m1: float = _spec(40.0, gt=0, doc="two_mass: cart mass, kg")
     m2: float = _spec(10.0, gt=0, doc="two_mass: load mass, kg")
     m3: float = _spec(2.0, gt=0, doc="three_mass: a third mass hung from the load, kg")
@@ -612,13 +636,17 @@ class PlantConfig:
 
 @dataclass(frozen=True)
 class FrictionConfig:
-    model: str = _spec("stribeck", choices=("stribeck", "none"))
+    model: str = _spec(
+        "stribeck",
+        choices=("stribeck", "none"),
+        doc="stribeck (thesis eq. 2.13, torque at the motor versus cart velocity) or none",
+    )
     Fc: float = _spec(1.0, ge=0, doc="Coulomb friction, N*m")
     Fs: float = _spec(1.5, ge=0, doc="static friction, N*m")
     Fv: float = _spec(5.0, ge=0, doc="viscous coefficient, N*m/(m/s)^delta_v")
     vs: float = _spec(0.01, gt=0, doc="Stribeck velocity, m/s")
-    delta_v: float = _spec(1.0, gt=0)
-    delta_s: float = _spec(2.0, gt=0)
+    delta_v: float = _spec(1.0, gt=0, doc="exponent of the cart velocity in the viscous term")
+    delta_s: float = _spec(2.0, gt=0, doc="exponent of the Stribeck term")
 
 
 @dataclass(frozen=True)
@@ -687,7 +715,7 @@ class DisturbanceConfig:
 
 @dataclass(frozen=True)
 class SensorsConfig:
-    encoder_resolution_m: float = _spec(1e-6, ge=0)
+    encoder_resolution_m: float = _spec(1e-6, ge=0, doc="one encoder count; the position is floored to counts")
     encoder_noise_m: float | None = _spec(
         None,
         ge=0,
@@ -696,8 +724,8 @@ class SensorsConfig:
     )
     torque_noise_nm: float = _spec(0.02, ge=0, doc="rms noise of the measured torque")
     laser_range_m: list[float] = _spec([-0.005, 0.005], max_items=2, doc="load deflection window the load sensor sees")
-    laser_noise_m: float = _spec(0.0, ge=0)
-    laser_resolution_m: float = _spec(1.2e-4, ge=0)
+    laser_noise_m: float = _spec(0.0, ge=0, doc="rms noise of the load sensor (channel load_position_m)")
+    laser_resolution_m: float = _spec(1.2e-4, ge=0, doc="resolution of the load sensor")
 
 
 @dataclass(frozen=True)
