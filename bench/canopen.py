@@ -179,7 +179,7 @@ def wait_until_answering(ad, limit_s: float = 120.0) -> None:
     deadline = time.monotonic() + limit_s
     while True:
         try:
-            ad.read("statusword")
+            ad.sdo.read("statusword")
             return
         except HilidentError:
             if time.monotonic() > deadline:
@@ -333,22 +333,22 @@ def sdo_throughput(setup: Setup, block_bytes: int, segmented_bytes: int) -> dict
     ad = setup.adapter
     wait_until_answering(ad)
     table = ad.desc.address("table")
-    original = ad.desc
+    original = ad.sdo.block_transfer
     out = {}
     try:
         for label, block, size in (("block", True, block_bytes), ("segmented", False, segmented_bytes)):
-            ad.desc = replace(original, block_transfer=block)
+            ad.sdo.block_transfer = block
             data = np.random.default_rng(1).standard_normal(size // 4).astype("<f4").tobytes()
             t0 = time.perf_counter()
-            ad.write_domain(table, data)
+            ad.sdo.write_domain(table, data)
             down = time.perf_counter() - t0
             t0 = time.perf_counter()
-            back = ad.read_domain(table)
+            back = ad.sdo.read_domain(table)
             up = time.perf_counter() - t0
             assert back == data, "upload differs from download"
             out[label] = (len(data) / down / 1e3, len(data) / up / 1e3, len(data))
     finally:
-        ad.desc = original
+        ad.sdo.block_transfer = original
     return out
 
 
@@ -359,7 +359,7 @@ def buffered_capture(setup: Setup, seconds: float, sample_rate: float) -> dict:
     n = int(seconds * sample_rate)
     x = 0.5 * np.sin(2 * np.pi * 3.0 * np.arange(n) / sample_rate)
     marks = {}
-    write = ad.write
+    write = ad.sdo.write
 
     def timed_write(role, value):
         write(role, value)
@@ -371,16 +371,16 @@ def buffered_capture(setup: Setup, seconds: float, sample_rate: float) -> dict:
     def sink(index, rows):
         last[0] = time.perf_counter()
 
-    ad.write = timed_write
+    ad.sdo.write = timed_write
     t0 = time.perf_counter()
     try:
         result = ad.stream(x, sink)
     finally:
-        del ad.write
+        del ad.sdo.write
     total = time.perf_counter() - t0
     return {
         "samples": result.stats.samples,
-        "record_bytes": sum(c.bits for c in ad.channels) // 8,
+        "record_bytes": sum(c.bits for c in ad.layout.channels) // 8,
         "download_s": marks["started"] - t0,
         "total_s": total,
         "lag_s": last[0] - marks["started"] - seconds,

@@ -141,7 +141,7 @@ def run_drive(folder: Path, out: Path, duration_s: float, acquisition: str = "st
         designed = f"designed {notches[0]['center_hz']:.2f} Hz; " if notches else ""
         row["notch"] = designed + (upload.get("not_uploaded") or "no notch")
     row["pdos"] = (
-        f"{len(ad.tpdo_layout)} TPDO ({'+'.join(str(len(idx)) for _, idx in ad.tpdo_layout)} objects)"
+        f"{len(ad.layout.tpdos)} TPDO ({'+'.join(str(len(t.columns)) for t in ad.layout.tpdos)} objects)"
         if acquisition == "streamed"
         else f"none: the drive's {acquisition}"
     )

@@ -60,7 +60,7 @@ def measure(link: str, args, driver) -> dict:
         width = ad.map.record_registers(ad.map.mask_of(ad.channel_names))
 
         t0 = time.perf_counter()
-        ad.load_table(x)
+        ad.capture.load_table(x)
         table_s = time.perf_counter() - t0
 
         got = [0]
@@ -74,7 +74,7 @@ def measure(link: str, args, driver) -> dict:
 
         stats = StreamStats()
         t0 = time.perf_counter()
-        ad.read_capture(0, n, lambda i, r: None, stats)
+        ad.capture.read_capture(0, n, lambda i, r: None, stats)
         read_s = time.perf_counter() - t0
         return {
             "link": "TCP" if link == "tcp" else f"RTU {args.baud}",

@@ -80,7 +80,7 @@ def twin():
 
 def die_hard(ad: CanopenDriveAdapter) -> None:
     """What SIGKILL does to the host: its heartbeat and every frame stop, nothing is sent on the way out."""
-    ad._host_heartbeat.stop()
+    ad.net.heartbeat.task.stop()
     ad.network.disconnect()
     ad.close = lambda: None  # the process is gone: no orderly close either
 
@@ -157,7 +157,7 @@ def test_a_host_whose_heartbeat_thread_starves_keeps_the_drive_while_it_talks_to
     ad = t.open()
     ad.configure(FS, "torque")
     ad.enable()
-    ad._host_heartbeat.stop()
+    ad.net.heartbeat.task.stop()
     end = time.monotonic() + 3 * HOST_TIMEOUT_S
     while time.monotonic() < end:
         ad.drive_state()
@@ -200,7 +200,7 @@ def test_a_drive_without_a_heartbeat_consumer_gets_no_net_and_says_so(twin, tmp_
     t = twin(driver_copy(tmp_path, eds=without_consumer))
     ad = t.open()
     assert ad.connect_report.device_net.startswith("none: canopen-servo.eds has no heartbeat consumer (0x1016)")
-    assert ad._host_heartbeat is None and t.fw.consumers == {}
+    assert ad.net.heartbeat.task is None and t.fw.consumers == {}
 
 
 def test_the_host_node_id_must_differ_from_the_drive(twin, tmp_path):
@@ -238,7 +238,7 @@ def test_a_drive_left_enabled_by_a_killed_session_is_switched_off_at_connect(twi
     first = t.open()
     first.configure(FS, "torque")
     first.enable()
-    first._host_heartbeat.stop()  # killed, but the consumer has not noticed yet: the next host is quicker
+    first.net.heartbeat.task.stop()  # killed, but the consumer has not noticed yet: the next host is quicker
     first.network.disconnect()
     first.close = lambda: None
     second = t.open()
@@ -288,7 +288,7 @@ def test_safe_stop_reaches_switch_on_disabled_fast_and_keeps_the_link(twin):
     assert np.median(times) < 0.1
     time.sleep(2 * HOST_TIMEOUT_S)
     assert t.fw.heartbeat_events == 0  # the host's heartbeat goes on after safe_stop
-    ad.check_link()
+    ad.net.check_link()
 
 
 def test_safe_stop_never_raises_when_the_drive_is_gone(twin):
@@ -329,14 +329,14 @@ def test_a_limit_trip_stays_the_cause_whatever_fails_after_it(twin):
     t = twin()
     ad = t.open()
     ad.configure(FS, "torque")
-    read = ad.read
+    read = ad.sdo.read
 
     def read_failing_after_the_trip(role):
-        if ad.emergencies and role in ("table_state", "capture_count"):
+        if ad.net.emergencies and role in ("table_state", "capture_count"):
             raise DeviceError(f"{ad.port}: SDO abort reading {role}: 0x08000022 (state)")
         return read(role)
 
-    ad.read = read_failing_after_the_trip
+    ad.sdo.read = read_failing_after_the_trip
     x = np.full(3000, 60.0)  # far beyond the 19 N·m torque limit
     with pytest.raises(LimitTrip, match="torque_limit"):
         ad.stream(x, lambda i, rows: None)
@@ -511,7 +511,7 @@ def test_safe_stop_from_a_handler_that_interrupted_a_table_download(twin):
 
     ad.node.sdo.open = open_with_handler
     with pytest.raises(KeyboardInterrupt):
-        ad.write_domain(ad.desc.address("table"), np.zeros(3000, "<f4").tobytes())
+        ad.sdo.write_domain(ad.desc.address("table"), np.zeros(3000, "<f4").tobytes())
     assert states == [cia402.State.SWITCH_ON_DISABLED]
     ad.node.sdo.open = real_open
     ad.enable()

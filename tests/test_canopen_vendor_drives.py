@@ -169,7 +169,7 @@ def test_lost_tpdos_are_counted_at_their_sample_never_filled(tmp_path):
         fw = emu.server.firmware
         assert fw.tpdos_dropped > 0 and result.stats.lost_frames == fw.tpdos_dropped
         assert result.stats.samples + result.stats.lost_samples == 2000 and len(index) == result.stats.samples
-        n_tpdos = len(ad.tpdo_layout)
+        n_tpdos = len(ad.layout.tpdos)
         per_sample = {}
         for k, _ in fw.dropped:
             per_sample[k] = per_sample.get(k, 0) + 1

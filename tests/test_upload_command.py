@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from hilident.adapters.serial.board import SerialBoardAdapter
+from hilident.adapters.serial.board import board_stored_form
 from hilident.cli.main import main
 from hilident.config.tables import load_config
 from hilident.errors import DataError, DeviceError
@@ -121,7 +121,7 @@ def test_dry_run_prints_the_stored_form_and_touches_nothing(tmp_path, locks, cap
     assert slots(serial_twin) == before
     assert not (tmp_path / "run-upload").exists()
     design = json.loads((source / "summary.json").read_text())["notch_filters"][0]
-    stored = SerialBoardAdapter.stored_form(Biquad(tuple(design["b"]), tuple(design["a"])))
+    stored = board_stored_form(Biquad(tuple(design["b"]), tuple(design["a"])))
     assert "slot 2 (now disabled)" in out and f"notch {design['center_hz']:.5g} Hz" in out
     assert f"{stored.b[1]:.9g}" in out and f"{stored.a[2]:.9g}" in out  # the REAL32 form the board would hold
     assert "nothing written" in out
@@ -162,7 +162,7 @@ def test_a_failing_read_back_rolls_every_slot_back_and_exits_with_a_partial_summ
 ):
     from hilident.session import connection as session
 
-    old = SerialBoardAdapter.stored_form(design_notch(NotchSpec(50.0, 10.0, 20.0), 4000.0))  # as the board holds it
+    old = board_stored_form(design_notch(NotchSpec(50.0, 10.0, 20.0), 4000.0))  # as the board holds it
     serial_twin.emu.drive.filters.write(0, old, True)  # an older notch the drive runs now
     before = slots(serial_twin)
     source = write_source(tmp_path / "run", serial_twin.truth_hz, 4000.0, extra_hz=(60.0,))
@@ -191,7 +191,7 @@ def test_a_signal_during_the_upload_puts_every_slot_back_and_exits_143(
 
     from hilident.session import connection as session
 
-    old = SerialBoardAdapter.stored_form(design_notch(NotchSpec(50.0, 10.0, 20.0), 4000.0))
+    old = board_stored_form(design_notch(NotchSpec(50.0, 10.0, 20.0), 4000.0))
     serial_twin.emu.drive.filters.write(0, old, True)
     before = slots(serial_twin)
     source = write_source(tmp_path / "run", serial_twin.truth_hz, 4000.0, extra_hz=(60.0,))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from hilident.adapters.backends import BACKENDS, adapter_class
 from hilident.adapters.base import AdapterBase, RunStrategy
 from hilident.errors import DataError, DeviceError, LimitTrip
 from hilident.events import Kind, RunEvent
@@ -42,14 +43,14 @@ class _Transport(AdapterBase):
             raise OSError("gone")
 
     # filter slot: stores a biquad with its own rounding
-    def write_filter(self, slot, biquad, spec=None, *, enabled):
+    def _write_filter(self, slot, biquad, spec, enabled):
         self.calls.append(("write", enabled))
         self.slot = (Biquad(tuple(b + self.rounding for b in biquad.b), biquad.a), enabled)
 
-    def read_filter(self, slot):
+    def _read_filter(self, slot):
         return self.slot
 
-    def stored_form(self, biquad, spec=None):
+    def _stored_form(self, biquad, spec):
         return biquad
 
     def _read_raw_slot(self, slot):
@@ -230,3 +231,31 @@ def test_canopen_acquisitions_are_one_table():
     from hilident.adapters.canopen.streamed import StreamedRun
 
     assert ACQUISITIONS["streamed"] == StreamedRun.play and ACQUISITIONS["buffered"] == BufferedRun.play
+
+
+# --- the template is never overridden ---------------------------------------------------------------
+
+
+def _public_methods(cls: type) -> set[str]:
+    """The public callables a class defines itself (methods, class and static methods, properties aside)."""
+    return {
+        name
+        for name, value in vars(cls).items()
+        if not name.startswith("_") and (callable(value) or isinstance(value, (classmethod, staticmethod)))
+    }
+
+
+@pytest.mark.parametrize("transport", sorted(BACKENDS))
+def test_no_adapter_overrides_a_public_method_of_the_template(transport):
+    # the public run, upload and stop logic lives once, in AdapterBase; a transport supplies protected hooks
+    cls = adapter_class(transport)
+    template = _public_methods(AdapterBase)
+    assert template >= {"close", "safe_stop", "stream", "upload_filter", "save_filter", "restore_filter"}
+    below = cls.__mro__[: cls.__mro__.index(AdapterBase)]
+    overridden = {f"{klass.__name__}.{name}" for klass in below for name in template & set(vars(klass))}
+    assert overridden == set(), f"{cls.__name__} overrides the template's public methods: {sorted(overridden)}"
+
+
+def test_a_transport_made_of_hooks_only_overrides_nothing_public():
+    below = _Transport.__mro__[: _Transport.__mro__.index(AdapterBase)]
+    assert all(not (_public_methods(AdapterBase) & set(vars(klass))) for klass in below)

@@ -47,7 +47,8 @@ def test_unknown_transport_is_a_config_error_naming_the_known_ones(no_entry_poin
     assert "'profibus'" in str(info.value) and "canopen" in str(info.value)
 
 
-def test_session_import_path_still_resolves():
-    from hilident.adapters.base import adapter_class as via_base
+def test_adapter_class_is_found_in_backends_only():
+    from hilident.adapters import base
 
-    assert via_base is adapter_class
+    assert not hasattr(base, "adapter_class")  # no re-export: its users import it from hilident.adapters.backends
+    assert adapter_class.__module__ == "hilident.adapters.backends"

@@ -11,7 +11,7 @@ import can
 import numpy as np
 import pytest
 
-from hilident.adapters.base import adapter_class
+from hilident.adapters.backends import adapter_class
 from hilident.adapters.canopen.drive import CanopenDriveAdapter
 from hilident.adapters.canopen.link import bus_arguments, parse_socketcand_port
 from hilident.config.tables import CanopenDeviceConfig, DeviceConfig, load_config
@@ -298,16 +298,29 @@ def test_identity_mismatch_and_silent_node(rig, tmp_path):
     assert "node 9" in str(err.value)
 
 
-def test_the_parts_state_class_declares_for_the_type_checker_only():
-    # A method defined on CanopenState at run time would come before AdapterBase's in the adapter's MRO and
-    # silently replace it (log_event, note_fault): the class holds annotations and TYPE_CHECKING stubs only.
+def test_the_adapter_owns_its_parts_and_inherits_from_the_template_only(rig):
+    # the parts are members, never bases: no part's method can come before AdapterBase's in the adapter's MRO
     from hilident.adapters.base import AdapterBase
-    from hilident.adapters.canopen.common import CanopenState
+    from hilident.adapters.canopen.common import RunLayout
+    from hilident.adapters.canopen.mapping import ChannelMapping
+    from hilident.adapters.canopen.net import NetWatch
+    from hilident.adapters.canopen.sdo import SdoAccess
+    from hilident.adapters.canopen.slots import CanopenFilterSlots
 
-    assert {name for name in vars(CanopenState) if not name.startswith("__")} == set()
-    assert "node" in CanopenState.__annotations__ and "desc" in CanopenState.__annotations__
-    assert CanopenDriveAdapter.log_event is AdapterBase.log_event
-    assert CanopenDriveAdapter.note_fault is AdapterBase.note_fault
+    assert CanopenDriveAdapter.__mro__ == (CanopenDriveAdapter, AdapterBase, object)
+    ad = rig("streamed").adapter
+    assert isinstance(ad.sdo, SdoAccess) and isinstance(ad.net, NetWatch)
+    assert isinstance(ad.mapping, ChannelMapping) and isinstance(ad.slots, CanopenFilterSlots)
+    assert ad.net.sdo is ad.sdo and ad.mapping.sdo is ad.sdo and ad.slots.sdo is ad.sdo
+    assert ad.layout == RunLayout()  # nothing configured yet
+    ad.configure(FS, "torque")
+    layout = ad.layout
+    assert layout.acquisition == "streamed" and layout.mode == "torque" and layout.sample_rate_hz == FS
+    assert [c.name for c in layout.channels] == ad.channel_names
+    assert layout.rpdo is not None and layout.rpdo.setpoint_role == ad.desc.modes["torque"].setpoint
+    assert sorted(j for t in layout.tpdos for j in t.columns) == [
+        j for j, c in enumerate(layout.channels) if not c.on_host
+    ]
 
 
 def test_bus_arguments_from_the_device_table():

@@ -23,7 +23,8 @@ from hilident.emulator.modbus.server import start
 from hilident.errors import ConfigError, DeviceError, LimitTrip
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec, design_notch
-from hilident.protocol.modbus_registers import RegisterMap, rtu_crc
+from hilident.protocol.modbus.register_map import RegisterMap
+from hilident.protocol.modbus.rtu import rtu_crc
 
 DRIVER = find_driver("modbus-servo")
 MAP = RegisterMap.from_driver(DRIVER)
@@ -155,7 +156,9 @@ def test_filters_are_read_back_from_the_drive_registers():
         assert ad.read_filter(2) == (stored, True) and emu.drive.filters.read(2) == (stored, True)
         # what another master writes is what read_filter sees: nothing is cached on the host
         other = ModbusDriveAdapter.open_device(DeviceConfig(port=emu.port, timeout_s=0.5), DRIVER)
-        other.write(MAP.filters.address(2), MAP.encode_filter({"center": 500, "width": 100, "depth": 200}, True))
+        other.registers.write(
+            MAP.filters.address(2), MAP.encode_filter({"center": 500, "width": 100, "depth": 200}, True)
+        )
         other.client.close()
         got, _ = ad.read_filter(2)
         assert got == MAP.filter_encoding.applied({"center": 500, "width": 100, "depth": 200}, 4000.0)
@@ -324,7 +327,7 @@ def test_a_drive_with_the_low_word_first(tmp_path):
         twin, want = truth(cfg, x, 4)
         assert np.max(np.abs(rows[:, 1] - want[:, twin.CHANNELS.index("position_m")])) <= 0.5e-7 + 1e-15
         length = MAP.register("table_length").address
-        assert ad.read(length, 2) == [n % 65536, n // 65536]  # low word at the lower address, on the wire
+        assert ad.registers.read(length, 2) == [n % 65536, n // 65536]  # low word at the lower address, on the wire
 
 
 # --- connect, stop, and what is left behind ---------------------------------------------------
@@ -343,8 +346,8 @@ def wait_until(condition, within_s: float) -> float:
 def start_run_and_vanish(ad, n: int = 3000) -> None:
     """Enable the drive through the adapter, then die hard: drop the connection without a word."""
     ad.configure(1000.0, "torque")
-    ad.load_table(np.zeros(n))
-    ad._trigger()
+    ad.capture.load_table(np.zeros(n))
+    ad.capture.trigger()
     ad.client.socket.close()  # no stop, no goodbye: as SIGKILL or a pulled cable leaves it
 
 
@@ -414,7 +417,7 @@ def test_answers_left_on_an_rtu_line_by_a_dead_host_are_dropped_and_counted():
         ad = ModbusDriveAdapter.open_device(host(emu), DRIVER)
         try:
             assert ad.connect_report.discarded_frames == 1
-            assert ad.identity.name == DRIVER.name and ad.bad_responses == 0
+            assert ad.identity.name == DRIVER.name and ad.registers.bad_responses == 0
         finally:
             ad.close()
     finally:
@@ -478,14 +481,14 @@ def test_events_are_live_and_start_empty_with_each_stream():
 def test_the_first_cause_wins_a_limit_trip_then_a_failed_read():
     with drive() as (emu, ad, _):
         ad.configure(1000.0, "torque")
-        read = ad.read
+        read = ad.registers.read
 
         def broken_after_the_trip(*args, **kwargs):
             if any(e["kind"] == "limit_trip" for e in ad.events):
                 raise DeviceError(f"{ad.port}: reading capture: no answer")
             return read(*args, **kwargs)
 
-        ad.read = broken_after_the_trip
+        ad.registers.read = broken_after_the_trip
         with pytest.raises(LimitTrip, match="torque_limit.*then: .*no answer"):
             ad.stream(np.linspace(0.0, 8.0, 1500), Recorder())
         assert not emu.drive.enabled

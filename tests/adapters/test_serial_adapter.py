@@ -12,7 +12,7 @@ import pytest
 from cobs import cobs
 from scipy.signal import iirnotch
 
-from hilident.adapters.serial.board import SerialBoardAdapter
+from hilident.adapters.serial.board import SerialBoardAdapter, board_stored_form
 from hilident.config.tables import parse_config
 from hilident.drivers.description import find_driver
 from hilident.emulator.serial.server import start_serial_board
@@ -230,7 +230,7 @@ def test_filter_upload_reads_back_the_real32_coefficients():
         adapter.write_filter(2, notch, enabled=True)
         back, enabled = adapter.read_filter(2)
         assert enabled
-        assert back == SerialBoardAdapter.stored_form(notch)
+        assert back == board_stored_form(notch)
         assert back.b == tuple(f32(b)) and back.a == tuple(f32(a))
         assert device.drive.filters.read(2) == (back, True)
         with pytest.raises(DeviceError, match="BAD_ARGUMENT"):

@@ -3,37 +3,37 @@
 Layout
 ------
 ``base``
-    :class:`~hilident.adapters.base.AdapterBase`, the template: the public run,
-    upload and stop logic lives once; a transport supplies small protected hooks.
+    :class:`~hilident.adapters.base.AdapterBase`, the template in the style of
+    python-can's ``BusABC``: the public run, upload and stop logic lives once
+    and no adapter overrides it; a transport supplies small protected hooks
+    (``_play``, ``_command_safe``, ``_release``, ``_read_filter``, ...).
 ``backends``
     Which adapter serves which transport: the built-in table
     :data:`~hilident.adapters.backends.BACKENDS`, then the ``hilident.adapters``
     entry points of third-party packages (as python-can's ``BACKENDS`` and its
-    ``can.interface`` entry points).
-``events``
-    The run events every transport reports.
-``serial_board``
-    The myRIO-style board on a serial line (COBS frames, PROTOCOL.md).
-``canopen_drive``
-    A CiA 402 drive on CANopen, composed of parts along its seams:
-    ``canopen_sdo`` (object access), ``canopen_net`` (NMT, heartbeats,
-    emergencies, the device-side net), ``canopen_mapping`` (mode, period, PDO
-    and capture mapping), ``canopen_slots`` (filter slots); ``canopen_common``
-    holds what the parts share. Its acquisition strategies are
-    ``canopen_streamed``, ``canopen_buffered`` and ``canopen_recorder``;
-    ``canopen_link`` opens the bus and ``canopen_trace`` writes CAN traces.
-``modbus_drive``
-    A Modbus drive (TCP or RTU), composed of ``modbus_requests`` (register
-    requests, retries, exceptions, status), ``modbus_slots`` (filter slots) and
-    ``modbus_capture`` (excitation table and capture); ``modbus_common`` holds
-    what the parts share, among it ``ModbusAdapterState``, the adapter's
-    attributes declared for the parts (the ``modbus_drive`` docstring says how
-    the parts are typed).
+    ``can.interface`` entry points); :func:`~hilident.adapters.backends.adapter_class`
+    resolves a transport name.
+``ports``
+    The ports and CAN interfaces a machine offers, and the words for a port
+    that cannot be opened.
+``serial``
+    The myRIO-style board on a serial line (COBS frames, PROTOCOL.md):
+    ``serial.board``.
+``canopen``
+    A CiA 402 drive on CANopen: the adapter (``canopen.drive``) and the parts
+    it owns (see :mod:`hilident.adapters.canopen`), its acquisition strategies
+    (``streamed``, ``buffered``, ``recorder``), the bus (``link``) and CAN
+    traces (``trace``).
+``modbus``
+    A Modbus drive (TCP or RTU): the adapter (``modbus.drive``) and the parts
+    it owns (see :mod:`hilident.adapters.modbus`).
 
-A part is a class whose methods use only the adapter's attributes and the
-other parts' methods; the adapter class lists the parts before
-:class:`~hilident.adapters.base.AdapterBase`, so a part's method is the
-adapter's method. Adapters never import :mod:`hilident.emulator`.
+A transport's parts are objects its adapter owns (``adapter.sdo``,
+``adapter.registers``, ``adapter.slots``, ...), each given what it needs when
+it is made; a call site names the part the code lives in. Parts never see the
+adapter; the adapter implements the template's hooks by handing the work to
+them. The run events every transport reports are :mod:`hilident.events`.
+Adapters never import :mod:`hilident.emulator`.
 """
 
 from hilident.adapters.backends import BACKENDS, adapter_class, known_transports

@@ -17,7 +17,6 @@ from typing import TYPE_CHECKING, Any, Generic, Protocol, Self, TypeVar
 import numpy as np
 import numpy.typing as npt
 
-from hilident.adapters.backends import adapter_class  # noqa: F401  (re-exported: the session's import)
 from hilident.errors import ConfigError, DataError, DeviceError, LimitTrip
 from hilident.events import Kind, RunEvent, StreamStats  # noqa: F401  (StreamStats re-exported)
 from hilident.filters.biquad import Biquad
@@ -261,12 +260,12 @@ def checked_excitation(excitation: npt.ArrayLike) -> np.ndarray:
 class AdapterBase:
     """The public run, upload and stop logic of every adapter, once; transports supply protected hooks.
 
-    In the style of python-can's ``BusABC``: :meth:`stream`, :meth:`upload_filter`,
-    :meth:`save_filter`, :meth:`restore_filter`, :meth:`disable_filter` and
-    :meth:`safe_stop` hold what every transport must do the same way (the
+    In the style of python-can's ``BusABC``: the public methods (:meth:`stream`,
+    :meth:`upload_filter`, the other filter-slot methods, :meth:`safe_stop`,
+    :meth:`close`, ...) hold what every transport must do the same way (the
     excitation checked, the events emptied, ``last_result`` set also when the
     run raises, the first cause winning, the axis commanded safe on every
-    ending); a transport's adapter supplies
+    ending) and are never overridden; a transport's adapter supplies
 
     ``_play(x, deliver, result)`` (required)
         play ``x``, pass ``(sample_index, rows)`` blocks to ``deliver``, fill
@@ -286,10 +285,20 @@ class AdapterBase:
         the one command that makes the axis safe (for :meth:`safe_stop`), the
         stop before closing (default: the same) and releasing the connection
         (for :meth:`close`);
+    ``_write_filter(slot, biquad, spec, enabled)``, ``_read_filter(slot)``, ``_stored_form(biquad, spec)`` (required)
+        a notch stored in the device's encoding, read back, and as the device
+        rounds it (for :meth:`write_filter`, :meth:`read_filter`,
+        :meth:`stored_form`, which :meth:`upload_filter` builds on);
     ``_read_raw_slot(slot)``, ``_write_raw_slot(slot, saved)``
         a filter slot's contents, opaque (for :meth:`save_filter` / :meth:`restore_filter`);
-    ``write_filter(slot, biquad, spec, enabled=...)``, ``read_filter(slot)``, ``stored_form(biquad, spec)``
-        the filter-slot operations of :class:`DeviceAdapter` that :meth:`upload_filter` builds on.
+    ``_bypass_slot(slot)``, ``_read_back_bypassed(slot, biquad, spec, expected)``
+        bypassing a slot with its contents kept (for :meth:`disable_filter`),
+        and checking a notch written bypassed (for :meth:`upload_filter`);
+        both default to the generic way over the three required filter hooks;
+    ``_run_refusal(driver)``, ``_set_trace(path)``, ``_set_excitation_recipe(recipe)``
+        why a described device cannot play runs, a wire trace of the next run,
+        the next run's excitation as parameters (defaults: none refused,
+        nothing kept).
 
     Attributes
     ----------
@@ -424,21 +433,34 @@ class AdapterBase:
     @classmethod
     def run_refusal(cls, driver: DriverDescription) -> ConfigError | None:
         """Why ``hilident run`` cannot play experiments on a device described by ``driver`` (a ConfigError
-        naming the driver file, to raise or report), or None when it can: the default, every device with an
-        excitation path."""
+        naming the driver file, to raise or report), or None when it can."""
+        return cls._run_refusal(driver)
+
+    @classmethod
+    def _run_refusal(cls, driver: DriverDescription) -> ConfigError | None:
+        """Why a device ``driver`` describes cannot play runs (hook); default None: every device with an
+        excitation path can."""
         return None
 
     def set_trace(self, path: str | os.PathLike[str]) -> None:
         """Write a wire trace of the next run to ``path`` where the transport keeps one (CANopen: ``.asc`` or
-        ``.blf``); the default keeps none, so a session may ask every adapter."""
+        ``.blf``), so a session may ask every adapter."""
+        self._set_trace(path)
+
+    def _set_trace(self, path: str | os.PathLike[str]) -> None:
+        """Keep ``path`` for the next run's wire trace (hook; default: the transport keeps no trace)."""
 
     def set_excitation_recipe(self, recipe: dict | None) -> None:
         """The next run's excitation as parameters (``kind``, ``amplitude``, band, ...), or None.
 
         Only a device whose own generator plays the excitation needs it (a
         CANopen drive's recorder runs); every other run plays the samples it
-        is given, so the default keeps nothing.
+        is given.
         """
+        self._set_excitation_recipe(recipe)
+
+    def _set_excitation_recipe(self, recipe: dict | None) -> None:
+        """Keep the next run's excitation recipe (hook; default: nothing kept, the run plays its samples)."""
 
     def _prepare_run(self, x: np.ndarray) -> None:
         """Refuse a run of ``x`` before anything is cleared or moved (hook; default: nothing to check)."""
@@ -574,9 +596,8 @@ class AdapterBase:
         """
         previous = self.save_filter(slot)
         self.write_filter(slot, biquad, spec, enabled=False)
-        stored, _ = self.read_filter(slot)
         expected = self.stored_form(biquad, spec)
-        same = stored == expected
+        stored, same = self._read_back_bypassed(slot, biquad, spec, expected)
         if same:
             self.write_filter(slot, biquad, spec, enabled=True)
             stored, enabled = self.read_filter(slot)
@@ -594,22 +615,47 @@ class AdapterBase:
         self._write_raw_slot(slot, saved)
 
     def disable_filter(self, slot: int) -> None:
-        """Bypass ``slot``: it is rewritten disabled, its contents kept (:meth:`restore_filter` brings it back)."""
+        """Bypass ``slot``, its contents kept (:meth:`restore_filter` brings it back)."""
+        self._bypass_slot(slot)
+
+    def write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None = None, *, enabled: bool) -> None:
+        """Store a notch in ``slot`` in the device's own encoding, enabled or bypassed."""
+        self._write_filter(slot, biquad, spec, enabled)
+
+    def read_filter(self, slot: int) -> tuple[Biquad, bool]:
+        """The biquad ``slot`` now applies, and whether it is enabled."""
+        return self._read_filter(slot)
+
+    def stored_form(self, biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
+        """The biquad the device applies after its own rounding of ``biquad``/``spec``."""
+        return self._stored_form(biquad, spec)
+
+    def _write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None, enabled: bool) -> None:
+        """Store a notch in ``slot`` in the device's own encoding, enabled or bypassed (hook, required)."""
+        raise NotImplementedError
+
+    def _read_filter(self, slot: int) -> tuple[Biquad, bool]:
+        """The biquad ``slot`` now applies, and whether it is enabled (hook, required)."""
+        raise NotImplementedError
+
+    def _stored_form(self, biquad: Biquad, spec: NotchSpec | None) -> Biquad:
+        """The biquad the device applies after its own rounding of ``biquad``/``spec`` (hook, required)."""
+        raise NotImplementedError
+
+    def _bypass_slot(self, slot: int) -> None:
+        """Bypass ``slot``, its contents kept (hook; default: read back, rewritten disabled when enabled)."""
         biquad, enabled = self.read_filter(slot)
         if enabled:
             self.write_filter(slot, biquad, enabled=False)
 
-    def write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None = None, *, enabled: bool) -> None:
-        """Store a notch in ``slot`` in the device's own encoding, enabled or bypassed (hook, required)."""
-        raise NotImplementedError
-
-    def read_filter(self, slot: int) -> tuple[Biquad, bool]:
-        """The biquad ``slot`` now applies, and whether it is enabled (hook, required)."""
-        raise NotImplementedError
-
-    def stored_form(self, biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
-        """The biquad the device applies after its own rounding of ``biquad``/``spec`` (hook, required)."""
-        raise NotImplementedError
+    def _read_back_bypassed(
+        self, slot: int, biquad: Biquad, spec: NotchSpec | None, expected: Biquad
+    ) -> tuple[Biquad, bool]:
+        """What ``slot`` holds after ``biquad``/``spec`` was written to it bypassed, and whether that is the
+        notch as written (hook; default: the slot's biquad read back and compared with ``expected``, the
+        :meth:`stored_form`)."""
+        stored, _ = self.read_filter(slot)
+        return stored, stored == expected
 
     def _read_raw_slot(self, slot: int) -> Any:
         """A filter slot's contents as the device holds them (hook)."""

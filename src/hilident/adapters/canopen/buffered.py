@@ -45,24 +45,24 @@ class BufferedRun(RunStrategy):
         super().__init__(adapter, x, deliver, result)
         self.captured = 0
         self.state = TableState.PLAYING
-        self.dtype = record_dtype([c.datatype for c in adapter.channels])  # one capture record
+        self.dtype = record_dtype([c.datatype for c in adapter.layout.channels])  # one capture record
 
     def where(self, role: str) -> str:
         """The object of ``role``, for messages."""
-        return self.ad.describe(self.ad.desc.address(role))
+        return self.ad.sdo.describe(self.ad.desc.address(role))
 
     def load(self) -> None:
         """Download the excitation into the table and check the length the drive holds."""
         ad, n = self.ad, self.n
-        capacity = int(ad.read("table_capacity"))
+        capacity = int(ad.sdo.read("table_capacity"))
         if n > capacity:
             raise DeviceError(
                 f"{ad.port}: the excitation has {n} samples; the drive's table holds {capacity} "
                 f'({self.where("table_capacity")}); use device.acquisition = "streamed" '
                 "or a shorter run"
             )
-        ad.write_domain(ad.desc.address("table"), np.asarray(self.x, dtype="<f4").tobytes())
-        length = int(ad.read("table_length"))
+        ad.sdo.write_domain(ad.desc.address("table"), np.asarray(self.x, dtype="<f4").tobytes())
+        length = int(ad.sdo.read("table_length"))
         if length != n:
             raise DeviceError(
                 f"{ad.port}: wrote {n} table samples, the drive holds {length} ({self.where('table_length')})"
@@ -72,8 +72,8 @@ class BufferedRun(RunStrategy):
         """Upload and deliver the records from :attr:`captured` up to ``count``."""
         ad, size = self.ad, self.dtype.itemsize
         while self.captured < count:
-            ad.write("capture_offset", self.captured)
-            data = ad.read_domain(ad.desc.address("capture_data"))
+            ad.sdo.write("capture_offset", self.captured)
+            data = ad.sdo.read_domain(ad.desc.address("capture_data"))
             m = len(data) // size
             if m == 0 or len(data) % size:
                 raise DeviceError(
@@ -81,7 +81,7 @@ class BufferedRun(RunStrategy):
                     f"{self.where('capture_data')} is not whole {size}-byte records"
                 )
             records = np.frombuffer(data, dtype=self.dtype)
-            rows = ad.decode_rows([records[f"f{i}"] for i in range(len(ad.channels))], self.captured)
+            rows = ad.decode_rows([records[f"f{i}"] for i in range(len(ad.layout.channels))], self.captured)
             self.deliver(np.arange(self.captured, self.captured + m, dtype=np.int64), rows)
             self.captured += m
             self.stats.samples += m
@@ -96,14 +96,14 @@ class BufferedRun(RunStrategy):
         ad, n = self.ad, self.n
         self.load()
         ad.enable()
-        ad.write("table_command", TABLE_START)
+        ad.sdo.write("table_command", TABLE_START)
         last_change = time.monotonic()
         stall_limit = max(2.0, 2 * ad.timeout_s)
         while True:
             self.take_emergencies()
-            ad.check_link()
-            self.state = int(ad.read("table_state"))
-            count = int(ad.read("capture_count"))
+            ad.net.check_link()
+            self.state = int(ad.sdo.read("table_state"))
+            count = int(ad.sdo.read("capture_count"))
             if count > self.captured:
                 last_change = time.monotonic()
             self.read_capture(count)
@@ -117,7 +117,7 @@ class BufferedRun(RunStrategy):
             time.sleep(_POLL_S)
         if self.state == TableState.STOPPED and ad.run_fault is None:
             deadline = time.monotonic() + _EMCY_WAIT_S
-            while not ad.emergencies and time.monotonic() < deadline:
+            while not ad.net.emergencies and time.monotonic() < deadline:
                 time.sleep(0.01)
             ad.take_emergency_fault(self.captured)
         if ad.run_fault is not None:
@@ -139,6 +139,6 @@ class BufferedRun(RunStrategy):
 
     def stop_table(self) -> None:
         try:
-            self.ad.write("table_command", TABLE_STOP)
+            self.ad.sdo.write("table_command", TABLE_STOP)
         except DeviceError:
             pass  # a drive in Fault may refuse; its power stage is off anyway

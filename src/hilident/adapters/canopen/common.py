@@ -1,38 +1,23 @@
-"""What the parts of the CANopen adapter share: CANopen constants, the identity, channel and PDO records,
-and :class:`CanopenState`, the attributes and methods the parts see of the adapter they are composed into.
+"""What the parts of the CANopen adapter share: CANopen constants and small frozen values (the identity,
+the ratings, a channel's codec, a PDO, an emergency, the layout of a configured run).
 
 Split from :mod:`hilident.adapters.canopen.drive` so that its parts
 (:mod:`~hilident.adapters.canopen.sdo`, :mod:`~hilident.adapters.canopen.net`,
 :mod:`~hilident.adapters.canopen.mapping`, :mod:`~hilident.adapters.canopen.slots`)
-import them without importing the adapter.
+and the acquisition strategies import them without importing the adapter.
 """
 
 from __future__ import annotations
 
-import collections
-from collections.abc import Iterable
 from dataclasses import dataclass
-from pathlib import Path
-from typing import TYPE_CHECKING
 
 import can
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
-import canopen
 from hilident.protocol.canopen_objects import (
-    ObjectAddress,
     type_bits,
 )
-
-if TYPE_CHECKING:
-    from hilident.adapters.base import ConnectReport, RunResult
-    from hilident.adapters.canopen.trace import TracingNetwork
-    from hilident.config.tables import DeviceConfig
-    from hilident.drivers.description import DriverDescription
-    from hilident.events import RunEvent
-    from hilident.protocol import cia402
-    from hilident.protocol.canopen_objects import CanopenDescription
-    from hilident.protocol.filter_encoding import FilterEncoding
+from hilident.protocol.canopen_types import ObjectAddress
 
 #: A value as an object's EDS data type decodes it (canopen's ``ODVariable.decode_raw``).
 ObjectValue = int | float | str | bytes | bytearray
@@ -122,90 +107,72 @@ class Emergency:
     received_s: float
 
 
-class CanopenState:
-    """The attributes and cross-part methods of :class:`~hilident.adapters.canopen.drive.CanopenDriveAdapter`, as
-    its parts see them.
+@dataclass(frozen=True)
+class DriveRatings:
+    """The ratings torque and current objects are scaled by, found at connect.
 
-    Every part (:class:`~hilident.adapters.canopen.sdo.SdoAccess`, :class:`~hilident.adapters.canopen.net.NetWatch`,
-    :class:`~hilident.adapters.canopen.mapping.ChannelMapping`, :class:`~hilident.adapters.canopen.slots.FilterSlots`)
-    derives from this class. It holds bare annotations only (no values) and, for type checking only, the
-    signatures of the methods one part calls that another part, the adapter or
-    :class:`~hilident.adapters.base.AdapterBase` defines: at run time it is empty, and the composed adapter sets
-    the attributes in its ``__init__``. See :mod:`hilident.adapters.canopen.drive` for the pattern.
+    Attributes
+    ----------
+    torque_nm : float
+        Rated torque, N·m (0x6076, else the driver's ``rated_torque_nm``); 0 when neither gives one.
+    current_a : float
+        Rated current, A (0x6075, else the driver's ``rated_current_a``); 0: none.
+    torque_problem : str
+        Why torque objects cannot be scaled, when they cannot; "" otherwise.
     """
 
-    # --- set at construction (CanopenDriveAdapter.__init__) ---------------------------------------
-    network: TracingNetwork
-    node: canopen.RemoteNode
-    driver: DriverDescription
-    desc: CanopenDescription
-    device: DeviceConfig
-    port: str
-    node_id: int  # the drive's node id ([device.canopen] node_id)
-    timeout_s: float
-    encoding: FilterEncoding | None  # None: the driver describes no filter objects
-    acquisition: str
-    connect_report: ConnectReport
+    torque_nm: float = 0.0
+    current_a: float = 0.0
+    torque_problem: str = ""
 
-    # --- found at connect -------------------------------------------------------------------------
-    identity: DriveIdentity | None  # set by open_device (the drive's identity objects)
-    rated_torque_nm: float
-    rated_current_a: float
-    torque_problem: str
-    supported_modes: tuple[str, ...] | None
-    sync_overflow: int
 
-    # --- configuration (configure(), set_limits(), set_excitation_recipe()) ------------------------
-    sample_rate_hz: float
-    divider: int
-    mode: str
-    channels: list[ChannelCodec]
-    channel_names: list[str]
-    channel_units: list[str]
-    sync_rate_hz: float | None
-    tpdo_layout: list[tuple[int, list[int]]]
-    #: (COB-ID, set-point counter type or None, set-point type, set-point role) of the streamed RPDO
-    rpdo: tuple[int, int | None, int, str] | None
-    _configured_for: str
-    excitation_recipe: dict | None
-    _limits: tuple[float, float, float, float] | None  # torque N·m, velocity m/s, position min and max m
-    device_limits: tuple[str, ...]
+@dataclass(frozen=True)
+class TpdoMap:
+    """A TPDO of a streamed run: its COB-ID and the channel columns it carries (after the sample counter)."""
 
-    # --- the run ----------------------------------------------------------------------------------
-    last_result: RunResult | None
-    events: list[dict]
-    run_fault: dict | None
-    emergencies: collections.deque[Emergency]
-    _trace_path: Path | None
+    cob_id: int
+    columns: tuple[int, ...]
 
-    # --- the link: heartbeats, guarding, the device-side net ---------------------------------------
-    _host_heartbeat: can.broadcastmanager.ThreadBasedCyclicSendTask | None
-    _guarding: bool
-    _consumer: ObjectAddress | None
-    _in_block_transfer: bool
-    answered: bool
-    _beat: tuple[int, float]
-    _beat_s: float
-    heartbeat_s: float | None
-    heartbeat_state: int | None
-    _nmt_settled_s: float
 
-    if TYPE_CHECKING:
-        # Defined by a part (canopen_sdo, canopen_net, canopen_mapping), by CanopenDriveAdapter or by AdapterBase;
-        # declared here so that another part may call them. The definitions are checked against these.
-        def read_object(self, addr: ObjectAddress) -> ObjectValue: ...
-        def write_object(self, addr: ObjectAddress, value: ObjectValue) -> None: ...
-        def read(self, role: str) -> ObjectValue: ...
-        def write(self, role: str, value: ObjectValue) -> None: ...
-        def describe(self, addr: ObjectAddress) -> str: ...
-        def data_type(self, addr: ObjectAddress) -> int: ...
-        def beat_if_due(self) -> None: ...
-        def nmt(self, state: str) -> None: ...
-        def pdo_slots(self, kind: str) -> list[PdoSlot]: ...
-        def drive_identity(self) -> DriveIdentity: ...
-        def drive_state(self) -> cia402.State: ...
-        def _follow(self, state: cia402.State, commands: Iterable[int]) -> cia402.State: ...
-        def last_error_text(self) -> str: ...
-        def safe_stop(self) -> None: ...
-        def log_event(self, event: RunEvent) -> dict: ...
-        def note_fault(self, event: dict) -> None: ...
+@dataclass(frozen=True)
+class RpdoMap:
+    """The RPDO of a streamed run: its COB-ID, the CiA 301 data types of the set-point counter (None: the
+    drive has none) and of the set-point, and the set-point's role."""
+
+    cob_id: int
+    counter_type: int | None
+    setpoint_type: int
+    setpoint_role: str
+
+
+@dataclass(frozen=True)
+class RunLayout:
+    """What ``configure()`` set the drive up for: the acquisition strategies play a run by it.
+
+    The default value stands for a drive not configured yet.
+
+    Attributes
+    ----------
+    acquisition : str
+        The acquisition the objects were mapped for (``"streamed"``, ``"buffered"``, ``"recorder"``); "": none.
+    mode : str
+        The hilident mode of the run (``"torque"``, ``"velocity"``, ...).
+    divider : int
+        Loop periods per sample.
+    sample_rate_hz : float
+        The recorded sample rate, Hz.
+    channels : tuple of ChannelCodec
+        The recorded channels, in column order.
+    tpdos : tuple of TpdoMap
+        The TPDOs a streamed run receives, in PDO number order (empty for the other acquisitions).
+    rpdo : RpdoMap or None
+        The RPDO a streamed run sends its set-points in (None for the other acquisitions).
+    """
+
+    acquisition: str = ""
+    mode: str = ""
+    divider: int = 0
+    sample_rate_hz: float = 0.0
+    channels: tuple[ChannelCodec, ...] = ()
+    tpdos: tuple[TpdoMap, ...] = ()
+    rpdo: RpdoMap | None = None

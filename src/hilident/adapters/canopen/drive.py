@@ -43,30 +43,27 @@ SDO aborts become :class:`~hilident.errors.DeviceError` naming the object
 is not used: the state machine and the PDO set-up live here and in
 :mod:`hilident.protocol`.
 
-The adapter class is composed of parts along its seams (see :mod:`hilident.adapters`):
-object access (:mod:`~hilident.adapters.canopen.sdo`), NMT, heartbeats and
-emergencies (:mod:`~hilident.adapters.canopen.net`), configuration and PDO mapping
-(:mod:`~hilident.adapters.canopen.mapping`) and filter slots
-(:mod:`~hilident.adapters.canopen.slots`); this module keeps opening, closing,
-identity, the CiA 402 state machine and the run hooks.
-
-How the parts are typed: every part derives from
-:class:`~hilident.adapters.canopen.common.CanopenState`, which declares the
-attributes this class sets in ``__init__`` (bare annotations: nothing changes
-at run time) and, under ``TYPE_CHECKING`` only, the signatures of the methods
-one part calls that another part, this class or
-:class:`~hilident.adapters.base.AdapterBase` defines. The type checker holds
-each definition to its declaration; a part uses nothing CanopenState does not
-declare, and a new cross-part call or shared attribute is declared there first.
-The acquisition strategies are separate objects: they see the adapter through
-the protocol :class:`~hilident.adapters.canopen.streamed.DriveHost`, and
-:data:`ACQUISITIONS` is typed with it, so the checker verifies that this class
-provides everything a strategy uses.
+The adapter owns its parts and hands each its share of the work, so a call
+site says where the code lives: ``sdo`` (:class:`~hilident.adapters.canopen.sdo.SdoAccess`,
+every object read and write), ``net`` (:class:`~hilident.adapters.canopen.net.NetWatch`:
+NMT, the host's heartbeat and the drive's consumer watching it, the drive's
+heartbeat, emergencies), ``mapping`` (:class:`~hilident.adapters.canopen.mapping.ChannelMapping`:
+limits, sample period, channel codecs and the PDO or capture mapping, which
+returns the run's :class:`~hilident.adapters.canopen.common.RunLayout`, kept
+as ``layout``) and ``slots`` (:class:`~hilident.adapters.canopen.slots.CanopenFilterSlots`).
+Each part gets what it needs in its constructor; none of them sees the
+adapter. This module keeps opening and the known state at connect, identity
+and ratings, the CiA 402 state machine, the hooks of
+:class:`~hilident.adapters.base.AdapterBase` (it overrides none of its public
+methods) and the set-point and channel codecs. The acquisition strategies are
+separate objects: they see the adapter through the protocol
+:class:`~hilident.adapters.canopen.streamed.DriveHost`, and :data:`ACQUISITIONS`
+is typed with it, so the checker verifies that this class provides everything
+a strategy uses.
 """
 
 from __future__ import annotations
 
-import collections
 import contextlib
 import os
 import time
@@ -83,34 +80,26 @@ from hilident.adapters.base import (
     RunResult,
 )
 from hilident.adapters.canopen.buffered import BufferedRun
-from hilident.adapters.canopen.common import (  # noqa: F401  (re-exported)
-    _ABORT_GENERAL,
-    _GUARD_TIME,
-    _LIFE_TIME_FACTOR,
-    _NMT_OPERATIONAL,
+from hilident.adapters.canopen.common import (
     _STATE_POLL_S,
-    _TPDO_BASES,
-    _TRANSFER_ERRORS,
-    LIMIT_TRIP_CODES,
-    STORE_SIGNATURE,
-    ChannelCodec,
     DriveIdentity,
-    Emergency,
-    PdoSlot,
-    _transfer_error,
+    DriveRatings,
+    RunLayout,
 )
 from hilident.adapters.canopen.link import open_network
 from hilident.adapters.canopen.mapping import ChannelMapping
-from hilident.adapters.canopen.net import NetWatch
+from hilident.adapters.canopen.net import HostHeartbeat, NetWatch
 from hilident.adapters.canopen.recorder import RecorderRun
 from hilident.adapters.canopen.sdo import SdoAccess
-from hilident.adapters.canopen.slots import FilterSlots
+from hilident.adapters.canopen.slots import CanopenFilterSlots
 from hilident.adapters.canopen.streamed import Deliver, DriveHost, StreamedRun
 from hilident.adapters.canopen.trace import TracingNetwork
 from hilident.config.tables import DeviceConfig
 from hilident.drivers.description import DriverDescription, load_object_dictionary
 from hilident.errors import ConfigError, DataError, DeviceError
 from hilident.events import Kind, RunEvent
+from hilident.filters.biquad import Biquad
+from hilident.filters.notch import NotchSpec
 from hilident.protocol import cia402
 from hilident.protocol.canopen_objects import (
     CanopenDescription,
@@ -120,9 +109,11 @@ from hilident.protocol.canopen_objects import (
 from hilident.protocol.canopen_profile import (
     decode_supported_modes,
 )
+from hilident.protocol.canopen_types import ModeSpec
 from hilident.protocol.filter_encoding import FilterEncoding
+from hilident.units import units_in_mode
 
-__all__ = ["CanopenDriveAdapter", "DriveIdentity", "ChannelCodec", "LIMIT_TRIP_CODES"]
+__all__ = ["ACQUISITIONS", "CanopenDriveAdapter"]
 
 #: How a run is played, by acquisition name (``device.acquisition``): a strategy ``(adapter, x, deliver,
 #: result)`` (:class:`~hilident.adapters.base.RunStrategy`). A new acquisition strategy joins with one line.
@@ -137,7 +128,7 @@ ACQUISITIONS: dict[str, Callable[[DriveHost, np.ndarray, Deliver, RunResult], No
 _NO_ANSWER = "No SDO response received"
 
 
-class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, AdapterBase):
+class CanopenDriveAdapter(AdapterBase):
     """A CiA 402 drive on a CAN bus.
 
     Open it with :meth:`open_device`. Attributes follow
@@ -150,6 +141,18 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
     sync_rate_hz : float or None
         SYNC frames per second in streamed runs; None: the sample rate (real
         time). Only an emulated drive, whose clock follows SYNC, may run faster.
+    sdo, net, mapping, slots
+        The parts (see the module docstring).
+    layout : RunLayout
+        What :meth:`configure` set the drive up for (the default value before).
+    ratings : DriveRatings
+        Rated torque and current, read at connect.
+    supported_modes : tuple of str or None
+        What 0x6502 says the drive supports, when it has 0x6502.
+    device_limits : tuple of str
+        The limit objects the drive holds (the rest are checked by the host only).
+    answered : bool
+        The drive answered the last :meth:`safe_stop` (else :meth:`close` does not wait for it again).
     """
 
     transport = "canopen"
@@ -163,61 +166,47 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
         device: DeviceConfig,
         label: str,
     ):
+        encoding = (
+            FilterEncoding.from_table(driver.sections["filters"], str(driver.folder))
+            if desc.filters is not None
+            else None
+        )
         self.network = network
         self.node = node
         self.driver = driver
         self.desc = desc
         self.device = device
         self.port = label
-        self.node_id = device.canopen.node_id
+        self.node_id = device.canopen.node_id  # the drive's node id ([device.canopen] node_id)
         self.timeout_s = device.timeout_s
-        self.encoding = (
-            FilterEncoding.from_table(driver.sections["filters"], str(driver.folder))
-            if desc.filters is not None
-            else None
-        )
         self.acquisition = desc.default_acquisition if device.acquisition == "auto" else device.acquisition
-        self.identity = None
-        self.sample_rate_hz = 0.0
-        self.divider = 0
-        self.mode = ""
-        self.channels = []
-        self.channel_names = []
-        self.channel_units = []
-        self.sync_rate_hz = None
-        self.sync_overflow = 0
-        self.rated_torque_nm = 0.0
-        self.rated_current_a = 0.0
-        self.torque_problem = ""  # why torque objects cannot be scaled, when they cannot
-        self.supported_modes = None  # read from 0x6502 at connect
-        self.tpdo_layout = []  # (COB-ID, channel indices after the counter)
-        self.rpdo = None  # (COB-ID, counter type, set-point type, set-point role)
-        self._configured_for = ""  # the acquisition configure() mapped the objects for
-        self.excitation_recipe = None  # what a drive's own generator plays (recorder runs)
-        self.last_result = None
-        self.events = []
-        self.connect_report = ConnectReport()
-        self.run_fault = None  # the first fault event of the current run (the first cause)
-        self._host_heartbeat = None  # the periodic task producing the host's heartbeat
-        self._guarding = False  # the host guards the drive (no 0x1017): node guarding requests go out
-        self._consumer = None  # the 0x1016 entry watching the host
-        self._in_block_transfer = False  # a block transfer is under way (safe_stop must abort it first)
-        self.answered = True  # the drive answered the last safe_stop()
-        self._beat = (0, 0.0)  # (COB-ID, period s) of the host's heartbeat
-        self._beat_s = 0.0  # when the host's heartbeat last went out (monotonic s)
-        self.emergencies = collections.deque()
-        self.heartbeat_s = None
-        self.heartbeat_state = None
-        self._trace_path = None
-        self._limits = None
-        self._host_checks: list = []
-        self.device_limits = ()  # the limit objects the drive holds (the rest: host-checked only)
-        self._nmt_settled_s = 0.0  # heartbeats before this may still carry the NMT state before our last command
         node.sdo.RESPONSE_TIMEOUT = max(0.05, min(self.timeout_s, 1.0))
-        node.nmt.add_heartbeat_callback(self._on_heartbeat)
-        node.emcy.add_callback(self._on_emcy)
+        heartbeat = HostHeartbeat(network, label)
+        self.sdo = SdoAccess(node, desc, label, heartbeat.beat_if_due)
+        self.net = NetWatch(network, self.sdo, heartbeat, desc, label, device.host_timeout_s)
+        self.mapping = ChannelMapping(self.sdo, self.net, desc, driver, self.node_id, label)
+        self.slots = CanopenFilterSlots(self.sdo, desc, driver, encoding, self.drive_identity, label)
+        self.identity: DriveIdentity | None = None
+        self.ratings = DriveRatings()
+        self.supported_modes: tuple[str, ...] | None = None  # read from 0x6502 at connect
+        self.sync_overflow = 0
+        self.layout = RunLayout()
+        self.sample_rate_hz = 0.0
+        self.channel_names: list[str] = []
+        self.channel_units: list[str] = []
+        self.sync_rate_hz: float | None = None
+        self.excitation_recipe: dict | None = None  # what a drive's own generator plays (recorder runs)
+        self.last_result: RunResult | None = None
+        self.events: list[dict] = []
+        self.connect_report = ConnectReport()
+        self.run_fault: dict | None = None  # the first fault event of the current run (the first cause)
+        self.answered = True
+        self._trace_path: Path | None = None
+        self._limits: tuple[float, float, float, float] | None = None  # torque N·m, velocity m/s, position m
+        self._host_checks: list = []
+        self.device_limits: tuple[str, ...] = ()
 
-    # --- opening and closing --------------------------------------------------------------
+    # --- opening --------------------------------------------------------------------------
 
     @classmethod
     def open_device(cls, device: DeviceConfig, driver: DriverDescription, link=None) -> CanopenDriveAdapter:
@@ -261,17 +250,17 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
             network.add_node(node)
             adapter = cls(network, node, driver, desc, device, label)
             adapter.connect_report.warnings += eds_warnings
-            early = adapter._count_early_frames()
+            early = adapter.net.count_early_frames(node_id)
             try:
                 adapter._identify()
                 adapter._to_known_state()
             finally:
                 early.stop()
             adapter.connect_report.discarded_frames += early.frames
-            adapter._arm_device_net()
+            adapter.connect_report.device_net = adapter.net.arm_device_net()
         except BaseException:
             if adapter is not None:
-                adapter._stop_host_heartbeat()
+                adapter.net.stop_heartbeats()
             try:
                 network.disconnect()
             except Exception:
@@ -279,27 +268,7 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
             raise
         return adapter
 
-    def close(self) -> None:
-        """Zero torque, drive in a safe state, its heartbeat consumer off, host heartbeat off, bus released.
-
-        Never raises. The consumer entry is cleared before the host's heartbeat
-        stops, so a clean close does not look like a dead host to the drive.
-        """
-        try:
-            self.safe_stop()
-            if self.answered:
-                with contextlib.suppress(Exception):
-                    self._disarm_device_net()
-            with contextlib.suppress(Exception):
-                self.nmt("PRE-OPERATIONAL")  # no PDOs from here on
-        finally:
-            self._stop_host_heartbeat()
-            with contextlib.suppress(Exception):
-                self.network.stop_trace()
-            with contextlib.suppress(Exception):
-                self.network.disconnect()
-
-    # --- identity, heartbeat, emergencies ------------------------------------------------------
+    # --- identity, ratings, the known state at connect --------------------------------------------
 
     def _identify(self) -> None:
         """Identity, rated torque and current, supported modes; then the drive's heartbeat.
@@ -307,22 +276,23 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
         Only objects the EDS has are read; the identity is checked when the
         driver description gives one.
         """
-        d = self.desc
-        vendor = int(self.read("vendor_id")) if d.has("vendor_id") else 0
-        product = int(self.read("product_code")) if d.has("product_code") else 0
+        d, sdo = self.desc, self.sdo
+        vendor = int(sdo.read("vendor_id")) if d.has("vendor_id") else 0
+        product = int(sdo.read("product_code")) if d.has("product_code") else 0
         self._check_identity(vendor, product)
-        name = str(self.read("device_name")) if d.has("device_name") else self.driver.name
-        version = str(self.read("software_version")) if d.has("software_version") else ""
+        name = str(sdo.read("device_name")) if d.has("device_name") else self.driver.name
+        version = str(sdo.read("software_version")) if d.has("software_version") else ""
         self.identity = DriveIdentity(
             name, version, float(self.driver.loop_rate_hz), int(self.driver.filter_slots), vendor, product
         )
-        self._read_ratings()
+        self.ratings = self._read_ratings()
         if d.has("supported_modes"):
-            self.supported_modes = decode_supported_modes(int(self.read("supported_modes")))
+            self.supported_modes = decode_supported_modes(int(sdo.read("supported_modes")))
+            # the modes only: the parts keep the description they were given, whose objects stay the same
             self.desc = d = d.with_supported_modes(self.supported_modes)
         if d.has("sync_overflow"):
-            self.sync_overflow = int(self.read("sync_overflow"))
-        self._watch_drive_heartbeat()
+            self.sync_overflow = int(sdo.read("sync_overflow"))
+        self.net.watch_drive_heartbeat(self.timeout_s)
 
     def drive_identity(self) -> DriveIdentity:
         """:attr:`identity`, which :meth:`open_device` reads; DeviceError on an adapter it has not identified."""
@@ -337,61 +307,79 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
             if expected is not None and got != expected:
                 raise DeviceError(
                     f"{self.port}: the node reports {key.replace('_', ' ')} 0x{got:08X} "
-                    f"({self.describe(d.address(key))}); driver {self.driver.name!r} expects 0x{expected:08X}"
+                    f"({self.sdo.describe(d.address(key))}); driver {self.driver.name!r} expects 0x{expected:08X}"
                 )
         if d.has("loop_rate"):
-            rate = float(self.read("loop_rate"))
+            rate = float(self.sdo.read("loop_rate"))
             if abs(rate - self.driver.loop_rate_hz) > 1e-6 * self.driver.loop_rate_hz:
                 raise DeviceError(
                     f"{self.port}: the drive's loop runs at {rate:g} Hz "
-                    f"({self.describe(d.address('loop_rate'))}); driver {self.driver.name!r} says "
+                    f"({self.sdo.describe(d.address('loop_rate'))}); driver {self.driver.name!r} says "
                     f"{self.driver.loop_rate_hz:g} Hz"
                 )
 
-    def _read_ratings(self) -> None:
+    def _read_ratings(self) -> DriveRatings:
         """Rated torque (N·m; 0 with the reason kept when it cannot be scaled) and rated current (A)."""
-        d = self.desc
+        d, sdo = self.desc, self.sdo
+        problem = ""
         try:
-            self.rated_torque_nm = d.rated_torque(float(self.read("rated_torque")) if d.has("rated_torque") else None)
+            torque_nm = d.rated_torque(float(sdo.read("rated_torque")) if d.has("rated_torque") else None)
         except DataError as exc:
-            self.rated_torque_nm = 0.0  # an experiment that needs torque objects says so
-            self.torque_problem = str(exc)
-        self.rated_current_a = d.rated_current(float(self.read("rated_current")) if d.has("rated_current") else None)
+            torque_nm = 0.0  # an experiment that needs torque objects says so
+            problem = str(exc)
+        current_a = d.rated_current(float(sdo.read("rated_current")) if d.has("rated_current") else None)
+        return DriveRatings(torque_nm, current_a, problem)
 
-    def _watch_drive_heartbeat(self) -> None:
-        """Ask for the drive's heartbeat (0x1017) or start node guarding, then wait for the first beat."""
-        d = self.desc
-        od = self.node.object_dictionary
-        if d.has("heartbeat_time"):
-            self.write("heartbeat_time", d.heartbeat_ms)
-            how = f"setting {self.describe(d.address('heartbeat_time'))} to {d.heartbeat_ms} ms"
-        elif _GUARD_TIME in od and _LIFE_TIME_FACTOR in od:
-            self._start_node_guarding()
-            how = f"starting node guarding every {d.heartbeat_ms} ms (the EDS has no 0x1017)"
-        else:
-            raise DeviceError(
-                f"{self.port}: the EDS {d.eds} has neither a producer heartbeat time (0x1017) nor "
-                "node guarding (0x100C, 0x100D): hilident watches the drive by one of them"
+    def _to_known_state(self) -> None:
+        """NMT Pre-operational, power stage off, latched faults reported (reset only when allowed).
+
+        Raises
+        ------
+        DeviceError
+            The drive is in Fault and ``device.allow_fault_reset`` is false (the
+            message names the fault and how to clear it), or it does not leave Fault.
+        """
+        self.net.nmt("PRE-OPERATIONAL")  # PDOs of an earlier session stop here
+        state = self.drive_state()
+        if state in (cia402.State.FAULT, cia402.State.FAULT_REACTION_ACTIVE):
+            self._clear_latched_fault(
+                f"{state.value}, {self.last_error_text()}",
+                self.device.allow_fault_reset,
+                lambda: self._reset_fault(state),
             )
-        deadline = time.monotonic() + max(self.timeout_s, 3 * d.heartbeat_ms / 1000.0)
-        while self.heartbeat_s is None and time.monotonic() < deadline:
-            time.sleep(0.005)
-        if self.heartbeat_s is None:
-            raise DeviceError(f"{self.port}: no heartbeat within {self.timeout_s:g} s after {how}")
+        elif cia402.path_to_safe_state(state):
+            self.safe_stop()  # left switched on by someone else: off before anything moves
+            state = self.drive_state()
+            if state is not cia402.State.SWITCH_ON_DISABLED:
+                raise DeviceError(
+                    f"{self.port}: the drive does not switch its power stage off: it stays in "
+                    f"{state.value} after Disable Voltage "
+                    f"({self.sdo.describe(self.desc.address('controlword'))})"
+                )
+        self.connect_report.discarded_frames += len(self.net.emergencies)
+        self.net.emergencies.clear()  # emergencies of an earlier session: their fault is handled above
+
+    def _reset_fault(self, state: cia402.State) -> None:
+        """Fault reset (a rising edge of controlword bit 7) to Switch On Disabled."""
+        state = self._follow(state, (int(cia402.Command.DISABLE_VOLTAGE), int(cia402.Command.FAULT_RESET)))
+        if state is not cia402.State.SWITCH_ON_DISABLED:
+            raise DeviceError(
+                f"{self.port}: the fault did not clear: the drive is in {state.value} ({self.last_error_text()})"
+            )
 
     # --- CiA 402 state machine ----------------------------------------------------------------
 
     def drive_state(self) -> cia402.State:
-        sw = int(self.read("statusword"))
+        sw = int(self.sdo.read("statusword"))
         try:
             return cia402.decode_statusword(sw)
         except ValueError as exc:
-            raise DeviceError(f"{self.port}: {self.describe(self.desc.address('statusword'))}: {exc}") from None
+            raise DeviceError(f"{self.port}: {self.sdo.describe(self.desc.address('statusword'))}: {exc}") from None
 
     def _command(self, state: cia402.State, cw: int, previous: int) -> cia402.State:
         """Write ``cw`` and wait until the statusword shows the state it leads to."""
         expected, _ = cia402.transition(state, cw, previous)
-        self.write("controlword", cw)
+        self.sdo.write("controlword", cw)
         deadline = time.monotonic() + self.timeout_s
         while True:
             now_state = self.drive_state()
@@ -438,52 +426,153 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
         if not self.desc.has("error_code"):
             return "no error code object"
         try:
-            code = int(self.read("error_code"))
+            code = int(self.sdo.read("error_code"))
         except DeviceError:
             return "error code unreadable"
         return f"error code 0x{code:04X}: {cia402.emcy_meaning(code)}" if code else "no error code"
 
-    def safe_stop(self) -> None:
+    # --- stopping and closing (hooks of AdapterBase.safe_stop and close) -------------------------
+
+    def _command_safe(self) -> None:
         """Power stage off now: Disable Voltage (transitions 7, 9, 10, 12 to Switch On Disabled).
 
         One SDO write, whatever the state (a drive in Fault keeps its fault and
-        its power stage stays off). The bus and the host's heartbeat stay up.
-        Never raises; a drive that does not answer costs one SDO timeout. Safe
-        to call from a signal handler that interrupted a block transfer: that
-        transfer is aborted first, or the drive would take the request for a
-        data segment. An answer of that transfer arriving late can be taken
-        for this write's answer (SDO has no request id): the write is then
-        repeated once.
+        its power stage stays off). The bus and the host's heartbeat stay up;
+        a drive that does not answer costs one SDO timeout. Safe to call from
+        a signal handler that interrupted a block transfer: that transfer is
+        aborted first, or the drive would take the request for a data segment.
+        An answer of that transfer arriving late can be taken for this write's
+        answer (SDO has no request id): the write is then repeated once.
         """
         try:
-            if self._in_block_transfer:
-                self.node.sdo.abort(_ABORT_GENERAL)
+            self.sdo.abort_interrupted_transfer()
             self.answered = self._disable_voltage()
         except Exception:
             self.answered = False  # gone or not listening: close() does not wait for it again
+            raise
 
     def _disable_voltage(self) -> bool:
         """Write Disable Voltage; once more when the answer read was not this write's (a stale one)."""
         for attempt in (1, 2):
             try:
-                self.write("controlword", int(cia402.Command.DISABLE_VOLTAGE))
+                self.sdo.write("controlword", int(cia402.Command.DISABLE_VOLTAGE))
                 return True
             except DeviceError as exc:
                 if attempt == 2 or _NO_ANSWER in str(exc):  # silence is not retried: it costs a timeout
                     return False
         return False
 
-    # --- runs --------------------------------------------------------------------------------------
+    def _stop_for_close(self) -> None:
+        """Power stage off; the drive's heartbeat consumer off (when it answered) before the host's heartbeat
+        stops, so a clean close does not look like a dead host; NMT Pre-operational (no PDOs from here on)."""
+        self.safe_stop()
+        if self.answered:
+            with contextlib.suppress(Exception):
+                self.net.disarm_device_net()
+        with contextlib.suppress(Exception):
+            self.net.nmt("PRE-OPERATIONAL")
 
-    def set_trace(self, path: str | os.PathLike[str]) -> None:
+    def _release(self) -> None:
+        """Host heartbeat off, CAN trace closed, bus released; each step whatever the others did."""
+        self.net.stop_heartbeats()
+        with contextlib.suppress(Exception):
+            self.network.stop_trace()
+        with contextlib.suppress(Exception):
+            self.network.disconnect()
+
+    # --- configuration ---------------------------------------------------------------------------
+
+    def scale(self, role: str) -> float:
+        """SI value of one raw unit of the object of ``role``; DeviceError when it cannot be scaled."""
+        try:
+            return self.desc.scale(role, self.ratings.torque_nm, self.ratings.current_a)
+        except DataError as exc:
+            raise DeviceError(
+                f"{self.port}: {self.sdo.describe(self.desc.address(role))}: {self.ratings.torque_problem or exc}"
+            ) from None
+
+    def set_limits(self, torque_nm: float, velocity_mps: float, position_min_m: float, position_max_m: float) -> None:
+        """Load the trip limits into the drive where it has them, and read each back.
+
+        Max torque 0x6072, max motor speed 0x6080, software position limits
+        0x607D. Whatever the drive has, the host also checks every sample it
+        receives against the limits (see :meth:`stream`).
+
+        Raises
+        ------
+        ConfigError
+            A limit does not fit its object's type.
+        DeviceError
+            The drive stores another value than the one written.
+        """
+        limits = (torque_nm, velocity_mps, position_min_m, position_max_m)
+        self.device_limits = self.mapping.load_limits(limits, self.scale, self.ratings.torque_nm > 0)
+        self._limits = limits
+
+    def configure(self, sample_rate_hz: float, mode: str, channels: list[str] | None = None) -> list[str]:
+        """Mode of operation, sample period and the PDO (or capture) mapping of the channels.
+
+        The period goes to whichever of 0x1006 (us) and 0x60C2 (value and
+        exponent) the drive has. Everything is checked before the drive is
+        stopped and anything is written (a recorder run's channels aside).
+        """
+        loop_rate_hz = self.drive_identity().loop_rate_hz
+        divider, rate = self.mapping.divider_for(sample_rate_hz, loop_rate_hz)
+        spec = self._mode_spec(mode)
+        codecs = self.mapping.channel_codecs(channels, self.scale)
+        if self.acquisition == "recorder":
+            self.mapping.prepare_recorder(codecs)
+        elif self.acquisition == "buffered" and any(c.on_host for c in codecs):
+            raise DeviceError(
+                f"{self.port}: a drive-buffered run records only drive objects; channel "
+                f"{next(c.name for c in codecs if c.on_host)!r} has none"
+            )
+        for role in (spec.setpoint, spec.hold):
+            if role:
+                self.scale(role)  # a set-point that cannot be scaled stops here, before anything moves
+        self.safe_stop()
+        self.sdo.write("modes_of_operation", spec.code)
+        self.mapping.write_period(divider, loop_rate_hz)
+        planned = RunLayout(self.acquisition, mode, divider, rate, tuple(codecs))
+        self.layout = self.mapping.map_run(planned, spec)
+        self.sample_rate_hz = rate
+        self.channel_names = [c.name for c in codecs]
+        self.channel_units = units_in_mode(self.channel_names, [c.unit for c in codecs], mode)
+        return self.channel_names
+
+    def _mode_spec(self, mode: str) -> ModeSpec:
+        """The driver's mode for ``mode``; DeviceError naming the modes it has (and 0x6502's) when it has none."""
+        if mode not in self.desc.modes:
+            supported = (
+                f"; 0x6502 says it supports {', '.join(self.supported_modes) or 'no mode'}"
+                if self.supported_modes is not None
+                else ""
+            )
+            raise DeviceError(
+                f"{self.port}: driver {self.driver.name!r} has no mode for {mode!r} "
+                f"(it has {', '.join(self.desc.modes) or 'none'}{supported})"
+            )
+        return self.desc.modes[mode]
+
+    # --- runs (hooks of AdapterBase.stream) ---------------------------------------------------------
+
+    def _set_trace(self, path: str | os.PathLike[str]) -> None:
         """Write a CAN trace (``.asc`` or ``.blf``) of the next run to ``path``."""
         self._trace_path = Path(path)
 
+    def _set_excitation_recipe(self, recipe: dict | None) -> None:
+        """The excitation of the next :meth:`stream` as parameters (``kind``, ``amplitude``, band, ...).
+
+        A recorder run has the drive's generator play it (see
+        :mod:`hilident.adapters.canopen.recorder`); the other runs play the samples.
+        """
+        self.excitation_recipe = dict(recipe) if recipe is not None else None
+
     def _prepare_run(self, x: np.ndarray) -> None:
         """Configured for this acquisition; emergencies from before dropped; the CAN trace started."""
-        if not self.channels or self._configured_for != self.acquisition:
+        if not self.layout.channels or self.layout.acquisition != self.acquisition:
             raise DeviceError(f"{self.port}: configure() for {self.acquisition} acquisition before stream()")
-        self.emergencies.clear()
+        self.net.emergencies.clear()
         trace_path, self._trace_path = self._trace_path, None
         if trace_path is not None:
             try:
@@ -514,13 +603,20 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
             return DeviceError(f"{self.port}: bus failure during the run: {exc}")
         return exc
 
-    def set_excitation_recipe(self, recipe: dict | None) -> None:
-        """The excitation of the next :meth:`stream` as parameters (``kind``, ``amplitude``, band, ...).
+    def take_emergency_fault(self, sample_index: int) -> dict | None:
+        """Log the queued emergencies up to the first fault, note that as the run's fault and return it.
 
-        A recorder run has the drive's generator play it (see
-        :mod:`hilident.adapters.canopen.recorder`); the other runs play the samples.
+        ``sample_index`` is where the host is, for drives whose EMCY does not
+        name the sample. Emergencies after the fault stay queued; None when
+        no fault was queued.
         """
-        self.excitation_recipe = dict(recipe) if recipe is not None else None
+        queue = self.net.emergencies
+        while queue:
+            event = self.log_event(self.net.emergency_event(queue.popleft(), sample_index))
+            if event["kind"] != Kind.EMERGENCY_RESET.value:
+                self.note_fault(event)
+                return event
+        return None
 
     def _host_limit_columns(self) -> list[tuple[int, float, float, str]]:
         """(channel column, low, high, limit name) of the limits the host checks on every sample.
@@ -535,14 +631,46 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
         bounds = {"velocity_mps": (-velocity, velocity, "velocity_limit"), "position_m": (pmin, pmax, "position_limit")}
         if "max_torque" not in self.device_limits:
             bounds["torque_nm"] = (-torque, torque, "torque_limit")
-        return [(j, *bounds[c.name]) for j, c in enumerate(self.channels) if c.name in bounds]
+        return [(j, *bounds[c.name]) for j, c in enumerate(self.layout.channels) if c.name in bounds]
+
+    # --- filter slots (hooks of AdapterBase's filter-slot methods) ----------------------------------
+
+    def _write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None, enabled: bool) -> None:
+        self.slots.write_filter(slot, biquad, spec, enabled)
+
+    def _read_filter(self, slot: int) -> tuple[Biquad, bool]:
+        return self.slots.read_filter(slot)
+
+    def _stored_form(self, biquad: Biquad, spec: NotchSpec | None) -> Biquad:
+        return self.slots.stored_form(biquad, spec)
+
+    def _read_raw_slot(self, slot: int) -> tuple[dict, bool]:
+        return self.slots.read_raw(slot)
+
+    def _write_raw_slot(self, slot: int, saved: tuple[dict, bool]) -> None:
+        self.slots.write_raw(slot, saved)
+
+    def _bypass_slot(self, slot: int) -> None:
+        self.slots.bypass(slot)
+
+    def filter_notes(self, spec: NotchSpec) -> tuple[str, ...]:
+        """Why the drive's encoding cannot meet ``spec`` exactly (depth or width out of reach), if it cannot."""
+        return self.slots.filter_notes(spec)
+
+    def save_parameters(self) -> str:
+        """Have the drive store its parameters in non-volatile memory (0x1010, or the object ``[canopen.save]``
+        names); what was written, e.g. ``"0x1010:1 (Save all parameters) = 0x65766173"``. DeviceError when the
+        drive has no store object or refuses the command."""
+        return self.slots.save_parameters()
+
+    # --- set-point and channel codecs ------------------------------------------------------------
 
     def decode_rows(self, raw_columns: list[np.ndarray], first_index: int = 0) -> np.ndarray:
         """Raw channel columns -> SI rows (values at their integer type's limit counted, see
         :meth:`count_saturated`)."""
         raw = np.column_stack([c.astype(float) for c in raw_columns])
         self.count_saturated(raw, first_index)
-        return raw * np.array([codec.scale for codec in self.channels])
+        return raw * np.array([codec.scale for codec in self.layout.channels])
 
     def count_saturated(self, raw: np.ndarray, first_index: int) -> None:
         """Count the rows of ``raw`` (raw values, one column per channel) in which a drive-reported integer sits at
@@ -552,7 +680,7 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
         """
         hit = np.zeros(len(raw), dtype=bool)
         first = None
-        for j, c in enumerate(self.channels):
+        for j, c in enumerate(self.layout.channels):
             if c.address is None:  # the host's own column (the set-point it sent)
                 continue
             kind = numpy_type(c.datatype)
@@ -571,7 +699,7 @@ class CanopenDriveAdapter(SdoAccess, NetWatch, ChannelMapping, FilterSlots, Adap
             self.log_event(
                 RunEvent(
                     Kind.CLIPPED,
-                    f"{c.name} reached the range of {self.describe(address)} ({numpy_type(c.datatype)}): "
+                    f"{c.name} reached the range of {self.sdo.describe(address)} ({numpy_type(c.datatype)}): "
                     "the drive's value is saturated there; its scaling ([canopen.scaling]) or the excitation is "
                     "too large",
                     first_index + row,

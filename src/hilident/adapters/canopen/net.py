@@ -1,12 +1,15 @@
-"""NMT, heartbeats and emergencies for the CANopen adapter: the known state at connect and the device-side net.
+"""NMT, heartbeats and emergencies for the CANopen adapter: the device-side net and the drive watched.
 
-One part of :class:`~hilident.adapters.canopen.drive.CanopenDriveAdapter`, which composes the parts
-(see that module); a part uses only the attributes and methods
-:class:`~hilident.adapters.canopen.common.CanopenState` declares.
+Two parts :class:`~hilident.adapters.canopen.drive.CanopenDriveAdapter` owns: :class:`NetWatch` (its
+``net``): NMT commands, the drive's heartbeat consumer armed to watch the host (the device-side net), the
+drive's heartbeat or node guarding watched by the host, and emergencies queued as they arrive; and
+:class:`HostHeartbeat` (``net.heartbeat``), the host's heartbeat, which the object access
+(:class:`~hilident.adapters.canopen.sdo.SdoAccess`) also sends when it is due.
 """
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import math
 import time
@@ -15,18 +18,16 @@ import can
 from canopen.emcy import EmcyError
 
 import canopen
-from hilident.adapters.base import (
-    refuse_latched_faults,
-)
 from hilident.adapters.canopen.common import (
     _GUARD_TIME,
     _LIFE_TIME_FACTOR,
     _NMT_OPERATIONAL,
     _TPDO_BASES,
     LIMIT_TRIP_CODES,
-    CanopenState,
     Emergency,
 )
+from hilident.adapters.canopen.sdo import SdoAccess
+from hilident.adapters.canopen.trace import TracingNetwork
 from hilident.errors import DeviceError
 from hilident.events import Kind, RunEvent
 from hilident.protocol import cia402
@@ -34,119 +35,224 @@ from hilident.protocol.canopen_objects import (
     ABORT_CONNECTION_INDEX,
     ABORT_CONNECTION_OPTIONS,
     HEARTBEAT_CONSUMER_INDEX,
-    ObjectAddress,
+    CanopenDescription,
     consumer_entry,
     parse_consumer_entry,
 )
+from hilident.protocol.canopen_types import ObjectAddress
 
 
-class NetWatch(CanopenState):
-    """The NMT and heartbeat part of :class:`~hilident.adapters.canopen.drive.CanopenDriveAdapter`.
+class HostHeartbeat:
+    """The host's heartbeat: COB-ID 0x700 + host node id, state Operational, once a period.
 
-    The known state at connect (pre-operational, early frames counted, power stage off,
-    latched faults), the host heartbeat and the drive's consumer watching it, the
-    drive's heartbeat or node guarding watched by the host, and emergencies as run events.
+    python-can's cyclic sender produces it from a daemon thread: it dies with
+    the process, which is the point. On a loaded machine that thread can wait
+    for the interpreter longer than the drive's consumer time while the thread
+    talking to the drive keeps running; :meth:`beat_if_due` sends the heartbeat
+    from there, which is just as true.
+
+    Parameters
+    ----------
+    network : TracingNetwork
+        The bus the heartbeat goes out on.
+    port : str
+        Where the drive is; used in messages.
+
+    Attributes
+    ----------
+    task : can.broadcastmanager.ThreadBasedCyclicSendTask or None
+        The cyclic sender while the heartbeat is produced, else None.
     """
 
-    # --- known state at connect, device-side net -------------------------------------------------
+    def __init__(self, network: TracingNetwork, port: str):
+        self.network = network
+        self.port = port
+        self.task: can.broadcastmanager.ThreadBasedCyclicSendTask | None = None
+        self._frame = (0, 0.0)  # (COB-ID, period s)
+        self._sent_s = 0.0  # when the heartbeat last went out (monotonic s)
 
-    def _count_early_frames(self) -> _FrameCounter:
-        """Count the TPDOs and emergencies that arrive while the host has configured nothing."""
-        cobs = [base + self.node_id for base in _TPDO_BASES]
-        counter = _FrameCounter(self.network, cobs)
-        return counter
+    def start(self, host: int, period_s: float) -> None:
+        """Produce the heartbeat of node ``host`` every ``period_s`` seconds; the first frame goes out at once."""
+        bus = self.network.bus
+        if bus is None:
+            raise DeviceError(f"{self.port}: the CAN bus is not open: the host's heartbeat cannot be sent")
+        msg = can.Message(arbitration_id=0x700 + host, data=[_NMT_OPERATIONAL], is_extended_id=False)
+        self._frame = (msg.arbitration_id, period_s)
+        self._sent_s = time.monotonic()
+        self.task = can.broadcastmanager.ThreadBasedCyclicSendTask(
+            bus, self.network.send_lock, msg, period_s, on_error=lambda exc: False, modifier_callback=self._on_beat
+        )
 
-    def _to_known_state(self) -> None:
-        """NMT Pre-operational, power stage off, latched faults reported (reset only when allowed).
+    def _on_beat(self, msg: can.Message) -> None:
+        self._sent_s = time.monotonic()
+
+    def beat_if_due(self) -> None:
+        """Send the heartbeat from this thread when the cyclic sender is a period late."""
+        if self.task is None or time.monotonic() - self._sent_s < self._frame[1]:
+            return
+        self._sent_s = time.monotonic()
+        with contextlib.suppress(can.CanError, OSError):
+            self.network.send_message(self._frame[0], bytes([_NMT_OPERATIONAL]))
+
+    def stop(self) -> None:
+        """No more heartbeats (the drive's consumer, if still armed, takes the host for dead)."""
+        task, self.task = self.task, None
+        if task is not None:
+            with contextlib.suppress(Exception):
+                task.stop()
+
+
+class NetWatch:
+    """The NMT and heartbeat part of :class:`~hilident.adapters.canopen.drive.CanopenDriveAdapter` (its ``net``).
+
+    The host heartbeat and the drive's consumer watching it, the drive's heartbeat or
+    node guarding watched by the host, NMT commands, and emergencies as run events.
+
+    Parameters
+    ----------
+    network : TracingNetwork
+        The bus (frames counted at connect).
+    sdo : SdoAccess
+        The drive's objects (heartbeat, guarding, consumer and abort option objects).
+    heartbeat : HostHeartbeat
+        The host's heartbeat, started when the device-side net is armed.
+    desc : CanopenDescription
+        The drive's objects, its EDS file name and its heartbeat, host node and abort option settings.
+    port : str
+        Where the drive is; used in messages.
+    host_timeout_s : float
+        How long the drive waits for the host's heartbeat before it stops on its own
+        (``[device] host_timeout_s``), s.
+
+    Attributes
+    ----------
+    emergencies : collections.deque of Emergency
+        Emergencies as received, oldest first, until the adapter takes them.
+    heartbeat_s : float or None
+        When the drive's last heartbeat (or node guarding answer) arrived (monotonic s); None: none yet.
+    heartbeat_state : int or None
+        The NMT state that heartbeat carried.
+    guarding : bool
+        The host guards the drive (its EDS has no 0x1017): node guarding requests go out.
+    """
+
+    def __init__(
+        self,
+        network: TracingNetwork,
+        sdo: SdoAccess,
+        heartbeat: HostHeartbeat,
+        desc: CanopenDescription,
+        port: str,
+        host_timeout_s: float,
+    ):
+        self.network = network
+        self.sdo = sdo
+        self.node = sdo.node
+        self.heartbeat = heartbeat
+        self.desc = desc
+        self.port = port
+        self.host_timeout_s = host_timeout_s
+        self.emergencies: collections.deque[Emergency] = collections.deque()
+        self.heartbeat_s: float | None = None
+        self.heartbeat_state: int | None = None
+        self.guarding = False
+        self._consumer: ObjectAddress | None = None  # the 0x1016 entry watching the host
+        self._nmt_settled_s = 0.0  # heartbeats before this may still carry the NMT state before our last command
+        self.node.nmt.add_heartbeat_callback(self._on_heartbeat)
+        self.node.emcy.add_callback(self._on_emcy)
+
+    # --- the known state at connect, the device-side net ---------------------------------------------
+
+    def count_early_frames(self, node_id: int) -> _FrameCounter:
+        """Count the TPDOs of node ``node_id`` that arrive while the host has configured nothing."""
+        return _FrameCounter(self.network, [base + node_id for base in _TPDO_BASES])
+
+    def watch_drive_heartbeat(self, timeout_s: float) -> None:
+        """Ask for the drive's heartbeat (0x1017) or start node guarding, then wait for the first beat.
 
         Raises
         ------
         DeviceError
-            The drive is in Fault and ``device.allow_fault_reset`` is false (the
-            message names the fault and how to clear it), or it does not leave Fault.
+            The EDS has neither, or no beat comes within ``timeout_s`` (or three heartbeat periods).
         """
-        self.nmt("PRE-OPERATIONAL")  # PDOs of an earlier session stop here
-        state = self.drive_state()
-        if state in (cia402.State.FAULT, cia402.State.FAULT_REACTION_ACTIVE):
-            self.connect_report.faults = [f"{state.value}, {self.last_error_text()}"]
-            if not self.device.allow_fault_reset:
-                raise refuse_latched_faults(self.port, self.connect_report.faults)
-            self._reset_fault(state)
-            self.connect_report.faults_cleared = True
-        elif cia402.path_to_safe_state(state):
-            self.safe_stop()  # left switched on by someone else: off before anything moves
-            state = self.drive_state()
-            if state is not cia402.State.SWITCH_ON_DISABLED:
-                raise DeviceError(
-                    f"{self.port}: the drive does not switch its power stage off: it stays in "
-                    f"{state.value} after Disable Voltage "
-                    f"({self.describe(self.desc.address('controlword'))})"
-                )
-        self.connect_report.discarded_frames += len(self.emergencies)
-        self.emergencies.clear()  # emergencies of an earlier session: their fault is handled above
-
-    def _reset_fault(self, state: cia402.State) -> None:
-        """Fault reset (a rising edge of controlword bit 7) to Switch On Disabled."""
-        state = self._follow(state, (int(cia402.Command.DISABLE_VOLTAGE), int(cia402.Command.FAULT_RESET)))
-        if state is not cia402.State.SWITCH_ON_DISABLED:
+        d = self.desc
+        od = self.node.object_dictionary
+        if d.has("heartbeat_time"):
+            self.sdo.write("heartbeat_time", d.heartbeat_ms)
+            how = f"setting {self.sdo.describe(d.address('heartbeat_time'))} to {d.heartbeat_ms} ms"
+        elif _GUARD_TIME in od and _LIFE_TIME_FACTOR in od:
+            self._start_node_guarding()
+            how = f"starting node guarding every {d.heartbeat_ms} ms (the EDS has no 0x1017)"
+        else:
             raise DeviceError(
-                f"{self.port}: the fault did not clear: the drive is in {state.value} ({self.last_error_text()})"
+                f"{self.port}: the EDS {d.eds} has neither a producer heartbeat time (0x1017) nor "
+                "node guarding (0x100C, 0x100D): hilident watches the drive by one of them"
             )
+        deadline = time.monotonic() + max(timeout_s, 3 * d.heartbeat_ms / 1000.0)
+        while self.heartbeat_s is None and time.monotonic() < deadline:
+            time.sleep(0.005)
+        if self.heartbeat_s is None:
+            raise DeviceError(f"{self.port}: no heartbeat within {timeout_s:g} s after {how}")
 
-    def _arm_device_net(self) -> None:
-        """Produce the host's heartbeat and have the drive watch it (0x1016, 0x6007 when the EDS has them)."""
+    def arm_device_net(self) -> str:
+        """Produce the host's heartbeat and have the drive watch it (0x1016, 0x6007 when the EDS has them).
+
+        Returns
+        -------
+        str
+            The net as ``connect_report.device_net`` states it (what watches the host, and what the drive
+            does when the host goes silent), or why there is none.
+        """
         od = self.node.object_dictionary
         guarding = ""
-        if self._guarding:
-            guard = int(self.read_object(ObjectAddress(_GUARD_TIME, 0)))
-            factor = int(self.read_object(ObjectAddress(_LIFE_TIME_FACTOR, 0)))
+        if self.guarding:
+            guard = int(self.sdo.read_object(ObjectAddress(_GUARD_TIME, 0)))
+            factor = int(self.sdo.read_object(ObjectAddress(_LIFE_TIME_FACTOR, 0)))
             guarding = f"life guarding 0x100C x 0x100D: {guard} ms x {factor}; "
         if HEARTBEAT_CONSUMER_INDEX not in od and guarding:
             net = guarding.rstrip("; ")
             if ABORT_CONNECTION_INDEX in od:
                 option = self.desc.abort_connection_option
-                self.write_object(ObjectAddress(ABORT_CONNECTION_INDEX, 0), option)
+                self.sdo.write_object(ObjectAddress(ABORT_CONNECTION_INDEX, 0), option)
                 net += f"; 0x6007 = {option} ({ABORT_CONNECTION_OPTIONS[option]})"
-            self.connect_report.device_net = net
-            return
+            return net
         if HEARTBEAT_CONSUMER_INDEX not in od:
-            self.connect_report.device_net = (
+            return (
                 f"none: {self.desc.eds} has no heartbeat consumer (0x1016); the drive "
                 "does not stop on its own when the host dies"
             )
-            return
         host = self.desc.host_node_id
-        time_ms = max(1, min(0xFFFF, round(self.device.host_timeout_s * 1000)))
+        time_ms = max(1, min(0xFFFF, round(self.host_timeout_s * 1000)))
         period_s = time_ms / 3000.0
         entry = self._consumer_entry_for(host)
-        self.write_object(entry, consumer_entry(host, time_ms))
+        self.sdo.write_object(entry, consumer_entry(host, time_ms))
         self._consumer = entry
         # after the entry: the task's first frame goes out at once and starts the drive's monitoring
         # (CiA 301: a consumer watches from the first heartbeat it receives)
-        self._start_host_heartbeat(host, period_s)
+        self.heartbeat.start(host, period_s)
         net = (
             f"{guarding}heartbeat consumer {entry}: host node {host}, {time_ms} ms "
             f"(host heartbeat every {period_s * 1e3:.0f} ms)"
         )
         if ABORT_CONNECTION_INDEX in od:
             option = self.desc.abort_connection_option
-            self.write_object(ObjectAddress(ABORT_CONNECTION_INDEX, 0), option)
+            self.sdo.write_object(ObjectAddress(ABORT_CONNECTION_INDEX, 0), option)
             net += f"; 0x6007 = {option} ({ABORT_CONNECTION_OPTIONS[option]})"
         else:
             net += "; no 0x6007: the drive's own reaction to a lost heartbeat"
-        self.connect_report.device_net = net
+        return net
 
     def _consumer_entry_for(self, host: int) -> ObjectAddress:
         """The 0x1016 entry already watching ``host``, else the first unused one."""
         od = self.node.object_dictionary
-        count = int(self.read_object(ObjectAddress(HEARTBEAT_CONSUMER_INDEX, 0)))
+        count = int(self.sdo.read_object(ObjectAddress(HEARTBEAT_CONSUMER_INDEX, 0)))
         free: ObjectAddress | None = None
         others: list[str] = []
         for sub in range(1, count + 1):
             if od.get_variable(HEARTBEAT_CONSUMER_INDEX, sub) is None:
                 continue
             addr = ObjectAddress(HEARTBEAT_CONSUMER_INDEX, sub)
-            node, time_ms = parse_consumer_entry(int(self.read_object(addr)))
+            node, time_ms = parse_consumer_entry(int(self.sdo.read_object(addr)))
             if node == host:
                 return addr
             if node == 0 or time_ms == 0:
@@ -160,49 +266,20 @@ class NetWatch(CanopenState):
             )
         return free
 
-    def _start_host_heartbeat(self, host: int, period_s: float) -> None:
-        """python-can's cyclic sender in a daemon thread: it dies with the process, which is the point."""
-        bus = self.network.bus
-        if bus is None:
-            raise DeviceError(f"{self.port}: the CAN bus is not open: the host's heartbeat cannot be sent")
-        msg = can.Message(arbitration_id=0x700 + host, data=[_NMT_OPERATIONAL], is_extended_id=False)
-        self._beat = (msg.arbitration_id, period_s)
-        self._beat_s = time.monotonic()
-        self._host_heartbeat = can.broadcastmanager.ThreadBasedCyclicSendTask(
-            bus, self.network.send_lock, msg, period_s, on_error=lambda exc: False, modifier_callback=self._on_beat
-        )
-
-    def _on_beat(self, msg: can.Message) -> None:
-        self._beat_s = time.monotonic()
-
-    def beat_if_due(self) -> None:
-        """Send the host's heartbeat from this thread when the cyclic sender is a period late.
-
-        On a loaded machine the sender thread can wait for the interpreter
-        longer than the drive's consumer time while the thread talking to the
-        drive keeps running; a heartbeat from that thread is just as true.
-        """
-        if self._host_heartbeat is None or time.monotonic() - self._beat_s < self._beat[1]:
-            return
-        self._beat_s = time.monotonic()
-        with contextlib.suppress(can.CanError, OSError):
-            self.network.send_message(self._beat[0], bytes([_NMT_OPERATIONAL]))
-
-    def _stop_host_heartbeat(self) -> None:
-        task, self._host_heartbeat = self._host_heartbeat, None
-        if task is not None:
-            with contextlib.suppress(Exception):
-                task.stop()
-        if self._guarding:
+    def stop_heartbeats(self) -> None:
+        """The host's heartbeat and its node guarding requests off. Never raises."""
+        self.heartbeat.stop()
+        if self.guarding:
             with contextlib.suppress(Exception):
                 self.node.nmt.stop_node_guarding()
 
-    def _disarm_device_net(self) -> None:
+    def disarm_device_net(self) -> None:
+        """The drive's consumer entry cleared and its life guarding off, so a clean close is no dead host."""
         entry, self._consumer = self._consumer, None
         if entry is not None:
-            self.write_object(entry, 0)
-        if self._guarding:  # life time factor 0: the drive stops life guarding before the requests stop
-            self.write_object(ObjectAddress(_LIFE_TIME_FACTOR, 0), 0)
+            self.sdo.write_object(entry, 0)
+        if self.guarding:  # life time factor 0: the drive stops life guarding before the requests stop
+            self.sdo.write_object(ObjectAddress(_LIFE_TIME_FACTOR, 0), 0)
 
     # --- drive heartbeat, node guarding, emergencies ----------------------------------------------
 
@@ -211,10 +288,10 @@ class NetWatch(CanopenState):
         state every guard time (its answers are watched like heartbeats), and the drive's life guarding
         (guard time x life time factor) is its net for a host that dies."""
         guard_ms = self.desc.heartbeat_ms
-        factor = max(2, math.ceil(self.device.host_timeout_s * 1000 / guard_ms))
-        self.write_object(ObjectAddress(_GUARD_TIME, 0), guard_ms)
-        self.write_object(ObjectAddress(_LIFE_TIME_FACTOR, 0), min(255, factor))
-        self._guarding = True
+        factor = max(2, math.ceil(self.host_timeout_s * 1000 / guard_ms))
+        self.sdo.write_object(ObjectAddress(_GUARD_TIME, 0), guard_ms)
+        self.sdo.write_object(ObjectAddress(_LIFE_TIME_FACTOR, 0), min(255, factor))
+        self.guarding = True
         self.node.nmt.start_node_guarding(guard_ms / 1000.0)
 
     def _on_heartbeat(self, state: int) -> None:
@@ -257,20 +334,6 @@ class NetWatch(CanopenState):
         else:
             kind, message = Kind.EMERGENCY, f"EMCY 0x{e.code:04X} {meaning}, error register 0x{e.register:02X}"
         return RunEvent(kind, message, int(index), code=e.code, register=e.register, data=e.data.hex())
-
-    def take_emergency_fault(self, sample_index: int) -> dict | None:
-        """Log the queued emergencies up to the first fault, note that as the run's fault and return it.
-
-        ``sample_index`` is where the host is, for drives whose EMCY does not
-        name the sample. Emergencies after the fault stay queued; None when
-        no fault was queued.
-        """
-        while self.emergencies:
-            event = self.log_event(self.emergency_event(self.emergencies.popleft(), sample_index))
-            if event["kind"] != Kind.EMERGENCY_RESET.value:
-                self.note_fault(event)
-                return event
-        return None
 
     def nmt(self, state: str) -> None:
         """Send an NMT command to the drive ("OPERATIONAL", "PRE-OPERATIONAL", ...)."""

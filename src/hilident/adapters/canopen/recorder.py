@@ -32,18 +32,18 @@ from __future__ import annotations
 
 import contextlib
 import time
+from collections.abc import Sequence
 
 import numpy as np
 
 from hilident.adapters.base import RunResult, RunStrategy
-from hilident.adapters.canopen.common import CanopenState, ChannelCodec
+from hilident.adapters.canopen.common import ChannelCodec
 from hilident.adapters.canopen.streamed import Deliver, DriveHost
 from hilident.drivers.description import DriverDescription
 from hilident.errors import ConfigError, DeviceError
 from hilident.events import Kind, RunEvent
 from hilident.protocol.canopen_objects import (
     CanopenDescription,
-    ObjectAddress,
     mapping_entry,
     numpy_type,
     record_dtype,
@@ -55,8 +55,9 @@ from hilident.protocol.canopen_recorder import (
     generator_output,
     plan_generator,
 )
+from hilident.protocol.canopen_types import ObjectAddress
 
-__all__ = ["RecorderRun", "configure_recorder"]
+__all__ = ["RecorderRun", "check_recorder_channels"]
 
 _POLL_S = 0.05
 _POSITION_SETPOINTS = ("target_position", "interpolation_data")
@@ -73,10 +74,12 @@ def _capability(desc: CanopenDescription, driver: DriverDescription) -> Recorder
     return desc.recorder
 
 
-def configure_recorder(ad: CanopenState, codecs: list[ChannelCodec]) -> None:
-    """``configure()``'s part for a recorder run: the drive has a recorder, the channels fit it, no PDO runs."""
-    cap = _capability(ad.desc, ad.driver)
-    source = str(ad.driver.folder / "driver.toml")
+def check_recorder_channels(
+    desc: CanopenDescription, driver: DriverDescription, codecs: Sequence[ChannelCodec]
+) -> None:
+    """ConfigError (naming the driver file) unless the drive has a recorder that takes the channels of ``codecs``."""
+    cap = _capability(desc, driver)
+    source = str(driver.folder / "driver.toml")
     wanted: list[ChannelCodec | None] = [c for c in codecs if not c.on_host]
     output = cap.generator.output if cap.generator is not None else None
     if any(c.on_host for c in codecs) and output is not None:
@@ -88,9 +91,6 @@ def configure_recorder(ad: CanopenState, codecs: list[ChannelCodec]) -> None:
             f"{len(cap.recorder.channels)} ([canopen.recorder] channels)",
             source,
         )
-    ad.nmt("OPERATIONAL")  # for the heartbeat's NMT check; no PDOs are mapped
-    for slot in ad.pdo_slots("tpdo"):  # no stale TPDOs beside the recorder
-        ad.write_object(ObjectAddress(0x1800 + slot.number, 1), slot.cob_id | 0x80000000)
 
 
 class RecorderRun(RunStrategy):
@@ -120,7 +120,7 @@ class RecorderRun(RunStrategy):
                 self.source,
             )
         self.recipe: dict = ad.excitation_recipe
-        self.period = ad.divider
+        self.period = ad.layout.divider
         self.settings: GeneratorSettings | None = None  # what plan() chose
         self.channels: list[tuple[ObjectAddress, int, float]] = []  # (object, data type, SI per unit) recorded
         self.excitation_column: int | None = None  # index into self.channels, or None: computed
@@ -133,13 +133,13 @@ class RecorderRun(RunStrategy):
         if self.period not in self.rec.sample_periods:
             raise ConfigError(
                 "run.sample_rate_hz",
-                f"{ad.sample_rate_hz:g} Hz is a sample period of {self.period} "
+                f"{ad.layout.sample_rate_hz:g} Hz is a sample period of {self.period} "
                 f"loop cycles; the drive's recorder takes "
                 f"{list(self.rec.sample_periods)} ([canopen.recorder] "
                 "sample_periods)",
                 self.source,
             )
-        target = ad.desc.modes[ad.mode].setpoint
+        target = ad.desc.modes[ad.layout.mode].setpoint
         scales: dict[str, float] = {}
         for kind, role in (
             ("torque", "target_torque"),
@@ -147,14 +147,14 @@ class RecorderRun(RunStrategy):
             ("position", "target_position"),
         ):
             with contextlib.suppress(Exception):
-                scales[kind] = ad.desc.scale(role, ad.rated_torque_nm, ad.rated_current_a)
+                scales[kind] = ad.desc.scale(role, ad.ratings.torque_nm, ad.ratings.current_a)
         try:
             self.settings = plan_generator(
                 self.cap, self.recipe, target, n, self.period, ad.drive_identity().loop_rate_hz, scales
             )
         except KeyError as exc:  # a parameter scaled like torque on a drive whose torque cannot be scaled
             raise DeviceError(
-                f"{ad.port}: the generator's {exc.args[0]} parameters cannot be scaled: {ad.torque_problem}"
+                f"{ad.port}: the generator's {exc.args[0]} parameters cannot be scaled: {ad.ratings.torque_problem}"
             ) from None
         return self.settings
 
@@ -189,22 +189,22 @@ class RecorderRun(RunStrategy):
         self._compare(x, n, settings)
         try:
             self._set_up(n, settings, gen)
-            ad.write_object(self.rec.control, self.rec.commands["start"])  # waits for the generator's start
+            ad.sdo.write_object(self.rec.control, self.rec.commands["start"])  # waits for the generator's start
             self._hold_axis()
             ad.enable()
-            ad.write_object(gen.control, gen.commands["start"])
+            ad.sdo.write_object(gen.control, gen.commands["start"])
             recorded = min(n, self._wait(n))  # a recorder that kept going past n: the n asked for
         finally:
             self._stop()
         if ad.run_fault is not None:  # what was recorded up to the fault; the fault ends the run
             with contextlib.suppress(DeviceError):
-                self._upload(min(n, int(ad.read_object(self.rec.recorded))))
+                self._upload(min(n, int(ad.sdo.read_object(self.rec.recorded))))
             return
         self._upload(recorded)
         self.finish_capture(
             recorded,
             f"the drive's recorder holds only {recorded} of {n} samples "
-            f"({ad.describe(self.rec.recorded)}): its recording ended early",
+            f"({ad.sdo.describe(self.rec.recorded)}): its recording ended early",
             f"the drive's {settings.kind.name} generator played and its recorder took {n} samples",
         )
 
@@ -241,11 +241,11 @@ class RecorderRun(RunStrategy):
     def _set_up(self, n: int, settings: GeneratorSettings, gen: GeneratorSpec) -> None:
         """Recorder channels, period, count and trigger; the generator's kind, target and parameters (read back)."""
         ad, rec = self.ad, self.rec
-        ad.write_object(rec.control, rec.commands["stop"])
-        ad.write_object(gen.control, gen.commands["stop"])
+        ad.sdo.write_object(rec.control, rec.commands["stop"])
+        ad.sdo.write_object(gen.control, gen.commands["stop"])
         objects: list[tuple[ObjectAddress, int, float]] = []
         self.excitation_column = None
-        for c in ad.channels:
+        for c in ad.layout.channels:
             if c.address is not None:  # a drive object (else the host's own column: the excitation)
                 objects.append((c.address, c.datatype, c.scale))
             elif gen.output is not None:
@@ -259,27 +259,27 @@ class RecorderRun(RunStrategy):
                         ]
                     )
                 )
-                objects.append((gen.output, ad.data_type(gen.output), scale))
+                objects.append((gen.output, ad.sdo.data_type(gen.output), scale))
         self.channels = objects
         for i, addr in enumerate(rec.channels):
             entry = mapping_entry(objects[i][0], numpy_type(objects[i][1]).itemsize * 8) if i < len(objects) else 0
-            ad.write_object(addr, entry)
-        ad.write_object(rec.sample_period, self.period)
-        ad.write_object(rec.samples, n)
-        ad.write_object(rec.trigger, rec.triggers["generator"])
+            ad.sdo.write_object(addr, entry)
+        ad.sdo.write_object(rec.sample_period, self.period)
+        ad.sdo.write_object(rec.samples, n)
+        ad.sdo.write_object(rec.trigger, rec.triggers["generator"])
         s = settings
         if gen.kind is not None:
-            ad.write_object(gen.kind, s.kind.code)
-        ad.write_object(gen.target, gen.targets[s.target])
+            ad.sdo.write_object(gen.kind, s.kind.code)
+        ad.sdo.write_object(gen.target, gen.targets[s.target])
         for name, raw in s.raw.items():
             addr = s.kind.parameters[name].address
-            ad.write_object(addr, raw)
-            back = int(ad.read_object(addr))
+            ad.sdo.write_object(addr, raw)
+            back = int(ad.sdo.read_object(addr))
             if back != raw:
                 raise DeviceError(
-                    f"{ad.port}: wrote {raw} to {ad.describe(addr)} (generator {name}), the drive holds {back}"
+                    f"{ad.port}: wrote {raw} to {ad.sdo.describe(addr)} (generator {name}), the drive holds {back}"
                 )
-        if any(c.on_host for c in ad.channels) and self.excitation_column is None:
+        if any(c.on_host for c in ad.layout.channels) and self.excitation_column is None:
             ad.log_event(
                 RunEvent(
                     Kind.EXCITATION_COMPUTED,
@@ -294,10 +294,10 @@ class RecorderRun(RunStrategy):
     def _hold_axis(self) -> None:
         """A harmless set-point before enabling: zero torque/speed, the present position in CSP/IP."""
         ad = self.ad
-        spec = ad.desc.modes[ad.mode]
+        spec = ad.desc.modes[ad.layout.mode]
         for role in (spec.setpoint, spec.hold):
             if role:
-                ad.write(role, int(ad.read("position_actual")) if role in _POSITION_SETPOINTS else 0)
+                ad.sdo.write(role, int(ad.sdo.read("position_actual")) if role in _POSITION_SETPOINTS else 0)
 
     def _wait(self, n: int) -> int:
         """Poll the recorder until it is done; emergencies and the heartbeat watched. Returns its count."""
@@ -308,9 +308,9 @@ class RecorderRun(RunStrategy):
         while True:
             if self.ad.take_emergency_fault(recorded) is not None:
                 return recorded
-            ad.check_link()
-            state = int(ad.read_object(rec.state))
-            count = int(ad.read_object(rec.recorded))
+            ad.net.check_link()
+            state = int(ad.sdo.read_object(rec.state))
+            count = int(ad.sdo.read_object(rec.recorded))
             if count != recorded:
                 recorded, last_change = count, time.monotonic()
             if state == rec.states["done"] or state == rec.states["idle"]:
@@ -318,7 +318,7 @@ class RecorderRun(RunStrategy):
             if time.monotonic() - last_change > stall_limit:
                 raise DeviceError(
                     f"{ad.port}: the recorder stalled at {recorded} of {n} samples for "
-                    f"{stall_limit:g} s ({ad.describe(rec.recorded)})"
+                    f"{stall_limit:g} s ({ad.sdo.describe(rec.recorded)})"
                 )
             time.sleep(_POLL_S)
 
@@ -328,11 +328,11 @@ class RecorderRun(RunStrategy):
         gen = self.cap.generator
         if gen is not None:
             with contextlib.suppress(Exception):
-                ad.write_object(gen.control, gen.commands["stop"])
+                ad.sdo.write_object(gen.control, gen.commands["stop"])
         ad.safe_stop()
         with contextlib.suppress(Exception):
-            if int(ad.read_object(self.rec.state)) != self.rec.states["done"]:
-                ad.write_object(self.rec.control, self.rec.commands["stop"])
+            if int(ad.sdo.read_object(self.rec.state)) != self.rec.states["done"]:
+                ad.sdo.write_object(self.rec.control, self.rec.commands["stop"])
 
     def _upload(self, recorded: int) -> None:
         """Read the buffer(s), decode, deliver samples 0 .. recorded-1."""
@@ -345,7 +345,7 @@ class RecorderRun(RunStrategy):
             data = self._read(rec.buffers[0])
             if len(data) < recorded * dtype.itemsize:
                 raise DeviceError(
-                    f"{ad.port}: the recorder's buffer {ad.describe(rec.buffers[0])} holds "
+                    f"{ad.port}: the recorder's buffer {ad.sdo.describe(rec.buffers[0])} holds "
                     f"{len(data)} bytes; {recorded} samples of {dtype.itemsize} bytes were recorded"
                 )
             records = np.frombuffer(data[: recorded * dtype.itemsize], dtype=dtype)
@@ -357,13 +357,13 @@ class RecorderRun(RunStrategy):
                 data = self._read(rec.buffers[i])
                 if len(data) < recorded * size:
                     raise DeviceError(
-                        f"{ad.port}: the recorder's buffer {ad.describe(rec.buffers[i])} holds "
+                        f"{ad.port}: the recorder's buffer {ad.sdo.describe(rec.buffers[i])} holds "
                         f"{len(data) // size} samples; {recorded} were recorded"
                     )
                 columns.append(np.frombuffer(data[: recorded * size], dtype=numpy_type(t)))
         si = [col.astype(float) * scale for col, (_, _, scale) in zip(columns, self.channels, strict=False)]
         rows, k = [], 0
-        for c in ad.channels:
+        for c in ad.layout.channels:
             if c.on_host and self.excitation_column is None:
                 rows.append(self.expected(recorded))
             else:
@@ -374,4 +374,4 @@ class RecorderRun(RunStrategy):
 
     def _read(self, addr: ObjectAddress) -> bytes:
         """A recorder buffer, by block transfer when ``[canopen.recorder] block_transfer`` says so."""
-        return self.ad.read_domain(addr, block_transfer=self.rec.block_transfer)
+        return self.ad.sdo.read_domain(addr, block_transfer=self.rec.block_transfer)

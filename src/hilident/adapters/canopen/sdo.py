@@ -1,8 +1,7 @@
 """Object access by SDO for the CANopen adapter: read and write by role or address, block transfers, aborts named.
 
-One part of :class:`~hilident.adapters.canopen.drive.CanopenDriveAdapter`, which composes the parts
-(see that module); a part uses only the attributes and methods
-:class:`~hilident.adapters.canopen.common.CanopenState` declares.
+:class:`SdoAccess` is a part :class:`~hilident.adapters.canopen.drive.CanopenDriveAdapter` owns (its
+``sdo``); the other parts and the acquisition strategies reach the drive's objects through it.
 """
 
 from __future__ import annotations
@@ -21,26 +20,51 @@ from canopen.sdo.client import BlockDownloadStream, BlockUploadStream
 import canopen
 from hilident.adapters.canopen.common import (
     _ABORT_GENERAL,
-    CanopenState,
     ObjectValue,
     _transfer_error,
 )
 from hilident.endings import raise_pending, shielded, uninterruptible
 from hilident.errors import DataError, DeviceError
-from hilident.protocol.canopen_objects import (
-    ObjectAddress,
-)
+from hilident.protocol.canopen_objects import CanopenDescription
+from hilident.protocol.canopen_types import ObjectAddress
 
 _Stream = TypeVar("_Stream", bound=io.RawIOBase)  # the block transfer stream a body reads or writes
 _Result = TypeVar("_Result")  # what the body returns
 
 
-class SdoAccess(CanopenState):
-    """The object-access part of :class:`~hilident.adapters.canopen.drive.CanopenDriveAdapter`.
-
-    Every SDO read and write goes through here, so an abort or a lost bus becomes a
+class SdoAccess:
+    """Every SDO read and write of the CANopen adapter, so an abort or a lost bus becomes a
     :class:`~hilident.errors.DeviceError` that names the object and the abort's meaning.
+
+    Parameters
+    ----------
+    node : canopen.RemoteNode
+        The drive, with its EDS as object dictionary.
+    desc : CanopenDescription
+        The drive's objects by role (for :meth:`read` and :meth:`write`), its EDS file name (for messages)
+        and whether DOMAIN objects go by block transfer.
+    port : str
+        Where the drive is (interface, channel, node id); used in messages.
+    beat : callable
+        Called before every request: the host's heartbeat when it is due
+        (:meth:`~hilident.adapters.canopen.net.HostHeartbeat.beat_if_due`).
+
+    Attributes
+    ----------
+    block_transfer : bool
+        DOMAIN objects go by SDO block transfer unless a call says otherwise (the description's
+        ``block_transfer``).
+    in_block_transfer : bool
+        A block transfer is under way (:meth:`abort_interrupted_transfer` ends it).
     """
+
+    def __init__(self, node: canopen.RemoteNode, desc: CanopenDescription, port: str, beat: Callable[[], None]):
+        self.node = node
+        self.desc = desc
+        self.port = port
+        self.beat = beat
+        self.block_transfer = desc.block_transfer
+        self.in_block_transfer = False
 
     # --- object access ----------------------------------------------------------------------
 
@@ -80,7 +104,7 @@ class SdoAccess(CanopenState):
     def read_object(self, addr: ObjectAddress) -> ObjectValue:
         """Upload one object and decode it by its EDS data type."""
         var = self.eds_variable(addr)
-        self.beat_if_due()
+        self.beat()
         try:
             with uninterruptible():
                 raw = self.node.sdo.upload(addr.index, addr.subindex)
@@ -95,7 +119,7 @@ class SdoAccess(CanopenState):
             data = var.encode_raw(value)
         except (ValueError, TypeError, struct_error) as exc:
             raise DataError(f"{self.port}: value {value!r} does not fit {self.describe(addr)}: {exc}") from None
-        self.beat_if_due()
+        self.beat()
         try:
             with uninterruptible():
                 self.node.sdo.download(addr.index, addr.subindex, data)
@@ -109,9 +133,9 @@ class SdoAccess(CanopenState):
         self.write_object(self.desc.address(role), value)
 
     def read_domain(self, addr: ObjectAddress, block_transfer: bool | None = None) -> bytes:
-        """Upload a DOMAIN object, by block transfer when ``block_transfer`` says so (None: when the
-        description's ``block_transfer`` does)."""
-        if not (self.desc.block_transfer if block_transfer is None else block_transfer):
+        """Upload a DOMAIN object, by block transfer when ``block_transfer`` says so (None: when
+        :attr:`block_transfer` does)."""
+        if not (self.block_transfer if block_transfer is None else block_transfer):
             try:
                 with uninterruptible():
                     return bytes(self.node.sdo.upload(addr.index, addr.subindex))
@@ -130,8 +154,8 @@ class SdoAccess(CanopenState):
         return self._block_transfer(addr, "rb", upload, {})
 
     def write_domain(self, addr: ObjectAddress, data: bytes) -> None:
-        """Download a DOMAIN object (block transfer when the description says so)."""
-        if not self.desc.block_transfer:
+        """Download a DOMAIN object (block transfer when :attr:`block_transfer` says so)."""
+        if not self.block_transfer:
             try:
                 with uninterruptible():
                     self.node.sdo.download(addr.index, addr.subindex, data, force_segment=True)
@@ -174,12 +198,12 @@ class SdoAccess(CanopenState):
                 )
         except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
             raise self._sdo_error(exc, addr, action) from None
-        self._in_block_transfer = True
+        self.in_block_transfer = True
         try:
             raise_pending()
             result = body(stream)
         except BaseException as exc:
-            self._in_block_transfer = False
+            self.in_block_transfer = False
             io.RawIOBase.close(stream)  # closed without the end-of-transfer exchange
             cause = _transfer_error(exc)
             if not isinstance(cause, SdoAbortedError):  # the drive aborted: its server is idle already
@@ -188,7 +212,7 @@ class SdoAccess(CanopenState):
             if cause is not None:
                 raise self._sdo_error(cause, addr, action) from None
             raise
-        self._in_block_transfer = False
+        self.in_block_transfer = False
         try:
             with uninterruptible():
                 stream.close()
@@ -198,3 +222,13 @@ class SdoAccess(CanopenState):
                 raise
             raise self._sdo_error(cause, addr, action) from None
         return result
+
+    def abort_interrupted_transfer(self) -> None:
+        """End a block transfer that a signal handler interrupted with an SDO abort.
+
+        The drive's SDO server reads sub-block segments until the transfer ends,
+        taking every frame but an abort for data: a request sent now (the
+        Disable Voltage of a safe stop) would be swallowed.
+        """
+        if self.in_block_transfer:
+            self.node.sdo.abort(_ABORT_GENERAL)

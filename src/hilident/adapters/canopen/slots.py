@@ -1,34 +1,68 @@
 """Filter slots of a CANopen drive: notch coefficients written, read back, saved and restored by SDO.
 
-One part of :class:`~hilident.adapters.canopen.drive.CanopenDriveAdapter`, which composes the parts
-(see that module); a part uses only the attributes and methods
-:class:`~hilident.adapters.canopen.common.CanopenState` declares.
+:class:`CanopenFilterSlots` is a part :class:`~hilident.adapters.canopen.drive.CanopenDriveAdapter` owns (its
+``slots``); the adapter's filter-slot hooks and ``save_parameters`` hand their work to it.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from hilident.adapters.canopen.common import (
     STORE_SIGNATURE,
-    CanopenState,
+    DriveIdentity,
 )
+from hilident.adapters.canopen.sdo import SdoAccess
+from hilident.drivers.description import DriverDescription
 from hilident.errors import DataError, DeviceError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
 from hilident.protocol.canopen_objects import (
+    CanopenDescription,
     FilterObjects,
-    parse_address,
 )
+from hilident.protocol.canopen_types import parse_address
 from hilident.protocol.filter_encoding import FilterEncoding, Realisation
 
 
-class FilterSlots(CanopenState):
-    """The filter-slot part of :class:`~hilident.adapters.canopen.drive.CanopenDriveAdapter`.
+class CanopenFilterSlots:
+    """The filter slots of a CANopen drive (the ``slots`` of
+    :class:`~hilident.adapters.canopen.drive.CanopenDriveAdapter`).
 
-    Slots are described by the driver's filter encoding; ``save_parameters`` stores
-    them in non-volatile memory where the drive has 0x1010.
+    Slots are described by the driver's filter objects and encoding; :meth:`save_parameters`
+    stores them in non-volatile memory where the drive has 0x1010.
+
+    Parameters
+    ----------
+    sdo : SdoAccess
+        The drive's objects.
+    desc : CanopenDescription
+        The drive's filter objects (``filters``), its objects by role and its EDS file name.
+    driver : DriverDescription
+        The driver (its name and folder for messages, its ``[canopen.save]`` table).
+    encoding : FilterEncoding or None
+        How the drive stores a notch; None: the driver describes no filter objects.
+    identity : callable
+        The drive's identity as read at connect (its filter slots, its loop rate); DeviceError before.
+    port : str
+        Where the drive is; used in messages.
     """
 
-    # --- filter slots -----------------------------------------------------------------------------
+    def __init__(
+        self,
+        sdo: SdoAccess,
+        desc: CanopenDescription,
+        driver: DriverDescription,
+        encoding: FilterEncoding | None,
+        identity: Callable[[], DriveIdentity],
+        port: str,
+    ):
+        self.sdo = sdo
+        self.desc = desc
+        self.driver = driver
+        self.encoding = encoding
+        self.identity = identity
+        self.port = port
 
     def _slot_objects(self) -> tuple[FilterObjects, FilterEncoding]:
         """The driver's filter objects and their encoding; DeviceError when it describes none."""
@@ -40,12 +74,12 @@ class FilterSlots(CanopenState):
     def _filter_slot(self, slot: int) -> tuple[FilterObjects, FilterEncoding]:
         """The filter objects and encoding of ``slot``; DeviceError for a slot the drive does not have."""
         fo, encoding = self._slot_objects()
-        slots = self.drive_identity().filter_slots
+        slots = self.identity().filter_slots
         if not 0 <= slot < len(fo.indices) or slot >= slots:
             raise DeviceError(f"{self.port}: filter slot {slot} (the drive has {slots})")
         return fo, encoding
 
-    def write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None = None, *, enabled: bool) -> None:
+    def write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None, enabled: bool) -> None:
         """Store a notch in a slot, fitted to what the drive's encoding can hold; it takes effect when enabled.
 
         With ``spec`` the notch is realised in the encoding (the stored values
@@ -60,7 +94,7 @@ class FilterSlots(CanopenState):
         """``spec`` realised in the drive's encoding at its filter rate; DeviceError when the slots cannot hold it."""
         _, encoding = self._slot_objects()
         try:
-            return encoding.realise(spec, self.drive_identity().loop_rate_hz)
+            return encoding.realise(spec, self.identity().loop_rate_hz)
         except DataError as exc:
             raise DeviceError(
                 f"{self.port}: the drive's {encoding.kind} filter slots cannot hold the "
@@ -74,20 +108,20 @@ class FilterSlots(CanopenState):
     def _write_slot(self, fo: FilterObjects, encoding: FilterEncoding, slot: int, values: dict, enabled: bool) -> None:
         if fo.enable_subindex is None:  # the enable lives inside the one block
             block = values if enabled else encoding.disabled(values)
-            self.write_object(fo.address(slot, "block"), block["block"])
+            self.sdo.write_object(fo.address(slot, "block"), block["block"])
             return
         for name, value in values.items():
-            self.write_object(fo.address(slot, name), value)
-        self.write_object(fo.address(slot, "enabled"), int(bool(enabled)))
+            self.sdo.write_object(fo.address(slot, name), value)
+        self.sdo.write_object(fo.address(slot, "enabled"), int(bool(enabled)))
 
     def _read_slot(self, fo: FilterObjects, encoding: FilterEncoding, slot: int) -> tuple[dict, bool]:
-        values = {name: self.read_object(fo.address(slot, name)) for name in encoding.fields}
+        values = {name: self.sdo.read_object(fo.address(slot, name)) for name in encoding.fields}
         if fo.enable_subindex is None:
             try:
                 return values, bool(encoding.slot_enabled(values))
             except DataError as exc:
                 raise DeviceError(f"{self.port}: filter slot {slot} (object 0x{fo.indices[slot]:04X}): {exc}") from None
-        return values, bool(self.read_object(fo.address(slot, "enabled")))
+        return values, bool(self.sdo.read_object(fo.address(slot, "enabled")))
 
     def read_filter(self, slot: int) -> tuple[Biquad, bool]:
         """The biquad the slot applies, rebuilt from the values read from the drive."""
@@ -96,30 +130,30 @@ class FilterSlots(CanopenState):
         try:
             if fo.enable_subindex is None:  # a block read back disabled: what it holds, as it would run
                 values = encoding.enabled(values)
-            return encoding.applied(values, self.drive_identity().loop_rate_hz), enabled
+            return encoding.applied(values, self.identity().loop_rate_hz), enabled
         except DataError as exc:
             raise DeviceError(f"{self.port}: filter slot {slot} (object 0x{fo.indices[slot]:04X}): {exc}") from None
 
-    def stored_form(self, biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
+    def stored_form(self, biquad: Biquad, spec: NotchSpec | None) -> Biquad:
         """What the drive will run once :meth:`write_filter` stored ``biquad``/``spec``."""
         if spec is not None:
             return self._realise(spec).section
         _, encoding = self._slot_objects()
-        return encoding.stored_form(biquad, spec, self.drive_identity().loop_rate_hz)
+        return encoding.stored_form(biquad, spec, self.identity().loop_rate_hz)
 
-    def save_filter(self, slot: int) -> tuple[dict, bool]:
+    def read_raw(self, slot: int) -> tuple[dict, bool]:
         """The slot's raw field values and enable flag."""
         fo, encoding = self._filter_slot(slot)
         return self._read_slot(fo, encoding, slot)
 
-    def disable_filter(self, slot: int) -> None:
+    def bypass(self, slot: int) -> None:
         """Bypass a slot: its enable to 0 (or its block's state word to bypass); the coefficients stay stored."""
         fo, encoding = self._filter_slot(slot)
         if fo.enable_subindex is None:
             values, _ = self._read_slot(fo, encoding, slot)
             self._write_slot(fo, encoding, slot, values, False)
             return
-        self.write_object(fo.address(slot, "enabled"), 0)
+        self.sdo.write_object(fo.address(slot, "enabled"), 0)
 
     def save_parameters(self) -> str:
         """Have the drive store its parameters in non-volatile memory (CiA 301 0x1010:1, signature "save").
@@ -149,15 +183,16 @@ class FilterSlots(CanopenState):
                 f"{self.port}: the EDS {self.desc.eds} has no store parameters object (0x1010) and the "
                 "driver names none ([canopen.save] object): the drive cannot be asked to save"
             )
-        self.write_object(addr, value)
-        return f"{self.describe(addr)} = 0x{int(value):08X}"
+        self.sdo.write_object(addr, value)
+        return f"{self.sdo.describe(addr)} = 0x{int(value):08X}"
 
-    def restore_filter(self, slot: int, saved: tuple[dict, bool]) -> None:
+    def write_raw(self, slot: int, saved: tuple[dict, bool]) -> None:
+        """Put back what :meth:`read_raw` returned (a block as found; else the fields disabled, then the enable)."""
         values, enabled = saved
         fo, encoding = self._filter_slot(slot)
         if fo.enable_subindex is None:
-            self.write_object(fo.address(slot, "block"), values["block"])  # the block as found, enable and all
+            self.sdo.write_object(fo.address(slot, "block"), values["block"])  # the block as found, enable and all
             return
         self._write_slot(fo, encoding, slot, values, False)
         if enabled:
-            self.write_object(fo.address(slot, "enabled"), 1)
+            self.sdo.write_object(fo.address(slot, "enabled"), 1)

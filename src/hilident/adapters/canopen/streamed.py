@@ -49,14 +49,15 @@ from typing import Protocol
 
 import numpy as np
 
-import canopen
 from hilident.adapters.base import RunResult, RunStrategy
-from hilident.adapters.canopen.common import ChannelCodec, DriveIdentity, Emergency, ObjectValue
+from hilident.adapters.canopen.common import DriveIdentity, DriveRatings, RunLayout
+from hilident.adapters.canopen.net import NetWatch
+from hilident.adapters.canopen.sdo import SdoAccess
 from hilident.adapters.canopen.trace import TracingNetwork
 from hilident.drivers.description import DriverDescription
 from hilident.errors import DeviceError
 from hilident.events import Kind, RunEvent
-from hilident.protocol.canopen_objects import CanopenDescription, ObjectAddress, numpy_type, type_bits
+from hilident.protocol.canopen_objects import CanopenDescription, numpy_type, type_bits
 
 __all__ = ["StreamedRun", "DriveHost", "Deliver", "POSITION_SETPOINTS"]
 
@@ -73,54 +74,34 @@ class DriveHost(Protocol):
     """What a CANopen acquisition strategy uses of its adapter
     (:class:`~hilident.adapters.canopen.drive.CanopenDriveAdapter`).
 
-    Configuration, as :meth:`configure` left it: ``desc`` (the driver's
-    objects), ``driver``, ``channels`` (the recorded channels' codecs), ``mode``,
-    ``sample_rate_hz``, ``divider``, ``sync_rate_hz``, ``sync_overflow``, ``tpdo_layout``
-    and ``rpdo`` (streamed), ``excitation_recipe`` (recorder), the ratings, ``timeout_s``, ``port``;
-    the bus: ``network`` (``send_message``, ``subscribe``, ``unsubscribe``) and ``node``; the run:
-    ``events`` (read only: log with :meth:`log_event`), ``run_fault`` (read
-    only: note with :meth:`take_emergency_fault`) and ``emergencies`` (the
-    queue, to wait for one). The adapter's ``ACQUISITIONS`` table is typed with
-    this protocol, so the type checker holds the adapter to it.
+    The parts the adapter owns: ``sdo`` (the drive's objects,
+    :class:`~hilident.adapters.canopen.sdo.SdoAccess`) and ``net`` (the link
+    check, the host's heartbeat, the emergency queue to wait on,
+    :class:`~hilident.adapters.canopen.net.NetWatch`); the run's ``layout`` as
+    ``configure()`` left it (mode, rate, channels, PDOs); ``desc`` (the
+    driver's objects and modes), ``driver``, ``sync_rate_hz``,
+    ``sync_overflow``, ``excitation_recipe`` (recorder), the ``ratings``,
+    ``timeout_s``, ``port``; the bus ``network`` (``send_message``,
+    ``subscribe``, ``unsubscribe``); the run: ``events`` (read only: log with
+    :meth:`log_event`) and ``run_fault`` (read only: note with
+    :meth:`take_emergency_fault`). The adapter's ``ACQUISITIONS`` table is
+    typed with this protocol, so the type checker holds the adapter to it.
     """
 
     port: str
     timeout_s: float
     network: TracingNetwork
-    node: canopen.RemoteNode
+    sdo: SdoAccess
+    net: NetWatch
     driver: DriverDescription
     desc: CanopenDescription
-    channels: list[ChannelCodec]
-    mode: str
-    sample_rate_hz: float
-    divider: int
+    layout: RunLayout
     sync_rate_hz: float | None
     sync_overflow: int
-    tpdo_layout: list[tuple[int, list[int]]]
-    rpdo: tuple[int, int | None, int, str] | None
     excitation_recipe: dict | None
-    rated_torque_nm: float
-    rated_current_a: float
-    torque_problem: str
+    ratings: DriveRatings
     events: list[dict]
     run_fault: dict | None
-    emergencies: collections.deque[Emergency]
-
-    def read(self, role: str) -> ObjectValue: ...
-
-    def write(self, role: str, value: ObjectValue) -> None: ...
-
-    def read_object(self, addr: ObjectAddress) -> ObjectValue: ...
-
-    def write_object(self, addr: ObjectAddress, value: ObjectValue) -> None: ...
-
-    def read_domain(self, addr: ObjectAddress, block_transfer: bool | None = None) -> bytes: ...
-
-    def write_domain(self, addr: ObjectAddress, data: bytes) -> None: ...
-
-    def describe(self, addr: ObjectAddress) -> str: ...
-
-    def data_type(self, addr: ObjectAddress) -> int: ...
 
     def drive_identity(self) -> DriveIdentity: ...
 
@@ -131,12 +112,6 @@ class DriveHost(Protocol):
 
     def safe_stop(self) -> None:
         """Power stage off now; never raises."""
-
-    def check_link(self) -> None:
-        """DeviceError when the drive's heartbeat stopped or it left NMT Operational."""
-
-    def beat_if_due(self) -> None:
-        """The host's heartbeat, when the run's loop is the one producing it."""
 
     def take_emergency_fault(self, sample_index: int) -> dict | None:
         """Log the queued emergencies up to the first fault; that fault (noted as the run's), or None."""
@@ -164,30 +139,30 @@ class StreamedRun(RunStrategy):
         super().__init__(adapter, x, deliver, result)
         ad = adapter
         n = self.n
-        if ad.rpdo is None:
+        layout = ad.layout
+        if layout.rpdo is None:
             raise DeviceError(f"{ad.port}: configure() for streamed acquisition before stream(): no RPDO is mapped")
-        #: (COB-ID, set-point counter type or None, set-point type, set-point role) of the RPDO configure() mapped
-        self.rpdo = ad.rpdo
+        self.rpdo = layout.rpdo  # the RPDO configure() mapped
         self.counted = ad.desc.counted
         counter_char, self.counter_mod = "", 0
         if self.counted:
-            counter_type = ad.data_type(ad.desc.address("sample_counter"))
+            counter_type = ad.sdo.data_type(ad.desc.address("sample_counter"))
             counter_char, self.counter_mod = numpy_type(counter_type).char, 1 << type_bits(counter_type)
         #: COB-ID -> (its bit in the mask, its layout, the channel columns it carries, its rank in PDO order)
         self.frames: dict[int, tuple[int, struct.Struct, np.ndarray, int]] = {}
-        for rank, (cob, idx) in enumerate(ad.tpdo_layout):
-            fmt = "<" + counter_char + "".join(numpy_type(ad.channels[i].datatype).char for i in idx)
-            self.frames[cob] = (1 << rank, struct.Struct(fmt), np.asarray(idx, dtype=np.intp), rank)
+        for rank, tpdo in enumerate(layout.tpdos):
+            fmt = "<" + counter_char + "".join(numpy_type(layout.channels[i].datatype).char for i in tpdo.columns)
+            self.frames[tpdo.cob_id] = (1 << rank, struct.Struct(fmt), np.asarray(tpdo.columns, dtype=np.intp), rank)
         self.full = (1 << len(self.frames)) - 1
-        self.scales = np.array([c.scale for c in ad.channels])
-        self.raw = np.zeros((n, len(ad.channels)))
-        for j, c in enumerate(ad.channels):
+        self.scales = np.array([c.scale for c in layout.channels])
+        self.raw = np.zeros((n, len(layout.channels)))
+        for j, c in enumerate(layout.channels):
             if c.on_host:
                 self.raw[:, j] = x  # the set-point the host sends, in SI units (scale 1)
         self.mask = np.zeros(n, dtype=np.uint32)
         self.answered_set, self.answered_rank = -1, len(self.frames)  # ordered matching: the set, its last PDO
         self.rx: collections.deque[tuple[int, bytes]] = collections.deque()  # (COB-ID, data) as received
-        self.period = 1.0 / (ad.sync_rate_hz or ad.sample_rate_hz)
+        self.period = 1.0 / (ad.sync_rate_hz or layout.sample_rate_hz)
         self.window = max(16, int(round(0.1 / self.period)))
         self.final = 0  # samples below are delivered or counted lost
         self.sent = 0  # SYNCs sent
@@ -299,8 +274,8 @@ class StreamedRun(RunStrategy):
     def read_drive_counters(self) -> None:
         """The hilident counters at the end of a counted run: underruns and SYNC counter jumps."""
         ad = self.ad
-        self.stats.underruns = int(ad.read("setpoint_underruns"))
-        sync_errors = int(ad.read("sync_errors"))
+        self.stats.underruns = int(ad.sdo.read("setpoint_underruns"))
+        sync_errors = int(ad.sdo.read("sync_errors"))
         if sync_errors:
             ad.log_event(
                 RunEvent(
@@ -312,7 +287,7 @@ class StreamedRun(RunStrategy):
 
     def rpdo_packer(self) -> Callable[[int, int | float], bytes]:
         """``pack(k, value)``: the RPDO of sample ``k`` (headed by the set-point counter where there is one)."""
-        rx_type, sp_type = self.rpdo[1], self.rpdo[2]
+        rx_type, sp_type = self.rpdo.counter_type, self.rpdo.setpoint_type
         if rx_type is not None:
             rx_mod = 1 << type_bits(rx_type)
             rpdo_struct = struct.Struct("<" + numpy_type(rx_type).char + numpy_type(sp_type).char)
@@ -327,15 +302,15 @@ class StreamedRun(RunStrategy):
         torque offset injected in CSP or CSV is held by the present position or
         zero speed. Position set-points are relative to where the axis holds.
         """
-        ad = self.ad
-        sp_type, sp_role = self.rpdo[2], self.rpdo[3]
+        ad, sdo = self.ad, self.ad.sdo
+        sp_type, sp_role = self.rpdo.setpoint_type, self.rpdo.setpoint_role
         position = sp_role in POSITION_SETPOINTS
-        ad.write(sp_role, int(ad.read("position_actual")) if position else 0)
-        hold = ad.desc.modes[ad.mode].hold
+        sdo.write(sp_role, int(sdo.read("position_actual")) if position else 0)
+        hold = ad.desc.modes[ad.layout.mode].hold
         if hold:
-            ad.write(hold, int(ad.read("position_actual")) if hold in POSITION_SETPOINTS else 0)
+            sdo.write(hold, int(sdo.read("position_actual")) if hold in POSITION_SETPOINTS else 0)
         ad.enable()
-        origin = int(ad.read("position_actual")) if position else 0
+        origin = int(sdo.read("position_actual")) if position else 0
         return ad.encode_setpoints(self.x, sp_type, sp_role, origin).tolist()
 
     def run(self) -> None:
@@ -373,7 +348,7 @@ class StreamedRun(RunStrategy):
         lag_limit = max(10 * window, int(round(1.0 / period)))  # the drive is not keeping up: stop flooding it
         overflow = ad.sync_overflow
         send = ad.network.send_message
-        rpdo_cob, pack = self.rpdo[0], self.rpdo_packer()
+        rpdo_cob, pack = self.rpdo.cob_id, self.rpdo_packer()
         setpoints = self.start()
         fault = None
         t0 = time.perf_counter() + 0.001
@@ -392,7 +367,7 @@ class StreamedRun(RunStrategy):
                     send(rpdo_cob, pack(self.sent, setpoints[self.sent]))
                     send(0x80, bytes([self.sent % overflow + 1]) if overflow > 1 else b"")
                     self.sent += 1
-            ad.beat_if_due()
+            ad.net.heartbeat.beat_if_due()
             newest = self.drain()
             if newest > top:
                 top, heard_s = newest, now
@@ -407,7 +382,7 @@ class StreamedRun(RunStrategy):
                     self.finalize(min(self.sent, top + 1), count_lost=False)
                     return
             else:
-                ad.check_link()
+                ad.net.check_link()
                 if self.sent - 1 - top > lag_limit:
                     raise DeviceError(
                         f"{ad.port}: the drive's TPDOs lag {self.sent - 1 - top} samples behind the "

@@ -1,46 +1,67 @@
 """Drive-buffered runs of the Modbus adapter: the excitation table written through its page window,
-the capture read back.
+the run triggered, the capture read back.
 
-One part of :class:`~hilident.adapters.modbus.drive.ModbusDriveAdapter`, which composes the parts
-(see that module); it builds on the request part (:class:`~hilident.adapters.modbus.requests.RegisterAccess`).
+:class:`TableCapture` is a part :class:`~hilident.adapters.modbus.drive.ModbusDriveAdapter` owns (its
+``capture``); its requests go through the request part
+(:class:`~hilident.adapters.modbus.requests.RegisterAccess`). The adapter's run follows the drive's status
+and reads the capture through it as it fills.
 """
 
 from __future__ import annotations
 
-import time
+from collections.abc import Callable
 
 import numpy as np
 
-from hilident.adapters.base import Deliver, RunResult
+from hilident.adapters.base import Deliver
 from hilident.adapters.modbus.common import (
-    _CHUNKS_PER_POLL,
-    _LIMIT_FAULTS,
-    _POLL_S,
     _RETRIES,
-    DriveStatus,
+    CaptureLayout,
+    ModbusIdentity,
     NoResponse,
 )
 from hilident.adapters.modbus.requests import RegisterAccess
 from hilident.errors import DataError, DeviceError
 from hilident.events import Kind, RunEvent, StreamStats
-from hilident.protocol.modbus_registers import (
-    STAMP_MODULUS,
-    Chunk,
-    Window,
-    plan_chunks,
-    table_crc,
-)
+from hilident.protocol.modbus.paging import STAMP_MODULUS, Chunk, Window, plan_chunks, table_crc
 
 
-class TableCapture(RegisterAccess):
-    """The table and capture part of :class:`~hilident.adapters.modbus.drive.ModbusDriveAdapter`.
+class TableCapture:
+    """The table and capture part of :class:`~hilident.adapters.modbus.drive.ModbusDriveAdapter` (its ``capture``).
 
     The table goes to the drive in pages and is checked by its CRC; the run is triggered
     and the capture read back in chunks while the drive plays, a record that is not the
     one asked for read again and a chunk that cannot be read counted lost.
+
+    Parameters
+    ----------
+    registers : RegisterAccess
+        The requests (and the map, port and driver they name).
+    identity : callable
+        The drive's identity as read at connect (its table and capture capacities); DeviceError before.
+    log_event : callable
+        Where a run event goes as soon as it is known (the adapter's ``log_event``).
+
+    Attributes
+    ----------
+    layout : CaptureLayout
+        The channels ``configure()`` chose and their columns in a record.
     """
 
-    # --- buffered runs ------------------------------------------------------------------------
+    def __init__(
+        self,
+        registers: RegisterAccess,
+        identity: Callable[[], ModbusIdentity],
+        log_event: Callable[[RunEvent], dict],
+    ):
+        self.registers = registers
+        self.map = registers.map
+        self.port = registers.port
+        self.driver = registers.driver
+        self.identity = identity
+        self.log_event = log_event
+        self.layout = CaptureLayout()
+        self._pages: dict[str, int | None] = {"table": None, "capture": None}  # page selected; None: unknown
 
     def _window(self, name: str) -> Window:
         """The drive's ``"table"`` or ``"capture"`` window; DeviceError when its map has no excitation capability."""
@@ -52,18 +73,19 @@ class TableCapture(RegisterAccess):
     def _select_page(self, window: Window, page: int) -> None:
         if self._pages[window.name] != page:
             self._pages[window.name] = None  # unknown until the drive confirms
-            self.write_names(**{window.page_register: page})
+            self.registers.write_names(**{window.page_register: page})
             self._pages[window.name] = page
 
-    def _upload(self, registers: np.ndarray, n: int) -> None:
+    def _upload(self, table: np.ndarray, n: int) -> None:
+        """Write the table's registers through the table window, a page at a time."""
         rps = self.map.table_registers_per_sample
         w = self._window("table")
         for c in plan_chunks(0, n, rps, w.page_samples, self.map.max_write):
             self._select_page(w, c.page)
             try:
-                self.write(
+                self.registers.write(
                     w.base + c.offset,
-                    registers[c.first_sample * rps : (c.first_sample + c.samples) * rps],
+                    table[c.first_sample * rps : (c.first_sample + c.samples) * rps],
                     f"writing excitation samples {c.first_sample}..{c.first_sample + c.samples - 1}",
                     c.page,
                 )
@@ -78,7 +100,7 @@ class TableCapture(RegisterAccess):
         for _ in range(1 + _RETRIES):
             try:
                 self._select_page(w, c.page)
-                regs = self.read(
+                regs = self.registers.read(
                     w.base + c.offset,
                     c.count,
                     f"reading capture samples {c.first_sample}..{c.first_sample + c.samples - 1}",
@@ -88,9 +110,9 @@ class TableCapture(RegisterAccess):
             except NoResponse:
                 self._pages["capture"] = None
                 continue
-            stamps, rows = self.map.decode_records(regs, self._mask)
+            stamps, rows = self.map.decode_records(regs, self.layout.mask)
             if np.array_equal(stamps, expected):
-                sink(c.first_sample + np.arange(c.samples, dtype=np.int64), rows[:, self._order])
+                sink(c.first_sample + np.arange(c.samples, dtype=np.int64), rows[:, list(self.layout.columns)])
                 stats.samples += c.samples
                 return
             # not the records asked for: a repeated or misplaced chunk, or damaged data; read it again
@@ -111,22 +133,22 @@ class TableCapture(RegisterAccess):
             )
         )
 
-    def _trigger(self) -> None:
+    def trigger(self) -> None:
         """Start the run: one write of the run bit, never repeated."""
         r = self.map.register("control_word")
         run = self.map.control["run"]
         try:
-            self._request(
+            self.registers.request(
                 "starting the run",
                 r.address,
                 1,
-                lambda: self.client.write_register(r.address, run, device_id=self.device_id),
+                lambda: self.registers.client.write_register(r.address, run, device_id=self.registers.device_id),
                 lambda resp: resp.address == r.address,
                 retry=False,
             )
         except NoResponse as exc:
             # the command may have arrived: ask the drive instead of sending it again
-            after = self.status()
+            after = self.registers.status()
             if not after.flags & {"running", "done"}:
                 raise DeviceError(
                     f"{exc}; the drive is not running (not repeated: a start is never sent twice)"
@@ -157,7 +179,7 @@ class TableCapture(RegisterAccess):
         n = len(x)
         if n < 1:
             raise DataError("the excitation is empty")
-        ident = self._known_identity()
+        ident = self.identity()
         for cap, name in ((ident.table_capacity, "table_capacity"), (ident.capture_capacity, "capture_capacity")):
             if n > cap:
                 raise DeviceError(
@@ -166,16 +188,16 @@ class TableCapture(RegisterAccess):
                     "or lower run.sample_rate_hz"
                 )
         table = self.map.encode_table(x)
-        self.write_names(control_word=0)  # stopped, and ready for a fresh 0 -> 1 edge
-        before = self.status()
+        self.registers.write_names(control_word=0)  # stopped, and ready for a fresh 0 -> 1 edge
+        before = self.registers.status()
         if "fault" in before.flags:
             raise DeviceError(
                 f"{self.port}: the drive reports {self.map.fault_name(before.fault_code)} in "
                 f"{self.map.describe(self.map.register('fault_code').address)}; clear the fault before a run"
             )
-        self.write_names(table_length=n)
+        self.registers.write_names(table_length=n)
         self._upload(table, n)
-        crc = self.read_names("table_crc")["table_crc"]
+        crc = self.registers.read_names("table_crc")["table_crc"]
         if crc != table_crc(table):
             raise DeviceError(
                 f"{self.port}: {self.map.describe(self.map.register('table_crc').address)} is "
@@ -192,107 +214,10 @@ class TableCapture(RegisterAccess):
         Each chunk is delivered to ``sink(sample_index, rows)`` or counted lost
         in ``stats``. Returns the index after the last record read.
         """
-        width = self.map.record_registers(self._mask)
+        width = self.map.record_registers(self.layout.mask)
         chunks = plan_chunks(first, count, width, self._window("capture").page_samples, self.map.max_read)
         end = first
         for c in chunks[:max_chunks]:
             self._read_chunk(c, stats, sink)
             end = c.first_sample + c.samples
         return end
-
-    def _play(self, x: np.ndarray, deliver: Deliver, result: RunResult) -> None:
-        """Play ``x`` from the drive's table and hand the captured samples to ``deliver``.
-
-        ``x[k]`` is held over sample period ``k``; row ``k`` is the drive's
-        state at the start of that period. Samples the capture lacks (chunks
-        that could not be read, a capture that stopped early) are counted in
-        the result's stats, never filled. A fault is logged as soon as a status
-        read shows it. While the drive is enabled each answer is waited for at
-        most 40 % of the communication timeout.
-
-        Raises
-        ------
-        DeviceError
-            The drive refused a request (the message names the register),
-            stopped answering, lost the connection, or did not finish in time.
-        DataError
-            The excitation is empty or a value does not fit the table's type.
-        """
-        self._run_counts = (self.missing_responses, self.bad_responses)
-        self.load_table(x)
-        with self._answers_within(self._enabled_wait_s):
-            self._trigger()
-            self._capture(len(x), result.stats, deliver)
-        result.completed = self.run_fault is None
-
-    def _end_run(self, result: RunResult) -> None:
-        """The drive stopped and disabled; the run's unanswered and bad answers counted."""
-        self.safe_stop()
-        missing_before, bad_before = self._run_counts
-        result.stats.lost_frames = self.missing_responses - missing_before
-        result.stats.corrupt_frames += self.bad_responses - bad_before
-
-    def _capture(self, n: int, stats: StreamStats, deliver: Deliver) -> None:
-        """Poll the status and read the capture as it fills, until the run has ended and all is read."""
-        started = time.monotonic()
-        deadline = started + 1.2 * n / self.sample_rate_hz + 2.0 + 2 * self.timeout_s
-        read_to = 0
-        while True:
-            st = self.status()
-            if "fault" in st.flags and self.run_fault is None:
-                self._note_fault(st)  # known now: the first cause, whatever fails after it
-            available = min(st.sample_count, n)
-            before = read_to
-            read_to = self.read_capture(read_to, available - read_to, deliver, stats, _CHUNKS_PER_POLL)
-            ended = "running" not in st.flags
-            if ended and read_to >= available:
-                break
-            if ended and not st.flags & {"done", "fault"}:
-                raise DeviceError(
-                    f"{self.port}: the run ended without the drive reporting it done "
-                    f"({self.map.describe(self.map.register('status_word').address)} = {st.word:#06x})"
-                )
-            if read_to == before:
-                if time.monotonic() > deadline:
-                    raise DeviceError(
-                        f"{self.port}: the run did not end within {deadline - started:.1f} s "
-                        f"({self.map.describe(self.map.register('status_word').address)} still shows "
-                        "running); stopped"
-                    )
-                time.sleep(_POLL_S)
-        if self.run_fault is not None:
-            return
-        if available < n:
-            stats.lost_samples += n - available
-            self.log_event(
-                RunEvent(
-                    Kind.CAPTURE_STOPPED,
-                    f"the drive's capture stopped at sample {available} of {n}; "
-                    f"samples {available}..{n - 1} were not recorded "
-                    "(not filled)",
-                    available,
-                    value=float(n - available),
-                )
-            )
-        else:
-            self.log_event(RunEvent(Kind.FINISHED, "run complete", n, value=0.0))
-
-    def _describe_fault(self, st: DriveStatus) -> str:
-        """A latched fault in words: name, register, sample and value."""
-        name = self.map.fault_name(st.fault_code)
-        where = self.map.describe(self.map.register("fault_code").address)
-        if name == "comm_timeout":
-            return (
-                f"comm_timeout: the drive heard nothing from the host for {st.fault_value:.3g} s and stopped "
-                f"on its own ({where} = {st.fault_code}, at sample {st.fault_sample})"
-            )
-        return f"{name} ({where} = {st.fault_code}, at sample {st.fault_sample}, value {st.fault_value:g})"
-
-    def _note_fault(self, st: DriveStatus) -> None:
-        """Log a fault the status shows as an event, at once, and note it as the run's cause."""
-        name = self.map.fault_name(st.fault_code)
-        message = self._describe_fault(st)
-        if name != "comm_timeout":
-            message = message.replace(" (", ": axis stopped, torque zero (", 1)
-        kind = Kind.LIMIT_TRIP if name in _LIMIT_FAULTS else Kind.FAULT
-        self.note_fault(self.log_event(RunEvent(kind, message, st.fault_sample, value=st.fault_value)))

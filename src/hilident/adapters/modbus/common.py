@@ -1,5 +1,5 @@
-"""What the parts of the Modbus adapter share: timing constants, the RTU client, identity and status records,
-the words for a failed request, and :class:`ModbusAdapterState`, the attributes every part reads.
+"""What the parts of the Modbus adapter share: timing constants, the RTU client, small frozen values (the
+identity, a status read, the capture's record layout) and the words for a failed request.
 
 Split from :mod:`hilident.adapters.modbus.drive` so that its parts
 (:mod:`~hilident.adapters.modbus.requests`, :mod:`~hilident.adapters.modbus.slots`,
@@ -13,19 +13,14 @@ import logging
 from dataclasses import dataclass, field
 
 import serial
-from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.client import ModbusSerialClient
 from pymodbus.exceptions import ModbusIOException
 from pymodbus.pdu import ModbusPDU
 
-from hilident.adapters.base import AdapterBase
 from hilident.config.tables import DeviceConfig
-from hilident.drivers.description import DriverDescription
 from hilident.errors import DeviceError
-from hilident.protocol.modbus_registers import (
-    RegisterMap,
-    count_rtu_frames,
-    exception_meaning,
-)
+from hilident.protocol.modbus.exception_codes import exception_meaning
+from hilident.protocol.modbus.rtu import count_rtu_frames
 
 logging.getLogger("pymodbus").addHandler(logging.NullHandler())  # no library chatter on stderr
 
@@ -146,44 +141,20 @@ class DriveStatus:
     fault_value: float
 
 
-class ModbusAdapterState(AdapterBase):
-    """The attributes of :class:`~hilident.adapters.modbus.drive.ModbusDriveAdapter` that its parts read.
+@dataclass(frozen=True)
+class CaptureLayout:
+    """Which channels ``configure()`` chose for the capture, and where each sits in a capture record.
 
-    The attributes are declared without values (nothing changes at run time);
-    the adapter's ``__init__`` sets them. Two small readers narrow the ones
-    that may be absent (the RTU line, the identity). Every part is a subclass
-    of this class, so a part is type-checked against the attributes it uses
-    and against :class:`~hilident.adapters.base.AdapterBase`, whose template it
-    fills in.
+    Attributes
+    ----------
+    mask : int
+        The capture mask written to the drive (one bit per channel of its map).
+    columns : tuple of int
+        The column of each configured channel (in the configured order) in a decoded record.
     """
 
-    client: ModbusTcpClient | ModbusSerialClient  # connected, retries=0: the adapter decides what is repeated
-    driver: DriverDescription
-    map: RegisterMap
-    device_id: int  # Modbus device (unit) id
-    timeout_s: float  # longest wait for one answer, s
-    rtu: bool  # an RTU line (ModbusSerialClient), not Modbus TCP
-    identity: ModbusIdentity | None  # None until identify()
-    sample_rate_hz: float
-    channel_units: list[str]
-    missing_responses: int  # requests never answered, since opening
-    bad_responses: int  # answers that were not the one asked for
-    dropped_frames: int  # late answers dropped from an RTU line after a lost or foreign answer
-    comm_timeout_s: float  # the drive's communication timeout as armed at connect (0: none), s
-    _run_counts: tuple[int, int]  # missing and bad answers when the run started
-    _mask: int  # capture mask of the configured channels
-    _order: list[int]  # column of each configured channel in a capture record
-    _pages: dict[str, int | None]  # page selected in each window ("table", "capture"); None: unknown
-
-    def _rtu_line(self) -> serial.Serial | None:
-        """The RTU client's serial line while it is open, else None (Modbus TCP, or a closed line)."""
-        return self.client.socket if isinstance(self.client, ModbusSerialClient) else None
-
-    def _known_identity(self) -> ModbusIdentity:
-        """What :meth:`identify` read; DeviceError when the drive was not identified (never opened)."""
-        if self.identity is None:
-            raise DeviceError(f"{self.port}: the drive has not been identified (open it first)")
-        return self.identity
+    mask: int = 0
+    columns: tuple[int, ...] = ()
 
 
 def _reason(exc: BaseException) -> str:

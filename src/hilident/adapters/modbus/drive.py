@@ -29,25 +29,21 @@ answer, so a lost answer is asked again before the drive gives up on the host.
 A lost connection (the drive power-cycled, the gateway closed the socket, the
 USB adapter unplugged) is a :class:`~hilident.errors.DeviceError` naming the
 port, never repeated. The register map is the driver's (see
-``drivers/modbus-servo/README.md``); :mod:`hilident.protocol.modbus_registers`
+``drivers/modbus-servo/README.md``); :mod:`hilident.protocol.modbus.register_map`
 encodes and decodes it.
 
-The adapter class is composed of parts along its seams (see :mod:`hilident.adapters`):
-register requests and the status registers (:mod:`~hilident.adapters.modbus.requests`),
-filter slots (:mod:`~hilident.adapters.modbus.slots`) and the table and capture
-(:mod:`~hilident.adapters.modbus.capture`); this module keeps opening and the
-known state at connect, the RTU line, identity, the parameter drive and the stop.
-
-How the parts see each other (and how mypy checks them): one chain of
-inheritance, no stubs. :class:`~hilident.adapters.modbus.common.ModbusAdapterState`
-is an :class:`~hilident.adapters.base.AdapterBase` that declares, without
-values, the attributes ``__init__`` below sets; the request part
-(:class:`~hilident.adapters.modbus.requests.RegisterAccess`) builds on it; the
-filter-slot and capture parts build on the request part, whose methods are all
-they call besides the template's. A method a part needs from elsewhere moves to
-the part it belongs to (the status read lives with the requests), and a new
-attribute is declared in the state class. The parts define no name twice, so
-the order of the bases decides nothing.
+The adapter owns its parts and hands each its share of the work, so a call
+site says where the code lives: ``registers``
+(:class:`~hilident.adapters.modbus.requests.RegisterAccess`: every request,
+its retries, stale answers and exceptions, the status registers), ``capture``
+(:class:`~hilident.adapters.modbus.capture.TableCapture`: the excitation table
+through its page window, the trigger, the capture read back) and ``slots``
+(:class:`~hilident.adapters.modbus.slots.ModbusFilterSlots`). Each part gets
+what it needs in its constructor; none of them sees the adapter. This module
+keeps opening and the known state at connect, the RTU line, identity, the
+parameter drive, the run that follows the drive's status, the stop, and the
+hooks of :class:`~hilident.adapters.base.AdapterBase` (it overrides none of its
+public methods).
 """
 
 from __future__ import annotations
@@ -59,44 +55,37 @@ from typing import NoReturn
 import numpy as np
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 
-from hilident.adapters.base import ConnectReport, RunResult
+from hilident.adapters.base import AdapterBase, ConnectReport, Deliver, RunResult
 from hilident.adapters.modbus.capture import TableCapture
-from hilident.adapters.modbus.common import (  # noqa: F401  (re-exported)
+from hilident.adapters.modbus.common import (
     _CHUNKS_PER_POLL,
     _DRAIN_MAX_S,
     _DRAIN_QUIET_S,
-    _ENABLED_WAIT,
     _IDENTITY,
     _LIMIT_FAULTS,
     _POLL_S,
-    _RETRIES,
-    _RETRY_LATER,
-    _STATUS,
     _STOP_WAIT_S,
+    CaptureLayout,
     DriveStatus,
     ModbusIdentity,
-    NoResponse,
-    _answers,
-    _exception_text,
-    _reason,
     _serial_error,
     _SerialClient,
-    _StaleAnswer,
 )
 from hilident.adapters.modbus.requests import RegisterAccess
-from hilident.adapters.modbus.slots import FilterSlots
+from hilident.adapters.modbus.slots import ModbusFilterSlots, SavedSlot
 from hilident.adapters.ports import open_failure
 from hilident.config.tables import DeviceConfig
 from hilident.drivers.description import DriverDescription
 from hilident.errors import ConfigError, DataError, DeviceError
-from hilident.protocol.modbus_registers import (
-    RegisterMap,
-    count_rtu_frames,
-)
+from hilident.events import Kind, RunEvent, StreamStats
+from hilident.filters.biquad import Biquad
+from hilident.filters.notch import NotchSpec
+from hilident.protocol.modbus.register_map import RegisterMap
+from hilident.protocol.modbus.rtu import count_rtu_frames
 from hilident.units import units_in_mode
 
 
-class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
+class ModbusDriveAdapter(AdapterBase):
     """A servo drive with a Modbus register map, experiments played from its own table.
 
     Parameters
@@ -111,6 +100,11 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
         Modbus device (unit) id.
     timeout_s : float
         Longest wait for one answer.
+
+    Attributes
+    ----------
+    registers, capture, slots
+        The parts (see the module docstring).
     """
 
     transport = "modbus"
@@ -137,15 +131,11 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
         self.channel_units: list[str] = []
         self.last_result: RunResult | None = None
         self.events: list[dict] = []
-        self.missing_responses = 0  # requests never answered, since opening
-        self.bad_responses = 0  # answers that were not the one asked for
-        self.dropped_frames = 0  # late answers dropped from an RTU line after a lost or foreign answer
         self.connect_report = ConnectReport()
         self._run_counts = (0, 0)  # missing and bad answers when the run started
-        self.comm_timeout_s = 0.0  # the drive's communication timeout as armed at connect (0: none), s
-        self._mask = 0
-        self._order: list[int] = []
-        self._pages: dict[str, int | None] = {"table": None, "capture": None}
+        self.registers = RegisterAccess(client, regmap, driver, port, device_id, timeout_s)
+        self.capture = TableCapture(self.registers, self._known_identity, self.log_event)
+        self.slots = ModbusFilterSlots(self.registers, self._known_identity)
 
     # --- opening --------------------------------------------------------------------
 
@@ -221,7 +211,7 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
 
     def _drain_line(self) -> None:
         """RTU: drop the answers still on their way to an earlier host, until the line is quiet (counted)."""
-        sock = self._rtu_line()
+        sock = self.registers.rtu_line()
         if sock is None:
             return
         quiet = min(self.timeout_s, _DRAIN_QUIET_S)
@@ -251,19 +241,19 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
         report = self.connect_report
         if not self.map.excitation:
             if self.map.stop:
-                self.write_names(**self.map.stop)  # no speed, no torque asked of the drive
+                self.registers.write_names(**self.map.stop)  # no speed, no torque asked of the drive
             self._arm_comm_timeout(host_timeout_s)
             report.discarded_frames += (
-                getattr(self.client, "stale_frames", 0) + self.dropped_frames + self.bad_responses
+                getattr(self.client, "stale_frames", 0) + self.registers.dropped_frames + self.registers.bad_responses
             )
             return
-        self.write_names(control_word=0)  # stopped, disabled, zero torque, ready for a fresh 0 -> 1 edge
-        st = self.status()
+        self.registers.write_names(control_word=0)  # stopped, disabled, zero torque, ready for a fresh 0 -> 1 edge
+        st = self.registers.status()
         if "fault" in st.flags:
 
             def clear() -> None:
                 self.clear_fault()
-                after = self.status()
+                after = self.registers.status()
                 if "fault" in after.flags:
                     raise DeviceError(
                         f"{self.port}: {self.map.describe(self.map.register('fault_code').address)} "
@@ -274,7 +264,7 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
             self._clear_latched_fault(self._describe_fault(st), allow_fault_reset, clear)
         self._arm_comm_timeout(host_timeout_s)
         client_stale = getattr(self.client, "stale_frames", 0)
-        report.discarded_frames += client_stale + self.dropped_frames + self.bad_responses
+        report.discarded_frames += client_stale + self.registers.dropped_frames + self.registers.bad_responses
 
     def _arm_comm_timeout(self, host_timeout_s: float) -> None:
         """Write ``comm_timeout_ms`` from ``host_timeout_s`` and read it back (when the map names it)."""
@@ -284,18 +274,18 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
         r = self.map.register("comm_timeout_ms")
         ms = max(1, math.ceil(host_timeout_s * 1000.0 - 1e-9))
         try:
-            self.write_names(comm_timeout_ms=ms)
+            self.registers.write_names(comm_timeout_ms=ms)
         except DataError as exc:
             raise ConfigError(
                 "device.host_timeout_s", f"{host_timeout_s:g} s does not fit {self.map.describe(r.address)}: {exc}"
             ) from None
-        back = float(self.read_names("comm_timeout_ms")["comm_timeout_ms"])
+        back = float(self.registers.read_names("comm_timeout_ms")["comm_timeout_ms"])
         if not back or abs(back - ms) > max(r.scale, 1.0):
             raise DeviceError(
                 f"{self.port}: {self.map.describe(r.address)} reads {back:g} ms after "
                 f"{ms} ms was written: the drive's communication timeout is not armed"
             )
-        self.comm_timeout_s = back / 1000.0
+        self.registers.comm_timeout_s = back / 1000.0
         self.connect_report.device_net = f"communication timeout {self.map.describe(r.address)}: {back:g} ms"
 
     def _stop_for_close(self) -> None:
@@ -319,7 +309,7 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
         """Read the identity registers and check the drive is the one the driver describes."""
         if not self.map.excitation:
             return self._identify_parameters()
-        v = self.read_names(*_IDENTITY)
+        v = self.registers.read_names(*_IDENTITY)
         m, d = self.map, self.driver
 
         def mismatch(name: str, got: object, want: object, hint: str = "") -> NoReturn:
@@ -357,7 +347,7 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
     def _identify_parameters(self) -> ModbusIdentity:
         """A parameter drive: the registers ``[modbus.identity]`` names, checked against ``expect``."""
         m, d = self.map, self.driver
-        v = self.read_names(*m.identity)
+        v = self.registers.read_names(*m.identity)
         for name, want in m.expect.items():
             if v[name] != want:
                 r = m.register(name)
@@ -384,7 +374,7 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
     # --- a parameter drive ---------------------------------------------------------------------
 
     @classmethod
-    def run_refusal(cls, driver: DriverDescription) -> ConfigError | None:
+    def _run_refusal(cls, driver: DriverDescription) -> ConfigError | None:
         """Why ``hilident run`` cannot run on ``driver`` (a drive without the excitation capability), or None."""
         regmap = RegisterMap.from_driver(driver)
         if regmap.excitation:
@@ -404,8 +394,11 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
         if refusal is not None:
             raise refusal
 
-    def _prepare_run(self, x: np.ndarray) -> None:
-        self._refuse_run()
+    def _known_identity(self) -> ModbusIdentity:
+        """What :meth:`identify` read; DeviceError when the drive was not identified (never opened)."""
+        if self.identity is None:
+            raise DeviceError(f"{self.port}: the drive has not been identified (open it first)")
+        return self.identity
 
     def read_parameter(self, code: str) -> float | int | str:
         """The physical value of vendor parameter ``code`` (``"P08.02"``), through the map's rule (a string for a
@@ -414,7 +407,9 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
             r = self.map.parameter(code)
         except DataError as exc:
             raise DeviceError(f"{self.port}: {exc}") from None
-        return r.decode(self.read(r.address, r.count, f"reading parameter {code}", input_registers=r.table == "input"))
+        return r.decode(
+            self.registers.read(r.address, r.count, f"reading parameter {code}", input_registers=r.table == "input")
+        )
 
     def write_parameter(self, code: str, value: float | int | str) -> None:
         """Write vendor parameter ``code``; refused before sending when it is read-only or out of its range."""
@@ -427,12 +422,12 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
             raise DeviceError(
                 f"{self.port}: parameter {code} ({self.map.describe(r.address, table=r.table)}) is read-only"
             )
-        self.write(r.address, words, f"writing parameter {code}")
+        self.registers.write(r.address, words, f"writing parameter {code}")
 
     def read_feedback(self) -> dict[str, float]:
         """Channels the drive shows in registers (``channel`` in the map), in SI units."""
         shown = {r.name: r for r in self.map.registers.values() if r.channel}
-        values = self.read_names(*shown) if shown else {}
+        values = self.registers.read_names(*shown) if shown else {}
         return {r.channel: float(values[n]) * r.channel_scale for n, r in shown.items()}
 
     def save_parameters(self) -> str:
@@ -450,7 +445,7 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
             )
         name, value = self.map.save
         r = self.map.register(name)
-        self.write(r.address, self.map.encode(name, value), "saving the parameters to non-volatile memory")
+        self.registers.write(r.address, self.map.encode(name, value), "saving the parameters to non-volatile memory")
         return f"{self.map.describe(r.address, r.count)} = {value:g}"
 
     def set_limits(self, torque_nm: float, velocity_mps: float, position_min_m: float, position_max_m: float) -> None:
@@ -461,13 +456,13 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
         """
         if not self.map.excitation:
             return
-        self.write_names(
+        self.registers.write_names(
             torque_limit_nm=torque_nm,
             velocity_limit_mps=velocity_mps,
             position_min_m=position_min_m,
             position_max_m=position_max_m,
         )
-        if "limits_loaded" not in self.status().flags:
+        if "limits_loaded" not in self.registers.status().flags:
             raise DeviceError(
                 f"{self.port}: the drive does not report its limits loaded "
                 f"({self.map.describe(self.map.register('status_word').address)})"
@@ -491,10 +486,9 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
             raise ConfigError("excitation.mode", f"the drive offers modes {sorted(self.map.modes)}, got {mode!r}")
         names = list(channels) if channels else [c.name for c in self.driver.streamed_channels]
         mask = self.map.mask_of(names)
-        self.write_names(mode=self.map.modes[mode], sample_divider=int(round(divider)), capture_mask=mask)
+        self.registers.write_names(mode=self.map.modes[mode], sample_divider=int(round(divider)), capture_mask=mask)
         record = [c.name for c in self.map.selected(mask)]
-        self._mask = mask
-        self._order = [record.index(n) for n in names]
+        self.capture.layout = CaptureLayout(mask, tuple(record.index(n) for n in names))
         units = {c.name: c.unit for c in self.driver.channels}
         self.channel_names = names
         self.channel_units = units_in_mode(names, [units.get(n, "") for n in names], mode)
@@ -511,8 +505,8 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
             return
         r = self.map.register("control_word")
         try:
-            with self._answers_within(wait_s):
-                self._request(
+            with self.registers.answers_within(wait_s):
+                self.registers.request(
                     "stopping the drive",
                     r.address,
                     1,
@@ -529,13 +523,165 @@ class ModbusDriveAdapter(FilterSlots, TableCapture, RegisterAccess):
         if not self.map.stop:
             return
         try:
-            with self._answers_within(wait_s):
-                self.write_names(**self.map.stop)
+            with self.registers.answers_within(wait_s):
+                self.registers.write_names(**self.map.stop)
         except Exception:
             pass
 
     def clear_fault(self) -> None:
         """Clear a latched fault (0 -> 1 edge of the fault_reset bit)."""
-        self.write_names(control_word=0)
-        self.write_names(control_word=self.map.control["fault_reset"])
-        self.write_names(control_word=0)
+        self.registers.write_names(control_word=0)
+        self.registers.write_names(control_word=self.map.control["fault_reset"])
+        self.registers.write_names(control_word=0)
+
+    # --- runs (hooks of AdapterBase.stream) ---------------------------------------------------------
+
+    def _prepare_run(self, x: np.ndarray) -> None:
+        self._refuse_run()
+
+    def _play(self, x: np.ndarray, deliver: Deliver, result: RunResult) -> None:
+        """Play ``x`` from the drive's table and hand the captured samples to ``deliver``.
+
+        ``x[k]`` is held over sample period ``k``; row ``k`` is the drive's
+        state at the start of that period. Samples the capture lacks (chunks
+        that could not be read, a capture that stopped early) are counted in
+        the result's stats, never filled. A fault is logged as soon as a status
+        read shows it. While the drive is enabled each answer is waited for at
+        most 40 % of the communication timeout.
+
+        Raises
+        ------
+        DeviceError
+            The drive refused a request (the message names the register),
+            stopped answering, lost the connection, or did not finish in time.
+        DataError
+            The excitation is empty or a value does not fit the table's type.
+        """
+        registers = self.registers
+        self._run_counts = (registers.missing_responses, registers.bad_responses)
+        self.capture.load_table(x)
+        with registers.answers_within(registers.enabled_wait_s):
+            self.capture.trigger()
+            self._follow_capture(len(x), result.stats, deliver)
+        result.completed = self.run_fault is None
+
+    def _end_run(self, result: RunResult) -> None:
+        """The drive stopped and disabled; the run's unanswered and bad answers counted."""
+        self.safe_stop()
+        missing_before, bad_before = self._run_counts
+        result.stats.lost_frames = self.registers.missing_responses - missing_before
+        result.stats.corrupt_frames += self.registers.bad_responses - bad_before
+
+    def _follow_capture(self, n: int, stats: StreamStats, deliver: Deliver) -> None:
+        """Poll the status and read the capture as it fills, until the run has ended and all is read."""
+        started = time.monotonic()
+        deadline = started + 1.2 * n / self.sample_rate_hz + 2.0 + 2 * self.timeout_s
+        status_word = self.map.describe(self.map.register("status_word").address)
+        read_to = 0
+        while True:
+            st = self.registers.status()
+            if "fault" in st.flags and self.run_fault is None:
+                self._note_status_fault(st)  # known now: the first cause, whatever fails after it
+            available = min(st.sample_count, n)
+            before = read_to
+            read_to = self.capture.read_capture(read_to, available - read_to, deliver, stats, _CHUNKS_PER_POLL)
+            ended = "running" not in st.flags
+            if ended and read_to >= available:
+                break
+            if ended and not st.flags & {"done", "fault"}:
+                raise DeviceError(
+                    f"{self.port}: the run ended without the drive reporting it done ({status_word} = {st.word:#06x})"
+                )
+            if read_to == before:
+                if time.monotonic() > deadline:
+                    raise DeviceError(
+                        f"{self.port}: the run did not end within {deadline - started:.1f} s "
+                        f"({status_word} still shows running); stopped"
+                    )
+                time.sleep(_POLL_S)
+        if self.run_fault is None:
+            self._log_capture_end(available, n, stats)
+
+    def _log_capture_end(self, available: int, n: int, stats: StreamStats) -> None:
+        """The run's last event: the capture complete, or stopped at sample ``available`` (the rest counted lost)."""
+        if available < n:
+            stats.lost_samples += n - available
+            self.log_event(
+                RunEvent(
+                    Kind.CAPTURE_STOPPED,
+                    f"the drive's capture stopped at sample {available} of {n}; "
+                    f"samples {available}..{n - 1} were not recorded "
+                    "(not filled)",
+                    available,
+                    value=float(n - available),
+                )
+            )
+        else:
+            self.log_event(RunEvent(Kind.FINISHED, "run complete", n, value=0.0))
+
+    def _describe_fault(self, st: DriveStatus) -> str:
+        """A latched fault in words: name, register, sample and value."""
+        name = self.map.fault_name(st.fault_code)
+        where = self.map.describe(self.map.register("fault_code").address)
+        if name == "comm_timeout":
+            return (
+                f"comm_timeout: the drive heard nothing from the host for {st.fault_value:.3g} s and stopped "
+                f"on its own ({where} = {st.fault_code}, at sample {st.fault_sample})"
+            )
+        return f"{name} ({where} = {st.fault_code}, at sample {st.fault_sample}, value {st.fault_value:g})"
+
+    def _note_status_fault(self, st: DriveStatus) -> None:
+        """Log a fault the status shows as an event, at once, and note it as the run's cause."""
+        name = self.map.fault_name(st.fault_code)
+        message = self._describe_fault(st)
+        if name != "comm_timeout":
+            message = message.replace(" (", ": axis stopped, torque zero (", 1)
+        kind = Kind.LIMIT_TRIP if name in _LIMIT_FAULTS else Kind.FAULT
+        self.note_fault(self.log_event(RunEvent(kind, message, st.fault_sample, value=st.fault_value)))
+
+    # --- filter slots (hooks of AdapterBase's filter-slot methods) ----------------------------------
+
+    def _write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None, enabled: bool) -> None:
+        self.slots.write_filter(slot, biquad, spec, enabled)
+
+    def _read_filter(self, slot: int) -> tuple[Biquad, bool]:
+        return self.slots.read_filter(slot)
+
+    def _stored_form(self, biquad: Biquad, spec: NotchSpec | None) -> Biquad:
+        return self.slots.stored_form(biquad, spec)
+
+    def _read_raw_slot(self, slot: int) -> SavedSlot:
+        return self.slots.read_raw(slot)
+
+    def _write_raw_slot(self, slot: int, saved: SavedSlot) -> None:
+        self.slots.write_raw(slot, saved)
+
+    def _bypass_slot(self, slot: int) -> None:
+        self.slots.bypass(slot)
+
+    def _read_back_bypassed(
+        self, slot: int, biquad: Biquad, spec: NotchSpec | None, expected: Biquad
+    ) -> tuple[Biquad, bool]:
+        """A slot bypassed by the "off" value of one of its fields applies no notch: its other fields are
+        compared with what was written; any other slot as the template does."""
+        if self.slots.bypassed_by_a_field:
+            return self.slots.read_back_bypassed(slot, spec)
+        return super()._read_back_bypassed(slot, biquad, spec, expected)
+
+    @property
+    def parameter_slots(self) -> bool:
+        """Whether the filter slots are the drive's notch parameters (:meth:`filter_parameters` reports them)."""
+        return self.slots.parameter_slots
+
+    def filter_parameters(self, slot: int) -> dict:
+        """What a parameter drive's slot holds, for a report (see :meth:`ModbusFilterSlots.filter_parameters
+        <hilident.adapters.modbus.slots.ModbusFilterSlots.filter_parameters>`)."""
+        return self.slots.filter_parameters(slot)
+
+    def planned_parameters(self, slot: int, spec: NotchSpec) -> dict:
+        """What a parameter drive's ``slot`` will hold for ``spec`` (what ``hilident upload --dry-run`` shows)."""
+        return self.slots.planned_parameters(slot, spec)
+
+    def filter_notes(self, spec: NotchSpec) -> tuple[str, ...]:
+        """Why a parameter drive's notch parameters cannot meet ``spec`` exactly, if they cannot."""
+        return self.slots.filter_notes(spec)

@@ -1,8 +1,8 @@
 """Register requests of the Modbus adapter: read and write by name or address, retries, stale answers,
 exceptions named, and the status registers.
 
-One part of :class:`~hilident.adapters.modbus.drive.ModbusDriveAdapter`, which composes the parts
-(see that module); the other parts build on this one.
+:class:`RegisterAccess` is a part :class:`~hilident.adapters.modbus.drive.ModbusDriveAdapter` owns (its
+``registers``); the other parts (the table and capture, the filter slots) send their requests through it.
 """
 
 from __future__ import annotations
@@ -12,6 +12,8 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 
 import numpy as np
+import serial
+from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException
 from pymodbus.pdu import ModbusPDU
 
@@ -21,29 +23,75 @@ from hilident.adapters.modbus.common import (
     _RETRY_LATER,
     _STATUS,
     DriveStatus,
-    ModbusAdapterState,
     NoResponse,
     _exception_text,
     _reason,
     _StaleAnswer,
 )
+from hilident.drivers.description import DriverDescription
 from hilident.errors import DataError, DeviceError
-from hilident.protocol.modbus_registers import (
-    count_rtu_frames,
-)
+from hilident.protocol.modbus.register_map import RegisterMap
+from hilident.protocol.modbus.rtu import count_rtu_frames
 
 
-class RegisterAccess(ModbusAdapterState):
-    """The request part of :class:`~hilident.adapters.modbus.drive.ModbusDriveAdapter`.
+class RegisterAccess:
+    """The request part of :class:`~hilident.adapters.modbus.drive.ModbusDriveAdapter` (its ``registers``).
 
-    Every request goes through :meth:`_request`: what is safe to repeat is retried after a
+    Every request goes through :meth:`request`: what is safe to repeat is retried after a
     timeout, answers to another request are dropped and counted, and an exception answer or a
     lost connection becomes a :class:`~hilident.errors.DeviceError` naming the register.
+
+    Parameters
+    ----------
+    client : pymodbus ModbusTcpClient or ModbusSerialClient
+        Connected, with ``retries=0`` (this part decides what is repeated); the adapter owns and closes it.
+    regmap : RegisterMap
+        The driver's register map.
+    driver : DriverDescription
+        The driver (its name, for messages).
+    port : str
+        ``tcp://host:port`` or the serial port; used in messages.
+    device_id : int
+        Modbus device (unit) id.
+    timeout_s : float
+        Longest wait for one answer, s.
+
+    Attributes
+    ----------
+    comm_timeout_s : float
+        The drive's communication timeout as armed at connect (0: none), s.
+    missing_responses, bad_responses, dropped_frames : int
+        Requests never answered, answers that were not the one asked for, and late answers dropped from an
+        RTU line after a lost or foreign answer, since opening.
     """
+
+    def __init__(
+        self,
+        client: ModbusTcpClient | ModbusSerialClient,
+        regmap: RegisterMap,
+        driver: DriverDescription,
+        port: str,
+        device_id: int,
+        timeout_s: float,
+    ):
+        self.client = client
+        self.map = regmap
+        self.driver = driver
+        self.port = port
+        self.device_id = device_id
+        self.timeout_s = timeout_s
+        self.comm_timeout_s = 0.0
+        self.missing_responses = 0
+        self.bad_responses = 0
+        self.dropped_frames = 0
+
+    def rtu_line(self) -> serial.Serial | None:
+        """The RTU client's serial line while it is open, else None (Modbus TCP, or a closed line)."""
+        return self.client.socket if isinstance(self.client, ModbusSerialClient) else None
 
     # --- requests -------------------------------------------------------------------------
 
-    def _request(
+    def request(
         self,
         what: str,
         address: int,
@@ -113,7 +161,7 @@ class RegisterAccess(ModbusAdapterState):
         a timeout), and left as soon as a whole frame has come and the line
         has been quiet for a few characters since.
         """
-        sock = self._rtu_line()
+        sock = self.rtu_line()
         if sock is None:
             return
         params = self.client.comm_params
@@ -135,7 +183,7 @@ class RegisterAccess(ModbusAdapterState):
             self.dropped_frames += count_rtu_frames(data)
 
     @contextlib.contextmanager
-    def _answers_within(self, seconds: float) -> Iterator[None]:
+    def answers_within(self, seconds: float) -> Iterator[None]:
         """Wait at most ``seconds`` (never more than ``timeout_s``) for each answer inside the block."""
         params = self.client.comm_params
         before = params.timeout_connect
@@ -146,7 +194,7 @@ class RegisterAccess(ModbusAdapterState):
             params.timeout_connect = before
 
     @property
-    def _enabled_wait_s(self) -> float:
+    def enabled_wait_s(self) -> float:
         """Longest wait for one answer while the drive is enabled: lost answers are asked again in time."""
         return _ENABLED_WAIT * self.comm_timeout_s if self.comm_timeout_s else self.timeout_s
 
@@ -161,7 +209,7 @@ class RegisterAccess(ModbusAdapterState):
     ) -> list[int]:
         """Registers ``address .. address + count - 1`` (read holding registers, or input registers)."""
         reader = self.client.read_input_registers if input_registers else self.client.read_holding_registers
-        response = self._request(
+        response = self.request(
             what,
             address,
             count,
@@ -177,7 +225,7 @@ class RegisterAccess(ModbusAdapterState):
     ) -> None:
         """Write registers from ``address`` (write multiple registers); repeated after a lost answer."""
         words = [int(v) for v in values]
-        self._request(
+        self.request(
             what,
             address,
             len(words),

@@ -1,23 +1,24 @@
 """Filter slots of a Modbus drive: a notch written as registers or parameters, read back, saved, restored.
 
-One part of :class:`~hilident.adapters.modbus.drive.ModbusDriveAdapter`, which composes the parts
-(see that module); it builds on the request part (:class:`~hilident.adapters.modbus.requests.RegisterAccess`).
+:class:`ModbusFilterSlots` is a part :class:`~hilident.adapters.modbus.drive.ModbusDriveAdapter` owns (its
+``slots``); its requests go through the request part (:class:`~hilident.adapters.modbus.requests.RegisterAccess`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
-from hilident.adapters.base import FilterUpload
+from hilident.adapters.modbus.common import ModbusIdentity
 from hilident.adapters.modbus.requests import RegisterAccess
 from hilident.errors import DataError, DeviceError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
 from hilident.protocol.filter_encoding import FilterEncoding, Realisation
-from hilident.protocol.modbus_registers import FieldSlots, Register
-from hilident.protocol.modbus_registers import FilterSlots as RegisterSlots
+from hilident.protocol.modbus.filter_slots import FieldSlots
+from hilident.protocol.modbus.filter_slots import FourRegisterSlots as RegisterSlots
+from hilident.protocol.modbus.registers import Register
 
-#: A slot's contents as :meth:`FilterSlots.save_filter` keeps them: the register block's words, or a parameter
+#: A slot's contents as :meth:`ModbusFilterSlots.read_raw` keeps them: the register block's words, or a parameter
 #: drive's ``(field, stored integer)`` pairs.
 SavedSlot = tuple[int, ...] | tuple[tuple[str, int], ...]
 
@@ -38,14 +39,27 @@ def _saved_fields(saved: SavedSlot) -> dict[str, int]:
     return dict(pairs)
 
 
-class FilterSlots(RegisterAccess):
-    """The filter-slot part of :class:`~hilident.adapters.modbus.drive.ModbusDriveAdapter`.
+class ModbusFilterSlots:
+    """The filter slots of a Modbus drive (the ``slots`` of
+    :class:`~hilident.adapters.modbus.drive.ModbusDriveAdapter`).
 
     A slot is either a register block of the map or a set of parameters (a parameter
     drive); both are written disabled, read back and compared before they are enabled.
+
+    Parameters
+    ----------
+    registers : RegisterAccess
+        The requests (and the map, port and driver they name).
+    identity : callable
+        The drive's identity as read at connect (its loop rate); DeviceError before.
     """
 
-    # --- filters ------------------------------------------------------------------------------
+    def __init__(self, registers: RegisterAccess, identity: Callable[[], ModbusIdentity]):
+        self.registers = registers
+        self.map = registers.map
+        self.port = registers.port
+        self.driver = registers.driver
+        self.identity = identity
 
     def _register_slots(self) -> RegisterSlots:
         """The slots as a block of registers; DeviceError when the map describes no such block."""
@@ -100,7 +114,7 @@ class FilterSlots(RegisterAccess):
     def _read_fields(self, slot: int) -> dict[str, int]:
         """The stored integer of each field of ``slot`` (one request for neighbouring registers)."""
         regs = self._fields(slot)
-        values = self.read_names(*(r.name for r in regs.values()))
+        values = self.registers.read_names(*(r.name for r in regs.values()))
         return {f: int(round((float(values[r.name]) - r.offset) / r.scale)) for f, r in regs.items()}
 
     def _write_fields(self, slot: int, stored: Mapping[str, int | float | bytes]) -> None:
@@ -113,7 +127,7 @@ class FilterSlots(RegisterAccess):
                     "drive's slot holds numbers"
                 )
             physical[regs[name].name] = value * regs[name].scale + regs[name].offset
-        self.write_names(**physical)
+        self.registers.write_names(**physical)
 
     def _slot_state(self, stored: dict[str, int]) -> tuple[dict[str, int], bool]:
         """``(encoding values, enabled)`` of a named slot's stored integers."""
@@ -127,7 +141,7 @@ class FilterSlots(RegisterAccess):
             raise DeviceError(f"{self.port}: the drive takes notch parameters; no notch specification was given")
         encoding = self._encoding()
         try:
-            return encoding.realise(spec, self._known_identity().loop_rate_hz)
+            return encoding.realise(spec, self.identity().loop_rate_hz)
         except DataError as exc:
             raise DeviceError(
                 f"{self.port}: the drive's {encoding.kind} filter parameters cannot "
@@ -169,31 +183,23 @@ class FilterSlots(RegisterAccess):
         """Why a parameter drive's notch parameters cannot meet ``spec`` exactly, if they cannot."""
         return self._realise(spec).notes if self.parameter_slots else ()
 
-    def upload_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None = None) -> FilterUpload:
-        """As :meth:`AdapterBase.upload_filter`; a slot bypassed by the "off" value of one of its fields is
-        written bypassed with the other fields, those read back and compared, then the off field written
-        (the notch takes effect), the whole slot read back and compared; anything else puts the previous
-        contents back."""
+    @property
+    def bypassed_by_a_field(self) -> bool:
+        """Whether a slot is bypassed by the "off" value of one of its fields (a parameter drive's notch without
+        an enable): :meth:`read_back_bypassed` checks such a slot written bypassed."""
         fs = self._field_slots()
-        if fs is None or fs.has_enable:
-            return super().upload_filter(slot, biquad, spec)
-        previous = self.save_filter(slot)
+        return fs is not None and not fs.has_enable
+
+    def read_back_bypassed(self, slot: int, spec: NotchSpec | None) -> tuple[Biquad, bool]:
+        """A slot bypassed by the "off" value of a field, after the notch ``spec`` was written bypassed: the
+        identity section it applies, and whether its other fields read back as written."""
+        fs = self._named_slots()
         values = self._realise(spec).fields
-        expected = self.stored_form(biquad, spec)
-        bypassed: dict[str, int | float | bytes] = {**values, **fs.off}
-        self._write_fields(slot, bypassed)
         back, enabled = self._slot_state(self._read_fields(slot))
         same = not enabled and all(back[k] == v for k, v in values.items() if k not in fs.off)
-        stored = Biquad.identity()
-        if same:
-            self._write_fields(slot, values)
-            stored, enabled = self.read_filter(slot)
-            same = enabled and stored == expected
-        if not same:
-            self.restore_filter(slot, previous)
-        return FilterUpload(stored, expected, bool(same))
+        return Biquad.identity(), same
 
-    def write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None = None, *, enabled: bool) -> None:
+    def write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None, enabled: bool) -> None:
         """Store a notch in a slot as the drive takes it: centre, width, depth (scaled integers), enable.
 
         A parameter drive's slot gets the stored values closest to ``spec``
@@ -209,7 +215,7 @@ class FilterSlots(RegisterAccess):
             self._write_fields(slot, stored)
             return
         values = self._encoding().encode(biquad, spec)
-        self.write(self._slot(slot), self.map.encode_filter(values, enabled), f"writing filter slot {slot}")
+        self.registers.write(self._slot(slot), self.map.encode_filter(values, enabled), f"writing filter slot {slot}")
 
     def read_filter(self, slot: int) -> tuple[Biquad, bool]:
         """The biquad the slot's registers make the drive run, and whether it is enabled.
@@ -222,7 +228,7 @@ class FilterSlots(RegisterAccess):
             if not enabled and not fs.has_enable:
                 return Biquad.identity(), False
             try:
-                return self._encoding().applied(values, self._known_identity().loop_rate_hz), enabled
+                return self._encoding().applied(values, self.identity().loop_rate_hz), enabled
             except DataError as exc:
                 regs = self._fields(slot)
                 raise DeviceError(
@@ -231,37 +237,38 @@ class FilterSlots(RegisterAccess):
                 ) from None
         address = self._slot(slot)
         span = self._register_slots().span
-        words, enabled = self.map.decode_filter(self.read(address, span, f"reading filter slot {slot}"))
+        words, enabled = self.map.decode_filter(self.registers.read(address, span, f"reading filter slot {slot}"))
         if not any(words.values()):
             return Biquad.identity(), enabled  # an empty slot passes the torque through
         try:
-            return self._encoding().applied(words, self._known_identity().loop_rate_hz), enabled
+            return self._encoding().applied(words, self.identity().loop_rate_hz), enabled
         except DataError as exc:
             raise DeviceError(
                 f"{self.port}: filter slot {slot} ({self.map.describe(address, span)}) holds {words}: {exc}"
             ) from None
 
-    def stored_form(self, biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
+    def stored_form(self, biquad: Biquad, spec: NotchSpec | None) -> Biquad:
         """The biquad the drive runs after its own rounding of ``spec`` (0.1 Hz, 0.1 dB steps), or what a
         parameter drive runs with the stored values closest to ``spec``."""
         if self.parameter_slots:
             return self._realise(spec).section
-        return self._encoding().stored_form(biquad, spec, self._known_identity().loop_rate_hz)
+        return self._encoding().stored_form(biquad, spec, self.identity().loop_rate_hz)
 
-    def _read_raw_slot(self, slot: int) -> SavedSlot:
+    def read_raw(self, slot: int) -> SavedSlot:
         """The slot's registers as they are (a parameter drive: its fields' stored integers, by name)."""
         if self.parameter_slots:
             return tuple(sorted(self._read_fields(slot).items()))
-        return tuple(self.read(self._slot(slot), self._register_slots().span, f"reading filter slot {slot}"))
+        return tuple(self.registers.read(self._slot(slot), self._register_slots().span, f"reading filter slot {slot}"))
 
-    def _write_raw_slot(self, slot: int, saved: SavedSlot) -> None:
+    def write_raw(self, slot: int, saved: SavedSlot) -> None:
+        """Put back what :meth:`read_raw` returned."""
         if self.parameter_slots:
             self._write_fields(slot, _saved_fields(saved))
             return
-        self.write(self._slot(slot), _saved_words(saved), f"restoring filter slot {slot}")
+        self.registers.write(self._slot(slot), _saved_words(saved), f"restoring filter slot {slot}")
 
-    def disable_filter(self, slot: int) -> None:
-        """Bypass a slot: its enable register to 0, centre, width and depth kept (:meth:`restore_filter` undoes it).
+    def bypass(self, slot: int) -> None:
+        """Bypass a slot: its enable register to 0, centre, width and depth kept (:meth:`write_raw` undoes it).
 
         A parameter drive's slot without an enable gets its off value, the other fields kept.
         """
@@ -269,4 +276,6 @@ class FilterSlots(RegisterAccess):
         if fs is not None:
             self._write_fields(slot, {"enable": 0} if fs.has_enable else dict(fs.off))
             return
-        self.write(self._slot(slot) + self._register_slots().offsets["enable"], [0], f"disabling filter slot {slot}")
+        self.registers.write(
+            self._slot(slot) + self._register_slots().offsets["enable"], [0], f"disabling filter slot {slot}"
+        )

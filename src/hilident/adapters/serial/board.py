@@ -76,6 +76,14 @@ _FAULT_MEANING = {
 }
 
 
+def board_stored_form(biquad: Biquad) -> Biquad:
+    """The coefficients of ``biquad`` as the board stores them (REAL32: PROTOCOL.md's filter frames)."""
+    b0, b1, b2 = biquad.b
+    return Biquad(
+        (sb.float32(b0), sb.float32(b1), sb.float32(b2)), (1.0, sb.float32(biquad.a[1]), sb.float32(biquad.a[2]))
+    )
+
+
 class ByteLink(Protocol):
     """What the adapter needs of a line: pyserial's ``Serial`` (any URL), a :class:`~hilident.links.PipeEnd`, ...
 
@@ -512,7 +520,7 @@ class SerialBoardAdapter(AdapterBase):
         """Send STOP now (as :meth:`safe_stop`)."""
         self.safe_stop()
 
-    def write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None = None, *, enabled: bool) -> None:
+    def _write_filter(self, slot: int, biquad: Biquad, spec: NotchSpec | None, enabled: bool) -> None:
         """Store a biquad in a filter slot (the board takes coefficients; ``spec`` is not used)."""
         self._request(sb.WriteFilter(sb.FilterCoefficients(slot, enabled, biquad.b, biquad.a)))
 
@@ -524,7 +532,7 @@ class SerialBoardAdapter(AdapterBase):
         biquad, enabled = saved
         self.write_filter(slot, biquad, enabled=enabled)
 
-    def read_filter(self, slot: int) -> tuple[Biquad, bool]:
+    def _read_filter(self, slot: int) -> tuple[Biquad, bool]:
         """Read a filter slot back (coefficients as the board stores them, REAL32)."""
         seq = self._send(sb.ReadFilter(slot))
         deadline = time.monotonic() + self.timeout_s
@@ -537,13 +545,9 @@ class SerialBoardAdapter(AdapterBase):
                     raise DeviceError(f"{self.port}: filter slot {slot}: {reply.error.name} ({reply.detail})")
         raise DeviceError(f"{self.port}: no answer reading filter slot {slot}")
 
-    @staticmethod
-    def stored_form(biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
-        """The coefficients as this board stores them (REAL32), for read-back comparison."""
-        b0, b1, b2 = biquad.b
-        return Biquad(
-            (sb.float32(b0), sb.float32(b1), sb.float32(b2)), (1.0, sb.float32(biquad.a[1]), sb.float32(biquad.a[2]))
-        )
+    def _stored_form(self, biquad: Biquad, spec: NotchSpec | None) -> Biquad:
+        """The coefficients as this board stores them (REAL32), for read-back comparison (``spec`` is not used)."""
+        return board_stored_form(biquad)
 
     # --- streaming ----------------------------------------------------------------------------
 
