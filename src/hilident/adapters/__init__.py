@@ -34,8 +34,8 @@ it is made; a call site names the part the code lives in. Parts never see the
 adapter; the adapter implements the template's hooks by handing the work to
 them. The run events every transport reports are :mod:`hilident.events`.
 Adapters never import :mod:`hilident.emulator`.
+
+May import ``protocol``, ``filters``, ``drivers``, ``config``, ``events``, ``units``, ``endings`` and ``links``;
+never ``emulator``, ``session``, ``batch`` or ``cli``. Import a name from the module that defines it (the package
+re-exports nothing).
 """
-
-from hilident.adapters.backends import BACKENDS, adapter_class, known_transports
-
-__all__ = ["BACKENDS", "adapter_class", "known_transports"]

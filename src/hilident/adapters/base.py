@@ -18,7 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from hilident.errors import ConfigError, DataError, DeviceError, LimitTrip
-from hilident.events import Kind, RunEvent, StreamStats  # noqa: F401  (StreamStats re-exported)
+from hilident.events import Kind, RunEvent, StreamStats
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
 
