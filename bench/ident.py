@@ -28,7 +28,7 @@ What is measured
    warm-up): signal checks, friction compensation, zero-phase low-pass,
    detrend, H1 with coherence (Welch), resonances, a transfer-function fit over
    the band, notch design. For reference also
-   :func:`hilident.pipeline.identify_plant`, the library's own composition
+   :func:`hilident.pipeline.plant.identify_plant`, the library's own composition
    (it computes two FRFs from three signals).
 2. hilident's :func:`~hilident.ident.frequency.h1_estimate` against the same
    H1 built from ``scipy.signal.welch``/``csd``/``coherence``: time ratio and
@@ -82,7 +82,8 @@ from hilident.ident.frequency import h1_estimate
 from hilident.ident.preprocess import check_signals, detrend, lowpass
 from hilident.ident.resonance import find_resonances
 from hilident.ident.tffit import fit_transfer_function, modal_form
-from hilident.pipeline import design_notches, identify_plant
+from hilident.pipeline.notches import design_notches
+from hilident.pipeline.plant import identify_plant
 
 TIME_TARGET_S = 1.0
 ARX_TARGET_S = 0.3  # the order search below on 10^6 samples

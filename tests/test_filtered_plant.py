@@ -1,4 +1,4 @@
-"""The filter slots and the plant together, measured in closed loop (``pipeline.filtered_plant_response``).
+"""The filter slots and the plant together, measured in closed loop (``pipeline.responses.filtered_plant_response``).
 
 A map's verification excites the held axis ahead of the filter slots: the loop response ``y/r`` then carries the
 loop's sensitivity, and only the ratio ``(y/r) / (u/r)`` with ``u`` the command entering the slots is the filtered
@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 from scipy import signal
 
-from hilident import pipeline
 from hilident.config.tables import load_config
+from hilident.pipeline.responses import filtered_plant_response, loop_response
 
 FS = 1000.0
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "emulated-gantry.toml"
@@ -64,9 +64,9 @@ def test_the_ratio_of_the_two_responses_is_the_filtered_plant_where_the_loop_res
     period = 2000
     r, u, y, (b_true, a_true) = _closed_loop(period, 8)
     cfg = load_config(CONFIG).identification
-    loop, _ = pipeline.loop_response(r, y, FS, cfg, period_samples=period)
-    command, _ = pipeline.loop_response(r, u, FS, cfg, period_samples=period)
-    plant = pipeline.filtered_plant_response(loop, command)
+    loop, _ = loop_response(r, y, FS, cfg, period_samples=period)
+    command, _ = loop_response(r, u, FS, cfg, period_samples=period)
+    plant = filtered_plant_response(loop, command)
     f = plant.frequency_hz
     lines = (f >= 2.0) & (f <= 90.0) & (plant.coherence > 0.9)
     assert lines.sum() > 150

@@ -109,6 +109,22 @@ def test_run_report_has_the_headline_figures_with_units(tmp_path):
     assert "Measurement and excitation (1)" in warnings and "What to do: decimate by 2" in warnings
 
 
+def test_notes_are_shown_apart_from_the_warnings_and_ask_for_nothing(tmp_path):
+    summary = json.loads((DATA / "run.json").read_text())
+    summary["warnings"] = []
+    delay = (
+        "transfer-function fit: right-half-plane zero(s) at 260.1 Hz (a 0.612 ms delay): the phase lag of a delay "
+        "(the drive's computation, transport or current loop), non-minimum phase, not anti-resonances"
+    )
+    summary["notes"] = [delay]
+    page = report_of(folder_with(tmp_path, "run", summary))
+    shown = page.sections["warnings"]
+    assert "No warnings." in shown and "Notes (1)" in shown and "260.1 Hz (a 0.612 ms delay)" in shown
+    assert "What to do" not in shown  # a note asks for nothing
+    assert {"class": "notes"} in page.all("ul") and {"class": "warnings"} not in page.all("ul")
+    assert re.search(r"warnings\s*none", page.sections["headline"])  # notes are no warnings
+
+
 def test_identify_report_shows_the_grey_box_model_and_its_validation(tmp_path):
     summary = json.loads((DATA / "identify.json").read_text())
     page = report_of(folder_with(tmp_path, "identify"))

@@ -7,11 +7,18 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from hilident import pipeline
 from hilident.config.tables import IdentificationConfig, NotchConfig
 from hilident.filters.notch import NotchSpec, design_notch
 from hilident.ident.frequency import FrequencyResponse
 from hilident.ident.resonance import RejectedPeak, Resonance
+from hilident.pipeline.eligibility import coherence_amplitude_factor, notch_eligibility
+from hilident.pipeline.findings import grouped
+from hilident.pipeline.measurement import measurement_quality
+from hilident.pipeline.notches import design_notches
+from hilident.pipeline.plant import identify_plant
+from hilident.pipeline.plant_model import fit_plant_model, model_warnings, reconcile_resonances
+from hilident.pipeline.records import resonance_records
+from hilident.pipeline.verification import peak_reductions
 
 FS = 1000.0
 FILTER_RATE = 4000.0
@@ -46,7 +53,7 @@ def notched(frf, biquad):
 def test_band_figure_counts_the_skirts_a_narrow_notch_leaves():
     before = mode_frf()
     narrow = design_notch(NotchSpec(22.0, 1.0, 40.0), FILTER_RATE)
-    (row,) = pipeline.peak_reductions(before, notched(before, narrow), [resonance()], band_bandwidths=2.0)
+    (row,) = peak_reductions(before, notched(before, narrow), [resonance()], band_bandwidths=2.0)
     assert row["reduction_db"] > 30.0  # at the resonance line the notch is deep
     assert row["band_reduction_db"] < row["reduction_db"] - 10.0  # beside it, the response is barely touched
     lo, hi = row["band_hz"]
@@ -60,21 +67,21 @@ def test_band_figure_counts_the_skirts_a_narrow_notch_leaves():
 def test_width_search_reaches_the_band_target_on_the_measured_response():
     before = mode_frf()
     cfg = NotchConfig(depth_db=30.0, width_factor=1.0, min_width_ratio=0.05, min_reduction_db=20.0)
-    (d,) = pipeline.design_notches([resonance()], cfg, FILTER_RATE, [0], before)
+    (d,) = design_notches([resonance()], cfg, FILTER_RATE, [0], before)
     assert d.spec.width_hz > 0.05 * 22.0 and not d.warning  # widened from the starting width
-    (row,) = pipeline.peak_reductions(before, notched(before, d.biquad), [resonance()], 2.0)
+    (row,) = peak_reductions(before, notched(before, d.biquad), [resonance()], 2.0)
     assert row["band_reduction_db"] >= 20.0
     assert row["band_reduction_db"] == pytest.approx(d.predicted_band_reduction_db, abs=0.5)
     # the narrower notch the old rule gave falls short of the band figure
     start = design_notch(NotchSpec(22.0, 0.05 * 22.0, 30.0), FILTER_RATE)
-    (old,) = pipeline.peak_reductions(before, notched(before, start), [resonance()], 2.0)
+    (old,) = peak_reductions(before, notched(before, start), [resonance()], 2.0)
     assert old["band_reduction_db"] < 20.0
 
 
 def test_unreachable_band_target_is_an_honest_warning_with_the_figure():
     before = mode_frf()
     cfg = NotchConfig(min_width_ratio=0.02, width_factor=1.0, max_width_ratio=0.05, min_reduction_db=20.0)
-    (d,) = pipeline.design_notches([resonance()], cfg, FILTER_RATE, [0], before)
+    (d,) = design_notches([resonance()], cfg, FILTER_RATE, [0], before)
     assert d.spec.width_hz == pytest.approx(0.05 * 22.0)
     assert d.predicted_band_reduction_db < 20.0
     assert f"{d.predicted_band_reduction_db:.1f} dB" in d.warning and "max_width_ratio" in d.warning
@@ -82,7 +89,7 @@ def test_unreachable_band_target_is_an_honest_warning_with_the_figure():
 
 def test_model_prediction_without_a_measured_response():
     cfg = NotchConfig(min_width_ratio=0.02, width_factor=1.0, min_reduction_db=20.0)
-    (d,) = pipeline.design_notches([resonance()], cfg, FILTER_RATE, [0])
+    (d,) = design_notches([resonance()], cfg, FILTER_RATE, [0])
     assert d.predicted_band_reduction_db >= 20.0
 
 
@@ -90,30 +97,28 @@ def test_model_prediction_without_a_measured_response():
 
 
 def test_notch_eligibility_reasons():
-    assert pipeline.notch_eligibility(resonance())["notchable"]
-    wide = pipeline.notch_eligibility(resonance(ci=0.6))  # 1.2 Hz interval, 0.78 Hz bandwidth
+    assert notch_eligibility(resonance())["notchable"]
+    wide = notch_eligibility(resonance(ci=0.6))  # 1.2 Hz interval, 0.78 Hz bandwidth
     assert not wide["notchable"] and "95 % interval" in wide["reason"]
     assert wide["amplitude_factor"] == pytest.approx(2 * 1.2 / (2 * 0.018 * 22.0))
-    bad = pipeline.notch_eligibility(resonance(fit_db=4.0, noise_db=0.5, ratio=5.0))
+    bad = notch_eligibility(resonance(fit_db=4.0, noise_db=0.5, ratio=5.0))
     assert not bad["notchable"] and "local fit" in bad["reason"] and "5.0 times" in bad["reason"]
     # a peak fitted as well as its noisy bins allow is fine however large its dB error
-    assert pipeline.notch_eligibility(resonance(fit_db=2.5, noise_db=2.0, ratio=1.2))["notchable"]
+    assert notch_eligibility(resonance(fit_db=2.5, noise_db=2.0, ratio=1.2))["notchable"]
     # without coherence the dB error alone decides
-    blind = pipeline.notch_eligibility(resonance(fit_db=4.0, ratio=float("nan")))
+    blind = notch_eligibility(resonance(fit_db=4.0, ratio=float("nan")))
     assert not blind["notchable"] and "without a coherence" in blind["reason"]
-    grid = pipeline.notch_eligibility(
-        dataclasses.replace(resonance(), method="half_power", frequency_ci95_hz=float("nan"))
-    )
+    grid = notch_eligibility(dataclasses.replace(resonance(), method="half_power", frequency_ci95_hz=float("nan")))
     assert not grid["notchable"] and "no local fit" in grid["reason"]
-    records = pipeline.resonance_records([resonance(), resonance(ci=0.6)])
+    records = resonance_records([resonance(), resonance(ci=0.6)])
     assert [r["notchable"] for r in records] == [True, False] and "not_notchable" in records[1]
 
 
 def test_coherence_amplitude_factor():
     # SNR grows with the amplitude squared: coherence 0.5 (SNR 1) to 0.9 (SNR 9) needs 3 times the amplitude
-    assert pipeline.coherence_amplitude_factor(0.5, 0.9) == pytest.approx(3.0)
-    assert pipeline.coherence_amplitude_factor(0.95, 0.9) < 1.0
-    assert np.isnan(pipeline.coherence_amplitude_factor(0.0, 0.9))
+    assert coherence_amplitude_factor(0.5, 0.9) == pytest.approx(3.0)
+    assert coherence_amplitude_factor(0.95, 0.9) < 1.0
+    assert np.isnan(coherence_amplitude_factor(0.0, 0.9))
 
 
 # --- one source of truth for resonances -----------------------------------------------------
@@ -134,7 +139,7 @@ def simulate(amplitude, noise, seconds=40.0, seed=0):
 def test_reported_resonances_and_model_modes_agree():
     u, y = simulate(amplitude=1.0, noise=1e-5)
     cfg = IdentificationConfig(max_resonances=4)
-    plant = pipeline.identify_plant(u, u, y, y, FS, cfg, (2.0, 80.0))
+    plant = identify_plant(u, u, y, y, FS, cfg, (2.0, 80.0))
     (res,) = plant.resonances
     assert res.frequency_hz == pytest.approx(21.8, rel=0.005)
     notes = plant.model.mode_notes
@@ -150,14 +155,14 @@ def test_reported_resonances_and_model_modes_agree():
 def test_peak_without_a_model_mode_is_rejected_with_the_reason():
     frf = mode_frf()
     peak = resonance(f0=50.0, zeta=0.01)
-    model = pipeline.fit_plant_model(frf, (1.0, 79.0), 4)
-    found, rejected, warnings = pipeline.reconcile_resonances([resonance(), peak], [], model, 6, 0.5)
+    model = fit_plant_model(frf, (1.0, 79.0), 4)
+    found, rejected, warnings = reconcile_resonances([resonance(), peak], [], model, 6, 0.5)
     assert [r.frequency_hz for r in found] == [22.0]
     (rej,) = rejected
     assert rej.frequency_hz == 50.0 and "not confirmed by the fitted model" in rej.reason
     assert not warnings
     # with every pole the order limit allows already used, the peak stays and a warning says why
-    found, rejected, warnings = pipeline.reconcile_resonances(
+    found, rejected, warnings = reconcile_resonances(
         [resonance(), peak], [], model, model.fit.n_den + model.fit.integrators, 0.5
     )
     assert len(found) == 2 and "model_max_order" in warnings[0]
@@ -165,9 +170,9 @@ def test_peak_without_a_model_mode_is_rejected_with_the_reason():
 
 def test_model_mode_without_a_peak_is_noted_not_reported():
     frf = mode_frf()
-    model = pipeline.fit_plant_model(frf, (1.0, 79.0), 4)
+    model = fit_plant_model(frf, (1.0, 79.0), 4)
     rejected = [RejectedPeak(21.75, -40.0, 0.5, "coherence 0.500 around the peak is under ...")]
-    found, _, _ = pipeline.reconcile_resonances([], rejected, model, 4, 0.5)
+    found, _, _ = reconcile_resonances([], rejected, model, 4, 0.5)
     assert found == []
     (note,) = model.mode_notes
     assert not note["reported"] and "coherence 0.500" in note["reason"]
@@ -175,35 +180,46 @@ def test_model_mode_without_a_peak_is_noted_not_reported():
 
 def test_weak_excitation_reports_no_resonance_and_says_why():
     u, y = simulate(amplitude=1.0, noise=2e-2, seconds=20.0, seed=3)  # coherence far under 0.8 at the mode
-    plant = pipeline.identify_plant(u, u, y, y, FS, IdentificationConfig(), (2.0, 80.0))
+    plant = identify_plant(u, u, y, y, FS, IdentificationConfig(), (2.0, 80.0))
     assert plant.resonances == []
     assert plant.rejected and all(p.reason for p in plant.rejected)
     assert any("no resonance" in w for w in plant.warnings)
 
 
-def test_sampling_rule_violation_is_a_warning_that_says_what_to_change():
+def test_sampling_rule_violation_is_a_note_with_the_decimation_that_meets_it():
+    # hilident fits no discrete-time model: the omega0 h rule asks nothing of the run, so it is a note
     frf = mode_frf()
-    quality, warnings = pipeline.measurement_quality(
-        frf, [resonance()], np.random.default_rng(0).standard_normal(4000), FS, (1.0, 79.0), None
+    quality, warnings, notes = measurement_quality(
+        frf, [resonance(), resonance(f0=25.0)], np.random.default_rng(0).standard_normal(4000), FS, (1.0, 79.0), None
     )
-    assert quality["sampling"]["resonances"][0]["within_rule"] is False
-    (w,) = [w for w in warnings if w.startswith("sampling")]
-    assert "decimate by 2" in w and "within_rule" in w
+    assert [r["within_rule"] for r in quality["sampling"]["resonances"]] == [False, False]
+    assert not [w for w in warnings if w.startswith("sampling")]
+    (line,) = grouped(notes)  # one cause: one line naming both resonances
+    assert "decimate them by 2" in line and "within_rule" in line and "22 Hz, 25 Hz" in line
+
+
+def test_a_rate_below_the_sampling_rule_says_what_it_limits_not_to_sample_faster():
+    frf = mode_frf()
+    fast_mode = resonance(f0=300.0)
+    _, warnings, notes = measurement_quality(frf, [fast_mode], np.ones(4000), FS, (1.0, 79.0), None)
+    (note,) = notes
+    assert "300 Hz" in note and "500 Hz (Nyquist)" in note
+    assert "or faster" not in " ".join(warnings + notes) and "run.sample_rate_hz" not in note
 
 
 def test_a_misfitting_model_confirms_nothing_and_says_so():
     frf = mode_frf()
-    model = pipeline.fit_plant_model(frf, (1.0, 79.0), 4)
+    model = fit_plant_model(frf, (1.0, 79.0), 4)
     # misses the data by 10 times the scatter, and by 3 dB; even at the order limit it confirms nothing
     model.fit = dataclasses.replace(model.fit, weighted_cost=100.0, fit_db_rms=3.0)
     clean, vague = resonance(f0=50.0), resonance(ci=0.6)  # the second's frequency interval is too wide
-    found, rejected, warnings = pipeline.reconcile_resonances([clean, vague], [], model, 1, 0.5)
+    found, rejected, warnings = reconcile_resonances([clean, vague], [], model, 1, 0.5)
     assert found == [clean] and "local fit alone" in warnings[0]  # stands on its own evidence
     (rej,) = rejected
     assert rej.frequency_hz == 22.0 and "misses the measured response as a whole" in rej.reason
     assert "95 % interval" in rej.reason
     assert not any(n["reported"] for n in model.mode_notes)
-    assert any("not that of a linear plant" in w for w in pipeline._model_warnings(model))
+    assert any("not that of a linear plant" in w for w in model_warnings(model))
 
 
 def test_a_count_key_takes_a_number_or_its_text(tmp_path):

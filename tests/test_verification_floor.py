@@ -1,5 +1,6 @@
 """How far a measured band figure can be trusted: the error of a periodic estimate and the floor it puts under
-the verification (``frfquality.estimate_error_std``, ``pipeline.band_floor_db``, ``pipeline.pooled_loop_response``).
+the verification (``frfquality.estimate_error_std``, ``pipeline.verification.band_floor_db``,
+``pipeline.responses.pooled_loop_response``).
 
 A notch takes the response near the mode down; what the output does that the excitation does not explain (noise,
 forces on the load behind the filter slots) stays. The verification measures the notched response through it, so
@@ -16,12 +17,13 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from hilident import pipeline
 from hilident.config.tables import IdentificationConfig
 from hilident.errors import DataError
 from hilident.ident.frequency import periodic_frf
 from hilident.ident.frfquality import estimate_error_std
 from hilident.ident.resonance import Resonance
+from hilident.pipeline.responses import pooled_loop_response
+from hilident.pipeline.verification import band_floor_db, peak_reductions
 
 FS = 1000.0
 PERIOD = 4000  # 4 s: 0.25 Hz lines
@@ -102,9 +104,9 @@ def test_a_notched_response_measured_in_noise_reads_about_its_floor_and_more_per
         before = _response(*_record(2, notch=False, noise=0.0, seed=seed))
         for periods in (2, 8):
             after = _response(*_record(periods, notch=True, noise=0.002, seed=100 + seed))
-            (r,) = pipeline.peak_reductions(before, after, [mode])
+            (r,) = peak_reductions(before, after, [mode])
             figures[periods].append(r["band_reduction_db"])
-            floors[periods].append(pipeline.band_floor_db(before, after, mode))
+            floors[periods].append(band_floor_db(before, after, mode))
     for periods in (2, 8):
         assert abs(np.mean(figures[periods]) - np.mean(floors[periods])) < 3.0, (periods, figures, floors)
     rise = np.mean(floors[8]) - np.mean(floors[2])
@@ -116,11 +118,11 @@ def test_without_noise_the_floor_is_infinite_and_far_above_what_the_notch_gives(
     mode = _mode_record()
     before = _response(*_record(2, notch=False, noise=0.0, seed=0))
     after = _response(*_record(2, notch=True, noise=0.0, seed=0))
-    (r,) = pipeline.peak_reductions(before, after, [mode])
-    floor = pipeline.band_floor_db(before, after, mode)
+    (r,) = peak_reductions(before, after, [mode])
+    floor = band_floor_db(before, after, mode)
     assert floor > r["band_reduction_db"] + 40.0
     outside = Resonance(frequency_hz=300.0, damping_ratio=ZETA, peak_magnitude_db=0.0, coherence=1.0, method="t")
-    assert np.isnan(pipeline.band_floor_db(before, after, outside))
+    assert np.isnan(band_floor_db(before, after, outside))
 
 
 def test_pooled_records_average_all_their_periods_each_conditioned_on_its_own():
@@ -131,8 +133,8 @@ def test_pooled_records_average_all_their_periods_each_conditioned_on_its_own():
     r1, y1 = _record(2, notch=False, noise=0.002, seed=1)
     r2, y2 = _record(3, notch=False, noise=0.002, seed=2)
     ramp1, ramp2 = np.linspace(0.0, 0.05, y1.size), np.linspace(0.02, -0.03, y2.size)
-    clean = pipeline.pooled_loop_response([r1, r2], [y1, y2], FS, cfg, PERIOD, BINS)
-    drifting = pipeline.pooled_loop_response([r1, r2], [y1 + ramp1, y2 + ramp2], FS, cfg, PERIOD, BINS)
+    clean = pooled_loop_response([r1, r2], [y1, y2], FS, cfg, PERIOD, BINS)
+    drifting = pooled_loop_response([r1, r2], [y1 + ramp1, y2 + ramp2], FS, cfg, PERIOD, BINS)
     assert drifting.n_averages == 5
     spliced = _response(np.concatenate([r1, r2]), np.concatenate([y1 + ramp1, y2 + ramp2]))
     pooled_error = np.abs(drifting.response - clean.response).max()
@@ -140,7 +142,7 @@ def test_pooled_records_average_all_their_periods_each_conditioned_on_its_own():
     assert pooled_error < 1e-3 * np.abs(clean.response).max()
     assert spliced_error > 10 * pooled_error
     with pytest.raises(DataError, match="whole number"):
-        pipeline.pooled_loop_response([r1[:-10]], [y1[:-10]], FS, cfg, PERIOD, BINS)
+        pooled_loop_response([r1[:-10]], [y1[:-10]], FS, cfg, PERIOD, BINS)
 
 
 class _Bench:
@@ -209,12 +211,10 @@ def _verified_run(noise: float, verify_max_duration_s: float = 0.0):
     exp = bench.record("map_0", MAP_MODE, run.excitation.samples)
     s = analysis_samples(exp, run.excitation)
     period, bins = run.excitation.period_samples, run.excitation.excited_bins
-    loop = pipeline.pooled_loop_response([s["excitation"]], [s["velocity_mps"]], FS, cfg.identification, period, bins)
+    loop = pooled_loop_response([s["excitation"]], [s["velocity_mps"]], FS, cfg.identification, period, bins)
     run.results = {"map_0": SimpleNamespace(loop=loop, resonances=[_mode_record()])}
     run.command_responses = {
-        "map_0": pipeline.pooled_loop_response(
-            [s["excitation"]], [s["torque_cmd_nm"]], FS, cfg.identification, period, bins
-        )
+        "map_0": pooled_loop_response([s["excitation"]], [s["torque_cmd_nm"]], FS, cfg.identification, period, bins)
     }
     run.points = [MapPoint(0.0, 0.0, MODE_HZ, ZETA, 0.01, 0.99, "map_0.h5")]
     run.chain, run.chain_rate_hz = chain, FS

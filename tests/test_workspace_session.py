@@ -248,6 +248,10 @@ def test_the_map_run_writes_its_plot_its_report_and_a_valid_summary(mapped):
     assert len(summary["notch_filters"]) == 2 and len(verified) == len(set(verified)) == 1
     assert "No [verification] move" in page.sections["moves"]
     assert all((out / p["recording"]).is_file() for p in summary["map"])
+    # the shipped map needs nothing of the user; the sampling hint is one note naming every mapped resonance
+    assert summary["warnings"] == []
+    (sampling,) = [n for n in summary["notes"] if n.startswith("sampling: ")]
+    assert all(f"{p['frequency_hz']:.4g} Hz" in sampling for p in summary["map"])
 
 
 def move_config(config: str, tmp_path: Path) -> Path:

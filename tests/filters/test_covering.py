@@ -15,7 +15,7 @@ from hilident.config.tables import NotchConfig
 from hilident.errors import ConfigError, DataError
 from hilident.filters.covering import covering_notch, mapped_modes
 from hilident.filters.notch import width_for_attenuation_hz
-from hilident.pipeline import covering_design
+from hilident.pipeline.notches import covering_design
 from hilident.protocol.filter_encoding import FilterEncoding
 
 FS = 4000.0

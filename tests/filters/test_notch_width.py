@@ -16,7 +16,8 @@ from hilident.filters.notch import (
     width_for_attenuation_hz,
 )
 from hilident.ident.resonance import Resonance
-from hilident.pipeline import design_notches, notch_records
+from hilident.pipeline.notches import design_notches
+from hilident.pipeline.records import notch_records
 
 FS = 4000.0
 

@@ -121,8 +121,8 @@ def test_mode_narrower_than_the_line_spacing_is_flagged():
 
 
 def test_identification_keys_fix_the_structure_of_the_plant_model():
-    from hilident import pipeline
     from hilident.config.tables import parse_config
+    from hilident.pipeline.plant_model import fit_plant_model
 
     limits = "[limits]\ntorque_nm = 10\nvelocity_mps = 1\nposition_min_m = -1\nposition_max_m = 1\n"
     cfg = parse_config(
@@ -130,7 +130,7 @@ def test_identification_keys_fix_the_structure_of_the_plant_model():
         'model_relative_degree = "1"\nmodel_criterion = "validation"\n'
     ).identification
     frf = noisy_frf(*two_mass_velocity(), F, 0.9, seed=2)
-    model = pipeline.fit_plant_model(
+    model = fit_plant_model(
         frf,
         (0.5, 99.0),
         cfg.model_max_order,

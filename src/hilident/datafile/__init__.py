@@ -15,7 +15,7 @@ file is one :class:`DataError`, never a traceback.
 
 Gaps are found, never spliced over: a hilident recording numbers its rows
 (``sample_index``), a time column shows a gap as a step of a whole number of
-sample periods. :func:`hilident.pipeline.select_gap_free` then keeps whole
+sample periods. :func:`hilident.pipeline.selection.select_gap_free` then keeps whole
 gap-free excitation periods (when the recording says its excitation was
 periodic) or the longest gap-free stretch.
 

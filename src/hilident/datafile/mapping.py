@@ -188,7 +188,7 @@ def _gap_free(path: Path, signals: dict[str, np.ndarray], index: np.ndarray | No
             "warnings": [],
         }
         return signals, [(0, n)], info
-    from hilident.pipeline import select_gap_free
+    from hilident.pipeline.selection import select_gap_free
 
     try:
         selection = select_gap_free(index, period, path.name)
@@ -222,7 +222,7 @@ def _confirmed_period(index: np.ndarray, excitation: np.ndarray | None, period: 
     """
     if excitation is None:
         return period, ""
-    from hilident.pipeline import contiguous_runs
+    from hilident.pipeline.selection import contiguous_runs
 
     pairs = 0
     for a, b in contiguous_runs(index):

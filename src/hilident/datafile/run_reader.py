@@ -153,7 +153,7 @@ def _recorded_period(attrs, rate: float) -> tuple[int | None, str]:
     if not text.strip():
         return None, "no stored configuration: the excitation period is unknown"
     from hilident.config.tables import parse_config
-    from hilident.pipeline import excitation_period_samples
+    from hilident.pipeline.selection import excitation_period_samples
 
     try:
         return excitation_period_samples(parse_config(text, "config_toml attribute").excitation, rate), ""

@@ -39,6 +39,9 @@ figcaption { color: #444; font-size: .92em; }
 strong.flagged { color: #c62828; }
 .failed { background: #fdecea; border-left: 4px solid #c62828; padding: .6em .8em; }
 ul.warnings li { margin-bottom: .55em; }
+h3.notes { color: #555; }
+ul.notes { color: #555; border-left: 3px solid #b0bec5; padding-left: 1.6em; }
+ul.notes li { margin-bottom: .4em; }
 .todo { color: #1f5130; }
 .todo.general { color: #555; }
 .print-only { display: none; }

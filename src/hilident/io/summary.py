@@ -2,8 +2,8 @@
 
 A :class:`Summary` is made of the parts a command produced (friction, plant
 and resonances, grey-box model, notch designs, upload, verification, stream
-statistics, excitation, warnings, failure); :meth:`Summary.to_dict` lays them
-out in the documented order of the command (README, "summary.json holds").
+statistics, excitation, warnings and notes, failure); :meth:`Summary.to_dict` lays them
+out in the documented order of the command (docs/results.md).
 :func:`hilident.io.serialise.write_json` writes it. Pure: no files, no devices.
 
 Example
@@ -23,6 +23,7 @@ from typing import Any
 
 from hilident import __version__
 from hilident.events import StreamStats
+from hilident.pipeline.findings import grouped
 
 __all__ = [
     "DevicePart",
@@ -57,6 +58,7 @@ LAYOUTS: dict[str, tuple[str, ...]] = {
         "recordings",
         "elapsed_s",
         "warnings",
+        "notes",
         "model",
         "map",
         "workspace",
@@ -79,6 +81,7 @@ LAYOUTS: dict[str, tuple[str, ...]] = {
         "stream",
         "elapsed_s",
         "warnings",
+        "notes",
     ),
     "upload": (
         "hilident_version",
@@ -241,14 +244,14 @@ class PlantPart:
 
     @classmethod
     def of(cls, plant: Any, no_measurement: Any = None) -> PlantPart:
-        """From a :class:`hilident.pipeline.PlantResult` (None: the step was not reached)."""
+        """From a :class:`hilident.pipeline.plant.PlantResult` (None: the step was not reached)."""
         if plant is None:
             return cls(measurement=no_measurement)
-        from hilident import pipeline
+        from hilident.pipeline.records import rejected_peak_records, resonance_records
 
         return cls(
-            pipeline.resonance_records(plant.resonances),
-            pipeline.rejected_peak_records(plant.rejected),
+            resonance_records(plant.resonances),
+            rejected_peak_records(plant.rejected),
             plant.model.to_dict() if plant.model else None,
             plant.quality,
         )
@@ -263,7 +266,7 @@ class Failure:
 
 
 def friction_summary(friction: Any) -> dict | None:
-    """``summary.json["friction"]`` of a :class:`hilident.pipeline.FrictionResult` (None: no friction test)."""
+    """``summary.json["friction"]`` of a :class:`hilident.pipeline.friction.FrictionResult` (None: no friction test)."""
     if friction is None:
         return None
     p = friction.fit.params
@@ -290,9 +293,9 @@ def move_test_summary(results: list) -> dict:
 
 
 def _notch_filters(designs: list) -> list[dict]:
-    from hilident import pipeline
+    from hilident.pipeline.records import notch_records
 
-    return pipeline.notch_records(designs)
+    return notch_records(designs)
 
 
 @dataclass
@@ -318,6 +321,7 @@ class Summary:
     excitation: ExcitationPart | None = None
     extra: dict[str, Any] = field(default_factory=dict)  # the command's own sections (data, source, connect, ...)
     failure: Failure | None = None
+    notes: list[str] = field(default_factory=list)
 
     @classmethod
     def of_run(
@@ -342,11 +346,12 @@ class Summary:
         workspace_map: list | None = None,
         move_test: list | None = None,
         workspace: dict | None = None,
+        notes: list[str] | None = None,
     ) -> Summary:
         """``hilident run``'s summary (``model``: the grey-box fit, None when not asked for; left out when the
         run failed before it; ``workspace_map``: the ``[map]`` points, left out of a run without ``[map]``;
         ``move_test``: each ``[verification] move`` result, left out of a run without one; ``workspace``: the
-        ``[map]``'s joint fit and covering notch)."""
+        ``[map]``'s joint fit and covering notch; ``notes``: what is worth knowing and needs no action)."""
         return cls(
             "run",
             config,
@@ -370,6 +375,7 @@ class Summary:
                 "workspace": NOT_REACHED if workspace is None else workspace,
                 "move_test": NOT_REACHED if move_test is None else move_test_summary(move_test),
             },
+            notes=list(notes or []),
         )
 
     @classmethod
@@ -385,6 +391,7 @@ class Summary:
         notch_skipped_reason: str | None,
         elapsed_s: float,
         warnings: list[str],
+        notes: list[str] | None = None,
     ) -> Summary:
         """``hilident identify``'s summary: no upload or verification, the stream is the data file's rows."""
         stream = StreamStats(samples=data["samples"], lost_samples=data.get("missing_samples", 0))
@@ -400,6 +407,7 @@ class Summary:
             model,
             stream=stream,
             extra={"data": data, "notch_skipped_reason": notch_skipped_reason},
+            notes=list(notes or []),
         )
 
     @classmethod
@@ -451,7 +459,8 @@ class Summary:
             "verification": self.verification.to_dict(),
             "stream": self.stream.to_summary(),
             "elapsed_s": self.elapsed_s,
-            "warnings": self.warnings,
+            "warnings": grouped(self.warnings),
+            "notes": grouped(self.notes),
             **self.extra,
         }
 

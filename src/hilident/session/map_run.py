@@ -26,9 +26,12 @@ from typing import Any
 
 import numpy as np
 
-from hilident import pipeline
 from hilident.config.tables import Config
 from hilident.errors import ConfigError, DataError, UsageError
+from hilident.pipeline.notches import PREDICTION_MARGIN_DB, NotchDesign, covering_design, design_notches
+from hilident.pipeline.plant import analysis_band
+from hilident.pipeline.responses import filtered_plant_response, loop_response, pooled_loop_response
+from hilident.pipeline.verification import FLOOR_HEADROOM_DB, band_floor_db, floor_limited, peak_reductions
 from hilident.session.excitation import Excitation, build_excitation, excitation_recipe
 from hilident.session.map_positions import MAP_MODE, MapPoint, WorkspaceMap, move_axis, nearest_resonance
 
@@ -184,7 +187,7 @@ class WorkspaceRun:
         response, which a two-mass model with viscous friction does not describe (they bias m1 and k(p) by
         percents); higher, the next mode and the sensors' dynamics."""
         assert self.excitation is not None  # set by map() before it fits
-        lo, hi = pipeline.analysis_band(self.cfg.identification, self.excitation.band_hz)
+        lo, hi = analysis_band(self.cfg.identification, self.excitation.band_hz)
         return max(lo, 0.25 * min(modes_hz)), min(hi, 2.5 * max(modes_hz))
 
     def modes_between(self, count: int = 50) -> list[dict]:
@@ -206,7 +209,7 @@ class WorkspaceRun:
 
     def notch_designs(self, adapter, resonances: list, slots: list[int], plant) -> list:
         """Notches that hold the mapped mode down over the whole workspace
-        (:func:`hilident.pipeline.covering_design`, worst case on what ``adapter``'s device stores): one notch,
+        (:func:`hilident.pipeline.notches.covering_design`, worst case on what ``adapter``'s device stores): one notch,
         or when one would be wider than ``[notch] max_width_ratio`` a staggered set enabled together in as many
         ``slots``; the run's other ``resonances`` get their own notches in the slots left."""
         from hilident.filters.notch import design_notch
@@ -217,7 +220,7 @@ class WorkspaceRun:
         def realise(spec):
             return adapter.stored_form(design_notch(spec, rate), spec)
 
-        covering = pipeline.covering_design(points, nc, rate, realise=realise)
+        covering = covering_design(points, nc, rate, realise=realise)
         # the mode moves continuously with the position: notches enabled together must tile the whole range
         groups = list(covering.groups if covering.kind == "single" else covering.staggered)
         how = "one notch" if covering.kind == "single" else f"{len(groups)} staggered notches, enabled together"
@@ -241,7 +244,7 @@ class WorkspaceRun:
         lo, hi = covering.range_hz
         mapped = min(resonances, key=lambda r: abs(r.frequency_hz - (lo + hi) / 2))
         designs = [
-            pipeline.NotchDesign(
+            NotchDesign(
                 g.spec,
                 design_notch(g.spec, rate),
                 slot,
@@ -254,7 +257,7 @@ class WorkspaceRun:
         ]
         others = [r for r in resonances if r is not mapped and not lo <= r.frequency_hz <= hi]
         if others:
-            designs += pipeline.design_notches(others, nc, rate, slots[len(designs) :], plant.loop)
+            designs += design_notches(others, nc, rate, slots[len(designs) :], plant.loop)
         self.chain, self.chain_rate_hz = [adapter.stored_form(d.biquad, d.spec) for d in designs], rate
         return designs
 
@@ -310,7 +313,7 @@ class WorkspaceRun:
             yield groups, how
             for k in (2, 4, 8):
                 ratio = nc.max_width_ratio / k
-                narrower = pipeline.covering_design(points, replace(nc, max_width_ratio=ratio), rate, realise=realise)
+                narrower = covering_design(points, replace(nc, max_width_ratio=ratio), rate, realise=realise)
                 yield (
                     [narrower.single],
                     f"one notch at most {ratio:.3g} of its centre wide, to keep the holding loop's margin",
@@ -360,11 +363,11 @@ class WorkspaceRun:
 
     def verify(self) -> dict:
         """The map's excitation again at every mapped position with the notches enabled, and the reduction there
-        (:func:`hilident.pipeline.peak_reductions`, before = the map's own record); the axis ends where the
+        (:func:`hilident.pipeline.verification.peak_reductions`, before = the map's own record); the axis ends where the
         verification began.
 
         Two figures per position. The headline (``band_reduction_db``, ``reduction_db``) is on the filter slots
-        and the plant together, command to output (:func:`hilident.pipeline.filtered_plant_response`), as a
+        and the plant together, command to output (:func:`hilident.pipeline.responses.filtered_plant_response`), as a
         single-position run in open-loop torque measures it; it falls back to the loop's figure when the device
         records no filter input (``measured_on`` says which). The loop's figure (``loop_band_reduction_db``) is
         what a torque disturbance at the held cart sees: the notch also takes away the damping the loop gave
@@ -372,8 +375,8 @@ class WorkspaceRun:
 
         Beside each: the figure the stored sections predict on the map's own response
         (``predicted_band_reduction_db``) and the largest the record's noise lets it show (``floor_db``,
-        :func:`hilident.pipeline.band_floor_db`). A record whose floor hides the target is followed by a longer
-        one at the same position (:meth:`_extend`), and the figures are measured on all their periods.
+        :func:`hilident.pipeline.verification.band_floor_db`). A record whose floor hides the target is followed
+        by a longer one at the same position (:meth:`_extend`), and the figures are measured on all their periods.
         """
         excitation, nc = self.excitation, self.cfg.notch
         if excitation is None:
@@ -439,7 +442,7 @@ class WorkspaceRun:
             if period and all(
                 len(s["excitation"]) >= 2 * period and not len(s["excitation"]) % period for _, s, _ in records
             ):
-                return pipeline.pooled_loop_response(
+                return pooled_loop_response(
                     [s["excitation"] for _, s, _ in records],
                     [s[channel] for _, s, _ in records],
                     rate,
@@ -447,7 +450,7 @@ class WorkspaceRun:
                     period,
                     bins,
                 )
-            response, warnings = pipeline.loop_response(
+            response, warnings = loop_response(
                 records[-1][1]["excitation"], records[-1][1][channel], rate, ic, period, bins
             )
             self.warnings += [w for w in warnings if w not in self.warnings]
@@ -455,7 +458,7 @@ class WorkspaceRun:
 
         before_loop = self._result(point).loop
         after = response(ic.output)
-        (loop,) = pipeline.peak_reductions(before_loop, after, [mode], nc.verify_band_bandwidths)
+        (loop,) = peak_reductions(before_loop, after, [mode], nc.verify_band_bandwidths)
         before, after_measured = before_loop, after
         command_before = self.command_responses.get(point.recording.removesuffix(".h5"))
         measured_on, predicted = "loop", None
@@ -464,11 +467,11 @@ class WorkspaceRun:
             and self.filter_input is not None
             and all(self.filter_input in s for _, s, _ in records)
         ):
-            before = pipeline.filtered_plant_response(before_loop, command_before)
-            after_measured = pipeline.filtered_plant_response(after, response(self.filter_input))
+            before = filtered_plant_response(before_loop, command_before)
+            after_measured = filtered_plant_response(after, response(self.filter_input))
             measured_on, predicted = "filtered_plant", self._predicted(before, mode)
-        (r,) = pipeline.peak_reductions(before, after_measured, [mode], nc.verify_band_bandwidths)
-        floor = pipeline.band_floor_db(before, after_measured, mode, nc.verify_band_bandwidths)
+        (r,) = peak_reductions(before, after_measured, [mode], nc.verify_band_bandwidths)
+        floor = band_floor_db(before, after_measured, mode, nc.verify_band_bandwidths)
         return {
             "position_m": point.position_m,
             "frequency_hz": r["frequency_hz"],
@@ -476,7 +479,7 @@ class WorkspaceRun:
             "reduction_db": r["reduction_db"],
             "predicted_band_reduction_db": predicted,
             "floor_db": floor,
-            "floor_limited": pipeline.floor_limited(r["band_reduction_db"], floor),
+            "floor_limited": floor_limited(r["band_reduction_db"], floor),
             "loop_band_reduction_db": loop["band_reduction_db"],
             "loop_reduction_db": loop["reduction_db"],
             "periods": after.n_averages,
@@ -495,7 +498,7 @@ class WorkspaceRun:
         after = replace(
             before, response=before.response * chain_response(self.chain, before.frequency_hz, self.chain_rate_hz)
         )
-        (r,) = pipeline.peak_reductions(before, after, [mode], self.cfg.notch.verify_band_bandwidths)
+        (r,) = peak_reductions(before, after, [mode], self.cfg.notch.verify_band_bandwidths)
         return r["band_reduction_db"]
 
     def _extend(self, row: dict) -> Config | None:
@@ -512,7 +515,7 @@ class WorkspaceRun:
             or not excitation.period_samples
             or periods < 2
             or not row["floor_limited"]
-            or row["band_reduction_db"] >= nc.min_reduction_db + pipeline.PREDICTION_MARGIN_DB
+            or row["band_reduction_db"] >= nc.min_reduction_db + PREDICTION_MARGIN_DB
             or not math.isfinite(floor)
         ):
             return None
@@ -520,7 +523,7 @@ class WorkspaceRun:
         first_s = len(excitation.samples) / self.cfg.run.sample_rate_hz
         cap_s = m.verify_max_duration_s or 4.0 * first_s
         # at least as many again: a floor estimated from a few periods is itself uncertain by a few dB
-        lower_by_db = nc.min_reduction_db + pipeline.FLOOR_HEADROOM_DB - floor
+        lower_by_db = nc.min_reduction_db + FLOOR_HEADROOM_DB - floor
         needed = max(math.ceil(periods * 10.0 ** (lower_by_db / 10.0)) - periods, periods)
         room = int(round((cap_s - first_s) / period_s)) - 1  # the second record plays its own lead-in
         extra = min(needed, room)
@@ -537,12 +540,12 @@ class WorkspaceRun:
 
     def _command_response(self, exp, excitation: Excitation):
         """The excitation to the command entering the filter slots at one mapped position (``u/r``, the
-        denominator of :func:`hilident.pipeline.filtered_plant_response`); None when the device records no
+        denominator of :func:`hilident.pipeline.responses.filtered_plant_response`); None when the device records no
         filter input."""
         if self.filter_input is None or self.filter_input not in exp.samples:
             return None
         s = self.analysis_samples(exp, excitation)
-        response, warnings = pipeline.loop_response(
+        response, warnings = loop_response(
             s["excitation"],
             s[self.filter_input],
             self.cfg.run.sample_rate_hz,

@@ -328,17 +328,19 @@ def _one_period_plant(r, u, y, sample_rate_hz: float, period: int, cfg, band_hz)
             head + "; the noise of each line is taken from the non-excited lines beside it (coherence "
             "from that, a lower bound where they hold transients or distortion too)"
         ]
-        resonances, rejected, notes = pipeline_plant.resonances_and_model(plant, cfg, band_hz)
-        warnings += notes
-        model = notes.model
+        screened = pipeline_plant.resonances_and_model(plant, cfg, band_hz)
+        resonances, rejected, model = screened.resonances, screened.rejected, screened.model
+        warnings += screened.warnings
+        notes = screened.notes
     else:
         warnings = [
             head + ", so no coherence; resonances are judged on prominence alone (record two or more "
             "periods to judge the noise)"
         ]
         resonances, rejected, model = _prominent_resonances(plant, cfg, band_hz, warnings)
+        notes = []
     antires = [hz for hz, _ in model.roots.antiresonances] if model else []
-    quality, more = pipeline_measurement.measurement_quality(
+    quality, more, sampling_notes = pipeline_measurement.measurement_quality(
         plant, resonances, r, sample_rate_hz, band_hz, period, antires
     )
     quality["one_period"] = {
@@ -354,6 +356,7 @@ def _one_period_plant(r, u, y, sample_rate_hz: float, period: int, cfg, band_hz)
         model=model,
         quality=quality,
         rejected=rejected,
+        notes=notes + sampling_notes,
     )
 
 
@@ -645,4 +648,5 @@ def _summary(cfg: Config, data_info: dict, state: dict, warnings: list[str], sta
         notch_skipped_reason=state.get("notch_skipped_reason"),
         elapsed_s=time.monotonic() - started,
         warnings=warnings,
+        notes=state["plant"].notes if state["plant"] is not None else [],
     ).to_dict()

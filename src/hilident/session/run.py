@@ -66,8 +66,14 @@ from hilident.session.plan import RunPlan, excitation_travel_m, make_plan
 from hilident.session.slot_bypass import BypassedSlots
 from hilident.signals import generators as sig
 
-#: The analysis, imported once an experiment needs it (a run ended before that starts and stops faster).
-pipeline = lazy_module("hilident.pipeline")
+#: The analysis steps, imported once an experiment needs them (a run ended before that starts and stops faster).
+pipeline_friction = lazy_module("hilident.pipeline.friction")
+pipeline_selection = lazy_module("hilident.pipeline.selection")
+pipeline_plant = lazy_module("hilident.pipeline.plant")
+pipeline_greybox = lazy_module("hilident.pipeline.greybox")
+pipeline_notches = lazy_module("hilident.pipeline.notches")
+pipeline_responses = lazy_module("hilident.pipeline.responses")
+pipeline_verification = lazy_module("hilident.pipeline.verification")
 #: The upload step, shared with ``hilident upload``.
 uploading = lazy_module("hilident.session.upload")
 
@@ -140,6 +146,7 @@ class Session(DeviceConnection):
         self.device: ConnectedDevice | None = None
         self.recorder: ExperimentRecorder | None = None  # made once the device is connected
         self.warnings: list[str] = []
+        self.notes: list[str] = []  # worth knowing, nothing to act on (summary.json "notes")
         self.summary: dict = {}
         self.result: Summary | None = None  # the typed summary behind ``summary`` once the run has ended
         self._analysed: dict[str, dict[str, np.ndarray]] = {}  # gap-free samples of each analysed run
@@ -374,7 +381,7 @@ class Session(DeviceConnection):
             if a in rows and b - 1 in rows and rows[b - 1] - rows[a] == b - 1 - a
         ]
         self.progress.step("friction: fitting the friction curve")
-        result = pipeline.identify_friction(
+        result = pipeline_friction.identify_friction(
             exp.samples["velocity_mps"], exp.samples["torque_nm"], kept, self.cfg.friction_test.model
         )
         self.warnings += result.warnings
@@ -401,7 +408,7 @@ class Session(DeviceConnection):
     def _analysis_samples(self, exp: Experiment, excitation: Excitation) -> dict[str, np.ndarray]:
         """Whole gap-free periods of a periodic excitation, else the longest gap-free stretch (never spliced).
         A record selected twice warns of its gaps once."""
-        selection = pipeline.select_gap_free(exp.samples["sample_index"], excitation.period_samples, exp.name)
+        selection = pipeline_selection.select_gap_free(exp.samples["sample_index"], excitation.period_samples, exp.name)
         self.warnings += [w for w in selection.warnings if w not in self.warnings]
         return {k: v[selection.keep] for k, v in exp.samples.items()}
 
@@ -423,7 +430,7 @@ class Session(DeviceConnection):
             from hilident.session.offline import model_for_mode
 
             model = model_for_mode(self.cfg, self.cfg.excitation.mode)  # a held torque command in open loop
-            result = pipeline.fit_greybox(
+            result = pipeline_greybox.fit_greybox(
                 model, s["torque_nm"], s["position_m"], self.cfg.run.sample_rate_hz, others or None
             )
         except DataError as exc:
@@ -440,10 +447,10 @@ class Session(DeviceConnection):
         if for_model:
             self._analysed[exp.name] = s
         ic = cfg.identification
-        band = pipeline.analysis_band(ic, excitation.band_hz)
+        band = pipeline_plant.analysis_band(ic, excitation.band_hz)
         check_it_moved(cfg, s[ic.output], friction)
         self.progress.step(f"{exp.name}: frequency response and resonances")
-        result = pipeline.identify_plant(
+        result = pipeline_plant.identify_plant(
             s["excitation"],
             s["torque_nm"],
             s[ic.output],
@@ -458,6 +465,7 @@ class Session(DeviceConnection):
             excited_bins=excitation.excited_bins,
         )
         self.warnings += result.warnings
+        self.notes += result.notes
         return result
 
     def _map_step(self, ident: Experiment, excitation: Excitation, friction, plant) -> None:
@@ -516,7 +524,7 @@ class Session(DeviceConnection):
         ad = self.adapter
         if ad.identity.filter_slots < 1:
             # designed all the same, for the user to enter by hand or to describe the drive's filter objects
-            designs = pipeline.design_notches(resonances, nc, ad.identity.loop_rate_hz, [0], plant.loop)
+            designs = pipeline_notches.design_notches(resonances, nc, ad.identity.loop_rate_hz, [0], plant.loop)
             upload.not_uploaded = (
                 f"driver {self.found_driver.name!r} describes no filter capability (no [filters] "
                 "table in its driver.toml): the designed notch was not uploaded"
@@ -527,7 +535,7 @@ class Session(DeviceConnection):
         if self.workspace is not None and self.workspace.found:
             designs = self.workspace.notch_designs(ad, resonances, slots, plant)
         else:
-            designs = pipeline.design_notches(resonances, nc, ad.identity.loop_rate_hz, slots, plant.loop)
+            designs = pipeline_notches.design_notches(resonances, nc, ad.identity.loop_rate_hz, slots, plant.loop)
         self.warnings += [d.warning for d in designs if d.warning]
         self.progress.step(f"notch: uploading {len(designs)} filter(s)")
         # written disabled, read back, compared; enabled only as written, else the old contents put back
@@ -539,7 +547,7 @@ class Session(DeviceConnection):
         """The resonances the evidence supports a notch for; why the others get none goes to warnings and upload."""
         e = self.cfg.excitation
         amplitude = e.amplitude if isinstance(e.amplitude, (int, float)) else None
-        decision = pipeline.notch_decision(
+        decision = pipeline_notches.notch_decision(
             plant, self.cfg.identification.coherence_threshold, e.amplitude_key, amplitude
         )
         self.warnings += decision.warnings
@@ -577,7 +585,7 @@ class Session(DeviceConnection):
         s = self._analysis_samples(exp, excitation)
         self._analysed["verification"] = s
         self.progress.step("verification: frequency response")
-        loop_after, warnings = pipeline.loop_response(
+        loop_after, warnings = pipeline_responses.loop_response(
             s["excitation"],
             s[self.cfg.identification.output],
             self.cfg.run.sample_rate_hz,
@@ -591,17 +599,20 @@ class Session(DeviceConnection):
         resonances = list(
             {(d.resonance.frequency_hz, d.resonance.damping_ratio): d.resonance for d in designs}.values()
         )
-        reductions = pipeline.peak_reductions(plant.loop, loop_after, resonances, nc.verify_band_bandwidths)
+        reductions = pipeline_verification.peak_reductions(
+            plant.loop, loop_after, resonances, nc.verify_band_bandwidths
+        )
         for row, resonance in zip(reductions, resonances, strict=True):
-            floor = pipeline.band_floor_db(plant.loop, loop_after, resonance, nc.verify_band_bandwidths)
+            floor = pipeline_verification.band_floor_db(plant.loop, loop_after, resonance, nc.verify_band_bandwidths)
             row["floor_db"] = floor
-            row["floor_limited"] = pipeline.floor_limited(row["band_reduction_db"], floor)
+            row["floor_limited"] = pipeline_verification.floor_limited(row["band_reduction_db"], floor)
         band = min(reductions, key=lambda r: r["band_reduction_db"])
         at_peak = min(r["reduction_db"] for r in reductions)
         if band["band_reduction_db"] < nc.min_reduction_db:
             floor = (
-                f"; it is within {pipeline.FLOOR_HEADROOM_DB:g} dB of the {band['floor_db']:.1f} dB its record's "
-                "noise lets it show: a verification of more periods ([excitation] duration_s) lowers that floor"
+                f"; it is within {pipeline_verification.FLOOR_HEADROOM_DB:g} dB of the {band['floor_db']:.1f} dB "
+                "its record's noise lets it show: a verification of more periods ([excitation] duration_s) "
+                "lowers that floor"
                 if band["floor_limited"] and np.isfinite(band["floor_db"])
                 else ""
             )
@@ -653,6 +664,7 @@ class Session(DeviceConnection):
             recordings=sorted(p.name for p in self.out.glob("*.h5")),
             elapsed_s=elapsed_s,
             warnings=self.warnings,
+            notes=self.notes,
             model=model,
             workspace_map=self.workspace.points if self.workspace else None,
             move_test=self.move_results,
@@ -668,7 +680,7 @@ class Session(DeviceConnection):
             verification.loop_after if verification else None,
             self.cfg.identification.coherence_threshold,
             summary=self.summary,
-            band_hz=pipeline.analysis_band(self.cfg.identification, excitation_band_hz),
+            band_hz=pipeline_plant.analysis_band(self.cfg.identification, excitation_band_hz),
             output=self.cfg.identification.output,
         )
         if model is not None:  # model.png: the fit of _greybox on the records it used

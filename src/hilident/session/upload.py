@@ -7,7 +7,7 @@ Both go through the same two steps:
   (``adapter.stored_form``) and enables it only when the two are equal
   (:meth:`~hilident.adapters.base.AdapterBase.upload_filter`); what the
   stored coefficients really do (attenuation at the designed centre, where
-  the minimum lies) is computed from them (:func:`hilident.pipeline.achieved_notch`);
+  the minimum lies) is computed from them (:func:`hilident.pipeline.verification.achieved_notch`);
 * :func:`store_parameters` has the device store its parameters in
   non-volatile memory, where the transport has such a command.
 
@@ -51,7 +51,7 @@ ROUNDING_WARNING_DB = 3.0
 
 
 def upload_design(adapter, design, warnings: list[str]) -> dict:
-    """Write ``design`` (a :class:`~hilident.pipeline.NotchDesign`) into its slot, read back, enable on a match.
+    """Write ``design`` (a :class:`~hilident.pipeline.notches.NotchDesign`) into its slot, read back, enable on a match.
 
     A slot whose read-back differs from the device's expected stored form is
     put back as it was (by ``adapter.upload_filter``) and a warning says so.
@@ -69,11 +69,11 @@ def upload_design(adapter, design, warnings: list[str]) -> dict:
     -------
     dict
         ``slot``, ``readback_b``, ``readback_a``, ``matches`` and ``achieved``
-        (:func:`hilident.pipeline.achieved_notch` of the stored section against the planned one:
+        (:func:`hilident.pipeline.verification.achieved_notch` of the stored section against the planned one:
         the attenuation at the designed centre, what the device's quantisation allows, the difference),
         plus ``expected_b``/``expected_a`` in the private key ``_expected``.
     """
-    from hilident import pipeline
+    from hilident.pipeline.verification import achieved_notch
 
     d = design
     up = adapter.upload_filter(d.slot, d.biquad, d.spec)
@@ -86,7 +86,7 @@ def upload_design(adapter, design, warnings: list[str]) -> dict:
     notes = getattr(adapter, "filter_notes", None)  # drives whose encoding fits the notch to what it can store
     notes = list(notes(d.spec)) if notes is not None else []
     warnings += [f"filter slot {d.slot}: {note}" for note in notes]
-    achieved = pipeline.achieved_notch(d, stored, planned=expected)
+    achieved = achieved_notch(d, stored, planned=expected)
     if achieved["quantisation_loss_db"] > ROUNDING_WARNING_DB and not notes:  # notes already say why
         warnings.append(
             f"filter slot {d.slot}: the device's coefficient rounding moves the {d.spec.center_hz:.4g} Hz notch "
@@ -269,16 +269,16 @@ def _resonance_for(src: Source, rec: dict, index: int):
 
 
 def designs_for_device(src: Source, cfg, loop_rate_hz: float, slots: list[int], warnings: list[str]) -> list:
-    """The source's notches as :class:`~hilident.pipeline.NotchDesign` for slots ``slots`` at the device's rate.
+    """The source's notches as :class:`~hilident.pipeline.notches.NotchDesign` for slots ``slots`` at the device's rate.
 
     A notch designed at the device's filter rate is taken as designed (its
     coefficients); one designed for another rate is designed again from its
     resonance (centre, damping, ``cfg.notch``'s width rule and depth) at
     ``loop_rate_hz``, and a warning says so.
     """
-    from hilident import pipeline
     from hilident.filters.biquad import Biquad
     from hilident.filters.notch import NotchSpec
+    from hilident.pipeline.notches import NotchDesign, design_notches
 
     designs = []
     for i, (rec, slot) in enumerate(zip(notch_records(src), slots, strict=False)):
@@ -294,13 +294,13 @@ def designs_for_device(src: Source, cfg, loop_rate_hz: float, slots: list[int], 
             except DataError:
                 res = None  # not needed: the coefficients are taken as designed
             designs.append(
-                pipeline.NotchDesign(
+                NotchDesign(
                     spec, biquad, slot, loop_rate_hz, res, float(rec.get("predicted_band_reduction_db", float("nan")))
                 )
             )
             continue
         res = _resonance_for(src, rec, i)
-        (d,) = pipeline.design_notches([res], cfg.notch, loop_rate_hz, [slot])
+        (d,) = design_notches([res], cfg.notch, loop_rate_hz, [slot])
         warnings.append(
             f"notch at {rec['center_hz']:.4g} Hz: designed for a {rate:g} Hz filter rate in {src.path}, "
             f"the device filters at {loop_rate_hz:g} Hz: designed again from its resonance "
@@ -578,7 +578,7 @@ class UploadCommand:
         return out
 
     def _plan(self, designs: list, before: list[dict]) -> UploadPlan:
-        from hilident import pipeline
+        from hilident.pipeline.verification import achieved_notch
 
         ad = self.device.adapter
         plan = UploadPlan(self.device.found_driver.name, ad.port, self.source.path, save=self.save)
@@ -593,7 +593,7 @@ class UploadCommand:
                     "depth_db": d.spec.depth_db,
                     "expected_b": list(expected.b),
                     "expected_a": list(expected.a),
-                    "achieved": pipeline.achieved_notch(d, expected, planned=expected),
+                    "achieved": achieved_notch(d, expected, planned=expected),
                     "before": {"enabled": was["enabled"], "b": was["b"], "a": was["a"]},
                     **_planned_parameters_of(ad, d.slot, d.spec),
                 }
