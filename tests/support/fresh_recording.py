@@ -10,9 +10,9 @@ import numpy as np
 
 from hilident.config.tables import Config, load_config
 from hilident.drivers.description import find_driver
-from hilident.session.experiment import ExperimentRecorder
 from hilident.progress import Progress
 from hilident.session.connection import ConnectedDevice, connect_device
+from hilident.session.experiment import ExperimentRecorder
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 

@@ -312,7 +312,8 @@ def plots(inputs: ReportInputs) -> str:
 
 # --------------------------------------------------------------------------- friction
 
-#: Units of the friction parameters (docs/results.md, "What a run's summary.json holds": force or torque in N*m, speed in m/s).
+#: Units of the friction parameters (docs/results.md, "What a run's summary.json holds": force or torque in N*m,
+#: speed in m/s).
 FRICTION_UNITS = {"Fc": "N*m", "Fs": "N*m", "Fv": "N*m/(m/s)", "vs": "m/s", "delta_v": "1", "delta_s": "1"}
 _FRICTION_NAMES = {
     "Fc": "Coulomb level Fc",
