@@ -927,7 +927,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Run one command; returns the exit code (see the bench guide, docs/bench-guide.md: 0 success, 2 configuration
-    or usage, 3 data, 4 device, 5 safety-limit trip, 128 + signal when a signal ended it: 129 SIGHUP, 130 SIGINT, 143 SIGTERM)."""
+    or usage, 3 data, 4 device, 5 safety-limit trip, 128 + signal when a signal ended it: 129 SIGHUP, 130 SIGINT,
+    143 SIGTERM)."""
     from hilident import endings
     from hilident.errors import Interrupted
 
