@@ -195,21 +195,16 @@ def test_order_search_noise_free_ties_go_to_fewest_parameters():
     assert (res.model.na, res.model.nb, res.model.nk) == (2, 2, 1)
 
 
-# --- speed and errors ---------------------------------------------------------
+# --- size and errors ----------------------------------------------------------
 
 
-def test_million_samples_fit_quickly():
-    import time
-
+def test_a_million_samples_fit_exactly():
+    """A record of 10**6 samples fits (its speed is bench/ident.py's to measure, not a timed test's)."""
     rng = np.random.default_rng(0)
     u = rng.standard_normal(1_000_000)
     y = signal.lfilter([0, 0.5, 0.2, 0.1, 0.05], [1, -1.2, 0.5, -0.1, 0.02], u)
-    fit_arx(u[:1000], y[:1000], 4, 4, 1)  # warm-up
-    t0 = time.perf_counter()
     model = fit_arx(u, y, 4, 4, 1)
-    elapsed = time.perf_counter() - t0
     assert model.b == pytest.approx([0.5, 0.2, 0.1, 0.05], abs=1e-8)
-    assert elapsed < 2.0  # typically ~0.15 s; generous for loaded CI machines
 
 
 def test_errors_name_the_argument():

