@@ -95,3 +95,7 @@ def test_every_package_says_its_job(package):
     init = SRC.parent / package / "__init__.py"
     docstring = ast.get_docstring(ast.parse(init.read_text(encoding="utf-8")))
     assert docstring and len(docstring.split()) >= 8, f"{package}/__init__.py has no docstring saying its job"
+    if package.count("/") == 1:  # a room of the top level says what it may import, as the contracts hold it
+        assert "may import" in docstring.lower() or "imports nothing" in docstring.lower(), (
+            f"{package}/__init__.py does not say what the package may import"
+        )

@@ -8,4 +8,7 @@ table (``batch.parquet`` and ``batch.csv``); :mod:`~hilident.batch.runner`
 runs the tasks on a Dask cluster or in a plain loop, skipping what the table
 already holds; :mod:`~hilident.batch.verdicts` judges every axis's drift from
 the whole table and writes ``drift.json`` and ``report.html``.
+
+May import ``config``, ``io``, ``ident``, ``html_report``, ``emulator`` (the fleet's twins) and ``session`` (one
+recording identified as ``hilident identify`` does); never ``cli``.
 """

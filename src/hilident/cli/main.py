@@ -568,7 +568,7 @@ def _drivers_check(args) -> int:
 
 
 def _init(args) -> int:
-    from hilident.config.starter import starter_config, write_starter_config
+    from hilident.drivers.starter_config import starter_config, write_starter_config
 
     out = Path(args.out)
     text = starter_config(args.transport, args.driver).replace("THIS_FILE", str(out))

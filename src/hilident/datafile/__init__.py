@@ -30,6 +30,8 @@ Layout
   files: also :func:`read_run_info`)
 - :mod:`~hilident.datafile.raw`: :class:`RawColumns`, the memory bound
   (:data:`MAX_DATA_BYTES`, to be changed there) and one-line messages
+
+May import ``config``, ``io``, ``ident`` and ``pipeline``; never ``session``, ``adapters``, ``emulator`` or ``cli``.
 """
 
 from hilident.datafile.columns import read_columns, read_friction_test

@@ -55,4 +55,7 @@ wire) and ``hilident.filters`` (the biquad the drive runs).
 :class:`~hilident.emulator.device.EmulatorServer` protocol, and
 ``start(cfg, driver, device) -> EmulatedDevice``); then add the transport to ``_STARTERS`` (and
 :data:`~hilident.emulator.factory.STANDALONE_LINKS`) in :mod:`factory`.
+
+May import ``protocol``, ``filters``, ``drivers``, ``config``, ``numbers`` and ``links``; never ``adapters``,
+``session``, ``batch`` or ``cli``.
 """

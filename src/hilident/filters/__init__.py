@@ -4,6 +4,8 @@
 - ``notch``: analog notch design, pre-warped Tustin discretisation, float32 and fixed-point quantisation
 - ``parametric``: sections from zero/pole frequencies or a rejection band, and the notch a section achieves
 - ``covering``: one notch over the range a mode moves through the workspace, or a position-scheduled set
+
+May import ``errors`` and ``numbers`` only (pure).
 """
 
 from hilident.filters.biquad import Biquad, BiquadChain, BiquadSection

@@ -18,6 +18,8 @@ Modules: :mod:`~hilident.html_report.gather` (reads the folder),
 :mod:`~hilident.html_report.markup` (escaping, tables, figures, numbers with units);
 :mod:`~hilident.html_report.batch` writes a batch's report (drift verdicts, drift plots, failures) on the
 same page and pieces.
+
+May import ``io``, ``plots`` and ``errors``; never ``session``, ``adapters``, ``emulator`` or ``cli``.
 """
 
 from __future__ import annotations

@@ -20,6 +20,8 @@ Pure functions; no files, devices or clocks.
 - ``decay``: poles from a free-vibration record
 - ``drift``: a fleet axis's resonance trend over days, its uncertainty and drift verdict
 - ``validation``: fit %, residual analysis, overfitting warning
+
+May import ``errors`` only (pure).
 """
 
 from hilident.ident.arx import (

@@ -3,4 +3,6 @@
 - ``profiles``: trapezoidal and jerk-limited set-point trajectories, sampled at a rate, with a dwell
 - ``shaping``: a notch chain applied by the host to a position set-point, extended until it has settled
 - ``residual``: residual vibration after a move (peak-to-peak, RMS, settling time) and its reduction in dB
+
+May import ``filters``, ``errors`` and ``numbers`` only (pure).
 """

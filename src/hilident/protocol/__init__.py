@@ -10,6 +10,9 @@
 - ``filter_encoding``: how a drive stores a notch in one filter slot
 
 Import from the modules; this package re-exports nothing.
+
+May import ``filters``, ``errors`` and the schema mechanism (``config.schema``); no I/O, never ``adapters`` or
+``emulator`` (they meet here).
 """
 
 __all__: list[str] = []

@@ -4,6 +4,8 @@ Example
 -------
 >>> summary_schema()["$schema"]
 'https://json-schema.org/draft/2020-12/schema'
+
+Data only; imports nothing of hilident.
 """
 
 from __future__ import annotations

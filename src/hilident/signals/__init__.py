@@ -7,6 +7,8 @@ dataclasses holding them); see :mod:`hilident.signals.generators`.
 The names are loaded from :mod:`~hilident.signals.generators` on first use, so
 the argument checks in :mod:`~hilident.signals._checks` (which the config
 loader uses) come without numpy.
+
+May import ``errors`` only (pure).
 """
 
 from __future__ import annotations
