@@ -14,9 +14,9 @@ import pytest
 
 from hilident.cli import main as cli
 from hilident.cli.main import build_parser, main
-from hilident.drivers.starter_config import DEFAULT_DRIVERS
 from hilident.config.tables import load_config
 from hilident.drivers.description import check_run_against_driver, find_driver
+from hilident.drivers.starter_config import DEFAULT_DRIVERS
 from hilident.session.experiment import length_line
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
