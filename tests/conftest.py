@@ -16,6 +16,7 @@ tests all run sessions says so itself with ``pytestmark = pytest.mark.twin``.
 from __future__ import annotations
 
 import inspect
+import os
 import signal
 import subprocess
 import sys
@@ -25,15 +26,11 @@ from types import CodeType, FunctionType, MethodType, ModuleType
 
 import pytest
 
-from hilident.cli.main import main as cli_main
-from hilident.emulator import factory
-from hilident.emulator.canopen import server as canopen_server
-from hilident.emulator.modbus import server as modbus_server
-from hilident.emulator.serial import server as serial_server
-from hilident.session.connection import connect_device
-from hilident.session.run import Session
-from hilident.session.upload import UploadCommand
-from support import fresh_recording, twins
+# Two test processes share two cores: a BLAS thread pool in each (and in every host or twin process a test
+# starts) only adds threads that spin while they wait, and makes the small matrix products of the twins'
+# physics several times slower. Set before numpy is first imported (the test modules import it after this
+# file); a value given in the environment is kept.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 TESTS = Path(__file__).resolve().parent
 
@@ -50,6 +47,15 @@ CLI_MODULE = "hilident.cli"
 def twin_starters() -> tuple[Callable, ...]:
     """What starts a twin when a test calls it: the emulator's servers, the commands that connect a device (a
     session, an upload) and their connection, and the twin helpers of tests/support."""
+    from hilident.emulator import factory
+    from hilident.emulator.canopen import server as canopen_server
+    from hilident.emulator.modbus import server as modbus_server
+    from hilident.emulator.serial import server as serial_server
+    from hilident.session.connection import connect_device
+    from hilident.session.run import Session
+    from hilident.session.upload import UploadCommand
+    from support import fresh_recording, twins
+
     return (
         factory.start_emulator,
         factory.start_standalone,
@@ -68,19 +74,28 @@ def twin_starters() -> tuple[Callable, ...]:
     )
 
 
+def command_line() -> Callable:
+    """``hilident``'s command line in this process: a twin starter when its command is ``run``."""
+    from hilident.cli.main import main
+
+    return main
+
+
 class TwinFinder:
     """Whether a test starts a twin: by the fixtures it uses and by what its code calls.
 
     The code of the test, of the fixtures it uses and of every function or class of the test suite they name is
-    followed; it starts a twin when it names one of the starters (by identity, not by spelling), or runs the
-    ``run`` command, in this process or in another.
+    followed; it starts a twin when it names one of the starters (by identity, not by spelling), runs the ``run``
+    command in this process or in another, or serves a config's twin in another process.
     """
 
-    def __init__(self, starters: tuple[Callable, ...]):
+    def __init__(self, starters: tuple[Callable, ...], command_line: Callable):
         self._starter_ids = {id(starter) for starter in starters}
+        self._command_line = command_line
         self._seen: dict[tuple[CodeType, type | None], bool] = {}
 
     def starts_a_twin(self, item: pytest.Item) -> bool:
+        """Whether the test ``item`` starts a twin, by a fixture or by a call."""
         if not isinstance(item, pytest.Function):
             return False
         if TWIN_FIXTURES.intersection(item.fixturenames):
@@ -110,14 +125,16 @@ class TwinFinder:
 
     def _starts_with(self, found: object, code: CodeType, cls: type | None) -> bool:
         """Whether ``found``, a name ``code`` uses, starts a twin (a module: one of its names ``code`` uses)."""
+        if self._is_starter(found, code):
+            return True
         if isinstance(found, ModuleType):
             return any(self._is_starter(vars(found).get(name), code) for name in code.co_names)
-        if isinstance(found, type) and _in_test_suite(found):
-            return any(self._calls_a_starter(member, None) for member in vars(found).values())
-        return self._is_starter(found, code) or self._calls_a_starter(found, cls)
+        if isinstance(found, type):
+            return _in_test_suite(found) and any(self._calls_a_starter(member, None) for member in vars(found).values())
+        return self._calls_a_starter(found, cls)
 
     def _is_starter(self, found: object, code: CodeType) -> bool:
-        if found is cli_main:
+        if found is self._command_line:
             return SESSION_COMMAND in _constants(code)
         return id(found) in self._starter_ids
 
@@ -153,7 +170,7 @@ def _constants(code: CodeType) -> set:
 def _test_code(item: pytest.Function) -> Iterator[Callable]:
     """The test function and the functions of every fixture it uses."""
     yield item.function
-    for defs in item._fixtureinfo.name2fixturedefs.values():
+    for defs in item._fixtureinfo.name2fixturedefs.values():  # where pytest keeps an item's fixture definitions
         yield from (fixture_def.func for fixture_def in defs)
 
 
@@ -167,7 +184,8 @@ def _in_test_suite(obj: object) -> bool:
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    finder = TwinFinder(twin_starters())
+    """Mark every test that starts a twin ``twin``."""
+    finder = TwinFinder(twin_starters(), command_line())
     for item in items:
         if finder.starts_a_twin(item):
             item.add_marker(pytest.mark.twin)

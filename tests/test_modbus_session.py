@@ -20,6 +20,8 @@ from hilident.errors import DataError, DeviceError
 from hilident.io.recording import read_run
 from hilident.session.run import Session
 
+pytestmark = pytest.mark.twin  # sessions on the Modbus twin, in this process or another
+
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 CONFIG = CONFIGS / "emulated-modbus-gantry.toml"
 

@@ -32,6 +32,8 @@ from hilident.errors import DeviceError
 from hilident.io.recording import read_run
 from hilident.session.run import Session
 
+pytestmark = pytest.mark.twin  # every scenario is a session on a twin
+
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 #: The exit-code table of docs/bench-guide.md ("Safety, endings and exit codes").

@@ -22,6 +22,8 @@ from support.schema_check import schema_errors
 from support.summary_keys import assert_layout
 from support.twins import assert_friction_matches
 
+pytestmark = pytest.mark.twin  # every test runs `hilident run` or a session on a twin
+
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 

@@ -14,6 +14,8 @@ from hilident.errors import DataError
 from hilident.session.run import Session
 from support.schema_check import schema_errors
 
+pytestmark = pytest.mark.twin  # sessions on the gantry twin
+
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 

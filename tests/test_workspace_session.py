@@ -23,6 +23,8 @@ from support.report_page import check_report
 from support.schema_check import schema_errors
 from support.twins import quick
 
+pytestmark = pytest.mark.twin  # map runs and moves: sessions on twins
+
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 MAP_CONFIG = CONFIGS / "emulated-gantry-map.toml"
 
