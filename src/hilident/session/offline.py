@@ -324,14 +324,15 @@ def _one_period_plant(r, u, y, sample_rate_hz: float, period: int, cfg, band_hz)
         "leakage-free but has no average"
     )
     if np.isfinite(coherence).all():
-        warnings = [
+        # how the lines were judged, with nothing to change: a note
+        notes = [
             head + "; the noise of each line is taken from the non-excited lines beside it (coherence "
             "from that, a lower bound where they hold transients or distortion too)"
         ]
         screened = pipeline_plant.resonances_and_model(plant, cfg, band_hz)
         resonances, rejected, model = screened.resonances, screened.rejected, screened.model
-        warnings += screened.warnings
-        notes = screened.notes
+        warnings = list(screened.warnings)
+        notes += screened.notes
     else:
         warnings = [
             head + ", so no coherence; resonances are judged on prominence alone (record two or more "
