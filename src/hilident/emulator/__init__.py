@@ -8,7 +8,7 @@ layout is the same for the three transports::
       plant.py, sensors.py,     shared physics: plant and friction, sensors, process disturbances,
       disturbance.py, drive.py  and the drive loop (DriveLoop) every firmware wraps
       coupling.py               k and d of the cart-to-load coupling as functions of the cart position
-      preset.py, checks.py      bench realism presets; argument checks of the physics
+      preset.py                 bench realism presets (the messy bench by default, or a clean one)
       clock.py                  the one simulated clock (SimClock: pacing without bursts, coasting)
                                 and the one table player (TablePlayer) every twin runs on
       device.py                 build_drive (physics from [emulator]) and EmulatedDevice (what start returns)
