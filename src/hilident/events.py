@@ -10,8 +10,8 @@ takes the same typed events (:meth:`hilident.io.recording.RunWriter.log`):
 :class:`StreamStats` counts what the line delivered and lost in a run; the
 session sums them and ``summary.json["stream"]`` reports them.
 
-Example
--------
+Examples
+--------
 >>> RunEvent(Kind.LOST_BLOCKS, "2 sample block(s) lost", 100, value=2.0).to_dict()
 {'kind': 'lost_blocks', 'message': '2 sample block(s) lost', 'sample_index': 100, 'value': 2.0}
 """

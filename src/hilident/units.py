@@ -8,8 +8,8 @@ m for ``position``. Adapters report it so in ``channel_units``; recordings
 made before they did store ``"1"``, which :func:`recorded_units` reads as the
 mode's unit.
 
-Example
--------
+Examples
+--------
 >>> excitation_unit("velocity")
 'm/s'
 >>> units_in_mode(["excitation", "torque_nm"], ["1", "N*m"], "torque_injection")

@@ -26,8 +26,8 @@ How wide is wide: an attenuation of 20 dB over +-8 % needs a notch whose -3 dB
 width is about 1.7 times its centre (``|H| ~ delta / sqrt(delta^2 + zeta_p^2)``
 off the centre by the fraction ``delta``, so ``zeta_p ~ 10 delta``).
 
-Example
--------
+Examples
+--------
 >>> modes = [{"position_m": p, "frequency_hz": f, "frequency_ci95_hz": 0.05}
 ...          for p, f in [(0.1, 20.0), (0.5, 21.0), (0.9, 22.0)]]
 >>> result = covering_notch(modes, 4000.0, max_width_ratio=1.5)

@@ -23,8 +23,8 @@ the digital notch's deepest point lies exactly at ``center_hz`` with exactly
 width is that of the analog prototype seen through the frequency warping, i.e.
 slightly narrower than ``width_hz`` when the centre approaches Nyquist.
 
-Example
--------
+Examples
+--------
 >>> from hilident.filters.notch import NotchSpec, design_notch
 >>> bq = design_notch(NotchSpec(center_hz=120.0, width_hz=20.0, depth_db=30.0), 4000.0)
 >>> round(float(20 * np.log10(abs(bq.response(120.0, 4000.0)))), 6)
@@ -187,8 +187,8 @@ def width_for_attenuation_hz(center_hz, frequencies_hz, attenuation_db, depth_db
         ``attenuation_db`` not below ``depth_db`` (a notch is never deeper
         than its centre), or a frequency at or above Nyquist.
 
-    Example
-    -------
+    Examples
+    --------
     >>> w = width_for_attenuation_hz(100.0, [99.0, 101.0], 20.0, 40.0, 4000.0)
     >>> bq = design_notch(NotchSpec(100.0, w, 40.0), 4000.0)
     >>> round(float(-20 * np.log10(abs(bq.response(99.0, 4000.0)))), 6)

@@ -16,8 +16,8 @@ predict) and the emulated drive (to run) compute the same section:
 * :func:`achieved_notch` -- the centre, width and depth a stored section really
   has (the inverse of :func:`~hilident.filters.notch.design_notch`).
 
-Example
--------
+Examples
+--------
 >>> from hilident.filters.notch import NotchSpec, design_notch
 >>> bq = design_notch(NotchSpec(120.0, 20.0, 30.0), 4000.0)
 >>> got = achieved_notch(bq, 4000.0, 120.0)

@@ -5,8 +5,8 @@ a colon or in parentheses ("...: decimate by 2 (to 500 Hz) before fitting a
 discrete-time model"); :func:`split_advice` finds it. A warning without one
 gets its topic's general advice, marked as such.
 
-Example
--------
+Examples
+--------
 >>> split_advice("sampling: 1000 Hz is outside 228-685 Hz: decimate by 2 (to 500 Hz) before fitting")
 ('sampling: 1000 Hz is outside 228-685 Hz', 'decimate by 2 (to 500 Hz) before fitting')
 >>> [g.topic for g in group_warnings(["parameter 'Fc' = 0.1 is not significant", "connect: 3 frames discarded"])]

@@ -4,8 +4,8 @@ Pure: strings in, strings out. Every piece of text that comes from a summary,
 a file or a user passes through :func:`esc` (``html.escape``), so a warning
 holding ``<script>`` shows as text.
 
-Example
--------
+Examples
+--------
 >>> table(["f", "zeta"], [["21.8 Hz", esc("<1")]])
 '<table><thead><tr><th>f</th><th>zeta</th></tr></thead><tbody><tr><td>21.8 Hz</td><td>&lt;1</td></tr></tbody></table>'
 >>> num(0.0123456, "Hz")

@@ -14,8 +14,8 @@ model is linear in its parameters, so they follow from one least-squares solve
 ``a = (1, -a_1, ..., -a_na)``; see :func:`arx_to_ba`. Note the opposite sign
 of the ``a`` coefficients.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> from scipy import signal
 >>> from hilident.ident.arx import fit_arx, simulate

@@ -32,8 +32,8 @@ with ``V = 1/2 sum e^2`` over the ``N`` rows used, ``p`` parameters and
 correlated; see :mod:`hilident.ident.greybox`). The transfer function of the
 chosen model is ``Y/U = (bm s^m + ... + b0) / (an s^n + ... + a1 s + 1)``.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> from scipy import signal
 >>> from hilident.ident.blackbox import ode_order_search, select_order

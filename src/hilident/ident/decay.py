@@ -23,8 +23,8 @@ so one method serves all sensors. Steps:
    linearly and are solved for inside each residual evaluation (variable
    projection), so only ``sigma`` and ``omega_d`` of each mode are iterated.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> from hilident.ident.decay import decay_poles
 >>> fs = 500.0

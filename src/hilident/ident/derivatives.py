@@ -39,8 +39,8 @@ Edges: the signal is extended by odd reflection before filtering; the first
 and last :func:`settling_samples` samples still carry the start-up transient
 and should not enter a regression.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> from hilident.ident.derivatives import state_variable_filter
 >>> fs = 1000.0

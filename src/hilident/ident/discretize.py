@@ -17,8 +17,8 @@ The state-space results are identical to ``scipy.signal.cont2discrete`` with
 ``method="zoh"``, ``"euler"`` and ``"bilinear"``; the inverses
 :func:`d2c_zoh` and :func:`d2c_tustin` undo them.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> from hilident.ident.discretize import zoh, is_controllable, second_order_poles
 >>> w0, zeta, dt = 2 * np.pi * 10.0, 0.05, 1e-3

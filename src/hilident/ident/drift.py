@@ -33,8 +33,8 @@ median absolute residual) from the line is named in
 
 Pure: mappings and arrays in, dataclasses out; no files.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> days = np.arange(10.0)
 >>> t = drift_trend(days, 50.0 * (1 - 0.01 * days), drift_percent_per_day=0.5)

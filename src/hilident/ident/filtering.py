@@ -13,8 +13,8 @@ and so delay the signal; the zero-phase Butterworth filters of
 :mod:`hilident.ident.preprocess` are the choice before identification.
 All functions work along the last axis and return float64 arrays.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> from hilident.ident.filtering import rc_lowpass, moving_average, decimate
 >>> fs = 1000.0

@@ -22,8 +22,8 @@ Spectra are one-sided; frequencies in Hz. ``u`` and ``y`` are in whatever units
 were recorded (N·m and m/s for a velocity FRF), the response in units of
 ``y / u``.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> from scipy import signal
 >>> from hilident.ident.frequency import h1_estimate

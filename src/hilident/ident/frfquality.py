@@ -27,8 +27,8 @@ Three questions a controls engineer asks of an FRF before using it:
 
 Pure functions on arrays; no files.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> from hilident.ident.frequency import FrequencyResponse
 >>> frf = FrequencyResponse(np.array([10.0]), np.array([1.0 + 0j]), np.array([0.9]), 8, "h1")

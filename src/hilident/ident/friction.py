@@ -10,8 +10,8 @@ Stribeck curve, thesis eq. 2.13::
 Units: torque at the motor in N·m against the velocity of the driven mass in
 m/s; hence ``Fc, Fs`` in N·m, ``vs`` in m/s, ``Fv`` in N·m/(m/s)^delta_v.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> from hilident.ident.friction import StribeckParams, stribeck, fit_stribeck
 >>> true = StribeckParams(Fc=2.0, Fs=3.0, Fv=10.0, vs=0.01)

@@ -22,8 +22,8 @@ number of independent values a signal band-limited to `cutoff_hz` holds) and
 the covariance is scaled by ``N / n_effective``. It is an approximation; treat
 the standard errors as indicative, not exact.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> from hilident.ident.greybox import fit_linear
 >>> rng = np.random.default_rng(0)

@@ -38,8 +38,8 @@ state direction cannot be reconstructed -- the two-mass axis with only its
 velocity measured cannot know where it is -- is refused with
 :class:`~hilident.errors.DataError` naming that direction.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> from hilident.ident.kalman import two_mass_discrete, steady_state_kalman, process_noise_from_input
 >>> sys = two_mass_discrete(m1=40.0, m2=10.0, k=1.5e5, d=40.0, c=10.0, dt=2.5e-4)

@@ -26,8 +26,8 @@ sampled one a recording sees (torque held over each sample), not the
 continuous one. :func:`compare_modes` sets the joint model's
 mode at each position beside a per-position estimate.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> from hilident.ident.map_fit import fit_workspace_two_mass, two_mass_velocity_response
 >>> positions = [0.1, 0.3, 0.5, 0.7, 0.9]

@@ -4,8 +4,8 @@ Everything here works on plain arrays along the last axis and returns new
 float64 arrays. Filters are zero-phase (forward-backward) Butterworth sections,
 so they shift neither peaks nor phase of what is identified afterwards.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> from hilident.ident.preprocess import check_signals, detrend, lowpass
 >>> t = np.arange(2000) / 1000.0

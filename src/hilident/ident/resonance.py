@@ -18,8 +18,8 @@ is the error in ``H`` itself. Each bin is weighted by the inverse of the
 standard deviation of an H1 estimate implied by its coherence,
 ``|H| sqrt((1 - coh) / coh)``.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> from scipy import signal
 >>> from hilident.ident.frequency import FrequencyResponse

@@ -7,8 +7,8 @@ past inputs (:func:`residual_analysis`), and a fit that is much worse on
 validation data than on estimation data means the model learnt the noise
 (:func:`overfitting_warning`).
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> from hilident.ident.validation import fit_percent, residual_analysis
 >>> rng = np.random.default_rng(1)

@@ -5,8 +5,8 @@ axis its counts, time span, resonance at the first recording, rate with its
 95 % half-width and p, verdict, damping trend and outliers. The points
 themselves are in the batch's table; unknown figures are ``null``.
 
-Example
--------
+Examples
+--------
 >>> from hilident.ident.drift import axis_drifts
 >>> rows = [{"axis": "x", "time_utc": f"2026-11-{d:02d}T02:00:00Z", "status": "ok",
 ...          "frequency_hz": 40.0 - 0.4 * d} for d in range(1, 8)]

@@ -22,8 +22,8 @@ transfer-function coefficients have their roots crowded near ``z = 1`` at a
 loop rate far above the plant's modes, so the polynomial loses about six
 digits there: prefer the discrete state space.
 
-Example
--------
+Examples
+--------
 >>> summary = {"plant_model": {"num": [2.0], "den": [1.0, 3.0], "band_hz": [1.0, 10.0]},
 ...            "notch_filters": [], "upload": {"slots": []}}
 >>> doc = export_document(summary, rate_hz=1000.0)

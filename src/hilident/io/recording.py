@@ -15,8 +15,8 @@ The file layout is documented in ``docs/recording.md``; in short::
     /events           compound (sample_index, time_s, kind, message, data)
     /tables/<name>/   one 1-D dataset per column
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> with RunWriter(tmp / "run.h5", ["position", "torque"], ["m", "N*m"], 1000.0) as rec:  # doctest: +SKIP
 ...     rec.append(np.zeros((100, 2)))

@@ -6,8 +6,8 @@ mappings) into JSON types; :func:`write_json` writes it atomically. No
 plotting, no HDF5: ``report`` (plots) and ``recording`` (HDF5 files) both
 use this module, neither imports the other.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> to_jsonable({"gain": np.float64(2.0), "pole": 1 + 2j, "bad": float("nan")})
 {'gain': 2.0, 'pole': {'re': 1.0, 'im': 2.0}, 'bad': None}

@@ -6,8 +6,8 @@ statistics, excitation, warnings and notes, failure); :meth:`Summary.to_dict` la
 out in the documented order of the command (docs/results.md).
 :func:`hilident.io.serialise.write_json` writes it. Pure: no files, no devices.
 
-Example
--------
+Examples
+--------
 >>> s = Summary.of_upload(config="axis.toml", source={"summary": "run/summary.json", "kind": "run",
 ...                       "notch_filters": []}, device=DevicePart("myrio-board", None, True, identity={}),
 ...                       filters_before=[], designs=[], upload=UploadOutcome(rolled_back=[]), elapsed_s=0.5,

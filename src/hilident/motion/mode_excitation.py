@@ -21,8 +21,8 @@ the velocity and acceleration nearest the configured ones that excite every mode
 This is the residual-vibration measure of input shaping (Singer and Seering, 1990), normalised to a
 step of the move's peak acceleration.
 
-Example
--------
+Examples
+--------
 >>> from hilident.motion.profiles import trapezoid
 >>> move = trapezoid(0.2, 0.3, 2.0, 1000.0, dwell_s=0.2)   # accelerates for 0.15 s
 >>> round(mode_excitation(move.position_m, 1000.0, move.move_end_index, 20.0), 2)   # 3 periods: hardly

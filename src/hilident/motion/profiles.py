@@ -20,8 +20,8 @@ velocity and acceleration.
 Both profiles are symmetric: the deceleration mirrors the acceleration, so
 ``v(T - t) = v(t)`` and ``p(T - t) = distance - p(t)`` for a move of duration ``T``.
 
-Example
--------
+Examples
+--------
 >>> move = trapezoid(0.2, 0.3, 2.0, 1000.0, dwell_s=0.5)
 >>> round(move.duration_s, 4), move.move_end_index, float(move.position_m[-1])
 (0.8167, 817, 0.2)

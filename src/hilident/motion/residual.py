@@ -23,8 +23,8 @@ to ``dwell_s`` later:
 move's, by default), so their settling times compare, and gives the reduction
 ``20 log10(without / with)`` of RMS and peak-to-peak in dB.
 
-Example
--------
+Examples
+--------
 >>> t = np.arange(0.0, 2.0, 1e-3)
 >>> ring = np.where(t >= 0.5, 1e-3 * np.exp(-3.0 * (t - 0.5)) * np.cos(2 * np.pi * 20.0 * (t - 0.5)), 0.0)
 >>> r = residual_vibration(t, 0.2 + ring, move_end_s=0.5, dwell_s=1.5)

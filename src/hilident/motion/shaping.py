@@ -20,8 +20,8 @@ The shaped velocity and acceleration are the profile's through the same
 chain; a notch's small overshoot can take them a little (about 1 %) beyond the
 profile's limits.
 
-Example
--------
+Examples
+--------
 >>> from hilident.filters.notch import NotchSpec, design_notch
 >>> from hilident.motion.profiles import trapezoid
 >>> move = trapezoid(0.2, 0.3, 2.0, 1000.0, dwell_s=0.5)

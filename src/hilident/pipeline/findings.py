@@ -7,8 +7,8 @@ apart; :func:`grouped` turns a list of lines into one line per cause that
 names every subject. A finding *is* its text (a ``str``), so it travels in
 the ordinary lists of warnings and notes.
 
-Example
--------
+Examples
+--------
 >>> cause = "sampling: {subjects} sampled finer than the rule asks"
 >>> grouped([Finding(cause, "21.8 Hz"), "friction: a plain warning", Finding(cause, "22.1 Hz")])
 ['sampling: 21.8 Hz, 22.1 Hz sampled finer than the rule asks', 'friction: a plain warning']

@@ -1,7 +1,7 @@
 """Checks, units, titles and file writing shared by the figures.
 
-Example
--------
+Examples
+--------
 >>> ratio_unit(channel_unit("velocity_mps"), "N*m")
 '(m/s)/(N·m)'
 >>> plain_number(0.05), plain_number(1000.0)

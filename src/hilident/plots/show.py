@@ -11,8 +11,8 @@ run lost leave a gap in the trace instead of a line drawn across it.
 matplotlib is imported only when a figure is drawn; the figure is built with
 the object API, so a PNG is written without touching pyplot's global state.
 
-Example
--------
+Examples
+--------
 >>> parse_channel_list("excitation, torque_nm,,")
 ['excitation', 'torque_nm']
 >>> axis_label(["torque_cmd_nm", "torque_nm"], "N*m")

@@ -16,8 +16,8 @@ The state machine (CiA 402-2, figure "Finite state automaton")::
     Operation Enabled --11 (quick stop)--> Quick Stop Active --12--> Switch On Disabled
     any --13 (fault)--> Fault Reaction Active --14--> Fault --15 (fault reset, bit 7 rising)--> Switch On Disabled
 
-Example
--------
+Examples
+--------
 >>> decode_statusword(0x0637) is State.OPERATION_ENABLED
 True
 >>> [hex(cw) for cw in path_to_operation_enabled(State.SWITCH_ON_DISABLED)]

@@ -18,8 +18,8 @@ look like filters, recorders or generators.
 
 Only :func:`load_eds` touches a file; everything after it is pure.
 
-Example
--------
+Examples
+--------
 >>> od, warnings = load_eds_text("[DeviceInfo]\\nVendorName=ACME\\n[6502]\\nParameterName=Supported drive modes\\n"
 ...                              "ObjectType=0x7\\nDataType=0x0007\\nAccessType=ro\\nDefaultValue=0x380\\n", "x.eds")
 >>> inspect_eds(od).supported_modes

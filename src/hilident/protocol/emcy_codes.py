@@ -23,8 +23,8 @@ Sources (names as there, lower-cased, not copied code):
 
 Pure data and functions on integers: no bus, no clock.
 
-Example
--------
+Examples
+--------
 >>> emcy_name(0x8611)
 'following error'
 >>> emcy_name(0x2315)

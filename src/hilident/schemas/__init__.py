@@ -1,7 +1,7 @@
 """JSON Schemas shipped with hilident: ``summary.schema.json`` (draft 2020-12) describes ``summary.json``.
 
-Example
--------
+Examples
+--------
 >>> summary_schema()["$schema"]
 'https://json-schema.org/draft/2020-12/schema'
 

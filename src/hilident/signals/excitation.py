@@ -5,8 +5,8 @@ Pure: the table's fields in (any object with them, e.g.
 given by the caller (a configured number, or what ``amplitude_nm = "auto"``
 chose).
 
-Example
--------
+Examples
+--------
 >>> from types import SimpleNamespace as T
 >>> e = T(kind="sine", frequency_hz=5.0, duration_s=1.0, f_min_hz=1.0, f_max_hz=50.0, fade_s=0.0)
 >>> x = build_excitation(e, 1000.0, amplitude=2.0)

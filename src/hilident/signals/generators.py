@@ -7,8 +7,8 @@ argument name, and so does a signal longer than
 :data:`hilident.signals._checks.MAX_SAMPLES` (2**25 samples), refused before
 anything is allocated.
 
-Example
--------
+Examples
+--------
 >>> from hilident.signals import multisine, fade
 >>> ms = multisine(0.5, 2.0, 200.0, period_s=1.0, n_periods=4, sample_rate_hz=1000.0)
 >>> ms.samples.shape, float(abs(ms.samples).max())
@@ -446,8 +446,8 @@ def velocity_ramps(speeds_mps, hold_s, accel_mps2, sample_rate_hz, settle_s, alt
     alternate : bool
         Follow every leg by the same leg at ``-v``.
 
-    Example
-    -------
+    Examples
+    --------
     >>> p = velocity_ramps([0.01, 0.05], hold_s=2.0, accel_mps2=0.5,
     ...                    sample_rate_hz=1000.0, settle_s=0.5)
     >>> [w[2] for w in p.windows]
@@ -480,8 +480,8 @@ def position_of(velocity_mps, sample_rate_hz) -> np.ndarray:
     A position-controlled axis follows this profile to run a velocity profile
     (e.g. the friction test on a drive that has no velocity mode).
 
-    Example
-    -------
+    Examples
+    --------
     >>> position_of([0.0, 1.0, 1.0, 0.0], sample_rate_hz=10.0).round(3).tolist()
     [0.0, 0.05, 0.15, 0.2]
     """

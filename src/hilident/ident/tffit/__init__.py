@@ -50,8 +50,8 @@ the same error in ``G``. ``delay_s`` is a known pure delay
 ``exp(-s delay_s)``, removed from the data before fitting and put back by
 :meth:`TfFit.response`; it is not part of ``num`` / ``den``.
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
 >>> from scipy import signal
 >>> from hilident.ident.frequency import FrequencyResponse

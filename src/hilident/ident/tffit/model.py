@@ -138,8 +138,8 @@ class ModalModel:
     delay_s : float
         Pure delay, s.
 
-    Example
-    -------
+    Examples
+    --------
     The lecture's piezo actuator up to 8000 rad/s (frequencies given in rad/s):
 
     >>> import numpy as np

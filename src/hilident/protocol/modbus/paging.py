@@ -12,8 +12,8 @@ host can prove the whole table arrived.
 
 All functions are pure: numbers in, numbers out.
 
-Example
--------
+Examples
+--------
 >>> [c.samples for c in plan_chunks(0, 130, 2, 1024, 123)]
 [61, 61, 8]
 """

@@ -11,8 +11,8 @@ construction.
 
 All pure: values in, values out.
 
-Example
--------
+Examples
+--------
 >>> from hilident.drivers.description import find_driver
 >>> regmap = RegisterMap.from_driver(find_driver("modbus-servo"))
 >>> regmap.excitation, regmap.decode("mode", regmap.encode("mode", 2))

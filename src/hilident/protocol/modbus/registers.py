@@ -7,8 +7,8 @@ write outside is refused before it is sent, naming the register) and its named
 bit fields. A :class:`ParameterRule` turns a vendor's parameter code
 (``"P08.02"``) into the address of its register, as the vendor's manual does.
 
-Example
--------
+Examples
+--------
 >>> speed = Register("speed", 0x0802, "i32", "rw", scale=0.001, unit="m/s", minimum=-2.0, maximum=2.0, count=2)
 >>> speed.encode(1.5), speed.decode([0, 1500])
 ([0, 1500], 1.5)
