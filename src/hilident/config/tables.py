@@ -1159,9 +1159,20 @@ def _check_data_and_model(cfg: Config) -> None:
 
 
 def _check_limits(cfg: Config, lim: LimitsConfig) -> None:
-    src, exc = cfg.source, cfg.excitation
+    """Every experiment of the run within ``[limits]``: the excitation, the friction test, the map and the move."""
     if lim.position_min_m >= lim.position_max_m:
-        raise ConfigError("limits.position_min_m", "must be below limits.position_max_m", src)
+        raise ConfigError("limits.position_min_m", "must be below limits.position_max_m", cfg.source)
+    _check_excitation_limits(cfg, lim)
+    _check_friction_test_limits(cfg, lim)
+    if cfg.map.enabled:
+        map_positions(cfg)
+    if cfg.verification.move is not None:
+        _check_move_limits(cfg.verification.move, lim, cfg.source)
+
+
+def _check_excitation_limits(cfg: Config, lim: LimitsConfig) -> None:
+    """The excitation's amplitude within the torque, speed or position window of ``[limits]``."""
+    src, exc = cfg.source, cfg.excitation
     if exc.mode in ("torque", "torque_injection") and exc.amplitude_value > lim.torque_nm:
         raise ConfigError(
             "excitation.amplitude_nm", f"{exc.amplitude_value:g} N*m exceeds limits.torque_nm = {lim.torque_nm:g}", src
@@ -1179,42 +1190,47 @@ def _check_limits(cfg: Config, lim: LimitsConfig) -> None:
             f"window [{lim.position_min_m:g}, {lim.position_max_m:g}] m",
             src,
         )
-    if any(v <= 0 for v in cfg.friction_test.speeds_mps):
+
+
+def _check_friction_test_limits(cfg: Config, lim: LimitsConfig) -> None:
+    """The friction test's speeds below ``limits.velocity_mps`` and its travel within half the position window."""
+    src, ft = cfg.source, cfg.friction_test
+    if any(v <= 0 for v in ft.speeds_mps):
         raise ConfigError("friction_test.speeds_mps", "speeds must be positive (each is run both ways)", src)
-    if cfg.friction_test.enabled and max(cfg.friction_test.speeds_mps, default=0) >= lim.velocity_mps:
+    if ft.enabled and max(ft.speeds_mps, default=0) >= lim.velocity_mps:
         raise ConfigError(
             "friction_test.speeds_mps", f"a speed reaches limits.velocity_mps = {lim.velocity_mps:g}", src
         )
-    if cfg.friction_test.settle_s >= cfg.friction_test.hold_s:
+    if ft.settle_s >= ft.hold_s:
         raise ConfigError("friction_test.settle_s", "must be shorter than friction_test.hold_s", src)
-    if cfg.map.enabled:
-        map_positions(cfg)
-    move = cfg.verification.move
-    if move is not None:
-        if move.distance_m == 0 or 2 * abs(move.distance_m) >= lim.position_max_m - lim.position_min_m:
-            raise ConfigError(
-                "verification.move.distance_m",
-                f"{move.distance_m:g} m: a move must be non-zero and "
-                "shorter than half the position window "
-                f"[{lim.position_min_m:g}, {lim.position_max_m:g}] m",
-                src,
-            )
-        if move.max_velocity_mps >= lim.velocity_mps:
-            raise ConfigError(
-                "verification.move.max_velocity_mps",
-                f"{move.max_velocity_mps:g} m/s reaches limits.velocity_mps = {lim.velocity_mps:g}",
-                src,
-            )
-    if cfg.friction_test.enabled:
-        _, travel = _friction_extent(cfg)
-        half = (lim.position_max_m - lim.position_min_m) / 2
-        if travel >= half:
-            raise ConfigError(
-                "friction_test.speeds_mps",
-                f"the friction test travels up to {travel:.3f} m, more than half the position window "
-                f"[{lim.position_min_m:g}, {lim.position_max_m:g}] m (shorter hold_s or lower speeds)",
-                src,
-            )
+    if not ft.enabled:
+        return
+    _, travel = _friction_extent(cfg)
+    if travel >= (lim.position_max_m - lim.position_min_m) / 2:
+        raise ConfigError(
+            "friction_test.speeds_mps",
+            f"the friction test travels up to {travel:.3f} m, more than half the position window "
+            f"[{lim.position_min_m:g}, {lim.position_max_m:g}] m (shorter hold_s or lower speeds)",
+            src,
+        )
+
+
+def _check_move_limits(move: MoveConfig, lim: LimitsConfig, src: str) -> None:
+    """``[verification] move``: non-zero, shorter than half the position window, slower than the speed limit."""
+    if move.distance_m == 0 or 2 * abs(move.distance_m) >= lim.position_max_m - lim.position_min_m:
+        raise ConfigError(
+            "verification.move.distance_m",
+            f"{move.distance_m:g} m: a move must be non-zero and "
+            "shorter than half the position window "
+            f"[{lim.position_min_m:g}, {lim.position_max_m:g}] m",
+            src,
+        )
+    if move.max_velocity_mps >= lim.velocity_mps:
+        raise ConfigError(
+            "verification.move.max_velocity_mps",
+            f"{move.max_velocity_mps:g} m/s reaches limits.velocity_mps = {lim.velocity_mps:g}",
+            src,
+        )
 
 
 def map_positions(cfg: Config) -> list[float]:
