@@ -17,12 +17,26 @@ import math
 import re
 import shutil
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from hilident.drivers.description import declared_modes, load_driver, valid_sample_rates
+from hilident.drivers.description import (
+    DriverDescription,
+    declared_modes,
+    load_driver,
+    load_object_dictionary,
+    valid_sample_rates,
+)
 from hilident.errors import ConfigError, UsageError
 from hilident.protocol import eds as E
+from hilident.protocol.canopen_objects import CanopenDescription
+from hilident.protocol.canopen_pdo_plan import (
+    RunChannel,
+    capture_problems,
+    plan_streamed_run,
+    recorder_problems,
+)
 
 DESCRIPTION_FILE = "driver.toml"
 #: CAN bit rates (kbit/s) a [DeviceInfo] may declare, fastest first.
@@ -578,7 +592,125 @@ def check_driver_folder(folder) -> CheckReport:
     _check_keys(c)
     _check_identity(c)
     _check_placeholders(c, placeholders, path)
+    if not c.errors:  # what the runs map, on a description whose objects are known to be there
+        c.errors += _run_mapping_errors(folder, od, source)
     return CheckReport(folder, tuple(c.errors), tuple(c.warnings), placeholders, c.s)
+
+
+#: The node id ``drivers check`` plans the PDOs' COB-IDs for (the default ``[device.canopen] node_id``).
+_CHECK_NODE_ID = 1
+
+
+def _run_mapping_errors(folder: Path, od, source: str) -> list[str]:
+    """What a run would map or write that the EDS refuses, for every mode and acquisition the folder declares.
+
+    Streamed runs (the default acquisition, or any on a streamed driver) are planned for every mode of the
+    driver with its streamed channels; a drive-buffered run's capture and a recorder's channels are checked
+    when the driver describes them.
+    """
+    try:
+        driver = load_driver(folder)
+        desc = CanopenDescription.from_sections(driver.sections, source, od)
+    except ConfigError:
+        return []  # a description the loader refuses cannot be planned; the checks above report on its tables
+    errors = []
+    for acquisition in _declared_acquisitions(desc):
+        modes_of: dict[str, list[str]] = {}  # a problem shared by several modes is told once, naming them
+        for spec in desc.modes.values():
+            for problem in run_mapping_problems(od, desc, driver, acquisition, spec.setpoint, None, _CHECK_NODE_ID):
+                modes_of.setdefault(problem, []).append(spec.name)
+        errors += [
+            f"{source}: [{acquisition} run, {'mode' if len(m) == 1 else 'modes'} {', '.join(m)}] {problem}"
+            for problem, m in modes_of.items()
+        ]
+    return errors
+
+
+def _declared_acquisitions(desc: CanopenDescription) -> list[str]:
+    """The acquisitions a driver declares: its default, a capture when it names one, a recorder when it has one."""
+    acquisitions = [desc.default_acquisition]
+    if desc.has("capture_mapping") and "buffered" not in acquisitions:
+        acquisitions.append("buffered")
+    if desc.recorder is not None and "recorder" not in acquisitions:
+        acquisitions.append("recorder")
+    return acquisitions
+
+
+def run_mapping_problems(
+    od,
+    desc: CanopenDescription,
+    driver: DriverDescription,
+    acquisition: str,
+    setpoint: str,
+    channels: Sequence[str] | None,
+    node_id: int,
+) -> list[str]:
+    """What a run would map or write that the EDS refuses (empty: nothing), one message per object.
+
+    Parameters
+    ----------
+    od : canopen.ObjectDictionary
+        The drive's EDS.
+    desc : CanopenDescription
+    driver : DriverDescription
+        The driver's channels (its streamed channels are recorded when ``channels`` is None).
+    acquisition : {"streamed", "buffered", "recorder"}
+    setpoint : str
+        The role of the set-point object of the run's mode.
+    channels : sequence of str or None
+        The channels recorded (``run.channels``); None: the driver's streamed channels.
+    node_id : int
+        The drive's node id (the COB-IDs of PDOs 1-4).
+    """
+    names = list(channels or [c.name for c in driver.streamed_channels])
+    run_channels = [
+        RunChannel(name, desc.address(role) if (role := desc.channels[name]) is not None else None)
+        for name in names
+        if name in desc.channels
+    ]
+    if acquisition == "buffered":
+        return capture_problems(od, desc, run_channels)
+    if acquisition == "recorder":
+        return recorder_problems(desc, run_channels)
+    try:
+        plan_streamed_run(od, desc, node_id, run_channels, setpoint)
+    except ConfigError as exc:
+        return [exc.message]
+    return []
+
+
+def check_run_mapping(cfg, driver: DriverDescription, modes: Sequence[str]) -> None:
+    """Refuse, before anything moves, a CANopen run whose mapping the drive's EDS does not allow.
+
+    The run's acquisition (``device.acquisition``, "auto": the driver's default), its channels
+    (``run.channels``) and each of ``modes`` (the hilident modes the session runs) are planned as the adapter
+    maps them (:func:`run_mapping_problems`). Nothing is done for another transport.
+
+    Raises
+    ------
+    ConfigError
+        Naming the driver file, the EDS objects the run cannot map or write, and what to change.
+    """
+    if driver.transport != "canopen":
+        return
+    source = str(driver.folder / DESCRIPTION_FILE)
+    node_id = cfg.device.canopen.node_id
+    od = load_object_dictionary(driver, node_id)
+    desc = CanopenDescription.from_sections(driver.sections, source, od)
+    acquisition = desc.default_acquisition if cfg.device.acquisition == "auto" else cfg.device.acquisition
+    problems: list[str] = []
+    for mode in dict.fromkeys(modes):
+        if mode in desc.modes:
+            problems += run_mapping_problems(
+                od, desc, driver, acquisition, desc.modes[mode].setpoint, cfg.run.channels, node_id
+            )
+    if problems:
+        raise ConfigError(
+            "device.driver",
+            f"a {acquisition} run of driver {driver.name!r} cannot be configured on its EDS {desc.eds}: "
+            + "; ".join(dict.fromkeys(problems)),
+            source,
+        )
 
 
 def _check_objects(c: _Checker) -> None:

@@ -218,7 +218,7 @@ def standard_channels(objects: dict[str, ObjectAddress], current_as_torque: bool
 
 def mapping_capacity(mapping) -> int:
     """How many objects a PDO mapping record (a canopen ``ODRecord``) takes: the highest sub-index its EDS
-    declares (CiA 301: at most 64).
+    declares (CiA 301: at most 64), and no more than the count sub-index 0 accepts (its HighLimit).
 
     Only when the EDS declares no entry at all is the highest count sub-index 0
     accepts taken: an entry the EDS does not declare cannot be written by name,
@@ -229,6 +229,8 @@ def mapping_capacity(mapping) -> int:
     declared = max((sub for sub in subs if sub > 0), default=0)
     head = subs.get(0)
     high = head.max if head is not None and isinstance(head.max, int) else 0
+    if declared and high:
+        return min(64, declared, high)
     return min(64, declared or high)
 
 

@@ -40,6 +40,7 @@ from hilident import endings, html_report
 from hilident.adapters.backends import adapter_class
 from hilident.config.tables import Config, check_auto_amplitude
 from hilident.drivers.description import DriverDescription, check_run_against_driver, find_driver
+from hilident.drivers.tools import check_run_mapping
 from hilident.errors import ArmingRefused, ConfigError, DataError, HilidentError, UsageError
 from hilident.events import StreamStats
 from hilident.io.serialise import write_json
@@ -329,6 +330,12 @@ class Session(DeviceConnection):
         check_excitation_travel(cfg, excitation)
         # a drive without a velocity mode runs the friction test's legs as a position profile
         self.friction_mode = "velocity" if "velocity" in modes else "position"
+        run_modes = (
+            [cfg.excitation.mode]
+            + [self.friction_mode] * cfg.friction_test.enabled
+            + ["position", MAP_MODE] * cfg.map.enabled
+        )
+        check_run_mapping(cfg, driver, run_modes)  # what the run maps or writes, against the EDS, before it moves
         profile = None
         ft = cfg.friction_test
         if ft.enabled:

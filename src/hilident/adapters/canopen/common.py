@@ -1,5 +1,5 @@
 """What the parts of the CANopen adapter share: CANopen constants and small frozen values (the identity,
-the ratings, a channel's codec, a PDO, an emergency, the layout of a configured run).
+the ratings, a channel's codec, an emergency, the layout of a configured run).
 
 Split from :mod:`hilident.adapters.canopen.drive` so that its parts
 (:mod:`~hilident.adapters.canopen.sdo`, :mod:`~hilident.adapters.canopen.net`,
@@ -17,6 +17,7 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 from hilident.protocol.canopen_objects import (
     type_bits,
 )
+from hilident.protocol.canopen_pdo_plan import PdoPlan
 from hilident.protocol.canopen_types import ObjectAddress
 
 #: A value as an object's EDS data type decodes it (canopen's ``ODVariable.decode_raw``).
@@ -86,15 +87,6 @@ class ChannelCodec:
     @property
     def on_host(self) -> bool:
         return self.address is None
-
-
-@dataclass(frozen=True)
-class PdoSlot:
-    """One PDO the drive's EDS declares: its number, how many objects it maps at most, its COB-ID."""
-
-    number: int
-    max_entries: int
-    cob_id: int
 
 
 @dataclass
@@ -167,6 +159,8 @@ class RunLayout:
         The TPDOs a streamed run receives, in PDO number order (empty for the other acquisitions).
     rpdo : RpdoMap or None
         The RPDO a streamed run sends its set-points in (None for the other acquisitions).
+    pdo_plan : PdoPlan or None
+        Every PDO a streamed run mapped or emptied, as planned and written (None for the other acquisitions).
     """
 
     acquisition: str = ""
@@ -176,3 +170,4 @@ class RunLayout:
     channels: tuple[ChannelCodec, ...] = ()
     tpdos: tuple[TpdoMap, ...] = ()
     rpdo: RpdoMap | None = None
+    pdo_plan: PdoPlan | None = None

@@ -14,31 +14,31 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from hilident.adapters.canopen.common import ChannelCodec, PdoSlot, RpdoMap, RunLayout, TpdoMap
+from hilident.adapters.canopen.common import ChannelCodec, RpdoMap, RunLayout, TpdoMap
 from hilident.adapters.canopen.net import NetWatch
 from hilident.adapters.canopen.recorder import check_recorder_channels
 from hilident.adapters.canopen.sdo import SdoAccess
 from hilident.drivers.description import DriverDescription
-from hilident.errors import ConfigError, DataError, DeviceError
+from hilident.errors import ConfigError, DeviceError
 from hilident.protocol.canopen_objects import (
     REAL32,
     CanopenDescription,
     mapping_entry,
     numpy_type,
-    pack_frames,
-    type_bits,
 )
-from hilident.protocol.canopen_profile import (
-    mapping_capacity,
-    period_fields,
+from hilident.protocol.canopen_pdo_plan import (
+    SYNCHRONOUS,
+    PdoPlan,
+    PlannedPdo,
+    RunChannel,
+    pdo_slots,
+    plan_streamed_run,
 )
+from hilident.protocol.canopen_profile import period_fields
 from hilident.protocol.canopen_types import ModeSpec, ObjectAddress
 
 #: SI value of one raw unit of the object of a role (the adapter's ``scale``; DeviceError when it cannot be scaled).
 Scale = Callable[[str], float]
-
-#: What a TPDO carries: its mapped objects as (object, bits), the sample counter first on a counted drive.
-_Entries = list[tuple[ObjectAddress, int]]
 
 
 class ChannelMapping:
@@ -195,8 +195,8 @@ class ChannelMapping:
         A recorder run maps nothing here (:meth:`prepare_recorder` did its part).
         """
         if layout.acquisition == "streamed":
-            tpdos, rpdo = self._map_pdos(layout.channels, spec)
-            return dataclasses.replace(layout, tpdos=tpdos, rpdo=rpdo)
+            tpdos, rpdo, plan = self._map_pdos(layout.channels, spec)
+            return dataclasses.replace(layout, tpdos=tpdos, rpdo=rpdo, pdo_plan=plan)
         if layout.acquisition == "buffered":
             self._map_capture(layout.channels)
         return layout
@@ -215,108 +215,34 @@ class ChannelMapping:
             write(ObjectAddress(map_index, i), entry)
         write(ObjectAddress(map_index, 0), len(entries))
         if pdo is not None and entries:
-            write(ObjectAddress(pdo[0], 2), 1)  # synchronous, every SYNC
+            write(ObjectAddress(pdo[0], 2), SYNCHRONOUS)
             write(ObjectAddress(pdo[0], 1), pdo[1])
 
-    def pdo_slots(self, kind: str) -> list[PdoSlot]:
-        """The RPDOs (``kind = "rpdo"``) or TPDOs the EDS declares, with their mapping capacity.
-
-        A PDO counts when both its communication and its mapping object exist;
-        its capacity is :func:`~hilident.protocol.canopen_profile.mapping_capacity`.
-        The COB-ID is the predefined connection set's for PDOs 1-4 and the
-        EDS default for the others.
-        """
-        od = self.sdo.node.object_dictionary
-        comm_base, map_base, cob_base = (0x1400, 0x1600, 0x200) if kind == "rpdo" else (0x1800, 0x1A00, 0x180)
-        slots = []
-        for n in range(512):
-            if comm_base + n not in od or map_base + n not in od:
-                continue
-            capacity = mapping_capacity(od[map_base + n])
-            if n < 4:
-                cob = cob_base + 0x100 * n + self.node_id
-            else:
-                var = od.get_variable(comm_base + n, 1)
-                cob = int(var.default or 0) & 0x7FF if var is not None else 0
-            if capacity and cob:
-                slots.append(PdoSlot(n, capacity, cob))
-        return slots
-
-    def _map_pdos(self, codecs: Sequence[ChannelCodec], spec: ModeSpec) -> tuple[tuple[TpdoMap, ...], RpdoMap]:
-        """Map the channels into TPDOs and the set-point into an RPDO, within what the EDS allows.
+    def _map_pdos(self, codecs: Sequence[ChannelCodec], spec: ModeSpec) -> tuple[tuple[TpdoMap, ...], RpdoMap, PdoPlan]:
+        """Map the channels into TPDOs and the set-point into an RPDO, as
+        :func:`~hilident.protocol.canopen_pdo_plan.plan_streamed_run` plans them.
 
         On a drive with the hilident counters every PDO is headed by one (the
         sample counter, the set-point counter); otherwise the TPDOs carry the
-        channels only and the host matches them to SYNCs by their order.
+        channels only and the host matches them to SYNCs by their order. The plan
+        is checked against the EDS before anything is written.
         """
-        tpdos, rpdos = self.pdo_slots("tpdo"), self.pdo_slots("rpdo")
-        header, frames = self._pack_tpdos(codecs, tpdos)  # a mapping that cannot fit fails before any write
+        od = self.sdo.node.object_dictionary
+        channels = [RunChannel(c.name, c.address) for c in codecs]
+        plan = plan_streamed_run(od, self.desc, self.node_id, channels, spec.setpoint)
         self.net.nmt("PRE-OPERATIONAL")
-        tpdo_maps = self._write_tpdos(codecs, tpdos, header, frames)
-        rpdo_map = self._write_rpdo(spec, rpdos)
+        for pdo in plan.tpdos + plan.rpdos:
+            self._write_mapping((pdo.comm_index, pdo.slot.cob_id), pdo.map_index, pdo.mapping_entries)
         self.net.nmt("OPERATIONAL")
-        return tpdo_maps, rpdo_map
+        tpdo_maps = tuple(TpdoMap(pdo.slot.cob_id, pdo.columns) for pdo in plan.carrying)
+        return tpdo_maps, self._rpdo_map(plan.setpoint_pdo, spec), plan
 
-    def _pack_tpdos(self, codecs: Sequence[ChannelCodec], tpdos: list[PdoSlot]) -> tuple[_Entries, list[list[str]]]:
-        """The header every TPDO starts with (the sample counter on a counted drive) and the channel names each
-        TPDO carries; DeviceError when the drive-reported channels do not fit the EDS's TPDOs."""
-        header: _Entries = []
-        if self.desc.counted:
-            counter = self.desc.address("sample_counter")
-            header = [(counter, type_bits(self.sdo.data_type(counter)))]
-        per_frame = min((s.max_entries for s in tpdos[:4]), default=0) - len(header)
-        try:
-            frames = pack_frames(
-                [(c.name, c.bits) for c in codecs if not c.on_host],
-                header_bits=sum(b for _, b in header),
-                max_frames=len(tpdos),
-                max_entries=per_frame,
-            )
-        except DataError as exc:
-            raise DeviceError(
-                f"{self.port}: {exc} ({self.desc.eds}: {len(tpdos)} TPDOs of "
-                f"{', '.join(str(s.max_entries) for s in tpdos)} entries)"
-            ) from None
-        return header, frames
-
-    def _write_tpdos(
-        self, codecs: Sequence[ChannelCodec], tpdos: list[PdoSlot], header: _Entries, frames: list[list[str]]
-    ) -> tuple[TpdoMap, ...]:
-        """Write each TPDO's mapping (the unused ones emptied); the TPDOs that carry channels."""
-        names = [c.name for c in codecs]
-        layout = []
-        for i, slot in enumerate(tpdos):
-            members = frames[i] if i < len(frames) else []
-            columns = tuple(names.index(m) for m in members)
-            entries = (
-                [mapping_entry(a, b) for a, b in header]
-                + [mapping_entry(self._drive_object(codecs[j]), codecs[j].bits) for j in columns]
-                if members
-                else []
-            )
-            self._write_mapping((0x1800 + slot.number, slot.cob_id), 0x1A00 + slot.number, entries)
-            if members:
-                layout.append(TpdoMap(slot.cob_id, columns))
-        return tuple(layout)
-
-    def _write_rpdo(self, spec: ModeSpec, rpdos: list[PdoSlot]) -> RpdoMap:
-        """Map the set-point of ``spec`` (headed by the set-point counter on a counted drive) into the first
-        RPDO and empty RPDOs 2-4; DeviceError when the EDS declares no RPDO."""
-        sp = self.desc.address(spec.setpoint)
-        sp_type = self.sdo.data_type(sp)
-        if not rpdos:
-            raise DeviceError(f"{self.port}: the EDS {self.desc.eds} declares no RPDO: set-points cannot be streamed")
-        rx_type = None
-        entries = []
-        if self.desc.counted:
-            rx_counter = self.desc.address("setpoint_counter")
-            rx_type = self.sdo.data_type(rx_counter)
-            entries.append(mapping_entry(rx_counter, type_bits(rx_type)))
-        entries.append(mapping_entry(sp, type_bits(sp_type)))
-        self._write_mapping((0x1400 + rpdos[0].number, rpdos[0].cob_id), 0x1600 + rpdos[0].number, entries)
-        for slot in rpdos[1:4]:
-            self._write_mapping((0x1400 + slot.number, slot.cob_id), 0x1600 + slot.number, [])
-        return RpdoMap(rpdos[0].cob_id, rx_type, sp_type, spec.setpoint)
+    def _rpdo_map(self, pdo: PlannedPdo, spec: ModeSpec) -> RpdoMap:
+        """The set-point RPDO as the streamed run encodes it: the counter's type (None: none), the set-point's."""
+        counter_type = self.sdo.data_type(self.desc.address("setpoint_counter")) if self.desc.counted else None
+        return RpdoMap(
+            pdo.slot.cob_id, counter_type, self.sdo.data_type(self.desc.address(spec.setpoint)), spec.setpoint
+        )
 
     def _drive_object(self, codec: ChannelCodec) -> ObjectAddress:
         """The object carrying ``codec``'s channel; DeviceError for a channel the host records itself."""
@@ -334,5 +260,5 @@ class ChannelMapping:
 
     def _disable_tpdos(self) -> None:
         """Every TPDO the EDS declares marked invalid (its COB-ID's bit 31)."""
-        for slot in self.pdo_slots("tpdo"):
+        for slot in pdo_slots(self.sdo.node.object_dictionary, "tpdo", self.node_id):
             self.sdo.write_object(ObjectAddress(0x1800 + slot.number, 1), slot.cob_id | 0x80000000)
