@@ -16,8 +16,8 @@ object addresses and mode specs it is built of are in
 
 All pure: dicts and arrays in, dataclasses and arrays out.
 
-Example
--------
+Examples
+--------
 >>> entry = mapping_entry(ObjectAddress(0x6064, 0), 32)
 >>> hex(entry), parse_mapping_entry(entry)
 ('0x60640020', (ObjectAddress(index=24676, subindex=0), 32))

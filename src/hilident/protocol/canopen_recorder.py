@@ -16,8 +16,8 @@ the emulated twin (which plays it).
 
 All pure: dicts in, dataclasses and arrays out.
 
-Example
--------
+Examples
+--------
 >>> bits = prbs_bits(4, (3,), 15)
 >>> "".join(str(b) for b in bits)
 '111101011001000'

@@ -11,8 +11,8 @@ of them.
 
 All pure: text in, frozen dataclasses out.
 
-Example
--------
+Examples
+--------
 >>> parse_address("0x607D:2")
 ObjectAddress(index=24701, subindex=2)
 >>> str(ObjectAddress(0x6064))

@@ -32,8 +32,8 @@ not the bus's own; for latencies on the wire use the interface's tools. The
 frames canopen delivers to the rest of hilident keep their bus timestamps: the
 trace writes copies.
 
-Example
--------
+Examples
+--------
 >>> network = TracingNetwork()                           # doctest: +SKIP
 >>> network.connect(interface="virtual", channel="vcan1")  # doctest: +SKIP
 >>> network.start_trace("run.asc")                       # doctest: +SKIP
