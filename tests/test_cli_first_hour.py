@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import logging
 import re
+import shutil
 import tomllib
 from pathlib import Path
 from types import SimpleNamespace
@@ -43,6 +44,19 @@ def test_init_writes_a_config_that_loads_and_fits_its_driver(tmp_path, capsys, t
     table = {"serial": None, "canopen": "canopen", "modbus": "modbus"}[transport]
     if table:  # the transport's own keys are written out for the user to set
         assert tomllib.loads(text)["device"][table]
+
+
+def test_init_with_a_driver_folder_writes_a_config_that_finds_it_from_elsewhere(tmp_path, monkeypatch):
+    folder = tmp_path / "bench-drives" / "my-board"
+    shutil.copytree(find_driver(DEFAULT_DRIVERS["serial"]).folder, folder)
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "configs" / "mine.toml"
+    out.parent.mkdir()
+    assert main(["init", "--driver", "./bench-drives/my-board", "--out", str(out)]) == 0
+    cfg = load_config(out)
+    assert Path(cfg.device.driver) == folder.resolve()
+    monkeypatch.chdir(out.parent)  # a run started elsewhere still finds the folder
+    assert find_driver(cfg.device.driver).folder.resolve() == folder.resolve()
 
 
 def test_init_takes_the_transport_from_the_driver_and_refuses_a_mismatch(tmp_path, capsys):

@@ -191,7 +191,7 @@ _SERIAL_REQUIRED = (
 )
 
 
-def _looks_like_path(value: str) -> bool:
+def looks_like_path(value: str) -> bool:
     """A ``device.driver`` value names a folder when it looks like a path: ``./x``, ``../x``, ``/x``, ``~/x``,
     ``a/b``."""
     separators = {"/", os.sep} | ({os.altsep} if os.altsep else set())
@@ -261,7 +261,7 @@ def find_driver(name_or_path: str, extra=()) -> DriverDescription:
     """
     if not isinstance(name_or_path, str) or not name_or_path.strip():
         raise ConfigError("device.driver", f"must name a driver or a driver folder, got {show(name_or_path)}")
-    if _looks_like_path(name_or_path):
+    if looks_like_path(name_or_path):
         candidate = _expand(name_or_path)
         if _is_file(candidate / DESCRIPTION_FILE):
             return load_driver(candidate)

@@ -81,7 +81,7 @@ def starter_config(transport: str | None = None, driver_name: str | None = None)
     ConfigError
         The driver cannot be found or loaded.
     """
-    from hilident.drivers.description import declared_modes, find_driver, valid_sample_rates
+    from hilident.drivers.description import declared_modes, find_driver, looks_like_path, valid_sample_rates
 
     if transport is not None and transport not in TRANSPORTS:
         raise UsageError(f"--transport {transport}: one of {', '.join(TRANSPORTS)}")
@@ -103,8 +103,10 @@ def starter_config(transport: str | None = None, driver_name: str | None = None)
     friction = "velocity" in modes or "position" in modes
     channels = [c.name for c in driver.channels]
     output = "velocity_mps" if "velocity_mps" in channels or not channels else channels[-1]
+    # a folder given by its path is written as its absolute path: the config must find it from wherever it runs
+    reference = str(driver.folder.resolve()) if looks_like_path(name) else name
     return _render(
-        transport, driver.name, sample_rate, mode, friction, output, driver.filter_slots, no_excitation=not modes
+        transport, reference, sample_rate, mode, friction, output, driver.filter_slots, no_excitation=not modes
     )
 
 
