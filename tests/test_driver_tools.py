@@ -92,6 +92,21 @@ def test_without_a_6502_default_the_twin_gets_placeholder_modes_and_check_warns(
     assert check.ok and any("0x6502 has no default" in w for w in check.warnings)
 
 
+def test_check_warns_that_a_drive_without_a_cyclic_mode_cannot_be_excited(tmp_path):
+    eds = tmp_path / "profile_only.eds"  # 0x6502: profile position, velocity and torque only (bits 0, 2, 3)
+    text = (FIXTURES / "pdo4_rpdo2.eds").read_text(encoding="utf-8")
+    assert "DefaultValue=0x000003A5" in text
+    eds.write_text(text.replace("DefaultValue=0x000003A5", "DefaultValue=0x0000000D"), encoding="utf-8")
+    report = new_driver_folder(eds, tmp_path / "drv")
+    assert "cyclic_modes =" not in (report.folder / "driver.toml").read_text(encoding="utf-8")
+    check = check_driver_folder(report.folder)
+    assert any("no cyclic mode" in w and "cannot excite it" in w for w in check.warnings), check.warnings
+    # a drive with cyclic modes gets no such warning
+    assert not any(
+        "no cyclic mode" in w for w in check_driver_folder(new(tmp_path / "b", "pdo4_rpdo2.eds")[0].folder).warnings
+    )
+
+
 def test_the_eds_quirks_are_written_as_comments_naming_the_file_not_where_it_was_read(tmp_path):
     _, text, data = new(tmp_path, "quirks_dup_lower_crlf.eds")
     assert "#   quirks_dup_lower_crlf.eds: line 1104 [6041]: duplicate key 'ObjectType'" in text

@@ -791,6 +791,12 @@ def _check_cyclic_modes(c: _Checker) -> None:
             usable.append(mode)
     if preferred and not usable:
         c.error("canopen.cyclic_modes", f"none of {', '.join(preferred)} is supported by the drive")
+    if not preferred and not s.cyclic_modes:
+        c.warn(
+            "canopen.cyclic_modes",
+            "the drive has no cyclic mode (CST/CSV/CSP/IP) with its set-point object in the EDS: hilident run "
+            "cannot excite it; hilident identify reads its recordings",
+        )
     if preferred and s.supported_modes is None:
         emulator = c.data.get("emulator")
         emu = emulator.get("supported_modes") if isinstance(emulator, dict) else None
