@@ -117,6 +117,18 @@ def test_identity_heartbeat_and_the_eds_objects(drive_host):
     assert err.value.code == 0x06010002
 
 
+def test_a_value_outside_the_eds_limits_is_refused_as_a_drive_refuses_it(drive_host):
+    host, _, _ = drive_host()
+    od = host.node.object_dictionary[0x1016][1]  # consumer heartbeat time 1: LowLimit 0, HighLimit 0x007FFFFF
+    assert (od.min, od.max) == (0, 0x007FFFFF)
+    with pytest.raises(SdoAbortedError) as err:
+        host.write(0x1016, 1, 0x00800000)
+    assert err.value.code == 0x06090031  # CiA 301: value of parameter written too high
+    assert host.read(0x1016, 1) == 0  # the refused value is not kept
+    host.write(0x1016, 1, 0x007FFFFF)  # the limit itself is a value the drive takes
+    assert host.read(0x1016, 1) == 0x007FFFFF
+
+
 def test_state_machine_needs_limits_and_drives_the_loop(drive_host):
     host, emulated, _ = drive_host()
     assert host.state() is cia402.State.SWITCH_ON_DISABLED

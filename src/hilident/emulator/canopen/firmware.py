@@ -68,6 +68,8 @@ from hilident.emulator.canopen.roles import (
 )
 from hilident.emulator.canopen.sdo import (
     ABORT_STATE,
+    ABORT_TOO_HIGH,
+    ABORT_TOO_LOW,
     ABORT_VALUE,
     BlockSdoServer,
     parse_fault_object,
@@ -467,6 +469,7 @@ class CanopenDriveFirmware:
 
     def _on_write(self, index: int, subindex: int, od, data: bytes) -> None:
         value = od.decode_raw(data) if od.data_type in NUMERIC_TYPES else bytes(data)
+        _check_eds_range(od, value)
         addr = ObjectAddress(index, subindex)
         with self.lock:
             if self.recorder is not None and self.recorder.owns(addr):
@@ -544,3 +547,13 @@ class CanopenDriveFirmware:
                 self.fault(EMCY_SYNC_TIMEOUT, self.sample_index)
                 return
             self.clock.step(self.playback, now)
+
+
+def _check_eds_range(od, value) -> None:
+    """A drive refuses a value outside its EDS's LowLimit/HighLimit (CiA 301 aborts 0x06090032/0x06090031)."""
+    if isinstance(value, bytes | bytearray) or isinstance(value, float) and value != value:
+        return
+    if od.min is not None and value < od.min:
+        raise SdoAbortedError(ABORT_TOO_LOW)
+    if od.max is not None and value > od.max:
+        raise SdoAbortedError(ABORT_TOO_HIGH)
