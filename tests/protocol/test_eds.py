@@ -75,6 +75,18 @@ def test_odd_nodeid_expressions_are_rewritten_and_compact_arrays_expanded():
     assert [object_info(od, 0x1016, i).name for i in (1, 2, 3)] == ["Consumer 1", "Consumer 2", "Consumer 3"]
 
 
+def test_a_consumer_heartbeat_limit_without_room_for_the_node_id_is_read_as_the_time_limit():
+    # as some vendor files give it: the heartbeat time's range as the whole entry's (no producer could be watched)
+    text = (FIXTURES / "pdo4_rpdo2.eds").read_text(encoding="utf-8")
+    entry = "[1016sub1]\nParameterName=Consumer heartbeat time 1\nObjectType=0x7\nDataType=0x0007\nAccessType=rw\n"
+    assert entry in text
+    od, warnings = load_eds_text(text.replace(entry, entry + "LowLimit=0\nHighLimit=65535\n"), "hb.eds")
+    assert (od[0x1016][1].min, od[0x1016][1].max) == (0, 0x007FFFFF)
+    assert "node id" in one(warnings, "0x1016", "HighLimit", "[1016sub1]")
+    od, warnings = load_eds_text(text.replace(entry, entry + "LowLimit=0\nHighLimit=0x007FFFFF\n"), "ok.eds")
+    assert od[0x1016][1].max == 0x007FFFFF and not [w for w in warnings if "0x1016" in w]  # room: kept, no warning
+
+
 def test_missing_sync_object_is_reported():
     _, warnings, _ = load("current_only.eds")
     one(warnings, "no 0x1005")

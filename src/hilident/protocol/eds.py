@@ -482,8 +482,33 @@ def _repair(sections: dict, source: str, warnings: list[str]) -> None:
             _repair_values(name, sec, zeros, nodeid, source, warnings)
     zeros.report(source, warnings)
     nodeid.report(source, warnings)
+    _repair_heartbeat_consumer_limits(sections, source, warnings)
     _repair_names(sections, source, warnings)
     _drop_orphan_subs(sections, source, warnings)
+
+
+#: A consumer heartbeat entry of 0x1016 (CiA 301): the producer's node id in bits 16-23, its time (ms) in 0-15.
+_CONSUMER_ENTRY = re.compile(r"1016sub0*([1-9a-f][0-9a-f]*)", re.IGNORECASE)
+_CONSUMER_NODE_BITS = 0x7F << 16
+
+
+def _repair_heartbeat_consumer_limits(sections: dict, source: str, warnings: list[str]) -> None:
+    """A 0x1016 entry whose HighLimit leaves no room for the node id: the limit read as the time's.
+
+    Some vendor files give the heartbeat time's range (``HighLimit=65535``) as
+    the whole entry's; taken as written, no producer could ever be watched. A
+    drive checks the time against it; so does the twin, after this repair.
+    """
+    tally = _Tally(
+        "0x1016 consumer heartbeat HighLimit leaves no room for the node id (bits 16-23, CiA 301); "
+        "read as the limit of its time (bits 0-15)"
+    )
+    for name, sec in sections.items():
+        high = _int(sec["HighLimit"][0]) if _CONSUMER_ENTRY.fullmatch(name) and "HighLimit" in sec else None
+        if high is not None and 0 <= high <= 0xFFFF:
+            sec["HighLimit"] = (hex(_CONSUMER_NODE_BITS | high), sec["HighLimit"][1])
+            tally.add(f"[{name}] (line {_first_line(sec)})")
+    tally.report(source, warnings)
 
 
 def _keep_section(name: str, sections: dict, source: str, warnings: list[str]) -> bool:
