@@ -352,6 +352,28 @@ def test_a_drive_without_a_recorder_refuses_recorder_acquisition(tmp_path):
         emu.close()
 
 
+def test_more_channels_than_the_recorder_has_slots_are_refused_by_the_adapter_and_the_check_alike(tmp_path):
+    from hilident.adapters.canopen.common import ChannelCodec
+    from hilident.adapters.canopen.recorder import check_recorder_channels
+    from hilident.protocol.canopen_objects import CanopenDescription
+    from hilident.protocol.canopen_pdo_plan import RunChannel, recorder_problems
+
+    folder = write_vendor_drive(tmp_path, PRBS)
+    driver = load_driver(folder)
+    desc = CanopenDescription.from_sections(
+        driver.sections, str(folder / "driver.toml"), load_object_dictionary(driver)
+    )
+    slots = len(desc.recorder.recorder.channels)
+    codecs = [ChannelCodec(f"c{i}", "", "velocity", ObjectAddress(0x606C, 0), 0x0004, 1.0) for i in range(slots)]
+    check_recorder_channels(desc, driver, codecs)  # as many as it has: taken
+    one_more = [*codecs, ChannelCodec("host", "", None, None, 0x0004, 1.0)]  # the generator output records it
+    with pytest.raises(ConfigError) as info:
+        check_recorder_channels(desc, driver, one_more)
+    assert info.value.key == "run.channels" and f"{slots + 1} recorded channels" in str(info.value)
+    (problem,) = recorder_problems(desc, [RunChannel(c.name, c.address) for c in one_more])
+    assert problem in str(info.value)  # drivers check says what the adapter says
+
+
 def test_the_twins_generator_refuses_what_its_description_refuses(twin):
     # written past the host's checks, straight by SDO: the drive answers as a drive does
     ad, _, _ = twin(PRBS)

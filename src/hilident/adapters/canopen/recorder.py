@@ -48,6 +48,7 @@ from hilident.protocol.canopen_objects import (
     numpy_type,
     record_dtype,
 )
+from hilident.protocol.canopen_pdo_plan import RunChannel, recorder_problems
 from hilident.protocol.canopen_recorder import (
     GeneratorSettings,
     GeneratorSpec,
@@ -77,20 +78,12 @@ def _capability(desc: CanopenDescription, driver: DriverDescription) -> Recorder
 def check_recorder_channels(
     desc: CanopenDescription, driver: DriverDescription, codecs: Sequence[ChannelCodec]
 ) -> None:
-    """ConfigError (naming the driver file) unless the drive has a recorder that takes the channels of ``codecs``."""
-    cap = _capability(desc, driver)
-    source = str(driver.folder / "driver.toml")
-    wanted: list[ChannelCodec | None] = [c for c in codecs if not c.on_host]
-    output = cap.generator.output if cap.generator is not None else None
-    if any(c.on_host for c in codecs) and output is not None:
-        wanted.append(None)  # the generator's output object records the excitation
-    if len(wanted) > len(cap.recorder.channels):
-        raise ConfigError(
-            "run.channels",
-            f"{len(wanted)} recorded channels; the drive's recorder has "
-            f"{len(cap.recorder.channels)} ([canopen.recorder] channels)",
-            source,
-        )
+    """ConfigError (naming the driver file) unless the drive has a recorder that takes the channels of ``codecs``
+    (the count :func:`~hilident.protocol.canopen_pdo_plan.recorder_problems` makes for ``drivers check`` too)."""
+    _capability(desc, driver)
+    problems = recorder_problems(desc, [RunChannel(c.name, c.address) for c in codecs])
+    if problems:
+        raise ConfigError("run.channels", problems[0], str(driver.folder / "driver.toml"))
 
 
 class RecorderRun(RunStrategy):
