@@ -1,8 +1,9 @@
 """CANopen transport benchmarks against emulated CiA 402 drives. Run by hand, never by the tests::
 
-    python bench/canopen.py                      # 60 s per search trial: about an hour
+    python bench/canopen.py                      # 60 s per search trial: about half an hour
     python bench/canopen.py --duration 5         # quick search; the 1 kHz / 60 s trial stays in full
     python bench/canopen.py --parts fixed        # only the 1 kHz / 60 s trial over socketcand
+    python bench/canopen.py --parts search --duration 5 --setups virtual   # a quick look at the search
 
 Two setups, each measured the same way:
 
@@ -18,27 +19,35 @@ Two drivers: ``--driver`` (default ``cia402-standard``: a drive described by
 its EDS alone, standard objects only, TPDOs matched to SYNCs by bus order) and
 the ones of ``--search-drivers`` (default: ``canopen-servo``, whose TPDOs carry
 the hilident sample counter, and ``--driver``). Every criterion below comes
-from the run's own ``RunResult`` (its stats and events), never from objects a
-standard drive lacks.
+from the run's own ``RunResult`` (its stats, events and clock report), never
+from objects a standard drive lacks. Every run is in real time (the drive at
+``time_scale`` 1; its clock does not follow SYNC), one SYNC per sample, from the
+source the adapter chooses (``sync_source = "auto"``: the drive's own clock
+where its driver says it can produce SYNC, as both shipped twins do).
 
-1. **Fixed-rate trial** (``--driver``, socketcand). ``--fixed-rate`` SYNC/s
-   (1000) for ``--fixed-duration`` seconds (60) in real time: the sample rate
-   is the SYNC rate (``sync_rate_hz`` None) and the drive runs at
-   ``time_scale`` 1 in its own process. Printed: samples received of those
-   asked, lost samples and frames, late and corrupt frames, SYNCs sent more
-   than one period late and the worst lateness, SYNCs unanswered; PASS when
-   nothing was lost and every sample arrived.
-2. **Host-streamed SYNC rate** (every search driver, every setup). The adapter
-   streams a small torque sine with one RPDO and one SYNC per sample, at the
-   drive's fastest sample rate (``--sample-rate``, one loop tick per SYNC),
-   and the TPDOs come back per SYNC. The SYNC rate is the adapter's
-   ``sync_rate_hz``: the emulated drive's clock follows SYNC, so it may run
-   faster than real time. A trial of ``--duration`` seconds is clean when no
-   PDO was lost or late, no SYNC went unanswered, the drive reported no
-   set-point underrun or SYNC counter jump (drives with the hilident counters
-   only), every sample arrived, and the SYNCs kept 98 % of the asked rate. The
-   rate doubles from 500/s until a trial fails, then is bisected to
-   ``--resolution``.
+1. **Fixed-rate trial** (``--driver``, socketcand). ``--fixed-rate`` samples
+   (and SYNCs) per second (1000) for ``--fixed-duration`` seconds (60), the
+   drive in its own process. Printed: samples received of those asked, lost
+   samples and frames, late and corrupt frames, SYNCs unanswered, and the
+   clock: its source, the SYNCs outside the drive's window, the worst jitter
+   and the set-points skipped; PASS when nothing was lost and every sample
+   arrived.
+2. **Host-streamed sample rate** (every search driver, every setup). The
+   adapter streams a small torque sine with one RPDO and one SYNC per sample,
+   and the TPDOs come back per SYNC. The sample rate is the drive's loop rate
+   over a divider d (4000, 2000, 1333.3, 1000, 800, ... Hz for a 4 kHz loop),
+   at most the driver's ``max_sample_rate_hz``. A trial of ``--duration``
+   seconds is clean when no PDO was lost or late, no SYNC went unanswered, the
+   drive reported no set-point underrun or SYNC counter jump (drives with the
+   hilident counters only), every sample arrived, and the samples arrived at
+   98 % of the sample rate (the slope of the sample index over the time it
+   came home). The set-points the host skipped are printed, not a criterion:
+   a drive with the hilident counters counts every cycle without a fresh
+   set-point as an underrun (a criterion), a standard drive holds the last
+   set-point without a word.
+   The search starts at d = loop rate / 500 Hz, halves d (doubling the rate)
+   while trials are clean, then bisects d between the last clean and the
+   first failed divider.
 3. **SDO throughput** (``--driver``, drives with an excitation table only).
    Download and upload of the excitation-table DOMAIN (0x2200), by block
    transfer and by segmented transfer, in kB/s (1 kB = 1000 bytes of payload).
@@ -52,8 +61,8 @@ standard drive lacks.
 from __future__ import annotations
 
 import argparse
+import math
 import os
-import re
 import subprocess
 import sys
 import time
@@ -79,8 +88,8 @@ SETUPS = ("virtual", "socketcand")
 class Trial:
     """One host-streamed run and what its RunResult says about it."""
 
-    rate: float  # SYNC/s asked
-    achieved: float  # samples received per wall-clock second
+    rate: float  # samples (and SYNCs) per second asked
+    achieved: float  # samples received per wall-clock second (slope of the sample index over arrival time)
     asked: int  # samples played
     samples: int  # samples received
     lost_frames: int
@@ -89,11 +98,13 @@ class Trial:
     corrupt: int
     underruns: int  # set-point underruns the drive reported (drives with the hilident counters only)
     sync_errors: int  # SYNC counter jumps the drive reported (idem)
-    late_syncs: int  # SYNCs sent more than one period after their due time
-    worst_late_ms: float
     unanswered: int  # SYNCs that got no TPDO at all (drives matched by bus order)
     clean: bool
     note: str = ""
+    source: str = "-"  # who kept the bus clock (RunResult.clock)
+    outside_window: int = 0  # SYNCs further from their cycle's instant than the drive's window
+    jitter_max_ms: float = 0.0  # the largest SYNC jitter about the fitted clock
+    skipped: int = 0  # set-points (drive clock) or cycles (host clock) skipped
 
 
 class Setup:
@@ -191,44 +202,59 @@ def _event_value(events, kind: str) -> int:
     return sum(int(e.get("value", 0)) for e in events if e["kind"] == kind)
 
 
-def _worst_late_ms(events) -> float:
-    """The worst SYNC lateness, ms, as the run's ``sync_late`` event states it."""
-    worst = 0.0
-    for e in events:
-        m = re.search(r"worst ([0-9.]+) ms", e.get("message", "")) if e["kind"] == "sync_late" else None
-        if m:
-            worst = max(worst, float(m.group(1)))
-    return worst
+class Arrivals:
+    """A run's sink: counts the samples home, and when each block came with the index of its last sample."""
+
+    def __init__(self):
+        self.count = 0
+        self.last_index: list[int] = []
+        self.at_s: list[float] = []
+
+    def __call__(self, index, rows) -> None:
+        self.at_s.append(time.perf_counter())
+        self.last_index.append(int(index[-1]))
+        self.count += len(index)
+
+    @property
+    def rate(self) -> float:
+        """Samples per second home: the slope of each block's last sample index over its arrival (0: too few)."""
+        if len(self.at_s) < 3 or self.at_s[-1] <= self.at_s[0]:
+            return 0.0
+        return float(np.polyfit(np.array(self.at_s) - self.at_s[0], self.last_index, 1)[0])
 
 
-def streaming_trial(setup: Setup, rate: float | None, duration: float, sample_rate: float) -> Trial:
-    """Stream a 0.5 N*m, 3 Hz torque sine for ``duration`` s of SYNCs at ``rate`` (None: the sample rate)."""
+def _clock_fields(clock: dict | None) -> dict:
+    """The Trial fields of a run's clock report (``RunResult.clock``)."""
+    clock = clock or {}
+    return {
+        "source": clock.get("source", "-"),
+        "outside_window": int(clock.get("outside_window", 0)),
+        "jitter_max_ms": 1e3 * float(clock.get("jitter_max_s") or 0.0),
+        "skipped": int(clock.get("setpoints_skipped") or 0),
+    }
+
+
+def streaming_trial(setup: Setup, sample_rate: float, duration: float) -> Trial:
+    """Stream a 0.5 N*m, 3 Hz torque sine for ``duration`` s at ``sample_rate`` (one SYNC per sample)."""
     ad = setup.adapter
     wait_until_answering(ad)
     ad.acquisition = "streamed"
     ad.configure(sample_rate, "torque")
-    ad.sync_rate_hz = rate
-    rate = rate or ad.sample_rate_hz
+    rate = ad.sample_rate_hz
     n = round(rate * duration)
-    x = 0.5 * np.sin(2 * np.pi * 3.0 * np.arange(n) / ad.sample_rate_hz)
-    count = [0]
-
-    def sink(index, rows):
-        count[0] += len(index)
-
-    t0 = time.perf_counter()
+    x = 0.5 * np.sin(2 * np.pi * 3.0 * np.arange(n) / rate)
+    home = Arrivals()
     note = ""
     try:
-        result = ad.stream(x, sink)
+        result = ad.stream(x, home)
     except HilidentError as exc:
         result, note = ad.last_result, str(exc)
-    wall = time.perf_counter() - t0
     if result is None:  # broke off before the run began
-        return Trial(rate, 0.0, n, 0, 0, 0, 0, 0, 0, 0, 0, 0.0, 0, False, note)
+        return Trial(rate, 0.0, n, 0, 0, 0, 0, 0, 0, 0, 0, False, note)
     s, ev = result.stats, result.events
     sync_errors = _event_value(ev, "sync_errors")
     unanswered = _event_value(ev, "sync_unanswered")
-    achieved = count[0] / wall  # samples that arrived per second (all of them in a clean trial)
+    achieved = home.rate  # samples that arrived per second (all of them in a clean trial)
     clean = (
         not note
         and s.lost_frames == 0
@@ -238,60 +264,81 @@ def streaming_trial(setup: Setup, rate: float | None, duration: float, sample_ra
         and s.underruns == 0
         and sync_errors == 0
         and unanswered == 0
-        and count[0] == n
+        and home.count == n
         and achieved >= 0.98 * rate
     )
     return Trial(
         rate,
         achieved,
         n,
-        count[0],
+        home.count,
         s.lost_frames,
         s.lost_samples,
         s.out_of_order,
         s.corrupt_frames,
         s.underruns,
         sync_errors,
-        _event_value(ev, "sync_late"),
-        _worst_late_ms(ev),
         unanswered,
         clean,
         note,
+        **_clock_fields(result.clock),
     )
 
 
-def find_sync_rate(setup: Setup, duration: float, sample_rate: float, resolution: float) -> tuple[float, list[Trial]]:
-    """The highest clean SYNC rate (0: not even 500/s) and every trial run to find it."""
-    trials = []
-    name = setup.driver.name
+def bisect_divider(clean, first: int, smallest: int) -> tuple[int | None, int]:
+    """The smallest divider ``d >= smallest`` for which ``clean(d)`` holds, searched from ``first``.
 
-    def run(rate):
-        t = streaming_trial(setup, rate, duration, sample_rate)
-        trials.append(t)
-        verdict = "clean" if t.clean else "LOSS"
-        print(
-            f"  {name:16s} {setup.kind:10s} {rate:8.0f}/s asked {t.achieved:8.0f}/s received  "
-            f"lost frames {t.lost_frames:5d}  lost samples {t.lost_samples:5d}  late {t.late:4d}  "
-            f"unanswered {t.unanswered:4d}  underruns {t.underruns:4d}  late SYNCs {t.late_syncs:5d} "
-            f"(worst {t.worst_late_ms:.1f} ms)  {verdict} {t.note[:80]}",
-            flush=True,
-        )
-        return t.clean
-
-    good, bad = 0.0, None
-    rate = 500.0
-    while bad is None and rate <= 64000:
-        if run(rate):
-            good, rate = rate, rate * 2
+    ``d`` halves while ``clean(d)`` holds (the rate doubles), then is bisected
+    between the last clean and the first failed divider. Returns (that divider,
+    or None when ``first`` already failed; the number of trials).
+    """
+    trials = 1
+    if not clean(first):
+        return None, trials
+    good, bad = first, smallest - 1  # bad: the largest divider known to fail (none below smallest)
+    while good > smallest:
+        d = max(smallest, good // 2)
+        trials += 1
+        if clean(d):
+            good = d
         else:
-            bad = rate
-    while bad is not None and good and bad - good > max(resolution, 0.05 * good):
-        mid = round((good + bad) / 2 / 50) * 50
-        if run(mid):
+            bad = d
+            break
+    while good - bad > 1 and bad >= smallest:
+        mid = (good + bad) // 2
+        trials += 1
+        if clean(mid):
             good = mid
         else:
             bad = mid
     return good, trials
+
+
+def find_sample_rate(setup: Setup, duration: float) -> tuple[float, list[Trial]]:
+    """The highest clean sample rate, loop rate / d (0: not even about 500 Hz), and every trial run to find it."""
+    trials = []
+    name = setup.driver.name
+    loop_hz = setup.adapter.drive_identity().loop_rate_hz
+    smallest = max(1, math.ceil(loop_hz / setup.driver.max_sample_rate_hz - 1e-9))
+
+    def run(d):
+        t = streaming_trial(setup, loop_hz / d, duration)
+        trials.append(t)
+        verdict = "clean" if t.clean else "LOSS"
+        print(
+            f"  {name:16s} {setup.kind:10s} d {d:3d} {t.rate:7.1f} Hz asked {t.achieved:7.1f}/s received  "
+            f"lost frames {t.lost_frames:5d}  lost samples {t.lost_samples:5d}  late {t.late:4d}  "
+            f"unanswered {t.unanswered:4d}  underruns {t.underruns:4d}  SYNC {t.source}: outside window "
+            f"{t.outside_window:5d} (worst jitter {t.jitter_max_ms:.2f} ms), skipped {t.skipped:5d} "
+            f"({100 * t.skipped / max(t.asked, 1):4.1f} %)  "
+            f"{verdict} {t.note[:80]}",
+            flush=True,
+        )
+        return t.clean
+
+    first = max(smallest, round(loop_hz / 500.0))
+    best, _ = bisect_divider(run, first, smallest)
+    return (0.0 if best is None else loop_hz / best), trials
 
 
 def machine_load() -> str:
@@ -301,11 +348,11 @@ def machine_load() -> str:
 
 
 def fixed_rate_trial(driver: str, rate: float, duration: float) -> Trial:
-    """``rate`` SYNC/s in real time for ``duration`` s, the drive in its own process behind socketcand."""
+    """``rate`` samples (and SYNCs) per second for ``duration`` s, the drive in its own process behind socketcand."""
     setup = Setup("socketcand", driver)
     print(f"  before: {machine_load()}", flush=True)
     try:
-        return streaming_trial(setup, None, duration, rate)
+        return streaming_trial(setup, rate, duration)
     finally:
         print(f"  after:  {machine_load()}", flush=True)
         setup.close()
@@ -322,8 +369,9 @@ def print_fixed(driver: str, t: Trial, duration: float) -> None:
         f"{driver}, socketcand, {t.rate:g} SYNC/s for {duration:g} s (real time, drive in its own process):\n"
         f"  samples {t.samples} of {t.asked}, lost samples {t.lost_samples}, lost frames {t.lost_frames}, "
         f"late frames {t.late}, corrupt frames {t.corrupt}\n"
-        f"  SYNCs more than one period late {t.late_syncs} (worst {t.worst_late_ms:.2f} ms), "
-        f"SYNCs unanswered {t.unanswered}, received {t.achieved:.1f} samples/s\n"
+        f"  SYNC from the {t.source}: {t.outside_window} outside the drive's window (worst jitter "
+        f"{t.jitter_max_ms:.2f} ms), set-points skipped {t.skipped}, SYNCs unanswered {t.unanswered}, "
+        f"received {t.achieved:.1f} samples/s\n"
         f"  {verdict}{': ' + t.note if t.note else ''}",
         flush=True,
     )
@@ -427,19 +475,20 @@ def main(argv=None) -> int:
     p.add_argument(
         "--search-drivers",
         default="canopen-servo",
-        help="drivers of the SYNC-rate search besides --driver (default canopen-servo)",
+        help="drivers of the sample-rate search besides --driver (default canopen-servo)",
     )
     p.add_argument(
         "--parts",
         default="fixed,search,table",
-        help="what to run: fixed (the fixed-rate trial), search (the SYNC-rate search), "
+        help="what to run: fixed (the fixed-rate trial), search (the sample-rate search), "
         "table (SDO throughput and buffered capture); default all",
     )
     p.add_argument("--fixed-rate", type=float, default=1000.0, help="SYNC/s of the fixed-rate trial (default 1000)")
     p.add_argument("--fixed-duration", type=float, default=60.0, help="seconds of the fixed-rate trial (default 60)")
     p.add_argument("--duration", type=float, default=60.0, help="seconds per search trial (default 60)")
-    p.add_argument("--sample-rate", type=float, default=4000.0, help="drive sample rate of the search (default 4000)")
-    p.add_argument("--resolution", type=float, default=250.0, help="SYNC-rate resolution of the search, 1/s")
+    p.add_argument(
+        "--sample-rate", type=float, default=4000.0, help="drive sample rate of the buffered capture (default 4000)"
+    )
     p.add_argument("--setups", default="virtual,socketcand")
     p.add_argument("--capture-s", type=float, default=10.0, help="length of the buffered capture (default 10 s)")
     args = p.parse_args(argv)
@@ -455,7 +504,7 @@ def main(argv=None) -> int:
         print_fixed(args.driver, fixed, args.fixed_duration)
     if "search" in parts:
         print(f"\nsearch starts at {machine_load()}", flush=True)
-    rows = {}  # (driver, setup) -> [SYNC/s held, trials, SDO, buffered, TPDO matching]
+    rows = {}  # (driver, setup) -> [sample rate held, trials, SDO, buffered, TPDO matching]
     drivers = _names(args.search_drivers) + [args.driver]
     drivers = list(dict.fromkeys(drivers))
     for kind in setups:
@@ -470,13 +519,13 @@ def main(argv=None) -> int:
             try:
                 if "search" in parts:
                     print(
-                        f"host-streamed, {args.duration:g} s per trial, {args.sample_rate:g} Hz samples, "
-                        "RPDO + SYNC out, TPDOs back per sample:",
+                        f"host-streamed in real time, {args.duration:g} s per trial, one RPDO + SYNC out and the "
+                        "TPDOs back per sample:",
                         flush=True,
                     )
-                    best, trials = find_sync_rate(setup, args.duration, args.sample_rate, args.resolution)
-                    print(f"  highest lossless SYNC rate: {best:.0f}/s", flush=True)
-                    row[0], row[1] = f"{best:.0f}", str(len(trials))
+                    best, trials = find_sample_rate(setup, args.duration)
+                    print(f"  highest lossless sample rate: {best:.1f} Hz", flush=True)
+                    row[0], row[1] = f"{best:.1f}", str(len(trials))
                 if "table" in parts and driver == args.driver:
                     row[2], row[3] = table_parts(setup, args)
             finally:
@@ -487,12 +536,13 @@ def main(argv=None) -> int:
         print(
             f"fixed rate, {args.driver}, socketcand, {fixed.rate:g} SYNC/s x {args.fixed_duration:g} s: "
             f"{fixed.samples}/{fixed.asked} samples, lost {fixed.lost_samples} samples / {fixed.lost_frames} frames, "
-            f"sync_late {fixed.late_syncs} (worst {fixed.worst_late_ms:.2f} ms), "
+            f"SYNC from the {fixed.source}, {fixed.outside_window} outside the window (worst jitter "
+            f"{fixed.jitter_max_ms:.2f} ms), set-points skipped {fixed.skipped}, "
             f"sync_unanswered {fixed.unanswered}: {verdict}"
         )
     if rows:
         print(
-            f"{'driver':16s} {'matching':8s} {'setup':10s} {'SYNC/s held':>11s} {'trials':>6s}   "
+            f"{'driver':16s} {'matching':8s} {'setup':10s} {'Hz held':>11s} {'trials':>6s}   "
             f"{'SDO block down/up, segmented down/up kB/s':42s} buffered {args.capture_s:g} s: run, lag"
         )
         for (driver, kind), (best, n, sdo, cap, matching) in rows.items():

@@ -49,7 +49,8 @@ class Kind(str, enum.Enum):  # noqa: UP042 - StrEnum would change str()/format()
     UNDERRUN = "underrun"  # the serial board played without a fresh set-point
     CLIPPED = "clipped"  # a value reached the range of its integer object (CANopen): saturated, not measured
     # host-produced SYNC (CANopen streamed runs)
-    SYNC_LATE = "sync_late"
+    SYNC_LATE = "sync_late"  # recordings of earlier releases: a SYNC the host sent more than a period late
+    SYNC_SKIPPED = "sync_skipped"  # cycles (host clock) or set-points (drive clock) skipped, never sent late
     SYNC_UNANSWERED = "sync_unanswered"
     SYNC_ERRORS = "sync_errors"
     # a drive's own generator (CANopen recorder runs)
@@ -171,6 +172,10 @@ class StreamStats:
         Sample blocks the board could not send (its transmit buffer was full).
     clipped_blocks : int
         Blocks in which a value did not fit its integer format.
+    setpoints_skipped : int
+        CANopen streamed runs: set-points not sent because their cycle's time
+        had passed (the drive held the last one); on the host's clock the
+        cycle's SYNC and sample were skipped with it.
     """
 
     samples: int = 0
@@ -182,6 +187,7 @@ class StreamStats:
     underruns: int = 0
     board_dropped_blocks: int = 0
     clipped_blocks: int = 0
+    setpoints_skipped: int = 0
 
     def add(self, other: StreamStats) -> StreamStats:
         """Field-wise sum (for the totals of a session)."""

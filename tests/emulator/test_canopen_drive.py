@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import struct
-import threading
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -23,6 +22,7 @@ from hilident.protocol import cia402
 from hilident.protocol.canopen_objects import TableState, mapping_entry
 from hilident.protocol.canopen_types import ObjectAddress
 from hilident.protocol.filter_encoding import FilterEncoding
+from support.canopen_cycles import CycleClock
 
 CONFIG = Path(__file__).resolve().parents[2] / "configs" / "emulated-canopen-gantry.toml"
 NODE = 3
@@ -208,26 +208,40 @@ def test_one_sync_is_one_sample_period_with_the_latest_setpoint(drive_host):
     host.limits()
     host.enable(mode=10)
     got = []
-    done = threading.Event()
 
     def on_tpdo(can_id, data, ts):
         got.append(struct.unpack("<Hfh", bytes(data)))
-        if len(got) == 5:
-            done.set()
 
     host.network.subscribe(0x180 + NODE, on_tpdo)
     tick0 = emulated.drive.tick
     setpoints = [0.5, -1.25, 2.0, 0.0, 3.5]
-    for k, tq in enumerate(setpoints):
-        host.network.send_message(0x200 + NODE, struct.pack("<Hh", k, int(round(tq / 1e-3))))
-        host.network.send_message(0x80, bytes([k + 1]))
-    assert done.wait(2.0)
-    assert [g[0] for g in got] == [0, 1, 2, 3, 4]  # sample counter
-    assert [g[1] for g in got] == pytest.approx(setpoints)  # the set-point applied in that period
-    assert [g[2] * 1e-3 for g in got] == pytest.approx(setpoints)  # CST: torque demand = set-point (no filter)
-    assert emulated.drive.tick - tick0 == 5 * 4
+    clock = CycleClock(1e-3)  # at the period, as a real host sends (a late cycle is skipped, never sent late)
+    syncs = []
+
+    def send(k):
+        host.network.send_message(0x200 + NODE, struct.pack("<Hh", k, int(round(setpoints[k] / 1e-3))))
+        host.network.send_message(0x80, bytes([len(syncs) + 1]))
+        syncs.append(k)
+
+    clock.at(range(5), send)
+    sent = clock.sent
+    deadline = time.monotonic() + 2.0
+    while len(got) < len(sent) and time.monotonic() < deadline:
+        time.sleep(0.001)
+    assert [g[0] for g in got] == sent  # sample counter: the cycle of each SYNC
+    want = [setpoints[k] for k in sent]
+    assert [g[1] for g in got] == pytest.approx(want)  # the set-point applied in that period
+    assert [g[2] * 1e-3 for g in got] == pytest.approx(want)  # CST: torque demand = set-point (no filter)
+    assert emulated.drive.tick - tick0 == (sent[-1] + 1) * 4  # one period per cycle
     assert host.read(0x2110, 1) == 0 and host.read(0x2110, 2) == 0  # no underrun, SYNC counter continuous
-    host.network.send_message(0x80, bytes([9]))  # SYNC counter jump, no fresh set-point
+    jumped = []
+
+    def jump(k):  # one SYNC at a later cycle's instant, its counter jumping, no fresh set-point
+        if not jumped:
+            host.network.send_message(0x80, b"\x09")
+            jumped.append(k)
+
+    clock.at(range(sent[-1] + 30, sent[-1] + 90), jump)
     time.sleep(0.05)
     assert host.read(0x2110, 1) == 1 and host.read(0x2110, 2) == 1
 
@@ -298,15 +312,19 @@ def test_limit_trip_sends_emcy_with_the_sample_and_faults(drive_host):
     host.node.nmt.state = "OPERATIONAL"
     host.limits(torque=2.0)
     host.enable(mode=10)
-    for k in range(10):
+
+    def send(k):
         tq = 1.0 if k < 6 else 3.0  # beyond the 2 N*m limit from sample 6 on
         host.network.send_message(0x200 + NODE, struct.pack("<Hh", k, int(tq / 1e-3)))
-        host.network.send_message(0x80, bytes([k + 1]))
+        host.network.send_message(0x80, b"")
+
+    clock = CycleClock(1e-3)
+    clock.at(range(10), send)
     deadline = time.monotonic() + 2
     while not host.emcy and time.monotonic() < deadline:
         time.sleep(0.01)
     (emcy,) = host.emcy
-    assert emcy.code == 0x8311 and int.from_bytes(emcy.data[:4], "little") == 6
+    assert emcy.code == 0x8311 and int.from_bytes(emcy.data[:4], "little") == min(k for k in clock.sent if k >= 6)
     assert host.state() is cia402.State.FAULT and not emulated.drive.enabled
     assert host.read(0x603F) == 0x8311 and host.read(0x1003, 0) == 1 and host.read(0x1003, 1) == 0x8311
     host.write(0x6040, 0, 0x0F)

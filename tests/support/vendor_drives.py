@@ -52,6 +52,9 @@ class VendorDrive:
     recorder: str = ""  # "", "prbs" (recorder + PRBS generator with an output object), "sweep" (per-channel buffers,
     # a sine-sweep and sine generator without an output object)
     recorder_max_samples: int = 8192
+    # the drive can produce SYNC (its manual says so; [canopen.sync] producer = true, 0x1006 for the period), as
+    # most servo drives can: the twin then keeps the bus clock; False: the host's loop does
+    sync_producer: bool = True
 
 
 def _objects(d: VendorDrive) -> list[tuple]:
@@ -82,7 +85,7 @@ def _objects(d: VendorDrive) -> list[tuple]:
             (0x1010, 0, "Highest sub-index supported", _UINT8, "ro", False, 1),
             (0x1010, 1, "Save all parameters", _UINT32, "rw", False, 1),
         ]
-    if d.period in ("1006", "both"):
+    if d.period in ("1006", "both") or d.sync_producer:
         objs.append((0x1006, None, "Communication cycle period", _UINT32, "rw", False, 0))
     if d.sync_counter:
         objs.append((0x1019, None, "Synchronous counter overflow value", _UINT8, "rw", False, 0))
@@ -460,9 +463,17 @@ eds = "{d.name}.eds"
 heartbeat_ms = 50
 heartbeat_timeout_ms = 500
 
+{SYNC_PRODUCER if d.sync_producer else ""}
 [canopen.scaling]
 {chr(10).join(scaling)}
 {emulator}{d.extra_toml}"""
+
+
+#: ``[canopen.sync]`` of a drive whose manual says it produces SYNC and monitors it.
+SYNC_PRODUCER = """[canopen.sync]
+producer = true
+window_us = 400
+"""
 
 
 def write_vendor_drive(folder: Path, d: VendorDrive) -> Path:

@@ -115,6 +115,7 @@ class RunResult:
     events: list[dict] = field(default_factory=list)
     fault: str | None = None
     completed: bool = False
+    clock: dict | None = None  # who kept the bus clock and how well (CANopen streamed runs)
 
 
 class DeviceAdapter(Protocol):

@@ -64,6 +64,13 @@ class CanopenDeviceConfig:
     trace: str = _spec(
         "", choices=("", "asc", "blf"), doc='write a CAN trace of each run next to its recording: "", "asc" or "blf"'
     )
+    sync_source: str = _spec(
+        "auto",
+        choices=("auto", "drive", "interface", "host"),
+        doc="who produces SYNC in a streamed run: the drive (its [canopen.sync] producer), the CAN interface's "
+        "own cyclic transmit (SocketCAN's broadcast manager, hardware), or the host's Python loop; auto: the "
+        "first of these the drive and the interface offer",
+    )
 
 
 @dataclass(frozen=True)

@@ -37,6 +37,7 @@ from hilident.protocol.canopen_pdo_plan import (
     plan_streamed_run,
     recorder_problems,
 )
+from hilident.protocol.canopen_sync import parse_sync
 
 DESCRIPTION_FILE = "driver.toml"
 #: CAN bit rates (kbit/s) a [DeviceInfo] may declare, fastest first.
@@ -313,6 +314,11 @@ def _canopen(t: _Toml, s: E.EdsSummary, eds_file: str) -> None:
         t.add(f"# cyclic period written to 0x1006 in us (default {p.value})")
     else:
         t.add("# the EDS has neither 0x60C2 nor 0x1006: the drive's cycle period cannot be set by the host")
+    if s.cyclic_modes:
+        t.add()
+        t.add("# [canopen.sync]: who keeps the bus clock, from the drive's manual (an EDS cannot tell):")
+        t.add("#   producer = true     # the drive can produce SYNC itself (0x1005 bit 30): the best clock there is")
+        t.add("#   window_us = 0       # how far a SYNC may stray before the drive counts a sync error (0: unknown)")
 
 
 def _hex(value) -> str:
@@ -588,6 +594,7 @@ def check_driver_folder(folder) -> CheckReport:
     _check_filters(c)
     _check_save(c)
     _check_recorder(c)
+    _check_sync(c)
     _check_scaling(c)
     _check_keys(c)
     _check_identity(c)
@@ -805,6 +812,33 @@ def _check_cyclic_modes(c: _Checker) -> None:
             "0x6502 has no default: the modes are read from the drive at connect"
             + ("" if emu else "; the twin needs [emulator] supported_modes"),
         )
+
+
+def _check_sync(c: _Checker) -> None:
+    """``[canopen.sync]``: its keys, and a SYNC producer needs 0x1005 writable and 0x1006 in the EDS."""
+    try:
+        sync = parse_sync(c.co, c.source)
+    except ConfigError as exc:
+        c.errors.append(str(exc))
+        return
+    if not sync.producer:
+        if c.s.cyclic_modes or c.co.get("cyclic_modes"):
+            c.warn(
+                "canopen.sync.producer",
+                "not set: in streamed runs the SYNC comes from the CAN interface's own cyclic transmit where "
+                "there is one (SocketCAN), else from the host's Python loop (late cycles skipped); set "
+                "producer = true if the drive's manual says it can produce SYNC (0x1005 bit 30)",
+            )
+        return
+    for index, name, write in ((0x1005, "COB-ID SYNC", True), (0x1006, "communication cycle period", True)):
+        info = E.object_info(c.od, index, 0)
+        if info is None:
+            c.error("canopen.sync.producer", f"is true but 0x{index:04X} ({name}) is not in the EDS")
+        elif write and not E.writable(info.access):
+            c.error(
+                "canopen.sync.producer",
+                f"is true but 0x{index:04X} ({name}) is {info.access!r} in the EDS: the host cannot ask for SYNC",
+            )
 
 
 def _check_channels(c: _Checker) -> None:

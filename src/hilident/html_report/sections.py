@@ -759,6 +759,8 @@ _STREAM_NAMES = {
     "out_of_order": "out-of-order blocks",
     "underruns": "underruns",
     "board_dropped_blocks": "blocks the board dropped",
+    "clipped_blocks": "samples at the limit of their format",
+    "setpoints_skipped": "set-points skipped (never sent late)",
 }
 
 
@@ -998,7 +1000,41 @@ def stream_section(inputs: ReportInputs) -> str:
     if not st:
         return section("stream", "Stream statistics", note("No stream in this command (an upload streams nothing)."))
     rows = [(_STREAM_NAMES.get(k, k), num(v, "", 12)) for k, v in st.items()]
-    return section("stream", "Stream statistics", key_values(rows))
+    return section("stream", "Stream statistics", key_values(rows) + _clock_table(inputs.summary.get("clock")))
+
+
+def _clock_table(clocks: Any) -> str:
+    """CANopen streamed runs: who kept the bus clock of each recording, its jitter and its histogram."""
+    clocks = [c for c in _list(clocks) if isinstance(c, dict)]
+    if not clocks:
+        return ""
+    rows = []
+    for c in clocks:
+        hist = _dict(c.get("histogram_us"))
+        edges, counts = _list(hist.get("edges_us")), _list(hist.get("counts"))
+        spread = ", ".join(f"≥{e:g} µs: {n}" for e, n in zip(edges, counts, strict=False) if n)
+        rows.append(
+            [
+                esc(c.get("run", MISSING)),
+                esc(c.get("source", MISSING)),
+                num(c.get("period_s"), "s", 6),
+                num(_scaled(c.get("jitter_p50_s"), 1e6), "µs", 3),
+                num(_scaled(c.get("jitter_p99_s"), 1e6), "µs", 3),
+                num(_scaled(c.get("jitter_max_s"), 1e6), "µs", 3),
+                num(c.get("outside_window"), "", 12),
+                num(c.get("setpoints_skipped"), "", 12),
+                esc(spread or MISSING),
+            ]
+        )
+    header = ["run", "SYNC from", "period", "jitter p50", "p99", "max", "outside window", "skipped", "jitter histogram"]
+    why = "; ".join(f"{c.get('run')}: {c.get('why')}" for c in clocks if c.get("why"))
+    return table(header, rows, caption="Bus clock (who produced SYNC, measured from the SYNC instants)") + (
+        note(esc(why)) if why else ""
+    )
+
+
+def _scaled(value: Any, factor: float) -> Any:
+    return value * factor if isinstance(value, int | float) else value
 
 
 def _size(n: int) -> str:

@@ -53,6 +53,7 @@ LAYOUTS: dict[str, tuple[str, ...]] = {
         "upload",
         "verification",
         "stream",
+        "clock",
         "connect",
         "filters_found",
         "recordings",
@@ -339,6 +340,7 @@ class Summary:
         stream: StreamStats,
         connect: dict | None,
         filters_found: list[dict],
+        clock: list[dict] | None = None,
         recordings: list[str],
         elapsed_s: float,
         warnings: list[str],
@@ -368,6 +370,7 @@ class Summary:
             excitation,
             {
                 "sample_rate_hz": sample_rate_hz,
+                "clock": list(clock or []),
                 "connect": connect,
                 "filters_found": filters_found,
                 "recordings": recordings,

@@ -36,6 +36,7 @@ from hilident.config.schema import build_table, spec
 from hilident.errors import ConfigError, DataError
 from hilident.protocol import canopen_profile as profile
 from hilident.protocol.canopen_recorder import RecorderCapability, parse_recorder
+from hilident.protocol.canopen_sync import SyncCapability, parse_sync
 from hilident.protocol.canopen_types import ModeSpec, ObjectAddress, parse_address
 
 __all__ = [
@@ -245,6 +246,8 @@ class CanopenDescription:
         cannot be streamed).
     recorder : RecorderCapability or None
         The drive's own generator and recorder (:mod:`hilident.protocol.canopen_recorder`).
+    sync : SyncCapability
+        Whether the drive can produce SYNC and how it monitors it (:mod:`hilident.protocol.canopen_sync`).
     """
 
     eds: str
@@ -271,6 +274,7 @@ class CanopenDescription:
     explicit_modes: bool = False
     unmappable: tuple[str, ...] = ()
     recorder: RecorderCapability | None = None
+    sync: SyncCapability = field(default_factory=SyncCapability)
 
     @classmethod
     def from_sections(cls, sections: dict, source: str = "", od=None) -> CanopenDescription:
@@ -329,6 +333,7 @@ class CanopenDescription:
             explicit_modes=explicit,
             unmappable=unmappable,
             recorder=parse_recorder(sections, source, od),
+            sync=parse_sync(co, source),
         )
         desc._check_default_acquisition(source)
         return desc

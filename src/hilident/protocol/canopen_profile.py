@@ -52,6 +52,7 @@ __all__ = [
 STANDARD_OBJECTS: dict[str, ObjectAddress] = {
     "error_register": ObjectAddress(0x1001),
     "error_history": ObjectAddress(0x1003),
+    "sync_cob_id": ObjectAddress(0x1005),  # COB-ID SYNC; bit 30: this node produces SYNC
     "cycle_period": ObjectAddress(0x1006),  # communication cycle period, us
     "device_name": ObjectAddress(0x1008),
     "hardware_version": ObjectAddress(0x1009),
@@ -68,6 +69,8 @@ STANDARD_OBJECTS: dict[str, ObjectAddress] = {
     "modes_of_operation": ObjectAddress(0x6060),
     "modes_display": ObjectAddress(0x6061),
     "position_actual": ObjectAddress(0x6064),
+    "following_error_window": ObjectAddress(0x6065),  # position increments; 0xFFFFFFFF: monitor off
+    "following_error_timeout": ObjectAddress(0x6066),  # ms
     "velocity_actual": ObjectAddress(0x606C),
     "target_torque": ObjectAddress(0x6071),
     "max_torque": ObjectAddress(0x6072),

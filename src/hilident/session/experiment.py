@@ -30,6 +30,7 @@ __all__ = [
     "Experiment",
     "ExperimentRecorder",
     "FLUSH_INTERVAL_S",
+    "clock_warnings",
     "late_sampling_warnings",
     "length_line",
     "package_versions",
@@ -113,6 +114,45 @@ def late_sampling_warnings(name: str, events: list[dict], samples: int) -> list[
     return out
 
 
+#: Share of a run's cycles the host's clock may skip (each a missing sample) before the session warns.
+SKIPPED_SHARE = 0.01
+#: Share of a run's set-points the drive may hold one cycle more (the drive's clock; recorded as held) unwarned.
+HELD_SHARE = 0.05
+#: Share of a run's samples the device may play without a fresh set-point (that the host did not skip) unwarned:
+#: a CANopen set-point the host sent a few µs before its SYNC's deadline may reach the drive just after it.
+UNDERRUN_SHARE = 0.002
+
+
+def clock_warnings(name: str, clock: dict | None, cycles: int) -> list[str]:
+    """Warnings from a run's clock report: many skipped cycles or set-points, SYNCs outside the drive's window.
+
+    On the host's clock a skipped cycle is a missing sample (a gap: the
+    analysis keeps the longest gap-free stretches); with the drive's or the
+    interface's clock it is a set-point the drive held one cycle more.
+    """
+    if not clock or not cycles:
+        return []
+    out = []
+    skipped = int(clock.get("setpoints_skipped", 0))
+    host = clock.get("source") == "host"
+    if skipped > (SKIPPED_SHARE if host else HELD_SHARE) * cycles:
+        if host:
+            consequence = (
+                "cycles skipped by the host's loop (no SYNC, no sample: the record has gaps); a drive that "
+                "produces SYNC or an interface with its own cyclic transmit (SocketCAN) keeps the clock instead"
+            )
+        else:
+            consequence = "set-points the host sent too late for their cycle (the drive held the last one)"
+        out.append(f"{name}: {skipped} of {cycles} ({100 * skipped / cycles:.1f} %) {consequence}")
+    outside = int(clock.get("outside_window", 0))
+    if outside:
+        out.append(
+            f"{name}: {outside} SYNC(s) strayed more than {1e6 * clock.get('window_s', 0):.0f} µs from their "
+            f"cycle (the drive's SYNC window), worst {1e3 * clock.get('jitter_max_s', 0):.2f} ms"
+        )
+    return out
+
+
 @dataclass
 class Experiment:
     """Samples of one recorded experiment (read back from its file)."""
@@ -148,6 +188,7 @@ class ExperimentRecorder:
         self.progress = progress
         self.warnings = warnings
         self.totals = StreamStats()
+        self.clocks: list[dict] = []  # each run's clock report (CANopen streamed runs)
 
     def record(
         self,
@@ -240,11 +281,23 @@ class ExperimentRecorder:
         endings.raise_pending()
         run = read_run(path)
         stats = result.stats
-        if stats.lost_blocks or stats.corrupt_frames or stats.underruns or stats.out_of_order:
+        # underruns the host's skipped set-points explain are in the clock's warning; the others are the device's
+        unexplained = max(0, stats.underruns - stats.setpoints_skipped)
+        if (
+            stats.lost_blocks
+            or stats.corrupt_frames
+            or stats.out_of_order
+            or unexplained > UNDERRUN_SHARE * stats.samples
+        ):
             self.warnings.append(
                 f"{name}: {stats.lost_blocks} sample blocks ({stats.lost_samples} samples) lost, "
                 f"{stats.out_of_order} blocks out of order (discarded), "
-                f"{stats.corrupt_frames} corrupt frames, {stats.underruns} underrun samples"
+                f"{stats.corrupt_frames} corrupt frames, {unexplained} underrun samples"
+                + (
+                    f" beyond the {stats.setpoints_skipped} set-points the host skipped"
+                    if stats.setpoints_skipped
+                    else ""
+                )
             )
         if stats.clipped_blocks:
             self.warnings.append(
@@ -253,6 +306,9 @@ class ExperimentRecorder:
                 "the plant's"
             )
         self.warnings += late_sampling_warnings(name, result.events, stats.samples)
+        if result.clock is not None:
+            self.clocks.append({"run": name, **result.clock})
+            self.warnings += clock_warnings(name, result.clock, len(excitation))
         return Experiment(name, path, run.samples, stats, result.events)
 
     def _close_recording(self, writer: RunWriter, status: str, reason: str, flush, write_events, ad) -> None:
@@ -269,6 +325,8 @@ class ExperimentRecorder:
             if result is not None:
                 write_events(result.events)
                 writer.set_attrs(stream=result.stats.__dict__)
+                if result.clock is not None:
+                    writer.set_attrs(clock=result.clock)
         except HilidentError as exc:
             failure = exc
             reason = reason or str(exc)

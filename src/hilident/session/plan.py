@@ -60,6 +60,7 @@ class RunPlan:
     filters_enabled: list[int] = field(default_factory=list)
     filter_slots: int = 0
     notch_slots: int = 0
+    clock: dict | None = None  # CANopen: who produces SYNC ({"source", "why"})
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -72,6 +73,8 @@ class RunPlan:
             f"  limits enforced by the device: torque {lim['torque_nm']:g} N*m, speed {lim['velocity_mps']:g} m/s, "
             f"position [{lim['position_min_m']:g}, {lim['position_max_m']:g}] m",
         ]
+        if self.clock is not None:
+            lines.append(f"  bus clock: SYNC from the {self.clock['source']}: {self.clock['why']}")
         for i, e in enumerate(self.experiments, 1):
             peaks = []
             if e.peak_torque_nm is not None:
@@ -134,6 +137,9 @@ def make_plan(
         filters_enabled=[f["slot"] for f in filters_found if f["enabled"]],
         filter_slots=adapter.identity.filter_slots,
     )
+    clock_plan = getattr(adapter, "clock_plan", None)
+    if clock_plan is not None:
+        plan.clock = clock_plan(fs)
     if friction_profile is not None:
         sp = np.asarray(friction_profile.setpoint_mps)
         speeds = cfg.friction_test.speeds_mps

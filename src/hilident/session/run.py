@@ -221,6 +221,11 @@ class Session(DeviceConnection):
         """The stream counters of every run recorded so far, added."""
         return self.recorder.totals if self.recorder is not None else StreamStats()
 
+    @property
+    def clocks(self) -> list[dict]:
+        """Each recorded run's clock report (who kept the bus clock, how well); empty on other transports."""
+        return self.recorder.clocks if self.recorder is not None else []
+
     # --- the whole run ----------------------------------------------------------------------
 
     def run(self) -> dict:
@@ -666,6 +671,7 @@ class Session(DeviceConnection):
             upload=upload,
             verification=verification,
             stream=self.totals,
+            clock=self.clocks,
             connect=connect,
             filters_found=self.filters_found,
             recordings=sorted(p.name for p in self.out.glob("*.h5")),

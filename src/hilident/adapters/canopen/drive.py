@@ -92,7 +92,7 @@ from hilident.adapters.canopen.net import HostHeartbeat, NetWatch
 from hilident.adapters.canopen.recorder import RecorderRun
 from hilident.adapters.canopen.sdo import SdoAccess
 from hilident.adapters.canopen.slots import CanopenFilterSlots
-from hilident.adapters.canopen.streamed import Deliver, DriveHost, StreamedRun
+from hilident.adapters.canopen.streamed import Deliver, DriveHost, StreamedRun, choose_clock
 from hilident.adapters.canopen.trace import TracingNetwork
 from hilident.config.tables import DeviceConfig
 from hilident.drivers.description import DriverDescription, load_object_dictionary
@@ -138,9 +138,6 @@ class CanopenDriveAdapter(AdapterBase):
     ----------
     acquisition : {"streamed", "buffered", "recorder"}
         How :meth:`stream` plays a run.
-    sync_rate_hz : float or None
-        SYNC frames per second in streamed runs; None: the sample rate (real
-        time). Only an emulated drive, whose clock follows SYNC, may run faster.
     sdo, net, mapping, slots
         The parts (see the module docstring).
     layout : RunLayout
@@ -194,7 +191,6 @@ class CanopenDriveAdapter(AdapterBase):
         self.sample_rate_hz = 0.0
         self.channel_names: list[str] = []
         self.channel_units: list[str] = []
-        self.sync_rate_hz: float | None = None
         self.excitation_recipe: dict | None = None  # what a drive's own generator plays (recorder runs)
         self.last_result: RunResult | None = None
         self.events: list[dict] = []
@@ -539,6 +535,21 @@ class CanopenDriveAdapter(AdapterBase):
         self.channel_names = [c.name for c in codecs]
         self.channel_units = units_in_mode(self.channel_names, [c.unit for c in codecs], mode)
         return self.channel_names
+
+    def clock_plan(self, sample_rate_hz: float) -> dict:
+        """Who will keep the bus clock of a run at ``sample_rate_hz``: ``{"source", "why"}``.
+
+        Raises
+        ------
+        ConfigError
+            ``device.canopen.sync_source`` asks for a source the drive or the interface does not offer.
+        """
+        if self.acquisition != "streamed":
+            return {"source": "drive", "why": f"the drive plays the run itself ({self.acquisition} acquisition)"}
+        choice, task = choose_clock(self, 1.0 / sample_rate_hz)
+        if task is not None:
+            task.stop()
+        return {"source": choice.source, "why": choice.why}
 
     def _mode_spec(self, mode: str) -> ModeSpec:
         """The driver's mode for ``mode``; DeviceError naming the modes it has (and 0x6502's) when it has none."""

@@ -1,63 +1,94 @@
-"""Host-streamed runs on a CANopen drive: an RPDO set-point and a SYNC every sample period.
+"""Host-streamed runs on a CANopen drive: one set-point per cycle, one SYNC per cycle, TPDOs back.
 
-For sample ``k`` the host sends the RPDO with the set-point and then SYNC; the
-drive applies the set-point for the sample period that SYNC starts and answers
-with its TPDOs (transmission type 1), carrying the state at the start of that
-period. Which sample a TPDO belongs to is known in one of two ways:
+The bus clock comes from the drive, the CAN interface or, last, the host's
+Python loop (:mod:`~hilident.adapters.canopen.sync_source` chooses and
+measures it). Set-point ``k`` must reach the drive before SYNC ``k``; the drive
+applies it for the cycle that SYNC starts and answers with its TPDOs
+(transmission type 1), carrying the state at the start of that cycle:
+
+* **listening** (the drive or the interface produces SYNC): the host sends
+  set-point ``k + 1`` as soon as it hears SYNC ``k``, if it still has three
+  quarters of a period; otherwise it skips it (the drive holds the last
+  set-point, and the recorded set-point of that cycle is the held one) and
+  counts it in ``setpoints_skipped``. SYNCs, and so samples, never depend on
+  the host's timing;
+* **host** (the Python loop): SYNC ``k`` goes out at the cycle's instant, or
+  within the host's window after it (half the drive's SYNC window, at most a
+  quarter period), and set-point ``k + 1`` right after it (a drive applies an
+  RPDO at the SYNC after it), so nothing but the SYNC waits on the deadline. A
+  cycle whose window the loop missed is skipped: no SYNC, no sample (the
+  drive's own clock runs it with the set-point it holds), counted in
+  ``setpoints_skipped`` and marked by a ``sync_skipped`` event; the next cycle
+  sent gets its own set-point again before its SYNC. Never sent late, one SYNC
+  per pass: never a burst.
+
+Which sample a TPDO belongs to is known in one of two ways:
 
 * **counted**: on a drive with the hilident counters every TPDO is headed by
-  the sample counter ``k`` (and the RPDO by the set-point counter), so each
-  frame names its sample;
+  the drive's sample counter (cycles since Operation Enabled), so each frame
+  names its cycle;
 * **ordered** (every other CiA 402 drive, standard objects only): CAN keeps
   the order of frames, and a drive answers each SYNC with its TPDOs in PDO
   number order, so the answers form consecutive sets; a frame whose PDO
   number is not above the previous frame's starts the next set, and the
-  ``n``-th set answers the ``n``-th SYNC. A set with a frame missing is a lost
-  sample at a known index. A SYNC the drive did not answer at all (a whole set
-  missing) shows only in the count: the samples after it shift by one, which the
-  run reports (``sync_unanswered``) with the number of unanswered SYNCs; such
-  samples are never filled in. Channels the drive does not report (the
-  set-point, on drives without an applied-set-point object) are the host's own.
+  ``n``-th set answers the ``n``-th SYNC of the run (whose cycle the host
+  knows). A set with a frame missing is a lost sample at a known index. A
+  SYNC the drive did not answer at all (a whole set missing) shows only in the
+  count: the samples after it shift by one, which the run reports
+  (``sync_unanswered``) with the number of unanswered SYNCs; such samples are
+  never filled in. Channels the drive does not report (the set-point, on
+  drives without an applied-set-point object) are the host's own.
 
 The host assembles a sample from its TPDOs:
 
-* a sample whose TPDOs did not all arrive within ``window`` sample periods
-  after its SYNC (at the end of the run: ``_GRACE_S`` after the last SYNC or
-  the last new sample, whichever is later) is lost: counted (``lost_samples``, ``lost_blocks``, and
-  ``lost_frames`` for the missing TPDOs), logged as a ``lost_blocks`` event,
-  never filled in;
+* a sample whose TPDOs did not all arrive within ``lost_after`` cycles after
+  its SYNC (at the end of the run: ``_GRACE_S`` after the last SYNC or the last
+  new sample, whichever is later) is lost: counted (``lost_samples``,
+  ``lost_blocks``, and ``lost_frames`` for the missing TPDOs), logged as a
+  ``lost_blocks`` event, never filled in; a skipped cycle is not lost (it was
+  never asked for);
 * a TPDO arriving after its sample was given up is late: counted as
   ``out_of_order`` and discarded;
-* a SYNC the host sent more than one period late is counted in a
-  ``sync_late`` event; set-points that reached the drive after their SYNC are
-  the drive's ``underruns`` (read from its diagnostics at the end).
+* set-points that reached the drive after their SYNC are the drive's
+  ``underruns`` (read from its diagnostics at the end, where it has them).
 
-An emergency stops the SYNCs at once (the drive already switched its power
+The SYNC source, the measured period and jitter, the SYNCs outside the
+drive's window and the skipped set-points are the run's ``clock`` report
+(``RunResult.clock``, in ``summary.json``).
+
+An emergency stops the run at once (the drive already switched its power
 stage off); the samples up to the fault are delivered, then the run ends with
 LimitTrip (a limit) or DeviceError. A lost heartbeat ends it with DeviceError,
 and so do TPDOs lagging more than a second behind the SYNCs (the drive does not
-keep up; flooding it further would only queue frames).
+keep up; flooding it further would only queue frames). A drive producing SYNC
+is told to stop (0x1005 bit 30 cleared) on every ending.
 """
 
 from __future__ import annotations
 
 import collections
 import struct
+import sys
+import threading
 import time
 from collections.abc import Callable
 from typing import Protocol
 
+import can
 import numpy as np
 
 from hilident.adapters.base import RunResult, RunStrategy
 from hilident.adapters.canopen.common import DriveIdentity, DriveRatings, RunLayout
 from hilident.adapters.canopen.net import NetWatch
 from hilident.adapters.canopen.sdo import SdoAccess
+from hilident.adapters.canopen.sync_source import SyncChoice, SyncTiming, choose_sync_source, interface_clock_is_native
 from hilident.adapters.canopen.trace import TracingNetwork
+from hilident.config.tables import DeviceConfig
 from hilident.drivers.description import DriverDescription
 from hilident.errors import DeviceError
 from hilident.events import Kind, RunEvent
 from hilident.protocol.canopen_objects import CanopenDescription, numpy_type, type_bits
+from hilident.protocol.canopen_sync import SYNC_GEN_BIT
 
 __all__ = ["StreamedRun", "DriveHost", "Deliver", "POSITION_SETPOINTS"]
 
@@ -68,6 +99,10 @@ POSITION_SETPOINTS = ("target_position", "interpolation_data")
 Deliver = Callable[[np.ndarray, np.ndarray], None]
 
 _GRACE_S = 0.25  # after the last SYNC (or an emergency), wait this long for the TPDOs in flight
+_SPIN_S = 2e-4  # host clock: the last this many seconds before a cycle's instant are spun, not slept
+_SWITCH_S = 1e-4  # the interpreter's thread switch interval during a run (its 5 ms default delays a SYNC)
+_SETTLE_S = 0.02  # after the clock stopped, the answers to its last SYNCs are awaited this long
+_LEAD = 0.75  # listening: a set-point goes out only within this share of a period after the SYNC before it
 
 
 class DriveHost(Protocol):
@@ -79,8 +114,8 @@ class DriveHost(Protocol):
     check, the host's heartbeat, the emergency queue to wait on,
     :class:`~hilident.adapters.canopen.net.NetWatch`); the run's ``layout`` as
     ``configure()`` left it (mode, rate, channels, PDOs); ``desc`` (the
-    driver's objects and modes), ``driver``, ``sync_rate_hz``,
-    ``sync_overflow``, ``excitation_recipe`` (recorder), the ``ratings``,
+    driver's objects and modes), ``driver``, ``device`` (its config: the SYNC
+    source asked for), ``sync_overflow``, ``excitation_recipe`` (recorder), the ``ratings``,
     ``timeout_s``, ``port``; the bus ``network`` (``send_message``,
     ``subscribe``, ``unsubscribe``); the run: ``events`` (read only: log with
     :meth:`log_event`) and ``run_fault`` (read only: note with
@@ -96,7 +131,7 @@ class DriveHost(Protocol):
     driver: DriverDescription
     desc: CanopenDescription
     layout: RunLayout
-    sync_rate_hz: float | None
+    device: DeviceConfig
     sync_overflow: int
     excitation_recipe: dict | None
     ratings: DriveRatings
@@ -125,12 +160,49 @@ class DriveHost(Protocol):
     def count_saturated(self, raw: np.ndarray, first_index: int) -> None: ...
 
 
+def choose_clock(ad: DriveHost, period_s: float) -> tuple[SyncChoice, can.broadcastmanager.CyclicSendTaskABC | None]:
+    """The SYNC source for a streamed run on ``ad`` (see :mod:`~hilident.adapters.canopen.sync_source`).
+
+    Returns the choice and, when it is the interface, its cyclic SYNC task set
+    up but not started. A SYNC counter (0x1019) changes every frame, which no
+    interface's own cyclic transmit does: then the interface is not tried.
+
+    Raises
+    ------
+    ConfigError
+        ``device.canopen.sync_source`` asks for a source the drive or the interface does not offer.
+    """
+    requested = ad.device.canopen.sync_source
+    writable = ad.desc.has("sync_cob_id") and ad.sdo.eds_variable(ad.desc.address("sync_cob_id")).writable
+    task = None
+    drive_first = requested == "auto" and ad.desc.sync.producer and writable
+    bus = getattr(ad.network, "bus", None)
+    if requested in ("auto", "interface") and not drive_first and bus is not None and ad.sync_overflow <= 1:
+        try:
+            task = bus.send_periodic(
+                can.Message(arbitration_id=0x80, data=b"", is_extended_id=False), period_s, autostart=False
+            )
+        except (can.CanError, NotImplementedError, TypeError, ValueError):
+            task = None
+        if task is not None and not interface_clock_is_native(task):
+            task.stop()
+            task = None
+    choice = choose_sync_source(
+        requested, ad.desc.sync, writable, None if task is None and drive_first else task is not None
+    )
+    if choice.source != "interface" and task is not None:
+        task.stop()
+        task = None
+    return choice, task
+
+
 class StreamedRun(RunStrategy):
     """One host-streamed run: the set-points, SYNCs, received TPDOs and their matching to samples.
 
     See the module docstring. State: the raw sample table and the mask of
     the TPDOs received per sample, the index below which samples are final
-    (delivered or counted lost), the SYNCs sent, late and unanswered.
+    (delivered or counted lost), the cycles started (``sent``), the SYNCs of
+    the run and their cycles, the cycles skipped.
     """
 
     ad: DriveHost
@@ -155,18 +227,36 @@ class StreamedRun(RunStrategy):
             self.frames[tpdo.cob_id] = (1 << rank, struct.Struct(fmt), np.asarray(tpdo.columns, dtype=np.intp), rank)
         self.full = (1 << len(self.frames)) - 1
         self.scales = np.array([c.scale for c in layout.channels])
+        self.host_columns = [j for j, c in enumerate(layout.channels) if c.on_host]
         self.raw = np.zeros((n, len(layout.channels)))
-        for j, c in enumerate(layout.channels):
-            if c.on_host:
-                self.raw[:, j] = x  # the set-point the host sends, in SI units (scale 1)
+        for j in self.host_columns:
+            self.raw[:, j] = x  # the set-point the host sends, in SI units (scale 1)
         self.mask = np.zeros(n, dtype=np.uint32)
+        self.skipped = np.zeros(n, dtype=bool)  # host clock: cycles without a SYNC (no sample asked for)
         self.answered_set, self.answered_rank = -1, len(self.frames)  # ordered matching: the set, its last PDO
         self.rx: collections.deque[tuple[int, bytes]] = collections.deque()  # (COB-ID, data) as received
-        self.period = 1.0 / (ad.sync_rate_hz or layout.sample_rate_hz)
-        self.window = max(16, int(round(0.1 / self.period)))
+        self.period = 1.0 / layout.sample_rate_hz
+        self.lost_after = max(16, int(round(0.1 / self.period)))
         self.final = 0  # samples below are delivered or counted lost
-        self.sent = 0  # SYNCs sent
-        self.late_syncs, self.worst_late = 0, 0.0
+        self.sent = 0  # cycles started: every sample index of the run is below it
+        self.sync_cycle = np.zeros(n, dtype=np.int64)  # the cycle of each SYNC of the run, in order
+        self.syncs = 0  # SYNCs of the run (sent or heard)
+        self.tail = 0  # host clock: SYNCs sent after the run's last cycle, until it is over
+        self.next_cycle = 0  # host clock: the next cycle to send (beyond the run's last, in its tail)
+        self.heard = 0  # listening: SYNCs heard since the drive or the interface began
+        self.applied = 0  # listening: the set-point index the drive holds
+        self.setpoints: list = []
+        self.choice = SyncChoice("host", "")
+        capability = ad.desc.sync
+        self.timing = SyncTiming(self.period, 1e-6 * capability.window_us, n)
+        self.host_window = capability.host_window_s(self.period)
+        self.periodic_task: can.broadcastmanager.CyclicSendTaskABC | None = None  # the interface's cyclic SYNC
+        self.clock_stopped = False
+        self.clock_stop = threading.Event()  # host clock: its thread stops
+        self.sender: threading.Thread | None = None  # host clock: the thread that sends the SYNCs
+        self.sender_error: BaseException | None = None
+        self.t0 = 0.0  # host clock: the instant of cycle 0, perf_counter s
+        self._pack = self.rpdo_packer()
 
     # --- receiving ---------------------------------------------------------------------------------
 
@@ -174,7 +264,10 @@ class StreamedRun(RunStrategy):
         self.rx.append((can_id, bytes(data)))
 
     def finalize(self, limit: int, count_lost: bool = True) -> None:
-        """Deliver complete samples below ``limit``; count the others as lost (or drop them silently)."""
+        """Deliver complete samples below ``limit``; count the others as lost (or drop them silently).
+
+        Skipped cycles are neither: no sample was asked for them.
+        """
         a, stats, mask = self.final, self.stats, self.mask
         if limit <= a:
             return
@@ -185,8 +278,8 @@ class StreamedRun(RunStrategy):
             self.ad.count_saturated(self.raw[idx], int(idx[0]))
             self.deliver(idx.astype(np.int64), self.raw[idx] * self.scales)
             stats.samples += len(idx)
-        if count_lost and not complete.all():
-            missing = np.flatnonzero(~complete) + a
+        missing = np.flatnonzero(~complete & ~self.skipped[a:limit]) + a
+        if count_lost and len(missing):
             stats.lost_samples += len(missing)
             stats.lost_blocks += len(missing)
             stats.lost_frames += int(sum(bin(self.full & ~int(m)).count("1") for m in mask[missing]))
@@ -205,8 +298,7 @@ class StreamedRun(RunStrategy):
     def drain(self) -> int:
         """Sort received TPDOs into samples; returns the highest sample index seen."""
         top = -1
-        sent, final, rx, stats = self.sent, self.final, self.rx, self.stats
-        ref = sent - 1
+        final, rx, stats, n = self.final, self.rx, self.stats, self.n
         while rx:
             cob, data = rx.popleft()
             spec = self.frames.get(cob)
@@ -222,14 +314,21 @@ class StreamedRun(RunStrategy):
                 continue
             values = packer.unpack_from(data)
             if self.counted:
+                # the newest cycle begun, the run's tail included; read per frame: the SYNCs are counted in another
+                # thread
+                ref = max(self.next_cycle, self.heard) - 1
                 k = ref - ((ref - values[0]) % self.counter_mod)
                 values = values[1:]
-            else:
-                k = self.answered_set
-                if k >= sent:
-                    stats.corrupt_frames += 1  # an answer to a SYNC the host never sent: not this run's
-                    continue
-            if k < final or k < 0:
+            elif self.answered_set < self.syncs:
+                k = int(self.sync_cycle[self.answered_set])
+            else:  # after the run's last SYNC (the clock goes on until the run is over), else not ours
+                k = n if self.heard > n or self.answered_set < self.syncs + self.tail else -1
+            if k >= n:
+                continue  # a cycle after the run's last: the drive clocks on until it is told to stop
+            if k < 0:
+                stats.corrupt_frames += 1  # an answer to a SYNC of no cycle of this run
+                continue
+            if k < final:
                 stats.out_of_order += 1  # arrived after its sample was given up: late
                 continue
             self.raw[k, idx] = values
@@ -238,27 +337,40 @@ class StreamedRun(RunStrategy):
         return top
 
     def complete_from_final(self, end: int | None = None) -> bool:
-        """Whether every sample from the final index to ``end`` has all its TPDOs."""
-        return self.mask[self.final : end].min(initial=self.full) == self.full
+        """Whether every sample from the final index to ``end`` has all its TPDOs (or was skipped)."""
+        seg = slice(self.final, end)
+        return bool(np.all((self.mask[seg] == self.full) | self.skipped[seg]))
 
     # --- events --------------------------------------------------------------------------------------
 
-    def note_late_syncs(self) -> None:
-        """The ``sync_late`` event (once): how many SYNCs went out more than a period late, the worst in s."""
-        if self.late_syncs and not any(e["kind"] == Kind.SYNC_LATE.value for e in self.ad.events):
-            self.ad.log_event(
-                RunEvent(
-                    Kind.SYNC_LATE,
-                    f"{self.late_syncs} SYNC(s) sent more than one period late (worst {self.worst_late * 1e3:.2f} ms)",
-                    0,
-                    value=float(self.late_syncs),
-                    worst_s=float(self.worst_late),
+    def note_skipped(self) -> None:
+        """Listening: the ``sync_skipped`` event (once) for the set-points not sent in time (the drive held)."""
+        skipped = self.stats.setpoints_skipped
+        if skipped and self.choice.source != "host":
+            if not any(e["kind"] == Kind.SYNC_SKIPPED.value for e in self.ad.events):
+                self.ad.log_event(
+                    RunEvent(
+                        Kind.SYNC_SKIPPED,
+                        f"{skipped} set-point(s) skipped: not sent in time for their cycle, the drive held the "
+                        "last one (the recorded set-point is the held one)",
+                        0,
+                        value=float(skipped),
+                    )
                 )
-            )
 
     def note_unanswered(self) -> None:
-        """Ordered matching: SYNCs no TPDO answered show only in the count of answer sets."""
-        unanswered = self.sent - 1 - self.answered_set
+        """Ordered matching: SYNCs no TPDO answered show only in the count of answer sets.
+
+        Counted over every SYNC of the run and after it (the clock runs on until
+        the run is over), once the clock stopped and the last answers came in.
+        The last SYNC a drive produced before it stopped may go unanswered (a
+        drive may answer a cycle at its end): it is not counted.
+        """
+        if self.choice.source == "host":
+            syncs = self.syncs + self.tail
+        else:
+            syncs = self.heard - 1
+        unanswered = syncs - 1 - self.answered_set
         if unanswered > 0:
             self.ad.log_event(
                 RunEvent(
@@ -282,6 +394,13 @@ class StreamedRun(RunStrategy):
                     Kind.SYNC_ERRORS, f"the drive saw {sync_errors} SYNC counter jump(s)", 0, value=float(sync_errors)
                 )
             )
+
+    def clock_report(self) -> dict:
+        """The run's clock: source and why, measured period and jitter, set-points skipped."""
+        report = {"source": self.choice.source, "why": self.choice.why, **self.timing.report()}
+        report["setpoints_skipped"] = int(self.stats.setpoints_skipped)
+        report["host_window_s"] = self.host_window if self.choice.source == "host" else None
+        return report
 
     # --- the run -----------------------------------------------------------------------------------
 
@@ -313,60 +432,177 @@ class StreamedRun(RunStrategy):
         origin = int(sdo.read("position_actual")) if position else 0
         return ad.encode_setpoints(self.x, sp_type, sp_role, origin).tolist()
 
+    def choose_source(self) -> SyncChoice:
+        """The SYNC source of this run; the interface's cyclic task, when it is the one, is kept to start."""
+        choice, self.periodic_task = choose_clock(self.ad, self.period)
+        return choice
+
     def run(self) -> None:
         """Play the run; see the module docstring."""
         ad = self.ad
         for cob in self.frames:
             ad.network.subscribe(cob, self.on_tpdo)
+        self.choice = self.choose_source()
+        switch = sys.getswitchinterval()
+        sys.setswitchinterval(_SWITCH_S)
         try:
             self._loop()
-            self.note_late_syncs()
+            self._stop_clock()
+            self._settle()
+            self.note_skipped()
             if ad.run_fault is None and not self.counted:
                 self.note_unanswered()
             if ad.run_fault is None and self.counted:
                 self.read_drive_counters()
             self.result.completed = ad.run_fault is None
         except BaseException:
-            self.note_late_syncs()  # a run that broke off says how late its SYNCs went out too
+            self.note_skipped()  # a run that broke off says what it skipped too
             try:
                 self.drain()
-                self.finalize(self.sent - self.window)  # long overdue: lost
+                self.finalize(self.sent - self.lost_after)  # long overdue: lost
                 self.finalize(self.sent, count_lost=False)  # still in flight when the run broke off
             except Exception:
                 pass
             raise
         finally:
-            for cob in self.frames:
+            sys.setswitchinterval(switch)
+            self._stop_clock()
+            self.result.clock = self.clock_report()
+            for cob in [*self.frames, 0x80]:
                 try:
-                    ad.network.unsubscribe(cob, self.on_tpdo)
+                    ad.network.unsubscribe(cob, self.on_tpdo if cob != 0x80 else self.on_sync)
                 except (KeyError, ValueError):
                     pass
 
+    # --- the clocks --------------------------------------------------------------------------------
+
+    def _start_clock(self) -> None:
+        """Listening: set-point 0 out, then the drive (0x1005 bit 30) or the interface starts the SYNCs."""
+        ad = self.ad
+        ad.network.send_message(self.rpdo.cob_id, self._pack(0, self.setpoints[0]))
+        ad.network.subscribe(0x80, self.on_sync)
+        if self.choice.source == "drive":
+            cob = int(ad.sdo.read("sync_cob_id")) & 0x7FF
+            ad.sdo.write("sync_cob_id", SYNC_GEN_BIT | cob)
+        elif isinstance(self.periodic_task, can.broadcastmanager.RestartableCyclicTaskABC):
+            self.periodic_task.start()
+
+    def _settle(self) -> None:
+        """After the clock stopped: the answers to its last SYNCs, still on their way, are drained."""
+        end = time.perf_counter() + _SETTLE_S + 2 * self.period
+        while time.perf_counter() < end:
+            time.sleep(0.002)
+            self.drain()
+
+    def _stop_clock(self) -> None:
+        """The drive or the interface stops producing SYNC (never raises: every ending passes here; once)."""
+        ad = self.ad
+        self.clock_stop.set()
+        if self.sender is not None:
+            self.sender.join(timeout=1.0)
+        if self.clock_stopped:
+            return
+        self.clock_stopped = True
+        if self.periodic_task is not None:
+            try:
+                self.periodic_task.stop()
+            except Exception:
+                pass
+        if self.choice.source == "drive":
+            try:
+                ad.sdo.write("sync_cob_id", int(ad.sdo.read("sync_cob_id")) & ~SYNC_GEN_BIT & 0xFFFFFFFF)
+            except Exception:
+                pass
+
+    def on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        """Listening: SYNC ``k`` heard; set-point ``k + 1`` out if there is time, else skipped (held)."""
+        k = self.heard
+        self.heard += 1
+        n = self.n
+        if k >= n:
+            return
+        self.timing.add(k, timestamp)
+        self.sync_cycle[self.syncs] = k
+        self.syncs += 1
+        self.sent = k + 1
+        nxt = k + 1
+        if nxt >= n:
+            return
+        if time.time() - timestamp <= _LEAD * self.period:
+            self.ad.network.send_message(self.rpdo.cob_id, self._pack(nxt, self.setpoints[nxt]))
+            self.applied = nxt
+            return
+        self.stats.setpoints_skipped += 1
+        for j in self.host_columns:
+            self.raw[nxt, j] = self.x[self.applied]  # the drive holds the set-point it has
+
+    def _send_due(self, now: float) -> None:
+        """Host clock: the SYNC of the cycle whose instant passed last, if within the window; one per call.
+
+        After the run's last cycle the SYNCs go on (without set-points: the
+        drive holds the last one) until the run is over, so the drive's clock
+        does not stop while its last samples are still on their way.
+        """
+        k = int((now - self.t0) / self.period)
+        if k < self.next_cycle:
+            return
+        now = time.perf_counter()  # the loop may have been held up since ``now`` was taken
+        if now - (self.t0 + k * self.period) > self.host_window:
+            return  # sent already, or this cycle's window passed: wait for the next one, never send late
+        n, send = self.n, self.ad.network.send_message
+        if self.sent < min(k, n):
+            self._skip(self.sent, min(k, n))
+        overflow = self.ad.sync_overflow
+        if k != self.next_cycle and k < n:  # after a skip the set-point sent ahead is not this cycle's
+            send(self.rpdo.cob_id, self._pack(k, self.setpoints[k]))
+        send(0x80, bytes([(self.syncs + self.tail) % overflow + 1]) if overflow > 1 else b"")
+        if k < n:
+            self.timing.add(k, now)
+            self.sync_cycle[self.syncs] = k
+            self.syncs += 1
+        else:
+            self.tail += 1
+        self.next_cycle = k + 1
+        self.sent = min(k + 1, n)
+        if k + 1 < n:  # the next cycle's set-point, ahead: a drive applies an RPDO at the SYNC after it
+            send(self.rpdo.cob_id, self._pack(k + 1, self.setpoints[k + 1]))
+
+    def _skip(self, first: int, stop: int) -> None:
+        """Host clock: cycles ``first .. stop - 1`` are skipped (no SYNC, no sample); an event marks the gap."""
+        self.skipped[first:stop] = True
+        self.stats.setpoints_skipped += stop - first
+        self.ad.log_event(
+            RunEvent(
+                Kind.SYNC_SKIPPED,
+                f"{stop - first} cycle(s) skipped: the host's loop missed their window (no SYNC, no sample): "
+                f"samples {first}..{stop - 1}",
+                first,
+                value=float(stop - first),
+            )
+        )
+
     def _loop(self) -> None:
-        """SYNCs on time, TPDOs matched, samples delivered, until the run ends or a fault stops it."""
-        ad, n, period, window = self.ad, self.n, self.period, self.window
-        lag_limit = max(10 * window, int(round(1.0 / period)))  # the drive is not keeping up: stop flooding it
-        overflow = ad.sync_overflow
-        send = ad.network.send_message
-        rpdo_cob, pack = self.rpdo.cob_id, self.rpdo_packer()
-        setpoints = self.start()
+        """The clock runs, TPDOs are matched, samples delivered, until the run ends or a fault stops it."""
+        ad, n, period, lost_after = self.ad, self.n, self.period, self.lost_after
+        lag_limit = max(10 * lost_after, int(round(1.0 / period)))  # the drive is not keeping up: stop flooding it
+        self.setpoints = self.start()
+        host_clock = self.choice.source == "host"
+        if host_clock:
+            self.ad.network.send_message(self.rpdo.cob_id, self._pack(0, self.setpoints[0]))
+            self.t0 = time.perf_counter()
+            self.sender = threading.Thread(target=self._host_clock, name="hilident-sync", daemon=True)
+            self.sender.start()
+        else:
+            self._start_clock()
         fault = None
-        t0 = time.perf_counter() + 0.001
-        ended: float | None = None  # when the last SYNC went out
+        ended: float | None = None  # when the last cycle started
         fault_s = 0.0  # when the fault was taken
         top = -1
-        heard_s = 0.0  # when the newest sample so far arrived
+        heard_s = time.perf_counter()  # when the newest sample so far arrived (the start: none yet)
         while True:
             now = time.perf_counter()
-            if fault is None:
-                while self.sent < n and now >= t0 + self.sent * period:
-                    late = now - (t0 + self.sent * period)
-                    if late > period:
-                        self.late_syncs += 1
-                        self.worst_late = max(self.worst_late, late)
-                    send(rpdo_cob, pack(self.sent, setpoints[self.sent]))
-                    send(0x80, bytes([self.sent % overflow + 1]) if overflow > 1 else b"")
-                    self.sent += 1
+            if self.sender_error is not None:
+                raise self.sender_error
             ad.net.heartbeat.beat_if_due()
             newest = self.drain()
             if newest > top:
@@ -375,6 +611,7 @@ class StreamedRun(RunStrategy):
                 fault = ad.take_emergency_fault(max(top, 0))
                 if fault is not None:
                     fault_s = now
+                    self.clock_stop.set()  # the drive switched off: no more SYNCs
             if fault is not None:
                 last = min(self.sent, fault["sample_index"] + 1)
                 if now - fault_s > _GRACE_S or self.complete_from_final(last):
@@ -389,14 +626,39 @@ class StreamedRun(RunStrategy):
                         f"SYNCs (more than {lag_limit * period:.2g} s): it does not keep up with "
                         f"{1 / period:g} SYNC/s"
                     )
-                if self.sent == n:
+                if not host_clock and self.heard == 0 and now - heard_s > max(_GRACE_S, 20 * period):
+                    raise DeviceError(
+                        f"{ad.port}: no SYNC on the bus {now - heard_s:.2g} s after the "
+                        f"{self.choice.source} was told to produce it (0x1005, 0x1006)"
+                    )
+                if self.sent >= n:
                     ended = ended or now
                     # the grace runs from the last SYNC or the last new sample, whichever is later: a drive
                     # still answering the last SYNCs is slow, not silent
-                    if now - max(ended, heard_s) > _GRACE_S or self.complete_from_final():
+                    if now - max(ended, heard_s) > _GRACE_S or self.complete_from_final(n):
                         self.finalize(n)
                         return
                 else:
-                    self.finalize(self.sent - window)
-            wait = t0 + self.sent * period - time.perf_counter()
-            time.sleep(min(max(wait, 0.0), 0.005) if self.sent < n and fault is None else 0.002)
+                    self.finalize(self.sent - lost_after)
+            time.sleep(0.002)
+
+    def _host_clock(self) -> None:
+        """Host clock, in a thread of its own that does nothing else: each cycle's SYNC at its instant.
+
+        It sleeps until shortly before the next cycle's instant and spins the
+        last ``_SPIN_S`` (a sleep overshoots by tens of µs); the receiving,
+        matching and recording stay in the run's thread. It stops when the run
+        ends or the drive faults.
+        """
+        try:
+            while not self.clock_stop.is_set():
+                instant = self.t0 + self.next_cycle * self.period
+                wait = instant - time.perf_counter()
+                if wait > _SPIN_S:
+                    self.clock_stop.wait(min(wait - _SPIN_S, 0.005))
+                    continue
+                while time.perf_counter() < instant:
+                    pass
+                self._send_due(time.perf_counter())
+        except BaseException as exc:  # a failed send: the run's thread raises it
+            self.sender_error = exc

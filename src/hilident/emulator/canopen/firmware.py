@@ -10,7 +10,9 @@ does goes through its object dictionary and the bus:
 * SDO reads and writes are dispatched to the firmware's parts: stored values
   and scalings (:mod:`.objects`), modes and set-points (:mod:`.setpoints`),
   limits and filter slots (:mod:`.parameters`), PDOs and SYNC-driven runs
-  (:mod:`.pdo`), heartbeat consumer and node guarding (:mod:`.guarding`),
+  (:mod:`.pdo`, SYNC judged by :mod:`.sync`, the following error by
+  :mod:`.following`), SYNC production (:mod:`.production`), heartbeat
+  consumer and node guarding (:mod:`.guarding`),
   drive-buffered table runs and the capture (:mod:`.playback`), a vendor
   drive's recorder and generator (:mod:`.recorder`);
 * heartbeat producer (0x1017), EMCY on every fault (limit trips too; the first
@@ -30,7 +32,8 @@ import this module (no import cycle).
 Its clock (:meth:`CanopenDriveFirmware.tick`, called by
 :class:`~hilident.emulator.canopen.server.CanopenDriveServer`) runs the host
 watch, the recorder, table playback and coasting on the twins' one
-:class:`~hilident.emulator.clock.SimClock`, and the SYNC watchdog.
+:class:`~hilident.emulator.clock.SimClock`, and the SYNC watchdog (EMCY 0x8250 when a SYNC-driven run
+sees no SYNC for the driver's ``[canopen.sync] loss_timeout_ms``).
 
 Fault switches (``[emulator.faults]``): ``drive_fault_after_s`` (EMCY 0x4310 and
 Fault), ``capture_stops_after_s``; in ``[emulator.faults.canopen]``,
@@ -44,6 +47,7 @@ import struct
 import threading
 import time
 
+import can
 import numpy as np
 from canopen.sdo import SdoAbortedError
 
@@ -55,6 +59,7 @@ from hilident.emulator.canopen.objects import ObjectStore
 from hilident.emulator.canopen.parameters import DriveParameters
 from hilident.emulator.canopen.pdo import PdoExchange
 from hilident.emulator.canopen.playback import CAPTURE_CHUNK_RECORDS, TablePlayback
+from hilident.emulator.canopen.production import SyncProducer
 from hilident.emulator.canopen.recorder import DriveRecorder
 from hilident.emulator.canopen.roles import (
     COLUMN_OF_ROLE,
@@ -75,6 +80,7 @@ from hilident.emulator.canopen.sdo import (
     parse_fault_object,
 )
 from hilident.emulator.canopen.setpoints import SetPoints
+from hilident.emulator.canopen.sync import SYNC_COB_ID_INDEX
 from hilident.emulator.clock import SimClock
 from hilident.emulator.drive import DriveLoop
 from hilident.protocol import cia402
@@ -95,10 +101,8 @@ from hilident.protocol.canopen_profile import (
 from hilident.protocol.canopen_types import ObjectAddress
 from hilident.protocol.filter_encoding import FilterEncoding
 
-__all__ = ["CAPTURE_CHUNK_RECORDS", "EMCY_HEARTBEAT", "SYNC_WATCHDOG_S", "CanopenDriveFirmware"]
+__all__ = ["CAPTURE_CHUNK_RECORDS", "EMCY_HEARTBEAT", "CanopenDriveFirmware"]
 
-#: A drive that saw SYNC and then none for this long (wall time) while enabled faults (0x8250).
-SYNC_WATCHDOG_S = 1.0
 #: Roles whose value is the drive's state now, not what was stored: ``value(firmware, sample index)``.
 _LIVE_VALUES = {
     "sample_counter": lambda fw, k: k & 0xFFFF,
@@ -190,6 +194,7 @@ class CanopenDriveFirmware:
         self.loop_rate = float(driver.loop_rate_hz)
         self.lock = threading.RLock()
         self.network: canopen.Network | None = None
+        self.stamped_bus: can.BusABC | None = None  # sends with a given bus timestamp (the SYNC producer's)
         self.error: BaseException | None = None
         self.clock = SimClock(self.loop_rate, self.time_scale)
         self._describe(driver, node_id)
@@ -197,6 +202,7 @@ class CanopenDriveFirmware:
         self.parameters = DriveParameters(self)
         self.watch = HostWatch(self)
         self.pdo = PdoExchange(self, seed)
+        self.producer = SyncProducer(self, self.pdo)
         self.playback = TablePlayback(self)
         self.last_row: np.ndarray = drive.run(np.zeros(1))[0]
         drive.disable()
@@ -285,6 +291,13 @@ class CanopenDriveFirmware:
         if self.network is not None:
             self.network.send_message(cob_id, payload)
 
+    def send_stamped(self, cob_id: int, payload: bytes, stamp: float) -> None:
+        """A frame whose bus timestamp is ``stamp`` (wall s): the instant the drive's clock put it on the wire."""
+        if self.stamped_bus is None:
+            self.send(cob_id, payload)
+            return
+        self.stamped_bus.send(can.Message(arbitration_id=cob_id, data=payload, is_extended_id=False, timestamp=stamp))
+
     def _on_nmt(self, can_id, data, timestamp) -> None:
         with self.lock:
             if self.node.nmt.state != "OPERATIONAL" and self.state is cia402.State.OPERATION_ENABLED:
@@ -324,6 +337,7 @@ class CanopenDriveFirmware:
         """A run starts at the drive's present tick: sample index, counters and injected faults anew."""
         self.sample_index = 0
         self.pdo.restart()
+        self.producer.restart()
         self.run_start_tick = self.drive.tick
         self.injected = set()
         self.clock.stop_coast()
@@ -449,6 +463,8 @@ class CanopenDriveFirmware:
             "supported_modes": lambda: encode_supported_modes(self.supported),
             "setpoint_underruns": lambda: self.pdo.underruns,
             "sync_errors": lambda: self.pdo.sync_errors,
+            "sync_missed": lambda: self.pdo.sync_missed,
+            "sync_window_errors": lambda: self.pdo.sync_window_errors,
         }
         if role in counters:
             return counters[role]()
@@ -478,10 +494,12 @@ class CanopenDriveFirmware:
                 self._write_role(self.role_of.get(addr), value)
 
     def _write_indexed(self, index: int, subindex: int, value) -> bool:
-        """Writes to objects known by their index (PDOs, 0x1016, 0x6007, filter slots, capture mapping, error
-        history); False when ``index`` is none of them."""
+        """Writes to objects known by their index (PDOs, 0x1005, 0x1016, 0x6007, filter slots, capture mapping,
+        error history); False when ``index`` is none of them."""
         if self.pdo.owns(index):
             self.pdo.write(index, subindex, int(value))
+        elif index == SYNC_COB_ID_INDEX:
+            self.producer.write(int(value))
         elif index == HEARTBEAT_CONSUMER_INDEX and subindex > 0:
             self.watch.write_consumer(subindex, int(value))
         elif index == ABORT_CONNECTION_INDEX:
@@ -542,8 +560,8 @@ class CanopenDriveFirmware:
             self.watch.tick(now)
             if self.recorder is not None:
                 self.recorder.tick(now)
-            enabled = self.state is cia402.State.OPERATION_ENABLED
-            if enabled and not self.playback.playing and self.pdo.sync_timed_out(now, SYNC_WATCHDOG_S):
+            deadline = self.pdo.sync_deadline()
+            if deadline is not None and self.pdo.running() and self.watch.silent_past(deadline, now, time.time()):
                 self.fault(EMCY_SYNC_TIMEOUT, self.sample_index)
                 return
             self.clock.step(self.playback, now)

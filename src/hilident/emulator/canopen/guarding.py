@@ -137,8 +137,9 @@ class HostWatch:
             self._check_consumers(now)
         self._check_life_guarding(now)
 
-    def _silent_past(self, deadline: float, now: float, wall: float) -> bool:
-        """Whether the bus shows no frame from the host up to ``deadline`` (bus time, s)."""
+    def silent_past(self, deadline: float, now: float, wall: float) -> bool:
+        """Whether the bus shows no frame from the host up to ``deadline`` (bus time, s), judged at monotonic
+        time ``now`` and wall time ``wall`` (s); also how the drive finds a SYNC missing."""
         last_stamp, last_handled = self.last_frame
         idle = now - max(last_handled, self.resumed) > IDLE_S
         return last_stamp > deadline or (wall > deadline and idle)
@@ -151,7 +152,7 @@ class HostWatch:
         lifetime_s = int(fw.stored(0x100C, 0)) * int(fw.stored(0x100D, 0)) / 1000.0
         if lifetime_s <= 0:
             return
-        if self._silent_past(self.guard_heard + lifetime_s, now, time.time()):
+        if self.silent_past(self.guard_heard + lifetime_s, now, time.time()):
             self.guard_lost = True
             self._host_lost(time.time())
 
@@ -162,7 +163,7 @@ class HostWatch:
             seen = self.heard.get(node_id)
             if seen is None or node_id in self.host_lost:
                 continue
-            if self._silent_past(seen + time_ms / 1000.0, now, wall):
+            if self.silent_past(seen + time_ms / 1000.0, now, wall):
                 self.host_lost.add(node_id)
                 self._host_lost(wall)
 

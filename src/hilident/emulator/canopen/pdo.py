@@ -1,30 +1,38 @@
 """PDOs and SYNC of the emulated CANopen drive: mapping, transmission, and synchronous runs.
 
 PDO communication and mapping objects are honoured as the host writes them.
-On each SYNC (while Operation Enabled, no table playing) the drive runs
-``loop_rate / sample_rate`` ticks of the drive loop with the latest RPDO
-set-point and sends its TPDOs with the state at the start of that sample
-period. In these synchronous runs the drive's clock *is* SYNC: one SYNC, one
-sample period (the :class:`~hilident.emulator.clock.SimClock` paces table
-playback only).
+In a SYNC-driven run (Operation Enabled, no table playing) each cycle is
+``loop_rate / sample_rate`` ticks of the drive loop (the SYNC period, 0x1006
+or 0x60C2). The drive keeps its own clock (:class:`~.sync.SyncMonitor`, by
+the SYNC frames' bus timestamps): a SYNC on time starts a cycle with the
+latest RPDO set-point and the drive sends its TPDOs with the state at the
+start of that cycle; cycles that passed without a SYNC run with the held
+set-point and send nothing (``sync_missed``); a SYNC off the drive's clock (a
+burst, or outside the window) is a sync error (``sync_window_errors``), and
+too many of them fault the drive (EMCY 0x8700). When the drive itself
+produces SYNC (:mod:`.production`) it runs the same cycles at its SYNC
+instants. In a position mode the following error is watched (0x6065, 0x6066).
+The :class:`~hilident.emulator.clock.SimClock` paces table playback only.
 """
 
 from __future__ import annotations
 
 import struct
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 from canopen.sdo import SdoAbortedError
 
+from hilident.emulator.canopen.following import FOLLOWING_ERROR_OFF, FollowingErrorMonitor
 from hilident.emulator.canopen.host import FirmwareHost
+from hilident.emulator.canopen.roles import EMCY_FOLLOWING_ERROR, EMCY_SYNC_ERROR, EMCY_SYNC_TIMEOUT
 from hilident.emulator.canopen.sdo import (
     ABORT_NOT_MAPPABLE,
     ABORT_PDO_LENGTH,
     ABORT_STATE,
     ABORT_VALUE,
 )
+from hilident.emulator.canopen.sync import SyncMonitor
 from hilident.protocol import cia402
 from hilident.protocol.canopen_objects import (
     NUMERIC_TYPES,
@@ -76,8 +84,16 @@ class PdoExchange:
         (``"rpdo"`` or ``"tpdo"``, number) -> :class:`PdoConfig`.
     sync_divider : int
         Loop ticks per SYNC period (0: not set).
+    cycle_period_us : int
+        0x1006 as last written, µs (0: not set).
+    producing : bool
+        The drive produces SYNC itself (:mod:`.production`): received SYNCs are ignored, RPDO set-points wait
+        for the SYNC that latches them.
     underruns, sync_errors, tpdos_dropped : int
         Samples without a fresh set-point, SYNC counter jumps, TPDOs the drop fault swallowed.
+    sync_missed, sync_window_errors : int
+        In the run: cycles the drive's own clock ran without a SYNC it answered (held set-point, no TPDOs);
+        SYNCs off its clock (a second one in a cycle, or outside the window).
     dropped : list
         (sample index, COB-ID) of each TPDO the drop fault swallowed.
     """
@@ -88,10 +104,14 @@ class PdoExchange:
         self.rng = np.random.default_rng(seed + 2)
         self.interpolation_period = [0, -3]  # 0x60C2 value and exponent as last written
         self.sync_divider = 0
+        self.cycle_period_us = 0
+        self.producing = False
+        self.sync = firmware.desc.sync
+        self.monitor = SyncMonitor(self.sync)
+        self.following = FollowingErrorMonitor()
         self.sync_overflow = (
             int(firmware.default(firmware.desc.address("sync_overflow"))) if firmware.desc.has("sync_overflow") else 0
         )
-        self.last_sync_wall: float | None = None
         self.tpdos_dropped = 0
         self.dropped: list[tuple[int, int]] = []
         self.restart()
@@ -104,9 +124,14 @@ class PdoExchange:
         """A run starts: counters cleared, not yet driven by SYNC."""
         self.underruns = 0
         self.sync_errors = 0
+        self.sync_missed = 0
+        self.sync_window_errors = 0
         self.last_sync_counter: int | None = None
-        self.sync_driven = False
+        self.last_sync_stamp: float | None = None  # bus time of the run's last SYNC received
+        self.held_input: float | None = None  # the drive loop's input (SI) in the last cycle
         self.position_setpoint_m: float | None = None  # last position set-point, the start of the next ramp
+        self.monitor.restart()
+        self.following.restart()
 
     # --- configuration -----------------------------------------------------------------------
 
@@ -176,12 +201,13 @@ class PdoExchange:
     def write_cycle_period(self, period_us: int) -> None:
         """0x1006: the SYNC period, µs; it must be whole loop ticks (0: not set)."""
         if period_us == 0:
-            self.sync_divider = 0
+            self.sync_divider = self.cycle_period_us = 0
             return
         ticks = _whole_ticks(period_us / 1e6, self.fw.loop_rate)
         if ticks is None:
             raise SdoAbortedError(ABORT_VALUE)
         self.sync_divider = ticks
+        self.cycle_period_us = period_us
 
     def write_interpolation_period(self, value: int | None, exponent: int | None) -> None:
         """0x60C2: the sample period is ``value * 10**exponent`` s; it must be whole loop ticks."""
@@ -215,7 +241,11 @@ class PdoExchange:
                 if len(data) < cfg.packer.size:
                     return  # CiA 301: a too-short PDO is not processed
                 for (addr, _), value in zip(cfg.entries, cfg.packer.unpack_from(bytes(data)), strict=False):
-                    fw.receive_setpoint(fw.role_of.get(addr), value)
+                    role = fw.role_of.get(addr)
+                    if self.producing and role is not None and fw.setpoints.holds(role):
+                        fw.setpoints.defer(role, value, timestamp)  # latched by the SYNC after it
+                    else:
+                        fw.receive_setpoint(role, value)
 
         on_rpdo.__name__ = f"on_rpdo{n + 1}"
         return on_rpdo
@@ -223,23 +253,83 @@ class PdoExchange:
     # --- SYNC ----------------------------------------------------------------------------------------
 
     def on_sync(self, can_id, data, timestamp) -> None:
+        """A SYNC received at bus time ``timestamp`` (s): judged against the drive's clock in a SYNC-driven run."""
         fw = self.fw
         with fw.lock:
-            if fw.node.nmt.state != "OPERATIONAL":
+            if fw.node.nmt.state != "OPERATIONAL" or self.producing:
                 return
             self._count_sync(data)
-            if fw.state is not cia402.State.OPERATION_ENABLED or fw.playback.playing:
+            if not self.running():
                 return
-            self.sync_driven = True
-            self.last_sync_wall = time.monotonic()
-            k = fw.sample_index
+            last, self.last_sync_stamp = self.last_sync_stamp, timestamp
+            if last is not None and timestamp - last > self.loss_timeout_s:
+                fw.fault(EMCY_SYNC_TIMEOUT, fw.sample_index)  # the drive faulted before this SYNC came
+                return
+            verdict = self.monitor.observe(timestamp, fw.divider() / fw.loop_rate)
+            for _ in range(verdict.held):
+                if not self.running():
+                    break
+                self.cycle(fresh=False)
+                self.sync_missed += 1
+            self.sync_window_errors += verdict.error
+            if self.running() and verdict.fault:
+                # Every fault reaction option (0x605E) ends in Fault with the power stage off; the ramps of
+                # options 1-4 are not modelled, so with or without 0x605E the drive faults at once.
+                fw.fault(EMCY_SYNC_ERROR, fw.sample_index)
+            elif self.running() and verdict.answer:
+                k = fw.sample_index
+                self.send_tpdos(self.cycle(fresh=True)[0], k)
+            fw.check_faults()
+
+    @property
+    def loss_timeout_s(self) -> float:
+        """How long a SYNC may be missing in a SYNC-driven run before the drive faults (0x8250), s."""
+        return self.sync.loss_timeout_ms / 1000.0
+
+    def running(self) -> bool:
+        """A SYNC-driven run: Operation Enabled, no table playing, no limit trip waiting to be reported."""
+        fw = self.fw
+        return fw.state is cia402.State.OPERATION_ENABLED and not fw.playback.playing and fw.drive.fault is None
+
+    def cycle(self, fresh: bool) -> np.ndarray:
+        """One cycle of the drive loop: with the latest set-point (``fresh``) or the one held from the last cycle.
+
+        Returns the loop's rows; the first is the state at the start of the cycle (what its TPDOs carry).
+        """
+        fw = self.fw
+        k = fw.sample_index
+        if fresh or self.held_input is None:
             if fw.setpoints.rx_counter != k & 0xFFFF:
                 self.underruns += 1  # no fresh set-point for this sample: the last one is held
-            rows = fw.drive.run(self._setpoint_ticks(fw.setpoints.drive_input()))
-            fw.sample_index = k + 1
-            fw.last_row = rows[-1]
-            self._send_tpdos(rows[0], k)
-            fw.check_faults()
+            self.held_input = fw.setpoints.drive_input()
+        rows = fw.drive.run(self._setpoint_ticks(self.held_input))
+        fw.sample_index = k + 1
+        fw.last_row = rows[-1]
+        self._watch_following_error(rows, k)
+        return rows
+
+    def _watch_following_error(self, rows: np.ndarray, k: int) -> None:
+        """CiA 402 following error in a position mode, where the EDS has 0x6065 (EMCY 0x8611 and Fault)."""
+        fw, desc = self.fw, self.fw.desc
+        if fw.drive.mode != "position" or not desc.has("following_error_window"):
+            return
+        window = int(self._stored_role("following_error_window"))
+        if window == FOLLOWING_ERROR_OFF:
+            return
+        timeout_s = self._stored_role("following_error_timeout") / 1000.0 if desc.has("following_error_timeout") else 0
+        error = rows[:, fw.columns["excitation"]] + fw.drive.hold_position_m - rows[:, fw.columns["position_m"]]
+        if self.following.exceeded(error, window * desc.position_unit_m, timeout_s, 1.0 / fw.loop_rate):
+            fw.fault(EMCY_FOLLOWING_ERROR, k)
+
+    def _stored_role(self, role: str) -> float:
+        addr = self.fw.desc.address(role)
+        return float(self.fw.stored(addr.index, addr.subindex))
+
+    def sync_deadline(self) -> float | None:
+        """Bus time (s) by which the next SYNC must come in this run (None: the drive expects none)."""
+        if self.producing or self.last_sync_stamp is None:
+            return None
+        return self.last_sync_stamp + self.loss_timeout_s
 
     def _count_sync(self, data) -> None:
         """SYNC counter (CiA 301): a counter that does not follow the last one is a lost or extra SYNC."""
@@ -249,7 +339,7 @@ class PdoExchange:
                 self.sync_errors += 1
             self.last_sync_counter = counter
 
-    def _send_tpdos(self, row, k: int) -> None:
+    def send_tpdos(self, row, k: int) -> None:
         rate = self.fw.faults.canopen.drop_pdo_rate
         for cob_id, payload in self._tpdo_frames(row, k):
             if rate and self.rng.random() < rate:
@@ -284,7 +374,3 @@ class PdoExchange:
         start = target if self.position_setpoint_m is None else self.position_setpoint_m
         self.position_setpoint_m = target
         return start + (target - start) * np.arange(1, n + 1) / n
-
-    def sync_timed_out(self, now: float, timeout_s: float) -> bool:
-        """A SYNC-driven run that saw no SYNC for ``timeout_s`` (wall time) up to ``now``."""
-        return self.sync_driven and self.last_sync_wall is not None and now - self.last_sync_wall > timeout_s

@@ -10,9 +10,11 @@ from __future__ import annotations
 __all__ = [
     "COLUMN_OF_ROLE",
     "EMCY_DRIVE_FAULT",
+    "EMCY_FOLLOWING_ERROR",
     "EMCY_HEARTBEAT",
     "EMCY_INTERNAL",
     "EMCY_OF_TRIP",
+    "EMCY_SYNC_ERROR",
     "EMCY_SYNC_TIMEOUT",
     "LIMIT_ROLES",
     "TARGET_ROLES",
@@ -21,7 +23,9 @@ __all__ = [
 
 EMCY_OF_TRIP = {"torque_limit": 0x8311, "velocity_limit": 0x8400, "position_limit": 0x8612}
 EMCY_DRIVE_FAULT = 0x4310  # excess temperature, drive (the injected fault)
-EMCY_SYNC_TIMEOUT = 0x8250
+EMCY_SYNC_TIMEOUT = 0x8250  # no SYNC for the driver's loss_timeout_ms in a SYNC-driven run
+EMCY_SYNC_ERROR = 0x8700  # sync controller (CiA 402): too many SYNCs off the drive's clock
+EMCY_FOLLOWING_ERROR = 0x8611  # position demand and actual apart beyond 0x6065 for longer than 0x6066
 EMCY_INTERNAL = 0x6100  # internal software error
 EMCY_HEARTBEAT = 0x8130  # life guard or heartbeat error (the host's heartbeat stopped)
 

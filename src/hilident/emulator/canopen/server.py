@@ -1,4 +1,5 @@
-"""The emulated CANopen drive on a bus: its network, its clock thread, and how a session starts it.
+"""The emulated CANopen drive on a bus: its network, its clock and SYNC producer threads, and how a session
+starts it.
 
 :func:`start` runs the drive in-process on python-can's ``virtual`` bus;
 :func:`start_socketcand` also serves that bus over the socketcand protocol on
@@ -13,10 +14,13 @@ import threading
 import time
 from dataclasses import replace
 
+import can
+
 import canopen
 from hilident.config.tables import DeviceConfig, EmulatorConfig
 from hilident.drivers.description import DriverDescription
 from hilident.emulator.canopen.firmware import CanopenDriveFirmware
+from hilident.emulator.canopen.production import SyncProducer
 from hilident.emulator.canopen.socketcand import SocketcandServer
 from hilident.emulator.device import EmulatedDevice, build_drive
 from hilident.errors import ConfigError
@@ -24,10 +28,13 @@ from hilident.errors import ConfigError
 __all__ = ["CanopenDriveServer", "start", "start_socketcand"]
 
 _channel_numbers = itertools.count(1)
+_IDLE_S = 0.01  # how often a drive that produces no SYNC looks whether it should
+_SLEEP_MAX_S = 0.05  # waits longer than this are cut so that close() is heard promptly
 
 
 class CanopenDriveServer:
-    """Runs a :class:`CanopenDriveFirmware` on a python-can bus: its network and its clock thread.
+    """Runs a :class:`CanopenDriveFirmware` on a python-can bus: its network, its clock thread and its SYNC
+    producer thread.
 
     Parameters
     ----------
@@ -43,6 +50,8 @@ class CanopenDriveServer:
         self.network: canopen.Network | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._producer: threading.Thread | None = None
+        self._stamped: can.BusABC | None = None
         self._error: BaseException | None = None
         self.extra: list = []  # other services sharing this drive's lifetime (a socketcand server)
 
@@ -63,8 +72,13 @@ class CanopenDriveServer:
         if network.notifier is None:
             raise RuntimeError(f"CAN network on {self.channel!r} connected without a notifier")
         network.notifier.add_listener(self.firmware.on_frame)
+        if self.interface == "virtual":  # the producer's SYNCs carry their instant on the drive's clock
+            self._stamped = can.Bus(interface="virtual", channel=self.channel, preserve_timestamps=True)
+            self.firmware.stamped_bus = self._stamped
         self._thread = threading.Thread(target=self._clock, name="canopen-drive-clock", daemon=True)
         self._thread.start()
+        self._producer = threading.Thread(target=self._produce, name="canopen-sync-producer", daemon=True)
+        self._producer.start()
         return self
 
     def _clock(self) -> None:
@@ -75,11 +89,44 @@ class CanopenDriveServer:
             self._error = exc
             self.firmware.drive.disable()
 
+    def _produce(self) -> None:
+        """The drive's SYNC production (:class:`~hilident.emulator.canopen.production.SyncProducer`) while 0x1005
+        bit 30 and 0x1006 ask for it."""
+        producer = self.firmware.producer
+        try:
+            while not self._stop.is_set():
+                schedule = producer.schedule()
+                if schedule[1]:
+                    self._run_schedule(producer, schedule)
+                else:
+                    self._stop.wait(_IDLE_S)
+        except BaseException as exc:
+            self._error = exc
+            self.firmware.drive.disable()
+
+    def _run_schedule(self, producer: SyncProducer, schedule: tuple[int, float]) -> None:
+        """SYNC instants ``t_j = t_start + j * period`` until production or its period changes: a deadline
+        schedule (never drifts); an instant reached late is still produced, the next ones follow at once."""
+        period = schedule[1]
+        start, start_wall = time.perf_counter(), time.time()
+        j = 0
+        while not self._stop.is_set() and producer.schedule() == schedule:
+            due = start + j * period
+            wait = due - time.perf_counter()
+            if wait > _SLEEP_MAX_S:
+                self._stop.wait(_SLEEP_MAX_S)
+                continue
+            if wait > 0:
+                time.sleep(wait)
+            producer.instant(time.perf_counter() - due, start_wall + j * period)
+            j += 1
+
     def close(self) -> None:
         """Power stage off, threads stopped, bus released."""
         self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
+        for thread in (self._thread, self._producer):
+            if thread is not None:
+                thread.join(timeout=2.0)
         fw = self.firmware
         with fw.lock:
             fw.drive.disable()
@@ -92,6 +139,10 @@ class CanopenDriveServer:
             fw.node.nmt.stop_heartbeat()
         except Exception:
             pass
+        if self._stamped is not None:
+            fw.stamped_bus = None
+            self._stamped.shutdown()
+            self._stamped = None
         if self.network is not None:
             try:
                 self.network.disconnect()

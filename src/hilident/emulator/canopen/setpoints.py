@@ -4,9 +4,15 @@ The host selects a mode of operation (0x6060) and sends the set-point of that
 mode (target torque, velocity or position, interpolation data, a torque
 offset) by SDO or RPDO; :meth:`SetPoints.drive_input` turns them into the
 drive loop's input, in SI units.
+
+A drive that produces SYNC latches, at each SYNC, the newest set-point
+received before it: RPDO set-points then wait, stamped with their bus time,
+until :meth:`SetPoints.latch` takes those older than the SYNC.
 """
 
 from __future__ import annotations
+
+from collections import deque
 
 from hilident.emulator.canopen.roles import TARGET_ROLES
 from hilident.emulator.drive import DriveLoop
@@ -18,6 +24,7 @@ __all__ = ["SetPoints"]
 #: CiA 402 modes of operation and the drive loop mode that runs them (torque offsets are added in each).
 _LOOP_MODE_OF_CODE = {10: "torque", 9: "velocity", 8: "position", 7: "position"}
 _SETPOINT_OF_CODE = {10: "target_torque", 9: "target_velocity", 8: "target_position"}
+_PENDING_MAX = 64  # set-points kept per role until a SYNC latches them (a few cycles' worth)
 
 
 class SetPoints:
@@ -41,6 +48,8 @@ class SetPoints:
         Set-point role -> raw value as last written.
     rx_counter : int
         The set-point counter as last written (a fresh set-point for each sample).
+    pending : dict
+        Role -> deque of (bus timestamp s, raw value) received and not yet latched (SYNC producer only).
     """
 
     def __init__(
@@ -53,6 +62,7 @@ class SetPoints:
         self.drive = drive
         self.targets = {role: 0 for role in TARGET_ROLES if desc.has(role)}
         self.rx_counter = 0
+        self.pending: dict[str, deque[tuple[float, int]]] = {}
 
     @property
     def mode_spec(self):
@@ -76,6 +86,20 @@ class SetPoints:
         else:
             return False
         return True
+
+    def holds(self, role: str | None) -> bool:
+        """Whether ``role`` is a set-point or the set-point counter."""
+        return role in self.targets or role == "setpoint_counter"
+
+    def defer(self, role: str, value: int, stamp: float) -> None:
+        """A set-point (:meth:`holds` ``role``) received at bus time ``stamp`` (s), applied by :meth:`latch`."""
+        self.pending.setdefault(role, deque(maxlen=_PENDING_MAX)).append((stamp, value))
+
+    def latch(self, before: float | None = None) -> None:
+        """Apply the deferred set-points stamped before bus time ``before`` (s; None: all), oldest first."""
+        for role, entries in self.pending.items():
+            while entries and (before is None or entries[0][0] < before):
+                self.receive(role, entries.popleft()[1])
 
     def _si(self, role: str) -> float:
         return self.targets.get(role, 0) * self.scales.get(role, 1.0)

@@ -1,0 +1,167 @@
+"""Who keeps the bus clock of a streamed CANopen run, and that the host's own clock never bursts."""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import replace
+
+import can
+import numpy as np
+import pytest
+
+from hilident.adapters.canopen.drive import CanopenDriveAdapter
+from hilident.adapters.canopen.streamed import StreamedRun
+from hilident.adapters.canopen.sync_source import SyncTiming, choose_sync_source
+from hilident.config.tables import load_config
+from hilident.drivers.description import find_driver
+from hilident.emulator.canopen.server import start
+from hilident.errors import ConfigError, DeviceError
+from hilident.protocol.canopen_sync import SyncCapability
+
+ROOT = __import__("pathlib").Path(__file__).resolve().parents[2]
+CONFIG = ROOT / "configs" / "emulated-cia402-gantry.toml"
+FS = 1000.0
+
+PRODUCER = SyncCapability(producer=True, window_us=400)
+CONSUMER = SyncCapability(producer=False, window_us=400)
+
+
+# --- the choice ---------------------------------------------------------------------------------------------
+
+
+def test_auto_takes_the_drive_first_then_the_interface_then_the_host():
+    assert choose_sync_source("auto", PRODUCER, True, None).source == "drive"
+    assert choose_sync_source("auto", PRODUCER, False, True).source == "interface"  # 0x1005 read-only
+    assert choose_sync_source("auto", CONSUMER, True, True).source == "interface"
+    host = choose_sync_source("auto", CONSUMER, True, False)
+    assert host.source == "host" and "Python loop" in host.why
+
+
+def test_a_source_asked_for_that_is_not_there_is_a_config_error_naming_the_key():
+    with pytest.raises(ConfigError, match=r"device\.canopen\.sync_source.*producer = true"):
+        choose_sync_source("drive", CONSUMER, True, None)
+    with pytest.raises(ConfigError, match=r"sync_source.*Python thread"):
+        choose_sync_source("interface", PRODUCER, True, False)
+    assert choose_sync_source("host", PRODUCER, True, True).source == "host"
+
+
+def test_the_host_may_be_late_by_less_than_half_a_period_whatever_the_window():
+    assert SyncCapability(window_us=400).host_window_s(1e-3) == pytest.approx(400e-6)
+    assert SyncCapability(window_us=0).host_window_s(4e-3) == pytest.approx(1.6e-3)
+
+
+def test_the_timing_report_measures_period_jitter_and_syncs_outside_the_window():
+    rng = np.random.default_rng(1)
+    period = 1e-3
+    cycles = np.arange(5000)
+    instants = 1.0001 * period * cycles + rng.normal(0, 5e-6, len(cycles))
+    instants[1000] += 0.8e-3  # one SYNC far outside a 100 µs window: two intervals out
+    timing = SyncTiming(period, 100e-6, len(cycles))
+    for k, t in zip(cycles, instants, strict=True):
+        timing.add(int(k), float(t))
+    report = timing.report()
+    assert report["period_s"] == pytest.approx(1.0001e-3, rel=1e-5)
+    assert 2e-6 < report["jitter_p50_s"] < 6e-6
+    assert report["jitter_max_s"] == pytest.approx(0.8e-3, rel=0.05)
+    assert report["outside_window"] == 2
+    assert sum(report["histogram_us"]["counts"]) == len(cycles)
+
+
+def emulated_drive(ad):
+    return ad.emulated_for_test.server.firmware.drive
+
+
+# --- the host's clock on the twin ---------------------------------------------------------------------------
+
+
+class SyncListener(can.Listener):
+    """Every SYNC on a virtual channel, with the sender's timestamp."""
+
+    def __init__(self, channel: str):
+        self.bus = can.Bus(interface="virtual", channel=channel)
+        self.instants: list[float] = []
+        self.notifier = can.Notifier(self.bus, [self])
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if msg.arbitration_id == 0x80:
+            self.instants.append(msg.timestamp)
+
+    def close(self) -> None:
+        self.notifier.stop()
+        self.bus.shutdown()
+
+
+@pytest.fixture
+def host_clock_run():
+    cfg = load_config(CONFIG)
+    driver = find_driver("cia402-standard")
+    emulated = start(cfg.emulator, driver, cfg.device)
+    dev = replace(
+        emulated.device, acquisition="streamed", canopen=replace(emulated.device.canopen, sync_source="host")
+    )
+    ad = CanopenDriveAdapter.open_device(dev, driver)
+    lim = cfg.limits
+    ad.set_limits(lim.torque_nm, lim.velocity_mps, lim.position_min_m, lim.position_max_m)
+    listener = SyncListener(emulated.server.channel)
+    ad.emulated_for_test = emulated
+    yield ad, listener
+    listener.close()
+    ad.close()
+    emulated.close()
+
+
+def test_a_stalled_host_skips_the_cycles_it_missed_and_never_bursts(host_clock_run, monkeypatch):
+    ad, listener = host_clock_run
+    ad.configure(FS, "torque")
+    beat = ad.net.heartbeat.beat_if_due
+    stalled = threading.Event()
+    start_s = time.perf_counter()
+
+    def beat_then_stall():  # once, half a second in: the host's loop stalls for 30 ms
+        beat()
+        if not stalled.is_set() and time.perf_counter() - start_s > 0.5:
+            stalled.set()
+            time.sleep(0.030)
+
+    monkeypatch.setattr(ad.net.heartbeat, "beat_if_due", beat_then_stall)
+    indices: list[np.ndarray] = []
+    start_s = time.perf_counter()
+    result = ad.stream(np.zeros(1500), lambda i, rows: indices.append(i))
+    assert stalled.is_set() and result.completed
+    gaps = np.diff(listener.instants)
+    assert gaps.min() > 0.25e-3  # never two SYNCs back to back: no burst after the stall
+    assert gaps.max() > 25e-3  # the stall shows on the bus as a pause, not as a catch-up
+    skipped = result.stats.setpoints_skipped
+    assert skipped >= 25
+    got = np.concatenate(indices)
+    assert len(got) == result.stats.samples == 1500 - skipped  # skipped cycles have no sample ...
+    assert result.stats.lost_samples == 0  # ... and are not counted lost
+    assert result.clock["source"] == "host" and result.clock["setpoints_skipped"] == skipped
+    assert any(e["kind"] == "sync_skipped" for e in result.events)
+
+
+def test_the_strict_twin_faults_a_host_that_bursts_after_a_stall(host_clock_run, monkeypatch):
+    """The loop of earlier releases sent every overdue SYNC at once after a stall: the drive's sync error."""
+    ad, listener = host_clock_run
+    ad.configure(FS, "torque")
+    stalled = threading.Event()
+
+    def burst_send_due(self, now):
+        if not stalled.is_set() and self.sent > 100:  # the host stalls for 30 ms once ...
+            stalled.set()
+            time.sleep(0.030)
+            now = time.perf_counter()
+        while self.sent < self.n and now >= self.t0 + self.sent * self.period:  # ... then catches up at once
+            self.ad.network.send_message(self.rpdo.cob_id, self._pack(self.sent, self.setpoints[self.sent]))
+            self.ad.network.send_message(0x80, b"")
+            self.sync_cycle[self.syncs] = self.sent
+            self.syncs += 1
+            self.sent = self.next_cycle = self.sent + 1
+
+    monkeypatch.setattr(StreamedRun, "_send_due", burst_send_due)
+    with pytest.raises(DeviceError, match=r"EMCY 0x8700 sync controller"):
+        ad.stream(np.zeros(1500), lambda i, rows: None)
+    assert np.count_nonzero(np.diff(listener.instants) < 0.2e-3) >= 2  # SYNCs went out back to back ...
+    assert not emulated_drive(ad).enabled  # ... and the drive stopped the axis
+    assert ad.last_result is not None and not ad.last_result.completed
