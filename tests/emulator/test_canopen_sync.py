@@ -43,7 +43,7 @@ def test_a_sync_on_time_starts_the_next_cycle_and_forgives_one_error():
     verdict = monitor.observe(10.0 + T + 150e-6, T)  # 150 µs late: inside the 400 µs window
     assert (verdict.held, verdict.answer, verdict.error, verdict.fault) == (0, True, False, False)
     assert monitor.errors == 2  # a good SYNC takes one off
-    assert monitor.reference == pytest.approx(10.0 + T + 0.25 * 150e-6)  # the clock follows it, a quarter at a time
+    assert monitor.reference == pytest.approx(10.0 + T + 0.1 * 150e-6)  # the clock follows it, a tenth at a time
 
 
 def test_cycles_without_a_sync_run_on_the_drives_clock():
@@ -60,7 +60,7 @@ def test_a_late_sync_is_taken_and_counted_an_early_one_is_an_error_and_the_drive
     late = monitor.observe(10.0 + T + 450e-6, T)  # 450 µs late: the drive's clock ran the cycle meanwhile
     assert (late.held, late.answer, late.error, late.fault) == (0, True, False, False)
     assert monitor.late == 1 and monitor.errors == 0
-    assert monitor.reference == pytest.approx(10.0 + T + 0.25 * 450e-6)  # one late SYNC barely moves the clock
+    assert monitor.reference == pytest.approx(10.0 + T + 0.1 * 450e-6)  # one late SYNC barely moves the clock
     on_time = monitor.observe(10.0 + 2 * T, T)  # so the next SYNC on time is on time, not early
     assert (on_time.answer, on_time.error) == (True, False)
     early = monitor.observe(10.0 + 3 * T - 450e-6, T)  # 450 µs early: beyond the window

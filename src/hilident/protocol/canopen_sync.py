@@ -55,14 +55,17 @@ class SyncCapability:
     )
 
     def host_window_s(self, period_s: float) -> float:
-        """How late (s) a host may send a cycle's SYNC: 0.4 of a period, whatever the window.
+        """How late (s) a host may send a cycle's SYNC.
 
         A drive takes a late SYNC (its own clock ran the cycle meanwhile) and
-        faults on early ones, so lateness is bounded only by the drive's need
-        to count whole cycles between SYNCs without doubt: less than half a
-        period, with room for the bus's own jitter.
+        counts an early one as a sync error. Its clock follows the SYNCs
+        slowly, so a host that is often late drags it late, and the next SYNC
+        on time then looks early: the host keeps its lateness within three
+        quarters of the drive's window, and below 0.4 of a period so that the
+        drive counts whole cycles between SYNCs without doubt.
         """
-        return 0.4 * period_s
+        cap = 0.4 * period_s
+        return min(cap, 0.75e-6 * self.window_us) if self.window_us else cap
 
 
 def parse_sync(canopen_table: dict, source: str) -> SyncCapability:

@@ -9,7 +9,7 @@ clock (:meth:`SyncMonitor.observe`):
   instant no more than the window early, and less than half a period late):
   the cycles that passed without a SYNC ran on the drive's clock with the
   set-point it held (missed cycles, no TPDOs), this SYNC starts its cycle
-  with the newest set-point. The clock follows the SYNCs slowly (a quarter of
+  with the newest set-point. The clock follows the SYNCs slowly (a tenth of
   each distance, as a phase-locked loop does), so one late SYNC does not make
   the next one on time look early;
 * a SYNC too early for its cycle, above all a second SYNC inside one cycle (a
@@ -40,7 +40,7 @@ SYNC_COB_ID_INDEX = 0x1005
 #: What one sync error adds to the leaky counter (a good SYNC takes 1 off).
 ERROR_STEP = 3
 #: How much of a SYNC's distance from the drive's clock the clock takes over (a phase-locked loop's gain).
-_LOCK_GAIN = 0.25
+_LOCK_GAIN = 0.1
 
 
 @dataclass(frozen=True)
