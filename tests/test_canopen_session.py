@@ -49,7 +49,7 @@ def test_streamed_session_on_the_fixed_point_drive(tmp_path):
     n = read_run(tmp_path / "identification.h5").n_samples
     assert stream["samples"] == 2 * n and stream["lost_samples"] == 0
     # the drive keeps the clock: a set-point the host could not send in time is held (and recorded as held)
-    assert stream["setpoints_skipped"] <= stream["underruns"] <= stream["setpoints_skipped"] + 0.002 * 2 * n
+    assert stream["setpoints_skipped"] <= stream["underruns"] <= stream["setpoints_skipped"] + 0.01 * 2 * n
     assert [c["source"] for c in summary["clock"]] == ["drive", "drive"]
     biquad, enabled = session.emulator.drive.filters.read(0)
     assert enabled and biquad.b == tuple(summary["upload"]["slots"][0]["readback_b"])

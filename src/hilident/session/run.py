@@ -677,7 +677,7 @@ class Session(DeviceConnection):
             recordings=sorted(p.name for p in self.out.glob("*.h5")),
             elapsed_s=elapsed_s,
             warnings=self.warnings,
-            notes=self.notes,
+            notes=self.notes + (self.recorder.notes if self.recorder is not None else []),
             model=model,
             workspace_map=self.workspace.points if self.workspace else None,
             move_test=self.move_results,
