@@ -98,9 +98,7 @@ def host_clock_run():
     cfg = load_config(CONFIG)
     driver = find_driver("cia402-standard")
     emulated = start(cfg.emulator, driver, cfg.device)
-    dev = replace(
-        emulated.device, acquisition="streamed", canopen=replace(emulated.device.canopen, sync_source="host")
-    )
+    dev = replace(emulated.device, acquisition="streamed", canopen=replace(emulated.device.canopen, sync_source="host"))
     ad = CanopenDriveAdapter.open_device(dev, driver)
     lim = cfg.limits
     ad.set_limits(lim.torque_nm, lim.velocity_mps, lim.position_min_m, lim.position_max_m)
