@@ -261,11 +261,11 @@ def test_a_burst_of_syncs_faults_the_drive_with_emcy_8700(twin):
     assert _wait_for(lambda: bool(host.emcy))
     (emcy,) = host.emcy
     assert emcy.code == 0x8700
-    # the burst's first SYNC starts cycle 30 (or, sent late, the drive ran the cycles that passed on its own
-    # clock): the second error after it faults
+    # the burst's first SYNC starts cycle 30 (sent late, the drive's clock ran the cycles that passed): the
+    # fourth error after it faults
     index = int.from_bytes(emcy.data[:4], "little")
-    assert index == emulated.server.firmware.sample_index and 31 <= index <= 33
-    assert pdo.sync_window_errors == 2  # 3, then 6 > 4
+    assert index == emulated.server.firmware.sample_index and 31 <= index <= 35
+    assert pdo.sync_window_errors == 4  # 3, 6, 9, then 12 > the limit of 10
     assert host.state() is cia402.State.FAULT and host.read(0x603F) == 0x8700
     assert not emulated.drive.enabled
     got = _counters(host)

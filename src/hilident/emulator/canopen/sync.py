@@ -5,8 +5,9 @@ takes: it expects each SYNC a whole number of communication cycle periods
 after the last cycle instant. Each SYNC's bus timestamp is compared with that
 clock (:meth:`SyncMonitor.observe`):
 
-* on time or late, within the cycle (its distance to the nearest cycle
-  instant no more than the window early, and less than half a period late):
+* on time or late, within the cycle (no more than the window early, and
+  less than a period less the window late: a SYNC is taken for the cycle
+  whose instant is at most the window ahead of it):
   the cycles that passed without a SYNC ran on the drive's clock with the
   set-point it held (missed cycles, no TPDOs), this SYNC starts its cycle
   with the newest set-point. The clock follows the SYNCs slowly (a tenth of
@@ -100,11 +101,13 @@ class SyncMonitor:
             self.reference = stamp
             return SyncVerdict()
         dt = stamp - self.reference
-        cycles = math.floor(dt / period_s + 0.5)
         if not self.window_s:
             self.reference = stamp
-            return SyncVerdict(held=max(1, cycles) - 1)
-        offset = dt - cycles * period_s  # early < 0 < late, at most half a period either way
+            return SyncVerdict(held=max(1, math.floor(dt / period_s + 0.5)) - 1)
+        # the cycle whose instant is at most the window ahead: a SYNC up to a period less the window late is late
+        # for its own cycle, not early for the next one
+        cycles = math.floor((dt + self.window_s) / period_s)
+        offset = dt - cycles * period_s  # from the window early to a period less the window late
         if cycles >= 1 and offset >= -self.window_s:
             self.reference += cycles * period_s + _LOCK_GAIN * offset
             self.errors = max(0, self.errors - 1)
