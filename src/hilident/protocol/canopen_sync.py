@@ -8,8 +8,9 @@ is in an EDS (0x1005 is writable on drives that cannot produce SYNC too):
 * **production**: whether the drive can be the SYNC producer (CiA 301: 0x1005
   bit 30 "gen" set, the period in 0x1006). A drive producing SYNC keeps the
   bus clock itself; the host only listens and fills set-points ahead;
-* **monitoring**: how far a SYNC may stray from its cycle's instant before the
-  drive counts a sync error (``window_us``), how many such errors it forgives
+* **monitoring**: how much earlier than its cycle's instant a SYNC may come
+  before the drive counts a sync error (``window_us``; a second SYNC inside one
+  cycle, a burst, always is one), how many such errors it forgives
   (``error_limit``, a leaky counter: +3 per error, -1 per good SYNC, the drive
   faults above the limit, as EtherCAT's sync error counter 0x10F1:2 works),
   and how long a SYNC may be missing before the drive faults
@@ -44,8 +45,8 @@ class SyncCapability:
         0,
         ge=0,
         le=1_000_000,
-        doc="how far (µs) a SYNC may stray from its cycle's instant before the drive counts a sync error; "
-        "0: the drive does not monitor SYNC timing",
+        doc="how much earlier (µs) than its cycle's instant a SYNC may come before the drive counts a sync error "
+        "(a second SYNC in one cycle always is one); 0: the drive does not monitor SYNC timing",
     )
     error_limit: int = spec(
         4, ge=0, le=1000, doc="leaky sync-error counter (+3 per error, -1 per good SYNC): the drive faults above it"

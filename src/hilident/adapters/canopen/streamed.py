@@ -533,8 +533,12 @@ class StreamedRun(RunStrategy):
             self.applied = nxt
             return
         self.stats.setpoints_skipped += 1
+        a = self.applied
+        held = self.x[a]  # the drive holds the set-point it has; a position it extrapolates, as CSP and IP drives do
+        if self.rpdo.setpoint_role in POSITION_SETPOINTS and a > 0:
+            held = self.x[a] + (nxt - a) * (self.x[a] - self.x[a - 1])
         for j in self.host_columns:
-            self.raw[nxt, j] = self.x[self.applied]  # the drive holds the set-point it has
+            self.raw[nxt, j] = held
 
     def _send_due(self, now: float) -> None:
         """Host clock: the SYNC of the cycle whose instant passed last, if within the window; one per call.

@@ -129,6 +129,7 @@ class PdoExchange:
         self.last_sync_counter: int | None = None
         self.last_sync_stamp: float | None = None  # bus time of the run's last SYNC received
         self.held_input: float | None = None  # the drive loop's input (SI) in the last cycle
+        self.input_before: float | None = None  # ... and in the cycle before it (a position's extrapolation)
         self.position_setpoint_m: float | None = None  # last position set-point, the start of the next ramp
         self.monitor.restart()
         self.following.restart()
@@ -298,11 +299,22 @@ class PdoExchange:
         """
         fw = self.fw
         k = fw.sample_index
-        if fresh or self.held_input is None:
+        new = fw.setpoints.take_new()
+        last = self.held_input
+        position = fw.drive.mode == "position"
+        if fresh or last is None:
             if fw.setpoints.rx_counter != k & 0xFFFF:
                 self.underruns += 1  # no fresh set-point for this sample: the last one is held
-            self.held_input = fw.setpoints.drive_input()
-        rows = fw.drive.run(self._setpoint_ticks(self.held_input))
+            if new or last is None or not position:
+                self.held_input = fw.setpoints.drive_input()
+        if not new and position and last is not None and self.input_before is not None:
+            # no new position set-point this cycle: extrapolated at the last set-point velocity, as CSP and IP
+            # drives do (a held position followed by the next one would jolt the axis at twice the speed)
+            self.held_input = last + (last - self.input_before)
+        self.input_before = last
+        rows = fw.drive.run(
+            self._setpoint_ticks(fw.setpoints.drive_input() if self.held_input is None else self.held_input)
+        )
         fw.sample_index = k + 1
         fw.last_row = rows[-1]
         self._watch_following_error(rows, k)

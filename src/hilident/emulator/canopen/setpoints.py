@@ -62,6 +62,7 @@ class SetPoints:
         self.drive = drive
         self.targets = {role: 0 for role in TARGET_ROLES if desc.has(role)}
         self.rx_counter = 0
+        self.new = False  # a set-point came since the drive's last cycle asked
         self.pending: dict[str, deque[tuple[float, int]]] = {}
 
     @property
@@ -81,11 +82,17 @@ class SetPoints:
         """A set-point or the set-point counter, written by SDO or RPDO; False when ``role`` is neither."""
         if role in self.targets:
             self.targets[role] = value
+            self.new = True
         elif role == "setpoint_counter":
             self.rx_counter = value
         else:
             return False
         return True
+
+    def take_new(self) -> bool:
+        """Whether a set-point came since the last call (a cycle asks once: was there a new one for it)."""
+        new, self.new = self.new, False
+        return new
 
     def holds(self, role: str | None) -> bool:
         """Whether ``role`` is a set-point or the set-point counter."""
