@@ -56,7 +56,7 @@ DRIVES = {
 }
 
 
-def session_config(folder: Path, period_s=1.0, duration_s=3.0):
+def session_config(folder: Path, period_s=1.0, duration_s=4.0):
     cfg = load_config(CONFIG)
     emu = replace(cfg.emulator, time_scale=20.0)
     return replace(
