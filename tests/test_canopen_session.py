@@ -34,9 +34,12 @@ def short_config(acquisition="buffered", time_scale=20.0, period_s=1.0, duration
 
 
 def test_streamed_session_on_the_fixed_point_drive(tmp_path):
-    # the drive produces SYNC, the host streams a set-point per cycle; the notch goes into Q2.29 INTEGER32 slots
-    cfg = short_config("streamed")
-    cfg = replace(cfg, device=replace(cfg.device, driver="canopen-servo-fixed"))
+    # the drive produces SYNC, the host streams a set-point per cycle (at 250 Hz: in time even on a busy machine);
+    # the notch goes into Q2.29 INTEGER32 slots
+    cfg = short_config("streamed", duration_s=3.0)
+    cfg = replace(
+        cfg, device=replace(cfg.device, driver="canopen-servo-fixed"), run=replace(cfg.run, sample_rate_hz=250.0)
+    )
     session = Session(cfg, tmp_path)
     summary = session.run()
     ((true_f, true_zeta),) = true_modes(cfg.emulator)

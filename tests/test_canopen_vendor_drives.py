@@ -56,13 +56,13 @@ DRIVES = {
 }
 
 
-def session_config(folder: Path, period_s=1.0, duration_s=4.0):
+def session_config(folder: Path, period_s=1.0, duration_s=3.0):
     cfg = load_config(CONFIG)
     emu = replace(cfg.emulator, time_scale=20.0)
     return replace(
         cfg,
-        # 500 Hz: a host as busy as a test run sends every set-point in time (at 1 kHz a few in a hundred are held)
-        run=replace(cfg.run, sample_rate_hz=500.0),
+        # 250 Hz: a host as busy as a test run sends its set-points in time (at 1 kHz a few in a hundred are held)
+        run=replace(cfg.run, sample_rate_hz=250.0),
         device=replace(cfg.device, driver=str(folder), acquisition="streamed"),
         emulator=emu,
         friction_test=replace(cfg.friction_test, enabled=False),
