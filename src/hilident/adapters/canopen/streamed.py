@@ -9,12 +9,14 @@ applies it for the cycle that SYNC starts and answers with its TPDOs
 * **listening** (the drive or the interface produces SYNC): the host sends
   set-point ``k + 1`` as soon as it hears SYNC ``k``, if it still has three
   quarters of a period; otherwise it skips it (the drive holds the last
-  set-point, and the recorded set-point of that cycle is the held one) and
-  counts it in ``setpoints_skipped``. SYNCs, and so samples, never depend on
+  set-point, or extrapolates a position at its last velocity as CSP and IP
+  drives do, and the recorded set-point of that cycle is that one) and counts
+  it in ``setpoints_skipped``. SYNCs, and so samples, never depend on
   the host's timing;
 * **host** (the Python loop): SYNC ``k`` goes out at the cycle's instant, or
-  within the host's window after it (half the drive's SYNC window, at most a
-  quarter period), and set-point ``k + 1`` right after it (a drive applies an
+  within the host's window after it (three quarters of the drive's SYNC
+  window, at most 0.4 of a period), from a thread that does nothing else, and
+  set-point ``k + 1`` right after it (a drive applies an
   RPDO at the SYNC after it), so nothing but the SYNC waits on the deadline. A
   cycle whose window the loop missed is skipped: no SYNC, no sample (the
   drive's own clock runs it with the set-point it holds), counted in
