@@ -420,9 +420,28 @@ class Session(DeviceConnection):
     def _analysis_samples(self, exp: Experiment, excitation: Excitation) -> dict[str, np.ndarray]:
         """Whole gap-free periods of a periodic excitation, else the longest gap-free stretch (never spliced).
         A record selected twice warns of its gaps once."""
-        selection = pipeline_selection.select_gap_free(exp.samples["sample_index"], excitation.period_samples, exp.name)
+        try:
+            selection = pipeline_selection.select_gap_free(
+                exp.samples["sample_index"], excitation.period_samples, exp.name
+            )
+        except DataError as exc:
+            skipped = self._host_clock_skips(exp.name)
+            if not skipped:
+                raise
+            raise DataError(
+                f"{exc}; here the gaps are {skipped} cycles the host's clock skipped (no SYNC, no sample): a drive "
+                "that produces SYNC ([canopen.sync] producer = true), SocketCAN, a quieter host or a lower "
+                "run.sample_rate_hz keeps them"
+            ) from None
         self.warnings += [w for w in selection.warnings if w not in self.warnings]
         return {k: v[selection.keep] for k, v in exp.samples.items()}
+
+    def _host_clock_skips(self, name: str) -> int:
+        """Cycles the host's own SYNC clock skipped in the recording ``name`` (0: another clock, or none)."""
+        for clock in reversed(self.clocks):
+            if clock.get("run") == name and clock.get("source") == "host":
+                return int(clock.get("setpoints_skipped", 0))
+        return 0
 
     def _greybox(self):
         """``[model]`` fitted to the identification run, validated on the verification run (or a hold-out)."""
