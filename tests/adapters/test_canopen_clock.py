@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 import threading
 import time
 from dataclasses import replace
@@ -14,7 +15,7 @@ from hilident.adapters.canopen.drive import CanopenDriveAdapter
 from hilident.adapters.canopen.streamed import StreamedRun
 from hilident.adapters.canopen.sync_source import SyncTiming, choose_sync_source
 from hilident.config.tables import load_config
-from hilident.drivers.description import find_driver
+from hilident.drivers.description import find_driver, load_driver
 from hilident.emulator.canopen.server import start
 from hilident.errors import ConfigError, DeviceError
 from hilident.protocol.canopen_sync import SyncCapability
@@ -94,9 +95,17 @@ class SyncListener(can.Listener):
 
 
 @pytest.fixture
-def host_clock_run():
+def host_clock_run(tmp_path):
     cfg = load_config(CONFIG)
-    driver = find_driver("cia402-standard")
+    # the shipped drive, with a SYNC loss timeout of a second: a machine as busy as the test suite can hold the
+    # host's clock thread up for longer than the drive's 100 ms (these tests are about the host's clock)
+    folder = tmp_path / "cia402-standard"
+    shutil.copytree(find_driver("cia402-standard").folder, folder)
+    toml = folder / "driver.toml"
+    text = toml.read_text()
+    assert "loss_timeout_ms = 100" in text
+    toml.write_text(text.replace("loss_timeout_ms = 100", "loss_timeout_ms = 1000"))
+    driver = load_driver(folder)
     emulated = start(cfg.emulator, driver, cfg.device)
     dev = replace(emulated.device, acquisition="streamed", canopen=replace(emulated.device.canopen, sync_source="host"))
     ad = CanopenDriveAdapter.open_device(dev, driver)

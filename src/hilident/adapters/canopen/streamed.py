@@ -7,8 +7,8 @@ applies it for the cycle that SYNC starts and answers with its TPDOs
 (transmission type 1), carrying the state at the start of that cycle:
 
 * **listening** (the drive or the interface produces SYNC): the host sends
-  set-point ``k + 1`` as soon as it hears SYNC ``k``, if it still has three
-  quarters of a period; otherwise it skips it (the drive holds the last
+  set-point ``k + 1`` as soon as it hears SYNC ``k``, if it is no more than
+  0.9 of a period after it; otherwise it skips it (the drive holds the last
   set-point, or extrapolates a position at its last velocity as CSP and IP
   drives do, and the recorded set-point of that cycle is that one) and counts
   it in ``setpoints_skipped``. SYNCs, and so samples, never depend on
@@ -104,7 +104,7 @@ _GRACE_S = 0.25  # after the last SYNC (or an emergency), wait this long for the
 _SPIN_S = 2e-4  # host clock: the last this many seconds before a cycle's instant are spun, not slept
 _SWITCH_S = 1e-4  # the interpreter's thread switch interval during a run (its 5 ms default delays a SYNC)
 _SETTLE_S = 0.02  # after the clock stopped, the answers to its last SYNCs are awaited this long
-_LEAD = 0.75  # listening: a set-point goes out only within this share of a period after the SYNC before it
+_LEAD = 0.9  # listening: a set-point goes out only within this share of a period after the SYNC before it
 
 
 class DriveHost(Protocol):
