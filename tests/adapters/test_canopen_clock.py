@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import shutil
 import threading
 import time
@@ -94,23 +95,29 @@ class SyncListener(can.Listener):
         self.bus.shutdown()
 
 
-@pytest.fixture
-def host_clock_run(tmp_path):
+def host_clock_adapter(tmp_path, loss_timeout_ms: int, source: str = "host"):
+    """The shipped drive's twin with ``loss_timeout_ms``, and an adapter that runs it on the ``source`` clock."""
     cfg = load_config(CONFIG)
-    # the shipped drive, with a SYNC loss timeout of a second: a machine as busy as the test suite can hold the
-    # host's clock thread up for longer than the drive's 100 ms (these tests are about the host's clock)
     folder = tmp_path / "cia402-standard"
     shutil.copytree(find_driver("cia402-standard").folder, folder)
     toml = folder / "driver.toml"
     text = toml.read_text()
     assert "loss_timeout_ms = 100" in text
-    toml.write_text(text.replace("loss_timeout_ms = 100", "loss_timeout_ms = 1000"))
+    toml.write_text(text.replace("loss_timeout_ms = 100", f"loss_timeout_ms = {loss_timeout_ms}"))
     driver = load_driver(folder)
     emulated = start(cfg.emulator, driver, cfg.device)
-    dev = replace(emulated.device, acquisition="streamed", canopen=replace(emulated.device.canopen, sync_source="host"))
+    dev = replace(emulated.device, acquisition="streamed", canopen=replace(emulated.device.canopen, sync_source=source))
     ad = CanopenDriveAdapter.open_device(dev, driver)
     lim = cfg.limits
     ad.set_limits(lim.torque_nm, lim.velocity_mps, lim.position_min_m, lim.position_max_m)
+    return ad, emulated
+
+
+@pytest.fixture
+def host_clock_run(tmp_path):
+    # a SYNC loss timeout of a second: a machine as busy as the test suite can hold the host's clock thread up
+    # for longer than the drive's 100 ms (these tests are about the host's clock)
+    ad, emulated = host_clock_adapter(tmp_path, 1000)
     listener = SyncListener(emulated.server.channel)
     ad.emulated_for_test = emulated
     yield ad, listener
@@ -176,3 +183,45 @@ def test_the_strict_twin_faults_a_host_that_bursts_after_a_stall(host_clock_run,
     assert np.count_nonzero(np.diff(listener.instants) < 0.2e-3) >= 2  # SYNCs went out back to back ...
     assert not emulated_drive(ad).enabled  # ... and the drive stopped the axis
     assert ad.last_result is not None and not ad.last_result.completed
+
+
+def test_the_host_clock_stops_the_drive_before_its_syncs_stop(tmp_path, monkeypatch):
+    """A drive in a cyclic mode faults when the SYNCs stop (loss timeout, EMCY 0x8250): the run's ending commands
+    it safe first, however long the host then takes to finish the run."""
+    ad, emulated = host_clock_adapter(tmp_path, 100)
+    settle = StreamedRun._settle
+
+    def slow_settle(self):  # the host is held up for three loss timeouts after its last SYNC, then talks
+        time.sleep(0.3)
+        self.ad.sdo.read("statusword")  # a frame after the deadline: the drive knows the SYNC is missing
+        time.sleep(0.05)
+        settle(self)
+
+    monkeypatch.setattr(StreamedRun, "_settle", slow_settle)
+    try:
+        ad.configure(250.0, "torque")
+        result = ad.stream(np.zeros(250), lambda i, rows: None)
+        firmware = emulated.server.firmware
+        assert result.completed and ad.run_fault is None
+        assert firmware.drive.fault is None and not firmware.drive.enabled
+        assert not any("0x8250" in e.get("message", "") for e in result.events)
+    finally:
+        ad.close()
+        emulated.close()
+
+
+@pytest.mark.parametrize("source", ["drive", "host"])
+def test_a_run_leaves_no_frames_piling_up_in_the_process(tmp_path, source):
+    """Every frame of a run is taken by whoever receives it: a bus that only sends (the twin's SYNC producer)
+    must not keep a copy of each, or the heap grows and the collector's pauses stall the clock threads."""
+    ad, emulated = host_clock_adapter(tmp_path, 1000, source)
+    try:
+        ad.configure(FS, "torque")
+        result = ad.stream(np.zeros(3000), lambda i, rows: None)
+        assert result.completed and result.clock["source"] == source
+        gc.collect()
+        frames = sum(type(o) is can.Message for o in gc.get_objects())
+        assert frames < 1000  # a run of 3000 cycles sends more than 6000 frames
+    finally:
+        ad.close()
+        emulated.close()

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any, Generic, Protocol, Self, TypeVar
 import numpy as np
 import numpy.typing as npt
 
+from hilident.adapters.host_timing import timely_host
 from hilident.errors import ConfigError, DataError, DeviceError, LimitTrip
 from hilident.events import Kind, RunEvent, StreamStats
 from hilident.filters.biquad import Biquad
@@ -414,7 +415,8 @@ class AdapterBase:
                 raise self.fault_error(self.run_fault)
 
         try:
-            self._play(x, deliver, result)
+            with timely_host():
+                self._play(x, deliver, result)
         except BaseException as exc:
             if any(exc is e for e in from_sink):
                 raise  # a full disk, a signal in the session's writer: its own error, after the axis is safe

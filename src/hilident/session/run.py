@@ -78,6 +78,9 @@ pipeline_verification = lazy_module("hilident.pipeline.verification")
 #: The upload step, shared with ``hilident upload``.
 uploading = lazy_module("hilident.session.upload")
 
+#: Share of a friction window's samples its recorded rows must hold for the window to be averaged.
+_WINDOW_COVER = 0.9
+
 
 def check_excitation_travel(cfg: Config, excitation: Excitation) -> None:
     """A set-point perturbation must keep the axis within half the position window (it starts anywhere in it)."""
@@ -386,12 +389,7 @@ class Session(DeviceConnection):
             setpoints,
             tables={"windows": {"start": windows[:, 0], "stop": windows[:, 1], "velocity_mps": windows[:, 2]}},
         )
-        rows = self._rows_by_index(exp)
-        kept = [
-            (rows[a], rows[b - 1] + 1, v)
-            for a, b, v in profile.windows
-            if a in rows and b - 1 in rows and rows[b - 1] - rows[a] == b - 1 - a
-        ]
+        kept = self._window_rows(exp, profile.windows)
         self.progress.step("friction: fitting the friction curve")
         result = pipeline_friction.identify_friction(
             exp.samples["velocity_mps"], exp.samples["torque_nm"], kept, self.cfg.friction_test.model
@@ -400,9 +398,22 @@ class Session(DeviceConnection):
         return result
 
     @staticmethod
-    def _rows_by_index(exp: Experiment) -> dict[int, int]:
-        idx = exp.samples["sample_index"].astype(np.int64)
-        return {int(i): r for r, i in enumerate(idx)}
+    def _window_rows(exp: Experiment, windows) -> list[tuple[int, int, float]]:
+        """The recorded rows of each constant-velocity window ``(start, stop, velocity)`` (sample indices).
+
+        A window is a steady state averaged over: the samples a lost frame or a
+        skipped cycle took out of it are simply not in the mean (nothing is
+        filled in), so a window counts when its rows hold at least
+        :data:`_WINDOW_COVER` of its samples.
+        """
+        index = exp.samples["sample_index"].astype(np.int64)
+        kept = []
+        for a, b, v in windows:
+            first, stop = np.searchsorted(index, [a, b])  # the rows with a <= index < b (the index only grows)
+            rows = index[first:stop]
+            if stop > first and stop - first >= _WINDOW_COVER * (b - a) and np.all(np.diff(rows) > 0):
+                kept.append((int(first), int(stop), v))
+        return kept
 
     # --- automatic excitation amplitude ---------------------------------------------------------
 

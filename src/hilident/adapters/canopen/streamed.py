@@ -70,7 +70,6 @@ from __future__ import annotations
 
 import collections
 import struct
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -102,7 +101,6 @@ Deliver = Callable[[np.ndarray, np.ndarray], None]
 
 _GRACE_S = 0.25  # after the last SYNC (or an emergency), wait this long for the TPDOs in flight
 _SPIN_S = 2e-4  # host clock: the last this many seconds before a cycle's instant are spun, not slept
-_SWITCH_S = 1e-4  # the interpreter's thread switch interval during a run (its 5 ms default delays a SYNC)
 _SETTLE_S = 0.02  # after the clock stopped, the answers to its last SYNCs are awaited this long
 _LEAD = 0.9  # listening: a set-point goes out only within this share of a period after the SYNC before it
 
@@ -445,8 +443,6 @@ class StreamedRun(RunStrategy):
         for cob in self.frames:
             ad.network.subscribe(cob, self.on_tpdo)
         self.choice = self.choose_source()
-        switch = sys.getswitchinterval()
-        sys.setswitchinterval(_SWITCH_S)
         try:
             self._loop()
             self._stop_clock()
@@ -467,7 +463,6 @@ class StreamedRun(RunStrategy):
                 pass
             raise
         finally:
-            sys.setswitchinterval(switch)
             self._stop_clock()
             self.result.clock = self.clock_report()
             for cob in [*self.frames, 0x80]:
@@ -497,8 +492,17 @@ class StreamedRun(RunStrategy):
             self.drain()
 
     def _stop_clock(self) -> None:
-        """The drive or the interface stops producing SYNC (never raises: every ending passes here; once)."""
+        """The SYNCs stop (never raises: every ending passes here; once).
+
+        A drive that consumes SYNC faults when they stop while it is in a
+        cyclic mode (its loss timeout, CiA 301 0x8250): with the host's or the
+        interface's clock, the drive is commanded safe first, the SYNCs still
+        coming. A drive that produces SYNC stops producing when bit 30 of
+        0x1005 is cleared.
+        """
         ad = self.ad
+        if not self.clock_stopped and (self.sender is not None or self.periodic_task is not None):
+            ad.safe_stop()
         self.clock_stop.set()
         if self.sender is not None:
             self.sender.join(timeout=1.0)

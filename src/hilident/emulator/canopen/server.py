@@ -51,7 +51,6 @@ class CanopenDriveServer:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._producer: threading.Thread | None = None
-        self._stamped: can.BusABC | None = None
         self._error: BaseException | None = None
         self.extra: list = []  # other services sharing this drive's lifetime (a socketcand server)
 
@@ -72,9 +71,6 @@ class CanopenDriveServer:
         if network.notifier is None:
             raise RuntimeError(f"CAN network on {self.channel!r} connected without a notifier")
         network.notifier.add_listener(self.firmware.on_frame)
-        if self.interface == "virtual":  # the producer's SYNCs carry their instant on the drive's clock
-            self._stamped = can.Bus(interface="virtual", channel=self.channel, preserve_timestamps=True)
-            self.firmware.stamped_bus = self._stamped
         self._thread = threading.Thread(target=self._clock, name="canopen-drive-clock", daemon=True)
         self._thread.start()
         self._producer = threading.Thread(target=self._produce, name="canopen-sync-producer", daemon=True)
@@ -108,18 +104,35 @@ class CanopenDriveServer:
         """SYNC instants ``t_j = t_start + j * period`` until production or its period changes: a deadline
         schedule (never drifts); an instant reached late is still produced, the next ones follow at once."""
         period = schedule[1]
+        stamped = self._open_stamped()
         start, start_wall = time.perf_counter(), time.time()
         j = 0
-        while not self._stop.is_set() and producer.schedule() == schedule:
-            due = start + j * period
-            wait = due - time.perf_counter()
-            if wait > _SLEEP_MAX_S:
-                self._stop.wait(_SLEEP_MAX_S)
-                continue
-            if wait > 0:
-                time.sleep(wait)
-            producer.instant(time.perf_counter() - due, start_wall + j * period)
-            j += 1
+        try:
+            while not self._stop.is_set() and producer.schedule() == schedule:
+                due = start + j * period
+                wait = due - time.perf_counter()
+                if wait > _SLEEP_MAX_S:
+                    self._stop.wait(_SLEEP_MAX_S)
+                    continue
+                if wait > 0:
+                    time.sleep(wait)
+                producer.instant(time.perf_counter() - due, start_wall + j * period)
+                j += 1
+                while stamped is not None and stamped.recv(0) is not None:
+                    pass  # it only sends: what every bus of the channel receives is dropped, or it would pile up
+        finally:
+            self.firmware.stamped_bus = None
+            if stamped is not None:
+                stamped.shutdown()
+
+    def _open_stamped(self) -> can.BusABC | None:
+        """On a virtual channel, a bus that sends with the timestamp given: the producer's SYNCs carry their
+        instant on the drive's clock (on another interface the interface stamps them)."""
+        if self.interface != "virtual":
+            return None
+        bus = can.Bus(interface="virtual", channel=self.channel, preserve_timestamps=True)
+        self.firmware.stamped_bus = bus
+        return bus
 
     def close(self) -> None:
         """Power stage off, threads stopped, bus released."""
@@ -139,10 +152,6 @@ class CanopenDriveServer:
             fw.node.nmt.stop_heartbeat()
         except Exception:
             pass
-        if self._stamped is not None:
-            fw.stamped_bus = None
-            self._stamped.shutdown()
-            self._stamped = None
         if self.network is not None:
             try:
                 self.network.disconnect()
