@@ -44,6 +44,7 @@ from numpy.typing import ArrayLike
 from scipy import signal
 
 from hilident.errors import ConfigError, DataError
+from hilident.ident.gapped_periods import line_spectra
 from hilident.ident.preprocess import check_signals
 
 __all__ = [
@@ -429,6 +430,7 @@ def periodic_frf(
     skip_periods: int = 1,
     bins: ArrayLike | None = None,
     excitation_threshold_db: float = -40.0,
+    present: ArrayLike | None = None,
 ) -> FrequencyResponse:
     """FRF from a periodic excitation (multisine, periodic chirp or PRBS).
 
@@ -459,6 +461,12 @@ def periodic_frf(
         `excitation_threshold_db` of the strongest bin.
     excitation_threshold_db : float
         See `bins`.
+    present : array_like of bool, optional
+        Which samples exist (default: all). A period missing some is read at
+        the excited bins by least squares on the samples it has
+        (:func:`~hilident.ident.gapped_periods.line_spectra`; nothing is filled
+        in), and left out when those cannot tell its lines apart. The values of
+        ``u`` and ``y`` where a sample is missing are ignored.
 
     Returns
     -------
@@ -466,6 +474,11 @@ def periodic_frf(
         ``method="periodic"``, ``n_averages`` = periods used (at least 2).
     """
     fs = _check_rate(sample_rate_hz)
+    if present is not None:  # what is missing is not looked at
+        present = np.asarray(present, dtype=bool)
+        if present.shape != np.shape(u):
+            raise DataError(f"present has {present.size} flags for {np.size(u)} samples")
+        u, y = np.where(present, u, 0.0), np.where(present, y, 0.0)
     sig = check_signals({"u": u, "y": y}, copy=False)
     if int(period_samples) != period_samples or period_samples < 4:
         raise ConfigError("period_samples", f"must be an integer >= 4, got {period_samples!r}")
@@ -478,6 +491,8 @@ def periodic_frf(
             f"{sig['u'].size} samples hold {sig['u'].size // P} periods of {P}; "
             f"after skipping {skip} at least 2 are needed"
         )
+    if present is not None and not present.all():
+        return _gapped_periodic_frf(sig["u"], sig["y"], present, P, fs, skip, bins, excitation_threshold_db)
     sums = _period_sums(sig["u"], sig["y"], P, skip, n_periods)
     u_mean = sums["u"] / n_periods
     if bins is None:
@@ -496,6 +511,53 @@ def periodic_frf(
         response=_ratio(sums["y"][k] / n_periods, u_mean[k]),
         coherence=_coherence(sums["uy"][k], sums["uu"][k], sums["yy"][k]),
         n_averages=n_periods,
+        method="periodic",
+    )
+
+
+def _gapped_periodic_frf(
+    u: np.ndarray,
+    y: np.ndarray,
+    present: np.ndarray,
+    period: int,
+    fs: float,
+    skip: int,
+    bins: ArrayLike | None,
+    excitation_threshold_db: float,
+) -> FrequencyResponse:
+    """:func:`periodic_frf` of a record some of whose samples do not exist: each period's lines by least squares."""
+    n_periods = u.size // period - skip
+    cut = slice(skip * period, (skip + n_periods) * period)
+    shape = (n_periods, period)
+    u_p, y_p, ok = u[cut].reshape(shape), y[cut].reshape(shape), present[cut].reshape(shape)
+    if (
+        bins is None
+    ):  # the excited bins, from the mean period: each of its samples averaged over the periods that have it
+        counts = ok.sum(axis=0)
+        mean_period = np.where(ok, u_p, 0.0).sum(axis=0) / np.maximum(counts, 1)
+        power = np.abs(np.fft.rfft(mean_period)) ** 2
+        power[0] = 0.0
+        power[period // 2] = 0.0 if period % 2 == 0 else power[period // 2]
+        k = np.flatnonzero(power > power.max() * 10.0 ** (excitation_threshold_db / 10.0))
+    else:
+        k = np.unique(np.asarray(bins, dtype=np.int64))
+    if k.size == 0 or k.min() < 1 or 2 * k.max() >= period:
+        raise DataError(f"a record with missing samples is read at bins 1..{(period - 1) // 2} only, got {k!r}")
+    U, used_u = line_spectra(u_p, ok, k)
+    Y, used_y = line_spectra(y_p, ok, k)
+    used = used_u & used_y
+    if used.sum() < 2:
+        raise DataError(
+            f"only {int(used.sum())} of {n_periods} periods have samples enough to read their lines; at least 2 "
+            "are needed"
+        )
+    U, Y = U[used], Y[used]
+    m = len(U)
+    return FrequencyResponse(
+        frequency_hz=k * fs / period,
+        response=_ratio(Y.mean(axis=0), U.mean(axis=0)),
+        coherence=_coherence((np.conj(U) * Y).sum(axis=0), (np.abs(U) ** 2).sum(axis=0), (np.abs(Y) ** 2).sum(axis=0)),
+        n_averages=m,
         method="periodic",
     )
 
