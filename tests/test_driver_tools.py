@@ -227,12 +227,28 @@ def test_check_validates_filter_objects_fields_and_encoding(tmp_path):
         "fields = { center = 1, width = 2, depth = 3 }\n"
     )
     path.write_text(path.read_text(encoding="utf-8") + good, encoding="utf-8")
-    assert check_driver_folder(report.folder).ok
+    # the fixture's notch record 0x2300 has no enable: sub 1 is the centre, which an enable would overwrite
+    (error,) = check_driver_folder(report.folder).errors
+    assert "[filters.enable_subindex] must be a free sub-index" in error
+    eds = report.folder / report.eds_file
+    eds.write_bytes(
+        eds.read_bytes().replace(b"DefaultValue=3", b"DefaultValue=4", 1)
+        + b"\r\n[2300sub4]\r\nParameterName=Notch enable\r\nObjectType=0x7\r\nDataType=0x0005\r\n"
+        b"AccessType=rw\r\nDefaultValue=0\r\nPDOMapping=0\r\n"
+    )
+    edit(report.folder, "enable_subindex = 1", "enable_subindex = 4")
+    assert check_driver_folder(report.folder).ok, check_driver_folder(report.folder).errors
     edit(report.folder, 'encoding = "notch_parameters"', 'encoding = "real32"')
     errors = check_driver_folder(report.folder).errors
-    assert len(errors) == 3 and all("UNSIGNED16" in e and "'real32' writes a float" in e for e in errors)
-    edit(report.folder, "depth = 3 }", "depth = 4 }")
-    assert any("0x2300:4 is not in the EDS" in e for e in check_driver_folder(report.folder).errors)
+    assert any("[filters.fields.b0] is not given" in e for e in errors)
+    edit(report.folder, "fields = { center = 1, width = 2, depth = 3 }", "fields = { b0 = 1, b1 = 2, b2 = 3 }")
+    errors = [e for e in check_driver_folder(report.folder).errors if "is not given" not in e]
+    assert len(errors) == 3 and all("UNSIGNED16" in e and "real32 encoding writes a REAL32" in e for e in errors)
+    edit(report.folder, 'encoding = "real32"', 'encoding = "notch_parameters"')
+    edit(report.folder, "fields = { b0 = 1, b1 = 2, b2 = 3 }", "fields = { center = 1, width = 2, depth = 5 }")
+    assert any(
+        "[filters.fields.depth] 0x2300:5 is not in the EDS" in e for e in check_driver_folder(report.folder).errors
+    )
 
 
 def test_check_warns_about_placeholders_not_listed_or_not_keys(tmp_path):

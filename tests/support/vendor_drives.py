@@ -55,6 +55,15 @@ class VendorDrive:
     # the drive can produce SYNC (its manual says so; [canopen.sync] producer = true, 0x1006 for the period), as
     # most servo drives can: the twin then keeps the bus clock; False: the host's loop does
     sync_producer: bool = True
+    # vendor objects beyond the standard ones, e.g. a documented family's filter objects (tuples as _objects gives
+    # them, optionally followed by LowLimit and HighLimit); the family's [filters] table, slots, identity and README
+    # (tests/support/filter_families.py)
+    vendor_objects: list = field(default_factory=list)
+    filter_table: str = ""
+    filter_slots: int = 2
+    vendor_number: int = 0x0000ACE1
+    product_number: int = 0x00001234
+    readme: str = ""
 
 
 def _objects(d: VendorDrive) -> list[tuple]:
@@ -68,8 +77,8 @@ def _objects(d: VendorDrive) -> list[tuple]:
         (0x1016, 0, "Number of entries", _UINT8, "ro", False, 1),
         (0x1016, 1, "Consumer heartbeat time 1", _UINT32, "rw", False, 0),
         (0x1018, 0, "Number of entries", _UINT8, "ro", False, 4),
-        (0x1018, 1, "Vendor-ID", _UINT32, "ro", False, 0x0000ACE1),
-        (0x1018, 2, "Product code", _UINT32, "ro", False, 0x00001234),
+        (0x1018, 1, "Vendor-ID", _UINT32, "ro", False, d.vendor_number),
+        (0x1018, 2, "Product code", _UINT32, "ro", False, d.product_number),
         (0x1018, 3, "Revision number", _UINT32, "ro", False, 1),
         (0x1018, 4, "Serial number", _UINT32, "ro", False, 7),
     ]
@@ -150,7 +159,7 @@ def _objects(d: VendorDrive) -> list[tuple]:
             (0x60C2, 1, "Interpolation time period value", _UINT8, "rw", False, 1),
             (0x60C2, 2, "Interpolation time index", _INT8, "rw", False, -3),
         ]
-    objs += _filter_objects(d.filters)
+    objs += _filter_objects(d.filters) + d.vendor_objects
     objs += _recorder_objects(d)
     objs.append((0x60FF, None, "Target velocity", _INT32, "rww", True, 0))
     objs.append(
@@ -357,9 +366,9 @@ def eds_text(d: VendorDrive) -> str:
         "",
         "[DeviceInfo]",
         f"VendorName={d.vendor}",
-        "VendorNumber=0x0000ACE1",
+        f"VendorNumber=0x{d.vendor_number:08X}",
         f"ProductName={d.name}",
-        "ProductNumber=0x00001234",
+        f"ProductNumber=0x{d.product_number:08X}",
         "BaudRate_1000=1",
         "SimpleBootUpSlave=1",
         "Granularity=8",
@@ -414,7 +423,7 @@ def _record_name(index: int) -> str:
 
 
 def _variable_lines(obj: tuple) -> list[str]:
-    _, _, name, dtype, access, mappable, default = obj
+    _, _, name, dtype, access, mappable, default = obj[:7]
     lines = [
         f"ParameterName={name}",
         "ObjectType=0x7",
@@ -430,6 +439,8 @@ def _variable_lines(obj: tuple) -> list[str]:
         else:
             value = f"0x{default:X}" if default >= 0 else str(default)
         lines.append(f"DefaultValue={value}")
+    for key, limit in zip(("LowLimit", "HighLimit"), obj[7:], strict=False):
+        lines.append(f"{key}={limit}")
     return lines
 
 
@@ -443,8 +454,8 @@ def driver_toml(d: VendorDrive) -> str:
     if d.torque == "effort":
         scaling.append('\n[canopen.objects]\ntorque_demand = "0x2022"  # the vendor\'s control effort')
     emulator = "" if d.declare_modes else f"\n[emulator]\nsupported_modes = {list(d.modes)!r}\n".replace("'", '"')
-    if d.filters:
-        emulator += "\n" + FILTERS[d.filters][1]
+    if d.filters or d.filter_table:
+        emulator += "\n" + (d.filter_table or FILTERS[d.filters][1])
     if d.recorder:
         emulator += "\n" + RECORDERS[d.recorder][1].replace("{max_samples}", str(d.recorder_max_samples))
     return f"""[driver]
@@ -456,7 +467,7 @@ default_baudrate = 1000000
 [board]
 loop_rate_hz = {d.loop_rate_hz}
 max_sample_rate_hz = {d.max_sample_rate_hz}
-filter_slots = {2 if d.filters else 0}
+filter_slots = {d.filter_slots if d.filters or d.filter_table else 0}
 
 [canopen]
 eds = "{d.name}.eds"
@@ -482,6 +493,8 @@ def write_vendor_drive(folder: Path, d: VendorDrive) -> Path:
     path.mkdir(parents=True, exist_ok=True)
     (path / f"{d.name}.eds").write_bytes(eds_text(d).encode("latin-1"))
     (path / "driver.toml").write_text(driver_toml(d))
+    if d.readme:
+        (path / "README.md").write_text(d.readme)
     return path
 
 

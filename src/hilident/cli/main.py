@@ -936,6 +936,7 @@ def main(argv: list[str] | None = None) -> int:
     from hilident.errors import Interrupted
 
     args = build_parser().parse_args(argv)
+    _no_last_resort()
     if args.log_level:
         _configure_logging(args.log_level)
     try:
@@ -957,6 +958,20 @@ def main(argv: list[str] | None = None) -> int:
         # the reader of our output went away (e.g. `| head`): the work is done, stay quiet
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+
+
+#: Loggers whose records reach stderr only through ``--log-level``: hilident's (a twin's too) and the CAN libraries'.
+_LIBRARY_LOGGERS = ("hilident", "canopen", "can")
+
+
+def _no_last_resort() -> None:
+    """Give the library loggers a handler that drops records, so that without ``--log-level`` Python's
+    last-resort handler never prints their warnings and tracebacks on the terminal; the records still
+    propagate to the handlers ``--log-level`` configures."""
+    for name in _LIBRARY_LOGGERS:
+        log = logging.getLogger(name)
+        if not any(isinstance(h, logging.NullHandler) for h in log.handlers):
+            log.addHandler(logging.NullHandler())
 
 
 def _configure_logging(level: str) -> None:

@@ -28,6 +28,7 @@ from hilident.drivers.description import (
     load_object_dictionary,
     valid_sample_rates,
 )
+from hilident.drivers.filter_check import filter_problems
 from hilident.errors import ConfigError, UsageError
 from hilident.protocol import eds as E
 from hilident.protocol.canopen_objects import CanopenDescription
@@ -886,40 +887,12 @@ def _pdos_needed(bits: list[int], max_entries: int) -> int:
 
 
 def _check_filters(c: _Checker) -> None:
-    table = c.data.get("filters")
-    if not isinstance(table, dict) or "objects" not in table:
-        return
-    objects, fields = table.get("objects"), table.get("fields", {})
-    if not isinstance(objects, list) or not isinstance(fields, dict):
-        c.error("filters", "objects must be a list of object indices and fields a table of field = sub-index")
-        return
-    encoding = table.get("encoding", "")
-    family = {"real32": "float", "fixed": "integer", "notch_parameters": "integer"}.get(encoding)
-    if family is None:
-        c.warn("filters.encoding", f"{encoding!r}: the field types of this encoding are not checked")
-    enable = table.get("enable_subindex", 1)
-    for i, text in enumerate(objects):
-        m = re.fullmatch(r"\s*(?:0x)?([0-9A-Fa-f]{1,4})(?::\w+)?\s*", text) if isinstance(text, str) else None
-        if m is None:
-            c.error(f"filters.objects[{i}]", f'must be an object index like "0x2300", got {text!r}')
-            continue
-        index = int(m.group(1), 16)
-        if index not in c.od.indices:
-            c.error(f"filters.objects[{i}]", f"object {text} is not in the EDS")
-            continue
-        subs = [("enable_subindex", enable)] + [(f"fields.{k}", v) for k, v in fields.items()]
-        for key, sub in subs:
-            info = E.object_info(c.od, index, sub) if isinstance(sub, int) else None
-            if info is None:
-                c.error(f"filters.{key}", f"0x{index:04X}:{sub} is not in the EDS")
-                continue
-            if not E.writable(info.access):
-                c.error(f"filters.{key}", f"{info.address} is {info.access!r}; the host writes it")
-            if family and key != "enable_subindex" and _family(info.data_type) != family:
-                c.error(
-                    f"filters.{key}",
-                    f"{info.address} is {E.type_name(info.data_type)}; encoding {encoding!r} writes a {family}",
-                )
+    """[filters]: every slot's objects against the EDS (:mod:`hilident.drivers.filter_check`)."""
+    errors, warnings = filter_problems(c.data, c.od)
+    for key, text in errors:
+        c.error(key, text)
+    for key, text in warnings:
+        c.warn(key, text)
 
 
 def _check_save(c: _Checker) -> None:

@@ -35,12 +35,12 @@ import numpy as np
 from hilident.config.schema import build_table, spec
 from hilident.errors import ConfigError, DataError
 from hilident.protocol import canopen_profile as profile
+from hilident.protocol.canopen_filters import FilterObjects, parse_filter_objects
 from hilident.protocol.canopen_recorder import RecorderCapability, parse_recorder
 from hilident.protocol.canopen_sync import SyncCapability, parse_sync
 from hilident.protocol.canopen_types import ModeSpec, ObjectAddress, parse_address
 
 __all__ = [
-    "FilterObjects",
     "CanopenDescription",
     "BOOLEAN",
     "INTEGER8",
@@ -155,29 +155,6 @@ ABORT_CONNECTION_OPTIONS = {1: "fault", 2: "disable voltage", 3: "quick stop"}
 #: Standard objects of the device-side net (CiA 301 heartbeat consumer, CiA 402 abort connection option).
 HEARTBEAT_CONSUMER_INDEX = 0x1016
 ABORT_CONNECTION_INDEX = 0x6007
-
-
-@dataclass(frozen=True)
-class FilterObjects:
-    """Where the drive keeps its filter slots: one object per slot.
-
-    Each field of the encoding sits at a sub-index of the slot's object; the
-    slot's enable at ``enable_subindex``, or, for an encoding that keeps its
-    enable inside its one value (a ``word_block``: ``fields = { block = 0 }``
-    on an octet-string object), nowhere else (``enable_subindex`` None).
-    """
-
-    indices: tuple[int, ...]
-    enable_subindex: int | None
-    fields: dict[str, int]
-
-    def address(self, slot: int, name: str) -> ObjectAddress:
-        """The object of field ``name`` (or ``"enabled"``) of filter slot ``slot``."""
-        if name != "enabled":
-            return ObjectAddress(self.indices[slot], self.fields[name])
-        if self.enable_subindex is None:
-            raise ConfigError("filters.enable_subindex", "this encoding keeps the enable inside its block")
-        return ObjectAddress(self.indices[slot], self.enable_subindex)
 
 
 def _pdo_mappable(od, addr: ObjectAddress) -> bool:
@@ -322,7 +299,7 @@ class CanopenDescription:
             objects=objects,
             modes=modes,
             channels=channels,
-            filters=_filter_objects(sections.get("filters"), source),
+            filters=parse_filter_objects(sections.get("filters"), source),
             host_node_id=keys.host_node_id,
             abort_connection_option=keys.abort_connection_option,
             rated_torque_unit_nm=units.rated_torque_unit_nm,
@@ -593,26 +570,6 @@ def _table(parent: dict, key: str, source: str) -> dict:
 
 def _is_int(value) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
-
-
-def _filter_objects(table, source) -> FilterObjects | None:
-    if not isinstance(table, dict) or "objects" not in table:
-        return None
-    if not isinstance(table["objects"], list):
-        raise ConfigError("filters.objects", "must be a list of object indices", source)
-    indices = tuple(parse_address(x, "filters.objects", source).index for x in table["objects"])
-    block = table.get("encoding") == "word_block"
-    fields = table.get("fields", {"block": 0} if block else None)
-    if not isinstance(fields, dict) or not fields or not all(_is_int(v) and 0 <= v < 256 for v in fields.values()):
-        raise ConfigError("filters.fields", "must map each field to its sub-index, e.g. { b0 = 2, ... }", source)
-    if block:
-        if set(fields) != {"block"}:
-            raise ConfigError("filters.fields", f"a word_block slot is one field, block, got {sorted(fields)}", source)
-        return FilterObjects(indices, None, dict(fields))
-    enable = table.get("enable_subindex", 1)
-    if not _is_int(enable) or not 0 < enable < 256 or enable in fields.values():
-        raise ConfigError("filters.enable_subindex", f"must be a free sub-index 1..255, got {enable!r}", source)
-    return FilterObjects(indices, enable, dict(fields))
 
 
 # --- values -----------------------------------------------------------------------------------

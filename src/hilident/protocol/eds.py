@@ -541,8 +541,24 @@ def _keep_section(name: str, sections: dict, source: str, warnings: list[str]) -
     return False
 
 
+#: CiA 301 types whose value is text or bytes, never a number: VISIBLE_STRING, OCTET_STRING, UNICODE_STRING, DOMAIN
+_UNNUMBERED_TYPES = (0x09, 0x0A, 0x0B, 0x0F)
+_HEX_BYTES = re.compile(r"(?:0x)?((?:[0-9A-Fa-f]{2})*)")
+
+
 def _repair_values(name: str, sec: dict, zeros: _Tally, nodeid: _Tally, source: str, warnings: list[str]) -> None:
-    """Values with a ``$NODEID`` expression in canonical form, decimals with leading zeros read as decimal."""
+    """Values with a ``$NODEID`` expression in canonical form, decimals with leading zeros read as decimal.
+
+    The value of an octet string or a DOMAIN is hex digits, two a byte (``0x``
+    and spaces dropped); a string's is text: neither is read as a number.
+    """
+    dtype = _int(sec.get("DataType", ("", 0))[0])
+    if dtype in _UNNUMBERED_TYPES:
+        for key in ("DefaultValue", "ParameterValue"):
+            m = _HEX_BYTES.fullmatch(sec[key][0].replace(" ", "")) if key in sec and dtype in (0x0A, 0x0F) else None
+            if m is not None:
+                sec[key] = (m.group(1), sec[key][1])
+        return
     for key in ("DefaultValue", "ParameterValue", "LowLimit", "HighLimit"):
         if key not in sec:
             continue

@@ -17,10 +17,8 @@ from hilident.drivers.description import DriverDescription
 from hilident.errors import DataError, DeviceError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
-from hilident.protocol.canopen_objects import (
-    CanopenDescription,
-    FilterObjects,
-)
+from hilident.protocol.canopen_filters import ENABLED, FilterObjects
+from hilident.protocol.canopen_objects import CanopenDescription
 from hilident.protocol.canopen_types import parse_address
 from hilident.protocol.filter_encoding import FilterEncoding, Realisation
 
@@ -75,7 +73,7 @@ class CanopenFilterSlots:
         """The filter objects and encoding of ``slot``; DeviceError for a slot the drive does not have."""
         fo, encoding = self._slot_objects()
         slots = self.identity().filter_slots
-        if not 0 <= slot < len(fo.indices) or slot >= slots:
+        if not 0 <= slot < fo.count or slot >= slots:
             raise DeviceError(f"{self.port}: filter slot {slot} (the drive has {slots})")
         return fo, encoding
 
@@ -106,33 +104,39 @@ class CanopenFilterSlots:
         return self._realise(spec).notes
 
     def _write_slot(self, fo: FilterObjects, encoding: FilterEncoding, slot: int, values: dict, enabled: bool) -> None:
-        if fo.enable_subindex is None:  # the enable lives inside the one block
-            block = values if enabled else encoding.disabled(values)
+        """Write a slot's values and its enable (a block: its state word; no enable: the values run at once)."""
+        if fo.in_block:
+            block = values if enabled else self._slot_call(fo, slot, encoding.disabled, values)
             self.sdo.write_object(fo.address(slot, "block"), block["block"])
             return
         for name, value in values.items():
             self.sdo.write_object(fo.address(slot, name), value)
-        self.sdo.write_object(fo.address(slot, "enabled"), int(bool(enabled)))
+        if fo.has_enable:
+            self.sdo.write_object(fo.address(slot, ENABLED), fo.enable_on if enabled else fo.enable_off)
 
     def _read_slot(self, fo: FilterObjects, encoding: FilterEncoding, slot: int) -> tuple[dict, bool]:
+        """A slot's values and whether it runs (a slot without an enable always runs what it holds)."""
         values = {name: self.sdo.read_object(fo.address(slot, name)) for name in encoding.fields}
-        if fo.enable_subindex is None:
-            try:
-                return values, bool(encoding.slot_enabled(values))
-            except DataError as exc:
-                raise DeviceError(f"{self.port}: filter slot {slot} (object 0x{fo.indices[slot]:04X}): {exc}") from None
-        return values, bool(self.sdo.read_object(fo.address(slot, "enabled")))
+        if fo.in_block:
+            return values, bool(self._slot_call(fo, slot, encoding.slot_enabled, values))
+        if not fo.has_enable:
+            return values, True
+        return values, self.sdo.read_object(fo.address(slot, ENABLED)) == fo.enable_on
+
+    def _slot_call(self, fo: FilterObjects, slot: int, call, *args):
+        """``call(*args)`` on the slot's values; a DataError becomes a DeviceError naming the port and objects."""
+        try:
+            return call(*args)
+        except DataError as exc:
+            raise DeviceError(f"{self.port}: filter slot {slot} ({fo.where(slot)}): {exc}") from None
 
     def read_filter(self, slot: int) -> tuple[Biquad, bool]:
         """The biquad the slot applies, rebuilt from the values read from the drive."""
         fo, encoding = self._filter_slot(slot)
         values, enabled = self._read_slot(fo, encoding, slot)
-        try:
-            if fo.enable_subindex is None:  # a block read back disabled: what it holds, as it would run
-                values = encoding.enabled(values)
-            return encoding.applied(values, self.identity().loop_rate_hz), enabled
-        except DataError as exc:
-            raise DeviceError(f"{self.port}: filter slot {slot} (object 0x{fo.indices[slot]:04X}): {exc}") from None
+        if fo.in_block:  # a block read back disabled: what it holds, as it would run
+            values = self._slot_call(fo, slot, encoding.enabled, values)
+        return self._slot_call(fo, slot, encoding.applied, values, self.identity().loop_rate_hz), enabled
 
     def stored_form(self, biquad: Biquad, spec: NotchSpec | None) -> Biquad:
         """What the drive will run once :meth:`write_filter` stored ``biquad``/``spec``."""
@@ -147,13 +151,17 @@ class CanopenFilterSlots:
         return self._read_slot(fo, encoding, slot)
 
     def bypass(self, slot: int) -> None:
-        """Bypass a slot: its enable to 0 (or its block's state word to bypass); the coefficients stay stored."""
+        """Bypass a slot: its enable off, or its block's state word to bypass (the coefficients stay stored); a
+        slot without an enable gets the encoding's neutral values (:meth:`FilterEncoding.neutral`)."""
         fo, encoding = self._filter_slot(slot)
-        if fo.enable_subindex is None:
+        if fo.in_block:
             values, _ = self._read_slot(fo, encoding, slot)
             self._write_slot(fo, encoding, slot, values, False)
-            return
-        self.sdo.write_object(fo.address(slot, "enabled"), 0)
+        elif fo.has_enable:
+            self.sdo.write_object(fo.address(slot, ENABLED), fo.enable_off)
+        else:  # no enable: the values that run the identity section
+            values, _ = self._read_slot(fo, encoding, slot)
+            self._write_slot(fo, encoding, slot, self._slot_call(fo, slot, encoding.neutral, values), True)
 
     def save_parameters(self) -> str:
         """Have the drive store its parameters in non-volatile memory (CiA 301 0x1010:1, signature "save").
@@ -187,12 +195,13 @@ class CanopenFilterSlots:
         return f"{self.sdo.describe(addr)} = 0x{int(value):08X}"
 
     def write_raw(self, slot: int, saved: tuple[dict, bool]) -> None:
-        """Put back what :meth:`read_raw` returned (a block as found; else the fields disabled, then the enable)."""
+        """Put back what :meth:`read_raw` returned (a block as found; else the fields disabled, then the enable;
+        a slot without an enable runs its fields as written)."""
         values, enabled = saved
         fo, encoding = self._filter_slot(slot)
-        if fo.enable_subindex is None:
+        if fo.in_block:
             self.sdo.write_object(fo.address(slot, "block"), values["block"])  # the block as found, enable and all
             return
         self._write_slot(fo, encoding, slot, values, False)
-        if enabled:
-            self.sdo.write_object(fo.address(slot, "enabled"), 1)
+        if enabled and fo.has_enable:
+            self.sdo.write_object(fo.address(slot, ENABLED), fo.enable_on)

@@ -200,6 +200,7 @@ class CanopenDriveFirmware:
         self._describe(driver, node_id)
         self._power_up_state()
         self.parameters = DriveParameters(self)
+        self.parameters.power_up_blocks()
         self.watch = HostWatch(self)
         self.pdo = PdoExchange(self, seed)
         self.producer = SyncProducer(self, self.pdo)
@@ -505,8 +506,8 @@ class CanopenDriveFirmware:
         elif index == ABORT_CONNECTION_INDEX:
             if not 0 <= int(value) <= 3:
                 raise SdoAbortedError(ABORT_VALUE)  # negative (manufacturer) codes: none on this drive
-        elif self.desc.filters is not None and index in self.desc.filters.indices:
-            self.parameters.write_filter(self.desc.filters.indices.index(index), subindex, value)
+        elif self.desc.filters is not None and (slot := self.desc.filters.owner(ObjectAddress(index, subindex))):
+            self.parameters.write_filter(*slot, value)
         elif self.desc.has("capture_mapping") and index == self.desc.address("capture_mapping").index:
             self.playback.write_capture_mapping(subindex, int(value))
         elif self._is_error_history(index):

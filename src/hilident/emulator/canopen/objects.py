@@ -25,7 +25,8 @@ from hilident.protocol.canopen_types import ObjectAddress
 
 __all__ = ["ObjectStore"]
 
-_STRING_TYPES = (0x09, 0x0A, 0x0B)  # VISIBLE_STRING, OCTET_STRING, UNICODE_STRING
+_TEXT_TYPES = (0x09, 0x0B)  # VISIBLE_STRING, UNICODE_STRING: served from a str
+_OCTET_TYPES = (0x0A, DOMAIN)  # OCTET_STRING, DOMAIN: served from bytes
 _OBJECT_DOES_NOT_EXIST = 0x06020000
 
 
@@ -96,12 +97,12 @@ class ObjectStore:
         """The answer for an object never written whose EDS entry has no default (None: canopen serves it).
 
         A drive answers every readable object: the identity from the EDS's
-        [DeviceInfo], an empty string, or 0.
+        [DeviceInfo], some text, one zero byte, or 0. An empty string or octet
+        string cannot be uploaded (SDO abort 0x08000024); a drive says something.
         """
-        string = od.data_type in _STRING_TYPES
-        if subindex in self.node.data_store.get(index, {}) or (
-            (od.default is not None or od.value is not None) and not (string and not (od.value or od.default))
-        ):
+        declared = od.value if od.value is not None else od.default
+        sized = od.data_type in _TEXT_TYPES or od.data_type in _OCTET_TYPES
+        if subindex in self.node.data_store.get(index, {}) or (declared is not None and not (sized and not declared)):
             return None
         info = self.od.device_information
         identity = {(0x1018, 1): info.vendor_number, (0x1018, 2): info.product_number}.get((index, subindex))
@@ -109,9 +110,9 @@ class ObjectStore:
             return int(identity)
         if (index, subindex) == (0x1008, 0):
             return info.product_name or self.name
-        if string:
-            return "n/a"  # an empty string cannot be uploaded (SDO abort 0x08000024); a drive says something
-        return b"\0" if od.data_type == DOMAIN else 0
+        if od.data_type in _TEXT_TYPES:
+            return "n/a"
+        return b"\0" if od.data_type in _OCTET_TYPES else 0
 
     def sampled(self, role: str, addr: ObjectAddress, row) -> float | int:
         """Raw value of the sampled object ``addr`` (role ``role``) for the drive loop row ``row``."""

@@ -2,9 +2,11 @@
 
 Limit objects load the drive loop's limits once every one the drive has was
 written (and a position range is a range). Writing a filter slot's enable
-sub-index (or its whole block) rebuilds the slot's biquad from its stored
-fields with :meth:`FilterEncoding.applied` and loads it into ``drive.filters``:
-the same chain the plant sees.
+object (or its whole block, or a field of a slot that runs: one with no enable,
+or one enabled) rebuilds the slot's biquad from its stored fields with
+:meth:`FilterEncoding.applied` and loads it into ``drive.filters``: the same
+chain the plant sees. A word block written with another size than the drive's
+is refused (SDO abort 0x06070010), as a drive refuses it.
 """
 
 from __future__ import annotations
@@ -13,10 +15,12 @@ from canopen.sdo import SdoAbortedError
 
 from hilident.emulator.canopen.host import FirmwareHost
 from hilident.emulator.canopen.roles import LIMIT_ROLES
-from hilident.emulator.canopen.sdo import ABORT_TOO_LOW, ABORT_VALUE
+from hilident.emulator.canopen.sdo import ABORT_LENGTH, ABORT_TOO_LOW, ABORT_VALUE
 from hilident.errors import ConfigError, DataError
-from hilident.protocol.canopen_objects import FilterObjects
+from hilident.filters.biquad import Biquad
+from hilident.protocol.canopen_filters import ENABLED, FilterObjects
 from hilident.protocol.filter_encoding import FilterEncoding
+from hilident.protocol.filter_encoding.block import encode_block
 
 __all__ = ["DriveParameters"]
 
@@ -95,20 +99,68 @@ class DriveParameters:
             raise RuntimeError(f"{self.fw.driver.name}: the drive has no filter slots")
         return fo, encoding
 
-    def write_filter(self, slot: int, subindex: int, value) -> None:
+    def power_up_blocks(self) -> None:
+        """Word-block slots the EDS gives no default: each holds a bypassed identity block of its size, as a
+        drive's block always holds its words."""
+        fo, encoding = self.fw.desc.filters, self.fw.encoding
+        if fo is None or encoding is None or not fo.in_block:
+            return
+        lay = encoding.layout
+        neutral = encoding.disabled({"block": encode_block(lay, Biquad.identity(), None, encoding.feedback_sign)})
+        for slot in range(fo.count):
+            addr = fo.address(slot, "block")
+            if self._declared_block(slot) is None:
+                self.fw.node.data_store.setdefault(addr.index, {})[addr.subindex] = neutral["block"]
+
+    def block_size(self, slot: int) -> int:
+        """Bytes of a word-block slot: its EDS default's length where the EDS gives one, else the layout's."""
+        _, encoding = self._filter_slots()
+        declared = self._declared_block(slot)
+        return len(declared) if declared is not None else 2 * encoding.layout.words
+
+    def _declared_block(self, slot: int) -> bytes | None:
+        """The EDS default of a word-block slot's object (None: none, or empty)."""
         fo, _ = self._filter_slots()
-        if fo.enable_subindex is None:  # one block, its enable inside
-            if subindex == fo.fields["block"]:
-                self._apply_filter(slot, None, {"block": bytes(value)})
-        elif subindex == fo.enable_subindex:
-            self._apply_filter(slot, bool(value))
+        addr = fo.address(slot, "block")
+        var = self.fw.od.get_variable(addr.index, addr.subindex)
+        declared = var.default if var is not None else None
+        return declared if isinstance(declared, bytes) and declared else None
+
+    def write_filter(self, slot: int, name: str, value) -> None:
+        """The host wrote field ``name`` (or the enable) of filter slot ``slot``: the drive loads the slot's
+        section when its enable or its block is written, and when a field of a running slot changes."""
+        fo, _ = self._filter_slots()
+        if fo.in_block:
+            if len(bytes(value)) != self.block_size(slot):
+                raise SdoAbortedError(ABORT_LENGTH)  # a drive's block has its size
+            self._apply_filter(slot, None, {"block": bytes(value)})
+        elif name == ENABLED:
+            self._apply_filter(slot, int(value) == fo.enable_on)
+        elif not fo.has_enable:  # the slot runs what it holds, each field as it arrives
+            self._reload(slot, name, value)
+        elif self.fw.drive.filters.read(slot)[1]:
+            self._reload(slot, name, value)
+
+    def _reload(self, slot: int, name: str, value) -> None:
+        """A field of a running slot changed: the section follows; one the other fields still make invalid
+        (mid-way through an update) leaves the last one running."""
+        values = self._stored_fields(slot)
+        values[name] = value
+        try:
+            self._apply_filter(slot, True, values)
+        except SdoAbortedError:
+            pass
+
+    def _stored_fields(self, slot: int) -> dict:
+        fo, _ = self._filter_slots()
+        return {name: self.fw.stored(a.index, a.subindex) for name, a in fo.slots[slot].items()}
 
     def _apply_filter(self, slot: int, enabled: bool | None, values: dict | None = None) -> None:
         """Load a slot's section into the drive loop: from its stored fields when its enable is written, or
-        from the block being written (``values``; its state word says ``enabled``)."""
-        fo, encoding = self._filter_slots()
+        from ``values`` (a block's state word says ``enabled`` when it is None)."""
+        _, encoding = self._filter_slots()
         if values is None:
-            values = {name: self.fw.stored(fo.indices[slot], sub) for name, sub in fo.fields.items()}
+            values = self._stored_fields(slot)
         try:
             if enabled is None:
                 enabled = bool(encoding.slot_enabled(values))

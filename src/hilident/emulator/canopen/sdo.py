@@ -10,6 +10,12 @@ from the last acknowledged segment.
 
 It also injects the ``abort_object`` fault: every access to one object (or one
 sub-index) aborts with 0x06060000, "access failed due to a hardware error".
+
+A failure while serving an object (a value the object dictionary cannot
+encode, a bug in a callback) aborts that transfer with 0x08000000 and is one
+warning in the log naming the object, its traceback at debug level: never a
+traceback on the terminal (canopen's server would log it with
+``logger.exception``).
 """
 
 from __future__ import annotations
@@ -38,6 +44,8 @@ from canopen.sdo.constants import (
 )
 
 logger = logging.getLogger(__name__)
+# canopen's records reach the log's handlers (--log-level), never Python's last-resort printer on stderr
+logging.getLogger("canopen").addHandler(logging.NullHandler())
 
 ABORT_HARDWARE = 0x06060000
 # CiA 301 SDO abort codes the emulated drive answers with
@@ -228,9 +236,45 @@ class BlockSdoServer(SdoServer):
             self._block = None
             self.abort(ABORT_NOT_IN_OD)
         except Exception as exc:  # keep serving; the transfer is aborted
-            logger.exception(exc)
+            self._log_failure(exc)
             self._block = None
             self.abort(ABORT_GENERAL_ERROR)
+
+    # --- canopen's transfers, their failures one log line -------------------------------------
+
+    def init_upload(self, request):
+        self._served(super().init_upload, request)
+
+    def segmented_upload(self, command):
+        self._served(super().segmented_upload, command)
+
+    def init_download(self, request):
+        self._served(super().init_download, request)
+
+    def segmented_download(self, command, request):
+        self._served(super().segmented_download, command, request)
+
+    def _served(self, step: Callable, *args) -> None:
+        """Run one step of canopen's transfer; an unexpected failure becomes a general-error abort."""
+        try:
+            step(*args)
+        except (SdoAbortedError, KeyError):
+            raise  # canopen answers these with their own abort codes
+        except Exception as exc:
+            self._log_failure(exc)
+            raise SdoAbortedError(ABORT_GENERAL_ERROR) from None
+
+    def _log_failure(self, exc: Exception) -> None:
+        """One warning naming the object the transfer was serving; the traceback at debug level."""
+        logger.warning(
+            "SDO 0x%04X:%d: %s: %s; aborted with 0x%08X",
+            self._index or 0,
+            self._subindex or 0,
+            type(exc).__name__,
+            exc,
+            ABORT_GENERAL_ERROR,
+        )
+        logger.debug("SDO 0x%04X:%d failed", self._index or 0, self._subindex or 0, exc_info=exc)
 
     def _faulty(self, index: int, sub: int) -> bool:
         f = self.abort_object

@@ -40,6 +40,23 @@ from hilident.protocol.filter_encoding.vocabulary import (
 __all__ = ["FilterEncoding"]
 
 
+#: (pole field, zero field) pairs of the encodings whose section is the identity when its zeros sit on its poles.
+def _steps_within(value: float, scale: float, lo: float, hi: float) -> int:
+    """The whole number of ``scale`` steps nearest ``value`` that stays within ``[lo, hi]`` (physical units)."""
+    n = round(value / scale)
+    if n * scale < lo:
+        n += 1
+    if n * scale > hi:
+        n -= 1
+    return int(n)
+
+
+_NEUTRAL_PAIRS = {
+    "pole_zero_q": (("pole_hz", "zero_hz"), ("pole_q", "zero_q")),
+    "pole_zero_damping": (("den_hz", "num_hz"), ("den_damping", "num_damping")),
+}
+
+
 @dataclass(frozen=True, kw_only=True)
 class _FiltersTable:
     """The keys of ``[filters]`` that choose and shape the encoding, as
@@ -390,6 +407,40 @@ class FilterEncoding:
         state = lay.enabled_value if enabled else lay.disabled_value
         words[lay.state_word] = (words[lay.state_word] & ~lay.state_mask & 0xFFFF) | (state & lay.state_mask)
         return {"block": lay.pack(words)}
+
+    @property
+    def bypassable(self) -> bool:
+        """The encoding has values that run the identity section (:meth:`neutral`): a slot without an
+        enable of its own can still be bypassed."""
+        return self.kind in _NEUTRAL_PAIRS
+
+    def neutral(self, values: dict) -> dict:
+        """Values that run the identity section: how a slot that has no enable of its own is bypassed.
+
+        Pole/zero encodings put each zero field and its pole field on one
+        value: the pole's, moved into the range both fields share.
+
+        Raises
+        ------
+        DataError
+            The encoding has no neutral setting (its slots need an enable), or a pole's and its zero's
+            ranges do not meet.
+        """
+        pairs = _NEUTRAL_PAIRS.get(self.kind)
+        if pairs is None:
+            raise DataError(f'the "{self.kind}" encoding has no setting that bypasses the slot; it needs an enable')
+        self._check_values(values)
+        out = dict(values)
+        for pole, zero in pairs:
+            (lo_p, hi_p), (lo_z, hi_z) = (self.ranges.get(n, (-math.inf, math.inf)) for n in (pole, zero))
+            lo, hi = max(lo_p, lo_z), min(hi_p, hi_z)
+            scale = self.scales.get(pole, 0.0)
+            if lo > hi or scale != self.scales.get(zero, 0.0):
+                raise DataError(f"{pole} and {zero} cannot hold one value: the slot cannot be bypassed")
+            common = min(max(float(values[pole]) * (scale or 1.0), lo), hi)
+            stored = float32(common) if not scale else _steps_within(common, scale, lo, hi)
+            out[pole] = out[zero] = stored
+        return out
 
     def parameters(self, values: dict) -> NotchSpec:
         """Physical-parameter encodings: the notch the stored values stand for (rate independent).

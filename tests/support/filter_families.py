@@ -1,0 +1,198 @@
+"""Driver folders of vendor families whose filter objects are documented, written as a user would write them.
+
+Each family is a :class:`~vendor_drives.VendorDrive` whose EDS carries the
+family's filter objects as its manual documents them (index, sub-indices,
+names, types, ranges, defaults), written here in the project's own words, not
+copied from a vendor file; the ``[filters]`` table is the one
+``docs/filter_encodings.md`` gives for the family, and the folder's README
+cites the public source of every vendor fact and marks every assumption. The
+rest of the EDS is the standard CiA 402 drive of :mod:`vendor_drives`.
+
+Sources (the pages cited in each README):
+
+* Copley Controls, Parameter Dictionary p. 75-76 (plus family filter block),
+  http://38.142.81.21:8001/manual/copley-controls/serial-encoder/2-user-guide-english/page-76.html
+* Synapticon SOMANET, object 0x2023 "Notch filter",
+  https://doc-legacy.synapticon.com/software/42/documentation_html/object_htmls/2023/index.html
+* Kollmorgen AKD User Guide p. 626-627 (VL.ARZF, VL.ARPQ, VL.ARZQ, CANopen 3406h),
+  https://www.easymanua.ls/kollmorgen/akd-series/manual?p=626
+"""
+
+from __future__ import annotations
+
+from support.vendor_drives import VendorDrive
+
+_BOOL, _UINT16, _UINT32, _UINT8, _OCTETS = 0x1, 0x6, 0x7, 0x5, 0xA
+
+COPLEY_PLUS_README = """# copley-plus (fixture)
+
+A Copley Controls plus-family drive (Xenus+, AEM, ...) as the project models it
+for its tests. The EDS is written by `tests/support/filter_families.py`; only
+its filter objects follow Copley's documentation, the rest is a standard CiA
+402 drive.
+
+## From Copley's documentation
+
+* The filter block: 14 words; word 1 bits 13-15 the type (3 band reject, 7
+  disabled), bit 8 poles - 1, bit 4 "already designed"; words 2 and 3 the first
+  and second frequency in Hz; words 5-14 `a1, a2, b0, b1, b2` as IEEE-754
+  float32, upper 16 bits first; `y = b0 x + b1 x[-1] + b2 x[-2] + a1 y[-1] +
+  a2 y[-2]`. Copley Parameter Dictionary p. 75-76,
+  http://38.142.81.21:8001/manual/copley-controls/serial-encoder/2-user-guide-english/page-76.html
+* CANopen objects 0x2106 "Velocity loop output filter coefficients", 0x2108
+  "Velocity loop command filter coefficients", 0x2109 "Analog reference input
+  filter": OCTET_STRING, read-write, not PDO-mappable (Copley's Accelnet EDS,
+  as summarised in the project's notes on vendor filter conventions).
+
+## Assumptions
+
+* Vendor ID 0x000000AB and product code: not from a cited source.
+* No DefaultValue for 0x2106 (the drive holds whatever it was given); 0x2108
+  defaults to a disabled block.
+* The velocity loop, where the output filter runs, at 3 kHz (`[board]
+  loop_rate_hz`): not from a cited source; set the drive's own rate.
+* Only 0x2106 is described as a slot: it filters the torque command.
+"""
+
+SYNAPTICON_README = """# synapticon-somanet (fixture)
+
+A Synapticon SOMANET drive as the project models it for its tests. The EDS is
+written by `tests/support/filter_families.py`; only its notch object follows
+Synapticon's documentation.
+
+## From Synapticon's documentation
+
+* 0x2023 "Notch filter" on the velocity controller's output (the torque
+  demand): sub 1 Enabled (BOOL), sub 2 Center frequency (UINT16, 10-2000 Hz,
+  default 100), sub 3 Rejection band (UINT16, 1-4000 Hz, default 1); the filter
+  `R = 1 - 3 BW`, `K = (1 - 2R cos 2 pi f + R^2) / (2 - 2 cos 2 pi f)`, f and
+  BW relative to the sampling frequency.
+  https://doc-legacy.synapticon.com/software/42/documentation_html/object_htmls/2023/index.html
+
+## Assumptions
+
+* Vendor ID 0x000022D2 and product code: not from a cited source.
+* The filter's sampling frequency, 4 kHz (`[board] loop_rate_hz`): not from a
+  cited source; set the drive's own rate.
+* BOOLEAN for sub 1 (the page says BOOL).
+"""
+
+KOLLMORGEN_README = """# kollmorgen-akd (fixture)
+
+A Kollmorgen AKD drive's anti-resonance (AR) filters as the project models
+them for its tests. The EDS is written by `tests/support/filter_families.py`;
+only its filter record follows Kollmorgen's documentation.
+
+## From Kollmorgen's documentation
+
+* `AR(s) = (s^2/(2 pi F_Z)^2 + s/(Q_Z 2 pi F_Z) + 1) / (s^2/(2 pi F_P)^2 +
+  s/(Q_P 2 pi F_P) + 1)`; AR1 and AR2 in the forward path; discretised at
+  t = 62.5 us (16 kHz). AKD User Guide p. 626-627,
+  https://www.easymanua.ls/kollmorgen/akd-series/manual?p=626
+* VL.ARZF1-4: 5-5000 Hz, default 500, CANopen 3406h sub 9-0xC; VL.ARPQ1-4:
+  0.2-20, default 0.5, 3406h sub 5-8 (same guide, p. 626, and the AKD BASIC
+  User Guide p. 451); VL.ARZQ1-4: 0.1-5, default 0.5, 3406h sub 0xD-0x10 (AKD
+  BASIC User Guide p. 456).
+
+## Assumptions
+
+* VL.ARPF1-4 at 3406h sub 1-4, 5-5000 Hz, default 500: inferred from the
+  sub-index pattern, not documented in the cited pages.
+* UNSIGNED32 at 1000:1 for every field: Kollmorgen documents this scaling for
+  the AKD2G's CoE objects, not for 3406h of the AKD.
+* No enable object: an AR filter always runs what it holds; hilident bypasses
+  it by putting its zeros on its poles.
+* Vendor ID 0x0000006A and product code: not from a cited source.
+"""
+
+
+def _record(index: int, members: list[tuple]) -> list[tuple]:
+    """EDS entries of a record: sub 0, then ``(sub, name, type, default, low, high)`` members."""
+    out: list[tuple] = [(index, 0, "Highest sub-index supported", _UINT8, "ro", False, max(m[0] for m in members))]
+    for sub, member, dtype, default, *limits in members:
+        out.append((index, sub, member, dtype, "rw", False, default, *limits))
+    return out
+
+
+def copley_plus() -> VendorDrive:
+    """Copley plus family: the velocity loop output filter, one 14-word octet string (0x2106)."""
+    disabled = bytes.fromhex("00E0") + bytes(26)  # word 1 type 7: disabled
+    return VendorDrive(
+        "copley-plus",
+        vendor="Copley Controls",
+        vendor_number=0x000000AB,
+        product_number=0x00000110,
+        loop_rate_hz=3000.0,
+        max_sample_rate_hz=1000.0,
+        vendor_objects=[
+            (0x2106, None, "Velocity loop output filter coefficients", _OCTETS, "rw", False, None),
+            (0x2108, None, "Velocity loop command filter coefficients", _OCTETS, "rw", False, disabled),
+            (0x2109, None, "Analog reference input filter", _OCTETS, "rw", False, disabled),
+        ],
+        filter_table=('[filters]\nencoding = "word_block"\npreset = "copley_plus"\nobjects = ["0x2106"]\n'),
+        filter_slots=1,
+        readme=COPLEY_PLUS_README,
+    )
+
+
+def synapticon() -> VendorDrive:
+    """Synapticon SOMANET: one notch record 0x2023 (enabled, centre, rejection band)."""
+    return VendorDrive(
+        "synapticon-somanet",
+        vendor="Synapticon",
+        vendor_number=0x000022D2,
+        product_number=0x00000201,
+        loop_rate_hz=4000.0,
+        max_sample_rate_hz=1000.0,
+        vendor_objects=_record(
+            0x2023,
+            [
+                (1, "Enabled", _BOOL, 0),
+                (2, "Center frequency", _UINT16, 100, 10, 2000),
+                (3, "Rejection band", _UINT16, 1, 1, 4000),
+            ],
+        ),
+        filter_table=(
+            '[filters]\nencoding = "center_band"\nranges = { center = [10, 2000], band = [1, 4000] }\n'
+            'objects = ["0x2023"]\nfields = { center = 2, band = 3 }\nenable_subindex = 1\n'
+        ),
+        filter_slots=1,
+        readme=SYNAPTICON_README,
+    )
+
+
+def kollmorgen_akd() -> VendorDrive:
+    """Kollmorgen AKD: the AR filters' fields in one record 0x3406, a sub-index per field and filter number."""
+    groups = [("ARPF", 1, 500_000, 5_000, 5_000_000), ("ARPQ", 5, 500, 200, 20_000)]
+    groups += [("ARZF", 9, 500_000, 5_000, 5_000_000), ("ARZQ", 0xD, 500, 100, 5_000)]
+    members = [
+        (first + n, f"VL.{name}{n + 1}", _UINT32, default, lo, hi)
+        for name, first, default, lo, hi in groups
+        for n in range(4)
+    ]
+    return VendorDrive(
+        "kollmorgen-akd",
+        vendor="Kollmorgen",
+        vendor_number=0x0000006A,
+        product_number=0x00414B44,
+        loop_rate_hz=16000.0,
+        max_sample_rate_hz=1000.0,
+        vendor_objects=_record(0x3406, members),
+        filter_table=(
+            '[filters]\nencoding = "pole_zero_q"  # VL.ARPF/ARPQ/ARZF/ARZQ, 1000:1\n'
+            "scales = { pole_hz = 0.001, pole_q = 0.001, zero_hz = 0.001, zero_q = 0.001 }\n"
+            "ranges = { pole_hz = [5, 5000], zero_hz = [5, 5000], pole_q = [0.2, 20], zero_q = [0.1, 5] }\n"
+            'enable = "none"                # an AR filter runs what it holds\n'
+            "[filters.fields]                # AR1, AR2: the forward path\n"
+            'pole_hz = ["0x3406:1", "0x3406:2"]\n'
+            'pole_q = ["0x3406:5", "0x3406:6"]\n'
+            'zero_hz = ["0x3406:9", "0x3406:0xA"]\n'
+            'zero_q = ["0x3406:0xD", "0x3406:0xE"]\n'
+        ),
+        filter_slots=2,
+        readme=KOLLMORGEN_README,
+    )
+
+
+#: The documented families, by the name of their driver folder.
+FAMILIES = {d.name: d for d in (copley_plus(), synapticon(), kollmorgen_akd())}
