@@ -90,3 +90,38 @@ def test_standalone_drive_over_socketcand_runs_a_session_like_hardware(tmp_path,
     assert out.returncode == 0, out.stderr
     assert "resonances: 21." in out.stdout and "0 lost blocks" in out.stdout
     assert (tmp_path / "o" / "summary.json").is_file()
+
+
+def test_a_session_on_the_hosts_clock_reads_its_periods_around_the_cycles_it_skipped(tmp_path, monkeypatch):
+    """Every cycle the host's clock misses is a sample that does not exist: none of the runs keeps a whole
+    period, and each period is read by least squares on the samples it has (nothing filled in)."""
+    from hilident.adapters.canopen.streamed import StreamedRun
+
+    send_due = StreamedRun._send_due
+
+    def miss_every_97th_cycle(self, now):
+        if int((now - self.t0) / self.period) % 97 == 50:
+            return  # the host's thread did not get to this cycle within its window
+        send_due(self, now)
+
+    monkeypatch.setattr(StreamedRun, "_send_due", miss_every_97th_cycle)
+    cfg = short_config("streamed", duration_s=3.0)
+    cfg = replace(
+        cfg,
+        device=replace(cfg.device, canopen=replace(cfg.device.canopen, sync_source="host")),
+        run=replace(cfg.run, sample_rate_hz=250.0),
+    )
+    session = Session(cfg, tmp_path)
+    summary = session.run()
+    ((true_f, _),) = true_modes(cfg.emulator)
+    (res,) = summary["resonances"]
+    assert abs(res["frequency_hz"] - true_f) / true_f < 0.01
+    assert [c["source"] for c in summary["clock"]] == ["host", "host"]
+    n = int(round(cfg.excitation.duration_s * 250.0))
+    assert all(c["setpoints_skipped"] >= n // 97 for c in summary["clock"])
+    index = read_run(tmp_path / "identification.h5").samples["sample_index"]
+    period = int(round(cfg.excitation.period_s * 250.0))
+    for p in range(1, n // period):  # no whole period was recorded
+        assert np.count_nonzero((index >= p * period) & (index < (p + 1) * period)) < period
+    assert any("read by least squares" in w for w in summary["warnings"])
+    assert summary["upload"]["verified_readback"] and summary["verification"]["peak_reduction_db"] >= 20.0

@@ -115,7 +115,9 @@ def detrend(x: ArrayLike, kind: str = "linear") -> np.ndarray:
     return x - x.mean(axis=-1, keepdims=True) - np.multiply.outer(slope, t)
 
 
-def remove_drift(x: ArrayLike, period_samples: int | None = None, degree: int = 3) -> np.ndarray:
+def remove_drift(
+    x: ArrayLike, period_samples: int | None = None, degree: int = 3, present: ArrayLike | None = None
+) -> np.ndarray:
     """Remove a slow polynomial drift from a record, sparing a periodic excitation's response.
 
     An integrating output (a position) drifts under load changes in ramps and
@@ -135,6 +137,11 @@ def remove_drift(x: ArrayLike, period_samples: int | None = None, degree: int = 
         Period of a periodic excitation, samples; the record starts on a period boundary.
     degree : int
         Degree of the drift polynomial (Legendre basis over the whole periods).
+    present : array_like of bool, optional
+        Which samples exist (default: all; needs ``period_samples`` and whole
+        periods): the drift is fitted to those alone, each sample's periodic
+        part being the mean of the periods that have it; the missing ones come
+        back NaN.
 
     Returns
     -------
@@ -150,6 +157,8 @@ def remove_drift(x: ArrayLike, period_samples: int | None = None, degree: int = 
     True
     """
     x = np.asarray(x, dtype=np.float64)
+    if present is not None and not np.all(present):
+        return _remove_drift_gapped(x, int(period_samples or 0), degree, np.asarray(present, dtype=bool))
     n = x.size
     periods = n // period_samples if period_samples else 0
     if period_samples is None or periods < 2 or degree < 1:
@@ -166,6 +175,34 @@ def remove_drift(x: ArrayLike, period_samples: int | None = None, degree: int = 
     coef, *_ = np.linalg.lstsq(aperiodic(basis), aperiodic(x), rcond=None)
     y = x - basis @ coef
     return y - y[:whole].mean()
+
+
+def _remove_drift_gapped(x: np.ndarray, period: int, degree: int, present: np.ndarray) -> np.ndarray:
+    """:func:`remove_drift` of whole periods some of whose samples do not exist (NaN where they do not)."""
+    if present.shape != x.shape:
+        raise DataError(f"present has {present.size} flags for {x.size} samples")
+    if period < 1 or x.size % period or x.size < 2 * period:
+        raise DataError(f"a record with missing samples must hold two or more whole periods of {period} samples")
+    periods = x.size // period
+    ok = present.reshape(periods, period)
+    counts = ok.sum(axis=0)
+    if not counts.all():
+        raise DataError("some sample of the period is missing from every period")
+    t = np.linspace(-1.0, 1.0, x.size)
+    basis = np.polynomial.legendre.legvander(t, max(degree, 1))[:, 1:]
+
+    def aperiodic(v: np.ndarray) -> np.ndarray:  # v less the mean over the periods that have each sample
+        folded = v.reshape(periods, period, *v.shape[1:])
+        mask = ok.reshape(periods, period, *([1] * (v.ndim - 1)))
+        mean = np.where(mask, folded, 0.0).sum(axis=0) / counts.reshape(period, *([1] * (v.ndim - 1)))
+        return (folded - mean).reshape(v.shape)[present]
+
+    values = np.where(present, x, 0.0)
+    coef, *_ = np.linalg.lstsq(aperiodic(basis), aperiodic(values), rcond=None)
+    y = values - basis @ coef
+    # the mean of the mean period: a missing sample does not shift it as it would the mean of those present
+    mean_period = np.where(ok, y.reshape(periods, period), 0.0).sum(axis=0) / counts
+    return np.where(present, y - mean_period.mean(), np.nan)
 
 
 #: Samples of the time axis :func:`_remove_line` makes at once.

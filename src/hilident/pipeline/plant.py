@@ -21,7 +21,14 @@ from hilident.pipeline.plant_model import (
     model_warnings,
     reconcile_resonances,
 )
-from hilident.pipeline.responses import averaged_period, condition_signal, welch_segment
+from hilident.pipeline.responses import (
+    averaged_period,
+    condition_signal,
+    gapped_warnings,
+    mean_period,
+    missing_samples,
+    welch_segment,
+)
 
 
 @dataclass
@@ -71,6 +78,7 @@ def identify_plant(
     friction_slowest_mps: float = 0.0,
     period_samples: int | None = None,
     excited_bins=None,
+    present=None,
 ) -> PlantResult:
     """Friction removal, preprocessing, FRF with coherence and resonance picking.
 
@@ -98,25 +106,36 @@ def identify_plant(
         The record must start on a period boundary, transient already removed.
     excited_bins : array_like of int, optional
         DFT bins of one period that carry excitation (default: found from the data).
+    present : array_like of bool, optional
+        Which samples exist (default: all). Whole periods that miss some
+        samples are read by least squares on those they have
+        (:func:`~hilident.ident.frequency.periodic_frf`); nothing is filled in.
     """
+    gaps = missing_samples(present)
+    warnings: list[str] = [] if gaps is None else gapped_warnings(cfg, gaps, period_samples)
+    if gaps is not None:  # what is missing is never looked at: zeros pass the finite-value check
+        same = excitation is torque
+        excitation, torque, output, velocity = (np.where(gaps, x, 0.0) for x in (excitation, torque, output, velocity))
+        excitation = torque if same else excitation
     # only read here, never written: no copies of a long record
     s = check_signals({"excitation": excitation, "torque": torque, "output": output, "velocity": velocity}, copy=False)
-    warnings: list[str] = []
     u = s["torque"]
     if friction is not None:
         u = fr.compensate(u, s["velocity"], friction, velocity_deadband_mps, friction_slowest_mps)
-    u, y = (condition_signal(x, cfg, sample_rate_hz, period_samples) for x in (u, s["output"]))
+    u, y = (condition_signal(x, cfg, sample_rate_hz, period_samples, gaps) for x in (u, s["output"]))
     # a recording without an excitation column gives the torque as excitation: condition it once
     r = (
         u
         if s["excitation"] is s["torque"] and friction is None
-        else condition_signal(s["excitation"], cfg, sample_rate_hz, period_samples)
+        else condition_signal(s["excitation"], cfg, sample_rate_hz, period_samples, gaps)
     )
     del s
     averaged = averaged_period(len(r), period_samples)
     if averaged is not None:
-        plant = periodic_frf(u, y, averaged, sample_rate_hz, skip_periods=0, bins=excited_bins)
-        loop = periodic_frf(r, y, averaged, sample_rate_hz, skip_periods=0, bins=excited_bins)
+        plant = periodic_frf(u, y, averaged, sample_rate_hz, skip_periods=0, bins=excited_bins, present=gaps)
+        loop = periodic_frf(r, y, averaged, sample_rate_hz, skip_periods=0, bins=excited_bins, present=gaps)
+        if gaps is not None:  # the excitation's spectrum from its mean period (it is periodic; nothing filled in)
+            r = mean_period(r, gaps, averaged)
     else:
         seg = welch_segment(len(r), cfg, sample_rate_hz, period_samples, warnings)
         plant = frf_from_reference(r, u, y, sample_rate_hz, seg)

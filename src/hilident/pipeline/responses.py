@@ -18,16 +18,58 @@ from hilident.ident.preprocess import check_signals, lowpass, remove_drift
 
 
 def condition_signal(
-    x: np.ndarray, cfg: IdentificationConfig, sample_rate_hz: float, period_samples: int | None
+    x: np.ndarray,
+    cfg: IdentificationConfig,
+    sample_rate_hz: float,
+    period_samples: int | None,
+    present: np.ndarray | None = None,
 ) -> np.ndarray:
     """Optional zero-phase low-pass, then the mean and a slow drift removed
     (:func:`~hilident.ident.preprocess.remove_drift`).
 
-    The same filter on every signal of a ratio leaves the ratio intact.
+    The same filter on every signal of a ratio leaves the ratio intact. A
+    record that misses samples (``present``) is not low-passed (a filter
+    cannot run across what does not exist; :func:`gapped_warning` says so) and
+    comes back NaN where they are missing.
     """
+    if present is not None:
+        return remove_drift(x, period_samples, present=present)
     if cfg.lowpass_hz:
         x = lowpass(x, cfg.lowpass_hz, sample_rate_hz)
     return remove_drift(x, period_samples)
+
+
+def missing_samples(present) -> np.ndarray | None:
+    """``present`` as a bool array when some sample is missing, else None (a whole record)."""
+    if present is None:
+        return None
+    present = np.asarray(present, dtype=bool)
+    return None if present.all() else present
+
+
+def mean_period(x: np.ndarray, present: np.ndarray, period_samples: int) -> np.ndarray:
+    """One period of the periodic ``x``: each sample the mean over the periods that have it."""
+    periods = len(x) // period_samples
+    shape = (periods, period_samples)
+    ok = present[: periods * period_samples].reshape(shape)
+    values = np.where(ok, x[: periods * period_samples].reshape(shape), 0.0)
+    return values.sum(axis=0) / np.maximum(ok.sum(axis=0), 1)
+
+
+def gapped_warnings(cfg: IdentificationConfig, present: np.ndarray, period_samples: int | None) -> list[str]:
+    """What a record that misses samples changes in its analysis; DataError when it cannot be analysed."""
+    if not period_samples or len(present) < 2 * period_samples:
+        raise DataError(
+            f"{int((~present).sum())} samples are missing and the excitation is not periodic (or holds fewer than "
+            "two periods): only whole periods can be read around missing samples"
+        )
+    notes = [
+        f"{int((~present).sum())} of {len(present)} samples missing (cycles skipped or frames lost): each period "
+        "read by least squares on the samples it has"
+    ]
+    if cfg.lowpass_hz:
+        notes.append("identification.lowpass_hz not applied: the record misses samples")
+    return notes
 
 
 def averaged_period(n: int, period_samples: int | None) -> int | None:
@@ -55,18 +97,24 @@ def loop_response(
     cfg: IdentificationConfig,
     period_samples: int | None = None,
     excited_bins=None,
+    present=None,
 ) -> tuple[FrequencyResponse, list[str]]:
     """Excitation-to-output response through the drive, as :func:`~hilident.pipeline.plant.identify_plant`
     computes its ``loop``.
 
-    This is all a verification run needs: no friction model, no resonance search.
+    This is all a verification run needs: no friction model, no resonance search. ``present`` (bool per
+    sample) marks the samples that exist in whole periods that miss some.
     """
+    gaps = missing_samples(present)
+    warnings: list[str] = [] if gaps is None else gapped_warnings(cfg, gaps, period_samples)
+    if gaps is not None:
+        excitation, output = (np.where(gaps, x, 0.0) for x in (excitation, output))
     s = check_signals({"excitation": excitation, "output": output}, copy=False)
-    warnings: list[str] = []
-    r, y = (condition_signal(x, cfg, sample_rate_hz, period_samples) for x in (s["excitation"], s["output"]))
+    r, y = (condition_signal(x, cfg, sample_rate_hz, period_samples, gaps) for x in (s["excitation"], s["output"]))
     averaged = averaged_period(len(r), period_samples)
     if averaged is not None:
-        return periodic_frf(r, y, averaged, sample_rate_hz, skip_periods=0, bins=excited_bins), warnings
+        frf = periodic_frf(r, y, averaged, sample_rate_hz, skip_periods=0, bins=excited_bins, present=gaps)
+        return frf, warnings
     return h1_estimate(
         r, y, sample_rate_hz, welch_segment(len(r), cfg, sample_rate_hz, period_samples, warnings)
     ), warnings

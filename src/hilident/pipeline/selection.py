@@ -184,3 +184,80 @@ def excitation_period_samples(excitation, sample_rate_hz: float) -> int | None:
         periods = max(1, int(round(excitation.duration_s * fs / length)))
         return length if periods >= 3 else None
     return None
+
+
+#: Largest share of a period's samples that may be missing for the period to be read around them.
+MAX_MISSING_SHARE = 0.05
+
+
+@dataclass
+class GappedPeriods:
+    """Whole periods of a periodic excitation, some of whose samples do not exist.
+
+    Attributes
+    ----------
+    rows : ndarray of int
+        The recorded rows used, in order.
+    positions : ndarray of int
+        Where each of those rows sits in the selected periods laid end to end.
+    present : ndarray of bool
+        One flag per sample of the selected periods: True where a row exists.
+    periods : list of int
+        The periods selected (period 0 is the lead-in and never is one).
+    warnings : list of str
+    """
+
+    rows: np.ndarray
+    positions: np.ndarray
+    present: np.ndarray
+    periods: list[int]
+    warnings: list[str] = field(default_factory=list)
+
+    def spread(self, values: np.ndarray) -> np.ndarray:
+        """``values`` (one per recorded row) laid on the selected periods, NaN where a sample is missing."""
+        out = np.full(self.present.size, np.nan)
+        out[self.positions] = np.asarray(values, dtype=np.float64)[self.rows]
+        return out
+
+
+def select_gapped_periods(
+    sample_index, period_samples: int, name: str = "recording", max_missing_share: float = MAX_MISSING_SHARE
+) -> GappedPeriods:
+    """Periods after the lead-in that miss at most ``max_missing_share`` of their samples, for
+    :func:`~hilident.ident.frequency.periodic_frf` with ``present``.
+
+    Raises
+    ------
+    DataError
+        Fewer than two such periods.
+    """
+    index = np.asarray(sample_index, dtype=np.int64)
+    period = int(period_samples)
+    if len(index) and np.any(np.diff(index) <= 0):
+        order = np.unique(index, return_index=True)[1]  # a repeated or out-of-order row counts once
+    else:
+        order = np.arange(len(index))
+    index_used = index[order]
+    which = index_used // period
+    counts = np.bincount(which[which >= 1], minlength=int(which.max(initial=0)) + 1)
+    periods = [p for p in range(1, len(counts)) if counts[p] >= (1.0 - max_missing_share) * period]
+    if len(periods) < 2:
+        raise DataError(
+            f"{name}: only {len(periods)} excitation period(s) miss less than {100 * max_missing_share:g} % of their "
+            "samples; at least 2 are needed (check the line: lost or corrupt frames, skipped cycles)"
+        )
+    slot = {p: i for i, p in enumerate(periods)}
+    take = np.isin(which, periods)
+    rows = order[take]
+    positions = np.array([slot[int(p)] for p in which[take]], dtype=np.int64) * period + index_used[take] % period
+    present = np.zeros(len(periods) * period, dtype=bool)
+    present[positions] = True
+    missing = int((~present).sum())
+    warnings = [
+        f"{name}: {missing} of {present.size} samples of the {len(periods)} periods analysed are missing; each "
+        "period was read by least squares on the samples it has"
+    ]
+    total = max(int(index.max(initial=0)) // period, 0)
+    if len(periods) < total:
+        warnings.append(f"{name}: {total - len(periods)} of {total} excitation periods missed too many samples")
+    return GappedPeriods(rows, positions, present, periods, warnings)

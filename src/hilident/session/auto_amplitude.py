@@ -52,10 +52,21 @@ AUTO_MIN_STEP = 1.1
 AUTO_NOISE_LINES = 5
 
 
-def period_spectra(x: np.ndarray, period_samples: int, lines: np.ndarray) -> np.ndarray:
-    """DFT of each whole period of ``x`` at the DFT bins ``lines``, shape (periods, lines)."""
+def period_spectra(x: np.ndarray, period_samples: int, lines: np.ndarray, present=None) -> np.ndarray:
+    """DFT of each whole period of ``x`` at the DFT bins ``lines``, shape (periods, lines).
+
+    With ``present`` (bool per sample), a period that misses samples is read by least squares on those it has
+    (:func:`~hilident.ident.gapped_periods.line_spectra`), and is a row of NaN when they cannot tell its lines
+    apart.
+    """
     n = len(x) // period_samples
-    return np.fft.rfft(np.asarray(x[: n * period_samples], dtype=float).reshape(n, period_samples), axis=1)[:, lines]
+    periods = np.asarray(x[: n * period_samples], dtype=float).reshape(n, period_samples)
+    if present is None:
+        return np.fft.rfft(periods, axis=1)[:, lines]
+    from hilident.ident.gapped_periods import line_spectra
+
+    spectra, _ = line_spectra(periods, np.asarray(present[: n * period_samples]).reshape(n, period_samples), lines)
+    return spectra
 
 
 def smooth_lines(power: np.ndarray) -> np.ndarray:
@@ -135,6 +146,29 @@ def friction_share(velocity: np.ndarray, excitation: np.ndarray, friction, stuck
     nonlinear[stuck] = np.clip(excitation[stuck], -friction.Fs, friction.Fs)
     rms_x = float(np.sqrt(np.mean(np.square(excitation))))
     return float(np.sqrt(np.mean(np.square(nonlinear)))) / rms_x if rms_x > 0 else float("inf")
+
+
+def _last_period(samples: dict, period: int) -> tuple[dict | None, np.ndarray | None]:
+    """The last whole period of a record (NaN where a sample is missing) and which of its samples exist
+    (None: all); (None, None) when it misses more than a twentieth of them."""
+    index = np.asarray(samples["sample_index"], dtype=np.int64)
+    if len(index) == 0:
+        return None, None
+    first = int(index[-1]) - period + 1
+    rows = np.flatnonzero(index >= first)
+    if first < 0 or len(rows) < 0.95 * period or np.any(np.diff(index[rows]) <= 0):
+        return None, None
+    if len(rows) == period:
+        return {k: v[rows] for k, v in samples.items()}, None
+    at = index[rows] - first
+    present = np.zeros(period, dtype=bool)
+    present[at] = True
+    spread = {}
+    for k, v in samples.items():
+        values = np.full(period, np.nan)
+        values[at] = np.asarray(v, dtype=float)[rows]
+        spread[k] = values
+    return spread, present
 
 
 class AutoAmplitude:
@@ -333,18 +367,21 @@ class AutoAmplitude:
         recipe = excitation_recipe(self.cfg, amplitude=0.0, duration_s=1.25 * self.cfg.excitation.period_s)
         exp = self.record("auto_noise", mode, np.zeros(period + period // 4), period_samples=period, recipe=recipe)
         s = exp.samples
-        index = s["sample_index"]
         out: dict[str, Any] = {"output": np.zeros(len(lines)), "torque": np.zeros(len(lines))}
-        if len(index) < period or index[-1] - index[-period] != period - 1:
+        last, present = _last_period(s, period)
+        spectra = {}
+        if last is not None:
+            for key, x in (("output", last[self.cfg.identification.output]), ("torque", self._plant_input(last, fit))):
+                spectra[key] = period_spectra(x, period, lines, present)[0]
+        if last is None or not all(np.isfinite(v).all() for v in spectra.values()):
             self.warnings.append(
                 "excitation: the standstill record lost samples; the noise floor comes from the "
                 "trials' period-to-period scatter alone"
             )
             out["report"] = None
             return out
-        last = {k: v[-period:] for k, v in s.items()}
-        for key, x in (("output", last[self.cfg.identification.output]), ("torque", self._plant_input(last, fit))):
-            out[key] = smooth_lines(np.abs(period_spectra(x, period, lines)[0]) ** 2)
+        for key, spec in spectra.items():
+            out[key] = smooth_lines(np.abs(spec) ** 2)
         # as the amplitude of a sine on one line (peak), the unit of the channel
         out["report"] = {
             "output_median": float(np.median(2 * np.sqrt(out["output"]) / period)),
@@ -380,15 +417,26 @@ class AutoAmplitude:
             recipe=excitation_recipe(cfg, amplitude=amplitude, duration_s=duration),
         )
         try:
-            s = self._analysis_samples(exp, x)
+            s = self._analysis_samples(exp, x, gapped=True)
         except DataError as exc:  # lost samples: nothing to predict from, the next trial repeats it
             self.warnings.append(f"excitation: auto trial {number} at {amplitude:.3g} N*m could not be analysed: {exc}")
             return None
+        present = s.get("present")
         spectra = {
-            "output": period_spectra(s[cfg.identification.output], period, lines),
-            "torque": period_spectra(self._plant_input(s, fit), period, lines),
+            "output": period_spectra(s[cfg.identification.output], period, lines, present),
+            "torque": period_spectra(self._plant_input(s, fit), period, lines, present),
         }
-        m = len(s["sample_index"]) // period
+        if present is not None:  # the periods whose lines both channels could be read at
+            used = np.isfinite(spectra["output"]).all(axis=1) & np.isfinite(spectra["torque"]).all(axis=1)
+            if used.sum() < 2:
+                self.warnings.append(
+                    f"excitation: auto trial {number} at {amplitude:.3g} N*m could not be analysed: fewer than two "
+                    "periods with samples enough to read their lines"
+                )
+                return None
+            spectra = {key: spec[used] for key, spec in spectra.items()}
+            s = {key: v[present] for key, v in s.items() if key != "present"}  # the samples that exist, per sample
+        m = len(spectra["output"])
         signal, scatter = {}, {}
         for key, spec in spectra.items():
             scatter[key] = np.maximum(smooth_lines(np.var(spec, axis=0, ddof=1)), noise[key])

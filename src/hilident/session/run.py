@@ -428,14 +428,29 @@ class Session(DeviceConnection):
         self.cfg, self._auto = chooser.choose(friction)
         return build_excitation(self.cfg)
 
-    def _analysis_samples(self, exp: Experiment, excitation: Excitation) -> dict[str, np.ndarray]:
+    def _analysis_samples(self, exp: Experiment, excitation: Excitation, gapped: bool = False) -> dict[str, np.ndarray]:
         """Whole gap-free periods of a periodic excitation, else the longest gap-free stretch (never spliced).
-        A record selected twice warns of its gaps once."""
+        A record selected twice warns of its gaps once.
+
+        ``gapped``: when too few whole periods are gap-free, whole periods that miss a few samples, laid end
+        to end with NaN where a sample is missing and ``present`` marking those that exist (for an analysis that
+        reads periods around missing samples).
+        """
         try:
             selection = pipeline_selection.select_gap_free(
                 exp.samples["sample_index"], excitation.period_samples, exp.name
             )
         except DataError as exc:
+            if gapped and excitation.period_samples:
+                try:
+                    periods = pipeline_selection.select_gapped_periods(
+                        exp.samples["sample_index"], excitation.period_samples, exp.name
+                    )
+                except DataError:
+                    pass
+                else:
+                    self.warnings += [w for w in periods.warnings if w not in self.warnings]
+                    return {"present": periods.present, **{k: periods.spread(v) for k, v in exp.samples.items()}}
             skipped = self._host_clock_skips(exp.name)
             if not skipped:
                 raise
@@ -485,12 +500,17 @@ class Session(DeviceConnection):
         """The plant identified from ``exp`` (``for_model``: its samples also feed the grey-box fit)."""
         cfg = self.cfg
         period = excitation.period_samples
-        s = self._analysis_samples(exp, excitation)
-        if for_model:
+        s = self._analysis_samples(exp, excitation, gapped=True)
+        present = s.get("present")
+        if for_model and present is None:  # a time-domain model needs every sample
             self._analysed[exp.name] = s
+        elif for_model and cfg.model.kind != "none":
+            self.warnings.append(
+                f"[model] {cfg.model.kind}: not fitted: {exp.name} misses samples, a time-domain model needs every one"
+            )
         ic = cfg.identification
         band = pipeline_plant.analysis_band(ic, excitation.band_hz)
-        check_it_moved(cfg, s[ic.output], friction)
+        check_it_moved(cfg, s[ic.output] if present is None else s[ic.output][present], friction)
         self.progress.step(f"{exp.name}: frequency response and resonances")
         result = pipeline_plant.identify_plant(
             s["excitation"],
@@ -505,6 +525,7 @@ class Session(DeviceConnection):
             friction_slowest_mps=friction.slowest_mps if friction else 0.0,
             period_samples=period,
             excited_bins=excitation.excited_bins,
+            present=present,
         )
         self.warnings += result.warnings
         self.notes += result.notes
@@ -624,8 +645,9 @@ class Session(DeviceConnection):
             period_samples=excitation.period_samples,
             recipe=excitation_recipe(self.cfg),
         )
-        s = self._analysis_samples(exp, excitation)
-        self._analysed["verification"] = s
+        s = self._analysis_samples(exp, excitation, gapped=True)
+        if "present" not in s:  # a time-domain model needs every sample
+            self._analysed["verification"] = s
         self.progress.step("verification: frequency response")
         loop_after, warnings = pipeline_responses.loop_response(
             s["excitation"],
@@ -634,6 +656,7 @@ class Session(DeviceConnection):
             self.cfg.identification,
             excitation.period_samples,
             excitation.excited_bins,
+            present=s.get("present"),
         )
         self.warnings += warnings
         nc = self.cfg.notch
