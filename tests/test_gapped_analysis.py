@@ -68,3 +68,37 @@ def test_a_loop_response_of_a_record_missing_samples_matches_the_whole_records()
     assert gapped.n_averages == whole.n_averages == 7
     np.testing.assert_allclose(gapped.response, whole.response, rtol=0.01)
     assert any("30 of 1400 samples missing" in n for n in notes)
+
+
+def test_a_trial_missing_samples_is_read_in_the_periods_that_have_enough():
+    from pathlib import Path
+
+    import pytest
+
+    from hilident.config.tables import load_config
+    from hilident.errors import DataError
+    from hilident.session.auto_amplitude import AutoAmplitude
+
+    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "emulated-gantry.toml")
+    t = np.arange(4 * P)
+    lines = np.array([4, 6, 11])
+    torque = sum(np.cos(2 * np.pi * k * t / P + k) for k in lines)
+    velocity = 0.1 * sum(np.sin(2 * np.pi * k * t / P + k) for k in lines)
+    present = np.ones(t.size, dtype=bool)
+    present[[10, 250, 260]] = False  # periods 0 and 1 miss a few samples
+    present[2 * P : 2 * P + 190] = False  # period 2 too many to read its lines
+    samples = {
+        "torque_nm": np.where(present, torque, np.nan),
+        "velocity_mps": np.where(present, velocity, np.nan),
+        "sample_index": t,
+        "present": present,
+    }
+    chooser = AutoAmplitude(cfg, None, lambda exp, x, gapped: samples, [], None)
+    s, spectra = chooser._trial_spectra(None, None, P, lines, None)
+    assert len(spectra["torque"]) == 3  # periods 0, 1 and 3
+    expected = np.fft.rfft(torque[:P])[lines]
+    np.testing.assert_allclose(spectra["torque"], np.tile(expected, (3, 1)), atol=1e-8)
+    assert len(s["torque_nm"]) == present.sum() and np.isfinite(s["torque_nm"]).all()
+    samples["present"] = present & (t >= 3 * P)
+    with pytest.raises(DataError, match="fewer than two periods"):
+        chooser._trial_spectra(None, None, P, lines, None)

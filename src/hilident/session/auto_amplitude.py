@@ -391,6 +391,31 @@ class AutoAmplitude:
         }
         return out
 
+    def _trial_spectra(self, exp, x, period: int, lines: np.ndarray, fit) -> tuple[dict, dict]:
+        """A trial's samples that exist and its output's and torque's line spectra, one row a period.
+
+        Whole gap-free periods, or periods that miss a few samples, each read by least squares on those it has
+        (then only the periods whose lines both channels could be read at).
+
+        Raises
+        ------
+        DataError
+            Fewer than two periods to read.
+        """
+        s = self._analysis_samples(exp, x, gapped=True)
+        present = s.get("present")
+        spectra = {
+            "output": period_spectra(s[self.cfg.identification.output], period, lines, present),
+            "torque": period_spectra(self._plant_input(s, fit), period, lines, present),
+        }
+        if present is None:
+            return s, spectra
+        used = np.isfinite(spectra["output"]).all(axis=1) & np.isfinite(spectra["torque"]).all(axis=1)
+        if used.sum() < 2:
+            raise DataError("fewer than two periods with samples enough to read their lines")
+        spectra = {key: spec[used] for key, spec in spectra.items()}
+        return {key: v[present] for key, v in s.items() if key != "present"}, spectra
+
     def _auto_trial(
         self,
         number: int,
@@ -417,25 +442,10 @@ class AutoAmplitude:
             recipe=excitation_recipe(cfg, amplitude=amplitude, duration_s=duration),
         )
         try:
-            s = self._analysis_samples(exp, x, gapped=True)
+            s, spectra = self._trial_spectra(exp, x, period, lines, fit)
         except DataError as exc:  # lost samples: nothing to predict from, the next trial repeats it
             self.warnings.append(f"excitation: auto trial {number} at {amplitude:.3g} N*m could not be analysed: {exc}")
             return None
-        present = s.get("present")
-        spectra = {
-            "output": period_spectra(s[cfg.identification.output], period, lines, present),
-            "torque": period_spectra(self._plant_input(s, fit), period, lines, present),
-        }
-        if present is not None:  # the periods whose lines both channels could be read at
-            used = np.isfinite(spectra["output"]).all(axis=1) & np.isfinite(spectra["torque"]).all(axis=1)
-            if used.sum() < 2:
-                self.warnings.append(
-                    f"excitation: auto trial {number} at {amplitude:.3g} N*m could not be analysed: fewer than two "
-                    "periods with samples enough to read their lines"
-                )
-                return None
-            spectra = {key: spec[used] for key, spec in spectra.items()}
-            s = {key: v[present] for key, v in s.items() if key != "present"}  # the samples that exist, per sample
         m = len(spectra["output"])
         signal, scatter = {}, {}
         for key, spec in spectra.items():
