@@ -39,7 +39,7 @@ def test_the_standstill_records_last_period_with_a_few_samples_missing_and_with_
     last, present = _last_period(samples, P)
     assert present is not None and (~present).sum() == 2 and np.flatnonzero(~present).tolist() == [10, 11]
     np.testing.assert_array_equal(last["torque_nm"][present], index[index >= P // 4] * 1.0)
-    sparse = {"sample_index": np.delete(np.arange(P + P // 4), np.arange(P // 2, P // 2 + 20))}
+    sparse = {"sample_index": np.delete(np.arange(P + P // 4), np.arange(P // 2, P // 2 + 50))}
     assert _last_period(sparse, P) == (None, None)
     whole, none = _last_period({"sample_index": np.arange(P + 5)}, P)
     assert none is None and whole["sample_index"].tolist() == list(range(5, P + 5))

@@ -26,7 +26,7 @@ def test_periods_missing_a_few_samples_are_laid_end_to_end_with_the_missing_ones
 
 
 def test_a_period_missing_too_many_samples_is_left_out_and_said():
-    index = np.delete(np.arange(4 * P), np.arange(210, 230))  # period 2 misses a fifth
+    index = np.delete(np.arange(4 * P), np.arange(210, 240))  # period 2 misses three tenths
     sel = select_gapped_periods(index, P)
     assert sel.periods == [1, 3]
     assert any("1 of 3 excitation periods missed too many" in w for w in sel.warnings)
@@ -34,4 +34,4 @@ def test_a_period_missing_too_many_samples_is_left_out_and_said():
 
 def test_fewer_than_two_usable_periods_is_a_data_error():
     with pytest.raises(DataError, match="only 1 excitation period"):
-        select_gapped_periods(np.delete(np.arange(3 * P), np.arange(210, 240)), P, "trial")
+        select_gapped_periods(np.delete(np.arange(3 * P), np.arange(210, 250)), P, "trial")

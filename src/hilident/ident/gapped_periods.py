@@ -19,8 +19,11 @@ import numpy as np
 
 __all__ = ["MIN_PIVOT", "line_spectra"]
 
-#: Smallest eigenvalue of ``I - A_g D^-1 A_g^T`` (1 for a period missing nothing) at which a period is still used.
-MIN_PIVOT = 0.1
+#: Smallest eigenvalue of ``I - A_g D^-1 A_g^T`` (1 for a period missing nothing) at which a period is still used:
+#: the variance of the estimate grows by at most its inverse, and only along ``g`` of its directions. A multisine
+#: that excites most bins of a short period leaves little room (each missing sample's diagonal term is about
+#: ``1 - (2 L + 1) / P`` for ``L`` lines), so the bound is low.
+MIN_PIVOT = 0.02
 
 
 def line_spectra(periods: np.ndarray, present: np.ndarray, bins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

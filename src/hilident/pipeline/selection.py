@@ -187,7 +187,7 @@ def excitation_period_samples(excitation, sample_rate_hz: float) -> int | None:
 
 
 #: Largest share of a period's samples that may be missing for the period to be read around them.
-MAX_MISSING_SHARE = 0.05
+MAX_MISSING_SHARE = 0.2
 
 
 @dataclass

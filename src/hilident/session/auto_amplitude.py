@@ -22,6 +22,7 @@ from hilident.config.tables import (
     auto_coherence_target,
 )
 from hilident.errors import DataError
+from hilident.pipeline.selection import MAX_MISSING_SHARE
 from hilident.session.excitation import Excitation, build_excitation, excitation_recipe
 
 __all__ = [
@@ -150,13 +151,13 @@ def friction_share(velocity: np.ndarray, excitation: np.ndarray, friction, stuck
 
 def _last_period(samples: dict, period: int) -> tuple[dict | None, np.ndarray | None]:
     """The last whole period of a record (NaN where a sample is missing) and which of its samples exist
-    (None: all); (None, None) when it misses more than a twentieth of them."""
+    (None: all); (None, None) when it misses more than :data:`~hilident.pipeline.selection.MAX_MISSING_SHARE`."""
     index = np.asarray(samples["sample_index"], dtype=np.int64)
     if len(index) == 0:
         return None, None
     first = int(index[-1]) - period + 1
     rows = np.flatnonzero(index >= first)
-    if first < 0 or len(rows) < 0.95 * period or np.any(np.diff(index[rows]) <= 0):
+    if first < 0 or len(rows) < (1.0 - MAX_MISSING_SHARE) * period or np.any(np.diff(index[rows]) <= 0):
         return None, None
     if len(rows) == period:
         return {k: v[rows] for k, v in samples.items()}, None
