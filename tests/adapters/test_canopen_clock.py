@@ -225,3 +225,68 @@ def test_a_run_leaves_no_frames_piling_up_in_the_process(tmp_path, source):
     finally:
         ad.close()
         emulated.close()
+
+
+# --- the interpolation data buffer ------------------------------------------------------------------------
+
+
+def ip_drive_adapter(tmp_path, buffer_records: int):
+    """The shipped drive, its position runs in interpolated position mode, its buffer ``buffer_records`` deep."""
+    cfg = load_config(CONFIG)
+    folder = tmp_path / "cia402-standard"
+    shutil.copytree(find_driver("cia402-standard").folder, folder)
+    toml, eds = folder / "driver.toml", folder / "cia402-standard.eds"
+    text = toml.read_text()
+    assert 'cyclic_modes = ["cst", "csv", "csp", "ip"]' in text
+    toml.write_text(text.replace('cyclic_modes = ["cst", "csv", "csp", "ip"]', 'cyclic_modes = ["cst", "csv", "ip"]'))
+    text = eds.read_text()
+    maximum = "ParameterName=Maximum buffer size\nObjectType=0x7\nDataType=0x0007\nAccessType=ro\nPDOMapping=0\n"
+    assert maximum + "DefaultValue=16" in text
+    eds.write_text(text.replace(maximum + "DefaultValue=16", maximum + f"DefaultValue={buffer_records}"))
+    driver = load_driver(folder)
+    emulated = start(cfg.emulator, driver, cfg.device)
+    dev = replace(
+        emulated.device, acquisition="streamed", canopen=replace(emulated.device.canopen, sync_source="drive")
+    )
+    ad = CanopenDriveAdapter.open_device(dev, driver)
+    lim = cfg.limits
+    ad.set_limits(lim.torque_nm, lim.velocity_mps, lim.position_min_m, lim.position_max_m)
+    return ad, emulated
+
+
+@pytest.mark.parametrize("records", [16, 1])
+def test_a_drive_that_buffers_its_set_points_rides_out_a_host_held_up_for_three_cycles(tmp_path, monkeypatch, records):
+    """In interpolated position mode with a buffer (0x60C4) the host keeps the set-points cycles ahead: a stall
+    shorter than that costs nothing; without one, every set-point the stall made late is held."""
+    ad, emulated = ip_drive_adapter(tmp_path, records)
+    on_sync = StreamedRun.on_sync
+    stalled = threading.Event()
+
+    def stall_once(self, can_id, data, timestamp):
+        if self.heard == 100 and not stalled.is_set():
+            stalled.set()
+            time.sleep(3 * self.period)  # the host does nothing for three cycles
+        on_sync(self, can_id, data, timestamp)
+
+    monkeypatch.setattr(StreamedRun, "on_sync", stall_once)
+    try:
+        ad.configure(250.0, "position")
+        assert ad.layout.pdo_plan.rpdos[0].transmission == 255  # the EDS has 0x60C4: event-driven set-points
+        x = 2e-4 * np.sin(2 * np.pi * 3.0 * np.arange(500) / 250.0)
+        buffers = []
+
+        def sink(index, rows):
+            buffers.append(emulated.server.firmware.setpoints.buffer.size)
+
+        result = ad.stream(x, sink)
+        assert stalled.is_set() and result.completed and result.stats.lost_samples == 0
+        buffer = emulated.server.firmware.setpoints.buffer
+        if records > 1:
+            assert max(buffers) == records and result.stats.setpoints_skipped == 0
+            assert buffer.overflows == 0
+        else:
+            assert result.stats.setpoints_skipped >= 2  # the stall's cycles, held
+        assert not buffer.enabled  # cleared and disabled when the run ended
+    finally:
+        ad.close()
+        emulated.close()

@@ -34,6 +34,8 @@ from hilident.protocol.canopen_types import ObjectAddress
 
 __all__ = [
     "SYNCHRONOUS",
+    "EVENT_DRIVEN",
+    "BUFFER_ROLES",
     "PdoSlot",
     "PlannedPdo",
     "PdoPlan",
@@ -47,6 +49,11 @@ __all__ = [
 
 #: Transmission type the host writes into every PDO it maps: synchronous, every SYNC (CiA 301).
 SYNCHRONOUS = 1
+#: Transmission type of an RPDO whose data go into a drive's buffer as they come (event-driven, CiA 301): the
+#: interpolation data of a drive with an interpolation data buffer (0x60C4), which takes one record per SYNC.
+EVENT_DRIVEN = 255
+#: The roles that say a drive buffers its interpolation data (CiA 402 0x60C4).
+BUFFER_ROLES = ("ip_buffer_max", "ip_buffer_size", "ip_buffer_clear")
 #: (communication base, mapping base, predefined COB-ID base) of each kind of PDO.
 _BASES = {"rpdo": (0x1400, 0x1600, 0x200), "tpdo": (0x1800, 0x1A00, 0x180)}
 #: RPDOs a streamed run empties beside the one carrying the set-point (2-4: the predefined connection set).
@@ -83,12 +90,15 @@ class PlannedPdo:
         emptied and left invalid.
     columns : tuple of int
         The channel columns a TPDO carries, in the order of its entries after the counter.
+    transmission : int
+        The transmission type written (:data:`SYNCHRONOUS`, or :data:`EVENT_DRIVEN` for buffered set-points).
     """
 
     kind: str
     slot: PdoSlot
     entries: tuple[tuple[ObjectAddress, int], ...] = ()
     columns: tuple[int, ...] = ()
+    transmission: int = SYNCHRONOUS
 
     @property
     def comm_index(self) -> int:
@@ -269,7 +279,8 @@ def _plan_rpdos(od, desc: CanopenDescription, node_id: int, setpoint: str) -> tu
         )
     address = desc.address(setpoint)
     entries = _header(od, desc, "setpoint_counter") + [(address, _bits(od, address))]
-    first = PlannedPdo("rpdo", slots[0], tuple(entries))
+    buffered = setpoint == "interpolation_data" and all(desc.has(r) for r in BUFFER_ROLES)
+    first = PlannedPdo("rpdo", slots[0], tuple(entries), transmission=EVENT_DRIVEN if buffered else SYNCHRONOUS)
     return (first,) + tuple(PlannedPdo("rpdo", slot) for slot in slots[1 : 1 + _EMPTIED_RPDOS])
 
 
@@ -348,7 +359,7 @@ def _parameter_problems(od, pdo: PlannedPdo) -> list[str]:
     if pdo.entries:
         writes += [(ObjectAddress(pdo.map_index, i), e) for i, e in enumerate(pdo.mapping_entries, start=1)]
         writes += [(ObjectAddress(pdo.map_index, 0), len(pdo.entries))]
-        writes += [(ObjectAddress(pdo.comm_index, 2), SYNCHRONOUS), (ObjectAddress(pdo.comm_index, 1), cob)]
+        writes += [(ObjectAddress(pdo.comm_index, 2), pdo.transmission), (ObjectAddress(pdo.comm_index, 1), cob)]
     return [p for address, value in writes if (p := _write_problem(od, address, value, pdo))]
 
 

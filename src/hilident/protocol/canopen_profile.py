@@ -94,6 +94,10 @@ STANDARD_OBJECTS: dict[str, ObjectAddress] = {
     "interpolation_data": ObjectAddress(0x60C1, 1),
     "interpolation_period": ObjectAddress(0x60C2, 1),
     "interpolation_exponent": ObjectAddress(0x60C2, 2),
+    "ip_buffer_max": ObjectAddress(0x60C4, 1),
+    "ip_buffer_size": ObjectAddress(0x60C4, 2),
+    "ip_buffer_organization": ObjectAddress(0x60C4, 3),
+    "ip_buffer_clear": ObjectAddress(0x60C4, 6),
     "target_velocity": ObjectAddress(0x60FF),
     "supported_modes": ObjectAddress(0x6502),
 }

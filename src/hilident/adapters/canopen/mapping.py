@@ -201,11 +201,13 @@ class ChannelMapping:
             self._map_capture(layout.channels)
         return layout
 
-    def _write_mapping(self, pdo: tuple[int, int] | None, map_index: int, entries: list[int]) -> None:
+    def _write_mapping(
+        self, pdo: tuple[int, int] | None, map_index: int, entries: list[int], transmission: int = SYNCHRONOUS
+    ) -> None:
         """CiA 301 order: invalidate, clear the count, write entries, set the count, validate.
 
         ``pdo`` is the PDO's (communication object index, COB-ID), None for a mapping that is no PDO's
-        (the capture's).
+        (the capture's); ``transmission`` its transmission type.
         """
         write = self.sdo.write_object
         if pdo is not None:
@@ -215,7 +217,7 @@ class ChannelMapping:
             write(ObjectAddress(map_index, i), entry)
         write(ObjectAddress(map_index, 0), len(entries))
         if pdo is not None and entries:
-            write(ObjectAddress(pdo[0], 2), SYNCHRONOUS)
+            write(ObjectAddress(pdo[0], 2), transmission)
             write(ObjectAddress(pdo[0], 1), pdo[1])
 
     def _map_pdos(self, codecs: Sequence[ChannelCodec], spec: ModeSpec) -> tuple[tuple[TpdoMap, ...], RpdoMap, PdoPlan]:
@@ -232,7 +234,7 @@ class ChannelMapping:
         plan = plan_streamed_run(od, self.desc, self.node_id, channels, spec.setpoint)
         self.net.nmt("PRE-OPERATIONAL")
         for pdo in plan.tpdos + plan.rpdos:
-            self._write_mapping((pdo.comm_index, pdo.slot.cob_id), pdo.map_index, pdo.mapping_entries)
+            self._write_mapping((pdo.comm_index, pdo.slot.cob_id), pdo.map_index, pdo.mapping_entries, pdo.transmission)
         self.net.nmt("OPERATIONAL")
         tpdo_maps = tuple(TpdoMap(pdo.slot.cob_id, pdo.columns) for pdo in plan.carrying)
         return tpdo_maps, self._rpdo_map(plan.setpoint_pdo, spec), plan

@@ -80,6 +80,7 @@ import numpy as np
 
 from hilident.adapters.base import RunResult, RunStrategy
 from hilident.adapters.canopen.common import DriveIdentity, DriveRatings, RunLayout
+from hilident.adapters.canopen.ip_buffer import close_buffer, open_buffer
 from hilident.adapters.canopen.net import NetWatch
 from hilident.adapters.canopen.sdo import SdoAccess
 from hilident.adapters.canopen.sync_source import SyncChoice, SyncTiming, choose_sync_source, interface_clock_is_native
@@ -244,7 +245,8 @@ class StreamedRun(RunStrategy):
         self.tail = 0  # host clock: SYNCs sent after the run's last cycle, until it is over
         self.next_cycle = 0  # host clock: the next cycle to send (beyond the run's last, in its tail)
         self.heard = 0  # listening: SYNCs heard since the drive or the interface began
-        self.applied = 0  # listening: the set-point index the drive holds
+        self.ahead = 1  # listening: set-points the drive holds ahead of its next SYNC (more with a buffer)
+        self.pushed = 0  # listening: set-points sent (each before its SYNC) or given up as held
         self.setpoints: list = []
         self.choice = SyncChoice("host", "")
         capability = ad.desc.sync
@@ -464,6 +466,7 @@ class StreamedRun(RunStrategy):
             raise
         finally:
             self._stop_clock()
+            close_buffer(ad.sdo, ad.desc, self.rpdo.setpoint_role)
             self.result.clock = self.clock_report()
             for cob in [*self.frames, 0x80]:
                 try:
@@ -476,7 +479,10 @@ class StreamedRun(RunStrategy):
     def _start_clock(self) -> None:
         """Listening: set-point 0 out, then the drive (0x1005 bit 30) or the interface starts the SYNCs."""
         ad = self.ad
-        ad.network.send_message(self.rpdo.cob_id, self._pack(0, self.setpoints[0]))
+        self.ahead = open_buffer(ad.sdo, ad.desc, self.rpdo.setpoint_role, ad.port)
+        self.pushed = min(self.ahead, self.n)
+        for j in range(self.pushed):  # set-point 0, and more where the drive buffers them
+            ad.network.send_message(self.rpdo.cob_id, self._pack(j, self.setpoints[j]))
         ad.network.subscribe(0x80, self.on_sync)
         if self.choice.source == "drive":
             cob = int(ad.sdo.read("sync_cob_id")) & 0x7FF
@@ -521,7 +527,8 @@ class StreamedRun(RunStrategy):
                 pass
 
     def on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        """Listening: SYNC ``k`` heard; set-point ``k + 1`` out if there is time, else skipped (held)."""
+        """Listening: SYNC ``k`` heard; the set-points up to ``k + ahead`` out, each if it reaches the drive before
+        its own SYNC, else given up (held) with every one after it until the next SYNC."""
         k = self.heard
         self.heard += 1
         n = self.n
@@ -531,23 +538,31 @@ class StreamedRun(RunStrategy):
         self.sync_cycle[self.syncs] = k
         self.syncs += 1
         self.sent = k + 1
-        nxt = k + 1
-        if nxt >= n:
-            return
+        if self.pushed <= k:  # set-points not sent before their SYNCs: the drive held (its buffer ran empty)
+            self._held(self.pushed, k + 1)
         age = time.time() - timestamp
         if not -0.1 < age < 1.0:  # an interface whose timestamps are not wall-clock time: the SYNC is taken as now
             age = 0.0
-        if age <= _LEAD * self.period:
-            self.ad.network.send_message(self.rpdo.cob_id, self._pack(nxt, self.setpoints[nxt]))
-            self.applied = nxt
-            return
-        self.stats.setpoints_skipped += 1
-        a = self.applied
-        held = self.x[a]  # the drive holds the set-point it has; a position it extrapolates, as CSP and IP drives do
-        if self.rpdo.setpoint_role in POSITION_SETPOINTS and a > 0:
-            held = self.x[a] + (nxt - a) * (self.x[a] - self.x[a - 1])
-        for j in self.host_columns:
-            self.raw[nxt, j] = held
+        send = self.ad.network.send_message
+        while self.pushed < min(n, k + 1 + self.ahead):
+            j = self.pushed
+            if age > (j - k - 1 + _LEAD) * self.period:
+                break  # too late for SYNC j: none after it may go either, or the drive would take it for j
+            send(self.rpdo.cob_id, self._pack(j, self.setpoints[j]))
+            self.pushed = j + 1
+
+    def _held(self, first: int, stop: int) -> None:
+        """Listening: set-points ``first .. stop - 1`` reached the drive too late; it held the one before (a
+        position it extrapolates at the last set-point velocity, as CSP and IP drives do), and so does the
+        recording."""
+        self.stats.setpoints_skipped += stop - first
+        a, x = first - 1, self.x
+        for j in range(first, stop):
+            held = x[a]
+            if self.rpdo.setpoint_role in POSITION_SETPOINTS and a > 0:
+                held = x[a] + (j - a) * (x[a] - x[a - 1])
+            self.raw[j, self.host_columns] = held
+        self.pushed = stop
 
     def _send_due(self, now: float) -> None:
         """Host clock: the SYNC of the cycle whose instant passed last, if within the window; one per call.
@@ -601,6 +616,7 @@ class StreamedRun(RunStrategy):
         self.setpoints = self.start()
         host_clock = self.choice.source == "host"
         if host_clock:
+            close_buffer(ad.sdo, ad.desc, self.rpdo.setpoint_role)  # a skipped cycle would shift a queue
             self.ad.network.send_message(self.rpdo.cob_id, self._pack(0, self.setpoints[0]))
             self.t0 = time.perf_counter()
             self.sender = threading.Thread(target=self._host_clock, name="hilident-sync", daemon=True)

@@ -242,7 +242,12 @@ class CanopenDriveFirmware:
         self.state = cia402.State.SWITCH_ON_DISABLED
         self.cw = 0
         self.setpoints = SetPoints(
-            desc, self.scales, self.supported, int(self.default(desc.address("modes_of_operation"))), self.drive
+            desc,
+            self.scales,
+            self.supported,
+            int(self.default(desc.address("modes_of_operation"))),
+            self.drive,
+            int(self.default(desc.address("ip_buffer_max"))) if desc.has("ip_buffer_max") else 1,
         )
         self.sample_index = 0
         self.run_start_tick = self.drive.tick
@@ -533,6 +538,9 @@ class CanopenDriveFirmware:
             "table_command": self.playback.write_command,
             "capture_offset": self.playback.write_capture_offset,
             "sync_overflow": lambda v: setattr(self.pdo, "sync_overflow", v),
+            "ip_buffer_size": self.setpoints.buffer.write_size,
+            "ip_buffer_organization": self.setpoints.buffer.write_organization,
+            "ip_buffer_clear": self.setpoints.buffer.write_clear,
         }.get(role)
         if role == "table":
             self.playback.write_table(value)

@@ -47,6 +47,8 @@ __all__ = ["PDO_KINDS", "PdoConfig", "PdoExchange"]
 #: Base index of each PDO object range: (rpdo or tpdo, communication or mapping).
 PDO_KINDS = {0x1400: ("rpdo", "comm"), 0x1600: ("rpdo", "map"), 0x1800: ("tpdo", "comm"), 0x1A00: ("tpdo", "map")}
 _MAX_TICKS = 65535  # most loop ticks one SYNC period may span
+#: The highest transmission type of a synchronous PDO (CiA 301: 0-240; 254 and 255 are event-driven).
+_LAST_SYNCHRONOUS = 240
 
 
 @dataclass
@@ -243,7 +245,14 @@ class PdoExchange:
                     return  # CiA 301: a too-short PDO is not processed
                 for (addr, _), value in zip(cfg.entries, cfg.packer.unpack_from(bytes(data)), strict=False):
                     role = fw.role_of.get(addr)
-                    if self.producing and role is not None and fw.setpoints.holds(role):
+                    if role is not None and fw.setpoints.queued(role) and cfg.trans_type <= _LAST_SYNCHRONOUS:
+                        fw.setpoints.receive_synchronous(role, value)  # into the buffer at the next SYNC
+                    elif (
+                        self.producing
+                        and role is not None
+                        and fw.setpoints.holds(role)
+                        and not fw.setpoints.queued(role)
+                    ):
                         fw.setpoints.defer(role, value, timestamp)  # latched by the SYNC after it
                     else:
                         fw.receive_setpoint(role, value)
@@ -299,7 +308,7 @@ class PdoExchange:
         """
         fw = self.fw
         k = fw.sample_index
-        new = fw.setpoints.take_new()
+        new = fw.setpoints.take_new(fresh)
         last = self.held_input
         position = fw.drive.mode == "position"
         if fresh or last is None:

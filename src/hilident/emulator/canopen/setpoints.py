@@ -7,13 +7,17 @@ drive loop's input, in SI units.
 
 A drive that produces SYNC latches, at each SYNC, the newest set-point
 received before it: RPDO set-points then wait, stamped with their bus time,
-until :meth:`SetPoints.latch` takes those older than the SYNC.
+until :meth:`SetPoints.latch` takes those older than the SYNC. In
+interpolated position mode with its buffer set up (0x60C4,
+:class:`~hilident.emulator.canopen.ip_buffer.InterpolationBuffer`) the
+interpolation data queue up instead, and each SYNC takes the next one.
 """
 
 from __future__ import annotations
 
 from collections import deque
 
+from hilident.emulator.canopen.ip_buffer import InterpolationBuffer
 from hilident.emulator.canopen.roles import TARGET_ROLES
 from hilident.emulator.drive import DriveLoop
 from hilident.protocol.canopen_objects import CanopenDescription
@@ -41,6 +45,8 @@ class SetPoints:
         The mode of operation at power-up (0x6060's default).
     drive : DriveLoop
         Where the torque offset goes and the hold position comes from.
+    buffer_size : int
+        0x60C4:1, the records the interpolation data buffer can hold (1: no buffer).
 
     Attributes
     ----------
@@ -53,7 +59,13 @@ class SetPoints:
     """
 
     def __init__(
-        self, desc: CanopenDescription, scales: dict, supported: tuple[str, ...], mode_code: int, drive: DriveLoop
+        self,
+        desc: CanopenDescription,
+        scales: dict,
+        supported: tuple[str, ...],
+        mode_code: int,
+        drive: DriveLoop,
+        buffer_size: int = 1,
     ):
         self.desc = desc
         self.scales = scales
@@ -64,6 +76,8 @@ class SetPoints:
         self.rx_counter = 0
         self.new = False  # a set-point came since the drive's last cycle asked
         self.pending: dict[str, deque[tuple[float, int]]] = {}
+        self.buffer = InterpolationBuffer(buffer_size)
+        self.at_sync: dict[str, int] = {}  # queued roles a synchronous RPDO carried: the newest, pushed at the SYNC
 
     @property
     def mode_spec(self):
@@ -78,9 +92,21 @@ class SetPoints:
             return spec.name if spec is not None else None
         return _LOOP_MODE_OF_CODE.get(code) if mode_name_of_code(code) in self.supported else None
 
+    def queued(self, role: str | None) -> bool:
+        """Whether a write of ``role`` goes into the interpolation data buffer (interpolated position mode,
+        buffer active), not straight to the drive."""
+        return role in ("interpolation_data", "setpoint_counter") and self.mode_code == 7 and self.buffer.active
+
+    def receive_synchronous(self, role: str, value: int) -> None:
+        """A queued role (:meth:`queued`) in a synchronous RPDO: CiA 301 passes its data on at the next SYNC, the
+        newest received, so the buffer takes at most one record a cycle from it."""
+        self.at_sync[role] = value
+
     def receive(self, role: str | None, value: int) -> bool:
         """A set-point or the set-point counter, written by SDO or RPDO; False when ``role`` is neither."""
-        if role in self.targets:
+        if role == "interpolation_data" and self.queued(role):
+            self.buffer.push(self.rx_counter, value)  # with the counter the same RPDO carried before it
+        elif role in self.targets:
             self.targets[role] = value
             self.new = True
         elif role == "setpoint_counter":
@@ -89,8 +115,22 @@ class SetPoints:
             return False
         return True
 
-    def take_new(self) -> bool:
-        """Whether a set-point came since the last call (a cycle asks once: was there a new one for it)."""
+    def take_new(self, fresh: bool = True) -> bool:
+        """Whether a set-point came since the last call (a cycle asks once: was there a new one for it).
+
+        With the interpolation data buffer active, a cycle a SYNC started (``fresh``) takes the next record
+        from it instead; a cycle the drive's own clock ran without a SYNC takes none.
+        """
+        if self.queued("interpolation_data"):
+            if fresh:
+                for role in ("setpoint_counter", "interpolation_data"):  # the RPDO's order: the counter first
+                    if role in self.at_sync:
+                        self.receive(role, self.at_sync.pop(role))
+            record = self.buffer.pop() if fresh else None
+            if record is None:
+                return False
+            self.rx_counter, self.targets["interpolation_data"] = record
+            return True
         new, self.new = self.new, False
         return new
 
