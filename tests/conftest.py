@@ -47,6 +47,7 @@ CLI_MODULE = "hilident.cli"
 def twin_starters() -> tuple[Callable, ...]:
     """What starts a twin when a test calls it: the emulator's servers, the commands that connect a device (a
     session, an upload) and their connection, and the twin helpers of tests/support."""
+    from hilident.cli import driver_trial
     from hilident.emulator import factory
     from hilident.emulator.canopen import server as canopen_server
     from hilident.emulator.modbus import server as modbus_server
@@ -65,6 +66,7 @@ def twin_starters() -> tuple[Callable, ...]:
         canopen_server.start,
         canopen_server.start_socketcand,
         connect_device,
+        driver_trial.try_filter_slots,
         Session,
         UploadCommand,
         twins.Twin,

@@ -551,21 +551,36 @@ def _drivers_new(args) -> int:
         print(f"warning: {w}")
     print(f"wrote {r.folder / 'driver.toml'} and {r.folder / r.eds_file}")
     print(f"cyclic modes: {', '.join(r.summary.cyclic_modes) or 'none'}")
+    if r.proposal is not None:
+        print(
+            f"[filters] proposed for {r.proposal.family.name}, recognised by {r.proposal.how}: every key a placeholder"
+        )
     for p in r.placeholders:
         print(f"placeholder: {p}")
     return 0
 
 
 def _drivers_check(args) -> int:
+    from dataclasses import replace
+
     from hilident.drivers.tools import check_driver_folder
 
     r = check_driver_folder(args.folder)
+    tried = False
+    if r.ok and not args.no_twin:  # what run does to the filters, on a twin of a folder whose objects are known good
+        from hilident.cli.driver_trial import try_filter_slots
+
+        trial = try_filter_slots(args.folder)
+        tried = trial.tried
+        r = replace(r, errors=r.errors + trial.errors, warnings=r.warnings + trial.warnings)
     for w in r.warnings:
         print(f"warning: {w}")
     for p in r.placeholders:
         print(f"placeholder: {p} (accepted on the emulator, refused on a real port)")
     for e in r.errors:
         print(f"error: {e}")
+    if tried and r.ok:
+        print("filter slot 0: read, written bypassed, read back, enabled, read back and restored on a twin")
     print(f"{args.folder}: " + ("ok" if r.ok else f"{len(r.errors)} error(s)"))
     return 0 if r.ok else 2
 
@@ -902,6 +917,12 @@ def build_parser() -> argparse.ArgumentParser:
     dnew.add_argument("--name", help="driver name (default: from the EDS file name)")
     dchk = drv_sub.add_parser("check", help="validate a driver folder against its EDS; exit 2 on errors")
     dchk.add_argument("folder", help="the driver folder")
+    dchk.add_argument(
+        "--no-twin",
+        action="store_true",
+        help="check against the EDS only; without it, a folder that passes has its filter slot 0 written, read "
+        "back, enabled and restored on a throw-away twin of the folder, as hilident run uploads a notch",
+    )
 
     ini = sub.add_parser(
         "init",

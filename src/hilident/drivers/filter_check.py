@@ -19,7 +19,7 @@ from hilident.protocol import eds as E
 from hilident.protocol.canopen_filters import ENABLED, FilterObjects, parse_filter_objects
 from hilident.protocol.filter_encoding import FilterEncoding
 
-__all__ = ["filter_problems"]
+__all__ = ["filter_key", "filter_problems", "show_address"]
 
 _OCTETS = (0x0A, 0x0F)  # OCTET_STRING, DOMAIN
 _FLOATS = (0x08, 0x11)  # REAL32, REAL64
@@ -88,8 +88,9 @@ def _slot_count_problems(data: dict, fo: FilterObjects) -> list[tuple[str, str]]
     return []
 
 
-def _key(table: dict, fo: FilterObjects, name: str) -> str:
-    """The ``[filters]`` key that placed field ``name`` (or the enable)."""
+def filter_key(table: dict, fo: FilterObjects, name: str) -> str:
+    """The ``[filters]`` key that placed field ``name`` (or :data:`~hilident.protocol.canopen_filters.ENABLED`),
+    for messages: ``"filters.fields.band"``, ``"filters.objects"`` (a word block), ``"filters.enable"``."""
     if name == ENABLED:
         return "filters.enable" if "enable" in table else "filters.enable_subindex"
     return "filters.objects" if fo.in_block else f"filters.fields.{name}"
@@ -98,26 +99,27 @@ def _key(table: dict, fo: FilterObjects, name: str) -> str:
 def _lookup(key: str, addr, od, errors: list, write: bool = True) -> E.ObjectInfo | None:
     info = E.object_info(od, addr.index, addr.subindex)
     if info is None:
-        errors.append((key, f"{_show(addr)} is not in the EDS"))
+        errors.append((key, f"{show_address(addr)} is not in the EDS"))
         return None
     if write and not E.writable(info.access):
-        errors.append((key, f"{_show(addr)} ({info.name}) is {info.access!r} in the EDS; the host writes it"))
+        errors.append((key, f"{show_address(addr)} ({info.name}) is {info.access!r} in the EDS; the host writes it"))
     if not E.readable(info.access):
-        errors.append((key, f"{_show(addr)} ({info.name}) is write-only in the EDS; the host reads it back"))
+        errors.append((key, f"{show_address(addr)} ({info.name}) is write-only in the EDS; the host reads it back"))
     return info
 
 
-def _show(addr) -> str:
+def show_address(addr) -> str:
+    """An object as ``drivers check`` names it: ``"0x2106"``, ``"0x3406:10"``."""
     return f"0x{addr.index:04X}" + (f":{addr.subindex}" if addr.subindex else "")
 
 
 def _field_problems(table: dict, fo: FilterObjects, slot: int, name: str, encoding: FilterEncoding, od) -> list:
     errors: list[tuple[str, str]] = []
-    key, addr = _key(table, fo, name), fo.address(slot, name)
+    key, addr = filter_key(table, fo, name), fo.address(slot, name)
     info = _lookup(key, addr, od, errors)
     if info is None:
         return errors
-    kind, what = encoding.value_kind(name), f"{_show(addr)} ({info.name}) is {E.type_name(info.data_type)}"
+    kind, what = encoding.value_kind(name), f"{show_address(addr)} ({info.name}) is {E.type_name(info.data_type)}"
     if kind == "octets":
         size = 2 * encoding.layout.words
         if info.data_type not in _OCTETS:
@@ -145,18 +147,20 @@ def _enable_problems(table: dict, fo: FilterObjects, slot: int, encoding: Filter
             return []
         return [("filters.enable", f'is "none", but a {encoding.kind} slot cannot be bypassed without an enable')]
     errors: list[tuple[str, str]] = []
-    key, addr = _key(table, fo, ENABLED), fo.address(slot, ENABLED)
+    key, addr = filter_key(table, fo, ENABLED), fo.address(slot, ENABLED)
     info = _lookup(key, addr, od, errors)
     if info is None:
         return errors
     bounds = _INTEGERS.get(info.data_type)
     if bounds is None:
-        errors.append((key, f"{_show(addr)} ({info.name}) is {E.type_name(info.data_type)}; an enable is an integer"))
+        errors.append(
+            (key, f"{show_address(addr)} ({info.name}) is {E.type_name(info.data_type)}; an enable is an integer")
+        )
     elif not all(bounds[0] <= v <= bounds[1] for v in (fo.enable_on, fo.enable_off)):
         errors.append(
             (
                 "filters.enable_values",
-                f"on = {fo.enable_on}, off = {fo.enable_off} do not fit {_show(addr)} "
+                f"on = {fo.enable_on}, off = {fo.enable_off} do not fit {show_address(addr)} "
                 f"({info.name}, {E.type_name(info.data_type)})",
             )
         )

@@ -6,7 +6,10 @@ tells (cyclic modes, PDO limits, period object, torque reference, scaling
 suggestions from the factor group). Every value it had to assume is listed in
 ``[driver] placeholders`` and marked ``# PLACEHOLDER: why``; vendor objects
 that look like filters, recorders or generators are listed as comments for the
-user to describe. ``hilident drivers check DIR`` validates a folder against its
+user to describe. When the EDS is of a documented family (its vendor ID and filter objects,
+:mod:`hilident.drivers.filter_proposals`), ``drivers new`` proposes its
+``[filters]`` table, every key a placeholder with the source of its value.
+``hilident drivers check DIR`` validates a folder against its
 EDS; ``hilident drivers -v`` describes each driver found.
 """
 
@@ -29,6 +32,7 @@ from hilident.drivers.description import (
     valid_sample_rates,
 )
 from hilident.drivers.filter_check import filter_problems
+from hilident.drivers.filter_proposals import FilterProposal, propose_filters
 from hilident.errors import ConfigError, UsageError
 from hilident.protocol import eds as E
 from hilident.protocol.canopen_objects import CanopenDescription
@@ -63,6 +67,8 @@ class NewDriverReport:
         The EDS's quirks, as :func:`~hilident.protocol.eds.load_eds` reported them.
     placeholders : tuple of str
         Dotted keys of ``driver.toml`` whose values were assumed.
+    proposal : FilterProposal or None
+        The documented family whose ``[filters]`` table was proposed (its keys are placeholders), if any.
     """
 
     folder: Path
@@ -71,6 +77,7 @@ class NewDriverReport:
     summary: E.EdsSummary
     warnings: tuple[str, ...]
     placeholders: tuple[str, ...]
+    proposal: FilterProposal | None = None
 
 
 @dataclass(frozen=True)
@@ -137,14 +144,15 @@ def new_driver_folder(eds_path, out_dir, name: str | None = None) -> NewDriverRe
         raise UsageError(f"--out {out}: already holds a {DESCRIPTION_FILE}; choose a new folder")
     # the folder is moved around with its EDS: name the file, not where it was read from
     notes = [w.replace(str(eds_path), eds_path.name, 1) for w in warnings]
-    text, placeholders = render_driver_toml(summary, eds_path.name, name, notes)
+    proposal = propose_filters(od, summary)
+    text, placeholders = render_driver_toml(summary, eds_path.name, name, notes, proposal)
     try:
         out.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(eds_path, out / eds_path.name)
         (out / DESCRIPTION_FILE).write_text(text, encoding="utf-8")
     except OSError as exc:
         raise UsageError(f"--out {out}: cannot write the driver folder ({exc.strerror or exc})") from None
-    return NewDriverReport(out, eds_path.name, name, summary, tuple(warnings), tuple(placeholders))
+    return NewDriverReport(out, eds_path.name, name, summary, tuple(warnings), tuple(placeholders), proposal)
 
 
 def _slug(text: str) -> str:
@@ -187,7 +195,9 @@ class _Toml:
         self.add(line)
 
 
-def render_driver_toml(s: E.EdsSummary, eds_file: str, name: str, warnings=()) -> tuple[str, list[str]]:
+def render_driver_toml(
+    s: E.EdsSummary, eds_file: str, name: str, warnings=(), proposal: FilterProposal | None = None
+) -> tuple[str, list[str]]:
     """The ``driver.toml`` text for a drive summarised by ``s``, and its placeholder keys. Pure.
 
     Parameters
@@ -199,12 +209,14 @@ def render_driver_toml(s: E.EdsSummary, eds_file: str, name: str, warnings=()) -
         Driver name.
     warnings : sequence of str
         The EDS's load warnings, written as comments.
+    proposal : FilterProposal, optional
+        A documented family's ``[filters]`` table to propose, every key a placeholder.
     """
     body = _Toml()
-    _board(body, s)
+    _board(body, s, proposal)
     _canopen(body, s, eds_file)
     _scaling(body, s)
-    _extras(body, s)
+    _extras(body, s, proposal)
     head = _Toml()
     product = " ".join(x for x in (s.vendor_name, s.product_name) if x) or eds_file
     head.add(
@@ -257,12 +269,16 @@ def _rate_hz(s: E.EdsSummary) -> tuple[float, str]:
     return _DEFAULT_RATE_HZ, f"{known}the EDS does not tell the drive's loop rate; 1 kHz assumed"
 
 
-def _board(t: _Toml, s: E.EdsSummary) -> None:
+def _board(t: _Toml, s: E.EdsSummary, proposal: FilterProposal | None) -> None:
     rate, why = _rate_hz(s)
     t.start("board")
     t.key("loop_rate_hz", f"{rate:.1f}", placeholder=why)
     t.key("max_sample_rate_hz", f"{rate:.1f}", placeholder="taken equal to loop_rate_hz")
-    t.key("filter_slots", "0", "no filter capability described (see the vendor objects listed at the end)")
+    if proposal is not None:
+        slots = proposal.family.filter_slots
+        t.key("filter_slots", str(slots), placeholder=f"the slots of the [filters] table proposed at the end ({slots})")
+    else:
+        t.key("filter_slots", "0", "no filter capability described (see the vendor objects listed at the end)")
 
 
 def _canopen(t: _Toml, s: E.EdsSummary, eds_file: str) -> None:
@@ -407,7 +423,23 @@ def _position_unit(s: E.EdsSummary) -> tuple[float, str]:
     return 1e-6, "the EDS does not tell the position unit; 1 um per increment assumed"
 
 
-def _extras(t: _Toml, s: E.EdsSummary) -> None:
+def _proposed_filters(t: _Toml, proposal: FilterProposal) -> None:
+    """The ``[filters]`` table of a documented family, every key a placeholder naming the source of its value."""
+    family = proposal.family
+    t.add()
+    t.add(f"# [filters] proposed by `hilident drivers new` for {_comment(family.name)},")
+    t.add(f"# recognised by {_comment(proposal.how)}.")
+    t.add(f"# Vendor ID {_comment(family.vendor_source)}.")
+    t.add(f"# Objects and values: {_comment(family.source)}.")
+    t.add("# Confirm each value against the drive's manual, then remove its PLACEHOLDER mark and its key from")
+    t.add("# [driver] placeholders; `hilident drivers check` then tries slot 0 on the folder's twin.")
+    for table, keys in family.tables:
+        t.start(table)
+        for key, value, source in keys:
+            t.key(key, value, placeholder=source)
+
+
+def _extras(t: _Toml, s: E.EdsSummary, proposal: FilterProposal | None = None) -> None:
     if s.store_parameters:
         t.start("canopen.save")
         t.key("object", '"0x1010:1"', 'store parameters ("save"), written only with --save')
@@ -419,8 +451,10 @@ def _extras(t: _Toml, s: E.EdsSummary) -> None:
             f"[{modes}]",
             placeholder="0x6502 has no default: the twin runs the cyclic modes whose set-point objects the EDS has",
         )
+    if proposal is not None:
+        _proposed_filters(t, proposal)
     for title, items in (
-        ("filters", s.vendor_filters),
+        ("filters", () if proposal is not None else s.vendor_filters),
         ("recorders", s.vendor_recorders),
         ("generators", s.vendor_generators),
     ):
