@@ -299,3 +299,22 @@ def test_describe_names_channels_rates_modes_and_capabilities(tmp_path):
     assert "rates: loop 1000.0 Hz" in text and "filter slots: 0" in text
     assert "period 0x1006" in text and "heartbeat consumer 0x1016" in text and "save 0x1010:1" in text
     assert "placeholders (refused on a real port): board.loop_rate_hz" in text
+
+
+@pytest.mark.parametrize("default", ["", "DefaultValue=0\n"])
+def test_check_warns_of_a_following_error_window_of_0_on_a_drive_with_position_modes(tmp_path, default):
+    import shutil
+
+    from hilident.drivers.description import find_driver
+
+    folder = tmp_path / "cia402-standard"
+    shutil.copytree(find_driver("cia402-standard").folder, folder)
+    eds = folder / "cia402-standard.eds"
+    assert "DefaultValue=0x186A0\n" in eds.read_text()
+    good = check_driver_folder(folder)
+    assert good.ok and not any("0x6065" in w for w in good.warnings)
+    eds.write_text(eds.read_text().replace("DefaultValue=0x186A0\n", default))
+    report = check_driver_folder(folder)
+    assert report.ok  # a warning: the drive itself may hold another value
+    (warning,) = [w for w in report.warnings if "0x6065" in w]
+    assert "[canopen.cyclic_modes]" in warning and "refused until the drive holds" in warning

@@ -290,3 +290,27 @@ def test_a_drive_that_buffers_its_set_points_rides_out_a_host_held_up_for_three_
     finally:
         ad.close()
         emulated.close()
+
+
+def test_a_position_run_on_a_drive_whose_following_error_window_is_0_is_refused_before_anything_moves(tmp_path):
+    """CiA 402: with 0x6065 = 0 any distance from the set-point is a following error, and the drive faults on the
+    first sample (an EDS without a default gives its twin 0): refused at configure, naming the object."""
+    cfg = load_config(CONFIG)
+    folder = tmp_path / "cia402-standard"
+    shutil.copytree(find_driver("cia402-standard").folder, folder)
+    eds = folder / "cia402-standard.eds"
+    window = "ParameterName=Following error window\nObjectType=0x7\nDataType=0x0007\nAccessType=rw\nPDOMapping=0\n"
+    assert window + "DefaultValue=0x186A0" in eds.read_text()
+    eds.write_text(eds.read_text().replace(window + "DefaultValue=0x186A0", window + "DefaultValue=0"))
+    driver = load_driver(folder)
+    emulated = start(cfg.emulator, driver, cfg.device)
+    dev = replace(emulated.device, acquisition="streamed")
+    ad = CanopenDriveAdapter.open_device(dev, driver)
+    try:
+        ad.configure(250.0, "torque")  # no position loop: nothing to refuse
+        with pytest.raises(DeviceError, match=r"0x6065.* is 0: with its position loop closed"):
+            ad.configure(250.0, "position")
+        assert not emulated.server.firmware.drive.enabled
+    finally:
+        ad.close()
+        emulated.close()

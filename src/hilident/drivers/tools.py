@@ -630,6 +630,7 @@ def check_driver_folder(folder) -> CheckReport:
     _check_save(c)
     _check_recorder(c)
     _check_sync(c)
+    _check_following_error(c)
     _check_scaling(c)
     _check_keys(c)
     _check_identity(c)
@@ -874,6 +875,23 @@ def _check_sync(c: _Checker) -> None:
                 "canopen.sync.producer",
                 f"is true but 0x{index:04X} ({name}) is {info.access!r} in the EDS: the host cannot ask for SYNC",
             )
+
+
+def _check_following_error(c: _Checker) -> None:
+    """A drive with position cyclic modes whose EDS gives its following error window (0x6065) as 0, or gives
+    none (its twin then holds 0): position runs are refused unless the drive holds another value."""
+    info = E.object_info(c.od, 0x6065, 0)
+    modes = c.co.get("cyclic_modes", c.s.cyclic_modes)
+    if info is None or not isinstance(modes, list | tuple) or not {"csp", "ip"} & set(modes):
+        return
+    if info.default in (None, 0):
+        given = "gives no default" if info.default is None else "gives 0 as its default"
+        c.warn(
+            "canopen.cyclic_modes",
+            f"0x6065 ({info.name}) {given}: a drive holding 0 faults on the first sample with its position loop "
+            "closed (CSP, IP, a torque offset held in CSP), so such runs are refused until the drive holds the "
+            "distance from the set-point it may tolerate (this folder's twin holds 0)",
+        )
 
 
 def _check_channels(c: _Checker) -> None:

@@ -92,7 +92,7 @@ from hilident.adapters.canopen.net import HostHeartbeat, NetWatch
 from hilident.adapters.canopen.recorder import RecorderRun
 from hilident.adapters.canopen.sdo import SdoAccess
 from hilident.adapters.canopen.slots import CanopenFilterSlots
-from hilident.adapters.canopen.streamed import Deliver, DriveHost, StreamedRun, choose_clock
+from hilident.adapters.canopen.streamed import POSITION_SETPOINTS, Deliver, DriveHost, StreamedRun, choose_clock
 from hilident.adapters.canopen.trace import TracingNetwork
 from hilident.config.tables import DeviceConfig
 from hilident.drivers.description import DriverDescription, load_object_dictionary
@@ -526,6 +526,7 @@ class CanopenDriveAdapter(AdapterBase):
         for role in (spec.setpoint, spec.hold):
             if role:
                 self.scale(role)  # a set-point that cannot be scaled stops here, before anything moves
+        self._check_following_error(spec)
         self.safe_stop()
         self.sdo.write("modes_of_operation", spec.code)
         self.mapping.write_period(divider, loop_rate_hz)
@@ -535,6 +536,20 @@ class CanopenDriveAdapter(AdapterBase):
         self.channel_names = [c.name for c in codecs]
         self.channel_units = units_in_mode(self.channel_names, [c.unit for c in codecs], mode)
         return self.channel_names
+
+    def _check_following_error(self, spec) -> None:
+        """A position mode on a drive whose following error window (0x6065) is 0 faults on its first sample
+        (CiA 402: any distance from the set-point is a following error): refused before anything moves."""
+        position = spec.setpoint in POSITION_SETPOINTS or spec.hold in POSITION_SETPOINTS  # the drive's position loop
+        if not position or not self.desc.has("following_error_window"):
+            return
+        if int(self.sdo.read("following_error_window")) == 0:
+            where = self.sdo.describe(self.desc.address("following_error_window"))
+            raise DeviceError(
+                f"{self.port}: {where} is 0: with its position loop closed the drive would fault (following error) "
+                "on the first sample; set it in the drive to the largest distance from the set-point it may tolerate, "
+                "in position units (0xFFFFFFFF switches the monitor off)"
+            )
 
     def clock_plan(self, sample_rate_hz: float) -> dict:
         """Who will keep the bus clock of a run at ``sample_rate_hz``: ``{"source", "why"}``.
