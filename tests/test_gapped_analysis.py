@@ -102,3 +102,15 @@ def test_a_trial_missing_samples_is_read_in_the_periods_that_have_enough():
     samples["present"] = present & (t >= 3 * P)
     with pytest.raises(DataError, match="fewer than two periods"):
         chooser._trial_spectra(None, None, P, lines, None)
+
+
+def test_a_sample_of_the_period_missing_from_every_period_is_a_data_error_saying_so():
+    import pytest
+
+    from hilident.errors import DataError
+
+    x = np.sin(2 * np.pi * 3 * np.arange(3 * P) / P)
+    present = np.ones(x.size, dtype=bool)
+    present[[7, P + 7, 2 * P + 7]] = False
+    with pytest.raises(DataError, match=f"sample 7 of the {P}-sample period is missing from all 3 periods"):
+        remove_drift(np.where(present, x, np.nan), P, present=present)

@@ -187,7 +187,12 @@ def _remove_drift_gapped(x: np.ndarray, period: int, degree: int, present: np.nd
     ok = present.reshape(periods, period)
     counts = ok.sum(axis=0)
     if not counts.all():
-        raise DataError("some sample of the period is missing from every period")
+        j = int(np.flatnonzero(counts == 0)[0])
+        raise DataError(
+            f"sample {j} of the {period}-sample period is missing from all {periods} periods read "
+            f"({int((~present).sum())} of {present.size} samples missing): too few samples to tell a drift from "
+            "the response"
+        )
     t = np.linspace(-1.0, 1.0, x.size)
     basis = np.polynomial.legendre.legvander(t, max(degree, 1))[:, 1:]
 
