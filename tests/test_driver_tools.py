@@ -318,3 +318,25 @@ def test_check_warns_of_a_following_error_window_of_0_on_a_drive_with_position_m
     assert report.ok  # a warning: the drive itself may hold another value
     (warning,) = [w for w in report.warnings if "0x6065" in w]
     assert "[canopen.cyclic_modes]" in warning and "refused until the drive holds" in warning
+    assert "twin holds 0: give it one in [emulator] values" in warning
+    (folder / "driver.toml").write_text(
+        (folder / "driver.toml").read_text() + '\n[emulator]\nvalues = { "0x6065" = 1 }\n'
+    )
+    (warning,) = [w for w in check_driver_folder(folder).warnings if "0x6065" in w]
+    assert "twin holds the one [emulator] values gives" in warning
+
+
+def test_new_gives_the_twin_a_following_error_window_where_the_eds_gives_none(tmp_path):
+    import shutil
+
+    from hilident.drivers.description import find_driver
+
+    eds = tmp_path / "drive.eds"
+    shutil.copyfile(find_driver("cia402-standard").folder / "cia402-standard.eds", eds)
+    eds.write_text(eds.read_text().replace("DefaultValue=0x186A0\n", ""))
+    report = new_driver_folder(eds, tmp_path / "out")
+    text = (report.folder / "driver.toml").read_text()
+    assert 'values = { "0x6065" = 100000 }  # PLACEHOLDER: 0x6065 (following error window) has no default' in text
+    assert "emulator.values" in report.placeholders
+    data = tomllib.loads(text)
+    assert data["emulator"]["values"] == {"0x6065": 100000}

@@ -314,3 +314,24 @@ def test_a_position_run_on_a_drive_whose_following_error_window_is_0_is_refused_
     finally:
         ad.close()
         emulated.close()
+
+
+def test_the_twin_holds_the_following_error_window_its_driver_folder_gives_where_the_eds_gives_none(tmp_path):
+    cfg = load_config(CONFIG)
+    folder = tmp_path / "cia402-standard"
+    shutil.copytree(find_driver("cia402-standard").folder, folder)
+    eds, toml = folder / "cia402-standard.eds", folder / "driver.toml"
+    eds.write_text(eds.read_text().replace("DefaultValue=0x186A0\n", ""))  # 0x6065 without a default
+    toml.write_text(toml.read_text() + '\n[emulator]\nvalues = { "0x6065" = 50000 }\n')
+    driver = load_driver(folder)
+    emulated = start(cfg.emulator, driver, cfg.device)
+    ad = CanopenDriveAdapter.open_device(replace(emulated.device, acquisition="streamed"), driver)
+    try:
+        assert int(ad.sdo.read("following_error_window")) == 50000
+        ad.configure(250.0, "position")  # not refused: the drive holds a window
+    finally:
+        ad.close()
+        emulated.close()
+    toml.write_text(toml.read_text().replace('values = { "0x6065" = 50000 }', 'values = { "0x6099" = 1 }'))
+    with pytest.raises(ConfigError, match=r"emulator.values.*0x6099"):
+        start(cfg.emulator, load_driver(folder), cfg.device)

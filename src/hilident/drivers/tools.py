@@ -43,6 +43,7 @@ from hilident.protocol.canopen_pdo_plan import (
     recorder_problems,
 )
 from hilident.protocol.canopen_sync import parse_sync
+from hilident.protocol.canopen_types import ObjectAddress, parse_address
 
 DESCRIPTION_FILE = "driver.toml"
 #: CAN bit rates (kbit/s) a [DeviceInfo] may declare, fastest first.
@@ -439,17 +440,39 @@ def _proposed_filters(t: _Toml, proposal: FilterProposal) -> None:
             t.key(key, value, placeholder=source)
 
 
+#: The following error window (position increments) ``drivers new`` proposes for the twin of a drive whose EDS
+#: gives 0x6065 no default or 0.
+TWIN_FOLLOWING_ERROR_WINDOW = 100_000
+
+
+def _following_error_unset(s: E.EdsSummary) -> str:
+    """How the EDS leaves 0x6065 unset for a drive with position cyclic modes ("": it does not)."""
+    info = s.roles.get("following_error_window")
+    if info is None or not {"csp", "ip"} & set(s.cyclic_modes):
+        return ""
+    return "has no default in the EDS" if info.default is None else "is 0 in the EDS" if info.default == 0 else ""
+
+
 def _extras(t: _Toml, s: E.EdsSummary, proposal: FilterProposal | None = None) -> None:
     if s.store_parameters:
         t.start("canopen.save")
         t.key("object", '"0x1010:1"', 'store parameters ("save"), written only with --save')
-    if s.supported_modes is None and s.cyclic_modes:
+    no_window = _following_error_unset(s)
+    if (s.supported_modes is None and s.cyclic_modes) or no_window:
         t.start("emulator")
+    if s.supported_modes is None and s.cyclic_modes:
         modes = ", ".join(_toml_str(m) for m in s.cyclic_modes)
         t.key(
             "supported_modes",
             f"[{modes}]",
             placeholder="0x6502 has no default: the twin runs the cyclic modes whose set-point objects the EDS has",
+        )
+    if no_window:
+        t.key(
+            "values",
+            f'{{ "0x6065" = {TWIN_FOLLOWING_ERROR_WINDOW} }}',
+            placeholder=f"0x6065 (following error window) {no_window}: the twin holds this many position increments "
+            "(with 0 its position loop faults on the first sample); the real drive holds its own",
         )
     if proposal is not None:
         _proposed_filters(t, proposal)
@@ -886,12 +909,27 @@ def _check_following_error(c: _Checker) -> None:
         return
     if info.default in (None, 0):
         given = "gives no default" if info.default is None else "gives 0 as its default"
+        emulator = c.data.get("emulator")
+        values = emulator.get("values") if isinstance(emulator, dict) else None
+        held = isinstance(values, dict) and any(_is_6065(k) for k in values)
         c.warn(
             "canopen.cyclic_modes",
             f"0x6065 ({info.name}) {given}: a drive holding 0 faults on the first sample with its position loop "
             "closed (CSP, IP, a torque offset held in CSP), so such runs are refused until the drive holds the "
-            "distance from the set-point it may tolerate (this folder's twin holds 0)",
+            "distance from the set-point it may tolerate "
+            + (
+                "(this folder's twin holds the one [emulator] values gives)"
+                if held
+                else '(this folder\'s twin holds 0: give it one in [emulator] values = { "0x6065" = ... })'
+            ),
         )
+
+
+def _is_6065(key) -> bool:
+    try:
+        return parse_address(key, "emulator.values") == ObjectAddress(0x6065, 0)
+    except ConfigError:
+        return False
 
 
 def _check_channels(c: _Checker) -> None:

@@ -124,6 +124,7 @@ ROLES: dict[str, tuple[int, int, int, str]] = {
     "torque_offset": (0x60B2, 0, INTEGER16, "w"),
     "interpolation_data": (0x60C1, 1, INTEGER32, "w"),
     "interpolation_period": (0x60C2, 1, UNSIGNED8, "rw"),
+    "following_error_window": (0x6065, 0, UNSIGNED32, "rw"),
     "ip_buffer_max": (0x60C4, 1, UNSIGNED32, "r"),
     "ip_buffer_size": (0x60C4, 2, UNSIGNED32, "rw"),
     "ip_buffer_organization": (0x60C4, 3, UNSIGNED8, "rw"),

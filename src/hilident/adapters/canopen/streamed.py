@@ -247,6 +247,7 @@ class StreamedRun(RunStrategy):
         self.heard = 0  # listening: SYNCs heard since the drive or the interface began
         self.ahead = 1  # listening: set-points the drive holds ahead of its next SYNC (more with a buffer)
         self.pushed = 0  # listening: set-points sent (each before its SYNC) or given up as held
+        self.applied = 0  # listening: set-points sent: the drive holds set-point applied - 1 when it runs out
         self.setpoints: list = []
         self.choice = SyncChoice("host", "")
         capability = ad.desc.sync
@@ -480,7 +481,7 @@ class StreamedRun(RunStrategy):
         """Listening: set-point 0 out, then the drive (0x1005 bit 30) or the interface starts the SYNCs."""
         ad = self.ad
         self.ahead = open_buffer(ad.sdo, ad.desc, self.rpdo.setpoint_role, ad.port)
-        self.pushed = min(self.ahead, self.n)
+        self.pushed = self.applied = min(self.ahead, self.n)
         for j in range(self.pushed):  # set-point 0, and more where the drive buffers them
             ad.network.send_message(self.rpdo.cob_id, self._pack(j, self.setpoints[j]))
         ad.network.subscribe(0x80, self.on_sync)
@@ -549,14 +550,14 @@ class StreamedRun(RunStrategy):
             if age > (j - k - 1 + _LEAD) * self.period:
                 break  # too late for SYNC j: none after it may go either, or the drive would take it for j
             send(self.rpdo.cob_id, self._pack(j, self.setpoints[j]))
-            self.pushed = j + 1
+            self.pushed = self.applied = j + 1
 
     def _held(self, first: int, stop: int) -> None:
         """Listening: set-points ``first .. stop - 1`` reached the drive too late; it held the one before (a
         position it extrapolates at the last set-point velocity, as CSP and IP drives do), and so does the
         recording."""
         self.stats.setpoints_skipped += stop - first
-        a, x = first - 1, self.x
+        a, x = self.applied - 1, self.x  # the last set-point the drive took
         for j in range(first, stop):
             held = x[a]
             if self.rpdo.setpoint_role in POSITION_SETPOINTS and a > 0:

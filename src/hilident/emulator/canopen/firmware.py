@@ -55,7 +55,7 @@ import canopen
 from hilident.config.tables import FaultsConfig
 from hilident.drivers.description import DriverDescription, load_object_dictionary
 from hilident.emulator.canopen.guarding import HostWatch
-from hilident.emulator.canopen.objects import ObjectStore
+from hilident.emulator.canopen.objects import ObjectStore, hold_values
 from hilident.emulator.canopen.parameters import DriveParameters
 from hilident.emulator.canopen.pdo import PdoExchange
 from hilident.emulator.canopen.playback import CAPTURE_CHUNK_RECORDS, TablePlayback
@@ -230,6 +230,8 @@ class CanopenDriveFirmware:
         self.od = od
         self.role_of = {addr: role for role, addr in desc.objects.items()}
         self.columns = {name: i for i, name in enumerate(DriveLoop.CHANNELS)}
+        emulator = driver.sections.get("emulator")
+        hold_values(node, od, emulator.get("values") if isinstance(emulator, dict) else None, source)
         self.objects = ObjectStore(node, desc, driver.name, self.columns)
         self.stored, self.default = self.objects.stored, self.objects.default
         self.scales = self.objects.scales

@@ -14,16 +14,16 @@ import numpy as np
 from canopen.sdo import SdoAbortedError
 
 from hilident.emulator.canopen.roles import COLUMN_OF_ROLE
-from hilident.errors import DataError
+from hilident.errors import ConfigError, DataError
 from hilident.protocol.canopen_objects import (
     DOMAIN,
     REAL32,
     CanopenDescription,
     numpy_type,
 )
-from hilident.protocol.canopen_types import ObjectAddress
+from hilident.protocol.canopen_types import ObjectAddress, parse_address
 
-__all__ = ["ObjectStore"]
+__all__ = ["ObjectStore", "hold_values"]
 
 _TEXT_TYPES = (0x09, 0x0B)  # VISIBLE_STRING, UNICODE_STRING: served from a str
 _OCTET_TYPES = (0x0A, DOMAIN)  # OCTET_STRING, DOMAIN: served from bytes
@@ -138,3 +138,29 @@ class ObjectStore:
                 codec = (column, self.scales[role], int(info.min), int(info.max))
             self._codecs[addr] = codec
         return codec
+
+
+def hold_values(node, od, values, source: str) -> None:
+    """The driver's ``[emulator] values``: what the twin's drive holds in objects whose EDS gives no default
+    (``{ "0x6065" = 100000 }``), as if set in the drive before the host connects.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``emulator.values`` and ``source``: not a table, an object the EDS does not have, or a value its
+        type cannot hold.
+    """
+    if values is None:
+        return
+    if not isinstance(values, dict):
+        raise ConfigError("emulator.values", 'must be a table of "0xIIII[:SS]" = value', source)
+    for key, value in values.items():
+        addr = parse_address(key, "emulator.values", source)
+        var = od.get_variable(addr.index, addr.subindex)
+        if var is None:
+            raise ConfigError("emulator.values", f"{addr} is not in the EDS", source)
+        try:
+            raw = var.encode_raw(value)
+        except (TypeError, ValueError, OverflowError) as exc:
+            raise ConfigError("emulator.values", f"{addr} ({var.name}) cannot hold {value!r}: {exc}", source) from None
+        node.data_store.setdefault(addr.index, {})[addr.subindex] = raw

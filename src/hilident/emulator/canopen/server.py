@@ -15,6 +15,7 @@ import time
 from dataclasses import replace
 
 import can
+from can.interfaces.virtual import VirtualBus, channels_lock
 
 import canopen
 from hilident.config.tables import DeviceConfig, EmulatorConfig
@@ -118,8 +119,6 @@ class CanopenDriveServer:
                     time.sleep(wait)
                 producer.instant(time.perf_counter() - due, start_wall + j * period)
                 j += 1
-                while stamped is not None and stamped.recv(0) is not None:
-                    pass  # it only sends: what every bus of the channel receives is dropped, or it would pile up
         finally:
             self.firmware.stamped_bus = None
             if stamped is not None:
@@ -130,7 +129,7 @@ class CanopenDriveServer:
         instant on the drive's clock (on another interface the interface stamps them)."""
         if self.interface != "virtual":
             return None
-        bus = can.Bus(interface="virtual", channel=self.channel, preserve_timestamps=True)
+        bus = TransmitOnlyVirtualBus(self.channel)
         self.firmware.stamped_bus = bus
         return bus
 
@@ -206,3 +205,22 @@ def start_socketcand(
     server.extra.append(bridge)
     reach = replace(device, port=bridge.address, canopen=replace(device.canopen, can_interface="socketcand"))
     return EmulatedDevice(server=server, device=reach, drive=firmware.drive)
+
+
+class TransmitOnlyVirtualBus(VirtualBus):
+    """A python-can virtual bus that sends with the timestamp each message carries and receives nothing.
+
+    Every virtual bus of a channel gets a copy of every frame sent on it; one that never reads would keep them
+    all (and copying them costs the interpreter's time at every frame), so this one takes itself off the
+    channel's receivers while it is open.
+    """
+
+    def __init__(self, channel: str):
+        super().__init__(channel=channel, preserve_timestamps=True)
+        with channels_lock:
+            self.channel.remove(self.queue)
+
+    def shutdown(self) -> None:
+        with channels_lock:
+            self.channel.append(self.queue)  # VirtualBus.shutdown takes it off the channel
+        super().shutdown()
