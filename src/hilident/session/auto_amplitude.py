@@ -38,8 +38,12 @@ __all__ = [
 
 #: Share of the speed limit and of the room to the position window a trial's prediction may use.
 AUTO_LIMIT_MARGIN = 0.8
-#: Share of the torque limit the predicted peak measured torque may reach (the loop adds to the excitation).
+#: Share of the torque limit a trial's amplitude may reach.
 AUTO_TORQUE_MARGIN = 0.95
+#: Share of the torque limit the run's predicted peak measured torque may reach: the loop adds to the excitation,
+#: and over a run several times a trial's length it adds more than linear scaling of the trial's peak predicts (a
+#: position loop's response to the drift, friction).
+AUTO_PEAK_TORQUE_MARGIN = 0.8
 #: Below this share of the Stribeck velocity the axis counts as sticking.
 AUTO_STUCK_SHARE = 0.1
 #: Factor to the next trial when a trial's response does not rise above the noise (nothing to scale from).
@@ -524,7 +528,7 @@ class AutoAmplitude:
         torque = float(np.max(np.abs(full["torque_nm"])))
         caps = [
             (
-                amplitude * AUTO_TORQUE_MARGIN * lim.torque_nm / torque if torque > 0 else np.inf,
+                amplitude * AUTO_PEAK_TORQUE_MARGIN * lim.torque_nm / torque if torque > 0 else np.inf,
                 "limits.torque_nm (the trial's measured peak torque, scaled)",
             ),
             (
