@@ -12,18 +12,11 @@ from __future__ import annotations
 import pytest
 
 from hilident.drivers.tools import check_driver_folder
-from support.filter_families import FAMILIES
-from support.vendor_drives import write_vendor_drive
+from support.filter_families import FAMILIES, family_folder
 
 
 def _folder(tmp_path, name: str, old: str = "", new: str = ""):
-    folder = write_vendor_drive(tmp_path, FAMILIES[name])
-    if old:
-        path = folder / "driver.toml"
-        text = path.read_text()
-        assert old in text, old
-        path.write_text(text.replace(old, new, 1))
-    return folder
+    return family_folder(tmp_path, FAMILIES[name], old, new)
 
 
 @pytest.mark.parametrize("name", sorted(FAMILIES))

@@ -12,7 +12,6 @@ value its object refuses, a word block whose enabled state word reads bypassed.
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -26,22 +25,14 @@ from hilident.filters.notch import chain_response
 from hilident.progress import Progress
 from hilident.protocol.filter_encoding import FilterEncoding
 from hilident.session.connection import connect_device
-from support.filter_families import FAMILIES
-from support.vendor_drives import write_vendor_drive
+from support.filter_families import FAMILIES, family_folder
 
 pytestmark = pytest.mark.twin
 
 _LIMITS = "[limits]\ntorque_nm = 1.0\nvelocity_mps = 1.0\nposition_min_m = -1.0\nposition_max_m = 1.0\n"
 
 
-def _folder(tmp_path: Path, drive, old: str = "", new: str = "") -> Path:
-    folder = write_vendor_drive(tmp_path, drive)
-    if old:
-        path = folder / "driver.toml"
-        text = path.read_text()
-        assert old in text, old
-        path.write_text(text.replace(old, new, 1))
-    return folder
+_folder = family_folder
 
 
 class _Recorder:

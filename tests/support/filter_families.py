@@ -20,7 +20,9 @@ Sources (the pages cited in each README):
 
 from __future__ import annotations
 
-from support.vendor_drives import VendorDrive
+from pathlib import Path
+
+from support.vendor_drives import VendorDrive, write_vendor_drive
 
 _BOOL, _UINT16, _UINT32, _UINT8, _OCTETS = 0x1, 0x6, 0x7, 0x5, 0xA
 
@@ -196,3 +198,14 @@ def kollmorgen_akd() -> VendorDrive:
 
 #: The documented families, by the name of their driver folder.
 FAMILIES = {d.name: d for d in (copley_plus(), synapticon(), kollmorgen_akd())}
+
+
+def family_folder(tmp_path: Path, drive: VendorDrive, old: str = "", new: str = "") -> Path:
+    """``drive``'s folder written under ``tmp_path``, with the first ``old`` of its driver.toml made ``new``."""
+    folder = write_vendor_drive(tmp_path, drive)
+    if old:
+        path = folder / "driver.toml"
+        text = path.read_text()
+        assert old in text, old
+        path.write_text(text.replace(old, new, 1))
+    return folder
