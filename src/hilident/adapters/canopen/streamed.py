@@ -11,8 +11,10 @@ applies it for the cycle that SYNC starts and answers with its TPDOs
   0.9 of a period after it; otherwise it skips it (the drive holds the last
   set-point, or extrapolates a position at its last velocity as CSP and IP
   drives do, and the recorded set-point of that cycle is that one) and counts
-  it in ``setpoints_skipped``. SYNCs, and so samples, never depend on
-  the host's timing;
+  it in ``setpoints_skipped``. A drive with an interpolation data buffer
+  (:mod:`~hilident.adapters.canopen.ip_buffer`) takes set-points up to 15
+  cycles ahead, each sent only while it can reach the drive before its own
+  SYNC. SYNCs, and so samples, never depend on the host's timing;
 * **host** (the Python loop): SYNC ``k`` goes out at the cycle's instant, or
   within the host's window after it (three quarters of the drive's SYNC
   window, at most 0.4 of a period), from a thread that does nothing else, and
