@@ -445,10 +445,12 @@ def _proposed_filters(t: _Toml, proposal: FilterProposal) -> None:
 TWIN_FOLLOWING_ERROR_WINDOW = 100_000
 
 
-def _following_error_unset(s: E.EdsSummary) -> str:
-    """How the EDS leaves 0x6065 unset for a drive with position cyclic modes ("": it does not)."""
+def _following_error_unset(s: E.EdsSummary, modes=None) -> str:
+    """How the EDS leaves 0x6065 unset for a drive with position cyclic modes ``modes`` (default: the EDS's);
+    "" when it does not."""
     info = s.roles.get("following_error_window")
-    if info is None or not {"csp", "ip"} & set(s.cyclic_modes):
+    modes = s.cyclic_modes if modes is None else modes
+    if info is None or not isinstance(modes, list | tuple) or not {"csp", "ip"} & set(modes):
         return ""
     return "has no default in the EDS" if info.default is None else "is 0 in the EDS" if info.default == 0 else ""
 
@@ -903,18 +905,15 @@ def _check_sync(c: _Checker) -> None:
 def _check_following_error(c: _Checker) -> None:
     """A drive with position cyclic modes whose EDS gives its following error window (0x6065) as 0, or gives
     none (its twin then holds 0): position runs are refused unless the drive holds another value."""
-    info = E.object_info(c.od, 0x6065, 0)
-    modes = c.co.get("cyclic_modes", c.s.cyclic_modes)
-    if info is None or not isinstance(modes, list | tuple) or not {"csp", "ip"} & set(modes):
-        return
-    if info.default in (None, 0):
-        given = "gives no default" if info.default is None else "gives 0 as its default"
+    unset = _following_error_unset(c.s, c.co.get("cyclic_modes"))
+    if unset:
         emulator = c.data.get("emulator")
         values = emulator.get("values") if isinstance(emulator, dict) else None
         held = isinstance(values, dict) and any(_is_6065(k) for k in values)
+        name = c.s.roles["following_error_window"].name
         c.warn(
             "canopen.cyclic_modes",
-            f"0x6065 ({info.name}) {given}: a drive holding 0 faults on the first sample with its position loop "
+            f"0x6065 ({name}) {unset}: a drive holding 0 faults on the first sample with its position loop "
             "closed (CSP, IP, a torque offset held in CSP), so such runs are refused until the drive holds the "
             "distance from the set-point it may tolerate "
             + (

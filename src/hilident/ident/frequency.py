@@ -44,7 +44,7 @@ from numpy.typing import ArrayLike
 from scipy import signal
 
 from hilident.errors import ConfigError, DataError
-from hilident.ident.gapped_periods import line_spectra
+from hilident.ident.gapped_periods import line_spectra, mean_period
 from hilident.ident.preprocess import check_signals
 
 __all__ = [
@@ -530,14 +530,11 @@ def _gapped_periodic_frf(
     cut = slice(skip * period, (skip + n_periods) * period)
     shape = (n_periods, period)
     u_p, y_p, ok = u[cut].reshape(shape), y[cut].reshape(shape), present[cut].reshape(shape)
-    if (
-        bins is None
-    ):  # the excited bins, from the mean period: each of its samples averaged over the periods that have it
-        counts = ok.sum(axis=0)
-        mean_period = np.where(ok, u_p, 0.0).sum(axis=0) / np.maximum(counts, 1)
-        power = np.abs(np.fft.rfft(mean_period)) ** 2
+    if bins is None:  # the excited bins, from the mean period (each sample over the periods that have it)
+        power = np.abs(np.fft.rfft(mean_period(u_p, ok))) ** 2
         power[0] = 0.0
-        power[period // 2] = 0.0 if period % 2 == 0 else power[period // 2]
+        if period % 2 == 0:
+            power[-1] = 0.0  # the Nyquist line cannot be read around missing samples
         k = np.flatnonzero(power > power.max() * 10.0 ** (excitation_threshold_db / 10.0))
     else:
         k = np.unique(np.asarray(bins, dtype=np.int64))

@@ -17,13 +17,30 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["MIN_PIVOT", "line_spectra"]
+__all__ = ["MIN_PIVOT", "line_spectra", "mean_period"]
 
 #: Smallest eigenvalue of ``I - A_g D^-1 A_g^T`` (1 for a period missing nothing) at which a period is still used:
 #: the variance of the estimate grows by at most its inverse, and only along ``g`` of its directions. A multisine
 #: that excites most bins of a short period leaves little room (each missing sample's diagonal term is about
 #: ``1 - (2 L + 1) / P`` for ``L`` lines), so the bound is low.
 MIN_PIVOT = 0.02
+
+
+def mean_period(periods: np.ndarray, present: np.ndarray) -> np.ndarray:
+    """One period of a periodic signal: each sample the mean over the periods that have it (0 where none does).
+
+    Parameters
+    ----------
+    periods : ndarray, shape (M, P, ...)
+        One period per row; values where ``present`` is False are ignored.
+    present : ndarray of bool, shape (M, P)
+        Which samples exist.
+    """
+    periods = np.asarray(periods, dtype=np.float64)
+    present = np.asarray(present, dtype=bool)
+    ok = present.reshape(present.shape + (1,) * (periods.ndim - 2))
+    counts = np.maximum(ok.sum(axis=0), 1)
+    return np.where(ok, periods, 0.0).sum(axis=0) / counts
 
 
 def line_spectra(periods: np.ndarray, present: np.ndarray, bins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -22,6 +22,7 @@ from numpy.typing import ArrayLike
 from scipy import signal
 
 from hilident.errors import ConfigError, DataError
+from hilident.ident.gapped_periods import mean_period
 
 __all__ = [
     "check_signals",
@@ -198,16 +199,13 @@ def _remove_drift_gapped(x: np.ndarray, period: int, degree: int, present: np.nd
 
     def aperiodic(v: np.ndarray) -> np.ndarray:  # v less the mean over the periods that have each sample
         folded = v.reshape(periods, period, *v.shape[1:])
-        mask = ok.reshape(periods, period, *([1] * (v.ndim - 1)))
-        mean = np.where(mask, folded, 0.0).sum(axis=0) / counts.reshape(period, *([1] * (v.ndim - 1)))
-        return (folded - mean).reshape(v.shape)[present]
+        return (folded - mean_period(folded, ok)).reshape(v.shape)[present]
 
     values = np.where(present, x, 0.0)
     coef, *_ = np.linalg.lstsq(aperiodic(basis), aperiodic(values), rcond=None)
     y = values - basis @ coef
     # the mean of the mean period: a missing sample does not shift it as it would the mean of those present
-    mean_period = np.where(ok, y.reshape(periods, period), 0.0).sum(axis=0) / counts
-    return np.where(present, y - mean_period.mean(), np.nan)
+    return np.where(present, y - mean_period(y.reshape(periods, period), ok).mean(), np.nan)
 
 
 #: Samples of the time axis :func:`_remove_line` makes at once.

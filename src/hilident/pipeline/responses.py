@@ -13,6 +13,7 @@ import numpy as np
 
 from hilident.config.tables import IdentificationConfig
 from hilident.errors import DataError
+from hilident.ident import gapped_periods
 from hilident.ident.frequency import FrequencyResponse, h1_estimate, periodic_frf
 from hilident.ident.preprocess import check_signals, lowpass, remove_drift
 
@@ -29,7 +30,7 @@ def condition_signal(
 
     The same filter on every signal of a ratio leaves the ratio intact. A
     record that misses samples (``present``) is not low-passed (a filter
-    cannot run across what does not exist; :func:`gapped_warning` says so) and
+    cannot run across what does not exist; :func:`gapped_warnings` says so) and
     comes back NaN where they are missing.
     """
     if present is not None:
@@ -49,11 +50,9 @@ def missing_samples(present) -> np.ndarray | None:
 
 def mean_period(x: np.ndarray, present: np.ndarray, period_samples: int) -> np.ndarray:
     """One period of the periodic ``x``: each sample the mean over the periods that have it."""
-    periods = len(x) // period_samples
-    shape = (periods, period_samples)
-    ok = present[: periods * period_samples].reshape(shape)
-    values = np.where(ok, x[: periods * period_samples].reshape(shape), 0.0)
-    return values.sum(axis=0) / np.maximum(ok.sum(axis=0), 1)
+    shape = (len(x) // period_samples, period_samples)
+    n = shape[0] * period_samples
+    return gapped_periods.mean_period(x[:n].reshape(shape), present[:n].reshape(shape))
 
 
 def gapped_warnings(cfg: IdentificationConfig, present: np.ndarray, period_samples: int | None) -> list[str]:

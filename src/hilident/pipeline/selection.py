@@ -252,11 +252,7 @@ def select_gapped_periods(
     positions = np.array([slot[int(p)] for p in which[take]], dtype=np.int64) * period + index_used[take] % period
     present = np.zeros(len(periods) * period, dtype=bool)
     present[positions] = True
-    missing = int((~present).sum())
-    warnings = [
-        f"{name}: {missing} of {present.size} samples of the {len(periods)} periods analysed are missing; each "
-        "period was read by least squares on the samples it has"
-    ]
+    warnings = []  # how many samples are missing, the analysis that reads around them says
     total = max(int(index.max(initial=0)) // period, 0)
     if len(periods) < total:
         warnings.append(f"{name}: {total - len(periods)} of {total} excitation periods missed too many samples")

@@ -36,6 +36,7 @@ __all__ = [
     "SYNCHRONOUS",
     "EVENT_DRIVEN",
     "BUFFER_ROLES",
+    "buffers_setpoints",
     "PdoSlot",
     "PlannedPdo",
     "PdoPlan",
@@ -54,6 +55,14 @@ SYNCHRONOUS = 1
 EVENT_DRIVEN = 255
 #: The roles that say a drive buffers its interpolation data (CiA 402 0x60C4).
 BUFFER_ROLES = ("ip_buffer_max", "ip_buffer_size", "ip_buffer_clear")
+
+
+def buffers_setpoints(desc, setpoint: str) -> bool:
+    """The run's set-points (``setpoint``: their role) are interpolation data and the drive describes a buffer
+    for them (:data:`BUFFER_ROLES`)."""
+    return setpoint == "interpolation_data" and all(desc.has(r) for r in BUFFER_ROLES)
+
+
 #: (communication base, mapping base, predefined COB-ID base) of each kind of PDO.
 _BASES = {"rpdo": (0x1400, 0x1600, 0x200), "tpdo": (0x1800, 0x1A00, 0x180)}
 #: RPDOs a streamed run empties beside the one carrying the set-point (2-4: the predefined connection set).
@@ -279,8 +288,8 @@ def _plan_rpdos(od, desc: CanopenDescription, node_id: int, setpoint: str) -> tu
         )
     address = desc.address(setpoint)
     entries = _header(od, desc, "setpoint_counter") + [(address, _bits(od, address))]
-    buffered = setpoint == "interpolation_data" and all(desc.has(r) for r in BUFFER_ROLES)
-    first = PlannedPdo("rpdo", slots[0], tuple(entries), transmission=EVENT_DRIVEN if buffered else SYNCHRONOUS)
+    transmission = EVENT_DRIVEN if buffers_setpoints(desc, setpoint) else SYNCHRONOUS
+    first = PlannedPdo("rpdo", slots[0], tuple(entries), transmission=transmission)
     return (first,) + tuple(PlannedPdo("rpdo", slot) for slot in slots[1 : 1 + _EMPTIED_RPDOS])
 
 

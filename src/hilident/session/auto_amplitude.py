@@ -22,7 +22,7 @@ from hilident.config.tables import (
     auto_coherence_target,
 )
 from hilident.errors import DataError
-from hilident.pipeline.selection import MAX_MISSING_SHARE
+from hilident.pipeline.selection import MAX_MISSING_SHARE, GappedPeriods
 from hilident.session.excitation import Excitation, build_excitation, excitation_recipe
 
 __all__ = [
@@ -168,12 +168,8 @@ def _last_period(samples: dict, period: int) -> tuple[dict | None, np.ndarray | 
     at = index[rows] - first
     present = np.zeros(period, dtype=bool)
     present[at] = True
-    spread = {}
-    for k, v in samples.items():
-        values = np.full(period, np.nan)
-        values[at] = np.asarray(v, dtype=float)[rows]
-        spread[k] = values
-    return spread, present
+    laid = GappedPeriods(rows, at, present, [0])
+    return {k: laid.spread(v) for k, v in samples.items()}, present
 
 
 class AutoAmplitude:

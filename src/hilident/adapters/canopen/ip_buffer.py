@@ -20,7 +20,7 @@ from __future__ import annotations
 from typing import Protocol
 
 from hilident.errors import DeviceError
-from hilident.protocol.canopen_pdo_plan import BUFFER_ROLES
+from hilident.protocol.canopen_pdo_plan import buffers_setpoints
 
 __all__ = ["MAX_RECORDS", "close_buffer", "open_buffer"]
 
@@ -38,11 +38,6 @@ class _Desc(Protocol):
     def has(self, role: str) -> bool: ...
 
 
-def has_buffer(desc: _Desc, setpoint_role: str) -> bool:
-    """The run's set-points are interpolation data and the drive describes a buffer for them."""
-    return setpoint_role == "interpolation_data" and all(desc.has(r) for r in BUFFER_ROLES)
-
-
 def open_buffer(sdo: _Sdo, desc: _Desc, setpoint_role: str, port: str) -> int:
     """Set the buffer up as a FIFO; the set-points the host may send ahead of the drive's next SYNC (1: no buffer).
 
@@ -51,7 +46,7 @@ def open_buffer(sdo: _Sdo, desc: _Desc, setpoint_role: str, port: str) -> int:
     DeviceError
         The drive refused a write (naming the object, as the SDO layer does).
     """
-    if not has_buffer(desc, setpoint_role):
+    if not buffers_setpoints(desc, setpoint_role):
         return 1
     try:
         records = min(int(sdo.read("ip_buffer_max")), MAX_RECORDS)
@@ -69,7 +64,7 @@ def open_buffer(sdo: _Sdo, desc: _Desc, setpoint_role: str, port: str) -> int:
 
 def close_buffer(sdo: _Sdo, desc: _Desc, setpoint_role: str) -> None:
     """Clear and disable the buffer (never raises: every ending passes here)."""
-    if has_buffer(desc, setpoint_role):
+    if buffers_setpoints(desc, setpoint_role):
         try:
             sdo.write("ip_buffer_clear", 0)
         except Exception:
