@@ -158,8 +158,10 @@ class TestEndingMatrix:
         self._second_session_finds_the_resonance(twin, tmp_path, clear_fault=False)
 
     def test_limit_trip(self, twin, tmp_path):
-        proc, out = self._start_and_wait_for_motion(twin, tmp_path, limits={"velocity_mps": 0.004})
-        rc, err = self._finish(proc)
+        # the trip may come within milliseconds of the enable: nothing waits to see the axis enabled first
+        out = tmp_path / "first"
+        config = twin.host_config("first", excitation={"duration_s": 16.0}, limits={"velocity_mps": 0.004})
+        rc, err = self._finish(host(config, out))
         assert rc == EXIT["limit_trip"], err
         assert not twin.enabled
         run = self._recording(out)
