@@ -200,7 +200,7 @@ class CanopenDriveFirmware:
         self._describe(driver, node_id)
         self._power_up_state()
         self.parameters = DriveParameters(self)
-        self.parameters.power_up_blocks()
+        self.parameters.power_up_slots()
         self.watch = HostWatch(self)
         self.pdo = PdoExchange(self, seed)
         self.producer = SyncProducer(self, self.pdo)

@@ -99,18 +99,35 @@ class DriveParameters:
             raise RuntimeError(f"{self.fw.driver.name}: the drive has no filter slots")
         return fo, encoding
 
-    def power_up_blocks(self) -> None:
-        """Word-block slots the EDS gives no default: each holds a bypassed identity block of its size, as a
-        drive's block always holds its words."""
+    def power_up_slots(self) -> None:
+        """The filter slots as the drive powers up: each runs what its objects hold (their EDS defaults, or
+        the ``[emulator] values`` the twin holds), where its enable says so or where it has none.
+
+        A word-block slot the EDS gives no default holds a bypassed identity block of its size, as a drive's
+        block always holds its words. Stored values that give no valid section leave the slot bypassed.
+        """
         fo, encoding = self.fw.desc.filters, self.fw.encoding
-        if fo is None or encoding is None or not fo.in_block:
+        if fo is None or encoding is None:
             return
-        lay = encoding.layout
-        neutral = encoding.disabled({"block": encode_block(lay, Biquad.identity(), None, encoding.feedback_sign)})
+        if fo.in_block:
+            lay = encoding.layout
+            neutral = encoding.disabled({"block": encode_block(lay, Biquad.identity(), None, encoding.feedback_sign)})
+            for slot in range(fo.count):
+                addr = fo.address(slot, "block")
+                if self._declared_block(slot) is None:
+                    self.fw.node.data_store.setdefault(addr.index, {})[addr.subindex] = neutral["block"]
         for slot in range(fo.count):
-            addr = fo.address(slot, "block")
-            if self._declared_block(slot) is None:
-                self.fw.node.data_store.setdefault(addr.index, {})[addr.subindex] = neutral["block"]
+            enabled = None if fo.in_block else (not fo.has_enable or self._enable_reads_on(slot))
+            try:
+                self._apply_filter(slot, enabled)
+            except SdoAbortedError:
+                self.fw.drive.filters.write(slot, Biquad.identity(), False)
+
+    def _enable_reads_on(self, slot: int) -> bool:
+        fo, _ = self._filter_slots()
+        addr = fo.address(slot, ENABLED)
+        stored = self.fw.stored(addr.index, addr.subindex)
+        return stored is not None and int(stored) == fo.enable_on
 
     def block_size(self, slot: int) -> int:
         """Bytes of a word-block slot: its EDS default's length where the EDS gives one, else the layout's."""
