@@ -1,0 +1,173 @@
+"""A drive's cascade as discrete transfer functions: what the controller does between the encoder and the motor.
+
+A servo drive closes its loops at its own rate. Between the position the
+encoder reads at tick ``k`` and the torque the motor gives over that tick, the
+drive runs a fixed chain, each part a transfer function in ``z`` at the loop
+rate:
+
+* the velocity estimate: the backward difference of the position, smoothed by a
+  first-order low-pass, ``V(z) = a (1 - z^-1) / T / (1 - (1 - a) z^-1)`` with
+  ``a = 1 - exp(-2 pi f_v T)``;
+* the velocity controller, a PI: ``C(z) = K_v + K_v T / T_i / (1 - z^-1)``
+  (the integrator adds its increment before the output, as a drive's code does);
+* the filter slots in series, ``N(z)``;
+* the computation and transport delay, ``z^-d``;
+* the current loop, a first-order lag sampled at the loop rate,
+  ``G(z) = b / (1 - (1 - b) z^-1)`` with ``b = 1 - exp(-2 pi f_c T)``.
+
+The plant closes the loop: ``H``, the response from the motor torque of a tick to
+the position the encoder reads in the same tick (a recording's torque and
+position columns, row by row). The open loop broken at the torque is then
+``L = K H`` with ``K`` the chain from the encoder to the motor torque:
+``K_vel = C N z^-d G V`` with the position loop open (velocity mode),
+``K_pos = C N z^-d G (K_p + V)`` with both loops closed (position mode).
+
+The same model describes the emulated drive (:mod:`hilident.emulator.drive`)
+exactly; a real drive's documentation says which parts it has.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hilident.errors import ConfigError
+from hilident.filters.biquad import Biquad
+
+__all__ = ["Cascade"]
+
+
+@dataclass(frozen=True)
+class Cascade:
+    """A drive's cascade controller, as its parameters describe it.
+
+    Parameters
+    ----------
+    loop_rate_hz : float
+        Rate of the drive's control loop, Hz.
+    kv_nm_per_mps : float
+        Velocity controller's proportional gain, N·m per (m/s).
+    ti_s : float
+        Velocity controller's integral time, s (``inf``: a P controller).
+    kp_pos_per_s : float
+        Position controller's gain, (m/s) per m.
+    velocity_filter_hz : float
+        Cut-off of the first-order low-pass on the velocity estimate, Hz
+        (``inf``: the raw backward difference).
+    current_loop_hz : float
+        Bandwidth of the current loop's first-order lag, Hz (``inf``: ideal).
+    delay_ticks : int
+        Computation and transport delay between the controller and the current
+        loop, loop ticks.
+    filters : tuple of Biquad
+        The enabled filter slots, in series on the torque command, at the loop rate.
+    """
+
+    loop_rate_hz: float
+    kv_nm_per_mps: float
+    ti_s: float = math.inf
+    kp_pos_per_s: float = 0.0
+    velocity_filter_hz: float = math.inf
+    current_loop_hz: float = math.inf
+    delay_ticks: int = 0
+    filters: tuple[Biquad, ...] = field(default_factory=tuple)
+
+    def __post_init__(self):
+        checks = {
+            "loop_rate_hz": self.loop_rate_hz > 0 and math.isfinite(self.loop_rate_hz),
+            "kv_nm_per_mps": self.kv_nm_per_mps >= 0 and math.isfinite(self.kv_nm_per_mps),
+            "ti_s": self.ti_s > 0,
+            "kp_pos_per_s": self.kp_pos_per_s >= 0 and math.isfinite(self.kp_pos_per_s),
+            "velocity_filter_hz": self.velocity_filter_hz > 0,
+            "current_loop_hz": self.current_loop_hz > 0,
+            "delay_ticks": isinstance(self.delay_ticks, int) and self.delay_ticks >= 0,
+        }
+        for name, ok in checks.items():
+            if not ok:
+                raise ConfigError(name, f"is out of range: {getattr(self, name)!r}")
+        object.__setattr__(self, "filters", tuple(self.filters))
+
+    @property
+    def period_s(self) -> float:
+        """The loop period, s."""
+        return 1.0 / self.loop_rate_hz
+
+    def with_gains(self, **gains) -> Cascade:
+        """The same cascade with other gains (``kv_nm_per_mps``, ``ti_s``, ``kp_pos_per_s``) or filters."""
+        values = {f: getattr(self, f) for f in self.__dataclass_fields__}
+        values.update(gains)
+        return Cascade(**values)
+
+    def _z_inverse(self, frequency_hz) -> np.ndarray:
+        return np.exp(-2j * np.pi * np.asarray(frequency_hz, dtype=float) * self.period_s)
+
+    def velocity_estimate(self, frequency_hz) -> np.ndarray:
+        """``V``: encoder position to velocity estimate, (m/s) per m."""
+        zi = self._z_inverse(frequency_hz)
+        a = _lag_step(self.velocity_filter_hz, self.period_s)
+        return a * (1.0 - zi) / self.period_s / (1.0 - (1.0 - a) * zi)
+
+    def velocity_controller(self, frequency_hz) -> np.ndarray:
+        """``C``: velocity error to torque command, N·m per (m/s)."""
+        zi = self._z_inverse(frequency_hz)
+        integral = 0.0 if math.isinf(self.ti_s) else self.kv_nm_per_mps * self.period_s / self.ti_s
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return self.kv_nm_per_mps + integral / (1.0 - zi)
+
+    def torque_path(self, frequency_hz) -> np.ndarray:
+        """``N z^-d G``: torque command to motor torque (filters, delay, current loop), 1."""
+        zi = self._z_inverse(frequency_hz)
+        h = np.ones_like(zi)
+        for section in self.filters:
+            h = h * section.response(frequency_hz, self.loop_rate_hz)
+        b = _lag_step(self.current_loop_hz, self.period_s)
+        return h * zi**self.delay_ticks * b / (1.0 - (1.0 - b) * zi)
+
+    def controller(self, frequency_hz, loop: str = "velocity") -> np.ndarray:
+        """``K``: encoder position to motor torque through the whole chain, N·m per m.
+
+        Parameters
+        ----------
+        frequency_hz : array_like
+            Frequencies, Hz (below half the loop rate).
+        loop : {"velocity", "position"}
+            ``"velocity"``: the position loop open (velocity mode);
+            ``"position"``: both loops closed (position mode).
+        """
+        inner = self.velocity_estimate(frequency_hz)
+        if loop == "position":
+            inner = inner + self.kp_pos_per_s
+        elif loop != "velocity":
+            raise ValueError(f"loop must be 'velocity' or 'position', got {loop!r}")
+        return self.velocity_controller(frequency_hz) * self.torque_path(frequency_hz) * inner
+
+    def open_loop(self, frequency_hz, plant_position, loop: str = "velocity") -> np.ndarray:
+        """``L = K H``: the loop broken at the motor torque, 1.
+
+        Parameters
+        ----------
+        frequency_hz : array_like
+            Frequencies, Hz.
+        plant_position : array_like of complex
+            ``H``: motor torque to encoder position at ``frequency_hz``, m per N·m,
+            row-aligned (the position read in the tick the torque is given).
+        loop : {"velocity", "position"}
+        """
+        return self.controller(frequency_hz, loop) * np.asarray(plant_position)
+
+    def closed_loop(self, frequency_hz, plant_position, loop: str = "velocity") -> np.ndarray:
+        """The set-point's response: velocity set-point to velocity estimate ((m/s) per (m/s)) for
+        ``"velocity"``, position set-point to encoder position (m per m) for ``"position"``."""
+        f = np.asarray(frequency_hz, dtype=float)
+        h = np.asarray(plant_position)
+        open_loop = self.open_loop(f, h, loop)
+        forward = self.velocity_controller(f) * self.torque_path(f) * h
+        forward = forward * (self.velocity_estimate(f) if loop == "velocity" else self.kp_pos_per_s)
+        return forward / (1.0 + open_loop)
+
+
+def _lag_step(bandwidth_hz: float, period_s: float) -> float:
+    """Fraction of the way to its input a first-order lag of ``bandwidth_hz`` moves per tick (1: none)."""
+    return -math.expm1(-2.0 * math.pi * bandwidth_hz * period_s) if math.isfinite(bandwidth_hz) else 1.0
