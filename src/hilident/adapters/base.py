@@ -200,6 +200,9 @@ class DeviceAdapter(Protocol):
     def stored_form(self, biquad: Biquad, spec: NotchSpec | None = None) -> Biquad:
         """The biquad the device will apply after its own rounding of ``biquad``/``spec``."""
 
+    def read_loop(self) -> dict[str, float] | None:
+        """The device's cascade parameters in SI units; None when its loop is not described."""
+
     def save_filter(self, slot: int) -> Any:
         """The slot's contents, opaque, for :meth:`restore_filter`."""
 
@@ -640,6 +643,11 @@ class AdapterBase:
     def _read_filter(self, slot: int) -> tuple[Biquad, bool]:
         """The biquad ``slot`` now applies, and whether it is enabled (hook, required)."""
         raise NotImplementedError
+
+    def read_loop(self) -> dict[str, float] | None:
+        """The device's cascade parameters in SI units (:data:`hilident.protocol.loop_parameters.PARAMETERS`);
+        None when its driver description does not describe its loop (the default)."""
+        return None
 
     def _stored_form(self, biquad: Biquad, spec: NotchSpec | None) -> Biquad:
         """The biquad the device applies after its own rounding of ``biquad``/``spec`` (hook, required)."""

@@ -29,6 +29,7 @@ exactly; a real drive's documentation says which parts it has.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -88,6 +89,21 @@ class Cascade:
             if not ok:
                 raise ConfigError(name, f"is out of range: {getattr(self, name)!r}")
         object.__setattr__(self, "filters", tuple(self.filters))
+
+    @classmethod
+    def from_parameters(cls, values: Mapping[str, float], loop_rate_hz: float, filters=()) -> Cascade:
+        """The cascade whose parameters (the names of :data:`hilident.protocol.loop_parameters.PARAMETERS`)
+        read ``values``, in SI units; ``delay_ticks`` is rounded to whole ticks."""
+        return cls(
+            loop_rate_hz=float(loop_rate_hz),
+            kv_nm_per_mps=float(values["kv_nm_per_mps"]),
+            ti_s=float(values["ti_s"]),
+            kp_pos_per_s=float(values["kp_pos_per_s"]),
+            velocity_filter_hz=float(values["velocity_filter_hz"]),
+            current_loop_hz=float(values["current_loop_hz"]),
+            delay_ticks=int(round(float(values["delay_ticks"]))),
+            filters=tuple(filters),
+        )
 
     @property
     def period_s(self) -> float:

@@ -23,7 +23,7 @@ The drive knows only its measurements; it never sees the true state.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -326,6 +326,19 @@ class DriveLoop:
         return self.plant.state
 
     # -- the loop -------------------------------------------------------------
+
+    def retune(self, **gains) -> None:
+        """Run on with other cascade settings (fields of :class:`DriveTuning`), as a drive takes a new
+        parameter: the next tick uses them, the loop's state (integrator, velocity estimate) carries on.
+
+        Raises
+        ------
+        ConfigError
+            A value the loop cannot run (the old tuning stays).
+        """
+        if "delay_ticks" in gains and gains["delay_ticks"] != self.tuning.delay_ticks:
+            raise ConfigError("delay_ticks", "is the firmware's: it does not change while the drive runs")
+        self.tuning = replace(self.tuning, **gains)
 
     def run(self, excitation) -> np.ndarray:
         """Run one tick per excitation sample.

@@ -39,6 +39,7 @@ from hilident.protocol.canopen_filters import FilterObjects, parse_filter_object
 from hilident.protocol.canopen_recorder import RecorderCapability, parse_recorder
 from hilident.protocol.canopen_sync import SyncCapability, parse_sync
 from hilident.protocol.canopen_types import ModeSpec, ObjectAddress, parse_address
+from hilident.protocol.loop_parameters import LoopDescription, parse_loop
 
 __all__ = [
     "CanopenDescription",
@@ -157,6 +158,15 @@ HEARTBEAT_CONSUMER_INDEX = 0x1016
 ABORT_CONNECTION_INDEX = 0x6007
 
 
+def _loop(table, od, source: str) -> LoopDescription | None:
+    """The ``[loop]`` table, each object it names found in the EDS."""
+    loop = parse_loop(table, source)
+    for name, addr in (loop.objects if loop is not None and od is not None else {}).items():
+        if od.get_variable(addr.index, addr.subindex) is None:
+            raise ConfigError(f"loop.{name}.object", f"{addr} is not in the EDS", source)
+    return loop
+
+
 def _pdo_mappable(od, addr: ObjectAddress) -> bool:
     """Whether the EDS lets ``addr`` be mapped into a PDO (True when there is no EDS to ask)."""
     var = od.get_variable(addr.index, addr.subindex) if od is not None else None
@@ -225,6 +235,8 @@ class CanopenDescription:
         The drive's own generator and recorder (:mod:`hilident.protocol.canopen_recorder`).
     sync : SyncCapability
         Whether the drive can produce SYNC and how it monitors it (:mod:`hilident.protocol.canopen_sync`).
+    loop : LoopDescription or None
+        Where the drive keeps its cascade's parameters (``[loop]``, :mod:`hilident.protocol.loop_parameters`).
     """
 
     eds: str
@@ -252,6 +264,7 @@ class CanopenDescription:
     unmappable: tuple[str, ...] = ()
     recorder: RecorderCapability | None = None
     sync: SyncCapability = field(default_factory=SyncCapability)
+    loop: LoopDescription | None = None
 
     @classmethod
     def from_sections(cls, sections: dict, source: str = "", od=None) -> CanopenDescription:
@@ -311,6 +324,7 @@ class CanopenDescription:
             unmappable=unmappable,
             recorder=parse_recorder(sections, source, od),
             sync=parse_sync(co, source),
+            loop=_loop(sections.get("loop"), od, source),
         )
         desc._check_default_acquisition(source)
         return desc

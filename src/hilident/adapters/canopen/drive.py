@@ -683,6 +683,18 @@ class CanopenDriveAdapter(AdapterBase):
         """Why the drive's encoding cannot meet ``spec`` exactly (depth or width out of reach), if it cannot."""
         return self.slots.filter_notes(spec)
 
+    def read_loop(self) -> dict[str, float] | None:
+        """The drive's cascade parameters in SI units (``[loop]``: the objects read, the fixed values as given);
+        None when the driver description has no ``[loop]``. DeviceError naming the object when one cannot be
+        read."""
+        loop = self.desc.loop
+        if loop is None:
+            return None
+        return {
+            name: p.physical(self.sdo.read_object(p.address)) if p.address is not None else float(p.value or 0.0)
+            for name, p in loop.parameters.items()
+        }
+
     def save_parameters(self) -> str:
         """Have the drive store its parameters in non-volatile memory (0x1010, or the object ``[canopen.save]``
         names); what was written, e.g. ``"0x1010:1 (Save all parameters) = 0x65766173"``. DeviceError when the

@@ -55,6 +55,7 @@ import canopen
 from hilident.config.tables import FaultsConfig
 from hilident.drivers.description import DriverDescription, load_object_dictionary
 from hilident.emulator.canopen.guarding import HostWatch
+from hilident.emulator.canopen.loop import LoopObjects
 from hilident.emulator.canopen.objects import ObjectStore, hold_values
 from hilident.emulator.canopen.parameters import DriveParameters
 from hilident.emulator.canopen.pdo import PdoExchange
@@ -201,6 +202,7 @@ class CanopenDriveFirmware:
         self._power_up_state()
         self.parameters = DriveParameters(self)
         self.parameters.power_up_slots()
+        self.loop_objects = LoopObjects(self)
         self.watch = HostWatch(self)
         self.pdo = PdoExchange(self, seed)
         self.producer = SyncProducer(self, self.pdo)
@@ -455,6 +457,8 @@ class CanopenDriveFirmware:
             value = self._read_live(role, addr)
             if value is not None:
                 return value
+            if (parameter := self.loop_objects.owner(addr)) is not None:
+                return self.loop_objects.read(parameter, addr)
         return self.objects.unset_value(index, subindex, od)
 
     def _read_live(self, role: str | None, addr: ObjectAddress):
@@ -517,6 +521,8 @@ class CanopenDriveFirmware:
             self.parameters.write_filter(*slot, value)
         elif self.desc.has("capture_mapping") and index == self.desc.address("capture_mapping").index:
             self.playback.write_capture_mapping(subindex, int(value))
+        elif (parameter := self.loop_objects.owner(ObjectAddress(index, subindex))) is not None:
+            self.loop_objects.write(parameter, value)
         elif self._is_error_history(index):
             if value != 0:
                 raise SdoAbortedError(ABORT_VALUE)

@@ -1,0 +1,141 @@
+"""Where a drive keeps its control loop's parameters: the ``[loop]`` table of a ``driver.toml``.
+
+A drive's cascade (:class:`hilident.control.Cascade`) has six parameters. The
+driver folder says, for each, where the drive keeps it or what it is:
+
+.. code-block:: toml
+
+    [loop]
+    kv_nm_per_mps = { object = "0x2400:1" }              # a CANopen object, in SI units
+    ti_s = { object = "0x2400:2", scale = 0.001 }        # stored in ms: 0.001 s per unit
+    kp_pos_per_s = { object = "0x2400:3" }
+    velocity_filter_hz = { object = "0x2400:4" }
+    current_loop_hz = { value = 1000.0 }                 # fixed by the firmware (the manual's figure)
+    delay_ticks = { value = 1 }
+
+``value`` may be ``inf`` where the parameter's part is absent (``ti_s = inf``:
+a P controller; ``velocity_filter_hz = inf``: the raw difference;
+``current_loop_hz = inf``: an ideal current loop). The host reads the objects
+and never writes a parameter kept as a value.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from hilident.errors import ConfigError
+from hilident.protocol.canopen_types import ObjectAddress, parse_address
+
+__all__ = ["PARAMETERS", "TUNABLE", "LoopDescription", "LoopParameter", "parse_loop"]
+
+#: The cascade's parameters, with their units.
+PARAMETERS = {
+    "kv_nm_per_mps": "velocity loop proportional gain, N*m per (m/s)",
+    "ti_s": "velocity loop integral time, s (inf: a P controller)",
+    "kp_pos_per_s": "position loop gain, (m/s) per m",
+    "velocity_filter_hz": "cut-off of the velocity estimate's low-pass, Hz (inf: none)",
+    "current_loop_hz": "bandwidth of the current loop, Hz (inf: ideal)",
+    "delay_ticks": "computation and transport delay, loop ticks",
+}
+#: The parameters a tuner may change; the others are the drive's hardware and firmware.
+TUNABLE = ("kv_nm_per_mps", "ti_s", "kp_pos_per_s", "velocity_filter_hz")
+
+
+@dataclass(frozen=True)
+class LoopParameter:
+    """One cascade parameter: the object that holds it, or its fixed value.
+
+    Attributes
+    ----------
+    name : str
+        One of :data:`PARAMETERS`.
+    address : ObjectAddress or None
+        The CANopen object that holds it (None: a fixed value).
+    value : float or None
+        The fixed value in SI units (None: read from ``address``).
+    scale : float
+        SI units per stored unit of the object.
+    """
+
+    name: str
+    address: ObjectAddress | None = None
+    value: float | None = None
+    scale: float = 1.0
+
+    def physical(self, stored) -> float:
+        """The SI value of what the object holds."""
+        return float(stored) * self.scale
+
+    def stored(self, physical: float) -> float:
+        """What the object holds for the SI value ``physical`` (before rounding to the object's type)."""
+        return physical / self.scale
+
+
+@dataclass(frozen=True)
+class LoopDescription:
+    """The ``[loop]`` table: every parameter of :data:`PARAMETERS`, where it lives.
+
+    Attributes
+    ----------
+    parameters : dict
+        Name -> :class:`LoopParameter`.
+    """
+
+    parameters: dict[str, LoopParameter]
+
+    @property
+    def objects(self) -> dict[str, ObjectAddress]:
+        """The parameters held in objects: name -> address."""
+        return {n: p.address for n, p in self.parameters.items() if p.address is not None}
+
+    def owner(self, addr: ObjectAddress) -> str | None:
+        """The parameter the object ``addr`` holds; None when it holds none."""
+        return next((n for n, a in self.objects.items() if a == addr), None)
+
+
+def parse_loop(table, source: str = "") -> LoopDescription | None:
+    """The ``[loop]`` table of a driver description; None when it has none.
+
+    Raises
+    ------
+    ConfigError
+        A parameter missing, unknown or malformed; the message names the key.
+    """
+    if table is None:
+        return None
+    if not isinstance(table, dict):
+        raise ConfigError("loop", "must be a table of the cascade's parameters", source)
+    unknown = sorted(set(table) - set(PARAMETERS))
+    if unknown:
+        raise ConfigError(f"loop.{unknown[0]}", f"is no cascade parameter; they are {list(PARAMETERS)}", source)
+    missing = [n for n in PARAMETERS if n not in table]
+    if missing:
+        raise ConfigError(
+            f"loop.{missing[0]}",
+            f"is missing: give the object that holds it or its value ({PARAMETERS[missing[0]]})",
+            source,
+        )
+    return LoopDescription({n: _parameter(n, table[n], source) for n in PARAMETERS})
+
+
+def _parameter(name: str, entry, source: str) -> LoopParameter:
+    key = f"loop.{name}"
+    if isinstance(entry, (int, float)) and not isinstance(entry, bool):
+        entry = {"value": entry}
+    if not isinstance(entry, dict) or len({"object", "value"} & set(entry)) != 1:
+        raise ConfigError(key, 'must be { object = "0xIIII:S" } or { value = ... }', source)
+    extra = sorted(set(entry) - {"object", "value", "scale"})
+    if extra:
+        raise ConfigError(f"{key}.{extra[0]}", "is not a key of a loop parameter (object, value, scale)", source)
+    scale = entry.get("scale", 1.0)
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not (math.isfinite(scale) and scale > 0):
+        raise ConfigError(
+            f"{key}.scale", f"must be a finite number > 0 (SI units per stored unit), got {scale!r}", source
+        )
+    if "object" in entry:
+        return LoopParameter(name, address=parse_address(entry["object"], f"{key}.object", source), scale=float(scale))
+    value = entry["value"]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value) or value < 0:
+        raise ConfigError(f"{key}.value", f"must be a number >= 0 (inf allowed), got {value!r}", source)
+    return LoopParameter(name, value=float(value))

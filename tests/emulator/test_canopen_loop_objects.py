@@ -1,0 +1,57 @@
+"""The twin's cascade is its [loop] objects: the host reads the gains the drive runs, and a write retunes it."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+from canopen.sdo import SdoAbortedError
+
+import canopen
+from hilident.adapters.canopen.drive import CanopenDriveAdapter
+from hilident.config.tables import load_config
+from hilident.drivers.description import find_driver
+from hilident.emulator.canopen.server import start
+
+CONFIG = Path(__file__).resolve().parents[2] / "configs" / "emulated-canopen-gantry.toml"
+
+
+@pytest.fixture
+def twin():
+    cfg = load_config(CONFIG)
+    driver = find_driver("canopen-servo")
+    emulated = start(replace(cfg.emulator, time_scale=10.0), driver, cfg.device)
+    yield cfg, driver, emulated
+    emulated.close()
+
+
+def test_the_host_reads_the_gains_the_drive_runs(twin):
+    cfg, driver, emulated = twin
+    adapter = CanopenDriveAdapter.open_device(replace(emulated.device, timeout_s=0.5), driver)
+    try:
+        values = adapter.read_loop()
+    finally:
+        adapter.close()
+    tuning = emulated.drive.tuning
+    assert values["kv_nm_per_mps"] == cfg.emulator.drive.kv_nm_per_mps == tuning.kv_nm_per_mps
+    assert values["ti_s"] == pytest.approx(tuning.ti_s, rel=1e-7)  # REAL32
+    assert values["current_loop_hz"] == tuning.current_loop_hz and values["delay_ticks"] == tuning.delay_ticks
+
+
+def test_a_write_retunes_the_running_loop_and_a_wrong_one_is_refused(twin):
+    _, driver, emulated = twin
+    network = canopen.Network()
+    network.connect(interface="virtual", channel=emulated.device.port)
+    try:
+        node = network.add_node(emulated.device.canopen.node_id, str(driver.folder / "canopen-servo.eds"))
+        node.sdo[0x2400][1].raw = 150.0
+        assert emulated.drive.tuning.kv_nm_per_mps == 150.0
+        with pytest.raises(SdoAbortedError) as err:
+            node.sdo[0x2400][2].raw = 0.0  # no integral time of zero
+        assert err.value.code == 0x06090030 and emulated.drive.tuning.ti_s > 0
+        with pytest.raises(SdoAbortedError) as err:
+            node.sdo[0x2400][5].raw = 5000.0  # the current loop is the power stage's
+        assert err.value.code == 0x06010002
+    finally:
+        network.disconnect()
