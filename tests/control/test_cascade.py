@@ -6,31 +6,19 @@ import math
 
 import numpy as np
 import pytest
-from scipy.linalg import expm
 
 from hilident.control import Cascade
 from hilident.emulator.drive import DriveLoop, DriveTuning
-from hilident.emulator.plant import Plant, TwoMass, state_matrices
+from hilident.emulator.plant import Plant, TwoMass
 from hilident.emulator.sensors import SensorModel
 from hilident.errors import ConfigError
 from hilident.filters.notch import NotchSpec, design_notch
+from support.loop_truth import plant_position
 
 RATE = 4000.0
 PERIOD = 4000  # one second: lines every hertz
 LINES = np.array([3, 7, 13, 21, 29, 51, 97, 151, 251, 397])
 MODEL = TwoMass(m1=8.0, m2=2.0, k=8e4, d=20.0, c=10.0)
-
-
-def plant_position(model, frequency_hz, rate_hz: float) -> np.ndarray:
-    """The drive's plant exactly: motor torque held over a tick to the encoder position read at the tick's start."""
-    A, B = state_matrices(model)
-    n = A.shape[0]
-    M = np.zeros((n + 1, n + 1))
-    M[:n, :n], M[:n, n] = A, B * model.c
-    E = expm(M / rate_hz)
-    phi, gamma = E[:n, :n], E[:n, n]
-    z = np.exp(2j * np.pi * np.asarray(frequency_hz) / rate_hz)
-    return np.array([np.linalg.solve(zk * np.eye(n) - phi, gamma)[0] for zk in z])
 
 
 def tuning(**kw) -> DriveTuning:
