@@ -10,13 +10,16 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+import jsonschema
 import numpy as np
 
 from hilident.config.tables import load_config
 from hilident.drivers.description import find_driver
 from hilident.emulator.factory import true_modes
 from hilident.io.recording import read_run
+from hilident.schemas import summary_schema
 from hilident.session.run import Session
+from support.loop_truth import assert_loop_figures_match, true_loop_figures
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 CONFIG = CONFIGS / "emulated-canopen-gantry.toml"
@@ -60,6 +63,11 @@ def test_streamed_session_on_the_fixed_point_drive(tmp_path):
     biquad, enabled = session.emulator.drive.filters.read(0)
     assert enabled and biquad.b == tuple(summary["upload"]["slots"][0]["readback_b"])
     assert not session.emulator.drive.enabled
+    # the drive's loop read from its objects, around the plant recorded every 16 loop ticks: the margins as the
+    # twin's own plant and gains give them
+    truth = true_loop_figures(cfg.emulator, session.emulator.drive.tuning, [biquad])
+    assert_loop_figures_match(summary["loop"], truth)
+    jsonschema.validate(summary, summary_schema())
     for name in summary["recordings"]:
         run = read_run(tmp_path / name)
         assert run.complete and np.array_equal(run.samples["sample_index"], np.arange(n))

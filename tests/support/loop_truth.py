@@ -18,3 +18,43 @@ def plant_position(model, frequency_hz, rate_hz: float) -> np.ndarray:
     phi, gamma = E[:n, :n], E[:n, n]
     z = np.exp(2j * np.pi * np.asarray(frequency_hz, dtype=float) / rate_hz)
     return np.array([np.linalg.solve(zk * np.eye(n) - phi, gamma)[0] for zk in np.atleast_1d(z)])
+
+
+def true_loop_figures(emulator_cfg, tuning, notches=(), grid=None) -> dict:
+    """The twin's loops exactly, from its own plant and gains: ``{loop: {"without_notch", "with_notch"}:
+    LoopFigures}`` as ``summary.json["loop"]`` holds them (with_notch None without notches)."""
+    from hilident.control import Cascade, bandwidth_hz, loop_margins
+    from hilident.emulator.device import plant_model
+    from hilident.pipeline.loop_analysis import LoopFigures
+
+    f = np.geomspace(0.5, 0.45 * tuning.loop_rate_hz, 6000) if grid is None else grid
+    h = plant_position(plant_model(emulator_cfg), f, tuning.loop_rate_hz)
+    values = {
+        name: getattr(tuning, name)
+        for name in ("kv_nm_per_mps", "ti_s", "kp_pos_per_s", "velocity_filter_hz", "current_loop_hz", "delay_ticks")
+    }
+    out = {}
+    for loop in ("velocity", "position"):
+        out[loop] = {}
+        for label, filters in (("without_notch", ()), ("with_notch", tuple(notches))):
+            if label == "with_notch" and not notches:
+                out[loop][label] = None
+                continue
+            c = Cascade.from_parameters(values, tuning.loop_rate_hz, filters)
+            margins = loop_margins(f, c.open_loop(f, h, loop))
+            out[loop][label] = LoopFigures(margins, bandwidth_hz(f, c.closed_loop(f, h, loop)))
+    return out
+
+
+def assert_loop_figures_match(summary_loop: dict, truth: dict, db: float = 1.0, deg: float = 5.0) -> None:
+    """The predicted margins within ``db`` and ``deg`` of the truth, the sensitivity peak within ``db``."""
+    for loop, parts in truth.items():
+        for label, true in parts.items():
+            got = summary_loop[loop][label]
+            if true is None:
+                assert got is None, (loop, label)
+                continue
+            m = true.margins
+            assert abs(got["gain_margin_db"] - m.gain_margin_db) < db, (loop, label, got, m)
+            assert abs(got["phase_margin_deg"] - m.phase_margin_deg) < deg, (loop, label, got, m)
+            assert abs(got["sensitivity_peak_db"] - m.sensitivity_peak_db) < db, (loop, label, got, m)

@@ -64,6 +64,7 @@ LAYOUTS: dict[str, tuple[str, ...]] = {
         "map",
         "workspace",
         "move_test",
+        "loop",
     ),
     "identify": (
         "hilident_version",
@@ -349,11 +350,13 @@ class Summary:
         move_test: list | None = None,
         workspace: dict | None = None,
         notes: list[str] | None = None,
+        loop: dict | None = None,
     ) -> Summary:
         """``hilident run``'s summary (``model``: the grey-box fit, None when not asked for; left out when the
         run failed before it; ``workspace_map``: the ``[map]`` points, left out of a run without ``[map]``;
         ``move_test``: each ``[verification] move`` result, left out of a run without one; ``workspace``: the
-        ``[map]``'s joint fit and covering notch; ``notes``: what is worth knowing and needs no action)."""
+        ``[map]``'s joint fit and covering notch; ``notes``: what is worth knowing and needs no action; ``loop``: the drive's loop around the plant, left out of a
+        run on a drive without ``[loop]``)."""
         return cls(
             "run",
             config,
@@ -377,6 +380,7 @@ class Summary:
                 "map": NOT_REACHED if workspace_map is None else [p.to_dict() for p in workspace_map],
                 "workspace": NOT_REACHED if workspace is None else workspace,
                 "move_test": NOT_REACHED if move_test is None else move_test_summary(move_test),
+                "loop": NOT_REACHED if loop is None else loop,
             },
             notes=list(notes or []),
         )

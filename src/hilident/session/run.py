@@ -41,7 +41,7 @@ from hilident.adapters.backends import adapter_class
 from hilident.config.tables import Config, check_auto_amplitude
 from hilident.drivers.description import DriverDescription, check_run_against_driver, find_driver
 from hilident.drivers.tools import check_run_mapping
-from hilident.errors import ArmingRefused, ConfigError, DataError, HilidentError, UsageError
+from hilident.errors import ArmingRefused, ConfigError, DataError, DeviceError, HilidentError, UsageError
 from hilident.events import StreamStats
 from hilident.io.serialise import write_json
 from hilident.io.summary import (
@@ -75,6 +75,7 @@ pipeline_greybox = lazy_module("hilident.pipeline.greybox")
 pipeline_notches = lazy_module("hilident.pipeline.notches")
 pipeline_responses = lazy_module("hilident.pipeline.responses")
 pipeline_verification = lazy_module("hilident.pipeline.verification")
+pipeline_loop = lazy_module("hilident.pipeline.loop_analysis")
 #: The upload step, shared with ``hilident upload``.
 uploading = lazy_module("hilident.session.upload")
 
@@ -166,6 +167,7 @@ class Session(DeviceConnection):
         self.workspace: WorkspaceRun | None = None  # [map]: the map, the joint fit, the covering notches
         self.move_results: list[MoveTestResult] | None = None  # [verification] move, at each place it ran
         self.position_m: float | None = None  # the cart's position at the end of the last recording, m
+        self.loop = None  # the drive's loop around the identified plant (a drive with [loop] only)
 
     # --- connection -----------------------------------------------------------------------
 
@@ -271,6 +273,7 @@ class Session(DeviceConnection):
                 self._map_step(ident, excitation, friction, plant)
             step = "notch upload"
             designs, upload = self._notch_step(plant)
+            self.loop = self._loop_step(plant, designs)
             step = "verification"
             verification = self._verify(excitation, plant, designs)
             if self.workspace is not None and verification is not None and self.cfg.map.verify:
@@ -606,6 +609,34 @@ class Session(DeviceConnection):
         self._uploaded = True  # from here the device holds the new notches; other bypassed slots stay bypassed
         return designs, upload
 
+    def _loop_step(self, plant, designs: list):
+        """The drive's loop around the identified plant, without and with the designed notches; None when the
+        driver does not describe the loop. A drive that cannot be read is a warning, not a failed run."""
+        ad = self.adapter
+        try:
+            parameters = ad.read_loop()
+        except DeviceError as exc:
+            self.warnings.append(f"loop: the drive's loop parameters could not be read: {exc}")
+            return None
+        if parameters is None or plant is None:
+            return None
+        sampling = next((c.sampling for c in self.found_driver.channels if c.name == "torque_nm"), "instant")
+        try:
+            analysis = pipeline_loop.analyse_loop(
+                plant,
+                parameters,
+                ad.identity.loop_rate_hz,
+                self.cfg.run.sample_rate_hz,
+                [d.biquad for d in designs],
+                sampling,
+                self.cfg.identification.output,
+            )
+        except (ConfigError, DataError, ValueError) as exc:
+            self.warnings.append(f"loop: no margins: {exc}")
+            return None
+        self.notes += analysis.notes
+        return analysis
+
     def _notchable(self, plant, upload: UploadOutcome) -> list:
         """The resonances the evidence supports a notch for; why the others get none goes to warnings and upload."""
         e = self.cfg.excitation
@@ -735,6 +766,7 @@ class Session(DeviceConnection):
             workspace_map=self.workspace.points if self.workspace else None,
             move_test=self.move_results,
             workspace=self.workspace.summary if self.workspace else None,
+            loop=self.loop.to_dict() if self.loop is not None else None,
         )
 
     def _plots(self, friction, plant, designs, verification, excitation_band_hz, model=None) -> None:
