@@ -19,7 +19,11 @@ from hilident.emulator.factory import true_modes
 from hilident.io.recording import read_run
 from hilident.schemas import summary_schema
 from hilident.session.run import Session
-from support.loop_truth import assert_loop_figures_match, true_loop_figures
+from support.loop_truth import (
+    assert_loop_figures_match,
+    assert_proposal_keeps_targets_on_the_truth,
+    true_loop_figures,
+)
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 CONFIG = CONFIGS / "emulated-canopen-gantry.toml"
@@ -64,9 +68,11 @@ def test_streamed_session_on_the_fixed_point_drive(tmp_path):
     assert enabled and biquad.b == tuple(summary["upload"]["slots"][0]["readback_b"])
     assert not session.emulator.drive.enabled
     # the drive's loop read from its objects, around the plant recorded every 16 loop ticks: the margins as the
-    # twin's own plant and gains give them
+    # twin's own plant and gains give them (a short record without friction legs: 1.5 dB; the shipped sessions
+    # meet 1 dB, test_session_e2e.py)
     truth = true_loop_figures(cfg.emulator, session.emulator.drive.tuning, [biquad])
-    assert_loop_figures_match(summary["loop"], truth)
+    assert_loop_figures_match(summary["loop"], truth, db=1.5)
+    assert_proposal_keeps_targets_on_the_truth(summary["loop"], cfg.emulator, session.emulator.drive.tuning, [biquad])
     jsonschema.validate(summary, summary_schema())
     for name in summary["recordings"]:
         run = read_run(tmp_path / name)

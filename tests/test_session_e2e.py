@@ -15,8 +15,10 @@ from hilident.cli.main import main
 from hilident.config.tables import load_config
 from hilident.drivers.description import find_driver
 from hilident.emulator.factory import true_modes
+from hilident.filters.biquad import Biquad
 from hilident.io.recording import read_run
 from hilident.session.run import Session
+from support.loop_truth import assert_loop_figures_match, assert_proposal_keeps_targets_on_the_truth, true_loop_figures
 from support.report_page import check_report
 from support.schema_check import schema_errors
 from support.summary_keys import assert_layout
@@ -127,7 +129,13 @@ def test_every_shipped_emulator_config_runs(path, tmp_path):
         zeta_tolerance = 0.3
     elif cfg.emulator.time_scale <= 4.0:  # the whole session as shipped, in simulated time twice as fast
         cfg = replace(cfg, emulator=replace(cfg.emulator, time_scale=2 * cfg.emulator.time_scale))
-    summary = Session(cfg, tmp_path).run()
+    session = Session(cfg, tmp_path)
+    summary = session.run()
+    if "loop" in summary:  # a drive that describes its loop: the margins as the twin's own plant and gains give them
+        notches = [Biquad(np.array(n["b"]), np.array(n["a"])) for n in summary["notch_filters"]]
+        tuning = session.emulator.drive.tuning
+        assert_loop_figures_match(summary["loop"], true_loop_figures(cfg.emulator, tuning, notches))
+        assert_proposal_keeps_targets_on_the_truth(summary["loop"], cfg.emulator, tuning, notches)
     # Only the gantry promises 20 dB: the lecture's 0.225 Hz mode is too slow for REAL32
     # coefficients at a 4 kHz filter rate, and the session says so in a warning.
     check_against_truth(cfg, summary, 20.0 if "gantry" in path.stem else None, zeta_tolerance)

@@ -87,7 +87,7 @@ def test_an_injection_at_the_controller_output_measures_the_open_loop():
     t = tuning()
     e, cols = measured("torque_injection", 0.5, t)
     command = cols[:, DriveLoop.CHANNELS.index("torque_cmd_nm")]
-    loop = cascade_of(t).open_loop(LINES, plant_position(MODEL, LINES, RATE), "position")
+    loop = cascade_of(t).open_loop(LINES, plant_position(MODEL, LINES, RATE), "torque")
     assert_close(e / command - 1.0, loop, db=0.05, deg=0.5)
 
 

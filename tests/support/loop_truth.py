@@ -58,3 +58,28 @@ def assert_loop_figures_match(summary_loop: dict, truth: dict, db: float = 1.0, 
             assert abs(got["gain_margin_db"] - m.gain_margin_db) < db, (loop, label, got, m)
             assert abs(got["phase_margin_deg"] - m.phase_margin_deg) < deg, (loop, label, got, m)
             assert abs(got["sensitivity_peak_db"] - m.sensitivity_peak_db) < db, (loop, label, got, m)
+
+
+def assert_proposal_keeps_targets_on_the_truth(summary_loop: dict, emulator_cfg, tuning, notches, db=1.0, deg=5.0):
+    """Each proposed set of gains, run on the twin's own plant, keeps the targets (within ``db`` and ``deg``)."""
+    from hilident.control import Cascade, loop_margins
+    from hilident.emulator.device import plant_model
+
+    part = summary_loop["tuning"]
+    targets = part["targets"]
+    f = np.geomspace(0.5, 0.45 * tuning.loop_rate_hz, 6000)
+    h = plant_position(plant_model(emulator_cfg), f, tuning.loop_rate_hz)
+    values = {n: getattr(tuning, n) for n in ("velocity_filter_hz", "current_loop_hz", "delay_ticks")}
+    checked = 0
+    for label, filters in (("without_notch", ()), ("with_notch", tuple(notches))):
+        proposed = part[label]
+        if proposed is None:
+            continue
+        c = Cascade.from_parameters({**values, **proposed["gains"]}, tuning.loop_rate_hz, filters)
+        for loop in ("velocity", "position"):
+            m = loop_margins(f, c.open_loop(f, h, loop))
+            assert m.gain_margin_db >= targets["gain_margin_db"] - db, (label, loop, m)
+            assert m.phase_margin_deg >= targets["phase_margin_deg"] - deg, (label, loop, m)
+            assert m.sensitivity_peak_db <= 20 * np.log10(targets["sensitivity_peak"]) + db, (label, loop, m)
+        checked += 1
+    assert checked, "no gains were proposed"

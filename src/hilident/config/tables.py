@@ -325,6 +325,24 @@ class IdentificationConfig:
 
 
 @dataclass(frozen=True)
+class TuningConfig:
+    enabled: bool = _spec(True, doc="propose loop gains on a drive whose driver describes its loop ([loop])")
+    preset: str = _spec(
+        "medium",
+        choices=("stiff", "medium", "soft"),
+        doc="stability targets: stiff GM 8 dB, PM 45 deg, Ms 2; medium GM 10 dB, PM 50 deg, Ms 1.7; "
+        "soft GM 12 dB, PM 60 deg, Ms 1.4",
+    )
+    gain_margin_db: float | None = _spec(None, gt=0, doc="smallest gain margin, dB (default: the preset's)")
+    phase_margin_deg: float | None = _spec(
+        None, gt=0, lt=90, doc="smallest phase margin, degrees (default: the preset's)"
+    )
+    sensitivity_peak: float | None = _spec(
+        None, gt=1, doc="largest sensitivity peak Ms, 1 (default: the preset's)"
+    )
+
+
+@dataclass(frozen=True)
 class NotchConfig:
     enabled: bool = _spec(True, doc="design notch filters at the resonances and upload them")
     depth_db: float = _spec(30.0, gt=0, doc="depth of each notch at its centre")
@@ -844,6 +862,7 @@ class Config:
     excitation: ExcitationConfig = _spec(ExcitationConfig())
     identification: IdentificationConfig = _spec(IdentificationConfig())
     notch: NotchConfig = _spec(NotchConfig())
+    tuning: TuningConfig = _spec(TuningConfig())
     map: MapConfig = _spec(MapConfig())
     batch: BatchConfig = _spec(BatchConfig())
     verification: VerificationConfig = _spec(VerificationConfig())

@@ -4,6 +4,7 @@ identified plant, and their margins (pure: no I/O).
 * :mod:`.cascade`: :class:`Cascade`, a drive's cascade as discrete transfer functions;
 * :mod:`.sampled`: :func:`loop_plant`, the plant the loop sees tick by tick from a response recorded at the
   sample rate;
+* :mod:`.tuning`: :func:`~hilident.control.tuning.propose_gains`, the widest loops that keep stability targets;
 * :mod:`.margins`: :func:`loop_margins` and :func:`bandwidth_hz` of a loop's frequency response.
 
 May import ``filters`` and ``errors`` only (pure).

@@ -17,10 +17,12 @@ rate:
 
 The plant closes the loop: ``H``, the response from the motor torque of a tick to
 the position the encoder reads in the same tick (a recording's torque and
-position columns, row by row). The open loop broken at the torque is then
-``L = K H`` with ``K`` the chain from the encoder to the motor torque:
-``K_vel = C N z^-d G V`` with the position loop open (velocity mode),
-``K_pos = C N z^-d G (K_p + V)`` with both loops closed (position mode).
+position columns, row by row). The chain from the encoder to the motor torque is
+``K_vel = C N z^-d G V`` with the position loop open (velocity mode) and
+``K_pos = C N z^-d G (K_p + V)`` with both loops closed (position mode). A
+cascade is tuned loop by loop: the velocity loop broken at the torque,
+``L_v = K_vel H``; the position loop broken at the velocity set-point with the
+velocity loop closed, ``L_p = K_p C N z^-d G H / (1 + L_v)``.
 
 The same model describes the emulated drive (:mod:`hilident.emulator.drive`)
 exactly; a real drive's documentation says which parts it has.
@@ -160,7 +162,7 @@ class Cascade:
         return self.velocity_controller(frequency_hz) * self.torque_path(frequency_hz) * inner
 
     def open_loop(self, frequency_hz, plant_position, loop: str = "velocity") -> np.ndarray:
-        """``L = K H``: the loop broken at the motor torque, 1.
+        """The loop broken where a tuner breaks it, 1.
 
         Parameters
         ----------
@@ -169,19 +171,36 @@ class Cascade:
         plant_position : array_like of complex
             ``H``: motor torque to encoder position at ``frequency_hz``, m per N·m,
             row-aligned (the position read in the tick the torque is given).
-        loop : {"velocity", "position"}
+        loop : {"velocity", "position", "torque"}
+            ``"velocity"``: the velocity loop broken at the motor torque, the
+            position loop open, ``C N z^-d G V H``; ``"position"``: the
+            position loop broken at the velocity set-point, the velocity loop
+            closed, ``K_p C N z^-d G H / (1 + L_velocity)`` (how a cascade's
+            outer loop is tuned); ``"torque"``: both loops closed, broken at
+            the motor torque, ``K_pos H`` (what an injection at the
+            controller's output measures).
         """
-        return self.controller(frequency_hz, loop) * np.asarray(plant_position)
+        f = np.asarray(frequency_hz, dtype=float)
+        h = np.asarray(plant_position)
+        if loop == "torque":
+            return self.controller(f, "position") * h
+        velocity_loop = self.controller(f, "velocity") * h
+        if loop == "velocity":
+            return velocity_loop
+        if loop != "position":
+            raise ValueError(f"loop must be 'velocity', 'position' or 'torque', got {loop!r}")
+        return self.kp_pos_per_s * self.velocity_controller(f) * self.torque_path(f) * h / (1.0 + velocity_loop)
 
     def closed_loop(self, frequency_hz, plant_position, loop: str = "velocity") -> np.ndarray:
         """The set-point's response: velocity set-point to velocity estimate ((m/s) per (m/s)) for
         ``"velocity"``, position set-point to encoder position (m per m) for ``"position"``."""
         f = np.asarray(frequency_hz, dtype=float)
         h = np.asarray(plant_position)
-        open_loop = self.open_loop(f, h, loop)
-        forward = self.velocity_controller(f) * self.torque_path(f) * h
-        forward = forward * (self.velocity_estimate(f) if loop == "velocity" else self.kp_pos_per_s)
-        return forward / (1.0 + open_loop)
+        if loop == "position":
+            outer = self.open_loop(f, h, "position")
+            return outer / (1.0 + outer)
+        velocity_loop = self.open_loop(f, h, "velocity")
+        return velocity_loop / (1.0 + velocity_loop)
 
 
 def _lag_step(bandwidth_hz: float, period_s: float) -> float:

@@ -9,31 +9,28 @@ phase margins, the sensitivity peak and the bandwidth of the set-point's
 response, with the drive's present gains, without the notches and with the ones
 designed -- what a notch buys, in the figures a servo engineer tunes by.
 
-The margins' crossings often lie above the measured band. There the loop sees
-the plant's mechanics (its integrators and the modes found in the band) through
-the drive's own filters and timing, which the loop description gives: the
-measured lines, brought to the tick rate and divided by the velocity estimate's
-filter, fix the mechanics' gain and timing, and the figures are computed on a
-dense grid up to 0.45 of the loop rate (a note names what lies beyond the
-measured band). Without a fitted model only the measured lines count.
+The plant the loop sees is :func:`hilident.pipeline.loop_plant.seen_plant`'s.
+With ``[tuning]`` targets, the gains that give the widest loops within them
+are proposed (:func:`hilident.control.tuning.propose_gains`), without and with
+the notches, robust to the modes' 95 % intervals: what the notch buys is then
+the bandwidth it allows at the same margins.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from hilident.control import Cascade, LoopMargins, bandwidth_hz, loop_margins, loop_plant
+from hilident.control import Cascade, LoopMargins, bandwidth_hz, loop_margins
+from hilident.control.tuning import PRESETS, Proposal, Targets, propose_gains
 from hilident.errors import DataError
 from hilident.filters.biquad import Biquad
+from hilident.pipeline.loop_plant import SeenPlant, seen_plant
 
 __all__ = ["LoopAnalysis", "LoopFigures", "analyse_loop"]
 
-#: Highest frequency of the dense grid, as a fraction of the loop rate.
-GRID_TOP = 0.45
-GRID_POINTS = 4000
 LOOPS = ("velocity", "position")
 
 
@@ -79,6 +76,8 @@ class LoopAnalysis:
     mechanics_fit : dict or None
         ``{gain_db_rms, phase_rms_deg}``: how far the measured lines lie from the mechanics the dense grid
         rests on (None: the lines themselves were used).
+    tuning : dict or None
+        The gains proposed against the ``[tuning]`` targets (:func:`tuning_part`); None: none asked for.
     """
 
     parameters: dict
@@ -88,6 +87,7 @@ class LoopAnalysis:
     figures: dict
     notes: list[str] = field(default_factory=list)
     mechanics_fit: dict | None = None
+    tuning: dict | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -100,94 +100,9 @@ class LoopAnalysis:
                 loop: {k: (None if v is None else v.to_dict()) for k, v in parts.items()}
                 for loop, parts in self.figures.items()
             },
+            "tuning": self.tuning,
             "notes": list(self.notes),
         }
-
-
-def _mechanics_to_position(model, band_hz: tuple[float, float], output_is_velocity: bool):
-    """The fitted model's mechanics from torque to position: its integrators (one more for a velocity
-    output), the modes and the corners inside the measured band, no delay (what lies beyond the band is the
-    drive's filters and timing, which the loop description gives)."""
-    m = model.modal
-    inside = lambda hz: band_hz[0] <= abs(hz) <= band_hz[1]  # noqa: E731
-    return replace(
-        m,
-        resonances=tuple(r for r in m.resonances if inside(r[0])),
-        antiresonances=tuple(r for r in m.antiresonances if inside(r[0])),
-        real_poles_hz=tuple(c for c in m.real_poles_hz if inside(c)),
-        real_zeros_hz=tuple(c for c in m.real_zeros_hz if inside(c)),
-        integrators=m.integrators + (1 if output_is_velocity else 0),
-        delay_s=0.0,
-    )
-
-
-def _fit_mechanics(mechanics, f: np.ndarray, measured: np.ndarray, loop_rate_hz: float):
-    """``(mechanics, gain, residual)``: the number of integrators (0 to 3) and the real gain (of either sign)
-    that bring ``mechanics``, held over a tick (half a tick late), closest to the ``measured`` lines (least
-    squares on the log of their ratio); ``residual`` is ``(rms dB, rms degrees)`` of what is left.
-
-    The fitted model's own integrators and sign may trade with corners outside the band (a low-frequency
-    slope bent by friction, a zero near 0 Hz); the lines brought to the tick rate decide. The timing is the
-    loop's own (the torque held over a tick, the position read at its start), not fitted: a delay fitted to
-    noisy lines in a low band would move the crossings far above it.
-    """
-    held = np.exp(-1j * np.pi * f / loop_rate_hz)
-    best = None
-    for n in range(4):
-        candidate = replace(mechanics, integrators=n)
-        log_ratio = np.log(measured / (candidate.response(f) * held))
-        log_gain = float(np.mean(log_ratio.real))
-        phase = np.unwrap(log_ratio.imag)
-        turns = round(float(np.mean(phase)) / math.pi)  # a real gain's phase is a whole number of half turns
-        phase -= turns * math.pi
-        cost = float(np.mean((log_ratio.real - log_gain) ** 2 + phase**2))
-        if best is None or cost < best[0]:
-            residual = (
-                float(20 / math.log(10) * np.sqrt(np.mean((log_ratio.real - log_gain) ** 2))),
-                float(np.degrees(np.sqrt(np.mean(phase**2)))),
-            )
-            best = (cost, candidate, (-1) ** turns * math.exp(log_gain), residual)
-    assert best is not None
-    return best[1], best[2], best[3]
-
-
-def _position_plant(plant, cascade: Cascade, rates: tuple[float, float], torque_sampling: str, output: str):
-    """``(f, H, source, band, residual)``: the plant the loop sees tick by tick, motor torque to encoder position.
-
-    The recorded response (torque to ``output``: the velocity estimate or the position) is brought to the
-    tick rate (:func:`~hilident.control.loop_plant`) and, for a velocity, divided by the velocity estimate.
-    With a fitted model, those lines inside the fitted band fix the gain and the timing of the model's
-    mechanics, which give ``H`` on a dense grid (``residual``: what the lines differ from it, rms dB and
-    degrees); without one, the measured lines are ``H`` (``residual`` None).
-    """
-    loop_rate_hz, sample_rate_hz = rates
-    frf = plant.plant
-    f_all = np.asarray(frf.frequency_hz, dtype=float)
-    ok = (f_all > 0) & np.isfinite(frf.response)
-    velocity = output == "velocity_mps"
-
-    def measured(f: np.ndarray, recorded: np.ndarray) -> np.ndarray:
-        seen = loop_plant(
-            f, recorded, loop_rate_hz, sample_rate_hz, cascade.current_loop_hz, cascade.delay_ticks, torque_sampling
-        )
-        return seen / cascade.velocity_estimate(f) if velocity else seen
-
-    if plant.model is None:
-        f = f_all[ok]
-        return f, measured(f, np.asarray(frf.response)[ok]), "lines", (float(f[0]), float(f[-1])), None
-    lo, hi = plant.model.fit.band_hz
-    band = (float(lo), float(hi))
-    lines = ok & (f_all >= band[0]) & (f_all <= band[1])
-    f_m = f_all[lines]
-    mechanics, gain, residual = _fit_mechanics(
-        _mechanics_to_position(plant.model, band, velocity),
-        f_m,
-        measured(f_m, np.asarray(frf.response)[lines]),
-        loop_rate_hz,
-    )
-    f = np.geomspace(max(band[0] / 2, 0.1), GRID_TOP * loop_rate_hz, GRID_POINTS)
-    held = np.exp(-1j * np.pi * f / loop_rate_hz)
-    return f, gain * mechanics.response(f) * held, "model", band, residual
 
 
 def _figures(cascade: Cascade, f: np.ndarray, position_plant: np.ndarray, loop: str) -> LoopFigures:
@@ -224,6 +139,7 @@ def analyse_loop(
     notches: list[Biquad],
     torque_sampling: str = "instant",
     output: str = "velocity_mps",
+    targets: Targets | None = None,
 ) -> LoopAnalysis:
     """Margins and bandwidths of the drive's loops around the identified plant, without and with ``notches``.
 
@@ -241,20 +157,95 @@ def analyse_loop(
         How the recording's torque was sampled (the driver's ``sampling`` of ``torque_nm``).
     output : {"velocity_mps", "position_m"}
         The identified response's output: the drive's velocity estimate or the encoder position.
+    targets : Targets, optional
+        ``[tuning]``'s: gains are proposed against them (None: none proposed).
     """
     if output not in ("velocity_mps", "position_m"):
         raise DataError(f"the loop is analysed from a response to velocity_mps or position_m, not {output!r}")
     without = Cascade.from_parameters(parameters, loop_rate_hz)
-    rates = (loop_rate_hz, sample_rate_hz)
-    f, seen, source, band, residual = _position_plant(plant, without, rates, torque_sampling, output)
+    seen = seen_plant(plant, without, (loop_rate_hz, sample_rate_hz), torque_sampling, output, _mode_shift(plant))
+    f, h = seen.frequency_hz, seen.response
     with_notch = without.with_gains(filters=tuple(notches)) if notches else None
     figures = {
         loop: {
-            "without_notch": _figures(without, f, seen, loop),
-            "with_notch": _figures(with_notch, f, seen, loop) if with_notch is not None else None,
+            "without_notch": _figures(without, f, h, loop),
+            "with_notch": _figures(with_notch, f, h, loop) if with_notch is not None else None,
         }
         for loop in LOOPS
     }
-    notes = _beyond_band_notes(figures, band) if source == "model" else []
-    fit = None if residual is None else {"gain_db_rms": residual[0], "phase_rms_deg": residual[1]}
-    return LoopAnalysis(dict(parameters), (float(f[0]), float(f[-1])), band, source, figures, notes, fit)
+    notes = _beyond_band_notes(figures, seen.band_hz) if seen.source == "model" else []
+    fit = None if seen.residual is None else {"gain_db_rms": seen.residual[0], "phase_rms_deg": seen.residual[1]}
+    part = None if targets is None else tuning_part(targets, without, with_notch, seen)
+    return LoopAnalysis(
+        dict(parameters), (float(f[0]), float(f[-1])), seen.band_hz, seen.source, figures, notes, fit, part
+    )
+
+
+def tuning_targets(tuning) -> Targets | None:
+    """The targets of a ``[tuning]`` table (:class:`~hilident.config.tables.TuningConfig`): its preset's, each
+    replaced by the key given; None when tuning is off."""
+    if not tuning.enabled:
+        return None
+    preset = PRESETS[tuning.preset]
+    return Targets(
+        tuning.gain_margin_db if tuning.gain_margin_db is not None else preset.gain_margin_db,
+        tuning.phase_margin_deg if tuning.phase_margin_deg is not None else preset.phase_margin_deg,
+        tuning.sensitivity_peak if tuning.sensitivity_peak is not None else preset.sensitivity_peak,
+    )
+
+
+def _mode_shift(plant) -> float:
+    """The widest 95 % interval of the reported resonances, as a fraction of their frequency (0: none)."""
+    shifts = [
+        r.frequency_ci95_hz / r.frequency_hz
+        for r in plant.resonances
+        if math.isfinite(getattr(r, "frequency_ci95_hz", math.nan)) and r.frequency_hz > 0
+    ]
+    return max(shifts, default=0.0)
+
+
+def _proposed(proposal: Proposal | None) -> dict | None:
+    if proposal is None:
+        return None
+    return {
+        "gains": proposal.gains(),
+        "velocity": LoopFigures(proposal.velocity, proposal.velocity_bandwidth_hz).to_dict(),
+        "position": LoopFigures(proposal.position, proposal.position_bandwidth_hz).to_dict(),
+    }
+
+
+def tuning_part(targets: Targets, without: Cascade, with_notch: Cascade | None, seen: SeenPlant) -> dict:
+    """The gains proposed against ``targets`` on the plant and its variants, without and with the notches, and
+    one line saying what the notch buys."""
+    plants = [seen.response, *seen.variants]
+    f = seen.frequency_hz
+    bare = propose_gains(without, f, plants, targets)
+    notched = propose_gains(with_notch, f, plants, targets) if with_notch is not None else None
+    return {
+        "targets": targets.to_dict(),
+        "plants": len(plants),
+        "without_notch": _proposed(bare),
+        "with_notch": _proposed(notched),
+        "verdict": _verdict(bare, notched, with_notch is not None),
+    }
+
+
+def _verdict(bare: Proposal | None, notched: Proposal | None, has_notch: bool) -> str:
+    """What the notch buys, in the velocity loop's bandwidth at the same targets."""
+    if not has_notch:
+        return "no notch designed: the proposal is the bare loop's"
+    if bare is None and notched is None:
+        return "no gains on the search grid keep the targets, with or without the notch"
+    if bare is None:
+        assert notched is not None
+        return (
+            f"only with the notch do gains keep the targets: velocity bandwidth {notched.velocity_bandwidth_hz:.1f} Hz"
+        )
+    if notched is None:
+        return f"the notch leaves no gains that keep the targets; without it: {bare.velocity_bandwidth_hz:.1f} Hz"
+    word = "buys" if notched.velocity_bandwidth_hz > bare.velocity_bandwidth_hz else "costs"
+    return (
+        f"the notch {word} velocity bandwidth at the same targets: {bare.velocity_bandwidth_hz:.1f} -> "
+        f"{notched.velocity_bandwidth_hz:.1f} Hz (position {bare.position_bandwidth_hz:.1f} -> "
+        f"{notched.position_bandwidth_hz:.1f} Hz)"
+    )

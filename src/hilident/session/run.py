@@ -630,6 +630,7 @@ class Session(DeviceConnection):
                 [d.biquad for d in designs],
                 sampling,
                 self.cfg.identification.output,
+                pipeline_loop.tuning_targets(self.cfg.tuning),
             )
         except (ConfigError, DataError, ValueError) as exc:
             self.warnings.append(f"loop: no margins: {exc}")
