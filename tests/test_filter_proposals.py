@@ -162,3 +162,30 @@ def test_every_proposed_table_is_one_the_encodings_read(family):
     assert objects is not None and objects.count >= family.filter_slots
     assert all(source for _, keys in family.tables for _, _, source in keys)  # each value says where it is from
     assert set(encoding.fields) <= set(objects.slots[0])
+
+
+def _changed_object(name: str, index: int, object_name: str = "", data_type: int = 0) -> VendorDrive:
+    """The family's drive with the filter object ``index`` renamed or of another data type."""
+    drive = FAMILIES[name]
+    objects = [
+        (o[0], o[1], object_name or o[2], data_type or o[3], *o[4:]) if o[0] == index else o
+        for o in drive.vendor_objects
+    ]
+    assert objects != drive.vendor_objects
+    return dataclasses.replace(drive, vendor_objects=objects)
+
+
+@pytest.mark.parametrize(
+    "drive",
+    [
+        _changed_object("beckhoff-ax2000", 0x3664, data_type=0x8),  # BQFC a REAL32: not the documented Integer32
+        _changed_object("beckhoff-ax2000", 0x3666, object_name="Operating mode"),  # 0x3666 is some other object
+        _changed_object("ingenia-denali", 0x2582, data_type=0x7),  # Q an integer: not Ingenia's float
+        _changed_object("ingenia-denali", 0x2588, object_name="Position reference filter 2 type"),
+    ],
+    ids=["beckhoff-real32-bqfc", "beckhoff-other-0x3666", "ingenia-integer-q", "ingenia-other-chain"],
+)
+def test_a_family_is_not_recognised_from_objects_of_another_type_or_name(tmp_path, drive):
+    report, text = _new(tmp_path, drive)
+    assert report.proposal is None and "filters" not in tomllib.loads(text)
+    assert not [p for p in report.placeholders if p.startswith("filters")]

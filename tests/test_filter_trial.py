@@ -150,6 +150,9 @@ def test_the_trial_notch_lies_inside_the_encoding_ranges():
     assert trial_notch(encoding, 4000.0).center_hz == pytest.approx(1000.0)  # a quarter of the rate
     assert trial_notch(encoding, 16000.0).center_hz == pytest.approx(2000.0)  # clipped to the range
     assert trial_notch(encoding, 20.0).center_hz == pytest.approx(9.0)  # and below Nyquist above all
+    # Beckhoff's BQFC, a field named center_hz, 20-1000 Hz
+    bi_quad = FilterEncoding.from_table({"encoding": "center_ratio_damping", "ranges": {"center_hz": [20, 1000]}})
+    assert trial_notch(bi_quad, 16000.0).center_hz == pytest.approx(1000.0)
 
 
 def test_a_folder_without_filter_objects_or_slots_is_not_tried(tmp_path):

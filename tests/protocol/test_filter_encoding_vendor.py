@@ -390,6 +390,11 @@ REALISABLE = {
     "index_table": (panasonic(), 50.0, 1),
     "center_band": (FilterEncoding("center_band", ranges={"center": [10, 2000], "band": [1, 4000]}), 10.0, 1),
     "q and ratio": (yaskawa_style(), 50.0, 1),
+    "q, full depth": (
+        FilterEncoding("notch_parameters", width_unit="q", depth_unit="full", scales={"center": 1, "width": 0}),
+        5.0,
+        1,
+    ),
 }
 
 
@@ -440,6 +445,7 @@ def test_every_documented_example_builds_and_realises_a_notch():
         "pole_zero_damping",
         "index_table",
         "center_band",
+        "center_ratio_damping",
     }
     copley = [t for t in tables if t.get("encoding") == "word_block" and "words" in t]
     assert FilterEncoding.from_table(copley[0]) == FilterEncoding.from_table(

@@ -16,6 +16,12 @@ Sources (the pages cited in each README):
   https://doc-legacy.synapticon.com/software/42/documentation_html/object_htmls/2023/index.html
 * Kollmorgen AKD User Guide p. 626-627 (VL.ARZF, VL.ARPQ, VL.ARZQ, CANopen 3406h),
   https://www.easymanua.ls/kollmorgen/akd-series/manual?p=626
+* Beckhoff InfoSys, AX2000 ASCII reference (BQMODE, BQFC, BQFR, BQDC, BQDR,
+  CANopen 0x3662-0x3666), https://infosys.beckhoff.com/content/1033/ax2000_ascii/
+* Ingenia's dictionary den-net-e_2.8.0_v3.xdf (current reference filters,
+  registers 0x0580-0x058B, CANopen 0x2580-0x258B),
+  https://github.com/ingeniamc/ingenialink-python/blob/master/tests/resources/den-net-e_2.8.0_v3.xdf
+  (facts only: the repository's licence, CC BY-NC-ND 4.0, forbids copying it)
 """
 
 from __future__ import annotations
@@ -24,7 +30,7 @@ from pathlib import Path
 
 from support.vendor_drives import VendorDrive, write_vendor_drive
 
-_BOOL, _UINT16, _UINT32, _UINT8, _OCTETS = 0x1, 0x6, 0x7, 0x5, 0xA
+_BOOL, _INT8, _INT32, _UINT16, _UINT32, _UINT8, _REAL32, _OCTETS = 0x1, 0x2, 0x4, 0x6, 0x7, 0x5, 0x8, 0xA
 
 COPLEY_PLUS_README = """# copley-plus (fixture)
 
@@ -105,6 +111,76 @@ only its filter record follows Kollmorgen's documentation.
 * No enable object: an AR filter always runs what it holds; hilident bypasses
   it by putting its zeros on its poles.
 * Vendor ID 0x0000006A and product code: not from a cited source.
+"""
+
+BECKHOFF_README = """# beckhoff-ax2000 (fixture)
+
+A Beckhoff AX2000 drive's bi-quad filter as the project models it for its
+tests. The EDS is written by `tests/support/filter_families.py`; only its
+bi-quad objects follow Beckhoff's documentation.
+
+## From Beckhoff's documentation (InfoSys, AX2000 ASCII reference)
+
+* BQMODE, CANopen 0x3666, Integer8: 0 none, 1 PID-T2 (default), 2 bi-quad,
+  3 reserved. https://infosys.beckhoff.com/content/1033/ax2000_ascii/15075191947.html
+* BQFC, the centre frequency sqrt(w_AR w_R) in Hz, 20-1000, default 200,
+  CANopen 0x3664, Integer32 with weighting 1000 on the bus.
+  https://infosys.beckhoff.com/content/1033/ax2000_ascii/15075186827.html
+* BQFR = w_R / w_AR, 0.1-10, default 2.5, CANopen 0x3665.
+  https://infosys.beckhoff.com/content/1033/ax2000_ascii/15075189387.html
+* BQDC, the centre damping, 0.2-1, default 0.3, CANopen 0x3662.
+  https://infosys.beckhoff.com/content/1033/ax2000_ascii/15075183755.html
+* BQDR, the damping ratio, 0.25-5, default 2.0, CANopen 0x3663.
+  https://infosys.beckhoff.com/content/1033/ax2000_ascii/15075185291.html
+
+## Assumptions
+
+* The transfer function: `H(s) = (s^2/w_AR^2 + 2 D_AR s/w_AR + 1) /
+  (s^2/w_R^2 + 2 D_R s/w_R + 1)` with `w_AR = 2 pi BQFC / sqrt(BQFR)`,
+  `w_R = 2 pi BQFC sqrt(BQFR)`, `D_AR = BQDC / sqrt(BQDR)`, `D_R = BQDC
+  sqrt(BQDR)`, discretised by the bilinear transform pre-warped at each
+  frequency. Beckhoff documents the parameters, not the filter. A notch then
+  has BQFR = 1 and the depth BQDR at its centre: at most 5 (14 dB).
+* Integer32 with weighting 1000 for BQFR, BQDC and BQDR too (documented for
+  BQFC only); LowLimit/HighLimit are the documented ranges times 1000.
+* Vendor ID 0x00000002: Beckhoff's in public EtherCAT master code, not in the
+  AX2000 pages; the product code is not from a cited source.
+* The bi-quad runs at 4 kHz (`[board] loop_rate_hz`), the velocity loop's rate:
+  not from a cited source; set the drive's own rate.
+"""
+
+INGENIA_README = """# ingenia-denali (fixture)
+
+An Ingenia/Novanta drive (Denali, Everest, Summit) as the project models it
+for its tests. The EDS is written by `tests/support/filter_families.py`; only
+its current reference filter objects follow Ingenia's dictionary.
+
+## From Ingenia's dictionary
+
+Source: https://github.com/ingeniamc/ingenialink-python/blob/master/tests/resources/den-net-e_2.8.0_v3.xdf
+and `ingenialink/constants.py` of the same repository (CC BY-NC-ND 4.0:
+facts only, nothing is copied).
+
+* Current reference filter 1: TYPE register 0x0580 (UNSIGNED16, rw, enum 0
+  Disabled, 1 Low pass, 2 High pass, 3 Band pass, 4 Peak, 5 Notch, 6 Low shelf,
+  7 High shelf, default 0), FREQ 0x0581 (UNSIGNED32, Hz, default 100), Q 0x0582
+  (float, default 0.7071), GAIN 0x0583 (float, dB, default 0); filter 2 at
+  0x0588-0x058B. "Indicates the type of filter applied for all current
+  set-points".
+* A register A of axis 1 is the CANopen object 0x2000 + A, sub-index 0
+  (CANOPEN_ADDRESS_OFFSET = 0x2000; the dictionary's CANopenObject entries give
+  0x2580 for CL_CUR_REF_FILTER1_TYPE and 0x2588 for CL_CUR_REF_FILTER2_TYPE).
+* Vendor ID 0x0000029C: the default of DRV_ID_VENDOR_ID (register 0x06E0).
+* The current loop at 20 kHz: the default of CL_CUR_FREQ (register 0x0458).
+
+## Assumptions
+
+* TYPE 5 "Notch" is the audio EQ cookbook's notch (the enum is the cookbook's
+  set of biquads): full depth, -3 dB bandwidth FREQ / Q, GAIN ignored; the host
+  writes TYPE, FREQ and Q, never GAIN.
+* The current reference filters run at the current loop's rate, 20 kHz
+  (`[board] loop_rate_hz`).
+* The product code is not from a cited source.
 """
 
 
@@ -196,8 +272,78 @@ def kollmorgen_akd() -> VendorDrive:
     )
 
 
+def beckhoff_ax2000() -> VendorDrive:
+    """Beckhoff AX2000: one bi-quad, an Integer32 object per parameter (weighting 1000) and BQMODE as its enable."""
+    parameters = [
+        (0x3662, "BQDC bi-quad centre damping", 300, 200, 1000),
+        (0x3663, "BQDR bi-quad damping ratio", 2000, 250, 5000),
+        (0x3664, "BQFC bi-quad centre frequency", 200_000, 20_000, 1_000_000),
+        (0x3665, "BQFR bi-quad frequency ratio", 2500, 100, 10_000),
+    ]
+    objects = [(index, None, name, _INT32, "rw", False, default, lo, hi) for index, name, default, lo, hi in parameters]
+    objects.append((0x3666, None, "BQMODE bi-quad mode", _INT8, "rw", False, 1, 0, 3))
+    return VendorDrive(
+        "beckhoff-ax2000",
+        vendor="Beckhoff Automation",
+        vendor_number=0x00000002,
+        product_number=0x000007D0,
+        loop_rate_hz=4000.0,
+        max_sample_rate_hz=1000.0,
+        vendor_objects=objects,
+        filter_table=(
+            '[filters]\nencoding = "center_ratio_damping"  # BQFC, BQFR, BQDC, BQDR\n'
+            "scales = { center_hz = 0.001, ratio = 0.001, center_damping = 0.001, damping_ratio = 0.001 }\n"
+            "ranges = { center_hz = [20, 1000], ratio = [0.1, 10], center_damping = [0.2, 1], "
+            "damping_ratio = [0.25, 5] }\n"
+            'enable = ["0x3666"]                  # BQMODE\n'
+            "enable_values = { on = 2, off = 0 }  # 2 bi-quad, 0 none\n"
+            "[filters.fields]\n"
+            'center_hz = ["0x3664"]\n'
+            'ratio = ["0x3665"]\n'
+            'center_damping = ["0x3662"]\n'
+            'damping_ratio = ["0x3663"]\n'
+        ),
+        filter_slots=1,
+        readme=BECKHOFF_README,
+    )
+
+
+def ingenia_denali() -> VendorDrive:
+    """Ingenia/Novanta: the current reference filters 1 and 2, a plain object per register (TYPE, FREQ, Q, GAIN)."""
+    objects = []
+    for n, base in ((1, 0x2580), (2, 0x2588)):
+        objects += [
+            (base, None, f"Current reference filter {n} type", _UINT16, "rw", False, 0),
+            (base + 1, None, f"Current reference filter {n} frequency", _UINT32, "rw", False, 100),
+            (base + 2, None, f"Current reference filter {n} Q-factor", _REAL32, "rw", False, 0.7071),
+            (base + 3, None, f"Current reference filter {n} gain", _REAL32, "rw", False, 0.0),
+        ]
+    return VendorDrive(
+        "ingenia-denali",
+        vendor="Novanta (Ingenia)",
+        vendor_number=0x0000029C,
+        product_number=0x00000100,
+        loop_rate_hz=20000.0,
+        max_sample_rate_hz=1000.0,
+        vendor_objects=objects,
+        filter_table=(
+            '[filters]\nencoding = "notch_parameters"  # TYPE 5 Notch: FREQ and Q\n'
+            'width_unit = "q"\n'
+            'depth_unit = "full"                 # a full cut; GAIN is not written\n'
+            "scales = { center = 1, width = 0 }  # FREQ UNSIGNED32 Hz, Q REAL32\n"
+            'enable = ["0x2580", "0x2588"]       # TYPE\n'
+            "enable_values = { on = 5, off = 0 }  # 5 Notch, 0 Disabled\n"
+            "[filters.fields]                     # current reference filters 1 and 2\n"
+            'center = ["0x2581", "0x2589"]\n'
+            'width = ["0x2582", "0x258A"]\n'
+        ),
+        filter_slots=2,
+        readme=INGENIA_README,
+    )
+
+
 #: The documented families, by the name of their driver folder.
-FAMILIES = {d.name: d for d in (copley_plus(), synapticon(), kollmorgen_akd())}
+FAMILIES = {d.name: d for d in (copley_plus(), synapticon(), kollmorgen_akd(), beckhoff_ax2000(), ingenia_denali())}
 
 
 def family_folder(tmp_path: Path, drive: VendorDrive, old: str = "", new: str = "") -> Path:

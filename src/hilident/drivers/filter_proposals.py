@@ -22,7 +22,8 @@ from hilident.protocol import eds as E
 
 __all__ = ["FAMILIES", "FilterFamily", "FilterProposal", "ObjectSign", "propose_filters", "vendor_id"]
 
-_BOOLEAN, _UINT8, _UINT16, _INT32, _UINT32, _REAL32, _OCTETS, _DOMAIN = 0x1, 0x5, 0x6, 0x4, 0x7, 0x8, 0xA, 0xF
+_BOOLEAN, _INT8, _INT16, _INT32 = 0x1, 0x2, 0x3, 0x4
+_UINT8, _UINT16, _UINT32, _REAL32, _OCTETS, _DOMAIN = 0x5, 0x6, 0x7, 0x8, 0xA, 0xF
 
 
 @dataclass(frozen=True)
@@ -119,6 +120,111 @@ def _akd_signs(types: tuple[int, ...]) -> tuple[ObjectSign, ...]:
         ObjectSign(0x3406, 9, types, ("ARZF", "zero f")),
         ObjectSign(0x3406, 0xD, types, ("ARZQ", "zero q")),
     )
+
+
+_AX2000 = "https://infosys.beckhoff.com/content/1033/ax2000_ascii"
+_AX2000_SOURCE = f"Beckhoff InfoSys, AX2000 ASCII reference: BQMODE, BQFC, BQFR, BQDC, BQDR ({_AX2000}/)"
+_AX2000_PAGES = {
+    "BQMODE": f"{_AX2000}/15075191947.html",
+    "BQFC": f"{_AX2000}/15075186827.html",
+    "BQFR": f"{_AX2000}/15075189387.html",
+    "BQDC": f"{_AX2000}/15075183755.html",
+    "BQDR": f"{_AX2000}/15075185291.html",
+}
+_AX2000_VENDOR = (
+    "0x00000002: Beckhoff Automation's vendor ID in public EtherCAT master code (VendorIdBeckhoff, "
+    "BECKHOFF_VENDOR_ID); not in the AX2000 pages cited"
+)
+_AX2000_INTEGERS = (_INT32, _UINT32)
+#: (index, parameter, field) of the AX2000's bi-quad, CANopen objects of the ASCII reference
+_AX2000_OBJECTS = (
+    (0x3664, "BQFC", "center_hz"),
+    (0x3665, "BQFR", "ratio"),
+    (0x3662, "BQDC", "center_damping"),
+    (0x3663, "BQDR", "damping_ratio"),
+)
+_AX2000_FIELDS: tuple[tuple[str, str, str], ...] = tuple(
+    (field, f'["0x{index:04X}"]', f"{name}, CANopen 0x{index:04X} ({_AX2000_PAGES[name]})")
+    for index, name, field in _AX2000_OBJECTS
+)
+_AX2000_KEYS: tuple[tuple[str, str, str], ...] = (
+    (
+        "encoding",
+        '"center_ratio_damping"',
+        "BQFC, BQFR, BQDC, BQDR; zeros at BQFC / sqrt(BQFR) damped BQDC / sqrt(BQDR), "
+        "poles at BQFC sqrt(BQFR) damped BQDC sqrt(BQDR): an assumption, Beckhoff documents the parameters, not "
+        "the transfer function",
+    ),
+    (
+        "scales",
+        "{ center_hz = 0.001, ratio = 0.001, center_damping = 0.001, damping_ratio = 0.001 }",
+        f"BQFC: Integer32, weighting 1000 on the bus ({_AX2000_PAGES['BQFC']}); the same for BQFR, BQDC, BQDR is an "
+        "assumption",
+    ),
+    (
+        "ranges",
+        "{ center_hz = [20, 1000], ratio = [0.1, 10], center_damping = [0.2, 1], damping_ratio = [0.25, 5] }",
+        "BQFC 20-1000 Hz, BQFR 0.1-10, BQDC 0.2-1, BQDR 0.25-5 (the BQFC, BQFR, BQDC, BQDR pages); BQDR <= 5 caps a "
+        "notch at 14 dB",
+    ),
+    ("enable", '["0x3666"]', f"BQMODE, CANopen 0x3666, Integer8 ({_AX2000_PAGES['BQMODE']})"),
+    (
+        "enable_values",
+        "{ on = 2, off = 0 }",
+        f"BQMODE 2 bi-quad, 0 none; 1 PID-T2 (the default), 3 reserved ({_AX2000_PAGES['BQMODE']})",
+    ),
+)
+
+_INGENIA_REPO = "https://github.com/ingeniamc/ingenialink-python"
+#: the dictionary every Ingenia key cites (facts only: the repository's licence, CC BY-NC-ND 4.0, forbids copying)
+_INGENIA_XDF = "den-net-e_2.8.0_v3.xdf"
+_INGENIA_VENDOR = f"0x0000029C: the default of DRV_ID_VENDOR_ID (register 0x06E0, CANopen 0x26E0) in {_INGENIA_XDF}"
+_INGENIA_SOURCE = (
+    f"Ingenia's dictionary {_INGENIA_REPO}/blob/master/tests/resources/{_INGENIA_XDF} and ingenialink/constants.py "
+    "(facts only, the licence forbids copying): CL_CUR_REF_FILTER1_TYPE/FREQ/Q/GAIN at registers 0x0580-0x0583, "
+    "CL_CUR_REF_FILTER2_* at 0x0588-0x058B, CANopen object 0x2000 + register (CANOPEN_ADDRESS_OFFSET; the "
+    "dictionary's CANopenObject entries)"
+)
+
+
+def _ingenia_signs() -> tuple[ObjectSign, ...]:
+    signs = []
+    for n, base in ((1, 0x2580), (2, 0x2588)):
+        # the dictionary's label ("Current reference filter 1 type") or its id (CL_CUR_REF_FILTER1_TYPE)
+        label, ident = f"current reference filter {n} ", f"cur_ref_filter{n}_"
+        signs += [
+            ObjectSign(base, 0, (_UINT16,), (f"{label}type", f"{ident}type")),
+            ObjectSign(base + 1, 0, (_UINT32,), (f"{label}freq", f"{ident}freq")),
+            ObjectSign(base + 2, 0, (_REAL32,), (f"{label}q", f"{ident}q")),
+        ]
+    return tuple(signs)
+
+
+_INGENIA_KEYS: tuple[tuple[str, str, str], ...] = (
+    (
+        "encoding",
+        '"notch_parameters"',
+        "a biquad of TYPE 5 Notch set by FREQ (Hz) and Q; the TYPE enum is the audio EQ cookbook's set of biquads, so "
+        "type 5 is assumed to be its notch: full depth, -3 dB bandwidth FREQ / Q",
+    ),
+    ("width_unit", '"q"', f"CL_CUR_REF_FILTER1_Q, a float Q-factor ({_INGENIA_XDF})"),
+    (
+        "depth_unit",
+        '"full"',
+        "the cookbook notch cuts fully and ignores GAIN (an assumption); GAIN 0x2583, 0x258B is not written",
+    ),
+    ("scales", "{ center = 1, width = 0 }", f"FREQ UNSIGNED32 in Hz, Q a float ({_INGENIA_XDF}); no range given"),
+    (
+        "enable",
+        '["0x2580", "0x2588"]',
+        f"CL_CUR_REF_FILTER1_TYPE, CL_CUR_REF_FILTER2_TYPE, UNSIGNED16 ({_INGENIA_XDF})",
+    ),
+    ("enable_values", "{ on = 5, off = 0 }", f"TYPE 5 Notch, 0 Disabled, the default ({_INGENIA_XDF})"),
+)
+_INGENIA_FIELDS: tuple[tuple[str, str, str], ...] = (
+    ("center", '["0x2581", "0x2589"]', f"CL_CUR_REF_FILTER1_FREQ, CL_CUR_REF_FILTER2_FREQ ({_INGENIA_XDF})"),
+    ("width", '["0x2582", "0x258A"]', f"CL_CUR_REF_FILTER1_Q, CL_CUR_REF_FILTER2_Q ({_INGENIA_XDF})"),
+)
 
 
 #: The documented families, the first that matches wins (Copley's first generation before its plus family: the
@@ -235,6 +341,30 @@ FAMILIES: tuple[FilterFamily, ...] = (
             ("filters.fields", _AKD_FIELDS),
         ),
         _AKD_GUIDE,
+    ),
+    FilterFamily(
+        "Beckhoff AX2000 (bi-quad BQFC, BQFR, BQDC, BQDR, BQMODE at 0x3662-0x3666)",
+        (0x00000002,),
+        _AX2000_VENDOR,
+        (
+            *(
+                ObjectSign(index, 0, _AX2000_INTEGERS, (name, "bi-quad", "biquad"))
+                for index, name, _ in _AX2000_OBJECTS
+            ),
+            ObjectSign(0x3666, 0, (_INT8, _UINT8, _INT16, _UINT16), ("BQMODE", "bi-quad", "biquad")),
+        ),
+        1,
+        (("filters", _AX2000_KEYS), ("filters.fields", _AX2000_FIELDS)),
+        _AX2000_SOURCE,
+    ),
+    FilterFamily(
+        "Ingenia/Novanta Denali, Everest, Summit (current reference filters 1 and 2, 0x2580-0x258B)",
+        (0x0000029C,),
+        _INGENIA_VENDOR,
+        _ingenia_signs(),
+        2,
+        (("filters", _INGENIA_KEYS), ("filters.fields", _INGENIA_FIELDS)),
+        _INGENIA_SOURCE,
     ),
 )
 

@@ -39,7 +39,7 @@ from hilident.protocol.filter_encoding import FilterEncoding
 __all__ = ["FilterSlotDevice", "trial_filter_slot", "trial_notch"]
 
 #: Fields that hold a frequency, Hz: the notch tried lies inside all of their ranges.
-_FREQUENCY_FIELDS = ("center", "pole_hz", "zero_hz", "num_hz", "den_hz")
+_FREQUENCY_FIELDS = ("center", "center_hz", "pole_hz", "zero_hz", "num_hz", "den_hz")
 #: The notch tried: centre at this fraction of the filter rate, this fraction of the centre wide, this deep (dB).
 _CENTRE_OF_RATE, _WIDTH_OF_CENTRE, _DEPTH_DB = 0.25, 0.2, 20.0
 _ADDRESS = re.compile(r"0x([0-9A-Fa-f]{4})(?::(0x[0-9A-Fa-f]+|\d+))?")

@@ -13,6 +13,11 @@ predict) and the emulated drive (to run) compute the same section:
   natural frequencies.
 * :func:`rejection_band_section` -- the Synapticon-style full-depth notch from a
   centre and a rejection band (the vendor's published discrete formula).
+* :func:`center_ratio_section` -- the Beckhoff AX2000-style bi-quad given by a
+  centre frequency, a pole/zero frequency ratio, a centre damping and a damping
+  ratio (:func:`anti_resonance_pair` turns them into the zeros' and poles'
+  frequencies and dampings; the split is an assumption, see there), then
+  :func:`two_frequency_section`.
 * :func:`achieved_notch` -- the centre, width and depth a stored section really
   has (the inverse of :func:`~hilident.filters.notch.design_notch`).
 
@@ -35,7 +40,15 @@ from hilident.errors import DataError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
 
-__all__ = ["achieved_notch", "attenuation_db", "notch_width_hz", "rejection_band_section", "two_frequency_section"]
+__all__ = [
+    "achieved_notch",
+    "anti_resonance_pair",
+    "attenuation_db",
+    "center_ratio_section",
+    "notch_width_hz",
+    "rejection_band_section",
+    "two_frequency_section",
+]
 
 
 def _warp_gain(frequency_hz: float, sample_rate_hz: float) -> float:
@@ -93,6 +106,84 @@ def two_frequency_section(zero_hz, zero_damping, pole_hz, pole_damping, sample_r
             f"section with poles at {pole_hz:g} Hz (damping {pole_damping:g}) is unstable at {sample_rate_hz:g} Hz"
         )
     return section
+
+
+def anti_resonance_pair(center_hz, ratio, center_damping, damping_ratio) -> tuple[float, float, float, float]:
+    """Zeros' and poles' natural frequencies (Hz) and dampings of a centre/ratio bi-quad (Beckhoff AX2000-style).
+
+    Beckhoff documents the parameters of the AX2000's bi-quad (BQFC the centre
+    frequency ``sqrt(w_AR w_R)``, BQFR the ratio ``w_R / w_AR``, BQDC a centre
+    damping, BQDR a damping ratio), not its transfer function.  Assumed here:
+    the zeros sit at the anti-resonance ``w_AR`` and the poles at ``w_R``, and
+    the two dampings are centred geometrically like the two frequencies::
+
+        f_AR = center / sqrt(ratio),        f_R = center * sqrt(ratio)
+        D_AR = center_damping / sqrt(damping_ratio),  D_R = center_damping * sqrt(damping_ratio)
+
+    so ``ratio = 1`` puts zeros and poles on one frequency (a notch whose depth
+    at the centre is ``damping_ratio``, ``20 log10(damping_ratio)`` dB), and
+    ``ratio = damping_ratio = 1`` is the identity.
+
+    Parameters
+    ----------
+    center_hz : float
+        Centre frequency, Hz (positive).
+    ratio : float
+        Poles' frequency over the zeros' (positive).
+    center_damping : float
+        Geometric mean of the two dampings (positive).
+    damping_ratio : float
+        Poles' damping over the zeros' (positive).
+
+    Returns
+    -------
+    zero_hz, zero_damping, pole_hz, pole_damping : float
+        The arguments of :func:`two_frequency_section`, Hz and dimensionless.
+
+    Raises
+    ------
+    DataError
+        A parameter that is not a finite positive number.
+    """
+    values = (center_hz, ratio, center_damping, damping_ratio)
+    if not all(math.isfinite(v) and v > 0.0 for v in values):
+        raise DataError(
+            "centre frequency, frequency ratio, centre damping and damping ratio must be finite and positive, "
+            f"got {center_hz!r}, {ratio!r}, {center_damping!r}, {damping_ratio!r}"
+        )
+    f, d = math.sqrt(ratio), math.sqrt(damping_ratio)
+    return center_hz / f, center_damping / d, center_hz * f, center_damping * d
+
+
+def center_ratio_section(center_hz, ratio, center_damping, damping_ratio, sample_rate_hz) -> Biquad:
+    """Digital section of the centre/ratio bi-quad (Beckhoff AX2000-style BQFC, BQFR, BQDC, BQDR).
+
+    :func:`anti_resonance_pair` (an assumed split, see there), discretised by
+    :func:`two_frequency_section` (bilinear, each quadratic pre-warped at its
+    own frequency: also an assumption, Beckhoff does not document it).
+
+    Parameters
+    ----------
+    center_hz : float
+        Centre frequency, Hz.
+    ratio, center_damping, damping_ratio : float
+        Frequency ratio, centre damping and damping ratio (dimensionless).
+    sample_rate_hz : float
+        Rate the section runs at, Hz.
+
+    Raises
+    ------
+    DataError
+        A parameter that is not a finite positive number, or a zero or pole
+        frequency at or beyond half the rate.
+
+    Examples
+    --------
+    >>> from hilident.filters.parametric import attenuation_db
+    >>> round(attenuation_db(center_ratio_section(300.0, 1.0, 0.3, 5.0, 4000.0), 300.0, 4000.0), 2)
+    13.98
+    """
+    return two_frequency_section(*anti_resonance_pair(center_hz, ratio, center_damping, damping_ratio), sample_rate_hz)
 
 
 def rejection_band_section(center_hz, band_hz, sample_rate_hz) -> Biquad:

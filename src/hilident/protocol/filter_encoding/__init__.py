@@ -57,8 +57,19 @@ has a ``scale`` -- physical units per integer step, or ``0`` for a REAL32 field
 ``"center_band"``
     ``center`` and ``band`` in Hz, full depth (Synapticon-style, the vendor's
     discrete formula, :func:`~hilident.filters.parametric.rejection_band_section`).
+``"center_ratio_damping"``
+    ``center_hz``, ``ratio``, ``center_damping``, ``damping_ratio`` (Beckhoff
+    AX2000-style bi-quad BQFC, BQFR, BQDC, BQDR; the zeros at
+    ``center / sqrt(ratio)`` damped ``center_damping / sqrt(damping_ratio)``, the
+    poles at ``center sqrt(ratio)`` damped ``center_damping sqrt(damping_ratio)``:
+    an assumption, :func:`~hilident.filters.parametric.anti_resonance_pair`);
+    a notch has ``ratio = 1`` and depth ``20 log10(damping_ratio)`` at the centre.
 
-The two pole/zero encodings are discretised by the bilinear transform with the
+``"notch_parameters"`` with ``depth_unit = "full"`` has no depth field: the
+slot always cuts fully (Ingenia/Novanta's biquad of type "Notch", assumed to be
+the audio-EQ-cookbook notch, whose width is a Q).
+
+The pole/zero and centre/ratio encodings are discretised by the bilinear transform with the
 numerator pre-warped at its natural frequency and the denominator at its own
 (:func:`~hilident.filters.parametric.two_frequency_section`), so the zeros and
 poles sit at the stored frequencies; Kollmorgen documents a backward-Euler form

@@ -26,9 +26,9 @@ from hilident.protocol.filter_encoding.vocabulary import (
     ENCODINGS,
     FLOAT32_MAX,
     PARAMETRIC,
-    SAME_FREQUENCY,
     WIDTH_UNITS,
     checked_range,
+    default_fields,
     fail,
     float32,
     float32_biquad,
@@ -40,7 +40,6 @@ from hilident.protocol.filter_encoding.vocabulary import (
 __all__ = ["FilterEncoding"]
 
 
-#: (pole field, zero field) pairs of the encodings whose section is the identity when its zeros sit on its poles.
 def _steps_within(value: float, scale: float, lo: float, hi: float) -> int:
     """The whole number of ``scale`` steps nearest ``value`` that stays within ``[lo, hi]`` (physical units)."""
     n = round(value / scale)
@@ -51,9 +50,20 @@ def _steps_within(value: float, scale: float, lo: float, hi: float) -> int:
     return int(n)
 
 
+#: (pole field, zero field) pairs of the encodings whose section is the identity when its zeros sit on its poles.
 _NEUTRAL_PAIRS = {
     "pole_zero_q": (("pole_hz", "zero_hz"), ("pole_q", "zero_q")),
     "pole_zero_damping": (("den_hz", "num_hz"), ("den_damping", "num_damping")),
+}
+#: fields of the encodings whose section is the identity when they hold these physical values
+_NEUTRAL_VALUES = {"center_ratio_damping": {"ratio": 1.0, "damping_ratio": 1.0}}
+#: the default physical units per stored step of an encoding's fields (0.0: REAL32), where not 1
+_DEFAULT_SCALES = {
+    # vendors of these keep REAL32 parameters unless the table says otherwise
+    "pole_zero_q": 0.0,
+    "pole_zero_damping": 0.0,
+    # Beckhoff AX2000: Integer32 with weighting 1000 on the bus
+    "center_ratio_damping": 0.001,
 }
 
 
@@ -124,9 +134,10 @@ class FilterEncoding:
     width_unit : {"hz", "q", "ratio", "index"}
         ``"notch_parameters"``: the width field in Hz, as a Q (centre / width),
         as width / centre, or as an index into ``width_table``.
-    depth_unit : {"db", "ratio", "percent", "index"}
+    depth_unit : {"db", "ratio", "percent", "index", "full"}
         ``"notch_parameters"``: the depth field in dB, or as the gain at the
-        centre (0 = full cut), plain or in percent.
+        centre (0 = full cut), plain or in percent, or an index into
+        ``depth_table``; ``"full"``: no depth field, the slot always cuts fully.
     """
 
     kind: str
@@ -167,7 +178,13 @@ class FilterEncoding:
             fail("depth_unit", f"must be one of {DEPTH_UNITS}, got {self.depth_unit!r}")
         if self.kind == "word_block" and self.block is None:
             object.__setattr__(self, "block", BlockLayout.from_table({"preset": "copley"}))
-        default = ("block",) if self.kind == "word_block" else PARAMETRIC.get(self.kind, COEFFICIENT_FIELDS)
+        default = (
+            ("block",)
+            if self.kind == "word_block"
+            else default_fields(self.kind, self.depth_unit)
+            if self.kind in PARAMETRIC
+            else COEFFICIENT_FIELDS
+        )
         order = (
             tuple(self.order)
             if isinstance(self.order, (list, tuple))
@@ -199,7 +216,7 @@ class FilterEncoding:
 
     def _check_parameters(self) -> None:
         """Validate and complete ``scales``, ``ranges``, ``resolution`` and the index tables of a parametric kind."""
-        names = PARAMETRIC[self.kind]
+        names = default_fields(self.kind, self.depth_unit)
         for table_name in ("scales", "ranges", "resolution"):
             table = getattr(self, table_name)
             if not isinstance(table, dict) or not set(table) <= set(names):
@@ -213,12 +230,10 @@ class FilterEncoding:
 
     def _checked_scales(self, names) -> dict:
         """Scale of each field: the kind's default (0.0: REAL32), overridden by ``scales``."""
-        scales = {name: 1.0 for name in names}
+        scales = {name: _DEFAULT_SCALES.get(self.kind, 1.0) for name in names}
         if self.kind == "notch_parameters":
-            scales.update(center=self.center_scale, width=self.width_scale, depth=self.depth_scale)
-        if self.kind in SAME_FREQUENCY:
-            # vendors of these keep REAL32 parameters unless the table says otherwise
-            scales = {name: 0.0 for name in names}
+            given = {"center": self.center_scale, "width": self.width_scale, "depth": self.depth_scale}
+            scales.update({name: given[name] for name in names})
         scales.update({k: positive(f"scales.{k}", v, zero_ok=True) for k, v in self.scales.items()})
         return scales
 
@@ -412,20 +427,25 @@ class FilterEncoding:
     def bypassable(self) -> bool:
         """The encoding has values that run the identity section (:meth:`neutral`): a slot without an
         enable of its own can still be bypassed."""
-        return self.kind in _NEUTRAL_PAIRS
+        return self.kind in _NEUTRAL_PAIRS or self.kind in _NEUTRAL_VALUES
 
     def neutral(self, values: dict) -> dict:
         """Values that run the identity section: how a slot that has no enable of its own is bypassed.
 
         Pole/zero encodings put each zero field and its pole field on one
         value: the pole's, moved into the range both fields share.
+        ``"center_ratio_damping"`` sets the frequency ratio and the damping
+        ratio to 1.
 
         Raises
         ------
         DataError
-            The encoding has no neutral setting (its slots need an enable), or a pole's and its zero's
-            ranges do not meet.
+            The encoding has no neutral setting (its slots need an enable), a pole's and its zero's
+            ranges do not meet, or a ratio's range leaves out 1.
         """
+        if self.kind in _NEUTRAL_VALUES:
+            self._check_values(values)
+            return {**values, **{name: self._stored_exactly(name, x) for name, x in _NEUTRAL_VALUES[self.kind].items()}}
         pairs = _NEUTRAL_PAIRS.get(self.kind)
         if pairs is None:
             raise DataError(f'the "{self.kind}" encoding has no setting that bypasses the slot; it needs an enable')
@@ -442,12 +462,22 @@ class FilterEncoding:
             out[pole] = out[zero] = stored
         return out
 
+    def _stored_exactly(self, name: str, x: float):
+        """The stored value of field ``name`` that stands for ``x`` exactly (DataError when none does)."""
+        stored = grid.nearest(self, name, x) if grid.in_range(self, name, x) else None
+        if stored is None or grid.physical(self, name, stored) != x:
+            low, high = self.ranges.get(name, (0.0, math.inf))
+            raise DataError(f"{name} cannot hold {x:g} (range {low:g}..{high:g}): the slot cannot be bypassed")
+        return stored
+
     def parameters(self, values: dict) -> NotchSpec:
         """Physical-parameter encodings: the notch the stored values stand for (rate independent).
 
         ``"center_band"`` reports the -3 dB width ``3 band / pi`` and an infinite
-        depth; the pole/zero encodings report the centre at the zero frequency,
-        the width ``2 D_pole f_pole`` and the depth ``20 log10(D_pole / D_zero)``.
+        depth (as does ``"notch_parameters"`` with ``depth_unit = "full"``); the
+        pole/zero and centre/ratio encodings report the centre at the zero
+        frequency, the width ``2 D_pole f_pole`` and the depth
+        ``20 log10(D_pole / D_zero)``.
 
         Raises
         ------

@@ -28,6 +28,7 @@ from hilident.protocol.filter_encoding.vocabulary import (
     DEPTH_MARGINS_DB,
     DEPTH_TOLERANCE_DB,
     FULL_DEPTH_DB,
+    HELD,
     MIN_ATTENUATION_DB,
     PARAMETRIC,
     REFINE_STEPS,
@@ -156,6 +157,7 @@ def fit_parameters(enc: FilterEncoding, spec: NotchSpec, rate: float, notes: lis
     """Physical-parameter encodings: the best of the stored values around the ideal ones, refined."""
     ideal = grid.ideal(enc, spec, rate)
     per_field = []
+    held = HELD.get(enc.kind, ())
     for name in enc.fields:
         x = grid.clamp(enc, name, ideal[name])
         if x != ideal[name] and name not in DEEPER:
@@ -164,7 +166,8 @@ def fit_parameters(enc: FilterEncoding, spec: NotchSpec, rate: float, notes: lis
                 f"{name} {ideal[name]:g}{unit} is outside the drive's range "
                 f"{enc.ranges[name][0]:g}..{enc.ranges[name][1]:g}{unit}; using {x:g}{unit}"
             )
-        per_field.append(grid.candidates(enc, name, x))
+        per_field.append([grid.nearest(enc, name, x)] if name in held else grid.candidates(enc, name, x))
+    notes += capped_depth(enc, ideal)
     wider = widened(enc, ideal, spec)
     if wider is not None:
         name, value = wider
@@ -203,7 +206,7 @@ def refine(
     meets ``spec`` better, keeping the width within :data:`WIDTH_TOLERANCE` of the asked one
     (or as close as ``best`` already is)."""
     pair = SAME_FREQUENCY.get(enc.kind)
-    names = [n for n in enc.fields if not (pair and n == pair[1])]
+    names = [n for n in enc.fields if not (pair and n == pair[1]) and n not in HELD.get(enc.kind, ())]
     # depth does not buy any width: the walk stays as close to the asked width as the start or the tolerance
     bound = max(best[0][2], math.log(WIDTH_TOLERANCE))
     for _ in range(REFINE_STEPS):
@@ -233,6 +236,21 @@ def widened(enc: FilterEncoding, ideal: dict, spec: NotchSpec) -> tuple[str, flo
         low = enc.ranges["num_damping"][0]
         return "den_damping", grid.clamp(enc, "den_damping", low * 10.0 ** (spec.depth_db / 20.0))
     return None
+
+
+def capped_depth(enc: FilterEncoding, ideal: dict) -> list[str]:
+    """``"center_ratio_damping"``: a note when the damping ratio's range caps the depth at the centre below the
+    asked one (the depth of a notch is ``20 log10(damping_ratio)``, whatever its width)."""
+    if enc.kind != "center_ratio_damping" or "damping_ratio" not in enc.ranges:
+        return []
+    high = enc.ranges["damping_ratio"][1]
+    if ideal["damping_ratio"] <= high:
+        return []
+    return [
+        f"damping_ratio {ideal['damping_ratio']:.4g} is beyond the drive's range "
+        f"{enc.ranges['damping_ratio'][0]:g}..{high:g}: a notch of this drive is at most "
+        f"{20.0 * math.log10(high):.1f} dB deep"
+    ]
 
 
 def depth_key(att: float, asked: float, width: float, asked_width: float) -> _Key:

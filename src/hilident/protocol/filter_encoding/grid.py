@@ -18,10 +18,16 @@ from typing import TYPE_CHECKING
 from hilident.errors import DataError
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
-from hilident.filters.parametric import rejection_band_section, two_frequency_section
+from hilident.filters.parametric import (
+    anti_resonance_pair,
+    center_ratio_section,
+    rejection_band_section,
+    two_frequency_section,
+)
 from hilident.protocol.filter_encoding.vocabulary import (
     DEEPER,
     DEPTH_MARGINS_DB,
+    FULL_DEPTH_DB,
     SAME_FREQUENCY,
     float32,
     float32_biquad,
@@ -37,13 +43,19 @@ def ideal(enc: FilterEncoding, spec: NotchSpec, rate: float | None = None) -> di
     ``"center_band"`` with ``rate``: the band is narrowed by the frequency
     warping at the centre, ``sin(w T) / (w T)``, so the section's width
     parameter (the analog prototype's) matches ``spec.width_hz``.
+    ``"center_ratio_damping"``: the centre damping is the one that gives the
+    asked width with the damping ratio the drive's range allows.
     """
     f, w, d = spec.center_hz, spec.width_hz, spec.depth_db
     ratio = 10.0 ** (-d / 20.0)
     if enc.kind == "notch_parameters":
         width = {"hz": w, "q": f / w, "ratio": w / f, "index": w / f}[enc.width_unit]
+        if enc.depth_unit == "full":
+            return {"center": f, "width": width}
         depth = {"db": d, "ratio": ratio, "percent": 100.0 * ratio, "index": d}[enc.depth_unit]
         return {"center": f, "width": width, "depth": depth}
+    if enc.kind == "center_ratio_damping":
+        return center_ratio_ideal(enc, f, w, d)
     if enc.kind == "pole_zero_q":
         q = f / w
         return {"pole_hz": f, "pole_q": q, "zero_hz": f, "zero_q": q / ratio if ratio > 0 else math.inf}
@@ -57,6 +69,14 @@ def ideal(enc: FilterEncoding, spec: NotchSpec, rate: float | None = None) -> di
         wt = 2.0 * math.pi * f / rate
         warp = math.sin(wt) / wt
     return {"center": f, "band": w * warp * math.pi / 3.0}
+
+
+def center_ratio_ideal(enc: FilterEncoding, f: float, w: float, d: float) -> dict[str, float]:
+    """``"center_ratio_damping"``: the notch ``f`` Hz, ``w`` Hz wide, ``d`` dB deep (ratio 1, zeros on the poles'
+    frequency; the pole damping ``D_R = center_damping sqrt(damping_ratio) = w / (2 f)``)."""
+    damping_ratio = 10.0 ** (min(d, FULL_DEPTH_DB) / 20.0)  # a full cut: as deep as counts
+    center_damping = w / (2.0 * f) / math.sqrt(clamp(enc, "damping_ratio", damping_ratio))
+    return {"center_hz": f, "ratio": 1.0, "center_damping": center_damping, "damping_ratio": damping_ratio}
 
 
 def clamp(enc: FilterEncoding, name: str, x: float) -> float:
@@ -218,31 +238,42 @@ def notch_triplet(enc: FilterEncoding, p: dict[str, float]) -> tuple[float, floa
         if not (p["zero_q"] > 0 and p["pole_q"] > 0):
             raise DataError(f"pole and zero Q must be positive, got {p['pole_q']:g} and {p['zero_q']:g}")
         zero_d, pole_d, f_zero, f_pole = 0.5 / p["zero_q"], 0.5 / p["pole_q"], p["zero_hz"], p["pole_hz"]
+    elif enc.kind == "center_ratio_damping":
+        f_zero, zero_d, f_pole, pole_d = center_ratio_pair(p)
     else:
         zero_d, pole_d, f_zero, f_pole = p["num_damping"], p["den_damping"], p["num_hz"], p["den_hz"]
     depth = math.inf if zero_d == 0 else 20.0 * math.log10(pole_d / zero_d) if pole_d > 0 else -math.inf
     return f_zero, 2.0 * pole_d * f_pole, depth
 
 
+def center_ratio_pair(p: dict[str, float]) -> tuple[float, float, float, float]:
+    """``"center_ratio_damping"``: zero Hz, zero damping, pole Hz, pole damping of the physical values ``p``."""
+    return anti_resonance_pair(p["center_hz"], p["ratio"], p["center_damping"], p["damping_ratio"])
+
+
 def notch_parameters_triplet(enc: FilterEncoding, p: dict[str, float]) -> tuple[float, float, float]:
-    """``"notch_parameters"``: centre (Hz), width (Hz) and depth (dB) of the fields in their units."""
-    center, width, depth = p["center"], p["width"], p["depth"]
+    """``"notch_parameters"``: centre (Hz), width (Hz) and depth (dB) of the fields in their units (no depth
+    field: a full cut)."""
+    center, width, depth = p["center"], p["width"], p.get("depth", math.inf)
     if enc.width_unit == "q":
         if not width > 0:
             raise DataError(f"notch Q must be positive, got {width:g}")
         width = center / width
     elif enc.width_unit in ("ratio", "index"):
         width *= center
-    if enc.depth_unit not in ("db", "index"):
+    if enc.depth_unit not in ("db", "index", "full"):
         ratio = depth / 100.0 if enc.depth_unit == "percent" else depth
         depth = math.inf if ratio <= 0 else -20.0 * math.log10(ratio)
     return center, width, depth
 
 
 def parametric_section(enc: FilterEncoding, p: dict[str, float], rate: float) -> Biquad:
-    """Pole/zero and rejection-band encodings: the section the drive builds at ``rate`` (Hz)."""
+    """Pole/zero, centre/ratio and rejection-band encodings: the section the drive builds at ``rate`` (Hz)."""
     if enc.kind == "center_band":
         return rejection_band_section(p["center"], p["band"], rate)
+    if enc.kind == "center_ratio_damping":
+        s = center_ratio_section(p["center_hz"], p["ratio"], p["center_damping"], p["damping_ratio"], rate)
+        return float32_biquad(*s.b, s.a[1], s.a[2])
     if enc.kind in ("pole_zero_q", "pole_zero_damping"):
         f_zero, f_pole = (p["zero_hz"], p["pole_hz"]) if enc.kind == "pole_zero_q" else (p["num_hz"], p["den_hz"])
         notch_triplet(enc, p)  # raises on Q values that are no filter

@@ -39,6 +39,7 @@ PARAMETRIC = {
     "pole_zero_damping": ("num_hz", "num_damping", "den_hz", "den_damping"),
     "index_table": PARAMETER_FIELDS,
     "center_band": ("center", "band"),
+    "center_ratio_damping": ("center_hz", "ratio", "center_damping", "damping_ratio"),
 }
 ENCODINGS = ("real32", "fixed", "word_block", *PARAMETRIC)
 #: a realised notch this much shallower than asked at the resonance is noted (float32 rounding is far less)
@@ -56,13 +57,24 @@ MIN_ATTENUATION_DB = 1.0
 #: most single steps realise() takes from the best neighbour
 REFINE_STEPS = 40
 #: fields that set a notch's depth, and which way is deeper (+1: a larger value)
-DEEPER = {"depth": 1, "zero_q": 1, "num_damping": -1}
+DEEPER = {"depth": 1, "zero_q": 1, "num_damping": -1, "damping_ratio": 1}
 #: ``"notch_parameters"``: how the width and depth fields are expressed
 WIDTH_UNITS = ("hz", "q", "ratio", "index")
-DEPTH_UNITS = ("db", "ratio", "percent", "index")
+DEPTH_UNITS = ("db", "ratio", "percent", "index", "full")
 #: pairs of fields that must hold the same frequency for the section to be a notch
 SAME_FREQUENCY = {"pole_zero_q": ("pole_hz", "zero_hz"), "pole_zero_damping": ("num_hz", "den_hz")}
+#: fields the fit keeps at their ideal value, never walked (a ratio of 1: the zeros' and poles' frequencies meet)
+HELD = {"center_ratio_damping": ("ratio",)}
 FLOAT32_MAX = 3.4028234663852886e38
+
+
+def default_fields(kind: str, depth_unit: str = "db") -> tuple[str, ...]:
+    """The fields of a physical-parameter encoding in their default order (``"notch_parameters"`` with
+    ``depth_unit = "full"`` has no depth field: the slot always cuts fully)."""
+    fields = PARAMETRIC[kind]
+    if kind == "notch_parameters" and depth_unit == "full":
+        return tuple(f for f in fields if f != "depth")
+    return fields
 
 
 def float32(x: float) -> float:
