@@ -182,6 +182,26 @@ def test_stream_over_pipe_delivers_every_sample_once_in_order():
         assert (st.state, st.samples_produced, st.excitation_level) == (sb.State.CONFIGURED, n, 0)
 
 
+def test_blocks_a_slow_line_cannot_carry_are_dropped_by_the_board_and_take_no_message_number():
+    # every channel at 4 kHz over 115 200 baud: far more than the line carries, so the board's transmit
+    # buffer fills and it drops whole blocks; it counts them, block_index tells the host how many, and the
+    # frames that were sent are numbered without a gap (PROTOCOL.md sections 3 and 7)
+    cfg = make_config()
+    device = start_serial_board(cfg.emulator, DRIVER, baudrate=115200, link="pty")
+    try:
+        with SerialBoardAdapter.open(device.port, DRIVER, 115200) as adapter:
+            adapter.set_limits(5.0, 1.0, -1.0, 1.0)
+            channels = [c.name for c in DRIVER.channels if c.stream]
+            adapter.configure(4000.0, "torque", channels)
+            result = adapter.stream(excitation(4000, 0.3), Recorder())
+            stats = result.stats
+            assert stats.board_dropped_blocks > 0
+            assert stats.lost_blocks == stats.board_dropped_blocks and stats.lost_frames == 0
+            assert stats.samples + stats.lost_samples == 4000
+    finally:
+        device.close()
+
+
 def test_stream_over_a_pseudo_terminal():
     cfg = make_config()
     device = start_serial_board(cfg.emulator, DRIVER, baudrate=DRIVER.default_baudrate, link="pty")

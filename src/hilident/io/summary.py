@@ -355,8 +355,8 @@ class Summary:
         """``hilident run``'s summary (``model``: the grey-box fit, None when not asked for; left out when the
         run failed before it; ``workspace_map``: the ``[map]`` points, left out of a run without ``[map]``;
         ``move_test``: each ``[verification] move`` result, left out of a run without one; ``workspace``: the
-        ``[map]``'s joint fit and covering notch; ``notes``: what is worth knowing and needs no action; ``loop``: the drive's loop around the plant, left out of a
-        run on a drive without ``[loop]``)."""
+        ``[map]``'s joint fit and covering notch; ``notes``: what is worth knowing and needs no action;
+        ``loop``: the drive's loop around the plant, left out of a run on a drive without ``[loop]``)."""
         return cls(
             "run",
             config,

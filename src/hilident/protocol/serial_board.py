@@ -21,6 +21,8 @@ import numpy as np
 from hilident.errors import ProtocolError
 
 PROTOCOL_VERSION = 1
+#: Message types at or above this go from the board to the host (PROTOCOL.md section 3).
+BOARD_TO_HOST = 0x80
 
 _HEADER = struct.Struct("<BBH")
 

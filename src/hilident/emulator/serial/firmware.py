@@ -100,22 +100,25 @@ class BoardFirmware:
         excitation = (
             (self.config.excitation_format, self.config.excitation_scale) if self.config else (sb.Format.F32, 1.0)
         )
+        kind = payload[1] if len(payload) > 1 else 0
+        seq = int.from_bytes(payload[2:4], "little") if len(payload) >= 4 else 0
+        if len(payload) >= 4 and payload[0] == sb.PROTOCOL_VERSION and kind >= sb.BOARD_TO_HOST:
+            # a board -> host type is no request, whatever its body (PROTOCOL.md section 11.1)
+            self.counters.rx_corrupt += 1
+            self.send(sb.Nak(seq, kind, sb.ErrorCode.UNKNOWN_TYPE, "not a request"))
+            return
         try:
             header, msg = sb.decode(payload, excitation=excitation)
         except ProtocolError as exc:
             self.counters.rx_corrupt += 1
-            kind = payload[1] if len(payload) > 1 else 0
-            seq = int.from_bytes(payload[2:4], "little") if len(payload) >= 4 else 0
             text = str(exc)
             if "protocol version" in text:
                 code = sb.ErrorCode.BAD_VERSION
             elif "unknown message type" in text:
                 code = sb.ErrorCode.UNKNOWN_TYPE
-            elif "unknown" in text:  # a mode, format or code the board does not know
-                code = sb.ErrorCode.BAD_ARGUMENT
-            else:
+            else:  # a short body, or (version 1) an unknown mode or format: undecodable (section 11.1)
                 code = sb.ErrorCode.BAD_LENGTH
-            self.send(sb.Nak(seq, kind, code, str(exc)))
+            self.send(sb.Nak(seq, kind, code, text))
             return
         handler = getattr(self, "_on_" + type(msg).__name__.lower(), None)
         if handler is None:

@@ -65,7 +65,7 @@ class BoardServer:
         link: BoardLink,
         baudrate: int,
         time_scale: float = 1.0,
-        tx_buffer_bytes: int = 65536,
+        tx_buffer_bytes: int = 16384,
         watchdog_s: float = 1.0,
         faults: LineFaults | None = None,
         close_after_s: float = 0.0,
@@ -79,6 +79,7 @@ class BoardServer:
         self.baudrate = baudrate
         self.time_scale = time_scale
         self.tx_buffer_bytes = tx_buffer_bytes
+        self._sent_seq = 0  # message numbers of the frames put on the line (PROTOCOL.md section 3)
         self.watchdog_s = watchdog_s
         self.faults = faults or LineFaults()
         self.close_after_s = close_after_s
@@ -178,11 +179,12 @@ class BoardServer:
             return
         with self._tx_cond:
             for payload in fw.outbox:
-                frame = encode_frame(payload)
-                is_samples = payload[1] == 0x84
-                if is_samples and self._tx_bytes + len(frame) > self.tx_buffer_bytes:
-                    fw.drop_block()
+                is_samples = payload[1] == sb.MsgType.SAMPLES
+                if is_samples and self._tx_bytes + len(encode_frame(payload)) > self.tx_buffer_bytes:
+                    fw.drop_block()  # counted by block_index; it takes no message number (section 3)
                     continue
+                self._sent_seq = (self._sent_seq + 1) & 0xFFFF
+                frame = encode_frame(payload[:2] + self._sent_seq.to_bytes(2, "little") + payload[4:])
                 self._tx.append(frame)
                 self._tx_bytes += len(frame)
             fw.outbox.clear()
