@@ -146,9 +146,14 @@ class CanopenFilterSlots:
         return encoding.stored_form(biquad, spec, self.identity().loop_rate_hz)
 
     def read_raw(self, slot: int) -> tuple[dict, bool]:
-        """The slot's raw field values and enable flag."""
+        """The slot's raw field values and whether it runs; a slot with an enable object of its own also keeps
+        the enable's value under :data:`ENABLED` (a mode such as the PID-T2 of a BQMODE is neither on nor off,
+        and a restore puts it back as it was)."""
         fo, encoding = self._filter_slot(slot)
-        return self._read_slot(fo, encoding, slot)
+        values, enabled = self._read_slot(fo, encoding, slot)
+        if fo.has_enable:
+            values = {**values, ENABLED: self.sdo.read_object(fo.address(slot, ENABLED))}
+        return values, enabled
 
     def bypass(self, slot: int) -> None:
         """Bypass a slot: its enable off, or its block's state word to bypass (the coefficients stay stored); a
@@ -202,6 +207,9 @@ class CanopenFilterSlots:
         if fo.in_block:
             self.sdo.write_object(fo.address(slot, "block"), values["block"])  # the block as found, enable and all
             return
-        self._write_slot(fo, encoding, slot, values, False)
-        if enabled and fo.has_enable:
-            self.sdo.write_object(fo.address(slot, ENABLED), fo.enable_on)
+        fields = {name: value for name, value in values.items() if name != ENABLED}
+        self._write_slot(fo, encoding, slot, fields, False)
+        if fo.has_enable:
+            found = values.get(ENABLED, fo.enable_on if enabled else fo.enable_off)
+            if found != fo.enable_off:
+                self.sdo.write_object(fo.address(slot, ENABLED), found)
