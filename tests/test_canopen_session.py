@@ -72,7 +72,10 @@ def test_streamed_session_on_the_fixed_point_drive(tmp_path):
     # meet 1 dB, test_session_e2e.py)
     truth = true_loop_figures(cfg.emulator, session.emulator.drive.tuning, [biquad])
     assert_loop_figures_match(summary["loop"], truth, db=1.5)
-    assert_proposal_keeps_targets_on_the_truth(summary["loop"], cfg.emulator, session.emulator.drive.tuning, [biquad])
+    # the proposal is made on this short record's plant: on the twin's own it keeps the targets within 1.5 dB and 8
+    # degrees (a crossover near the mode feels its frequency and damping as measured in four seconds)
+    tuning = session.emulator.drive.tuning
+    assert_proposal_keeps_targets_on_the_truth(summary["loop"], cfg.emulator, tuning, [biquad], db=1.5, deg=8.0)
     jsonschema.validate(summary, summary_schema())
     for name in summary["recordings"]:
         run = read_run(tmp_path / name)

@@ -55,7 +55,7 @@ def _assert_notch_verified(upload: dict, verification: dict, warnings: list) -> 
         assert any(w.startswith("filter slot 0:") for w in warnings), warnings
 
 
-@pytest.mark.parametrize("name", ["synapticon-somanet", "kollmorgen-akd"])
+@pytest.mark.parametrize("name", ["copley-first", "synapticon-somanet", "kollmorgen-akd"])
 def test_a_documented_family_runs_the_whole_session_on_its_twin(tmp_path, name):
     folder = _checked_folder(tmp_path, name)
     cfg = session_config(folder, duration_s=5.0)

@@ -23,6 +23,8 @@ class _Excitation:
 
 #: Keys only a [map] or [verification] move run has.
 WORKSPACE_KEYS = ("map", "workspace", "move_test")
+#: Keys a run leaves out without their feature: those, and the drive's loop ([loop] in its driver).
+OPTIONAL_KEYS = (*WORKSPACE_KEYS, "loop")
 
 
 def _run(**extra) -> Summary:
@@ -48,7 +50,7 @@ def _run(**extra) -> Summary:
 
 def test_a_run_that_failed_before_its_model_has_no_model_key_and_names_the_step_last():
     out = _run().failed("identification", "boom").to_dict()
-    assert list(out) == [k for k in LAYOUTS["run"] if k not in ("model", *WORKSPACE_KEYS)] + ["failed_step", "error"]
+    assert list(out) == [k for k in LAYOUTS["run"] if k not in ("model", *OPTIONAL_KEYS)] + ["failed_step", "error"]
     assert out["upload"] == {"written": False, "verified_readback": False, "slots": []}
     assert out["verification"] == {"band_reduction_db": None, "peak_reduction_db": None, "resonances": []}
     assert out["excitation"] == {
@@ -66,7 +68,7 @@ def test_a_finished_run_ends_with_its_model_and_a_verification_in_its_documented
     s = _run(model=None)
     s.verification = verification
     out = s.to_dict()
-    assert list(out) == [k for k in LAYOUTS["run"] if k not in WORKSPACE_KEYS] and out["model"] is None
+    assert list(out) == [k for k in LAYOUTS["run"] if k not in OPTIONAL_KEYS] and out["model"] is None
     assert list(out["verification"]) == ["band_reduction_db", "peak_reduction_db", "band_bandwidths", "resonances"]
 
 

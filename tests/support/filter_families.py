@@ -192,6 +192,53 @@ def _record(index: int, members: list[tuple]) -> list[tuple]:
     return out
 
 
+COPLEY_FIRST_README = """# copley-first (fixture)
+
+A first-generation Copley Controls drive (Accelnet, Xenus) as the project
+models it for its tests. The EDS is written by
+`tests/support/filter_families.py`; only its filter objects follow Copley's
+documentation, the rest is a standard CiA 402 drive.
+
+## From Copley's documentation
+
+* The filter block: 9 words `[info, info, info, b2, b1, b0, a2, a1, K]`,
+  16-bit coefficients with the unsigned scaler K, `y = K (b0 x + b1 x[-1] +
+  b2 x[-2] + a1 y[-1] + a2 y[-2]) / 32768 / 4096`; 0xFFFF in word 1 disables
+  the filter. Copley Parameter Dictionary p. 74,
+  http://38.142.81.21:8001/manual/copley-controls/serial-encoder/2-user-guide-english/page-74.html
+* CANopen objects 0x2106, 0x2108, 0x2109 (velocity loop output, velocity loop
+  command, analog reference input filter): OCTET_STRING, read-write, not
+  PDO-mappable (Copley's Accelnet EDS).
+
+## Assumptions
+
+* Vendor ID 0x000000AB and product code: not from a cited source.
+* Every filter object defaults to a disabled 18-byte block (word 1 0xFFFF).
+* The velocity loop, where the output filter runs, at 3 kHz.
+"""
+
+
+def copley_first() -> VendorDrive:
+    """Copley first generation: the velocity loop output filter, one 9-word octet string of INT16 coefficients."""
+    disabled = bytes.fromhex("FFFF") + bytes(16)  # word 1 0xFFFF: disabled
+    return VendorDrive(
+        "copley-first",
+        vendor="Copley Controls",
+        vendor_number=0x000000AB,
+        product_number=0x00000100,
+        loop_rate_hz=3000.0,
+        max_sample_rate_hz=1000.0,
+        vendor_objects=[
+            (0x2106, None, "Velocity loop output filter coefficients", _OCTETS, "rw", False, disabled),
+            (0x2108, None, "Velocity loop command filter coefficients", _OCTETS, "rw", False, disabled),
+            (0x2109, None, "Analog reference input filter", _OCTETS, "rw", False, disabled),
+        ],
+        filter_table=('[filters]\nencoding = "word_block"\npreset = "copley"\nobjects = ["0x2106"]\n'),
+        filter_slots=1,
+        readme=COPLEY_FIRST_README,
+    )
+
+
 def copley_plus() -> VendorDrive:
     """Copley plus family: the velocity loop output filter, one 14-word octet string (0x2106)."""
     disabled = bytes.fromhex("00E0") + bytes(26)  # word 1 type 7: disabled
@@ -343,7 +390,10 @@ def ingenia_denali() -> VendorDrive:
 
 
 #: The documented families, by the name of their driver folder.
-FAMILIES = {d.name: d for d in (copley_plus(), synapticon(), kollmorgen_akd(), beckhoff_ax2000(), ingenia_denali())}
+FAMILIES = {
+    d.name: d
+    for d in (copley_first(), copley_plus(), synapticon(), kollmorgen_akd(), beckhoff_ax2000(), ingenia_denali())
+}
 
 
 def family_folder(tmp_path: Path, drive: VendorDrive, old: str = "", new: str = "") -> Path:

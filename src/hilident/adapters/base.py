@@ -646,7 +646,11 @@ class AdapterBase:
 
     def read_loop(self) -> dict[str, float] | None:
         """The device's cascade parameters in SI units (:data:`hilident.protocol.loop_parameters.PARAMETERS`);
-        None when its driver description does not describe its loop (the default)."""
+        None when its driver description does not describe its loop."""
+        return self._read_loop()
+
+    def _read_loop(self) -> dict[str, float] | None:
+        """The cascade's parameters as the device keeps them (hook; default: no loop described, None)."""
         return None
 
     def _stored_form(self, biquad: Biquad, spec: NotchSpec | None) -> Biquad:

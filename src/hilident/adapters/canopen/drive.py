@@ -683,7 +683,7 @@ class CanopenDriveAdapter(AdapterBase):
         """Why the drive's encoding cannot meet ``spec`` exactly (depth or width out of reach), if it cannot."""
         return self.slots.filter_notes(spec)
 
-    def read_loop(self) -> dict[str, float] | None:
+    def _read_loop(self) -> dict[str, float] | None:
         """The drive's cascade parameters in SI units (``[loop]``: the objects read, the fixed values as given);
         None when the driver description has no ``[loop]``. DeviceError naming the object when one cannot be
         read."""

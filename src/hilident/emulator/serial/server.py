@@ -65,7 +65,7 @@ class BoardServer:
         link: BoardLink,
         baudrate: int,
         time_scale: float = 1.0,
-        tx_buffer_bytes: int = 16384,
+        tx_buffer_bytes: int = 65536,
         watchdog_s: float = 1.0,
         faults: LineFaults | None = None,
         close_after_s: float = 0.0,
