@@ -337,9 +337,7 @@ class TuningConfig:
     phase_margin_deg: float | None = _spec(
         None, gt=0, lt=90, doc="smallest phase margin, degrees (default: the preset's)"
     )
-    sensitivity_peak: float | None = _spec(
-        None, gt=1, doc="largest sensitivity peak Ms, 1 (default: the preset's)"
-    )
+    sensitivity_peak: float | None = _spec(None, gt=1, doc="largest sensitivity peak Ms, 1 (default: the preset's)")
 
 
 @dataclass(frozen=True)
