@@ -8,6 +8,7 @@ fraction of the line's payload capacity. Run by hand, never by the test suite::
     python bench/streaming.py                   # 60 s per trial, several minutes
     python bench/streaming.py --duration 5      # quick look, about a minute
     python bench/streaming.py --compact --baud 3000000
+    python bench/streaming.py --board-command drivers/myrio-board/firmware/build/posix-sim   # the C board
 
 Method
 ------
@@ -26,6 +27,13 @@ highest supported rate at or below the target load), which fixes the block size;
 then s is bisected over payload fractions on a grid of ``--resolution``,
 starting at the target fraction. Finally the highest board-supported rate is
 run in real time (s = 1) to confirm what a real board at that baud rate can do.
+
+``--board-command`` runs another board program instead of the emulated board:
+the reference C firmware's ``posix-sim`` (``make -C drivers/myrio-board/firmware
+posix-sim``), started as ``COMMAND --pty --baud B --time-scale s --quiet``, which
+prints its terminal's path first and paces its own line. Its side of the
+figures (bytes written, buffer peak, rows produced) is not visible from here:
+the host's side stands for both, and its CPU is read from ``/proc``.
 """
 
 from __future__ import annotations
@@ -34,6 +42,7 @@ import argparse
 import math
 import multiprocessing as mp
 import os
+import subprocess
 import sys
 import threading
 import time
@@ -150,6 +159,49 @@ def _serve_board(conn, config_toml: str, driver_name: str, baudrate: int) -> Non
         device.close()
 
 
+def _process_cpu_s(pid: int) -> float:
+    """CPU seconds (user + system) process ``pid`` has used, from ``/proc`` (0 where there is none)."""
+    try:
+        fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return 0.0
+
+
+def _serve_external(conn, command: str, baudrate: int, time_scale: float) -> None:
+    """Child process: a board program on a pseudo-terminal (``--board-command``), answering stats requests."""
+    proc = subprocess.Popen(
+        [command, "--pty", "--baud", str(baudrate), "--time-scale", repr(float(time_scale)), "--quiet"],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    conn.send(proc.stdout.readline().strip())
+    try:
+        while conn.recv() in ("mark", "stats"):
+            rc = proc.poll()
+            conn.send(
+                {
+                    "cpu_s": _process_cpu_s(proc.pid),
+                    "wall_s": time.perf_counter(),
+                    "bytes_sent": 0,
+                    "dropped_blocks": 0,
+                    "tx_peak": 0,
+                    "produced_hz": 0.0,
+                    "tx_capacity": 0,
+                    "error": None if rc is None else f"the board program exited with {rc}",
+                }
+            )
+    except EOFError:
+        pass
+    finally:
+        proc.terminate()
+        proc.wait(timeout=5.0)
+
+
+#: The board program of ``--board-command`` (None: the emulated board in a child process).
+BOARD_COMMAND: str | None = None
+
+
 # --- one trial ------------------------------------------------------------------------------------
 
 
@@ -255,7 +307,10 @@ def run_trial(
         return trial
     ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
     conn, child_conn = ctx.Pipe()
-    board = ctx.Process(target=_serve_board, args=(child_conn, config, driver.name, baudrate), daemon=True)
+    if BOARD_COMMAND is None:
+        board = ctx.Process(target=_serve_board, args=(child_conn, config, driver.name, baudrate), daemon=True)
+    else:
+        board = ctx.Process(target=_serve_external, args=(child_conn, BOARD_COMMAND, baudrate, time_scale), daemon=True)
     board.start()
     adapter = None
     try:
@@ -576,6 +631,11 @@ def _parse_args(argv=None):
         help="repeat a failed trial this many times before taking it as failed (default 1)",
     )
     p.add_argument("--driver", default="myrio-board")
+    p.add_argument(
+        "--board-command",
+        default="",
+        help="a board program to stream from instead of the emulated board (the C firmware's posix-sim)",
+    )
     p.add_argument("--seed", type=int, default=1)
     args = p.parse_args(argv)
     if args.duration <= 0:
@@ -596,7 +656,9 @@ def _parse_args(argv=None):
 
 
 def main(argv=None) -> int:
+    global BOARD_COMMAND
     args = _parse_args(argv)
+    BOARD_COMMAND = os.path.abspath(args.board_command) if args.board_command else None
     try:
         driver = find_driver(args.driver)
         names = COMPACT_CHANNELS if args.compact else [n.strip() for n in args.channels.split(",") if n.strip()]

@@ -54,3 +54,13 @@ def test_the_bandwidth_of_a_first_order_loop_is_its_corner():
 def test_a_grid_that_is_not_increasing_is_refused():
     with pytest.raises(ValueError, match="increasing"):
         loop_margins(F[::-1], 1.0 / S[::-1])
+
+
+def test_the_margins_agree_with_python_control_on_a_drive_like_loop():
+    control = pytest.importorskip("control")
+    loop = 100 * (1 + 1 / (0.05 * S)) * 10 / (10 * S) * np.exp(-S * 0.0005) / (1 + S / (2 * np.pi * 500))
+    gm, pm, _, wpc, wgc, _ = control.stability_margins(control.frd(loop, 2 * np.pi * F))
+    m = loop_margins(F, loop)
+    assert m.gain_margin_db == pytest.approx(20 * np.log10(gm), abs=1e-3)
+    assert m.phase_margin_deg == pytest.approx(pm, abs=1e-3)
+    assert (m.gain_margin_hz, m.crossover_hz) == pytest.approx((wpc / (2 * np.pi), wgc / (2 * np.pi)), rel=1e-4)
