@@ -20,7 +20,13 @@ from cli_page import cli_reference
 from config_page import config_reference, driver_keys_reference
 
 #: Files of the repository shown in the site at the same path, by glob.
-INCLUDED_GLOBS = ("drivers/*/README.md", "drivers/*/PROTOCOL.md", "drivers/*/driver.toml", "bench/README.md")
+INCLUDED_GLOBS = (
+    "drivers/*/README.md",
+    "drivers/*/PROTOCOL.md",
+    "drivers/*/driver.toml",
+    "drivers/*/firmware/README.md",
+    "bench/README.md",
+)
 
 #: A Markdown inline link or image: ``[text](target)``.
 LINK = re.compile(r"(!?)\[([^\]]*)\]\(([^)\s]+)\)")
