@@ -16,6 +16,7 @@ import socket
 import time
 import tomllib
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 import tomli_w
@@ -23,7 +24,7 @@ import tomli_w
 from hilident.protocol import serial_board as sb
 from hilident.protocol.framing import FrameDecoder, encode_frame
 from support.c_board import CBoard, plant
-from support.twins import CONFIGS, finish, host
+from support.twins import CONFIGS, assert_friction_matches, finish, host
 
 pytestmark = pytest.mark.twin
 
@@ -73,9 +74,8 @@ def test_the_shipped_session_finds_fits_and_notches_the_c_boards_gantry(posix_si
     found = summary["resonances"][0]["frequency_hz"]
     assert abs(found - truth["mode_hz"]) / truth["mode_hz"] < 0.005, (found, truth["mode_hz"])
 
-    friction = summary["friction"]["params"]
-    assert abs(friction["Fc"] - truth["fc_nm"]) < 0.05 * truth["fc_nm"], (friction, truth)
-    assert abs(friction["Fv"] - truth["fv_nm_per_mps"]) < 0.05 * truth["fv_nm_per_mps"], (friction, truth)
+    # as for the Python twin: within 3 standard errors of the fit (at least 5 %), which knows them to 15 %
+    assert_friction_matches(summary["friction"], SimpleNamespace(Fc=truth["fc_nm"], Fv=truth["fv_nm_per_mps"]))
 
     upload = summary["upload"]
     assert upload["written"] and upload["verified_readback"]

@@ -150,10 +150,11 @@ class CanopenFilterSlots:
         the enable's value under :data:`ENABLED` (a mode such as the PID-T2 of a BQMODE is neither on nor off,
         and a restore puts it back as it was)."""
         fo, encoding = self._filter_slot(slot)
-        values, enabled = self._read_slot(fo, encoding, slot)
-        if fo.has_enable:
-            values = {**values, ENABLED: self.sdo.read_object(fo.address(slot, ENABLED))}
-        return values, enabled
+        if not fo.has_enable:
+            return self._read_slot(fo, encoding, slot)
+        values = {name: self.sdo.read_object(fo.address(slot, name)) for name in encoding.fields}
+        found = self.sdo.read_object(fo.address(slot, ENABLED))
+        return {**values, ENABLED: found}, found == fo.enable_on
 
     def bypass(self, slot: int) -> None:
         """Bypass a slot: its enable off, or its block's state word to bypass (the coefficients stay stored); a
