@@ -55,7 +55,8 @@ def _assert_notch_verified(upload: dict, verification: dict, warnings: list) -> 
         assert any(w.startswith("filter slot 0:") for w in warnings), warnings
 
 
-@pytest.mark.parametrize("name", ["copley-first", "synapticon-somanet", "kollmorgen-akd"])
+# the first-generation Copley block runs its whole session in test_canopen_vendor_drives.py ("copley")
+@pytest.mark.parametrize("name", ["synapticon-somanet", "kollmorgen-akd"])
 def test_a_documented_family_runs_the_whole_session_on_its_twin(tmp_path, name):
     folder = _checked_folder(tmp_path, name)
     cfg = session_config(folder, duration_s=5.0)
@@ -74,7 +75,8 @@ def test_the_copley_plus_block_goes_through_hilident_run_without_a_traceback(tmp
     raw["run"]["sample_rate_hz"] = 250.0
     raw["emulator"]["time_scale"] = 20.0
     raw["friction_test"] = {"enabled": False}
-    raw["excitation"].update(period_s=1.0, duration_s=5.0, amplitude_nm=8.0)
+    # six periods: a busy machine holds back set-points (each a held torque that sets the mode ringing)
+    raw["excitation"].update(period_s=1.0, duration_s=6.0, amplitude_nm=8.0)
     config = tmp_path / "copley.toml"
     config.write_text(tomli_w.dumps(raw))
     out = subprocess.run(
