@@ -14,6 +14,7 @@ from urllib.parse import quote
 
 from hilident.html_report.advice import group_warnings
 from hilident.html_report.gather import ReportInputs
+from hilident.html_report.loop_section import loop
 from hilident.html_report.markup import MISSING, esc, figure, key_values, note, num, pm, section, table
 
 __all__ = ["SECTIONS", "title_of"]
@@ -1087,6 +1088,7 @@ SECTIONS: tuple[tuple[str, str, Callable[[ReportInputs], str]], ...] = (
     ("friction", "Friction fit", friction),
     ("model", "Model, uncertainty and validation", model_section),
     ("notches", "Notches: designed and achieved", notches),
+    ("loop", "The drive's loop", loop),
     ("workspace", "Workspace map", workspace),
     ("moves", "Move test", moves),
     ("stream", "Stream statistics", stream_section),

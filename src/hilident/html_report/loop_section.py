@@ -1,0 +1,101 @@
+"""The report's section on the drive's loop: margins with the present gains and the gains proposed.
+
+It shows ``summary.json["loop"]`` (:mod:`hilident.pipeline.loop_analysis`): for the velocity and
+the position loop, without and with the notch, the gain and phase margins, the sensitivity peak and the
+bandwidth; then the ``[tuning]`` targets, the gains proposed and what the notch buys at the same targets.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from hilident.html_report.gather import ReportInputs
+from hilident.html_report.markup import MISSING, esc, key_values, note, num, section, table
+
+__all__ = ["loop"]
+
+_LOOPS = (("velocity", "velocity (position loop open)"), ("position", "position (velocity loop closed)"))
+_PARTS = (("without_notch", "without the notch"), ("with_notch", "with the notch"))
+
+
+def _figure_cells(figures: dict) -> list[str]:
+    return [
+        num(figures.get("gain_margin_db"), "dB", 3),
+        num(figures.get("gain_margin_hz"), "Hz", 3),
+        num(figures.get("phase_margin_deg"), "deg", 3),
+        num(figures.get("crossover_hz"), "Hz", 3),
+        num(figures.get("sensitivity_peak"), "", 3),
+        num(figures.get("bandwidth_hz"), "Hz", 3),
+    ]
+
+
+_HEADER = ["gain margin", "at", "phase margin", "crossover", "Ms", "bandwidth"]
+
+
+def _present(part: dict) -> str:
+    rows = [
+        [esc(loop_name), esc(part_name), *_figure_cells(part[loop][key])]
+        for loop, loop_name in _LOOPS
+        for key, part_name in _PARTS
+        if isinstance(part.get(loop), dict) and isinstance(part[loop].get(key), dict)
+    ]
+    return table(["loop", "", *_HEADER], rows, "The drive's present gains around the identified plant")
+
+
+def _gains(gains: dict) -> str:
+    return ", ".join(
+        f"{esc(name)} {num(gains.get(name), unit, 4)}"
+        for name, unit in (("kv_nm_per_mps", "N*m/(m/s)"), ("ti_s", "s"), ("kp_pos_per_s", "1/s"))
+    )
+
+
+def _tuning(tuning: Any) -> str:
+    if not isinstance(tuning, dict):
+        return note("No gains proposed ([tuning] off).")
+    targets = tuning.get("targets") or {}
+    rows = []
+    for key, part_name in _PARTS:
+        proposed = tuning.get(key)
+        if not isinstance(proposed, dict):
+            rows.append([esc(part_name), MISSING, *([MISSING] * len(_HEADER))])
+            continue
+        for loop, loop_name in _LOOPS:
+            rows.append([esc(part_name), esc(loop_name), *_figure_cells(proposed.get(loop) or {})])
+    gains = [
+        (f"gains {name}", _gains(tuning[key]["gains"])) for key, name in _PARTS if isinstance(tuning.get(key), dict)
+    ]
+    return key_values(
+        [
+            (
+                "targets",
+                f"gain margin {num(targets.get('gain_margin_db'), 'dB', 3)}, phase margin "
+                f"{num(targets.get('phase_margin_deg'), 'deg', 3)}, Ms {num(targets.get('sensitivity_peak'), '', 3)}",
+            ),
+            ("plants the targets hold on", num(tuning.get("plants"))),
+            *gains,
+            ("verdict", esc(str(tuning.get("verdict", "")))),
+        ]
+    ) + table(["proposed", "loop", *_HEADER], rows, "The proposed gains on the worst of the plants")
+
+
+def loop(inputs: ReportInputs) -> str:
+    """``summary.json["loop"]``: the drive's loop around the plant, and the gains proposed."""
+    part = inputs.summary.get("loop")
+    if not isinstance(part, dict):
+        return section("loop", "The drive's loop", note("The driver describes no loop ([loop]): no margins."))
+    params = part.get("parameters") or {}
+    band = part.get("measured_band_hz") or [None, None]
+    fit = part.get("mechanics_fit") or {}
+    pairs = [
+        ("parameters read", ", ".join(f"{esc(k)} {num(v)}" for k, v in params.items()) or MISSING),
+        ("measured band", f"{num(band[0], 'Hz')} to {num(band[-1], 'Hz')}"),
+        ("plant beyond the band", esc(str(part.get("source", "")))),
+        (
+            "measured lines against it",
+            f"{num(fit.get('gain_db_rms'), 'dB', 3)} rms, {num(fit.get('phase_rms_deg'), 'deg', 3)} rms"
+            if fit
+            else MISSING,
+        ),
+    ]
+    notes = "".join(note(str(n)) for n in part.get("notes") or [])
+    return section("loop", "The drive's loop", key_values(pairs) + _present(part) + _tuning(part.get("tuning")) + notes)

@@ -1,0 +1,59 @@
+"""The report's section on the drive's loop shows summary.json["loop"], and says when there is none."""
+
+from __future__ import annotations
+
+import json
+from types import SimpleNamespace
+
+from hilident.html_report.loop_section import loop
+from hilident.html_report.sections import SECTIONS
+
+FIGURES = {
+    "gain_margin_db": 12.5,
+    "gain_margin_hz": 300.0,
+    "phase_margin_deg": 48.5,
+    "crossover_hz": 21.0,
+    "sensitivity_peak": 1.6,
+    "sensitivity_peak_hz": 25.0,
+    "sensitivity_peak_db": 4.08,
+    "bandwidth_hz": 30.0,
+}
+LOOP = {
+    "parameters": {"kv_nm_per_mps": 100.0, "ti_s": 0.05},
+    "grid_hz": [1.0, 1800.0],
+    "measured_band_hz": [2.0, 80.0],
+    "source": "model",
+    "mechanics_fit": {"gain_db_rms": 0.15, "phase_rms_deg": 0.8},
+    "velocity": {"without_notch": FIGURES, "with_notch": {**FIGURES, "phase_margin_deg": 41.5}},
+    "position": {"without_notch": FIGURES, "with_notch": None},
+    "tuning": {
+        "targets": {"gain_margin_db": 10.0, "phase_margin_deg": 50.0, "sensitivity_peak": 1.7},
+        "plants": 3,
+        "without_notch": {
+            "gains": {"kv_nm_per_mps": 2062.0, "ti_s": 0.0073, "kp_pos_per_s": 98.1},
+            "velocity": FIGURES,
+            "position": FIGURES,
+        },  # fmt: skip
+        "with_notch": None,
+        "verdict": "the notch leaves no gains that keep the targets; without it: 30.0 Hz",
+    },
+    "notes": ["loop: the gain margins (300-300 Hz) lie beyond the measured band 2-80 Hz"],
+}
+
+
+def test_the_loop_section_shows_the_margins_the_proposal_and_the_verdict():
+    html = loop(SimpleNamespace(summary={"loop": json.loads(json.dumps(LOOP))}))
+    assert 'id="loop"' in html
+    assert "48.5 deg" in html and "41.5 deg" in html  # without and with the notch
+    assert "2062" in html and "98.1" in html  # the gains proposed
+    assert "the notch leaves no gains that keep the targets" in html
+    assert "lie beyond the measured band" in html
+
+
+def test_a_run_without_a_described_loop_says_so():
+    html = loop(SimpleNamespace(summary={}))
+    assert "describes no loop" in html
+
+
+def test_the_section_is_part_of_the_page():
+    assert "loop" in [anchor for anchor, _, _ in SECTIONS]
