@@ -3,8 +3,9 @@
 The identified plant (net torque to velocity, recorded every ``D`` loop ticks)
 becomes the plant the loop sees tick by tick (:func:`hilident.control.loop_plant`);
 the drive's cascade, read from the drive (``[loop]``), closes the loop around
-it (:class:`hilident.control.Cascade`). For the velocity loop (the position loop
-open, as in velocity mode) and the position loop (both closed): the gain and
+it (:class:`hilident.control.Cascade`). For the velocity loop (broken at the
+torque, the position loop open, as in velocity mode) and the position loop
+(broken at the velocity set-point, the velocity loop closed): the gain and
 phase margins, the sensitivity peak and the bandwidth of the set-point's
 response, with the drive's present gains, without the notches and with the ones
 designed -- what a notch buys, in the figures a servo engineer tunes by.
@@ -68,7 +69,7 @@ class LoopAnalysis:
     measured_band_hz : (float, float)
         The band the plant was measured in, Hz.
     source : str
-        ``"model"`` (the fitted transfer function on a dense grid) or ``"lines"`` (the measured lines only).
+        ``"model"`` (the mechanics found in the band, on a dense grid) or ``"lines"`` (the measured lines only).
     figures : dict
         ``{loop: {"without_notch": LoopFigures, "with_notch": LoopFigures or None}}`` for ``"velocity"`` and
         ``"position"``.

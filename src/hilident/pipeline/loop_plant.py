@@ -70,6 +70,11 @@ def _mechanics_to_position(model, band_hz: tuple[float, float], output_is_veloci
     )
 
 
+def _held_over_a_tick(frequency_hz: np.ndarray, loop_rate_hz: float) -> np.ndarray:
+    """Half a tick's delay: the torque held over a tick, the position read at the tick's start."""
+    return np.exp(-1j * np.pi * frequency_hz / loop_rate_hz)
+
+
 def _fit_mechanics(mechanics, f: np.ndarray, measured: np.ndarray, loop_rate_hz: float):
     """``(mechanics, gain, residual)``: the number of integrators (0 to 3) and the real gain (of either sign)
     that bring ``mechanics``, held over a tick (half a tick late), closest to the ``measured`` lines (least
@@ -80,7 +85,7 @@ def _fit_mechanics(mechanics, f: np.ndarray, measured: np.ndarray, loop_rate_hz:
     loop's own (the torque held over a tick, the position read at its start), not fitted: a delay fitted to
     noisy lines in a low band would move the crossings far above it.
     """
-    held = np.exp(-1j * np.pi * f / loop_rate_hz)
+    held = _held_over_a_tick(f, loop_rate_hz)
     best = None
     for n in range(4):
         candidate = replace(mechanics, integrators=n)
@@ -138,7 +143,7 @@ def seen_plant(
         loop_rate_hz,
     )
     f = np.geomspace(max(band[0] / 2, 0.1), GRID_TOP * loop_rate_hz, GRID_POINTS)
-    held = np.exp(-1j * np.pi * f / loop_rate_hz)
+    held = _held_over_a_tick(f, loop_rate_hz)
     variants = [gain * _modes_moved(mechanics, factor).response(f) * held for factor in _shifts(mode_shift)]
     return SeenPlant(f, gain * mechanics.response(f) * held, "model", band, residual, variants)
 

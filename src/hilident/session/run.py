@@ -613,14 +613,16 @@ class Session(DeviceConnection):
         """The drive's loop around the identified plant, without and with the designed notches; None when the
         driver does not describe the loop. A drive that cannot be read is a warning, not a failed run."""
         ad = self.adapter
+        if plant is None:
+            return None
         try:
             parameters = ad.read_loop()
         except DeviceError as exc:
             self.warnings.append(f"loop: the drive's loop parameters could not be read: {exc}")
             return None
-        if parameters is None or plant is None:
+        if parameters is None:
             return None
-        sampling = next((c.sampling for c in self.found_driver.channels if c.name == "torque_nm"), "instant")
+        sampling = "mean" if "torque_nm" in self.found_driver.averaged_channels else "instant"
         try:
             analysis = pipeline_loop.analyse_loop(
                 plant,

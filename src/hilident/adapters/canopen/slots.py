@@ -114,14 +114,18 @@ class CanopenFilterSlots:
         if fo.has_enable:
             self.sdo.write_object(fo.address(slot, ENABLED), fo.enable_on if enabled else fo.enable_off)
 
+    def _read_fields(self, fo: FilterObjects, encoding: FilterEncoding, slot: int) -> tuple[dict, object]:
+        """A slot's field values, and what its enable object holds (None: it has none of its own)."""
+        values = {name: self.sdo.read_object(fo.address(slot, name)) for name in encoding.fields}
+        found = self.sdo.read_object(fo.address(slot, ENABLED)) if fo.has_enable else None
+        return values, found
+
     def _read_slot(self, fo: FilterObjects, encoding: FilterEncoding, slot: int) -> tuple[dict, bool]:
         """A slot's values and whether it runs (a slot without an enable always runs what it holds)."""
-        values = {name: self.sdo.read_object(fo.address(slot, name)) for name in encoding.fields}
+        values, found = self._read_fields(fo, encoding, slot)
         if fo.in_block:
             return values, bool(self._slot_call(fo, slot, encoding.slot_enabled, values))
-        if not fo.has_enable:
-            return values, True
-        return values, self.sdo.read_object(fo.address(slot, ENABLED)) == fo.enable_on
+        return values, found is None or found == fo.enable_on
 
     def _slot_call(self, fo: FilterObjects, slot: int, call, *args):
         """``call(*args)`` on the slot's values; a DataError becomes a DeviceError naming the port and objects."""
@@ -152,8 +156,7 @@ class CanopenFilterSlots:
         fo, encoding = self._filter_slot(slot)
         if not fo.has_enable:
             return self._read_slot(fo, encoding, slot)
-        values = {name: self.sdo.read_object(fo.address(slot, name)) for name in encoding.fields}
-        found = self.sdo.read_object(fo.address(slot, ENABLED))
+        values, found = self._read_fields(fo, encoding, slot)
         return {**values, ENABLED: found}, found == fo.enable_on
 
     def bypass(self, slot: int) -> None:
