@@ -13,6 +13,7 @@ from hilident.adapters.canopen.drive import CanopenDriveAdapter
 from hilident.config.tables import load_config
 from hilident.drivers.description import find_driver
 from hilident.emulator.canopen.server import start
+from hilident.errors import DeviceError, UsageError
 
 CONFIG = Path(__file__).resolve().parents[2] / "configs" / "emulated-canopen-gantry.toml"
 
@@ -55,3 +56,23 @@ def test_a_write_retunes_the_running_loop_and_a_wrong_one_is_refused(twin):
         assert err.value.code == 0x06010002
     finally:
         network.disconnect()
+
+
+def test_the_host_writes_gains_reads_them_back_as_stored_and_refuses_a_fixed_part(twin):
+    _, driver, emulated = twin
+    adapter = CanopenDriveAdapter.open_device(replace(emulated.device, timeout_s=0.5), driver)
+    try:
+        asked = {"kv_nm_per_mps": 123.456789, "ti_s": 0.0123456789, "kp_pos_per_s": 31.0}
+        expected = adapter.stored_loop(asked)
+        assert expected["ti_s"] != asked["ti_s"] and expected["ti_s"] == pytest.approx(asked["ti_s"], rel=1e-7)
+        adapter.write_loop(asked)
+        back = adapter.read_loop()
+        assert {k: back[k] for k in asked} == expected
+        assert emulated.drive.tuning.kp_pos_per_s == pytest.approx(31.0)
+        with pytest.raises(UsageError, match="current_loop_hz"):
+            adapter.write_loop({"current_loop_hz": 900.0})
+        with pytest.raises(DeviceError, match="0x2400"):
+            adapter.write_loop({"ti_s": 0.0})  # the drive refuses it, and the error names the object
+        assert adapter.read_loop()["ti_s"] == expected["ti_s"]
+    finally:
+        adapter.close()

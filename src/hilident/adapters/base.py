@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Generic, Protocol, Self, TypeVar
 
@@ -18,7 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from hilident.adapters.host_timing import timely_host
-from hilident.errors import ConfigError, DataError, DeviceError, LimitTrip
+from hilident.errors import ConfigError, DataError, DeviceError, LimitTrip, UsageError
 from hilident.events import Kind, RunEvent, StreamStats
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
@@ -202,6 +202,12 @@ class DeviceAdapter(Protocol):
 
     def read_loop(self) -> dict[str, float] | None:
         """The device's cascade parameters in SI units; None when its loop is not described."""
+
+    def write_loop(self, values: Mapping[str, float]) -> None:
+        """Write tunable cascade parameters, SI units."""
+
+    def stored_loop(self, values: Mapping[str, float]) -> dict[str, float]:
+        """What the device will hold for ``values`` after its own rounding, SI units."""
 
     def save_filter(self, slot: int) -> Any:
         """The slot's contents, opaque, for :meth:`restore_filter`."""
@@ -652,6 +658,37 @@ class AdapterBase:
     def _read_loop(self) -> dict[str, float] | None:
         """The cascade's parameters as the device keeps them (hook; default: no loop described, None)."""
         return None
+
+    def write_loop(self, values: Mapping[str, float]) -> None:
+        """Write cascade parameters, SI units, into the device (only the tunable ones:
+        :data:`hilident.protocol.loop_parameters.TUNABLE`).
+
+        Raises
+        ------
+        DeviceError
+            The device refused one or the line failed; the message names the object, register or message.
+        UsageError
+            A parameter is not tunable, or the device's description keeps it as a fixed value.
+        """
+        from hilident.protocol.loop_parameters import TUNABLE
+
+        fixed = sorted(set(values) - set(TUNABLE))
+        if fixed:
+            raise UsageError(f"{fixed[0]} is no gain a tuner may change (they are {list(TUNABLE)})")
+        self._write_loop(dict(values))
+
+    def stored_loop(self, values: Mapping[str, float]) -> dict[str, float]:
+        """What the device will hold for ``values`` after its own rounding (its objects' or registers' types and
+        scales), SI units: what :meth:`read_loop` reads back after :meth:`write_loop`."""
+        return self._stored_loop(dict(values))
+
+    def _write_loop(self, values: dict[str, float]) -> None:
+        """Write the tunable parameters ``values`` (hook; default: the device describes no loop)."""
+        raise UsageError(f"{self.port}: the driver describes no loop parameters ([loop]) to write")
+
+    def _stored_loop(self, values: dict[str, float]) -> dict[str, float]:
+        """``values`` as the device stores them (hook; default: unchanged)."""
+        return dict(values)
 
     def _stored_form(self, biquad: Biquad, spec: NotchSpec | None) -> Biquad:
         """The biquad the device applies after its own rounding of ``biquad``/``spec`` (hook, required)."""

@@ -65,6 +65,7 @@ a strategy uses.
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import time
 from collections.abc import Callable, Iterable
@@ -96,7 +97,7 @@ from hilident.adapters.canopen.streamed import POSITION_SETPOINTS, Deliver, Driv
 from hilident.adapters.canopen.trace import TracingNetwork
 from hilident.config.tables import DeviceConfig
 from hilident.drivers.description import DriverDescription, load_object_dictionary
-from hilident.errors import ConfigError, DataError, DeviceError
+from hilident.errors import ConfigError, DataError, DeviceError, UsageError
 from hilident.events import Kind, RunEvent
 from hilident.filters.biquad import Biquad
 from hilident.filters.notch import NotchSpec
@@ -694,6 +695,47 @@ class CanopenDriveAdapter(AdapterBase):
             name: p.physical(self.sdo.read_object(p.address)) if p.address is not None else float(p.value or 0.0)
             for name, p in loop.parameters.items()
         }
+
+    def _write_loop(self, values: dict[str, float]) -> None:
+        """Each tunable parameter into its object, in the object's unit (rounded to its type); DeviceError naming
+        the object when the drive refuses it, UsageError when the description keeps it as a fixed value."""
+        for name, value in values.items():
+            param = self._loop_object(name)
+            assert param.address is not None
+            self.sdo.write_object(param.address, self._loop_stored_value(param, value))
+
+    def _stored_loop(self, values: dict[str, float]) -> dict[str, float]:
+        """``values`` as the objects will hold them: an integer object keeps the nearest whole unit."""
+        return {
+            name: self._loop_object(name).physical(self._loop_stored_value(self._loop_object(name), v))
+            for name, v in values.items()
+        }
+
+    def _loop_object(self, name: str):
+        loop = self.desc.loop
+        param = loop.parameters.get(name) if loop is not None else None
+        if param is None or param.address is None:
+            raise UsageError(
+                f"{self.port}: {name} is not held in an object of the drive ([loop] of the driver gives "
+                + ("no [loop]" if loop is None else "it as a fixed value")
+                + ")"
+            )
+        return param
+
+    def _loop_stored_value(self, param, value: float):
+        """What the object of ``param`` is written for the SI ``value``: REAL types as given, integers rounded."""
+        assert param.address is not None
+        stored = param.stored(float(value))
+        data_type = self.sdo.data_type(param.address)
+        if data_type == 0x0008:  # REAL32
+            return float(np.float32(stored))
+        if data_type == 0x0011:  # REAL64
+            return stored
+        if not math.isfinite(stored):
+            raise UsageError(
+                f"{self.port}: {param.name} = {value} cannot be held in the integer object {param.address}"
+            )
+        return int(round(stored))
 
     def save_parameters(self) -> str:
         """Have the drive store its parameters in non-volatile memory (0x1010, or the object ``[canopen.save]``
