@@ -44,6 +44,7 @@ def test_objects_scales_and_values():
         ({"current_loop_hz": {"value": -5.0}}, "loop.current_loop_hz.value"),
         ({"current_loop_hz": {"value": math.nan}}, "loop.current_loop_hz.value"),
         ({"kv_nm_per_mps": {"object": "0x24XX"}}, "loop.kv_nm_per_mps.object"),
+        ({"kv_nm_per_mps": {"register": "velocity_gain"}}, "loop.kv_nm_per_mps.register"),  # not a CANopen kind
     ],
 )
 def test_a_wrong_table_names_its_key(edit, key):
@@ -59,3 +60,16 @@ def test_an_object_the_eds_does_not_have_is_refused_naming_it():
     sections = {**driver.sections, "loop": {**driver.sections["loop"], "ti_s": {"object": "0x2400:9"}}}
     with pytest.raises(ConfigError, match=r"loop\.ti_s\.object.*0x2400:9"):
         CanopenDescription.from_sections(sections, "driver.toml", load_object_dictionary(driver))
+
+
+def test_each_transport_takes_its_own_kind_of_location():
+    modbus = {n: {"register": f"loop_{n}"} for n in PARAMETERS} | {"delay_ticks": 1}
+    loop = parse_loop(modbus, "m.toml", kinds=("register",))
+    assert loop.parameters["ti_s"].register == "loop_ti_s" and loop.parameters["ti_s"].held
+    assert loop.fixed() == {"delay_ticks": 1.0} and "delay_ticks" not in loop.held
+    with pytest.raises(ConfigError, match=r"loop\.ti_s\.scale"):  # a register's scale is the map's
+        parse_loop({**modbus, "ti_s": {"register": "x", "scale": 2.0}}, "m.toml", kinds=("register",))
+    serial = {n: {"message": "LOOP"} for n in PARAMETERS}
+    assert parse_loop(serial, "s.toml", kinds=("message",)).parameters["kp_pos_per_s"].message == "LOOP"
+    with pytest.raises(ConfigError, match=r"loop\.ti_s\.message"):
+        parse_loop({**serial, "ti_s": {"message": "GAINS"}}, "s.toml", kinds=("message",))

@@ -17,6 +17,13 @@ driver folder says, for each, where the drive keeps it or what it is:
 a P controller; ``velocity_filter_hz = inf``: the raw difference;
 ``current_loop_hz = inf``: an ideal current loop). The host reads the objects
 and never writes a parameter kept as a value.
+
+Where a parameter lives depends on the transport: a CANopen drive keeps it in
+an object (``object = "0xIIII:S"``, with ``scale``), a Modbus drive in a
+register of its map (``register = "name"``, the register's own type and scale
+apply), the serial board in its LOOP message (``message = "LOOP"``, the
+protocol fixes the field and the unit). Each transport accepts only its own
+kind (:func:`parse_loop`'s ``kinds``).
 """
 
 from __future__ import annotations
@@ -51,17 +58,28 @@ class LoopParameter:
     name : str
         One of :data:`PARAMETERS`.
     address : ObjectAddress or None
-        The CANopen object that holds it (None: a fixed value).
+        The CANopen object that holds it (None: not in an object).
     value : float or None
-        The fixed value in SI units (None: read from ``address``).
+        The fixed value in SI units (None: held by the drive).
     scale : float
         SI units per stored unit of the object.
+    register : str or None
+        The Modbus register (a name of ``[modbus.registers]``) that holds it.
+    message : str or None
+        The serial message that carries it (``"LOOP"``).
     """
 
     name: str
     address: ObjectAddress | None = None
     value: float | None = None
     scale: float = 1.0
+    register: str | None = None
+    message: str | None = None
+
+    @property
+    def held(self) -> bool:
+        """Whether the drive holds it (object, register or message), rather than the description fixing it."""
+        return self.value is None
 
     def physical(self, stored) -> float:
         """The SI value of what the object holds."""
@@ -85,6 +103,15 @@ class LoopDescription:
     parameters: dict[str, LoopParameter]
 
     @property
+    def held(self) -> dict[str, LoopParameter]:
+        """The parameters the drive holds (not fixed values): name -> parameter."""
+        return {n: p for n, p in self.parameters.items() if p.held}
+
+    def fixed(self) -> dict[str, float]:
+        """The parameters the description fixes: name -> SI value."""
+        return {n: float(p.value) for n, p in self.parameters.items() if p.value is not None}
+
+    @property
     def objects(self) -> dict[str, ObjectAddress]:
         """The parameters held in objects: name -> address."""
         return {n: p.address for n, p in self.parameters.items() if p.address is not None}
@@ -94,8 +121,26 @@ class LoopDescription:
         return next((n for n, a in self.objects.items() if a == addr), None)
 
 
-def parse_loop(table, source: str = "") -> LoopDescription | None:
+#: The keys that say where a parameter lives, and what each means.
+LOCATIONS = {
+    "object": '{ object = "0xIIII:S" } (a CANopen object)',
+    "register": '{ register = "name" } (a register of [modbus.registers])',
+    "message": '{ message = "LOOP" } (the serial board\'s LOOP message)',
+}
+#: The messages a serial board carries its loop in.
+MESSAGES = ("LOOP",)
+
+
+def parse_loop(table, source: str = "", kinds: tuple[str, ...] = ("object",)) -> LoopDescription | None:
     """The ``[loop]`` table of a driver description; None when it has none.
+
+    Parameters
+    ----------
+    table : dict or None
+    source : str
+        The file, for error messages.
+    kinds : tuple of str
+        The keys of :data:`LOCATIONS` the transport accepts (``value`` is always accepted).
 
     Raises
     ------
@@ -116,18 +161,33 @@ def parse_loop(table, source: str = "") -> LoopDescription | None:
             f"is missing: give the object that holds it or its value ({PARAMETERS[missing[0]]})",
             source,
         )
-    return LoopDescription({n: _parameter(n, table[n], source) for n in PARAMETERS})
+    return LoopDescription({n: _parameter(n, table[n], source, kinds) for n in PARAMETERS})
 
 
-def _parameter(name: str, entry, source: str) -> LoopParameter:
+def _parameter(name: str, entry, source: str, kinds: tuple[str, ...]) -> LoopParameter:
     key = f"loop.{name}"
     if isinstance(entry, (int, float)) and not isinstance(entry, bool):
         entry = {"value": entry}
-    if not isinstance(entry, dict) or len({"object", "value"} & set(entry)) != 1:
-        raise ConfigError(key, 'must be { object = "0xIIII:S" } or { value = ... }', source)
-    extra = sorted(set(entry) - {"object", "value", "scale"})
+    allowed = " or ".join([LOCATIONS[k] for k in kinds] + ["{ value = ... }"])
+    if not isinstance(entry, dict) or len({*LOCATIONS, "value"} & set(entry)) != 1:
+        raise ConfigError(key, f"must be {allowed}", source)
+    keys = {*kinds, "value"} | ({"scale"} if "object" in entry else set())
+    extra = sorted(set(entry) - keys)
     if extra:
-        raise ConfigError(f"{key}.{extra[0]}", "is not a key of a loop parameter (object, value, scale)", source)
+        raise ConfigError(
+            f"{key}.{extra[0]}", f"is not a key of a loop parameter of this driver ({', '.join(sorted(keys))})", source
+        )
+    if "register" in entry:
+        register = entry["register"]
+        if not isinstance(register, str) or not register:
+            raise ConfigError(
+                f"{key}.register", f"must name a register of [modbus.registers], got {register!r}", source
+            )
+        return LoopParameter(name, register=register)
+    if "message" in entry:
+        if entry["message"] not in MESSAGES:
+            raise ConfigError(f"{key}.message", f"must be one of {list(MESSAGES)}, got {entry['message']!r}", source)
+        return LoopParameter(name, message=entry["message"])
     scale = entry.get("scale", 1.0)
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not (math.isfinite(scale) and scale > 0):
         raise ConfigError(
