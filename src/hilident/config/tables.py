@@ -338,6 +338,18 @@ class TuningConfig:
         None, gt=0, lt=90, doc="smallest phase margin, degrees (default: the preset's)"
     )
     sensitivity_peak: float | None = _spec(None, gt=1, doc="largest sensitivity peak Ms, 1 (default: the preset's)")
+    upload: bool = _spec(
+        False,
+        doc="write the proposed gains into the drive (with the notches when they were uploaded), read them back, "
+        "prove them by a closed-loop run in velocity mode and put the old ones back when it differs from the "
+        "prediction; refused when the gains would leave the loop unstable on the identified plant",
+    )
+    tolerance_db: float = _spec(
+        2.0, gt=0, doc="largest difference of the measured closed loop from the prediction that keeps the gains, dB"
+    )
+    tolerance_deg: float = _spec(
+        10.0, gt=0, doc="largest phase difference of the measured closed loop from the prediction, degrees"
+    )
 
 
 @dataclass(frozen=True)

@@ -79,6 +79,14 @@ class LoopAnalysis:
         rests on (None: the lines themselves were used).
     tuning : dict or None
         The gains proposed against the ``[tuning]`` targets (:func:`tuning_part`); None: none asked for.
+    seen : SeenPlant or None
+        The plant the loop sees (not in ``summary.json``: the gain step and ``loop_plant.npz`` use it).
+    cascade : Cascade or None
+        The drive's cascade as read, without the notches.
+    notches : tuple of Biquad
+        The designed notches the figures "with_notch" use.
+    upload : dict or None
+        The gain step's outcome (:class:`hilident.session.gain_step.GainStep`); None: no gains uploaded.
     """
 
     parameters: dict
@@ -89,6 +97,10 @@ class LoopAnalysis:
     notes: list[str] = field(default_factory=list)
     mechanics_fit: dict | None = None
     tuning: dict | None = None
+    seen: SeenPlant | None = field(default=None, repr=False)
+    cascade: Cascade | None = None
+    notches: tuple = ()
+    upload: dict | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -102,6 +114,7 @@ class LoopAnalysis:
                 for loop, parts in self.figures.items()
             },
             "tuning": self.tuning,
+            "upload": self.upload,
             "notes": list(self.notes),
         }
 
@@ -178,7 +191,17 @@ def analyse_loop(
     fit = None if seen.residual is None else {"gain_db_rms": seen.residual[0], "phase_rms_deg": seen.residual[1]}
     part = None if targets is None else tuning_part(targets, without, with_notch, seen)
     return LoopAnalysis(
-        dict(parameters), (float(f[0]), float(f[-1])), seen.band_hz, seen.source, figures, notes, fit, part
+        dict(parameters),
+        (float(f[0]), float(f[-1])),
+        seen.band_hz,
+        seen.source,
+        figures,
+        notes,
+        fit,
+        part,
+        seen,
+        without,
+        tuple(notches),
     )
 
 

@@ -43,6 +43,14 @@ class SeenPlant:
         How far the measured lines lie from the mechanics: rms dB and degrees (None for ``"lines"``).
     variants : list of ndarray
         ``H`` with the modes at the ends of their 95 % intervals (empty without a model or intervals).
+    mechanics : ModalModel or None
+        The mechanics ``response`` rests on (``"model"`` only), without its gain and the tick's hold.
+    gain : float
+        The real gain that brings ``mechanics`` onto the measured lines.
+    loop_rate_hz : float
+        The tick rate, Hz.
+    mode_shift : float
+        The fraction the variants' modes are moved by (0: no variants).
     """
 
     frequency_hz: np.ndarray
@@ -51,6 +59,26 @@ class SeenPlant:
     band_hz: tuple[float, float]
     residual: tuple[float, float] | None = None
     variants: list = field(default_factory=list)
+    mechanics: object = None
+    gain: float = 1.0
+    loop_rate_hz: float = math.nan
+    mode_shift: float = 0.0
+
+    def at(self, frequency_hz) -> list[np.ndarray]:
+        """``H`` at other frequencies, Hz: the plant first, then its variants. The mechanics are evaluated
+        where there are some; measured lines are interpolated (log magnitude and unwrapped phase, linear in log
+        frequency) and are NaN outside the lines."""
+        f = np.asarray(frequency_hz, dtype=float)
+        if self.mechanics is not None:
+            held = self.gain * _held_over_a_tick(f, self.loop_rate_hz)
+            m = self.mechanics
+            return [m.response(f) * held] + [  # type: ignore[attr-defined]
+                _modes_moved(m, k).response(f) * held for k in _shifts(self.mode_shift)
+            ]
+        logf = np.log(self.frequency_hz)
+        mag = np.interp(np.log(f), logf, np.log(np.abs(self.response)), left=np.nan, right=np.nan)
+        phase = np.interp(np.log(f), logf, np.unwrap(np.angle(self.response)), left=np.nan, right=np.nan)
+        return [np.exp(mag + 1j * phase)]
 
 
 def _mechanics_to_position(model, band_hz: tuple[float, float], output_is_velocity: bool):
@@ -145,7 +173,18 @@ def seen_plant(
     f = np.geomspace(max(band[0] / 2, 0.1), GRID_TOP * loop_rate_hz, GRID_POINTS)
     held = _held_over_a_tick(f, loop_rate_hz)
     variants = [gain * _modes_moved(mechanics, factor).response(f) * held for factor in _shifts(mode_shift)]
-    return SeenPlant(f, gain * mechanics.response(f) * held, "model", band, residual, variants)
+    return SeenPlant(
+        f,
+        gain * mechanics.response(f) * held,
+        "model",
+        band,
+        residual,
+        variants,
+        mechanics,
+        gain,
+        loop_rate_hz,
+        mode_shift if _shifts(mode_shift) else 0.0,
+    )
 
 
 def _shifts(mode_shift: float) -> list[float]:

@@ -168,6 +168,7 @@ class Session(DeviceConnection):
         self.move_results: list[MoveTestResult] | None = None  # [verification] move, at each place it ran
         self.position_m: float | None = None  # the cart's position at the end of the last recording, m
         self.loop = None  # the drive's loop around the identified plant (a drive with [loop] only)
+        self.gains = None  # the gain step ([tuning] upload), while it may have to put the old gains back
 
     # --- connection -----------------------------------------------------------------------
 
@@ -279,6 +280,9 @@ class Session(DeviceConnection):
             if self.workspace is not None and verification is not None and self.cfg.map.verify:
                 step = "map verification"
                 self.workspace.verify()
+            if self.loop is not None and self.cfg.tuning.upload:
+                step = "gain upload"
+                self._gain_step(upload, friction)
             if self.cfg.verification.move is not None:
                 step = "move test"
                 self.move_results = self._move_step(designs, upload)
@@ -296,6 +300,8 @@ class Session(DeviceConnection):
         finally:
             with endings.shielded():
                 self._restore_filters()  # nothing to do once the new notches are uploaded
+                if self.gains is not None:
+                    self.gains.restore()  # gains not yet proven go back
                 self.close()
         endings.raise_pending()
         model = self._greybox()
@@ -639,6 +645,28 @@ class Session(DeviceConnection):
             return None
         self.notes += analysis.notes
         return analysis
+
+    def _gain_step(self, upload: UploadOutcome, friction) -> None:
+        """The proposed gains into the drive, proven by a closed-loop run or put back
+        (:class:`hilident.session.gain_step.GainStep`); the outcome goes to ``summary.json["loop"]["upload"]``."""
+        from hilident.session.gain_step import GainStep, uploaded_notches
+
+        assert self.loop is not None
+        if self.loop.seen is None or self.loop.tuning is None:
+            return
+        self.gains = GainStep(
+            self.adapter,
+            self.cfg,
+            self.loop,
+            uploaded_notches(upload),
+            friction,
+            self.record,
+            lambda exp, excitation: self._analysis_samples(exp, excitation, gapped=True),
+            self.warnings,
+            self.progress,
+        )
+        self.loop.upload = self.gains.part
+        self.gains.run()
 
     def _notchable(self, plant, upload: UploadOutcome) -> list:
         """The resonances the evidence supports a notch for; why the others get none goes to warnings and upload."""

@@ -1,0 +1,313 @@
+"""The velocity loop closed with new gains: its response predicted from the identified plant, measured, compared.
+
+After gains are uploaded, a run in velocity mode plays a multisine on the
+velocity set-point and records the drive's velocity estimate. The same
+response is predicted from the plant the loop sees
+(:class:`~hilident.pipeline.loop_plant.SeenPlant`) and the cascade as the drive
+now holds it (:class:`~hilident.control.Cascade`, its notches included), as
+the recording sees it: the set-point held over the ``D`` ticks of each sample,
+the velocity read at a sample's first tick, so the response at ``f`` folds the
+tick-level ``T`` of its images,
+
+``T_rec(f) = 1/D sum_{k<D} T(f + k f_s) Hold(f + k f_s)``, ``Hold = sum_{i<D} z^-i``.
+
+The multisine's amplitude is chosen from the same prediction: the largest whose
+predicted velocity, motor torque and travel stay within a share of
+``[limits]`` (:func:`closed_loop_amplitude`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from hilident.control import Cascade
+from hilident.control.sampled import ticks_per_sample
+from hilident.pipeline.loop_plant import SeenPlant
+
+__all__ = [
+    "ClosedLoopCheck",
+    "LIMIT_SHARE",
+    "closed_loop_amplitude",
+    "compare_closed_loop",
+    "friction_response",
+    "remove_friction",
+    "line_scatter",
+    "predicted_setpoint_response",
+]
+
+#: Share of each of [limits] (velocity, torque, half the position window) the check's predicted peaks may use.
+LIMIT_SHARE = 0.5
+
+
+def _tick_response(cascade: Cascade, seen: SeenPlant, f: np.ndarray, what: str) -> list[np.ndarray]:
+    """Set-point to ``what`` at the tick rate, on the plant and its variants: ``"velocity"`` (the estimate,
+    ``T``) or ``"torque"`` (the motor torque, ``C N z^-d G / (1 + L)``)."""
+    out = []
+    for h in seen.at(f):
+        if what == "velocity":
+            out.append(cascade.closed_loop(f, h, "velocity"))
+        else:
+            loop = cascade.open_loop(f, h, "velocity")
+            out.append(cascade.velocity_controller(f) * cascade.torque_path(f) / (1.0 + loop))
+    return out
+
+
+def predicted_setpoint_response(
+    cascade: Cascade, seen: SeenPlant, frequency_hz, sample_rate_hz: float, what: str = "velocity"
+) -> list[np.ndarray]:
+    """The velocity set-point's response as recorded every ``D`` ticks, on the plant and on its variants.
+
+    Parameters
+    ----------
+    cascade : Cascade
+        The drive's cascade as it now holds it (gains and notches).
+    seen : SeenPlant
+        The plant the loop sees, tick by tick.
+    frequency_hz : array_like
+        Frequencies, Hz, below half the sample rate.
+    sample_rate_hz : float
+        The recording's sample rate, Hz (it divides the loop rate).
+    what : {"velocity", "torque"}
+        The recorded velocity estimate ((m/s) per (m/s)) or the motor torque (N·m per (m/s)).
+
+    Returns
+    -------
+    list of ndarray of complex
+        The plant's first, then its variants'.
+    """
+    f = np.asarray(frequency_hz, dtype=float)
+    d = ticks_per_sample(cascade.loop_rate_hz, sample_rate_hz)
+    total: list[np.ndarray] | None = None
+    for k in range(d):
+        fk = f + k * sample_rate_hz
+        zi = np.exp(-2j * np.pi * fk / cascade.loop_rate_hz)
+        hold = sum(zi**i for i in range(d))
+        terms = [t * hold / d for t in _tick_response(cascade, seen, fk, what)]
+        total = terms if total is None else [a + b for a, b in zip(total, terms, strict=True)]
+    assert total is not None
+    return total
+
+
+def friction_response(cascade: Cascade, seen: SeenPlant, frequency_hz) -> np.ndarray:
+    """Friction torque to the velocity estimate in the closed velocity loop, ``-V H / (1 + L)``, (m/s) per N·m.
+
+    The recorded set-point response holds, besides ``T r``, the response to the friction torque ``F(v)`` the
+    axis meets; with the identified friction curve, ``F`` of the recorded velocity gives that part, and
+    :func:`remove_friction` takes it out, as the identification takes friction out of the torque.
+    """
+    f = np.asarray(frequency_hz, dtype=float)
+    h = seen.at(f)[0]
+    return -cascade.velocity_estimate(f) * h / (1.0 + cascade.open_loop(f, h, "velocity"))
+
+
+def remove_friction(measured, friction_over_setpoint, response_to_friction) -> np.ndarray:
+    """The set-point response with the friction's part taken out: ``T = v / r - (-V H / (1 + L)) F / r``.
+
+    Parameters
+    ----------
+    measured : ndarray of complex
+        ``v / r`` per line as recorded.
+    friction_over_setpoint : ndarray of complex
+        ``F / r`` per line: the identified friction of the recorded velocity over the set-point.
+    response_to_friction : ndarray of complex
+        :func:`friction_response` at the lines.
+    """
+    return np.asarray(measured) - np.asarray(response_to_friction) * np.asarray(friction_over_setpoint)
+
+
+def _period_peaks(period: np.ndarray, sample_rate_hz: float, cascade: Cascade, seen: SeenPlant) -> dict:
+    """The predicted peaks of velocity (m/s), motor torque (N·m) and travel (m) over one period of the set-point."""
+    spectrum = np.fft.rfft(period)
+    f = np.fft.rfftfreq(period.size, 1.0 / sample_rate_hz)
+    lines = np.flatnonzero((np.abs(spectrum) > 1e-9 * np.abs(spectrum).max()) & (f > 0))
+    peaks = {"velocity_mps": 0.0, "torque_nm": 0.0, "travel_m": 0.0}
+    for which, key in (("velocity", "velocity_mps"), ("torque", "torque_nm")):
+        for response in predicted_setpoint_response(cascade, seen, f[lines], sample_rate_hz, which):
+            shaped = np.zeros_like(spectrum)
+            shaped[lines] = spectrum[lines] * response
+            peaks[key] = max(peaks[key], float(np.abs(np.fft.irfft(shaped, period.size)).max()))
+            if which == "velocity":
+                travel = np.zeros_like(spectrum)
+                travel[lines] = shaped[lines] / (2j * np.pi * f[lines])
+                swing = np.fft.irfft(travel, period.size)
+                peaks["travel_m"] = max(peaks["travel_m"], float(swing.max() - swing.min()))
+    return peaks
+
+
+def closed_loop_amplitude(
+    unit_period: np.ndarray,
+    sample_rate_hz: float,
+    cascade: Cascade,
+    seen: SeenPlant,
+    limits,
+    share: float = LIMIT_SHARE,
+) -> tuple[float, dict]:
+    """The multisine's peak velocity set-point, m/s, whose predicted response keeps within ``share`` of ``limits``.
+
+    Parameters
+    ----------
+    unit_period : ndarray
+        One period of the set-point at a peak of 1 m/s.
+    limits : LimitsConfig
+        ``torque_nm``, ``velocity_mps``, ``position_min_m``, ``position_max_m``.
+
+    Returns
+    -------
+    (amplitude_mps, peaks) : (float, dict)
+        The amplitude, and the predicted peaks at it (``velocity_mps``, ``torque_nm``, ``travel_m``).
+    """
+    unit = _period_peaks(unit_period, sample_rate_hz, cascade, seen)
+    room = {
+        "velocity_mps": share * limits.velocity_mps,
+        "torque_nm": share * limits.torque_nm,
+        "travel_m": share * (limits.position_max_m - limits.position_min_m) / 2,
+    }
+    scale = min(room[k] / unit[k] for k in room if unit[k] > 0)
+    return float(scale), {k: v * scale for k, v in unit.items()}
+
+
+@dataclass(frozen=True)
+class ClosedLoopCheck:
+    """A measured closed-loop response against its prediction.
+
+    Attributes
+    ----------
+    frequency_hz : ndarray
+        The excited lines compared, Hz.
+    measured, predicted : ndarray of complex
+        Velocity set-point to velocity estimate, as recorded.
+    gain_error_db, phase_error_deg : ndarray
+        ``measured / predicted`` per line, dB and degrees (wrapped to +-180).
+    tolerance_db, tolerance_deg : float
+        What the comparison allows.
+    scatter : ndarray
+        The measured line's own 95 % scatter relative to its value (:func:`line_scatter`), 1; each line is
+        allowed the tolerance plus that scatter.
+    left_out : int
+        Lines of the band not compared: their measurement is not trusted (below the coherence threshold).
+    """
+
+    frequency_hz: np.ndarray
+    measured: np.ndarray
+    predicted: np.ndarray
+    gain_error_db: np.ndarray
+    phase_error_deg: np.ndarray
+    tolerance_db: float
+    tolerance_deg: float
+    scatter: np.ndarray
+    left_out: int = 0
+
+    @property
+    def allowed_db(self) -> np.ndarray:
+        """Per line: the tolerance plus the measurement's scatter, dB."""
+        return self.tolerance_db + 20.0 * np.log10(1.0 + self.scatter)
+
+    @property
+    def allowed_deg(self) -> np.ndarray:
+        """Per line: the tolerance plus the measurement's scatter, degrees."""
+        return np.where(
+            self.scatter >= 1.0, 180.0, self.tolerance_deg + np.degrees(np.arcsin(np.minimum(self.scatter, 1.0)))
+        )
+
+    @property
+    def outside(self) -> np.ndarray:
+        """The lines whose difference exceeds what they are allowed."""
+        return (np.abs(self.gain_error_db) > self.allowed_db) | (np.abs(self.phase_error_deg) > self.allowed_deg)
+
+    @property
+    def within_tolerance(self) -> bool:
+        """Whether every line lies within its tolerance."""
+        return not bool(self.outside.any())
+
+    def worst(self) -> dict:
+        """The largest differences and where they are."""
+        g, p = int(np.argmax(np.abs(self.gain_error_db))), int(np.argmax(np.abs(self.phase_error_deg)))
+        return {
+            "max_gain_error_db": float(self.gain_error_db[g]),
+            "max_gain_error_hz": float(self.frequency_hz[g]),
+            "max_phase_error_deg": float(self.phase_error_deg[p]),
+            "max_phase_error_hz": float(self.frequency_hz[p]),
+        }
+
+    def to_dict(self) -> dict:
+        return {
+            "band_hz": [float(self.frequency_hz[0]), float(self.frequency_hz[-1])],
+            "lines": int(self.frequency_hz.size),
+            "lines_left_out": self.left_out,
+            **self.worst(),
+            "rms_gain_error_db": float(np.sqrt(np.mean(self.gain_error_db**2))),
+            "rms_phase_error_deg": float(np.sqrt(np.mean(self.phase_error_deg**2))),
+            "tolerance_db": self.tolerance_db,
+            "tolerance_deg": self.tolerance_deg,
+            "median_scatter": float(np.median(self.scatter)),
+            "lines_outside": int(self.outside.sum()),
+            "within_tolerance": self.within_tolerance,
+        }
+
+
+def line_scatter(coherence, periods: int) -> np.ndarray:
+    """The 95 % half-width of a periodic line's mean relative to its value, from its coherence over ``periods``
+    periods (:func:`hilident.ident.periodic_frf`: ``var / |mean|^2 = (1 - g) / g``), with Student's t of
+    ``periods - 1`` degrees of freedom: a variance from a few periods is itself uncertain."""
+    from scipy.stats import t
+
+    g = np.clip(np.asarray(coherence, dtype=float), 1e-12, 1.0)
+    m = max(int(periods), 2)
+    return float(t.ppf(0.975, m - 1)) * np.sqrt((1.0 - g) / g / m)
+
+
+def compare_closed_loop(
+    frequency_hz,
+    measured,
+    predicted,
+    band_hz: tuple[float, float],
+    tolerance_db: float,
+    tolerance_deg: float,
+    scatter=None,
+    usable=None,
+) -> ClosedLoopCheck:
+    """The measured response against the prediction on the lines inside ``band_hz`` where both are finite.
+
+    ``scatter`` (:func:`line_scatter`, per line of ``frequency_hz``) widens each line's tolerance by the
+    measurement's own uncertainty (default none); ``usable`` (bool per line, e.g. the coherence threshold
+    met) leaves the others out, as the identification leaves out lines it cannot trust.
+
+    Raises
+    ------
+    ValueError
+        No line to compare.
+    """
+    f = np.asarray(frequency_hz, dtype=float)
+    m, p = np.asarray(measured, dtype=complex), np.asarray(predicted, dtype=complex)
+    keep = (f >= band_hz[0]) & (f <= band_hz[1]) & np.isfinite(m) & np.isfinite(p) & (np.abs(p) > 0)
+    in_band = int(keep.sum())
+    if usable is not None:
+        keep &= np.asarray(usable, dtype=bool)
+    if not keep.any():
+        raise ValueError(f"no measured line in {band_hz[0]:g}-{band_hz[1]:g} Hz to compare with the prediction")
+    ratio = m[keep] / p[keep]
+    spread = np.zeros(f.shape) if scatter is None else np.nan_to_num(np.asarray(scatter, dtype=float), nan=np.inf)
+    return ClosedLoopCheck(
+        f[keep],
+        m[keep],
+        p[keep],
+        20.0 * np.log10(np.abs(ratio)),
+        np.degrees(np.angle(ratio)),
+        float(tolerance_db),
+        float(tolerance_deg),
+        spread[keep],
+        in_band - int(keep.sum()),
+    )
+
+
+def bandwidth_or_nan(frequency_hz, response) -> float:
+    """The half-power bandwidth of a set-point response on its lines, Hz (NaN where it is not reached)."""
+    from hilident.control import bandwidth_hz
+
+    try:
+        return bandwidth_hz(frequency_hz, response)
+    except ValueError:
+        return math.nan

@@ -1,0 +1,228 @@
+"""The gain step of ``hilident run``: the proposed gains into the drive, proven by a closed-loop run, or put back.
+
+With ``[tuning] upload = true`` on a drive whose driver describes its loop:
+
+1. the proposal (:func:`hilident.pipeline.loop_analysis.tuning_part`) made with
+   the notches when they were uploaded, else without, as the drive will store
+   it (:meth:`~hilident.adapters.base.AdapterBase.stored_loop`);
+2. refused when it would leave either loop without a positive gain or phase
+   margin on the identified plant or its variants
+   (:func:`hilident.pipeline.gain_check.check_gains`), naming the margin;
+3. the present gains read, the new ones written and read back; a read-back
+   that differs puts the old ones back;
+4. a multisine on the velocity set-point, sized from the prediction to stay
+   within a share of ``[limits]``, recorded in velocity mode; the measured
+   response against the prediction (:mod:`hilident.pipeline.closed_loop`);
+   outside ``[tuning] tolerance_db``/``tolerance_deg`` the old gains go back.
+
+Whatever ends the run before the gains are proven (an error, a signal) puts
+the old gains back (:meth:`GainStep.restore`, from the run's ``finally``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+
+import numpy as np
+
+from hilident.errors import DataError, DeviceError, UsageError
+from hilident.filters.biquad import Biquad
+from hilident.pipeline import closed_loop
+from hilident.pipeline.gain_check import check_gains
+from hilident.pipeline.loop_analysis import LoopAnalysis, tuning_targets
+from hilident.pipeline.responses import loop_response
+from hilident.signals.excitation import build_excitation
+
+__all__ = ["GainStep", "uploaded_notches"]
+
+#: The recording of the closed-loop run.
+RECORDING = "closed-loop"
+
+
+def uploaded_notches(upload) -> tuple[Biquad, ...]:
+    """The notches the drive holds after the run's upload, as read back (none when none was kept)."""
+    if not (upload.written and upload.verified_readback):
+        return ()
+    return tuple(Biquad.from_sequences(s["readback_b"], s["readback_a"]) for s in upload.slots if s["matches"])
+
+
+class GainStep:
+    """Upload, prove and keep (or put back) the proposed gains.
+
+    Parameters
+    ----------
+    adapter : AdapterBase
+        The open drive.
+    cfg : Config
+    analysis : LoopAnalysis
+        The loop step's result (its plant, cascade and proposal).
+    notches : tuple of Biquad
+        What the drive's filter slots hold now.
+    friction : FrictionResult or None
+        The friction test's fit: its part of the closed-loop response is taken out before the comparison.
+    record : callable
+        ``record(name, mode, samples, period_samples=...) -> Experiment`` (the session's).
+    samples : callable
+        ``samples(experiment, excitation) -> dict`` of whole periods (the session's selection).
+    warnings : list of str
+        Appended to.
+    progress : Progress
+    """
+
+    def __init__(
+        self,
+        adapter,
+        cfg,
+        analysis: LoopAnalysis,
+        notches: tuple[Biquad, ...],
+        friction,
+        record: Callable,
+        samples: Callable,
+        warnings: list[str],
+        progress,
+    ):
+        self.adapter, self.cfg, self.analysis, self.notches = adapter, cfg, analysis, notches
+        self.friction = friction
+        self.record, self.samples, self.warnings, self.progress = record, samples, warnings, progress
+        self.before: dict | None = None  # the gains the drive held, while the new ones are not proven
+        self.check: closed_loop.ClosedLoopCheck | None = None
+        self.part: dict = {"uploaded": False, "kept": False}
+
+    def run(self) -> dict:
+        """Every step; returns ``summary.json["loop"]["upload"]``."""
+        part = self.part
+        tuning = self.analysis.tuning or {}
+        which = "with_notch" if self.notches else "without_notch"
+        proposal = tuning.get(which)
+        if proposal is None:
+            return self._skip(f"no gains {which.replace('_', ' ')} keep the [tuning] targets: none uploaded")
+        asked = dict(proposal["gains"])
+        part.update(proposal=which, asked=asked)
+        try:
+            expected = self.adapter.stored_loop(asked)
+        except UsageError as exc:
+            return self._skip(f"the gains cannot be written: {exc}")
+        assert self.analysis.cascade is not None and self.analysis.seen is not None
+        cascade = self.analysis.cascade.with_gains(**expected, filters=self.notches)
+        check = check_gains(cascade, self.analysis.seen, tuning_targets(self.cfg.tuning))
+        part.update(expected=expected, check=check.to_dict())
+        if not check.stable:
+            return self._skip(f"refused before upload: the gains {_gains(expected)} would leave {check.describe()}")
+        if check.meets_targets is False:
+            self.warnings.append(f"loop: the gains as the drive stores them miss the targets: {check.describe()}")
+        self.progress.step(f"loop: uploading gains {_gains(expected)}")
+        self.before = {k: v for k, v in (self.adapter.read_loop() or {}).items() if k in asked}
+        part["before"] = dict(self.before)
+        self.adapter.write_loop(asked)
+        readback = {k: v for k, v in (self.adapter.read_loop() or {}).items() if k in asked}
+        part.update(uploaded=True, readback=readback, matches=readback == expected)
+        if readback != expected:
+            self.restore(f"the gains read back {_gains(readback)}, not the {_gains(expected)} written")
+            return part
+        self._prove(cascade)
+        return part
+
+    def _skip(self, reason: str) -> dict:
+        self.part["reason"] = reason
+        self.warnings.append(f"loop: {reason}")
+        return self.part
+
+    def _prove(self, cascade) -> None:
+        """The closed-loop run; the gains are kept when it agrees with the prediction."""
+        cfg, seen = self.cfg, self.analysis.seen
+        assert seen is not None
+        fs = cfg.run.sample_rate_hz
+        shape = replace(cfg.excitation, kind="multisine", mode="velocity", fade_s=0.0)
+        unit = build_excitation(shape, fs, 1.0, seed=cfg.run.seed)
+        amplitude, peaks = closed_loop.closed_loop_amplitude(unit.samples[: unit.period], fs, cascade, seen, cfg.limits)
+        excitation = build_excitation(replace(shape, fade_s=cfg.excitation.fade_s), fs, amplitude, seed=cfg.run.seed)
+        self.progress.step(f"loop: closed-loop run, velocity set-point multisine of {amplitude:.3g} m/s peak")
+        exp = self.record(RECORDING, "velocity", excitation.samples, period_samples=excitation.period_samples)
+        s = self.samples(exp, excitation)
+        measured, warnings = loop_response(
+            s["excitation"],
+            s["velocity_mps"],
+            fs,
+            cfg.identification,
+            excitation.period_samples,
+            excitation.excited_bins,
+            present=s.get("present"),
+        )
+        self.warnings += warnings
+        f = measured.frequency_hz
+        predicted = closed_loop.predicted_setpoint_response(cascade, seen, f, fs)[0]
+        response = measured.response
+        if self.friction is not None:  # the friction's part of the response out, as from the plant's torque
+            friction, _ = loop_response(
+                s["excitation"],
+                self.friction.fit.predict(np.nan_to_num(s["velocity_mps"])),
+                fs,
+                cfg.identification,
+                excitation.period_samples,
+                excitation.excited_bins,
+                present=s.get("present"),
+            )
+            raw = closed_loop.compare_closed_loop(
+                f, response, predicted, excitation.band_hz, cfg.tuning.tolerance_db, cfg.tuning.tolerance_deg
+            )
+            self.part["closed_loop_with_friction"] = raw.to_dict()
+            response = closed_loop.remove_friction(
+                response, friction.response, closed_loop.friction_response(cascade, seen, f)
+            )
+        t = cfg.tuning
+        scatter = closed_loop.line_scatter(measured.coherence, measured.n_averages)
+        self.check = check = closed_loop.compare_closed_loop(
+            f,
+            response,
+            predicted,
+            excitation.band_hz,
+            t.tolerance_db,
+            t.tolerance_deg,
+            scatter,
+            usable=measured.coherence >= cfg.identification.coherence_threshold,
+        )
+        self.part["closed_loop"] = {
+            **check.to_dict(),
+            "recording": f"{RECORDING}.h5",
+            "amplitude_mps": amplitude,
+            "predicted_peaks": peaks,
+            "predicted_bandwidth_hz": _finite(closed_loop.bandwidth_or_nan(check.frequency_hz, check.predicted)),
+            "measured_bandwidth_hz": _finite(closed_loop.bandwidth_or_nan(check.frequency_hz, check.measured)),
+        }
+        if not check.within_tolerance:
+            w = check.worst()
+            self.restore(
+                f"the measured closed loop differs from the prediction by up to {w['max_gain_error_db']:+.1f} dB "
+                f"({w['max_gain_error_hz']:.3g} Hz) and {w['max_phase_error_deg']:+.0f} deg "
+                f"({w['max_phase_error_hz']:.3g} Hz), beyond tuning.tolerance_db = {t.tolerance_db:g} / "
+                f"tolerance_deg = {t.tolerance_deg:g}"
+            )
+            return
+        self.part["kept"] = True
+        self.before = None
+
+    def restore(self, reason: str = "the run ended before the gains were proven") -> None:
+        """Put the gains the drive held back, when new ones are written and not proven (never raises)."""
+        if self.before is None:
+            return
+        before, self.before = self.before, None
+        self.part.update(kept=False, reason=reason)
+        self.warnings.append(f"loop: {reason}: the previous gains {_gains(before)} were put back")
+        try:
+            self.adapter.write_loop(before)
+            back = {k: v for k, v in (self.adapter.read_loop() or {}).items() if k in before}
+            self.part["restored"] = back == before
+            if back != before:
+                self.warnings.append(f"loop: the gains put back read {_gains(back)}")
+        except (DeviceError, DataError, UsageError, OSError) as exc:
+            self.part["restored"] = False
+            self.warnings.append(f"loop: the previous gains could not be put back: {exc}")
+
+
+def _gains(values: dict) -> str:
+    return "(" + ", ".join(f"{k} = {v:.6g}" for k, v in values.items()) + ")"
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
