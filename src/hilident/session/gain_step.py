@@ -105,7 +105,8 @@ class GainStep:
             return self._skip(f"the gains cannot be written: {exc}")
         assert self.analysis.cascade is not None and self.analysis.seen is not None
         cascade = self.analysis.cascade.with_gains(**expected, filters=self.notches)
-        check = check_gains(cascade, self.analysis.seen, tuning_targets(self.cfg.tuning))
+        present = self.analysis.cascade.with_gains(filters=self.notches)
+        check = check_gains(cascade, self.analysis.seen, tuning_targets(self.cfg.tuning), present)
         part.update(expected=expected, check=check.to_dict())
         if not check.stable:
             return self._skip(f"refused before upload: the gains {_gains(expected)} would leave {check.describe()}")
