@@ -37,8 +37,9 @@ site says where the code lives: ``registers``
 (:class:`~hilident.adapters.modbus.requests.RegisterAccess`: every request,
 its retries, stale answers and exceptions, the status registers), ``capture``
 (:class:`~hilident.adapters.modbus.capture.TableCapture`: the excitation table
-through its page window, the trigger, the capture read back) and ``slots``
-(:class:`~hilident.adapters.modbus.slots.ModbusFilterSlots`). Each part gets
+through its page window, the trigger, the capture read back), ``slots``
+(:class:`~hilident.adapters.modbus.slots.ModbusFilterSlots`) and ``cascade``
+(:class:`~hilident.adapters.modbus.loop.ModbusLoop`: the ``[loop]`` registers). Each part gets
 what it needs in its constructor; none of them sees the adapter. This module
 keeps opening and the known state at connect, the RTU line, identity, the
 parameter drive, the run that follows the drive's status, the stop, and the
@@ -71,6 +72,7 @@ from hilident.adapters.modbus.common import (
     _serial_error,
     _SerialClient,
 )
+from hilident.adapters.modbus.loop import ModbusLoop
 from hilident.adapters.modbus.requests import RegisterAccess
 from hilident.adapters.modbus.slots import ModbusFilterSlots, SavedSlot
 from hilident.adapters.ports import open_failure
@@ -103,7 +105,7 @@ class ModbusDriveAdapter(AdapterBase):
 
     Attributes
     ----------
-    registers, capture, slots
+    registers, capture, slots, cascade
         The parts (see the module docstring).
     """
 
@@ -136,6 +138,7 @@ class ModbusDriveAdapter(AdapterBase):
         self.registers = RegisterAccess(client, regmap, driver, port, device_id, timeout_s)
         self.capture = TableCapture(self.registers, self._known_identity, self.log_event)
         self.slots = ModbusFilterSlots(self.registers, self._known_identity)
+        self.cascade = ModbusLoop(self.registers)
 
     # --- opening --------------------------------------------------------------------
 
@@ -685,3 +688,14 @@ class ModbusDriveAdapter(AdapterBase):
     def filter_notes(self, spec: NotchSpec) -> tuple[str, ...]:
         """Why a parameter drive's notch parameters cannot meet ``spec`` exactly, if they cannot."""
         return self.slots.filter_notes(spec)
+
+    # --- the drive's loop (hooks of AdapterBase's read_loop, write_loop, stored_loop) ----------------
+
+    def _read_loop(self) -> dict[str, float] | None:
+        return self.cascade.read()
+
+    def _write_loop(self, values: dict[str, float]) -> None:
+        self.cascade.write(values)
+
+    def _stored_loop(self, values: dict[str, float]) -> dict[str, float]:
+        return self.cascade.stored(values)

@@ -12,21 +12,26 @@ registers), and every other one is refused by the server with exception 1.
 Reads and writes return a Modbus exception code (int) when the drive refuses,
 as a real one would:
 
-* 2 -- a write into the capture window (read-only);
+* 2 -- a write into the capture window (read-only), or of the current loop or
+  the delay (:mod:`~hilident.emulator.modbus.loop`);
 * 3 -- a value out of range (mode, divider, mask, length, page, limits, filter
-  parameters) or a command not allowed in the present state (run without
-  limits, with a fault latched, with an empty or non-finite table);
+  parameters, a gain the loop cannot run) or a command not allowed in the
+  present state (run without limits, with a fault latched, with an empty or
+  non-finite table);
 * 6 -- configuration, limits or table written while a run is in progress.
 
 Writing ``table_length`` arms a new run: ``done``, ``capture_stopped`` and
-``sample_count`` clear. A buffered run: a 0 -> 1 edge of the ``run`` bit enables the drive in the
-selected mode and plays the table, one sample per ``sample_divider`` loop
-ticks; record ``k`` of the capture holds the drive's state at the start of
-sample period ``k``, while ``table[k]`` is held over that period. The run ends
-at the end of the table (drive disabled), on a 1 -> 0 edge or a write of 0
-(stop: disabled, zero torque), or on a fault: a tripped limit, or the
-configured ``drive_fault_after_s``. The capture then holds the samples up to
-and including the one in which the fault happened.
+``sample_count`` clear. The ``[loop]`` registers show the running loop's
+gains, and a write of one retunes it at once, during a run too
+(:class:`~hilident.emulator.modbus.loop.LoopRegisters`). A buffered run: a
+0 -> 1 edge of the ``run`` bit enables the drive in the selected mode and plays
+the table, one sample per ``sample_divider`` loop ticks; record ``k`` of the
+capture holds the drive's state at the start of sample period ``k``, while
+``table[k]`` is held over that period. The run ends at the end of the table
+(drive disabled), on a 1 -> 0 edge or a write of 0 (stop: disabled, zero
+torque), or on a fault: a tripped limit, or the configured
+``drive_fault_after_s``. The capture then holds the samples up to and
+including the one in which the fault happened.
 
 Communication timeout (when the map names ``comm_timeout_ms``): while the
 drive is enabled and no request addressed to it has arrived for longer than
@@ -47,6 +52,7 @@ import numpy as np
 from hilident.drivers.description import DriverDescription
 from hilident.emulator.clock import Played, TablePlayer
 from hilident.emulator.drive import DriveLoop
+from hilident.emulator.modbus.loop import LoopRegisters
 from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad
 from hilident.protocol.filter_encoding import FilterEncoding
@@ -157,6 +163,7 @@ class ModbusDriveFirmware:
         self._values = np.zeros(0)
         self._run_mask = 0
         self._player = TablePlayer(drive, 1, self.loop_rate_hz, driver.averaged_channels)
+        self._loop = LoopRegisters(drive, regmap, str(driver.folder / "driver.toml"))
         self._set("device_type", regmap.device_type)
         self._set("map_version", regmap.map_version)
         self._set("loop_rate_hz", driver.loop_rate_hz)
@@ -220,6 +227,7 @@ class ModbusDriveFirmware:
         self._set("sample_count", self.captured)
         self._set("fault_sample", self.fault_sample)
         self._set("fault_value", self.fault_value)
+        self._loop.show(self.image, first, end)
         if touched("table_crc"):
             if self._crc is None:
                 n = min(self.table_length, self._table_window.capacity_samples) * self.map.table_registers_per_sample
@@ -297,15 +305,18 @@ class ModbusDriveFirmware:
                 return ILLEGAL_ADDRESS  # beyond the table's capacity
             self.table[a : a + hi - lo] = values[lo - address : hi - address]
             self._crc = None
+        self._loop.show(self.image, address, end)  # a loop register written in part keeps its other words
         old = self.image[address:end].copy()
         self.image[address:end] = values
         if address < w.end and end > w.base:
             self.image[max(address, w.base) : min(end, w.end)] = 0  # the window is not image memory
         touched = [r.name for r in self.map.registers.values() if r.address < end and r.end > address]
         slots = sorted({s for a in range(address, end) if (s := self._slots.slot_at(a)) is not None})
+        loop = {n: float(self._get(n)) for n in touched if n in self._loop}
         error = self._check(
             touched,
             slots,
+            loop,
             old_control=int(old[self.map.register("control_word").address - address])
             if "control_word" in touched
             else None,
@@ -316,16 +327,22 @@ class ModbusDriveFirmware:
         self._apply(
             touched,
             slots,
+            loop,
             int(old[self.map.register("control_word").address - address]) if "control_word" in touched else 0,
         )
         return None
 
-    def _check(self, touched: list[str], slots: list[int], old_control: int | None) -> int | None:
-        """The exception code that refuses a write of the ``touched`` registers and ``slots`` (None: accepted)."""
+    def _check(
+        self, touched: list[str], slots: list[int], loop: dict[str, float], old_control: int | None
+    ) -> int | None:
+        """The exception code that refuses a write of the ``touched`` registers, ``slots`` and ``loop`` registers
+        (register -> value written; None: accepted)."""
         if self.running and any(n in touched for n in (*_CONFIG, *_LIMITS)):
             return DEVICE_BUSY
         if not self._values_valid(touched):
             return ILLEGAL_VALUE
+        if loop and (refused := self._loop.refusal(loop)) is not None:
+            return refused
         if any(n in touched for n in _LIMITS) and self._limits() is None:
             return ILLEGAL_VALUE
         if any(self._slot_filter(slot) is None for slot in slots):
@@ -357,7 +374,8 @@ class ModbusDriveFirmware:
     def _mask_valid(self, mask: int) -> bool:
         return mask != 0 and not mask >> len(self.map.capture_channels)
 
-    def _apply(self, touched: list[str], slots: list[int], old_control: int) -> None:
+    def _apply(self, touched: list[str], slots: list[int], loop: dict[str, float], old_control: int) -> None:
+        self._loop.take(loop)
         if "table_length" in touched:  # a new table re-arms the capture: the last run's records are gone
             self._crc = None
             self.done = self.capture_stopped = False

@@ -20,6 +20,9 @@ excitation capability) around the same
   notch leave the slot bypassed, as a drive ignores a setting it cannot run;
 * registers with a ``channel`` show the drive's latest state (speed, torque,
   position), converted by ``channel_scale``;
+* the ``[loop]`` registers show the running loop's gains, and a write of a gain
+  retunes it (:class:`~hilident.emulator.modbus.loop.LoopRegisters`: a value
+  the loop cannot run is answered with exception 3);
 * writing the ``[modbus.save]`` value stores every holding register in
   :attr:`ParameterDriveFirmware.eeprom` and the save register reads 0 again,
   as a drive acknowledges a completed store.
@@ -40,6 +43,7 @@ import numpy as np
 
 from hilident.drivers.description import DriverDescription
 from hilident.emulator.drive import DriveLoop
+from hilident.emulator.modbus.loop import LoopRegisters
 from hilident.errors import ConfigError, DataError
 from hilident.filters.biquad import Biquad
 from hilident.protocol.filter_encoding import FilterEncoding
@@ -94,6 +98,7 @@ class ParameterDriveFirmware:
         self.map = regmap
         self.loop_rate_hz = float(driver.loop_rate_hz)
         self.max_sample_rate_hz = float(driver.max_sample_rate_hz)
+        self._loop = LoopRegisters(drive, regmap, str(driver.folder / "driver.toml"))
         self.images = {"holding": np.zeros(65536, dtype=np.uint16), "input": np.zeros(65536, dtype=np.uint16)}
         self._owner: dict[str, dict[int, Register]] = {"holding": {}, "input": {}}
         for r in regmap.registers.values():
@@ -151,7 +156,8 @@ class ParameterDriveFirmware:
         return {"velocity_mps": 0.0, "torque_nm": 0.0, "torque_cmd_nm": 0.0, "position_m": d.hold_position_m}
 
     def _refresh(self, table: str, first: int, end: int) -> None:
-        """Feedback registers in ``first .. end - 1`` from the drive's latest state."""
+        """Feedback and loop registers in ``first .. end - 1`` from the drive's latest state and tuning."""
+        self._loop.show(self.images[table], first, end, table)
         for r in self.map.registers.values():
             if r.channel and r.table == table and r.address < end and r.end > first:
                 x = self._latest.get(r.channel, 0.0) / r.channel_scale
@@ -188,7 +194,12 @@ class ParameterDriveFirmware:
                 r.check_range(r.decode(words))
             except DataError:
                 return ILLEGAL_VALUE
+        written = {r.name: values[r.address - address : r.end - address] for r in touched if r.name in self._loop}
+        loop = {name: float(self.map.decode(name, words)) for name, words in written.items()}
+        if loop and (refused := self._loop.refusal(loop)) is not None:
+            return refused
         self.images["holding"][address : address + count] = values.astype(np.uint16)
+        self._loop.take(loop)
         for r in touched:
             self._apply(r)
         return None

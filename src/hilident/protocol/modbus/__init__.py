@@ -6,6 +6,7 @@
   through them, the table's CRC
 - :mod:`.filter_slots`: where a drive keeps its filter slots
 - :mod:`.map_parser`: the ``[modbus]`` tables of a driver description, validated
+- :mod:`.loop_registers`: the ``[loop]`` table, each cascade parameter in a register of the map
 - :mod:`.register_map`: :class:`~hilident.protocol.modbus.register_map.RegisterMap`, a drive's whole map, built
   from those tables
 - :mod:`.rtu`: what a serial line adds: the CRC that ends an RTU frame, counting frames

@@ -3,7 +3,7 @@
 A Modbus drive is described by data (``drivers/<name>/driver.toml``, tables
 ``[modbus]``, ``[modbus.registers]``, ``[modbus.control]``, ``[modbus.status]``,
 ``[modbus.fault_codes]``, ``[modbus.modes]``, ``[modbus.table]``,
-``[modbus.capture]``, ``[modbus.filters]`` and ``[filters]``).
+``[modbus.capture]``, ``[modbus.filters]``, ``[filters]`` and ``[loop]``).
 :func:`parse_map_tables` reads them into the parts of a
 :class:`~hilident.protocol.modbus.register_map.RegisterMap`, or raises a
 :class:`~hilident.errors.ConfigError` naming the key and the file.
@@ -21,7 +21,8 @@ Capabilities are tables of their own: hilident's excitation table and capture
 they need; a map without them describes a parameter drive), ``[modbus.filters]``
 (hilident's four-register slots, or ``slots`` naming the drive's own notch
 parameters, :mod:`~hilident.protocol.modbus.filter_slots`),
-``[modbus.identity]``, ``[modbus.save]`` and ``[modbus.stop]``.
+``[modbus.identity]``, ``[modbus.save]`` and ``[modbus.stop]``. ``[loop]`` names the registers
+that hold the drive's cascade parameters (:mod:`~hilident.protocol.modbus.loop_registers`).
 
 All pure: dicts in, dataclasses out.
 """
@@ -37,8 +38,10 @@ from hilident.config.schema import build_table
 from hilident.config.schema import spec as _spec
 from hilident.errors import ConfigError, DataError
 from hilident.protocol.filter_encoding import FilterEncoding
+from hilident.protocol.loop_parameters import LoopDescription
 from hilident.protocol.modbus.codecs import BYTE_ORDERS, TYPES, WORD_ORDERS
 from hilident.protocol.modbus.filter_slots import FILTER_FIELDS, FieldSlots, FourRegisterSlots
+from hilident.protocol.modbus.loop_registers import parse_loop_registers
 from hilident.protocol.modbus.paging import CaptureChannel, Window
 from hilident.protocol.modbus.registers import ParameterRule, Register
 
@@ -162,6 +165,8 @@ class MapTables:
         Register and value that store the parameters.
     stop : dict
         Register -> value that brings the axis to a stop.
+    loop : LoopDescription or None
+        ``[loop]``: the registers that hold the drive's cascade parameters (None: not described).
     """
 
     map_version: int
@@ -179,6 +184,7 @@ class MapTables:
     expect: dict
     save: tuple[str, float] | None
     stop: dict
+    loop: LoopDescription | None = None
 
 
 def parse_map_tables(sections: dict, filter_slots: int, source: str = "") -> MapTables:
@@ -213,6 +219,7 @@ def parse_map_tables(sections: dict, filter_slots: int, source: str = "") -> Map
     save = _parse_save(mb, registers, rule, fail)
     stop = _parse_stop(mb, registers, fail)
     _check_overlaps(registers, protocol.table, protocol.capture, filters, filter_slots, fail)
+    loop = parse_loop_registers(sections.get("loop"), registers, source)
     return MapTables(
         map_version=keys.identity_code("map_version", excitation, source),
         device_type=keys.identity_code("device_type", excitation, source),
@@ -229,6 +236,7 @@ def parse_map_tables(sections: dict, filter_slots: int, source: str = "") -> Map
         expect=expect,
         save=save,
         stop=stop,
+        loop=loop,
     )
 
 
@@ -629,6 +637,7 @@ def _parse_field_slots(
         "pole_zero_q",
         "pole_zero_damping",
         "center_band",
+        "center_ratio_damping",
     ):
         fail("filters.encoding", f"filter slots of named registers hold notch parameters, not {encoding.kind!r}")
     unknown = set(ft) - {"slots", "off"}

@@ -25,6 +25,7 @@ import numpy as np
 
 from hilident.errors import ConfigError, DataError
 from hilident.protocol.filter_encoding import FilterEncoding
+from hilident.protocol.loop_parameters import LoopDescription
 from hilident.protocol.modbus.codecs import TYPES, decode_values, encode_values
 from hilident.protocol.modbus.filter_slots import FieldSlots, FourRegisterSlots
 from hilident.protocol.modbus.map_parser import parse_map_tables
@@ -37,7 +38,8 @@ __all__ = ["RegisterMap"]
 class RegisterMap:
     """A parsed Modbus register map (see the module docstring and ``drivers/modbus-servo/README.md``).
 
-    Build it with :meth:`from_driver` or :meth:`parse`.
+    Build it with :meth:`from_driver` or :meth:`parse`. Its ``loop`` is the driver's ``[loop]``
+    (:class:`~hilident.protocol.loop_parameters.LoopDescription`; None when the driver describes no loop).
     """
 
     def __init__(
@@ -66,7 +68,9 @@ class RegisterMap:
         expect: dict | None = None,
         save: tuple[str, float] | None = None,
         stop: dict | None = None,
+        loop: LoopDescription | None = None,
     ):
+        self.loop = loop
         self.byte_order = byte_order
         self.rule = rule
         self.identity = identity
@@ -135,6 +139,7 @@ class RegisterMap:
             expect=tables.expect,
             save=tables.save,
             stop=tables.stop,
+            loop=tables.loop,
         )
 
     @property
@@ -157,6 +162,13 @@ class RegisterMap:
         if self.rule is None:
             raise DataError(f"the map has no [modbus.parameters] rule to find parameter {code!r}")
         return Register(code, self.rule.address_of(code), "u16", "rw", parameter=code)
+
+    def loop_registers(self) -> dict[str, Register]:
+        """The registers that hold the drive's cascade parameters: parameter -> register (empty without
+        ``[loop]``; a parameter the description fixes as a value has none)."""
+        if self.loop is None:
+            return {}
+        return {n: self.registers[p.register] for n, p in self.loop.parameters.items() if p.register is not None}
 
     # --- single registers ----------------------------------------------------------------
 
