@@ -57,3 +57,39 @@ def test_a_run_without_a_described_loop_says_so():
 
 def test_the_section_is_part_of_the_page():
     assert "loop" in [anchor for anchor, _, _ in SECTIONS]
+
+
+def test_the_section_shows_the_gains_uploaded_and_the_closed_loop_against_its_prediction():
+    check = {
+        "band_hz": [2.0, 80.0],
+        "lines": 304,
+        "lines_left_out": 9,
+        "max_gain_error_db": 1.7,
+        "max_gain_error_hz": 20.0,
+        "max_phase_error_deg": -8.5,
+        "max_phase_error_hz": 20.75,
+        "rms_gain_error_db": 0.32,
+        "rms_phase_error_deg": 2.5,
+        "tolerance_db": 2.0,
+        "tolerance_deg": 10.0,
+        "lines_outside": 0,
+        "within_tolerance": True,
+        "amplitude_mps": 0.0248,
+        "measured_bandwidth_hz": 14.9,
+        "predicted_bandwidth_hz": 15.1,
+    }
+    upload = {
+        "uploaded": True,
+        "kept": True,
+        "before": {"kv_nm_per_mps": 100.0, "ti_s": 0.05, "kp_pos_per_s": 20.0},
+        "readback": {"kv_nm_per_mps": 446.7, "ti_s": 0.164, "kp_pos_per_s": 24.07},
+        "check": {"worst": {"loop": "position", "gain_margin_db": 10.02, "phase_margin_deg": 73.7}},
+        "closed_loop": check,
+    }
+    html = loop(SimpleNamespace(summary={"loop": {**json.loads(json.dumps(LOOP)), "upload": upload}}))
+    assert "kept" in html and "446.7" in html and "24.07" in html
+    assert "304 lines" in html and "9 below the coherence threshold" in html and "-8.5 deg" in html
+    assert "measured 14.9 Hz, predicted 15.1 Hz" in html
+    refused = {"uploaded": False, "kept": False, "reason": "refused before upload: the gains ... would leave ..."}
+    html = loop(SimpleNamespace(summary={"loop": {**json.loads(json.dumps(LOOP)), "upload": refused}}))
+    assert "not written" in html and "refused before upload" in html

@@ -2,7 +2,9 @@
 
 It shows ``summary.json["loop"]`` (:mod:`hilident.pipeline.loop_analysis`): for the velocity and
 the position loop, without and with the notch, the gain and phase margins, the sensitivity peak and the
-bandwidth; then the ``[tuning]`` targets, the gains proposed and what the notch buys at the same targets.
+bandwidth; then the ``[tuning]`` targets, the gains proposed and what the notch buys at the same targets; then,
+with ``[tuning] upload``, the gains written, kept or put back, and the closed loop measured against its
+prediction (:mod:`hilident.session.gain_step`).
 """
 
 from __future__ import annotations
@@ -78,6 +80,57 @@ def _tuning(tuning: Any) -> str:
     ) + table(["proposed", "loop", *_HEADER], rows, "The proposed gains on the worst of the plants")
 
 
+def _check_pairs(check: dict, label: str) -> list[tuple[str, str]]:
+    return [
+        (
+            label,
+            f"{num(check.get('lines'))} lines of {num(check.get('band_hz', [None])[0], 'Hz')} to "
+            f"{num(check.get('band_hz', [None, None])[-1], 'Hz')} ({num(check.get('lines_left_out'))} below the "
+            f"coherence threshold left out): largest difference {num(check.get('max_gain_error_db'), 'dB', 3)} at "
+            f"{num(check.get('max_gain_error_hz'), 'Hz', 3)}, {num(check.get('max_phase_error_deg'), 'deg', 3)} at "
+            f"{num(check.get('max_phase_error_hz'), 'Hz', 3)}; rms {num(check.get('rms_gain_error_db'), 'dB', 3)}, "
+            f"{num(check.get('rms_phase_error_deg'), 'deg', 3)}; {num(check.get('lines_outside'))} line(s) beyond "
+            f"{num(check.get('tolerance_db'), 'dB')} / {num(check.get('tolerance_deg'), 'deg')} and their own scatter",
+        )
+    ]
+
+
+def _upload(upload: Any) -> str:
+    if not isinstance(upload, dict):
+        return ""
+    outcome = "kept" if upload.get("kept") else ("written, then put back" if upload.get("uploaded") else "not written")
+    pairs = [("gains", esc(outcome))]
+    for key, label in (("before", "before"), ("readback", "read back"), ("asked", "asked")):
+        if isinstance(upload.get(key), dict):
+            pairs.append((label, _gains(upload[key])))
+    if isinstance(upload.get("check"), dict):
+        worst = upload["check"].get("worst") or {}
+        pairs.append(
+            (
+                "smallest margins they leave",
+                f"{esc(str(worst.get('loop', '')))} loop: gain margin {num(worst.get('gain_margin_db'), 'dB', 3)}, "
+                f"phase margin {num(worst.get('phase_margin_deg'), 'deg', 3)}, "
+                f"Ms {num(worst.get('sensitivity_peak'), '', 3)}",
+            )
+        )
+    closed = upload.get("closed_loop")
+    if isinstance(closed, dict):
+        pairs.append(
+            (
+                "closed-loop run",
+                f"velocity set-point multisine of {num(closed.get('amplitude_mps'), 'm/s', 3)} peak; bandwidth "
+                f"measured {num(closed.get('measured_bandwidth_hz'), 'Hz', 3)}, predicted "
+                f"{num(closed.get('predicted_bandwidth_hz'), 'Hz', 3)}",
+            )
+        )
+        pairs += _check_pairs(closed, "measured against predicted")
+    if isinstance(upload.get("closed_loop_with_friction"), dict):
+        pairs += _check_pairs(upload["closed_loop_with_friction"], "before friction's part was taken out")
+    if upload.get("reason"):
+        pairs.append(("why", esc(str(upload["reason"]))))
+    return key_values(pairs)
+
+
 def loop(inputs: ReportInputs) -> str:
     """``summary.json["loop"]``: the drive's loop around the plant, and the gains proposed."""
     part = inputs.summary.get("loop")
@@ -98,4 +151,5 @@ def loop(inputs: ReportInputs) -> str:
         ),
     ]
     notes = "".join(note(str(n)) for n in part.get("notes") or [])
-    return section("loop", "The drive's loop", key_values(pairs) + _present(part) + _tuning(part.get("tuning")) + notes)
+    body = key_values(pairs) + _present(part) + _tuning(part.get("tuning")) + _upload(part.get("upload"))
+    return section("loop", "The drive's loop", body + notes)
