@@ -65,8 +65,10 @@ def test_a_line_is_allowed_its_own_scatter_and_untrusted_lines_are_left_out():
     measured = predicted * 10 ** (np.array([0.5, 3.0, 0.0]) / 20)  # the second line 3 dB off
     tight = closed_loop.compare_closed_loop(f, measured, predicted, (1, 100), 2.0, 10.0)
     assert not tight.within_tolerance and tight.outside.tolist() == [False, True, False]
-    scatter = closed_loop.line_scatter(np.array([0.999, 0.5, 0.999]), 4)
+    scatter = closed_loop.line_scatter(np.array([0.999, 0.5, 0.999]), 4, pooled=1)
     assert scatter[1] > 0.5 > scatter[0]
+    many = closed_loop.line_scatter(np.full(300, 0.99), 4)
+    assert np.all(many > closed_loop.line_scatter(np.full(3, 0.99), 4)[0])  # more lines, a wider family-wise bound
     widened = closed_loop.compare_closed_loop(f, measured, predicted, (1, 100), 2.0, 10.0, scatter)
     assert widened.within_tolerance
     dropped = closed_loop.compare_closed_loop(f, measured, predicted, (1, 100), 2.0, 10.0, usable=[1, 0, 1])
@@ -175,3 +177,57 @@ def test_the_proposal_uploaded_keeps_its_targets_on_the_twins_own_plant(uploaded
     cfg, session, summary = uploaded
     values = SimpleNamespace(loop_rate_hz=RATE, **summary["loop"]["parameters"])
     assert_proposal_keeps_targets_on_the_truth(summary["loop"], cfg.emulator, values, session.gains.notches)
+
+
+def _command(uploaded, tmp_path, **kw):
+    from hilident.session.gain_upload import GainUploadCommand
+
+    _, session, _ = uploaded
+    return GainUploadCommand(load_config(CONFIG), session.out, tmp_path / "up", **kw)
+
+
+def test_upload_gains_dry_run_checks_and_shows_the_plan_and_writes_nothing(uploaded, tmp_path):
+    command = _command(uploaded, tmp_path, dry_run=True)
+    result = command.run()
+    plan = result["plan"]
+    assert result["dry_run"] and plan["check"]["stable"] and plan["before"]["kv_nm_per_mps"] == 100.0
+    assert plan["expected"] != plan["before"] and "will hold" in command.describe()
+    assert not (tmp_path / "up").exists()
+
+
+def test_upload_gains_refuses_gains_the_loop_cannot_take_before_writing(uploaded, tmp_path):
+    from hilident.errors import UsageError
+
+    command = _command(uploaded, tmp_path, gains={"kv_nm_per_mps": 20000.0})
+    with pytest.raises(UsageError, match="refused before upload.*margin.*nothing written"):
+        command.run()
+    assert not (tmp_path / "up").exists()
+
+
+def test_upload_gains_writes_reads_back_and_puts_back_on_a_mismatch(uploaded, tmp_path, monkeypatch):
+    from hilident.adapters.canopen.drive import CanopenDriveAdapter
+    from hilident.errors import DeviceError
+
+    summary = _command(uploaded, tmp_path / "a").run()
+    g = summary["gains"]
+    assert g["written"] and g["kept"] and g["readback"] == g["expected"] and g["restored"] is None
+
+    stored = CanopenDriveAdapter._stored_loop
+    monkeypatch.setattr(  # a drive that keeps other values than its description says
+        CanopenDriveAdapter, "_stored_loop", lambda self, v: {k: x * 1.01 for k, x in stored(self, v).items()}
+    )
+    command = _command(uploaded, tmp_path / "b")
+    with pytest.raises(DeviceError, match="read back"):
+        command.run()
+    g = command.summary["gains"]
+    assert g["written"] and not g["kept"] and g["restored"] and command.summary["failed_step"] == "upload"
+
+
+def test_a_gain_given_on_the_command_line_is_checked_by_name_and_value():
+    from hilident.errors import UsageError
+    from hilident.session.gain_upload import parse_gain_overrides
+
+    assert parse_gain_overrides(["kv_nm_per_mps=150", "ti_s=inf"]) == {"kv_nm_per_mps": 150.0, "ti_s": math.inf}
+    for bad in (["kv=1"], ["current_loop_hz=900"], ["ti_s=fast"], ["kp_pos_per_s=-1"]):
+        with pytest.raises(UsageError, match="--gain"):
+            parse_gain_overrides(bad)

@@ -188,10 +188,54 @@ def _go_ahead(
     return confirm
 
 
+def _upload_gains(args, cfg) -> int:
+    """``hilident upload --gains``: the gains of an earlier run (or ``--gain`` ones) into the drive."""
+    from hilident.errors import UsageError
+    from hilident.progress import Progress
+    from hilident.session.gain_upload import GainUploadCommand, parse_gain_overrides
+
+    if args.slot is not None:
+        raise UsageError("--slot: filter slots take notches; --gains writes the drive's loop gains")
+    confirm = _go_ahead(
+        args.yes,
+        "Write these gains to the drive?",
+        "this upload changes the loop gains of a real drive: confirm at a terminal, or pass --yes "
+        "(hilident upload --gains --dry-run shows what would be written)",
+    )
+    command = GainUploadCommand(
+        cfg,
+        getattr(args, "from"),
+        args.out,
+        Progress(enabled=not args.quiet),
+        confirm=confirm,
+        gains=parse_gain_overrides(args.gain),
+        save=args.save,
+        dry_run=args.dry_run,
+    )
+    if args.out and not args.dry_run:
+        _out_folder(args.out, "", args.overwrite)
+    try:
+        summary = command.run()
+    finally:
+        if command.plan is not None and (args.dry_run or not command.summary):
+            print(command.describe())
+    for w in summary["warnings"]:
+        print(f"warning: {w}")
+    if args.dry_run:
+        print("dry run: the drive reached, its gains read and the new ones checked; nothing written")
+        return 0
+    g = summary["gains"]
+    print(f"gains: read back as written {g['readback']}" + ("; saved" if g["saved"] else ""))
+    print(f"wrote {command.out / 'summary.json'}")
+    return 0
+
+
 def _upload(args) -> int:
     from hilident.config.tables import load_config
 
     cfg = load_config(args.config)
+    if args.gains or args.gain:
+        return _upload_gains(args, cfg)
     from hilident.progress import Progress
     from hilident.session.upload import UploadCommand
 
@@ -757,6 +801,19 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="connect, read the slots, print what would be written "
         "(the stored form and its attenuation); write nothing",
+    )
+    upl.add_argument(
+        "--gains",
+        action="store_true",
+        help="write the loop gains the run proposed ([tuning]) instead of notches: refused when they would not keep "
+        "the loops stable on the run's plant (loop_plant.npz), read back, the old ones put back on any failure",
+    )
+    upl.add_argument(
+        "--gain",
+        action="append",
+        metavar="NAME=VALUE",
+        help="with --gains: this gain instead of the proposal's, SI units (kv_nm_per_mps, ti_s, kp_pos_per_s, "
+        "velocity_filter_hz); repeatable",
     )
     upl.add_argument(
         "--yes", action="store_true", help="go ahead on a real port without asking (the plan is still printed)"

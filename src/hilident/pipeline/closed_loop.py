@@ -30,6 +30,7 @@ from hilident.pipeline.loop_plant import SeenPlant
 __all__ = [
     "ClosedLoopCheck",
     "LIMIT_SHARE",
+    "POOLED_LINES",
     "closed_loop_amplitude",
     "compare_closed_loop",
     "friction_response",
@@ -250,15 +251,29 @@ class ClosedLoopCheck:
         }
 
 
-def line_scatter(coherence, periods: int) -> np.ndarray:
-    """The 95 % half-width of a periodic line's mean relative to its value, from its coherence over ``periods``
-    periods (:func:`hilident.ident.periodic_frf`: ``var / |mean|^2 = (1 - g) / g``), with Student's t of
-    ``periods - 1`` degrees of freedom: a variance from a few periods is itself uncertain."""
+#: Neighbouring lines whose period-to-period variance is pooled for each line's.
+POOLED_LINES = 9
+
+
+def line_scatter(coherence, periods: int, pooled: int = POOLED_LINES) -> np.ndarray:
+    """How far each periodic line's mean may lie from its true value, relative to it, with 95 % confidence for
+    all the lines together.
+
+    The relative variance of a line's mean over ``periods`` periods follows from its coherence
+    (:func:`hilident.ident.periodic_frf`: ``var / |mean|^2 = (1 - g) / g``, over ``periods``). A variance from
+    a few periods is itself uncertain, so each line's is pooled with its ``pooled`` neighbours' (the noise
+    changes slowly with frequency), and the quantile is Student's t of the pooled degrees of freedom at
+    ``1 - 0.025 / N`` for ``N`` lines (Bonferroni): every line of a good measurement lies inside with 95 %
+    probability, not 95 % of them.
+    """
+    from scipy.ndimage import uniform_filter1d
     from scipy.stats import t
 
-    g = np.clip(np.asarray(coherence, dtype=float), 1e-12, 1.0)
+    g = np.clip(np.nan_to_num(np.asarray(coherence, dtype=float), nan=0.0), 1e-12, 1.0)
     m = max(int(periods), 2)
-    return float(t.ppf(0.975, m - 1)) * np.sqrt((1.0 - g) / g / m)
+    relative_variance = uniform_filter1d((1.0 - g) / g / m, size=max(int(pooled), 1), mode="nearest")
+    n = max(relative_variance.size, 1)
+    return float(t.ppf(1.0 - 0.025 / n, pooled * (m - 1))) * np.sqrt(relative_variance)
 
 
 def compare_closed_loop(

@@ -19,7 +19,10 @@ import numpy as np
 
 from hilident.control import Cascade, loop_plant
 
-__all__ = ["SeenPlant", "seen_plant"]
+__all__ = ["PLANT_FILE", "SeenPlant", "load_seen_plant", "save_seen_plant", "seen_plant"]
+
+#: Where a run keeps the plant its loop sees (for ``hilident upload --gains``).
+PLANT_FILE = "loop_plant.npz"
 
 #: Highest frequency of the dense grid, as a fraction of the loop rate.
 GRID_TOP = 0.45
@@ -159,7 +162,13 @@ def seen_plant(
 
     if plant.model is None:
         f = f_all[ok]
-        return SeenPlant(f, measured(f, np.asarray(frf.response)[ok]), "lines", (float(f[0]), float(f[-1])))
+        return SeenPlant(
+            f,
+            measured(f, np.asarray(frf.response)[ok]),
+            "lines",
+            (float(f[0]), float(f[-1])),
+            loop_rate_hz=loop_rate_hz,
+        )
     lo, hi = plant.model.fit.band_hz
     band = (float(lo), float(hi))
     lines = ok & (f_all >= band[0]) & (f_all <= band[1])
@@ -200,3 +209,41 @@ def _modes_moved(mechanics, factor: float):
         resonances=tuple((hz * factor, z) for hz, z in mechanics.resonances),
         antiresonances=tuple((hz * factor, z) for hz, z in mechanics.antiresonances),
     )
+
+
+def save_seen_plant(path, seen: SeenPlant) -> None:
+    """Write ``seen`` on its grid (the plant, its variants, the band, the tick rate) to ``path`` (``.npz``)."""
+    np.savez(
+        path,
+        frequency_hz=seen.frequency_hz,
+        response=seen.response,
+        variants=np.array(seen.variants, dtype=complex).reshape(len(seen.variants), seen.frequency_hz.size),
+        band_hz=np.array(seen.band_hz, dtype=float),
+        loop_rate_hz=np.array(seen.loop_rate_hz, dtype=float),
+        source=np.array(seen.source),
+    )
+
+
+def load_seen_plant(path) -> SeenPlant:
+    """The plant :func:`save_seen_plant` wrote: its grid, response and variants (interpolated between lines
+    by :meth:`SeenPlant.at`).
+
+    Raises
+    ------
+    DataError
+        The file is missing or not such a plant, naming it.
+    """
+    from hilident.errors import DataError
+
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return SeenPlant(
+                np.asarray(data["frequency_hz"], dtype=float),
+                np.asarray(data["response"], dtype=complex),
+                str(data["source"]),
+                (float(data["band_hz"][0]), float(data["band_hz"][1])),
+                variants=[np.asarray(v, dtype=complex) for v in data["variants"]],
+                loop_rate_hz=float(data["loop_rate_hz"]),
+            )
+    except (OSError, KeyError, ValueError, IndexError) as exc:
+        raise DataError(f"{path}: not the plant a run's loop step writes ({exc})") from None

@@ -386,23 +386,16 @@ class Session(DeviceConnection):
             raise ArmingRefused("the run was not confirmed; nothing moved")
 
     def _friction_step(self, profile):
+        """The friction test (:class:`~hilident.session.friction_test.FrictionTest`): the configured legs, then
+        added rounds until the Coulomb and viscous intervals meet ``target_ci_percent`` or a limit stops it."""
         if profile is None:
             return None
-        windows = np.array(profile.windows, dtype=float).reshape(-1, 3)
-        setpoints = profile.setpoint_mps
-        if self.friction_mode == "position":
-            setpoints = sig.position_of(setpoints, self.cfg.run.sample_rate_hz)
-        exp = self.record(
-            "friction",
-            self.friction_mode,
-            setpoints,
-            tables={"windows": {"start": windows[:, 0], "stop": windows[:, 1], "velocity_mps": windows[:, 2]}},
+        from hilident.session.friction_test import FrictionTest
+
+        test = FrictionTest(
+            self.cfg, self.record, self.friction_mode, self._window_rows, self.progress, lambda: self.position_m
         )
-        kept = self._window_rows(exp, profile.windows)
-        self.progress.step("friction: fitting the friction curve")
-        result = pipeline_friction.identify_friction(
-            exp.samples["velocity_mps"], exp.samples["torque_nm"], kept, self.cfg.friction_test.model
-        )
+        result = test.run(profile)
         self.warnings += result.warnings
         return result
 
@@ -644,6 +637,10 @@ class Session(DeviceConnection):
             self.warnings.append(f"loop: no margins: {exc}")
             return None
         self.notes += analysis.notes
+        if analysis.seen is not None:  # for hilident upload --gains: the plant the gains are checked on
+            from hilident.pipeline.loop_plant import PLANT_FILE, save_seen_plant
+
+            save_seen_plant(self.out / PLANT_FILE, analysis.seen)
         return analysis
 
     def _gain_step(self, upload: UploadOutcome, friction) -> None:
