@@ -57,7 +57,7 @@ EXPECTED_WARNINGS = {
     ),
 }
 #: Shipped configs whose drive describes its loop ([loop]) in a way the session reads: their summary holds the margins.
-LOOP_DESCRIBED = ("emulated-modbus-gantry",)
+LOOP_DESCRIBED = ("emulated-gantry", "emulated-canopen-gantry", "emulated-modbus-gantry")
 #: A streamed run's host sends every SYNC: on a loaded machine some go late, and the run says so.
 LATE_SYNCS = "were sent more than one period late"
 

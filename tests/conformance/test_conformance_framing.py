@@ -219,7 +219,7 @@ def test_undecodable_payloads_are_refused_with_their_code_and_counted(board):
     cases = [
         (header(2, PING, 0x0101), sb.ErrorCode.BAD_VERSION, (0x0101, PING)),
         (header(0, sb.MsgType.IDENTIFY, 0x0102), sb.ErrorCode.BAD_VERSION, (0x0102, sb.MsgType.IDENTIFY)),
-        (header(1, 0x0C, 0x0103), sb.ErrorCode.UNKNOWN_TYPE, (0x0103, 0x0C)),
+        (header(1, 0x0E, 0x0103), sb.ErrorCode.UNKNOWN_TYPE, (0x0103, 0x0E)),
         (header(1, 0x42, 0x0104), sb.ErrorCode.UNKNOWN_TYPE, (0x0104, 0x42)),
         (header(1, 0x00, 0x0105), sb.ErrorCode.UNKNOWN_TYPE, (0x0105, 0x00)),
         (header(1, 0xFF, 0x0106), sb.ErrorCode.UNKNOWN_TYPE, (0x0106, 0xFF)),
@@ -243,11 +243,11 @@ def test_undecodable_payloads_are_refused_with_their_code_and_counted(board):
 
 
 def test_board_to_host_types_sent_to_the_board_are_unknown_types(board):
-    """Section 11.1 (UNKNOWN_TYPE: "a board → host type sent to the board"): every type from 0x81 to 0x87
+    """Section 11.1 (UNKNOWN_TYPE: "a board → host type sent to the board"): every type from 0x81 to 0x88
     sent to the board is refused with UNKNOWN_TYPE, whatever its body: empty, or a well-formed ACK."""
     wire = board.connect()
     well_formed_ack = header(1, sb.MsgType.ACK, 0x0200) + b"\x01\x00\x0b"
-    empty_bodies = [header(1, kind, 0x0200 + kind) for kind in range(0x81, 0x88)]
+    empty_bodies = [header(1, kind, 0x0200 + kind) for kind in range(0x81, 0x89)]
     for payload in [well_formed_ack, *empty_bodies]:
         wire.send_raw(hand_frame(payload))
         nak = wire.reply().msg

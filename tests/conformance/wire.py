@@ -6,7 +6,7 @@ and reads the board's frames with timeouts. Every frame the board sends is unpac
 :func:`unframe`, written from ``drivers/myrio-board/PROTOCOL.md`` section 2 and not from the host's
 decoder, so a framing bug shared by the host and a board cannot hide. Frames are then sorted:
 
-* replies (IDENTITY, ACK, NAK, STATUS, FILTER) are handed out one by one in arrival order
+* replies (IDENTITY, ACK, NAK, STATUS, FILTER, LOOP) are handed out one by one in arrival order
   (:meth:`Wire.reply`); the board answers requests in the order they came (PROTOCOL.md section 4);
 * sample blocks and events (SAMPLES, EVENT) are kept in :attr:`Wire.stream`. A SAMPLES block that
   arrives before this connection's own CONFIGURE is not decoded (its row layout is another host's,
@@ -39,7 +39,9 @@ from hilident.protocol.framing import encode_frame
 #: Longest stuffed frame, delimiter excluded (PROTOCOL.md section 2).
 MAX_FRAME_BYTES = 65536
 #: Board -> host types that answer a request; SAMPLES and EVENT form the stream.
-REPLY_TYPES = frozenset({sb.MsgType.IDENTITY, sb.MsgType.ACK, sb.MsgType.NAK, sb.MsgType.STATUS, sb.MsgType.FILTER})
+REPLY_TYPES = frozenset(
+    {sb.MsgType.IDENTITY, sb.MsgType.ACK, sb.MsgType.NAK, sb.MsgType.STATUS, sb.MsgType.FILTER, sb.MsgType.LOOP}
+)
 STREAM_TYPES = frozenset({sb.MsgType.SAMPLES, sb.MsgType.EVENT})
 #: SAMPLES flag bits 4-15 are reserved and sent as 0 (PROTOCOL.md section 7).
 RESERVED_FLAGS = 0xFFF0
@@ -312,7 +314,7 @@ class Wire:
         return msg
 
     def reply(self, timeout: float | None = None) -> Frame:
-        """The next reply frame (IDENTITY, ACK, NAK, STATUS or FILTER); stream frames are kept meanwhile."""
+        """The next reply frame (IDENTITY, ACK, NAK, STATUS, FILTER or LOOP); stream frames are kept meanwhile."""
         self.wait_for(lambda: bool(self._replies), "reply", timeout)
         self.last_reply = self._replies.popleft()
         return self.last_reply
@@ -384,6 +386,13 @@ class Wire:
         frame = self.reply()
         assert isinstance(frame.msg, sb.FilterCoefficients), f"READ_FILTER {slot} was answered with {frame.msg}"
         assert frame.msg.slot == slot, f"READ_FILTER {slot} was answered with slot {frame.msg.slot}"
+        return frame.msg, frame.payload[4:]
+
+    def read_loop(self) -> tuple[sb.LoopParameters, bytes]:
+        """The cascade the board runs: the decoded LOOP and its raw body (24 bytes)."""
+        self.send(sb.ReadLoop())
+        frame = self.reply()
+        assert isinstance(frame.msg, sb.LoopParameters), f"READ_LOOP was answered with {frame.msg}"
         return frame.msg, frame.payload[4:]
 
     def configure(self, config: sb.Configure) -> None:

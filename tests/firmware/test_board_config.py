@@ -39,3 +39,24 @@ def test_the_channel_list_is_driver_tomls_in_board_order():
     assert compiled == [(c["name"], c["unit"]) for c in DRIVER["channels"]]
     names = re.findall(r"^\s+(CH_\w+)", HEADER, re.MULTILINE)
     assert len(names) == len(DRIVER["channels"])
+
+
+def test_every_loop_parameter_has_its_power_up_value():
+    """driver.toml's ``[loop]`` keeps each parameter in the LOOP message or fixes it; board_config.h names a
+    power-up value ``BOARD_LOOP_<KEY>`` for each, and a fixed one is driver.toml's value."""
+    loop = DRIVER["loop"]
+    assert list(loop) == [
+        "kv_nm_per_mps",
+        "ti_s",
+        "kp_pos_per_s",
+        "velocity_filter_hz",
+        "current_loop_hz",
+        "delay_ticks",
+    ]
+    for name, entry in loop.items():
+        value = float(define(f"BOARD_LOOP_{name.upper()}").replace("INFINITY", "inf"))
+        if "value" in entry:
+            assert value == entry["value"], name
+        else:
+            assert entry == {"message": "LOOP"}, name
+        assert value > 0 or name == "delay_ticks", (name, value)

@@ -11,19 +11,25 @@ then runs a short session and takes hostile bytes without a finding.
 from __future__ import annotations
 
 import json
+import math
 import random
+import re
 import socket
 import time
 import tomllib
 from pathlib import Path
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 import tomli_w
 
+from hilident.config.tables import parse_config
+from hilident.filters.biquad import Biquad
 from hilident.protocol import serial_board as sb
 from hilident.protocol.framing import FrameDecoder, encode_frame
-from support.c_board import CBoard, plant
+from support.c_board import FIRMWARE, CBoard, plant
+from support.loop_truth import assert_loop_figures_match, true_loop_figures
 from support.twins import CONFIGS, assert_friction_matches, finish, host
 
 pytestmark = pytest.mark.twin
@@ -85,7 +91,36 @@ def test_the_shipped_session_finds_fits_and_notches_the_c_boards_gantry(posix_si
     assert upload["slots"] and all(slot["matches"] for slot in upload["slots"])
     assert summary["verification"]["band_reduction_db"] >= 20.0, summary["verification"]
 
+    assert_loop_matches_the_c_gantry(summary, truth)
     assert_clean_stream(summary)
+
+
+def assert_loop_matches_the_c_gantry(summary: dict, truth: dict[str, float]) -> None:
+    """The board's LOOP (board_config.h's power-up gains, no current loop and no delay of its own: firmware
+    README) and the margins hilident predicts from the plant it identified, within 1 dB and 5 degrees of those
+    of the C gantry's own plant (``--print-plant``) with those gains."""
+    config = (FIRMWARE / "core" / "board_config.h").read_text()
+
+    def define(name: str) -> float:
+        found = re.search(rf"^#define {name} (\S+)", config, re.MULTILINE)
+        assert found, f"board_config.h defines no {name}"
+        return float(found.group(1).replace("INFINITY", "inf"))
+
+    def power_up(name: str) -> float:
+        return sb.float32(define(f"BOARD_LOOP_{name.upper()}"))
+
+    parameters = {name: power_up(name) for name in sb.LOOP_FIELDS}
+    assert parameters["current_loop_hz"] == math.inf and parameters["delay_ticks"] == 0.0
+    # summary.json spells an infinity null (JSON has none)
+    assert summary["loop"]["parameters"] == {n: v if math.isfinite(v) else None for n, v in parameters.items()}
+    plant_table = {k: truth[k] for k in ("m1_kg", "m2_kg", "k_n_per_m", "d_ns_per_m", "c_n_per_nm")}
+    emulator = parse_config(
+        "[emulator.plant]\nmodel = 'two_mass'\n"
+        + "".join(f"{key.split('_')[0]} = {value!r}\n" for key, value in plant_table.items())
+    ).emulator
+    tuning = SimpleNamespace(loop_rate_hz=define("BOARD_LOOP_RATE_HZ"), **parameters)
+    notches = [Biquad(np.array(n["b"]), np.array(n["a"])) for n in summary["notch_filters"]]
+    assert_loop_figures_match(summary["loop"], true_loop_figures(emulator, tuning, notches))
 
 
 def board_status(url: str) -> sb.Status:

@@ -160,6 +160,8 @@ def test_message_types_split_by_direction():
         sb.MsgType.READ_FILTER,
         sb.MsgType.CLEAR_FAULT,
         sb.MsgType.PING,
+        sb.MsgType.READ_LOOP,
+        sb.MsgType.WRITE_LOOP,
     }
     for t in sb.MsgType:
         assert (t < 0x80) == (t in requests), t.name
@@ -305,7 +307,7 @@ def test_bad_version_raises():
         sb.decode(bytes(payload))
 
 
-@pytest.mark.parametrize("kind", [0x00, 0x0C, 0x7F, 0x80, 0x88, 0xFF])
+@pytest.mark.parametrize("kind", [0x00, 0x0E, 0x7F, 0x80, 0x89, 0xFF])
 def test_unknown_type_raises(kind):
     with pytest.raises(ProtocolError, match=f"0x{kind:02x}"):
         sb.decode(bytes([1, kind, 0, 0]))

@@ -28,6 +28,7 @@ from typing import ClassVar
 from hilident.config.schema import build_table, spec
 from hilident.config.tables import parse_toml, read_toml_text
 from hilident.errors import ConfigError
+from hilident.protocol.loop_parameters import LoopDescription, parse_loop
 from hilident.signals._checks import show
 
 DESCRIPTION_FILE = "driver.toml"
@@ -300,6 +301,7 @@ def load_driver(folder: str | os.PathLike) -> DriverDescription:
     parsed = build_table(_DriverFile, data, "", source)
     if parsed.driver.transport == "serial":
         _check_serial_keys(data, source)
+        _serial_loop(data, source)
     _check_board_rates(parsed.board, source)
     channels = _described_channels(parsed, folder, data, source)
     _check_channel_scales(channels, source)
@@ -313,6 +315,17 @@ def _check_serial_keys(data: dict, source: str) -> None:
     for table, key in _SERIAL_REQUIRED:
         if key not in data[table]:
             raise ConfigError(f"{table}.{key}", "is required for a serial driver", source)
+
+
+def _serial_loop(data: dict, source: str) -> LoopDescription | None:
+    """A serial driver's ``[loop]``: each parameter in the board's LOOP message (PROTOCOL.md section 4.15) or a
+    fixed value; None without one. ConfigError naming the key and ``source`` when it is malformed."""
+    return parse_loop(data.get("loop"), source, kinds=("message",))
+
+
+def serial_loop(driver: DriverDescription) -> LoopDescription | None:
+    """The ``[loop]`` of the serial driver ``driver`` (checked when it was loaded); None when it has none."""
+    return _serial_loop(driver.sections, str(driver.folder / DESCRIPTION_FILE))
 
 
 def _check_board_rates(board: _BoardTable, source: str) -> None:

@@ -41,6 +41,8 @@ class MsgType(enum.IntEnum):
     READ_FILTER = 0x09
     CLEAR_FAULT = 0x0A
     PING = 0x0B
+    READ_LOOP = 0x0C
+    WRITE_LOOP = 0x0D
 
     IDENTITY = 0x81
     ACK = 0x82
@@ -49,6 +51,7 @@ class MsgType(enum.IntEnum):
     STATUS = 0x85
     FILTER = 0x86
     EVENT = 0x87
+    LOOP = 0x88
 
 
 class ErrorCode(enum.IntEnum):
@@ -233,6 +236,58 @@ class ReadFilter:
     """Host -> board: ask for a slot's contents (answered by FILTER)."""
 
     slot: int
+
+
+@dataclass(frozen=True)
+class ReadLoop:
+    """Host -> board: ask for the cascade's parameters (answered by LOOP)."""
+
+
+@dataclass(frozen=True)
+class WriteLoop:
+    """Host -> board: the cascade's tunable gains, SI units, binary32 on the wire (PROTOCOL.md section 4.16).
+
+    Attributes
+    ----------
+    kv_nm_per_mps : float
+        Velocity loop proportional gain, N·m per (m/s).
+    ti_s : float
+        Velocity loop integral time, s (``inf``: a P controller).
+    kp_pos_per_s : float
+        Position loop gain, (m/s) per m.
+    velocity_filter_hz : float
+        Cut-off of the velocity estimate's first-order low-pass, Hz.
+    """
+
+    kv_nm_per_mps: float
+    ti_s: float
+    kp_pos_per_s: float
+    velocity_filter_hz: float
+
+
+@dataclass(frozen=True)
+class LoopParameters:
+    """Board -> host (LOOP): the cascade the board runs, SI units, binary32 on the wire (PROTOCOL.md section 4.15).
+
+    The four gains of :class:`WriteLoop`, then the board's own parts: ``current_loop_hz`` (bandwidth of the
+    current loop, Hz; ``inf``: ideal) and ``delay_ticks`` (computation and transport delay, loop ticks).
+    """
+
+    kv_nm_per_mps: float
+    ti_s: float
+    kp_pos_per_s: float
+    velocity_filter_hz: float
+    current_loop_hz: float
+    delay_ticks: float
+
+    def values(self) -> dict[str, float]:
+        """Parameter name (:data:`LOOP_FIELDS`) -> SI value."""
+        return {name: float(getattr(self, name)) for name in LOOP_FIELDS}
+
+
+#: The fields of LOOP, in wire order; WRITE_LOOP carries the first four (:data:`WRITE_LOOP_FIELDS`).
+LOOP_FIELDS = ("kv_nm_per_mps", "ti_s", "kp_pos_per_s", "velocity_filter_hz", "current_loop_hz", "delay_ticks")
+WRITE_LOOP_FIELDS = LOOP_FIELDS[:4]
 
 
 @dataclass(frozen=True)
@@ -440,6 +495,10 @@ def _encode_host_body(msg, excitation) -> tuple[int, bytes] | None:
         return MsgType.WRITE_FILTER, _filter_body(msg.coefficients)
     if isinstance(msg, ReadFilter):
         return MsgType.READ_FILTER, struct.pack("<B", msg.slot)
+    if isinstance(msg, ReadLoop):
+        return MsgType.READ_LOOP, b""
+    if isinstance(msg, WriteLoop):
+        return MsgType.WRITE_LOOP, struct.pack("<4f", *(getattr(msg, f) for f in WRITE_LOOP_FIELDS))
     return None
 
 
@@ -491,6 +550,8 @@ def _encode_board_body(msg, sample_channels) -> tuple[int, bytes] | None:
         return MsgType.FILTER, _filter_body(msg)
     if isinstance(msg, Event):
         return MsgType.EVENT, struct.pack("<BIf", msg.code, msg.sample_index, msg.value) + _string(msg.message)
+    if isinstance(msg, LoopParameters):
+        return MsgType.LOOP, struct.pack("<6f", *(getattr(msg, f) for f in LOOP_FIELDS))
     return None
 
 
@@ -551,6 +612,7 @@ def _decode_host_body(mtype: MsgType, r: _Reader, excitation):
         MsgType.STATUS_REQUEST: StatusRequest,
         MsgType.CLEAR_FAULT: ClearFault,
         MsgType.PING: Ping,
+        MsgType.READ_LOOP: ReadLoop,
     }
     if mtype in simple:
         return simple[mtype]()
@@ -579,6 +641,8 @@ def _decode_host_body(mtype: MsgType, r: _Reader, excitation):
         return WriteFilter(_decode_filter(r))
     if mtype == MsgType.READ_FILTER:
         return ReadFilter(*r.take("B"))
+    if mtype == MsgType.WRITE_LOOP:
+        return WriteLoop(*r.take("4f"))
     return None
 
 
@@ -611,6 +675,8 @@ def _decode_board_body(mtype: MsgType, r: _Reader, sample_channels):
     if mtype == MsgType.EVENT:
         code, index, value = r.take("BIf")
         return Event(_enum(EventCode, code, "event code"), index, value, r.string())
+    if mtype == MsgType.LOOP:
+        return LoopParameters(*r.take("6f"))
     return None
 
 

@@ -3,10 +3,10 @@
 #include "board_internal.h"
 #include "hal.h"
 
-void board_init(struct board *b, const struct drive_tuning *tuning)
+void board_init(struct board *b, double torque_max_nm)
 {
 	/* Power-up (section 5): IDLE, no configuration, no limits, every filter
-	 * slot bypassed with identity coefficients. */
+	 * slot bypassed with identity coefficients, the loop's default gains. */
 	b->state = ST_IDLE;
 	b->fault = FAULT_NONE;
 	b->seq = 0; /* the first message is number 1 */
@@ -17,7 +17,7 @@ void board_init(struct board *b, const struct drive_tuning *tuning)
 	b->config.excitation_format = FMT_F32;
 	b->config.excitation_scale = 1.0f;
 	b->limits_loaded = false;
-	drive_init(&b->drive, tuning);
+	drive_init(&b->drive, torque_max_nm);
 	fifo_reset(&b->fifo);
 	sampler_init(&b->sampler);
 	b->run.n_samples = 0;

@@ -76,7 +76,8 @@ struct board {
 	struct tx_queue tx;
 };
 
-void board_init(struct board *b, const struct drive_tuning *tuning);
+/* `torque_max_nm`: the saturation of the target's power stage, N*m. */
+void board_init(struct board *b, double torque_max_nm);
 void board_tick(struct board *b);
 
 #endif

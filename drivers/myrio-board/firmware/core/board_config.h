@@ -12,6 +12,8 @@
 #ifndef BOARD_CONFIG_H
 #define BOARD_CONFIG_H
 
+#include <math.h> /* INFINITY */
+
 /* [driver] name: what IDENTITY answers as the board name. */
 #define BOARD_NAME "myrio-board"
 /* [board] firmware: IDENTITY's firmware text. */
@@ -55,6 +57,30 @@ enum board_channel {
 		{"velocity_mps", "m/s"},         \
 		{"load_position_m", "m"},        \
 	}
+
+/*
+ * [loop]: the cascade, every parameter in the LOOP message (PROTOCOL.md
+ * section 4.15). The four gains power up as these and WRITE_LOOP (4.16)
+ * replaces them until power-down; the current loop and the delay are what
+ * this firmware runs and are reported as they are.
+ */
+/* [loop] kv_nm_per_mps: velocity PI's proportional gain, N*m per (m/s). */
+#define BOARD_LOOP_KV_NM_PER_MPS 100.0
+/* [loop] ti_s: velocity PI's integral time, s (INFINITY: P only). */
+#define BOARD_LOOP_TI_S 0.05
+/* [loop] kp_pos_per_s: position loop gain, (m/s) per m. */
+#define BOARD_LOOP_KP_POS_PER_S 20.0
+/* [loop] velocity_filter_hz: low-pass on the velocity estimate, Hz. */
+#define BOARD_LOOP_VELOCITY_FILTER_HZ 400.0
+/* [loop] current_loop_hz: the board commands the amplifier's current and
+ * runs no current loop of its own: INFINITY (ideal). A board on an amplifier
+ * whose current loop is slow enough to matter sets its bandwidth, Hz. */
+#ifndef BOARD_LOOP_CURRENT_LOOP_HZ
+#define BOARD_LOOP_CURRENT_LOOP_HZ INFINITY
+#endif
+/* [loop] delay_ticks: the torque of a tick is written in the tick that read
+ * the encoder, so no whole tick of delay. */
+#define BOARD_LOOP_DELAY_TICKS 0
 
 /*
  * Not in driver.toml: fixed by PROTOCOL.md or by this firmware.

@@ -32,6 +32,7 @@ void reply_event(struct board *b, enum event_code code, uint32_t sample_index, f
 void reply_status(struct board *b);
 void reply_identity(struct board *b);
 void reply_filter(struct board *b, unsigned slot);
+void reply_loop(struct board *b);
 /* Number and queue a payload whose first HEADER_BYTES are left for the
  * header; false when it did not fit with `keep_free` bytes to spare. */
 bool send_payload(struct board *b, uint8_t *payload, size_t n, size_t keep_free);

@@ -1,16 +1,44 @@
 #include "drive.h"
 
 #include <math.h>
+#include <stddef.h>
 
 #include "board_config.h"
 #include "hal.h"
 
 #define LOOP_PERIOD_S (1.0 / BOARD_LOOP_RATE_HZ)
 
-void drive_init(struct drive *d, const struct drive_tuning *tuning)
+const char *loop_gains_refusal(const struct loop_gains *g)
+{
+	if (!(isfinite(g->kv_nm_per_mps) && g->kv_nm_per_mps > 0.0))
+		return "kv_nm_per_mps must be finite and > 0";
+	if (!(g->ti_s > 0.0)) /* +inf passes: a P controller */
+		return "ti_s must be > 0 (inf: P only)";
+	if (!(isfinite(g->kp_pos_per_s) && g->kp_pos_per_s > 0.0))
+		return "kp_pos_per_s must be finite and > 0";
+	if (!(isfinite(g->velocity_filter_hz) && g->velocity_filter_hz > 0.0))
+		return "velocity_filter_hz must be finite and > 0";
+	return NULL;
+}
+
+void drive_set_gains(struct drive *d, const struct loop_gains *g)
 {
 	const double pi = 3.14159265358979323846;
-	d->tuning = *tuning;
+	d->gains = *g;
+	d->alpha = 1.0 - exp(-2.0 * pi * g->velocity_filter_hz * LOOP_PERIOD_S);
+	d->ki_per_tick = isinf(g->ti_s) ? 0.0 : g->kv_nm_per_mps * LOOP_PERIOD_S / g->ti_s;
+}
+
+void drive_init(struct drive *d, double torque_max_nm)
+{
+	const struct loop_gains power_up = {
+		.kv_nm_per_mps = BOARD_LOOP_KV_NM_PER_MPS,
+		.ti_s = BOARD_LOOP_TI_S,
+		.kp_pos_per_s = BOARD_LOOP_KP_POS_PER_S,
+		.velocity_filter_hz = BOARD_LOOP_VELOCITY_FILTER_HZ,
+	};
+	drive_set_gains(d, &power_up);
+	d->torque_max_nm = torque_max_nm;
 	/* No limits until SET_LIMITS: the board refuses START until then. */
 	d->limits.torque_nm = INFINITY;
 	d->limits.velocity_mps = INFINITY;
@@ -19,8 +47,6 @@ void drive_init(struct drive *d, const struct drive_tuning *tuning)
 	filter_chain_init(&d->filters);
 	d->mode = MODE_TORQUE;
 	d->enabled = false;
-	d->alpha = 1.0 - exp(-2.0 * pi * tuning->velocity_filter_hz * LOOP_PERIOD_S);
-	d->ki_per_tick = tuning->ti_s > 0.0 ? tuning->kv_nm_per_mps * LOOP_PERIOD_S / tuning->ti_s : 0.0;
 	d->hold_m = 0.0;
 	d->integral = 0.0;
 	d->velocity = 0.0;
@@ -52,11 +78,11 @@ static double velocity_error(const struct drive *d, double e, double position)
 {
 	switch (d->mode) {
 	case MODE_TORQUE_INJECTION:
-		return d->tuning.kp_pos_per_s * (d->hold_m - position) - d->velocity;
+		return d->gains.kp_pos_per_s * (d->hold_m - position) - d->velocity;
 	case MODE_VELOCITY:
 		return e - d->velocity;
 	case MODE_POSITION:
-		return d->tuning.kp_pos_per_s * (d->hold_m + e - position) - d->velocity;
+		return d->gains.kp_pos_per_s * (d->hold_m + e - position) - d->velocity;
 	default:
 		return 0.0;
 	}
@@ -68,14 +94,14 @@ static double controller(struct drive *d, double e, double position)
 	if (d->mode == MODE_TORQUE)
 		return e;
 	double verr = velocity_error(d, e, position);
-	double tmax = d->tuning.torque_max_nm;
+	double tmax = d->torque_max_nm;
 	d->integral += d->ki_per_tick * verr;
 	/* the integrator cannot wind up beyond what the power stage delivers */
 	if (d->integral > tmax)
 		d->integral = tmax;
 	else if (d->integral < -tmax)
 		d->integral = -tmax;
-	double cmd = d->tuning.kv_nm_per_mps * verr + d->integral;
+	double cmd = d->gains.kv_nm_per_mps * verr + d->integral;
 	if (d->mode == MODE_TORQUE_INJECTION)
 		cmd += e;
 	return cmd;
@@ -126,7 +152,7 @@ void drive_step(struct drive *d, double e, struct drive_tick *out)
 				out->trip = TRIP_TORQUE_LIMIT;
 				out->trip_value = filtered;
 			} else {
-				applied = saturate(filtered, d->tuning.torque_max_nm);
+				applied = saturate(filtered, d->torque_max_nm);
 			}
 		}
 		if (out->trip != TRIP_NONE)

@@ -7,9 +7,15 @@
  * 3. while enabled, check the velocity and position limits and the
  *    amplifier's fault line (a trip: torque zero from this tick on);
  * 4. compute the torque command for the mode (PROTOCOL.md section 11.4):
- *    the cascade is position P -> velocity PI -> torque;
+ *    the cascade is position P -> velocity PI -> torque, the integrator
+ *    adding its increment before the output;
  * 5. pass it through the filter slots, check the torque limit, saturate at
- *    torque_max_nm and write it to the power stage (section 9, 10).
+ *    torque_max_nm and write it to the power stage (section 9, 10), in the
+ *    tick that read the encoder: no delay, and no current loop of its own
+ *    (the amplifier's is BOARD_LOOP_CURRENT_LOOP_HZ).
+ *
+ * That is hilident.control.Cascade's model exactly, with the parameters LOOP
+ * reports (PROTOCOL.md section 4.15).
  */
 #ifndef DRIVE_H
 #define DRIVE_H
@@ -19,14 +25,13 @@
 #include "biquad.h"
 #include "protocol.h"
 
-/* Controller settings of the board's servo loops (not in the protocol: a
- * board's own tuning, chosen for its axis). */
-struct drive_tuning {
-	double kp_pos_per_s;       /* position loop, (m/s) per m */
+/* The cascade's gains: what LOOP reports and WRITE_LOOP sets (PROTOCOL.md
+ * sections 4.15, 4.16). They power up as board_config.h's [loop] defaults. */
+struct loop_gains {
 	double kv_nm_per_mps;      /* velocity loop proportional gain, N*m per (m/s) */
-	double ti_s;               /* velocity loop integral time, s (0: no integral action) */
+	double ti_s;               /* velocity loop integral time, s (INFINITY: P only) */
+	double kp_pos_per_s;       /* position loop, (m/s) per m */
 	double velocity_filter_hz; /* low-pass on the velocity estimate, Hz */
-	double torque_max_nm;      /* power stage saturation, N*m */
 };
 
 /* Why the drive stopped itself in a tick. */
@@ -57,7 +62,8 @@ struct drive_tick {
 };
 
 struct drive {
-	struct drive_tuning tuning;
+	struct loop_gains gains;
+	double torque_max_nm; /* power stage saturation, N*m (the target's amplifier) */
 	struct drive_limits limits;
 	struct filter_chain filters;
 	enum run_mode mode;
@@ -70,7 +76,19 @@ struct drive {
 	double last_position_m;
 };
 
-void drive_init(struct drive *d, const struct drive_tuning *tuning);
+/* Power-up: the [loop] defaults of board_config.h, no limits, the slots
+ * bypassed, the amplifier disabled. */
+void drive_init(struct drive *d, double torque_max_nm);
+
+/* NULL when the loop can run the gains `g`, else why not (PROTOCOL.md
+ * section 4.16: a NaN, a gain or cut-off not finite and > 0, an integral
+ * time not > 0). */
+const char *loop_gains_refusal(const struct loop_gains *g);
+
+/* Run the gains `g` (which loop_gains_refusal() accepted) from the next tick
+ * on, all four at once; the integrator, the velocity estimate and the filter
+ * sections carry on. */
+void drive_set_gains(struct drive *d, const struct loop_gains *g);
 
 /* Close the loops in `mode`: capture the hold position, clear the integrator
  * and the filter sections' state, enable the amplifier. */

@@ -13,6 +13,7 @@
 #define SAMPLES_HEAD_BYTES 24    /* SAMPLES body before its rows (section 4.12) */
 #define STATUS_BODY_BYTES 31     /* section 4.13 */
 #define FILTER_BODY_BYTES 22     /* section 4.7 */
+#define WRITE_LOOP_BODY_BYTES 16 /* section 4.16: the four gains */
 #define MAX_TEXT_BYTES 255       /* str: len u8 + UTF-8 (section 3) */
 
 /* Section 4: message types. Host to board below 0x80. */
@@ -28,6 +29,8 @@ enum msg_type {
 	MSG_READ_FILTER = 0x09,
 	MSG_CLEAR_FAULT = 0x0A,
 	MSG_PING = 0x0B,
+	MSG_READ_LOOP = 0x0C,
+	MSG_WRITE_LOOP = 0x0D,
 	MSG_IDENTITY = 0x81,
 	MSG_ACK = 0x82,
 	MSG_NAK = 0x83,
@@ -35,6 +38,7 @@ enum msg_type {
 	MSG_STATUS = 0x85,
 	MSG_FILTER = 0x86,
 	MSG_EVENT = 0x87,
+	MSG_LOOP = 0x88,
 };
 
 /* Section 11.1: NAK error codes. */

@@ -1,4 +1,4 @@
-/* The board's messages other than SAMPLES (PROTOCOL.md sections 4.7-4.14). */
+/* The board's messages other than SAMPLES (PROTOCOL.md sections 4.7-4.15). */
 #include "board_internal.h"
 #include "wire.h"
 
@@ -119,5 +119,20 @@ void reply_filter(struct board *b, unsigned slot)
 	w_f32(&w, s->c.b2);
 	w_f32(&w, s->c.a1);
 	w_f32(&w, s->c.a2);
+	send_control(b, &w);
+}
+
+void reply_loop(struct board *b)
+{
+	const struct loop_gains *g = &b->drive.gains;
+	uint8_t buf[CONTROL_PAYLOAD_MAX];
+	struct writer w;
+	start(&w, buf, MSG_LOOP);
+	w_f32(&w, (float)g->kv_nm_per_mps);
+	w_f32(&w, (float)g->ti_s);
+	w_f32(&w, (float)g->kp_pos_per_s);
+	w_f32(&w, (float)g->velocity_filter_hz);
+	w_f32(&w, (float)BOARD_LOOP_CURRENT_LOOP_HZ);
+	w_f32(&w, (float)BOARD_LOOP_DELAY_TICKS);
 	send_control(b, &w);
 }

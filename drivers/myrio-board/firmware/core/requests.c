@@ -1,8 +1,8 @@
 /*
  * The host's requests (PROTOCOL.md sections 3-5, 9-11): decode, check,
- * act, answer. Every request but EXCITATION, IDENTIFY, STATUS_REQUEST and
- * READ_FILTER is answered by an ACK on success; a refusal is a NAK with the
- * request's seq and type.
+ * act, answer. Every request but EXCITATION, IDENTIFY, STATUS_REQUEST,
+ * READ_FILTER and READ_LOOP is answered by an ACK on success; a refusal is a
+ * NAK with the request's seq and type.
  */
 #include <math.h>
 
@@ -311,6 +311,35 @@ static enum error_code on_read_filter(struct board *b, const struct request *rq,
 	return 0;
 }
 
+/* --- the loop's gains (4.15, 4.16) ------------------------------------------------------ */
+
+static enum error_code on_read_loop(struct board *b, const struct request *rq, struct text *why)
+{
+	(void)rq;
+	(void)why;
+	reply_loop(b);
+	return 0;
+}
+
+/* Taken whole or not at all, in every state. The request is handled before
+ * the tick's loop step (board.c), so a running loop runs the new gains from
+ * this very tick: every tick runs one set, never a mixture. */
+static enum error_code on_write_loop(struct board *b, const struct request *rq, struct text *why)
+{
+	const uint8_t *p = rq->body;
+	struct loop_gains g = {
+		.kv_nm_per_mps = get_f32(p),
+		.ti_s = get_f32(p + 4),
+		.kp_pos_per_s = get_f32(p + 8),
+		.velocity_filter_hz = get_f32(p + 12),
+	};
+	const char *refusal = loop_gains_refusal(&g);
+	if (refusal)
+		return refuse(why, ERR_BAD_ARGUMENT, refusal);
+	drive_set_gains(&b->drive, &g);
+	return 0;
+}
+
 /* --- dispatch --------------------------------------------------------------------------- */
 
 struct request_kind {
@@ -332,6 +361,8 @@ static const struct request_kind kinds[] = {
 	[MSG_READ_FILTER] = {on_read_filter, 1, false, "READ_FILTER"},
 	[MSG_CLEAR_FAULT] = {on_clear_fault, 0, true, "CLEAR_FAULT"},
 	[MSG_PING] = {on_ping, 0, true, "PING"},
+	[MSG_READ_LOOP] = {on_read_loop, 0, false, "READ_LOOP"},
+	[MSG_WRITE_LOOP] = {on_write_loop, WRITE_LOOP_BODY_BYTES, true, "WRITE_LOOP"},
 };
 
 static void refuse_header(struct board *b, uint16_t seq, uint8_t type, enum error_code code, struct text *why)
@@ -360,7 +391,7 @@ void handle_request(struct board *b, const uint8_t *payload, uint32_t stored, ui
 		refuse_header(b, rq.seq, rq.type, ERR_BAD_VERSION, &why);
 		return;
 	}
-	if (rq.type >= MSG_IDENTITY && rq.type <= MSG_EVENT) {
+	if (rq.type >= MSG_IDENTITY && rq.type <= MSG_LOOP) {
 		reply_nak(b, rq.seq, rq.type, ERR_UNKNOWN_TYPE, "not a request");
 		return;
 	}

@@ -33,8 +33,9 @@ except ImportError:  # pragma: no cover
 
 from hilident.adapters.base import AdapterBase, ConnectReport, Deliver, RunResult, RunStrategy
 from hilident.adapters.ports import open_failure
+from hilident.adapters.serial import loop as board_loop
 from hilident.config.tables import DeviceConfig
-from hilident.drivers.description import DriverDescription
+from hilident.drivers.description import DriverDescription, serial_loop
 from hilident.errors import DeviceError, ProtocolError
 from hilident.events import Kind, RunEvent
 from hilident.filters.biquad import Biquad
@@ -74,6 +75,14 @@ _FAULT_MEANING = {
     sb.FaultCode.WATCHDOG: "the board's watchdog stopped a run whose host went silent",
     sb.FaultCode.NONE: "no fault code given",
 }
+
+
+class BoardRefusal(DeviceError):
+    """The board answered a request with a NAK; :attr:`nak` is that answer (its code and detail)."""
+
+    def __init__(self, message: str, nak: sb.Nak):
+        super().__init__(message)
+        self.nak = nak
 
 
 def board_stored_form(biquad: Biquad) -> Biquad:
@@ -422,8 +431,9 @@ class SerialBoardAdapter(AdapterBase):
         finally:
             self._backlog = keep + self._backlog
         if refusal is not None:
-            raise DeviceError(
-                f"{self.port}: board refused {type(msg).__name__}: {refusal.error.name} ({refusal.detail})"
+            raise BoardRefusal(
+                f"{self.port}: board refused {sb.MsgType(kind).name}: {refusal.error.name} ({refusal.detail})",
+                refusal,
             )
         if answer is not None:
             return answer
@@ -548,6 +558,52 @@ class SerialBoardAdapter(AdapterBase):
     def _stored_form(self, biquad: Biquad, spec: NotchSpec | None) -> Biquad:
         """The coefficients as this board stores them (REAL32), for read-back comparison (``spec`` is not used)."""
         return board_stored_form(biquad)
+
+    # --- the loop (PROTOCOL.md sections 4.15, 4.16) ----------------------------------------------
+
+    def _read_loop(self) -> dict[str, float] | None:
+        """The cascade's six parameters, SI units: LOOP's, a fixed value of ``[loop]`` replacing the board's.
+        None when the driver has no ``[loop]`` or the board has no READ_LOOP (NAK UNKNOWN_TYPE: older firmware).
+        """
+        loop = serial_loop(self.driver)
+        if loop is None:
+            return None
+        board = self._board_loop() if loop.held else {}
+        return None if board is None else board_loop.described_values(loop, board)
+
+    def _board_loop(self) -> dict[str, float] | None:
+        """LOOP's six values; None when the board refuses READ_LOOP as an unknown type (it has no loop messages)."""
+        try:
+            return self._request(sb.ReadLoop(), sb.LoopParameters).values()
+        except BoardRefusal as exc:
+            if exc.nak.error != sb.ErrorCode.UNKNOWN_TYPE:
+                raise
+            log.info("%s: the board has no READ_LOOP (%s): its loop is not known", self.port, exc.nak.detail)
+            return None
+
+    def _write_loop(self, values: dict[str, float]) -> None:
+        """WRITE_LOOP with ``values`` (binary32) and the other gains as the board reports them.
+
+        Raises
+        ------
+        DeviceError
+            The board refused WRITE_LOOP (the message names the port, WRITE_LOOP and the NAK's code) or has no
+            loop messages.
+        UsageError
+            ``[loop]`` does not keep a parameter of ``values`` in the LOOP message.
+        """
+        gains = self._stored_loop(values)
+        present = self._board_loop()
+        if present is None:
+            raise DeviceError(f"{self.port}: the board has no loop messages (READ_LOOP: NAK UNKNOWN_TYPE)")
+        self._request(board_loop.write_message(present, gains))
+
+    def _stored_loop(self, values: dict[str, float]) -> dict[str, float]:
+        """``values`` as the board stores them (binary32); UsageError for one ``[loop]`` does not keep in LOOP."""
+        loop = serial_loop(self.driver)
+        for name in values:
+            board_loop.held_in_loop(loop, name, self.port)
+        return board_loop.stored_gains(values, self.port)
 
     # --- streaming ----------------------------------------------------------------------------
 

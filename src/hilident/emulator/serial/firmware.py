@@ -15,6 +15,7 @@ import numpy as np
 
 from hilident.emulator.clock import TablePlayer
 from hilident.emulator.drive import DriveLoop
+from hilident.emulator.serial.loop import loop_parameters, loop_refusal
 from hilident.errors import HilidentError, ProtocolError
 from hilident.filters.biquad import Biquad
 from hilident.protocol import serial_board as sb
@@ -129,7 +130,7 @@ class BoardFirmware:
         except (ValueError, HilidentError) as exc:  # e.g. a value the drive refuses
             error = sb.ErrorCode.BAD_ARGUMENT, str(exc)
         if error is None:
-            if not isinstance(msg, (sb.Identify, sb.StatusRequest, sb.ReadFilter, sb.Excitation)):
+            if not isinstance(msg, (sb.Identify, sb.StatusRequest, sb.ReadFilter, sb.ReadLoop, sb.Excitation)):
                 self.send(sb.Ack(header.seq, header.type))
         else:
             self.send(sb.Nak(header.seq, header.type, error[0], error[1]))
@@ -254,6 +255,18 @@ class BoardFirmware:
             return sb.ErrorCode.BAD_ARGUMENT, f"filter slot {msg.slot} (board has {len(self.drive.filters)})"
         coefficients, enabled = self.drive.filters.read(msg.slot)
         self.send(sb.FilterCoefficients(msg.slot, enabled, coefficients.b, coefficients.a))
+        return None
+
+    def _on_readloop(self, msg: sb.ReadLoop):
+        self.send(loop_parameters(self.drive.tuning))
+        return None
+
+    def _on_writeloop(self, msg: sb.WriteLoop):
+        refusal = loop_refusal(msg)
+        if refusal is not None:
+            return sb.ErrorCode.BAD_ARGUMENT, refusal
+        # all four at once between two processing steps: the next tick runs the new gains, the loop's state on
+        self.drive.retune(**{name: float(getattr(msg, name)) for name in sb.WRITE_LOOP_FIELDS})
         return None
 
     # --- running --------------------------------------------------------------------

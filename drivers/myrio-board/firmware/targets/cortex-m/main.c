@@ -14,18 +14,14 @@ void hal_cortexm_init(uint32_t baud);
 
 static struct board board;
 
-static const struct drive_tuning tuning = {
-	.kp_pos_per_s = 20.0,
-	.kv_nm_per_mps = 100.0,
-	.ti_s = 0.05,
-	.velocity_filter_hz = 400.0,
-	.torque_max_nm = 20.0,
-};
+/* PORT: the amplifier's saturation, N*m (its peak current times the torque
+ * constant). The loop's gains power up as board_config.h's [loop] defaults. */
+#define TORQUE_MAX_NM 20.0
 
 int main(void)
 {
 	hal_cortexm_init(HOST_BAUD);
-	board_init(&board, &tuning);
+	board_init(&board, TORQUE_MAX_NM);
 	for (;;) {
 		hal_wait_tick();
 		board_tick(&board);

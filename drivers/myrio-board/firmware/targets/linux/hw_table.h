@@ -29,8 +29,10 @@ struct board_hw {
 	void (*set_enable)(bool enabled);     /* amplifier enable output */
 	bool (*amplifier_fault)(void);        /* amplifier fault input */
 
-	/* The board's servo loops, tuned for this axis. */
-	struct drive_tuning tuning;
+	/* The amplifier's saturation, N*m (its peak current times the torque
+	 * constant). The loop's gains power up as board_config.h's [loop]
+	 * defaults; a host tunes them for the axis with WRITE_LOOP. */
+	double torque_max_nm;
 };
 
 /* Defined in hw_user.c. */

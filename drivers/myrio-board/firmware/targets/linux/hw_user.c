@@ -24,15 +24,8 @@ const struct board_hw board_hw = {
 	.read_torque_nm = NULL,
 	.set_enable = NULL,
 	.amplifier_fault = NULL,
-	/* Start gentle; tune on the axis (README.md, "First session on a real axis"). */
-	.tuning =
-		{
-			.kp_pos_per_s = 20.0,
-			.kv_nm_per_mps = 100.0,
-			.ti_s = 0.05,
-			.velocity_filter_hz = 400.0,
-			.torque_max_nm = 20.0,
-		},
+	/* At most the torque of the amplifier's peak current (README.md, "Wiring"). */
+	.torque_max_nm = 20.0,
 };
 
 #if 0 /* A sketch for a myRIO-1900 on MSP connector C (untested). */
@@ -114,6 +107,6 @@ const struct board_hw board_hw = {
 	.read_torque_nm = myrio_measured_torque,
 	.set_enable = myrio_enable,
 	.amplifier_fault = myrio_fault,
-	.tuning = {20.0, 100.0, 0.05, 400.0, 20.0},
+	.torque_max_nm = 20.0,
 };
 #endif

@@ -137,7 +137,7 @@ int main(int argc, char **argv)
 	if (o.realtime)
 		go_realtime();
 	ticker_init(&io.ticker, BOARD_LOOP_RATE_HZ, 0);
-	board_init(&board, &board_hw.tuning);
+	board_init(&board, board_hw.torque_max_nm);
 
 	struct sigaction sa;
 	memset(&sa, 0, sizeof sa);
