@@ -9,7 +9,9 @@ gives approximate figures and the caller chooses the grid.
   ``-20 log10 |L|``; the smallest over every such crossing (``inf``: none).
 * **Phase margin**: where ``|L|`` crosses 1, the angle from ``L`` to the
   negative real axis, positive when ``L`` lies below it (phase above -180 deg);
-  the smallest over every crossing.
+  of every crossing, the one where ``L`` lies nearest -1 (the smallest in size: a
+  loop around a lightly damped mode may cross 1 again far from -1, where the
+  signed angle reads near -180 deg without the loop being near instability).
 * **Sensitivity peak** ``Ms``: the largest ``|1 / (1 + L)|``; ``1 / Ms`` is the
   distance from ``L`` to -1 (the modulus margin).
 * **Bandwidth**: the first frequency where a closed-loop response falls 3 dB (half its power)
@@ -41,7 +43,8 @@ class LoopMargins:
     gain_margin_hz : float
         Where it is, Hz (NaN when infinite).
     phase_margin_deg : float
-        Smallest phase margin, degrees (``inf``: ``|L|`` never crosses 1).
+        The phase margin of the gain crossover where ``L`` lies nearest -1, degrees (``inf``: ``|L|`` never
+        crosses 1).
     crossover_hz : float
         The gain crossover of that phase margin, Hz (NaN when none).
     sensitivity_peak : float
@@ -139,7 +142,7 @@ def loop_margins(frequency_hz, open_loop) -> LoopMargins:
     phase = [(hz, -20.0 * math.log10(mag)) for hz, mag in _phase_crossings(f, L) if mag < 1.0]
     gain = [(hz, _phase_margin_deg(point)) for hz, point in _gain_crossings(f, L)]
     gm_hz, gm = min(phase, key=lambda x: x[1], default=(math.nan, math.inf))
-    pm_hz, pm = min(gain, key=lambda x: x[1], default=(math.nan, math.inf))
+    pm_hz, pm = min(gain, key=lambda x: abs(x[1]), default=(math.nan, math.inf))
     sensitivity = np.abs(1.0 / (1.0 + L))
     peak = int(np.argmax(sensitivity))
     return LoopMargins(gm, gm_hz, pm, pm_hz, float(sensitivity[peak]), float(f[peak]))

@@ -87,6 +87,9 @@ class LoopAnalysis:
         The designed notches the figures "with_notch" use.
     upload : dict or None
         The gain step's outcome (:class:`hilident.session.gain_step.GainStep`); None: no gains uploaded.
+    measured : dict or None
+        The loop measured by torque injection (:func:`hilident.pipeline.measured_loop.measured_loop_part`);
+        None: the run did not break the loop.
     """
 
     parameters: dict
@@ -101,6 +104,7 @@ class LoopAnalysis:
     cascade: Cascade | None = None
     notches: tuple = ()
     upload: dict | None = None
+    measured: dict | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -115,6 +119,7 @@ class LoopAnalysis:
             },
             "tuning": self.tuning,
             "upload": self.upload,
+            "measured": self.measured,
             "notes": list(self.notes),
         }
 

@@ -169,6 +169,8 @@ class Session(DeviceConnection):
         self.position_m: float | None = None  # the cart's position at the end of the last recording, m
         self.loop = None  # the drive's loop around the identified plant (a drive with [loop] only)
         self.gains = None  # the gain step ([tuning] upload), while it may have to put the old gains back
+        self._identification = None  # (samples, excitation) of the identification: a torque injection breaks the loop
+        self._friction = None  # the friction fit the identification used
 
     # --- connection -----------------------------------------------------------------------
 
@@ -504,6 +506,9 @@ class Session(DeviceConnection):
         period = excitation.period_samples
         s = self._analysis_samples(exp, excitation, gapped=True)
         present = s.get("present")
+        if exp.name == "identification":
+            self._identification = (s, excitation)  # for a loop measured where the injection breaks it
+            self._friction = friction
         if for_model and present is None:  # a time-domain model needs every sample
             self._analysed[exp.name] = s
         elif for_model and cfg.model.kind != "none":
@@ -637,11 +642,54 @@ class Session(DeviceConnection):
             self.warnings.append(f"loop: no margins: {exc}")
             return None
         self.notes += analysis.notes
+        analysis.measured = self._measured_loop(analysis)
         if analysis.seen is not None:  # for hilident upload --gains: the plant the gains are checked on
             from hilident.pipeline.loop_plant import PLANT_FILE, save_seen_plant
 
             save_seen_plant(self.out / PLANT_FILE, analysis.seen)
         return analysis
+
+    def _measured_loop(self, analysis) -> dict | None:
+        """The loop measured where a torque injection breaks it (identification in ``torque_injection`` with the
+        torque command recorded); None otherwise."""
+        from hilident.pipeline.measured_loop import measured_loop_part
+
+        if self._identification is None or self.cfg.excitation.mode != "torque_injection":
+            return None
+        s, excitation = self._identification
+        if "torque_cmd_nm" not in s:
+            return None
+        if analysis.seen is None or analysis.cascade is None:
+            return None
+        frf, warnings = pipeline_responses.loop_response(
+            s["excitation"],
+            s["torque_cmd_nm"],
+            self.cfg.run.sample_rate_hz,
+            self.cfg.identification,
+            excitation.period_samples,
+            excitation.excited_bins,
+            present=s.get("present"),
+        )
+        self.warnings += warnings
+        friction = None
+        if self._friction is not None:  # its part of the command out, as from the plant's torque
+            friction, _ = pipeline_responses.loop_response(
+                s["excitation"],
+                self._friction.fit.predict(np.nan_to_num(s["velocity_mps"])),
+                self.cfg.run.sample_rate_hz,
+                self.cfg.identification,
+                excitation.period_samples,
+                excitation.excited_bins,
+                present=s.get("present"),
+            )
+        return measured_loop_part(
+            frf,
+            analysis.cascade,
+            analysis.seen,
+            self.cfg.run.sample_rate_hz,
+            self.cfg.identification.coherence_threshold,
+            friction,
+        )
 
     def _gain_step(self, upload: UploadOutcome, friction) -> None:
         """The proposed gains into the drive, proven by a closed-loop run or put back
