@@ -93,3 +93,19 @@ def test_the_section_shows_the_gains_uploaded_and_the_closed_loop_against_its_pr
     refused = {"uploaded": False, "kept": False, "reason": "refused before upload: the gains ... would leave ..."}
     html = loop(SimpleNamespace(summary={"loop": {**json.loads(json.dumps(LOOP)), "upload": refused}}))
     assert "not written" in html and "refused before upload" in html
+
+
+def test_the_section_shows_the_loop_measured_by_injection_beside_the_prediction():
+    measured = {
+        "loop": "torque",
+        "lines": 309,
+        "measured_lines": 140,
+        "measured": {**FIGURES, "phase_margin_deg": 19.28},
+        "predicted": {**FIGURES, "phase_margin_deg": 19.47},
+        "rms_gain_difference_db": 1.2,
+        "rms_phase_difference_deg": 7.1,
+        "note": "measured: the margins on the lines where |L| >= 0.1",
+    }
+    html = loop(SimpleNamespace(summary={"loop": {**json.loads(json.dumps(LOOP)), "measured": measured}}))
+    assert "measured (torque injection)" in html and "19.3 deg" in html and "19.5 deg" in html
+    assert "140 lines" in html

@@ -131,6 +131,23 @@ def _upload(upload: Any) -> str:
     return key_values(pairs)
 
 
+def _measured(measured: Any) -> str:
+    """The loop measured by torque injection beside the one predicted."""
+    if not isinstance(measured, dict) or not isinstance(measured.get("predicted"), dict):
+        return ""
+    rows = [
+        [esc(label), *_figure_cells(measured[key])]
+        for key, label in (("measured", "measured (torque injection)"), ("predicted", "predicted"))
+        if isinstance(measured.get(key), dict)
+    ]
+    caption = (
+        f"Both loops closed, broken at the torque command: measured on {measured.get('measured_lines')} lines, "
+        f"rms difference {num(measured.get('rms_gain_difference_db'), 'dB', 3)}, "
+        f"{num(measured.get('rms_phase_difference_deg'), 'deg', 3)}"
+    )
+    return table(["", *_HEADER], rows, caption) + note(str(measured.get("note", "")))
+
+
 def loop(inputs: ReportInputs) -> str:
     """``summary.json["loop"]``: the drive's loop around the plant, and the gains proposed."""
     part = inputs.summary.get("loop")
@@ -151,5 +168,6 @@ def loop(inputs: ReportInputs) -> str:
         ),
     ]
     notes = "".join(note(str(n)) for n in part.get("notes") or [])
-    body = key_values(pairs) + _present(part) + _tuning(part.get("tuning")) + _upload(part.get("upload"))
+    body = key_values(pairs) + _present(part) + _measured(part.get("measured"))
+    body += _tuning(part.get("tuning")) + _upload(part.get("upload"))
     return section("loop", "The drive's loop", body + notes)
