@@ -191,6 +191,9 @@ class ClosedLoopCheck:
         allowed the tolerance plus that scatter.
     left_out : int
         Lines of the band not compared: their measurement is not trusted (below the coherence threshold).
+    spread_db, spread_deg : ndarray or float
+        Per line, how far the prediction on the plant's variants (its modes at the ends of their 95 %
+        intervals) lies from the nominal one, dB and degrees; added to what each line is allowed.
     """
 
     frequency_hz: np.ndarray
@@ -202,18 +205,19 @@ class ClosedLoopCheck:
     tolerance_deg: float
     scatter: np.ndarray
     left_out: int = 0
+    spread_db: np.ndarray | float = 0.0
+    spread_deg: np.ndarray | float = 0.0
 
     @property
     def allowed_db(self) -> np.ndarray:
-        """Per line: the tolerance plus the measurement's scatter, dB."""
-        return self.tolerance_db + 20.0 * np.log10(1.0 + self.scatter)
+        """Per line: the tolerance plus the measurement's scatter and the prediction's spread, dB."""
+        return self.tolerance_db + 20.0 * np.log10(1.0 + self.scatter) + self.spread_db
 
     @property
     def allowed_deg(self) -> np.ndarray:
-        """Per line: the tolerance plus the measurement's scatter, degrees."""
-        return np.where(
-            self.scatter >= 1.0, 180.0, self.tolerance_deg + np.degrees(np.arcsin(np.minimum(self.scatter, 1.0)))
-        )
+        """Per line: the tolerance plus the measurement's scatter and the prediction's spread, degrees."""
+        scatter_deg = np.degrees(np.arcsin(np.minimum(self.scatter, 1.0)))
+        return np.where(self.scatter >= 1.0, 180.0, self.tolerance_deg + scatter_deg + self.spread_deg)
 
     @property
     def outside(self) -> np.ndarray:
@@ -246,6 +250,7 @@ class ClosedLoopCheck:
             "tolerance_db": self.tolerance_db,
             "tolerance_deg": self.tolerance_deg,
             "median_scatter": float(np.median(self.scatter)),
+            "largest_prediction_spread_db": float(np.max(self.spread_db, initial=0.0)),
             "lines_outside": int(self.outside.sum()),
             "within_tolerance": self.within_tolerance,
         }
@@ -285,12 +290,14 @@ def compare_closed_loop(
     tolerance_deg: float,
     scatter=None,
     usable=None,
+    variants=(),
 ) -> ClosedLoopCheck:
     """The measured response against the prediction on the lines inside ``band_hz`` where both are finite.
 
     ``scatter`` (:func:`line_scatter`, per line of ``frequency_hz``) widens each line's tolerance by the
     measurement's own uncertainty (default none); ``usable`` (bool per line, e.g. the coherence threshold
-    met) leaves the others out, as the identification leaves out lines it cannot trust.
+    met) leaves the others out, as the identification leaves out lines it cannot trust; ``variants`` (the
+    prediction on the plant's variants, per line) widen each line by the prediction's own spread.
 
     Raises
     ------
@@ -307,6 +314,11 @@ def compare_closed_loop(
         raise ValueError(f"no measured line in {band_hz[0]:g}-{band_hz[1]:g} Hz to compare with the prediction")
     ratio = m[keep] / p[keep]
     spread = np.zeros(f.shape) if scatter is None else np.nan_to_num(np.asarray(scatter, dtype=float), nan=np.inf)
+    spread_db, spread_deg = np.zeros(int(keep.sum())), np.zeros(int(keep.sum()))
+    for v in variants:
+        off = np.asarray(v, dtype=complex)[keep] / p[keep]
+        spread_db = np.maximum(spread_db, np.nan_to_num(np.abs(20.0 * np.log10(np.abs(off)))))
+        spread_deg = np.maximum(spread_deg, np.nan_to_num(np.abs(np.degrees(np.angle(off)))))
     return ClosedLoopCheck(
         f[keep],
         m[keep],
@@ -317,6 +329,8 @@ def compare_closed_loop(
         float(tolerance_deg),
         spread[keep],
         in_band - int(keep.sum()),
+        spread_db,
+        spread_deg,
     )
 
 

@@ -152,7 +152,7 @@ class GainStep:
         )
         self.warnings += warnings
         f = measured.frequency_hz
-        predicted = closed_loop.predicted_setpoint_response(cascade, seen, f, fs)[0]
+        predicted, *variants = closed_loop.predicted_setpoint_response(cascade, seen, f, fs)
         response = measured.response
         if self.friction is not None:  # the friction's part of the response out, as from the plant's torque
             friction, _ = loop_response(
@@ -182,6 +182,7 @@ class GainStep:
             t.tolerance_deg,
             scatter,
             usable=measured.coherence >= cfg.identification.coherence_threshold,
+            variants=variants,
         )
         self.part["closed_loop"] = {
             **check.to_dict(),
