@@ -166,17 +166,7 @@ def parse_loop(table, source: str = "", kinds: tuple[str, ...] = ("object",)) ->
 
 def _parameter(name: str, entry, source: str, kinds: tuple[str, ...]) -> LoopParameter:
     key = f"loop.{name}"
-    if isinstance(entry, (int, float)) and not isinstance(entry, bool):
-        entry = {"value": entry}
-    allowed = " or ".join([LOCATIONS[k] for k in kinds] + ["{ value = ... }"])
-    if not isinstance(entry, dict) or len({*LOCATIONS, "value"} & set(entry)) != 1:
-        raise ConfigError(key, f"must be {allowed}", source)
-    keys = {*kinds, "value"} | ({"scale"} if "object" in entry else set())
-    extra = sorted(set(entry) - keys)
-    if extra:
-        raise ConfigError(
-            f"{key}.{extra[0]}", f"is not a key of a loop parameter of this driver ({', '.join(sorted(keys))})", source
-        )
+    entry = _checked_entry(key, entry, source, kinds)
     if "register" in entry:
         register = entry["register"]
         if not isinstance(register, str) or not register:
@@ -188,14 +178,34 @@ def _parameter(name: str, entry, source: str, kinds: tuple[str, ...]) -> LoopPar
         if entry["message"] not in MESSAGES:
             raise ConfigError(f"{key}.message", f"must be one of {list(MESSAGES)}, got {entry['message']!r}", source)
         return LoopParameter(name, message=entry["message"])
-    scale = entry.get("scale", 1.0)
-    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not (math.isfinite(scale) and scale > 0):
-        raise ConfigError(
-            f"{key}.scale", f"must be a finite number > 0 (SI units per stored unit), got {scale!r}", source
-        )
     if "object" in entry:
-        return LoopParameter(name, address=parse_address(entry["object"], f"{key}.object", source), scale=float(scale))
+        scale = _scale(key, entry.get("scale", 1.0), source)
+        return LoopParameter(name, address=parse_address(entry["object"], f"{key}.object", source), scale=scale)
     value = entry["value"]
     if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value) or value < 0:
         raise ConfigError(f"{key}.value", f"must be a number >= 0 (inf allowed), got {value!r}", source)
     return LoopParameter(name, value=float(value))
+
+
+def _checked_entry(key: str, entry, source: str, kinds: tuple[str, ...]) -> dict:
+    """The entry as a table with one location (of ``kinds``) or a value, and no key it cannot have."""
+    if isinstance(entry, (int, float)) and not isinstance(entry, bool):
+        entry = {"value": entry}
+    allowed = " or ".join([LOCATIONS[k] for k in kinds] + ["{ value = ... }"])
+    if not isinstance(entry, dict) or len({*LOCATIONS, "value"} & set(entry)) != 1:
+        raise ConfigError(key, f"must be {allowed}", source)
+    keys = {*kinds, "value"} | ({"scale"} if "object" in entry else set())
+    extra = sorted(set(entry) - keys)
+    if extra:
+        raise ConfigError(
+            f"{key}.{extra[0]}", f"is not a key of a loop parameter of this driver ({', '.join(sorted(keys))})", source
+        )
+    return entry
+
+
+def _scale(key: str, scale, source: str) -> float:
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not (math.isfinite(scale) and scale > 0):
+        raise ConfigError(
+            f"{key}.scale", f"must be a finite number > 0 (SI units per stored unit), got {scale!r}", source
+        )
+    return float(scale)

@@ -169,7 +169,8 @@ class Session(DeviceConnection):
         self.position_m: float | None = None  # the cart's position at the end of the last recording, m
         self.loop = None  # the drive's loop around the identified plant (a drive with [loop] only)
         self.gains = None  # the gain step ([tuning] upload), while it may have to put the old gains back
-        self._identification = None  # (samples, excitation) of the identification: a torque injection breaks the loop
+        # (samples, excitation) of the identification: a torque injection breaks the loop there
+        self._identification: tuple[dict, Excitation] | None = None
         self._friction = None  # the friction fit the identification used
 
     # --- connection -----------------------------------------------------------------------
