@@ -119,6 +119,20 @@ def loop_response(
     ), warnings
 
 
+def periods_response(samples: dict, output, excitation, sample_rate_hz: float, cfg: IdentificationConfig):
+    """:func:`loop_response` from a record's selected ``samples`` (their ``excitation`` and ``present``) to
+    ``output`` (one of them, or another signal of the same samples), for the ``excitation`` it played."""
+    return loop_response(
+        samples["excitation"],
+        output,
+        sample_rate_hz,
+        cfg,
+        excitation.period_samples,
+        excitation.excited_bins,
+        present=samples.get("present"),
+    )
+
+
 def pooled_loop_response(
     excitations, outputs, sample_rate_hz: float, cfg: IdentificationConfig, period_samples: int, excited_bins=None
 ) -> FrequencyResponse:

@@ -31,7 +31,7 @@ from hilident.filters.biquad import Biquad
 from hilident.pipeline import closed_loop
 from hilident.pipeline.gain_check import check_gains
 from hilident.pipeline.loop_analysis import LoopAnalysis, tuning_targets
-from hilident.pipeline.responses import loop_response
+from hilident.pipeline.responses import periods_response
 from hilident.signals.excitation import build_excitation
 
 __all__ = ["GainStep", "uploaded_notches"]
@@ -141,29 +141,14 @@ class GainStep:
         self.progress.step(f"loop: closed-loop run, velocity set-point multisine of {amplitude:.3g} m/s peak")
         exp = self.record(RECORDING, "velocity", excitation.samples, period_samples=excitation.period_samples)
         s = self.samples(exp, excitation)
-        measured, warnings = loop_response(
-            s["excitation"],
-            s["velocity_mps"],
-            fs,
-            cfg.identification,
-            excitation.period_samples,
-            excitation.excited_bins,
-            present=s.get("present"),
-        )
+        measured, warnings = periods_response(s, s["velocity_mps"], excitation, fs, cfg.identification)
         self.warnings += warnings
         f = measured.frequency_hz
         predicted, *variants = closed_loop.predicted_setpoint_response(cascade, seen, f, fs)
         response = measured.response
         if self.friction is not None:  # the friction's part of the response out, as from the plant's torque
-            friction, _ = loop_response(
-                s["excitation"],
-                self.friction.fit.predict(np.nan_to_num(s["velocity_mps"])),
-                fs,
-                cfg.identification,
-                excitation.period_samples,
-                excitation.excited_bins,
-                present=s.get("present"),
-            )
+            torque = self.friction.fit.predict(np.nan_to_num(s["velocity_mps"]))
+            friction, _ = periods_response(s, torque, excitation, fs, cfg.identification)
             raw = closed_loop.compare_closed_loop(
                 f, response, predicted, excitation.band_hz, cfg.tuning.tolerance_db, cfg.tuning.tolerance_deg
             )

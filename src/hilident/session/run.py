@@ -662,27 +662,13 @@ class Session(DeviceConnection):
             return None
         if analysis.seen is None or analysis.cascade is None:
             return None
-        frf, warnings = pipeline_responses.loop_response(
-            s["excitation"],
-            s["torque_cmd_nm"],
-            self.cfg.run.sample_rate_hz,
-            self.cfg.identification,
-            excitation.period_samples,
-            excitation.excited_bins,
-            present=s.get("present"),
-        )
+        rate, ic = self.cfg.run.sample_rate_hz, self.cfg.identification
+        frf, warnings = pipeline_responses.periods_response(s, s["torque_cmd_nm"], excitation, rate, ic)
         self.warnings += warnings
         friction = None
         if self._friction is not None:  # its part of the command out, as from the plant's torque
-            friction, _ = pipeline_responses.loop_response(
-                s["excitation"],
-                self._friction.fit.predict(np.nan_to_num(s["velocity_mps"])),
-                self.cfg.run.sample_rate_hz,
-                self.cfg.identification,
-                excitation.period_samples,
-                excitation.excited_bins,
-                present=s.get("present"),
-            )
+            torque = self._friction.fit.predict(np.nan_to_num(s["velocity_mps"]))
+            friction, _ = pipeline_responses.periods_response(s, torque, excitation, rate, ic)
         return measured_loop_part(
             frf,
             analysis.cascade,
@@ -757,14 +743,8 @@ class Session(DeviceConnection):
         if "present" not in s:  # a time-domain model needs every sample
             self._analysed["verification"] = s
         self.progress.step("verification: frequency response")
-        loop_after, warnings = pipeline_responses.loop_response(
-            s["excitation"],
-            s[self.cfg.identification.output],
-            self.cfg.run.sample_rate_hz,
-            self.cfg.identification,
-            excitation.period_samples,
-            excitation.excited_bins,
-            present=s.get("present"),
+        loop_after, warnings = pipeline_responses.periods_response(
+            s, s[self.cfg.identification.output], excitation, self.cfg.run.sample_rate_hz, self.cfg.identification
         )
         self.warnings += warnings
         nc = self.cfg.notch
