@@ -1,0 +1,178 @@
+"""The drive's loop on each transport's gantry twin: margins predicted against the twin's truth, the gains proposed,
+uploaded and proven by a closed-loop run, the loop measured by torque injection, the friction's intervals. Run by
+hand::
+
+    python bench/loop_tuning.py [--out DIR] [--configs NAME ...]
+
+For each shipped gantry config (serial, CANopen, Modbus) two sessions run on its twin:
+
+1. the config as shipped with ``[tuning] upload = true``: the margins of the present gains (without and with the
+   notch) predicted from the identified plant against those computed from the twin's own plant and gains, the
+   proposal (bandwidth with and without the notch at the same targets), the gains written and kept or put back,
+   the closed-loop run's measured response against the prediction, the proposal's margins on the twin's own plant;
+2. the same with the excitation injected at the torque (``torque_injection``, 2 N*m): the loop measured where the
+   injection breaks it against the prediction.
+
+Printed: one table per part, and the friction test's Coulomb and viscous levels with their 95 % intervals against
+the twin's truth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from scipy.linalg import expm
+
+import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIGS = ("emulated-gantry", "emulated-canopen-gantry", "emulated-modbus-gantry")
+GAINS = ("kv_nm_per_mps", "ti_s", "kp_pos_per_s")
+PARAMETERS = (*GAINS, "velocity_filter_hz", "current_loop_hz", "delay_ticks")
+
+
+def plant_position(model, f, rate_hz: float) -> np.ndarray:
+    """The twin's plant exactly, as its loop sees it: motor torque held over a tick to the encoder (ZOH)."""
+    from hilident.emulator.plant import state_matrices
+
+    A, B = state_matrices(model)
+    n = A.shape[0]
+    M = np.zeros((n + 1, n + 1))
+    M[:n, :n], M[:n, n] = A, B * model.c
+    E = expm(M / rate_hz)
+    phi, gamma = E[:n, :n], E[:n, n]
+    z = np.exp(2j * np.pi * np.asarray(f, dtype=float) / rate_hz)
+    return np.array([np.linalg.solve(zk * np.eye(n) - phi, gamma)[0] for zk in z])
+
+
+def true_figures(cfg, values: dict, notches, loop: str) -> tuple[float, float]:
+    """(gain margin dB, phase margin deg) of ``loop`` on the twin's own plant with ``values``."""
+    from hilident.control import Cascade, loop_margins
+    from hilident.emulator.device import plant_model
+
+    rate = values["loop_rate_hz"]
+    f = np.geomspace(0.5, 0.45 * rate, 6000)
+    c = Cascade.from_parameters(values, rate, notches)
+    m = loop_margins(f, c.open_loop(f, plant_position(plant_model(cfg.emulator), f, rate), loop))
+    return m.gain_margin_db, m.phase_margin_deg
+
+
+def _session(cfg, out: Path):
+    from hilident.session.run import Session
+
+    session = Session(cfg, out)
+    started = time.monotonic()
+    summary = session.run()
+    return session, summary, time.monotonic() - started
+
+
+def _fmt(x, digits=1) -> str:
+    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.{digits}f}"
+
+
+def tuned(name: str, out: Path) -> None:
+    from hilident.config.tables import load_config
+    from hilident.filters.biquad import Biquad
+
+    cfg = load_config(ROOT / "configs" / f"{name}.toml")
+    cfg = replace(cfg, tuning=replace(cfg.tuning, upload=True))
+    session, summary, took = _session(cfg, out / name)
+    loop = summary["loop"]
+    tuning = session.emulator.drive.tuning  # as the run left it: with the gains it kept
+    up = loop.get("upload") or {}
+    values = {n: getattr(tuning, n) for n in PARAMETERS} | {"loop_rate_hz": tuning.loop_rate_hz}
+    values |= up.get("before") or {}  # the gains the run identified and analysed with
+    notches = [Biquad(np.array(n["b"]), np.array(n["a"])) for n in summary["notch_filters"]]
+    print(f"\n## {name} ({took:.0f} s)")
+    print("| loop | notch | GM predicted / true dB | PM predicted / true deg |")
+    print("|---|---|---|---|")
+    for lp in ("velocity", "position"):
+        for part, filters in (("without_notch", ()), ("with_notch", notches)):
+            got = loop[lp][part]
+            if got is None:
+                continue
+            gm, pm = true_figures(cfg, values, filters, lp)
+            print(
+                f"| {lp} | {part} | {_fmt(got['gain_margin_db'])} / {_fmt(gm)} | "
+                f"{_fmt(got['phase_margin_deg'])} / {_fmt(pm)} |"
+            )
+    t = loop.get("tuning") or {}
+    print(f"verdict: {t.get('verdict')}")
+    before, after = up.get("before") or {}, up.get("readback") or {}
+    print(
+        "gains: "
+        + ", ".join(f"{g} {_fmt(before.get(g), 4)} -> {_fmt(after.get(g), 4)}" for g in GAINS)
+        + f"; kept {up.get('kept')}"
+        + (f" ({up.get('reason')})" if up.get("reason") else "")
+    )
+    if up.get("uploaded"):
+        kept = {**values, **after}
+        for lp in ("velocity", "position"):
+            gm, pm = true_figures(cfg, kept, notches if up.get("proposal") == "with_notch" else (), lp)
+            print(f"  the uploaded gains on the twin's own plant, {lp} loop: GM {_fmt(gm)} dB, PM {_fmt(pm)} deg")
+    for key in ("closed_loop_with_friction", "closed_loop"):
+        c = up.get(key)
+        if c:
+            print(
+                f"  {key}: {c['lines']} lines ({c['lines_left_out']} left out), max {_fmt(c['max_gain_error_db'], 2)} "
+                f"dB at {_fmt(c['max_gain_error_hz'])} Hz, {_fmt(c['max_phase_error_deg'])} deg at "
+                f"{_fmt(c['max_phase_error_hz'])} Hz; rms {_fmt(c['rms_gain_error_db'], 2)} dB, "
+                f"{_fmt(c['rms_phase_error_deg'])} deg; outside {c['lines_outside']}; bandwidth measured "
+                f"{_fmt(c.get('measured_bandwidth_hz'))} / predicted {_fmt(c.get('predicted_bandwidth_hz'))} Hz"
+            )
+    friction(cfg, summary)
+
+
+def friction(cfg, summary) -> None:
+    fr = summary.get("friction") or {}
+    ci = fr.get("ci95") or {}
+    truth = cfg.emulator.friction
+    for p in ("Fc", "Fv"):
+        value = (fr.get("params") or {}).get(p)
+        interval = ci.get(p)
+        print(f"  friction {p}: {_fmt(value, 4)} (95 % {interval}) against {getattr(truth, p)}")
+    if fr.get("extension"):
+        print(f"  friction test: {fr['extension']}")
+
+
+def injected(name: str, out: Path) -> None:
+    from hilident.config.tables import load_config
+
+    cfg = load_config(ROOT / "configs" / f"{name}.toml")
+    cfg = replace(cfg, excitation=replace(cfg.excitation, mode="torque_injection", amplitude_nm=2.0))
+    _, summary, took = _session(cfg, out / f"{name}-injection")
+    m = (summary.get("loop") or {}).get("measured")
+    if not m:
+        print(f"  {name} torque injection: no measured loop ({took:.0f} s)")
+        return
+    got, want = m.get("measured") or {}, m["predicted"]
+    print(
+        f"  torque injection ({took:.0f} s): both loops closed, broken at the torque: PM measured "
+        f"{_fmt(got.get('phase_margin_deg'))} / predicted {_fmt(want['phase_margin_deg'])} deg at "
+        f"{_fmt(got.get('crossover_hz'), 2)} / {_fmt(want['crossover_hz'], 2)} Hz; Ms "
+        f"{_fmt(got.get('sensitivity_peak_db'), 2)} / {_fmt(want['sensitivity_peak_db'], 2)} dB"
+    )
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", help="keep the runs here (default: a temporary folder)")
+    parser.add_argument("--configs", nargs="*", default=list(CONFIGS))
+    args = parser.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(args.out or tmp)
+        for name in args.configs:
+            tuned(name, out)
+            injected(name, out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
