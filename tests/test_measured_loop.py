@@ -21,8 +21,8 @@ TUNING = DriveTuning(
     loop_rate_hz=LOOP_RATE, kv_nm_per_mps=150.0, ti_s=0.03, kp_pos_per_s=30.0, velocity_filter_hz=400.0,
     current_loop_hz=1000.0, delay_ticks=1, torque_max_nm=40.0,
 )  # fmt: skip
-CASCADE = Cascade.from_parameters({n: getattr(TUNING, n) for n in (
-    "kv_nm_per_mps", "ti_s", "kp_pos_per_s", "velocity_filter_hz", "current_loop_hz", "delay_ticks")}, LOOP_RATE)  # fmt: skip
+NAMES = ("kv_nm_per_mps", "ti_s", "kp_pos_per_s", "velocity_filter_hz", "current_loop_hz", "delay_ticks")
+CASCADE = Cascade.from_parameters({n: getattr(TUNING, n) for n in NAMES}, LOOP_RATE)
 
 
 def _injection_record():

@@ -162,6 +162,17 @@ class FrictionTestConfig:
         "Stribeck with fixed exponents, or all six parameters) or coulomb_viscous",
     )
     velocity_deadband_mps: float = _spec(0.0, ge=0, doc="no friction compensation below this speed")
+    target_ci_percent: float = _spec(
+        5.0,
+        ge=0,
+        lt=100,
+        doc="extend the test with further rounds of legs until the 95 % intervals of the Coulomb level Fc and "
+        "the viscous level Fv are within this share of their values, %; 0: only the configured legs",
+    )
+    max_duration_s: float = _spec(
+        300.0, gt=0, doc="longest the whole test may take with its extensions (the legs played, ramps included)"
+    )
+    max_rounds: int = _spec(8, ge=1, le=64, doc="most rounds of legs, the configured round included")
 
 
 #: Where an excitation can enter, and the key of its amplitude (N·m, m/s, m).
@@ -1241,12 +1252,20 @@ def _check_friction_test_limits(cfg: Config, lim: LimitsConfig) -> None:
         raise ConfigError("friction_test.settle_s", "must be shorter than friction_test.hold_s", src)
     if not ft.enabled:
         return
-    _, travel = _friction_extent(cfg)
+    n_samples, travel = _friction_extent(cfg)
     if travel >= (lim.position_max_m - lim.position_min_m) / 2:
         raise ConfigError(
             "friction_test.speeds_mps",
             f"the friction test travels up to {travel:.3f} m, more than half the position window "
             f"[{lim.position_min_m:g}, {lim.position_max_m:g}] m (shorter hold_s or lower speeds)",
+            src,
+        )
+    fixed_s = n_samples / cfg.run.sample_rate_hz
+    if ft.target_ci_percent > 0 and ft.max_duration_s < fixed_s:
+        raise ConfigError(
+            "friction_test.max_duration_s",
+            f"{ft.max_duration_s:g} s is shorter than the configured legs ({fixed_s:.3g} s), which the test "
+            "always plays (a longer max_duration_s, or target_ci_percent = 0 for the configured legs only)",
             src,
         )
 

@@ -347,6 +347,35 @@ def _friction_line(fr: dict) -> str:
     return esc(_STRUCTURES.get(str(fr.get("structure")), str(fr.get("structure", fr.get("model", "?"))))) + ": " + named
 
 
+#: Why the friction test stopped extending itself, as the report says it.
+_FRICTION_STOPS = {
+    "target": "the target was met",
+    "time": "it used its time (friction_test.max_duration_s)",
+    "travel": "no further leg fitted the travel allowed",
+    "rounds": "it played friction_test.max_rounds rounds",
+}
+
+
+def _friction_extension(ext: dict) -> str:
+    """A line on how the friction test extended itself (empty for a fixed test)."""
+    if not ext:
+        return ""
+    widths = _dict(ext.get("half_width_percent"))
+    return (
+        f"<p>The test ran {num(ext.get('rounds'))} round(s) of legs in {num(ext.get('duration_s'), 's', 3)} to "
+        f"bring the 95 % intervals of Fc and Fv within ±{num(ext.get('target_ci_percent'), '%', 3)}: "
+        f"Fc ±{num(widths.get('Fc'), '%', 2)}, Fv ±{num(widths.get('Fv'), '%', 2)}; it stopped because "
+        f"{esc(_FRICTION_STOPS.get(str(ext.get('stopped_by')), str(ext.get('stopped_by'))))}"
+        + (
+            "; the configured round's points disagreed with the longer legs after it (begun before the axis "
+            "settled: a longer friction_test.settle_s) and were left out"
+            if ext.get("first_round_left_out")
+            else ""
+        )
+        + ".</p>"
+    )
+
+
 def friction(inputs: ReportInputs) -> str:
     fr = _dict(inputs.summary.get("friction"))
     if not fr:
@@ -354,13 +383,14 @@ def friction(inputs: ReportInputs) -> str:
             "friction", "Friction fit", note("No friction fit (no friction test was run or recorded with these data).")
         )
     units = _units(fr, FRICTION_UNITS)
-    params, stderr = _dict(fr.get("params")), _dict(fr.get("stderr"))
+    params, stderr, ci95 = _dict(fr.get("params")), _dict(fr.get("stderr")), _dict(fr.get("ci95"))
     used = _used_parameters(fr)
     rows = [
         [
             esc(_FRICTION_NAMES.get(k, k)),
             num(v, units.get(k, "")),
             num(stderr.get(k), units.get(k, ""), 2) if k in used else MISSING,
+            num(ci95.get(k), units.get(k, ""), 2) if k in used else MISSING,
             esc("fitted" if k in used else "fixed: not part of the chosen structure"),
         ]
         for k, v in params.items()
@@ -370,7 +400,8 @@ def friction(inputs: ReportInputs) -> str:
         f"<p>Structure the points support: <strong>{_text(structure)}</strong> (chosen by the corrected "
         f"Akaike criterion from {num(fr.get('points'))} constant-speed "
         f"points); RMS residual {num(fr.get('rms_residual_nm'), 'N*m', 3)}.</p>"
-        + table(["parameter", "value", "standard error", ""], rows)
+        + _friction_extension(_dict(fr.get("extension")))
+        + table(["parameter", "value", "standard error", "95 % interval ±", ""], rows)
     )
     aicc = _dict(fr.get("aicc"))
     if aicc:

@@ -30,7 +30,7 @@ from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import optimize
+from scipy import optimize, stats
 
 from hilident.errors import ConfigError, DataError
 
@@ -38,12 +38,16 @@ __all__ = [
     "StribeckParams",
     "FrictionFit",
     "SteadyStatePoints",
+    "FoldedPoints",
     "stribeck",
     "steady_state_points",
+    "folded_points",
     "fit_stribeck",
     "fit_coulomb_viscous",
     "fit_friction",
     "undetermined",
+    "free_parameters",
+    "sensitivity",
     "compensate",
 ]
 
@@ -122,6 +126,84 @@ class SteadyStatePoints(NamedTuple):
     """Standard deviation of the torque inside the window, N·m."""
 
 
+class FoldedPoints(NamedTuple):
+    """Friction points folded onto positive speeds, one per pair of opposite legs (or per unpaired window).
+
+    A pair of legs run back to back at ``+v`` and ``-v`` is one point: the mean of
+    ``tau sign(v)`` over both windows. A torque that does not change sign with the
+    direction (a load, gravity, a cable chain) and lasts over the pair cancels in it,
+    so the pair, not the window, is the independent measurement.
+    """
+
+    speed: np.ndarray
+    """Mean speed ``|v|`` of the window(s), m/s."""
+    friction: np.ndarray
+    """Mean of ``tau sign(v)`` over the window(s), N·m."""
+    windows: np.ndarray
+    """Windows averaged into the point: 2 for a pair, 1 for a window without its opposite."""
+
+
+def _steady_rows(
+    velocity: ArrayLike, torque: ArrayLike, windows, max_relative_std: float, max_velocity_error: float
+) -> list[tuple[int, float, float, float, float]]:
+    """``(window index, nominal, mean v, mean tau, std tau)`` of each steady window (:func:`steady_state_points`)."""
+    v = np.asarray(velocity, dtype=np.float64)
+    tau = np.asarray(torque, dtype=np.float64)
+    if v.ndim != 1 or tau.ndim != 1 or v.size != tau.size:
+        raise DataError(f"velocity and torque must be 1-D of equal length, got shapes {v.shape} and {tau.shape}")
+    rows = []
+    worst = []
+    for i, window in enumerate(windows):
+        try:
+            start, stop, nominal = window
+        except (TypeError, ValueError):
+            raise ConfigError(
+                f"windows[{i}]", f"must be (start_index, stop_index, nominal_velocity), got {window!r}"
+            ) from None
+        start, stop, nominal = int(start), int(stop), float(nominal)
+        if not 0 <= start < stop <= v.size or stop - start < 2:
+            raise ConfigError(
+                f"windows[{i}]",
+                f"indices ({start}, {stop}) must satisfy 0 <= start < stop - 1 < {v.size}",
+            )
+        if nominal == 0.0:
+            continue
+        vw, tw = v[start:stop], tau[start:stop]
+        if not (np.all(np.isfinite(vw)) and np.all(np.isfinite(tw))):
+            continue
+        vm = vw.mean()
+        rel_std = vw.std() / abs(vm) if vm != 0.0 else np.inf
+        rel_err = abs(vm - nominal) / abs(nominal)
+        worst.append((i, rel_std, rel_err))
+        if rel_std <= max_relative_std and rel_err <= max_velocity_error:
+            rows.append((i, nominal, *_over_distance(vw, tw)))
+    if not rows:
+        detail = ", ".join(f"#{i}: std/mean={s:.3g}, error={e:.3g}" for i, s, e in worst[:5])
+        raise DataError(
+            "no constant-velocity window was steady "
+            f"(max_relative_std={max_relative_std}, max_velocity_error={max_velocity_error}"
+            + (f"; {detail}" if detail else "")
+            + ")"
+        )
+    return rows
+
+
+def _over_distance(v: np.ndarray, tau: np.ndarray) -> tuple[float, float, float]:
+    """Mean velocity and torque of a steady window over the distance travelled, and the torque's spread.
+
+    Each sample counts by the distance it covers (``|v| dt``): the torque's mean is the work
+    per metre. A torque that repeats with the position (cogging, the ripple of a motor's
+    poles) does no work over its periods, but it slows the axis where it holds it back, so a
+    mean over time counts those stretches longer and reads it as friction that grows as the
+    speed falls.
+    """
+    w = np.abs(v)
+    total = float(w.sum())
+    if not total > 0.0:
+        return float(v.mean()), float(tau.mean()), float(tau.std())
+    return float(w @ v) / total, float(w @ tau) / total, float(tau.std())
+
+
 def steady_state_points(
     velocity: ArrayLike,
     torque: ArrayLike,
@@ -129,9 +211,11 @@ def steady_state_points(
     max_relative_std: float = 0.1,
     max_velocity_error: float = 0.25,
 ) -> SteadyStatePoints:
-    """Average torque and velocity over constant-velocity windows.
+    """Average torque and velocity over constant-velocity windows, each over the distance travelled.
 
-    A window counts as steady when both hold:
+    The means weight each sample by the distance it covers (:func:`_over_distance`): a
+    torque that repeats with the position then adds nothing. A window counts as steady
+    when both hold:
 
     * ``std(v) <= max_relative_std * |mean(v)|`` -- the velocity did not
       oscillate, creep or still accelerate (any trend raises the std too);
@@ -167,46 +251,58 @@ def steady_state_points(
     DataError
         The signals differ in length or no window was steady.
     """
-    v = np.asarray(velocity, dtype=np.float64)
-    tau = np.asarray(torque, dtype=np.float64)
-    if v.ndim != 1 or tau.ndim != 1 or v.size != tau.size:
-        raise DataError(f"velocity and torque must be 1-D of equal length, got shapes {v.shape} and {tau.shape}")
-    rows = []
-    worst = []
-    for i, window in enumerate(windows):
-        try:
-            start, stop, nominal = window
-        except (TypeError, ValueError):
-            raise ConfigError(
-                f"windows[{i}]", f"must be (start_index, stop_index, nominal_velocity), got {window!r}"
-            ) from None
-        start, stop, nominal = int(start), int(stop), float(nominal)
-        if not 0 <= start < stop <= v.size or stop - start < 2:
-            raise ConfigError(
-                f"windows[{i}]",
-                f"indices ({start}, {stop}) must satisfy 0 <= start < stop - 1 < {v.size}",
-            )
-        if nominal == 0.0:
-            continue
-        vw, tw = v[start:stop], tau[start:stop]
-        if not (np.all(np.isfinite(vw)) and np.all(np.isfinite(tw))):
-            continue
-        vm = vw.mean()
-        rel_std = vw.std() / abs(vm) if vm != 0.0 else np.inf
-        rel_err = abs(vm - nominal) / abs(nominal)
-        worst.append((i, rel_std, rel_err))
-        if rel_std <= max_relative_std and rel_err <= max_velocity_error:
-            rows.append((vm, tw.mean(), tw.std()))
-    if not rows:
-        detail = ", ".join(f"#{i}: std/mean={s:.3g}, error={e:.3g}" for i, s, e in worst[:5])
-        raise DataError(
-            "no constant-velocity window was steady "
-            f"(max_relative_std={max_relative_std}, max_velocity_error={max_velocity_error}"
-            + (f"; {detail}" if detail else "")
-            + ")"
-        )
-    arr = np.array(rows)
+    rows = _steady_rows(velocity, torque, windows, max_relative_std, max_velocity_error)
+    arr = np.array([r[2:] for r in rows])
     return SteadyStatePoints(arr[:, 0], arr[:, 1], arr[:, 2])
+
+
+def folded_points(
+    velocity: ArrayLike,
+    torque: ArrayLike,
+    windows,
+    max_relative_std: float = 0.1,
+    max_velocity_error: float = 0.25,
+) -> FoldedPoints:
+    """The steady windows of :func:`steady_state_points`, each pair of opposite legs averaged into one point.
+
+    Two windows pair when they follow each other in ``windows`` and their nominal
+    velocities are opposite (``+v`` then ``-v`` or the reverse), as the friction
+    test runs its legs; a steady window whose neighbour is missing or not steady
+    stays a point of its own.
+
+    Parameters
+    ----------
+    velocity, torque, windows, max_relative_std, max_velocity_error
+        As :func:`steady_state_points`.
+
+    Returns
+    -------
+    FoldedPoints
+        One entry per pair or unpaired window, in window order.
+
+    Examples
+    --------
+    >>> v = np.r_[np.full(10, 0.1), np.full(10, -0.1), np.full(10, 0.2)]
+    >>> tau = np.r_[np.full(10, 0.5), np.full(10, -0.3), np.full(10, 0.8)]  # 0.1 N*m of load on both
+    >>> p = folded_points(v, tau, [(0, 10, 0.1), (10, 20, -0.1), (20, 30, 0.2)])
+    >>> p.friction.round(3).tolist(), p.windows.tolist()
+    ([0.4, 0.8], [2, 1])
+    """
+    rows = _steady_rows(velocity, torque, windows, max_relative_std, max_velocity_error)
+    points = []
+    k = 0
+    while k < len(rows):
+        i, nominal, vm, tm, _ = rows[k]
+        following = rows[k + 1] if k + 1 < len(rows) else None
+        if following is not None and following[0] == i + 1 and following[1] == -nominal:
+            _, _, vm2, tm2, _ = following
+            points.append(((abs(vm) + abs(vm2)) / 2, (tm * np.sign(vm) + tm2 * np.sign(vm2)) / 2, 2))
+            k += 2
+        else:
+            points.append((abs(vm), tm * np.sign(vm), 1))
+            k += 1
+    arr = np.array(points, dtype=np.float64)
+    return FoldedPoints(arr[:, 0], arr[:, 1], arr[:, 2].astype(np.int64))
 
 
 @dataclass(frozen=True)
@@ -243,9 +339,33 @@ class FrictionFit:
     structure: str = ""
     criterion: dict[str, float] = field(default_factory=dict)
 
+    @property
+    def dof(self) -> int:
+        """Residual degrees of freedom, points minus fitted parameters (:func:`free_parameters`).
+
+        The standard errors rest on the scatter of the points about the curve, so an
+        interval takes Student's t with this many degrees (:meth:`half_width`).
+        """
+        return self.n_points - len(free_parameters(self))
+
     def predict(self, v: ArrayLike) -> np.ndarray:
         """Friction torque (N·m) at velocity `v` (m/s)."""
         return stribeck(v, self.params)
+
+    def half_width(self, name: str, level: float = 0.95) -> float:
+        """Half-width of the two-sided ``level`` interval of parameter ``name``, in its unit.
+
+        ``t(dof) * stderr``: the residual scale is estimated from as few points as
+        the fit has, which Student's t accounts for (1.96 would claim more with
+        three degrees of freedom than the points know). Infinite without a
+        degree of freedom; 0 for a fixed parameter.
+        """
+        se = self.stderr.get(name, float("inf"))
+        if se == 0.0:
+            return 0.0
+        if self.dof < 1 or not np.isfinite(se):
+            return float("inf")
+        return float(stats.t.ppf(0.5 + level / 2.0, self.dof) * se)
 
     def to_dict(self) -> dict:
         out = {
@@ -539,22 +659,26 @@ def _stderr(J: np.ndarray, r: np.ndarray, names, params: StribeckParams) -> dict
     return out
 
 
-def fit_coulomb_viscous(v: ArrayLike, tau: ArrayLike) -> FrictionFit:
+def fit_coulomb_viscous(v: ArrayLike, tau: ArrayLike, sigma: ArrayLike | None = None) -> FrictionFit:
     """Linear least squares ``tau = Fc sign(v) + Fv v``, for comparison.
 
     Returns a :class:`FrictionFit` with ``model="coulomb_viscous"`` whose
     params have ``Fs = Fc``, ``delta_v = 1`` and ``vs`` set to the largest speed
     (irrelevant since ``Fs == Fc``); stderr is given for ``Fc`` and ``Fv``.
+    ``sigma``: the relative standard deviation of each point (N·m), as
+    :func:`fit_stribeck` takes it; default equal.
     """
-    a, t, _ = _fold(v, tau, None)
+    a, t, s = _fold(v, tau, sigma)
     if a.size < 3:
         raise DataError(f"{a.size} friction points with v != 0; at least 3 needed")
-    A = np.column_stack([np.ones_like(a), a])
-    coef, *_ = np.linalg.lstsq(A, t, rcond=None)
+    w = 1.0 / s
+    A = np.column_stack([np.ones_like(a), a]) * w[:, None]
+    coef, *_ = np.linalg.lstsq(A, t * w, rcond=None)
     Fc, Fv = (float(c) for c in coef)
-    r = A @ coef - t
+    r = A @ coef - t * w
     s2 = float(r @ r) / max(a.size - 2, 1)
     cov = np.linalg.pinv(A.T @ A) * s2
+    r = np.column_stack([np.ones_like(a), a]) @ coef - t
     params = StribeckParams(Fc=Fc, Fs=Fc, Fv=Fv, vs=float(a.max()), delta_v=1.0, delta_s=2.0)
     stderr = {n: 0.0 for n in _NAMES}
     stderr["Fc"], stderr["Fv"] = (float(x) for x in np.sqrt(np.diag(cov)))
@@ -574,7 +698,17 @@ def _aicc(rss: float, n: int, k: int, floor: float) -> float:
     return n * float(np.log(rss / n)) + penalty
 
 
-def fit_friction(v: ArrayLike, tau: ArrayLike) -> FrictionFit:
+#: Share of the Stribeck excess ``Fs - Fc`` still left at the fastest speed measured, above which the
+#: Coulomb level of a fit lies beyond the measured speeds.
+_STRIBECK_LEFT = 0.05
+
+
+def _stribeck_shaped(p: StribeckParams, fastest_mps: float) -> bool:
+    """Whether a Stribeck fit is the structure: ``Fs >= Fc``, and its excess has died out by ``fastest_mps``."""
+    return p.Fs >= p.Fc and float(np.exp(-((fastest_mps / p.vs) ** p.delta_s))) <= _STRIBECK_LEFT
+
+
+def fit_friction(v: ArrayLike, tau: ArrayLike, sigma: ArrayLike | None = None) -> FrictionFit:
     """The friction structure the points support, chosen by AICc.
 
     Fits Coulomb + viscous (2 parameters), Stribeck with the classic exponents
@@ -582,7 +716,10 @@ def fit_friction(v: ArrayLike, tau: ArrayLike) -> FrictionFit:
     keeps the one with the smallest corrected Akaike criterion. Steady-state
     points on a real axis scatter (cogging, load changes, noise); six free
     parameters then fit the scatter and return a Stribeck part of any size.
-    The criterion keeps only what the scatter cannot explain.
+    The criterion keeps only what the scatter cannot explain. A Stribeck fit
+    competes only as that structure: friction falling from a breakaway level
+    ``Fs`` above ``Fc`` to the Coulomb level within the speeds measured
+    (:func:`_stribeck_shaped`); otherwise it bends the curve to the scatter.
 
     Parameters
     ----------
@@ -590,6 +727,9 @@ def fit_friction(v: ArrayLike, tau: ArrayLike) -> FrictionFit:
         Steady velocities, m/s.
     tau : array_like
         Friction torques at those velocities, N·m.
+    sigma : array_like, optional
+        Relative standard deviation of each point, N·m (e.g. ``1 / sqrt(windows)`` of
+        :class:`FoldedPoints`); the criterion then compares weighted residuals.
 
     Returns
     -------
@@ -605,15 +745,18 @@ def fit_friction(v: ArrayLike, tau: ArrayLike) -> FrictionFit:
     >>> fit_friction(v, 0.2 * np.sign(v) + 2.0 * v).structure
     'coulomb_viscous'
     """
-    a, t, _ = _fold(v, tau, None)
+    a, t, s = _fold(v, tau, sigma)
     n = a.size
-    candidates = {"coulomb_viscous": (2, lambda: fit_coulomb_viscous(v, tau))}
+    candidates = {"coulomb_viscous": (2, lambda: fit_coulomb_viscous(v, tau, sigma))}
     if n >= 6:
-        candidates["stribeck_fixed_exponents"] = (4, lambda: fit_stribeck(v, tau, fix_delta_v=1.0, fix_delta_s=2.0))
+        candidates["stribeck_fixed_exponents"] = (
+            4,
+            lambda: fit_stribeck(v, tau, fix_delta_v=1.0, fix_delta_s=2.0, sigma=sigma),
+        )
     if n >= 8:
-        candidates["stribeck"] = (6, lambda: fit_stribeck(v, tau))
+        candidates["stribeck"] = (6, lambda: fit_stribeck(v, tau, sigma=sigma))
     # Residuals below a part in 1e9 of the torque are rounding: exact data ties, and the penalty decides.
-    floor = n * (1e-9 * float(np.abs(t).max())) ** 2
+    floor = n * (1e-9 * float(np.abs(t / s).max())) ** 2
     fits: dict[str, FrictionFit] = {}
     scores: dict[str, float] = {}
     for name, (k, fit) in candidates.items():
@@ -621,12 +764,65 @@ def fit_friction(v: ArrayLike, tau: ArrayLike) -> FrictionFit:
             result = fit()
         except DataError:
             continue
+        if name != "coulomb_viscous" and not _stribeck_shaped(result.params, float(a.max())):
+            continue
         fits[name] = result
-        scores[name] = _aicc(result.rms_residual**2 * n, n, k, floor)
+        weighted = (stribeck(a, result.params) - t) / s
+        scores[name] = _aicc(float(weighted @ weighted), n, k, floor)
     if not fits:
         raise DataError(f"{n} friction points with v != 0 fit no friction structure")
     best = min(scores, key=scores.__getitem__)
     return dataclasses.replace(fits[best], structure=best, criterion=scores)
+
+
+#: The parameters each structure fits (the others are fixed by it).
+_FREE = {
+    "coulomb_viscous": ("Fc", "Fv"),
+    "stribeck_fixed_exponents": ("Fc", "Fs", "Fv", "vs"),
+    "stribeck": _NAMES,
+}
+
+
+def free_parameters(fit: FrictionFit) -> tuple[str, ...]:
+    """The parameters ``fit`` determined from its points, in the order of :data:`_NAMES`."""
+    if fit.structure in _FREE:
+        return _FREE[fit.structure]
+    if fit.model == "coulomb_viscous":
+        return _FREE["coulomb_viscous"]
+    return tuple(n for n in _NAMES if fit.stderr.get(n, 0.0) != 0.0)  # a fixed parameter's is 0
+
+
+def sensitivity(fit: FrictionFit, speeds: ArrayLike) -> np.ndarray:
+    """How the fitted friction magnitude at each speed moves with each free parameter.
+
+    Row ``i`` is the gradient of ``|tau_f|(speeds[i])`` with respect to
+    :func:`free_parameters` (``vs`` as ``log(vs)``, as the fit takes it): with
+    the points' weights it gives the information a point at that speed would
+    add, and so which speeds would narrow an interval most.
+
+    Parameters
+    ----------
+    fit : FrictionFit
+    speeds : array_like
+        Speeds ``|v| > 0``, m/s.
+
+    Returns
+    -------
+    ndarray, shape (len(speeds), len(free_parameters(fit)))
+        In N·m per unit of each parameter (per unit of ``log(vs)`` for ``vs``).
+    """
+    a = np.abs(np.asarray(speeds, dtype=np.float64).ravel())
+    names = list(free_parameters(fit))
+    if "Fs" not in names:  # Coulomb + viscous: Fs is Fc, no Stribeck term
+        return np.column_stack([np.ones_like(a) if n == "Fc" else a for n in names])
+    p = fit.params.to_dict()
+    fixed = {n: v for n, v in p.items() if n not in names}
+    fixed_log = dict(fixed)
+    if "vs" in fixed_log:
+        fixed_log["vs"] = float(np.log(p["vs"]))
+    x = np.array([np.log(p[n]) if n == "vs" else p[n] for n in names])
+    _, jac, _ = _residual_and_jac(a, np.zeros_like(a), np.ones_like(a), names, fixed_log)
+    return jac(x)
 
 
 def undetermined(fit: FrictionFit) -> list[str]:

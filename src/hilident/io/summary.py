@@ -280,6 +280,8 @@ def friction_summary(friction: Any) -> dict | None:
         "stderr": friction.fit.stderr,
         "rms_residual_nm": friction.fit.rms_residual,
         "points": len(friction.points.v_mean),
+        "ci95": friction.intervals(),
+        "extension": friction.extension,
     }
 
 

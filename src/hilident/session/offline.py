@@ -31,7 +31,7 @@ import numpy as np
 from hilident import html_report
 from hilident.config.schema import build_table
 from hilident.config.tables import Config, DataConfig, ModelConfig, parse_config, parse_toml
-from hilident.datafile import RATE_TOLERANCE, Dataset, RunInfo, load_dataset, read_friction_test, read_run_info
+from hilident.datafile import RATE_TOLERANCE, Dataset, RunInfo, load_dataset, read_run_info
 from hilident.errors import ConfigError, DataError, HilidentError, UsageError
 from hilident.io.serialise import write_json
 from hilident.io.summary import Summary, friction_summary
@@ -220,8 +220,9 @@ def run_friction(cfg: Config, info: RunInfo | None, data_path: str | Path, warni
             )
         return None
     try:
-        velocity, torque, windows = read_friction_test(path)
-        result = pipeline_friction.identify_friction(velocity, torque, windows, cfg.friction_test.model)
+        from hilident.session.friction_test import refit_recordings  # every round the run played, pooled
+
+        result = refit_recordings(path, cfg.friction_test.model)
         warnings += result.warnings
         return result
     except HilidentError as exc:

@@ -146,7 +146,13 @@ def make_plan(
         plan.experiments.append(
             PlannedExperiment(
                 "friction",
-                f"constant-velocity legs both ways at {min(speeds):g}..{max(speeds):g} m/s",
+                f"constant-velocity legs both ways at {min(speeds):g}..{max(speeds):g} m/s"
+                + (
+                    f", then further rounds within the same speeds and travel until Fc and Fv are known to "
+                    f"{cfg.friction_test.target_ci_percent:g} %, {cfg.friction_test.max_duration_s:g} s in all at most"
+                    if cfg.friction_test.target_ci_percent > 0
+                    else ""
+                ),
                 friction_mode,
                 len(sp) / fs,
                 len(sp),
