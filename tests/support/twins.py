@@ -149,9 +149,11 @@ def wait_until(condition, timeout_s: float, proc: subprocess.Popen | None = None
 
 def assert_friction_matches(friction: dict, truth) -> None:
     """Fc and Fv agree with the twin's within what the fit says it knows (3 standard errors, at least 5 %),
-    and the fit claims to know them to 15 %: a bench-like twin's disturbances scatter the friction points."""
+    and the fit claims to know them to 25 %: a bench-like twin's disturbances scatter the friction points, and
+    the configured legs alone (the suite's sessions play no added rounds, tests/conftest.py) give a few
+    direction pairs, whose standard error is that of few degrees of freedom."""
     got, stderr = friction["params"], friction["stderr"]
     for name in ("Fc", "Fv"):
         want = getattr(truth, name)
-        assert stderr[name] < 0.15 * want, (name, got[name], stderr[name])
+        assert stderr[name] < 0.25 * want, (name, got[name], stderr[name])
         assert abs(got[name] - want) < max(0.05 * want, 3 * stderr[name]), (name, got[name], stderr[name], want)
