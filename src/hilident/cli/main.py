@@ -62,6 +62,7 @@ def _print_run_summary(summary: dict, quiet: bool) -> None:
     if auto and quiet:  # otherwise the progress already showed it
         print(auto["line"])
     _print_friction(summary["friction"])
+    _print_loop(summary.get("loop"))
     _print_model(summary.get("model"))
     _print_verification(summary["verification"])
     _print_map_verification((summary.get("workspace") or {}).get("verification"))
@@ -82,13 +83,43 @@ def _print_friction(f: dict | None) -> None:
     if not f:
         return
     p = f["params"]
+    ci = f.get("ci95") or {}
+
+    def pm(name: str) -> str:  # the 95 % half-width, where the fit gives one
+        return f" +- {ci[name]:.2g}" if isinstance(ci.get(name), (int, float)) else ""
+
     if f.get("structure") == "coulomb_viscous":
-        print(f"friction: Coulomb + viscous: Fc {p['Fc']:.3g} N*m, Fv {p['Fv']:.3g} N*m/(m/s)")
+        print(f"friction: Coulomb + viscous: Fc {p['Fc']:.3g}{pm('Fc')} N*m, Fv {p['Fv']:.3g}{pm('Fv')} N*m/(m/s)")
     else:
         print(
             f"friction: Stribeck: Fc {p['Fc']:.3g} N*m, Fs {p['Fs']:.3g} N*m, Fv {p['Fv']:.3g} N*m/(m/s), "
             f"vs {p['vs']:.3g} m/s"
         )
+
+
+def _print_loop(loop: dict | None) -> None:
+    """The drive's loop: the velocity loop's margins with the present gains (without and with the notch), what the
+    notch buys or costs, and the gains uploaded (kept or put back)."""
+    if not loop:
+        return
+
+    def margins(figures: dict | None) -> str:
+        if not figures:
+            return "-"
+        gm, pm = figures.get("gain_margin_db"), figures.get("phase_margin_deg")
+        return f"GM {'-' if gm is None else f'{gm:.1f}'} dB, PM {'-' if pm is None else f'{pm:.1f}'} deg"
+
+    v = loop["velocity"]
+    notched = f"; with the notch {margins(v['with_notch'])}" if v.get("with_notch") else ""
+    print(f"loop: velocity loop with the present gains {margins(v['without_notch'])}{notched}")
+    if loop.get("tuning"):
+        print(f"loop: {loop['tuning']['verdict']}")
+    up = loop.get("upload")
+    if up:
+        if up.get("kept"):
+            print(f"loop: gains {up.get('readback')} written, read back and proven by the closed-loop run")
+        else:
+            print(f"loop: gains not kept: {up.get('reason', '')}")
 
 
 def _print_verification(ver: dict) -> None:
