@@ -28,34 +28,21 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from scipy.linalg import expm
 
 import _isolate  # noqa: F401  (first: bench/ off sys.path, see _isolate.py)
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))  # tests/support: the twin's truth, as the suite computes it
 CONFIGS = ("emulated-gantry", "emulated-canopen-gantry", "emulated-modbus-gantry")
 GAINS = ("kv_nm_per_mps", "ti_s", "kp_pos_per_s")
 PARAMETERS = (*GAINS, "velocity_filter_hz", "current_loop_hz", "delay_ticks")
-
-
-def plant_position(model, f, rate_hz: float) -> np.ndarray:
-    """The twin's plant exactly, as its loop sees it: motor torque held over a tick to the encoder (ZOH)."""
-    from hilident.emulator.plant import state_matrices
-
-    A, B = state_matrices(model)
-    n = A.shape[0]
-    M = np.zeros((n + 1, n + 1))
-    M[:n, :n], M[:n, n] = A, B * model.c
-    E = expm(M / rate_hz)
-    phi, gamma = E[:n, :n], E[:n, n]
-    z = np.exp(2j * np.pi * np.asarray(f, dtype=float) / rate_hz)
-    return np.array([np.linalg.solve(zk * np.eye(n) - phi, gamma)[0] for zk in z])
 
 
 def true_figures(cfg, values: dict, notches, loop: str) -> tuple[float, float]:
     """(gain margin dB, phase margin deg) of ``loop`` on the twin's own plant with ``values``."""
     from hilident.control import Cascade, loop_margins
     from hilident.emulator.device import plant_model
+    from support.loop_truth import plant_position  # the twin's plant as its loop sees it, exactly
 
     rate = values["loop_rate_hz"]
     f = np.geomspace(0.5, 0.45 * rate, 6000)

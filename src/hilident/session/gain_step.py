@@ -26,7 +26,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from hilident.errors import DataError, DeviceError, UsageError
+from hilident.errors import UsageError
 from hilident.filters.biquad import Biquad
 from hilident.pipeline import closed_loop
 from hilident.pipeline.gain_check import check_gains
@@ -34,7 +34,7 @@ from hilident.pipeline.loop_analysis import LoopAnalysis, tuning_targets
 from hilident.pipeline.responses import periods_response
 from hilident.signals.excitation import build_excitation
 
-__all__ = ["GainStep", "uploaded_notches"]
+__all__ = ["GainStep", "describe_gains", "put_back_gains", "read_gains", "uploaded_notches"]
 
 #: The recording of the closed-loop run.
 RECORDING = "closed-loop"
@@ -109,17 +109,19 @@ class GainStep:
         check = check_gains(cascade, self.analysis.seen, tuning_targets(self.cfg.tuning), present)
         part.update(expected=expected, check=check.to_dict())
         if not check.stable:
-            return self._skip(f"refused before upload: the gains {_gains(expected)} would leave {check.describe()}")
+            return self._skip(
+                f"refused before upload: the gains {describe_gains(expected)} would leave {check.describe()}"
+            )
         if check.meets_targets is False:
             self.warnings.append(f"loop: the gains as the drive stores them miss the targets: {check.describe()}")
-        self.progress.step(f"loop: uploading gains {_gains(expected)}")
-        self.before = {k: v for k, v in (self.adapter.read_loop() or {}).items() if k in asked}
+        self.progress.step(f"loop: uploading gains {describe_gains(expected)}")
+        self.before = read_gains(self.adapter, asked)
         part["before"] = dict(self.before)
         self.adapter.write_loop(asked)
-        readback = {k: v for k, v in (self.adapter.read_loop() or {}).items() if k in asked}
+        readback = read_gains(self.adapter, asked)
         part.update(uploaded=True, readback=readback, matches=readback == expected)
         if readback != expected:
-            self.restore(f"the gains read back {_gains(readback)}, not the {_gains(expected)} written")
+            self.restore(f"the gains read back {describe_gains(readback)}, not the {describe_gains(expected)} written")
             return part
         self._prove(cascade)
         return part
@@ -195,19 +197,31 @@ class GainStep:
             return
         before, self.before = self.before, None
         self.part.update(kept=False, reason=reason)
-        self.warnings.append(f"loop: {reason}: the previous gains {_gains(before)} were put back")
-        try:
-            self.adapter.write_loop(before)
-            back = {k: v for k, v in (self.adapter.read_loop() or {}).items() if k in before}
-            self.part["restored"] = back == before
-            if back != before:
-                self.warnings.append(f"loop: the gains put back read {_gains(back)}")
-        except (DeviceError, DataError, UsageError, OSError) as exc:
-            self.part["restored"] = False
-            self.warnings.append(f"loop: the previous gains could not be put back: {exc}")
+        self.warnings.append(f"loop: {reason}: the previous gains {describe_gains(before)} were put back")
+        self.part["restored"] = put_back_gains(self.adapter, before, self.warnings, "loop: ")
 
 
-def _gains(values: dict) -> str:
+def read_gains(adapter, names) -> dict[str, float]:
+    """The drive's present values of the parameters ``names``, SI units."""
+    return {k: v for k, v in (adapter.read_loop() or {}).items() if k in names}
+
+
+def put_back_gains(adapter, before: dict, warnings: list[str], prefix: str = "") -> bool:
+    """Write ``before`` back and read it; whether it reads as it was. Never raises: the line may be gone, and
+    what fails becomes a warning (each starting with ``prefix``)."""
+    try:
+        adapter.write_loop(before)
+        back = read_gains(adapter, before)
+    except Exception as exc:  # the ending must go on: say so
+        warnings.append(f"{prefix}the previous gains could not be put back: {exc}")
+        return False
+    if back != before:
+        warnings.append(f"{prefix}the gains put back read {describe_gains(back)}")
+    return back == before
+
+
+def describe_gains(values: dict) -> str:
+    """``(name = value, ...)`` for messages."""
     return "(" + ", ".join(f"{k} = {v:.6g}" for k, v in values.items()) + ")"
 
 

@@ -37,6 +37,7 @@ from hilident.pipeline.gain_check import check_gains
 from hilident.pipeline.loop_plant import PLANT_FILE, load_seen_plant
 from hilident.progress import Progress
 from hilident.protocol.loop_parameters import TUNABLE
+from hilident.session.gain_step import describe_gains, put_back_gains, read_gains
 from hilident.session.upload import _Device, default_out, read_source
 
 __all__ = ["GainUploadCommand", "parse_gain_overrides"]
@@ -193,7 +194,8 @@ class GainUploadCommand:
         check = check_gains(present.with_gains(**expected), self.seen, self._targets(), present)
         if not check.stable:
             raise UsageError(
-                f"refused before upload: the gains {_gains(expected)} would leave {check.describe()}; nothing written"
+                f"refused before upload: the gains {describe_gains(expected)} would leave {check.describe()}; "
+                "nothing written"
             )
         if check.meets_targets is False:
             self.warnings.append(f"the gains miss the source's targets: {check.describe()}")
@@ -227,8 +229,8 @@ class GainUploadCommand:
             [
                 f"gain upload plan for {p.get('driver')} on {p.get('port')} "
                 f"({p.get('proposal')} of {p.get('source')}); nothing moves:",
-                f"  now        {_gains(p.get('before') or {})}",
-                f"  will hold  {_gains(p.get('expected') or {})}",
+                f"  now        {describe_gains(p.get('before') or {})}",
+                f"  will hold  {describe_gains(p.get('expected') or {})}",
                 f"  smallest margins on the plant and its variants: the {w.get('loop')} loop, gain margin "
                 f"{_number(w.get('gain_margin_db'))} dB, phase margin {_number(w.get('phase_margin_deg'))} deg, "
                 f"Ms {_number(w.get('sensitivity_peak'))}",
@@ -239,30 +241,21 @@ class GainUploadCommand:
 
     def _write(self, plan: dict, state: dict) -> None:
         ad = self.device.adapter
-        self.progress.step(f"loop: writing gains {_gains(plan['expected'])}")
+        self.progress.step(f"loop: writing gains {describe_gains(plan['expected'])}")
         state["written"] = True
         ad.write_loop(plan["asked"])
-        back = {k: v for k, v in (ad.read_loop() or {}).items() if k in plan["asked"]}
+        back = read_gains(ad, plan["asked"])
         state["readback"] = back
         if back != plan["expected"]:
             raise DeviceError(
-                f"{ad.port}: the gains read back {_gains(back)}, not the {_gains(plan['expected'])} written; "
-                "the old gains were put back"
+                f"{ad.port}: the gains read back {describe_gains(back)}, not the "
+                f"{describe_gains(plan['expected'])} written; the old gains were put back"
             )
 
     def _put_back(self, state: dict) -> None:
         """The gains the drive held, written back (never raises; what fails becomes a warning)."""
-        ad = self.device.adapter
         state["restored_checked"] = True
-        try:
-            ad.write_loop(state["before"])
-            back = {k: v for k, v in (ad.read_loop() or {}).items() if k in state["before"]}
-            state["restored"] = back == state["before"]
-            if not state["restored"]:
-                self.warnings.append(f"the gains put back read {_gains(back)}")
-        except Exception as exc:  # the line may be gone: say so
-            state["restored"] = False
-            self.warnings.append(f"the previous gains could not be put back: {exc}")
+        state["restored"] = put_back_gains(self.device.adapter, state["before"], self.warnings)
 
     def _summary(self, state: dict, started: float, **failure) -> dict:
         plan = self.plan or {}
@@ -289,10 +282,6 @@ class GainUploadCommand:
         write_json(self.out / "summary.json", summary)
         self.summary = summary
         return summary
-
-
-def _gains(values: dict) -> str:
-    return "(" + ", ".join(f"{k} = {v:.6g}" for k, v in values.items()) + ")"
 
 
 def _number(x) -> str:
