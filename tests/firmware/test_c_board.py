@@ -203,8 +203,9 @@ def hostile_bytes(url: str) -> tuple[list, FrameDecoder]:
         encode_frame(bytes([1, sb.MsgType.EXCITATION, 7, 0, 0, 0, 0, 0, 0xFF, 0xFF]) + bytes(4 * 0xFFFF)[:60_000]),
         encode_frame(bytes([1, sb.MsgType.WRITE_FILTER, 8, 0, 200])),  # too short
     ]
-    # random bodies for every request but WRITE_FILTER (a random notch left enabled would change the plant)
-    kinds = [t for t in range(1, 0x0C) if t != sb.MsgType.WRITE_FILTER]
+    # random bodies for every request but the writes (a random notch or gain left in place would change the plant)
+    kinds = [t for t in sb.MsgType if t < 0x80 and t not in (sb.MsgType.WRITE_FILTER, sb.MsgType.WRITE_LOOP)]
+    assert sb.MsgType.READ_LOOP in kinds
     frames += [encode_frame(bytes([1, rng.choice(kinds), 9, 0]) + rng.randbytes(rng.randrange(40))) for _ in range(200)]
     frames.append(encode_frame(sb.encode(sb.Identify(), 10)))
     decoder = FrameDecoder()
@@ -213,7 +214,7 @@ def hostile_bytes(url: str) -> tuple[list, FrameDecoder]:
         for frame in frames:
             s.sendall(frame)
         s.settimeout(0.2)
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + 30  # a sanitized build on a loaded machine works through them slowly
         while time.monotonic() < deadline and not any(isinstance(m, sb.Identity) for m in answers):
             try:
                 data = s.recv(65536)

@@ -193,6 +193,9 @@ class SerialBoardAdapter(AdapterBase):
         self.sample_rate_hz = 0.0
         # A fresh random start: an answer a killed host's request left on the line never matches ours.
         self._seq = secrets.randbelow(0x10000)
+        # The board may hold the remains of a frame an earlier host was cut off in: a 0x00 before our first
+        # frame ends them there, or they would swallow it (PROTOCOL.md section 2).
+        self._line_opened = True
         self._rx_seq: int | None = None
         self._missing_seqs: set[int] = set()
         self.lost_frames = 0
@@ -324,8 +327,9 @@ class SerialBoardAdapter(AdapterBase):
     def _send(self, msg) -> int:
         self._seq = (self._seq + 1) & 0xFFFF
         exc = (sb.Format.F32, 1.0)
+        lead, self._line_opened = (b"\x00" if self._line_opened else b""), False
         try:
-            self.link.write(encode_frame(sb.encode(msg, self._seq, excitation=exc)))
+            self.link.write(lead + encode_frame(sb.encode(msg, self._seq, excitation=exc)))
         except (serial.SerialException, OSError, LinkClosed) as e:
             raise DeviceError(f"{self.port}: write failed: {e}") from None
         return self._seq
