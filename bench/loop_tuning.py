@@ -8,8 +8,9 @@ For each shipped gantry config (serial, CANopen, Modbus) two sessions run on its
 
 1. the config as shipped with ``[tuning] upload = true``: the margins of the present gains (without and with the
    notch) predicted from the identified plant against those computed from the twin's own plant and gains, the
-   proposal (bandwidth with and without the notch at the same targets), the gains written and kept or put back,
-   the closed-loop run's measured response against the prediction, the proposal's margins on the twin's own plant;
+   proposal (bandwidth with and without the notch at the same targets), the feed-forward proposed against the
+   twin's inertia and friction, the gains written and kept or put back, the closed-loop run's measured response
+   and velocity steps against the prediction, the proposal's margins on the twin's own plant;
 2. the same with the excitation injected at the torque (``torque_injection``, 2 N*m): the loop measured where the
    injection breaks it against the prediction.
 
@@ -36,6 +37,12 @@ sys.path.insert(0, str(ROOT / "tests"))  # tests/support: the twin's truth, as t
 CONFIGS = ("emulated-gantry", "emulated-canopen-gantry", "emulated-modbus-gantry")
 GAINS = ("kv_nm_per_mps", "ti_s", "kp_pos_per_s")
 PARAMETERS = (*GAINS, "velocity_filter_hz", "current_loop_hz", "delay_ticks")
+FEEDFORWARD = (
+    "velocity_feedforward",
+    "accel_feedforward_nm_per_mps2",
+    "viscous_feedforward_nm_per_mps",
+    "friction_feedforward_nm",
+)
 
 
 def true_figures(cfg, values: dict, notches, loop: str) -> tuple[float, float]:
@@ -95,7 +102,9 @@ def tuned(name: str, out: Path) -> None:
     before, after = up.get("before") or {}, up.get("readback") or {}
     print(
         "gains: "
-        + ", ".join(f"{g} {_fmt(before.get(g), 4)} -> {_fmt(after.get(g), 4)}" for g in GAINS)
+        + ", ".join(
+            f"{g} {_fmt(before.get(g), 4)} -> {_fmt(after.get(g), 4)}" for g in (*GAINS, *FEEDFORWARD) if g in after
+        )
         + f"; kept {up.get('kept')}"
         + (f" ({up.get('reason')})" if up.get("reason") else "")
     )
@@ -114,7 +123,40 @@ def tuned(name: str, out: Path) -> None:
                 f"{_fmt(c['rms_phase_error_deg'])} deg; outside {c['lines_outside']}; bandwidth measured "
                 f"{_fmt(c.get('measured_bandwidth_hz'))} / predicted {_fmt(c.get('predicted_bandwidth_hz'))} Hz"
             )
+    feedforward(cfg, t.get("feedforward"))
+    step = up.get("step")
+    if step and "rms_error_percent" in step:
+        m, p = step["measured"], step["predicted"]
+        print(
+            f"  steps +/-{_fmt(step['amplitude_mps'], 4)} m/s, {step['periods']} periods: rms difference "
+            f"{_fmt(step['rms_error_percent'], 2)} % of the step (allowed {_fmt(step['tolerance_percent'])} %); "
+            f"overshoot measured / predicted {_fmt(m['overshoot_percent'])} / {_fmt(p['overshoot_percent'])} %, "
+            f"rise {_fmt(m['rise_time_s'], 3)} / {_fmt(p['rise_time_s'], 3)} s"
+        )
+    elif step:
+        print(f"  steps: {step.get('reason')}")
     friction(cfg, summary)
+
+
+def feedforward(cfg, proposed) -> None:
+    """The feed-forward proposed against the twin's own inertia and friction."""
+    if not proposed:
+        print("  feed-forward: the drive has no terms")
+        return
+    em = cfg.emulator
+    truth = {
+        "velocity_feedforward": 1.0,
+        "accel_feedforward_nm_per_mps2": (em.plant.m1 + em.plant.m2) / em.plant.c,
+        "viscous_feedforward_nm_per_mps": em.friction.Fv,
+        "friction_feedforward_nm": em.friction.Fc,
+    }
+    terms = proposed.get("terms") or {}
+    print(
+        "  feed-forward proposed / true: "
+        + ", ".join(f"{k} {_fmt(v, 4)} / {_fmt(truth[k], 4)}" for k, v in terms.items())
+    )
+    for k, why in (proposed.get("left_out") or {}).items():
+        print(f"  feed-forward {k} left out: {why}")
 
 
 def friction(cfg, summary) -> None:

@@ -154,9 +154,35 @@ def test_the_gains_uploaded_are_kept_and_the_measured_closed_loop_matches_the_pr
     assert part["uploaded"] and part["matches"] and part["kept"], part.get("reason")
     assert part["readback"] == part["expected"] != part["before"]
     check = part["closed_loop"]
-    assert check["within_tolerance"] and check["lines"] > 100 and check["lines_left_out"] < check["lines"] / 10
-    assert abs(check["rms_gain_error_db"]) < 1.0 and abs(check["rms_phase_error_deg"]) < 5.0
+    assert check["within_tolerance"] and check["lines"] > 100 and check["lines_left_out"] < check["lines"] / 10, check
+    # the feed-forward puts a deep dip at the mode into the set-point response: its lines are the noisiest
+    assert abs(check["rms_gain_error_db"]) < 1.0 and abs(check["rms_phase_error_deg"]) < 10.0, check
     assert (Path(session.out) / check["recording"]).is_file()
+
+
+def test_the_feedforward_proposed_is_the_twins_inertia_and_friction_and_is_uploaded(uploaded):
+    cfg, session, summary = uploaded
+    proposed = summary["loop"]["tuning"]["feedforward"]
+    assert proposed["left_out"] == {}
+    terms = proposed["terms"]
+    em = cfg.emulator
+    assert terms["accel_feedforward_nm_per_mps2"] == pytest.approx((em.plant.m1 + em.plant.m2) / em.plant.c, rel=0.05)
+    assert terms["friction_feedforward_nm"] == pytest.approx(em.friction.Fc, rel=0.25)
+    assert terms["viscous_feedforward_nm_per_mps"] == pytest.approx(em.friction.Fv, rel=0.25)
+    assert terms["velocity_feedforward"] == 1.0
+    part = summary["loop"]["upload"]
+    assert set(terms) <= set(part["asked"]) and part["kept"]
+    # read back from the objects, which answer what the drive's loop runs
+    assert part["readback"]["accel_feedforward_nm_per_mps2"] == pytest.approx(terms["accel_feedforward_nm_per_mps2"])
+
+
+def test_the_velocity_steps_after_the_upload_match_the_prediction(uploaded):
+    cfg, session, summary = uploaded
+    step = summary["loop"]["upload"]["step"]
+    assert step["within_tolerance"] and step["rms_error_percent"] < 5.0 and step["periods"] == 4
+    assert step["measured"]["overshoot_percent"] == pytest.approx(step["predicted"]["overshoot_percent"], abs=10)
+    assert (Path(session.out) / step["recording"]).is_file()
+    assert (Path(session.out) / "closed-loop.png").is_file()
 
 
 def test_the_closed_loop_measured_lies_within_2_db_and_10_deg_of_the_twins_own(uploaded):

@@ -109,3 +109,32 @@ def test_the_section_shows_the_loop_measured_by_injection_beside_the_prediction(
     html = loop(SimpleNamespace(summary={"loop": {**json.loads(json.dumps(LOOP)), "measured": measured}}))
     assert "measured (torque injection)" in html and "19.3 deg" in html and "19.5 deg" in html
     assert "140 lines" in html
+
+
+def test_the_section_shows_the_feedforward_proposed_and_the_steps_against_their_prediction():
+    tuning = {
+        **LOOP["tuning"],
+        "feedforward": {
+            "terms": {"accel_feedforward_nm_per_mps2": 5.01, "velocity_feedforward": 1.0},
+            "left_out": {"friction_feedforward_nm": "no friction test ([friction_test]) identified the friction"},
+        },
+    }
+    figures = {"final": 0.95, "overshoot_percent": 36.9, "rise_time_s": 0.019, "settling_time_s": None}
+    step = {
+        "amplitude_mps": 0.0185,
+        "hold_s": 0.1,
+        "periods": 4,
+        "rms_error_percent": 1.28,
+        "prediction_spread_percent": 0.01,
+        "tolerance_percent": 10.0,
+        "within_tolerance": True,
+        "measured": figures,
+        "predicted": {**figures, "overshoot_percent": 35.1},
+    }
+    upload = {"uploaded": True, "kept": True, "step": step}
+    html = loop(SimpleNamespace(summary={"loop": {**json.loads(json.dumps(LOOP)), "tuning": tuning, "upload": upload}}))
+    assert "accel_feedforward_nm_per_mps2 5.01" in html and "friction_feedforward_nm left out" in html
+    assert "1.28 %" in html and "overshoot 36.9 %" in html and "overshoot 35.1 %" in html
+    no_step = {"uploaded": True, "kept": True, "step": {"reason": "the plant is known only on its measured lines"}}
+    html = loop(SimpleNamespace(summary={"loop": {**json.loads(json.dumps(LOOP)), "upload": no_step}}))
+    assert "known only on its measured lines" in html

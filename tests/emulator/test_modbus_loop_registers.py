@@ -17,7 +17,7 @@ from hilident.emulator.factory import build_drive
 from hilident.emulator.modbus.parameter_firmware import ParameterDriveFirmware
 from hilident.emulator.modbus.server import start
 from hilident.errors import DeviceError, UsageError
-from hilident.protocol.loop_parameters import PARAMETERS
+from hilident.protocol.loop_parameters import FEEDFORWARD, PARAMETERS
 from hilident.protocol.modbus.register_map import RegisterMap
 
 CONFIG = Path(__file__).resolve().parents[2] / "configs" / "emulated-modbus-gantry.toml"
@@ -48,7 +48,7 @@ def test_the_host_reads_the_gains_the_drive_runs(twin):
     cfg, emulated, adapter = twin
     tuning = emulated.drive.tuning
     values = adapter.read_loop()
-    assert set(values) == set(PARAMETERS)
+    assert set(values) == set(PARAMETERS) | set(FEEDFORWARD)
     assert values["kv_nm_per_mps"] == cfg.emulator.drive.kv_nm_per_mps == tuning.kv_nm_per_mps
     assert values["ti_s"] != tuning.ti_s and values["ti_s"] == pytest.approx(tuning.ti_s, rel=1e-7)  # f32
     assert values["current_loop_hz"] == tuning.current_loop_hz and values["delay_ticks"] == tuning.delay_ticks

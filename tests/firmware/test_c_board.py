@@ -46,6 +46,9 @@ def session_config(url: str, folder: Path, name: str, **sections: dict) -> Path:
     """The shipped gantry session pointed at ``url``; ``sections`` update its tables."""
     raw = tomllib.loads(SHIPPED.read_text())
     raw["device"]["port"] = url
+    # the configured friction legs only: the test's added rounds are tests/test_friction_extension.py's (as
+    # tests/conftest.py keeps them out of the sessions run in-process)
+    raw.setdefault("friction_test", {}).setdefault("max_rounds", 1)
     for section, values in sections.items():
         raw.setdefault(section, {}).update(values)
     path = folder / f"{name}.toml"

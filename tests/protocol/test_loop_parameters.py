@@ -57,8 +57,8 @@ def test_a_wrong_table_names_its_key(edit, key):
 
 def test_an_object_the_eds_does_not_have_is_refused_naming_it():
     driver = find_driver("canopen-servo")
-    sections = {**driver.sections, "loop": {**driver.sections["loop"], "ti_s": {"object": "0x2400:9"}}}
-    with pytest.raises(ConfigError, match=r"loop\.ti_s\.object.*0x2400:9"):
+    sections = {**driver.sections, "loop": {**driver.sections["loop"], "ti_s": {"object": "0x2400:20"}}}
+    with pytest.raises(ConfigError, match=r"loop\.ti_s\.object.*0x2400:20"):
         CanopenDescription.from_sections(sections, "driver.toml", load_object_dictionary(driver))
 
 

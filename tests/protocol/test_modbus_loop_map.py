@@ -16,7 +16,7 @@ from hilident.emulator.factory import build_drive
 from hilident.emulator.modbus.parameter_firmware import ParameterDriveFirmware
 from hilident.errors import ConfigError, DataError
 from hilident.filters.notch import NotchSpec
-from hilident.protocol.loop_parameters import PARAMETERS, TUNABLE
+from hilident.protocol.loop_parameters import FEEDFORWARD, PARAMETERS, TUNABLE
 from hilident.protocol.modbus.filter_slots import FieldSlots
 from hilident.protocol.modbus.loop_registers import stored_value
 from hilident.protocol.modbus.register_map import RegisterMap
@@ -34,8 +34,8 @@ def sections() -> dict:
 def test_the_shipped_map_keeps_the_four_gains_writable_and_the_rest_read_only():
     m = RegisterMap.from_driver(DRIVER)
     regs = m.loop_registers()
-    assert set(regs) == set(PARAMETERS)
-    assert all(regs[n].writable == (n in TUNABLE) for n in PARAMETERS)
+    assert set(regs) == set(PARAMETERS) | set(FEEDFORWARD)  # the shipped drive has every feed-forward term
+    assert all(regs[n].writable == (n in TUNABLE) for n in regs)
     assert all(r.type != "str" for r in regs.values())
     assert m.describe(regs["ti_s"].address, regs["ti_s"].count) == "registers 132..133 (velocity_integral)"
 

@@ -11,14 +11,14 @@ from hypothesis import strategies as st
 
 from hilident.errors import ProtocolError
 from hilident.protocol import serial_board as sb
-from hilident.protocol.loop_parameters import PARAMETERS, TUNABLE
+from hilident.protocol.loop_parameters import GAINS, PARAMETERS
 
 f32 = st.floats(width=32)  # NaN and the infinities included: the codec carries what the board judges
 
 
 def test_the_fields_are_the_cascades_parameters_in_the_documents_order():
     assert sb.LOOP_FIELDS == tuple(PARAMETERS)
-    assert sb.WRITE_LOOP_FIELDS == TUNABLE
+    assert sb.WRITE_LOOP_FIELDS == GAINS  # the board has no feed-forward terms
 
 
 def test_read_loop_is_an_empty_request():

@@ -361,6 +361,12 @@ class TuningConfig:
     tolerance_deg: float = _spec(
         10.0, gt=0, doc="largest phase difference of the measured closed loop from the prediction, degrees"
     )
+    step_tolerance_percent: float = _spec(
+        10.0,
+        gt=0,
+        doc="largest rms difference of the measured velocity steps from the prediction that keeps the gains, % of "
+        "the step (plus what the plant's uncertainty moves the prediction by)",
+    )
 
 
 @dataclass(frozen=True)
@@ -723,9 +729,21 @@ class DriveConfig:
     accel_feedforward_nm_per_mps2: float = _spec(
         0.0,
         ge=0,
-        doc="position mode: torque fed forward per m/s^2 of "
+        doc="velocity and position mode: torque fed forward per m/s^2 of "
         "the set-point's acceleration, N*m/(m/s^2) (0: none; (m1+m2)/c "
         "cancels the axis's inertia)",
+    )
+    viscous_feedforward_nm_per_mps: float = _spec(
+        0.0,
+        ge=0,
+        doc="velocity and position mode: torque fed forward per m/s of the set-point's velocity, N*m/(m/s) "
+        "(0: none; the viscous friction cancels it)",
+    )
+    friction_feedforward_nm: float = _spec(
+        0.0,
+        ge=0,
+        doc="velocity and position mode: torque fed forward with the sign of the set-point's velocity, N*m "
+        "(0: none; the Coulomb friction cancels it)",
     )
 
 

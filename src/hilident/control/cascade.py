@@ -24,6 +24,16 @@ cascade is tuned loop by loop: the velocity loop broken at the torque,
 ``L_v = K_vel H``; the position loop broken at the velocity set-point with the
 velocity loop closed, ``L_p = K_p C N z^-d G H / (1 + L_v)``.
 
+Feed-forward terms act on the set-point, outside the loops: they change how
+the axis follows its set-point, not the margins. With the set-point held over
+``D`` ticks and its velocity and acceleration taken by backward differences over
+that period, ``s_D = (1 - z^-D) / (D T)``: in velocity mode the torque command
+gains ``F_v r`` with ``F_v = K_visc + K_acc s_D`` (``r`` the velocity set-point);
+in position mode the velocity set-point gains ``K_vff s_D r`` and the torque
+``(K_visc s_D + K_acc s_D^2) r`` (``r`` the position set-point). The Coulomb
+term ``F_c sign(v_r)`` is not linear: it is taken with the friction it cancels
+(:mod:`hilident.pipeline.closed_loop`).
+
 The same model describes the emulated drive (:mod:`hilident.emulator.drive`)
 exactly; a real drive's documentation says which parts it has.
 """
@@ -38,6 +48,7 @@ import numpy as np
 
 from hilident.errors import ConfigError
 from hilident.filters.biquad import Biquad
+from hilident.protocol.loop_parameters import FEEDFORWARD
 
 __all__ = ["Cascade"]
 
@@ -66,6 +77,14 @@ class Cascade:
         loop, loop ticks.
     filters : tuple of Biquad
         The enabled filter slots, in series on the torque command, at the loop rate.
+    velocity_feedforward : float
+        Position mode: share of the set-point's velocity added to the velocity set-point, 1.
+    accel_feedforward_nm_per_mps2 : float
+        Torque added per m/s^2 of the set-point's acceleration, N·m/(m/s^2).
+    viscous_feedforward_nm_per_mps : float
+        Torque added per m/s of the set-point's velocity, N·m/(m/s).
+    friction_feedforward_nm : float
+        Torque added with the sign of the set-point's velocity, N·m (outside the linear model).
     """
 
     loop_rate_hz: float
@@ -76,6 +95,10 @@ class Cascade:
     current_loop_hz: float = math.inf
     delay_ticks: int = 0
     filters: tuple[Biquad, ...] = field(default_factory=tuple)
+    velocity_feedforward: float = 0.0
+    accel_feedforward_nm_per_mps2: float = 0.0
+    viscous_feedforward_nm_per_mps: float = 0.0
+    friction_feedforward_nm: float = 0.0
 
     def __post_init__(self):
         checks = {
@@ -86,6 +109,7 @@ class Cascade:
             "velocity_filter_hz": self.velocity_filter_hz > 0,
             "current_loop_hz": self.current_loop_hz > 0,
             "delay_ticks": isinstance(self.delay_ticks, int) and self.delay_ticks >= 0,
+            **{name: getattr(self, name) >= 0 and math.isfinite(getattr(self, name)) for name in FEEDFORWARD},
         }
         for name, ok in checks.items():
             if not ok:
@@ -105,6 +129,7 @@ class Cascade:
             current_loop_hz=float(values["current_loop_hz"]),
             delay_ticks=int(round(float(values["delay_ticks"]))),
             filters=tuple(filters),
+            **{name: float(values[name]) for name in FEEDFORWARD if name in values},
         )
 
     @property
@@ -190,6 +215,52 @@ class Cascade:
         if loop != "position":
             raise ValueError(f"loop must be 'velocity', 'position' or 'torque', got {loop!r}")
         return self.kp_pos_per_s * self.velocity_controller(f) * self.torque_path(f) * h / (1.0 + velocity_loop)
+
+    def setpoint_difference(self, frequency_hz, setpoint_ticks: int = 1) -> np.ndarray:
+        """``s_D = (1 - z^-D) / (D T)``: a set-point held over ``D`` ticks to its backward difference, 1/s."""
+        d = max(1, int(setpoint_ticks))
+        return (1.0 - self._z_inverse(frequency_hz) ** d) / (d * self.period_s)
+
+    def feedforward_torque(self, frequency_hz, loop: str = "velocity", setpoint_ticks: int = 1) -> np.ndarray:
+        """The linear feed-forward torque per unit set-point: ``K_visc + K_acc s_D`` (N·m per (m/s)) for the
+        velocity set-point, ``K_visc s_D + K_acc s_D^2`` (N·m per m) for the position set-point."""
+        s_d = self.setpoint_difference(frequency_hz, setpoint_ticks)
+        torque = self.viscous_feedforward_nm_per_mps + self.accel_feedforward_nm_per_mps2 * s_d
+        return torque * s_d if loop == "position" else torque
+
+    def setpoint_response(
+        self, frequency_hz, plant_position, loop: str = "velocity", setpoint_ticks: int = 1, what: str = "output"
+    ) -> np.ndarray:
+        """The set-point's response with the feed-forward terms: to the velocity estimate ((m/s) per (m/s),
+        ``"velocity"``) or the encoder position (m per m, ``"position"``); ``what = "torque"``: to the motor
+        torque (N·m per unit set-point). Without feed-forward the velocity and position responses are
+        :meth:`closed_loop`'s.
+
+        Parameters
+        ----------
+        setpoint_ticks : int
+            ``D``: loop ticks each set-point is held (the feed-forward's differences are over that period).
+        """
+        f = np.asarray(frequency_hz, dtype=float)
+        h = np.asarray(plant_position)
+        c, path = self.velocity_controller(f), self.torque_path(f)
+        if loop == "position":
+            s_d = self.setpoint_difference(f, setpoint_ticks)
+            drive = c * (self.kp_pos_per_s + self.velocity_feedforward * s_d)
+        elif loop == "velocity":
+            drive = c
+        else:
+            raise ValueError(f"loop must be 'velocity' or 'position', got {loop!r}")
+        torque = (
+            path
+            * (drive + self.feedforward_torque(f, loop, setpoint_ticks))
+            / (1.0 + self.open_loop(f, h, "torque" if loop == "position" else "velocity"))
+        )
+        if what == "torque":
+            return torque
+        if what != "output":
+            raise ValueError(f"what must be 'output' or 'torque', got {what!r}")
+        return torque * h * (self.velocity_estimate(f) if loop == "velocity" else 1.0)
 
     def closed_loop(self, frequency_hz, plant_position, loop: str = "velocity") -> np.ndarray:
         """The set-point's response: velocity set-point to velocity estimate ((m/s) per (m/s)) for

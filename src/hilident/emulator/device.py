@@ -136,6 +136,8 @@ def build_drive(cfg: EmulatorConfig, driver: DriverDescription) -> DriveLoop:
         delay_ticks=r.delay_ticks,
         velocity_feedforward=d.velocity_feedforward,
         accel_feedforward_nm_per_mps2=d.accel_feedforward_nm_per_mps2,
+        viscous_feedforward_nm_per_mps=d.viscous_feedforward_nm_per_mps,
+        friction_feedforward_nm=d.friction_feedforward_nm,
     )
     # The sensors' noise streams are children 0-2 of the seed; the disturbance is child 3.
     disturbance = ProcessDisturbance(

@@ -32,6 +32,7 @@ from hilident.emulator.plant import Plant
 from hilident.emulator.sensors import SensorModel
 from hilident.errors import ConfigError, DataError, DeviceError
 from hilident.filters.biquad import BiquadChain
+from hilident.protocol.loop_parameters import FEEDFORWARD
 
 __all__ = ["DriveTuning", "DriveLoop", "MODES", "FAULTS"]
 
@@ -70,10 +71,20 @@ class DriveTuning:
         Position mode: fraction of the set-point's velocity added to the velocity
         set-point (0: none, 1: full), as servo drives do in cyclic position mode.
     accel_feedforward_nm_per_mps2 : float
-        Position mode: torque added per m/s^2 of the set-point's acceleration, N·m/(m/s^2)
-        (the axis's inertia over ``c`` cancels the lag of the loops; 0: none).
-        Both derivatives are backward differences over the set-point period
-        (:attr:`DriveLoop.setpoint_ticks`).
+        Torque added per m/s^2 of the set-point's acceleration, N·m/(m/s^2) (the
+        axis's inertia over ``c`` cancels the lag of the loops; 0: none).
+    viscous_feedforward_nm_per_mps : float
+        Torque added per m/s of the set-point's velocity, N·m/(m/s) (the viscous
+        friction; 0: none).
+    friction_feedforward_nm : float
+        Torque added with the sign of the set-point's velocity, N·m (the Coulomb
+        friction; 0: none).
+
+    The torque terms act in velocity and in position mode. The set-point's
+    velocity is the velocity set-point itself in velocity mode, the backward
+    difference of the position set-point in position mode; its acceleration is
+    the backward difference of that velocity; both differences are over the
+    set-point period (:attr:`DriveLoop.setpoint_ticks`).
     """
 
     loop_rate_hz: float = 4000.0
@@ -86,6 +97,8 @@ class DriveTuning:
     delay_ticks: int = 0
     velocity_feedforward: float = 0.0
     accel_feedforward_nm_per_mps2: float = 0.0
+    viscous_feedforward_nm_per_mps: float = 0.0
+    friction_feedforward_nm: float = 0.0
 
     def __post_init__(self):
         for f in fields(self):
@@ -99,7 +112,7 @@ class DriveTuning:
             except (TypeError, ValueError):
                 raise ConfigError(f.name, f"must be a number, got {value!r}") from None
             finite_ok = f.name in ("ti_s", "current_loop_hz")
-            zero_ok = f.name in ("velocity_feedforward", "accel_feedforward_nm_per_mps2")
+            zero_ok = f.name in FEEDFORWARD  # 0: the term is off
             low_ok = x >= 0.0 if zero_ok else x > 0.0
             if isinstance(value, bool) or not low_ok or (not finite_ok and not math.isfinite(x)):
                 bound = (">= 0" if zero_ok else "> 0") + ("" if finite_ok else " and finite")
@@ -239,11 +252,12 @@ class DriveLoop:
         return (self.UNITS[0], self.EXCITATION_UNITS[self.mode], *self.UNITS[2:])
 
     def set_mode(self, mode: str) -> None:
-        """Select the operating mode (one of :data:`MODES`); resets the integrator."""
+        """Select the operating mode (one of :data:`MODES`); resets the integrator and the feed-forward's set-point."""
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
         self.mode = mode
         self._integral = 0.0
+        self._setpoint = None  # a set-point of another mode starts no difference
 
     def set_limits(
         self,
@@ -386,23 +400,25 @@ class DriveLoop:
         integ = self._integral
         motor = self._motor_torque
 
-        kvff, kaff = self.tuning.velocity_feedforward, self.tuning.accel_feedforward_nm_per_mps2
+        tn = self.tuning
+        kvff, kaff = tn.velocity_feedforward, tn.accel_feedforward_nm_per_mps2
+        kvisc, kfric = tn.viscous_feedforward_nm_per_mps, tn.friction_feedforward_nm
         feedforward = self._feedforward_active()
+        of_position = self.mode == "position"  # the set-point's velocity by difference, else the set-point itself
         sp_ticks = max(1, int(self.setpoint_ticks))
         inv_Tsp = inv_T / sp_ticks
         sp, sp_v, sp_a, sp_n = self._setpoint_at_start(feedforward, float(x[0]))
-        ff_v = kvff * sp_v
-        ff_a = kaff * sp_a
+        ff_v, ff_a = _feedforward(sp_v, sp_a, kvff, kaff, kvisc, kfric) if feedforward else (0.0, 0.0)
 
         rows: list[tuple[float, float, float, float, float, float, float]] = []
         append = rows.append
         for e in x.tolist():
             if feedforward:
                 if sp_n == 0:  # a new set-point: its velocity and acceleration by backward differences
-                    v_new = (e - sp) * inv_Tsp
+                    v_new = (e - sp) * inv_Tsp if of_position else e
                     sp_a = (v_new - sp_v) * inv_Tsp
                     sp, sp_v = e, v_new
-                    ff_v, ff_a = kvff * sp_v, kaff * sp_a
+                    ff_v, ff_a = _feedforward(sp_v, sp_a, kvff, kaff, kvisc, kfric)
                 sp_n = (sp_n + 1) % sp_ticks
             p1 = plant.p1
             pm = encoder(p1)
@@ -456,9 +472,15 @@ class DriveLoop:
         return disturbance.torque, (disturbance.load_force if disturbance.load_noise_n else None)
 
     def _feedforward_active(self) -> bool:
-        """Whether the position mode adds the set-point's velocity or acceleration (a feed-forward gain is set)."""
+        """Whether the mode adds feed-forward terms of the set-point: position mode with any feed-forward gain set,
+        velocity mode with a torque term set."""
         tn = self.tuning
-        return self.mode == "position" and bool(tn.velocity_feedforward or tn.accel_feedforward_nm_per_mps2)
+        torque = bool(
+            tn.accel_feedforward_nm_per_mps2 or tn.viscous_feedforward_nm_per_mps or tn.friction_feedforward_nm
+        )
+        return (self.mode == "position" and (torque or bool(tn.velocity_feedforward))) or (
+            self.mode == "velocity" and torque
+        )
 
     def _setpoint_at_start(self, feedforward: bool, first: float) -> tuple[float, float, float, int]:
         """The set-point state a run starts from: ``(set-point, its velocity in unit/s, its acceleration in
@@ -487,6 +509,15 @@ class DriveLoop:
         self._drop_pending_commands()
 
 
+def _feedforward(
+    velocity: float, accel: float, kvff: float, kaff: float, kvisc: float, kfric: float
+) -> tuple[float, float]:
+    """``(velocity added to the velocity set-point, m/s; torque added to the command, N·m)`` for a set-point
+    moving at ``velocity`` (unit/s) and ``accel`` (unit/s^2)."""
+    sign = 1.0 if velocity > 0 else (-1.0 if velocity < 0 else 0.0)
+    return kvff * velocity, kaff * accel + kvisc * velocity + kfric * sign
+
+
 def _excitation_samples(excitation) -> np.ndarray:
     """``excitation`` as a one-dimensional float array of finite samples.
 
@@ -505,7 +536,7 @@ def _excitation_samples(excitation) -> np.ndarray:
 
 def _control_law(loop: DriveLoop):
     """The enabled tick of ``loop`` as it stands: ``tick(e, pm, vf, integ, ff_v, ff_a) -> (cmd, applied, integ,
-    trip)`` (``ff_v``, ``ff_a``: position mode's velocity and torque feed-forward, m/s and N·m).
+    trip)`` (``ff_v``, ``ff_a``: the velocity and torque feed-forward, m/s and N·m).
 
     ``cmd`` is the torque command before the filter slots, ``applied`` the
     torque the power stage is asked for (N·m), ``integ`` the new integrator

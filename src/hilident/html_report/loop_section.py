@@ -44,11 +44,32 @@ def _present(part: dict) -> str:
     return table(["loop", "", *_HEADER], rows, "The drive's present gains around the identified plant")
 
 
+#: The gains and feed-forward terms shown, with their units (a feed-forward term only where the drive has it).
+_GAIN_UNITS = (
+    ("kv_nm_per_mps", "N*m/(m/s)"),
+    ("ti_s", "s"),
+    ("kp_pos_per_s", "1/s"),
+    ("velocity_feedforward", ""),
+    ("accel_feedforward_nm_per_mps2", "N*m/(m/s^2)"),
+    ("viscous_feedforward_nm_per_mps", "N*m/(m/s)"),
+    ("friction_feedforward_nm", "N*m"),
+)
+
+
 def _gains(gains: dict) -> str:
     return ", ".join(
         f"{esc(name)} {num(gains.get(name), unit, 4)}"
-        for name, unit in (("kv_nm_per_mps", "N*m/(m/s)"), ("ti_s", "s"), ("kp_pos_per_s", "1/s"))
+        for name, unit in _GAIN_UNITS
+        if name in gains or name in ("kv_nm_per_mps", "ti_s", "kp_pos_per_s")
     )
+
+
+def _feedforward(part: Any) -> list[tuple[str, str]]:
+    if not isinstance(part, dict):
+        return []
+    pairs = [("feed-forward proposed", _gains(part.get("terms") or {}) or MISSING)]
+    pairs += [(f"{name} left out", esc(str(why))) for name, why in (part.get("left_out") or {}).items()]
+    return pairs
 
 
 def _tuning(tuning: Any) -> str:
@@ -75,6 +96,7 @@ def _tuning(tuning: Any) -> str:
             ),
             ("plants the targets hold on", num(tuning.get("plants"))),
             *gains,
+            *_feedforward(tuning.get("feedforward")),
             ("verdict", esc(str(tuning.get("verdict", "")))),
         ]
     ) + table(["proposed", "loop", *_HEADER], rows, "The proposed gains on the worst of the plants")
@@ -126,9 +148,31 @@ def _upload(upload: Any) -> str:
         pairs += _check_pairs(closed, "measured against predicted")
     if isinstance(upload.get("closed_loop_with_friction"), dict):
         pairs += _check_pairs(upload["closed_loop_with_friction"], "before friction's part was taken out")
+    if isinstance(upload.get("step"), dict):
+        pairs.append(("velocity steps", _step(upload["step"])))
     if upload.get("reason"):
         pairs.append(("why", esc(str(upload["reason"]))))
     return key_values(pairs)
+
+
+def _step_figures(figures: Any) -> str:
+    figures = figures if isinstance(figures, dict) else {}
+    return (
+        f"overshoot {num(figures.get('overshoot_percent'), '%', 3)}, rise {num(figures.get('rise_time_s'), 's', 3)}, "
+        f"settled {num(figures.get('settling_time_s'), 's', 3)}"
+    )
+
+
+def _step(step: dict) -> str:
+    if step.get("reason"):
+        return esc(str(step["reason"]))
+    return (
+        f"+/-{num(step.get('amplitude_mps'), 'm/s', 3)} for {num(step.get('hold_s'), 's', 3)} each, mean of "
+        f"{num(step.get('periods'))} periods: rms difference {num(step.get('rms_error_percent'), '%', 3)} of the "
+        f"step (allowed {num(step.get('tolerance_percent'), '%', 3)} + "
+        f"{num(step.get('prediction_spread_percent'), '%', 3)}); measured {_step_figures(step.get('measured'))}; "
+        f"predicted {_step_figures(step.get('predicted'))}"
+    )
 
 
 def _measured(measured: Any) -> str:

@@ -4,7 +4,7 @@ After gains are uploaded, a run in velocity mode plays a multisine on the
 velocity set-point and records the drive's velocity estimate. The same
 response is predicted from the plant the loop sees
 (:class:`~hilident.pipeline.loop_plant.SeenPlant`) and the cascade as the drive
-now holds it (:class:`~hilident.control.Cascade`, its notches included), as
+now holds it (:class:`~hilident.control.Cascade`, its notches and feed-forward included), as
 the recording sees it: the set-point held over the ``D`` ticks of each sample,
 the velocity read at a sample's first tick, so the response at ``f`` folds the
 tick-level ``T`` of its images,
@@ -34,6 +34,7 @@ __all__ = [
     "closed_loop_amplitude",
     "compare_closed_loop",
     "friction_response",
+    "net_friction_torque",
     "remove_friction",
     "line_scatter",
     "predicted_setpoint_response",
@@ -43,17 +44,12 @@ __all__ = [
 LIMIT_SHARE = 0.5
 
 
-def _tick_response(cascade: Cascade, seen: SeenPlant, f: np.ndarray, what: str) -> list[np.ndarray]:
+def _tick_response(cascade: Cascade, seen: SeenPlant, f: np.ndarray, what: str, d: int) -> list[np.ndarray]:
     """Set-point to ``what`` at the tick rate, on the plant and its variants: ``"velocity"`` (the estimate,
-    ``T``) or ``"torque"`` (the motor torque, ``C N z^-d G / (1 + L)``)."""
-    out = []
-    for h in seen.at(f):
-        if what == "velocity":
-            out.append(cascade.closed_loop(f, h, "velocity"))
-        else:
-            loop = cascade.open_loop(f, h, "velocity")
-            out.append(cascade.velocity_controller(f) * cascade.torque_path(f) / (1.0 + loop))
-    return out
+    ``(C + F_v) N z^-d G V H / (1 + L)``) or ``"torque"`` (the motor torque, ``(C + F_v) N z^-d G / (1 + L)``),
+    the set-point held over ``d`` ticks for the feed-forward's differences."""
+    part = "output" if what == "velocity" else "torque"
+    return [cascade.setpoint_response(f, h, "velocity", d, part) for h in seen.at(f)]
 
 
 def predicted_setpoint_response(
@@ -86,7 +82,7 @@ def predicted_setpoint_response(
         fk = f + k * sample_rate_hz
         zi = np.exp(-2j * np.pi * fk / cascade.loop_rate_hz)
         hold = sum(zi**i for i in range(d))
-        terms = [t * hold / d for t in _tick_response(cascade, seen, fk, what)]
+        terms = [t * hold / d for t in _tick_response(cascade, seen, fk, what, d)]
         if k > 0:  # an image beyond a measured plant's lines is left out (the mechanics fall off up there)
             terms = [np.nan_to_num(t) for t in terms]
         total = terms if total is None else [a + b for a, b in zip(total, terms, strict=True)]
@@ -104,6 +100,17 @@ def friction_response(cascade: Cascade, seen: SeenPlant, frequency_hz) -> np.nda
     f = np.asarray(frequency_hz, dtype=float)
     h = seen.at(f)[0]
     return -cascade.velocity_estimate(f) * h / (1.0 + cascade.open_loop(f, h, "velocity"))
+
+
+def net_friction_torque(fit, velocity_mps, setpoint_mps, coulomb_feedforward_nm: float) -> np.ndarray | None:
+    """The friction torque the loop meets, N·m: the identified curve ``fit`` (None: none identified) at the
+    velocity, less the Coulomb feed-forward the drive adds with the set-point's sign (outside the linear
+    model, so taken with the friction it cancels). None when there is neither."""
+    if fit is None and not coulomb_feedforward_nm:
+        return None
+    v = np.nan_to_num(np.asarray(velocity_mps, dtype=float))
+    torque = np.zeros_like(v) if fit is None else np.asarray(fit.predict(v), dtype=float)
+    return torque - coulomb_feedforward_nm * np.sign(np.nan_to_num(np.asarray(setpoint_mps, dtype=float)))
 
 
 def remove_friction(measured, friction_over_setpoint, response_to_friction) -> np.ndarray:

@@ -13,6 +13,10 @@ driver folder says, for each, where the drive keeps it or what it is:
     current_loop_hz = { value = 1000.0 }                 # fixed by the firmware (the manual's figure)
     delay_ticks = { value = 1 }
 
+A drive with feed-forward terms lists those it has (:data:`FEEDFORWARD`,
+e.g. ``accel_feedforward_nm_per_mps2 = { object = "0x2400:6" }``); a term left
+out is one the drive lacks.
+
 ``value`` may be ``inf`` where the parameter's part is absent (``ti_s = inf``:
 a P controller; ``velocity_filter_hz = inf``: the raw difference;
 ``current_loop_hz = inf``: an ideal current loop). The host reads the objects
@@ -34,7 +38,7 @@ from dataclasses import dataclass
 from hilident.errors import ConfigError
 from hilident.protocol.canopen_types import ObjectAddress, parse_address
 
-__all__ = ["PARAMETERS", "TUNABLE", "LoopDescription", "LoopParameter", "parse_loop"]
+__all__ = ["FEEDFORWARD", "GAINS", "PARAMETERS", "TUNABLE", "LoopDescription", "LoopParameter", "parse_loop"]
 
 #: The cascade's parameters, with their units.
 PARAMETERS = {
@@ -45,8 +49,19 @@ PARAMETERS = {
     "current_loop_hz": "bandwidth of the current loop, Hz (inf: ideal)",
     "delay_ticks": "computation and transport delay, loop ticks",
 }
-#: The parameters a tuner may change; the others are the drive's hardware and firmware.
-TUNABLE = ("kv_nm_per_mps", "ti_s", "kp_pos_per_s", "velocity_filter_hz")
+#: The feed-forward terms a drive may have; one left out of ``[loop]`` is a term the drive lacks. Each acts on
+#: the set-point (its velocity and acceleration by differences over the set-point period), in velocity mode and
+#: in position mode, except ``velocity_feedforward`` (position mode only).
+FEEDFORWARD = {
+    "velocity_feedforward": "position mode: share of the set-point's velocity added to the velocity set-point, 1",
+    "accel_feedforward_nm_per_mps2": "torque per m/s^2 of the set-point's acceleration (inertia), N*m/(m/s^2)",
+    "viscous_feedforward_nm_per_mps": "torque per m/s of the set-point's velocity (viscous friction), N*m/(m/s)",
+    "friction_feedforward_nm": "torque with the sign of the set-point's velocity (Coulomb friction), N*m",
+}
+#: The cascade's parameters a tuner may change; the others are the drive's hardware and firmware.
+GAINS = ("kv_nm_per_mps", "ti_s", "kp_pos_per_s", "velocity_filter_hz")
+#: Everything a tuner may change: the gains and the feed-forward terms.
+TUNABLE = (*GAINS, *FEEDFORWARD)
 
 
 @dataclass(frozen=True)
@@ -92,7 +107,8 @@ class LoopParameter:
 
 @dataclass(frozen=True)
 class LoopDescription:
-    """The ``[loop]`` table: every parameter of :data:`PARAMETERS`, where it lives.
+    """The ``[loop]`` table: every parameter of :data:`PARAMETERS`, and the feed-forward terms of
+    :data:`FEEDFORWARD` the drive has, where each lives.
 
     Attributes
     ----------
@@ -151,9 +167,13 @@ def parse_loop(table, source: str = "", kinds: tuple[str, ...] = ("object",)) ->
         return None
     if not isinstance(table, dict):
         raise ConfigError("loop", "must be a table of the cascade's parameters", source)
-    unknown = sorted(set(table) - set(PARAMETERS))
+    unknown = sorted(set(table) - set(PARAMETERS) - set(FEEDFORWARD))
     if unknown:
-        raise ConfigError(f"loop.{unknown[0]}", f"is no cascade parameter; they are {list(PARAMETERS)}", source)
+        raise ConfigError(
+            f"loop.{unknown[0]}",
+            f"is no cascade parameter; they are {list(PARAMETERS)}, and the feed-forward terms {list(FEEDFORWARD)}",
+            source,
+        )
     missing = [n for n in PARAMETERS if n not in table]
     if missing:
         raise ConfigError(
@@ -161,7 +181,8 @@ def parse_loop(table, source: str = "", kinds: tuple[str, ...] = ("object",)) ->
             f"is missing: give the object that holds it or its value ({PARAMETERS[missing[0]]})",
             source,
         )
-    return LoopDescription({n: _parameter(n, table[n], source, kinds) for n in PARAMETERS})
+    names = [*PARAMETERS, *(n for n in FEEDFORWARD if n in table)]
+    return LoopDescription({n: _parameter(n, table[n], source, kinds) for n in names})
 
 
 def _parameter(name: str, entry, source: str, kinds: tuple[str, ...]) -> LoopParameter:

@@ -3,8 +3,9 @@
 With ``[tuning] upload = true`` on a drive whose driver describes its loop:
 
 1. the proposal (:func:`hilident.pipeline.loop_analysis.tuning_part`) made with
-   the notches when they were uploaded, else without, as the drive will store
-   it (:meth:`~hilident.adapters.base.AdapterBase.stored_loop`);
+   the notches when they were uploaded, else without, and the feed-forward
+   terms the drive has (:func:`hilident.pipeline.feedforward.propose_feedforward`),
+   as the drive will store them (:meth:`~hilident.adapters.base.AdapterBase.stored_loop`);
 2. refused when it would leave either loop without a positive gain or phase
    margin on the identified plant or its variants
    (:func:`hilident.pipeline.gain_check.check_gains`), naming the margin;
@@ -13,7 +14,10 @@ With ``[tuning] upload = true`` on a drive whose driver describes its loop:
 4. a multisine on the velocity set-point, sized from the prediction to stay
    within a share of ``[limits]``, recorded in velocity mode; the measured
    response against the prediction (:mod:`hilident.pipeline.closed_loop`);
-   outside ``[tuning] tolerance_db``/``tolerance_deg`` the old gains go back.
+   outside ``[tuning] tolerance_db``/``tolerance_deg`` the old gains go back;
+5. small steps on the velocity set-point, their measured period against the
+   predicted one (:mod:`hilident.pipeline.step_check`); beyond
+   ``[tuning] step_tolerance_percent`` the old gains go back.
 
 Whatever ends the run before the gains are proven (an error, a signal) puts
 the old gains back (:meth:`GainStep.restore`, from the run's ``finally``).
@@ -21,6 +25,7 @@ the old gains back (:meth:`GainStep.restore`, from the run's ``finally``).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import replace
 
@@ -28,7 +33,7 @@ import numpy as np
 
 from hilident.errors import UsageError
 from hilident.filters.biquad import Biquad
-from hilident.pipeline import closed_loop
+from hilident.pipeline import closed_loop, step_check
 from hilident.pipeline.gain_check import check_gains
 from hilident.pipeline.loop_analysis import LoopAnalysis, tuning_targets
 from hilident.pipeline.responses import periods_response
@@ -36,8 +41,11 @@ from hilident.signals.excitation import build_excitation
 
 __all__ = ["GainStep", "describe_gains", "put_back_gains", "read_gains", "uploaded_notches"]
 
-#: The recording of the closed-loop run.
+#: The recordings of the closed-loop run: the multisine, then the steps.
 RECORDING = "closed-loop"
+STEP_RECORDING = "closed-loop-step"
+#: Periods of the step run that are compared (after one that lets the transient from rest die out).
+STEP_PERIODS = 4
 
 
 def uploaded_notches(upload) -> tuple[Biquad, ...]:
@@ -87,6 +95,7 @@ class GainStep:
         self.record, self.samples, self.warnings, self.progress = record, samples, warnings, progress
         self.before: dict | None = None  # the gains the drive held, while the new ones are not proven
         self.check: closed_loop.ClosedLoopCheck | None = None
+        self.step: step_check.StepCheck | None = None
         self.part: dict = {"uploaded": False, "kept": False}
 
     def run(self) -> dict:
@@ -97,7 +106,7 @@ class GainStep:
         proposal = tuning.get(which)
         if proposal is None:
             return self._skip(f"no gains {which.replace('_', ' ')} keep the [tuning] targets: none uploaded")
-        asked = dict(proposal["gains"])
+        asked = {**proposal["gains"], **(tuning.get("feedforward") or {}).get("terms", {})}
         part.update(proposal=which, asked=asked)
         try:
             expected = self.adapter.stored_loop(asked)
@@ -148,8 +157,11 @@ class GainStep:
         f = measured.frequency_hz
         predicted, *variants = closed_loop.predicted_setpoint_response(cascade, seen, f, fs)
         response = measured.response
-        if self.friction is not None:  # the friction's part of the response out, as from the plant's torque
-            torque = self.friction.fit.predict(np.nan_to_num(s["velocity_mps"]))
+        fit = None if self.friction is None else self.friction.fit
+        torque = closed_loop.net_friction_torque(
+            fit, s["velocity_mps"], s["excitation"], cascade.friction_feedforward_nm
+        )
+        if torque is not None:  # the friction's part of the response out, as from the plant's torque
             friction, _ = periods_response(s, torque, excitation, fs, cfg.identification)
             raw = closed_loop.compare_closed_loop(
                 f, response, predicted, excitation.band_hz, cfg.tuning.tolerance_db, cfg.tuning.tolerance_deg
@@ -188,8 +200,44 @@ class GainStep:
                 f"tolerance_deg = {t.tolerance_deg:g}"
             )
             return
+        step = self._step(cascade, self.part["closed_loop"]["predicted_bandwidth_hz"])
+        if step is not None and not step.within_tolerance:
+            self.restore(
+                f"the measured velocity step differs from the prediction by {100 * step.rms_error:.1f} % rms of the "
+                f"step, beyond tuning.step_tolerance_percent = {t.step_tolerance_percent:g} "
+                f"(+ {100 * step.spread:.1f} % the plant's uncertainty gives)"
+            )
+            return
         self.part["kept"] = True
         self.before = None
+
+    def _step(self, cascade, bandwidth_hz: float | None) -> step_check.StepCheck | None:
+        """The step run (``closed-loop-step.h5``): ``+A, 0, -A, 0`` on the velocity set-point, its measured
+        period against the predicted one; None (and why, in the summary) where the plant is known only on
+        its measured lines."""
+        cfg, seen = self.cfg, self.analysis.seen
+        assert seen is not None
+        if seen.mechanics is None:
+            self.part["step"] = {"reason": "the plant is known only on its measured lines: no step is predicted"}
+            return None
+        fs = cfg.run.sample_rate_hz
+        hold = step_check.hold_samples(bandwidth_hz or math.nan, fs)
+        levels = step_check.step_levels(hold, step_check.ramp_samples(hold, cascade.accel_feedforward_nm_per_mps2 > 0))
+        amplitude, peaks = closed_loop.closed_loop_amplitude(levels, fs, cascade, seen, cfg.limits)
+        played = STEP_PERIODS + 1  # the first period lets the transient from rest die out
+        self.progress.step(f"loop: closed-loop step run, velocity steps of {amplitude:.3g} m/s")
+        exp = self.record(STEP_RECORDING, "velocity", np.tile(amplitude * levels, played), period_samples=levels.size)
+        velocity, periods = step_check.measured_period(
+            exp.samples["sample_index"], exp.samples["velocity_mps"], levels.size, played
+        )
+        fit = None if self.friction is None else self.friction.fit
+        friction = closed_loop.net_friction_torque(fit, velocity, levels, cascade.friction_feedforward_nm)
+        predictions = step_check.predicted_period(amplitude * levels, fs, cascade, seen, friction)
+        self.step = step = step_check.compare_steps(
+            amplitude * levels, velocity, predictions, fs, amplitude, cfg.tuning.step_tolerance_percent / 100, periods
+        )
+        self.part["step"] = {**step.to_dict(), "recording": f"{STEP_RECORDING}.h5", "predicted_peaks": peaks}
+        return step
 
     def restore(self, reason: str = "the run ended before the gains were proven") -> None:
         """Put the gains the drive held back, when new ones are written and not proven (never raises)."""

@@ -161,7 +161,8 @@ class GainUploadCommand:
         tuning = loop.get("tuning") or {}
         which = "with_notch" if notched else "without_notch"
         proposed = tuning.get(which) or {}
-        gains = {**(proposed.get("gains") or {}), **self.given}
+        feedforward = (tuning.get("feedforward") or {}).get("terms") or {} if proposed else {}
+        gains = {**(proposed.get("gains") or {}), **feedforward, **self.given}
         if not gains:
             raise UsageError(
                 f"{self.source.path}: loop.tuning.{which} proposes no gains and none were given (--gain NAME=VALUE)"

@@ -277,7 +277,7 @@ class Session(DeviceConnection):
                 self._map_step(ident, excitation, friction, plant)
             step = "notch upload"
             designs, upload = self._notch_step(plant)
-            self.loop = self._loop_step(plant, designs)
+            self.loop = self._loop_step(plant, designs, friction)
             step = "verification"
             verification = self._verify(excitation, plant, designs)
             if self.workspace is not None and verification is not None and self.cfg.map.verify:
@@ -614,9 +614,10 @@ class Session(DeviceConnection):
         self._uploaded = True  # from here the device holds the new notches; other bypassed slots stay bypassed
         return designs, upload
 
-    def _loop_step(self, plant, designs: list):
-        """The drive's loop around the identified plant, without and with the designed notches; None when the
-        driver does not describe the loop. A drive that cannot be read is a warning, not a failed run."""
+    def _loop_step(self, plant, designs: list, friction=None):
+        """The drive's loop around the identified plant, without and with the designed notches, and the
+        feed-forward the plant and ``friction`` propose for the terms the drive has; None when the driver does
+        not describe the loop. A drive that cannot be read is a warning, not a failed run."""
         ad = self.adapter
         if plant is None:
             return None
@@ -643,6 +644,11 @@ class Session(DeviceConnection):
             self.warnings.append(f"loop: no margins: {exc}")
             return None
         self.notes += analysis.notes
+        if analysis.tuning is not None:
+            from hilident.pipeline.feedforward import propose_feedforward
+
+            fit = friction.fit if friction is not None else None
+            analysis.tuning["feedforward"] = propose_feedforward(parameters, analysis.seen, fit)
         analysis.measured = self._measured_loop(analysis)
         if analysis.seen is not None:  # for hilident upload --gains: the plant the gains are checked on
             from hilident.pipeline.loop_plant import PLANT_FILE, save_seen_plant
@@ -838,6 +844,15 @@ class Session(DeviceConnection):
             band_hz=pipeline_plant.analysis_band(self.cfg.identification, excitation_band_hz),
             output=self.cfg.identification.output,
         )
+        if self.gains is not None and self.gains.check is not None:  # closed-loop.png: the gains' proof
+            from hilident.plots.closed_loop import plot_closed_loop
+
+            plot_closed_loop(
+                self.out / "closed-loop.png",
+                self.gains.check,
+                self.gains.step,
+                plot_title(Path(self.cfg.source).name, what="Closed loop after the gain upload"),
+            )
         if model is not None:  # model.png: the fit of _greybox on the records it used
             from hilident.session.offline import model_for_mode
 
