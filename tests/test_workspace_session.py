@@ -31,12 +31,12 @@ MAP_CONFIG = CONFIGS / "emulated-gantry-map.toml"
 
 def quick_map(move: bool) -> dict:
     """The shipped map config on the clean twin (its friction test identifies the friction the map then removes
-    from the torque) at a fixed amplitude, in faster simulated time; with or without its move test (without it,
-    the map is verified at every position)."""
+    from the torque) at a fixed amplitude, in faster simulated time, the band figure measured again at every
+    mapped position; with or without its move test."""
     raw = tomllib.loads(MAP_CONFIG.read_text())
     raw["excitation"]["amplitude_nm"] = 10.0
     raw["emulator"].update(preset="clean", time_scale=8.0)
-    raw["map"]["verify"] = not move  # without the moves, the band figure measured again at every mapped position
+    raw["map"]["verify"] = True
     if not move:
         del raw["verification"]
     return raw
@@ -44,14 +44,14 @@ def quick_map(move: bool) -> dict:
 
 @pytest.fixture(scope="module")
 def mapped(tmp_path_factory):
-    """One map session for the whole test run, whichever pytest-xdist workers run these tests: the first to get
-    here runs it, the others wait for its summary (two board twins at time scale 8 starve each other on two
-    cores)."""
+    """One map session (verified at every position, then its move test) for the whole test run, whichever
+    pytest-xdist workers run these tests: the first to get here runs it, the others wait for its summary (two
+    board twins at time scale 8 starve each other on two cores)."""
     root = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):
         root = root.parent  # shared by the workers of this test run
     out, claim, done = root / "workspace-map", root / "workspace-map.claim", root / "workspace-map.done"
-    cfg = parse_config(tomli_w.dumps(quick_map(move=False)), str(MAP_CONFIG))
+    cfg = parse_config(tomli_w.dumps(quick_map(move=True)), str(MAP_CONFIG))
     try:
         os.close(os.open(claim, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
     except FileExistsError:
@@ -248,7 +248,7 @@ def test_the_map_run_writes_its_plot_its_report_and_a_valid_summary(mapped):
     # the staggered notches share one resonance: the verification compares it once
     verified = [r["frequency_hz"] for r in summary["verification"]["resonances"]]
     assert len(summary["notch_filters"]) == 2 and len(verified) == len(set(verified)) == 1
-    assert "No [verification] move" in page.sections["moves"]
+    assert "No [verification] move" not in page.sections["moves"] and (out / "moves.png").is_file()
     assert all((out / p["recording"]).is_file() for p in summary["map"])
     # the shipped map needs nothing of the user; the sampling hint is one note naming every mapped resonance
     assert summary["warnings"] == []
@@ -308,11 +308,10 @@ def test_a_move_rings_ten_db_less_with_the_notch_on_every_transport(config, tmp_
     assert "move_without.h5" in move["recordings"] and (tmp_path / "out" / "move_with.h5").is_file()
 
 
-def test_the_map_run_moves_at_every_mapped_position_with_the_mapped_mode_where_each_move_ends(tmp_path):
+def test_the_map_run_moves_at_every_mapped_position_with_the_mapped_mode_where_each_move_ends(mapped):
     """The shipped map config's move test on the clean twin (its friction kept): a move from every mapped
     position, each knowing the mode where it ends from the map, each ringing at least 10 dB less with the notch."""
-    cfg = parse_config(tomli_w.dumps(quick_map(move=True)), str(MAP_CONFIG))
-    summary = Session(cfg, tmp_path / "out").run()
+    cfg, summary, _ = mapped
     assert schema_errors(summary) == []
     moves = summary["move_test"]["moves"]
     assert len(moves) == len(summary["map"])
