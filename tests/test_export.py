@@ -20,9 +20,6 @@ from hilident.cli.main import main
 from hilident.io import export
 from support.exported_summaries import load, summaries
 
-#: Its module-scoped sessions run once: every test of this module on one worker (--dist loadgroup).
-pytestmark = pytest.mark.xdist_group("export")
-
 RTOL = 1e-9
 MATLAB_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,62}$")
 

@@ -21,9 +21,6 @@ from hilident.pipeline.loop_analysis import LoopAnalysis
 from hilident.pipeline.loop_plant import SeenPlant
 from hilident.session.gain_step import GainStep
 
-#: Its module-scoped sessions run once: every test of this module on one worker (--dist loadgroup).
-pytestmark = pytest.mark.xdist_group("gain-upload")
-
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "configs" / "emulated-canopen-gantry.toml"
 RATE = 4000.0

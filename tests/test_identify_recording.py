@@ -15,9 +15,6 @@ from hilident.config.tables import load_config
 from hilident.session.run import Session
 from support.summary_keys import assert_layout
 
-#: Its module-scoped sessions run once: every test of this module on one worker (--dist loadgroup).
-pytestmark = pytest.mark.xdist_group("identify-recording")
-
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
 

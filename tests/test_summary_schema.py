@@ -12,9 +12,6 @@ from hilident.io.summary import LAYOUTS  # noqa: E402
 from hilident.schemas import summary_schema  # noqa: E402
 from support.exported_summaries import load, summaries  # noqa: E402
 
-#: Its module-scoped sessions run once: every test of this module on one worker (--dist loadgroup).
-pytestmark = pytest.mark.xdist_group("summary-schema")
-
 
 @pytest.fixture(scope="module")
 def made(tmp_path_factory):

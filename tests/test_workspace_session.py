@@ -23,9 +23,7 @@ from support.report_page import check_report
 from support.schema_check import schema_errors
 from support.twins import quick
 
-# map runs and moves: sessions on twins; on one worker, which runs the module's one map session (pyproject.toml
-# runs the suite with --dist loadgroup)
-pytestmark = [pytest.mark.twin, pytest.mark.xdist_group("workspace-map")]
+pytestmark = pytest.mark.twin  # map runs and moves: sessions on twins
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 MAP_CONFIG = CONFIGS / "emulated-gantry-map.toml"
