@@ -186,6 +186,26 @@ def _in_test_suite(obj: object) -> bool:
 
 
 @pytest.fixture(autouse=True)
+def _signal_dispositions():
+    """Each test leaves the worker's signal handlers as it found them: ``hilident`` run in-process and ended by
+    a signal ignores further ones on its way out (``endings.ignore_further_signals``, right for a process about
+    to exit), and a later test in the same worker, or a process it starts (which inherits what is ignored),
+    would not see its signals."""
+    import threading
+
+    from hilident.endings import ENDING_SIGNALS
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    found = {s: signal.getsignal(s) for s in ENDING_SIGNALS}
+    yield
+    for s, handler in found.items():
+        if handler is not None and signal.getsignal(s) is not handler:
+            signal.signal(s, handler)
+
+
+@pytest.fixture(autouse=True)
 def _configured_friction_legs(request, monkeypatch):
     """Sessions in this process play the friction test's configured legs only, unless the test is marked
     ``friction_rounds``: its added rounds (``[friction_test] target_ci_percent``) take tens of seconds of twin
