@@ -140,7 +140,7 @@ def tuned(name: str, out: Path) -> None:
 
 def feedforward(cfg, proposed) -> None:
     """The feed-forward proposed against the twin's own inertia and friction."""
-    if not proposed:
+    if not proposed or not (proposed.get("terms") or proposed.get("left_out")):
         print("  feed-forward: the drive has no terms")
         return
     em = cfg.emulator

@@ -120,18 +120,20 @@ def _fit_mechanics(mechanics, f: np.ndarray, measured: np.ndarray, loop_rate_hz:
     best = None
     for n in range(4):
         candidate = replace(mechanics, integrators=n)
-        log_ratio = np.log(measured / (candidate.response(f) * held))
-        log_gain = float(np.mean(log_ratio.real))
-        phase = np.unwrap(log_ratio.imag)
-        turns = round(float(np.mean(phase)) / math.pi)  # a real gain's phase is a whole number of half turns
-        phase -= turns * math.pi
-        cost = float(np.mean((log_ratio.real - log_gain) ** 2 + phase**2))
-        if best is None or cost < best[0]:
-            residual = (
-                float(20 / math.log(10) * np.sqrt(np.mean((log_ratio.real - log_gain) ** 2))),
-                float(np.degrees(np.sqrt(np.mean(phase**2)))),
-            )
-            best = (cost, candidate, (-1) ** turns * math.exp(log_gain), residual)
+        ratio = measured / (candidate.response(f) * held)
+        log_magnitude = np.log(np.abs(ratio))
+        log_gain = float(np.mean(log_magnitude))
+        for sign in (1.0, -1.0):  # a real gain of either sign
+            # each line's phase off the gain's, wrapped: an unwrap of noisy lines can slip a whole turn mid-band
+            # and read the lines after the slip as 360 degrees off
+            phase = np.angle(ratio * sign)
+            cost = float(np.mean((log_magnitude - log_gain) ** 2 + phase**2))
+            if best is None or cost < best[0]:
+                residual = (
+                    float(20 / math.log(10) * np.sqrt(np.mean((log_magnitude - log_gain) ** 2))),
+                    float(np.degrees(np.sqrt(np.mean(phase**2)))),
+                )
+                best = (cost, candidate, sign * math.exp(log_gain), residual)
     assert best is not None
     return best[1], best[2], best[3]
 
