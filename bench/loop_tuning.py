@@ -36,13 +36,6 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))  # tests/support: the twin's truth, as the suite computes it
 CONFIGS = ("emulated-gantry", "emulated-canopen-gantry", "emulated-modbus-gantry")
 GAINS = ("kv_nm_per_mps", "ti_s", "kp_pos_per_s")
-PARAMETERS = (*GAINS, "velocity_filter_hz", "current_loop_hz", "delay_ticks")
-FEEDFORWARD = (
-    "velocity_feedforward",
-    "accel_feedforward_nm_per_mps2",
-    "viscous_feedforward_nm_per_mps",
-    "friction_feedforward_nm",
-)
 
 
 def true_figures(cfg, values: dict, notches, loop: str) -> tuple[float, float]:
@@ -74,6 +67,7 @@ def _fmt(x, digits=1) -> str:
 def tuned(name: str, out: Path) -> None:
     from hilident.config.tables import load_config
     from hilident.filters.biquad import Biquad
+    from hilident.protocol.loop_parameters import FEEDFORWARD, PARAMETERS
 
     cfg = load_config(ROOT / "configs" / f"{name}.toml")
     cfg = replace(cfg, tuning=replace(cfg.tuning, upload=True))

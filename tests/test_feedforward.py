@@ -56,10 +56,10 @@ def test_velocity_mode_inertia_and_viscous_feedforward_follow_the_cascade_model(
     fs = RATE / d
     levels = 0.05 * step_check.step_levels(int(0.2 * fs))
     measured = _velocity_period(loop, levels, d, 4)
-    (predicted,) = step_check.predicted_period(levels, fs, cascade, seen)
+    (predicted,) = closed_loop.predicted_period(levels, fs, cascade, seen)
     assert np.sqrt(np.mean((measured - predicted) ** 2)) < 2e-3 * 0.05
     # and the feed-forward changes the response: without it the same model misses by far more
-    (bare,) = step_check.predicted_period(levels, fs, _axis()[2], seen)
+    (bare,) = closed_loop.predicted_period(levels, fs, _axis()[2], seen)
     assert np.sqrt(np.mean((measured - bare) ** 2)) > 0.02 * 0.05
 
 
@@ -96,10 +96,10 @@ def test_coulomb_feedforward_is_predicted_with_the_friction_it_cancels():
     levels = 0.05 * step_check.step_levels(200)
     measured = _velocity_period(loop, levels, 4, 4)
     torque = closed_loop.net_friction_torque(fit, measured, levels, cascade.friction_feedforward_nm)
-    (predicted,) = step_check.predicted_period(levels, 1000.0, cascade, seen, torque)
+    (predicted,) = closed_loop.predicted_period(levels, 1000.0, cascade, seen, torque)
     assert np.sqrt(np.mean((measured - predicted) ** 2)) < 0.02 * 0.05
     # the feed-forward left out of the prediction: the Coulomb kick it gives is not explained
-    (wrong,) = step_check.predicted_period(
+    (wrong,) = closed_loop.predicted_period(
         levels, 1000.0, cascade, seen, closed_loop.net_friction_torque(fit, measured, levels, 0.0)
     )
     assert np.sqrt(np.mean((measured - wrong) ** 2)) > 2 * np.sqrt(np.mean((measured - predicted) ** 2))

@@ -11,7 +11,7 @@ from hilident.control import Cascade
 from hilident.emulator.drive import DriveLoop, DriveTuning
 from hilident.emulator.plant import Plant, TwoMass
 from hilident.emulator.sensors import SensorModel
-from hilident.pipeline import step_check
+from hilident.pipeline import closed_loop, step_check
 from hilident.pipeline.loop_plant import SeenPlant
 from support.loop_truth import plant_position
 
@@ -44,7 +44,7 @@ def test_the_predicted_step_period_is_the_drive_loops_own(kv, ti, mode_hz, sampl
     velocity = rows[::d, DriveLoop.CHANNELS.index("velocity_mps")]  # read at a sample's first tick
     measured, periods = step_check.measured_period(np.arange(velocity.size), velocity, levels.size, played)
     assert periods == played - 1
-    (predicted,) = step_check.predicted_period(levels, sample_rate, cascade, seen)
+    (predicted,) = closed_loop.predicted_period(levels, sample_rate, cascade, seen)
     # the transient from rest has died out after the first period: the loop's steady periodic response
     assert np.sqrt(np.mean((measured - predicted) ** 2)) < 2e-3 * 0.05
     check = step_check.compare_steps(levels, measured, [predicted], sample_rate, 0.05, 0.1, periods)
@@ -64,7 +64,7 @@ def test_a_wrong_loop_gain_shows_as_a_step_difference():
     measured, periods = step_check.measured_period(np.arange(velocity.size), velocity, levels.size, 3)
     wrong = cascade.with_gains(kv_nm_per_mps=50.0)  # the drive runs twice the gain the prediction assumes
     check = step_check.compare_steps(
-        levels, measured, step_check.predicted_period(levels, 1000.0, wrong, seen), 1000.0, 0.05, 0.1, periods
+        levels, measured, closed_loop.predicted_period(levels, 1000.0, wrong, seen), 1000.0, 0.05, 0.1, periods
     )
     assert not check.within_tolerance and check.rms_error > 0.1
 

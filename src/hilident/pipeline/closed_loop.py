@@ -35,6 +35,7 @@ __all__ = [
     "compare_closed_loop",
     "friction_response",
     "net_friction_torque",
+    "predicted_period",
     "remove_friction",
     "line_scatter",
     "predicted_setpoint_response",
@@ -128,20 +129,68 @@ def remove_friction(measured, friction_over_setpoint, response_to_friction) -> n
     return np.asarray(measured) - np.asarray(response_to_friction) * np.asarray(friction_over_setpoint)
 
 
+def predicted_period(
+    period: np.ndarray,
+    sample_rate_hz: float,
+    cascade: Cascade,
+    seen: SeenPlant,
+    friction_torque_nm: np.ndarray | None = None,
+    what: str = "velocity",
+) -> list[np.ndarray]:
+    """The response to a periodic set-point over one of its periods, on the plant and on its variants.
+
+    Each line of the period below half the sample rate that the set-point (or the friction) excites is
+    multiplied by :func:`predicted_setpoint_response` and the lines summed back into one period.
+
+    Parameters
+    ----------
+    period : ndarray
+        One period of the velocity set-point, m/s, zero mean.
+    sample_rate_hz : float
+        The recording's sample rate, Hz.
+    cascade, seen
+        The drive's cascade as it holds it, and the plant its loop sees.
+    friction_torque_nm : ndarray or None
+        The friction torque over the same period (the identified curve at the measured velocity), N·m; its
+        part of the velocity is added (``what = "velocity"`` only).
+    what : {"velocity", "torque"}
+        The velocity estimate (m/s) or the motor torque (N·m).
+
+    Returns
+    -------
+    list of ndarray
+        One period each: the plant's first, then its variants'. NaN where the plant is not known at every
+        line used (measured lines without a model).
+    """
+    p = np.asarray(period, dtype=float)
+    spectrum = np.fft.rfft(p)
+    f = np.fft.rfftfreq(p.size, 1.0 / sample_rate_hz)
+    with_friction = friction_torque_nm is not None and what == "velocity"
+    excited = np.abs(spectrum) > 1e-9 * np.abs(spectrum).max()
+    lines = np.flatnonzero((f > 0) & (f < sample_rate_hz / 2) & (excited | with_friction))
+    extra = np.zeros_like(spectrum)
+    if with_friction:
+        torque = np.fft.rfft(np.asarray(friction_torque_nm, dtype=float))
+        extra[lines] = torque[lines] * friction_response(cascade, seen, f[lines])
+    out = []
+    for response in predicted_setpoint_response(cascade, seen, f[lines], sample_rate_hz, what):
+        shaped = np.zeros_like(spectrum)
+        shaped[lines] = spectrum[lines] * response + extra[lines]
+        out.append(np.fft.irfft(shaped, p.size) if np.all(np.isfinite(shaped)) else np.full(p.size, np.nan))
+    return out
+
+
 def _period_peaks(period: np.ndarray, sample_rate_hz: float, cascade: Cascade, seen: SeenPlant) -> dict:
     """The predicted peaks of velocity (m/s), motor torque (N·m) and travel (m) over one period of the set-point."""
-    spectrum = np.fft.rfft(period)
     f = np.fft.rfftfreq(period.size, 1.0 / sample_rate_hz)
-    lines = np.flatnonzero((np.abs(spectrum) > 1e-9 * np.abs(spectrum).max()) & (f > 0))
     peaks = {"velocity_mps": 0.0, "torque_nm": 0.0, "travel_m": 0.0}
     for which, key in (("velocity", "velocity_mps"), ("torque", "torque_nm")):
-        for response in predicted_setpoint_response(cascade, seen, f[lines], sample_rate_hz, which):
-            shaped = np.zeros_like(spectrum)
-            shaped[lines] = spectrum[lines] * response
-            peaks[key] = max(peaks[key], float(np.abs(np.fft.irfft(shaped, period.size)).max()))
-            if which == "velocity":
-                travel = np.zeros_like(spectrum)
-                travel[lines] = shaped[lines] / (2j * np.pi * f[lines])
+        for response in predicted_period(period, sample_rate_hz, cascade, seen, what=which):
+            peaks[key] = max(peaks[key], float(np.abs(response).max()))
+            if which == "velocity":  # the travel: the velocity integrated line by line (zero mean)
+                travel = np.fft.rfft(response)
+                travel[1:] /= 2j * np.pi * f[1:]
+                travel[0] = 0.0
                 swing = np.fft.irfft(travel, period.size)
                 peaks["travel_m"] = max(peaks["travel_m"], float(swing.max() - swing.min()))
     return peaks

@@ -4,12 +4,10 @@ After the closed-loop multisine, the gain step plays steps on the velocity
 set-point: one period holds ``+A``, ``0``, ``-A``, ``0`` for ``hold`` each (zero
 mean, so the axis comes back to where it started; every step starts from rest
 or ends at it), repeated; with acceleration feed-forward each level is reached
-by a short ramp, as a drive's profile generator does. The period is periodic, so its response is exactly the
-set-point's lines times the predicted set-point response
-(:func:`hilident.pipeline.closed_loop.predicted_setpoint_response`, the hold and
-images folded in), summed back into one period; the friction the axis meets
-adds its part, from the identified curve at the measured velocity
-(:func:`~hilident.pipeline.closed_loop.friction_response`).
+by a short ramp, as a drive's profile generator does. The set-point is
+periodic, so its response is exactly the set-point's lines times the predicted
+set-point response, summed back into one period, with the part of the friction
+the axis meets (:func:`hilident.pipeline.closed_loop.predicted_period`).
 
 The measured period is the mean over the played periods (the first one, the
 transient from rest, left out). The comparison gives the rms difference over
@@ -24,16 +22,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hilident.control import Cascade
-from hilident.pipeline.closed_loop import friction_response, predicted_setpoint_response
-from hilident.pipeline.loop_plant import SeenPlant
-
 __all__ = [
     "StepCheck",
     "compare_steps",
     "hold_samples",
     "measured_period",
-    "predicted_period",
     "ramp_samples",
     "step_levels",
 ]
@@ -54,52 +47,6 @@ def step_levels(hold_samples: int, ramp_samples: int = 1) -> np.ndarray:
         raise ValueError(f"a step level must last 2 samples or more and twice its ramp, got {n} and {r}")
     rise = np.minimum(np.arange(1, n + 1) / r, 1.0)
     return np.concatenate([rise, 1.0 - rise, -rise, rise - 1.0])
-
-
-def predicted_period(
-    period: np.ndarray,
-    sample_rate_hz: float,
-    cascade: Cascade,
-    seen: SeenPlant,
-    friction_torque_nm: np.ndarray | None = None,
-    what: str = "velocity",
-) -> list[np.ndarray]:
-    """The response to a periodic set-point over one of its periods, on the plant and on its variants.
-
-    Parameters
-    ----------
-    period : ndarray
-        One period of the velocity set-point, m/s, zero mean.
-    sample_rate_hz : float
-        The recording's sample rate, Hz.
-    cascade, seen
-        The drive's cascade as it holds it, and the plant its loop sees.
-    friction_torque_nm : ndarray or None
-        The friction torque over the same period (the identified curve at the measured velocity), N·m; its
-        part of the velocity is added (``what = "velocity"`` only).
-    what : {"velocity", "torque"}
-        The velocity estimate (m/s) or the motor torque (N·m).
-
-    Returns
-    -------
-    list of ndarray
-        One period each: the plant's first, then its variants'. NaN where the plant is not known at every
-        line up to half the sample rate (measured lines without a model).
-    """
-    p = np.asarray(period, dtype=float)
-    spectrum = np.fft.rfft(p)
-    f = np.fft.rfftfreq(p.size, 1.0 / sample_rate_hz)
-    lines = np.flatnonzero((f > 0) & (f < sample_rate_hz / 2))
-    extra = np.zeros_like(spectrum)
-    if friction_torque_nm is not None and what == "velocity":
-        torque = np.fft.rfft(np.asarray(friction_torque_nm, dtype=float))
-        extra[lines] = torque[lines] * friction_response(cascade, seen, f[lines])
-    out = []
-    for response in predicted_setpoint_response(cascade, seen, f[lines], sample_rate_hz, what):
-        shaped = np.zeros_like(spectrum)
-        shaped[lines] = spectrum[lines] * response + extra[lines]
-        out.append(np.fft.irfft(shaped, p.size) if np.all(np.isfinite(shaped)) else np.full(p.size, np.nan))
-    return out
 
 
 def measured_period(

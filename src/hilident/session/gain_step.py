@@ -98,6 +98,11 @@ class GainStep:
         self.step: step_check.StepCheck | None = None
         self.part: dict = {"uploaded": False, "kept": False}
 
+    @property
+    def friction_fit(self):
+        """The friction test's fitted curve; None without a friction test."""
+        return None if self.friction is None else self.friction.fit
+
     def run(self) -> dict:
         """Every step; returns ``summary.json["loop"]["upload"]``."""
         part = self.part
@@ -157,9 +162,8 @@ class GainStep:
         f = measured.frequency_hz
         predicted, *variants = closed_loop.predicted_setpoint_response(cascade, seen, f, fs)
         response = measured.response
-        fit = None if self.friction is None else self.friction.fit
         torque = closed_loop.net_friction_torque(
-            fit, s["velocity_mps"], s["excitation"], cascade.friction_feedforward_nm
+            self.friction_fit, s["velocity_mps"], s["excitation"], cascade.friction_feedforward_nm
         )
         if torque is not None:  # the friction's part of the response out, as from the plant's torque
             friction, _ = periods_response(s, torque, excitation, fs, cfg.identification)
@@ -230,9 +234,8 @@ class GainStep:
         velocity, periods = step_check.measured_period(
             exp.samples["sample_index"], exp.samples["velocity_mps"], levels.size, played
         )
-        fit = None if self.friction is None else self.friction.fit
-        friction = closed_loop.net_friction_torque(fit, velocity, levels, cascade.friction_feedforward_nm)
-        predictions = step_check.predicted_period(amplitude * levels, fs, cascade, seen, friction)
+        friction = closed_loop.net_friction_torque(self.friction_fit, velocity, levels, cascade.friction_feedforward_nm)
+        predictions = closed_loop.predicted_period(amplitude * levels, fs, cascade, seen, friction)
         self.step = step = step_check.compare_steps(
             amplitude * levels, velocity, predictions, fs, amplitude, cfg.tuning.step_tolerance_percent / 100, periods
         )
