@@ -9,7 +9,9 @@ driver's ``driver.toml``:
   ``product_code`` the file name and the identity object 0x1018;
 - ``[filters]`` (encoding, objects, enable_subindex, fields, fractional_bits,
   total_bits) gives the filter-slot records, their data type and defaults, the
-  product name and the description.
+  product name and the description;
+- ``[loop]`` whether 0x2400:2 holds the velocity loop's integral time (``ti_s``, REAL32, s) or its integral
+  gain (``ki_nm_per_m``, UNSIGNED32 in the units of its ``scale``), as vendors' drives do.
 
 Usage::
 
@@ -38,6 +40,7 @@ FEATURES = "CiA 402 cyclic synchronous modes, excitation table and capture buffe
 REAL32 = 0x0008
 INTEGER_TYPES = {8: 0x0002, 16: 0x0003, 32: 0x0004}
 UNSIGNED8 = 0x0005
+UNSIGNED32 = 0x0007
 
 
 def generate(folder: Path) -> str:
@@ -53,6 +56,7 @@ def generate(folder: Path) -> str:
         "PRODUCT_NAME": PRODUCT_NAME + coefficient["product_suffix"],
         "DESCRIPTION": f"{PRODUCT_NAME}{coefficient['product_suffix']}: {FEATURES}, {coefficient['label']} "
         "notch filter slots",
+        **_integral_object(description.get("loop", {})),
         "FILTER_SLOTS": "".join(
             _slot_record(slot, int(index, 16), filters, coefficient) for slot, index in enumerate(filters["objects"])
         ).rstrip("\n"),
@@ -62,6 +66,25 @@ def generate(folder: Path) -> str:
         text = text.replace(f"@{name}@", value)
     _check_listed(text, filters["objects"], folder)
     return text
+
+
+def _integral_object(loop: dict) -> dict:
+    """Name, data type and default of 0x2400:2: the integral time, or the integral gain in its ``scale``'s unit.
+
+    The default is the emulated drive's (kv 100 N*m/(m/s), ti 0.05 s: ki 2000 N*m/m).
+    """
+    if "ki_nm_per_m" not in loop:
+        return {
+            "LOOP_INTEGRAL_NAME": "Velocity loop integral time (s)",
+            "LOOP_INTEGRAL_TYPE": "0x0008",
+            "LOOP_INTEGRAL_DEFAULT": "0.05",
+        }
+    scale = loop["ki_nm_per_m"].get("scale", 1.0)
+    return {
+        "LOOP_INTEGRAL_NAME": f"Velocity loop integral gain ({scale:g} N*m per m)",
+        "LOOP_INTEGRAL_TYPE": f"0x{UNSIGNED32:04X}",
+        "LOOP_INTEGRAL_DEFAULT": str(round(2000.0 / scale)),
+    }
 
 
 def _coefficient_type(filters: dict) -> dict:

@@ -76,3 +76,53 @@ def test_the_host_writes_gains_reads_them_back_as_stored_and_refuses_a_fixed_par
         assert adapter.read_loop()["ti_s"] == expected["ti_s"]
     finally:
         adapter.close()
+
+
+@pytest.fixture
+def gain_form_twin():
+    """The fixed-point servo: its 0x2400:2 holds the velocity integral as a gain (0.1 N*m per m, UNSIGNED32)."""
+    cfg = load_config(CONFIG)
+    driver = find_driver("canopen-servo-fixed")
+    emulated = start(replace(cfg.emulator, time_scale=10.0), driver, cfg.device)
+    yield driver, emulated
+    emulated.close()
+
+
+def test_a_drive_keeping_the_integral_as_a_gain_keeps_it_when_kv_alone_is_written(gain_form_twin):
+    driver, emulated = gain_form_twin
+    network = canopen.Network()
+    network.connect(interface="virtual", channel=emulated.device.port)
+    try:
+        node = network.add_node(emulated.device.canopen.node_id, str(driver.folder / "canopen-servo-fixed.eds"))
+        tuning = emulated.drive.tuning
+        ki = tuning.kv_nm_per_mps / tuning.ti_s
+        assert node.sdo[0x2400][2].raw == round(ki / 0.1)
+        node.sdo[0x2400][1].raw = 2.0 * tuning.kv_nm_per_mps  # kv alone: ki stays, so the integral time doubles
+        assert emulated.drive.tuning.ti_s == pytest.approx(2.0 * tuning.ti_s)
+        node.sdo[0x2400][2].raw = 0  # ki = 0: a P controller
+        assert emulated.drive.tuning.ti_s == float("inf")
+    finally:
+        network.disconnect()
+
+
+def test_the_host_speaks_the_integral_time_to_a_drive_that_keeps_a_gain(gain_form_twin):
+    driver, emulated = gain_form_twin
+    adapter = CanopenDriveAdapter.open_device(replace(emulated.device, timeout_s=0.5), driver)
+    try:
+        tuning = emulated.drive.tuning
+        assert adapter.read_loop()["ti_s"] == pytest.approx(tuning.ti_s, rel=1e-4)  # within ki's 0.1 step
+        asked = {"kv_nm_per_mps": 321.0, "ti_s": 0.0777}
+        expected = adapter.stored_loop(asked)
+        assert set(expected) == set(asked) and expected["ti_s"] != asked["ti_s"]
+        assert expected["ti_s"] == pytest.approx(asked["ti_s"], rel=1e-4)
+        adapter.write_loop(asked)
+        assert {k: adapter.read_loop()[k] for k in asked} == expected
+        assert emulated.drive.tuning.ti_s == pytest.approx(expected["ti_s"], rel=1e-12)
+        adapter.write_loop({"kv_nm_per_mps": 160.5})  # kv alone: the host writes ki with it, the time stays
+        assert emulated.drive.tuning.kv_nm_per_mps == 160.5
+        assert emulated.drive.tuning.ti_s == pytest.approx(expected["ti_s"], rel=1e-3)
+        with pytest.raises(UsageError, match=r"ki_nm_per_m.*does not fit 0x2400:2"):
+            adapter.write_loop({"ti_s": 1e-9})  # ki beyond UNSIGNED32: refused before a byte goes out
+        assert emulated.drive.tuning.kv_nm_per_mps == 160.5
+    finally:
+        adapter.close()

@@ -73,3 +73,44 @@ def test_each_transport_takes_its_own_kind_of_location():
     assert parse_loop(serial, "s.toml", kinds=("message",)).parameters["kp_pos_per_s"].message == "LOOP"
     with pytest.raises(ConfigError, match=r"loop\.ti_s\.message"):
         parse_loop({**serial, "ti_s": {"message": "GAINS"}}, "s.toml", kinds=("message",))
+
+
+GAIN_FORM = {
+    **{n: {"object": f"0x2400:{i}"} for i, n in enumerate(PARAMETERS, start=1) if n != "ti_s"},
+    "ki_nm_per_m": {"object": "0x2400:9", "scale": 0.1},
+}
+
+
+def test_the_integral_may_be_given_as_a_gain_but_not_both_nor_neither():
+    loop = parse_loop(GAIN_FORM, "drive.toml")
+    assert loop.integral_as_gain and "ti_s" not in loop.parameters
+    with pytest.raises(ConfigError, match=r"loop\.ki_nm_per_m.*loop\.ti_s.*one of them"):
+        parse_loop({**GAIN_FORM, "ti_s": {"object": "0x2400:2"}}, "drive.toml")
+    with pytest.raises(ConfigError, match=r"loop\.ti_s.*or ki_nm_per_m"):
+        parse_loop({k: v for k, v in GAIN_FORM.items() if k != "ki_nm_per_m"}, "drive.toml")
+    with pytest.raises(ConfigError, match=r"loop\.ki_nm_per_m\.message.*carries ti_s"):
+        parse_loop(
+            {**{n: {"message": "LOOP"} for n in PARAMETERS if n != "ti_s"}, "ki_nm_per_m": {"message": "LOOP"}},
+            "b.toml",
+            kinds=("message",),
+        )
+
+
+def test_the_integral_gain_converts_to_and_from_the_integral_time():
+    loop = parse_loop(GAIN_FORM, "drive.toml")
+    present = {"kv_nm_per_mps": 100.0, "ti_s": 0.05}
+    assert loop.to_cascade({"kv_nm_per_mps": 200.0, "ki_nm_per_m": 1000.0}) == {"kv_nm_per_mps": 200.0, "ti_s": 0.2}
+    assert loop.to_cascade({"ki_nm_per_m": 0.0}, lambda: present) == {"ti_s": math.inf}
+    # a drive keeps ki when kv alone is written: its integral time moves with kv
+    assert loop.to_cascade({"kv_nm_per_mps": 300.0}, lambda: present) == {"kv_nm_per_mps": 300.0, "ti_s": 0.15}
+    assert loop.to_device({"kv_nm_per_mps": 300.0, "ti_s": math.inf}) == {"kv_nm_per_mps": 300.0, "ki_nm_per_m": 0.0}
+    # the host writing kv alone writes ki with it, so the integral time stays
+    assert loop.to_device({"kv_nm_per_mps": 300.0}, lambda: present) == {"kv_nm_per_mps": 300.0, "ki_nm_per_m": 6000.0}
+    assert loop.to_device({"ti_s": 0.1, "kp_pos_per_s": 5.0}, lambda: present) == {
+        "kp_pos_per_s": 5.0,
+        "ki_nm_per_m": 1000.0,
+    }
+    with pytest.raises(ValueError, match="present"):
+        loop.to_device({"ti_s": 0.1})
+    time_form = parse_loop({n: {"object": f"0x2400:{i}"} for i, n in enumerate(PARAMETERS, start=1)}, "d.toml")
+    assert time_form.to_device({"ti_s": 0.1}) == {"ti_s": 0.1} and time_form.to_cascade({"ti_s": 0.1}) == {"ti_s": 0.1}

@@ -64,6 +64,7 @@ class VendorDrive:
     vendor_number: int = 0x0000ACE1
     product_number: int = 0x00001234
     readme: str = ""
+    record_names: dict = field(default_factory=dict)  # index -> the record's ParameterName (vendor records)
 
 
 def _objects(d: VendorDrive) -> list[tuple]:
@@ -394,7 +395,7 @@ def eds_text(d: VendorDrive) -> str:
             continue
         lines += [
             f"[{index:04X}]",
-            f"ParameterName={_record_name(index)}",
+            f"ParameterName={d.record_names.get(index) or _record_name(index)}",
             "ObjectType=0x9",
             f"SubNumber={len(members)}",
             "",

@@ -652,8 +652,17 @@ class AdapterBase:
 
     def read_loop(self) -> dict[str, float] | None:
         """The device's cascade parameters in SI units (:data:`hilident.protocol.loop_parameters.PARAMETERS`);
-        None when its driver description does not describe its loop."""
-        return self._read_loop()
+        None when its driver description does not describe its loop. A drive that keeps the velocity integral as
+        a gain is read in the cascade's form (``ti_s``: :meth:`LoopDescription.to_cascade
+        <hilident.protocol.loop_parameters.LoopDescription.to_cascade>`)."""
+        values = self._read_loop()
+        loop = self._loop_description()
+        return values if values is None or loop is None else loop.to_cascade(values)
+
+    def _loop_description(self):
+        """The driver's ``[loop]`` (:class:`~hilident.protocol.loop_parameters.LoopDescription`; hook; default:
+        none)."""
+        return None
 
     def _read_loop(self) -> dict[str, float] | None:
         """The cascade's parameters as the device keeps them (hook; default: no loop described, None)."""
@@ -675,12 +684,24 @@ class AdapterBase:
         fixed = sorted(set(values) - set(TUNABLE))
         if fixed:
             raise UsageError(f"{fixed[0]} is no gain a tuner may change (they are {list(TUNABLE)})")
-        self._write_loop(dict(values))
+        loop = self._loop_description()
+        self._write_loop(dict(values) if loop is None else loop.to_device(values, self._present_loop))
 
     def stored_loop(self, values: Mapping[str, float]) -> dict[str, float]:
         """What the device will hold for ``values`` after its own rounding (its objects' or registers' types and
         scales), SI units: what :meth:`read_loop` reads back after :meth:`write_loop`."""
-        return self._stored_loop(dict(values))
+        loop = self._loop_description()
+        if loop is None:
+            return self._stored_loop(dict(values))
+        stored = loop.to_cascade(self._stored_loop(loop.to_device(values, self._present_loop)), self._present_loop)
+        return {name: stored[name] for name in values}
+
+    def _present_loop(self) -> dict[str, float]:
+        """The present cascade parameters (for a write of ``kv`` or ``ti`` alone to a drive that keeps ``ki``)."""
+        present = self.read_loop()
+        if present is None:
+            raise UsageError(f"{self.port}: the device does not report its loop")
+        return present
 
     def _write_loop(self, values: dict[str, float]) -> None:
         """Write the tunable parameters ``values`` (hook; default: the device describes no loop)."""

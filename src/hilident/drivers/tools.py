@@ -19,6 +19,7 @@ import json
 import math
 import re
 import shutil
+import textwrap
 import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -33,6 +34,8 @@ from hilident.drivers.description import (
 )
 from hilident.drivers.filter_check import filter_problems
 from hilident.drivers.filter_proposals import FilterProposal, propose_filters
+from hilident.drivers.loop_check import loop_problems
+from hilident.drivers.loop_proposals import LoopProposal, propose_loop
 from hilident.errors import ConfigError, UsageError
 from hilident.protocol import eds as E
 from hilident.protocol.canopen_objects import CanopenDescription
@@ -146,7 +149,7 @@ def new_driver_folder(eds_path, out_dir, name: str | None = None) -> NewDriverRe
     # the folder is moved around with its EDS: name the file, not where it was read from
     notes = [w.replace(str(eds_path), eds_path.name, 1) for w in warnings]
     proposal = propose_filters(od, summary)
-    text, placeholders = render_driver_toml(summary, eds_path.name, name, notes, proposal)
+    text, placeholders = render_driver_toml(summary, eds_path.name, name, notes, proposal, propose_loop(od))
     try:
         out.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(eds_path, out / eds_path.name)
@@ -197,7 +200,12 @@ class _Toml:
 
 
 def render_driver_toml(
-    s: E.EdsSummary, eds_file: str, name: str, warnings=(), proposal: FilterProposal | None = None
+    s: E.EdsSummary,
+    eds_file: str,
+    name: str,
+    warnings=(),
+    proposal: FilterProposal | None = None,
+    loop: LoopProposal | None = None,
 ) -> tuple[str, list[str]]:
     """The ``driver.toml`` text for a drive summarised by ``s``, and its placeholder keys. Pure.
 
@@ -212,12 +220,16 @@ def render_driver_toml(
         The EDS's load warnings, written as comments.
     proposal : FilterProposal, optional
         A documented family's ``[filters]`` table to propose, every key a placeholder.
+    loop : LoopProposal, optional
+        The ``[loop]`` table the EDS's gain objects give, every key a placeholder.
     """
     body = _Toml()
     _board(body, s, proposal)
     _canopen(body, s, eds_file)
     _scaling(body, s)
     _extras(body, s, proposal)
+    if loop is not None:
+        _proposed_loop(body, loop)
     head = _Toml()
     product = " ".join(x for x in (s.vendor_name, s.product_name) if x) or eds_file
     head.add(
@@ -440,6 +452,22 @@ def _proposed_filters(t: _Toml, proposal: FilterProposal) -> None:
             t.key(key, value, placeholder=source)
 
 
+def _proposed_loop(t: _Toml, loop: LoopProposal) -> None:
+    """The ``[loop]`` table the EDS's gain objects give, every key a placeholder, and what it leaves out."""
+    t.add()
+    t.add("# [loop] proposed by `hilident drivers new` from the names of the EDS's gain objects: the drive's")
+    t.add("# cascade (hilident.control.Cascade, docs/drivers.md). An EDS gives no unit: confirm each object's")
+    t.add("# scale (SI units per stored unit) and each value against the drive's manual, then remove its")
+    t.add("# PLACEHOLDER mark and its key from [driver] placeholders.")
+    for note in loop.notes:
+        lines = textwrap.wrap(_comment(note), 108)
+        t.add(f"#   {lines[0]}")
+        t.lines += [f"#     {line}" for line in lines[1:]]
+    t.start("loop")
+    for key, value, why in loop.keys:
+        t.key(key, value, placeholder=why)
+
+
 #: The following error window (position increments) ``drivers new`` proposes for the twin of a drive whose EDS
 #: gives 0x6065 no default or 0.
 TWIN_FOLLOWING_ERROR_WINDOW = 100_000
@@ -652,6 +680,8 @@ def check_driver_folder(folder) -> CheckReport:
     _check_modes(c)
     _check_channels(c)
     _check_filters(c)
+    for key, text in loop_problems(c.data, c.od, source):
+        c.error(key, text)
     _check_save(c)
     _check_recorder(c)
     _check_sync(c)

@@ -119,6 +119,10 @@ class DriveTuning:
                 raise ConfigError(f.name, f"must be {bound}, got {value!r}")
             object.__setattr__(self, f.name, x)
 
+    def cascade_values(self) -> dict[str, float]:
+        """The cascade's parameters and feed-forward terms (the names of ``[loop]``, cascade form), SI units."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("loop_rate_hz", "torque_max_nm")}
+
 
 class DriveLoop:
     """A servo drive closing its loops around a :class:`~hilident.emulator.plant.Plant`.

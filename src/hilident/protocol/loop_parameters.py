@@ -17,6 +17,13 @@ A drive with feed-forward terms lists those it has (:data:`FEEDFORWARD`,
 e.g. ``accel_feedforward_nm_per_mps2 = { object = "0x2400:6" }``); a term left
 out is one the drive lacks.
 
+A drive that keeps the velocity loop's integral as a gain (most vendors do:
+maxon's, Nanotec's, Faulhaber's "I-gain") gives ``ki_nm_per_m`` instead of
+``ti_s`` (:data:`ALTERNATIVES`): ``ki = kv / ti``, 0 for a P controller. The
+host converts (:meth:`LoopDescription.to_cascade`, :meth:`LoopDescription.to_device`),
+so the cascade, the tuner and ``summary.json`` always speak ``ti_s``; writing
+``kv`` alone to such a drive writes ``ki`` with it, so the integral time stays.
+
 ``value`` may be ``inf`` where the parameter's part is absent (``ti_s = inf``:
 a P controller; ``velocity_filter_hz = inf``: the raw difference;
 ``current_loop_hz = inf``: an ideal current loop). The host reads the objects
@@ -33,12 +40,23 @@ kind (:func:`parse_loop`'s ``kinds``).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 from hilident.errors import ConfigError
 from hilident.protocol.canopen_types import ObjectAddress, parse_address
 
-__all__ = ["FEEDFORWARD", "GAINS", "PARAMETERS", "TUNABLE", "LoopDescription", "LoopParameter", "parse_loop"]
+__all__ = [
+    "ALTERNATIVES",
+    "FEEDFORWARD",
+    "GAINS",
+    "PARAMETERS",
+    "TUNABLE",
+    "WRITABLE",
+    "LoopDescription",
+    "LoopParameter",
+    "parse_loop",
+]
 
 #: The cascade's parameters, with their units.
 PARAMETERS = {
@@ -62,6 +80,15 @@ FEEDFORWARD = {
 GAINS = ("kv_nm_per_mps", "ti_s", "kp_pos_per_s", "velocity_filter_hz")
 #: Everything a tuner may change: the gains and the feed-forward terms.
 TUNABLE = (*GAINS, *FEEDFORWARD)
+#: Other forms a drive may keep a cascade parameter in: name -> (the parameter it stands for, its meaning).
+#: ``[loop]`` gives one of the two.
+ALTERNATIVES = {
+    "ki_nm_per_m": ("ti_s", "velocity loop integral gain, N*m per m of integrated velocity error: kv / ti (0: P)"),
+}
+#: What a drive may let a host write: the tunable parameters, in either of their forms.
+WRITABLE = (*TUNABLE, *ALTERNATIVES)
+#: The integral gain's name (:data:`ALTERNATIVES`).
+INTEGRAL_GAIN = "ki_nm_per_m"
 
 
 @dataclass(frozen=True)
@@ -71,7 +98,7 @@ class LoopParameter:
     Attributes
     ----------
     name : str
-        One of :data:`PARAMETERS`.
+        One of :data:`PARAMETERS`, :data:`ALTERNATIVES` or :data:`FEEDFORWARD`.
     address : ObjectAddress or None
         The CANopen object that holds it (None: not in an object).
     value : float or None
@@ -136,6 +163,75 @@ class LoopDescription:
         """The parameter the object ``addr`` holds; None when it holds none."""
         return next((n for n, a in self.objects.items() if a == addr), None)
 
+    @property
+    def integral_as_gain(self) -> bool:
+        """Whether the drive keeps the velocity integral as a gain (``ki_nm_per_m``) rather than a time."""
+        return INTEGRAL_GAIN in self.parameters
+
+    def to_cascade(self, values: Mapping[str, float], present: Callable[[], Mapping[str, float]] | None = None):
+        """Values in the drive's form (names of ``parameters``, SI units) as the cascade's (:data:`PARAMETERS`).
+
+        Parameters
+        ----------
+        values : mapping
+            Some or all of the drive's parameters, SI units.
+        present : callable, optional
+            The drive's present parameters in the cascade's form; asked only when ``values`` has one of ``kv`` and
+            ``ki`` without the other (a drive keeps the other: ``ki`` stays when ``kv`` is written, and the
+            integral time moves with it).
+
+        Returns
+        -------
+        dict
+            ``values`` with ``ki_nm_per_m`` replaced by ``ti_s = kv / ki`` (``inf`` for ``ki = 0``).
+        """
+        out = dict(values)
+        if not self.integral_as_gain or not ({"kv_nm_per_mps", INTEGRAL_GAIN} & set(out)):
+            return out
+        base = _present(present) if not {"kv_nm_per_mps", INTEGRAL_GAIN} <= set(out) else {}
+        kv = float(out.get("kv_nm_per_mps", base.get("kv_nm_per_mps", 0.0)))
+        ki = float(out.pop(INTEGRAL_GAIN)) if INTEGRAL_GAIN in out else _gain(base)
+        out["ti_s"] = kv / ki if ki > 0 else math.inf
+        return out
+
+    def to_device(self, values: Mapping[str, float], present: Callable[[], Mapping[str, float]] | None = None):
+        """Cascade values (:data:`PARAMETERS` and :data:`FEEDFORWARD`, SI units) in the drive's form.
+
+        Parameters
+        ----------
+        values : mapping
+            Some or all of the cascade's parameters, SI units.
+        present : callable, optional
+            The drive's present parameters in the cascade's form; asked only when ``values`` has one of ``kv`` and
+            ``ti`` without the other.
+
+        Returns
+        -------
+        dict
+            ``values`` with ``ti_s`` replaced by ``ki_nm_per_m = kv / ti`` (0 for ``ti = inf``); with ``kv``
+            alone, ``ki`` is added so the integral time stays.
+        """
+        out = dict(values)
+        if not self.integral_as_gain or not ({"kv_nm_per_mps", "ti_s"} & set(out)):
+            return out
+        base = _present(present) if not {"kv_nm_per_mps", "ti_s"} <= set(out) else {}
+        kv = float(out.get("kv_nm_per_mps", base.get("kv_nm_per_mps", 0.0)))
+        ti = float(out.pop("ti_s", base.get("ti_s", math.inf)))
+        out[INTEGRAL_GAIN] = kv / ti if math.isfinite(ti) else 0.0
+        return out
+
+
+def _present(present: Callable[[], Mapping[str, float]] | None) -> Mapping[str, float]:
+    if present is None:
+        raise ValueError("the drive's present kv and integral are needed to convert one of them alone")
+    return present()
+
+
+def _gain(cascade: Mapping[str, float]) -> float:
+    """``ki = kv / ti`` of cascade values (0 for an infinite ``ti``)."""
+    ti = float(cascade.get("ti_s", math.inf))
+    return float(cascade.get("kv_nm_per_mps", 0.0)) / ti if math.isfinite(ti) else 0.0
+
 
 #: The keys that say where a parameter lives, and what each means.
 LOCATIONS = {
@@ -167,22 +263,34 @@ def parse_loop(table, source: str = "", kinds: tuple[str, ...] = ("object",)) ->
         return None
     if not isinstance(table, dict):
         raise ConfigError("loop", "must be a table of the cascade's parameters", source)
-    unknown = sorted(set(table) - set(PARAMETERS) - set(FEEDFORWARD))
+    unknown = sorted(set(table) - set(PARAMETERS) - set(FEEDFORWARD) - set(ALTERNATIVES))
     if unknown:
         raise ConfigError(
             f"loop.{unknown[0]}",
-            f"is no cascade parameter; they are {list(PARAMETERS)}, and the feed-forward terms {list(FEEDFORWARD)}",
+            f"is no cascade parameter; they are {list(PARAMETERS)} (or {_alternatives()}), and the feed-forward "
+            f"terms {list(FEEDFORWARD)}",
             source,
         )
-    missing = [n for n in PARAMETERS if n not in table]
-    if missing:
-        raise ConfigError(
-            f"loop.{missing[0]}",
-            f"is missing: give the object that holds it or its value ({PARAMETERS[missing[0]]})",
-            source,
-        )
-    names = [*PARAMETERS, *(n for n in FEEDFORWARD if n in table)]
+    forms = {n: [n, *(a for a, (stands, _) in ALTERNATIVES.items() if stands == n)] for n in PARAMETERS}
+    names = []
+    for name, choices in forms.items():
+        given = [c for c in choices if c in table]
+        if not given:
+            alternative = f" (or {' or '.join(choices[1:])})" if len(choices) > 1 else ""
+            raise ConfigError(
+                f"loop.{name}",
+                f"is missing{alternative}: give the object that holds it or its value ({PARAMETERS[name]})",
+                source,
+            )
+        if len(given) > 1:
+            raise ConfigError(f"loop.{given[1]}", f"and loop.{given[0]} are one parameter: give one of them", source)
+        names.append(given[0])
+    names += [n for n in FEEDFORWARD if n in table]
     return LoopDescription({n: _parameter(n, table[n], source, kinds) for n in names})
+
+
+def _alternatives() -> str:
+    return ", ".join(f"{a} for {stands}" for a, (stands, _) in ALTERNATIVES.items())
 
 
 def _parameter(name: str, entry, source: str, kinds: tuple[str, ...]) -> LoopParameter:
@@ -196,6 +304,9 @@ def _parameter(name: str, entry, source: str, kinds: tuple[str, ...]) -> LoopPar
             )
         return LoopParameter(name, register=register)
     if "message" in entry:
+        if name in ALTERNATIVES:
+            stands = ALTERNATIVES[name][0]
+            raise ConfigError(f"{key}.message", f"the LOOP message carries {stands}, not {name}", source)
         if entry["message"] not in MESSAGES:
             raise ConfigError(f"{key}.message", f"must be one of {list(MESSAGES)}, got {entry['message']!r}", source)
         return LoopParameter(name, message=entry["message"])

@@ -67,6 +67,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import struct
 import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -684,6 +685,9 @@ class CanopenDriveAdapter(AdapterBase):
         """Why the drive's encoding cannot meet ``spec`` exactly (depth or width out of reach), if it cannot."""
         return self.slots.filter_notes(spec)
 
+    def _loop_description(self):
+        return self.desc.loop
+
     def _read_loop(self) -> dict[str, float] | None:
         """The drive's cascade parameters in SI units (``[loop]``: the objects read, the fixed values as given);
         None when the driver description has no ``[loop]``. DeviceError naming the object when one cannot be
@@ -699,10 +703,11 @@ class CanopenDriveAdapter(AdapterBase):
     def _write_loop(self, values: dict[str, float]) -> None:
         """Each tunable parameter into its object, in the object's unit (rounded to its type); DeviceError naming
         the object when the drive refuses it, UsageError when the description keeps it as a fixed value."""
-        for name, value in values.items():
-            param = self._loop_object(name)
+        params = [self._loop_object(name) for name in values]
+        stored = [self._loop_stored_value(p, v) for p, v in zip(params, values.values(), strict=True)]  # all first
+        for param, value in zip(params, stored, strict=True):
             assert param.address is not None
-            self.sdo.write_object(param.address, self._loop_stored_value(param, value))
+            self.sdo.write_object(param.address, value)
 
     def _stored_loop(self, values: dict[str, float]) -> dict[str, float]:
         """``values`` as the objects will hold them: an integer object keeps the nearest whole unit."""
@@ -735,7 +740,14 @@ class CanopenDriveAdapter(AdapterBase):
             raise UsageError(
                 f"{self.port}: {param.name} = {value} cannot be held in the integer object {param.address}"
             )
-        return int(round(stored))
+        whole = int(round(stored))
+        try:
+            self.sdo.eds_variable(param.address).encode_raw(whole)
+        except (ValueError, TypeError, struct.error):
+            raise UsageError(
+                f"{self.port}: {param.name} = {value} ({whole} units) does not fit {self.sdo.describe(param.address)}"
+            ) from None
+        return whole
 
     def save_parameters(self) -> str:
         """Have the drive store its parameters in non-volatile memory (0x1010, or the object ``[canopen.save]``

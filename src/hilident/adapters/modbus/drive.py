@@ -691,6 +691,9 @@ class ModbusDriveAdapter(AdapterBase):
 
     # --- the drive's loop (hooks of AdapterBase's read_loop, write_loop, stored_loop) ----------------
 
+    def _loop_description(self):
+        return self.map.loop
+
     def _read_loop(self) -> dict[str, float] | None:
         return self.cascade.read()
 

@@ -565,6 +565,9 @@ class SerialBoardAdapter(AdapterBase):
 
     # --- the loop (PROTOCOL.md sections 4.15, 4.16) ----------------------------------------------
 
+    def _loop_description(self):
+        return serial_loop(self.driver)
+
     def _read_loop(self) -> dict[str, float] | None:
         """The cascade's six parameters, SI units: LOOP's, a fixed value of ``[loop]`` replacing the board's.
         None when the driver has no ``[loop]`` or the board has no READ_LOOP (NAK UNKNOWN_TYPE: older firmware).

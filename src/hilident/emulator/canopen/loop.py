@@ -7,7 +7,9 @@ read as it is and written into it. A write of a tunable parameter
 at once, as a drive takes a new parameter; the current loop and the delay are
 the power stage's and the firmware's, read-only. A value the loop cannot run
 (a negative gain, a zero integral time) is refused with the SDO abort a drive
-gives for a value out of range, and the loop keeps its gains.
+gives for a value out of range, and the loop keeps its gains. A drive that keeps
+the velocity integral as a gain (``ki_nm_per_m``) keeps that gain when ``kv``
+is written: its integral time moves with ``kv``, as a real one's does.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from hilident.emulator.canopen.host import FirmwareHost
 from hilident.emulator.canopen.sdo import ABORT_VALUE
 from hilident.errors import ConfigError
 from hilident.protocol.canopen_types import ObjectAddress
-from hilident.protocol.loop_parameters import TUNABLE
+from hilident.protocol.loop_parameters import WRITABLE
 
 __all__ = ["LoopObjects"]
 
@@ -40,16 +42,18 @@ class LoopObjects:
     def read(self, name: str, addr: ObjectAddress):
         """What the object of parameter ``name`` answers: the running tuning, in the object's unit."""
         assert self.loop is not None
-        stored = self.loop.parameters[name].stored(float(getattr(self.fw.drive.tuning, name)))
+        shown = self.loop.to_device(self.fw.drive.tuning.cascade_values())
+        stored = self.loop.parameters[name].stored(float(shown[name]))
         var = self.fw.od.get_variable(addr.index, addr.subindex)
         return stored if var is not None and var.data_type in _REAL_TYPES else int(round(stored))
 
     def write(self, name: str, value) -> None:
         """The host wrote parameter ``name``: the running loop takes it, or the write is refused."""
         assert self.loop is not None
-        if name not in TUNABLE:
+        if name not in WRITABLE:
             raise SdoAbortedError(_ABORT_READ_ONLY)
+        written = {name: self.loop.parameters[name].physical(value)}
         try:
-            self.fw.drive.retune(**{name: self.loop.parameters[name].physical(value)})
+            self.fw.drive.retune(**self.loop.to_cascade(written, self.fw.drive.tuning.cascade_values))
         except ConfigError:
             raise SdoAbortedError(ABORT_VALUE) from None

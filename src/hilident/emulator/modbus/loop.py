@@ -24,7 +24,7 @@ import numpy as np
 
 from hilident.emulator.drive import DriveLoop
 from hilident.errors import ConfigError, DataError
-from hilident.protocol.loop_parameters import TUNABLE
+from hilident.protocol.loop_parameters import ALTERNATIVES, WRITABLE
 from hilident.protocol.modbus.register_map import RegisterMap
 
 __all__ = ["LoopRegisters"]
@@ -54,29 +54,32 @@ class LoopRegisters:
 
     def __init__(self, drive: DriveLoop, regmap: RegisterMap, source: str = ""):
         self.drive = drive
+        self.loop = regmap.loop
         self.by_parameter = regmap.loop_registers()
         self._parameter_of = {r.name: n for n, r in self.by_parameter.items()}
+        shown = self._shown()
         for name, r in self.by_parameter.items():
             try:
-                r.encode(getattr(drive.tuning, name))
+                r.encode(shown[name])
             except DataError as exc:
                 where = f"register {r.label} of {source or 'the driver'}"
-                raise ConfigError(f"emulator.drive.{name}", f"cannot be shown in {where}: {exc}") from None
+                key = ALTERNATIVES.get(name, (name,))[0]  # the twin's tuning is in the cascade's form
+                raise ConfigError(f"emulator.drive.{key}", f"cannot be shown in {where} as {name}: {exc}") from None
 
     def __contains__(self, register: str) -> bool:
         return register in self._parameter_of
 
     def show(self, image: np.ndarray, first: int, end: int, table: str = "holding") -> None:
         """Put the running tuning into the loop registers of ``table`` that overlap ``first .. end - 1``."""
-        tuning = self.drive.tuning
+        shown = self._shown()
         for name, r in self.by_parameter.items():
             if r.table == table and r.address < end and r.end > first:
-                image[r.address : r.end] = r.encode(getattr(tuning, name))
+                image[r.address : r.end] = r.encode(shown[name])
 
     def refusal(self, written: dict[str, float]) -> int | None:
         """The exception code that refuses the loop registers ``written`` (register -> physical value, as the
         write leaves them); None when the loop can run them."""
-        if any(self._parameter_of[n] not in TUNABLE for n in written):
+        if any(self._parameter_of[n] not in WRITABLE for n in written):
             return ILLEGAL_ADDRESS
         try:
             replace(self.drive.tuning, **self._gains(written))  # what DriveTuning accepts, nothing changed yet
@@ -89,5 +92,12 @@ class LoopRegisters:
         if written:
             self.drive.retune(**self._gains(written))
 
+    def _shown(self) -> dict[str, float]:
+        """The running tuning in the drive's form (its integral as a gain where ``[loop]`` keeps it so)."""
+        values = self.drive.tuning.cascade_values()
+        return values if self.loop is None else self.loop.to_device(values)
+
     def _gains(self, written: dict[str, float]) -> dict[str, Any]:
-        return {self._parameter_of[n]: float(v) for n, v in written.items()}
+        """The registers ``written`` (register -> physical value) as cascade settings for the running tuning."""
+        values = {self._parameter_of[n]: float(v) for n, v in written.items()}
+        return values if self.loop is None else self.loop.to_cascade(values, self.drive.tuning.cascade_values)

@@ -15,7 +15,7 @@ All pure: tables in, values out.
 from __future__ import annotations
 
 from hilident.errors import ConfigError
-from hilident.protocol.loop_parameters import TUNABLE, LoopDescription, parse_loop
+from hilident.protocol.loop_parameters import WRITABLE, LoopDescription, parse_loop
 from hilident.protocol.modbus.registers import Register
 
 __all__ = ["parse_loop_registers", "stored_value"]
@@ -38,7 +38,7 @@ def parse_loop_registers(table, registers: dict[str, Register], source: str = ""
     ConfigError
         The table is malformed (:func:`~hilident.protocol.loop_parameters.parse_loop`), or a register it
         names is not in the map, holds text, or is not a read-write holding register while it keeps a
-        parameter the host writes (:data:`~hilident.protocol.loop_parameters.TUNABLE`); the message names
+        parameter the host writes (:data:`~hilident.protocol.loop_parameters.WRITABLE`); the message names
         ``loop.<parameter>.register`` and ``source``.
     """
     loop = parse_loop(table, source, kinds=("register",))
@@ -51,7 +51,7 @@ def parse_loop_registers(table, registers: dict[str, Register], source: str = ""
             raise ConfigError(key, f"{parameter.register!r} is no register of [modbus.registers]", source or None)
         if register.type == "str":
             raise ConfigError(key, f"register {register.label} holds text; {name} needs a numeric type", source or None)
-        if name in TUNABLE and not register.writable:
+        if name in WRITABLE and not register.writable:
             raise ConfigError(
                 key,
                 f'register {register.label} must be a holding register with access = "rw": the host writes {name}',
