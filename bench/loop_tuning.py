@@ -67,7 +67,7 @@ def _fmt(x, digits=1) -> str:
 def tuned(name: str, out: Path) -> None:
     from hilident.config.tables import load_config
     from hilident.filters.biquad import Biquad
-    from hilident.protocol.loop_parameters import FEEDFORWARD, PARAMETERS
+    from hilident.protocol.loop_parameters import FEEDFORWARD, PARAMETERS, POSITION_TERMS
 
     cfg = load_config(ROOT / "configs" / f"{name}.toml")
     cfg = replace(cfg, tuning=replace(cfg.tuning, upload=True))
@@ -75,7 +75,7 @@ def tuned(name: str, out: Path) -> None:
     loop = summary["loop"]
     tuning = session.emulator.drive.tuning  # as the run left it: with the gains it kept
     up = loop.get("upload") or {}
-    values = {n: getattr(tuning, n) for n in PARAMETERS} | {"loop_rate_hz": tuning.loop_rate_hz}
+    values = {n: getattr(tuning, n) for n in (*PARAMETERS, *POSITION_TERMS)} | {"loop_rate_hz": tuning.loop_rate_hz}
     values |= up.get("before") or {}  # the gains the run identified and analysed with
     notches = [Biquad(np.array(n["b"]), np.array(n["a"])) for n in summary["notch_filters"]]
     print(f"\n## {name} ({took:.0f} s)")

@@ -78,7 +78,7 @@ def test_one_record_of_gains_gives_the_velocity_pi_as_gains_and_says_what_the_ca
     assert keys["ki_nm_per_m"] == '{ object = "0x3210:4", scale = 1.0 }' and "ti_s" not in keys
     assert keys["kp_pos_per_s"] == '{ object = "0x3210:1", scale = 1.0 }'
     assert keys["velocity_feedforward"] == '{ object = "0x3210:7", scale = 0.001 }'  # per mille
-    assert "0x3210:2" in notes and "integral term" in notes  # the position loop's I: not in the cascade
+    assert keys["ki_pos_per_s2"] == '{ object = "0x3210:2", scale = 1.0 }'  # a PI position loop
     assert "0x3210:5" in notes and "current loop gain" in notes
     assert "0x3210:6" not in notes  # an open-loop gain is none of the running cascade's
 
@@ -88,7 +88,8 @@ def test_a_feedforward_term_belongs_to_the_regulator_it_is_in_and_a_position_d_t
     assert keys["viscous_feedforward_nm_per_mps"] == '{ object = "0x60F9:4", scale = 1.0 }'
     assert keys["accel_feedforward_nm_per_mps2"] == '{ object = "0x60F9:5", scale = 1.0 }'
     assert keys["velocity_feedforward"] == '{ object = "0x60FB:4", scale = 1.0 }'
-    assert "D term" in notes and "block diagram" in notes and "0x60FB:3" in notes
+    assert keys["kd_pos"] == '{ object = "0x60FB:3", scale = 1.0 }' and "ki_pos_per_s2" not in keys
+    assert "D term" in notes and "block diagram" in notes
 
 
 def test_a_record_names_the_loop_of_its_terms_and_an_integral_time_stays_a_time():

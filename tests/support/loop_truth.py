@@ -31,7 +31,16 @@ def true_loop_figures(emulator_cfg, tuning, notches=(), grid=None) -> dict:
     h = plant_position(plant_model(emulator_cfg), f, tuning.loop_rate_hz)
     values = {
         name: getattr(tuning, name)
-        for name in ("kv_nm_per_mps", "ti_s", "kp_pos_per_s", "velocity_filter_hz", "current_loop_hz", "delay_ticks")
+        for name in (
+            "kv_nm_per_mps",
+            "ti_s",
+            "kp_pos_per_s",
+            "ki_pos_per_s2",
+            "kd_pos",
+            "velocity_filter_hz",
+            "current_loop_hz",
+            "delay_ticks",
+        )
     }
     out = {}
     for loop in ("velocity", "position"):

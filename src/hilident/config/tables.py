@@ -704,6 +704,10 @@ class FrictionConfig:
 @dataclass(frozen=True)
 class DriveConfig:
     kp_pos_per_s: float = _spec(20.0, ge=0, doc="position loop gain, 1/s")
+    ki_pos_per_s2: float = _spec(
+        0.0, ge=0, doc="position loop integral gain, (m/s) per (m*s) of integrated position error (0: a P loop)"
+    )
+    kd_pos: float = _spec(0.0, ge=0, doc="position loop derivative gain, (m/s) per (m/s) of the error's rate (0: none)")
     kv_nm_per_mps: float = _spec(200.0, ge=0, doc="velocity loop proportional gain")
     ti_s: float = _spec(0.05, gt=0, doc="velocity loop integral time")
     velocity_filter_hz: float = _spec(500.0, gt=0, doc="low-pass of the drive's velocity estimate")

@@ -10,6 +10,9 @@ rate:
   ``a = 1 - exp(-2 pi f_v T)``;
 * the velocity controller, a PI: ``C(z) = K_v + K_v T / T_i / (1 - z^-1)``
   (the integrator adds its increment before the output, as a drive's code does);
+* the position controller, from the position error to the velocity set-point:
+  ``P(z) = K_p + K_ip T / (1 - z^-1) + K_dp (1 - z^-1) / T`` (a P controller
+  unless the drive has the integral or derivative term);
 * the filter slots in series, ``N(z)``;
 * the computation and transport delay, ``z^-d``;
 * the current loop, a first-order lag sampled at the loop rate,
@@ -19,10 +22,10 @@ The plant closes the loop: ``H``, the response from the motor torque of a tick t
 the position the encoder reads in the same tick (a recording's torque and
 position columns, row by row). The chain from the encoder to the motor torque is
 ``K_vel = C N z^-d G V`` with the position loop open (velocity mode) and
-``K_pos = C N z^-d G (K_p + V)`` with both loops closed (position mode). A
+``K_pos = C N z^-d G (P + V)`` with both loops closed (position mode). A
 cascade is tuned loop by loop: the velocity loop broken at the torque,
 ``L_v = K_vel H``; the position loop broken at the velocity set-point with the
-velocity loop closed, ``L_p = K_p C N z^-d G H / (1 + L_v)``.
+velocity loop closed, ``L_p = P C N z^-d G H / (1 + L_v)``.
 
 Feed-forward terms act on the set-point, outside the loops: they change how
 the axis follows its set-point, not the margins. With the set-point held over
@@ -48,7 +51,7 @@ import numpy as np
 
 from hilident.errors import ConfigError
 from hilident.filters.biquad import Biquad
-from hilident.protocol.loop_parameters import FEEDFORWARD
+from hilident.protocol.loop_parameters import FEEDFORWARD, POSITION_TERMS
 
 __all__ = ["Cascade"]
 
@@ -67,6 +70,10 @@ class Cascade:
         Velocity controller's integral time, s (``inf``: a P controller).
     kp_pos_per_s : float
         Position controller's gain, (m/s) per m.
+    ki_pos_per_s2 : float
+        Position controller's integral gain, (m/s) per (m·s) (0: none).
+    kd_pos : float
+        Position controller's derivative gain, (m/s) per (m/s) (0: none).
     velocity_filter_hz : float
         Cut-off of the first-order low-pass on the velocity estimate, Hz
         (``inf``: the raw backward difference).
@@ -91,6 +98,8 @@ class Cascade:
     kv_nm_per_mps: float
     ti_s: float = math.inf
     kp_pos_per_s: float = 0.0
+    ki_pos_per_s2: float = 0.0
+    kd_pos: float = 0.0
     velocity_filter_hz: float = math.inf
     current_loop_hz: float = math.inf
     delay_ticks: int = 0
@@ -109,7 +118,10 @@ class Cascade:
             "velocity_filter_hz": self.velocity_filter_hz > 0,
             "current_loop_hz": self.current_loop_hz > 0,
             "delay_ticks": isinstance(self.delay_ticks, int) and self.delay_ticks >= 0,
-            **{name: getattr(self, name) >= 0 and math.isfinite(getattr(self, name)) for name in FEEDFORWARD},
+            **{
+                name: getattr(self, name) >= 0 and math.isfinite(getattr(self, name))
+                for name in (*POSITION_TERMS, *FEEDFORWARD)
+            },
         }
         for name, ok in checks.items():
             if not ok:
@@ -129,7 +141,7 @@ class Cascade:
             current_loop_hz=float(values["current_loop_hz"]),
             delay_ticks=int(round(float(values["delay_ticks"]))),
             filters=tuple(filters),
-            **{name: float(values[name]) for name in FEEDFORWARD if name in values},
+            **{name: float(values[name]) for name in (*POSITION_TERMS, *FEEDFORWARD) if name in values},
         )
 
     @property
@@ -159,6 +171,15 @@ class Cascade:
         with np.errstate(divide="ignore", invalid="ignore"):
             return self.kv_nm_per_mps + integral / (1.0 - zi)
 
+    def position_controller(self, frequency_hz) -> np.ndarray:
+        """``P``: position error to velocity set-point, (m/s) per m."""
+        zi = self._z_inverse(frequency_hz)
+        p = self.kp_pos_per_s + self.kd_pos * (1.0 - zi) / self.period_s
+        if self.ki_pos_per_s2:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                p = p + self.ki_pos_per_s2 * self.period_s / (1.0 - zi)
+        return p
+
     def torque_path(self, frequency_hz) -> np.ndarray:
         """``N z^-d G``: torque command to motor torque (filters, delay, current loop), 1."""
         zi = self._z_inverse(frequency_hz)
@@ -181,7 +202,7 @@ class Cascade:
         """
         inner = self.velocity_estimate(frequency_hz)
         if loop == "position":
-            inner = inner + self.kp_pos_per_s
+            inner = inner + self.position_controller(frequency_hz)
         elif loop != "velocity":
             raise ValueError(f"loop must be 'velocity' or 'position', got {loop!r}")
         return self.velocity_controller(frequency_hz) * self.torque_path(frequency_hz) * inner
@@ -214,7 +235,8 @@ class Cascade:
             return velocity_loop
         if loop != "position":
             raise ValueError(f"loop must be 'velocity', 'position' or 'torque', got {loop!r}")
-        return self.kp_pos_per_s * self.velocity_controller(f) * self.torque_path(f) * h / (1.0 + velocity_loop)
+        outer = self.position_controller(f) * self.velocity_controller(f) * self.torque_path(f)
+        return outer * h / (1.0 + velocity_loop)
 
     def setpoint_difference(self, frequency_hz, setpoint_ticks: int = 1) -> np.ndarray:
         """``s_D = (1 - z^-D) / (D T)``: a set-point held over ``D`` ticks to its backward difference, 1/s."""
@@ -246,7 +268,7 @@ class Cascade:
         c, path = self.velocity_controller(f), self.torque_path(f)
         if loop == "position":
             s_d = self.setpoint_difference(f, setpoint_ticks)
-            drive = c * (self.kp_pos_per_s + self.velocity_feedforward * s_d)
+            drive = c * (self.position_controller(f) + self.velocity_feedforward * s_d)
         elif loop == "velocity":
             drive = c
         else:

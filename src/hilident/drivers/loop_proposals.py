@@ -13,8 +13,8 @@ An EDS names an object, never its unit: every key proposed is a placeholder
 whose ``scale`` (SI units per stored unit) must come from the manual, and the
 parts an EDS does not hold (the current loop's bandwidth, the delay, the
 velocity estimate's filter) are the manual's figures. What hilident's cascade
-does not describe (a position controller with an I or a D term, the current
-loop's gains) is said in notes, never silently dropped.
+does not describe (the current loop's gains, a second object of one term) is
+said in notes, never silently dropped.
 
 All pure: an object dictionary in, a proposal out.
 """
@@ -134,8 +134,8 @@ def _loop_of(text: str) -> str:
 def propose_loop(od) -> LoopProposal | None:
     """The ``[loop]`` table for the drive ``od`` describes; None when its EDS names no velocity P and I gains.
 
-    The velocity loop's P and I (or integral time) are required; the position loop's P, the feed-forward terms
-    and the notes follow what the EDS has. Every key is a placeholder (the EDS gives no unit).
+    The velocity loop's P and I (or integral time) are required; the position loop's P, I and D, the
+    feed-forward terms and the notes follow what the EDS has. Every key is a placeholder (the EDS gives no unit).
     """
     objects = loop_objects(od)
 
@@ -163,13 +163,19 @@ def propose_loop(od) -> LoopProposal | None:
     notes = []
     if first("position", "d") is not None:
         notes.append(
-            "The position controller has a D term: hilident's cascade puts a P position loop around the velocity "
-            "loop; a drive whose position controller drives the current itself (a position PID) is another "
-            "structure. Check the manual's block diagram before trusting position-mode margins."
+            "The position controller has a D term: hilident's cascade puts the position controller around the "
+            "velocity loop; a drive whose position PID drives the current itself is another structure. Check the "
+            "manual's block diagram before trusting position-mode margins."
         )
+    ki_pos, kd_pos = first("position", "i"), first("position", "d")
+    if ki_pos is not None:
+        keys.append(_object_key("ki_pos_per_s2", ki_pos, "(m/s) per (m*s)"))
+    if kd_pos is not None:
+        keys.append(_object_key("kd_pos", kd_pos, "(m/s) per (m/s)"))
     feedforward = _feedforward_objects(objects)
     keys += [_object_key(key, o, unit) for key, (o, unit) in feedforward.items()]
-    used = {o.info.address for o in (kv, integral, kp, *(o for o, _ in feedforward.values())) if o is not None}
+    chosen = (kv, integral, kp, ki_pos, kd_pos, *(o for o, _ in feedforward.values()))
+    used = {o.info.address for o in chosen if o is not None}
     notes += [_left_out(o) for o in objects if o.info.address not in used]
     return LoopProposal(tuple(keys), tuple(notes))
 
@@ -197,11 +203,10 @@ def _feedforward_objects(objects: list[LoopObject]) -> dict[str, tuple[LoopObjec
 
 def _left_out(o: LoopObject) -> str:
     """Why an object of the drive's loops has no key: the cascade's position loop is P, its current loop a lag."""
-    if o.loop == "position" and o.term in ("i", "ti", "d"):
-        what = "integral" if o.term != "d" else "derivative"
+    if o.loop == "position" and o.term == "ti":
         return (
-            f"{o.describe()}: the position controller's {what} term; hilident's cascade has a P position loop, "
-            "so its position-mode margins hold with this term at 0 on the drive"
+            f"{o.describe()}: the position controller's integral time; give it as ki_pos_per_s2 = kp / time "
+            "(a value), or hold it at its off value on the drive"
         )
     if o.loop == "current":
         return f"{o.describe()}: a current loop gain; the cascade takes the current loop as its bandwidth"

@@ -128,6 +128,8 @@ def build_drive(cfg: EmulatorConfig, driver: DriverDescription) -> DriveLoop:
     tuning = DriveTuning(
         loop_rate_hz=driver.loop_rate_hz,
         kp_pos_per_s=d.kp_pos_per_s,
+        ki_pos_per_s2=d.ki_pos_per_s2,
+        kd_pos=d.kd_pos,
         kv_nm_per_mps=d.kv_nm_per_mps,
         ti_s=d.ti_s,
         velocity_filter_hz=d.velocity_filter_hz,

@@ -32,7 +32,7 @@ from hilident.emulator.plant import Plant
 from hilident.emulator.sensors import SensorModel
 from hilident.errors import ConfigError, DataError, DeviceError
 from hilident.filters.biquad import BiquadChain
-from hilident.protocol.loop_parameters import FEEDFORWARD
+from hilident.protocol.loop_parameters import FEEDFORWARD, POSITION_TERMS
 
 __all__ = ["DriveTuning", "DriveLoop", "MODES", "FAULTS"]
 
@@ -53,6 +53,10 @@ class DriveTuning:
         Control loop rate, Hz; one output row per tick.
     kp_pos_per_s : float
         Position loop gain, (m/s) of velocity set-point per m of position error.
+    ki_pos_per_s2 : float
+        Position loop integral gain, (m/s) per (m·s) of integrated position error (0: none).
+    kd_pos : float
+        Position loop derivative gain, (m/s) per (m/s) of the position error's backward difference (0: none).
     kv_nm_per_mps : float
         Velocity loop proportional gain, N·m per (m/s).
     ti_s : float
@@ -89,6 +93,8 @@ class DriveTuning:
 
     loop_rate_hz: float = 4000.0
     kp_pos_per_s: float = 20.0
+    ki_pos_per_s2: float = 0.0
+    kd_pos: float = 0.0
     kv_nm_per_mps: float = 100.0
     ti_s: float = 0.05
     velocity_filter_hz: float = 500.0
@@ -112,7 +118,7 @@ class DriveTuning:
             except (TypeError, ValueError):
                 raise ConfigError(f.name, f"must be a number, got {value!r}") from None
             finite_ok = f.name in ("ti_s", "current_loop_hz")
-            zero_ok = f.name in FEEDFORWARD  # 0: the term is off
+            zero_ok = f.name in FEEDFORWARD or f.name in POSITION_TERMS  # 0: the term is off
             low_ok = x >= 0.0 if zero_ok else x > 0.0
             if isinstance(value, bool) or not low_ok or (not finite_ok and not math.isfinite(x)):
                 bound = (">= 0" if zero_ok else "> 0") + ("" if finite_ok else " and finite")
@@ -244,6 +250,8 @@ class DriveLoop:
         self._last_position = self.hold_position_m
         self._velocity = 0.0
         self._integral = 0.0
+        # the position controller's integral and last error (None: none yet), when it has those terms
+        self._position_state: list = [0.0, None]
         # Commands on their way to the current loop (oldest first) and the motor torque.
         self._pending = [0.0] * tuning.delay_ticks
         self._motor_torque = 0.0
@@ -261,6 +269,7 @@ class DriveLoop:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
         self.mode = mode
         self._integral = 0.0
+        self._position_state[:] = [0.0, None]
         self._setpoint = None  # a set-point of another mode starts no difference
 
     def set_limits(
@@ -325,6 +334,7 @@ class DriveLoop:
         self.hold_position_m = self.sensors.encoder(self.plant.p1)
         self._setpoint = None  # the first set-point after enabling starts the feed-forward's differences
         self._integral = 0.0
+        self._position_state[:] = [0.0, None]
         self.filters.reset()
         self.enabled = True
 
@@ -538,6 +548,29 @@ def _excitation_samples(excitation) -> np.ndarray:
     return x
 
 
+def _position_law(loop: DriveLoop):
+    """The position controller of ``loop`` with its integral or derivative term, ``law(error) -> velocity
+    set-point`` (m -> m/s), its state in ``loop._position_state``; None for a P controller (``kp * error``).
+
+    The integral adds its increment before the output (as the velocity PI's does), clamped to the velocity limit;
+    the derivative is the error's backward difference over a tick (0 on the first tick after enabling).
+    """
+    tn = loop.tuning
+    if not (tn.ki_pos_per_s2 or tn.kd_pos):
+        return None
+    kp, ki_T, kd_inv_T = tn.kp_pos_per_s, tn.ki_pos_per_s2 * loop.period_s, tn.kd_pos / loop.period_s
+    clamp = loop.velocity_limit_mps
+    state = loop._position_state
+
+    def law(error: float) -> float:
+        integral = min(clamp, max(-clamp, state[0] + ki_T * error))
+        last = state[1]
+        state[0], state[1] = integral, error
+        return kp * error + integral + (0.0 if last is None else kd_inv_T * (error - last))
+
+    return law
+
+
 def _control_law(loop: DriveLoop):
     """The enabled tick of ``loop`` as it stands: ``tick(e, pm, vf, integ, ff_v, ff_a) -> (cmd, applied, integ,
     trip)`` (``ff_v``, ``ff_a``: the velocity and torque feed-forward, m/s and N·m).
@@ -550,6 +583,7 @@ def _control_law(loop: DriveLoop):
     """
     tn = loop.tuning
     kp, kv, tmax = tn.kp_pos_per_s, tn.kv_nm_per_mps, tn.torque_max_nm
+    position = _position_law(loop)
     ki_T = kv * loop.period_s / tn.ti_s  # integrator gain per tick, N·m per (m/s)
     tlim, vlim = loop.torque_limit_nm, loop.velocity_limit_mps
     pmin, pmax = loop.position_min_m, loop.position_max_m
@@ -565,12 +599,12 @@ def _control_law(loop: DriveLoop):
         if mode == 0:
             cmd = e + offset
         else:
-            if mode == 1:
-                verr = kp * (hold - pm) - vf
-            elif mode == 2:
+            if mode == 2:
                 verr = e - vf
+            elif position is None:
+                verr = kp * (hold - pm if mode == 1 else hold + e - pm) + ff_v - vf
             else:
-                verr = kp * (hold + e - pm) + ff_v - vf
+                verr = position(hold - pm if mode == 1 else hold + e - pm) + ff_v - vf
             integ += ki_T * verr
             # Clamp so the integrator cannot wind up beyond the power stage.
             if integ > tmax:

@@ -44,11 +44,14 @@ def _present(part: dict) -> str:
     return table(["loop", "", *_HEADER], rows, "The drive's present gains around the identified plant")
 
 
-#: The gains and feed-forward terms shown, with their units (a feed-forward term only where the drive has it).
+#: The gains and feed-forward terms shown, with their units (a position I or D term or a feed-forward term only
+#: where the drive has it).
 _GAIN_UNITS = (
     ("kv_nm_per_mps", "N*m/(m/s)"),
     ("ti_s", "s"),
     ("kp_pos_per_s", "1/s"),
+    ("ki_pos_per_s2", "1/s^2"),
+    ("kd_pos", ""),
     ("velocity_feedforward", ""),
     ("accel_feedforward_nm_per_mps2", "N*m/(m/s^2)"),
     ("viscous_feedforward_nm_per_mps", "N*m/(m/s)"),

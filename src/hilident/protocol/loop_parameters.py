@@ -13,6 +13,8 @@ driver folder says, for each, where the drive keeps it or what it is:
     current_loop_hz = { value = 1000.0 }                 # fixed by the firmware (the manual's figure)
     delay_ticks = { value = 1 }
 
+A drive whose position controller is a PI, PD or PID lists its other terms
+(:data:`POSITION_TERMS`, e.g. ``ki_pos_per_s2 = { object = "0x3210:2" }``).
 A drive with feed-forward terms lists those it has (:data:`FEEDFORWARD`,
 e.g. ``accel_feedforward_nm_per_mps2 = { object = "0x2400:6" }``); a term left
 out is one the drive lacks.
@@ -51,6 +53,7 @@ __all__ = [
     "FEEDFORWARD",
     "GAINS",
     "PARAMETERS",
+    "POSITION_TERMS",
     "TUNABLE",
     "WRITABLE",
     "LoopDescription",
@@ -76,10 +79,16 @@ FEEDFORWARD = {
     "viscous_feedforward_nm_per_mps": "torque per m/s of the set-point's velocity (viscous friction), N*m/(m/s)",
     "friction_feedforward_nm": "torque with the sign of the set-point's velocity (Coulomb friction), N*m",
 }
+#: The position controller's terms beyond P that a drive may have (a PI, PD or PID position loop); one left out of
+#: ``[loop]`` is a term the drive lacks (0). The tuner keeps them as the drive has them.
+POSITION_TERMS = {
+    "ki_pos_per_s2": "position loop integral gain: (m/s) of velocity set-point per m*s of position error, 1/s^2",
+    "kd_pos": "position loop derivative gain: (m/s) of velocity set-point per (m/s) of position error's rate, 1",
+}
 #: The cascade's parameters a tuner may change; the others are the drive's hardware and firmware.
 GAINS = ("kv_nm_per_mps", "ti_s", "kp_pos_per_s", "velocity_filter_hz")
-#: Everything a tuner may change: the gains and the feed-forward terms.
-TUNABLE = (*GAINS, *FEEDFORWARD)
+#: Everything a host may change: the gains, the position controller's other terms and the feed-forward terms.
+TUNABLE = (*GAINS, *POSITION_TERMS, *FEEDFORWARD)
 #: Other forms a drive may keep a cascade parameter in: name -> (the parameter it stands for, its meaning).
 #: ``[loop]`` gives one of the two.
 ALTERNATIVES = {
@@ -98,7 +107,7 @@ class LoopParameter:
     Attributes
     ----------
     name : str
-        One of :data:`PARAMETERS`, :data:`ALTERNATIVES` or :data:`FEEDFORWARD`.
+        One of :data:`PARAMETERS`, :data:`ALTERNATIVES`, :data:`POSITION_TERMS` or :data:`FEEDFORWARD`.
     address : ObjectAddress or None
         The CANopen object that holds it (None: not in an object).
     value : float or None
@@ -263,12 +272,12 @@ def parse_loop(table, source: str = "", kinds: tuple[str, ...] = ("object",)) ->
         return None
     if not isinstance(table, dict):
         raise ConfigError("loop", "must be a table of the cascade's parameters", source)
-    unknown = sorted(set(table) - set(PARAMETERS) - set(FEEDFORWARD) - set(ALTERNATIVES))
+    unknown = sorted(set(table) - set(PARAMETERS) - set(POSITION_TERMS) - set(FEEDFORWARD) - set(ALTERNATIVES))
     if unknown:
         raise ConfigError(
             f"loop.{unknown[0]}",
-            f"is no cascade parameter; they are {list(PARAMETERS)} (or {_alternatives()}), and the feed-forward "
-            f"terms {list(FEEDFORWARD)}",
+            f"is no cascade parameter; they are {list(PARAMETERS)} (or {_alternatives()}), the position "
+            f"controller's {list(POSITION_TERMS)} and the feed-forward terms {list(FEEDFORWARD)}",
             source,
         )
     forms = {n: [n, *(a for a, (stands, _) in ALTERNATIVES.items() if stands == n)] for n in PARAMETERS}
@@ -285,7 +294,7 @@ def parse_loop(table, source: str = "", kinds: tuple[str, ...] = ("object",)) ->
         if len(given) > 1:
             raise ConfigError(f"loop.{given[1]}", f"and loop.{given[0]} are one parameter: give one of them", source)
         names.append(given[0])
-    names += [n for n in FEEDFORWARD if n in table]
+    names += [n for n in (*POSITION_TERMS, *FEEDFORWARD) if n in table]
     return LoopDescription({n: _parameter(n, table[n], source, kinds) for n in names})
 
 
