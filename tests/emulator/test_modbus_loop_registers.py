@@ -124,6 +124,31 @@ def test_an_integer_register_rounds_to_its_scale_and_a_fixed_gain_is_never_writt
         emulated.close()
 
 
+def test_a_drive_keeping_the_integral_as_a_gain_in_a_register_is_tuned_in_the_integral_time(tmp_path):
+    """Another drive of the family: the integral as a gain, ki = kv / ti, in whole N*m per m (u32)."""
+    text = DRIVER.text.replace(
+        'velocity_integral  = { address = 132, type = "f32", access = "rw", unit = "s" }',
+        'velocity_integral  = { address = 132, type = "u32", access = "rw", unit = "N*m/m" }',
+    ).replace('ti_s = { register = "velocity_integral" }', 'ki_nm_per_m = { register = "velocity_integral" }')
+    assert text.count('ki_nm_per_m = { register = "velocity_integral" }') == 1
+    (tmp_path / "driver.toml").write_text(text)
+    cfg, emulated, adapter = serve(load_driver(tmp_path))
+    try:
+        tuning = emulated.drive.tuning
+        r = adapter.map.register("velocity_integral")
+        assert adapter.registers.read_names(r.name)[r.name] == round(tuning.kv_nm_per_mps / tuning.ti_s)
+        assert adapter.read_loop()["ti_s"] == pytest.approx(tuning.ti_s, rel=1e-3)
+        expected = adapter.stored_loop({"ti_s": 0.0123456789})
+        assert expected["ti_s"] == tuning.kv_nm_per_mps / round(tuning.kv_nm_per_mps / 0.0123456789)
+        adapter.write_loop({"ti_s": 0.0123456789})
+        assert emulated.drive.tuning.ti_s == pytest.approx(expected["ti_s"], rel=1e-12)
+        adapter.registers.write_names(velocity_gain=2 * tuning.kv_nm_per_mps)  # kv alone, past the host: ki stays
+        assert emulated.drive.tuning.ti_s == pytest.approx(2 * expected["ti_s"], rel=1e-12)
+    finally:
+        adapter.close()
+        emulated.close()
+
+
 def test_a_parameter_drive_keeps_its_gains_in_scaled_parameters():
     """A vendor's parameter list (gains in 0.1 steps, the integral time in 0.01 ms): the twin shows and takes them."""
     sections = {
