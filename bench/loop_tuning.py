@@ -2,7 +2,7 @@
 uploaded and proven by a closed-loop run, the loop measured by torque injection, the friction's intervals. Run by
 hand::
 
-    python bench/loop_tuning.py [--out DIR] [--configs NAME ...]
+    python bench/loop_tuning.py [--out DIR] [--configs NAME ...] [--driver NAME_OR_FOLDER]
 
 For each shipped gantry config (serial, CANopen, Modbus) two sessions run on its twin:
 
@@ -13,6 +13,9 @@ For each shipped gantry config (serial, CANopen, Modbus) two sessions run on its
    and velocity steps against the prediction, the proposal's margins on the twin's own plant;
 2. the same with the excitation injected at the torque (``torque_injection``, 2 N*m): the loop measured where the
    injection breaks it against the prediction.
+
+``--driver`` runs the configs' twins behind another driver (``canopen-servo-fixed``: its integral kept as a gain;
+a folder ``hilident drivers new`` wrote from a vendor's EDS: its proposed ``[loop]``).
 
 Printed: one table per part, and the friction test's Coulomb and viscous levels with their 95 % intervals against
 the twin's truth.
@@ -64,12 +67,19 @@ def _fmt(x, digits=1) -> str:
     return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.{digits}f}"
 
 
-def tuned(name: str, out: Path) -> None:
+def _config(name: str, driver: str | None):
+    """The shipped config ``name``, behind ``driver`` when one is given."""
     from hilident.config.tables import load_config
+
+    cfg = load_config(ROOT / "configs" / f"{name}.toml")
+    return cfg if driver is None else replace(cfg, device=replace(cfg.device, driver=driver))
+
+
+def tuned(name: str, out: Path, driver: str | None = None) -> None:
     from hilident.filters.biquad import Biquad
     from hilident.protocol.loop_parameters import FEEDFORWARD, PARAMETERS, POSITION_TERMS
 
-    cfg = load_config(ROOT / "configs" / f"{name}.toml")
+    cfg = _config(name, driver)
     cfg = replace(cfg, tuning=replace(cfg.tuning, upload=True))
     session, summary, took = _session(cfg, out / name)
     loop = summary["loop"]
@@ -165,10 +175,8 @@ def friction(cfg, summary) -> None:
         print(f"  friction test: {fr['extension']}")
 
 
-def injected(name: str, out: Path) -> None:
-    from hilident.config.tables import load_config
-
-    cfg = load_config(ROOT / "configs" / f"{name}.toml")
+def injected(name: str, out: Path, driver: str | None = None) -> None:
+    cfg = _config(name, driver)
     cfg = replace(cfg, excitation=replace(cfg.excitation, mode="torque_injection", amplitude_nm=2.0))
     _, summary, took = _session(cfg, out / f"{name}-injection")
     m = (summary.get("loop") or {}).get("measured")
@@ -188,12 +196,13 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", help="keep the runs here (default: a temporary folder)")
     parser.add_argument("--configs", nargs="*", default=list(CONFIGS))
+    parser.add_argument("--driver", help="a driver name or folder to run the configs' twins behind")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(args.out or tmp)
         for name in args.configs:
-            tuned(name, out)
-            injected(name, out)
+            tuned(name, out, args.driver)
+            injected(name, out, args.driver)
     return 0
 
 
