@@ -47,3 +47,12 @@ def test_the_targets_hold_on_every_variant_of_the_plant():
 
 def test_targets_no_gain_can_keep_give_no_proposal():
     assert propose_gains(CASCADE, F, [PLANT], Targets(60.0, 89.0, 1.01)) is None
+
+
+def test_no_loop_is_proposed_to_cross_over_beyond_the_band_the_plant_was_measured_in():
+    free = propose_gains(CASCADE, F, [PLANT], PRESETS["soft"])
+    top = 0.5 * free.velocity.crossover_hz
+    capped = propose_gains(CASCADE, F, [PLANT], PRESETS["soft"], max_crossover_hz=top)
+    assert capped is not None and capped.velocity_bandwidth_hz < free.velocity_bandwidth_hz
+    for loop in ("velocity", "position"):
+        assert loop_margins(F, capped.cascade.open_loop(F, PLANT, loop)).crossover_hz <= top

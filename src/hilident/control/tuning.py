@@ -96,12 +96,20 @@ class Proposal:
         return {"kv_nm_per_mps": c.kv_nm_per_mps, "ti_s": c.ti_s, "kp_pos_per_s": c.kp_pos_per_s}
 
 
-def _worst(cascade: Cascade, f: np.ndarray, plants: Sequence[np.ndarray], loop: str, targets: Targets):
-    """``(margins, bandwidth)`` on the worst of ``plants`` when all keep ``targets``; None otherwise."""
+def _worst(
+    cascade: Cascade,
+    f: np.ndarray,
+    plants: Sequence[np.ndarray],
+    loop: str,
+    targets: Targets,
+    max_crossover_hz: float = math.inf,
+):
+    """``(margins, bandwidth)`` on the worst of ``plants`` when all keep ``targets`` with their crossover at or
+    below ``max_crossover_hz``; None otherwise."""
     worst = None
     for h in plants:
         m = loop_margins(f, cascade.open_loop(f, h, loop))
-        if not targets.met_by(m):
+        if not targets.met_by(m) or m.crossover_hz > max_crossover_hz:
             return None
         bw = bandwidth_hz(f, cascade.closed_loop(f, h, loop))
         if not math.isfinite(bw):
@@ -118,6 +126,7 @@ def propose_gains(
     targets: Targets,
     kv_range: tuple[float, float] | None = None,
     points: int = 36,
+    max_crossover_hz: float = math.inf,
 ) -> Proposal | None:
     """The gains with the widest loops that keep ``targets`` on every plant.
 
@@ -135,6 +144,9 @@ def propose_gains(
         The velocity gains searched, N·m per (m/s); default a hundredth to a hundred times the present one.
     points : int
         Grid points of each gain.
+    max_crossover_hz : float
+        The highest gain crossover a loop may have, Hz: the top of the band the plant was measured in (beyond it
+        the plant is an extrapolation a proposal must not rest on); ``inf``: none.
 
     Returns
     -------
@@ -148,7 +160,7 @@ def propose_gains(
 
     def velocity(kv: float, ti: float):
         trial = cascade.with_gains(kv_nm_per_mps=kv, ti_s=ti)
-        worst = _worst(trial, f, hs, "velocity", targets)
+        worst = _worst(trial, f, hs, "velocity", targets, max_crossover_hz)
         return None if worst is None else (worst[1], trial, worst[0])
 
     # integral corners from 0.8 Hz to 0.8 kHz
@@ -162,7 +174,7 @@ def propose_gains(
 
     def position(kp: float, _: float):
         trial = velocity_cascade.with_gains(kp_pos_per_s=kp)
-        worst = _worst(trial, f, hs, "position", targets)
+        worst = _worst(trial, f, hs, "position", targets, max_crossover_hz)
         return None if worst is None else (worst[1], trial, worst[0])
 
     top = velocity_bw * 2 * math.pi

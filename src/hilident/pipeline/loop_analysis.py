@@ -244,14 +244,16 @@ def _proposed(proposal: Proposal | None) -> dict | None:
 
 
 def tuning_part(targets: Targets, without: Cascade, with_notch: Cascade | None, seen: SeenPlant) -> dict:
-    """The gains proposed against ``targets`` on the plant and its variants, without and with the notches, and
-    one line saying what the notch buys."""
+    """The gains proposed against ``targets`` on the plant and its variants, without and with the notches, their
+    crossovers within the band the plant was measured in, and one line saying what the notch buys."""
     plants = [seen.response, *seen.variants]
     f = seen.frequency_hz
-    bare = propose_gains(without, f, plants, targets)
-    notched = propose_gains(with_notch, f, plants, targets) if with_notch is not None else None
+    top = float(seen.band_hz[1])  # no loop is proposed to cross over where the plant was not measured
+    bare = propose_gains(without, f, plants, targets, max_crossover_hz=top)
+    notched = propose_gains(with_notch, f, plants, targets, max_crossover_hz=top) if with_notch is not None else None
     return {
         "targets": targets.to_dict(),
+        "max_crossover_hz": top,
         "plants": len(plants),
         "without_notch": _proposed(bare),
         "with_notch": _proposed(notched),
