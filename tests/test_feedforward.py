@@ -137,6 +137,10 @@ def test_feedforward_is_proposed_for_the_terms_the_drive_has_with_their_basis():
     assert "friction test" in got["left_out"]["friction_feedforward_nm"]
     # a drive without feed-forward terms gets none
     assert propose_feedforward({"kv_nm_per_mps": 100.0}, _seen(), fit) == {"terms": {}, "left_out": {}}
+    # set-points on a host clock that skipped cycles: each skip a jump, the acceleration term an impulse
+    got = propose_feedforward(has, _seen(), fit, host_skips=59)
+    assert "accel_feedforward_nm_per_mps2" not in got["terms"] and "velocity_feedforward" in got["terms"]
+    assert "skipped 59 cycles" in got["left_out"]["accel_feedforward_nm_per_mps2"]
 
 
 def test_a_loop_table_takes_the_feedforward_terms_a_drive_has_and_no_other_name():

@@ -38,7 +38,7 @@ def inertia_nm_per_mps2(seen: SeenPlant) -> float | None:
     return 1.0 / low if low > 0 and math.isfinite(1.0 / low) else None
 
 
-def propose_feedforward(parameters: dict, seen: SeenPlant | None, friction_fit) -> dict:
+def propose_feedforward(parameters: dict, seen: SeenPlant | None, friction_fit, host_skips: int = 0) -> dict:
     """The feed-forward terms for the drive whose loop parameters are ``parameters`` (those it has).
 
     Parameters
@@ -50,17 +50,26 @@ def propose_feedforward(parameters: dict, seen: SeenPlant | None, friction_fit) 
         The plant the loop sees.
     friction_fit : FrictionFit or None
         The friction test's fit (``params.Fc``, ``params.Fv``), None without a friction test.
+    host_skips : int
+        Cycles the host's own clock skipped in the session's runs (0: the drive or the interface kept the
+        clock). A skipped cycle is a set-point jump, which the acceleration term turns into a torque impulse of
+        the jump over one set-point period: with skips it is left out.
 
     Returns
     -------
     dict
         ``{"terms": {name: value}, "left_out": {name: why}}``, SI units.
     """
+    inertia = inertia_nm_per_mps2(seen) if seen is not None and not host_skips else None
     basis: dict[str, tuple[float | None, str]] = {
         "velocity_feedforward": (1.0, ""),
         "accel_feedforward_nm_per_mps2": (
-            inertia_nm_per_mps2(seen) if seen is not None else None,
-            "the plant's mechanics are not known as a free rigid body below its modes",
+            inertia,
+            f"the set-points came on the host's clock, which skipped {host_skips} cycles: each skip is a set-point "
+            "jump the acceleration term would turn into a torque impulse (give the drive or the interface the "
+            "clock: [canopen.sync] producer, or an interface with cyclic transmit)"
+            if host_skips
+            else "the plant's mechanics are not known as a free rigid body below its modes",
         ),
     }
     p = None if friction_fit is None else friction_fit.params

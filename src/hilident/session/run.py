@@ -648,7 +648,8 @@ class Session(DeviceConnection):
             from hilident.pipeline.feedforward import propose_feedforward
 
             fit = friction.fit if friction is not None else None
-            analysis.tuning["feedforward"] = propose_feedforward(parameters, analysis.seen, fit)
+            skips = sum(int(c.get("setpoints_skipped", 0)) for c in self.clocks if c.get("source") == "host")
+            analysis.tuning["feedforward"] = propose_feedforward(parameters, analysis.seen, fit, skips)
         analysis.measured = self._measured_loop(analysis)
         if analysis.seen is not None:  # for hilident upload --gains: the plant the gains are checked on
             from hilident.pipeline.loop_plant import PLANT_FILE, save_seen_plant
