@@ -30,7 +30,7 @@ def true_loop_figures(emulator_cfg, tuning, notches=(), grid=None) -> dict:
     f = np.geomspace(0.5, 0.45 * tuning.loop_rate_hz, 6000) if grid is None else grid
     h = plant_position(plant_model(emulator_cfg), f, tuning.loop_rate_hz)
     values = {
-        name: getattr(tuning, name)
+        name: getattr(tuning, name, 0.0)  # a position I or D term the tuning does not name is absent
         for name in (
             "kv_nm_per_mps",
             "ti_s",

@@ -70,10 +70,6 @@ class Cascade:
         Velocity controller's integral time, s (``inf``: a P controller).
     kp_pos_per_s : float
         Position controller's gain, (m/s) per m.
-    ki_pos_per_s2 : float
-        Position controller's integral gain, (m/s) per (m·s) (0: none).
-    kd_pos : float
-        Position controller's derivative gain, (m/s) per (m/s) (0: none).
     velocity_filter_hz : float
         Cut-off of the first-order low-pass on the velocity estimate, Hz
         (``inf``: the raw backward difference).
@@ -92,14 +88,16 @@ class Cascade:
         Torque added per m/s of the set-point's velocity, N·m/(m/s).
     friction_feedforward_nm : float
         Torque added with the sign of the set-point's velocity, N·m (outside the linear model).
+    ki_pos_per_s2 : float
+        Position controller's integral gain, (m/s) per (m·s) (0: none).
+    kd_pos : float
+        Position controller's derivative gain, (m/s) per (m/s) (0: none).
     """
 
     loop_rate_hz: float
     kv_nm_per_mps: float
     ti_s: float = math.inf
     kp_pos_per_s: float = 0.0
-    ki_pos_per_s2: float = 0.0
-    kd_pos: float = 0.0
     velocity_filter_hz: float = math.inf
     current_loop_hz: float = math.inf
     delay_ticks: int = 0
@@ -108,6 +106,8 @@ class Cascade:
     accel_feedforward_nm_per_mps2: float = 0.0
     viscous_feedforward_nm_per_mps: float = 0.0
     friction_feedforward_nm: float = 0.0
+    ki_pos_per_s2: float = 0.0
+    kd_pos: float = 0.0
 
     def __post_init__(self):
         checks = {

@@ -53,10 +53,6 @@ class DriveTuning:
         Control loop rate, Hz; one output row per tick.
     kp_pos_per_s : float
         Position loop gain, (m/s) of velocity set-point per m of position error.
-    ki_pos_per_s2 : float
-        Position loop integral gain, (m/s) per (m·s) of integrated position error (0: none).
-    kd_pos : float
-        Position loop derivative gain, (m/s) per (m/s) of the position error's backward difference (0: none).
     kv_nm_per_mps : float
         Velocity loop proportional gain, N·m per (m/s).
     ti_s : float
@@ -83,6 +79,10 @@ class DriveTuning:
     friction_feedforward_nm : float
         Torque added with the sign of the set-point's velocity, N·m (the Coulomb
         friction; 0: none).
+    ki_pos_per_s2 : float
+        Position loop integral gain, (m/s) per (m·s) of integrated position error (0: none).
+    kd_pos : float
+        Position loop derivative gain, (m/s) per (m/s) of the position error's backward difference (0: none).
 
     The torque terms act in velocity and in position mode. The set-point's
     velocity is the velocity set-point itself in velocity mode, the backward
@@ -93,8 +93,6 @@ class DriveTuning:
 
     loop_rate_hz: float = 4000.0
     kp_pos_per_s: float = 20.0
-    ki_pos_per_s2: float = 0.0
-    kd_pos: float = 0.0
     kv_nm_per_mps: float = 100.0
     ti_s: float = 0.05
     velocity_filter_hz: float = 500.0
@@ -105,6 +103,8 @@ class DriveTuning:
     accel_feedforward_nm_per_mps2: float = 0.0
     viscous_feedforward_nm_per_mps: float = 0.0
     friction_feedforward_nm: float = 0.0
+    ki_pos_per_s2: float = 0.0
+    kd_pos: float = 0.0
 
     def __post_init__(self):
         for f in fields(self):
