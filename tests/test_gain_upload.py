@@ -257,3 +257,32 @@ def test_a_gain_given_on_the_command_line_is_checked_by_name_and_value():
     for bad in (["kv=1"], ["current_loop_hz=900"], ["ti_s=fast"], ["kp_pos_per_s=-1"]):
         with pytest.raises(UsageError, match="--gain"):
             parse_gain_overrides(bad)
+
+
+def test_a_limit_trip_in_the_proof_ends_the_session_with_the_gains_put_back_and_said_so(tmp_path, monkeypatch):
+    import json
+
+    from hilident.errors import LimitTrip
+    from hilident.session.gain_step import GainStep
+    from hilident.session.run import Session
+
+    cfg = load_config(CONFIG)
+    cfg = replace(
+        cfg,
+        tuning=replace(cfg.tuning, upload=True),
+        friction_test=replace(cfg.friction_test, enabled=False),
+        emulator=replace(cfg.emulator, link="pipe", time_scale=8.0),
+    )
+
+    def trip(self, cascade):
+        raise LimitTrip("torque_limit: axis stopped, torque zero (the proof's first sample)")
+
+    monkeypatch.setattr(GainStep, "_prove", trip)
+    session = Session(cfg, tmp_path, plots=False)
+    with pytest.raises(LimitTrip):
+        session.run()
+    written = json.loads((tmp_path / "summary.json").read_text())
+    upload = written["loop"]["upload"]
+    assert written["failed_step"] == "gain upload" and upload["uploaded"] and upload["restored"] is True
+    assert upload["kept"] is False and "gain upload step ended: torque_limit" in upload["reason"]
+    assert session.emulator.drive.tuning.kv_nm_per_mps == upload["before"]["kv_nm_per_mps"]

@@ -294,6 +294,8 @@ class Session(DeviceConnection):
         except BaseException as exc:
             with endings.shielded():
                 self.safe_stop()
+                if self.gains is not None:  # before the partial summary, so that it says the gains went back
+                    self.gains.restore(f"the {step} step ended: {exc}")
             if isinstance(exc, HilidentError) and (friction is not None or plant is not None):
                 with endings.shielded():  # what the steps before found is kept, and the step that failed named
                     self._write_partial_summary(
