@@ -299,6 +299,16 @@ def test_describe_names_channels_rates_modes_and_capabilities(tmp_path):
     assert "rates: loop 1000.0 Hz" in text and "filter slots: 0" in text
     assert "period 0x1006" in text and "heartbeat consumer 0x1016" in text and "save 0x1010:1" in text
     assert "placeholders (refused on a real port): board.loop_rate_hz" in text
+    assert "loop:" not in text  # an EDS without gain objects: no loop described
+
+
+def test_describe_says_the_loop_the_driver_describes_and_its_controllers_forms():
+    from hilident.drivers.description import find_driver
+
+    text = describe_driver(find_driver("canopen-servo-fixed").folder)
+    assert "loop: velocity PI (its integral as a gain), position P; feed-forward: velocity_feedforward" in text
+    assert "loop parameters the drive holds: kv_nm_per_mps, ki_nm_per_m, kp_pos_per_s" in text
+    assert "its integral as a time" in describe_driver(find_driver("modbus-servo").folder)
 
 
 @pytest.mark.parametrize("default", ["", "DefaultValue=0\n"])

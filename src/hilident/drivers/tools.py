@@ -47,6 +47,7 @@ from hilident.protocol.canopen_pdo_plan import (
 )
 from hilident.protocol.canopen_sync import parse_sync
 from hilident.protocol.canopen_types import ObjectAddress, parse_address
+from hilident.protocol.loop_parameters import FEEDFORWARD
 
 DESCRIPTION_FILE = "driver.toml"
 #: CAN bit rates (kbit/s) a [DeviceInfo] may declare, fastest first.
@@ -1133,6 +1134,7 @@ def describe_driver(folder) -> str:
     out.append(f"  channels: {', '.join(channels) or 'none'}")
     out += _loaded_figures(folder)
     out.append(f"  modes: {', '.join(modes) or 'none'}")
+    out += _loop_lines(_table_of(data, "loop"))
     if _table_of(data, "filters").get("encoding"):
         caps.append(f"filters ({data['filters']['encoding']})")
     placeholders = driver.get("placeholders") or []
@@ -1140,6 +1142,22 @@ def describe_driver(folder) -> str:
     if placeholders:
         out.append(f"  placeholders (refused on a real port): {', '.join(map(str, placeholders))}")
     return "\n".join(out)
+
+
+def _loop_lines(loop: dict) -> list[str]:
+    """The cascade ``[loop]`` describes: its controllers' forms, its feed-forward terms, what the drive holds."""
+    if not loop:
+        return []
+    integral = "its integral as a gain" if "ki_nm_per_m" in loop else "its integral as a time"
+    position = {(False, False): "P", (True, False): "PI", (False, True): "PD", (True, True): "PID"}[
+        ("ki_pos_per_s2" in loop, "kd_pos" in loop)
+    ]
+    held = [name for name, entry in loop.items() if isinstance(entry, dict) and "value" not in entry]
+    feedforward = [name for name in FEEDFORWARD if name in loop]
+    return [
+        f"  loop: velocity PI ({integral}), position {position}; feed-forward: {', '.join(feedforward) or 'none'}",
+        f"  loop parameters the drive holds: {', '.join(held) or 'none'}",
+    ]
 
 
 def _loaded_figures(folder: Path) -> list[str]:

@@ -294,8 +294,7 @@ class Session(DeviceConnection):
         except BaseException as exc:
             with endings.shielded():
                 self.safe_stop()
-                if self.gains is not None:  # before the partial summary, so that it says the gains went back
-                    self.gains.restore(f"the {step} step ended: {exc}")
+                self._restore_gains(f"the {step} step ended: {exc}")  # before the partial summary says so
             if isinstance(exc, HilidentError) and (friction is not None or plant is not None):
                 with endings.shielded():  # what the steps before found is kept, and the step that failed named
                     self._write_partial_summary(
@@ -305,8 +304,7 @@ class Session(DeviceConnection):
         finally:
             with endings.shielded():
                 self._restore_filters()  # nothing to do once the new notches are uploaded
-                if self.gains is not None:
-                    self.gains.restore()  # gains not yet proven go back
+                self._restore_gains()
                 self.close()
         endings.raise_pending()
         model = self._greybox()
@@ -325,6 +323,11 @@ class Session(DeviceConnection):
             self._plots(friction, plant, designs, verification, excitation.band_hz, model)
         html_report.write_report_quietly(self.out)
         return self.summary
+
+    def _restore_gains(self, reason: str = "the run ended before the gains were proven") -> None:
+        """Gains written and not yet proven go back (never raises; once)."""
+        if self.gains is not None:
+            self.gains.restore(reason)
 
     def prepare(self):
         """Everything that can be checked without the device, before it is opened.
