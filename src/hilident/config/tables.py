@@ -548,6 +548,15 @@ class DataConfig:
         "(leakage-free at the excited lines); 0: not periodic",
     )
     period_samples: int = _spec(0, ge=0, doc="the same period in samples (exact); 0: not periodic")
+    inputs: list[str] = _spec(
+        [], doc="columns of several inputs measured at once (forces, torques): a multi-input identification"
+    )
+    outputs: list[str] = _spec([], doc="columns of the outputs identified against data.inputs (all at once)")
+    input_scales: list[float] = _spec([], doc="multiplies each input column to give SI units; empty: 1 each")
+    output_scales: list[float] = _spec([], doc="multiplies each output column to give SI units; empty: 1 each")
+    output_units: list[str] = _spec(
+        [], doc='unit of each output after its scale, e.g. "m/s^2" for an accelerometer; empty: not stated'
+    )
 
 
 @dataclass(frozen=True)
@@ -1221,10 +1230,32 @@ def _check_data_and_model(cfg: Config) -> None:
         raise ConfigError("data.period_samples", f"must be >= 4 samples, got {d.period_samples}", src)
     if len(set(d.column_names)) != len(d.column_names):
         raise ConfigError("data.column_names", "names a column twice", src)
+    _check_channel_lists(d, src)
     if m.kind != "rigid_axis":
         for key, default in (("asymmetric", False), ("min_speed", 0.0)):
             if getattr(m, key) != default:
                 raise ConfigError(f"model.{key}", f'applies to kind = "rigid_axis" only (kind is {m.kind!r})', src)
+
+
+def _check_channel_lists(d: DataConfig, src: str) -> None:
+    """``data.inputs`` and ``data.outputs`` come together, each scale and unit list as long as its columns."""
+    if bool(d.inputs) != bool(d.outputs):
+        given, missing = ("inputs", "outputs") if d.inputs else ("outputs", "inputs")
+        raise ConfigError(f"data.{missing}", f"is empty while data.{given} is given: name both", src)
+    lists: tuple[tuple[str, list[str], list], ...] = (
+        ("input_scales", d.inputs, d.input_scales),
+        ("output_scales", d.outputs, d.output_scales),
+        ("output_units", d.outputs, d.output_units),
+    )
+    for key, names, values in lists:
+        if values and len(values) != len(names):
+            columns = "inputs" if key.startswith("input") else "outputs"
+            raise ConfigError(f"data.{key}", f"has {len(values)} entries for {len(names)} data.{columns}", src)
+    for key, scales in (("input_scales", d.input_scales), ("output_scales", d.output_scales)):
+        if any(not (math.isfinite(v) and v > 0) for v in scales):
+            raise ConfigError(f"data.{key}", f"must be finite numbers > 0, got {scales}", src)
+    if set(d.inputs) & set(d.outputs):
+        raise ConfigError("data.outputs", f"names an input column too: {sorted(set(d.inputs) & set(d.outputs))}", src)
 
 
 def _check_limits(cfg: Config, lim: LimitsConfig) -> None:

@@ -94,8 +94,8 @@ def load_dataset(path: str | Path, cfg: DataConfig, config_source: str = "") -> 
         No sample rate anywhere, or no torque column configured.
     """
     path = Path(path)
-    wanted = {key: (getattr(cfg, key), getattr(cfg, f"{key}_scale")) for key in _SIGNAL_KEYS if getattr(cfg, key)}
-    if "torque" not in wanted:
+    wanted = _wanted(cfg)
+    if not cfg.inputs and "torque" not in wanted:
         raise ConfigError("data.torque", "names no column", config_source)
     _check_config_rate(cfg, config_source)
     labels = {name: f"data.{key}" for key, (name, _) in wanted.items()}
@@ -123,9 +123,27 @@ def load_dataset(path: str | Path, cfg: DataConfig, config_source: str = "") -> 
     if info["used_rows"] < MIN_SAMPLES:
         raise DataError(f"{path}: {info['used_rows']} gap-free samples; at least {MIN_SAMPLES} are needed")
     _check_varying(path, used, wanted)
-    _complete_motion(used, segments, rate, notes, config_source)
+    if not cfg.inputs:  # a torque-to-motion record: the velocity from the position where it is missing
+        _complete_motion(used, segments, rate, notes, config_source)
     info.update(status=raw.status, reason=raw.reason, flushed_samples=raw.flushed_samples)
     return Dataset(used, rate, str(path), notes, info, info["period_samples"], segments)
+
+
+def _wanted(cfg: DataConfig) -> dict[str, tuple[str, float]]:
+    """Signal key -> (column, scale): ``inputs[i]`` and ``outputs[j]`` for several channels
+    (:func:`channel_keys`), else the named signals (torque, velocity, ...)."""
+    if cfg.inputs:
+        inputs, outputs = channel_keys(cfg)
+        scales = [*(cfg.input_scales or [1.0] * len(inputs)), *(cfg.output_scales or [1.0] * len(outputs))]
+        columns = [*cfg.inputs, *cfg.outputs]
+        return {key: (name, float(k)) for key, name, k in zip([*inputs, *outputs], columns, scales, strict=True)}
+    return {key: (getattr(cfg, key), getattr(cfg, f"{key}_scale")) for key in _SIGNAL_KEYS if getattr(cfg, key)}
+
+
+def channel_keys(cfg: DataConfig) -> tuple[list[str], list[str]]:
+    """The signal keys of ``data.inputs`` and ``data.outputs`` in a :class:`Dataset`: ``inputs[0]``, ...,
+    ``outputs[0]``, ... (each names its config key in messages: ``data.inputs[0]``)."""
+    return [f"inputs[{i}]" for i in range(len(cfg.inputs))], [f"outputs[{j}]" for j in range(len(cfg.outputs))]
 
 
 def _recorded_period_checked(

@@ -70,6 +70,7 @@ LAYOUTS: dict[str, tuple[str, ...]] = {
         "hilident_version",
         "config",
         "data",
+        "mimo",  # with [data] inputs and outputs only
         "resonances",
         "rejected_peaks",
         "friction",
@@ -401,8 +402,10 @@ class Summary:
         elapsed_s: float,
         warnings: list[str],
         notes: list[str] | None = None,
+        mimo: dict | None = None,
     ) -> Summary:
-        """``hilident identify``'s summary: no upload or verification, the stream is the data file's rows."""
+        """``hilident identify``'s summary: no upload or verification, the stream is the data file's rows; with
+        several inputs and outputs (``mimo``, :mod:`hilident.pipeline.mimo_identify`) their part."""
         stream = StreamStats(samples=data["samples"], lost_samples=data.get("missing_samples", 0))
         return cls(
             "identify",
@@ -415,7 +418,7 @@ class Summary:
             friction_summary(friction),
             model,
             stream=stream,
-            extra={"data": data, "notch_skipped_reason": notch_skipped_reason},
+            extra={"data": data, "notch_skipped_reason": notch_skipped_reason, **({"mimo": mimo} if mimo else {})},
             notes=list(notes or []),
         )
 
@@ -470,6 +473,7 @@ class Summary:
             "elapsed_s": self.elapsed_s,
             "warnings": grouped(self.warnings),
             "notes": grouped(self.notes),
+            "mimo": NOT_REACHED,  # an identify of several inputs and outputs has it (extra)
             **self.extra,
         }
 

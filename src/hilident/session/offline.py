@@ -32,10 +32,12 @@ from hilident import html_report
 from hilident.config.schema import build_table
 from hilident.config.tables import Config, DataConfig, ModelConfig, parse_config, parse_toml
 from hilident.datafile import RATE_TOLERANCE, Dataset, RunInfo, load_dataset, read_run_info
+from hilident.datafile.mapping import channel_keys
 from hilident.errors import ConfigError, DataError, HilidentError, UsageError
 from hilident.io.serialise import write_json
 from hilident.io.summary import Summary, friction_summary
 from hilident.lazy import lazy_module
+from hilident.pipeline.mimo_identify import identify_channels
 from hilident.plots import figures as report
 from hilident.units import recorded_units
 
@@ -529,6 +531,10 @@ def analyse_recording(
             recorded_experiment=info.experiment,
             configuration="stored in the recording" if cfg.source.endswith("(config_toml attribute)") else cfg.source,
         )
+    if data_cfg.inputs:
+        data_info["mapping"] = _channel_mapping(data_cfg)
+        say(f"{ds.source}: {len(ds)} samples at {ds.sample_rate_hz:g} Hz, {len(data_cfg.inputs)} inputs")
+        return _analyse_channels(cfg, ds, data_info, warnings, started)
     if validation is not None:
         data_info["validation_rate_difference"] = _check_validation_rate(ds, validation)
     if data_cfg.closed_loop and "excitation" not in ds.signals:
@@ -551,6 +557,43 @@ def analyse_recording(
     if error is not None:
         summary.update(failed_step=state["step"], error=str(error))
     return Analysis(summary, error, cfg, ds, validation, state)
+
+
+def _channel_mapping(d) -> dict[str, str]:
+    """``inputs[i]`` / ``outputs[j]`` -> column, as ``summary.json["data"]["mapping"]`` lists a mapping."""
+    inputs, outputs = channel_keys(d)
+    return dict(zip([*inputs, *outputs], [*d.inputs, *d.outputs], strict=True))
+
+
+def _analyse_channels(cfg: Config, ds: Dataset, data_info: dict, warnings: list[str], started: float) -> Analysis:
+    """Several inputs and outputs: their frequency responses at once (:mod:`hilident.pipeline.mimo_identify`);
+    no single-input plant, notch or grey-box model."""
+    state: dict = {"plant": None, "designs": [], "model": None, "friction": None, "step": "identification"}
+    error: HilidentError | None = None
+    part = None
+    try:
+        inputs, outputs = channel_keys(cfg.data)
+        u = np.column_stack([ds.signals[k] for k in inputs])
+        y = np.column_stack([ds.signals[k] for k in outputs])
+        part, _ = identify_channels(u, y, ds.sample_rate_hz, cfg, ds.source)
+        warnings += part["warnings"]
+    except HilidentError as exc:
+        error = exc
+    summary = Summary.of_identify(
+        config=cfg.source,
+        data=data_info,
+        plant=None,
+        friction=None,
+        model=None,
+        designs=[],
+        notch_skipped_reason="several inputs and outputs ([data] inputs, outputs): no single-input notch design",
+        elapsed_s=time.monotonic() - started,
+        warnings=warnings,
+        mimo=part,
+    ).to_dict()
+    if error is not None:
+        summary.update(failed_step=state["step"], error=str(error))
+    return Analysis(summary, error, cfg, ds, None, state)
 
 
 def identify_recording(
@@ -577,6 +620,9 @@ def identify_recording(
     if a.error is not None:
         html_report.write_report_quietly(out)
         raise a.error
+    if "mimo" in summary:  # several inputs and outputs: no single-input plots
+        html_report.write_report_quietly(out)
+        return summary
     cfg, ds, validation, state = a.cfg, a.data, a.validation, a.state
     plant, designs = state["plant"], state["designs"]
     model = state["model"]

@@ -1,0 +1,91 @@
+"""`hilident identify` with several inputs and outputs ([data] inputs, outputs): every output against every input
+at once, the modes every output sees from the mode indicator, correlated inputs named, bad lists refused."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import signal
+
+from support.schema_check import schema_errors
+from test_identify_data_keys import identify
+
+FS = 500.0
+MODES = ((37.0, 0.01), (81.0, 0.01))  # Hz, damping ratio
+SHAPES = np.array([[1.0, 0.6], [0.4, -1.0], [-0.8, 0.5]])  # three outputs' participation in each mode
+DRIVES = np.array([[1.0, 0.3], [0.5, -1.0]])  # two inputs' drive of each mode
+KEYS = '[data]\ninputs = ["f1", "f2"]\noutputs = ["a1", "a2", "a3"]\noutput_units = ["m/s^2", "m/s^2", "m/s^2"]\n'
+
+
+def structure(correlated: bool = False, seconds: float = 80.0, seed: int = 2) -> np.ndarray:
+    """Two force columns of white noise through two lightly damped modes to three outputs, and a little noise."""
+    rng = np.random.default_rng(seed)
+    n = int(seconds * FS)
+    u = rng.standard_normal((n, 2))
+    if correlated:
+        u[:, 1] = u[:, 0] + 0.02 * rng.standard_normal(n)  # the second shaker follows the first
+    y = np.zeros((n, 3))
+    for r, (f, z) in enumerate(MODES):
+        w = 2 * np.pi * f
+        b, a, _ = signal.cont2discrete(([w * w], [1, 2 * z * w, w * w]), 1 / FS, method="zoh")
+        modal = signal.lfilter(b.ravel(), a, u @ DRIVES[:, r])
+        y += np.outer(modal, SHAPES[:, r])
+    y += 0.01 * np.std(y) * rng.standard_normal(y.shape)
+    return np.column_stack([u, y])
+
+
+def _write(tmp_path, table: np.ndarray):
+    data = tmp_path / "structure.csv"
+    header = "f1,f2,a1,a2,a3"
+    np.savetxt(data, table, delimiter=",", header=header, comments="", fmt="%.9g")
+    return data
+
+
+def test_every_output_against_both_inputs_finds_the_modes_all_outputs_see(tmp_path):
+    data = _write(tmp_path, structure())
+    code, summary = identify(tmp_path, data, KEYS + f"sample_rate_hz = {FS}\n")
+    assert code == 0, summary and summary.get("error")
+    assert schema_errors(summary) == []
+    mimo = summary["mimo"]
+    assert [o["unit"] for o in mimo["outputs"]] == ["m/s^2"] * 3 and len(mimo["inputs"]) == 2
+    assert min(mimo["multiple_coherence_median"]) > 0.95  # both inputs together explain every output
+    assert mimo["input_condition_median"] < 1.5 and mimo["warnings"] == []
+    found = sorted(p["frequency_hz"] for p in mimo["indicator_peaks"])
+    for f, _ in MODES:
+        assert any(abs(g - f) / f < 0.01 for g in found), found  # within a 0.5 Hz line
+    assert len(found) == len(MODES), found  # nothing where there is no mode
+    assert summary["data"]["mapping"] == {
+        "inputs[0]": "f1", "inputs[1]": "f2", "outputs[0]": "a1", "outputs[1]": "a2", "outputs[2]": "a3"
+    }  # fmt: skip
+    assert summary["resonances"] == [] and "several inputs" in summary["notch_skipped_reason"]
+
+
+def test_inputs_that_move_together_are_named(tmp_path):
+    data = _write(tmp_path, structure(correlated=True))
+    code, summary = identify(tmp_path, data, KEYS + f"sample_rate_hz = {FS}\n")
+    assert code == 0
+    (warning,) = summary["mimo"]["warnings"]
+    assert "input 0 and input 1" in warning and warning in summary["warnings"]
+    assert summary["mimo"]["input_condition_median"] > 100
+
+
+def test_lists_that_do_not_fit_are_refused_naming_the_key(tmp_path):
+    data = _write(tmp_path, structure(seconds=10.0))
+    code, _ = identify(tmp_path, data, '[data]\ninputs = ["f1", "f2"]\n')
+    assert code != 0
+    for keys, key in (
+        ('[data]\ninputs = ["f1"]\n', "data.outputs"),
+        (KEYS + "input_scales = [1.0]\n", "data.input_scales"),
+        (KEYS + "output_scales = [1.0, -2.0, 1.0]\n", "data.output_scales"),
+        ('[data]\ninputs = ["f1"]\noutputs = ["f1"]\n', "data.outputs"),
+    ):
+        cfg = tmp_path / "bad.toml"
+        cfg.write_text(keys)
+        from hilident.config.tables import load_config
+        from hilident.errors import ConfigError
+
+        try:
+            load_config(cfg)
+        except ConfigError as exc:
+            assert exc.key == key, (keys, exc)
+        else:
+            raise AssertionError(f"{keys!r} was accepted")
