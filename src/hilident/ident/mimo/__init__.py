@@ -14,6 +14,9 @@ The estimates here take every input into account at once.
 * :func:`zippered_multisine` and :func:`periodic_mimo_frf` -- periodic
   excitation in which every input excites its own DFT bins: each response
   element is a plain ratio at its input's bins, no matrix to invert, no window.
+* :func:`modal_analysis` (:mod:`hilident.ident.mimo.modal`) -- modal parameters
+  from all outputs and inputs at once: polyreference LSCF poles, a
+  stabilisation diagram, LSFD shapes and their MAC.
 * :func:`orthogonal_multisine` and :func:`orthogonal_mimo_frf` -- ``n_in``
   periodic experiments in which every input excites every bin, in orthogonal
   phase patterns: every element measured at every bin.
@@ -45,6 +48,7 @@ Examples
 True
 """
 
+from hilident.ident.mimo.modal import ModalResult, Mode, mac, mac_matrix, modal_analysis
 from hilident.ident.mimo.periodic import (
     ZIPPER_LEAKAGE,
     orthogonal_mimo_frf,
@@ -61,6 +65,11 @@ __all__ = [
     "SINGULAR_CONDITION",
     "ZIPPER_LEAKAGE",
     "MimoResponse",
+    "ModalResult",
+    "Mode",
+    "mac",
+    "mac_matrix",
+    "modal_analysis",
     "mimo_h1",
     "mimo_hv",
     "zippered_multisine",
