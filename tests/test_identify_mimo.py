@@ -53,6 +53,15 @@ def test_every_output_against_both_inputs_finds_the_modes_all_outputs_see(tmp_pa
     for f, _ in MODES:
         assert any(abs(g - f) / f < 0.01 for g in found), found  # within a 0.5 Hz line
     assert len(found) == len(MODES), found  # nothing where there is no mode
+    # the modes from all outputs and inputs at once: frequency, damping and shape over the outputs
+    modes = mimo["modes"]
+    assert len(modes) == len(MODES), [m["frequency_hz"] for m in modes]
+    for m, (f, z), r in zip(modes, MODES, range(len(MODES)), strict=True):
+        assert abs(m["frequency_hz"] - f) / f < 0.005 and abs(m["damping_ratio"] - z) / z < 0.15, m
+        shape = np.array(m["shape_magnitude"]) * np.exp(1j * np.radians(m["shape_phase_deg"]))
+        truth = SHAPES[:, r]
+        assert abs(np.vdot(shape, truth)) ** 2 / (np.vdot(shape, shape).real * truth @ truth) > 0.95  # MAC
+    assert np.allclose(np.diag(mimo["mode_mac"]), 1.0) and mimo["mode_mac"][0][1] < 0.5
     assert summary["data"]["mapping"] == {
         "inputs[0]": "f1", "inputs[1]": "f2", "outputs[0]": "a1", "outputs[1]": "a2", "outputs[2]": "a3"
     }  # fmt: skip

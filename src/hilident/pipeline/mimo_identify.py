@@ -3,9 +3,12 @@
 Every output is estimated against every input at once (:func:`hilident.ident.mimo.mimo_h1`): the inputs that
 act together are no noise to each other, as they are to a single-input estimate. The part of ``summary.json``
 this gives (``mimo``) holds, per output, the multiple coherence over the band; the input matrix's condition
-(correlated inputs cannot be told apart) and, per element, the response's peak; and the peaks of the complex
+(correlated inputs cannot be told apart) and, per element, the response's peak; the peaks of the complex
 mode indicator function (the first singular value of ``H`` at each line, Shih et al. 1988), where the modes
-every output sees stand out.
+every output sees stand out; and the modes from all outputs and inputs at once
+(:func:`hilident.ident.mimo.modal_analysis`: polyreference LSCF over model orders, the poles stable over the
+highest ones, LSFD shapes), each with its frequency, damping, their spread over the orders, its shape over
+the outputs and its participation from the inputs, and the MAC between the modes' shapes.
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ from scipy import signal
 
 from hilident.config.tables import Config
 from hilident.errors import DataError
-from hilident.ident.mimo import MimoResponse, mimo_h1
+from hilident.ident.mimo import MimoResponse, Mode, mimo_h1, modal_analysis
 
 __all__ = ["identify_channels", "mode_indicator_peaks"]
 
@@ -23,6 +26,8 @@ __all__ = ["identify_channels", "mode_indicator_peaks"]
 MIN_AVERAGES_PER_INPUT = 4
 #: A mode indicator peak must stand this far above its surroundings (prominence), dB.
 PEAK_PROMINENCE_DB = 6.0
+#: Model orders of the modal estimate: order ``p`` of an ``n_in``-input model has ``p n_in`` poles.
+MODAL_ORDERS = range(2, 33)
 
 
 def identify_channels(
@@ -73,9 +78,36 @@ def identify_channels(
         "input_condition_median": _median(frf.input_condition[in_band]),
         "elements": _element_peaks(frf, in_band, d.inputs, d.outputs),
         "indicator_peaks": mode_indicator_peaks(frf, in_band),
+        **_modal_part(frf, band),
         "warnings": list(frf.warnings),
     }
     return part, frf
+
+
+def _modal_part(frf: MimoResponse, band: tuple[float, float]) -> dict:
+    """``modes``, ``mode_mac`` and ``modal_notes`` of the modal estimate (weighted by each element's spread)."""
+    try:
+        result = modal_analysis(frf, band, MODAL_ORDERS, weights="std")
+    except (DataError, np.linalg.LinAlgError) as exc:  # too few lines for the orders, a singular fit
+        return {"modes": [], "mode_mac": [], "modal_notes": [f"no modal estimate: {exc}"]}
+    return {
+        "modes": [_mode_record(m) for m in result.modes],
+        "mode_mac": np.round(result.mac, 4).tolist(),
+        "modal_notes": list(result.notes),
+    }
+
+
+def _mode_record(m: Mode) -> dict:
+    return {
+        "frequency_hz": m.frequency_hz,
+        "damping_ratio": m.damping,
+        "frequency_range_hz": list(m.frequency_ci_hz),
+        "damping_range": list(m.damping_ci),
+        "shape_magnitude": np.abs(m.shape).tolist(),
+        "shape_phase_deg": np.degrees(np.angle(m.shape)).tolist(),
+        "participation_magnitude": np.abs(m.participation).tolist(),
+        "stable_orders": m.n_stable,
+    }
 
 
 def _median(values: np.ndarray) -> float | None:
