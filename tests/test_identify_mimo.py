@@ -66,6 +66,9 @@ def test_every_output_against_both_inputs_finds_the_modes_all_outputs_see(tmp_pa
         "inputs[0]": "f1", "inputs[1]": "f2", "outputs[0]": "a1", "outputs[1]": "a2", "outputs[2]": "a3"
     }  # fmt: skip
     assert summary["resonances"] == [] and "several inputs" in summary["notch_skipped_reason"]
+    page = (tmp_path / "o" / "report.html").read_text()
+    section = page.split('<section id="mimo">')[1].split("</section>")[0]
+    assert "a3 [m/s^2]" in section and f"{modes[1]['frequency_hz']:.5g} Hz" in section and "MAC" in section
 
 
 def test_inputs_that_move_together_are_named(tmp_path):

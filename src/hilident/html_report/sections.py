@@ -16,6 +16,7 @@ from hilident.html_report.advice import group_warnings
 from hilident.html_report.gather import ReportInputs
 from hilident.html_report.loop_section import loop
 from hilident.html_report.markup import MISSING, esc, figure, key_values, note, num, pm, section, table
+from hilident.html_report.mimo_section import mimo
 
 __all__ = ["SECTIONS", "title_of"]
 
@@ -1120,6 +1121,7 @@ SECTIONS: tuple[tuple[str, str, Callable[[ReportInputs], str]], ...] = (
     ("plots", "Plots", plots),
     ("friction", "Friction fit", friction),
     ("model", "Model, uncertainty and validation", model_section),
+    ("mimo", "Several inputs and outputs", mimo),
     ("notches", "Notches: designed and achieved", notches),
     ("loop", "The drive's loop", loop),
     ("workspace", "Workspace map", workspace),
