@@ -18,20 +18,31 @@ from scipy import signal
 
 from hilident.config.tables import Config
 from hilident.errors import DataError
-from hilident.ident.mimo import MimoResponse, Mode, mimo_h1, modal_analysis
+from hilident.ident.mimo import MimoResponse, Mode, mac_matrix, mimo_h1, modal_analysis, periodic_mimo_frf
 
-__all__ = ["identify_channels", "mode_indicator_peaks"]
+__all__ = ["identify_channels", "mode_indicator_peaks", "zippered_lines"]
 
 #: Fewest Welch segments averaged per input: fewer leave the multiple coherence and the spread meaningless.
 MIN_AVERAGES_PER_INPUT = 4
 #: A mode indicator peak must stand this far above its surroundings (prominence), dB.
 PEAK_PROMINENCE_DB = 6.0
+#: A line is excited where an input's power is within this of its peak, dB.
+EXCITED_DB = -40.0
+#: An excited line is one input's own where every other input's power is this far below, dB.
+ZIPPER_DB = -40.0
+#: Neighbouring modes with overlapping half-power bands whose shapes agree beyond this MAC are one mode.
+SPLIT_MAC = 0.9
 #: Model orders of the modal estimate: order ``p`` of an ``n_in``-input model has ``p n_in`` poles.
 MODAL_ORDERS = range(2, 33)
 
 
 def identify_channels(
-    inputs: np.ndarray, outputs: np.ndarray, sample_rate_hz: float, cfg: Config, source: str = ""
+    inputs: np.ndarray,
+    outputs: np.ndarray,
+    sample_rate_hz: float,
+    cfg: Config,
+    source: str = "",
+    period_samples: int | None = None,
 ) -> tuple[dict, MimoResponse]:
     """The ``mimo`` part of the summary for the record mapped by ``cfg.data``, and its estimate.
 
@@ -44,6 +55,10 @@ def identify_channels(
         Its ``[data]`` names the channels; ``[identification]`` gives the Welch segment and the band.
     source : str
         The data file, for messages.
+    period_samples : int, optional
+        The excitation's period when the record is whole periods of it: where every input excites its own
+        lines (a zippered multisine, :func:`zippered_lines`), each element is read at its input's lines with
+        no window (:func:`hilident.ident.mimo.periodic_mimo_frf`); else the Welch estimate.
 
     Raises
     ------
@@ -52,14 +67,23 @@ def identify_channels(
     """
     d, ic = cfg.data, cfg.identification
     u, y, fs = np.asarray(inputs, dtype=float), np.asarray(outputs, dtype=float), float(sample_rate_hz)
-    segment = int(round(ic.segment_s * fs))
-    if len(u) < segment * (MIN_AVERAGES_PER_INPUT * u.shape[1] + 1) // 2:
-        raise DataError(
-            f"{source}: {len(u)} samples hold fewer than {MIN_AVERAGES_PER_INPUT} Welch segments of "
-            f"identification.segment_s = {ic.segment_s:g} s per input: shorten it or record longer"
-        )
-    frf = mimo_h1(u, y, fs, segment)
-    band = (ic.f_min_hz or 2.0 * fs / segment, ic.f_max_hz or 0.45 * fs)
+    lines = zippered_lines(u, period_samples) if period_samples else None
+    if lines is not None:
+        assert period_samples is not None
+        periods = len(u) // period_samples
+        frf = periodic_mimo_frf(u, y, period_samples, fs, lines, skip_periods=1 if periods >= 3 else 0)
+        resolution = fs / period_samples
+        band = (ic.f_min_hz or float(frf.frequency_hz[0]), ic.f_max_hz or float(frf.frequency_hz[-1]))
+    else:
+        segment = int(round(ic.segment_s * fs))
+        if len(u) < segment * (MIN_AVERAGES_PER_INPUT * u.shape[1] + 1) // 2:
+            raise DataError(
+                f"{source}: {len(u)} samples hold fewer than {MIN_AVERAGES_PER_INPUT} Welch segments of "
+                f"identification.segment_s = {ic.segment_s:g} s per input: shorten it or record longer"
+            )
+        frf = mimo_h1(u, y, fs, segment)
+        resolution = fs / segment
+        band = (ic.f_min_hz or 2.0 * resolution, ic.f_max_hz or 0.45 * fs)
     in_band = (frf.frequency_hz >= band[0]) & (frf.frequency_hz <= band[1])
     units = d.output_units or [""] * len(d.outputs)
     part = {
@@ -72,7 +96,7 @@ def identify_channels(
         ],
         "method": frf.method,
         "n_averages": frf.n_averages,
-        "resolution_hz": fs / segment,
+        "resolution_hz": resolution,
         "band_hz": list(band),
         "multiple_coherence_median": [_median(frf.multiple_coherence[in_band, j]) for j in range(len(d.outputs))],
         "input_condition_median": _median(frf.input_condition[in_band]),
@@ -87,14 +111,70 @@ def identify_channels(
 def _modal_part(frf: MimoResponse, band: tuple[float, float]) -> dict:
     """``modes``, ``mode_mac`` and ``modal_notes`` of the modal estimate (weighted by each element's spread)."""
     try:
-        result = modal_analysis(frf, band, MODAL_ORDERS, weights="std")
+        result = modal_analysis(frf, band, MODAL_ORDERS, weights=_modal_weights(frf))
     except (DataError, np.linalg.LinAlgError) as exc:  # too few lines for the orders, a singular fit
         return {"modes": [], "mode_mac": [], "modal_notes": [f"no modal estimate: {exc}"]}
+    modes, notes = _merged_splits(list(result.modes), result.mac)
+    mac = result.mac if len(modes) == len(result.modes) else mac_matrix([m.shape for m in modes])
     return {
-        "modes": [_mode_record(m) for m in result.modes],
-        "mode_mac": np.round(result.mac, 4).tolist(),
-        "modal_notes": list(result.notes),
+        "modes": [_mode_record(m) for m in modes],
+        "mode_mac": np.round(mac, 4).tolist() if len(modes) else [],
+        "modal_notes": [n for n in result.notes if "split in two" not in n] + notes,
     }
+
+
+def _merged_splits(modes: list[Mode], mac: np.ndarray) -> tuple[list[Mode], list[str]]:
+    """Neighbouring modes whose half-power bands overlap and whose shapes agree (MAC above
+    :data:`SPLIT_MAC`) as one: a mode the fit found twice, as a zippered record's inputs, each seen on its own
+    lines, give it. The merged mode: the mean frequency and damping, both ranges, the shape of the one stable
+    over more orders, each input's larger participation."""
+    out: list[Mode] = []
+    notes = []
+    for k, mode in enumerate(modes):
+        last = out[-1] if out else None
+        if last is not None and _overlap(last, mode) and mac[k - 1, k] > SPLIT_MAC:
+            out[-1] = _merge(last, mode)
+            notes.append(
+                f"poles at {last.frequency_hz:.5g} and {mode.frequency_hz:.5g} Hz with one shape (MAC "
+                f"{mac[k - 1, k]:.2f}) and overlapping half-power bands taken as one mode"
+            )
+        else:
+            out.append(mode)
+    return out, notes
+
+
+def _overlap(a: Mode, b: Mode) -> bool:
+    return abs(b.frequency_hz - a.frequency_hz) < a.damping * a.frequency_hz + b.damping * b.frequency_hz
+
+
+def _merge(a: Mode, b: Mode) -> Mode:
+    stronger = a if a.n_stable >= b.n_stable else b
+    return Mode(
+        frequency_hz=0.5 * (a.frequency_hz + b.frequency_hz),
+        damping=0.5 * (a.damping + b.damping),
+        frequency_ci_hz=(
+            min(a.frequency_ci_hz[0], b.frequency_ci_hz[0]),
+            max(a.frequency_ci_hz[1], b.frequency_ci_hz[1]),
+        ),
+        damping_ci=(min(a.damping_ci[0], b.damping_ci[0]), max(a.damping_ci[1], b.damping_ci[1])),
+        shape=stronger.shape,
+        participation=np.maximum(np.abs(a.participation), np.abs(b.participation)).astype(complex),
+        n_stable=max(a.n_stable, b.n_stable),
+    )
+
+
+def _modal_weights(frf: MimoResponse) -> np.ndarray:
+    """Each element's weight in the modal fit: ``1 / std`` where it was measured with a spread, 0 where it has
+    none; for a periodic (zippered) estimate, or where no element has a spread, 1 where it was measured and 0
+    where it was interpolated (another input's lines: a period's scatter is too few periods to weight by)."""
+    std = frf.std
+    known = np.isfinite(std) & (std > 0.0)
+    if frf.method == "periodic" or not known.any():
+        measured = frf.measured if frf.measured is not None else np.ones((std.shape[0], std.shape[2]), dtype=bool)
+        return np.broadcast_to(measured[:, None, :], std.shape).astype(float)
+    weights = np.zeros(std.shape)
+    weights[known] = 1.0 / std[known]
+    return weights
 
 
 def _mode_record(m: Mode) -> dict:
@@ -108,6 +188,29 @@ def _mode_record(m: Mode) -> dict:
         "participation_magnitude": np.abs(m.participation).tolist(),
         "stable_orders": m.n_stable,
     }
+
+
+def zippered_lines(inputs: np.ndarray, period_samples: int) -> list[np.ndarray] | None:
+    """Each input's own DFT bins of one period when the inputs are zippered; None when they are not.
+
+    A bin is excited where some input's mean power over the periods lies within :data:`EXCITED_DB` of its
+    peak; it is an input's own where every other input's power there is :data:`ZIPPER_DB` below. The inputs
+    are zippered when every excited bin is some input's own and every input owns a bin.
+    """
+    n_periods = len(inputs) // period_samples
+    if n_periods < 1 or inputs.shape[1] < 2:
+        return None
+    blocks = inputs[: n_periods * period_samples].reshape(n_periods, period_samples, -1)
+    power = np.mean(np.abs(np.fft.rfft(blocks, axis=1)) ** 2, axis=0)[1:]  # (bins without DC, n_in)
+    excited = power >= power.max(axis=0) * 10.0 ** (EXCITED_DB / 10.0)
+    owner = np.argmax(power, axis=1)
+    others = np.sort(power, axis=1)[:, -2]
+    own = others <= power[np.arange(len(owner)), owner] * 10.0 ** (ZIPPER_DB / 10.0)
+    any_excited = excited.any(axis=1)
+    if not np.all(own[any_excited]):
+        return None
+    lines = [np.flatnonzero(any_excited & (owner == i)) + 1 for i in range(inputs.shape[1])]
+    return lines if all(line.size for line in lines) else None
 
 
 def _median(values: np.ndarray) -> float | None:

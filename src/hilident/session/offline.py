@@ -575,7 +575,7 @@ def _analyse_channels(cfg: Config, ds: Dataset, data_info: dict, warnings: list[
         inputs, outputs = channel_keys(cfg.data)
         u = np.column_stack([ds.signals[k] for k in inputs])
         y = np.column_stack([ds.signals[k] for k in outputs])
-        part, _ = identify_channels(u, y, ds.sample_rate_hz, cfg, ds.source)
+        part, _ = identify_channels(u, y, ds.sample_rate_hz, cfg, ds.source, ds.period_samples)
         warnings += part["warnings"]
     except HilidentError as exc:
         error = exc
