@@ -101,6 +101,7 @@ def test_the_integral_gain_converts_to_and_from_the_integral_time():
     present = {"kv_nm_per_mps": 100.0, "ti_s": 0.05}
     assert loop.to_cascade({"kv_nm_per_mps": 200.0, "ki_nm_per_m": 1000.0}) == {"kv_nm_per_mps": 200.0, "ti_s": 0.2}
     assert loop.to_cascade({"ki_nm_per_m": 0.0}, lambda: present) == {"ti_s": math.inf}
+    assert loop.to_cascade({"ki_nm_per_m": -10.0}, lambda: present)["ti_s"] < 0  # refused as a time, not a P loop
     # a drive keeps ki when kv alone is written: its integral time moves with kv
     assert loop.to_cascade({"kv_nm_per_mps": 300.0}, lambda: present) == {"kv_nm_per_mps": 300.0, "ti_s": 0.15}
     assert loop.to_device({"kv_nm_per_mps": 300.0, "ti_s": math.inf}) == {"kv_nm_per_mps": 300.0, "ki_nm_per_m": 0.0}

@@ -200,7 +200,7 @@ class LoopDescription:
         base = _present(present) if not {"kv_nm_per_mps", INTEGRAL_GAIN} <= set(out) else {}
         kv = float(out.get("kv_nm_per_mps", base.get("kv_nm_per_mps", 0.0)))
         ki = float(out.pop(INTEGRAL_GAIN)) if INTEGRAL_GAIN in out else _gain(base)
-        out["ti_s"] = kv / ki if ki > 0 else math.inf
+        out["ti_s"] = kv / ki if ki != 0 else math.inf  # a negative gain gives a negative time, which is refused
         return out
 
     def to_device(self, values: Mapping[str, float], present: Callable[[], Mapping[str, float]] | None = None):
