@@ -37,7 +37,6 @@ from hilident.errors import ConfigError, DataError, HilidentError, UsageError
 from hilident.io.serialise import write_json
 from hilident.io.summary import Summary, friction_summary
 from hilident.lazy import lazy_module
-from hilident.pipeline.mimo_identify import identify_channels
 from hilident.plots import figures as report
 from hilident.units import recorded_units
 
@@ -571,6 +570,8 @@ def _analyse_channels(cfg: Config, ds: Dataset, data_info: dict, warnings: list[
     state: dict = {"plant": None, "designs": [], "model": None, "friction": None, "step": "identification"}
     error: HilidentError | None = None
     part = None
+    from hilident.pipeline.mimo_identify import identify_channels  # scipy: only once the data are read
+
     try:
         inputs, outputs = channel_keys(cfg.data)
         u = np.column_stack([ds.signals[k] for k in inputs])
