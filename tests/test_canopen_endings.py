@@ -265,7 +265,9 @@ def test_pdos_and_emergencies_from_before_the_configuration_are_counted_and_drop
             task.stop()
     finally:
         other.shutdown()
-    assert ad.connect_report.discarded_frames >= 2
+    # at least one stale frame arrived while the host connected (a loaded machine may starve the 2 ms sender),
+    # and none of them, the old emergency included, became a fault of this session
+    assert ad.connect_report.discarded_frames >= 1 and ad.connect_report.faults == []
     ad.configure(FS, "torque")
     result = ad.stream(np.zeros(500), lambda i, rows: None)
     assert result.completed and result.events[-1]["kind"] == "capture_end"
