@@ -12,12 +12,11 @@ from __future__ import annotations
 
 from hilident.errors import ConfigError
 from hilident.protocol import eds as E
+from hilident.protocol.canopen_objects import NUMERIC_TYPES
 from hilident.protocol.loop_parameters import WRITABLE, parse_loop
 
 __all__ = ["loop_problems"]
 
-#: CiA 301 types that hold a number: the integers and REAL32/64.
-_NUMERIC = frozenset({0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x08, 0x11, 0x15, 0x1B})
 
 
 def loop_problems(data: dict, od, source: str = "") -> list[tuple[str, str]]:
@@ -36,7 +35,7 @@ def loop_problems(data: dict, od, source: str = "") -> list[tuple[str, str]]:
         if info is None:
             problems.append((key, f"{address} is not in the EDS"))
             continue
-        if info.data_type not in _NUMERIC:
+        if info.data_type not in NUMERIC_TYPES:
             problems.append((key, f"{address} is {E.type_name(info.data_type)} in the EDS; {name} needs a number"))
         if not E.readable(info.access):
             problems.append((key, f"{address} is {info.access!r} in the EDS; the host reads {name}"))

@@ -25,6 +25,7 @@ import re
 from dataclasses import dataclass
 
 from hilident.protocol import eds as E
+from hilident.protocol.canopen_objects import BOOLEAN, NUMERIC_TYPES
 
 __all__ = ["LoopObject", "LoopProposal", "loop_objects", "propose_loop"]
 
@@ -45,8 +46,8 @@ _LOOPS = (
 )
 #: Names of objects that look like a gain but are none of the running cascade's.
 _NOT_A_LOOP_GAIN = r"analog|autotun|auto-tun|scheduling|open loop|identification|\bao\d|\bai\d"
-#: Numeric CiA 301 types a gain can be held in (integers and REAL32/64).
-_NUMERIC = frozenset({0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x08, 0x11, 0x15, 0x1B})
+#: CiA 301 types a gain can be held in: the numbers, a BOOLEAN aside.
+_GAIN_TYPES = NUMERIC_TYPES - {BOOLEAN}
 
 
 @dataclass(frozen=True)
@@ -102,7 +103,7 @@ def loop_objects(od) -> list[LoopObject]:
         record = od.indices[index]
         for sub in (0,) if not hasattr(record, "subindices") else sorted(record.subindices):
             info = E.object_info(od, index, sub)
-            if info is None or info.data_type not in _NUMERIC or not (E.writable(info.access)):
+            if info is None or info.data_type not in _GAIN_TYPES or not (E.writable(info.access)):
                 continue
             found += _classified(info, "" if sub == 0 else record.name)
     return found
