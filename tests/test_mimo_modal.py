@@ -11,6 +11,7 @@ from hilident.ident.mimo import mimo_h1
 from hilident.ident.mimo.modal import (
     PoleSet,
     mac,
+    merge_split_modes,
     modal_analysis,
     polyreference_lscf,
     select_modes,
@@ -205,6 +206,9 @@ def test_time_domain_mimo_h1_three_dof():
     # unweighted, the displacement responses' wide range lets the first mode split in two, which a note says
     unweighted = modal_analysis(frf, band, range(2, 21))
     assert any("split" in n for n in unweighted.notes)
+    merged = merge_split_modes(unweighted)  # or taken as one: the split notes give way to the merge's
+    assert len(merged.modes) == len(unweighted.modes) - 1 and merged.mac.shape == (len(merged.modes),) * 2
+    assert not any("split" in n for n in merged.notes) and any("taken as one mode" in n for n in merged.notes)
     result = modal_analysis(frf, band, range(2, 21), weights="std")
     assert not any("split" in n for n in result.notes)
     freq = np.array([md.frequency_hz for md in result.modes])

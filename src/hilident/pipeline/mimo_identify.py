@@ -18,7 +18,8 @@ from scipy import signal
 
 from hilident.config.tables import Config
 from hilident.errors import DataError
-from hilident.ident.mimo import MimoResponse, Mode, mac_matrix, mimo_h1, modal_analysis, periodic_mimo_frf
+from hilident.ident.mimo import MimoResponse, Mode, mimo_h1, modal_analysis, periodic_mimo_frf
+from hilident.ident.mimo.modal import merge_split_modes
 
 __all__ = ["identify_channels", "mode_indicator_peaks", "zippered_lines"]
 
@@ -30,8 +31,6 @@ PEAK_PROMINENCE_DB = 6.0
 EXCITED_DB = -40.0
 #: An excited line is one input's own where every other input's power is this far below, dB.
 ZIPPER_DB = -40.0
-#: Neighbouring modes with overlapping half-power bands whose shapes agree beyond this MAC are one mode.
-SPLIT_MAC = 0.9
 #: Model orders of the modal estimate: order ``p`` of an ``n_in``-input model has ``p n_in`` poles.
 MODAL_ORDERS = range(2, 33)
 
@@ -111,56 +110,14 @@ def identify_channels(
 def _modal_part(frf: MimoResponse, band: tuple[float, float]) -> dict:
     """``modes``, ``mode_mac`` and ``modal_notes`` of the modal estimate (weighted by each element's spread)."""
     try:
-        result = modal_analysis(frf, band, MODAL_ORDERS, weights=_modal_weights(frf))
+        result = merge_split_modes(modal_analysis(frf, band, MODAL_ORDERS, weights=_modal_weights(frf)))
     except (DataError, np.linalg.LinAlgError) as exc:  # too few lines for the orders, a singular fit
         return {"modes": [], "mode_mac": [], "modal_notes": [f"no modal estimate: {exc}"]}
-    modes, notes = _merged_splits(list(result.modes), result.mac)
-    mac = result.mac if len(modes) == len(result.modes) else mac_matrix([m.shape for m in modes])
     return {
-        "modes": [_mode_record(m) for m in modes],
-        "mode_mac": np.round(mac, 4).tolist() if len(modes) else [],
-        "modal_notes": [n for n in result.notes if "split in two" not in n] + notes,
+        "modes": [_mode_record(m) for m in result.modes],
+        "mode_mac": np.round(result.mac, 4).tolist() if result.modes else [],
+        "modal_notes": list(result.notes),
     }
-
-
-def _merged_splits(modes: list[Mode], mac: np.ndarray) -> tuple[list[Mode], list[str]]:
-    """Neighbouring modes whose half-power bands overlap and whose shapes agree (MAC above
-    :data:`SPLIT_MAC`) as one: a mode the fit found twice, as a zippered record's inputs, each seen on its own
-    lines, give it. The merged mode: the mean frequency and damping, both ranges, the shape of the one stable
-    over more orders, each input's larger participation."""
-    out: list[Mode] = []
-    notes = []
-    for k, mode in enumerate(modes):
-        last = out[-1] if out else None
-        if last is not None and _overlap(last, mode) and mac[k - 1, k] > SPLIT_MAC:
-            out[-1] = _merge(last, mode)
-            notes.append(
-                f"poles at {last.frequency_hz:.5g} and {mode.frequency_hz:.5g} Hz with one shape (MAC "
-                f"{mac[k - 1, k]:.2f}) and overlapping half-power bands taken as one mode"
-            )
-        else:
-            out.append(mode)
-    return out, notes
-
-
-def _overlap(a: Mode, b: Mode) -> bool:
-    return abs(b.frequency_hz - a.frequency_hz) < a.damping * a.frequency_hz + b.damping * b.frequency_hz
-
-
-def _merge(a: Mode, b: Mode) -> Mode:
-    stronger = a if a.n_stable >= b.n_stable else b
-    return Mode(
-        frequency_hz=0.5 * (a.frequency_hz + b.frequency_hz),
-        damping=0.5 * (a.damping + b.damping),
-        frequency_ci_hz=(
-            min(a.frequency_ci_hz[0], b.frequency_ci_hz[0]),
-            max(a.frequency_ci_hz[1], b.frequency_ci_hz[1]),
-        ),
-        damping_ci=(min(a.damping_ci[0], b.damping_ci[0]), max(a.damping_ci[1], b.damping_ci[1])),
-        shape=stronger.shape,
-        participation=np.maximum(np.abs(a.participation), np.abs(b.participation)).astype(complex),
-        n_stable=max(a.n_stable, b.n_stable),
-    )
 
 
 def _modal_weights(frf: MimoResponse) -> np.ndarray:

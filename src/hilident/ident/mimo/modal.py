@@ -25,6 +25,7 @@ natural frequency ``|lambda| / 2 pi`` Hz, damping ratio ``zeta = -Re(lambda) / |
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -43,11 +44,15 @@ __all__ = [
     "lsfd",
     "mac",
     "mac_matrix",
+    "merge_split_modes",
     "modal_analysis",
     "polyreference_lscf",
     "select_modes",
     "stabilisation",
 ]
+
+#: Neighbouring modes with overlapping half-power bands whose shapes agree beyond this MAC are one mode.
+SPLIT_MAC = 0.9
 
 #: Labels of the stabilisation diagram, from least to most stable.
 LABELS = ("new", "unstable", "frequency", "damping", "vector", "stable")
@@ -600,22 +605,80 @@ def select_modes(
     )
 
 
-def _split_notes(modes: tuple[Mode, ...], shapes_mac: np.ndarray, mac_limit: float = 0.9) -> list[str]:
-    """Warnings for neighbouring modes whose half-power bands overlap and whose shapes agree: one mode fitted twice.
-
-    Two true modes this close have distinct shapes (else the inputs could not separate them); a split mode, from
-    a poorly weighted fit or leakage, gives two poles with one shape. Weighting by ``1 / std`` usually cures it.
+def _split(a: Mode, b: Mode, shapes_mac: float, mac_limit: float = SPLIT_MAC) -> bool:
+    """Whether neighbouring modes ``a`` and ``b`` are one mode fitted twice: their half-power bands overlap and
+    their shapes agree (MAC above ``mac_limit``). Two true modes this close have distinct shapes (else the inputs
+    could not separate them); a split mode, from a poorly weighted fit or leakage, gives two poles with one shape.
     """
+    overlap = abs(b.frequency_hz - a.frequency_hz) < a.damping * a.frequency_hz + b.damping * b.frequency_hz
+    return bool(overlap and shapes_mac > mac_limit)
+
+
+def _split_notes(modes: tuple[Mode, ...], shapes_mac: np.ndarray) -> list[str]:
+    """Warnings for neighbouring modes that are one mode fitted twice (:func:`_split`). Weighting by ``1 / std``
+    usually cures it."""
     notes = []
     for r in range(len(modes) - 1):
         a, b = modes[r], modes[r + 1]
-        overlap = b.frequency_hz - a.frequency_hz < a.damping * a.frequency_hz + b.damping * b.frequency_hz
-        if overlap and shapes_mac[r, r + 1] > mac_limit:
+        if _split(a, b, shapes_mac[r, r + 1]):
             notes.append(
                 f"modes at {a.frequency_hz:.4g} and {b.frequency_hz:.4g} Hz overlap with the same shape "
                 f"(MAC {shapes_mac[r, r + 1]:.2f}): probably one mode split in two; try weights='std'"
             )
     return notes
+
+
+def merge_split_modes(result: ModalResult) -> ModalResult:
+    """``result`` with each pair of neighbouring modes that is one mode fitted twice (:func:`_split`) taken as one,
+    as a zippered record gives them (each input seen on its own lines).
+
+    The merged mode: the mean frequency and damping, both ranges, the shape and residue of the one stable over
+    more orders, each input's larger participation. The split notes of ``result`` give way to notes of the merges;
+    the MAC is that of the modes kept.
+    """
+    modes: list[Mode] = []
+    residues: list[np.ndarray] = []
+    merges = []
+    for k, mode in enumerate(result.modes):
+        if modes and _split(modes[-1], mode, result.mac[k - 1, k]):
+            last = modes[-1]
+            stronger = k if mode.n_stable > last.n_stable else None
+            modes[-1] = _merged(last, mode)
+            if stronger is not None:
+                residues[-1] = result.residues[k]
+            merges.append(
+                f"poles at {last.frequency_hz:.5g} and {mode.frequency_hz:.5g} Hz with one shape (MAC "
+                f"{result.mac[k - 1, k]:.2f}) and overlapping half-power bands taken as one mode"
+            )
+        else:
+            modes.append(mode)
+            residues.append(result.residues[k])
+    if not merges:
+        return result
+    split_notes = set(_split_notes(result.modes, result.mac))
+    return dataclasses.replace(
+        result,
+        modes=tuple(modes),
+        mac=mac_matrix([m.shape for m in modes]),
+        residues=np.array(residues),
+        notes=tuple(n for n in result.notes if n not in split_notes) + tuple(merges),
+    )
+
+
+def _merged(a: Mode, b: Mode) -> Mode:
+    stronger = b if b.n_stable > a.n_stable else a
+    return Mode(
+        frequency_hz=0.5 * (a.frequency_hz + b.frequency_hz),
+        damping=0.5 * (a.damping + b.damping),
+        frequency_ci_hz=(
+            min(a.frequency_ci_hz[0], b.frequency_ci_hz[0]),
+            max(a.frequency_ci_hz[1], b.frequency_ci_hz[1]),
+        ),
+        damping_ci=(min(a.damping_ci[0], b.damping_ci[0]), max(a.damping_ci[1], b.damping_ci[1])),
+        shape=stronger.shape,
+        participation=np.maximum(np.abs(a.participation), np.abs(b.participation)).astype(complex),
+        n_stable=max(a.n_stable, b.n_stable),
+    )
 
 
 def _mode(diagram: StabilisationDiagram, top: int, stable: list[int], residue: np.ndarray) -> Mode:
