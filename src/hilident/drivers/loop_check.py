@@ -18,7 +18,6 @@ from hilident.protocol.loop_parameters import WRITABLE, parse_loop
 __all__ = ["loop_problems"]
 
 
-
 def loop_problems(data: dict, od, source: str = "") -> list[tuple[str, str]]:
     """The errors of ``data``'s ``[loop]`` (a parsed ``driver.toml``) against the object dictionary ``od``:
     ``(key, text)`` pairs, none when it has no ``[loop]``."""
