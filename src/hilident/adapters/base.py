@@ -8,6 +8,7 @@ register under the ``hilident.adapters`` entry point group.
 
 from __future__ import annotations
 
+import functools
 import os
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -693,7 +694,8 @@ class AdapterBase:
         loop = self._loop_description()
         if loop is None:
             return self._stored_loop(dict(values))
-        stored = loop.to_cascade(self._stored_loop(loop.to_device(values, self._present_loop)), self._present_loop)
+        present = functools.cache(self._present_loop)  # read from the device once, if at all
+        stored = loop.to_cascade(self._stored_loop(loop.to_device(values, present)), present)
         return {name: stored[name] for name in values}
 
     def _present_loop(self) -> dict[str, float]:
