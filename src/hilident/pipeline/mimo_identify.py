@@ -18,19 +18,15 @@ from scipy import signal
 
 from hilident.config.tables import Config
 from hilident.errors import DataError
-from hilident.ident.mimo import MimoResponse, Mode, mimo_h1, modal_analysis, periodic_mimo_frf
+from hilident.ident.mimo import MimoResponse, Mode, mimo_h1, modal_analysis, periodic_mimo_frf, zippered_lines
 from hilident.ident.mimo.modal import merge_split_modes
 
-__all__ = ["identify_channels", "mode_indicator_peaks", "zippered_lines"]
+__all__ = ["identify_channels", "mode_indicator_peaks"]
 
 #: Fewest Welch segments averaged per input: fewer leave the multiple coherence and the spread meaningless.
 MIN_AVERAGES_PER_INPUT = 4
 #: A mode indicator peak must stand this far above its surroundings (prominence), dB.
 PEAK_PROMINENCE_DB = 6.0
-#: A line is excited where an input's power is within this of its peak, dB.
-EXCITED_DB = -40.0
-#: An excited line is one input's own where every other input's power is this far below, dB.
-ZIPPER_DB = -40.0
 #: Model orders of the modal estimate: order ``p`` of an ``n_in``-input model has ``p n_in`` poles.
 MODAL_ORDERS = range(2, 33)
 
@@ -56,8 +52,8 @@ def identify_channels(
         The data file, for messages.
     period_samples : int, optional
         The excitation's period when the record is whole periods of it: where every input excites its own
-        lines (a zippered multisine, :func:`zippered_lines`), each element is read at its input's lines with
-        no window (:func:`hilident.ident.mimo.periodic_mimo_frf`); else the Welch estimate.
+        lines (a zippered multisine, :func:`hilident.ident.mimo.zippered_lines`), each element is read at its
+        input's lines with no window (:func:`hilident.ident.mimo.periodic_mimo_frf`); else the Welch estimate.
 
     Raises
     ------
@@ -145,29 +141,6 @@ def _mode_record(m: Mode) -> dict:
         "participation_magnitude": np.abs(m.participation).tolist(),
         "stable_orders": m.n_stable,
     }
-
-
-def zippered_lines(inputs: np.ndarray, period_samples: int) -> list[np.ndarray] | None:
-    """Each input's own DFT bins of one period when the inputs are zippered; None when they are not.
-
-    A bin is excited where some input's mean power over the periods lies within :data:`EXCITED_DB` of its
-    peak; it is an input's own where every other input's power there is :data:`ZIPPER_DB` below. The inputs
-    are zippered when every excited bin is some input's own and every input owns a bin.
-    """
-    n_periods = len(inputs) // period_samples
-    if n_periods < 1 or inputs.shape[1] < 2:
-        return None
-    blocks = inputs[: n_periods * period_samples].reshape(n_periods, period_samples, -1)
-    power = np.mean(np.abs(np.fft.rfft(blocks, axis=1)) ** 2, axis=0)[1:]  # (bins without DC, n_in)
-    excited = power >= power.max(axis=0) * 10.0 ** (EXCITED_DB / 10.0)
-    owner = np.argmax(power, axis=1)
-    others = np.sort(power, axis=1)[:, -2]
-    own = others <= power[np.arange(len(owner)), owner] * 10.0 ** (ZIPPER_DB / 10.0)
-    any_excited = excited.any(axis=1)
-    if not np.all(own[any_excited]):
-        return None
-    lines = [np.flatnonzero(any_excited & (owner == i)) + 1 for i in range(inputs.shape[1])]
-    return lines if all(line.size for line in lines) else None
 
 
 def _median(values: np.ndarray) -> float | None:

@@ -54,6 +54,7 @@ from hilident.ident.mimo.periodic import (
     orthogonal_mimo_frf,
     orthogonal_multisine,
     periodic_mimo_frf,
+    zippered_lines,
     zippered_multisine,
 )
 from hilident.ident.mimo.response import MimoResponse
@@ -72,6 +73,7 @@ __all__ = [
     "modal_analysis",
     "mimo_h1",
     "mimo_hv",
+    "zippered_lines",
     "zippered_multisine",
     "periodic_mimo_frf",
     "orthogonal_multisine",

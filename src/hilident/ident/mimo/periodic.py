@@ -8,10 +8,23 @@ from numpy.typing import ArrayLike
 
 from hilident.errors import ConfigError, DataError
 from hilident.ident.frequency import BLOCK_SAMPLES, _check_rate
-from hilident.ident.mimo.response import MimoResponse, _checked_channels, _positive_int
+from hilident.ident.mimo.response import MimoResponse, _as_columns, _checked_channels, _positive_int
 from hilident.ident.mimo.spectral import _input_solve
 
-__all__ = ["ZIPPER_LEAKAGE", "orthogonal_mimo_frf", "orthogonal_multisine", "periodic_mimo_frf", "zippered_multisine"]
+__all__ = [
+    "ZIPPER_LEAKAGE",
+    "orthogonal_mimo_frf",
+    "orthogonal_multisine",
+    "periodic_mimo_frf",
+    "zippered_lines",
+    "zippered_multisine",
+]
+
+#: A line is excited where an input's power is within this of its peak, dB (:func:`zippered_lines`).
+EXCITED_DB = -40.0
+#: An excited line is one input's own where every other input's power is this far below, dB
+#: (:func:`zippered_lines`).
+ZIPPER_DB = -40.0
 
 #: Power of the other inputs at an input's own lines, relative to its own, above which the lines are not
 #: taken as that input's alone (-60 dB).
@@ -88,6 +101,30 @@ def zippered_multisine(
     signals = np.fft.irfft(spectrum, n=period, axis=0)
     signals *= rms / np.sqrt(np.mean(signals**2, axis=0))
     return signals, [bins[owner == i] for i in range(n)]
+
+
+def zippered_lines(inputs: ArrayLike, period_samples: int) -> list[np.ndarray] | None:
+    """Each input's own DFT bins of one period when the inputs are zippered; None when they are not.
+
+    A bin is excited where some input's mean power over the periods lies within :data:`EXCITED_DB` of its
+    peak; it is an input's own where every other input's power there is :data:`ZIPPER_DB` below. The inputs
+    are zippered when every excited bin is some input's own and every input owns a bin.
+    """
+    inputs = _as_columns(inputs, "inputs")
+    n_periods = len(inputs) // period_samples
+    if n_periods < 1 or inputs.shape[1] < 2:
+        return None
+    blocks = inputs[: n_periods * period_samples].reshape(n_periods, period_samples, -1)
+    power = np.mean(np.abs(np.fft.rfft(blocks, axis=1)) ** 2, axis=0)[1:]  # (bins without DC, n_in)
+    excited = power >= power.max(axis=0) * 10.0 ** (EXCITED_DB / 10.0)
+    owner = np.argmax(power, axis=1)
+    others = np.sort(power, axis=1)[:, -2]
+    own = others <= power[np.arange(len(owner)), owner] * 10.0 ** (ZIPPER_DB / 10.0)
+    any_excited = excited.any(axis=1)
+    if not np.all(own[any_excited]):
+        return None
+    lines = [np.flatnonzero(any_excited & (owner == i)) + 1 for i in range(inputs.shape[1])]
+    return lines if all(line.size for line in lines) else None
 
 
 def _checked_lines(lines, n_in: int, period: int) -> list[np.ndarray]:
