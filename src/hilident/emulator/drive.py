@@ -27,6 +27,7 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
+from hilident.emulator.coupled_plant import PlantPort
 from hilident.emulator.disturbance import ProcessDisturbance
 from hilident.emulator.plant import Plant
 from hilident.emulator.sensors import SensorModel
@@ -135,9 +136,9 @@ class DriveLoop:
 
     Parameters
     ----------
-    plant : Plant
-        The plant; the drive steps it one tick at a time. Set its initial state
-        before building the drive (the velocity estimator starts from it).
+    plant : Plant or PlantPort
+        The plant (or a port of a :class:`~hilident.emulator.coupled_plant.CoupledPlant`); the drive steps it one
+        tick at a time. Set its initial state before building the drive (the velocity estimator starts from it).
     tuning : DriveTuning
     sensors : SensorModel
     n_filter_slots : int
@@ -207,14 +208,14 @@ class DriveLoop:
 
     def __init__(
         self,
-        plant: Plant,
+        plant: Plant | PlantPort,
         tuning: DriveTuning,
         sensors: SensorModel,
         n_filter_slots: int = 4,
         disturbance: ProcessDisturbance | None = None,
     ):
-        if not isinstance(plant, Plant):
-            raise TypeError(f"plant must be a Plant, got {type(plant).__name__}")
+        if not isinstance(plant, Plant | PlantPort):
+            raise TypeError(f"plant must be a Plant or a PlantPort, got {type(plant).__name__}")
         if not isinstance(tuning, DriveTuning):
             raise TypeError(f"tuning must be a DriveTuning, got {type(tuning).__name__}")
         if not isinstance(sensors, SensorModel):
