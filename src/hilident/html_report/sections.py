@@ -292,6 +292,8 @@ CAPTIONS = {
     "moves.png": "The same move without and with the notch: the load's ringing after the move (the place where "
     "the notch helped least), the dwell shaded, the settling band drawn.",
     "map.png": "The mode over the workspace: the frequency identified at each mapped position with its 95 % interval.",
+    "stabilisation.png": "Stabilisation diagram of the modes from all outputs and inputs: each pole by model order and "
+    "label, the first singular value of H (right axis), the selected modes.",
     "closed-loop.png": "The closed loop after the gain upload: the velocity set-point's measured response against "
     "its prediction (the multisine's lines) and one period of the velocity steps, measured and predicted.",
 }

@@ -11,6 +11,9 @@
 - the grey-box parameters with their standard deviations;
 - the notch biquads as designed and as the device stores them (read back),
   each with its sample rate;
+- for an identify with several inputs and outputs (``summary.json["mimo"]``), the
+  modal model of every channel as a real state space, continuous and discretised
+  likewise (``mimo_model``, :mod:`hilident.io.mimo_export`);
 
 every part with a ``units`` map. :func:`write_json`, :func:`write_mat` and
 :func:`write_control` write it; :func:`to_control` gives python-control
@@ -43,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from hilident.errors import DataError, HilidentError, UsageError
+from hilident.io.mimo_export import mimo_control_lines, mimo_model_part
 
 __all__ = [
     "FORMATS",
@@ -198,11 +202,32 @@ def _output_channel(summary: dict) -> tuple[str | None, str | None]:
         except (HilidentError, OSError):  # a moved or changed config loses the output's name, not the export
             channel = None
     if channel and unit is None:
-        unit = next(
-            (u for suffix, u in sorted(_CHANNEL_UNITS.items(), key=lambda kv: -len(kv[0])) if channel.endswith(suffix)),
-            None,
-        )
+        unit = _suffix_unit(channel)
     return channel, unit
+
+
+def _suffix_unit(channel: str) -> str | None:
+    """The unit a channel's name ends in (``_mps`` m/s, ``_nm`` N*m, ...), None if none."""
+    return next(
+        (u for suffix, u in sorted(_CHANNEL_UNITS.items(), key=lambda kv: -len(kv[0])) if channel.endswith(suffix)),
+        None,
+    )
+
+
+def _channel_unit(channel: str, stated: str | None) -> str:
+    """A channel's unit: the one the summary states, else the one its name ends in, else ``"unknown"``."""
+    return stated or _suffix_unit(channel) or "unknown"
+
+
+def _mimo_part(summary: dict, rate_hz: float | None) -> tuple[dict | None, str | None]:
+    """The ``mimo_model`` part, the modal state space of every channel, or None and why."""
+    if not summary["mimo"].get("modes"):
+        return None, "the identify found no mode (summary.json mimo.modes is empty; mimo.modal_notes says why)"
+    rate, rate_source = _loop_rate(summary, summary, rate_hz)
+    try:
+        return mimo_model_part(summary["mimo"], _channel_unit, rate, rate_source), None
+    except DataError as exc:  # a summary of an older hilident (no residues), or a damaged one
+        return None, str(exc)
 
 
 def _leading(poly: np.ndarray) -> float:
@@ -351,11 +376,12 @@ def export_document(summary: dict, rate_hz: float | None = None, path: Path | No
     -------
     dict
         ``plant`` (None without a plant model), ``greybox`` (None without a ``[model]`` fit), ``notches``,
-        and where they came from.
+        and where they came from; for a summary with ``mimo`` also ``mimo_model`` (None, and
+        ``mimo_model_reason`` why, without modes or without their residues).
     """
     kind = summary.get("command") or ("identify" if "data" in summary else "run")
     plant_summary = _plant_source(summary, path)
-    return {
+    doc = {
         "format": "hilident-model-export",
         "format_version": FORMAT_VERSION,
         "hilident_version": summary.get("hilident_version"),
@@ -365,6 +391,11 @@ def export_document(summary: dict, rate_hz: float | None = None, path: Path | No
         "greybox": _greybox_part(summary) or (_greybox_part(plant_summary) if plant_summary else None),
         "notches": _notch_parts(summary),
     }
+    if isinstance(summary.get("mimo"), dict):
+        doc["mimo_model"], reason = _mimo_part(summary, rate_hz)
+        if reason is not None:
+            doc["mimo_model_reason"] = reason
+    return doc
 
 
 def write_json(doc: dict, out: Path) -> None:
@@ -397,6 +428,8 @@ def _mat_value(value: Any) -> Any:
         return float(value)
     if isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
         return [_mat_value(v) for v in value]  # savemat writes a cell array of structs
+    if isinstance(value, list) and value and all(isinstance(v, str) for v in value):
+        return np.array(value, dtype=object)  # a cell array of char
     if isinstance(value, list):
         return np.asarray(value, dtype=float) if value else np.zeros((0, 0))  # None in a list becomes NaN
     return value
@@ -415,7 +448,8 @@ def _records_struct(records: list[dict], vector_keys: tuple[str, ...], scalar_ke
 
 
 def to_mat_layout(doc: dict) -> dict[str, Any]:
-    """The export as MATLAB variables: ``plant``, ``greybox``, ``notches_designed``, ``notches_stored``, ``info``.
+    """The export as MATLAB variables: ``plant``, ``greybox``, ``notches_designed``, ``notches_stored``, ``info``
+    and, with a modal model of several channels, ``mimo_model`` (names and units as cell arrays of char).
 
     Structs of doubles with valid MATLAB names; a notch list is a struct of arrays (``b``, ``a`` n-by-3; ``slot``,
     ``sample_rate_hz``, ... n-by-1); complex roots as n-by-2 ``[re, im]``; units as char fields of a ``units``
@@ -441,6 +475,8 @@ def to_mat_layout(doc: dict) -> dict[str, Any]:
         out["plant"] = _mat_value(doc["plant"])
     if doc["greybox"] is not None:
         out["greybox"] = _mat_value(doc["greybox"])
+    if doc.get("mimo_model") is not None:
+        out["mimo_model"] = _mat_value(doc["mimo_model"])
     return out
 
 
@@ -470,23 +506,47 @@ def to_control(summary: dict, rate_hz: float | None = None, path: Path | None = 
     dict
         ``tf`` (:class:`control.TransferFunction`, s in rad/s), ``ss`` (:class:`control.StateSpace`), and at the
         drive's loop rate ``tf_discrete``, ``ss_discrete`` (zero-order hold; ``dt`` in s; absent without a rate).
+        For a summary with modes of several inputs and outputs: ``mimo_ss`` (and ``mimo_ss_discrete``), the modal
+        state space with the inputs, outputs and states named (``mimo_model`` of :func:`export_document`).
 
     Raises
     ------
     UsageError
         python-control is not installed (``pip install 'hilident[control]'``).
     DataError
-        The summary has no plant model.
+        The summary has no plant model and no modal model of several channels.
     """
     control = _control()
-    plant = export_document(summary, rate_hz, path)["plant"]
-    if plant is None:
-        raise DataError("the summary has no plant_model to export (and no source summary with one)")
-    cont, disc = plant["continuous"], plant["discrete"]
-    out = {"tf": control.tf(cont["tf"]["num"], cont["tf"]["den"]), "ss": control.ss(*_abcd(cont["ss"]))}
+    doc = export_document(summary, rate_hz, path)
+    plant, mimo = _models(doc)
+    out = {}
+    if plant is not None:
+        cont, disc = plant["continuous"], plant["discrete"]
+        out = {"tf": control.tf(cont["tf"]["num"], cont["tf"]["den"]), "ss": control.ss(*_abcd(cont["ss"]))}
+        if disc is not None:
+            out["tf_discrete"] = control.tf(disc["tf"]["num"], disc["tf"]["den"], disc["dt_s"])
+            out["ss_discrete"] = control.ss(*_abcd(disc["ss"]), disc["dt_s"])
+    if mimo is not None:
+        out.update(_mimo_control(control, mimo))
+    return out
+
+
+def _models(doc: dict) -> tuple[dict | None, dict | None]:
+    """The document's ``plant`` and ``mimo_model``; DataError when it has neither."""
+    plant, mimo = doc["plant"], doc.get("mimo_model")
+    if plant is None and mimo is None:
+        why = f"; no modal model of several channels: {doc['mimo_model_reason']}" if "mimo_model_reason" in doc else ""
+        raise DataError(f"the summary has no plant_model to export (and no source summary with one){why}")
+    return plant, mimo
+
+
+def _mimo_control(control, mimo: dict) -> dict[str, Any]:
+    """``mimo_ss`` and, with a rate, ``mimo_ss_discrete``: python-control state spaces with named signals."""
+    names = {"inputs": mimo["inputs"], "outputs": mimo["outputs"], "states": mimo["state_names"]}
+    out = {"mimo_ss": control.ss(*_abcd(mimo["continuous"]["ss"]), name="mimo_model", **names)}
+    disc = mimo["discrete"]
     if disc is not None:
-        out["tf_discrete"] = control.tf(disc["tf"]["num"], disc["tf"]["den"], disc["dt_s"])
-        out["ss_discrete"] = control.ss(*_abcd(disc["ss"]), disc["dt_s"])
+        out["mimo_ss_discrete"] = control.ss(*_abcd(disc["ss"]), disc["dt_s"], name="mimo_model_discrete", **names)
     return out
 
 
@@ -497,10 +557,29 @@ def _abcd(ss: dict) -> tuple[np.ndarray, ...]:
 def control_script(doc: dict) -> str:
     """A small Python script that rebuilds the python-control objects of :func:`to_control` from the numbers
     in ``doc`` (floats written by ``repr``: exact); running it defines ``tf``, ``ss`` and, with a rate,
-    ``tf_discrete``, ``ss_discrete``."""
-    plant = doc["plant"]
-    if plant is None:
-        raise DataError("the summary has no plant_model to export (and no source summary with one)")
+    ``tf_discrete``, ``ss_discrete``; with a modal model of several channels ``mimo_ss`` (and
+    ``mimo_ss_discrete``) with named inputs, outputs and states."""
+    plant, mimo = _models(doc)
+    lines = _plant_script(doc, plant) if plant is not None else _mimo_script_head(doc)
+    if mimo is not None:
+        lines += mimo_control_lines(mimo)
+    return "\n".join(lines) + "\n"
+
+
+def _mimo_script_head(doc: dict) -> list[str]:
+    return [
+        '"""The modal model hilident identified from several inputs and outputs, as python-control objects',
+        "(written by hilident export).",
+        "",
+        f"Source: {doc['source']}",
+        "s in rad/s; dt in s; inputs, outputs and their units as named below.",
+        '"""',
+        "",
+        "import control",
+    ]
+
+
+def _plant_script(doc: dict, plant: dict) -> list[str]:
     cont, disc = plant["continuous"], plant["discrete"]
     lines = [
         '"""The plant model hilident identified, as python-control objects (written by hilident export).',
@@ -521,7 +600,7 @@ def control_script(doc: dict) -> str:
             f"tf_discrete = control.tf({disc['tf']['num']!r}, {disc['tf']['den']!r}, dt)",
             "ss_discrete = control.ss({A!r}, {B!r}, {C!r}, {D!r}, dt)".format(**disc["ss"]),
         ]
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 def write_control(doc: dict, out: Path) -> None:

@@ -48,6 +48,7 @@ LAYOUTS: dict[str, tuple[str, ...]] = {
         "rejected_peaks",
         "plant_model",
         "measurement",
+        "mimo",  # with [identification] outputs only
         "friction",
         "notch_filters",
         "upload",
@@ -354,12 +355,14 @@ class Summary:
         workspace: dict | None = None,
         notes: list[str] | None = None,
         loop: dict | None = None,
+        mimo: dict | None = None,
     ) -> Summary:
         """``hilident run``'s summary (``model``: the grey-box fit, None when not asked for; left out when the
         run failed before it; ``workspace_map``: the ``[map]`` points, left out of a run without ``[map]``;
         ``move_test``: each ``[verification] move`` result, left out of a run without one; ``workspace``: the
         ``[map]``'s joint fit and covering notch; ``notes``: what is worth knowing and needs no action;
-        ``loop``: the drive's loop around the plant, left out of a run on a drive without ``[loop]``)."""
+        ``loop``: the drive's loop around the plant, left out of a run on a drive without ``[loop]``; ``mimo``: the
+        modes of ``[identification] output`` and ``outputs`` together, left out without ``outputs``)."""
         return cls(
             "run",
             config,
@@ -384,6 +387,7 @@ class Summary:
                 "workspace": NOT_REACHED if workspace is None else workspace,
                 "move_test": NOT_REACHED if move_test is None else move_test_summary(move_test),
                 "loop": NOT_REACHED if loop is None else loop,
+                "mimo": NOT_REACHED if mimo is None else mimo,
             },
             notes=list(notes or []),
         )

@@ -8,27 +8,46 @@ mode indicator function (the first singular value of ``H`` at each line, Shih et
 every output sees stand out; and the modes from all outputs and inputs at once
 (:func:`hilident.ident.mimo.modal_analysis`: polyreference LSCF over model orders, the poles stable over the
 highest ones, LSFD shapes), each with its frequency, damping, their spread over the orders, its shape over
-the outputs and its participation from the inputs, and the MAC between the modes' shapes.
+the outputs and its participation from the inputs, and the MAC between the modes' shapes; each mode's 95 %
+intervals of frequency and damping (:func:`hilident.ident.mimo.modal_intervals`, from independent groups of
+the record, :func:`_interval_groups`) and the stabilisation diagram (``stabilisation``).
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 from scipy import signal
 
 from hilident.config.tables import Config
-from hilident.errors import DataError
+from hilident.errors import ConfigError, DataError
 from hilident.ident.mimo import MimoResponse, Mode, mimo_h1, modal_analysis, periodic_mimo_frf, zippered_lines
-from hilident.ident.mimo.modal import merge_split_modes
+from hilident.ident.mimo.modal import ModalResult, lsfd, merge_split_modes, modal_intervals
 
 __all__ = ["identify_channels", "mode_indicator_peaks"]
 
 #: Fewest Welch segments averaged per input: fewer leave the multiple coherence and the spread meaningless.
 MIN_AVERAGES_PER_INPUT = 4
+#: Shortest Welch segment, samples, a record may be read with.
+MIN_SEGMENT = 64
 #: A mode indicator peak must stand this far above its surroundings (prominence), dB.
 PEAK_PROMINENCE_DB = 6.0
-#: Model orders of the modal estimate: order ``p`` of an ``n_in``-input model has ``p n_in`` poles.
-MODAL_ORDERS = range(2, 33)
+#: Model orders of the modal estimate: order ``p`` of an ``n_in``-input model has ``p n_in`` poles. A structure
+#: with a dozen lightly damped modes in the band gives some of them a stable pole only above order 40 (the rest
+#: model the noise and the window's leakage); every order shares one pass over the lines, so the highest costs
+#: little more than the lowest.
+MODAL_ORDERS = range(2, 65)
+#: Relative change of a pole's damping between neighbouring orders still called stable. Looser than the
+#: frequency's (1 %): a mode whose half-power band spans about one line has its damping resolved only to some
+#: 10 % by the lines (and widened by the window), and a 5 % criterion leaves such modes never stable.
+STABLE_DAMPING = 0.1
+#: The modes' 95 % intervals: the record is split into at most this many independent groups ...
+INTERVAL_GROUPS = 8
+#: ... of at least this many Welch segments per input each (or one period or more each) ...
+GROUP_AVERAGES_PER_INPUT = 3
+#: ... and the modes have no interval when fewer groups than this fit in the record.
+MIN_INTERVAL_GROUPS = 4
 
 
 def identify_channels(
@@ -58,9 +77,11 @@ def identify_channels(
     Raises
     ------
     DataError
-        The record is too short for the Welch segments ``[identification] segment_s`` asks.
+        The record is too short for even the shortest Welch segments (:func:`welch_segment`).
     """
     d, ic = cfg.data, cfg.identification
+    notes: list[str] = []
+    segment = int(round(ic.segment_s * sample_rate_hz))
     u, y, fs = np.asarray(inputs, dtype=float), np.asarray(outputs, dtype=float), float(sample_rate_hz)
     lines = zippered_lines(u, period_samples) if period_samples else None
     if lines is not None:
@@ -70,12 +91,9 @@ def identify_channels(
         resolution = fs / period_samples
         band = (ic.f_min_hz or float(frf.frequency_hz[0]), ic.f_max_hz or float(frf.frequency_hz[-1]))
     else:
-        segment = int(round(ic.segment_s * fs))
-        if len(u) < segment * (MIN_AVERAGES_PER_INPUT * u.shape[1] + 1) // 2:
-            raise DataError(
-                f"{source}: {len(u)} samples hold fewer than {MIN_AVERAGES_PER_INPUT} Welch segments of "
-                f"identification.segment_s = {ic.segment_s:g} s per input: shorten it or record longer"
-            )
+        segment, shortened = welch_segment(len(u), u.shape[1], fs, ic.segment_s, source)
+        if shortened:
+            notes.append(shortened)
         frf = mimo_h1(u, y, fs, segment)
         resolution = fs / segment
         band = (ic.f_min_hz or 2.0 * resolution, ic.f_max_hz or 0.45 * fs)
@@ -97,22 +115,70 @@ def identify_channels(
         "input_condition_median": _median(frf.input_condition[in_band]),
         "elements": _element_peaks(frf, in_band, d.inputs, d.outputs),
         "indicator_peaks": mode_indicator_peaks(frf, in_band),
-        **_modal_part(frf, band),
-        "warnings": list(frf.warnings),
+        **_modal_part(frf, band, _groups_or_none(u, y, fs, frf, segment, period_samples, lines)),
+        "warnings": notes + list(frf.warnings),
     }
     return part, frf
 
 
-def _modal_part(frf: MimoResponse, band: tuple[float, float]) -> dict:
-    """``modes``, ``mode_mac`` and ``modal_notes`` of the modal estimate (weighted by each element's spread)."""
+def welch_segment(n: int, n_in: int, sample_rate_hz: float, segment_s: float, source: str = "") -> tuple[int, str]:
+    """The Welch segment (samples) for ``n`` samples of ``n_in`` inputs, and why it is not ``segment_s``.
+
+    ``identification.segment_s`` when the record holds :data:`MIN_AVERAGES_PER_INPUT` segments per input with
+    half overlap; else the longest segment that does (a record too short for the default is read, not refused),
+    with a note saying so (empty when unchanged).
+
+    Raises
+    ------
+    DataError
+        Not even segments of :data:`MIN_SEGMENT` samples fit.
+    """
+    wanted = int(round(segment_s * sample_rate_hz))
+    averages = MIN_AVERAGES_PER_INPUT * n_in
+    if n >= wanted * (averages + 1) // 2:
+        return wanted, ""
+    longest = 2 * n // (averages + 1)
+    if longest < MIN_SEGMENT:
+        raise DataError(
+            f"{source}: {n} samples hold fewer than {MIN_AVERAGES_PER_INPUT} Welch segments of {MIN_SEGMENT} "
+            f"samples per input: record longer"
+        )
+    return longest, (
+        f"identification.segment_s = {segment_s:g} s needs {wanted * (averages + 1) // 2} samples for "
+        f"{MIN_AVERAGES_PER_INPUT} segments per input; the record has {n}: segments of "
+        f"{longest / sample_rate_hz:.4g} s used (lines every {sample_rate_hz / longest:.3g} Hz)"
+    )
+
+
+def _modal_part(frf: MimoResponse, band: tuple[float, float], groups: list[MimoResponse] | None = None) -> dict:
+    """``modes``, ``mode_mac``, ``modal_notes`` and the residual terms of the modal estimate (weighted by each
+    element's spread).
+
+    The residues and residuals are fitted once more by LSFD at the poles the modes report (their median frequency
+    and damping; a merged mode's mean), so that ``pole_rad_per_s``, ``residue_real``/``residue_imag``,
+    ``lower_residual`` and ``upper_residual`` are one consistent model of the response in the band.
+    """
+    weights = _modal_weights(frf)
     try:
-        result = merge_split_modes(modal_analysis(frf, band, MODAL_ORDERS, weights=_modal_weights(frf)))
+        result = merge_split_modes(modal_analysis(frf, band, MODAL_ORDERS, weights=weights, damp_tol=STABLE_DAMPING))
+        result = _with_intervals(result, frf, band, weights, groups or [])
+        poles = np.array([_pole(m) for m in result.modes], dtype=complex)
+        residues, lower, upper = lsfd(frf, band, poles, weights)
     except (DataError, np.linalg.LinAlgError) as exc:  # too few lines for the orders, a singular fit
-        return {"modes": [], "mode_mac": [], "modal_notes": [f"no modal estimate: {exc}"]}
+        return {
+            "modes": [],
+            "mode_mac": [],
+            "modal_notes": [f"no modal estimate: {exc}"],
+            "lower_residual": None,
+            "upper_residual": None,
+        }
     return {
-        "modes": [_mode_record(m) for m in result.modes],
+        "modes": [_mode_record(m, lam, r) for m, lam, r in zip(result.modes, poles, residues, strict=True)],
         "mode_mac": np.round(result.mac, 4).tolist() if result.modes else [],
         "modal_notes": list(result.notes),
+        "stabilisation": _stabilisation_record(result),
+        "lower_residual": lower.tolist(),
+        "upper_residual": upper.tolist(),
     }
 
 
@@ -130,17 +196,37 @@ def _modal_weights(frf: MimoResponse) -> np.ndarray:
     return weights
 
 
-def _mode_record(m: Mode) -> dict:
+def _pole(m: Mode) -> complex:
+    """The continuous pole of mode ``m``, rad/s: ``-zeta w_n + j w_n sqrt(1 - zeta^2)``, ``w_n = 2 pi f_n``."""
+    wn = 2.0 * np.pi * m.frequency_hz
+    return complex(-m.damping * wn, wn * np.sqrt(1.0 - m.damping**2))
+
+
+def _mode_record(m: Mode, pole: complex, residue: np.ndarray) -> dict:
+    """One mode of ``summary.json["mimo"]["modes"]``; ``pole`` (rad/s) and its LSFD ``residue`` (n_out, n_in)
+    in the outputs' units per input unit, times rad/s."""
     return {
         "frequency_hz": m.frequency_hz,
         "damping_ratio": m.damping,
         "frequency_range_hz": list(m.frequency_ci_hz),
         "damping_range": list(m.damping_ci),
+        "frequency_ci95_hz": _finite(m.frequency_ci95_hz),
+        "damping_ci95": _finite(m.damping_ci95),
+        "interval_groups": m.n_groups,
+        "frequency_std_hz": _finite(m.frequency_std_hz),
+        "damping_std": _finite(m.damping_std),
         "shape_magnitude": np.abs(m.shape).tolist(),
         "shape_phase_deg": np.degrees(np.angle(m.shape)).tolist(),
         "participation_magnitude": np.abs(m.participation).tolist(),
         "stable_orders": m.n_stable,
+        "pole_rad_per_s": [float(pole.real), float(pole.imag)],
+        "residue_real": np.real(residue).tolist(),
+        "residue_imag": np.imag(residue).tolist(),
     }
+
+
+def _finite(value: float) -> float | None:
+    return float(value) if np.isfinite(value) else None
 
 
 def _median(values: np.ndarray) -> float | None:
@@ -189,3 +275,88 @@ def mode_indicator_peaks(frf: MimoResponse, in_band: np.ndarray) -> list[dict]:
             }
         )
     return out
+
+
+# --- the modes' intervals and stabilisation diagram ---------------------------------------------------------------
+
+
+def _groups_or_none(*args) -> list[MimoResponse]:
+    """:func:`_interval_groups`, or none when a block cannot be estimated alone (an input silent in it, ...)."""
+    try:
+        return _interval_groups(*args)
+    except (DataError, ConfigError):
+        return []
+
+
+def _interval_groups(
+    u: np.ndarray,
+    y: np.ndarray,
+    fs: float,
+    frf: MimoResponse,
+    segment: int,
+    period_samples: int | None,
+    lines: list[np.ndarray] | None,
+) -> list[MimoResponse]:
+    """Up to :data:`INTERVAL_GROUPS` estimates of ``frf`` from disjoint consecutive blocks of the record, for the
+    modes' intervals (:func:`hilident.ident.mimo.modal.modal_intervals`); empty when fewer than
+    :data:`MIN_INTERVAL_GROUPS` fit.
+
+    Welch: blocks of at least ``GROUP_AVERAGES_PER_INPUT n_in`` segments each, estimated as the whole record with
+    the same segment (the blocks share no segment, so their estimates are independent). Periodic (zippered): the
+    periods after the transient the whole estimate skipped, in consecutive groups of one period or more.
+    """
+    if frf.method == "periodic" and period_samples and lines is not None:
+        periods = len(u) // period_samples
+        skip = 1 if periods >= 3 else 0
+        k = min(INTERVAL_GROUPS, periods - skip)
+        if k < MIN_INTERVAL_GROUPS:
+            return []
+        edges = [(skip + round(g * (periods - skip) / k)) * period_samples for g in range(k + 1)]
+        cut = zip(edges[:-1], edges[1:], strict=True)
+        return [periodic_mimo_frf(u[a:b], y[a:b], period_samples, fs, lines, skip_periods=0) for a, b in cut]
+    per_group = GROUP_AVERAGES_PER_INPUT * u.shape[1]
+    k = min(INTERVAL_GROUPS, len(u) // (segment * (per_group + 1) // 2))
+    if k < MIN_INTERVAL_GROUPS:
+        return []
+    edges = [round(g * len(u) / k) for g in range(k + 1)]
+    return [mimo_h1(u[a:b], y[a:b], fs, segment) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+
+
+def _with_intervals(
+    result: ModalResult, frf: MimoResponse, band: tuple[float, float], weights: np.ndarray, groups: list[MimoResponse]
+) -> ModalResult:
+    """``result`` with the modes' 95 % intervals from ``groups`` (the whole record's weights), or a note why none."""
+    if not result.modes:
+        return result
+    if not groups:
+        note = (
+            f"no 95 % intervals of the modes: the record holds fewer than {MIN_INTERVAL_GROUPS} independent groups "
+            f"of {GROUP_AVERAGES_PER_INPUT} Welch segments per input (or periods): record longer"
+        )
+        return dataclasses.replace(result, notes=(*result.notes, note))
+    try:
+        with_intervals = modal_intervals(frf, groups, band, result, weights)
+    except (DataError, np.linalg.LinAlgError) as exc:
+        return dataclasses.replace(result, notes=(*result.notes, f"no 95 % intervals of the modes: {exc}"))
+    sizes = sorted({g.n_averages for g in groups})
+    unit = "period" if groups[0].method == "periodic" else "Welch segment"
+    each = f"{sizes[0]}" if len(sizes) == 1 else f"{sizes[0]} to {sizes[-1]}"
+    note = (
+        f"95 % intervals of the modes: the spread of {len(groups)} independent groups of the record ({each} "
+        f"{unit}{'' if each == '1' else 's'} each), each fitted as the whole record, plus the difference from a "
+        "maximum-likelihood fit of the modes"
+    )
+    return dataclasses.replace(with_intervals, notes=(*with_intervals.notes, note))
+
+
+def _stabilisation_record(result: ModalResult) -> dict:
+    """``summary.json["mimo"]["stabilisation"]``: every physical pole of every order with its label, and the
+    orders the modes were selected over (the figure ``stabilisation.png`` is drawn from it)."""
+    d = result.stabilisation
+    return {
+        "order": [int(p) for p in d.order],
+        "frequency_hz": [float(f"{f:.6g}") for f in d.frequency_hz],
+        "damping_ratio": [float(f"{z:.4g}") for z in d.damping],
+        "label": [str(label) for label in d.label],
+        "orders_used": list(result.orders_used),
+    }

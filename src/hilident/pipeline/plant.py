@@ -47,6 +47,9 @@ class PlantResult:
         What the user should act on.
     notes : list of str
         What is worth knowing and needs no action (``summary.json["notes"]``).
+    outputs : dict of str to FrequencyResponse
+        Net torque to each of ``identification.outputs`` (a load sensor), estimated as :attr:`plant` is, from
+        the same samples: what :mod:`hilident.pipeline.output_modes` identifies together with it.
     """
 
     plant: FrequencyResponse
@@ -57,6 +60,7 @@ class PlantResult:
     quality: dict = field(default_factory=dict)
     rejected: list[RejectedPeak] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    outputs: dict[str, FrequencyResponse] = field(default_factory=dict)
 
 
 def analysis_band(cfg: IdentificationConfig, excitation_band_hz: tuple[float, float]) -> tuple[float, float]:
@@ -79,6 +83,7 @@ def identify_plant(
     period_samples: int | None = None,
     excited_bins=None,
     present=None,
+    extra_outputs: dict | None = None,
 ) -> PlantResult:
     """Friction removal, preprocessing, FRF with coherence and resonance picking.
 
@@ -110,6 +115,10 @@ def identify_plant(
         Which samples exist (default: all). Whole periods that miss some
         samples are read by least squares on those they have
         (:func:`~hilident.ident.frequency.periodic_frf`); nothing is filled in.
+    extra_outputs : dict of str to array_like, optional
+        Further outputs (``identification.outputs``), each estimated against the same net torque
+        (:attr:`PlantResult.outputs`); one with a sample out of its sensor's range (NaN) is left out, with a
+        warning.
     """
     gaps = missing_samples(present)
     warnings: list[str] = [] if gaps is None else gapped_warnings(cfg, gaps, period_samples)
@@ -140,6 +149,13 @@ def identify_plant(
         seg = welch_segment(len(r), cfg, sample_rate_hz, period_samples, warnings)
         plant = frf_from_reference(r, u, y, sample_rate_hz, seg)
         loop = h1_estimate(r, y, sample_rate_hz, seg)
+
+    def estimate(y_other: np.ndarray) -> FrequencyResponse:  # as the plant's: same torque, periods, segments
+        if averaged is not None:
+            return periodic_frf(u, y_other, averaged, sample_rate_hz, skip_periods=0, bins=excited_bins, present=gaps)
+        return frf_from_reference(r, u, y_other, sample_rate_hz, seg)
+
+    outputs = _other_outputs(extra_outputs or {}, estimate, cfg, sample_rate_hz, period_samples, gaps, warnings)
     screened = resonances_and_model(plant, cfg, band_hz)
     model = screened.model
     antires = [hz for hz, _ in model.roots.antiresonances] if model else []
@@ -155,7 +171,26 @@ def identify_plant(
         quality=quality,
         rejected=screened.rejected,
         notes=screened.notes + notes,
+        outputs=outputs,
     )
+
+
+def _other_outputs(extra: dict, estimate, cfg, sample_rate_hz, period_samples, gaps, warnings: list[str]) -> dict:
+    """Net torque to each further output by ``estimate``; a channel with a missing reading is left out."""
+    out = {}
+    for name, values in extra.items():
+        x = np.asarray(values, dtype=float)
+        if gaps is not None:
+            x = np.where(gaps, x, 0.0)
+        bad = int(np.count_nonzero(~np.isfinite(x)))
+        if bad:
+            warnings.append(
+                f"identification.outputs: {name} has {bad} of {x.size} samples out of its sensor's range or "
+                "missing (NaN): left out of the joint estimate (a smaller excitation keeps it in range)"
+            )
+            continue
+        out[name] = estimate(condition_signal(x, cfg, sample_rate_hz, period_samples, gaps))
+    return out
 
 
 @dataclass

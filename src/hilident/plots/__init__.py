@@ -8,7 +8,8 @@ against the measurement, and its residual tests), :mod:`~hilident.plots.notches`
 (the notch chain as designed and as stored), :mod:`~hilident.plots.map`
 (the mode over the mapped positions), :mod:`~hilident.plots.moves` (a move
 without and with the notch) and :mod:`~hilident.plots.drift` (a batch's resonance
-and damping per axis over the days, the trend and its verdict). :mod:`~hilident.plots.figures`
+and damping per axis over the days, the trend and its verdict), :mod:`~hilident.plots.stabilisation` (the
+stabilisation diagram of the modes from several inputs and outputs). :mod:`~hilident.plots.figures`
 draws a run's and an identification's set, :mod:`~hilident.plots.show` a recording over time (``hilident
 show``). matplotlib is imported only inside the functions that draw.
 

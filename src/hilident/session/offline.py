@@ -38,6 +38,8 @@ from hilident.io.serialise import write_json
 from hilident.io.summary import Summary, friction_summary
 from hilident.lazy import lazy_module
 from hilident.plots import figures as report
+from hilident.plots.common import plot_title
+from hilident.plots.stabilisation import STABILISATION_PNG, plot_stabilisation
 from hilident.units import recorded_units
 
 if TYPE_CHECKING:
@@ -576,7 +578,7 @@ def _analyse_channels(cfg: Config, ds: Dataset, data_info: dict, warnings: list[
         inputs, outputs = channel_keys(cfg.data)
         u = np.column_stack([ds.signals[k] for k in inputs])
         y = np.column_stack([ds.signals[k] for k in outputs])
-        part, _ = identify_channels(u, y, ds.sample_rate_hz, cfg, ds.source, ds.period_samples)
+        part, state["mimo_response"] = identify_channels(u, y, ds.sample_rate_hz, cfg, ds.source, ds.period_samples)
         warnings += part["warnings"]
     except HilidentError as exc:
         error = exc
@@ -621,7 +623,8 @@ def identify_recording(
     if a.error is not None:
         html_report.write_report_quietly(out)
         raise a.error
-    if "mimo" in summary:  # several inputs and outputs: no single-input plots
+    if "mimo" in summary:  # several inputs and outputs: the stabilisation diagram, no single-input plots
+        _plot_channels(out, summary, a.state.get("mimo_response"))
         html_report.write_report_quietly(out)
         return summary
     cfg, ds, validation, state = a.cfg, a.data, a.validation, a.state
@@ -642,6 +645,21 @@ def identify_recording(
     )
     html_report.write_report_quietly(out)
     return summary
+
+
+def _plot_channels(out: Path, summary: dict, response) -> None:
+    """``stabilisation.png`` of a record with several inputs and outputs (when the modal estimate gave one):
+    the diagram of ``summary["mimo"]`` with the first singular value of the measured ``response``."""
+    if not (summary["mimo"] or {}).get("stabilisation"):
+        return
+    name = Path(str((summary.get("data") or {}).get("file") or "recording")).name
+    plot_stabilisation(
+        out / STABILISATION_PNG,
+        summary["mimo"],
+        None if response is None else response.frequency_hz,
+        None if response is None else response.response,
+        title=plot_title(f"identify {name}", what="Stabilisation"),
+    )
 
 
 def _steps(cfg: Config, ds: Dataset, validation: Dataset | None, info, state: dict, warnings: list[str]) -> None:

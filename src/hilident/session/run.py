@@ -76,11 +76,18 @@ pipeline_notches = lazy_module("hilident.pipeline.notches")
 pipeline_responses = lazy_module("hilident.pipeline.responses")
 pipeline_verification = lazy_module("hilident.pipeline.verification")
 pipeline_loop = lazy_module("hilident.pipeline.loop_analysis")
+pipeline_output_modes = lazy_module("hilident.pipeline.output_modes")
 #: The upload step, shared with ``hilident upload``.
 uploading = lazy_module("hilident.session.upload")
 
 #: Share of a friction window's samples its recorded rows must hold for the window to be averaged.
 _WINDOW_COVER = 0.9
+
+
+def _resolution_hz(frf) -> float:
+    """Line spacing of a frequency response, Hz (its smallest step)."""
+    f = frf.frequency_hz
+    return float(np.min(np.diff(f))) if f.size > 1 else 0.0
 
 
 def check_excitation_travel(cfg: Config, excitation: Excitation) -> None:
@@ -168,6 +175,7 @@ class Session(DeviceConnection):
         self.move_results: list[MoveTestResult] | None = None  # [verification] move, at each place it ran
         self.position_m: float | None = None  # the cart's position at the end of the last recording, m
         self.loop = None  # the drive's loop around the identified plant (a drive with [loop] only)
+        self.joint = None  # the modes of identification.output and identification.outputs together
         self.gains = None  # the gain step ([tuning] upload), while it may have to put the old gains back
         # (samples, excitation) of the identification: a torque injection breaks the loop there
         self._identification: tuple[dict, Excitation] | None = None
@@ -525,6 +533,7 @@ class Session(DeviceConnection):
         band = pipeline_plant.analysis_band(ic, excitation.band_hz)
         check_it_moved(cfg, s[ic.output] if present is None else s[ic.output][present], friction)
         self.progress.step(f"{exp.name}: frequency response and resonances")
+        extra = self._other_outputs(s) if exp.name == "identification" else None
         result = pipeline_plant.identify_plant(
             s["excitation"],
             s["torque_nm"],
@@ -539,10 +548,25 @@ class Session(DeviceConnection):
             period_samples=period,
             excited_bins=excitation.excited_bins,
             present=present,
+            extra_outputs=extra,
         )
         self.warnings += result.warnings
         self.notes += result.notes
+        if extra:
+            self.joint = pipeline_output_modes.joint_output_modes(
+                {ic.output: result.plant, **result.outputs}, band, _resolution_hz(result.plant)
+            )
         return result
+
+    def _other_outputs(self, s: dict) -> dict:
+        """``identification.outputs`` the identification run recorded; each one it did not, a warning."""
+        names = self.cfg.identification.outputs
+        for name in names:
+            if name not in s:
+                self.warnings.append(
+                    f"identification.outputs: {name} was not recorded (the driver streams no such channel)"
+                )
+        return {name: s[name] for name in names if name in s}
 
     def _map_step(self, ident: Experiment, excitation: Excitation, friction, plant) -> None:
         """``[map]`` (:class:`~hilident.session.map_run.WorkspaceRun`): the mode at every mapped position and the
@@ -722,7 +746,9 @@ class Session(DeviceConnection):
         self.warnings += decision.warnings
         if decision.skipped_reason is not None:
             upload.skipped_reason = decision.skipped_reason
-        return decision.resonances
+        resonances, notes = pipeline_output_modes.notch_resonances(decision.resonances, self.joint)
+        self.notes += notes
+        return resonances
 
     def _save_step(self, upload: UploadOutcome, verification) -> None:
         """With ``save``: the device stores its parameters, only after an upload read back and verified."""
@@ -836,6 +862,7 @@ class Session(DeviceConnection):
             move_test=self.move_results,
             workspace=self.workspace.summary if self.workspace else None,
             loop=self.loop.to_dict() if self.loop is not None else None,
+            mimo=self.joint.part if self.joint is not None else None,
         )
 
     def _plots(self, friction, plant, designs, verification, excitation_band_hz, model=None) -> None:

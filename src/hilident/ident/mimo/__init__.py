@@ -16,7 +16,9 @@ The estimates here take every input into account at once.
   element is a plain ratio at its input's bins, no matrix to invert, no window.
 * :func:`modal_analysis` (:mod:`hilident.ident.mimo.modal`) -- modal parameters
   from all outputs and inputs at once: polyreference LSCF poles, a
-  stabilisation diagram, LSFD shapes and their MAC.
+  stabilisation diagram, LSFD shapes and their MAC; :func:`modal_intervals`,
+  95 % intervals of each mode's frequency and damping from independent groups
+  of the record and a maximum-likelihood refinement (:func:`refine_poles`).
 * :func:`orthogonal_multisine` and :func:`orthogonal_mimo_frf` -- ``n_in``
   periodic experiments in which every input excites every bin, in orthogonal
   phase patterns: every element measured at every bin.
@@ -48,7 +50,7 @@ Examples
 True
 """
 
-from hilident.ident.mimo.modal import ModalResult, Mode, mac, mac_matrix, modal_analysis
+from hilident.ident.mimo.modal import ModalResult, Mode, mac, mac_matrix, modal_analysis, modal_intervals, refine_poles
 from hilident.ident.mimo.periodic import (
     ZIPPER_LEAKAGE,
     orthogonal_mimo_frf,
@@ -71,6 +73,8 @@ __all__ = [
     "mac",
     "mac_matrix",
     "modal_analysis",
+    "modal_intervals",
+    "refine_poles",
     "mimo_h1",
     "mimo_hv",
     "zippered_lines",

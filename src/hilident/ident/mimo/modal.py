@@ -11,6 +11,9 @@ Steps, each usable alone:
 * :func:`select_modes` -- the poles stable over the highest orders, grouped across orders into modes with a
   median frequency and damping and their spread; the shapes by :func:`lsfd`, a MAC matrix (:class:`ModalResult`).
 * :func:`modal_analysis` -- the three in a row.
+* :func:`modal_intervals` -- 95 % intervals of each mode's frequency and damping: the spread of the same
+  estimate over independent groups of the record, and the difference from a maximum-likelihood fit of the
+  modal model (:func:`refine_poles`) (:class:`Mode` ``frequency_ci95_hz``, ``damping_ci95``).
 
 Sources: B. Peeters, H. Van der Auweraer, P. Guillaume, J. Leuridan, "The PolyMAX frequency-domain method: a new
 standard for modal parameter estimation?", *Shock and Vibration* 11 (2004) 395-409; P. Guillaume, P. Verboven,
@@ -46,7 +49,9 @@ __all__ = [
     "mac_matrix",
     "merge_split_modes",
     "modal_analysis",
+    "modal_intervals",
     "polyreference_lscf",
+    "refine_poles",
     "select_modes",
     "stabilisation",
 ]
@@ -56,6 +61,12 @@ SPLIT_MAC = 0.9
 
 #: Labels of the stabilisation diagram, from least to most stable.
 LABELS = ("new", "unstable", "frequency", "damping", "vector", "stable")
+
+#: Fewest independent groups a mode must be found in for its interval (the t factor of 2 degrees of freedom, 4.3).
+MIN_GROUPS = 3
+
+#: A group's pole is taken for a mode only if their participation vectors agree to at least this MAC.
+GROUP_MAC = 0.5
 
 
 @dataclass(frozen=True, eq=False)
@@ -130,7 +141,8 @@ class Mode:
     damping : float
         Median damping ratio.
     frequency_ci_hz, damping_ci : tuple of float
-        (min, max) over those poles: the spread across model orders, not a statistical interval.
+        (min, max) over those poles: the spread across model orders, not a statistical interval (see
+        ``frequency_ci95_hz``).
     shape : ndarray of complex, shape (n_out,)
         Mode shape over the outputs (first left singular vector of the LSFD residue matrix), unit max magnitude,
         its largest element real positive.
@@ -138,6 +150,15 @@ class Mode:
         Participation vector over the inputs, normalised the same way.
     n_stable : int
         Number of orders at which the mode was labelled ``"stable"``.
+    frequency_std_hz, damping_std : float
+        Standard deviation (random error) of ``frequency_hz`` (Hz) and of ``damping`` (ratio), from the spread
+        over independent groups of the record (:func:`modal_intervals`); NaN when not estimated.
+    frequency_ci95_hz, damping_ci95 : float
+        Half-width of the 95 % interval of ``frequency_hz`` (Hz) and of ``damping``: the standard deviation times
+        Student's ``t_{0.975, n_groups - 1}`` plus the difference from the maximum-likelihood estimate
+        (:func:`modal_intervals`); NaN when not estimated.
+    n_groups : int
+        Number of groups the mode was found in (0: no interval).
     """
 
     frequency_hz: float
@@ -147,6 +168,11 @@ class Mode:
     shape: np.ndarray
     participation: np.ndarray
     n_stable: int
+    frequency_std_hz: float = math.nan
+    damping_std: float = math.nan
+    frequency_ci95_hz: float = math.nan
+    damping_ci95: float = math.nan
+    n_groups: int = 0
 
 
 @dataclass(frozen=True, eq=False)
@@ -251,29 +277,56 @@ def _weights(frf: MimoResponse | tuple[ArrayLike, ArrayLike], weights, shape: tu
 # --- LSCF ------------------------------------------------------------------------------------------------------
 
 
-def _order_matrix(omega: np.ndarray, h: np.ndarray, w: np.ndarray, p: int) -> np.ndarray:
-    """Reduced normal matrices ``M_i = sum_o (T - S^T R^-1 S)`` of order ``p``, shape (n_in, (p+1) n_in, (p+1) n_in).
+def _normal_blocks(omega: np.ndarray, h: np.ndarray, w: np.ndarray, p: int) -> tuple[np.ndarray, ...]:
+    """The real normal equations of the highest order ``p``, per input ``i`` and output ``o``.
 
     Per output ``o`` and input ``i`` the weighted error ``w (N_o - H_o D)[:, i]`` over the lines is linear in the
     real numerator coefficients ``beta_oi`` (p+1) and the column ``i`` of the real denominator coefficients
     ``alpha`` ((p+1) n_in, power first): ``X beta + Y alpha`` with ``X[f, r] = w Omega_f^r`` and
-    ``Y[f, (r, k)] = -w Omega_f^r H_f[o, k]``. The real normal equations ``R = Re(X^H X)``, ``S = Re(X^H Y)``,
-    ``T = Re(Y^H Y)`` give ``beta = -R^-1 S alpha``; substituted, the cost is ``alpha_i^T M_i alpha_i``.
+    ``Y[f, (r, k)] = -w Omega_f^r H_f[o, k]``. Returns ``R = Re(X^H X)`` (n_in, n_out, p+1, p+1),
+    ``S = Re(X^H Y)`` (n_in, n_out, p+1, (p+1) n_in) and ``T = Re(Y^H Y)`` (n_in, (p+1) n_in, (p+1) n_in), ``T``
+    summed over the outputs. The columns of a lower order ``q`` are the first ``q + 1`` powers of each: its
+    equations are the leading blocks of these (:func:`_order_matrix`), so one pass over the lines serves every
+    order.
     """
     n_f, n_out, n_in = h.shape
     basis = omega[:, None] ** np.arange(p + 1)[None, :]
     size = (p + 1) * n_in
-    m = np.zeros((n_in, size, size))
+    r = np.zeros((n_in, n_out, p + 1, p + 1))
+    s = np.zeros((n_in, n_out, p + 1, size))
+    t = np.zeros((n_in, size, size))
     for i in range(n_in):
         for o in range(n_out):
             wo = w[:, o, i]
             x = wo[:, None] * basis
             y = -(wo[:, None, None] * basis[:, :, None] * h[:, o, None, :]).reshape(n_f, size)
-            r = np.real(x.conj().T @ x)
-            s = np.real(x.conj().T @ y)
-            t = np.real(y.conj().T @ y)
-            m[i] += t - s.T @ np.linalg.lstsq(r, s, rcond=None)[0]
-    return m
+            xh = x.conj().T
+            r[i, o] = np.real(xh @ x)
+            s[i, o] = np.real(xh @ y)
+            t[i] += np.real(y.conj().T @ y)
+    return r, s, t
+
+
+def _order_matrix(blocks: tuple[np.ndarray, ...], p: int) -> np.ndarray:
+    """Reduced normal matrices ``M_i = sum_o (T - S^T R^-1 S)`` of order ``p``, shape (n_in, (p+1) n_in, (p+1) n_in),
+    from the leading blocks of :func:`_normal_blocks`.
+
+    ``beta = -R^-1 S alpha`` eliminates the numerator; substituted, the cost is ``alpha_i^T M_i alpha_i``.
+    """
+    r, s, t = blocks
+    n_in = t.shape[0]
+    size = (p + 1) * n_in
+    rp, sp = r[:, :, : p + 1, : p + 1], s[:, :, : p + 1, :size]
+    try:
+        solved = np.linalg.solve(rp, sp)
+    except np.linalg.LinAlgError:  # an output weighted 0 over the band: its numerator is not determined
+        solved = np.stack(
+            [
+                [np.linalg.lstsq(a, b, rcond=None)[0] for a, b in zip(ra, sa, strict=True)]
+                for ra, sa in zip(rp, sp, strict=True)
+            ]
+        )
+    return t[:, :size, :size] - np.einsum("iokr,iokc->irc", sp, solved)
 
 
 def _denominator(m: np.ndarray, n_in: int) -> np.ndarray:
@@ -378,8 +431,9 @@ def polyreference_lscf(
     omega = np.exp(-2j * np.pi * f_band * ts)
     band = (float(f_band[0]), float(f_band[-1]))
     result = []
+    blocks = _normal_blocks(omega, h_band, w, p_top)
     for p in p_list:
-        alpha = _denominator(_order_matrix(omega, h_band, w, p), n_in)
+        alpha = _denominator(_order_matrix(blocks, p), n_in)
         lam, part = _companion_poles(alpha, ts)
         result.append(_physical(lam, part, band, p))
     return result
@@ -709,3 +763,268 @@ def modal_analysis(
     poles = polyreference_lscf(frf, band_hz, orders, weights)
     diagram = stabilisation(poles, freq_tol, damp_tol, mac_tol)
     return select_modes(frf, band_hz, diagram, n_orders, min_stable_fraction, weights)
+
+
+# --- intervals ---------------------------------------------------------------------------------------------------
+
+
+def refine_poles(
+    frf: MimoResponse | tuple[ArrayLike, ArrayLike],
+    band_hz: tuple[float, float],
+    poles: ArrayLike,
+    weights: ArrayLike | str | None = None,
+) -> np.ndarray:
+    """The poles of the modal model fitted to the response by weighted nonlinear least squares, from ``poles``.
+
+    Model as :func:`lsfd`: ``H = sum_r [R_r / (jw - lambda_r) + conj(R_r) / (jw - conj(lambda_r))] + L / (jw)^2 +
+    U``. The weighted output error ``w (H_measured - H)`` over every element and line of the band is minimised over
+    the poles' natural frequencies and damping ratios (Levenberg-Marquardt), the residues and residual terms being
+    solved by linear least squares at each step (variable projection). With weights ``1 / std`` this is the
+    maximum-likelihood estimate of the modal model for circular complex Gaussian errors (Pintelon & Schoukens
+    2012), which LSCF is not: its linearised equation error ``N - H D`` weighs the noise by the denominator, and
+    the noise biases its poles (the reason for the refinement of B. Peeters, M. El-Kafafy, P. Guillaume, "The new
+    PolyMAX Plus method: confident modal parameter estimation even in very noisy cases", Proc. ISMA 2012).
+
+    Parameters
+    ----------
+    frf, band_hz, weights
+        As for :func:`lsfd`; lines where the response is not finite are left out.
+    poles : array_like of complex, shape (n_modes,)
+        Starting poles, rad/s (the selected modes' LSCF poles).
+
+    Returns
+    -------
+    ndarray of complex, shape (n_modes,)
+        The fitted poles, rad/s, in the order given; NaN where a damping ratio left (0, 1).
+    """
+    f, h = _frf_arrays(frf)
+    lines = _band_lines(f, band_hz)
+    w, hb = _weights(frf, weights, h.shape)[lines], h[lines]
+    bad = ~np.isfinite(hb)
+    w, hb = np.where(bad, 0.0, w), np.where(bad, 0.0, hb)
+    lam = np.atleast_1d(np.asarray(poles, dtype=np.complex128))
+    if 2 * lines.sum() * hb.shape[1] * hb.shape[2] < 2 * lam.size + 2:
+        raise DataError(f"{int(lines.sum())} lines in the band are too few to refine {lam.size} poles")
+    from scipy import optimize  # scipy only once a refinement is asked for
+
+    start = np.concatenate([np.log(np.abs(lam)), -np.real(lam) / np.abs(lam)])
+    fit = optimize.least_squares(_model_error, start, args=(2j * np.pi * f[lines], hb, w), method="lm", x_scale="jac")
+    wn, zeta = np.exp(fit.x[: lam.size]), fit.x[lam.size :]
+    ok = (zeta > 0.0) & (zeta < 1.0)
+    refined = wn * (-zeta + 1j * np.sqrt(np.where(ok, 1.0 - zeta**2, 0.0)))
+    return np.where(ok, refined, np.nan)
+
+
+def _model_error(theta: np.ndarray, s: np.ndarray, h: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted output errors (real and imaginary parts of every element and line) of the modal model with poles
+    ``theta = (ln w_n, zeta)`` and its residues and residuals solved by linear least squares."""
+    n = theta.size // 2
+    wn, zeta = np.exp(theta[:n]), theta[n:]
+    lam = wn * (-zeta + 1j * np.sqrt(np.clip(1.0 - zeta**2, 1e-12, None)))
+    a = 1.0 / (s[:, None] - lam[None, :])
+    b = 1.0 / (s[:, None] - np.conj(lam)[None, :])
+    basis = np.concatenate([a + b, 1j * (a - b), (1.0 / s**2)[:, None], np.ones((s.size, 1))], axis=1)
+    errors = []
+    for j in range(h.shape[1]):
+        for i in range(h.shape[2]):
+            weighted = w[:, j, i, None] * basis
+            lhs = np.concatenate([np.real(weighted), np.imag(weighted)])
+            target = w[:, j, i] * h[:, j, i]
+            rhs = np.concatenate([np.real(target), np.imag(target)])
+            errors.append(rhs - lhs @ np.linalg.lstsq(lhs, rhs, rcond=None)[0])
+    return np.concatenate(errors)
+
+
+def modal_intervals(
+    frf: MimoResponse | tuple[ArrayLike, ArrayLike],
+    groups: Sequence[MimoResponse | tuple[ArrayLike, ArrayLike]],
+    band_hz: tuple[float, float],
+    result: ModalResult,
+    weights: ArrayLike | str | None = None,
+) -> ModalResult:
+    """``result`` with a 95 % interval of each mode's frequency and damping: its random error, from independent
+    groups of the record, and its systematic error, from a second estimator.
+
+    Random error: the sample mean and sample variance of an estimate repeated on ``K`` independent experiments
+    (R. Pintelon, J. Schoukens, *System Identification: A Frequency Domain Approach*, 2nd ed., Wiley-IEEE 2012),
+    the experiments being disjoint parts of one record. Each of the ``K`` groups (disjoint Welch segments, or
+    periods; each an estimate of the same response on the same lines) is fitted as the whole record was, by
+    :func:`polyreference_lscf` at the orders of ``result.orders_used`` with the same ``weights``. At each order
+    the pole nearest each mode is taken when it lies within the mode's half-power half-bandwidth ``zeta f_n``
+    (at most half the gap to its neighbours) and the MAC of its participation vector's magnitudes with the
+    mode's is at least :data:`GROUP_MAC`; the group's frequency and damping of the mode are the medians over
+    the orders where one was found (at least half of them), as the whole record's are over its stable poles.
+    The whole record's estimate is, to first order, the mean of the ``K`` group estimates, so its standard
+    deviation is ``s / sqrt(K)``, ``s`` their sample standard deviation over the ``n`` groups that found the
+    mode.
+
+    Systematic error: LSCF's linearised least squares is biased by noise (often by more than its random
+    error, in damping most), and a Welch estimate of a resonance narrower than a few lines is biased by the
+    window's leakage. The modal model is therefore also fitted by maximum likelihood (:func:`refine_poles`) from
+    the mode's poles; the difference ``d`` of the two estimates is a systematic error of at least one of them.
+
+    Interval: ``estimate +- (t_{0.975, n - 1} s / sqrt(K) + |d|)`` (Student's t: ``s`` is estimated from few
+    groups). It holds both the interval of the LSCF estimate and that of the maximum-likelihood one, so it
+    covers the true value with at least 95 % probability when either estimator is unbiased (the
+    maximum-likelihood one's random error is, asymptotically, at most LSCF's). Where both are biased alike (the
+    leakage of a resonance far narrower than a line) it does not. Needs ``n >= MIN_GROUPS``; a mode found in fewer
+    groups has none (NaN, a note), and one whose refinement failed the random part only (a note).
+
+    Why not first-order covariance propagation of the response's standard deviation through the LSCF
+    denominator (R. Pintelon, P. Guillaume, J. Schoukens, "Uncertainty calculation in (operational) modal
+    analysis", *Mech. Syst. Signal Process.* 21 (2007) 2359-2373): the selection here is a median over orders
+    of matched stable poles, which has no derivative, the per-line standard deviation omits the window's
+    leakage and the correlation of overlapping segments, and the propagation, like the group spread, is blind
+    to the estimator's bias. The group spread needs no derivative and includes every random step of the
+    estimate, at the price of ``K`` more fits. It assumes the record stationary (the same system and noise in
+    every group) and the groups independent (Welch blocks share no segment).
+
+    Parameters
+    ----------
+    frf : MimoResponse or (frequency_hz, response)
+        The whole record's estimate ``result`` was fitted to.
+    groups : sequence of MimoResponse or (frequency_hz, response)
+        ``K >= MIN_GROUPS`` estimates of the response from disjoint parts of the record, on the lines of
+        ``frf`` (same shape, Hz).
+    band_hz : (float, float)
+        The band ``result`` was fitted over, Hz.
+    result : ModalResult
+        The whole record's modes (:func:`modal_analysis`, optionally :func:`merge_split_modes`).
+    weights : array or "std", optional
+        As for :func:`polyreference_lscf`: the whole record's weights (an array on the common grid) keep the
+        groups' fits the same estimator as the whole record's; ``"std"`` weighs each group by its own spread.
+
+    Returns
+    -------
+    ModalResult
+        ``result`` with each mode's ``frequency_std_hz``, ``damping_std``, ``frequency_ci95_hz``,
+        ``damping_ci95`` and ``n_groups`` set, and notes on the modes whose interval is partial or missing or
+        dominated by the systematic part.
+
+    Raises
+    ------
+    ConfigError
+        Fewer than :data:`MIN_GROUPS` groups.
+    DataError
+        A group's lines differ from ``frf``'s, or are too few for the orders.
+    """
+    if len(groups) < MIN_GROUPS:
+        raise ConfigError("groups", f"an interval needs at least {MIN_GROUPS} groups, got {len(groups)}")
+    shape = _frf_arrays(frf)[1].shape
+    if any(_frf_arrays(g)[1].shape != shape for g in groups):
+        raise DataError(f"every group's response must have the shape {shape} of the whole record's")
+    if not result.modes:
+        return result
+    orders = list(result.orders_used)
+    tolerance = _match_tolerance(result.modes)
+    found = np.array(
+        [_group_estimates(polyreference_lscf(g, band_hz, orders, weights), result.modes, tolerance) for g in groups]
+    )  # (K, n_modes, 2): frequency Hz, damping
+    refined = _refined(frf, band_hz, result.modes, weights, tolerance)
+    modes, notes = [], []
+    for r, mode in enumerate(result.modes):
+        with_interval, message = _with_interval(mode, found[:, r, :], refined[r])
+        modes.append(with_interval)
+        notes += [message] if message else []
+    return dataclasses.replace(result, modes=tuple(modes), notes=result.notes + tuple(notes))
+
+
+def _match_tolerance(modes: Sequence[Mode]) -> np.ndarray:
+    """Per mode, how far (Hz) another estimate of it may lie: its half-power half-bandwidth ``zeta f_n`` (at least
+    0.1 % of ``f_n``), at most half the gap to either neighbouring mode, so no pole can be two modes'."""
+    freq = np.array([m.frequency_hz for m in modes])
+    tol = np.maximum(np.array([m.damping for m in modes]), 1e-3) * freq
+    gaps = np.diff(freq) / 2.0
+    tol[:-1] = np.minimum(tol[:-1], gaps)
+    tol[1:] = np.minimum(tol[1:], gaps)
+    return tol
+
+
+def _nearest_pole(poles: PoleSet, mode: Mode, tolerance: float) -> int:
+    """Index of the pole of ``poles`` nearest ``mode`` in frequency within ``tolerance`` (Hz) whose participation
+    agrees with the mode's in magnitude (MAC of the magnitudes >= :data:`GROUP_MAC`: a merged mode,
+    :func:`merge_split_modes`, keeps only those), -1 if none."""
+    distance = np.abs(poles.frequency_hz - mode.frequency_hz)
+    near = np.flatnonzero(distance <= tolerance)
+    reference = np.abs(mode.participation)
+    near = near[[mac(np.abs(poles.participation[k]), reference) >= GROUP_MAC for k in near]]
+    return int(near[np.argmin(distance[near])]) if near.size else -1
+
+
+def _group_estimates(poles: list[PoleSet], modes: Sequence[Mode], tolerance: np.ndarray) -> np.ndarray:
+    """One group's (frequency Hz, damping) of each mode, shape (n_modes, 2): the medians over the orders of the
+    matched poles (:func:`_nearest_pole`), NaN for a mode matched at fewer than half the orders."""
+    picked = np.full((len(modes), len(poles), 2), np.nan)
+    for k, pole_set in enumerate(poles):
+        for r, mode in enumerate(modes):
+            j = _nearest_pole(pole_set, mode, tolerance[r])
+            if j >= 0:
+                picked[r, k] = pole_set.frequency_hz[j], pole_set.damping[j]
+    out = np.full((len(modes), 2), np.nan)
+    for r in range(len(modes)):
+        matched = picked[r, np.isfinite(picked[r, :, 0])]
+        if 2 * matched.shape[0] >= len(poles):
+            out[r] = np.median(matched, axis=0)
+    return out
+
+
+def _refined(
+    frf: MimoResponse | tuple[ArrayLike, ArrayLike],
+    band_hz: tuple[float, float],
+    modes: Sequence[Mode],
+    weights: ArrayLike | str | None,
+    tolerance: np.ndarray,
+) -> np.ndarray:
+    """(frequency Hz, damping) of each mode by :func:`refine_poles`, shape (n_modes, 2); NaN where the fit failed
+    or left the mode's tolerance (it then fitted something else)."""
+    wn = 2.0 * np.pi * np.array([m.frequency_hz for m in modes])
+    zeta = np.array([m.damping for m in modes])
+    try:
+        lam = refine_poles(frf, band_hz, wn * (-zeta + 1j * np.sqrt(1.0 - zeta**2)), weights)
+    except (DataError, ValueError, np.linalg.LinAlgError):
+        return np.full((len(modes), 2), np.nan)
+    with np.errstate(invalid="ignore"):
+        out = np.column_stack([np.abs(lam) / (2.0 * np.pi), -np.real(lam) / np.abs(lam)])
+    far = ~(np.abs(out[:, 0] - wn / (2.0 * np.pi)) <= tolerance)
+    out[far] = np.nan
+    return out
+
+
+def _with_interval(mode: Mode, estimates: np.ndarray, refined: np.ndarray) -> tuple[Mode, str]:
+    """``mode`` with its standard deviations from the groups' ``estimates`` (K, 2) and 95 % half-widths that add
+    the difference from the ``refined`` (frequency, damping); and a note (empty when there is nothing to say)."""
+    from scipy import stats  # the t quantile; scipy only once an interval is asked for
+
+    n_total = estimates.shape[0]
+    ok = estimates[np.isfinite(estimates[:, 0]) & np.isfinite(estimates[:, 1])]
+    n = ok.shape[0]
+    where = f"mode at {mode.frequency_hz:.5g} Hz"
+    if n < MIN_GROUPS:
+        return dataclasses.replace(mode, n_groups=n), f"{where}: found in {n} of {n_total} groups, no interval"
+    std = ok.std(axis=0, ddof=1) / math.sqrt(n_total)
+    random = float(stats.t.ppf(0.975, n - 1)) * std
+    systematic = np.abs(refined - [mode.frequency_hz, mode.damping])
+    half = random + np.nan_to_num(systematic, nan=0.0)
+    interval = dataclasses.replace(
+        mode,
+        frequency_std_hz=float(std[0]),
+        damping_std=float(std[1]),
+        frequency_ci95_hz=float(half[0]),
+        damping_ci95=float(half[1]),
+        n_groups=n,
+    )
+    return interval, _interval_note(where, n, n_total, random, systematic)
+
+
+def _interval_note(where: str, n: int, n_total: int, random: np.ndarray, systematic: np.ndarray) -> str:
+    """What the interval of a mode found in ``n`` of ``n_total`` groups leaves out or is made of, if anything."""
+    notes = [f"found in {n} of {n_total} groups"] if n < n_total else []
+    if not np.all(np.isfinite(systematic)):
+        notes.append("the maximum-likelihood fit did not settle near it: its interval is the random error only")
+    elif np.any(systematic > random):
+        notes.append(
+            f"the LSCF and maximum-likelihood estimates differ by {systematic[0]:.2g} Hz and {systematic[1]:.2g} in "
+            "damping, more than their random error (a bias: leakage of a resonance only a few lines wide, or noise); "
+            "the interval includes it"
+        )
+    return f"{where}: {'; '.join(notes)}" if notes else ""

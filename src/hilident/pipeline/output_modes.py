@@ -1,0 +1,187 @@
+"""The modes every recorded output of one axis sees, and the notch taken from them (``identification.outputs``).
+
+A motor encoder sees a resonance as a peak beside an antiresonance; a load sensor (``load_position_m``, an
+accelerometer on the tool) sees the same pole without that zero, and often more strongly. Estimated against
+the same net torque from the same periods, the outputs have one set of poles: a polyreference fit over all of
+them (:func:`hilident.ident.mimo.modal_analysis`, one input) gives each mode once, with its shape over the
+outputs. A mode is *seen* by an output when the mode alone accounts for most of that output's response at the
+mode's frequency (:data:`SEEN_FRACTION`); the mode every output sees is the axis's own, and a notch designed for
+a resonance of the motor's response takes its centre and damping from it (:func:`notch_resonances`).
+
+What this adds to ``summary.json``: a ``mimo`` part with the layout ``hilident identify`` gives a record of
+several outputs (:mod:`hilident.pipeline.mimo_identify`), one input (the net torque), and per mode ``seen_by``
+(the outputs that see it); ``notch_modes`` says which resonance took which mode.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hilident.ident.frequency import FrequencyResponse
+from hilident.ident.mimo import MimoResponse
+from hilident.ident.resonance import Resonance
+from hilident.pipeline.mimo_identify import _modal_part as modal_part
+from hilident.pipeline.mimo_identify import mode_indicator_peaks
+
+__all__ = ["JointModes", "SEEN_FRACTION", "joint_output_modes", "notch_resonances"]
+
+#: A mode is seen by an output when its own term, ``|R_j| / (zeta w_n)`` at its frequency, is at least this
+#: share of that output's measured response there.
+SEEN_FRACTION = 0.3
+
+
+@dataclass
+class JointModes:
+    """The outputs' joint modal estimate.
+
+    Attributes
+    ----------
+    part : dict
+        ``summary.json["mimo"]``.
+    frequency_hz, damping_ratio : list of float
+        Each mode's natural frequency (Hz) and damping ratio.
+    seen_by : list of list of str
+        Per mode, the outputs that see it (:data:`SEEN_FRACTION`).
+    outputs : list of str
+        Every output, the plant's first.
+    """
+
+    part: dict
+    frequency_hz: list[float] = field(default_factory=list)
+    damping_ratio: list[float] = field(default_factory=list)
+    seen_by: list[list[str]] = field(default_factory=list)
+    outputs: list[str] = field(default_factory=list)
+
+    def common(self) -> list[int]:
+        """Indices of the modes every output sees."""
+        return [k for k, seen in enumerate(self.seen_by) if len(seen) == len(self.outputs)]
+
+
+def _stack(responses: dict[str, FrequencyResponse]) -> MimoResponse:
+    """One input, the outputs in order: the response matrix with each element's spread from its coherence."""
+    first = next(iter(responses.values()))
+    h = np.stack([r.response for r in responses.values()], axis=1)[:, :, None]
+    coherence = np.stack([np.clip(r.coherence, 0.0, 1.0) for r in responses.values()], axis=1)
+    n = max(first.n_averages, 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        relative = np.sqrt((1.0 - coherence) / (2.0 * n * coherence))
+    return MimoResponse(
+        frequency_hz=first.frequency_hz,
+        response=h,
+        multiple_coherence=coherence,
+        std=(np.abs(h[:, :, 0]) * relative)[:, :, None],
+        input_condition=np.ones(first.frequency_hz.size),
+        n_averages=first.n_averages,
+        method=first.method,
+    )
+
+
+def _seen_by(part: dict, frf: MimoResponse, names: list[str]) -> list[list[str]]:
+    """Per mode of ``part["modes"]``, the outputs whose response at the mode's frequency is mostly its own term
+    ``R_j / (j w_d - lambda) = R_j / sigma``."""
+    out = []
+    for mode in part["modes"]:
+        line = int(np.argmin(np.abs(frf.frequency_hz - mode["frequency_hz"])))
+        sigma = -float(mode["pole_rad_per_s"][0])
+        residue = np.hypot(np.asarray(mode["residue_real"])[:, 0], np.asarray(mode["residue_imag"])[:, 0])
+        own = residue / max(sigma, np.finfo(float).tiny)
+        measured = np.abs(frf.response[line, :, 0])
+        out.append([n for n, a, b in zip(names, own, measured, strict=True) if b > 0 and a >= SEEN_FRACTION * b])
+    return out
+
+
+def joint_output_modes(
+    responses: dict[str, FrequencyResponse], band_hz: tuple[float, float], resolution_hz: float
+) -> JointModes | None:
+    """The modes of the outputs ``responses`` (name to net-torque response, the plant's output first).
+
+    Parameters
+    ----------
+    responses : dict of str to FrequencyResponse
+        At least two, on one frequency grid (one record, one estimator).
+    band_hz : (float, float)
+        The band searched for resonances, Hz.
+    resolution_hz : float
+        Line spacing of the estimate, Hz (reported).
+
+    Returns
+    -------
+    JointModes or None
+        None for fewer than two outputs.
+    """
+    if len(responses) < 2:
+        return None
+    names = list(responses)
+    frf = _stack(responses)
+    in_band = (frf.frequency_hz >= band_hz[0]) & (frf.frequency_hz <= band_hz[1])
+    part: dict = {
+        "inputs": [{"column": "torque_nm", "scale": 1.0}],
+        "outputs": [{"column": n, "scale": 1.0, "unit": ""} for n in names],
+        "method": frf.method,
+        "n_averages": frf.n_averages,
+        "resolution_hz": float(resolution_hz),
+        "band_hz": [float(band_hz[0]), float(band_hz[1])],
+        "multiple_coherence_median": [_median(frf.multiple_coherence[in_band, j]) for j in range(len(names))],
+        "input_condition_median": 1.0,
+        "elements": [],
+        "indicator_peaks": mode_indicator_peaks(frf, in_band),
+        "warnings": [],
+    }
+    part.update(modal_part(frf, band_hz))
+    seen = _seen_by(part, frf, names)
+    for mode, s in zip(part["modes"], seen, strict=True):
+        mode["seen_by"] = s
+    return JointModes(
+        part,
+        frequency_hz=[m["frequency_hz"] for m in part["modes"]],
+        damping_ratio=[m["damping_ratio"] for m in part["modes"]],
+        seen_by=seen,
+        outputs=names,
+    )
+
+
+def notch_resonances(resonances: list[Resonance], joint: JointModes | None) -> tuple[list[Resonance], list[str]]:
+    """Each resonance with the frequency and damping of the mode every output sees within its half-power band.
+
+    Returns the resonances (those without such a mode unchanged) and one note per resonance saying which mode
+    it took or that no output but the plant's sees it. ``joint.part["notch_modes"]`` records the pairs.
+    """
+    if joint is None or not joint.frequency_hz:
+        return resonances, []
+    common = joint.common()
+    out, notes, pairs = [], [], []
+    for res in resonances:
+        half_band = max(res.frequency_hz * res.damping_ratio, joint.part["resolution_hz"])
+        near = [k for k in common if abs(joint.frequency_hz[k] - res.frequency_hz) <= half_band]
+        if not near:
+            out.append(res)
+            notes.append(
+                f"resonance at {res.frequency_hz:.4g} Hz: no mode within its half-power band is seen by every "
+                f"output ({', '.join(joint.outputs)}); its notch keeps the plant output's estimate"
+            )
+            continue
+        k = min(near, key=lambda i: abs(joint.frequency_hz[i] - res.frequency_hz))
+        f, zeta = joint.frequency_hz[k], joint.damping_ratio[k]
+        out.append(dataclasses.replace(res, frequency_hz=f, damping_ratio=zeta))
+        pairs.append({"resonance_hz": res.frequency_hz, "mode": k, "frequency_hz": f, "damping_ratio": zeta})
+        notes.append(
+            f"resonance at {res.frequency_hz:.5g} Hz (zeta {res.damping_ratio:.3g}): its notch is designed for "
+            f"the mode every output sees, {f:.5g} Hz (zeta {zeta:.3g}), fitted over {', '.join(joint.outputs)}"
+        )
+    joint.part["notch_modes"] = pairs
+    taken = {p["mode"] for p in pairs}
+    notes += [
+        f"mode at {joint.frequency_hz[k]:.5g} Hz (zeta {joint.damping_ratio[k]:.3g}) is seen by every output but "
+        "no resonance of the plant output was notched there"
+        for k in common
+        if k not in taken
+    ]
+    return out, notes
+
+
+def _median(values: np.ndarray) -> float | None:
+    finite = values[np.isfinite(values)]
+    return float(np.median(finite)) if finite.size else None
