@@ -235,7 +235,8 @@ def _number_or_table(options, table_cls, value, meta, key: str, source: str):
 
 
 def _list(item, value, meta, key: str, source: str) -> list:
-    """A list of ``item`` (tables or scalars, each checked as the field says); ``check`` sees the whole list."""
+    """A list of ``item`` (tables, scalars or lists of scalars, each checked as the field says); ``check`` sees the
+    whole list."""
     if not isinstance(value, list):
         raise ConfigError(key, f"must be a list, got {show(value)}", source)
     limit = meta.get("max_items") or MAX_LIST_ITEMS
@@ -244,7 +245,9 @@ def _list(item, value, meta, key: str, source: str) -> list:
     if dataclasses.is_dataclass(item):
         return [_build(item, v, f"{key}[{i}].", source) for i, v in enumerate(value)]
     item_meta = {**meta, "check": None}
-    items = [_scalar(item, v, item_meta, f"{key}[{i}]", source) for i, v in enumerate(value)]
+    convert = _list if typing.get_origin(item) is list else _scalar  # list[list[float]]: each row as list[float]
+    inner = typing.get_args(item)[0] if convert is _list else item
+    items = [convert(inner, v, item_meta, f"{key}[{i}]", source) for i, v in enumerate(value)]
     if meta.get("check"):
         meta["check"](items, key, source)
     return items

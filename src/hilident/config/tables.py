@@ -50,6 +50,13 @@ def _check_object_address(value: str, key: str, source: str) -> None:
         parse_address(value, key, source)
 
 
+def _check_distinct_ids(value: list[int], key: str, source: str) -> None:
+    """Node ids named once each."""
+    repeated = sorted({i for i in value if value.count(i) > 1})
+    if repeated:
+        raise ConfigError(key, f"names node {repeated[0]} twice; each node of the bus once", source)
+
+
 # --- device and run -------------------------------------------------------------------
 
 
@@ -61,6 +68,15 @@ class CanopenDeviceConfig:
         "socketcan", doc="python-can interface (socketcan, pcan, kvaser, socketcand, virtual, ...)"
     )
     node_id: int = _spec(1, ge=1, le=127, doc="node id of the drive")
+    node_ids: list[int] = _spec(
+        [],
+        ge=1,
+        le=127,
+        max_items=8,
+        check=_check_distinct_ids,
+        doc="the nodes of one session on this bus, same driver, node_id first (several drives of one axis); "
+        "empty: node_id alone",
+    )
     trace: str = _spec(
         "", choices=("", "asc", "blf"), doc='write a CAN trace of each run next to its recording: "", "asc" or "blf"'
     )
@@ -885,6 +901,62 @@ class FaultsConfig:
     modbus: ModbusFaultsConfig = _spec(ModbusFaultsConfig(), doc="Modbus drives")
 
 
+def _entry_check(fields: tuple[str, ...], positive: tuple[str, ...]):
+    """``check`` of a list of entries ``[field, ...]`` (numbers the schema checked): mass indices (``i``, ``j``,
+    ``mass``) whole numbers, the others >= 0 (> 0 where named in ``positive``)."""
+    form = "[" + ", ".join(fields) + "]"
+
+    def check(value: list[list[float]], key: str, source: str) -> None:
+        for n, entry in enumerate(value):
+            if len(entry) != len(fields):
+                raise ConfigError(f"{key}[{n}]", f"must be {form}, got {show(entry)}", source)
+            for name, item in zip(fields, entry, strict=True):
+                where = f"{key}[{n}].{name}"
+                if name in ("i", "j", "mass"):
+                    if not item.is_integer():
+                        raise ConfigError(where, f"must be a mass index (a whole number), got {show(item)}", source)
+                elif not (item > 0 if name in positive else item >= 0):
+                    raise ConfigError(where, f"must be {'>' if name in positive else '>='} 0, got {show(item)}", source)
+
+    return check
+
+
+@dataclass(frozen=True)
+class MechanismConfig:
+    """``[emulator.mechanism]``: one linear mechanism driven by the twins of several nodes on one bus.
+
+    Lumped masses joined by springs and dampers (to each other or to ground), each node's motor pushing one mass
+    and its load sensor watching one (``hilident.emulator.coupled_plant.CoupledModel``). Empty: no mechanism,
+    each twin has its own ``[emulator.plant]``.
+    """
+
+    masses_kg: list[float] = _spec(
+        [], gt=0, max_items=16, doc="mass of each lumped body, kg, indexed 0, 1, ... by the other keys; empty: none"
+    )
+    links: list[list[float]] = _spec(
+        [],
+        max_items=64,
+        check=_entry_check(("i", "j", "k_n_per_m", "d_ns_per_m"), ()),
+        doc="springs and dampers, each [i, j, k_n_per_m, d_ns_per_m]: stiffness N/m and damping N*s/m between "
+        "masses i and j (j = -1: ground), not both 0",
+    )
+    motors: list[list[float]] = _spec(
+        [],
+        max_items=8,
+        check=_entry_check(("mass", "c"), ("c",)),
+        doc="one [mass_index, c] per node, in the order of device.canopen.node_ids: the mass its motor pushes "
+        "with the force c * torque (c in N/(N*m))",
+    )
+    sensors: list[int] = _spec(
+        [], ge=0, max_items=8, doc="per node, in node order: the mass its load sensor (load_position_m) watches"
+    )
+
+    @property
+    def defined(self) -> bool:
+        """Whether a mechanism is configured (``masses_kg`` given)."""
+        return bool(self.masses_kg)
+
+
 @dataclass(frozen=True)
 class EmulatorConfig:
     link: str = _spec(
@@ -907,6 +979,10 @@ class EmulatorConfig:
     sensors: SensorsConfig = _spec(SensorsConfig())
     disturbance: DisturbanceConfig = _spec(DisturbanceConfig())
     faults: FaultsConfig = _spec(FaultsConfig())
+    mechanism: MechanismConfig = _spec(
+        MechanismConfig(),
+        doc="CANopen: one mechanism the twins of several nodes drive together (device.canopen.node_ids); empty: none",
+    )
 
 
 @dataclass(frozen=True)
@@ -1101,6 +1177,8 @@ def _cross_check(cfg: Config) -> None:
     if cfg.friction_test.enabled:
         _friction_extent(cfg)
     _check_position_functions(cfg)
+    _check_nodes(cfg)
+    _check_mechanism(cfg)
 
 
 def _check_outputs(ic: IdentificationConfig, src: str) -> None:
@@ -1145,6 +1223,72 @@ def _check_position_functions(cfg: Config) -> None:
                 f"[{lo:g}, {hi:g}] m of [limits]; the polynomial is {least:.6g} at {at:.6g} m",
                 src,
             )
+
+
+def node_ids(device: DeviceConfig) -> list[int]:
+    """The CANopen nodes of a session: ``[device.canopen] node_ids``, else ``node_id`` alone."""
+    return list(device.canopen.node_ids) or [device.canopen.node_id]
+
+
+def _check_nodes(cfg: Config) -> None:
+    """``node_ids`` starts with ``node_id`` (the node a session of one drive, and every message, names first)."""
+    c = cfg.device.canopen
+    if c.node_ids and c.node_ids[0] != c.node_id:
+        raise ConfigError(
+            "device.canopen.node_ids",
+            f"must start with device.canopen.node_id ({c.node_id}), got {show(c.node_ids)}: "
+            f"set node_id = {c.node_ids[0]} or list node {c.node_id} first",
+            cfg.source,
+        )
+
+
+def _check_mechanism(cfg: Config) -> None:
+    """``[emulator.mechanism]``: required by a twin of several nodes; one motor and one sensor per node, every
+    index naming a mass."""
+    mech, src = cfg.emulator.mechanism, cfg.source
+    nodes = len(node_ids(cfg.device))
+    if not mech.defined:
+        given = [name for name in ("links", "motors", "sensors") if getattr(mech, name)]
+        if given:
+            raise ConfigError(
+                "emulator.mechanism.masses_kg", f"is empty while {given[0]} is given: name the masses", src
+            )
+        if nodes > 1 and cfg.uses_emulator:
+            raise ConfigError(
+                "emulator.mechanism",
+                f'is required for the twin of {nodes} nodes (device.canopen.node_ids on port = "emulator"): '
+                "masses_kg, links, motors (one per node) and sensors of the mechanism they drive",
+                src,
+            )
+        return
+    for name in ("motors", "sensors"):
+        count = len(getattr(mech, name))
+        if count != nodes:
+            raise ConfigError(
+                f"emulator.mechanism.{name}",
+                f"has {count} {'entry' if count == 1 else 'entries'} for {nodes} node(s) (device.canopen.node_ids "
+                "or node_id): one per node, in node order",
+                src,
+            )
+    _check_mass_indices(mech, src)
+
+
+def _check_mass_indices(mech: MechanismConfig, src: str) -> None:
+    """Every index of ``links``, ``motors`` and ``sensors`` names a mass (a link's ``j`` may be -1, ground)."""
+    n = len(mech.masses_kg)
+    named = [(f"links[{k}].i", link[0], False) for k, link in enumerate(mech.links)]
+    named += [(f"links[{k}].j", link[1], True) for k, link in enumerate(mech.links)]
+    named += [(f"motors[{k}].mass", motor[0], False) for k, motor in enumerate(mech.motors)]
+    named += [(f"sensors[{k}]", i, False) for k, i in enumerate(mech.sensors)]
+    for key, i, ground in named:
+        if not (0 <= i < n or (ground and i == -1)):
+            where = f"0..{n - 1}" + (" or -1 (ground)" if ground else "")
+            raise ConfigError(f"emulator.mechanism.{key}", f"must be a mass index {where}, got {i:g}", src)
+    for k, (i, j, stiffness, damping) in enumerate(mech.links):
+        if i == j:
+            raise ConfigError(f"emulator.mechanism.links[{k}].j", f"must differ from i ({i:g}): a link joins two", src)
+        if stiffness == 0 and damping == 0:
+            raise ConfigError(f"emulator.mechanism.links[{k}]", "has k = 0 and d = 0: it joins nothing", src)
 
 
 def polynomial_minimum(coefficients, lo: float, hi: float) -> tuple[float, float]:

@@ -8,6 +8,7 @@ layout is the same for the three transports::
       plant.py, sensors.py,     shared physics: plant and friction, sensors, process disturbances,
       disturbance.py, drive.py  and the drive loop (DriveLoop) every firmware wraps
       coupling.py               k and d of the cart-to-load coupling as functions of the cart position
+      coupled_plant.py          one linear mechanism of several drives (CoupledModel, CoupledPlant and its ports)
       preset.py                 bench realism presets (the messy bench by default, or a clean one)
       clock.py                  the one simulated clock (SimClock: pacing without bursts, coasting)
                                 and the one table player (TablePlayer) every twin runs on
@@ -33,7 +34,8 @@ layout is the same for the three transports::
                                   (a vendor drive's recorder and generator)
         sdo.py                  the SDO server with block transfers and the abort fault
         socketcand.py           a socketcand server, for a host in another process
-        server.py               CanopenDriveServer (network, clock thread), start, start_socketcand
+        server.py               CanopenDriveServer (network, clock thread), start, start_socketcand; several
+                                nodes on one mechanism (CanopenBusServer, MechanismGroup, LockstepDrive)
 
 Dependencies point one way: a transport's ``server`` imports its ``firmware``
 and the shared modules (``device``, ``clock``, physics); :mod:`factory` imports

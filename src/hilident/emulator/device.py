@@ -10,13 +10,14 @@ returns an :class:`EmulatedDevice`. The transports import this module;
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Protocol
+from dataclasses import dataclass, replace
+from typing import Protocol, TypeVar
 
 import numpy as np
 
 from hilident.config.tables import DeviceConfig, EmulatorConfig, PositionFunction
 from hilident.drivers.description import DriverDescription
+from hilident.emulator.coupled_plant import CoupledModel, CoupledPlant, PlantPort
 from hilident.emulator.coupling import PositionCurve
 from hilident.emulator.disturbance import ProcessDisturbance
 from hilident.emulator.drive import DriveLoop, DriveTuning
@@ -28,19 +29,25 @@ from hilident.emulator.plant import (
     TwoMass,
     modes,
 )
-from hilident.emulator.preset import realism
+from hilident.emulator.preset import Realism, realism
 from hilident.emulator.sensors import SensorModel
+from hilident.errors import ConfigError
 from hilident.links import PipeEnd
 
 __all__ = [
     "EmulatedDevice",
     "EmulatorServer",
     "build_drive",
+    "build_port_drive",
     "coupling_curves",
     "friction_model",
+    "mechanism_model",
     "plant_model",
     "true_modes",
 ]
+
+
+_Loop = TypeVar("_Loop", bound=DriveLoop)
 
 
 class EmulatorServer(Protocol):
@@ -111,21 +118,22 @@ def _fastest_mode_hz(cfg: EmulatorConfig) -> float:
     return max((f for p in positions for f, _ in true_modes(cfg, p)), default=0.0)
 
 
-def build_drive(cfg: EmulatorConfig, driver: DriverDescription) -> DriveLoop:
-    """Plant, sensors, disturbances and drive loop as configured (unset keys from ``cfg.preset``)."""
+def _sensors(cfg: EmulatorConfig, r: Realism, seed: int | np.random.SeedSequence) -> SensorModel:
     s = cfg.sensors
-    d = cfg.drive
-    r = realism(cfg, driver.loop_rate_hz)
-    sensors = SensorModel(
+    return SensorModel(
         encoder_resolution_m=s.encoder_resolution_m,
         torque_noise_nm=s.torque_noise_nm,
         laser_range_m=tuple(s.laser_range_m),
         laser_noise_m=s.laser_noise_m,
         laser_resolution_m=s.laser_resolution_m,
         encoder_noise_m=r.encoder_noise_m,
-        seed=cfg.seed,
+        seed=seed,
     )
-    tuning = DriveTuning(
+
+
+def _tuning(cfg: EmulatorConfig, driver: DriverDescription, r: Realism) -> DriveTuning:
+    d = cfg.drive
+    return DriveTuning(
         loop_rate_hz=driver.loop_rate_hz,
         kp_pos_per_s=d.kp_pos_per_s,
         ki_pos_per_s2=d.ki_pos_per_s2,
@@ -141,8 +149,10 @@ def build_drive(cfg: EmulatorConfig, driver: DriverDescription) -> DriveLoop:
         viscous_feedforward_nm_per_mps=d.viscous_feedforward_nm_per_mps,
         friction_feedforward_nm=d.friction_feedforward_nm,
     )
-    # The sensors' noise streams are children 0-2 of the seed; the disturbance is child 3.
-    disturbance = ProcessDisturbance(
+
+
+def _disturbance(driver: DriverDescription, r: Realism, seed: np.random.SeedSequence) -> ProcessDisturbance:
+    return ProcessDisturbance(
         period_s=1.0 / driver.loop_rate_hz,
         noise_nm=r.torque_noise_nm,
         noise_corner_hz=r.torque_noise_corner_hz,
@@ -151,8 +161,16 @@ def build_drive(cfg: EmulatorConfig, driver: DriverDescription) -> DriveLoop:
         load_step_nm=r.load_step_nm,
         load_step_rate_hz=r.load_step_rate_hz,
         load_noise_n=r.load_noise_n,
-        seed=np.random.SeedSequence(cfg.seed, spawn_key=(3,)),
+        seed=seed,
     )
+
+
+def build_drive(cfg: EmulatorConfig, driver: DriverDescription) -> DriveLoop:
+    """Plant, sensors, disturbances and drive loop as configured (unset keys from ``cfg.preset``)."""
+    r = realism(cfg, driver.loop_rate_hz)
+    # The sensors' noise streams are children 0-2 of the seed; the disturbance is child 3.
+    sensors = _sensors(cfg, r, cfg.seed)
+    disturbance = _disturbance(driver, r, np.random.SeedSequence(cfg.seed, spawn_key=(3,)))
     # Integrate at least 4x the loop rate, and at least 40 steps per period of the fastest mode.
     fastest = _fastest_mode_hz(cfg)
     substep = min(1.0 / (4 * driver.loop_rate_hz), 1.0 / (40 * fastest) if fastest else math.inf)
@@ -161,7 +179,73 @@ def build_drive(cfg: EmulatorConfig, driver: DriverDescription) -> DriveLoop:
     plant = Plant(
         plant_model(cfg), friction_model(cfg), max_substep_s=substep, backlash_m=backlash, stiffness=k_of, damping=d_of
     )
-    return DriveLoop(plant, tuning, sensors, n_filter_slots=driver.filter_slots, disturbance=disturbance)
+    return DriveLoop(
+        plant, _tuning(cfg, driver, r), sensors, n_filter_slots=driver.filter_slots, disturbance=disturbance
+    )
+
+
+#: ``CoupledModel``'s names of its fields that ``[emulator.mechanism]`` spells with their unit.
+_MECHANISM_KEYS = {"masses": "masses_kg", "k": "k_n_per_m", "d": "d_ns_per_m"}
+
+
+def _mechanism_key(key: str) -> str:
+    """A key of :class:`~hilident.emulator.coupled_plant.CoupledModel` (``links[1].k``) as the config names it."""
+    head, dot, last = key.rpartition(".")
+    if dot:
+        return f"{head}.{_MECHANISM_KEYS.get(last, last)}"
+    name, bracket, rest = key.partition("[")
+    return _MECHANISM_KEYS.get(name, name) + bracket + rest
+
+
+def _index(value: float):
+    """A mass index the config holds as a number: an int when it is a whole one (else as given, for the model to
+    refuse)."""
+    return int(value) if isinstance(value, float) and value.is_integer() else value
+
+
+def mechanism_model(cfg: EmulatorConfig) -> CoupledModel:
+    """``[emulator.mechanism]`` as a :class:`~hilident.emulator.coupled_plant.CoupledModel`.
+
+    Raises
+    ------
+    ConfigError
+        The model refuses it: the key is ``emulator.mechanism.<key>`` (``links[1].k_n_per_m``, ...).
+    """
+    m = cfg.mechanism
+    try:
+        return CoupledModel(
+            masses=tuple(m.masses_kg),
+            links=tuple((_index(i), _index(j), k, d) for i, j, k, d in m.links),
+            motors=tuple((_index(i), c) for i, c in m.motors),
+            sensors=tuple(m.sensors),
+        )
+    except ConfigError as exc:
+        raise ConfigError(f"emulator.mechanism.{_mechanism_key(exc.key)}", exc.message, exc.file) from None
+
+
+def build_port_drive(cfg: EmulatorConfig, driver: DriverDescription, port: PlantPort, loop: type[_Loop]) -> _Loop:
+    """Sensors, disturbances and drive loop of the node on ``port`` of a mechanism (``[emulator.mechanism]``).
+
+    As :func:`build_drive`, on the port instead of a plant of its own (no friction: the mechanism is linear).
+    Each port's node draws its own noise: its sensors' streams are child ``(4, i)`` of the seed, its disturbance
+    child ``(5, i)`` (``i`` the port's index); a force on its load (``load_noise_n``) scales with its motor's
+    ``c``.
+
+    Parameters
+    ----------
+    cfg : EmulatorConfig
+    driver : DriverDescription
+    port : PlantPort
+        The node's port of the :class:`~hilident.emulator.coupled_plant.CoupledPlant`.
+    loop : type
+        The :class:`~hilident.emulator.drive.DriveLoop` class to build (``DriveLoop``, or a subclass that
+        watches its runs).
+    """
+    c = port.plant.model.motors[port.index][1]
+    r = realism(replace(cfg, plant=replace(cfg.plant, c=c)), driver.loop_rate_hz)
+    sensors = _sensors(cfg, r, np.random.SeedSequence(cfg.seed, spawn_key=(4, port.index)))
+    disturbance = _disturbance(driver, r, np.random.SeedSequence(cfg.seed, spawn_key=(5, port.index)))
+    return loop(port, _tuning(cfg, driver, r), sensors, n_filter_slots=driver.filter_slots, disturbance=disturbance)
 
 
 @dataclass
@@ -176,15 +260,26 @@ class EmulatedDevice:
     device : DeviceConfig
         The ``[device]`` settings that reach it (port, interface, ids).
     drive : DriveLoop
-        Its physics: plant, sensors and drive loop (tests compare with its truth).
+        Its physics: plant, sensors and drive loop (tests compare with its truth); of several nodes on one
+        mechanism, the first node's.
     link : hilident.links.PipeEnd or None
         Host end of an in-memory pipe (serial board only), else None.
+    drives : tuple of DriveLoop
+        Every node's drive loop, in node order (one node: ``(drive,)``).
+    mechanism : CoupledPlant or None
+        The mechanism the nodes drive together (``[emulator.mechanism]``), else None.
     """
 
     server: EmulatorServer
     device: DeviceConfig
     drive: DriveLoop
     link: PipeEnd | None = None
+    drives: tuple[DriveLoop, ...] = ()
+    mechanism: CoupledPlant | None = None
+
+    def __post_init__(self):
+        if not self.drives:
+            self.drives = (self.drive,)
 
     @property
     def port(self) -> str:

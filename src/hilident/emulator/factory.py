@@ -50,12 +50,25 @@ _STARTERS: dict[str, Callable[..., EmulatedDevice]] = {
 }
 
 
+def _check_mechanism(cfg: EmulatorConfig, driver: DriverDescription) -> None:
+    """``[emulator.mechanism]`` is driven by the nodes of one CANopen bus; no other transport's twin runs on it."""
+    if cfg.mechanism.defined and driver.transport != "canopen":
+        raise ConfigError(
+            "emulator.mechanism",
+            f"is driven by the nodes of one CANopen bus (device.canopen.node_ids); driver {driver.name!r} is a "
+            f"{driver.transport} device: leave [emulator.mechanism] out, its twin runs on [emulator.plant]",
+        )
+
+
 def start_emulator(cfg: EmulatorConfig, driver: DriverDescription, device: DeviceConfig) -> EmulatedDevice:
     """Start the emulated twin of ``driver`` for a session configured with ``device``.
 
     Dispatches on ``driver.transport``; each transport's server module offers
-    ``start(cfg, driver, device) -> EmulatedDevice``.
+    ``start(cfg, driver, device) -> EmulatedDevice``. A CANopen twin of several
+    nodes (``[device.canopen] node_ids``) runs them all on one bus, driving
+    ``[emulator.mechanism]`` together.
     """
+    _check_mechanism(cfg, driver)
     return _STARTERS[driver.transport](cfg, driver, device)
 
 
@@ -87,6 +100,7 @@ def start_standalone(
         ``device`` holds what a host config needs in ``[device]``
         (:func:`host_device_table`).
     """
+    _check_mechanism(cfg, driver)
     links = STANDALONE_LINKS.get(driver.transport, ())
     if link not in links:
         raise ConfigError(
@@ -101,7 +115,7 @@ def start_standalone(
 
 def host_device_table(device: DeviceConfig) -> dict:
     """The ``[device]`` table (as a dict, ready for a TOML writer) a host in another process uses to reach a
-    standalone twin."""
+    standalone twin (a CANopen twin of several nodes: with their ``node_ids``)."""
     keys = (
         "driver",
         "port",
@@ -116,4 +130,7 @@ def host_device_table(device: DeviceConfig) -> dict:
         "allow_fault_reset",
         "host_timeout_s",
     )
-    return device_table(device, keys)
+    table = device_table(device, keys)
+    if device.canopen.node_ids:
+        table.setdefault("canopen", {})["node_ids"] = list(device.canopen.node_ids)
+    return table
