@@ -547,12 +547,18 @@ def _emulate_canopen(args) -> int:
     device = start_socketcand(emu_cfg, driver, cfg.device, port=args.port)
     print(device.port, flush=True)
     print(
-        f"emulated {driver.name}, node {device.device.canopen.node_id}, on socketcand: [device.canopen] "
+        f"emulated {driver.name}, {_nodes_text(device.device)}, on socketcand: [device.canopen] "
         f'can_interface = "socketcand", [device] port = "{device.port}"; Ctrl-C to stop',
         file=sys.stderr,
         flush=True,
     )
     return _serve_until_stopped(device)
+
+
+def _nodes_text(device) -> str:
+    """``node 1``, or ``nodes 1, 2 on one mechanism`` for the twin of several nodes."""
+    ids = list(device.canopen.node_ids) or [device.canopen.node_id]
+    return f"node {ids[0]}" if len(ids) == 1 else f"nodes {', '.join(map(str, ids))} on one mechanism"
 
 
 def _emulate_fleet(args) -> int:

@@ -8,8 +8,9 @@ from typing import TYPE_CHECKING, Any
 
 from hilident import endings
 from hilident.adapters.backends import adapter_class
-from hilident.config.tables import Config
+from hilident.config.tables import Config, node_ids
 from hilident.drivers.description import DriverDescription, find_driver
+from hilident.errors import ConfigError
 from hilident.progress import Progress
 from hilident.session.devicelock import DeviceLock, device_key
 
@@ -55,6 +56,7 @@ def connect_device(cfg: Config, driver: DriverDescription, progress: Progress) -
     allowed). The lock and the emulator are released again when opening fails.
     """
     cls = adapter_class(driver.transport)
+    _one_node(cfg, driver)
     device, link, emulator, lock = cfg.device, None, None, None
     if cfg.uses_emulator:
         from hilident.emulator.factory import start_emulator
@@ -81,6 +83,20 @@ def connect_device(cfg: Config, driver: DriverDescription, progress: Progress) -
             _release(emulator, lock)
         raise
     return ConnectedDevice(driver, adapter, emulator, lock)
+
+
+def _one_node(cfg: Config, driver: DriverDescription) -> None:
+    """A session drives one node: several ``[device.canopen] node_ids`` are refused before anything starts,
+    rather than the first driven and the others left alone."""
+    nodes = node_ids(cfg.device)
+    if driver.transport == "canopen" and len(nodes) > 1:
+        raise ConfigError(
+            "device.canopen.node_ids",
+            f"names {len(nodes)} nodes {nodes}: a session drives one node yet (the twin of several nodes on "
+            "one mechanism runs standalone, `hilident emulate canopen --config`, for a host of your own); "
+            "keep node_id alone for a session",
+            cfg.source,
+        )
 
 
 def _release(emulator, lock: DeviceLock | None) -> None:
