@@ -107,7 +107,7 @@ def test_the_serial_gantry_with_its_load_sensor_notches_the_mode_both_see(tmp_pa
         identification=replace(cfg.identification, outputs=["load_position_m", "position_m", "no_such_channel"]),
         notch=replace(cfg.notch, verify=False),
     )
-    summary = Session(cfg, tmp_path, plots=False).run()
+    summary = Session(cfg, tmp_path).run()
     part = summary["mimo"]
     assert [o["column"] for o in part["outputs"]] == ["velocity_mps", "load_position_m", "position_m"]
     assert any("no_such_channel was not recorded" in w for w in summary["warnings"])
@@ -119,3 +119,5 @@ def test_the_serial_gantry_with_its_load_sensor_notches_the_mode_both_see(tmp_pa
     assert summary["notch_filters"][0]["center_hz"] == pytest.approx(pair["frequency_hz"])
     assert pair["frequency_hz"] == pytest.approx(common[0]["frequency_hz"])
     jsonschema.validate(summary, summary_schema())
+    assert (tmp_path / "stabilisation.png").stat().st_size > 10_000  # the joint fit's diagram, in the report
+    assert "stabilisation.png" in (tmp_path / "report.html").read_text()

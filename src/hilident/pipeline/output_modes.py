@@ -47,6 +47,8 @@ class JointModes:
         Per mode, the outputs that see it (:data:`SEEN_FRACTION`).
     outputs : list of str
         Every output, the plant's first.
+    response : MimoResponse or None
+        The outputs' responses to the net torque the modes were fitted to (for the stabilisation diagram).
     """
 
     part: dict
@@ -54,6 +56,7 @@ class JointModes:
     damping_ratio: list[float] = field(default_factory=list)
     seen_by: list[list[str]] = field(default_factory=list)
     outputs: list[str] = field(default_factory=list)
+    response: MimoResponse | None = None
 
     def common(self) -> list[int]:
         """Indices of the modes every output sees."""
@@ -140,6 +143,7 @@ def joint_output_modes(
         damping_ratio=[m["damping_ratio"] for m in part["modes"]],
         seen_by=seen,
         outputs=names,
+        response=frf,
     )
 
 

@@ -877,6 +877,17 @@ class Session(DeviceConnection):
             band_hz=pipeline_plant.analysis_band(self.cfg.identification, excitation_band_hz),
             output=self.cfg.identification.output,
         )
+        joint = self.joint
+        if joint is not None and joint.response is not None and joint.part.get("stabilisation"):
+            from hilident.plots.stabilisation import STABILISATION_PNG, plot_stabilisation
+
+            plot_stabilisation(
+                self.out / STABILISATION_PNG,
+                joint.part,
+                joint.response.frequency_hz,
+                joint.response.response,
+                title=plot_title(Path(self.cfg.source).name, what="Stabilisation"),
+            )
         if self.gains is not None and self.gains.check is not None:  # closed-loop.png: the gains' proof
             from hilident.plots.closed_loop import plot_closed_loop
 
