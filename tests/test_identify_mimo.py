@@ -161,15 +161,17 @@ def test_a_zippered_multisine_is_read_at_each_inputs_own_lines_and_gives_the_sam
     check_intervals_and_diagram(tmp_path / "o", mimo, groups=5)  # the five periods after the first, one a group
 
 
-def test_a_record_too_short_for_independent_groups_has_modes_without_intervals(tmp_path):
+def test_a_record_too_short_for_independent_groups_has_jackknife_intervals_that_hold_the_truth(tmp_path):
     data = _write(tmp_path, structure(seconds=20.0))
     code, summary = identify(tmp_path, data, KEYS + f"sample_rate_hz = {FS}\n")
     assert code == 0, summary and summary.get("error")
     assert schema_errors(summary) == []
     mimo = summary["mimo"]
     assert len(mimo["modes"]) == len(MODES)
-    for m in mimo["modes"]:
-        assert m["frequency_ci95_hz"] is None and m["damping_ci95"] is None and m["interval_groups"] == 0, m
-    assert any("no 95 % intervals" in n and "record longer" in n for n in mimo["modal_notes"])
+    assert any("jackknife of" in n for n in mimo["modal_notes"]), mimo["modal_notes"]
+    for m, (f, z) in zip(mimo["modes"], MODES, strict=True):
+        assert m["interval_groups"] >= 4, m
+        assert abs(m["frequency_hz"] - f) <= m["frequency_ci95_hz"] < 0.5 * z * f, m  # within the half-power band
+        assert abs(m["damping_ratio"] - z) <= m["damping_ci95"] < 0.5 * z, m
     section = (tmp_path / "o" / "report.html").read_text().split('<section id="mimo">')[1].split("</section>")[0]
-    assert "no 95 % intervals" in section
+    assert "jackknife" in section

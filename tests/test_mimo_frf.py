@@ -10,6 +10,7 @@ from hilident.errors import ConfigError, DataError
 from hilident.ident.frequency import FrequencyResponse, h1_estimate
 from hilident.ident.mimo import (
     MimoResponse,
+    leave_one_out_h1,
     mimo_h1,
     mimo_hv,
     orthogonal_mimo_frf,
@@ -74,6 +75,27 @@ def noisy_record():
 
 
 # --- H1 ----------------------------------------------------------------------------------------------------------
+
+
+def test_leave_one_out_replicates_are_h1_of_the_segments_they_keep(noisy_record):
+    u, y = noisy_record[0][:8192], noisy_record[1][:8192]
+    replicates = leave_one_out_h1(u, y, FS, 1024, groups=5)  # 15 segments: blocks of 3
+    assert len(replicates) == 5 and all(r.n_averages == 12 for r in replicates)
+    # leaving the first block out is the record from its fourth segment on (segments start every 512 samples)
+    later = mimo_h1(u[3 * 512 :], y[3 * 512 :], FS, 1024)
+    np.testing.assert_allclose(replicates[0].response, later.response, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(replicates[0].std, later.std, rtol=1e-9, atol=1e-12)
+    # the replicates' spread scaled by the jackknife is the order of the estimate's own standard deviation
+    stack = np.array([r.response for r in replicates])
+    jack = np.sqrt((5 - 1) / 5 * np.sum(np.abs(stack - stack.mean(0)) ** 2, axis=0) / 2)
+    ratio = np.median(jack[in_band(later)] / mimo_h1(u, y, FS, 1024).std[in_band(later)])
+    assert 0.5 < ratio < 2.0, ratio
+    with pytest.raises(ConfigError, match="groups"):
+        leave_one_out_h1(u, y, FS, 1024, groups=1)
+    with pytest.raises(ConfigError, match="groups"):
+        leave_one_out_h1(u[:3072], y[:3072], FS, 1024, groups=6)  # 5 segments
+    with pytest.raises(ConfigError, match="groups"):
+        leave_one_out_h1(u[:2048], y[:2048], FS, 1024, groups=2)  # 3 segments: a replicate would keep 1, not > 2
 
 
 def test_h1_recovers_every_element_of_a_two_input_three_output_system(white_inputs):

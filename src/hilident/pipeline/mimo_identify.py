@@ -16,13 +16,22 @@ the record, :func:`_interval_groups`) and the stabilisation diagram (``stabilisa
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
 import numpy as np
 from scipy import signal
 
 from hilident.config.tables import Config
 from hilident.errors import ConfigError, DataError
-from hilident.ident.mimo import MimoResponse, Mode, mimo_h1, modal_analysis, periodic_mimo_frf, zippered_lines
+from hilident.ident.mimo import (
+    MimoResponse,
+    Mode,
+    leave_one_out_h1,
+    mimo_h1,
+    modal_analysis,
+    periodic_mimo_frf,
+    zippered_lines,
+)
 from hilident.ident.mimo.modal import ModalResult, lsfd, merge_split_modes, modal_intervals
 
 __all__ = ["identify_channels", "mode_indicator_peaks"]
@@ -150,7 +159,7 @@ def welch_segment(n: int, n_in: int, sample_rate_hz: float, segment_s: float, so
     )
 
 
-def _modal_part(frf: MimoResponse, band: tuple[float, float], groups: list[MimoResponse] | None = None) -> dict:
+def _modal_part(frf: MimoResponse, band: tuple[float, float], groups: Groups | None = None) -> dict:
     """``modes``, ``mode_mac``, ``modal_notes`` and the residual terms of the modal estimate (weighted by each
     element's spread).
 
@@ -161,7 +170,7 @@ def _modal_part(frf: MimoResponse, band: tuple[float, float], groups: list[MimoR
     weights = _modal_weights(frf)
     try:
         result = merge_split_modes(modal_analysis(frf, band, MODAL_ORDERS, weights=weights, damp_tol=STABLE_DAMPING))
-        result = _with_intervals(result, frf, band, weights, groups or [])
+        result = _with_intervals(result, frf, band, weights, groups or Groups([]))
         poles = np.array([_pole(m) for m in result.modes], dtype=complex)
         residues, lower, upper = lsfd(frf, band, poles, weights)
     except (DataError, np.linalg.LinAlgError) as exc:  # too few lines for the orders, a singular fit
@@ -280,12 +289,20 @@ def mode_indicator_peaks(frf: MimoResponse, in_band: np.ndarray) -> list[dict]:
 # --- the modes' intervals and stabilisation diagram ---------------------------------------------------------------
 
 
-def _groups_or_none(*args) -> list[MimoResponse]:
+class Groups(NamedTuple):
+    """Estimates of the record's response for the modes' intervals: independent groups of it, or (``jackknife``)
+    the leave-one-block-out replicates of a record too short for those."""
+
+    estimates: list[MimoResponse]
+    jackknife: bool = False
+
+
+def _groups_or_none(*args) -> Groups:
     """:func:`_interval_groups`, or none when a block cannot be estimated alone (an input silent in it, ...)."""
     try:
         return _interval_groups(*args)
     except (DataError, ConfigError):
-        return []
+        return Groups([])
 
 
 def _interval_groups(
@@ -296,10 +313,11 @@ def _interval_groups(
     segment: int,
     period_samples: int | None,
     lines: list[np.ndarray] | None,
-) -> list[MimoResponse]:
+) -> Groups:
     """Up to :data:`INTERVAL_GROUPS` estimates of ``frf`` from disjoint consecutive blocks of the record, for the
-    modes' intervals (:func:`hilident.ident.mimo.modal.modal_intervals`); empty when fewer than
-    :data:`MIN_INTERVAL_GROUPS` fit.
+    modes' intervals (:func:`hilident.ident.mimo.modal.modal_intervals`); a Welch record where fewer than
+    :data:`MIN_INTERVAL_GROUPS` fit gets the jackknife's replicates instead (:func:`leave_one_out_h1`: every
+    segment but one block of them, up to one segment per replicate), a periodic one none.
 
     Welch: blocks of at least ``GROUP_AVERAGES_PER_INPUT n_in`` segments each, estimated as the whole record with
     the same segment (the blocks share no segment, so their estimates are independent). Periodic (zippered): the
@@ -310,37 +328,47 @@ def _interval_groups(
         skip = 1 if periods >= 3 else 0
         k = min(INTERVAL_GROUPS, periods - skip)
         if k < MIN_INTERVAL_GROUPS:
-            return []
+            return Groups([])
         edges = [(skip + round(g * (periods - skip) / k)) * period_samples for g in range(k + 1)]
         cut = zip(edges[:-1], edges[1:], strict=True)
-        return [periodic_mimo_frf(u[a:b], y[a:b], period_samples, fs, lines, skip_periods=0) for a, b in cut]
+        return Groups([periodic_mimo_frf(u[a:b], y[a:b], period_samples, fs, lines, skip_periods=0) for a, b in cut])
     per_group = GROUP_AVERAGES_PER_INPUT * u.shape[1]
     k = min(INTERVAL_GROUPS, len(u) // (segment * (per_group + 1) // 2))
     if k < MIN_INTERVAL_GROUPS:
-        return []
+        replicates = min(INTERVAL_GROUPS, frf.n_averages)
+        return Groups(leave_one_out_h1(u, y, fs, segment, replicates), jackknife=True)
     edges = [round(g * len(u) / k) for g in range(k + 1)]
-    return [mimo_h1(u[a:b], y[a:b], fs, segment) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+    return Groups([mimo_h1(u[a:b], y[a:b], fs, segment) for a, b in zip(edges[:-1], edges[1:], strict=True)])
 
 
 def _with_intervals(
-    result: ModalResult, frf: MimoResponse, band: tuple[float, float], weights: np.ndarray, groups: list[MimoResponse]
+    result: ModalResult, frf: MimoResponse, band: tuple[float, float], weights: np.ndarray, found: Groups
 ) -> ModalResult:
-    """``result`` with the modes' 95 % intervals from ``groups`` (the whole record's weights), or a note why none."""
+    """``result`` with the modes' 95 % intervals from ``found`` (the whole record's weights), or a note why none."""
     if not result.modes:
         return result
-    if not groups:
+    groups = found.estimates
+    if len(groups) < MIN_INTERVAL_GROUPS:
         note = (
             f"no 95 % intervals of the modes: the record holds fewer than {MIN_INTERVAL_GROUPS} independent groups "
             f"of {GROUP_AVERAGES_PER_INPUT} Welch segments per input (or periods): record longer"
         )
         return dataclasses.replace(result, notes=(*result.notes, note))
     try:
-        with_intervals = modal_intervals(frf, groups, band, result, weights)
+        with_intervals = modal_intervals(frf, groups, band, result, weights, jackknife=found.jackknife)
     except (DataError, np.linalg.LinAlgError) as exc:
         return dataclasses.replace(result, notes=(*result.notes, f"no 95 % intervals of the modes: {exc}"))
     sizes = sorted({g.n_averages for g in groups})
     unit = "period" if groups[0].method == "periodic" else "Welch segment"
     each = f"{sizes[0]}" if len(sizes) == 1 else f"{sizes[0]} to {sizes[-1]}"
+    if found.jackknife:
+        note = (
+            f"95 % intervals of the modes: the record holds too few Welch segments for {MIN_INTERVAL_GROUPS} "
+            f"independent groups, so the jackknife of {len(groups)} replicates, each fitted on {each} of its "
+            f"{frf.n_averages} segments (one block left out), plus the difference from a maximum-likelihood fit of "
+            "the modes"
+        )
+        return dataclasses.replace(with_intervals, notes=(*with_intervals.notes, note))
     note = (
         f"95 % intervals of the modes: the spread of {len(groups)} independent groups of the record ({each} "
         f"{unit}{'' if each == '1' else 's'} each), each fitted as the whole record, plus the difference from a "

@@ -60,7 +60,14 @@ from hilident.ident.mimo.periodic import (
     zippered_multisine,
 )
 from hilident.ident.mimo.response import MimoResponse
-from hilident.ident.mimo.spectral import CORRELATED_FRACTION, POWER_FLOOR, SINGULAR_CONDITION, mimo_h1, mimo_hv
+from hilident.ident.mimo.spectral import (
+    CORRELATED_FRACTION,
+    POWER_FLOOR,
+    SINGULAR_CONDITION,
+    leave_one_out_h1,
+    mimo_h1,
+    mimo_hv,
+)
 
 __all__ = [
     "CORRELATED_FRACTION",
@@ -75,6 +82,7 @@ __all__ = [
     "modal_analysis",
     "modal_intervals",
     "refine_poles",
+    "leave_one_out_h1",
     "mimo_h1",
     "mimo_hv",
     "zippered_lines",

@@ -841,9 +841,11 @@ def modal_intervals(
     band_hz: tuple[float, float],
     result: ModalResult,
     weights: ArrayLike | str | None = None,
+    jackknife: bool = False,
 ) -> ModalResult:
     """``result`` with a 95 % interval of each mode's frequency and damping: its random error, from independent
-    groups of the record, and its systematic error, from a second estimator.
+    groups of the record (or the jackknife's replicates of it), and its systematic error, from a second
+    estimator.
 
     Random error: the sample mean and sample variance of an estimate repeated on ``K`` independent experiments
     (R. Pintelon, J. Schoukens, *System Identification: A Frequency Domain Approach*, 2nd ed., Wiley-IEEE 2012),
@@ -893,6 +895,11 @@ def modal_intervals(
     weights : array or "std", optional
         As for :func:`polyreference_lscf`: the whole record's weights (an array on the common grid) keep the
         groups' fits the same estimator as the whole record's; ``"std"`` weighs each group by its own spread.
+    jackknife : bool
+        ``groups`` are leave-one-block-out replicates of the whole record (:func:`~hilident.ident.mimo.spectral.
+        leave_one_out_h1`), for a record too short for independent groups: the standard deviation is then the
+        jackknife's, ``sqrt((n - 1) / n sum (theta_k - mean)^2)`` over the ``n`` replicates that found the mode
+        (Efron & Tibshirani 1993, ch. 11), with the same Student factor.
 
     Returns
     -------
@@ -923,7 +930,7 @@ def modal_intervals(
     refined = _refined(frf, band_hz, result.modes, weights, tolerance)
     modes, notes = [], []
     for r, mode in enumerate(result.modes):
-        with_interval, message = _with_interval(mode, found[:, r, :], refined[r])
+        with_interval, message = _with_interval(mode, found[:, r, :], refined[r], jackknife)
         modes.append(with_interval)
         notes += [message] if message else []
     return dataclasses.replace(result, modes=tuple(modes), notes=result.notes + tuple(notes))
@@ -990,9 +997,10 @@ def _refined(
     return out
 
 
-def _with_interval(mode: Mode, estimates: np.ndarray, refined: np.ndarray) -> tuple[Mode, str]:
-    """``mode`` with its standard deviations from the groups' ``estimates`` (K, 2) and 95 % half-widths that add
-    the difference from the ``refined`` (frequency, damping); and a note (empty when there is nothing to say)."""
+def _with_interval(mode: Mode, estimates: np.ndarray, refined: np.ndarray, jackknife: bool = False) -> tuple[Mode, str]:
+    """``mode`` with its standard deviations from the groups' ``estimates`` (K, 2) (independent groups, or the
+    ``jackknife``'s replicates) and 95 % half-widths that add the difference from the ``refined`` (frequency,
+    damping); and a note (empty when there is nothing to say)."""
     from scipy import stats  # the t quantile; scipy only once an interval is asked for
 
     n_total = estimates.shape[0]
@@ -1001,7 +1009,7 @@ def _with_interval(mode: Mode, estimates: np.ndarray, refined: np.ndarray) -> tu
     where = f"mode at {mode.frequency_hz:.5g} Hz"
     if n < MIN_GROUPS:
         return dataclasses.replace(mode, n_groups=n), f"{where}: found in {n} of {n_total} groups, no interval"
-    std = ok.std(axis=0, ddof=1) / math.sqrt(n_total)
+    std = ok.std(axis=0, ddof=0) * math.sqrt(n - 1) if jackknife else ok.std(axis=0, ddof=1) / math.sqrt(n_total)
     random = float(stats.t.ppf(0.975, n - 1)) * std
     systematic = np.abs(refined - [mode.frequency_hz, mode.damping])
     half = random + np.nan_to_num(systematic, nan=0.0)

@@ -9,10 +9,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from hilident.errors import ConfigError
-from hilident.ident.frequency import _check_rate, _cross_spectra, _welch_setup
+from hilident.ident.frequency import _check_rate, _cross_spectra, _segment_blocks, _welch_setup
 from hilident.ident.mimo.response import MimoResponse, _checked_channels
 
-__all__ = ["CORRELATED_FRACTION", "POWER_FLOOR", "SINGULAR_CONDITION", "mimo_h1", "mimo_hv"]
+__all__ = ["CORRELATED_FRACTION", "POWER_FLOOR", "SINGULAR_CONDITION", "leave_one_out_h1", "mimo_h1", "mimo_hv"]
 
 #: Input condition number beyond which a line's input matrix is taken as singular (response NaN): the
 #: averaged spectra carry rounding of about 1e-16 relative, which the solve would magnify this much.
@@ -192,6 +192,11 @@ def _welch_estimate(
     if not np.isfinite(condition_limit) or condition_limit < 1.0:
         raise ConfigError("condition_limit", f"must be a number >= 1, got {condition_limit!r}")
     spectra = _welch_spectra(inputs, outputs, fs, segment_length, overlap, window, detrend)
+    return _from_spectra(spectra, condition_limit, method)
+
+
+def _from_spectra(spectra: _Spectra, condition_limit: float, method: str) -> MimoResponse:
+    """The estimate ``method`` ("h1" or "hv") from averaged spectral matrices."""
     h1, condition, inverse_diagonal = _input_solve(spectra.s_uu, spectra.s_uy)
     h = h1 if method == "h1" else _hv_solution(spectra, condition)
     n_in = spectra.s_uu.shape[1]
@@ -283,6 +288,71 @@ def mimo_h1(
     return _welch_estimate(
         inputs, outputs, sample_rate_hz, segment_length, overlap, window, detrend, condition_limit, "h1"
     )
+
+
+def leave_one_out_h1(
+    inputs: ArrayLike,
+    outputs: ArrayLike,
+    sample_rate_hz: float,
+    segment_length: int,
+    groups: int,
+    overlap: float = 0.5,
+    window: str = "hann",
+    detrend: str | bool = "constant",
+    condition_limit: float = 100.0,
+) -> list[MimoResponse]:
+    """The jackknife's replicates of :func:`mimo_h1`: ``groups`` estimates, each from every Welch segment of the
+    record but one contiguous block of them (the blocks split the segments as evenly as they go).
+
+    For a record too short for several independent parts: the spread of the replicates of an estimate ``theta``
+    gives its standard error ``sqrt((K - 1) / K sum_k (theta_k - mean)^2)`` (B. Efron, R. Tibshirani, *An
+    Introduction to the Bootstrap*, Chapman & Hall 1993, ch. 11), used by
+    :func:`hilident.ident.mimo.modal_intervals` with ``jackknife=True``. Each replicate is :func:`mimo_h1` of the
+    segments it keeps (same segments, window and detrending as the whole record's).
+
+    Parameters
+    ----------
+    inputs, outputs, sample_rate_hz, segment_length, overlap, window, detrend, condition_limit
+        As for :func:`mimo_h1`.
+    groups : int
+        Number of replicates ``K``, at least 2 and at most the number of segments; every replicate must keep
+        more segments than there are inputs.
+
+    Returns
+    -------
+    list of MimoResponse
+        ``K`` estimates on the whole record's lines.
+
+    Raises
+    ------
+    ConfigError
+        ``groups`` out of range, or a replicate left with no more segments than inputs.
+    """
+    fs = _check_rate(sample_rate_hz)
+    u, y = _checked_channels(inputs, outputs)
+    nperseg, noverlap, n_avg = _welch_setup(u[0].size, segment_length, overlap)
+    if int(groups) != groups or not 2 <= groups <= n_avg or n_avg - -(-n_avg // int(groups)) <= len(u):
+        raise ConfigError(
+            "groups", f"must leave more than {len(u)} of the {n_avg} segments in each of 2 or more, got {groups!r}"
+        )
+    signals = {f"u{i}": x for i, x in enumerate(u)} | {f"y{j}": x for j, x in enumerate(y)}
+    parts: dict[str, list[np.ndarray]] = {name: [] for name in signals}
+    for _, ffts in _segment_blocks(signals, nperseg, noverlap, window, detrend):
+        for name, x in ffts.items():
+            parts[name].append(x)
+    big_u = np.stack([np.concatenate(parts[f"u{i}"]) for i in range(len(u))], axis=-1)  # (M, F, n_in)
+    big_y = np.stack([np.concatenate(parts[f"y{j}"]) for j in range(len(y))], axis=-1)  # (M, F, n_out)
+    s_uu = np.conj(big_u)[..., :, None] * big_u[..., None, :]  # per segment: conj(U_k) U_i
+    s_uy = np.conj(big_u)[..., :, None] * big_y[..., None, :]
+    s_yy = big_y.real**2 + big_y.imag**2
+    frequency = np.fft.rfftfreq(nperseg, 1.0 / fs)
+    edges = np.round(np.linspace(0, n_avg, int(groups) + 1)).astype(int)
+    out = []
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
+        keep = np.r_[0:a, b:n_avg]
+        spectra = _Spectra(frequency, s_uu[keep].mean(0), s_uy[keep].mean(0), s_yy[keep].mean(0), keep.size)
+        out.append(_from_spectra(spectra, condition_limit, "h1"))
+    return out
 
 
 def mimo_hv(
