@@ -4,9 +4,11 @@ at once, the modes every output sees from the mode indicator, correlated inputs 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy import signal
 
-from hilident.pipeline.mimo_identify import MODAL_ORDERS
+from hilident.errors import DataError
+from hilident.pipeline.mimo_identify import MODAL_ORDERS, welch_segment
 from support.schema_check import schema_errors
 from test_identify_data_keys import identify
 
@@ -175,3 +177,13 @@ def test_a_record_too_short_for_independent_groups_has_jackknife_intervals_that_
         assert abs(m["damping_ratio"] - z) <= m["damping_ci95"] < 0.5 * z, m
     section = (tmp_path / "o" / "report.html").read_text().split('<section id="mimo">')[1].split("</section>")[0]
     assert "jackknife" in section
+
+
+def test_the_welch_segment_fits_the_record_and_says_so_when_it_is_not_the_configured_one():
+    assert welch_segment(100_000, 2, 1024.0, 2.0) == (2048, "")
+    segment, note = welch_segment(8523, 2, 1024.0, 2.0)  # 4 segments per input need 9216 samples of 2 s
+    assert segment == 1894 and "needs 9216 samples" in note and "1.85 s used" in note
+    segment, note = welch_segment(2048, 2, 1.0, 2.0)  # a rate never published, given as 1 Hz: 2 s is 2 samples
+    assert segment == 455 and "is 2 samples at 1 Hz, fewer than 64" in note
+    with pytest.raises(DataError, match="record longer"):
+        welch_segment(200, 2, 1.0, 2.0)

@@ -134,7 +134,8 @@ def welch_segment(n: int, n_in: int, sample_rate_hz: float, segment_s: float, so
     """The Welch segment (samples) for ``n`` samples of ``n_in`` inputs, and why it is not ``segment_s``.
 
     ``identification.segment_s`` when the record holds :data:`MIN_AVERAGES_PER_INPUT` segments per input with
-    half overlap; else the longest segment that does (a record too short for the default is read, not refused),
+    half overlap and it is at least :data:`MIN_SEGMENT` samples; else the longest segment that does (a record
+    too short for the default, or sampled so slowly that the default is a few samples, is read, not refused),
     with a note saying so (empty when unchanged).
 
     Raises
@@ -144,7 +145,7 @@ def welch_segment(n: int, n_in: int, sample_rate_hz: float, segment_s: float, so
     """
     wanted = int(round(segment_s * sample_rate_hz))
     averages = MIN_AVERAGES_PER_INPUT * n_in
-    if n >= wanted * (averages + 1) // 2:
+    if wanted >= MIN_SEGMENT and n >= wanted * (averages + 1) // 2:
         return wanted, ""
     longest = 2 * n // (averages + 1)
     if longest < MIN_SEGMENT:
@@ -152,10 +153,15 @@ def welch_segment(n: int, n_in: int, sample_rate_hz: float, segment_s: float, so
             f"{source}: {n} samples hold fewer than {MIN_AVERAGES_PER_INPUT} Welch segments of {MIN_SEGMENT} "
             f"samples per input: record longer"
         )
+    why = (
+        f"is {wanted} samples at {sample_rate_hz:g} Hz, fewer than {MIN_SEGMENT}"
+        if wanted < MIN_SEGMENT
+        else f"needs {wanted * (averages + 1) // 2} samples for {MIN_AVERAGES_PER_INPUT} segments per input; the "
+        f"record has {n}"
+    )
     return longest, (
-        f"identification.segment_s = {segment_s:g} s needs {wanted * (averages + 1) // 2} samples for "
-        f"{MIN_AVERAGES_PER_INPUT} segments per input; the record has {n}: segments of "
-        f"{longest / sample_rate_hz:.4g} s used (lines every {sample_rate_hz / longest:.3g} Hz)"
+        f"identification.segment_s = {segment_s:g} s {why}: segments of {longest / sample_rate_hz:.4g} s used "
+        f"(lines every {sample_rate_hz / longest:.3g} Hz)"
     )
 
 
