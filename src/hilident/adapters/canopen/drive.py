@@ -171,6 +171,7 @@ class CanopenDriveAdapter(AdapterBase):
             else None
         )
         self.network = network
+        self.owns_network = True  # False: a bus shared with other nodes of the session, released by their group
         self.node = node
         self.driver = driver
         self.desc = desc
@@ -207,8 +208,13 @@ class CanopenDriveAdapter(AdapterBase):
     # --- opening --------------------------------------------------------------------------
 
     @classmethod
-    def open_device(cls, device: DeviceConfig, driver: DriverDescription, link=None) -> CanopenDriveAdapter:
+    def open_device(
+        cls, device: DeviceConfig, driver: DriverDescription, link=None, network: TracingNetwork | None = None
+    ) -> CanopenDriveAdapter:
         """Open the bus, load the EDS, check the identity, bring the drive to a known state, arm the net.
+
+        ``network``: a bus already open that the drive shares with other nodes of the session
+        (:mod:`hilident.adapters.canopen.group`); the adapter then never disconnects it.
 
         See the module docstring: NMT Pre-operational, frames from before
         counted in ``connect_report.discarded_frames``, Disable Voltage, a
@@ -241,12 +247,14 @@ class CanopenDriveAdapter(AdapterBase):
                 "host's heartbeat needs a node id of its own",
                 source,
             )
-        network = open_network(device, driver.default_baudrate, label)
+        owns_network = network is None
+        network = open_network(device, driver.default_baudrate, label) if network is None else network
         adapter = None
         try:
             node = canopen.RemoteNode(node_id, od)
             network.add_node(node)
             adapter = cls(network, node, driver, desc, device, label)
+            adapter.owns_network = owns_network
             adapter.connect_report.warnings += eds_warnings
             early = adapter.net.count_early_frames(node_id)
             try:
@@ -259,10 +267,9 @@ class CanopenDriveAdapter(AdapterBase):
         except BaseException:
             if adapter is not None:
                 adapter.net.stop_heartbeats()
-            try:
-                network.disconnect()
-            except Exception:
-                pass
+            if owns_network:
+                with contextlib.suppress(Exception):
+                    network.disconnect()
             raise
         return adapter
 
@@ -471,8 +478,11 @@ class CanopenDriveAdapter(AdapterBase):
             self.net.nmt("PRE-OPERATIONAL")
 
     def _release(self) -> None:
-        """Host heartbeat off, CAN trace closed, bus released; each step whatever the others did."""
+        """Host heartbeat off, CAN trace closed, bus released (unless shared with other nodes: their group
+        releases it); each step whatever the others did."""
         self.net.stop_heartbeats()
+        if not self.owns_network:
+            return
         with contextlib.suppress(Exception):
             self.network.stop_trace()
         with contextlib.suppress(Exception):

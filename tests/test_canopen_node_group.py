@@ -1,0 +1,84 @@
+"""Two drives of one session on one CANopen bus, through hilident's own adapters
+(:mod:`hilident.adapters.canopen.group`): one bus opened once, each node checked and brought to a known state as
+a session of one node is, both enabled, both switched off together, the bus released once by the group and not by
+a node."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import pytest
+
+from hilident.adapters.canopen.group import NodeGroup
+from hilident.config.tables import parse_config
+from hilident.drivers.description import find_driver
+from hilident.emulator.factory import start_emulator
+from hilident.errors import DeviceError
+
+pytestmark = pytest.mark.twin
+
+CONFIG = """
+[device]
+driver = "canopen-servo"
+[device.canopen]
+node_ids = [1, 2]
+[emulator]
+preset = "clean"
+[emulator.mechanism]
+masses_kg = [20.0, 16.0, 10.0]
+links = [[0, 2, 2.0e5, 150.0], [1, 2, 1.5e5, 120.0], [0, 1, 5.0e4, 30.0]]
+motors = [[0, 10.0], [1, 10.0]]
+sensors = [2, 2]
+"""
+
+
+@pytest.fixture
+def twin():
+    cfg = parse_config(CONFIG, "two.toml")
+    driver = find_driver(cfg.device.driver)
+    emulated = start_emulator(cfg.emulator, driver, cfg.device)
+    try:
+        yield emulated, driver
+    finally:
+        emulated.close()
+
+
+def test_both_nodes_open_on_one_bus_enable_and_stop_together(twin):
+    emulated, driver = twin
+    group = NodeGroup.open(emulated.device, driver)
+    try:
+        assert group.node_ids == [1, 2]
+        assert all(a.network is group.network and not a.owns_network for a in group.adapters)
+        assert all(a.connect_report.device_net.startswith("heartbeat consumer") for a in group.adapters)
+        assert group.states() == {1: "Switch On Disabled", 2: "Switch On Disabled"}  # the known state at connect
+        group.set_limits(19.0, 0.4, -0.6, 0.6)
+        assert all(len(c) > 3 for c in group.configure(1000.0, "torque"))
+        group.enable()
+        assert group.states() == {1: "Operation Enabled", 2: "Operation Enabled"}
+        assert all(d.enabled for d in emulated.drives)
+        group.safe_stop()
+        assert group.last_stop_s is not None and group.last_stop_s < 0.1
+        assert group.states() == {1: "Switch On Disabled", 2: "Switch On Disabled"}
+        deadline = time.monotonic() + 1.0
+        while any(d.enabled for d in emulated.drives) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert not any(d.enabled for d in emulated.drives)
+    finally:
+        group.close()
+    assert group.network.bus is None  # released once, by the group
+    assert all(d.enabled is False for d in emulated.drives)
+
+
+def test_a_node_that_is_not_on_the_bus_closes_the_ones_opened_and_names_itself(twin):
+    emulated, driver = twin
+    device = emulated.device
+    absent = replace(device, canopen=replace(device.canopen, node_ids=[1, 2, 3]))
+    with pytest.raises(DeviceError, match="node 3"):
+        NodeGroup.open(absent, driver)
+    # node 1 and 2 were left switched off with their consumers disarmed: a new group opens them again
+    group = NodeGroup.open(emulated.device, driver)
+    try:
+        assert group.states() == {1: "Switch On Disabled", 2: "Switch On Disabled"}
+    finally:
+        group.close()
