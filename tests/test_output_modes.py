@@ -110,6 +110,7 @@ def test_the_serial_gantry_with_its_load_sensor_notches_the_mode_both_see(tmp_pa
     summary = Session(cfg, tmp_path).run()
     part = summary["mimo"]
     assert [o["column"] for o in part["outputs"]] == ["velocity_mps", "load_position_m", "position_m"]
+    assert [o["unit"] for o in part["outputs"]] == ["m/s", "m", "m"]
     assert any("no_such_channel was not recorded" in w for w in summary["warnings"])
     (true_hz, _), *_ = true_modes(cfg.emulator)
     common = [m for m in part["modes"] if len(m["seen_by"]) == 3]

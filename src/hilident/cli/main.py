@@ -880,8 +880,8 @@ def build_parser() -> argparse.ArgumentParser:
     exp = sub.add_parser(
         "export",
         help="write the plant model (transfer function and state space, continuous "
-        "and at the drive's loop rate), grey-box parameters and notches for MATLAB, JSON or "
-        "python-control",
+        "and at the drive's loop rate), the modal state space of every input and output of an identify with "
+        "several, grey-box parameters and notches for MATLAB, JSON or python-control",
     )
     exp.add_argument("dir", metavar="DIR", help="a run, identify or upload output folder (or its summary.json)")
     exp.add_argument(

@@ -97,7 +97,10 @@ def _seen_by(part: dict, frf: MimoResponse, names: list[str]) -> list[list[str]]
 
 
 def joint_output_modes(
-    responses: dict[str, FrequencyResponse], band_hz: tuple[float, float], resolution_hz: float
+    responses: dict[str, FrequencyResponse],
+    band_hz: tuple[float, float],
+    resolution_hz: float,
+    units: dict[str, str] | None = None,
 ) -> JointModes | None:
     """The modes of the outputs ``responses`` (name to net-torque response, the plant's output first).
 
@@ -109,6 +112,8 @@ def joint_output_modes(
         The band searched for resonances, Hz.
     resolution_hz : float
         Line spacing of the estimate, Hz (reported).
+    units : dict of str to str, optional
+        Each output channel's unit, as recorded (reported; the responses are per N·m of torque).
 
     Returns
     -------
@@ -122,7 +127,7 @@ def joint_output_modes(
     in_band = (frf.frequency_hz >= band_hz[0]) & (frf.frequency_hz <= band_hz[1])
     part: dict = {
         "inputs": [{"column": "torque_nm", "scale": 1.0}],
-        "outputs": [{"column": n, "scale": 1.0, "unit": ""} for n in names],
+        "outputs": [{"column": n, "scale": 1.0, "unit": (units or {}).get(n, "")} for n in names],
         "method": frf.method,
         "n_averages": frf.n_averages,
         "resolution_hz": float(resolution_hz),

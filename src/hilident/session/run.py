@@ -553,8 +553,10 @@ class Session(DeviceConnection):
         self.warnings += result.warnings
         self.notes += result.notes
         if extra:
+            ad = self.adapter
+            units = dict(zip(ad.channel_names, ad.channel_units, strict=False)) if ad is not None else {}
             self.joint = pipeline_output_modes.joint_output_modes(
-                {ic.output: result.plant, **result.outputs}, band, _resolution_hz(result.plant)
+                {ic.output: result.plant, **result.outputs}, band, _resolution_hz(result.plant), units
             )
         return result
 
