@@ -50,7 +50,7 @@ def _responses(noise: float, seed: int = 0) -> dict[str, FrequencyResponse]:
 
 
 def test_the_mode_both_outputs_see_is_found_once_and_the_motor_only_mode_is_told_apart():
-    joint = joint_output_modes(_responses(noise=0.002), (10.0, 90.0), 0.125)
+    joint = joint_output_modes(_responses(noise=0.002), (10.0, 90.0))
     assert joint is not None
     frequencies = np.array(joint.frequency_hz)
     assert len(frequencies) == 2, joint.part["modes"]
@@ -64,7 +64,7 @@ def test_the_mode_both_outputs_see_is_found_once_and_the_motor_only_mode_is_told
 
 
 def test_a_notch_takes_the_common_mode_and_a_resonance_only_the_motor_sees_keeps_its_own_estimate():
-    joint = joint_output_modes(_responses(noise=0.002), (10.0, 90.0), 0.125)
+    joint = joint_output_modes(_responses(noise=0.002), (10.0, 90.0))
     motor_only = Resonance(56.9, 0.016, 10.0, 0.99)
     both = Resonance(31.2, 0.03, 20.0, 0.99)  # a rougher single-output estimate of the 31 Hz mode
     far = Resonance(45.0, 0.01, 5.0, 0.99)
@@ -82,7 +82,7 @@ def test_a_notch_takes_the_common_mode_and_a_resonance_only_the_motor_sees_keeps
 
 def test_one_output_gives_no_joint_estimate():
     responses = _responses(noise=0.002)
-    assert joint_output_modes({"velocity_mps": responses["velocity_mps"]}, (10.0, 90.0), 0.125) is None
+    assert joint_output_modes({"velocity_mps": responses["velocity_mps"]}, (10.0, 90.0)) is None
     assert notch_resonances([Resonance(31.0, 0.02, 1.0, 1.0)], None)[1] == []
 
 

@@ -21,8 +21,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hilident.ident.frequency import FrequencyResponse
+from hilident.ident.frfquality import frf_uncertainty
 from hilident.ident.mimo import MimoResponse
 from hilident.ident.resonance import Resonance
+from hilident.pipeline.mimo_identify import _median as median
 from hilident.pipeline.mimo_identify import _modal_part as modal_part
 from hilident.pipeline.mimo_identify import mode_indicator_peaks
 
@@ -68,9 +70,14 @@ def _stack(responses: dict[str, FrequencyResponse]) -> MimoResponse:
     first = next(iter(responses.values()))
     h = np.stack([r.response for r in responses.values()], axis=1)[:, :, None]
     coherence = np.stack([np.clip(r.coherence, 0.0, 1.0) for r in responses.values()], axis=1)
-    n = max(first.n_averages, 1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        relative = np.sqrt((1.0 - coherence) / (2.0 * n * coherence))
+    # one average says nothing of the error (its coherence is 1): no spread, and the fit weighs every line alike
+    relative = np.stack(
+        [
+            frf_uncertainty(r).magnitude_rel_std if r.n_averages >= 2 else np.full(r.frequency_hz.size, np.nan)
+            for r in responses.values()
+        ],
+        axis=1,
+    )
     return MimoResponse(
         frequency_hz=first.frequency_hz,
         response=h,
@@ -99,7 +106,6 @@ def _seen_by(part: dict, frf: MimoResponse, names: list[str]) -> list[list[str]]
 def joint_output_modes(
     responses: dict[str, FrequencyResponse],
     band_hz: tuple[float, float],
-    resolution_hz: float,
     units: dict[str, str] | None = None,
 ) -> JointModes | None:
     """The modes of the outputs ``responses`` (name to net-torque response, the plant's output first).
@@ -110,8 +116,6 @@ def joint_output_modes(
         At least two, on one frequency grid (one record, one estimator).
     band_hz : (float, float)
         The band searched for resonances, Hz.
-    resolution_hz : float
-        Line spacing of the estimate, Hz (reported).
     units : dict of str to str, optional
         Each output channel's unit, as recorded (reported; the responses are per N·m of torque).
 
@@ -130,9 +134,9 @@ def joint_output_modes(
         "outputs": [{"column": n, "scale": 1.0, "unit": (units or {}).get(n, "")} for n in names],
         "method": frf.method,
         "n_averages": frf.n_averages,
-        "resolution_hz": float(resolution_hz),
+        "resolution_hz": float(np.min(np.diff(frf.frequency_hz))) if len(frf) > 1 else 0.0,
         "band_hz": [float(band_hz[0]), float(band_hz[1])],
-        "multiple_coherence_median": [_median(frf.multiple_coherence[in_band, j]) for j in range(len(names))],
+        "multiple_coherence_median": [median(frf.multiple_coherence[in_band, j]) for j in range(len(names))],
         "input_condition_median": 1.0,
         "elements": [],
         "indicator_peaks": mode_indicator_peaks(frf, in_band),
@@ -189,8 +193,3 @@ def notch_resonances(resonances: list[Resonance], joint: JointModes | None) -> t
         if k not in taken
     ]
     return out, notes
-
-
-def _median(values: np.ndarray) -> float | None:
-    finite = values[np.isfinite(values)]
-    return float(np.median(finite)) if finite.size else None

@@ -84,12 +84,6 @@ uploading = lazy_module("hilident.session.upload")
 _WINDOW_COVER = 0.9
 
 
-def _resolution_hz(frf) -> float:
-    """Line spacing of a frequency response, Hz (its smallest step)."""
-    f = frf.frequency_hz
-    return float(np.min(np.diff(f))) if f.size > 1 else 0.0
-
-
 def check_excitation_travel(cfg: Config, excitation: Excitation) -> None:
     """A set-point perturbation must keep the axis within half the position window (it starts anywhere in it)."""
     e, lim = cfg.excitation, cfg.bench_limits
@@ -556,7 +550,7 @@ class Session(DeviceConnection):
             ad = self.adapter
             units = dict(zip(ad.channel_names, ad.channel_units, strict=False)) if ad is not None else {}
             self.joint = pipeline_output_modes.joint_output_modes(
-                {ic.output: result.plant, **result.outputs}, band, _resolution_hz(result.plant), units
+                {ic.output: result.plant, **result.outputs}, band, units
             )
         return result
 

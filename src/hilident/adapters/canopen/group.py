@@ -110,7 +110,7 @@ class NodeGroup:
     def close(self) -> None:
         """Every node stopped and closed (its heartbeat consumer off, NMT Pre-operational), then the bus
         released. Never raises."""
-        self.safe_stop()
+        self.safe_stop()  # every node off first: closing one node (its SDO writes, NMT) would delay the next's stop
         for adapter in self.adapters:
             with contextlib.suppress(Exception):
                 adapter.close()
