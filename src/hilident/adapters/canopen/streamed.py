@@ -261,6 +261,12 @@ class StreamedRun(RunStrategy):
         self.sender: threading.Thread | None = None  # host clock: the thread that sends the SYNCs
         self.sender_error: BaseException | None = None
         self.t0 = 0.0  # host clock: the instant of cycle 0, perf_counter s
+        self.fault: dict | None = None  # the drive's fault, once taken
+        self.fault_s = 0.0  # when the fault was taken, perf_counter s
+        self.ended: float | None = None  # when the last cycle started, perf_counter s
+        self.top = -1  # the newest sample heard
+        self.heard_s = 0.0  # when the newest sample arrived (the start until one did), perf_counter s
+        self.owns_clock = True  # False for a node of a group whose SYNC another node's run starts and stops
         self._pack = self.rpdo_packer()
 
     # --- receiving ---------------------------------------------------------------------------------
@@ -481,12 +487,21 @@ class StreamedRun(RunStrategy):
 
     def _start_clock(self) -> None:
         """Listening: set-point 0 out, then the drive (0x1005 bit 30) or the interface starts the SYNCs."""
+        self.arm_listening()
+        self.start_listening_clock()
+
+    def arm_listening(self) -> None:
+        """Listening: set-point 0 (and more where the drive buffers them) out, and SYNC heard from now on."""
         ad = self.ad
         self.ahead = open_buffer(ad.sdo, ad.desc, self.rpdo.setpoint_role, ad.port)
         self.pushed = self.applied = min(self.ahead, self.n)
-        for j in range(self.pushed):  # set-point 0, and more where the drive buffers them
+        for j in range(self.pushed):
             ad.network.send_message(self.rpdo.cob_id, self._pack(j, self.setpoints[j]))
         ad.network.subscribe(0x80, self.on_sync)
+
+    def start_listening_clock(self) -> None:
+        """Listening: the drive (0x1005 bit 30) or the interface starts producing SYNC."""
+        ad = self.ad
         if self.choice.source == "drive":
             cob = int(ad.sdo.read("sync_cob_id")) & 0x7FF
             ad.sdo.write("sync_cob_id", SYNC_GEN_BIT | cob)
@@ -523,7 +538,7 @@ class StreamedRun(RunStrategy):
                 self.periodic_task.stop()
             except Exception:
                 pass
-        if self.choice.source == "drive":
+        if self.choice.source == "drive" and self.owns_clock:
             try:
                 ad.sdo.write("sync_cob_id", int(ad.sdo.read("sync_cob_id")) & ~SYNC_GEN_BIT & 0xFFFFFFFF)
             except Exception:
@@ -574,29 +589,48 @@ class StreamedRun(RunStrategy):
         drive holds the last one) until the run is over, so the drive's clock
         does not stop while its last samples are still on their way.
         """
+        k = self.due_cycle(now)
+        if k is None:
+            return
+        self.before_sync(k)
+        overflow = self.ad.sync_overflow
+        self.ad.network.send_message(0x80, bytes([(self.syncs + self.tail) % overflow + 1]) if overflow > 1 else b"")
+        self.after_sync(k, time.perf_counter())
+
+    def due_cycle(self, now: float) -> int | None:
+        """Host clock: the cycle whose instant passed last, if its SYNC is due now (within the host's window, not
+        sent yet); else None."""
         k = int((now - self.t0) / self.period)
         if k < self.next_cycle:
-            return
+            return None
         now = time.perf_counter()  # the loop may have been held up since ``now`` was taken
         if now - (self.t0 + k * self.period) > self.host_window:
-            return  # sent already, or this cycle's window passed: wait for the next one, never send late
-        n, send = self.n, self.ad.network.send_message
+            return None  # sent already, or this cycle's window passed: wait for the next one, never send late
+        return k
+
+    def before_sync(self, k: int) -> None:
+        """Host clock, before SYNC ``k``: the cycles skipped since the last SYNC counted, and set-point ``k`` sent
+        if the one sent ahead was another cycle's (after a skip)."""
+        n = self.n
         if self.sent < min(k, n):
             self._skip(self.sent, min(k, n))
-        overflow = self.ad.sync_overflow
-        if k != self.next_cycle and k < n:  # after a skip the set-point sent ahead is not this cycle's
-            send(self.rpdo.cob_id, self._pack(k, self.setpoints[k]))
-        send(0x80, bytes([(self.syncs + self.tail) % overflow + 1]) if overflow > 1 else b"")
+        if k != self.next_cycle and k < n:
+            self.ad.network.send_message(self.rpdo.cob_id, self._pack(k, self.setpoints[k]))
+
+    def after_sync(self, k: int, sent_s: float) -> None:
+        """Host clock, after SYNC ``k`` went out at ``sent_s`` (perf_counter s): the cycle noted, and the next
+        cycle's set-point sent ahead (a drive applies an RPDO at the SYNC after it)."""
+        n = self.n
         if k < n:
-            self.timing.add(k, now)
+            self.timing.add(k, sent_s)
             self.sync_cycle[self.syncs] = k
             self.syncs += 1
         else:
             self.tail += 1
         self.next_cycle = k + 1
         self.sent = min(k + 1, n)
-        if k + 1 < n:  # the next cycle's set-point, ahead: a drive applies an RPDO at the SYNC after it
-            send(self.rpdo.cob_id, self._pack(k + 1, self.setpoints[k + 1]))
+        if k + 1 < n:
+            self.ad.network.send_message(self.rpdo.cob_id, self._pack(k + 1, self.setpoints[k + 1]))
 
     def _skip(self, first: int, stop: int) -> None:
         """Host clock: cycles ``first .. stop - 1`` are skipped (no SYNC, no sample); an event marks the gap."""
@@ -614,65 +648,90 @@ class StreamedRun(RunStrategy):
 
     def _loop(self) -> None:
         """The clock runs, TPDOs are matched, samples delivered, until the run ends or a fault stops it."""
-        ad, n, period, lost_after = self.ad, self.n, self.period, self.lost_after
-        lag_limit = max(10 * lost_after, int(round(1.0 / period)))  # the drive is not keeping up: stop flooding it
-        self.setpoints = self.start()
-        host_clock = self.choice.source == "host"
-        if host_clock:
-            close_buffer(ad.sdo, ad.desc, self.rpdo.setpoint_role)  # a skipped cycle would shift a queue
-            self.ad.network.send_message(self.rpdo.cob_id, self._pack(0, self.setpoints[0]))
-            self.t0 = time.perf_counter()
-            self.sender = threading.Thread(target=self._host_clock, name="hilident-sync", daemon=True)
-            self.sender.start()
+        self.begin()
+        if self.choice.source == "host":
+            self.start_host_clock(self._host_clock)
         else:
             self._start_clock()
-        fault = None
-        ended: float | None = None  # when the last cycle started
-        fault_s = 0.0  # when the fault was taken
-        top = -1
-        heard_s = time.perf_counter()  # when the newest sample so far arrived (the start: none yet)
-        while True:
-            now = time.perf_counter()
-            if self.sender_error is not None:
-                raise self.sender_error
-            ad.net.heartbeat.beat_if_due()
-            newest = self.drain()
-            if newest > top:
-                top, heard_s = newest, now
-            if fault is None:
-                fault = ad.take_emergency_fault(max(top, 0))
-                if fault is not None:
-                    fault_s = now
-                    self.clock_stop.set()  # the drive switched off: no more SYNCs
-            if fault is not None:
-                last = min(self.sent, fault["sample_index"] + 1)
-                if now - fault_s > _GRACE_S or self.complete_from_final(last):
-                    self.finalize(last)
-                    self.finalize(min(self.sent, top + 1), count_lost=False)
-                    return
-            else:
-                ad.net.check_link()
-                if self.sent - 1 - top > lag_limit:
-                    raise DeviceError(
-                        f"{ad.port}: the drive's TPDOs lag {self.sent - 1 - top} samples behind the "
-                        f"SYNCs (more than {lag_limit * period:.2g} s): it does not keep up with "
-                        f"{1 / period:g} SYNC/s"
-                    )
-                if not host_clock and self.heard == 0 and now - heard_s > max(_GRACE_S, 20 * period):
-                    raise DeviceError(
-                        f"{ad.port}: no SYNC on the bus {now - heard_s:.2g} s after the "
-                        f"{self.choice.source} was told to produce it (0x1005, 0x1006)"
-                    )
-                if self.sent >= n:
-                    ended = ended or now
-                    # the grace runs from the last SYNC or the last new sample, whichever is later: a drive
-                    # still answering the last SYNCs is slow, not silent
-                    if now - max(ended, heard_s) > _GRACE_S or self.complete_from_final(n):
-                        self.finalize(n)
-                        return
-                else:
-                    self.finalize(self.sent - lost_after)
+        while not self.poll(time.perf_counter()):
             time.sleep(0.002)
+
+    def begin(self) -> None:
+        """Harmless set-points, Operation Enabled (:meth:`start`); with the host's clock, set-point 0 sent ahead
+        of SYNC 0. The clock is started next, by the caller."""
+        self.setpoints = self.start()
+        if self.choice.source == "host":
+            close_buffer(self.ad.sdo, self.ad.desc, self.rpdo.setpoint_role)  # a skipped cycle would shift a queue
+            self.ad.network.send_message(self.rpdo.cob_id, self._pack(0, self.setpoints[0]))
+        self.heard_s = time.perf_counter()  # when the newest sample so far arrived (the start: none yet)
+
+    def start_host_clock(self, target: Callable[[], None]) -> None:
+        """Host clock: cycle 0 is now; ``target`` sends the SYNCs from a thread that does nothing else."""
+        self.t0 = time.perf_counter()
+        self.sender = threading.Thread(target=target, name="hilident-sync", daemon=True)
+        self.sender.start()
+
+    def poll(self, now: float, beat: bool = True) -> bool:
+        """One pass of the run's thread at ``now`` (perf_counter s): the host's heartbeat (with ``beat``), the
+        TPDOs received matched, a fault taken, the samples final delivered or counted lost. True once the run is
+        over (every sample final, or the fault's samples in).
+
+        Raises
+        ------
+        DeviceError
+            The link failed, the drive does not keep up with the SYNCs, or no SYNC came.
+        """
+        ad, period = self.ad, self.period
+        if self.sender_error is not None:
+            raise self.sender_error
+        if beat:
+            ad.net.heartbeat.beat_if_due()
+        newest = self.drain()
+        if newest > self.top:
+            self.top, self.heard_s = newest, now
+        if self.fault is None:
+            self.fault = ad.take_emergency_fault(max(self.top, 0))
+            if self.fault is not None:
+                self.fault_s = now
+                self.clock_stop.set()  # the drive switched off: no more SYNCs
+        if self.fault is not None:
+            last = min(self.sent, self.fault["sample_index"] + 1)
+            if now - self.fault_s > _GRACE_S or self.complete_from_final(last):
+                self.finalize(last)
+                self.finalize(min(self.sent, self.top + 1), count_lost=False)
+                return True
+            return False
+        ad.net.check_link()
+        lag_limit = max(10 * self.lost_after, int(round(1.0 / period)))  # the drive is not keeping up
+        if self.sent - 1 - self.top > lag_limit:
+            raise DeviceError(
+                f"{ad.port}: the drive's TPDOs lag {self.sent - 1 - self.top} samples behind the "
+                f"SYNCs (more than {lag_limit * period:.2g} s): it does not keep up with "
+                f"{1 / period:g} SYNC/s"
+            )
+        if self.choice.source != "host" and self.heard == 0 and now - self.heard_s > max(_GRACE_S, 20 * period):
+            raise DeviceError(
+                f"{ad.port}: no SYNC on the bus {now - self.heard_s:.2g} s after the "
+                f"{self.choice.source} was told to produce it (0x1005, 0x1006)"
+            )
+        if self.sent >= self.n:
+            self.ended = self.ended or now
+            # the grace runs from the last SYNC or the last new sample, whichever is later: a drive
+            # still answering the last SYNCs is slow, not silent
+            if now - max(self.ended, self.heard_s) > _GRACE_S or self.complete_from_final(self.n):
+                self.finalize(self.n)
+                return True
+        else:
+            self.finalize(self.sent - self.lost_after)
+        return False
+
+    def end_early(self, last: int) -> None:
+        """The run stops before its end at sample ``last`` (another node of the same SYNC faulted there): the
+        samples in are delivered, the ones up to ``last`` not in counted lost, the later ones left (in flight when
+        the clock stopped), none filled."""
+        self.drain()
+        self.finalize(min(self.sent, last))
+        self.finalize(min(self.sent, self.top + 1), count_lost=False)
 
     def _host_clock(self) -> None:
         """Host clock, in a thread of its own that does nothing else: each cycle's SYNC at its instant.
