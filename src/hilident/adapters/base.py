@@ -394,13 +394,46 @@ class AdapterBase:
             was commanded safe.
         """
         x = checked_excitation(excitation)
+        result = self.open_run(x)
+        from_sink: list[BaseException] = []
+        deliver = self.run_deliver(sink, len(x), progress, from_sink)
+        try:
+            with timely_host():
+                self._play(x, deliver, result)
+        except BaseException as exc:
+            if any(exc is e for e in from_sink):
+                raise  # a full disk, a signal in the session's writer: its own error, after the axis is safe
+            first = self.first_cause(exc)
+            if first is not exc:
+                raise first from None
+            raise
+        finally:
+            self.close_run(result)
+        if self.run_fault is not None:
+            raise self.fault_error(self.run_fault) from None
+        return result
+
+    def open_run(self, x: np.ndarray) -> RunResult:
+        """A run of ``x`` begins: refused before anything moves where it cannot play (:meth:`_prepare_run`), the
+        events and the fault of the last run cleared; its fresh :class:`RunResult` (also :attr:`last_result`)."""
         self.last_result = None
         self._prepare_run(x)
         self.events = []
         self.run_fault = None
         result = self.last_result = RunResult(requested_samples=len(x), stats=StreamStats())
         self._host_checks = self._host_limit_columns()
-        from_sink: list[BaseException] = []
+        return result
+
+    def run_deliver(
+        self,
+        sink: Callable[[np.ndarray, np.ndarray], None],
+        n: int,
+        progress: Callable[[float], None] | None,
+        from_sink: list[BaseException],
+    ) -> Deliver:
+        """The ``deliver`` a run of ``n`` samples hands its blocks to: the host's limit check on every sample
+        (a trip ends the run at that sample), then ``sink``, then ``progress``. What ``sink`` raises is appended
+        to ``from_sink`` (so the caller tells it from the device's errors) and raised."""
         shown = [0.0]  # when progress was last called (monotonic s)
 
         def deliver(index: np.ndarray, rows: np.ndarray) -> None:
@@ -415,7 +448,7 @@ class AdapterBase:
                 from_sink.append(exc)
                 raise
             if progress is not None and len(index):
-                done = min(1.0, (int(index[-1]) + 1) / max(len(x), 1))
+                done = min(1.0, (int(index[-1]) + 1) / max(n, 1))
                 now = time.monotonic()
                 if done == 1.0 or now - shown[0] > _PROGRESS_S:
                     shown[0] = now
@@ -424,24 +457,15 @@ class AdapterBase:
                 assert self.run_fault is not None  # _host_limit_trip noted the trip (or an earlier fault) as the cause
                 raise self.fault_error(self.run_fault)
 
+        return deliver
+
+    def close_run(self, result: RunResult) -> None:
+        """After every ending of a run: the axis commanded safe (:meth:`_end_run`), the run's events in
+        ``result``."""
         try:
-            with timely_host():
-                self._play(x, deliver, result)
-        except BaseException as exc:
-            if any(exc is e for e in from_sink):
-                raise  # a full disk, a signal in the session's writer: its own error, after the axis is safe
-            first = self._first_cause(exc)
-            if first is not exc:
-                raise first from None
-            raise
+            self._end_run(result)
         finally:
-            try:
-                self._end_run(result)
-            finally:
-                result.events = list(self.events)
-        if self.run_fault is not None:
-            raise self.fault_error(self.run_fault) from None
-        return result
+            result.events = list(self.events)
 
     @classmethod
     def run_refusal(cls, driver: DriverDescription) -> ConfigError | None:
@@ -507,7 +531,7 @@ class AdapterBase:
         if then is not None:
             text += f" (then: {then})"
         error = cls(text)
-        error.event = event  # the run's first cause, for _first_cause()
+        error.event = event  # the run's first cause, for first_cause()
         return error
 
     def _fault_text(self, event: dict) -> str:
@@ -521,7 +545,7 @@ class AdapterBase:
         """A transport exception that means the device or its line failed, as a DeviceError (hook)."""
         return exc
 
-    def _first_cause(self, exc: BaseException) -> BaseException:
+    def first_cause(self, exc: BaseException) -> BaseException:
         """The error a run that raised ``exc`` ends with: the first fault the device reported, else ``exc``.
 
         A lost line or a refused request is often only the consequence of a
