@@ -23,7 +23,7 @@ from hilident.errors import HilidentError
 def _run(args) -> int:
     from dataclasses import replace
 
-    from hilident.config.tables import load_config
+    from hilident.config.tables import load_config, node_ids
 
     cfg = load_config(args.config)
     from hilident.progress import Progress  # after the config: its error comes without the session's imports
@@ -32,6 +32,8 @@ def _run(args) -> int:
     if args.clear_fault:
         cfg = replace(cfg, device=replace(cfg.device, allow_fault_reset=True))
     out = _out_folder(args.out, Path(args.config).stem, args.overwrite or args.dry_run)  # a dry run writes nothing
+    if len(node_ids(cfg.device)) > 1:
+        return _run_nodes(args, cfg, out)
     session = Session(
         cfg,
         out,
@@ -48,6 +50,35 @@ def _run(args) -> int:
         print("dry run: device reached and checked; nothing moved")
         return 0
     _print_run_summary(summary, args.quiet)
+    print(f"wrote {out / 'summary.json'}")
+    _print_report(out)
+    return 0
+
+
+def _run_nodes(args, cfg, out: Path) -> int:
+    """``hilident run`` on several nodes of one CANopen bus: all excited at once, their modes together."""
+    from hilident.progress import Progress
+    from hilident.session.nodes_run import NodesSession
+
+    session = NodesSession(
+        cfg,
+        out,
+        Progress(enabled=not args.quiet),
+        confirm=_go_ahead(args.yes),
+        dry_run=args.dry_run,
+        plots=not args.no_plots,
+    )
+    summary = session.run()
+    if args.dry_run:
+        if session.plan is not None:
+            print(session.plan.describe())
+        print("dry run: device reached and checked; nothing moved")
+        return 0
+    modes = (summary.get("mimo") or {}).get("modes") or []
+    found = ", ".join(f"{m['frequency_hz']:.2f} Hz (zeta {m['damping_ratio']:.3f})" for m in modes)
+    print(f"modes of all nodes: {found or 'none found'}")
+    for warning in summary["warnings"]:
+        print(f"warning: {warning}")
     print(f"wrote {out / 'summary.json'}")
     _print_report(out)
     return 0

@@ -10,9 +10,8 @@ from hilident import endings
 from hilident.adapters.backends import adapter_class
 from hilident.config.tables import Config, node_ids
 from hilident.drivers.description import DriverDescription, find_driver
-from hilident.errors import ConfigError
 from hilident.progress import Progress
-from hilident.session.devicelock import DeviceLock, device_key
+from hilident.session.devicelock import DeviceLock, DeviceLocks, device_key
 
 if TYPE_CHECKING:
     from hilident.adapters.base import DeviceAdapter
@@ -26,7 +25,7 @@ class ConnectedDevice:
     driver: DriverDescription
     adapter: DeviceAdapter
     emulator: Any = None
-    lock: DeviceLock | None = None
+    lock: DeviceLock | DeviceLocks | None = None
 
     def safe_stop(self) -> None:
         """Command the axis safe now (first thing on every ending). Never raises."""
@@ -56,7 +55,7 @@ def connect_device(cfg: Config, driver: DriverDescription, progress: Progress) -
     allowed). The lock and the emulator are released again when opening fails.
     """
     cls = adapter_class(driver.transport)
-    _one_node(cfg, driver)
+    nodes = node_ids(cfg.device) if driver.transport == "canopen" else [cfg.device.canopen.node_id]
     device, link, emulator, lock = cfg.device, None, None, None
     if cfg.uses_emulator:
         from hilident.emulator.factory import start_emulator
@@ -65,19 +64,28 @@ def connect_device(cfg: Config, driver: DriverDescription, progress: Progress) -
         device, link = emulator.device, emulator.link
     else:
         d = cfg.device
-        lock = DeviceLock(
-            device_key(
-                driver.transport,
-                d.port,
-                node_id=d.canopen.node_id,
-                device_id=d.modbus.device_id,
-                can_interface=d.canopen.can_interface,
-            )
+        lock = DeviceLocks(
+            [
+                device_key(
+                    driver.transport,
+                    d.port,
+                    node_id=node,
+                    device_id=d.modbus.device_id,
+                    can_interface=d.canopen.can_interface,
+                )
+                for node in nodes
+            ]
         ).acquire()
         if lock.recovered_from:
             progress.step(f"device lock of pid {lock.recovered_from} recovered (that session died)")
+    adapter: Any  # a NodeGroup stands for the adapter where it records (hilident.session.nodes_run)
     try:
-        adapter = cls.open_device(device, driver, link=link)
+        if len(nodes) > 1:
+            from hilident.adapters.canopen.group import NodeGroup
+
+            adapter = NodeGroup.open(device, driver)
+        else:
+            adapter = cls.open_device(device, driver, link=link)
     except BaseException:
         with endings.shielded():
             _release(emulator, lock)
@@ -85,21 +93,7 @@ def connect_device(cfg: Config, driver: DriverDescription, progress: Progress) -
     return ConnectedDevice(driver, adapter, emulator, lock)
 
 
-def _one_node(cfg: Config, driver: DriverDescription) -> None:
-    """A session drives one node: several ``[device.canopen] node_ids`` are refused before anything starts,
-    rather than the first driven and the others left alone."""
-    nodes = node_ids(cfg.device)
-    if driver.transport == "canopen" and len(nodes) > 1:
-        raise ConfigError(
-            "device.canopen.node_ids",
-            f"names {len(nodes)} nodes {nodes}: a session drives one node yet (the twin of several nodes on "
-            "one mechanism runs standalone, `hilident emulate canopen --config`, for a host of your own); "
-            "keep node_id alone for a session",
-            cfg.source,
-        )
-
-
-def _release(emulator, lock: DeviceLock | None) -> None:
+def _release(emulator, lock: DeviceLock | DeviceLocks | None) -> None:
     """Stop an emulator and release a lock of a device that did not open."""
     try:
         if emulator is not None:
@@ -161,7 +155,7 @@ class DeviceConnection:
         return self.device.emulator if self.device is not None else None
 
     @property
-    def lock(self) -> DeviceLock | None:
+    def lock(self) -> DeviceLock | DeviceLocks | None:
         """The device lock (None for the emulator, or before :meth:`open_device`)."""
         return self.device.lock if self.device is not None else None
 

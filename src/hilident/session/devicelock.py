@@ -136,3 +136,28 @@ def _read_pid(fd: int) -> int | None:
         return int(text) if text else None
     except (OSError, ValueError):
         return None
+
+
+class DeviceLocks:
+    """The locks of several devices a session drives together (the nodes of one CANopen bus), taken in order
+    and released together; a lock that cannot be taken releases the ones taken before it."""
+
+    def __init__(self, keys: list[str], folder: Path | None = None):
+        self.locks = [DeviceLock(key, folder) for key in keys]
+        self.recovered_from: int | None = None  # pid of a dead holder of one of the locks
+
+    def acquire(self) -> DeviceLocks:
+        """Take every lock, or raise the :class:`DeviceError` of the first one held elsewhere."""
+        try:
+            for lock in self.locks:
+                lock.acquire()
+                self.recovered_from = self.recovered_from or lock.recovered_from
+        except BaseException:
+            self.release()
+            raise
+        return self
+
+    def release(self) -> None:
+        """Every lock released. Never raises."""
+        for lock in self.locks:
+            lock.release()

@@ -267,6 +267,7 @@ class StreamedRun(RunStrategy):
         self.top = -1  # the newest sample heard
         self.heard_s = 0.0  # when the newest sample arrived (the start until one did), perf_counter s
         self.owns_clock = True  # False for a node of a group whose SYNC another node's run starts and stops
+        self.cycle_members: list[StreamedRun] = [self]  # host clock: the runs whose set-points share each SYNC
         self._pack = self.rpdo_packer()
 
     # --- receiving ---------------------------------------------------------------------------------
@@ -592,10 +593,13 @@ class StreamedRun(RunStrategy):
         k = self.due_cycle(now)
         if k is None:
             return
-        self.before_sync(k)
+        for member in self.cycle_members:
+            member.before_sync(k)
         overflow = self.ad.sync_overflow
         self.ad.network.send_message(0x80, bytes([(self.syncs + self.tail) % overflow + 1]) if overflow > 1 else b"")
-        self.after_sync(k, time.perf_counter())
+        sent_s = time.perf_counter()
+        for member in self.cycle_members:
+            member.after_sync(k, sent_s)
 
     def due_cycle(self, now: float) -> int | None:
         """Host clock: the cycle whose instant passed last, if its SYNC is due now (within the host's window, not

@@ -1,0 +1,230 @@
+"""``hilident run`` on several drives of one CANopen bus (``[device.canopen] node_ids``): every node excited at
+once, one SYNC, one recording, the modes from all of them.
+
+Each node plays its own column of a zippered multisine (:func:`hilident.ident.mimo.zippered_multisine`: every
+node owns every ``n``-th line of the band, so at its lines the responses are that node's alone); the nodes are
+armed together before the first SYNC and switched off together on every ending
+(:class:`~hilident.adapters.canopen.group.NodeGroup`). The recording holds every node's channels, named
+``<channel>_node<id>``; the identification reads every node's torque as an input and every node's
+``[identification] output`` (and ``outputs``, where recorded) as outputs, all at once
+(:func:`hilident.pipeline.mimo_identify.identify_channels`): the frequency-response matrix, the modes with their
+intervals, shapes over the outputs and participation from each drive, the stabilisation diagram. A set-point a
+node held for a late host (counted, ``setpoints_skipped``) leaks a little of its input onto the other nodes'
+lines; the record is then read as the recorded torques are (the multi-input H1 estimate, which needs no
+zipper), not as the zipper was designed.
+
+What a run of one node does beyond that (friction test, notch design and upload, verification) is not done for
+several nodes; the summary says so.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from hilident import endings, html_report
+from hilident.config.tables import Config, node_ids
+from hilident.errors import ArmingRefused, ConfigError
+from hilident.io.serialise import write_json
+from hilident.io.summary import DevicePart, ExcitationPart, Summary, UploadOutcome
+from hilident.plots.common import plot_title
+from hilident.plots.stabilisation import STABILISATION_PNG, plot_stabilisation
+from hilident.progress import Progress
+from hilident.session.connection import DeviceConnection
+from hilident.session.experiment import ExperimentRecorder
+from hilident.session.plan import PlannedExperiment, RunPlan
+from hilident.signals.excitation import Excitation
+
+__all__ = ["NodesSession", "nodes_excitation"]
+
+#: The one thing a run of several nodes does not do that a run of one node does, as the summary says it.
+NOT_DONE = (
+    "several nodes ([device.canopen] node_ids): the modes of all drives at once; no friction test, notch design, "
+    "upload or verification (a run of one node does those)"
+)
+
+
+def nodes_excitation(cfg: Config, n_nodes: int) -> Excitation:
+    """Every node's column of one zippered multisine of ``[excitation]`` (peak ``amplitude_nm`` each).
+
+    Whole periods of ``period_s`` filling ``duration_s``, at least three (the first is the lead-in the
+    analysis skips).
+
+    Raises
+    ------
+    ConfigError
+        ``excitation.kind`` is not ``multisine``, ``excitation.mode`` not ``torque``, or ``amplitude_nm`` is
+        ``"auto"``: the key and the file are named.
+    """
+    from hilident.ident.mimo import zippered_multisine
+
+    e, fs = cfg.excitation, cfg.run.sample_rate_hz
+    if e.kind != "multisine":
+        raise ConfigError(
+            "excitation.kind", f"is {e.kind!r}: several nodes are excited at once by a zippered multisine", cfg.source
+        )
+    if e.mode != "torque":
+        raise ConfigError("excitation.mode", f"is {e.mode!r}: several nodes are excited in torque", cfg.source)
+    if e.amplitude_auto:
+        raise ConfigError("excitation.amplitude_nm", "is 'auto': give several nodes a number, N*m", cfg.source)
+    period = int(round(e.period_s * fs))
+    periods = max(3, int(e.duration_s // e.period_s))
+    one, lines = zippered_multisine(n_nodes, period, fs, (e.f_min_hz, e.f_max_hz), seed=cfg.run.seed or 0)
+    one = one / np.max(np.abs(one), axis=0) * float(e.amplitude)
+    return Excitation(np.tile(one, (periods, 1)), period, (e.f_min_hz, e.f_max_hz), np.sort(np.concatenate(lines)))
+
+
+class NodesSession(DeviceConnection):
+    """A bench run of every node of ``[device.canopen] node_ids`` at once.
+
+    Parameters
+    ----------
+    cfg : Config
+    out_dir : path
+        Where the recording, the plots and ``summary.json`` go.
+    progress : Progress, optional
+    confirm : callable, optional
+        ``confirm(plan) -> bool``: the user's go-ahead on a real bus (the emulator needs none).
+    dry_run : bool
+        Connect, check and plan; move nothing.
+    plots : bool
+    """
+
+    def __init__(
+        self,
+        cfg: Config,
+        out_dir: str | Path,
+        progress: Progress | None = None,
+        confirm: Callable[[RunPlan], bool] | None = None,
+        dry_run: bool = False,
+        plots: bool = True,
+    ):
+        cfg.bench_limits  # noqa: B018 - the ConfigError of a config without [limits] before anything starts
+        self.cfg = cfg
+        self.out = Path(out_dir)
+        self.progress = progress or Progress(enabled=False)
+        self.confirm = confirm
+        self.dry_run = dry_run
+        self.plots = plots
+        self.warnings: list[str] = []
+        self.plan: RunPlan | None = None
+        self.plan_identity = None  # the drives' identity, read when they were opened
+        self.summary: dict = {}
+
+    def run(self) -> dict:
+        """Connect every node, play the excitation on all at once, identify; the summary (also written)."""
+        cfg = self.cfg
+        nodes = node_ids(cfg.device)
+        excitation = nodes_excitation(cfg, len(nodes))
+        started = time.monotonic()
+        try:
+            device = self.open_device()
+            lim = cfg.bench_limits
+            self.adapter.set_limits(lim.torque_nm, lim.velocity_mps, lim.position_min_m, lim.position_max_m)
+            self.plan = self._plan(excitation)
+            self.plan_identity = self.adapter.identity
+            if self.dry_run:
+                return {"dry_run": True, "plan": self.plan.to_dict()}
+            if not cfg.uses_emulator and (self.confirm is None or not self.confirm(self.plan)):
+                raise ArmingRefused("the run was not confirmed; nothing moved")
+            self.out.mkdir(parents=True, exist_ok=True)
+            recorder = ExperimentRecorder(device, self.out, self.progress, self.warnings)
+            exp = recorder.record(
+                cfg, "identification", "torque", excitation.samples, period_samples=excitation.period_samples
+            )
+        except BaseException:
+            with endings.shielded():
+                self.safe_stop()
+            raise
+        finally:
+            with endings.shielded():
+                self.close()
+        endings.raise_pending()
+        mimo, response = self._identify(exp.samples, nodes, excitation)
+        summary = Summary.of_run(
+            config=cfg.source,
+            device=DevicePart.reported(cfg.device.driver, self.plan.port, cfg.uses_emulator, self.plan_identity),
+            sample_rate_hz=cfg.run.sample_rate_hz,
+            excitation=ExcitationPart.of(cfg.excitation, None),
+            plant=None,
+            friction=None,
+            designs=[],
+            upload=UploadOutcome(),
+            verification=None,
+            stream=recorder.totals,
+            connect=None,
+            filters_found=[],
+            clock=recorder.clocks,
+            recordings=[exp.path.name],
+            elapsed_s=time.monotonic() - started,
+            warnings=self.warnings + mimo["warnings"],
+            notes=[NOT_DONE, *recorder.notes],
+            mimo=mimo,
+        )
+        self.summary = summary.to_dict()
+        write_json(self.out / "summary.json", self.summary)
+        if self.plots:
+            self._plot(response)
+        html_report.write_report_quietly(self.out)
+        return self.summary
+
+    def _plan(self, excitation: Excitation) -> RunPlan:
+        """What the run will do, for the go-ahead and ``--dry-run``."""
+        cfg, group = self.cfg, self.adapter
+        fs = cfg.run.sample_rate_hz
+        e, lim = cfg.excitation, cfg.bench_limits
+        peak = float(np.max(np.abs(excitation.samples)))
+        return RunPlan(
+            device=group.identity.name,
+            port=group.port,
+            limits=dataclasses.asdict(lim),
+            experiments=[
+                PlannedExperiment(
+                    name="identification",
+                    description=f"zippered multisine {e.f_min_hz:g}-{e.f_max_hz:g} Hz on nodes "
+                    + ", ".join(map(str, group.node_ids)),
+                    mode="torque",
+                    duration_s=len(excitation.samples) / fs,
+                    samples=len(excitation.samples),
+                    peak_torque_nm=peak,
+                    peak_speed_mps=None,
+                    travel_m=None,
+                )
+            ],
+        )
+
+    def _identify(self, samples: dict[str, np.ndarray], nodes: list[int], excitation: Excitation):
+        """Every node's torque against every node's outputs, at once; the ``mimo`` part and the response."""
+        from hilident.adapters.canopen.group import node_channel
+        from hilident.pipeline.mimo_identify import identify_channels
+
+        ic = self.cfg.identification
+        inputs = [node_channel("torque_nm", n) for n in nodes]
+        wanted = [ic.output, *ic.outputs]
+        outputs = [node_channel(name, n) for name in wanted for n in nodes if node_channel(name, n) in samples]
+        missing = [name for name in wanted if not any(node_channel(name, n) in samples for n in nodes)]
+        if missing:
+            self.warnings.append(
+                f"identification.outputs: {', '.join(missing)} not recorded on any node (run.channels): left out"
+            )
+        data = dataclasses.replace(self.cfg.data, inputs=inputs, outputs=outputs, input_scales=[], output_scales=[])
+        cfg = dataclasses.replace(self.cfg, data=data)
+        u = np.column_stack([samples[c] for c in inputs])
+        y = np.column_stack([samples[c] for c in outputs])
+        return identify_channels(u, y, self.cfg.run.sample_rate_hz, cfg, "identification.h5", excitation.period_samples)
+
+    def _plot(self, response) -> None:
+        """The stabilisation diagram of the modes, on the response's first singular value."""
+        if not (self.summary.get("mimo") or {}).get("stabilisation"):
+            return
+        plot_stabilisation(
+            self.out / STABILISATION_PNG,
+            self.summary["mimo"],
+            response.frequency_hz,
+            response.response,
+            title=plot_title(Path(self.cfg.source).name, what="Stabilisation, every node"),
+        )
