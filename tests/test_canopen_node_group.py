@@ -53,7 +53,9 @@ def test_both_nodes_open_on_one_bus_enable_and_stop_together(twin):
         assert all(a.connect_report.device_net.startswith("heartbeat consumer") for a in group.adapters)
         assert group.states() == {1: "Switch On Disabled", 2: "Switch On Disabled"}  # the known state at connect
         group.set_limits(19.0, 0.4, -0.6, 0.6)
-        assert all(len(c) > 3 for c in group.configure(1000.0, "torque"))
+        names = group.configure(1000.0, "torque")
+        assert {"torque_nm_node1", "position_m_node1", "torque_nm_node2", "position_m_node2"} <= set(names)
+        assert len(group.channel_units) == len(names)
         group.enable()
         assert group.states() == {1: "Operation Enabled", 2: "Operation Enabled"}
         assert all(d.enabled for d in emulated.drives)

@@ -21,6 +21,7 @@ import json
 import signal
 import subprocess
 import time
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -225,3 +226,39 @@ def test_nohup_keeps_sighup_ignored(tmp_path):
     )
     assert "still running after SIGHUP" in done.stdout
     assert done.returncode == 143, done.stderr
+
+
+def test_sigterm_stops_both_drives_of_one_bus(tmp_path):
+    """The ending matrix's row of two drives on one CANopen bus (socketcand): SIGTERM switches both off together."""
+    import tomli_w
+
+    from hilident.config.tables import parse_config
+    from hilident.drivers.description import find_driver
+    from hilident.emulator.factory import host_device_table, start_standalone
+    from test_nodes_run import CONFIG
+
+    cfg = parse_config(CONFIG.replace("duration_s = 16.0", "duration_s = 40.0"), "two-drives.toml")
+    emu = start_standalone(cfg.emulator, find_driver(cfg.device.driver), cfg.device, "socketcand")
+    try:
+        raw = tomllib.loads(CONFIG.replace("duration_s = 16.0", "duration_s = 40.0"))
+        raw["device"] = host_device_table(emu.device) | {"host_timeout_s": HOST_TIMEOUT_S}
+        config = tmp_path / "two-drives.toml"
+        config.write_text(tomli_w.dumps(raw))
+        out = tmp_path / "first"
+        proc = host(config, out)
+        wait_until(lambda: all(d.enabled for d in emu.drives), 60, proc)
+        time.sleep(0.8)  # samples flowing for longer than a flush interval
+        sent = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        stops = [wait_until(lambda d=d: not d.enabled, 5) for d in emu.drives]
+        rc, err = finish(proc)
+        assert rc == EXIT["sigterm"], err
+        assert "Traceback" not in err
+        assert not any(d.enabled for d in emu.drives)
+        assert max(stops) - sent < 2.0  # as the matrix: bench/stop_latency.py measures the host's stop
+        assert max(stops) - min(stops) < 0.1, stops  # together: the second node is not left running
+        run = read_run(out / "identification.h5")
+        assert run.status == "aborted" and "interrupted" in run.reason and run.n_samples > 0
+        assert {"torque_nm_node1", "torque_nm_node2"} <= set(run.samples)
+    finally:
+        emu.close()

@@ -1,5 +1,6 @@
-"""A session drives one CANopen node: a config naming several (`[device.canopen] node_ids`) is refused at connect,
-naming the key, before any twin or bus starts, rather than the first node driven and the others left alone."""
+"""`hilident run` on a config naming several CANopen nodes (`[device.canopen] node_ids`) takes the run of several
+nodes (:mod:`hilident.session.nodes_run`): what it cannot do for several nodes is refused naming the key and the
+file, before any twin or bus starts."""
 
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ sensors = [2, 2]
 """
 
 
-def test_a_run_on_several_nodes_is_refused_naming_the_key_and_starts_nothing(tmp_path, capsys):
+def test_an_automatic_amplitude_on_several_nodes_is_refused_naming_the_key_and_starts_nothing(tmp_path, capsys):
     text = (
         (CONFIGS / "emulated-canopen-gantry.toml").read_text().replace("node_id = 1", "node_id = 1\nnode_ids = [1, 2]")
     )
@@ -28,5 +29,5 @@ def test_a_run_on_several_nodes_is_refused_naming_the_key_and_starts_nothing(tmp
     code = main(["run", str(config), "--out", str(out), "--yes"])
     err = capsys.readouterr().err
     assert code == 2, err
-    assert "device.canopen.node_ids" in err and "two.toml" in err and "one node" in err
+    assert "excitation.amplitude_nm" in err and "two.toml" in err and "several nodes" in err
     assert not list(out.glob("*.h5"))  # nothing recorded: nothing moved

@@ -1,0 +1,99 @@
+"""``hilident run`` on two drives of one CANopen bus ([device.canopen] node_ids): both excited at once by a
+zippered multisine, one SYNC, one recording, and the modes of the coupled mechanism from both at once, against the
+twin's exact modes and shapes (:func:`hilident.emulator.coupled_plant.coupled_modes`, ``mode_shapes``)."""
+
+from __future__ import annotations
+
+import jsonschema
+import numpy as np
+import pytest
+
+from hilident.config.tables import parse_config
+from hilident.emulator.coupled_plant import coupled_modes, mode_shapes
+from hilident.emulator.device import mechanism_model
+from hilident.errors import ConfigError
+from hilident.io.recording import read_run
+from hilident.schemas import summary_schema
+from hilident.session.nodes_run import NodesSession
+
+pytestmark = pytest.mark.twin
+
+#: Two motors on the ends of a beam carrying a load: two modes, 19.7 and 33.7 Hz, each seen by both motors.
+CONFIG = """
+[device]
+driver = "canopen-servo"
+[device.canopen]
+node_ids = [1, 2]
+[emulator]
+preset = "clean"
+[emulator.mechanism]
+masses_kg = [20.0, 16.0, 10.0]
+links = [[0, 2, 2.0e5, 150.0], [1, 2, 1.5e5, 120.0], [0, 1, 5.0e4, 30.0]]
+motors = [[0, 10.0], [1, 10.0]]
+sensors = [2, 2]
+[limits]
+torque_nm = 19.0
+velocity_mps = 0.5
+position_min_m = -0.6
+position_max_m = 0.6
+[excitation]
+kind = "multisine"
+mode = "torque"
+amplitude_nm = 3.0
+f_min_hz = 2.0
+f_max_hz = 200.0
+period_s = 4.0
+duration_s = 16.0
+[identification]
+output = "position_m"
+"""
+
+
+def _mac(a: np.ndarray, b: np.ndarray) -> float:
+    return float(abs(np.vdot(a, b)) ** 2 / (np.vdot(a, a).real * np.vdot(b, b).real))
+
+
+@pytest.fixture(scope="module")
+def two_drive_run(tmp_path_factory):
+    cfg = parse_config(CONFIG, "two-drives.toml")
+    out = tmp_path_factory.mktemp("two-drives")
+    summary = NodesSession(cfg, out, plots=False).run()
+    return cfg, out, summary
+
+
+def test_every_mode_of_the_mechanism_within_half_a_percent_damping_15_percent_shapes_mac_95(two_drive_run):
+    cfg, _, summary = two_drive_run
+    model = mechanism_model(cfg.emulator)
+    truth = coupled_modes(model)
+    shapes = mode_shapes(model, "motor")  # each port's motor mass: what each node's position_m measures
+    found = summary["mimo"]["modes"]
+    assert len(found) == len(truth), found
+    for (f_true, z_true), shape, mode in zip(truth, shapes, found, strict=True):
+        assert abs(mode["frequency_hz"] - f_true) / f_true < 0.005, (mode["frequency_hz"], f_true)
+        assert abs(mode["damping_ratio"] - z_true) / z_true < 0.15, (mode["damping_ratio"], z_true)
+        measured = np.array(mode["shape_magnitude"]) * np.exp(1j * np.radians(mode["shape_phase_deg"]))
+        assert _mac(measured, shape) >= 0.95, (mode["shape"], shape)
+
+
+def test_the_run_records_every_node_on_one_clock_and_its_summary_is_valid(two_drive_run):
+    _, out, summary = two_drive_run
+    jsonschema.validate(summary, summary_schema())
+    run = read_run(out / "identification.h5")
+    assert run.status == "complete"
+    for node in (1, 2):
+        assert {f"torque_nm_node{node}", f"position_m_node{node}"} <= set(run.samples)
+    # both nodes were driven: each one's torque follows its own column of the zipper
+    t1, t2 = run.samples["torque_nm_node1"], run.samples["torque_nm_node2"]
+    assert np.std(t1) > 0.5 and np.std(t2) > 0.5 and abs(np.corrcoef(t1, t2)[0, 1]) < 0.2
+    assert summary["stream"]["samples"] == run.n_samples > 0.99 * 16_000  # a joint row per sample, none filled
+    assert summary["clock"][0]["nodes"] == [1, 2]
+    assert summary["mimo"]["inputs"] == [
+        {"column": "torque_nm_node1", "scale": 1.0},
+        {"column": "torque_nm_node2", "scale": 1.0},
+    ]
+
+
+def test_several_nodes_need_a_multisine_in_torque():
+    cfg = parse_config(CONFIG.replace('kind = "multisine"', 'kind = "chirp"'), "two-drives.toml")
+    with pytest.raises(ConfigError, match=r"excitation\.kind.*two-drives\.toml|two-drives\.toml.*excitation\.kind"):
+        NodesSession(cfg, "unused", plots=False).run()
