@@ -8,13 +8,15 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 
+import numpy as np
 import pytest
 
 from hilident.adapters.canopen.group import NodeGroup
 from hilident.config.tables import parse_config
 from hilident.drivers.description import find_driver
 from hilident.emulator.factory import start_emulator
-from hilident.errors import DeviceError
+from hilident.errors import DeviceError, LimitTrip
+from hilident.ident.mimo import zippered_multisine
 
 pytestmark = pytest.mark.twin
 
@@ -82,5 +84,58 @@ def test_a_node_that_is_not_on_the_bus_closes_the_ones_opened_and_names_itself(t
     group = NodeGroup.open(emulated.device, driver)
     try:
         assert group.states() == {1: "Switch On Disabled", 2: "Switch On Disabled"}
+    finally:
+        group.close()
+
+
+def _zipper(seconds: float, rms: float = 1.0) -> np.ndarray:
+    one, _ = zippered_multisine(2, 1000, 1000.0, (2.0, 100.0), rms=rms, seed=3)
+    return np.tile(one, (int(seconds), 1))
+
+
+@pytest.mark.parametrize("source", ["host", "drive"])
+def test_one_run_plays_each_node_its_column_on_one_sync_and_delivers_joint_rows(twin, source):
+    emulated, driver = twin
+    device = replace(emulated.device, canopen=replace(emulated.device.canopen, sync_source=source))
+    group = NodeGroup.open(device, driver)
+    try:
+        group.set_limits(19.0, 0.4, -0.6, 0.6)
+        names = group.configure(1000.0, "torque")
+        x = _zipper(2.0)
+        blocks = []
+        result = group.stream(x, lambda index, rows: blocks.append((index, rows)))
+        index = np.concatenate([i for i, _ in blocks])
+        rows = np.concatenate([r for _, r in blocks])
+    finally:
+        group.close()
+    assert result.completed and result.clock["source"] == source and result.clock["nodes"] == [1, 2]
+    assert np.array_equal(index, np.unique(index)) and result.stats.samples == len(index)
+    assert len(index) + result.stats.lost_samples == len(x) or result.clock["setpoints_skipped"]
+    assert len(index) >= 0.98 * len(x)
+    # the set-point each node reports it applied is its own column's, but where the host was late and the node
+    # held the one before (each such set-point counted)
+    held = sum(
+        int(np.count_nonzero(np.abs(rows[:, names.index(f"excitation_node{node}")] - x[index, column]) > 1e-3))
+        for node, column in ((1, 0), (2, 1))
+    )
+    assert held <= result.stats.setpoints_skipped + 4, (held, result.stats)
+    assert not any(d.enabled for d in emulated.drives)
+
+
+def test_a_fault_on_one_node_switches_every_node_off_and_names_it(twin):
+    emulated, driver = twin
+    group = NodeGroup.open(emulated.device, driver)
+    try:
+        group.set_limits(19.0, 0.4, -0.6, 0.6)
+        group.configure(1000.0, "torque")
+        x = _zipper(4.0)
+        x[:, 1] += np.linspace(0.0, 60.0, len(x))  # node 2 pushes the gantry along until a speed limit trips
+        with pytest.raises(LimitTrip, match=r"node [12]: velocity_limit") as caught:
+            group.stream(x, lambda index, rows: None)
+        assert group.last_result is not None and not group.last_result.completed
+        assert group.last_result.stats.samples < len(x)
+        assert not any(d.enabled for d in emulated.drives), str(caught.value)
+        tripped = str(caught.value).split(" node ", 1)[1][0]  # the node whose limit tripped, named in the error
+        assert any(e["message"].startswith(f"node {tripped}: ") for e in group.events)
     finally:
         group.close()

@@ -670,8 +670,7 @@ class StreamedRun(RunStrategy):
         self.heard_s = time.perf_counter()  # when the newest sample so far arrived (the start: none yet)
 
     def start_host_clock(self, target: Callable[[], None]) -> None:
-        """Host clock: cycle 0 is now; ``target`` sends the SYNCs from a thread that does nothing else."""
-        self.t0 = time.perf_counter()
+        """Host clock: ``target`` sends the SYNCs from a thread that does nothing else (cycle 0 when it begins)."""
         self.sender = threading.Thread(target=target, name="hilident-sync", daemon=True)
         self.sender.start()
 
@@ -744,7 +743,14 @@ class StreamedRun(RunStrategy):
         last ``_SPIN_S`` (a sleep overshoots by tens of µs); the receiving,
         matching and recording stay in the run's thread. It stops when the run
         ends or the drive faults.
+
+        Cycle 0 is the instant the thread begins, never earlier: its SYNC is
+        the drive's first, and the drive counts its cycles from it (its
+        sample counter, and its own clock through SYNCs that do not come). A
+        cycle 0 set before a thread that started late would be skipped, and
+        every sample of the run named one cycle early.
         """
+        self.t0 = time.perf_counter()
         try:
             while not self.clock_stop.is_set():
                 instant = self.t0 + self.next_cycle * self.period
