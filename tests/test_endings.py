@@ -228,8 +228,9 @@ def test_nohup_keeps_sighup_ignored(tmp_path):
     assert done.returncode == 143, done.stderr
 
 
-def test_sigterm_stops_both_drives_of_one_bus(tmp_path):
-    """The ending matrix's row of two drives on one CANopen bus (socketcand): SIGTERM switches both off together."""
+@pytest.fixture
+def two_drives(tmp_path):
+    """Two drives of one gantry on one CANopen bus behind socketcand, and a host config that runs them both."""
     import tomli_w
 
     from hilident.config.tables import parse_config
@@ -237,28 +238,51 @@ def test_sigterm_stops_both_drives_of_one_bus(tmp_path):
     from hilident.emulator.factory import host_device_table, start_standalone
     from test_nodes_run import CONFIG
 
-    cfg = parse_config(CONFIG.replace("duration_s = 16.0", "duration_s = 40.0"), "two-drives.toml")
+    text = CONFIG.replace("duration_s = 16.0", "duration_s = 40.0")
+    cfg = parse_config(text, "two-drives.toml")
     emu = start_standalone(cfg.emulator, find_driver(cfg.device.driver), cfg.device, "socketcand")
-    try:
-        raw = tomllib.loads(CONFIG.replace("duration_s = 16.0", "duration_s = 40.0"))
-        raw["device"] = host_device_table(emu.device) | {"host_timeout_s": HOST_TIMEOUT_S}
-        config = tmp_path / "two-drives.toml"
-        config.write_text(tomli_w.dumps(raw))
-        out = tmp_path / "first"
-        proc = host(config, out)
-        wait_until(lambda: all(d.enabled for d in emu.drives), 60, proc)
-        time.sleep(0.8)  # samples flowing for longer than a flush interval
-        sent = time.monotonic()
-        proc.send_signal(signal.SIGTERM)
-        stops = [wait_until(lambda d=d: not d.enabled, 5) for d in emu.drives]
-        rc, err = finish(proc)
-        assert rc == EXIT["sigterm"], err
-        assert "Traceback" not in err
-        assert not any(d.enabled for d in emu.drives)
-        assert max(stops) - sent < 2.0  # as the matrix: bench/stop_latency.py measures the host's stop
-        assert max(stops) - min(stops) < 0.1, stops  # together: the second node is not left running
-        run = read_run(out / "identification.h5")
-        assert run.status == "aborted" and "interrupted" in run.reason and run.n_samples > 0
-        assert {"torque_nm_node1", "torque_nm_node2"} <= set(run.samples)
-    finally:
-        emu.close()
+    raw = tomllib.loads(text)
+    raw["device"] = host_device_table(emu.device) | {"host_timeout_s": HOST_TIMEOUT_S}
+    config = tmp_path / "two-drives.toml"
+    config.write_text(tomli_w.dumps(raw))
+    yield emu, config
+    emu.close()
+
+
+def _two_drive_host(two_drives, tmp_path):
+    emu, config = two_drives
+    out = tmp_path / "first"
+    proc = host(config, out)
+    wait_until(lambda: all(d.enabled for d in emu.drives), 60, proc)
+    time.sleep(0.8)  # samples flowing for longer than a flush interval
+    return emu, proc, out
+
+
+def test_sigterm_stops_both_drives_of_one_bus(two_drives, tmp_path):
+    """The ending matrix's row of two drives on one CANopen bus (socketcand): SIGTERM switches both off together."""
+    emu, proc, out = _two_drive_host(two_drives, tmp_path)
+    sent = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    stops = [wait_until(lambda d=d: not d.enabled, 5) for d in emu.drives]
+    rc, err = finish(proc)
+    assert rc == EXIT["sigterm"], err
+    assert "Traceback" not in err
+    assert not any(d.enabled for d in emu.drives)
+    assert max(stops) - sent < 2.0  # as the matrix: bench/stop_latency.py measures the host's stop
+    assert max(stops) - min(stops) < 0.1, stops  # together: the second node is not left running
+    run = read_run(out / "identification.h5")
+    assert run.status == "aborted" and "interrupted" in run.reason and run.n_samples > 0
+    assert {"torque_nm_node1", "torque_nm_node2"} <= set(run.samples)
+
+
+def test_sigkill_both_drives_of_one_bus_stop_themselves(two_drives, tmp_path):
+    """The host killed: each drive's heartbeat consumer switches it off, both within the timeout."""
+    emu, proc, out = _two_drive_host(two_drives, tmp_path)
+    proc.kill()
+    killed = time.monotonic()
+    stops = [wait_until(lambda d=d: not d.enabled, 10) for d in emu.drives]
+    rc, _ = finish(proc)
+    assert rc == EXIT["sigkill"]
+    assert max(stops) - killed < NET_TIMEOUT_S["canopen"] + TOLERANCE_S
+    run = read_run(out / "identification.h5")
+    assert run.status == "running" and run.n_samples > 0  # a crashed file: readable, and says so
