@@ -34,7 +34,7 @@ from hilident.ident.mimo import (
 )
 from hilident.ident.mimo.modal import ModalResult, lsfd, merge_split_modes, modal_intervals
 
-__all__ = ["identify_channels", "mode_indicator_peaks"]
+__all__ = ["Groups", "identify_channels", "mode_indicator_peaks"]
 
 #: Fewest Welch segments averaged per input: fewer leave the multiple coherence and the spread meaningless.
 MIN_AVERAGES_PER_INPUT = 4

@@ -24,9 +24,9 @@ from hilident.ident.frequency import FrequencyResponse
 from hilident.ident.frfquality import frf_uncertainty
 from hilident.ident.mimo import MimoResponse
 from hilident.ident.resonance import Resonance
+from hilident.pipeline.mimo_identify import Groups, mode_indicator_peaks
 from hilident.pipeline.mimo_identify import _median as median
 from hilident.pipeline.mimo_identify import _modal_part as modal_part
-from hilident.pipeline.mimo_identify import mode_indicator_peaks
 
 __all__ = ["JointModes", "SEEN_FRACTION", "joint_output_modes", "notch_resonances"]
 
@@ -107,6 +107,7 @@ def joint_output_modes(
     responses: dict[str, FrequencyResponse],
     band_hz: tuple[float, float],
     units: dict[str, str] | None = None,
+    groups: list[dict[str, FrequencyResponse]] | None = None,
 ) -> JointModes | None:
     """The modes of the outputs ``responses`` (name to net-torque response, the plant's output first).
 
@@ -118,6 +119,10 @@ def joint_output_modes(
         The band searched for resonances, Hz.
     units : dict of str to str, optional
         Each output channel's unit, as recorded (reported; the responses are per N·m of torque).
+    groups : list of dict of str to FrequencyResponse, optional
+        The same responses estimated on disjoint blocks of the record (:func:`hilident.pipeline.plant.
+        interval_blocks`): the modes' 95 % intervals (:func:`hilident.ident.mimo.modal_intervals`). None or
+        empty: no intervals, and a note says why.
 
     Returns
     -------
@@ -142,7 +147,8 @@ def joint_output_modes(
         "indicator_peaks": mode_indicator_peaks(frf, in_band),
         "warnings": [],
     }
-    part.update(modal_part(frf, band_hz))
+    found = Groups([_stack({n: g[n] for n in names}) for g in groups]) if groups else Groups([])
+    part.update(modal_part(frf, band_hz, found))
     seen = _seen_by(part, frf, names)
     for mode, s in zip(part["modes"], seen, strict=True):
         mode["seen_by"] = s

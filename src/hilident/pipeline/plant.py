@@ -14,6 +14,7 @@ from hilident.ident.frfquality import frf_uncertainty
 from hilident.ident.preprocess import check_signals
 from hilident.ident.resonance import RejectedPeak, Resonance, screen_resonances
 from hilident.pipeline.measurement import measurement_quality
+from hilident.pipeline.mimo_identify import GROUP_AVERAGES_PER_INPUT, INTERVAL_GROUPS, MIN_INTERVAL_GROUPS
 from hilident.pipeline.plant_model import (
     PlantModel,
     fit_plant_model,
@@ -50,6 +51,10 @@ class PlantResult:
     outputs : dict of str to FrequencyResponse
         Net torque to each of ``identification.outputs`` (a load sensor), estimated as :attr:`plant` is, from
         the same samples: what :mod:`hilident.pipeline.output_modes` identifies together with it.
+    output_groups : list of (FrequencyResponse, dict of str to FrequencyResponse)
+        With ``outputs``: :attr:`plant` and :attr:`outputs` estimated again on each of several disjoint blocks of
+        the record (:func:`interval_blocks`), for the joint modes' 95 % intervals; empty when the record holds
+        too few blocks.
     """
 
     plant: FrequencyResponse
@@ -61,6 +66,25 @@ class PlantResult:
     rejected: list[RejectedPeak] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     outputs: dict[str, FrequencyResponse] = field(default_factory=dict)
+    output_groups: list[tuple[FrequencyResponse, dict[str, FrequencyResponse]]] = field(default_factory=list)
+
+
+def interval_blocks(n: int, period: int | None, segment: int) -> list[tuple[int, int]]:
+    """Disjoint blocks of a record of ``n`` samples, each estimated as the whole record is, for intervals.
+
+    Whole periods (``period``: the averaged period), at least two per block (an averaged estimate needs two),
+    else blocks of at least ``GROUP_AVERAGES_PER_INPUT`` Welch segments of ``segment`` samples overlapping by
+    half; at most ``INTERVAL_GROUPS`` blocks, and none when fewer than ``MIN_INTERVAL_GROUPS`` fit
+    (:mod:`hilident.pipeline.mimo_identify`'s rule).
+    """
+    unit = period if period is not None else max(1, segment * (GROUP_AVERAGES_PER_INPUT + 1) // 2)
+    per_block = 2 if period is not None else 1
+    units = n // unit
+    k = min(INTERVAL_GROUPS, units // per_block)
+    if k < MIN_INTERVAL_GROUPS:
+        return []
+    edges = [round(g * units / k) * unit for g in range(k + 1)]
+    return list(zip(edges[:-1], edges[1:], strict=True))
 
 
 def analysis_band(cfg: IdentificationConfig, excitation_band_hz: tuple[float, float]) -> tuple[float, float]:
@@ -150,12 +174,22 @@ def identify_plant(
         plant = frf_from_reference(r, u, y, sample_rate_hz, seg)
         loop = h1_estimate(r, y, sample_rate_hz, seg)
 
-    def estimate(y_other: np.ndarray) -> FrequencyResponse:  # as the plant's: same torque, periods, segments
+    def estimate(y_other: np.ndarray, block: slice = slice(None)) -> FrequencyResponse:
+        """As the plant's: same torque, periods, segments (on ``block`` of the record)."""
         if averaged is not None:
-            return periodic_frf(u, y_other, averaged, sample_rate_hz, skip_periods=0, bins=excited_bins, present=gaps)
-        return frf_from_reference(r, u, y_other, sample_rate_hz, seg)
+            present = gaps[block] if gaps is not None else None
+            return periodic_frf(
+                u[block], y_other[block], averaged, sample_rate_hz, skip_periods=0, bins=excited_bins, present=present
+            )
+        return frf_from_reference(r[block], u[block], y_other[block], sample_rate_hz, seg)
 
-    outputs = _other_outputs(extra_outputs or {}, estimate, cfg, sample_rate_hz, period_samples, gaps, warnings)
+    others = _other_outputs(extra_outputs or {}, cfg, sample_rate_hz, period_samples, gaps, warnings)
+    outputs = {name: estimate(x) for name, x in others.items()}
+    output_groups = []
+    if others:
+        for a, b in interval_blocks(len(u), averaged, 0 if averaged is not None else seg):
+            block = slice(a, b)
+            output_groups.append((estimate(y, block), {name: estimate(x, block) for name, x in others.items()}))
     screened = resonances_and_model(plant, cfg, band_hz)
     model = screened.model
     antires = [hz for hz, _ in model.roots.antiresonances] if model else []
@@ -172,11 +206,12 @@ def identify_plant(
         rejected=screened.rejected,
         notes=screened.notes + notes,
         outputs=outputs,
+        output_groups=output_groups,
     )
 
 
-def _other_outputs(extra: dict, estimate, cfg, sample_rate_hz, period_samples, gaps, warnings: list[str]) -> dict:
-    """Net torque to each further output by ``estimate``; a channel with a missing reading is left out."""
+def _other_outputs(extra: dict, cfg, sample_rate_hz, period_samples, gaps, warnings: list[str]) -> dict:
+    """Each further output conditioned as the plant's output is; a channel with a missing reading is left out."""
     out = {}
     for name, values in extra.items():
         x = np.asarray(values, dtype=float)
@@ -189,7 +224,7 @@ def _other_outputs(extra: dict, estimate, cfg, sample_rate_hz, period_samples, g
                 "missing (NaN): left out of the joint estimate (a smaller excitation keeps it in range)"
             )
             continue
-        out[name] = estimate(condition_signal(x, cfg, sample_rate_hz, period_samples, gaps))
+        out[name] = condition_signal(x, cfg, sample_rate_hz, period_samples, gaps)
     return out
 
 

@@ -550,7 +550,10 @@ class Session(DeviceConnection):
             ad = self.adapter
             units = dict(zip(ad.channel_names, ad.channel_units, strict=False)) if ad is not None else {}
             self.joint = pipeline_output_modes.joint_output_modes(
-                {ic.output: result.plant, **result.outputs}, band, units
+                {ic.output: result.plant, **result.outputs},
+                band,
+                units,
+                [{ic.output: plant, **outputs} for plant, outputs in result.output_groups],
             )
         return result
 
