@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import struct
 import tracemalloc
 import zlib
@@ -370,3 +371,17 @@ def test_csv_larger_than_the_bound_is_refused_before_parsing(tmp_path, monkeypat
         assert tracemalloc.get_traced_memory()[1] < 3_000_000  # read buffers only: no column allocated
     finally:
         tracemalloc.stop()
+
+
+def test_a_mat_variable_whose_data_type_is_unknown_is_refused_before_scipy_reads_it(tmp_path):
+    # scipy's reader indexes a table with the data element's type unchecked: type 243 crashed the process
+    buffer = io.BytesIO()
+    savemat(buffer, {"t": T, "tau": TAU, "v": V})
+    raw = bytearray(buffer.getvalue())
+    data_tag = 128 + 8 + 16 + 16 + 8  # file header, matrix tag, array flags, dimensions, the name "t" (small)
+    assert raw[data_tag] == 9  # miDOUBLE
+    raw[data_tag] = 243
+    path = tmp_path / "bad.mat"
+    path.write_bytes(bytes(raw))
+    with pytest.raises(DataError, match=r"'t'.*element type 243"):
+        load_dataset(path, MAPPING)

@@ -56,6 +56,12 @@ _MAT_CLASSES = {
     17: "opaque",
 }
 _MI_MATRIX, _MI_COMPRESSED = 14, 15
+#: The element types a real numeric array's data may have (miINT8 .. miUINT32, miSINGLE, miDOUBLE, miINT64,
+#: miUINT64). scipy's reader indexes a table with the type it finds and does not check it first: an unknown
+#: type crashes the process, so a variable whose headers name one is refused before scipy sees it.
+_MI_NUMERIC = frozenset((1, 2, 3, 4, 5, 6, 7, 9, 12, 13))
+#: The element types of a matrix's array flags, dimensions and name (miUINT32, miINT32, miINT8).
+_MI_FLAGS, _MI_DIMS, _MI_NAME = 6, 5, 1
 _MAT_HEADER_BYTES = 8192  # enough for flags, up to 32 dimensions, a long name and the data tag
 
 
@@ -217,11 +223,13 @@ def _mat5_matrix_header(path: Path, head: bytes, order: str, start: int, stop: i
         mdtype, _ = struct.unpack(order + "II", head[:8])
         if mdtype != _MI_MATRIX:
             raise DataError(f"{path}: damaged variable at byte {start} (element type {mdtype}, expected a matrix)")
-        _, flags, p = element(8)
-        _, dims, p = element(p)
-        _, name, p = element(p)
+        flags_type, flags, p = element(8)
+        dims_type, dims, p = element(p)
+        name_type, name, p = element(p)
         if len(flags) < 8 or len(dims) < 8 or len(dims) % 4:
             raise DataError(f"{path}: damaged variable header at byte {start}")
+        if (flags_type, dims_type, name_type) != (_MI_FLAGS, _MI_DIMS, _MI_NAME):
+            raise DataError(f"{path}: damaged variable header at byte {start} (element types of flags, dims, name)")
         flag = struct.unpack(order + "I", flags[:4])[0]
         shape = tuple(struct.unpack(order + f"{len(dims) // 4}i", dims))
         cls = _MAT_CLASSES.get(flag & 0xFF, "unknown")
@@ -231,6 +239,11 @@ def _mat5_matrix_header(path: Path, head: bytes, order: str, start: int, stop: i
                 raise DataError(f"{path}: damaged variable header at byte {start}")
             mdtype, nbytes = struct.unpack(order + "II", head[p : p + 8])
             data_bytes = mdtype >> 16 if mdtype >> 16 else nbytes
+            if (mdtype & 0xFFFF if mdtype >> 16 else mdtype) not in _MI_NUMERIC:
+                raise DataError(
+                    f"{path}: variable {name.decode('latin-1')!r} at byte {start} declares data of element type "
+                    f"{mdtype & 0xFFFF if mdtype >> 16 else mdtype}, not a number: damaged file"
+                )
     except struct.error:
         raise DataError(f"{path}: damaged variable header at byte {start}") from None
     if any(d < 0 for d in shape):
