@@ -33,6 +33,7 @@ from hilident.ident.mimo import (
     zippered_lines,
 )
 from hilident.ident.mimo.modal import ModalResult, lsfd, merge_split_modes, modal_intervals
+from hilident.ident.preprocess import remove_drift
 
 __all__ = ["Groups", "identify_channels", "mode_indicator_peaks"]
 
@@ -96,6 +97,9 @@ def identify_channels(
     if lines is not None:
         assert period_samples is not None
         periods = len(u) // period_samples
+        # a drift no excitation line holds (an integrating output, a position, under a load that changes) leaks
+        # onto every line of an unwindowed period: removed first, sparing the periodic response
+        u, y = (np.column_stack([remove_drift(c, period_samples) for c in x.T]) for x in (u, y))
         frf = periodic_mimo_frf(u, y, period_samples, fs, lines, skip_periods=1 if periods >= 3 else 0)
         resolution = fs / period_samples
         band = (ic.f_min_hz or float(frf.frequency_hz[0]), ic.f_max_hz or float(frf.frequency_hz[-1]))
