@@ -354,7 +354,7 @@ def _upload(args) -> int:
 def _export(args) -> int:
     from hilident.io.export import run_export
 
-    written = run_export(args.dir, args.format, args.out, args.rate_hz)
+    written = run_export(args.dir, args.format, args.out, args.rate_hz, args.axis)
     print(f"wrote {written}")
     return 0
 
@@ -918,13 +918,20 @@ def build_parser() -> argparse.ArgumentParser:
     exp.add_argument(
         "--format",
         required=True,
-        choices=["mat", "json", "python-control"],
+        choices=["mat", "json", "python-control", "klipper", "marlin", "shaper"],
         help="mat: MATLAB structs (scipy.io.savemat); json: one documented file; python-control: a small "
         "script that rebuilds control.TransferFunction / StateSpace objects (needs pip install "
-        "'hilident[control]'; in Python, hilident.io.export.to_control gives them directly)",
+        "'hilident[control]'; in Python, hilident.io.export.to_control gives them directly); the input shaper "
+        "the measured resonances favour: klipper ([input_shaper] section), marlin (M593), shaper (JSON impulses)",
     )
     exp.add_argument(
-        "--out", metavar="FILE", help="file to write (default: model.mat, model.json or model_control.py in DIR)"
+        "--axis", default="x", choices=["x", "y", "z"], help="klipper, marlin: the axis the shaper is for (default x)"
+    )
+    exp.add_argument(
+        "--out",
+        metavar="FILE",
+        help="file to write (default in DIR: model.mat, model.json, model_control.py, input_shaper.cfg, "
+        "input_shaper.gcode or input_shaper.json)",
     )
     exp.add_argument(
         "--rate-hz",

@@ -47,6 +47,7 @@ import numpy as np
 
 from hilident.errors import DataError, HilidentError, UsageError
 from hilident.io.mimo_export import mimo_control_lines, mimo_model_part
+from hilident.io.shaper_export import SHAPER_FORMATS, write_shaper
 
 __all__ = [
     "FORMATS",
@@ -613,17 +614,26 @@ def write_control(doc: dict, out: Path) -> None:
         raise UsageError(f"--out {out}: cannot write it: {exc}") from None
 
 
-def run_export(source: str | Path, fmt: str, out: str | Path | None = None, rate_hz: float | None = None) -> Path:
-    """``hilident export SOURCE --format FMT [--out FILE] [--rate-hz RATE]``; returns the file written.
+def run_export(
+    source: str | Path, fmt: str, out: str | Path | None = None, rate_hz: float | None = None, axis: str = "x"
+) -> Path:
+    """``hilident export SOURCE --format FMT [--out FILE] [--rate-hz RATE] [--axis AXIS]``; returns the file
+    written.
 
-    The default file is ``model.json``, ``model.mat`` or ``model_control.py`` beside the summary.
+    The default file is ``model.json``, ``model.mat`` or ``model_control.py`` beside the summary; the input
+    shaper formats (:mod:`hilident.io.shaper_export`) write ``input_shaper.cfg``, ``.gcode`` or ``.json`` for
+    ``axis``.
     """
-    if fmt not in FORMATS:
-        raise UsageError(f"--format {fmt}: one of {', '.join(FORMATS)}")
+    formats = {**FORMATS, **SHAPER_FORMATS}
+    if fmt not in formats:
+        raise UsageError(f"--format {fmt}: one of {', '.join(formats)}")
     summary, path = load_summary(source)
-    target = Path(out) if out else path.parent / FORMATS[fmt]
+    target = Path(out) if out else path.parent / formats[fmt]
     if target.is_dir():
         raise UsageError(f"--out {target}: is a folder; give a file name")
+    if fmt in SHAPER_FORMATS:
+        write_shaper(fmt, summary, str(path), target, axis)
+        return target
     doc = export_document(summary, rate_hz, path)
     if fmt == "python-control":
         write_control(doc, target)

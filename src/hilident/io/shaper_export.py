@@ -1,0 +1,142 @@
+"""``hilident export --format klipper | marlin | shaper``: the input shaper the measured resonances favour, in the
+forms motion firmwares and controllers take.
+
+The modes come from a ``summary.json``: its ``resonances`` (a run or an identify of one input), else the modes
+of its ``mimo`` part, each with its 95 % intervals where the summary has them. Every kind of shaper is designed
+for them and scored over those intervals (:func:`hilident.motion.input_shapers.choose_shaper`); the file says
+which kind was chosen and why, and how the others scored.
+
+* ``klipper``: the ``[input_shaper]`` section of a Klipper ``printer.cfg`` (``shaper_type_<axis>``,
+  ``shaper_freq_<axis>``, ``damping_ratio_<axis>``). Klipper shapes one frequency per axis: the strongest
+  resonance is shaped, and the others are named in a comment;
+* ``marlin``: the ``M593`` command (Marlin's input shaping is ZV: ``F`` the frequency, ``D`` the damping
+  ratio) for the strongest resonance;
+* ``shaper``: one JSON file with the chosen shaper's impulse times (s) and amplitudes, for any motion
+  controller (several resonances: the convolution of one shaper per mode), and every candidate's score.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from hilident.errors import DataError
+from hilident.motion.input_shapers import MIN_RELATIVE_INTERVAL, ShaperChoice, choose_shaper, score_shaper, zv_shaper
+
+__all__ = ["SHAPER_FORMATS", "klipper_section", "marlin_command", "shaper_document", "summary_modes", "write_shaper"]
+
+#: ``--format`` choices this module writes, and their default file names.
+SHAPER_FORMATS = {"klipper": "input_shaper.cfg", "marlin": "input_shaper.gcode", "shaper": "input_shaper.json"}
+
+_Mode = tuple[float, float, float | None, float | None]
+
+
+def summary_modes(summary: dict) -> list[_Mode]:
+    """``(frequency_hz, damping_ratio, frequency_ci95_hz, damping_ci95)`` of every mode ``summary`` reports,
+    strongest first (largest peak, where the summary gives one).
+
+    Raises
+    ------
+    DataError
+        The summary reports no resonance and no mode.
+    """
+    records = list(summary.get("resonances") or [])
+    if not records:
+        records = list((summary.get("mimo") or {}).get("modes") or [])
+    modes = [
+        (
+            float(r["frequency_hz"]),
+            float(r["damping_ratio"]),
+            r.get("frequency_ci95_hz"),
+            r.get("damping_ci95"),
+            float(r.get("peak_magnitude_db") or 0.0),
+        )
+        for r in records
+        if r.get("frequency_hz") and r.get("damping_ratio") is not None and 0.0 <= float(r["damping_ratio"]) < 1.0
+    ]
+    if not modes:
+        raise DataError("the summary reports no resonance and no mode: there is nothing to shape")
+    modes.sort(key=lambda m: -m[4])
+    return [m[:4] for m in modes]
+
+
+def _comments(choice: ShaperChoice, modes: list[_Mode], source: str, mark: str) -> list[str]:
+    lines = [f"{mark} input shaper by hilident from {source}"]
+    for f, z, fci, zci in modes:
+        spread = f" +- {fci:.3g} Hz" if fci else ""
+        dspread = f" +- {zci:.3g}" if zci else ""
+        lines.append(f"{mark} mode {f:.3f} Hz{spread}, damping ratio {z:.4f}{dspread}")
+    lines.append(f"{mark} {choice.reason}")
+    for c in choice.candidates:
+        accel = "unlimited" if c.as_dict()["max_accel_mps2"] is None else f"{c.max_accel_mps2:.3g} m/s^2"
+        lines.append(
+            f"{mark}   {c.kind}: worst residual vibration {100 * c.worst_vibration:.1f} %, "
+            f"duration {1e3 * c.shaper.duration_s:.2f} ms, max acceleration {accel}"
+        )
+    return lines
+
+
+def klipper_section(summary: dict, source: str, axis: str = "x") -> str:
+    """The ``[input_shaper]`` section for the strongest mode of ``summary`` (Klipper shapes one per axis)."""
+    modes = summary_modes(summary)
+    first = modes[:1]
+    choice = choose_shaper(first)
+    lines = _comments(choice, first, source, "#")
+    for f, _, _, _ in modes[1:]:
+        lines.append(f"# not shaped: the mode at {f:.3f} Hz (Klipper shapes one frequency per axis)")
+    f, z, _, _ = first[0]
+    lines += [
+        "[input_shaper]",
+        f"shaper_type_{axis}: {choice.chosen.kind}",
+        f"shaper_freq_{axis}: {f:.3f}",
+        f"damping_ratio_{axis}: {z:.4f}",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def marlin_command(summary: dict, source: str, axis: str = "x") -> str:
+    """``M593`` (ZV input shaping) for the strongest mode of ``summary``, with its residual vibration noted."""
+    modes = summary_modes(summary)
+    f, z, fci, _ = modes[0]
+    zv = zv_shaper(f, z)
+    band = max(fci or 0.0, MIN_RELATIVE_INTERVAL * f)
+    score = score_shaper(zv, (f - band, f + band), (z,))
+    lines = [
+        f"; input shaper by hilident from {source}: ZV (Marlin's M593) at the strongest mode",
+        f"; mode {f:.3f} Hz, damping ratio {z:.4f}; worst residual vibration over {f - band:.2f}-{f + band:.2f} Hz: "
+        f"{100 * score.worst_vibration:.1f} %",
+        *[f"; not shaped: the mode at {m[0]:.3f} Hz" for m in modes[1:]],
+        f"M593 {axis.upper()} F{f:.2f} D{z:.4f}",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def shaper_document(summary: dict, source: str) -> dict:
+    """The chosen shaper for every mode of ``summary`` (the convolution of one per mode) and every candidate."""
+    modes = summary_modes(summary)
+    choice = choose_shaper(modes)
+    return {
+        "format": "hilident-input-shaper",
+        "source": source,
+        "modes": [
+            {"frequency_hz": f, "damping_ratio": z, "frequency_ci95_hz": fci, "damping_ci95": zci}
+            for f, z, fci, zci in modes
+        ],
+        "chosen": choice.chosen.kind,
+        "reason": choice.reason,
+        "target_vibration": choice.target_vibration,
+        "times_s": choice.shaper.times_s.tolist(),
+        "amplitudes": choice.shaper.amplitudes.tolist(),
+        "candidates": [c.as_dict() for c in choice.candidates],
+        "units": {"times_s": "s", "smoothing_m": "m", "max_accel_mps2": "m/s^2", "worst_vibration": "fraction"},
+    }
+
+
+def write_shaper(fmt: str, summary: dict, source: str, target: Path, axis: str = "x") -> None:
+    """Write ``fmt`` (a key of :data:`SHAPER_FORMATS`) for ``summary`` to ``target``."""
+    if fmt == "klipper":
+        target.write_text(klipper_section(summary, source, axis), encoding="utf-8")
+    elif fmt == "marlin":
+        target.write_text(marlin_command(summary, source, axis), encoding="utf-8")
+    else:
+        target.write_text(json.dumps(shaper_document(summary, source), indent=2) + "\n", encoding="utf-8")
