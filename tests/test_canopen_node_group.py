@@ -8,6 +8,7 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 
+import can
 import numpy as np
 import pytest
 
@@ -54,6 +55,18 @@ def test_both_nodes_open_on_one_bus_enable_and_stop_together(twin):
         assert all(a.network is group.network and not a.owns_network for a in group.adapters)
         assert all(a.connect_report.device_net.startswith("heartbeat consumer") for a in group.adapters)
         assert group.states() == {1: "Switch On Disabled", 2: "Switch On Disabled"}  # the known state at connect
+        # one host on the bus, one heartbeat: both nodes' consumers watch the same frames, not two producers'
+        host = group.adapters[0].desc.host_node_id
+        beats: list[float] = []
+        with can.Bus(interface=emulated.device.canopen.can_interface, channel=emulated.device.port) as listener:
+            end = time.monotonic() + 1.2
+            while time.monotonic() < end:
+                msg = listener.recv(0.05)
+                if msg is not None and msg.arbitration_id == 0x700 + host:
+                    beats.append(msg.timestamp)
+        gaps = np.diff(beats)
+        period = round(emulated.device.host_timeout_s * 1000) / 3000  # a third of the consumer's time
+        assert len(beats) >= 3 and np.all(np.abs(gaps - period) < 0.3 * period), gaps
         group.set_limits(19.0, 0.4, -0.6, 0.6)
         names = group.configure(1000.0, "torque")
         assert {"torque_nm_node1", "position_m_node1", "torque_nm_node2", "position_m_node2"} <= set(names)

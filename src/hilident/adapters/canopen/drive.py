@@ -164,6 +164,7 @@ class CanopenDriveAdapter(AdapterBase):
         desc: CanopenDescription,
         device: DeviceConfig,
         label: str,
+        heartbeat: HostHeartbeat | None = None,
     ):
         encoding = (
             FilterEncoding.from_table(driver.sections["filters"], str(driver.folder))
@@ -181,7 +182,7 @@ class CanopenDriveAdapter(AdapterBase):
         self.timeout_s = device.timeout_s
         self.acquisition = desc.default_acquisition if device.acquisition == "auto" else device.acquisition
         node.sdo.RESPONSE_TIMEOUT = max(0.05, min(self.timeout_s, 1.0))
-        heartbeat = HostHeartbeat(network, label)
+        heartbeat = heartbeat or HostHeartbeat(network, label)
         self.sdo = SdoAccess(node, desc, label, heartbeat.beat_if_due)
         self.net = NetWatch(network, self.sdo, heartbeat, desc, label, device.host_timeout_s)
         self.mapping = ChannelMapping(self.sdo, self.net, desc, driver, self.node_id, label)
@@ -209,12 +210,18 @@ class CanopenDriveAdapter(AdapterBase):
 
     @classmethod
     def open_device(
-        cls, device: DeviceConfig, driver: DriverDescription, link=None, network: TracingNetwork | None = None
+        cls,
+        device: DeviceConfig,
+        driver: DriverDescription,
+        link=None,
+        network: TracingNetwork | None = None,
+        heartbeat: HostHeartbeat | None = None,
     ) -> CanopenDriveAdapter:
         """Open the bus, load the EDS, check the identity, bring the drive to a known state, arm the net.
 
         ``network``: a bus already open that the drive shares with other nodes of the session
-        (:mod:`hilident.adapters.canopen.group`); the adapter then never disconnects it.
+        (:mod:`hilident.adapters.canopen.group`); the adapter then never disconnects it. ``heartbeat``: the
+        host's heartbeat those nodes share (one host, one heartbeat on the bus), else the adapter's own.
 
         See the module docstring: NMT Pre-operational, frames from before
         counted in ``connect_report.discarded_frames``, Disable Voltage, a
@@ -253,7 +260,7 @@ class CanopenDriveAdapter(AdapterBase):
         try:
             node = canopen.RemoteNode(node_id, od)
             network.add_node(node)
-            adapter = cls(network, node, driver, desc, device, label)
+            adapter = cls(network, node, driver, desc, device, label, heartbeat)
             adapter.owns_network = owns_network
             adapter.connect_report.warnings += eds_warnings
             early = adapter.net.count_early_frames(node_id)

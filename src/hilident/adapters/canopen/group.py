@@ -3,7 +3,8 @@ nodes armed and stopped together.
 
 ``[device.canopen] node_ids`` lists the nodes (``node_id`` first). :meth:`NodeGroup.open` opens the bus once and
 each node's :class:`~hilident.adapters.canopen.drive.CanopenDriveAdapter` on it (identity checked, known state,
-the node's heartbeat consumer armed), so every node gets the same checks a session of one node makes;
+the node's heartbeat consumer armed, all watching the one host heartbeat the nodes share), so every node gets
+the same checks a session of one node makes;
 :meth:`NodeGroup.safe_stop` switches every node's power stage off, each whatever the others did; and
 :meth:`NodeGroup.close` closes every node and then the bus. A node that fails to open closes the ones opened
 before it and the bus.
@@ -28,6 +29,7 @@ from hilident.adapters.base import Deliver, RunResult
 from hilident.adapters.canopen.drive import CanopenDriveAdapter
 from hilident.adapters.canopen.group_stream import GroupStreamedRun
 from hilident.adapters.canopen.link import open_network
+from hilident.adapters.canopen.net import HostHeartbeat
 from hilident.adapters.canopen.trace import TracingNetwork
 from hilident.adapters.host_timing import timely_host
 from hilident.config.tables import DeviceConfig, node_ids
@@ -98,11 +100,12 @@ class NodeGroup:
         """
         label = f"{device.canopen.can_interface}:{device.port}"
         network = open_network(device, driver.default_baudrate, label)
+        heartbeat = HostHeartbeat(network, label)  # one host on the bus: one heartbeat every node's consumer watches
         adapters: list[CanopenDriveAdapter] = []
         try:
             for node in node_ids(device):
                 one = replace(device, canopen=replace(device.canopen, node_id=node))
-                adapters.append(CanopenDriveAdapter.open_device(one, driver, network=network))
+                adapters.append(CanopenDriveAdapter.open_device(one, driver, network=network, heartbeat=heartbeat))
         except BaseException:
             cls(network, adapters).close()
             raise

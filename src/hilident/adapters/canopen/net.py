@@ -72,7 +72,14 @@ class HostHeartbeat:
         self._sent_s = 0.0  # when the heartbeat last went out (monotonic s)
 
     def start(self, host: int, period_s: float) -> None:
-        """Produce the heartbeat of node ``host`` every ``period_s`` seconds; the first frame goes out at once."""
+        """Produce the heartbeat of node ``host`` every ``period_s`` seconds; the first frame goes out at once.
+
+        Already produced at that period (the heartbeat several nodes of one bus share): nothing changes, as the
+        host is one node whatever the number of drives watching it.
+        """
+        if self.task is not None and self._frame == (0x700 + host, period_s):
+            return
+        self.stop()
         bus = self.network.bus
         if bus is None:
             raise DeviceError(f"{self.port}: the CAN bus is not open: the host's heartbeat cannot be sent")
