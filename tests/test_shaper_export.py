@@ -31,7 +31,7 @@ def _summary(*resonances) -> dict:
                 "peak_magnitude_db": p,
             }
             for f, z, ci, p in resonances
-        ]
+        ],
     }
 
 

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from hilident.errors import DataError
 from hilident.motion.input_shapers import MIN_RELATIVE_INTERVAL, ShaperChoice, choose_shaper, score_shaper, zv_shaper
+from hilident.pipeline.input_shaper import measured_modes
 
 __all__ = ["SHAPER_FORMATS", "klipper_section", "marlin_command", "shaper_document", "summary_modes", "write_shaper"]
 
@@ -32,32 +33,19 @@ _Mode = tuple[float, float, float | None, float | None]
 
 
 def summary_modes(summary: dict) -> list[_Mode]:
-    """``(frequency_hz, damping_ratio, frequency_ci95_hz, damping_ci95)`` of every mode ``summary`` reports,
-    strongest first (largest peak, where the summary gives one).
+    """``(frequency_hz, damping_ratio, frequency_ci95_hz, damping_ci95)`` of every mode ``summary`` reports: its
+    ``resonances``, else its ``mimo`` modes, strongest first (:func:`hilident.pipeline.input_shaper.measured_modes`).
 
     Raises
     ------
     DataError
         The summary reports no resonance and no mode.
     """
-    records = list(summary.get("resonances") or [])
-    if not records:
-        records = list((summary.get("mimo") or {}).get("modes") or [])
-    modes = [
-        (
-            float(r["frequency_hz"]),
-            float(r["damping_ratio"]),
-            r.get("frequency_ci95_hz"),
-            r.get("damping_ci95"),
-            float(r.get("peak_magnitude_db") or 0.0),
-        )
-        for r in records
-        if r.get("frequency_hz") and r.get("damping_ratio") is not None and 0.0 <= float(r["damping_ratio"]) < 1.0
-    ]
+    records = list(summary.get("resonances") or []) or list((summary.get("mimo") or {}).get("modes") or [])
+    modes = measured_modes(records)
     if not modes:
         raise DataError("the summary reports no resonance and no mode: there is nothing to shape")
-    modes.sort(key=lambda m: -m[4])
-    return [m[:4] for m in modes]
+    return modes
 
 
 def _comments(choice: ShaperChoice, modes: list[_Mode], source: str, mark: str) -> list[str]:

@@ -51,6 +51,7 @@ LAYOUTS: dict[str, tuple[str, ...]] = {
         "mimo",  # with [identification] outputs only
         "friction",
         "notch_filters",
+        "input_shaper",  # with resonances only
         "upload",
         "verification",
         "stream",
@@ -80,6 +81,7 @@ LAYOUTS: dict[str, tuple[str, ...]] = {
         "measurement",
         "notch_filters",
         "notch_skipped_reason",
+        "input_shaper",  # with resonances only
         "upload",
         "verification",
         "stream",
@@ -479,7 +481,17 @@ class Summary:
             "notes": grouped(self.notes),
             "mimo": NOT_REACHED,  # an identify of several inputs and outputs has it (extra)
             **self.extra,
+            "input_shaper": self._input_shaper(),
         }
+
+    def _input_shaper(self) -> Any:
+        """The input shaper the resonances favour, and whether it or a notch (:mod:`hilident.pipeline.input_shaper`);
+        left out without resonances."""
+        from hilident.pipeline.input_shaper import input_shaper_part
+
+        loop = self.extra.get("loop")
+        part = input_shaper_part(self.plant.resonances, loop if isinstance(loop, dict) else None)
+        return NOT_REACHED if part is None else part
 
     def to_dict(self) -> dict[str, Any]:
         """The summary in its command's documented layout, ``failed_step`` and ``error`` last when a step failed."""

@@ -1,0 +1,117 @@
+"""The input shaper the measured resonances favour, and whether the measurement favours it, a notch, or both
+(``summary.json["input_shaper"]``).
+
+Every kind of shaper (:mod:`hilident.motion.input_shapers`) is designed for the resonances and scored over
+their 95 % intervals (:func:`~hilident.motion.input_shapers.choose_shaper`). A notch and a shaper act on
+different things: the notch on everything the drive's loop feeds the mode (disturbances, the loop's own
+excitation), the shaper on the commanded moves only, at the price of its duration on every move. Which the
+measurement favours follows from where the strongest mode lies against the velocity loop's crossover, where the
+drive describes its loop (``summary.json["loop"]``):
+
+* below ``NOTCH_COSTS_PHASE_BELOW`` times the crossover, a notch takes phase where the loop needs it: the
+  shaper, which leaves the loop alone;
+* above, the notch costs the loop little: both, the notch for the loop and the shaper for the moves;
+* no loop described: both, the measurement alone does not tell which matters more.
+"""
+
+from __future__ import annotations
+
+import math
+
+from hilident.errors import ConfigError
+from hilident.motion.input_shapers import choose_shaper
+
+__all__ = ["NOTCH_COSTS_PHASE_BELOW", "input_shaper_part", "measured_modes"]
+
+#: A notch centred below this multiple of the velocity loop's crossover costs the loop phase margin it needs
+#: (a notch's phase lag reaches about an octave beyond its centre).
+NOTCH_COSTS_PHASE_BELOW = 2.0
+
+Mode = tuple[float, float, float | None, float | None]
+
+
+def measured_modes(records: list[dict]) -> list[Mode]:
+    """``(frequency_hz, damping_ratio, frequency_ci95_hz, damping_ci95)`` of resonance or mode records (as
+    ``summary.json`` lists them), strongest first (largest ``peak_magnitude_db`` where given); records without
+    a frequency or with a damping ratio outside [0, 1) are left out."""
+    modes = [
+        (
+            float(r["frequency_hz"]),
+            float(r["damping_ratio"]),
+            r.get("frequency_ci95_hz"),
+            r.get("damping_ci95"),
+            float(r.get("peak_magnitude_db") or 0.0),
+        )
+        for r in records
+        if r.get("frequency_hz") and r.get("damping_ratio") is not None and 0.0 <= float(r["damping_ratio"]) < 1.0
+    ]
+    modes.sort(key=lambda m: -m[4])
+    return [m[:4] for m in modes]
+
+
+def _crossover_hz(loop: dict | None) -> float | None:
+    """The velocity loop's gain crossover without a notch, Hz, where the summary's loop part gives one."""
+    figures = ((loop or {}).get("velocity") or {}).get("without_notch") or {}
+    value = figures.get("crossover_hz")
+    return float(value) if value is not None and math.isfinite(float(value)) else None
+
+
+def _versus_notch(f_hz: float, duration_s: float, crossover_hz: float | None) -> tuple[str, str]:
+    """``(favoured, why)``: ``"shaper"`` or ``"both"``, and one sentence."""
+    cost = f"{1e3 * duration_s:.1f} ms on every move"
+    if crossover_hz is None:
+        return "both", (
+            "no loop described: the notch acts on everything the drive's loop feeds the mode, the shaper on the "
+            f"commanded moves only ({cost}); the measurement alone does not tell which matters more"
+        )
+    if f_hz < NOTCH_COSTS_PHASE_BELOW * crossover_hz:
+        return "shaper", (
+            f"the mode at {f_hz:.2f} Hz lies within {NOTCH_COSTS_PHASE_BELOW:g} times the velocity loop's crossover "
+            f"({crossover_hz:.1f} Hz), where a notch costs the loop phase margin: the shaper leaves the loop alone "
+            f"({cost})"
+        )
+    return "both", (
+        f"the mode at {f_hz:.2f} Hz lies above {NOTCH_COSTS_PHASE_BELOW:g} times the velocity loop's crossover "
+        f"({crossover_hz:.1f} Hz): the notch costs the loop little and keeps it from ringing the mode; the shaper "
+        f"keeps the commanded moves from exciting it ({cost})"
+    )
+
+
+def input_shaper_part(resonances: list[dict], loop: dict | None = None) -> dict | None:
+    """``summary.json["input_shaper"]`` for the ``resonances`` (records as the summary lists them); None when
+    there is none to shape.
+
+    Returns
+    -------
+    dict or None
+        ``modes``; ``chosen`` (its ``kind``, ``times_s``, ``amplitudes``, ``duration_s``,
+        ``worst_vibration``, ``smoothing_m``, ``max_accel_mps2``), ``reason``, ``target_vibration``; every
+        ``candidates`` kind's figures; ``favoured`` (``"shaper"`` or ``"both"``) and ``versus_notch`` (why).
+    """
+    modes = measured_modes(resonances)
+    if not modes:
+        return None
+    try:
+        choice = choose_shaper(modes)
+    except ConfigError as exc:  # no kind covers the modes' damping (a very damped mode needs no shaper)
+        return {"modes": _mode_records(modes), "chosen": None, "reason": str(exc), "candidates": []}
+    chosen = choice.chosen.as_dict()
+    favoured, why = _versus_notch(modes[0][0], chosen["duration_s"], _crossover_hz(loop))
+    return {
+        "modes": _mode_records(modes),
+        "chosen": chosen,
+        "reason": choice.reason,
+        "target_vibration": choice.target_vibration,
+        "candidates": [
+            {k: v for k, v in c.as_dict().items() if k not in ("times_s", "amplitudes")} for c in choice.candidates
+        ],
+        "favoured": favoured,
+        "versus_notch": why,
+    }
+
+
+def _mode_records(modes: list[Mode]) -> list[dict]:
+    return [
+        {"frequency_hz": f, "damping_ratio": z, "frequency_ci95_hz": fci, "damping_ci95": zci}
+        for f, z, fci, zci in modes
+    ]
