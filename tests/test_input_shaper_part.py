@@ -13,6 +13,21 @@ from hilident.schemas import summary_schema
 RESONANCE = {"frequency_hz": 21.79, "damping_ratio": 0.018, "frequency_ci95_hz": 0.06, "damping_ci95": 0.002}
 
 
+def _identify_summary() -> Summary:
+    """An identify's summary that reached no resonance."""
+    return Summary.of_identify(
+        config="c.toml",
+        data={"samples": 1000},
+        plant=None,
+        friction=None,
+        model=None,
+        designs=[],
+        notch_skipped_reason=None,
+        elapsed_s=0.1,
+        warnings=[],
+    )
+
+
 def _loop(crossover_hz: float) -> dict:
     return {"velocity": {"without_notch": {"crossover_hz": crossover_hz}, "with_notch": None}}
 
@@ -32,32 +47,12 @@ def test_a_mode_near_the_crossover_favours_the_shaper_one_well_above_it_both():
 
 def test_no_resonance_no_part_and_the_summary_leaves_it_out():
     assert input_shaper_part([], None) is None
-    summary = Summary.of_identify(
-        config="c.toml",
-        data={"samples": 1000},
-        plant=None,
-        friction=None,
-        model=None,
-        designs=[],
-        notch_skipped_reason=None,
-        elapsed_s=0.1,
-        warnings=[],
-    ).to_dict()
+    summary = _identify_summary().to_dict()
     assert "input_shaper" not in summary
 
 
 def test_a_summary_with_a_resonance_carries_the_part_and_holds_the_schema():
-    summary = Summary.of_identify(
-        config="c.toml",
-        data={"samples": 1000},
-        plant=None,
-        friction=None,
-        model=None,
-        designs=[],
-        notch_skipped_reason=None,
-        elapsed_s=0.1,
-        warnings=[],
-    )
+    summary = _identify_summary()
     summary.plant = PlantPart([{**RESONANCE, "peak_magnitude_db": -20.0}])
     out = summary.to_dict()
     part = out["input_shaper"]

@@ -32,56 +32,36 @@ def _run(args) -> int:
     if args.clear_fault:
         cfg = replace(cfg, device=replace(cfg.device, allow_fault_reset=True))
     out = _out_folder(args.out, Path(args.config).stem, args.overwrite or args.dry_run)  # a dry run writes nothing
-    if len(node_ids(cfg.device)) > 1:
-        return _run_nodes(args, cfg, out)
-    session = Session(
-        cfg,
-        out,
-        Progress(enabled=not args.quiet),
-        confirm=_go_ahead(args.yes),
-        dry_run=args.dry_run,
-        plots=not args.no_plots,
-        save=args.save,
-    )
+    several = len(node_ids(cfg.device)) > 1  # several nodes of one CANopen bus: hilident.session.nodes_run
+    common = {"confirm": _go_ahead(args.yes), "dry_run": args.dry_run, "plots": not args.no_plots}
+    if several:
+        from hilident.session.nodes_run import NodesSession
+
+        session: Session | NodesSession = NodesSession(cfg, out, Progress(enabled=not args.quiet), **common)
+    else:
+        session = Session(cfg, out, Progress(enabled=not args.quiet), save=args.save, **common)
     summary = session.run()
     if args.dry_run:
         if session.plan is not None:  # made before the dry run returns
             print(session.plan.describe())
         print("dry run: device reached and checked; nothing moved")
         return 0
-    _print_run_summary(summary, args.quiet)
+    if several:
+        _print_nodes_summary(summary)
+    else:
+        _print_run_summary(summary, args.quiet)
     print(f"wrote {out / 'summary.json'}")
     _print_report(out)
     return 0
 
 
-def _run_nodes(args, cfg, out: Path) -> int:
-    """``hilident run`` on several nodes of one CANopen bus: all excited at once, their modes together."""
-    from hilident.progress import Progress
-    from hilident.session.nodes_run import NodesSession
-
-    session = NodesSession(
-        cfg,
-        out,
-        Progress(enabled=not args.quiet),
-        confirm=_go_ahead(args.yes),
-        dry_run=args.dry_run,
-        plots=not args.no_plots,
-    )
-    summary = session.run()
-    if args.dry_run:
-        if session.plan is not None:
-            print(session.plan.describe())
-        print("dry run: device reached and checked; nothing moved")
-        return 0
+def _print_nodes_summary(summary: dict) -> None:
+    """What a run of several nodes found: the modes of all of them, and the warnings."""
     modes = (summary.get("mimo") or {}).get("modes") or []
     found = ", ".join(f"{m['frequency_hz']:.2f} Hz (zeta {m['damping_ratio']:.3f})" for m in modes)
     print(f"modes of all nodes: {found or 'none found'}")
     for warning in summary["warnings"]:
         print(f"warning: {warning}")
-    print(f"wrote {out / 'summary.json'}")
-    _print_report(out)
-    return 0
 
 
 def _print_run_summary(summary: dict, quiet: bool) -> None:
