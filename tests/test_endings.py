@@ -238,7 +238,8 @@ def two_drives(tmp_path):
     from hilident.emulator.factory import host_device_table, start_standalone
     from test_nodes_run import CONFIG
 
-    text = CONFIG.replace("duration_s = 16.0", "duration_s = 40.0")
+    text = CONFIG.replace("duration_s = 12.0", "duration_s = 40.0")
+    assert text != CONFIG  # a long run, to end mid-way
     cfg = parse_config(text, "two-drives.toml")
     emu = start_standalone(cfg.emulator, find_driver(cfg.device.driver), cfg.device, "socketcand")
     raw = tomllib.loads(text)
