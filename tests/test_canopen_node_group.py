@@ -143,12 +143,15 @@ def test_a_fault_on_one_node_switches_every_node_off_and_names_it(twin):
         group.configure(1000.0, "torque")
         x = _zipper(4.0)
         x[:, 1] += np.linspace(0.0, 60.0, len(x))  # node 2 pushes the gantry along until a speed limit trips
+        delivered: list[np.ndarray] = []
         with pytest.raises(LimitTrip, match=r"node [12]: velocity_limit") as caught:
-            group.stream(x, lambda index, rows: None)
+            group.stream(x, lambda index, rows: delivered.append(index))
         assert group.last_result is not None and not group.last_result.completed
         assert group.last_result.stats.samples < len(x)
         assert not any(d.enabled for d in emulated.drives), str(caught.value)
         tripped = str(caught.value).split(" node ", 1)[1][0]  # the node whose limit tripped, named in the error
+        at = int(str(caught.value).rsplit("at sample ", 1)[1])
+        assert delivered and np.concatenate(delivered).max() <= at  # nothing after the fault
         assert any(e["message"].startswith(f"node {tripped}: ") for e in group.events)
     finally:
         group.close()

@@ -83,6 +83,7 @@ class GroupStreamedRun:
         self.tables = [np.zeros((self.n, len(m.ad.layout.channels))) for m in self.members]
         self.got = np.zeros((len(self.members), self.n), dtype=bool)
         self.flushed = 0  # joint rows below are delivered or dropped
+        self.cap = self.n  # no joint row at or beyond it is delivered (a node's fault: the sample after it)
         self.samples = 0  # joint rows delivered
         self.stopped = False  # every node switched off, the clock told to stop
 
@@ -96,7 +97,9 @@ class GroupStreamedRun:
         return collect
 
     def flush(self, limit: int) -> None:
-        """Deliver the joint rows below ``limit`` every node has; drop the others (a node lost its part)."""
+        """Deliver the joint rows below ``limit`` every node has; drop the others (a node lost its part). Nothing
+        after a node's fault is delivered."""
+        limit = min(limit, self.cap)
         a = self.flushed
         if limit <= a:
             return
@@ -194,6 +197,7 @@ class GroupStreamedRun:
                     fault = self.members[first].fault
                     assert fault is not None
                     last = min(self.members[first].sent, int(fault["sample_index"]) + 1)
+                    self.cap = last
                     for i, member in enumerate(self.members):
                         if not done[i]:
                             member.end_early(last)
