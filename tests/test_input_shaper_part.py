@@ -45,6 +45,17 @@ def test_a_mode_near_the_crossover_favours_the_shaper_one_well_above_it_both():
     assert chosen["kind"] == near["candidates"][0]["kind"] and len(near["candidates"]) >= 5
 
 
+def test_a_notch_that_leaves_a_loop_with_little_phase_margin_favours_the_shaper():
+    loop = _loop(RESONANCE["frequency_hz"] / (3 * NOTCH_COSTS_PHASE_BELOW))  # well above the crossover
+    loop["position"] = {"without_notch": {"phase_margin_deg": 28.3}, "with_notch": {"phase_margin_deg": 14.2}}
+    part = input_shaper_part([RESONANCE], loop)
+    assert (
+        part["favoured"] == "shaper" and "position loop's phase margin falls from 28 to 14 deg" in part["versus_notch"]
+    )
+    loop["position"]["with_notch"]["phase_margin_deg"] = 26.0  # lost 2 deg only: the notch costs the loop little
+    assert input_shaper_part([RESONANCE], loop)["favoured"] == "both"
+
+
 def test_no_resonance_no_part_and_the_summary_leaves_it_out():
     assert input_shaper_part([], None) is None
     summary = _identify_summary().to_dict()

@@ -5,11 +5,14 @@ Every kind of shaper (:mod:`hilident.motion.input_shapers`) is designed for the 
 their 95 % intervals (:func:`~hilident.motion.input_shapers.choose_shaper`). A notch and a shaper act on
 different things: the notch on everything the drive's loop feeds the mode (disturbances, the loop's own
 excitation), the shaper on the commanded moves only, at the price of its duration on every move. Which the
-measurement favours follows from where the strongest mode lies against the velocity loop's crossover, where the
-drive describes its loop (``summary.json["loop"]``):
+measurement favours follows from what the notch costs the drive's loop, where the drive describes it
+(``summary.json["loop"]``), and where the strongest mode lies against the velocity loop's crossover:
 
-* below ``NOTCH_COSTS_PHASE_BELOW`` times the crossover, a notch takes phase where the loop needs it: the
-  shaper, which leaves the loop alone;
+* where the loop's figures with the notch are known and a loop (velocity or position) keeps less than
+  ``MIN_PHASE_MARGIN_DEG`` of phase margin with it, having lost more than ``PHASE_LOST_DEG``: the shaper,
+  which leaves the loop alone;
+* else, below ``NOTCH_COSTS_PHASE_BELOW`` times the velocity loop's crossover, a notch takes phase where the
+  loop needs it: the shaper;
 * above, the notch costs the loop little: both, the notch for the loop and the shaper for the moves;
 * no loop described: both, the measurement alone does not tell which matters more.
 """
@@ -21,11 +24,15 @@ import math
 from hilident.errors import ConfigError
 from hilident.motion.input_shapers import choose_shaper
 
-__all__ = ["NOTCH_COSTS_PHASE_BELOW", "input_shaper_part", "measured_modes"]
+__all__ = ["MIN_PHASE_MARGIN_DEG", "NOTCH_COSTS_PHASE_BELOW", "PHASE_LOST_DEG", "input_shaper_part", "measured_modes"]
 
 #: A notch centred below this multiple of the velocity loop's crossover costs the loop phase margin it needs
 #: (a notch's phase lag reaches about an octave beyond its centre).
 NOTCH_COSTS_PHASE_BELOW = 2.0
+#: A loop left with less phase margin than this with the notch, deg ...
+MIN_PHASE_MARGIN_DEG = 30.0
+#: ... having lost more than this to it, deg, is one the notch costs too much.
+PHASE_LOST_DEG = 5.0
 
 Mode = tuple[float, float, float | None, float | None]
 
@@ -56,9 +63,26 @@ def _crossover_hz(loop: dict | None) -> float | None:
     return float(value) if value is not None and math.isfinite(float(value)) else None
 
 
-def _versus_notch(f_hz: float, duration_s: float, crossover_hz: float | None) -> tuple[str, str]:
+def _margin_lost(loop: dict | None) -> str | None:
+    """The loop the notch leaves with too little phase margin, as a phrase; None when none (or not known)."""
+    for name in ("velocity", "position"):
+        parts = (loop or {}).get(name) or {}
+        before = (parts.get("without_notch") or {}).get("phase_margin_deg")
+        after = (parts.get("with_notch") or {}).get("phase_margin_deg")
+        if before is None or after is None or not (math.isfinite(before) and math.isfinite(after)):
+            continue
+        if after < MIN_PHASE_MARGIN_DEG and before - after > PHASE_LOST_DEG:
+            return f"the {name} loop's phase margin falls from {before:.0f} to {after:.0f} deg with the notch"
+    return None
+
+
+def _versus_notch(f_hz: float, duration_s: float, loop: dict | None) -> tuple[str, str]:
     """``(favoured, why)``: ``"shaper"`` or ``"both"``, and one sentence."""
     cost = f"{1e3 * duration_s:.1f} ms on every move"
+    lost = _margin_lost(loop)
+    if lost is not None:
+        return "shaper", f"{lost}: the shaper leaves the loop alone ({cost}), the notch costs it the margin it needs"
+    crossover_hz = _crossover_hz(loop)
     if crossover_hz is None:
         return "both", (
             "no loop described: the notch acts on everything the drive's loop feeds the mode, the shaper on the "
@@ -96,7 +120,7 @@ def input_shaper_part(resonances: list[dict], loop: dict | None = None) -> dict 
     except ConfigError as exc:  # no kind covers the modes' damping (a very damped mode needs no shaper)
         return {"modes": _mode_records(modes), "chosen": None, "reason": str(exc), "candidates": []}
     chosen = choice.chosen.as_dict()
-    favoured, why = _versus_notch(modes[0][0], chosen["duration_s"], _crossover_hz(loop))
+    favoured, why = _versus_notch(modes[0][0], chosen["duration_s"], loop)
     return {
         "modes": _mode_records(modes),
         "chosen": chosen,
