@@ -47,6 +47,8 @@ period_s = 4.0
 duration_s = 12.0
 [identification]
 output = "position_m"
+[run]
+sample_rate_hz = 500.0
 """
 
 
@@ -86,7 +88,7 @@ def test_the_run_records_every_node_on_one_clock_and_its_summary_is_valid(two_dr
     # both nodes were driven: each one's torque follows its own column of the zipper
     t1, t2 = run.samples["torque_nm_node1"], run.samples["torque_nm_node2"]
     assert np.std(t1) > 0.5 and np.std(t2) > 0.5 and abs(np.corrcoef(t1, t2)[0, 1]) < 0.2
-    assert summary["stream"]["samples"] == run.n_samples > 0.99 * 12_000  # a joint row per sample, none filled
+    assert summary["stream"]["samples"] == run.n_samples > 0.95 * 6_000  # a joint row per sample, none filled
     assert summary["clock"][0]["nodes"] == [1, 2]
     assert summary["mimo"]["inputs"] == [
         {"column": "torque_nm_node1", "scale": 1.0},

@@ -215,7 +215,27 @@ class NodesSession(DeviceConnection):
         cfg = dataclasses.replace(self.cfg, data=data)
         u = np.column_stack([samples[c] for c in inputs])
         y = np.column_stack([samples[c] for c in outputs])
-        return identify_channels(u, y, self.cfg.run.sample_rate_hz, cfg, "identification.h5", excitation.period_samples)
+        keep, period = self._gap_free(samples["sample_index"], excitation.period_samples)
+        return identify_channels(u[keep], y[keep], self.cfg.run.sample_rate_hz, cfg, "identification.h5", period)
+
+    def _gap_free(self, index: np.ndarray, period: int | None) -> tuple[slice, int | None]:
+        """The rows analysed: all of them when no sample is missing; else the longest run of consecutive
+        samples (a record with holes is never read as if it had none, nor filled), not periodic any more,
+        with a warning."""
+        index = np.asarray(index, dtype=np.int64)
+        breaks = np.flatnonzero(np.diff(index) != 1) + 1
+        if not len(breaks):
+            return slice(None), period
+        edges = np.concatenate([[0], breaks, [len(index)]])
+        longest = int(np.argmax(np.diff(edges)))
+        a, b = int(edges[longest]), int(edges[longest + 1])
+        fs = self.cfg.run.sample_rate_hz
+        self.warnings.append(
+            f"identification: {int(index[-1]) + 1 - len(index)} sample(s) lost in {len(breaks)} gap(s): the modes "
+            f"come from the longest gap-free stretch, {(b - a) / fs:.2f} s of {(int(index[-1]) + 1) / fs:.2f} s "
+            "(a machine less busy, or a lower run.sample_rate_hz, loses none)"
+        )
+        return slice(a, b), None
 
     def _plot(self, response) -> None:
         """The stabilisation diagram of the modes, on the response's first singular value."""
