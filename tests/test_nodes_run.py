@@ -100,3 +100,14 @@ def test_several_nodes_need_a_multisine_in_torque():
     cfg = parse_config(CONFIG.replace('kind = "multisine"', 'kind = "chirp"'), "two-drives.toml")
     with pytest.raises(ConfigError, match=r"excitation\.kind.*two-drives\.toml|two-drives\.toml.*excitation\.kind"):
         NodesSession(cfg, "unused", plots=False).run()
+
+
+def test_a_record_with_lost_samples_is_read_on_its_longest_gap_free_stretch_and_says_so():
+    session = NodesSession(parse_config(CONFIG, "two-drives.toml"), "unused", plots=False)
+    whole = np.arange(6000)
+    assert session._gap_free(whole, 2000) == (slice(None), 2000) and not session.warnings
+    holes = np.delete(whole, [700, 701, 4100])  # three samples lost in two places
+    keep, period = session._gap_free(holes, 2000)
+    assert (keep.start, keep.stop) == (700, 4098) and period is None  # rows 700..4097 are samples 702..4099
+    assert np.all(np.diff(holes[keep]) == 1)
+    assert "3 sample(s) lost in 2 gap(s)" in session.warnings[0] and "6.80 s of 12.00 s" in session.warnings[0]
