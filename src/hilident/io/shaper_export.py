@@ -18,21 +18,20 @@ which kind was chosen and why, and how the others scored.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 from hilident.errors import DataError
 from hilident.motion.input_shapers import MIN_RELATIVE_INTERVAL, ShaperChoice, choose_shaper, score_shaper, zv_shaper
-from hilident.pipeline.input_shaper import measured_modes
+from hilident.pipeline.input_shaper import Mode, measured_modes
 
 __all__ = ["SHAPER_FORMATS", "klipper_section", "marlin_command", "shaper_document", "summary_modes", "write_shaper"]
 
 #: ``--format`` choices this module writes, and their default file names.
 SHAPER_FORMATS = {"klipper": "input_shaper.cfg", "marlin": "input_shaper.gcode", "shaper": "input_shaper.json"}
 
-_Mode = tuple[float, float, float | None, float | None]
 
-
-def summary_modes(summary: dict) -> list[_Mode]:
+def summary_modes(summary: dict) -> list[Mode]:
     """``(frequency_hz, damping_ratio, frequency_ci95_hz, damping_ci95)`` of every mode ``summary`` reports: its
     ``resonances``, else its ``mimo`` modes, strongest first (:func:`hilident.pipeline.input_shaper.measured_modes`).
 
@@ -48,7 +47,7 @@ def summary_modes(summary: dict) -> list[_Mode]:
     return modes
 
 
-def _comments(choice: ShaperChoice, modes: list[_Mode], source: str, mark: str) -> list[str]:
+def _comments(choice: ShaperChoice, modes: list[Mode], source: str, mark: str) -> list[str]:
     lines = [f"{mark} input shaper by hilident from {source}"]
     for f, z, fci, zci in modes:
         spread = f" +- {fci:.3g} Hz" if fci else ""
@@ -56,7 +55,7 @@ def _comments(choice: ShaperChoice, modes: list[_Mode], source: str, mark: str) 
         lines.append(f"{mark} mode {f:.3f} Hz{spread}, damping ratio {z:.4f}{dspread}")
     lines.append(f"{mark} {choice.reason}")
     for c in choice.candidates:
-        accel = "unlimited" if c.as_dict()["max_accel_mps2"] is None else f"{c.max_accel_mps2:.3g} m/s^2"
+        accel = "unlimited" if math.isinf(c.max_accel_mps2) else f"{c.max_accel_mps2:.3g} m/s^2"
         lines.append(
             f"{mark}   {c.kind}: worst residual vibration {100 * c.worst_vibration:.1f} %, "
             f"duration {1e3 * c.shaper.duration_s:.2f} ms, max acceleration {accel}"

@@ -35,7 +35,7 @@ from hilident.ident.mimo import (
 from hilident.ident.mimo.modal import ModalResult, lsfd, merge_split_modes, modal_intervals
 from hilident.ident.preprocess import remove_drift
 
-__all__ = ["Groups", "identify_channels", "mode_indicator_peaks"]
+__all__ = ["Groups", "identify_channels", "interval_blocks", "mode_indicator_peaks"]
 
 #: Fewest Welch segments averaged per input: fewer leave the multiple coherence and the spread meaningless.
 MIN_AVERAGES_PER_INPUT = 4
@@ -334,21 +334,44 @@ def _interval_groups(
     periods after the transient the whole estimate skipped, in consecutive groups of one period or more.
     """
     if frf.method == "periodic" and period_samples and lines is not None:
-        periods = len(u) // period_samples
-        skip = 1 if periods >= 3 else 0
-        k = min(INTERVAL_GROUPS, periods - skip)
-        if k < MIN_INTERVAL_GROUPS:
-            return Groups([])
-        edges = [(skip + round(g * (periods - skip) / k)) * period_samples for g in range(k + 1)]
-        cut = zip(edges[:-1], edges[1:], strict=True)
-        return Groups([periodic_mimo_frf(u[a:b], y[a:b], period_samples, fs, lines, skip_periods=0) for a, b in cut])
-    per_group = GROUP_AVERAGES_PER_INPUT * u.shape[1]
-    k = min(INTERVAL_GROUPS, len(u) // (segment * (per_group + 1) // 2))
-    if k < MIN_INTERVAL_GROUPS:
+        skip = 1 if len(u) // period_samples >= 3 else 0
+        blocks = interval_blocks(len(u), period_samples, segment, skip_periods=skip)
+        return Groups([periodic_mimo_frf(u[a:b], y[a:b], period_samples, fs, lines, skip_periods=0) for a, b in blocks])
+    blocks = interval_blocks(len(u), None, segment, n_inputs=u.shape[1])
+    if not blocks:
         replicates = min(INTERVAL_GROUPS, frf.n_averages)
         return Groups(leave_one_out_h1(u, y, fs, segment, replicates), jackknife=True)
-    edges = [round(g * len(u) / k) for g in range(k + 1)]
-    return Groups([mimo_h1(u[a:b], y[a:b], fs, segment) for a, b in zip(edges[:-1], edges[1:], strict=True)])
+    return Groups([mimo_h1(u[a:b], y[a:b], fs, segment) for a, b in blocks])
+
+
+def interval_blocks(
+    n: int,
+    period: int | None,
+    segment: int,
+    n_inputs: int = 1,
+    periods_per_block: int = 1,
+    skip_periods: int = 0,
+) -> list[tuple[int, int]]:
+    """Disjoint consecutive blocks of a record of ``n`` samples, each estimated as the whole record is, for the
+    modes' intervals; none when fewer than :data:`MIN_INTERVAL_GROUPS` fit.
+
+    Whole periods of ``period`` samples after ``skip_periods`` (a transient), ``periods_per_block`` or more per
+    block; else (``period`` None) blocks of at least ``GROUP_AVERAGES_PER_INPUT n_inputs`` Welch segments of
+    ``segment`` samples overlapping by half. At most :data:`INTERVAL_GROUPS` blocks.
+    """
+    if period is not None:
+        periods = n // period - skip_periods
+        k = min(INTERVAL_GROUPS, periods // periods_per_block)
+        if k < MIN_INTERVAL_GROUPS:
+            return []
+        edges = [(skip_periods + round(g * periods / k)) * period for g in range(k + 1)]
+    else:
+        per_group = GROUP_AVERAGES_PER_INPUT * n_inputs
+        k = min(INTERVAL_GROUPS, n // max(1, segment * (per_group + 1) // 2))
+        if k < MIN_INTERVAL_GROUPS:
+            return []
+        edges = [round(g * n / k) for g in range(k + 1)]
+    return list(zip(edges[:-1], edges[1:], strict=True))
 
 
 def _with_intervals(

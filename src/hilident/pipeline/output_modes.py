@@ -120,7 +120,7 @@ def joint_output_modes(
     units : dict of str to str, optional
         Each output channel's unit, as recorded (reported; the responses are per N·m of torque).
     groups : list of dict of str to FrequencyResponse, optional
-        The same responses estimated on disjoint blocks of the record (:func:`hilident.pipeline.plant.
+        The same responses estimated on disjoint blocks of the record (:func:`hilident.pipeline.mimo_identify.
         interval_blocks`): the modes' 95 % intervals (:func:`hilident.ident.mimo.modal_intervals`). None or
         empty: no intervals, and a note says why.
 

@@ -14,7 +14,7 @@ from hilident.ident.frfquality import frf_uncertainty
 from hilident.ident.preprocess import check_signals
 from hilident.ident.resonance import RejectedPeak, Resonance, screen_resonances
 from hilident.pipeline.measurement import measurement_quality
-from hilident.pipeline.mimo_identify import GROUP_AVERAGES_PER_INPUT, INTERVAL_GROUPS, MIN_INTERVAL_GROUPS
+from hilident.pipeline.mimo_identify import interval_blocks
 from hilident.pipeline.plant_model import (
     PlantModel,
     fit_plant_model,
@@ -53,8 +53,8 @@ class PlantResult:
         the same samples: what :mod:`hilident.pipeline.output_modes` identifies together with it.
     output_groups : list of (FrequencyResponse, dict of str to FrequencyResponse)
         With ``outputs``: :attr:`plant` and :attr:`outputs` estimated again on each of several disjoint blocks of
-        the record (:func:`interval_blocks`), for the joint modes' 95 % intervals; empty when the record holds
-        too few blocks.
+        the record (:func:`hilident.pipeline.mimo_identify.interval_blocks`), for the joint modes' 95 %
+        intervals; empty when the record holds too few blocks.
     """
 
     plant: FrequencyResponse
@@ -67,24 +67,6 @@ class PlantResult:
     notes: list[str] = field(default_factory=list)
     outputs: dict[str, FrequencyResponse] = field(default_factory=dict)
     output_groups: list[tuple[FrequencyResponse, dict[str, FrequencyResponse]]] = field(default_factory=list)
-
-
-def interval_blocks(n: int, period: int | None, segment: int) -> list[tuple[int, int]]:
-    """Disjoint blocks of a record of ``n`` samples, each estimated as the whole record is, for intervals.
-
-    Whole periods (``period``: the averaged period), at least two per block (an averaged estimate needs two),
-    else blocks of at least ``GROUP_AVERAGES_PER_INPUT`` Welch segments of ``segment`` samples overlapping by
-    half; at most ``INTERVAL_GROUPS`` blocks, and none when fewer than ``MIN_INTERVAL_GROUPS`` fit
-    (:mod:`hilident.pipeline.mimo_identify`'s rule).
-    """
-    unit = period if period is not None else max(1, segment * (GROUP_AVERAGES_PER_INPUT + 1) // 2)
-    per_block = 2 if period is not None else 1
-    units = n // unit
-    k = min(INTERVAL_GROUPS, units // per_block)
-    if k < MIN_INTERVAL_GROUPS:
-        return []
-    edges = [round(g * units / k) * unit for g in range(k + 1)]
-    return list(zip(edges[:-1], edges[1:], strict=True))
 
 
 def analysis_band(cfg: IdentificationConfig, excitation_band_hz: tuple[float, float]) -> tuple[float, float]:
@@ -187,7 +169,8 @@ def identify_plant(
     outputs = {name: estimate(x) for name, x in others.items()}
     output_groups = []
     if others:
-        for a, b in interval_blocks(len(u), averaged, 0 if averaged is not None else seg):
+        # an averaged estimate needs two periods: two or more per block
+        for a, b in interval_blocks(len(u), averaged, 0 if averaged is not None else seg, periods_per_block=2):
             block = slice(a, b)
             output_groups.append((estimate(y, block), {name: estimate(x, block) for name, x in others.items()}))
     screened = resonances_and_model(plant, cfg, band_hz)
