@@ -20,6 +20,7 @@ from hilident.emulator.canopen.server import start
 from hilident.errors import ConfigError, DeviceError, LimitTrip
 from hilident.filters.notch import NotchSpec, design_notch
 from hilident.protocol import cia402
+from hilident.protocol.canopen_types import ObjectAddress
 
 CONFIG = Path(__file__).resolve().parents[2] / "configs" / "emulated-canopen-gantry.toml"
 FS = 1000.0
@@ -364,3 +365,34 @@ def test_bus_arguments_from_the_device_table():
             ),
             find_driver("canopen-servo"),
         )
+
+
+@pytest.mark.parametrize(
+    "stale",
+    [b"\x60\x40\x60\x00\x00\x00\x00\x00", b"\x05\x11\x22\x33\x44\x55\x66\x77"],
+    ids=["late download answer", "late block upload segment"],
+)
+def test_a_stale_answer_in_the_queue_is_drained_and_the_request_asked_again(rig, stale):
+    # a late download answer, or a late segment of an aborted block upload, arrives just after canopen
+    # cleared its queue: read as the answer to the next request, it used to fail that request and leave
+    # the channel one answer behind for every request after it
+    r = rig("buffered")
+    sdo = r.adapter.sdo
+    max_torque = ObjectAddress(0x6072, 0)
+    expected = sdo.read_object(max_torque)
+    client = r.adapter.node.sdo
+    real_send = client.send_request
+    sent = []
+
+    def send_after_a_stale_frame(request):
+        sent.append(bytes(request))
+        if len(sent) == 1:
+            client.responses.put(stale)
+        real_send(request)
+
+    client.send_request = send_after_a_stale_frame
+    assert sdo.read_object(max_torque) == expected
+    assert len(sent) == 2  # asked once more, after the drain
+    sdo.write_object(max_torque, expected - 1)
+    assert sdo.read_object(max_torque) == expected - 1  # still in step
+    assert client.responses.empty()

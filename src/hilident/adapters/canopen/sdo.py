@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import contextlib
 import io
+import queue
+import time
 from collections.abc import Callable
 from struct import error as struct_error
 from typing import TypeVar
@@ -30,6 +32,41 @@ from hilident.protocol.canopen_types import ObjectAddress
 
 _Stream = TypeVar("_Stream", bound=io.RawIOBase)  # the block transfer stream a body reads or writes
 _Result = TypeVar("_Result")  # what the body returns
+
+STALE_QUIET_S = 0.05
+"""An SDO channel is clear of stale answers once no frame has come for this long (s)."""
+STALE_DRAIN_LIMIT_S = 1.0
+"""The longest a drain of stale answers waits (s): a server that keeps talking is not waited out."""
+
+
+def _out_of_step(exc: SdoCommunicationError) -> bool:
+    """Whether canopen rejected an answer as not the one to its request (a stale frame), not a silence."""
+    text = str(exc)
+    return text.startswith("Unexpected response") or "instead, maybe there is another SDO client" in text
+
+
+def drain_stale_answers(client: canopen.sdo.SdoClient) -> int:
+    """Take every late frame off an SDO client's response queue until the channel is quiet.
+
+    An aborted block upload leaves sub-block segments in flight, and an answer
+    canopen rejected as out of step is followed by the answer it was waiting
+    for: either, read as the answer to the next request, makes that request
+    fail (``Unexpected response 0x60``) and leaves the channel one answer behind.
+
+    Returns
+    -------
+    int
+        How many stale frames were taken off.
+    """
+    taken = 0
+    deadline = time.monotonic() + STALE_DRAIN_LIMIT_S
+    while time.monotonic() < deadline:
+        try:
+            client.responses.get(timeout=STALE_QUIET_S)
+        except queue.Empty:
+            break
+        taken += 1
+    return taken
 
 
 class SdoAccess:
@@ -106,8 +143,7 @@ class SdoAccess:
         var = self.eds_variable(addr)
         self.beat()
         try:
-            with uninterruptible():
-                raw = self.node.sdo.upload(addr.index, addr.subindex)
+            raw = self._exchange(lambda: self.node.sdo.upload(addr.index, addr.subindex))
             return var.decode_raw(raw)
         except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
             raise self._sdo_error(exc, addr, "reading") from None
@@ -121,10 +157,27 @@ class SdoAccess:
             raise DataError(f"{self.port}: value {value!r} does not fit {self.describe(addr)}: {exc}") from None
         self.beat()
         try:
-            with uninterruptible():
-                self.node.sdo.download(addr.index, addr.subindex, data)
+            self._exchange(lambda: self.node.sdo.download(addr.index, addr.subindex, data))
         except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError) as exc:
             raise self._sdo_error(exc, addr, "writing") from None
+
+    def _exchange(self, request: Callable[[], _Result]) -> _Result:
+        """One expedited or segmented exchange; asked once more when the answer was a stale frame.
+
+        The answer canopen rejected belonged to an earlier exchange (a late
+        segment of an aborted block upload, a late answer to a request it gave
+        up on), so the channel is drained of late frames and the request sent
+        again. Reads and the set-value writes hilident makes are idempotent.
+        """
+        try:
+            with uninterruptible():
+                return request()
+        except SdoCommunicationError as exc:
+            if not _out_of_step(exc):
+                raise
+            drain_stale_answers(self.node.sdo)
+            with uninterruptible():
+                return request()
 
     def read(self, role: str) -> ObjectValue:
         return self.read_object(self.desc.address(role))
@@ -209,6 +262,7 @@ class SdoAccess:
             if not isinstance(cause, SdoAbortedError):  # the drive aborted: its server is idle already
                 with contextlib.suppress(Exception):
                     self.node.sdo.abort(_ABORT_GENERAL)
+                drain_stale_answers(self.node.sdo)
             if cause is not None:
                 raise self._sdo_error(cause, addr, action) from None
             raise
