@@ -230,3 +230,38 @@ def shape_move(
         dst[:settle] = filter_setpoint(padded, chain)[1 : settle + 1]
     shaped = MoveProfile(np.arange(size) / fs, position, velocity, accel, settle, fs, profile.distance_m, None)
     return ShapedMove(shaped, profile, (settle - i_end) / fs, dc, float(tol))
+
+
+def impulse_shaped_move(profile: MoveProfile, shaper) -> ShapedMove:
+    """``profile`` shaped by an input shaper (a train of impulses, fixed or scheduled by position).
+
+    The motion (up to ``move_end_index``) goes through ``shaper.apply``; the shaped set-point reaches the end
+    position exactly, ``shaper``'s duration later at most, and the original dwell follows. Velocity and
+    acceleration are the shaped position's central differences (the move test streams the position).
+
+    Parameters
+    ----------
+    profile : MoveProfile
+    shaper : Shaper or ScheduledShaper
+        Anything with ``apply(x, sample_rate_hz)`` (:mod:`hilident.motion.input_shapers`,
+        :mod:`hilident.motion.scheduled_shaper`).
+
+    Returns
+    -------
+    ShapedMove
+        ``dc_gain`` 1 and ``tolerance_m`` 0: an impulse train's amplitudes sum to 1, so it ends where asked.
+    """
+    if not isinstance(profile, MoveProfile):
+        raise TypeError(f"profile must be a MoveProfile, got {type(profile).__name__}")
+    fs, i_end = profile.sample_rate_hz, profile.move_end_index
+    end = float(profile.position_m[i_end])
+    y = np.asarray(shaper.apply(profile.position_m[: i_end + 1], fs), dtype=float)
+    moving = np.flatnonzero(y != end)
+    settle = max(int(moving[-1]) + 1 if moving.size else 0, i_end)
+    dwell_samples = profile.position_m.size - 1 - i_end
+    position = np.full(settle + 1 + dwell_samples, end)
+    position[:settle] = y[:settle]
+    velocity = np.gradient(position) * fs
+    accel = np.gradient(velocity) * fs
+    shaped = MoveProfile(np.arange(position.size) / fs, position, velocity, accel, settle, fs, profile.distance_m, None)
+    return ShapedMove(shaped, profile, (settle - i_end) / fs, 1.0, 0.0)
