@@ -4,10 +4,12 @@ it and the notch together, from where the mode lies against the velocity loop's 
 from __future__ import annotations
 
 import jsonschema
+import numpy as np
 import pytest
 
 from hilident.io.summary import PlantPart, Summary
-from hilident.pipeline.input_shaper import NOTCH_COSTS_PHASE_BELOW, input_shaper_part
+from hilident.motion.input_shapers import DESIGNS
+from hilident.pipeline.input_shaper import NOTCH_COSTS_PHASE_BELOW, input_shaper_part, move_shapers
 from hilident.schemas import summary_schema
 
 RESONANCE = {"frequency_hz": 21.79, "damping_ratio": 0.018, "frequency_ci95_hz": 0.06, "damping_ci95": 0.002}
@@ -68,6 +70,60 @@ def test_a_summary_with_a_resonance_carries_the_part_and_holds_the_schema():
     out = summary.to_dict()
     part = out["input_shaper"]
     assert part["modes"][0]["frequency_hz"] == RESONANCE["frequency_hz"] and part["favoured"] == "both"
+    schema = summary_schema()
+    validator = jsonschema.Draft202012Validator({**schema["properties"]["input_shaper"], "$defs": schema["$defs"]})
+    assert list(validator.iter_errors(part)) == []
+
+
+def _travel(spread: float) -> list[dict]:
+    """A mode along 0.6 m of travel: 22 Hz +- ``spread`` (a fraction), at a damping ratio of 0.02."""
+    positions = np.linspace(-0.3, 0.3, 13)
+    return [
+        {
+            "position_m": float(p),
+            "frequency_hz": 22.0 * (1.0 + spread * p / 0.3),
+            "damping_ratio": 0.02,
+            "frequency_ci95_hz": 0.05,
+        }
+        for p in positions
+    ]
+
+
+def test_with_a_map_the_move_test_gets_a_fixed_shaper_for_the_range_and_a_scheduled_one():
+    shapers = move_shapers([{**RESONANCE, "peak_magnitude_db": -20.0}], _travel(0.15))
+    fixed, scheduled = shapers.wanted(["scheduled", "fixed"])
+    assert (fixed.name, scheduled.name) == ("fixed shaper", "scheduled shaper")
+    assert shapers.wanted(["scheduled"]) == [scheduled] and shapers.wanted([]) == []
+    travel = shapers.over_travel()
+    assert travel["frequency_range_hz"] == pytest.approx([22.0 * 0.85, 22.0 * 1.15])
+    # the mode moves by +-15 %: the one shaper for the range leaves more somewhere than the schedule anywhere
+    assert travel["fixed"]["worst_residual"] > travel["scheduled"]["worst_residual"]
+    assert travel["fixed"]["worst_residual"] == pytest.approx(max(r["fixed"] for r in travel["residuals"]))
+    assert len(travel["scheduled"]["table"]) == 13 and len(travel["residuals"]) == 13
+    # the schedule keeps within the target over each position's own interval
+    assert travel["scheduled"]["worst_vibration"] <= 0.05
+    assert scheduled.design_at(0.3).frequency_hz == pytest.approx(22.0 * 1.15)
+    assert fixed.design_at(0.3) is fixed.shaper
+    assert 0 < scheduled.max_accel_mps2 and 0 < fixed.max_accel_mps2
+
+
+def test_without_a_map_the_fixed_shaper_is_the_one_for_the_resonances_and_nothing_is_scheduled():
+    shapers = move_shapers([{**RESONANCE, "peak_magnitude_db": -20.0, "frequency_ci95_hz": float("nan")}], [])
+    (fixed,) = shapers.wanted(["fixed", "scheduled"])
+    part = input_shaper_part([{**RESONANCE, "peak_magnitude_db": -20.0}])
+    # an interval not measured is scored over +-5 %, as the summary's 0.06 Hz one is: the same choice
+    assert fixed.shaper.kind == part["chosen"]["kind"]
+    np.testing.assert_allclose(fixed.shaper.times_s, part["chosen"]["times_s"])
+    assert shapers.over_travel() is None
+    assert move_shapers([], []).wanted(["fixed"]) == []
+
+
+def test_a_run_summary_carries_the_shapers_over_the_travel_and_holds_the_schema():
+    summary = _identify_summary()
+    summary.plant = PlantPart([{**RESONANCE, "peak_magnitude_db": -20.0}])
+    summary.extra["shaper_over_travel"] = move_shapers([], _travel(0.1)).over_travel()
+    part = summary.to_dict()["input_shaper"]
+    assert part["over_travel"]["scheduled"]["kind"] in DESIGNS
     schema = summary_schema()
     validator = jsonschema.Draft202012Validator({**schema["properties"]["input_shaper"], "$defs": schema["$defs"]})
     assert list(validator.iter_errors(part)) == []

@@ -86,3 +86,30 @@ def test_a_summary_without_resonances_is_a_clear_error(tmp_path, capsys):
     assert "no resonance" in capsys.readouterr().err
     with pytest.raises(DataError, match="nothing to shape"):
         summary_modes({"resonances": [], "mimo": {"modes": []}})
+
+
+def test_the_scheduled_shaper_exports_as_a_position_table_and_in_the_json(tmp_path, capsys):
+    from hilident.pipeline.input_shaper import move_shapers
+
+    travel = [
+        {"position_m": p, "frequency_hz": 20.0 + 10.0 * p, "damping_ratio": 0.02, "frequency_ci95_hz": 0.05}
+        for p in (-0.2, 0.0, 0.2, 0.4)
+    ]
+    summary = _summary((21.0, 0.02, 0.05, -20.0))
+    summary["input_shaper"] = {"over_travel": move_shapers([], travel).over_travel()}
+    (tmp_path / "summary.json").write_text(json.dumps(summary))
+    assert main(["export", str(tmp_path), "--format", "shaper-table"]) == 0
+    lines = (tmp_path / "input_shaper_schedule.csv").read_text().splitlines()
+    kind = summary["input_shaper"]["over_travel"]["scheduled"]["kind"]
+    assert lines[0].startswith("#") and f"kind {kind}" in lines[1]
+    assert lines[2] == "position_m,frequency_hz,damping_ratio"
+    rows = np.array([[float(v) for v in line.split(",")] for line in lines[3:]])
+    np.testing.assert_allclose(rows, [[m["position_m"], m["frequency_hz"], m["damping_ratio"]] for m in travel])
+    doc = shaper_document(summary, "summary.json")
+    assert doc["scheduled"]["kind"] == kind and len(doc["scheduled"]["table"]) == 4
+    assert doc["fixed_for_travel"]["worst_residual"] > 0
+    # a run without [map] has no schedule to export: said, nothing written
+    (tmp_path / "summary.json").write_text(json.dumps(_summary((21.0, 0.02, 0.05, -20.0))))
+    (tmp_path / "input_shaper_schedule.csv").unlink()
+    assert main(["export", str(tmp_path), "--format", "shaper-table"]) != 0
+    assert "[map]" in capsys.readouterr().err and not (tmp_path / "input_shaper_schedule.csv").exists()

@@ -218,7 +218,7 @@ def test_a_loop_with_little_margin_gets_a_narrower_notch_and_says_why(tmp_path):
     0.4): the staggered set would leave about 0.06, so one narrower notch holds the mode down less and the loop
     keeps half its margin."""
     raw = quick_map(move=False)
-    raw["map"]["verify"] = False
+    raw["map"].update(verify=False, count=3)  # -0.5, 0, 0.5 m: the joint model spans the travel between them
     raw["notch"]["verify"] = False  # the loop's margins are computed from the map; no second run needed
     raw["emulator"]["drive"]["ti_s"] = 0.05
     cfg = parse_config(tomli_w.dumps(raw), str(MAP_CONFIG))
@@ -269,6 +269,8 @@ def move_config(config: str, tmp_path: Path) -> Path:
     raw = quick(tomllib.loads((CONFIGS / config).read_text()), transport)
     mapped_raw = tomllib.loads(MAP_CONFIG.read_text())
     raw["verification"] = mapped_raw["verification"]
+    # the input shapers' moves once, on the board (the shipped map config makes them on every mapped position)
+    raw["verification"]["move"]["shapers"] = ["fixed"] if transport == "serial" else []
     raw["emulator"]["drive"].update(velocity_feedforward=1.0, accel_feedforward_nm_per_mps2=5.0)
     raw["emulator"]["sensors"]["laser_resolution_m"] = 2e-6
     driver = find_driver(raw["device"]["driver"])
@@ -307,6 +309,14 @@ def test_a_move_rings_ten_db_less_with_the_notch_on_every_transport(config, tmp_
     moves = check_report(tmp_path / "out").sections["moves"]
     assert "load deflection" in moves and f"{move['rms_reduction_db']:.3g} dB" in moves
     assert "move_without.h5" in move["recordings"] and (tmp_path / "out" / "move_with.h5").is_file()
+    if config == "emulated-gantry.toml":  # without a map: the shaper the run's resonance favours
+        (fixed,) = move["shapers"]
+        assert fixed["kind"] == summary["input_shaper"]["chosen"]["kind"]
+        assert fixed["frequency_hz"] == pytest.approx(summary["resonances"][0]["frequency_hz"])
+        assert fixed["rms_reduction_db"] >= 10.0 and fixed["added_delay_s"] > 0, fixed
+        assert "fixed shaper" in moves and (tmp_path / "out" / "move_fixed.h5").is_file()
+    else:
+        assert move["shapers"] == []
 
 
 def test_the_map_run_moves_at_every_mapped_position_with_the_mapped_mode_where_each_move_ends(mapped):
@@ -327,3 +337,34 @@ def test_the_map_run_moves_at_every_mapped_position_with_the_mapped_mode_where_e
         assert m["rms_reduction_db"] >= 10.0, m
     assert summary["move_test"]["worst_rms_reduction_db"] == min(m["rms_reduction_db"] for m in moves)
     assert not [w for w in summary["warnings"] if "excites the mode less" in w]
+
+
+def test_the_map_run_makes_each_move_with_the_fixed_and_the_scheduled_shaper(mapped):
+    """The shipped map config's moves with input shapers, on the clean twin (its friction kept): the scheduled
+    shaper follows the twin's mode along the travel, and its moves ring at least 15 dB less than the unshaped
+    ones and no more than with the notch at every mapped position."""
+    cfg, summary, out = mapped
+    travel = summary["input_shaper"]["over_travel"]
+    for row in travel["scheduled"]["table"]:
+        truth_hz, _ = true_modes(cfg.emulator, row["position_m"])[0]
+        assert abs(row["frequency_hz"] - truth_hz) / truth_hz < 0.01, row
+    lo, hi = travel["frequency_range_hz"]
+    assert hi / lo > 1.12  # the mode moves by about +-8 % ...
+    assert travel["fixed"]["worst_residual"] > travel["scheduled"]["worst_residual"]  # ... which costs the fixed one
+    rate = cfg.run.sample_rate_hz
+    for i, m in enumerate(summary["move_test"]["moves"]):
+        fixed, scheduled = m["shapers"]
+        assert (fixed["name"], scheduled["name"]) == ("fixed shaper", "scheduled shaper")
+        truth_hz, _ = true_modes(cfg.emulator, m["start_m"] + m["distance_m"])[0]
+        assert abs(scheduled["frequency_hz"] - truth_hz) / truth_hz < 0.01, (m["start_m"], scheduled)
+        assert fixed["frequency_hz"] == pytest.approx(travel["fixed"]["frequency_hz"])
+        assert scheduled["rms_reduction_db"] >= 15.0, (m["start_m"], scheduled)
+        assert scheduled["rms_reduction_db"] >= m["rms_reduction_db"], (m["start_m"], scheduled, m["rms_reduction_db"])
+        # the set-point's prediction: the shaped move barely excites the mode, and the ringing falls no further
+        (mode,) = m["modes"]
+        predicted = 20 * np.log10(mode["excitation"] / scheduled["excitations"][0])
+        assert predicted >= 20.0 and scheduled["rms_reduction_db"] <= predicted + 6.0
+        assert 0 < scheduled["added_delay_s"] <= travel["scheduled"]["longest_duration_s"] + 1.0 / rate
+        assert (out / f"move_{i}_scheduled.h5").is_file() and (out / f"move_{i}_fixed.h5").is_file()
+    page = check_report(out).sections["moves"]
+    assert "The same move without shaping, with the notch and with each input shaper" in page

@@ -898,11 +898,12 @@ def build_parser() -> argparse.ArgumentParser:
     exp.add_argument(
         "--format",
         required=True,
-        choices=["mat", "json", "python-control", "klipper", "marlin", "shaper"],
+        choices=["mat", "json", "python-control", "klipper", "marlin", "shaper", "shaper-table"],
         help="mat: MATLAB structs (scipy.io.savemat); json: one documented file; python-control: a small "
         "script that rebuilds control.TransferFunction / StateSpace objects (needs pip install "
         "'hilident[control]'; in Python, hilident.io.export.to_control gives them directly); the input shaper "
-        "the measured resonances favour: klipper ([input_shaper] section), marlin (M593), shaper (JSON impulses)",
+        "the measured resonances favour: klipper ([input_shaper] section), marlin (M593), shaper (JSON impulses); "
+        "shaper-table: the shaper scheduled by position of a run with [map] (CSV position -> frequency)",
     )
     exp.add_argument(
         "--axis", default="x", choices=["x", "y", "z"], help="klipper, marlin: the axis the shaper is for (default x)"
@@ -911,7 +912,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--out",
         metavar="FILE",
         help="file to write (default in DIR: model.mat, model.json, model_control.py, input_shaper.cfg, "
-        "input_shaper.gcode or input_shaper.json)",
+        "input_shaper.gcode, input_shaper.json or input_shaper_schedule.csv)",
     )
     exp.add_argument(
         "--rate-hz",

@@ -525,6 +525,14 @@ class MoveConfig:
         ge=0,
         doc="settling band of the residual vibration, m (0: 5 % of the first peak of the move without the notch)",
     )
+    shapers: list[str] = _spec(
+        ["fixed", "scheduled"],
+        choices=("fixed", "scheduled"),
+        max_items=2,
+        doc="input shapers the move is also made with (the drive's notch out of the way): fixed, one for the whole "
+        "travel (the mapped range with [map], else the run's resonances); scheduled, following the map's mode "
+        "along the travel ([map] only); [] for none",
+    )
 
     @property
     def jerk_mps3(self) -> float:

@@ -621,8 +621,8 @@ def run_export(
     written.
 
     The default file is ``model.json``, ``model.mat`` or ``model_control.py`` beside the summary; the input
-    shaper formats (:mod:`hilident.io.shaper_export`) write ``input_shaper.cfg``, ``.gcode`` or ``.json`` for
-    ``axis``.
+    shaper formats (:mod:`hilident.io.shaper_export`) write ``input_shaper.cfg``, ``.gcode``, ``.json`` or
+    ``input_shaper_schedule.csv`` for ``axis``.
     """
     formats = {**FORMATS, **SHAPER_FORMATS}
     if fmt not in formats:

@@ -12,7 +12,13 @@ which kind was chosen and why, and how the others scored.
 * ``marlin``: the ``M593`` command (Marlin's input shaping is ZV: ``F`` the frequency, ``D`` the damping
   ratio) for the strongest resonance;
 * ``shaper``: one JSON file with the chosen shaper's impulse times (s) and amplitudes, for any motion
-  controller (several resonances: the convolution of one shaper per mode), and every candidate's score.
+  controller (several resonances: the convolution of one shaper per mode), and every candidate's score; a run
+  with ``[map]`` adds the shaper scheduled by position (``scheduled``: its kind and table) and the fixed one
+  for the whole travel (``fixed_for_travel``);
+* ``shaper-table``: the scheduled shaper as CSV, ``position_m,frequency_hz,damping_ratio`` (a run with
+  ``[map]``): a controller designs the shaper of that kind for the mode at the commanded position, linear
+  in between the rows and held beyond the ends. In Klipper, ``SET_INPUT_SHAPER SHAPER_FREQ_X=<f>`` from a
+  macro before each move does it by move.
 """
 
 from __future__ import annotations
@@ -28,7 +34,12 @@ from hilident.pipeline.input_shaper import Mode, measured_modes
 __all__ = ["SHAPER_FORMATS", "klipper_section", "marlin_command", "shaper_document", "summary_modes", "write_shaper"]
 
 #: ``--format`` choices this module writes, and their default file names.
-SHAPER_FORMATS = {"klipper": "input_shaper.cfg", "marlin": "input_shaper.gcode", "shaper": "input_shaper.json"}
+SHAPER_FORMATS = {
+    "klipper": "input_shaper.cfg",
+    "marlin": "input_shaper.gcode",
+    "shaper": "input_shaper.json",
+    "shaper-table": "input_shaper_schedule.csv",
+}
 
 
 def summary_modes(summary: dict) -> list[Mode]:
@@ -116,7 +127,48 @@ def shaper_document(summary: dict, source: str) -> dict:
         "amplitudes": choice.shaper.amplitudes.tolist(),
         "candidates": [c.as_dict() for c in choice.candidates],
         "units": {"times_s": "s", "smoothing_m": "m", "max_accel_mps2": "m/s^2", "worst_vibration": "fraction"},
+        **_over_travel(summary),
     }
+
+
+def _over_travel(summary: dict) -> dict:
+    """``scheduled`` and ``fixed_for_travel`` of a run with ``[map]`` (empty otherwise)."""
+    travel = (summary.get("input_shaper") or {}).get("over_travel")
+    if not travel:
+        return {}
+    scheduled = travel["scheduled"]
+    return {
+        "scheduled": {
+            "kind": scheduled["kind"],
+            "interpolation": "linear in position between the rows, held beyond the ends",
+            "table": scheduled["table"],
+            "worst_residual": scheduled["worst_residual"],
+            "max_accel_mps2": scheduled["max_accel_mps2"],
+        },
+        "fixed_for_travel": travel["fixed"],
+    }
+
+
+def schedule_table(summary: dict, source: str) -> str:
+    """The scheduled shaper's table as CSV (``#`` comment lines first: its kind and where it came from).
+
+    Raises
+    ------
+    DataError
+        The summary has no scheduled shaper (a run without ``[map]``).
+    """
+    scheduled = _over_travel(summary).get("scheduled")
+    if scheduled is None:
+        raise DataError(
+            f"{source} has no shaper scheduled by position (input_shaper.over_travel): it comes from a run with [map]"
+        )
+    lines = [
+        f"# input shaper scheduled by position, by hilident from {source}",
+        f"# kind {scheduled['kind']}: designed for the mode at the commanded position, {scheduled['interpolation']}",
+        "position_m,frequency_hz,damping_ratio",
+        *(f"{r['position_m']:.6g},{r['frequency_hz']:.6g},{r['damping_ratio']:.6g}" for r in scheduled["table"]),
+    ]
+    return "\n".join(lines) + "\n"
 
 
 def write_shaper(fmt: str, summary: dict, source: str, target: Path, axis: str = "x") -> None:
@@ -125,5 +177,7 @@ def write_shaper(fmt: str, summary: dict, source: str, target: Path, axis: str =
         target.write_text(klipper_section(summary, source, axis), encoding="utf-8")
     elif fmt == "marlin":
         target.write_text(marlin_command(summary, source, axis), encoding="utf-8")
+    elif fmt == "shaper-table":
+        target.write_text(schedule_table(summary, source), encoding="utf-8")
     else:
         target.write_text(json.dumps(shaper_document(summary, source), indent=2) + "\n", encoding="utf-8")

@@ -358,13 +358,16 @@ class Summary:
         notes: list[str] | None = None,
         loop: dict | None = None,
         mimo: dict | None = None,
+        shaper_over_travel: dict | None = None,
     ) -> Summary:
         """``hilident run``'s summary (``model``: the grey-box fit, None when not asked for; left out when the
         run failed before it; ``workspace_map``: the ``[map]`` points, left out of a run without ``[map]``;
         ``move_test``: each ``[verification] move`` result, left out of a run without one; ``workspace``: the
         ``[map]``'s joint fit and covering notch; ``notes``: what is worth knowing and needs no action;
         ``loop``: the drive's loop around the plant, left out of a run on a drive without ``[loop]``; ``mimo``: the
-        modes of ``[identification] output`` and ``outputs`` together, left out without ``outputs``)."""
+        modes of ``[identification] output`` and ``outputs`` together, left out without ``outputs``;
+        ``shaper_over_travel``: the fixed and the scheduled input shaper along the mapped travel, which
+        ``input_shaper`` then holds as ``over_travel``)."""
         return cls(
             "run",
             config,
@@ -390,6 +393,7 @@ class Summary:
                 "move_test": NOT_REACHED if move_test is None else move_test_summary(move_test),
                 "loop": NOT_REACHED if loop is None else loop,
                 "mimo": NOT_REACHED if mimo is None else mimo,
+                "shaper_over_travel": shaper_over_travel,
             },
             notes=list(notes or []),
         )
@@ -491,7 +495,12 @@ class Summary:
 
         loop = self.extra.get("loop")
         part = input_shaper_part(self.plant.resonances, loop if isinstance(loop, dict) else None)
-        return NOT_REACHED if part is None else part
+        if part is None:
+            return NOT_REACHED
+        over_travel = self.extra.get("shaper_over_travel")
+        if over_travel:
+            part["over_travel"] = over_travel
+        return part
 
     def to_dict(self) -> dict[str, Any]:
         """The summary in its command's documented layout, ``failed_step`` and ``error`` last when a step failed."""

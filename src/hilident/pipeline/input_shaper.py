@@ -20,11 +20,25 @@ measurement favours follows from what the notch costs the drive's loop, where th
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
 
 from hilident.errors import ConfigError
-from hilident.motion.input_shapers import choose_shaper
+from hilident.motion.input_shapers import choose_shaper, max_acceleration
+from hilident.motion.scheduled_shaper import RangeShaper, ScheduleChoice, fixed_for_range, schedule_shaper
 
-__all__ = ["MIN_PHASE_MARGIN_DEG", "NOTCH_COSTS_PHASE_BELOW", "PHASE_LOST_DEG", "input_shaper_part", "measured_modes"]
+__all__ = [
+    "MIN_PHASE_MARGIN_DEG",
+    "NOTCH_COSTS_PHASE_BELOW",
+    "PHASE_LOST_DEG",
+    "MoveShaper",
+    "MoveShapers",
+    "input_shaper_part",
+    "measured_modes",
+    "move_shapers",
+]
 
 #: A notch centred below this multiple of the velocity loop's crossover costs the loop phase margin it needs
 #: (a notch's phase lag reaches about an octave beyond its centre).
@@ -45,8 +59,8 @@ def measured_modes(records: list[dict]) -> list[Mode]:
         (
             float(r["frequency_hz"]),
             float(r["damping_ratio"]),
-            r.get("frequency_ci95_hz"),
-            r.get("damping_ci95"),
+            _known(r.get("frequency_ci95_hz")),
+            _known(r.get("damping_ci95")),
             float(r.get("peak_magnitude_db") or 0.0),
         )
         for r in records
@@ -54,6 +68,11 @@ def measured_modes(records: list[dict]) -> list[Mode]:
     ]
     modes.sort(key=lambda m: -m[4])
     return [m[:4] for m in modes]
+
+
+def _known(value) -> float | None:
+    """``value`` as a float, None when it is not given or not finite (an interval not measured)."""
+    return None if value is None or not math.isfinite(float(value)) else float(value)
 
 
 def _crossover_hz(loop: dict | None) -> float | None:
@@ -139,3 +158,137 @@ def _mode_records(modes: list[Mode]) -> list[dict]:
         {"frequency_hz": f, "damping_ratio": z, "frequency_ci95_hz": fci, "damping_ci95": zci}
         for f, z, fci, zci in modes
     ]
+
+
+@dataclass(frozen=True)
+class MoveShaper:
+    """An input shaper the move test makes the same move with (the drive's notch out of the way).
+
+    Attributes
+    ----------
+    name : str
+        ``"fixed shaper"`` (one shaper for the whole travel) or ``"scheduled shaper"`` (following the map).
+    shaper : Shaper or ScheduledShaper
+        Anything with ``apply(x, sample_rate_hz)`` and ``at(position_m)`` or a ``kind``.
+    max_accel_mps2 : float or None
+        The largest acceleration whose smoothing stays within Klipper's target, m/s^2 (None: unlimited).
+    """
+
+    name: str
+    shaper: object
+    max_accel_mps2: float | None
+
+    @property
+    def tag(self) -> str:
+        """The word the recordings are named with: ``fixed`` or ``scheduled``."""
+        return self.name.split()[0]
+
+    def design_at(self, position_m: float):
+        """The shaper that acts where a move ends at ``position_m`` (the schedule's there, else the one)."""
+        at = getattr(self.shaper, "at", None)
+        return at(position_m) if callable(at) else self.shaper
+
+
+def _accel_limit(value: float) -> float | None:
+    return None if math.isinf(value) else float(value)
+
+
+@dataclass(frozen=True)
+class MoveShapers:
+    """The shapers the move test makes its moves with, and what they are predicted to leave along the travel.
+
+    Attributes
+    ----------
+    fixed : MoveShaper or None
+        One shaper for every move: designed for the mapped range of the mode (``ranged``), else chosen for the
+        run's resonances. None: no kind covers the modes' damping.
+    scheduled : MoveShaper or None
+        The shaper following the map's mode along the travel (None without a map).
+    ranged : RangeShaper or None
+        The fixed shaper's design over the mapped range, with its residual at every position of the table.
+    schedule : ScheduleChoice or None
+        The scheduled shaper's kind and why.
+    """
+
+    fixed: MoveShaper | None
+    scheduled: MoveShaper | None
+    ranged: RangeShaper | None = None
+    schedule: ScheduleChoice | None = None
+
+    def wanted(self, names: Sequence[str]) -> list[MoveShaper]:
+        """The shapers among ``names`` (``"fixed"``, ``"scheduled"``) that could be designed, in that order."""
+        found = {"fixed": self.fixed, "scheduled": self.scheduled}
+        return [s for name in ("fixed", "scheduled") if name in names and (s := found[name]) is not None]
+
+    def over_travel(self) -> dict | None:
+        """``summary.json["input_shaper"]["over_travel"]``: the fixed and the scheduled shaper along the mapped
+        travel (None without a map)."""
+        if self.ranged is None or self.schedule is None:
+            return None
+        ranged, schedule = self.ranged, self.schedule.schedule
+        scheduled_residuals = schedule.residual_at(ranged.positions_m)
+        chosen = ranged.choice.chosen
+        return {
+            "frequency_range_hz": [float(np.min(schedule.frequencies_hz)), float(np.max(schedule.frequencies_hz))],
+            "fixed": {
+                "kind": chosen.kind,
+                "frequency_hz": float(np.atleast_1d(chosen.shaper.frequency_hz)[0]),
+                "damping_ratio": float(np.atleast_1d(chosen.shaper.damping_ratio)[0]),
+                "duration_s": chosen.shaper.duration_s,
+                "max_accel_mps2": _accel_limit(chosen.max_accel_mps2),
+                "worst_residual": ranged.worst_residual,
+                "reason": ranged.choice.reason,
+            },
+            "scheduled": {
+                "kind": schedule.kind,
+                "longest_duration_s": schedule.longest_duration_s,
+                "max_accel_mps2": self.scheduled.max_accel_mps2 if self.scheduled is not None else None,
+                "worst_residual": float(np.max(scheduled_residuals)),
+                "worst_vibration": self.schedule.worst_vibration,
+                "reason": self.schedule.reason,
+                "table": schedule.table(),
+            },
+            "residuals": [
+                {"position_m": float(p), "fixed": float(a), "scheduled": float(b)}
+                for p, a, b in zip(ranged.positions_m, ranged.residuals, scheduled_residuals, strict=True)
+            ],
+        }
+
+
+def move_shapers(resonances: list[dict], mapped: list[dict]) -> MoveShapers:
+    """The fixed and the scheduled shaper for the move test.
+
+    Parameters
+    ----------
+    resonances : list of dict
+        The run's resonances (as :func:`measured_modes` reads them): the fixed shaper's modes without a map.
+    mapped : list of dict
+        The mode along the travel (``position_m``, ``frequency_hz``, ``damping_ratio``, optionally
+        ``frequency_ci95_hz``), from the map's joint model; fewer than two positions: no map, no schedule.
+
+    Returns
+    -------
+    MoveShapers
+    """
+    usable = [m for m in mapped if m.get("frequency_hz") and m.get("damping_ratio") is not None]
+    if len({m["position_m"] for m in usable}) >= 2:
+        try:
+            ranged, schedule = fixed_for_range(usable), schedule_shaper(usable)
+        except ConfigError:  # no kind covers the mode's damping along the travel
+            return MoveShapers(None, None)
+        plan = schedule.schedule
+        limits = [max_acceleration(plan.at(float(p))) for p in plan.positions_m]
+        return MoveShapers(
+            MoveShaper("fixed shaper", ranged.shaper, _accel_limit(ranged.choice.chosen.max_accel_mps2)),
+            MoveShaper("scheduled shaper", plan, _accel_limit(min(limits))),
+            ranged,
+            schedule,
+        )
+    modes = measured_modes(resonances)
+    if not modes:
+        return MoveShapers(None, None)
+    try:
+        chosen = choose_shaper(modes).chosen
+    except ConfigError:
+        return MoveShapers(None, None)
+    return MoveShapers(MoveShaper("fixed shaper", chosen.shaper, _accel_limit(chosen.max_accel_mps2)), None)

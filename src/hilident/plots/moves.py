@@ -74,8 +74,12 @@ def moves_figure(
     when: dt.datetime | None = None,
     added_delay_s: float | None = None,
     before_s: float = 0.25,
+    shaped: tuple = (),
 ):
     """The figure of :func:`plot_moves`, unsaved (what the tests inspect).
+
+    ``shaped``: ``(name, time_s, signal, residual, added_delay_s)`` of each move made with an input shaper,
+    drawn beside the two (its residual measured with the same band).
 
     Raises
     ------
@@ -85,9 +89,11 @@ def moves_figure(
     from matplotlib.figure import Figure
 
     curves = []
+    delays = {"with notch": added_delay_s} | {str(m[0]): m[4] for m in shaped}
     for name, t, y, r in (
         ("without notch", without_time_s, without_signal, comparison.without),
         ("with notch", with_time_s, with_signal, comparison.with_notch),
+        *((str(m[0]), m[1], m[2], m[3]) for m in shaped),
     ):
         tv = vector(t, f"{name} time_s")
         yv = vector(y, f"{name} signal")
@@ -98,18 +104,19 @@ def moves_figure(
             raise DataError(f"{name}: no samples from {before_s:g} s before the move's end to the dwell's end")
         curves.append((name, x[keep], yv[keep] - r.final_value, r))
     before, after = comparison.without, comparison.with_notch
-    magnitude = max(before.first_peak, after.first_peak, before.band)
+    magnitude = max(before.first_peak, after.first_peak, before.band, *(c[3].first_peak for c in curves))
     unit, scale = signal_scale(before.unit, magnitude)
 
     fig = Figure(figsize=(10.0, 4.8), dpi=110, layout="constrained")
     ax = fig.subplots()
-    ax.axvspan(0.0, max(before.dwell_s, after.dwell_s), color="0.92", zorder=0, label="dwell (measured)")
+    ax.axvspan(0.0, max(c[3].dwell_s for c in curves), color="0.92", zorder=0, label="dwell (measured)")
     band = before.band / scale
     ax.axhline(band, color="tab:green", ls="--", lw=0.9, label=f"settling band ±{band:.3g} {unit}")
     ax.axhline(-band, color="tab:green", ls="--", lw=0.9)
     ax.axvline(0.0, color="0.5", lw=0.8)
-    for (name, x, y, r), colour in zip(curves, ("tab:red", "tab:blue"), strict=True):
-        delay = added_delay_s if name == "with notch" else None
+    colours = ("tab:red", "tab:blue", "tab:orange", "tab:purple", "tab:brown", "tab:pink")
+    for (name, x, y, r), colour in zip(curves, colours, strict=False):
+        delay = delays.get(name)
         ax.plot(x, y / scale, color=colour, lw=1.0, label=_entry(name, r, unit, scale, delay))
         if r.settling_time_s is not None and r.settling_time_s > 0:
             ax.axvline(r.settling_time_s, color=colour, ls=":", lw=0.9)
@@ -118,8 +125,11 @@ def moves_figure(
     ax.grid(True, alpha=0.3)
     reduction = (
         f"residual vibration reduced by {comparison.rms_reduction_db:.1f} dB (RMS), "
-        f"{comparison.peak_to_peak_reduction_db:.1f} dB (peak-to-peak)"
+        f"{comparison.peak_to_peak_reduction_db:.1f} dB (peak-to-peak) with the notch"
     )
+    for name, _, _, r in curves[2:]:
+        if r.rms > 0:
+            reduction += f"; {20.0 * np.log10(before.rms / r.rms):.1f} dB (RMS) with the {name}"
     ax.set_title(f"{plot_title(config_name(subject), when, 'Move')}\n{reduction}", fontsize=10)
     outside_legend(ax)
     return fig
@@ -150,7 +160,8 @@ def plot_moves(
         ``signal_name`` (y-axis label, e.g. ``"load deflection (laser)"``), ``subject`` (the
         config's file, for the title), ``when`` (the title's date, default now),
         ``added_delay_s`` (how much later the shaped move ends, s), ``before_s``
-        (time drawn before the move's end, s).
+        (time drawn before the move's end, s), ``shaped`` (the moves with input shapers, as
+        :func:`moves_figure` takes them).
 
     Returns
     -------

@@ -205,6 +205,25 @@ class WorkspaceRun:
             if np.isfinite(m.frequency_ci95_hz)
         ]
 
+    def shaper_table(self, count: int = 50) -> list[dict]:
+        """The mode along the mapped travel for a shaper scheduled by position: the joint model's at ``count``
+        positions (with its damping ratio and the 95 % interval of its frequency), else the mapped points."""
+        positions = [p.position_m for p in self.found]
+        if self.joint is not None and len(positions) >= 2:
+            span = np.linspace(min(positions), max(positions), count)
+            modes = [self.joint.mode_at(float(p)) for p in span]
+            return [
+                {
+                    "position_m": float(p),
+                    "frequency_hz": m.frequency_hz,
+                    "damping_ratio": m.damping_ratio,
+                    "frequency_ci95_hz": m.frequency_ci95_hz if np.isfinite(m.frequency_ci95_hz) else None,
+                }
+                for p, m in zip(span, modes, strict=True)
+                if np.isfinite(m.frequency_hz) and 0.0 <= m.damping_ratio < 1.0
+            ]
+        return [p.to_dict() for p in self.found]
+
     # --- 3. the notches for the whole workspace ----------------------------------------------------------
 
     def notch_designs(self, adapter, resonances: list, slots: list[int], plant) -> list:

@@ -25,7 +25,7 @@ flexible mode, not the position loop's slower settling.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -35,7 +35,8 @@ from hilident.config.tables import Config, MoveConfig
 from hilident.errors import DataError
 from hilident.motion.mode_excitation import WEAK_EXCITATION, mode_excitation, peak_acceleration
 from hilident.motion.profiles import MoveProfile
-from hilident.motion.residual import MoveComparison
+from hilident.motion.residual import MoveComparison, ResidualVibration
+from hilident.pipeline.input_shaper import MoveShaper
 from hilident.session.map_positions import move_axis
 
 LOAD = "load_position_m"
@@ -103,6 +104,65 @@ class ModeExcitation:
 
 
 @dataclass(frozen=True)
+class ShapedMoveResult:
+    """The move made with one input shaper, against the same move without shaping.
+
+    Attributes
+    ----------
+    name : str
+        :attr:`MoveShaper.name`.
+    kind : str
+        The shaper's kind where the move ends.
+    frequency_hz, damping_ratio : float
+        The mode the shaper acting where the move ends was designed for (the first, for several).
+    residual : ResidualVibration
+        Over the dwell, with the band of the move without shaping.
+    rms_reduction_db, peak_to_peak_reduction_db : float
+        Against the move without shaping, dB.
+    added_delay_s : float
+        How much later the shaped move reached its end, s.
+    recordings : tuple of str
+        The recording of the shaped move.
+    excitations : tuple of float
+        ``V`` of the shaped set-point at each of the test's modes (:attr:`MoveTestResult.modes`), against a
+        step of the unshaped move's peak acceleration.
+    max_accel_mps2 : float or None
+        :attr:`MoveShaper.max_accel_mps2`.
+    trace : tuple of ndarray
+        ``(time_s, signal)`` of the measured move, for the plot.
+    """
+
+    name: str
+    kind: str
+    frequency_hz: float
+    damping_ratio: float
+    residual: ResidualVibration
+    rms_reduction_db: float
+    peak_to_peak_reduction_db: float
+    added_delay_s: float
+    recordings: tuple[str, ...]
+    excitations: tuple[float, ...]
+    max_accel_mps2: float | None
+    trace: tuple
+
+    def to_dict(self, floor_rms: float, without_rms: float) -> dict:
+        return {
+            "name": self.name,
+            "kind": self.kind,
+            "frequency_hz": self.frequency_hz,
+            "damping_ratio": self.damping_ratio,
+            "residual": self.residual.as_dict(),
+            "rms_reduction_db": _finite(self.rms_reduction_db),
+            "peak_to_peak_reduction_db": _finite(self.peak_to_peak_reduction_db),
+            "rms_reduction_above_standstill_db": above_floor_db(without_rms, self.residual.rms, floor_rms),
+            "added_delay_s": self.added_delay_s,
+            "recordings": list(self.recordings),
+            "excitations": list(self.excitations),
+            "max_accel_mps2": self.max_accel_mps2,
+        }
+
+
+@dataclass(frozen=True)
 class MoveTestResult:
     """One move test, without and with the notch, at one place of the workspace.
 
@@ -130,6 +190,8 @@ class MoveTestResult:
         The move out, signed, m (the measured dwell is at ``start_m + distance_m``).
     modes : tuple of ModeExcitation
         How strongly each move's set-point excites the modes where it ends (empty: no mode known there).
+    shaped : tuple of ShapedMoveResult
+        The same move with each input shaper (empty: none was made).
     """
 
     start_m: float
@@ -142,6 +204,7 @@ class MoveTestResult:
     floor_rms: float = float("nan")
     distance_m: float = float("nan")
     modes: tuple[ModeExcitation, ...] = ()
+    shaped: tuple[ShapedMoveResult, ...] = ()
 
     @property
     def rest_limit_db(self) -> float | None:
@@ -171,6 +234,7 @@ class MoveTestResult:
             "rest_limit_db": self.rest_limit_db,
             "modes": [m.to_dict() for m in self.modes],
             **c.as_dict(),
+            "shapers": [m.to_dict(self.floor_rms, c.without.rms) for m in self.shaped],
         }
 
 
@@ -233,8 +297,10 @@ class MoveTest:
         host_sections: list | None,
         slots: DriveNotch | None,
         modes: list[tuple[float, float]] | None = None,
+        shapers: Sequence[MoveShaper] = (),
     ) -> MoveTestResult:
-        """Move ``distance_m`` out and back without the notch, then with it; ``tag`` names the recordings.
+        """Move ``distance_m`` out and back without the notch, then with it, then with each of ``shapers`` (the
+        drive's ``slots`` disabled: the shaper alone); ``tag`` names the recordings.
 
         ``notch_in = "drive"``: the difference is the drive's filter ``slots`` (disabled for the first move);
         ``"host"``: the set-point of the second move is shaped by ``host_sections`` (biquads at the set-point
@@ -285,11 +351,16 @@ class MoveTest:
         )
         if comparison.without.rms <= 0:
             raise DataError(f"move test{tag}: the move without the notch left no measurable vibration")
-        floor = float(
-            np.sqrt(
-                np.mean([standstill_rms(t, y) ** 2 for t, y in ((t_without, signal_without), (t_with, signal_with))])
-            )
-        )
+        shaped = []
+        if shapers:
+            with slots.disabled() if slots is not None else contextlib.nullcontext():
+                shaped = [
+                    self._shaped_move(tag, s, out, back, start_m + distance_m, comparison, modes or [], out_and_back)
+                    for s in shapers
+                ]
+        # the vibration at rest before every move of this place: the more records, the steadier the floor
+        rests = [(t_without, signal_without), (t_with, signal_with), *(m.trace for m in shaped)]
+        floor = float(np.sqrt(np.mean([standstill_rms(t, y) ** 2 for t, y in rests])))
         return MoveTestResult(
             start_m,
             comparison,
@@ -301,6 +372,60 @@ class MoveTest:
             floor,
             distance_m,
             excitations(out, with_out if notch_in == "host" else None, modes or []),
+            tuple(shaped),
+        )
+
+    def _shaped_move(
+        self,
+        tag: str,
+        shaper: MoveShaper,
+        out: MoveProfile,
+        back: MoveProfile,
+        end_m: float,
+        comparison: MoveComparison,
+        modes: list[tuple[float, float]],
+        out_and_back: Callable,
+    ) -> ShapedMoveResult:
+        """The move out and back with ``shaper``'s set-point, measured with the unshaped move's band."""
+        from hilident.motion.residual import reduction_db, residual_vibration
+        from hilident.motion.shaping import impulse_shaped_move
+
+        rate = self.cfg.run.sample_rate_hz
+        shaped_out, shaped_back = (impulse_shaped_move(p, shaper.shaper) for p in (out, back))
+        self.progress.step(f"move test{tag}: with the {shaper.name}")
+        name = f"move{tag}_{shaper.tag}"
+        exp = out_and_back(name, shaped_out.profile, shaped_back.profile)
+        _, signal = measured_signal(exp.samples)
+        t = exp.samples["sample_index"] / rate
+        residual = residual_vibration(
+            t,
+            signal,
+            STANDSTILL_S + shaped_out.profile.move_end_s,
+            self.move.dwell_s,
+            band=comparison.without.band,
+            detrend="linear",
+        )
+        acting = shaper.design_at(end_m)
+        peak = peak_acceleration(out.position_m, rate)
+        v = tuple(
+            mode_excitation(
+                shaped_out.profile.position_m, rate, shaped_out.profile.move_end_index, f, z, reference_accel_mps2=peak
+            )
+            for f, z in modes
+        )
+        return ShapedMoveResult(
+            shaper.name,
+            acting.kind,
+            float(np.atleast_1d(acting.frequency_hz)[0]),
+            float(np.atleast_1d(acting.damping_ratio)[0]),
+            residual,
+            reduction_db(comparison.without.rms, residual.rms),
+            reduction_db(comparison.without.peak_to_peak, residual.peak_to_peak),
+            float(shaped_out.added_delay_s),
+            (f"{name}.h5",),
+            v,
+            shaper.max_accel_mps2,
+            (t, signal),
         )
 
 
@@ -367,6 +492,7 @@ def run_move_tests(
     places_m: list[float],
     position: Callable[[], float | None],
     modes_at: Callable[[float], list[tuple[float, float]]] | None = None,
+    shapers: Sequence[MoveShaper] = (),
 ) -> list[MoveTestResult]:
     """The move test from ``start_m`` (or, with a map, from each of ``places_m``, then back to ``start_m``).
 
@@ -397,6 +523,8 @@ def run_move_tests(
         ``modes_at(position_m) -> [(frequency_hz, damping_ratio), ...]``: the modes at a position, for how
         strongly each move excites them; a move that excites them weakly gets a warning
         (:func:`weak_excitation_warning`).
+    shapers : sequence of MoveShaper
+        The input shapers each place's move is made with as well (:class:`ShapedMoveResult`).
     """
     move = cfg.verification.move
     if not designs or move is None:
@@ -413,7 +541,7 @@ def run_move_tests(
             here = move_axis(cfg, record, f"move{tag}_approach", here, target)
         distance = move_distance(move, here, lim.position_min_m + margin, lim.position_max_m - margin)
         modes = modes_at(here + distance) if modes_at is not None else []
-        results.append(tester.run(tag, here, distance, notch_in, host, slots, modes))
+        results.append(tester.run(tag, here, distance, notch_in, host, slots, modes, shapers))
         last = position()
         here = here if last is None else last
     if places_m:
@@ -543,6 +671,7 @@ def plot_worst_move(results: list[MoveTestResult], path: Path, config_name: str,
             signal_name=worst.signal,
             subject=f"{config_name}, from {worst.start_m:+.3f} m",
             added_delay_s=worst.added_delay_s or None,
+            shaped=tuple((m.name, *m.trace, m.residual, m.added_delay_s) for m in worst.shaped),
         )
     except (DataError, ValueError) as exc:
         warnings.append(f"moves.png could not be drawn: {exc}")

@@ -53,6 +53,7 @@ from hilident.io.summary import (
     VerificationPart,
 )
 from hilident.lazy import lazy_module
+from hilident.pipeline.input_shaper import MoveShapers, move_shapers
 from hilident.plots import figures as report
 from hilident.plots.common import plot_title
 from hilident.progress import Progress
@@ -167,6 +168,7 @@ class Session(DeviceConnection):
         self._auto: dict | None = None  # the automatic amplitude's choice, trials and reason
         self.workspace: WorkspaceRun | None = None  # [map]: the map, the joint fit, the covering notches
         self.move_results: list[MoveTestResult] | None = None  # [verification] move, at each place it ran
+        self.move_shapers: MoveShapers | None = None  # the input shapers the move test made its moves with
         self.position_m: float | None = None  # the cart's position at the end of the last recording, m
         self.loop = None  # the drive's loop around the identified plant (a drive with [loop] only)
         self.joint = None  # the modes of identification.output and identification.outputs together
@@ -597,6 +599,9 @@ class Session(DeviceConnection):
             mapped = workspace.mode_at(position_m) if workspace is not None else None
             return [mapped] if mapped is not None else resonances
 
+        self.move_shapers = move_shapers(
+            [d.resonance.to_dict() for d in designs], workspace.shaper_table() if workspace is not None else []
+        )
         return run_move_tests(
             self.cfg,
             self.record,
@@ -610,6 +615,7 @@ class Session(DeviceConnection):
             places,
             lambda: self.position_m,
             modes_at,
+            self.move_shapers.wanted(self.cfg.verification.move.shapers if self.cfg.verification.move else []),
         )
 
     def _notch_step(self, plant):
@@ -862,6 +868,7 @@ class Session(DeviceConnection):
             workspace=self.workspace.summary if self.workspace else None,
             loop=self.loop.to_dict() if self.loop is not None else None,
             mimo=self.joint.part if self.joint is not None else None,
+            shaper_over_travel=self.move_shapers.over_travel() if self.move_shapers is not None else None,
         )
 
     def _plots(self, friction, plant, designs, verification, excitation_band_hz, model=None) -> None:
