@@ -270,25 +270,44 @@ class Shaper:
             A rate that is not > 0 and finite.
         """
         fs = number("sample_rate_hz", sample_rate_hz, strict=True)
-        values = np.asarray(x, dtype=float)
-        if values.ndim != 1 or values.size == 0:
-            raise DataError(f"set-point: expected a non-empty 1-D array, got shape {values.shape}")
-        if not np.all(np.isfinite(values)):
-            raise DataError("set-point contains NaN or infinite values")
-        extension = math.ceil(self.duration_s * fs - 1e-9)
-        held = np.concatenate([values, np.full(extension, values[-1])])
-        index = np.arange(held.size)
-        # Summed as corrections to the held set-point, so where every delayed copy equals it (before the
-        # move, and from the end of the last copy on) the output is exactly the set-point, not within rounding.
+        held = held_setpoint(x, self.duration_s, fs)
         shaped = held.copy()
-        for time_s, amplitude in zip(self.times_s, self.amplitudes, strict=True):
-            delay = time_s * fs
-            whole = math.floor(delay)
-            fraction = delay - whole
-            later = held[np.clip(index - whole, 0, None)]
-            earlier = held[np.clip(index - whole - 1, 0, None)]
-            shaped += amplitude * ((1.0 - fraction) * (later - held) + fraction * (earlier - held))
+        add_delayed_copies(shaped, held, np.arange(held.size), self.times_s, self.amplitudes, fs)
         return shaped
+
+
+def held_setpoint(x, duration_s: float, sample_rate_hz: float) -> np.ndarray:
+    """The set-point ``x`` checked and held at its last value for ``duration_s`` more (whole samples, rounded up).
+
+    Raises
+    ------
+    DataError
+        ``x`` not a non-empty 1-D array, or not finite.
+    """
+    values = np.asarray(x, dtype=float)
+    if values.ndim != 1 or values.size == 0:
+        raise DataError(f"set-point: expected a non-empty 1-D array, got shape {values.shape}")
+    if not np.all(np.isfinite(values)):
+        raise DataError("set-point contains NaN or infinite values")
+    return np.concatenate([values, np.full(math.ceil(duration_s * sample_rate_hz - 1e-9), values[-1])])
+
+
+def add_delayed_copies(
+    shaped: np.ndarray, held: np.ndarray, rows: np.ndarray, times_s, amplitudes, sample_rate_hz: float
+) -> None:
+    """Add to ``shaped[rows]`` the impulses' delayed copies of ``held``, as corrections to ``held[rows]``.
+
+    A delay between samples interpolates linearly; before its first sample the set-point is ``held[0]``.
+    Summed as corrections to the held set-point, so where every delayed copy equals it (before the move, and
+    from the end of the last copy on) the output is exactly the set-point, not within rounding.
+    """
+    for time_s, amplitude in zip(times_s, amplitudes, strict=True):
+        delay = time_s * sample_rate_hz
+        whole = math.floor(delay)
+        fraction = delay - whole
+        later = held[np.clip(rows - whole, 0, None)]
+        earlier = held[np.clip(rows - whole - 1, 0, None)]
+        shaped[rows] += amplitude * ((1.0 - fraction) * (later - held[rows]) + fraction * (earlier - held[rows]))
 
 
 def _design_point(kind: str, frequency_hz, damping_ratio) -> tuple[float, float]:

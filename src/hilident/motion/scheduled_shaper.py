@@ -29,14 +29,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hilident.errors import ConfigError, DataError
+from hilident.errors import ConfigError
 from hilident.motion.input_shapers import (
     MIN_RELATIVE_INTERVAL,
     TARGET_VIBRATION,
     Shaper,
     ShaperChoice,
+    add_delayed_copies,
     choose_shaper,
     design_shaper,
+    held_setpoint,
     residual_vibration,
 )
 from hilident.numbers import number
@@ -126,29 +128,15 @@ class ScheduledShaper:
         ndarray
         """
         fs = number("sample_rate_hz", sample_rate_hz, strict=True)
-        values = np.asarray(x, dtype=float)
-        if values.ndim != 1 or values.size == 0:
-            raise DataError(f"set-point: expected a non-empty 1-D array, got shape {values.shape}")
-        if not np.all(np.isfinite(values)):
-            raise DataError("set-point contains NaN or infinite values")
-        held = np.concatenate([values, np.full(math.ceil(self.longest_duration_s * fs - 1e-9), values[-1])])
+        held = held_setpoint(x, self.longest_duration_s, fs)
         frequency, damping = self.mode_at(held)
         shaped = held.copy()
         # one design per distinct mode: a move has few (its rests), and every sample of one shares the impulses
         modes, which = np.unique(np.column_stack([frequency, damping]), axis=0, return_inverse=True)
         which = which.ravel()
         for k, (f, z) in enumerate(modes):
-            rows = np.flatnonzero(which == k)
             shaper = design_shaper(self.kind, float(f), float(z))
-            for time_s, amplitude in zip(shaper.times_s, shaper.amplitudes, strict=True):
-                delay = time_s * fs
-                whole = math.floor(delay)
-                fraction = delay - whole
-                later = held[np.clip(rows - whole, 0, None)]
-                earlier = held[np.clip(rows - whole - 1, 0, None)]
-                shaped[rows] += amplitude * (
-                    (1.0 - fraction) * (later - held[rows]) + fraction * (earlier - held[rows])
-                )
+            add_delayed_copies(shaped, held, np.flatnonzero(which == k), shaper.times_s, shaper.amplitudes, fs)
         return shaped
 
     def residual_at(self, positions_m) -> np.ndarray:
