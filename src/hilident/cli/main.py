@@ -180,6 +180,19 @@ def _print_moves(test: dict | None) -> None:
         f"{w['start_m']:+.3f} m{p2p}); with the notch, {at_rest} of {len(moves)} move(s) rang no more than the "
         "axis at rest"
     )
+    names = list(dict.fromkeys(s["name"] for m in moves for s in m.get("shapers") or []))
+    for name in names:
+        rows = [(m, s) for m in moves for s in m.get("shapers") or [] if s["name"] == name]
+        measured = [(m, s) for m, s in rows if s.get("rms_reduction_db") is not None]
+        if not measured:
+            continue
+        m, s = min(measured, key=lambda pair: pair[1]["rms_reduction_db"])
+        rest = sum(1 for _, s in rows if s.get("rms_reduction_above_standstill_db") is None)
+        print(
+            f"move test: with the {name} ({s['kind']}), reduced by {s['rms_reduction_db']:.1f} dB RMS at worst "
+            f"(from {m['start_m']:+.3f} m, {1e3 * s['added_delay_s']:.0f} ms later); {rest} of {len(rows)} move(s) "
+            "rang no more than the axis at rest"
+        )
 
 
 def _out_folder(given: str | None, stem: str, overwrite: bool) -> Path:

@@ -527,11 +527,12 @@ class MoveConfig:
     )
     shapers: list[str] = _spec(
         ["fixed", "scheduled"],
-        choices=("fixed", "scheduled"),
-        max_items=2,
+        choices=("fixed", "scheduled", "both"),
+        max_items=3,
         doc="input shapers the move is also made with (the drive's notch out of the way): fixed, one for the whole "
         "travel (the mapped range with [map], else the run's resonances); scheduled, following the map's mode "
-        "along the travel ([map] only); [] for none",
+        "along the travel ([map] only); both, the scheduled (else the fixed) shaper and the notch together; [] "
+        "for none",
     )
 
     @property

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -162,26 +162,31 @@ def _mode_records(modes: list[Mode]) -> list[dict]:
 
 @dataclass(frozen=True)
 class MoveShaper:
-    """An input shaper the move test makes the same move with (the drive's notch out of the way).
+    """An input shaper the move test makes the same move with.
 
     Attributes
     ----------
     name : str
-        ``"fixed shaper"`` (one shaper for the whole travel) or ``"scheduled shaper"`` (following the map).
+        ``"fixed shaper"`` (one shaper for the whole travel), ``"scheduled shaper"`` (following the map), or
+        either followed by ``" and notch"``.
     shaper : Shaper or ScheduledShaper
         Anything with ``apply(x, sample_rate_hz)`` and ``at(position_m)`` or a ``kind``.
     max_accel_mps2 : float or None
         The largest acceleration whose smoothing stays within Klipper's target, m/s^2 (None: unlimited).
+    with_notch : bool
+        The notch acts as well, where the move test puts it (the set-point, or the drive's filter slots);
+        else the drive's notch is out of the way.
     """
 
     name: str
     shaper: object
     max_accel_mps2: float | None
+    with_notch: bool = False
 
     @property
     def tag(self) -> str:
-        """The word the recordings are named with: ``fixed`` or ``scheduled``."""
-        return self.name.split()[0]
+        """The word the recordings are named with: ``fixed``, ``scheduled`` or ``both``."""
+        return "both" if self.with_notch else self.name.split()[0]
 
     def design_at(self, position_m: float):
         """The shaper that acts where a move ends at ``position_m`` (the schedule's there, else the one)."""
@@ -216,9 +221,15 @@ class MoveShapers:
     schedule: ScheduleChoice | None = None
 
     def wanted(self, names: Sequence[str]) -> list[MoveShaper]:
-        """The shapers among ``names`` (``"fixed"``, ``"scheduled"``) that could be designed, in that order."""
-        found = {"fixed": self.fixed, "scheduled": self.scheduled}
-        return [s for name in ("fixed", "scheduled") if name in names and (s := found[name]) is not None]
+        """The shapers among ``names`` (``"fixed"``, ``"scheduled"``, ``"both"``: the scheduled one, else the fixed
+        one, with the notch) that could be designed, in that order."""
+        best = self.scheduled or self.fixed
+        found = {
+            "fixed": self.fixed,
+            "scheduled": self.scheduled,
+            "both": None if best is None else replace(best, name=f"{best.name} and notch", with_notch=True),
+        }
+        return [s for name in ("fixed", "scheduled", "both") if name in names and (s := found[name]) is not None]
 
     def over_travel(self) -> dict | None:
         """``summary.json["input_shaper"]["over_travel"]``: the fixed and the scheduled shaper along the mapped

@@ -352,11 +352,19 @@ class MoveTest:
         if comparison.without.rms <= 0:
             raise DataError(f"move test{tag}: the move without the notch left no measurable vibration")
         shaped = []
-        if shapers:
-            with slots.disabled() if slots is not None else contextlib.nullcontext():
-                shaped = [
-                    self._shaped_move(tag, s, out, back, start_m + distance_m, comparison, modes or [], out_and_back)
-                    for s in shapers
+        for paired in (False, True):
+            chosen = [s for s in shapers if s.with_notch == paired]
+            if not chosen:
+                continue
+            # alone: the drive's notch out of the way; with the notch: where the other moves had it
+            disabled = slots is not None and not (paired and notch_in == "drive")
+            there, home = (with_out, with_back) if paired else (out, back)
+            with slots.disabled() if disabled else contextlib.nullcontext():
+                shaped += [
+                    self._shaped_move(
+                        tag, s, (there, home, out), start_m + distance_m, comparison, modes or [], out_and_back
+                    )
+                    for s in chosen
                 ]
         # the vibration at rest before every move of this place: the more records, the steadier the floor
         rests = [(t_without, signal_without), (t_with, signal_with), *(m.trace for m in shaped)]
@@ -379,19 +387,21 @@ class MoveTest:
         self,
         tag: str,
         shaper: MoveShaper,
-        out: MoveProfile,
-        back: MoveProfile,
+        moves: tuple[MoveProfile, MoveProfile, MoveProfile],
         end_m: float,
         comparison: MoveComparison,
         modes: list[tuple[float, float]],
         out_and_back: Callable,
     ) -> ShapedMoveResult:
-        """The move out and back with ``shaper``'s set-point, measured with the unshaped move's band."""
+        """``moves = (there, home, unshaped)``: the move out and back (the notch's set-point for a shaper with the
+        notch on the host) made with ``shaper``'s set-point, measured with the unshaped move's band; its delay
+        counted from the ``unshaped`` move's end, its ``V`` against that move's peak acceleration."""
         from hilident.motion.residual import reduction_db, residual_vibration
         from hilident.motion.shaping import impulse_shaped_move
 
+        there, home, unshaped = moves
         rate = self.cfg.run.sample_rate_hz
-        shaped_out, shaped_back = (impulse_shaped_move(p, shaper.shaper) for p in (out, back))
+        shaped_out, shaped_back = (impulse_shaped_move(p, shaper.shaper) for p in (there, home))
         self.progress.step(f"move test{tag}: with the {shaper.name}")
         name = f"move{tag}_{shaper.tag}"
         exp = out_and_back(name, shaped_out.profile, shaped_back.profile)
@@ -406,7 +416,7 @@ class MoveTest:
             detrend="linear",
         )
         acting = shaper.design_at(end_m)
-        peak = peak_acceleration(out.position_m, rate)
+        peak = peak_acceleration(unshaped.position_m, rate)
         v = tuple(
             mode_excitation(
                 shaped_out.profile.position_m, rate, shaped_out.profile.move_end_index, f, z, reference_accel_mps2=peak
@@ -421,7 +431,7 @@ class MoveTest:
             residual,
             reduction_db(comparison.without.rms, residual.rms),
             reduction_db(comparison.without.peak_to_peak, residual.peak_to_peak),
-            float(shaped_out.added_delay_s),
+            float(shaped_out.profile.move_end_s - unshaped.move_end_s),
             (f"{name}.h5",),
             v,
             shaper.max_accel_mps2,
