@@ -181,3 +181,31 @@ def test_the_same_move_is_made_with_each_shaper_alone_and_with_the_notch_and_mea
     schema = summary_schema()
     validator = jsonschema.Draft202012Validator({**schema["$defs"]["move_result"], "$defs": schema["$defs"]})
     assert list(validator.iter_errors(json.loads(json.dumps(row, default=float)))) == []
+
+
+def test_a_scheduled_shaper_shapes_each_move_for_the_mode_where_the_axis_really_is():
+    # set-points are streamed relative to where the axis stands: the schedule, by absolute position, must be
+    # moved to where each move starts, so the tail of the move out is shaped for the mode where it ends
+    from hilident.config.tables import Config, RunConfig, VerificationConfig
+    from hilident.motion.input_shapers import design_shaper
+    from hilident.motion.scheduled_shaper import ScheduledShaper
+    from hilident.pipeline.input_shaper import MoveShaper
+    from hilident.session.move_test import STANDSTILL_S, MoveTest, move_profile
+
+    move = MoveConfig(distance_m=0.2, max_velocity_mps=0.3, max_accel_mps2=2.5, dwell_s=0.5)
+    cfg = Config(run=RunConfig(sample_rate_hz=Bench.RATE), verification=VerificationConfig(move=move))
+    bench = Bench()
+    schedule = ScheduledShaper("zvd", [0.0, 1.0], [20.0, 40.0], [0.02, 0.02])
+    start = 0.3
+    shapers = [MoveShaper("scheduled shaper", schedule, 1.0)]
+    notch = [Biquad.identity()]
+    result = MoveTest(cfg, bench, Quiet()).run("", start, 0.2, "host", notch, None, [], shapers)
+    (scheduled,) = result.shaped
+    assert scheduled.frequency_hz == pytest.approx(30.0)  # at 0.5 m, where the move out ends
+    out, back = move_profile(move, 0.2, Bench.RATE), move_profile(move, -0.2, Bench.RATE)
+    still = int(round(STANDSTILL_S * Bench.RATE))
+    for name, profile, end_m in (("move_scheduled", out, 0.5), ("move_scheduled_back", back, 0.3)):
+        recorded = bench.setpoints[name][still if name == "move_scheduled" else 0 :]
+        at_end = design_shaper("zvd", 20.0 + 20.0 * end_m, 0.02).apply(profile.position_m, Bench.RATE)
+        i = profile.move_end_index
+        np.testing.assert_allclose(recorded[i : i + 40], at_end[i : i + 40], rtol=0, atol=1e-12)

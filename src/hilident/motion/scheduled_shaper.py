@@ -103,6 +103,11 @@ class ScheduledShaper:
         f, z = self.mode_at(float(position_m))
         return design_shaper(self.kind, float(f), float(z))
 
+    def relative_to(self, origin_m: float) -> ScheduledShaper:
+        """The same schedule for a set-point given relative to ``origin_m`` (m): a move that starts at
+        ``origin_m`` and is streamed from 0, as position set-points relative to where the axis stands are."""
+        return ScheduledShaper(self.kind, self.positions_m - float(origin_m), self.frequencies_hz, self.damping_ratios)
+
     @property
     def longest_duration_s(self) -> float:
         """The longest of the table's shapers, s: how much later a shaped move ends at most."""

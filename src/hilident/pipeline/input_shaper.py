@@ -188,6 +188,12 @@ class MoveShaper:
         """The word the recordings are named with: ``fixed``, ``scheduled`` or ``both``."""
         return "both" if self.with_notch else self.name.split()[0]
 
+    def for_move_from(self, start_m: float):
+        """The shaper for a set-point that starts at ``start_m`` (m) and is given relative to it: a scheduled one
+        moved into the move's coordinates, a fixed one as it is."""
+        relative_to = getattr(self.shaper, "relative_to", None)
+        return relative_to(start_m) if callable(relative_to) else self.shaper
+
     def design_at(self, position_m: float):
         """The shaper that acts where a move ends at ``position_m`` (the schedule's there, else the one)."""
         at = getattr(self.shaper, "at", None)

@@ -401,7 +401,11 @@ class MoveTest:
 
         there, home, unshaped = moves
         rate = self.cfg.run.sample_rate_hz
-        shaped_out, shaped_back = (impulse_shaped_move(p, shaper.shaper) for p in (there, home))
+        # each set-point starts from 0 where its move starts: a schedule by position is moved there
+        shaped_out, shaped_back = (
+            impulse_shaped_move(p, shaper.for_move_from(origin))
+            for p, origin in ((there, end_m - there.distance_m), (home, end_m))
+        )
         self.progress.step(f"move test{tag}: with the {shaper.name}")
         name = f"move{tag}_{shaper.tag}"
         exp = out_and_back(name, shaped_out.profile, shaped_back.profile)
