@@ -1,4 +1,5 @@
-"""The move test (``[verification] move``): the same point-to-point move without and with the notch.
+"""The move test (``[verification] move``): the same point-to-point move without and with the notch, and with
+input shapers.
 
 The thesis's last proof was a move done twice, with and without the notch, compared by eye on an
 accelerometer. This step does it on any device that holds position: it moves out by ``distance_m`` (in
@@ -16,6 +17,11 @@ Where the notch acts in the second move (``notch``):
   the notch are disabled, then put back as they were. The notch then filters the loop's torque, the
   feedback's too, which takes away some of the damping the loop gave the mode: expect less than from
   shaping.
+
+With ``shapers`` (:class:`~hilident.pipeline.input_shaper.MoveShaper`), the same move is made again with each
+input shaper's set-point, the drive's notch out of the way (or, for ``"both"``, with the notch where the second
+move had it), and measured with the band of the move without shaping (:class:`ShapedMoveResult`). A shaper
+scheduled by position is moved to where each move starts: every set-point is streamed relative to it.
 
 What is measured: the load's deflection from the cart (``load_position_m - position_m``) when the device
 records a load sensor, else the cart's following error (set-point minus position): the ringing of the
