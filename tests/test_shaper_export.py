@@ -113,3 +113,26 @@ def test_the_scheduled_shaper_exports_as_a_position_table_and_in_the_json(tmp_pa
     (tmp_path / "input_shaper_schedule.csv").unlink()
     assert main(["export", str(tmp_path), "--format", "shaper-table"]) != 0
     assert "[map]" in capsys.readouterr().err and not (tmp_path / "input_shaper_schedule.csv").exists()
+
+
+def test_klipper_gets_the_one_shaper_for_the_whole_travel_of_a_mapped_mode_and_it_round_trips(tmp_path):
+    from hilident.motion.input_shapers import Shaper
+    from hilident.motion.input_shapers import residual_vibration as closed_form
+    from hilident.pipeline.input_shaper import move_shapers
+
+    travel = [
+        {"position_m": p, "frequency_hz": 20.0 + 20.0 * p, "damping_ratio": 0.02, "frequency_ci95_hz": 0.05}
+        for p in np.linspace(0.0, 0.3, 7)
+    ]  # 20 -> 26 Hz
+    summary = _summary((21.0, 0.02, 0.05, -20.0))
+    summary["input_shaper"] = {"over_travel": move_shapers([], travel).over_travel()}
+    (tmp_path / "summary.json").write_text(json.dumps(summary))
+    assert main(["export", str(tmp_path), "--format", "klipper"]) == 0
+    text = (tmp_path / "input_shaper.cfg").read_text()
+    fields = dict(re.findall(r"^(\w+): (\S+)$", text, re.M))
+    kind, f, z = fields["shaper_type_x"], float(fields["shaper_freq_x"]), float(fields["damping_ratio_x"])
+    assert kind == summary["input_shaper"]["over_travel"]["fixed"]["kind"] and "shaper-table" in text
+    amplitudes, times = (np.asarray(v, dtype=float) for v in REFERENCES[kind](f, z))
+    exported = Shaper(kind, times, amplitudes / amplitudes.sum(), f, z)
+    # Klipper's shaper from the exported line keeps every mapped frequency within the 5 % target
+    assert max(float(closed_form(exported, m["frequency_hz"], 0.02)) for m in travel) <= 0.05 + 1e-3

@@ -75,7 +75,11 @@ def _comments(choice: ShaperChoice, modes: list[Mode], source: str, mark: str) -
 
 
 def klipper_section(summary: dict, source: str, axis: str = "x") -> str:
-    """The ``[input_shaper]`` section for the strongest mode of ``summary`` (Klipper shapes one per axis)."""
+    """The ``[input_shaper]`` section for the strongest mode of ``summary`` (Klipper shapes one per axis); for a
+    run with ``[map]``, the one shaper for the mode's whole range over the travel."""
+    travel = (summary.get("input_shaper") or {}).get("over_travel")
+    if travel:
+        return _klipper_over_travel(travel, source, axis)
     modes = summary_modes(summary)
     first = modes[:1]
     choice = choose_shaper(first)
@@ -88,6 +92,26 @@ def klipper_section(summary: dict, source: str, axis: str = "x") -> str:
         f"shaper_type_{axis}: {choice.chosen.kind}",
         f"shaper_freq_{axis}: {f:.3f}",
         f"damping_ratio_{axis}: {z:.4f}",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _klipper_over_travel(travel: dict, source: str, axis: str) -> str:
+    """The ``[input_shaper]`` section of the fixed shaper for the mapped range, the schedule named in comments."""
+    fixed, scheduled = travel["fixed"], travel["scheduled"]
+    lo, hi = travel["frequency_range_hz"]
+    lines = [
+        f"# input shaper by hilident from {source}",
+        f"# the mode moves with position: {lo:.3f}-{hi:.3f} Hz over the mapped travel; the one shaper for all of it:",
+        f"# {fixed['reason']}",
+        f"# worst residual vibration along the travel {100 * fixed['worst_residual']:.1f} %; a shaper following "
+        f"the mode ({scheduled['kind']}) leaves {100 * scheduled['worst_residual']:.1f} %:",
+        "# hilident export --format shaper-table writes its position -> frequency table, for a macro that sends",
+        f"# SET_INPUT_SHAPER SHAPER_FREQ_{axis.upper()}=<f> before each move",
+        "[input_shaper]",
+        f"shaper_type_{axis}: {fixed['kind']}",
+        f"shaper_freq_{axis}: {fixed['frequency_hz']:.3f}",
+        f"damping_ratio_{axis}: {fixed['damping_ratio']:.4f}",
     ]
     return "\n".join(lines) + "\n"
 
