@@ -235,6 +235,9 @@ def test_a_loop_with_little_margin_gets_a_narrower_notch_and_says_why(tmp_path):
     assert any("keep_modulus_margin = 0.5 asks for" in w and "modulus margin" in w for w in summary["warnings"])
     assert covering["used_worst_attenuation_db"] == pytest.approx(used["worst_attenuation_db"])
     assert covering["used_worst_attenuation_db"] < 20.0 <= covering["worst_attenuation_db"]
+    # no move test, and still the shapers for the mapped travel, for the export
+    travel = summary["input_shaper"]["over_travel"]
+    assert len(travel["scheduled"]["table"]) == 50 and travel["fixed"]["worst_residual"] > 0
 
 
 def test_the_map_run_writes_its_plot_its_report_and_a_valid_summary(mapped):

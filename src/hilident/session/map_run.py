@@ -194,35 +194,39 @@ class WorkspaceRun:
         """The joint model's mode (with its 95 % interval) at ``count`` positions spanning the mapped ones: the
         mode moves continuously with the position, and its extreme may lie between two mapped positions (the
         beam's midspan). Empty without a joint fit."""
-        positions = [p.position_m for p in self.found]
-        if self.joint is None or len(positions) < 2:
-            return []
-        span = np.linspace(min(positions), max(positions), count)
-        modes = [self.joint.mode_at(float(p)) for p in span]
         return [
-            {"position_m": float(p), "frequency_hz": m.frequency_hz, "frequency_ci95_hz": m.frequency_ci95_hz}
-            for p, m in zip(span, modes, strict=True)
-            if np.isfinite(m.frequency_ci95_hz)
+            {k: row[k] for k in ("position_m", "frequency_hz", "frequency_ci95_hz")}
+            for row in self._joint_rows(count)
+            if row["frequency_ci95_hz"] is not None
         ]
 
     def shaper_table(self, count: int = 50) -> list[dict]:
         """The mode along the mapped travel for a shaper scheduled by position: the joint model's at ``count``
         positions (with its damping ratio and the 95 % interval of its frequency), else the mapped points."""
+        return [row for row in self._joint_rows(count) if 0.0 <= row["damping_ratio"] < 1.0] or [
+            p.to_dict() for p in self.found
+        ]
+
+    def _joint_rows(self, count: int) -> list[dict]:
+        """The joint model's mode at ``count`` positions spanning the mapped ones (empty without a joint fit)."""
         positions = [p.position_m for p in self.found]
-        if self.joint is not None and len(positions) >= 2:
-            span = np.linspace(min(positions), max(positions), count)
-            modes = [self.joint.mode_at(float(p)) for p in span]
-            return [
-                {
-                    "position_m": float(p),
-                    "frequency_hz": m.frequency_hz,
-                    "damping_ratio": m.damping_ratio,
-                    "frequency_ci95_hz": m.frequency_ci95_hz if np.isfinite(m.frequency_ci95_hz) else None,
-                }
-                for p, m in zip(span, modes, strict=True)
-                if np.isfinite(m.frequency_hz) and 0.0 <= m.damping_ratio < 1.0
-            ]
-        return [p.to_dict() for p in self.found]
+        if self.joint is None or len(positions) < 2:
+            return []
+        span = np.linspace(min(positions), max(positions), count)
+        rows = []
+        for p in span:
+            m = self.joint.mode_at(float(p))
+            if np.isfinite(m.frequency_hz):
+                ci = m.frequency_ci95_hz if np.isfinite(m.frequency_ci95_hz) else None
+                rows.append(
+                    {
+                        "position_m": float(p),
+                        "frequency_hz": m.frequency_hz,
+                        "damping_ratio": m.damping_ratio,
+                        "frequency_ci95_hz": ci,
+                    }
+                )
+        return rows
 
     # --- 3. the notches for the whole workspace ----------------------------------------------------------
 

@@ -363,9 +363,9 @@ class MoveTest:
             if not chosen:
                 continue
             # alone: the drive's notch out of the way; with the notch: where the other moves had it
-            disabled = slots is not None and not (paired and notch_in == "drive")
+            keep_slots = slots is None or (paired and notch_in == "drive")
             there, home = (with_out, with_back) if paired else (out, back)
-            with slots.disabled() if disabled else contextlib.nullcontext():
+            with contextlib.nullcontext() if keep_slots or slots is None else slots.disabled():
                 shaped += [
                     self._shaped_move(
                         tag, s, (there, home, out), start_m + distance_m, comparison, modes or [], out_and_back

@@ -868,8 +868,16 @@ class Session(DeviceConnection):
             workspace=self.workspace.summary if self.workspace else None,
             loop=self.loop.to_dict() if self.loop is not None else None,
             mimo=self.joint.part if self.joint is not None else None,
-            shaper_over_travel=self.move_shapers.over_travel() if self.move_shapers is not None else None,
+            shaper_over_travel=self._shaper_over_travel(),
         )
+
+    def _shaper_over_travel(self) -> dict | None:
+        """The fixed and the scheduled shaper along the mapped travel: the move test's, else designed from the
+        map (None without one)."""
+        shapers = self.move_shapers
+        if shapers is None and self.workspace is not None and self.workspace.found:
+            shapers = move_shapers([], self.workspace.shaper_table())
+        return shapers.over_travel() if shapers is not None else None
 
     def _plots(self, friction, plant, designs, verification, excitation_band_hz, model=None) -> None:
         report.plot_run(
