@@ -209,3 +209,57 @@ def test_a_scheduled_shaper_shapes_each_move_for_the_mode_where_the_axis_really_
         at_end = design_shaper("zvd", 20.0 + 20.0 * end_m, 0.02).apply(profile.position_m, Bench.RATE)
         i = profile.move_end_index
         np.testing.assert_allclose(recorded[i : i + 40], at_end[i : i + 40], rtol=0, atol=1e-12)
+
+
+class NoisyBench(Bench):
+    """The bench with a vibration at rest: white noise through the mode, new in every record."""
+
+    def __init__(self, seed=1):
+        super().__init__()
+        self.rng = np.random.default_rng(seed)
+
+    def __call__(self, name, mode, setpoint):
+        from scipy import signal
+
+        exp = super().__call__(name, mode, setpoint)
+        w = 2 * math.pi * self.MODE_HZ
+        t = np.arange(setpoint.size) / self.RATE
+        noise = self.rng.normal(0.0, 1.0, setpoint.size)
+        _, rest, _ = signal.lsim(([1e-3], [1.0, 2 * self.ZETA * w, w * w]), noise, t)
+        exp.samples["load_position_m"] = exp.samples["load_position_m"] + rest
+        return exp
+
+
+def test_repeated_moves_are_averaged_so_the_rest_vibration_falls_and_the_ringing_stays():
+
+    from hilident.config.tables import Config, RunConfig, VerificationConfig
+    from hilident.session.move_test import MoveTest
+
+    results = {}
+    for repeats in (1, 4):
+        move = MoveConfig(distance_m=0.2, max_velocity_mps=0.3, max_accel_mps2=2.5, dwell_s=1.0, repeats=repeats)
+        cfg = Config(run=RunConfig(sample_rate_hz=Bench.RATE), verification=VerificationConfig(move=move))
+        bench = NoisyBench(seed=repeats)
+        notch = [Biquad.identity()]
+        results[repeats] = MoveTest(cfg, bench, Quiet()).run("", 0.0, 0.2, "host", notch, None, [(20.0, 0.02)])
+        names = list(bench.setpoints)
+        assert names[: 2 * repeats : 2] == ["move_without"] + [f"move_without_{k}" for k in range(2, repeats + 1)]
+    one, four = results[1], results[4]
+    assert 0.3 < four.floor_rms / one.floor_rms < 0.8  # about 1/sqrt(4)
+    assert four.rest_limit_db > one.rest_limit_db + 3.0
+    assert four.comparison.without.first_peak == pytest.approx(one.comparison.without.first_peak, rel=0.1)
+
+
+def test_records_are_averaged_on_the_samples_every_one_of_them_has():
+    from hilident.session.move_test import averaged_signal
+
+    def record(offset, keep):
+        index = np.arange(10)[keep]
+        position = np.zeros(index.size)
+        return {"sample_index": index, "position_m": position, "load_position_m": position + offset + index * 1e-3}
+
+    lost = np.ones(10, bool)
+    lost[5] = False
+    what, t, signal = averaged_signal([record(0.0, np.ones(10, bool)), record(2.0, lost)], 100.0)
+    assert what == "load deflection" and 0.05 not in t and t.size == 9  # sample 5 was lost in one: left out
+    np.testing.assert_allclose(signal, 1.0 + np.delete(np.arange(10), 5) * 1e-3)

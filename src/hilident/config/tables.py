@@ -525,6 +525,13 @@ class MoveConfig:
         ge=0,
         doc="settling band of the residual vibration, m (0: 5 % of the first peak of the move without the notch)",
     )
+    repeats: int = _spec(
+        1,
+        ge=1,
+        le=10,
+        doc="times each move is made; the records are averaged, which keeps the move's ringing and lowers the "
+        "vibration the axis has at rest by sqrt(repeats): for a bench whose rest vibration hides the ringing",
+    )
     shapers: list[str] = _spec(
         ["fixed", "scheduled"],
         choices=("fixed", "scheduled", "both"),

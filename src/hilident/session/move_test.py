@@ -268,13 +268,45 @@ def move_profile(move: MoveConfig, distance_m: float, sample_rate_hz: float):
     )
 
 
-def measured_signal(samples: dict[str, np.ndarray]) -> tuple[str, np.ndarray]:
-    """The ringing a move left: the load's deflection when a load sensor was recorded and read all along,
-    else the following error (the position set-point, relative to the start, minus the cart's travel)."""
+def measured_signal(samples: dict[str, np.ndarray], load: bool = True) -> tuple[str, np.ndarray]:
+    """The ringing a move left: the load's deflection when a load sensor was recorded and read all along (and
+    ``load``), else the following error (the position set-point, relative to the start, minus the cart's
+    travel)."""
     position = samples["position_m"]
-    if LOAD in samples and np.all(np.isfinite(samples[LOAD])):
+    if load and LOAD in samples and np.all(np.isfinite(samples[LOAD])):
         return "load deflection", samples[LOAD] - position
     return "following error", samples["excitation"] - (position - position[0])
+
+
+def averaged_signal(records: list[dict[str, np.ndarray]], sample_rate_hz: float) -> tuple[str, np.ndarray, np.ndarray]:
+    """What the records of one move measured (:func:`measured_signal`), averaged sample by sample.
+
+    The move's ringing is the same in every record, the vibration the axis has at rest is not: the average of
+    ``n`` records keeps the one and lowers the other by ``sqrt(n)``. The records are aligned by their sample
+    index; a sample lost in any record is left out of the average (never filled). One record is returned as it
+    is. The load deflection is averaged when every record read the load sensor all along, else the following
+    error.
+
+    Returns
+    -------
+    tuple
+        ``(what, time_s, signal)``: ``"load deflection"`` or ``"following error"``, the samples' times (s, from
+        the set-point's start) and the averaged signal.
+    """
+    whats = [measured_signal(r)[0] for r in records]
+    load = all(w == "load deflection" for w in whats)
+    if len(records) == 1:
+        what, signal = measured_signal(records[0], load)
+        return what, records[0]["sample_index"] / sample_rate_hz, signal
+    index = records[0]["sample_index"]
+    for r in records[1:]:
+        index = np.intersect1d(index, r["sample_index"])
+    total = np.zeros(index.size)
+    what = ""
+    for r in records:
+        what, signal = measured_signal(r, load)
+        total += signal[np.searchsorted(r["sample_index"], index)]
+    return what, index / sample_rate_hz, total / len(records)
 
 
 class MoveTest:
@@ -329,10 +361,14 @@ class MoveTest:
 
         still = np.zeros(int(round(STANDSTILL_S * rate)))  # the vibration the axis has at rest, before it moves
 
-        def out_and_back(name: str, there, home):
-            exp = self.record(name, "position", np.concatenate([still, there.position_m]))
-            self.record(f"{name}_back", "position", home.position_m)
-            return exp
+        def out_and_back(name: str, there, home) -> tuple[str, np.ndarray, np.ndarray]:
+            """The move out and back ``repeats`` times; what was measured, its time (s) and the signal averaged."""
+            records = []
+            for k in range(self.move.repeats):
+                label = name if k == 0 else f"{name}_{k + 1}"
+                records.append(self.record(label, "position", np.concatenate([still, there.position_m])).samples)
+                self.record(f"{label}_back", "position", home.position_m)
+            return averaged_signal(records, rate)
 
         self.progress.step(f"move test{tag}: {distance_m:+.3f} m from {start_m:+.3f} m, without the notch")
         with slots.disabled() if slots is not None else contextlib.nullcontext():
@@ -343,9 +379,8 @@ class MoveTest:
         if notch_in == "drive":
             self.progress.step(f"move test{tag}: with the notch in the drive's filter slots")
             with_notch = out_and_back(names[1], with_out, with_back)
-        what, signal_without = measured_signal(without.samples)
-        _, signal_with = measured_signal(with_notch.samples)
-        t_without, t_with = (exp.samples["sample_index"] / rate for exp in (without, with_notch))
+        what, t_without, signal_without = without
+        _, t_with, signal_with = with_notch
         band = self.move.settle_band_m or None
         ends = (STANDSTILL_S + out.move_end_s, STANDSTILL_S + with_out.move_end_s)
         comparison = compare_moves(
@@ -414,9 +449,7 @@ class MoveTest:
         )
         self.progress.step(f"move test{tag}: with the {shaper.name}")
         name = f"move{tag}_{shaper.tag}"
-        exp = out_and_back(name, shaped_out.profile, shaped_back.profile)
-        _, signal = measured_signal(exp.samples)
-        t = exp.samples["sample_index"] / rate
+        _, t, signal = out_and_back(name, shaped_out.profile, shaped_back.profile)
         residual = residual_vibration(
             t,
             signal,
