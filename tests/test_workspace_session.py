@@ -37,6 +37,7 @@ def quick_map(move: bool) -> dict:
     raw["excitation"]["amplitude_nm"] = 10.0
     raw["emulator"].update(preset="clean", time_scale=8.0)
     raw["map"]["verify"] = True
+    raw["verification"]["move"]["repeats"] = 1  # the clean twin has no vibration at rest to average away
     if not move:
         del raw["verification"]
     return raw
@@ -274,6 +275,7 @@ def move_config(config: str, tmp_path: Path) -> Path:
     raw["verification"] = mapped_raw["verification"]
     # the input shapers' moves once, on the board (the shipped map config makes them on every mapped position)
     raw["verification"]["move"]["shapers"] = ["fixed"] if transport == "serial" else []
+    raw["verification"]["move"]["repeats"] = 1  # the clean twin: nothing at rest to average away
     raw["emulator"]["drive"].update(velocity_feedforward=1.0, accel_feedforward_nm_per_mps2=5.0)
     raw["emulator"]["sensors"]["laser_resolution_m"] = 2e-6
     driver = find_driver(raw["device"]["driver"])
