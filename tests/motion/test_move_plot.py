@@ -91,3 +91,21 @@ def test_units_of_other_signals_and_bad_arrays():
     c = compare_moves((ta, ya, 0.8), (ta, 0.5 * ya, 0.8), 1.0)
     with pytest.raises(DataError, match="with notch signal"):
         moves_figure(c, ta, ya, ta, ya[:-3])
+
+
+def test_the_shaped_moves_are_drawn_beside_the_two_with_their_reduction_on_a_line_of_its_own():
+    from hilident.motion.residual import residual_vibration
+
+    ta, ya = _move(40e-6, 0.8)
+    tb, yb = _move(4e-6, 1.05)
+    tc, yc = _move(2e-6, 0.85)
+    c = compare_moves((ta, ya, 0.8), (tb, yb, 1.05), 1.0)
+    r = residual_vibration(tc, yc, 0.85, 1.0, band=c.without.band)
+    fig = moves_figure(c, ta, ya, tb, yb, when=WHEN, shaped=(("scheduled shaper", tc, yc, r, 0.05),))
+    ax = fig.axes[0]
+    labels = [ln.get_label() for ln in ax.get_lines()]
+    (shaped,) = [label for label in labels if label.startswith("scheduled shaper:")]
+    assert "ends 0.05 s later" in shaped
+    title_lines = ax.get_title().splitlines()
+    expected = f"{20 * np.log10(c.without.rms / r.rms):.1f} dB (RMS) with the scheduled shaper"
+    assert title_lines[-1] == expected and "with the notch" in title_lines[-2]

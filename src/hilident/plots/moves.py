@@ -127,9 +127,13 @@ def moves_figure(
         f"residual vibration reduced by {comparison.rms_reduction_db:.1f} dB (RMS), "
         f"{comparison.peak_to_peak_reduction_db:.1f} dB (peak-to-peak) with the notch"
     )
-    for name, _, _, r in curves[2:]:
-        if r.rms > 0:
-            reduction += f"; {20.0 * np.log10(before.rms / r.rms):.1f} dB (RMS) with the {name}"
+    shaped_reductions = [
+        f"{20.0 * np.log10(before.rms / r.rms):.1f} dB (RMS) with the {name}"
+        for name, _, _, r in curves[2:]
+        if r.rms > 0
+    ]
+    if shaped_reductions:
+        reduction += "\n" + "; ".join(shaped_reductions)
     ax.set_title(f"{plot_title(config_name(subject), when, 'Move')}\n{reduction}", fontsize=10)
     outside_legend(ax)
     return fig
