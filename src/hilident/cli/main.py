@@ -180,6 +180,12 @@ def _print_moves(test: dict | None) -> None:
         f"{w['start_m']:+.3f} m{p2p}); with the notch, {at_rest} of {len(moves)} move(s) rang no more than the "
         "axis at rest"
     )
+    _print_shaped_moves(moves)
+
+
+def _print_shaped_moves(moves: list[dict]) -> None:
+    """One line per input shaper of the move test: its worst RMS reduction, and at how many places its move rang
+    no more than the axis does at rest."""
     names = list(dict.fromkeys(s["name"] for m in moves for s in m.get("shapers") or []))
     for name in names:
         rows = [(m, s) for m in moves for s in m.get("shapers") or [] if s["name"] == name]

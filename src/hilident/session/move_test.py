@@ -347,28 +347,12 @@ class MoveTest:
         move's set-point excites them (:class:`ModeExcitation`).
         """
         from hilident.motion.residual import compare_moves
-        from hilident.motion.shaping import shape_move
 
         rate = self.cfg.run.sample_rate_hz
         out, back = (move_profile(self.move, d, rate) for d in (distance_m, -distance_m))
-        with_out, with_back, delay = out, back, 0.0
-        if notch_in == "host":
-            if not host_sections:
-                raise DataError("move test: no notch to shape the move with")
-            shaped_out, shaped_back = (shape_move(p, host_sections) for p in (out, back))
-            with_out, with_back, delay = shaped_out.profile, shaped_back.profile, shaped_out.added_delay_s
+        with_out, with_back, delay = _with_notch(out, back, notch_in, host_sections)
         names = (f"move{tag}_without", f"move{tag}_with")
-
-        still = np.zeros(int(round(STANDSTILL_S * rate)))  # the vibration the axis has at rest, before it moves
-
-        def out_and_back(name: str, there, home) -> tuple[str, np.ndarray, np.ndarray]:
-            """The move out and back ``repeats`` times; what was measured, its time (s) and the signal averaged."""
-            records = []
-            for k in range(self.move.repeats):
-                label = name if k == 0 else f"{name}_{k + 1}"
-                records.append(self.record(label, "position", np.concatenate([still, there.position_m])).samples)
-                self.record(f"{label}_back", "position", home.position_m)
-            return averaged_signal(records, rate)
+        out_and_back = self._out_and_back
 
         self.progress.step(f"move test{tag}: {distance_m:+.3f} m from {start_m:+.3f} m, without the notch")
         with slots.disabled() if slots is not None else contextlib.nullcontext():
@@ -392,21 +376,9 @@ class MoveTest:
         )
         if comparison.without.rms <= 0:
             raise DataError(f"move test{tag}: the move without the notch left no measurable vibration")
-        shaped = []
-        for paired in (False, True):
-            chosen = [s for s in shapers if s.with_notch == paired]
-            if not chosen:
-                continue
-            # alone: the drive's notch out of the way; with the notch: where the other moves had it
-            keep_slots = slots is None or (paired and notch_in == "drive")
-            there, home = (with_out, with_back) if paired else (out, back)
-            with contextlib.nullcontext() if keep_slots or slots is None else slots.disabled():
-                shaped += [
-                    self._shaped_move(
-                        tag, s, (there, home, out), start_m + distance_m, comparison, modes or [], out_and_back
-                    )
-                    for s in chosen
-                ]
+        shaped = self._shaped_moves(
+            tag, shapers, (out, back, with_out, with_back), notch_in, slots, start_m + distance_m, comparison, modes
+        )
         # the vibration at rest before every move of this place: the more records, the steadier the floor
         rests = [(t_without, signal_without), (t_with, signal_with), *(m.trace for m in shaped)]
         floor = float(np.sqrt(np.mean([standstill_rms(t, y) ** 2 for t, y in rests])))
@@ -424,6 +396,45 @@ class MoveTest:
             tuple(shaped),
         )
 
+    def _shaped_moves(
+        self,
+        tag: str,
+        shapers: Sequence[MoveShaper],
+        moves: tuple[MoveProfile, MoveProfile, MoveProfile, MoveProfile],
+        notch_in: str,
+        slots: DriveNotch | None,
+        end_m: float,
+        comparison: MoveComparison,
+        modes: list[tuple[float, float]] | None,
+    ) -> list[ShapedMoveResult]:
+        """The move with each of ``shapers``: alone, the drive's notch out of the way; a shaper with the notch,
+        on the notch's set-point (``moves = (out, back, with_out, with_back)``) or with the drive's slots on."""
+        out, back, with_out, with_back = moves
+        shaped: list[ShapedMoveResult] = []
+        for paired in (False, True):
+            chosen = [s for s in shapers if s.with_notch == paired]
+            if not chosen:
+                continue
+            keep_slots = slots is None or (paired and notch_in == "drive")
+            there, home = (with_out, with_back) if paired else (out, back)
+            with contextlib.nullcontext() if keep_slots or slots is None else slots.disabled():
+                shaped += [
+                    self._shaped_move(tag, s, (there, home, out), end_m, comparison, modes or []) for s in chosen
+                ]
+        return shaped
+
+    def _out_and_back(self, name: str, there: MoveProfile, home: MoveProfile) -> tuple[str, np.ndarray, np.ndarray]:
+        """The move out (after :data:`STANDSTILL_S` at rest) and back, ``repeats`` times: what was measured, its
+        time (s) and the signal averaged over the repeats (:func:`averaged_signal`)."""
+        rate = self.cfg.run.sample_rate_hz
+        still = np.zeros(int(round(STANDSTILL_S * rate)))  # the vibration the axis has at rest, before it moves
+        records = []
+        for k in range(self.move.repeats):
+            label = name if k == 0 else f"{name}_{k + 1}"
+            records.append(self.record(label, "position", np.concatenate([still, there.position_m])).samples)
+            self.record(f"{label}_back", "position", home.position_m)
+        return averaged_signal(records, rate)
+
     def _shaped_move(
         self,
         tag: str,
@@ -432,7 +443,6 @@ class MoveTest:
         end_m: float,
         comparison: MoveComparison,
         modes: list[tuple[float, float]],
-        out_and_back: Callable,
     ) -> ShapedMoveResult:
         """``moves = (there, home, unshaped)``: the move out and back (the notch's set-point for a shaper with the
         notch on the host) made with ``shaper``'s set-point, measured with the unshaped move's band; its delay
@@ -449,7 +459,7 @@ class MoveTest:
         )
         self.progress.step(f"move test{tag}: with the {shaper.name}")
         name = f"move{tag}_{shaper.tag}"
-        _, t, signal = out_and_back(name, shaped_out.profile, shaped_back.profile)
+        _, t, signal = self._out_and_back(name, shaped_out.profile, shaped_back.profile)
         residual = residual_vibration(
             t,
             signal,
@@ -480,6 +490,21 @@ class MoveTest:
             shaper.max_accel_mps2,
             (t, signal),
         )
+
+
+def _with_notch(
+    out: MoveProfile, back: MoveProfile, notch_in: str, host_sections: list | None
+) -> tuple[MoveProfile, MoveProfile, float]:
+    """The move out and back with the notch, and how much later it ends (s): the set-point shaped by
+    ``host_sections`` (``notch_in = "host"``), else the same set-point (the notch acts in the drive)."""
+    from hilident.motion.shaping import shape_move
+
+    if notch_in != "host":
+        return out, back, 0.0
+    if not host_sections:
+        raise DataError("move test: no notch to shape the move with")
+    shaped_out, shaped_back = (shape_move(p, host_sections) for p in (out, back))
+    return shaped_out.profile, shaped_back.profile, shaped_out.added_delay_s
 
 
 def excitations(
