@@ -6,7 +6,7 @@ import math
 
 from hilident.errors import ConfigError
 
-__all__ = ["number"]
+__all__ = ["finite_or_none", "number"]
 
 
 def number(key: str, value, *, minimum: float = 0.0, strict: bool = False) -> float:
@@ -26,3 +26,14 @@ def number(key: str, value, *, minimum: float = 0.0, strict: bool = False) -> fl
     if not math.isfinite(x) or (x <= minimum if strict else x < minimum):
         raise ConfigError(key, f"must be {'>' if strict else '>='} {minimum:g} and finite, got {value!r}")
     return x
+
+
+def finite_or_none(value) -> float | None:
+    """``value`` as a float, None when it is missing or not finite: a figure ``summary.json`` gives as null.
+
+    Examples
+    --------
+    >>> finite_or_none(2), finite_or_none(float("nan")), finite_or_none(None)
+    (2.0, None, None)
+    """
+    return None if value is None or not math.isfinite(float(value)) else float(value)

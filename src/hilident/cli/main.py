@@ -192,12 +192,12 @@ def _print_shaped_moves(moves: list[dict]) -> None:
         measured = [(m, s) for m, s in rows if s.get("rms_reduction_db") is not None]
         if not measured:
             continue
-        m, s = min(measured, key=lambda pair: pair[1]["rms_reduction_db"])
-        rest = sum(1 for _, s in rows if s.get("rms_reduction_above_standstill_db") is None)
+        place, worst = min(measured, key=lambda pair: pair[1]["rms_reduction_db"])
+        rest = sum(1 for _, shaped in rows if shaped.get("rms_reduction_above_standstill_db") is None)
         print(
-            f"move test: with the {name} ({s['kind']}), reduced by {s['rms_reduction_db']:.1f} dB RMS at worst "
-            f"(from {m['start_m']:+.3f} m, {1e3 * s['added_delay_s']:.0f} ms later); {rest} of {len(rows)} move(s) "
-            "rang no more than the axis at rest"
+            f"move test: with the {name} ({worst['kind']}), reduced by {worst['rms_reduction_db']:.1f} dB RMS at "
+            f"worst (from {place['start_m']:+.3f} m, {1e3 * worst['added_delay_s']:.0f} ms later); {rest} of "
+            f"{len(rows)} move(s) rang no more than the axis at rest"
         )
 
 

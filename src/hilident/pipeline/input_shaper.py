@@ -28,6 +28,7 @@ import numpy as np
 from hilident.errors import ConfigError
 from hilident.motion.input_shapers import choose_shaper, max_acceleration
 from hilident.motion.scheduled_shaper import RangeShaper, ScheduleChoice, fixed_for_range, schedule_shaper
+from hilident.numbers import finite_or_none
 
 __all__ = [
     "MIN_PHASE_MARGIN_DEG",
@@ -59,8 +60,8 @@ def measured_modes(records: list[dict]) -> list[Mode]:
         (
             float(r["frequency_hz"]),
             float(r["damping_ratio"]),
-            _known(r.get("frequency_ci95_hz")),
-            _known(r.get("damping_ci95")),
+            finite_or_none(r.get("frequency_ci95_hz")),
+            finite_or_none(r.get("damping_ci95")),
             float(r.get("peak_magnitude_db") or 0.0),
         )
         for r in records
@@ -68,11 +69,6 @@ def measured_modes(records: list[dict]) -> list[Mode]:
     ]
     modes.sort(key=lambda m: -m[4])
     return [m[:4] for m in modes]
-
-
-def _known(value) -> float | None:
-    """``value`` as a float, None when it is not given or not finite (an interval not measured)."""
-    return None if value is None or not math.isfinite(float(value)) else float(value)
 
 
 def _crossover_hz(loop: dict | None) -> float | None:

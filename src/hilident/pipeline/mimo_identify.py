@@ -34,6 +34,7 @@ from hilident.ident.mimo import (
 )
 from hilident.ident.mimo.modal import ModalResult, lsfd, merge_split_modes, modal_intervals
 from hilident.ident.preprocess import remove_drift
+from hilident.numbers import finite_or_none
 
 __all__ = ["Groups", "identify_channels", "interval_blocks", "mode_indicator_peaks"]
 
@@ -229,11 +230,11 @@ def _mode_record(m: Mode, pole: complex, residue: np.ndarray) -> dict:
         "damping_ratio": m.damping,
         "frequency_range_hz": list(m.frequency_ci_hz),
         "damping_range": list(m.damping_ci),
-        "frequency_ci95_hz": _finite(m.frequency_ci95_hz),
-        "damping_ci95": _finite(m.damping_ci95),
+        "frequency_ci95_hz": finite_or_none(m.frequency_ci95_hz),
+        "damping_ci95": finite_or_none(m.damping_ci95),
         "interval_groups": m.n_groups,
-        "frequency_std_hz": _finite(m.frequency_std_hz),
-        "damping_std": _finite(m.damping_std),
+        "frequency_std_hz": finite_or_none(m.frequency_std_hz),
+        "damping_std": finite_or_none(m.damping_std),
         "shape_magnitude": np.abs(m.shape).tolist(),
         "shape_phase_deg": np.degrees(np.angle(m.shape)).tolist(),
         "participation_magnitude": np.abs(m.participation).tolist(),
@@ -242,10 +243,6 @@ def _mode_record(m: Mode, pole: complex, residue: np.ndarray) -> dict:
         "residue_real": np.real(residue).tolist(),
         "residue_imag": np.imag(residue).tolist(),
     }
-
-
-def _finite(value: float) -> float | None:
-    return float(value) if np.isfinite(value) else None
 
 
 def _median(values: np.ndarray) -> float | None:

@@ -33,6 +33,7 @@ import numpy as np
 
 from hilident.errors import UsageError
 from hilident.filters.biquad import Biquad
+from hilident.numbers import finite_or_none
 from hilident.pipeline import closed_loop, step_check
 from hilident.pipeline.gain_check import check_gains
 from hilident.pipeline.loop_analysis import LoopAnalysis, tuning_targets
@@ -192,8 +193,8 @@ class GainStep:
             "recording": f"{RECORDING}.h5",
             "amplitude_mps": amplitude,
             "predicted_peaks": peaks,
-            "predicted_bandwidth_hz": _finite(closed_loop.bandwidth_or_nan(check.frequency_hz, check.predicted)),
-            "measured_bandwidth_hz": _finite(closed_loop.bandwidth_or_nan(check.frequency_hz, check.measured)),
+            "predicted_bandwidth_hz": finite_or_none(closed_loop.bandwidth_or_nan(check.frequency_hz, check.predicted)),
+            "measured_bandwidth_hz": finite_or_none(closed_loop.bandwidth_or_nan(check.frequency_hz, check.measured)),
         }
         if not check.within_tolerance:
             w = check.worst()
@@ -274,7 +275,3 @@ def put_back_gains(adapter, before: dict, warnings: list[str], prefix: str = "")
 def describe_gains(values: dict) -> str:
     """``(name = value, ...)`` for messages."""
     return "(" + ", ".join(f"{k} = {v:.6g}" for k, v in values.items()) + ")"
-
-
-def _finite(x: float) -> float | None:
-    return float(x) if np.isfinite(x) else None

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hilident.config.tables import Config, map_positions
+from hilident.numbers import finite_or_none
 
 #: The mode a mapped position is excited in: torque injected while the drive holds the position.
 MAP_MODE = "torque_injection"
@@ -175,13 +176,8 @@ class WorkspaceMap:
             target,
             position,
             float(mode.frequency_hz),
-            _finite(mode.damping_ratio),
-            _finite(mode.frequency_ci95_hz),
-            _finite(mode.coherence),
+            finite_or_none(mode.damping_ratio),
+            finite_or_none(mode.frequency_ci95_hz),
+            finite_or_none(mode.coherence),
             f"{name}.h5",
         )
-
-
-def _finite(value) -> float | None:
-    """``value`` as a float, None when it is missing or not finite (NaN: the fit gave none)."""
-    return None if value is None or not math.isfinite(value) else float(value)

@@ -42,6 +42,7 @@ from hilident.errors import DataError
 from hilident.motion.mode_excitation import WEAK_EXCITATION, mode_excitation, peak_acceleration
 from hilident.motion.profiles import MoveProfile
 from hilident.motion.residual import MoveComparison, ResidualVibration
+from hilident.numbers import finite_or_none
 from hilident.pipeline.input_shaper import MoveShaper
 from hilident.session.map_positions import move_axis
 
@@ -158,8 +159,8 @@ class ShapedMoveResult:
             "frequency_hz": self.frequency_hz,
             "damping_ratio": self.damping_ratio,
             "residual": self.residual.as_dict(),
-            "rms_reduction_db": _finite(self.rms_reduction_db),
-            "peak_to_peak_reduction_db": _finite(self.peak_to_peak_reduction_db),
+            "rms_reduction_db": finite_or_none(self.rms_reduction_db),
+            "peak_to_peak_reduction_db": finite_or_none(self.peak_to_peak_reduction_db),
             "rms_reduction_above_standstill_db": above_floor_db(without_rms, self.residual.rms, floor_rms),
             "added_delay_s": self.added_delay_s,
             "recordings": list(self.recordings),
@@ -230,22 +231,18 @@ class MoveTestResult:
         c = self.comparison
         return {
             "start_m": self.start_m,
-            "distance_m": _finite(self.distance_m),
+            "distance_m": finite_or_none(self.distance_m),
             "notch_in": self.notch_in,
             "signal": self.signal,
             "added_delay_s": self.added_delay_s,
             "recordings": list(self.recordings),
-            "standstill_rms_m": _finite(self.floor_rms),
+            "standstill_rms_m": finite_or_none(self.floor_rms),
             "rms_reduction_above_standstill_db": above_floor_db(c.without.rms, c.with_notch.rms, self.floor_rms),
             "rest_limit_db": self.rest_limit_db,
             "modes": [m.to_dict() for m in self.modes],
             **c.as_dict(),
             "shapers": [m.to_dict(self.floor_rms, c.without.rms) for m in self.shaped],
         }
-
-
-def _finite(value: float) -> float | None:
-    return float(value) if np.isfinite(value) else None
 
 
 def move_profile(move: MoveConfig, distance_m: float, sample_rate_hz: float):
@@ -273,9 +270,14 @@ def measured_signal(samples: dict[str, np.ndarray], load: bool = True) -> tuple[
     ``load``), else the following error (the position set-point, relative to the start, minus the cart's
     travel)."""
     position = samples["position_m"]
-    if load and LOAD in samples and np.all(np.isfinite(samples[LOAD])):
+    if load and _read_load(samples):
         return "load deflection", samples[LOAD] - position
     return "following error", samples["excitation"] - (position - position[0])
+
+
+def _read_load(samples: dict[str, np.ndarray]) -> bool:
+    """Whether the record holds the load sensor, read all along."""
+    return LOAD in samples and bool(np.all(np.isfinite(samples[LOAD])))
 
 
 def averaged_signal(records: list[dict[str, np.ndarray]], sample_rate_hz: float) -> tuple[str, np.ndarray, np.ndarray]:
@@ -293,8 +295,7 @@ def averaged_signal(records: list[dict[str, np.ndarray]], sample_rate_hz: float)
         ``(what, time_s, signal)``: ``"load deflection"`` or ``"following error"``, the samples' times (s, from
         the set-point's start) and the averaged signal.
     """
-    whats = [measured_signal(r)[0] for r in records]
-    load = all(w == "load deflection" for w in whats)
+    load = all(_read_load(r) for r in records)
     if len(records) == 1:
         what, signal = measured_signal(records[0], load)
         return what, records[0]["sample_index"] / sample_rate_hz, signal
@@ -352,17 +353,16 @@ class MoveTest:
         out, back = (move_profile(self.move, d, rate) for d in (distance_m, -distance_m))
         with_out, with_back, delay = _with_notch(out, back, notch_in, host_sections)
         names = (f"move{tag}_without", f"move{tag}_with")
-        out_and_back = self._out_and_back
 
         self.progress.step(f"move test{tag}: {distance_m:+.3f} m from {start_m:+.3f} m, without the notch")
         with slots.disabled() if slots is not None else contextlib.nullcontext():
-            without = out_and_back(names[0], out, back)
+            without = self._out_and_back(names[0], out, back)
             if notch_in == "host":
                 self.progress.step(f"move test{tag}: with the notch shaping the set-point")
-                with_notch = out_and_back(names[1], with_out, with_back)
+                with_notch = self._out_and_back(names[1], with_out, with_back)
         if notch_in == "drive":
             self.progress.step(f"move test{tag}: with the notch in the drive's filter slots")
-            with_notch = out_and_back(names[1], with_out, with_back)
+            with_notch = self._out_and_back(names[1], with_out, with_back)
         what, t_without, signal_without = without
         _, t_with, signal_with = with_notch
         band = self.move.settle_band_m or None
