@@ -4,6 +4,8 @@ twin's exact modes and shapes (:func:`hilident.emulator.coupled_plant.coupled_mo
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import jsonschema
 import numpy as np
 import pytest
@@ -18,38 +20,10 @@ from hilident.session.nodes_run import NodesSession
 
 pytestmark = pytest.mark.twin
 
-#: Two motors on the ends of a beam carrying a load on guides (viscous, so the free mechanism does not drift off
-#: under the set-points a late host made a node hold): two modes, 19.7 and 33.7 Hz, each seen by both motors.
-CONFIG = """
-[device]
-driver = "canopen-servo"
-[device.canopen]
-node_ids = [1, 2]
-[emulator]
-preset = "clean"
-[emulator.mechanism]
-masses_kg = [20.0, 16.0, 10.0]
-links = [[0, 2, 2.0e5, 150.0], [1, 2, 1.5e5, 120.0], [0, 1, 5.0e4, 30.0], [2, -1, 0.0, 60.0]]
-motors = [[0, 10.0], [1, 10.0]]
-sensors = [2, 2]
-[limits]
-torque_nm = 19.0
-velocity_mps = 0.5
-position_min_m = -0.6
-position_max_m = 0.6
-[excitation]
-kind = "multisine"
-mode = "torque"
-amplitude_nm = 3.0
-f_min_hz = 2.0
-f_max_hz = 200.0
-period_s = 4.0
-duration_s = 12.0
-[identification]
-output = "position_m"
-[run]
-sample_rate_hz = 500.0
-"""
+#: The shipped config: two motors on the ends of a beam carrying a load on guides (viscous, so the free mechanism
+#: does not drift off under the set-points a late host made a node hold): two modes, 19.7 and 33.7 Hz, each seen
+#: by both motors.
+CONFIG = (Path(__file__).resolve().parents[1] / "configs" / "emulated-dual-drive-gantry.toml").read_text()
 
 
 def _mac(a: np.ndarray, b: np.ndarray) -> float:

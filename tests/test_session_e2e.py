@@ -42,6 +42,11 @@ def _maps(path: Path) -> bool:
     return "map" in tomllib.loads(path.read_text())
 
 
+def _several_nodes(path: Path) -> bool:
+    """A run of several drives of one bus (another session): tests/test_nodes_run.py runs it."""
+    return "node_ids" in tomllib.loads(path.read_text()).get("device", {}).get("canopen", {})
+
+
 #: The warnings of a shipped config's run, by the words each cause opens with: each needs the user's action. Every
 #: other shipped config runs without a warning (what is only worth knowing is in ``notes``).
 EXPECTED_WARNINGS = {
@@ -76,6 +81,7 @@ EMULATOR_CONFIGS = sorted(
     if tomllib.loads(p.read_text()).get("device", {}).get("port", "emulator") == "emulator"
     and _runs_experiments(p)
     and not _maps(p)
+    and not _several_nodes(p)
 )
 
 
