@@ -60,6 +60,7 @@ def test_a_loop_response_of_a_record_missing_samples_matches_the_whole_records()
     r, y = r[P:], y[P:]  # the lead-in dropped
     present = np.ones(r.size, dtype=bool)
     present[rng.choice(r.size, 30, replace=False)] = False
+    present[33::P] = False  # and one place of the period in every period: a host late there each time
     cfg = IdentificationConfig()
     whole, _ = loop_response(r, y, 1000.0, cfg, P, bins)
     gapped, notes = loop_response(
@@ -67,7 +68,7 @@ def test_a_loop_response_of_a_record_missing_samples_matches_the_whole_records()
     )
     assert gapped.n_averages == whole.n_averages == 7
     np.testing.assert_allclose(gapped.response, whole.response, rtol=0.01)
-    assert any("30 of 1400 samples missing" in n for n in notes)
+    assert any(f"{(~present).sum()} of 1400 samples missing" in n for n in notes)
 
 
 def test_a_trial_missing_samples_is_read_in_the_periods_that_have_enough():
@@ -104,13 +105,27 @@ def test_a_trial_missing_samples_is_read_in_the_periods_that_have_enough():
         chooser._trial_spectra(None, None, P, lines, None)
 
 
-def test_a_sample_of_the_period_missing_from_every_period_is_a_data_error_saying_so():
+def test_a_sample_of_the_period_missing_from_every_period_is_left_unknown_and_the_drift_still_removed():
+    """A host late at the same place of every period (cycle 7 of each) leaves that sample unknown; the drift
+    is told from the response by the samples the periods share, and the response is given back where it exists."""
+    t = np.arange(3 * P)
+    tone = np.sin(2 * np.pi * 3 * t / P)
+    drift = 2e-6 * (t - 400.0) ** 2
+    present = np.ones(t.size, dtype=bool)
+    present[[7, P + 7, 2 * P + 7, P + 40]] = False
+    y = remove_drift(np.where(present, tone + drift, np.nan), P, present=present)
+    assert np.isnan(y[~present]).all()
+    np.testing.assert_allclose(y[present], tone[present] - tone[present].mean(), atol=0.005)
+
+
+def test_periods_sharing_too_few_samples_cannot_tell_a_drift_and_say_so():
     import pytest
 
     from hilident.errors import DataError
 
     x = np.sin(2 * np.pi * 3 * np.arange(3 * P) / P)
-    present = np.ones(x.size, dtype=bool)
-    present[[7, P + 7, 2 * P + 7]] = False
-    with pytest.raises(DataError, match=f"sample 7 of the {P}-sample period is missing from all 3 periods"):
+    present = np.zeros(x.size, dtype=bool)
+    present[:P] = True  # the first period whole, the others hold one sample of the period each
+    present[[P + 5, 2 * P + 9]] = True
+    with pytest.raises(DataError, match=r"only 4 samples of .* share their place in the .*-sample period"):
         remove_drift(np.where(present, x, np.nan), P, present=present)

@@ -186,14 +186,6 @@ def _remove_drift_gapped(x: np.ndarray, period: int, degree: int, present: np.nd
         raise DataError(f"a record with missing samples must hold two or more whole periods of {period} samples")
     periods = x.size // period
     ok = present.reshape(periods, period)
-    counts = ok.sum(axis=0)
-    if not counts.all():
-        j = int(np.flatnonzero(counts == 0)[0])
-        raise DataError(
-            f"sample {j} of the {period}-sample period is missing from all {periods} periods read "
-            f"({int((~present).sum())} of {present.size} samples missing): too few samples to tell a drift from "
-            "the response"
-        )
     t = np.linspace(-1.0, 1.0, x.size)
     basis = np.polynomial.legendre.legvander(t, max(degree, 1))[:, 1:]
 
@@ -201,11 +193,22 @@ def _remove_drift_gapped(x: np.ndarray, period: int, degree: int, present: np.nd
         folded = v.reshape(periods, period, *v.shape[1:])
         return (folded - mean_period(folded, ok)).reshape(v.shape)[present]
 
+    # A sample of the period that no period has is unknown, and nothing is asked of it: the drift is told from
+    # the response by the samples two or more periods share, and only too few of those refuse the record.
+    drift_basis = aperiodic(basis)
+    if np.linalg.matrix_rank(drift_basis) < drift_basis.shape[1]:
+        shared = int(ok[:, ok.sum(axis=0) >= 2].sum())
+        raise DataError(
+            f"only {shared} samples of {present.size} ({int((~present).sum())} missing) share their place in the "
+            f"{period}-sample period with another period: too few samples to tell a drift from the response"
+        )
     values = np.where(present, x, 0.0)
-    coef, *_ = np.linalg.lstsq(aperiodic(basis), aperiodic(values), rcond=None)
+    coef, *_ = np.linalg.lstsq(drift_basis, aperiodic(values), rcond=None)
     y = values - basis @ coef
-    # the mean of the mean period: a missing sample does not shift it as it would the mean of those present
-    return np.where(present, y - mean_period(y.reshape(periods, period), ok).mean(), np.nan)
+    # the mean of the mean period (over the samples of the period some period has): a missing sample does not
+    # shift it as it would the mean of those present
+    known = ok.any(axis=0)
+    return np.where(present, y - mean_period(y.reshape(periods, period), ok)[known].mean(), np.nan)
 
 
 #: Samples of the time axis :func:`_remove_line` makes at once.
