@@ -30,25 +30,19 @@ NOTCH_FIT_FLOOR_DB = 1.0
 NOTCH_FREQUENCY_TOLERANCE = 0.005
 
 
-def notch_eligibility(res: Resonance) -> dict:
-    """Whether a resonance may be notched, and why not.
+def interval_eligibility(res: Resonance) -> dict:
+    """Whether a resonance's frequency is known well enough for a notch: :func:`notch_eligibility` without its
+    check of the local fit (for a mode whose evidence is of another kind, such as the stabilisation of a fit over
+    several inputs and outputs).
 
-    A notch needs a resonance from a local fit whose 95 % frequency interval
-    (full width ``2 frequency_ci95_hz``) is narrower than its half-power
-    bandwidth ``2 zeta f`` and within :data:`NOTCH_FREQUENCY_TOLERANCE` of
-    the frequency either side, and whose fit error is within
-    :data:`NOTCH_FIT_NOISE_RATIO` times the scatter of each bin
-    (``local_fit_ratio``; without coherence, :data:`NOTCH_FIT_FLOOR_DB` rms).
+    A notch needs a resonance with a 95 % frequency interval (full width ``2 frequency_ci95_hz``) narrower than
+    its half-power bandwidth ``2 zeta f`` and within :data:`NOTCH_FREQUENCY_TOLERANCE` of the frequency either
+    side; ``method`` must be ``"fit"`` (a fitted pole pair, not a peak read off the grid).
 
     Returns
     -------
     dict
-        ``frequency_hz``, ``notchable`` (bool), ``reason`` ("" when
-        notchable) and ``amplitude_factor``: by how much the excitation
-        amplitude would have to grow for the interval to be half the bandwidth
-        (and, when it is wider than the tolerance, half the tolerance; the
-        interval shrinks as ``1 / (amplitude sqrt(averages))`` while the noise
-        dominates; 1.0 when nothing needs to change, NaN when unknown).
+        As :func:`notch_eligibility`.
     """
     out = {"frequency_hz": res.frequency_hz, "notchable": False, "reason": "", "amplitude_factor": float("nan")}
     if res.method != "fit" or not np.isfinite(res.frequency_ci95_hz):
@@ -76,6 +70,34 @@ def notch_eligibility(res: Resonance) -> dict:
             "of it: the notch could sit off the mode by more than that"
         )
         return out
+    out["notchable"] = True
+    return out
+
+
+def notch_eligibility(res: Resonance) -> dict:
+    """Whether a resonance may be notched, and why not.
+
+    A notch needs a resonance from a local fit whose 95 % frequency interval
+    (full width ``2 frequency_ci95_hz``) is narrower than its half-power
+    bandwidth ``2 zeta f`` and within :data:`NOTCH_FREQUENCY_TOLERANCE` of
+    the frequency either side, and whose fit error is within
+    :data:`NOTCH_FIT_NOISE_RATIO` times the scatter of each bin
+    (``local_fit_ratio``; without coherence, :data:`NOTCH_FIT_FLOOR_DB` rms).
+
+    Returns
+    -------
+    dict
+        ``frequency_hz``, ``notchable`` (bool), ``reason`` ("" when
+        notchable) and ``amplitude_factor``: by how much the excitation
+        amplitude would have to grow for the interval to be half the bandwidth
+        (and, when it is wider than the tolerance, half the tolerance; the
+        interval shrinks as ``1 / (amplitude sqrt(averages))`` while the noise
+        dominates; 1.0 when nothing needs to change, NaN when unknown).
+    """
+    out = interval_eligibility(res)
+    if not out["notchable"]:
+        return out
+    out["notchable"] = False
     if np.isfinite(res.local_fit_ratio):
         if not res.local_fit_ratio <= NOTCH_FIT_NOISE_RATIO:
             out["reason"] = (

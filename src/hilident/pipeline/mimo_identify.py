@@ -36,7 +36,14 @@ from hilident.ident.mimo.modal import ModalResult, lsfd, merge_split_modes, moda
 from hilident.ident.preprocess import remove_drift
 from hilident.numbers import finite_or_none
 
-__all__ = ["Groups", "identify_channels", "interval_blocks", "mode_indicator_peaks"]
+__all__ = [
+    "ChannelEstimate",
+    "Groups",
+    "estimate_channels",
+    "identify_channels",
+    "interval_blocks",
+    "mode_indicator_peaks",
+]
 
 #: Fewest Welch segments averaged per input: fewer leave the multiple coherence and the spread meaningless.
 MIN_AVERAGES_PER_INPUT = 4
@@ -68,6 +75,7 @@ def identify_channels(
     cfg: Config,
     source: str = "",
     period_samples: int | None = None,
+    lines: list | None = None,
 ) -> tuple[dict, MimoResponse]:
     """The ``mimo`` part of the summary for the record mapped by ``cfg.data``, and its estimate.
 
@@ -84,6 +92,8 @@ def identify_channels(
         The excitation's period when the record is whole periods of it: where every input excites its own
         lines (a zippered multisine, :func:`hilident.ident.mimo.zippered_lines`), each element is read at its
         input's lines with no window (:func:`hilident.ident.mimo.periodic_mimo_frf`); else the Welch estimate.
+    lines : list of ndarray, optional
+        Each input's own bins as the excitation was designed (:func:`estimate_channels`).
 
     Raises
     ------
@@ -91,26 +101,9 @@ def identify_channels(
         The record is too short for even the shortest Welch segments (:func:`welch_segment`).
     """
     d, ic = cfg.data, cfg.identification
-    notes: list[str] = []
-    segment = int(round(ic.segment_s * sample_rate_hz))
-    u, y, fs = np.asarray(inputs, dtype=float), np.asarray(outputs, dtype=float), float(sample_rate_hz)
-    lines = zippered_lines(u, period_samples) if period_samples else None
-    if lines is not None:
-        assert period_samples is not None
-        periods = len(u) // period_samples
-        # a drift no excitation line holds (an integrating output, a position, under a load that changes) leaks
-        # onto every line of an unwindowed period: removed first, sparing the periodic response
-        u, y = (np.column_stack([remove_drift(c, period_samples) for c in x.T]) for x in (u, y))
-        frf = periodic_mimo_frf(u, y, period_samples, fs, lines, skip_periods=1 if periods >= 3 else 0)
-        resolution = fs / period_samples
-        band = (ic.f_min_hz or float(frf.frequency_hz[0]), ic.f_max_hz or float(frf.frequency_hz[-1]))
-    else:
-        segment, shortened = welch_segment(len(u), u.shape[1], fs, ic.segment_s, source)
-        if shortened:
-            notes.append(shortened)
-        frf = mimo_h1(u, y, fs, segment)
-        resolution = fs / segment
-        band = (ic.f_min_hz or 2.0 * resolution, ic.f_max_hz or 0.45 * fs)
+    est = estimate_channels(inputs, outputs, sample_rate_hz, ic, source, period_samples, lines)
+    u, y, fs, frf, band, segment, lines = est.u, est.y, est.fs, est.response, est.band_hz, est.segment, est.lines
+    notes, resolution = est.notes, est.resolution_hz
     in_band = (frf.frequency_hz >= band[0]) & (frf.frequency_hz <= band[1])
     units = d.output_units or [""] * len(d.outputs)
     part = {
@@ -133,6 +126,80 @@ def identify_channels(
         "warnings": notes + list(frf.warnings),
     }
     return part, frf
+
+
+@dataclasses.dataclass
+class ChannelEstimate:
+    """The response matrix of a record of several inputs and outputs, and how it was read.
+
+    Attributes
+    ----------
+    response : MimoResponse
+    u, y : ndarray
+        The inputs and outputs as analysed (a periodic record's drift removed).
+    fs, resolution_hz : float
+        Sample rate and line spacing, Hz.
+    band_hz : (float, float)
+        The band the figures are taken over, Hz.
+    segment : int
+        The Welch segment, samples (``identification.segment_s`` for a periodic record, whose response needs none).
+    lines : list or None
+        Each input's own lines of a zippered record; None for the Welch estimate.
+    notes : list of str
+    """
+
+    response: MimoResponse
+    u: np.ndarray
+    y: np.ndarray
+    fs: float
+    resolution_hz: float
+    band_hz: tuple[float, float]
+    segment: int
+    lines: list | None
+    notes: list[str]
+
+
+def estimate_channels(
+    inputs: np.ndarray,
+    outputs: np.ndarray,
+    sample_rate_hz: float,
+    ic,
+    source: str = "",
+    period_samples: int | None = None,
+    lines: list | None = None,
+) -> ChannelEstimate:
+    """The response matrix alone of :func:`identify_channels` (no modal fit): periodic at each input's own
+    lines for whole periods of a zippered multisine, else the Welch H1 estimate.
+
+    ``ic`` is ``[identification]`` (``segment_s``, ``f_min_hz``, ``f_max_hz``). ``lines``: each input's own bins
+    as the excitation was designed, read whatever the recorded inputs show (a set-point a drive held leaks a little
+    onto other lines, which the detection from the record refuses); default: found in the record
+    (:func:`hilident.ident.mimo.zippered_lines`).
+    """
+    notes: list[str] = []
+    segment = int(round(ic.segment_s * sample_rate_hz))
+    u, y, fs = np.asarray(inputs, dtype=float), np.asarray(outputs, dtype=float), float(sample_rate_hz)
+    if not period_samples:
+        lines = None
+    elif lines is None:
+        lines = zippered_lines(u, period_samples)
+    if lines is not None:
+        assert period_samples is not None
+        periods = len(u) // period_samples
+        # a drift no excitation line holds (an integrating output, a position, under a load that changes) leaks
+        # onto every line of an unwindowed period: removed first, sparing the periodic response
+        u, y = (np.column_stack([remove_drift(c, period_samples) for c in x.T]) for x in (u, y))
+        frf = periodic_mimo_frf(u, y, period_samples, fs, lines, skip_periods=1 if periods >= 3 else 0)
+        resolution = fs / period_samples
+        band = (ic.f_min_hz or float(frf.frequency_hz[0]), ic.f_max_hz or float(frf.frequency_hz[-1]))
+    else:
+        segment, shortened = welch_segment(len(u), u.shape[1], fs, ic.segment_s, source)
+        if shortened:
+            notes.append(shortened)
+        frf = mimo_h1(u, y, fs, segment)
+        resolution = fs / segment
+        band = (ic.f_min_hz or 2.0 * resolution, ic.f_max_hz or 0.45 * fs)
+    return ChannelEstimate(frf, u, y, fs, resolution, band, segment, lines, notes)
 
 
 def welch_segment(n: int, n_in: int, sample_rate_hz: float, segment_s: float, source: str = "") -> tuple[int, str]:

@@ -28,7 +28,7 @@ from hilident.pipeline.mimo_identify import Groups, mode_indicator_peaks
 from hilident.pipeline.mimo_identify import _median as median
 from hilident.pipeline.mimo_identify import _modal_part as modal_part
 
-__all__ = ["JointModes", "SEEN_FRACTION", "joint_output_modes", "notch_resonances"]
+__all__ = ["JointModes", "SEEN_FRACTION", "joint_output_modes", "notch_resonances", "own_term"]
 
 #: A mode is seen by an output when its own term, ``|R_j| / (zeta w_n)`` at its frequency, is at least this
 #: share of that output's measured response there.
@@ -89,17 +89,23 @@ def _stack(responses: dict[str, FrequencyResponse]) -> MimoResponse:
     )
 
 
+def own_term(mode: dict, output: int, input_: int = 0) -> float:
+    """The magnitude of a mode's own term in element (``output``, ``input_``) at its damped frequency,
+    ``|R / (j w_d - lambda)| = |R| / sigma``, in the element's unit (a mode of ``summary.json["mimo"]["modes"]``)."""
+    sigma = -float(mode["pole_rad_per_s"][0])
+    residue = complex(mode["residue_real"][output][input_], mode["residue_imag"][output][input_])
+    return abs(residue) / max(sigma, np.finfo(float).tiny)
+
+
 def _seen_by(part: dict, frf: MimoResponse, names: list[str]) -> list[list[str]]:
     """Per mode of ``part["modes"]``, the outputs whose response at the mode's frequency is mostly its own term
-    ``R_j / (j w_d - lambda) = R_j / sigma``."""
+    (:func:`own_term`, at least :data:`SEEN_FRACTION` of it)."""
     out = []
     for mode in part["modes"]:
         line = int(np.argmin(np.abs(frf.frequency_hz - mode["frequency_hz"])))
-        sigma = -float(mode["pole_rad_per_s"][0])
-        residue = np.hypot(np.asarray(mode["residue_real"])[:, 0], np.asarray(mode["residue_imag"])[:, 0])
-        own = residue / max(sigma, np.finfo(float).tiny)
         measured = np.abs(frf.response[line, :, 0])
-        out.append([n for n, a, b in zip(names, own, measured, strict=True) if b > 0 and a >= SEEN_FRACTION * b])
+        seen = [j for j, b in enumerate(measured) if b > 0 and own_term(mode, j) >= SEEN_FRACTION * b]
+        out.append([names[j] for j in seen])
     return out
 
 

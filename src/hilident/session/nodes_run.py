@@ -8,13 +8,16 @@ armed together before the first SYNC and switched off together on every ending
 ``<channel>_node<id>``; the identification reads every node's torque as an input and every node's
 ``[identification] output`` (and ``outputs``, where recorded) as outputs, all at once
 (:func:`hilident.pipeline.mimo_identify.identify_channels`): the frequency-response matrix, the modes with their
-intervals, shapes over the outputs and participation from each drive, the stabilisation diagram. A set-point a
-node held for a late host (counted, ``setpoints_skipped``) leaks a little of its input onto the other nodes'
-lines; the record is then read as the recorded torques are (the multi-input H1 estimate, which needs no
-zipper), not as the zipper was designed.
+intervals, shapes over the outputs and participation from each drive, the stabilisation diagram. The record is
+read at every node's own lines where it holds the zipper as designed; a set-point a node held for a late host
+(counted, ``setpoints_skipped``) leaks a little of its input onto the other nodes' lines, and the record is then
+read as the recorded torques are (the multi-input H1 estimate, which needs no zipper). The notches are judged on
+every node's set-point to its own output, read at the lines as designed (:func:`designed_lines`) in both runs.
 
-What a run of one node does beyond that (friction test, notch design and upload, verification) is not done for
-several nodes; the summary says so.
+Every node's filter slots are bypassed while the mechanism is measured; each node then gets notches at the modes
+it drives and sees, uploaded, read back and enabled, and the same excitation played again proves them on every
+node's own response (:class:`~hilident.session.node_notch_step.NodeNotchStep`). A run of one node's friction
+test, loop analysis and gain tuning are not done for several nodes; the summary says so.
 """
 
 from __future__ import annotations
@@ -30,21 +33,22 @@ from hilident import endings, html_report
 from hilident.config.tables import Config, node_ids
 from hilident.errors import ArmingRefused, ConfigError
 from hilident.io.serialise import write_json
-from hilident.io.summary import DevicePart, ExcitationPart, Summary, UploadOutcome
+from hilident.io.summary import DevicePart, ExcitationPart, Summary
 from hilident.plots.common import plot_title
 from hilident.plots.stabilisation import STABILISATION_PNG, plot_stabilisation
 from hilident.progress import Progress
 from hilident.session.connection import DeviceConnection
 from hilident.session.experiment import ExperimentRecorder
+from hilident.session.node_notch_step import NodeNotchStep
 from hilident.session.plan import PlannedExperiment, RunPlan
 from hilident.signals.excitation import Excitation
 
-__all__ = ["NodesSession", "nodes_excitation"]
+__all__ = ["NodesSession", "designed_lines", "nodes_excitation"]
 
-#: The one thing a run of several nodes does not do that a run of one node does, as the summary says it.
+#: What a run of several nodes does not do that a run of one node does, as the summary says it.
 NOT_DONE = (
-    "several nodes ([device.canopen] node_ids): the modes of all drives at once; no friction test, notch design, "
-    "upload or verification (a run of one node does those)"
+    "several nodes ([device.canopen] node_ids): the modes of all drives at once, every drive's notches for the "
+    "modes it drives and sees; no friction test, loop analysis or gain tuning (a run of one node does those)"
 )
 
 
@@ -76,6 +80,18 @@ def nodes_excitation(cfg: Config, n_nodes: int) -> Excitation:
     one, lines = zippered_multisine(n_nodes, period, fs, (e.f_min_hz, e.f_max_hz), seed=cfg.run.seed or 0)
     one = one / np.max(np.abs(one), axis=0) * float(e.amplitude)
     return Excitation(np.tile(one, (periods, 1)), period, (e.f_min_hz, e.f_max_hz), np.sort(np.concatenate(lines)))
+
+
+def designed_lines(excitation: Excitation, period: int | None) -> list | None:
+    """Every node's own lines of the zippered multisine as designed (None for a record that is not whole periods).
+
+    The set-points are read at them whatever the record shows, so the runs before and after the notches are read
+    alike: a set-point a node held for a late host (counted, ``setpoints_skipped``) leaks a little of its input
+    onto the other nodes' lines, and no lines would be found in such a record.
+    """
+    from hilident.ident.mimo import zippered_lines
+
+    return zippered_lines(excitation.samples, period) if period else None
 
 
 class NodesSession(DeviceConnection):
@@ -114,13 +130,16 @@ class NodesSession(DeviceConnection):
         self.plan: RunPlan | None = None
         self.plan_identity = None  # the drives' identity, read when they were opened
         self.summary: dict = {}
+        self.notches: NodeNotchStep | None = None
 
     def run(self) -> dict:
-        """Connect every node, play the excitation on all at once, identify; the summary (also written)."""
+        """Connect every node, play the excitation on all at once, identify; notch every node and prove it; the
+        summary (also written)."""
         cfg = self.cfg
         nodes = node_ids(cfg.device)
         excitation = nodes_excitation(cfg, len(nodes))
         started = time.monotonic()
+        verification = None
         try:
             device = self.open_device()
             lim = cfg.bench_limits
@@ -132,19 +151,27 @@ class NodesSession(DeviceConnection):
             if not cfg.uses_emulator and (self.confirm is None or not self.confirm(self.plan)):
                 raise ArmingRefused("the run was not confirmed; nothing moved")
             self.out.mkdir(parents=True, exist_ok=True)
+            notches = self.notches = NodeNotchStep(cfg, self.adapter.adapters, self.progress, self.warnings)
+            notches.bypass()
             recorder = ExperimentRecorder(device, self.out, self.progress, self.warnings)
-            exp = recorder.record(
-                cfg, "identification", "torque", excitation.samples, period_samples=excitation.period_samples
-            )
+            recordings = [self._record(recorder, "identification", excitation)]
+            mimo, response, own_outputs = self._identify(recordings[0].samples, nodes, excitation)
+            if notches.wanted:
+                loop = self._set_point_response(recordings[0].samples, nodes, excitation)
+                notches.design_and_upload(mimo, response, own_outputs, loop)
+            if notches.uploaded and cfg.notch.verify:
+                recordings.append(self._record(recorder, "verification", excitation))
+                verification = notches.verify(self._set_point_response(recordings[1].samples, nodes, excitation))
         except BaseException:
             with endings.shielded():
                 self.safe_stop()
+                if self.notches is not None:
+                    self.notches.restore()
             raise
         finally:
             with endings.shielded():
                 self.close()
         endings.raise_pending()
-        mimo, response = self._identify(exp.samples, nodes, excitation)
         summary = Summary.of_run(
             config=cfg.source,
             device=DevicePart.reported(cfg.device.driver, self.plan.port, cfg.uses_emulator, self.plan_identity),
@@ -152,25 +179,31 @@ class NodesSession(DeviceConnection):
             excitation=ExcitationPart.of(cfg.excitation, None),
             plant=None,
             friction=None,
-            designs=[],
-            upload=UploadOutcome(),
-            verification=None,
+            designs=notches.designs,
+            upload=notches.upload,
+            verification=verification,
             stream=recorder.totals,
             connect=None,
-            filters_found=[],
+            filters_found=notches.filters_found,
             clock=recorder.clocks,
-            recordings=[exp.path.name],
+            recordings=[exp.path.name for exp in recordings],
             elapsed_s=time.monotonic() - started,
             warnings=self.warnings + mimo["warnings"],
-            notes=[NOT_DONE, *recorder.notes],
+            notes=[NOT_DONE, *recorder.notes, *notches.notes],
             mimo=mimo,
         )
         self.summary = summary.to_dict()
+        for record, node in zip(self.summary["notch_filters"], notches.design_nodes, strict=True):
+            record["node"] = node
         write_json(self.out / "summary.json", self.summary)
         if self.plots:
             self._plot(response)
         html_report.write_report_quietly(self.out)
         return self.summary
+
+    def _record(self, recorder: ExperimentRecorder, name: str, excitation: Excitation):
+        """One run of the zippered excitation on every node (``identification`` or ``verification``)."""
+        return recorder.record(self.cfg, name, "torque", excitation.samples, period_samples=excitation.period_samples)
 
     def _plan(self, excitation: Excitation) -> RunPlan:
         """What the run will do, for the go-ahead and ``--dry-run``."""
@@ -198,7 +231,8 @@ class NodesSession(DeviceConnection):
         )
 
     def _identify(self, samples: dict[str, np.ndarray], nodes: list[int], excitation: Excitation):
-        """Every node's torque against every node's outputs, at once; the ``mimo`` part and the response."""
+        """Every node's torque against every node's outputs, at once: the ``mimo`` part, the response, and
+        every node's own output (its ``[identification] output``) among the response's outputs."""
         from hilident.adapters.canopen.group import node_channel
         from hilident.pipeline.mimo_identify import identify_channels
 
@@ -216,7 +250,24 @@ class NodesSession(DeviceConnection):
         u = np.column_stack([samples[c] for c in inputs])
         y = np.column_stack([samples[c] for c in outputs])
         keep, period = self._gap_free(samples["sample_index"], excitation.period_samples)
-        return identify_channels(u[keep], y[keep], self.cfg.run.sample_rate_hz, cfg, "identification.h5", period)
+        fs = self.cfg.run.sample_rate_hz
+        mimo, response = identify_channels(u[keep], y[keep], fs, cfg, "identification.h5", period)
+        return mimo, response, [outputs.index(node_channel(ic.output, n)) for n in nodes]
+
+    def _set_point_response(self, samples: dict[str, np.ndarray], nodes: list[int], excitation: Excitation):
+        """Every node's set-point (``excitation_node<id>``) to every node's own output, in node order: what a
+        notch filters, before and after it (:func:`hilident.pipeline.mimo_identify.estimate_channels`)."""
+        from hilident.adapters.canopen.group import node_channel
+        from hilident.pipeline.mimo_identify import estimate_channels
+
+        ic = self.cfg.identification
+        u = np.column_stack([samples[node_channel("excitation", n)] for n in nodes])
+        y = np.column_stack([samples[node_channel(ic.output, n)] for n in nodes])
+        keep, period = self._gap_free(samples["sample_index"], excitation.period_samples)
+        fs = self.cfg.run.sample_rate_hz
+        return estimate_channels(
+            u[keep], y[keep], fs, ic, "the set-points", period, designed_lines(excitation, period)
+        ).response
 
     def _gap_free(self, index: np.ndarray, period: int | None) -> tuple[slice, int | None]:
         """The rows analysed: all of them when no sample is missing; else the longest run of consecutive
