@@ -129,3 +129,20 @@ def test_the_drives_hold_what_they_read_back(two_drive_session):
         (slot,) = [s for s in summary["upload"]["slots"] if s["node"] == node]
         biquad, enabled = drive.filters.read(slot["slot"])
         assert enabled and list(biquad.b) == slot["readback_b"] and list(biquad.a) == slot["readback_a"]
+
+
+def test_the_report_names_each_notch_and_verification_row_by_its_node(two_drive_run):
+    """Each drive's notch beside what its own slot read back (both are slot 0: paired by node and slot, not by
+    slot alone, which showed one drive's read-back twice)."""
+    import html
+
+    _, out, summary = two_drive_run
+    page = html.unescape((out / "report.html").read_text())
+    for node in (1, 2):
+        assert f"node {node}, slot 0" in page and f"on node {node}" in page and f"node {node}: " in page
+    def shown(values):  # as the report formats coefficients
+        return ", ".join(f"{v:.9g}" for v in values)
+
+    read_back = [shown(slot["readback_b"]) for slot in summary["upload"]["slots"]]
+    for b in read_back:  # every slot's read-back shown once (two drives may hold the same notch)
+        assert page.count(b) == read_back.count(b)

@@ -193,7 +193,13 @@ def headline(inputs: ReportInputs) -> str:
                 f"{num(r.get('peak_magnitude_db'), ref, 4)}",
             )
         )
-    if "resonances" in s and not _list(s.get("resonances")):
+    modes = _list(_dict(s.get("mimo")).get("modes"))
+    if "resonances" in s and not _list(s.get("resonances")) and modes:  # a run of several nodes: the joint modes
+        found = ", ".join(
+            f"{num(m.get('frequency_hz'), 'Hz')} (damping {num(m.get('damping_ratio'), '', 3)})" for m in modes
+        )
+        rows.append(("modes of all inputs and outputs", found))
+    elif "resonances" in s and not _list(s.get("resonances")):
         rows.append(("resonances", esc("none the evidence supports")))
     fr = _dict(s.get("friction"))
     if fr:
@@ -202,7 +208,8 @@ def headline(inputs: ReportInputs) -> str:
         achieved = _dict(slot.get("achieved"))
         rows.append(
             (
-                f"notch at {num(design.get('center_hz'), 'Hz')}",
+                f"notch at {num(design.get('center_hz'), 'Hz')}"
+                + (f" on node {design['node']}" if design.get("node") is not None else ""),
                 f"designed {num(design.get('depth_db'), 'dB', 3)}, achieved on the device "
                 f"{num(achieved.get('attenuation_at_design_center_db'), 'dB', 3)}"
                 if achieved
@@ -617,9 +624,17 @@ def model_section(inputs: ReportInputs) -> str:
 
 
 def _designed_and_stored(s: dict) -> list[tuple[dict, dict]]:
-    """Each designed notch with the upload record of its slot (an empty dict when it was not uploaded)."""
-    slots = {slot.get("slot"): slot for slot in _list(_dict(s.get("upload")).get("slots"))}
-    return [(d, slots.get(d.get("slot"), {})) for d in _list(s.get("notch_filters"))]
+    """Each designed notch with the upload record of its slot (an empty dict when it was not uploaded); a run of
+    several nodes pairs them by node and slot."""
+    slots = {(slot.get("node"), slot.get("slot")): slot for slot in _list(_dict(s.get("upload")).get("slots"))}
+    return [(d, slots.get((d.get("node"), d.get("slot")), {})) for d in _list(s.get("notch_filters"))]
+
+
+def _slot(record: dict) -> str:
+    """A record's slot, with its node in a run of several nodes ("node 2, slot 0")."""
+    if record.get("node") is None:
+        return num(record.get("slot"))
+    return esc(f"node {record['node']}, slot {record.get('slot')}")
 
 
 def _coefficients(values: Any) -> str:
@@ -655,7 +670,7 @@ def _designed_and_achieved_row(d: dict, slot: dict) -> list[str]:
     """A designed notch beside what its slot achieved on the device (— where it was not uploaded)."""
     a = _dict(slot.get("achieved"))
     return [
-        num(d.get("slot")),
+        _slot(d),
         num(d.get("center_hz"), "Hz"),
         num(d.get("width_hz"), "Hz", 3),
         num(d.get("depth_db"), "dB", 3),
@@ -689,7 +704,7 @@ def _coefficient_rows(d: dict, slot: dict) -> list[list[str]]:
     """A designed notch's biquad coefficients, and those read back from its slot when it was uploaded."""
     rows = [
         [
-            num(d.get("slot")),
+            _slot(d),
             esc("designed"),
             _coefficients(d.get("b")),
             _coefficients(d.get("a")),
@@ -699,7 +714,7 @@ def _coefficient_rows(d: dict, slot: dict) -> list[list[str]]:
     if slot:
         rows.append(
             [
-                num(d.get("slot")),
+                _slot(d),
                 esc("read back"),
                 _coefficients(slot.get("readback_b")),
                 _coefficients(slot.get("readback_a")),
@@ -743,7 +758,7 @@ def _filters_before_table(s: dict) -> str:
         ["slot", "enabled", "b", "a", "bypassed for the measurement", "put back"],
         [
             [
-                num(f.get("slot")),
+                _slot(f),
                 _yes_no(f.get("enabled")),
                 _coefficients(f.get("b")),
                 _coefficients(f.get("a")),
@@ -765,7 +780,9 @@ def _verification_table(s: dict, ref: str) -> str:
         ["resonance", "before", "after", "reduction at the line", "band", "band reduction", "noise floor"],
         [
             [
-                num(r.get("frequency_hz"), "Hz"),
+                num(r.get("frequency_hz"), "Hz")
+                if r.get("node") is None
+                else esc(f"node {r['node']}: ") + num(r.get("frequency_hz"), "Hz"),
                 num(r.get("before_db"), ref, 3),
                 num(r.get("after_db"), ref, 3),
                 num(r.get("reduction_db"), "dB", 3),
