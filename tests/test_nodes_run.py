@@ -140,6 +140,7 @@ def test_the_report_names_each_notch_and_verification_row_by_its_node(two_drive_
     page = html.unescape((out / "report.html").read_text())
     for node in (1, 2):
         assert f"node {node}, slot 0" in page and f"on node {node}" in page and f"node {node}: " in page
+
     def shown(values):  # as the report formats coefficients
         return ", ".join(f"{v:.9g}" for v in values)
 
