@@ -143,7 +143,13 @@ def uploaded(tmp_path_factory):
 
     cfg = load_config(CONFIG)
     # the notch's own proof (a second identification) is the other tests'; the gains have theirs
-    cfg = replace(cfg, tuning=replace(cfg.tuning, upload=True), notch=replace(cfg.notch, verify=False))
+    # in simulated time twice the shipped config's (the drive plays and captures its tables: buffered runs)
+    cfg = replace(
+        cfg,
+        tuning=replace(cfg.tuning, upload=True),
+        notch=replace(cfg.notch, verify=False),
+        emulator=replace(cfg.emulator, time_scale=2 * cfg.emulator.time_scale),
+    )
     session = Session(cfg, out_dir=tmp_path_factory.mktemp("gains"))
     summary = session.run()
     return cfg, session, summary
