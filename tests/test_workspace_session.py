@@ -35,7 +35,7 @@ def quick_map(move: bool) -> dict:
     mapped position; with or without its move test."""
     raw = tomllib.loads(MAP_CONFIG.read_text())
     raw["excitation"]["amplitude_nm"] = 10.0
-    raw["emulator"].update(preset="clean", time_scale=8.0)
+    raw["emulator"].update(preset="clean", time_scale=12.0, link="pipe")  # the line itself is the other tests'
     raw["map"]["verify"] = True
     raw["verification"]["move"]["repeats"] = 1  # the clean twin has no vibration at rest to average away
     if not move:
@@ -47,7 +47,7 @@ def quick_map(move: bool) -> dict:
 def mapped(tmp_path_factory):
     """One map session (verified at every position, then its move test) for the whole test run, whichever
     pytest-xdist workers run these tests: the first to get here runs it, the others wait for its summary (two
-    board twins at time scale 8 starve each other on two cores)."""
+    board twins at time scale 12 starve each other on two cores)."""
     root = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):
         root = root.parent  # shared by the workers of this test run
