@@ -14,6 +14,7 @@ from hilident.config.tables import MoveConfig
 from hilident.errors import DataError
 from hilident.filters.biquad import Biquad
 from hilident.session.move_test import DriveNotch, above_floor_db, measured_signal, move_distance, standstill_rms
+from support.filter_slots import FakeSlots
 
 MOVE = MoveConfig(distance_m=0.2, max_velocity_mps=0.3, max_accel_mps2=2.0)
 
@@ -45,24 +46,8 @@ def test_the_floor_is_the_rms_at_rest_about_a_line_and_the_reduction_is_taken_ab
     assert above_floor_db(5e-5, 5e-6, float("nan")) is None
 
 
-class Slots:
-    """A drive's filter slots as an adapter reaches them (save, disable, restore)."""
-
-    def __init__(self):
-        self.slots = {0: (Biquad((1.0, -1.9, 0.95), (1.0, -1.8, 0.9)), True), 1: (Biquad.identity(), False)}
-
-    def save_filter(self, slot):
-        return self.slots[slot]
-
-    def disable_filter(self, slot):
-        self.slots[slot] = (self.slots[slot][0], False)
-
-    def restore_filter(self, slot, saved):
-        self.slots[slot] = saved
-
-
 def test_the_drive_notch_is_off_for_the_move_without_it_and_back_after_even_on_an_error():
-    adapter = Slots()
+    adapter = FakeSlots({0: Biquad((1.0, -1.9, 0.95), (1.0, -1.8, 0.9))})  # slot 0 filters, slot 1 does not
     before = dict(adapter.slots)
     notch = DriveNotch(adapter, [0])
     with pytest.raises(RuntimeError), notch.disabled():

@@ -3,40 +3,18 @@ mechanism is measured, put back when the run ends before its upload, left with t
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 from hilident.config.tables import Config
 from hilident.filters.biquad import Biquad
 from hilident.progress import Progress
 from hilident.session.node_notch_step import NodeNotchStep
+from support.filter_slots import FakeSlots
 
 NOTCH = Biquad((0.99, -1.9, 0.98), (1.0, -1.9, 0.97))
-PASS = Biquad((1.0, 0.0, 0.0), (1.0, 0.0, 0.0))
-
-
-class Slots:
-    """A drive's filter slots as an adapter shows them (``enabled``: the slots that filter, and with what)."""
-
-    def __init__(self, node_id: int, enabled: dict[int, Biquad]):
-        self.node_id = node_id
-        self.identity = SimpleNamespace(filter_slots=2, loop_rate_hz=4000.0)
-        self.slots = {k: (enabled.get(k, PASS), k in enabled) for k in range(2)}
-
-    def read_filter(self, slot):
-        return self.slots[slot]
-
-    def save_filter(self, slot):
-        return self.slots[slot]
-
-    def disable_filter(self, slot):
-        self.slots[slot] = (self.slots[slot][0], False)
-
-    def restore_filter(self, slot, saved):
-        self.slots[slot] = saved
+PASS = Biquad.identity()
 
 
 def _step():
-    drives = [Slots(1, {}), Slots(2, {1: NOTCH})]
+    drives = [FakeSlots({}, node_id=1), FakeSlots({1: NOTCH}, node_id=2)]
     return NodeNotchStep(Config(), drives, Progress(enabled=False), []), drives
 
 

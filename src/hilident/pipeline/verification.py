@@ -83,6 +83,27 @@ def floor_limited(band_reduction_db: float, floor_db: float) -> bool:
     return bool(floor_db < band_reduction_db + FLOOR_HEADROOM_DB)
 
 
+def shortfall_warning(row: dict, band_bandwidths: float, min_reduction_db: float, where: str = "") -> str | None:
+    """The warning for a verification row whose band figure fell short of ``notch.min_reduction_db`` (None when it
+    did not), saying when the record's own noise floor (``row["floor_db"]``, ``floor_limited``) is the reason.
+
+    ``where`` names what the row measured (``"node 2: "``), before the figures.
+    """
+    if row["band_reduction_db"] >= min_reduction_db:
+        return None
+    floor = (
+        f"; it is within {FLOOR_HEADROOM_DB:g} dB of the {row['floor_db']:.1f} dB its record's noise lets it show: "
+        "a verification of more periods ([excitation] duration_s) lowers that floor"
+        if row.get("floor_limited") and np.isfinite(row.get("floor_db", np.nan))
+        else ""
+    )
+    return (
+        f"verification: {where}the largest response within +-{band_bandwidths:g} half-power bandwidths of "
+        f"{row['frequency_hz']:.4g} Hz dropped by only {row['band_reduction_db']:.1f} dB (at the resonance line: "
+        f"{row['reduction_db']:.1f} dB; notch.min_reduction_db = {min_reduction_db:g}){floor}"
+    )
+
+
 def band_floor_db(
     before: FrequencyResponse, after: FrequencyResponse, resonance, band_bandwidths: float = 2.0
 ) -> float:

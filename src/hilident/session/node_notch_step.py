@@ -13,15 +13,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
 from hilident.config.tables import Config
 from hilident.ident.frequency import FrequencyResponse
 from hilident.ident.mimo import MimoResponse
 from hilident.io.summary import UploadOutcome, VerificationPart
 from hilident.pipeline.node_notches import node_reductions, node_resonances, own_response
 from hilident.pipeline.notches import NotchDesign, design_notches
-from hilident.pipeline.verification import FLOOR_HEADROOM_DB
+from hilident.pipeline.verification import shortfall_warning
 from hilident.progress import Progress
 from hilident.session.slot_bypass import BypassedSlots
 from hilident.session.upload import upload_designs
@@ -148,18 +146,9 @@ class NodeNotchStep:
                 resonances = [d.resonance for d in node.designs]
                 rows += node_reductions(node.loop, after, resonances, nc.verify_band_bandwidths, node.node_id)
         for row in rows:
-            if row["band_reduction_db"] < nc.min_reduction_db:
-                floor = (
-                    f"; it is within {FLOOR_HEADROOM_DB:g} dB of the {row['floor_db']:.1f} dB its record's noise lets "
-                    "it show: more periods ([excitation] duration_s) or a larger amplitude lower that floor"
-                    if row["floor_limited"] and np.isfinite(row["floor_db"])
-                    else ""
-                )
-                self.warnings.append(
-                    f"verification: node {row['node']}: the largest response within +-{nc.verify_band_bandwidths:g} "
-                    f"half-power bandwidths of {row['frequency_hz']:.4g} Hz dropped by only "
-                    f"{row['band_reduction_db']:.1f} dB (notch.min_reduction_db = {nc.min_reduction_db:g}){floor}"
-                )
+            short = shortfall_warning(row, nc.verify_band_bandwidths, nc.min_reduction_db, f"node {row['node']}: ")
+            if short:
+                self.warnings.append(short)
         band = min(r["band_reduction_db"] for r in rows)
         at_peak = min(r["reduction_db"] for r in rows)
         return VerificationPart(band, at_peak, nc.verify_band_bandwidths, rows)

@@ -804,19 +804,9 @@ class Session(DeviceConnection):
             row["floor_limited"] = pipeline_verification.floor_limited(row["band_reduction_db"], floor)
         band = min(reductions, key=lambda r: r["band_reduction_db"])
         at_peak = min(r["reduction_db"] for r in reductions)
-        if band["band_reduction_db"] < nc.min_reduction_db:
-            floor = (
-                f"; it is within {pipeline_verification.FLOOR_HEADROOM_DB:g} dB of the {band['floor_db']:.1f} dB "
-                "its record's noise lets it show: a verification of more periods ([excitation] duration_s) "
-                "lowers that floor"
-                if band["floor_limited"] and np.isfinite(band["floor_db"])
-                else ""
-            )
-            self.warnings.append(
-                f"verification: the largest response within +-{nc.verify_band_bandwidths:g} half-power bandwidths of "
-                f"{band['frequency_hz']:.4g} Hz dropped by only {band['band_reduction_db']:.1f} dB (at the resonance "
-                f"line: {band['reduction_db']:.1f} dB; notch.min_reduction_db = {nc.min_reduction_db:g}){floor}"
-            )
+        short = pipeline_verification.shortfall_warning(band, nc.verify_band_bandwidths, nc.min_reduction_db)
+        if short:
+            self.warnings.append(short)
         return VerificationPart(band["band_reduction_db"], at_peak, nc.verify_band_bandwidths, reductions, loop_after)
 
     # --- outputs ----------------------------------------------------------------------------
