@@ -147,3 +147,32 @@ def test_the_report_names_each_notch_and_verification_row_by_its_node(two_drive_
     read_back = [shown(slot["readback_b"]) for slot in summary["upload"]["slots"]]
     for b in read_back:  # every slot's read-back shown once (two drives may hold the same notch)
         assert page.count(b) == read_back.count(b)
+
+
+def test_upload_from_a_run_of_several_nodes_writes_the_one_node_its_config_names(two_drive_run, tmp_path, capsys):
+    """``hilident upload`` writes one drive: from a run of two it takes the notches of ``node_id`` (both drives'
+    notches are in slot 0); a config of several nodes, or a node the run did not notch, is refused saying why."""
+    import json
+
+    from hilident.cli.main import main
+
+    _, out, summary = two_drive_run
+    shipped = (Path(__file__).resolve().parents[1] / "configs" / "emulated-canopen-gantry.toml").read_text()
+    assert "\nnode_id = 1\n" in shipped
+    one = tmp_path / "node2.toml"
+    one.write_text(shipped.replace("\nnode_id = 1\n", "\nnode_id = 2\n"))
+    assert main(["upload", "--from", str(out), "--config", str(one), "--out", str(tmp_path / "up"), "-q"]) == 0
+    written = json.loads((tmp_path / "up" / "summary.json").read_text())
+    (mine,) = [n for n in summary["notch_filters"] if n["node"] == 2]
+    (notch,) = written["notch_filters"]
+    assert notch["b"] == mine["b"] and notch["width_hz"] == mine["width_hz"] and written["upload"]["verified_readback"]
+
+    several = tmp_path / "two.toml"
+    several.write_text(CONFIG)
+    capsys.readouterr()
+    assert main(["upload", "--from", str(out), "--config", str(several), "--out", str(tmp_path / "no"), "-q"]) != 0
+    assert "[device.canopen.node_ids] hilident upload writes the notches of one drive" in capsys.readouterr().err
+    other = tmp_path / "node3.toml"
+    other.write_text(shipped.replace("\nnode_id = 1\n", "\nnode_id = 3\n"))
+    assert main(["upload", "--from", str(out), "--config", str(other), "--out", str(tmp_path / "no3"), "-q"]) != 0
+    assert "holds the notches of node(s) 1, 2 (a run of several nodes), none of node 3" in capsys.readouterr().err

@@ -194,6 +194,40 @@ def read_source(source: str | Path) -> Source:
     return Source(path, path.parent, summary, "identify" if "data" in summary else "run")
 
 
+def one_node(src: Source, cfg) -> Source:
+    """The source as one drive's: a run of several nodes (notches carrying their ``node``) gives the notches of
+    ``[device.canopen] node_id``, the drive the upload writes.
+
+    Raises
+    ------
+    ConfigError
+        The config names several nodes (``device.canopen.node_ids``): an upload writes one drive.
+    DataError
+        The source's notches are of other nodes only.
+    """
+    from hilident.config.tables import node_ids
+
+    if len(node_ids(cfg.device)) > 1:
+        raise ConfigError(
+            "device.canopen.node_ids",
+            "hilident upload writes the notches of one drive: leave node_ids out and set node_id to the drive to "
+            "write (a run of several nodes uploads every drive's own notches itself)",
+            cfg.source,
+        )
+    records = src.summary.get("notch_filters")
+    if not isinstance(records, list) or not any(isinstance(r, dict) and "node" in r for r in records):
+        return src
+    node = cfg.device.canopen.node_id
+    mine = [r for r in records if isinstance(r, dict) and r.get("node") == node]
+    if not mine:
+        nodes = sorted({r.get("node") for r in records if isinstance(r, dict)}, key=str)
+        raise DataError(
+            f"{src.path}: notch_filters holds the notches of node(s) {', '.join(map(str, nodes))} (a run of several "
+            f"nodes), none of node {node} (device.canopen.node_id in {cfg.source})"
+        )
+    return Source(src.path, src.folder, {**src.summary, "notch_filters": mine}, src.kind)
+
+
 def _no_notch_reason(summary: dict) -> str:
     """Why the source designed no notch, as it says itself."""
     reason = summary.get("notch_skipped_reason") or (summary.get("upload") or {}).get("skipped_reason")
@@ -447,7 +481,7 @@ class UploadCommand:
         dry_run: bool = False,
     ):
         self.cfg = cfg
-        self.source = read_source(source)
+        self.source = one_node(read_source(source), cfg)
         notch_records(self.source)  # no notch: refused before anything is opened
         self.out = Path(out_dir) if out_dir else default_out(self.source)
         if self.out.resolve() == self.source.folder.resolve():
