@@ -320,9 +320,20 @@ def _greybox_part(summary: dict) -> dict | None:
     }
 
 
+def _node(record: dict) -> dict:
+    """``{"node": N}`` for a record of a run of several nodes, else nothing."""
+    return {"node": record["node"]} if record.get("node") is not None else {}
+
+
+def _node_key(records: list[dict]) -> tuple[str, ...]:
+    """``("node",)`` where the records are of several nodes (the MATLAB struct gets a ``node`` column)."""
+    return ("node",) if any("node" in r for r in records) else ()
+
+
 def _notch_parts(summary: dict) -> dict:
     designed = [
         {
+            **_node(n),
             "slot": n.get("slot"),
             "center_hz": n.get("center_hz"),
             "width_hz": n.get("width_hz"),
@@ -333,12 +344,13 @@ def _notch_parts(summary: dict) -> dict:
         }
         for n in summary.get("notch_filters") or []
     ]
-    rate_of_slot = {n["slot"]: n["sample_rate_hz"] for n in designed}
+    rate_of_slot = {(n.get("node"), n["slot"]): n["sample_rate_hz"] for n in designed}
     device_rate = (summary.get("device") or {}).get("loop_rate_hz")
     stored = [
         {
+            **_node(s),
             "slot": s.get("slot"),
-            "sample_rate_hz": rate_of_slot.get(s.get("slot"), device_rate),
+            "sample_rate_hz": rate_of_slot.get((s.get("node"), s.get("slot")), device_rate),
             "b": s.get("readback_b"),
             "a": s.get("readback_a"),
             "matches": s.get("matches"),
@@ -357,6 +369,7 @@ def _notch_parts(summary: dict) -> dict:
             "width_hz": "Hz",
             "depth_db": "dB",
             "slot": "filter slot index",
+            "node": "CANopen node of the slot (a run of several nodes)",
         },
     }
 
@@ -463,12 +476,16 @@ def to_mat_layout(doc: dict) -> dict[str, Any]:
         ),
         "notches_designed": {
             **_records_struct(
-                notches["designed"], ("b", "a"), ("slot", "center_hz", "width_hz", "depth_db", "sample_rate_hz")
+                notches["designed"],
+                ("b", "a"),
+                (*_node_key(notches["designed"]), "slot", "center_hz", "width_hz", "depth_db", "sample_rate_hz"),
             ),
             "units": _mat_value(notches["units"]),
         },
         "notches_stored": {
-            **_records_struct(notches["stored"], ("b", "a"), ("slot", "sample_rate_hz", "matches")),
+            **_records_struct(
+                notches["stored"], ("b", "a"), (*_node_key(notches["stored"]), "slot", "sample_rate_hz", "matches")
+            ),
             "units": _mat_value(notches["units"]),
         },
     }
