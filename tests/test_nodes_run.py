@@ -72,6 +72,7 @@ def test_the_run_records_every_node_on_one_clock_and_its_summary_is_valid(two_dr
     # a joint row per sample, none filled; two runs (identification and verification) of the same length
     assert summary["stream"]["samples"] == 2 * run.n_samples and run.n_samples > 0.95 * 6_000
     assert summary["clock"][0]["nodes"] == [1, 2]
+    assert [o["unit"] for o in summary["mimo"]["outputs"]] == ["m", "m"]  # what each node's position carries
     assert summary["mimo"]["inputs"] == [
         {"column": "torque_nm_node1", "scale": 1.0},
         {"column": "torque_nm_node2", "scale": 1.0},

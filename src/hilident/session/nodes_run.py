@@ -235,17 +235,22 @@ class NodesSession(DeviceConnection):
         every node's own output (its ``[identification] output``) among the response's outputs."""
         from hilident.adapters.canopen.group import node_channel
         from hilident.pipeline.mimo_identify import identify_channels
+        from hilident.protocol.canopen_profile import CHANNEL_UNITS
 
         ic = self.cfg.identification
         inputs = [node_channel("torque_nm", n) for n in nodes]
         wanted = [ic.output, *ic.outputs]
-        outputs = [node_channel(name, n) for name in wanted for n in nodes if node_channel(name, n) in samples]
+        recorded = [(name, n) for name in wanted for n in nodes if node_channel(name, n) in samples]
+        outputs = [node_channel(name, n) for name, n in recorded]
         missing = [name for name in wanted if not any(node_channel(name, n) in samples for n in nodes)]
         if missing:
             self.warnings.append(
                 f"identification.outputs: {', '.join(missing)} not recorded on any node (run.channels): left out"
             )
-        data = dataclasses.replace(self.cfg.data, inputs=inputs, outputs=outputs, input_scales=[], output_scales=[])
+        units = [CHANNEL_UNITS.get(name, "") for name, _ in recorded]  # what a CiA 402 drive's channels carry
+        data = dataclasses.replace(
+            self.cfg.data, inputs=inputs, outputs=outputs, input_scales=[], output_scales=[], output_units=units
+        )
         cfg = dataclasses.replace(self.cfg, data=data)
         u = np.column_stack([samples[c] for c in inputs])
         y = np.column_stack([samples[c] for c in outputs])
