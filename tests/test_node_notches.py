@@ -95,9 +95,9 @@ def test_a_periodic_elements_spread_gives_the_error_the_noise_floor_reads_even_w
 
     h = np.array([1e-3, 1e-6, 1e-12, 2e-4])  # the last ones far below their error: a notch's centre
     std = np.array([1e-5, 2e-6, 3e-6, np.nan])
-    for periods in (2, 5):
-        g = coherence_of_spread(h, std, periods)
-        frf = FrequencyResponse(np.arange(1.0, 5.0), h, g, periods, "periodic")
+    for averages, method in ((2, "periodic"), (5, "periodic"), (8, "h1")):
+        g = coherence_of_spread(h, std, averages, method)
+        frf = FrequencyResponse(np.arange(1.0, 5.0), h, g, averages, method)
         np.testing.assert_allclose(estimate_error_std(frf)[:3], np.sqrt(2) * std[:3], rtol=1e-9)
         assert np.isnan(g[3])
-    assert np.isnan(coherence_of_spread(h, std, 1)).all()  # one period: no spread
+    assert np.isnan(coherence_of_spread(h, std, 1, "periodic")).all()  # one period: no spread

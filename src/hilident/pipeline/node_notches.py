@@ -45,7 +45,7 @@ def own_response(response: MimoResponse, output: int, node: int) -> FrequencyRes
     (a Welch estimate), the output's multiple coherence.
     """
     element = response.element(output, node)
-    spread = coherence_of_spread(element.response, response.std[:, output, node], element.n_averages)
+    spread = coherence_of_spread(element.response, response.std[:, output, node], element.n_averages, element.method)
     coherence = np.where(np.isfinite(spread), spread, element.coherence)
     lines = (
         np.ones(element.frequency_hz.size, dtype=bool)
@@ -61,17 +61,18 @@ def own_response(response: MimoResponse, output: int, node: int) -> FrequencyRes
     )
 
 
-def coherence_of_spread(response: np.ndarray, std: np.ndarray, periods: int) -> np.ndarray:
-    """The coherence a periodic estimate's spread implies: the ``g`` for which
-    :func:`~hilident.ident.frfquality.estimate_error_std` (``|H| sqrt((1 - g) / (g (M - 1)))``) equals the
-    estimate's complex error, ``sqrt(2)`` times the standard deviation ``std`` of each part; NaN where the spread
-    is unknown or there is one period."""
+def coherence_of_spread(response: np.ndarray, std: np.ndarray, averages: int, method: str) -> np.ndarray:
+    """The coherence an estimate's spread implies: the ``g`` for which
+    :func:`~hilident.ident.frfquality.estimate_error_std` (``|H| sqrt((1 - g) / (g d))``, ``d`` the periods less
+    one for a periodic estimate, else the averages) equals the estimate's complex error, ``sqrt(2)`` times the
+    standard deviation ``std`` of each part; NaN where the spread is unknown or ``d`` is 0."""
+    dof = averages - 1 if method == "periodic" else averages
     error2 = 2.0 * np.asarray(std, dtype=float) ** 2
     power = np.abs(response) ** 2
     with np.errstate(divide="ignore", invalid="ignore"):
-        # |H|^2 / (|H|^2 + (M - 1) e^2): no overflow where a notch took the response far below its error
-        g = np.maximum(power / (power + (periods - 1) * error2), np.finfo(float).tiny)
-    return np.where(np.isfinite(g) & (periods > 1), g, np.nan)
+        # |H|^2 / (|H|^2 + d e^2): no overflow where a notch took the response far below its error
+        g = np.maximum(power / (power + dof * error2), np.finfo(float).tiny)
+    return np.where(np.isfinite(g) & (dof >= 1), g, np.nan)
 
 
 @dataclasses.dataclass
