@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy import signal
 
-from hilident.config.tables import Config
+from hilident.config.tables import Config, IdentificationConfig
 from hilident.errors import ConfigError, DataError
 from hilident.ident.mimo import (
     MimoResponse,
@@ -75,7 +75,6 @@ def identify_channels(
     cfg: Config,
     source: str = "",
     period_samples: int | None = None,
-    lines: list | None = None,
 ) -> tuple[dict, MimoResponse]:
     """The ``mimo`` part of the summary for the record mapped by ``cfg.data``, and its estimate.
 
@@ -92,16 +91,13 @@ def identify_channels(
         The excitation's period when the record is whole periods of it: where every input excites its own
         lines (a zippered multisine, :func:`hilident.ident.mimo.zippered_lines`), each element is read at its
         input's lines with no window (:func:`hilident.ident.mimo.periodic_mimo_frf`); else the Welch estimate.
-    lines : list of ndarray, optional
-        Each input's own bins as the excitation was designed (:func:`estimate_channels`).
-
     Raises
     ------
     DataError
         The record is too short for even the shortest Welch segments (:func:`welch_segment`).
     """
     d, ic = cfg.data, cfg.identification
-    est = estimate_channels(inputs, outputs, sample_rate_hz, ic, source, period_samples, lines)
+    est = estimate_channels(inputs, outputs, sample_rate_hz, ic, source, period_samples)
     u, y, fs, frf, band, segment, lines = est.u, est.y, est.fs, est.response, est.band_hz, est.segment, est.lines
     notes, resolution = est.notes, est.resolution_hz
     in_band = (frf.frequency_hz >= band[0]) & (frf.frequency_hz <= band[1])
@@ -163,7 +159,7 @@ def estimate_channels(
     inputs: np.ndarray,
     outputs: np.ndarray,
     sample_rate_hz: float,
-    ic,
+    ic: IdentificationConfig,
     source: str = "",
     period_samples: int | None = None,
     lines: list | None = None,
