@@ -33,9 +33,13 @@ def test_an_enabled_slot_of_any_node_is_bypassed_while_measured_and_put_back_whe
     assert step.filters_found[-1]["restored"] is True
 
 
-def test_after_the_upload_nothing_is_put_back():
-    step, (_, two) = _step()
+def test_a_node_uploaded_to_keeps_its_new_notches_and_one_not_yet_uploaded_gets_its_old_ones_back():
+    one, two = FakeSlots({0: NOTCH}, node_id=1), FakeSlots({1: NOTCH}, node_id=2)  # both filter: both bypassed
+    step = NodeNotchStep(Config(), [one, two], Progress(enabled=False), [])
     step.bypass()
-    step.uploaded = True  # the drives hold the new notches from here
+    assert one.slots[0] == (NOTCH, False) and two.slots[1] == (NOTCH, False)
+    step.nodes[0].uploaded = True  # node 1's slots hold the new notches (the upload stopped before node 2)
+    assert step.uploaded
     step.restore()
-    assert two.slots[1] == (NOTCH, False)
+    assert one.slots[0] == (NOTCH, False)  # not put back over node 1's new notch
+    assert two.slots[1] == (NOTCH, True)

@@ -37,6 +37,7 @@ class _Node:
     slots: BypassedSlots = field(default_factory=BypassedSlots)
     loop: FrequencyResponse | None = None  # its set-point to its own output, before the notches
     designs: list[NotchDesign] = field(default_factory=list)
+    uploaded: bool = False  # its slots hold the new notches: nothing of it is put back
 
 
 class NodeNotchStep:
@@ -60,7 +61,6 @@ class NodeNotchStep:
         self.warnings = warnings
         self.notes: list[str] = []
         self.upload = UploadOutcome()
-        self.uploaded = False
 
     @property
     def wanted(self) -> bool:
@@ -76,11 +76,15 @@ class NodeNotchStep:
             node.slots.bypass(node.adapter, self.progress)
 
     def restore(self) -> None:
-        """Before the upload: what every node's bypassed slots held put back. Never raises."""
-        if self.uploaded:
-            return
+        """What the bypassed slots of every node not yet uploaded to held put back. Never raises."""
         for node in self.nodes:
-            node.slots.restore(node.adapter, self.warnings)
+            if not node.uploaded:
+                node.slots.restore(node.adapter, self.warnings)
+
+    @property
+    def uploaded(self) -> bool:
+        """Some node's slots hold the new notches."""
+        return any(node.uploaded for node in self.nodes)
 
     @property
     def filters_found(self) -> list[dict]:
@@ -132,7 +136,7 @@ class NodeNotchStep:
                 upload_designs(node.adapter, node.designs, self.warnings, self.upload)
                 for record in self.upload.slots[before:]:
                     record["node"] = node.node_id
-                self.uploaded = True
+                node.uploaded = True
         self.upload.verified_readback = all(record["matches"] for record in self.upload.slots)
 
     def verify(self, loop_after: MimoResponse) -> VerificationPart:
