@@ -58,15 +58,13 @@ def _run(args) -> int:
 def _print_nodes_summary(summary: dict) -> None:
     """What a run of several nodes found and did: the modes of all of them, every node's notches and their
     verification, and the warnings."""
+    from hilident.io.summary import designed_and_stored
+
     modes = (summary.get("mimo") or {}).get("modes") or []
     found = ", ".join(f"{m['frequency_hz']:.2f} Hz (zeta {m['damping_ratio']:.3f})" for m in modes)
     print(f"modes of all nodes: {found or 'none found'}")
-    for notch in summary["notch_filters"]:
-        slot = next(
-            (s for s in summary["upload"]["slots"] if s.get("node") == notch["node"] and s["slot"] == notch["slot"]),
-            None,
-        )
-        stored = "read back and enabled" if slot is not None and slot["matches"] else "not stored"
+    for notch, slot in designed_and_stored(summary):
+        stored = "read back and enabled" if slot.get("matches") else "not stored"
         print(
             f"node {notch['node']}: notch at {notch['center_hz']:.2f} Hz, {notch['width_hz']:.3g} Hz wide, "
             f"slot {notch['slot']}: {stored}"

@@ -17,6 +17,7 @@ from hilident.html_report.gather import ReportInputs
 from hilident.html_report.loop_section import loop
 from hilident.html_report.markup import MISSING, esc, figure, key_values, note, num, pm, section, table
 from hilident.html_report.mimo_section import mimo
+from hilident.io.summary import designed_and_stored
 
 __all__ = ["SECTIONS", "title_of"]
 
@@ -204,7 +205,7 @@ def headline(inputs: ReportInputs) -> str:
     fr = _dict(s.get("friction"))
     if fr:
         rows.append(("friction", _friction_line(fr)))
-    for design, slot in _designed_and_stored(s):
+    for design, slot in designed_and_stored(s):
         achieved = _dict(slot.get("achieved"))
         rows.append(
             (
@@ -623,13 +624,6 @@ def model_section(inputs: ReportInputs) -> str:
 # --------------------------------------------------------------------------- notches
 
 
-def _designed_and_stored(s: dict) -> list[tuple[dict, dict]]:
-    """Each designed notch with the upload record of its slot (an empty dict when it was not uploaded); a run of
-    several nodes pairs them by node and slot."""
-    slots = {(slot.get("node"), slot.get("slot")): slot for slot in _list(_dict(s.get("upload")).get("slots"))}
-    return [(d, slots.get((d.get("node"), d.get("slot")), {})) for d in _list(s.get("notch_filters"))]
-
-
 def _slot(record: dict) -> str:
     """A record's slot, with its node in a run of several nodes ("node 2, slot 0")."""
     if record.get("node") is None:
@@ -646,7 +640,7 @@ def _coefficients(values: Any) -> str:
 def notches(inputs: ReportInputs) -> str:
     """The notches: designed and achieved, their biquads, the upload, the slots before, the verification."""
     s = inputs.summary
-    pairs = _designed_and_stored(s)
+    pairs = designed_and_stored(s)
     upload = _dict(s.get("upload"))
     body = _skip_reasons(s, upload)
     if not pairs:

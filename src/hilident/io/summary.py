@@ -33,6 +33,7 @@ __all__ = [
     "Summary",
     "UploadOutcome",
     "VerificationPart",
+    "designed_and_stored",
     "friction_summary",
 ]
 
@@ -269,6 +270,20 @@ class Failure:
 
     step: str
     error: str
+
+
+def designed_and_stored(summary: dict) -> list[tuple[dict, dict]]:
+    """Each of ``summary.json``'s ``notch_filters`` with the ``upload.slots`` record of its slot (``{}`` when it
+    was not uploaded), paired by node and slot: a run of several nodes puts each drive's notch in its own slot 0.
+    Entries that are not records are left out."""
+
+    def records(value: Any) -> list[dict]:
+        return [v for v in value if isinstance(v, dict)] if isinstance(value, list) else []
+
+    upload = summary.get("upload")
+    slots = records(upload.get("slots") if isinstance(upload, dict) else None)
+    stored = {(slot.get("node"), slot.get("slot")): slot for slot in slots}
+    return [(d, stored.get((d.get("node"), d.get("slot")), {})) for d in records(summary.get("notch_filters"))]
 
 
 def friction_summary(friction: Any) -> dict | None:
